@@ -1,0 +1,54 @@
+"""The errors derive raises on bad input: one class per kind, all ModelError."""
+
+
+class ModelError(ValueError):
+    """A model, model file or generation request that derive cannot accept.
+
+    The message always names the culprit: the matrix, the expected and actual
+    shape, the symbol, the key or the path.
+    """
+
+
+class ShapeError(ModelError):
+    """A matrix or vector has the wrong shape."""
+
+
+class SymbolError(ModelError):
+    """An unknown, undeclared, repeated or badly named symbol."""
+
+
+class NameError_(ModelError):
+    """A model, state or measurement name that is not a usable identifier."""
+
+
+class MatrixPropertyError(ModelError):
+    """A matrix lacks a required property (symmetry, definiteness)."""
+
+
+class ModelFileError(ModelError):
+    """A model file that is not valid TOML or does not follow the format."""
+
+
+class ExpressionError(ModelFileError):
+    """An expression string that is not allowed (unsafe, too large, unknown name)."""
+
+
+class SteadyStateError(ModelError):
+    """A steady-state filter that cannot exist for the model (undetectable,
+    unstabilisable, free symbols, bad FIR epsilon)."""
+
+
+class OutputPathError(ModelError):
+    """An output path that would write outside the output directory."""
+
+
+class FilterError(ModelError):
+    """An unknown filter name or a filter that does not apply to the model."""
+
+
+class VerificationError(Exception):
+    """Generated code disagrees with the reference beyond tolerance."""
+
+
+class NumericalError(ArithmeticError):
+    """A generated or reference filter met a numerical failure (e.g. a failed Cholesky)."""

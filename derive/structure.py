@@ -1,0 +1,154 @@
+"""Independent blocks of a linear model, and block-diagonal composition.
+
+A model splits into independent blocks when F, G Q G^T, H and R are block
+diagonal up to a permutation of states and measurements. Blocks are the
+connected components of the graph whose nodes are states, noise inputs and
+measurements, with an edge wherever a (substituted) matrix entry couples two of
+them and is not identically zero.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sympy
+
+from .errors import SymbolError
+
+
+@dataclass(frozen=True)
+class Block:
+    """One independent block: indices into the parent's states and measurements."""
+
+    states: tuple[int, ...]
+    measurements: tuple[int, ...]
+    noises: tuple[int, ...]
+    model: object  # LinearModel of the block
+
+
+def _components(size: int, edges) -> list[list[int]]:
+    parent = list(range(size))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in edges:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    groups: dict[int, list[int]] = {}
+    for a in range(size):
+        groups.setdefault(find(a), []).append(a)
+    return sorted(groups.values())
+
+
+def find_blocks(model) -> list[Block]:
+    """Split ``model`` into independent blocks, ordered by their first state.
+
+    A model that does not split returns one block holding the whole model. A
+    measurement that depends on no state cannot be filtered and is reported.
+    """
+    F, G, H, Q, R = (model.matrix(k) for k in ("F", "G", "H", "Q", "R"))
+    n, m, q = model.n, model.m, G.cols
+    st = list(range(n))
+    ns = [n + c for c in range(q)]
+    me = [n + q + k for k in range(m)]
+    edges = []
+    edges += [(st[i], st[j]) for i in range(n) for j in range(n) if F[i, j] != 0]
+    edges += [(st[i], ns[c]) for i in range(n) for c in range(q) if G[i, c] != 0]
+    edges += [(ns[c], ns[d]) for c in range(q) for d in range(q) if Q[c, d] != 0]
+    edges += [(me[k], st[i]) for k in range(m) for i in range(n) if H[k, i] != 0]
+    edges += [(me[k], me[j]) for k in range(m) for j in range(m) if R[k, j] != 0]
+    blocks = []
+    for comp in _components(n + q + m, edges):
+        s = tuple(a for a in comp if a < n)
+        c = tuple(a - n for a in comp if n <= a < n + q)
+        k = tuple(a - n - q for a in comp if a >= n + q)
+        if not s:
+            if k:
+                raise SymbolError(
+                    f"measurement {model.measurements[k[0]]!r} of model {model.name!r} "
+                    "depends on no state")
+            continue
+        blocks.append((s, k, c))
+    if len(blocks) == 1:
+        s, k, c = blocks[0]
+        return [Block(s, k, c, model)]
+    return [_sub_block(model, i, s, k, c) for i, (s, k, c) in enumerate(blocks)]
+
+
+def _sub_block(model, index: int, s, k, c) -> Block:
+    if not k:
+        raise SymbolError(f"states {[model.states[i] for i in s]} of model {model.name!r} "
+                          "are observed by no measurement")
+    if not c:
+        c = (0,)  # a block without process noise still needs a (zero) noise input
+        G = sympy.zeros(len(s), 1)
+        Q = sympy.zeros(1, 1)
+    else:
+        G = model.G.extract(list(s), list(c))
+        Q = model.Q.extract(list(c), list(c))
+    sub_values = model.values
+    cls = type(model)
+    used = set()
+    for mat in (model.F.extract(list(s), list(s)), G, model.H.extract(list(k), list(s)), Q,
+                model.R.extract(list(k), list(k))):
+        used |= {x.name for x in mat.free_symbols}
+    sub = cls(
+        f"{model.name}_block{index}",
+        [model.states[i] for i in s],
+        [model.measurements[j] for j in k],
+        model.F.extract(list(s), list(s)),
+        model.H.extract(list(k), list(s)),
+        Q,
+        model.R.extract(list(k), list(k)),
+        G=G,
+        values={nm: float(v) for nm, v in sub_values.items() if nm in used},
+        x0=model.x0.extract(list(s), [0]),
+        P0=model.P0.extract(list(s), list(s)),
+        P0_pattern=model.P0_pattern,
+        description=f"block {index} of {model.name}",
+        source=model.source,
+    )
+    return Block(s, k, c, sub)
+
+
+def compose(cls, name, models, suffixes=None, description="", source=""):
+    """Block-diagonal composition; names get ``suffixes``; same-name symbols are shared."""
+    models = list(models)
+    if not models:
+        raise SymbolError("compose needs at least one model")
+    if suffixes is None:
+        suffixes = [str(i) for i in range(len(models))]
+    suffixes = list(suffixes)
+    if len(suffixes) != len(models):
+        raise SymbolError(f"compose: {len(models)} models but {len(suffixes)} suffixes")
+    values: dict[str, float] = {}
+    for mdl in models:
+        for nm, v in mdl.values.items():
+            if nm in values and values[nm] != float(v):
+                raise SymbolError(f"symbol {nm!r} has two values: {values[nm]} and {float(v)}")
+            values[nm] = float(v)
+    patterns = {mdl.P0_pattern for mdl in models}
+    pattern = patterns.pop() if len(patterns) == 1 else "block"
+    if pattern in ("dense", "block") and len(models) > 1:
+        pattern = "block"
+    return cls(
+        name,
+        [s + sfx for mdl, sfx in zip(models, suffixes) for s in mdl.states],
+        [s + sfx for mdl, sfx in zip(models, suffixes) for s in mdl.measurements],
+        sympy.diag(*[mdl.F for mdl in models]),
+        sympy.diag(*[mdl.H for mdl in models]),
+        sympy.diag(*[mdl.Q for mdl in models]),
+        sympy.diag(*[mdl.R for mdl in models]),
+        G=sympy.diag(*[mdl.G for mdl in models]),
+        values=values,
+        x0=sympy.Matrix.vstack(*[mdl.x0 for mdl in models]),
+        P0=sympy.diag(*[mdl.P0 for mdl in models]),
+        P0_pattern=pattern,
+        description=description,
+        source=source,
+    )
