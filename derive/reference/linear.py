@@ -1,0 +1,111 @@
+"""Time-varying linear filters written straight from SPEC.md §3: KF, LF, JKLF and the two
+algebraic forms of the MDKF (information form, covariance form; u = 0).
+
+Indexing for every function: zs[k-1] = z(k) for k = 1..steps, and the outputs are
+xs[k-1] = x(k/k), Ps[k-1] = P(k/k); x(0/0) = x0 and P(0/0) = P0 are not repeated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from derive.errors import NumericalError
+from derive.reference._inputs import measurement_series, square, state_vector
+from derive.riccati import lf_constants, system_arrays
+
+
+def _setup(F, G, H, Q, R, x0, P0, zs, allow_nan=False):
+    F, G, H, Q, R = system_arrays(F, G, H, Q, R)
+    n, m = F.shape[0], H.shape[0]
+    x = state_vector("x0", x0, n)
+    P = square("P0", P0, n)
+    Z = measurement_series(zs, m, allow_nan=allow_nan)
+    return F, G, H, Q, R, x, P, Z
+
+
+def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True):
+    """Kalman filter. Returns (xs (steps, n), Ps (steps, n, n)).
+
+    skip_nan=True: a NaN in z(k) marks that component as absent; the update uses only the
+    present rows of H and R (all absent: prediction only). skip_nan=False refuses NaN."""
+    F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs, allow_nan=skip_nan)
+    n = F.shape[0]
+    GQG = G @ Q @ G.T
+    xs, Ps = np.empty((len(Z), n)), np.empty((len(Z), n, n))
+    for k, z in enumerate(Z):
+        x = F @ x                                   # x(k+1/k)
+        P = GQG + F @ P @ F.T                       # P(k+1/k)
+        present = ~np.isnan(z)
+        if present.any():
+            Hk, Rk = H[present], R[np.ix_(present, present)]
+            PHt = P @ Hk.T
+            K = np.linalg.solve((Hk @ PHt + Rk).T, PHt.T).T   # P Hᵀ [H P Hᵀ + R]⁻¹
+            IKH = np.eye(n) - K @ Hk
+            x = IKH @ x + K @ z[present]
+            P = IKH @ P
+        xs[k], Ps[k] = x, P
+    return xs, Ps
+
+
+def lf(F, G, H, Q, R, x0, P0, zs):
+    """Lainiotis filter (SPEC §3 constants and per-step equations). Returns (xs, Ps)."""
+    F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs)
+    c = lf_constants(F, G, H, Q, R)
+    n = F.shape[0]
+    xs, Ps = np.empty((len(Z), n)), np.empty((len(Z), n, n))
+    for k, z in enumerate(Z):
+        M = np.linalg.inv(np.eye(n) + P @ c.On)
+        x = c.Kn @ z + c.Fn @ M @ (P @ c.Km @ z + x)
+        P = c.Pn + c.Fn @ M @ P @ c.Fn.T
+        xs[k], Ps[k] = x, P
+    return xs, Ps
+
+
+def jklf(F, G, H, Q, R, x0, P0, zs):
+    """Join Kalman-Lainiotis filter: KF and LF run independently, outputs averaged."""
+    x_kf, P_kf = kf(F, G, H, Q, R, x0, P0, zs, skip_nan=False)
+    x_lf, P_lf = lf(F, G, H, Q, R, x0, P0, zs)
+    return (x_kf + x_lf) / 2, (P_kf + P_lf) / 2
+
+
+def ikf(F, G, H, Q, R, x0, P0, zs):
+    """MDKF information form (case m >= n), u = 0, with A = F, Ψ = G Q Gᵀ, V = R:
+    R(v)⁻¹ = [A R(v−1) Aᵀ + Ψ]⁻¹ + Hᵀ V⁻¹ H, K(v) = R(v) Hᵀ V⁻¹,
+    λ(v) = A λ(v−1) + K(v)[ξ(v) − H A λ(v−1)]. Returns (xs, Ps).
+    Needs A R Aᵀ + Ψ invertible at every step (raises NumericalError otherwise)."""
+    F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs)
+    n = F.shape[0]
+    Psi = G @ Q @ G.T
+    HtVinv = H.T @ np.linalg.inv(R)
+    xs, Ps = np.empty((len(Z), n)), np.empty((len(Z), n, n))
+    for k, z in enumerate(Z):
+        prior = F @ P @ F.T + Psi
+        try:
+            P = np.linalg.inv(np.linalg.inv(prior) + HtVinv @ H)
+        except np.linalg.LinAlgError as exc:
+            raise NumericalError(
+                f"information-form MDKF, step {k + 1}: A R Aᵀ + Ψ is singular and cannot be "
+                "inverted; use the covariance form (mdkf_covariance)") from exc
+        K = P @ HtVinv
+        x_pred = F @ x
+        x = x_pred + K @ (z - H @ x_pred)
+        xs[k], Ps[k] = x, P
+    return xs, Ps
+
+
+def mdkf_covariance(F, G, H, Q, R, x0, P0, zs):
+    """MDKF covariance form (case m < n), u = 0, with A = F, Ψ = G Q Gᵀ, V = R:
+    R~(v) = A R(v−1) Aᵀ + Ψ, K(v) = R~ Hᵀ [H R~ Hᵀ + V]⁻¹,
+    λ(v) = A λ(v−1) + K(v)[ξ(v) − H A λ(v−1)], R(v) = [I − K(v) H] R~(v)."""
+    F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs)
+    n = F.shape[0]
+    Psi = G @ Q @ G.T
+    xs, Ps = np.empty((len(Z), n)), np.empty((len(Z), n, n))
+    for k, z in enumerate(Z):
+        prior = F @ P @ F.T + Psi
+        K = prior @ H.T @ np.linalg.inv(H @ prior @ H.T + R)
+        x_pred = F @ x
+        x = x_pred + K @ (z - H @ x_pred)
+        P = (np.eye(n) - K @ H) @ prior
+        xs[k], Ps[k] = x, P
+    return xs, Ps

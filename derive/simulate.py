@@ -1,0 +1,219 @@
+"""Seeded simulations: linear state-space runs, SSPRED's 2-D truths and a GNSS scenario.
+
+All randomness comes from numpy.random.default_rng(seed); the same seed gives the same
+arrays. Indexing: truths include k = 0; measurements are z(k) for k = 1..steps at row k-1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from derive.errors import ModelError, ShapeError
+from derive.riccati import psd_sqrt, system_arrays
+
+# WGS-84 ellipsoid
+WGS84_A = 6_378_137.0
+WGS84_F = 1.0 / 298.257223563
+WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+GPS_ORBIT_RADIUS = 26_560e3
+"""GPS orbit radius from the Earth's centre, metres."""
+GPS_ANGULAR_RATE = 2.0 * np.pi / 43_082.0
+"""Mean motion of a GPS satellite (half a sidereal day per orbit), rad/s."""
+STADIUM = (40.988, 29.037, 50.0)
+"""Şükrü Saracoğlu stadium, Istanbul (SPEC §6): latitude, longitude (deg), height (m)."""
+
+
+def _steps(steps: int) -> int:
+    if int(steps) != steps or steps < 1:
+        raise ModelError(f"steps must be a positive integer, got {steps!r}")
+    return int(steps)
+
+
+# ---------------------------------------------------------------- linear models
+class LinearRun(NamedTuple):
+    """xs: true states (steps+1, n) for k = 0..steps; zs: measurements (steps, m), k = 1..steps."""
+
+    xs: np.ndarray
+    zs: np.ndarray
+
+
+def simulate_linear(F, G, H, Q, R, x0, steps: int, seed: int) -> LinearRun:
+    """x(k+1) = F x(k) + G w(k), z(k) = H x(k) + v(k), w ~ N(0, Q), v ~ N(0, R), x(0) = x0."""
+    F, G, H, Q, R = system_arrays(F, G, H, Q, R)
+    steps = _steps(steps)
+    x = np.asarray(x0, dtype=float).reshape(-1)
+    if x.shape != (F.shape[0],):
+        raise ShapeError(f"x0 must have {F.shape[0]} entries, got shape {np.shape(x0)}")
+    rng = np.random.default_rng(seed)
+    w = rng.standard_normal((steps, Q.shape[0])) @ psd_sqrt(Q)
+    v = rng.standard_normal((steps, R.shape[0])) @ psd_sqrt(R)
+    xs = np.empty((steps + 1, F.shape[0]))
+    xs[0] = x
+    for k in range(steps):
+        xs[k + 1] = F @ xs[k] + G @ w[k]
+    return LinearRun(xs, xs[1:] @ H.T + v)
+
+
+# ---------------------------------------------------------------- SSPRED truths
+@dataclass(frozen=True)
+class Trajectory2D:
+    """A 2-D truth at t = k·dt (k = 0..steps) and noisy positions z(k), k = 1..steps."""
+
+    dt: float
+    noise_std: float
+    t: np.ndarray                 # (steps+1,)
+    positions: np.ndarray         # (steps+1, 2)
+    velocities: np.ndarray        # (steps+1, 2)
+    accelerations: np.ndarray     # (steps+1, 2)
+    zs: np.ndarray                # (steps, 2)
+
+
+def _trajectory(p0, v0, a, steps, dt, noise_std, seed) -> Trajectory2D:
+    steps = _steps(steps)
+    if not (dt > 0 and noise_std >= 0):
+        raise ModelError(f"need dt > 0 and noise_std >= 0, got dt={dt!r}, "
+                         f"noise_std={noise_std!r}")
+    t = np.arange(steps + 1) * float(dt)
+    p0, v0, a = (np.asarray(vec, dtype=float).reshape(2) for vec in (p0, v0, a))
+    pos = p0 + np.outer(t, v0) + 0.5 * np.outer(t ** 2, a)
+    vel = v0 + np.outer(t, a)
+    acc = np.tile(a, (steps + 1, 1))
+    noise = np.random.default_rng(seed).standard_normal((steps, 2)) * noise_std
+    return Trajectory2D(float(dt), float(noise_std), t, pos, vel, acc, pos[1:] + noise)
+
+
+def constant_velocity_2d(steps: int, seed: int, dt: float = 1.0,
+                         noise_std: float = float(np.sqrt(0.1)),
+                         velocity=(20.0, 30.0), position0=(0.0, 0.0)) -> Trajectory2D:
+    """SSPRED constant-velocity truth, (vx, vy) = (20, 30) m/s from the origin; positions
+    measured with white noise of std noise_std per axis (default sqrt(0.1) m, i.e. the
+    papers' sigma_r² = 0.1), sampled every dt = 1 s."""
+    return _trajectory(position0, velocity, (0.0, 0.0), steps, dt, noise_std, seed)
+
+
+def constant_acceleration_2d(steps: int, seed: int, dt: float = 1.0,
+                             noise_std: float = float(np.sqrt(0.1)),
+                             acceleration=(2.0, 3.0), velocity0=(0.0, 0.0),
+                             position0=(0.0, 0.0)) -> Trajectory2D:
+    """SSPRED constant-acceleration truth, (ax, ay) = (2, 3) m/s² from rest at the origin;
+    same measurement noise and dt as constant_velocity_2d."""
+    return _trajectory(position0, velocity0, acceleration, steps, dt, noise_std, seed)
+
+
+# ---------------------------------------------------------------- geodesy
+def geodetic_to_ecef(lat_deg: float, lon_deg: float, height: float) -> np.ndarray:
+    """WGS-84 geodetic latitude, longitude (degrees) and ellipsoidal height (m) to ECEF (m):
+    N = a / sqrt(1 − e² sin²φ), X = (N+h) cosφ cosλ, Y = (N+h) cosφ sinλ,
+    Z = (N(1 − e²) + h) sinφ."""
+    phi, lam = np.radians(lat_deg), np.radians(lon_deg)
+    N = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(phi) ** 2)
+    return np.array([(N + height) * np.cos(phi) * np.cos(lam),
+                     (N + height) * np.cos(phi) * np.sin(lam),
+                     (N * (1.0 - WGS84_E2) + height) * np.sin(phi)])
+
+
+def enu_basis(lat_deg: float, lon_deg: float) -> np.ndarray:
+    """Rows: east, north, up unit vectors (ECEF) at a geodetic latitude/longitude."""
+    phi, lam = np.radians(lat_deg), np.radians(lon_deg)
+    return np.array([[-np.sin(lam), np.cos(lam), 0.0],
+                     [-np.sin(phi) * np.cos(lam), -np.sin(phi) * np.sin(lam), np.cos(phi)],
+                     [np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)]])
+
+
+def satellite_at(receiver: np.ndarray, lat_deg: float, lon_deg: float, elevation_deg: float,
+                 azimuth_deg: float, radius: float = GPS_ORBIT_RADIUS) -> np.ndarray:
+    """ECEF position at distance `radius` from the Earth's centre seen from the receiver at
+    the given elevation and azimuth (clockwise from north)."""
+    el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
+    east, north, up = enu_basis(lat_deg, lon_deg)
+    u = np.cos(el) * np.sin(az) * east + np.cos(el) * np.cos(az) * north + np.sin(el) * up
+    ru = receiver @ u
+    rng = -ru + np.sqrt(ru ** 2 - receiver @ receiver + radius ** 2)
+    return receiver + rng * u
+
+
+def _rotate(p: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues rotation of p about a unit axis."""
+    return (p * np.cos(angle) + np.cross(axis, p) * np.sin(angle)
+            + axis * (axis @ p) * (1.0 - np.cos(angle)))
+
+
+# ---------------------------------------------------------------- GNSS
+def pseudorange(x: np.ndarray, sats: np.ndarray) -> np.ndarray:
+    """D_i = ||s_i − [x, y, z]|| + b for state x = [x, y, z, b] and satellites (k, 3)."""
+    return np.linalg.norm(sats - x[:3], axis=1) + x[3]
+
+
+def pseudorange_jacobian(x: np.ndarray, sats: np.ndarray) -> np.ndarray:
+    """∂D/∂X: rows [−(s_i − r)ᵀ / ||s_i − r||, 1]."""
+    diff = sats - x[:3]
+    return np.hstack([-diff / np.linalg.norm(diff, axis=1)[:, None], np.ones((len(sats), 1))])
+
+
+@dataclass(frozen=True)
+class GnssScenario:
+    """A stationary receiver, four satellites and pseudoranges (SPEC §6).
+
+    truth: (steps+1, 4) states [x, y, z, b] (ECEF m, clock bias m) for k = 0..steps;
+    satellites: (steps, 4, 3) ECEF positions at k = 1..steps; pseudoranges: (steps, 4).
+    x0, P0: a filter start, x0 = truth(0) + N(0, init_std² I), P0 = init_std² I.
+    Q = 0.01 I4 and R = sigma² I4 are the paper's filter covariances."""
+
+    dt: float
+    sigma: float
+    geodetic: tuple[float, float, float]
+    receiver: np.ndarray
+    clock_bias: float
+    elevations_deg: np.ndarray
+    azimuths_deg: np.ndarray
+    truth: np.ndarray
+    satellites: np.ndarray
+    pseudoranges: np.ndarray
+    x0: np.ndarray
+    P0: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+
+
+def gnss_scenario(steps: int = 500, seed: int = 0, sigma: float = 10.0,
+                  clock_bias: float = 100.0, geodetic=STADIUM,
+                  elevations_deg=(80.0, 35.0, 45.0, 55.0),
+                  azimuths_deg=(30.0, 90.0, 210.0, 330.0),
+                  dt: float = 1.0, moving: bool = False, init_std: float = 10.0,
+                  q: float = 0.01) -> GnssScenario:
+    """Receiver at the stadium (40.988 N, 29.037 E, 50 m) in ECEF, clock bias b (default
+    100 m ≈ 0.33 µs), static truth. Satellites at GPS radius 26,560 km, by default one near
+    zenith (el 80°, az 30°) and three spread in azimuth (35°/90°, 45°/210°, 55°/330°).
+    moving=True turns each satellite about the axis normal to its position and the Earth's
+    polar axis at the GPS mean motion (a plausible drift, not an ephemeris).
+    Pseudoranges: D_i + v_i, v_i ~ N(0, sigma²), sigma = 10 m, one per dt = 1 s."""
+    steps = _steps(steps)
+    elev = np.asarray(elevations_deg, dtype=float)
+    azim = np.asarray(azimuths_deg, dtype=float)
+    if elev.shape != azim.shape or elev.ndim != 1 or len(elev) < 4:
+        raise ShapeError("elevations_deg and azimuths_deg need equal length >= 4, got "
+                         f"{elev.shape} and {azim.shape}")
+    lat, lon, height = (float(v) for v in geodetic)
+    receiver = geodetic_to_ecef(lat, lon, height)
+    start = np.array([satellite_at(receiver, lat, lon, e, a) for e, a in zip(elev, azim)])
+    t = np.arange(1, steps + 1) * dt
+    if moving:
+        axes = np.cross(start, [0.0, 0.0, 1.0])
+        axes /= np.linalg.norm(axes, axis=1)[:, None]
+        sats = np.array([[_rotate(p, ax, GPS_ANGULAR_RATE * tk) for p, ax in zip(start, axes)]
+                         for tk in t])
+    else:
+        sats = np.broadcast_to(start, (steps, *start.shape)).copy()
+    state = np.append(receiver, clock_bias)
+    truth = np.tile(state, (steps + 1, 1))
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal((steps, len(elev))) * sigma
+    ranges = np.array([pseudorange(state, s) for s in sats]) + noise
+    x0 = state + rng.standard_normal(4) * init_std
+    return GnssScenario(float(dt), float(sigma), (lat, lon, height), receiver,
+                        float(clock_bias), elev, azim, truth, sats, ranges, x0,
+                        init_std ** 2 * np.eye(4), q * np.eye(4),
+                        sigma ** 2 * np.eye(len(elev)))
