@@ -7,8 +7,8 @@ model; the others are free runtime parameters, passed to generated code as
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import sympy
@@ -313,19 +313,22 @@ class NonlinearModel(_Model):
         X = sympy.Matrix(self.state_symbols)
         U = sympy.Matrix(self.inputs) if self.inputs else sympy.Matrix.zeros(0, 1)
 
-        def fn(mat):
+        def fn(mat, with_u):
             e = self.subs(mat).xreplace(extra)
-            lam = sympy.lambdify([list(X), list(U)], e, modules="numpy", cse=True)
+            args = [list(X), list(U)] if with_u else [list(X)]
+            lam = sympy.lambdify(args, e, modules="numpy", cse=True)
             shape = (mat.rows,) if mat.cols == 1 else mat.shape
 
             def call(x, u=()):
-                return np.asarray(lam(list(np.asarray(x, float).ravel()),
-                                      list(np.asarray(u, float).ravel())),
-                                  dtype=float).reshape(shape)
+                vals = [list(np.asarray(x, float).ravel())]
+                if with_u:
+                    vals.append(list(np.asarray(u, float).ravel()))
+                return np.asarray(lam(*vals), dtype=float).reshape(shape)
             return call
 
         def num(mat):
             return np.array(self.subs(mat).xreplace(extra).evalf(17).tolist(), dtype=float)
 
-        return {"f": fn(self.f), "F": fn(self.F_jacobian), "h": fn(self.h),
-                "H": fn(self.H_jacobian), "Q": num(self.Q), "R": num(self.R)}
+        return {"f": fn(self.f, False), "F": fn(self.F_jacobian, False),
+                "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
+                "Q": num(self.Q), "R": num(self.R)}
