@@ -86,6 +86,14 @@ def cmd_check(args) -> int:
     return 0
 
 
+def cmd_reproduce(args) -> int:
+    """The main job: list the catalog, then check, generate and verify every model."""
+    cmd_list(args)
+    print()
+    args.model, args.steps, args.seed = "all", 500, 1
+    return cmd_check(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="derive",
@@ -116,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", nargs="?", default="all", help="catalog name, path, or 'all'")
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--seed", type=int, default=1)
+    add("reproduce", cmd_reproduce,
+        "the main job: regenerate, verify and report the seed catalog", "derive reproduce")
     return parser
 
 

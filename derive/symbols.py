@@ -18,7 +18,9 @@ C_KEYWORDS = frozenset(
     typedef union unsigned void volatile while _Bool _Complex _Imaginary main NULL fma sqrt
     size_t""".split()
 )
-RESERVED = C_KEYWORDS | frozenset(keyword.kwlist) | frozenset(keyword.softkwlist)
+#: C math functions and constants a generated file may call; they cannot be names either.
+C_MATH = frozenset("exp log sin cos tan asin acos atan atan2 sinh cosh tanh pow abs fabs pi".split())
+RESERVED = (C_KEYWORDS | C_MATH | frozenset(keyword.kwlist) | frozenset(keyword.softkwlist))
 
 
 def symbol(name: str) -> sympy.Symbol:
@@ -59,11 +61,11 @@ def number(value: float | int) -> sympy.Expr:
     """An exact sympy number for a Python int or float (0.1 becomes 1/10)."""
     if isinstance(value, bool):
         raise SymbolError(f"a boolean {value!r} is not a number")
-    if isinstance(value, int):
-        return sympy.Integer(value)
-    if not math.isfinite(value):
+    if not isinstance(value, int) and not math.isfinite(value):
         raise SymbolError(f"number {value!r} is not finite")
-    return sympy.Rational(repr(float(value)))
+    from .expressions import exact_number
+
+    return exact_number(value)
 
 
 def normalize(expr: object, where: str) -> sympy.Expr:
