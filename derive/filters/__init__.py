@@ -41,16 +41,35 @@ FILTERS: dict[str, FilterKind] = {
 }
 
 
+def why_not(model, name: str) -> str | None:
+    """Why filter ``name`` does not apply to ``model`` (None when it does)."""
+    import numpy as np
+
+    f = kind(name)
+    if f.model_kind != model.kind:
+        return f"filter {name!r} needs a {f.model_kind} model; {model.name!r} is {model.kind}"
+    if f.steady and model.parameters:
+        return (f"steady-state filter {name!r} needs every symbol to have a value; model "
+                f"{model.name!r} has free symbols {[p.name for p in model.parameters]}")
+    if name == "ikf" and not model.parameters:
+        W = np.array(model.matrix("GQGt").evalf(17).tolist(), dtype=float)
+        if np.linalg.eigvalsh(W).min() <= 1e-12 * max(1.0, np.abs(W).max()):
+            return (f"the information form needs G Q G^T positive definite (P(k+1/k) is "
+                    f"inverted); model {model.name!r} has a singular G Q G^T")
+    if f.steady:
+        from .. import riccati
+
+        num = model.numeric()
+        try:
+            riccati.check_steady_state(num.F, num.G, num.H, num.Q, num.R)
+        except Exception as exc:  # SteadyStateError: the message names the property
+            return str(exc)
+    return None
+
+
 def available(model) -> list[str]:
-    """Filter names that apply to ``model`` (steady-state ones need all values given)."""
-    out = []
-    for f in FILTERS.values():
-        if f.model_kind != model.kind:
-            continue
-        if f.steady and model.parameters:
-            continue
-        out.append(f.name)
-    return out
+    """Filter names that apply to ``model``."""
+    return [name for name in FILTERS if why_not(model, name) is None]
 
 
 def kind(name: str) -> FilterKind:
@@ -68,14 +87,11 @@ def kind(name: str) -> FilterKind:
 def derive_unit(model, name: str, options: dict | None = None):
     """Derive one filter for one model: the straight-line programs and layout facts."""
     f = kind(name)
-    if f.model_kind != model.kind:
-        raise FilterError(f"filter {name!r} needs a {f.model_kind} model; "
-                          f"{model.name!r} is {model.kind}")
-    if f.steady and model.parameters:
+    reason = why_not(model, name)
+    if reason is not None:
         from ..errors import SteadyStateError
 
-        raise SteadyStateError(
-            f"steady-state filter {name!r} needs every symbol to have a value; model "
-            f"{model.name!r} has free symbols {[p.name for p in model.parameters]}")
+        raise (SteadyStateError if f.steady and f.model_kind == model.kind else
+               FilterError)(reason)
     mod = importlib.import_module(f"{__name__}.{f.module}")
     return mod.derive_unit(model, name, dict(options or {}))

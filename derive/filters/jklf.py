@@ -1,0 +1,29 @@
+"""The join Kalman-Lainiotis filter (SPEC §3): KF and LF from the same (x, P), averaged.
+
+Both filters start each step from the joined estimate, so the state stays the
+filter's interface (x, P); KF and LF are equal in exact arithmetic, so this is
+the papers' JKLF up to rounding.
+"""
+
+from __future__ import annotations
+
+from .. import staging
+from .kf import kf_update, time_varying_program
+from .lf import lf_update
+
+
+def jklf_update(prog, mats, x, P, z):
+    xk, Pk = kf_update(prog, mats, x, P, z)
+    xl, Pl = lf_update(prog, mats, x, P, z)
+    x_new = staging.scale(prog, staging.add(prog, xk, xl), 0.5)
+    P_new = staging.scale(prog, staging.add(prog, Pk, Pl, symmetric_result=True), 0.5,
+                          symmetric_result=True)
+    return x_new, P_new
+
+
+def derive_unit(model, name, options):
+    from .unit import make_unit
+
+    step = time_varying_program(model, jklf_update,
+                                {**options, "title": "join Kalman-Lainiotis filter"})
+    return make_unit(model, name, {"step": step}, options)

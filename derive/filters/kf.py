@@ -1,0 +1,81 @@
+"""The Kalman filter (SPEC §3), one step, staged for the straight-line program.
+
+    x(k+1/k) = F x,  P(k+1/k) = F P F^T + G Q G^T,  S = H P(k+1/k) H^T + R,
+    K = P(k+1/k) H^T S^-1 (an unrolled LDL^T solve, never an inverse),
+    x_new = x(k+1/k) + K (z - H x(k+1/k)),  P_new = P(k+1/k) - K (P(k+1/k) H^T)^T
+    (or Joseph's form (I-KH) P (I-KH)^T + K R K^T with ``joseph=True``).
+Only the upper triangle of each symmetric matrix is computed.
+"""
+
+from __future__ import annotations
+
+import sympy
+
+from .. import staging
+from ..program import Program
+from . import pattern as pat
+from .common import bound_matrices, masked, time_varying_ports
+
+
+def kf_update(prog: Program, mats, x, P, z, joseph: bool = False):
+    """Stage one KF step; returns (x_new, P_new) as matrices of atoms."""
+    F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
+    xp = staging.matmul(prog, F, x)
+    FP = staging.matmul(prog, F, P)
+    Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), W,
+                     symmetric_result=True)
+    PHt = staging.matmul(prog, Pp, H.T)
+    S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
+                    symmetric_result=True)
+    K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
+    innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
+    x_new = staging.add(prog, xp, staging.matmul(prog, K, innovation))
+    if not joseph:
+        KPHt = staging.matmul(prog, K, staging.transpose(PHt), symmetric_result=True)
+        P_new = staging.sub(prog, Pp, KPHt, symmetric_result=True)
+        return x_new, P_new
+    n = F.rows
+    IKH = staging.sub(prog, sympy.eye(n), staging.matmul(prog, K, H))
+    A = staging.matmul(prog, staging.matmul(prog, IKH, Pp), staging.transpose(IKH),
+                       symmetric_result=True)
+    B = staging.matmul(prog, staging.matmul(prog, K, R), staging.transpose(K),
+                       symmetric_result=True)
+    return x_new, staging.add(prog, A, B, symmetric_result=True)
+
+
+def time_varying_program(model, update, options) -> Program:
+    """Build ``step`` for a time-varying filter ``update(prog, mats, x, P, z)``.
+
+    P's pattern is the closure of P0's declared pattern (option ``P0_pattern``)
+    under ``update``; entries outside it are neither read nor computed.
+    """
+    inputs, outputs = time_varying_ports(model)
+
+    def build(pattern):
+        prog = Program("step", inputs, outputs,
+                       doc=f"one step of the {options.get('title', 'filter')}")
+        mats = bound_matrices(model, prog)
+        P = masked(prog.matrix("P"), pattern)
+        x_new, P_new = update(prog, mats, prog.matrix("x"), P, prog.matrix("z"))
+        return prog, x_new, P_new
+
+    def step_pattern(pattern):
+        return pat.of_matrix(build(pattern)[2])
+
+    closed = pat.closure(step_pattern, pat.declared(model, options.get("P0_pattern")))
+    prog, x_new, P_new = build(closed)
+    prog.set_output("x_new", list(x_new))
+    prog.set_output("P_new", list(P_new))
+    return prog.optimize()
+
+
+def derive_unit(model, name, options):
+    from .unit import make_unit
+
+    joseph = bool(options.get("joseph", False))
+
+    def update(prog, mats, x, P, z):
+        return kf_update(prog, mats, x, P, z, joseph=joseph)
+
+    step = time_varying_program(model, update, {**options, "title": "Kalman filter"})
+    return make_unit(model, name, {"step": step}, options)

@@ -1,0 +1,55 @@
+"""The sparsity pattern of P: declared for P0, closed under the filter's recursion.
+
+Entries outside the pattern are structurally zero at every step: generated code
+never reads them and writes them as zero. The pattern is the least fixed point
+containing P0's declared pattern: derive one step symbolically with P masked to
+the current pattern, add every entry of P_new that did not fold to zero, repeat.
+"""
+
+from __future__ import annotations
+
+from ..errors import ModelError
+
+Pattern = tuple[tuple[bool, ...], ...]
+
+
+def declared(model, name: str | None = None) -> Pattern:
+    """P0's pattern: ``dense``, ``zero``, ``diagonal`` or ``block`` (independent blocks)."""
+    n = model.n
+    name = name or model.P0_pattern
+    if name == "dense":
+        return tuple(tuple(True for _ in range(n)) for _ in range(n))
+    if name == "zero":
+        return tuple(tuple(False for _ in range(n)) for _ in range(n))
+    if name == "diagonal":
+        return tuple(tuple(i == j for j in range(n)) for i in range(n))
+    if name == "block":
+        owner = {}
+        for b, blk in enumerate(model.blocks()):
+            for s in blk.states:
+                owner[s] = b
+        return tuple(tuple(owner[i] == owner[j] for j in range(n)) for i in range(n))
+    raise ModelError(f"P0 pattern {name!r} is not one of dense, zero, diagonal, block")
+
+
+def union(a: Pattern, b: Pattern) -> Pattern:
+    return tuple(tuple(x or y for x, y in zip(ra, rb)) for ra, rb in zip(a, b))
+
+
+def closure(step_pattern, start: Pattern) -> Pattern:
+    """Least fixed point of ``p -> p | step_pattern(p)`` above ``start``.
+
+    ``step_pattern(p)`` returns the pattern of P_new when P has pattern ``p``.
+    Patterns only grow, so this ends after at most n*n rounds.
+    """
+    current = start
+    while True:
+        nxt = union(current, step_pattern(current))
+        if nxt == current:
+            return current
+        current = nxt
+
+
+def of_matrix(mat) -> Pattern:
+    """The structural pattern of a sympy matrix: entries that are not literally zero."""
+    return tuple(tuple(mat[i, j] != 0 for j in range(mat.cols)) for i in range(mat.rows))
