@@ -1,0 +1,101 @@
+"""Print lowered trees and programs as C99.
+
+Arithmetic is plain ``+ - * /``; ``sqrt`` and math.h calls by name; an fma is
+``DERIVE_FMA(a, b, c)``, a macro each file defines (:data:`FMA_MACRO_LINES`):
+the hardware ``fma()`` where ``FP_FAST_FMA`` says it is fast (e.g. with
+``-march=native``), else ``((a) * (b) + (c))``, so baseline x86-64 code needs no
+libm beyond sqrt.  Constants are printed with ``repr`` (shortest round trip,
+always with a ``.`` or an exponent, so C reads a double).
+"""
+
+from __future__ import annotations
+
+from derive.emit.python_printer import InfixPrinter
+from derive.lowering import LoweredAssign, LoweredProgram, Tree
+from derive.program import PARAMETER_PORT
+
+FMA_NAME = "DERIVE_FMA"
+
+FMA_MACRO_LINES = [
+    "#ifndef DERIVE_FMA",
+    "#if defined(FP_FAST_FMA)",
+    "#define DERIVE_FMA(a, b, c) fma((a), (b), (c))",
+    "#else",
+    "#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))",
+    "#endif",
+    "#endif",
+]
+
+
+class CPrinter(InfixPrinter):
+    """C99 spelling."""
+
+    def call(self, kind: str, args: list[str]) -> str:
+        if kind == "sqrt":
+            return f"sqrt({args[0]})"
+        if kind == "fma":
+            return f"{FMA_NAME}({', '.join(args)})"
+        if kind.startswith("call:"):
+            return f"{kind[5:]}({', '.join(args)})"
+        raise ValueError(f"no C spelling for operation {kind!r}")
+
+
+def expression(tree: Tree) -> str:
+    """C text of one lowered tree."""
+    return CPrinter().expression(tree)
+
+
+def comment_text(text: str) -> str:
+    """``text`` made safe inside a C block comment (ASCII, no ``*/``)."""
+    safe = text.encode("ascii", "replace").decode("ascii")
+    return safe.replace("*/", "* /").replace("/*", "/ *")
+
+
+def needs_math_h(lowered: list[LoweredProgram]) -> bool:
+    """True when sqrt, fma or a math.h call is printed."""
+    for lp in lowered:
+        for kind in lp.kinds():
+            if kind in ("sqrt", "fma") or kind.startswith("call:"):
+                return True
+    return False
+
+
+def parameters(lowered: LoweredProgram) -> list[str]:
+    """C parameters: the inputs except ``p``, the outputs, then ``p``."""
+    inputs = [p for p in lowered.inputs if p.name != PARAMETER_PORT]
+    params = [f"const double *restrict {p.name}" for p in inputs]
+    params += [f"double *restrict {p.name}" for p in lowered.outputs]
+    params += [f"const double *restrict {p.name}" for p in lowered.inputs
+               if p.name == PARAMETER_PORT]
+    return params
+
+
+def argument_order(lowered: LoweredProgram) -> list[str]:
+    """Port names in C parameter order."""
+    return [p.split()[-1] for p in parameters(lowered)]
+
+
+def prototype(lowered: LoweredProgram, prefix: str) -> str:
+    """``int|void PREFIX_NAME(...)`` (no semicolon); int when the program has checks."""
+    result = "int" if lowered.has_checks else "void"
+    return f"{result} {prefix}_{lowered.name}({', '.join(parameters(lowered))})"
+
+
+def function_parts(lowered: LoweredProgram, prefix: str) -> dict:
+    """Precomputed strings of one function: ``signature`` and ``body`` lines (unindented)."""
+    printer = CPrinter()
+    used = lowered.used_inputs()
+    body = [f"(void){p.name};" for p in lowered.inputs if p.name not in used]
+    for st in lowered.body:
+        if isinstance(st, LoweredAssign):
+            body.append(f"const double {st.target} = {printer.expression(st.tree)};")
+        else:
+            value = printer.expression(st.tree.args[0])
+            body += [f"if (!({value} > 0.0)) {{",
+                     f"    return {st.status}; /* {comment_text(st.message)} */",
+                     "}"]
+    for name, leaves in lowered.results:
+        body += [f"{name}[{k}] = {printer.expression(leaf)};" for k, leaf in enumerate(leaves)]
+    if lowered.has_checks:
+        body.append("return 0;")
+    return {"signature": prototype(lowered, prefix), "body": body}

@@ -1,0 +1,200 @@
+"""Print lowered trees and programs as Python.
+
+Only elementwise arithmetic is emitted (``+ - * /``, ``_sqrt(v) = v ** 0.5``), so
+a generated function runs on floats, on NumPy arrays with a trailing track axis
+(many tracks at once) and on :class:`derive.flops.CountingFloat`.  Constants are
+printed with ``repr`` (shortest round trip); negative ones in parentheses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from derive.errors import NumericalError
+from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+
+#: Precedence: higher binds tighter.
+_PREC = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3}
+_SYMBOL = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+_ATOM = 4
+
+#: lowering call name -> Python spelling (NumPy ufuncs call methods of objects).
+PY_CALLS = {"sin": "np.sin", "cos": "np.cos", "tan": "np.tan", "exp": "np.exp", "log": "np.log",
+            "atan": "np.arctan", "atan2": "np.arctan2", "fabs": "abs"}
+
+HELPERS = {
+    "sqrt": ['def _sqrt(v):',
+             '    """Square root of a float, a NumPy array or a CountingFloat."""',
+             '    return v ** 0.5'],
+    "check": ['def _require_positive(value, message):',
+              '    """Raise NumericalError unless value > 0 (every track of an array)."""',
+              '    positive = value > 0',
+              '    if hasattr(positive, "all"):',
+              '        positive = positive.all()',
+              '    if not positive:',
+              '        raise NumericalError(message)'],
+}
+
+ERROR_IMPORT = ['try:',
+                '    from derive.errors import NumericalError',
+                'except ImportError:  # derive not installed: a stand-in with the same base',
+                '',
+                '    class NumericalError(ArithmeticError):',
+                '        """A numerical failure such as a non-positive pivot."""']
+
+
+class InfixPrinter:
+    """Infix printing with minimal parentheses that keep the tree's evaluation order."""
+
+    def const(self, value: float) -> str:
+        text = repr(float(value))
+        return f"({text})" if text.startswith("-") else text
+
+    def call(self, kind: str, args: list[str]) -> str:
+        raise NotImplementedError
+
+    def _prec(self, tree: Tree) -> int:
+        return _PREC.get(tree.kind, _ATOM) if isinstance(tree, Op) else _ATOM
+
+    def expression(self, tree: Tree) -> str:
+        """Text of one tree."""
+        if isinstance(tree, Const):
+            return self.const(tree.value)
+        if isinstance(tree, Var):
+            return tree.name
+        if tree.kind in _SYMBOL:
+            left, right = tree.args
+            prec = _PREC[tree.kind]
+            a = self.expression(left)
+            b = self.expression(right)
+            if self._prec(left) < prec:
+                a = f"({a})"
+            if self._prec(right) <= prec:
+                b = f"({b})"
+            sep = f" {_SYMBOL[tree.kind]} " if prec == 1 else _SYMBOL[tree.kind]
+            return f"{a}{sep}{b}"
+        if tree.kind == "neg":
+            inner = self.expression(tree.args[0])
+            return f"-({inner})" if self._prec(tree.args[0]) <= _PREC["neg"] else f"-{inner}"
+        return self.call(tree.kind, [self.expression(a) for a in tree.args])
+
+
+class PythonPrinter(InfixPrinter):
+    """Python spelling: ``_sqrt``, NumPy calls; no fma."""
+
+    def call(self, kind: str, args: list[str]) -> str:
+        if kind == "sqrt":
+            return f"_sqrt({args[0]})"
+        if kind.startswith("call:") and kind[5:] in PY_CALLS:
+            return f"{PY_CALLS[kind[5:]]}({', '.join(args)})"
+        raise ValueError(f"no Python spelling for operation {kind!r} (fma is C only)")
+
+
+def expression(tree: Tree) -> str:
+    """Python text of one lowered tree."""
+    return PythonPrinter().expression(tree)
+
+
+def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
+    """Helper names (keys of :data:`HELPERS`) the programs use, in a fixed order."""
+    kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
+    needed = []
+    if "sqrt" in kinds:
+        needed.append("sqrt")
+    if any(lp.has_checks for lp in lowered):
+        needed.append("check")
+    return needed
+
+
+def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
+    """True when a printed call needs ``np``."""
+    kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
+    return any(k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
+
+
+def _list_lines(name: str, items: list[str], width: int = 92) -> list[str]:
+    one = f"{name} = [{', '.join(items)}]"
+    if len(one) <= width:
+        return [one]
+    lines = [f"{name} = ["]
+    row = ""
+    for item in items:
+        piece = f"{item}, "
+        if row and len(row) + len(piece) > width - 4:
+            lines.append("    " + row.rstrip())
+            row = ""
+        row += piece
+    lines.append("    " + row.rstrip())
+    lines.append("]")
+    return lines
+
+
+def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) -> dict:
+    """Precomputed strings of one function: ``signature``, ``doc`` lines, ``body`` lines."""
+    printer = PythonPrinter()
+    params = ", ".join(p.name for p in lowered.inputs)
+    body: list[str] = []
+    for st in lowered.body:
+        if isinstance(st, LoweredAssign):
+            body.append(f"{st.target} = {printer.expression(st.tree)}")
+        else:
+            value = printer.expression(st.tree.args[0])
+            body.append(f"_require_positive({value}, {st.message!r})")
+    for name, leaves in lowered.results:
+        body.extend(_list_lines(name, [printer.expression(leaf) for leaf in leaves]))
+    names = [p.name for p in lowered.outputs]
+    body.append(f"return {', '.join(names)}")
+    if doc_lines is None:
+        doc_lines = port_doc_lines(lowered)
+    return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
+
+
+def _shape_text(port) -> str:
+    text = "x".join(str(d) for d in port.shape)
+    return f"{text}, symmetric" if port.symmetric else text
+
+
+def port_doc_lines(lowered: LoweredProgram) -> list[str]:
+    """Docstring lines: purpose, then one line per port (flat, row-major)."""
+    lines = [doc_text(lowered.doc or f"The generated function {lowered.name}."), "",
+             "Arguments (flat, row-major sequences; elements may be NumPy arrays):"]
+    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
+              for p in lowered.inputs]
+    lines.append("Returns:")
+    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
+              for p in lowered.outputs]
+    if lowered.has_checks:
+        lines.append("Raises NumericalError when a runtime check fails.")
+    return lines
+
+
+def doc_text(text: str) -> str:
+    return text.replace("\\", "\\\\").replace('"""', '\\"\\"\\"')
+
+
+def function_source(lowered: LoweredProgram) -> str:
+    """The full ``def`` of one lowered program (for exec; the templates lay out their own)."""
+    parts = function_parts(lowered)
+    lines = [parts["signature"], '    """' + parts["doc"][0]]
+    lines += [f"    {line}".rstrip() for line in parts["doc"][1:]]
+    lines.append('    """')
+    lines += [f"    {line}" for line in parts["body"]]
+    return "\n".join(lines) + "\n"
+
+
+def python_function(program, *, namespace: dict | None = None) -> Callable:
+    """Compile the printed Python of ``program.optimize()`` into a callable.
+
+    The function is exactly what the templates emit (same printer), with its
+    helpers; useful for verification and for the dynamic operation count.
+    """
+    lowered = lower_program(program, use_fma=False)
+    scope: dict = {"np": np, "NumericalError": NumericalError}
+    for name in helpers_needed([lowered]):
+        exec("\n".join(HELPERS[name]), scope)  # our own printed code
+    if namespace:
+        scope.update(namespace)
+    exec(function_source(lowered), scope)
+    return scope[lowered.name]

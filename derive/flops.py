@@ -1,0 +1,350 @@
+"""Exact operation counts of generated code, and two independent ways to check them.
+
+:func:`count` counts the lowered trees of an optimised program
+(:mod:`derive.lowering`), i.e. exactly what the printers print.  Two checks
+that do not trust the lowering:
+
+- :class:`CountingFloat`: a float whose arithmetic increments counters; running
+  a generated Python function on CountingFloat inputs must reproduce
+  ``count(program, "python")``;
+- :func:`count_c_text` / :func:`count_c_function`: tokenise emitted C and count
+  its operators; must reproduce ``count(program, "c")``.
+
+``flops`` = add + sub + mul + div + sqrt + 2 fma (negations and comparisons
+are reported, not counted as flops); ``instructions`` = every operation.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
+
+from derive.lowering import Op, Tree, lower_program
+
+if TYPE_CHECKING:
+    from derive.lowering import LoweredProgram
+    from derive.program import Program
+
+LANGUAGES = ("python", "c")
+
+
+@dataclass(frozen=True)
+class OpCount:
+    """Operations by kind; ``calls`` counts math.h function calls other than sqrt."""
+
+    add: int = 0
+    sub: int = 0
+    mul: int = 0
+    div: int = 0
+    sqrt: int = 0
+    fma: int = 0
+    neg: int = 0
+    cmp: int = 0
+    calls: int = 0
+
+    @property
+    def flops(self) -> int:
+        """Floating-point operations as the papers count them (an fma is two)."""
+        return self.add + self.sub + self.mul + self.div + self.sqrt + 2 * self.fma
+
+    @property
+    def instructions(self) -> int:
+        """Every operation, an fma, a negation and a comparison one each (calls excluded)."""
+        return (self.add + self.sub + self.mul + self.div + self.sqrt + self.fma + self.neg
+                + self.cmp)
+
+    def __add__(self, other: OpCount) -> OpCount:
+        if not isinstance(other, OpCount):
+            return NotImplemented
+        return OpCount(**{f.name: getattr(self, f.name) + getattr(other, f.name)
+                          for f in fields(self)})
+
+    def as_dict(self) -> dict[str, int]:
+        """Counts by kind, in a fixed order."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def summary(self) -> str:
+        """One line: every kind, then flops and instructions."""
+        kinds = ", ".join(f"{k} {v}" for k, v in self.as_dict().items())
+        return f"{kinds} (flops {self.flops}, instructions {self.instructions})"
+
+
+def _kind_field(kind: str) -> str:
+    return "calls" if kind.startswith("call:") else kind
+
+
+def count_tree(tree: Tree) -> OpCount:
+    """Operations in one lowered tree."""
+    tally: dict[str, int] = {}
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, Op):
+            key = _kind_field(node.kind)
+            tally[key] = tally.get(key, 0) + 1
+            stack.extend(node.args)
+    return OpCount(**tally)
+
+
+def count_lowered(lowered: LoweredProgram) -> OpCount:
+    """Operations of a lowered program (the results are atoms and cost nothing)."""
+    total = OpCount()
+    for statement in lowered.body:
+        total = total + count_tree(statement.tree)
+    for _, leaves in lowered.results:
+        for leaf in leaves:
+            total = total + count_tree(leaf)
+    return total
+
+
+def count(program: Program, lang: str = "python", *, use_fma: bool | None = None) -> OpCount:
+    """Exact operations of ``program.optimize()`` as printed in ``lang`` ("python" or "c").
+
+    C uses fma unless ``use_fma=False``; Python never does.
+    """
+    if lang not in LANGUAGES:
+        raise ValueError(f"unknown language {lang!r}; expected one of {LANGUAGES}")
+    if use_fma is None:
+        use_fma = lang == "c"
+    if use_fma and lang == "python":
+        raise ValueError("Python code has no fma: count(program, 'python', use_fma=False)")
+    return count_lowered(lower_program(program, use_fma=use_fma))
+
+
+# -- the dynamic proof -----------------------------------------------------------------
+
+
+class OpCounter:
+    """Mutable tallies shared by the CountingFloats of one run."""
+
+    def __init__(self) -> None:
+        self.tally = {f.name: 0 for f in fields(OpCount)}
+
+    def bump(self, kind: str) -> None:
+        self.tally[kind] += 1
+
+    def snapshot(self) -> OpCount:
+        """The counts so far."""
+        return OpCount(**self.tally)
+
+    def reset(self) -> None:
+        for key in self.tally:
+            self.tally[key] = 0
+
+    def wrap(self, values) -> list[CountingFloat]:
+        """CountingFloats for a flat sequence of numbers."""
+        return [CountingFloat(float(v), self) for v in values]
+
+
+class CountingFloat:
+    """A float whose + - * / unary minus, ``** 0.5`` and comparisons are counted.
+
+    Arithmetic with plain numbers (constants in generated code) is counted too;
+    the result is again a CountingFloat on the same counter.
+    """
+
+    __slots__ = ("value", "counter")
+
+    def __init__(self, value: float, counter: OpCounter) -> None:
+        self.value = float(value)
+        self.counter = counter
+
+    def _other(self, other) -> float | None:
+        if isinstance(other, CountingFloat):
+            return other.value
+        if isinstance(other, (int, float)) and not isinstance(other, bool):
+            return float(other)
+        return None
+
+    def _result(self, kind: str, value: float) -> CountingFloat:
+        self.counter.bump(kind)
+        return CountingFloat(value, self.counter)
+
+    def __add__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("add", self.value + o)
+
+    def __radd__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("add", o + self.value)
+
+    def __sub__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("sub", self.value - o)
+
+    def __rsub__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("sub", o - self.value)
+
+    def __mul__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("mul", self.value * o)
+
+    def __rmul__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("mul", o * self.value)
+
+    def __truediv__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("div", self.value / o)
+
+    def __rtruediv__(self, other):
+        o = self._other(other)
+        return NotImplemented if o is None else self._result("div", o / self.value)
+
+    def __neg__(self):
+        return self._result("neg", -self.value)
+
+    def __pos__(self):
+        return self
+
+    def __pow__(self, exponent):
+        if exponent != 0.5:
+            raise TypeError(f"CountingFloat supports ** 0.5 (sqrt) only, not ** {exponent!r}")
+        return self._result("sqrt", self.value ** 0.5)
+
+    def _compare(self, other, op) -> bool:
+        o = self._other(other)
+        if o is None:
+            return NotImplemented
+        self.counter.bump("cmp")
+        return op(self.value, o)
+
+    def __gt__(self, other):
+        return self._compare(other, float.__gt__)
+
+    def __ge__(self, other):
+        return self._compare(other, float.__ge__)
+
+    def __lt__(self, other):
+        return self._compare(other, float.__lt__)
+
+    def __le__(self, other):
+        return self._compare(other, float.__le__)
+
+    def __abs__(self):
+        return self._result("calls", abs(self.value))
+
+    def __float__(self) -> float:
+        return self.value
+
+    def __repr__(self) -> str:
+        return f"CountingFloat({self.value!r})"
+
+    def _call(self, fn) -> CountingFloat:
+        return self._result("calls", fn(self.value))
+
+    # NumPy ufuncs on objects call these methods (np.sin(obj) -> obj.sin()).
+    def sin(self):
+        return self._call(math.sin)
+
+    def cos(self):
+        return self._call(math.cos)
+
+    def tan(self):
+        return self._call(math.tan)
+
+    def exp(self):
+        return self._call(math.exp)
+
+    def log(self):
+        return self._call(math.log)
+
+    def arctan(self):
+        return self._call(math.atan)
+
+
+# -- counting emitted C ----------------------------------------------------------------
+
+_TOKEN = re.compile(
+    r"\s*(?:(?P<number>(?:\d+\.\d*|\.\d+|\d+)(?:[eE][+-]?\d+)?)"
+    r"|(?P<name>[A-Za-z_]\w*)"
+    r"|(?P<op>>=|<=|==|!=|&&|\|\||\+\+|--|->|[-+*/%()\[\]{},;=!<>?:&|.~^]))"
+)
+_COMPARISONS = {">", "<", ">=", "<=", "==", "!="}
+_UNARY_BEFORE = {"(", "[", ",", "=", "return", "?", ":", "{", "}", ";", "!",
+                 "+", "-", "*", "/", "<", ">", "<=", ">=", "==", "!=", "&&", "||"}
+
+
+def _tokens(text: str) -> list[tuple[str, str]]:
+    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
+    text = re.sub(r"//[^\n]*", " ", text)
+    text = re.sub(r"^\s*#[^\n]*", " ", text, flags=re.M)
+    out = []
+    pos = 0
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if m is None or m.end() == pos:
+            if text[pos:].strip() == "":
+                break
+            raise ValueError(f"cannot tokenise C text at: {text[pos:pos + 40]!r}")
+        pos = m.end()
+        kind = m.lastgroup
+        out.append((kind, m.group(kind)))
+    return out
+
+
+def count_c_text(text: str, fma_name: str = "DERIVE_FMA") -> OpCount:
+    """Count the arithmetic in C statements by their operators.
+
+    ``+ - * /`` binary; unary minus is ``neg`` unless it is the sign of a numeric
+    literal; ``fma_name(`` is an fma, ``sqrt(`` a sqrt, other ``name(`` calls
+    (except ``if``, ``return``, ``sizeof`` and ``for``/``while``) are calls;
+    ``> < >= <= == !=`` are comparisons.
+    """
+    tokens = _tokens(text)
+    tally = dict.fromkeys((f.name for f in fields(OpCount)), 0)
+    prev: str | None = None
+    for k, (kind, tok) in enumerate(tokens):
+        nxt = tokens[k + 1] if k + 1 < len(tokens) else (None, None)
+        if kind == "name" and nxt[1] == "(":
+            if tok == fma_name:
+                tally["fma"] += 1
+            elif tok == "sqrt":
+                tally["sqrt"] += 1
+            elif tok not in ("if", "return", "sizeof", "for", "while", "switch", "void"):
+                tally["calls"] += 1
+        elif kind == "op":
+            unary = prev is None or prev in _UNARY_BEFORE
+            if tok == "-":
+                if not unary:
+                    tally["sub"] += 1
+                elif nxt[0] != "number":
+                    tally["neg"] += 1
+            elif tok == "+" and not unary:
+                tally["add"] += 1
+            elif tok == "*" and not unary:
+                tally["mul"] += 1
+            elif tok == "/":
+                tally["div"] += 1
+            elif tok in _COMPARISONS:
+                tally["cmp"] += 1
+        prev = tok
+    return OpCount(**tally)
+
+
+def c_function_body(source: str, function_name: str) -> str:
+    """The text between the braces of the definition of ``function_name`` in C source
+    (comments removed)."""
+    source = re.sub(r"/\*.*?\*/", " ", source, flags=re.S)
+    for m in re.finditer(rf"\b{re.escape(function_name)}\s*\(", source):
+        depth, pos = 1, m.end()
+        while depth and pos < len(source):
+            depth += {"(": 1, ")": -1}.get(source[pos], 0)
+            pos += 1
+        rest = source[pos:].lstrip()
+        if rest.startswith("{"):
+            start = source.index("{", pos)
+            depth, pos = 1, start + 1
+            while depth:
+                depth += {"{": 1, "}": -1}.get(source[pos], 0)
+                pos += 1
+            return source[start + 1:pos - 1]
+    raise ValueError(f"no definition of {function_name!r} in the C source")
+
+
+def count_c_function(source: str, function_name: str) -> OpCount:
+    """:func:`count_c_text` of the body of one function in C source."""
+    return count_c_text(c_function_body(source, function_name))

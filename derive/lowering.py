@@ -1,0 +1,318 @@
+"""Lowering of sympy expressions to binary operation trees.
+
+The one place that decides which operations an expression costs: the counter
+(:mod:`derive.flops`) and both printers (:mod:`derive.emit`) walk the trees made
+here, so a count is by construction the count of what is printed.
+
+Rules (``e`` a sympy expression):
+
+- a number, or any expression without free symbols (``sqrt(2)``, ``pi``), is one
+  double constant; a symbol is a variable;
+- ``Add``: terms in :func:`sympy.default_sort_key` order, numeric terms merged
+  into one constant; a term with a negative numeric coefficient is subtracted
+  as its positive part (``a - 2*b`` is ``sub(a, mul(2, b))``); the chain starts
+  at the first positive term (all negative: ``neg`` of the first);
+- ``Mul``: numeric factors merged into one coefficient ``c``; factors with a
+  negative exponent form a denominator (``a/b`` is ``div(a, b)``, ``c/b`` is
+  ``div(c, b)``); ``c = -1`` is ``neg`` (or folds into a surrounding ``sub``);
+  other ``c`` multiply first: ``mul(c, ...)``;
+- ``x**k`` (integer ``k > 0``): ``k - 1`` multiplications; ``x**-k``:
+  ``div(1, x**k)``; ``x**(1/2)``: ``sqrt``; ``x**(-1/2)``: ``div(1, sqrt(x))``;
+  ``x**(k/2)``: ``mul(x**((k-1)/2), sqrt(x))``;
+- with ``use_fma`` (C): in an ``Add`` each term whose tree is a product becomes
+  ``fma(a, b, acc)`` on the chain of the other terms; a negative term ``-c*a``
+  uses the negative constant, ``-a*b`` stays a ``sub``; products whose operands
+  are deepest go last so the dependency chain stays short;
+- the functions of :data:`FUNCTIONS` are calls ``call:NAME`` (C names);
+  anything else raises :class:`LoweringError`.
+
+Operation kinds: ``add sub mul div sqrt fma neg cmp`` and ``call:NAME``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import sympy
+from sympy import default_sort_key
+
+from derive.errors import ModelError
+
+if TYPE_CHECKING:
+    from derive.program import Port, Program
+
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp")
+
+#: sympy function -> name of the C function (math.h) it lowers to.
+FUNCTIONS = {
+    sympy.sin: "sin", sympy.cos: "cos", sympy.tan: "tan", sympy.exp: "exp", sympy.log: "log",
+    sympy.atan: "atan", sympy.atan2: "atan2", sympy.Abs: "fabs",
+}
+
+
+class LoweringError(ModelError):
+    """An expression the printers cannot emit (unsupported function or exponent)."""
+
+
+@dataclass(frozen=True)
+class Const:
+    """A double constant."""
+
+    value: float
+
+
+@dataclass(frozen=True)
+class Var:
+    """A variable, by the name generated code uses (``x[0]``, ``t3``)."""
+
+    name: str
+
+
+@dataclass(frozen=True)
+class Op:
+    """An operation: ``kind`` is one of :data:`KINDS` or ``call:NAME``."""
+
+    kind: str
+    args: tuple[Tree, ...]
+
+
+Tree = Const | Var | Op
+
+
+def depth(tree: Tree) -> int:
+    """Longest chain of operations from a leaf to the root."""
+    if isinstance(tree, Op):
+        return 1 + max(depth(a) for a in tree.args)
+    return 0
+
+
+def constant_value(expr: sympy.Expr) -> float:
+    """The double nearest to a numeric sympy expression; non-finite or complex raises."""
+    value = expr if expr.is_Float else sympy.N(expr, 40)
+    if not value.is_real:
+        raise LoweringError(f"constant {expr} is not a real number")
+    result = float(value)
+    if not math.isfinite(result):
+        raise LoweringError(f"constant {expr} is not finite as a double")
+    return result
+
+
+def _chain(kind: str, trees: list[Tree]) -> Tree | None:
+    if not trees:
+        return None
+    acc = trees[0]
+    for tree in trees[1:]:
+        acc = Op(kind, (acc, tree))
+    return acc
+
+
+class _Lowerer:
+    def __init__(self, use_fma: bool) -> None:
+        self.use_fma = use_fma
+
+    def lower(self, e: sympy.Basic) -> Tree:
+        if e.is_number:
+            return Const(constant_value(e))
+        if e.is_Symbol:
+            return Var(e.name)
+        if e.is_Add:
+            return self._add(e)
+        if e.is_Mul:
+            return self._product(*e.as_coeff_Mul())
+        if e.is_Pow:
+            return self._pow(e.base, e.exp)
+        name = FUNCTIONS.get(e.func)
+        if name is not None:
+            return Op(f"call:{name}", tuple(self.lower(a) for a in e.args))
+        raise LoweringError(f"cannot emit {type(e).__name__} in {e}: generated code supports "
+                            f"+ - * /, integer and half-integer powers and the functions "
+                            f"{sorted(FUNCTIONS.values())}")
+
+    def _power(self, base: sympy.Expr, k: int) -> Tree:
+        b = self.lower(base)
+        return _chain("mul", [b] * k)
+
+    def _pow(self, base: sympy.Expr, exp: sympy.Expr) -> Tree:
+        if exp.is_Integer:
+            k = int(exp)
+            if k > 0:
+                return self._power(base, k)
+            return Op("div", (Const(1.0), self._power(base, -k)))
+        if exp.is_Rational and exp.q == 2:
+            k = int(exp.p)
+            if k < 0:
+                return Op("div", (Const(1.0), self._pow(base, -exp)))
+            root = Op("sqrt", (self.lower(base),))
+            return root if k == 1 else Op("mul", (self._power(base, (k - 1) // 2), root))
+        raise LoweringError(f"cannot emit the power {base}**{exp}: only integer and "
+                            "half-integer exponents lower to * / sqrt")
+
+    def _product(self, coeff: sympy.Expr, rest: sympy.Expr) -> Tree:
+        """Tree of ``coeff * rest`` (``coeff`` a number)."""
+        numerator: list[sympy.Expr] = []
+        denominator: list[sympy.Expr] = []
+        for factor in sympy.Mul.make_args(rest):
+            if factor.is_number:
+                coeff = coeff * factor
+            elif factor.is_Pow and factor.exp.is_Rational and factor.exp.is_negative:
+                denominator.append(sympy.Pow(factor.base, -factor.exp))
+            else:
+                numerator.append(factor)
+        if coeff == 0:
+            return Const(0.0)
+        num = _chain("mul", [self.lower(f) for f in sorted(numerator, key=default_sort_key)])
+        den = _chain("mul", [self.lower(f) for f in sorted(denominator, key=default_sort_key)])
+        c = Const(constant_value(coeff))
+        if den is None:
+            if num is None:
+                return c
+            if coeff == 1:
+                return num
+            if coeff == -1:
+                return Op("neg", (num,))
+            return Op("mul", (c, num))
+        if num is None:
+            return Op("div", (c, den))
+        if coeff == 1:
+            return Op("div", (num, den))
+        if coeff == -1:
+            return Op("neg", (Op("div", (num, den)),))
+        return Op("div", (Op("mul", (c, num)), den))
+
+    def _add(self, e: sympy.Expr) -> Tree:
+        constant = sympy.S.Zero
+        terms: list[tuple[int, Tree]] = []
+        for term in sorted(sympy.Add.make_args(e), key=default_sort_key):
+            if term.is_number:
+                constant += term
+                continue
+            coeff, rest = term.as_coeff_Mul()
+            if coeff.is_negative:
+                terms.append((-1, self._product(-coeff, rest)))
+            else:
+                terms.append((1, self.lower(term)))
+        if constant != 0:
+            value = constant_value(constant)
+            terms.insert(0, (1 if value > 0 else -1, Const(abs(value))))
+        if not self.use_fma:
+            return _signed_chain(terms)
+        base: list[tuple[int, Tree]] = []
+        products: list[tuple[Tree, Tree]] = []
+        for sign, tree in terms:
+            if isinstance(tree, Op) and tree.kind == "mul":
+                left, right = tree.args
+                if sign > 0:
+                    products.append((left, right))
+                    continue
+                if isinstance(left, Const):
+                    products.append((Const(-left.value), right))
+                    continue
+            base.append((sign, tree))
+        products.sort(key=lambda lr: max(depth(lr[0]), depth(lr[1])))
+        acc = _signed_chain(base) if base else Op("mul", products.pop(0))
+        for left, right in products:
+            acc = Op("fma", (left, right, acc))
+        return acc
+
+
+def _signed_chain(terms: list[tuple[int, Tree]]) -> Tree:
+    start = next((k for k, (sign, _) in enumerate(terms) if sign > 0), None)
+    if start is None:
+        acc: Tree = Op("neg", (terms[0][1],))
+        rest = terms[1:]
+    else:
+        acc = terms[start][1]
+        rest = terms[:start] + terms[start + 1:]
+    for sign, tree in rest:
+        acc = Op("add" if sign > 0 else "sub", (acc, tree))
+    return acc
+
+
+def lower(expr: sympy.Basic, *, use_fma: bool = False) -> Tree:
+    """The operation tree of one expression (see the module docstring)."""
+    return _Lowerer(use_fma).lower(sympy.sympify(expr))
+
+
+@dataclass(frozen=True)
+class LoweredAssign:
+    """``target = tree`` (``target`` a temporary's name)."""
+
+    target: str
+    tree: Tree
+
+
+@dataclass(frozen=True)
+class LoweredCheck:
+    """``tree`` is ``cmp(value, 0)``: fails unless value > 0; ``status`` numbers the check."""
+
+    tree: Op
+    message: str
+    status: int
+
+
+@dataclass(frozen=True)
+class LoweredProgram:
+    """A program as the printers see it: every statement lowered."""
+
+    name: str
+    doc: str
+    inputs: tuple[Port, ...]
+    outputs: tuple[Port, ...]
+    body: tuple[LoweredAssign | LoweredCheck, ...]
+    results: tuple[tuple[str, tuple[Tree, ...]], ...]
+    use_fma: bool
+
+    @property
+    def has_checks(self) -> bool:
+        return any(isinstance(s, LoweredCheck) for s in self.body)
+
+    @property
+    def checks(self) -> tuple[LoweredCheck, ...]:
+        return tuple(s for s in self.body if isinstance(s, LoweredCheck))
+
+    def kinds(self) -> set[str]:
+        """Every operation kind used."""
+        found: set[str] = set()
+        stack: list[Tree] = [s.tree for s in self.body]
+        while stack:
+            tree = stack.pop()
+            if isinstance(tree, Op):
+                found.add(tree.kind)
+                stack.extend(tree.args)
+        return found
+
+    def used_inputs(self) -> set[str]:
+        """Names of the input ports read anywhere."""
+        names: set[str] = set()
+        stack: list[Tree] = [s.tree for s in self.body]
+        stack.extend(leaf for _, leaves in self.results for leaf in leaves)
+        while stack:
+            tree = stack.pop()
+            if isinstance(tree, Op):
+                stack.extend(tree.args)
+            elif isinstance(tree, Var) and "[" in tree.name:
+                names.add(tree.name.split("[", 1)[0])
+        return names
+
+
+def lower_program(program: Program, *, use_fma: bool = False) -> LoweredProgram:
+    """Lower every statement of ``program.optimize()`` (an optimised program as is)."""
+    from derive.program import Assign  # lazily: program imports us
+
+    program = program.optimize()
+    lowerer = _Lowerer(use_fma)
+    body: list[LoweredAssign | LoweredCheck] = []
+    status = 0
+    for st in program.body:
+        if isinstance(st, Assign):
+            body.append(LoweredAssign(st.target.name, lowerer.lower(st.expr)))
+        else:
+            status += 1
+            tree = Op("cmp", (lowerer.lower(st.value), Const(0.0)))
+            body.append(LoweredCheck(tree, st.message, status))
+    results = tuple((name, tuple(lowerer.lower(v) for v in values))
+                    for name, values in program.results.items())
+    return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
+                          tuple(body), results, use_fma)

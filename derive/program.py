@@ -1,0 +1,655 @@
+"""Straight-line programs: the form between a derivation and the printers.
+
+A :class:`Program` is one generated function with no loops and no branches
+except runtime checks.  It has input and output :class:`Port` s (flat,
+row-major arrays), a body of assignments ``tK = expr`` to temporaries, runtime
+checks ``expr > 0`` and, per output port, the list of atoms (temporaries, input
+elements, numbers) written to it.  Every expression is a sympy expression over
+*input elements* (symbols named as generated code reads them, ``x[0]``,
+``P[3]``) and earlier temporaries.
+
+A derivation stages its algebra with :mod:`derive.staging`, so that every
+matrix entry of every stage is one temporary (sympy stays fast, and zeros and
+ones fold as they appear).  A worked example, one Kalman measurement update
+of a 2-state model with a scalar measurement ``z = x[0] + v``, ``v ~ N(0, r)``::
+
+    import sympy
+    from derive.program import Port, Program
+    from derive import staging
+
+    prog = Program("update",
+                   inputs=[Port("x", (2,)), Port("P", (2, 2), symmetric=True),
+                           Port("z", (1,)), Port("p", (1,), doc="r")],
+                   outputs=[Port("x_new", (2,)), Port("P_new", (2, 2), symmetric=True)])
+    x, P, z = prog.matrix("x"), prog.matrix("P"), prog.matrix("z")
+    model = prog.bind("p", [sympy.Symbol("r")])       # model symbol -> p[0]
+    H = sympy.Matrix([[1, 0]])
+    R = sympy.Matrix([[sympy.Symbol("r")]]).xreplace(model)
+    PHt = staging.matmul(prog, P, H.T)                 # (2x1): the atoms P[0], P[1]
+    S = staging.add(prog, staging.matmul(prog, H, PHt), R)
+    Kt = staging.spd_solve(prog, S, PHt.T)             # K^T = S^-1 H P: one division
+    K = staging.transpose(Kt)
+    innovation = staging.sub(prog, z, staging.matmul(prog, H, x))
+    prog.set_output("x_new", staging.add(prog, x, staging.matmul(prog, K, innovation)))
+    KHP = staging.matmul(prog, K, PHt.T, symmetric_result=True)
+    prog.set_output("P_new", staging.sub(prog, P, KHP, symmetric_result=True))
+    step = prog.optimize()       # fold, propagate copies, share, drop dead code, renumber
+
+``step`` is what :func:`derive.flops.count` counts and what the printers in
+:mod:`derive.emit` print; ``derive.flops.count(step, "python")`` is exactly the
+number of operations the printed Python executes.  ``spd_solve`` adds the
+runtime check ``S > 0``: generated C returns a non-zero status, generated
+Python raises :class:`derive.errors.NumericalError`, when it fails.
+
+Conventions: a port named ``p`` holds the free parameters of the model and
+must be the last input; C signatures list the other inputs, then the outputs,
+then ``p``.  Programs never depend on ``PYTHONHASHSEED``: nothing iterates a
+set, every ordering is by :func:`sympy.default_sort_key` or by position.
+"""
+
+from __future__ import annotations
+
+import keyword
+import re
+from bisect import bisect_left, insort
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from math import prod
+
+import sympy
+from sympy import default_sort_key
+
+from derive.errors import MatrixPropertyError, ModelError, ShapeError
+from derive.flops import count_tree
+from derive.lowering import lower
+
+PARAMETER_PORT = "p"
+
+_C_KEYWORDS = frozenset(
+    "auto break case char const continue default do double else enum extern float for goto if "
+    "inline int long register restrict return short signed sizeof static struct switch typedef "
+    "union unsigned void volatile while _Bool _Complex _Imaginary".split()
+)
+_RESERVED = frozenset({"np", "abs", "status", "steps", "track", "k", "i", "j", "NumericalError",
+                       "x_next", "P_next", "P_work", "x_init", "padded"})
+_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_TEMP_LIKE = re.compile(r"^t\d+(_\w*)?$")
+
+
+class ProgramError(ModelError):
+    """A program built wrongly: unknown port, bad shape, unbound symbol, reuse."""
+
+
+class InputElement(sympy.Symbol):
+    """One element of an input port; its name is how generated code reads it (``P[3]``)."""
+
+
+class Temporary(sympy.Symbol):
+    """A temporary of a program (``t0``, ``t1``, ... once optimised)."""
+
+
+@dataclass(frozen=True)
+class Port:
+    """One array argument of a generated function, stored flat and row-major.
+
+    ``symmetric`` (square ``(n, n)`` ports only): an input reads only its upper
+    triangle; an output is written mirrored.
+    """
+
+    name: str
+    shape: tuple[int, ...]
+    symmetric: bool = False
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            raise ProgramError(f"port name {self.name!r} is not a plain identifier")
+        if (keyword.iskeyword(self.name) or self.name in _C_KEYWORDS
+                or self.name in _RESERVED or _TEMP_LIKE.match(self.name)):
+            raise ProgramError(f"port name {self.name!r} is reserved in generated code")
+        shape = tuple(self.shape)
+        if not shape or len(shape) > 2 or not all(
+                isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in shape):
+            raise ShapeError(f"port {self.name!r}: shape must be (n,) or (n, k) with positive "
+                             f"integers, got {self.shape!r}")
+        object.__setattr__(self, "shape", shape)
+        if self.symmetric and (len(shape) != 2 or shape[0] != shape[1]):
+            raise ShapeError(f"port {self.name!r}: only a square (n, n) port can be symmetric, "
+                             f"got shape {shape}")
+
+    @property
+    def size(self) -> int:
+        """Number of doubles the port holds (flat)."""
+        return prod(self.shape)
+
+    def flat_index(self, i: int, j: int | None = None) -> int:
+        """Flat row-major index of element ``(i,)`` or ``(i, j)``."""
+        if j is None:
+            if len(self.shape) != 1:
+                raise ProgramError(f"port {self.name!r} has shape {self.shape}: give (i, j)")
+            index = (i,)
+        else:
+            if len(self.shape) != 2:
+                raise ProgramError(f"port {self.name!r} has shape {self.shape}: give i only")
+            index = (i, j)
+        for k, dim in zip(index, self.shape):
+            if not isinstance(k, int) or not 0 <= k < dim:
+                raise ProgramError(f"index {index} out of range for port {self.name!r} "
+                                   f"of shape {self.shape}")
+        return index[0] if j is None else index[0] * self.shape[1] + index[1]
+
+
+@dataclass(frozen=True)
+class Assign:
+    """``target = expr``."""
+
+    target: Temporary
+    expr: sympy.Expr
+
+
+@dataclass(frozen=True)
+class Check:
+    """Runtime check ``value > 0`` (``value`` is an atom); fails with ``message``."""
+
+    value: sympy.Expr
+    message: str
+
+
+Statement = Assign | Check
+
+
+def is_atom(expr: sympy.Basic) -> bool:
+    """True for what needs no temporary: a symbol or a numeric constant."""
+    return bool(expr.is_Symbol or expr.is_number)
+
+
+_NON_FINITE = (sympy.zoo, sympy.nan, sympy.oo, -sympy.oo)
+
+
+class Program:
+    """One straight-line generated function; see the module docstring."""
+
+    def __init__(self, name: str, inputs: Sequence[Port], outputs: Sequence[Port],
+                 doc: str = "") -> None:
+        if not isinstance(name, str) or not _NAME.match(name) or keyword.iskeyword(name):
+            raise ProgramError(f"program name {name!r} is not a plain identifier")
+        self.name = name
+        self.doc = doc
+        self.inputs: tuple[Port, ...] = tuple(inputs)
+        self.outputs: tuple[Port, ...] = tuple(outputs)
+        seen: set[str] = set()
+        for port in self.inputs + self.outputs:
+            if not isinstance(port, Port):
+                raise ProgramError(f"program {name!r}: {port!r} is not a Port")
+            if port.name in seen:
+                raise ProgramError(f"program {name!r}: port name {port.name!r} used twice")
+            seen.add(port.name)
+        names = [p.name for p in self.inputs]
+        if PARAMETER_PORT in names and names[-1] != PARAMETER_PORT:
+            raise ProgramError(f"program {name!r}: the parameter port {PARAMETER_PORT!r} must be "
+                               f"the last input, got inputs {names}")
+        if PARAMETER_PORT in [p.name for p in self.outputs]:
+            raise ProgramError(f"program {name!r}: {PARAMETER_PORT!r} cannot be an output")
+        self._elements: dict[str, list[InputElement]] = {}
+        self._owner: dict[sympy.Symbol, str] = {}
+        for port in self.inputs:
+            flat = []
+            for k in range(port.size):
+                if port.symmetric:
+                    i, j = divmod(k, port.shape[1])
+                    k = min(i, j) * port.shape[1] + max(i, j)
+                flat.append(InputElement(f"{port.name}[{k}]"))
+            self._elements[port.name] = flat
+            for sym in flat:
+                self._owner[sym] = port.name
+        self._body: list[Statement] = []
+        self._defined: dict[Temporary, int] = {}
+        self._results: dict[str, tuple[sympy.Expr, ...]] = {}
+        self._counter = 0
+        self._optimized = False
+
+    # -- reading the program -------------------------------------------------------------
+
+    @property
+    def body(self) -> tuple[Statement, ...]:
+        """The statements in order."""
+        return tuple(self._body)
+
+    @property
+    def results(self) -> dict[str, tuple[sympy.Expr, ...]]:
+        """Per output port (in port order), the flat atoms written to it."""
+        return {p.name: self._results[p.name] for p in self.outputs if p.name in self._results}
+
+    @property
+    def is_optimized(self) -> bool:
+        """True for the result of :meth:`optimize` (which is final)."""
+        return self._optimized
+
+    @property
+    def has_checks(self) -> bool:
+        """True when the body holds runtime checks (C returns a status)."""
+        return any(isinstance(s, Check) for s in self._body)
+
+    def port(self, name: str) -> Port:
+        """The input or output port called ``name``."""
+        for port in self.inputs + self.outputs:
+            if port.name == name:
+                return port
+        raise ProgramError(f"program {self.name!r} has no port {name!r}; ports: "
+                           f"{[p.name for p in self.inputs + self.outputs]}")
+
+    def _input(self, name: str) -> Port:
+        port = self.port(name)
+        if port not in self.inputs:
+            raise ProgramError(f"port {name!r} of program {self.name!r} is an output, not an input")
+        return port
+
+    def listing(self) -> str:
+        """A readable dump of the program (for debugging and tests)."""
+        lines = [f"program {self.name}({', '.join(p.name for p in self.inputs)}) -> "
+                 f"({', '.join(p.name for p in self.outputs)})"]
+        for st in self._body:
+            if isinstance(st, Assign):
+                lines.append(f"  {st.target} = {sympy.sstr(st.expr, order='lex')}")
+            else:
+                lines.append(f"  require {st.value} > 0  # {st.message}")
+        for name, values in self.results.items():
+            lines.append(f"  {name} = [{', '.join(str(v) for v in values)}]")
+        return "\n".join(lines)
+
+    # -- building ----------------------------------------------------------------------
+
+    def element(self, port: str, i: int, j: int | None = None) -> InputElement:
+        """Symbol standing for input element ``port[i]`` or ``port[i, j]``.
+
+        For a symmetric port, ``(i, j)`` and ``(j, i)`` give the same symbol (the
+        upper triangle's).
+        """
+        return self._elements[self._input(port).name][self._input(port).flat_index(i, j)]
+
+    def matrix(self, port: str) -> sympy.Matrix:
+        """The input port as a sympy Matrix of element symbols ((n,) ports: n x 1)."""
+        p = self._input(port)
+        rows, cols = (p.shape[0], 1) if len(p.shape) == 1 else p.shape
+        return sympy.Matrix(rows, cols, self._elements[p.name])
+
+    def bind(self, port: str, symbols: Sequence[sympy.Symbol]) -> dict[sympy.Symbol, InputElement]:
+        """Map model symbols, in order, to the elements of a 1-D input port (for xreplace)."""
+        p = self._input(port)
+        symbols = list(symbols)
+        if len(p.shape) != 1 or p.size != len(symbols):
+            raise ShapeError(f"bind: port {port!r} has shape {p.shape}, but {len(symbols)} "
+                             f"symbols were given: {[str(s) for s in symbols]}")
+        return dict(zip(symbols, self._elements[p.name]))
+
+    def _check_open(self) -> None:
+        if self._optimized:
+            raise ProgramError(f"program {self.name!r} is optimised and final: build on the "
+                               "original, then optimise again")
+
+    def _validate(self, expr: sympy.Basic, what: str) -> sympy.Expr:
+        try:
+            expr = sympy.sympify(expr)
+        except (sympy.SympifyError, TypeError) as exc:
+            raise ProgramError(f"{what}: {expr!r} is not a sympy expression") from exc
+        if not isinstance(expr, sympy.Expr):
+            raise ProgramError(f"{what}: {expr!r} is not a scalar expression")
+        if expr.has(*_NON_FINITE):
+            raise MatrixPropertyError(f"{what}: the expression is not finite ({expr}); "
+                                      "a structurally zero divisor?")
+        unbound = [s for s in expr.free_symbols
+                   if self._owner.get(s) is None and s not in self._defined]
+        if unbound:
+            name = sorted(unbound, key=default_sort_key)[0]
+            raise ProgramError(
+                f"{what} in program {self.name!r} uses symbol {str(name)!r}, which is neither an "
+                "element of one of its input ports nor one of its temporaries (bind model symbols "
+                "to the parameter port with Program.bind)")
+        return expr
+
+    def _new_temp(self, hint: str) -> Temporary:
+        if not isinstance(hint, str) or not re.match(r"^[A-Za-z_]\w*$", hint):
+            raise ProgramError(f"temporary hint {hint!r} is not an identifier")
+        name = f"t{self._counter}" if hint == "t" else f"t{self._counter}_{hint}"
+        self._counter += 1
+        return Temporary(name)
+
+    def let(self, expr: sympy.Expr, hint: str = "t") -> sympy.Expr:
+        """Append ``tK = expr`` and return ``tK``; an atom (number, symbol) is returned as is."""
+        self._check_open()
+        expr = self._validate(expr, "let")
+        if is_atom(expr):
+            return expr
+        target = self._new_temp(hint)
+        self._defined[target] = len(self._body)
+        self._body.append(Assign(target, expr))
+        return target
+
+    def set_output(self, port_name: str, flat_values: Iterable[sympy.Expr] | sympy.Matrix) -> None:
+        """Set every element of an output port (flat, row-major; a Matrix is flattened).
+
+        Non-atomic values get a temporary each.  For a symmetric port the values
+        must be symmetric (entry (i, j) structurally equal to (j, i)).
+        """
+        self._check_open()
+        port = self.port(port_name)
+        if port not in self.outputs:
+            raise ProgramError(f"set_output: {port_name!r} is an input of program {self.name!r}")
+        if port_name in self._results:
+            raise ProgramError(f"set_output: output {port_name!r} of {self.name!r} set twice")
+        values = [self._validate(v, f"output {port_name}") for v in list(flat_values)]
+        if len(values) != port.size:
+            raise ShapeError(f"set_output: port {port_name!r} has shape {port.shape} "
+                             f"({port.size} values), got {len(values)} values")
+        if port.symmetric:
+            n = port.shape[0]
+            for i in range(n):
+                for j in range(i + 1, n):
+                    if values[i * n + j] != values[j * n + i]:
+                        raise MatrixPropertyError(
+                            f"set_output: symmetric port {port_name!r} gets different values at "
+                            f"({i}, {j}) and ({j}, {i}): {values[i * n + j]} and "
+                            f"{values[j * n + i]} (stage it with symmetric_result=True)")
+            atoms = list(values)
+            for i in range(n):
+                for j in range(i, n):
+                    atoms[i * n + j] = atoms[j * n + i] = self.let(values[i * n + j], port_name)
+        else:
+            atoms = [self.let(v, port_name) for v in values]
+        self._results[port_name] = tuple(atoms)
+
+    def require_positive(self, expr: sympy.Expr, message: str) -> None:
+        """Runtime check that ``expr > 0`` (a NaN fails too).
+
+        A value that is structurally a positive number needs no check; one that
+        is structurally not positive raises MatrixPropertyError now.
+        """
+        self._check_open()
+        value = self.let(expr, "check")
+        if value.is_number:
+            if value.is_positive is not True:
+                raise MatrixPropertyError(f"{message} (the value is structurally {value})")
+            return
+        self._body.append(Check(value, str(message)))
+
+    # -- optimising --------------------------------------------------------------------
+
+    def optimize(self) -> Program:
+        """A new, final program: folded, copies propagated, shared, dead code dropped, renumbered.
+
+        Passes, in order: constant folding and copy propagation with merging of
+        identical right-hand sides; staging of integer powers (a non-atomic base
+        gets a temporary, ``x**k`` with ``|k| >= 4`` is built by squaring);
+        sharing of common subexpressions across the whole body, each one kept
+        only when it lowers the operation count; dead-code elimination;
+        renumbering ``t0, t1, ...`` in order.  Deterministic.  An optimised
+        program is returned unchanged.
+        """
+        if self._optimized:
+            return self
+        missing = [p.name for p in self.outputs if p.name not in self._results]
+        if missing:
+            raise ProgramError(f"program {self.name!r}: outputs {missing} were never set")
+        counter = iter(range(self._counter, 2**62))
+
+        def fresh(hint: str) -> Temporary:
+            return Temporary(f"t{next(counter)}_{hint}")
+
+        body, results = _optimize_body(self._body, self._results, fresh)
+        return self._final(body, results)
+
+    def _final(self, body: list[Statement], results: dict[str, tuple[sympy.Expr, ...]]) -> Program:
+        out = Program(self.name, self.inputs, self.outputs, self.doc)
+        out._body = list(body)
+        out._results = dict(results)
+        out._defined = {st.target: k for k, st in enumerate(body) if isinstance(st, Assign)}
+        out._counter = len(out._defined)
+        out._optimized = True
+        return out
+
+
+# -- passes ------------------------------------------------------------------------------
+
+Cost = tuple[int, int]  # (flops, instructions) of the lowered Python form
+
+
+def _optimize_body(body: list[Statement], results: dict[str, tuple[sympy.Expr, ...]],
+                   fresh) -> tuple[list[Statement], dict[str, tuple[sympy.Expr, ...]]]:
+    costs = _CostCache()
+    body, results = _forward(body, results)
+    body = _stage_powers(body, fresh)
+    body, results = _forward(body, results)
+    plain, plain_results = _dead_code(body, results)
+    shared, shared_results = _forward(_share(body, fresh, costs), results)
+    shared, shared_results = _dead_code(shared, shared_results)
+    if costs.total(shared) > costs.total(plain):
+        shared, shared_results = plain, plain_results
+    return _renumber(shared, shared_results)
+
+
+class _CostCache:
+    """(flops, instructions) of expressions, lowered as Python prints them."""
+
+    def __init__(self) -> None:
+        self._cache: dict[sympy.Expr, Cost] = {}
+
+    def __call__(self, expr: sympy.Expr) -> Cost:
+        cost = self._cache.get(expr)
+        if cost is None:
+            n = count_tree(lower(expr))
+            cost = self._cache[expr] = (n.flops, n.instructions)
+        return cost
+
+    def total(self, body: Sequence[Statement]) -> Cost:
+        flops = instructions = 0
+        for st in body:
+            f, i = self(st.expr) if isinstance(st, Assign) else (0, 1)
+            flops, instructions = flops + f, instructions + i
+        return flops, instructions
+
+
+def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
+    """Constant folding, copy propagation, merging of identical right-hand sides and checks."""
+    subst: dict[sympy.Symbol, sympy.Expr] = {}
+    seen: dict[sympy.Expr, Temporary] = {}
+    checked: set[sympy.Expr] = set()
+    out: list[Statement] = []
+    for st in body:
+        if isinstance(st, Assign):
+            expr = st.expr.xreplace(subst) if subst else st.expr
+            if expr.has(*_NON_FINITE):
+                raise MatrixPropertyError(f"{st.target} = {st.expr} is not finite after folding "
+                                          f"({expr}): a structurally zero divisor")
+            if is_atom(expr):
+                subst[st.target] = expr
+            elif expr in seen:
+                subst[st.target] = seen[expr]
+            else:
+                seen[expr] = st.target
+                out.append(st if expr is st.expr else Assign(st.target, expr))
+        else:
+            value = st.value.xreplace(subst) if subst else st.value
+            if value.is_number:
+                if value.is_positive is not True:
+                    raise MatrixPropertyError(f"{st.message} (the value is structurally {value})")
+            elif value not in checked:
+                checked.add(value)
+                out.append(Check(value, st.message))
+    new_results = {name: tuple(v.xreplace(subst) for v in values)
+                   for name, values in results.items()}
+    return out, new_results
+
+
+def _stage_powers(body: Sequence[Statement], fresh) -> list[Statement]:
+    """Give non-atomic bases of powers a temporary; build ``x**k``, ``|k| >= 4``, by squaring."""
+    out: list[Statement] = []
+    for st in body:
+        if not isinstance(st, Assign):
+            out.append(st)
+            continue
+
+        def emit(expr: sympy.Expr) -> Temporary:
+            target = fresh("pow")
+            out.append(Assign(target, expr))
+            return target
+
+        expr = _expand_powers(st.expr, emit)
+        out.append(st if expr is st.expr else Assign(st.target, expr))
+    return out
+
+
+def _expand_powers(expr: sympy.Expr, emit) -> sympy.Expr:
+    if is_atom(expr):
+        return expr
+    args = [_expand_powers(a, emit) for a in expr.args]
+    if any(a is not b for a, b in zip(args, expr.args)):
+        expr = expr.func(*args)
+    if not expr.is_Pow:
+        return expr
+    base, exp = expr.base, expr.exp
+    simple = exp in (-1, sympy.Rational(1, 2), sympy.Rational(-1, 2))
+    staged = False
+    if not is_atom(base) and not simple:
+        base, staged = emit(base), True
+    if exp.is_Integer and abs(exp) >= 4:
+        k = abs(int(exp))
+        factors, square = [], base
+        while True:
+            if k & 1:
+                factors.append(square)
+            k >>= 1
+            if not k:
+                break
+            square = emit(square ** 2)
+        value = sympy.Mul(*factors)
+        return value if exp > 0 else 1 / value
+    return sympy.Pow(base, exp) if staged else expr
+
+
+def _subexpressions(expr: sympy.Expr):
+    """Non-atomic subtrees of ``expr`` in preorder, plus the coefficient-free part of
+    every Mul with a numeric coefficient (``a*b`` of ``-2*a*b``)."""
+    stack = [expr]
+    while stack:
+        e = stack.pop()
+        if is_atom(e):
+            continue
+        yield e
+        if e.is_Mul and len(e.args) > 2:
+            coeff, rest = e.as_coeff_Mul()
+            if coeff != 1:
+                yield rest
+        stack.extend(reversed(e.args))
+
+
+def _occurrences(expr: sympy.Expr, target: sympy.Expr) -> int:
+    if expr == target:
+        return 1
+    if is_atom(expr):
+        return 0
+    if expr.is_Mul:
+        coeff, rest = expr.as_coeff_Mul()
+        if coeff != 1 and rest == target:
+            return 1
+    return sum(_occurrences(a, target) for a in expr.args)
+
+
+def _replace(expr: sympy.Expr, target: sympy.Expr, symbol: sympy.Symbol) -> sympy.Expr:
+    if expr == target:
+        return symbol
+    if is_atom(expr):
+        return expr
+    if expr.is_Mul:
+        coeff, rest = expr.as_coeff_Mul()
+        if coeff != 1 and rest == target:
+            return coeff * symbol
+    args = [_replace(a, target, symbol) for a in expr.args]
+    if all(a is b for a, b in zip(args, expr.args)):
+        return expr
+    return expr.func(*args)
+
+
+def _share(body: Sequence[Statement], fresh, cost: _CostCache) -> list[Statement]:
+    """Common-subexpression sharing across the body, one candidate at a time, largest first;
+    a candidate is shared only where that lowers (flops, instructions)."""
+    stmts: dict[int, Statement] = dict(enumerate(body))
+    pos: dict[int, Fraction] = {sid: Fraction(sid) for sid in stmts}
+    keys: list[Fraction] = sorted(pos.values())
+    occ: dict[sympy.Expr, list[int]] = {}
+    for sid, st in stmts.items():
+        if isinstance(st, Assign):
+            for node in _subexpressions(st.expr):
+                occ.setdefault(node, []).append(sid)
+    candidates = [e for e, ids in occ.items() if len(ids) >= 2]
+    candidates.sort(key=lambda e: (-cost(e)[1], default_sort_key(e)))
+
+    def place_before(sid: int, first: int) -> None:
+        if sid in pos:
+            keys.remove(pos[sid])
+        k = bisect_left(keys, pos[first])
+        low = keys[k - 1] if k else pos[first] - 1
+        pos[sid] = (low + pos[first]) / 2
+        insort(keys, pos[sid])
+
+    next_id = len(body)
+    for cand in candidates:
+        users = [sid for sid in dict.fromkeys(occ[cand])
+                 if _occurrences(stmts[sid].expr, cand)]
+        if sum(_occurrences(stmts[sid].expr, cand) for sid in users) < 2:
+            continue
+        root = next((sid for sid in users if stmts[sid].expr == cand), None)
+        symbol = stmts[root].target if root is not None else fresh("cse")
+        others = [sid for sid in users if sid != root]
+        new_exprs = {sid: _replace(stmts[sid].expr, cand, symbol) for sid in others}
+        before = [cost(stmts[sid].expr) for sid in users]
+        after = [cost(cand)] + [cost(e) for e in new_exprs.values()]
+        if (sum(c[0] for c in after), sum(c[1] for c in after)) >= (
+                sum(c[0] for c in before), sum(c[1] for c in before)):
+            continue
+        first = min(others, key=pos.__getitem__)
+        if root is None:
+            root, next_id = next_id, next_id + 1
+            stmts[root] = Assign(symbol, cand)
+            for node in _subexpressions(cand):
+                if node != cand and node in occ:
+                    occ[node].append(root)
+            place_before(root, first)
+        elif pos[root] > pos[first]:
+            place_before(root, first)
+        for sid, expr in new_exprs.items():
+            stmts[sid] = Assign(stmts[sid].target, expr)
+    return [stmts[sid] for sid in sorted(stmts, key=pos.__getitem__)]
+
+
+def _dead_code(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
+    """Drop assignments that reach neither an output nor a check."""
+    live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
+    out: list[Statement] = []
+    for st in reversed(body):
+        if isinstance(st, Assign):
+            if st.target not in live:
+                continue
+            expr = st.expr
+        else:
+            expr = st.value
+        out.append(st)
+        live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
+    out.reverse()
+    return out, results
+
+
+def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
+    """Name the temporaries t0, t1, ... in order."""
+    names: dict[sympy.Symbol, sympy.Symbol] = {}
+    for st in body:
+        if isinstance(st, Assign):
+            names[st.target] = Temporary(f"t{len(names)}")
+    out: list[Statement] = []
+    for st in body:
+        if isinstance(st, Assign):
+            out.append(Assign(names[st.target], st.expr.xreplace(names)))
+        else:
+            out.append(Check(st.value.xreplace(names), st.message))
+    return out, {name: tuple(v.xreplace(names) for v in values)
+                 for name, values in results.items()}
