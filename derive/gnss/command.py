@@ -1,0 +1,61 @@
+"""The command `python -m derive.gnss` (and `derive gnss`): run the filters on the real
+data and print the error table."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from derive.errors import ModelError, NumericalError
+from derive.gnss.measurements import CorrectionOptions
+from derive.gnss.run import FilterSettings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of the gnss command."""
+    d = FilterSettings()
+    parser.add_argument("--epochs", type=int, default=None,
+                        help="use only the first N epochs (default: all 1200)")
+    parser.add_argument("--mask", type=float, default=CorrectionOptions().elevation_mask_deg,
+                        help="elevation mask, degrees (default %(default)s)")
+    parser.add_argument("--no-iono", action="store_true", help="skip the Klobuchar correction")
+    parser.add_argument("--no-tropo", action="store_true",
+                        help="skip the Saastamoinen correction")
+    parser.add_argument("--sigma", type=float, default=d.sigma,
+                        help="pseudorange std, m (default %(default)s)")
+    parser.add_argument("--q-position", type=float, default=d.q_position,
+                        help="position random-walk variance per epoch, m² (default %(default)s)")
+    parser.add_argument("--q-clock", type=float, default=d.q_clock,
+                        help="clock random-walk variance per epoch, m² (default %(default)s)")
+    parser.add_argument("--kappa", type=float, default=None,
+                        help="UKF kappa (default 3 - n = -1)")
+    parser.add_argument("--obs", default=None, help="another RINEX 3 observation file")
+    parser.add_argument("--nav", default=None, help="another RINEX 3 navigation file")
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Print the table of run_real for parsed arguments; 0 on success."""
+    from derive.gnss.data import load_real_data
+    from derive.gnss.run import run_real
+
+    settings = FilterSettings(sigma=args.sigma, q_position=args.q_position,
+                              q_clock=args.q_clock, kappa=args.kappa)
+    corrections = CorrectionOptions(args.mask, troposphere=not args.no_tropo,
+                                    ionosphere=not args.no_iono)
+    data = load_real_data(args.epochs, args.obs, args.nav)
+    print(run_real(settings=settings, corrections=corrections, data=data).table())
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m derive.gnss", description=__doc__)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run_command(args)
+    except (ModelError, ModuleNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except NumericalError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
