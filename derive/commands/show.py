@@ -1,0 +1,36 @@
+"""`derive show MODEL`: a model's matrices, values and free parameters."""
+
+import textwrap
+
+NAME = "show"
+ORDER = 20
+HELP = "print a model's matrices, values and free parameters"
+EXAMPLE = "derive show cv\n  derive show my_model.toml"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("model", help="catalog name or model-file path")
+
+
+def run(args) -> int:
+    import sympy
+
+    from . import load_model
+
+    model = load_model(args.model)
+    print(f"{model.name}: {model.kind} model, n = {model.n}, m = {model.m}")
+    if model.description:
+        print(textwrap.fill(model.description, 88))
+    if model.source:
+        print(textwrap.fill(f"source: {model.source}", 88))
+    print(f"states: {', '.join(model.states)}")
+    print(f"measurements: {', '.join(model.measurements)}")
+    print("values: " + (", ".join(f"{k} = {v}" for k, v in model.values.items()) or "none"))
+    print("free parameters (p order): " + (", ".join(p.name for p in model.parameters)
+                                           or "none"))
+    mats = (("F", "G", "H", "Q", "R") if model.kind == "linear"
+            else ("f", "h", "F_jacobian", "H_jacobian", "Q", "R"))
+    for k in mats:
+        print(f"{k} =")
+        print(textwrap.indent(sympy.pretty(getattr(model, k), use_unicode=False), "    "))
+    return 0
