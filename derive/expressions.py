@@ -151,8 +151,10 @@ def exact_number(value: float | Fraction, where: str = "") -> sympy.Rational:
     prefix = f"{where}: " if where else ""
     if isinstance(value, bool) or not isinstance(value, (int, float, Fraction)):
         raise ExpressionError(f"{prefix}expected a number, got {type(value).__name__} {value!r}")
+    if isinstance(value, float):
+        return exact_decimal(repr(value), where)  # handles the sign (-0.5, -0.0)
     try:
-        number = _decimal_fraction(repr(value)) if isinstance(value, float) else Fraction(value)
+        number = Fraction(value)
         _check_bits(number)
     except ValueError as error:
         raise ExpressionError(f"{prefix}number {_short(str(value))} {error}") from None

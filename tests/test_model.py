@@ -118,3 +118,11 @@ def test_nonlinear_inputs_only_in_h():
     x, u = sympy.symbols("x u", real=True)
     with pytest.raises(SymbolError, match="'u'"):
         NonlinearModel("bad", ["x"], ["y"], [x + u], [x], [[1]], [[1]], inputs=["u"])
+
+
+def test_negative_and_signed_zero_floats_are_exact():
+    m = LinearModel("neg", ["a"], ["y"], [[-0.5]], [[-0.0 + 1.0]], [[0.25]], [[2.5]])
+    assert m.F[0, 0] == sympy.Rational(-1, 2)
+    m2 = LinearModel("negz", ["a", "b"], ["y"], [[1, -0.0], [0, 1]], [[1, 0]], np.eye(2),
+                     [[1]])
+    assert m2.F[0, 1] == 0

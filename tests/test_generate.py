@@ -1,0 +1,84 @@
+"""generate(): files, layout, the command line, and the committed generated/ tree."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from derive import catalog
+from derive.cli import main
+from derive.errors import FilterError, SteadyStateError
+from derive.filters import available
+from derive.generate import generate
+from derive.verify import import_python
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_generate_writes_model_filter_files(tmp_path):
+    paths = generate("mpt3d_b", ["kf", "sskf"], "all", tmp_path)
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in paths) == [
+        "mpt3d_b/kf.c", "mpt3d_b/kf.h", "mpt3d_b/kf.py",
+        "mpt3d_b/sskf.c", "mpt3d_b/sskf.h", "mpt3d_b/sskf.py"]
+    text = (tmp_path / "mpt3d_b" / "kf.c").read_text()
+    assert "void mpt3d_b_kf_run(size_t steps" in text or "int mpt3d_b_kf_run(size_t steps" in text
+    assert "derive generate mpt3d_b --filter kf --lang all" in text
+
+
+def test_generate_one_language(tmp_path):
+    paths = generate("cv", ["kf"], "python", tmp_path)
+    assert [p.name for p in paths] == ["kf.py"]
+
+
+def test_unknown_filter_is_named(tmp_path):
+    with pytest.raises(FilterError, match="'kff'.*did you mean 'kf'"):
+        generate("cv", ["kff"], "all", tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+def test_steady_state_with_a_free_symbol_is_refused(tmp_path):
+    import sympy
+
+    from derive import LinearModel
+
+    q = sympy.Symbol("q")
+    m = LinearModel("freeq", ["s", "v"], ["z"], [[1, 1], [0, 1]], [[1, 0]], [[q]], [[1]],
+                    G=[[0.5], [1]])
+    with pytest.raises(SteadyStateError, match="'q'"):
+        generate(m, ["sskf"], "all", tmp_path)
+    generate(m, ["kf"], "python", tmp_path)  # time-varying: q is the runtime p[0]
+    mod = import_python(tmp_path / "freeq" / "kf.py")
+    xs, Ps = mod.run(np.ones((5, 1)), np.zeros(2), np.eye(2), np.array([0.01]))
+    assert xs.shape == (5, 2) and Ps.shape == (5, 2, 2)
+
+
+def test_cli_generate_and_errors(tmp_path, capsys):
+    assert main(["generate", "gsm2d_b", "--filter", "kf", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "gsm2d_b" / "kf.h").is_file()
+    capsys.readouterr()
+    assert main(["generate", "no_such_model", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no_such_model" in err[0]
+
+
+def test_committed_generated_tree_is_fresh(tmp_path):
+    """generated/ equals a fresh `derive generate --all` byte for byte."""
+    subprocess.run([sys.executable, "-m", "derive", "generate", "--all", "--out", str(tmp_path)],
+                   check=True, capture_output=True, cwd=tmp_path)
+    committed = ROOT / "generated"
+    fresh = {p.relative_to(tmp_path).as_posix(): p.read_bytes()
+             for p in tmp_path.rglob("*") if p.is_file()}
+    have = {p.relative_to(committed).as_posix(): p.read_bytes()
+            for p in committed.rglob("*") if p.is_file() and p.name != "README.md"}
+    assert sorted(have) == sorted(fresh), "generated/ lists other files than --all writes"
+    stale = [name for name in fresh if have[name] != fresh[name]]
+    assert not stale, f"generated/ is stale: {stale[:5]} (run `derive generate --all`)"
+
+
+def test_every_catalog_filter_listed_is_generated():
+    for name in catalog.names():
+        model = catalog.load(name)
+        for f in available(model):
+            assert (ROOT / "generated" / name / f"{f}.py").is_file(), (name, f)

@@ -1,0 +1,103 @@
+"""Generated Python and C against the NumPy reference: catalog, random models, many tracks."""
+
+import numpy as np
+import pytest
+import sympy
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from derive import LinearModel, catalog, reference
+from derive.filters import available
+from derive.generate import render_filter
+from derive.emit.write import write_files
+from derive.simulate import simulate_linear
+from derive.verify import LINEAR_TOLERANCE, import_python, relative_error, verify_filter
+
+LINEAR = [(name, f) for name in catalog.names() for f in available(catalog.load(name))
+          if catalog.load(name).kind == "linear"]
+
+
+@pytest.mark.parametrize("model_name, filter_name", LINEAR)
+def test_catalog_filter_matches_reference(model_name, filter_name):
+    results = verify_filter(catalog.load(model_name), filter_name, steps=1000)
+    assert [r.lang for r in results] == ["python", "c"]
+    for r in results:
+        assert r.error <= LINEAR_TOLERANCE, r.line()
+
+
+def test_relative_error_is_normwise_per_step():
+    ref = np.array([[1e6, 1.0], [2.0, 3.0]])
+    assert relative_error(ref + [[1e-6, 1e-6], [0, 0]], ref) == pytest.approx(1e-12)
+    assert relative_error(ref + [[0, 0], [0, 3e-12]], ref) == pytest.approx(1e-12)
+
+
+@st.composite
+def stable_models(draw):
+    n = draw(st.integers(1, 6))
+    m = draw(st.integers(1, n))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    F = rng.normal(size=(n, n)) * (rng.random((n, n)) < 0.6)
+    F += np.eye(n)
+    F *= 0.95 / max(1.0, np.max(np.abs(np.linalg.eigvals(F))))
+    H = rng.normal(size=(m, n)) * (rng.random((m, n)) < 0.7)
+    H[np.arange(m), rng.permutation(n)[:m]] = 1.0
+    L = rng.normal(size=(n, n))
+    Q = L @ L.T / n + 0.1 * np.eye(n)
+    Lr = rng.normal(size=(m, m))
+    R = Lr @ Lr.T / m + 0.2 * np.eye(m)
+    rnd = np.round  # short decimals keep the exact constants small
+    model = LinearModel("rand", [f"x{i}" for i in range(n)], [f"y{i}" for i in range(m)],
+                        rnd(F, 3).tolist(), rnd(H, 3).tolist(), rnd((Q + Q.T) / 2, 3).tolist(),
+                        rnd((R + R.T) / 2, 3).tolist())
+    return model
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(stable_models(), st.integers(0, 1000))
+def test_random_models_kf_and_sskf_match_reference(tmp_path_factory, model, seed):
+    num = model.numeric()
+    run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 200, seed)
+    P0 = np.eye(model.n)
+    tmp = tmp_path_factory.mktemp("rand")
+    files = {**render_filter(model, "kf", "python"), **render_filter(model, "sskf", "python")}
+    paths = {p.name: p for p in write_files(tmp, model.name, files)}
+    xs, Ps = import_python(paths["kf.py"]).run(run.zs, num.x0, P0)
+    xr, Pr = reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, P0, run.zs)
+    assert relative_error(xs, xr) <= 1e-12
+    assert relative_error(Ps, Pr) <= 1e-12
+    xs = import_python(paths["sskf.py"]).run(run.zs, num.x0)
+    assert relative_error(xs, reference.sskf(num.F, num.G, num.H, num.Q, num.R, num.x0,
+                                             run.zs)) <= 1e-12
+
+
+def test_trailing_track_axis_filters_many_tracks(tmp_path):
+    model = catalog.load("mpt3d_a")
+    num = model.numeric()
+    paths = {p.name: p for p in write_files(tmp_path, model.name,
+                                             render_filter(model, "kf", "python"))}
+    mod = import_python(paths["kf.py"])
+    tracks = 7
+    zs = np.stack([simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 50, s).zs
+                   for s in range(tracks)], axis=-1)  # (steps, m, tracks)
+    x0 = np.zeros((model.n, tracks))
+    P0 = np.zeros((model.n, model.n, tracks))
+    xs, Ps = mod.run(zs, x0, P0)
+    assert xs.shape == (50, model.n, tracks) and Ps.shape == (50, model.n, model.n, tracks)
+    for t in range(tracks):
+        x1, P1 = mod.run(zs[..., t], x0[:, t], P0[..., t])
+        np.testing.assert_array_equal(xs[..., t], x1)
+        np.testing.assert_array_equal(Ps[..., t], P1)
+
+
+def test_free_parameter_model_runs_with_p(tmp_path):
+    dt = sympy.Symbol("dt")
+    m = LinearModel("freedt", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[0.01]], [[0.1]],
+                    G=[[dt / 2], [1]])
+    paths = {p.name: p for p in write_files(tmp_path, m.name, render_filter(m, "kf", "python"))}
+    mod = import_python(paths["kf.py"])
+    num = LinearModel("fixed", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[0.01]], [[0.1]],
+                      G=[[dt / 2], [1]], values={"dt": 0.5}).numeric()
+    run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 100, 3)
+    xs, Ps = mod.run(run.zs, num.x0, np.eye(2), np.array([0.5]))
+    xr, Pr = reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, np.eye(2), run.zs)
+    assert relative_error(xs, xr) <= 1e-12 and relative_error(Ps, Pr) <= 1e-12
