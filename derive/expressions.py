@@ -157,7 +157,9 @@ def exact_number(value: float | Fraction, where: str = "") -> sympy.Rational:
         number = Fraction(value)
         _check_bits(number)
     except ValueError as error:
-        raise ExpressionError(f"{prefix}number {_short(str(value))} {error}") from None
+        shown = (_short(str(value)) if number.numerator.bit_length() < 4000
+                 else f"of {number.numerator.bit_length()} bits")
+        raise ExpressionError(f"{prefix}number {shown} {error}") from None
     return sympy.Rational(number.numerator, number.denominator)
 
 

@@ -7,6 +7,17 @@ step, ``max_k ||gen_k - ref_k||_inf / max(||ref_k||_inf, 1)`` for x(k) and for P
 (relative, absolute near zero): a component computed from much larger ones (the
 acceleration of the CA model from positions of 1e6 m) is judged at the scale of the
 numbers it is computed from. The bar is 1e-12 for linear filters.
+
+Nonlinear filters (EKF, UKF) run on :func:`nonlinear_scenario`: for a model whose inputs
+are one satellite position per measurement and whose state is [x, y, z, b], the GNSS
+scenario of derive.simulate (moving satellites, so the per-step inputs change); for a
+model without inputs, a run of its own f and h. Their bar is 1e-10, or the reference's own
+rounding floor times :data:`FLOOR_MARGIN` where that is larger: the floor is the largest
+change of the reference's output when every value of h is perturbed by one rounding
+(relative 2^-53, two seeded runs). For the GNSS UKF it is about 3e-10: pseudoranges are
+~2e7 m while their spread over the sigma points is metres, so one rounding of h (~4e-9 m)
+moves P by ~1e-9 relative per step; two correct implementations that round differently
+cannot agree better. The EKF's floor is ~1e-15.
 """
 
 from __future__ import annotations
@@ -23,9 +34,12 @@ from .build import build_c
 from .emit.write import write_files
 from .errors import VerificationError
 from .generate import render_filter
-from .simulate import simulate_linear
+from .simulate import gnss_scenario, simulate_linear
 
 LINEAR_TOLERANCE = 1e-12
+NONLINEAR_TOLERANCE = 1e-10
+FLOOR_MARGIN = 4.0
+NONLINEAR = ("ekf", "ukf")
 
 
 @dataclass(frozen=True)
@@ -68,8 +82,99 @@ def import_python(path: Path):
     return module
 
 
-def reference_run(model, name: str, zs, options: dict):
-    """The NumPy reference output for filter ``name``: (xs, Ps or None)."""
+@dataclass(frozen=True)
+class NonlinearScenario:
+    """Measurements zs (steps, m), inputs us (steps, len(model.inputs)), truth
+    (steps + 1, n), and the filter start x0, P0."""
+
+    zs: np.ndarray
+    us: np.ndarray
+    truth: np.ndarray
+    x0: np.ndarray
+    P0: np.ndarray
+
+
+def _is_identity(model) -> bool:
+    return list(model.subs(model.f)) == list(model.state_symbols)
+
+
+def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScenario:
+    """A seeded run for a nonlinear model (see the module docstring)."""
+    fns = model.numeric_functions()
+    rng = np.random.default_rng(seed + 1)
+    n, m = model.n, model.m
+    if model.inputs:
+        if len(model.inputs) != 3 * m or n != 4 or m < 4:
+            raise VerificationError(
+                f"no verification scenario for model {model.name!r}: its inputs must be one "
+                f"satellite position (3 numbers) per measurement, at least 4 measurements, "
+                f"and its state [x, y, z, b]; got {len(model.inputs)} inputs, m = {m}, n = {n}")
+        elev = [80.0, 35.0, 45.0, 55.0, 20.0, 65.0, 30.0, 15.0][:m] + [40.0] * max(0, m - 8)
+        azim = [(30.0 + 360.0 * i / m + 17.0 * (i % 2)) % 360.0 for i in range(m)]
+        sc = gnss_scenario(steps, seed, elevations_deg=elev, azimuths_deg=azim, moving=True)
+        us = sc.satellites.reshape(steps, 3 * m)
+        truth, x0, P0 = sc.truth, sc.x0, sc.P0
+    else:
+        us = np.zeros((steps, 0))
+        x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
+        P0 = np.asarray(model.P0.tolist(), dtype=float)
+        Q = fns["Q"]
+        w = rng.multivariate_normal(np.zeros(n), Q, size=steps, method="eigh")
+        truth = np.empty((steps + 1, n))
+        truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
+        for k in range(steps):
+            truth[k + 1] = fns["f"](truth[k]) + w[k]
+    v = rng.multivariate_normal(np.zeros(m), fns["R"], size=steps, method="eigh")
+    zs = np.array([fns["h"](truth[k + 1], us[k]) for k in range(steps)]) + v
+    return NonlinearScenario(zs, us, truth, np.asarray(x0, float), np.asarray(P0, float))
+
+
+def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: dict,
+                        rounding_seed: int | None = None):
+    """derive.reference.ekf / ukf on ``scenario`` (identity f passed as None).
+
+    ``rounding_seed``: perturb every value of h by one rounding (relative uniform in
+    ±2^-53, seeded), to measure the reference's rounding floor."""
+    fns = model.numeric_functions()
+    identity = _is_identity(model)
+    f, F = (None, None) if identity else (fns["f"], fns["F"])
+    if rounding_seed is not None:
+        rng, h_exact = np.random.default_rng(rounding_seed), fns["h"]
+
+        def h_rounded(x, u=()):
+            y = h_exact(x, u)
+            return y * (1.0 + rng.uniform(-1.0, 1.0, y.shape) * 2.0 ** -53)
+
+        fns = {**fns, "h": h_rounded}
+    inputs = list(scenario.us)
+    if name == "ekf":
+        res = reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
+                            scenario.P0, scenario.zs, inputs=inputs, skip_nan=False)
+    else:
+        res = reference.ukf(f, fns["h"], fns["Q"], fns["R"], scenario.x0, scenario.P0,
+                            scenario.zs, alpha=options.get("alpha"), beta=options.get("beta"),
+                            kappa=options.get("kappa"), inputs=inputs, skip_nan=False)
+    return res.xs, res.Ps
+
+
+def rounding_floor(model, name: str, scenario: NonlinearScenario, options: dict,
+                   xs_ref, Ps_ref) -> float:
+    """Largest relative change (x or P) of the reference under one rounding of h."""
+    floor = 0.0
+    for seed in (1, 2):
+        xs, Ps = nonlinear_reference(model, name, scenario, options, rounding_seed=seed)
+        floor = max(floor, relative_error(xs, xs_ref), relative_error(Ps, Ps_ref))
+    return floor
+
+
+def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenario | None = None):
+    """The NumPy reference output for filter ``name``: (xs, Ps or None).
+
+    Nonlinear filters need the ``scenario`` (its zs are used; ``zs`` is ignored)."""
+    if name in NONLINEAR:
+        if scenario is None:
+            raise VerificationError(f"filter {name!r} needs a NonlinearScenario")
+        return nonlinear_reference(model, name, scenario, options)
     num = model.numeric()
     F, G, H, Q, R, x0, P0 = num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0
     if name in ("kf", "lf", "jklf", "ikf"):
@@ -93,8 +198,14 @@ def _options_for(model, name: str, options: dict) -> dict:
     return opts
 
 
-def generated_run(module, name: str, zs, model, lang: str):
-    """Run a generated filter (Python module or C FilterModule) from the model's x0, P0."""
+def generated_run(module, name: str, zs, model, lang: str,
+                  scenario: NonlinearScenario | None = None):
+    """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
+    (nonlinear filters: the scenario's zs, us, x0 and P0)."""
+    if name in NONLINEAR:
+        args = [scenario.zs] + ([scenario.us] if model.inputs else [])
+        xs, Ps = module.run(*args, scenario.x0, scenario.P0)
+        return np.asarray(xs), np.asarray(Ps).reshape(len(scenario.zs), model.n, model.n)
     num = model.numeric()
     if name in ("kf", "lf", "jklf", "ikf"):
         xs, Ps = module.run(zs, num.x0, num.P0)
@@ -109,9 +220,18 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
                   ) -> list[Verification]:
     """Generate, build and run filter ``name``; compare with the reference."""
     opts = _options_for(model, name, dict(options or {}))
-    num = model.numeric()
-    run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed)
-    xs_ref, Ps_ref = reference_run(model, name, run.zs, opts)
+    scenario = None
+    if name in NONLINEAR:
+        scenario = nonlinear_scenario(model, steps, seed)
+        zs, tolerance = scenario.zs, NONLINEAR_TOLERANCE
+    else:
+        num = model.numeric()
+        zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed).zs
+        tolerance = LINEAR_TOLERANCE
+    xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
+    if scenario is not None:
+        floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
+        tolerance = max(tolerance, FLOOR_MARGIN * floor)
     out: list[Verification] = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         files = render_filter(model, name, "all", opts)
@@ -121,12 +241,14 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
                 module = import_python(paths[".py"])
             else:
                 module = build_c(paths[".c"])
-            xs, Ps = generated_run(module, name, run.zs, model, lang)
+            xs, Ps = generated_run(module, name, zs, model, lang, scenario)
             err = relative_error(xs, xs_ref)
             if Ps_ref is not None and Ps is not None:
                 err = max(err, relative_error(Ps, Ps_ref))
-            out.append(Verification(model.name, name, lang, steps, err, LINEAR_TOLERANCE))
+            out.append(Verification(model.name, name, lang, steps, err, tolerance))
     return out
 
 
-__all__ = ["Verification", "verify_filter", "relative_error", "riccati"]
+__all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
+           "nonlinear_reference", "nonlinear_scenario", "relative_error", "riccati",
+           "rounding_floor", "verify_filter"]

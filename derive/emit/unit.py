@@ -1,8 +1,10 @@
 """A generation unit (one model, one filter) and the interface of each filter family.
 
 A :class:`Unit` is everything the renderer needs and nothing it must compute
-about filters: names, sizes, the programs (``step`` and, for ``pred``,
-``init``), header facts and the regeneration command.  :data:`FAMILIES` says
+about filters: names, sizes, the programs (``step``; for ``pred`` also ``init``;
+for ``ekf``/``ukf`` also ``predict`` and, optionally, ``update1``, the sequential
+form for a varying number of measurements), header facts and the regeneration
+command.  :data:`FAMILIES` says
 which ports each family's programs must have; the run loop of each *kind*
 (time-varying, steady, FIR, prediction) lives in its templates and its
 arguments in :func:`run_arguments`.
@@ -45,6 +47,15 @@ FAMILIES: Mapping[str, Family] = MappingProxyType({f.name: f for f in (
     Family("fir", "fir", "steady-state FIR filter"),
     Family("pred", "pred", "steady-state N-step predictor"),
 )})
+
+
+EXTRA_PROGRAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
+    "predict": ("ekf", "ukf"),
+    "update1": ("ekf", "ukf"),
+})
+"""Programs besides step and init, and the families that may have them:
+``predict(x, P[, p]) -> (x_new, P_new)`` and
+``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``."""
 
 
 @dataclass(frozen=True)
@@ -133,6 +144,12 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     per_step = [(name, (m,) if name == "z" else None) for name in unit.step_inputs]
     if program == "init":
         return [("x0", (n,))] + p, [("x_new", (n,))]
+    if program == "predict":
+        return [("x", (n,)), ("P", (n, n))] + p, [("x_new", (n,)), ("P_new", (n, n))]
+    if program == "update1":
+        u = [("u", None)] if "u" in unit.step_inputs else []
+        return ([("x", (n,)), ("P", (n, n)), ("z", (1,))] + u + p,
+                [("x_new", (n,)), ("P_new", (n, n)), ("innovation", (1,)), ("variance", (1,))])
     if unit.kind == "timevarying":
         return [("x", (n,)), ("P", (n, n))] + per_step + p, [("x_new", (n,)), ("P_new", (n, n))]
     if unit.kind in ("steady", "pred"):
@@ -162,7 +179,15 @@ def _validate(unit: Unit) -> None:
     if not unit.step_inputs or unit.step_inputs[0] != "z":
         raise ProgramError(f"unit {unit.prefix}: the first per-step input must be 'z', "
                            f"got {unit.step_inputs}")
-    for name in ("step", "init"):
+    for name in unit.programs:
+        if name in ("step", "init"):
+            continue
+        if unit.family not in EXTRA_PROGRAMS.get(name, ()):
+            raise ProgramError(f"unit {unit.prefix} ({unit.family}): no program {name!r} in "
+                               f"this family; programs beyond step and init: "
+                               + ", ".join(f"{k} ({'/'.join(v)})"
+                                           for k, v in EXTRA_PROGRAMS.items()))
+    for name in ("step", "init", *EXTRA_PROGRAMS):
         if name not in unit.programs:
             continue
         program = unit.programs[name]

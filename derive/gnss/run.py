@@ -4,7 +4,8 @@ least-squares fixes against the station's known position.
 A filter is a pair of callables for the state X = [x, y, z, b] (ECEF m, clock bias m):
 predict(X, P) -> (X, P) (identity dynamics, P + Q) and update1(X, P, rho, sat_xyz) ->
 (X, P) or (X, P, innovation, variance) for one pseudorange. The NumPy pair of
-derive.gnss.scalar_updates and generated code with those signatures both fit.
+derive.gnss.scalar_updates (the reference) and derive's generated code
+(derive.gnss.generated.generated_filters) both fit.
 """
 
 from __future__ import annotations

@@ -1,0 +1,220 @@
+"""The unscented Kalman filter (SPEC §6) for any NonlinearModel, as straight-line programs.
+
+Weights, the scaled form of Wan and van der Merwe (as derive.reference.sigma_weights):
+``c = alpha² (n + kappa)``, ``Wm0 = (c - n)/c``, ``Wc0 = Wm0 + 1 - alpha² + beta``,
+``Wi = 1/(2c)``; options ``alpha``, ``beta``, ``kappa`` (defaults 1, 0, 3 - n: the paper's
+plain UKF with n + kappa = 3, so W0 = kappa/(n + kappa) < 0 for n > 3).
+
+Sigma points of (x, P): ``X0 = x``, ``X_i = x + sqrt(c) L_i``, ``X_n+i = x - sqrt(c) L_i``
+with ``L`` the unrolled lower Cholesky factor of P; each pivot is checked at run time, so
+an indefinite P (a negative W0 can make it so) gives a non-zero C status and a Python
+NumericalError, never silent garbage.
+
+predict: for an affine f (F free of the state) the unscented transform is exact, and the
+program computes it as ``f(x)``, ``F P F^T + Q``; otherwise the sigma points of (x, P)
+pass through f, ``x⁻ = Σ Wm f(X_i)``, ``P⁻ = Σ Wc (f(X_i) - x⁻)(·)^T + Q``.
+update: sigma points redrawn from (x⁻, P⁻), ``Y_i = h(X_i, u)``, ``ŷ = Σ Wm Y_i``,
+``Pvv = Σ Wc (Y_i - ŷ)(·)^T + R``, ``Pxy = Σ Wc (X_i - x⁻)(Y_i - ŷ)^T``, which is
+``Wi sqrt(c) L (Y_1..n - Y_n+1..2n)^T`` since ``X_i - x⁻ = ±sqrt(c) L_i``;
+``K = Pxy Pvv⁻¹`` (LDL^T solve), ``x = x⁻ + K (z - ŷ)``, ``P = P⁻ - K Pxy^T``
+(``= P⁻ - K Pvv K^T``).  Programs step, predict, update1 as for the EKF
+(:func:`derive.filters.ekf.nonlinear_programs`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from numbers import Real
+
+import sympy
+
+from .. import staging
+from ..errors import FilterError
+from .ekf import (
+    check_nonlinear,
+    linearise,
+    nonlinear_programs,
+    stage_linearisation,
+    state_jacobian,
+    state_mapping,
+    step_inputs,
+)
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Exact sigma-point weights and the scale ``c = n + lambda``."""
+
+    n: int
+    alpha: sympy.Rational
+    beta: sympy.Rational
+    kappa: sympy.Rational
+
+    @property
+    def c(self) -> sympy.Expr:
+        return self.alpha ** 2 * (self.n + self.kappa)
+
+    @property
+    def wm0(self) -> sympy.Expr:
+        return (self.c - self.n) / self.c
+
+    @property
+    def wc0(self) -> sympy.Expr:
+        return self.wm0 + 1 - self.alpha ** 2 + self.beta
+
+    @property
+    def wi(self) -> sympy.Expr:
+        return 1 / (2 * self.c)
+
+    def fact(self) -> str:
+        return (f"sigma points: alpha = {self.alpha}, beta = {self.beta}, kappa = {self.kappa}, "
+                f"n + lambda = {self.c}; weights Wm0 = {self.wm0}, Wc0 = {self.wc0}, "
+                f"Wi = {self.wi} (i = 1..{2 * self.n})")
+
+
+def _exact(value, name: str) -> sympy.Rational:
+    if isinstance(value, bool) or not isinstance(value, (Real, sympy.Rational)):
+        raise FilterError(f"UKF option {name} must be a real number, got {value!r}")
+    if isinstance(value, sympy.Rational):
+        return value
+    if isinstance(value, int):
+        return sympy.Integer(value)
+    if not math.isfinite(float(value)):
+        raise FilterError(f"UKF option {name} must be finite, got {value!r}")
+    return sympy.Rational(repr(float(value)))
+
+
+def weights(n: int, options) -> Weights:
+    """Weights from ``options`` (alpha, beta, kappa; None means the default)."""
+    def get(key, default):
+        value = options.get(key)
+        return _exact(default if value is None else value, key)
+
+    w = Weights(n, get("alpha", 1), get("beta", 0), get("kappa", 3 - n))
+    if w.alpha <= 0:
+        raise FilterError(f"UKF option alpha must be > 0, got {w.alpha}")
+    if w.c <= 0:
+        raise FilterError(f"UKF needs alpha²(n + kappa) > 0, got {w.c} (n = {n}, "
+                          f"alpha = {w.alpha}, kappa = {w.kappa})")
+    return w
+
+
+def _is_affine(model) -> bool:
+    states = set(model.state_symbols)
+    jac = model.subs(model.F_jacobian)
+    return not any(e.free_symbols & states for e in jac)
+
+
+def sigma_offsets(prog, P: sympy.Matrix, w: Weights) -> sympy.Matrix:
+    """``sqrt(c) L`` with ``L L^T = P`` (unrolled Cholesky, pivots checked at run time)."""
+    L = staging.cholesky(prog, P, name="the sigma-point covariance P (a negative weight W0 "
+                                       "can make it indefinite)")
+    return staging.scale(prog, L, sympy.sqrt(w.c))
+
+
+def sigma_points(prog, x: sympy.Matrix, offsets: sympy.Matrix) -> list[sympy.Matrix]:
+    n = x.rows
+    plus = [staging.add(prog, x, offsets[:, j]) for j in range(n)]
+    minus = [staging.sub(prog, x, offsets[:, j]) for j in range(n)]
+    return [x] + plus + minus
+
+
+def _weighted_mean(prog, points: list[sympy.Matrix], w: Weights) -> sympy.Matrix:
+    """``Wm0 p0 + Wi Σ_{i>0} p_i`` (the sum staged before it is scaled)."""
+    rows = points[0].rows
+    out = sympy.zeros(rows, 1)
+    for r in range(rows):
+        total = prog.let(sympy.Add(*[p[r, 0] for p in points[1:]]), "sum")
+        out[r, 0] = prog.let(w.wm0 * points[0][r, 0] + w.wi * total, "mean")
+    return out
+
+
+def _weighted_covariance(prog, D: list[sympy.Matrix], w: Weights, add) -> sympy.Matrix:
+    """``Wc0 D0 D0^T + Wi Σ_{i>0} D_i D_i^T + add`` (symmetric, upper triangle staged)."""
+    k = D[0].rows
+    out = sympy.zeros(k, k)
+    for a in range(k):
+        for b in range(a, k):
+            inner = prog.let(sympy.Add(*[d[a, 0] * d[b, 0] for d in D[1:]]), "cov")
+            out[a, b] = out[b, a] = prog.let(
+                w.wc0 * D[0][a, 0] * D[0][b, 0] + w.wi * inner + add[a, b], "cov")
+    return out
+
+
+def ukf_predict_stage(model, w: Weights):
+    """Exact linear propagation for an affine f, else the unscented transform through f."""
+    lin = state_jacobian(model)
+    affine = _is_affine(model)
+    lin_f = lin if affine else linearise(model.subs(model.f), model.state_symbols,
+                                         with_jacobian=False)
+
+    def predict(prog, mapping, x, P):
+        Q = sympy.Matrix(model.subs(model.Q)).xreplace(mapping)
+        if affine:
+            at_x = {**mapping, **state_mapping(model, x)}
+            values, F = stage_linearisation(prog, lin_f, at_x, "f")
+            FP = staging.matmul(prog, F, P)
+            Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), Q,
+                             symmetric_result=True)
+            return values, Pp
+        points = sigma_points(prog, x, sigma_offsets(prog, P, w))
+        moved = [stage_linearisation(prog, lin_f, {**mapping, **state_mapping(model, X)},
+                                     "f")[0] for X in points]
+        xp = _weighted_mean(prog, moved, w)
+        D = [staging.sub(prog, Xf, xp) for Xf in moved]
+        return xp, _weighted_covariance(prog, D, w, Q)
+
+    return predict
+
+
+def ukf_update_stage(model, w: Weights):
+    """Sigma points of (x⁻, P⁻) through h; Pvv, Pxy, the gain and the update."""
+    cache: dict[tuple, object] = {}
+
+    def update(prog, mapping, meas, x, P, z):
+        key = tuple(sympy.srepr(e) for e in meas.h)
+        if key not in cache:
+            cache[key] = linearise(meas.h, model.state_symbols, with_jacobian=False)
+        lin_h = cache[key]
+        n = x.rows
+        offsets = sigma_offsets(prog, P, w)
+        points = sigma_points(prog, x, offsets)
+        Y = [stage_linearisation(prog, lin_h, {**mapping, **state_mapping(model, X)},
+                                 "h")[0] for X in points]
+        y_hat = _weighted_mean(prog, Y, w)
+        DY = [staging.sub(prog, y, y_hat) for y in Y]
+        R = meas.R.xreplace(mapping)
+        Pvv = _weighted_covariance(prog, DY, w, R)
+        k = y_hat.rows
+        E = sympy.Matrix(n, k, lambda j, b: prog.let(Y[1 + j][b, 0] - Y[1 + n + j][b, 0], "dy"))
+        Pxy = staging.scale(prog, staging.matmul(prog, offsets, E), w.wi)
+        K = staging.transpose(staging.spd_solve(prog, Pvv, staging.transpose(Pxy), name="Pvv"))
+        innovation = staging.sub(prog, z, y_hat)
+        x_new = staging.add(prog, x, staging.matmul(prog, K, innovation))
+        KPxy = staging.matmul(prog, K, staging.transpose(Pxy), symmetric_result=True)
+        P_new = staging.sub(prog, P, KPxy, symmetric_result=True)
+        return x_new, P_new, innovation, Pvv
+
+    return update
+
+
+def derive_unit(model, name, options):
+    """The UKF unit: programs step, predict, update1 (see the module docstring)."""
+    from .unit import make_unit
+
+    check_nonlinear(model, name)
+    w = weights(model.n, options)
+    programs, facts = nonlinear_programs(model, ukf_predict_stage(model, w),
+                                         ukf_update_stage(model, w), options,
+                                         "unscented Kalman filter")
+    unit = make_unit(model, name, programs, options, step_inputs=step_inputs(model))
+    predict = ("predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q"
+               if _is_affine(model) else "predict: sigma points of (x, P) through f")
+    return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict, *facts),
+                   options={**unit.options, "alpha": float(w.alpha), "beta": float(w.beta),
+                            "kappa": float(w.kappa)})
+
+
+__all__ = ["Weights", "derive_unit", "sigma_offsets", "sigma_points", "ukf_predict_stage",
+           "ukf_update_stage", "weights"]
