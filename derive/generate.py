@@ -38,6 +38,9 @@ def regenerate_command(model_ref: str, name: str, options: Mapping, out: str) ->
         parts.append(f"--eps {options['eps']}")
     if options.get("N") is not None and name in ("fir", "pred"):
         parts.append(f"--horizon {options['N']}" if name == "pred" else f"--order {options['N']}")
+    for key in ("alpha", "beta", "kappa"):
+        if options.get(key) is not None and name == "ukf":
+            parts.append(f"--{key} {options[key]}")
     if options.get("joseph") and name == "kf":
         parts.append("--joseph")
     if options.get("P0_pattern"):

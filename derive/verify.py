@@ -58,7 +58,7 @@ class Verification:
     def line(self) -> str:
         mark = "ok  " if self.passed else "FAIL"
         return (f"{mark} {self.model:18s} {self.filter:7s} {self.lang:6s} {self.steps:5d} steps"
-                f"  max rel err {self.error:9.2e} <= {self.tolerance:.0e}")
+                f"  max rel err {self.error:9.2e} <= {self.tolerance:.1e}")
 
 
 def relative_error(a, b) -> float:

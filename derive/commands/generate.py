@@ -21,6 +21,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--order", type=int, default=None, help="FIR: order N directly")
     parser.add_argument("--horizon", type=int, default=None, help="pred: steps ahead N (1)")
     parser.add_argument("--joseph", action="store_true", help="KF: Joseph-form update")
+    parser.add_argument("--alpha", type=float, default=None, help="UKF sigma-point alpha (1)")
+    parser.add_argument("--beta", type=float, default=None, help="UKF sigma-point beta (0)")
+    parser.add_argument("--kappa", type=float, default=None,
+                        help="UKF sigma-point kappa (3 - n: the paper's n + kappa = 3)")
     parser.add_argument("--P0-pattern", dest="P0_pattern", default=None,
                         choices=("dense", "zero", "diagonal", "block"),
                         help="declared sparsity of P0 (default: the model's)")
@@ -33,7 +37,10 @@ def options_from(args) -> tuple[dict, dict]:
         common["joseph"] = True
     if args.P0_pattern:
         common["P0_pattern"] = args.P0_pattern
-    per = {"fir": {}, "pred": {}}
+    per = {"fir": {}, "pred": {}, "ukf": {}}
+    for key in ("alpha", "beta", "kappa"):
+        if getattr(args, key) is not None:
+            per["ukf"][key] = getattr(args, key)
     if args.eps is not None:
         per["fir"]["eps"] = args.eps
     if args.order is not None:
