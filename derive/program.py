@@ -27,7 +27,7 @@ of a 2-state model with a scalar measurement ``z = x[0] + v``, ``v ~ N(0, r)``::
     R = sympy.Matrix([[sympy.Symbol("r")]]).xreplace(model)
     PHt = staging.matmul(prog, P, H.T)                 # (2x1): the atoms P[0], P[1]
     S = staging.add(prog, staging.matmul(prog, H, PHt), R)
-    Kt = staging.spd_solve(prog, S, PHt.T)             # K^T = S^-1 H P: one division
+    Kt = staging.spd_solve(prog, S, PHt.T)             # K^T = S^-1 H P: two divisions
     K = staging.transpose(Kt)
     innovation = staging.sub(prog, z, staging.matmul(prog, H, x))
     prog.set_output("x_new", staging.add(prog, x, staging.matmul(prog, K, innovation)))

@@ -156,25 +156,39 @@ def ldl(prog: Program, S: sympy.Matrix, *, name: str = "S") -> tuple[sympy.Matri
     return L, sympy.diag(*D)
 
 
+#: A pivot that divides at most this many entries divides each directly; more share one
+#: reciprocal. Two divisions cost fewer flops (2 against 1 + 2) and no more latency than a
+#: reciprocal and two multiplications; from three on, the shared reciprocal keeps the
+#: divider free (one division, then multiplications that pipeline).
+DIRECT_DIVISIONS = 2
+
+
 def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
               name: str = "S") -> sympy.Matrix:
     """``S^-1 B`` for symmetric positive-definite ``S`` via LDL^T: forward, diagonal, back.
 
-    One division per pivot: for ``m = 1`` exactly one ``1/S`` shared by every column.
+    Per pivot, the entries it divides are divided directly when there are at most
+    `DIRECT_DIVISIONS` of them (m = 1 with a 2-column B: two divisions), else one
+    reciprocal is shared by all of them (m = 1: exactly one ``1/S``).
     """
     m = _need_square(S, name, "spd_solve")
     _need_matrix(B, "spd_solve")
     if B.rows != m:
         raise ShapeError(f"spd_solve: {name} has shape {_shape(S)} but B has shape {_shape(B)}")
-    L, _, Dinv = _ldl(prog, S, name)
+    L, D, Dinv = _ldl(prog, S, name)
+    Y = sympy.zeros(m, B.cols)
+    for c in range(B.cols):
+        for i in range(m):
+            Y[i, c] = _stage(prog, B[i, c] - _dot([L[i, k] * Y[k, c] for k in range(i)]))
+    Z = sympy.zeros(m, B.cols)
+    for i in range(m):
+        direct = sum(1 for c in range(B.cols) if Y[i, c] != 0) <= DIRECT_DIVISIONS
+        for c in range(B.cols):
+            Z[i, c] = _stage(prog, Y[i, c] / D[i] if direct else Y[i, c] * Dinv[i])
     X = sympy.zeros(m, B.cols)
     for c in range(B.cols):
-        y = [sympy.S.Zero] * m
-        for i in range(m):
-            y[i] = _stage(prog, B[i, c] - _dot([L[i, k] * y[k] for k in range(i)]))
-        z = [_stage(prog, y[i] * Dinv[i]) for i in range(m)]
         for i in reversed(range(m)):
-            X[i, c] = _stage(prog, z[i] - _dot([L[k, i] * X[k, c] for k in range(i + 1, m)]))
+            X[i, c] = _stage(prog, Z[i, c] - _dot([L[k, i] * X[k, c] for k in range(i + 1, m)]))
     return X
 
 

@@ -1,0 +1,118 @@
+"""`derive burden MODEL [--filter F] [--paper] [--json]`: exact operation counts by kind."""
+
+NAME = "burden"
+ORDER = 50
+HELP = ("exact operation counts of the generated code, by kind, per filter and language "
+        "(--paper: also the papers' dense algorithm)")
+EXAMPLE = "derive burden mpt3d_a --filter kf\n  derive burden cv --paper --json"
+
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "calls")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("model", help="catalog name or model-file path")
+    parser.add_argument("--filter", action="append", dest="filters", metavar="F",
+                        help="repeatable; default: every filter that applies")
+    parser.add_argument("--paper", action="store_true",
+                        help="add the paper-mode rows: the dense, unspecialised filter exactly "
+                             "as the papers count it")
+    parser.add_argument("--json", action="store_true", help="print JSON")
+    parser.add_argument("--eps", type=float, default=None,
+                        help="FIR: order N is the least with ||A^N||_2 < eps (1e-6)")
+    parser.add_argument("--order", type=int, default=None, help="FIR: order N directly")
+    parser.add_argument("--horizon", type=int, default=None, help="pred: steps ahead N (1)")
+    parser.add_argument("--joseph", action="store_true", help="KF: Joseph-form update")
+    parser.add_argument("--P0-pattern", dest="P0_pattern", default=None,
+                        choices=("dense", "zero", "diagonal", "block"),
+                        help="declared sparsity of P0 (default: the model's)")
+
+
+def _options(args) -> tuple[dict, dict]:
+    """Generation options as `derive generate` builds them: its every option at its default,
+    overridden by the ones given here."""
+    import argparse
+
+    from . import generate
+
+    donor = argparse.ArgumentParser()
+    generate.add_arguments(donor)
+    defaults = vars(donor.parse_args([]))
+    given = {k: v for k, v in vars(args).items() if k in defaults and k != "filters"}
+    return generate.options_from(argparse.Namespace(**{**defaults, **given}))
+
+
+def _rows(filter_name: str, mode: str, unit, formula) -> list[dict]:
+    from ..flops import count
+
+    rows = []
+    for program_name, program in unit.programs.items():
+        for lang in ("python", "c"):
+            n = count(program, lang)
+            rows.append({"filter": filter_name, "mode": mode, "program": program_name,
+                         "lang": lang, **n.as_dict(), "flops": n.flops,
+                         "instructions": n.instructions,
+                         "papers": formula if program_name == "step" else None})
+    return rows
+
+
+def _formula(name: str, unit):
+    from .. import formulas
+
+    if name == "fir":
+        return formulas.fir(unit.window, unit.n, unit.m)
+    if name in formulas.FORMULAS:
+        return formulas.burden(name, unit.n, unit.m)
+    return None
+
+
+def burden_rows(model, filters, options: dict, per_filter: dict, paper: bool) -> list[dict]:
+    """One row per (filter, mode, program, language): counts by kind, flops, instructions
+    and the papers' formula for the step (None where the papers give none)."""
+    from .. import paper as paper_mode
+    from ..filters import available, derive_unit
+
+    names = list(filters) if filters else available(model)
+    rows = []
+    for name in names:
+        opts = {**options, **per_filter.get(name, {})}
+        unit = derive_unit(model, name, opts)
+        rows += _rows(name, "specialised", unit, _formula(name, unit))
+        if paper and name in paper_mode.PAPER_FILTERS:
+            punit = paper_mode.model_unit(model, name, N=unit.window if name == "fir" else
+                                          opts.get("N"))
+            rows += _rows(name, "paper", punit, _formula(name, punit))
+    return rows
+
+
+def _text(model, rows: list[dict]) -> str:
+    head = ["filter", "mode", "program", "lang", *KINDS, "flops", "instr", "papers"]
+    body = [[r["filter"], r["mode"], r["program"], r["lang"], *(str(r[k]) for k in KINDS),
+             str(r["flops"]), str(r["instructions"]),
+             "-" if r["papers"] is None else str(r["papers"])] for r in rows]
+    widths = [max(len(x[i]) for x in [head] + body) for i in range(len(head))]
+    fmt = "  ".join(f"{{:{'<' if i < 4 else '>'}{w}}}" for i, w in enumerate(widths))
+    lines = [f"{model.name}: n = {model.n}, m = {model.m}. Operations per call of the generated "
+             "code, counted on what is emitted.",
+             "flops = add + sub + mul + div + sqrt + 2 fma (an fma: 2 flops, 1 instruction); "
+             "neg, cmp and calls are not flops; instr = every operation but calls.",
+             "papers: the papers' burden formula for this n, m (SPEC.md §5); mode paper: "
+             "derive's dense, unspecialised code as the papers count it.", "",
+             fmt.format(*head), fmt.format(*("-" * w for w in widths))]
+    lines += [fmt.format(*r) for r in body]
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    import json
+
+    from . import load_model
+
+    model = load_model(args.model)
+    common, per = _options(args)
+    rows = burden_rows(model, args.filters, common, per, args.paper)
+    if args.json:
+        print(json.dumps({"model": model.name, "n": model.n, "m": model.m, "rows": rows},
+                         indent=2))
+    else:
+        print(_text(model, rows))
+    return 0

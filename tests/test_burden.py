@@ -1,0 +1,77 @@
+"""`derive burden`: exact counts by kind, per filter, program and language."""
+
+import json
+
+import pytest
+
+from derive import catalog, formulas, paper
+from derive.cli import main
+from derive.commands.burden import KINDS
+from derive.filters import derive_unit
+from derive.flops import count
+
+
+def _json(capsys, *argv):
+    assert main(["burden", *argv, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_burden_rows_are_the_counts_of_the_programs(capsys):
+    data = _json(capsys, "mpt3d_a", "--filter", "kf", "--filter", "pred")
+    assert (data["model"], data["n"], data["m"]) == ("mpt3d_a", 6, 3)
+    model = catalog.load("mpt3d_a")
+    seen = set()
+    for row in data["rows"]:
+        program = derive_unit(model, row["filter"], {}).programs[row["program"]]
+        n = count(program, row["lang"])
+        assert {k: row[k] for k in KINDS} == n.as_dict()
+        assert (row["flops"], row["instructions"]) == (n.flops, n.instructions)
+        seen.add((row["filter"], row["program"], row["lang"]))
+    assert seen == {(f, p, lang) for f, p in (("kf", "step"), ("pred", "step"), ("pred", "init"))
+                    for lang in ("python", "c")}
+    kf = [r for r in data["rows"] if r["filter"] == "kf"]
+    assert {r["papers"] for r in kf} == {formulas.kf(6, 3)}
+    assert [r["papers"] for r in data["rows"] if r["program"] == "init"] == [None, None]
+
+
+@pytest.mark.parametrize("model", ["cv", "gsm2d_a", "gps_static"])
+def test_python_and_c_count_the_same_flops(capsys, model):
+    rows = _json(capsys, model)["rows"]
+    by_key: dict = {}
+    for r in rows:
+        by_key.setdefault((r["filter"], r["program"]), {})[r["lang"]] = r
+    for key, langs in by_key.items():
+        py, c = langs["python"], langs["c"]
+        assert py["fma"] == 0 and py["flops"] == c["flops"], key
+        # fusing touches only + - *: divisions, roots and checks are the same in both
+        assert [py[k] for k in ("div", "sqrt", "cmp")] == [c[k] for k in ("div", "sqrt", "cmp")]
+
+
+def test_paper_rows_count_the_formulas(capsys):
+    data = _json(capsys, "gsm2d_a", "--paper", "--filter", "kf", "--filter", "lf",
+                 "--filter", "fir", "--order", "3")
+    papers = {(r["filter"], r["lang"]): r for r in data["rows"] if r["mode"] == "paper"}
+    assert papers[("kf", "python")]["flops"] == formulas.kf(4, 2) == 509
+    assert papers[("lf", "c")]["flops"] == formulas.lf(4, 2) == 670
+    assert papers[("fir", "python")]["flops"] == formulas.fir(3, 4, 2)
+    assert all(r["papers"] == formulas.fir(3, 4, 2) for r in data["rows"] if r["filter"] == "fir")
+    assert count(paper.step_program("fir", 4, 2, 3)).flops == formulas.fir(3, 4, 2)
+
+
+def test_burden_text_states_the_conventions(capsys):
+    assert main(["burden", "cv", "--filter", "sskf"]) == 0
+    out = capsys.readouterr().out
+    assert "an fma: 2 flops, 1 instruction" in out and "neg, cmp and calls are not flops" in out
+    line = next(ln for ln in out.splitlines() if ln.startswith("sskf") and "python" in ln)
+    assert line.split()[-3:] == ["10", "10", str(formulas.sskf(2, 1))]
+
+
+def test_nonlinear_filters_have_no_formula(capsys):
+    rows = _json(capsys, "gnss_pseudorange", "--filter", "ekf")["rows"]
+    assert {r["program"] for r in rows} >= {"step"} and all(r["papers"] is None for r in rows)
+    assert all(r["sqrt"] > 0 for r in rows if r["program"] == "step")
+
+
+def test_burden_rejects_an_unknown_filter(capsys):
+    assert main(["burden", "cv", "--filter", "kff"]) == 2
+    assert "unknown filter 'kff'" in capsys.readouterr().err
