@@ -2,42 +2,43 @@
 
 NAME = "reproduce"
 ORDER = 90
-HELP = "the main job: regenerate every catalog filter, verify it and report"
-EXAMPLE = "derive reproduce --out report"
+HELP = ("the main job: regenerate every catalog filter, compile and verify it, run the "
+        "papers' experiments and write a report (index.md, index.html, figures/)")
+EXAMPLE = ("derive reproduce\n  derive reproduce --out /tmp/report --generated generated\n"
+           "  derive reproduce --quick")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", default="report", help="report directory (report)")
+    parser.add_argument("--out", default="report", help="report directory (default: report)")
     parser.add_argument("--generated", default=None,
                         help="write the generated code here (default: a scratch directory)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a reduced run (fewer steps and seeds); every figure and table "
+                             "is still produced")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args) -> int:
-    import tempfile
+    from ..errors import ModelError, VerificationError
 
-    from .. import catalog
-    from ..checks import run_checks
-    from ..errors import VerificationError
-    from ..filters import available
-    from ..generate import generate
-    from ..verify import verify_filter
+    try:
+        import matplotlib  # noqa: F401
 
-    failed = 0
-    with tempfile.TemporaryDirectory() as scratch:
-        out = args.generated or scratch
-        for name in catalog.names():
-            model = catalog.load(name)
-            for check in run_checks(model):
-                print(check.line())
-                failed += not check.passed
-            paths = generate(name, None, "all", out)
-            print(f"generated {len(paths)} files for {name}")
-            for f in available(model):
-                if model.kind != "linear":
-                    continue
-                for v in verify_filter(model, f):
-                    print(v.line())
-                    failed += not v.passed
-    if failed:
-        raise VerificationError(f"{failed} check(s) failed")
+        from ..report import run as run_report
+    except ImportError as exc:
+        raise ModelError(f"the report needs matplotlib ({exc}); install derive[report]") \
+            from None
+    from ..build import BuildError
+
+    try:
+        result = run_report(args.out, args.generated, quick=args.quick,
+                            progress=not args.no_progress)
+    except BuildError as exc:
+        raise ModelError(f"cannot compile the generated C: {exc}") from exc
+    except OSError as exc:
+        raise ModelError(f"cannot write the report or the generated code: {exc}") from exc
+    print(result.summary())
+    if result.failures:
+        raise VerificationError(f"{len(result.failures)} verification(s) or check(s) failed; "
+                                f"see {result.page}")
     return 0

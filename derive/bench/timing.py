@@ -1,0 +1,43 @@
+"""Timing: per-step time of a run, the median over repeats with its range."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Seconds per step: median, min and max over ``repeats`` runs of ``steps`` steps."""
+
+    median: float
+    low: float
+    high: float
+    steps: int
+    repeats: int
+
+
+def measure(run: Callable[[], object], steps: int, repeats: int) -> Timing:
+    """Time ``run()`` (which performs ``steps`` steps) ``repeats`` times after one warm-up
+    call; per-step times are the run times divided by ``steps``."""
+    if steps < 1 or repeats < 1:
+        raise ValueError(f"need steps >= 1 and repeats >= 1, got {steps}, {repeats}")
+    run()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        times.append((time.perf_counter() - start) / steps)
+    times.sort()
+    mid = len(times) // 2
+    median = times[mid] if len(times) % 2 else (times[mid - 1] + times[mid]) / 2
+    return Timing(median, times[0], times[-1], steps, repeats)
+
+
+def human(seconds: float) -> str:
+    """A duration with a unit that keeps three significant digits (ns, µs, ms, s)."""
+    for unit, scale in (("ns", 1e-9), ("µs", 1e-6), ("ms", 1e-3)):
+        if seconds < 1000 * scale:
+            return f"{seconds / scale:.3g} {unit}"
+    return f"{seconds:.3g} s"

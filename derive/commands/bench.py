@@ -1,0 +1,43 @@
+"""`derive bench`: per-step time of the generated filters against their peers, and batch
+throughput over many tracks, in one table."""
+
+NAME = "bench"
+ORDER = 95
+HELP = ("time the generated C and Python filters against the NumPy reference, FilterPy, "
+        "pykalman and CasADi's generated C, and batch throughput against simdkalman")
+EXAMPLE = "derive bench\n  derive bench --json > bench.json\n  derive bench --quick"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny step and repeat counts (a smoke test; times meaningless)")
+    parser.add_argument("--repeats", type=int, default=None,
+                        help="repeats per measurement (default 7; the median is shown)")
+
+
+def run(args) -> int:
+    import json
+    import sys
+    from dataclasses import replace
+
+    from ..bench.run import Settings, run_bench
+    from ..errors import ModelError
+
+    settings = Settings.quick() if args.quick else Settings()
+    if args.repeats is not None:
+        if args.repeats < 1:
+            raise ModelError(f"--repeats must be >= 1, got {args.repeats}")
+        settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats)
+
+    def progress(text: str) -> None:
+        print(f"bench: {text}", file=sys.stderr, flush=True)
+
+    from ..build import BuildError
+
+    try:
+        result = run_bench(settings, progress if sys.stderr.isatty() else None)
+    except BuildError as exc:
+        raise ModelError(f"cannot compile the generated C: {exc}") from exc
+    print(json.dumps(result.as_json(), indent=2) if args.json else result.text())
+    return 0

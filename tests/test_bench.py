@@ -1,0 +1,106 @@
+"""`derive bench` with tiny counts: the table has every case and implementation, the
+peers compute the same filter as derive, skips are reported, JSON is valid. No
+wall-clock assertions."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from derive import cli
+from derive.bench import batch, timing
+from derive.bench.cases import CASES, Case, Skip, make_data, states
+from derive.bench.run import IMPLEMENTATIONS, Settings, run_bench
+
+TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
+                check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1)
+AGREE = 1e-9   # every implementation runs the same filter from the same start
+
+
+@pytest.fixture(scope="module")
+def result():
+    return run_bench(TINY)
+
+
+def test_one_row_per_case_and_implementation(result):
+    assert [(r.case, r.implementation) for r in result.rows] == [
+        (c.label, name) for c in CASES for name, _, _ in IMPLEMENTATIONS]
+    assert [b.implementation for b in result.batch] == [
+        f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
+        "generated C, run per track", "generated Python (NumPy arrays)",
+        "vectorised NumPy KF", "simdkalman"]
+
+
+def test_measured_rows_agree_with_the_reference_and_have_ratios(result):
+    for r in result.rows:
+        if r.timing is None:
+            assert r.note.startswith("skipped: ") and r.ratio is None
+            continue
+        assert r.agreement <= AGREE, (r.case, r.implementation, r.agreement)
+        assert r.timing.low <= r.timing.median <= r.timing.high
+        assert r.ratio == pytest.approx(
+            r.timing.median / result.row(r.case, "generated C").timing.median)
+    for b in result.batch:
+        assert b.agreement is None or b.agreement <= AGREE, b
+
+
+def test_generated_and_numpy_rows_always_run(result):
+    for case in CASES:
+        for name in ("generated C", "generated Python", "NumPy reference"):
+            assert result.row(case.label, name).timing is not None, (case.label, name)
+
+
+def test_peers_without_the_filter_are_skipped_with_a_reason(result):
+    assert "FilterPy has no steady-state filter" in result.row("SSKF mpt3d_a", "FilterPy").note
+    assert "only the linear" in result.row("EKF gnss_pseudorange", "pykalman").note
+
+
+def test_missing_peer_is_skipped_not_faked(monkeypatch, tmp_path):
+    from derive.bench import peers
+
+    monkeypatch.setitem(sys.modules, "pykalman", None)   # import raises ImportError
+    data = make_data(Case("kf", "mpt3d_b"), 10)
+    with pytest.raises(Skip, match="pykalman is not installed"):
+        peers.pykalman(Case("kf", "mpt3d_b"), data, tmp_path)
+
+
+def test_text_and_json(result):
+    text = result.text()
+    assert "median of 1 repeats" in text and "-O3 -march=native" in text
+    for case in CASES:
+        assert case.label in text
+    assert text.count("bar: ") == 3
+    data = json.loads(json.dumps(result.as_json()))
+    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 3
+
+
+def test_timing_median_and_range(monkeypatch):
+    clock = iter([0.0, 1.0, 1.0, 4.0, 4.0, 6.0, 6.0, 7.0])   # runs of 3, 2, 1 s
+    monkeypatch.setattr(timing.time, "perf_counter", lambda: next(clock))
+    t = timing.measure(lambda: None, steps=10, repeats=3)
+    assert (t.median, t.low, t.high) == (0.2, 0.1, 0.3)
+    assert timing.human(2.5e-8) == "25 ns" and timing.human(3.2e-5) == "32 µs"
+
+
+def test_vectorised_numpy_kf_equals_the_reference():
+    b = batch.make_batch(tracks=4, steps=12)
+    out = batch.numpy_kf(b)
+    for t in range(4):
+        np.testing.assert_allclose(out[t], batch.batch_reference(b, t), rtol=0, atol=1e-12)
+
+
+def test_states_joins_copies():
+    a, b = np.ones((5, 2)), np.zeros((5, 2))
+    assert states([a, b], 3).shape == (3, 4)
+    assert states(a, 5).shape == (5, 2)
+
+
+def test_bench_command_prints_the_table(monkeypatch, capsys):
+    monkeypatch.setattr("derive.bench.run.Settings.quick", classmethod(lambda cls: TINY))
+    assert cli.main(["bench", "--quick", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert {r["case"] for r in data["rows"]} == {c.label for c in CASES}
+    assert cli.main(["bench", "--repeats", "0"]) == 2

@@ -1,0 +1,206 @@
+"""`derive reproduce --quick`: one reduced run of the whole job, then its files checked:
+every figure and table the issue lists, HTML that parses and points at existing files,
+no failed verification; plus the page renderer and the command's exit statuses."""
+
+from __future__ import annotations
+
+import html.parser
+import importlib.util
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from derive import catalog, cli
+from derive.report import page
+from derive.report.document import Figure, Section, Table, Text, Todo
+
+FIGURES = ["mpt3d_fig1_estimates", "gsm2d_fig1_estimates", "gsm2d_fig2_fir_vs_sskf",
+           "sspred_fig1_cv_estimation", "sspred_fig2_cv_prediction",
+           "sspred_fig3_ca_estimation", "sspred_fig4_ca_prediction",
+           "mdkf_fig4_6_estimates", "mdkf_fig7_errors", "gnss_ekf_estimates",
+           "gnss_ekf_innovations", "gnss_ukf_estimates", "gnss_ukf_innovations",
+           "burden_bars"]
+TABLES = ["Generated code against the NumPy reference", "Equivalence checks (max differences)",
+          "MPT3D: equivalence of the implementations", "GSM2D: equivalence of the implementations",
+          "GSM2D §7: FIR steady-state filter", "SSPRED Table 1",
+          "Generated N-step predictors against F^N", "MDKF Table 1",
+          "MDKF: the two algebraic forms agree", "Generated GNSS filters against the reference",
+          "GNSS Tables 1–5, EKF", "GNSS Tables 1–5, UKF", "Burden audit",
+          "The papers' speedups", "FIR steady-state filter: order N"]
+REAL_DATA = importlib.util.find_spec("gnss_benchmark") is not None
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """Run `derive reproduce --quick` once; (exit status, stdout, report directory)."""
+    out = tmp_path_factory.mktemp("report")
+    import contextlib
+    import io
+
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        status = cli.main(["reproduce", "--quick", "--no-progress", "--out", str(out)])
+    return status, buffer.getvalue(), out
+
+
+def md_table(text: str, caption: str) -> list[list[str]]:
+    """The body rows of the Markdown table under the caption starting with ``caption``."""
+    block = text[text.index(f"**{caption}"):]
+    lines = [line for line in block.split("\n\n", 2)[1].splitlines() if line.startswith("|")]
+    return [[c.strip() for c in line.strip("|").split(" | ")] for line in lines[2:]]
+
+
+def test_reproduce_exits_0_with_a_one_screen_summary(report):
+    status, stdout, out = report
+    assert status == 0, stdout
+    lines = stdout.strip().splitlines()
+    assert len(lines) <= 24
+    assert lines[0].startswith("derive reproduce: done in ")
+    n_models = len(catalog.names())
+    assert f"filters of {n_models} catalog models" in stdout
+    assert re.search(r"verified  : \d+ runs .* max rel error \S+, 0 failed", stdout)
+    assert "equivalence claims measured, 0 failed" in stdout
+    assert str(out / "index.html") in stdout
+
+
+def test_every_figure_is_a_png(report):
+    out = report[2]
+    names = FIGURES + (["gnss_real_errors"] if REAL_DATA else [])
+    for name in names:
+        data = (out / "figures" / f"{name}.png").read_bytes()
+        assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 5000, name
+    assert sorted(p.stem for p in (out / "figures").glob("*.png")) == sorted(names)
+
+
+def test_every_table_is_in_index_md(report):
+    text = (report[2] / "index.md").read_text(encoding="utf-8")
+    for caption in TABLES + (["Real data: 3-D position error"] if REAL_DATA else []):
+        assert f"**{caption}" in text, caption
+        assert md_table(text, caption), caption
+    assert "**FAIL**" not in text and "**DIFFERENT**" not in text
+    for fig in FIGURES:
+        assert f"(figures/{fig}.png)" in text
+
+
+class _Html(html.parser.HTMLParser):
+    VOID = {"img", "meta", "br"}
+
+    def __init__(self):
+        super().__init__()
+        self.stack, self.images, self.tables, self.errors = [], [], 0, []
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "img":
+            self.images.append(dict(attrs)["src"])
+        if tag == "table":
+            self.tables += 1
+        if tag not in self.VOID:
+            self.stack.append(tag)
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack.pop() != tag:
+            self.errors.append(tag)
+
+
+def test_html_renders_the_same_report(report):
+    out = report[2]
+    parser = _Html()
+    parser.feed((out / "index.html").read_text(encoding="utf-8"))
+    parser.close()
+    assert not parser.errors and not parser.stack
+    md = (out / "index.md").read_text(encoding="utf-8")
+    assert parser.tables == md.count("\n|---")
+    assert len(parser.images) == md.count("![")
+    for src in parser.images:
+        assert (out / src).is_file(), src
+
+
+def test_sspred_metric_reproduces_the_papers_table(report):
+    """With K = 10,000 steps our percent error matches SSPRED Table 1 (CV: to 5e-4)."""
+    rows = md_table((report[2] / "index.md").read_text(encoding="utf-8"), "SSPRED Table 1")
+    assert len(rows) == 6
+    cv_ours = [float(r[1]) for r in rows]
+    cv_paper = [float(r[3]) for r in rows]
+    ca_ours = [float(r[4]) for r in rows]
+    assert np.max(np.abs(np.subtract(cv_ours, cv_paper))) < 5e-4
+    assert all(a < b for a, b in zip(cv_ours[1:], cv_ours[2:]))   # grows with N
+    assert all(a < b for a, b in zip(ca_ours[1:], ca_ours[2:]))
+
+
+def test_gnss_rmse_shrinks_and_mdkf_forms_agree(report):
+    text = (report[2] / "index.md").read_text(encoding="utf-8")
+    for label in ("EKF", "UKF"):
+        rows = md_table(text, f"GNSS Tables 1–5, {label}")
+        first, last = (np.mean([float(v) for v in r[1:4]]) for r in (rows[0], rows[-1]))
+        assert last < first
+    for row in md_table(text, "MDKF: the two algebraic forms agree"):
+        assert float(row[1]) < 1e-12 and float(row[2]) < 1e-12
+
+
+def test_sspred_percent_error_definition():
+    from derive.report.sspred import percent_error
+
+    truth = np.array([[3.0, 4.0], [6.0, 8.0]])           # |p| = 5, 10
+    est = truth + np.array([[0.5, 0.0], [0.0, -0.2]])     # errors 0.5, 0.2
+    assert percent_error(est, truth) == pytest.approx(100 * (0.5 / 5 + 0.2 / 10) / 2)
+
+
+def test_page_escapes_and_checks_tables(tmp_path):
+    with pytest.raises(ValueError, match="has 1 cells, expected 2"):
+        Table(("a", "b"), (("only",),))
+    s = Section("k", "T <1>", [Text("a `x|y` and **b**"), Todo("later"),
+                               Table(("c|1", "d"), (("<x>", "1"),), "cap"),
+                               Figure("figures/f.png", "a <fig>")])
+    md_path, html_path = page.write_page(tmp_path, "Title", ["intro"], [s])
+    md, doc = md_path.read_text(), html_path.read_text()
+    assert "| c\\|1 | d |" in md and "> **TODO (lead):** later" in md
+    assert "<code>x|y</code>" in doc and "<strong>b</strong>" in doc
+    assert "&lt;x&gt;" in doc and "T &lt;1&gt;" in doc and 'class="todo"' in doc
+
+
+def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys):
+    from derive.report.generation import GenerationResult
+    from derive.report.job import ReportResult
+    from derive.verify import Verification
+
+    def fake_run(out, generated=None, quick=False, progress=True):
+        result = ReportResult(Path(out), None)
+        result.generation = GenerationResult(["m"], [], [Verification("m", "kf", "c", 10, 1.0,
+                                                                      1e-12)], [])
+        result.index, result.page = page.write_page(Path(out), "t", [], [])
+        return result
+
+    monkeypatch.setattr("derive.report.run", fake_run)
+    status = cli.main(["reproduce", "--out", str(tmp_path), "--no-progress"])
+    captured = capsys.readouterr()
+    assert status == 1
+    assert "FAIL" in captured.out and (tmp_path / "index.html").is_file()
+    assert captured.err.count("\n") == 1 and "verification failed" in captured.err
+
+
+def test_verify_built_equals_derive_verify(tmp_path):
+    """The report's verification of built modules is derive verify's comparison."""
+    from derive.build import build_c
+    from derive.generate import generate
+    from derive.report.generation import verify_built
+    from derive.verify import import_python, verify_filter
+
+    model = catalog.load("mpt3d_b")
+    generate("mpt3d_b", ["kf"], "all", tmp_path)
+    folder = tmp_path / "mpt3d_b"
+    modules = {"python": import_python(folder / "kf.py"), "c": build_c(folder / "kf.c")}
+    ours = verify_built(model, "kf", modules, 300, 7)
+    theirs = verify_filter(model, "kf", steps=300, seed=7)
+    assert [(v.lang, v.tolerance) for v in ours] == [(v.lang, v.tolerance) for v in theirs]
+    for a, b in zip(ours, theirs):
+        assert a.error == pytest.approx(b.error, rel=1e-9, abs=1e-18)
+
+
+def test_unwritable_output_is_bad_input(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert cli.main(["reproduce", "--quick", "--no-progress", "--out", str(blocker)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot write the report" in err
