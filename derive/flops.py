@@ -11,7 +11,9 @@ that do not trust the lowering:
   its operators; must reproduce ``count(program, "c")``.
 
 ``flops`` = add + sub + mul + div + sqrt + 2 fma (negations and comparisons
-are reported, not counted as flops); ``instructions`` = every operation.
+are reported, not counted as flops); ``instructions`` = every operation.  A
+``select`` (:class:`derive.lowering.IfPresent`, the missing-measurement test) is
+one comparison, ``z == z``, and is counted as ``cmp``.
 """
 
 from __future__ import annotations
@@ -72,6 +74,8 @@ class OpCount:
 
 
 def _kind_field(kind: str) -> str:
+    if kind == "select":
+        return "cmp"
     return "calls" if kind.startswith("call:") else kind
 
 
@@ -142,10 +146,13 @@ class CountingFloat:
     """A float whose + - * / unary minus, ``** 0.5`` and comparisons are counted.
 
     Arithmetic with plain numbers (constants in generated code) is counted too;
-    the result is again a CountingFloat on the same counter.
+    the result is again a CountingFloat on the same counter.  ``==`` and ``!=``
+    count as comparisons as well (``z == z`` is the NaN test of a select), so a
+    CountingFloat is not hashable.
     """
 
     __slots__ = ("value", "counter")
+    __hash__ = None  # type: ignore[assignment]
 
     def __init__(self, value: float, counter: OpCounter) -> None:
         self.value = float(value)
@@ -224,11 +231,25 @@ class CountingFloat:
     def __le__(self, other):
         return self._compare(other, float.__le__)
 
+    def __eq__(self, other):
+        return self._compare(other, float.__eq__)
+
+    def __ne__(self, other):
+        return self._compare(other, float.__ne__)
+
     def __abs__(self):
         return self._result("calls", abs(self.value))
 
     def __float__(self) -> float:
         return self.value
+
+    def derive_counted(self, value) -> CountingFloat:
+        """``value`` as a CountingFloat on this counter (itself if it is one), at no count:
+        a select (generated ``_if_present``) that picks a constant keeps what follows
+        counted."""
+        if isinstance(value, CountingFloat):
+            return value
+        return CountingFloat(value, self.counter)
 
     def __repr__(self) -> str:
         return f"CountingFloat({self.value!r})"

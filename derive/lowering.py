@@ -24,9 +24,12 @@ Rules (``e`` a sympy expression):
   uses the negative constant, ``-a*b`` stays a ``sub``; products whose operands
   are deepest go last so the dependency chain stays short;
 - the functions of :data:`FUNCTIONS` are calls ``call:NAME`` (C names);
-  anything else raises :class:`LoweringError`.
+- :class:`IfPresent` ``(z, a, b)`` is ``select(z, a, b)``: ``a`` where the input
+  element ``z`` is not NaN, else ``b``; it costs one comparison (``z == z``) and no
+  flop, and is counted as ``cmp``;
+- anything else raises :class:`LoweringError`.
 
-Operation kinds: ``add sub mul div sqrt fma neg cmp`` and ``call:NAME``.
+Operation kinds: ``add sub mul div sqrt fma neg cmp select`` and ``call:NAME``.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from derive.errors import ModelError
 if TYPE_CHECKING:
     from derive.program import Port, Program
 
-KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp")
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "select")
 
 #: sympy function -> name of the C function (math.h) it lowers to.
 FUNCTIONS = {
@@ -54,6 +57,28 @@ FUNCTIONS = {
 
 class LoweringError(ModelError):
     """An expression the printers cannot emit (unsupported function or exponent)."""
+
+
+class IfPresent(sympy.Function):
+    """``IfPresent(z, a, b)``: ``a`` where the measurement ``z`` is present (not NaN), else ``b``.
+
+    ``z`` is an input element (a symbol such as ``z[1]``); generated code tests it with
+    ``z == z``, which is false for NaN only.  Folds when both branches are equal or ``z``
+    is a number, and takes a common minus sign out (``IfPresent(z, -a, 0)`` is
+    ``-IfPresent(z, a, 0)``) so that negated atoms stay foldable.
+    """
+
+    nargs = 3
+
+    @classmethod
+    def eval(cls, z, a, b):
+        if a == b:
+            return a
+        if z.is_number:
+            return b if z is sympy.nan else a
+        if a.could_extract_minus_sign() and (b.is_zero or b.could_extract_minus_sign()):
+            return -cls(z, -a, -b)
+        return None
 
 
 @dataclass(frozen=True)
@@ -123,6 +148,11 @@ class _Lowerer:
             return self._product(*e.as_coeff_Mul())
         if e.is_Pow:
             return self._pow(e.base, e.exp)
+        if isinstance(e, IfPresent):
+            z, a, b = e.args
+            if not z.is_Symbol:
+                raise LoweringError(f"IfPresent tests an input element, not the expression {z}")
+            return Op("select", (Var(z.name), self.lower(a), self.lower(b)))
         name = FUNCTIONS.get(e.func)
         if name is not None:
             return Op(f"call:{name}", tuple(self.lower(a) for a in e.args))

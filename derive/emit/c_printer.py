@@ -4,8 +4,10 @@ Arithmetic is plain ``+ - * /``; ``sqrt`` and math.h calls by name; an fma is
 ``DERIVE_FMA(a, b, c)``, a macro each file defines (:data:`FMA_MACRO_LINES`):
 the hardware ``fma()`` where ``FP_FAST_FMA`` says it is fast (e.g. with
 ``-march=native``), else ``((a) * (b) + (c))``, so baseline x86-64 code needs no
-libm beyond sqrt.  Constants are printed with ``repr`` (shortest round trip,
-always with a ``.`` or an exponent, so C reads a double).
+libm beyond sqrt.  A select (the missing-measurement test) is
+``((z[i] == z[i]) ? a : b)``, false only for NaN, so such code must not be compiled
+with ``-ffast-math`` (which assumes there is no NaN).  Constants are printed with
+``repr`` (shortest round trip, always with a ``.`` or an exponent, so C reads a double).
 """
 
 from __future__ import annotations
@@ -35,6 +37,9 @@ class CPrinter(InfixPrinter):
             return f"sqrt({args[0]})"
         if kind == "fma":
             return f"{FMA_NAME}({', '.join(args)})"
+        if kind == "select":
+            z, a, b = args
+            return f"(({z} == {z}) ? {a} : {b})"
         if kind.startswith("call:"):
             return f"{kind[5:]}({', '.join(args)})"
         raise ValueError(f"no C spelling for operation {kind!r}")

@@ -1,9 +1,10 @@
 """Print lowered trees and programs as Python.
 
-Only elementwise arithmetic is emitted (``+ - * /``, ``_sqrt(v) = v ** 0.5``), so
-a generated function runs on floats, on NumPy arrays with a trailing track axis
-(many tracks at once) and on :class:`derive.flops.CountingFloat`.  Constants are
-printed with ``repr`` (shortest round trip); negative ones in parentheses.
+Only elementwise arithmetic is emitted (``+ - * /``, ``_sqrt(v) = v ** 0.5`` and the
+missing-measurement select ``_if_present(z, a, b)``), so a generated function runs on
+floats, on NumPy arrays with a trailing track axis (many tracks at once) and on
+:class:`derive.flops.CountingFloat`.  Constants are printed with ``repr`` (shortest
+round trip); negative ones in parentheses.
 """
 
 from __future__ import annotations
@@ -28,6 +29,15 @@ HELPERS = {
     "sqrt": ['def _sqrt(v):',
              '    """Square root of a float, a NumPy array or a CountingFloat."""',
              '    return v ** 0.5'],
+    "select": ['def _if_present(z, a, b):',
+               '    """a where the measurement z is present (not NaN), else b; per track for',
+               '    arrays.  With a CountingFloat z a constant result is counted onwards."""',
+               '    present = z == z  # noqa: PLR0124 (false for NaN only)',
+               '    if isinstance(present, np.ndarray):',
+               '        return np.where(present, a, b)',
+               '    value = a if present else b',
+               '    counted = getattr(z, "derive_counted", None)',
+               '    return value if counted is None else counted(value)'],
     "check": ['def _require_positive(value, message):',
               '    """Raise NumericalError unless value > 0 (every track of an array)."""',
               '    positive = value > 0',
@@ -87,6 +97,8 @@ class PythonPrinter(InfixPrinter):
     def call(self, kind: str, args: list[str]) -> str:
         if kind == "sqrt":
             return f"_sqrt({args[0]})"
+        if kind == "select":
+            return f"_if_present({', '.join(args)})"
         if kind.startswith("call:") and kind[5:] in PY_CALLS:
             return f"{PY_CALLS[kind[5:]]}({', '.join(args)})"
         raise ValueError(f"no Python spelling for operation {kind!r} (fma is C only)")
@@ -103,15 +115,18 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
     needed = []
     if "sqrt" in kinds:
         needed.append("sqrt")
+    if "select" in kinds:
+        needed.append("select")
     if any(lp.has_checks for lp in lowered):
         needed.append("check")
     return needed
 
 
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
-    """True when a printed call needs ``np``."""
+    """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return any(k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
+    return "select" in kinds or any(
+        k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 
 
 def _list_lines(name: str, items: list[str], width: int = 92) -> list[str]:

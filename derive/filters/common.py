@@ -1,9 +1,14 @@
-"""What every linear filter derivation shares: ports, bound model matrices, P's pattern."""
+"""What every linear filter derivation shares: ports, bound model matrices, P's pattern,
+and the masks that skip missing (NaN) measurements."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import sympy
 
+from .. import staging
+from ..lowering import IfPresent
 from ..program import Port, Program
 
 
@@ -38,3 +43,59 @@ def masked(mat: sympy.Matrix, pattern) -> sympy.Matrix:
     """``mat`` with the entries outside ``pattern`` (a boolean n x n) set to zero."""
     return sympy.Matrix(mat.rows, mat.cols,
                         lambda i, j: mat[i, j] if pattern[i][j] else sympy.Integer(0))
+
+
+# -- missing measurements ------------------------------------------------------------------
+#
+# A NaN in z[i] means "no measurement i at this step".  The update must then be the one
+# with the rows of the absent measurements dropped from H, R and z.  With the absent set
+# a, the masked quantities below give exactly that for any R (correlated or not):
+#   S' = S with row and column i zeroed and S'[i, i] = 1 for i in a, so S'^-1 is the
+#        inverse of S's present block, and 1 on the absent diagonal, 0 elsewhere;
+#   U' = U (an n x m matrix such as P H^T) with column i zeroed for i in a;
+#   K  = U' S'^-1 then has zero columns for i in a and the present columns of the
+#        reduced update; the masked innovation (0 for i in a) keeps NaN out of x.
+# Every mask is a select (derive.lowering.IfPresent): one comparison z[i] == z[i] and no
+# flop.  Structurally zero entries stay zero, so block-diagonal S costs no selects.
+
+
+MISSING_FILTERS = ("kf", "lf", "jklf", "ikf")
+"""The filters that take the option ``missing`` (NaN-marked absent measurements)."""
+
+
+def missing_option(options) -> bool:
+    """The ``missing`` option: support NaN-marked missing measurements."""
+    return bool(options.get("missing", False))
+
+
+MISSING_FACT = ("missing measurements: a NaN in z(k)[i] means measurement i is absent at "
+                "step k; the update skips it (its rows of H and R are dropped)")
+
+
+def mask_columns(prog: Program, U: sympy.Matrix, z: sympy.Matrix) -> sympy.Matrix:
+    """``U`` (any rows x m) with column i replaced by zeros where ``z[i]`` is NaN."""
+    masked_u = sympy.Matrix(U.rows, U.cols, lambda i, j: IfPresent(z[j], U[i, j], 0))
+    return staging.let_matrix(prog, masked_u, hint="present")
+
+
+def mask_vector(prog: Program, v: sympy.Matrix, z: sympy.Matrix) -> sympy.Matrix:
+    """The m-vector ``v`` with entry i set to 0 where ``z[i]`` is NaN."""
+    return mask_columns(prog, v.T, z).T
+
+
+def mask_symmetric(prog: Program, S: sympy.Matrix, z: sympy.Matrix) -> sympy.Matrix:
+    """The symmetric m x m ``S`` with row and column i zeroed and ``S[i, i] = 1`` where
+    ``z[i]`` is NaN (upper triangle read and staged, mirrored)."""
+    def entry(i: int, j: int) -> sympy.Expr:
+        a, b = min(i, j), max(i, j)
+        if a == b:
+            return IfPresent(z[a], S[a, a], 1)
+        return IfPresent(z[a], IfPresent(z[b], S[a, b], 0), 0)
+
+    return staging.let_matrix(prog, sympy.Matrix(S.rows, S.cols, entry),
+                              symmetric_result=True, hint="present")
+
+
+def with_fact(unit, fact: str):
+    """``unit`` with one more header fact line."""
+    return dataclasses.replace(unit, facts=tuple(unit.facts) + (fact,))

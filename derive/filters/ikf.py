@@ -3,26 +3,59 @@
     P(k+1/k) = F P F^T + G Q G^T
     P_new^-1 = P(k+1/k)^-1 + H^T R^-1 H          (two unrolled LDL^T inverses)
     K = P_new H^T R^-1,  x_new = F x + K (z - H F x)
+
+With ``missing=True`` a NaN in z[i] marks measurement i absent: H^T R^-1 becomes that of
+the present measurements, H_p^T R_pp^-1 (columns of absent ones zero).  For a
+structurally diagonal R that is the constant H^T R^-1 with columns masked (no flop);
+otherwise R is masked (:func:`derive.filters.common.mask_symmetric`) and solved in the
+step.
 """
 
 from __future__ import annotations
 
+import sympy
+
 from .. import staging
+from ..lowering import IfPresent
+from .common import (
+    MISSING_FACT,
+    mask_columns,
+    mask_symmetric,
+    mask_vector,
+    missing_option,
+    with_fact,
+)
 from .kf import time_varying_program
 
 
-def ikf_update(prog, mats, x, P, z):
+def _is_diagonal(M: sympy.Matrix) -> bool:
+    return all(M[i, j] == 0 for i in range(M.rows) for j in range(M.cols) if i != j)
+
+
+def ikf_update(prog, mats, x, P, z, missing: bool = False):
+    """Stage one information-form step; ``missing``: NaN entries of z are skipped."""
     F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
     xp = staging.matmul(prog, F, x)
     Pp = staging.add(prog, staging.matmul(prog, staging.matmul(prog, F, P), F.T,
                                           symmetric_result=True), W, symmetric_result=True)
-    HtRinv = staging.transpose(staging.spd_solve(prog, R, H))  # H^T R^-1 (constant)
+    if not missing:
+        HtRinv = staging.transpose(staging.spd_solve(prog, R, H))  # H^T R^-1 (constant)
+    elif _is_diagonal(R):
+        HtRinv = mask_columns(prog, staging.transpose(staging.spd_solve(prog, R, H)), z)
+    else:
+        H_present = staging.let_matrix(
+            prog, sympy.Matrix(H.rows, H.cols, lambda i, j: IfPresent(z[i], H[i, j], 0)),
+            hint="present")
+        HtRinv = staging.transpose(staging.spd_solve(prog, mask_symmetric(prog, R, z),
+                                                     H_present, name="R"))
     info = staging.add(prog, staging.spd_inverse(prog, Pp),
                        staging.matmul(prog, HtRinv, H, symmetric_result=True),
                        symmetric_result=True)
     P_new = staging.spd_inverse(prog, info)
     K = staging.matmul(prog, P_new, HtRinv)
     innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
+    if missing:
+        innovation = mask_vector(prog, innovation, z)
     x_new = staging.add(prog, xp, staging.matmul(prog, K, innovation))
     return x_new, P_new
 
@@ -30,7 +63,13 @@ def ikf_update(prog, mats, x, P, z):
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    step = time_varying_program(model, ikf_update,
+    missing = missing_option(options)
+
+    def update(prog, mats, x, P, z):
+        return ikf_update(prog, mats, x, P, z, missing=missing)
+
+    step = time_varying_program(model, update,
                                 {**options, "title": "information-form Kalman filter",
                                  "P0_pattern": options.get("P0_pattern")})
-    return make_unit(model, name, {"step": step}, options)
+    unit = make_unit(model, name, {"step": step}, options)
+    return with_fact(unit, MISSING_FACT) if missing else unit

@@ -2,19 +2,21 @@
 
 Both filters start each step from the joined estimate, so the state stays the
 filter's interface (x, P); KF and LF are equal in exact arithmetic, so this is
-the papers' JKLF up to rounding.
+the papers' JKLF up to rounding.  ``missing=True`` passes NaN-marked absent
+measurements to both (see :mod:`derive.filters.kf` and :mod:`derive.filters.lf`).
 """
 
 from __future__ import annotations
 
 from .. import staging
+from .common import MISSING_FACT, missing_option, with_fact
 from .kf import kf_update, time_varying_program
 from .lf import lf_update
 
 
-def jklf_update(prog, mats, x, P, z):
-    xk, Pk = kf_update(prog, mats, x, P, z)
-    xl, Pl = lf_update(prog, mats, x, P, z)
+def jklf_update(prog, mats, x, P, z, missing: bool = False):
+    xk, Pk = kf_update(prog, mats, x, P, z, missing=missing)
+    xl, Pl = lf_update(prog, mats, x, P, z, missing=missing)
     x_new = staging.scale(prog, staging.add(prog, xk, xl), 0.5)
     P_new = staging.scale(prog, staging.add(prog, Pk, Pl, symmetric_result=True), 0.5,
                           symmetric_result=True)
@@ -24,6 +26,12 @@ def jklf_update(prog, mats, x, P, z):
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    step = time_varying_program(model, jklf_update,
+    missing = missing_option(options)
+
+    def update(prog, mats, x, P, z):
+        return jklf_update(prog, mats, x, P, z, missing=missing)
+
+    step = time_varying_program(model, update,
                                 {**options, "title": "join Kalman-Lainiotis filter"})
-    return make_unit(model, name, {"step": step}, options)
+    unit = make_unit(model, name, {"step": step}, options)
+    return with_fact(unit, MISSING_FACT) if missing else unit

@@ -5,6 +5,11 @@
     x_new = x(k+1/k) + K (z - H x(k+1/k)),  P_new = P(k+1/k) - K (P(k+1/k) H^T)^T
     (or Joseph's form (I-KH) P (I-KH)^T + K R K^T with ``joseph=True``).
 Only the upper triangle of each symmetric matrix is computed.
+
+With ``missing=True`` a NaN in z(k+1)[i] marks measurement i absent: S, P H^T and the
+innovation are masked (:func:`derive.filters.common.mask_symmetric`), so K's column i
+is zero and the update is exactly the one with row i of H, z and row and column i of R
+dropped, for correlated R too.  The masks are selects: no flop.
 """
 
 from __future__ import annotations
@@ -14,11 +19,23 @@ import sympy
 from .. import staging
 from ..program import Program
 from . import pattern as pat
-from .common import bound_matrices, masked, time_varying_ports
+from .common import (
+    MISSING_FACT,
+    bound_matrices,
+    mask_columns,
+    mask_symmetric,
+    mask_vector,
+    masked,
+    missing_option,
+    time_varying_ports,
+    with_fact,
+)
 
 
-def kf_update(prog: Program, mats, x, P, z, joseph: bool = False):
-    """Stage one KF step; returns (x_new, P_new) as matrices of atoms."""
+def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool = False):
+    """Stage one KF step; returns (x_new, P_new) as matrices of atoms.
+
+    ``missing``: NaN entries of z are absent measurements (skipped)."""
     F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
     xp = staging.matmul(prog, F, x)
     FP = staging.matmul(prog, F, P)
@@ -27,8 +44,12 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False):
     PHt = staging.matmul(prog, Pp, H.T)
     S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
                     symmetric_result=True)
+    if missing:
+        S, PHt = mask_symmetric(prog, S, z), mask_columns(prog, PHt, z)
     K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
     innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
+    if missing:
+        innovation = mask_vector(prog, innovation, z)
     x_new = staging.add(prog, xp, staging.matmul(prog, K, innovation))
     if not joseph:
         KPHt = staging.matmul(prog, K, staging.transpose(PHt), symmetric_result=True)
@@ -73,9 +94,11 @@ def derive_unit(model, name, options):
     from .unit import make_unit
 
     joseph = bool(options.get("joseph", False))
+    missing = missing_option(options)
 
     def update(prog, mats, x, P, z):
-        return kf_update(prog, mats, x, P, z, joseph=joseph)
+        return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing)
 
     step = time_varying_program(model, update, {**options, "title": "Kalman filter"})
-    return make_unit(model, name, {"step": step}, options)
+    unit = make_unit(model, name, {"step": step}, options)
+    return with_fact(unit, MISSING_FACT) if missing else unit

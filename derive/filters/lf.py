@@ -6,6 +6,11 @@ in the step since they depend on the runtime parameters):
     Pn = GQG^T - Kn H GQG^T,  Fn = F - Kn H F,  On = F^T H^T A H F.
 Per step, with M = [I + P On]^-1 (an unrolled LU inverse):
     x_new = Kn z + Fn M (P Km z + x),   P_new = Pn + Fn M P Fn^T.
+
+With ``missing=True`` a NaN in z[i] marks measurement i absent: the constants are those
+of the model with row i of H and z and row and column i of R dropped, so they depend on
+which measurements are present and are computed in the step (masked as in
+:mod:`derive.filters.common`; no longer folded, hence much dearer than the plain LF).
 """
 
 from __future__ import annotations
@@ -14,28 +19,44 @@ import sympy
 
 from .. import staging
 from ..program import Program
+from .common import (
+    MISSING_FACT,
+    mask_columns,
+    mask_symmetric,
+    mask_vector,
+    missing_option,
+    with_fact,
+)
 from .kf import time_varying_program
 
 
-def lf_constants(prog: Program, mats):
+def lf_constants(prog: Program, mats, z=None):
+    """The LF constants; with ``z`` given, those of the measurements present in ``z``."""
     F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
     WHt = staging.matmul(prog, W, H.T)
     S = staging.add(prog, staging.matmul(prog, H, WHt, symmetric_result=True), R,
                     symmetric_result=True)
+    if z is not None:
+        S, WHt = mask_symmetric(prog, S, z), mask_columns(prog, WHt, z)
     A = staging.spd_inverse(prog, S)
     Kn = staging.matmul(prog, WHt, A)
     HF = staging.matmul(prog, H, F)
-    Km = staging.matmul(prog, staging.transpose(HF), A)
+    HFt = staging.transpose(HF) if z is None else mask_columns(prog, staging.transpose(HF), z)
+    Km = staging.matmul(prog, HFt, A)
     Pn = staging.sub(prog, W, staging.matmul(prog, Kn, staging.transpose(WHt),
                                              symmetric_result=True), symmetric_result=True)
     Fn = staging.sub(prog, F, staging.matmul(prog, Kn, HF))
-    On = staging.matmul(prog, Km, HF, symmetric_result=True)
+    On = staging.matmul(prog, Km, staging.transpose(HFt), symmetric_result=True)
     return {"Kn": Kn, "Km": Km, "Pn": Pn, "Fn": Fn, "On": On}
 
 
-def lf_update(prog: Program, mats, x, P, z):
-    """Stage one LF step; returns (x_new, P_new) as matrices of atoms."""
-    c = lf_constants(prog, mats)
+def lf_update(prog: Program, mats, x, P, z, missing: bool = False):
+    """Stage one LF step; returns (x_new, P_new) as matrices of atoms.
+
+    ``missing``: NaN entries of z are absent measurements (skipped)."""
+    c = lf_constants(prog, mats, z if missing else None)
+    if missing:
+        z = mask_vector(prog, z, z)
     n = x.rows
     I_POn = staging.add(prog, sympy.eye(n), staging.matmul(prog, P, c["On"]))
     FnM = staging.matmul(prog, c["Fn"], staging.lu_inverse(prog, I_POn))
@@ -52,5 +73,11 @@ def lf_update(prog: Program, mats, x, P, z):
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    step = time_varying_program(model, lf_update, {**options, "title": "Lainiotis filter"})
-    return make_unit(model, name, {"step": step}, options)
+    missing = missing_option(options)
+
+    def update(prog, mats, x, P, z):
+        return lf_update(prog, mats, x, P, z, missing=missing)
+
+    step = time_varying_program(model, update, {**options, "title": "Lainiotis filter"})
+    unit = make_unit(model, name, {"step": step}, options)
+    return with_fact(unit, MISSING_FACT) if missing else unit
