@@ -2,30 +2,16 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import catalog
-from .errors import ModelError
-from .model import LinearModel, NonlinearModel
-
 try:
     __version__ = version("derive")
 except PackageNotFoundError:  # running from a source tree
     __version__ = "0.1.0"
 
-
-
-def generate(model, filters=None, lang="all", out="generated", **options):
-    """Generate filters for a model; see :func:`derive.generate.generate`."""
-    from .generate import generate as _generate
-
-    return _generate(model, filters, lang, out, options or None)
-
-
-def build_c(path_or_paths, **kwargs):
-    """Compile generated C with cffi; see :func:`derive.build.build_c`."""
-    from .build import build_c as _build_c
-
-    return _build_c(path_or_paths, **kwargs)
-
+from . import catalog  # noqa: E402
+from .build import build_c  # noqa: E402
+from .errors import ModelError  # noqa: E402
+from .generation import generate  # noqa: E402
+from .model import LinearModel, NonlinearModel  # noqa: E402
 
 __all__ = ["LinearModel", "ModelError", "NonlinearModel", "__version__", "build_c", "catalog",
            "generate"]

@@ -13,10 +13,17 @@ from . import __version__
 from .errors import ModelError, NumericalError, VerificationError
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors are one line on stderr, exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import commands
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="derive",
         description="Derive specialised, unrolled Python and C99 Kalman-family filters from "
                     "SymPy state-space models, with exact flop counts.",

@@ -112,7 +112,7 @@ def _module(name: str, lang: str):
 def _load(name: str, lang: str, workdir: Path):
     from derive import catalog
     from derive.emit.write import write_files
-    from derive.generate import render_filter
+    from derive.generation import render_filter
     from derive.verify import import_python
 
     model = catalog.load(MODEL)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import sympy
 
-from .errors import MatrixPropertyError, ShapeError, SymbolError
+from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .symbols import (
     as_matrix,
     check_identifier,
@@ -72,6 +72,11 @@ class _Model:
             if s.name in self.measurements:
                 raise SymbolError(f"symbol {s.name!r} is a measurement name; measurements "
                                   "cannot appear in model matrices")
+        for s in used:
+            try:
+                check_identifier(s.name, "symbol")
+            except ModelError as exc:
+                raise SymbolError(str(exc)) from None
         self.symbols = tuple(sorted(used, key=lambda s: s.name))
         self.parameters = tuple(s for s in self.symbols if s.name not in self.values)
         self._subs = {symbol(k): v for k, v in self.values.items()}

@@ -374,7 +374,7 @@ def generate(model, filters: Sequence[str] = ("kf", "lf"), lang: str = "all",
              out="generated"):
     """Write paper-mode files ``OUT/MODEL/FILTER_paper.*``; returns the paths."""
     from .emit.write import write_files
-    from .generate import resolve_model
+    from .generation import resolve_model
 
     model = resolve_model(model)
     files: dict[str, str] = {}

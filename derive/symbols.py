@@ -19,7 +19,8 @@ C_KEYWORDS = frozenset(
     size_t""".split()
 )
 #: C math functions and constants a generated file may call; they cannot be names either.
-C_MATH = frozenset("exp log sin cos tan asin acos atan atan2 sinh cosh tanh pow abs fabs pi".split())
+C_MATH = frozenset(
+    "exp log sin cos tan asin acos atan atan2 sinh cosh tanh pow abs fabs pi".split())
 RESERVED = (C_KEYWORDS | C_MATH | frozenset(keyword.kwlist) | frozenset(keyword.softkwlist))
 
 
@@ -45,6 +46,8 @@ def check_names(names: Iterable[object], what: str) -> tuple[str, ...]:
     """Check a list of names: identifiers, non-empty, no repeats."""
     if isinstance(names, str):
         raise NameError_(f"{what} must be a list of names, got the string {names!r}")
+    if not isinstance(names, Iterable):
+        raise NameError_(f"{what} must be a list of names, got {type(names).__name__} {names!r}")
     out = tuple(check_identifier(n, f"{what[:-1] if what.endswith('s') else what} name")
                 for n in names)
     if not out:
@@ -80,10 +83,12 @@ def normalize(expr: object, where: str) -> sympy.Expr:
         return parse_expression(expr, {}, allow_new=True, where=where)
     if isinstance(expr, (bool,)):
         raise SymbolError(f"{where}: a boolean is not a matrix entry")
-    if isinstance(expr, (int, float)):
-        return number(expr)
-    if hasattr(expr, "dtype") and getattr(expr, "shape", None) == ():  # numpy scalar
-        return number(float(expr))  # type: ignore[arg-type]
+    if isinstance(expr, (int, float)) or (hasattr(expr, "dtype")
+                                          and getattr(expr, "shape", None) == ()):
+        try:
+            return number(expr if isinstance(expr, (int, float)) else float(expr))
+        except SymbolError as exc:
+            raise SymbolError(f"{where}: {exc}") from None
     if isinstance(expr, sympy.Basic):
         e = sympy.sympify(expr)
         if isinstance(e, sympy.Float):
@@ -151,5 +156,8 @@ def normalize_values(values: Mapping[object, object] | None) -> dict[str, sympy.
             val = float(val)
         if not isinstance(val, (int, float)) or isinstance(val, bool):
             raise SymbolError(f"value of {name!r} must be a number, got {val!r}")
-        out[name] = number(val)
+        try:
+            out[name] = number(val)
+        except SymbolError as exc:
+            raise SymbolError(f"value of {name!r}: {exc}") from None
     return dict(sorted(out.items()))

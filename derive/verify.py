@@ -33,7 +33,7 @@ from . import reference, riccati
 from .build import build_c
 from .emit.write import write_files
 from .errors import VerificationError
-from .generate import render_filter
+from .generation import render_filter
 from .simulate import gnss_scenario, simulate_linear
 
 LINEAR_TOLERANCE = 1e-12

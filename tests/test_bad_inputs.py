@@ -32,7 +32,7 @@ from derive.errors import (
     SymbolError,
 )
 from derive.filters import derive_unit
-from derive.generate import generate, render_filter
+from derive.generation import generate, render_filter
 from derive.modelfile import loads_model
 from derive.symbols import C_KEYWORDS, C_MATH
 from derive.verify import import_python
@@ -591,9 +591,7 @@ def test_fuzz_linear_model_arguments(args):
 
 # -- known gaps (need changes outside this helper's files; see docs/robustness.md) -------
 
-@pytest.mark.xfail(strict=True, reason="derive/cli.py: argparse prints usage plus the error "
-                                       "(several lines); wanted one line")
-def test_gap_usage_errors_are_one_line(capsys, out):
+def test_usage_errors_are_one_line(capsys, out):
     before = snapshot(out)
     capsys.readouterr()
     status = main(["generate", "mpt3d_b", "--lang", "fortran", "--out", str(out)])
@@ -603,18 +601,14 @@ def test_gap_usage_errors_are_one_line(capsys, out):
     assert snapshot(out) == before
 
 
-@pytest.mark.xfail(strict=True, reason="derive/emit/write.py: mkdir's OSError escapes as a "
-                                       "traceback; wanted OutputPathError")
-def test_gap_output_directory_is_a_file(tmp_path, capsys):
+def test_output_directory_is_a_file(tmp_path, capsys):
     target = tmp_path / "afile"
     target.write_text("not a directory")
     refused(capsys, ["generate", "mpt3d_b", "--filter", "kf", "--out", str(target)], tmp_path,
             ["afile"])
 
 
-@pytest.mark.xfail(strict=True, reason="derive/symbols.py check_names: None is not iterable "
-                                       "(TypeError); wanted NameError_")
-def test_gap_states_none():
+def test_states_none():
     with pytest.raises(NameError_, match="states"):
         axis(states=None)
 

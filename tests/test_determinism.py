@@ -10,7 +10,7 @@ from pathlib import Path
 import sympy
 
 from derive import catalog
-from derive.generate import render_filter
+from derive.generation import render_filter
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ R = [["r", "r/4"], ["r/4", "r"]]
 SCRIPT = """
 import sys
 from derive import catalog
-from derive.generate import generate
+from derive.generation import generate
 for name in catalog.names():
     generate(name, None, "all", "gen")
 generate("mpt3d_a", ["kf", "lf", "jklf"], "all", "gen_options",

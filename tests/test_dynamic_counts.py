@@ -13,7 +13,7 @@ import pytest
 from derive import catalog, paper
 from derive.filters import available, derive_unit
 from derive.flops import OpCounter, count, count_c_function
-from derive.generate import render_filter
+from derive.generation import render_filter
 
 CASES = [(name, f) for name in catalog.names() for f in available(catalog.load(name))]
 PAPER_CASES = [(name, f) for name in ("mpt3d_a", "cv") for f in paper.PAPER_FILTERS]

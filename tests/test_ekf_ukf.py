@@ -16,7 +16,7 @@ from derive.errors import FilterError, NumericalError
 from derive.filters import derive_unit
 from derive.filters.ekf import scalar_measurement
 from derive.flops import OpCounter, count, count_c_function
-from derive.generate import render_filter
+from derive.generation import render_filter
 from derive.gnss import ScalarEkf, ScalarUkf, drive
 from derive.gnss.generated import generated_filters
 from derive.gnss.measurements import Epoch

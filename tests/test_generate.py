@@ -11,7 +11,7 @@ from derive import catalog
 from derive.cli import main
 from derive.errors import FilterError, SteadyStateError
 from derive.filters import available
-from derive.generate import generate
+from derive.generation import generate
 from derive.verify import import_python
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,7 @@ import sympy
 from derive import LinearModel, catalog, reference
 from derive.build import build_c
 from derive.emit.write import write_files
-from derive.generate import render_filter
+from derive.generation import render_filter
 from derive.verify import relative_error
 
 STEPS = 1_000_000

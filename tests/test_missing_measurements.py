@@ -17,7 +17,7 @@ from derive.emit.render import render_unit
 from derive.emit.write import write_files
 from derive.filters import available, derive_unit
 from derive.flops import CountingFloat, OpCount, OpCounter, count, count_c_function
-from derive.generate import render_filter
+from derive.generation import render_filter
 from derive.lowering import IfPresent, LoweringError, Op, Var, lower
 from derive.program import InputElement
 from derive.simulate import simulate_linear

@@ -183,7 +183,7 @@ def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys
 def test_verify_built_equals_derive_verify(tmp_path):
     """The report's verification of built modules is derive verify's comparison."""
     from derive.build import build_c
-    from derive.generate import generate
+    from derive.generation import generate
     from derive.report.generation import verify_built
     from derive.verify import import_python, verify_filter
 

@@ -7,9 +7,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import LinearModel, catalog, reference
-from derive.filters import available
-from derive.generate import render_filter
 from derive.emit.write import write_files
+from derive.filters import available
+from derive.generation import render_filter
 from derive.simulate import simulate_linear
 from derive.verify import LINEAR_TOLERANCE, import_python, relative_error, verify_filter
 

@@ -18,7 +18,7 @@ def write(case: Case, workdir: Path, lang: str = "all") -> dict[str, Path]:
     """Generate the case's filter into ``workdir``; {suffix: path}."""
     from .. import catalog
     from ..emit.write import write_files
-    from ..generate import render_filter
+    from ..generation import render_filter
 
     model = catalog.load(case.model)
     files = render_filter(model, case.filter, lang, {}, out_label="bench")

@@ -23,6 +23,6 @@ def modules():
 
 def load_model(ref: str):
     """A model by catalog name or model-file path (both errors are ModelErrors)."""
-    from ..generate import resolve_model
+    from ..generation import resolve_model
 
     return resolve_model(ref)

@@ -21,6 +21,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--order", type=int, default=None, help="FIR: order N directly")
     parser.add_argument("--horizon", type=int, default=None, help="pred: steps ahead N (1)")
     parser.add_argument("--joseph", action="store_true", help="KF: Joseph-form update")
+    parser.add_argument("--missing", action="store_true",
+                        help="kf, lf, jklf, ikf: a NaN in z skips that measurement")
     parser.add_argument("--alpha", type=float, default=None, help="UKF sigma-point alpha (1)")
     parser.add_argument("--beta", type=float, default=None, help="UKF sigma-point beta (0)")
     parser.add_argument("--kappa", type=float, default=None,
@@ -38,6 +40,11 @@ def options_from(args) -> tuple[dict, dict]:
     if args.P0_pattern:
         common["P0_pattern"] = args.P0_pattern
     per = {"fir": {}, "pred": {}, "ukf": {}}
+    if args.missing:
+        from ..filters.common import MISSING_FILTERS
+
+        for name in MISSING_FILTERS:
+            per.setdefault(name, {})["missing"] = True
     for key in ("alpha", "beta", "kappa"):
         if getattr(args, key) is not None:
             per["ukf"][key] = getattr(args, key)
@@ -53,11 +60,18 @@ def options_from(args) -> tuple[dict, dict]:
 def run(args) -> int:
     from .. import catalog
     from ..errors import FilterError
-    from ..generate import generate
+    from ..generation import generate
 
     if args.all == bool(args.model):
         raise FilterError("give a MODEL or --all (not both)")
     common, per = options_from(args)
+    if args.missing and args.filters:
+        from ..filters.common import MISSING_FILTERS
+
+        bad = [f for f in args.filters if f not in MISSING_FILTERS]
+        if bad:
+            raise FilterError(f"--missing applies to {', '.join(MISSING_FILTERS)}, not to "
+                              f"{', '.join(bad)}")
     refs = catalog.names() if args.all else [args.model]
     total = 0
     for ref in refs:

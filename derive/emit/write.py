@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import keyword
 import os
+import secrets
+import shutil
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -61,7 +63,11 @@ def write_files(out_dir: str | os.PathLike, model_name: str,
         _check_name(name, "file name")
     target = destination(out_dir, model_name)
     root = Path(os.path.realpath(out_dir))
-    target.mkdir(parents=True, exist_ok=True)
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"cannot create the output directory {target}: "
+                              f"{exc.strerror or exc}") from None
     if not _inside(Path(os.path.realpath(target)), root):
         raise OutputPathError(f"{target} resolves outside the output directory {root}")
     for name in files:
@@ -80,6 +86,40 @@ def write_files(out_dir: str | os.PathLike, model_name: str,
         for tmp, _ in pending:
             Path(tmp).unlink(missing_ok=True)
         raise
-    for tmp, final in pending:
-        os.replace(tmp, final)
+    _replace_all(pending)
     return [final for _, final in pending]
+
+
+def _replace_all(pending: list[tuple[str, Path]]) -> None:
+    """Move every temporary into place; on any failure put the previous files back.
+
+    Existing files are first kept as hard links (a copy where links fail), so an
+    interruption between two renames cannot leave a mix of new and old files.
+    """
+    backups: list[tuple[Path, Path]] = []
+    created: list[Path] = []
+    try:
+        for _, final in pending:
+            if final.exists():
+                saved = final.with_name(f".{final.name}.{secrets.token_hex(6)}.old")
+                try:
+                    os.link(final, saved)
+                except OSError:
+                    shutil.copy2(final, saved)
+                backups.append((final, saved))
+        for tmp, final in pending:
+            existed = final.exists()
+            os.replace(tmp, final)
+            if not existed:
+                created.append(final)
+    except BaseException:
+        for final, saved in backups:
+            os.replace(saved, final)
+            saved.unlink(missing_ok=True)
+        for final in created:
+            final.unlink(missing_ok=True)
+        for tmp, _ in pending:
+            Path(tmp).unlink(missing_ok=True)
+        raise
+    for _, saved in backups:
+        saved.unlink(missing_ok=True)

@@ -93,5 +93,11 @@ def derive_unit(model, name: str, options: dict | None = None):
 
         raise (SteadyStateError if f.steady and f.model_kind == model.kind else
                FilterError)(reason)
+    if (options or {}).get("missing"):
+        from .common import MISSING_FILTERS
+
+        if name not in MISSING_FILTERS:
+            raise FilterError(f"missing measurements (NaN in z) are supported by "
+                              f"{', '.join(MISSING_FILTERS)}, not by {name!r}")
     mod = importlib.import_module(f"{__name__}.{f.module}")
     return mod.derive_unit(model, name, dict(options or {}))

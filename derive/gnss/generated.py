@@ -53,7 +53,7 @@ def _options(name: str, settings: FilterSettings) -> dict:
 
 def _load(name: str, settings: FilterSettings, lang: str, workdir: Path):
     from derive.emit.write import write_files
-    from derive.generate import render_filter
+    from derive.generation import render_filter
     from derive.verify import import_python
 
     model = scalar_model()

@@ -71,7 +71,7 @@ class Context:
         in the scratch directory; the catalog's generated directory is not touched."""
         from ..build import build_c
         from ..emit.write import write_files
-        from ..generate import render_filter
+        from ..generation import render_filter
 
         files = render_filter(model, name, "all", options, out_label=f"variants/{tag}")
         paths = write_files(self.scratch / tag, model.name, files)

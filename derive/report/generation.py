@@ -52,7 +52,7 @@ def generate_model(ctx, name: str, result: GenerationResult) -> None:
     from ..build import build_c
     from ..emit.write import write_files
     from ..filters import available
-    from ..generate import render_filter
+    from ..generation import render_filter
     from ..verify import import_python
 
     model = catalog.load(name)

@@ -41,6 +41,8 @@ def regenerate_command(model_ref: str, name: str, options: Mapping, out: str) ->
     for key in ("alpha", "beta", "kappa"):
         if options.get(key) is not None and name == "ukf":
             parts.append(f"--{key} {options[key]}")
+    if options.get("missing"):
+        parts.append("--missing")
     if options.get("joseph") and name == "kf":
         parts.append("--joseph")
     if options.get("P0_pattern"):
