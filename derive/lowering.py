@@ -22,7 +22,8 @@ Rules (``e`` a sympy expression):
 - with ``use_fma`` (C): in an ``Add`` each term whose tree is a product becomes
   ``fma(a, b, acc)`` on the chain of the other terms; a negative term ``-c*a``
   uses the negative constant, ``-a*b`` stays a ``sub``; products whose operands
-  are deepest go last so the dependency chain stays short;
+  are deepest, or read the carried state (x, P, temporaries), go last so the
+  dependency chain from one step to the next stays short;
 - the functions of :data:`FUNCTIONS` are calls ``call:NAME`` (C names);
 - :class:`IfPresent` ``(z, a, b)`` is ``select(z, a, b)``: ``a`` where the input
   element ``z`` is not NaN, else ``b``; it costs one comparison (``z == z``) and no
@@ -240,11 +241,30 @@ class _Lowerer:
                     products.append((Const(-left.value), right))
                     continue
             base.append((sign, tree))
-        products.sort(key=lambda lr: max(depth(lr[0]), depth(lr[1])))
+        products.sort(key=lambda lr: (_late(lr[0]) or _late(lr[1]),
+                                      max(depth(lr[0]), depth(lr[1]))))
         acc = _signed_chain(base) if base else Op("mul", products.pop(0))
         for left, right in products:
             acc = Op("fma", (left, right, acc))
         return acc
+
+
+#: Input ports that carry the filter's state from one step to the next.
+STATE_PORTS = ("x", "P")
+
+
+def _late(tree: Tree) -> bool:
+    """True when ``tree`` reads the carried state (an element of x or P, or a temporary).
+
+    In an fma chain such products go last, so the step-to-step dependency runs
+    through as few fmas as possible: with x_new = a x0 + b x1 + c z the chain is
+    fma(b, x1, fma(a, x0, c*z)), two fmas deep from the state, not three.
+    """
+    if isinstance(tree, Var):
+        return tree.name.split("[")[0] in STATE_PORTS or "[" not in tree.name
+    if isinstance(tree, Op):
+        return any(_late(a) for a in tree.args)
+    return False
 
 
 def _signed_chain(terms: list[tuple[int, Tree]]) -> Tree:

@@ -11,6 +11,7 @@ deterministic (no timestamps, no hash-ordered iteration).
 from __future__ import annotations
 
 import importlib.resources
+import re
 from functools import cache
 from pathlib import Path
 
@@ -183,6 +184,26 @@ def _c_call(function: str, args: str, status: bool) -> list[str]:
     return [f"status = {function}({args});", "if (status) {", "    return status;", "}"]
 
 
+def _fused_body(unit: Unit, step_parts: dict) -> list[str]:
+    """The step's statements for the run loop, reading per-step inputs at row k.
+
+    The run loop keeps the state (x, P) and the step's outputs in local arrays indexed
+    by constants, so the compiler holds them in registers: nothing is stored and
+    reloaded between steps except the rows of xs and Ps written as results. The
+    statements are the step's own (same operations, same count); only the per-step
+    input names change (``z[`` reads ``zk[``, the row of step k).
+    """
+    lines = [line for line in step_parts["body"] if not line.startswith("(void)")]
+    if lines and lines[-1] == "return 0;":
+        lines = lines[:-1]
+    out = []
+    for line in lines:
+        for name in unit.step_inputs:
+            line = re.sub(rf"\b{name}\[", f"{name}k[", line)
+        out.append(line)
+    return out
+
+
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     lowered = _lowered(unit, use_fma=use_fma)
@@ -211,6 +232,12 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
+    step_parts = c_printer.function_parts(step_lp, prefix)
+    fused = _fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
+    step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
+                 for name in unit.step_inputs]
+    used = step_lp.used_inputs()
+    unused = [f"(void){name};" for name in ("p",) if unit.parameters and name not in used]
     context = {
         "header": header,
         "guard": f"{prefix.upper()}_H",
@@ -227,6 +254,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "run_tail": ["return 0;"] if status else [],
         "step_call": step_call,
         "init_call": init_call,
+        "fused": fused,
+        "step_rows": step_rows,
+        "unused": unused,
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
