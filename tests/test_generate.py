@@ -1,5 +1,6 @@
 """generate(): files, layout, the command line, and the committed generated/ tree."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -65,11 +66,12 @@ def test_cli_generate_and_errors(tmp_path, capsys):
 
 def test_committed_generated_tree_is_fresh(tmp_path):
     """generated/ equals a fresh `derive generate --all` byte for byte."""
-    subprocess.run([sys.executable, "-m", "derive", "generate", "--all", "--out", str(tmp_path)],
-                   check=True, capture_output=True, cwd=tmp_path)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONHASHSEED": "12345"}
+    subprocess.run([sys.executable, "-m", "derive", "generate", "--all", "--out", "generated"],
+                   check=True, capture_output=True, cwd=tmp_path, env=env)
     committed = ROOT / "generated"
-    fresh = {p.relative_to(tmp_path).as_posix(): p.read_bytes()
-             for p in tmp_path.rglob("*") if p.is_file()}
+    fresh = {p.relative_to(tmp_path / "generated").as_posix(): p.read_bytes()
+             for p in (tmp_path / "generated").rglob("*") if p.is_file()}
     have = {p.relative_to(committed).as_posix(): p.read_bytes()
             for p in committed.rglob("*") if p.is_file() and p.name != "README.md"}
     assert sorted(have) == sorted(fresh), "generated/ lists other files than --all writes"
