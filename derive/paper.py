@@ -34,6 +34,7 @@ import sympy
 from . import riccati, staging
 from .emit.unit import Unit
 from .errors import FilterError, ModelError
+from .filters.kf import prior
 from .program import Port, Program
 
 #: The filters paper mode generates (derive's names).
@@ -153,13 +154,7 @@ def kf_step(prog: Program, b: dict, x, P, z):
     K; KH; I - KH; (I-KH)x; Kz; add; (I-KH)P."""
     F, H, R, W = b["F"], b["H"], b["R"], b["W"]
     n = F.rows
-    xp = staging.matmul(prog, F, x)
-    FP = staging.matmul(prog, F, P)
-    Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), W,
-                     symmetric_result=True)
-    PHt = staging.matmul(prog, Pp, H.T)
-    S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
-                    symmetric_result=True)
+    xp, Pp, PHt, S = prior(prog, F, W, H, R, x, P)
     K = staging.matmul(prog, PHt, dense_inverse(prog, S, b["Em"], b["dm"]))
     IKH = staging.sub(prog, sympy.eye(n), staging.matmul(prog, K, H))
     x_new = staging.add(prog, staging.matmul(prog, IKH, xp), staging.matmul(prog, K, z))

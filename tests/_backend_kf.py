@@ -8,6 +8,7 @@ import sympy
 
 from derive import staging
 from derive.emit.unit import Unit
+from derive.filters.kf import prior
 from derive.program import Port, Program
 
 dt, q, r = sympy.symbols("dt q r", positive=True)
@@ -38,13 +39,7 @@ def kf_program(F, W, H, R, parameters=(dt, q, r)) -> Program:
     bind = prog.bind("p", parameters) if parameters else {}
     F, W, H, R = (staging.let_matrix(prog, M.xreplace(bind)) for M in (F, W, H, R))
     x, P, z = prog.matrix("x"), prog.matrix("P"), prog.matrix("z")
-    xp = staging.matmul(prog, F, x)
-    FP = staging.matmul(prog, F, P)
-    Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), W,
-                     symmetric_result=True)
-    PHt = staging.matmul(prog, Pp, H.T)
-    S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
-                    symmetric_result=True)
+    xp, Pp, PHt, S = prior(prog, F, W, H, R, x, P)
     K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
     innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
     prog.set_output("x_new", staging.add(prog, xp, staging.matmul(prog, K, innovation)))

@@ -32,11 +32,12 @@ from .common import (
 )
 
 
-def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool = False):
-    """Stage one KF step; returns (x_new, P_new) as matrices of atoms.
+def prior(prog: Program, F, W, H, R, x, P):
+    """Stage the prediction and the innovation covariance, in the papers' order.
 
-    ``missing``: NaN entries of z are absent measurements (skipped)."""
-    F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
+    Returns ``x(k+1/k) = F x``, ``P(k+1/k) = (F P) F^T + W`` (upper triangle),
+    ``P(k+1/k) H^T`` and ``S = H (P(k+1/k) H^T) + R`` (upper triangle).
+    """
     xp = staging.matmul(prog, F, x)
     FP = staging.matmul(prog, F, P)
     Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), W,
@@ -44,6 +45,15 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
     PHt = staging.matmul(prog, Pp, H.T)
     S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
                     symmetric_result=True)
+    return xp, Pp, PHt, S
+
+
+def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool = False):
+    """Stage one KF step; returns (x_new, P_new) as matrices of atoms.
+
+    ``missing``: NaN entries of z are absent measurements (skipped)."""
+    F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
+    xp, Pp, PHt, S = prior(prog, F, W, H, R, x, P)
     if missing:
         S, PHt = mask_symmetric(prog, S, z), mask_columns(prog, PHt, z)
     K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
