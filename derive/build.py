@@ -174,6 +174,37 @@ class FilterModule:
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
 
 
+def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True):
+    """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
+    (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None)."""
+    fn = getattr(module.lib, f"{module.prefix}_run_tracks")
+    zs = np.ascontiguousarray(zs, dtype=np.float64)
+    x0 = np.ascontiguousarray(x0, dtype=np.float64)
+    tracks, steps = zs.shape[0], zs.shape[1]
+    n = x0.shape[1]
+    xs = np.empty((tracks, steps, n))
+    buf = module.ffi.from_buffer
+    args = [steps, tracks, buf("double[]", zs), buf("double[]", x0)]
+    Ps = None
+    if P0 is not None:
+        P0 = np.ascontiguousarray(P0, dtype=np.float64)
+        Ps = np.empty((tracks, steps, n, n)) if with_covariance else None
+        args += [buf("double[]", P0), buf("double[]", xs),
+                 buf("double[]", Ps) if Ps is not None else module.ffi.NULL]
+    else:
+        args.append(buf("double[]", xs))
+    if p is not None:
+        args.append(buf("double[]", np.ascontiguousarray(p, dtype=np.float64)))
+    status = fn(*args)
+    if status:
+        raise NumericalError(f"{module.prefix}_run_tracks failed with status {status}: "
+                             f"{module.statuses.get(status, 'unknown check')}")
+    return xs if P0 is None else (xs, Ps)
+
+
+FilterModule.run_tracks = _run_tracks
+
+
 class CModule:
     """A compiled extension holding one or more generated filters.
 

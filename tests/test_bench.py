@@ -29,6 +29,7 @@ def test_one_row_per_case_and_implementation(result):
     assert [(r.case, r.implementation) for r in result.rows] == [
         (c.label, name) for c in CASES for name, _, _ in IMPLEMENTATIONS]
     assert [b.implementation for b in result.batch] == [
+        "generated C, run_tracks",
         f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
         "generated C, run per track", "generated Python (NumPy arrays)",
         "vectorised NumPy KF", "simdkalman"]

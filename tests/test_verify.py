@@ -101,3 +101,33 @@ def test_free_parameter_model_runs_with_p(tmp_path):
     xs, Ps = mod.run(run.zs, num.x0, np.eye(2), np.array([0.5]))
     xr, Pr = reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, np.eye(2), run.zs)
     assert relative_error(xs, xr) <= 1e-12 and relative_error(Ps, Pr) <= 1e-12
+
+
+@pytest.mark.parametrize("model_name, filter_name", [("mpt3d_b", "kf"), ("mpt3d_a", "sskf"),
+                                                     ("gps_static", "ikf")])
+def test_c_run_tracks_equals_the_run_of_each_track(tmp_path, model_name, filter_name):
+    """run_tracks (4 tracks advanced together, then singles) is each track's run, bit for bit."""
+    from derive.build import build_c
+
+    model = catalog.load(model_name)
+    num = model.numeric()
+    paths = {p.suffix: p for p in write_files(tmp_path, model.name,
+                                               render_filter(model, filter_name, "c"))}
+    mod = build_c(paths[".c"])
+    tracks = 7  # one block of 4 and three singles
+    zs = np.stack([simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 60, s).zs
+                   for s in range(tracks)])
+    rng = np.random.default_rng(1)
+    x0 = rng.normal(size=(tracks, model.n))
+    if filter_name == "sskf":
+        xs = mod.run_tracks(zs, x0)
+        for t in range(tracks):
+            np.testing.assert_array_equal(xs[t], mod.run(zs[t], x0[t]))
+        return
+    A = rng.normal(size=(tracks, model.n, model.n))
+    P0 = A @ np.swapaxes(A, 1, 2) + np.eye(model.n)
+    xs, Ps = mod.run_tracks(zs, x0, P0)
+    for t in range(tracks):
+        x1, P1 = mod.run(zs[t], x0[t], P0[t])
+        np.testing.assert_array_equal(xs[t], x1)
+        np.testing.assert_array_equal(Ps[t], P1)

@@ -113,6 +113,20 @@ def generated_python(b: Batch, workdir: Path):
     return lambda: np.asarray(module.run(zs, x0, P0)[0]).transpose(2, 0, 1)
 
 
+def generated_c_tracks(b: Batch, workdir: Path):
+    """The generated ``run_tracks``: 4 tracks advanced together in registers, each track's
+    arrays contiguous (no covariance output, like the other batch rows)."""
+    from ..build import build_c
+    from .generated import write
+
+    module = build_c(write(Case("kf", MODEL), workdir, "c")[".c"], extra_cflags=CFLAGS)
+    tracks = b.zs.shape[0]
+    zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
+    x0 = np.ascontiguousarray(np.repeat(b.x0[None, :], tracks, axis=0))
+    P0 = np.ascontiguousarray(np.repeat(b.P0[None, :, :], tracks, axis=0))
+    return lambda: module.run_tracks(zs, x0, P0, with_covariance=False)[0]
+
+
 INTERLEAVE = 4
 """Tracks whose steps the interleaved driver alternates (independent dependency chains for
 the CPU to overlap; 4 was fastest of 1, 2, 4, 8, 16, 32 on the development machine)."""

@@ -90,7 +90,7 @@ class BenchResult:
             value = r.ratio if r is not None and kf is not None and kf.timing else None
             out.append((f"generated C KF mpt3d_a faster per step than {peer}", value, need,
                         None if value is None else value >= need))
-        b = next((x for x in self.batch if x.implementation.startswith("generated C, step")),
+        b = next((x for x in self.batch if x.implementation == "generated C, run_tracks"),
                  None)
         value = b.ratio if b is not None else None
         out.append(("batch throughput of generated C over simdkalman's", value, 50.0,
@@ -216,7 +216,8 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
     b = batch.make_batch(s.batch_tracks, s.batch_steps)
     check = sorted({0, 1, s.batch_tracks - 1} & set(range(s.batch_tracks)))  # the last may
     reference = {t: batch.batch_reference(b, t) for t in check}      # be in a partial block
-    impls = ((f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
+    impls = (("generated C, run_tracks", lambda: batch.generated_c_tracks(b, workdir)),
+             (f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
               lambda: batch.generated_c(b, workdir, "batch_step")),
              ("generated C, run per track", lambda: batch.generated_c(b, workdir, "batch_run")),
              ("generated Python (NumPy arrays)", lambda: batch.generated_python(b, workdir)),

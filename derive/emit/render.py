@@ -121,6 +121,9 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
     lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
+    if lang == "c" and unit.kind in ("timevarying", "steady"):
+        lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
+                     "for each track, one track after another)")
     for lp in lowered.values():
         sym = [p.name for p in lp.inputs + lp.outputs if p.symmetric]
         if sym:
@@ -204,6 +207,58 @@ def _fused_body(unit: Unit, step_parts: dict) -> list[str]:
     return out
 
 
+#: Tracks that run_tracks advances together: independent dependency chains in one basic
+#: block that the compiler interleaves, so one track's latency hides another's.
+LANES = 4
+
+
+def _lane(lines: list[str], unit: Unit, label: str) -> list[str]:
+    """The fused step statements for one lane: its own temporaries, state and inputs."""
+    out = []
+    for line in lines:
+        line = re.sub(r"\bt(\d+)\b", rf"t\1{label}", line)
+        line = re.sub(r"\bx_new\[", f"xn{label}[", line)
+        line = re.sub(r"\bP_new\[", f"Pn{label}[", line)
+        line = re.sub(r"\bx\[", f"x{label}[", line)
+        line = re.sub(r"\bP\[", f"P{label}[", line)
+        for name in unit.step_inputs:
+            line = re.sub(rf"\b{name}k\[", f"{name}{label}[", line)
+        out.append(line)
+    return out
+
+
+def _tracks_parts(unit: Unit, fused: list[str], lanes: int) -> dict:
+    """Statements of run_tracks for ``lanes`` tracks at a time.
+
+    Track-major arrays: track t's z, x0, P0, xs, Ps are laid out exactly as for run,
+    one after the other, so every lane reads and writes its own sequential stream.
+    """
+    n, nn = unit.n, unit.n * unit.n
+    timevarying = unit.kind == "timevarying"
+    decl, load, body, store = [], [], [], []
+    for lane in range(lanes):
+        label = f"_l{lane}"  # never x0 or P0: those are the run's arguments
+        track = f"(t + {lane})"
+        decl.append(f"double x{label}[{n}], xn{label}[{n}];")
+        load += [f"x{label}[{i}] = x0[{track} * {n} + {i}];" for i in range(n)]
+        if timevarying:
+            decl.append(f"double P{label}[{nn}], Pn{label}[{nn}];")
+            load += [f"P{label}[{i}] = P0[{track} * {nn} + {i}];" for i in range(nn)]
+        for name in unit.step_inputs:
+            size = unit.step_input_size(name)
+            decl.append(f"const double *{name}{label};")
+            body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
+        body += _lane(fused, unit, label)
+        store += [f"xs[({track} * steps + k) * {n} + {i}] = x{label}[{i}] = xn{label}[{i}];"
+                  for i in range(n)]
+        if timevarying:
+            store += [f"P{label}[{i}] = Pn{label}[{i}];" for i in range(nn)]
+            store += ["if (Ps) {"] + [
+                f"    Ps[({track} * steps + k) * {nn} + {i}] = Pn{label}[{i}];"
+                for i in range(nn)] + ["}"]
+    return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store}
+
+
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     lowered = _lowered(unit, use_fma=use_fma)
@@ -236,6 +291,12 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     fused = _fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
+    tracks = ([_tracks_parts(unit, fused, LANES), _tracks_parts(unit, fused, 1)]
+              if fused else [])
+    tracks_params = ["size_t steps", "size_t tracks"] + [
+        ("double *" if a.output else "const double *") + a.c_name for a in args]
+    tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
+                        f"{', '.join(tracks_params)})") if fused else ""
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in ("p",) if unit.parameters and name not in used]
     context = {
@@ -243,7 +304,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "guard": f"{prefix.upper()}_H",
         "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix) + ";" for lp in lps]
-        + [run_signature + ";"],
+        + [run_signature + ";"] + ([tracks_signature + ";"] if tracks_signature else []),
         "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)
@@ -255,6 +316,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "step_call": step_call,
         "init_call": init_call,
         "fused": fused,
+        "tracks": tracks,
+        "tracks_signature": tracks_signature,
         "step_rows": step_rows,
         "unused": unused,
         "n": unit.n,

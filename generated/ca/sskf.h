@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void ca_sskf_step(x[3], z[1], x_new[3] out)
  *     void ca_sskf_run(steps, z[steps*1], x0[3], xs[steps*3] out)
+ *     many tracks: ca_sskf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 21, instructions 12)
  * A = [[ 0.2559986051046037 ,  0.2559986051046037 ,  0.12799930255230185], [-0.48793421455977826,  0.5120657854402217 ,  0.7560328927201109 ], [-0.15999956409459484, -0.15999956409459484,  0.9200002179527026 ]]
  * B = [[0.7440013948953963 ], [0.48793421455977826], [0.15999956409459484]]
@@ -31,6 +32,7 @@ extern "C" {
 
 void ca_sskf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
 void ca_sskf_run(size_t steps, const double *z, const double *x0, double *xs);
+void ca_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void cv_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
  *     void cv_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     many tracks: cv_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 24, div 2, sqrt 0, fma 18, neg 3, cmp 0, calls 0 (flops 72, instructions 57)
  * P0 pattern declared: zero
@@ -31,6 +32,7 @@ extern "C" {
 
 void cv_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
 void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gps_static_ikf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
  *     int gps_static_ikf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     many tracks: gps_static_ikf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
@@ -38,6 +39,7 @@ extern "C" {
 
 int gps_static_ikf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
 int gps_static_ikf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gps_static_ikf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gps_static_jklf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
  *     int gps_static_jklf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     many tracks: gps_static_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
@@ -266,6 +267,700 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
             Ps[k * 9 + 6] = P_new[6];
             Ps[k * 9 + 7] = P_new[7];
             Ps[k * 9 + 8] = P_new[8];
+        }
+    }
+    return 0;
+}
+
+/* Run many independent tracks: each array holds one run's array per track, one track after
+ * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
+ * 4 tracks advance together, their steps interleaved by the compiler;
+ * a non-zero status stops the whole run. */
+int gps_static_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+{
+    size_t t = 0;
+    size_t k;
+    for (; t + 4 <= tracks; t += 4) {
+        double x_l0[3], xn_l0[3];
+        double P_l0[9], Pn_l0[9];
+        const double *z_l0;
+        double x_l1[3], xn_l1[3];
+        double P_l1[9], Pn_l1[9];
+        const double *z_l1;
+        double x_l2[3], xn_l2[3];
+        double P_l2[9], Pn_l2[9];
+        const double *z_l2;
+        double x_l3[3], xn_l3[3];
+        double P_l3[9], Pn_l3[9];
+        const double *z_l3;
+        x_l0[0] = x0[(t + 0) * 3 + 0];
+        x_l0[1] = x0[(t + 0) * 3 + 1];
+        x_l0[2] = x0[(t + 0) * 3 + 2];
+        P_l0[0] = P0[(t + 0) * 9 + 0];
+        P_l0[1] = P0[(t + 0) * 9 + 1];
+        P_l0[2] = P0[(t + 0) * 9 + 2];
+        P_l0[3] = P0[(t + 0) * 9 + 3];
+        P_l0[4] = P0[(t + 0) * 9 + 4];
+        P_l0[5] = P0[(t + 0) * 9 + 5];
+        P_l0[6] = P0[(t + 0) * 9 + 6];
+        P_l0[7] = P0[(t + 0) * 9 + 7];
+        P_l0[8] = P0[(t + 0) * 9 + 8];
+        x_l1[0] = x0[(t + 1) * 3 + 0];
+        x_l1[1] = x0[(t + 1) * 3 + 1];
+        x_l1[2] = x0[(t + 1) * 3 + 2];
+        P_l1[0] = P0[(t + 1) * 9 + 0];
+        P_l1[1] = P0[(t + 1) * 9 + 1];
+        P_l1[2] = P0[(t + 1) * 9 + 2];
+        P_l1[3] = P0[(t + 1) * 9 + 3];
+        P_l1[4] = P0[(t + 1) * 9 + 4];
+        P_l1[5] = P0[(t + 1) * 9 + 5];
+        P_l1[6] = P0[(t + 1) * 9 + 6];
+        P_l1[7] = P0[(t + 1) * 9 + 7];
+        P_l1[8] = P0[(t + 1) * 9 + 8];
+        x_l2[0] = x0[(t + 2) * 3 + 0];
+        x_l2[1] = x0[(t + 2) * 3 + 1];
+        x_l2[2] = x0[(t + 2) * 3 + 2];
+        P_l2[0] = P0[(t + 2) * 9 + 0];
+        P_l2[1] = P0[(t + 2) * 9 + 1];
+        P_l2[2] = P0[(t + 2) * 9 + 2];
+        P_l2[3] = P0[(t + 2) * 9 + 3];
+        P_l2[4] = P0[(t + 2) * 9 + 4];
+        P_l2[5] = P0[(t + 2) * 9 + 5];
+        P_l2[6] = P0[(t + 2) * 9 + 6];
+        P_l2[7] = P0[(t + 2) * 9 + 7];
+        P_l2[8] = P0[(t + 2) * 9 + 8];
+        x_l3[0] = x0[(t + 3) * 3 + 0];
+        x_l3[1] = x0[(t + 3) * 3 + 1];
+        x_l3[2] = x0[(t + 3) * 3 + 2];
+        P_l3[0] = P0[(t + 3) * 9 + 0];
+        P_l3[1] = P0[(t + 3) * 9 + 1];
+        P_l3[2] = P0[(t + 3) * 9 + 2];
+        P_l3[3] = P0[(t + 3) * 9 + 3];
+        P_l3[4] = P0[(t + 3) * 9 + 4];
+        P_l3[5] = P0[(t + 3) * 9 + 5];
+        P_l3[6] = P0[(t + 3) * 9 + 6];
+        P_l3[7] = P0[(t + 3) * 9 + 7];
+        P_l3[8] = P0[(t + 3) * 9 + 8];
+        for (k = 0; k < steps; ++k) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            const double t0_l0 = 0.01 + P_l0[0];
+            const double t1_l0 = 0.01 + P_l0[4];
+            const double t2_l0 = 0.01 + P_l0[8];
+            const double t3_l0 = 0.1 + t0_l0;
+            const double t4_l0 = 0.1 + t1_l0;
+            const double t5_l0 = 0.1 + t2_l0;
+            if (!(t3_l0 > 0.0)) {
+                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            }
+            if (!(t4_l0 > 0.0)) {
+                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            if (!(t5_l0 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t6_l0 = t0_l0/t3_l0;
+            const double t7_l0 = t1_l0/t4_l0;
+            const double t8_l0 = t2_l0/t5_l0;
+            const double t9_l0 = z_l0[0] - x_l0[0];
+            const double t10_l0 = z_l0[1] - x_l0[1];
+            const double t11_l0 = z_l0[2] - x_l0[2];
+            const double t12_l0 = t6_l0*t9_l0;
+            const double t13_l0 = t10_l0*t7_l0;
+            const double t14_l0 = t11_l0*t8_l0;
+            const double t15_l0 = x_l0[0] + t12_l0;
+            const double t16_l0 = x_l0[1] + t13_l0;
+            const double t17_l0 = x_l0[2] + t14_l0;
+            const double t18_l0 = t0_l0*t6_l0;
+            const double t19_l0 = t1_l0*t7_l0;
+            const double t20_l0 = t2_l0*t8_l0;
+            const double t21_l0 = t0_l0 - t18_l0;
+            const double t22_l0 = t1_l0 - t19_l0;
+            const double t23_l0 = t2_l0 - t20_l0;
+            const double t24_l0 = 9.090909090909092*P_l0[0];
+            const double t25_l0 = 9.090909090909092*P_l0[4];
+            const double t26_l0 = 9.090909090909092*P_l0[8];
+            const double t27_l0 = 1.0 + t24_l0;
+            const double t28_l0 = 1.0 + t25_l0;
+            const double t29_l0 = 1.0 + t26_l0;
+            const double t30_l0 = 1.0/t27_l0;
+            const double t31_l0 = 1.0/t28_l0;
+            const double t32_l0 = 1.0/t29_l0;
+            const double t33_l0 = 0.9090909090909091*t30_l0;
+            const double t34_l0 = 0.9090909090909091*t31_l0;
+            const double t35_l0 = 0.9090909090909091*t32_l0;
+            const double t36_l0 = 9.090909090909092*z_l0[0];
+            const double t37_l0 = 9.090909090909092*z_l0[1];
+            const double t38_l0 = 9.090909090909092*z_l0[2];
+            const double t39_l0 = P_l0[0]*t36_l0;
+            const double t40_l0 = P_l0[4]*t37_l0;
+            const double t41_l0 = P_l0[8]*t38_l0;
+            const double t42_l0 = x_l0[0] + t39_l0;
+            const double t43_l0 = x_l0[1] + t40_l0;
+            const double t44_l0 = x_l0[2] + t41_l0;
+            const double t45_l0 = 0.09090909090909091*z_l0[0];
+            const double t46_l0 = 0.09090909090909091*z_l0[1];
+            const double t47_l0 = 0.09090909090909091*z_l0[2];
+            const double t48_l0 = t33_l0*t42_l0;
+            const double t49_l0 = t34_l0*t43_l0;
+            const double t50_l0 = t35_l0*t44_l0;
+            const double t51_l0 = t45_l0 + t48_l0;
+            const double t52_l0 = t46_l0 + t49_l0;
+            const double t53_l0 = t47_l0 + t50_l0;
+            const double t54_l0 = P_l0[0]*t33_l0;
+            const double t55_l0 = P_l0[4]*t34_l0;
+            const double t56_l0 = P_l0[8]*t35_l0;
+            const double t57_l0 = 0.9090909090909091*t54_l0;
+            const double t58_l0 = 0.9090909090909091*t55_l0;
+            const double t59_l0 = 0.9090909090909091*t56_l0;
+            const double t60_l0 = 0.00909090909090909 + t57_l0;
+            const double t61_l0 = 0.00909090909090909 + t58_l0;
+            const double t62_l0 = 0.00909090909090909 + t59_l0;
+            const double t63_l0 = t15_l0 + t51_l0;
+            const double t64_l0 = t16_l0 + t52_l0;
+            const double t65_l0 = t17_l0 + t53_l0;
+            const double t66_l0 = 0.5*t63_l0;
+            const double t67_l0 = 0.5*t64_l0;
+            const double t68_l0 = 0.5*t65_l0;
+            const double t69_l0 = t21_l0 + t60_l0;
+            const double t70_l0 = t22_l0 + t61_l0;
+            const double t71_l0 = t23_l0 + t62_l0;
+            const double t72_l0 = 0.5*t69_l0;
+            const double t73_l0 = 0.5*t70_l0;
+            const double t74_l0 = 0.5*t71_l0;
+            xn_l0[0] = t66_l0;
+            xn_l0[1] = t67_l0;
+            xn_l0[2] = t68_l0;
+            Pn_l0[0] = t72_l0;
+            Pn_l0[1] = 0.0;
+            Pn_l0[2] = 0.0;
+            Pn_l0[3] = 0.0;
+            Pn_l0[4] = t73_l0;
+            Pn_l0[5] = 0.0;
+            Pn_l0[6] = 0.0;
+            Pn_l0[7] = 0.0;
+            Pn_l0[8] = t74_l0;
+            z_l1 = z + ((t + 1) * steps + k) * 3;
+            const double t0_l1 = 0.01 + P_l1[0];
+            const double t1_l1 = 0.01 + P_l1[4];
+            const double t2_l1 = 0.01 + P_l1[8];
+            const double t3_l1 = 0.1 + t0_l1;
+            const double t4_l1 = 0.1 + t1_l1;
+            const double t5_l1 = 0.1 + t2_l1;
+            if (!(t3_l1 > 0.0)) {
+                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            }
+            if (!(t4_l1 > 0.0)) {
+                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            if (!(t5_l1 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t6_l1 = t0_l1/t3_l1;
+            const double t7_l1 = t1_l1/t4_l1;
+            const double t8_l1 = t2_l1/t5_l1;
+            const double t9_l1 = z_l1[0] - x_l1[0];
+            const double t10_l1 = z_l1[1] - x_l1[1];
+            const double t11_l1 = z_l1[2] - x_l1[2];
+            const double t12_l1 = t6_l1*t9_l1;
+            const double t13_l1 = t10_l1*t7_l1;
+            const double t14_l1 = t11_l1*t8_l1;
+            const double t15_l1 = x_l1[0] + t12_l1;
+            const double t16_l1 = x_l1[1] + t13_l1;
+            const double t17_l1 = x_l1[2] + t14_l1;
+            const double t18_l1 = t0_l1*t6_l1;
+            const double t19_l1 = t1_l1*t7_l1;
+            const double t20_l1 = t2_l1*t8_l1;
+            const double t21_l1 = t0_l1 - t18_l1;
+            const double t22_l1 = t1_l1 - t19_l1;
+            const double t23_l1 = t2_l1 - t20_l1;
+            const double t24_l1 = 9.090909090909092*P_l1[0];
+            const double t25_l1 = 9.090909090909092*P_l1[4];
+            const double t26_l1 = 9.090909090909092*P_l1[8];
+            const double t27_l1 = 1.0 + t24_l1;
+            const double t28_l1 = 1.0 + t25_l1;
+            const double t29_l1 = 1.0 + t26_l1;
+            const double t30_l1 = 1.0/t27_l1;
+            const double t31_l1 = 1.0/t28_l1;
+            const double t32_l1 = 1.0/t29_l1;
+            const double t33_l1 = 0.9090909090909091*t30_l1;
+            const double t34_l1 = 0.9090909090909091*t31_l1;
+            const double t35_l1 = 0.9090909090909091*t32_l1;
+            const double t36_l1 = 9.090909090909092*z_l1[0];
+            const double t37_l1 = 9.090909090909092*z_l1[1];
+            const double t38_l1 = 9.090909090909092*z_l1[2];
+            const double t39_l1 = P_l1[0]*t36_l1;
+            const double t40_l1 = P_l1[4]*t37_l1;
+            const double t41_l1 = P_l1[8]*t38_l1;
+            const double t42_l1 = x_l1[0] + t39_l1;
+            const double t43_l1 = x_l1[1] + t40_l1;
+            const double t44_l1 = x_l1[2] + t41_l1;
+            const double t45_l1 = 0.09090909090909091*z_l1[0];
+            const double t46_l1 = 0.09090909090909091*z_l1[1];
+            const double t47_l1 = 0.09090909090909091*z_l1[2];
+            const double t48_l1 = t33_l1*t42_l1;
+            const double t49_l1 = t34_l1*t43_l1;
+            const double t50_l1 = t35_l1*t44_l1;
+            const double t51_l1 = t45_l1 + t48_l1;
+            const double t52_l1 = t46_l1 + t49_l1;
+            const double t53_l1 = t47_l1 + t50_l1;
+            const double t54_l1 = P_l1[0]*t33_l1;
+            const double t55_l1 = P_l1[4]*t34_l1;
+            const double t56_l1 = P_l1[8]*t35_l1;
+            const double t57_l1 = 0.9090909090909091*t54_l1;
+            const double t58_l1 = 0.9090909090909091*t55_l1;
+            const double t59_l1 = 0.9090909090909091*t56_l1;
+            const double t60_l1 = 0.00909090909090909 + t57_l1;
+            const double t61_l1 = 0.00909090909090909 + t58_l1;
+            const double t62_l1 = 0.00909090909090909 + t59_l1;
+            const double t63_l1 = t15_l1 + t51_l1;
+            const double t64_l1 = t16_l1 + t52_l1;
+            const double t65_l1 = t17_l1 + t53_l1;
+            const double t66_l1 = 0.5*t63_l1;
+            const double t67_l1 = 0.5*t64_l1;
+            const double t68_l1 = 0.5*t65_l1;
+            const double t69_l1 = t21_l1 + t60_l1;
+            const double t70_l1 = t22_l1 + t61_l1;
+            const double t71_l1 = t23_l1 + t62_l1;
+            const double t72_l1 = 0.5*t69_l1;
+            const double t73_l1 = 0.5*t70_l1;
+            const double t74_l1 = 0.5*t71_l1;
+            xn_l1[0] = t66_l1;
+            xn_l1[1] = t67_l1;
+            xn_l1[2] = t68_l1;
+            Pn_l1[0] = t72_l1;
+            Pn_l1[1] = 0.0;
+            Pn_l1[2] = 0.0;
+            Pn_l1[3] = 0.0;
+            Pn_l1[4] = t73_l1;
+            Pn_l1[5] = 0.0;
+            Pn_l1[6] = 0.0;
+            Pn_l1[7] = 0.0;
+            Pn_l1[8] = t74_l1;
+            z_l2 = z + ((t + 2) * steps + k) * 3;
+            const double t0_l2 = 0.01 + P_l2[0];
+            const double t1_l2 = 0.01 + P_l2[4];
+            const double t2_l2 = 0.01 + P_l2[8];
+            const double t3_l2 = 0.1 + t0_l2;
+            const double t4_l2 = 0.1 + t1_l2;
+            const double t5_l2 = 0.1 + t2_l2;
+            if (!(t3_l2 > 0.0)) {
+                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            }
+            if (!(t4_l2 > 0.0)) {
+                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            if (!(t5_l2 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t6_l2 = t0_l2/t3_l2;
+            const double t7_l2 = t1_l2/t4_l2;
+            const double t8_l2 = t2_l2/t5_l2;
+            const double t9_l2 = z_l2[0] - x_l2[0];
+            const double t10_l2 = z_l2[1] - x_l2[1];
+            const double t11_l2 = z_l2[2] - x_l2[2];
+            const double t12_l2 = t6_l2*t9_l2;
+            const double t13_l2 = t10_l2*t7_l2;
+            const double t14_l2 = t11_l2*t8_l2;
+            const double t15_l2 = x_l2[0] + t12_l2;
+            const double t16_l2 = x_l2[1] + t13_l2;
+            const double t17_l2 = x_l2[2] + t14_l2;
+            const double t18_l2 = t0_l2*t6_l2;
+            const double t19_l2 = t1_l2*t7_l2;
+            const double t20_l2 = t2_l2*t8_l2;
+            const double t21_l2 = t0_l2 - t18_l2;
+            const double t22_l2 = t1_l2 - t19_l2;
+            const double t23_l2 = t2_l2 - t20_l2;
+            const double t24_l2 = 9.090909090909092*P_l2[0];
+            const double t25_l2 = 9.090909090909092*P_l2[4];
+            const double t26_l2 = 9.090909090909092*P_l2[8];
+            const double t27_l2 = 1.0 + t24_l2;
+            const double t28_l2 = 1.0 + t25_l2;
+            const double t29_l2 = 1.0 + t26_l2;
+            const double t30_l2 = 1.0/t27_l2;
+            const double t31_l2 = 1.0/t28_l2;
+            const double t32_l2 = 1.0/t29_l2;
+            const double t33_l2 = 0.9090909090909091*t30_l2;
+            const double t34_l2 = 0.9090909090909091*t31_l2;
+            const double t35_l2 = 0.9090909090909091*t32_l2;
+            const double t36_l2 = 9.090909090909092*z_l2[0];
+            const double t37_l2 = 9.090909090909092*z_l2[1];
+            const double t38_l2 = 9.090909090909092*z_l2[2];
+            const double t39_l2 = P_l2[0]*t36_l2;
+            const double t40_l2 = P_l2[4]*t37_l2;
+            const double t41_l2 = P_l2[8]*t38_l2;
+            const double t42_l2 = x_l2[0] + t39_l2;
+            const double t43_l2 = x_l2[1] + t40_l2;
+            const double t44_l2 = x_l2[2] + t41_l2;
+            const double t45_l2 = 0.09090909090909091*z_l2[0];
+            const double t46_l2 = 0.09090909090909091*z_l2[1];
+            const double t47_l2 = 0.09090909090909091*z_l2[2];
+            const double t48_l2 = t33_l2*t42_l2;
+            const double t49_l2 = t34_l2*t43_l2;
+            const double t50_l2 = t35_l2*t44_l2;
+            const double t51_l2 = t45_l2 + t48_l2;
+            const double t52_l2 = t46_l2 + t49_l2;
+            const double t53_l2 = t47_l2 + t50_l2;
+            const double t54_l2 = P_l2[0]*t33_l2;
+            const double t55_l2 = P_l2[4]*t34_l2;
+            const double t56_l2 = P_l2[8]*t35_l2;
+            const double t57_l2 = 0.9090909090909091*t54_l2;
+            const double t58_l2 = 0.9090909090909091*t55_l2;
+            const double t59_l2 = 0.9090909090909091*t56_l2;
+            const double t60_l2 = 0.00909090909090909 + t57_l2;
+            const double t61_l2 = 0.00909090909090909 + t58_l2;
+            const double t62_l2 = 0.00909090909090909 + t59_l2;
+            const double t63_l2 = t15_l2 + t51_l2;
+            const double t64_l2 = t16_l2 + t52_l2;
+            const double t65_l2 = t17_l2 + t53_l2;
+            const double t66_l2 = 0.5*t63_l2;
+            const double t67_l2 = 0.5*t64_l2;
+            const double t68_l2 = 0.5*t65_l2;
+            const double t69_l2 = t21_l2 + t60_l2;
+            const double t70_l2 = t22_l2 + t61_l2;
+            const double t71_l2 = t23_l2 + t62_l2;
+            const double t72_l2 = 0.5*t69_l2;
+            const double t73_l2 = 0.5*t70_l2;
+            const double t74_l2 = 0.5*t71_l2;
+            xn_l2[0] = t66_l2;
+            xn_l2[1] = t67_l2;
+            xn_l2[2] = t68_l2;
+            Pn_l2[0] = t72_l2;
+            Pn_l2[1] = 0.0;
+            Pn_l2[2] = 0.0;
+            Pn_l2[3] = 0.0;
+            Pn_l2[4] = t73_l2;
+            Pn_l2[5] = 0.0;
+            Pn_l2[6] = 0.0;
+            Pn_l2[7] = 0.0;
+            Pn_l2[8] = t74_l2;
+            z_l3 = z + ((t + 3) * steps + k) * 3;
+            const double t0_l3 = 0.01 + P_l3[0];
+            const double t1_l3 = 0.01 + P_l3[4];
+            const double t2_l3 = 0.01 + P_l3[8];
+            const double t3_l3 = 0.1 + t0_l3;
+            const double t4_l3 = 0.1 + t1_l3;
+            const double t5_l3 = 0.1 + t2_l3;
+            if (!(t3_l3 > 0.0)) {
+                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            }
+            if (!(t4_l3 > 0.0)) {
+                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            if (!(t5_l3 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t6_l3 = t0_l3/t3_l3;
+            const double t7_l3 = t1_l3/t4_l3;
+            const double t8_l3 = t2_l3/t5_l3;
+            const double t9_l3 = z_l3[0] - x_l3[0];
+            const double t10_l3 = z_l3[1] - x_l3[1];
+            const double t11_l3 = z_l3[2] - x_l3[2];
+            const double t12_l3 = t6_l3*t9_l3;
+            const double t13_l3 = t10_l3*t7_l3;
+            const double t14_l3 = t11_l3*t8_l3;
+            const double t15_l3 = x_l3[0] + t12_l3;
+            const double t16_l3 = x_l3[1] + t13_l3;
+            const double t17_l3 = x_l3[2] + t14_l3;
+            const double t18_l3 = t0_l3*t6_l3;
+            const double t19_l3 = t1_l3*t7_l3;
+            const double t20_l3 = t2_l3*t8_l3;
+            const double t21_l3 = t0_l3 - t18_l3;
+            const double t22_l3 = t1_l3 - t19_l3;
+            const double t23_l3 = t2_l3 - t20_l3;
+            const double t24_l3 = 9.090909090909092*P_l3[0];
+            const double t25_l3 = 9.090909090909092*P_l3[4];
+            const double t26_l3 = 9.090909090909092*P_l3[8];
+            const double t27_l3 = 1.0 + t24_l3;
+            const double t28_l3 = 1.0 + t25_l3;
+            const double t29_l3 = 1.0 + t26_l3;
+            const double t30_l3 = 1.0/t27_l3;
+            const double t31_l3 = 1.0/t28_l3;
+            const double t32_l3 = 1.0/t29_l3;
+            const double t33_l3 = 0.9090909090909091*t30_l3;
+            const double t34_l3 = 0.9090909090909091*t31_l3;
+            const double t35_l3 = 0.9090909090909091*t32_l3;
+            const double t36_l3 = 9.090909090909092*z_l3[0];
+            const double t37_l3 = 9.090909090909092*z_l3[1];
+            const double t38_l3 = 9.090909090909092*z_l3[2];
+            const double t39_l3 = P_l3[0]*t36_l3;
+            const double t40_l3 = P_l3[4]*t37_l3;
+            const double t41_l3 = P_l3[8]*t38_l3;
+            const double t42_l3 = x_l3[0] + t39_l3;
+            const double t43_l3 = x_l3[1] + t40_l3;
+            const double t44_l3 = x_l3[2] + t41_l3;
+            const double t45_l3 = 0.09090909090909091*z_l3[0];
+            const double t46_l3 = 0.09090909090909091*z_l3[1];
+            const double t47_l3 = 0.09090909090909091*z_l3[2];
+            const double t48_l3 = t33_l3*t42_l3;
+            const double t49_l3 = t34_l3*t43_l3;
+            const double t50_l3 = t35_l3*t44_l3;
+            const double t51_l3 = t45_l3 + t48_l3;
+            const double t52_l3 = t46_l3 + t49_l3;
+            const double t53_l3 = t47_l3 + t50_l3;
+            const double t54_l3 = P_l3[0]*t33_l3;
+            const double t55_l3 = P_l3[4]*t34_l3;
+            const double t56_l3 = P_l3[8]*t35_l3;
+            const double t57_l3 = 0.9090909090909091*t54_l3;
+            const double t58_l3 = 0.9090909090909091*t55_l3;
+            const double t59_l3 = 0.9090909090909091*t56_l3;
+            const double t60_l3 = 0.00909090909090909 + t57_l3;
+            const double t61_l3 = 0.00909090909090909 + t58_l3;
+            const double t62_l3 = 0.00909090909090909 + t59_l3;
+            const double t63_l3 = t15_l3 + t51_l3;
+            const double t64_l3 = t16_l3 + t52_l3;
+            const double t65_l3 = t17_l3 + t53_l3;
+            const double t66_l3 = 0.5*t63_l3;
+            const double t67_l3 = 0.5*t64_l3;
+            const double t68_l3 = 0.5*t65_l3;
+            const double t69_l3 = t21_l3 + t60_l3;
+            const double t70_l3 = t22_l3 + t61_l3;
+            const double t71_l3 = t23_l3 + t62_l3;
+            const double t72_l3 = 0.5*t69_l3;
+            const double t73_l3 = 0.5*t70_l3;
+            const double t74_l3 = 0.5*t71_l3;
+            xn_l3[0] = t66_l3;
+            xn_l3[1] = t67_l3;
+            xn_l3[2] = t68_l3;
+            Pn_l3[0] = t72_l3;
+            Pn_l3[1] = 0.0;
+            Pn_l3[2] = 0.0;
+            Pn_l3[3] = 0.0;
+            Pn_l3[4] = t73_l3;
+            Pn_l3[5] = 0.0;
+            Pn_l3[6] = 0.0;
+            Pn_l3[7] = 0.0;
+            Pn_l3[8] = t74_l3;
+            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
+            P_l0[0] = Pn_l0[0];
+            P_l0[1] = Pn_l0[1];
+            P_l0[2] = Pn_l0[2];
+            P_l0[3] = Pn_l0[3];
+            P_l0[4] = Pn_l0[4];
+            P_l0[5] = Pn_l0[5];
+            P_l0[6] = Pn_l0[6];
+            P_l0[7] = Pn_l0[7];
+            P_l0[8] = Pn_l0[8];
+            if (Ps) {
+                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
+                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
+                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
+                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
+                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
+                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
+                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
+                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
+                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
+            }
+            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
+            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
+            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
+            P_l1[0] = Pn_l1[0];
+            P_l1[1] = Pn_l1[1];
+            P_l1[2] = Pn_l1[2];
+            P_l1[3] = Pn_l1[3];
+            P_l1[4] = Pn_l1[4];
+            P_l1[5] = Pn_l1[5];
+            P_l1[6] = Pn_l1[6];
+            P_l1[7] = Pn_l1[7];
+            P_l1[8] = Pn_l1[8];
+            if (Ps) {
+                Ps[((t + 1) * steps + k) * 9 + 0] = Pn_l1[0];
+                Ps[((t + 1) * steps + k) * 9 + 1] = Pn_l1[1];
+                Ps[((t + 1) * steps + k) * 9 + 2] = Pn_l1[2];
+                Ps[((t + 1) * steps + k) * 9 + 3] = Pn_l1[3];
+                Ps[((t + 1) * steps + k) * 9 + 4] = Pn_l1[4];
+                Ps[((t + 1) * steps + k) * 9 + 5] = Pn_l1[5];
+                Ps[((t + 1) * steps + k) * 9 + 6] = Pn_l1[6];
+                Ps[((t + 1) * steps + k) * 9 + 7] = Pn_l1[7];
+                Ps[((t + 1) * steps + k) * 9 + 8] = Pn_l1[8];
+            }
+            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
+            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
+            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
+            P_l2[0] = Pn_l2[0];
+            P_l2[1] = Pn_l2[1];
+            P_l2[2] = Pn_l2[2];
+            P_l2[3] = Pn_l2[3];
+            P_l2[4] = Pn_l2[4];
+            P_l2[5] = Pn_l2[5];
+            P_l2[6] = Pn_l2[6];
+            P_l2[7] = Pn_l2[7];
+            P_l2[8] = Pn_l2[8];
+            if (Ps) {
+                Ps[((t + 2) * steps + k) * 9 + 0] = Pn_l2[0];
+                Ps[((t + 2) * steps + k) * 9 + 1] = Pn_l2[1];
+                Ps[((t + 2) * steps + k) * 9 + 2] = Pn_l2[2];
+                Ps[((t + 2) * steps + k) * 9 + 3] = Pn_l2[3];
+                Ps[((t + 2) * steps + k) * 9 + 4] = Pn_l2[4];
+                Ps[((t + 2) * steps + k) * 9 + 5] = Pn_l2[5];
+                Ps[((t + 2) * steps + k) * 9 + 6] = Pn_l2[6];
+                Ps[((t + 2) * steps + k) * 9 + 7] = Pn_l2[7];
+                Ps[((t + 2) * steps + k) * 9 + 8] = Pn_l2[8];
+            }
+            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
+            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
+            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
+            P_l3[0] = Pn_l3[0];
+            P_l3[1] = Pn_l3[1];
+            P_l3[2] = Pn_l3[2];
+            P_l3[3] = Pn_l3[3];
+            P_l3[4] = Pn_l3[4];
+            P_l3[5] = Pn_l3[5];
+            P_l3[6] = Pn_l3[6];
+            P_l3[7] = Pn_l3[7];
+            P_l3[8] = Pn_l3[8];
+            if (Ps) {
+                Ps[((t + 3) * steps + k) * 9 + 0] = Pn_l3[0];
+                Ps[((t + 3) * steps + k) * 9 + 1] = Pn_l3[1];
+                Ps[((t + 3) * steps + k) * 9 + 2] = Pn_l3[2];
+                Ps[((t + 3) * steps + k) * 9 + 3] = Pn_l3[3];
+                Ps[((t + 3) * steps + k) * 9 + 4] = Pn_l3[4];
+                Ps[((t + 3) * steps + k) * 9 + 5] = Pn_l3[5];
+                Ps[((t + 3) * steps + k) * 9 + 6] = Pn_l3[6];
+                Ps[((t + 3) * steps + k) * 9 + 7] = Pn_l3[7];
+                Ps[((t + 3) * steps + k) * 9 + 8] = Pn_l3[8];
+            }
+        }
+    }
+    for (; t + 1 <= tracks; t += 1) {
+        double x_l0[3], xn_l0[3];
+        double P_l0[9], Pn_l0[9];
+        const double *z_l0;
+        x_l0[0] = x0[(t + 0) * 3 + 0];
+        x_l0[1] = x0[(t + 0) * 3 + 1];
+        x_l0[2] = x0[(t + 0) * 3 + 2];
+        P_l0[0] = P0[(t + 0) * 9 + 0];
+        P_l0[1] = P0[(t + 0) * 9 + 1];
+        P_l0[2] = P0[(t + 0) * 9 + 2];
+        P_l0[3] = P0[(t + 0) * 9 + 3];
+        P_l0[4] = P0[(t + 0) * 9 + 4];
+        P_l0[5] = P0[(t + 0) * 9 + 5];
+        P_l0[6] = P0[(t + 0) * 9 + 6];
+        P_l0[7] = P0[(t + 0) * 9 + 7];
+        P_l0[8] = P0[(t + 0) * 9 + 8];
+        for (k = 0; k < steps; ++k) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            const double t0_l0 = 0.01 + P_l0[0];
+            const double t1_l0 = 0.01 + P_l0[4];
+            const double t2_l0 = 0.01 + P_l0[8];
+            const double t3_l0 = 0.1 + t0_l0;
+            const double t4_l0 = 0.1 + t1_l0;
+            const double t5_l0 = 0.1 + t2_l0;
+            if (!(t3_l0 > 0.0)) {
+                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            }
+            if (!(t4_l0 > 0.0)) {
+                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            if (!(t5_l0 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t6_l0 = t0_l0/t3_l0;
+            const double t7_l0 = t1_l0/t4_l0;
+            const double t8_l0 = t2_l0/t5_l0;
+            const double t9_l0 = z_l0[0] - x_l0[0];
+            const double t10_l0 = z_l0[1] - x_l0[1];
+            const double t11_l0 = z_l0[2] - x_l0[2];
+            const double t12_l0 = t6_l0*t9_l0;
+            const double t13_l0 = t10_l0*t7_l0;
+            const double t14_l0 = t11_l0*t8_l0;
+            const double t15_l0 = x_l0[0] + t12_l0;
+            const double t16_l0 = x_l0[1] + t13_l0;
+            const double t17_l0 = x_l0[2] + t14_l0;
+            const double t18_l0 = t0_l0*t6_l0;
+            const double t19_l0 = t1_l0*t7_l0;
+            const double t20_l0 = t2_l0*t8_l0;
+            const double t21_l0 = t0_l0 - t18_l0;
+            const double t22_l0 = t1_l0 - t19_l0;
+            const double t23_l0 = t2_l0 - t20_l0;
+            const double t24_l0 = 9.090909090909092*P_l0[0];
+            const double t25_l0 = 9.090909090909092*P_l0[4];
+            const double t26_l0 = 9.090909090909092*P_l0[8];
+            const double t27_l0 = 1.0 + t24_l0;
+            const double t28_l0 = 1.0 + t25_l0;
+            const double t29_l0 = 1.0 + t26_l0;
+            const double t30_l0 = 1.0/t27_l0;
+            const double t31_l0 = 1.0/t28_l0;
+            const double t32_l0 = 1.0/t29_l0;
+            const double t33_l0 = 0.9090909090909091*t30_l0;
+            const double t34_l0 = 0.9090909090909091*t31_l0;
+            const double t35_l0 = 0.9090909090909091*t32_l0;
+            const double t36_l0 = 9.090909090909092*z_l0[0];
+            const double t37_l0 = 9.090909090909092*z_l0[1];
+            const double t38_l0 = 9.090909090909092*z_l0[2];
+            const double t39_l0 = P_l0[0]*t36_l0;
+            const double t40_l0 = P_l0[4]*t37_l0;
+            const double t41_l0 = P_l0[8]*t38_l0;
+            const double t42_l0 = x_l0[0] + t39_l0;
+            const double t43_l0 = x_l0[1] + t40_l0;
+            const double t44_l0 = x_l0[2] + t41_l0;
+            const double t45_l0 = 0.09090909090909091*z_l0[0];
+            const double t46_l0 = 0.09090909090909091*z_l0[1];
+            const double t47_l0 = 0.09090909090909091*z_l0[2];
+            const double t48_l0 = t33_l0*t42_l0;
+            const double t49_l0 = t34_l0*t43_l0;
+            const double t50_l0 = t35_l0*t44_l0;
+            const double t51_l0 = t45_l0 + t48_l0;
+            const double t52_l0 = t46_l0 + t49_l0;
+            const double t53_l0 = t47_l0 + t50_l0;
+            const double t54_l0 = P_l0[0]*t33_l0;
+            const double t55_l0 = P_l0[4]*t34_l0;
+            const double t56_l0 = P_l0[8]*t35_l0;
+            const double t57_l0 = 0.9090909090909091*t54_l0;
+            const double t58_l0 = 0.9090909090909091*t55_l0;
+            const double t59_l0 = 0.9090909090909091*t56_l0;
+            const double t60_l0 = 0.00909090909090909 + t57_l0;
+            const double t61_l0 = 0.00909090909090909 + t58_l0;
+            const double t62_l0 = 0.00909090909090909 + t59_l0;
+            const double t63_l0 = t15_l0 + t51_l0;
+            const double t64_l0 = t16_l0 + t52_l0;
+            const double t65_l0 = t17_l0 + t53_l0;
+            const double t66_l0 = 0.5*t63_l0;
+            const double t67_l0 = 0.5*t64_l0;
+            const double t68_l0 = 0.5*t65_l0;
+            const double t69_l0 = t21_l0 + t60_l0;
+            const double t70_l0 = t22_l0 + t61_l0;
+            const double t71_l0 = t23_l0 + t62_l0;
+            const double t72_l0 = 0.5*t69_l0;
+            const double t73_l0 = 0.5*t70_l0;
+            const double t74_l0 = 0.5*t71_l0;
+            xn_l0[0] = t66_l0;
+            xn_l0[1] = t67_l0;
+            xn_l0[2] = t68_l0;
+            Pn_l0[0] = t72_l0;
+            Pn_l0[1] = 0.0;
+            Pn_l0[2] = 0.0;
+            Pn_l0[3] = 0.0;
+            Pn_l0[4] = t73_l0;
+            Pn_l0[5] = 0.0;
+            Pn_l0[6] = 0.0;
+            Pn_l0[7] = 0.0;
+            Pn_l0[8] = t74_l0;
+            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
+            P_l0[0] = Pn_l0[0];
+            P_l0[1] = Pn_l0[1];
+            P_l0[2] = Pn_l0[2];
+            P_l0[3] = Pn_l0[3];
+            P_l0[4] = Pn_l0[4];
+            P_l0[5] = Pn_l0[5];
+            P_l0[6] = Pn_l0[6];
+            P_l0[7] = Pn_l0[7];
+            P_l0[8] = Pn_l0[8];
+            if (Ps) {
+                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
+                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
+                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
+                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
+                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
+                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
+                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
+                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
+                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
+            }
         }
     }
     return 0;

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gps_static_lf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
  *     void gps_static_lf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     many tracks: gps_static_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 39, instructions 39)
  * P0 pattern declared: diagonal
@@ -31,6 +32,7 @@ extern "C" {
 
 void gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
 void gps_static_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+void gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

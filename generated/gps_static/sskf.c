@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gps_static_sskf_step(x[3], z[3], x_new[3] out)
  *     void gps_static_sskf_run(steps, z[steps*3], x0[3], xs[steps*3] out)
+ *     many tracks: gps_static_sskf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 0, calls 0 (flops 9, instructions 6)
  * A = [[0.7298437881283576, 0.                , 0.                ], [0.                , 0.7298437881283576, 0.                ], [0.                , 0.                , 0.7298437881283576]]
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
@@ -60,5 +61,98 @@ void gps_static_sskf_run(size_t steps, const double *z, const double *x0, double
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
+    }
+}
+
+/* Run many independent tracks: each array holds one run's array per track, one track after
+ * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
+ * 4 tracks advance together, their steps interleaved by the compiler;
+ * a non-zero status stops the whole run. */
+void gps_static_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
+{
+    size_t t = 0;
+    size_t k;
+    for (; t + 4 <= tracks; t += 4) {
+        double x_l0[3], xn_l0[3];
+        const double *z_l0;
+        double x_l1[3], xn_l1[3];
+        const double *z_l1;
+        double x_l2[3], xn_l2[3];
+        const double *z_l2;
+        double x_l3[3], xn_l3[3];
+        const double *z_l3;
+        x_l0[0] = x0[(t + 0) * 3 + 0];
+        x_l0[1] = x0[(t + 0) * 3 + 1];
+        x_l0[2] = x0[(t + 0) * 3 + 2];
+        x_l1[0] = x0[(t + 1) * 3 + 0];
+        x_l1[1] = x0[(t + 1) * 3 + 1];
+        x_l1[2] = x0[(t + 1) * 3 + 2];
+        x_l2[0] = x0[(t + 2) * 3 + 0];
+        x_l2[1] = x0[(t + 2) * 3 + 1];
+        x_l2[2] = x0[(t + 2) * 3 + 2];
+        x_l3[0] = x0[(t + 3) * 3 + 0];
+        x_l3[1] = x0[(t + 3) * 3 + 1];
+        x_l3[2] = x0[(t + 3) * 3 + 2];
+        for (k = 0; k < steps; ++k) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            const double t0_l0 = DERIVE_FMA(0.7298437881283576, x_l0[0], 0.2701562118716424*z_l0[0]);
+            const double t1_l0 = DERIVE_FMA(0.7298437881283576, x_l0[1], 0.2701562118716424*z_l0[1]);
+            const double t2_l0 = DERIVE_FMA(0.7298437881283576, x_l0[2], 0.2701562118716424*z_l0[2]);
+            xn_l0[0] = t0_l0;
+            xn_l0[1] = t1_l0;
+            xn_l0[2] = t2_l0;
+            z_l1 = z + ((t + 1) * steps + k) * 3;
+            const double t0_l1 = DERIVE_FMA(0.7298437881283576, x_l1[0], 0.2701562118716424*z_l1[0]);
+            const double t1_l1 = DERIVE_FMA(0.7298437881283576, x_l1[1], 0.2701562118716424*z_l1[1]);
+            const double t2_l1 = DERIVE_FMA(0.7298437881283576, x_l1[2], 0.2701562118716424*z_l1[2]);
+            xn_l1[0] = t0_l1;
+            xn_l1[1] = t1_l1;
+            xn_l1[2] = t2_l1;
+            z_l2 = z + ((t + 2) * steps + k) * 3;
+            const double t0_l2 = DERIVE_FMA(0.7298437881283576, x_l2[0], 0.2701562118716424*z_l2[0]);
+            const double t1_l2 = DERIVE_FMA(0.7298437881283576, x_l2[1], 0.2701562118716424*z_l2[1]);
+            const double t2_l2 = DERIVE_FMA(0.7298437881283576, x_l2[2], 0.2701562118716424*z_l2[2]);
+            xn_l2[0] = t0_l2;
+            xn_l2[1] = t1_l2;
+            xn_l2[2] = t2_l2;
+            z_l3 = z + ((t + 3) * steps + k) * 3;
+            const double t0_l3 = DERIVE_FMA(0.7298437881283576, x_l3[0], 0.2701562118716424*z_l3[0]);
+            const double t1_l3 = DERIVE_FMA(0.7298437881283576, x_l3[1], 0.2701562118716424*z_l3[1]);
+            const double t2_l3 = DERIVE_FMA(0.7298437881283576, x_l3[2], 0.2701562118716424*z_l3[2]);
+            xn_l3[0] = t0_l3;
+            xn_l3[1] = t1_l3;
+            xn_l3[2] = t2_l3;
+            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
+            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
+            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
+            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
+            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
+            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
+            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
+            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
+            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
+            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
+        }
+    }
+    for (; t + 1 <= tracks; t += 1) {
+        double x_l0[3], xn_l0[3];
+        const double *z_l0;
+        x_l0[0] = x0[(t + 0) * 3 + 0];
+        x_l0[1] = x0[(t + 0) * 3 + 1];
+        x_l0[2] = x0[(t + 0) * 3 + 2];
+        for (k = 0; k < steps; ++k) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            const double t0_l0 = DERIVE_FMA(0.7298437881283576, x_l0[0], 0.2701562118716424*z_l0[0]);
+            const double t1_l0 = DERIVE_FMA(0.7298437881283576, x_l0[1], 0.2701562118716424*z_l0[1]);
+            const double t2_l0 = DERIVE_FMA(0.7298437881283576, x_l0[2], 0.2701562118716424*z_l0[2]);
+            xn_l0[0] = t0_l0;
+            xn_l0[1] = t1_l0;
+            xn_l0[2] = t2_l0;
+            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
+        }
     }
 }

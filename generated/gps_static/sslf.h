@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gps_static_sslf_step(x[3], z[3], x_new[3] out)
  *     void gps_static_sslf_run(steps, z[steps*3], x0[3], xs[steps*3] out)
+ *     many tracks: gps_static_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 0, calls 0 (flops 9, instructions 6)
  * A = [[0.7298437881283575, 0.                , 0.                ], [0.                , 0.7298437881283575, 0.                ], [0.                , 0.                , 0.7298437881283575]]
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
@@ -31,6 +32,7 @@ extern "C" {
 
 void gps_static_sslf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
 void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
+void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

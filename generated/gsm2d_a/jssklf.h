@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gsm2d_a_jssklf_step(x[4], z[2], x_new[4] out)
  *     void gsm2d_a_jssklf_run(steps, z[steps*2], x0[4], xs[steps*4] out)
+ *     many tracks: gsm2d_a_jssklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 0, calls 0 (flops 20, instructions 12)
  * A: (4, 4) constants baked into the code
  * B = [[0.36535881073846804, 0.                 ], [0.20683480863417478, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417478]]
@@ -31,6 +32,7 @@ extern "C" {
 
 void gsm2d_a_jssklf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
 void gsm2d_a_jssklf_run(size_t steps, const double *z, const double *x0, double *xs);
+void gsm2d_a_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gsm2d_a_lf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
  *     void gsm2d_a_lf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     many tracks: gsm2d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 0, calls 0 (flops 160, instructions 126)
  * P0 pattern declared: zero
@@ -31,6 +32,7 @@ extern "C" {
 
 void gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
 void gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+void gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

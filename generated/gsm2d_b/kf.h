@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gsm2d_b_kf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
  *     int gsm2d_b_kf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     many tracks: gsm2d_b_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
@@ -33,6 +34,7 @@ extern "C" {
 
 int gsm2d_b_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
 int gsm2d_b_kf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gsm2d_b_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

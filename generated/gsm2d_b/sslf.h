@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gsm2d_b_sslf_step(x[2], z[1], x_new[2] out)
  *     void gsm2d_b_sslf_run(steps, z[steps*1], x0[2], xs[steps*2] out)
+ *     many tracks: gsm2d_b_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
  * A = [[ 0.6346411892615319 ,  0.2692823785230638 ], [-0.20683480863417475,  0.5863303827316503 ]]
  * B = [[0.36535881073846804], [0.20683480863417475]]
@@ -31,6 +32,7 @@ extern "C" {
 
 void gsm2d_b_sslf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
 void gsm2d_b_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
+void gsm2d_b_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void mpt3d_a_lf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
  *     void mpt3d_a_lf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
+ *     many tracks: mpt3d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 0, calls 0 (flops 240, instructions 189)
  * P0 pattern declared: zero
@@ -31,6 +32,7 @@ extern "C" {
 
 void mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
 void mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+void mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }

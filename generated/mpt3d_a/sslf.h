@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void mpt3d_a_sslf_step(x[6], z[3], x_new[6] out)
  *     void mpt3d_a_sslf_run(steps, z[steps*3], x0[6], xs[steps*6] out)
+ *     many tracks: mpt3d_a_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 0, calls 0 (flops 30, instructions 18)
  * A: (6, 6) constants baked into the code
  * B: (6, 3) constants baked into the code
@@ -31,6 +32,7 @@ extern "C" {
 
 void mpt3d_a_sslf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
 void mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
+void mpt3d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus
 }
