@@ -132,6 +132,18 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 3) + track)
+    if not track:  # one track: Python floats are several times faster than NumPy scalars
+        zs = zs.tolist()
+        x0 = x0.tolist()
+        P0 = P0.reshape(-1).tolist()
+        x, P = x0, P0
+        out_x, out_P = [], []
+        for k in range(steps):
+            x, P = step(x, P, zs[k])
+            out_x.append(x)
+            out_P.append(P)
+        return (np.array(out_x, dtype=float).reshape(steps, 3),
+                np.array(out_P, dtype=float).reshape(steps, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])

@@ -306,6 +306,18 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 6) + track)
+    if not track:  # one track: Python floats are several times faster than NumPy scalars
+        zs = zs.tolist()
+        x0 = x0.tolist()
+        P0 = P0.reshape(-1).tolist()
+        x, P = x0, P0
+        out_x, out_P = [], []
+        for k in range(steps):
+            x, P = step(x, P, zs[k])
+            out_x.append(x)
+            out_P.append(P)
+        return (np.array(out_x, dtype=float).reshape(steps, 6),
+                np.array(out_P, dtype=float).reshape(steps, 6, 6))
     Ps = np.empty((steps, 36) + track)
     x = x0
     P = P0.reshape((36,) + P0.shape[2:])
