@@ -215,10 +215,12 @@ def generated_run(module, name: str, zs, model, lang: str,
     return np.asarray(module.run(zs, num.x0)), None
 
 
-def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("python", "c"),
-                  options: dict | None = None, workdir: str | Path | None = None
-                  ) -> list[Verification]:
-    """Generate, build and run filter ``name``; compare with the reference."""
+def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
+                   options: dict | None = None) -> list[Verification]:
+    """Compare already built generated filters ({lang: module}) with the reference.
+
+    The scenario, reference run, tolerance and error measure of `derive verify`.
+    """
     opts = _options_for(model, name, dict(options or {}))
     scenario = None
     if name in NONLINEAR:
@@ -233,22 +235,28 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
     out: list[Verification] = []
+    for lang, module in modules.items():
+        xs, Ps = generated_run(module, name, zs, model, lang, scenario)
+        err = relative_error(xs, xs_ref)
+        if Ps_ref is not None and Ps is not None:
+            err = max(err, relative_error(Ps, Ps_ref))
+        out.append(Verification(model.name, name, lang, steps, err, tolerance))
+    return out
+
+
+def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("python", "c"),
+                  options: dict | None = None, workdir: str | Path | None = None
+                  ) -> list[Verification]:
+    """Generate, build and run filter ``name``; compare with the reference."""
+    opts = _options_for(model, name, dict(options or {}))
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         files = render_filter(model, name, "all", opts)
         paths = {p.suffix: p for p in write_files(tmp, model.name, files)}
-        for lang in langs:
-            if lang == "python":
-                module = import_python(paths[".py"])
-            else:
-                module = build_c(paths[".c"])
-            xs, Ps = generated_run(module, name, zs, model, lang, scenario)
-            err = relative_error(xs, xs_ref)
-            if Ps_ref is not None and Ps is not None:
-                err = max(err, relative_error(Ps, Ps_ref))
-            out.append(Verification(model.name, name, lang, steps, err, tolerance))
-    return out
+        modules = {lang: import_python(paths[".py"]) if lang == "python"
+                   else build_c(paths[".c"]) for lang in langs}
+        return verify_modules(model, name, modules, steps, seed, opts)
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
            "nonlinear_reference", "nonlinear_scenario", "relative_error", "riccati",
-           "rounding_floor", "verify_filter"]
+           "rounding_floor", "verify_filter", "verify_modules"]

@@ -72,33 +72,10 @@ def generate_model(ctx, name: str, result: GenerationResult) -> None:
 
 
 def verify_built(model, name: str, modules: dict, steps: int, seed: int) -> list:
-    """derive verify's comparison for modules already built ({lang: module}): the same
-    scenario, reference run, tolerance and error measure as
-    :func:`derive.verify.verify_filter`, without rendering and compiling again."""
-    from .. import verify as V
-    from ..simulate import simulate_linear
+    """derive verify's comparison for modules already built ({lang: module})."""
+    from ..verify import verify_modules
 
-    opts = V._options_for(model, name, {})
-    scenario = None
-    if name in V.NONLINEAR:
-        scenario = V.nonlinear_scenario(model, steps, seed)
-        zs, tolerance = scenario.zs, V.NONLINEAR_TOLERANCE
-    else:
-        num = model.numeric()
-        zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed).zs
-        tolerance = V.LINEAR_TOLERANCE
-    xs_ref, Ps_ref = V.reference_run(model, name, zs, opts, scenario)
-    if scenario is not None:
-        floor = V.rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
-        tolerance = max(tolerance, V.FLOOR_MARGIN * floor)
-    out = []
-    for lang, module in modules.items():
-        xs, Ps = V.generated_run(module, name, zs, model, lang, scenario)
-        err = V.relative_error(xs, xs_ref)
-        if Ps_ref is not None and Ps is not None:
-            err = max(err, V.relative_error(Ps, Ps_ref))
-        out.append(V.Verification(model.name, name, lang, steps, err, tolerance))
-    return out
+    return verify_modules(model, name, modules, steps, seed)
 
 
 def verify_model(ctx, name: str, result: GenerationResult) -> None:
