@@ -121,7 +121,8 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
     lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
-    if lang == "c" and unit.kind in ("timevarying", "steady"):
+    if lang == "c" and unit.kind in ("timevarying", "steady") and unit.family not in (
+            "ekf", "ukf"):
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another)")
     for lp in lowered.values():
@@ -291,12 +292,13 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     fused = _fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
-    tracks = ([_tracks_parts(unit, fused, LANES), _tracks_parts(unit, fused, 1)]
-              if fused else [])
+    # many small independent tracks are a linear-tracking use; EKF/UKF files stay lean
+    batch = bool(fused) and unit.family not in ("ekf", "ukf")
+    tracks = [_tracks_parts(unit, fused, LANES), _tracks_parts(unit, fused, 1)] if batch else []
     tracks_params = ["size_t steps", "size_t tracks"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args]
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
-                        f"{', '.join(tracks_params)})") if fused else ""
+                        f"{', '.join(tracks_params)})") if batch else ""
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in ("p",) if unit.parameters and name not in used]
     context = {

@@ -14,7 +14,6 @@
  *     void gnss_pseudorange_ekf_predict(x[4], P[4*4], x_new[4] out, P_new[4*4] out)
  *     int gnss_pseudorange_ekf_update1(x[4], P[4*4], z[1], u[3], x_new[4] out, P_new[4*4] out, innovation[1] out, variance[1] out)
  *     int gnss_pseudorange_ekf_run(steps, z[steps*4], u[steps*12], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
- *     many tracks: gnss_pseudorange_ekf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in update1: P, P_new (inputs: upper triangle read; outputs: written whole)
@@ -48,7 +47,6 @@ int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P
 void gnss_pseudorange_ekf_predict(const double *restrict x, const double *restrict P, double *restrict x_new, double *restrict P_new);
 int gnss_pseudorange_ekf_update1(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, double *restrict innovation, double *restrict variance);
 int gnss_pseudorange_ekf_run(size_t steps, const double *z, const double *u, const double *x0, const double *P0, double *xs, double *Ps);
-int gnss_pseudorange_ekf_run_tracks(size_t steps, size_t tracks, const double *z, const double *u, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }
