@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import reference, riccati
+from . import reference
 from .build import build_c
 from .emit.write import write_files
 from .errors import VerificationError
@@ -258,5 +258,5 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
-           "nonlinear_reference", "nonlinear_scenario", "relative_error", "riccati",
+           "nonlinear_reference", "nonlinear_scenario", "relative_error",
            "rounding_floor", "verify_filter", "verify_modules"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
-from ..errors import FilterError
+from ..errors import FilterError, SteadyStateError
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ def why_not(model, name: str) -> str | None:
         num = model.numeric()
         try:
             riccati.check_steady_state(num.F, num.G, num.H, num.Q, num.R)
-        except Exception as exc:  # SteadyStateError: the message names the property
+        except SteadyStateError as exc:  # the message names the property
             return str(exc)
     return None
 
@@ -89,8 +89,6 @@ def derive_unit(model, name: str, options: dict | None = None):
     f = kind(name)
     reason = why_not(model, name)
     if reason is not None:
-        from ..errors import SteadyStateError
-
         raise (SteadyStateError if f.steady and f.model_kind == model.kind else
                FilterError)(reason)
     if (options or {}).get("missing"):

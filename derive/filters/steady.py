@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import sympy
 
-from .. import riccati, staging
+from .. import riccati
 from ..program import Port, Program
 
 
@@ -62,4 +62,4 @@ def derive_unit(model, name, options):
                      constants={"A": A, "B": B})
 
 
-__all__ = ["affine_program", "baked", "derive_unit", "exact", "steady_gains", "staging"]
+__all__ = ["affine_program", "baked", "derive_unit", "exact", "steady_gains"]

@@ -21,10 +21,8 @@ def make_unit(model, name: str, programs: dict, options: dict, constants: dict |
               step_inputs: tuple[str, ...] = ("z",)) -> Unit:
     """The Unit for ``model`` and filter ``name``; ``constants`` become header facts."""
     facts = []
-    if options.get("P0_pattern") or model.kind == "linear":
-        facts.append(f"P0 pattern declared: {options.get('P0_pattern') or model.P0_pattern}"
-                     if "step" in programs and any(p.name == "P" for p in
-                                                   programs["step"].inputs) else "")
+    if model.kind == "linear" and any(p.name == "P" for p in programs["step"].inputs):
+        facts.append(f"P0 pattern declared: {options.get('P0_pattern') or model.P0_pattern}")
     if options.get("joseph"):
         facts.append("covariance update: Joseph form")
     for key, value in (constants or {}).items():
