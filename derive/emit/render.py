@@ -18,6 +18,7 @@ from pathlib import Path
 import jinja2
 
 from derive.emit import c_printer, python_printer
+from derive.emit.python_loop import single_track_loop
 from derive.emit.unit import Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_program
@@ -178,7 +179,13 @@ def render_python(unit: Unit) -> dict[str, str]:
         "window": unit.window if unit.kind == "fir" else 0,
         "window_m": unit.window * unit.m if unit.kind == "fir" else 0,
         "padding": unit.window - 1 if unit.kind == "fir" else 0,
+        "single": [],
     }
+    if unit.kind in ("timevarying", "steady"):
+        ports = {a.c_name: a.py_name for a in args if not a.output}
+        arrays = {name: ports[name] for name in unit.step_inputs}
+        arrays.update(x="x0", P="P0", **{PARAMETER_PORT: PARAMETER_PORT})
+        context["single"] = single_track_loop(lowered["step"], unit.step_inputs, arrays).lines
     return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
 
 

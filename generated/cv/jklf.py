@@ -142,18 +142,91 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 2) + track)
-    if not track:  # one track: Python floats are several times faster than NumPy scalars
-        zs = zs.tolist()
-        x0 = x0.tolist()
-        P0 = P0.reshape(-1).tolist()
-        x, P = x0, P0
-        out_x, out_P = [], []
-        for k in range(steps):
-            x, P = step(x, P, zs[k])
-            out_x.append(x)
-            out_P.append(P)
-        return (np.array(out_x, dtype=float).reshape(steps, 2),
-                np.array(out_P, dtype=float).reshape(steps, 2, 2))
+    if not track:  # one track: the step's statements inline, on Python floats
+        x_0, x_1 = x0.reshape(-1).tolist()
+        P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
+        rows = []
+        keep = rows.extend
+        for k, z_0 in enumerate(zs[:, 0].tolist()):
+            t0 = x_0 + x_1
+            t1 = P_0 + P_1
+            t2 = P_1 + P_3
+            t3 = t1 + t2
+            t4 = 0.0033333333333333335 + t3
+            t5 = 0.005 + t2
+            t6 = 0.01 + P_3
+            t7 = 0.1 + t4
+            if not t7 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t8 = t4/t7
+            t9 = t5/t7
+            t10 = z_0 - t0
+            t11 = t10*t8
+            t12 = t10*t9
+            t13 = t0 + t11
+            t14 = x_1 + t12
+            t15 = t4*t8
+            t16 = t5*t8
+            t17 = t5*t9
+            t18 = t4 - t15
+            t19 = t5 - t16
+            t20 = t6 - t17
+            t21 = 9.67741935483871*P_1
+            t22 = 9.67741935483871*P_0 + t21
+            t23 = 9.67741935483871*P_3 + t21
+            t24 = 1.0 + t22
+            t25 = 1.0 + t23
+            t26 = 1.0/t24
+            t27 = t23*t26
+            t28 = t25 - t22*t27
+            t29 = 1.0/t28
+            t30 = t27*t29
+            t31 = t26*(1.0 + t22*t30)
+            t32 = t22*t26*t29
+            t33 = 0.967741935483871*t31 - 0.967741935483871*t30
+            t34 = 0.967741935483871*t29 - 0.967741935483871*t32
+            t35 = 0.9516129032258065*t30 + 0.04838709677419355*t31
+            t36 = 0.9516129032258065*t29 + 0.04838709677419355*t32
+            t37 = 9.67741935483871*z_0
+            t38 = P_1*t37
+            t39 = t38 + P_0*t37
+            t40 = t38 + P_3*t37
+            t41 = x_0 + t39
+            t42 = x_1 + t40
+            t43 = 0.03225806451612903*z_0
+            t44 = 0.04838709677419355*z_0
+            t45 = t33*t41 + t34*t42
+            t46 = t36*t42 - t35*t41
+            t47 = t43 + t45
+            t48 = t44 + t46
+            t49 = P_0*t33 + P_1*t34
+            t50 = P_1*t33 + P_3*t34
+            t51 = P_1*t36 - P_0*t35
+            t52 = P_3*t36 - P_1*t35
+            t53 = 0.967741935483871*t49 + 0.967741935483871*t50
+            t54 = 0.9516129032258065*t50 - 0.04838709677419355*t49
+            t55 = 0.9516129032258065*t52 - 0.04838709677419355*t51
+            t56 = 0.0032258064516129032 + t53
+            t57 = 0.004838709677419355 + t54
+            t58 = 0.009758064516129032 + t55
+            t59 = t13 + t47
+            t60 = t14 + t48
+            t61 = 0.5*t59
+            t62 = 0.5*t60
+            t63 = t18 + t56
+            t64 = t19 + t57
+            t65 = t20 + t58
+            t66 = 0.5*t63
+            t67 = 0.5*t64
+            t68 = 0.5*t65
+            keep((t61, t62, t66, t67, t68))
+            x_0 = t61
+            x_1 = t62
+            P_0 = t66
+            P_1 = t67
+            P_3 = t68
+        table = np.array(rows, dtype=float).reshape(-1, 5)
+        return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])

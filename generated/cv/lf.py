@@ -91,18 +91,58 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 2) + track)
-    if not track:  # one track: Python floats are several times faster than NumPy scalars
-        zs = zs.tolist()
-        x0 = x0.tolist()
-        P0 = P0.reshape(-1).tolist()
-        x, P = x0, P0
-        out_x, out_P = [], []
-        for k in range(steps):
-            x, P = step(x, P, zs[k])
-            out_x.append(x)
-            out_P.append(P)
-        return (np.array(out_x, dtype=float).reshape(steps, 2),
-                np.array(out_P, dtype=float).reshape(steps, 2, 2))
+    if not track:  # one track: the step's statements inline, on Python floats
+        x_0, x_1 = x0.reshape(-1).tolist()
+        P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
+        rows = []
+        keep = rows.extend
+        for z_0 in zs[:, 0].tolist():
+            t0 = 9.67741935483871*P_1
+            t1 = 9.67741935483871*P_0 + t0
+            t2 = 9.67741935483871*P_3 + t0
+            t3 = 1.0 + t1
+            t4 = 1.0 + t2
+            t5 = 1.0/t3
+            t6 = t2*t5
+            t7 = t4 - t1*t6
+            t8 = 1.0/t7
+            t9 = t6*t8
+            t10 = t5*(1.0 + t1*t9)
+            t11 = t1*t5*t8
+            t12 = 0.967741935483871*t10 - 0.967741935483871*t9
+            t13 = 0.967741935483871*t8 - 0.967741935483871*t11
+            t14 = 0.04838709677419355*t10 + 0.9516129032258065*t9
+            t15 = 0.04838709677419355*t11 + 0.9516129032258065*t8
+            t16 = 9.67741935483871*z_0
+            t17 = P_1*t16
+            t18 = t17 + P_0*t16
+            t19 = t17 + P_3*t16
+            t20 = x_0 + t18
+            t21 = x_1 + t19
+            t22 = 0.03225806451612903*z_0
+            t23 = 0.04838709677419355*z_0
+            t24 = t12*t20 + t13*t21
+            t25 = t15*t21 - t14*t20
+            t26 = t22 + t24
+            t27 = t23 + t25
+            t28 = P_0*t12 + P_1*t13
+            t29 = P_1*t12 + P_3*t13
+            t30 = P_1*t15 - P_0*t14
+            t31 = P_3*t15 - P_1*t14
+            t32 = 0.967741935483871*t28 + 0.967741935483871*t29
+            t33 = 0.9516129032258065*t29 - 0.04838709677419355*t28
+            t34 = 0.9516129032258065*t31 - 0.04838709677419355*t30
+            t35 = 0.0032258064516129032 + t32
+            t36 = 0.004838709677419355 + t33
+            t37 = 0.009758064516129032 + t34
+            keep((t26, t27, t35, t36, t37))
+            x_0 = t26
+            x_1 = t27
+            P_0 = t35
+            P_1 = t36
+            P_3 = t37
+        table = np.array(rows, dtype=float).reshape(-1, 5)
+        return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])

@@ -107,18 +107,58 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 3) + track)
-    if not track:  # one track: Python floats are several times faster than NumPy scalars
-        zs = zs.tolist()
-        x0 = x0.tolist()
-        P0 = P0.reshape(-1).tolist()
-        x, P = x0, P0
-        out_x, out_P = [], []
-        for k in range(steps):
-            x, P = step(x, P, zs[k])
-            out_x.append(x)
-            out_P.append(P)
-        return (np.array(out_x, dtype=float).reshape(steps, 3),
-                np.array(out_P, dtype=float).reshape(steps, 3, 3))
+    if not track:  # one track: the step's statements inline, on Python floats
+        x_0, x_1, x_2 = x0.reshape(-1).tolist()
+        P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
+        rows = []
+        keep = rows.extend
+        for k, zk in enumerate(zs.tolist()):
+            z_0, z_1, z_2 = zk
+            t0 = 0.01 + P_0
+            t1 = 0.01 + P_4
+            t2 = 0.01 + P_8
+            if not t0 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t3 = 1.0/t0
+            if not t1 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t4 = 1.0/t1
+            if not t2 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            t5 = 1.0/t2
+            t6 = 10.0 + t3
+            t7 = 10.0 + t4
+            t8 = 10.0 + t5
+            if not t6 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t9 = 1.0/t6
+            if not t7 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t10 = 1.0/t7
+            if not t8 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            t11 = 1.0/t8
+            t12 = 10.0*t9
+            t13 = 10.0*t10
+            t14 = 10.0*t11
+            t15 = z_0 - x_0
+            t16 = z_1 - x_1
+            t17 = z_2 - x_2
+            t18 = t12*t15
+            t19 = t13*t16
+            t20 = t14*t17
+            t21 = x_0 + t18
+            t22 = x_1 + t19
+            t23 = x_2 + t20
+            keep((t21, t22, t23, t9, 0.0, t10, t11))
+            x_0 = t21
+            x_1 = t22
+            x_2 = t23
+            P_0 = t9
+            P_4 = t10
+            P_8 = t11
+        table = np.array(rows, dtype=float).reshape(-1, 7)
+        return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])

@@ -92,18 +92,61 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 3) + track)
-    if not track:  # one track: Python floats are several times faster than NumPy scalars
-        zs = zs.tolist()
-        x0 = x0.tolist()
-        P0 = P0.reshape(-1).tolist()
-        x, P = x0, P0
-        out_x, out_P = [], []
-        for k in range(steps):
-            x, P = step(x, P, zs[k])
-            out_x.append(x)
-            out_P.append(P)
-        return (np.array(out_x, dtype=float).reshape(steps, 3),
-                np.array(out_P, dtype=float).reshape(steps, 3, 3))
+    if not track:  # one track: the step's statements inline, on Python floats
+        x_0, x_1, x_2 = x0.reshape(-1).tolist()
+        P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
+        rows = []
+        keep = rows.extend
+        for zk in zs.tolist():
+            z_0, z_1, z_2 = zk
+            t0 = 9.090909090909092*P_0
+            t1 = 9.090909090909092*P_4
+            t2 = 9.090909090909092*P_8
+            t3 = 1.0 + t0
+            t4 = 1.0 + t1
+            t5 = 1.0 + t2
+            t6 = 1.0/t3
+            t7 = 1.0/t4
+            t8 = 1.0/t5
+            t9 = 0.9090909090909091*t6
+            t10 = 0.9090909090909091*t7
+            t11 = 0.9090909090909091*t8
+            t12 = 9.090909090909092*z_0
+            t13 = 9.090909090909092*z_1
+            t14 = 9.090909090909092*z_2
+            t15 = P_0*t12
+            t16 = P_4*t13
+            t17 = P_8*t14
+            t18 = x_0 + t15
+            t19 = x_1 + t16
+            t20 = x_2 + t17
+            t21 = 0.09090909090909091*z_0
+            t22 = 0.09090909090909091*z_1
+            t23 = 0.09090909090909091*z_2
+            t24 = t18*t9
+            t25 = t10*t19
+            t26 = t11*t20
+            t27 = t21 + t24
+            t28 = t22 + t25
+            t29 = t23 + t26
+            t30 = P_0*t9
+            t31 = P_4*t10
+            t32 = P_8*t11
+            t33 = 0.9090909090909091*t30
+            t34 = 0.9090909090909091*t31
+            t35 = 0.9090909090909091*t32
+            t36 = 0.00909090909090909 + t33
+            t37 = 0.00909090909090909 + t34
+            t38 = 0.00909090909090909 + t35
+            keep((t27, t28, t29, t36, 0.0, t37, t38))
+            x_0 = t27
+            x_1 = t28
+            x_2 = t29
+            P_0 = t36
+            P_4 = t37
+            P_8 = t38
+        table = np.array(rows, dtype=float).reshape(-1, 7)
+        return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])

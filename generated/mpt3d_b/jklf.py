@@ -148,18 +148,97 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     steps = zs.shape[0]
     xs = np.empty((steps, 2) + track)
-    if not track:  # one track: Python floats are several times faster than NumPy scalars
-        zs = zs.tolist()
-        x0 = x0.tolist()
-        P0 = P0.reshape(-1).tolist()
-        x, P = x0, P0
-        out_x, out_P = [], []
-        for k in range(steps):
-            x, P = step(x, P, zs[k])
-            out_x.append(x)
-            out_P.append(P)
-        return (np.array(out_x, dtype=float).reshape(steps, 2),
-                np.array(out_P, dtype=float).reshape(steps, 2, 2))
+    if not track:  # one track: the step's statements inline, on Python floats
+        x_0, x_1 = x0.reshape(-1).tolist()
+        P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
+        rows = []
+        keep = rows.extend
+        for k, z_0 in enumerate(zs[:, 0].tolist()):
+            t0 = x_0 + x_1
+            t1 = P_0 + P_1
+            t2 = P_1 + P_3
+            t3 = t1 + t2
+            t4 = 0.0025 + t3
+            t5 = 0.005 + t2
+            t6 = 0.01 + P_3
+            t7 = t4 + t5
+            t8 = t5 + t6
+            t9 = t7 + t8
+            t10 = 0.1 + t9
+            if not t10 > 0.0:
+                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t11 = t7/t10
+            t12 = t8/t10
+            t13 = x_1 + t0
+            t14 = z_0 - t13
+            t15 = t11*t14
+            t16 = t12*t14
+            t17 = t0 + t15
+            t18 = x_1 + t16
+            t19 = t11*t7
+            t20 = t11*t8
+            t21 = t12*t8
+            t22 = t4 - t19
+            t23 = t5 - t20
+            t24 = t6 - t21
+            t25 = 16.3265306122449*P_1
+            t26 = 8.16326530612245*P_0 + t25
+            t27 = 16.3265306122449*P_0 + 32.6530612244898*P_1
+            t28 = 8.16326530612245*P_1 + 16.3265306122449*P_3
+            t29 = 32.6530612244898*P_3 + t25
+            t30 = 1.0 + t26
+            t31 = 1.0 + t29
+            t32 = 1.0/t30
+            t33 = t28*t32
+            t34 = t31 - t27*t33
+            t35 = 1.0/t34
+            t36 = t33*t35
+            t37 = t32*(1.0 + t27*t36)
+            t38 = t27*t32*t35
+            t39 = 0.9387755102040817*t37 - 0.8775510204081632*t36
+            t40 = 0.8775510204081632*t35 - 0.9387755102040817*t38
+            t41 = 0.7551020408163265*t36 + 0.12244897959183673*t37
+            t42 = 0.7551020408163265*t35 + 0.12244897959183673*t38
+            t43 = 8.16326530612245*z_0
+            t44 = 16.3265306122449*z_0
+            t45 = P_0*t43 + P_1*t44
+            t46 = P_1*t43 + P_3*t44
+            t47 = x_0 + t45
+            t48 = x_1 + t46
+            t49 = 0.061224489795918366*z_0
+            t50 = 0.12244897959183673*z_0
+            t51 = t39*t47 + t40*t48
+            t52 = t42*t48 - t41*t47
+            t53 = t49 + t51
+            t54 = t50 + t52
+            t55 = P_0*t39 + P_1*t40
+            t56 = P_1*t39 + P_3*t40
+            t57 = P_1*t42 - P_0*t41
+            t58 = P_3*t42 - P_1*t41
+            t59 = 0.9387755102040817*t55 + 0.8775510204081632*t56
+            t60 = 0.7551020408163265*t56 - 0.12244897959183673*t55
+            t61 = 0.7551020408163265*t58 - 0.12244897959183673*t57
+            t62 = 0.0020408163265306124 + t59
+            t63 = 0.004081632653061225 + t60
+            t64 = 0.00816326530612245 + t61
+            t65 = t17 + t53
+            t66 = t18 + t54
+            t67 = 0.5*t65
+            t68 = 0.5*t66
+            t69 = t22 + t62
+            t70 = t23 + t63
+            t71 = t24 + t64
+            t72 = 0.5*t69
+            t73 = 0.5*t70
+            t74 = 0.5*t71
+            keep((t67, t68, t72, t73, t74))
+            x_0 = t67
+            x_1 = t68
+            P_0 = t72
+            P_1 = t73
+            P_3 = t74
+        table = np.array(rows, dtype=float).reshape(-1, 5)
+        return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])

@@ -1,0 +1,159 @@
+"""The single-track Python run loop: the step's statements inline on local floats.
+
+Calling ``step`` once per step costs a function call, a list per output and an index
+per element; on one track that is most of the time.  Here the loop carries the state
+in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), unpacks each
+row of the per-step inputs into locals, runs the step's own statements (same printer,
+same operations, same order, so the results are bitwise those of ``step``) and keeps
+its new elements in one flat list, turned into arrays once at the end.  A failed check raises
+:class:`NumericalError` with the step's message and the step's index.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from derive.emit.python_printer import PythonPrinter
+from derive.lowering import LoweredAssign, LoweredProgram, Var
+from derive.program import PARAMETER_PORT
+
+#: The state ports the loop carries, and the results that replace them each step.
+CARRIED = (("x", "x_new"), ("P", "P_new"))
+
+_INDEXED = re.compile(r"\b([A-Za-z]\w*)\[(\d+)\]")
+
+
+def local_name(port: str, index: int | str) -> str:
+    """``x[1]`` -> ``x_1``: the local variable that holds one element."""
+    return f"{port}_{index}"
+
+
+def _localize(text: str, ports: set[str]) -> str:
+    return _INDEXED.sub(lambda m: local_name(m[1], m[2]) if m[1] in ports else m[0], text)
+
+
+def _unpack(names: list[str], source: str) -> list[str]:
+    if len(names) == 1:
+        return [f"{names[0]} = {source}[0]"]
+    return [f"{', '.join(names)} = {source}"]
+
+
+@dataclass(frozen=True)
+class Loop:
+    """Lines of the single-track branch (indented for the run function's body)."""
+
+    lines: tuple[str, ...]
+
+
+def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
+    """Element indices of every input port that the step reads."""
+    read: dict[str, set[int]] = {}
+    stack = [s.tree for s in lowered.body]
+    stack += [leaf for _, leaves in lowered.results for leaf in leaves]
+    while stack:
+        tree = stack.pop()
+        if isinstance(tree, Var):
+            match = _INDEXED.fullmatch(tree.name)
+            if match:
+                read.setdefault(match[1], set()).add(int(match[2]))
+        else:
+            stack.extend(getattr(tree, "args", ()))
+    return read
+
+
+def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
+                      arrays: dict[str, str], indent: str = "        ") -> Loop:
+    """The single-track branch of ``run`` for a step with carried ``x`` (and ``P``).
+
+    ``arrays`` maps the step's ports to the run's array names (``x`` -> ``x0``,
+    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  The branch returns ``xs`` (and
+    ``Ps`` when P is carried) exactly as the general branch does.
+    """
+    printer = PythonPrinter()
+    ports = {p.name: p for p in lowered.inputs}
+    names = set(ports)
+    results = dict(lowered.results)
+    carried = [(port, out) for port, out in CARRIED if port in ports and out in results]
+    read = _read_indices(lowered)
+
+    def text(tree) -> str:
+        return _localize(printer.expression(tree), names)
+
+    out: list[str] = []
+    # the initial state and the parameters: only the elements the step reads
+    for port, _ in carried:
+        idx = sorted(read.get(port, ()))
+        if idx:
+            source = f"{arrays[port]}.reshape(-1)"
+            if len(idx) < ports[port].size:
+                source += f"[{idx}]"
+            out += _unpack([local_name(port, i) for i in idx], f"{source}.tolist()")
+    if read.get(PARAMETER_PORT):
+        out += _unpack([local_name(PARAMETER_PORT, i) for i in range(ports[PARAMETER_PORT].size)],
+                       f"{arrays[PARAMETER_PORT]}.tolist()")
+    # what each step keeps: the state's new elements, each distinct leaf once
+    kept: list[str] = []
+    columns: dict[str, list[int]] = {}
+    for port, result in carried:
+        columns[port] = []
+        for leaf in results[result]:
+            if text(leaf) not in kept:
+                kept.append(text(leaf))
+            columns[port].append(kept.index(text(leaf)))
+    out += ["rows = []", "keep = rows.extend"]
+    # a row of one element is iterated as the element itself
+    single = [ports[name].size == 1 for name in step_inputs]
+    sources = [f"{arrays[name]}[:, 0].tolist()" if one else f"{arrays[name]}.tolist()"
+               for name, one in zip(step_inputs, single, strict=True)]
+    row_names = [local_name(name, 0) if one else f"{name}k"
+                 for name, one in zip(step_inputs, single, strict=True)]
+    rows = sources[0] if len(sources) == 1 else f"zip({', '.join(sources)})"
+    target = row_names[0] if len(row_names) == 1 else f"({', '.join(row_names)})"
+    out.append(f"for k, {target} in enumerate({rows}):" if lowered.has_checks
+               else f"for {target} in {rows}:")
+    body: list[str] = []
+    for name, row, one in zip(step_inputs, row_names, single, strict=True):
+        if read.get(name) and not one:
+            body += _unpack([local_name(name, i) for i in range(ports[name].size)], row)
+    for st in lowered.body:
+        if isinstance(st, LoweredAssign):
+            body.append(f"{st.target} = {text(st.tree)}")
+        else:
+            body += [f"if not {text(st.tree.args[0])} > 0.0:",
+                     f'    raise NumericalError(f"step {{k}}: " + {st.message!r})']
+    body += _wrap(f"keep(({kept[0]},))" if len(kept) == 1 else f"keep(({', '.join(kept)}))")
+    # the new state: every element the next step reads, from this step's leaves; a leaf
+    # that reads the old state is bound first, so no assignment sees a new value early
+    assigned = [(local_name(port, i), text(results[result][i]))
+                for port, result in carried for i in sorted(read.get(port, ()))]
+    olds = {t for t, _ in assigned}
+    early = []
+    for j, (target_, value) in enumerate(assigned):
+        if set(re.findall(r"\b[A-Za-z]\w*\b", value)) & olds and value != target_:
+            early.append(f"n_{target_} = {value}")
+            assigned[j] = (target_, f"n_{target_}")
+    body += early + [f"{t} = {v}" for t, v in assigned if t != v]
+    out += [f"    {line}" for line in body]
+    out.append(f"table = np.array(rows, dtype=float).reshape(-1, {len(kept)})")
+    ret = [f"table[:, {columns['x']}]"]
+    if "P" in columns:
+        n = round(ports["P"].size ** 0.5)
+        ret.append(f"table[:, {columns['P']}].reshape(-1, {n}, {n})")
+    out += _wrap(f"return {ret[0]}" if len(ret) == 1 else f"return ({', '.join(ret)})")
+    return Loop(tuple(indent + line for line in out))
+
+
+def _wrap(line: str, width: int = 88) -> list[str]:
+    """Break a long line of comma-separated names inside brackets (implicit joining)."""
+    if len(line) <= width:
+        return [line]
+    pieces = re.split(r"(?<=, )", line)
+    lines, current = [], ""
+    for piece in pieces:
+        if current and len(current) + len(piece) > width:
+            lines.append(current.rstrip())
+            current = "        "
+        current += piece
+    lines.append(current)
+    return lines
