@@ -11,12 +11,21 @@ import numpy as np
 import pytest
 
 from derive import cli
-from derive.bench import batch, timing
+from derive.bench import batch, probe, timing
+from derive.bench.bound import case_bound
 from derive.bench.cases import CASES, Case, Skip, make_data, states
-from derive.bench.run import IMPLEMENTATIONS, Settings, run_bench
+from derive.bench.run import (
+    IMPLEMENTATIONS,
+    Bar,
+    BenchResult,
+    Settings,
+    run_bench,
+    time_catalog_generation,
+)
 
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
-                check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1)
+                check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
+                catalog_generation=False)
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 
@@ -73,9 +82,37 @@ def test_text_and_json(result):
     assert "median of 1 repeats" in text and "-O3 -march=native" in text
     for case in CASES:
         assert case.label in text
-    assert text.count("bar: ") == 3
+    assert text.count("bar: ") == 6
     data = json.loads(json.dumps(result.as_json()))
-    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 3
+    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 6
+    assert "two dependent fmas here take" in text
+
+
+def test_generated_c_rows_carry_the_latency_bound_of_their_chain(result):
+    latency = result.machine["latency"]
+    assert set(latency) == set(probe.PROBES) and all(v > 0 for v in latency.values())
+    for case in CASES:
+        row = result.row(case.label, "generated C")
+        found = case_bound(case, latency)
+        assert row.bound == found[0] and found[1] in row.note
+    # three axes in turn: three times one axis's chain
+    assert result.row("KF mpt3d_b x 3", "generated C").bound == pytest.approx(
+        3 * result.row("KF mpt3d_a", "generated C").bound)
+
+
+def test_bars_compare_ratios_upwards_and_times_downwards():
+    assert Bar("r", 5.0, 4.0, "ratio").met and not Bar("r", 3.0, 4.0, "ratio").met
+    assert Bar("t", 9e-9, 10e-9, "time").met and not Bar("t", 11e-9, 10e-9, "time").met
+    assert Bar("t", None, 10e-9, "time").met is None
+    assert Bar("t", 11e-9, 10e-9, "time", "why").text() == "bar: t: 11 ns (<= 10 ns: NOT met); why"
+
+
+def test_catalog_generation_is_timed_when_asked(tmp_path):
+    seconds = time_catalog_generation(tmp_path / "out")
+    assert seconds > 0 and (tmp_path / "out" / "mpt3d_a" / "kf.c").is_file()
+    r = BenchResult(Settings(catalog_generation=True), {"latency": {}}, [], [], seconds)
+    assert r.bars()[-1].claim.startswith("generating the whole catalog")
+    assert r.bars()[-1].value == seconds
 
 
 def test_timing_median_and_range(monkeypatch):

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from . import batch, casadi_c, generated, peers
+from .bound import case_bound
 from .cases import CASES, Case, Skip, make_data, states
 from .timing import Timing, human, measure
 
@@ -37,12 +38,14 @@ class Settings:
     batch_tracks: int = batch.TRACKS
     batch_steps: int = batch.STEPS
     batch_repeats: int = 5
+    catalog_generation: bool = True   # time `derive generate --all` (the issue's 30 s bar)
 
     @classmethod
     def quick(cls) -> Settings:
         """Tiny counts, for tests: the same rows, meaningless times."""
         return cls(c_steps=300, python_steps=30, nonlinear_python_steps=20, repeats=2,
-                   check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2)
+                   check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
+                   catalog_generation=False)
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,7 @@ class Row:
     ratio: float | None           # time per step / generated C's
     agreement: float | None       # max rel error of the states against the NumPy reference
     note: str = ""
+    bound: float | None = None    # generated C: latency bound of the carried chain, s/step
 
 
 @dataclass(frozen=True)
@@ -71,6 +75,7 @@ class BenchResult:
     machine: dict
     rows: list[Row] = field(default_factory=list)
     batch: list[BatchRow] = field(default_factory=list)
+    generation_seconds: float | None = None
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -79,22 +84,42 @@ class BenchResult:
     def as_json(self) -> dict:
         return {"settings": asdict(self.settings), "machine": self.machine,
                 "rows": [asdict(r) for r in self.rows], "batch": [asdict(b) for b in self.batch],
-                "bars": [dict(zip(("claim", "value", "bar", "met"), b)) for b in self.bars()]}
+                "generation_seconds": self.generation_seconds,
+                "bars": [asdict(b) for b in self.bars()]}
 
-    def bars(self) -> list[tuple[str, float | None, float, bool | None]]:
-        """The issue's bars: (claim, measured ratio, required ratio, met)."""
+    def _seconds(self, case: str, implementation: str) -> float | None:
+        r = self.row(case, implementation)
+        return r.timing.median if r is not None and r.timing else None
+
+    def bars(self) -> list[Bar]:
+        """The issues' bars, each with the measured value and whether it is met."""
         out = []
-        kf = self.row("KF mpt3d_a", "generated C")
         for peer, need in (("FilterPy", 1000.0), ("CasADi C", 4.0)):
             r = self.row("KF mpt3d_a", peer)
-            value = r.ratio if r is not None and kf is not None and kf.timing else None
-            out.append((f"generated C KF mpt3d_a faster per step than {peer}", value, need,
-                        None if value is None else value >= need))
+            value = r.ratio if r is not None and self._seconds("KF mpt3d_a", "generated C") \
+                else None
+            out.append(Bar(f"generated C KF mpt3d_a faster per step than {peer}", value, need,
+                           "ratio"))
         b = next((x for x in self.batch if x.implementation == "generated C, run_tracks"),
                  None)
-        value = b.ratio if b is not None else None
-        out.append(("batch throughput of generated C over simdkalman's", value, 50.0,
-                    None if value is None else value >= 50.0))
+        out.append(Bar("batch throughput of generated C over simdkalman's",
+                       b.ratio if b is not None else None, 50.0, "ratio"))
+        kf = self.row("KF mpt3d_a", "generated C")
+        out.append(Bar("generated C KF mpt3d_a per step", self._seconds("KF mpt3d_a",
+                                                                        "generated C"),
+                       10e-9, "time", _bound_note(kf)))
+        sskf = self.row("SSKF mpt3d_a", "generated C")
+        fma2 = 2 * self.machine["latency"]["fma"] if self.machine.get("latency") else None
+        out.append(Bar("generated C SSKF mpt3d_b x 3 axes in one loop (mpt3d_a, blocks found "
+                       "automatically) per step", self._seconds("SSKF mpt3d_a", "generated C"),
+                       1.25 * 2.3e-9, "time",
+                       _bound_note(sskf) + ("" if fma2 is None else
+                                            f"; two dependent fmas here take {human(fma2)}")))
+        out.append(Bar("generated pure-Python KF mpt3d_b x 3 per step",
+                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.2e-6, "time"))
+        if self.settings.catalog_generation:
+            out.append(Bar("generating the whole catalog (derive generate --all)",
+                           self.generation_seconds, 30.0, "time"))
         return out
 
     def text(self) -> str:
@@ -136,11 +161,46 @@ class BenchResult:
                 for b in self.batch]
         lines += _columns(head, body)
         lines.append("")
-        for claim, value, need, met in self.bars():
-            verdict = "n/a" if met is None else ("met" if met else "NOT met")
-            shown = "n/a" if value is None else f"{value:,.1f}x"
-            lines.append(f"bar: {claim}: {shown} (>= {need:g}x: {verdict})")
+        lat = self.machine.get("latency")
+        if lat:
+            lines.append("latency of one dependent operation here (derive.bench.probe): " +
+                         ", ".join(f"{k} {human(v)}" for k, v in lat.items()))
+        lines += [bar.text() for bar in self.bars()]
         return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Bar:
+    """A bar of an issue: a ratio to reach (``>=``) or a time to stay under (``<=``)."""
+
+    claim: str
+    value: float | None
+    bar: float
+    kind: str                     # "ratio" or "time" (seconds)
+    note: str = ""
+
+    @property
+    def met(self) -> bool | None:
+        if self.value is None:
+            return None
+        return self.value >= self.bar if self.kind == "ratio" else self.value <= self.bar
+
+    def text(self) -> str:
+        verdict = "n/a" if self.met is None else ("met" if self.met else "NOT met")
+        if self.kind == "ratio":
+            shown = "n/a" if self.value is None else f"{self.value:,.1f}x"
+            need = f">= {self.bar:g}x"
+        else:
+            shown = "n/a" if self.value is None else human(self.value)
+            need = f"<= {human(self.bar)}"
+        note = f"; {self.note}" if self.note else ""
+        return f"bar: {self.claim}: {shown} ({need}: {verdict}){note}"
+
+
+def _bound_note(row: Row | None) -> str:
+    if row is None or row.bound is None:
+        return ""
+    return f"latency bound of its carried chain here {human(row.bound)}"
 
 
 def _columns(head, body) -> list[str]:
@@ -156,6 +216,13 @@ def machine_info() -> dict:
     info = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
             "load": "n/a", "python": platform.python_version(), "numpy": np.__version__,
             "generated_cflags": list(STRICT_CFLAGS) + list(generated.CFLAGS)}
+    try:
+        from .probe import measure_latencies
+
+        info["latency"] = measure_latencies(generated.CFLAGS)
+    except Exception as exc:  # no compiler or cffi failure: the bounds are left out
+        info["latency"] = {}
+        info["latency_error"] = str(exc).splitlines()[0][:200]
     try:
         info["load"] = f"{os.getloadavg()[0]:.2f}"
     except OSError:
@@ -176,7 +243,7 @@ def machine_info() -> dict:
     return info
 
 
-def _case_rows(case: Case, s: Settings, workdir: Path, tick) -> list[Row]:
+def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> list[Row]:
     from ..verify import relative_error
 
     python_steps = s.nonlinear_python_steps if case.nonlinear else s.python_steps
@@ -196,8 +263,14 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick) -> list[Row]:
         if name == "generated C":
             base = timing.median
         note = _NOTES.get((case.filter, name), "")
+        bound = None
+        if name == "generated C" and latency:
+            found = case_bound(case, latency)
+            if found is not None:
+                bound = found[0]
+                note = f"latency bound {human(bound)}: carried chain {found[1]}"
         rows.append(Row(case.label, name, timing, None if base is None else
-                        timing.median / base, agreement, note))
+                        timing.median / base, agreement, note, bound))
     return rows
 
 
@@ -251,6 +324,25 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
     result = BenchResult(s, machine_info())
     with tempfile.TemporaryDirectory(prefix="derive-bench-") as tmp:
         for case in CASES:
-            result.rows += _case_rows(case, s, Path(tmp), tick)
+            result.rows += _case_rows(case, s, Path(tmp), tick, result.machine.get("latency"))
         result.batch = _batch_rows(s, Path(tmp), tick)
+        if s.catalog_generation:
+            tick("derive generate --all")
+            result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
     return result
+
+
+def time_catalog_generation(out: Path) -> float:
+    """Seconds that ``derive generate --all --out OUT`` takes, in this process."""
+    import contextlib
+    import io
+    import time
+
+    from .. import cli
+
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        status = cli.main(["generate", "--all", "--out", str(out)])
+    if status != 0:
+        raise RuntimeError(f"derive generate --all failed with status {status}")
+    return time.perf_counter() - start
