@@ -16,6 +16,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
  * A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594884,  0.7875212074340512 ]]
  * B = [[0.548527627097165 ], [0.2124787925659489]]
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
  */
 #include <math.h>
 #include <stddef.h>
@@ -43,11 +45,30 @@ void cv_sslf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
     double x[2];
     double x_new[2];
+    double x_mid[2];
     size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
-    /* the step's statements, with the state in local arrays (registers) */
-    for (k = 0; k < steps; ++k) {
+    /* two steps per pass: x(k+1) by the step, x(k+2) from x(k) by the two-step map;
+       only x(k+2) is carried, so the chain from pass to pass is one step deep */
+    for (k = 0; k + 2 <= steps; k += 2) {
+        const double *restrict zk = z + k * 1;
+        const double *restrict znk = z + (k + 1) * 1;
+        const double t0 = DERIVE_FMA(0.45147237290283504, x[1], DERIVE_FMA(0.45147237290283504, x[0], 0.548527627097165*zk[0]));
+        const double t1 = DERIVE_FMA(0.7875212074340512, x[1], DERIVE_FMA((-0.21247879256594884), x[0], 0.2124787925659489*zk[0]));
+        const double t2 = DERIVE_FMA(0.5593713717260734, x[1], DERIVE_FMA(0.10789899882323835, x[0], DERIVE_FMA(0.548527627097165, znk[0], 0.3435733740795967*zk[0])));
+        const double t3 = DERIVE_FMA(0.5242613474871077, x[1], DERIVE_FMA((-0.2632598599469435), x[0], DERIVE_FMA(0.2124787925659489, znk[0], 0.05078106738099472*zk[0])));
+        x_mid[0] = t0;
+        x_mid[1] = t1;
+        x_new[0] = t2;
+        x_new[1] = t3;
+        xs[k * 2 + 0] = x_mid[0];
+        xs[k * 2 + 1] = x_mid[1];
+        xs[(k + 1) * 2 + 0] = x[0] = x_new[0];
+        xs[(k + 1) * 2 + 1] = x[1] = x_new[1];
+    }
+    /* an odd last step */
+    for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
         const double t0 = DERIVE_FMA(0.45147237290283504, x[1], DERIVE_FMA(0.45147237290283504, x[0], 0.548527627097165*zk[0]));
         const double t1 = DERIVE_FMA(0.7875212074340512, x[1], DERIVE_FMA((-0.21247879256594884), x[0], 0.2124787925659489*zk[0]));
@@ -69,12 +90,20 @@ void cv_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const doub
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[2], xn_l0[2];
         const double *z_l0;
+        double xm_l0[2];
+        const double *zn_l0;
         double x_l1[2], xn_l1[2];
         const double *z_l1;
+        double xm_l1[2];
+        const double *zn_l1;
         double x_l2[2], xn_l2[2];
         const double *z_l2;
+        double xm_l2[2];
+        const double *zn_l2;
         double x_l3[2], xn_l3[2];
         const double *z_l3;
+        double xm_l3[2];
+        const double *zn_l3;
         x_l0[0] = x0[(t + 0) * 2 + 0];
         x_l0[1] = x0[(t + 0) * 2 + 1];
         x_l1[0] = x0[(t + 1) * 2 + 0];
@@ -83,7 +112,65 @@ void cv_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const doub
         x_l2[1] = x0[(t + 2) * 2 + 1];
         x_l3[0] = x0[(t + 3) * 2 + 0];
         x_l3[1] = x0[(t + 3) * 2 + 1];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 1;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 1;
+            const double t0_l0 = DERIVE_FMA(0.45147237290283504, x_l0[1], DERIVE_FMA(0.45147237290283504, x_l0[0], 0.548527627097165*z_l0[0]));
+            const double t1_l0 = DERIVE_FMA(0.7875212074340512, x_l0[1], DERIVE_FMA((-0.21247879256594884), x_l0[0], 0.2124787925659489*z_l0[0]));
+            const double t2_l0 = DERIVE_FMA(0.5593713717260734, x_l0[1], DERIVE_FMA(0.10789899882323835, x_l0[0], DERIVE_FMA(0.548527627097165, zn_l0[0], 0.3435733740795967*z_l0[0])));
+            const double t3_l0 = DERIVE_FMA(0.5242613474871077, x_l0[1], DERIVE_FMA((-0.2632598599469435), x_l0[0], DERIVE_FMA(0.2124787925659489, zn_l0[0], 0.05078106738099472*z_l0[0])));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xn_l0[0] = t2_l0;
+            xn_l0[1] = t3_l0;
+            z_l1 = z + ((t + 1) * steps + k) * 1;
+            zn_l1 = z + ((t + 1) * steps + k + 1) * 1;
+            const double t0_l1 = DERIVE_FMA(0.45147237290283504, x_l1[1], DERIVE_FMA(0.45147237290283504, x_l1[0], 0.548527627097165*z_l1[0]));
+            const double t1_l1 = DERIVE_FMA(0.7875212074340512, x_l1[1], DERIVE_FMA((-0.21247879256594884), x_l1[0], 0.2124787925659489*z_l1[0]));
+            const double t2_l1 = DERIVE_FMA(0.5593713717260734, x_l1[1], DERIVE_FMA(0.10789899882323835, x_l1[0], DERIVE_FMA(0.548527627097165, zn_l1[0], 0.3435733740795967*z_l1[0])));
+            const double t3_l1 = DERIVE_FMA(0.5242613474871077, x_l1[1], DERIVE_FMA((-0.2632598599469435), x_l1[0], DERIVE_FMA(0.2124787925659489, zn_l1[0], 0.05078106738099472*z_l1[0])));
+            xm_l1[0] = t0_l1;
+            xm_l1[1] = t1_l1;
+            xn_l1[0] = t2_l1;
+            xn_l1[1] = t3_l1;
+            z_l2 = z + ((t + 2) * steps + k) * 1;
+            zn_l2 = z + ((t + 2) * steps + k + 1) * 1;
+            const double t0_l2 = DERIVE_FMA(0.45147237290283504, x_l2[1], DERIVE_FMA(0.45147237290283504, x_l2[0], 0.548527627097165*z_l2[0]));
+            const double t1_l2 = DERIVE_FMA(0.7875212074340512, x_l2[1], DERIVE_FMA((-0.21247879256594884), x_l2[0], 0.2124787925659489*z_l2[0]));
+            const double t2_l2 = DERIVE_FMA(0.5593713717260734, x_l2[1], DERIVE_FMA(0.10789899882323835, x_l2[0], DERIVE_FMA(0.548527627097165, zn_l2[0], 0.3435733740795967*z_l2[0])));
+            const double t3_l2 = DERIVE_FMA(0.5242613474871077, x_l2[1], DERIVE_FMA((-0.2632598599469435), x_l2[0], DERIVE_FMA(0.2124787925659489, zn_l2[0], 0.05078106738099472*z_l2[0])));
+            xm_l2[0] = t0_l2;
+            xm_l2[1] = t1_l2;
+            xn_l2[0] = t2_l2;
+            xn_l2[1] = t3_l2;
+            z_l3 = z + ((t + 3) * steps + k) * 1;
+            zn_l3 = z + ((t + 3) * steps + k + 1) * 1;
+            const double t0_l3 = DERIVE_FMA(0.45147237290283504, x_l3[1], DERIVE_FMA(0.45147237290283504, x_l3[0], 0.548527627097165*z_l3[0]));
+            const double t1_l3 = DERIVE_FMA(0.7875212074340512, x_l3[1], DERIVE_FMA((-0.21247879256594884), x_l3[0], 0.2124787925659489*z_l3[0]));
+            const double t2_l3 = DERIVE_FMA(0.5593713717260734, x_l3[1], DERIVE_FMA(0.10789899882323835, x_l3[0], DERIVE_FMA(0.548527627097165, zn_l3[0], 0.3435733740795967*z_l3[0])));
+            const double t3_l3 = DERIVE_FMA(0.5242613474871077, x_l3[1], DERIVE_FMA((-0.2632598599469435), x_l3[0], DERIVE_FMA(0.2124787925659489, zn_l3[0], 0.05078106738099472*z_l3[0])));
+            xm_l3[0] = t0_l3;
+            xm_l3[1] = t1_l3;
+            xn_l3[0] = t2_l3;
+            xn_l3[1] = t3_l3;
+            xs[((t + 0) * steps + k) * 2 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 2 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k + 1) * 2 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 2 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 1) * steps + k) * 2 + 0] = xm_l1[0];
+            xs[((t + 1) * steps + k) * 2 + 1] = xm_l1[1];
+            xs[((t + 1) * steps + k + 1) * 2 + 0] = x_l1[0] = xn_l1[0];
+            xs[((t + 1) * steps + k + 1) * 2 + 1] = x_l1[1] = xn_l1[1];
+            xs[((t + 2) * steps + k) * 2 + 0] = xm_l2[0];
+            xs[((t + 2) * steps + k) * 2 + 1] = xm_l2[1];
+            xs[((t + 2) * steps + k + 1) * 2 + 0] = x_l2[0] = xn_l2[0];
+            xs[((t + 2) * steps + k + 1) * 2 + 1] = x_l2[1] = xn_l2[1];
+            xs[((t + 3) * steps + k) * 2 + 0] = xm_l3[0];
+            xs[((t + 3) * steps + k) * 2 + 1] = xm_l3[1];
+            xs[((t + 3) * steps + k + 1) * 2 + 0] = x_l3[0] = xn_l3[0];
+            xs[((t + 3) * steps + k + 1) * 2 + 1] = x_l3[1] = xn_l3[1];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 1;
             const double t0_l0 = DERIVE_FMA(0.45147237290283504, x_l0[1], DERIVE_FMA(0.45147237290283504, x_l0[0], 0.548527627097165*z_l0[0]));
             const double t1_l0 = DERIVE_FMA(0.7875212074340512, x_l0[1], DERIVE_FMA((-0.21247879256594884), x_l0[0], 0.2124787925659489*z_l0[0]));
@@ -117,9 +204,27 @@ void cv_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const doub
     for (; t + 1 <= tracks; t += 1) {
         double x_l0[2], xn_l0[2];
         const double *z_l0;
+        double xm_l0[2];
+        const double *zn_l0;
         x_l0[0] = x0[(t + 0) * 2 + 0];
         x_l0[1] = x0[(t + 0) * 2 + 1];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 1;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 1;
+            const double t0_l0 = DERIVE_FMA(0.45147237290283504, x_l0[1], DERIVE_FMA(0.45147237290283504, x_l0[0], 0.548527627097165*z_l0[0]));
+            const double t1_l0 = DERIVE_FMA(0.7875212074340512, x_l0[1], DERIVE_FMA((-0.21247879256594884), x_l0[0], 0.2124787925659489*z_l0[0]));
+            const double t2_l0 = DERIVE_FMA(0.5593713717260734, x_l0[1], DERIVE_FMA(0.10789899882323835, x_l0[0], DERIVE_FMA(0.548527627097165, zn_l0[0], 0.3435733740795967*z_l0[0])));
+            const double t3_l0 = DERIVE_FMA(0.5242613474871077, x_l0[1], DERIVE_FMA((-0.2632598599469435), x_l0[0], DERIVE_FMA(0.2124787925659489, zn_l0[0], 0.05078106738099472*z_l0[0])));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xn_l0[0] = t2_l0;
+            xn_l0[1] = t3_l0;
+            xs[((t + 0) * steps + k) * 2 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 2 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k + 1) * 2 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 2 + 1] = x_l0[1] = xn_l0[1];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 1;
             const double t0_l0 = DERIVE_FMA(0.45147237290283504, x_l0[1], DERIVE_FMA(0.45147237290283504, x_l0[0], 0.548527627097165*z_l0[0]));
             const double t1_l0 = DERIVE_FMA(0.7875212074340512, x_l0[1], DERIVE_FMA((-0.21247879256594884), x_l0[0], 0.2124787925659489*z_l0[0]));

@@ -16,6 +16,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 0, calls 0 (flops 9, instructions 6)
  * A = [[0.7298437881283575, 0.                , 0.                ], [0.                , 0.7298437881283575, 0.                ], [0.                , 0.                , 0.7298437881283575]]
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 18, neg 0, cmp 0, calls 0 (flops 42, instructions 24)
  */
 #include <math.h>
 #include <stddef.h>
@@ -45,12 +47,37 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
 {
     double x[3];
     double x_new[3];
+    double x_mid[3];
     size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
-    /* the step's statements, with the state in local arrays (registers) */
-    for (k = 0; k < steps; ++k) {
+    /* two steps per pass: x(k+1) by the step, x(k+2) from x(k) by the two-step map;
+       only x(k+2) is carried, so the chain from pass to pass is one step deep */
+    for (k = 0; k + 2 <= steps; k += 2) {
+        const double *restrict zk = z + k * 3;
+        const double *restrict znk = z + (k + 1) * 3;
+        const double t0 = DERIVE_FMA(0.7298437881283575, x[0], 0.2701562118716424*zk[0]);
+        const double t1 = DERIVE_FMA(0.7298437881283575, x[1], 0.2701562118716424*zk[1]);
+        const double t2 = DERIVE_FMA(0.7298437881283575, x[2], 0.2701562118716424*zk[2]);
+        const double t3 = DERIVE_FMA((-0.6723280449304491), x[0], DERIVE_FMA(1.205, x[0], DERIVE_FMA(0.32015621187164245, znk[0], DERIVE_FMA(0.35217183305880667, zk[0], DERIVE_FMA((-0.05), znk[0], (-0.155)*zk[0])))));
+        const double t4 = DERIVE_FMA((-0.6723280449304491), x[1], DERIVE_FMA(1.205, x[1], DERIVE_FMA(0.32015621187164245, znk[1], DERIVE_FMA(0.35217183305880667, zk[1], DERIVE_FMA((-0.05), znk[1], (-0.155)*zk[1])))));
+        const double t5 = DERIVE_FMA((-0.6723280449304491), x[2], DERIVE_FMA(1.205, x[2], DERIVE_FMA(0.32015621187164245, znk[2], DERIVE_FMA(0.35217183305880667, zk[2], DERIVE_FMA((-0.05), znk[2], (-0.155)*zk[2])))));
+        x_mid[0] = t0;
+        x_mid[1] = t1;
+        x_mid[2] = t2;
+        x_new[0] = t3;
+        x_new[1] = t4;
+        x_new[2] = t5;
+        xs[k * 3 + 0] = x_mid[0];
+        xs[k * 3 + 1] = x_mid[1];
+        xs[k * 3 + 2] = x_mid[2];
+        xs[(k + 1) * 3 + 0] = x[0] = x_new[0];
+        xs[(k + 1) * 3 + 1] = x[1] = x_new[1];
+        xs[(k + 1) * 3 + 2] = x[2] = x_new[2];
+    }
+    /* an odd last step */
+    for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const double t0 = DERIVE_FMA(0.7298437881283575, x[0], 0.2701562118716424*zk[0]);
         const double t1 = DERIVE_FMA(0.7298437881283575, x[1], 0.2701562118716424*zk[1]);
@@ -75,12 +102,20 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[3], xn_l0[3];
         const double *z_l0;
+        double xm_l0[3];
+        const double *zn_l0;
         double x_l1[3], xn_l1[3];
         const double *z_l1;
+        double xm_l1[3];
+        const double *zn_l1;
         double x_l2[3], xn_l2[3];
         const double *z_l2;
+        double xm_l2[3];
+        const double *zn_l2;
         double x_l3[3], xn_l3[3];
         const double *z_l3;
+        double xm_l3[3];
+        const double *zn_l3;
         x_l0[0] = x0[(t + 0) * 3 + 0];
         x_l0[1] = x0[(t + 0) * 3 + 1];
         x_l0[2] = x0[(t + 0) * 3 + 2];
@@ -93,7 +128,89 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
         x_l3[0] = x0[(t + 3) * 3 + 0];
         x_l3[1] = x0[(t + 3) * 3 + 1];
         x_l3[2] = x0[(t + 3) * 3 + 2];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 3;
+            const double t0_l0 = DERIVE_FMA(0.7298437881283575, x_l0[0], 0.2701562118716424*z_l0[0]);
+            const double t1_l0 = DERIVE_FMA(0.7298437881283575, x_l0[1], 0.2701562118716424*z_l0[1]);
+            const double t2_l0 = DERIVE_FMA(0.7298437881283575, x_l0[2], 0.2701562118716424*z_l0[2]);
+            const double t3_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[0], DERIVE_FMA(1.205, x_l0[0], DERIVE_FMA(0.32015621187164245, zn_l0[0], DERIVE_FMA(0.35217183305880667, z_l0[0], DERIVE_FMA((-0.05), zn_l0[0], (-0.155)*z_l0[0])))));
+            const double t4_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[1], DERIVE_FMA(1.205, x_l0[1], DERIVE_FMA(0.32015621187164245, zn_l0[1], DERIVE_FMA(0.35217183305880667, z_l0[1], DERIVE_FMA((-0.05), zn_l0[1], (-0.155)*z_l0[1])))));
+            const double t5_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[2], DERIVE_FMA(1.205, x_l0[2], DERIVE_FMA(0.32015621187164245, zn_l0[2], DERIVE_FMA(0.35217183305880667, z_l0[2], DERIVE_FMA((-0.05), zn_l0[2], (-0.155)*z_l0[2])))));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xm_l0[2] = t2_l0;
+            xn_l0[0] = t3_l0;
+            xn_l0[1] = t4_l0;
+            xn_l0[2] = t5_l0;
+            z_l1 = z + ((t + 1) * steps + k) * 3;
+            zn_l1 = z + ((t + 1) * steps + k + 1) * 3;
+            const double t0_l1 = DERIVE_FMA(0.7298437881283575, x_l1[0], 0.2701562118716424*z_l1[0]);
+            const double t1_l1 = DERIVE_FMA(0.7298437881283575, x_l1[1], 0.2701562118716424*z_l1[1]);
+            const double t2_l1 = DERIVE_FMA(0.7298437881283575, x_l1[2], 0.2701562118716424*z_l1[2]);
+            const double t3_l1 = DERIVE_FMA((-0.6723280449304491), x_l1[0], DERIVE_FMA(1.205, x_l1[0], DERIVE_FMA(0.32015621187164245, zn_l1[0], DERIVE_FMA(0.35217183305880667, z_l1[0], DERIVE_FMA((-0.05), zn_l1[0], (-0.155)*z_l1[0])))));
+            const double t4_l1 = DERIVE_FMA((-0.6723280449304491), x_l1[1], DERIVE_FMA(1.205, x_l1[1], DERIVE_FMA(0.32015621187164245, zn_l1[1], DERIVE_FMA(0.35217183305880667, z_l1[1], DERIVE_FMA((-0.05), zn_l1[1], (-0.155)*z_l1[1])))));
+            const double t5_l1 = DERIVE_FMA((-0.6723280449304491), x_l1[2], DERIVE_FMA(1.205, x_l1[2], DERIVE_FMA(0.32015621187164245, zn_l1[2], DERIVE_FMA(0.35217183305880667, z_l1[2], DERIVE_FMA((-0.05), zn_l1[2], (-0.155)*z_l1[2])))));
+            xm_l1[0] = t0_l1;
+            xm_l1[1] = t1_l1;
+            xm_l1[2] = t2_l1;
+            xn_l1[0] = t3_l1;
+            xn_l1[1] = t4_l1;
+            xn_l1[2] = t5_l1;
+            z_l2 = z + ((t + 2) * steps + k) * 3;
+            zn_l2 = z + ((t + 2) * steps + k + 1) * 3;
+            const double t0_l2 = DERIVE_FMA(0.7298437881283575, x_l2[0], 0.2701562118716424*z_l2[0]);
+            const double t1_l2 = DERIVE_FMA(0.7298437881283575, x_l2[1], 0.2701562118716424*z_l2[1]);
+            const double t2_l2 = DERIVE_FMA(0.7298437881283575, x_l2[2], 0.2701562118716424*z_l2[2]);
+            const double t3_l2 = DERIVE_FMA((-0.6723280449304491), x_l2[0], DERIVE_FMA(1.205, x_l2[0], DERIVE_FMA(0.32015621187164245, zn_l2[0], DERIVE_FMA(0.35217183305880667, z_l2[0], DERIVE_FMA((-0.05), zn_l2[0], (-0.155)*z_l2[0])))));
+            const double t4_l2 = DERIVE_FMA((-0.6723280449304491), x_l2[1], DERIVE_FMA(1.205, x_l2[1], DERIVE_FMA(0.32015621187164245, zn_l2[1], DERIVE_FMA(0.35217183305880667, z_l2[1], DERIVE_FMA((-0.05), zn_l2[1], (-0.155)*z_l2[1])))));
+            const double t5_l2 = DERIVE_FMA((-0.6723280449304491), x_l2[2], DERIVE_FMA(1.205, x_l2[2], DERIVE_FMA(0.32015621187164245, zn_l2[2], DERIVE_FMA(0.35217183305880667, z_l2[2], DERIVE_FMA((-0.05), zn_l2[2], (-0.155)*z_l2[2])))));
+            xm_l2[0] = t0_l2;
+            xm_l2[1] = t1_l2;
+            xm_l2[2] = t2_l2;
+            xn_l2[0] = t3_l2;
+            xn_l2[1] = t4_l2;
+            xn_l2[2] = t5_l2;
+            z_l3 = z + ((t + 3) * steps + k) * 3;
+            zn_l3 = z + ((t + 3) * steps + k + 1) * 3;
+            const double t0_l3 = DERIVE_FMA(0.7298437881283575, x_l3[0], 0.2701562118716424*z_l3[0]);
+            const double t1_l3 = DERIVE_FMA(0.7298437881283575, x_l3[1], 0.2701562118716424*z_l3[1]);
+            const double t2_l3 = DERIVE_FMA(0.7298437881283575, x_l3[2], 0.2701562118716424*z_l3[2]);
+            const double t3_l3 = DERIVE_FMA((-0.6723280449304491), x_l3[0], DERIVE_FMA(1.205, x_l3[0], DERIVE_FMA(0.32015621187164245, zn_l3[0], DERIVE_FMA(0.35217183305880667, z_l3[0], DERIVE_FMA((-0.05), zn_l3[0], (-0.155)*z_l3[0])))));
+            const double t4_l3 = DERIVE_FMA((-0.6723280449304491), x_l3[1], DERIVE_FMA(1.205, x_l3[1], DERIVE_FMA(0.32015621187164245, zn_l3[1], DERIVE_FMA(0.35217183305880667, z_l3[1], DERIVE_FMA((-0.05), zn_l3[1], (-0.155)*z_l3[1])))));
+            const double t5_l3 = DERIVE_FMA((-0.6723280449304491), x_l3[2], DERIVE_FMA(1.205, x_l3[2], DERIVE_FMA(0.32015621187164245, zn_l3[2], DERIVE_FMA(0.35217183305880667, z_l3[2], DERIVE_FMA((-0.05), zn_l3[2], (-0.155)*z_l3[2])))));
+            xm_l3[0] = t0_l3;
+            xm_l3[1] = t1_l3;
+            xm_l3[2] = t2_l3;
+            xn_l3[0] = t3_l3;
+            xn_l3[1] = t4_l3;
+            xn_l3[2] = t5_l3;
+            xs[((t + 0) * steps + k) * 3 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 3 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k) * 3 + 2] = xm_l0[2];
+            xs[((t + 0) * steps + k + 1) * 3 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 3 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k + 1) * 3 + 2] = x_l0[2] = xn_l0[2];
+            xs[((t + 1) * steps + k) * 3 + 0] = xm_l1[0];
+            xs[((t + 1) * steps + k) * 3 + 1] = xm_l1[1];
+            xs[((t + 1) * steps + k) * 3 + 2] = xm_l1[2];
+            xs[((t + 1) * steps + k + 1) * 3 + 0] = x_l1[0] = xn_l1[0];
+            xs[((t + 1) * steps + k + 1) * 3 + 1] = x_l1[1] = xn_l1[1];
+            xs[((t + 1) * steps + k + 1) * 3 + 2] = x_l1[2] = xn_l1[2];
+            xs[((t + 2) * steps + k) * 3 + 0] = xm_l2[0];
+            xs[((t + 2) * steps + k) * 3 + 1] = xm_l2[1];
+            xs[((t + 2) * steps + k) * 3 + 2] = xm_l2[2];
+            xs[((t + 2) * steps + k + 1) * 3 + 0] = x_l2[0] = xn_l2[0];
+            xs[((t + 2) * steps + k + 1) * 3 + 1] = x_l2[1] = xn_l2[1];
+            xs[((t + 2) * steps + k + 1) * 3 + 2] = x_l2[2] = xn_l2[2];
+            xs[((t + 3) * steps + k) * 3 + 0] = xm_l3[0];
+            xs[((t + 3) * steps + k) * 3 + 1] = xm_l3[1];
+            xs[((t + 3) * steps + k) * 3 + 2] = xm_l3[2];
+            xs[((t + 3) * steps + k + 1) * 3 + 0] = x_l3[0] = xn_l3[0];
+            xs[((t + 3) * steps + k + 1) * 3 + 1] = x_l3[1] = xn_l3[1];
+            xs[((t + 3) * steps + k + 1) * 3 + 2] = x_l3[2] = xn_l3[2];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = DERIVE_FMA(0.7298437881283575, x_l0[0], 0.2701562118716424*z_l0[0]);
             const double t1_l0 = DERIVE_FMA(0.7298437881283575, x_l0[1], 0.2701562118716424*z_l0[1]);
@@ -139,10 +256,34 @@ void gps_static_sslf_run_tracks(size_t steps, size_t tracks, const double *z, co
     for (; t + 1 <= tracks; t += 1) {
         double x_l0[3], xn_l0[3];
         const double *z_l0;
+        double xm_l0[3];
+        const double *zn_l0;
         x_l0[0] = x0[(t + 0) * 3 + 0];
         x_l0[1] = x0[(t + 0) * 3 + 1];
         x_l0[2] = x0[(t + 0) * 3 + 2];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 3;
+            const double t0_l0 = DERIVE_FMA(0.7298437881283575, x_l0[0], 0.2701562118716424*z_l0[0]);
+            const double t1_l0 = DERIVE_FMA(0.7298437881283575, x_l0[1], 0.2701562118716424*z_l0[1]);
+            const double t2_l0 = DERIVE_FMA(0.7298437881283575, x_l0[2], 0.2701562118716424*z_l0[2]);
+            const double t3_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[0], DERIVE_FMA(1.205, x_l0[0], DERIVE_FMA(0.32015621187164245, zn_l0[0], DERIVE_FMA(0.35217183305880667, z_l0[0], DERIVE_FMA((-0.05), zn_l0[0], (-0.155)*z_l0[0])))));
+            const double t4_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[1], DERIVE_FMA(1.205, x_l0[1], DERIVE_FMA(0.32015621187164245, zn_l0[1], DERIVE_FMA(0.35217183305880667, z_l0[1], DERIVE_FMA((-0.05), zn_l0[1], (-0.155)*z_l0[1])))));
+            const double t5_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[2], DERIVE_FMA(1.205, x_l0[2], DERIVE_FMA(0.32015621187164245, zn_l0[2], DERIVE_FMA(0.35217183305880667, z_l0[2], DERIVE_FMA((-0.05), zn_l0[2], (-0.155)*z_l0[2])))));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xm_l0[2] = t2_l0;
+            xn_l0[0] = t3_l0;
+            xn_l0[1] = t4_l0;
+            xn_l0[2] = t5_l0;
+            xs[((t + 0) * steps + k) * 3 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 3 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k) * 3 + 2] = xm_l0[2];
+            xs[((t + 0) * steps + k + 1) * 3 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 3 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k + 1) * 3 + 2] = x_l0[2] = xn_l0[2];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = DERIVE_FMA(0.7298437881283575, x_l0[0], 0.2701562118716424*z_l0[0]);
             const double t1_l0 = DERIVE_FMA(0.7298437881283575, x_l0[1], 0.2701562118716424*z_l0[1]);

@@ -16,6 +16,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 0, calls 0 (flops 20, instructions 12)
  * A: (4, 4) constants baked into the code
  * B = [[0.36535881073846804, 0.                 ], [0.20683480863417478, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417478]]
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 0, calls 0 (flops 48, instructions 28)
  */
 #ifndef GSM2D_A_JSSKLF_H
 #define GSM2D_A_JSSKLF_H

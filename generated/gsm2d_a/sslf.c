@@ -16,6 +16,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 8, neg 0, cmp 0, calls 0 (flops 20, instructions 12)
  * A: (4, 4) constants baked into the code
  * B = [[0.36535881073846804, 0.                 ], [0.20683480863417475, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417475]]
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 0, calls 0 (flops 48, instructions 28)
  */
 #include <math.h>
 #include <stddef.h>
@@ -47,13 +49,44 @@ void gsm2d_a_sslf_run(size_t steps, const double *z, const double *x0, double *x
 {
     double x[4];
     double x_new[4];
+    double x_mid[4];
     size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
     x[3] = x0[3];
-    /* the step's statements, with the state in local arrays (registers) */
-    for (k = 0; k < steps; ++k) {
+    /* two steps per pass: x(k+1) by the step, x(k+2) from x(k) by the two-step map;
+       only x(k+2) is carried, so the chain from pass to pass is one step deep */
+    for (k = 0; k + 2 <= steps; k += 2) {
+        const double *restrict zk = z + k * 2;
+        const double *restrict znk = z + (k + 1) * 2;
+        const double t0 = DERIVE_FMA(0.2692823785230638, x[1], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*zk[0]));
+        const double t1 = DERIVE_FMA(0.5863303827316503, x[1], DERIVE_FMA((-0.20683480863417475), x[0], 0.20683480863417475*zk[0]));
+        const double t2 = DERIVE_FMA(0.2692823785230638, x[3], DERIVE_FMA(0.6346411892615319, x[2], 0.36535881073846804*zk[1]));
+        const double t3 = DERIVE_FMA(0.5863303827316503, x[3], DERIVE_FMA((-0.20683480863417475), x[2], 0.20683480863417475*zk[1]));
+        const double t4 = DERIVE_FMA(0.32878612901536836, x[1], DERIVE_FMA(0.34707246987691825, x[0], DERIVE_FMA(0.36535881073846804, znk[0], 0.28756871938461365*zk[0])));
+        const double t5 = DERIVE_FMA(0.2880863484838702, x[1], DERIVE_FMA((-0.25253942144097735), x[0], DERIVE_FMA(0.20683480863417475, znk[0], 0.045704612806802616*zk[0])));
+        const double t6 = DERIVE_FMA(0.32878612901536836, x[3], DERIVE_FMA(0.34707246987691825, x[2], DERIVE_FMA(0.36535881073846804, znk[1], 0.28756871938461365*zk[1])));
+        const double t7 = DERIVE_FMA(0.2880863484838702, x[3], DERIVE_FMA((-0.25253942144097735), x[2], DERIVE_FMA(0.20683480863417475, znk[1], 0.045704612806802616*zk[1])));
+        x_mid[0] = t0;
+        x_mid[1] = t1;
+        x_mid[2] = t2;
+        x_mid[3] = t3;
+        x_new[0] = t4;
+        x_new[1] = t5;
+        x_new[2] = t6;
+        x_new[3] = t7;
+        xs[k * 4 + 0] = x_mid[0];
+        xs[k * 4 + 1] = x_mid[1];
+        xs[k * 4 + 2] = x_mid[2];
+        xs[k * 4 + 3] = x_mid[3];
+        xs[(k + 1) * 4 + 0] = x[0] = x_new[0];
+        xs[(k + 1) * 4 + 1] = x[1] = x_new[1];
+        xs[(k + 1) * 4 + 2] = x[2] = x_new[2];
+        xs[(k + 1) * 4 + 3] = x[3] = x_new[3];
+    }
+    /* an odd last step */
+    for (; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
         const double t0 = DERIVE_FMA(0.2692823785230638, x[1], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*zk[0]));
         const double t1 = DERIVE_FMA(0.5863303827316503, x[1], DERIVE_FMA((-0.20683480863417475), x[0], 0.20683480863417475*zk[0]));
@@ -81,12 +114,20 @@ void gsm2d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[4], xn_l0[4];
         const double *z_l0;
+        double xm_l0[4];
+        const double *zn_l0;
         double x_l1[4], xn_l1[4];
         const double *z_l1;
+        double xm_l1[4];
+        const double *zn_l1;
         double x_l2[4], xn_l2[4];
         const double *z_l2;
+        double xm_l2[4];
+        const double *zn_l2;
         double x_l3[4], xn_l3[4];
         const double *z_l3;
+        double xm_l3[4];
+        const double *zn_l3;
         x_l0[0] = x0[(t + 0) * 4 + 0];
         x_l0[1] = x0[(t + 0) * 4 + 1];
         x_l0[2] = x0[(t + 0) * 4 + 2];
@@ -103,7 +144,113 @@ void gsm2d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const
         x_l3[1] = x0[(t + 3) * 4 + 1];
         x_l3[2] = x0[(t + 3) * 4 + 2];
         x_l3[3] = x0[(t + 3) * 4 + 3];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 2;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 2;
+            const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
+            const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));
+            const double t2_l0 = DERIVE_FMA(0.2692823785230638, x_l0[3], DERIVE_FMA(0.6346411892615319, x_l0[2], 0.36535881073846804*z_l0[1]));
+            const double t3_l0 = DERIVE_FMA(0.5863303827316503, x_l0[3], DERIVE_FMA((-0.20683480863417475), x_l0[2], 0.20683480863417475*z_l0[1]));
+            const double t4_l0 = DERIVE_FMA(0.32878612901536836, x_l0[1], DERIVE_FMA(0.34707246987691825, x_l0[0], DERIVE_FMA(0.36535881073846804, zn_l0[0], 0.28756871938461365*z_l0[0])));
+            const double t5_l0 = DERIVE_FMA(0.2880863484838702, x_l0[1], DERIVE_FMA((-0.25253942144097735), x_l0[0], DERIVE_FMA(0.20683480863417475, zn_l0[0], 0.045704612806802616*z_l0[0])));
+            const double t6_l0 = DERIVE_FMA(0.32878612901536836, x_l0[3], DERIVE_FMA(0.34707246987691825, x_l0[2], DERIVE_FMA(0.36535881073846804, zn_l0[1], 0.28756871938461365*z_l0[1])));
+            const double t7_l0 = DERIVE_FMA(0.2880863484838702, x_l0[3], DERIVE_FMA((-0.25253942144097735), x_l0[2], DERIVE_FMA(0.20683480863417475, zn_l0[1], 0.045704612806802616*z_l0[1])));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xm_l0[2] = t2_l0;
+            xm_l0[3] = t3_l0;
+            xn_l0[0] = t4_l0;
+            xn_l0[1] = t5_l0;
+            xn_l0[2] = t6_l0;
+            xn_l0[3] = t7_l0;
+            z_l1 = z + ((t + 1) * steps + k) * 2;
+            zn_l1 = z + ((t + 1) * steps + k + 1) * 2;
+            const double t0_l1 = DERIVE_FMA(0.2692823785230638, x_l1[1], DERIVE_FMA(0.6346411892615319, x_l1[0], 0.36535881073846804*z_l1[0]));
+            const double t1_l1 = DERIVE_FMA(0.5863303827316503, x_l1[1], DERIVE_FMA((-0.20683480863417475), x_l1[0], 0.20683480863417475*z_l1[0]));
+            const double t2_l1 = DERIVE_FMA(0.2692823785230638, x_l1[3], DERIVE_FMA(0.6346411892615319, x_l1[2], 0.36535881073846804*z_l1[1]));
+            const double t3_l1 = DERIVE_FMA(0.5863303827316503, x_l1[3], DERIVE_FMA((-0.20683480863417475), x_l1[2], 0.20683480863417475*z_l1[1]));
+            const double t4_l1 = DERIVE_FMA(0.32878612901536836, x_l1[1], DERIVE_FMA(0.34707246987691825, x_l1[0], DERIVE_FMA(0.36535881073846804, zn_l1[0], 0.28756871938461365*z_l1[0])));
+            const double t5_l1 = DERIVE_FMA(0.2880863484838702, x_l1[1], DERIVE_FMA((-0.25253942144097735), x_l1[0], DERIVE_FMA(0.20683480863417475, zn_l1[0], 0.045704612806802616*z_l1[0])));
+            const double t6_l1 = DERIVE_FMA(0.32878612901536836, x_l1[3], DERIVE_FMA(0.34707246987691825, x_l1[2], DERIVE_FMA(0.36535881073846804, zn_l1[1], 0.28756871938461365*z_l1[1])));
+            const double t7_l1 = DERIVE_FMA(0.2880863484838702, x_l1[3], DERIVE_FMA((-0.25253942144097735), x_l1[2], DERIVE_FMA(0.20683480863417475, zn_l1[1], 0.045704612806802616*z_l1[1])));
+            xm_l1[0] = t0_l1;
+            xm_l1[1] = t1_l1;
+            xm_l1[2] = t2_l1;
+            xm_l1[3] = t3_l1;
+            xn_l1[0] = t4_l1;
+            xn_l1[1] = t5_l1;
+            xn_l1[2] = t6_l1;
+            xn_l1[3] = t7_l1;
+            z_l2 = z + ((t + 2) * steps + k) * 2;
+            zn_l2 = z + ((t + 2) * steps + k + 1) * 2;
+            const double t0_l2 = DERIVE_FMA(0.2692823785230638, x_l2[1], DERIVE_FMA(0.6346411892615319, x_l2[0], 0.36535881073846804*z_l2[0]));
+            const double t1_l2 = DERIVE_FMA(0.5863303827316503, x_l2[1], DERIVE_FMA((-0.20683480863417475), x_l2[0], 0.20683480863417475*z_l2[0]));
+            const double t2_l2 = DERIVE_FMA(0.2692823785230638, x_l2[3], DERIVE_FMA(0.6346411892615319, x_l2[2], 0.36535881073846804*z_l2[1]));
+            const double t3_l2 = DERIVE_FMA(0.5863303827316503, x_l2[3], DERIVE_FMA((-0.20683480863417475), x_l2[2], 0.20683480863417475*z_l2[1]));
+            const double t4_l2 = DERIVE_FMA(0.32878612901536836, x_l2[1], DERIVE_FMA(0.34707246987691825, x_l2[0], DERIVE_FMA(0.36535881073846804, zn_l2[0], 0.28756871938461365*z_l2[0])));
+            const double t5_l2 = DERIVE_FMA(0.2880863484838702, x_l2[1], DERIVE_FMA((-0.25253942144097735), x_l2[0], DERIVE_FMA(0.20683480863417475, zn_l2[0], 0.045704612806802616*z_l2[0])));
+            const double t6_l2 = DERIVE_FMA(0.32878612901536836, x_l2[3], DERIVE_FMA(0.34707246987691825, x_l2[2], DERIVE_FMA(0.36535881073846804, zn_l2[1], 0.28756871938461365*z_l2[1])));
+            const double t7_l2 = DERIVE_FMA(0.2880863484838702, x_l2[3], DERIVE_FMA((-0.25253942144097735), x_l2[2], DERIVE_FMA(0.20683480863417475, zn_l2[1], 0.045704612806802616*z_l2[1])));
+            xm_l2[0] = t0_l2;
+            xm_l2[1] = t1_l2;
+            xm_l2[2] = t2_l2;
+            xm_l2[3] = t3_l2;
+            xn_l2[0] = t4_l2;
+            xn_l2[1] = t5_l2;
+            xn_l2[2] = t6_l2;
+            xn_l2[3] = t7_l2;
+            z_l3 = z + ((t + 3) * steps + k) * 2;
+            zn_l3 = z + ((t + 3) * steps + k + 1) * 2;
+            const double t0_l3 = DERIVE_FMA(0.2692823785230638, x_l3[1], DERIVE_FMA(0.6346411892615319, x_l3[0], 0.36535881073846804*z_l3[0]));
+            const double t1_l3 = DERIVE_FMA(0.5863303827316503, x_l3[1], DERIVE_FMA((-0.20683480863417475), x_l3[0], 0.20683480863417475*z_l3[0]));
+            const double t2_l3 = DERIVE_FMA(0.2692823785230638, x_l3[3], DERIVE_FMA(0.6346411892615319, x_l3[2], 0.36535881073846804*z_l3[1]));
+            const double t3_l3 = DERIVE_FMA(0.5863303827316503, x_l3[3], DERIVE_FMA((-0.20683480863417475), x_l3[2], 0.20683480863417475*z_l3[1]));
+            const double t4_l3 = DERIVE_FMA(0.32878612901536836, x_l3[1], DERIVE_FMA(0.34707246987691825, x_l3[0], DERIVE_FMA(0.36535881073846804, zn_l3[0], 0.28756871938461365*z_l3[0])));
+            const double t5_l3 = DERIVE_FMA(0.2880863484838702, x_l3[1], DERIVE_FMA((-0.25253942144097735), x_l3[0], DERIVE_FMA(0.20683480863417475, zn_l3[0], 0.045704612806802616*z_l3[0])));
+            const double t6_l3 = DERIVE_FMA(0.32878612901536836, x_l3[3], DERIVE_FMA(0.34707246987691825, x_l3[2], DERIVE_FMA(0.36535881073846804, zn_l3[1], 0.28756871938461365*z_l3[1])));
+            const double t7_l3 = DERIVE_FMA(0.2880863484838702, x_l3[3], DERIVE_FMA((-0.25253942144097735), x_l3[2], DERIVE_FMA(0.20683480863417475, zn_l3[1], 0.045704612806802616*z_l3[1])));
+            xm_l3[0] = t0_l3;
+            xm_l3[1] = t1_l3;
+            xm_l3[2] = t2_l3;
+            xm_l3[3] = t3_l3;
+            xn_l3[0] = t4_l3;
+            xn_l3[1] = t5_l3;
+            xn_l3[2] = t6_l3;
+            xn_l3[3] = t7_l3;
+            xs[((t + 0) * steps + k) * 4 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 4 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k) * 4 + 2] = xm_l0[2];
+            xs[((t + 0) * steps + k) * 4 + 3] = xm_l0[3];
+            xs[((t + 0) * steps + k + 1) * 4 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 4 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k + 1) * 4 + 2] = x_l0[2] = xn_l0[2];
+            xs[((t + 0) * steps + k + 1) * 4 + 3] = x_l0[3] = xn_l0[3];
+            xs[((t + 1) * steps + k) * 4 + 0] = xm_l1[0];
+            xs[((t + 1) * steps + k) * 4 + 1] = xm_l1[1];
+            xs[((t + 1) * steps + k) * 4 + 2] = xm_l1[2];
+            xs[((t + 1) * steps + k) * 4 + 3] = xm_l1[3];
+            xs[((t + 1) * steps + k + 1) * 4 + 0] = x_l1[0] = xn_l1[0];
+            xs[((t + 1) * steps + k + 1) * 4 + 1] = x_l1[1] = xn_l1[1];
+            xs[((t + 1) * steps + k + 1) * 4 + 2] = x_l1[2] = xn_l1[2];
+            xs[((t + 1) * steps + k + 1) * 4 + 3] = x_l1[3] = xn_l1[3];
+            xs[((t + 2) * steps + k) * 4 + 0] = xm_l2[0];
+            xs[((t + 2) * steps + k) * 4 + 1] = xm_l2[1];
+            xs[((t + 2) * steps + k) * 4 + 2] = xm_l2[2];
+            xs[((t + 2) * steps + k) * 4 + 3] = xm_l2[3];
+            xs[((t + 2) * steps + k + 1) * 4 + 0] = x_l2[0] = xn_l2[0];
+            xs[((t + 2) * steps + k + 1) * 4 + 1] = x_l2[1] = xn_l2[1];
+            xs[((t + 2) * steps + k + 1) * 4 + 2] = x_l2[2] = xn_l2[2];
+            xs[((t + 2) * steps + k + 1) * 4 + 3] = x_l2[3] = xn_l2[3];
+            xs[((t + 3) * steps + k) * 4 + 0] = xm_l3[0];
+            xs[((t + 3) * steps + k) * 4 + 1] = xm_l3[1];
+            xs[((t + 3) * steps + k) * 4 + 2] = xm_l3[2];
+            xs[((t + 3) * steps + k) * 4 + 3] = xm_l3[3];
+            xs[((t + 3) * steps + k + 1) * 4 + 0] = x_l3[0] = xn_l3[0];
+            xs[((t + 3) * steps + k + 1) * 4 + 1] = x_l3[1] = xn_l3[1];
+            xs[((t + 3) * steps + k + 1) * 4 + 2] = x_l3[2] = xn_l3[2];
+            xs[((t + 3) * steps + k + 1) * 4 + 3] = x_l3[3] = xn_l3[3];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 2;
             const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
             const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));
@@ -161,11 +308,41 @@ void gsm2d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const
     for (; t + 1 <= tracks; t += 1) {
         double x_l0[4], xn_l0[4];
         const double *z_l0;
+        double xm_l0[4];
+        const double *zn_l0;
         x_l0[0] = x0[(t + 0) * 4 + 0];
         x_l0[1] = x0[(t + 0) * 4 + 1];
         x_l0[2] = x0[(t + 0) * 4 + 2];
         x_l0[3] = x0[(t + 0) * 4 + 3];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 2;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 2;
+            const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
+            const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));
+            const double t2_l0 = DERIVE_FMA(0.2692823785230638, x_l0[3], DERIVE_FMA(0.6346411892615319, x_l0[2], 0.36535881073846804*z_l0[1]));
+            const double t3_l0 = DERIVE_FMA(0.5863303827316503, x_l0[3], DERIVE_FMA((-0.20683480863417475), x_l0[2], 0.20683480863417475*z_l0[1]));
+            const double t4_l0 = DERIVE_FMA(0.32878612901536836, x_l0[1], DERIVE_FMA(0.34707246987691825, x_l0[0], DERIVE_FMA(0.36535881073846804, zn_l0[0], 0.28756871938461365*z_l0[0])));
+            const double t5_l0 = DERIVE_FMA(0.2880863484838702, x_l0[1], DERIVE_FMA((-0.25253942144097735), x_l0[0], DERIVE_FMA(0.20683480863417475, zn_l0[0], 0.045704612806802616*z_l0[0])));
+            const double t6_l0 = DERIVE_FMA(0.32878612901536836, x_l0[3], DERIVE_FMA(0.34707246987691825, x_l0[2], DERIVE_FMA(0.36535881073846804, zn_l0[1], 0.28756871938461365*z_l0[1])));
+            const double t7_l0 = DERIVE_FMA(0.2880863484838702, x_l0[3], DERIVE_FMA((-0.25253942144097735), x_l0[2], DERIVE_FMA(0.20683480863417475, zn_l0[1], 0.045704612806802616*z_l0[1])));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xm_l0[2] = t2_l0;
+            xm_l0[3] = t3_l0;
+            xn_l0[0] = t4_l0;
+            xn_l0[1] = t5_l0;
+            xn_l0[2] = t6_l0;
+            xn_l0[3] = t7_l0;
+            xs[((t + 0) * steps + k) * 4 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 4 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k) * 4 + 2] = xm_l0[2];
+            xs[((t + 0) * steps + k) * 4 + 3] = xm_l0[3];
+            xs[((t + 0) * steps + k + 1) * 4 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 4 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k + 1) * 4 + 2] = x_l0[2] = xn_l0[2];
+            xs[((t + 0) * steps + k + 1) * 4 + 3] = x_l0[3] = xn_l0[3];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 2;
             const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
             const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));

@@ -16,6 +16,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 0, calls 0 (flops 30, instructions 18)
  * A: (6, 6) constants baked into the code
  * B: (6, 3) constants baked into the code
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 0, calls 0 (flops 72, instructions 42)
  */
 #include <math.h>
 #include <stddef.h>
@@ -51,6 +53,7 @@ void mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *x
 {
     double x[6];
     double x_new[6];
+    double x_mid[6];
     size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
@@ -58,8 +61,50 @@ void mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *x
     x[3] = x0[3];
     x[4] = x0[4];
     x[5] = x0[5];
-    /* the step's statements, with the state in local arrays (registers) */
-    for (k = 0; k < steps; ++k) {
+    /* two steps per pass: x(k+1) by the step, x(k+2) from x(k) by the two-step map;
+       only x(k+2) is carried, so the chain from pass to pass is one step deep */
+    for (k = 0; k + 2 <= steps; k += 2) {
+        const double *restrict zk = z + k * 3;
+        const double *restrict znk = z + (k + 1) * 3;
+        const double t0 = DERIVE_FMA(0.2692823785230638, x[1], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*zk[0]));
+        const double t1 = DERIVE_FMA(0.5863303827316503, x[1], DERIVE_FMA((-0.20683480863417475), x[0], 0.20683480863417475*zk[0]));
+        const double t2 = DERIVE_FMA(0.2692823785230638, x[3], DERIVE_FMA(0.6346411892615319, x[2], 0.36535881073846804*zk[1]));
+        const double t3 = DERIVE_FMA(0.5863303827316503, x[3], DERIVE_FMA((-0.20683480863417475), x[2], 0.20683480863417475*zk[1]));
+        const double t4 = DERIVE_FMA(0.2692823785230638, x[5], DERIVE_FMA(0.6346411892615319, x[4], 0.36535881073846804*zk[2]));
+        const double t5 = DERIVE_FMA(0.5863303827316503, x[5], DERIVE_FMA((-0.20683480863417475), x[4], 0.20683480863417475*zk[2]));
+        const double t6 = DERIVE_FMA(0.32878612901536836, x[1], DERIVE_FMA(0.34707246987691825, x[0], DERIVE_FMA(0.36535881073846804, znk[0], 0.28756871938461365*zk[0])));
+        const double t7 = DERIVE_FMA(0.2880863484838702, x[1], DERIVE_FMA((-0.25253942144097735), x[0], DERIVE_FMA(0.20683480863417475, znk[0], 0.045704612806802616*zk[0])));
+        const double t8 = DERIVE_FMA(0.32878612901536836, x[3], DERIVE_FMA(0.34707246987691825, x[2], DERIVE_FMA(0.36535881073846804, znk[1], 0.28756871938461365*zk[1])));
+        const double t9 = DERIVE_FMA(0.2880863484838702, x[3], DERIVE_FMA((-0.25253942144097735), x[2], DERIVE_FMA(0.20683480863417475, znk[1], 0.045704612806802616*zk[1])));
+        const double t10 = DERIVE_FMA(0.32878612901536836, x[5], DERIVE_FMA(0.34707246987691825, x[4], DERIVE_FMA(0.36535881073846804, znk[2], 0.28756871938461365*zk[2])));
+        const double t11 = DERIVE_FMA(0.2880863484838702, x[5], DERIVE_FMA((-0.25253942144097735), x[4], DERIVE_FMA(0.20683480863417475, znk[2], 0.045704612806802616*zk[2])));
+        x_mid[0] = t0;
+        x_mid[1] = t1;
+        x_mid[2] = t2;
+        x_mid[3] = t3;
+        x_mid[4] = t4;
+        x_mid[5] = t5;
+        x_new[0] = t6;
+        x_new[1] = t7;
+        x_new[2] = t8;
+        x_new[3] = t9;
+        x_new[4] = t10;
+        x_new[5] = t11;
+        xs[k * 6 + 0] = x_mid[0];
+        xs[k * 6 + 1] = x_mid[1];
+        xs[k * 6 + 2] = x_mid[2];
+        xs[k * 6 + 3] = x_mid[3];
+        xs[k * 6 + 4] = x_mid[4];
+        xs[k * 6 + 5] = x_mid[5];
+        xs[(k + 1) * 6 + 0] = x[0] = x_new[0];
+        xs[(k + 1) * 6 + 1] = x[1] = x_new[1];
+        xs[(k + 1) * 6 + 2] = x[2] = x_new[2];
+        xs[(k + 1) * 6 + 3] = x[3] = x_new[3];
+        xs[(k + 1) * 6 + 4] = x[4] = x_new[4];
+        xs[(k + 1) * 6 + 5] = x[5] = x_new[5];
+    }
+    /* an odd last step */
+    for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const double t0 = DERIVE_FMA(0.2692823785230638, x[1], DERIVE_FMA(0.6346411892615319, x[0], 0.36535881073846804*zk[0]));
         const double t1 = DERIVE_FMA(0.5863303827316503, x[1], DERIVE_FMA((-0.20683480863417475), x[0], 0.20683480863417475*zk[0]));
@@ -93,12 +138,20 @@ void mpt3d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[6], xn_l0[6];
         const double *z_l0;
+        double xm_l0[6];
+        const double *zn_l0;
         double x_l1[6], xn_l1[6];
         const double *z_l1;
+        double xm_l1[6];
+        const double *zn_l1;
         double x_l2[6], xn_l2[6];
         const double *z_l2;
+        double xm_l2[6];
+        const double *zn_l2;
         double x_l3[6], xn_l3[6];
         const double *z_l3;
+        double xm_l3[6];
+        const double *zn_l3;
         x_l0[0] = x0[(t + 0) * 6 + 0];
         x_l0[1] = x0[(t + 0) * 6 + 1];
         x_l0[2] = x0[(t + 0) * 6 + 2];
@@ -123,7 +176,161 @@ void mpt3d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const
         x_l3[3] = x0[(t + 3) * 6 + 3];
         x_l3[4] = x0[(t + 3) * 6 + 4];
         x_l3[5] = x0[(t + 3) * 6 + 5];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 3;
+            const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
+            const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));
+            const double t2_l0 = DERIVE_FMA(0.2692823785230638, x_l0[3], DERIVE_FMA(0.6346411892615319, x_l0[2], 0.36535881073846804*z_l0[1]));
+            const double t3_l0 = DERIVE_FMA(0.5863303827316503, x_l0[3], DERIVE_FMA((-0.20683480863417475), x_l0[2], 0.20683480863417475*z_l0[1]));
+            const double t4_l0 = DERIVE_FMA(0.2692823785230638, x_l0[5], DERIVE_FMA(0.6346411892615319, x_l0[4], 0.36535881073846804*z_l0[2]));
+            const double t5_l0 = DERIVE_FMA(0.5863303827316503, x_l0[5], DERIVE_FMA((-0.20683480863417475), x_l0[4], 0.20683480863417475*z_l0[2]));
+            const double t6_l0 = DERIVE_FMA(0.32878612901536836, x_l0[1], DERIVE_FMA(0.34707246987691825, x_l0[0], DERIVE_FMA(0.36535881073846804, zn_l0[0], 0.28756871938461365*z_l0[0])));
+            const double t7_l0 = DERIVE_FMA(0.2880863484838702, x_l0[1], DERIVE_FMA((-0.25253942144097735), x_l0[0], DERIVE_FMA(0.20683480863417475, zn_l0[0], 0.045704612806802616*z_l0[0])));
+            const double t8_l0 = DERIVE_FMA(0.32878612901536836, x_l0[3], DERIVE_FMA(0.34707246987691825, x_l0[2], DERIVE_FMA(0.36535881073846804, zn_l0[1], 0.28756871938461365*z_l0[1])));
+            const double t9_l0 = DERIVE_FMA(0.2880863484838702, x_l0[3], DERIVE_FMA((-0.25253942144097735), x_l0[2], DERIVE_FMA(0.20683480863417475, zn_l0[1], 0.045704612806802616*z_l0[1])));
+            const double t10_l0 = DERIVE_FMA(0.32878612901536836, x_l0[5], DERIVE_FMA(0.34707246987691825, x_l0[4], DERIVE_FMA(0.36535881073846804, zn_l0[2], 0.28756871938461365*z_l0[2])));
+            const double t11_l0 = DERIVE_FMA(0.2880863484838702, x_l0[5], DERIVE_FMA((-0.25253942144097735), x_l0[4], DERIVE_FMA(0.20683480863417475, zn_l0[2], 0.045704612806802616*z_l0[2])));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xm_l0[2] = t2_l0;
+            xm_l0[3] = t3_l0;
+            xm_l0[4] = t4_l0;
+            xm_l0[5] = t5_l0;
+            xn_l0[0] = t6_l0;
+            xn_l0[1] = t7_l0;
+            xn_l0[2] = t8_l0;
+            xn_l0[3] = t9_l0;
+            xn_l0[4] = t10_l0;
+            xn_l0[5] = t11_l0;
+            z_l1 = z + ((t + 1) * steps + k) * 3;
+            zn_l1 = z + ((t + 1) * steps + k + 1) * 3;
+            const double t0_l1 = DERIVE_FMA(0.2692823785230638, x_l1[1], DERIVE_FMA(0.6346411892615319, x_l1[0], 0.36535881073846804*z_l1[0]));
+            const double t1_l1 = DERIVE_FMA(0.5863303827316503, x_l1[1], DERIVE_FMA((-0.20683480863417475), x_l1[0], 0.20683480863417475*z_l1[0]));
+            const double t2_l1 = DERIVE_FMA(0.2692823785230638, x_l1[3], DERIVE_FMA(0.6346411892615319, x_l1[2], 0.36535881073846804*z_l1[1]));
+            const double t3_l1 = DERIVE_FMA(0.5863303827316503, x_l1[3], DERIVE_FMA((-0.20683480863417475), x_l1[2], 0.20683480863417475*z_l1[1]));
+            const double t4_l1 = DERIVE_FMA(0.2692823785230638, x_l1[5], DERIVE_FMA(0.6346411892615319, x_l1[4], 0.36535881073846804*z_l1[2]));
+            const double t5_l1 = DERIVE_FMA(0.5863303827316503, x_l1[5], DERIVE_FMA((-0.20683480863417475), x_l1[4], 0.20683480863417475*z_l1[2]));
+            const double t6_l1 = DERIVE_FMA(0.32878612901536836, x_l1[1], DERIVE_FMA(0.34707246987691825, x_l1[0], DERIVE_FMA(0.36535881073846804, zn_l1[0], 0.28756871938461365*z_l1[0])));
+            const double t7_l1 = DERIVE_FMA(0.2880863484838702, x_l1[1], DERIVE_FMA((-0.25253942144097735), x_l1[0], DERIVE_FMA(0.20683480863417475, zn_l1[0], 0.045704612806802616*z_l1[0])));
+            const double t8_l1 = DERIVE_FMA(0.32878612901536836, x_l1[3], DERIVE_FMA(0.34707246987691825, x_l1[2], DERIVE_FMA(0.36535881073846804, zn_l1[1], 0.28756871938461365*z_l1[1])));
+            const double t9_l1 = DERIVE_FMA(0.2880863484838702, x_l1[3], DERIVE_FMA((-0.25253942144097735), x_l1[2], DERIVE_FMA(0.20683480863417475, zn_l1[1], 0.045704612806802616*z_l1[1])));
+            const double t10_l1 = DERIVE_FMA(0.32878612901536836, x_l1[5], DERIVE_FMA(0.34707246987691825, x_l1[4], DERIVE_FMA(0.36535881073846804, zn_l1[2], 0.28756871938461365*z_l1[2])));
+            const double t11_l1 = DERIVE_FMA(0.2880863484838702, x_l1[5], DERIVE_FMA((-0.25253942144097735), x_l1[4], DERIVE_FMA(0.20683480863417475, zn_l1[2], 0.045704612806802616*z_l1[2])));
+            xm_l1[0] = t0_l1;
+            xm_l1[1] = t1_l1;
+            xm_l1[2] = t2_l1;
+            xm_l1[3] = t3_l1;
+            xm_l1[4] = t4_l1;
+            xm_l1[5] = t5_l1;
+            xn_l1[0] = t6_l1;
+            xn_l1[1] = t7_l1;
+            xn_l1[2] = t8_l1;
+            xn_l1[3] = t9_l1;
+            xn_l1[4] = t10_l1;
+            xn_l1[5] = t11_l1;
+            z_l2 = z + ((t + 2) * steps + k) * 3;
+            zn_l2 = z + ((t + 2) * steps + k + 1) * 3;
+            const double t0_l2 = DERIVE_FMA(0.2692823785230638, x_l2[1], DERIVE_FMA(0.6346411892615319, x_l2[0], 0.36535881073846804*z_l2[0]));
+            const double t1_l2 = DERIVE_FMA(0.5863303827316503, x_l2[1], DERIVE_FMA((-0.20683480863417475), x_l2[0], 0.20683480863417475*z_l2[0]));
+            const double t2_l2 = DERIVE_FMA(0.2692823785230638, x_l2[3], DERIVE_FMA(0.6346411892615319, x_l2[2], 0.36535881073846804*z_l2[1]));
+            const double t3_l2 = DERIVE_FMA(0.5863303827316503, x_l2[3], DERIVE_FMA((-0.20683480863417475), x_l2[2], 0.20683480863417475*z_l2[1]));
+            const double t4_l2 = DERIVE_FMA(0.2692823785230638, x_l2[5], DERIVE_FMA(0.6346411892615319, x_l2[4], 0.36535881073846804*z_l2[2]));
+            const double t5_l2 = DERIVE_FMA(0.5863303827316503, x_l2[5], DERIVE_FMA((-0.20683480863417475), x_l2[4], 0.20683480863417475*z_l2[2]));
+            const double t6_l2 = DERIVE_FMA(0.32878612901536836, x_l2[1], DERIVE_FMA(0.34707246987691825, x_l2[0], DERIVE_FMA(0.36535881073846804, zn_l2[0], 0.28756871938461365*z_l2[0])));
+            const double t7_l2 = DERIVE_FMA(0.2880863484838702, x_l2[1], DERIVE_FMA((-0.25253942144097735), x_l2[0], DERIVE_FMA(0.20683480863417475, zn_l2[0], 0.045704612806802616*z_l2[0])));
+            const double t8_l2 = DERIVE_FMA(0.32878612901536836, x_l2[3], DERIVE_FMA(0.34707246987691825, x_l2[2], DERIVE_FMA(0.36535881073846804, zn_l2[1], 0.28756871938461365*z_l2[1])));
+            const double t9_l2 = DERIVE_FMA(0.2880863484838702, x_l2[3], DERIVE_FMA((-0.25253942144097735), x_l2[2], DERIVE_FMA(0.20683480863417475, zn_l2[1], 0.045704612806802616*z_l2[1])));
+            const double t10_l2 = DERIVE_FMA(0.32878612901536836, x_l2[5], DERIVE_FMA(0.34707246987691825, x_l2[4], DERIVE_FMA(0.36535881073846804, zn_l2[2], 0.28756871938461365*z_l2[2])));
+            const double t11_l2 = DERIVE_FMA(0.2880863484838702, x_l2[5], DERIVE_FMA((-0.25253942144097735), x_l2[4], DERIVE_FMA(0.20683480863417475, zn_l2[2], 0.045704612806802616*z_l2[2])));
+            xm_l2[0] = t0_l2;
+            xm_l2[1] = t1_l2;
+            xm_l2[2] = t2_l2;
+            xm_l2[3] = t3_l2;
+            xm_l2[4] = t4_l2;
+            xm_l2[5] = t5_l2;
+            xn_l2[0] = t6_l2;
+            xn_l2[1] = t7_l2;
+            xn_l2[2] = t8_l2;
+            xn_l2[3] = t9_l2;
+            xn_l2[4] = t10_l2;
+            xn_l2[5] = t11_l2;
+            z_l3 = z + ((t + 3) * steps + k) * 3;
+            zn_l3 = z + ((t + 3) * steps + k + 1) * 3;
+            const double t0_l3 = DERIVE_FMA(0.2692823785230638, x_l3[1], DERIVE_FMA(0.6346411892615319, x_l3[0], 0.36535881073846804*z_l3[0]));
+            const double t1_l3 = DERIVE_FMA(0.5863303827316503, x_l3[1], DERIVE_FMA((-0.20683480863417475), x_l3[0], 0.20683480863417475*z_l3[0]));
+            const double t2_l3 = DERIVE_FMA(0.2692823785230638, x_l3[3], DERIVE_FMA(0.6346411892615319, x_l3[2], 0.36535881073846804*z_l3[1]));
+            const double t3_l3 = DERIVE_FMA(0.5863303827316503, x_l3[3], DERIVE_FMA((-0.20683480863417475), x_l3[2], 0.20683480863417475*z_l3[1]));
+            const double t4_l3 = DERIVE_FMA(0.2692823785230638, x_l3[5], DERIVE_FMA(0.6346411892615319, x_l3[4], 0.36535881073846804*z_l3[2]));
+            const double t5_l3 = DERIVE_FMA(0.5863303827316503, x_l3[5], DERIVE_FMA((-0.20683480863417475), x_l3[4], 0.20683480863417475*z_l3[2]));
+            const double t6_l3 = DERIVE_FMA(0.32878612901536836, x_l3[1], DERIVE_FMA(0.34707246987691825, x_l3[0], DERIVE_FMA(0.36535881073846804, zn_l3[0], 0.28756871938461365*z_l3[0])));
+            const double t7_l3 = DERIVE_FMA(0.2880863484838702, x_l3[1], DERIVE_FMA((-0.25253942144097735), x_l3[0], DERIVE_FMA(0.20683480863417475, zn_l3[0], 0.045704612806802616*z_l3[0])));
+            const double t8_l3 = DERIVE_FMA(0.32878612901536836, x_l3[3], DERIVE_FMA(0.34707246987691825, x_l3[2], DERIVE_FMA(0.36535881073846804, zn_l3[1], 0.28756871938461365*z_l3[1])));
+            const double t9_l3 = DERIVE_FMA(0.2880863484838702, x_l3[3], DERIVE_FMA((-0.25253942144097735), x_l3[2], DERIVE_FMA(0.20683480863417475, zn_l3[1], 0.045704612806802616*z_l3[1])));
+            const double t10_l3 = DERIVE_FMA(0.32878612901536836, x_l3[5], DERIVE_FMA(0.34707246987691825, x_l3[4], DERIVE_FMA(0.36535881073846804, zn_l3[2], 0.28756871938461365*z_l3[2])));
+            const double t11_l3 = DERIVE_FMA(0.2880863484838702, x_l3[5], DERIVE_FMA((-0.25253942144097735), x_l3[4], DERIVE_FMA(0.20683480863417475, zn_l3[2], 0.045704612806802616*z_l3[2])));
+            xm_l3[0] = t0_l3;
+            xm_l3[1] = t1_l3;
+            xm_l3[2] = t2_l3;
+            xm_l3[3] = t3_l3;
+            xm_l3[4] = t4_l3;
+            xm_l3[5] = t5_l3;
+            xn_l3[0] = t6_l3;
+            xn_l3[1] = t7_l3;
+            xn_l3[2] = t8_l3;
+            xn_l3[3] = t9_l3;
+            xn_l3[4] = t10_l3;
+            xn_l3[5] = t11_l3;
+            xs[((t + 0) * steps + k) * 6 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 6 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k) * 6 + 2] = xm_l0[2];
+            xs[((t + 0) * steps + k) * 6 + 3] = xm_l0[3];
+            xs[((t + 0) * steps + k) * 6 + 4] = xm_l0[4];
+            xs[((t + 0) * steps + k) * 6 + 5] = xm_l0[5];
+            xs[((t + 0) * steps + k + 1) * 6 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 6 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k + 1) * 6 + 2] = x_l0[2] = xn_l0[2];
+            xs[((t + 0) * steps + k + 1) * 6 + 3] = x_l0[3] = xn_l0[3];
+            xs[((t + 0) * steps + k + 1) * 6 + 4] = x_l0[4] = xn_l0[4];
+            xs[((t + 0) * steps + k + 1) * 6 + 5] = x_l0[5] = xn_l0[5];
+            xs[((t + 1) * steps + k) * 6 + 0] = xm_l1[0];
+            xs[((t + 1) * steps + k) * 6 + 1] = xm_l1[1];
+            xs[((t + 1) * steps + k) * 6 + 2] = xm_l1[2];
+            xs[((t + 1) * steps + k) * 6 + 3] = xm_l1[3];
+            xs[((t + 1) * steps + k) * 6 + 4] = xm_l1[4];
+            xs[((t + 1) * steps + k) * 6 + 5] = xm_l1[5];
+            xs[((t + 1) * steps + k + 1) * 6 + 0] = x_l1[0] = xn_l1[0];
+            xs[((t + 1) * steps + k + 1) * 6 + 1] = x_l1[1] = xn_l1[1];
+            xs[((t + 1) * steps + k + 1) * 6 + 2] = x_l1[2] = xn_l1[2];
+            xs[((t + 1) * steps + k + 1) * 6 + 3] = x_l1[3] = xn_l1[3];
+            xs[((t + 1) * steps + k + 1) * 6 + 4] = x_l1[4] = xn_l1[4];
+            xs[((t + 1) * steps + k + 1) * 6 + 5] = x_l1[5] = xn_l1[5];
+            xs[((t + 2) * steps + k) * 6 + 0] = xm_l2[0];
+            xs[((t + 2) * steps + k) * 6 + 1] = xm_l2[1];
+            xs[((t + 2) * steps + k) * 6 + 2] = xm_l2[2];
+            xs[((t + 2) * steps + k) * 6 + 3] = xm_l2[3];
+            xs[((t + 2) * steps + k) * 6 + 4] = xm_l2[4];
+            xs[((t + 2) * steps + k) * 6 + 5] = xm_l2[5];
+            xs[((t + 2) * steps + k + 1) * 6 + 0] = x_l2[0] = xn_l2[0];
+            xs[((t + 2) * steps + k + 1) * 6 + 1] = x_l2[1] = xn_l2[1];
+            xs[((t + 2) * steps + k + 1) * 6 + 2] = x_l2[2] = xn_l2[2];
+            xs[((t + 2) * steps + k + 1) * 6 + 3] = x_l2[3] = xn_l2[3];
+            xs[((t + 2) * steps + k + 1) * 6 + 4] = x_l2[4] = xn_l2[4];
+            xs[((t + 2) * steps + k + 1) * 6 + 5] = x_l2[5] = xn_l2[5];
+            xs[((t + 3) * steps + k) * 6 + 0] = xm_l3[0];
+            xs[((t + 3) * steps + k) * 6 + 1] = xm_l3[1];
+            xs[((t + 3) * steps + k) * 6 + 2] = xm_l3[2];
+            xs[((t + 3) * steps + k) * 6 + 3] = xm_l3[3];
+            xs[((t + 3) * steps + k) * 6 + 4] = xm_l3[4];
+            xs[((t + 3) * steps + k) * 6 + 5] = xm_l3[5];
+            xs[((t + 3) * steps + k + 1) * 6 + 0] = x_l3[0] = xn_l3[0];
+            xs[((t + 3) * steps + k + 1) * 6 + 1] = x_l3[1] = xn_l3[1];
+            xs[((t + 3) * steps + k + 1) * 6 + 2] = x_l3[2] = xn_l3[2];
+            xs[((t + 3) * steps + k + 1) * 6 + 3] = x_l3[3] = xn_l3[3];
+            xs[((t + 3) * steps + k + 1) * 6 + 4] = x_l3[4] = xn_l3[4];
+            xs[((t + 3) * steps + k + 1) * 6 + 5] = x_l3[5] = xn_l3[5];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
             const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));
@@ -205,13 +412,55 @@ void mpt3d_a_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const
     for (; t + 1 <= tracks; t += 1) {
         double x_l0[6], xn_l0[6];
         const double *z_l0;
+        double xm_l0[6];
+        const double *zn_l0;
         x_l0[0] = x0[(t + 0) * 6 + 0];
         x_l0[1] = x0[(t + 0) * 6 + 1];
         x_l0[2] = x0[(t + 0) * 6 + 2];
         x_l0[3] = x0[(t + 0) * 6 + 3];
         x_l0[4] = x0[(t + 0) * 6 + 4];
         x_l0[5] = x0[(t + 0) * 6 + 5];
-        for (k = 0; k < steps; ++k) {
+        for (k = 0; k + 2 <= steps; k += 2) {
+            z_l0 = z + ((t + 0) * steps + k) * 3;
+            zn_l0 = z + ((t + 0) * steps + k + 1) * 3;
+            const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
+            const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));
+            const double t2_l0 = DERIVE_FMA(0.2692823785230638, x_l0[3], DERIVE_FMA(0.6346411892615319, x_l0[2], 0.36535881073846804*z_l0[1]));
+            const double t3_l0 = DERIVE_FMA(0.5863303827316503, x_l0[3], DERIVE_FMA((-0.20683480863417475), x_l0[2], 0.20683480863417475*z_l0[1]));
+            const double t4_l0 = DERIVE_FMA(0.2692823785230638, x_l0[5], DERIVE_FMA(0.6346411892615319, x_l0[4], 0.36535881073846804*z_l0[2]));
+            const double t5_l0 = DERIVE_FMA(0.5863303827316503, x_l0[5], DERIVE_FMA((-0.20683480863417475), x_l0[4], 0.20683480863417475*z_l0[2]));
+            const double t6_l0 = DERIVE_FMA(0.32878612901536836, x_l0[1], DERIVE_FMA(0.34707246987691825, x_l0[0], DERIVE_FMA(0.36535881073846804, zn_l0[0], 0.28756871938461365*z_l0[0])));
+            const double t7_l0 = DERIVE_FMA(0.2880863484838702, x_l0[1], DERIVE_FMA((-0.25253942144097735), x_l0[0], DERIVE_FMA(0.20683480863417475, zn_l0[0], 0.045704612806802616*z_l0[0])));
+            const double t8_l0 = DERIVE_FMA(0.32878612901536836, x_l0[3], DERIVE_FMA(0.34707246987691825, x_l0[2], DERIVE_FMA(0.36535881073846804, zn_l0[1], 0.28756871938461365*z_l0[1])));
+            const double t9_l0 = DERIVE_FMA(0.2880863484838702, x_l0[3], DERIVE_FMA((-0.25253942144097735), x_l0[2], DERIVE_FMA(0.20683480863417475, zn_l0[1], 0.045704612806802616*z_l0[1])));
+            const double t10_l0 = DERIVE_FMA(0.32878612901536836, x_l0[5], DERIVE_FMA(0.34707246987691825, x_l0[4], DERIVE_FMA(0.36535881073846804, zn_l0[2], 0.28756871938461365*z_l0[2])));
+            const double t11_l0 = DERIVE_FMA(0.2880863484838702, x_l0[5], DERIVE_FMA((-0.25253942144097735), x_l0[4], DERIVE_FMA(0.20683480863417475, zn_l0[2], 0.045704612806802616*z_l0[2])));
+            xm_l0[0] = t0_l0;
+            xm_l0[1] = t1_l0;
+            xm_l0[2] = t2_l0;
+            xm_l0[3] = t3_l0;
+            xm_l0[4] = t4_l0;
+            xm_l0[5] = t5_l0;
+            xn_l0[0] = t6_l0;
+            xn_l0[1] = t7_l0;
+            xn_l0[2] = t8_l0;
+            xn_l0[3] = t9_l0;
+            xn_l0[4] = t10_l0;
+            xn_l0[5] = t11_l0;
+            xs[((t + 0) * steps + k) * 6 + 0] = xm_l0[0];
+            xs[((t + 0) * steps + k) * 6 + 1] = xm_l0[1];
+            xs[((t + 0) * steps + k) * 6 + 2] = xm_l0[2];
+            xs[((t + 0) * steps + k) * 6 + 3] = xm_l0[3];
+            xs[((t + 0) * steps + k) * 6 + 4] = xm_l0[4];
+            xs[((t + 0) * steps + k) * 6 + 5] = xm_l0[5];
+            xs[((t + 0) * steps + k + 1) * 6 + 0] = x_l0[0] = xn_l0[0];
+            xs[((t + 0) * steps + k + 1) * 6 + 1] = x_l0[1] = xn_l0[1];
+            xs[((t + 0) * steps + k + 1) * 6 + 2] = x_l0[2] = xn_l0[2];
+            xs[((t + 0) * steps + k + 1) * 6 + 3] = x_l0[3] = xn_l0[3];
+            xs[((t + 0) * steps + k + 1) * 6 + 4] = x_l0[4] = xn_l0[4];
+            xs[((t + 0) * steps + k + 1) * 6 + 5] = x_l0[5] = xn_l0[5];
+        }
+        for (; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = DERIVE_FMA(0.2692823785230638, x_l0[1], DERIVE_FMA(0.6346411892615319, x_l0[0], 0.36535881073846804*z_l0[0]));
             const double t1_l0 = DERIVE_FMA(0.5863303827316503, x_l0[1], DERIVE_FMA((-0.20683480863417475), x_l0[0], 0.20683480863417475*z_l0[0]));

@@ -1,0 +1,95 @@
+"""derive.emit.lookahead: the steady-state C run takes two steps per pass through the
+exact two-step map; it must agree with stepping, keep the odd step and the first step of
+each pass exact, and not drift over long runs."""
+
+import numpy as np
+import pytest
+import sympy
+from _backend_kf import steady_unit
+
+from derive import catalog
+from derive.emit.lookahead import ZNEXT, two_step_program
+from derive.emit.write import write_files
+from derive.filters.steady import baked, steady_gains
+from derive.generation import derive_unit, render_filter
+from derive.program import Port, Program
+from derive.reference import steady as reference
+from derive.simulate import simulate_linear
+from derive.verify import relative_error
+
+
+def _step(model, name="sskf"):
+    return derive_unit(catalog.load(model), name, {}).programs["step"]
+
+
+def _outputs(program, port):
+    """``port``'s outputs of an optimised program as expressions in the input elements."""
+    values = {}
+    for st in program.body:
+        values[st.target] = st.expr.xreplace(values)
+    return [sympy.expand(e.xreplace(values)) for e in program.results[port]]
+
+
+def test_the_pass_is_the_step_then_the_exact_two_step_map():
+    model = catalog.load("mpt3d_b")
+    A, B = (baked(M) for M in steady_gains(model, "sskf"))
+    step = _step("mpt3d_b")
+    two = two_step_program(step)
+    x = sympy.Matrix([two.element("x", i) for i in range(2)])
+    z = sympy.Matrix([two.element("z", 0)])
+    zn = sympy.Matrix([two.element(ZNEXT, 0)])
+    mid = _outputs(two, "x_mid")
+    assert mid == [sympy.expand(e) for e in A * x + B * z]
+    new = _outputs(two, "x_new")
+    assert new == [sympy.expand(e) for e in (A * A) * x + (A * B) * z + B * zn]
+
+
+def test_the_pass_is_declined_where_it_does_not_apply():
+    assert two_step_program(_step("mpt3d_b", "kf")) is None            # checks, P
+    assert two_step_program(steady_unit("jssklf", params=True).programs["step"]) is None
+    prog = Program("step", [Port("x", (1,)), Port("z", (1,))], [Port("x_new", (1,))])
+    x, z = prog.element("x", 0), prog.element("z", 0)
+    prog.set_output("x_new", [x * x / 2 + z])                           # not affine
+    assert two_step_program(prog.optimize()) is None
+
+
+@pytest.fixture(scope="module")
+def compiled(tmp_path_factory):
+    from derive.build import build_c
+
+    model = catalog.load("mpt3d_a")
+    files = render_filter(model, "sskf", "c")
+    assert "run: two steps per pass" in files["sskf.c"]
+    assert "two steps per pass" not in render_filter(model, "kf", "c")["kf.c"]
+    paths = {p.suffix: p for p in write_files(tmp_path_factory.mktemp("la"), model.name, files)}
+    return model, build_c(paths[".c"])
+
+
+@pytest.mark.parametrize("steps", [0, 1, 2, 7, 200])
+def test_c_run_agrees_with_stepping(compiled, steps):
+    model, mod = compiled
+    num = model.numeric()
+    zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, max(steps, 1), 5).zs[:steps]
+    x0 = np.random.default_rng(2).normal(size=model.n)
+    xs = mod.run(zs, x0)
+    assert xs.shape == (steps, model.n)
+    x, stepped = x0, []
+    for z in zs:
+        x = mod.step(x, z)
+        stepped.append(x)
+    if steps:
+        # the first step of every pass is the step's own statements: row 0 is exact, and
+        # an odd last step is the step itself from the carried state
+        np.testing.assert_array_equal(xs[0], stepped[0])
+        if steps % 2 and steps > 1:
+            np.testing.assert_array_equal(xs[-1], mod.step(xs[-2], zs[-1]))
+        assert relative_error(xs, np.array(stepped)) <= 1e-14
+
+
+def test_c_run_does_not_drift_over_a_long_run(compiled):
+    model, mod = compiled
+    num = model.numeric()
+    steps = 200_000
+    zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, 9).zs
+    xr = reference.sskf(num.F, num.G, num.H, num.Q, num.R, num.x0, zs)
+    assert relative_error(mod.run(zs, num.x0), xr) <= 1e-12
