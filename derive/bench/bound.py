@@ -1,6 +1,7 @@
 """The latency bound of a case's generated C run loop on this machine: the carried
-chain of the emitted step (:mod:`derive.latency`) with the operation latencies measured
-by :mod:`derive.bench.probe`."""
+chain of the loop's pass as emitted (the step, or a steady-state filter's two-step pass;
+:mod:`derive.latency`) with the operation latencies measured by
+:mod:`derive.bench.probe`."""
 
 from __future__ import annotations
 
@@ -13,13 +14,16 @@ def case_bound(case: Case, latency: Mapping[str, float]) -> tuple[float, str] | 
     """(seconds per step, the operations on the critical cycle) for ``case``'s generated
     C; copies run one after another, so their bounds add up. None without a bound."""
     from .. import catalog
+    from ..emit.lookahead import run_pass
     from ..generation import derive_unit
     from ..latency import carried_bound
     from ..lowering import lower_program
 
     unit = derive_unit(catalog.load(case.model), case.filter, {})
-    bound = carried_bound(lower_program(unit.programs["step"], use_fma=True), latency)
+    program, steps = run_pass(unit)
+    bound = carried_bound(lower_program(program, use_fma=True), latency)
     if bound is None:
         return None
+    ops = bound.describe() + (f" per pass of {steps} steps" if steps > 1 else "")
     per_copy = f" per copy, {case.copies} copies in turn" if case.copies > 1 else ""
-    return bound.per_step * case.copies, f"{bound.describe()}{per_copy}"
+    return bound.per_step / steps * case.copies, ops + per_copy

@@ -88,3 +88,15 @@ def two_step_program(step: Program) -> Program | None:
     two = (A * A) * xs + (A * B) * zs + B * zn + (A * c + c)
     prog.set_output("x_new", [sympy.expand(e) for e in two])
     return prog.optimize()
+
+
+def run_pass(unit) -> tuple[Program, int]:
+    """(program, steps) of one pass of the generated C run loop of ``unit``: the
+    two-step pass for a steady-state filter without free parameters whose step is
+    affine, else the step itself."""
+    step = unit.programs["step"]
+    if unit.kind == "steady" and not unit.parameters:
+        two = two_step_program(step)
+        if two is not None:
+            return two, 2
+    return step, 1

@@ -18,7 +18,7 @@ from pathlib import Path
 import jinja2
 
 from derive.emit import c_printer, python_printer
-from derive.emit.lookahead import ZNEXT, two_step_program
+from derive.emit.lookahead import ZNEXT, run_pass
 from derive.emit.python_loop import single_track_loop
 from derive.emit.unit import Argument, Unit, run_arguments
 from derive.flops import count_lowered
@@ -290,10 +290,8 @@ def _tracks_parts(unit: Unit, fused: list[str], lanes: int,
 
 def _two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
     """The lowered two-step pass of a steady-state run loop, or None (see lookahead)."""
-    if unit.kind != "steady" or unit.parameters:
-        return None
-    program = two_step_program(unit.programs["step"])
-    return None if program is None else lower_program(program, use_fma=use_fma)
+    program, steps = run_pass(unit)
+    return lower_program(program, use_fma=use_fma) if steps == 2 else None
 
 
 def _two_step_body(unit: Unit, lowered: LoweredProgram, prefix: str) -> list[str]:
