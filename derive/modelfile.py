@@ -63,6 +63,7 @@ model classes keep their own `ModelError` subclass, with the file named in the m
 from __future__ import annotations
 
 import difflib
+import re
 import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -204,8 +205,28 @@ class _Loader:
         try:
             document = tomllib.loads(text, parse_float=_Decimal)
         except tomllib.TOMLDecodeError as error:
-            raise ModelFileError(f"{source}: not valid TOML: {error}") from None
+            raise ModelFileError(f"{source}: not valid TOML: {_toml_error(error, text)}") \
+                from None
         return _File(document, source, base_dir, _Loader((*self.chain, key))).build()
+
+
+_TOML_AT = re.compile(r"\(at line (\d+), column \d+\)")
+
+
+def _toml_error(error: Exception, text: str) -> str:
+    """The parser's message, naming the key of a duplicate assignment (tomllib only says
+    it cannot overwrite a value)."""
+    message = str(error)
+    where = _TOML_AT.search(message)
+    if not message.startswith("Cannot overwrite a value") or where is None:
+        return message
+    lines = text.splitlines()
+    number = int(where.group(1))
+    line = lines[number - 1] if 0 < number <= len(lines) else ""
+    key = line.split("=", 1)[0].strip() if "=" in line else ""
+    if not key:
+        return message
+    return f"the key {key!r} is set twice (the second time at line {number})"
 
 
 class _File:

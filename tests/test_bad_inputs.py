@@ -125,7 +125,7 @@ MODEL_FILE_ROWS: list[Row] = [
     ("state in a linear matrix", edit('F = [[1, "dt"], [0, 1]]', 'F = [[1, "s"], [0, 1]]'),
      ["kf"], {}, [], ExpressionError, ["[discrete] F[0][1]", "unknown symbol 's'"]),
     ("symbol with two values", edit("sq2 = 0.01", "sq2 = 0.01\nsq2 = 0.02"), ["kf"], {}, [],
-     ModelFileError, ["not valid TOML", "line 10"]),
+     ModelFileError, ["not valid TOML", "the key 'sq2' is set twice", "line 10"]),
     ("unused parameter", edit("sq2 = 0.01", "sq2 = 0.01\nk = 2"), ["kf"], {}, [],
      ModelFileError, ["[parameters] k", "declared but used in no expression"]),
     # names

@@ -181,6 +181,8 @@ def _edit(old, new, base=AXIS):
 ERRORS = [
     ("not toml", "[model\nname = 1", ModelFileError, ["not valid TOML", "line 1"]),
     ("empty", "", ModelFileError, ["empty"]),
+    ("duplicate key", _edit("description = ", 'name = "again"\ndescription = '),
+     ModelFileError, ["not valid TOML", "the key 'name' is set twice"]),
     ("blank", " \n\n", ModelFileError, ["empty"]),
     ("unknown key", _edit("description = ", "descripton = "), ModelFileError,
      ["[model]", "unknown key 'descripton'", "did you mean 'description'?"]),
