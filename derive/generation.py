@@ -47,6 +47,8 @@ def regenerate_command(model_ref: str, name: str, options: Mapping, out: str) ->
         parts.append("--joseph")
     if options.get("P0_pattern"):
         parts.append(f"--P0-pattern {options['P0_pattern']}")
+    if options.get("run_tracks") is False:
+        parts.append("--no-run-tracks")
     return " ".join(parts)
 
 
@@ -72,7 +74,8 @@ def generate(model, filters: Iterable[str] | None = None, lang: str = "all",
     """Generate ``filters`` (default: all that apply) for ``model``; return the written paths.
 
     ``model`` is a model object, a catalog name or a model-file path. ``options``
-    apply to every filter (``P0_pattern``, ``joseph``, ``eps``, ``N``);
+    apply to every filter (``P0_pattern``, ``joseph``, ``eps``, ``N``, ``run_tracks``:
+    False leaves ``MODEL_FILTER_run_tracks`` out of the C);
     ``per_filter_options`` override them per filter name.
     """
     ref = model if isinstance(model, str) else None

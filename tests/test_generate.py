@@ -55,6 +55,31 @@ def test_steady_state_with_a_free_symbol_is_refused(tmp_path):
     assert xs.shape == (5, 2) and Ps.shape == (5, 2, 2)
 
 
+def test_run_tracks_can_be_left_out(tmp_path):
+    """--no-run-tracks: a smaller C file without MODEL_FILTER_run_tracks, still building and
+    running, and the regeneration command says so."""
+    from derive.build import build_c
+
+    full = tmp_path / "full"
+    assert main(["generate", "mpt3d_b", "--filter", "kf", "--filter", "sskf", "--lang", "c",
+                 "--out", str(full)]) == 0
+    lean = tmp_path / "lean"
+    assert main(["generate", "mpt3d_b", "--filter", "kf", "--filter", "sskf", "--lang", "c",
+                 "--no-run-tracks", "--out", str(lean)]) == 0
+    for name in ("kf", "sskf"):
+        c, h = (lean / "mpt3d_b" / f"{name}{s}" for s in (".c", ".h"))
+        assert "_run_tracks(" not in c.read_text() and "_run_tracks(" not in h.read_text()
+        assert f"mpt3d_b_{name}_run_tracks(" in (full / "mpt3d_b" / f"{name}.c").read_text()
+        assert "--no-run-tracks" in c.read_text()
+        assert c.stat().st_size < (full / "mpt3d_b" / f"{name}.c").stat().st_size
+    mod = build_c(lean / "mpt3d_b" / "kf.c")
+    zs = np.ones((4, 1))
+    xs, Ps = mod.run(zs, np.zeros(2), np.eye(2))
+    ref = build_c(full / "mpt3d_b" / "kf.c").run(zs, np.zeros(2), np.eye(2))
+    np.testing.assert_array_equal(xs, ref[0])
+    np.testing.assert_array_equal(Ps, ref[1])
+
+
 def test_cli_generate_and_errors(tmp_path, capsys):
     assert main(["generate", "gsm2d_b", "--filter", "kf", "--out", str(tmp_path)]) == 0
     assert (tmp_path / "gsm2d_b" / "kf.h").is_file()

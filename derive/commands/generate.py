@@ -27,6 +27,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--beta", type=float, default=None, help="UKF sigma-point beta (0)")
     parser.add_argument("--kappa", type=float, default=None,
                         help="UKF sigma-point kappa (3 - n: the paper's n + kappa = 3)")
+    parser.add_argument("--no-run-tracks", dest="run_tracks", action="store_false",
+                        help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
     parser.add_argument("--P0-pattern", dest="P0_pattern", default=None,
                         choices=("dense", "zero", "diagonal", "block"),
                         help="declared sparsity of P0 (default: the model's)")
@@ -39,6 +41,8 @@ def options_from(args) -> tuple[dict, dict]:
         common["joseph"] = True
     if args.P0_pattern:
         common["P0_pattern"] = args.P0_pattern
+    if not args.run_tracks:
+        common["run_tracks"] = False
     per = {"fir": {}, "pred": {}, "ukf": {}}
     if args.missing:
         from ..filters.common import MISSING_FILTERS

@@ -105,6 +105,14 @@ def _py_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     return lines
 
 
+def _has_run_tracks(unit: Unit) -> bool:
+    """C run_tracks: for the linear families with a fused run loop, unless left out
+    (``options["run_tracks"] = False``); many small tracks are a linear-tracking use, so
+    EKF/UKF files stay lean."""
+    return (unit.kind in ("timevarying", "steady") and unit.family not in ("ekf", "ukf")
+            and unit.options.get("run_tracks", True) is not False)
+
+
 def _language(lang: str, use_fma: bool) -> str:
     if lang != "c":
         return "Python"
@@ -128,8 +136,7 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
     lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
-    if lang == "c" and unit.kind in ("timevarying", "steady") and unit.family not in (
-            "ekf", "ukf"):
+    if lang == "c" and _has_run_tracks(unit):
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another)")
     for lp in lowered.values():
@@ -344,8 +351,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     lookahead = _two_step_body(unit, two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
-    # many small independent tracks are a linear-tracking use; EKF/UKF files stay lean
-    batch = bool(fused) and unit.family not in ("ekf", "ukf")
+    batch = _has_run_tracks(unit)
     tracks = [_tracks_parts(unit, fused, lanes, lookahead) for lanes in (LANES, 1)] if batch \
         else []
     tracks_params = ["size_t steps", "size_t tracks"] + [

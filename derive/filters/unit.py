@@ -34,6 +34,8 @@ def make_unit(model, name: str, programs: dict, options: dict, constants: dict |
         unit_options["window"] = int(options["N"])
     if name == "pred":
         unit_options["horizon"] = int(options["N"])
+    if options.get("run_tracks") is False:
+        unit_options["run_tracks"] = False
     return Unit(
         model=model.name,
         filter=name,
