@@ -1,146 +1,38 @@
 """Riccati equations of the KF (REKF) and LF (RELF), solved per step and by doubling.
 
-Plain NumPy on numeric arrays (SPEC.md §3-4). Before any steady state is computed the
-model is checked with PBH tests: (F, H) detectable and (F, G Q^1/2) stabilisable, i.e. every
-eigenvalue with |lambda| >= 1 is observable / controllable. A failed check, a failed
-convergence or a bad FIR epsilon raises derive.errors.SteadyStateError.
+Plain NumPy on numeric arrays (SPEC.md §3-4): the LF's off-line constants, the per-step
+recursions, structure-preserving doubling, and the steady-state gains of the SSKF and SSLF.
+Every solver first checks the model (derive.system_checks: detectable and stabilisable);
+a failed check or a failed convergence raises derive.errors.SteadyStateError.
+
+The system checks (derive.system_checks) and the FIR and N-step prediction constants
+(derive.horizon) are re-exported here, so ``derive.riccati.X`` keeps working for them.
 """
 
 from __future__ import annotations
 
-from numbers import Real
 from typing import NamedTuple
 
 import numpy as np
 
-from derive.errors import MatrixPropertyError, ModelError, ShapeError, SteadyStateError
+from derive.errors import ModelError, SteadyStateError
+from derive.horizon import PredictionConstants, fir_order, fir_taps, pred_constants
+from derive.system_checks import (
+    PBH_RANK_TOL,
+    UNIT_CIRCLE_MARGIN,
+    check_detectable,
+    check_stabilizable,
+    check_stable,
+    check_steady_state,
+    psd_sqrt,
+    system_arrays,
+)
 
 DEFAULT_TOL = 1e-13
 """Relative change of P between iterations at which an iteration is converged."""
 MAX_STEPS = 100_000
 """Iteration cap of the per-step recursions (doubling uses MAX_DOUBLINGS)."""
 MAX_DOUBLINGS = 100
-UNIT_CIRCLE_MARGIN = 1e-9
-"""Eigenvalues with |lambda| >= 1 - margin are treated as not asymptotically stable."""
-PBH_RANK_TOL = 1e-8
-"""PBH tests call a mode unobservable/uncontrollable when sigma_min < tol * scale."""
-
-
-# ---------------------------------------------------------------- input arrays
-def _matrix(name: str, value, rows: int | None, cols: int | None) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ModelError(f"{name} must be a numeric matrix: {exc}") from exc
-    if arr.ndim == 0:
-        arr = arr.reshape(1, 1)
-    elif arr.ndim == 1:
-        arr = arr.reshape(1, -1) if name == "H" else arr.reshape(-1, 1)
-    if arr.ndim != 2:
-        raise ShapeError(f"{name} must be 2-D, got shape {arr.shape}")
-    want = (arr.shape[0] if rows is None else rows, arr.shape[1] if cols is None else cols)
-    if arr.shape != want:
-        raise ShapeError(f"{name} must have shape {want}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ModelError(f"{name} contains NaN or inf")
-    return arr
-
-
-def _covariance(name: str, value, size: int, definite: bool) -> np.ndarray:
-    arr = _matrix(name, value, size, size)
-    if not np.allclose(arr, arr.T, rtol=1e-12, atol=1e-14 * max(1.0, np.abs(arr).max())):
-        raise MatrixPropertyError(f"{name} must be symmetric")
-    low = np.linalg.eigvalsh((arr + arr.T) / 2).min()
-    floor = -1e-12 * max(1.0, np.abs(arr).max())
-    if low <= (0.0 if definite else floor):
-        kind = "positive definite" if definite else "positive semidefinite"
-        raise MatrixPropertyError(f"{name} must be {kind}; smallest eigenvalue {low:.3g}")
-    return arr
-
-
-def system_arrays(F, G, H, Q, R):
-    """Validate and return (F, G, H, Q, R) as float 2-D arrays (shapes n×n, n×p, m×n, p×p,
-    m×m). A 1-D H is a row, a 1-D G a column, a scalar a 1×1 matrix. R must be positive
-    definite and Q positive semidefinite; failures raise ModelError subclasses."""
-    F = _matrix("F", F, None, None)
-    n = F.shape[0]
-    if F.shape[1] != n:
-        raise ShapeError(f"F must be square, got {F.shape}")
-    G = _matrix("G", G, n, None)
-    H = _matrix("H", H, None, n)
-    Q = _covariance("Q", Q, G.shape[1], definite=False)
-    R = _covariance("R", R, H.shape[0], definite=True)
-    return F, G, H, Q, R
-
-
-def psd_sqrt(M: np.ndarray) -> np.ndarray:
-    """Symmetric square root of a positive semidefinite matrix (negative rounding clipped)."""
-    w, V = np.linalg.eigh((M + M.T) / 2)
-    return (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T
-
-
-# ---------------------------------------------------------------- PBH tests
-def _eigen_clusters(F: np.ndarray) -> list[complex]:
-    """Eigenvalues of F plus the mean of each cluster of close eigenvalues: a defective
-    eigenvalue is computed only to ~eps^(1/k), the cluster mean to ~eps."""
-    lams = list(np.linalg.eigvals(F))
-    scale = max(1.0, np.linalg.norm(F, 2))
-    points = list(lams)
-    remaining = sorted(lams, key=lambda z: (z.real, z.imag))
-    while remaining:
-        seed = remaining.pop(0)
-        cluster = [seed] + [z for z in remaining if abs(z - seed) < 1e-4 * scale]
-        remaining = [z for z in remaining if abs(z - seed) >= 1e-4 * scale]
-        if len(cluster) > 1:
-            points.append(complex(np.mean(cluster)))
-    return points
-
-
-def _pbh_unobservable(F: np.ndarray, C: np.ndarray) -> complex | None:
-    """An eigenvalue of F with |lambda| >= 1 whose mode C cannot see, else None."""
-    n = F.shape[0]
-    scale = max(1.0, np.linalg.norm(F, 2), np.linalg.norm(C, 2) if C.size else 0.0)
-    for lam in _eigen_clusters(F):
-        if abs(lam) < 1.0 - UNIT_CIRCLE_MARGIN:
-            continue
-        pbh = np.vstack([lam * np.eye(n) - F, C.astype(complex)])
-        if np.linalg.svd(pbh, compute_uv=False)[-1] < PBH_RANK_TOL * scale:
-            return complex(lam)
-    return None
-
-
-def _fmt(lam: complex) -> str:
-    return f"{lam.real:.6g}" if abs(lam.imag) < 1e-12 else f"{lam:.6g}"
-
-
-def check_detectable(F, H) -> None:
-    """Raise SteadyStateError if (F, H) is not detectable (PBH test on |lambda| >= 1)."""
-    F = np.asarray(F, dtype=float)
-    lam = _pbh_unobservable(F, np.atleast_2d(np.asarray(H, dtype=float)))
-    if lam is not None:
-        raise SteadyStateError(
-            f"(F, H) is not detectable: the mode of eigenvalue {_fmt(lam)} of F "
-            f"(|lambda| = {abs(lam):.6g} >= 1) is not observed by H; "
-            "no steady-state filter exists")
-
-
-def check_stabilizable(F, G, Q) -> None:
-    """Raise SteadyStateError if (F, G Q^1/2) is not stabilisable (PBH on |lambda| >= 1)."""
-    F = np.asarray(F, dtype=float)
-    B = np.atleast_2d(np.asarray(G, dtype=float)) @ psd_sqrt(np.atleast_2d(Q))
-    lam = _pbh_unobservable(F.T, B.T)
-    if lam is not None:
-        raise SteadyStateError(
-            f"(F, G Q^1/2) is not stabilizable: the mode of eigenvalue {_fmt(lam)} of F "
-            f"(|lambda| = {abs(lam):.6g} >= 1) is not excited by the process noise; "
-            "no steady-state filter exists")
-
-
-def check_steady_state(F, G, H, Q, R) -> None:
-    """Validate the arrays, then check detectability and stabilisability."""
-    F, G, H, Q, R = system_arrays(F, G, H, Q, R)
-    check_detectable(F, H)
-    check_stabilizable(F, G, Q)
 
 
 # ---------------------------------------------------------------- LF constants
@@ -286,12 +178,6 @@ def _check_method(method: str) -> None:
         raise ModelError(f"unknown Riccati method {method!r}; expected one of {_METHODS}")
 
 
-def _check_stable(A: np.ndarray, what: str) -> None:
-    rho = np.abs(np.linalg.eigvals(A)).max()
-    if rho >= 1.0:
-        raise SteadyStateError(f"{what} is not stable (spectral radius {rho:.6g} >= 1)")
-
-
 def kf_steady(F, G, H, Q, R, method: str = "doubling") -> KalmanSteadyState:
     """Steady-state KF: Pp from the REKF, K = Pp Hᵀ[H Pp Hᵀ + R]⁻¹, Pe = (I − KH)Pp."""
     _check_method(method)
@@ -301,7 +187,7 @@ def kf_steady(F, G, H, Q, R, method: str = "doubling") -> KalmanSteadyState:
     K = np.linalg.solve(H @ Pp @ H.T + R, H @ Pp).T
     IKH = np.eye(F.shape[0]) - K @ H
     A = IKH @ F
-    _check_stable(A, "A_KF = (I - K H) F")
+    check_stable(A, "A_KF = (I - K H) F")
     Pe = IKH @ Pp
     return KalmanSteadyState(Pp, (Pe + Pe.T) / 2, K, A, K)
 
@@ -313,66 +199,18 @@ def lf_steady(F, G, H, Q, R, method: str = "doubling") -> LainiotisSteadyState:
     Pe = solve(F, G, H, Q, R)
     c = lf_constants(F, G, H, Q, R)
     A = np.linalg.solve((np.eye(c.Fn.shape[0]) + Pe @ c.On).T, c.Fn.T).T
-    _check_stable(A, "A_LF = Fn [I + Pe On]^-1")
+    check_stable(A, "A_LF = Fn [I + Pe On]^-1")
     return LainiotisSteadyState(A, c.Kn + A @ Pe @ c.Km, Pe)
 
 
-# ---------------------------------------------------------------- FIR and prediction
-_NORMS = {2: 2, "2": 2, "fro": "fro", "inf": np.inf, np.inf: np.inf}
-
-
-def fir_order(A, eps: float, norm=2, max_order: int = MAX_STEPS) -> int:
-    """Smallest N with ||A^N|| < eps, eps in (0, 1). norm: 2 (spectral, default), 'fro' or
-    'inf' (max row sum). A must be asymptotically stable."""
-    if not (isinstance(eps, Real) and 0.0 < eps < 1.0):
-        raise SteadyStateError(f"FIR epsilon must lie in (0, 1), got {eps!r}")
-    if norm not in _NORMS:
-        raise SteadyStateError(f"unknown FIR norm {norm!r}; expected 2, 'fro' or 'inf'")
-    A = _matrix("A", A, None, None)
-    _check_stable(A, "the FIR transition A")
-    power = np.eye(A.shape[0])
-    for order in range(1, max_order + 1):
-        power = power @ A
-        if np.linalg.norm(power, _NORMS[norm]) < eps:
-            return order
-    raise SteadyStateError(f"||A^N|| did not fall below {eps:g} for N <= {max_order}")
-
-
-def fir_taps(A, B, N: int) -> np.ndarray:
-    """FIR coefficients C_i = A^i B, i = 0..N-1, as an array of shape (N, n, m)."""
-    if int(N) != N or N < 1:
-        raise SteadyStateError(f"FIR order must be a positive integer, got {N!r}")
-    A = _matrix("A", A, None, None)
-    B = _matrix("B", B, A.shape[0], None)
-    taps = np.empty((int(N), *B.shape))
-    taps[0] = B
-    for i in range(1, int(N)):
-        taps[i] = A @ taps[i - 1]
-    return taps
-
-
-class PredictionConstants(NamedTuple):
-    """Steady-state N-step prediction: x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k)."""
-
-    A_N: np.ndarray
-    B_N: np.ndarray
-
-
-def pred_constants(F, K, H, N: int) -> PredictionConstants:
-    """A_N = F^N (I − KH) F^-(N-1), B_N = F^N K (SPEC §4). N >= 2 needs F invertible."""
-    if int(N) != N or N < 1:
-        raise SteadyStateError(f"prediction horizon N must be a positive integer, got {N!r}")
-    N = int(N)
-    F = _matrix("F", F, None, None)
-    K = _matrix("K", K, F.shape[0], None)
-    H = _matrix("H", H, K.shape[1], F.shape[0])
-    FN = np.linalg.matrix_power(F, N)
-    left = FN @ (np.eye(F.shape[0]) - K @ H)
-    if N == 1:
-        return PredictionConstants(left, FN @ K)
-    back = np.linalg.matrix_power(F, N - 1)
-    if np.linalg.cond(back) > 1e12:
-        raise SteadyStateError(
-            f"N-step prediction with N = {N} needs F^-(N-1), but F is singular or "
-            f"ill-conditioned (cond(F^{N - 1}) = {np.linalg.cond(back):.3g})")
-    return PredictionConstants(np.linalg.solve(back.T, left.T).T, FN @ K)
+__all__ = [
+    # the solvers (this module)
+    "DEFAULT_TOL", "MAX_DOUBLINGS", "MAX_STEPS", "KalmanSteadyState", "LainiotisConstants",
+    "LainiotisSteadyState", "doubling", "kf_steady", "lf_constants", "lf_steady",
+    "rekf_doubling", "rekf_iterate", "relf_doubling", "relf_iterate",
+    # re-exported from derive.system_checks
+    "PBH_RANK_TOL", "UNIT_CIRCLE_MARGIN", "check_detectable", "check_stabilizable",
+    "check_steady_state", "psd_sqrt", "system_arrays",
+    # re-exported from derive.horizon
+    "PredictionConstants", "fir_order", "fir_taps", "pred_constants",
+]

@@ -14,7 +14,7 @@ from derive.emit.unit import Unit
 from derive.emit.write import write_files
 from derive.errors import FilterError, NumericalError
 from derive.filters import derive_unit
-from derive.filters.ekf import scalar_measurement
+from derive.filters.nonlinear import scalar_measurement
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
 from derive.gnss import ScalarEkf, ScalarUkf, drive

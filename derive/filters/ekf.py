@@ -4,267 +4,31 @@
     S = H P(k/k-1) H^T + R,  K = P(k/k-1) H^T S^-1,  H = ∂h/∂x at x(k/k-1) and u(k)
     x(k/k) = x(k/k-1) + K (z - h(x(k/k-1), u(k))),  P(k/k) = P(k/k-1) - K (P(k/k-1) H^T)^T
 
-The Jacobians are derived by sympy (an entry is replaced by its simplified form when that
-has fewer operations) and evaluated together with f and h through common subexpressions:
-a pseudorange's square root is computed once and reused by its row of H.
-
-A unit has three programs (the frame the UKF shares, see :func:`nonlinear_programs`):
-``step(x, P, z, u)`` predicts and updates with all m measurements; ``predict(x, P)`` and
-``update1(x, P, z[1], u[k])`` are the sequential form: one scalar measurement per call,
-so a step may use any number of measurements (6 to 12 satellites in view, in any order).
-``update1`` exists when every row of h is the same function of its own inputs and R is
-diagonal with equal entries (:func:`scalar_measurement`); it returns the innovation and
-its variance beside x and P.
+This module holds the EKF's predict and update stages and its unit. F and H come from
+:func:`derive.filters.nonlinear.linearise` (sympy Jacobians evaluated with f and h through
+shared subexpressions); the programs step, predict and update1 are the frame shared with
+the UKF (:func:`derive.filters.nonlinear.nonlinear_programs`). ``linearise`` and
+``Linearisation`` stay importable from here: derive.casadi_bridge checks the EKF's
+Jacobians through this module.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-
 import sympy
 
 from .. import staging
-from ..errors import FilterError
-from ..program import Port, Program
-from . import pattern as pat
-from .common import masked, parameter_port
-
-# -- the Jacobians -----------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Linearisation:
-    """A vector function and its Jacobian over shared subexpressions.
-
-    ``shared``: ``(symbol, expression)`` pairs in evaluation order (each may use the
-    earlier symbols); ``values`` (k entries) and ``jacobian`` (k x n) are written over
-    the model's symbols and the shared symbols.
-    """
-
-    shared: tuple[tuple[sympy.Symbol, sympy.Expr], ...]
-    values: tuple[sympy.Expr, ...]
-    jacobian: sympy.ImmutableMatrix
-
-    def expanded(self) -> tuple[sympy.Matrix, sympy.Matrix]:
-        """(values, Jacobian) with the shared symbols substituted back (for checks)."""
-        subs: dict[sympy.Symbol, sympy.Expr] = {}
-        for sym, expr in self.shared:
-            subs[sym] = expr.xreplace(subs)
-        return (sympy.Matrix([v.xreplace(subs) for v in self.values]),
-                sympy.Matrix(self.jacobian).xreplace(subs))
-
-
-def _simpler(expr: sympy.Expr) -> sympy.Expr:
-    """``expr`` or its simplified form, whichever has strictly fewer operations."""
-    if expr.is_Atom:
-        return expr
-    candidate = sympy.simplify(expr)
-    return candidate if sympy.count_ops(candidate) < sympy.count_ops(expr) else expr
-
-
-def linearise(values: sympy.MatrixBase, wrt: Sequence[sympy.Symbol],
-              with_jacobian: bool = True) -> Linearisation:
-    """``values`` and (unless ``with_jacobian`` is False) ``∂values/∂wrt``, sharing work."""
-    vals = [sympy.sympify(v) for v in values]
-    if with_jacobian:
-        jac = sympy.Matrix(len(vals), len(wrt),
-                           lambda i, j: _simpler(sympy.diff(vals[i], wrt[j])))
-    else:
-        jac = sympy.zeros(len(vals), 0)
-    names = sympy.numbered_symbols("_shared", real=True)
-    pairs, reduced = sympy.cse(vals + list(jac), symbols=names, order="canonical")
-    k = len(vals)
-    return Linearisation(tuple(pairs), tuple(reduced[:k]),
-                         sympy.ImmutableMatrix(len(vals), jac.cols, reduced[k:]))
-
-
-def stage_linearisation(prog: Program, lin: Linearisation, mapping: Mapping,
-                        hint: str = "t") -> tuple[sympy.Matrix, sympy.Matrix]:
-    """Stage ``lin`` with model symbols replaced by program atoms (``mapping``).
-
-    Returns (values as a k x 1 matrix of atoms, Jacobian as a k x n matrix of atoms).
-    """
-    subs = dict(mapping)
-    for sym, expr in lin.shared:
-        subs[sym] = prog.let(expr.xreplace(subs), hint)
-    values = sympy.Matrix([prog.let(v.xreplace(subs), hint) for v in lin.values])
-    jac = sympy.Matrix(lin.jacobian).xreplace(subs)
-    return values, staging.let_matrix(prog, jac, hint=hint)
-
-
-def state_jacobian(model) -> Linearisation:
-    """f and F = ∂f/∂x of a NonlinearModel (valued symbols substituted)."""
-    return linearise(model.subs(model.f), model.state_symbols)
-
-
-# -- measurements: all rows, or one row with its own inputs --------------------------------
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """The measurement rows a program uses: h (k x 1), their inputs in port order, R."""
-
-    h: sympy.Matrix
-    inputs: tuple[sympy.Symbol, ...]
-    R: sympy.Matrix
-    names: tuple[str, ...]
-
-
-def all_measurements(model) -> Measurement:
-    return Measurement(sympy.Matrix(model.subs(model.h)), tuple(model.inputs),
-                       sympy.Matrix(model.subs(model.R)), tuple(model.measurements))
-
-
-def _row_inputs(model, i: int) -> tuple[sympy.Symbol, ...]:
-    used = model.h[i, 0].free_symbols
-    return tuple(s for s in model.inputs if s in used)
-
-
-def scalar_measurement(model) -> tuple[Measurement | None, str]:
-    """The one-measurement form used by ``update1``, or (None, why not).
-
-    It exists when R is diagonal with equal entries and every row i of h is row 0 with
-    row 0's inputs replaced by row i's own (disjoint, same count, in ``model.inputs``
-    order): then a step's measurements can be processed one at a time, in any number.
-    """
-    R = sympy.Matrix(model.subs(model.R))
-    m = model.m
-    if any(R[i, j] != 0 for i in range(m) for j in range(m) if i != j):
-        return None, "R is not diagonal, so measurements cannot be processed one at a time"
-    if any(sympy.simplify(R[i, i] - R[0, 0]) != 0 for i in range(m)):
-        return None, "the diagonal of R is not constant"
-    first = _row_inputs(model, 0)
-    if bool(first) != bool(model.inputs):
-        return None, "the model declares inputs that h does not use"
-    seen: set[sympy.Symbol] = set()
-    for i in range(m):
-        own = _row_inputs(model, i)
-        if len(own) != len(first) or seen & set(own):
-            return None, (f"measurement {model.measurements[i]!r} does not have its own "
-                          f"inputs of the same kind as {model.measurements[0]!r}")
-        seen |= set(own)
-        renamed = model.h[i, 0].xreplace(dict(zip(own, first)))
-        if sympy.simplify(renamed - model.h[0, 0]) != 0:
-            return None, (f"measurement {model.measurements[i]!r} is not "
-                          f"{model.measurements[0]!r} of its own inputs")
-    meas = Measurement(sympy.Matrix([model.subs(model.h[0, 0])]), first,
-                       sympy.Matrix([[R[0, 0]]]), (model.measurements[0],))
-    return meas, ""
-
-
-# -- the program frame shared by the EKF and the UKF ---------------------------------------
-
-
-Predict = Callable[[Program, dict, sympy.Matrix, sympy.Matrix], tuple]
-"""``predict(prog, mapping, x, P) -> (x(k/k-1), P(k/k-1))``; mapping binds parameters."""
-Update = Callable[[Program, dict, Measurement, sympy.Matrix, sympy.Matrix, sympy.Matrix],
-                  tuple]
-"""``update(prog, mapping, meas, x, P, z) -> (x_new, P_new, innovation, variance)``;
-mapping binds parameters and the measurement's inputs; variance is S (or Pvv), k x k."""
-
-
-def _ports(model, name: str, meas: Measurement | None) -> tuple[list[Port], list[Port]]:
-    n = model.n
-    inputs = [Port("x", (n,), doc="x(k-1/k-1)" if name != "update1" else "x before the update"),
-              Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric")]
-    outputs = [Port("x_new", (n,), doc="x(k/k)" if name == "step" else
-                    "x(k/k-1)" if name == "predict" else "x after this measurement"),
-               Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
-    if meas is not None and name == "update1":
-        inputs.append(Port("z", (1,),
-                           doc=f"one measurement, any of {', '.join(model.measurements)}"))
-        if meas.inputs:
-            inputs.append(Port("u", (len(meas.inputs),), doc="its inputs (for "
-                               f"{meas.names[0]}: {', '.join(s.name for s in meas.inputs)})"))
-    elif meas is not None:
-        inputs.append(Port("z", (len(meas.names),), doc=", ".join(meas.names)))
-        if meas.inputs:
-            inputs.append(Port("u", (len(meas.inputs),),
-                               doc="inputs " + ", ".join(s.name for s in meas.inputs)))
-    if name == "update1":
-        outputs += [Port("innovation", (1,), doc="z - its prediction"),
-                    Port("variance", (1,), doc="the innovation's variance")]
-    return inputs + parameter_port(model), outputs
-
-
-_DOCS = {"step": "One step of the {title}: predict, then update with all {m} measurements.",
-         "predict": "Predict only: x(k/k-1) and P(k/k-1) of the {title}.",
-         "update1": "Sequential {title} update with one measurement (any number a step)."}
-
-
-def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
-           update: Update | None, P_pattern, title: str):
-    prog = Program(name, *_ports(model, name, meas),
-                   doc=_DOCS[name].format(title=title, m=model.m))
-    params = prog.bind("p", model.parameters) if model.parameters else {}
-    x, P = prog.matrix("x"), masked(prog.matrix("P"), P_pattern)
-    extra = ()
-    if predict is not None:
-        x, P = predict(prog, dict(params), x, P)
-    if update is not None:
-        mapping = dict(params)
-        if meas.inputs:
-            mapping.update(prog.bind("u", meas.inputs))
-        x, P, innovation, variance = update(prog, mapping, meas, x, P, prog.matrix("z"))
-        extra = (innovation, variance)
-    return prog, x, P, extra
-
-
-def nonlinear_programs(model, predict: Predict, update: Update, options: Mapping,
-                       title: str) -> tuple[dict[str, Program], list[str]]:
-    """``step``, ``predict`` and (when it exists) ``update1``, optimised; and header facts.
-
-    P's pattern is the closure of P0's declared pattern (option ``P0_pattern``) under
-    every program, so entries outside it are never read.
-    """
-    scalar, why = scalar_measurement(model)
-    batch = all_measurements(model)
-    specs = {"step": (batch, predict, update), "predict": (None, predict, None)}
-    if scalar is not None:
-        specs["update1"] = (scalar, None, update)
-
-    def grow(pattern):
-        out = pattern
-        for name, (meas, pr, up) in specs.items():
-            out = pat.union(out, pat.of_matrix(_build(model, name, meas, pr, up, pattern,
-                                                      title)[2]))
-        return out
-
-    start = pat.declared(model, options.get("P0_pattern"))
-    dense = all(all(row) for row in start)
-    closed = start if dense else pat.closure(grow, start)
-    programs = {}
-    for name, (meas, pr, up) in specs.items():
-        prog, x, P, extra = _build(model, name, meas, pr, up, closed, title)
-        prog.set_output("x_new", list(x))
-        prog.set_output("P_new", list(P))
-        if name == "update1":
-            prog.set_output("innovation", [extra[0][0, 0]])
-            prog.set_output("variance", [extra[1][0, 0]])
-        programs[name] = prog.optimize()
-    facts = ["per-step input u: " + ", ".join(s.name for s in model.inputs)
-             if model.inputs else "per-step input u: none"]
-    if scalar is not None:
-        facts.append("varying measurement count: call predict once per step, then update1 "
-                     f"once per measurement (z = one {scalar.names[0]}-like measurement, "
-                     "u = its inputs " + ", ".join(s.name for s in scalar.inputs) + ")")
-    else:
-        facts.append(f"no update1 (sequential scalar updates): {why}")
-    return programs, facts
-
-
-def step_inputs(model) -> tuple[str, ...]:
-    """The per-step inputs of ``step``: z, and u when the model has inputs."""
-    return ("z", "u") if model.inputs else ("z",)
-
-
-# -- the EKF -------------------------------------------------------------------------------
-
-
-def state_mapping(model, x: sympy.Matrix) -> dict:
-    """The model's state symbols -> the entries of ``x`` (program atoms)."""
-    return dict(zip(model.state_symbols, list(x)))
+from .nonlinear import (
+    Linearisation,
+    Predict,
+    Update,
+    check_nonlinear,
+    linearise,
+    nonlinear_programs,
+    stage_linearisation,
+    state_jacobian,
+    state_mapping,
+    step_inputs,
+)
 
 
 def ekf_predict_stage(model) -> Predict:
@@ -306,12 +70,6 @@ def ekf_update_stage(model) -> Update:
     return update
 
 
-def check_nonlinear(model, name: str) -> None:
-    """FilterError unless ``model`` is a NonlinearModel."""
-    if getattr(model, "kind", None) != "nonlinear":
-        raise FilterError(f"filter {name!r} needs a nonlinear model, got {model!r}")
-
-
 def derive_unit(model, name, options):
     """The EKF unit: programs step, predict, update1 (see the module docstring)."""
     from .unit import make_unit
@@ -331,7 +89,4 @@ def _with_facts(unit, facts: list[str]):
     return replace(unit, facts=tuple(unit.facts) + tuple(facts))
 
 
-__all__ = ["Linearisation", "Measurement", "all_measurements", "check_nonlinear", "derive_unit",
-           "ekf_predict_stage", "ekf_update_stage", "linearise", "nonlinear_programs",
-           "scalar_measurement", "stage_linearisation", "state_jacobian", "state_mapping",
-           "step_inputs"]
+__all__ = ["Linearisation", "derive_unit", "ekf_predict_stage", "ekf_update_stage", "linearise"]

@@ -18,7 +18,7 @@ update: sigma points redrawn from (x⁻, P⁻), ``Y_i = h(X_i, u)``, ``ŷ = Σ W
 ``Wi sqrt(c) L (Y_1..n - Y_n+1..2n)^T`` since ``X_i - x⁻ = ±sqrt(c) L_i``;
 ``K = Pxy Pvv⁻¹`` (LDL^T solve), ``x = x⁻ + K (z - ŷ)``, ``P = P⁻ - K Pxy^T``
 (``= P⁻ - K Pvv K^T``).  Programs step, predict, update1 as for the EKF
-(:func:`derive.filters.ekf.nonlinear_programs`).
+(:func:`derive.filters.nonlinear.nonlinear_programs`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
-from .ekf import (
+from .nonlinear import (
     check_nonlinear,
     linearise,
     nonlinear_programs,
