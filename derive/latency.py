@@ -24,6 +24,13 @@ import numpy as np
 
 from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var
 
+#: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
+#: latencies for double add, multiply, fma, divide and square root; a call of a math
+#: function taken as 40). ``derive burden`` reports chains in it; ``derive bench`` and
+#: ``derive burden --measure`` use latencies measured on the machine instead.
+REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0,
+                    "call": 40.0}
+
 #: Step outputs fed back as inputs by the run loops.
 FEEDBACK = (("x_new", "x"), ("P_new", "P"))
 
@@ -55,6 +62,8 @@ def _latency_of(kind: str, latency: Mapping[str, float]) -> float:
         return float(latency[kind])
     if kind in ("sub", "neg", "select") and "add" in latency:
         return float(latency["add"])
+    if kind.startswith("call:") and "call" in latency:
+        return float(latency["call"])
     raise KeyError(f"no latency given for operation kind {kind!r}")
 
 

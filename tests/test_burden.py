@@ -75,3 +75,26 @@ def test_nonlinear_filters_have_no_formula(capsys):
 def test_burden_rejects_an_unknown_filter(capsys):
     assert main(["burden", "cv", "--filter", "kff"]) == 2
     assert "unknown filter 'kff'" in capsys.readouterr().err
+
+
+def test_chains_are_the_run_loops_carried_bound(capsys):
+    """The chain section: each filter's C run loop (the two-step pass for a steady-state
+    filter) through derive.latency, in the reference cycles."""
+    from derive.emit.lookahead import run_pass
+    from derive.latency import REFERENCE_CYCLES, carried_bound
+    from derive.lowering import lower_program
+
+    data = _json(capsys, "mpt3d_b", "--filter", "kf", "--filter", "sskf", "--filter", "fir")
+    assert data["chain_unit"] == "cycles"
+    chains = {c["filter"]: c for c in data["chains"]}
+    model = catalog.load("mpt3d_b")
+    for name in ("kf", "sskf"):
+        program, steps = run_pass(derive_unit(model, name, {}))
+        bound = carried_bound(lower_program(program, use_fma=True), REFERENCE_CYCLES)
+        assert chains[name]["per_step"] == bound.per_step / steps
+        assert chains[name]["operations_per_pass"] == dict(bound.operations)
+    assert chains["sskf"]["steps_per_pass"] == 2 and chains["kf"]["steps_per_pass"] == 1
+    assert chains["fir"]["per_step"] is None
+    assert main(["burden", "mpt3d_b", "--filter", "kf"]) == 0
+    out = capsys.readouterr().out
+    assert "carried chain of the C run loop" in out and "1 div" in out

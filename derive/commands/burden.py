@@ -17,6 +17,9 @@ def add_arguments(parser) -> None:
                         help="add the paper-mode rows: the dense, unspecialised filter exactly "
                              "as the papers count it")
     parser.add_argument("--json", action="store_true", help="print JSON")
+    parser.add_argument("--measure", action="store_true",
+                        help="chains in ns with operation latencies measured here (needs gcc) "
+                             "instead of the reference cycle counts")
     parser.add_argument("--eps", type=float, default=None,
                         help="FIR: order N is the least with ||A^N||_2 < eps (1e-6)")
     parser.add_argument("--order", type=int, default=None, help="FIR: order N directly")
@@ -84,6 +87,44 @@ def burden_rows(model, filters, options: dict, per_filter: dict, paper: bool) ->
     return rows
 
 
+def chain_rows(model, filters, options: dict, per_filter: dict,
+               latency: dict | None = None) -> list[dict]:
+    """Per filter: the carried chain of its generated C run loop (derive.latency), per step,
+    in the units of ``latency`` (default: derive.latency.REFERENCE_CYCLES)."""
+    from ..emit.lookahead import run_pass
+    from ..filters import available, derive_unit
+    from ..latency import REFERENCE_CYCLES, carried_bound
+    from ..lowering import lower_program
+
+    table = latency or REFERENCE_CYCLES
+    rows = []
+    for name in (list(filters) if filters else available(model)):
+        unit = derive_unit(model, name, {**options, **per_filter.get(name, {})})
+        program, steps = run_pass(unit)
+        bound = carried_bound(lower_program(program, use_fma=True), table)
+        rows.append({"filter": name, "steps_per_pass": steps,
+                     "per_step": None if bound is None else bound.per_step / steps,
+                     "operations_per_pass": None if bound is None else dict(bound.operations)})
+    return rows
+
+
+def _chain_text(rows: list[dict], measured: bool) -> list[str]:
+    unit = "ns" if measured else "cycles"
+    model = ("operation latencies measured here" if measured else
+             "reference latencies in cycles: add 4, mul 4, fma 4, div 14, sqrt 18, calls 40")
+    lines = ["", f"carried chain of the C run loop, per step ({model}): the bound on the time "
+                 "per step however wide the core"]
+    for r in rows:
+        if r["per_step"] is None:
+            lines.append(f"  {r['filter']}: no carried state")
+            continue
+        ops = ", ".join(f"{c:g} {k}" for k, c in sorted(r["operations_per_pass"].items()))
+        per = " per pass of two steps" if r["steps_per_pass"] == 2 else ""
+        value = r["per_step"] * (1e9 if measured else 1)
+        lines.append(f"  {r['filter']}: {value:.3g} {unit} ({ops}{per})")
+    return lines
+
+
 def _text(model, rows: list[dict]) -> str:
     head = ["filter", "mode", "program", "lang", *KINDS, "flops", "instr", "papers"]
     body = [[r["filter"], r["mode"], r["program"], r["lang"], *(str(r[k]) for k in KINDS),
@@ -110,9 +151,17 @@ def run(args) -> int:
     model = load_model(args.model)
     common, per = _options(args)
     rows = burden_rows(model, args.filters, common, per, args.paper)
+    latency = None
+    if args.measure:
+        from ..bench.generated import CFLAGS
+        from ..bench.probe import measure_latencies
+
+        latency = measure_latencies(CFLAGS)
+    chains = chain_rows(model, args.filters, common, per, latency)
     if args.json:
-        print(json.dumps({"model": model.name, "n": model.n, "m": model.m, "rows": rows},
+        print(json.dumps({"model": model.name, "n": model.n, "m": model.m, "rows": rows,
+                          "chains": chains, "chain_unit": "s" if latency else "cycles"},
                          indent=2))
     else:
-        print(_text(model, rows))
+        print("\n".join([_text(model, rows), *_chain_text(chains, latency is not None)]))
     return 0
