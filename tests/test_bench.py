@@ -82,9 +82,9 @@ def test_text_and_json(result):
     assert "median of 1 repeats" in text and "-O3 -march=native" in text
     for case in CASES:
         assert case.label in text
-    assert text.count("bar: ") == 6
+    assert text.count("bar: ") == 9 and text.count("bar: scaled: ") == 3
     data = json.loads(json.dumps(result.as_json()))
-    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 6
+    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 9
     assert "two dependent fmas here take" in text
 
 
@@ -105,6 +105,19 @@ def test_bars_compare_ratios_upwards_and_times_downwards():
     assert Bar("t", 9e-9, 10e-9, "time").met and not Bar("t", 11e-9, 10e-9, "time").met
     assert Bar("t", None, 10e-9, "time").met is None
     assert Bar("t", 11e-9, 10e-9, "time", "why").text() == "bar: t: 11 ns (<= 10 ns: NOT met); why"
+
+
+def test_scaled_bars_use_the_reference_points_measured_in_the_run(result):
+    scaled = {b.claim.split(",")[0]: b for b in result.bars() if b.claim.startswith("scaled:")}
+    casadi = result.row("KF mpt3d_a", "CasADi C").timing.median
+    kf = scaled["scaled: generated C KF mpt3d_a per step"]
+    assert kf.bar == pytest.approx(10e-9 * casadi / 48e-9)
+    assert kf.value == result.row("KF mpt3d_a", "generated C").timing.median
+    sskf = scaled["scaled: generated C SSKF mpt3d_a per step"]
+    assert sskf.bar == pytest.approx(1.25 * 2 * result.machine["latency"]["fma"])
+    filterpy = result.row("KF mpt3d_a", "FilterPy").timing.median
+    py = scaled["scaled: generated pure-Python KF mpt3d_b x 3 per step"]
+    assert py.bar == pytest.approx(1.2e-6 * filterpy / 17e-6)
 
 
 def test_catalog_generation_is_timed_when_asked(tmp_path):

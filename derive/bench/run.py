@@ -28,6 +28,11 @@ IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
 )
 
 
+#: The issue's reference points for the KF step on mpt3d_a where its bars were set.
+ISSUE_CASADI_KF = 48e-9
+ISSUE_FILTERPY_KF = 17e-6
+
+
 @dataclass(frozen=True)
 class Settings:
     c_steps: int = 100_000        # loop in C: enough steps to amortise the cffi call
@@ -120,6 +125,31 @@ class BenchResult:
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
                            self.generation_seconds, 30.0, "time"))
+        out += self._scaled_bars(fma2)
+        return out
+
+    def _scaled_bars(self, fma2: float | None) -> list[Bar]:
+        """Issue 3's time bars restated for this machine through the issue's own reference
+        points measured in this run: CasADi's C for the KF step (about 48 ns where the
+        bars were set), two dependent fmas for the SSKF (the bar's definition), FilterPy's
+        KF step (about 17 µs) for the pure-Python KF."""
+        out = []
+        casadi = self._seconds("KF mpt3d_a", "CasADi C")
+        if casadi is not None:
+            out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar 10 ns x CasADi's "
+                           f"{human(casadi)} here / its 48 ns in the issue",
+                           self._seconds("KF mpt3d_a", "generated C"),
+                           10e-9 * casadi / ISSUE_CASADI_KF, "time"))
+        if fma2 is not None:
+            out.append(Bar("scaled: generated C SSKF mpt3d_a per step, within 25% of two "
+                           f"dependent fmas here ({human(fma2)})",
+                           self._seconds("SSKF mpt3d_a", "generated C"), 1.25 * fma2, "time"))
+        filterpy = self._seconds("KF mpt3d_a", "FilterPy")
+        if filterpy is not None:
+            out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar 1.2 µs "
+                           f"x FilterPy's {human(filterpy)} here / its 17 µs in the issue",
+                           self._seconds("KF mpt3d_b x 3", "generated Python"),
+                           1.2e-6 * filterpy / ISSUE_FILTERPY_KF, "time"))
         return out
 
     def text(self) -> str:
