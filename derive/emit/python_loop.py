@@ -5,14 +5,13 @@ per element; on one track that is most of the time.  Here the loop carries the s
 in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), unpacks each
 row of the per-step inputs into locals, runs the step's own statements (same printer,
 same operations, same order, so the results are bitwise those of ``step``) and keeps
-its new elements in one flat list, turned into arrays once at the end.  A failed check raises
-:class:`NumericalError` with the step's message and the step's index.
+its new elements in one flat list, turned into arrays once at the end.  A failed check
+raises :class:`NumericalError` with the step's message and the step's index.
 """
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 
 from derive.emit.python_printer import PythonPrinter
 from derive.lowering import LoweredAssign, LoweredProgram, Var
@@ -39,13 +38,6 @@ def _unpack(names: list[str], source: str) -> list[str]:
     return [f"{', '.join(names)} = {source}"]
 
 
-@dataclass(frozen=True)
-class Loop:
-    """Lines of the single-track branch (indented for the run function's body)."""
-
-    lines: tuple[str, ...]
-
-
 def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
     """Element indices of every input port that the step reads."""
     read: dict[str, set[int]] = {}
@@ -63,8 +55,9 @@ def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
 
 
 def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
-                      arrays: dict[str, str], indent: str = "        ") -> Loop:
-    """The single-track branch of ``run`` for a step with carried ``x`` (and ``P``).
+                      arrays: dict[str, str], indent: str = "        ") -> tuple[str, ...]:
+    """Lines of the single-track branch of ``run`` (indented for the run function's body)
+    for a step with carried ``x`` (and ``P``).
 
     ``arrays`` maps the step's ports to the run's array names (``x`` -> ``x0``,
     ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  The branch returns ``xs`` (and
@@ -141,7 +134,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         n = round(ports["P"].size ** 0.5)
         ret.append(f"table[:, {columns['P']}].reshape(-1, {n}, {n})")
     out += _wrap(f"return {ret[0]}" if len(ret) == 1 else f"return ({', '.join(ret)})")
-    return Loop(tuple(indent + line for line in out))
+    return tuple(indent + line for line in out)
 
 
 def _wrap(line: str, width: int = 88) -> list[str]:

@@ -11,14 +11,21 @@ deterministic (no timestamps, no hash-ordered iteration).
 from __future__ import annotations
 
 import importlib.resources
-import re
 from functools import cache
 from pathlib import Path
 
 import jinja2
 
 from derive.emit import c_printer, python_printer
-from derive.emit.lookahead import ZNEXT, run_pass
+from derive.emit.c_loops import (
+    LANES,
+    fused_body,
+    has_run_tracks,
+    tracks_parts,
+    two_step,
+    two_step_body,
+)
+from derive.emit.lookahead import ZNEXT
 from derive.emit.python_loop import single_track_loop
 from derive.emit.unit import Argument, Unit, run_arguments
 from derive.flops import count_lowered
@@ -105,14 +112,6 @@ def _py_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     return lines
 
 
-def _has_run_tracks(unit: Unit) -> bool:
-    """C run_tracks: for the linear families with a fused run loop, unless left out
-    (``options["run_tracks"] = False``); many small tracks are a linear-tracking use, so
-    EKF/UKF files stay lean."""
-    return (unit.kind in ("timevarying", "steady") and unit.family not in ("ekf", "ukf")
-            and unit.options.get("run_tracks", True) is not False)
-
-
 def _language(lang: str, use_fma: bool) -> str:
     if lang != "c":
         return "Python"
@@ -136,7 +135,7 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
     lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
-    if lang == "c" and _has_run_tracks(unit):
+    if lang == "c" and has_run_tracks(unit):
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another)")
     for lp in lowered.values():
@@ -198,7 +197,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         ports = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {name: ports[name] for name in unit.step_inputs}
         arrays.update(x="x0", P="P0", **{PARAMETER_PORT: PARAMETER_PORT})
-        context["single"] = single_track_loop(lowered["step"], unit.step_inputs, arrays).lines
+        context["single"] = single_track_loop(lowered["step"], unit.step_inputs, arrays)
     return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
 
 
@@ -208,113 +207,12 @@ def _c_call(function: str, args: str, status: bool) -> list[str]:
     return [f"status = {function}({args});", "if (status) {", "    return status;", "}"]
 
 
-def _fused_body(unit: Unit, step_parts: dict) -> list[str]:
-    """The step's statements for the run loop, reading per-step inputs at row k.
-
-    The run loop keeps the state (x, P) and the step's outputs in local arrays indexed
-    by constants, so the compiler holds them in registers: nothing is stored and
-    reloaded between steps except the rows of xs and Ps written as results. The
-    statements are the step's own (same operations, same count); only the per-step
-    input names change (``z[`` reads ``zk[``, the row of step k).
-    """
-    lines = [line for line in step_parts["body"] if not line.startswith("(void)")]
-    if lines and lines[-1] == "return 0;":
-        lines = lines[:-1]
-    out = []
-    for line in lines:
-        for name in unit.step_inputs:
-            line = re.sub(rf"\b{name}\[", f"{name}k[", line)
-        out.append(line)
-    return out
-
-
-#: Tracks that run_tracks advances together: independent dependency chains in one basic
-#: block that the compiler interleaves, so one track's latency hides another's.
-LANES = 4
-
-
-def _lane(lines: list[str], unit: Unit, label: str) -> list[str]:
-    """The fused step statements for one lane: its own temporaries, state and inputs."""
-    out = []
-    for line in lines:
-        line = re.sub(r"\bt(\d+)\b", rf"t\1{label}", line)
-        line = re.sub(r"\bx_new\[", f"xn{label}[", line)
-        line = re.sub(r"\bP_new\[", f"Pn{label}[", line)
-        line = re.sub(r"\bx\[", f"x{label}[", line)
-        line = re.sub(r"\bP\[", f"P{label}[", line)
-        for name in unit.step_inputs:
-            line = re.sub(rf"\b{name}k\[", f"{name}{label}[", line)
-        out.append(line)
-    return out
-
-
-def _tracks_parts(unit: Unit, fused: list[str], lanes: int,
-                  lookahead: list[str] | None = None) -> dict:
-    """Statements of run_tracks for ``lanes`` tracks at a time.
-
-    Track-major arrays: track t's z, x0, P0, xs, Ps are laid out exactly as for run,
-    one after the other, so every lane reads and writes its own sequential stream.
-    With ``lookahead`` (a steady-state two-step pass) each lane takes two steps per pass
-    as run does, so every track's result is bitwise its run's.
-    """
-    n, nn = unit.n, unit.n * unit.n
-    timevarying = unit.kind == "timevarying"
-    decl, load, body, store, pass_body, pass_store = [], [], [], [], [], []
-    for lane in range(lanes):
-        label = f"_l{lane}"  # never x0 or P0: those are the run's arguments
-        track = f"(t + {lane})"
-        decl.append(f"double x{label}[{n}], xn{label}[{n}];")
-        load += [f"x{label}[{i}] = x0[{track} * {n} + {i}];" for i in range(n)]
-        if timevarying:
-            decl.append(f"double P{label}[{nn}], Pn{label}[{nn}];")
-            load += [f"P{label}[{i}] = P0[{track} * {nn} + {i}];" for i in range(nn)]
-        for name in unit.step_inputs:
-            size = unit.step_input_size(name)
-            decl.append(f"const double *{name}{label};")
-            body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
-        body += _lane(fused, unit, label)
-        store += [f"xs[({track} * steps + k) * {n} + {i}] = x{label}[{i}] = xn{label}[{i}];"
-                  for i in range(n)]
-        if timevarying:
-            store += [f"P{label}[{i}] = Pn{label}[{i}];" for i in range(nn)]
-            store += ["if (Ps) {"] + [
-                f"    Ps[({track} * steps + k) * {nn} + {i}] = Pn{label}[{i}];"
-                for i in range(nn)] + ["}"]
-        if lookahead:
-            decl += [f"double xm{label}[{n}];", f"const double *{ZNEXT}{label};"]
-            pass_body += [f"z{label} = z + ({track} * steps + k) * {unit.m};",
-                          f"{ZNEXT}{label} = z + ({track} * steps + k + 1) * {unit.m};"]
-            pass_body += [re.sub(r"\bx_mid\[", f"xm{label}[",
-                                 re.sub(rf"\b{ZNEXT}k\[", f"{ZNEXT}{label}[", line))
-                          for line in _lane(lookahead, unit, label)]
-            pass_store += [f"xs[({track} * steps + k) * {n} + {i}] = xm{label}[{i}];"
-                           for i in range(n)]
-            pass_store += [f"xs[({track} * steps + k + 1) * {n} + {i}] = x{label}[{i}] = "
-                           f"xn{label}[{i}];" for i in range(n)]
-    return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store,
-            "pass_body": pass_body, "pass_store": pass_store}
-
-
-def _two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
-    """The lowered two-step pass of a steady-state run loop, or None (see lookahead)."""
-    program, steps = run_pass(unit)
-    return lower_program(program, use_fma=use_fma) if steps == 2 else None
-
-
-def _two_step_body(unit: Unit, lowered: LoweredProgram, prefix: str) -> list[str]:
-    """The pass's statements for the run loop: rows k and k + 1 read as zk and znk."""
-    lines = [line for line in c_printer.function_parts(lowered, prefix)["body"]
-             if not line.startswith("(void)") and line != "return 0;"]
-    return [re.sub(rf"\b{ZNEXT}\[", f"{ZNEXT}k[", re.sub(r"\bz\[", "zk[", line))
-            for line in lines]
-
-
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     lowered = _lowered(unit, use_fma=use_fma)
     lps = list(lowered.values())
     header_lines = _header_lines(unit, "c", lowered)
-    two = _two_step(unit, use_fma)
+    two = two_step(unit, use_fma)
     if two is not None:
         header_lines += [
             "run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) "
@@ -347,12 +245,12 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     step_parts = c_printer.function_parts(step_lp, prefix)
-    fused = _fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
-    lookahead = _two_step_body(unit, two, prefix) if two is not None else []
+    fused = fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
+    lookahead = two_step_body(two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
-    batch = _has_run_tracks(unit)
-    tracks = [_tracks_parts(unit, fused, lanes, lookahead) for lanes in (LANES, 1)] if batch \
+    batch = has_run_tracks(unit)
+    tracks = [tracks_parts(unit, fused, lanes, lookahead) for lanes in (LANES, 1)] if batch \
         else []
     tracks_params = ["size_t steps", "size_t tracks"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args]

@@ -1,0 +1,125 @@
+"""The statements of the generated C run loops, built from a unit's lowered programs.
+
+``run`` holds the step's statements with the state in local arrays (:func:`fused_body`),
+or for a steady-state filter a two-step pass (:func:`two_step`, :func:`two_step_body`,
+see :mod:`derive.emit.lookahead`); ``run_tracks`` advances :data:`LANES` tracks together,
+each lane with its own temporaries, state and inputs (:func:`tracks_parts`).
+"""
+
+from __future__ import annotations
+
+import re
+
+from derive.emit import c_printer
+from derive.emit.lookahead import ZNEXT, run_pass
+from derive.emit.unit import Unit
+from derive.lowering import LoweredProgram, lower_program
+
+
+def has_run_tracks(unit: Unit) -> bool:
+    """C run_tracks: for the linear families with a fused run loop, unless left out
+    (``options["run_tracks"] = False``); many small tracks are a linear-tracking use, so
+    EKF/UKF files stay lean."""
+    return (unit.kind in ("timevarying", "steady") and unit.family not in ("ekf", "ukf")
+            and unit.options.get("run_tracks", True) is not False)
+
+
+def fused_body(unit: Unit, step_parts: dict) -> list[str]:
+    """The step's statements for the run loop, reading per-step inputs at row k.
+
+    The run loop keeps the state (x, P) and the step's outputs in local arrays indexed
+    by constants, so the compiler holds them in registers: nothing is stored and
+    reloaded between steps except the rows of xs and Ps written as results. The
+    statements are the step's own (same operations, same count); only the per-step
+    input names change (``z[`` reads ``zk[``, the row of step k).
+    """
+    lines = [line for line in step_parts["body"] if not line.startswith("(void)")]
+    if lines and lines[-1] == "return 0;":
+        lines = lines[:-1]
+    out = []
+    for line in lines:
+        for name in unit.step_inputs:
+            line = re.sub(rf"\b{name}\[", f"{name}k[", line)
+        out.append(line)
+    return out
+
+
+#: Tracks that run_tracks advances together: independent dependency chains in one basic
+#: block that the compiler interleaves, so one track's latency hides another's.
+LANES = 4
+
+
+def lane_lines(lines: list[str], unit: Unit, label: str) -> list[str]:
+    """The fused step statements for one lane: its own temporaries, state and inputs."""
+    out = []
+    for line in lines:
+        line = re.sub(r"\bt(\d+)\b", rf"t\1{label}", line)
+        line = re.sub(r"\bx_new\[", f"xn{label}[", line)
+        line = re.sub(r"\bP_new\[", f"Pn{label}[", line)
+        line = re.sub(r"\bx\[", f"x{label}[", line)
+        line = re.sub(r"\bP\[", f"P{label}[", line)
+        for name in unit.step_inputs:
+            line = re.sub(rf"\b{name}k\[", f"{name}{label}[", line)
+        out.append(line)
+    return out
+
+
+def tracks_parts(unit: Unit, fused: list[str], lanes: int,
+                  lookahead: list[str] | None = None) -> dict:
+    """Statements of run_tracks for ``lanes`` tracks at a time.
+
+    Track-major arrays: track t's z, x0, P0, xs, Ps are laid out exactly as for run,
+    one after the other, so every lane reads and writes its own sequential stream.
+    With ``lookahead`` (a steady-state two-step pass) each lane takes two steps per pass
+    as run does, so every track's result is bitwise its run's.
+    """
+    n, nn = unit.n, unit.n * unit.n
+    timevarying = unit.kind == "timevarying"
+    decl, load, body, store, pass_body, pass_store = [], [], [], [], [], []
+    for lane in range(lanes):
+        label = f"_l{lane}"  # never x0 or P0: those are the run's arguments
+        track = f"(t + {lane})"
+        decl.append(f"double x{label}[{n}], xn{label}[{n}];")
+        load += [f"x{label}[{i}] = x0[{track} * {n} + {i}];" for i in range(n)]
+        if timevarying:
+            decl.append(f"double P{label}[{nn}], Pn{label}[{nn}];")
+            load += [f"P{label}[{i}] = P0[{track} * {nn} + {i}];" for i in range(nn)]
+        for name in unit.step_inputs:
+            size = unit.step_input_size(name)
+            decl.append(f"const double *{name}{label};")
+            body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
+        body += lane_lines(fused, unit, label)
+        store += [f"xs[({track} * steps + k) * {n} + {i}] = x{label}[{i}] = xn{label}[{i}];"
+                  for i in range(n)]
+        if timevarying:
+            store += [f"P{label}[{i}] = Pn{label}[{i}];" for i in range(nn)]
+            store += ["if (Ps) {"] + [
+                f"    Ps[({track} * steps + k) * {nn} + {i}] = Pn{label}[{i}];"
+                for i in range(nn)] + ["}"]
+        if lookahead:
+            decl += [f"double xm{label}[{n}];", f"const double *{ZNEXT}{label};"]
+            pass_body += [f"z{label} = z + ({track} * steps + k) * {unit.m};",
+                          f"{ZNEXT}{label} = z + ({track} * steps + k + 1) * {unit.m};"]
+            pass_body += [re.sub(r"\bx_mid\[", f"xm{label}[",
+                                 re.sub(rf"\b{ZNEXT}k\[", f"{ZNEXT}{label}[", line))
+                          for line in lane_lines(lookahead, unit, label)]
+            pass_store += [f"xs[({track} * steps + k) * {n} + {i}] = xm{label}[{i}];"
+                           for i in range(n)]
+            pass_store += [f"xs[({track} * steps + k + 1) * {n} + {i}] = x{label}[{i}] = "
+                           f"xn{label}[{i}];" for i in range(n)]
+    return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store,
+            "pass_body": pass_body, "pass_store": pass_store}
+
+
+def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
+    """The lowered two-step pass of a steady-state run loop, or None (see lookahead)."""
+    program, steps = run_pass(unit)
+    return lower_program(program, use_fma=use_fma) if steps == 2 else None
+
+
+def two_step_body(lowered: LoweredProgram, prefix: str) -> list[str]:
+    """The pass's statements for the run loop: rows k and k + 1 read as zk and znk."""
+    lines = [line for line in c_printer.function_parts(lowered, prefix)["body"]
+             if not line.startswith("(void)") and line != "return 0;"]
+    return [re.sub(rf"\b{ZNEXT}\[", f"{ZNEXT}k[", re.sub(r"\bz\[", "zk[", line))
+            for line in lines]
