@@ -2,6 +2,8 @@
 exact two-step map; it must agree with stepping, keep the odd step and the first step of
 each pass exact, and not drift over long runs."""
 
+import re
+
 import numpy as np
 import pytest
 import sympy
@@ -30,18 +32,33 @@ def _outputs(program, port):
     return [sympy.expand(e.xreplace(values)) for e in program.results[port]]
 
 
-def test_the_pass_is_the_step_then_the_exact_two_step_map():
+def test_the_two_step_map_is_exact():
+    """x(k+2) = A^2 x + AB z(k) + B z(k+1) with the products of the baked doubles taken
+    exactly (rounded once when printed)."""
     model = catalog.load("mpt3d_b")
     A, B = (baked(M) for M in steady_gains(model, "sskf"))
-    step = _step("mpt3d_b")
-    two = two_step_program(step)
+    two = two_step_program(_step("mpt3d_b"))
+    assert [p.name for p in two.inputs] == ["x", "z", ZNEXT]
     x = sympy.Matrix([two.element("x", i) for i in range(2)])
     z = sympy.Matrix([two.element("z", 0)])
     zn = sympy.Matrix([two.element(ZNEXT, 0)])
-    mid = _outputs(two, "x_mid")
-    assert mid == [sympy.expand(e) for e in A * x + B * z]
     new = _outputs(two, "x_new")
     assert new == [sympy.expand(e) for e in (A * A) * x + (A * B) * z + B * zn]
+
+
+def test_the_pass_runs_the_steps_own_statements_first():
+    """In the C pass, x(k+1) is the step's statements verbatim (written to x_mid) and the
+    map's temporaries are numbered after the step's."""
+    model = catalog.load("mpt3d_a")
+    c = render_filter(model, "sskf", "c")["sskf.c"]
+    step_body = c[c.index("mpt3d_a_sskf_step("):]
+    step_body = step_body[step_body.index("{") + 1:step_body.index("\n}")]
+    run = c[c.index("two steps per pass:"):c.index("an odd last step")]
+    for line in step_body.strip().splitlines():
+        line = line.strip().replace("z[", "zk[").replace("x_new[", "x_mid[")
+        assert line in run, line
+    temps = [int(t) for t in re.findall(r"const double t(\d+) =", run)]
+    assert temps == list(range(len(temps)))
 
 
 def test_the_pass_is_declined_where_it_does_not_apply():

@@ -112,14 +112,20 @@ def tracks_parts(unit: Unit, fused: list[str], lanes: int,
 
 
 def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
-    """The lowered two-step pass of a steady-state run loop, or None (see lookahead)."""
+    """The lowered two-step map of a steady-state run loop, or None (see lookahead)."""
     program, steps = run_pass(unit)
     return lower_program(program, use_fma=use_fma) if steps == 2 else None
 
 
-def two_step_body(lowered: LoweredProgram, prefix: str) -> list[str]:
-    """The pass's statements for the run loop: rows k and k + 1 read as zk and znk."""
+def two_step_body(fused: list[str], lowered: LoweredProgram, prefix: str) -> list[str]:
+    """The pass's statements: the step's own (``fused``) writing x(k+1) to ``x_mid``,
+    then the two-step map writing x(k+2) to ``x_new``, its temporaries numbered after
+    the step's; rows k and k + 1 are read as ``zk`` and ``znk``."""
+    first = 1 + max((int(m) for line in fused for m in re.findall(r"\bt(\d+)\b", line)),
+                    default=-1)
+    mid = [re.sub(r"\bx_new\[", "x_mid[", line) for line in fused]
     lines = [line for line in c_printer.function_parts(lowered, prefix)["body"]
              if not line.startswith("(void)") and line != "return 0;"]
-    return [re.sub(rf"\b{ZNEXT}\[", f"{ZNEXT}k[", re.sub(r"\bz\[", "zk[", line))
-            for line in lines]
+    lines = [re.sub(r"\bt(\d+)\b", lambda m: f"t{int(m[1]) + first}", line) for line in lines]
+    return mid + [re.sub(rf"\b{ZNEXT}\[", f"{ZNEXT}k[", re.sub(r"\bz\[", "zk[", line))
+                  for line in lines]

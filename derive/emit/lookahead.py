@@ -49,20 +49,19 @@ def _affine(expr: sympy.Expr, x: list, z: list):
     poly = sympy.Poly(expr, *x, *z) if symbols else None
     if poly is not None and poly.total_degree() > 1:
         return None
-    coeffs = [sympy.nsimplify(0) if poly is None else poly.coeff_monomial(s) for s in x + z]
+    coeffs = [sympy.S.Zero if poly is None else poly.coeff_monomial(s) for s in x + z]
     constant = expr if poly is None else poly.coeff_monomial(1)
     numbers = coeffs + [constant]
     if not all(v.is_number and v.is_real for v in numbers):
         return None
-    exact = [sympy.Rational(v) if isinstance(v, sympy.Float) else sympy.nsimplify(v)
-             for v in numbers]
+    exact = [sympy.Rational(v) if isinstance(v, sympy.Float) else v for v in numbers]
     return exact[:len(x)], exact[len(x):len(x) + len(z)], exact[-1]
 
 
 def two_step_program(step: Program) -> Program | None:
-    """The pass of two steps: outputs ``x_mid`` (x(k+1), the step's own expressions)
-    and ``x_new`` (x(k+2) by the two-step map), from inputs ``x``, ``z`` (row k) and
-    ``zn`` (row k + 1); None when the step is not affine with constant coefficients."""
+    """x(k+2) from inputs ``x`` (x(k)), ``z`` (row k) and ``zn`` (row k + 1) by the
+    two-step map; None when the step is not affine with constant coefficients.  The
+    run loop computes x(k+1) with the step's own statements beside it."""
     names = [p.name for p in step.inputs]
     if names != ["x", "z"] or [p.name for p in step.outputs] != ["x_new"]:
         return None
@@ -80,20 +79,18 @@ def two_step_program(step: Program) -> Program | None:
     c = sympy.Matrix([r[2] for r in rows])
     prog = Program("step2", [Port("x", (n,), doc="x(k)"), Port("z", (m,), doc="z(k)"),
                              Port(ZNEXT, (m,), doc="z(k+1)")],
-                   [Port("x_mid", (n,), doc="x(k+1)"), Port("x_new", (n,), doc="x(k+2)")],
-                   doc="two steps: x(k+1) by the step, x(k+2) by the two-step map")
+                   [Port("x_new", (n,), doc="x(k+2)")],
+                   doc="x(k+2) = A^2 x(k) + A B z(k) + B z(k+1) + A c + c")
     xs, zs, zn = prog.matrix("x"), prog.matrix("z"), prog.matrix(ZNEXT)
-    here = {old: new for old, new in zip(x + z, list(xs) + list(zs), strict=True)}
-    prog.set_output("x_mid", [e.xreplace(here) for e in outputs])
     two = (A * A) * xs + (A * B) * zs + B * zn + (A * c + c)
     prog.set_output("x_new", [sympy.expand(e) for e in two])
     return prog.optimize()
 
 
 def run_pass(unit) -> tuple[Program, int]:
-    """(program, steps) of one pass of the generated C run loop of ``unit``: the
-    two-step pass for a steady-state filter without free parameters whose step is
-    affine, else the step itself."""
+    """(program, steps) of the carried chain of one pass of the generated C run loop of
+    ``unit``: the two-step map for a steady-state filter without free parameters whose
+    step is affine (x(k+1) beside it is not carried), else the step itself."""
     step = unit.programs["step"]
     if unit.kind == "steady" and not unit.parameters:
         two = two_step_program(step)

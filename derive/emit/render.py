@@ -219,7 +219,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             "by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) "
             "is carried from pass to pass",
             f"operations per pass of run, two steps ({_language('c', use_fma)}): "
-            f"{count_lowered(two).summary()}"]
+            f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
@@ -246,7 +246,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     step_parts = c_printer.function_parts(step_lp, prefix)
     fused = fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
-    lookahead = two_step_body(two, prefix) if two is not None else []
+    lookahead = two_step_body(fused, two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
     batch = has_run_tracks(unit)

@@ -17,7 +17,7 @@
  * A = [[0.7298437881283576, 0.                , 0.                ], [0.                , 0.7298437881283576, 0.                ], [0.                , 0.                , 0.7298437881283576]]
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 18, neg 0, cmp 0, calls 0 (flops 42, instructions 24)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
  */
 #include <math.h>
 #include <stddef.h>
@@ -60,12 +60,12 @@ void gps_static_sskf_run(size_t steps, const double *z, const double *x0, double
         const double t0 = DERIVE_FMA(0.7298437881283576, x[0], 0.2701562118716424*zk[0]);
         const double t1 = DERIVE_FMA(0.7298437881283576, x[1], 0.2701562118716424*zk[1]);
         const double t2 = DERIVE_FMA(0.7298437881283576, x[2], 0.2701562118716424*zk[2]);
-        const double t3 = DERIVE_FMA((-0.6723280449304491), x[0], DERIVE_FMA(1.205, x[0], DERIVE_FMA(0.32015621187164245, znk[0], DERIVE_FMA(0.35217183305880667, zk[0], DERIVE_FMA((-0.05), znk[0], (-0.155)*zk[0])))));
-        const double t4 = DERIVE_FMA((-0.6723280449304491), x[1], DERIVE_FMA(1.205, x[1], DERIVE_FMA(0.32015621187164245, znk[1], DERIVE_FMA(0.35217183305880667, zk[1], DERIVE_FMA((-0.05), znk[1], (-0.155)*zk[1])))));
-        const double t5 = DERIVE_FMA((-0.6723280449304491), x[2], DERIVE_FMA(1.205, x[2], DERIVE_FMA(0.32015621187164245, znk[2], DERIVE_FMA(0.35217183305880667, zk[2], DERIVE_FMA((-0.05), znk[2], (-0.155)*zk[2])))));
         x_mid[0] = t0;
         x_mid[1] = t1;
         x_mid[2] = t2;
+        const double t3 = DERIVE_FMA(0.5326719550695509, x[0], DERIVE_FMA(0.2701562118716424, znk[0], 0.19717183305880667*zk[0]));
+        const double t4 = DERIVE_FMA(0.5326719550695509, x[1], DERIVE_FMA(0.2701562118716424, znk[1], 0.19717183305880667*zk[1]));
+        const double t5 = DERIVE_FMA(0.5326719550695509, x[2], DERIVE_FMA(0.2701562118716424, znk[2], 0.19717183305880667*zk[2]));
         x_new[0] = t3;
         x_new[1] = t4;
         x_new[2] = t5;
@@ -134,12 +134,12 @@ void gps_static_sskf_run_tracks(size_t steps, size_t tracks, const double *z, co
             const double t0_l0 = DERIVE_FMA(0.7298437881283576, x_l0[0], 0.2701562118716424*z_l0[0]);
             const double t1_l0 = DERIVE_FMA(0.7298437881283576, x_l0[1], 0.2701562118716424*z_l0[1]);
             const double t2_l0 = DERIVE_FMA(0.7298437881283576, x_l0[2], 0.2701562118716424*z_l0[2]);
-            const double t3_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[0], DERIVE_FMA(1.205, x_l0[0], DERIVE_FMA(0.32015621187164245, zn_l0[0], DERIVE_FMA(0.35217183305880667, z_l0[0], DERIVE_FMA((-0.05), zn_l0[0], (-0.155)*z_l0[0])))));
-            const double t4_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[1], DERIVE_FMA(1.205, x_l0[1], DERIVE_FMA(0.32015621187164245, zn_l0[1], DERIVE_FMA(0.35217183305880667, z_l0[1], DERIVE_FMA((-0.05), zn_l0[1], (-0.155)*z_l0[1])))));
-            const double t5_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[2], DERIVE_FMA(1.205, x_l0[2], DERIVE_FMA(0.32015621187164245, zn_l0[2], DERIVE_FMA(0.35217183305880667, z_l0[2], DERIVE_FMA((-0.05), zn_l0[2], (-0.155)*z_l0[2])))));
             xm_l0[0] = t0_l0;
             xm_l0[1] = t1_l0;
             xm_l0[2] = t2_l0;
+            const double t3_l0 = DERIVE_FMA(0.5326719550695509, x_l0[0], DERIVE_FMA(0.2701562118716424, zn_l0[0], 0.19717183305880667*z_l0[0]));
+            const double t4_l0 = DERIVE_FMA(0.5326719550695509, x_l0[1], DERIVE_FMA(0.2701562118716424, zn_l0[1], 0.19717183305880667*z_l0[1]));
+            const double t5_l0 = DERIVE_FMA(0.5326719550695509, x_l0[2], DERIVE_FMA(0.2701562118716424, zn_l0[2], 0.19717183305880667*z_l0[2]));
             xn_l0[0] = t3_l0;
             xn_l0[1] = t4_l0;
             xn_l0[2] = t5_l0;
@@ -148,12 +148,12 @@ void gps_static_sskf_run_tracks(size_t steps, size_t tracks, const double *z, co
             const double t0_l1 = DERIVE_FMA(0.7298437881283576, x_l1[0], 0.2701562118716424*z_l1[0]);
             const double t1_l1 = DERIVE_FMA(0.7298437881283576, x_l1[1], 0.2701562118716424*z_l1[1]);
             const double t2_l1 = DERIVE_FMA(0.7298437881283576, x_l1[2], 0.2701562118716424*z_l1[2]);
-            const double t3_l1 = DERIVE_FMA((-0.6723280449304491), x_l1[0], DERIVE_FMA(1.205, x_l1[0], DERIVE_FMA(0.32015621187164245, zn_l1[0], DERIVE_FMA(0.35217183305880667, z_l1[0], DERIVE_FMA((-0.05), zn_l1[0], (-0.155)*z_l1[0])))));
-            const double t4_l1 = DERIVE_FMA((-0.6723280449304491), x_l1[1], DERIVE_FMA(1.205, x_l1[1], DERIVE_FMA(0.32015621187164245, zn_l1[1], DERIVE_FMA(0.35217183305880667, z_l1[1], DERIVE_FMA((-0.05), zn_l1[1], (-0.155)*z_l1[1])))));
-            const double t5_l1 = DERIVE_FMA((-0.6723280449304491), x_l1[2], DERIVE_FMA(1.205, x_l1[2], DERIVE_FMA(0.32015621187164245, zn_l1[2], DERIVE_FMA(0.35217183305880667, z_l1[2], DERIVE_FMA((-0.05), zn_l1[2], (-0.155)*z_l1[2])))));
             xm_l1[0] = t0_l1;
             xm_l1[1] = t1_l1;
             xm_l1[2] = t2_l1;
+            const double t3_l1 = DERIVE_FMA(0.5326719550695509, x_l1[0], DERIVE_FMA(0.2701562118716424, zn_l1[0], 0.19717183305880667*z_l1[0]));
+            const double t4_l1 = DERIVE_FMA(0.5326719550695509, x_l1[1], DERIVE_FMA(0.2701562118716424, zn_l1[1], 0.19717183305880667*z_l1[1]));
+            const double t5_l1 = DERIVE_FMA(0.5326719550695509, x_l1[2], DERIVE_FMA(0.2701562118716424, zn_l1[2], 0.19717183305880667*z_l1[2]));
             xn_l1[0] = t3_l1;
             xn_l1[1] = t4_l1;
             xn_l1[2] = t5_l1;
@@ -162,12 +162,12 @@ void gps_static_sskf_run_tracks(size_t steps, size_t tracks, const double *z, co
             const double t0_l2 = DERIVE_FMA(0.7298437881283576, x_l2[0], 0.2701562118716424*z_l2[0]);
             const double t1_l2 = DERIVE_FMA(0.7298437881283576, x_l2[1], 0.2701562118716424*z_l2[1]);
             const double t2_l2 = DERIVE_FMA(0.7298437881283576, x_l2[2], 0.2701562118716424*z_l2[2]);
-            const double t3_l2 = DERIVE_FMA((-0.6723280449304491), x_l2[0], DERIVE_FMA(1.205, x_l2[0], DERIVE_FMA(0.32015621187164245, zn_l2[0], DERIVE_FMA(0.35217183305880667, z_l2[0], DERIVE_FMA((-0.05), zn_l2[0], (-0.155)*z_l2[0])))));
-            const double t4_l2 = DERIVE_FMA((-0.6723280449304491), x_l2[1], DERIVE_FMA(1.205, x_l2[1], DERIVE_FMA(0.32015621187164245, zn_l2[1], DERIVE_FMA(0.35217183305880667, z_l2[1], DERIVE_FMA((-0.05), zn_l2[1], (-0.155)*z_l2[1])))));
-            const double t5_l2 = DERIVE_FMA((-0.6723280449304491), x_l2[2], DERIVE_FMA(1.205, x_l2[2], DERIVE_FMA(0.32015621187164245, zn_l2[2], DERIVE_FMA(0.35217183305880667, z_l2[2], DERIVE_FMA((-0.05), zn_l2[2], (-0.155)*z_l2[2])))));
             xm_l2[0] = t0_l2;
             xm_l2[1] = t1_l2;
             xm_l2[2] = t2_l2;
+            const double t3_l2 = DERIVE_FMA(0.5326719550695509, x_l2[0], DERIVE_FMA(0.2701562118716424, zn_l2[0], 0.19717183305880667*z_l2[0]));
+            const double t4_l2 = DERIVE_FMA(0.5326719550695509, x_l2[1], DERIVE_FMA(0.2701562118716424, zn_l2[1], 0.19717183305880667*z_l2[1]));
+            const double t5_l2 = DERIVE_FMA(0.5326719550695509, x_l2[2], DERIVE_FMA(0.2701562118716424, zn_l2[2], 0.19717183305880667*z_l2[2]));
             xn_l2[0] = t3_l2;
             xn_l2[1] = t4_l2;
             xn_l2[2] = t5_l2;
@@ -176,12 +176,12 @@ void gps_static_sskf_run_tracks(size_t steps, size_t tracks, const double *z, co
             const double t0_l3 = DERIVE_FMA(0.7298437881283576, x_l3[0], 0.2701562118716424*z_l3[0]);
             const double t1_l3 = DERIVE_FMA(0.7298437881283576, x_l3[1], 0.2701562118716424*z_l3[1]);
             const double t2_l3 = DERIVE_FMA(0.7298437881283576, x_l3[2], 0.2701562118716424*z_l3[2]);
-            const double t3_l3 = DERIVE_FMA((-0.6723280449304491), x_l3[0], DERIVE_FMA(1.205, x_l3[0], DERIVE_FMA(0.32015621187164245, zn_l3[0], DERIVE_FMA(0.35217183305880667, z_l3[0], DERIVE_FMA((-0.05), zn_l3[0], (-0.155)*z_l3[0])))));
-            const double t4_l3 = DERIVE_FMA((-0.6723280449304491), x_l3[1], DERIVE_FMA(1.205, x_l3[1], DERIVE_FMA(0.32015621187164245, zn_l3[1], DERIVE_FMA(0.35217183305880667, z_l3[1], DERIVE_FMA((-0.05), zn_l3[1], (-0.155)*z_l3[1])))));
-            const double t5_l3 = DERIVE_FMA((-0.6723280449304491), x_l3[2], DERIVE_FMA(1.205, x_l3[2], DERIVE_FMA(0.32015621187164245, zn_l3[2], DERIVE_FMA(0.35217183305880667, z_l3[2], DERIVE_FMA((-0.05), zn_l3[2], (-0.155)*z_l3[2])))));
             xm_l3[0] = t0_l3;
             xm_l3[1] = t1_l3;
             xm_l3[2] = t2_l3;
+            const double t3_l3 = DERIVE_FMA(0.5326719550695509, x_l3[0], DERIVE_FMA(0.2701562118716424, zn_l3[0], 0.19717183305880667*z_l3[0]));
+            const double t4_l3 = DERIVE_FMA(0.5326719550695509, x_l3[1], DERIVE_FMA(0.2701562118716424, zn_l3[1], 0.19717183305880667*z_l3[1]));
+            const double t5_l3 = DERIVE_FMA(0.5326719550695509, x_l3[2], DERIVE_FMA(0.2701562118716424, zn_l3[2], 0.19717183305880667*z_l3[2]));
             xn_l3[0] = t3_l3;
             xn_l3[1] = t4_l3;
             xn_l3[2] = t5_l3;
@@ -267,12 +267,12 @@ void gps_static_sskf_run_tracks(size_t steps, size_t tracks, const double *z, co
             const double t0_l0 = DERIVE_FMA(0.7298437881283576, x_l0[0], 0.2701562118716424*z_l0[0]);
             const double t1_l0 = DERIVE_FMA(0.7298437881283576, x_l0[1], 0.2701562118716424*z_l0[1]);
             const double t2_l0 = DERIVE_FMA(0.7298437881283576, x_l0[2], 0.2701562118716424*z_l0[2]);
-            const double t3_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[0], DERIVE_FMA(1.205, x_l0[0], DERIVE_FMA(0.32015621187164245, zn_l0[0], DERIVE_FMA(0.35217183305880667, z_l0[0], DERIVE_FMA((-0.05), zn_l0[0], (-0.155)*z_l0[0])))));
-            const double t4_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[1], DERIVE_FMA(1.205, x_l0[1], DERIVE_FMA(0.32015621187164245, zn_l0[1], DERIVE_FMA(0.35217183305880667, z_l0[1], DERIVE_FMA((-0.05), zn_l0[1], (-0.155)*z_l0[1])))));
-            const double t5_l0 = DERIVE_FMA((-0.6723280449304491), x_l0[2], DERIVE_FMA(1.205, x_l0[2], DERIVE_FMA(0.32015621187164245, zn_l0[2], DERIVE_FMA(0.35217183305880667, z_l0[2], DERIVE_FMA((-0.05), zn_l0[2], (-0.155)*z_l0[2])))));
             xm_l0[0] = t0_l0;
             xm_l0[1] = t1_l0;
             xm_l0[2] = t2_l0;
+            const double t3_l0 = DERIVE_FMA(0.5326719550695509, x_l0[0], DERIVE_FMA(0.2701562118716424, zn_l0[0], 0.19717183305880667*z_l0[0]));
+            const double t4_l0 = DERIVE_FMA(0.5326719550695509, x_l0[1], DERIVE_FMA(0.2701562118716424, zn_l0[1], 0.19717183305880667*z_l0[1]));
+            const double t5_l0 = DERIVE_FMA(0.5326719550695509, x_l0[2], DERIVE_FMA(0.2701562118716424, zn_l0[2], 0.19717183305880667*z_l0[2]));
             xn_l0[0] = t3_l0;
             xn_l0[1] = t4_l0;
             xn_l0[2] = t5_l0;
