@@ -110,3 +110,17 @@ def test_c_run_does_not_drift_over_a_long_run(compiled):
     zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, 9).zs
     xr = reference.sskf(num.F, num.G, num.H, num.Q, num.R, num.x0, zs)
     assert relative_error(mod.run(zs, num.x0), xr) <= 1e-12
+
+
+@pytest.mark.parametrize("model_name", ["mpt3d_a", "gsm2d_a", "ca"])
+def test_the_header_counts_the_pass_as_emitted(model_name):
+    """The header's count of a pass equals the operators in the pass's C text."""
+    from derive.flops import count_c_text
+
+    c = render_filter(catalog.load(model_name), "sskf", "c")["sskf.c"]
+    line = next(ln for ln in c.splitlines() if "operations per pass of run" in ln)
+    header = line.split("): ", 1)[1]
+    run = c[c.index("two steps per pass:"):c.index("an odd last step")]
+    body = run[run.index("{", run.index("for (k = 0")) + 1:run.index("xs[k * ")]
+    body = "\n".join(ln for ln in body.splitlines() if "const double *restrict" not in ln)
+    assert count_c_text(body).summary() == header
