@@ -124,3 +124,31 @@ def test_the_header_counts_the_pass_as_emitted(model_name):
     body = run[run.index("{", run.index("for (k = 0")) + 1:run.index("xs[k * ")]
     body = "\n".join(ln for ln in body.splitlines() if "const double *restrict" not in ln)
     assert count_c_text(body).summary() == header
+
+
+def test_the_predictor_runs_two_steps_per_pass_too(tmp_path):
+    """pred: x(N/0) = init(x0), then the same pass as a steady-state filter; the C run
+    agrees with init and stepping, and the Python run is bitwise its stepping."""
+    from derive.build import build_c
+    from derive.verify import import_python
+
+    model = catalog.load("cv")
+    files = render_filter(model, "pred", "all", {"N": 3})
+    assert "run: two steps per pass" in files["pred.c"]
+    paths = {p.suffix: p for p in write_files(tmp_path, model.name, files)}
+    mod, py = build_c(paths[".c"]), import_python(paths[".py"])
+    num = model.numeric()
+    zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 301, 4).zs
+    x0 = np.array([1.5, -0.5])
+    x, stepped = mod.init(x0), []
+    for z in zs:
+        x = mod.step(x, z)
+        stepped.append(x)
+    xs = mod.run(zs, x0)
+    np.testing.assert_array_equal(xs[0], stepped[0])
+    assert relative_error(xs, np.array(stepped)) <= 1e-14
+    x, expected = py.init(list(x0)), []
+    for z in zs:
+        x = py.step(x, z)
+        expected.append(x)
+    np.testing.assert_array_equal(py.run(zs, x0), np.array(expected))

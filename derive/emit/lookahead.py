@@ -89,10 +89,10 @@ def two_step_program(step: Program) -> Program | None:
 
 def run_pass(unit) -> tuple[Program, int]:
     """(program, steps) of the carried chain of one pass of the generated C run loop of
-    ``unit``: the two-step map for a steady-state filter without free parameters whose
-    step is affine (x(k+1) beside it is not carried), else the step itself."""
+    ``unit``: the two-step map for a steady-state filter or predictor without free
+    parameters whose step is affine (x(k+1) beside it is not carried), else the step itself."""
     step = unit.programs["step"]
-    if unit.kind == "steady" and not unit.parameters:
+    if unit.kind in ("steady", "pred") and not unit.parameters:
         two = two_step_program(step)
         if two is not None:
             return two, 2

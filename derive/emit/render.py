@@ -193,10 +193,12 @@ def render_python(unit: Unit) -> dict[str, str]:
         "padding": unit.window - 1 if unit.kind == "fir" else 0,
         "single": [],
     }
-    if unit.kind in ("timevarying", "steady"):
+    if unit.kind != "fir":
         ports = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {name: ports[name] for name in unit.step_inputs}
-        arrays.update(x="x0", P="P0", **{PARAMETER_PORT: PARAMETER_PORT})
+        # the predictor starts from init(x0), computed before the loop (pred.jinja)
+        arrays.update(x="x_start" if unit.kind == "pred" else "x0", P="P0",
+                      **{PARAMETER_PORT: PARAMETER_PORT})
         context["single"] = single_track_loop(lowered["step"], unit.step_inputs, arrays)
     return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
 
@@ -245,7 +247,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     step_parts = c_printer.function_parts(step_lp, prefix)
-    fused = fused_body(unit, step_parts) if unit.kind in ("timevarying", "steady") else []
+    fused = fused_body(unit, step_parts) if unit.kind != "fir" else []
     lookahead = two_step_body(fused, two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]

@@ -18,6 +18,8 @@
  * A_N = [[0.7298437881283576, 0.                , 0.                ], [0.                , 0.7298437881283576, 0.                ], [0.                , 0.                , 0.7298437881283576]]
  * B_N = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * N = 1
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
  */
 #ifndef GPS_STATIC_PRED_H
 #define GPS_STATIC_PRED_H

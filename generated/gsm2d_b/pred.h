@@ -18,6 +18,8 @@
  * A_N = [[ 0.4278063806273572 ,  0.42780638062735715], [-0.2068348086341748 ,  0.7931651913658252 ]]
  * B_N = [[0.5721936193726429], [0.2068348086341748]]
  * N = 1
+ * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
  */
 #ifndef GSM2D_B_PRED_H
 #define GSM2D_B_PRED_H
