@@ -8,6 +8,9 @@ import numpy as np
 import pytest
 import sympy
 from _backend_kf import steady_unit
+from _random_models import stable_models
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from derive import catalog
 from derive.emit.lookahead import ZNEXT, two_step_program
@@ -27,8 +30,8 @@ def _step(model, name="sskf"):
 def _outputs(program, port):
     """``port``'s outputs of an optimised program as expressions in the input elements."""
     values = {}
-    for st in program.body:
-        values[st.target] = st.expr.xreplace(values)
+    for statement in program.body:
+        values[statement.target] = statement.expr.xreplace(values)
     return [sympy.expand(e.xreplace(values)) for e in program.results[port]]
 
 
@@ -152,3 +155,18 @@ def test_the_predictor_runs_two_steps_per_pass_too(tmp_path):
         x = py.step(x, z)
         expected.append(x)
     np.testing.assert_array_equal(py.run(zs, x0), np.array(expected))
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(stable_models(), st.integers(0, 1000))
+def test_random_models_two_step_c_run_matches_reference(tmp_path_factory, model, seed):
+    from derive.build import build_c
+
+    num = model.numeric()
+    run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 301, seed)
+    files = render_filter(model, "sskf", "c")
+    assert "run: two steps per pass" in files["sskf.c"]
+    paths = {p.suffix: p for p in write_files(tmp_path_factory.mktemp("la"), model.name, files)}
+    xs = build_c(paths[".c"]).run(run.zs, num.x0)
+    xr = reference.sskf(num.F, num.G, num.H, num.Q, num.R, num.x0, run.zs)
+    assert relative_error(xs, xr) <= 1e-12
