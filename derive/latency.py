@@ -15,14 +15,13 @@ so it adds no latency to the data path.
 
 from __future__ import annotations
 
-import re
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var
+from derive.lowering import CARRIED, Const, LoweredAssign, LoweredProgram, Op, Tree, Var
 
 #: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
 #: latencies for double add, multiply, fma, divide and square root; a call of a math
@@ -31,28 +30,22 @@ from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var
 REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0,
                     "call": 40.0}
 
-#: Step outputs fed back as inputs by the run loops.
-FEEDBACK = (("x_new", "x"), ("P_new", "P"))
-
-_ELEMENT = re.compile(r"([A-Za-z]\w*)\[(\d+)\]")
 _NONE = -np.inf
 
 
 @dataclass(frozen=True)
 class Bound:
-    """Latency per step of the critical cycle and the operations on it (per step)."""
+    """Latency per step of the critical cycle and the operations on it per pass of the
+    loop (a pass is ``steps`` steps: 2 for a steady-state two-step pass, else 1)."""
 
     per_step: float
     operations: Mapping[str, float]
-    span: int                      # steps the critical cycle spans
+    span: int                      # passes the critical cycle spans
+    steps: int = 1
 
     def describe(self) -> str:
-        parts = [f"{_amount(c)} {k}" for k, c in sorted(self.operations.items())]
-        return ", ".join(parts)
-
-
-def _amount(count: float) -> str:
-    return f"{count:g}" if count != int(count) else str(int(count))
+        ops = ", ".join(f"{c:g} {k}" for k, c in sorted(self.operations.items()))
+        return ops + (f" per pass of {self.steps} steps" if self.steps > 1 else "")
 
 
 def _latency_of(kind: str, latency: Mapping[str, float]) -> float:
@@ -73,7 +66,7 @@ class _Graph:
     def __init__(self, lowered: LoweredProgram, latency: Mapping[str, float]):
         self.latency = latency
         results = dict(lowered.results)
-        self.pairs = [(out, port) for out, port in FEEDBACK
+        self.pairs = [(out, port) for port, out in CARRIED
                       if out in results and any(p.name == port for p in lowered.inputs)]
         self.carried = [f"{port}[{i}]" for out, port in self.pairs
                         for i in range(len(results[out]))]
@@ -177,3 +170,16 @@ def _cycle_nodes(via: list[np.ndarray], start: int, steps: int) -> list[int]:
         walk.append(j)
     walk.reverse()          # start's successor ... the node before the end
     return [start] + walk[:-1] if steps > 1 else [start]
+
+
+def run_loop_bound(unit, latency: Mapping[str, float]) -> Bound | None:
+    """The bound of ``unit``'s generated C run loop as emitted: its pass (the step, or a
+    steady-state two-step pass, :func:`derive.emit.lookahead.run_pass`), per step."""
+    from derive.emit.lookahead import run_pass
+    from derive.lowering import lower_program
+
+    program, steps = run_pass(unit)
+    bound = carried_bound(lower_program(program, use_fma=True), latency)
+    if bound is None:
+        return None
+    return Bound(bound.per_step / steps, bound.operations, bound.span, steps)

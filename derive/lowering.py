@@ -249,8 +249,11 @@ class _Lowerer:
         return acc
 
 
+#: The filter's state carried from one step to the next: (input port, the output that
+#: becomes it in the next step).  Run loops feed these back.
+CARRIED = (("x", "x_new"), ("P", "P_new"))
 #: Input ports that carry the filter's state from one step to the next.
-STATE_PORTS = ("x", "P")
+STATE_PORTS = tuple(port for port, _ in CARRIED)
 
 
 def _late(tree: Tree) -> bool:

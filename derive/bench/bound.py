@@ -14,16 +14,11 @@ def case_bound(case: Case, latency: Mapping[str, float]) -> tuple[float, str] | 
     """(seconds per step, the operations on the critical cycle) for ``case``'s generated
     C; copies run one after another, so their bounds add up. None without a bound."""
     from .. import catalog
-    from ..emit.lookahead import run_pass
     from ..generation import derive_unit
-    from ..latency import carried_bound
-    from ..lowering import lower_program
+    from ..latency import run_loop_bound
 
-    unit = derive_unit(catalog.load(case.model), case.filter, {})
-    program, steps = run_pass(unit)
-    bound = carried_bound(lower_program(program, use_fma=True), latency)
+    bound = run_loop_bound(derive_unit(catalog.load(case.model), case.filter, {}), latency)
     if bound is None:
         return None
-    ops = bound.describe() + (f" per pass of {steps} steps" if steps > 1 else "")
     per_copy = f" per copy, {case.copies} copies in turn" if case.copies > 1 else ""
-    return bound.per_step / steps * case.copies, ops + per_copy
+    return bound.per_step * case.copies, bound.describe() + per_copy

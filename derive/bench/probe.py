@@ -11,7 +11,6 @@ loop on this machine, in seconds.
 from __future__ import annotations
 
 import hashlib
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -87,7 +86,3 @@ def measure_latencies(cflags: tuple[str, ...], repeats: int = 5,
     for kind in _INCLUDES_ADD:
         seconds[kind] = max(seconds[kind] - seconds["add"], 0.0)
     return seconds
-
-
-def cpu_count() -> int:
-    return os.cpu_count() or 1

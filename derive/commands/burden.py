@@ -91,37 +91,34 @@ def chain_rows(model, filters, options: dict, per_filter: dict,
                latency: dict | None = None) -> list[dict]:
     """Per filter: the carried chain of its generated C run loop (derive.latency), per step,
     in the units of ``latency`` (default: derive.latency.REFERENCE_CYCLES)."""
-    from ..emit.lookahead import run_pass
     from ..filters import available, derive_unit
-    from ..latency import REFERENCE_CYCLES, carried_bound
-    from ..lowering import lower_program
+    from ..latency import REFERENCE_CYCLES, run_loop_bound
 
-    table = latency or REFERENCE_CYCLES
     rows = []
     for name in (list(filters) if filters else available(model)):
         unit = derive_unit(model, name, {**options, **per_filter.get(name, {})})
-        program, steps = run_pass(unit)
-        bound = carried_bound(lower_program(program, use_fma=True), table)
-        rows.append({"filter": name, "steps_per_pass": steps,
-                     "per_step": None if bound is None else bound.per_step / steps,
-                     "operations_per_pass": None if bound is None else dict(bound.operations)})
+        bound = run_loop_bound(unit, latency or REFERENCE_CYCLES)
+        rows.append({"filter": name, "steps_per_pass": 1 if bound is None else bound.steps,
+                     "per_step": None if bound is None else bound.per_step,
+                     "operations_per_pass": None if bound is None else dict(bound.operations),
+                     "chain": None if bound is None else bound.describe()})
     return rows
 
 
 def _chain_text(rows: list[dict], measured: bool) -> list[str]:
+    from ..latency import REFERENCE_CYCLES
+
     unit = "ns" if measured else "cycles"
-    model = ("operation latencies measured here" if measured else
-             "reference latencies in cycles: add 4, mul 4, fma 4, div 14, sqrt 18, calls 40")
+    model = ("operation latencies measured here" if measured else "reference latencies in "
+             "cycles: " + ", ".join(f"{k} {v:g}" for k, v in REFERENCE_CYCLES.items()))
     lines = ["", f"carried chain of the C run loop, per step ({model}): the bound on the time "
                  "per step however wide the core"]
     for r in rows:
         if r["per_step"] is None:
             lines.append(f"  {r['filter']}: no carried state")
             continue
-        ops = ", ".join(f"{c:g} {k}" for k, c in sorted(r["operations_per_pass"].items()))
-        per = " per pass of two steps" if r["steps_per_pass"] == 2 else ""
         value = r["per_step"] * (1e9 if measured else 1)
-        lines.append(f"  {r['filter']}: {value:.3g} {unit} ({ops}{per})")
+        lines.append(f"  {r['filter']}: {value:.3g} {unit} ({r['chain']})")
     return lines
 
 

@@ -14,11 +14,8 @@ from __future__ import annotations
 import re
 
 from derive.emit.python_printer import PythonPrinter
-from derive.lowering import LoweredAssign, LoweredProgram, Var
+from derive.lowering import CARRIED, LoweredAssign, LoweredProgram, Var
 from derive.program import PARAMETER_PORT
-
-#: The state ports the loop carries, and the results that replace them each step.
-CARRIED = (("x", "x_new"), ("P", "P_new"))
 
 _INDEXED = re.compile(r"\b([A-Za-z]\w*)\[(\d+)\]")
 
