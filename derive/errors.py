@@ -42,6 +42,11 @@ class OutputPathError(ModelError):
     """An output path that would write outside the output directory."""
 
 
+class OutputWriteError(OutputPathError, OSError):
+    """The output directory cannot be written (permissions, an immutable directory, a
+    full disk, a name too long); also an OSError, whose errno it keeps."""
+
+
 class FilterError(ModelError):
     """An unknown filter name or a filter that does not apply to the model."""
 

@@ -139,7 +139,7 @@ def test_a_killed_run_keeps_the_previous_files(out):
 
 def test_a_failure_between_renames_keeps_the_previous_files(out, monkeypatch):
     before = snapshot(out)
-    _fail_on_call(monkeypatch, "replace", 3, OSError(errno.EIO, "I/O error"))
+    _fail_on_call(monkeypatch, "rename", 3, OSError(errno.EIO, "I/O error"))
     with pytest.raises(OSError):
         regenerate(out)
     monkeypatch.undo()
