@@ -4,8 +4,11 @@
 (``gcc -std=c99 -O2 -Wall -Wextra -Werror -pedantic``, plus ``extra_cflags``),
 then links those objects into a cffi extension whose ``cdef`` is the header's
 prototypes.  Builds are cached by a hash of the sources, flags, compiler and
-Python, under ``tempfile.gettempdir()/derive-cffi`` (or ``tmpdir``), so the
-same files are compiled once.
+Python in a per-user directory, :func:`cache_dir` (``$XDG_CACHE_HOME/derive``,
+mode 0700, refused unless owned by the user and closed to group and others; or
+``tmpdir``, checked the same way), so the same files are compiled once.  A build
+happens in a fresh directory renamed into place whole, so a process never loads a
+half-written library, and a library is loaded only if the user owns it.
 
 The wrappers read the interface the generated header states
 (``int PREFIX_step(x[2], P[2*2], z[1], x_new[2] out, ...)``): ``step`` takes
@@ -21,9 +24,11 @@ import importlib.util
 import os
 import re
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +41,19 @@ STRICT_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic")
 
 class BuildError(RuntimeError):
     """The C compiler or cffi failed; the message carries the compiler output."""
+
+
+class BuildEnvironmentError(BuildError):
+    """The environment cannot build: no C compiler, or an unsafe cache directory (the
+    command line prints it as one line with exit status 2)."""
+
+
+class CompilerNotFoundError(BuildEnvironmentError):
+    """No C compiler: the message names the command looked for."""
+
+
+class UnsafeCacheError(BuildEnvironmentError):
+    """A cache directory or library that another user could have written."""
 
 
 @dataclass(frozen=True)
@@ -236,9 +254,77 @@ _LOADED: dict[str, object] = {}
 
 def _compiler() -> str:
     cc = os.environ.get("CC", "gcc")
-    if shutil.which(cc.split()[0]) is None:
-        raise BuildError(f"no C compiler {cc!r} on PATH")
+    command = cc.split()[0] if cc.split() else cc
+    if shutil.which(command) is None:
+        raise CompilerNotFoundError(f"no C compiler: looked for {command!r} on PATH (set by "
+                                    "the CC environment variable, default gcc)")
     return cc
+
+
+def _check_private(path: Path, what: str) -> None:
+    """Refuse ``path`` unless this user owns it and group and others cannot write it."""
+    info = os.stat(path)
+    if info.st_uid != os.getuid():
+        raise UnsafeCacheError(f"{what} {path} belongs to user id {info.st_uid}, not to you "
+                               f"({os.getuid()}); derive loads compiled code only from "
+                               "your own files")
+    if info.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise UnsafeCacheError(f"{what} {path} is writable by group or others (mode "
+                               f"{stat.S_IMODE(info.st_mode):o}); derive loads compiled code "
+                               "only from a directory no one else can write")
+
+
+def cache_dir(tmpdir: str | os.PathLike | None = None) -> Path:
+    """The directory of compiled modules: ``tmpdir`` if given, else ``$XDG_CACHE_HOME/derive``
+    (``~/.cache/derive``), created with mode 0700; either must be owned by the user and
+    not writable by group or others (:class:`UnsafeCacheError`)."""
+    if tmpdir is not None:
+        path = Path(tmpdir)
+    else:
+        base = os.environ.get("XDG_CACHE_HOME", "")
+        if not os.path.isabs(base):   # the XDG rule: a relative path is ignored
+            base = os.path.join(os.path.expanduser("~"), ".cache")
+        path = Path(base) / "derive"
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+    except OSError as exc:
+        raise UnsafeCacheError(f"cannot create the cache directory {path}: "
+                               f"{exc.strerror or exc}") from None
+    _check_private(path, "the cache directory")
+    return path
+
+
+def _built(folder: Path, name: str) -> Path | None:
+    found = sorted(folder.glob(f"{name}*.so")) + sorted(folder.glob(f"{name}*.pyd"))
+    return found[0] if found else None
+
+
+def cached_extension(cache: Path, key: str, name: str, build: Callable[[Path], None]) -> Path:
+    """The library of the extension ``name`` under ``cache/key``, built if missing.
+
+    ``build(work)`` compiles into a fresh directory ``work``, which is then renamed to
+    ``cache/key`` whole: a process that finds ``cache/key`` finds a finished library.
+    Two processes building the same key both build; the first rename wins, the other
+    discards its copy."""
+    final = cache / key
+    library = _built(final, name)
+    if library is None:
+        work = Path(tempfile.mkdtemp(prefix=f"{key}-", dir=cache))
+        try:
+            build(work)
+            try:
+                os.replace(work, final)
+            except OSError:
+                if _built(final, name) is None:   # not a lost race: a real failure
+                    raise
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        library = _built(final, name)
+        if library is None:
+            raise BuildError(f"cffi built no library {name} in {final}")
+    _check_private(final, "the cache directory")
+    _check_private(library, "the compiled library")
+    return library
 
 
 def _compile_object(cc: str, source: Path, obj: Path, flags: list[str]) -> None:
@@ -299,41 +385,31 @@ def build_c(path_or_paths, *, extra_cflags=(), tmpdir=None) -> CModule:
         digest.update(part.encode() + b"\0")
     key = digest.hexdigest()[:20]
     name = f"_derive_{key}"
-    cache = Path(tmpdir) if tmpdir is not None else Path(tempfile.gettempdir()) / "derive-cffi"
+    cache = cache_dir(tmpdir)
     final = cache / key
     interfaces = {prefix: parse_interface(h) for prefix, _, _, h in sources}
+
+    def build(work: Path) -> None:
+        objects = []
+        for prefix, stem, c_text, h_text in sources:
+            folder = work / prefix  # one folder per filter: FILTER.h names repeat
+            folder.mkdir()
+            (folder / f"{stem}.c").write_text(c_text)
+            (folder / f"{stem}.h").write_text(h_text)
+            _compile_object(cc, folder / f"{stem}.c", folder / f"{stem}.o", flags)
+            objects.append(str(folder / f"{stem}.o"))
+        ffi = cffi.FFI()
+        ffi.cdef("".join(_cdef(h) for *_, h in sources))
+        ffi.set_source(name, "".join(f'#include "{prefix}/{stem}.h"\n'
+                                     for prefix, stem, _, _ in sources),
+                       include_dirs=[str(work)], extra_objects=objects, libraries=["m"])
+        try:
+            ffi.compile(tmpdir=str(work), verbose=False)
+        except Exception as exc:  # cffi raises VerificationError and distutils errors
+            raise BuildError(f"cffi could not build {name}: {exc}") from exc
+
     if name not in _LOADED:
-        built = sorted(final.glob(f"{name}*.so")) + sorted(final.glob(f"{name}*.pyd"))
-        if not built:
-            cache.mkdir(parents=True, exist_ok=True)
-            work = Path(tempfile.mkdtemp(prefix=f"{key}-", dir=cache))
-            try:
-                objects = []
-                for prefix, stem, c_text, h_text in sources:
-                    folder = work / prefix  # one folder per filter: FILTER.h names repeat
-                    folder.mkdir()
-                    (folder / f"{stem}.c").write_text(c_text)
-                    (folder / f"{stem}.h").write_text(h_text)
-                    _compile_object(cc, folder / f"{stem}.c", folder / f"{stem}.o", flags)
-                    objects.append(str(folder / f"{stem}.o"))
-                ffi = cffi.FFI()
-                ffi.cdef("".join(_cdef(h) for *_, h in sources))
-                ffi.set_source(name, "".join(f'#include "{prefix}/{stem}.h"\n'
-                                             for prefix, stem, _, _ in sources),
-                               include_dirs=[str(work)], extra_objects=objects, libraries=["m"])
-                try:
-                    ffi.compile(tmpdir=str(work), verbose=False)
-                except Exception as exc:  # cffi raises VerificationError and distutils errors
-                    raise BuildError(f"cffi could not build {name}: {exc}") from exc
-                try:
-                    os.replace(work, final)
-                except OSError:  # another process finished the same build first
-                    shutil.rmtree(work, ignore_errors=True)
-            except BaseException:
-                shutil.rmtree(work, ignore_errors=True)
-                raise
-            built = sorted(final.glob(f"{name}*.so")) + sorted(final.glob(f"{name}*.pyd"))
-        _LOADED[name] = _load(name, built[0])
+        _LOADED[name] = _load(name, cached_extension(cache, key, name, build))
     extension = _LOADED[name]
     filters = {prefix: FilterModule(prefix, extension.ffi, extension.lib, *interfaces[prefix])
                for prefix, *_ in sources}

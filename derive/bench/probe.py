@@ -11,9 +11,11 @@ loop on this machine, in seconds.
 from __future__ import annotations
 
 import hashlib
-import tempfile
+import importlib.util
 import time
 from pathlib import Path
+
+from ..build import _compiler, cache_dir, cached_extension
 
 #: kind -> (C statement on double a and b, iterations per timing)
 PROBES = {
@@ -45,23 +47,20 @@ _FUNCTION = """double derive_probe_{kind}(long n, double a, double b, double c)
 def _module(cflags: tuple[str, ...]):
     import cffi
 
-    from ..build import _compiler
-
     source = _SOURCE.format(functions="\n".join(
         _FUNCTION.format(kind=k, statement=s) for k, (s, _) in PROBES.items()))
     flags = ["-std=c99", *cflags]   # the cffi wrapper around the probes is not ISO C
     key = hashlib.sha256("\0".join([_compiler(), source, *flags]).encode()).hexdigest()[:16]
     name = f"_derive_probe_{key}"
-    cache = Path(tempfile.gettempdir()) / "derive-cffi" / f"probe-{key}"
-    cache.mkdir(parents=True, exist_ok=True)
-    ffi = cffi.FFI()
-    ffi.cdef("".join(f"double derive_probe_{k}(long n, double a, double b, double c);\n"
-                     for k in PROBES))
-    ffi.set_source(name, source, libraries=["m"], extra_compile_args=flags)
-    built = sorted(cache.glob(f"{name}*.so")) + sorted(cache.glob(f"{name}*.pyd"))
-    path = built[0] if built else Path(ffi.compile(tmpdir=str(cache), verbose=False))
-    import importlib.util
 
+    def build(work: Path) -> None:
+        ffi = cffi.FFI()
+        ffi.cdef("".join(f"double derive_probe_{k}(long n, double a, double b, double c);\n"
+                         for k in PROBES))
+        ffi.set_source(name, source, libraries=["m"], extra_compile_args=flags)
+        ffi.compile(tmpdir=str(work), verbose=False)
+
+    path = cached_extension(cache_dir(), f"probe-{key}", name, build)
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
