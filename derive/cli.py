@@ -1,12 +1,23 @@
 """The command line: `derive COMMAND ...` (commands live in derive/commands/).
 
-Errors are one line on stderr: exit status 2 for bad input (a ModelError), 1 for a
-failed verification or a numerical failure.
+Every failure is one line on stderr, never a traceback (:func:`main` is the one place
+that turns exceptions into lines and exit statuses):
+
+- 2: bad input (a ModelError, a usage error, an argument that is not valid UTF-8), a
+  file or directory that cannot be read or written (an OSError: the line names the
+  path), or no C compiler (the line names the compiler looked for);
+- 1: a failed verification or a numerical failure;
+- 130: interrupted (Ctrl-C): ``derive: interrupted``;
+- 141: standard output closed early (``derive list | head``): nothing is printed, as a
+  Unix tool killed by SIGPIPE;
+- 70: an internal error (a bug): one line with the exception, and a hint to report it;
+  ``DERIVE_DEBUG=1`` lets the traceback through.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from . import __version__
@@ -46,19 +57,75 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse: usage errors are bad input (2), --help is 0
-        return int(exc.code or 0)
-    try:
-        return int(args.func(args) or 0)
+        status = _main(sys.argv[1:] if argv is None else argv)
+        sys.stdout.flush()   # a closed pipe shows here rather than at exit
+        return status
+    except BrokenPipeError:
+        _discard_stdout()
+        return 141
+    except KeyboardInterrupt:
+        print("derive: interrupted", file=sys.stderr)
+        return 130
     except ModelError as exc:
         print(f"derive: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except (VerificationError, NumericalError) as exc:
         print(f"derive: verification failed: {_one_line(exc)}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        print(f"derive: error: {_os_error(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        build = sys.modules.get("derive.build")   # loaded if a compiler was looked for
+        if build is not None and isinstance(exc, build.CompilerNotFoundError):
+            print(f"derive: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
+        if os.environ.get("DERIVE_DEBUG"):
+            raise
+        print(f"derive: internal error: {type(exc).__name__}: {_one_line(exc)} (a bug in "
+              "derive: please report it; DERIVE_DEBUG=1 shows the traceback)",
+              file=sys.stderr)
+        return 70
+
+
+def _main(argv: list[str]) -> int:
+    for arg in argv:
+        _check_utf8(arg)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: usage errors are bad input (2), --help is 0
+        return int(exc.code or 0)
+    return int(args.func(args) or 0)
+
+
+def _check_utf8(arg: str) -> None:
+    """Refuse an argument with bytes that are not UTF-8 (decoded as surrogates): paths
+    are stated in the generated files, which are UTF-8."""
+    try:
+        arg.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = os.fsencode(arg).decode("utf-8", "backslashreplace")
+        raise ModelError(f"argument '{shown}' is not valid UTF-8 (derive states its paths "
+                         "in the files it writes, which are UTF-8)") from None
+
+
+def _os_error(exc: OSError) -> str:
+    """``PATH: reason`` (both paths of a rename), or the reason alone."""
+    reason = exc.strerror or _one_line(exc)
+    names = [os.fsdecode(n) for n in (exc.filename, exc.filename2) if n is not None]
+    return f"{' -> '.join(names)}: {reason}" if names else reason
+
+
+def _discard_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
 
 
 def _one_line(exc: BaseException) -> str:
