@@ -114,6 +114,14 @@ def _link_target(path: Path, dir_fd: int, name: str) -> str:
                                          os.readlink(name, dir_fd=dir_fd)))
 
 
+def _open_or_create(path: Path) -> int:
+    try:
+        return os.open(path, _DIR_FLAGS)
+    except FileNotFoundError:
+        os.makedirs(path, exist_ok=True)
+        return os.open(path, _DIR_FLAGS)
+
+
 class _ModelDirectory:
     """``OUT/MODEL`` opened beneath ``OUT`` and locked; all names relative to it."""
 
@@ -121,8 +129,7 @@ class _ModelDirectory:
         self.out = Path(out_dir)
         self.path = self.out / model_name
         try:
-            os.makedirs(self.out, exist_ok=True)
-            out_fd = os.open(self.out, _DIR_FLAGS)
+            out_fd = _open_or_create(self.out)
         except OSError as exc:
             raise _failure(self.out, "use the output directory", exc) from None
         try:
