@@ -5,7 +5,8 @@ that turns exceptions into lines and exit statuses):
 
 - 2: bad input (a ModelError, a usage error, an argument that is not valid UTF-8), a
   file or directory that cannot be read or written (an OSError: the line names the
-  path), or no C compiler (the line names the compiler looked for);
+  path), no C compiler (the line names the compiler looked for) or an unsafe cache
+  of compiled modules (see derive.build.cache_dir);
 - 1: a failed verification or a numerical failure;
 - 130: interrupted (Ctrl-C): ``derive: interrupted``;
 - 141: standard output closed early (``derive list | head``): nothing is printed, as a
@@ -78,7 +79,7 @@ def main(argv=None) -> int:
         return 2
     except Exception as exc:
         build = sys.modules.get("derive.build")   # loaded if a compiler was looked for
-        if build is not None and isinstance(exc, build.CompilerNotFoundError):
+        if build is not None and isinstance(exc, build.BuildEnvironmentError):
             print(f"derive: error: {_one_line(exc)}", file=sys.stderr)
             return 2
         if os.environ.get("DERIVE_DEBUG"):
