@@ -67,12 +67,6 @@ def _check_model_name(model_name: str) -> None:
     _check_name(model_name, "model name")
 
 
-def destination(out_dir: str | os.PathLike, model_name: str) -> Path:
-    """``out_dir/model_name`` after validating ``model_name``."""
-    _check_model_name(model_name)
-    return Path(out_dir) / model_name
-
-
 def _failure(path: Path, what: str, exc: OSError) -> OutputWriteError:
     error = OutputWriteError(f"cannot {what} {path}: {exc.strerror or exc}")
     error.errno = exc.errno
