@@ -103,7 +103,7 @@ def _lstat(name: str, dir_fd: int) -> os.stat_result | None:
 
 
 def _link_target(path: Path, dir_fd: int, name: str) -> str:
-    """Where the link ``name`` leads, for messages (the decision never follows it)."""
+    """Where the link ``name`` leads (for the check and messages: writing never follows it)."""
     return os.path.realpath(os.path.join(os.path.dirname(os.path.abspath(path)),
                                          os.readlink(name, dir_fd=dir_fd)))
 
