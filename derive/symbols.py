@@ -150,17 +150,22 @@ def plain_number(value: object) -> int | float | None:
 
 
 def decimal(value: sympy.Expr) -> str:
-    """A number as a short decimal for messages (``1e+400``, ``0.1``), not a fraction."""
-    if value.is_Integer and abs(value) <= DOUBLE_MAX:
+    """A number as a short decimal for messages (``1e+400``, ``0.1``, ``3``), not a
+    fraction; a symbolic expression as its text."""
+    if not value.is_number:
+        return str(value)
+    if value.is_Integer and abs(value) < 10**15:
         return str(value)
     try:
         as_float = float(value)
     except (OverflowError, TypeError, ValueError):
         as_float = math.inf
-    if math.isfinite(as_float) or not value.is_number:
-        return repr(as_float) if value.is_number else str(value)
+    if math.isfinite(as_float) and (as_float != 0 or value == 0):
+        return repr(as_float)
     shown = sympy.Float(value, 17)
-    return str(shown) if shown.is_finite else str(value)
+    if not shown.is_finite:
+        return str(value)
+    return re.sub(r"\.?0+e", "e", str(shown))
 
 
 def number(value: object) -> sympy.Rational:
