@@ -147,9 +147,7 @@ class _Model:
 
     def parameter_values(self, params=None) -> dict[sympy.Symbol, sympy.Expr]:
         """Values for the free parameters from ``params`` (name -> number); all required."""
-        table = SymbolTable()
-        table.by_name.update(self._by_name)
-        table._given_at.update(dict.fromkeys(self._by_name, f"model {self.name!r}"))
+        table = SymbolTable.known(self._by_name.values(), f"model {self.name!r}")
         given = normalize_values(params, table, "params")
         for nm in given:
             if nm not in {p.name for p in self.parameters}:

@@ -63,6 +63,14 @@ class SymbolTable:
         self.by_name: dict[str, sympy.Symbol] = {}
         self._given_at: dict[str, str] = {}
 
+    @classmethod
+    def known(cls, symbols: Iterable[sympy.Symbol], where: str) -> SymbolTable:
+        """A table of symbols already fixed (a built model's), for checking new keys."""
+        table = cls()
+        for s in symbols:
+            table.given(s, where)
+        return table
+
     def given(self, sym: sympy.Symbol, where: str) -> None:
         """Record a symbol the user gave at ``where``; refuse a second one of its name."""
         name = sym.name

@@ -98,6 +98,25 @@ def test_generated_code_binds_the_users_symbols_to_p(tmp_path):
     assert xs.shape == (3, 2)
 
 
+def test_generated_ekf_with_the_users_symbols_matches_an_ekf_step(tmp_path):
+    x, y = sympy.symbols("x y", positive=True)
+    c = sympy.Symbol("c")
+    model = NonlinearModel("nl", ["x", "y"], ["r"], [x + c * y, y], [sympy.sqrt(x**2 + y**2)],
+                           sympy.eye(2) / 100, [[1]])
+    generate(model, ["ekf"], "python", tmp_path)
+    ekf = import_python(tmp_path / "nl" / "ekf.py")
+    x0, P0, z = np.array([3.0, 4.0]), np.eye(2), np.array([5.1])
+    got_x, got_P = ekf.step(list(x0), list(P0.ravel()), list(z), [0.5])
+    fns = model.numeric_functions({"c": 0.5})
+    F = fns["F"](x0)
+    xp, Pp = fns["f"](x0), F @ P0 @ F.T + fns["Q"]
+    H = fns["H"](xp, ())
+    K = Pp @ H.T @ np.linalg.inv(H @ Pp @ H.T + fns["R"])
+    np.testing.assert_allclose(got_x, xp + K @ (z - fns["h"](xp, ())), rtol=1e-12)
+    np.testing.assert_allclose(np.reshape(got_P, (2, 2)), (np.eye(2) - K @ H) @ Pp,
+                               rtol=1e-10, atol=1e-14)
+
+
 # -- 2. the order of p --------------------------------------------------------------------
 
 def test_parameters_in_order_of_first_appearance():
@@ -123,23 +142,23 @@ name = "order"
 states = ["s"]
 measurements = ["z"]
 [parameters]
-k10 = { description = "first declared" }
+k2 = { description = "first declared" }
 r = 1.0
-k2 = { description = "second declared" }
+k10 = { description = "second declared" }
 [discrete]
-F = [["k2"]]
+F = [["k10"]]
 H = [[1]]
-Q = [["k10"]]
+Q = [["k2"]]
 R = "r"
 """
 
 
 def test_model_file_parameters_follow_the_table_and_reach_the_header(tmp_path):
     model = loads_model(MODEL_FILE)
-    assert [p.name for p in model.parameters] == ["k10", "k2"]
+    assert [p.name for p in model.parameters] == ["k2", "k10"]  # not F's k10 first
     generate(model, ["kf"], "python", tmp_path)
     text = (tmp_path / "order" / "kf.py").read_text()
-    assert "p = [k10, k2]" in text
+    assert "p = [k2, k10]" in text
 
 
 # -- 3. symmetric to rounding -------------------------------------------------------------
