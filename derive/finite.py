@@ -53,6 +53,9 @@ def _floating(expr: sympy.Expr, at: Mapping[sympy.Symbol, sympy.Expr]) -> sympy.
                 out = out.evalf(DIGITS)
         except OverflowError:
             raise _Beyond from None
+        if not isinstance(out, sympy.Expr):  # a condition inside a Piecewise
+            memo[e] = out
+            return out
         if out.has(sympy.nan, sympy.zoo, sympy.oo, -sympy.oo):
             memo[e] = out
             return out
@@ -70,9 +73,11 @@ def _exact_bits(expr: sympy.Expr, at: Mapping[sympy.Symbol, sympy.Expr]) -> int:
         value = at.get(expr, sympy.Integer(1))
         return _exact_bits(value, {}) if value.is_Rational else 0
     if expr.is_Rational:
+        if abs(expr.p) == 1 and expr.q == 1:  # powers of 1 and -1 cost nothing
+            return 0
         return int(expr.p).bit_length() + int(expr.q).bit_length()
     if expr.is_Pow and expr.exp.is_Integer:
-        return abs(int(expr.exp)) * max(_exact_bits(expr.base, at), 1)
+        return abs(int(expr.exp)) * _exact_bits(expr.base, at)
     return sum(_exact_bits(a, at) for a in expr.args)
 
 
@@ -110,6 +115,8 @@ def check_entries(matrices: Mapping[str, sympy.MatrixBase],
                 at_text = f" at {values}" if values else ""
                 try:
                     problem = _problem(_floating(entry, at))
+                except TypeError:  # a construct floats cannot evaluate: left to sympy
+                    continue
                 except _Beyond:
                     problem = (f"inf (an intermediate value exceeds 2**{MAX_EXPONENT_BITS}, "
                                "far beyond the range of a double)")
