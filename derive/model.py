@@ -26,8 +26,10 @@ from .symbols import (
     check_names,
     check_shape,
     decimal,
+    jacobian,
     normalize,
     normalize_values,
+    real_stand_ins,
     symbol,
 )
 
@@ -378,10 +380,7 @@ class LinearModel(_Model):
                 raise SymbolError(f"symbol {s.name!r} is a state name; a linear model's "
                                   "matrices cannot depend on the state")
         Qc_m = _symmetric(Qc_m, "Qc")
-        # discretise over real symbols (the model's entries are real), then give back
-        # the user's symbols
-        real = {s: symbol(s.name) for s in table.by_name.values() if s.is_real is not True}
-        back = {r: s for s, r in real.items()}
+        real, back = real_stand_ins(table.by_name.values())
         F, Qd = discretize(*(mat.xreplace(real) for mat in (Phi_m, G_m, Qc_m)),
                            dt_e.xreplace(real))
         F, Qd = F.xreplace(back), Qd.xreplace(back)
@@ -470,9 +469,8 @@ class NonlinearModel(_Model):
         _check_definite(self.subs(self.Q), "Q", strict=False)
         _check_definite(self.subs(self.R), "R", strict=True)
         self._initial(x0, P0, P0_pattern)
-        X = sympy.Matrix(self.state_symbols)
-        self.F_jacobian = sympy.ImmutableMatrix(self.f.jacobian(X))
-        self.H_jacobian = sympy.ImmutableMatrix(self.h.jacobian(X))
+        self.F_jacobian = jacobian(self.f, self.state_symbols)
+        self.H_jacobian = jacobian(self.h, self.state_symbols)
 
     def numeric_functions(self, params=None) -> dict[str, Callable | np.ndarray]:
         """NumPy callables ``f(x)``, ``F(x)``, ``h(x, u)``, ``H(x, u)`` and arrays Q, R.

@@ -34,6 +34,24 @@ def symbol(name: str) -> sympy.Symbol:
     return sympy.Symbol(name, real=True)
 
 
+def real_stand_ins(symbols: Iterable[sympy.Symbol]
+                   ) -> tuple[dict[sympy.Symbol, sympy.Dummy], dict[sympy.Dummy, sympy.Symbol]]:
+    """Real stand-ins for the symbols not known to be real, and the map back.
+
+    Model entries are real, whatever assumptions the user's symbols carry, so derivatives
+    and matrix exponentials are taken over real stand-ins (``d|x|/dx = sign(x)``, not
+    ``re``/``im`` terms) and the user's symbols are put back afterwards."""
+    forward = {s: sympy.Dummy(s.name, real=True) for s in symbols if s.is_real is not True}
+    return forward, {v: k for k, v in forward.items()}
+
+
+def jacobian(values: sympy.MatrixBase, wrt) -> sympy.ImmutableMatrix:
+    """``d values / d wrt`` with every symbol taken as real (see `real_stand_ins`)."""
+    real, back = real_stand_ins(values.free_symbols | set(wrt))
+    stand_ins = [real.get(s, s) for s in wrt]
+    return sympy.ImmutableMatrix(values.xreplace(real).jacobian(stand_ins).xreplace(back))
+
+
 def natural_key(name: str) -> tuple:
     """Sort key putting ``k2`` before ``k10`` (digit runs compare as numbers)."""
     return tuple((0, int(part), "") if part.isdigit() else (1, 0, part)

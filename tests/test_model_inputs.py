@@ -79,6 +79,16 @@ def test_nonlinear_jacobians_use_the_users_state_symbols():
     np.testing.assert_allclose(fns["F"]([3.0, 4.0]), [[1, 0.1], [0, 1]], rtol=0)
 
 
+def test_jacobians_treat_symbols_without_assumptions_as_real():
+    """The entries are real: d|x|/dx is sign(x) for the user's plain Symbol('x'), not an
+    expression in re(x) and im(x)."""
+    x, y = sympy.symbols("x y")
+    model = NonlinearModel("nl", ["x", "y"], ["r"], [x, y], [sympy.Abs(x) + y],
+                           sympy.eye(2), [[1]])
+    assert model.state_symbols == (x, y)
+    assert model.H_jacobian == sympy.Matrix([[sympy.sign(x), 1]])
+
+
 def test_from_continuous_keeps_the_users_symbols():
     w, q = sympy.Symbol("w"), sympy.Symbol("q", nonnegative=True)
     model = LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, -w]], [[q]],
