@@ -214,6 +214,8 @@ def test_numpy_float32_is_the_float_it_is():
 
 
 @pytest.mark.parametrize("bad, words", [
+    (float("nan"), ["F[0][1]", "nan"]),
+    (sympy.nan, ["F[0][1]", "nan"]),
     (np.float64("nan"), ["F[0][1]", "nan"]),
     (np.float32("inf"), ["F[0][1]", "inf"]),
     (np.bool_(True), ["F[0][1]", "boolean"]),
