@@ -146,6 +146,20 @@ def test_parameters_argument_sets_the_order():
         LinearModel("o", ["s"], ["z"], [[k10]], [[1]], [[1]], [[k2]], parameters=["k3"])
 
 
+def test_continuous_and_nonlinear_orders():
+    w, q, r = sympy.symbols("w q r", positive=True)
+    model = LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, -w]], [[q]],
+                                        [[1, 0]], [[r]], dt, G=[[0], [1]])
+    assert [p.name for p in model.parameters] == ["w", "q", "r", "dt"]
+    model = LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, -w]], [[q]],
+                                        [[1, 0]], [[r]], dt, G=[[0], [1]],
+                                        parameters=["dt", "r"])
+    assert [p.name for p in model.parameters] == ["dt", "r", "w", "q"]
+    x = sympy.Symbol("x", real=True)
+    model = NonlinearModel("nl", ["x"], ["y"], [w * x], [x + r], [[q]], [["k10"]])
+    assert [p.name for p in model.parameters] == ["w", "r", "q", "k10"]
+
+
 MODEL_FILE = """
 [model]
 name = "order"
