@@ -57,3 +57,8 @@ class VerificationError(Exception):
 
 class NumericalError(ArithmeticError):
     """A generated or reference filter met a numerical failure (e.g. a failed Cholesky)."""
+
+
+class NotFiniteError(MatrixPropertyError):
+    """A matrix entry that is not a finite double at the given values (or whose exact value
+    would be too large to compute)."""

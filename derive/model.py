@@ -1,29 +1,45 @@
 """Model objects: linear discrete, linear continuous (discretised exactly) and nonlinear.
 
-Entries stay symbolic. Symbols with a value in ``values`` are constants of the
-model; the others are free runtime parameters, passed to generated code as
-``p`` in the order of :attr:`parameters` (sorted by name).
+Entries stay symbolic, with the symbols the user gave (assumptions included). Symbols
+with a value in ``values`` are constants of the model; the others are free runtime
+parameters, passed to generated code as ``p`` in the order of :attr:`parameters`: the
+names of the ``parameters`` argument first, in that order, then the other free symbols
+in order of first appearance, scanning the matrices in argument order (linear: F, G, H,
+Q, R; continuous: Phi, G, Qc, H, R, dt; nonlinear: f, h, Q, R), each row by row (within
+one entry, ``k2`` before ``k10``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import sympy
 
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
+from .finite import check_entries
 from .symbols import (
+    SymbolTable,
     as_matrix,
     check_identifier,
     check_names,
     check_shape,
+    decimal,
+    jacobian,
+    normalize,
     normalize_values,
+    real_stand_ins,
     symbol,
 )
 
 P0_PATTERNS = ("dense", "zero", "diagonal", "block")
+
+SYMMETRY_TOLERANCE = 1e-12
+"""Q, R, P0 (and Qc) are accepted as symmetric when, for every pair of numeric entries,
+``|M[i][j] - M[j][i]| <= 1e-12 * max(|M[i][j]|, |M[j][i]|, sqrt(|M[i][i] M[j][j]|))``;
+they are then symmetrised (both entries become the mean). Symbolic entries must be
+exactly symmetric."""
 
 
 @dataclass(frozen=True)
@@ -58,8 +74,12 @@ class _Model:
         self.description = str(description)
         self.source = str(source)
 
-    def _init_values(self, values, used: set[sympy.Symbol], reserved: set[str]) -> None:
-        self.values = normalize_values(values)
+    def _init_values(self, values, table: SymbolTable, used: set[sympy.Symbol],
+                     reserved: set[str], order) -> None:
+        """Values, the model's symbols and the free parameters in the order of ``p``."""
+        given = normalize_values(values, table)
+        self.values = dict(sorted(given.items()))
+        self._by_name = dict(table.by_name)
         used_names = {s.name for s in used}
         for nm in self.values:
             if nm in reserved:
@@ -77,9 +97,39 @@ class _Model:
                 check_identifier(s.name, "symbol")
             except ModelError as exc:
                 raise SymbolError(str(exc)) from None
-        self.symbols = tuple(sorted(used, key=lambda s: s.name))
-        self.parameters = tuple(s for s in self.symbols if s.name not in self.values)
-        self._subs = {symbol(k): v for k, v in self.values.items()}
+        first = [s for s in table.by_name.values() if s in used]
+        self.symbols = tuple(first)
+        self.parameters = tuple(self._ordered(
+            [s for s in first if s.name not in self.values], order, used_names))
+        self._subs = {self._by_name[k]: v for k, v in self.values.items()}
+
+    def _ordered(self, free: list[sympy.Symbol], order, used_names: set[str]):
+        """``free`` with the names listed in ``order`` first, in that order."""
+        if order is None:
+            return free
+        if isinstance(order, str) or not isinstance(order, Sequence):
+            raise SymbolError("parameters must be a list of names (the order of p), got "
+                              f"{type(order).__name__} {order!r}")
+        listed: list[str] = []
+        for item in order:
+            nm = item.name if isinstance(item, sympy.Symbol) else item
+            check_identifier(nm, "parameter name")
+            if nm not in used_names:
+                raise SymbolError(f"parameters lists {nm!r}, which appears in no matrix of "
+                                  f"model {self.name!r}")
+            if isinstance(item, sympy.Symbol) and item != self._by_name[nm]:
+                raise SymbolError(f"parameters lists a different symbol named {nm!r} than the "
+                                  "model's matrices use")
+            if nm in listed:
+                raise SymbolError(f"parameters lists {nm!r} twice")
+            listed.append(nm)
+        by_name = {s.name: s for s in free}
+        head = [by_name[nm] for nm in listed if nm in by_name]
+        return head + [s for s in free if s.name not in listed]
+
+    def _check_finite(self, matrices: Mapping[str, sympy.MatrixBase], extra=None) -> None:
+        """Every entry whose symbols have values is a finite double there."""
+        check_entries(matrices, {**self._subs, **(extra or {})})
 
     @property
     def n(self) -> int:
@@ -89,13 +139,18 @@ class _Model:
     def m(self) -> int:
         return len(self.measurements)
 
+    def symbol(self, name: str) -> sympy.Symbol:
+        """The model's symbol named ``name`` (the user's own, assumptions included)."""
+        return self._by_name.get(name) or symbol(name)
+
     def subs(self, expr):
         """``expr`` with every valued symbol replaced by its exact value."""
         return expr.xreplace(self._subs) if self._subs else expr
 
     def parameter_values(self, params=None) -> dict[sympy.Symbol, sympy.Expr]:
         """Values for the free parameters from ``params`` (name -> number); all required."""
-        given = normalize_values(params)
+        table = SymbolTable.known(self._by_name.values(), f"model {self.name!r}")
+        given = normalize_values(params, table, "params")
         for nm in given:
             if nm not in {p.name for p in self.parameters}:
                 raise SymbolError(f"{nm!r} is not a free parameter of model {self.name!r} "
@@ -103,39 +158,104 @@ class _Model:
         missing = [p.name for p in self.parameters if p.name not in given]
         if missing:
             raise SymbolError(f"model {self.name!r} needs values for free parameters {missing}")
-        return {symbol(k): v for k, v in given.items()}
+        return {self._by_name[k]: v for k, v in given.items()}
 
     def _initial(self, x0, P0, P0_pattern) -> None:
         n = self.n
+        table = SymbolTable()
         self.x0 = (sympy.ImmutableMatrix.zeros(n, 1) if x0 is None
-                   else as_matrix(x0, "x0", vector=True))
+                   else as_matrix(x0, "x0", table, vector=True))
         check_shape(self.x0, "x0", (n, 1), "one entry per state")
-        self.P0 = sympy.ImmutableMatrix.zeros(n, n) if P0 is None else as_matrix(P0, "P0")
+        self.P0 = (sympy.ImmutableMatrix.zeros(n, n) if P0 is None
+                   else as_matrix(P0, "P0", table))
         check_shape(self.P0, "P0", (n, n), "states x states")
         for mat, nm in ((self.x0, "x0"), (self.P0, "P0")):
             if mat.free_symbols:
                 raise SymbolError(f"{nm} must be numeric, has symbols "
                                   f"{sorted(s.name for s in mat.free_symbols)}")
-        _check_symmetric(self.P0, "P0")
+        check_entries({"x0": self.x0, "P0": self.P0}, {})
+        self.P0 = _symmetric(self.P0, "P0")
         if P0_pattern is None:
             P0_pattern = "dense"
         if P0_pattern not in P0_PATTERNS:
             raise SymbolError(f"P0_pattern {P0_pattern!r} is not one of {P0_PATTERNS}")
         self.P0_pattern = P0_pattern
+        self._check_P0_pattern()
+
+    def _check_P0_pattern(self) -> None:
+        """Refuse a P0 with a nonzero entry outside its declared pattern."""
+        if self.P0_pattern == "dense" or not any(self.P0):
+            return
+        if self.P0_pattern != "block" or any(
+                self.P0[i, j] != 0 for i in range(self.n) for j in range(self.n) if i != j):
+            mask = self.pattern_mask()
+            for i in range(self.n):
+                for j in range(self.n):
+                    if self.P0[i, j] != 0 and not mask[i][j]:
+                        raise MatrixPropertyError(
+                            f"P0[{i}][{j}] = {decimal(self.P0[i, j])} is outside the declared "
+                            f"P0_pattern {self.P0_pattern!r}")
+
+    def pattern_mask(self, name: str | None = None) -> tuple[tuple[bool, ...], ...]:
+        """The entries a P0 pattern (``name``, default the model's) allows, as booleans."""
+        n = self.n
+        name = name or self.P0_pattern
+        if name == "dense":
+            return tuple(tuple(True for _ in range(n)) for _ in range(n))
+        if name == "zero":
+            return tuple(tuple(False for _ in range(n)) for _ in range(n))
+        if name == "diagonal":
+            return tuple(tuple(i == j for j in range(n)) for i in range(n))
+        if name == "block":
+            owner = {}
+            for b, blk in enumerate(self.blocks()):
+                for s in blk.states:
+                    owner[s] = b
+            return tuple(tuple(owner[i] == owner[j] for j in range(n)) for i in range(n))
+        raise ModelError(f"P0 pattern {name!r} is not one of {', '.join(P0_PATTERNS)}")
+
+    def blocks(self):
+        """Independent blocks (see :func:`derive.structure.find_blocks`); one for a
+        nonlinear model."""
+        return [_WholeModel(tuple(range(self.n)), self)]
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}({self.name!r}, n={self.n}, m={self.m}, "
                 f"parameters={[p.name for p in self.parameters]})")
 
 
-def _check_symmetric(mat: sympy.MatrixBase, name: str) -> None:
-    diff = (mat - mat.T).applyfunc(sympy.simplify)
-    if any(e != 0 for e in diff):
-        i, j = next((i, j) for i in range(mat.rows) for j in range(mat.cols) if diff[i, j] != 0)
-        raise MatrixPropertyError(
-            f"matrix {name} must be symmetric: {name}[{i}][{j}] = {mat[i, j]} but "
-            f"{name}[{j}][{i}] = {mat[j, i]}"
-        )
+@dataclass(frozen=True)
+class _WholeModel:
+    """The one block of a model that is not split (its ``states`` are all of them)."""
+
+    states: tuple[int, ...]
+    model: object
+
+
+def _symmetric(mat: sympy.MatrixBase, name: str) -> sympy.ImmutableMatrix:
+    """``mat`` symmetrised if it is symmetric to SYMMETRY_TOLERANCE; else refused, naming
+    the first asymmetric pair (numbers as decimals)."""
+    out = sympy.Matrix(mat)
+    for i in range(mat.rows):
+        for j in range(i + 1, mat.cols):
+            a, b = mat[i, j], mat[j, i]
+            if a == b:
+                continue
+            if a.is_Rational and b.is_Rational:
+                scale = max(abs(a), abs(b))
+                di, dj = mat[i, i], mat[j, j]
+                if di.is_Rational and dj.is_Rational:
+                    scale = max(scale, sympy.sqrt(abs(di * dj)))
+                if abs(a - b) <= sympy.Rational(SYMMETRY_TOLERANCE) * scale:
+                    out[i, j] = out[j, i] = (a + b) / 2
+                    continue
+            elif sympy.simplify(a - b) == 0:
+                continue
+            raise MatrixPropertyError(
+                f"matrix {name} must be symmetric: {name}[{i}][{j}] = {decimal(a)} but "
+                f"{name}[{j}][{i}] = {decimal(b)} (more than the relative tolerance "
+                f"{SYMMETRY_TOLERANCE:g} apart)")
+    return sympy.ImmutableMatrix(out)
 
 
 def _check_definite(mat: sympy.MatrixBase, name: str, strict: bool) -> None:
@@ -166,32 +286,38 @@ class LinearModel(_Model):
     kind = "linear"
 
     def __init__(self, name, states, measurements, F, H, Q, R, G=None, values=None,
-                 x0=None, P0=None, P0_pattern=None, description="", source=""):
+                 x0=None, P0=None, P0_pattern=None, description="", source="",
+                 parameters=None):
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
-        self.F = as_matrix(F, "F")
+        table = SymbolTable()
+        self.F = as_matrix(F, "F", table)
         check_shape(self.F, "F", (n, n), "states x states")
-        self.H = as_matrix(H, "H")
-        check_shape(self.H, "H", (m, n), "measurements x states")
-        self.G = sympy.ImmutableMatrix.eye(n) if G is None else as_matrix(G, "G", vector=True)
+        self.G = (sympy.ImmutableMatrix.eye(n) if G is None
+                  else as_matrix(G, "G", table, vector=True))
         if self.G.rows != n:
             raise ShapeError(f"matrix G must have {n} rows (one per state), got "
                              f"{self.G.rows}x{self.G.cols}")
+        self.H = as_matrix(H, "H", table)
+        check_shape(self.H, "H", (m, n), "measurements x states")
         q = self.G.cols
-        self.Q = as_matrix(Q, "Q")
+        self.Q = as_matrix(Q, "Q", table)
         check_shape(self.Q, "Q", (q, q), "noise inputs x noise inputs, one per column of G")
-        self.R = as_matrix(R, "R")
+        self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
+        self.F, self.G, self.H, self.Q, self.R = (
+            table.finish(mat) for mat in (self.F, self.G, self.H, self.Q, self.R))
         used = set()
         for mat in (self.F, self.G, self.H, self.Q, self.R):
             used |= mat.free_symbols
-        self._init_values(values, used, set(self.states))
+        self._init_values(values, table, used, set(self.states), parameters)
         for s in used:
             if s.name in self.states:
                 raise SymbolError(f"symbol {s.name!r} is a state name; a linear model's "
                                   "matrices cannot depend on the state")
-        _check_symmetric(self.Q, "Q")
-        _check_symmetric(self.R, "R")
+        self._check_finite({"F": self.F, "G": self.G, "H": self.H, "Q": self.Q, "R": self.R})
+        self.Q = _symmetric(self.Q, "Q")
+        self.R = _symmetric(self.R, "R")
         _check_definite(self.subs(self.Q), "Q", strict=False)
         _check_definite(self.subs(self.R), "R", strict=True)
         self._initial(x0, P0, P0_pattern)
@@ -213,6 +339,7 @@ class LinearModel(_Model):
     def numeric(self, params=None) -> NumericLinear:
         """The model at numbers; free parameters must be given in ``params``."""
         extra = self.parameter_values(params)
+        self._check_finite({k: getattr(self, k) for k in ("F", "G", "H", "Q", "R")}, extra)
 
         def arr(mat):
             return np.array(mat.xreplace(extra).evalf(17).tolist(), dtype=float)
@@ -224,25 +351,55 @@ class LinearModel(_Model):
     @classmethod
     def from_continuous(cls, name, states, measurements, Phi, Qc, H, R, dt, G=None,
                         values=None, x0=None, P0=None, P0_pattern=None, description="",
-                        source=""):
-        """Discretise ``dx/dt = Phi x + G w`` (spectral density Qc) exactly over ``dt``."""
-        from .discretize import discretize
-        from .symbols import normalize
+                        source="", parameters=None):
+        """Discretise ``dx/dt = Phi x + G w`` (spectral density Qc) exactly over ``dt``.
 
-        n = len(check_names(states, "states"))
-        Phi_m = as_matrix(Phi, "Phi")
+        Free parameters not listed in ``parameters`` follow in order of first appearance
+        in Phi, G, Qc, H, R, dt."""
+        from .discretize import discretize
+
+        state_names = check_names(states, "states")
+        n = len(state_names)
+        table = SymbolTable()
+        Phi_m = as_matrix(Phi, "Phi", table)
         check_shape(Phi_m, "Phi", (n, n), "states x states")
-        G_m = sympy.ImmutableMatrix.eye(n) if G is None else as_matrix(G, "G", vector=True)
+        G_m = (sympy.ImmutableMatrix.eye(n) if G is None
+               else as_matrix(G, "G", table, vector=True))
         if G_m.rows != n:
             raise ShapeError(f"matrix G must have {n} rows (one per state), got "
                              f"{G_m.rows}x{G_m.cols}")
-        Qc_m = as_matrix(Qc, "Qc")
+        Qc_m = as_matrix(Qc, "Qc", table)
         check_shape(Qc_m, "Qc", (G_m.cols, G_m.cols), "noise inputs x noise inputs")
-        _check_symmetric(Qc_m, "Qc")
-        dt_e = normalize(dt, "dt")
-        F, Qd = discretize(Phi_m, G_m, Qc_m, dt_e)
-        model = cls(name, states, measurements, F, H, Qd, R, G=None, values=values, x0=x0,
-                    P0=P0, P0_pattern=P0_pattern, description=description, source=source)
+        H_m = as_matrix(H, "H", table)
+        R_m = as_matrix(R, "R", table)
+        dt_e = normalize(dt, "dt", table)
+        Phi_m, G_m, Qc_m, H_m, R_m = (table.finish(mat) for mat in (Phi_m, G_m, Qc_m, H_m, R_m))
+        dt_e = table.finish(sympy.ImmutableMatrix([[dt_e]]))[0, 0]
+        for s in table.by_name.values():
+            if s.name in state_names:
+                raise SymbolError(f"symbol {s.name!r} is a state name; a linear model's "
+                                  "matrices cannot depend on the state")
+        Qc_m = _symmetric(Qc_m, "Qc")
+        real, back = real_stand_ins(table.by_name.values())
+        F, Qd = discretize(*(mat.xreplace(real) for mat in (Phi_m, G_m, Qc_m)),
+                           dt_e.xreplace(real))
+        F, Qd = F.xreplace(back), Qd.xreplace(back)
+        present = F.free_symbols | Qd.free_symbols | H_m.free_symbols | R_m.free_symbols
+        first = [s.name for s in table.by_name.values() if s in present]
+        if parameters is not None and (isinstance(parameters, str)
+                                       or not isinstance(parameters, Sequence)):
+            raise SymbolError("parameters must be a list of names (the order of p), got "
+                              f"{type(parameters).__name__} {parameters!r}")
+        listed = [p.name if isinstance(p, sympy.Symbol) else p for p in parameters or ()]
+        for nm in listed:
+            if nm not in table.by_name:
+                raise SymbolError(f"parameters lists {nm!r}, which appears in no matrix of "
+                                  f"model {name!r}")
+        present_names = {s.name for s in present}
+        order = [nm for nm in dict.fromkeys(listed + first) if nm in present_names]
+        model = cls(name, states, measurements, F, H_m, Qd, R_m, G=None, values=values, x0=x0,
+                    P0=P0, P0_pattern=P0_pattern, description=description, source=source,
+                    parameters=order)
         model.continuous = {"Phi": Phi_m, "G": G_m, "Qc": Qc_m, "dt": dt_e}
         return model
 
@@ -270,23 +427,29 @@ class NonlinearModel(_Model):
     kind = "nonlinear"
 
     def __init__(self, name, states, measurements, f, h, Q, R, values=None, inputs=None,
-                 x0=None, P0=None, P0_pattern=None, description="", source=""):
+                 x0=None, P0=None, P0_pattern=None, description="", source="",
+                 parameters=None):
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
-        self.inputs = tuple(symbol(s) for s in check_names(inputs, "inputs")) if inputs else ()
-        reserved = set(self.states) | {s.name for s in self.inputs}
-        if len(reserved) != n + len(self.inputs):
+        input_names = check_names(inputs, "inputs") if inputs else ()
+        reserved = set(self.states) | set(input_names)
+        if len(reserved) != n + len(input_names):
             raise SymbolError("an input has the same name as a state: "
-                              f"{sorted(set(self.states) & {s.name for s in self.inputs})}")
-        self.f = as_matrix(f, "f", vector=True)
+                              f"{sorted(set(self.states) & set(input_names))}")
+        table = SymbolTable()
+        self.f = as_matrix(f, "f", table, vector=True)
         check_shape(self.f, "f", (n, 1), "one expression per state")
-        self.h = as_matrix(h, "h", vector=True)
+        self.h = as_matrix(h, "h", table, vector=True)
         check_shape(self.h, "h", (m, 1), "one expression per measurement")
-        self.Q = as_matrix(Q, "Q")
+        self.Q = as_matrix(Q, "Q", table)
         check_shape(self.Q, "Q", (n, n), "states x states")
-        self.R = as_matrix(R, "R")
+        self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
-        self.state_symbols = tuple(symbol(s) for s in self.states)
+        self.f, self.h, self.Q, self.R = (
+            table.finish(mat) for mat in (self.f, self.h, self.Q, self.R))
+        # the state and input symbols are the ones written in f and h
+        self.state_symbols = tuple(table.by_name.get(s) or symbol(s) for s in self.states)
+        self.inputs = tuple(table.by_name.get(u) or symbol(u) for u in input_names)
         used = set()
         for mat in (self.f, self.h, self.Q, self.R):
             used |= mat.free_symbols
@@ -294,20 +457,20 @@ class NonlinearModel(_Model):
             bad = {s.name for s in mat.free_symbols} & reserved
             if bad:
                 raise SymbolError(f"matrix {nm} depends on state or input {sorted(bad)[0]!r}")
-        bad_f = {s.name for s in self.f.free_symbols} & {s.name for s in self.inputs}
+        bad_f = {s.name for s in self.f.free_symbols} & set(input_names)
         if bad_f:
             raise SymbolError(f"f depends on per-step input {sorted(bad_f)[0]!r}; inputs may "
                               "only appear in h")
         params = {s for s in used if s.name not in reserved}
-        self._init_values(values, params, reserved)
-        _check_symmetric(self.Q, "Q")
-        _check_symmetric(self.R, "R")
+        self._init_values(values, table, params, reserved, parameters)
+        self._check_finite({"f": self.f, "h": self.h, "Q": self.Q, "R": self.R})
+        self.Q = _symmetric(self.Q, "Q")
+        self.R = _symmetric(self.R, "R")
         _check_definite(self.subs(self.Q), "Q", strict=False)
         _check_definite(self.subs(self.R), "R", strict=True)
         self._initial(x0, P0, P0_pattern)
-        X = sympy.Matrix(self.state_symbols)
-        self.F_jacobian = sympy.ImmutableMatrix(self.f.jacobian(X))
-        self.H_jacobian = sympy.ImmutableMatrix(self.h.jacobian(X))
+        self.F_jacobian = jacobian(self.f, self.state_symbols)
+        self.H_jacobian = jacobian(self.h, self.state_symbols)
 
     def numeric_functions(self, params=None) -> dict[str, Callable | np.ndarray]:
         """NumPy callables ``f(x)``, ``F(x)``, ``h(x, u)``, ``H(x, u)`` and arrays Q, R.
@@ -315,6 +478,7 @@ class NonlinearModel(_Model):
         Vectors come back flat (shape (n,) or (m,)), Jacobians as 2-D arrays.
         """
         extra = self.parameter_values(params)
+        self._check_finite({"Q": self.Q, "R": self.R}, extra)
         X = sympy.Matrix(self.state_symbols)
         U = sympy.Matrix(self.inputs) if self.inputs else sympy.Matrix.zeros(0, 1)
 

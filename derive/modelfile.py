@@ -14,7 +14,7 @@ A model file has a ``[model]`` table, an optional ``[parameters]`` table, exactl
     [parameters]              # every symbol used in an expression is declared here
     dt = 1.0                  # a value: a constant of the model
     sq2 = { value = 0.01, description = "process noise variance" }
-    k = { description = "no value: a free runtime parameter p[..]" }
+    k = { description = "no value: a free runtime parameter p[..]" }  # p in table order
 
     [discrete]                # x(k+1) = F x(k) + G w(k), z(k) = H x(k) + v(k)
     F = [[1, "dt"], [0, 1]]   # rows; entries are numbers or expression strings
@@ -242,6 +242,7 @@ class _File:
         self.symbols: dict[str, sympy.Symbol] = {}
         self.values: dict[str, sympy.Rational] = {}
         self.used_in_initial: set[str] = set()
+        self.used: set[str] = set()
 
     # -- errors and plain values ----------------------------------------------------------
 
@@ -381,6 +382,8 @@ class _File:
             arguments = self.linear(body, kind)
         arguments.update(self.initial(kind))
         arguments["values"] = {name: value for name, value in self.values_used(arguments)}
+        # p follows the [parameters] table (tomllib keeps its order)
+        arguments["parameters"] = [name for name in self.symbols if name in self.used]
         return self.construct(kind, header, states, measurements, arguments)
 
     def read_parameters(self, states: list[str], measurements: list[str],
@@ -482,6 +485,7 @@ class _File:
                 continue
             for item in _flatten(value):
                 used |= {symbol.name for symbol in item.free_symbols}
+        self.used = used
         for name in self.symbols:
             if name not in used and name not in self.used_in_initial:
                 raise self.error(f"[parameters] {name}", "declared but used in no expression")

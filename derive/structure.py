@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import sympy
 
-from .errors import SymbolError
+from .errors import ModelError, SymbolError
+from .symbols import decimal
 
 
 @dataclass(frozen=True)
@@ -106,18 +107,25 @@ def _sub_block(model, index: int, s, k, c) -> Block:
         Q,
         model.R.extract(list(k), list(k)),
         G=G,
-        values={nm: float(v) for nm, v in sub_values.items() if nm in used},
+        values={nm: v for nm, v in sub_values.items() if nm in used},
         x0=model.x0.extract(list(s), [0]),
         P0=model.P0.extract(list(s), list(s)),
         P0_pattern=model.P0_pattern,
         description=f"block {index} of {model.name}",
         source=model.source,
+        parameters=[p.name for p in model.parameters if p.name in used],
     )
     return Block(s, k, c, sub)
 
 
 def compose(cls, name, models, suffixes=None, description="", source=""):
-    """Block-diagonal composition; names get ``suffixes``; same-name symbols are shared."""
+    """Block-diagonal composition; names get ``suffixes``; same-name symbols are shared.
+
+    The free parameters keep the order of the blocks (the first block's, then the new
+    ones of the next...). The composed P0 is block diagonal; its declared pattern is the
+    narrowest of ``zero``, ``diagonal``, ``block``, ``dense`` that contains every block's
+    declared pattern, so no entry a block allows is dropped.
+    """
     models = list(models)
     if not models:
         raise SymbolError("compose needs at least one model")
@@ -126,17 +134,15 @@ def compose(cls, name, models, suffixes=None, description="", source=""):
     suffixes = list(suffixes)
     if len(suffixes) != len(models):
         raise SymbolError(f"compose: {len(models)} models but {len(suffixes)} suffixes")
-    values: dict[str, float] = {}
+    values: dict[str, sympy.Expr] = {}
     for mdl in models:
         for nm, v in mdl.values.items():
-            if nm in values and values[nm] != float(v):
-                raise SymbolError(f"symbol {nm!r} has two values: {values[nm]} and {float(v)}")
-            values[nm] = float(v)
-    patterns = {mdl.P0_pattern for mdl in models}
-    pattern = patterns.pop() if len(patterns) == 1 else "block"
-    if pattern in ("dense", "block") and len(models) > 1:
-        pattern = "block"
-    return cls(
+            if nm in values and values[nm] != v:
+                raise SymbolError(f"symbol {nm!r} has two values: {decimal(values[nm])} and "
+                                  f"{decimal(v)}")
+            values[nm] = v
+    order = list(dict.fromkeys(p.name for mdl in models for p in mdl.parameters))
+    composed = cls(
         name,
         [s + sfx for mdl, sfx in zip(models, suffixes) for s in mdl.states],
         [s + sfx for mdl, sfx in zip(models, suffixes) for s in mdl.measurements],
@@ -148,7 +154,35 @@ def compose(cls, name, models, suffixes=None, description="", source=""):
         values=values,
         x0=sympy.Matrix.vstack(*[mdl.x0 for mdl in models]),
         P0=sympy.diag(*[mdl.P0 for mdl in models]),
-        P0_pattern=pattern,
+        P0_pattern="dense",
         description=description,
         source=source,
+        parameters=[nm for nm in order if nm not in values],
     )
+    wanted = _diagonal_union([mdl.pattern_mask() for mdl in models])
+    for pattern in ("zero", "diagonal", "block"):
+        try:
+            mask = composed.pattern_mask(pattern)
+        except ModelError:  # no independent blocks to speak of: "block" does not apply
+            continue
+        if _contains(mask, wanted):
+            composed.P0_pattern = pattern
+            break
+    return composed
+
+
+def _diagonal_union(masks) -> list[list[bool]]:
+    """The block-diagonal boolean matrix with ``masks`` on its diagonal."""
+    n = sum(len(mask) for mask in masks)
+    out = [[False] * n for _ in range(n)]
+    start = 0
+    for mask in masks:
+        for i, row in enumerate(mask):
+            for j, flag in enumerate(row):
+                out[start + i][start + j] = flag
+        start += len(mask)
+    return out
+
+
+def _contains(outer, inner) -> bool:
+    return all(o or not i for ro, ri in zip(outer, inner) for o, i in zip(ro, ri))

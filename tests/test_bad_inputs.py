@@ -107,7 +107,7 @@ MODEL_FILE_ROWS: list[Row] = [
     # matrix properties at the given values
     ("Q not symmetric", edit('G = [["dt/2"], [1]]\n', "", 'Q = "sq2"',
                              'Q = [["sq2", 0.001], [0, "sq2"]]'), ["kf"], {}, [],
-     MatrixPropertyError, ["matrix Q must be symmetric", "Q[0][1] = 1/1000", "Q[1][0] = 0"]),
+     MatrixPropertyError, ["matrix Q must be symmetric", "Q[0][1] = 0.001", "Q[1][0] = 0"]),
     ("R not symmetric", edit('R = [["sr2", 0], [0, "sr2"]]', 'R = [["sr2", 0.01], [0, "sr2"]]'),
      ["kf"], {}, [], MatrixPropertyError, ["matrix R must be symmetric", "R[0][1]"]),
     ("R singular", edit('R = [["sr2", 0], [0, "sr2"]]', 'R = [["sr2", "sr2"], ["sr2", "sr2"]]'),

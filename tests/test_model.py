@@ -23,12 +23,12 @@ def test_values_and_free_parameters():
         m.numeric({"sr2": 1.0, "nope": 2.0})
 
 
-def test_symbols_unified_by_name():
-    """A user symbol with other assumptions is the same symbol as derive's."""
+def test_two_symbols_with_one_name_refused():
+    """Two different symbols with one name are ambiguous: refused, naming both."""
     d = sympy.Symbol("dt", positive=True)
-    m = LinearModel("u", ["s", "v"], ["z"], [[1, d], [0, 1]], [[1, dt]], [[1]], [[1]],
+    with pytest.raises(SymbolError, match=r"'dt'.*positive=True.*F\[0\]\[1\].*real=True"):
+        LinearModel("u", ["s", "v"], ["z"], [[1, d], [0, 1]], [[1, dt]], [[1]], [[1]],
                     G=[[0], [1]])
-    assert [p.name for p in m.parameters] == ["dt"]
 
 
 @pytest.mark.parametrize(

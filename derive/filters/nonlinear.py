@@ -24,6 +24,7 @@ import sympy
 from .. import staging
 from ..errors import FilterError
 from ..program import Port, Program
+from ..symbols import real_stand_ins
 from . import pattern as pat
 from .common import masked, parameter_port
 
@@ -64,9 +65,11 @@ def linearise(values: sympy.MatrixBase, wrt: Sequence[sympy.Symbol],
               with_jacobian: bool = True) -> Linearisation:
     """``values`` and (unless ``with_jacobian`` is False) ``∂values/∂wrt``, sharing work."""
     vals = [sympy.sympify(v) for v in values]
-    if with_jacobian:
-        jac = sympy.Matrix(len(vals), len(wrt),
-                           lambda i, j: _simpler(sympy.diff(vals[i], wrt[j])))
+    if with_jacobian:  # over real stand-ins: model entries are real (d|x|/dx = sign(x))
+        real, back = real_stand_ins(set(wrt).union(*(v.free_symbols for v in vals)))
+        rvals = [v.xreplace(real) for v in vals]
+        jac = sympy.Matrix(len(vals), len(wrt), lambda i, j: _simpler(
+            sympy.diff(rvals[i], real.get(wrt[j], wrt[j]))).xreplace(back))
     else:
         jac = sympy.zeros(len(vals), 0)
     names = sympy.numbered_symbols("_shared", real=True)

@@ -8,28 +8,12 @@ the current pattern, add every entry of P_new that did not fold to zero, repeat.
 
 from __future__ import annotations
 
-from ..errors import ModelError
-
 Pattern = tuple[tuple[bool, ...], ...]
 
 
 def declared(model, name: str | None = None) -> Pattern:
     """P0's pattern: ``dense``, ``zero``, ``diagonal`` or ``block`` (independent blocks)."""
-    n = model.n
-    name = name or model.P0_pattern
-    if name == "dense":
-        return tuple(tuple(True for _ in range(n)) for _ in range(n))
-    if name == "zero":
-        return tuple(tuple(False for _ in range(n)) for _ in range(n))
-    if name == "diagonal":
-        return tuple(tuple(i == j for j in range(n)) for i in range(n))
-    if name == "block":
-        owner = {}
-        for b, blk in enumerate(model.blocks()):
-            for s in blk.states:
-                owner[s] = b
-        return tuple(tuple(owner[i] == owner[j] for j in range(n)) for i in range(n))
-    raise ModelError(f"P0 pattern {name!r} is not one of dense, zero, diagonal, block")
+    return model.pattern_mask(name)
 
 
 def union(a: Pattern, b: Pattern) -> Pattern:

@@ -34,7 +34,7 @@ def scalar_model() -> NonlinearModel:
         h=["sqrt((sx - x)**2 + (sy - y)**2 + (sz - z)**2) + b"],
         Q=[["q_position", 0, 0, 0], [0, "q_position", 0, 0], [0, 0, "q_position", 0],
            [0, 0, 0, "q_clock"]],
-        R=[["sigma2"]], inputs=["sx", "sy", "sz"],
+        R=[["sigma2"]], inputs=["sx", "sy", "sz"], parameters=PARAMETERS,
         description="One GNSS pseudorange per update; noise variances are runtime "
                     "parameters.",
         source="SPEC §6 with Q and R free (derive.gnss.generated)")
