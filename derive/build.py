@@ -11,25 +11,28 @@ The wrappers read the interface the generated header states
 (``int PREFIX_step(x[2], P[2*2], z[1], x_new[2] out, ...)``): ``step`` takes
 the inputs in C order (``p`` as keyword) and returns the outputs flat, like the
 generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
-``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`.
+``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`, or
+:class:`derive.errors.PatternError` naming the entry for the pattern status.
 """
 
 from __future__ import annotations
 
 import hashlib
 import importlib.util
+import itertools
 import os
 import re
 import shutil
 import subprocess
 import sys
 import tempfile
+import types
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from derive.errors import NumericalError
+from derive.errors import PATTERN_MESSAGE_START, ModelError, NumericalError, PatternError
 
 STRICT_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic")
 
@@ -164,14 +167,41 @@ class FilterModule:
             c_args.insert(0, steps)
         status = getattr(self.lib, fn.name)(*c_args)
         if fn.returns_status and status:
-            raise NumericalError(f"{fn.name} failed with status {status}: "
-                                 + " or ".join(self.statuses.get(status, ["unknown check"])))
+            raise status_error(self, name, status, values.get("P0", values.get("P")))
         if fn.has_steps:
             shaped = [out.reshape(tuple(steps if d == "steps" else d for d in arg.dims))
                       for arg, out in outputs]
         else:
             shaped = [out for _, out in outputs]
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
+
+
+_PATTERN_ROWS = re.compile(r"upper triangle read: ([x.|]+)\)")
+
+
+def status_error(module: FilterModule, function: str, status: int, covariance
+                 ) -> NumericalError | PatternError:
+    """The exception for a non-zero status of ``PREFIX_function``: PatternError naming the
+    first entry of ``covariance`` (P or P0, any track) outside the pattern the header
+    states, for the pattern status; NumericalError naming the failed check otherwise."""
+    program = "step" if function in ("run", "run_tracks") else function
+    texts = module.statuses.get(status, [])
+    mine = [t.split(": ", 1)[1] for t in texts if t.startswith(f"{program}: ")]
+    where = f"{module.prefix}_{function} failed with status {status}"
+    if mine and mine[0].startswith(PATTERN_MESSAGE_START) and covariance is not None:
+        rows = _PATTERN_ROWS.search(mine[0]).group(1).split("|")
+        n = len(rows)
+        name = "P" if function == "step" or program != "step" else "P0"
+        flat = np.asarray(covariance, dtype=float).reshape(-1, n * n)
+        for track, values in enumerate(flat):
+            for i in range(n):
+                for j in range(i, n):
+                    value = values[i * n + j]
+                    if rows[i][j] == "." and not value == 0:
+                        which = f" (track {track})" if len(flat) > 1 else ""
+                        return PatternError(f"{where}: {name}[{i}][{j}] = {float(value)!r}"
+                                            f"{which}: {mine[0]}")
+    return NumericalError(f"{where}: " + " or ".join(texts or ["unknown check"]))
 
 
 def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True):
@@ -197,8 +227,7 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
         args.append(buf("double[]", np.ascontiguousarray(p, dtype=np.float64)))
     status = fn(*args)
     if status:
-        raise NumericalError(f"{module.prefix}_run_tracks failed with status {status}: "
-                             f"{module.statuses.get(status, 'unknown check')}")
+        raise status_error(module, "run_tracks", status, P0)
     return xs if P0 is None else (xs, Ps)
 
 
@@ -232,6 +261,7 @@ class CModule:
 
 
 _LOADED: dict[str, object] = {}
+_LOADED_PYTHON = itertools.count()
 
 
 def _compiler() -> str:
@@ -253,6 +283,21 @@ def _load(name: str, path: Path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def load_python(path) -> types.ModuleType:
+    """Load a generated Python file (``MODEL/FILTER.py``) as a fresh module.
+
+    Each call executes the file anew under a name unique to the call, so two files named
+    ``kf.py`` of different models never share a module; nothing is added to
+    ``sys.modules``.  A path that is not an existing ``.py`` file raises
+    :class:`derive.errors.ModelError`.
+    """
+    path = Path(path)
+    if path.suffix != ".py" or not path.is_file():
+        raise ModelError(f"{path}: not an existing generated Python file (MODEL/FILTER.py)")
+    name = f"derive_generated_{path.parent.name}_{path.stem}_{next(_LOADED_PYTHON)}"
+    return _load(name, path)
 
 
 def _prefix(header: str, path: Path) -> str:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from derive.errors import NumericalError
+from derive.errors import NumericalError, PatternError
 from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
 
 #: Precedence: higher binds tighter.
@@ -38,6 +38,18 @@ HELPERS = {
                '    value = a if present else b',
                '    counted = getattr(z, "derive_counted", None)',
                '    return value if counted is None else counted(value)'],
+    "pattern": ['def _require_zero(values, indices, n, name, message):',
+                '    """Raise PatternError unless values[k] == 0 for every k in indices (every',
+                '    track of an array): entries outside the pattern of the n x n matrix."""',
+                '    for k in indices:',
+                '        zero = values[k] == 0',
+                '        if hasattr(zero, "all"):',
+                '            zero = zero.all()',
+                '        if not zero:',
+                '            value = np.ravel(values[k]).astype(float)',
+                '            value = float(value[value != 0][0])',
+                '            entry = f"{name}[{k // n}][{k % n}]"',
+                '            raise PatternError(f"{entry} = {value!r}: {message}")'],
     "check": ['def _require_positive(value, message):',
               '    """Raise NumericalError unless value > 0 (every track of an array)."""',
               '    positive = value > 0',
@@ -53,6 +65,24 @@ ERROR_IMPORT = ['try:',
                 '',
                 '    class NumericalError(ArithmeticError):',
                 '        """A numerical failure such as a non-positive pivot."""']
+
+PATTERN_ERROR_IMPORT = [
+    'try:',
+    '    from derive.errors import PatternError',
+    'except ImportError:  # derive not installed: a stand-in with the same base',
+    '',
+    '    class PatternError(ValueError):',
+    '        """P (or P0) is not zero outside the pattern the code was generated for."""']
+
+
+def error_imports(lowered: list[LoweredProgram]) -> list[list[str]]:
+    """The import blocks of the exception classes the programs raise."""
+    blocks = []
+    if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
+        blocks.append(ERROR_IMPORT)
+    if any(lp.pattern_checks for lp in lowered):
+        blocks.append(PATTERN_ERROR_IMPORT)
+    return blocks
 
 
 class InfixPrinter:
@@ -117,7 +147,9 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
         needed.append("sqrt")
     if "select" in kinds:
         needed.append("select")
-    if any(lp.has_checks for lp in lowered):
+    if any(lp.pattern_checks for lp in lowered):
+        needed.append("pattern")
+    if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
         needed.append("check")
     return needed
 
@@ -125,7 +157,7 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return "select" in kinds or any(
+    return "select" in kinds or any(lp.pattern_checks for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 
 
@@ -150,11 +182,11 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     """Precomputed strings of one function: ``signature``, ``doc`` lines, ``body`` lines."""
     printer = PythonPrinter()
     params = ", ".join(p.name for p in lowered.inputs)
-    body: list[str] = []
+    body: list[str] = pattern_check_lines(lowered)
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"{st.target} = {printer.expression(st.tree)}")
-        else:
+        elif not st.is_pattern:
             value = printer.expression(st.tree.args[0])
             body.append(f"_require_positive({value}, {st.message!r})")
     for name, leaves in lowered.results:
@@ -164,6 +196,31 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     if doc_lines is None:
         doc_lines = port_doc_lines(lowered)
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
+
+
+def pattern_indices(lowered: LoweredProgram) -> dict[str, tuple[int, ...]]:
+    """Per input port, the flat indices its zero checks require to be 0, in order."""
+    out: dict[str, list[int]] = {}
+    for check in lowered.pattern_checks:
+        port, index = check.tree.args[0].name.rstrip("]").split("[")
+        out.setdefault(port, []).append(int(index))
+    return {port: tuple(indices) for port, indices in out.items()}
+
+
+def pattern_check_lines(lowered: LoweredProgram, names: dict[str, str] | None = None) -> list[str]:
+    """One ``_require_zero(...)`` line per port with zero checks (``names``: port -> the
+    expression holding it flat, default the port itself); one comparison per entry."""
+    if not lowered.pattern_checks:
+        return []
+    message = lowered.pattern_checks[0].message
+    ports = {p.name: p for p in lowered.inputs}
+    lines = []
+    for port, indices in pattern_indices(lowered).items():
+        source = (names or {}).get(port, port)
+        label = source.split(".")[0]
+        lines.append(f"_require_zero({source}, {indices!r}, {ports[port].shape[-1]}, "
+                     f"{label!r}, {message!r})")
+    return lines
 
 
 def _shape_text(port) -> str:
@@ -180,8 +237,11 @@ def port_doc_lines(lowered: LoweredProgram) -> list[str]:
     lines.append("Returns:")
     lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
               for p in lowered.outputs]
-    if lowered.has_checks:
+    if any(not c.is_pattern for c in lowered.checks):
         lines.append("Raises NumericalError when a runtime check fails.")
+    for port, indices in pattern_indices(lowered).items():
+        lines.append(f"Raises PatternError unless {port} is 0 outside its pattern "
+                     f"(upper triangle, {len(indices)} entries).")
     return lines
 
 
@@ -206,7 +266,7 @@ def python_function(program, *, namespace: dict | None = None) -> Callable:
     helpers; useful for verification and for the dynamic operation count.
     """
     lowered = lower_program(program, use_fma=False)
-    scope: dict = {"np": np, "NumericalError": NumericalError}
+    scope: dict = {"np": np, "NumericalError": NumericalError, "PatternError": PatternError}
     for name in helpers_needed([lowered]):
         exec("\n".join(HELPERS[name]), scope)  # our own printed code
     if namespace:

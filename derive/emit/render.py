@@ -143,10 +143,7 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         if sym:
             lines.append(f"symmetric in {lp.name}: {', '.join(sym)} (inputs: upper triangle "
                          "read; outputs: written whole)")
-    checks = [(lp.name, c) for lp in lowered.values() for c in lp.checks]
-    if checks:
-        lines.append("status (C return value; Python raises NumericalError): 0 success")
-        lines += [f"    {name} {c.status}: {c.message}" for name, c in checks]
+    lines += _status_lines(lowered.values())
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
@@ -154,8 +151,51 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     return lines
 
 
+def _status_lines(lowered) -> list[str]:
+    """The header's status list: one line per status of each function (the zero checks of
+    a pattern share one status; Python raises PatternError for it, NumericalError else)."""
+    lines = []
+    for lp in lowered:
+        messages = {c.status: c.message for c in lp.checks}
+        lines += [f"    {lp.name} {status}: {messages[status]}" for status in sorted(messages)]
+    if not lines:
+        return []
+    pattern = any(lp.pattern_checks for lp in lowered)
+    raises = "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
+    return [f"status (C return value; Python raises {raises}): 0 success"] + lines
+
+
 def _render(template: str, context: dict) -> str:
     return environment().get_template(template).render(**context)
+
+
+#: The Python step without its pattern check, which run's loop calls: P stays inside the
+#: pattern by construction once P0 has been checked.
+IN_PATTERN_STEP = "_step_in_pattern"
+
+
+def _python_functions(lp: LoweredProgram) -> list[dict]:
+    """The Python function(s) of one program.  A ``step`` with a pattern check is printed
+    as the check, then a call of :data:`IN_PATTERN_STEP`, which holds the rest."""
+    if lp.name != "step" or not lp.pattern_checks:
+        return [python_printer.function_parts(lp)]
+    inner = lp.without_pattern_checks()
+    params = ", ".join(p.name for p in lp.inputs)
+    outer = python_printer.function_parts(lp)
+    outer["body"] = (python_printer.pattern_check_lines(lp)
+                     + [f"return {IN_PATTERN_STEP}({params})"])
+    body = python_printer.function_parts(inner)
+    body["signature"] = f"def {IN_PATTERN_STEP}({params}):"
+    body["doc"] = ["step without the check of P's pattern (run checks P0 once instead)."]
+    return [outer, body]
+
+
+def _python_run_checks(step: LoweredProgram, unit: Unit) -> list[str]:
+    """run's check of P0 against the pattern, once before the loop."""
+    if not step.pattern_checks:
+        return []
+    flat = f"P0.reshape(({unit.n * unit.n},) + track)"
+    return python_printer.pattern_check_lines(step, {"P": flat})
 
 
 def render_python(unit: Unit) -> dict[str, str]:
@@ -173,10 +213,11 @@ def render_python(unit: Unit) -> dict[str, str]:
         "title": header[0],
         "header": header[1:],
         "numpy": True,
-        "needs_error": any(lp.has_checks for lp in lps),
-        "error_import": python_printer.ERROR_IMPORT,
+        "error_imports": python_printer.error_imports(lps),
         "helpers": helpers,
-        "functions": [python_printer.function_parts(lp) for lp in lps],
+        "functions": [part for lp in lps for part in _python_functions(lp)],
+        "run_checks": _python_run_checks(lowered["step"], unit),
+        "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
         "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
                     for a in args],
@@ -199,8 +240,15 @@ def render_python(unit: Unit) -> dict[str, str]:
         # the predictor starts from init(x0), computed before the loop (pred.jinja)
         arrays.update(x="x_start" if unit.kind == "pred" else "x0", P="P0",
                       **{PARAMETER_PORT: PARAMETER_PORT})
-        context["single"] = single_track_loop(lowered["step"], unit.step_inputs, arrays)
+        context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
+                                              unit.step_inputs, arrays)
     return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
+
+
+def include_guard(prefix: str) -> str:
+    """The header's include guard: the prefix verbatim, so it is unique per model and filter
+    whatever the case of the names (``Axis_kf`` and ``axis_kf`` differ)."""
+    return f"DERIVE_{prefix}_H"
 
 
 def _c_call(function: str, args: str, status: bool) -> list[str]:
@@ -231,10 +279,11 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     per_step = ", ".join(f"{name} + k * {unit.step_input_size(name)}"
                          for name in unit.step_inputs)
     prefix = unit.prefix
-    defines = [f"#define {prefix.upper()}_N {unit.n}", f"#define {prefix.upper()}_M {unit.m}",
-               f"#define {prefix.upper()}_NP {len(unit.parameters)}"]
+    # names verbatim (C is case sensitive): models Axis and axis get distinct macros
+    defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+               f"#define {prefix}_NP {len(unit.parameters)}"]
     if unit.kind == "fir":
-        defines.append(f"#define {prefix.upper()}_WINDOW {unit.window}")
+        defines.append(f"#define {prefix}_WINDOW {unit.window}")
     step_lp = lowered["step"]
     if unit.kind == "timevarying":
         step_call = _c_call(f"{prefix}_step", f"x, P, {per_step}, x_next, P_next{p_arg}",
@@ -246,8 +295,14 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
-    step_parts = c_printer.function_parts(step_lp, prefix)
+    # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
+    step_parts = c_printer.function_parts(step_lp.without_pattern_checks(), prefix)
     fused = fused_body(unit, step_parts) if unit.kind != "fir" else []
+    nn = unit.n * unit.n
+    run_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
+        c, c.tree.args[0].name.replace("P[", "P0["))]
+    tracks_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
+        c, c.tree.args[0].name.replace("P[", f"P0[t * {nn} + "))]
     lookahead = two_step_body(fused, two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
@@ -262,7 +317,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     unused = [f"(void){name};" for name in ("p",) if unit.parameters and name not in used]
     context = {
         "header": header,
-        "guard": f"{prefix.upper()}_H",
+        "guard": include_guard(prefix),
         "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix) + ";" for lp in lps]
         + [run_signature + ";"] + ([tracks_signature + ";"] if tracks_signature else []),
@@ -283,6 +338,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,
         "unused": unused,
+        "run_checks": run_checks,
+        "tracks_checks": tracks_checks,
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
@@ -331,10 +388,7 @@ def _function_header(name: str, lang: str, lowered: dict[str, LoweredProgram], c
             ins = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.inputs)
             outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
             lines.append(f"    {lp.name}({ins}) -> ({outs})")
-    checks = [(lp.name, c) for lp in lowered.values() for c in lp.checks]
-    if checks:
-        lines.append("status (C return value; Python raises NumericalError): 0 success")
-        lines += [f"    {fn} {c.status}: {c.message}" for fn, c in checks]
+    lines += _status_lines(lowered.values())
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
@@ -361,8 +415,7 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
         context = {
             "title": header[0], "header": header[1:],
             "numpy": python_printer.uses_numpy_calls(lps),
-            "needs_error": any(lp.has_checks for lp in lps),
-            "error_import": python_printer.ERROR_IMPORT,
+            "error_imports": python_printer.error_imports(lps),
             "helpers": ["\n".join(python_printer.HELPERS[h])
                         for h in python_printer.helpers_needed(lps)],
             "functions": [python_printer.function_parts(lp) for lp in lps],
@@ -371,7 +424,7 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
     header = [c_printer.comment_text(x)
               for x in _function_header(name, lang, lowered, command, facts)]
     context = {
-        "header": header, "guard": f"{name.upper()}_H", "defines": [],
+        "header": header, "guard": include_guard(name), "defines": [],
         "prototypes": [c_printer.prototype(lp, name) + ";" for lp in lps],
         "h_file": f"{name}.h", "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)

@@ -30,14 +30,14 @@
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
  */
-#ifndef GNSS_PSEUDORANGE_EKF_H
-#define GNSS_PSEUDORANGE_EKF_H
+#ifndef DERIVE_gnss_pseudorange_ekf_H
+#define DERIVE_gnss_pseudorange_ekf_H
 
 #include <stddef.h>
 
-#define GNSS_PSEUDORANGE_EKF_N 4
-#define GNSS_PSEUDORANGE_EKF_M 4
-#define GNSS_PSEUDORANGE_EKF_NP 0
+#define gnss_pseudorange_ekf_N 4
+#define gnss_pseudorange_ekf_M 4
+#define gnss_pseudorange_ekf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -52,4 +52,4 @@ int gnss_pseudorange_ekf_run(size_t steps, const double *z, const double *u, con
 }
 #endif
 
-#endif /* GNSS_PSEUDORANGE_EKF_H */
+#endif /* DERIVE_gnss_pseudorange_ekf_H */

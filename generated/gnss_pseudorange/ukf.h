@@ -39,14 +39,14 @@
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
  */
-#ifndef GNSS_PSEUDORANGE_UKF_H
-#define GNSS_PSEUDORANGE_UKF_H
+#ifndef DERIVE_gnss_pseudorange_ukf_H
+#define DERIVE_gnss_pseudorange_ukf_H
 
 #include <stddef.h>
 
-#define GNSS_PSEUDORANGE_UKF_N 4
-#define GNSS_PSEUDORANGE_UKF_M 4
-#define GNSS_PSEUDORANGE_UKF_NP 0
+#define gnss_pseudorange_ukf_N 4
+#define gnss_pseudorange_ukf_M 4
+#define gnss_pseudorange_ukf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -61,4 +61,4 @@ int gnss_pseudorange_ukf_run(size_t steps, const double *z, const double *u, con
 }
 #endif
 
-#endif /* GNSS_PSEUDORANGE_UKF_H */
+#endif /* DERIVE_gnss_pseudorange_ukf_H */

@@ -17,14 +17,14 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 28, div 2, sqrt 0, fma 20, neg 3, cmp 0, calls 0 (flops 80, instructions 63)
  * P0 pattern declared: zero
  */
-#ifndef MPT3D_B_LF_H
-#define MPT3D_B_LF_H
+#ifndef DERIVE_mpt3d_b_lf_H
+#define DERIVE_mpt3d_b_lf_H
 
 #include <stddef.h>
 
-#define MPT3D_B_LF_N 2
-#define MPT3D_B_LF_M 1
-#define MPT3D_B_LF_NP 0
+#define mpt3d_b_lf_N 2
+#define mpt3d_b_lf_M 1
+#define mpt3d_b_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +38,4 @@ void mpt3d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
 }
 #endif
 
-#endif /* MPT3D_B_LF_H */
+#endif /* DERIVE_mpt3d_b_lf_H */
