@@ -32,7 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from derive.errors import PATTERN_MESSAGE_START, ModelError, NumericalError, PatternError
+from derive.errors import (
+    PATTERN_MESSAGE_START,
+    ModelError,
+    NumericalError,
+    PatternError,
+    ShapeError,
+)
 
 STRICT_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic")
 
@@ -43,10 +49,27 @@ class BuildError(RuntimeError):
 
 @dataclass(frozen=True)
 class CArgument:
+    """One array argument as the header states it; ``rows``: one row for every step or
+    one row per step, told by the stride argument that follows (``p`` of run)."""
+
     name: str
     dims: tuple[int | str, ...]
     output: bool
     optional: bool
+    rows: bool = False
+
+    def shapes(self, steps: int) -> list[tuple[int, ...]]:
+        """The array shapes accepted: the stated one; flat, for a fixed-size matrix; (steps,)
+        for one value per step; (steps, row) for rows."""
+        shape = tuple(steps if d == "steps" else int(d) for d in self.dims)
+        accepted = [shape]
+        if self.per_step and len(shape) == 2 and shape[1] == 1:
+            accepted.append(shape[:1])
+        if not self.per_step and len(shape) > 1:
+            accepted.append((self.size(),))
+        if self.rows:
+            accepted.append((steps,) + shape)
+        return accepted
 
     @property
     def per_step(self) -> bool:
@@ -68,7 +91,7 @@ class CFunction:
 
 
 _INTERFACE = re.compile(r"^\s*\*\s+(int|void) (\w+)\((.*)\)\s*$")
-_ARG = re.compile(r"^(\w+)\[([\w*]+)\]((?: out| optional)*)$")
+_ARG = re.compile(r"^(\w+)\[([\w*]+)\]((?: out| optional)*)( rows \w+)?$")
 _STATUS = re.compile(r"^\s*\*\s+(\w+) (\d+): (.*)$")
 
 
@@ -89,7 +112,7 @@ def parse_interface(header: str) -> tuple[list[CFunction], dict[int, list[str]]]
                     raise BuildError(f"cannot read the argument {text!r} of {m.group(2)}")
                 dims = tuple(d if d == "steps" else int(d) for d in a.group(2).split("*"))
                 args.append(CArgument(a.group(1), dims, " out" in a.group(3),
-                                      " optional" in a.group(3)))
+                                      " optional" in a.group(3), a.group(4) is not None))
             functions.append(CFunction(m.group(2), m.group(1) == "int", tuple(args), has_steps))
             continue
         s = _STATUS.match(line)
@@ -124,12 +147,16 @@ class FilterModule:
             return lambda *args, **kwargs: self.call(name, *args, **kwargs)
         raise AttributeError(name)
 
-    def _buffer(self, arg: CArgument, value, steps: int) -> tuple[object, np.ndarray]:
-        array = np.ascontiguousarray(value, dtype=np.float64).reshape(-1)
-        if array.size != arg.size(steps):
-            raise ValueError(f"{self.prefix}: argument {arg.name!r} needs {arg.size(steps)} "
-                             f"doubles (shape {arg.dims}), got {array.size}")
-        return self.ffi.from_buffer("double[]", array), array
+    def _array(self, function: str, arg: CArgument, value, steps: int) -> np.ndarray:
+        """``value`` as contiguous float64 of one of the shapes ``arg`` accepts, or
+        ShapeError naming the argument, the shapes accepted and the shape given."""
+        array = np.ascontiguousarray(value, dtype=np.float64)
+        accepted = arg.shapes(steps)
+        if array.shape not in accepted:
+            raise ShapeError(f"{self.prefix}_{function}: argument {arg.name!r} must have shape "
+                             + " or ".join(str(s) for s in accepted)
+                             + f", got {array.shape}")
+        return array
 
     def call(self, name: str, *args, p=None, with_covariance: bool = True):
         """Call ``PREFIX_name`` with NumPy inputs in C order; returns the outputs."""
@@ -148,9 +175,10 @@ class FilterModule:
         steps = 0
         if fn.has_steps:
             first = next(a for a in inputs if a.per_step)
-            steps = np.asarray(given[inputs.index(first)]).shape[0]
+            shape = np.shape(given[inputs.index(first)])
+            steps = shape[0] if shape else 0
         values = dict(zip((a.name for a in inputs), given))
-        c_args, keep, outputs = [], [], []
+        c_args, keep, outputs, strides = [], [], [], []
         for arg in fn.arguments:
             if arg.output:
                 if arg.optional and not with_covariance:
@@ -160,11 +188,14 @@ class FilterModule:
                 outputs.append((arg, out))
                 c_args.append(self.ffi.from_buffer("double[]", out))
             else:
-                buf, array = self._buffer(arg, values[arg.name], steps)
+                array = self._array(name, arg, values[arg.name], steps)
                 keep.append(array)
-                c_args.append(buf)
+                c_args.append(self.ffi.from_buffer("double[]", array))
+                if arg.rows:  # 0: one row for every step; the row's length: one per step
+                    strides.append(arg.size() if array.ndim == 2 else 0)
         if fn.has_steps:
             c_args.insert(0, steps)
+        c_args += strides
         status = getattr(self.lib, fn.name)(*c_args)
         if fn.returns_status and status:
             raise status_error(self, name, status, values.get("P0", values.get("P")))
@@ -208,23 +239,37 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
     """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
     (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None)."""
     fn = getattr(module.lib, f"{module.prefix}_run_tracks")
+    run = module.functions["run"]
+    inputs = {a.name: a for a in run.arguments if not a.output}
     zs = np.ascontiguousarray(zs, dtype=np.float64)
-    x0 = np.ascontiguousarray(x0, dtype=np.float64)
-    tracks, steps = zs.shape[0], zs.shape[1]
-    n = x0.shape[1]
+    shape = zs.shape
+    tracks, steps = (shape + (0, 0))[:2]
+
+    def track_major(name: str, value) -> np.ndarray:
+        """(tracks, the run's shape of the argument), or ShapeError."""
+        array = np.ascontiguousarray(value, dtype=np.float64)
+        accepted = [(tracks,) + s for s in inputs[name].shapes(steps)]
+        if array.shape not in accepted:
+            raise ShapeError(f"{module.prefix}_run_tracks: argument {name!r} must have shape "
+                             + " or ".join(str(s) for s in accepted) + f", got {array.shape}")
+        return array
+
+    zs, x0 = track_major("z", zs), track_major("x0", x0)
+    n = int(inputs["x0"].dims[0])
     xs = np.empty((tracks, steps, n))
     buf = module.ffi.from_buffer
     args = [steps, tracks, buf("double[]", zs), buf("double[]", x0)]
     Ps = None
     if P0 is not None:
-        P0 = np.ascontiguousarray(P0, dtype=np.float64)
+        P0 = track_major("P0", P0)
         Ps = np.empty((tracks, steps, n, n)) if with_covariance else None
         args += [buf("double[]", P0), buf("double[]", xs),
                  buf("double[]", Ps) if Ps is not None else module.ffi.NULL]
     else:
         args.append(buf("double[]", xs))
     if p is not None:
-        args.append(buf("double[]", np.ascontiguousarray(p, dtype=np.float64)))
+        p = module._array("run_tracks", inputs["p"], p, steps)
+        args += [buf("double[]", p), inputs["p"].size() if p.ndim == 2 else 0]
     status = fn(*args)
     if status:
         raise status_error(module, "run_tracks", status, P0)

@@ -50,6 +50,11 @@ HELPERS = {
                 '            value = float(value[value != 0][0])',
                 '            entry = f"{name}[{k // n}][{k % n}]"',
                 '            raise PatternError(f"{entry} = {value!r}: {message}")'],
+    "shape": ['def _require_shape(name, array, shape, text):',
+              '    """Raise ShapeError unless the leading axes are shape (then tracks)."""',
+              '    if array.shape[:len(shape)] != shape:',
+              '        raise ShapeError(f"run: {name} must have shape {text}, then any "',
+              '                         f"track axes; got {array.shape}")'],
     "check": ['def _require_positive(value, message):',
               '    """Raise NumericalError unless value > 0 (every track of an array)."""',
               '    positive = value > 0',
@@ -75,9 +80,18 @@ PATTERN_ERROR_IMPORT = [
     '        """P (or P0) is not zero outside the pattern the code was generated for."""']
 
 
-def error_imports(lowered: list[LoweredProgram]) -> list[list[str]]:
-    """The import blocks of the exception classes the programs raise."""
-    blocks = []
+SHAPE_ERROR_IMPORT = [
+    'try:',
+    '    from derive.errors import ShapeError',
+    'except ImportError:  # derive not installed: a stand-in with the same base',
+    '',
+    '    class ShapeError(ValueError):',
+    '        """An argument of the wrong shape."""']
+
+
+def error_imports(lowered: list[LoweredProgram], run: bool = False) -> list[list[str]]:
+    """The import blocks of the exception classes the programs (and ``run``) raise."""
+    blocks = [SHAPE_ERROR_IMPORT] if run else []
     if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
         blocks.append(ERROR_IMPORT)
     if any(lp.pattern_checks for lp in lowered):
@@ -157,7 +171,8 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return "select" in kinds or any(lp.pattern_checks for lp in lowered) or any(
+    return "select" in kinds or any(lp.pattern_checks or square_input_lines(lp)
+                                    for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 
 
@@ -182,7 +197,7 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     """Precomputed strings of one function: ``signature``, ``doc`` lines, ``body`` lines."""
     printer = PythonPrinter()
     params = ", ".join(p.name for p in lowered.inputs)
-    body: list[str] = pattern_check_lines(lowered)
+    body: list[str] = square_input_lines(lowered) + pattern_check_lines(lowered)
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"{st.target} = {printer.expression(st.tree)}")
@@ -196,6 +211,18 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     if doc_lines is None:
         doc_lines = port_doc_lines(lowered)
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
+
+
+def square_input_lines(lowered: LoweredProgram) -> list[str]:
+    """Lines that accept a 2-D (n, n) matrix (then any track axes) for each flat n*n input
+    port with n > 1 (P): it is flattened row-major; a flat one is used as it is."""
+    lines = []
+    for port in lowered.inputs:
+        if len(port.shape) == 2 and port.shape[0] == port.shape[1] > 1:
+            n, name = port.shape[0], port.name
+            lines += [f"if len({name}) == {n}:  # a 2-D ({n}, {n}) {name}: flattened, row-major",
+                      f"    {name} = np.reshape({name}, ({n * n},) + np.shape({name})[2:])"]
+    return lines
 
 
 def pattern_indices(lowered: LoweredProgram) -> dict[str, tuple[int, ...]]:

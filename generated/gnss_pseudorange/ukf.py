@@ -43,6 +43,13 @@ varying measurement count: call predict once per step, then update1 once per mea
 import numpy as np
 
 try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+try:
     from derive.errors import NumericalError
 except ImportError:  # derive not installed: a stand-in with the same base
 
@@ -64,6 +71,13 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z, u):
     """One step of the unscented Kalman filter: predict, then update with all 4 measurements.
 
@@ -77,6 +91,8 @@ def step(x, P, z, u):
         P_new [4x4, symmetric]: its covariance, row-major
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[5]
     t2 = 0.01 + P[10]
@@ -461,6 +477,8 @@ def predict(x, P):
         x_new [4]: x(k/k-1)
         P_new [4x4, symmetric]: its covariance, row-major
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[5]
     t2 = 0.01 + P[10]
@@ -488,6 +506,8 @@ def update1(x, P, z, u):
         variance [1]: the innovation's variance
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     _require_positive(P[0], 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
     t0 = _sqrt(P[0])
     t1 = 1.0/t0
@@ -654,8 +674,14 @@ def run(zs, us, x0, P0):
     us = np.asarray(us, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (4,), '(steps, 4)')
     steps = zs.shape[0]
+    _require_shape('us', us, (steps,) + (12,), '(steps, 12)')
+    _require_shape('x0', x0, (4,), '(4,)')
+    if P0.shape[:1] == (16,):  # flat, row-major
+        P0 = P0.reshape((4, 4) + P0.shape[1:])
+    _require_shape('P0', P0, (4, 4), '(4, 4)')
+    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 4) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()

@@ -25,6 +25,13 @@ P0 pattern declared: diagonal
 import numpy as np
 
 try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+try:
     from derive.errors import NumericalError
 except ImportError:  # derive not installed: a stand-in with the same base
 
@@ -62,6 +69,13 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z):
     """one step of the Kalman filter
 
@@ -75,6 +89,8 @@ def step(x, P, z):
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 3 entries).
     """
+    if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
+        P = np.reshape(P, (9,) + np.shape(P)[2:])
     _require_zero(P, (1, 2, 5), 3, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     return _step_in_pattern(x, P, z)
 
@@ -128,10 +144,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (3,), '(steps, 3)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (3,), '(3,)')
+    if P0.shape[:1] == (9,):  # flat, row-major
+        P0 = P0.reshape((3, 3) + P0.shape[1:])
+    _require_shape('P0', P0, (3, 3), '(3, 3)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 3) + track)
-    _require_zero(P0.reshape((9,) + track), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
+    _require_zero(P0.reshape((9,) + P0.shape[2:]), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()

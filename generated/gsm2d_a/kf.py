@@ -24,6 +24,13 @@ P0 pattern declared: zero
 import numpy as np
 
 try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+try:
     from derive.errors import NumericalError
 except ImportError:  # derive not installed: a stand-in with the same base
 
@@ -61,6 +68,13 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z):
     """one step of the Kalman filter
 
@@ -74,6 +88,8 @@ def step(x, P, z):
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 4 entries).
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     _require_zero(P, (2, 3, 6, 7), 4, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     return _step_in_pattern(x, P, z)
 
@@ -152,10 +168,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (2,), '(steps, 2)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (4,), '(4,)')
+    if P0.shape[:1] == (16,):  # flat, row-major
+        P0 = P0.reshape((4, 4) + P0.shape[1:])
+    _require_shape('P0', P0, (4, 4), '(4, 4)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 4) + track)
-    _require_zero(P0.reshape((16,) + track), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
+    _require_zero(P0.reshape((16,) + P0.shape[2:]), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()

@@ -25,6 +25,13 @@ P0 pattern declared: zero
 import numpy as np
 
 try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+try:
     from derive.errors import NumericalError
 except ImportError:  # derive not installed: a stand-in with the same base
 
@@ -62,6 +69,13 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z):
     """one step of the join Kalman-Lainiotis filter
 
@@ -75,6 +89,8 @@ def step(x, P, z):
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 12 entries).
     """
+    if len(P) == 6:  # a 2-D (6, 6) P: flattened, row-major
+        P = np.reshape(P, (36,) + np.shape(P)[2:])
     _require_zero(P, (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     return _step_in_pattern(x, P, z)
 
@@ -333,10 +349,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (3,), '(steps, 3)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (6,), '(6,)')
+    if P0.shape[:1] == (36,):  # flat, row-major
+        P0 = P0.reshape((6, 6) + P0.shape[1:])
+    _require_shape('P0', P0, (6, 6), '(6, 6)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 6) + track)
-    _require_zero(P0.reshape((36,) + track), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
+    _require_zero(P0.reshape((36,) + P0.shape[2:]), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
