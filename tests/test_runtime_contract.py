@@ -102,6 +102,8 @@ def test_mpt3d_a_kf_refuses_a_dense_P0_in_c_with_the_status_the_header_names():
     module = build_c(GENERATED / "mpt3d_a" / "kf.c")
     header = (GENERATED / "mpt3d_a" / "kf.h").read_text()
     status = _pattern_status(header)
+    assert ("P0 accepted: exactly those zero outside P's pattern "
+            "xx....|xx....|..xx..|..xx..|....xx|....xx") in header
     num = catalog.load("mpt3d_a").numeric()
     zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 20, 1).zs
     dense = _spd(6, 0)
@@ -212,6 +214,7 @@ def test_a_dense_closed_pattern_emits_no_check(tmp_path):
     texts = render_filter(model, "kf", "all", {"P0_pattern": "dense"})
     assert "_require_zero" not in texts["kf.py"] and "== 0.0" not in texts["kf.c"]
     assert "outside the pattern" not in texts["kf.h"]
+    assert "P0 accepted: any symmetric P0" in texts["kf.h"]
 
 
 def _two_blocks_nonlinear(name: str = "twin", pattern: str = "diagonal") -> NonlinearModel:

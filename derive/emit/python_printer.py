@@ -257,8 +257,9 @@ def _shape_text(port) -> str:
 
 def port_doc_lines(lowered: LoweredProgram) -> list[str]:
     """Docstring lines: purpose, then one line per port (flat, row-major)."""
+    square = " or 2-D (n, n) matrices" if square_input_lines(lowered) else ""
     lines = [doc_text(lowered.doc or f"The generated function {lowered.name}."), "",
-             "Arguments (flat, row-major sequences; elements may be NumPy arrays):"]
+             f"Arguments (flat, row-major sequences{square}; elements may be NumPy arrays):"]
     lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
               for p in lowered.inputs]
     lines.append("Returns:")

@@ -22,6 +22,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 6, calls 0 (flops 91, instructions 99)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
@@ -60,7 +61,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z):
     """one step of the information-form Kalman filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [3]: x(k/k)
         P [3x3, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)

@@ -17,6 +17,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 100, sub 40, mul 160, div 4, sqrt 0, fma 0, neg 1, cmp 1, calls 0 (flops 304, instructions 306)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
@@ -55,7 +56,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z):
     """one step of the join Kalman-Lainiotis filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [3]: x(k/k)
         P [3x3, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)

@@ -20,6 +20,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 12, sub 3, mul 12, div 4, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 31, instructions 35)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
@@ -58,7 +59,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z):
     """one step of the information-form Kalman filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [2]: x(k/k)
         P [2x2, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)

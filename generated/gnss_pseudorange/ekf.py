@@ -26,6 +26,7 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 144, sub 84, mul 238, div 8, sqrt 4, fma 0, neg 0, cmp 4, calls 0 (flops 478, instructions 482)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 1, calls 0 (flops 79, instructions 80)
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
@@ -72,7 +73,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z, u):
     """One step of the extended Kalman filter: predict, then update with all 4 measurements.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [4]: D1, D2, D3, D4
@@ -257,7 +258,7 @@ def step(x, P, z, u):
 def predict(x, P):
     """Predict only: x(k/k-1) and P(k/k-1) of the extended Kalman filter.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
     Returns:
@@ -281,7 +282,7 @@ def predict(x, P):
 def update1(x, P, z, u):
     """Sequential extended Kalman filter update with one measurement (any number a step).
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x before the update
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [1]: one measurement, any of D1, D2, D3, D4

@@ -34,6 +34,7 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 278, sub 218, mul 396, div 7, sqrt 32, fma 0, neg 0, cmp 8, calls 0 (flops 931, instructions 939)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 58, sub 61, mul 86, div 4, sqrt 11, fma 0, neg 0, cmp 5, calls 0 (flops 220, instructions 225)
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
 predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
@@ -81,7 +82,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z, u):
     """One step of the unscented Kalman filter: predict, then update with all 4 measurements.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [4]: D1, D2, D3, D4
@@ -470,7 +471,7 @@ def step(x, P, z, u):
 def predict(x, P):
     """Predict only: x(k/k-1) and P(k/k-1) of the unscented Kalman filter.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
     Returns:
@@ -494,7 +495,7 @@ def predict(x, P):
 def update1(x, P, z, u):
     """Sequential unscented Kalman filter update with one measurement (any number a step).
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x before the update
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [1]: one measurement, any of D1, D2, D3, D4

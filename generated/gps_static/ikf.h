@@ -24,6 +24,7 @@
  *     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #ifndef DERIVE_gps_static_ikf_H
 #define DERIVE_gps_static_ikf_H

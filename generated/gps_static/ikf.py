@@ -23,6 +23,7 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
 P0 pattern declared: diagonal
+P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
 import numpy as np
@@ -82,7 +83,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z):
     """one step of the information-form Kalman filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [3]: x(k/k)
         P [3x3, symmetric]: P(k/k), row-major, symmetric
         z [3]: z(k+1)

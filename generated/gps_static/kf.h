@@ -21,6 +21,7 @@
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #ifndef DERIVE_gps_static_kf_H
 #define DERIVE_gps_static_kf_H

@@ -20,6 +20,7 @@
  *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 6, calls 0 (flops 230, instructions 202)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <math.h>
 #include <stddef.h>

@@ -19,6 +19,7 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 82, sub 24, mul 116, div 8, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 230, instructions 236)
 P0 pattern declared: zero
+P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
 import numpy as np
@@ -78,7 +79,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z):
     """one step of the join Kalman-Lainiotis filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k/k)
         P [4x4, symmetric]: P(k/k), row-major, symmetric
         z [2]: z(k+1)

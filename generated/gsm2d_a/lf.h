@@ -18,6 +18,7 @@
  *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 4, calls 0 (flops 160, instructions 130)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #ifndef DERIVE_gsm2d_a_lf_H
 #define DERIVE_gsm2d_a_lf_H

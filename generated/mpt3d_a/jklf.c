@@ -21,6 +21,7 @@
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 84, sub 15, mul 114, div 12, sqrt 0, fma 60, neg 9, cmp 15, calls 0 (flops 345, instructions 309)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <math.h>
 #include <stddef.h>

@@ -15,6 +15,7 @@ interface (flat row-major arrays; steps = number of steps):
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 operations per call of step (Python): add 22, sub 8, mul 48, div 2, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 80, instructions 80)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
@@ -37,7 +38,7 @@ def _require_shape(name, array, shape, text):
 def step(x, P, z):
     """one step of the Lainiotis filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [2]: x(k/k)
         P [2x2, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)
