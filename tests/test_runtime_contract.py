@@ -166,6 +166,13 @@ def test_a_P0_inside_the_pattern_matches_the_reference_and_outside_is_refused(
         i, j = outside[0]
         with pytest.raises(PatternError, match=re.escape(f"P0[{i}][{j}] = {float(dense[i, j])!r}")):
             module.run(zs, num.x0, dense)
+    if GCC:  # run_tracks checks every track's P0 before the first step
+        tracks = modules[-1].run_tracks(np.stack([zs] * 5), np.stack([num.x0] * 5),
+                                        np.stack([inside] * 5))
+        np.testing.assert_array_equal(tracks[0][4], modules[-1].run(zs, num.x0, inside)[0])
+        with pytest.raises(PatternError, match=r"\(track 4\)"):
+            modules[-1].run_tracks(np.stack([zs] * 5), np.stack([num.x0] * 5),
+                                   np.stack([inside] * 4 + [dense]))
 
 
 def _axis(name: str) -> LinearModel:
