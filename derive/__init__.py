@@ -8,10 +8,10 @@ except PackageNotFoundError:  # running from a source tree
     __version__ = "0.1.0"
 
 from . import catalog  # noqa: E402
-from .build import build_c  # noqa: E402
+from .build import build_c, load_python  # noqa: E402
 from .errors import ModelError  # noqa: E402
 from .generation import generate  # noqa: E402
 from .model import LinearModel, NonlinearModel  # noqa: E402
 
 __all__ = ["LinearModel", "ModelError", "NonlinearModel", "__version__", "build_c", "catalog",
-           "generate"]
+           "generate", "load_python"]

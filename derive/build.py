@@ -14,13 +14,15 @@ The wrappers read the interface the generated header states
 (``int PREFIX_step(x[2], P[2*2], z[1], x_new[2] out, ...)``): ``step`` takes
 the inputs in C order (``p`` as keyword) and returns the outputs flat, like the
 generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
-``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`.
+``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`, or
+:class:`derive.errors.PatternError` naming the entry for the pattern status.
 """
 
 from __future__ import annotations
 
 import hashlib
 import importlib.util
+import itertools
 import os
 import re
 import shutil
@@ -28,13 +30,20 @@ import stat
 import subprocess
 import sys
 import tempfile
+import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from derive.errors import NumericalError
+from derive.errors import (
+    PATTERN_MESSAGE_START,
+    ModelError,
+    NumericalError,
+    PatternError,
+    ShapeError,
+)
 
 STRICT_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic")
 
@@ -58,10 +67,27 @@ class UnsafeCacheError(BuildEnvironmentError):
 
 @dataclass(frozen=True)
 class CArgument:
+    """One array argument as the header states it; ``rows``: one row for every step or
+    one row per step, told by the stride argument that follows (``p`` of run)."""
+
     name: str
     dims: tuple[int | str, ...]
     output: bool
     optional: bool
+    rows: bool = False
+
+    def shapes(self, steps: int) -> list[tuple[int, ...]]:
+        """The array shapes accepted: the stated one; flat, for a fixed-size matrix; (steps,)
+        for one value per step; (steps, row) for rows."""
+        shape = tuple(steps if d == "steps" else int(d) for d in self.dims)
+        accepted = [shape]
+        if self.per_step and len(shape) == 2 and shape[1] == 1:
+            accepted.append(shape[:1])
+        if not self.per_step and len(shape) > 1:
+            accepted.append((self.size(),))
+        if self.rows:
+            accepted.append((steps,) + shape)
+        return accepted
 
     @property
     def per_step(self) -> bool:
@@ -83,7 +109,7 @@ class CFunction:
 
 
 _INTERFACE = re.compile(r"^\s*\*\s+(int|void) (\w+)\((.*)\)\s*$")
-_ARG = re.compile(r"^(\w+)\[([\w*]+)\]((?: out| optional)*)$")
+_ARG = re.compile(r"^(\w+)\[([\w*]+)\]((?: out| optional)*)( rows \w+)?$")
 _STATUS = re.compile(r"^\s*\*\s+(\w+) (\d+): (.*)$")
 
 
@@ -104,7 +130,7 @@ def parse_interface(header: str) -> tuple[list[CFunction], dict[int, list[str]]]
                     raise BuildError(f"cannot read the argument {text!r} of {m.group(2)}")
                 dims = tuple(d if d == "steps" else int(d) for d in a.group(2).split("*"))
                 args.append(CArgument(a.group(1), dims, " out" in a.group(3),
-                                      " optional" in a.group(3)))
+                                      " optional" in a.group(3), a.group(4) is not None))
             functions.append(CFunction(m.group(2), m.group(1) == "int", tuple(args), has_steps))
             continue
         s = _STATUS.match(line)
@@ -139,12 +165,16 @@ class FilterModule:
             return lambda *args, **kwargs: self.call(name, *args, **kwargs)
         raise AttributeError(name)
 
-    def _buffer(self, arg: CArgument, value, steps: int) -> tuple[object, np.ndarray]:
-        array = np.ascontiguousarray(value, dtype=np.float64).reshape(-1)
-        if array.size != arg.size(steps):
-            raise ValueError(f"{self.prefix}: argument {arg.name!r} needs {arg.size(steps)} "
-                             f"doubles (shape {arg.dims}), got {array.size}")
-        return self.ffi.from_buffer("double[]", array), array
+    def _array(self, function: str, arg: CArgument, value, steps: int) -> np.ndarray:
+        """``value`` as contiguous float64 of one of the shapes ``arg`` accepts, or
+        ShapeError naming the argument, the shapes accepted and the shape given."""
+        array = np.ascontiguousarray(value, dtype=np.float64)
+        accepted = arg.shapes(steps)
+        if array.shape not in accepted:
+            raise ShapeError(f"{self.prefix}_{function}: argument {arg.name!r} must have shape "
+                             + " or ".join(str(s) for s in accepted)
+                             + f", got {array.shape}")
+        return array
 
     def call(self, name: str, *args, p=None, with_covariance: bool = True):
         """Call ``PREFIX_name`` with NumPy inputs in C order; returns the outputs."""
@@ -163,9 +193,10 @@ class FilterModule:
         steps = 0
         if fn.has_steps:
             first = next(a for a in inputs if a.per_step)
-            steps = np.asarray(given[inputs.index(first)]).shape[0]
+            shape = np.shape(given[inputs.index(first)])
+            steps = shape[0] if shape else 0
         values = dict(zip((a.name for a in inputs), given))
-        c_args, keep, outputs = [], [], []
+        c_args, keep, outputs, strides = [], [], [], []
         for arg in fn.arguments:
             if arg.output:
                 if arg.optional and not with_covariance:
@@ -175,15 +206,17 @@ class FilterModule:
                 outputs.append((arg, out))
                 c_args.append(self.ffi.from_buffer("double[]", out))
             else:
-                buf, array = self._buffer(arg, values[arg.name], steps)
+                array = self._array(name, arg, values[arg.name], steps)
                 keep.append(array)
-                c_args.append(buf)
+                c_args.append(self.ffi.from_buffer("double[]", array))
+                if arg.rows:  # 0: one row for every step; the row's length: one per step
+                    strides.append(arg.size() if array.ndim == 2 else 0)
         if fn.has_steps:
             c_args.insert(0, steps)
+        c_args += strides
         status = getattr(self.lib, fn.name)(*c_args)
         if fn.returns_status and status:
-            raise NumericalError(f"{fn.name} failed with status {status}: "
-                                 + " or ".join(self.statuses.get(status, ["unknown check"])))
+            raise status_error(self, name, status, values.get("P0", values.get("P")))
         if fn.has_steps:
             shaped = [out.reshape(tuple(steps if d == "steps" else d for d in arg.dims))
                       for arg, out in outputs]
@@ -192,31 +225,72 @@ class FilterModule:
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
 
 
+_PATTERN_ROWS = re.compile(r"upper triangle read: ([x.|]+)\)")
+
+
+def status_error(module: FilterModule, function: str, status: int, covariance
+                 ) -> NumericalError | PatternError:
+    """The exception for a non-zero status of ``PREFIX_function``: PatternError naming the
+    first entry of ``covariance`` (P or P0, any track) outside the pattern the header
+    states, for the pattern status; NumericalError naming the failed check otherwise."""
+    program = "step" if function in ("run", "run_tracks") else function
+    texts = module.statuses.get(status, [])
+    mine = [t.split(": ", 1)[1] for t in texts if t.startswith(f"{program}: ")]
+    where = f"{module.prefix}_{function} failed with status {status}"
+    if mine and mine[0].startswith(PATTERN_MESSAGE_START) and covariance is not None:
+        rows = _PATTERN_ROWS.search(mine[0]).group(1).split("|")
+        n = len(rows)
+        name = "P" if function == "step" or program != "step" else "P0"
+        flat = np.asarray(covariance, dtype=float).reshape(-1, n * n)
+        for track, values in enumerate(flat):
+            for i in range(n):
+                for j in range(i, n):
+                    value = values[i * n + j]
+                    if rows[i][j] == "." and not value == 0:
+                        which = f" (track {track})" if len(flat) > 1 else ""
+                        return PatternError(f"{where}: {name}[{i}][{j}] = {float(value)!r}"
+                                            f"{which}: {mine[0]}")
+    return NumericalError(f"{where}: " + " or ".join(texts or ["unknown check"]))
+
+
 def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True):
     """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
     (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None)."""
     fn = getattr(module.lib, f"{module.prefix}_run_tracks")
+    run = module.functions["run"]
+    inputs = {a.name: a for a in run.arguments if not a.output}
     zs = np.ascontiguousarray(zs, dtype=np.float64)
-    x0 = np.ascontiguousarray(x0, dtype=np.float64)
-    tracks, steps = zs.shape[0], zs.shape[1]
-    n = x0.shape[1]
+    shape = zs.shape
+    tracks, steps = (shape + (0, 0))[:2]
+
+    def track_major(name: str, value) -> np.ndarray:
+        """(tracks, the run's shape of the argument), or ShapeError."""
+        array = np.ascontiguousarray(value, dtype=np.float64)
+        accepted = [(tracks,) + s for s in inputs[name].shapes(steps)]
+        if array.shape not in accepted:
+            raise ShapeError(f"{module.prefix}_run_tracks: argument {name!r} must have shape "
+                             + " or ".join(str(s) for s in accepted) + f", got {array.shape}")
+        return array
+
+    zs, x0 = track_major("z", zs), track_major("x0", x0)
+    n = int(inputs["x0"].dims[0])
     xs = np.empty((tracks, steps, n))
     buf = module.ffi.from_buffer
     args = [steps, tracks, buf("double[]", zs), buf("double[]", x0)]
     Ps = None
     if P0 is not None:
-        P0 = np.ascontiguousarray(P0, dtype=np.float64)
+        P0 = track_major("P0", P0)
         Ps = np.empty((tracks, steps, n, n)) if with_covariance else None
         args += [buf("double[]", P0), buf("double[]", xs),
                  buf("double[]", Ps) if Ps is not None else module.ffi.NULL]
     else:
         args.append(buf("double[]", xs))
     if p is not None:
-        args.append(buf("double[]", np.ascontiguousarray(p, dtype=np.float64)))
+        p = module._array("run_tracks", inputs["p"], p, steps)
+        args += [buf("double[]", p), inputs["p"].size() if p.ndim == 2 else 0]
     status = fn(*args)
     if status:
-        raise NumericalError(f"{module.prefix}_run_tracks failed with status {status}: "
-                             f"{module.statuses.get(status, 'unknown check')}")
+        raise status_error(module, "run_tracks", status, P0)
     return xs if P0 is None else (xs, Ps)
 
 
@@ -250,6 +324,7 @@ class CModule:
 
 
 _LOADED: dict[str, object] = {}
+_LOADED_PYTHON = itertools.count()
 
 
 def _compiler() -> str:
@@ -339,6 +414,21 @@ def _load(name: str, path: Path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def load_python(path) -> types.ModuleType:
+    """Load a generated Python file (``MODEL/FILTER.py``) as a fresh module.
+
+    Each call executes the file anew under a name unique to the call, so two files named
+    ``kf.py`` of different models never share a module; nothing is added to
+    ``sys.modules``.  A path that is not an existing ``.py`` file raises
+    :class:`derive.errors.ModelError`.
+    """
+    path = Path(path)
+    if path.suffix != ".py" or not path.is_file():
+        raise ModelError(f"{path}: not an existing generated Python file (MODEL/FILTER.py)")
+    name = f"derive_generated_{path.parent.name}_{path.stem}_{next(_LOADED_PYTHON)}"
+    return _load(name, path)
 
 
 def _prefix(header: str, path: Path) -> str:

@@ -55,6 +55,16 @@ class VerificationError(Exception):
     """Generated code disagrees with the reference beyond tolerance."""
 
 
+#: How the message of a pattern check starts (header status lines, C wrappers read it).
+PATTERN_MESSAGE_START = "P has a non-zero entry outside the pattern"
+
+
+class PatternError(ValueError):
+    """A generated filter was given a P (or P0) with a non-zero entry outside the sparsity
+    pattern its code was generated for (the closure of the declared P0 pattern); the
+    message names the entry, its value, the pattern and how to get code that accepts it."""
+
+
 class NumericalError(ArithmeticError):
     """A generated or reference filter met a numerical failure (e.g. a failed Cholesky)."""
 

@@ -36,7 +36,7 @@ Operation kinds: ``add sub mul div sqrt fma neg cmp select`` and ``call:NAME``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import sympy
@@ -298,11 +298,19 @@ class LoweredAssign:
 
 @dataclass(frozen=True)
 class LoweredCheck:
-    """``tree`` is ``cmp(value, 0)``: fails unless value > 0; ``status`` numbers the check."""
+    """``tree`` is ``cmp(value, 0)``: fails unless value > 0 (``relation`` "positive") or
+    value == 0 ("zero"); ``status`` numbers the check.  Every positive check has its own
+    status, in order; the zero checks of a program (its pattern) share the next one."""
 
     tree: Op
     message: str
     status: int
+    relation: str = "positive"
+
+    @property
+    def is_pattern(self) -> bool:
+        """True for a zero check: an input element outside a declared pattern."""
+        return self.relation == "zero"
 
 
 @dataclass(frozen=True)
@@ -324,6 +332,17 @@ class LoweredProgram:
     @property
     def checks(self) -> tuple[LoweredCheck, ...]:
         return tuple(s for s in self.body if isinstance(s, LoweredCheck))
+
+    @property
+    def pattern_checks(self) -> tuple[LoweredCheck, ...]:
+        """The zero checks: input elements that must be 0 (outside P's pattern)."""
+        return tuple(c for c in self.checks if c.is_pattern)
+
+    def without_pattern_checks(self) -> LoweredProgram:
+        """The program without its zero checks: what a run loop executes once the
+        initial P has been checked (the recursion keeps P inside its pattern)."""
+        return replace(self, body=tuple(s for s in self.body
+                                        if not (isinstance(s, LoweredCheck) and s.is_pattern)))
 
     def kinds(self) -> set[str]:
         """Every operation kind used."""
@@ -352,19 +371,24 @@ class LoweredProgram:
 
 def lower_program(program: Program, *, use_fma: bool = False) -> LoweredProgram:
     """Lower every statement of ``program.optimize()`` (an optimised program as is)."""
-    from derive.program import Assign  # lazily: program imports us
+    from derive.program import POSITIVE, Assign, Check  # lazily: program imports us
 
     program = program.optimize()
     lowerer = _Lowerer(use_fma)
     body: list[LoweredAssign | LoweredCheck] = []
     status = 0
+    pattern_status = 1 + sum(1 for st in program.body
+                             if isinstance(st, Check) and st.relation == POSITIVE)
     for st in program.body:
         if isinstance(st, Assign):
             body.append(LoweredAssign(st.target.name, lowerer.lower(st.expr)))
-        else:
+            continue
+        tree = Op("cmp", (lowerer.lower(st.value), Const(0.0)))
+        if st.relation == POSITIVE:
             status += 1
-            tree = Op("cmp", (lowerer.lower(st.value), Const(0.0)))
             body.append(LoweredCheck(tree, st.message, status))
+        else:
+            body.append(LoweredCheck(tree, st.message, pattern_status, "zero"))
     results = tuple((name, tuple(lowerer.lower(v) for v in values))
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,

@@ -3,10 +3,10 @@
 A :class:`Program` is one generated function with no loops and no branches
 except runtime checks.  It has input and output :class:`Port` s (flat,
 row-major arrays), a body of assignments ``tK = expr`` to temporaries, runtime
-checks ``expr > 0`` and, per output port, the list of atoms (temporaries, input
-elements, numbers) written to it.  Every expression is a sympy expression over
-*input elements* (symbols named as generated code reads them, ``x[0]``,
-``P[3]``) and earlier temporaries.
+checks ``expr > 0`` (and ``P[k] == 0`` for inputs outside a pattern) and, per
+output port, the list of atoms (temporaries, input elements, numbers) written to
+it.  Every expression is a sympy expression over *input elements* (symbols named
+as generated code reads them, ``x[0]``, ``P[3]``) and earlier temporaries.
 
 A derivation stages its algebra with :mod:`derive.staging`, so that every
 matrix entry of every stage is one temporary (sympy stays fast, and zeros and
@@ -148,12 +148,24 @@ class Assign:
     expr: sympy.Expr
 
 
+#: The relations a runtime check can require of its value.
+POSITIVE, ZERO = "positive", "zero"
+
+
 @dataclass(frozen=True)
 class Check:
-    """Runtime check ``value > 0`` (``value`` is an atom); fails with ``message``."""
+    """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot) or ``value == 0``
+    (ZERO: an input element outside a declared sparsity pattern); ``value`` is an atom.
+    A NaN fails both. Fails with ``message``."""
 
     value: sympy.Expr
     message: str
+    relation: str = POSITIVE
+
+    @property
+    def text(self) -> str:
+        """``value > 0`` or ``value == 0``."""
+        return f"{self.value} {'> 0' if self.relation == POSITIVE else '== 0'}"
 
 
 Statement = Assign | Check
@@ -253,7 +265,7 @@ class Program:
             if isinstance(st, Assign):
                 lines.append(f"  {st.target} = {sympy.sstr(st.expr, order='lex')}")
             else:
-                lines.append(f"  require {st.value} > 0  # {st.message}")
+                lines.append(f"  require {st.text}  # {st.message}")
         for name, values in self.results.items():
             lines.append(f"  {name} = [{', '.join(str(v) for v in values)}]")
         return "\n".join(lines)
@@ -373,6 +385,19 @@ class Program:
             return
         self._body.append(Check(value, str(message)))
 
+    def require_zero(self, element: InputElement, message: str) -> None:
+        """Runtime check that the input element ``element`` is exactly 0 (a NaN fails).
+
+        For inputs that the code treats as structurally zero (P outside its pattern):
+        generated C returns a status, generated Python raises
+        :class:`derive.errors.PatternError` naming the element and its value.
+        """
+        self._check_open()
+        if self._owner.get(element) is None:
+            raise ProgramError(f"require_zero: {element!r} is not an input element of "
+                               f"program {self.name!r}")
+        self._body.append(Check(element, str(message), ZERO))
+
     # -- optimising --------------------------------------------------------------------
 
     def optimize(self) -> Program:
@@ -471,11 +496,12 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
         else:
             value = st.value.xreplace(subst) if subst else st.value
             if value.is_number:
-                if value.is_positive is not True:
+                holds = value.is_positive if st.relation == POSITIVE else value.is_zero
+                if holds is not True:
                     raise MatrixPropertyError(f"{st.message} (the value is structurally {value})")
-            elif value not in checked:
-                checked.add(value)
-                out.append(Check(value, st.message))
+            elif (st.relation, value) not in checked:
+                checked.add((st.relation, value))
+                out.append(Check(value, st.message, st.relation))
     new_results = {name: tuple(v.xreplace(subst) for v in values)
                    for name, values in results.items()}
     return out, new_results
@@ -650,6 +676,6 @@ def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ..
         if isinstance(st, Assign):
             out.append(Assign(names[st.target], st.expr.xreplace(names)))
         else:
-            out.append(Check(st.value.xreplace(names), st.message))
+            out.append(Check(st.value.xreplace(names), st.message, st.relation))
     return out, {name: tuple(v.xreplace(names) for v in values)
                  for name, values in results.items()}

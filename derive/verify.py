@@ -22,7 +22,6 @@ cannot agree better. The EKF's floor is ~1e-15.
 
 from __future__ import annotations
 
-import importlib.util
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from . import reference
-from .build import build_c
+from .build import build_c, load_python
 from .emit.write import write_files
 from .errors import VerificationError
 from .generation import render_filter
@@ -73,13 +72,8 @@ def relative_error(a, b) -> float:
     return float(np.max(diff / scale))
 
 
-def import_python(path: Path):
-    """Import a generated Python file as a fresh module."""
-    spec = importlib.util.spec_from_file_location(f"derive_generated_{path.stem}_{id(path)}",
-                                                  path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module
+#: The generated Python file as a fresh module (the name derive's own callers use).
+import_python = load_python
 
 
 @dataclass(frozen=True)
@@ -252,11 +246,11 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         files = render_filter(model, name, "all", opts)
         paths = {p.suffix: p for p in write_files(tmp, model.name, files)}
-        modules = {lang: import_python(paths[".py"]) if lang == "python"
+        modules = {lang: load_python(paths[".py"]) if lang == "python"
                    else build_c(paths[".c"]) for lang in langs}
         return verify_modules(model, name, modules, steps, seed, opts)
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
-           "nonlinear_reference", "nonlinear_scenario", "relative_error",
+           "import_python", "nonlinear_reference", "nonlinear_scenario", "relative_error",
            "rounding_floor", "verify_filter", "verify_modules"]

@@ -19,7 +19,7 @@ from derive import staging
 from derive.build import BuildError, build_c, parse_interface
 from derive.emit.render import render_files, render_functions
 from derive.emit.write import write_files
-from derive.errors import NumericalError
+from derive.errors import NumericalError, ShapeError
 from derive.program import Port, Program
 
 
@@ -126,7 +126,7 @@ def test_run_reports_a_failing_step(tmp_path, cache):
 def test_wrong_sizes_and_bad_sources_are_reported(tmp_path, cache):
     c_file, _ = _write(tmp_path, steady_unit("sskf"))
     module = build_c(c_file, tmpdir=cache)
-    with pytest.raises(ValueError, match="'x0' needs 2 doubles"):
+    with pytest.raises(ShapeError, match=r"argument 'x0' must have shape \(2,\), got \(3,\)"):
         module.run(np.zeros((4, 1)), np.zeros(3))
     broken = tmp_path / "broken"
     broken.mkdir()

@@ -14,6 +14,7 @@ from derive import catalog, paper
 from derive.filters import available, derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
+from derive.program import ZERO, Check
 
 CASES = [(name, f) for name in catalog.names() for f in available(catalog.load(name))]
 PAPER_CASES = [(name, f) for name in ("mpt3d_a", "cv") for f in paper.PAPER_FILTERS]
@@ -38,14 +39,25 @@ def _generated(model_name: str, filter_name: str, mode: str):
     return _CACHE[key]
 
 
+def _outside_pattern(program):
+    """Flat indices of P (both triangles) that the program requires to be zero."""
+    n = program.port("P").shape[0]
+    flat = [int(str(c.value)[2:-1]) for c in program.body
+            if isinstance(c, Check) and c.relation == ZERO]
+    return [k for i, j in (divmod(k, n) for k in flat) for k in (i * n + j, j * n + i)]
+
+
 def _inputs(model, program, unit, mode, rng):
-    """Plausible values for every input port (P symmetric positive definite)."""
+    """Plausible values for every input port (P symmetric positive definite, zero outside
+    its pattern, so every check passes and every operation runs)."""
     values = []
     for port in program.inputs:
         if port.name == "P":
             n = port.shape[0]
             A = rng.normal(size=(n, n))
-            values.append((A @ A.T + n * np.eye(n)).ravel())
+            P = (A @ A.T + n * np.eye(n)).ravel()
+            P[_outside_pattern(program)] = 0.0
+            values.append(P)
         elif port.name == "p" and mode == "paper":
             N = PAPER_FIR_ORDER if unit.family == "fir" else None
             values.append(paper.parameter_values(model, unit.family, N=N))

@@ -14,6 +14,7 @@ from derive.emit import c_printer
 from derive.emit.lookahead import ZNEXT, run_pass
 from derive.emit.unit import Unit
 from derive.lowering import LoweredProgram, lower_program
+from derive.program import PARAMETER_PORT
 
 
 def has_run_tracks(unit: Unit) -> bool:
@@ -31,14 +32,16 @@ def fused_body(unit: Unit, step_parts: dict) -> list[str]:
     by constants, so the compiler holds them in registers: nothing is stored and
     reloaded between steps except the rows of xs and Ps written as results. The
     statements are the step's own (same operations, same count); only the per-step
-    input names change (``z[`` reads ``zk[``, the row of step k).
+    input names change (``z[`` reads ``zk[``, the row of step k; ``p[`` reads ``pk[``,
+    ``p + k * p_stride``: one row for all steps or one per step).
     """
     lines = [line for line in step_parts["body"] if not line.startswith("(void)")]
     if lines and lines[-1] == "return 0;":
         lines = lines[:-1]
+    rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
     out = []
     for line in lines:
-        for name in unit.step_inputs:
+        for name in rows:
             line = re.sub(rf"\b{name}\[", f"{name}k[", line)
         out.append(line)
     return out
@@ -107,6 +110,8 @@ def tracks_parts(unit: Unit, fused: list[str], lanes: int,
                            for i in range(n)]
             pass_store += [f"xs[({track} * steps + k + 1) * {n} + {i}] = x{label}[{i}] = "
                            f"xn{label}[{i}];" for i in range(n)]
+    if any(f"{PARAMETER_PORT}k[" in line for line in fused):  # the lanes share p's rows
+        body.insert(0, f"const double *{PARAMETER_PORT}k = {PARAMETER_PORT} + k * p_stride;")
     return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store,
             "pass_body": pass_body, "pass_store": pass_store}
 

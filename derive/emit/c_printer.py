@@ -13,7 +13,7 @@ with ``-ffast-math`` (which assumes there is no NaN).  Constants are printed wit
 from __future__ import annotations
 
 from derive.emit.python_printer import InfixPrinter
-from derive.lowering import LoweredAssign, LoweredProgram, Tree
+from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram, Tree
 from derive.program import PARAMETER_PORT
 
 FMA_NAME = "DERIVE_FMA"
@@ -86,6 +86,16 @@ def prototype(lowered: LoweredProgram, prefix: str) -> str:
     return f"{result} {prefix}_{lowered.name}({', '.join(parameters(lowered))})"
 
 
+def pattern_check_lines(check: LoweredCheck, element: str | None = None) -> list[str]:
+    """``if (!(P[k] == 0.0)) return STATUS;`` for one zero check; ``element``: the C text
+    to test instead of the checked input element (run tests P0)."""
+    name = check.tree.args[0].name
+    value = element or name
+    return [f"if (!({value} == 0.0)) {{",
+            f"    return {check.status}; /* outside P's pattern */",
+            "}"]
+
+
 def function_parts(lowered: LoweredProgram, prefix: str) -> dict:
     """Precomputed strings of one function: ``signature`` and ``body`` lines (unindented)."""
     printer = CPrinter()
@@ -94,6 +104,8 @@ def function_parts(lowered: LoweredProgram, prefix: str) -> dict:
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"const double {st.target} = {printer.expression(st.tree)};")
+        elif st.is_pattern:
+            body += pattern_check_lines(st)
         else:
             value = printer.expression(st.tree.args[0])
             body += [f"if (!({value} > 0.0)) {{",

@@ -79,7 +79,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
             if len(idx) < ports[port].size:
                 source += f"[{idx}]"
             out += _unpack([local_name(port, i) for i in idx], f"{source}.tolist()")
-    if read.get(PARAMETER_PORT):
+    if read.get(PARAMETER_PORT) and PARAMETER_PORT not in step_inputs:
         out += _unpack([local_name(PARAMETER_PORT, i) for i in range(ports[PARAMETER_PORT].size)],
                        f"{arrays[PARAMETER_PORT]}.tolist()")
     # what each step keeps: the state's new elements, each distinct leaf once

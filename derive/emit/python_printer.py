@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from derive.errors import NumericalError
+from derive.errors import NumericalError, PatternError
 from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
 
 #: Precedence: higher binds tighter.
@@ -38,6 +38,23 @@ HELPERS = {
                '    value = a if present else b',
                '    counted = getattr(z, "derive_counted", None)',
                '    return value if counted is None else counted(value)'],
+    "pattern": ['def _require_zero(values, indices, n, name, message):',
+                '    """Raise PatternError unless values[k] == 0 for every k in indices (every',
+                '    track of an array): entries outside the pattern of the n x n matrix."""',
+                '    for k in indices:',
+                '        zero = values[k] == 0',
+                '        if hasattr(zero, "all"):',
+                '            zero = zero.all()',
+                '        if not zero:',
+                '            value = np.ravel(values[k]).astype(float)',
+                '            value = float(value[value != 0][0])',
+                '            entry = f"{name}[{k // n}][{k % n}]"',
+                '            raise PatternError(f"{entry} = {value!r}: {message}")'],
+    "shape": ['def _require_shape(name, array, shape, text):',
+              '    """Raise ShapeError unless the leading axes are shape (then tracks)."""',
+              '    if array.shape[:len(shape)] != shape:',
+              '        raise ShapeError(f"run: {name} must have shape {text}, then any "',
+              '                         f"track axes; got {array.shape}")'],
     "check": ['def _require_positive(value, message):',
               '    """Raise NumericalError unless value > 0 (every track of an array)."""',
               '    positive = value > 0',
@@ -53,6 +70,33 @@ ERROR_IMPORT = ['try:',
                 '',
                 '    class NumericalError(ArithmeticError):',
                 '        """A numerical failure such as a non-positive pivot."""']
+
+PATTERN_ERROR_IMPORT = [
+    'try:',
+    '    from derive.errors import PatternError',
+    'except ImportError:  # derive not installed: a stand-in with the same base',
+    '',
+    '    class PatternError(ValueError):',
+    '        """P (or P0) is not zero outside the pattern the code was generated for."""']
+
+
+SHAPE_ERROR_IMPORT = [
+    'try:',
+    '    from derive.errors import ShapeError',
+    'except ImportError:  # derive not installed: a stand-in with the same base',
+    '',
+    '    class ShapeError(ValueError):',
+    '        """An argument of the wrong shape."""']
+
+
+def error_imports(lowered: list[LoweredProgram], run: bool = False) -> list[list[str]]:
+    """The import blocks of the exception classes the programs (and ``run``) raise."""
+    blocks = [SHAPE_ERROR_IMPORT] if run else []
+    if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
+        blocks.append(ERROR_IMPORT)
+    if any(lp.pattern_checks for lp in lowered):
+        blocks.append(PATTERN_ERROR_IMPORT)
+    return blocks
 
 
 class InfixPrinter:
@@ -117,7 +161,9 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
         needed.append("sqrt")
     if "select" in kinds:
         needed.append("select")
-    if any(lp.has_checks for lp in lowered):
+    if any(lp.pattern_checks for lp in lowered):
+        needed.append("pattern")
+    if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
         needed.append("check")
     return needed
 
@@ -125,7 +171,8 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return "select" in kinds or any(
+    return "select" in kinds or any(lp.pattern_checks or square_input_lines(lp)
+                                    for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 
 
@@ -150,11 +197,11 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     """Precomputed strings of one function: ``signature``, ``doc`` lines, ``body`` lines."""
     printer = PythonPrinter()
     params = ", ".join(p.name for p in lowered.inputs)
-    body: list[str] = []
+    body: list[str] = square_input_lines(lowered) + pattern_check_lines(lowered)
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"{st.target} = {printer.expression(st.tree)}")
-        else:
+        elif not st.is_pattern:
             value = printer.expression(st.tree.args[0])
             body.append(f"_require_positive({value}, {st.message!r})")
     for name, leaves in lowered.results:
@@ -166,6 +213,43 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
 
 
+def square_input_lines(lowered: LoweredProgram) -> list[str]:
+    """Lines that accept a 2-D (n, n) matrix (then any track axes) for each flat n*n input
+    port with n > 1 (P): it is flattened row-major; a flat one is used as it is."""
+    lines = []
+    for port in lowered.inputs:
+        if len(port.shape) == 2 and port.shape[0] == port.shape[1] > 1:
+            n, name = port.shape[0], port.name
+            lines += [f"if len({name}) == {n}:  # a 2-D ({n}, {n}) {name}: flattened, row-major",
+                      f"    {name} = np.reshape({name}, ({n * n},) + np.shape({name})[2:])"]
+    return lines
+
+
+def pattern_indices(lowered: LoweredProgram) -> dict[str, tuple[int, ...]]:
+    """Per input port, the flat indices its zero checks require to be 0, in order."""
+    out: dict[str, list[int]] = {}
+    for check in lowered.pattern_checks:
+        port, index = check.tree.args[0].name.rstrip("]").split("[")
+        out.setdefault(port, []).append(int(index))
+    return {port: tuple(indices) for port, indices in out.items()}
+
+
+def pattern_check_lines(lowered: LoweredProgram, names: dict[str, str] | None = None) -> list[str]:
+    """One ``_require_zero(...)`` line per port with zero checks (``names``: port -> the
+    expression holding it flat, default the port itself); one comparison per entry."""
+    if not lowered.pattern_checks:
+        return []
+    message = lowered.pattern_checks[0].message
+    ports = {p.name: p for p in lowered.inputs}
+    lines = []
+    for port, indices in pattern_indices(lowered).items():
+        source = (names or {}).get(port, port)
+        label = source.split(".")[0]
+        lines.append(f"_require_zero({source}, {indices!r}, {ports[port].shape[-1]}, "
+                     f"{label!r}, {message!r})")
+    return lines
+
+
 def _shape_text(port) -> str:
     text = "x".join(str(d) for d in port.shape)
     return f"{text}, symmetric" if port.symmetric else text
@@ -173,15 +257,19 @@ def _shape_text(port) -> str:
 
 def port_doc_lines(lowered: LoweredProgram) -> list[str]:
     """Docstring lines: purpose, then one line per port (flat, row-major)."""
+    square = " or 2-D (n, n) matrices" if square_input_lines(lowered) else ""
     lines = [doc_text(lowered.doc or f"The generated function {lowered.name}."), "",
-             "Arguments (flat, row-major sequences; elements may be NumPy arrays):"]
+             f"Arguments (flat, row-major sequences{square}; elements may be NumPy arrays):"]
     lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
               for p in lowered.inputs]
     lines.append("Returns:")
     lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
               for p in lowered.outputs]
-    if lowered.has_checks:
+    if any(not c.is_pattern for c in lowered.checks):
         lines.append("Raises NumericalError when a runtime check fails.")
+    for port, indices in pattern_indices(lowered).items():
+        lines.append(f"Raises PatternError unless {port} is 0 outside its pattern "
+                     f"(upper triangle, {len(indices)} entries).")
     return lines
 
 
@@ -206,7 +294,7 @@ def python_function(program, *, namespace: dict | None = None) -> Callable:
     helpers; useful for verification and for the dynamic operation count.
     """
     lowered = lower_program(program, use_fma=False)
-    scope: dict = {"np": np, "NumericalError": NumericalError}
+    scope: dict = {"np": np, "NumericalError": NumericalError, "PatternError": PatternError}
     for name in helpers_needed([lowered]):
         exec("\n".join(HELPERS[name]), scope)  # our own printed code
     if namespace:

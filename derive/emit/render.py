@@ -93,7 +93,9 @@ def _c_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         result = "int" if lp.has_checks else "void"
         lines.append(f"    {result} {unit.prefix}_{lp.name}({', '.join(args)})")
     args = ["steps"] + [f"{a.c_name}[{_dims(a, '*')}]" + (" out" if a.output else "")
-                        + (" optional" if a.optional else "") for a in run_arguments(unit)]
+                        + (" optional" if a.optional else "")
+                        + (f" rows {P_STRIDE}" if a.c_name == PARAMETER_PORT else "")
+                        for a in run_arguments(unit)]
     result = "int" if any(lp.has_checks for lp in lowered.values()) else "void"
     lines.append(f"    {result} {unit.prefix}_run({', '.join(args)})")
     return lines
@@ -106,7 +108,10 @@ def _py_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
         lines.append(f"    {lp.name}({ins}) -> ({outs})")
     args = run_arguments(unit)
-    ins = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]" for a in args if not a.output)
+    ins = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]"
+                    + (f" or {a.py_name}[steps, {_dims(a, ', ')}]"
+                       if a.c_name == PARAMETER_PORT else "")
+                    for a in args if not a.output)
     outs = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]" for a in args if a.output)
     lines.append(f"    run({ins}) -> ({outs})")
     return lines
@@ -137,16 +142,21 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
     if lang == "c" and has_run_tracks(unit):
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
-                     "for each track, one track after another)")
+                     "for each track, one track after another" + (", p and p_stride shared by "
+                     "the tracks" if unit.parameters else "") + ")")
+    if unit.parameters:
+        np_ = len(unit.parameters)
+        lines.append(f"run's p: one row of {np_} for every step (C: {P_STRIDE} 0) or one row "
+                     f"per step, (steps, {np_}) (C: {P_STRIDE} {np_})"
+                     if lang == "c" else
+                     f"run's p: one row ({np_},) for every step or one row per step "
+                     f"(steps, {np_})")
     for lp in lowered.values():
         sym = [p.name for p in lp.inputs + lp.outputs if p.symmetric]
         if sym:
             lines.append(f"symmetric in {lp.name}: {', '.join(sym)} (inputs: upper triangle "
                          "read; outputs: written whole)")
-    checks = [(lp.name, c) for lp in lowered.values() for c in lp.checks]
-    if checks:
-        lines.append("status (C return value; Python raises NumericalError): 0 success")
-        lines += [f"    {name} {c.status}: {c.message}" for name, c in checks]
+    lines += _status_lines(lowered.values())
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
@@ -154,8 +164,101 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     return lines
 
 
+def _status_lines(lowered) -> list[str]:
+    """The header's status list: one line per status of each function (the zero checks of
+    a pattern share one status; Python raises PatternError for it, NumericalError else)."""
+    lines = []
+    for lp in lowered:
+        messages = {c.status: c.message for c in lp.checks}
+        lines += [f"    {lp.name} {status}: {messages[status]}" for status in sorted(messages)]
+    if not lines:
+        return []
+    pattern = any(lp.pattern_checks for lp in lowered)
+    raises = "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
+    return [f"status (C return value; Python raises {raises}): 0 success"] + lines
+
+
 def _render(template: str, context: dict) -> str:
     return environment().get_template(template).render(**context)
+
+
+#: The Python step without its pattern check, which run's loop calls: P stays inside the
+#: pattern by construction once P0 has been checked.
+IN_PATTERN_STEP = "_step_in_pattern"
+
+
+def _python_functions(lp: LoweredProgram) -> list[dict]:
+    """The Python function(s) of one program.  A ``step`` with a pattern check is printed
+    as the check, then a call of :data:`IN_PATTERN_STEP`, which holds the rest."""
+    if lp.name != "step" or not lp.pattern_checks:
+        return [python_printer.function_parts(lp)]
+    inner = lp.without_pattern_checks()
+    params = ", ".join(p.name for p in lp.inputs)
+    outer = python_printer.function_parts(lp)
+    outer["body"] = (python_printer.square_input_lines(lp) + python_printer.pattern_check_lines(lp)
+                     + [f"return {IN_PATTERN_STEP}({params})"])
+    body = python_printer.function_parts(inner)
+    body["body"] = body["body"][len(python_printer.square_input_lines(lp)):]
+    body["signature"] = f"def {IN_PATTERN_STEP}({params}):"
+    body["doc"] = ["step without the check of P's pattern (run checks P0 once instead)."]
+    return [outer, body]
+
+
+def _python_run_checks(step: LoweredProgram, unit: Unit) -> list[str]:
+    """run's check of P0 against the pattern, once before the loop."""
+    if not step.pattern_checks:
+        return []
+    flat = f"P0.reshape(({unit.n * unit.n},) + P0.shape[2:])"
+    return python_printer.pattern_check_lines(step, {"P": flat})
+
+
+#: run's parameters as one row per step (a single row given is repeated), and the row the
+#: predictor's init uses.
+PARAMETER_ROWS, PARAMETER_START = "p_rows", "p_start"
+
+
+def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
+    """run's first lines: every input as a float64 array of the documented shape (then any
+    track axes), or ShapeError naming the argument and both shapes.
+
+    Accepted besides: a per-step input of one value per step as shape (steps,); P0 flat
+    (n*n,); p as one row (np,) for every step or one row per step (steps, np)."""
+    lines = [f"{a.py_name} = np.asarray({a.py_name}, dtype=float)" for a in inputs]
+    tracks = []
+    for a in inputs:
+        name, dims = a.py_name, tuple(d for d in a.dims if d != "steps")
+        text = "(" + ", ".join(str(d) for d in a.dims) + ("," if len(a.dims) == 1 else "") + ")"
+        if a.c_name == PARAMETER_PORT:
+            either = f"{text} or (steps, {dims[0]})"
+            lines += [f"if {name}.ndim < 2:  # one row for every step",
+                      f"    _require_shape({name!r}, {name}, {dims}, {either!r})",
+                      f"    {PARAMETER_ROWS} = np.broadcast_to({name}, (steps,) + {name}.shape)",
+                      "else:  # one row per step",
+                      f"    _require_shape({name!r}, {name}, (steps,) + {dims}, {either!r})",
+                      f"    {PARAMETER_ROWS} = {name}"]
+            if unit.kind == "pred":
+                lines.append(f"{PARAMETER_START} = {PARAMETER_ROWS}[0] if steps else "
+                             f"np.zeros({dims[0]})")
+            tracks.append(f"{PARAMETER_ROWS}.shape[2:]")
+            continue
+        if a.dims[0] == "steps":
+            if dims == (1,):
+                lines += [f"if {name}.ndim == 1:  # one value per step",
+                          f"    {name} = {name}[:, np.newaxis]"]
+            if a is inputs[0]:
+                lines += [f"_require_shape({name!r}, {name}, {name}.shape[:1] + {dims}, "
+                          f"{text!r})", f"steps = {name}.shape[0]"]
+            else:
+                lines.append(f"_require_shape({name!r}, {name}, (steps,) + {dims}, {text!r})")
+        else:
+            if len(dims) == 2 and dims[0] * dims[1] != dims[0]:
+                flat = dims[0] * dims[1]
+                lines += [f"if {name}.shape[:1] == ({flat},):  # flat, row-major",
+                          f"    {name} = {name}.reshape({dims} + {name}.shape[1:])"]
+            lines.append(f"_require_shape({name!r}, {name}, {dims}, {text!r})")
+        tracks.append(f"{name}.shape[{len(a.dims)}:]")
+    lines.append(f"track = np.broadcast_shapes({', '.join(tracks)})")
+    return lines
 
 
 def render_python(unit: Unit) -> dict[str, str]:
@@ -163,28 +266,28 @@ def render_python(unit: Unit) -> dict[str, str]:
     lowered = _lowered(unit, use_fma=False)
     lps = list(lowered.values())
     header = [python_printer.doc_text(line) for line in _header_lines(unit, "python", lowered)]
-    helpers = ["\n".join(python_printer.HELPERS[h]) for h in python_printer.helpers_needed(lps)]
+    helpers = ["\n".join(python_printer.HELPERS[h])
+               for h in python_printer.helpers_needed(lps) + ["shape"]]
     args = run_arguments(unit)
     inputs = [a for a in args if not a.output]
     per_step = [f"{name}s[k]" for name in unit.step_inputs]
-    p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
-    track = [f"{a.py_name}.shape[{len(a.dims)}:]" for a in inputs]
+    p_arg = f", {PARAMETER_ROWS}[k]" if unit.parameters else ""
     context = {
         "title": header[0],
         "header": header[1:],
         "numpy": True,
-        "needs_error": any(lp.has_checks for lp in lps),
-        "error_import": python_printer.ERROR_IMPORT,
+        "error_imports": python_printer.error_imports(lps, run=True),
         "helpers": helpers,
-        "functions": [python_printer.function_parts(lp) for lp in lps],
+        "functions": [part for lp in lps for part in _python_functions(lp)],
+        "run_checks": _python_run_checks(lowered["step"], unit),
+        "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
         "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
                     for a in args],
-        "arrays": [a.py_name for a in inputs],
-        "first_array": inputs[0].py_name,
-        "track": ", ".join(track),
+        "prologue": _python_run_prologue(unit, inputs),
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,
+        "p_start": f", {PARAMETER_START}" if unit.parameters else "",
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
@@ -198,9 +301,22 @@ def render_python(unit: Unit) -> dict[str, str]:
         arrays = {name: ports[name] for name in unit.step_inputs}
         # the predictor starts from init(x0), computed before the loop (pred.jinja)
         arrays.update(x="x_start" if unit.kind == "pred" else "x0", P="P0",
-                      **{PARAMETER_PORT: PARAMETER_PORT})
-        context["single"] = single_track_loop(lowered["step"], unit.step_inputs, arrays)
+                      **{PARAMETER_PORT: PARAMETER_ROWS})
+        rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
+        context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
+                                              rows, arrays)
     return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
+
+
+#: C run's last argument with free parameters: 0 when p is one row for every step, NP
+#: (the number of parameters) when it holds one row per step.
+P_STRIDE = "p_stride"
+
+
+def include_guard(prefix: str) -> str:
+    """The header's include guard: the prefix verbatim, so it is unique per model and filter
+    whatever the case of the names (``Axis_kf`` and ``axis_kf`` differ)."""
+    return f"DERIVE_{prefix}_H"
 
 
 def _c_call(function: str, args: str, status: bool) -> list[str]:
@@ -225,44 +341,57 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
+    stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
     run_params = ["size_t steps"] + [
-        ("double *" if a.output else "const double *") + a.c_name for a in args]
+        ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
     per_step = ", ".join(f"{name} + k * {unit.step_input_size(name)}"
                          for name in unit.step_inputs)
     prefix = unit.prefix
-    defines = [f"#define {prefix.upper()}_N {unit.n}", f"#define {prefix.upper()}_M {unit.m}",
-               f"#define {prefix.upper()}_NP {len(unit.parameters)}"]
+    # names verbatim (C is case sensitive): models Axis and axis get distinct macros
+    defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+               f"#define {prefix}_NP {len(unit.parameters)}"]
     if unit.kind == "fir":
-        defines.append(f"#define {prefix.upper()}_WINDOW {unit.window}")
+        defines.append(f"#define {prefix}_WINDOW {unit.window}")
     step_lp = lowered["step"]
     if unit.kind == "timevarying":
         step_call = _c_call(f"{prefix}_step", f"x, P, {per_step}, x_next, P_next{p_arg}",
                             step_lp.has_checks)
     elif unit.kind == "fir":
-        step_call = _c_call(f"{prefix}_step", f"zw, xs + k * {unit.n}{p_arg}", step_lp.has_checks)
+        p_row = f", {PARAMETER_PORT} + k * {P_STRIDE}" if unit.parameters else ""
+        step_call = _c_call(f"{prefix}_step", f"zw, xs + k * {unit.n}{p_row}", step_lp.has_checks)
     else:
         step_call = _c_call(f"{prefix}_step", f"x, {per_step}, x_next{p_arg}", step_lp.has_checks)
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
-    step_parts = c_printer.function_parts(step_lp, prefix)
+    # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
+    step_parts = c_printer.function_parts(step_lp.without_pattern_checks(), prefix)
     fused = fused_body(unit, step_parts) if unit.kind != "fir" else []
+    nn = unit.n * unit.n
+    run_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
+        c, c.tree.args[0].name.replace("P[", "P0["))]
+    tracks_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
+        c, c.tree.args[0].name.replace("P[", f"P0[t * {nn} + "))]
     lookahead = two_step_body(fused, two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
+    if any(f"{PARAMETER_PORT}k[" in line for line in fused):
+        step_rows.append(f"const double *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
+                         f"{P_STRIDE};")
     batch = has_run_tracks(unit)
     tracks = [tracks_parts(unit, fused, lanes, lookahead) for lanes in (LANES, 1)] if batch \
         else []
     tracks_params = ["size_t steps", "size_t tracks"] + [
-        ("double *" if a.output else "const double *") + a.c_name for a in args]
+        ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
     used = step_lp.used_inputs()
-    unused = [f"(void){name};" for name in ("p",) if unit.parameters and name not in used]
+    unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
+              if unit.parameters and PARAMETER_PORT not in used and unit.kind != "fir"]
     context = {
         "header": header,
-        "guard": f"{prefix.upper()}_H",
+        "guard": include_guard(prefix),
         "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix) + ";" for lp in lps]
         + [run_signature + ";"] + ([tracks_signature + ";"] if tracks_signature else []),
@@ -283,6 +412,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,
         "unused": unused,
+        "run_checks": run_checks,
+        "tracks_checks": tracks_checks,
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
@@ -331,10 +462,7 @@ def _function_header(name: str, lang: str, lowered: dict[str, LoweredProgram], c
             ins = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.inputs)
             outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
             lines.append(f"    {lp.name}({ins}) -> ({outs})")
-    checks = [(lp.name, c) for lp in lowered.values() for c in lp.checks]
-    if checks:
-        lines.append("status (C return value; Python raises NumericalError): 0 success")
-        lines += [f"    {fn} {c.status}: {c.message}" for fn, c in checks]
+    lines += _status_lines(lowered.values())
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
@@ -361,8 +489,7 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
         context = {
             "title": header[0], "header": header[1:],
             "numpy": python_printer.uses_numpy_calls(lps),
-            "needs_error": any(lp.has_checks for lp in lps),
-            "error_import": python_printer.ERROR_IMPORT,
+            "error_imports": python_printer.error_imports(lps),
             "helpers": ["\n".join(python_printer.HELPERS[h])
                         for h in python_printer.helpers_needed(lps)],
             "functions": [python_printer.function_parts(lp) for lp in lps],
@@ -371,7 +498,7 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
     header = [c_printer.comment_text(x)
               for x in _function_header(name, lang, lowered, command, facts)]
     context = {
-        "header": header, "guard": f"{name.upper()}_H", "defines": [],
+        "header": header, "guard": include_guard(name), "defines": [],
         "prototypes": [c_printer.prototype(lp, name) + ";" for lp in lps],
         "h_file": f"{name}.h", "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)

@@ -8,6 +8,7 @@ import dataclasses
 import sympy
 
 from .. import staging
+from ..errors import PATTERN_MESSAGE_START
 from ..lowering import IfPresent
 from ..program import Port, Program
 
@@ -43,6 +44,35 @@ def masked(mat: sympy.Matrix, pattern) -> sympy.Matrix:
     """``mat`` with the entries outside ``pattern`` (a boolean n x n) set to zero."""
     return sympy.Matrix(mat.rows, mat.cols,
                         lambda i, j: mat[i, j] if pattern[i][j] else sympy.Integer(0))
+
+
+def pattern_text(pattern) -> str:
+    """``xx..|xx..|..xx|..xx``: the rows of a boolean pattern, x where it may be non-zero."""
+    return "|".join("".join("x" if v else "." for v in row) for row in pattern)
+
+
+def pattern_message(pattern, declared: str) -> str:
+    """What a P outside ``pattern`` (the closure of the declared P0 pattern) is told."""
+    return (f"{PATTERN_MESSAGE_START} this code was generated for "
+            f"(P0 pattern {declared!r} closed under the filter; x may be non-zero, "
+            f"upper triangle read: {pattern_text(pattern)}); generate with "
+            f"--P0-pattern dense for code that accepts any P0")
+
+
+def masked_covariance(prog: Program, pattern, declared: str) -> sympy.Matrix:
+    """The input P with the entries outside ``pattern`` taken as structural zeros, and a
+    runtime check that the caller's P is 0 there (upper triangle: P is symmetric storage).
+
+    The code derived from the result never reads those entries, so a P with a non-zero
+    entry there would be filtered wrongly; the check refuses it instead (C: a status,
+    Python: PatternError). A dense pattern needs no check."""
+    P = prog.matrix("P")
+    message = pattern_message(pattern, declared)
+    for i in range(P.rows):
+        for j in range(i, P.cols):
+            if not pattern[i][j]:
+                prog.require_zero(prog.element("P", i, j), message)
+    return masked(P, pattern)
 
 
 # -- missing measurements ------------------------------------------------------------------

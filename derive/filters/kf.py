@@ -25,7 +25,7 @@ from .common import (
     mask_columns,
     mask_symmetric,
     mask_vector,
-    masked,
+    masked_covariance,
     missing_option,
     time_varying_ports,
     with_fact,
@@ -86,14 +86,15 @@ def time_varying_program(model, update, options) -> Program:
         prog = Program("step", inputs, outputs,
                        doc=f"one step of the {options.get('title', 'filter')}")
         mats = bound_matrices(model, prog)
-        P = masked(prog.matrix("P"), pattern)
+        P = masked_covariance(prog, pattern, declared_name)
         x_new, P_new = update(prog, mats, prog.matrix("x"), P, prog.matrix("z"))
         return prog, x_new, P_new
 
     def step_pattern(pattern):
         return pat.of_matrix(build(pattern)[2])
 
-    closed = pat.closure(step_pattern, pat.declared(model, options.get("P0_pattern")))
+    declared_name = options.get("P0_pattern") or model.P0_pattern
+    closed = pat.closure(step_pattern, pat.declared(model, declared_name))
     prog, x_new, P_new = build(closed)
     prog.set_output("x_new", list(x_new))
     prog.set_output("P_new", list(P_new))

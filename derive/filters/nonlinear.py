@@ -26,7 +26,7 @@ from ..errors import FilterError
 from ..program import Port, Program
 from ..symbols import real_stand_ins
 from . import pattern as pat
-from .common import masked, parameter_port
+from .common import masked_covariance, parameter_port
 
 # -- the Jacobians -----------------------------------------------------------------------
 
@@ -194,11 +194,11 @@ _DOCS = {"step": "One step of the {title}: predict, then update with all {m} mea
 
 
 def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
-           update: Update | None, P_pattern, title: str):
+           update: Update | None, P_pattern, title: str, declared: str):
     prog = Program(name, *_ports(model, name, meas),
                    doc=_DOCS[name].format(title=title, m=model.m))
     params = prog.bind("p", model.parameters) if model.parameters else {}
-    x, P = prog.matrix("x"), masked(prog.matrix("P"), P_pattern)
+    x, P = prog.matrix("x"), masked_covariance(prog, P_pattern, declared)
     extra = ()
     if predict is not None:
         x, P = predict(prog, dict(params), x, P)
@@ -228,15 +228,16 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: Mapping
         out = pattern
         for name, (meas, pr, up) in specs.items():
             out = pat.union(out, pat.of_matrix(_build(model, name, meas, pr, up, pattern,
-                                                      title)[2]))
+                                                      title, declared)[2]))
         return out
 
-    start = pat.declared(model, options.get("P0_pattern"))
+    declared = options.get("P0_pattern") or model.P0_pattern
+    start = pat.declared(model, declared)
     dense = all(all(row) for row in start)
     closed = start if dense else pat.closure(grow, start)
     programs = {}
     for name, (meas, pr, up) in specs.items():
-        prog, x, P, extra = _build(model, name, meas, pr, up, closed, title)
+        prog, x, P, extra = _build(model, name, meas, pr, up, closed, title, declared)
         prog.set_output("x_new", list(x))
         prog.set_output("P_new", list(P))
         if name == "update1":

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..emit.unit import Unit
+from ..program import ZERO, Check
+from .common import pattern_text
 
 
 def _fmt(value) -> str:
@@ -17,12 +19,28 @@ def _fmt(value) -> str:
                            floatmode="unique").replace("\n", "")
 
 
+def accepted_P0(step) -> str:
+    """The header line that says which P0 (and P) the code accepts: those zero outside the
+    closed pattern, which the step's zero checks (``Program.require_zero``) enforce."""
+    n = step.port("P").shape[0]
+    outside = {divmod(int(str(c.value)[2:-1]), n) for c in step.body
+               if isinstance(c, Check) and c.relation == ZERO}
+    if not outside:
+        return "P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)"
+    pattern = [[(i, j) not in outside and (j, i) not in outside for j in range(n)]
+               for i in range(n)]
+    return (f"P0 accepted: exactly those zero outside P's pattern {pattern_text(pattern)} "
+            "(x may be non-zero; upper triangle read and checked; others are refused)")
+
+
 def make_unit(model, name: str, programs: dict, options: dict, constants: dict | None = None,
               step_inputs: tuple[str, ...] = ("z",)) -> Unit:
     """The Unit for ``model`` and filter ``name``; ``constants`` become header facts."""
     facts = []
     if model.kind == "linear" and any(p.name == "P" for p in programs["step"].inputs):
         facts.append(f"P0 pattern declared: {options.get('P0_pattern') or model.P0_pattern}")
+    if any(p.name == "P" for p in programs["step"].inputs):
+        facts.append(accepted_P0(programs["step"]))
     if options.get("joseph"):
         facts.append("covariance update: Joseph form")
     for key, value in (constants or {}).items():

@@ -17,15 +17,15 @@
  * N = 43
  * eps = 1e-06
  */
-#ifndef CA_FIR_H
-#define CA_FIR_H
+#ifndef DERIVE_ca_fir_H
+#define DERIVE_ca_fir_H
 
 #include <stddef.h>
 
-#define CA_FIR_N 3
-#define CA_FIR_M 1
-#define CA_FIR_NP 0
-#define CA_FIR_WINDOW 43
+#define ca_fir_N 3
+#define ca_fir_M 1
+#define ca_fir_NP 0
+#define ca_fir_WINDOW 43
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +38,4 @@ void ca_fir_run(size_t steps, const double *z, double *xs);
 }
 #endif
 
-#endif /* CA_FIR_H */
+#endif /* DERIVE_ca_fir_H */

@@ -23,15 +23,16 @@
  *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 19, sub 9, mul 25, div 6, sqrt 0, fma 16, neg 4, cmp 6, calls 0 (flops 91, instructions 85)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CA_IKF_H
-#define CA_IKF_H
+#ifndef DERIVE_ca_ikf_H
+#define DERIVE_ca_ikf_H
 
 #include <stddef.h>
 
-#define CA_IKF_N 3
-#define CA_IKF_M 1
-#define CA_IKF_NP 0
+#define ca_ikf_N 3
+#define ca_ikf_M 1
+#define ca_ikf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -45,4 +46,4 @@ int ca_ikf_run_tracks(size_t steps, size_t tracks, const double *z, const double
 }
 #endif
 
-#endif /* CA_IKF_H */
+#endif /* DERIVE_ca_ikf_H */

@@ -22,9 +22,17 @@ status (C return value; Python raises NumericalError): 0 success
     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 6, calls 0 (flops 91, instructions 99)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
+
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
 
 try:
     from derive.errors import NumericalError
@@ -43,10 +51,17 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z):
     """one step of the information-form Kalman filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [3]: x(k/k)
         P [3x3, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)
@@ -55,6 +70,8 @@ def step(x, P, z):
         P_new [3x3, symmetric]: P(k+1/k+1), row-major
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
+        P = np.reshape(P, (9,) + np.shape(P)[2:])
     t0 = x[0] + x[1] + 0.5*x[2]
     t1 = x[1] + x[2]
     t2 = P[0] + P[1] + 0.5*P[2]
@@ -141,8 +158,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    if zs.ndim == 1:  # one value per step
+        zs = zs[:, np.newaxis]
+    _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (3,), '(3,)')
+    if P0.shape[:1] == (9,):  # flat, row-major
+        P0 = P0.reshape((3, 3) + P0.shape[1:])
+    _require_shape('P0', P0, (3, 3), '(3, 3)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 3) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()

@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 47, sub 15, mul 82, div 4, sqrt 0, fma 78, neg 8, cmp 1, calls 0 (flops 304, instructions 235)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CA_JKLF_H
-#define CA_JKLF_H
+#ifndef DERIVE_ca_jklf_H
+#define DERIVE_ca_jklf_H
 
 #include <stddef.h>
 
-#define CA_JKLF_N 3
-#define CA_JKLF_M 1
-#define CA_JKLF_NP 0
+#define ca_jklf_N 3
+#define ca_jklf_M 1
+#define ca_jklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int ca_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const doubl
 }
 #endif
 
-#endif /* CA_JKLF_H */
+#endif /* DERIVE_ca_jklf_H */

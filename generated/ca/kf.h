@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 20, sub 7, mul 12, div 1, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 50, instructions 46)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CA_KF_H
-#define CA_KF_H
+#ifndef DERIVE_ca_kf_H
+#define DERIVE_ca_kf_H
 
 #include <stddef.h>
 
-#define CA_KF_N 3
-#define CA_KF_M 1
-#define CA_KF_NP 0
+#define ca_kf_N 3
+#define ca_kf_M 1
+#define ca_kf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int ca_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double 
 }
 #endif
 
-#endif /* CA_KF_H */
+#endif /* DERIVE_ca_kf_H */

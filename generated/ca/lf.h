@@ -16,15 +16,16 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 8, mul 61, div 3, sqrt 0, fma 73, neg 8, cmp 0, calls 0 (flops 236, instructions 171)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CA_LF_H
-#define CA_LF_H
+#ifndef DERIVE_ca_lf_H
+#define DERIVE_ca_lf_H
 
 #include <stddef.h>
 
-#define CA_LF_N 3
-#define CA_LF_M 1
-#define CA_LF_NP 0
+#define ca_lf_N 3
+#define ca_lf_M 1
+#define ca_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +39,4 @@ void ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
 }
 #endif
 
-#endif /* CA_LF_H */
+#endif /* DERIVE_ca_lf_H */

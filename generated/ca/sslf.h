@@ -19,14 +19,14 @@
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 48, instructions 27)
  */
-#ifndef CA_SSLF_H
-#define CA_SSLF_H
+#ifndef DERIVE_ca_sslf_H
+#define DERIVE_ca_sslf_H
 
 #include <stddef.h>
 
-#define CA_SSLF_N 3
-#define CA_SSLF_M 1
-#define CA_SSLF_NP 0
+#define ca_sslf_N 3
+#define ca_sslf_M 1
+#define ca_sslf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +40,4 @@ void ca_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const doub
 }
 #endif
 
-#endif /* CA_SSLF_H */
+#endif /* DERIVE_ca_sslf_H */

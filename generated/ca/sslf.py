@@ -19,6 +19,20 @@ B = [[0.7440013948953963 ], [0.4879342145597782 ], [0.15999956409459481]]
 
 import numpy as np
 
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
 
 def step(x, z):
     """one step of the SSLF
@@ -47,8 +61,12 @@ def run(zs, x0):
     """
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
+    if zs.ndim == 1:  # one value per step
+        zs = zs[:, np.newaxis]
+    _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (3,), '(3,)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
     xs = np.empty((steps, 3) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()

@@ -17,15 +17,15 @@
  * N = 37
  * eps = 1e-06
  */
-#ifndef CV_FIR_H
-#define CV_FIR_H
+#ifndef DERIVE_cv_fir_H
+#define DERIVE_cv_fir_H
 
 #include <stddef.h>
 
-#define CV_FIR_N 2
-#define CV_FIR_M 1
-#define CV_FIR_NP 0
-#define CV_FIR_WINDOW 37
+#define cv_fir_N 2
+#define cv_fir_M 1
+#define cv_fir_NP 0
+#define cv_fir_WINDOW 37
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +38,4 @@ void cv_fir_run(size_t steps, const double *z, double *xs);
 }
 #endif
 
-#endif /* CV_FIR_H */
+#endif /* DERIVE_cv_fir_H */

@@ -20,6 +20,20 @@ eps = 1e-06
 
 import numpy as np
 
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
 
 def step(zw):
     """FIR steady-state filter, N = 37
@@ -46,8 +60,11 @@ def run(zs):
     xs [steps, 2]: estimate after each step
     """
     zs = np.asarray(zs, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:])
+    if zs.ndim == 1:  # one value per step
+        zs = zs[:, np.newaxis]
+    _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
+    track = np.broadcast_shapes(zs.shape[2:])
     xs = np.empty((steps, 2) + track)
     padded = np.concatenate([np.zeros((36, 1) + zs.shape[2:]), zs])
     for k in range(steps):

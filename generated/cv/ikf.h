@@ -21,15 +21,16 @@
  *     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 10, sub 3, mul 10, div 4, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 31, instructions 33)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CV_IKF_H
-#define CV_IKF_H
+#ifndef DERIVE_cv_ikf_H
+#define DERIVE_cv_ikf_H
 
 #include <stddef.h>
 
-#define CV_IKF_N 2
-#define CV_IKF_M 1
-#define CV_IKF_NP 0
+#define cv_ikf_N 2
+#define cv_ikf_M 1
+#define cv_ikf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -43,4 +44,4 @@ int cv_ikf_run_tracks(size_t steps, size_t tracks, const double *z, const double
 }
 #endif
 
-#endif /* CV_IKF_H */
+#endif /* DERIVE_cv_ikf_H */

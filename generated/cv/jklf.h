@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 24, sub 5, mul 34, div 4, sqrt 0, fma 18, neg 3, cmp 1, calls 0 (flops 103, instructions 89)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CV_JKLF_H
-#define CV_JKLF_H
+#ifndef DERIVE_cv_jklf_H
+#define DERIVE_cv_jklf_H
 
 #include <stddef.h>
 
-#define CV_JKLF_N 2
-#define CV_JKLF_M 1
-#define CV_JKLF_NP 0
+#define cv_jklf_N 2
+#define cv_jklf_M 1
+#define cv_jklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int cv_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const doubl
 }
 #endif
 
-#endif /* CV_JKLF_H */
+#endif /* DERIVE_cv_jklf_H */

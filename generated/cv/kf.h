@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 10, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 21, instructions 22)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CV_KF_H
-#define CV_KF_H
+#ifndef DERIVE_cv_kf_H
+#define DERIVE_cv_kf_H
 
 #include <stddef.h>
 
-#define CV_KF_N 2
-#define CV_KF_M 1
-#define CV_KF_NP 0
+#define cv_kf_N 2
+#define cv_kf_M 1
+#define cv_kf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int cv_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double 
 }
 #endif
 
-#endif /* CV_KF_H */
+#endif /* DERIVE_cv_kf_H */

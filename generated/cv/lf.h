@@ -16,15 +16,16 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 24, div 2, sqrt 0, fma 18, neg 3, cmp 0, calls 0 (flops 72, instructions 57)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef CV_LF_H
-#define CV_LF_H
+#ifndef DERIVE_cv_lf_H
+#define DERIVE_cv_lf_H
 
 #include <stddef.h>
 
-#define CV_LF_N 2
-#define CV_LF_M 1
-#define CV_LF_NP 0
+#define cv_lf_N 2
+#define cv_lf_M 1
+#define cv_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +39,4 @@ void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double
 }
 #endif
 
-#endif /* CV_LF_H */
+#endif /* DERIVE_cv_lf_H */

@@ -15,15 +15,30 @@ interface (flat row-major arrays; steps = number of steps):
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 operations per call of step (Python): add 20, sub 8, mul 42, div 2, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 72, instructions 72)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
+
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
 
 
 def step(x, P, z):
     """one step of the Lainiotis filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [2]: x(k/k)
         P [2x2, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)
@@ -31,6 +46,8 @@ def step(x, P, z):
         x_new [2]: x(k+1/k+1)
         P_new [2x2, symmetric]: P(k+1/k+1), row-major
     """
+    if len(P) == 2:  # a 2-D (2, 2) P: flattened, row-major
+        P = np.reshape(P, (4,) + np.shape(P)[2:])
     t0 = 9.67741935483871*P[1]
     t1 = 9.67741935483871*P[0] + t0
     t2 = 9.67741935483871*P[3] + t0
@@ -88,8 +105,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    if zs.ndim == 1:  # one value per step
+        zs = zs[:, np.newaxis]
+    _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (2,), '(2,)')
+    if P0.shape[:1] == (4,):  # flat, row-major
+        P0 = P0.reshape((2, 2) + P0.shape[1:])
+    _require_shape('P0', P0, (2, 2), '(2, 2)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 2) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()

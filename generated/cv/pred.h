@@ -21,14 +21,14 @@
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 22, instructions 12)
  */
-#ifndef CV_PRED_H
-#define CV_PRED_H
+#ifndef DERIVE_cv_pred_H
+#define DERIVE_cv_pred_H
 
 #include <stddef.h>
 
-#define CV_PRED_N 2
-#define CV_PRED_M 1
-#define CV_PRED_NP 0
+#define cv_pred_N 2
+#define cv_pred_M 1
+#define cv_pred_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -42,4 +42,4 @@ void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs);
 }
 #endif
 
-#endif /* CV_PRED_H */
+#endif /* DERIVE_cv_pred_H */

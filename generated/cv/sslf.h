@@ -19,14 +19,14 @@
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
  */
-#ifndef CV_SSLF_H
-#define CV_SSLF_H
+#ifndef DERIVE_cv_sslf_H
+#define DERIVE_cv_sslf_H
 
 #include <stddef.h>
 
-#define CV_SSLF_N 2
-#define CV_SSLF_M 1
-#define CV_SSLF_NP 0
+#define cv_sslf_N 2
+#define cv_sslf_M 1
+#define cv_sslf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +40,4 @@ void cv_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const doub
 }
 #endif
 
-#endif /* CV_SSLF_H */
+#endif /* DERIVE_cv_sslf_H */

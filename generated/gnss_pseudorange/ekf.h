@@ -26,18 +26,19 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 84, mul 110, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 478, instructions 354)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
  * operations per call of update1 (C99, fma through DERIVE_FMA): add 6, sub 14, mul 22, div 2, sqrt 1, fma 17, neg 0, cmp 1, calls 0 (flops 79, instructions 63)
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
  */
-#ifndef GNSS_PSEUDORANGE_EKF_H
-#define GNSS_PSEUDORANGE_EKF_H
+#ifndef DERIVE_gnss_pseudorange_ekf_H
+#define DERIVE_gnss_pseudorange_ekf_H
 
 #include <stddef.h>
 
-#define GNSS_PSEUDORANGE_EKF_N 4
-#define GNSS_PSEUDORANGE_EKF_M 4
-#define GNSS_PSEUDORANGE_EKF_NP 0
+#define gnss_pseudorange_ekf_N 4
+#define gnss_pseudorange_ekf_M 4
+#define gnss_pseudorange_ekf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -52,4 +53,4 @@ int gnss_pseudorange_ekf_run(size_t steps, const double *z, const double *u, con
 }
 #endif
 
-#endif /* GNSS_PSEUDORANGE_EKF_H */
+#endif /* DERIVE_gnss_pseudorange_ekf_H */

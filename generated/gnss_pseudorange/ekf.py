@@ -26,12 +26,20 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 144, sub 84, mul 238, div 8, sqrt 4, fma 0, neg 0, cmp 4, calls 0 (flops 478, instructions 482)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 1, calls 0 (flops 79, instructions 80)
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
 """
 
 import numpy as np
+
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
 
 try:
     from derive.errors import NumericalError
@@ -55,10 +63,17 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z, u):
     """One step of the extended Kalman filter: predict, then update with all 4 measurements.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [4]: D1, D2, D3, D4
@@ -68,6 +83,8 @@ def step(x, P, z, u):
         P_new [4x4, symmetric]: its covariance, row-major
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[5]
     t2 = 0.01 + P[10]
@@ -241,13 +258,15 @@ def step(x, P, z, u):
 def predict(x, P):
     """Predict only: x(k/k-1) and P(k/k-1) of the extended Kalman filter.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
     Returns:
         x_new [4]: x(k/k-1)
         P_new [4x4, symmetric]: its covariance, row-major
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[5]
     t2 = 0.01 + P[10]
@@ -263,7 +282,7 @@ def predict(x, P):
 def update1(x, P, z, u):
     """Sequential extended Kalman filter update with one measurement (any number a step).
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x before the update
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [1]: one measurement, any of D1, D2, D3, D4
@@ -275,6 +294,8 @@ def update1(x, P, z, u):
         variance [1]: the innovation's variance
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = x[0] - u[0]
     t1 = x[1] - u[1]
     t2 = x[2] - u[2]
@@ -351,8 +372,14 @@ def run(zs, us, x0, P0):
     us = np.asarray(us, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (4,), '(steps, 4)')
     steps = zs.shape[0]
+    _require_shape('us', us, (steps,) + (12,), '(steps, 12)')
+    _require_shape('x0', x0, (4,), '(4,)')
+    if P0.shape[:1] == (16,):  # flat, row-major
+        P0 = P0.reshape((4, 4) + P0.shape[1:])
+    _require_shape('P0', P0, (4, 4), '(4, 4)')
+    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 4) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()

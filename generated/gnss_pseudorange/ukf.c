@@ -34,6 +34,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 94, sub 204, mul 198, div 7, sqrt 32, fma 198, neg 0, cmp 8, calls 0 (flops 931, instructions 741)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
  * operations per call of update1 (C99, fma through DERIVE_FMA): add 33, sub 59, mul 59, div 4, sqrt 11, fma 27, neg 0, cmp 5, calls 0 (flops 220, instructions 198)
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
  * predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4

@@ -34,19 +34,20 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 94, sub 204, mul 198, div 7, sqrt 32, fma 198, neg 0, cmp 8, calls 0 (flops 931, instructions 741)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
  * operations per call of update1 (C99, fma through DERIVE_FMA): add 33, sub 59, mul 59, div 4, sqrt 11, fma 27, neg 0, cmp 5, calls 0 (flops 220, instructions 198)
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
  * predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
  */
-#ifndef GNSS_PSEUDORANGE_UKF_H
-#define GNSS_PSEUDORANGE_UKF_H
+#ifndef DERIVE_gnss_pseudorange_ukf_H
+#define DERIVE_gnss_pseudorange_ukf_H
 
 #include <stddef.h>
 
-#define GNSS_PSEUDORANGE_UKF_N 4
-#define GNSS_PSEUDORANGE_UKF_M 4
-#define GNSS_PSEUDORANGE_UKF_NP 0
+#define gnss_pseudorange_ukf_N 4
+#define gnss_pseudorange_ukf_M 4
+#define gnss_pseudorange_ukf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -61,4 +62,4 @@ int gnss_pseudorange_ukf_run(size_t steps, const double *z, const double *u, con
 }
 #endif
 
-#endif /* GNSS_PSEUDORANGE_UKF_H */
+#endif /* DERIVE_gnss_pseudorange_ukf_H */

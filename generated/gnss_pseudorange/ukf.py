@@ -34,6 +34,7 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 278, sub 218, mul 396, div 7, sqrt 32, fma 0, neg 0, cmp 8, calls 0 (flops 931, instructions 939)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 58, sub 61, mul 86, div 4, sqrt 11, fma 0, neg 0, cmp 5, calls 0 (flops 220, instructions 225)
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
 predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
@@ -41,6 +42,13 @@ varying measurement count: call predict once per step, then update1 once per mea
 """
 
 import numpy as np
+
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
 
 try:
     from derive.errors import NumericalError
@@ -64,10 +72,17 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z, u):
     """One step of the unscented Kalman filter: predict, then update with all 4 measurements.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [4]: D1, D2, D3, D4
@@ -77,6 +92,8 @@ def step(x, P, z, u):
         P_new [4x4, symmetric]: its covariance, row-major
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[5]
     t2 = 0.01 + P[10]
@@ -454,13 +471,15 @@ def step(x, P, z, u):
 def predict(x, P):
     """Predict only: x(k/k-1) and P(k/k-1) of the unscented Kalman filter.
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x(k-1/k-1)
         P [4x4, symmetric]: its covariance, row-major, symmetric
     Returns:
         x_new [4]: x(k/k-1)
         P_new [4x4, symmetric]: its covariance, row-major
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[5]
     t2 = 0.01 + P[10]
@@ -476,7 +495,7 @@ def predict(x, P):
 def update1(x, P, z, u):
     """Sequential unscented Kalman filter update with one measurement (any number a step).
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [4]: x before the update
         P [4x4, symmetric]: its covariance, row-major, symmetric
         z [1]: one measurement, any of D1, D2, D3, D4
@@ -488,6 +507,8 @@ def update1(x, P, z, u):
         variance [1]: the innovation's variance
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
+        P = np.reshape(P, (16,) + np.shape(P)[2:])
     _require_positive(P[0], 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
     t0 = _sqrt(P[0])
     t1 = 1.0/t0
@@ -654,8 +675,14 @@ def run(zs, us, x0, P0):
     us = np.asarray(us, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (4,), '(steps, 4)')
     steps = zs.shape[0]
+    _require_shape('us', us, (steps,) + (12,), '(steps, 12)')
+    _require_shape('x0', x0, (4,), '(4,)')
+    if P0.shape[:1] == (16,):  # flat, row-major
+        P0 = P0.reshape((4, 4) + P0.shape[1:])
+    _require_shape('P0', P0, (4, 4), '(4, 4)')
+    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 4) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()

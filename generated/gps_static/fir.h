@@ -17,15 +17,15 @@
  * N = 44
  * eps = 1e-06
  */
-#ifndef GPS_STATIC_FIR_H
-#define GPS_STATIC_FIR_H
+#ifndef DERIVE_gps_static_fir_H
+#define DERIVE_gps_static_fir_H
 
 #include <stddef.h>
 
-#define GPS_STATIC_FIR_N 3
-#define GPS_STATIC_FIR_M 3
-#define GPS_STATIC_FIR_NP 0
-#define GPS_STATIC_FIR_WINDOW 44
+#define gps_static_fir_N 3
+#define gps_static_fir_M 3
+#define gps_static_fir_NP 0
+#define gps_static_fir_WINDOW 44
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +38,4 @@ void gps_static_fir_run(size_t steps, const double *z, double *xs);
 }
 #endif
 
-#endif /* GPS_STATIC_FIR_H */
+#endif /* DERIVE_gps_static_fir_H */

@@ -14,24 +14,26 @@
  *     int gps_static_ikf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_ikf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
+ *     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef GPS_STATIC_IKF_H
-#define GPS_STATIC_IKF_H
+#ifndef DERIVE_gps_static_ikf_H
+#define DERIVE_gps_static_ikf_H
 
 #include <stddef.h>
 
-#define GPS_STATIC_IKF_N 3
-#define GPS_STATIC_IKF_M 3
-#define GPS_STATIC_IKF_NP 0
+#define gps_static_ikf_N 3
+#define gps_static_ikf_M 3
+#define gps_static_ikf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -45,4 +47,4 @@ int gps_static_ikf_run_tracks(size_t steps, size_t tracks, const double *z, cons
 }
 #endif
 
-#endif /* GPS_STATIC_IKF_H */
+#endif /* DERIVE_gps_static_ikf_H */

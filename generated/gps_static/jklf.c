@@ -14,12 +14,14 @@
  *     int gps_static_jklf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 75, instructions 78)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 75, instructions 81)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <stddef.h>
 
@@ -27,6 +29,15 @@
 
 int gps_static_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
+    if (!(P[1] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[2] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[5] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
     const double t0 = 0.01 + P[0];
     const double t1 = 0.01 + P[4];
     const double t2 = 0.01 + P[8];
@@ -134,6 +145,16 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
     double x_new[3];
     double P_new[9];
     size_t k;
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[1] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[2] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[5] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -280,6 +301,19 @@ int gps_static_jklf_run_tracks(size_t steps, size_t tracks, const double *z, con
 {
     size_t t = 0;
     size_t k;
+    /* every track's P0 must be zero outside P's pattern; checked before any step */
+    for (t = 0; t < tracks; ++t) {
+        if (!(P0[t * 9 + 1] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 9 + 2] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 9 + 5] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+    }
+    t = 0;
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[3], xn_l0[3];
         double P_l0[9], Pn_l0[9];

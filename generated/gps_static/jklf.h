@@ -14,21 +14,23 @@
  *     int gps_static_jklf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 75, instructions 78)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 75, instructions 81)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef GPS_STATIC_JKLF_H
-#define GPS_STATIC_JKLF_H
+#ifndef DERIVE_gps_static_jklf_H
+#define DERIVE_gps_static_jklf_H
 
 #include <stddef.h>
 
-#define GPS_STATIC_JKLF_N 3
-#define GPS_STATIC_JKLF_M 3
-#define GPS_STATIC_JKLF_NP 0
+#define gps_static_jklf_N 3
+#define gps_static_jklf_M 3
+#define gps_static_jklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -42,4 +44,4 @@ int gps_static_jklf_run_tracks(size_t steps, size_t tracks, const double *z, con
 }
 #endif
 
-#endif /* GPS_STATIC_JKLF_H */
+#endif /* DERIVE_gps_static_jklf_H */

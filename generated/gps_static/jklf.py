@@ -13,15 +13,24 @@ interface (flat row-major arrays; steps = number of steps):
     step(x[3], P[3*3], z[3]) -> (x_new[3], P_new[3*3])
     run(zs[steps, 3], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
-status (C return value; Python raises NumericalError): 0 success
+status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 75, instructions 78)
+    step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 75, instructions 81)
 P0 pattern declared: diagonal
+P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
 import numpy as np
+
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
 
 try:
     from derive.errors import NumericalError
@@ -29,6 +38,27 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class NumericalError(ArithmeticError):
         """A numerical failure such as a non-positive pivot."""
+
+try:
+    from derive.errors import PatternError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class PatternError(ValueError):
+        """P (or P0) is not zero outside the pattern the code was generated for."""
+
+
+def _require_zero(values, indices, n, name, message):
+    """Raise PatternError unless values[k] == 0 for every k in indices (every
+    track of an array): entries outside the pattern of the n x n matrix."""
+    for k in indices:
+        zero = values[k] == 0
+        if hasattr(zero, "all"):
+            zero = zero.all()
+        if not zero:
+            value = np.ravel(values[k]).astype(float)
+            value = float(value[value != 0][0])
+            entry = f"{name}[{k // n}][{k % n}]"
+            raise PatternError(f"{entry} = {value!r}: {message}")
 
 
 def _require_positive(value, message):
@@ -40,10 +70,17 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z):
     """one step of the join Kalman-Lainiotis filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [3]: x(k/k)
         P [3x3, symmetric]: P(k/k), row-major, symmetric
         z [3]: z(k+1)
@@ -51,6 +88,16 @@ def step(x, P, z):
         x_new [3]: x(k+1/k+1)
         P_new [3x3, symmetric]: P(k+1/k+1), row-major
     Raises NumericalError when a runtime check fails.
+    Raises PatternError unless P is 0 outside its pattern (upper triangle, 3 entries).
+    """
+    if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
+        P = np.reshape(P, (9,) + np.shape(P)[2:])
+    _require_zero(P, (1, 2, 5), 3, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
+    return _step_in_pattern(x, P, z)
+
+
+def _step_in_pattern(x, P, z):
+    """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = 0.01 + P[0]
     t1 = 0.01 + P[4]
@@ -149,9 +196,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    _require_shape('zs', zs, zs.shape[:1] + (3,), '(steps, 3)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (3,), '(3,)')
+    if P0.shape[:1] == (9,):  # flat, row-major
+        P0 = P0.reshape((3, 3) + P0.shape[1:])
+    _require_shape('P0', P0, (3, 3), '(3, 3)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 3) + track)
+    _require_zero(P0.reshape((9,) + P0.shape[2:]), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
@@ -253,7 +306,7 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = step(x, P, zs[k])
+        x, P = _step_in_pattern(x, P, zs[k])
         for i in range(3):
             xs[k, i] = x[i]
         for i in range(9):

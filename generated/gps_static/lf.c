@@ -10,19 +10,31 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gps_static_lf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
- *     void gps_static_lf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int gps_static_lf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
+ *     int gps_static_lf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 39, instructions 39)
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
+ *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 39, instructions 42)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <stddef.h>
 
 #include "lf.h"
 
-void gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+int gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
+    if (!(P[1] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[5] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
     const double t0 = 9.090909090909092*P[0];
     const double t1 = 9.090909090909092*P[4];
     const double t2 = 9.090909090909092*P[8];
@@ -74,16 +86,27 @@ void gps_static_lf_step(const double *restrict x, const double *restrict P, cons
     P_new[6] = 0.0;
     P_new[7] = 0.0;
     P_new[8] = t38;
+    return 0;
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
-void gps_static_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int gps_static_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     double x[3];
     double P[9];
     double x_new[3];
     double P_new[9];
     size_t k;
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[1] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[5] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -174,16 +197,30 @@ void gps_static_lf_run(size_t steps, const double *z, const double *x0, const do
             Ps[k * 9 + 8] = P_new[8];
         }
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
  * 4 tracks advance together, their steps interleaved by the compiler;
  * a non-zero status stops the whole run. */
-void gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
     size_t k;
+    /* every track's P0 must be zero outside P's pattern; checked before any step */
+    for (t = 0; t < tracks; ++t) {
+        if (!(P0[t * 9 + 1] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 9 + 2] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 9 + 5] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+    }
+    t = 0;
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[3], xn_l0[3];
         double P_l0[9], Pn_l0[9];
@@ -642,4 +679,5 @@ void gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, cons
             }
         }
     }
+    return 0;
 }

@@ -10,32 +10,35 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gps_static_lf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
- *     void gps_static_lf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int gps_static_lf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
+ *     int gps_static_lf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 39, instructions 39)
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
+ *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 39, instructions 42)
  * P0 pattern declared: diagonal
+ * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef GPS_STATIC_LF_H
-#define GPS_STATIC_LF_H
+#ifndef DERIVE_gps_static_lf_H
+#define DERIVE_gps_static_lf_H
 
 #include <stddef.h>
 
-#define GPS_STATIC_LF_N 3
-#define GPS_STATIC_LF_M 3
-#define GPS_STATIC_LF_NP 0
+#define gps_static_lf_N 3
+#define gps_static_lf_M 3
+#define gps_static_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
-void gps_static_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
-void gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
+int gps_static_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }
 #endif
 
-#endif /* GPS_STATIC_LF_H */
+#endif /* DERIVE_gps_static_lf_H */

@@ -22,6 +22,20 @@ N = 1
 
 import numpy as np
 
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
 
 def init(x0):
     """start of the run
@@ -62,8 +76,10 @@ def run(zs, x0):
     """
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
+    _require_shape('zs', zs, zs.shape[:1] + (3,), '(steps, 3)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (3,), '(3,)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
     xs = np.empty((steps, 3) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_start = np.asarray(init(x0), dtype=float)

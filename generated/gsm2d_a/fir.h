@@ -17,15 +17,15 @@
  * N = 33
  * eps = 1e-06
  */
-#ifndef GSM2D_A_FIR_H
-#define GSM2D_A_FIR_H
+#ifndef DERIVE_gsm2d_a_fir_H
+#define DERIVE_gsm2d_a_fir_H
 
 #include <stddef.h>
 
-#define GSM2D_A_FIR_N 4
-#define GSM2D_A_FIR_M 2
-#define GSM2D_A_FIR_NP 0
-#define GSM2D_A_FIR_WINDOW 33
+#define gsm2d_a_fir_N 4
+#define gsm2d_a_fir_M 2
+#define gsm2d_a_fir_NP 0
+#define gsm2d_a_fir_WINDOW 33
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +38,4 @@ void gsm2d_a_fir_run(size_t steps, const double *z, double *xs);
 }
 #endif
 
-#endif /* GSM2D_A_FIR_H */
+#endif /* DERIVE_gsm2d_a_fir_H */

@@ -14,20 +14,22 @@
  *     int gsm2d_a_jklf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 2, calls 0 (flops 230, instructions 198)
+ *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 6, calls 0 (flops 230, instructions 202)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef GSM2D_A_JKLF_H
-#define GSM2D_A_JKLF_H
+#ifndef DERIVE_gsm2d_a_jklf_H
+#define DERIVE_gsm2d_a_jklf_H
 
 #include <stddef.h>
 
-#define GSM2D_A_JKLF_N 4
-#define GSM2D_A_JKLF_M 2
-#define GSM2D_A_JKLF_NP 0
+#define gsm2d_a_jklf_N 4
+#define gsm2d_a_jklf_M 2
+#define gsm2d_a_jklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -41,4 +43,4 @@ int gsm2d_a_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const 
 }
 #endif
 
-#endif /* GSM2D_A_JKLF_H */
+#endif /* DERIVE_gsm2d_a_jklf_H */

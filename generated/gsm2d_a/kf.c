@@ -14,11 +14,13 @@
  *     int gsm2d_a_kf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 50, instructions 52)
+ *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <stddef.h>
 
@@ -26,6 +28,18 @@
 
 int gsm2d_a_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
+    if (!(P[2] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
+    if (!(P[3] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
+    if (!(P[6] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
+    if (!(P[7] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
     const double t0 = x[0] + x[1];
     const double t1 = x[2] + x[3];
     const double t2 = P[0] + P[1];
@@ -113,6 +127,19 @@ int gsm2d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     double x_new[4];
     double P_new[16];
     size_t k;
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[2] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
+    if (!(P0[3] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
+    if (!(P0[6] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
+    if (!(P0[7] == 0.0)) {
+        return 3; /* outside P's pattern */
+    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -262,6 +289,22 @@ int gsm2d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
 {
     size_t t = 0;
     size_t k;
+    /* every track's P0 must be zero outside P's pattern; checked before any step */
+    for (t = 0; t < tracks; ++t) {
+        if (!(P0[t * 16 + 2] == 0.0)) {
+            return 3; /* outside P's pattern */
+        }
+        if (!(P0[t * 16 + 3] == 0.0)) {
+            return 3; /* outside P's pattern */
+        }
+        if (!(P0[t * 16 + 6] == 0.0)) {
+            return 3; /* outside P's pattern */
+        }
+        if (!(P0[t * 16 + 7] == 0.0)) {
+            return 3; /* outside P's pattern */
+        }
+    }
+    t = 0;
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[4], xn_l0[4];
         double P_l0[16], Pn_l0[16];

@@ -14,20 +14,22 @@
  *     int gsm2d_a_kf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 50, instructions 52)
+ *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef GSM2D_A_KF_H
-#define GSM2D_A_KF_H
+#ifndef DERIVE_gsm2d_a_kf_H
+#define DERIVE_gsm2d_a_kf_H
 
 #include <stddef.h>
 
-#define GSM2D_A_KF_N 4
-#define GSM2D_A_KF_M 2
-#define GSM2D_A_KF_NP 0
+#define gsm2d_a_kf_N 4
+#define gsm2d_a_kf_M 2
+#define gsm2d_a_kf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -41,4 +43,4 @@ int gsm2d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
 }
 #endif
 
-#endif /* GSM2D_A_KF_H */
+#endif /* DERIVE_gsm2d_a_kf_H */

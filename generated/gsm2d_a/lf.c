@@ -10,12 +10,15 @@
  * m: 2 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gsm2d_a_lf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
- *     void gsm2d_a_lf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     int gsm2d_a_lf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
+ *     int gsm2d_a_lf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 0, calls 0 (flops 160, instructions 126)
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
+ *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 4, calls 0 (flops 160, instructions 130)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <math.h>
 #include <stddef.h>
@@ -30,8 +33,20 @@
 #endif
 #endif
 
-void gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+int gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
+    if (!(P[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[3] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[6] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[7] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
     const double t0 = 16.3265306122449*P[1];
     const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
     const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
@@ -132,16 +147,30 @@ void gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const d
     P_new[13] = 0.0;
     P_new[14] = t78;
     P_new[15] = t79;
+    return 0;
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
-void gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     double x[4];
     double P[16];
     double x_new[4];
     double P_new[16];
     size_t k;
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[3] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[6] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[7] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -304,16 +333,33 @@ void gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const doubl
             Ps[k * 16 + 15] = P_new[15];
         }
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
  * 4 tracks advance together, their steps interleaved by the compiler;
  * a non-zero status stops the whole run. */
-void gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
     size_t k;
+    /* every track's P0 must be zero outside P's pattern; checked before any step */
+    for (t = 0; t < tracks; ++t) {
+        if (!(P0[t * 16 + 2] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 16 + 3] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 16 + 6] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 16 + 7] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+    }
+    t = 0;
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[4], xn_l0[4];
         double P_l0[16], Pn_l0[16];
@@ -1132,4 +1178,5 @@ void gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
             }
         }
     }
+    return 0;
 }

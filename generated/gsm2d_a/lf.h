@@ -10,32 +10,35 @@
  * m: 2 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void gsm2d_a_lf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
- *     void gsm2d_a_lf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     int gsm2d_a_lf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
+ *     int gsm2d_a_lf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 0, calls 0 (flops 160, instructions 126)
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
+ *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 4, calls 0 (flops 160, instructions 130)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef GSM2D_A_LF_H
-#define GSM2D_A_LF_H
+#ifndef DERIVE_gsm2d_a_lf_H
+#define DERIVE_gsm2d_a_lf_H
 
 #include <stddef.h>
 
-#define GSM2D_A_LF_N 4
-#define GSM2D_A_LF_M 2
-#define GSM2D_A_LF_NP 0
+#define gsm2d_a_lf_N 4
+#define gsm2d_a_lf_M 2
+#define gsm2d_a_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
-void gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
-void gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
+int gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }
 #endif
 
-#endif /* GSM2D_A_LF_H */
+#endif /* DERIVE_gsm2d_a_lf_H */

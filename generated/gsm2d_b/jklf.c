@@ -18,6 +18,7 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 5, mul 38, div 4, sqrt 0, fma 20, neg 3, cmp 1, calls 0 (flops 115, instructions 99)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
 #include <math.h>
 #include <stddef.h>

@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 5, mul 38, div 4, sqrt 0, fma 20, neg 3, cmp 1, calls 0 (flops 115, instructions 99)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef GSM2D_B_JKLF_H
-#define GSM2D_B_JKLF_H
+#ifndef DERIVE_gsm2d_b_jklf_H
+#define DERIVE_gsm2d_b_jklf_H
 
 #include <stddef.h>
 
-#define GSM2D_B_JKLF_N 2
-#define GSM2D_B_JKLF_M 1
-#define GSM2D_B_JKLF_NP 0
+#define gsm2d_b_jklf_N 2
+#define gsm2d_b_jklf_M 1
+#define gsm2d_b_jklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int gsm2d_b_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const 
 }
 #endif
 
-#endif /* GSM2D_B_JKLF_H */
+#endif /* DERIVE_gsm2d_b_jklf_H */

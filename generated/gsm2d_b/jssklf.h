@@ -19,14 +19,14 @@
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
  */
-#ifndef GSM2D_B_JSSKLF_H
-#define GSM2D_B_JSSKLF_H
+#ifndef DERIVE_gsm2d_b_jssklf_H
+#define DERIVE_gsm2d_b_jssklf_H
 
 #include <stddef.h>
 
-#define GSM2D_B_JSSKLF_N 2
-#define GSM2D_B_JSSKLF_M 1
-#define GSM2D_B_JSSKLF_NP 0
+#define gsm2d_b_jssklf_N 2
+#define gsm2d_b_jssklf_M 1
+#define gsm2d_b_jssklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +40,4 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
 }
 #endif
 
-#endif /* GSM2D_B_JSSKLF_H */
+#endif /* DERIVE_gsm2d_b_jssklf_H */

@@ -19,6 +19,20 @@ B = [[0.36535881073846804], [0.20683480863417478]]
 
 import numpy as np
 
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
+
+
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
 
 def step(x, z):
     """one step of the JSSKLF
@@ -46,8 +60,12 @@ def run(zs, x0):
     """
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
+    if zs.ndim == 1:  # one value per step
+        zs = zs[:, np.newaxis]
+    _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (2,), '(2,)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
     xs = np.empty((steps, 2) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()

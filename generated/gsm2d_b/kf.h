@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 25, instructions 26)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef GSM2D_B_KF_H
-#define GSM2D_B_KF_H
+#ifndef DERIVE_gsm2d_b_kf_H
+#define DERIVE_gsm2d_b_kf_H
 
 #include <stddef.h>
 
-#define GSM2D_B_KF_N 2
-#define GSM2D_B_KF_M 1
-#define GSM2D_B_KF_NP 0
+#define gsm2d_b_kf_N 2
+#define gsm2d_b_kf_M 1
+#define gsm2d_b_kf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int gsm2d_b_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
 }
 #endif
 
-#endif /* GSM2D_B_KF_H */
+#endif /* DERIVE_gsm2d_b_kf_H */

@@ -16,15 +16,16 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 28, div 2, sqrt 0, fma 20, neg 3, cmp 0, calls 0 (flops 80, instructions 63)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef GSM2D_B_LF_H
-#define GSM2D_B_LF_H
+#ifndef DERIVE_gsm2d_b_lf_H
+#define DERIVE_gsm2d_b_lf_H
 
 #include <stddef.h>
 
-#define GSM2D_B_LF_N 2
-#define GSM2D_B_LF_M 1
-#define GSM2D_B_LF_NP 0
+#define gsm2d_b_lf_N 2
+#define gsm2d_b_lf_M 1
+#define gsm2d_b_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +39,4 @@ void gsm2d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
 }
 #endif
 
-#endif /* GSM2D_B_LF_H */
+#endif /* DERIVE_gsm2d_b_lf_H */

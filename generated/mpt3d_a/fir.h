@@ -17,15 +17,15 @@
  * N = 33
  * eps = 1e-06
  */
-#ifndef MPT3D_A_FIR_H
-#define MPT3D_A_FIR_H
+#ifndef DERIVE_mpt3d_a_fir_H
+#define DERIVE_mpt3d_a_fir_H
 
 #include <stddef.h>
 
-#define MPT3D_A_FIR_N 6
-#define MPT3D_A_FIR_M 3
-#define MPT3D_A_FIR_NP 0
-#define MPT3D_A_FIR_WINDOW 33
+#define mpt3d_a_fir_N 6
+#define mpt3d_a_fir_M 3
+#define mpt3d_a_fir_NP 0
+#define mpt3d_a_fir_WINDOW 33
 
 #ifdef __cplusplus
 extern "C" {
@@ -38,4 +38,4 @@ void mpt3d_a_fir_run(size_t steps, const double *z, double *xs);
 }
 #endif
 
-#endif /* MPT3D_A_FIR_H */
+#endif /* DERIVE_mpt3d_a_fir_H */

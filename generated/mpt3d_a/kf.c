@@ -14,12 +14,14 @@
  *     int mpt3d_a_kf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 75, instructions 78)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <stddef.h>
 
@@ -27,6 +29,42 @@
 
 int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
+    if (!(P[2] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[3] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[4] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[5] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[8] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[9] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[10] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[11] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[16] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[17] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[22] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[23] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
     const double t0 = x[0] + x[1];
     const double t1 = x[2] + x[3];
     const double t2 = x[4] + x[5];
@@ -164,6 +202,43 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     double x_new[6];
     double P_new[36];
     size_t k;
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[2] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[3] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[4] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[5] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[8] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[9] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[10] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[11] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[16] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[17] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[22] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[23] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -427,6 +502,46 @@ int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
 {
     size_t t = 0;
     size_t k;
+    /* every track's P0 must be zero outside P's pattern; checked before any step */
+    for (t = 0; t < tracks; ++t) {
+        if (!(P0[t * 36 + 2] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 3] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 4] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 5] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 8] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 9] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 10] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 11] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 16] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 17] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 22] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 23] == 0.0)) {
+            return 4; /* outside P's pattern */
+        }
+    }
+    t = 0;
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[6], xn_l0[6];
         double P_l0[36], Pn_l0[36];

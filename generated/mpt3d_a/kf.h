@@ -14,21 +14,23 @@
  *     int mpt3d_a_kf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * status (C return value; Python raises NumericalError): 0 success
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 75, instructions 78)
+ *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef MPT3D_A_KF_H
-#define MPT3D_A_KF_H
+#ifndef DERIVE_mpt3d_a_kf_H
+#define DERIVE_mpt3d_a_kf_H
 
 #include <stddef.h>
 
-#define MPT3D_A_KF_N 6
-#define MPT3D_A_KF_M 3
-#define MPT3D_A_KF_NP 0
+#define mpt3d_a_kf_N 6
+#define mpt3d_a_kf_M 3
+#define mpt3d_a_kf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -42,4 +44,4 @@ int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
 }
 #endif
 
-#endif /* MPT3D_A_KF_H */
+#endif /* DERIVE_mpt3d_a_kf_H */

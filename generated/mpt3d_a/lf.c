@@ -10,12 +10,15 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void mpt3d_a_lf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
- *     void mpt3d_a_lf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
+ *     int mpt3d_a_lf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
+ *     int mpt3d_a_lf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 0, calls 0 (flops 240, instructions 189)
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
+ *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 12, calls 0 (flops 240, instructions 201)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
 #include <math.h>
 #include <stddef.h>
@@ -30,8 +33,44 @@
 #endif
 #endif
 
-void mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
+    if (!(P[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[3] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[4] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[5] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[8] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[9] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[10] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[11] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[16] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[17] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[22] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[23] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
     const double t0 = 16.3265306122449*P[1];
     const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
     const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
@@ -194,16 +233,54 @@ void mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const d
     P_new[33] = 0.0;
     P_new[34] = t118;
     P_new[35] = t119;
+    return 0;
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
-void mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     double x[6];
     double P[36];
     double x_new[6];
     double P_new[36];
     size_t k;
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[3] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[4] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[5] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[8] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[9] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[10] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[11] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[16] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[17] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[22] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P0[23] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -492,16 +569,57 @@ void mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const doubl
             Ps[k * 36 + 35] = P_new[35];
         }
     }
+    return 0;
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
  * 4 tracks advance together, their steps interleaved by the compiler;
  * a non-zero status stops the whole run. */
-void mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
+int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
     size_t k;
+    /* every track's P0 must be zero outside P's pattern; checked before any step */
+    for (t = 0; t < tracks; ++t) {
+        if (!(P0[t * 36 + 2] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 3] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 4] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 5] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 8] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 9] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 10] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 11] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 16] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 17] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 22] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+        if (!(P0[t * 36 + 23] == 0.0)) {
+            return 1; /* outside P's pattern */
+        }
+    }
+    t = 0;
     for (; t + 4 <= tracks; t += 4) {
         double x_l0[6], xn_l0[6];
         double P_l0[36], Pn_l0[36];
@@ -1950,4 +2068,5 @@ void mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
             }
         }
     }
+    return 0;
 }

@@ -10,32 +10,35 @@
  * m: 3 (measurements)
  * parameters: none
  * interface (flat row-major arrays; steps = number of steps):
- *     void mpt3d_a_lf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
- *     void mpt3d_a_lf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
+ *     int mpt3d_a_lf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
+ *     int mpt3d_a_lf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 0, calls 0 (flops 240, instructions 189)
+ * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
+ *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 12, calls 0 (flops 240, instructions 201)
  * P0 pattern declared: zero
+ * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  */
-#ifndef MPT3D_A_LF_H
-#define MPT3D_A_LF_H
+#ifndef DERIVE_mpt3d_a_lf_H
+#define DERIVE_mpt3d_a_lf_H
 
 #include <stddef.h>
 
-#define MPT3D_A_LF_N 6
-#define MPT3D_A_LF_M 3
-#define MPT3D_A_LF_NP 0
+#define mpt3d_a_lf_N 6
+#define mpt3d_a_lf_M 3
+#define mpt3d_a_lf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
-void mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
-void mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
+int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
+int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus
 }
 #endif
 
-#endif /* MPT3D_A_LF_H */
+#endif /* DERIVE_mpt3d_a_lf_H */

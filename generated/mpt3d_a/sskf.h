@@ -19,14 +19,14 @@
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 0, calls 0 (flops 72, instructions 42)
  */
-#ifndef MPT3D_A_SSKF_H
-#define MPT3D_A_SSKF_H
+#ifndef DERIVE_mpt3d_a_sskf_H
+#define DERIVE_mpt3d_a_sskf_H
 
 #include <stddef.h>
 
-#define MPT3D_A_SSKF_N 6
-#define MPT3D_A_SSKF_M 3
-#define MPT3D_A_SSKF_NP 0
+#define mpt3d_a_sskf_N 6
+#define mpt3d_a_sskf_M 3
+#define mpt3d_a_sskf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +40,4 @@ void mpt3d_a_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const
 }
 #endif
 
-#endif /* MPT3D_A_SSKF_H */
+#endif /* DERIVE_mpt3d_a_sskf_H */

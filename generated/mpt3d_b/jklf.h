@@ -18,15 +18,16 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 5, mul 38, div 4, sqrt 0, fma 20, neg 3, cmp 1, calls 0 (flops 115, instructions 99)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
-#ifndef MPT3D_B_JKLF_H
-#define MPT3D_B_JKLF_H
+#ifndef DERIVE_mpt3d_b_jklf_H
+#define DERIVE_mpt3d_b_jklf_H
 
 #include <stddef.h>
 
-#define MPT3D_B_JKLF_N 2
-#define MPT3D_B_JKLF_M 1
-#define MPT3D_B_JKLF_NP 0
+#define mpt3d_b_jklf_N 2
+#define mpt3d_b_jklf_M 1
+#define mpt3d_b_jklf_NP 0
 
 #ifdef __cplusplus
 extern "C" {
@@ -40,4 +41,4 @@ int mpt3d_b_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const 
 }
 #endif
 
-#endif /* MPT3D_B_JKLF_H */
+#endif /* DERIVE_mpt3d_b_jklf_H */

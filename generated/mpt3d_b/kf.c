@@ -18,6 +18,7 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 25, instructions 26)
  * P0 pattern declared: zero
+ * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  */
 #include <stddef.h>
 

@@ -17,9 +17,17 @@ status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 25, instructions 26)
 P0 pattern declared: zero
+P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import numpy as np
+
+try:
+    from derive.errors import ShapeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class ShapeError(ValueError):
+        """An argument of the wrong shape."""
 
 try:
     from derive.errors import NumericalError
@@ -38,10 +46,17 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_shape(name, array, shape, text):
+    """Raise ShapeError unless the leading axes are shape (then tracks)."""
+    if array.shape[:len(shape)] != shape:
+        raise ShapeError(f"run: {name} must have shape {text}, then any "
+                         f"track axes; got {array.shape}")
+
+
 def step(x, P, z):
     """one step of the Kalman filter
 
-    Arguments (flat, row-major sequences; elements may be NumPy arrays):
+    Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [2]: x(k/k)
         P [2x2, symmetric]: P(k/k), row-major, symmetric
         z [1]: z(k+1)
@@ -50,6 +65,8 @@ def step(x, P, z):
         P_new [2x2, symmetric]: P(k+1/k+1), row-major
     Raises NumericalError when a runtime check fails.
     """
+    if len(P) == 2:  # a 2-D (2, 2) P: flattened, row-major
+        P = np.reshape(P, (4,) + np.shape(P)[2:])
     t0 = x[0] + x[1]
     t1 = P[0] + P[1]
     t2 = P[1] + P[3]
@@ -95,8 +112,15 @@ def run(zs, x0, P0):
     zs = np.asarray(zs, dtype=float)
     x0 = np.asarray(x0, dtype=float)
     P0 = np.asarray(P0, dtype=float)
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    if zs.ndim == 1:  # one value per step
+        zs = zs[:, np.newaxis]
+    _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
+    _require_shape('x0', x0, (2,), '(2,)')
+    if P0.shape[:1] == (4,):  # flat, row-major
+        P0 = P0.reshape((2, 2) + P0.shape[1:])
+    _require_shape('P0', P0, (2, 2), '(2, 2)')
+    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
     xs = np.empty((steps, 2) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
