@@ -23,6 +23,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
+from ..options import SharedOptions
 from ..program import Port, Program
 from . import pattern as pat
 from .common import masked, parameter_port
@@ -208,7 +209,7 @@ def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
     return prog, x, P, extra
 
 
-def nonlinear_programs(model, predict: Predict, update: Update, options: Mapping,
+def nonlinear_programs(model, predict: Predict, update: Update, options: SharedOptions,
                        title: str) -> tuple[dict[str, Program], list[str]]:
     """``step``, ``predict`` and (when it exists) ``update1``, optimised; and header facts.
 
@@ -228,7 +229,7 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: Mapping
                                                       title)[2]))
         return out
 
-    start = pat.declared(model, options.get("P0_pattern"))
+    start = pat.declared(model, options.P0_pattern)
     dense = all(all(row) for row in start)
     closed = start if dense else pat.closure(grow, start)
     programs = {}
