@@ -302,7 +302,8 @@ def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: s
     specs = options.specs()
     for key, value in options.changed().items():
         spec = specs[key]
-        parts.append(spec.flag if spec.kind is bool else f"{spec.flag} {_short(value)}")
+        parts.append(spec.flag if spec.kind is bool else
+                     f"{spec.flag} {value if spec.kind is str else _short(value)}")
     return " ".join(parts)
 
 
