@@ -129,16 +129,25 @@ def pred_constants(F, K, H, N: int) -> PredictionConstants:
     F = numeric_matrix("F", F, None, None)
     K = numeric_matrix("K", K, F.shape[0], None)
     H = numeric_matrix("H", H, K.shape[1], F.shape[0])
-    FN = np.linalg.matrix_power(F, N)
-    left = FN @ (np.eye(F.shape[0]) - K @ H)
+    with np.errstate(over="ignore", invalid="ignore"):
+        FN = np.linalg.matrix_power(F, N)
+        back = np.linalg.matrix_power(F, N - 1)
+    if not np.isfinite(FN).all():
+        raise SteadyStateError(f"N-step prediction with N = {N} needs F^{N}, which overflows "
+                               f"a double (spectral radius of F: "
+                               f"{np.abs(np.linalg.eigvals(F)).max():.6g})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        left, gain = FN @ (np.eye(F.shape[0]) - K @ H), FN @ K
+    if not (np.isfinite(left).all() and np.isfinite(gain).all()):
+        raise SteadyStateError(f"N-step prediction with N = {N}: F^{N} (I - K H) or F^{N} K "
+                               "overflows a double")
     if N == 1:
-        return PredictionConstants(left, FN @ K)
-    back = np.linalg.matrix_power(F, N - 1)
+        return PredictionConstants(left, gain)
     if np.linalg.cond(back) > 1e12:
         raise SteadyStateError(
             f"N-step prediction with N = {N} needs F^-(N-1), but F is singular or "
             f"ill-conditioned (cond(F^{N - 1}) = {np.linalg.cond(back):.3g})")
-    return PredictionConstants(np.linalg.solve(back.T, left.T).T, FN @ K)
+    return PredictionConstants(np.linalg.solve(back.T, left.T).T, gain)
 
 
 __all__ = ["MAX_FIR_TAPS", "MAX_FIR_WINDOW", "MAX_HORIZON", "MAX_ORDER", "FirOrderError",

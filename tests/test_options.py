@@ -346,3 +346,32 @@ def test_fir_defaults_state_eps_only_when_used():
     model = catalog.load("mpt3d_b")
     assert "eps = 1e-06" in derive_unit(model, "fir", FirOptions()).facts
     assert not any(f.startswith("eps") for f in derive_unit(model, "fir", {"order": 5}).facts)
+
+
+UNSTABLE = """\
+[model]
+name = "unstable"
+states = ["a"]
+measurements = ["y"]
+
+[discrete]
+F = [[1.5]]
+G = [[1]]
+Q = [[0.1]]
+H = [[1]]
+R = 0.2
+
+[initial]
+x0 = [0]
+P0 = [[1]]
+"""
+
+
+def test_a_horizon_whose_powers_overflow_is_refused_in_one_line(tmp_path):
+    """1.5^1800 overflows: one line naming it (no NumPy warning, no infinite constant)."""
+    (tmp_path / "unstable.toml").write_text(UNSTABLE)
+    proc = run_cli(["generate", str(tmp_path / "unstable.toml"), "--filter", "pred",
+                    "--horizon", "1800", "--out", str(tmp_path / "out")])
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc
+    assert "needs F^1800, which overflows a double (spectral radius of F: 1.5)" in proc.stderr
+    assert not (tmp_path / "out").exists()
