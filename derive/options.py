@@ -102,6 +102,10 @@ class SharedOptions:
         True, flag="--no-run-tracks", kind=bool, takers=TRACK_FILTERS,
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
 
+    def __post_init__(self) -> None:
+        for key in self.specs():
+            object.__setattr__(self, key, check(key, getattr(self, key)))
+
     @classmethod
     def specs(cls) -> dict[str, Spec]:
         """``{option name: Spec}`` of this family, in declaration order."""
@@ -183,8 +187,6 @@ def taken_by(name: str) -> list[str]:
 def validate(name: str, values: Mapping | SharedOptions | None = None) -> SharedOptions:
     """The typed options of filter ``name`` from ``values`` (every key must be an option
     ``name`` takes, of the right type and in range)."""
-    if type(values) is options_type(name):
-        return values
     if isinstance(values, SharedOptions):
         values = values.changed()
     values = _mapping(values, f"options of {name}")

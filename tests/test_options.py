@@ -375,3 +375,13 @@ def test_a_horizon_whose_powers_overflow_is_refused_in_one_line(tmp_path):
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc
     assert "needs F^1800, which overflows a double (spectral radius of F: 1.5)" in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_typed_options_are_checked_too():
+    with pytest.raises(OptionError, match=r"option 'eps' \(--eps\) must be a finite number "
+                                          r"in \(0, 1\), got 5.0"):
+        FirOptions(eps=5)
+    with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, "
+                                          "not by fir"):
+        validate("fir", FirOptions(missing=True))
+    assert type(FirOptions(order=np.int32(4)).order) is int
