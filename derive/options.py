@@ -27,7 +27,7 @@ from numbers import Integral, Real
 import numpy as np
 
 from .errors import OptionError
-from .horizon import MAX_FIR_WINDOW, MAX_HORIZON
+from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 
 PATTERNS = ("dense", "zero", "diagonal", "block")
 """Declared sparsity patterns of P0 (derive.filters.pattern.declared)."""
@@ -137,7 +137,7 @@ class FirOptions(SharedOptions):
     order: int | None = option(
         None, flag="--order", kind=int, takers=("fir",), low=1, high=MAX_FIR_WINDOW,
         formerly=("N", "window"), metavar="N",
-        help="order N directly (N m <= 256 and N n m <= 2048)")
+        help=f"order N directly (N m <= {MAX_FIR_WINDOW} and N n m <= {MAX_FIR_TAPS})")
 
 
 @dataclass(frozen=True, kw_only=True)
