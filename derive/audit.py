@@ -177,7 +177,7 @@ def specialised_count(model: str, name: str, N: int | None = None):
     from .filters import derive_unit
     from .flops import count
 
-    options = {} if N is None else {"N": N}
+    options = {} if N is None else {"order": N} if name == "fir" else {"horizon": N}
     return count(derive_unit(_model(model), name, options).programs["step"], LANG)
 
 

@@ -18,6 +18,7 @@ that turns exceptions into lines and exit statuses):
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
 import sys
 
@@ -26,10 +27,31 @@ from .errors import ModelError, NumericalError, VerificationError
 
 
 class _Parser(argparse.ArgumentParser):
-    """Usage errors are one line on stderr, exit status 2."""
+    """Usage errors are one line on stderr, exit status 2; an unknown flag close to a known
+    one names it."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}"
+                     f"{_flag_hint(self, message)}\n")
+
+
+def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
+    """`` (did you mean --joseph?)`` for an unrecognized ``--jospeh`` (flags of every
+    command are candidates: argparse reports unknown ones from the top parser)."""
+    prefix = "unrecognized arguments: "
+    if not message.startswith(prefix):
+        return ""
+    parsers = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            parsers += list(action.choices.values())
+    flags = sorted({s for p in parsers for a in p._actions for s in a.option_strings})
+    hints = []
+    for arg in message[len(prefix):].split():
+        close = difflib.get_close_matches(arg.split("=")[0], flags, n=1)
+        if arg.startswith("--") and close:
+            hints.append(f"{arg.split('=')[0]}: did you mean {close[0]}?")
+    return f" ({'; '.join(hints)})" if hints else ""
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -51,6 +51,11 @@ class FilterError(ModelError):
     """An unknown filter name or a filter that does not apply to the model."""
 
 
+class OptionError(FilterError):
+    """A filter option that is unknown, of the wrong type, out of range, or given for a
+    filter that does not take it (derive.options)."""
+
+
 class VerificationError(Exception):
     """Generated code disagrees with the reference beyond tolerance."""
 

@@ -299,7 +299,7 @@ def unit(name: str, n: int, m: int, model_name: str | None = None, N: int | None
 def _fir_order(model, eps: float | None, N: int | None) -> int:
     if N is not None:
         return _need("the FIR order N", N)
-    from .filters.fir import DEFAULT_EPS
+    from .options import DEFAULT_EPS
 
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)

@@ -32,7 +32,9 @@ from . import reference
 from .build import build_c, load_python
 from .emit.write import write_files
 from .errors import VerificationError
+from .filters.fir import order as fir_order
 from .generation import render_filter
+from .options import validate
 from .simulate import gnss_scenario, simulate_linear
 
 LINEAR_TOLERANCE = 1e-12
@@ -129,6 +131,7 @@ def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: 
 
     ``rounding_seed``: perturb every value of h by one rounding (relative uniform in
     ±2^-53, seeded), to measure the reference's rounding floor."""
+    options = validate(name, options)
     fns = model.numeric_functions()
     identity = _is_identity(model)
     f, F = (None, None) if identity else (fns["f"], fns["F"])
@@ -146,8 +149,8 @@ def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: 
                             scenario.P0, scenario.zs, inputs=inputs, skip_nan=False)
     else:
         res = reference.ukf(f, fns["h"], fns["Q"], fns["R"], scenario.x0, scenario.P0,
-                            scenario.zs, alpha=options.get("alpha"), beta=options.get("beta"),
-                            kappa=options.get("kappa"), inputs=inputs, skip_nan=False)
+                            scenario.zs, alpha=options.alpha, beta=options.beta,
+                            kappa=options.kappa, inputs=inputs, skip_nan=False)
     return res.xs, res.Ps
 
 
@@ -165,6 +168,7 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
     """The NumPy reference output for filter ``name``: (xs, Ps or None).
 
     Nonlinear filters need the ``scenario`` (its zs are used; ``zs`` is ignored)."""
+    options = validate(name, options)
     if name in NONLINEAR:
         if scenario is None:
             raise VerificationError(f"filter {name!r} needs a NonlinearScenario")
@@ -177,19 +181,10 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
     if name in ("sskf", "sslf", "jssklf"):
         return getattr(reference, name)(F, G, H, Q, R, x0, zs), None
     if name == "fir":
-        return reference.fir(F, G, H, Q, R, zs, N=options["N"]), None
+        return reference.fir(F, G, H, Q, R, zs, N=fir_order(model, options)), None
     if name == "pred":
-        return reference.pred(F, G, H, Q, R, x0, zs, options.get("N", 1)), None
+        return reference.pred(F, G, H, Q, R, x0, zs, options.horizon), None
     raise VerificationError(f"no reference for filter {name!r}")
-
-
-def _options_for(model, name: str, options: dict) -> dict:
-    opts = dict(options)
-    if name == "fir" and opts.get("N") is None:
-        from .filters.fir import order
-
-        opts["N"] = order(model, opts)
-    return opts
 
 
 def generated_run(module, name: str, zs, model, lang: str,
@@ -215,7 +210,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
 
     The scenario, reference run, tolerance and error measure of `derive verify`.
     """
-    opts = _options_for(model, name, dict(options or {}))
+    opts = validate(name, options)
     scenario = None
     if name in NONLINEAR:
         scenario = nonlinear_scenario(model, steps, seed)
@@ -242,7 +237,7 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
                   options: dict | None = None, workdir: str | Path | None = None
                   ) -> list[Verification]:
     """Generate, build and run filter ``name``; compare with the reference."""
-    opts = _options_for(model, name, dict(options or {}))
+    opts = validate(name, options)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         files = render_filter(model, name, "all", opts)
         paths = {p.suffix: p for p in write_files(tmp, model.name, files)}

@@ -79,7 +79,7 @@ def test_repeated_runs_in_one_process_are_identical():
     """Twice in one process, with sympy's cache cleared in between: the same bytes."""
     model = catalog.load("gsm2d_a")
     jobs = [("kf", {}), ("kf", {"missing": True, "joseph": True}), ("lf", {"missing": True}),
-            ("jklf", {}), ("sskf", {}), ("fir", {"eps": 1e-3}), ("pred", {"N": 3})]
+            ("jklf", {}), ("sskf", {}), ("fir", {"eps": 1e-3}), ("pred", {"horizon": 3})]
     first = {(f, str(o)): render_filter(model, f, "all", o, "gsm2d_a", "gen") for f, o in jobs}
     sympy.core.cache.clear_cache()
     again = {(f, str(o)): render_filter(catalog.load("gsm2d_a"), f, "all", o, "gsm2d_a", "gen")

@@ -136,7 +136,7 @@ def test_the_predictor_runs_two_steps_per_pass_too(tmp_path):
     from derive.verify import import_python
 
     model = catalog.load("cv")
-    files = render_filter(model, "pred", "all", {"N": 3})
+    files = render_filter(model, "pred", "all", {"horizon": 3})
     assert "run: two steps per pass" in files["pred.c"]
     paths = {p.suffix: p for p in write_files(tmp_path, model.name, files)}
     mod, py = build_c(paths[".c"]), import_python(paths[".py"])

@@ -1,5 +1,7 @@
 """`derive burden MODEL [--filter F] [--paper] [--json]`: exact operation counts by kind."""
 
+from ..options import add_arguments as add_option_arguments
+
 NAME = "burden"
 ORDER = 50
 HELP = ("exact operation counts of the generated code, by kind, per filter and language "
@@ -20,28 +22,20 @@ def add_arguments(parser) -> None:
     parser.add_argument("--measure", action="store_true",
                         help="chains in ns with operation latencies measured here (needs gcc) "
                              "instead of the reference cycle counts")
-    parser.add_argument("--eps", type=float, default=None,
-                        help="FIR: order N is the least with ||A^N||_2 < eps (1e-6)")
-    parser.add_argument("--order", type=int, default=None, help="FIR: order N directly")
-    parser.add_argument("--horizon", type=int, default=None, help="pred: steps ahead N (1)")
-    parser.add_argument("--joseph", action="store_true", help="KF: Joseph-form update")
-    parser.add_argument("--P0-pattern", dest="P0_pattern", default=None,
-                        choices=("dense", "zero", "diagonal", "block"),
-                        help="declared sparsity of P0 (default: the model's)")
+    add_option_arguments(parser)
 
 
-def _options(args) -> tuple[dict, dict]:
-    """Generation options as `derive generate` builds them: its every option at its default,
-    overridden by the ones given here."""
-    import argparse
+def units(model, filters, options: dict):
+    """``[(filter, Unit)]`` of ``filters`` (default: all that apply) with the options of
+    the call (each filter given those it takes, as `derive generate` does)."""
+    from ..filters import available, derive_unit, kind
+    from ..options import per_filter
 
-    from . import generate
-
-    donor = argparse.ArgumentParser()
-    generate.add_arguments(donor)
-    defaults = vars(donor.parse_args([]))
-    given = {k: v for k, v in vars(args).items() if k in defaults and k != "filters"}
-    return generate.options_from(argparse.Namespace(**{**defaults, **given}))
+    names = list(filters) if filters else available(model)
+    for name in names:
+        kind(name)
+    typed = per_filter(names, options, named=bool(filters))
+    return [(name, derive_unit(model, name, typed[name])) for name in names]
 
 
 def _rows(filter_name: str, mode: str, unit, formula) -> list[dict]:
@@ -68,35 +62,30 @@ def _formula(name: str, unit):
     return None
 
 
-def burden_rows(model, filters, options: dict, per_filter: dict, paper: bool) -> list[dict]:
-    """One row per (filter, mode, program, language): counts by kind, flops, instructions
-    and the papers' formula for the step (None where the papers give none)."""
+def burden_rows(model, derived: list, paper: bool) -> list[dict]:
+    """One row per (filter, mode, program, language) of the ``derived`` ``[(filter,
+    Unit)]``: counts by kind, flops, instructions and the papers' formula for the step
+    (None where the papers give none)."""
     from .. import paper as paper_mode
-    from ..filters import available, derive_unit
 
-    names = list(filters) if filters else available(model)
     rows = []
-    for name in names:
-        opts = {**options, **per_filter.get(name, {})}
-        unit = derive_unit(model, name, opts)
+    for name, unit in derived:
         rows += _rows(name, "specialised", unit, _formula(name, unit))
         if paper and name in paper_mode.PAPER_FILTERS:
             punit = paper_mode.model_unit(model, name, N=unit.window if name == "fir" else
-                                          opts.get("N"))
+                                          unit.options.get("horizon"))
             rows += _rows(name, "paper", punit, _formula(name, punit))
     return rows
 
 
-def chain_rows(model, filters, options: dict, per_filter: dict,
-               latency: dict | None = None) -> list[dict]:
-    """Per filter: the carried chain of its generated C run loop (derive.latency), per step,
-    in the units of ``latency`` (default: derive.latency.REFERENCE_CYCLES)."""
-    from ..filters import available, derive_unit
+def chain_rows(derived: list, latency: dict | None = None) -> list[dict]:
+    """Per filter of ``derived`` ``[(filter, Unit)]``: the carried chain of its generated C
+    run loop (derive.latency), per step, in the units of ``latency`` (default:
+    derive.latency.REFERENCE_CYCLES)."""
     from ..latency import REFERENCE_CYCLES, run_loop_bound
 
     rows = []
-    for name in (list(filters) if filters else available(model)):
-        unit = derive_unit(model, name, {**options, **per_filter.get(name, {})})
+    for name, unit in derived:
         bound = run_loop_bound(unit, latency or REFERENCE_CYCLES)
         rows.append({"filter": name, "steps_per_pass": 1 if bound is None else bound.steps,
                      "per_step": None if bound is None else bound.per_step,
@@ -143,18 +132,19 @@ def _text(model, rows: list[dict]) -> str:
 def run(args) -> int:
     import json
 
+    from ..options import from_arguments
     from . import load_model
 
     model = load_model(args.model)
-    common, per = _options(args)
-    rows = burden_rows(model, args.filters, common, per, args.paper)
+    derived = units(model, args.filters, from_arguments(args))
+    rows = burden_rows(model, derived, args.paper)
     latency = None
     if args.measure:
         from ..bench.generated import CFLAGS
         from ..bench.probe import measure_latencies
 
         latency = measure_latencies(CFLAGS)
-    chains = chain_rows(model, args.filters, common, per, latency)
+    chains = chain_rows(derived, latency)
     if args.json:
         print(json.dumps({"model": model.name, "n": model.n, "m": model.m, "rows": rows,
                           "chains": chains, "chain_unit": "s" if latency else "cycles"},

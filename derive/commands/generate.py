@@ -1,4 +1,10 @@
-"""`derive generate MODEL --filter F ... --lang L --out DIR` (or `--all` for the catalog)."""
+"""`derive generate MODEL --filter F ... --lang L --out DIR` (or `--all` for the catalog).
+
+The filter options' flags come from their declarations (derive.options); each option
+given applies to the filters that take it."""
+
+from ..options import DEFAULT_EPS
+from ..options import add_arguments as add_option_arguments
 
 NAME = "generate"
 ORDER = 40
@@ -16,71 +22,39 @@ def add_arguments(parser) -> None:
                              "(repeatable; default: all that apply)")
     parser.add_argument("--lang", default="all", choices=("python", "c", "all"))
     parser.add_argument("--out", default="generated", help="output directory (generated)")
-    parser.add_argument("--eps", type=float, default=None,
-                        help="FIR: order N is the least with ||A^N||_2 < eps (1e-6)")
-    parser.add_argument("--order", type=int, default=None, help="FIR: order N directly")
-    parser.add_argument("--horizon", type=int, default=None, help="pred: steps ahead N (1)")
-    parser.add_argument("--joseph", action="store_true", help="KF: Joseph-form update")
-    parser.add_argument("--missing", action="store_true",
-                        help="kf, lf, jklf, ikf: a NaN in z skips that measurement")
-    parser.add_argument("--alpha", type=float, default=None, help="UKF sigma-point alpha (1)")
-    parser.add_argument("--beta", type=float, default=None, help="UKF sigma-point beta (0)")
-    parser.add_argument("--kappa", type=float, default=None,
-                        help="UKF sigma-point kappa (3 - n: the paper's n + kappa = 3)")
-    parser.add_argument("--no-run-tracks", dest="run_tracks", action="store_false",
-                        help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
-    parser.add_argument("--P0-pattern", dest="P0_pattern", default=None,
-                        choices=("dense", "zero", "diagonal", "block"),
-                        help="declared sparsity of P0 (default: the model's)")
+    add_option_arguments(parser)
 
 
-def options_from(args) -> tuple[dict, dict]:
-    """(options for every filter, per-filter options) from the parsed arguments."""
-    common = {}
-    if args.joseph:
-        common["joseph"] = True
-    if args.P0_pattern:
-        common["P0_pattern"] = args.P0_pattern
-    if not args.run_tracks:
-        common["run_tracks"] = False
-    per = {"fir": {}, "pred": {}, "ukf": {}}
-    if args.missing:
-        from ..filters.common import MISSING_FILTERS
-
-        for name in MISSING_FILTERS:
-            per.setdefault(name, {})["missing"] = True
-    for key in ("alpha", "beta", "kappa"):
-        if getattr(args, key) is not None:
-            per["ukf"][key] = getattr(args, key)
-    if args.eps is not None:
-        per["fir"]["eps"] = args.eps
-    if args.order is not None:
-        per["fir"]["N"] = args.order
-    if args.horizon is not None:
-        per["pred"]["N"] = args.horizon
-    return common, per
+def horizon_line(unit, options: dict) -> str | None:
+    """``  fir: order N = 33 ...`` for a FIR or a predictor (None for other filters), given
+    the options of the command line."""
+    if unit.family == "fir":
+        rule = (" (--order)" if "order" in options else
+                f", the least with ||A^N||_2 < {options.get('eps', DEFAULT_EPS)!r}")
+        return f"  {unit.filter}: order N = {unit.window}{rule}"
+    if unit.family == "pred":
+        return f"  {unit.filter}: horizon N = {unit.options['horizon']}"
+    return None
 
 
 def run(args) -> int:
     from .. import catalog
     from ..errors import FilterError
-    from ..generation import generate
+    from ..generation import generate_units
+    from ..options import from_arguments
 
     if args.all == bool(args.model):
         raise FilterError("give a MODEL or --all (not both)")
-    common, per = options_from(args)
-    if args.missing and args.filters:
-        from ..filters.common import MISSING_FILTERS
-
-        bad = [f for f in args.filters if f not in MISSING_FILTERS]
-        if bad:
-            raise FilterError(f"--missing applies to {', '.join(MISSING_FILTERS)}, not to "
-                              f"{', '.join(bad)}")
+    options = from_arguments(args)
     refs = catalog.names() if args.all else [args.model]
     total = 0
     for ref in refs:
-        paths = generate(ref, args.filters, args.lang, args.out, common, per)
+        paths, units = generate_units(ref, args.filters, args.lang, args.out, options)
         total += len(paths)
         print(f"{ref}: {len(paths)} files in {paths[0].parent if paths else args.out}")
+        for unit in units:
+            line = horizon_line(unit, options)
+            if line:
+                print(line)
     print(f"wrote {total} files")
     return 0

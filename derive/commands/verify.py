@@ -1,4 +1,9 @@
-"""`derive verify MODEL [--filter F]`: generated Python and C against the reference."""
+"""`derive verify MODEL [--filter F]`: generated Python and C against the reference.
+
+Takes the filter options of `derive generate` (derive.options), each given to the filters
+that take it."""
+
+from ..options import add_arguments as add_option_arguments
 
 NAME = "verify"
 ORDER = 45
@@ -12,21 +17,32 @@ def add_arguments(parser) -> None:
     parser.add_argument("--filter", action="append", dest="filters", metavar="F")
     parser.add_argument("--steps", type=int, default=1000, help="steps simulated (1000)")
     parser.add_argument("--seed", type=int, default=7)
+    add_option_arguments(parser)
 
 
 def run(args) -> int:
     from .. import catalog
     from ..errors import VerificationError
-    from ..filters import available
+    from ..filters import available, kind
+    from ..filters.fir import order
+    from ..options import from_arguments, per_filter
     from ..verify import verify_filter
     from . import load_model
 
+    options = from_arguments(args)
     refs = catalog.names() if args.model == "all" else [args.model]
     failed = 0
     for ref in refs:
         model = load_model(ref)
-        for name in args.filters or available(model):
-            for v in verify_filter(model, name, steps=args.steps, seed=args.seed):
+        names = args.filters or available(model)
+        for name in names:
+            kind(name)
+        typed = per_filter(names, options, named=bool(args.filters))
+        for name in names:
+            if name == "fir":
+                print(f"{model.name}/fir: order N = {order(model, typed[name])}")
+            for v in verify_filter(model, name, steps=args.steps, seed=args.seed,
+                                   options=typed[name]):
                 print(v.line())
                 failed += not v.passed
     if failed:

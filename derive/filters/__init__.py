@@ -2,7 +2,8 @@
 
 Each filter is data (a :class:`FilterKind`) plus one derivation function in its own
 module, ``derive/filters/<module>.py``, with the signature
-``derive_unit(model, options: dict) -> derive.program.Unit``.
+``derive_unit(model, name, options) -> derive.emit.unit.Unit``; ``options`` are the
+filter's typed options (derive.options), validated before the derivation starts.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import importlib
 from dataclasses import dataclass
 
 from ..errors import FilterError, SteadyStateError
+from ..options import validate
 
 
 @dataclass(frozen=True)
@@ -84,18 +86,16 @@ def kind(name: str) -> FilterKind:
             from None
 
 
-def derive_unit(model, name: str, options: dict | None = None):
-    """Derive one filter for one model: the straight-line programs and layout facts."""
+def derive_unit(model, name: str, options=None):
+    """Derive one filter for one model: the straight-line programs and layout facts.
+
+    ``options``: a dict of options ``name`` takes (each is checked: derive.options.validate)
+    or its typed options."""
     f = kind(name)
+    typed = validate(name, options)
     reason = why_not(model, name)
     if reason is not None:
         raise (SteadyStateError if f.steady and f.model_kind == model.kind else
                FilterError)(reason)
-    if (options or {}).get("missing"):
-        from .common import MISSING_FILTERS
-
-        if name not in MISSING_FILTERS:
-            raise FilterError(f"missing measurements (NaN in z) are supported by "
-                              f"{', '.join(MISSING_FILTERS)}, not by {name!r}")
     mod = importlib.import_module(f"{__name__}.{f.module}")
-    return mod.derive_unit(model, name, dict(options or {}))
+    return mod.derive_unit(model, name, typed)

@@ -89,14 +89,8 @@ def masked_covariance(prog: Program, pattern, declared: str) -> sympy.Matrix:
 # flop.  Structurally zero entries stay zero, so block-diagonal S costs no selects.
 
 
-MISSING_FILTERS = ("kf", "lf", "jklf", "ikf")
-"""The filters that take the option ``missing`` (NaN-marked absent measurements)."""
-
-
-def missing_option(options) -> bool:
-    """The ``missing`` option: support NaN-marked missing measurements."""
-    return bool(options.get("missing", False))
-
+JOSEPH_FACT = "covariance update: Joseph form"
+"""The header line of a KF generated with the option ``joseph``."""
 
 MISSING_FACT = ("missing measurements: a NaN in z(k)[i] means measurement i is absent at "
                 "step k; the update skips it (its rows of H and R are dropped)")

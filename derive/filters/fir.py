@@ -1,8 +1,11 @@
 """FIR steady-state filter (GSM2D §7): x(k/k) = sum_{i<N} A^i B z(k-i).
 
-N is the smallest order with ||A^N||_2 < eps (spectral norm; option ``eps``,
-default 1e-6, or ``N`` directly). The taps A^i B are computed offline; the
-generated step reads a window of the last N measurements, newest first.
+N is the smallest order with ||A^N||_2 < eps (spectral norm; option ``eps``, default
+1e-6), or the option ``order`` directly. The order is bounded by what the generated code
+can bear (derive.horizon.max_fir_order: N m <= 256 and N n m <= 2048); a larger one is
+refused naming the order that would be needed, found without building it. The taps
+A^i B are computed offline; the generated step reads a window of the last N
+measurements, newest first.
 """
 
 from __future__ import annotations
@@ -10,24 +13,43 @@ from __future__ import annotations
 import sympy
 
 from .. import riccati
-from ..errors import SteadyStateError
+from ..errors import OptionError, SteadyStateError
+from ..horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, FirOrderError, max_fir_order
+from ..options import DEFAULT_EPS, FirOptions
 from ..program import Port, Program
-from .steady import baked, steady_gains
-
-DEFAULT_EPS = 1e-6
+from .steady import exact, steady_gains
 
 
-def order(model, options) -> int:
+def _bound_words(model, bound: int) -> str:
+    return (f"the largest order generated for {model.name!r} (n = {model.n}, m = {model.m}) "
+            f"is {bound}, from N m <= {MAX_FIR_WINDOW} and N n m <= {MAX_FIR_TAPS}")
+
+
+def order(model, options: FirOptions) -> int:
+    """The FIR order for ``model``: the option ``order``, or the least N with
+    ||A^N||_2 < eps; either within :func:`derive.horizon.max_fir_order`."""
+    bound = max_fir_order(model.n, model.m)
+    if options.order is not None:
+        if options.eps != DEFAULT_EPS:
+            raise OptionError("options 'eps' (--eps) and 'order' (--order) of fir exclude "
+                              "each other: the order is given, or found from eps")
+        if options.order > bound:
+            raise OptionError(f"option 'order' (--order) is {options.order}, but "
+                              f"{_bound_words(model, bound)}")
+        return options.order
     A, _ = steady_gains(model, "sskf")
-    if options.get("N") is not None:
-        N = options["N"]
-        if not isinstance(N, int) or isinstance(N, bool) or N < 1:
-            raise SteadyStateError(f"FIR order N must be a positive integer, got {N!r}")
-        return N
-    return riccati.fir_order(A, options.get("eps", DEFAULT_EPS))
+    try:
+        return riccati.fir_order(A, options.eps, max_order=bound)
+    except FirOrderError as exc:
+        needed = (f"order N = {exc.needed}" if exc.needed is not None else
+                  "an order beyond 2^64")
+        raise SteadyStateError(
+            f"FIR: ||A^N||_2 < {options.eps!r} would need {needed}, but "
+            f"{_bound_words(model, bound)}; give a larger --eps (option eps) or an --order "
+            f"up to {bound}, or use sskf") from None
 
 
-def derive_unit(model, name, options):
+def derive_unit(model, name, options: FirOptions):
     from .unit import make_unit
 
     A, B = steady_gains(model, "sskf")
@@ -36,10 +58,11 @@ def derive_unit(model, name, options):
     n, m = model.n, model.m
     prog = Program("step", [Port("zw", (N, m), doc="z(k), z(k-1), ..., z(k-N+1), row-major")],
                    [Port("x_new", (n,), doc="x(k/k)")], doc=f"FIR steady-state filter, N = {N}")
-    zw = [sympy.Matrix([prog.element("zw", i, j) for j in range(m)]) for i in range(N)]
-    total = sympy.zeros(n, 1)
-    for i in range(N):
-        total += baked(taps[i]) * zw[i]
-    prog.set_output("x_new", [sympy.expand(e) for e in total])
-    return make_unit(model, name, {"step": prog.optimize()}, {**options, "N": N},
-                     constants={"N": N, "eps": options.get("eps", DEFAULT_EPS)})
+    # each output is built as one sum (adding term by term re-sorts the growing sum)
+    prog.set_output("x_new", [sympy.Add(*(exact(taps[i, r, j]) * prog.element("zw", i, j)
+                                          for i in range(N) for j in range(m)
+                                          if taps[i, r, j] != 0))
+                              for r in range(n)])
+    constants = {"N": N} if options.order is not None else {"N": N, "eps": options.eps}
+    return make_unit(model, name, {"step": prog.optimize()}, options, window=N,
+                     constants=constants)

@@ -22,7 +22,6 @@ from .common import (
     mask_columns,
     mask_symmetric,
     mask_vector,
-    missing_option,
     with_fact,
 )
 from .kf import time_varying_program
@@ -63,13 +62,12 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    missing = missing_option(options)
+    missing = options.missing
 
     def update(prog, mats, x, P, z):
         return ikf_update(prog, mats, x, P, z, missing=missing)
 
-    step = time_varying_program(model, update,
-                                {**options, "title": "information-form Kalman filter",
-                                 "P0_pattern": options.get("P0_pattern")})
+    step = time_varying_program(model, update, "information-form Kalman filter",
+                                options.P0_pattern)
     unit = make_unit(model, name, {"step": step}, options)
     return with_fact(unit, MISSING_FACT) if missing else unit

@@ -9,7 +9,7 @@ measurements to both (see :mod:`derive.filters.kf` and :mod:`derive.filters.lf`)
 from __future__ import annotations
 
 from .. import staging
-from .common import MISSING_FACT, missing_option, with_fact
+from .common import MISSING_FACT, with_fact
 from .kf import kf_update, time_varying_program
 from .lf import lf_update
 
@@ -26,12 +26,12 @@ def jklf_update(prog, mats, x, P, z, missing: bool = False):
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    missing = missing_option(options)
+    missing = options.missing
 
     def update(prog, mats, x, P, z):
         return jklf_update(prog, mats, x, P, z, missing=missing)
 
-    step = time_varying_program(model, update,
-                                {**options, "title": "join Kalman-Lainiotis filter"})
+    step = time_varying_program(model, update, "join Kalman-Lainiotis filter",
+                                options.P0_pattern)
     unit = make_unit(model, name, {"step": step}, options)
     return with_fact(unit, MISSING_FACT) if missing else unit

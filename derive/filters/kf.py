@@ -20,13 +20,13 @@ from .. import staging
 from ..program import Program
 from . import pattern as pat
 from .common import (
+    JOSEPH_FACT,
     MISSING_FACT,
     bound_matrices,
     mask_columns,
     mask_symmetric,
     mask_vector,
     masked_covariance,
-    missing_option,
     time_varying_ports,
     with_fact,
 )
@@ -74,17 +74,17 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
     return x_new, staging.add(prog, A, B, symmetric_result=True)
 
 
-def time_varying_program(model, update, options) -> Program:
-    """Build ``step`` for a time-varying filter ``update(prog, mats, x, P, z)``.
+def time_varying_program(model, update, title: str, P0_pattern: str | None) -> Program:
+    """Build ``step`` of the filter ``title`` from ``update(prog, mats, x, P, z)``.
 
-    P's pattern is the closure of P0's declared pattern (option ``P0_pattern``)
-    under ``update``; entries outside it are neither read nor computed.
+    P's pattern is the closure of P0's declared pattern (option ``P0_pattern``; None:
+    the model's) under ``update``; entries outside it are neither read nor computed.
     """
     inputs, outputs = time_varying_ports(model)
 
     def build(pattern):
         prog = Program("step", inputs, outputs,
-                       doc=f"one step of the {options.get('title', 'filter')}")
+                       doc=f"one step of the {title}")
         mats = bound_matrices(model, prog)
         P = masked_covariance(prog, pattern, declared_name)
         x_new, P_new = update(prog, mats, prog.matrix("x"), P, prog.matrix("z"))
@@ -93,7 +93,7 @@ def time_varying_program(model, update, options) -> Program:
     def step_pattern(pattern):
         return pat.of_matrix(build(pattern)[2])
 
-    declared_name = options.get("P0_pattern") or model.P0_pattern
+    declared_name = P0_pattern or model.P0_pattern
     closed = pat.closure(step_pattern, pat.declared(model, declared_name))
     prog, x_new, P_new = build(closed)
     prog.set_output("x_new", list(x_new))
@@ -104,12 +104,13 @@ def time_varying_program(model, update, options) -> Program:
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    joseph = bool(options.get("joseph", False))
-    missing = missing_option(options)
+    joseph, missing = options.joseph, options.missing
 
     def update(prog, mats, x, P, z):
         return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing)
 
-    step = time_varying_program(model, update, {**options, "title": "Kalman filter"})
+    step = time_varying_program(model, update, "Kalman filter", options.P0_pattern)
     unit = make_unit(model, name, {"step": step}, options)
+    if joseph:
+        unit = with_fact(unit, JOSEPH_FACT)
     return with_fact(unit, MISSING_FACT) if missing else unit

@@ -24,7 +24,6 @@ from .common import (
     mask_columns,
     mask_symmetric,
     mask_vector,
-    missing_option,
     with_fact,
 )
 from .kf import time_varying_program
@@ -73,11 +72,11 @@ def lf_update(prog: Program, mats, x, P, z, missing: bool = False):
 def derive_unit(model, name, options):
     from .unit import make_unit
 
-    missing = missing_option(options)
+    missing = options.missing
 
     def update(prog, mats, x, P, z):
         return lf_update(prog, mats, x, P, z, missing=missing)
 
-    step = time_varying_program(model, update, {**options, "title": "Lainiotis filter"})
+    step = time_varying_program(model, update, "Lainiotis filter", options.P0_pattern)
     unit = make_unit(model, name, {"step": step}, options)
     return with_fact(unit, MISSING_FACT) if missing else unit

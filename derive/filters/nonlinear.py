@@ -23,6 +23,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
+from ..options import SharedOptions
 from ..program import Port, Program
 from ..symbols import real_stand_ins
 from . import pattern as pat
@@ -211,7 +212,7 @@ def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
     return prog, x, P, extra
 
 
-def nonlinear_programs(model, predict: Predict, update: Update, options: Mapping,
+def nonlinear_programs(model, predict: Predict, update: Update, options: SharedOptions,
                        title: str) -> tuple[dict[str, Program], list[str]]:
     """``step``, ``predict`` and (when it exists) ``update1``, optimised; and header facts.
 
@@ -231,7 +232,7 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: Mapping
                                                       title, declared)[2]))
         return out
 
-    declared = options.get("P0_pattern") or model.P0_pattern
+    declared = options.P0_pattern or model.P0_pattern
     start = pat.declared(model, declared)
     dense = all(all(row) for row in start)
     closed = start if dense else pat.closure(grow, start)

@@ -1,7 +1,8 @@
 """Steady-state N-step prediction (SSPRED §4): x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k).
 
 A_N = F^N (I - K H) F^-(N-1), B_N = F^N K (offline), and the start x(N/0) = F^N x0
-is a second generated function ``init``. Option ``N`` (default 1).
+is a second generated function ``init``. Option ``horizon``: N (default 1, at most
+derive.horizon.MAX_HORIZON).
 """
 
 from __future__ import annotations
@@ -10,17 +11,15 @@ import numpy as np
 import sympy
 
 from .. import riccati
-from ..errors import SteadyStateError
+from ..options import PredictionOptions
 from ..program import Port, Program
 from .steady import affine_program, baked
 
 
-def derive_unit(model, name, options):
+def derive_unit(model, name, options: PredictionOptions):
     from .unit import make_unit
 
-    N = options.get("N", 1)
-    if not isinstance(N, int) or isinstance(N, bool) or N < 1:
-        raise SteadyStateError(f"prediction horizon N must be a positive integer, got {N!r}")
+    N = options.horizon
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)
     pc = riccati.pred_constants(num.F, ss.K, num.H, N)
@@ -31,5 +30,5 @@ def derive_unit(model, name, options):
                    [Port("x_new", (n,), doc=f"x({N}/0) = F^{N} x(0/0)")], doc="start of the run")
     FN = np.linalg.matrix_power(num.F, N)
     init.set_output("x_new", [sympy.expand(e) for e in baked(FN) * init.matrix("x0")])
-    return make_unit(model, name, {"step": step, "init": init.optimize()}, {**options, "N": N},
-                     constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})
+    return make_unit(model, name, {"step": step, "init": init.optimize()}, options,
+                     horizon=N, constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from numbers import Real
 
 import sympy
 
 from .. import staging
-from ..errors import FilterError
+from ..errors import OptionError
+from ..options import UnscentedOptions
 from .nonlinear import (
     check_nonlinear,
     linearise,
@@ -73,30 +73,34 @@ class Weights:
                 f"Wi = {self.wi} (i = 1..{2 * self.n})")
 
 
-def _exact(value, name: str) -> sympy.Rational:
-    if isinstance(value, bool) or not isinstance(value, (Real, sympy.Rational)):
-        raise FilterError(f"UKF option {name} must be a real number, got {value!r}")
-    if isinstance(value, sympy.Rational):
-        return value
-    if isinstance(value, int):
-        return sympy.Integer(value)
-    if not math.isfinite(float(value)):
-        raise FilterError(f"UKF option {name} must be finite, got {value!r}")
+def _exact(value: float) -> sympy.Rational:
+    """The decimal the user wrote (the double's shortest repr) as an exact rational."""
     return sympy.Rational(repr(float(value)))
 
 
-def weights(n: int, options) -> Weights:
-    """Weights from ``options`` (alpha, beta, kappa; None means the default)."""
-    def get(key, default):
-        value = options.get(key)
-        return _exact(default if value is None else value, key)
+def _double(value: sympy.Expr) -> float:
+    """``value`` as a double (inf when too large for one)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
 
-    w = Weights(n, get("alpha", 1), get("beta", 0), get("kappa", 3 - n))
-    if w.alpha <= 0:
-        raise FilterError(f"UKF option alpha must be > 0, got {w.alpha}")
+
+def weights(n: int, options: UnscentedOptions) -> Weights:
+    """Weights from the validated ``options`` (kappa None: 3 - n); refused when
+    alpha²(n + kappa) <= 0 or a weight is not a finite double."""
+    kappa = sympy.Integer(3 - n) if options.kappa is None else _exact(options.kappa)
+    w = Weights(n, _exact(options.alpha), _exact(options.beta), kappa)
+    given = (f"n = {n}, alpha = {options.alpha!r}, beta = {options.beta!r}, "
+             f"kappa = {_double(kappa)!r}")
     if w.c <= 0:
-        raise FilterError(f"UKF needs alpha²(n + kappa) > 0, got {w.c} (n = {n}, "
-                          f"alpha = {w.alpha}, kappa = {w.kappa})")
+        raise OptionError(f"UKF needs alpha²(n + kappa) > 0, got {_double(w.c)!r} ({given})")
+    values = {"n + lambda": w.c, "Wm0": w.wm0, "Wc0": w.wc0, "Wi": w.wi}
+    bad = {k: _double(v) for k, v in values.items()
+           if not math.isfinite(_double(v)) or (_double(v) == 0) != (v == 0)}
+    if bad:
+        raise OptionError("UKF weights are not finite, non-zero doubles: "
+                          + ", ".join(f"{k} = {v!r}" for k, v in bad.items()) + f" ({given})")
     return w
 
 

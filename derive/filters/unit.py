@@ -1,10 +1,14 @@
-"""Wrap a filter's programs into the renderer's Unit, with the header facts it states."""
+"""Wrap a filter's programs into the renderer's Unit, with the header facts it states.
+
+The command that regenerates the files is the renderer's (derive.generation), not the
+derivation's."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..emit.unit import Unit
+from ..options import SharedOptions
 from ..program import ZERO, Check
 from .common import pattern_text
 
@@ -33,26 +37,26 @@ def accepted_P0(step) -> str:
             "(x may be non-zero; upper triangle read and checked; others are refused)")
 
 
-def make_unit(model, name: str, programs: dict, options: dict, constants: dict | None = None,
-              step_inputs: tuple[str, ...] = ("z",)) -> Unit:
-    """The Unit for ``model`` and filter ``name``; ``constants`` become header facts."""
+def make_unit(model, name: str, programs: dict, options: SharedOptions,
+              constants: dict | None = None, step_inputs: tuple[str, ...] = ("z",),
+              window: int | None = None, horizon: int | None = None) -> Unit:
+    """The Unit for ``model`` and filter ``name`` with its validated ``options``;
+    ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N."""
     facts = []
     if model.kind == "linear" and any(p.name == "P" for p in programs["step"].inputs):
-        facts.append(f"P0 pattern declared: {options.get('P0_pattern') or model.P0_pattern}")
+        facts.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
     if any(p.name == "P" for p in programs["step"].inputs):
         facts.append(accepted_P0(programs["step"]))
-    if options.get("joseph"):
-        facts.append("covariance update: Joseph form")
     for key, value in (constants or {}).items():
         text = _fmt(value)
         facts.append(f"{key} = {text}" if len(text) <= 300 else
                      f"{key}: {np.asarray(value).shape} constants baked into the code")
     unit_options = {}
-    if name == "fir":
-        unit_options["window"] = int(options["N"])
-    if name == "pred":
-        unit_options["horizon"] = int(options["N"])
-    if options.get("run_tracks") is False:
+    if window is not None:
+        unit_options["window"] = window
+    if horizon is not None:
+        unit_options["horizon"] = horizon
+    if not options.run_tracks:
         unit_options["run_tracks"] = False
     return Unit(
         model=model.name,
@@ -64,6 +68,5 @@ def make_unit(model, name: str, programs: dict, options: dict, constants: dict |
         parameters=tuple(p.name for p in model.parameters),
         step_inputs=step_inputs,
         facts=tuple(f for f in facts if f),
-        command=options.get("command", ""),
         options=unit_options,
     )

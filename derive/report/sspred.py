@@ -46,7 +46,7 @@ def predictors(ctx, name: str) -> dict:
     model = catalog.load(name)
     out = {1: ctx.c_filter(name, "pred")}
     for N in HORIZONS[1:]:
-        out[N] = ctx.variant(model, "pred", {"N": N}, f"sspred_{name}_N{N}")
+        out[N] = ctx.variant(model, "pred", {"horizon": N}, f"sspred_{name}_N{N}")
     return out
 
 

@@ -133,9 +133,10 @@ def fir_part(ctx, paper: Paper, zs, impl) -> list:
     """GSM2D §7 Fig. 2: FIR vs SSKF on model A, and the FIR burden table."""
     from .. import catalog
     from ..filters.fir import order
+    from ..options import FirOptions
 
     model = catalog.load(paper.model_a)
-    N = order(model, {})
+    N = order(model, FirOptions())
     fir = np.asarray(ctx.c_filter(paper.model_a, "fir").run(zs))
     sskf = impl[("A", "sskf")][0]
     diff = np.max(np.abs(fir - sskf), axis=1)

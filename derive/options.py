@@ -1,0 +1,390 @@
+"""Filter options, declared once: one typed options class per family, each field with its
+CLI flag, help, type, default, range and the filters that take it.
+
+``SharedOptions`` holds what several families share (P0 pattern, missing measurements,
+the batch function ``run_tracks``); ``KalmanOptions`` (kf), ``FirOptions``,
+``PredictionOptions`` and ``UnscentedOptions`` add their own. Plain dicts from the API
+and the parsed arguments of the CLI are validated here, once, into these types
+(:func:`validate`, :func:`per_filter`); the `derive generate` / `burden` / `verify` flags
+(:func:`add_arguments`) and the command that regenerates a filter's files
+(:func:`regenerate_command`) are built from the same declarations.
+
+Every refusal is an :class:`derive.errors.OptionError` naming the option: an unknown
+name (with a close match), a wrong type (the string ``"False"`` for a bool), a value out
+of range (naming the bound), an option given for one filter that does not take it.
+Numbers in messages are printed as short decimals (``repr`` of the double).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from numbers import Integral, Real
+
+import numpy as np
+
+from .errors import OptionError
+from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
+
+PATTERNS = ("dense", "zero", "diagonal", "block")
+"""Declared sparsity patterns of P0 (derive.filters.pattern.declared)."""
+
+COVARIANCE_FILTERS = ("kf", "lf", "jklf", "ikf", "ekf", "ukf")
+"""The filters that carry P, so P0's declared pattern shapes their code."""
+MISSING_FILTERS = ("kf", "lf", "jklf", "ikf")
+"""The filters that take the option ``missing`` (NaN-marked absent measurements)."""
+TRACK_FILTERS = ("kf", "lf", "jklf", "ikf", "sskf", "sslf", "jssklf")
+"""The filters whose C has ``MODEL_FILTER_run_tracks`` (derive.emit.c_loops)."""
+
+DEFAULT_EPS = 1e-6
+"""The FIR order is the least N with ||A^N||_2 < eps, by default this eps."""
+UKF_ALPHA_RANGE = (1e-4, 1.0)
+"""alpha as Wan and van der Merwe (2000) bound it: below 1e-4 the sigma points coincide
+with the mean in double precision, and the weights grow past what doubles carry."""
+
+
+@dataclass(frozen=True)
+class Spec:
+    """What an option is, besides its name and default: see :func:`option`."""
+
+    flag: str
+    help: str
+    kind: type
+    takers: tuple[str, ...]
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+    choices: tuple[str, ...] = ()
+    formerly: tuple[str, ...] = ()
+    metavar: str | None = None
+
+    def bounds(self) -> str:
+        """``(0, 1)``, ``[1, 256]``, ``>= 1``: the range in words (empty: any value)."""
+        low, high = (None if v is None else f"{v:g}" for v in (self.low, self.high))
+        if self.low is not None and self.high is not None:
+            return (f"{'(' if self.open_low else '['}{low}, {high}"
+                    f"{')' if self.open_high else ']'}")
+        if self.low is not None:
+            return f"{'>' if self.open_low else '>='} {low}"
+        if self.high is not None:
+            return f"{'<' if self.open_high else '<='} {high}"
+        return ""
+
+    def in_range(self, value) -> bool:
+        if isinstance(value, float) and not math.isfinite(value):
+            return False
+        if self.low is not None and (value <= self.low if self.open_low else value < self.low):
+            return False
+        return self.high is None or (value < self.high if self.open_high else
+                                     value <= self.high)
+
+
+def option(default, **spec) -> dataclasses.Field:
+    """A dataclass field declaring one option (``spec``: the fields of :class:`Spec`)."""
+    return field(default=default, metadata={"option": Spec(**spec)})
+
+
+@dataclass(frozen=True, kw_only=True)
+class SharedOptions:
+    """Options several families share; the base of every family's options."""
+
+    P0_pattern: str | None = option(
+        None, flag="--P0-pattern", kind=str, choices=PATTERNS, takers=COVARIANCE_FILTERS,
+        help="declared sparsity of P0 (default: the model's)")
+    missing: bool = option(
+        False, flag="--missing", kind=bool, takers=MISSING_FILTERS,
+        help="a NaN in z skips that measurement")
+    run_tracks: bool = option(
+        True, flag="--no-run-tracks", kind=bool, takers=TRACK_FILTERS,
+        help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
+
+    def __post_init__(self) -> None:
+        for key in self.specs():
+            object.__setattr__(self, key, check(key, getattr(self, key)))
+
+    @classmethod
+    def specs(cls) -> dict[str, Spec]:
+        """``{option name: Spec}`` of this family, in declaration order."""
+        return {f.name: f.metadata["option"] for f in dataclasses.fields(cls)}
+
+    def get(self, name: str, default=None):
+        """The value of option ``name`` (``default`` when this family has none)."""
+        return getattr(self, name) if name in self.specs() else default
+
+    def changed(self) -> dict[str, object]:
+        """The options whose values differ from the defaults."""
+        return {key: getattr(self, key) for key in self.specs()
+                if getattr(self, key) != _default(type(self), key)}
+
+
+@dataclass(frozen=True, kw_only=True)
+class KalmanOptions(SharedOptions):
+    joseph: bool = option(
+        False, flag="--joseph", kind=bool, takers=("kf",),
+        help="Joseph-form covariance update")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FirOptions(SharedOptions):
+    eps: float = option(
+        DEFAULT_EPS, flag="--eps", kind=float, takers=("fir",), low=0.0, high=1.0,
+        open_low=True, open_high=True, metavar="EPS",
+        help=f"order N is the least with ||A^N||_2 < eps ({DEFAULT_EPS:g})")
+    order: int | None = option(
+        None, flag="--order", kind=int, takers=("fir",), low=1, high=MAX_FIR_WINDOW,
+        formerly=("N", "window"), metavar="N",
+        help=f"order N directly (N m <= {MAX_FIR_WINDOW} and N n m <= {MAX_FIR_TAPS})")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PredictionOptions(SharedOptions):
+    horizon: int = option(
+        1, flag="--horizon", kind=int, takers=("pred",), low=1, high=MAX_HORIZON,
+        formerly=("N",), metavar="N", help="steps ahead N (1)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class UnscentedOptions(SharedOptions):
+    alpha: float = option(
+        1.0, flag="--alpha", kind=float, takers=("ukf",), low=UKF_ALPHA_RANGE[0],
+        high=UKF_ALPHA_RANGE[1], help="sigma-point spread alpha (1)")
+    beta: float = option(
+        0.0, flag="--beta", kind=float, takers=("ukf",), help="sigma-point beta (0)")
+    kappa: float | None = option(
+        None, flag="--kappa", kind=float, takers=("ukf",),
+        help="sigma-point kappa (3 - n: the paper's n + kappa = 3)")
+
+
+FAMILY_OPTIONS: dict[str, type[SharedOptions]] = {
+    "kf": KalmanOptions, "fir": FirOptions, "pred": PredictionOptions,
+    "ukf": UnscentedOptions}
+"""The options type of each filter with options of its own (the others: SharedOptions)."""
+FAMILIES = (SharedOptions, KalmanOptions, FirOptions, PredictionOptions, UnscentedOptions)
+
+
+def options_type(name: str) -> type[SharedOptions]:
+    """The options class of filter ``name``."""
+    return FAMILY_OPTIONS.get(name, SharedOptions)
+
+
+def all_specs() -> dict[str, Spec]:
+    """Every option of every family, shared ones first, each once."""
+    out: dict[str, Spec] = {}
+    for cls in FAMILIES:
+        out.update(cls.specs())
+    return out
+
+
+def taken_by(name: str) -> list[str]:
+    """The names of the options filter ``name`` takes."""
+    return [key for key, spec in options_type(name).specs().items() if name in spec.takers]
+
+
+def validate(name: str, values: Mapping | SharedOptions | None = None) -> SharedOptions:
+    """The typed options of filter ``name`` from ``values`` (every key must be an option
+    ``name`` takes, of the right type and in range)."""
+    if isinstance(values, SharedOptions):
+        values = values.changed()
+    values = _mapping(values, f"options of {name}")
+    takes = taken_by(name)
+    for key in values:
+        if key not in takes:
+            raise OptionError(_not_taken(key, name, takes))
+    return options_type(name)(**{key: check(key, value) for key, value in values.items()})
+
+
+def per_filter(names: Iterable[str], options: Mapping | None = None,
+               per_filter_options: Mapping[str, Mapping] | None = None,
+               named: bool = True) -> dict[str, SharedOptions]:
+    """``{filter: typed options}`` for one call generating ``names``.
+
+    ``options`` apply to the call: each filter is given those it takes (and no other).
+    ``per_filter_options`` name one filter; every key must be one that filter takes.
+    ``named``: the filters were named by the caller (not "all that apply"), so an option
+    of the call that none of them takes is refused rather than ignored."""
+    names = list(names)
+    common = _mapping(options, "options")
+    per = _mapping(per_filter_options, "per-filter options")
+    specs = all_specs()
+    for key, value in common.items():
+        if key not in specs:
+            raise OptionError(_unknown(key, list(specs), "options"))
+        check(key, value)
+        if named and names and not any(n in specs[key].takers for n in names):
+            raise OptionError(f"option {key!r} is taken by {', '.join(specs[key].takers)}; "
+                              f"none of the filters of this call ({', '.join(names)}) "
+                              "takes it")
+    for filter_name in per:
+        if filter_name not in names:
+            raise OptionError(f"per-filter options for {filter_name!r}, which this call "
+                              f"does not generate (filters: {', '.join(names)})")
+    out = {}
+    for filter_name in names:
+        takes = taken_by(filter_name)
+        mine = {k: v for k, v in common.items() if k in takes}
+        mine.update(_mapping(per.get(filter_name), f"options of {filter_name}"))
+        out[filter_name] = validate(filter_name, mine)
+    return out
+
+
+def check(key: str, value):
+    """``value`` of option ``key`` as its type (an int stays an int for a float option),
+    refused when of the wrong type or out of range."""
+    spec = all_specs()[key]
+    if value is None:
+        if _default_anywhere(key) is None:
+            return None
+        raise OptionError(f"option {_label(key, spec)} must be {_kind_words(spec)}, "
+                          "got None")
+    if spec.kind is bool:
+        if not isinstance(value, (bool, np.bool_)):
+            raise OptionError(_wrong_type(key, spec, value))
+        return bool(value)
+    if spec.kind is str:
+        if not isinstance(value, str):
+            raise OptionError(_wrong_type(key, spec, value))
+        if spec.choices and value not in spec.choices:
+            close = difflib.get_close_matches(value, spec.choices, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise OptionError(f"option {_label(key, spec)} must be one of "
+                              f"{', '.join(spec.choices)}, got {value!r}{hint}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise OptionError(_wrong_type(key, spec, value))
+    if spec.kind is int:
+        if not isinstance(value, Integral):
+            raise OptionError(_wrong_type(key, spec, value))
+        value = int(value)
+    else:
+        value = float(value)
+    if not spec.in_range(value):
+        bounds = spec.bounds()
+        where = f" in {bounds}" if bounds[:1] in "([" else f" {bounds}"
+        raise OptionError(f"option {_label(key, spec)} must be "
+                          f"{'an integer' if spec.kind is int else 'a finite number'}"
+                          f"{where if bounds else ''}, got {_short(value)}")
+    return value
+
+
+# -- the command line -------------------------------------------------------------------------
+
+
+def add_arguments(parser) -> None:
+    """The flag of every option (one argument group), from the declarations."""
+    group = parser.add_argument_group(
+        "filter options", "each is given to the filters in brackets (and no other)")
+    for key, spec in all_specs().items():
+        bounds = f"; {spec.bounds()}" if spec.bounds() else ""
+        text = f"{spec.help}{bounds} [{', '.join(spec.takers)}]"
+        if spec.kind is bool:
+            default = _default_anywhere(key)
+            group.add_argument(spec.flag, dest=key, default=None,
+                               action="store_const", const=not default, help=text)
+        elif spec.kind is str:
+            group.add_argument(spec.flag, dest=key, default=None, choices=spec.choices,
+                               help=text)
+        else:
+            group.add_argument(spec.flag, dest=key, default=None, type=spec.kind,
+                               metavar=spec.metavar or key.upper(), help=text)
+
+
+def from_arguments(args) -> dict[str, object]:
+    """The options given on the command line (parsed by :func:`add_arguments`)."""
+    return {key: getattr(args, key) for key in all_specs()
+            if getattr(args, key, None) is not None}
+
+
+def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: str) -> str:
+    """The command line that regenerates filter ``name``'s files with ``options``."""
+    parts = ["derive generate", model_ref, f"--filter {name}", "--lang all", f"--out {out}"]
+    specs = options.specs()
+    for key, value in options.changed().items():
+        spec = specs[key]
+        parts.append(spec.flag if spec.kind is bool else
+                     f"{spec.flag} {value if spec.kind is str else _short(value)}")
+    return " ".join(parts)
+
+
+# -- messages ---------------------------------------------------------------------------------
+
+
+def _short(value) -> str:
+    """A number as a short decimal (the double's repr; integers as integers)."""
+    if value is None:
+        return "None"
+    if isinstance(value, Integral) and not isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, Real) and not isinstance(value, bool):
+        return repr(float(value))
+    return repr(value)
+
+
+def _label(key: str, spec: Spec) -> str:
+    return f"{key!r} ({spec.flag})"
+
+
+def _kind_words(spec: Spec) -> str:
+    return {bool: "a bool (True or False)", int: "an integer", float: "a real number",
+            str: "a string"}[spec.kind]
+
+
+def _wrong_type(key: str, spec: Spec, value) -> str:
+    shown = repr(value)
+    if len(shown) > 60:
+        shown = shown[:57] + "..."
+    return (f"option {_label(key, spec)} must be {_kind_words(spec)}, got the "
+            f"{type(value).__name__} {shown}")
+
+
+def _unknown(key, known: list[str], what: str) -> str:
+    hint = _close(key, known)
+    return (f"unknown option {key!r}{hint}; {what}: {', '.join(known) or 'none'}")
+
+
+def _close(key, known: list[str]) -> str:
+    if not isinstance(key, str):
+        return ""
+    formerly = {old: new for new in known for old in all_specs()[new].formerly}
+    if key in formerly:
+        return f" (did you mean {formerly[key]!r}?)"
+    close = difflib.get_close_matches(key, known, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _not_taken(key, name: str, takes: list[str]) -> str:
+    specs = all_specs()
+    if key in specs:
+        return (f"option {key!r} is taken by {', '.join(specs[key].takers)}, not by {name}; "
+                f"options of {name}: {', '.join(takes) or 'none'}")
+    return _unknown(key, takes, f"options of {name}")
+
+
+def _mapping(values, what: str) -> dict:
+    if values is None:
+        return {}
+    if not isinstance(values, Mapping):
+        raise OptionError(f"{what} must be a mapping of option names to values, got the "
+                          f"{type(values).__name__} {values!r}")
+    return dict(values)
+
+
+def _default(cls: type[SharedOptions], key: str):
+    return next(f.default for f in dataclasses.fields(cls) if f.name == key)
+
+
+def _default_anywhere(key: str):
+    for cls in FAMILIES:
+        if key in cls.specs():
+            return _default(cls, key)
+    raise KeyError(key)
+
+
+__all__ = ["COVARIANCE_FILTERS", "DEFAULT_EPS", "FAMILY_OPTIONS", "FirOptions",
+           "KalmanOptions", "MISSING_FILTERS", "PATTERNS", "PredictionOptions", "SharedOptions",
+           "Spec", "TRACK_FILTERS", "UnscentedOptions", "add_arguments", "all_specs", "check",
+           "from_arguments", "option", "options_type", "per_filter", "regenerate_command",
+           "taken_by", "validate"]
