@@ -85,6 +85,14 @@ def test_numeric_columns_right_aligned_unwrapped_text_columns_left(written):
     assert "<th>quantity</th>" in doc and '<th class="num">ours</th>' in doc
 
 
+def test_scientific_numbers_in_text_never_wrap(written):
+    _, _, _, doc = written
+    assert ".nb { white-space: nowrap; }" in doc
+    assert '<td>difference <span class="nb">1e-16</span></td>' in doc
+    assert page._inline_html("x 2.5e-07 m, mpt3d_a, v1e-3") == \
+        'x <span class="nb">2.5e-07</span> m, mpt3d_a, v1e-3'
+
+
 def test_summary_comes_first_and_links_every_section(written):
     _, sections, md, doc = written
     summary = doc.index("Summary: what was reproduced")

@@ -36,6 +36,8 @@ _NUMBER = re.compile(r"[-−+]?\d[\d.,]*(e[-−+]?\d+)?"
                      r"(\s*([-−–×x/]|,\s)\s*[-−+]?\d[\d.,]*(e[-−+]?\d+)?)*"
                      r"(\s?(m|s|ns|%|m/s))?")
 _EMPTY = {"", "–", "-"}
+# A number in scientific notation inside text: kept on one line ("1e-⏎06" never).
+_SCIENTIFIC = re.compile(r"(?<![\w.])[-−]?\d+(\.\d+)?e[-−+]?\d+\b")
 
 STYLE = """
 body { font-family: system-ui, sans-serif; max-width: 72rem; margin: 2rem auto;
@@ -44,6 +46,7 @@ table { border-collapse: collapse; margin: 0.5rem 0 1.2rem; font-size: 0.9rem; }
 th, td { border: 1px solid #bbb; padding: 0.2rem 0.5rem; text-align: left;
          vertical-align: top; }
 th { background: #eee; }
+.nb { white-space: nowrap; }
 td.num, th.num { text-align: right; white-space: nowrap;
                  font-variant-numeric: tabular-nums; }
 caption { caption-side: top; text-align: left; font-weight: 600; padding: 0.3rem 0; }
@@ -64,8 +67,10 @@ footer dt { font-weight: 600; float: left; width: 6rem; } footer dd { margin-lef
 SUMMARY_COLUMNS = ("paper", "claim or number", "verdict", "measured / why", "section")
 
 
-def _inline_html(text: str) -> str:
+def _inline_html(text: str, keep_numbers_whole: bool = True) -> str:
     out = html.escape(text, quote=False)
+    if keep_numbers_whole:   # (a numeric table cell is unwrapped as a whole)
+        out = _SCIENTIFIC.sub(lambda m: f'<span class="nb">{m.group(0)}</span>', out)
     out = _CODE.sub(lambda m: f"<code>{m.group(1)}</code>", out)
     return _BOLD.sub(lambda m: f"<strong>{m.group(1)}</strong>", out)
 
@@ -173,13 +178,13 @@ def _verdict_html(text: str) -> str:
 _LINK = re.compile(r"\[([^\]]+)\]\(#([\w-]+)\)")
 
 
-def _cell_html(text: str, column: str) -> str:
+def _cell_html(text: str, column: str, numeric: bool) -> str:
     if column == "verdict" and text in (MATCHED, DIFFERS, NOT_COMPARABLE):
         return _verdict_html(text)
     link = _LINK.fullmatch(text)
     if link:
         return f'<a href="#{link.group(2)}">{html.escape(link.group(1))}</a>'
-    return _inline_html(text)
+    return _inline_html(text, keep_numbers_whole=not numeric)
 
 
 def _html_table(b: Table) -> list[str]:
@@ -196,8 +201,9 @@ def _html_table(b: Table) -> list[str]:
                                        for h, c in zip(b.columns, cls))
                + "</tr></thead><tbody>")
     for row in b.rows:
-        out.append("<tr>" + "".join(f"<td{c}>{_cell_html(v, h)}</td>"
-                                    for v, h, c in zip(row, b.columns, cls)) + "</tr>")
+        out.append("<tr>" + "".join(f"<td{c}>{_cell_html(v, h, n)}</td>"
+                                    for v, h, c, n in zip(row, b.columns, cls, nums))
+                   + "</tr>")
     out.append("</tbody></table>")
     if b.collapsed:
         out.append("</details>")
