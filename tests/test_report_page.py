@@ -259,3 +259,20 @@ def test_results_into_a_missing_directory_is_bad_input_before_any_work(tmp_path,
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1 and "--results" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_the_repositorys_results_file_is_written_by_the_command():
+    """docs/results.md is `derive reproduce --results docs/results.md` output, not typed:
+    the command's title, intro, summary columns, verdicts and provenance footer."""
+    from derive.report.job import TITLE
+
+    text = (Path(__file__).parent.parent / "docs" / "results.md").read_text(encoding="utf-8")
+    lines = text.splitlines()
+    assert lines[0] == f"# {TITLE}"
+    assert lines[2].startswith("Written by `derive reproduce ") and \
+        "--results docs/results.md" in lines[2]
+    assert "| " + " | ".join(page.SUMMARY_COLUMNS) + " |" in lines
+    rows = [line for line in lines if line.startswith("| ") and "| verdict |" not in line]
+    assert rows and all(re.search(r" \| (matched|differs|not comparable) \| ", r) for r in rows)
+    for label in ("date", "derive", "Python", "machine", "command"):
+        assert re.search(rf"^- \*\*{label}:\*\* \S", text, re.M), label
