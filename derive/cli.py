@@ -22,7 +22,6 @@ import difflib
 import os
 import sys
 
-from . import __version__
 from .errors import ModelError, NumericalError, VerificationError
 
 
@@ -54,6 +53,17 @@ def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
     return f" ({'; '.join(hints)})" if hints else ""
 
 
+class _Version(argparse.Action):
+    """``--version``: derive's version and its key dependencies' (read when asked, so the
+    parser stays fast to build)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .report.provenance import version_text
+
+        sys.stdout.write(version_text() + "\n")
+        parser.exit(0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import commands
 
@@ -65,7 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n  derive list\n  derive generate mpt3d_a --filter kf --lang c\n"
                "  derive reproduce",
     )
-    parser.add_argument("--version", action="version", version=f"derive {__version__}")
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="print the versions of derive, Python and the key dependencies "
+                             "and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for module in commands.modules():

@@ -13,15 +13,14 @@ import numpy as np
 import pytest
 
 from derive import catalog, cli
-from derive.report import page
+from derive.report import page, provenance
 from derive.report.document import Figure, Section, Table, Text, Todo
 
 FIGURES = ["mpt3d_fig1_estimates", "gsm2d_fig1_estimates", "gsm2d_fig2_fir_vs_sskf",
            "sspred_fig1_cv_estimation", "sspred_fig2_cv_prediction",
            "sspred_fig3_ca_estimation", "sspred_fig4_ca_prediction",
-           "mdkf_fig4_6_estimates", "mdkf_fig7_errors", "gnss_ekf_estimates",
-           "gnss_ekf_innovations", "gnss_ukf_estimates", "gnss_ukf_innovations",
-           "burden_bars"]
+           "mdkf_fig4_6_estimates", "mdkf_fig7_errors", "gnss_estimates",
+           "gnss_innovations", "burden_bars"]
 TABLES = ["Generated code against the NumPy reference", "Equivalence checks (max differences)",
           "MPT3D: equivalence of the implementations", "GSM2D: equivalence of the implementations",
           "GSM2D §7: FIR steady-state filter", "SSPRED Table 1",
@@ -32,17 +31,23 @@ TABLES = ["Generated code against the NumPy reference", "Equivalence checks (max
 REAL_DATA = importlib.util.find_spec("gnss_benchmark") is not None
 
 
+_RUNS: dict[str, tuple] = {}   # the one quick run per process, shared by test_report*.py
+
+
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    """Run `derive reproduce --quick` once; (exit status, stdout, report directory)."""
-    out = tmp_path_factory.mktemp("report")
-    import contextlib
-    import io
+    """Run `derive reproduce --quick` once per process (test_report_browser.py imports
+    this fixture); (exit status, stdout, report directory)."""
+    if "quick" not in _RUNS:
+        out = tmp_path_factory.mktemp("report")
+        import contextlib
+        import io
 
-    buffer = io.StringIO()
-    with contextlib.redirect_stdout(buffer):
-        status = cli.main(["reproduce", "--quick", "--no-progress", "--out", str(out)])
-    return status, buffer.getvalue(), out
+        buffer = io.StringIO()
+        with contextlib.redirect_stdout(buffer):
+            status = cli.main(["reproduce", "--quick", "--no-progress", "--out", str(out)])
+        _RUNS["quick"] = (status, buffer.getvalue(), out)
+    return _RUNS["quick"]
 
 
 def md_table(text: str, caption: str) -> list[list[str]]:
@@ -111,10 +116,11 @@ def test_html_renders_the_same_report(report):
     parser.close()
     assert not parser.errors and not parser.stack
     md = (out / "index.md").read_text(encoding="utf-8")
-    assert parser.tables == md.count("\n|---")
+    assert parser.tables == len(re.findall(r"\n\|(---|--:)", md))
     assert len(parser.images) == md.count("![")
-    for src in parser.images:
-        assert (out / src).is_file(), src
+    for src, path in zip(parser.images, re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)):
+        assert (out / path).is_file(), path     # index.md: the figures folder beside it
+        assert src.startswith("data:image/png;base64,")    # index.html: embedded
 
 
 def test_sspred_metric_reproduces_the_papers_table(report):
@@ -150,10 +156,13 @@ def test_sspred_percent_error_definition():
 def test_page_escapes_and_checks_tables(tmp_path):
     with pytest.raises(ValueError, match="has 1 cells, expected 2"):
         Table(("a", "b"), (("only",),))
+    (tmp_path / "figures").mkdir()
+    (tmp_path / "figures" / "f.png").write_bytes(b"\x89PNG\r\n\x1a\n")
     s = Section("k", "T <1>", [Text("a `x|y` and **b**"), Todo("later"),
                                Table(("c|1", "d"), (("<x>", "1"),), "cap"),
                                Figure("figures/f.png", "a <fig>")])
-    md_path, html_path = page.write_page(tmp_path, "Title", ["intro"], [s])
+    md_path, html_path = page.write_page(tmp_path, "Title", ["intro"], [s],
+                                         provenance.collect("derive reproduce"))
     md, doc = md_path.read_text(), html_path.read_text()
     assert "| c\\|1 | d |" in md and "> **TODO (lead):** later" in md
     assert "<code>x|y</code>" in doc and "<strong>b</strong>" in doc
@@ -165,11 +174,13 @@ def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys
     from derive.report.job import ReportResult
     from derive.verify import Verification
 
-    def fake_run(out, generated=None, quick=False, progress=True):
+    def fake_run(out, generated=None, quick=False, progress=True, command=None,
+                 results=None):
         result = ReportResult(Path(out), None)
         result.generation = GenerationResult(["m"], [], [Verification("m", "kf", "c", 10, 1.0,
                                                                       1e-12)], [])
-        result.index, result.page = page.write_page(Path(out), "t", [], [])
+        result.index, result.page = page.write_page(Path(out), "t", [], [],
+                                                    provenance.collect(command))
         return result
 
     monkeypatch.setattr("derive.report.run", fake_run)

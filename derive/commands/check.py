@@ -21,11 +21,19 @@ def run(args) -> int:
     from . import load_model
 
     refs = catalog.names() if args.model == "all" else [args.model]
-    failed = 0
+    passed = failed = 0
     for ref in refs:
         for check in run_checks(load_model(ref), steps=args.steps, seed=args.seed):
             print(check.line())
+            passed += check.passed
             failed += not check.passed
+    print(summary_line(passed, failed, len(refs)))
     if failed:
         raise VerificationError(f"{failed} equivalence check(s) failed")
     return 0
+
+
+def summary_line(passed: int, failed: int, models: int) -> str:
+    """The last line of ``derive check``: how many claims passed and failed."""
+    return (f"derive check: {passed} passed, {failed} failed "
+            f"({models} model{'s' if models != 1 else ''})")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import figures
-from .document import Section, Table, Text, Todo
+from .document import DIFFERS, MATCHED, Section, Table, Text, Todo
 
 
 def written_count(ctx, model: str, name: str) -> int:
@@ -39,7 +39,7 @@ def chart(ctx, rows) -> figures.Figure:
            label="derive, specialised generated code", color="tab:blue")
     ax.set_yscale("log")
     ax.set_xticks(x, [_label(r) for r in rows], rotation=60, ha="right", fontsize=7)
-    ax.set_ylabel("flops per step")
+    ax.set_ylabel("burden (flops per step)")
     ax.legend(fontsize=8)
     return figures.save(fig, ctx.figures, "burden_bars",
                         "Per-step burden per implementation: the papers' formula against "
@@ -68,13 +68,39 @@ def compute_audit():
     return run_audit()
 
 
+def outcomes(s: Section, audit) -> None:
+    """The summary's lines: printed counts and speedups reproduced, and each flag."""
+    printed = [r for r in audit.rows if r.printed is not None]
+    flagged = [r for r in printed if r.flag]
+    same = [r for r in printed if r.printed == r.formula == r.paper_mode]
+    s.outcome("the printed flop counts per step (MPT3D Table 3)"
+              + (", but for the flagged ones below" if flagged else ""),
+              MATCHED if len(same) == len(printed) - len(flagged) else DIFFERS,
+              f"{len(same)} of {len(printed)} printed counts equal both the formulas and "
+              "the counted paper-mode code")
+    for r in printed:
+        if r.flag:
+            s.outcome(f"{r.paper} {r.system} {r.implementation}: printed {r.printed}",
+                      DIFFERS, f"formula {r.formula}, paper mode {r.paper_mode}: {r.flag}")
+    good = [sp for sp in audit.speedups if not sp.flag]
+    s.outcome("the papers' speedups (ratios of flop counts)",
+              MATCHED if len(good) == len(audit.speedups) else DIFFERS,
+              f"{len(good)} of {len(audit.speedups)} recomputed from the formulas and the "
+              "paper-mode code to the printed digits")
+    for sp in audit.speedups:
+        if sp.flag:
+            s.outcome(f"{sp.paper} speedup {sp.what}: printed {sp.printed}", DIFFERS, sp.flag)
+
+
 def section(ctx) -> Section:
-    s = Section("burden", "Calculation burden: the papers' counts against derive's")
+    s = Section("burden", "Calculation burden: the papers' counts against derive's",
+                paper="MPT3D, GSM2D")
     try:
         audit = ctx.result_of("audit", compute_audit)
     except ImportError:
         s.add(Todo("derive.audit (issue 4) is missing: no burden audit."))
         return s
+    outcomes(s, audit)
     s.add(Text("For each implementation the papers compare: the number they print, their "
                "formula (SPEC §5), the exact count of derive's paper-mode code (the dense "
                "algorithm the formulas describe, generated and counted), and the count of "

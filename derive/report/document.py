@@ -24,6 +24,7 @@ class Table:
     columns: tuple[str, ...]
     rows: tuple[tuple[str, ...], ...]
     caption: str = ""
+    collapsed: bool = False     # long reference tables: folded in HTML (<details>)
 
     def __post_init__(self):
         for row in self.rows:
@@ -42,9 +43,31 @@ class Figure:
 
 @dataclass(frozen=True)
 class Preformatted:
-    """Text shown as is (command output, tables printed by other tools)."""
+    """Text shown as is (command output, tables printed by other tools); ``caption`` names
+    it, and the HTML page folds it (a raw dump is reference material, not a result)."""
 
     text: str
+    caption: str = "console output"
+
+
+MATCHED = "matched"
+DIFFERS = "differs"
+NOT_COMPARABLE = "not comparable"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One line of the report's summary: a claim or number of a paper, whether this run
+    matched it (``MATCHED``, ``DIFFERS`` or ``NOT_COMPARABLE``), and the measured evidence
+    or the reason, computed by the run."""
+
+    what: str
+    verdict: str
+    evidence: str
+
+    def __post_init__(self):
+        if self.verdict not in (MATCHED, DIFFERS, NOT_COMPARABLE):
+            raise ValueError(f"outcome {self.what!r}: unknown verdict {self.verdict!r}")
 
 
 @dataclass(frozen=True)
@@ -64,9 +87,20 @@ class Section:
     key: str
     title: str
     blocks: list[Block] = field(default_factory=list)
+    outcomes: list[Outcome] = field(default_factory=list)
+    paper: str = ""          # the paper the section reproduces ("" for derive's own checks)
 
     def add(self, *blocks: Block) -> None:
         self.blocks.extend(blocks)
+
+    @property
+    def short(self) -> str:
+        """The title up to its colon ("MPT3D", "Appendix"): the summary's link text."""
+        return self.title.split(":")[0]
+
+    def outcome(self, what: str, verdict: str, evidence: str) -> None:
+        """Record a line for the summary (see :class:`Outcome`)."""
+        self.outcomes.append(Outcome(what, verdict, evidence))
 
     @property
     def figures(self) -> list[Figure]:

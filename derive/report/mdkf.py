@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import figures
-from .document import Section, Table, Text, sci
+from .document import DIFFERS, MATCHED, NOT_COMPARABLE, Section, Table, Text, sci
 
 SEED = 3
+EQUAL = 1e-9   # relative: the two forms equal up to rounding
 STEPS = 1000
 QUICK_STEPS = 200
 AXES = ("x (latitude)", "y (altitude)", "z (longitude)")
@@ -52,7 +53,16 @@ def section(ctx) -> Section:
         a, b = np.asarray(a).reshape(b.shape), np.asarray(b)
         return float(np.max(np.abs(a - b) / np.maximum(1.0, np.abs(b))))
 
-    s = Section("mdkf", "MDKF: stationary 3-D position, two algebraic forms of the KF")
+    s = Section("mdkf", "MDKF: stationary 3-D position, two algebraic forms of the KF",
+                paper="MDKF")
+    forms = max(rel(x_inf, x_cov), rel(P_inf, P_cov))
+    s.outcome("the information form and the covariance form give the same estimates",
+              MATCHED if forms <= EQUAL else DIFFERS,
+              f"largest relative difference {forms:.1e} (x and P, generated C)")
+    rmse = np.sqrt(np.mean((x_cov - truth) ** 2, axis=0))
+    s.outcome("Table 1: statistics of the estimates", NOT_COMPARABLE,
+              "the paper's receiver signals are not available; on simulated signals the "
+              "RMSE is " + ", ".join(f"{v:.3f}" for v in rmse) + " a.u. (x, y, z)")
     s.add(Text(f"Catalog model `gps_static`: F = H = I3, G = I, Ψ = diag(υ, τ, ζ) = 0.01 I, "
                f"V = 0.1 I, x0 = 0, P0 = V; {steps} steps simulated from the model (seed "
                f"{SEED}). The paper's receiver signals are not available, so its numbers "
@@ -67,19 +77,20 @@ def section(ctx) -> Section:
                 label="observation ξ")
         ax.plot(t, truth[:, i], color="k", lw=0.9, label="original signal λ")
         ax.plot(t, x_cov[:, i], color=figures.COLORS["kf"], lw=0.9, label="estimate λ̂")
-        ax.set_ylabel(f"signal {name.split()[0]}")
-    axes[-1, 0].set_xlabel("step v")
+        ax.set_ylabel(f"signal {name.split()[0]} (a.u.)")
+    axes[-1, 0].set_xlabel("sample v (count)")
     axes[0, 0].legend(fontsize=8, ncol=3)
     s.add(figures.save(fig, ctx.figures, "mdkf_fig4_6_estimates",
                        "MDKF Figs. 4–6: Kalman estimates of the signals x, y and z with the "
-                       "observations and the original signals."))
+                       "observations and the original signals (a.u.: the simulated model's "
+                       "arbitrary unit; the paper's signals are in ns)."))
     fig, axes = figures.new(1, 1, height=3.0)
     err = x_cov - truth
     for i, name in enumerate(AXES):
         axes[0, 0].plot(t, err[:, i], lw=0.8, label=name)
     axes[0, 0].axhline(0, color="k", lw=0.5)
-    axes[0, 0].set_xlabel("step v")
-    axes[0, 0].set_ylabel("error e = λ̂ − λ")
+    axes[0, 0].set_xlabel("sample v (count)")
+    axes[0, 0].set_ylabel("error e = λ̂ − λ (a.u.)")
     axes[0, 0].legend(fontsize=8)
     s.add(figures.save(fig, ctx.figures, "mdkf_fig7_errors",
                        "MDKF Fig. 7: the error function e = λ̂ − λ for x, y and z."))

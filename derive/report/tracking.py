@@ -12,12 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import figures
-from .document import Section, Table, Text, sci
+from .document import DIFFERS, MATCHED, Section, Table, Text, sci
 
 TIME_VARYING = ("kf", "lf", "jklf")
 STEADY = ("sskf", "sslf", "jssklf")
 EQUAL = 1e-9  # relative to max(1, |reference|): equal up to rounding
+CONVERGED = 1e-3  # KF against SSKF over the second half of the run: "converged"
+FIR_CLOSE = 1e-5  # FIR against SSKF after N steps, relative to the largest |x|
 SEED = 1
+UNITS = {"position": "m", "velocity": "m/s"}   # the papers' example: Δt = 1 s
+STEP_AXIS = "time step k (Δt = 1 s)"
 
 
 @dataclass(frozen=True)
@@ -118,9 +122,9 @@ def estimates_figure(ctx, paper: Paper, impl, truth) -> figures.Figure:
             for f in STEADY:
                 ax.plot(t, impl[("A", f)][0][:, col], "--", color=figures.COLORS["steady"],
                         lw=1.2, label="SSKF/SSLF/JSSKLF" if f == "sskf" else None)
-            ax.set_ylabel(f"{what} {axis}")
+            ax.set_ylabel(f"{what} {axis} ({UNITS[what]})")
             if i == len(paper.axes) - 1:
-                ax.set_xlabel("step k")
+                ax.set_xlabel(STEP_AXIS)
     axes[0, 0].legend(fontsize=8)
     name = f"{paper.key}_fig1_estimates"
     caption = (f"{paper.label} Fig. 1: position and velocity estimates x(k/k) of model A; "
@@ -129,7 +133,7 @@ def estimates_figure(ctx, paper: Paper, impl, truth) -> figures.Figure:
     return figures.save(fig, ctx.figures, name, caption)
 
 
-def fir_part(ctx, paper: Paper, zs, impl) -> list:
+def fir_part(ctx, paper: Paper, zs, impl, section: Section) -> list:
     """GSM2D §7 Fig. 2: FIR vs SSKF on model A, and the FIR burden table."""
     from .. import catalog
     from ..filters.fir import order
@@ -147,13 +151,13 @@ def fir_part(ctx, paper: Paper, zs, impl) -> list:
         ax.plot(t, sskf[:, 2 * i], color=figures.COLORS["steady"], lw=1.2, label="SSKF")
         ax.plot(t, fir[:, 2 * i], "--", color=figures.COLORS["fir"], lw=1.2,
                 label=f"FIR, N = {N}")
-        ax.set_ylabel(f"position {axis}")
+        ax.set_ylabel(f"position {axis} (m)")
     axes[0, 0].legend(fontsize=8)
     ax = axes[-1, 0]
     ax.semilogy(t, np.maximum(diff, 1e-18), color="k", lw=0.8)
     ax.axvline(N, color="0.5", ls=":", lw=0.8)
-    ax.set_ylabel("max |FIR − SSKF|")
-    ax.set_xlabel("step k")
+    ax.set_ylabel("max |FIR − SSKF| (m)")
+    ax.set_xlabel(STEP_AXIS)
     fig_block = figures.save(
         fig, ctx.figures, f"{paper.key}_fig2_fir_vs_sskf",
         f"{paper.label} Fig. 2: FIR steady-state filter of order N = {N} (least N with "
@@ -161,6 +165,11 @@ def fir_part(ctx, paper: Paper, zs, impl) -> list:
         "difference per step (zero up to rounding for k ≤ N, where the dropped term "
         "A^N x(k−N) is A^N x0 = 0).")
     scale = max(1.0, float(np.max(np.abs(sskf))))
+    after = float(diff[N:].max()) if len(zs) > N else 0.0
+    section.outcome(f"§7 Fig. 2: the FIR filter of order N = {N} follows the SSKF",
+                    MATCHED if after <= FIR_CLOSE * scale else DIFFERS,
+                    f"max |FIR − SSKF| {float(diff[:N].max()):.1e} m for k ≤ N, "
+                    f"{after:.1e} m after (largest |x| {scale:.3g} m)")
     rows = [("order N (least N with ‖A^N‖₂ < 1e-6)", str(N)),
             (f"max |FIR − SSKF|, steps 1..{min(N, len(zs))}", sci(float(diff[:N].max()))),
             (f"max |FIR − SSKF|, steps {N + 1}..{len(zs)}",
@@ -180,8 +189,22 @@ def section(ctx, paper: Paper) -> Section:
     na = a.numeric()
     run = simulate_linear(na.F, na.G, na.H, na.Q, na.R, na.x0, steps, SEED)
     impl, blocks, nb = implementations(ctx, paper, run.zs)
-    s = Section(paper.key, f"{paper.label}: mobile position tracking, model A and model B")
+    s = Section(paper.key, f"{paper.label}: mobile position tracking, model A and model B",
+                paper=paper.label)
     k = len(blocks)
+    rows = equivalence_rows(paper, impl, blocks, nb, steps)
+    exact = [r for r in rows if r[3] != "close (not an identity)"]
+    worst = max(float(v) for r in exact for v in r[1:3] if v != "–")
+    s.outcome(f"the {2 * len(TIME_VARYING + STEADY)} implementations give the same "
+              "estimates (KF = LF = JKLF, SSKF = SSLF = JSSKLF, model A = model B per axis)",
+              DIFFERS if any("DIFFERENT" in r[3] for r in exact) else MATCHED,
+              f"{len(exact)} comparisons, largest relative difference {worst:.1e}")
+    kf, ss = impl[("A", "kf")][0], impl[("A", "sskf")][0]
+    late = rel(kf[steps // 2:], ss[steps // 2:])
+    s.outcome("Fig. 1: the time-varying filters converge to the steady-state ones",
+              MATCHED if late <= CONVERGED else DIFFERS,
+              f"KF − SSKF, steps {steps // 2 + 1}..{steps}: {late:.1e} relative "
+              f"(all steps {rel(kf, ss):.1e})")
     s.add(Text(f"Model A (`{paper.model_a}`, n = {a.n}, m = {a.m}) and model B "
                f"(`{paper.model_b}`, one axis, run ×{k}) with the papers' example values "
                f"(Δt = 1, σq² = 0.01, σr² = 0.1, x0 = 0, P0 = 0), {steps} steps simulated "
@@ -190,9 +213,9 @@ def section(ctx, paper: Paper) -> Section:
                "are derive's generated C."),
           estimates_figure(ctx, paper, impl, run.xs[1:]),
           Table(("comparison", "max rel diff x", "max rel diff P", "verdict"),
-                tuple(equivalence_rows(paper, impl, blocks, nb, steps)),
+                tuple(rows),
                 f"{paper.label}: equivalence of the implementations (generated C; "
                 "differences relative to max(1, |second|))"))
     if paper.key == "gsm2d":
-        s.add(*fir_part(ctx, paper, run.zs, impl))
+        s.add(*fir_part(ctx, paper, run.zs, impl, s))
     return s
