@@ -229,8 +229,10 @@ def test_float32_ud_keeps_p_positive_definite_where_the_covariance_kf_loses_it()
     """illcond (test_long_runs: R = 1e-8, Q = 1e4, P0 = 0), 5000 steps in NumPy float32.
 
     From step 2 on the true P(k/k) is positive definite (step 1's is singular: P0 = 0 and
-    G Q Gᵀ has rank 3).  The covariance KF (standard form, as reference.kf) in float32 loses
-    positive definiteness: its P has a negative eigenvalue at every step.  The UD filter
+    G Q Gᵀ has rank 3).  The covariance KF in float32, in the standard form (as
+    reference.kf) and in Joseph's, loses positive definiteness: its P has a negative
+    eigenvalue at every step, and is far from the float64 P (error over 100 times the
+    UD's: the standard form's is about 1e5, all accuracy lost).  The UD filter
     keeps every D > 0, so its P = U D Uᵀ is positive definite by construction, and stays
     within eps32 sqrt(kappa) (normwise relative) of the float64 KF, kappa the condition
     number of the steady P(k+1/k): the factored forms' accuracy goes as the square root
@@ -243,24 +245,36 @@ def test_float32_ud_keeps_p_positive_definite_where_the_covariance_kf_loses_it()
     kappa = eig.max() / eig.min()
     p_tolerance = EPS32 * np.sqrt(kappa)
 
-    _, P32 = ud.covariance_kf(num, zs, dtype=np.float32)
-    lowest = np.linalg.eigvalsh(P32[1:].astype(float))
-    ratio = lowest.min(axis=1) / np.abs(lowest).max(axis=1)
-    lost = int(np.count_nonzero(ratio < 0))
+    def normwise(Ps):
+        return (np.linalg.norm(Ps[1:] - P64[1:], axis=(1, 2))
+                / np.linalg.norm(P64[1:], axis=(1, 2)))
+
+    covariance = {}
+    for joseph in (False, True):
+        _, P32 = ud.covariance_kf(num, zs, dtype=np.float32, joseph=joseph)
+        spectrum = np.linalg.eigvalsh(P32[1:].astype(float))
+        ratio = spectrum.min(axis=1) / np.abs(spectrum).max(axis=1)
+        covariance["Joseph" if joseph else "standard"] = (
+            int(np.count_nonzero(ratio < 0)), ratio.min(), normwise(P32.astype(float)).max(),
+            P32[-1].astype(float))
 
     xu, Us, Ds = ud.ud_kf_factors(num, zs, dtype=np.float32)
     Us, Ds = Us.astype(float), Ds.astype(float)
     Pu = (Us * Ds[:, None, :]) @ Us.transpose(0, 2, 1)
-    p_error = np.linalg.norm(Pu[1:] - P64[1:], axis=(1, 2)) / np.linalg.norm(P64[1:], axis=(1, 2))
+    p_error = normwise(Pu)
     x_error = np.linalg.norm(xu - x64, axis=1) / np.linalg.norm(x64, axis=1)
-    print(f"kappa {kappa:.3g}; covariance KF float32: P indefinite at {lost} of "
-          f"{len(ratio)} steps, worst lambda_min/|lambda|_max {ratio.min():.3g}; UD float32: "
-          f"min D {Ds[1:].min():.3g}, worst P error {p_error.max():.3g} "
-          f"(tolerance {p_tolerance:.3g}), worst x error {x_error.max():.3g} "
-          f"(tolerance {64 * EPS32:.3g})")
-    assert lost == len(ratio)
-    with pytest.raises(np.linalg.LinAlgError):
-        np.linalg.cholesky(P32[-1].astype(float))
+    for form, (lost, ratio, error, _) in covariance.items():
+        print(f"covariance KF ({form}) float32: P indefinite at {lost} of "
+              f"{FLOAT32_STEPS - 1} steps, worst lambda_min/|lambda|_max {ratio:.3g}, "
+              f"worst P error {error:.3g}")
+    print(f"UD float32 (kappa {kappa:.3g}): min D {Ds[1:].min():.3g}, worst P error "
+          f"{p_error.max():.3g} (tolerance {p_tolerance:.3g}), worst x error "
+          f"{x_error.max():.3g} (tolerance {64 * EPS32:.3g})")
+    for form, (lost, _, error, last) in covariance.items():
+        assert lost == FLOAT32_STEPS - 1, form
+        with pytest.raises(np.linalg.LinAlgError):
+            np.linalg.cholesky(last)
+        assert error > 100 * p_error.max(), form
     assert Ds[1:].min() > 0
     np.linalg.cholesky(Pu[1:])
     assert p_error.max() <= p_tolerance

@@ -30,6 +30,7 @@ from __future__ import annotations
 import sympy
 
 from .. import staging
+from ..errors import FilterError
 from ..options import SharedOptions
 from ..program import Port, Program
 from ..reference.ud import ud_kf
@@ -283,6 +284,8 @@ def _decidable_pattern(P_pattern) -> pat.Pattern:
 
 def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Program]:
     """``step``, ``enter`` and ``store`` of the UD filter for the linear ``model``."""
+    if model.kind != MODEL_KIND:
+        raise FilterError(f"the {TITLE} needs a linear model; {model.name!r} is {model.kind}")
     options = options or SharedOptions()
     missing = options.missing
     declared = options.P0_pattern or model.P0_pattern
