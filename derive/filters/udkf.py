@@ -143,6 +143,8 @@ def bierman(prog: Program, x, U: sympy.Matrix, D, z, h, r):
     v = [_stage(prog, D[j] * f[j], "v") for j in range(n)]
     b: list[sympy.Expr] = [_ZERO] * n
     alpha = _stage(prog, r, "alpha")
+    prog.require_positive(alpha, "a measurement noise variance (of R, or of its LDL^T "
+                                 "factor when R is not diagonal) is not positive")
     inverse = None
     for j in range(n):
         if f[j] == 0:
