@@ -352,3 +352,11 @@ def test_a_measurement_variance_given_at_runtime_is_checked():
     assert x[0] == pytest.approx(2 * 2 / 2.5) and D[0] == pytest.approx(2 * 0.5 / 2.5)
     with pytest.raises(NumericalError, match="measurement noise variance"):
         step([0.0], [1.0], [1.0], [2.0], [0.0])
+
+
+def test_missing_measurements_cost_no_flop_with_a_diagonal_r():
+    """Each scalar update is kept or not by selects (comparisons, counted as cmp)."""
+    model = catalog.load("mpt3d_a")
+    plain = count(udkf_programs(model)["step"])
+    skipping = count(udkf_programs(model, SharedOptions(missing=True))["step"])
+    assert skipping.flops == plain.flops and skipping.cmp > plain.cmp

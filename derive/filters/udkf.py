@@ -20,9 +20,11 @@ Programs (:func:`udkf_programs`):
   checked positive; P outside the pattern of U D Uᵀ is refused (PatternError / status);
 - ``store`` (U, D) -> P: U D Uᵀ, the upper triangle computed and mirrored.
 
-With ``missing`` a NaN in z[i] marks component i absent: as in the KF, R's present block
-is what is whitened (R masked by derive.filters.common.mask_symmetric), and the absent
-components get h' = 0, z' = 0, r' = 1, so their scalar update changes nothing, exactly.
+With ``missing`` a NaN in z[i] marks component i absent.  With a diagonal R each scalar
+update's results are kept only where z[i] is present (selects, no flop).  With a
+correlated R, as in the KF, R's present block is what is whitened (R masked by
+derive.filters.common.mask_symmetric), and the absent components get h' = 0, z' = 0,
+r' = 1, so their scalar update changes nothing, exactly.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
+from ..lowering import IfPresent
 from ..options import SharedOptions
 from ..program import Port, Program
 from ..reference.ud import ud_kf
@@ -210,10 +213,30 @@ def udkf_update(prog: Program, mats, x, U, D, z, missing: bool = False):
     W = FU.row_join(Gw)
     U, D = mwgs(prog, W, list(D) + Dq)
     x = list(staging.matmul(prog, F, x))
+    if missing and _is_diagonal(R):
+        # independent components: run each update and keep its result only where z[i]
+        # is present (selects, no flop; the model's zeros and ones still fold)
+        for i in range(H.rows):
+            updated = bierman(prog, x, U, D, z[i], [H[i, c] for c in range(n)], R[i, i])
+            x, U, D = _kept(prog, z[i], updated, (x, U, D))
+        return sympy.Matrix(x), U, D
     Hw, zw, r = _whitened(prog, H, R, z, missing)
     for i in range(Hw.rows):
         x, U, D = bierman(prog, x, U, D, zw[i], [Hw[i, c] for c in range(n)], r[i])
     return sympy.Matrix(x), U, D
+
+
+def _kept(prog: Program, z_i, updated, old):
+    """(x, U, D) ``updated`` where the measurement ``z_i`` is present, else ``old``."""
+    def select(new: sympy.Matrix, before: sympy.Matrix) -> sympy.Matrix:
+        chosen = sympy.Matrix([[IfPresent(z_i, new[i, j], before[i, j])
+                                for j in range(new.cols)] for i in range(new.rows)])
+        return staging.let_matrix(prog, chosen, hint="present")
+
+    x = select(sympy.Matrix(updated[0]), sympy.Matrix(old[0]))
+    U = select(updated[1], old[1])
+    D = select(sympy.Matrix(updated[2]), sympy.Matrix(old[2]))
+    return list(x), U, list(D)
 
 
 def _unit_upper(prog: Program, pattern) -> sympy.Matrix:
