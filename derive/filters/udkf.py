@@ -251,7 +251,8 @@ def _check_unit_upper(prog: Program, pattern, declared: str) -> None:
     """Runtime: U is 0 above the diagonal outside ``pattern`` (its lower triangle and
     diagonal are not read)."""
     n = prog.port("U").shape[0]
-    message = (f"is outside the pattern of U this code was generated for (P0 pattern "
+    message = (f"U has a non-zero entry outside the pattern this code was generated for "
+               f"(P0 pattern "
                f"{declared!r} closed under the UD filter; strictly upper triangle read: "
                f"{pattern_text(pattern)}); generate with --P0-pattern dense for code that "
                "accepts any P0")
@@ -320,6 +321,7 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
     def build(U_pattern):
         prog = Program("step", inputs, outputs, doc=f"one step of the {TITLE}")
         mats = bound_matrices(model, prog)
+        _check_unit_upper(prog, U_pattern, declared)
         U = _unit_upper(prog, U_pattern)
         D = list(prog.matrix("D"))
         return prog, udkf_update(prog, mats, prog.matrix("x"), U, D, prog.matrix("z"),
@@ -331,7 +333,6 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
     start = _factor_pattern(_decidable_pattern(pat.declared(model, declared)))
     U_pattern = pat.closure(step_pattern, start)
     prog, (x_new, U_new, D_new) = build(U_pattern)
-    _check_unit_upper(prog, U_pattern, declared)
     prog.set_output("x_new", list(x_new))
     prog.set_output("U_new", _flat(U_new))
     prog.set_output("D_new", D_new)
