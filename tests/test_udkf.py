@@ -22,7 +22,7 @@ from derive.emit.c_printer import function_parts
 from derive.emit.python_printer import python_function
 from derive.errors import NumericalError, PatternError
 from derive.filters import derive_unit
-from derive.filters.udkf import udkf_programs
+from derive.filters.udkf import PIVOT_FLOOR, udkf_programs
 from derive.flops import count
 from derive.lowering import lower_program
 from derive.options import SharedOptions
@@ -135,11 +135,13 @@ def check_against_references(model, zs, P0, **options):
 
 
 @pytest.mark.parametrize("name", LINEAR)
-def test_programs_match_the_references_on_the_catalog(name):
-    """P0 = I: the programs refuse zero pivots (see the next test)."""
+@pytest.mark.parametrize("start", ["catalog", "identity"])
+def test_programs_match_the_references_on_the_catalog(name, start):
+    """From the catalog's P0 (mostly 0: zero pivots at the first steps) and from I."""
     model = catalog.load(name)
-    zs = series(model.numeric(), 100, 2)
-    check_against_references(model, zs, np.eye(model.n))
+    num = model.numeric()
+    P0 = num.P0 if start == "catalog" else np.eye(model.n)
+    check_against_references(model, series(num, 100, 2), P0)
 
 
 @pytest.mark.parametrize("name", ["mpt3d_a", "gsm2d_a"])
@@ -186,16 +188,29 @@ def test_no_square_root_and_every_divisor_checked():
     assert "pivot 0 of the time update" in step and "innovation variance" in step
 
 
-def test_zero_pivots_are_refused_with_the_pivot_named():
-    """P0 = 0 (the catalog's) has no UD factor with positive pivots, and P(1/0) = G Q Gᵀ of
-    mpt3d_b (one noise input, two states) is singular: the programs refuse both (the
-    reference handles them exactly)."""
-    model = catalog.load("mpt3d_b")
-    programs = Programs(model)
-    with pytest.raises(NumericalError, match="pivot 1 of its UD factorisation"):
-        programs.enter(np.zeros((2, 2)))
-    with pytest.raises(NumericalError, match=r"P\(k\+1/k\) is not positive definite: pivot 0"):
-        programs.functions["step"]([0.0, 0.0], [1.0, 0.0, 0.0, 1.0], [0.0, 0.0], [1.0])
+def test_zero_pivots_give_zero_columns_and_negative_ones_are_refused():
+    """P0 = 0 (the catalog's) enters as U = I, D = 0, and P(1/0) = G Q Gᵀ of mpt3d_b (one
+    noise input, two states) is singular: the zero pivots divide as 0 / DBL_MIN = 0 (the
+    reference's zero column); a negative pivot (P not positive semidefinite) is refused."""
+    programs = Programs(catalog.load("mpt3d_b"))
+    U, D = programs.enter(np.zeros((2, 2)))
+    assert np.array_equal(U, np.eye(2)) and np.array_equal(D, np.zeros(2))
+    x, U, D = programs.functions["step"]([0.0, 0.0], [1.0, 0.0, 0.0, 1.0], [0.0, 0.0], [1.0])
+    assert np.all(np.isfinite(U)) and np.all(np.isfinite(D)) and min(D) == 0
+    with pytest.raises(NumericalError, match="pivot 1 of its UD factorisation is negative"):
+        programs.enter(np.diag([1.0, -1.0]))
+    with pytest.raises(NumericalError, match=r"P\(k\+1/k\) is not positive semidefinite: "
+                                             "pivot 1"):
+        programs.functions["step"]([0.0, 0.0], [1.0, 0.0, 0.0, 1.0], [1.0, -1.0], [1.0])
+
+
+def test_the_pivot_floor_changes_no_quotient_of_a_normal_pivot():
+    """d + DBL_MIN == d for d >= 2^-968, and 0 / DBL_MIN == 0."""
+    floor = float(PIVOT_FLOOR)
+    assert floor == np.finfo(float).tiny
+    d = np.geomspace(2.0**-968, 1e300, 10000)
+    assert np.array_equal(d + floor, d)
+    assert 0.0 / floor == 0.0
 
 
 def test_entries_outside_the_pattern_are_refused():
@@ -314,16 +329,17 @@ def c_call(function, *arrays):
 
 
 def test_programs_print_as_c_that_compiles_and_matches_python(tmp_path):
-    """mpt3d_a with missing measurements (selects): C (with fma) within 1e-12 of the
-    printed Python over 100 steps, and a non-zero status where Python raises."""
+    """mpt3d_a from its P0 = 0 (zero pivots) with missing measurements (selects): C (with
+    fma) within 1e-12 of the printed Python over 100 steps, and a non-zero status where
+    Python raises."""
     model = catalog.load("mpt3d_a")
     programs = Programs(model, missing=True)
     library = c_library(programs.programs, tmp_path)
     num = model.numeric()
     zs = with_gaps(series(num, 100, 6), 6)
-    xs, Us, Ds, _ = programs.run(zs, num.x0, np.eye(6))
+    xs, Us, Ds, _ = programs.run(zs, num.x0, num.P0)
     U, D = np.zeros(36), np.zeros(6)
-    assert c_call(library.ud_enter, np.eye(6).ravel(), U, D) == 0
+    assert c_call(library.ud_enter, np.array(num.P0, dtype=float).ravel(), U, D) == 0
     x = np.array(num.x0, dtype=float)
     for k, z in enumerate(zs):
         x_new, U_new, D_new = np.zeros(6), np.zeros(36), np.zeros(6)
@@ -338,8 +354,8 @@ def test_programs_print_as_c_that_compiles_and_matches_python(tmp_path):
     c_call(library.ud_store, U, D, P)
     np.testing.assert_allclose(P.reshape(6, 6), programs.store(U.reshape(6, 6), D),
                                rtol=1e-12, atol=1e-15)
-    assert c_call(library.ud_enter, np.zeros(36), U, D) != 0
-    assert c_call(library.ud_step, x, np.eye(6).ravel(), np.zeros(6), np.zeros(3),
+    assert c_call(library.ud_enter, -np.eye(6).ravel(), U, D) != 0
+    assert c_call(library.ud_step, x, np.eye(6).ravel(), -np.ones(6), np.zeros(3),
                   np.zeros(6), np.zeros(36), np.zeros(6)) != 0
 
 

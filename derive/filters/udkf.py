@@ -14,10 +14,14 @@ Programs (:func:`udkf_programs`):
   the weights diag(D, Dq), Q = Lq Dq Lqᵀ (Q diagonal: Lq = I); then Bierman's scalar
   updates, one measurement component at a time, of the measurement whitened with
   R = L Dr Lᵀ (z' = L⁻¹ z, H' = L⁻¹ H, R' = Dr; nothing to do when R is diagonal).
-  Every divisor is checked positive (``Program.require_positive``): the MWGS pivots
-  d'_j, i.e. P(k+1/k) must be positive definite, and Bierman's innovation variances;
-- ``enter`` P (symmetric) -> (U, D): the UD factorisation, last column first, each pivot
-  checked positive; P outside the pattern of U D Uᵀ is refused (PatternError / status);
+  Bierman's divisors, the innovation variances, are checked positive
+  (``Program.require_positive``); the MWGS pivots d'_j (P(k+1/k) = U' D' U'ᵀ) are checked
+  not negative and divide as d'_j + DBL_MIN, so that a singular P(k+1/k) (P0 = 0 with a
+  rank-deficient G Q Gᵀ, the catalog's usual start) gives D'_j = 0 and a zero column of
+  U' instead of 0 / 0 (PIVOT_FLOOR: bitwise num / d for every d >= 4e-292);
+- ``enter`` P (symmetric) -> (U, D): the UD factorisation, last column first, pivots
+  checked not negative and floored as in the step (P0 = 0 enters as U = I, D = 0); P
+  outside the pattern of U D Uᵀ is refused (PatternError / status);
 - ``store`` (U, D) -> P: U D Uᵀ, the upper triangle computed and mirrored.
 
 With ``missing`` a NaN in z[i] marks component i absent.  With a diagonal R each scalar
@@ -72,6 +76,26 @@ def _is_diagonal(M: sympy.Matrix) -> bool:
     return all(M[i, j] == 0 for i in range(M.rows) for j in range(M.cols) if i != j)
 
 
+PIVOT_FLOOR = sympy.Float(2.0**-1022)
+"""DBL_MIN, the least positive normal double, added to every pivot of a UD factorisation
+before it divides.  A pivot d >= 2^-968 (about 4e-292) is unchanged by it (d + DBL_MIN
+rounds to d), so every quotient is bitwise num / d; a zero pivot (a singular P, such as
+P0 = 0, or a singular P(k+1/k)) has an exactly zero numerator (its row is zero in the
+weights), so its column of U is 0 / DBL_MIN = 0, as in the reference, instead of 0 / 0.
+A normal number, so flush-to-zero arithmetic keeps it."""
+
+
+def _pivot(prog: Program, d, message: str) -> sympy.Expr:
+    """The divisor ``d + DBL_MIN`` of the pivot ``d``, checked > 0: refuses a negative or
+    NaN pivot, lets a zero one through (see PIVOT_FLOOR)."""
+    if d.is_number:
+        prog.require_positive(d, message)
+        return d
+    guarded = _stage(prog, d + PIVOT_FLOOR, "pivot")
+    prog.require_positive(guarded, message)
+    return guarded
+
+
 def _quotients(prog: Program, numerators, divisor, hint: str = "t") -> list[sympy.Expr]:
     """``numerators / divisor``: divided directly when at most two are non-zero, else
     multiplied by one shared reciprocal (as staging.spd_solve does)."""
@@ -87,18 +111,19 @@ def _quotients(prog: Program, numerators, divisor, hint: str = "t") -> list[symp
 
 def ud_factor(prog: Program, P: sympy.Matrix) -> tuple[sympy.Matrix, list[sympy.Expr]]:
     """``P = U diag(D) Uᵀ`` (upper triangle of P read), U unit upper triangular, last
-    column first; every pivot checked positive."""
+    column first; a negative pivot is refused at runtime, a zero one gives a zero column
+    (PIVOT_FLOOR)."""
     n = P.rows
     U = sympy.eye(n)
     E = sympy.zeros(n, n)  # E[i, k] = U[i, k] D[k], the numerators
     D: list[sympy.Expr] = [_ZERO] * n
     for j in reversed(range(n)):
         D[j] = _stage(prog, P[j, j] - _dot(E[j, k] * U[j, k] for k in range(j + 1, n)), "d")
-        prog.require_positive(D[j], f"P is not positive definite: pivot {j} of its UD "
-                                    "factorisation is not positive")
+        divisor = _pivot(prog, D[j], f"P is not positive semidefinite: pivot {j} of its "
+                                     "UD factorisation is negative")
         for i in range(j):
             E[i, j] = _stage(prog, P[i, j] - _dot(E[i, k] * U[j, k] for k in range(j + 1, n)))
-        column = _quotients(prog, [E[i, j] for i in range(j)], D[j], "u")
+        column = _quotients(prog, [E[i, j] for i in range(j)], divisor, "u")
         for i in range(j):
             U[i, j] = column[i]
     return U, D
@@ -114,7 +139,8 @@ def mwgs(prog: Program, W: sympy.Matrix, weights) -> tuple[sympy.Matrix, list[sy
     """Thornton's modified weighted Gram-Schmidt: U, D with U diag(D) Uᵀ = W diag(weights) Wᵀ.
 
     Rows are orthogonalised from the last to the first; each pivot (the weighted squared
-    norm of a row) is checked positive: P(k+1/k) must be positive definite."""
+    norm of a row, >= 0 in exact arithmetic) is checked not negative, and a zero pivot
+    (singular P(k+1/k)) gives a zero column of U (PIVOT_FLOOR)."""
     n, N = W.rows, W.cols
     W = sympy.Matrix(W)
     U = sympy.eye(n)
@@ -122,10 +148,10 @@ def mwgs(prog: Program, W: sympy.Matrix, weights) -> tuple[sympy.Matrix, list[sy
     for j in reversed(range(n)):
         c = [_stage(prog, weights[k] * W[j, k]) for k in range(N)]
         D[j] = _stage(prog, _dot(W[j, k] * c[k] for k in range(N)), "d")
-        prog.require_positive(D[j], f"P(k+1/k) is not positive definite: pivot {j} of the "
-                                    "time update (MWGS) is not positive")
+        divisor = _pivot(prog, D[j], f"P(k+1/k) is not positive semidefinite: pivot {j} of "
+                                     "the time update (MWGS) is negative")
         numerators = [_stage(prog, _dot(W[i, k] * c[k] for k in range(N))) for i in range(j)]
-        column = _quotients(prog, numerators, D[j], "u")
+        column = _quotients(prog, numerators, divisor, "u")
         for i in range(j):
             U[i, j] = column[i]
             if column[i] != 0:

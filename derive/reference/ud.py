@@ -15,7 +15,8 @@ square root is taken anywhere.  One step, x(k/k), U(k/k), D(k/k) -> x(k+1/k+1), 
 
 A zero pivot (a singular P(k+1/k), e.g. P0 = 0 with a rank-deficient G Q Gᵀ) is exact
 here: its column of U is set to zero (any column gives the same P); a negative pivot
-raises NumericalError.  The generated programs (derive.filters.udkf) refuse zero pivots.
+raises NumericalError.  The generated programs (derive.filters.udkf) divide by
+d + DBL_MIN, which gives the same zero column.
 
 Indexing as in derive.reference.linear: zs[k-1] = z(k); outputs [k-1] are at step k.
 """
