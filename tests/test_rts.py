@@ -3,6 +3,9 @@ forward/backward programs, run through the documented work layout, against the r
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+
 import numpy as np
 import pytest
 import sympy
@@ -10,11 +13,14 @@ from filterpy.kalman import KalmanFilter as FilterPyKF
 from pykalman import KalmanFilter as PyKalmanKF
 
 from derive import LinearModel, catalog
+from derive.build import STRICT_CFLAGS
+from derive.emit import c_printer
 from derive.emit.python_printer import python_function
 from derive.errors import ModelError, NumericalError, PatternError
 from derive.filters.kf import kf_update, time_varying_program
 from derive.filters.rts import WorkLayout, header_facts, rts_programs
 from derive.flops import OpCounter, count
+from derive.lowering import lower_program
 from derive.options import SharedOptions
 from derive.reference import kf as reference_kf
 from derive.reference.smoother import rts
@@ -266,3 +272,20 @@ def test_header_facts_state_the_patterns_and_the_work_size():
     assert "x..|.x.|..x" in facts[1]
     assert facts[2].startswith("work: 24 + 6 * steps")
     assert facts[3].startswith("missing measurements")
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
+@pytest.mark.parametrize("use_fma", [False, True], ids=["plain", "fma"])
+def test_c_of_both_programs_compiles_under_the_strict_flags(tmp_path, use_fma):
+    lines = ["#include <math.h>", *c_printer.FMA_MACRO_LINES]
+    for model in (catalog.load("mpt3d_a"), free_noise()):
+        programs = rts_programs(model, SharedOptions(missing=True))
+        for program in programs.values():
+            parts = c_printer.function_parts(lower_program(program, use_fma=use_fma),
+                                              model.name)
+            lines += [parts["signature"], "{", *("    " + line for line in parts["body"]), "}"]
+    source = tmp_path / "rts.c"
+    source.write_text("\n".join(lines) + "\n")
+    proc = subprocess.run(["gcc", *STRICT_CFLAGS, "-c", str(source), "-o",
+                           str(tmp_path / "rts.o")], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
