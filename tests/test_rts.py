@@ -16,7 +16,7 @@ from derive import LinearModel, catalog
 from derive.build import STRICT_CFLAGS
 from derive.emit import c_printer
 from derive.emit.python_printer import python_function
-from derive.errors import ModelError, NumericalError, PatternError
+from derive.errors import FilterError, ModelError, NumericalError, PatternError
 from derive.filters.kf import kf_update, time_varying_program
 from derive.filters.rts import WorkLayout, header_facts, rts_programs
 from derive.flops import OpCounter, count
@@ -289,3 +289,20 @@ def test_c_of_both_programs_compiles_under_the_strict_flags(tmp_path, use_fma):
     proc = subprocess.run(["gcc", *STRICT_CFLAGS, "-c", str(source), "-o",
                            str(tmp_path / "rts.o")], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize("steps", [0, 1, 2])
+def test_short_runs(steps):
+    model = catalog.load("gps_static")
+    num = model.numeric()
+    zs = measurements(num, steps=5)[:steps]
+    xs, Ps = run_programs(rts_programs(model, SharedOptions()), zs, num.x0, num.P0)
+    xr, Pr = rts(num, zs, num.x0, num.P0)
+    assert xs.shape == xr.shape == (steps, 3)
+    assert relative_error(xs, xr) <= PROGRAM_TOLERANCE
+    assert relative_error(Ps, Pr) <= PROGRAM_TOLERANCE
+
+
+def test_a_nonlinear_model_is_refused_with_one_line():
+    with pytest.raises(FilterError, match="needs a linear model; 'gnss_pseudorange' is nonlinear"):
+        rts_programs(catalog.load("gnss_pseudorange"), SharedOptions())
