@@ -306,3 +306,12 @@ def test_short_runs(steps):
 def test_a_nonlinear_model_is_refused_with_one_line():
     with pytest.raises(FilterError, match="needs a linear model; 'gnss_pseudorange' is nonlinear"):
         rts_programs(catalog.load("gnss_pseudorange"), SharedOptions())
+
+
+@pytest.mark.parametrize("name", LINEAR)
+def test_smoothed_and_predicted_covariances_stay_in_the_filters_pattern(name):
+    programs = rts_programs(catalog.load(name), SharedOptions())
+    filtered = programs["forward"].results["P_new"]
+    for values in (programs["forward"].results["P_pred"],
+                   programs["backward"].results["P_smooth"]):
+        assert [v != 0 for v in values] == [v != 0 for v in filtered]
