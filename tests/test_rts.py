@@ -140,7 +140,6 @@ def run_programs(programs, zs, x0, P0, p=()):
     n, steps, entries = layout.n, len(zs), list(layout.prior_entries)
     xs, Ps = np.full((steps, n), np.nan), np.full((steps, n * n), np.nan)
     work = np.full(layout.size(steps), np.nan)
-    work[:layout.scratch] = 0.0
     x_f, P_f = work[layout.x_f:layout.P_f], work[layout.P_f:layout.x_p]
     x_p, P_p = work[layout.x_p:layout.P_p], work[layout.P_p:layout.scratch]
 

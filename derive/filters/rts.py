@@ -43,7 +43,8 @@ size = 2 (n + n*n) + steps (n + u)  (``WorkLayout.size(steps)``).
 
 Loop order:
 
-1. the scratch is set to zero once (P_p outside the pattern must read as zero);
+1. (no initialisation: every scratch double is written before it is read; the forward
+   program writes P_p in full, zeros outside the pattern included);
 2. forward, k = 1..N: ``forward(x_in, P_in, z[k-1], [p]) -> xs[k-1], Ps[k-1], x_p, P_p``
    with (x_in, P_in) = (x0, P0) for k = 1, else (xs[k-2], Ps[k-2]); then x_p and P_p at
    prior_entries are copied into record k.  A failed check stops the run (its status);
