@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from functools import cache
 
-from . import formulas, paper, riccati
+from . import formulas, horizon, paper, riccati
 
 #: Flops are counted on the Python lowering; the C lowering (with fma, 2 flops each)
 #: has the same flops by construction, which tests/test_burden.py checks.
@@ -260,7 +260,7 @@ def fir_rows() -> list[FirRow]:
         sskf_formula = _formula("sskf", n, m, s.axes)
         sskf_spec = s.axes * specialised_count(s.model, "sskf").flops
         for eps in FIR_EPSILONS:
-            N = riccati.fir_order(A, eps, norm=2)
+            N = horizon.fir_order(A, eps, norm=2)
             fir_formula = s.axes * formulas.fir(N, n, m)
             fir_spec = s.axes * specialised_count(s.model, "fir", N).flops
             out.append(FirRow(

@@ -31,7 +31,7 @@ from functools import cache
 import numpy as np
 import sympy
 
-from . import riccati, staging
+from . import horizon, riccati, staging
 from .emit.unit import Unit
 from .errors import FilterError, ModelError
 from .filters.kf import prior
@@ -303,7 +303,7 @@ def _fir_order(model, eps: float | None, N: int | None) -> int:
 
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)
-    return riccati.fir_order(ss.A, DEFAULT_EPS if eps is None else eps)
+    return horizon.fir_order(ss.A, DEFAULT_EPS if eps is None else eps)
 
 
 def parameter_values(model, name: str, N: int | None = None, params=None) -> np.ndarray:
@@ -326,10 +326,10 @@ def parameter_values(model, name: str, N: int | None = None, params=None) -> np.
         ss = riccati.kf_steady(F, G, H, Q, R)
         values.update(A=ss.A, B=ss.B, A_KF=ss.A, B_KF=ss.B)
         if name == "pred":  # N: the prediction horizon (default 1)
-            pc = riccati.pred_constants(F, ss.K, H, N or 1)
+            pc = horizon.pred_constants(F, ss.K, H, N or 1)
             values.update(A=pc.A_N, B=pc.B_N, FN=np.linalg.matrix_power(F, N or 1))
         if name == "fir":
-            taps = riccati.fir_taps(ss.A, ss.B, N)
+            taps = horizon.fir_taps(ss.A, ss.B, N)
             values.update({f"C{i}": tap for i, tap in enumerate(taps)})
     if name in ("sslf", "jssklf"):
         ss = riccati.lf_steady(F, G, H, Q, R)

@@ -39,7 +39,7 @@ class Batch:
 def make_batch(tracks: int = TRACKS, steps: int = STEPS, seed: int = 5) -> Batch:
     """Tracks simulated from the model, all at once."""
     from .. import catalog
-    from ..riccati import psd_sqrt
+    from ..system_checks import psd_sqrt
 
     num = catalog.load(MODEL).numeric()
     F, G, H, Q, R = (np.asarray(getattr(num, k), float) for k in ("F", "G", "H", "Q", "R"))
