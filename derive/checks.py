@@ -12,7 +12,7 @@ import numpy as np
 
 from . import horizon, reference, riccati, system_checks
 from .errors import SteadyStateError, SymbolError
-from .simulate import simulate_linear
+from .simulate import gnss_scenario, simulate_linear
 
 
 @dataclass(frozen=True)
@@ -113,8 +113,6 @@ def linear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
 
 def nonlinear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
     """EKF and UKF on the simulated GNSS scenario: both must track the static truth."""
-    from .simulate import gnss_scenario
-
     sc = gnss_scenario(steps=steps, seed=seed)
     fns = model.numeric_functions()
     # per-step inputs in the model's order: satellite-major (xs1, ys1, zs1, xs2, ...)

@@ -32,9 +32,13 @@ import numpy as np
 import sympy
 
 from . import horizon, riccati, staging
+from .emit.render import render_c, render_python
 from .emit.unit import Unit
+from .emit.write import write_files
 from .errors import FilterError, ModelError
 from .filters.kf import prior
+from .generation import resolve_model
+from .options import DEFAULT_EPS
 from .program import Port, Program
 
 #: The filters paper mode generates (derive's names).
@@ -299,8 +303,6 @@ def unit(name: str, n: int, m: int, model_name: str | None = None, N: int | None
 def _fir_order(model, eps: float | None, N: int | None) -> int:
     if N is not None:
         return _need("the FIR order N", N)
-    from .options import DEFAULT_EPS
-
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)
     return horizon.fir_order(ss.A, DEFAULT_EPS if eps is None else eps)
@@ -352,8 +354,6 @@ def model_unit(model, name: str, N: int | None = None, eps: float | None = None)
 def render(model, name: str, lang: str = "all", N: int | None = None,
            eps: float | None = None) -> dict[str, str]:
     """``{file name: text}`` of paper-mode ``name`` for ``model`` (lang python, c or all)."""
-    from .emit.render import render_c, render_python
-
     if lang not in ("python", "c", "all"):
         raise FilterError(f"language {lang!r} is not one of python, c, all")
     u = model_unit(model, name, N, eps)
@@ -368,9 +368,6 @@ def render(model, name: str, lang: str = "all", N: int | None = None,
 def generate(model, filters: Sequence[str] = ("kf", "lf"), lang: str = "all",
              out="generated"):
     """Write paper-mode files ``OUT/MODEL/FILTER_paper.*``; returns the paths."""
-    from .emit.write import write_files
-    from .generation import resolve_model
-
     model = resolve_model(model)
     files: dict[str, str] = {}
     for name in filters:
