@@ -21,6 +21,7 @@ from ..verify import relative_error
 from . import batch, casadi_c, generated, peers
 from .bound import case_bound
 from .cases import CASES, Case, Skip, make_data, states
+from .probe import measure_latencies
 from .timing import Timing, human, measure
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
@@ -251,8 +252,6 @@ def machine_info() -> dict:
             "load": "n/a", "python": platform.python_version(), "numpy": np.__version__,
             "generated_cflags": list(STRICT_CFLAGS) + list(generated.CFLAGS)}
     try:
-        from .probe import measure_latencies
-
         info["latency"] = measure_latencies(generated.CFLAGS)
     except Exception as exc:  # no compiler or cffi failure: the bounds are left out
         info["latency"] = {}
