@@ -22,8 +22,8 @@ import difflib
 import os
 import sys
 
-from . import __version__
 from .errors import ModelError, NumericalError, VerificationError
+from .version import __version__
 
 
 class _Parser(argparse.ArgumentParser):
