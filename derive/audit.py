@@ -26,7 +26,7 @@ import numpy as np
 from . import catalog, formulas, horizon, paper, riccati
 from .filters import derive_unit
 from .flops import count
-from .program import Assign
+from .statements import Assign
 
 #: Flops are counted on the Python lowering; the C lowering (with fma, 2 flops each)
 #: has the same flops by construction, which tests/test_burden.py checks.

@@ -370,8 +370,8 @@ class Program:
         gets a temporary, ``x**k`` with ``|k| >= 4`` is built by squaring);
         sharing of common subexpressions across the whole body, each one kept
         only when it lowers the operation count; dead-code elimination;
-        renumbering ``t0, t1, ...`` in order.  Deterministic.  An optimised
-        program is returned unchanged.
+        renumbering ``t0, t1, ...`` in order (the passes are in :mod:`derive.optimise`).
+        Deterministic.  An optimised program is returned unchanged.
         """
         if self._optimized:
             return self
