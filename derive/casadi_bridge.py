@@ -17,7 +17,7 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import ModelError
-from derive.filters.ekf import linearise
+from derive.filters import ekf
 
 
 class CasadiTranslationError(ModelError):
@@ -145,7 +145,7 @@ def check_jacobians(model, points: int = 100, seed: int = 0,
     every = states + others
     results = {}
     for label, exprs in (("f", model.subs(model.f)), ("h", model.subs(model.h))):
-        values, jac = linearise(exprs, states).expanded()
+        values, jac = ekf.linearise(exprs, states).expanded()
         ours = sympy.lambdify([every], [values, jac], modules="numpy")
         theirs = casadi_function(label, list(exprs), states, others)
         rng = np.random.default_rng(seed)
