@@ -21,7 +21,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from functools import cache
 
-from . import formulas, paper, riccati
+import numpy as np
+
+from . import catalog, formulas, horizon, paper, riccati
+from .filters import derive_unit
+from .flops import count
+from .statements import Assign
 
 #: Flops are counted on the Python lowering; the C lowering (with fma, 2 flops each)
 #: has the same flops by construction, which tests/test_burden.py checks.
@@ -166,17 +171,12 @@ class Audit:
 
 @cache
 def _model(name: str):
-    from . import catalog
-
     return catalog.load(name)
 
 
 @cache
 def specialised_count(model: str, name: str, N: int | None = None):
     """OpCount of ``step`` of derive's specialised filter ``name`` for a catalog model."""
-    from .filters import derive_unit
-    from .flops import count
-
     options = {} if N is None else {"order": N} if name == "fir" else {"horizon": N}
     return count(derive_unit(_model(model), name, options).programs["step"], LANG)
 
@@ -184,8 +184,6 @@ def specialised_count(model: str, name: str, N: int | None = None):
 @cache
 def paper_count(name: str, n: int, m: int, N: int | None = None):
     """OpCount of ``step`` of derive's paper-mode ``name`` for sizes n, m (FIR order N)."""
-    from .flops import count
-
     return count(paper.step_program(name, n, m, N), LANG)
 
 
@@ -247,8 +245,6 @@ def speedups(table: list[Row]) -> list[Speedup]:
 
 
 def fir_rows() -> list[FirRow]:
-    import numpy as np
-
     out = []
     for s in SYSTEMS:
         if s.paper == "SSPRED":
@@ -260,7 +256,7 @@ def fir_rows() -> list[FirRow]:
         sskf_formula = _formula("sskf", n, m, s.axes)
         sskf_spec = s.axes * specialised_count(s.model, "sskf").flops
         for eps in FIR_EPSILONS:
-            N = riccati.fir_order(A, eps, norm=2)
+            N = horizon.fir_order(A, eps, norm=2)
             fir_formula = s.axes * formulas.fir(N, n, m)
             fir_spec = s.axes * specialised_count(s.model, "fir", N).flops
             out.append(FirRow(
@@ -276,8 +272,6 @@ def reciprocal_savings(program) -> int:
     """Reciprocals ``t = 1/d`` used only as factors of products: dividing by ``d`` at each of
     the k uses instead would cost k divisions rather than one division and k
     multiplications, one flop less each (a division for a multiplication on hardware)."""
-    from .program import Assign
-
     recips = {st.target for st in program.body
               if isinstance(st, Assign) and st.expr.is_Pow and st.expr.exp == -1}
     uses = dict.fromkeys(recips, 0)
@@ -302,8 +296,6 @@ def reciprocal_savings(program) -> int:
 
 def _kf_note() -> str:
     """The specialised KF of MPT3D model A, per axis, by kind of operation."""
-    from .filters import derive_unit
-
     whole = specialised_count("mpt3d_a", "kf")
     blocks = len(_model("mpt3d_a").blocks())
     axis = specialised_count("mpt3d_b", "kf")

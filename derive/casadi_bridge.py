@@ -17,6 +17,7 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import ModelError
+from derive.filters import ekf
 
 
 class CasadiTranslationError(ModelError):
@@ -139,14 +140,12 @@ def check_jacobians(model, points: int = 100, seed: int = 0,
     A point where either side is not finite (outside the domain of a log or sqrt) is
     drawn again; after 100 * points draws without enough finite points, ModelError.
     """
-    from derive.filters.ekf import linearise
-
     states = list(model.state_symbols)
     others = list(model.inputs) + sorted(model.parameters, key=default_sort_key)
     every = states + others
     results = {}
     for label, exprs in (("f", model.subs(model.f)), ("h", model.subs(model.h))):
-        values, jac = linearise(exprs, states).expanded()
+        values, jac = ekf.linearise(exprs, states).expanded()
         ours = sympy.lambdify([every], [values, jac], modules="numpy")
         theirs = casadi_function(label, list(exprs), states, others)
         rng = np.random.default_rng(seed)

@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import reference, riccati
+from . import horizon, reference, riccati, system_checks
 from .errors import SteadyStateError, SymbolError
-from .simulate import simulate_linear
+from .simulate import gnss_scenario, simulate_linear
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def linear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
         out.append(Check(name, f"whole model = its {len(blocks)} blocks merged (KF)",
                          max(_relmax(xk, xs), _relmax(Pk, Ps)), 1e-10))
     try:
-        riccati.check_steady_state(F, G, H, Q, R)
+        system_checks.check_steady_state(F, G, H, Q, R)
     except SteadyStateError:  # no steady state: the time-varying checks are all there is
         return out
     kfs = riccati.kf_steady(F, G, H, Q, R)
@@ -92,7 +92,7 @@ def linear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
     xss = reference.sskf(F, G, H, Q, R, x0, zs)
     xsl = reference.sslf(F, G, H, Q, R, x0, zs)
     out.append(Check(name, "SSKF = SSLF (x)", _relmax(xss, xsl), 1e-10))
-    N = riccati.fir_order(kfs.A, 1e-6)
+    N = horizon.fir_order(kfs.A, 1e-6)
     xf = reference.fir(F, G, H, Q, R, zs, N=N)
     out.append(Check(name, f"FIR (N = {N}, eps 1e-6) = SSKF for the first N steps",
                      _relmax(xf[:N], xss[:N]), 1e-10))
@@ -113,8 +113,6 @@ def linear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
 
 def nonlinear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
     """EKF and UKF on the simulated GNSS scenario: both must track the static truth."""
-    from .simulate import gnss_scenario
-
     sc = gnss_scenario(steps=steps, seed=seed)
     fns = model.numeric_functions()
     # per-step inputs in the model's order: satellite-major (xs1, ys1, zs1, xs2, ...)

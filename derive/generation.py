@@ -12,11 +12,13 @@ import dataclasses
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+from . import catalog
 from .emit.render import render_c, render_python
 from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError
 from .filters import available, derive_unit, kind
+from .modelfile import load_model_file
 from .options import SharedOptions, per_filter, regenerate_command, validate
 
 LANGS = ("python", "c", "all")
@@ -26,11 +28,7 @@ def resolve_model(model):
     """A model object from a model, a catalog name or a model-file path."""
     if not isinstance(model, str):
         return model
-    from . import catalog
-
     if model.endswith(".toml") or "/" in model or "\\" in model:
-        from .modelfile import load_model_file
-
         return load_model_file(model)
     return catalog.load(model)
 

@@ -24,8 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from derive import catalog
+from derive.build import build_c
+from derive.emit.write import write_files
 from derive.errors import ModelError
+from derive.generation import render_filter
 from derive.simulate import gnss_scenario, pseudorange
+from derive.verify import import_python
 
 TIMES = (20, 100, 200, 300, 500)
 """Seconds at which the paper reports RMSE."""
@@ -110,18 +115,11 @@ def _module(name: str, lang: str):
 
 
 def _load(name: str, lang: str, workdir: Path):
-    from derive import catalog
-    from derive.emit.write import write_files
-    from derive.generation import render_filter
-    from derive.verify import import_python
-
     model = catalog.load(MODEL)
     files = render_filter(model, name, lang, {})
     paths = {p.suffix: p for p in write_files(workdir, model.name, files)}
     if lang == "python":
         return import_python(paths[".py"])
-    from derive.build import build_c
-
     return build_c(paths[".c"])
 
 

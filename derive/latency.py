@@ -21,7 +21,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from derive.lowering import CARRIED, Const, LoweredAssign, LoweredProgram, Op, Tree, Var
+from derive.emit.lookahead import run_pass
+from derive.lowering import (
+    CARRIED,
+    Const,
+    LoweredAssign,
+    LoweredProgram,
+    Op,
+    Tree,
+    Var,
+    lower_program,
+)
 
 #: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
 #: latencies for double add, multiply, fma, divide and square root; a call of a math
@@ -175,9 +185,6 @@ def _cycle_nodes(via: list[np.ndarray], start: int, steps: int) -> list[int]:
 def run_loop_bound(unit, latency: Mapping[str, float]) -> Bound | None:
     """The bound of ``unit``'s generated C run loop as emitted: its pass (the step, or a
     steady-state two-step pass, :func:`derive.emit.lookahead.run_pass`), per step."""
-    from derive.emit.lookahead import run_pass
-    from derive.lowering import lower_program
-
     program, steps = run_pass(unit)
     bound = carried_bound(lower_program(program, use_fma=True), latency)
     if bound is None:

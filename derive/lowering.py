@@ -43,6 +43,7 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import ModelError
+from derive.statements import POSITIVE, Assign, Check
 
 if TYPE_CHECKING:
     from derive.program import Port, Program
@@ -371,8 +372,6 @@ class LoweredProgram:
 
 def lower_program(program: Program, *, use_fma: bool = False) -> LoweredProgram:
     """Lower every statement of ``program.optimize()`` (an optimised program as is)."""
-    from derive.program import POSITIVE, Assign, Check  # lazily: program imports us
-
     program = program.optimize()
     lowerer = _Lowerer(use_fma)
     body: list[LoweredAssign | LoweredCheck] = []

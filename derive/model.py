@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import sympy
 
+from . import structure
+from .discretize import discretize
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
 from .symbols import (
@@ -356,8 +358,6 @@ class LinearModel(_Model):
 
         Free parameters not listed in ``parameters`` follow in order of first appearance
         in Phi, G, Qc, H, R, dt."""
-        from .discretize import discretize
-
         state_names = check_names(states, "states")
         n = len(state_names)
         table = SymbolTable()
@@ -406,15 +406,12 @@ class LinearModel(_Model):
     @classmethod
     def compose(cls, name, models, suffixes=None, description="", source=""):
         """Block-diagonal composition (model A = three model-B axes)."""
-        from .structure import compose
-
-        return compose(cls, name, models, suffixes, description=description, source=source)
+        return structure.compose(cls, name, models, suffixes, description=description,
+                                 source=source)
 
     def blocks(self):
         """Independent blocks of the model (see :func:`derive.structure.find_blocks`)."""
-        from .structure import find_blocks
-
-        return find_blocks(self)
+        return structure.find_blocks(self)
 
 
 class NonlinearModel(_Model):

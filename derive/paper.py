@@ -31,10 +31,14 @@ from functools import cache
 import numpy as np
 import sympy
 
-from . import riccati, staging
+from . import horizon, riccati, staging
+from .emit.render import render_c, render_python
 from .emit.unit import Unit
+from .emit.write import write_files
 from .errors import FilterError, ModelError
 from .filters.kf import prior
+from .generation import resolve_model
+from .options import DEFAULT_EPS
 from .program import Port, Program
 
 #: The filters paper mode generates (derive's names).
@@ -299,11 +303,9 @@ def unit(name: str, n: int, m: int, model_name: str | None = None, N: int | None
 def _fir_order(model, eps: float | None, N: int | None) -> int:
     if N is not None:
         return _need("the FIR order N", N)
-    from .options import DEFAULT_EPS
-
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)
-    return riccati.fir_order(ss.A, DEFAULT_EPS if eps is None else eps)
+    return horizon.fir_order(ss.A, DEFAULT_EPS if eps is None else eps)
 
 
 def parameter_values(model, name: str, N: int | None = None, params=None) -> np.ndarray:
@@ -326,10 +328,10 @@ def parameter_values(model, name: str, N: int | None = None, params=None) -> np.
         ss = riccati.kf_steady(F, G, H, Q, R)
         values.update(A=ss.A, B=ss.B, A_KF=ss.A, B_KF=ss.B)
         if name == "pred":  # N: the prediction horizon (default 1)
-            pc = riccati.pred_constants(F, ss.K, H, N or 1)
+            pc = horizon.pred_constants(F, ss.K, H, N or 1)
             values.update(A=pc.A_N, B=pc.B_N, FN=np.linalg.matrix_power(F, N or 1))
         if name == "fir":
-            taps = riccati.fir_taps(ss.A, ss.B, N)
+            taps = horizon.fir_taps(ss.A, ss.B, N)
             values.update({f"C{i}": tap for i, tap in enumerate(taps)})
     if name in ("sslf", "jssklf"):
         ss = riccati.lf_steady(F, G, H, Q, R)
@@ -352,8 +354,6 @@ def model_unit(model, name: str, N: int | None = None, eps: float | None = None)
 def render(model, name: str, lang: str = "all", N: int | None = None,
            eps: float | None = None) -> dict[str, str]:
     """``{file name: text}`` of paper-mode ``name`` for ``model`` (lang python, c or all)."""
-    from .emit.render import render_c, render_python
-
     if lang not in ("python", "c", "all"):
         raise FilterError(f"language {lang!r} is not one of python, c, all")
     u = model_unit(model, name, N, eps)
@@ -368,9 +368,6 @@ def render(model, name: str, lang: str = "all", N: int | None = None,
 def generate(model, filters: Sequence[str] = ("kf", "lf"), lang: str = "all",
              out="generated"):
     """Write paper-mode files ``OUT/MODEL/FILTER_paper.*``; returns the paths."""
-    from .emit.write import write_files
-    from .generation import resolve_model
-
     model = resolve_model(model)
     files: dict[str, str] = {}
     for name in filters:

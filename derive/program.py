@@ -51,18 +51,25 @@ from __future__ import annotations
 
 import keyword
 import re
-from bisect import bisect_left, insort
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from fractions import Fraction
 from math import prod
 
 import sympy
 from sympy import default_sort_key
 
-from derive.errors import MatrixPropertyError, ModelError, ShapeError
-from derive.flops import count_tree
-from derive.lowering import lower
+from derive.errors import MatrixPropertyError, ShapeError
+from derive.optimise import optimize_body
+from derive.statements import (
+    NON_FINITE,
+    ZERO,
+    Assign,
+    Check,
+    InputElement,
+    Statement,
+    Temporary,
+    is_atom,
+)
 
 PARAMETER_PORT = "p"
 
@@ -77,16 +84,10 @@ _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _TEMP_LIKE = re.compile(r"^t\d+(_\w*)?$")
 
 
-class ProgramError(ModelError):
-    """A program built wrongly: unknown port, bad shape, unbound symbol, reuse."""
-
-
-class InputElement(sympy.Symbol):
-    """One element of an input port; its name is how generated code reads it (``P[3]``)."""
-
-
-class Temporary(sympy.Symbol):
-    """A temporary of a program (``t0``, ``t1``, ... once optimised)."""
+class ProgramError(RuntimeError):
+    """A program built wrongly (unknown port, bad shape, unbound symbol, reuse): a bug in
+    a derivation, not bad input, so not a :class:`derive.errors.ModelError` (the CLI
+    reports it as an internal error, exit status 70)."""
 
 
 @dataclass(frozen=True)
@@ -138,45 +139,6 @@ class Port:
                 raise ProgramError(f"index {index} out of range for port {self.name!r} "
                                    f"of shape {self.shape}")
         return index[0] if j is None else index[0] * self.shape[1] + index[1]
-
-
-@dataclass(frozen=True)
-class Assign:
-    """``target = expr``."""
-
-    target: Temporary
-    expr: sympy.Expr
-
-
-#: The relations a runtime check can require of its value.
-POSITIVE, ZERO = "positive", "zero"
-
-
-@dataclass(frozen=True)
-class Check:
-    """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot) or ``value == 0``
-    (ZERO: an input element outside a declared sparsity pattern); ``value`` is an atom.
-    A NaN fails both. Fails with ``message``."""
-
-    value: sympy.Expr
-    message: str
-    relation: str = POSITIVE
-
-    @property
-    def text(self) -> str:
-        """``value > 0`` or ``value == 0``."""
-        return f"{self.value} {'> 0' if self.relation == POSITIVE else '== 0'}"
-
-
-Statement = Assign | Check
-
-
-def is_atom(expr: sympy.Basic) -> bool:
-    """True for what needs no temporary: a symbol or a numeric constant."""
-    return bool(expr.is_Symbol or expr.is_number)
-
-
-_NON_FINITE = (sympy.zoo, sympy.nan, sympy.oo, -sympy.oo)
 
 
 class Program:
@@ -307,7 +269,7 @@ class Program:
             raise ProgramError(f"{what}: {expr!r} is not a sympy expression") from exc
         if not isinstance(expr, sympy.Expr):
             raise ProgramError(f"{what}: {expr!r} is not a scalar expression")
-        if expr.has(*_NON_FINITE):
+        if expr.has(*NON_FINITE):
             raise MatrixPropertyError(f"{what}: the expression is not finite ({expr}); "
                                       "a structurally zero divisor?")
         unbound = [s for s in expr.free_symbols
@@ -408,8 +370,8 @@ class Program:
         gets a temporary, ``x**k`` with ``|k| >= 4`` is built by squaring);
         sharing of common subexpressions across the whole body, each one kept
         only when it lowers the operation count; dead-code elimination;
-        renumbering ``t0, t1, ...`` in order.  Deterministic.  An optimised
-        program is returned unchanged.
+        renumbering ``t0, t1, ...`` in order (the passes are in :mod:`derive.optimise`).
+        Deterministic.  An optimised program is returned unchanged.
         """
         if self._optimized:
             return self
@@ -421,7 +383,7 @@ class Program:
         def fresh(hint: str) -> Temporary:
             return Temporary(f"t{next(counter)}_{hint}")
 
-        body, results = _optimize_body(self._body, self._results, fresh)
+        body, results = optimize_body(self._body, self._results, fresh)
         return self._final(body, results)
 
     def _final(self, body: list[Statement], results: dict[str, tuple[sympy.Expr, ...]]) -> Program:
@@ -432,250 +394,3 @@ class Program:
         out._counter = len(out._defined)
         out._optimized = True
         return out
-
-
-# -- passes ------------------------------------------------------------------------------
-
-Cost = tuple[int, int]  # (flops, instructions) of the lowered Python form
-
-
-def _optimize_body(body: list[Statement], results: dict[str, tuple[sympy.Expr, ...]],
-                   fresh) -> tuple[list[Statement], dict[str, tuple[sympy.Expr, ...]]]:
-    costs = _CostCache()
-    body, results = _forward(body, results)
-    body = _stage_powers(body, fresh)
-    body, results = _forward(body, results)
-    plain, plain_results = _dead_code(body, results)
-    shared, shared_results = _forward(_share(body, fresh, costs), results)
-    shared, shared_results = _dead_code(shared, shared_results)
-    if costs.total(shared) > costs.total(plain):
-        shared, shared_results = plain, plain_results
-    return _renumber(shared, shared_results)
-
-
-class _CostCache:
-    """(flops, instructions) of expressions, lowered as Python prints them."""
-
-    def __init__(self) -> None:
-        self._cache: dict[sympy.Expr, Cost] = {}
-
-    def __call__(self, expr: sympy.Expr) -> Cost:
-        cost = self._cache.get(expr)
-        if cost is None:
-            n = count_tree(lower(expr))
-            cost = self._cache[expr] = (n.flops, n.instructions)
-        return cost
-
-    def total(self, body: Sequence[Statement]) -> Cost:
-        flops = instructions = 0
-        for st in body:
-            f, i = self(st.expr) if isinstance(st, Assign) else (0, 1)
-            flops, instructions = flops + f, instructions + i
-        return flops, instructions
-
-
-def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
-    """Constant folding, copy propagation, merging of identical right-hand sides and checks."""
-    subst: dict[sympy.Symbol, sympy.Expr] = {}
-    seen: dict[sympy.Expr, Temporary] = {}
-    checked: set[sympy.Expr] = set()
-    out: list[Statement] = []
-    for st in body:
-        if isinstance(st, Assign):
-            expr = st.expr.xreplace(subst) if subst else st.expr
-            if expr.has(*_NON_FINITE):
-                raise MatrixPropertyError(f"{st.target} = {st.expr} is not finite after folding "
-                                          f"({expr}): a structurally zero divisor")
-            if is_atom(expr):
-                subst[st.target] = expr
-            elif expr in seen:
-                subst[st.target] = seen[expr]
-            else:
-                seen[expr] = st.target
-                out.append(st if expr is st.expr else Assign(st.target, expr))
-        else:
-            value = st.value.xreplace(subst) if subst else st.value
-            if value.is_number:
-                holds = value.is_positive if st.relation == POSITIVE else value.is_zero
-                if holds is not True:
-                    raise MatrixPropertyError(f"{st.message} (the value is structurally {value})")
-            elif (st.relation, value) not in checked:
-                checked.add((st.relation, value))
-                out.append(Check(value, st.message, st.relation))
-    new_results = {name: tuple(v.xreplace(subst) for v in values)
-                   for name, values in results.items()}
-    return out, new_results
-
-
-def _stage_powers(body: Sequence[Statement], fresh) -> list[Statement]:
-    """Give non-atomic bases of powers a temporary; build ``x**k``, ``|k| >= 4``, by squaring."""
-    out: list[Statement] = []
-    for st in body:
-        if not isinstance(st, Assign):
-            out.append(st)
-            continue
-
-        def emit(expr: sympy.Expr) -> Temporary:
-            target = fresh("pow")
-            out.append(Assign(target, expr))
-            return target
-
-        expr = _expand_powers(st.expr, emit)
-        out.append(st if expr is st.expr else Assign(st.target, expr))
-    return out
-
-
-def _expand_powers(expr: sympy.Expr, emit) -> sympy.Expr:
-    if is_atom(expr):
-        return expr
-    args = [_expand_powers(a, emit) for a in expr.args]
-    if any(a is not b for a, b in zip(args, expr.args)):
-        expr = expr.func(*args)
-    if not expr.is_Pow:
-        return expr
-    base, exp = expr.base, expr.exp
-    simple = exp in (-1, sympy.Rational(1, 2), sympy.Rational(-1, 2))
-    staged = False
-    if not is_atom(base) and not simple:
-        base, staged = emit(base), True
-    if exp.is_Integer and abs(exp) >= 4:
-        k = abs(int(exp))
-        factors, square = [], base
-        while True:
-            if k & 1:
-                factors.append(square)
-            k >>= 1
-            if not k:
-                break
-            square = emit(square ** 2)
-        value = sympy.Mul(*factors)
-        return value if exp > 0 else 1 / value
-    return sympy.Pow(base, exp) if staged else expr
-
-
-def _subexpressions(expr: sympy.Expr):
-    """Non-atomic subtrees of ``expr`` in preorder, plus the coefficient-free part of
-    every Mul with a numeric coefficient (``a*b`` of ``-2*a*b``)."""
-    stack = [expr]
-    while stack:
-        e = stack.pop()
-        if is_atom(e):
-            continue
-        yield e
-        if e.is_Mul and len(e.args) > 2:
-            coeff, rest = e.as_coeff_Mul()
-            if coeff != 1:
-                yield rest
-        stack.extend(reversed(e.args))
-
-
-def _occurrences(expr: sympy.Expr, target: sympy.Expr) -> int:
-    if expr == target:
-        return 1
-    if is_atom(expr):
-        return 0
-    if expr.is_Mul:
-        coeff, rest = expr.as_coeff_Mul()
-        if coeff != 1 and rest == target:
-            return 1
-    return sum(_occurrences(a, target) for a in expr.args)
-
-
-def _replace(expr: sympy.Expr, target: sympy.Expr, symbol: sympy.Symbol) -> sympy.Expr:
-    if expr == target:
-        return symbol
-    if is_atom(expr):
-        return expr
-    if expr.is_Mul:
-        coeff, rest = expr.as_coeff_Mul()
-        if coeff != 1 and rest == target:
-            return coeff * symbol
-    args = [_replace(a, target, symbol) for a in expr.args]
-    if all(a is b for a, b in zip(args, expr.args)):
-        return expr
-    return expr.func(*args)
-
-
-def _share(body: Sequence[Statement], fresh, cost: _CostCache) -> list[Statement]:
-    """Common-subexpression sharing across the body, one candidate at a time, largest first;
-    a candidate is shared only where that lowers (flops, instructions)."""
-    stmts: dict[int, Statement] = dict(enumerate(body))
-    pos: dict[int, Fraction] = {sid: Fraction(sid) for sid in stmts}
-    keys: list[Fraction] = sorted(pos.values())
-    occ: dict[sympy.Expr, list[int]] = {}
-    for sid, st in stmts.items():
-        if isinstance(st, Assign):
-            for node in _subexpressions(st.expr):
-                occ.setdefault(node, []).append(sid)
-    candidates = [e for e, ids in occ.items() if len(ids) >= 2]
-    candidates.sort(key=lambda e: (-cost(e)[1], default_sort_key(e)))
-
-    def place_before(sid: int, first: int) -> None:
-        if sid in pos:
-            keys.remove(pos[sid])
-        k = bisect_left(keys, pos[first])
-        low = keys[k - 1] if k else pos[first] - 1
-        pos[sid] = (low + pos[first]) / 2
-        insort(keys, pos[sid])
-
-    next_id = len(body)
-    for cand in candidates:
-        users = [sid for sid in dict.fromkeys(occ[cand])
-                 if _occurrences(stmts[sid].expr, cand)]
-        if sum(_occurrences(stmts[sid].expr, cand) for sid in users) < 2:
-            continue
-        root = next((sid for sid in users if stmts[sid].expr == cand), None)
-        symbol = stmts[root].target if root is not None else fresh("cse")
-        others = [sid for sid in users if sid != root]
-        new_exprs = {sid: _replace(stmts[sid].expr, cand, symbol) for sid in others}
-        before = [cost(stmts[sid].expr) for sid in users]
-        after = [cost(cand)] + [cost(e) for e in new_exprs.values()]
-        if (sum(c[0] for c in after), sum(c[1] for c in after)) >= (
-                sum(c[0] for c in before), sum(c[1] for c in before)):
-            continue
-        first = min(others, key=pos.__getitem__)
-        if root is None:
-            root, next_id = next_id, next_id + 1
-            stmts[root] = Assign(symbol, cand)
-            for node in _subexpressions(cand):
-                if node != cand and node in occ:
-                    occ[node].append(root)
-            place_before(root, first)
-        elif pos[root] > pos[first]:
-            place_before(root, first)
-        for sid, expr in new_exprs.items():
-            stmts[sid] = Assign(stmts[sid].target, expr)
-    return [stmts[sid] for sid in sorted(stmts, key=pos.__getitem__)]
-
-
-def _dead_code(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
-    """Drop assignments that reach neither an output nor a check."""
-    live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
-    out: list[Statement] = []
-    for st in reversed(body):
-        if isinstance(st, Assign):
-            if st.target not in live:
-                continue
-            expr = st.expr
-        else:
-            expr = st.value
-        out.append(st)
-        live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
-    out.reverse()
-    return out, results
-
-
-def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
-    """Name the temporaries t0, t1, ... in order."""
-    names: dict[sympy.Symbol, sympy.Symbol] = {}
-    for st in body:
-        if isinstance(st, Assign):
-            names[st.target] = Temporary(f"t{len(names)}")
-    out: list[Statement] = []
-    for st in body:
-        if isinstance(st, Assign):
-            out.append(Assign(names[st.target], st.expr.xreplace(names)))
-        else:
-            out.append(Check(st.value.xreplace(names), st.message, st.relation))
-    return out, {name: tuple(v.xreplace(names) for v in values)
-                 for name, values in results.items()}

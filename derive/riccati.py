@@ -5,8 +5,8 @@ recursions, structure-preserving doubling, and the steady-state gains of the SSK
 Every solver first checks the model (derive.system_checks: detectable and stabilisable);
 a failed check or a failed convergence raises derive.errors.SteadyStateError.
 
-The system checks (derive.system_checks) and the FIR and N-step prediction constants
-(derive.horizon) are re-exported here, so ``derive.riccati.X`` keeps working for them.
+The system checks live in derive.system_checks, the FIR and N-step prediction constants
+in derive.horizon: import them from there.
 """
 
 from __future__ import annotations
@@ -16,17 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from derive.errors import ModelError, SteadyStateError
-from derive.horizon import PredictionConstants, fir_order, fir_taps, pred_constants
-from derive.system_checks import (
-    PBH_RANK_TOL,
-    UNIT_CIRCLE_MARGIN,
-    check_detectable,
-    check_stabilizable,
-    check_stable,
-    check_steady_state,
-    psd_sqrt,
-    system_arrays,
-)
+from derive.system_checks import check_stable, check_steady_state, system_arrays
 
 DEFAULT_TOL = 1e-13
 """Relative change of P between iterations at which an iteration is converged."""
@@ -204,13 +194,7 @@ def lf_steady(F, G, H, Q, R, method: str = "doubling") -> LainiotisSteadyState:
 
 
 __all__ = [
-    # the solvers (this module)
     "DEFAULT_TOL", "MAX_DOUBLINGS", "MAX_STEPS", "KalmanSteadyState", "LainiotisConstants",
     "LainiotisSteadyState", "doubling", "kf_steady", "lf_constants", "lf_steady",
     "rekf_doubling", "rekf_iterate", "relf_doubling", "relf_iterate",
-    # re-exported from derive.system_checks
-    "PBH_RANK_TOL", "UNIT_CIRCLE_MARGIN", "check_detectable", "check_stabilizable",
-    "check_steady_state", "psd_sqrt", "system_arrays",
-    # re-exported from derive.horizon
-    "PredictionConstants", "fir_order", "fir_taps", "pred_constants",
 ]

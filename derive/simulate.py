@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from derive.errors import ModelError, ShapeError
-from derive.riccati import psd_sqrt, system_arrays
+from derive.system_checks import psd_sqrt, system_arrays
 
 # WGS-84 ellipsoid
 WGS84_A = 6_378_137.0

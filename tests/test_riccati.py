@@ -7,20 +7,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from derive.errors import MatrixPropertyError, ShapeError, SteadyStateError
+from derive.horizon import fir_order, fir_taps, pred_constants
 from derive.riccati import (
-    check_steady_state,
     doubling,
-    fir_order,
-    fir_taps,
     kf_steady,
     lf_constants,
     lf_steady,
-    pred_constants,
     rekf_doubling,
     rekf_iterate,
     relf_doubling,
     relf_iterate,
 )
+from derive.system_checks import check_steady_state
 
 TOL = 1e-10
 

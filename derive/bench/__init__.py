@@ -6,15 +6,3 @@ generated (derive's C and Python), peers (NumPy reference, FilterPy, pykalman),
 casadi_c (CasADi's generated C), batch (track-steps per second), run (the whole bench and
 its table).
 """
-
-from __future__ import annotations
-
-
-def run_bench(settings=None, progress=None):
-    """Run the whole benchmark (see :func:`derive.bench.run.run_bench`)."""
-    from .run import run_bench as _run
-
-    return _run(settings, progress)
-
-
-__all__ = ["run_bench"]

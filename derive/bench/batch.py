@@ -11,8 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import catalog, reference
+from ..build import build_c
+from ..system_checks import psd_sqrt
+from ..verify import import_python
 from .cases import Case, Skip
-from .generated import CFLAGS
+from .generated import CFLAGS, write
 
 MODEL = "mpt3d_b"
 TRACKS = 10_000
@@ -38,9 +42,6 @@ class Batch:
 
 def make_batch(tracks: int = TRACKS, steps: int = STEPS, seed: int = 5) -> Batch:
     """Tracks simulated from the model, all at once."""
-    from .. import catalog
-    from ..riccati import psd_sqrt
-
     num = catalog.load(MODEL).numeric()
     F, G, H, Q, R = (np.asarray(getattr(num, k), float) for k in ("F", "G", "H", "Q", "R"))
     rng = np.random.default_rng(seed)
@@ -56,8 +57,6 @@ def make_batch(tracks: int = TRACKS, steps: int = STEPS, seed: int = 5) -> Batch
 
 def batch_reference(b: Batch, track: int) -> np.ndarray:
     """derive's NumPy reference KF on one track (states (steps, n))."""
-    from .. import reference
-
     G = np.eye(b.F.shape[0])        # W = G Q Gᵀ is passed as Q with G = I
     return reference.kf(b.F, G, b.H, b.W, b.R, b.x0, b.P0, b.zs[track])[0]
 
@@ -102,9 +101,6 @@ def simdkalman_kf(b: Batch):
 
 def generated_python(b: Batch, workdir: Path):
     """The generated Python run with a trailing track axis."""
-    from ..verify import import_python
-    from .generated import write
-
     module = import_python(write(Case("kf", MODEL), workdir, "python")[".py"])
     zs = np.ascontiguousarray(b.zs.transpose(1, 2, 0))          # (steps, m, tracks)
     tracks = b.zs.shape[0]
@@ -116,9 +112,6 @@ def generated_python(b: Batch, workdir: Path):
 def generated_c_tracks(b: Batch, workdir: Path):
     """The generated ``run_tracks``: 4 tracks advanced together in registers, each track's
     arrays contiguous (no covariance output, like the other batch rows)."""
-    from ..build import build_c
-    from .generated import write
-
     module = build_c(write(Case("kf", MODEL), workdir, "c")[".c"], extra_cflags=CFLAGS)
     tracks = b.zs.shape[0]
     zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
@@ -185,8 +178,6 @@ def generated_c(b: Batch, workdir: Path, entry: str = "batch_step"):
     run per track) or ``batch_step`` (the generated step, INTERLEAVE tracks at a time).
     Compiled with CFLAGS and link-time optimisation, so the step can be inlined."""
     import cffi
-
-    from .generated import write
 
     paths = write(Case("kf", MODEL), workdir, "c")
     folder = paths[".c"].parent

@@ -7,16 +7,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from .. import catalog
+from ..generation import derive_unit
+from ..latency import run_loop_bound
 from .cases import Case
 
 
 def case_bound(case: Case, latency: Mapping[str, float]) -> tuple[float, str] | None:
     """(seconds per step, the operations on the critical cycle) for ``case``'s generated
     C; copies run one after another, so their bounds add up. None without a bound."""
-    from .. import catalog
-    from ..generation import derive_unit
-    from ..latency import run_loop_bound
-
     bound = run_loop_bound(derive_unit(catalog.load(case.model), case.filter, {}), latency)
     if bound is None:
         return None

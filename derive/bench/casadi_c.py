@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import riccati
 from .cases import Case, Data, Skip
 
 CFLAGS = ("-O3", "-march=native", "-ffp-contract=fast")
@@ -28,8 +29,6 @@ def _step_function(ca, case: Case, data: Data):
     n, m = len(data.x0), data.zs[0].shape[1]
     x, z = ca.SX.sym("x", n), ca.SX.sym("z", m)
     if case.filter == "sskf":
-        from .. import riccati
-
         a = data.arrays
         ss = riccati.kf_steady(a["F"], a["G"], a["H"], a["Q"], a["R"])
         return ca.Function(NAME, [x, z], [ca.mtimes(ca.DM(ss.A), x) + ca.mtimes(ca.DM(ss.B), z)])

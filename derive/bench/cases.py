@@ -15,6 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import catalog
+from ..simulate import gnss_scenario, simulate_linear
+
 
 class Skip(Exception):
     """An implementation that cannot run here; the message says why."""
@@ -62,19 +65,13 @@ class Data:
 
 def make_data(case: Case, steps: int, seed: int = 11) -> Data:
     """Seeded measurements for ``steps`` steps of every copy."""
-    from .. import catalog
-
     model = catalog.load(case.model)
     if case.nonlinear:
-        from ..simulate import gnss_scenario
-
         sc = gnss_scenario(steps=steps, seed=seed)
         fns = model.numeric_functions()
         return Data(model, [np.ascontiguousarray(sc.pseudoranges)], sc.x0, sc.P0,
                     np.ascontiguousarray(sc.satellites.reshape(steps, -1)),
                     {"Q": np.asarray(fns["Q"], float), "R": np.asarray(fns["R"], float)})
-    from ..simulate import simulate_linear
-
     num = model.numeric()
     zs = [np.ascontiguousarray(simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0,
                                                steps, seed + c).zs)

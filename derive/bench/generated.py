@@ -7,6 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import catalog
+from ..build import build_c
+from ..emit.write import write_files
+from ..generation import render_filter
+from ..verify import import_python
 from .cases import Case, Data, Skip, per_copy
 
 CFLAGS = ("-O3", "-march=native")
@@ -17,10 +22,6 @@ Contraction stays off as ISO C has it: the generated code fuses a*b + c itself
 
 def write(case: Case, workdir: Path, lang: str = "all") -> dict[str, Path]:
     """Generate the case's filter into ``workdir``; {suffix: path}."""
-    from .. import catalog
-    from ..emit.write import write_files
-    from ..generation import render_filter
-
     model = catalog.load(case.model)
     files = render_filter(model, case.filter, lang, {}, out_label="bench")
     return {p.suffix: p for p in write_files(workdir / "generated", model.name, files)}
@@ -71,13 +72,9 @@ def _c_runner(filter_module, data: Data):
 
 
 def generated_c(case: Case, data: Data, workdir: Path):
-    from ..build import build_c
-
     module = build_c(write(case, workdir)[".c"], extra_cflags=CFLAGS)
     return _c_runner(next(iter(module.filters.values())), data)
 
 
 def generated_python(case: Case, data: Data, workdir: Path):
-    from ..verify import import_python
-
     return _python_runner(import_python(write(case, workdir)[".py"]), case, data)

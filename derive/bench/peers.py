@@ -6,14 +6,16 @@ conventions: z(k) observes x(k) = F x(k−1)); the agreement column of the table
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 
+from .. import reference
+from ..simulate import pseudorange, pseudorange_jacobian
 from .cases import Case, Data, Skip, per_copy
 
 
 def _need(module: str):
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError:
@@ -21,8 +23,6 @@ def _need(module: str):
 
 
 def _gnss_functions(data: Data):
-    from ..simulate import pseudorange, pseudorange_jacobian
-
     def hx(x, sats):
         return pseudorange(x, sats.reshape(-1, 3))
 
@@ -34,8 +34,6 @@ def _gnss_functions(data: Data):
 
 def numpy_reference(case: Case, data: Data, workdir=None):
     """derive.reference, written from the papers (NumPy, one step per loop iteration)."""
-    from .. import reference
-
     if case.nonlinear:
         hx, jac = _gnss_functions(data)
         Q, R = data.arrays["Q"], data.arrays["R"]

@@ -3,18 +3,25 @@ the result as one text table or JSON."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import platform
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .. import cli
+from ..build import STRICT_CFLAGS
+from ..verify import relative_error
 from . import batch, casadi_c, generated, peers
 from .bound import case_bound
 from .cases import CASES, Case, Skip, make_data, states
+from .probe import measure_latencies
 from .timing import Timing, human, measure
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
@@ -241,14 +248,10 @@ def _columns(head, body) -> list[str]:
 
 
 def machine_info() -> dict:
-    from ..build import STRICT_CFLAGS
-
     info = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
             "load": "n/a", "python": platform.python_version(), "numpy": np.__version__,
             "generated_cflags": list(STRICT_CFLAGS) + list(generated.CFLAGS)}
     try:
-        from .probe import measure_latencies
-
         info["latency"] = measure_latencies(generated.CFLAGS)
     except Exception as exc:  # no compiler or cffi failure: the bounds are left out
         info["latency"] = {}
@@ -274,8 +277,6 @@ def machine_info() -> dict:
 
 
 def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> list[Row]:
-    from ..verify import relative_error
-
     python_steps = s.nonlinear_python_steps if case.nonlinear else s.python_steps
     data = make_data(case, max(s.c_steps, python_steps, s.check_steps))
     reference = states(peers.numpy_reference(case, data)(s.check_steps), s.check_steps)
@@ -314,8 +315,6 @@ _NOTES = {
 
 
 def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
-    from ..verify import relative_error
-
     b = batch.make_batch(s.batch_tracks, s.batch_steps)
     check = sorted({0, 1, s.batch_tracks - 1} & set(range(s.batch_tracks)))  # the last may
     reference = {t: batch.batch_reference(b, t) for t in check}      # be in a partial block
@@ -364,12 +363,6 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
 
 def time_catalog_generation(out: Path) -> float:
     """Seconds that ``derive generate --all --out OUT`` takes, in this process."""
-    import contextlib
-    import io
-    import time
-
-    from .. import cli
-
     start = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
         status = cli.main(["generate", "--all", "--out", str(out)])

@@ -11,6 +11,7 @@ from importlib import resources
 from pathlib import Path
 
 from derive.errors import ModelError
+from derive.modelfile import loads_model
 
 
 def names() -> list[str]:
@@ -47,6 +48,4 @@ def path(name: str) -> Path:
 
 def load(name: str):
     """The model `name` of the catalog, as a LinearModel or NonlinearModel."""
-    from derive.modelfile import loads_model
-
     return loads_model(read_text(name), source=label(name))

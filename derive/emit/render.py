@@ -31,17 +31,14 @@ from derive.emit.unit import Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
+from derive.version import __version__
 
 LANGUAGES = ("python", "c")
 
 
 def derive_version() -> str:
     """derive.__version__ (the installed distribution's version, else "0.1.0")."""
-    try:
-        from derive import __version__
-    except ImportError:
-        return "0.1.0"
-    return str(__version__)
+    return __version__
 
 
 def _template_source(name: str) -> str:

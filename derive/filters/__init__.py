@@ -59,11 +59,11 @@ def why_not(model, name: str) -> str | None:
             return (f"the information form needs G Q G^T positive definite (P(k+1/k) is "
                     f"inverted); model {model.name!r} has a singular G Q G^T")
     if f.steady:
-        from .. import riccati
+        from .. import system_checks
 
         num = model.numeric()
         try:
-            riccati.check_steady_state(num.F, num.G, num.H, num.Q, num.R)
+            system_checks.check_steady_state(num.F, num.G, num.H, num.Q, num.R)
         except SteadyStateError as exc:  # the message names the property
             return str(exc)
     return None

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sympy
 
-from .. import riccati
+from .. import horizon
 from ..errors import OptionError, SteadyStateError
 from ..horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, FirOrderError, max_fir_order
 from ..options import DEFAULT_EPS, FirOptions
@@ -39,7 +39,7 @@ def order(model, options: FirOptions) -> int:
         return options.order
     A, _ = steady_gains(model, "sskf")
     try:
-        return riccati.fir_order(A, options.eps, max_order=bound)
+        return horizon.fir_order(A, options.eps, max_order=bound)
     except FirOrderError as exc:
         needed = (f"order N = {exc.needed}" if exc.needed is not None else
                   "an order beyond 2^64")
@@ -54,7 +54,7 @@ def derive_unit(model, name, options: FirOptions):
 
     A, B = steady_gains(model, "sskf")
     N = order(model, options)
-    taps = riccati.fir_taps(A, B, N)
+    taps = horizon.fir_taps(A, B, N)
     n, m = model.n, model.m
     prog = Program("step", [Port("zw", (N, m), doc="z(k), z(k-1), ..., z(k-N+1), row-major")],
                    [Port("x_new", (n,), doc="x(k/k)")], doc=f"FIR steady-state filter, N = {N}")

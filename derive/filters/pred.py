@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import sympy
 
-from .. import riccati
+from .. import horizon, riccati
 from ..options import PredictionOptions
 from ..program import Port, Program
 from .steady import affine_program, baked
@@ -22,7 +22,7 @@ def derive_unit(model, name, options: PredictionOptions):
     N = options.horizon
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)
-    pc = riccati.pred_constants(num.F, ss.K, num.H, N)
+    pc = horizon.pred_constants(num.F, ss.K, num.H, N)
     n, m = model.n, model.m
     step = affine_program(n, m, pc.A_N, pc.B_N, f"{N}-step steady-state prediction",
                           f"x(k+{N}/k)", f"x(k+{N - 1}/k-1)")

@@ -16,9 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
+from derive.build import build_c
+from derive.emit.write import write_files
+from derive.errors import ModelError
+from derive.generation import render_filter
 from derive.gnss.run import FilterSettings
 from derive.gnss.scalar_updates import ScalarUpdate
 from derive.model import NonlinearModel
+from derive.verify import import_python
 
 PARAMETERS = ("q_clock", "q_position", "sigma2")
 """The free parameters of scalar_model, in the order of p."""
@@ -52,18 +57,12 @@ def _options(name: str, settings: FilterSettings) -> dict:
 
 
 def _load(name: str, settings: FilterSettings, lang: str, workdir: Path):
-    from derive.emit.write import write_files
-    from derive.generation import render_filter
-    from derive.verify import import_python
-
     model = scalar_model()
     files = render_filter(model, name, "python" if lang == "python" else "c",
                           _options(name, settings))
     paths = {p.suffix: p for p in write_files(workdir, model.name, files)}
     if lang == "python":
         return import_python(paths[".py"])
-    from derive.build import build_c
-
     return build_c(paths[".c"])
 
 
@@ -87,8 +86,6 @@ def generated_filters(settings: FilterSettings | None = None, lang: str = "c",
 
     ``lang``: "c" (compiled with cffi) or "python". The files go to ``workdir`` (default:
     a temporary directory removed once the modules are loaded)."""
-    from derive.errors import ModelError
-
     if lang not in LANGS:
         raise ModelError(f"lang must be one of {LANGS}, got {lang!r}")
     settings = FilterSettings() if settings is None else settings

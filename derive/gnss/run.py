@@ -21,6 +21,7 @@ from derive.gnss.data import RealData, load_real_data
 from derive.gnss.errors import GnssDataError
 from derive.gnss.lsq import least_squares_fix
 from derive.gnss.measurements import CorrectionOptions, Epoch, bootstrap_fix, prepare_epoch
+from derive.gnss.report import format_table
 from derive.gnss.scalar_updates import ScalarEkf, ScalarUkf
 from derive.simulate import enu_basis, pseudorange_jacobian
 
@@ -184,8 +185,6 @@ class RealRunResult:
         return out
 
     def table(self) -> str:
-        from derive.gnss.report import format_table
-
         return format_table(self)
 
 

@@ -11,7 +11,8 @@ import numpy as np
 
 from derive.errors import NumericalError
 from derive.reference._inputs import measurement_series, square, state_vector
-from derive.riccati import lf_constants, system_arrays
+from derive.riccati import lf_constants
+from derive.system_checks import system_arrays
 
 
 def _setup(F, G, H, Q, R, x0, P0, zs, allow_nan=False):

@@ -11,15 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from derive.errors import SteadyStateError
+from derive.horizon import fir_order, fir_taps, pred_constants
 from derive.reference._inputs import measurement_series, state_vector
-from derive.riccati import (
-    fir_order,
-    fir_taps,
-    kf_steady,
-    lf_steady,
-    pred_constants,
-    system_arrays,
-)
+from derive.riccati import kf_steady, lf_steady
+from derive.system_checks import system_arrays
 
 
 def _run(A: np.ndarray, B: np.ndarray, x: np.ndarray, Z: np.ndarray) -> np.ndarray:

@@ -1,0 +1,62 @@
+"""The statements of a straight-line program, and the symbols they read and write.
+
+The lowest layer of the program core (:mod:`derive.program` builds programs from
+these, :mod:`derive.optimise` rewrites their bodies, :mod:`derive.lowering` lowers
+them): input elements (``P[3]``, how generated code reads an input), temporaries
+(``t0``), assignments ``tK = expr`` and runtime checks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sympy
+
+
+class InputElement(sympy.Symbol):
+    """One element of an input port; its name is how generated code reads it (``P[3]``)."""
+
+
+class Temporary(sympy.Symbol):
+    """A temporary of a program (``t0``, ``t1``, ... once optimised)."""
+
+
+
+@dataclass(frozen=True)
+class Assign:
+    """``target = expr``."""
+
+    target: Temporary
+    expr: sympy.Expr
+
+
+#: The relations a runtime check can require of its value.
+POSITIVE, ZERO = "positive", "zero"
+
+
+@dataclass(frozen=True)
+class Check:
+    """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot) or ``value == 0``
+    (ZERO: an input element outside a declared sparsity pattern); ``value`` is an atom.
+    A NaN fails both. Fails with ``message``."""
+
+    value: sympy.Expr
+    message: str
+    relation: str = POSITIVE
+
+    @property
+    def text(self) -> str:
+        """``value > 0`` or ``value == 0``."""
+        return f"{self.value} {'> 0' if self.relation == POSITIVE else '== 0'}"
+
+
+Statement = Assign | Check
+
+
+def is_atom(expr: sympy.Basic) -> bool:
+    """True for what needs no temporary: a symbol or a numeric constant."""
+    return bool(expr.is_Symbol or expr.is_number)
+
+
+#: Values an expression of a program must never hold (a structurally zero divisor).
+NON_FINITE = (sympy.zoo, sympy.nan, sympy.oo, -sympy.oo)
