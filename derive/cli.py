@@ -23,7 +23,6 @@ import os
 import sys
 
 from .errors import ModelError, NumericalError, VerificationError
-from .version import __version__
 
 
 class _Parser(argparse.ArgumentParser):

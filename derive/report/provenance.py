@@ -16,7 +16,7 @@ import sys
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 
-from .. import __version__
+from ..version import __version__
 
 # The distributions whose versions change derive's output or its timings.
 KEY_DEPENDENCIES = ("numpy", "sympy", "jinja2", "cffi", "casadi", "matplotlib")
