@@ -12,6 +12,7 @@ from .build import build_c, load_python  # noqa: E402
 from .errors import ModelError  # noqa: E402
 from .generation import generate  # noqa: E402
 from .model import LinearModel, NonlinearModel  # noqa: E402
+from .pipeline import load_generated  # noqa: E402
 
 __all__ = ["LinearModel", "ModelError", "NonlinearModel", "__version__", "build_c", "catalog",
-           "generate", "load_python"]
+           "generate", "load_generated", "load_python"]

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .cases import Case, Skip
-from .generated import CFLAGS
+from .generated import CFLAGS, load
 
 MODEL = "mpt3d_b"
 TRACKS = 10_000
@@ -102,10 +102,7 @@ def simdkalman_kf(b: Batch):
 
 def generated_python(b: Batch, workdir: Path):
     """The generated Python run with a trailing track axis."""
-    from ..verify import import_python
-    from .generated import write
-
-    module = import_python(write(Case("kf", MODEL), workdir, "python")[".py"])
+    module = load(Case("kf", MODEL), workdir, "python").python
     zs = np.ascontiguousarray(b.zs.transpose(1, 2, 0))          # (steps, m, tracks)
     tracks = b.zs.shape[0]
     x0 = np.repeat(b.x0[:, None], tracks, axis=1)
@@ -116,10 +113,7 @@ def generated_python(b: Batch, workdir: Path):
 def generated_c_tracks(b: Batch, workdir: Path):
     """The generated ``run_tracks``: 4 tracks advanced together in registers, each track's
     arrays contiguous (no covariance output, like the other batch rows)."""
-    from ..build import build_c
-    from .generated import write
-
-    module = build_c(write(Case("kf", MODEL), workdir, "c")[".c"], extra_cflags=CFLAGS)
+    module = load(Case("kf", MODEL), workdir, "c").c
     tracks = b.zs.shape[0]
     zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
     x0 = np.ascontiguousarray(np.repeat(b.x0[None, :], tracks, axis=0))
@@ -186,9 +180,7 @@ def generated_c(b: Batch, workdir: Path, entry: str = "batch_step"):
     Compiled with CFLAGS and link-time optimisation, so the step can be inlined."""
     import cffi
 
-    from .generated import write
-
-    paths = write(Case("kf", MODEL), workdir, "c")
+    paths = load(Case("kf", MODEL), workdir, "c").paths
     folder = paths[".c"].parent
     tracks, steps, m = b.zs.shape
     n = len(b.x0)
