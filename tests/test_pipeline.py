@@ -67,11 +67,12 @@ def _calls(path: Path) -> set[str]:
 
 
 def test_one_pipeline_and_one_file_importer_in_the_source():
-    """Outside derive.pipeline nothing in derive writes generated files and then builds or
-    imports them by hand; only derive.build executes a file as a module; the tests too."""
+    """Outside derive.pipeline nothing in derive (or benchmarks/) writes generated files and
+    then builds or imports them by hand; only derive.build executes a file as a module; the
+    tests do neither."""
     writers = {"generation.py", "paper.py", "pipeline.py", "write.py"}
     loaders = {"build.py", "pipeline.py"}
-    for path in (ROOT / "derive").rglob("*.py"):
+    for path in [*(ROOT / "derive").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]:
         calls = _calls(path)
         if path.name not in writers:
             assert "write_files" not in calls, path
