@@ -14,11 +14,9 @@ import tempfile
 import time
 
 from derive import catalog
-from derive.build import build_c
-from derive.emit.render import render_files
-from derive.emit.write import write_files
 from derive.filters import derive_unit
 from derive.flops import count
+from derive.pipeline import load_units
 from derive.simulate import gnss_scenario, pseudorange, pseudorange_jacobian
 
 
@@ -32,8 +30,7 @@ def best_of(fn, repeat: int = 5) -> float:
 
 
 def generated(unit, cflags, workdir: str):
-    paths = {p.suffix: p for p in write_files(workdir, unit.model, render_files(unit, ("c",)))}
-    return build_c(paths[".c"], extra_cflags=cflags)
+    return load_units([unit], "c", workdir, extra_cflags=cflags)[0].c
 
 
 def filterpy_ekf(sc, steps: int) -> float:

@@ -409,7 +409,9 @@ def _compile_object(cc: str, source: Path, obj: Path, flags: list[str]) -> None:
         raise BuildError(f"{' '.join(cmd)} failed:\n{proc.stderr}")
 
 
-def _load(name: str, path: Path):
+def load_module_file(name: str, path: Path) -> types.ModuleType:
+    """Execute the file ``path`` (Python source or a compiled extension) as the module
+    ``name``, not added to ``sys.modules``: derive's one way to import a file."""
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -428,7 +430,7 @@ def load_python(path) -> types.ModuleType:
     if path.suffix != ".py" or not path.is_file():
         raise ModelError(f"{path}: not an existing generated Python file (MODEL/FILTER.py)")
     name = f"derive_generated_{path.parent.name}_{path.stem}_{next(_LOADED_PYTHON)}"
-    return _load(name, path)
+    return load_module_file(name, path)
 
 
 def _prefix(header: str, path: Path) -> str:
@@ -499,7 +501,7 @@ def build_c(path_or_paths, *, extra_cflags=(), tmpdir=None) -> CModule:
             raise BuildError(f"cffi could not build {name}: {exc}") from exc
 
     if name not in _LOADED:
-        _LOADED[name] = _load(name, cached_extension(cache, key, name, build))
+        _LOADED[name] = load_module_file(name, cached_extension(cache, key, name, build))
     extension = _LOADED[name]
     filters = {prefix: FilterModule(prefix, extension.ffi, extension.lib, *interfaces[prefix])
                for prefix, *_ in sources}

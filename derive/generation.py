@@ -33,16 +33,28 @@ def resolve_model(model):
     return catalog.load(model)
 
 
+def check_lang(lang: str) -> None:
+    """FilterError unless ``lang`` is one of :data:`LANGS`."""
+    if lang not in LANGS:
+        raise FilterError(f"language {lang!r} is not one of {', '.join(LANGS)}")
+
+
+def command_unit(model, name: str, options: Mapping | SharedOptions | None = None,
+                 model_ref: str | None = None, out_label: str = "generated") -> Unit:
+    """The Unit of one filter, its options validated, carrying the command that
+    regenerates its files (``derive generate MODEL_REF ... --out OUT_LABEL``)."""
+    typed = validate(name, options)
+    unit = derive_unit(model, name, typed)
+    return dataclasses.replace(unit, command=regenerate_command(model_ref or model.name, name,
+                                                                typed, out_label))
+
+
 def render_unit(model, name: str, lang: str = "all",
                 options: Mapping | SharedOptions | None = None, model_ref: str | None = None,
                 out_label: str = "generated") -> tuple[Unit, dict[str, str]]:
     """(the Unit, ``{file name: text}``) of one filter; ``options``: those it takes."""
-    if lang not in LANGS:
-        raise FilterError(f"language {lang!r} is not one of {', '.join(LANGS)}")
-    typed = validate(name, options)
-    unit = derive_unit(model, name, typed)
-    unit = dataclasses.replace(unit, command=regenerate_command(model_ref or model.name, name,
-                                                                typed, out_label))
+    check_lang(lang)
+    unit = command_unit(model, name, options, model_ref, out_label)
     files: dict[str, str] = {}
     if lang in ("python", "all"):
         files.update(render_python(unit))
@@ -65,8 +77,7 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     """:func:`generate`, also returning the derived units (e.g. to report a FIR's order)."""
     ref = model if isinstance(model, str) else None
     model = resolve_model(model)
-    if lang not in LANGS:
-        raise FilterError(f"language {lang!r} is not one of {', '.join(LANGS)}")
+    check_lang(lang)
     names = list(filters) if filters is not None else available(model)
     for name in names:
         kind(name)

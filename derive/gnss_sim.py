@@ -17,20 +17,15 @@ arguments give the same table.
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass
 from functools import cache
-from pathlib import Path
 
 import numpy as np
 
 from derive import catalog
-from derive.build import build_c
-from derive.emit.write import write_files
 from derive.errors import ModelError
-from derive.generation import render_filter
+from derive.pipeline import load_generated
 from derive.simulate import gnss_scenario, pseudorange
-from derive.verify import import_python
 
 TIMES = (20, 100, 200, 300, 500)
 """Seconds at which the paper reports RMSE."""
@@ -110,17 +105,7 @@ class Reproduction:
 @cache
 def _module(name: str, lang: str):
     """The generated filter ``name`` of MODEL, loaded (memoised: derived once a process)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return _load(name, lang, Path(tmp))
-
-
-def _load(name: str, lang: str, workdir: Path):
-    model = catalog.load(MODEL)
-    files = render_filter(model, name, lang, {})
-    paths = {p.suffix: p for p in write_files(workdir, model.name, files)}
-    if lang == "python":
-        return import_python(paths[".py"])
-    return build_c(paths[".c"])
+    return load_generated(catalog.load(MODEL), name, {}, lang).module(lang)
 
 
 def reproduce(runs: int = 200, steps: int = 500, seed: int = 2024, init_std: float = 10.0,

@@ -32,13 +32,14 @@ import numpy as np
 import sympy
 
 from . import horizon, riccati, staging
-from .emit.render import render_c, render_python
+from .emit.render import render_files
 from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError, ModelError
 from .filters.kf import prior
-from .generation import resolve_model
+from .generation import check_lang, resolve_model
 from .options import DEFAULT_EPS
+from .pipeline import LANGUAGES, Generated, load_units
 from .program import Port, Program
 
 #: The filters paper mode generates (derive's names).
@@ -354,15 +355,15 @@ def model_unit(model, name: str, N: int | None = None, eps: float | None = None)
 def render(model, name: str, lang: str = "all", N: int | None = None,
            eps: float | None = None) -> dict[str, str]:
     """``{file name: text}`` of paper-mode ``name`` for ``model`` (lang python, c or all)."""
-    if lang not in ("python", "c", "all"):
-        raise FilterError(f"language {lang!r} is not one of python, c, all")
-    u = model_unit(model, name, N, eps)
-    files: dict[str, str] = {}
-    if lang in ("python", "all"):
-        files.update(render_python(u))
-    if lang in ("c", "all"):
-        files.update(render_c(u))
-    return files
+    check_lang(lang)
+    return render_files(model_unit(model, name, N, eps), LANGUAGES[lang])
+
+
+def load(model, name: str, lang: str = "all", N: int | None = None, eps: float | None = None,
+         directory=None) -> Generated:
+    """Paper-mode ``name`` for ``model`` rendered, written and loaded (derive.pipeline);
+    ``directory``: where ``MODEL/FILTER_paper.*`` go (default: a temporary one)."""
+    return load_units([model_unit(model, name, N, eps)], lang, directory)[0]
 
 
 def generate(model, filters: Sequence[str] = ("kf", "lf"), lang: str = "all",

@@ -29,12 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from . import reference
-from .build import build_c, load_python
-from .emit.write import write_files
 from .errors import VerificationError
 from .filters.fir import order as fir_order
-from .generation import render_filter
 from .options import validate
+from .pipeline import load_generated
 from .simulate import gnss_scenario, simulate_linear
 
 LINEAR_TOLERANCE = 1e-12
@@ -72,10 +70,6 @@ def relative_error(a, b) -> float:
     diff = np.abs(a - b).reshape(steps, -1).max(axis=1)
     scale = np.maximum(np.abs(b).reshape(steps, -1).max(axis=1), 1.0)
     return float(np.max(diff / scale))
-
-
-#: The generated Python file as a fresh module (the name derive's own callers use).
-import_python = load_python
 
 
 @dataclass(frozen=True)
@@ -238,14 +232,14 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
                   ) -> list[Verification]:
     """Generate, build and run filter ``name``; compare with the reference."""
     opts = validate(name, options)
+    only = set(langs)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        files = render_filter(model, name, "all", opts)
-        paths = {p.suffix: p for p in write_files(tmp, model.name, files)}
-        modules = {lang: load_python(paths[".py"]) if lang == "python"
-                   else build_c(paths[".c"]) for lang in langs}
-        return verify_modules(model, name, modules, steps, seed, opts)
+        generated = load_generated(model, name, opts, only.pop() if len(only) == 1 else "all",
+                                   tmp)
+    modules = {lang: generated.module(lang) for lang in langs}
+    return verify_modules(model, name, modules, steps, seed, opts)
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
-           "import_python", "nonlinear_reference", "nonlinear_scenario", "relative_error",
+           "nonlinear_reference", "nonlinear_scenario", "relative_error",
            "rounding_floor", "verify_filter", "verify_modules"]

@@ -76,18 +76,6 @@ def reference_kf(F, W, H, R, zs, x0, P0):
     return np.array(xs), np.array(Ps)
 
 
-def load_python(path, name=None):
-    """Import a generated Python file as a module."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(path)
-    spec = importlib.util.spec_from_file_location(name or path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 

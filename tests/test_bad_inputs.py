@@ -16,7 +16,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import LinearModel, NonlinearModel, catalog
-from derive.build import build_c
 from derive.cli import main
 from derive.emit.write import write_files
 from derive.errors import (
@@ -33,10 +32,10 @@ from derive.errors import (
     SymbolError,
 )
 from derive.filters import derive_unit
-from derive.generation import generate, render_filter
+from derive.generation import generate
 from derive.modelfile import loads_model
+from derive.pipeline import load_generated
 from derive.symbols import C_KEYWORDS, C_MATH
-from derive.verify import import_python
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -530,13 +529,12 @@ def test_names_colliding_with_generated_identifiers_are_never_emitted(tmp_path, 
                                 model.H, [[sympy.Symbol(names["parameters"][1]), 0],
                                           [0, sympy.Symbol(names["parameters"][1])]],
                                 model.R, values={names["valued"]: 0.1}, P0=np.eye(2).tolist())
-        files = render_filter(model, filter_name, "all", options)
-        paths = {p.suffix: p for p in write_files(tmp_path / names["name"], model.name, files)}
+        generated = load_generated(model, filter_name, options)
         zs = np.sin(np.arange(40.0))[:, None]
         zs[5] = np.nan if options else zs[5]
         p = np.array([0.5, 0.02])
         runs = [m.run(zs, np.zeros(2), np.eye(2), p)
-                for m in (import_python(paths[".py"]), build_c(paths[".c"]))]
+                for m in (generated.python, generated.c)]
         results.append(runs)
     for (xa, Pa), (xb, Pb) in zip(results[0], results[1]):
         np.testing.assert_array_equal(xa, xb)

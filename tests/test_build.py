@@ -8,7 +8,6 @@ from _backend_kf import (
     fir_reference,
     fir_unit,
     kf_unit,
-    load_python,
     pred_reference,
     pred_unit,
     steady_reference,
@@ -16,7 +15,7 @@ from _backend_kf import (
 )
 
 from derive import staging
-from derive.build import BuildError, build_c, parse_interface
+from derive.build import BuildError, build_c, load_python, parse_interface
 from derive.emit.render import render_files, render_functions
 from derive.emit.write import write_files
 from derive.errors import NumericalError, ShapeError
@@ -31,7 +30,7 @@ def cache(tmp_path_factory):
 def _write(tmp_path, unit):
     paths = write_files(tmp_path, unit.model, render_files(unit))
     c_file = next(p for p in paths if p.suffix == ".c")
-    return c_file, load_python(c_file.with_suffix(".py"), f"py_{c_file.stem}")
+    return c_file, load_python(c_file.with_suffix(".py"))
 
 
 def test_kf_in_c_matches_the_generated_python(tmp_path, cache):
@@ -92,7 +91,7 @@ def _cholesky_files(tmp_path):
     prog = prog.optimize()
     c_files = write_files(tmp_path, "lib", render_functions("chol3", [prog], "c"))
     py = write_files(tmp_path, "lib", render_functions("chol3", [prog], "python"))
-    return next(p for p in c_files if p.suffix == ".c"), load_python(py[0], "py_chol3")
+    return next(p for p in c_files if p.suffix == ".c"), load_python(py[0])
 
 
 def test_failing_cholesky_pivot_is_a_status_in_c_and_an_error_in_python(tmp_path, cache):

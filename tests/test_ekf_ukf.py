@@ -8,10 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import NonlinearModel, catalog
-from derive.build import build_c
 from derive.emit.render import render_files, render_unit
 from derive.emit.unit import Unit
-from derive.emit.write import write_files
 from derive.errors import FilterError, NumericalError
 from derive.filters import derive_unit
 from derive.filters.nonlinear import scalar_measurement
@@ -21,13 +19,13 @@ from derive.gnss import ScalarEkf, ScalarUkf, drive
 from derive.gnss.generated import generated_filters
 from derive.gnss.measurements import Epoch
 from derive.gnss.run import FilterSettings, numpy_filters
+from derive.pipeline import load_units
 from derive.program import ProgramError
 from derive.simulate import gnss_scenario
 from derive.verify import (
     FLOOR_MARGIN,
     NONLINEAR_TOLERANCE,
     generated_run,
-    import_python,
     nonlinear_reference,
     nonlinear_scenario,
     relative_error,
@@ -55,8 +53,8 @@ def generated(units, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("ekf_ukf")
     out = {}
     for (name, key), unit in units.items():
-        paths = {p.suffix: p for p in write_files(tmp / key, GNSS.name, render_files(unit))}
-        out[name, key] = {"python": import_python(paths[".py"]), "c": build_c(paths[".c"])}
+        (loaded,) = load_units([unit], "all", tmp / key)
+        out[name, key] = {"python": loaded.python, "c": loaded.c}
     return out
 
 

@@ -21,7 +21,6 @@ from _backend_kf import (
     gcc_strict,
     kf_program,
     kf_unit,
-    load_python,
     numeric,
     pred_reference,
     pred_unit,
@@ -32,6 +31,7 @@ from _backend_kf import (
     steady_unit,
 )
 
+from derive.build import load_python
 from derive.emit.render import derive_version, environment, render_files
 from derive.emit.unit import FAMILIES, Unit
 from derive.emit.write import write_files

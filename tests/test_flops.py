@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 import sympy
-from _backend_kf import cv_axes, kf_program, kf_unit, load_python
+from _backend_kf import cv_axes, kf_program, kf_unit
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from derive import staging
+from derive.build import load_python
 from derive.emit.python_printer import python_function
 from derive.emit.render import render_functions, render_unit
 from derive.emit.write import write_files

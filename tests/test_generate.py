@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from derive import catalog
+from derive.build import load_python
 from derive.cli import main
 from derive.errors import FilterError, SteadyStateError
 from derive.filters import available
 from derive.generation import generate
-from derive.verify import import_python
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,7 +50,7 @@ def test_steady_state_with_a_free_symbol_is_refused(tmp_path):
     with pytest.raises(SteadyStateError, match="'q'"):
         generate(m, ["sskf"], "all", tmp_path)
     generate(m, ["kf"], "python", tmp_path)  # time-varying: q is the runtime p[0]
-    mod = import_python(tmp_path / "freeq" / "kf.py")
+    mod = load_python(tmp_path / "freeq" / "kf.py")
     xs, Ps = mod.run(np.ones((5, 1)), np.zeros(2), np.eye(2), np.array([0.01]))
     assert xs.shape == (5, 2) and Ps.shape == (5, 2, 2)
 

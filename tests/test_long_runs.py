@@ -21,9 +21,7 @@ import pytest
 import sympy
 
 from derive import LinearModel, catalog, reference
-from derive.build import build_c
-from derive.emit.write import write_files
-from derive.generation import render_filter
+from derive.pipeline import load_generated
 from derive.verify import relative_error
 
 STEPS = 1_000_000
@@ -80,10 +78,7 @@ def test_closed_form_measurements_follow_the_model():
 @cache
 def compiled(name: str, key: str, tmp: str):
     filter_name, options = FILTERS[key]
-    m = model(name)
-    files = render_filter(m, filter_name, "c", options)
-    paths = write_files(os.path.join(tmp, key), m.name, files)
-    return build_c(next(p for p in paths if p.suffix == ".c"))
+    return load_generated(model(name), filter_name, options, "c", os.path.join(tmp, key)).c
 
 
 def check_covariances(Ps: np.ndarray, where: str) -> None:

@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 
 from derive import catalog
 from derive.emit.lookahead import ZNEXT, two_step_program
-from derive.emit.write import write_files
 from derive.filters.steady import baked, steady_gains
 from derive.generation import derive_unit, render_filter
+from derive.pipeline import load_generated
 from derive.program import Port, Program
 from derive.reference import steady as reference
 from derive.simulate import simulate_linear
@@ -75,14 +75,11 @@ def test_the_pass_is_declined_where_it_does_not_apply():
 
 @pytest.fixture(scope="module")
 def compiled(tmp_path_factory):
-    from derive.build import build_c
-
     model = catalog.load("mpt3d_a")
-    files = render_filter(model, "sskf", "c")
-    assert "run: two steps per pass" in files["sskf.c"]
+    sskf = load_generated(model, "sskf", lang="c", directory=tmp_path_factory.mktemp("la"))
+    assert "run: two steps per pass" in sskf.paths[".c"].read_text()
     assert "two steps per pass" not in render_filter(model, "kf", "c")["kf.c"]
-    paths = {p.suffix: p for p in write_files(tmp_path_factory.mktemp("la"), model.name, files)}
-    return model, build_c(paths[".c"])
+    return model, sskf.c
 
 
 @pytest.mark.parametrize("steps", [0, 1, 2, 7, 200])
@@ -132,14 +129,10 @@ def test_the_header_counts_the_pass_as_emitted(model_name):
 def test_the_predictor_runs_two_steps_per_pass_too(tmp_path):
     """pred: x(N/0) = init(x0), then the same pass as a steady-state filter; the C run
     agrees with init and stepping, and the Python run is bitwise its stepping."""
-    from derive.build import build_c
-    from derive.verify import import_python
-
     model = catalog.load("cv")
-    files = render_filter(model, "pred", "all", {"horizon": 3})
-    assert "run: two steps per pass" in files["pred.c"]
-    paths = {p.suffix: p for p in write_files(tmp_path, model.name, files)}
-    mod, py = build_c(paths[".c"]), import_python(paths[".py"])
+    pred = load_generated(model, "pred", {"horizon": 3}, "all", tmp_path)
+    assert "run: two steps per pass" in pred.paths[".c"].read_text()
+    mod, py = pred.c, pred.python
     num = model.numeric()
     zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 301, 4).zs
     x0 = np.array([1.5, -0.5])
@@ -160,13 +153,10 @@ def test_the_predictor_runs_two_steps_per_pass_too(tmp_path):
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(stable_models(), st.integers(0, 1000))
 def test_random_models_two_step_c_run_matches_reference(tmp_path_factory, model, seed):
-    from derive.build import build_c
-
     num = model.numeric()
     run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 301, seed)
-    files = render_filter(model, "sskf", "c")
-    assert "run: two steps per pass" in files["sskf.c"]
-    paths = {p.suffix: p for p in write_files(tmp_path_factory.mktemp("la"), model.name, files)}
-    xs = build_c(paths[".c"]).run(run.zs, num.x0)
+    sskf = load_generated(model, "sskf", lang="c", directory=tmp_path_factory.mktemp("la"))
+    assert "run: two steps per pass" in sskf.paths[".c"].read_text()
+    xs = sskf.c.run(run.zs, num.x0)
     xr = reference.sskf(num.F, num.G, num.H, num.Q, num.R, num.x0, run.zs)
     assert relative_error(xs, xr) <= 1e-12

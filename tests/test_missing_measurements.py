@@ -11,7 +11,6 @@ import pytest
 import sympy
 
 from derive import LinearModel, catalog, reference
-from derive.build import build_c
 from derive.emit.python_printer import HELPERS, python_function
 from derive.emit.render import render_unit
 from derive.emit.write import write_files
@@ -19,9 +18,10 @@ from derive.filters import available, derive_unit
 from derive.flops import CountingFloat, OpCount, OpCounter, count, count_c_function
 from derive.generation import render_filter
 from derive.lowering import IfPresent, LoweringError, Op, Var, lower
+from derive.pipeline import load_generated
 from derive.program import InputElement
 from derive.simulate import simulate_linear
-from derive.verify import LINEAR_TOLERANCE, import_python, relative_error
+from derive.verify import LINEAR_TOLERANCE, relative_error
 
 r = sympy.Symbol("r")
 
@@ -76,26 +76,23 @@ def load(name):
 @pytest.mark.parametrize("name, filter_name, extra", CASES,
                          ids=[f"{n}-{f}{'-joseph' if e else ''}" for n, f, e in CASES])
 def test_generated_filters_skip_missing_measurements_like_the_reference(
-        tmp_path, name, filter_name, extra):
+        name, filter_name, extra):
     model = load(name)
     params = {"r": 0.4} if model.parameters else None
     num, zs, P0, xr, Pr = scenario(model, params=params)
-    files = render_filter(model, filter_name, "all", {"missing": True, **extra})
-    paths = {p.suffix: p for p in write_files(tmp_path, model.name, files)}
+    generated = load_generated(model, filter_name, {"missing": True, **extra})
     p = [[0.4]] if params else []
-    for module in (import_python(paths[".py"]), build_c(paths[".c"])):
+    for module in (generated.python, generated.c):
         xs, Ps = module.run(zs, num.x0, P0, *p)
         assert np.all(np.isfinite(xs)) and np.all(np.isfinite(Ps))
         assert relative_error(xs, xr) <= LINEAR_TOLERANCE
         assert relative_error(np.reshape(Ps, Pr.shape), Pr) <= LINEAR_TOLERANCE
 
 
-def test_a_missing_step_is_a_pure_prediction(tmp_path):
+def test_a_missing_step_is_a_pure_prediction():
     model = catalog.load("mpt3d_b")
     num = model.numeric()
-    files = render_filter(model, "kf", "python", {"missing": True})
-    (path,) = write_files(tmp_path, model.name, files)
-    module = import_python(path)
+    module = load_generated(model, "kf", {"missing": True}, "python").python
     x, P = np.array([1.0, 2.0]), np.array([[2.0, 0.5], [0.5, 1.0]])
     x_new, P_new = module.step(x, P.ravel(), [np.nan])
     np.testing.assert_array_equal(x_new, num.F @ x)
@@ -108,12 +105,11 @@ def test_without_the_option_a_nan_propagates(tmp_path):
     model = catalog.load("mpt3d_b")
     num = model.numeric()
     zs = np.array([[1.0], [np.nan], [2.0]])
-    files = render_filter(model, "kf", "all")
-    paths = {p.suffix: p for p in write_files(tmp_path, model.name, files)}
-    for module in (import_python(paths[".py"]), build_c(paths[".c"])):
+    kf = load_generated(model, "kf", directory=tmp_path)
+    for module in (kf.python, kf.c):
         xs, _ = module.run(zs, num.x0, np.eye(2))
         assert np.all(np.isfinite(xs[0])) and np.all(np.isnan(xs[1:]))
-    assert "missing measurements" not in files["kf.c"]
+    assert "missing measurements" not in kf.paths[".c"].read_text()
 
 
 def test_header_states_the_option(tmp_path):
@@ -123,16 +119,14 @@ def test_header_states_the_option(tmp_path):
             in files[name], name
 
 
-def test_tracks_each_skip_their_own_missing_measurements(tmp_path):
+def test_tracks_each_skip_their_own_missing_measurements():
     model = correlated()
     num = model.numeric()
     runs = [simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 60, s).zs
             for s in range(4)]
     zs = np.stack([gappy(z, s) for s, z in enumerate(runs)], axis=-1)  # (steps, m, tracks)
     zs[:, :, 3] = runs[3]  # one track without gaps
-    (path,) = write_files(tmp_path, model.name, render_filter(model, "kf", "python",
-                                                              {"missing": True}))
-    module = import_python(path)
+    module = load_generated(model, "kf", {"missing": True}, "python").python
     x0, P0 = np.zeros((3, 4)), np.repeat(np.eye(3)[:, :, None], 4, axis=2)
     xs, Ps = module.run(zs, x0, P0)
     for t in range(4):
@@ -238,12 +232,10 @@ def test_counting_float_equality_is_a_counted_comparison():
         hash(CountingFloat(1.0, counter))
 
 
-def test_c_select_survives_the_strict_flags(tmp_path):
+def test_c_select_survives_the_strict_flags():
     """``z == z`` compiles under -Wall -Wextra -Werror -pedantic and detects NaN."""
     model = correlated()
-    files = render_filter(model, "kf", "c", {"missing": True})
-    paths = {p.suffix: p for p in write_files(tmp_path, model.name, files)}
-    module = build_c(paths[".c"])
+    module = load_generated(model, "kf", {"missing": True}, "c").c
     x_new, P_new = module.step(np.zeros(3), np.eye(3).ravel(), [np.nan, np.nan])
     num = model.numeric()
     np.testing.assert_array_equal(x_new, np.zeros(3))

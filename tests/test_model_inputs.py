@@ -10,6 +10,7 @@ import pytest
 import sympy
 
 from derive import LinearModel, NonlinearModel
+from derive.build import load_python
 from derive.errors import (
     ExpressionError,
     MatrixPropertyError,
@@ -19,7 +20,6 @@ from derive.errors import (
 )
 from derive.generation import generate
 from derive.modelfile import loads_model
-from derive.verify import import_python
 
 dt = sympy.Symbol("dt", positive=True)
 
@@ -103,7 +103,7 @@ def test_generated_code_binds_the_users_symbols_to_p(tmp_path):
     q = sympy.Symbol("q", positive=True)
     model = axis(Q=[[q]], values={"dt": 1})
     generate(model, ["kf"], "python", tmp_path)
-    mod = import_python(tmp_path / "ax" / "kf.py")
+    mod = load_python(tmp_path / "ax" / "kf.py")
     xs, _ = mod.run(np.ones((3, 1)), np.zeros(2), np.eye(2), np.array([0.01]))
     assert xs.shape == (3, 2)
 
@@ -114,7 +114,7 @@ def test_generated_ekf_with_the_users_symbols_matches_an_ekf_step(tmp_path):
     model = NonlinearModel("nl", ["x", "y"], ["r"], [x + c * y, y], [sympy.sqrt(x**2 + y**2)],
                            sympy.eye(2) / 100, [[1]])
     generate(model, ["ekf"], "python", tmp_path)
-    ekf = import_python(tmp_path / "nl" / "ekf.py")
+    ekf = load_python(tmp_path / "nl" / "ekf.py")
     x0, P0, z = np.array([3.0, 4.0]), np.eye(2), np.array([5.1])
     got_x, got_P = ekf.step(list(x0), list(P0.ravel()), list(z), [0.5])
     fns = model.numeric_functions({"c": 0.5})

@@ -1,6 +1,5 @@
 """Paper mode: the dense filters exactly as the papers count them, generated and run."""
 
-import tempfile
 
 import numpy as np
 import pytest
@@ -8,14 +7,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from derive import catalog, formulas, paper, reference
-from derive.build import build_c
 from derive.emit.python_printer import python_function
-from derive.emit.write import write_files
 from derive.errors import FilterError, ModelError
 from derive.flops import count
 from derive.program import Port, Program
 from derive.simulate import simulate_linear
-from derive.verify import import_python, relative_error
+from derive.verify import relative_error
 
 TOLERANCE = 1e-10
 
@@ -103,21 +100,18 @@ def _run(module, name, num, zs, p, c=False):
 def _check(model_name, names, langs, N=4):
     model = catalog.load(model_name)
     num, zs = _simulated(model)
-    with tempfile.TemporaryDirectory() as tmp:
-        for name in names:
-            order = N if name == "fir" else None
-            files = paper.render(model, name, "all", N=order)
-            paths = {p.suffix: p for p in write_files(tmp, model.name, files)}
-            pv = paper.parameter_values(model, name, N=order)
-            xr, Pr = _reference(name, num, zs, order)
-            for lang in langs:
-                module = import_python(paths[".py"]) if lang == "python" else \
-                    build_c(paths[".c"])
-                xs, Ps = _run(module, name, num, zs, pv, c=lang == "c")
-                assert relative_error(xs, xr) <= TOLERANCE, (model_name, name, lang)
-                if Pr is not None:
-                    Ps = np.reshape(Ps, Pr.shape)
-                    assert relative_error(Ps, Pr) <= TOLERANCE, (model_name, name, lang)
+    languages = langs[0] if len(langs) == 1 else "all"
+    for name in names:
+        order = N if name == "fir" else None
+        loaded = paper.load(model, name, languages, N=order)
+        pv = paper.parameter_values(model, name, N=order)
+        xr, Pr = _reference(name, num, zs, order)
+        for lang in langs:
+            xs, Ps = _run(loaded.module(lang), name, num, zs, pv, c=lang == "c")
+            assert relative_error(xs, xr) <= TOLERANCE, (model_name, name, lang)
+            if Pr is not None:
+                Ps = np.reshape(Ps, Pr.shape)
+                assert relative_error(Ps, Pr) <= TOLERANCE, (model_name, name, lang)
 
 
 def test_paper_python_equals_the_reference_on_mpt3d_a():

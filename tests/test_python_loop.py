@@ -5,27 +5,22 @@ import re
 
 import numpy as np
 import pytest
-from _backend_kf import ekf_like_unit, kf_unit, load_python, steady_unit
+from _backend_kf import ekf_like_unit, kf_unit, steady_unit
 
 from derive import catalog
-from derive.emit.render import render_files
-from derive.emit.write import write_files
 from derive.errors import NumericalError
 from derive.generation import render_filter
+from derive.pipeline import load_units
 
 P = [0.5, 0.02, 0.3]
 
 
 @pytest.fixture(scope="module")
-def modules(tmp_path_factory):
-    out = tmp_path_factory.mktemp("loop")
+def modules():
     units = {"kf": kf_unit(axes=2), "sskf": steady_unit("sskf"),
              "jssklf": steady_unit("jssklf", params=True), "ekf": ekf_like_unit()}
-    found = {}
-    for name, unit in units.items():
-        paths = write_files(out, unit.model, render_files(unit, ("python",)))
-        found[name] = load_python(next(p for p in paths if p.suffix == ".py"), f"loop_{name}")
-    return found
+    return {name: loaded.python
+            for name, loaded in zip(units, load_units(list(units.values()), "python"))}
 
 
 def _stepped_timevarying(module, zs, x0, P0, *extra_rows, p=None):

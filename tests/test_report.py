@@ -191,17 +191,15 @@ def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys
     assert captured.err.count("\n") == 1 and "verification failed" in captured.err
 
 
-def test_verify_built_equals_derive_verify(tmp_path):
+def test_verify_built_equals_derive_verify():
     """The report's verification of built modules is derive verify's comparison."""
-    from derive.build import build_c
-    from derive.generation import generate
+    from derive.pipeline import load_generated
     from derive.report.generation import verify_built
-    from derive.verify import import_python, verify_filter
+    from derive.verify import verify_filter
 
     model = catalog.load("mpt3d_b")
-    generate("mpt3d_b", ["kf"], "all", tmp_path)
-    folder = tmp_path / "mpt3d_b"
-    modules = {"python": import_python(folder / "kf.py"), "c": build_c(folder / "kf.c")}
+    kf = load_generated("mpt3d_b", "kf")
+    modules = {"python": kf.python, "c": kf.c}
     ours = verify_built(model, "kf", modules, 300, 7)
     theirs = verify_filter(model, "kf", steps=300, seed=7)
     assert [(v.lang, v.tolerance) for v in ours] == [(v.lang, v.tolerance) for v in theirs]

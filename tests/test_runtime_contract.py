@@ -24,11 +24,11 @@ import sympy
 import derive
 from derive import LinearModel, NonlinearModel, catalog, reference
 from derive.build import STRICT_CFLAGS, build_c, load_python
-from derive.emit.write import write_files
 from derive.errors import ModelError, PatternError, ShapeError
 from derive.filters import derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import generate, render_filter
+from derive.pipeline import Generated, load_generated
 from derive.simulate import simulate_linear
 from derive.verify import LINEAR_TOLERANCE, relative_error
 
@@ -44,9 +44,13 @@ def _spd(n: int, seed: int) -> np.ndarray:
     return A @ A.T + n * np.eye(n)
 
 
-def _written(tmp_path, model, name: str, options=None) -> dict[str, Path]:
-    files = render_filter(model, name, "all", options)
-    return {p.suffix: p for p in write_files(tmp_path, model.name, files)}
+def _loaded(tmp_path, model, name: str, options=None) -> Generated:
+    """The filter written into tmp_path and loaded: its Python, and its C where gcc is."""
+    return load_generated(model, name, options, "all" if GCC else "python", tmp_path)
+
+
+def _modules(generated: Generated) -> list:
+    return [generated.python] + ([generated.c] if GCC else [])
 
 
 def _outside(unit) -> list[tuple[int, int]]:
@@ -157,8 +161,8 @@ def test_a_P0_inside_the_pattern_matches_the_reference_and_outside_is_refused(
     dense = _spd(model.n, 3)
     inside = _inside(dense, outside)
     xr, Pr = getattr(reference, name)(num.F, num.G, num.H, num.Q, num.R, num.x0, inside, zs)
-    paths = _written(tmp_path, model, name)
-    modules = [load_python(paths[".py"])] + ([build_c(paths[".c"])] if GCC else [])
+    generated = _loaded(tmp_path, model, name)
+    modules = _modules(generated)
     for module in modules:
         xs, Ps = module.run(zs, num.x0, inside)
         assert relative_error(xs, xr) <= LINEAR_TOLERANCE
@@ -193,8 +197,8 @@ def test_a_composed_model_refuses_cross_terms_between_its_blocks(tmp_path):
     dense = _spd(4, 9)
     inside = _inside(dense, outside)
     xr, Pr = reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, inside, zs)
-    paths = _written(tmp_path, model, "kf")
-    for module in [load_python(paths[".py"])] + ([build_c(paths[".c"])] if GCC else []):
+    generated = _loaded(tmp_path, model, "kf")
+    for module in _modules(generated):
         with pytest.raises(PatternError, match=re.escape(f"P0[0][2] = {float(dense[0, 2])!r}")):
             module.run(zs, num.x0, dense)
         xs, Ps = module.run(zs, num.x0, inside)
@@ -204,14 +208,15 @@ def test_a_composed_model_refuses_cross_terms_between_its_blocks(tmp_path):
     step = unit.programs["step"]
     static = count(step, "python")
     assert static.cmp == 2 + len(outside)  # two pivots, one comparison per entry outside
+    texts = render_filter(model, "kf", "all")
     scope: dict = {}
-    exec(compile(paths[".py"].read_text(), str(paths[".py"]), "exec"), scope)
+    exec(compile(texts["kf.py"], "kf.py", "exec"), scope)
     counter = OpCounter()
     P = counter.wrap(inside.ravel())
     scope["step"](counter.wrap(num.x0), P, counter.wrap(zs[0]))
     assert counter.snapshot() == static
-    assert count_c_function(paths[".c"].read_text(), "pair_kf_step") == count(step, "c")
-    assert f"operations per call of step (Python): {static.summary()}" in paths[".py"].read_text()
+    assert count_c_function(texts["kf.c"], "pair_kf_step") == count(step, "c")
+    assert f"operations per call of step (Python): {static.summary()}" in texts["kf.py"]
 
 
 def test_a_dense_closed_pattern_emits_no_check(tmp_path):
@@ -251,11 +256,11 @@ def test_nonlinear_filters_refuse_P_outside_the_pattern_in_every_function(tmp_pa
     model = _two_blocks_nonlinear()
     unit = derive_unit(model, name, {})
     assert _outside(unit) == ([(0, 1)] if name == "ekf" else [])
-    paths = _written(tmp_path, model, name)
+    generated = _loaded(tmp_path, model, name)
     zs = np.random.default_rng(1).normal(size=(30, 2))
     x0, P0 = np.array([0.5, -0.3]), np.array([[1.0, 0.3], [0.3, 2.0]])
     diag = np.diag(np.diag(P0))
-    modules = [load_python(paths[".py"])] + ([build_c(paths[".c"])] if GCC else [])
+    modules = _modules(generated)
     for module in modules:
         if name == "ekf":
             with pytest.raises(PatternError, match=r"P0\[0\]\[1\] = 0.3"):
@@ -298,14 +303,14 @@ def _stepped_reference_kf(model, zs, rows, x0, P0):
 
 def test_run_takes_one_parameter_row_per_step(tmp_path):
     model = _free_axis()
-    paths = _written(tmp_path, model, "kf")
+    generated = _loaded(tmp_path, model, "kf")
     rng = np.random.default_rng(11)
     steps = 120
     rows = np.column_stack([rng.uniform(0.05, 2.0, steps), rng.uniform(0.001, 0.1, steps)])
     zs = np.cumsum(rng.normal(size=(steps, 1)), axis=0)
     x0, P0 = np.array([0.0, 1.0]), np.array([[4.0, 0.5], [0.5, 1.0]])
     xr, Pr = _stepped_reference_kf(model, zs, rows, x0, P0)
-    modules = [load_python(paths[".py"])] + ([build_c(paths[".c"])] if GCC else [])
+    modules = _modules(generated)
     for module in modules:
         xs, Ps = module.run(zs, x0, P0, rows)
         assert relative_error(xs, xr) <= LINEAR_TOLERANCE
@@ -318,7 +323,7 @@ def test_run_takes_one_parameter_row_per_step(tmp_path):
         with pytest.raises(ShapeError, match=r"'?p'? must have shape \(2,\) or \(120, 2\)|"
                                              r"p must have shape \(2,\) or \(steps, 2\)"):
             module.run(zs, x0, P0, rows[:-1])
-    header = paths[".h"].read_text()
+    header = generated.paths[".h"].read_text()
     assert "p[2] rows p_stride" in header and "p_stride 0" in header
     assert "size_t p_stride);" in header
 
@@ -326,7 +331,7 @@ def test_run_takes_one_parameter_row_per_step(tmp_path):
 @needs_gcc
 def test_run_tracks_takes_parameter_rows_shared_by_the_tracks(tmp_path):
     model = _free_axis()
-    module = build_c(_written(tmp_path, model, "kf")[".c"])
+    module = _loaded(tmp_path, model, "kf").c
     rng = np.random.default_rng(2)
     steps, tracks = 40, 6
     rows = np.column_stack([rng.uniform(0.1, 1.0, steps), rng.uniform(0.01, 0.1, steps)])
@@ -349,7 +354,7 @@ def _free_nonlinear() -> NonlinearModel:
 
 def test_ekf_run_takes_one_parameter_row_per_step(tmp_path):
     model = _free_nonlinear()
-    paths = _written(tmp_path, model, "ekf")
+    generated = _loaded(tmp_path, model, "ekf")
     rng = np.random.default_rng(4)
     steps = 60
     rows = rng.uniform(0.001, 0.05, (steps, 1))
@@ -364,7 +369,7 @@ def test_ekf_run_takes_one_parameter_row_per_step(tmp_path):
         x, P = res.xs[0], res.Ps[0]
         xr.append(x)
         Pr.append(P)
-    modules = [load_python(paths[".py"])] + ([build_c(paths[".c"])] if GCC else [])
+    modules = _modules(generated)
     for module in modules:
         xs, Ps = module.run(zs, np.array([0.5, 0.1]), np.array([[1.0, 0.1], [0.1, 1.0]]), rows)
         assert relative_error(xs, np.array(xr)) <= 1e-12
@@ -379,8 +384,8 @@ def test_scalar_measurements_and_a_square_P_are_accepted(tmp_path):
     num = model.numeric()
     zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 50, 8).zs
     P0 = _spd(2, 1)
-    paths = _written(tmp_path, model, "kf")
-    modules = [load_python(paths[".py"])] + ([build_c(paths[".c"])] if GCC else [])
+    generated = _loaded(tmp_path, model, "kf")
+    modules = _modules(generated)
     for module in modules:
         xs, Ps = module.run(zs, num.x0, P0)
         xs1, Ps1 = module.run(zs[:, 0], num.x0, P0)  # (steps,) for m = 1
@@ -396,8 +401,8 @@ def test_wrong_shapes_are_refused_naming_the_argument_and_the_shapes(tmp_path):
     model = catalog.load("mpt3d_a")
     num = model.numeric()
     zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 10, 8).zs
-    paths = _written(tmp_path, model, "kf")
-    py = load_python(paths[".py"])
+    generated = _loaded(tmp_path, model, "kf")
+    py = generated.python
     cases = [((zs.T, num.x0, np.eye(6)), "zs", r"\(steps, 3\)", r"\(3, 10\)"),
              ((zs, num.x0[:4], np.eye(6)), "x0", r"\(6,\)", r"\(4,\)"),
              ((zs, num.x0, np.eye(5)), "P0", r"\(6, 6\)", r"\(5, 5\)")]
@@ -405,7 +410,7 @@ def test_wrong_shapes_are_refused_naming_the_argument_and_the_shapes(tmp_path):
         with pytest.raises(ShapeError, match=rf"run: {name} must have shape {want}.*got {got}"):
             py.run(*args)
     if GCC:
-        c = build_c(paths[".c"])
+        c = generated.c
         c_cases = [((zs.T, num.x0, np.eye(6)), "z", r"\(3, 3\)", r"\(3, 10\)"),
                    ((zs, num.x0[:4], np.eye(6)), "x0", r"\(6,\)", r"\(4,\)"),
                    ((zs, num.x0, np.eye(5)), "P0", r"\(6, 6\)", r"\(5, 5\)")]

@@ -8,11 +8,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import LinearModel, catalog, reference
-from derive.emit.write import write_files
 from derive.filters import available
-from derive.generation import render_filter
+from derive.pipeline import load_generated
 from derive.simulate import simulate_linear
-from derive.verify import LINEAR_TOLERANCE, import_python, relative_error, verify_filter
+from derive.verify import LINEAR_TOLERANCE, relative_error, verify_filter
 
 LINEAR = [(name, f) for name in catalog.names() for f in available(catalog.load(name))
           if catalog.load(name).kind == "linear"]
@@ -34,28 +33,23 @@ def test_relative_error_is_normwise_per_step():
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(stable_models(), st.integers(0, 1000))
-def test_random_models_kf_and_sskf_match_reference(tmp_path_factory, model, seed):
+def test_random_models_kf_and_sskf_match_reference(model, seed):
     num = model.numeric()
     run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 200, seed)
     P0 = np.eye(model.n)
-    tmp = tmp_path_factory.mktemp("rand")
-    files = {**render_filter(model, "kf", "python"), **render_filter(model, "sskf", "python")}
-    paths = {p.name: p for p in write_files(tmp, model.name, files)}
-    xs, Ps = import_python(paths["kf.py"]).run(run.zs, num.x0, P0)
+    xs, Ps = load_generated(model, "kf", lang="python").python.run(run.zs, num.x0, P0)
     xr, Pr = reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, P0, run.zs)
     assert relative_error(xs, xr) <= 1e-12
     assert relative_error(Ps, Pr) <= 1e-12
-    xs = import_python(paths["sskf.py"]).run(run.zs, num.x0)
+    xs = load_generated(model, "sskf", lang="python").python.run(run.zs, num.x0)
     assert relative_error(xs, reference.sskf(num.F, num.G, num.H, num.Q, num.R, num.x0,
                                              run.zs)) <= 1e-12
 
 
-def test_trailing_track_axis_filters_many_tracks(tmp_path):
+def test_trailing_track_axis_filters_many_tracks():
     model = catalog.load("mpt3d_a")
     num = model.numeric()
-    paths = {p.name: p for p in write_files(tmp_path, model.name,
-                                             render_filter(model, "kf", "python"))}
-    mod = import_python(paths["kf.py"])
+    mod = load_generated(model, "kf", lang="python").python
     tracks = 7
     zs = np.stack([simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 50, s).zs
                    for s in range(tracks)], axis=-1)  # (steps, m, tracks)
@@ -69,12 +63,11 @@ def test_trailing_track_axis_filters_many_tracks(tmp_path):
         np.testing.assert_array_equal(Ps[..., t], P1)
 
 
-def test_free_parameter_model_runs_with_p(tmp_path):
+def test_free_parameter_model_runs_with_p():
     dt = sympy.Symbol("dt")
     m = LinearModel("freedt", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[0.01]], [[0.1]],
                     G=[[dt / 2], [1]])
-    paths = {p.name: p for p in write_files(tmp_path, m.name, render_filter(m, "kf", "python"))}
-    mod = import_python(paths["kf.py"])
+    mod = load_generated(m, "kf", lang="python").python
     num = LinearModel("fixed", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[0.01]], [[0.1]],
                       G=[[dt / 2], [1]], values={"dt": 0.5}).numeric()
     run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 100, 3)
@@ -85,15 +78,11 @@ def test_free_parameter_model_runs_with_p(tmp_path):
 
 @pytest.mark.parametrize("model_name, filter_name", [("mpt3d_b", "kf"), ("mpt3d_a", "sskf"),
                                                      ("gps_static", "ikf")])
-def test_c_run_tracks_equals_the_run_of_each_track(tmp_path, model_name, filter_name):
+def test_c_run_tracks_equals_the_run_of_each_track(model_name, filter_name):
     """run_tracks (4 tracks advanced together, then singles) is each track's run, bit for bit."""
-    from derive.build import build_c
-
     model = catalog.load(model_name)
     num = model.numeric()
-    paths = {p.suffix: p for p in write_files(tmp_path, model.name,
-                                               render_filter(model, filter_name, "c"))}
-    mod = build_c(paths[".c"])
+    mod = load_generated(model, filter_name, lang="c").c
     tracks = 7  # one block of 4 and three singles
     zs = np.stack([simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, 60, s).zs
                    for s in range(tracks)])

@@ -12,11 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import catalog, reference
-from ..build import build_c
 from ..system_checks import psd_sqrt
-from ..verify import import_python
 from .cases import Case, Skip
-from .generated import CFLAGS, write
+from .generated import CFLAGS, load
 
 MODEL = "mpt3d_b"
 TRACKS = 10_000
@@ -101,7 +99,7 @@ def simdkalman_kf(b: Batch):
 
 def generated_python(b: Batch, workdir: Path):
     """The generated Python run with a trailing track axis."""
-    module = import_python(write(Case("kf", MODEL), workdir, "python")[".py"])
+    module = load(Case("kf", MODEL), workdir, "python").python
     zs = np.ascontiguousarray(b.zs.transpose(1, 2, 0))          # (steps, m, tracks)
     tracks = b.zs.shape[0]
     x0 = np.repeat(b.x0[:, None], tracks, axis=1)
@@ -112,7 +110,7 @@ def generated_python(b: Batch, workdir: Path):
 def generated_c_tracks(b: Batch, workdir: Path):
     """The generated ``run_tracks``: 4 tracks advanced together in registers, each track's
     arrays contiguous (no covariance output, like the other batch rows)."""
-    module = build_c(write(Case("kf", MODEL), workdir, "c")[".c"], extra_cflags=CFLAGS)
+    module = load(Case("kf", MODEL), workdir, "c").c
     tracks = b.zs.shape[0]
     zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
     x0 = np.ascontiguousarray(np.repeat(b.x0[None, :], tracks, axis=0))
@@ -179,7 +177,7 @@ def generated_c(b: Batch, workdir: Path, entry: str = "batch_step"):
     Compiled with CFLAGS and link-time optimisation, so the step can be inlined."""
     import cffi
 
-    paths = write(Case("kf", MODEL), workdir, "c")
+    paths = load(Case("kf", MODEL), workdir, "c").paths
     folder = paths[".c"].parent
     tracks, steps, m = b.zs.shape
     n = len(b.x0)

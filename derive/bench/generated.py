@@ -7,11 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import catalog
-from ..build import build_c
-from ..emit.write import write_files
-from ..generation import render_filter
-from ..verify import import_python
+from ..pipeline import Generated, load_generated
 from .cases import Case, Data, Skip, per_copy
 
 CFLAGS = ("-O3", "-march=native")
@@ -20,11 +16,11 @@ Contraction stays off as ISO C has it: the generated code fuses a*b + c itself
 (``DERIVE_FMA``), so the operations executed are those the header counts."""
 
 
-def write(case: Case, workdir: Path, lang: str = "all") -> dict[str, Path]:
-    """Generate the case's filter into ``workdir``; {suffix: path}."""
-    model = catalog.load(case.model)
-    files = render_filter(model, case.filter, lang, {}, out_label="bench")
-    return {p.suffix: p for p in write_files(workdir / "generated", model.name, files)}
+def load(case: Case, workdir: Path, lang: str = "all") -> Generated:
+    """Generate the case's filter into ``workdir/generated`` and load it (the C compiled
+    with :data:`CFLAGS`)."""
+    return load_generated(case.model, case.filter, {}, lang, workdir / "generated",
+                          out_label="bench", extra_cflags=CFLAGS)
 
 
 def _python_runner(module, case: Case, data: Data):
@@ -72,9 +68,8 @@ def _c_runner(filter_module, data: Data):
 
 
 def generated_c(case: Case, data: Data, workdir: Path):
-    module = build_c(write(case, workdir)[".c"], extra_cflags=CFLAGS)
-    return _c_runner(next(iter(module.filters.values())), data)
+    return _c_runner(load(case, workdir, "c").c, data)
 
 
 def generated_python(case: Case, data: Data, workdir: Path):
-    return _python_runner(import_python(write(case, workdir)[".py"]), case, data)
+    return _python_runner(load(case, workdir, "python").python, case, data)

@@ -11,11 +11,10 @@ loop on this machine, in seconds.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import time
 from pathlib import Path
 
-from ..build import _compiler, cache_dir, cached_extension
+from ..build import _compiler, cache_dir, cached_extension, load_module_file
 
 #: kind -> (C statement on double a and b, iterations per timing)
 PROBES = {
@@ -61,10 +60,7 @@ def _module(cflags: tuple[str, ...]):
         ffi.compile(tmpdir=str(work), verbose=False)
 
     path = cached_extension(cache_dir(), f"probe-{key}", name, build)
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.lib
+    return load_module_file(name, path).lib
 
 
 def measure_latencies(cflags: tuple[str, ...], repeats: int = 5,

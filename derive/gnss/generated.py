@@ -11,19 +11,15 @@ is the reference these must equal.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from derive.build import build_c
-from derive.emit.write import write_files
 from derive.errors import ModelError
-from derive.generation import render_filter
 from derive.gnss.run import FilterSettings
 from derive.gnss.scalar_updates import ScalarUpdate
 from derive.model import NonlinearModel
-from derive.verify import import_python
+from derive.pipeline import load_generated
 
 PARAMETERS = ("q_clock", "q_position", "sigma2")
 """The free parameters of scalar_model, in the order of p."""
@@ -56,14 +52,9 @@ def _options(name: str, settings: FilterSettings) -> dict:
     return {"alpha": settings.alpha, "beta": settings.beta, "kappa": settings.kappa}
 
 
-def _load(name: str, settings: FilterSettings, lang: str, workdir: Path):
-    model = scalar_model()
-    files = render_filter(model, name, "python" if lang == "python" else "c",
-                          _options(name, settings))
-    paths = {p.suffix: p for p in write_files(workdir, model.name, files)}
-    if lang == "python":
-        return import_python(paths[".py"])
-    return build_c(paths[".c"])
+def _load(name: str, settings: FilterSettings, lang: str, workdir: str | Path | None):
+    return load_generated(scalar_model(), name, _options(name, settings), lang,
+                          workdir).module(lang)
 
 
 def _pair(module, p: np.ndarray):
@@ -90,9 +81,5 @@ def generated_filters(settings: FilterSettings | None = None, lang: str = "c",
         raise ModelError(f"lang must be one of {LANGS}, got {lang!r}")
     settings = FilterSettings() if settings is None else settings
     p = parameters(settings)
-    if workdir is not None:
-        return {name.upper(): _pair(_load(name, settings, lang, Path(workdir)), p)
-                for name in ("ekf", "ukf")}
-    with tempfile.TemporaryDirectory() as tmp:
-        return {name.upper(): _pair(_load(name, settings, lang, Path(tmp)), p)
-                for name in ("ekf", "ukf")}
+    return {name.upper(): _pair(_load(name, settings, lang, workdir), p)
+            for name in ("ekf", "ukf")}

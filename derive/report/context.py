@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ModelError
+from ..pipeline import load_generated
 
 
 @dataclass
@@ -69,11 +70,5 @@ class Context:
     def variant(self, model, name: str, options: dict, tag: str):
         """Generate, compile and return the C of a filter variant (e.g. pred with N = 3)
         in the scratch directory; the catalog's generated directory is not touched."""
-        from ..build import build_c
-        from ..emit.write import write_files
-        from ..generation import render_filter
-
-        files = render_filter(model, name, "all", options, out_label=f"variants/{tag}")
-        paths = write_files(self.scratch / tag, model.name, files)
-        c_file = next(p for p in paths if p.suffix == ".c")
-        return build_c(c_file)[f"{model.name}_{name}"]
+        return load_generated(model, name, options, "c", self.scratch / tag,
+                              out_label=f"variants/{tag}").c

@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..generation import command_unit
+from ..pipeline import load_units
 from .document import DIFFERS, MATCHED, Section, Table, Text, sci
 
 VERIFY_STEPS = 1000   # derive verify's default
@@ -49,25 +51,16 @@ def generate_model(ctx, name: str, result: GenerationResult) -> None:
     ``generated`` as their output directory (a stable text, so the cffi build cache,
     keyed by the sources, is reused from one run to the next)."""
     from .. import catalog
-    from ..build import build_c
-    from ..emit.write import write_files
     from ..filters import available
-    from ..generation import render_filter
-    from ..verify import import_python
 
     model = catalog.load(name)
-    filters = available(model)
     label = str(ctx.generated) if ctx.label is None else ctx.label
-    files: dict[str, str] = {}
-    for f in filters:
-        files.update(render_filter(model, f, "all", {}, model_ref=name, out_label=label))
-    result.files += write_files(ctx.generated, model.name, files)
-    folder = ctx.generated / model.name
-    module = build_c([folder / f"{f}.c" for f in filters])
-    for f in filters:
-        ctx.c[(name, f)] = module[f"{model.name}_{f}"]
-        ctx.python[(name, f)] = import_python(folder / f"{f}.py")
-        ctx.sources[(name, f)] = folder / f"{f}.c"
+    units = [command_unit(model, f, {}, name, label) for f in available(model)]
+    for generated in load_units(units, "all", ctx.generated):
+        key = (name, generated.unit.filter)
+        ctx.c[key], ctx.python[key] = generated.c, generated.python
+        ctx.sources[key] = generated.paths[".c"]
+        result.files += sorted(generated.paths.values())
     result.models.append(name)
 
 
