@@ -240,10 +240,14 @@ class LinearModel(_Model):
         check_shape(Qc_m, "Qc", (G_m.cols, G_m.cols), "noise inputs x noise inputs")
         _check_symmetric(Qc_m, "Qc")
         dt_e = normalize(dt, "dt")
-        F, Qd = discretize(Phi_m, G_m, Qc_m, dt_e)
+        F, Qd, method = discretize(Phi_m, G_m, Qc_m, dt_e, normalize_values(values))
+        if method == "numeric-expm":  # symbols of Phi and dt are now numbers in F and Qd
+            kept = {s.name for s in F.free_symbols | Qd.free_symbols
+                    | as_matrix(H, "H").free_symbols | as_matrix(R, "R").free_symbols}
+            values = {k: v for k, v in normalize_values(values).items() if k in kept}
         model = cls(name, states, measurements, F, H, Qd, R, G=None, values=values, x0=x0,
                     P0=P0, P0_pattern=P0_pattern, description=description, source=source)
-        model.continuous = {"Phi": Phi_m, "G": G_m, "Qc": Qc_m, "dt": dt_e}
+        model.continuous = {"Phi": Phi_m, "G": G_m, "Qc": Qc_m, "dt": dt_e, "method": method}
         return model
 
     @classmethod

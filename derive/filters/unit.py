@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..discretize import METHODS
 from ..emit.unit import Unit
 
 
@@ -23,6 +24,8 @@ def make_unit(model, name: str, programs: dict, options: dict, constants: dict |
     facts = []
     if model.kind == "linear" and any(p.name == "P" for p in programs["step"].inputs):
         facts.append(f"P0 pattern declared: {options.get('P0_pattern') or model.P0_pattern}")
+    if getattr(model, "continuous", None):
+        facts.append(f"discretisation: {METHODS[model.continuous['method']]}")
     if options.get("joseph"):
         facts.append("covariance update: Joseph form")
     for key, value in (constants or {}).items():

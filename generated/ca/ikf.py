@@ -22,6 +22,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 6, calls 0 (flops 91, instructions 99)
 P0 pattern declared: zero
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

@@ -17,6 +17,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 100, sub 40, mul 160, div 4, sqrt 0, fma 0, neg 1, cmp 1, calls 0 (flops 304, instructions 306)
 P0 pattern declared: zero
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

@@ -20,6 +20,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 12, sub 3, mul 12, div 4, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 31, instructions 35)
 P0 pattern declared: zero
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

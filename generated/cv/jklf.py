@@ -17,6 +17,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 35, sub 12, mul 52, div 4, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 103, instructions 104)
 P0 pattern declared: zero
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np
