@@ -11,8 +11,9 @@ a numeric damped oscillator took a minute, a numeric 4x4 more than five):
 - ``exact-nilpotent``: ``Phi`` nilpotent (the papers' CV and CA models): ``M`` is nilpotent
   too, and ``exp(M)`` is its finite Taylor series, exact and symbolic in every parameter.
 - ``exact-sympy``: ``Phi`` triangular with at most `MAX_EXACT_STATES` states, or a ``Phi``
-  of two states with a symbol that has no value: sympy's exact exponential (its
-  eigenvalues are explicit),
+  of two states with a symbol that has no value and eigenvalues free of square roots of
+  symbols, and at most `MAX_EXACT_SYMBOLIC_EIGENVALUES` symbolic eigenvalues: sympy's
+  exact exponential,
   simplified only while the unsimplified result has at most `MAX_EXACT_OPERATIONS`
   operations.
 - ``numeric-expm``: every symbol of ``Phi`` and ``dt`` has a value: ``scipy.linalg.expm`` of
@@ -35,8 +36,10 @@ import sympy
 
 from .errors import ModelError
 
-MAX_EXACT_STATES = 4
+MAX_EXACT_STATES = 3
 """Largest triangular ``Phi`` exponentiated exactly by sympy (non-nilpotent)."""
+MAX_EXACT_SYMBOLIC_EIGENVALUES = 2
+"""Most distinct eigenvalues of ``Phi`` with symbols in an exact (non-nilpotent) exponential."""
 MAX_EXACT_OPERATIONS = 600
 """Largest unsimplified exact ``exp(M)`` (sympy ``count_ops``) that is simplified and kept."""
 MAX_NILPOTENT_OPERATIONS = 20_000
@@ -147,15 +150,31 @@ def _nilpotent(Phi: sympy.Matrix, W: sympy.Matrix, dt: sympy.Expr) -> Discretiza
 
 def _exact_bound(Phi: sympy.Matrix, numeric: bool) -> str | None:
     """None if sympy's exact exponential is tried, else why not. ``numeric``: every symbol
-    of Phi and dt has a value (so the numeric exponential is available)."""
+    of Phi and dt has a value (so the numeric exponential is available). sympy's time
+    grows with the symbolic eigenvalues (three take seconds, four a quarter of a minute,
+    a square root of symbols minutes), so those are bounded before it starts."""
     n = Phi.rows
-    triangular = Phi.is_upper or Phi.is_lower
-    if triangular and n <= MAX_EXACT_STATES or n <= 2 and not numeric:
-        return None
-    if not triangular:
+    if n > MAX_EXACT_STATES:
+        return f"it has {n} states, more than {MAX_EXACT_STATES} for an exact exponential"
+    if Phi.is_upper or Phi.is_lower:
+        eigenvalues = set(Phi.diagonal())
+    elif n == 2 and not numeric:
+        trace, determinant = Phi.trace(), Phi.det()
+        discriminant = sympy.factor(trace**2 - 4 * determinant)
+        root = sympy.sqrt(discriminant)
+        if any(power.exp.is_Rational and not power.exp.is_Integer and power.base.free_symbols
+               for power in root.atoms(sympy.Pow)):
+            return (f"its eigenvalues need the square root of {discriminant} (an exact "
+                    "exponential is tried for explicit eigenvalues)")
+        eigenvalues = {(trace + root) / 2, (trace - root) / 2}
+    else:
         return ("it is not triangular (an exact exponential is tried for a triangular Phi "
                 f"of at most {MAX_EXACT_STATES} states, or a symbolic Phi of 2)")
-    return f"it has {n} states, more than {MAX_EXACT_STATES} for an exact exponential"
+    symbolic = [value for value in eigenvalues if value.free_symbols]
+    if len(symbolic) > MAX_EXACT_SYMBOLIC_EIGENVALUES:
+        return (f"it has {len(symbolic)} distinct symbolic eigenvalues, more than "
+                f"{MAX_EXACT_SYMBOLIC_EIGENVALUES} for an exact exponential")
+    return None
 
 
 def _exact(Phi: sympy.Matrix, W: sympy.Matrix, dt: sympy.Expr) -> Discretization | None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
+from .. import progress
 from ..errors import FilterError, SteadyStateError
 
 
@@ -98,4 +99,7 @@ def derive_unit(model, name: str, options: dict | None = None):
             raise FilterError(f"missing measurements (NaN in z) are supported by "
                               f"{', '.join(MISSING_FILTERS)}, not by {name!r}")
     mod = importlib.import_module(f"{__name__}.{f.module}")
+    if model.n >= progress.LARGE_MODEL_STATES:
+        progress.report(f"deriving {name} for {model.name} ({model.n} states, "
+                        f"{model.m} measurements)...")
     return mod.derive_unit(model, name, dict(options or {}))
