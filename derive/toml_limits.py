@@ -10,6 +10,8 @@ text may hold any characters.
 
 from __future__ import annotations
 
+import re
+
 MAX_NESTING = 32
 """Deepest nesting of arrays and inline tables (a matrix is 2 deep)."""
 MAX_KEY_PARTS = 32
@@ -18,57 +20,60 @@ MAX_DIGITS = 1000
 """Longest run of digits in a number (exact numbers are bounded to 2048 bits, about 617
 decimal digits, when they are read)."""
 
-_DIGITS = frozenset("0123456789")
-_KEY_BREAKS = frozenset("=,[]{}\n")
+_TOKEN = re.compile(
+    r"#[^\n]*"  # a comment
+    r"""|(?P<string>"(?:[^"\\\n]|\\.)*"(?!")|'[^'\n]*'(?!'))"""  # a one-line string: skipped
+    r"""|["']"""  # a multi-line or unterminated string: see _string_end
+    r"|(?:[0-9]_?){" + str(MAX_DIGITS + 1) + r",}"  # a too long digit run
+    r"|[\[\]{}.=,\n]"  # brackets and key breaks
+)
+"""What the scan looks at."""
 
 
 def toml_shape_problem(text: str) -> str | None:
     """None, or ``'line L, column C: what'`` for the first shape beyond the bounds."""
     depth = 0
     dots = 0
-    digits = 0
-    index = 0
     line, line_start = 1, 0
-    length = len(text)
-    while index < length:
-        char = text[index]
-        where = f"line {line}, column {index - line_start + 1}"
-        if char == "#":
-            end = text.find("\n", index)
-            index = length if end < 0 else end
+    index = 0
+    while True:
+        token = _TOKEN.search(text, index)
+        if token is None:
+            return None
+        start = token.start()
+        char = token.group()[0]
+        index = token.end()
+        if char == "#" or token.lastgroup == "string":
             continue
         if char in "\"'":
-            end, newlines, last_newline = _string_end(text, index)
+            index, newlines, last_newline = _string_end(text, start)
             if newlines:
                 line += newlines
                 line_start = last_newline + 1
-            index = end
-            digits = 0
             continue
-        if char in _DIGITS:
-            digits += 1
-            if digits > MAX_DIGITS:
-                return f"{where}: a number with more than {MAX_DIGITS} digits"
-        elif char != "_":
-            digits = 0
+        if char.isdigit():
+            return _at(line, start - line_start, f"a number with more than {MAX_DIGITS} digits")
         if char in "[{":
             depth += 1
             if depth > MAX_NESTING:
-                return (f"{where}: arrays and inline tables nested more than {MAX_NESTING} "
-                        "deep")
+                return _at(line, start - line_start, "arrays and inline tables nested more "
+                                                     f"than {MAX_NESTING} deep")
         elif char in "]}":
             depth = max(0, depth - 1)
         if char == ".":
             dots += 1
             if dots >= MAX_KEY_PARTS:
-                return f"{where}: a key of more than {MAX_KEY_PARTS} dotted parts"
-        elif char in _KEY_BREAKS:
-            dots = 0
+                return _at(line, start - line_start, f"a key of more than {MAX_KEY_PARTS} "
+                                                     "dotted parts")
+            continue
+        dots = 0  # = , [ ] { } and newline end a key
         if char == "\n":
             line += 1
-            line_start = index + 1
-        index += 1
-    return None
+            line_start = index
+
+
+def _at(line: int, offset: int, what: str) -> str:
+    return f"line {line}, column {offset + 1}: {what}"
 
 
 def _string_end(text: str, start: int) -> tuple[int, int, int]:
