@@ -55,6 +55,13 @@ relative path to a model file inside the composing file's directory; composition
 ``[parameters]`` or ``[initial]`` (the blocks carry theirs; same-named symbols are shared).
 docs/model-files.md has complete examples.
 
+Reading is bounded: regular files only, at most `MAX_FILE_BYTES` read; the TOML shape
+(nesting, dotted keys, digits) is scanned before parsing (`derive.toml_limits`); states,
+measurements and inputs are counted before any per-name work, also across [compose]
+blocks (a file named by several blocks is built once); parameter values are checked
+where they would make an expression unbounded (`derive.expressions.check_values`).
+docs/model-files.md lists the limits.
+
 Every problem raises a `derive.errors.ModelFileError` naming the file, the table and the
 key (an expression problem raises its subclass `ExpressionError`); problems found by the
 model classes keep their own `ModelError` subclass, with the file named in the message.
