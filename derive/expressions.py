@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import ast
 import difflib
+import math
 import re
 import warnings
 from collections.abc import Callable, Mapping
@@ -490,3 +491,102 @@ class _Parser:
             )
         if degree > MAX_DEGREE:
             raise self.fail(f"expression has degree {degree} (limit {MAX_DEGREE})", node)
+
+
+_FLOAT_FUNCTIONS: Mapping[type, Callable[..., float]] = {
+    sympy.exp: math.exp, sympy.log: math.log, sympy.sin: math.sin, sympy.cos: math.cos,
+    sympy.tan: math.tan, sympy.asin: math.asin, sympy.acos: math.acos,
+    sympy.atan: math.atan, sympy.atan2: math.atan2, sympy.sinh: math.sinh,
+    sympy.cosh: math.cosh, sympy.tanh: math.tanh, sympy.Abs: abs,
+}
+
+
+def check_values(expr: sympy.Expr, values: Mapping[sympy.Symbol, sympy.Expr],
+                 where: str = "") -> None:
+    """Refuse parameter values that would make `expr` unbounded to evaluate, before sympy
+    substitutes them (it evaluates ``10**k`` with ``k = 1e600`` exactly, without end).
+
+    The parser bounds literal exponents; a parameter's value in an exponent gets the same
+    bound (``dt**k`` with ``k = 1e8`` is refused like ``dt**100000000``), and every
+    subexpression whose symbols all have values must be a finite real double
+    (``exp(exp(exp(k)))`` with ``k = 1000`` is refused). Raises `ExpressionError`.
+    """
+    if values and expr.free_symbols & set(values):
+        _ValueCheck(values, f"{where}: " if where else "").value(expr)
+
+
+class _ValueCheck:
+    """Double values of subexpressions (None where a symbol has no value), bottom-up."""
+
+    def __init__(self, values: Mapping[sympy.Symbol, sympy.Expr], prefix: str) -> None:
+        self.values = values
+        self.prefix = prefix
+        self.memo: dict[sympy.Basic, float | None] = {}
+
+    def fail(self, node: sympy.Basic, message: str) -> ExpressionError:
+        used = sorted((s for s in node.free_symbols if s in self.values), key=str)
+        given = ", ".join(f"{s} = {_compact(self.values[s])}" for s in used)
+        return ExpressionError(f"{self.prefix}with {given}, {_short(str(node))[1:-1]} "
+                               f"{message}")
+
+    def value(self, node: sympy.Basic) -> float | None:
+        if node not in self.memo:
+            self.memo[node] = self.compute(node)
+        return self.memo[node]
+
+    def compute(self, node: sympy.Basic) -> float | None:
+        if node.is_Symbol:
+            value = self.values.get(node)
+            return None if value is None else _as_float(value)
+        if node.is_Number or isinstance(node, sympy.NumberSymbol):
+            return _as_float(node)
+        arguments = [self.value(argument) for argument in node.args]
+        if node.is_Pow:
+            self.check_exponent(node)
+        if any(argument is None for argument in arguments):
+            return None
+        try:
+            if node.is_Add:
+                result = math.fsum(arguments)
+            elif node.is_Mul:
+                result = math.prod(arguments)
+            elif node.is_Pow:
+                result = arguments[0] ** arguments[1]
+            elif type(node) in _FLOAT_FUNCTIONS:
+                result = _FLOAT_FUNCTIONS[type(node)](*arguments)
+            else:
+                return None
+        except OverflowError:
+            result = math.inf
+        except (ValueError, ZeroDivisionError):
+            raise self.fail(node, "is not a real number") from None
+        if isinstance(result, complex):
+            raise self.fail(node, "is not a real number")
+        if not math.isfinite(result):
+            raise self.fail(node, "is not finite as a double")
+        return result
+
+    def check_exponent(self, node: sympy.Pow) -> None:
+        exponent = node.exp
+        if not exponent.free_symbols & set(self.values):
+            return
+        exact = exponent.xreplace(self.values)  # the exponent's own powers are checked
+        if exact.is_Rational and (abs(exact.p) > MAX_EXPONENT or exact.q > MAX_EXPONENT):
+            raise self.fail(node, f"has the exponent {_compact(exact)}, "
+                                  f"beyond the limit of {MAX_EXPONENT}")
+
+
+def _as_float(number: sympy.Expr) -> float:
+    try:
+        return float(number)
+    except OverflowError:
+        return math.inf if number > 0 else -math.inf
+
+
+def _compact(number: sympy.Expr) -> str:
+    """A number's text, or its 6-digit approximation when the text is long."""
+    text = str(number)
+    if len(text) <= 24:
+        return text
+    magnitude = _as_float(number)
+    return f"{magnitude:.6g}" if math.isfinite(magnitude) else f"a number of {len(text)} characters"

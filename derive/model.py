@@ -381,10 +381,14 @@ class LinearModel(_Model):
                                   "matrices cannot depend on the state")
         Qc_m = _symmetric(Qc_m, "Qc")
         real, back = real_stand_ins(table.by_name.values())
-        F, Qd = discretize(*(mat.xreplace(real) for mat in (Phi_m, G_m, Qc_m)),
-                           dt_e.xreplace(real))
+        given = normalize_values(values, table)
+        F, Qd, method = discretize(*(mat.xreplace(real) for mat in (Phi_m, G_m, Qc_m)),
+                                   dt_e.xreplace(real), given)
         F, Qd = F.xreplace(back), Qd.xreplace(back)
         present = F.free_symbols | Qd.free_symbols | H_m.free_symbols | R_m.free_symbols
+        if method == "numeric-expm":  # symbols of Phi and dt are now numbers in F and Qd
+            kept = {s.name for s in present}
+            values = {k: v for k, v in given.items() if k in kept}
         first = [s.name for s in table.by_name.values() if s in present]
         if parameters is not None and (isinstance(parameters, str)
                                        or not isinstance(parameters, Sequence)):
@@ -400,7 +404,8 @@ class LinearModel(_Model):
         model = cls(name, states, measurements, F, H_m, Qd, R_m, G=None, values=values, x0=x0,
                     P0=P0, P0_pattern=P0_pattern, description=description, source=source,
                     parameters=order)
-        model.continuous = {"Phi": Phi_m, "G": G_m, "Qc": Qc_m, "dt": dt_e}
+        model.continuous = {"Phi": Phi_m, "G": G_m, "Qc": Qc_m, "dt": dt_e,
+                            "method": method}
         return model
 
     @classmethod

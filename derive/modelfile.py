@@ -55,6 +55,13 @@ relative path to a model file inside the composing file's directory; composition
 ``[parameters]`` or ``[initial]`` (the blocks carry theirs; same-named symbols are shared).
 docs/model-files.md has complete examples.
 
+Reading is bounded: regular files only, at most `MAX_FILE_BYTES` read; the TOML shape
+(nesting, dotted keys, digits) is scanned before parsing (`derive.toml_limits`); states,
+measurements and inputs are counted before any per-name work, also across [compose]
+blocks (a file named by several blocks is built once); parameter values are checked
+where they would make an expression unbounded (`derive.expressions.check_values`).
+docs/model-files.md lists the limits.
+
 Every problem raises a `derive.errors.ModelFileError` naming the file, the table and the
 key (an expression problem raises its subclass `ExpressionError`); problems found by the
 model classes keep their own `ModelError` subclass, with the file named in the message.
@@ -63,7 +70,9 @@ model classes keep their own `ModelError` subclass, with the file named in the m
 from __future__ import annotations
 
 import difflib
+import os
 import re
+import stat
 import sys
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -73,9 +82,16 @@ from typing import Any
 import sympy
 
 from derive.errors import ModelError, ModelFileError
-from derive.expressions import RESERVED_NAMES, exact_decimal, exact_number, parse_expression
+from derive.expressions import (
+    RESERVED_NAMES,
+    check_values,
+    exact_decimal,
+    exact_number,
+    parse_expression,
+)
 from derive.model import P0_PATTERNS, LinearModel, NonlinearModel
 from derive.symbols import check_identifier
+from derive.toml_limits import toml_shape_problem
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -83,9 +99,17 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 MAX_FILE_BYTES = 1_000_000
-"""Largest model file accepted."""
+"""Largest model file accepted (at most this much is read, whatever the file system says)."""
 MAX_COMPOSE_DEPTH = 8
 """Deepest nesting of [compose] files."""
+MAX_STATES = 32
+"""Most states of a model, composed or not: the generated filters are unrolled, with work
+growing as the cube of the states (32 states take tens of seconds for every filter)."""
+MAX_MEASUREMENTS = 32
+"""Most measurements of a model."""
+MAX_INPUTS = 128
+"""Most per-step inputs of a nonlinear model."""
+_MAX_NAMES = {"states": MAX_STATES, "measurements": MAX_MEASUREMENTS, "inputs": MAX_INPUTS}
 
 KINDS = ("discrete", "continuous", "nonlinear", "compose")
 _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
@@ -123,7 +147,7 @@ class _Decimal:
 def load_model_file(path: str | Path) -> LinearModel | NonlinearModel:
     """Load the model declared in the TOML file at `path`."""
     file = Path(path)
-    return _Loader(()).load_path(file, str(path), _key(file))
+    return _Loader(()).load_path(file, str(path), _key(file), str(path))
 
 
 def loads_model(text: str, *, source: str = "<string>") -> LinearModel | NonlinearModel:
@@ -166,20 +190,20 @@ def _model_errors(source: str) -> Iterator[None]:
 class _Loader:
     """Loads one file and, through [compose], the files it names (`chain` guards cycles)."""
 
-    def __init__(self, chain: tuple[str, ...]) -> None:
+    def __init__(self, chain: tuple[str, ...],
+                 loaded: dict[str, LinearModel | NonlinearModel] | None = None) -> None:
         self.chain = chain
+        self.loaded = {} if loaded is None else loaded  # key -> model, shared by the chain
 
     # -- reading --------------------------------------------------------------------------
 
-    def load_path(self, path: Path, source: str, key: str) -> LinearModel | NonlinearModel:
-        try:
-            size = path.stat().st_size
-            if size > MAX_FILE_BYTES:
-                raise ModelFileError(
-                    f"{source}: model file is {size} bytes, more than {MAX_FILE_BYTES}")
-            data = path.read_bytes()
-        except OSError as error:
-            raise ModelFileError(f"{source}: cannot read model file: {error.strerror}") from None
+    def load_path(self, path: Path, source: str, key: str,
+                  reading: str) -> LinearModel | NonlinearModel:
+        """Load the file at `path`, named `source` in its own errors and `reading` in an
+        error reading it (a [compose] block names the composing file and the block)."""
+        if key in self.loaded:
+            return self.loaded[key]
+        data = _read_regular_file(path, reading)
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError as error:
@@ -190,6 +214,8 @@ class _Loader:
     def load_text(
         self, text: str, source: str, base_dir: Path | None, key: str
     ) -> LinearModel | NonlinearModel:
+        if key in self.loaded:
+            return self.loaded[key]
         if key in self.chain:
             cycle = " -> ".join([*self.chain[self.chain.index(key):], key])
             raise ModelFileError(f"{source}: [compose] cycle: {cycle}")
@@ -202,12 +228,49 @@ class _Loader:
             raise ModelFileError(f"{source}: model text is longer than {MAX_FILE_BYTES}")
         if not text.strip():
             raise ModelFileError(f"{source}: model file is empty")
+        problem = toml_shape_problem(text)
+        if problem is not None:
+            raise ModelFileError(f"{source}: not accepted as a model file: {problem}")
         try:
             document = tomllib.loads(text, parse_float=_Decimal)
         except tomllib.TOMLDecodeError as error:
             raise ModelFileError(f"{source}: not valid TOML: {_toml_error(error, text)}") \
                 from None
-        return _File(document, source, base_dir, _Loader((*self.chain, key))).build()
+        except (ValueError, RecursionError, MemoryError) as error:  # beyond the scan's bounds
+            raise ModelFileError(f"{source}: not accepted as a model file: "
+                                 f"{type(error).__name__}: {error}") from None
+        model = _File(document, source, base_dir, _Loader((*self.chain, key), self.loaded)) \
+            .build()
+        self.loaded[key] = model
+        return model
+
+
+def _read_regular_file(path: Path, reading: str) -> bytes:
+    """At most MAX_FILE_BYTES + 1 bytes of a regular file (a FIFO or a device such as
+    /dev/zero is refused before it is read; the size is not trusted)."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        descriptor = os.open(path, flags)
+    except OSError as error:
+        raise ModelFileError(f"{reading}: cannot read model file: {error.strerror}") from None
+    try:
+        mode = os.fstat(descriptor).st_mode
+        if not stat.S_ISREG(mode):
+            kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+                    else "not a regular file")
+            raise ModelFileError(f"{reading}: cannot read model file: it is {kind}, and a "
+                                 "model file must be a regular file")
+        with os.fdopen(descriptor, "rb", closefd=False) as stream:
+            data = stream.read(MAX_FILE_BYTES + 1)
+    except OSError as error:
+        raise ModelFileError(f"{reading}: cannot read model file: {error.strerror}") from None
+    finally:
+        os.close(descriptor)
+    if len(data) > MAX_FILE_BYTES:
+        raise ModelFileError(f"{reading}: model file is more than {MAX_FILE_BYTES} bytes "
+                             "(the limit)")
+    return data
 
 
 _TOML_AT = re.compile(r"\(at line (\d+), column \d+\)")
@@ -296,17 +359,27 @@ class _File:
                                                f"{_kind_name(value)} {value!r}")
         if not value:
             raise self.error(f"{where} {key}", "must not be empty")
+        limit = _MAX_NAMES[key]
+        if len(value) > limit:
+            raise self.error(f"{where} {key}", f"{len(value)} names, more than the limit of "
+                                               f"{limit}")
         names = [self.identifier(item, f"{where} {key}") for item in value]
+        seen: set[str] = set()
         for name in names:
-            if names.count(name) > 1:
+            if name in seen:
                 raise self.error(f"{where} {key}", f"name {name!r} appears twice")
+            seen.add(name)
         return names
 
     # -- entries and matrices -------------------------------------------------------------
 
     def entry(self, value: object, where: str, names: Mapping[str, sympy.Symbol]) -> sympy.Expr:
         if isinstance(value, str):
-            return parse_expression(value, names, where=f"{self.source}: {where}")
+            expr = parse_expression(value, names, where=f"{self.source}: {where}")
+            check_values(expr, {self.symbols[name]: number
+                                for name, number in self.values.items()},
+                         where=f"{self.source}: {where}")
+            return expr
         if isinstance(value, _Decimal):
             return exact_decimal(value.text, where=f"{self.source}: {where}")
         if isinstance(value, int) and not isinstance(value, bool):
@@ -517,7 +590,11 @@ class _File:
             raise self.error("[compose] blocks", f"must be a non-empty list of tables "
                                                  f"{{ model = ..., suffix = ... }}, got "
                                                  f"{_kind_name(blocks)}")
+        if len(blocks) > MAX_STATES:
+            raise self.error("[compose] blocks", f"{len(blocks)} blocks, more than the limit "
+                                                 f"of {MAX_STATES} states")
         models, suffixes = [], []
+        states = measurements = 0
         for i, block in enumerate(blocks):
             where = f"[compose] blocks[{i}]"
             if not isinstance(block, dict):
@@ -526,6 +603,13 @@ class _File:
             loaded = self.block_model(self.string(block, "model", where), f"{where} model")
             if not isinstance(loaded, LinearModel):
                 raise self.error(f"{where} model", f"{loaded.name!r} is not a linear model")
+            states, measurements = states + loaded.n, measurements + loaded.m
+            for count, limit, what in ((states, MAX_STATES, "states"),
+                                       (measurements, MAX_MEASUREMENTS, "measurements")):
+                if count > limit:
+                    raise self.error(f"{where} model", f"the composed model reaches {count} "
+                                                       f"{what} here, more than the limit of "
+                                                       f"{limit}")
             models.append(loaded)
             suffixes.append(self.string(block, "suffix", where) if "suffix" in block else None)
         if len({s is None for s in suffixes}) > 1:
@@ -564,7 +648,8 @@ class _File:
         if base != target and base not in target.parents:
             raise self.error(where, f"{reference!r} leaves the directory of {self.source}")
         label = str(Path(self.source).parent / relative)
-        return self.loader.load_path(target, label, str(target))
+        return self.loader.load_path(target, label, str(target),
+                                     f"{self.source}: {where}: {reference!r}")
 
 
 def _flatten(value: object) -> Iterator[sympy.Expr]:

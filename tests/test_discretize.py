@@ -12,14 +12,14 @@ def _zero(a, b):
 
 
 def test_constant_velocity():
-    F, Qd = discretize(sympy.Matrix([[0, 1], [0, 0]]), sympy.Matrix([0, 1]),
+    F, Qd, _ = discretize(sympy.Matrix([[0, 1], [0, 0]]), sympy.Matrix([0, 1]),
                        sympy.Matrix([[sq2]]), dt)
     assert _zero(F, [[1, dt], [0, 1]])
     assert _zero(Qd, sq2 * sympy.Matrix([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]))
 
 
 def test_constant_acceleration():
-    F, Qd = discretize(sympy.Matrix([[0, 1, 0], [0, 0, 1], [0, 0, 0]]), sympy.Matrix([0, 0, 1]),
+    F, Qd, _ = discretize(sympy.Matrix([[0, 1, 0], [0, 0, 1], [0, 0, 0]]), sympy.Matrix([0, 0, 1]),
                        sympy.Matrix([[sq2]]), dt)
     assert _zero(F, [[1, dt, dt**2 / 2], [0, 1, dt], [0, 0, 1]])
     expected = sq2 * sympy.Matrix([[dt**5 / 20, dt**4 / 8, dt**3 / 6],
@@ -34,7 +34,7 @@ def test_van_loan_equals_the_integral_for_an_oscillator():
     s = sympy.Symbol("s", real=True)
     Phi = sympy.Matrix([[0, 1], [-w**2, 0]])
     G = sympy.Matrix([0, 1])
-    F, Qd = discretize(Phi, G, sympy.Matrix([[sq2]]), dt)
+    F, Qd, _ = discretize(Phi, G, sympy.Matrix([[sq2]]), dt)
     E = sympy.Matrix([[sympy.cos(w * s), sympy.sin(w * s) / w],
                       [-w * sympy.sin(w * s), sympy.cos(w * s)]])
     integral = (E * G * sq2 * G.T * E.T).applyfunc(lambda e: sympy.integrate(e, (s, 0, dt)))

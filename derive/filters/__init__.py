@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
+from .. import progress
 from ..errors import FilterError, SteadyStateError
 from ..options import validate
 
@@ -98,4 +99,7 @@ def derive_unit(model, name: str, options=None):
         raise (SteadyStateError if f.steady and f.model_kind == model.kind else
                FilterError)(reason)
     mod = importlib.import_module(f"{__name__}.{f.module}")
+    if model.n >= progress.LARGE_MODEL_STATES:
+        progress.report(f"deriving {name} for {model.name} ({model.n} states, "
+                        f"{model.m} measurements)...")
     return mod.derive_unit(model, name, typed)

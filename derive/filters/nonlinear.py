@@ -54,12 +54,40 @@ class Linearisation:
                 sympy.Matrix(self.jacobian).xreplace(subs))
 
 
-def _simpler(expr: sympy.Expr) -> sympy.Expr:
-    """``expr`` or its simplified form, whichever has strictly fewer operations."""
-    if expr.is_Atom:
-        return expr
-    candidate = sympy.simplify(expr)
-    return candidate if sympy.count_ops(candidate) < sympy.count_ops(expr) else expr
+MAX_SIMPLIFY_OPERATIONS = 24
+"""Largest Jacobian entry (sympy ``count_ops``) that is offered to ``sympy.simplify``, whose
+time grows exponentially with nested functions (a 9-deep ``sin`` chain's derivative, 63
+operations, takes seconds; 15 deep, minutes). Larger entries are kept as derived."""
+MAX_SIMPLIFY_BUDGET = 2000
+"""Most operations simplified per Jacobian; past that, entries are kept as derived."""
+
+
+class _Simplifier:
+    """``expr`` or its simplified form, whichever has strictly fewer operations, within
+    the bounds above (deterministic: the same model is always simplified the same way)."""
+
+    def __init__(self) -> None:
+        self.spent = 0
+
+    def __call__(self, expr: sympy.Expr) -> sympy.Expr:
+        if expr.is_Atom:
+            return expr
+        operations = sympy.count_ops(expr)
+        if operations > MAX_SIMPLIFY_OPERATIONS or \
+                self.spent + operations > MAX_SIMPLIFY_BUDGET:
+            return expr
+        self.spent += operations
+        candidate = sympy.simplify(expr)
+        return candidate if sympy.count_ops(candidate) < operations else expr
+
+
+def _is_zero(expr: sympy.Expr) -> bool:
+    """Whether ``expr`` is zero, decided by ``sympy.simplify`` only within
+    `MAX_SIMPLIFY_OPERATIONS` (a larger nonzero-looking difference counts as nonzero:
+    the caller then takes its general, always correct path)."""
+    if expr == 0:
+        return True
+    return sympy.count_ops(expr) <= MAX_SIMPLIFY_OPERATIONS and sympy.simplify(expr) == 0
 
 
 def linearise(values: sympy.MatrixBase, wrt: Sequence[sympy.Symbol],
@@ -67,9 +95,10 @@ def linearise(values: sympy.MatrixBase, wrt: Sequence[sympy.Symbol],
     """``values`` and (unless ``with_jacobian`` is False) ``∂values/∂wrt``, sharing work."""
     vals = [sympy.sympify(v) for v in values]
     if with_jacobian:  # over real stand-ins: model entries are real (d|x|/dx = sign(x))
+        simpler = _Simplifier()
         real, back = real_stand_ins(set(wrt).union(*(v.free_symbols for v in vals)))
         rvals = [v.xreplace(real) for v in vals]
-        jac = sympy.Matrix(len(vals), len(wrt), lambda i, j: _simpler(
+        jac = sympy.Matrix(len(vals), len(wrt), lambda i, j: simpler(
             sympy.diff(rvals[i], real.get(wrt[j], wrt[j]))).xreplace(back))
     else:
         jac = sympy.zeros(len(vals), 0)
@@ -133,7 +162,7 @@ def scalar_measurement(model) -> tuple[Measurement | None, str]:
     m = model.m
     if any(R[i, j] != 0 for i in range(m) for j in range(m) if i != j):
         return None, "R is not diagonal, so measurements cannot be processed one at a time"
-    if any(sympy.simplify(R[i, i] - R[0, 0]) != 0 for i in range(m)):
+    if not all(_is_zero(R[i, i] - R[0, 0]) for i in range(m)):
         return None, "the diagonal of R is not constant"
     first = _row_inputs(model, 0)
     if bool(first) != bool(model.inputs):
@@ -146,7 +175,7 @@ def scalar_measurement(model) -> tuple[Measurement | None, str]:
                           f"inputs of the same kind as {model.measurements[0]!r}")
         seen |= set(own)
         renamed = model.h[i, 0].xreplace(dict(zip(own, first)))
-        if sympy.simplify(renamed - model.h[0, 0]) != 0:
+        if not _is_zero(renamed - model.h[0, 0]):
             return None, (f"measurement {model.measurements[i]!r} is not "
                           f"{model.measurements[0]!r} of its own inputs")
     meas = Measurement(sympy.Matrix([model.subs(model.h[0, 0])]), first,

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..discretize import METHODS
 from ..emit.unit import Unit
 from ..options import SharedOptions
 from ..program import ZERO, Check
@@ -47,6 +48,8 @@ def make_unit(model, name: str, programs: dict, options: SharedOptions,
         facts.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
     if any(p.name == "P" for p in programs["step"].inputs):
         facts.append(accepted_P0(programs["step"]))
+    if getattr(model, "continuous", None):
+        facts.append(f"discretisation: {METHODS[model.continuous['method']]}")
     for key, value in (constants or {}).items():
         text = _fmt(value)
         facts.append(f"{key} = {text}" if len(text) <= 300 else

@@ -24,6 +24,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 19, sub 9, mul 25, div 6, sqrt 0, fma 16, neg 4, cmp 6, calls 0 (flops 91, instructions 85)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  */
 #include <math.h>
 #include <stddef.h>

@@ -23,6 +23,7 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 6, calls 0 (flops 91, instructions 99)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

@@ -18,6 +18,7 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 100, sub 40, mul 160, div 4, sqrt 0, fma 0, neg 1, cmp 1, calls 0 (flops 304, instructions 306)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

@@ -13,6 +13,7 @@ interface (flat row-major arrays; steps = number of steps):
     step(x[3], z[1]) -> (x_new[3])
     run(zs[steps, 1], x0[3]) -> (xs[steps, 3])
 operations per call of step (Python): add 6, sub 3, mul 12, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 21, instructions 21)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A = [[ 0.2559986051046037 ,  0.25599860510460365,  0.12799930255230185], [-0.4879342145597783 ,  0.5120657854402215 ,  0.7560328927201108 ], [-0.15999956409459487, -0.15999956409459484,  0.9200002179527026 ]]
 B = [[0.7440013948953963 ], [0.48793421455977826], [0.15999956409459481]]
 """

@@ -19,6 +19,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 20, sub 7, mul 12, div 1, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 50, instructions 46)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  */
 #include <math.h>
 #include <stddef.h>

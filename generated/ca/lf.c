@@ -17,6 +17,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 8, mul 61, div 3, sqrt 0, fma 73, neg 8, cmp 0, calls 0 (flops 236, instructions 171)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  */
 #include <math.h>
 #include <stddef.h>

@@ -15,6 +15,7 @@
  *     void ca_pred_run(steps, z[steps*1], x0[3], xs[steps*3] out)
  * operations per call of init (C99, fma through DERIVE_FMA): add 2, sub 0, mul 0, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 4, instructions 3)
  * operations per call of step (C99, fma through DERIVE_FMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 0, calls 0 (flops 15, instructions 8)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
  * B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
  * N = 1

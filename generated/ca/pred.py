@@ -15,6 +15,7 @@ interface (flat row-major arrays; steps = number of steps):
     run(zs[steps, 1], x0[3]) -> (xs[steps, 3])
 operations per call of init (Python): add 3, sub 0, mul 1, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of step (Python): add 5, sub 3, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 15, instructions 15)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
 B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
 N = 1

@@ -22,6 +22,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 10, sub 3, mul 10, div 4, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 31, instructions 33)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  */
 #include <math.h>
 #include <stddef.h>

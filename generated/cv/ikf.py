@@ -21,6 +21,7 @@ status (C return value; Python raises NumericalError): 0 success
 operations per call of step (Python): add 12, sub 3, mul 12, div 4, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 31, instructions 35)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

@@ -19,6 +19,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 24, sub 5, mul 34, div 4, sqrt 0, fma 18, neg 3, cmp 1, calls 0 (flops 103, instructions 89)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  */
 #include <math.h>
 #include <stddef.h>

@@ -17,6 +17,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 24, div 2, sqrt 0, fma 18, neg 3, cmp 0, calls 0 (flops 72, instructions 57)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  */
 #include <math.h>
 #include <stddef.h>

@@ -16,6 +16,7 @@ symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole
 operations per call of step (Python): add 20, sub 8, mul 42, div 2, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 72, instructions 72)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
 import numpy as np

@@ -15,6 +15,7 @@
  *     void cv_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
  * operations per call of init (C99, fma through DERIVE_FMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 8, instructions 4)
+ * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[ 0.23899358033688614,  1.                 ], [-0.2124787925659489 ,  1.                 ]]
  * B_N = [[0.7610064196631139], [0.2124787925659489]]
  * N = 1

@@ -13,6 +13,7 @@ interface (flat row-major arrays; steps = number of steps):
     step(x[2], z[1]) -> (x_new[2])
     run(zs[steps, 1], x0[2]) -> (xs[steps, 2])
 operations per call of step (Python): add 3, sub 1, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 10, instructions 10)
+discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 A = [[ 0.45147237290283504,  0.45147237290283504], [-0.2124787925659489 ,  0.7875212074340511 ]]
 B = [[0.548527627097165 ], [0.2124787925659489]]
 """
