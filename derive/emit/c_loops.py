@@ -17,14 +17,6 @@ from derive.lowering import LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
 
 
-def has_run_tracks(unit: Unit) -> bool:
-    """C run_tracks: for the linear families with a fused run loop, unless left out
-    (``options["run_tracks"] = False``); many small tracks are a linear-tracking use, so
-    EKF/UKF files stay lean."""
-    return (unit.kind in ("timevarying", "steady") and unit.family not in ("ekf", "ukf")
-            and unit.options.get("run_tracks", True) is not False)
-
-
 def fused_body(unit: Unit, step_parts: dict) -> list[str]:
     """The step's statements for the run loop, reading per-step inputs at row k.
 
@@ -57,48 +49,53 @@ def lane_lines(lines: list[str], unit: Unit, label: str) -> list[str]:
     out = []
     for line in lines:
         line = re.sub(r"\bt(\d+)\b", rf"t\1{label}", line)
-        line = re.sub(r"\bx_new\[", f"xn{label}[", line)
-        line = re.sub(r"\bP_new\[", f"Pn{label}[", line)
-        line = re.sub(r"\bx\[", f"x{label}[", line)
-        line = re.sub(r"\bP\[", f"P{label}[", line)
+        for port, new in unit.carried:
+            line = re.sub(rf"\b{new}\[", f"{port}n{label}[", line)
+        for port, _ in unit.carried:
+            line = re.sub(rf"\b{port}\[", f"{port}{label}[", line)
         for name in unit.step_inputs:
             line = re.sub(rf"\b{name}k\[", f"{name}{label}[", line)
         out.append(line)
     return out
 
 
-def tracks_parts(unit: Unit, fused: list[str], lanes: int,
-                  lookahead: list[str] | None = None) -> dict:
+def tracks_parts(unit: Unit, fused: list[str], lanes: int, state: list[dict],
+                 optional_stores: list[dict], lookahead: list[str] | None = None) -> dict:
     """Statements of run_tracks for ``lanes`` tracks at a time.
 
     Track-major arrays: track t's z, x0, P0, xs, Ps are laid out exactly as for run,
     one after the other, so every lane reads and writes its own sequential stream.
+    ``state``: the carried state (derive.emit.render.carried_state); ``optional_stores``:
+    run's outputs that may be NULL (each stores a carried output port).
     With ``lookahead`` (a steady-state two-step pass) each lane takes two steps per pass
     as run does, so every track's result is bitwise its run's.
     """
-    n, nn = unit.n, unit.n * unit.n
-    timevarying = unit.kind == "timevarying"
+    n = unit.n
+    by_output = {s["out"]: s["name"] for s in state}
     decl, load, body, store, pass_body, pass_store = [], [], [], [], [], []
     for lane in range(lanes):
         label = f"_l{lane}"  # never x0 or P0: those are the run's arguments
         track = f"(t + {lane})"
-        decl.append(f"double x{label}[{n}], xn{label}[{n}];")
-        load += [f"x{label}[{i}] = x0[{track} * {n} + {i}];" for i in range(n)]
-        if timevarying:
-            decl.append(f"double P{label}[{nn}], Pn{label}[{nn}];")
-            load += [f"P{label}[{i}] = P0[{track} * {nn} + {i}];" for i in range(nn)]
+        for s in state:
+            name, size = s["name"], s["size"]
+            decl.append(f"double {name}{label}[{size}], {name}n{label}[{size}];")
+            load += [f"{name}{label}[{i}] = {s['start']}[{track} * {size} + {i}];"
+                     for i in range(size)]
         for name in unit.step_inputs:
             size = unit.step_input_size(name)
             decl.append(f"const double *{name}{label};")
             body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
         body += lane_lines(fused, unit, label)
-        store += [f"xs[({track} * steps + k) * {n} + {i}] = x{label}[{i}] = xn{label}[{i}];"
-                  for i in range(n)]
-        if timevarying:
-            store += [f"P{label}[{i}] = Pn{label}[{i}];" for i in range(nn)]
-            store += ["if (Ps) {"] + [
-                f"    Ps[({track} * steps + k) * {nn} + {i}] = Pn{label}[{i}];"
-                for i in range(nn)] + ["}"]
+        for s in state:
+            name, size = s["name"], s["size"]
+            store += [(f"{s['store']}[({track} * steps + k) * {size} + {i}] = " if s["store"]
+                       else "") + f"{name}{label}[{i}] = {name}n{label}[{i}];"
+                      for i in range(size)]
+        for s in optional_stores:
+            array, size, name = s["array"], s["size"], by_output[s["out"]]
+            store += [f"if ({array}) {{"] + [
+                f"    {array}[({track} * steps + k) * {size} + {i}] = {name}n{label}[{i}];"
+                for i in range(size)] + ["}"]
         if lookahead:
             decl += [f"double xm{label}[{n}];", f"const double *{ZNEXT}{label};"]
             pass_body += [f"z{label} = z + ({track} * steps + k) * {unit.m};",

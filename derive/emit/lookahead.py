@@ -92,7 +92,7 @@ def run_pass(unit) -> tuple[Program, int]:
     ``unit``: the two-step map for a steady-state filter or predictor without free
     parameters whose step is affine (x(k+1) beside it is not carried), else the step itself."""
     step = unit.programs["step"]
-    if unit.kind in ("steady", "pred") and not unit.parameters:
+    if unit.run.lookahead and not unit.parameters:
         two = two_step_program(step)
         if two is not None:
             return two, 2

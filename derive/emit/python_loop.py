@@ -14,7 +14,7 @@ from __future__ import annotations
 import re
 
 from derive.emit.python_printer import PythonPrinter
-from derive.lowering import CARRIED, LoweredAssign, LoweredProgram, Var
+from derive.lowering import LoweredAssign, LoweredProgram, Var
 from derive.program import PARAMETER_PORT
 
 _INDEXED = re.compile(r"\b([A-Za-z]\w*)\[(\d+)\]")
@@ -52,19 +52,22 @@ def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
 
 
 def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
-                      arrays: dict[str, str], indent: str = "        ") -> tuple[str, ...]:
+                      arrays: dict[str, str], carried: tuple[tuple[str, str], ...],
+                      stored: tuple[tuple[str, tuple[int, ...]], ...],
+                      indent: str = "        ") -> tuple[str, ...]:
     """Lines of the single-track branch of ``run`` (indented for the run function's body)
-    for a step with carried ``x`` (and ``P``).
+    for a step with the ``carried`` state, (input port, output port) pairs.
 
     ``arrays`` maps the step's ports to the run's array names (``x`` -> ``x0``,
-    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  The branch returns ``xs`` (and
-    ``Ps`` when P is carried) exactly as the general branch does.
+    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  ``stored``: the carried input
+    ports run returns, each with its shape per step.  The branch returns them exactly as
+    the general branch does.
     """
     printer = PythonPrinter()
     ports = {p.name: p for p in lowered.inputs}
     names = set(ports)
     results = dict(lowered.results)
-    carried = [(port, out) for port, out in CARRIED if port in ports and out in results]
+    carried = [(port, out) for port, out in carried if port in ports and out in results]
     read = _read_indices(lowered)
 
     def text(tree) -> str:
@@ -126,10 +129,9 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
     body += early + [f"{t} = {v}" for t, v in assigned if t != v]
     out += [f"    {line}" for line in body]
     out.append(f"table = np.array(rows, dtype=float).reshape(-1, {len(kept)})")
-    ret = [f"table[:, {columns['x']}]"]
-    if "P" in columns:
-        n = round(ports["P"].size ** 0.5)
-        ret.append(f"table[:, {columns['P']}].reshape(-1, {n}, {n})")
+    ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
+           f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
+           for port, shape in stored]
     out += _wrap(f"return {ret[0]}" if len(ret) == 1 else f"return ({', '.join(ret)})")
     return tuple(indent + line for line in out)
 

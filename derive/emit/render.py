@@ -15,24 +15,22 @@ from functools import cache
 from pathlib import Path
 
 import jinja2
+import numpy as np
 
 from derive.emit import c_printer, python_printer
 from derive.emit.c_loops import (
     LANES,
     fused_body,
-    has_run_tracks,
     tracks_parts,
     two_step,
     two_step_body,
 )
 from derive.emit.lookahead import ZNEXT
 from derive.emit.python_loop import single_track_loop
-from derive.emit.unit import Argument, Unit, run_arguments
+from derive.emit.unit import LANGUAGES, Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
-
-LANGUAGES = ("python", "c")
 
 
 def derive_version() -> str:
@@ -73,7 +71,9 @@ def _order(unit: Unit) -> list[str]:
 
 
 def _lowered(unit: Unit, use_fma: bool) -> dict[str, LoweredProgram]:
-    return {name: lower_program(unit.programs[name], use_fma=use_fma) for name in _order(unit)}
+    state = tuple(port for port, _ in unit.carried)
+    return {name: lower_program(unit.programs[name], use_fma=use_fma, state_ports=state)
+            for name in _order(unit)}
 
 
 def _size(port) -> str:
@@ -136,11 +136,11 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
              f"m: {unit.m} (measurements)",
              "parameters: " + (f"p = [{', '.join(unit.parameters)}]" if unit.parameters
                                else "none")]
-    if unit.kind == "fir":
+    if unit.run.window:
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
     lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
-    if lang == "c" and has_run_tracks(unit):
+    if lang == "c" and unit.batch:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another" + (", p and p_stride shared by "
                      "the tracks" if unit.parameters else "") + ")")
@@ -236,7 +236,7 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
                       "else:  # one row per step",
                       f"    _require_shape({name!r}, {name}, (steps,) + {dims}, {either!r})",
                       f"    {PARAMETER_ROWS} = {name}"]
-            if unit.kind == "pred":
+            if "init" in unit.programs:
                 lines.append(f"{PARAMETER_START} = {PARAMETER_ROWS}[0] if steps else "
                              f"np.zeros({dims[0]})")
             tracks.append(f"{PARAMETER_ROWS}.shape[2:]")
@@ -291,21 +291,32 @@ def render_python(unit: Unit) -> dict[str, str]:
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
-        "window": unit.window if unit.kind == "fir" else 0,
-        "window_m": unit.window * unit.m if unit.kind == "fir" else 0,
-        "padding": unit.window - 1 if unit.kind == "fir" else 0,
+        "window": unit.window if unit.run.window else 0,
+        "window_m": unit.window * unit.m if unit.run.window else 0,
+        "padding": unit.window - 1 if unit.run.window else 0,
         "single": [],
+        "about": unit.about.get("python", "Run the filter over a sequence of steps."),
     }
-    if unit.kind != "fir":
+    if not unit.run.window:
         ports = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {name: ports[name] for name in unit.step_inputs}
-        # the predictor starts from init(x0), computed before the loop (pred.jinja)
-        arrays.update(x="x_start" if unit.kind == "pred" else "x0", P="P0",
-                      **{PARAMETER_PORT: PARAMETER_ROWS})
+        # the carried state starts from run's start arrays (the run kind's, in order); a
+        # run with an init program starts from init(x0), computed before the loop
+        state = carried_state(unit, lowered["step"])
+        arrays.update({s["name"]: "x_start" if "init" in unit.programs else s["start"]
+                       for s in state}, **{PARAMETER_PORT: PARAMETER_ROWS})
         rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
+        by_output = {s["out"]: s["name"] for s in state}
+        ports = {p.name: p for p in lowered["step"].inputs}
+        stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
+                       for s in stored_outputs(unit))
         context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
-                                              rows, arrays)
-    return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
+                                              rows, arrays, unit.carried, stored)
+        context["carried"] = state
+        context["stores"] = [{**s, "value": by_output[s["out"]],
+                              "shape": ports[by_output[s["out"]]].shape}
+                             for s in stored_outputs(unit)]
+    return {f"{unit.filter}.py": _render(f"python/{unit.kind}.jinja", context)}
 
 
 #: C run's last argument with free parameters: 0 when p is one row for every step, NP
@@ -323,6 +334,28 @@ def _c_call(function: str, args: str, status: bool) -> list[str]:
     if not status:
         return [f"{function}({args});"]
     return [f"status = {function}({args});", "if (status) {", "    return status;", "}"]
+
+
+def stored_outputs(unit: Unit) -> list[dict]:
+    """run's per-step outputs: array name, the step's output port it stores, elements per
+    step, optional (C: may be NULL)."""
+    sizes = {"n": unit.n, "m": unit.m}
+    return [{"array": array, "out": out, "optional": optional,
+             "size": int(np.prod([sizes[d] for d in dims]))}
+            for array, out, dims, optional in unit.run.stores]
+
+
+def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
+    """The state run carries from step to step: the step's input port, its output port,
+    elements, the run argument that starts it (the run kind's ``start``, in order) and the
+    array that stores it every step (None when none does or the store is optional);
+    ``start_rank``: the number of dimensions of the start argument."""
+    ports = {p.name: p for p in step.inputs}
+    stores = {s["out"]: s["array"] for s in stored_outputs(unit) if not s["optional"]}
+    starts = list(unit.run.start) + [(None, ())] * len(unit.carried)
+    return [{"name": port, "out": out, "size": ports[port].size, "start": starts[i][0],
+             "start_rank": len(starts[i][1]), "store": stores.get(out)}
+            for i, (port, out) in enumerate(unit.carried)]
 
 
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
@@ -345,29 +378,23 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     run_params = ["size_t steps"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
-    per_step = ", ".join(f"{name} + k * {unit.step_input_size(name)}"
-                         for name in unit.step_inputs)
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
     defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
                f"#define {prefix}_NP {len(unit.parameters)}"]
-    if unit.kind == "fir":
+    if unit.run.window:
         defines.append(f"#define {prefix}_WINDOW {unit.window}")
     step_lp = lowered["step"]
-    if unit.kind == "timevarying":
-        step_call = _c_call(f"{prefix}_step", f"x, P, {per_step}, x_next, P_next{p_arg}",
-                            step_lp.has_checks)
-    elif unit.kind == "fir":
+    step_call = []
+    if unit.run.window:
         p_row = f", {PARAMETER_PORT} + k * {P_STRIDE}" if unit.parameters else ""
         step_call = _c_call(f"{prefix}_step", f"zw, xs + k * {unit.n}{p_row}", step_lp.has_checks)
-    else:
-        step_call = _c_call(f"{prefix}_step", f"x, {per_step}, x_next{p_arg}", step_lp.has_checks)
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
     step_parts = c_printer.function_parts(step_lp.without_pattern_checks(), prefix)
-    fused = fused_body(unit, step_parts) if unit.kind != "fir" else []
+    fused = fused_body(unit, step_parts) if not unit.run.window else []
     nn = unit.n * unit.n
     run_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
         c, c.tree.args[0].name.replace("P[", "P0["))]
@@ -379,16 +406,18 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     if any(f"{PARAMETER_PORT}k[" in line for line in fused):
         step_rows.append(f"const double *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                          f"{P_STRIDE};")
-    batch = has_run_tracks(unit)
-    tracks = [tracks_parts(unit, fused, lanes, lookahead) for lanes in (LANES, 1)] if batch \
-        else []
+    batch = unit.batch
+    state = carried_state(unit, step_lp)
+    optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
+    tracks = [tracks_parts(unit, fused, lanes, state, optional_stores, lookahead)
+              for lanes in (LANES, 1)] if batch else []
     tracks_params = ["size_t steps", "size_t tracks"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
-              if unit.parameters and PARAMETER_PORT not in used and unit.kind != "fir"]
+              if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     context = {
         "header": header,
         "guard": include_guard(prefix),
@@ -404,6 +433,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "status_decl": ["int status;"] if status else [],
         "run_tail": ["return 0;"] if status else [],
         "step_call": step_call,
+        "carried": state,
+        "optional_stores": optional_stores,
         "init_call": init_call,
         "fused": fused,
         "lookahead": lookahead,
@@ -417,11 +448,12 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
-        "window": unit.window if unit.kind == "fir" else 0,
-        "window_m": unit.window * unit.m if unit.kind == "fir" else 0,
+        "window": unit.window if unit.run.window else 0,
+        "window_m": unit.window * unit.m if unit.run.window else 0,
+        "about": unit.about.get("c", "Run the filter over steps steps."),
     }
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
-            f"{unit.filter}.c": _render(f"c/{unit.family}.jinja", context)}
+            f"{unit.filter}.c": _render(f"c/{unit.kind}.jinja", context)}
 
 
 def render_unit(unit: Unit, lang: str, *, use_fma: bool = True) -> dict[str, str]:

@@ -40,7 +40,7 @@ void ca_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[2] = t2;
 }
 
-/* Run the FIR filter: each estimate from the last 43 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 43 measurements, newest first; measurements before the first are zero. */
 void ca_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[43];

@@ -38,7 +38,7 @@ void cv_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[1] = t1;
 }
 
-/* Run the FIR filter: each estimate from the last 37 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 37 measurements, newest first; measurements before the first are zero. */
 void cv_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[37];

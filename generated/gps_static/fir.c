@@ -40,7 +40,7 @@ void gps_static_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[2] = t2;
 }
 
-/* Run the FIR filter: each estimate from the last 44 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 44 measurements, newest first; measurements before the first are zero. */
 void gps_static_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[132];

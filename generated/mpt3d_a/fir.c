@@ -46,7 +46,7 @@ void mpt3d_a_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[5] = t5;
 }
 
-/* Run the FIR filter: each estimate from the last 33 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 33 measurements, newest first; measurements before the first are zero. */
 void mpt3d_a_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[99];
