@@ -25,9 +25,8 @@ from derive.emit.c_loops import (
     two_step,
     two_step_body,
 )
-from derive.emit.lookahead import ZNEXT
 from derive.emit.python_loop import single_track_loop
-from derive.emit.unit import LANGUAGES, Argument, Unit, run_arguments
+from derive.emit.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
@@ -393,23 +392,31 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
-    step_parts = c_printer.function_parts(step_lp.without_pattern_checks(), prefix)
-    fused = fused_body(unit, step_parts) if not unit.run.window else []
-    nn = unit.n * unit.n
-    run_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
-        c, c.tree.args[0].name.replace("P[", "P0["))]
-    tracks_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
-        c, c.tree.args[0].name.replace("P[", f"P0[t * {nn} + "))]
-    lookahead = two_step_body(fused, two, prefix) if two is not None else []
+    loop_step = step_lp.without_pattern_checks()
+    fused = fused_body(unit, loop_step) if not unit.run.window else []
+    state = carried_state(unit, step_lp)
+    optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
+    starts = {s["name"]: (s["start"], s["size"]) for s in state}
+
+    def start_element(check, track: str = "") -> str:
+        """The run's start array element a zero check of the step tests (P0 for P)."""
+        var = check.tree.args[0]
+        start, size = starts[var.base]
+        return f"{start}[{track}{var.index}]" if not track else \
+            f"{start}[{track} * {size} + {var.index}]"
+
+    run_checks = [line for c in step_lp.pattern_checks
+                  for line in c_printer.pattern_check_lines(c, start_element(c))]
+    tracks_checks = [line for c in step_lp.pattern_checks
+                     for line in c_printer.pattern_check_lines(c, start_element(c, "t"))]
+    lookahead = two_step_body(unit, loop_step, two) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
-    if any(f"{PARAMETER_PORT}k[" in line for line in fused):
+    if fused and unit.parameters and PARAMETER_PORT in loop_step.used_inputs():
         step_rows.append(f"const double *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                          f"{P_STRIDE};")
     batch = unit.batch
-    state = carried_state(unit, step_lp)
-    optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
-    tracks = [tracks_parts(unit, fused, lanes, state, optional_stores, lookahead)
+    tracks = [tracks_parts(unit, loop_step, lanes, state, optional_stores, two)
               for lanes in (LANES, 1)] if batch else []
     tracks_params = ["size_t steps", "size_t tracks"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
@@ -438,7 +445,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "init_call": init_call,
         "fused": fused,
         "lookahead": lookahead,
-        "znext": ZNEXT,
+        "znext": LOOKAHEAD_NEXT,
         "tracks": tracks,
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,

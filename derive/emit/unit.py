@@ -75,6 +75,10 @@ KINDS = tuple(RUN_KINDS)
 #: ``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``.
 EXTRA_PROGRAMS = ("predict", "update1")
 
+#: The port of the second measurement row of a two-step map (``z`` is row k, this row
+#: k + 1): ``Unit.lookahead`` is ``(x, z, zn) -> x_new``, x(k+2) from x(k).
+LOOKAHEAD_NEXT = "zn"
+
 #: The shapes of the ports every kind names (in sizes n, m); other ports: any shape.
 _PORT_DIMS = {"x": ("n",), "x_new": ("n",), "x0": ("n",), "P": ("n", "n"),
               "P_new": ("n", "n")}
@@ -101,6 +105,9 @@ class Unit:
     (their sequences are the run's inputs).  ``facts``: extra ``"key: value"``
     header lines.  ``command``: the command that regenerates the files.
     ``options``: e.g. ``{"window": N}`` (required by a windowed run), ``{"horizon": N}``.
+    ``lookahead``: the two-step map x(k+2) from x(k), z(k), z(k+1) (ports ``x``, ``z``,
+    :data:`LOOKAHEAD_NEXT` -> ``x_new``), built by the derivation from its exact
+    constants, for a run kind with ``lookahead``: C run takes two steps per pass.
     """
 
     model: str
@@ -120,6 +127,7 @@ class Unit:
     batch: bool = False
     extra_programs: tuple[str, ...] = ()
     carried: tuple[tuple[str, str], ...] | None = None
+    lookahead: Program | None = None
 
     def __post_init__(self) -> None:
         for what, value in (("model", self.model), ("filter", self.filter)):
@@ -237,6 +245,15 @@ def _validate(unit: Unit) -> None:
             raise ProgramError(f"unit {unit.prefix} ({unit.family}): no program {name!r} in "
                                f"this filter; programs beyond its run kind's: "
                                f"{', '.join(unit.extra_programs) or 'none'}")
+    if unit.lookahead is not None:
+        two = unit.lookahead
+        if not unit.run.lookahead:
+            raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} takes no "
+                               "two-step map")
+        if ([p.name for p in two.inputs] != ["x", "z", LOOKAHEAD_NEXT]
+                or [p.name for p in two.outputs] != ["x_new"]):
+            raise ProgramError(f"unit {unit.prefix}: the two-step map must be (x, z, "
+                               f"{LOOKAHEAD_NEXT}) -> x_new")
     for name in ("step", "init", *EXTRA_PROGRAMS):
         if name not in unit.programs:
             continue

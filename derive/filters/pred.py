@@ -15,7 +15,7 @@ from .. import riccati
 from ..options import PredictionOptions
 from ..program import Port, Program
 from .spec import FilterSpec
-from .steady import affine_program, baked
+from .steady import affine_program, baked, two_step_program
 from .unit import make_unit
 
 
@@ -32,7 +32,8 @@ def derive_unit(model, spec, options: PredictionOptions):
     FN = np.linalg.matrix_power(num.F, N)
     init.set_output("x_new", [sympy.expand(e) for e in baked(FN) * init.matrix("x0")])
     return make_unit(model, spec, {"step": step, "init": init.optimize()}, options,
-                     horizon=N, constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})
+                     horizon=N, lookahead=two_step_program(n, m, pc.A_N, pc.B_N),
+                     constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})
 
 
 def reference(model, zs, options):

@@ -16,6 +16,7 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import riccati
+from ..emit.unit import LOOKAHEAD_NEXT
 from ..program import Port, Program
 from .spec import FilterSpec
 from .unit import make_unit
@@ -57,12 +58,27 @@ def affine_program(n: int, m: int, A, B, doc: str, out_doc: str, in_doc: str) ->
     return prog.optimize()
 
 
+def two_step_program(n: int, m: int, A, B) -> Program:
+    """The two-step map of ``x_new = A x + B z``: x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)
+    from ports ``x``, ``z`` (row k) and the next row, with the products of the exact
+    baked doubles taken exactly (rounded once when printed); derive.emit.lookahead."""
+    A, B = baked(A), baked(B)
+    prog = Program("step2", [Port("x", (n,), doc="x(k)"), Port("z", (m,), doc="z(k)"),
+                             Port(LOOKAHEAD_NEXT, (m,), doc="z(k+1)")],
+                   [Port("x_new", (n,), doc="x(k+2)")],
+                   doc="x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)")
+    x, z, zn = prog.matrix("x"), prog.matrix("z"), prog.matrix(LOOKAHEAD_NEXT)
+    two = (A * A) * x + (A * B) * z + B * zn
+    prog.set_output("x_new", [sympy.expand(e) for e in two])
+    return prog.optimize()
+
+
 def derive_unit(model, spec, options):
     A, B = steady_gains(model, spec.name)
     step = affine_program(model.n, model.m, A, B, f"one step of the {spec.name.upper()}",
                           "x(k+1/k+1)", "x(k/k)")
-    return make_unit(model, spec, {"step": step}, options,
-                     constants={"A": A, "B": B})
+    return make_unit(model, spec, {"step": step}, options, constants={"A": A, "B": B},
+                     lookahead=two_step_program(model.n, model.m, A, B))
 
 
 def reference(model, zs, options, name: str):
@@ -87,4 +103,5 @@ SPECS = (
           70),
 )
 
-__all__ = ["SPECS", "affine_program", "baked", "derive_unit", "exact", "steady_gains"]
+__all__ = ["SPECS", "affine_program", "baked", "derive_unit", "exact", "steady_gains",
+           "two_step_program"]

@@ -40,9 +40,11 @@ def accepted_P0(step) -> str:
 
 def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
               constants: dict | None = None, step_inputs: tuple[str, ...] = ("z",),
-              window: int | None = None, horizon: int | None = None) -> Unit:
+              window: int | None = None, horizon: int | None = None,
+              lookahead=None) -> Unit:
     """The Unit for ``model`` and the filter of ``spec`` with its validated ``options``;
-    ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N.
+    ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N;
+    ``lookahead``: the two-step map of an affine step (derive.emit.lookahead).
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
     batch function applies; the run kind its carried state."""
@@ -64,6 +66,7 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         model=model.name,
         filter=spec.name,
         **spec.unit_fields(window=window, run_tracks=options.run_tracks),
+        lookahead=lookahead,
         n=model.n,
         m=model.m,
         programs=programs,
