@@ -17,6 +17,7 @@ from pathlib import Path
 import jinja2
 import numpy as np
 
+from derive import interface
 from derive.emit import c_printer, python_printer
 from derive.emit.c_loops import (
     LANES,
@@ -83,37 +84,37 @@ def _dims(arg: Argument, sep: str) -> str:
     return sep.join(str(d) for d in arg.dims)
 
 
-def _c_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
-    lines = []
+def describe(prefix: str, lowered: dict[str, LoweredProgram],
+             run: list[Argument] | None = None) -> interface.Interface:
+    """The interface of one file: a function per program (C: ``PREFIX_NAME``) and, with
+    ``run`` (the run function's arguments), the run function; statuses of every check."""
+    functions, python = [], []
     for lp in lowered.values():
         ports = {p.name: p for p in lp.inputs + lp.outputs}
-        args = [f"{name}[{_size(ports[name])}]" + (" out" if ports[name] in lp.outputs else "")
-                for name in c_printer.argument_order(lp)]
-        result = "int" if lp.has_checks else "void"
-        lines.append(f"    {result} {unit.prefix}_{lp.name}({', '.join(args)})")
-    args = ["steps"] + [f"{a.c_name}[{_dims(a, '*')}]" + (" out" if a.output else "")
-                        + (" optional" if a.optional else "")
-                        + (f" rows {P_STRIDE}" if a.c_name == PARAMETER_PORT else "")
-                        for a in run_arguments(unit)]
-    result = "int" if any(lp.has_checks for lp in lowered.values()) else "void"
-    lines.append(f"    {result} {unit.prefix}_run({', '.join(args)})")
-    return lines
-
-
-def _py_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
-    lines = []
+        outputs = {p.name for p in lp.outputs}
+        functions.append(interface.Function(
+            name=f"{prefix}_{lp.name}", program=lp.name, returns_status=lp.has_checks,
+            arguments=tuple(interface.Argument(name, ports[name].shape, name in outputs)
+                            for name in c_printer.argument_order(lp))))
+        python.append(interface.Function(
+            name=lp.name, program=lp.name, returns_status=lp.has_checks,
+            arguments=tuple(interface.Argument(p.name, p.shape, p in lp.outputs)
+                            for p in lp.inputs + lp.outputs)))
+    if run is not None:
+        status = any(lp.has_checks for lp in lowered.values())
+        args = tuple(interface.Argument(a.c_name, a.dims, a.output, a.optional,
+                                        rows=a.c_name == PARAMETER_PORT, py_name=a.py_name)
+                     for a in run)
+        functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
+        python.append(interface.Function("run", "run", status, args, True))
+    statuses = []
     for lp in lowered.values():
-        ins = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.inputs)
-        outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
-        lines.append(f"    {lp.name}({ins}) -> ({outs})")
-    args = run_arguments(unit)
-    ins = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]"
-                    + (f" or {a.py_name}[steps, {_dims(a, ', ')}]"
-                       if a.c_name == PARAMETER_PORT else "")
-                    for a in args if not a.output)
-    outs = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]" for a in args if a.output)
-    lines.append(f"    run({ins}) -> ({outs})")
-    return lines
+        messages = {c.status: c.message for c in lp.checks}
+        zero = {c.status: tuple(sorted(c.tree.args[0].index for c in lp.pattern_checks))
+                for c in lp.pattern_checks}
+        statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()))
+                     for number in sorted(messages)]
+    return interface.Interface(tuple(functions), tuple(statuses), tuple(python))
 
 
 def _language(lang: str, use_fma: bool) -> str:
@@ -138,7 +139,8 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     if unit.run.window:
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
-    lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
+    described = describe(unit.prefix, lowered, run_arguments(unit))
+    lines += described.c_lines() if lang == "c" else described.python_lines()
     if lang == "c" and unit.batch:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another" + (", p and p_stride shared by "
@@ -155,7 +157,7 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         if sym:
             lines.append(f"symmetric in {lp.name}: {', '.join(sym)} (inputs: upper triangle "
                          "read; outputs: written whole)")
-    lines += _status_lines(lowered.values())
+    lines += described.status_lines(_raises(lowered.values()))
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
@@ -163,18 +165,11 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     return lines
 
 
-def _status_lines(lowered) -> list[str]:
-    """The header's status list: one line per status of each function (the zero checks of
-    a pattern share one status; Python raises PatternError for it, NumericalError else)."""
-    lines = []
-    for lp in lowered:
-        messages = {c.status: c.message for c in lp.checks}
-        lines += [f"    {lp.name} {status}: {messages[status]}" for status in sorted(messages)]
-    if not lines:
-        return []
+def _raises(lowered) -> str:
+    """What Python raises for a non-zero status (the zero checks of a pattern share one
+    status; Python raises PatternError for it, NumericalError else)."""
     pattern = any(lp.pattern_checks for lp in lowered)
-    raises = "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
-    return [f"status (C return value; Python raises {raises}): 0 success"] + lines
+    return "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
 
 
 def _render(template: str, context: dict) -> str:
@@ -370,6 +365,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             "is carried from pass to pass",
             f"operations per pass of run, two steps ({_language('c', use_fma)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
+    header_lines.append(describe(unit.prefix, lowered, run_arguments(unit)).block())
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
@@ -490,22 +486,14 @@ def _function_header(name: str, lang: str, lowered: dict[str, LoweredProgram], c
              f"    {command or '(no command given)'}",
              "",
              "interface (flat row-major arrays):"]
-    for lp in lowered.values():
-        ports = {p.name: p for p in lp.inputs + lp.outputs}
-        if lang == "c":
-            args = [f"{a}[{_size(ports[a])}]" + (" out" if ports[a] in lp.outputs else "")
-                    for a in c_printer.argument_order(lp)]
-            result = "int" if lp.has_checks else "void"
-            lines.append(f"    {result} {name}_{lp.name}({', '.join(args)})")
-        else:
-            ins = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.inputs)
-            outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
-            lines.append(f"    {lp.name}({ins}) -> ({outs})")
-    lines += _status_lines(lowered.values())
+    described = describe(name, lowered)
+    lines += described.c_lines() if lang == "c" else described.python_lines()
+    lines += described.status_lines(_raises(lowered.values()))
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
-    return lines + list(facts)
+    lines += list(facts)
+    return lines + [described.block()] if lang == "c" else lines
 
 
 def render_functions(name: str, programs, lang: str, *, command: str = "",

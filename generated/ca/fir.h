@@ -16,6 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 126, neg 0, cmp 0, calls 0 (flops 255, instructions 129)
  * N = 43
  * eps = 1e-06
+ * derive-interface: {"functions":[["ca_fir_step","step",false,false,[["zw",[43,1],false,false,false],["x_new",[3],true,false,false]]],["ca_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_ca_fir_H
 #define DERIVE_ca_fir_H

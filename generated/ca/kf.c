@@ -19,6 +19,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 20, sub 7, mul 12, div 1, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 50, instructions 46)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * derive-interface: {"functions":[["ca_kf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_kf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>

@@ -17,6 +17,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 8, mul 61, div 3, sqrt 0, fma 73, neg 8, cmp 0, calls 0 (flops 236, instructions 171)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
+ * derive-interface: {"functions":[["ca_lf_step","step",false,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
