@@ -302,14 +302,25 @@ def render_python(unit: Unit) -> dict[str, str]:
         rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
         by_output = {s["out"]: s["name"] for s in state}
         ports = {p.name: p for p in lowered["step"].inputs}
-        stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
-                       for s in stored_outputs(unit))
-        context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
-                                              rows, arrays, unit.carried, stored)
+        names = ", ".join(s["name"] for s in state)
         context["carried"] = state
-        context["stores"] = [{**s, "value": by_output[s["out"]],
-                              "shape": ports[by_output[s["out"]]].shape}
-                             for s in stored_outputs(unit)]
+        context["enter_line"] = (f"{names} = enter({', '.join(n for n, _ in unit.run.start)})"
+                                 if "enter" in lowered else "")
+        stores = []
+        for s in stored_outputs(unit):
+            if s["out"] in by_output:
+                stores.append({**s, "value": by_output[s["out"]], "call": "",
+                               "shape": ports[by_output[s["out"]]].shape})
+            else:  # computed from the carried state by the store program
+                value = f"{s['array']}_k"
+                stores.append({**s, "value": value, "call": f"{value} = store({names})",
+                               "shape": lowered["store"].outputs[0].shape})
+        context["stores"] = stores
+        if "enter" not in lowered and "store" not in lowered:
+            stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
+                           for s in stored_outputs(unit))
+            context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
+                                                  rows, arrays, unit.carried, stored)
     return {f"{unit.filter}.py": _render(f"python/{unit.kind}.jinja", context)}
 
 
@@ -337,6 +348,12 @@ def stored_outputs(unit: Unit) -> list[dict]:
     return [{"array": array, "out": out, "optional": optional,
              "size": int(np.prod([sizes[d] for d in dims]))}
             for array, out, dims, optional in unit.run.stores]
+
+
+def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
+    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names)."""
+    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
+    return _c_call(f"{prefix}_{lp.name}", args, lp.has_checks)
 
 
 def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
@@ -393,6 +410,11 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     state = carried_state(unit, step_lp)
     optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
     starts = {s["name"]: (s["start"], s["size"]) for s in state}
+    carried_out = {s["out"] for s in state}
+    for s in optional_stores:  # computed by the store program, written into run's row k
+        s["call"] = (_program_call(prefix, lowered["store"],
+                                   {s["out"]: f"{s['array']} + k * {s['size']}"})
+                     if s["out"] not in carried_out else [])
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""
@@ -438,6 +460,11 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "step_call": step_call,
         "carried": state,
         "optional_stores": optional_stores,
+        "enter_call": _program_call(prefix, lowered["enter"], {})
+        if "enter" in lowered else [],
+        "call_status_decl": ["int status;"] if any(
+            lowered[name].has_checks for name in ("enter", "store") if name in lowered)
+        else [],
         "init_call": init_call,
         "fused": fused,
         "lookahead": lookahead,

@@ -58,7 +58,7 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("timevarying", carried=(("x", "x_new"), ("P", "P_new")),
             start=(("x0", ("n",)), ("P0", ("n", "n"))),
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), True)),
-            batch=True, extra_programs=("predict", "update1")),
+            batch=True, extra_programs=("predict", "update1", "enter", "store")),
     RunKind("steady", carried=(("x", "x_new"),), start=(("x0", ("n",)),),
             stores=(("xs", "x_new", ("n",), False),), batch=True, lookahead=True),
     RunKind("windowed", stores=(("xs", "x_new", ("n",), False),), window=True),
@@ -71,9 +71,14 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
 KINDS = tuple(RUN_KINDS)
 
 #: Ports of the programs a run kind may add (``RunKind.extra_programs``):
-#: ``predict(x, P[, p]) -> (x_new, P_new)`` and
-#: ``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``.
-EXTRA_PROGRAMS = ("predict", "update1")
+#: ``predict(x, P[, p]) -> (x_new, P_new)``,
+#: ``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``,
+#: ``enter(<run's start arguments>) -> (<the carried input ports>)``: run's first state
+#: from its arguments (P0 into a factored covariance), and
+#: ``store(<the carried input ports>) -> (<stored outputs no carried port holds>)``: what
+#: run stores from the carried state after each step (P from its factors; C: only when
+#: the array is given).
+EXTRA_PROGRAMS = ("predict", "update1", "enter", "store")
 
 #: The port of the second measurement row of a two-step map (``z`` is row k, this row
 #: k + 1): ``Unit.lookahead`` is ``(x, z, zn) -> x_new``, x(k+2) from x(k).
@@ -204,9 +209,19 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
         return ([("x", (n,)), ("P", (n, n)), ("z", (1,))] + u + p,
                 [("x_new", (n,)), ("P_new", (n, n)), ("innovation", (1,)), ("variance", (1,))])
     kind = unit.run
+    if program == "enter":
+        sizes = {"n": n, "m": m}
+        return ([(name, tuple(sizes[d] for d in dims)) for name, dims in kind.start],
+                [(port, _shape(unit, port)) for port, _ in unit.carried])
+    if program == "store":
+        carried_out = {out for _, out in unit.carried}
+        return ([(port, _shape(unit, port)) for port, _ in unit.carried],
+                [(out, _shape(unit, out)) for _, out, _, _ in kind.stores
+                 if out not in carried_out])
     carried_in = [(port, _shape(unit, port)) for port, _ in unit.carried]
     outputs = [out for _, out in unit.carried]
-    outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
+    if "store" not in unit.programs:  # else the store program computes the rest
+        outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
     if kind.window:
         per_step = [("zw", (unit.window, m))]
     return carried_in + per_step + p, [(out, _shape(unit, out)) for out in outputs]
@@ -245,6 +260,9 @@ def _validate(unit: Unit) -> None:
             raise ProgramError(f"unit {unit.prefix} ({unit.family}): no program {name!r} in "
                                f"this filter; programs beyond its run kind's: "
                                f"{', '.join(unit.extra_programs) or 'none'}")
+    if unit.batch and ("enter" in unit.programs or "store" in unit.programs):
+        raise ProgramError(f"unit {unit.prefix}: run_tracks does not take enter/store "
+                           "programs; give batch=False")
     if unit.lookahead is not None:
         two = unit.lookahead
         if not unit.run.lookahead:
