@@ -149,7 +149,8 @@ class FilterModule:
                     c_args.append(self.ffi.NULL)
                     continue
                 out = np.empty(arg.size(steps))
-                outputs.append((arg, out))
+                if not arg.scratch:  # a work array is written, not returned
+                    outputs.append((arg, out))
                 c_args.append(self.ffi.from_buffer("double[]", out))
             else:
                 array = self._array(name, arg, values[arg.name], steps)

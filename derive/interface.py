@@ -27,7 +27,8 @@ class InterfaceError(ValueError):
 @dataclass(frozen=True)
 class Argument:
     """One array argument; ``dims`` may start with ``"steps"``; ``rows``: one row for every
-    step or one row per step, told by the stride argument (C) that follows."""
+    step or one row per step, told by the stride argument (C) that follows; ``scratch``:
+    C run's caller-provided work array (written, not a result; Python has none)."""
 
     name: str
     dims: tuple[int | str, ...]
@@ -35,6 +36,7 @@ class Argument:
     optional: bool = False
     rows: bool = False
     py_name: str = ""
+    scratch: bool = False
 
     def shapes(self, steps: int) -> list[tuple[int, ...]]:
         """The array shapes accepted: the stated one; flat, for a fixed-size matrix; (steps,)
@@ -148,7 +150,8 @@ class Interface:
         """The machine-readable header line: :data:`MARKER` and the JSON of the C side."""
         data = {"functions": [[f.name, f.program, f.returns_status, f.has_steps,
                                [[a.name, list(a.dims), a.output, a.optional, a.rows]
-                                for a in f.arguments]] for f in self.functions],
+                                + ([True] if a.scratch else []) for a in f.arguments]]
+                              for f in self.functions],
                 "statuses": [[s.program, s.number, s.message, list(s.zero)]
                              for s in self.statuses]}
         return MARKER + json.dumps(data, separators=(",", ":"), ensure_ascii=True)
@@ -166,9 +169,9 @@ def read(header: str) -> Interface:
             functions = tuple(
                 Function(name=name, program=program, returns_status=bool(status),
                          has_steps=bool(steps),
-                         arguments=tuple(Argument(a, tuple(dims), bool(out), bool(opt),
-                                                  bool(rows))
-                                         for a, dims, out, opt, rows in args))
+                         arguments=tuple(Argument(a[0], tuple(a[1]), bool(a[2]), bool(a[3]),
+                                                  bool(a[4]), scratch=len(a) > 5 and a[5])
+                                         for a in args))
                 for name, program, status, steps, args in data["functions"])
             statuses = tuple(Status(program, int(number), message, tuple(zero))
                              for program, number, message, zero in data["statuses"])

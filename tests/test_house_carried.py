@@ -4,16 +4,22 @@ same templates as the KF and agrees with the textbook KF."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+from types import MappingProxyType
+
 import numpy as np
 import pytest
 import sympy
-from _backend_kf import cv_axes, dt, q, r, reference_kf, unit_fields
+from _backend_kf import cv_axes, dt, kf_unit, q, r, reference_kf, unit_fields
 
+import derive.emit.unit as unit_module
+from derive import interface
 from derive.build import build_c, load_python
-from derive.emit.render import render_files
-from derive.emit.unit import Unit
+from derive.emit.render import describe, render_files
+from derive.emit.unit import Unit, run_arguments
 from derive.emit.write import write_files
 from derive.filters.kf import prior
+from derive.lowering import lower_program
 from derive.program import Port, Program, ProgramError
 
 VALUES = {dt: 1, q: sympy.Rational(1, 100), r: sympy.Rational(1, 10)}
@@ -75,3 +81,28 @@ def test_carried_state_needs_its_programs():
              **{**unit_fields("kf"), "extra_programs": ("enter",), "batch": False})
     with pytest.raises(ProgramError, match="run_tracks"):
         _unit(batch=True)
+
+
+def test_a_run_kind_declares_a_caller_provided_work_array(monkeypatch):
+    """A kind entry (here a smoother-like copy of timevarying) declares C run's work
+    array by the ports one row holds; run's arguments, the interface and the header's
+    machine-readable line carry it, Python's run has none."""
+    kinds = dict(unit_module.RUN_KINDS)
+    kinds["smoothing"] = replace(kinds["timevarying"], name="smoothing",
+                                 work=(("work", ("x_new", "P_new")),), batch=False)
+    monkeypatch.setattr(unit_module, "RUN_KINDS", MappingProxyType(kinds))
+    step = kf_unit().programs["step"]
+    unit = Unit(model="cv", filter="sm", n=2, m=1, programs={"step": step},
+                parameters=("dt", "q", "r"),
+                **{**unit_fields("kf"), "run_kind": "smoothing", "batch": False})
+    args = run_arguments(unit)
+    assert [a.c_name for a in args] == ["z", "x0", "P0", "xs", "Ps", "work", "p"]
+    work = args[5]
+    assert work.dims == ("steps", 6) and work.scratch and work.output
+    lowered = {"step": lower_program(step)}
+    described = describe(unit.prefix, lowered, args)
+    assert "work[steps*6] out" in described.c_lines()[-1]
+    assert "work" not in described.python_lines()[-1]
+    read = interface.read(" * " + described.block() + "\n */")
+    assert [a.scratch for a in read.functions[-1].arguments] == [
+        False, False, False, False, False, True, False]

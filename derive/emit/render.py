@@ -103,10 +103,12 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
     if run is not None:
         status = any(lp.has_checks for lp in lowered.values())
         args = tuple(interface.Argument(a.c_name, a.dims, a.output, a.optional,
-                                        rows=a.c_name == PARAMETER_PORT, py_name=a.py_name)
+                                        rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
+                                        scratch=a.scratch)
                      for a in run)
         functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
-        python.append(interface.Function("run", "run", status, args, True))
+        python.append(interface.Function("run", "run", status,
+                                         tuple(a for a in args if not a.scratch), True))
     statuses = []
     for lp in lowered.values():
         messages = {c.status: c.message for c in lp.checks}
@@ -277,7 +279,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
         "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
-                    for a in args],
+                    for a in args if not a.scratch],
         "prologue": _python_run_prologue(unit, inputs),
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,

@@ -40,7 +40,9 @@ class RunKind:
     ``window`` rows of z (port ``zw``) instead of one row.  ``batch``: C may have
     ``run_tracks``.  ``lookahead``: C run takes two steps per pass when the step is affine
     and has no free parameters (derive.emit.lookahead).  ``extra_programs``: programs a
-    unit of this kind may add.
+    unit of this kind may add.  ``work``: C run's caller-provided scratch arrays, after
+    the stored ones: (name, the ports of the unit's programs one row of it holds per
+    step, in order), e.g. a smoother's forward pass; Python run allocates its own.
     """
 
     name: str
@@ -52,6 +54,7 @@ class RunKind:
     batch: bool = False
     lookahead: bool = False
     extra_programs: tuple[str, ...] = ()
+    work: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 
 RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
@@ -99,6 +102,7 @@ class Argument:
     output: bool = False
     optional: bool = False
     doc: str = ""
+    scratch: bool = False
 
 
 @dataclass(frozen=True)
@@ -307,6 +311,15 @@ def run_arguments(unit: Unit) -> list[Argument]:
     args += [Argument(name, name, ("steps",) + tuple(sizes[d] for d in dims), output=True,
                       optional=optional, doc=docs.get(name, f"{port} after each step"))
              for name, port, dims, optional in unit.run.stores]
+    ports = {p.name: p.size for program in unit.programs.values()
+             for p in program.inputs + program.outputs}
+    for name, held in unit.run.work:
+        missing = [p for p in held if p not in ports]
+        if missing:
+            raise ProgramError(f"unit {unit.prefix}: run's work array {name!r} holds ports "
+                               f"{missing} that no program of the unit has")
+        args.append(Argument(name, name, ("steps", sum(ports[p] for p in held)), output=True,
+                             scratch=True, doc=f"C: scratch, per step {', '.join(held)}"))
     if unit.parameters:
         args.append(Argument(PARAMETER_PORT, PARAMETER_PORT, (len(unit.parameters),),
                              doc="free parameters: " + ", ".join(unit.parameters)))
