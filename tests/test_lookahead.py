@@ -56,7 +56,7 @@ def test_the_pass_runs_the_steps_own_statements_first():
     map's temporaries are numbered after the step's."""
     model = catalog.load("mpt3d_a")
     c = render_filter(model, "sskf", "c")["sskf.c"]
-    step_body = c[c.index("mpt3d_a_sskf_step("):]
+    step_body = c[c.index("mpt3d_a_sskf_step(", c.index("*/")):]  # after the header
     step_body = step_body[step_body.index("{") + 1:step_body.index("\n}")]
     run = c[c.index("two steps per pass:"):c.index("an odd last step")]
     for line in step_body.strip().splitlines():
