@@ -464,6 +464,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "optional_stores": optional_stores,
         "enter_call": _program_call(prefix, lowered["enter"], {})
         if "enter" in lowered else [],
+        # every program's C call with its ports' own names, for a kind's template whose
+        # run keeps them in local arrays of those names (a smoother's backward pass)
+        "calls": {name: _program_call(prefix, lp, {}) for name, lp in lowered.items()},
         "call_status_decl": ["int status;"] if any(
             lowered[name].has_checks for name in ("enter", "store") if name in lowered)
         else [],
