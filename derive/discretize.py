@@ -31,7 +31,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
 import sympy
 
 from .errors import ModelError
@@ -234,6 +233,8 @@ def _exact_matrix(values: np.ndarray, nonzero: np.ndarray) -> sympy.Matrix:
 
 
 def _numeric(Phi: sympy.Matrix, W: sympy.Matrix, dt: sympy.Expr) -> Discretization:
+    import scipy.linalg  # here, not at the top: every CLI start-up loads this module
+
     n = Phi.rows
     step = _to_float(dt, "dt")
     A = np.array([[_to_float(Phi[i, j], f"Phi[{i}][{j}]") for j in range(n)]

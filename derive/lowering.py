@@ -36,6 +36,7 @@ Operation kinds: ``add sub mul div sqrt fma neg cmp select`` and ``call:NAME``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -96,6 +97,44 @@ class Var:
 
     name: str
 
+    @property
+    def base(self) -> str:
+        """The port of an element (``x`` of ``x[0]``), or the temporary's name."""
+        return self.name.partition("[")[0]
+
+    @property
+    def index(self) -> int | None:
+        """The element's flat index (0 of ``x[0]``); None for a temporary."""
+        _, bracket, rest = self.name.partition("[")
+        return int(rest[:-1]) if bracket else None
+
+
+def element_name(port: str, index: int) -> str:
+    """The name generated code uses for element ``index`` of ``port``: ``x[3]``."""
+    return f"{port}[{index}]"
+
+
+def rename_tree(tree: Tree, name: Callable[[Var], str]) -> Tree:
+    """``tree`` with every variable renamed by ``name``."""
+    if isinstance(tree, Var):
+        return Var(name(tree))
+    if isinstance(tree, Op):
+        return Op(tree.kind, tuple(rename_tree(a, name) for a in tree.args))
+    return tree
+
+
+def tree_vars(tree: Tree) -> set[Var]:
+    """The variables ``tree`` reads."""
+    found: set[Var] = set()
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, Var):
+            found.add(node)
+        elif isinstance(node, Op):
+            stack.extend(node.args)
+    return found
+
 
 @dataclass(frozen=True)
 class Op:
@@ -136,8 +175,9 @@ def _chain(kind: str, trees: list[Tree]) -> Tree | None:
 
 
 class _Lowerer:
-    def __init__(self, use_fma: bool) -> None:
+    def __init__(self, use_fma: bool, state_ports: tuple[str, ...] = ()) -> None:
         self.use_fma = use_fma
+        self.state_ports = frozenset(state_ports)
 
     def lower(self, e: sympy.Basic) -> Tree:
         if e.is_number:
@@ -242,7 +282,8 @@ class _Lowerer:
                     products.append((Const(-left.value), right))
                     continue
             base.append((sign, tree))
-        products.sort(key=lambda lr: (_late(lr[0]) or _late(lr[1]),
+        products.sort(key=lambda lr: (_late(lr[0], self.state_ports)
+                                      or _late(lr[1], self.state_ports),
                                       max(depth(lr[0]), depth(lr[1]))))
         acc = _signed_chain(base) if base else Op("mul", products.pop(0))
         for left, right in products:
@@ -250,24 +291,26 @@ class _Lowerer:
         return acc
 
 
-#: The filter's state carried from one step to the next: (input port, the output that
-#: becomes it in the next step).  Run loops feed these back.
+#: The state a time-varying filter carries from one step to the next: (input port, the
+#: output that becomes it in the next step), the default of lower_program's state ports.
+#: A unit declares its own (derive.emit.unit.Unit.carried).
 CARRIED = (("x", "x_new"), ("P", "P_new"))
 #: Input ports that carry the filter's state from one step to the next.
 STATE_PORTS = tuple(port for port, _ in CARRIED)
 
 
-def _late(tree: Tree) -> bool:
-    """True when ``tree`` reads the carried state (an element of x or P, or a temporary).
+def _late(tree: Tree, state_ports: frozenset[str]) -> bool:
+    """True when ``tree`` reads the carried state (an element of a port of
+    ``state_ports``, or a temporary).
 
     In an fma chain such products go last, so the step-to-step dependency runs
     through as few fmas as possible: with x_new = a x0 + b x1 + c z the chain is
     fma(b, x1, fma(a, x0, c*z)), two fmas deep from the state, not three.
     """
     if isinstance(tree, Var):
-        return tree.name.split("[")[0] in STATE_PORTS or "[" not in tree.name
+        return tree.name.split("[")[0] in state_ports or "[" not in tree.name
     if isinstance(tree, Op):
-        return any(_late(a) for a in tree.args)
+        return any(_late(a, state_ports) for a in tree.args)
     return False
 
 
@@ -345,6 +388,36 @@ class LoweredProgram:
         return replace(self, body=tuple(s for s in self.body
                                         if not (isinstance(s, LoweredCheck) and s.is_pattern)))
 
+    def renamed(self, ports: Mapping[str, str],
+                temporary: Callable[[str], str] | None = None) -> LoweredProgram:
+        """The same statements with the elements of ports renamed by ``ports`` (a port
+        not in it keeps its name) and each temporary by ``temporary`` (the port
+        declarations stay, so only the statements are printed from it): how a run loop gives
+        the step its own arrays (``z`` read as ``zk``, the row of step k), a lane its own
+        state and temporaries, a second step its own temporaries."""
+        def port(name: str) -> str:
+            return ports.get(name, name)
+
+        def temp(name: str) -> str:
+            return temporary(name) if temporary is not None else name
+
+        def var(v: Var) -> str:
+            return temp(v.name) if v.index is None else element_name(port(v.base), v.index)
+
+        body = tuple(LoweredAssign(temp(s.target), rename_tree(s.tree, var))
+                     if isinstance(s, LoweredAssign) else
+                     replace(s, tree=rename_tree(s.tree, var)) for s in self.body)
+        return replace(
+            self, body=body,
+            results=tuple((port(name), tuple(rename_tree(leaf, var) for leaf in leaves))
+                          for name, leaves in self.results))
+
+    def temporaries(self) -> int:
+        """One more than the largest temporary number ``tN`` assigned (0: none)."""
+        return 1 + max((int(s.target[1:]) for s in self.body
+                        if isinstance(s, LoweredAssign) and s.target[1:].isdigit()),
+                       default=-1)
+
     def kinds(self) -> set[str]:
         """Every operation kind used."""
         found: set[str] = set()
@@ -370,10 +443,14 @@ class LoweredProgram:
         return names
 
 
-def lower_program(program: Program, *, use_fma: bool = False) -> LoweredProgram:
-    """Lower every statement of ``program.optimize()`` (an optimised program as is)."""
+def lower_program(program: Program, *, use_fma: bool = False,
+                  state_ports: tuple[str, ...] = STATE_PORTS) -> LoweredProgram:
+    """Lower every statement of ``program.optimize()`` (an optimised program as is).
+
+    ``state_ports``: the input ports that carry state from step to step; in an fma chain
+    products that read them go last (see :func:`_late`)."""
     program = program.optimize()
-    lowerer = _Lowerer(use_fma)
+    lowerer = _Lowerer(use_fma, state_ports)
     body: list[LoweredAssign | LoweredCheck] = []
     status = 0
     pattern_status = 1 + sum(1 for st in program.body

@@ -36,6 +36,7 @@ from .emit.render import render_files
 from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError, ModelError
+from .filters import kind as filter_spec
 from .filters.kf import prior
 from .generation import check_lang, resolve_model
 from .options import DEFAULT_EPS
@@ -295,8 +296,9 @@ def unit(name: str, n: int, m: int, model_name: str | None = None, N: int | None
     if name in ("kf", "lf", "jklf"):
         facts.append("inverse: Doolittle LU plus a forward and a backward solve per column of "
                      "the identity E, dividing by L's unit diagonal d, as the papers charge it")
-    return Unit(model=model_name or f"dense_n{n}_m{m}", filter=f"{name}_paper", family=name,
-                n=n, m=m, programs=programs(name, n, m, N if name == "fir" else None),
+    return Unit(model=model_name or f"dense_n{n}_m{m}", filter=f"{name}_paper",
+                **filter_spec(name).unit_fields(window=N if name == "fir" else None), n=n, m=m,
+                programs=programs(name, n, m, N if name == "fir" else None),
                 parameters=tuple(parameter_names(blocks)), facts=tuple(facts),
                 command=command, options={"window": N} if name == "fir" else {})
 

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import reference
+from .emit.unit import RUN_KINDS
 from .errors import VerificationError
-from .filters.fir import order as fir_order
+from .filters import kind
 from .options import validate
 from .pipeline import load_generated
 from .simulate import gnss_scenario, simulate_linear
@@ -38,7 +38,6 @@ from .simulate import gnss_scenario, simulate_linear
 LINEAR_TOLERANCE = 1e-12
 NONLINEAR_TOLERANCE = 1e-10
 FLOOR_MARGIN = 4.0
-NONLINEAR = ("ekf", "ukf")
 
 
 @dataclass(frozen=True)
@@ -84,10 +83,6 @@ class NonlinearScenario:
     P0: np.ndarray
 
 
-def _is_identity(model) -> bool:
-    return list(model.subs(model.f)) == list(model.state_symbols)
-
-
 def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScenario:
     """A seeded run for a nonlinear model (see the module docstring)."""
     fns = model.numeric_functions()
@@ -121,14 +116,12 @@ def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScena
 
 def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: dict,
                         rounding_seed: int | None = None):
-    """derive.reference.ekf / ukf on ``scenario`` (identity f passed as None).
+    """The filter's NumPy reference (its spec's) on ``scenario``.
 
     ``rounding_seed``: perturb every value of h by one rounding (relative uniform in
     ±2^-53, seeded), to measure the reference's rounding floor."""
     options = validate(name, options)
     fns = model.numeric_functions()
-    identity = _is_identity(model)
-    f, F = (None, None) if identity else (fns["f"], fns["F"])
     if rounding_seed is not None:
         rng, h_exact = np.random.default_rng(rounding_seed), fns["h"]
 
@@ -137,15 +130,7 @@ def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: 
             return y * (1.0 + rng.uniform(-1.0, 1.0, y.shape) * 2.0 ** -53)
 
         fns = {**fns, "h": h_rounded}
-    inputs = list(scenario.us)
-    if name == "ekf":
-        res = reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
-                            scenario.P0, scenario.zs, inputs=inputs, skip_nan=False)
-    else:
-        res = reference.ukf(f, fns["h"], fns["Q"], fns["R"], scenario.x0, scenario.P0,
-                            scenario.zs, alpha=options.alpha, beta=options.beta,
-                            kappa=options.kappa, inputs=inputs, skip_nan=False)
-    return res.xs, res.Ps
+    return kind(name).reference(model, (scenario, fns), options)
 
 
 def rounding_floor(model, name: str, scenario: NonlinearScenario, options: dict,
@@ -163,39 +148,30 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
 
     Nonlinear filters need the ``scenario`` (its zs are used; ``zs`` is ignored)."""
     options = validate(name, options)
-    if name in NONLINEAR:
+    if kind(name).model_kind == "nonlinear":
         if scenario is None:
             raise VerificationError(f"filter {name!r} needs a NonlinearScenario")
         return nonlinear_reference(model, name, scenario, options)
-    num = model.numeric()
-    F, G, H, Q, R, x0, P0 = num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0
-    if name in ("kf", "lf", "jklf", "ikf"):
-        fn = getattr(reference, name)
-        return fn(F, G, H, Q, R, x0, P0, zs)
-    if name in ("sskf", "sslf", "jssklf"):
-        return getattr(reference, name)(F, G, H, Q, R, x0, zs), None
-    if name == "fir":
-        return reference.fir(F, G, H, Q, R, zs, N=fir_order(model, options)), None
-    if name == "pred":
-        return reference.pred(F, G, H, Q, R, x0, zs, options.horizon), None
-    raise VerificationError(f"no reference for filter {name!r}")
+    return kind(name).reference(model, zs, options)
 
 
 def generated_run(module, name: str, zs, model, lang: str,
                   scenario: NonlinearScenario | None = None):
     """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
     (nonlinear filters: the scenario's zs, us, x0 and P0)."""
-    if name in NONLINEAR:
+    spec = kind(name)
+    if spec.model_kind == "nonlinear":
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
         xs, Ps = module.run(*args, scenario.x0, scenario.P0)
         return np.asarray(xs), np.asarray(Ps).reshape(len(scenario.zs), model.n, model.n)
     num = model.numeric()
-    if name in ("kf", "lf", "jklf", "ikf"):
-        xs, Ps = module.run(zs, num.x0, num.P0)
-        return np.asarray(xs), np.asarray(Ps).reshape(len(zs), model.n, model.n)
-    if name == "fir":
-        return np.asarray(module.run(zs)), None
-    return np.asarray(module.run(zs, num.x0)), None
+    # run's arguments after the measurements: what its run kind starts from
+    start = {"x0": num.x0, "P0": num.P0}
+    out = module.run(zs, *(start[name] for name, _ in RUN_KINDS[spec.run_kind].start))
+    if not isinstance(out, tuple):
+        return np.asarray(out), None
+    xs, Ps = out
+    return np.asarray(xs), np.asarray(Ps).reshape(len(zs), model.n, model.n)
 
 
 def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
@@ -206,7 +182,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     """
     opts = validate(name, options)
     scenario = None
-    if name in NONLINEAR:
+    if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)
         zs, tolerance = scenario.zs, NONLINEAR_TOLERANCE
     else:

@@ -8,10 +8,16 @@ import sympy
 
 from derive import staging
 from derive.emit.unit import Unit
+from derive.filters import kind as filter_spec
 from derive.filters.kf import prior
 from derive.program import Port, Program
 
 dt, q, r = sympy.symbols("dt q r", positive=True)
+
+
+def unit_fields(name: str, window: int | None = None) -> dict:
+    """The Unit fields the registry's spec of filter ``name`` decides."""
+    return filter_spec(name).unit_fields(window=window)
 
 
 def cv_axes(axes: int = 1):
@@ -51,7 +57,7 @@ def kf_program(F, W, H, R, parameters=(dt, q, r)) -> Program:
 def kf_unit(model: str = "cv", axes: int = 1, command: str = "pytest backend") -> Unit:
     F, W, H, R = cv_axes(axes)
     step = kf_program(F, W, H, R).optimize()
-    return Unit(model=model, filter="kf", family="kf", n=F.rows, m=H.rows,
+    return Unit(model=model, filter="kf", **unit_fields("kf"), n=F.rows, m=H.rows,
                 programs={"step": step}, parameters=("dt", "q", "r"),
                 facts=("test: backend example",), command=command)
 
@@ -105,7 +111,7 @@ def _steady_step(params: bool) -> Program:
 
 
 def steady_unit(family: str = "sskf", params: bool = False) -> Unit:
-    return Unit(model="toy", filter=family, family=family, n=2, m=1,
+    return Unit(model="toy", filter=family, **unit_fields(family), n=2, m=1,
                 programs={"step": _steady_step(params)},
                 parameters=("g",) if params else (), command="pytest")
 
@@ -131,7 +137,7 @@ def fir_unit() -> Unit:
     for i, C in enumerate(taps):
         total = staging.add(prog, total, staging.matmul(prog, C, zw[i, :].T))
     prog.set_output("x_new", total)
-    return Unit(model="toy", filter="fir", family="fir", n=2, m=1,
+    return Unit(model="toy", filter="fir", **unit_fields("fir", WINDOW), n=2, m=1,
                 programs={"step": prog.optimize()}, options={"window": WINDOW},
                 command="pytest")
 
@@ -146,7 +152,7 @@ def fir_reference(zs):
 def pred_unit() -> Unit:
     init = Program("init", [Port("x0", (2,))], [Port("x_new", (2,))], doc="x(N/0) = A^2 x0")
     init.set_output("x_new", staging.matmul(init, A_SS**2, init.matrix("x0")))
-    return Unit(model="toy", filter="pred", family="pred", n=2, m=1,
+    return Unit(model="toy", filter="pred", **unit_fields("pred"), n=2, m=1,
                 programs={"init": init.optimize(), "step": _steady_step(False)},
                 options={"horizon": 2}, command="pytest")
 
@@ -174,7 +180,7 @@ def ekf_like_unit() -> Unit:
     prog.set_output("P_new", staging.sub(prog, Pp, staging.matmul(prog, K, PHt.T,
                                                                  symmetric_result=True),
                                          symmetric_result=True))
-    return Unit(model="toy", filter="ekf", family="ekf", n=2, m=1,
+    return Unit(model="toy", filter="ekf", **unit_fields("ekf"), n=2, m=1,
                 programs={"step": prog.optimize()}, step_inputs=("z", "u"), command="pytest")
 
 

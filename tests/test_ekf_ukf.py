@@ -4,6 +4,7 @@ and the scalar-update stand-ins of derive.gnss; Cholesky failures; exact op coun
 import numpy as np
 import pytest
 import sympy
+from _backend_kf import unit_fields
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -275,7 +276,7 @@ def test_unit_interface(units):
     assert [p.name for p in unit.programs["update1"].inputs] == ["x", "P", "z", "u"]
     assert unit.programs["update1"].port("u").shape == (3,)
     with pytest.raises(ProgramError, match="no program 'update1'"):
-        Unit(model="m", filter="kf", family="kf", n=4, m=4,
+        Unit(model="m", filter="kf", **unit_fields("kf"), n=4, m=4,
              programs={"step": unit.programs["step"], "update1": unit.programs["update1"]},
              step_inputs=("z", "u"))
 

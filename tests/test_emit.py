@@ -29,13 +29,15 @@ from _backend_kf import (
     reference_kf,
     steady_reference,
     steady_unit,
+    unit_fields,
 )
 
 from derive.build import load_python
 from derive.emit.render import derive_version, environment, render_files
-from derive.emit.unit import FAMILIES, Unit
+from derive.emit.unit import RUN_KINDS, Unit
 from derive.emit.write import write_files
 from derive.errors import OutputPathError
+from derive.filters import FILTERS
 from derive.flops import count
 from derive.program import Port, Program, ProgramError
 
@@ -48,7 +50,7 @@ def _units():
              fir_unit(), pred_unit(), ekf_like_unit()]
     step = kf_unit(axes=1).programs["step"]
     for family in ("lf", "jklf", "ikf", "ukf"):
-        units.append(Unit(model="cv", filter=family, family=family, n=2, m=1,
+        units.append(Unit(model="cv", filter=family, **unit_fields(family), n=2, m=1,
                           programs={"step": step}, parameters=("dt", "q", "r")))
     units.append(steady_unit("sslf"))
     return units
@@ -58,7 +60,8 @@ UNITS = _units()
 
 
 def test_every_family_has_a_unit_here():
-    assert {u.family for u in UNITS} == set(FAMILIES)
+    assert {u.family for u in UNITS} == set(FILTERS)
+    assert {u.kind for u in UNITS} == set(RUN_KINDS)
 
 
 @pytest.fixture(scope="module")
@@ -175,22 +178,23 @@ def test_templates_fail_on_undefined_variables():
 
 def test_unit_validates_the_family_interface():
     step = kf_program(*cv_axes(1)).optimize()
-    with pytest.raises(ProgramError, match="unknown filter family"):
-        Unit(model="cv", filter="kf", family="nope", n=2, m=1, programs={"step": step})
+    with pytest.raises(ProgramError, match="unknown run kind"):
+        Unit(model="cv", filter="kf", **{**unit_fields("kf"), "run_kind": "nope"}, n=2, m=1,
+             programs={"step": step})
     with pytest.raises(ProgramError, match="must have inputs"):
-        Unit(model="cv", filter="sskf", family="sskf", n=2, m=1, programs={"step": step},
+        Unit(model="cv", filter="sskf", **unit_fields("sskf"), n=2, m=1, programs={"step": step},
              parameters=("dt", "q", "r"))
     with pytest.raises(ProgramError, match=r"shape \(3,\)"):
-        Unit(model="cv", filter="kf", family="kf", n=3, m=1, programs={"step": step},
+        Unit(model="cv", filter="kf", **unit_fields("kf"), n=3, m=1, programs={"step": step},
              parameters=("dt", "q", "r"))
     with pytest.raises(ProgramError, match="window"):
-        Unit(model="toy", filter="fir", family="fir", n=2, m=1,
+        Unit(model="toy", filter="fir", **unit_fields("fir"), n=2, m=1,
              programs={"step": fir_unit().programs["step"]})
     with pytest.raises(ProgramError, match="init"):
-        Unit(model="toy", filter="pred", family="pred", n=2, m=1,
+        Unit(model="toy", filter="pred", **unit_fields("pred"), n=2, m=1,
              programs={"step": steady_unit().programs["step"]})
     with pytest.raises(ProgramError, match="identifier"):
-        Unit(model="../x", filter="kf", family="kf", n=2, m=1, programs={"step": step},
+        Unit(model="../x", filter="kf", **unit_fields("kf"), n=2, m=1, programs={"step": step},
              parameters=("dt", "q", "r"))
 
 
@@ -198,7 +202,7 @@ def test_unused_parameter_port_still_compiles(tmp_path):
     prog = Program("step", [Port("x", (2,)), Port("z", (1,)), Port("p", (2,))],
                    [Port("x_new", (2,))])
     prog.set_output("x_new", [prog.element("x", 0), prog.element("z", 0)])
-    unit = Unit(model="ident", filter="sskf", family="sskf", n=2, m=1,
+    unit = Unit(model="ident", filter="sskf", **unit_fields("sskf"), n=2, m=1,
                 programs={"step": prog.optimize()}, parameters=("a", "b"))
     paths = write_files(tmp_path, "ident", render_files(unit))
     c_file = next(p for p in paths if p.suffix == ".c")

@@ -3,6 +3,7 @@ exact two-step map; it must agree with stepping, keep the odd step and the first
 each pass exact, and not drift over long runs."""
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,18 +14,19 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import catalog
-from derive.emit.lookahead import ZNEXT, two_step_program
+from derive.emit.lookahead import ZNEXT
 from derive.filters.steady import baked, steady_gains
 from derive.generation import derive_unit, render_filter
 from derive.pipeline import load_generated
-from derive.program import Port, Program
+from derive.program import ProgramError
 from derive.reference import steady as reference
 from derive.simulate import simulate_linear
 from derive.verify import relative_error
 
 
-def _step(model, name="sskf"):
-    return derive_unit(catalog.load(model), name, {}).programs["step"]
+def _two_step(model, name="sskf"):
+    """The two-step map the derivation hands over with its unit."""
+    return derive_unit(catalog.load(model), name, {}).lookahead
 
 
 def _outputs(program, port):
@@ -40,7 +42,7 @@ def test_the_two_step_map_is_exact():
     exactly (rounded once when printed)."""
     model = catalog.load("mpt3d_b")
     A, B = (baked(M) for M in steady_gains(model, "sskf"))
-    two = two_step_program(_step("mpt3d_b"))
+    two = _two_step("mpt3d_b")
     assert [p.name for p in two.inputs] == ["x", "z", ZNEXT]
     x = sympy.Matrix([two.element("x", i) for i in range(2)])
     z = sympy.Matrix([two.element("z", 0)])
@@ -54,7 +56,7 @@ def test_the_pass_runs_the_steps_own_statements_first():
     map's temporaries are numbered after the step's."""
     model = catalog.load("mpt3d_a")
     c = render_filter(model, "sskf", "c")["sskf.c"]
-    step_body = c[c.index("mpt3d_a_sskf_step("):]
+    step_body = c[c.index("mpt3d_a_sskf_step(", c.index("*/")):]  # after the header
     step_body = step_body[step_body.index("{") + 1:step_body.index("\n}")]
     run = c[c.index("two steps per pass:"):c.index("an odd last step")]
     for line in step_body.strip().splitlines():
@@ -65,12 +67,14 @@ def test_the_pass_runs_the_steps_own_statements_first():
 
 
 def test_the_pass_is_declined_where_it_does_not_apply():
-    assert two_step_program(_step("mpt3d_b", "kf")) is None            # checks, P
-    assert two_step_program(steady_unit("jssklf", params=True).programs["step"]) is None
-    prog = Program("step", [Port("x", (1,)), Port("z", (1,))], [Port("x_new", (1,))])
-    x, z = prog.element("x", 0), prog.element("z", 0)
-    prog.set_output("x_new", [x * x / 2 + z])                           # not affine
-    assert two_step_program(prog.optimize()) is None
+    """Only a derivation that builds the map has one; a run kind without look-ahead
+    refuses it."""
+    assert _two_step("mpt3d_b", "kf") is None                           # checks, P
+    assert steady_unit("jssklf", params=True).lookahead is None
+    two = _two_step("mpt3d_b")
+    kf = derive_unit(catalog.load("mpt3d_b"), "kf", {})
+    with pytest.raises(ProgramError, match="two-step map"):
+        replace(kf, lookahead=two)
 
 
 @pytest.fixture(scope="module")

@@ -18,8 +18,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--all", action="store_true",
                         help="every catalog model with every filter that applies")
     parser.add_argument("--filter", action="append", dest="filters", metavar="F",
-                        help="kf, lf, jklf, ikf, sskf, sslf, jssklf, fir, pred, ekf, ukf "
-                             "(repeatable; default: all that apply)")
+                        help="a filter name, as `derive list` shows them (repeatable; "
+                             "default: all that apply)")
     parser.add_argument("--lang", default="all", choices=("python", "c", "all"))
     parser.add_argument("--out", default="generated", help="output directory (generated)")
     add_option_arguments(parser)
@@ -28,11 +28,11 @@ def add_arguments(parser) -> None:
 def horizon_line(unit, options: dict) -> str | None:
     """``  fir: order N = 33 ...`` for a FIR or a predictor (None for other filters), given
     the options of the command line."""
-    if unit.family == "fir":
+    if unit.run.window:
         rule = (" (--order)" if "order" in options else
                 f", the least with ||A^N||_2 < {options.get('eps', DEFAULT_EPS)!r}")
         return f"  {unit.filter}: order N = {unit.window}{rule}"
-    if unit.family == "pred":
+    if "horizon" in unit.options:
         return f"  {unit.filter}: horizon N = {unit.options['horizon']}"
     return None
 

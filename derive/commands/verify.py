@@ -39,7 +39,7 @@ def run(args) -> int:
             kind(name)
         typed = per_filter(names, options, named=bool(args.filters))
         for name in names:
-            if name == "fir":
+            if "order" in typed[name].specs():  # a FIR: the order its options give
                 print(f"{model.name}/fir: order N = {order(model, typed[name])}")
             for v in verify_filter(model, name, steps=args.steps, seed=args.seed,
                                    options=typed[name]):

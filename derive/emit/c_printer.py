@@ -98,9 +98,19 @@ def pattern_check_lines(check: LoweredCheck, element: str | None = None) -> list
 
 def function_parts(lowered: LoweredProgram, prefix: str) -> dict:
     """Precomputed strings of one function: ``signature`` and ``body`` lines (unindented)."""
-    printer = CPrinter()
     used = lowered.used_inputs()
     body = [f"(void){p.name};" for p in lowered.inputs if p.name not in used]
+    body += statements(lowered)
+    if lowered.has_checks:
+        body.append("return 0;")
+    return {"signature": prototype(lowered, prefix), "body": body}
+
+
+def statements(lowered: LoweredProgram) -> list[str]:
+    """The program's statements (unindented): its temporaries and checks, then its
+    results written to the output arrays; no declarations, no final ``return 0``."""
+    printer = CPrinter()
+    body: list[str] = []
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"const double {st.target} = {printer.expression(st.tree)};")
@@ -113,6 +123,4 @@ def function_parts(lowered: LoweredProgram, prefix: str) -> dict:
                      "}"]
     for name, leaves in lowered.results:
         body += [f"{name}[{k}] = {printer.expression(leaf)};" for k, leaf in enumerate(leaves)]
-    if lowered.has_checks:
-        body.append("return 0;")
-    return {"signature": prototype(lowered, prefix), "body": body}
+    return body

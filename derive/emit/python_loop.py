@@ -11,13 +11,9 @@ raises :class:`NumericalError` with the step's message and the step's index.
 
 from __future__ import annotations
 
-import re
-
 from derive.emit.python_printer import PythonPrinter
-from derive.lowering import CARRIED, LoweredAssign, LoweredProgram, Var
+from derive.lowering import LoweredAssign, LoweredProgram, Var, tree_vars
 from derive.program import PARAMETER_PORT
-
-_INDEXED = re.compile(r"\b([A-Za-z]\w*)\[(\d+)\]")
 
 
 def local_name(port: str, index: int | str) -> str:
@@ -25,8 +21,13 @@ def local_name(port: str, index: int | str) -> str:
     return f"{port}_{index}"
 
 
-def _localize(text: str, ports: set[str]) -> str:
-    return _INDEXED.sub(lambda m: local_name(m[1], m[2]) if m[1] in ports else m[0], text)
+def local_names(ports: set[str]):
+    """The printer's name map: an element of one of ``ports`` is its local variable
+    (``x[1]`` -> ``x_1``); every other variable keeps its name."""
+    def name(var: Var) -> str:
+        return local_name(var.base, var.index) if var.index is not None and \
+            var.base in ports else var.name
+    return name
 
 
 def _unpack(names: list[str], source: str) -> list[str]:
@@ -43,32 +44,34 @@ def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
     while stack:
         tree = stack.pop()
         if isinstance(tree, Var):
-            match = _INDEXED.fullmatch(tree.name)
-            if match:
-                read.setdefault(match[1], set()).add(int(match[2]))
+            if tree.index is not None:
+                read.setdefault(tree.base, set()).add(tree.index)
         else:
             stack.extend(getattr(tree, "args", ()))
     return read
 
 
 def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
-                      arrays: dict[str, str], indent: str = "        ") -> tuple[str, ...]:
+                      arrays: dict[str, str], carried: tuple[tuple[str, str], ...],
+                      stored: tuple[tuple[str, tuple[int, ...]], ...],
+                      indent: str = "        ") -> tuple[str, ...]:
     """Lines of the single-track branch of ``run`` (indented for the run function's body)
-    for a step with carried ``x`` (and ``P``).
+    for a step with the ``carried`` state, (input port, output port) pairs.
 
     ``arrays`` maps the step's ports to the run's array names (``x`` -> ``x0``,
-    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  The branch returns ``xs`` (and
-    ``Ps`` when P is carried) exactly as the general branch does.
+    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  ``stored``: the carried input
+    ports run returns, each with its shape per step.  The branch returns them exactly as
+    the general branch does.
     """
-    printer = PythonPrinter()
     ports = {p.name: p for p in lowered.inputs}
-    names = set(ports)
+    name_of = local_names(set(ports))
+    printer = PythonPrinter(name_of)
     results = dict(lowered.results)
-    carried = [(port, out) for port, out in CARRIED if port in ports and out in results]
+    carried = [(port, out) for port, out in carried if port in ports and out in results]
     read = _read_indices(lowered)
 
     def text(tree) -> str:
-        return _localize(printer.expression(tree), names)
+        return printer.expression(tree)
 
     out: list[str] = []
     # the initial state and the parameters: only the elements the step reads
@@ -115,21 +118,22 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
     body += _wrap(f"keep(({kept[0]},))" if len(kept) == 1 else f"keep(({', '.join(kept)}))")
     # the new state: every element the next step reads, from this step's leaves; a leaf
     # that reads the old state is bound first, so no assignment sees a new value early
-    assigned = [(local_name(port, i), text(results[result][i]))
-                for port, result in carried for i in sorted(read.get(port, ()))]
-    olds = {t for t, _ in assigned}
-    early = []
-    for j, (target_, value) in enumerate(assigned):
-        if set(re.findall(r"\b[A-Za-z]\w*\b", value)) & olds and value != target_:
+    leaves = [(local_name(port, i), results[result][i])
+              for port, result in carried for i in sorted(read.get(port, ()))]
+    olds = {t for t, _ in leaves}
+    assigned, early = [], []
+    for target_, leaf in leaves:
+        value = text(leaf)
+        if {name_of(v) for v in tree_vars(leaf)} & olds and value != target_:
             early.append(f"n_{target_} = {value}")
-            assigned[j] = (target_, f"n_{target_}")
+            value = f"n_{target_}"
+        assigned.append((target_, value))
     body += early + [f"{t} = {v}" for t, v in assigned if t != v]
     out += [f"    {line}" for line in body]
     out.append(f"table = np.array(rows, dtype=float).reshape(-1, {len(kept)})")
-    ret = [f"table[:, {columns['x']}]"]
-    if "P" in columns:
-        n = round(ports["P"].size ** 0.5)
-        ret.append(f"table[:, {columns['P']}].reshape(-1, {n}, {n})")
+    ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
+           f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
+           for port, shape in stored]
     out += _wrap(f"return {ret[0]}" if len(ret) == 1 else f"return ({', '.join(ret)})")
     return tuple(indent + line for line in out)
 
@@ -138,7 +142,8 @@ def _wrap(line: str, width: int = 88) -> list[str]:
     """Break a long line of comma-separated names inside brackets (implicit joining)."""
     if len(line) <= width:
         return [line]
-    pieces = re.split(r"(?<=, )", line)
+    parts = line.split(", ")
+    pieces = [part + ", " for part in parts[:-1]] + parts[-1:]
     lines, current = [], ""
     for piece in pieces:
         if current and len(current) + len(piece) > width:

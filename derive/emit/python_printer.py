@@ -100,7 +100,13 @@ def error_imports(lowered: list[LoweredProgram], run: bool = False) -> list[list
 
 
 class InfixPrinter:
-    """Infix printing with minimal parentheses that keep the tree's evaluation order."""
+    """Infix printing with minimal parentheses that keep the tree's evaluation order.
+
+    ``names``: the name map, ``names(var) -> text`` for every variable printed (as
+    SymPy's printers map symbols at print time); None prints each variable's name."""
+
+    def __init__(self, names: Callable[[Var], str] | None = None) -> None:
+        self.names = names
 
     def const(self, value: float) -> str:
         text = repr(float(value))
@@ -117,7 +123,7 @@ class InfixPrinter:
         if isinstance(tree, Const):
             return self.const(tree.value)
         if isinstance(tree, Var):
-            return tree.name
+            return tree.name if self.names is None else self.names(tree)
         if tree.kind in _SYMBOL:
             left, right = tree.args
             prec = _PREC[tree.kind]

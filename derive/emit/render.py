@@ -15,25 +15,23 @@ from functools import cache
 from pathlib import Path
 
 import jinja2
+import numpy as np
 
+from derive import interface
 from derive.emit import c_printer, python_printer
 from derive.emit.c_loops import (
     LANES,
     fused_body,
-    has_run_tracks,
     tracks_parts,
     two_step,
     two_step_body,
 )
-from derive.emit.lookahead import ZNEXT
 from derive.emit.python_loop import single_track_loop
-from derive.emit.unit import Argument, Unit, run_arguments
+from derive.emit.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
 from derive.version import __version__
-
-LANGUAGES = ("python", "c")
 
 
 def derive_version() -> str:
@@ -70,7 +68,9 @@ def _order(unit: Unit) -> list[str]:
 
 
 def _lowered(unit: Unit, use_fma: bool) -> dict[str, LoweredProgram]:
-    return {name: lower_program(unit.programs[name], use_fma=use_fma) for name in _order(unit)}
+    state = tuple(port for port, _ in unit.carried)
+    return {name: lower_program(unit.programs[name], use_fma=use_fma, state_ports=state)
+            for name in _order(unit)}
 
 
 def _size(port) -> str:
@@ -81,37 +81,39 @@ def _dims(arg: Argument, sep: str) -> str:
     return sep.join(str(d) for d in arg.dims)
 
 
-def _c_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
-    lines = []
+def describe(prefix: str, lowered: dict[str, LoweredProgram],
+             run: list[Argument] | None = None) -> interface.Interface:
+    """The interface of one file: a function per program (C: ``PREFIX_NAME``) and, with
+    ``run`` (the run function's arguments), the run function; statuses of every check."""
+    functions, python = [], []
     for lp in lowered.values():
         ports = {p.name: p for p in lp.inputs + lp.outputs}
-        args = [f"{name}[{_size(ports[name])}]" + (" out" if ports[name] in lp.outputs else "")
-                for name in c_printer.argument_order(lp)]
-        result = "int" if lp.has_checks else "void"
-        lines.append(f"    {result} {unit.prefix}_{lp.name}({', '.join(args)})")
-    args = ["steps"] + [f"{a.c_name}[{_dims(a, '*')}]" + (" out" if a.output else "")
-                        + (" optional" if a.optional else "")
-                        + (f" rows {P_STRIDE}" if a.c_name == PARAMETER_PORT else "")
-                        for a in run_arguments(unit)]
-    result = "int" if any(lp.has_checks for lp in lowered.values()) else "void"
-    lines.append(f"    {result} {unit.prefix}_run({', '.join(args)})")
-    return lines
-
-
-def _py_interface(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
-    lines = []
+        outputs = {p.name for p in lp.outputs}
+        functions.append(interface.Function(
+            name=f"{prefix}_{lp.name}", program=lp.name, returns_status=lp.has_checks,
+            arguments=tuple(interface.Argument(name, ports[name].shape, name in outputs)
+                            for name in c_printer.argument_order(lp))))
+        python.append(interface.Function(
+            name=lp.name, program=lp.name, returns_status=lp.has_checks,
+            arguments=tuple(interface.Argument(p.name, p.shape, p in lp.outputs)
+                            for p in lp.inputs + lp.outputs)))
+    if run is not None:
+        status = any(lp.has_checks for lp in lowered.values())
+        args = tuple(interface.Argument(a.c_name, a.dims, a.output, a.optional,
+                                        rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
+                                        scratch=a.scratch)
+                     for a in run)
+        functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
+        python.append(interface.Function("run", "run", status,
+                                         tuple(a for a in args if not a.scratch), True))
+    statuses = []
     for lp in lowered.values():
-        ins = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.inputs)
-        outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
-        lines.append(f"    {lp.name}({ins}) -> ({outs})")
-    args = run_arguments(unit)
-    ins = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]"
-                    + (f" or {a.py_name}[steps, {_dims(a, ', ')}]"
-                       if a.c_name == PARAMETER_PORT else "")
-                    for a in args if not a.output)
-    outs = ", ".join(f"{a.py_name}[{_dims(a, ', ')}]" for a in args if a.output)
-    lines.append(f"    run({ins}) -> ({outs})")
-    return lines
+        messages = {c.status: c.message for c in lp.checks}
+        zero = {c.status: tuple(sorted(c.tree.args[0].index for c in lp.pattern_checks))
+                for c in lp.pattern_checks}
+        statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()))
+                     for number in sorted(messages)]
+    return interface.Interface(tuple(functions), tuple(statuses), tuple(python))
 
 
 def _language(lang: str, use_fma: bool) -> str:
@@ -133,11 +135,12 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
              f"m: {unit.m} (measurements)",
              "parameters: " + (f"p = [{', '.join(unit.parameters)}]" if unit.parameters
                                else "none")]
-    if unit.kind == "fir":
+    if unit.run.window:
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
-    lines += _c_interface(unit, lowered) if lang == "c" else _py_interface(unit, lowered)
-    if lang == "c" and has_run_tracks(unit):
+    described = describe(unit.prefix, lowered, run_arguments(unit))
+    lines += described.c_lines() if lang == "c" else described.python_lines()
+    if lang == "c" and unit.batch:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another" + (", p and p_stride shared by "
                      "the tracks" if unit.parameters else "") + ")")
@@ -153,7 +156,7 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
         if sym:
             lines.append(f"symmetric in {lp.name}: {', '.join(sym)} (inputs: upper triangle "
                          "read; outputs: written whole)")
-    lines += _status_lines(lowered.values())
+    lines += described.status_lines(_raises(lowered.values()))
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
@@ -161,18 +164,11 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     return lines
 
 
-def _status_lines(lowered) -> list[str]:
-    """The header's status list: one line per status of each function (the zero checks of
-    a pattern share one status; Python raises PatternError for it, NumericalError else)."""
-    lines = []
-    for lp in lowered:
-        messages = {c.status: c.message for c in lp.checks}
-        lines += [f"    {lp.name} {status}: {messages[status]}" for status in sorted(messages)]
-    if not lines:
-        return []
+def _raises(lowered) -> str:
+    """What Python raises for a non-zero status (the zero checks of a pattern share one
+    status; Python raises PatternError for it, NumericalError else)."""
     pattern = any(lp.pattern_checks for lp in lowered)
-    raises = "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
-    return [f"status (C return value; Python raises {raises}): 0 success"] + lines
+    return "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
 
 
 def _render(template: str, context: dict) -> str:
@@ -233,7 +229,7 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
                       "else:  # one row per step",
                       f"    _require_shape({name!r}, {name}, (steps,) + {dims}, {either!r})",
                       f"    {PARAMETER_ROWS} = {name}"]
-            if unit.kind == "pred":
+            if "init" in unit.programs:
                 lines.append(f"{PARAMETER_START} = {PARAMETER_ROWS}[0] if steps else "
                              f"np.zeros({dims[0]})")
             tracks.append(f"{PARAMETER_ROWS}.shape[2:]")
@@ -280,7 +276,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
         "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
-                    for a in args],
+                    for a in args if not a.scratch],
         "prologue": _python_run_prologue(unit, inputs),
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,
@@ -288,21 +284,43 @@ def render_python(unit: Unit) -> dict[str, str]:
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
-        "window": unit.window if unit.kind == "fir" else 0,
-        "window_m": unit.window * unit.m if unit.kind == "fir" else 0,
-        "padding": unit.window - 1 if unit.kind == "fir" else 0,
+        "window": unit.window if unit.run.window else 0,
+        "window_m": unit.window * unit.m if unit.run.window else 0,
+        "padding": unit.window - 1 if unit.run.window else 0,
         "single": [],
+        "about": unit.about.get("python", "Run the filter over a sequence of steps."),
     }
-    if unit.kind != "fir":
+    if not unit.run.window:
         ports = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {name: ports[name] for name in unit.step_inputs}
-        # the predictor starts from init(x0), computed before the loop (pred.jinja)
-        arrays.update(x="x_start" if unit.kind == "pred" else "x0", P="P0",
-                      **{PARAMETER_PORT: PARAMETER_ROWS})
+        # the carried state starts from run's start arrays (the run kind's, in order); a
+        # run with an init program starts from init(x0), computed before the loop
+        state = carried_state(unit, lowered["step"])
+        arrays.update({s["name"]: "x_start" if "init" in unit.programs else s["start"]
+                       for s in state}, **{PARAMETER_PORT: PARAMETER_ROWS})
         rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
-        context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
-                                              rows, arrays)
-    return {f"{unit.filter}.py": _render(f"python/{unit.family}.jinja", context)}
+        by_output = {s["out"]: s["name"] for s in state}
+        ports = {p.name: p for p in lowered["step"].inputs}
+        names = ", ".join(s["name"] for s in state)
+        context["carried"] = state
+        context["enter_line"] = (f"{names} = enter({', '.join(n for n, _ in unit.run.start)})"
+                                 if "enter" in lowered else "")
+        stores = []
+        for s in stored_outputs(unit):
+            if s["out"] in by_output:
+                stores.append({**s, "value": by_output[s["out"]], "call": "",
+                               "shape": ports[by_output[s["out"]]].shape})
+            else:  # computed from the carried state by the store program
+                value = f"{s['array']}_k"
+                stores.append({**s, "value": value, "call": f"{value} = store({names})",
+                               "shape": lowered["store"].outputs[0].shape})
+        context["stores"] = stores
+        if "enter" not in lowered and "store" not in lowered:
+            stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
+                           for s in stored_outputs(unit))
+            context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
+                                                  rows, arrays, unit.carried, stored)
+    return {f"{unit.filter}.py": _render(f"python/{unit.kind}.jinja", context)}
 
 
 #: C run's last argument with free parameters: 0 when p is one row for every step, NP
@@ -322,6 +340,34 @@ def _c_call(function: str, args: str, status: bool) -> list[str]:
     return [f"status = {function}({args});", "if (status) {", "    return status;", "}"]
 
 
+def stored_outputs(unit: Unit) -> list[dict]:
+    """run's per-step outputs: array name, the step's output port it stores, elements per
+    step, optional (C: may be NULL)."""
+    sizes = {"n": unit.n, "m": unit.m}
+    return [{"array": array, "out": out, "optional": optional,
+             "size": int(np.prod([sizes[d] for d in dims]))}
+            for array, out, dims, optional in unit.run.stores]
+
+
+def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
+    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names)."""
+    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
+    return _c_call(f"{prefix}_{lp.name}", args, lp.has_checks)
+
+
+def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
+    """The state run carries from step to step: the step's input port, its output port,
+    elements, the run argument that starts it (the run kind's ``start``, in order) and the
+    array that stores it every step (None when none does or the store is optional);
+    ``start_rank``: the number of dimensions of the start argument."""
+    ports = {p.name: p for p in step.inputs}
+    stores = {s["out"]: s["array"] for s in stored_outputs(unit) if not s["optional"]}
+    starts = list(unit.run.start) + [(None, ())] * len(unit.carried)
+    return [{"name": port, "out": out, "size": ports[port].size, "start": starts[i][0],
+             "start_rank": len(starts[i][1]), "store": stores.get(out)}
+            for i, (port, out) in enumerate(unit.carried)]
+
+
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     lowered = _lowered(unit, use_fma=use_fma)
@@ -335,6 +381,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             "is carried from pass to pass",
             f"operations per pass of run, two steps ({_language('c', use_fma)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
+    header_lines.append(describe(unit.prefix, lowered, run_arguments(unit)).block())
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
@@ -342,50 +389,59 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     run_params = ["size_t steps"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
-    per_step = ", ".join(f"{name} + k * {unit.step_input_size(name)}"
-                         for name in unit.step_inputs)
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
     defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
                f"#define {prefix}_NP {len(unit.parameters)}"]
-    if unit.kind == "fir":
+    if unit.run.window:
         defines.append(f"#define {prefix}_WINDOW {unit.window}")
     step_lp = lowered["step"]
-    if unit.kind == "timevarying":
-        step_call = _c_call(f"{prefix}_step", f"x, P, {per_step}, x_next, P_next{p_arg}",
-                            step_lp.has_checks)
-    elif unit.kind == "fir":
+    step_call = []
+    if unit.run.window:
         p_row = f", {PARAMETER_PORT} + k * {P_STRIDE}" if unit.parameters else ""
         step_call = _c_call(f"{prefix}_step", f"zw, xs + k * {unit.n}{p_row}", step_lp.has_checks)
-    else:
-        step_call = _c_call(f"{prefix}_step", f"x, {per_step}, x_next{p_arg}", step_lp.has_checks)
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
-    step_parts = c_printer.function_parts(step_lp.without_pattern_checks(), prefix)
-    fused = fused_body(unit, step_parts) if unit.kind != "fir" else []
-    nn = unit.n * unit.n
-    run_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
-        c, c.tree.args[0].name.replace("P[", "P0["))]
-    tracks_checks = [line for c in step_lp.pattern_checks for line in c_printer.pattern_check_lines(
-        c, c.tree.args[0].name.replace("P[", f"P0[t * {nn} + "))]
-    lookahead = two_step_body(fused, two, prefix) if two is not None else []
+    loop_step = step_lp.without_pattern_checks()
+    fused = fused_body(unit, loop_step) if not unit.run.window else []
+    state = carried_state(unit, step_lp)
+    optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
+    starts = {s["name"]: (s["start"], s["size"]) for s in state}
+    carried_out = {s["out"] for s in state}
+    for s in optional_stores:  # computed by the store program, written into run's row k
+        s["call"] = (_program_call(prefix, lowered["store"],
+                                   {s["out"]: f"{s['array']} + k * {s['size']}"})
+                     if s["out"] not in carried_out else [])
+
+    def start_element(check, track: str = "") -> str:
+        """The run's start array element a zero check of the step tests (P0 for P)."""
+        var = check.tree.args[0]
+        start, size = starts[var.base]
+        return f"{start}[{track}{var.index}]" if not track else \
+            f"{start}[{track} * {size} + {var.index}]"
+
+    run_checks = [line for c in step_lp.pattern_checks
+                  for line in c_printer.pattern_check_lines(c, start_element(c))]
+    tracks_checks = [line for c in step_lp.pattern_checks
+                     for line in c_printer.pattern_check_lines(c, start_element(c, "t"))]
+    lookahead = two_step_body(unit, loop_step, two) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
-    if any(f"{PARAMETER_PORT}k[" in line for line in fused):
+    if fused and unit.parameters and PARAMETER_PORT in loop_step.used_inputs():
         step_rows.append(f"const double *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                          f"{P_STRIDE};")
-    batch = has_run_tracks(unit)
-    tracks = [tracks_parts(unit, fused, lanes, lookahead) for lanes in (LANES, 1)] if batch \
-        else []
+    batch = unit.batch
+    tracks = [tracks_parts(unit, loop_step, lanes, state, optional_stores, two)
+              for lanes in (LANES, 1)] if batch else []
     tracks_params = ["size_t steps", "size_t tracks"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
-              if unit.parameters and PARAMETER_PORT not in used and unit.kind != "fir"]
+              if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     context = {
         "header": header,
         "guard": include_guard(prefix),
@@ -401,10 +457,20 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "status_decl": ["int status;"] if status else [],
         "run_tail": ["return 0;"] if status else [],
         "step_call": step_call,
+        "carried": state,
+        "optional_stores": optional_stores,
+        "enter_call": _program_call(prefix, lowered["enter"], {})
+        if "enter" in lowered else [],
+        # every program's C call with its ports' own names, for a kind's template whose
+        # run keeps them in local arrays of those names (a smoother's backward pass)
+        "calls": {name: _program_call(prefix, lp, {}) for name, lp in lowered.items()},
+        "call_status_decl": ["int status;"] if any(
+            lowered[name].has_checks for name in ("enter", "store") if name in lowered)
+        else [],
         "init_call": init_call,
         "fused": fused,
         "lookahead": lookahead,
-        "znext": ZNEXT,
+        "znext": LOOKAHEAD_NEXT,
         "tracks": tracks,
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,
@@ -414,11 +480,12 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
-        "window": unit.window if unit.kind == "fir" else 0,
-        "window_m": unit.window * unit.m if unit.kind == "fir" else 0,
+        "window": unit.window if unit.run.window else 0,
+        "window_m": unit.window * unit.m if unit.run.window else 0,
+        "about": unit.about.get("c", "Run the filter over steps steps."),
     }
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
-            f"{unit.filter}.c": _render(f"c/{unit.family}.jinja", context)}
+            f"{unit.filter}.c": _render(f"c/{unit.kind}.jinja", context)}
 
 
 def render_unit(unit: Unit, lang: str, *, use_fma: bool = True) -> dict[str, str]:
@@ -448,22 +515,14 @@ def _function_header(name: str, lang: str, lowered: dict[str, LoweredProgram], c
              f"    {command or '(no command given)'}",
              "",
              "interface (flat row-major arrays):"]
-    for lp in lowered.values():
-        ports = {p.name: p for p in lp.inputs + lp.outputs}
-        if lang == "c":
-            args = [f"{a}[{_size(ports[a])}]" + (" out" if ports[a] in lp.outputs else "")
-                    for a in c_printer.argument_order(lp)]
-            result = "int" if lp.has_checks else "void"
-            lines.append(f"    {result} {name}_{lp.name}({', '.join(args)})")
-        else:
-            ins = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.inputs)
-            outs = ", ".join(f"{p.name}[{_size(p)}]" for p in lp.outputs)
-            lines.append(f"    {lp.name}({ins}) -> ({outs})")
-    lines += _status_lines(lowered.values())
+    described = describe(name, lowered)
+    lines += described.c_lines() if lang == "c" else described.python_lines()
+    lines += described.status_lines(_raises(lowered.values()))
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
                      f"{count_lowered(lp).summary()}")
-    return lines + list(facts)
+    lines += list(facts)
+    return lines + [described.block()] if lang == "c" else lines
 
 
 def render_functions(name: str, programs, lang: str, *, command: str = "",

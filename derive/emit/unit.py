@@ -1,13 +1,13 @@
 """A generation unit (one model, one filter) and the interface of each filter family.
 
 A :class:`Unit` is everything the renderer needs and nothing it must compute
-about filters: names, sizes, the programs (``step``; for ``pred`` also ``init``;
-for ``ekf``/``ukf`` also ``predict`` and, optionally, ``update1``, the sequential
-form for a varying number of measurements), header facts and the regeneration
-command.  :data:`FAMILIES` says
-which ports each family's programs must have; the run loop of each *kind*
-(time-varying, steady, FIR, prediction) lives in its templates and its
-arguments in :func:`run_arguments`.
+about filters: names, title, sizes, its run-loop kind, its carried state, the
+programs (``step``; those its run kind needs, e.g. ``init``; those it adds, e.g.
+``predict`` and ``update1``, the sequential form for a varying number of
+measurements), header facts and the regeneration command.  :data:`RUN_KINDS`
+says which ports each kind's programs must have and what run takes and stores;
+the run loop of each kind lives in one template per language and its arguments
+in :func:`run_arguments`.  No filter is named here.
 """
 
 from __future__ import annotations
@@ -23,39 +23,73 @@ from derive.program import PARAMETER_PORT, Program, ProgramError
 _IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
+LANGUAGES = ("python", "c")
+"""The languages a unit is rendered in (one template per run kind in each)."""
+
+
 @dataclass(frozen=True)
-class Family:
-    """A filter family: template name, kind of run loop, title."""
+class RunKind:
+    """A kind of run loop: a small declarative entry plus one template per language
+    (``templates/<language>/<name>.jinja``).
+
+    ``programs``: programs the unit must have besides ``step``.  ``carried``: the
+    default (input port, output port) pairs of ``step`` carried from step to step (a
+    unit may declare its own).  ``start``: run's arguments that start the carried state
+    (name, dims).  ``stores``: run's per-step outputs (name, output port of ``step``,
+    dims after ``steps``, optional in C).  ``window``: the step reads the last
+    ``window`` rows of z (port ``zw``) instead of one row.  ``batch``: C may have
+    ``run_tracks``.  ``lookahead``: C run takes two steps per pass when the step is affine
+    and has no free parameters (derive.emit.lookahead).  ``extra_programs``: programs a
+    unit of this kind may add.  ``work``: C run's caller-provided scratch arrays, after
+    the stored ones: (name, the ports of the unit's programs one row of it holds per
+    step, in order), e.g. a smoother's forward pass; Python run allocates its own.
+    """
 
     name: str
-    kind: str
-    title: str
+    programs: tuple[str, ...] = ()
+    carried: tuple[tuple[str, str], ...] = ()
+    start: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    stores: tuple[tuple[str, str, tuple[str, ...], bool], ...] = ()
+    window: bool = False
+    batch: bool = False
+    lookahead: bool = False
+    extra_programs: tuple[str, ...] = ()
+    work: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 
-KINDS = ("timevarying", "steady", "fir", "pred")
-
-FAMILIES: Mapping[str, Family] = MappingProxyType({f.name: f for f in (
-    Family("kf", "timevarying", "Kalman filter"),
-    Family("lf", "timevarying", "Lainiotis filter"),
-    Family("jklf", "timevarying", "joint Kalman-Lainiotis filter"),
-    Family("ikf", "timevarying", "information-form Kalman filter"),
-    Family("ekf", "timevarying", "extended Kalman filter"),
-    Family("ukf", "timevarying", "unscented Kalman filter"),
-    Family("sskf", "steady", "steady-state Kalman filter"),
-    Family("sslf", "steady", "steady-state Lainiotis filter"),
-    Family("jssklf", "steady", "joint steady-state Kalman-Lainiotis filter"),
-    Family("fir", "fir", "steady-state FIR filter"),
-    Family("pred", "pred", "steady-state N-step predictor"),
+RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
+    RunKind("timevarying", carried=(("x", "x_new"), ("P", "P_new")),
+            start=(("x0", ("n",)), ("P0", ("n", "n"))),
+            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), True)),
+            batch=True, extra_programs=("predict", "update1", "enter", "store")),
+    RunKind("steady", carried=(("x", "x_new"),), start=(("x0", ("n",)),),
+            stores=(("xs", "x_new", ("n",), False),), batch=True, lookahead=True),
+    RunKind("windowed", stores=(("xs", "x_new", ("n",), False),), window=True),
+    RunKind("predictor", programs=("init",), carried=(("x", "x_new"),),
+            start=(("x0", ("n",)),), stores=(("xs", "x_new", ("n",), False),),
+            lookahead=True),
 )})
+"""The run-loop kinds; a unit names one (``Unit.run_kind``) and emit switches on it only."""
 
+KINDS = tuple(RUN_KINDS)
 
-EXTRA_PROGRAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
-    "predict": ("ekf", "ukf"),
-    "update1": ("ekf", "ukf"),
-})
-"""Programs besides step and init, and the families that may have them:
-``predict(x, P[, p]) -> (x_new, P_new)`` and
-``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``."""
+#: Ports of the programs a run kind may add (``RunKind.extra_programs``):
+#: ``predict(x, P[, p]) -> (x_new, P_new)``,
+#: ``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``,
+#: ``enter(<run's start arguments>) -> (<the carried input ports>)``: run's first state
+#: from its arguments (P0 into a factored covariance), and
+#: ``store(<the carried input ports>) -> (<stored outputs no carried port holds>)``: what
+#: run stores from the carried state after each step (P from its factors; C: only when
+#: the array is given).
+EXTRA_PROGRAMS = ("predict", "update1", "enter", "store")
+
+#: The port of the second measurement row of a two-step map (``z`` is row k, this row
+#: k + 1): ``Unit.lookahead`` is ``(x, z, zn) -> x_new``, x(k+2) from x(k).
+LOOKAHEAD_NEXT = "zn"
+
+#: The shapes of the ports every kind names (in sizes n, m); other ports: any shape.
+_PORT_DIMS = {"x": ("n",), "x_new": ("n",), "x0": ("n",), "P": ("n", "n"),
+              "P_new": ("n", "n")}
 
 
 @dataclass(frozen=True)
@@ -68,6 +102,7 @@ class Argument:
     output: bool = False
     optional: bool = False
     doc: str = ""
+    scratch: bool = False
 
 
 @dataclass(frozen=True)
@@ -78,12 +113,17 @@ class Unit:
     no ``p`` anywhere).  ``step_inputs``: the per-step input ports of ``step``
     (their sequences are the run's inputs).  ``facts``: extra ``"key: value"``
     header lines.  ``command``: the command that regenerates the files.
-    ``options``: e.g. ``{"window": N}`` (fir, required), ``{"horizon": N}`` (pred).
+    ``options``: e.g. ``{"window": N}`` (required by a windowed run), ``{"horizon": N}``.
+    ``lookahead``: the two-step map x(k+2) from x(k), z(k), z(k+1) (ports ``x``, ``z``,
+    :data:`LOOKAHEAD_NEXT` -> ``x_new``), built by the derivation from its exact
+    constants, for a run kind with ``lookahead``: C run takes two steps per pass.
     """
 
     model: str
     filter: str
     family: str
+    title: str
+    run_kind: str
     n: int
     m: int
     programs: Mapping[str, Program]
@@ -92,14 +132,27 @@ class Unit:
     facts: tuple[str, ...] = ()
     command: str = ""
     options: Mapping[str, object] = field(default_factory=dict)
+    about: Mapping[str, str] = field(default_factory=dict)
+    batch: bool = False
+    extra_programs: tuple[str, ...] = ()
+    carried: tuple[tuple[str, str], ...] | None = None
+    lookahead: Program | None = None
 
     def __post_init__(self) -> None:
         for what, value in (("model", self.model), ("filter", self.filter)):
             if not isinstance(value, str) or not _IDENT.match(value) or keyword.iskeyword(value):
                 raise ProgramError(f"unit {what} name {value!r} is not a plain identifier")
-        if self.family not in FAMILIES:
-            raise ProgramError(f"unknown filter family {self.family!r}; known: "
-                               f"{sorted(FAMILIES)}")
+        if self.run_kind not in RUN_KINDS:
+            raise ProgramError(f"unknown run kind {self.run_kind!r}; known: "
+                               f"{sorted(RUN_KINDS)}")
+        if self.carried is None:
+            object.__setattr__(self, "carried", RUN_KINDS[self.run_kind].carried)
+        object.__setattr__(self, "carried", tuple(tuple(c) for c in self.carried))
+        object.__setattr__(self, "extra_programs", tuple(self.extra_programs))
+        object.__setattr__(self, "about", MappingProxyType(dict(self.about)))
+        if self.batch and not RUN_KINDS[self.run_kind].batch:
+            raise ProgramError(f"unit {self.prefix}: run kind {self.run_kind!r} has no "
+                               "batch function (run_tracks)")
         object.__setattr__(self, "parameters", tuple(str(p) for p in self.parameters))
         object.__setattr__(self, "step_inputs", tuple(self.step_inputs))
         object.__setattr__(self, "facts", tuple(str(f) for f in self.facts))
@@ -118,27 +171,36 @@ class Unit:
 
     @property
     def kind(self) -> str:
-        return FAMILIES[self.family].kind
+        """The run-loop kind (a key of :data:`RUN_KINDS`)."""
+        return self.run_kind
 
     @property
-    def title(self) -> str:
-        return FAMILIES[self.family].title
+    def run(self) -> RunKind:
+        """The run-loop kind's entry."""
+        return RUN_KINDS[self.run_kind]
 
     @property
     def window(self) -> int:
-        """The FIR order N (fir only)."""
+        """The number of measurements a windowed step reads, N (windowed runs only)."""
         return int(self.options["window"])
 
     def step_input_size(self, name: str) -> int:
-        """Doubles per step of a per-step input (fir: one row of its window)."""
-        if self.kind == "fir":
+        """Doubles per step of a per-step input (windowed: one row of its window)."""
+        if self.run.window:
             return self.m
         return self.programs["step"].port(name).size
 
 
+def _shape(unit: Unit, name: str) -> tuple[int, ...] | None:
+    sizes = {"n": unit.n, "m": unit.m}
+    dims = _PORT_DIMS.get(name)
+    return None if dims is None else tuple(sizes[d] for d in dims)
+
+
 def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int, ...] | None]],
                                                      list[tuple[str, tuple[int, ...]]]]:
-    """(inputs, outputs) as (name, shape) the family requires; shape None: any 1-D shape."""
+    """(inputs, outputs) as (name, shape) the run kind requires; shape None: any shape
+    (a per-step input: any 1-D shape)."""
     n, m = unit.n, unit.m
     p = [(PARAMETER_PORT, (len(unit.parameters),))] if unit.parameters else []
     per_step = [(name, (m,) if name == "z" else None) for name in unit.step_inputs]
@@ -150,11 +212,23 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
         u = [("u", None)] if "u" in unit.step_inputs else []
         return ([("x", (n,)), ("P", (n, n)), ("z", (1,))] + u + p,
                 [("x_new", (n,)), ("P_new", (n, n)), ("innovation", (1,)), ("variance", (1,))])
-    if unit.kind == "timevarying":
-        return [("x", (n,)), ("P", (n, n))] + per_step + p, [("x_new", (n,)), ("P_new", (n, n))]
-    if unit.kind in ("steady", "pred"):
-        return [("x", (n,))] + per_step + p, [("x_new", (n,))]
-    return [("zw", (unit.window, m))] + p, [("x_new", (n,))]
+    kind = unit.run
+    if program == "enter":
+        sizes = {"n": n, "m": m}
+        return ([(name, tuple(sizes[d] for d in dims)) for name, dims in kind.start],
+                [(port, _shape(unit, port)) for port, _ in unit.carried])
+    if program == "store":
+        carried_out = {out for _, out in unit.carried}
+        return ([(port, _shape(unit, port)) for port, _ in unit.carried],
+                [(out, _shape(unit, out)) for _, out, _, _ in kind.stores
+                 if out not in carried_out])
+    carried_in = [(port, _shape(unit, port)) for port, _ in unit.carried]
+    outputs = [out for _, out in unit.carried]
+    if "store" not in unit.programs:  # else the store program computes the rest
+        outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
+    if kind.window:
+        per_step = [("zw", (unit.window, m))]
+    return carried_in + per_step + p, [(out, _shape(unit, out)) for out in outputs]
 
 
 def _validate(unit: Unit) -> None:
@@ -163,30 +237,45 @@ def _validate(unit: Unit) -> None:
                            f"got n={unit.n!r}, m={unit.m!r}")
     if "step" not in unit.programs:
         raise ProgramError(f"unit {unit.prefix}: the program 'step' is required")
-    if unit.kind == "pred" and "init" not in unit.programs:
-        raise ProgramError(f"unit {unit.prefix}: a predictor needs the program 'init' "
-                           "(x(N/0) = F^N x0)")
-    if unit.kind != "pred" and "init" in unit.programs:
-        raise ProgramError(f"unit {unit.prefix}: only the pred family takes an 'init' program")
-    if unit.kind == "fir":
+    for name in unit.run.programs:
+        if name not in unit.programs:
+            raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} needs the program "
+                               f"{name!r}")
+    if "init" in unit.programs and "init" not in unit.run.programs:
+        raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} takes no 'init' "
+                           "program")
+    if unit.run.window:
         window = unit.options.get("window")
         if not isinstance(window, int) or isinstance(window, bool) or window < 1:
-            raise ProgramError(f"unit {unit.prefix}: fir needs options['window'], a positive "
+            raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} needs "
+                               f"options['window'], a positive "
                                f"integer, got {window!r}")
         if unit.step_inputs != ("z",):
-            raise ProgramError(f"unit {unit.prefix}: fir takes the per-step input 'z' only, "
+            raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} takes the per-step "
+                               f"input 'z' only, "
                                f"got {unit.step_inputs}")
     if not unit.step_inputs or unit.step_inputs[0] != "z":
         raise ProgramError(f"unit {unit.prefix}: the first per-step input must be 'z', "
                            f"got {unit.step_inputs}")
     for name in unit.programs:
-        if name in ("step", "init"):
+        if name == "step" or name in unit.run.programs:
             continue
-        if unit.family not in EXTRA_PROGRAMS.get(name, ()):
+        if name not in unit.extra_programs or name not in unit.run.extra_programs:
             raise ProgramError(f"unit {unit.prefix} ({unit.family}): no program {name!r} in "
-                               f"this family; programs beyond step and init: "
-                               + ", ".join(f"{k} ({'/'.join(v)})"
-                                           for k, v in EXTRA_PROGRAMS.items()))
+                               f"this filter; programs beyond its run kind's: "
+                               f"{', '.join(unit.extra_programs) or 'none'}")
+    if unit.batch and ("enter" in unit.programs or "store" in unit.programs):
+        raise ProgramError(f"unit {unit.prefix}: run_tracks does not take enter/store "
+                           "programs; give batch=False")
+    if unit.lookahead is not None:
+        two = unit.lookahead
+        if not unit.run.lookahead:
+            raise ProgramError(f"unit {unit.prefix}: run kind {unit.kind!r} takes no "
+                               "two-step map")
+        if ([p.name for p in two.inputs] != ["x", "z", LOOKAHEAD_NEXT]
+                or [p.name for p in two.outputs] != ["x_new"]):
+            raise ProgramError(f"unit {unit.prefix}: the two-step map must be (x, z, "
+                               f"{LOOKAHEAD_NEXT}) -> x_new")
     for name in ("step", "init", *EXTRA_PROGRAMS):
         if name not in unit.programs:
             continue
@@ -200,7 +289,7 @@ def _validate(unit: Unit) -> None:
                     f"unit {unit.prefix} ({unit.family}): program {name!r} must have {what} "
                     f"{names}, got {[p.name for p in have]}")
             for (port_name, shape), port in zip(want, have):
-                if shape is None and len(port.shape) != 1:
+                if shape is None and port_name in unit.step_inputs and len(port.shape) != 1:
                     raise ProgramError(f"unit {unit.prefix}: per-step input {port_name!r} must "
                                        f"be 1-D, got shape {port.shape}")
                 if shape is not None and port.shape != shape:
@@ -211,17 +300,26 @@ def _validate(unit: Unit) -> None:
 
 def run_arguments(unit: Unit) -> list[Argument]:
     """The array arguments of the run function, in C order (``steps`` comes first in C)."""
-    n = unit.n
+    sizes = {"n": unit.n, "m": unit.m}
+    docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
+            "xs": "estimate after each step",
+            "Ps": "covariance after each step (C: may be NULL)"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
-    if unit.kind != "fir":
-        args.append(Argument("x0", "x0", (n,), doc="initial state estimate"))
-    if unit.kind == "timevarying":
-        args.append(Argument("P0", "P0", (n, n), doc="initial covariance (symmetric)"))
-    args.append(Argument("xs", "xs", ("steps", n), output=True, doc="estimate after each step"))
-    if unit.kind == "timevarying":
-        args.append(Argument("Ps", "Ps", ("steps", n, n), output=True, optional=True,
-                             doc="covariance after each step (C: may be NULL)"))
+    args += [Argument(name, name, tuple(sizes[d] for d in dims), doc=docs.get(name, name))
+             for name, dims in unit.run.start]
+    args += [Argument(name, name, ("steps",) + tuple(sizes[d] for d in dims), output=True,
+                      optional=optional, doc=docs.get(name, f"{port} after each step"))
+             for name, port, dims, optional in unit.run.stores]
+    ports = {p.name: p.size for program in unit.programs.values()
+             for p in program.inputs + program.outputs}
+    for name, held in unit.run.work:
+        missing = [p for p in held if p not in ports]
+        if missing:
+            raise ProgramError(f"unit {unit.prefix}: run's work array {name!r} holds ports "
+                               f"{missing} that no program of the unit has")
+        args.append(Argument(name, name, ("steps", sum(ports[p] for p in held)), output=True,
+                             scratch=True, doc=f"C: scratch, per step {', '.join(held)}"))
     if unit.parameters:
         args.append(Argument(PARAMETER_PORT, PARAMETER_PORT, (len(unit.parameters),),
                              doc="free parameters: " + ", ".join(unit.parameters)))

@@ -1,67 +1,61 @@
-"""The filters derive can generate: a registry of names, families and applicability.
+"""The filters derive can generate: a registry built from the families' specs.
 
-Each filter is data (a :class:`FilterKind`) plus one derivation function in its own
-module, ``derive/filters/<module>.py``, with the signature
-``derive_unit(model, name, options) -> derive.emit.unit.Unit``; ``options`` are the
-filter's typed options (derive.options), validated before the derivation starts.
+Each family is one module, ``derive/filters/<family>.py``, holding ``SPECS`` (a tuple of
+:class:`~derive.filters.spec.FilterSpec`, one per filter it derives) beside its
+derivation ``derive_unit(model, spec, options) -> derive.emit.unit.Unit`` and its
+reference adapter; ``options`` are the filter's typed options (derive.options), validated
+before the derivation starts.  The registry finds the family modules by their ``SPECS``:
+adding a family adds a module here and nothing else.
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib
-from dataclasses import dataclass
+import pkgutil
 
-from .. import progress
+from .. import progress, system_checks
 from ..errors import FilterError, SteadyStateError
 from ..options import validate
+from .spec import FilterSpec
 
 
-@dataclass(frozen=True)
-class FilterKind:
-    name: str
-    title: str
-    model_kind: str  # "linear" or "nonlinear"
-    steady: bool  # needs the Riccati solution offline (numbers only, no free symbols)
-    module: str
+def _family_specs() -> list[FilterSpec]:
+    specs = []
+    for info in pkgutil.iter_modules(__path__):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        specs += getattr(module, "SPECS", ())
+    return sorted(specs, key=lambda s: (s.listing, s.name))
 
 
-FILTERS: dict[str, FilterKind] = {
-    f.name: f
-    for f in (
-        FilterKind("kf", "Kalman filter", "linear", False, "kf"),
-        FilterKind("lf", "Lainiotis filter", "linear", False, "lf"),
-        FilterKind("jklf", "join Kalman-Lainiotis filter", "linear", False, "jklf"),
-        FilterKind("ikf", "information-form Kalman filter (MDKF)", "linear", False, "ikf"),
-        FilterKind("sskf", "steady-state Kalman filter", "linear", True, "steady"),
-        FilterKind("sslf", "steady-state Lainiotis filter", "linear", True, "steady"),
-        FilterKind("jssklf", "join steady-state Kalman-Lainiotis filter", "linear", True,
-                   "steady"),
-        FilterKind("fir", "FIR steady-state filter", "linear", True, "fir"),
-        FilterKind("pred", "steady-state N-step prediction", "linear", True, "pred"),
-        FilterKind("ekf", "extended Kalman filter", "nonlinear", False, "ekf"),
-        FilterKind("ukf", "unscented Kalman filter", "nonlinear", False, "ukf"),
-    )
-}
+FILTERS: dict[str, FilterSpec] = {spec.name: spec for spec in _family_specs()}
+"""Every filter by name, in listing order."""
+
+MISSING_FILTERS = tuple(name for name, spec in FILTERS.items() if spec.missing)
+"""The filters that take the option ``missing``."""
+BATCH_FILTERS = tuple(name for name, spec in FILTERS.items() if spec.batch)
+"""The filters whose C may have ``MODEL_FILTER_run_tracks``."""
+
+
+def names(model_kind: str | None = None) -> list[str]:
+    """Filter names (of one model kind, when given), in listing order."""
+    return [name for name, spec in FILTERS.items()
+            if model_kind is None or spec.model_kind == model_kind]
 
 
 def why_not(model, name: str) -> str | None:
     """Why filter ``name`` does not apply to ``model`` (None when it does)."""
-    import numpy as np
-
-    f = kind(name)
-    if f.model_kind != model.kind:
-        return f"filter {name!r} needs a {f.model_kind} model; {model.name!r} is {model.kind}"
-    if f.steady and model.parameters:
+    spec = kind(name)
+    if spec.model_kind != model.kind:
+        return f"filter {name!r} needs a {spec.model_kind} model; {model.name!r} is {model.kind}"
+    if spec.steady and model.parameters:
         return (f"steady-state filter {name!r} needs every symbol to have a value; model "
                 f"{model.name!r} has free symbols {[p.name for p in model.parameters]}")
-    if name == "ikf" and not model.parameters:
-        W = np.array(model.matrix("GQGt").evalf(17).tolist(), dtype=float)
-        if np.linalg.eigvalsh(W).min() <= 1e-12 * max(1.0, np.abs(W).max()):
-            return (f"the information form needs G Q G^T positive definite (P(k+1/k) is "
-                    f"inverted); model {model.name!r} has a singular G Q G^T")
-    if f.steady:
-        from .. import system_checks
-
+    if spec.applies is not None:
+        reason = spec.applies(model)
+        if reason is not None:
+            return reason
+    if spec.steady:
         num = model.numeric()
         try:
             system_checks.check_steady_state(num.F, num.G, num.H, num.Q, num.R)
@@ -75,16 +69,18 @@ def available(model) -> list[str]:
     return [name for name in FILTERS if why_not(model, name) is None]
 
 
-def kind(name: str) -> FilterKind:
+def kind(name: str) -> FilterSpec:
+    """The spec of filter ``name`` (FilterError naming a close match when unknown)."""
     try:
         return FILTERS[name]
     except KeyError:
-        import difflib
-
         close = difflib.get_close_matches(name, list(FILTERS), n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise FilterError(f"unknown filter {name!r}{hint}; filters: {', '.join(FILTERS)}") \
             from None
+
+
+spec = kind
 
 
 def derive_unit(model, name: str, options=None):
@@ -98,8 +94,11 @@ def derive_unit(model, name: str, options=None):
     if reason is not None:
         raise (SteadyStateError if f.steady and f.model_kind == model.kind else
                FilterError)(reason)
-    mod = importlib.import_module(f"{__name__}.{f.module}")
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "
                         f"{model.m} measurements)...")
-    return mod.derive_unit(model, name, typed)
+    return f.derive(model, f, typed)
+
+
+__all__ = ["BATCH_FILTERS", "FILTERS", "MISSING_FILTERS", "FilterSpec", "available",
+           "derive_unit", "kind", "names", "spec", "why_not"]

@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import sympy
 
+from .. import reference as numpy_reference
 from .. import staging
 from .nonlinear import (
+    NOTE_C,
+    NOTE_PY,
     Linearisation,
     Predict,
     Update,
@@ -29,6 +32,8 @@ from .nonlinear import (
     state_mapping,
     step_inputs,
 )
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 def ekf_predict_stage(model) -> Predict:
@@ -70,15 +75,13 @@ def ekf_update_stage(model) -> Update:
     return update
 
 
-def derive_unit(model, name, options):
+def derive_unit(model, spec, options):
     """The EKF unit: programs step, predict, update1 (see the module docstring)."""
-    from .unit import make_unit
-
-    check_nonlinear(model, name)
+    check_nonlinear(model, spec.name)
     programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                          ekf_update_stage(model), options,
-                                         "extended Kalman filter")
-    unit = make_unit(model, name, programs, options, step_inputs=step_inputs(model))
+                                         spec.title)
+    unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
     return _with_facts(unit, ["Jacobians: sympy, entries simplified, evaluated with f and h "
                               "through shared subexpressions", *facts])
 
@@ -89,4 +92,24 @@ def _with_facts(unit, facts: list[str]):
     return replace(unit, facts=tuple(unit.facts) + tuple(facts))
 
 
-__all__ = ["Linearisation", "derive_unit", "ekf_predict_stage", "ekf_update_stage", "linearise"]
+def reference(model, data, options):
+    """derive.reference.ekf on ``data`` = (scenario, numeric functions): (xs, Ps); an
+    identity f is passed as None."""
+    scenario, fns = data
+    identity = list(model.subs(model.f)) == list(model.state_symbols)
+    f, F = (None, None) if identity else (fns["f"], fns["F"])
+    res = numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
+                              scenario.P0, scenario.zs, inputs=list(scenario.us),
+                              skip_nan=False)
+    return res.xs, res.Ps
+
+
+SPECS = (FilterSpec(
+    "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
+    extra_programs=("predict", "update1"), listing=100,
+    about={"python": "Run the extended Kalman filter: h linearised at each prediction."
+                     + NOTE_PY,
+           "c": "Run the extended Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
+
+__all__ = ["SPECS", "Linearisation", "derive_unit", "ekf_predict_stage", "ekf_update_stage",
+           "linearise"]

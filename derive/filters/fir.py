@@ -13,11 +13,14 @@ from __future__ import annotations
 import sympy
 
 from .. import horizon
+from .. import reference as numpy_reference
 from ..errors import OptionError, SteadyStateError
 from ..horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, FirOrderError, max_fir_order
 from ..options import DEFAULT_EPS, FirOptions
 from ..program import Port, Program
+from .spec import FilterSpec
 from .steady import exact, steady_gains
+from .unit import make_unit
 
 
 def _bound_words(model, bound: int) -> str:
@@ -49,20 +52,35 @@ def order(model, options: FirOptions) -> int:
             f"up to {bound}, or use sskf") from None
 
 
-def derive_unit(model, name, options: FirOptions):
-    from .unit import make_unit
-
+def derive_unit(model, spec, options: FirOptions):
     A, B = steady_gains(model, "sskf")
     N = order(model, options)
     taps = horizon.fir_taps(A, B, N)
     n, m = model.n, model.m
     prog = Program("step", [Port("zw", (N, m), doc="z(k), z(k-1), ..., z(k-N+1), row-major")],
-                   [Port("x_new", (n,), doc="x(k/k)")], doc=f"FIR steady-state filter, N = {N}")
+                   [Port("x_new", (n,), doc="x(k/k)")], doc=f"{spec.title}, N = {N}")
     # each output is built as one sum (adding term by term re-sorts the growing sum)
     prog.set_output("x_new", [sympy.Add(*(exact(taps[i, r, j]) * prog.element("zw", i, j)
                                           for i in range(N) for j in range(m)
                                           if taps[i, r, j] != 0))
                               for r in range(n)])
     constants = {"N": N} if options.order is not None else {"N": N, "eps": options.eps}
-    return make_unit(model, name, {"step": prog.optimize()}, options, window=N,
+    return make_unit(model, spec, {"step": prog.optimize()}, options, window=N,
                      constants=constants)
+
+
+def reference(model, zs, options):
+    """derive.reference.fir of the order the options give: (xs, None)."""
+    num = model.numeric()
+    return numpy_reference.fir(num.F, num.G, num.H, num.Q, num.R, zs,
+                               N=order(model, options)), None
+
+
+SPECS = (FilterSpec(
+    "fir", "steady-state FIR filter", "linear", "windowed", derive_unit, reference,
+    options=FirOptions, steady=True, listing=80,
+    about={"python": "Run the steady-state FIR filter: each estimate from the last {window} "
+                     "measurements."
+                     "\n\n    Measurements before the first are taken as zero.",
+           "c": "Run the steady-state FIR filter: each estimate from the last {window} "
+                "measurements, newest first; measurements before the first are zero."}),)

@@ -13,8 +13,10 @@ step.
 
 from __future__ import annotations
 
+import numpy as np
 import sympy
 
+from .. import reference as numpy_reference
 from .. import staging
 from ..lowering import IfPresent
 from .common import (
@@ -25,6 +27,8 @@ from .common import (
     with_fact,
 )
 from .kf import time_varying_program
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 def _is_diagonal(M: sympy.Matrix) -> bool:
@@ -59,15 +63,36 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
     return x_new, P_new
 
 
-def derive_unit(model, name, options):
-    from .unit import make_unit
-
+def derive_unit(model, spec, options):
     missing = options.missing
 
     def update(prog, mats, x, P, z):
         return ikf_update(prog, mats, x, P, z, missing=missing)
 
-    step = time_varying_program(model, update, "information-form Kalman filter",
-                                options.P0_pattern)
-    unit = make_unit(model, name, {"step": step}, options)
+    step = time_varying_program(model, update, spec.title, options.P0_pattern)
+    unit = make_unit(model, spec, {"step": step}, options)
     return with_fact(unit, MISSING_FACT) if missing else unit
+
+
+def reference(model, zs, options):
+    """derive.reference.ikf from the model's x0 and P0: (xs, Ps)."""
+    num = model.numeric()
+    return numpy_reference.ikf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
+
+
+def applies(model) -> str | None:
+    """The information form inverts P(k+1/k): G Q G^T must be positive definite."""
+    if model.parameters:
+        return None
+    W = np.array(model.matrix("GQGt").evalf(17).tolist(), dtype=float)
+    if np.linalg.eigvalsh(W).min() <= 1e-12 * max(1.0, np.abs(W).max()):
+        return (f"the information form needs G Q G^T positive definite (P(k+1/k) is "
+                f"inverted); model {model.name!r} has a singular G Q G^T")
+    return None
+
+
+SPECS = (FilterSpec(
+    "ikf", "information-form Kalman filter", "linear", "timevarying", derive_unit, reference,
+    missing=True, batch=True, applies=applies, listing=40,
+    about={"python": "Run the information-form Kalman filter.",
+           "c": "Run the information-form Kalman filter over steps steps; Ps may be NULL."}),)

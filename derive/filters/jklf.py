@@ -1,4 +1,4 @@
-"""The join Kalman-Lainiotis filter (SPEC §3): KF and LF from the same (x, P), averaged.
+"""The joint Kalman-Lainiotis filter (SPEC §3): KF and LF from the same (x, P), averaged.
 
 Both filters start each step from the joined estimate, so the state stays the
 filter's interface (x, P); KF and LF are equal in exact arithmetic, so this is
@@ -8,10 +8,13 @@ measurements to both (see :mod:`derive.filters.kf` and :mod:`derive.filters.lf`)
 
 from __future__ import annotations
 
+from .. import reference as numpy_reference
 from .. import staging
 from .common import MISSING_FACT, with_fact
 from .kf import kf_update, time_varying_program
 from .lf import lf_update
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 def jklf_update(prog, mats, x, P, z, missing: bool = False):
@@ -23,15 +26,26 @@ def jklf_update(prog, mats, x, P, z, missing: bool = False):
     return x_new, P_new
 
 
-def derive_unit(model, name, options):
-    from .unit import make_unit
-
+def derive_unit(model, spec, options):
     missing = options.missing
 
     def update(prog, mats, x, P, z):
         return jklf_update(prog, mats, x, P, z, missing=missing)
 
-    step = time_varying_program(model, update, "join Kalman-Lainiotis filter",
-                                options.P0_pattern)
-    unit = make_unit(model, name, {"step": step}, options)
+    step = time_varying_program(model, update, spec.title, options.P0_pattern)
+    unit = make_unit(model, spec, {"step": step}, options)
     return with_fact(unit, MISSING_FACT) if missing else unit
+
+
+def reference(model, zs, options):
+    """derive.reference.jklf from the model's x0 and P0: (xs, Ps)."""
+    num = model.numeric()
+    return numpy_reference.jklf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
+
+
+SPECS = (FilterSpec(
+    "jklf", "joint Kalman-Lainiotis filter", "linear", "timevarying", derive_unit, reference,
+    missing=True, batch=True, listing=30,
+    about={"python": "Run the joint Kalman-Lainiotis filter: the mean of the KF and LF "
+                     "estimates.",
+           "c": "Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL."}),)

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import sympy
 
+from .. import reference as numpy_reference
 from .. import staging
+from ..options import KalmanOptions
 from ..program import Program
 from . import pattern as pat
 from .common import (
@@ -30,6 +32,8 @@ from .common import (
     time_varying_ports,
     with_fact,
 )
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 def prior(prog: Program, F, W, H, R, x, P):
@@ -101,16 +105,28 @@ def time_varying_program(model, update, title: str, P0_pattern: str | None) -> P
     return prog.optimize()
 
 
-def derive_unit(model, name, options):
-    from .unit import make_unit
-
+def derive_unit(model, spec, options):
     joseph, missing = options.joseph, options.missing
 
     def update(prog, mats, x, P, z):
         return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing)
 
-    step = time_varying_program(model, update, "Kalman filter", options.P0_pattern)
-    unit = make_unit(model, name, {"step": step}, options)
+    step = time_varying_program(model, update, spec.title, options.P0_pattern)
+    unit = make_unit(model, spec, {"step": step}, options)
     if joseph:
         unit = with_fact(unit, JOSEPH_FACT)
     return with_fact(unit, MISSING_FACT) if missing else unit
+
+
+def reference(model, zs, options):
+    """derive.reference.kf from the model's x0 and P0: (xs, Ps)."""
+    num = model.numeric()
+    return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
+
+
+SPECS = (FilterSpec(
+    "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
+    options=KalmanOptions, missing=True, batch=True, listing=10,
+    about={"python": "Run the Kalman filter: predict with F, then update with the gain "
+                     "K = P H^T S^-1.",
+           "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

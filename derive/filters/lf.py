@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import sympy
 
+from .. import reference as numpy_reference
 from .. import staging
 from ..program import Program
 from .common import (
@@ -27,6 +28,8 @@ from .common import (
     with_fact,
 )
 from .kf import time_varying_program
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 def lf_constants(prog: Program, mats, z=None):
@@ -69,14 +72,26 @@ def lf_update(prog: Program, mats, x, P, z, missing: bool = False):
     return x_new, P_new
 
 
-def derive_unit(model, name, options):
-    from .unit import make_unit
-
+def derive_unit(model, spec, options):
     missing = options.missing
 
     def update(prog, mats, x, P, z):
         return lf_update(prog, mats, x, P, z, missing=missing)
 
-    step = time_varying_program(model, update, "Lainiotis filter", options.P0_pattern)
-    unit = make_unit(model, name, {"step": step}, options)
+    step = time_varying_program(model, update, spec.title, options.P0_pattern)
+    unit = make_unit(model, spec, {"step": step}, options)
     return with_fact(unit, MISSING_FACT) if missing else unit
+
+
+def reference(model, zs, options):
+    """derive.reference.lf from the model's x0 and P0: (xs, Ps)."""
+    num = model.numeric()
+    return numpy_reference.lf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
+
+
+SPECS = (FilterSpec(
+    "lf", "Lainiotis filter", "linear", "timevarying", derive_unit, reference,
+    missing=True, batch=True, listing=20,
+    about={"python": "Run the Lainiotis filter: the partitioned update with constants "
+                     "precomputed offline.",
+           "c": "Run the Lainiotis filter over steps steps; Ps may be NULL."}),)

@@ -31,6 +31,12 @@ from .common import masked_covariance, parameter_port
 
 # -- the Jacobians -----------------------------------------------------------------------
 
+#: The run function's note for filters with predict and update1, per language.
+NOTE_PY = ("\n\n    For a varying number of measurements per step, call predict, then update1"
+           "\n    once per measurement.")
+NOTE_C = ("\n * For a varying number of measurements per step, call predict, then update1"
+          "\n * once per measurement.")
+
 
 @dataclass(frozen=True)
 class Linearisation:

@@ -11,14 +11,15 @@ import numpy as np
 import sympy
 
 from .. import horizon, riccati
+from .. import reference as numpy_reference
 from ..options import PredictionOptions
 from ..program import Port, Program
-from .steady import affine_program, baked
+from .spec import FilterSpec
+from .steady import affine_program, baked, two_step_program
+from .unit import make_unit
 
 
-def derive_unit(model, name, options: PredictionOptions):
-    from .unit import make_unit
-
+def derive_unit(model, spec, options: PredictionOptions):
     N = options.horizon
     num = model.numeric()
     ss = riccati.kf_steady(num.F, num.G, num.H, num.Q, num.R)
@@ -30,5 +31,22 @@ def derive_unit(model, name, options: PredictionOptions):
                    [Port("x_new", (n,), doc=f"x({N}/0) = F^{N} x(0/0)")], doc="start of the run")
     FN = np.linalg.matrix_power(num.F, N)
     init.set_output("x_new", [sympy.expand(e) for e in baked(FN) * init.matrix("x0")])
-    return make_unit(model, name, {"step": step, "init": init.optimize()}, options,
-                     horizon=N, constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})
+    return make_unit(model, spec, {"step": step, "init": init.optimize()}, options,
+                     horizon=N, lookahead=two_step_program(n, m, pc.A_N, pc.B_N),
+                     constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})
+
+
+def reference(model, zs, options):
+    """derive.reference.pred over the options' horizon from the model's x0: (xs, None)."""
+    num = model.numeric()
+    return numpy_reference.pred(num.F, num.G, num.H, num.Q, num.R, num.x0, zs,
+                                options.horizon), None
+
+
+SPECS = (FilterSpec(
+    "pred", "steady-state N-step predictor", "linear", "predictor", derive_unit, reference,
+    options=PredictionOptions, steady=True, listing=90,
+    about={"python": "Run the predictor from x(N/0) = init(x0): row k is the prediction "
+                     "after z[k].",
+           "c": "Run the predictor from x(N/0) = init(x0): row k of xs is the prediction "
+                "after z[k]."}),)

@@ -9,11 +9,17 @@ the SSKF's.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import sympy
 
+from .. import reference as numpy_reference
 from .. import riccati
+from ..emit.unit import LOOKAHEAD_NEXT
 from ..program import Port, Program
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 def exact(value: float) -> sympy.Rational:
@@ -52,14 +58,50 @@ def affine_program(n: int, m: int, A, B, doc: str, out_doc: str, in_doc: str) ->
     return prog.optimize()
 
 
-def derive_unit(model, name, options):
-    from .unit import make_unit
+def two_step_program(n: int, m: int, A, B) -> Program:
+    """The two-step map of ``x_new = A x + B z``: x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)
+    from ports ``x``, ``z`` (row k) and the next row, with the products of the exact
+    baked doubles taken exactly (rounded once when printed); derive.emit.lookahead."""
+    A, B = baked(A), baked(B)
+    prog = Program("step2", [Port("x", (n,), doc="x(k)"), Port("z", (m,), doc="z(k)"),
+                             Port(LOOKAHEAD_NEXT, (m,), doc="z(k+1)")],
+                   [Port("x_new", (n,), doc="x(k+2)")],
+                   doc="x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)")
+    x, z, zn = prog.matrix("x"), prog.matrix("z"), prog.matrix(LOOKAHEAD_NEXT)
+    two = (A * A) * x + (A * B) * z + B * zn
+    prog.set_output("x_new", [sympy.expand(e) for e in two])
+    return prog.optimize()
 
-    A, B = steady_gains(model, name)
-    step = affine_program(model.n, model.m, A, B, f"one step of the {name.upper()}",
+
+def derive_unit(model, spec, options):
+    A, B = steady_gains(model, spec.name)
+    step = affine_program(model.n, model.m, A, B, f"one step of the {spec.name.upper()}",
                           "x(k+1/k+1)", "x(k/k)")
-    return make_unit(model, name, {"step": step}, options,
-                     constants={"A": A, "B": B})
+    return make_unit(model, spec, {"step": step}, options, constants={"A": A, "B": B},
+                     lookahead=two_step_program(model.n, model.m, A, B))
 
 
-__all__ = ["affine_program", "baked", "derive_unit", "exact", "steady_gains"]
+def reference(model, zs, options, name: str):
+    """derive.reference.``name`` (sskf, sslf, jssklf) from the model's x0: (xs, None)."""
+    num = model.numeric()
+    run = getattr(numpy_reference, name)
+    return run(num.F, num.G, num.H, num.Q, num.R, num.x0, zs), None
+
+
+def _spec(name: str, title: str, about: str, listing: int) -> FilterSpec:
+    return FilterSpec(
+        name, title, "linear", "steady", derive_unit, partial(reference, name=name),
+        steady=True, batch=True, listing=listing,
+        about={"python": f"Run the {title}: {about}.",
+               "c": f"Run the {title} over steps steps."})
+
+
+SPECS = (
+    _spec("sskf", "steady-state Kalman filter", "x = A x + B z with constant A, B", 50),
+    _spec("sslf", "steady-state Lainiotis filter", "x = A x + B z with constant A, B", 60),
+    _spec("jssklf", "joint steady-state Kalman-Lainiotis filter", "the mean of SSKF and SSLF",
+          70),
+)
+
+__all__ = ["SPECS", "affine_program", "baked", "derive_unit", "exact", "steady_gains",
+           "two_step_program"]

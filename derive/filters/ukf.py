@@ -28,10 +28,13 @@ from dataclasses import dataclass, replace
 
 import sympy
 
+from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
 from .nonlinear import (
+    NOTE_C,
+    NOTE_PY,
     check_nonlinear,
     linearise,
     nonlinear_programs,
@@ -40,6 +43,8 @@ from .nonlinear import (
     state_mapping,
     step_inputs,
 )
+from .spec import FilterSpec
+from .unit import make_unit
 
 
 @dataclass(frozen=True)
@@ -203,16 +208,14 @@ def ukf_update_stage(model, w: Weights):
     return update
 
 
-def derive_unit(model, name, options):
+def derive_unit(model, spec, options):
     """The UKF unit: programs step, predict, update1 (see the module docstring)."""
-    from .unit import make_unit
-
-    check_nonlinear(model, name)
+    check_nonlinear(model, spec.name)
     w = weights(model.n, options)
     programs, facts = nonlinear_programs(model, ukf_predict_stage(model, w),
                                          ukf_update_stage(model, w), options,
-                                         "unscented Kalman filter")
-    unit = make_unit(model, name, programs, options, step_inputs=step_inputs(model))
+                                         spec.title)
+    unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
     predict = ("predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q"
                if _is_affine(model) else "predict: sigma points of (x, P) through f")
     return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict, *facts),
@@ -220,5 +223,23 @@ def derive_unit(model, name, options):
                             "kappa": float(w.kappa)})
 
 
-__all__ = ["Weights", "derive_unit", "sigma_offsets", "sigma_points", "ukf_predict_stage",
+def reference(model, data, options):
+    """derive.reference.ukf on ``data`` = (scenario, numeric functions) with the options'
+    alpha, beta, kappa: (xs, Ps); an identity f is passed as None."""
+    scenario, fns = data
+    identity = list(model.subs(model.f)) == list(model.state_symbols)
+    res = numpy_reference.ukf(None if identity else fns["f"], fns["h"], fns["Q"], fns["R"],
+                              scenario.x0, scenario.P0, scenario.zs, alpha=options.alpha,
+                              beta=options.beta, kappa=options.kappa,
+                              inputs=list(scenario.us), skip_nan=False)
+    return res.xs, res.Ps
+
+
+SPECS = (FilterSpec(
+    "ukf", "unscented Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
+    options=UnscentedOptions, extra_programs=("predict", "update1"), listing=110,
+    about={"python": "Run the unscented Kalman filter: sigma points through h." + NOTE_PY,
+           "c": "Run the unscented Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
+
+__all__ = ["SPECS", "Weights", "derive_unit", "sigma_offsets", "sigma_points", "ukf_predict_stage",
            "ukf_update_stage", "weights"]

@@ -12,6 +12,7 @@ from ..emit.unit import Unit
 from ..options import SharedOptions
 from ..program import ZERO, Check
 from .common import pattern_text
+from .spec import FilterSpec
 
 
 def _fmt(value) -> str:
@@ -38,11 +39,16 @@ def accepted_P0(step) -> str:
             "(x may be non-zero; upper triangle read and checked; others are refused)")
 
 
-def make_unit(model, name: str, programs: dict, options: SharedOptions,
+def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
               constants: dict | None = None, step_inputs: tuple[str, ...] = ("z",),
-              window: int | None = None, horizon: int | None = None) -> Unit:
-    """The Unit for ``model`` and filter ``name`` with its validated ``options``;
-    ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N."""
+              window: int | None = None, horizon: int | None = None,
+              lookahead=None) -> Unit:
+    """The Unit for ``model`` and the filter of ``spec`` with its validated ``options``;
+    ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N;
+    ``lookahead``: the two-step map of an affine step (derive.emit.lookahead).
+
+    The spec gives the unit its title, run-loop kind, run descriptions and whether the
+    batch function applies; the run kind its carried state."""
     facts = []
     if model.kind == "linear" and any(p.name == "P" for p in programs["step"].inputs):
         facts.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
@@ -59,12 +65,11 @@ def make_unit(model, name: str, programs: dict, options: SharedOptions,
         unit_options["window"] = window
     if horizon is not None:
         unit_options["horizon"] = horizon
-    if not options.run_tracks:
-        unit_options["run_tracks"] = False
     return Unit(
         model=model.name,
-        filter=name,
-        family=name,
+        filter=spec.name,
+        **spec.unit_fields(window=window, run_tracks=options.run_tracks),
+        lookahead=lookahead,
         n=model.n,
         m=model.m,
         programs=programs,

@@ -17,6 +17,7 @@
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * N = 43
  * eps = 1e-06
+ * derive-interface: {"functions":[["ca_fir_step","step",false,false,[["zw",[43,1],false,false,false],["x_new",[3],true,false,false]]],["ca_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -41,7 +42,7 @@ void ca_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[2] = t2;
 }
 
-/* Run the FIR filter: each estimate from the last 43 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 43 measurements, newest first; measurements before the first are zero. */
 void ca_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[43];

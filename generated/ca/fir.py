@@ -37,7 +37,7 @@ def _require_shape(name, array, shape, text):
 
 
 def step(zw):
-    """FIR steady-state filter, N = 43
+    """steady-state FIR filter, N = 43
 
     Arguments (flat, row-major sequences; elements may be NumPy arrays):
         zw [43x1]: z(k), z(k-1), ..., z(k-N+1), row-major
@@ -52,7 +52,7 @@ def step(zw):
 
 
 def run(zs):
-    """Run the FIR filter: each estimate from the last 43 measurements.
+    """Run the steady-state FIR filter: each estimate from the last 43 measurements.
 
     Measurements before the first are taken as zero.
 

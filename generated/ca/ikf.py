@@ -146,7 +146,7 @@ def step(x, P, z):
 
 
 def run(zs, x0, P0):
-    """Run the Information-form Kalman filter.
+    """Run the information-form Kalman filter.
 
     Arrays may carry trailing track axes (many tracks at once); every array is
     float64.

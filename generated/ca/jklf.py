@@ -55,7 +55,7 @@ def _require_shape(name, array, shape, text):
 
 
 def step(x, P, z):
-    """one step of the join Kalman-Lainiotis filter
+    """one step of the joint Kalman-Lainiotis filter
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [3]: x(k/k)
@@ -212,7 +212,7 @@ def step(x, P, z):
 
 
 def run(zs, x0, P0):
-    """Run the Joint Kalman-Lainiotis filter: the mean of the KF and LF estimates.
+    """Run the joint Kalman-Lainiotis filter: the mean of the KF and LF estimates.
 
     Arrays may carry trailing track axes (many tracks at once); every array is
     float64.

@@ -17,6 +17,7 @@
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * N = 37
  * eps = 1e-06
+ * derive-interface: {"functions":[["cv_fir_step","step",false,false,[["zw",[37,1],false,false,false],["x_new",[2],true,false,false]]],["cv_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -39,7 +40,7 @@ void cv_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[1] = t1;
 }
 
-/* Run the FIR filter: each estimate from the last 37 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 37 measurements, newest first; measurements before the first are zero. */
 void cv_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[37];

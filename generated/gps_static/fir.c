@@ -16,6 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 129, neg 0, cmp 0, calls 0 (flops 261, instructions 132)
  * N = 44
  * eps = 1e-06
+ * derive-interface: {"functions":[["gps_static_fir_step","step",false,false,[["zw",[44,3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_fir_run","run",false,true,[["z",["steps",3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -40,7 +41,7 @@ void gps_static_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[2] = t2;
 }
 
-/* Run the FIR filter: each estimate from the last 44 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 44 measurements, newest first; measurements before the first are zero. */
 void gps_static_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[132];

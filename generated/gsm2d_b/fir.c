@@ -16,6 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 64, neg 0, cmp 0, calls 0 (flops 130, instructions 66)
  * N = 33
  * eps = 1e-06
+ * derive-interface: {"functions":[["gsm2d_b_fir_step","step",false,false,[["zw",[33,1],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -38,7 +39,7 @@ void gsm2d_b_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[1] = t1;
 }
 
-/* Run the FIR filter: each estimate from the last 33 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 33 measurements, newest first; measurements before the first are zero. */
 void gsm2d_b_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[33];

@@ -16,6 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 192, neg 0, cmp 0, calls 0 (flops 390, instructions 198)
  * N = 33
  * eps = 1e-06
+ * derive-interface: {"functions":[["mpt3d_a_fir_step","step",false,false,[["zw",[33,3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_fir_run","run",false,true,[["z",["steps",3],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -46,7 +47,7 @@ void mpt3d_a_fir_step(const double *restrict zw, double *restrict x_new)
     x_new[5] = t5;
 }
 
-/* Run the FIR filter: each estimate from the last 33 measurements, newest first; measurements before the first are zero. */
+/* Run the steady-state FIR filter: each estimate from the last 33 measurements, newest first; measurements before the first are zero. */
 void mpt3d_a_fir_run(size_t steps, const double *z, double *xs)
 {
     double zw[99];

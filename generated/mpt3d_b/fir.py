@@ -36,7 +36,7 @@ def _require_shape(name, array, shape, text):
 
 
 def step(zw):
-    """FIR steady-state filter, N = 33
+    """steady-state FIR filter, N = 33
 
     Arguments (flat, row-major sequences; elements may be NumPy arrays):
         zw [33x1]: z(k), z(k-1), ..., z(k-N+1), row-major
@@ -50,7 +50,7 @@ def step(zw):
 
 
 def run(zs):
-    """Run the FIR filter: each estimate from the last 33 measurements.
+    """Run the steady-state FIR filter: each estimate from the last 33 measurements.
 
     Measurements before the first are taken as zero.
 

@@ -1,0 +1,70 @@
+"""What a filter family declares beside its derivation: :class:`FilterSpec`.
+
+Each ``derive/filters/<family>.py`` holds ``SPECS``, a tuple of the filters it derives
+(one spec per filter name), next to ``derive_unit`` and its reference adapter; the
+registry (:mod:`derive.filters`) is built from those tuples and nothing outside
+``derive/filters/`` names a filter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+from ..emit.unit import LANGUAGES
+from ..options import SharedOptions
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """One filter: its names, what it needs, how it runs, and where its code comes from.
+
+    ``run_kind``: the run loop (a key of :data:`derive.emit.kinds.RUN_KINDS`).
+    ``steady``: needs the Riccati solution offline (numbers only, no free symbols).
+    ``missing``: takes the option ``missing`` (NaN-marked absent measurements).
+    ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``).
+    ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
+    ``derive``: ``derive(model, name, options) -> Unit``.
+    ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
+    the model kind and, for a steady filter, free symbols and the Riccati conditions).
+    ``reference``: ``reference(model, data, options) -> (xs, Ps or None)``, the NumPy
+    reference on ``data`` (derive.verify: measurements, or a nonlinear scenario).
+    ``about``: the run function's one-line description per language (``{window}`` is
+    replaced by the FIR window).
+    ``listing``: position in listings (``derive list``, "all that apply").
+    """
+
+    name: str
+    title: str
+    model_kind: str
+    run_kind: str
+    derive: Callable
+    reference: Callable
+    options: type[SharedOptions] = SharedOptions
+    steady: bool = False
+    missing: bool = False
+    batch: bool = False
+    extra_programs: tuple[str, ...] = ()
+    applies: Callable | None = None
+    about: Mapping[str, str] = field(default_factory=dict)
+    listing: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "about", MappingProxyType(dict(self.about)))
+        object.__setattr__(self, "extra_programs", tuple(self.extra_programs))
+
+    def run_about(self, lang: str) -> str:
+        """The run function's description in ``lang`` (the title's when none is given)."""
+        return self.about.get(lang, f"Run the {self.title}.")
+
+    def unit_fields(self, window: int | None = None, run_tracks: bool = True) -> dict:
+        """The fields of a :class:`~derive.emit.unit.Unit` this spec decides: family,
+        title, run kind, run descriptions, batch function, extra programs."""
+        return {"family": self.name, "title": self.title, "run_kind": self.run_kind,
+                "about": {lang: self.run_about(lang).format(window=window)
+                          for lang in LANGUAGES},
+                "batch": self.batch and run_tracks, "extra_programs": self.extra_programs}
+
+
+__all__ = ["FilterSpec"]
