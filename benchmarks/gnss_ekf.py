@@ -14,10 +14,10 @@ import tempfile
 import time
 
 from derive import catalog
+from derive.apps.simulate import gnss_scenario, pseudorange, pseudorange_jacobian
 from derive.filters import derive_unit
 from derive.flops import count
 from derive.pipeline import load_units
-from derive.simulate import gnss_scenario, pseudorange, pseudorange_jacobian
 
 
 def best_of(fn, repeat: int = 5) -> float:

@@ -58,7 +58,7 @@ class _Version(argparse.Action):
     parser stays fast to build)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from .report.provenance import version_text
+        from .apps.report.provenance import version_text
 
         sys.stdout.write(version_text() + "\n")
         parser.exit(0)

@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from derive import audit, catalog, formulas, riccati
+from derive import catalog, riccati
+from derive.apps import audit, formulas
 from derive.cli import main
 from derive.errors import ModelError
 from derive.flops import count

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from derive import cli
-from derive.bench import batch, probe, timing
-from derive.bench.bound import case_bound
-from derive.bench.cases import CASES, Case, Skip, make_data, states
-from derive.bench.run import (
+from derive.apps.bench import batch, probe, timing
+from derive.apps.bench.bound import case_bound
+from derive.apps.bench.cases import CASES, Case, Skip, make_data, states
+from derive.apps.bench.run import (
     IMPLEMENTATIONS,
     Bar,
     BenchResult,
@@ -69,7 +69,7 @@ def test_peers_without_the_filter_are_skipped_with_a_reason(result):
 
 
 def test_missing_peer_is_skipped_not_faked(monkeypatch, tmp_path):
-    from derive.bench import peers
+    from derive.apps.bench import peers
 
     monkeypatch.setitem(sys.modules, "pykalman", None)   # import raises ImportError
     data = make_data(Case("kf", "mpt3d_b"), 10)
@@ -150,7 +150,7 @@ def test_states_joins_copies():
 
 
 def test_bench_command_prints_the_table(monkeypatch, capsys):
-    monkeypatch.setattr("derive.bench.run.Settings.quick", classmethod(lambda cls: TINY))
+    monkeypatch.setattr("derive.apps.bench.run.Settings.quick", classmethod(lambda cls: TINY))
     assert cli.main(["bench", "--quick", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert {r["case"] for r in data["rows"]} == {c.label for c in CASES}

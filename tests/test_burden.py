@@ -4,7 +4,8 @@ import json
 
 import pytest
 
-from derive import catalog, formulas, paper
+from derive import catalog
+from derive.apps import formulas, paper
 from derive.cli import main
 from derive.commands.burden import KINDS
 from derive.filters import derive_unit
@@ -79,9 +80,9 @@ def test_burden_rejects_an_unknown_filter(capsys):
 
 def test_chains_are_the_run_loops_carried_bound(capsys):
     """The chain section: each filter's C run loop (the two-step pass for a steady-state
-    filter) through derive.latency, in the reference cycles."""
+    filter) through derive.apps.latency, in the reference cycles."""
+    from derive.apps.latency import REFERENCE_CYCLES, carried_bound
     from derive.emit.lookahead import run_pass
-    from derive.latency import REFERENCE_CYCLES, carried_bound
     from derive.lowering import lower_program
 
     data = _json(capsys, "mpt3d_b", "--filter", "kf", "--filter", "sskf", "--filter", "fir")

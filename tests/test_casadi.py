@@ -1,5 +1,5 @@
 """derive's sympy Jacobians (derive.filters.ekf.linearise) against CasADi's automatic
-differentiation of the same expressions (derive.casadi_bridge)."""
+differentiation of the same expressions (derive.apps.casadi_bridge)."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ import sympy
 pytest.importorskip("casadi")
 
 from derive import NonlinearModel, catalog  # noqa: E402
-from derive.casadi_bridge import (  # noqa: E402
+from derive.apps.casadi_bridge import (  # noqa: E402
     CasadiTranslationError,
     casadi_function,
     check_jacobians,

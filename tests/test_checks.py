@@ -3,7 +3,7 @@
 import sympy
 
 from derive import LinearModel, catalog
-from derive.checks import run_checks
+from derive.apps.checks import run_checks
 
 
 def test_mpt3d_a_claims_all_hold_including_the_three_axes():

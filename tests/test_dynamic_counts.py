@@ -10,7 +10,8 @@ static C count too.
 import numpy as np
 import pytest
 
-from derive import catalog, paper
+from derive import catalog
+from derive.apps import paper
 from derive.filters import available, derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter

@@ -1,5 +1,5 @@
 """Generated EKF and UKF (derive.filters.ekf, .ukf): against the NumPy reference, FilterPy
-and the scalar-update stand-ins of derive.gnss; Cholesky failures; exact op counts."""
+and the scalar-update stand-ins of derive.apps.gnss; Cholesky failures; exact op counts."""
 
 import numpy as np
 import pytest
@@ -9,21 +9,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import NonlinearModel, catalog
-from derive.emit.render import render_files, render_unit
-from derive.emit.unit import Unit
-from derive.errors import FilterError, NumericalError
-from derive.filters import derive_unit
-from derive.filters.nonlinear import scalar_measurement
-from derive.flops import OpCounter, count, count_c_function
-from derive.generation import render_filter
-from derive.gnss import ScalarEkf, ScalarUkf, drive
-from derive.gnss.generated import generated_filters
-from derive.gnss.measurements import Epoch
-from derive.gnss.run import FilterSettings, numpy_filters
-from derive.pipeline import load_units
-from derive.program import ProgramError
-from derive.simulate import gnss_scenario
-from derive.verify import (
+from derive.apps.gnss import ScalarEkf, ScalarUkf, drive
+from derive.apps.gnss.generated import generated_filters
+from derive.apps.gnss.measurements import Epoch
+from derive.apps.gnss.run import FilterSettings, numpy_filters
+from derive.apps.simulate import gnss_scenario
+from derive.apps.verify import (
     FLOOR_MARGIN,
     NONLINEAR_TOLERANCE,
     generated_run,
@@ -33,6 +24,15 @@ from derive.verify import (
     rounding_floor,
     verify_filter,
 )
+from derive.emit.render import render_files, render_unit
+from derive.emit.unit import Unit
+from derive.errors import FilterError, NumericalError
+from derive.filters import derive_unit
+from derive.filters.nonlinear import scalar_measurement
+from derive.flops import OpCounter, count, count_c_function
+from derive.generation import render_filter
+from derive.pipeline import load_units
+from derive.program import ProgramError
 
 GNSS = catalog.load("gnss_pseudorange")
 STEPS = 500
@@ -80,7 +80,7 @@ def test_generated_equals_reference_over_500_steps(generated, scenario, name, la
         assert floor < 1e-13
         assert relative_error(Ps, Ps_ref) <= NONLINEAR_TOLERANCE
     else:
-        # one rounding of h moves the reference's P by ~3e-10 (see derive.verify)
+        # one rounding of h moves the reference's P by ~3e-10 (see derive.apps.verify)
         assert 1e-11 < floor < 1e-9
         assert relative_error(Ps, Ps_ref) <= FLOOR_MARGIN * floor
     # the filter converges: about 1 m after 500 s from a 10 m start
@@ -291,7 +291,7 @@ def test_scalar_measurement_needs_interchangeable_rows():
     assert scalar_measurement(model) == (None, "measurement 'D2' is not 'D1' of its own inputs")
 
 
-# -- sequential scalar updates against derive.gnss.scalar_updates ---------------------------
+# -- sequential scalar updates against derive.apps.gnss.scalar_updates ---------------------------
 
 
 def _catalog_pairs(generated, lang):
@@ -347,7 +347,7 @@ def test_sequential_updates_equal_the_numpy_stand_ins(generated, lang):
 
 @pytest.fixture(scope="module")
 def parametrised():
-    """derive.gnss.generated: Q and σ as runtime parameters, both languages."""
+    """derive.apps.gnss.generated: Q and σ as runtime parameters, both languages."""
     s = FilterSettings(sigma=4.0, q_position=1e-4, q_clock=0.5)
     return s, {lang: generated_filters(s, lang) for lang in ("python", "c")}
 

@@ -1,4 +1,4 @@
-"""derive.gnss on real data: the MARE station's GPS C1C pseudoranges shipped by
+"""derive.apps.gnss on real data: the MARE station's GPS C1C pseudoranges shipped by
 gnss-benchmark 2.3.0 (skipped when it is not installed), on short slices.
 
 Independent numbers: georinex's parse of the same RINEX files, CODE's precise orbits and
@@ -11,25 +11,25 @@ import pytest
 
 pytest.importorskip("gnss_benchmark")
 
-from derive.gnss import CorrectionOptions, FilterSettings, prepare_epoch, run_real  # noqa: E402
-from derive.gnss.command import main  # noqa: E402
-from derive.gnss.constants import SPEED_OF_LIGHT  # noqa: E402
-from derive.gnss.data import (  # noqa: E402
+from derive.apps.gnss import CorrectionOptions, FilterSettings, prepare_epoch, run_real  # noqa: E402
+from derive.apps.gnss.command import main  # noqa: E402
+from derive.apps.gnss.constants import SPEED_OF_LIGHT  # noqa: E402
+from derive.apps.gnss.data import (  # noqa: E402
     NAVIGATION_FILE,
     OBSERVATION_FILE,
     PRECISE_ORBIT_FILE,
     dataset_file,
     load_real_data,
 )
-from derive.gnss.ephemeris import (  # noqa: E402
+from derive.apps.gnss.ephemeris import (  # noqa: E402
     clock_polynomial,
     relativistic_clock,
     satellite_position,
     select_ephemeris,
 )
-from derive.gnss.errors import GnssDataError  # noqa: E402
-from derive.gnss.measurements import bootstrap_fix  # noqa: E402
-from derive.gnss.sp3 import read_sp3  # noqa: E402
+from derive.apps.gnss.errors import GnssDataError  # noqa: E402
+from derive.apps.gnss.measurements import bootstrap_fix  # noqa: E402
+from derive.apps.gnss.sp3 import read_sp3  # noqa: E402
 
 SLICE = 120
 
@@ -151,7 +151,7 @@ def test_a_setting_satellite_changes_the_count():
 def test_plain_numpy_callables_drive_like_the_filters(data, result):
     """Any (predict, update1) pair with the generated signatures: here bare functions
     returning (X, P) only."""
-    from derive.gnss.scalar_updates import ekf_predict, ekf_update1
+    from derive.apps.gnss.scalar_updates import ekf_predict, ekf_update1
 
     s = FilterSettings()
     filters = {"mine": (lambda x, P: ekf_predict(x, P, s.Q),

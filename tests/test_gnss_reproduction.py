@@ -1,12 +1,12 @@
-"""The simulated reproduction of the GNSS paper's RMSE table (derive.gnss_sim) and the
+"""The simulated reproduction of the GNSS paper's RMSE table (derive.apps.gnss.sim) and the
 `derive gnss` command."""
 
 import numpy as np
 import pytest
 
+from derive.apps.gnss.sim import PAPER, TIMES, reproduce
 from derive.cli import main
 from derive.errors import ModelError
-from derive.gnss_sim import PAPER, TIMES, reproduce
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +34,8 @@ def test_rmse_matches_the_filters_own_covariance(table):
     depends on the noise draw), and close to it early on; later it is below, since the
     truth is static while the filter's Q = 0.01 I4 lets P expect a random walk."""
     from derive import catalog
+    from derive.apps.simulate import gnss_scenario
     from derive.reference import ekf
-    from derive.simulate import gnss_scenario
 
     sc = gnss_scenario(500, 2024, moving=True, init_std=10.0)
     fns = catalog.load("gnss_pseudorange").numeric_functions()
@@ -84,7 +84,7 @@ def test_command_sim(capsys):
 
 
 def test_command_real_without_the_data_package_is_bad_input(monkeypatch, capsys):
-    import derive.gnss.data as data
+    import derive.apps.gnss.data as data
 
     def missing(name):
         raise ModuleNotFoundError("the real GNSS data come from the package gnss-benchmark",

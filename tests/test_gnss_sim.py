@@ -1,5 +1,5 @@
-"""Scalar-update GNSS filters (derive.gnss.scalar_updates, driven by derive.gnss.drive) on
-the simulated scenario of derive.simulate, against the NumPy reference filters.
+"""Scalar-update GNSS filters (derive.apps.gnss.scalar_updates, driven by derive.apps.gnss.drive) on
+the simulated scenario of derive.apps.simulate, against the NumPy reference filters.
 
 Sequential scalar updates re-linearise after every pseudorange, so they equal the
 reference filter run one pseudorange per step (Q added at the first pseudorange of an
@@ -12,8 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from derive.errors import ModelError, NumericalError, ShapeError
-from derive.gnss import (
+from derive.apps.gnss import (
     Epoch,
     FilterSettings,
     ScalarEkf,
@@ -24,9 +23,10 @@ from derive.gnss import (
     numpy_filters,
     ukf_update1,
 )
-from derive.gnss.errors import GnssDataError
+from derive.apps.gnss.errors import GnssDataError
+from derive.apps.simulate import gnss_scenario, pseudorange, pseudorange_jacobian
+from derive.errors import ModelError, NumericalError, ShapeError
 from derive.reference import ekf, ukf
-from derive.simulate import gnss_scenario, pseudorange, pseudorange_jacobian
 
 EXACT = 1e-6          # m: same algorithm, different code; observed ~1e-9
 SIX_SATS = dict(elevations_deg=(80.0, 35.0, 45.0, 55.0, 20.0, 65.0),

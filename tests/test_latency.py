@@ -1,11 +1,11 @@
-"""derive.latency: the latency bound of a run loop's carried chain (maximum cycle mean),
+"""derive.apps.latency: the latency bound of a run loop's carried chain (maximum cycle mean),
 on hand-built programs whose cycles are known, and on catalog filters."""
 
 import pytest
 
 from derive import catalog
+from derive.apps.latency import carried_bound
 from derive.generation import derive_unit
-from derive.latency import carried_bound
 from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Var, lower_program
 from derive.program import Port
 

@@ -21,8 +21,8 @@ import pytest
 import sympy
 
 from derive import LinearModel, catalog, reference
+from derive.apps.verify import relative_error
 from derive.pipeline import load_generated
-from derive.verify import relative_error
 
 STEPS = 1_000_000
 CHUNK = 100_000

@@ -14,14 +14,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import catalog
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import relative_error
 from derive.emit.lookahead import ZNEXT
 from derive.filters.steady import baked, steady_gains
 from derive.generation import derive_unit, render_filter
 from derive.pipeline import load_generated
 from derive.program import ProgramError
 from derive.reference import steady as reference
-from derive.simulate import simulate_linear
-from derive.verify import relative_error
 
 
 def _two_step(model, name="sskf"):

@@ -11,6 +11,8 @@ import pytest
 import sympy
 
 from derive import LinearModel, catalog, reference
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import LINEAR_TOLERANCE, relative_error
 from derive.emit.python_printer import HELPERS, python_function
 from derive.emit.render import render_unit
 from derive.emit.write import write_files
@@ -20,8 +22,6 @@ from derive.generation import render_filter
 from derive.lowering import IfPresent, LoweringError, Op, Var, lower
 from derive.pipeline import load_generated
 from derive.program import InputElement
-from derive.simulate import simulate_linear
-from derive.verify import LINEAR_TOLERANCE, relative_error
 
 r = sympy.Symbol("r")
 

@@ -6,13 +6,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from derive import catalog, formulas, paper, reference
+from derive import catalog, reference
+from derive.apps import formulas, paper
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import relative_error
 from derive.emit.python_printer import python_function
 from derive.errors import FilterError, ModelError
 from derive.flops import count
 from derive.program import Port, Program
-from derive.simulate import simulate_linear
-from derive.verify import relative_error
 
 TOLERANCE = 1e-10
 

@@ -9,10 +9,10 @@ import pytest
 
 import derive
 from derive import catalog
+from derive.apps.simulate import simulate_linear
 from derive.errors import FilterError, OptionError
 from derive.filters import derive_unit
 from derive.pipeline import load_generated, load_units
-from derive.simulate import simulate_linear
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,6 +10,7 @@ from filterpy.kalman import (
     UnscentedKalmanFilter,
 )
 
+from derive.apps.simulate import gnss_scenario, pseudorange, pseudorange_jacobian, simulate_linear
 from derive.errors import ModelError, NumericalError, ShapeError
 from derive.reference import (
     ekf,
@@ -26,7 +27,6 @@ from derive.reference import (
     ukf,
 )
 from derive.riccati import kf_steady
-from derive.simulate import gnss_scenario, pseudorange, pseudorange_jacobian, simulate_linear
 
 TOL = 1e-10
 STEPS = 500

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from derive import catalog, cli
-from derive.report import page, provenance
-from derive.report.document import Figure, Section, Table, Text, Todo
+from derive.apps.report import page, provenance
+from derive.apps.report.document import Figure, Section, Table, Text, Todo
 
 FIGURES = ["mpt3d_fig1_estimates", "gsm2d_fig1_estimates", "gsm2d_fig2_fir_vs_sskf",
            "sspred_fig1_cv_estimation", "sspred_fig2_cv_prediction",
@@ -146,7 +146,7 @@ def test_gnss_rmse_shrinks_and_mdkf_forms_agree(report):
 
 
 def test_sspred_percent_error_definition():
-    from derive.report.sspred import percent_error
+    from derive.apps.report.sspred import percent_error
 
     truth = np.array([[3.0, 4.0], [6.0, 8.0]])           # |p| = 5, 10
     est = truth + np.array([[0.5, 0.0], [0.0, -0.2]])     # errors 0.5, 0.2
@@ -170,9 +170,9 @@ def test_page_escapes_and_checks_tables(tmp_path):
 
 
 def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys):
-    from derive.report.generation import GenerationResult
-    from derive.report.job import ReportResult
-    from derive.verify import Verification
+    from derive.apps.report.generation import GenerationResult
+    from derive.apps.report.job import ReportResult
+    from derive.apps.verify import Verification
 
     def fake_run(out, generated=None, quick=False, progress=True, command=None,
                  results=None):
@@ -183,7 +183,7 @@ def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys
                                                     provenance.collect(command))
         return result
 
-    monkeypatch.setattr("derive.report.run", fake_run)
+    monkeypatch.setattr("derive.apps.report.run", fake_run)
     status = cli.main(["reproduce", "--out", str(tmp_path), "--no-progress"])
     captured = capsys.readouterr()
     assert status == 1
@@ -193,9 +193,9 @@ def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys
 
 def test_verify_built_equals_derive_verify():
     """The report's verification of built modules is derive verify's comparison."""
+    from derive.apps.report.generation import verify_built
+    from derive.apps.verify import verify_filter
     from derive.pipeline import load_generated
-    from derive.report.generation import verify_built
-    from derive.verify import verify_filter
 
     model = catalog.load("mpt3d_b")
     kf = load_generated("mpt3d_b", "kf")

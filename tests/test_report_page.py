@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from derive import __version__, cli
-from derive.report import figures, page, provenance
-from derive.report.document import (
+from derive.apps.report import figures, page, provenance
+from derive.apps.report.document import (
     DIFFERS,
     MATCHED,
     NOT_COMPARABLE,
@@ -196,12 +196,12 @@ def test_check_ends_with_a_one_line_summary(capsys):
 
 
 def test_check_summary_counts_failures(monkeypatch, capsys):
-    from derive.checks import Check
+    from derive.apps.checks import Check
 
     def fake(model, steps, seed):
         return [Check("m", "a claim", 1.0, 1e-10), Check("m", "another", 0.0, 1e-10)]
 
-    monkeypatch.setattr("derive.checks.run_checks", fake)
+    monkeypatch.setattr("derive.apps.checks.run_checks", fake)
     assert cli.main(["check", "mpt3d_b"]) == 1
     captured = capsys.readouterr()
     assert captured.out.strip().splitlines()[-1] == \
@@ -235,7 +235,7 @@ def test_progress_only_on_a_terminal(monkeypatch, tmp_path, tty):
         seen.update(progress=progress, command=command)
         raise OSError("stop here")
 
-    monkeypatch.setattr("derive.report.run", fake_run)
+    monkeypatch.setattr("derive.apps.report.run", fake_run)
     monkeypatch.setattr("sys.stderr.isatty", lambda: tty)
     cli.main(["reproduce", "--quick", "--out", str(tmp_path)])
     assert seen["progress"] is tty
@@ -243,7 +243,7 @@ def test_progress_only_on_a_terminal(monkeypatch, tmp_path, tty):
 
 
 def test_progress_disabled_writes_nothing(capsys):
-    from derive.report.job import _Progress
+    from derive.apps.report.job import _Progress
 
     bar = _Progress(3, enabled=False)
     bar.stage("one")
@@ -264,7 +264,7 @@ def test_results_into_a_missing_directory_is_bad_input_before_any_work(tmp_path,
 def test_the_repositorys_results_file_is_written_by_the_command():
     """docs/results.md is `derive reproduce --results docs/results.md` output, not typed:
     the command's title, intro, summary columns, verdicts and provenance footer."""
-    from derive.report.job import TITLE
+    from derive.apps.report.job import TITLE
 
     text = (Path(__file__).parent.parent / "docs" / "results.md").read_text(encoding="utf-8")
     lines = text.splitlines()

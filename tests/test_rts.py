@@ -13,6 +13,8 @@ from filterpy.kalman import KalmanFilter as FilterPyKF
 from pykalman import KalmanFilter as PyKalmanKF
 
 from derive import LinearModel, catalog
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import relative_error
 from derive.build import STRICT_CFLAGS
 from derive.emit import c_printer
 from derive.emit.python_printer import python_function
@@ -24,8 +26,6 @@ from derive.lowering import lower_program
 from derive.options import SharedOptions
 from derive.reference import kf as reference_kf
 from derive.reference.smoother import rts
-from derive.simulate import simulate_linear
-from derive.verify import relative_error
 
 PEER_TOLERANCE = 1e-10
 PROGRAM_TOLERANCE = 1e-12

@@ -23,14 +23,14 @@ import sympy
 
 import derive
 from derive import LinearModel, NonlinearModel, catalog, reference
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import LINEAR_TOLERANCE, relative_error
 from derive.build import STRICT_CFLAGS, build_c, load_python
 from derive.errors import ModelError, PatternError, ShapeError
 from derive.filters import derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import generate, render_filter
 from derive.pipeline import Generated, load_generated
-from derive.simulate import simulate_linear
-from derive.verify import LINEAR_TOLERANCE, relative_error
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATED = ROOT / "generated"

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from derive.errors import ModelError, ShapeError
-from derive.simulate import (
+from derive.apps.simulate import (
     GPS_ANGULAR_RATE,
     GPS_ORBIT_RADIUS,
     STADIUM,
@@ -20,6 +19,7 @@ from derive.simulate import (
     pseudorange_jacobian,
     simulate_linear,
 )
+from derive.errors import ModelError, ShapeError
 
 # Statistical checks use N samples; the standard error of a sample variance is about
 # sqrt(2/N) relative, so with N = 20000 (1 %) a 5 % tolerance is five standard errors.

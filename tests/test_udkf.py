@@ -18,6 +18,8 @@ from test_long_runs import measurements
 from test_long_runs import model as long_run_model
 
 from derive import LinearModel, catalog, reference
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import relative_error
 from derive.emit.c_printer import function_parts
 from derive.emit.python_printer import python_function
 from derive.errors import NumericalError, PatternError
@@ -27,11 +29,9 @@ from derive.flops import count
 from derive.lowering import lower_program
 from derive.options import SharedOptions
 from derive.reference import ud
-from derive.simulate import simulate_linear
-from derive.verify import relative_error
 
 TOLERANCE = 1e-12
-"""The issue's bar: normwise relative per step (derive.verify.relative_error)."""
+"""The issue's bar: normwise relative per step (derive.apps.verify.relative_error)."""
 LINEAR = [name for name in catalog.names() if catalog.load(name).kind == "linear"]
 
 

@@ -8,10 +8,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from derive import LinearModel, catalog, reference
+from derive.apps.simulate import simulate_linear
+from derive.apps.verify import LINEAR_TOLERANCE, relative_error, verify_filter
 from derive.filters import available
 from derive.pipeline import load_generated
-from derive.simulate import simulate_linear
-from derive.verify import LINEAR_TOLERANCE, relative_error, verify_filter
 
 LINEAR = [(name, f) for name in catalog.names() for f in available(catalog.load(name))
           if catalog.load(name).kind == "linear"]

@@ -14,7 +14,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     import json
 
-    from ..audit import as_json, run_audit, text
+    from ..apps.audit import as_json, run_audit, text
 
     audit = run_audit()
     if args.json:

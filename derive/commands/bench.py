@@ -21,7 +21,7 @@ def run(args) -> int:
     import sys
     from dataclasses import replace
 
-    from ..bench.run import Settings, run_bench
+    from ..apps.bench.run import Settings, run_bench
     from ..errors import ModelError
 
     settings = Settings.quick() if args.quick else Settings()

@@ -53,7 +53,7 @@ def _rows(filter_name: str, mode: str, unit, formula) -> list[dict]:
 
 
 def _formula(name: str, unit):
-    from .. import formulas
+    from ..apps import formulas
 
     if name == "fir":
         return formulas.fir(unit.window, unit.n, unit.m)
@@ -66,7 +66,7 @@ def burden_rows(model, derived: list, paper: bool) -> list[dict]:
     """One row per (filter, mode, program, language) of the ``derived`` ``[(filter,
     Unit)]``: counts by kind, flops, instructions and the papers' formula for the step
     (None where the papers give none)."""
-    from .. import paper as paper_mode
+    from ..apps import paper as paper_mode
 
     rows = []
     for name, unit in derived:
@@ -80,9 +80,9 @@ def burden_rows(model, derived: list, paper: bool) -> list[dict]:
 
 def chain_rows(derived: list, latency: dict | None = None) -> list[dict]:
     """Per filter of ``derived`` ``[(filter, Unit)]``: the carried chain of its generated C
-    run loop (derive.latency), per step, in the units of ``latency`` (default:
-    derive.latency.REFERENCE_CYCLES)."""
-    from ..latency import REFERENCE_CYCLES, run_loop_bound
+    run loop (derive.apps.latency), per step, in the units of ``latency`` (default:
+    derive.apps.latency.REFERENCE_CYCLES)."""
+    from ..apps.latency import REFERENCE_CYCLES, run_loop_bound
 
     rows = []
     for name, unit in derived:
@@ -95,7 +95,7 @@ def chain_rows(derived: list, latency: dict | None = None) -> list[dict]:
 
 
 def _chain_text(rows: list[dict], measured: bool) -> list[str]:
-    from ..latency import REFERENCE_CYCLES
+    from ..apps.latency import REFERENCE_CYCLES
 
     unit = "ns" if measured else "cycles"
     model = ("operation latencies measured here" if measured else "reference latencies in "
@@ -140,8 +140,8 @@ def run(args) -> int:
     rows = burden_rows(model, derived, args.paper)
     latency = None
     if args.measure:
-        from ..bench.generated import CFLAGS
-        from ..bench.probe import measure_latencies
+        from ..apps.bench.generated import CFLAGS
+        from ..apps.bench.probe import measure_latencies
 
         latency = measure_latencies(CFLAGS)
     chains = chain_rows(derived, latency)

@@ -16,7 +16,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from .. import catalog
-    from ..checks import run_checks
+    from ..apps.checks import run_checks
     from ..errors import VerificationError
     from . import load_model
 

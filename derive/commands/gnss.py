@@ -1,8 +1,8 @@
 """`derive gnss [--sim] [--real]`: the GNSS paper with derive's generated EKF and UKF.
 
 --sim (the default): the paper's RMSE table reproduced by Monte Carlo on a documented
-simulated geometry (derive.gnss_sim), derive's numbers beside the paper's.
---real: the real-data run of derive.gnss (RINEX files of the optional package
+simulated geometry (derive.apps.gnss.sim), derive's numbers beside the paper's.
+--real: the real-data run of derive.apps.gnss (RINEX files of the optional package
 gnss-benchmark; missing, it is bad input: exit 2).
 """
 
@@ -14,7 +14,7 @@ EXAMPLE = "derive gnss --sim --runs 200\n  derive gnss --real --epochs 300"
 
 
 def add_arguments(parser) -> None:
-    from ..gnss import command as real_command
+    from ..apps.gnss import command as real_command
 
     parser.add_argument("--sim", action="store_true",
                         help="Monte Carlo reproduction of the paper's RMSE table (default)")
@@ -36,12 +36,12 @@ def run(args) -> int:
 
     sim = args.sim or not args.real
     if sim:
-        from ..gnss_sim import reproduce
+        from ..apps.gnss.sim import reproduce
 
         print(reproduce(args.runs, seed=args.seed, init_std=args.init_std,
                         lang=args.sim_lang).table())
     if args.real:
-        from ..gnss import command as real_command
+        from ..apps.gnss import command as real_command
 
         if sim:
             print()

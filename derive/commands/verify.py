@@ -22,11 +22,11 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from .. import catalog
+    from ..apps.verify import verify_filter
     from ..errors import VerificationError
     from ..filters import available, kind
     from ..filters.fir import order
     from ..options import from_arguments, per_filter
-    from ..verify import verify_filter
     from . import load_model
 
     options = from_arguments(args)

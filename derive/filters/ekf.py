@@ -8,7 +8,7 @@ This module holds the EKF's predict and update stages and its unit. F and H come
 :func:`derive.filters.nonlinear.linearise` (sympy Jacobians evaluated with f and h through
 shared subexpressions); the programs step, predict and update1 are the frame shared with
 the UKF (:func:`derive.filters.nonlinear.nonlinear_programs`). ``linearise`` and
-``Linearisation`` stay importable from here: derive.casadi_bridge checks the EKF's
+``Linearisation`` stay importable from here: derive.apps.casadi_bridge checks the EKF's
 Jacobians through this module.
 """
 

@@ -29,7 +29,7 @@ class FilterSpec:
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
     the model kind and, for a steady filter, free symbols and the Riccati conditions).
     ``reference``: ``reference(model, data, options) -> (xs, Ps or None)``, the NumPy
-    reference on ``data`` (derive.verify: measurements, or a nonlinear scenario).
+    reference on ``data`` (derive.apps.verify: measurements, or a nonlinear scenario).
     ``about``: the run function's one-line description per language (``{window}`` is
     replaced by the FIR window).
     ``listing``: position in listings (``derive list``, "all that apply").

@@ -1,0 +1,83 @@
+"""Operation latencies of this machine, measured: a chain of dependent operations per
+kind, compiled with the benchmark's flags, timed over many iterations.
+
+Each probe is a loop ``a = OP(a, b)``: every iteration waits for the previous one, and
+without -ffast-math the compiler may not reassociate the chain, so the time per
+iteration is the operation's latency (the loop counter runs alongside).  Together with
+:func:`derive.apps.latency.carried_bound` this gives the latency bound of a generated run
+loop on this machine, in seconds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+
+from ...build import _compiler, cache_dir, cached_extension, load_module_file
+
+#: kind -> (C statement on double a and b, iterations per timing)
+PROBES = {
+    "add": ("a = a + b;", 4_000_000),
+    "mul": ("a = a * b;", 4_000_000),
+    "fma": ("a = fma(a, b, c);", 4_000_000),
+    "div": ("a = b / a;", 1_000_000),
+    "sqrt": ("a = sqrt(a) + c;", 1_000_000),
+}
+#: sqrt's probe includes one add; subtracted after measuring.
+_INCLUDES_ADD = ("sqrt",)
+
+_SOURCE = """#include <math.h>
+{functions}
+"""
+_FUNCTION = """double derive_probe_{kind}(long n, double a, double b, double c)
+{{
+    long i;
+    for (i = 0; i < n; ++i) {{
+        {statement}
+    }}
+    (void)b;
+    (void)c;
+    return a;
+}}
+"""
+
+
+def _module(cflags: tuple[str, ...]):
+    import cffi
+
+    source = _SOURCE.format(functions="\n".join(
+        _FUNCTION.format(kind=k, statement=s) for k, (s, _) in PROBES.items()))
+    flags = ["-std=c99", *cflags]   # the cffi wrapper around the probes is not ISO C
+    key = hashlib.sha256("\0".join([_compiler(), source, *flags]).encode()).hexdigest()[:16]
+    name = f"_derive_probe_{key}"
+
+    def build(work: Path) -> None:
+        ffi = cffi.FFI()
+        ffi.cdef("".join(f"double derive_probe_{k}(long n, double a, double b, double c);\n"
+                         for k in PROBES))
+        ffi.set_source(name, source, libraries=["m"], extra_compile_args=flags)
+        ffi.compile(tmpdir=str(work), verbose=False)
+
+    path = cached_extension(cache_dir(), f"probe-{key}", name, build)
+    return load_module_file(name, path).lib
+
+
+def measure_latencies(cflags: tuple[str, ...], repeats: int = 5,
+                      scale: float = 1.0) -> dict[str, float]:
+    """Seconds per dependent operation, per kind (the minimum over ``repeats``)."""
+    lib = _module(cflags)
+    seconds: dict[str, float] = {}
+    for kind, (_, iterations) in PROBES.items():
+        fn = getattr(lib, f"derive_probe_{kind}")
+        n = max(1, int(iterations * scale))
+        fn(n // 10 + 1, 1.0, 0.999999, 1e-9)          # warm up
+        best = float("inf")
+        for _ in range(repeats):
+            start = time.perf_counter()
+            fn(n, 1.0, 0.999999, 1e-9)
+            best = min(best, time.perf_counter() - start)
+        seconds[kind] = best / n
+    for kind in _INCLUDES_ADD:
+        seconds[kind] = max(seconds[kind] - seconds["add"], 0.0)
+    return seconds

@@ -1,0 +1,371 @@
+"""The whole benchmark: every case with every implementation, then batch throughput;
+the result as one text table or JSON."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import platform
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ... import cli
+from ...build import STRICT_CFLAGS
+from ..verify import relative_error
+from . import batch, casadi_c, generated, peers
+from .bound import case_bound
+from .cases import CASES, Case, Skip, make_data, states
+from .probe import measure_latencies
+from .timing import Timing, human, measure
+
+IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
+    # (name, prepare(case, data, workdir), loop in C: long runs)
+    ("generated C", generated.generated_c, True),
+    ("generated Python", generated.generated_python, False),
+    ("NumPy reference", peers.numpy_reference, False),
+    ("FilterPy", peers.filterpy, False),
+    ("pykalman", peers.pykalman, False),
+    ("CasADi C", casadi_c.casadi_c, True),
+)
+
+
+#: The issue's reference points for the KF step on mpt3d_a where its bars were set.
+ISSUE_CASADI_KF = 48e-9
+ISSUE_FILTERPY_KF = 17e-6
+
+
+@dataclass(frozen=True)
+class Settings:
+    c_steps: int = 100_000        # loop in C: enough steps to amortise the cffi call
+    python_steps: int = 2_000     # loop in Python, linear cases
+    nonlinear_python_steps: int = 500
+    repeats: int = 7
+    check_steps: int = 200        # agreement with derive's NumPy reference
+    batch_tracks: int = batch.TRACKS
+    batch_steps: int = batch.STEPS
+    batch_repeats: int = 5
+    catalog_generation: bool = True   # time `derive generate --all` (the issue's 30 s bar)
+
+    @classmethod
+    def quick(cls) -> Settings:
+        """Tiny counts, for tests: the same rows, meaningless times."""
+        return cls(c_steps=300, python_steps=30, nonlinear_python_steps=20, repeats=2,
+                   check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
+                   catalog_generation=False)
+
+
+@dataclass(frozen=True)
+class Row:
+    case: str
+    implementation: str
+    timing: Timing | None
+    ratio: float | None           # time per step / generated C's
+    agreement: float | None       # max rel error of the states against the NumPy reference
+    note: str = ""
+    bound: float | None = None    # generated C: latency bound of the carried chain, s/step
+
+
+@dataclass(frozen=True)
+class BatchRow:
+    implementation: str
+    track_steps_per_second: float | None
+    seconds: float | None
+    ratio: float | None           # throughput / simdkalman's
+    agreement: float | None
+    note: str = ""
+
+
+@dataclass
+class BenchResult:
+    settings: Settings
+    machine: dict
+    rows: list[Row] = field(default_factory=list)
+    batch: list[BatchRow] = field(default_factory=list)
+    generation_seconds: float | None = None
+
+    def row(self, case: str, implementation: str) -> Row | None:
+        return next((r for r in self.rows if r.case == case and r.implementation ==
+                     implementation), None)
+
+    def as_json(self) -> dict:
+        return {"settings": asdict(self.settings), "machine": self.machine,
+                "rows": [asdict(r) for r in self.rows], "batch": [asdict(b) for b in self.batch],
+                "generation_seconds": self.generation_seconds,
+                "bars": [asdict(b) for b in self.bars()]}
+
+    def _seconds(self, case: str, implementation: str) -> float | None:
+        r = self.row(case, implementation)
+        return r.timing.median if r is not None and r.timing else None
+
+    def bars(self) -> list[Bar]:
+        """The issues' bars, each with the measured value and whether it is met."""
+        out = []
+        for peer, need in (("FilterPy", 1000.0), ("CasADi C", 4.0)):
+            r = self.row("KF mpt3d_a", peer)
+            value = r.ratio if r is not None and self._seconds("KF mpt3d_a", "generated C") \
+                else None
+            out.append(Bar(f"generated C KF mpt3d_a faster per step than {peer}", value, need,
+                           "ratio"))
+        b = next((x for x in self.batch if x.implementation == "generated C, run_tracks"),
+                 None)
+        out.append(Bar("batch throughput of generated C over simdkalman's",
+                       b.ratio if b is not None else None, 50.0, "ratio"))
+        kf = self.row("KF mpt3d_a", "generated C")
+        out.append(Bar("generated C KF mpt3d_a per step", self._seconds("KF mpt3d_a",
+                                                                        "generated C"),
+                       10e-9, "time", _bound_note(kf)))
+        sskf = self.row("SSKF mpt3d_a", "generated C")
+        fma2 = 2 * self.machine["latency"]["fma"] if self.machine.get("latency") else None
+        out.append(Bar("generated C SSKF mpt3d_b x 3 axes in one loop (mpt3d_a, blocks found "
+                       "automatically) per step", self._seconds("SSKF mpt3d_a", "generated C"),
+                       1.25 * 2.3e-9, "time",
+                       _bound_note(sskf) + ("" if fma2 is None else
+                                            f"; two dependent fmas here take {human(fma2)}")))
+        out.append(Bar("generated pure-Python KF mpt3d_b x 3 per step",
+                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.2e-6, "time"))
+        if self.settings.catalog_generation:
+            out.append(Bar("generating the whole catalog (derive generate --all)",
+                           self.generation_seconds, 30.0, "time"))
+        out += self._scaled_bars(fma2)
+        return out
+
+    def _scaled_bars(self, fma2: float | None) -> list[Bar]:
+        """Issue 3's time bars restated for this machine through the issue's own reference
+        points measured in this run: CasADi's C for the KF step (about 48 ns where the
+        bars were set), two dependent fmas for the SSKF (the bar's definition), FilterPy's
+        KF step (about 17 µs) for the pure-Python KF."""
+        out = []
+        casadi = self._seconds("KF mpt3d_a", "CasADi C")
+        if casadi is not None:
+            out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar 10 ns x CasADi's "
+                           f"{human(casadi)} here / its 48 ns in the issue",
+                           self._seconds("KF mpt3d_a", "generated C"),
+                           10e-9 * casadi / ISSUE_CASADI_KF, "time"))
+        if fma2 is not None:
+            out.append(Bar("scaled: generated C SSKF mpt3d_a per step, within 25% of two "
+                           f"dependent fmas here ({human(fma2)})",
+                           self._seconds("SSKF mpt3d_a", "generated C"), 1.25 * fma2, "time"))
+        filterpy = self._seconds("KF mpt3d_a", "FilterPy")
+        if filterpy is not None:
+            out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar 1.2 µs "
+                           f"x FilterPy's {human(filterpy)} here / its 17 µs in the issue",
+                           self._seconds("KF mpt3d_b x 3", "generated Python"),
+                           1.2e-6 * filterpy / ISSUE_FILTERPY_KF, "time"))
+        return out
+
+    def text(self) -> str:
+        s = self.settings
+        lines = [
+            "derive bench: time per filter step, median of "
+            f"{s.repeats} repeats (min-max); ratio = time / generated C's time (same case)",
+            f"machine: {self.machine['cpu']}, {self.machine['cores']} cores, load average "
+            f"{self.machine['load']} at start; Python {self.machine['python']}, NumPy "
+            f"{self.machine['numpy']}",
+            f"generated C: gcc {' '.join(self.machine['generated_cflags'])} through cffi, the "
+            f"run loop in C, {s.c_steps:,} steps per run; CasADi C: casadi "
+            f"{self.machine.get('casadi', '?')} CodeGenerator, a C loop, gcc "
+            f"{' '.join(casadi_c.CFLAGS)}, {s.c_steps:,} steps",
+            f"Python loops (generated Python, NumPy reference, FilterPy, pykalman): "
+            f"{s.python_steps:,} steps (EKF/UKF {s.nonlinear_python_steps:,}); 'agrees': max "
+            f"rel error of the states against derive's NumPy reference over {s.check_steps} "
+            "steps",
+            ""]
+        head = ("case", "implementation", "per step", "min-max", "ratio", "agrees", "note")
+        body = []
+        for r in self.rows:
+            t = r.timing
+            body.append((r.case, r.implementation, human(t.median) if t else "skipped",
+                         f"{human(t.low)}-{human(t.high)}" if t else "",
+                         "" if r.ratio is None else f"{r.ratio:,.1f}x",
+                         "" if r.agreement is None else f"{r.agreement:.1e}", r.note))
+        lines += _columns(head, body)
+        lines += ["", f"batch: {s.batch_tracks:,} independent tracks x {s.batch_steps} steps of "
+                      f"{batch.MODEL} (KF), median of {s.batch_repeats} runs; ratio = "
+                      "throughput / simdkalman's", ""]
+        head = ("implementation", "track-steps/s", "time per run", "ratio", "agrees", "note")
+        body = [(b.implementation,
+                 "skipped" if b.track_steps_per_second is None else
+                 f"{b.track_steps_per_second:,.3g}",
+                 "" if b.seconds is None else human(b.seconds),
+                 "" if b.ratio is None else f"{b.ratio:,.1f}x",
+                 "" if b.agreement is None else f"{b.agreement:.1e}", b.note)
+                for b in self.batch]
+        lines += _columns(head, body)
+        lines.append("")
+        lat = self.machine.get("latency")
+        if lat:
+            lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
+                         ", ".join(f"{k} {human(v)}" for k, v in lat.items()))
+        lines += [bar.text() for bar in self.bars()]
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Bar:
+    """A bar of an issue: a ratio to reach (``>=``) or a time to stay under (``<=``)."""
+
+    claim: str
+    value: float | None
+    bar: float
+    kind: str                     # "ratio" or "time" (seconds)
+    note: str = ""
+
+    @property
+    def met(self) -> bool | None:
+        if self.value is None:
+            return None
+        return self.value >= self.bar if self.kind == "ratio" else self.value <= self.bar
+
+    def text(self) -> str:
+        verdict = "n/a" if self.met is None else ("met" if self.met else "NOT met")
+        if self.kind == "ratio":
+            shown = "n/a" if self.value is None else f"{self.value:,.1f}x"
+            need = f">= {self.bar:g}x"
+        else:
+            shown = "n/a" if self.value is None else human(self.value)
+            need = f"<= {human(self.bar)}"
+        note = f"; {self.note}" if self.note else ""
+        return f"bar: {self.claim}: {shown} ({need}: {verdict}){note}"
+
+
+def _bound_note(row: Row | None) -> str:
+    if row is None or row.bound is None:
+        return ""
+    return f"latency bound of its carried chain here {human(row.bound)}"
+
+
+def _columns(head, body) -> list[str]:
+    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
+        [fmt.format(*r).rstrip() for r in body]
+
+
+def machine_info() -> dict:
+    info = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "load": "n/a", "python": platform.python_version(), "numpy": np.__version__,
+            "generated_cflags": list(STRICT_CFLAGS) + list(generated.CFLAGS)}
+    try:
+        info["latency"] = measure_latencies(generated.CFLAGS)
+    except Exception as exc:  # no compiler or cffi failure: the bounds are left out
+        info["latency"] = {}
+        info["latency_error"] = str(exc).splitlines()[0][:200]
+    try:
+        info["load"] = f"{os.getloadavg()[0]:.2f}"
+    except OSError:
+        pass
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            name = next((line.split(":", 1)[1].strip() for line in f
+                         if line.startswith("model name")), None)
+        info["cpu"] = name or info["cpu"]
+    except OSError:
+        pass
+    try:
+        import casadi
+
+        info["casadi"] = casadi.__version__
+    except ImportError:
+        pass
+    return info
+
+
+def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> list[Row]:
+    python_steps = s.nonlinear_python_steps if case.nonlinear else s.python_steps
+    data = make_data(case, max(s.c_steps, python_steps, s.check_steps))
+    reference = states(peers.numpy_reference(case, data)(s.check_steps), s.check_steps)
+    rows, base = [], None
+    for name, prepare, in_c in IMPLEMENTATIONS:
+        tick(f"{case.label}: {name}")
+        try:
+            run = prepare(case, data, workdir)
+        except Skip as exc:
+            rows.append(Row(case.label, name, None, None, None, f"skipped: {exc}"))
+            continue
+        agreement = relative_error(states(run(s.check_steps), s.check_steps), reference)
+        steps = s.c_steps if in_c else python_steps
+        timing = measure(lambda run=run, steps=steps: run(steps), steps, s.repeats)
+        if name == "generated C":
+            base = timing.median
+        note = _NOTES.get((case.filter, name), "")
+        bound = None
+        if name == "generated C" and latency:
+            found = case_bound(case, latency)
+            if found is not None:
+                bound = found[0]
+                note = f"latency bound {human(bound)}: carried chain {found[1]}"
+        rows.append(Row(case.label, name, timing, None if base is None else
+                        timing.median / base, agreement, note, bound))
+    return rows
+
+
+_NOTES = {
+    ("ukf", "FilterPy"): "updates with the predicted sigma points (spread P, not P + Q)",
+    ("kf", "pykalman"): "whole-series filter(); starts from x(1/0)",
+    ("kf", "CasADi C"): "dense P, symbolic inverse of S",
+    ("ekf", "CasADi C"): "dense P, symbolic Jacobian and inverse",
+    ("ukf", "CasADi C"): "dense P, symbolic Cholesky and inverse",
+}
+
+
+def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
+    b = batch.make_batch(s.batch_tracks, s.batch_steps)
+    check = sorted({0, 1, s.batch_tracks - 1} & set(range(s.batch_tracks)))  # the last may
+    reference = {t: batch.batch_reference(b, t) for t in check}      # be in a partial block
+    impls = (("generated C, run_tracks", lambda: batch.generated_c_tracks(b, workdir)),
+             (f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
+              lambda: batch.generated_c(b, workdir, "batch_step")),
+             ("generated C, run per track", lambda: batch.generated_c(b, workdir, "batch_run")),
+             ("generated Python (NumPy arrays)", lambda: batch.generated_python(b, workdir)),
+             ("vectorised NumPy KF", lambda: (lambda: batch.numpy_kf(b))),
+             ("simdkalman", lambda: batch.simdkalman_kf(b)))
+    rows = []
+    for name, prepare in impls:
+        tick(f"batch: {name}")
+        try:
+            run = prepare()
+        except Skip as exc:
+            rows.append(BatchRow(name, None, None, None, None, f"skipped: {exc}"))
+            continue
+        out = np.asarray(run())
+        agreement = max(relative_error(out[t], reference[t]) for t in check)
+        timing = measure(run, 1, s.batch_repeats)
+        rows.append(BatchRow(name, b.track_steps / timing.median, timing.median, None,
+                             agreement))
+    simd = next((r for r in rows if r.implementation == "simdkalman"
+                 and r.track_steps_per_second), None)
+    return [BatchRow(r.implementation, r.track_steps_per_second, r.seconds,
+                     None if simd is None or r.track_steps_per_second is None else
+                     r.track_steps_per_second / simd.track_steps_per_second, r.agreement,
+                     r.note) for r in rows]
+
+
+def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
+    """Measure every case and the batch; ``progress(text)`` is called before each part."""
+    s = settings or Settings()
+    tick = progress or (lambda text: None)
+    result = BenchResult(s, machine_info())
+    with tempfile.TemporaryDirectory(prefix="derive-bench-") as tmp:
+        for case in CASES:
+            result.rows += _case_rows(case, s, Path(tmp), tick, result.machine.get("latency"))
+        result.batch = _batch_rows(s, Path(tmp), tick)
+        if s.catalog_generation:
+            tick("derive generate --all")
+            result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
+    return result
+
+
+def time_catalog_generation(out: Path) -> float:
+    """Seconds that ``derive generate --all --out OUT`` takes, in this process."""
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        status = cli.main(["generate", "--all", "--out", str(out)])
+    if status != 0:
+        raise RuntimeError(f"derive generate --all failed with status {status}")
+    return time.perf_counter() - start

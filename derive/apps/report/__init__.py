@@ -1,0 +1,21 @@
+"""The report of ``derive reproduce``: one module per part of the papers, a document model
+rendered to Markdown and HTML, and the job that runs them (:func:`derive.apps.report.job.run`).
+
+Modules: job (the stages, progress bar, summary), context (what stages share), generation
+(regenerate, compile, verify), tracking (MPT3D, GSM2D), sspred, mdkf, gnss, burden,
+figures (matplotlib, Agg), document and page (index.md, index.html, results.md),
+provenance (date, versions, machine, command: the footer and ``derive --version``).
+"""
+
+from __future__ import annotations
+
+
+def run(out, generated=None, quick: bool = False, progress: bool = True,
+        command: str | None = None, results=None):
+    """Run the whole job (see :func:`derive.apps.report.job.run`)."""
+    from .job import run as _run
+
+    return _run(out, generated, quick, progress, command, results)
+
+
+__all__ = ["run"]

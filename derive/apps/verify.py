@@ -1,0 +1,221 @@
+"""Verification: generated Python and C against the NumPy reference, on simulated data.
+
+For each filter the generated code is written to a scratch directory, the Python
+module imported and the C compiled with the strict flags through cffi, and both
+are run over ``steps`` simulated measurements. The error measure is normwise per
+step, ``max_k ||gen_k - ref_k||_inf / max(||ref_k||_inf, 1)`` for x(k) and for P(k)
+(relative, absolute near zero): a component computed from much larger ones (the
+acceleration of the CA model from positions of 1e6 m) is judged at the scale of the
+numbers it is computed from. The bar is 1e-12 for linear filters.
+
+Nonlinear filters (EKF, UKF) run on :func:`nonlinear_scenario`: for a model whose inputs
+are one satellite position per measurement and whose state is [x, y, z, b], the GNSS
+scenario of derive.apps.simulate (moving satellites, so the per-step inputs change); for a
+model without inputs, a run of its own f and h. Their bar is 1e-10, or the reference's own
+rounding floor times :data:`FLOOR_MARGIN` where that is larger: the floor is the largest
+change of the reference's output when every value of h is perturbed by one rounding
+(relative 2^-53, two seeded runs). For the GNSS UKF it is about 3e-10: pseudoranges are
+~2e7 m while their spread over the sigma points is metres, so one rounding of h (~4e-9 m)
+moves P by ~1e-9 relative per step; two correct implementations that round differently
+cannot agree better. The EKF's floor is ~1e-15.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..emit.unit import RUN_KINDS
+from ..errors import VerificationError
+from ..filters import kind
+from ..options import validate
+from ..pipeline import load_generated
+from .simulate import gnss_scenario, simulate_linear
+
+LINEAR_TOLERANCE = 1e-12
+NONLINEAR_TOLERANCE = 1e-10
+FLOOR_MARGIN = 4.0
+
+
+@dataclass(frozen=True)
+class Verification:
+    model: str
+    filter: str
+    lang: str
+    steps: int
+    error: float
+    tolerance: float
+
+    @property
+    def passed(self) -> bool:
+        return bool(np.isfinite(self.error) and self.error <= self.tolerance)
+
+    def line(self) -> str:
+        mark = "ok  " if self.passed else "FAIL"
+        return (f"{mark} {self.model:18s} {self.filter:7s} {self.lang:6s} {self.steps:5d} steps"
+                f"  max rel err {self.error:9.2e} <= {self.tolerance:.1e}")
+
+
+def relative_error(a, b) -> float:
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.shape != b.shape:
+        raise VerificationError(f"shape {a.shape} differs from the reference's {b.shape}")
+    if a.size == 0:
+        return 0.0
+    steps = a.shape[0]
+    diff = np.abs(a - b).reshape(steps, -1).max(axis=1)
+    scale = np.maximum(np.abs(b).reshape(steps, -1).max(axis=1), 1.0)
+    return float(np.max(diff / scale))
+
+
+@dataclass(frozen=True)
+class NonlinearScenario:
+    """Measurements zs (steps, m), inputs us (steps, len(model.inputs)), truth
+    (steps + 1, n), and the filter start x0, P0."""
+
+    zs: np.ndarray
+    us: np.ndarray
+    truth: np.ndarray
+    x0: np.ndarray
+    P0: np.ndarray
+
+
+def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScenario:
+    """A seeded run for a nonlinear model (see the module docstring)."""
+    fns = model.numeric_functions()
+    rng = np.random.default_rng(seed + 1)
+    n, m = model.n, model.m
+    if model.inputs:
+        if len(model.inputs) != 3 * m or n != 4 or m < 4:
+            raise VerificationError(
+                f"no verification scenario for model {model.name!r}: its inputs must be one "
+                f"satellite position (3 numbers) per measurement, at least 4 measurements, "
+                f"and its state [x, y, z, b]; got {len(model.inputs)} inputs, m = {m}, n = {n}")
+        elev = [80.0, 35.0, 45.0, 55.0, 20.0, 65.0, 30.0, 15.0][:m] + [40.0] * max(0, m - 8)
+        azim = [(30.0 + 360.0 * i / m + 17.0 * (i % 2)) % 360.0 for i in range(m)]
+        sc = gnss_scenario(steps, seed, elevations_deg=elev, azimuths_deg=azim, moving=True)
+        us = sc.satellites.reshape(steps, 3 * m)
+        truth, x0, P0 = sc.truth, sc.x0, sc.P0
+    else:
+        us = np.zeros((steps, 0))
+        x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
+        P0 = np.asarray(model.P0.tolist(), dtype=float)
+        Q = fns["Q"]
+        w = rng.multivariate_normal(np.zeros(n), Q, size=steps, method="eigh")
+        truth = np.empty((steps + 1, n))
+        truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
+        for k in range(steps):
+            truth[k + 1] = fns["f"](truth[k]) + w[k]
+    v = rng.multivariate_normal(np.zeros(m), fns["R"], size=steps, method="eigh")
+    zs = np.array([fns["h"](truth[k + 1], us[k]) for k in range(steps)]) + v
+    return NonlinearScenario(zs, us, truth, np.asarray(x0, float), np.asarray(P0, float))
+
+
+def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: dict,
+                        rounding_seed: int | None = None):
+    """The filter's NumPy reference (its spec's) on ``scenario``.
+
+    ``rounding_seed``: perturb every value of h by one rounding (relative uniform in
+    ±2^-53, seeded), to measure the reference's rounding floor."""
+    options = validate(name, options)
+    fns = model.numeric_functions()
+    if rounding_seed is not None:
+        rng, h_exact = np.random.default_rng(rounding_seed), fns["h"]
+
+        def h_rounded(x, u=()):
+            y = h_exact(x, u)
+            return y * (1.0 + rng.uniform(-1.0, 1.0, y.shape) * 2.0 ** -53)
+
+        fns = {**fns, "h": h_rounded}
+    return kind(name).reference(model, (scenario, fns), options)
+
+
+def rounding_floor(model, name: str, scenario: NonlinearScenario, options: dict,
+                   xs_ref, Ps_ref) -> float:
+    """Largest relative change (x or P) of the reference under one rounding of h."""
+    floor = 0.0
+    for seed in (1, 2):
+        xs, Ps = nonlinear_reference(model, name, scenario, options, rounding_seed=seed)
+        floor = max(floor, relative_error(xs, xs_ref), relative_error(Ps, Ps_ref))
+    return floor
+
+
+def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenario | None = None):
+    """The NumPy reference output for filter ``name``: (xs, Ps or None).
+
+    Nonlinear filters need the ``scenario`` (its zs are used; ``zs`` is ignored)."""
+    options = validate(name, options)
+    if kind(name).model_kind == "nonlinear":
+        if scenario is None:
+            raise VerificationError(f"filter {name!r} needs a NonlinearScenario")
+        return nonlinear_reference(model, name, scenario, options)
+    return kind(name).reference(model, zs, options)
+
+
+def generated_run(module, name: str, zs, model, lang: str,
+                  scenario: NonlinearScenario | None = None):
+    """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
+    (nonlinear filters: the scenario's zs, us, x0 and P0)."""
+    spec = kind(name)
+    if spec.model_kind == "nonlinear":
+        args = [scenario.zs] + ([scenario.us] if model.inputs else [])
+        xs, Ps = module.run(*args, scenario.x0, scenario.P0)
+        return np.asarray(xs), np.asarray(Ps).reshape(len(scenario.zs), model.n, model.n)
+    num = model.numeric()
+    # run's arguments after the measurements: what its run kind starts from
+    start = {"x0": num.x0, "P0": num.P0}
+    out = module.run(zs, *(start[name] for name, _ in RUN_KINDS[spec.run_kind].start))
+    if not isinstance(out, tuple):
+        return np.asarray(out), None
+    xs, Ps = out
+    return np.asarray(xs), np.asarray(Ps).reshape(len(zs), model.n, model.n)
+
+
+def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
+                   options: dict | None = None) -> list[Verification]:
+    """Compare already built generated filters ({lang: module}) with the reference.
+
+    The scenario, reference run, tolerance and error measure of `derive verify`.
+    """
+    opts = validate(name, options)
+    scenario = None
+    if kind(name).model_kind == "nonlinear":
+        scenario = nonlinear_scenario(model, steps, seed)
+        zs, tolerance = scenario.zs, NONLINEAR_TOLERANCE
+    else:
+        num = model.numeric()
+        zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed).zs
+        tolerance = LINEAR_TOLERANCE
+    xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
+    if scenario is not None:
+        floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
+        tolerance = max(tolerance, FLOOR_MARGIN * floor)
+    out: list[Verification] = []
+    for lang, module in modules.items():
+        xs, Ps = generated_run(module, name, zs, model, lang, scenario)
+        err = relative_error(xs, xs_ref)
+        if Ps_ref is not None and Ps is not None:
+            err = max(err, relative_error(Ps, Ps_ref))
+        out.append(Verification(model.name, name, lang, steps, err, tolerance))
+    return out
+
+
+def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("python", "c"),
+                  options: dict | None = None, workdir: str | Path | None = None
+                  ) -> list[Verification]:
+    """Generate, build and run filter ``name``; compare with the reference."""
+    opts = validate(name, options)
+    only = set(langs)
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        generated = load_generated(model, name, opts, only.pop() if len(only) == 1 else "all",
+                                   tmp)
+    modules = {lang: generated.module(lang) for lang in langs}
+    return verify_modules(model, name, modules, steps, seed, opts)
+
+
+__all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
+           "nonlinear_reference", "nonlinear_scenario", "relative_error",
+           "rounding_floor", "verify_filter", "verify_modules"]
