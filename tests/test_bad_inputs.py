@@ -2,6 +2,7 @@
 from the Python API, and on the command line exits with status 2 and one line on stderr
 naming the culprit, with the output directory byte for byte unchanged."""
 
+import errno
 import hashlib
 import os
 import shutil
@@ -15,6 +16,7 @@ import sympy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import derive.commands.list
 from derive import LinearModel, NonlinearModel, catalog
 from derive.cli import main
 from derive.emit.write import write_files
@@ -27,6 +29,7 @@ from derive.errors import (
     NameError_,
     OptionError,
     OutputPathError,
+    OutputWriteError,
     ShapeError,
     SteadyStateError,
     SymbolError,
@@ -616,3 +619,117 @@ def test_huge_integer_entry_is_refused_without_printing_it():
     with pytest.raises(ExpressionError, match="bits") as info:
         axis(F=[[1, 10**5000], [0, 1]])
     assert len(str(info.value)) < 300
+
+
+# -- rows of docs/robustness.md that the tables above do not reach ------------------------
+
+STEADY_STATE_FILTERS = ["sskf", "sslf", "jssklf", "fir", "pred"]
+STEADY_STATE_CASES = [
+    ("undetectable", UNDETECTABLE, ["(F, H) is not detectable", "not observed by H"]),
+    ("unstabilisable", UNSTABILISABLE,
+     ["(F, G Q^1/2) is not stabilizable", "not excited by the process noise"]),
+    ("free symbol", FREE_SYMBOL, ["needs every symbol to have a value", "['sr2']"]),
+]
+MORE_ROWS: list[Row] = [
+    ("unsafe expression", edit('Q = "sq2"', "Q = \"__import__('os')\""), ["kf"], {}, [],
+     ExpressionError, ["[discrete] Q", "in \"__import__('os')\" at line 1, column 1",
+                       "call of '__import__' is not allowed"]),
+] + [(f"{case}, {name}", text, [name], {}, [], SteadyStateError, words)
+     for case, text, words in STEADY_STATE_CASES for name in STEADY_STATE_FILTERS]
+
+
+@pytest.mark.parametrize("label, text, filters, options, argv, error, words", MORE_ROWS,
+                         ids=[row[0] for row in MORE_ROWS])
+def test_more_bad_inputs(tmp_path, capsys, out, label, text, filters, options, argv, error,
+                         words):
+    """Rows checked exactly as those of ``TABLE``: every steady-state filter refuses an
+    undetectable, an unstabilisable and a not fully valued model; an unsafe expression."""
+    test_bad_input_table(tmp_path, capsys, out, label, text, filters, options, argv, error,
+                         words)
+
+
+@pytest.mark.parametrize("name, error, message", [
+    ("mpt3d_c", ModelError,
+     "unknown catalog model 'mpt3d_c' (did you mean 'mpt3d_b'?); available: "),
+    ("nope.toml", ModelFileError, "{path}: cannot read model file: No such file or directory"),
+], ids=["unknown catalog model", "missing model file"])
+def test_unknown_models_from_the_api(tmp_path, out, name, error, message):
+    ref = name if name in ("mpt3d_c",) else str(tmp_path / name)
+    before = snapshot(out)
+    with pytest.raises(error) as info:
+        generate(ref, ["kf"], "all", out)
+    assert type(info.value) is error
+    assert str(info.value).startswith(message.format(path=ref)), str(info.value)
+    assert snapshot(out) == before
+
+
+def test_an_output_file_that_is_a_directory_is_an_output_path_error(tmp_path):
+    (tmp_path / "out" / "m" / "kf.c").mkdir(parents=True)
+    with pytest.raises(OutputPathError) as info:
+        write_files(tmp_path / "out", "m", {"kf.c": "x", "kf.h": "y"})
+    assert type(info.value) is OutputPathError
+    assert str(info.value) == (f"{tmp_path / 'out' / 'm' / 'kf.c'} is a directory, not a file "
+                               "derive can replace")
+    assert sorted(p.name for p in (tmp_path / "out" / "m").iterdir()) == ["kf.c"]
+
+
+def _unwritable(tmp_path: Path, how: str) -> tuple[Path, str, int, str]:
+    """Set up one way of not being able to write; (out, model name, errno, message start)."""
+    out = tmp_path / "out"
+    if how == "out a regular file":
+        out.write_text("not a directory")
+        return out, "m", errno.ENOTDIR, f"cannot use the output directory {out}: Not a directory"
+    if how == "model name too long":
+        return out, "m" * 300, errno.ENAMETOOLONG, "cannot create the output directory"
+    (out / "m").mkdir(parents=True)
+    locked = out / "m" if how.endswith("model") else out
+    if how.startswith("immutable"):
+        if how == "immutable out":
+            (out / "m").rmdir()
+        if shutil.which("chattr") is None or subprocess.run(
+                ["chattr", "+i", str(locked)], capture_output=True).returncode != 0:
+            pytest.skip("chattr +i is not available here")
+        start = (f"cannot create the output directory {out / 'm'}" if locked == out
+                 else f"cannot write in {locked}")
+        return out, "m", errno.EPERM, f"{start}: Operation not permitted"
+    locked.chmod(0o555)
+    if os.access(locked, os.W_OK):
+        locked.chmod(0o755)
+        pytest.skip("mode bits do not stop this user (root)")
+    return out, "m", errno.EACCES, f"cannot write in {locked}: Permission denied"
+
+
+@pytest.mark.parametrize("how", ["out a regular file", "model name too long", "immutable out",
+                                 "immutable model", "read-only model"])
+def test_output_write_errors_keep_their_errno(tmp_path, how):
+    out, name, number, message = _unwritable(tmp_path, how)
+    try:
+        with pytest.raises(OutputWriteError) as info:
+            write_files(out, name, {"kf.c": "x"})
+    finally:
+        for path in (out, out / "m"):
+            if path.is_dir():
+                subprocess.run(["chattr", "-i", str(path)], capture_output=True)
+                path.chmod(0o755)
+    assert type(info.value) is OutputWriteError and isinstance(info.value, OSError)
+    assert info.value.errno == number
+    assert str(info.value).startswith(message), str(info.value)
+    assert not any(p.is_file() for p in out.rglob("*")) if out.is_dir() else True
+
+
+@pytest.mark.parametrize("error, line", [
+    (OSError(errno.EIO, "Input/output error", "/dev/sdz"), "/dev/sdz: Input/output error"),
+    (OSError(errno.EXDEV, "Invalid cross-device link", "a.tmp", None, "b"),
+     "a.tmp -> b: Invalid cross-device link"),
+    (OSError(errno.EIO, "Input/output error"), "Input/output error"),
+], ids=["one path", "two paths", "no path"])
+def test_any_other_os_error_is_one_line_with_its_path(capsys, monkeypatch, error, line):
+    def fail(args):
+        raise error
+
+    monkeypatch.setattr(derive.commands.list, "run", fail)
+    capsys.readouterr()
+    status = main(["list"])
+    captured = capsys.readouterr()
+    assert status == 2
+    assert captured.err.splitlines() == [f"derive: error: {line}"]
