@@ -280,7 +280,7 @@ def _check_definite(mat: sympy.MatrixBase, name: str, strict: bool) -> None:
 
 
 class LinearModel(_Model):
-    """A linear time-invariant discrete model (SPEC §1).
+    """A linear time-invariant discrete model (the linear model of MPT3D and SSPRED).
 
     ``x(k+1) = F x(k) + G w(k)``, ``z(k) = H x(k) + v(k)``, ``w ~ N(0, Q)``, ``v ~ N(0, R)``.
     """
@@ -420,7 +420,7 @@ class LinearModel(_Model):
 
 
 class NonlinearModel(_Model):
-    """``x(k+1) = f(x(k)) + w(k)``, ``z(k) = h(x(k), u(k)) + v(k)`` (SPEC §6).
+    """``x(k+1) = f(x(k)) + w(k)``, ``z(k) = h(x(k), u(k)) + v(k)`` (the GNSS paper).
 
     ``inputs`` are per-step input symbols (satellite coordinates): they change every
     step and are passed to the generated filter beside z.
