@@ -33,7 +33,7 @@ import subprocess
 import sys
 import tempfile
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -363,7 +363,7 @@ def load_module_file(name: str, path: Path) -> types.ModuleType:
     return module
 
 
-def load_python(path) -> types.ModuleType:
+def load_python(path: str | os.PathLike) -> types.ModuleType:
     """Load a generated Python file (``MODEL/FILTER.py``) as a fresh module.
 
     Each call executes the file anew under a name unique to the call, so two files named
@@ -393,7 +393,9 @@ def _prefix(header: str, path: Path) -> str:
                      "declares no functions)")
 
 
-def build_c(path_or_paths, *, extra_cflags=(), tmpdir=None) -> CModule:
+def build_c(path_or_paths: str | os.PathLike | Sequence[str | os.PathLike], *,
+            extra_cflags: Sequence[str] = (), tmpdir: str | os.PathLike | None = None
+            ) -> CModule:
     """Compile generated ``.c`` files (each with its ``.h`` beside it) and wrap them.
 
     ``path_or_paths``: one path or several, to ``.c`` (or ``.h``) files.

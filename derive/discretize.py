@@ -1,4 +1,4 @@
-"""Discretisation of a continuous linear model (SPEC §1): F = exp(Phi dt), Van Loan Qd.
+"""Discretisation of a continuous linear model (SSPRED): F = exp(Phi dt), Van Loan Qd.
 
 Van Loan (1978): with ``M = [[-Phi, W], [0, Phi^T]] dt`` and ``W = G Qc G^T``,
 ``exp(M) = [[., E12], [0, E22]]``, ``F = E22^T`` and ``Qd = F E12``; this equals

@@ -18,6 +18,7 @@ from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError
 from .filters import available, derive_unit, kind
+from .model import ModelRef
 from .modelfile import load_model_file
 from .options import SharedOptions, per_filter, regenerate_command, validate
 
@@ -91,7 +92,7 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     return write_files(out, model.name, files), units
 
 
-def generate(model, filters: Iterable[str] | None = None, lang: str = "all",
+def generate(model: ModelRef, filters: Iterable[str] | None = None, lang: str = "all",
              out: str | Path = "generated", options: Mapping | None = None,
              per_filter_options: Mapping[str, Mapping] | None = None) -> list[Path]:
     """Generate ``filters`` (default: all that apply) for ``model``; return the written paths.

@@ -1,6 +1,6 @@
 """Constants of the filters with a horizon N: the FIR's order and taps, the N-step predictor.
 
-Plain NumPy on numeric arrays (SPEC.md §4), from a stable steady-state transition A and
+Plain NumPy on numeric arrays (SSPRED), from a stable steady-state transition A and
 gain B (or K). A bad FIR epsilon, norm or order, an unstable A, or a singular F where the
 prediction needs F^-(N-1) raises derive.errors.SteadyStateError.
 """
@@ -122,7 +122,7 @@ class PredictionConstants(NamedTuple):
 
 
 def pred_constants(F, K, H, N: int) -> PredictionConstants:
-    """A_N = F^N (I − KH) F^-(N-1), B_N = F^N K (SPEC §4). N >= 2 needs F invertible."""
+    """A_N = F^N (I − KH) F^-(N-1), B_N = F^N K (SSPRED). N >= 2 needs F invertible."""
     if int(N) != N or N < 1:
         raise SteadyStateError(f"prediction horizon N must be a positive integer, got {N!r}")
     N = int(N)

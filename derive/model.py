@@ -11,6 +11,7 @@ one entry, ``k2`` before ``k10``).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -36,6 +37,17 @@ from .symbols import (
 )
 
 P0_PATTERNS = ("dense", "zero", "diagonal", "block")
+
+Entry = str | int | float | sympy.Expr
+"""One matrix entry: a number, a SymPy expression, or an expression as text (``"dt**2/2"``)."""
+Matrix = sympy.MatrixBase | np.ndarray | Sequence[Sequence[Entry]]
+"""A matrix: rows of entries, a NumPy array or a SymPy matrix."""
+Vector = sympy.MatrixBase | np.ndarray | Sequence[Entry]
+"""A vector (x0, f, h; a column G): a list of entries, a NumPy array or a SymPy matrix."""
+Values = Mapping[str | sympy.Symbol, Entry]
+"""Symbol (or its name) -> value: the symbols that are constants of the model."""
+Names = Sequence[str | sympy.Symbol]
+"""Names in order (the runtime parameters ``p``)."""
 
 SYMMETRY_TOLERANCE = 1e-12
 """Q, R, P0 (and Qc) are accepted as symmetric when, for every pair of numeric entries,
@@ -280,16 +292,19 @@ def _check_definite(mat: sympy.MatrixBase, name: str, strict: bool) -> None:
 
 
 class LinearModel(_Model):
-    """A linear time-invariant discrete model (SPEC §1).
+    """A linear time-invariant discrete model (the linear model of MPT3D and SSPRED).
 
     ``x(k+1) = F x(k) + G w(k)``, ``z(k) = H x(k) + v(k)``, ``w ~ N(0, Q)``, ``v ~ N(0, R)``.
     """
 
     kind = "linear"
 
-    def __init__(self, name, states, measurements, F, H, Q, R, G=None, values=None,
-                 x0=None, P0=None, P0_pattern=None, description="", source="",
-                 parameters=None):
+    def __init__(self, name: str, states: Sequence[str], measurements: Sequence[str],
+                 F: Matrix, H: Matrix, Q: Matrix, R: Matrix, G: Matrix | Vector | None = None,
+                 values: Values | None = None, x0: Vector | None = None,
+                 P0: Matrix | None = None, P0_pattern: str | None = None,
+                 description: str = "", source: str = "",
+                 parameters: Names | None = None) -> None:
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
         table = SymbolTable()
@@ -338,7 +353,7 @@ class LinearModel(_Model):
             raise KeyError(which)
         return self.subs(getattr(self, which))
 
-    def numeric(self, params=None) -> NumericLinear:
+    def numeric(self, params: Values | None = None) -> NumericLinear:
         """The model at numbers; free parameters must be given in ``params``."""
         extra = self.parameter_values(params)
         self._check_finite({k: getattr(self, k) for k in ("F", "G", "H", "Q", "R")}, extra)
@@ -351,9 +366,12 @@ class LinearModel(_Model):
                              P0=np.array(self.P0.tolist(), dtype=float), **m)
 
     @classmethod
-    def from_continuous(cls, name, states, measurements, Phi, Qc, H, R, dt, G=None,
-                        values=None, x0=None, P0=None, P0_pattern=None, description="",
-                        source="", parameters=None):
+    def from_continuous(cls, name: str, states: Sequence[str], measurements: Sequence[str],
+                        Phi: Matrix, Qc: Matrix, H: Matrix, R: Matrix, dt: Entry,
+                        G: Matrix | Vector | None = None, values: Values | None = None,
+                        x0: Vector | None = None, P0: Matrix | None = None,
+                        P0_pattern: str | None = None, description: str = "",
+                        source: str = "", parameters: Names | None = None) -> LinearModel:
         """Discretise ``dx/dt = Phi x + G w`` (spectral density Qc) exactly over ``dt``.
 
         Free parameters not listed in ``parameters`` follow in order of first appearance
@@ -409,7 +427,9 @@ class LinearModel(_Model):
         return model
 
     @classmethod
-    def compose(cls, name, models, suffixes=None, description="", source=""):
+    def compose(cls, name: str, models: Sequence[LinearModel],
+                suffixes: Sequence[str] | None = None, description: str = "",
+                source: str = "") -> LinearModel:
         """Block-diagonal composition (model A = three model-B axes)."""
         return structure.compose(cls, name, models, suffixes, description=description,
                                  source=source)
@@ -420,7 +440,7 @@ class LinearModel(_Model):
 
 
 class NonlinearModel(_Model):
-    """``x(k+1) = f(x(k)) + w(k)``, ``z(k) = h(x(k), u(k)) + v(k)`` (SPEC §6).
+    """``x(k+1) = f(x(k)) + w(k)``, ``z(k) = h(x(k), u(k)) + v(k)`` (the GNSS paper).
 
     ``inputs`` are per-step input symbols (satellite coordinates): they change every
     step and are passed to the generated filter beside z.
@@ -428,9 +448,12 @@ class NonlinearModel(_Model):
 
     kind = "nonlinear"
 
-    def __init__(self, name, states, measurements, f, h, Q, R, values=None, inputs=None,
-                 x0=None, P0=None, P0_pattern=None, description="", source="",
-                 parameters=None):
+    def __init__(self, name: str, states: Sequence[str], measurements: Sequence[str],
+                 f: Vector, h: Vector, Q: Matrix, R: Matrix, values: Values | None = None,
+                 inputs: Sequence[str] | None = None, x0: Vector | None = None,
+                 P0: Matrix | None = None, P0_pattern: str | None = None,
+                 description: str = "", source: str = "",
+                 parameters: Names | None = None) -> None:
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
         input_names = check_names(inputs, "inputs") if inputs else ()
@@ -474,7 +497,8 @@ class NonlinearModel(_Model):
         self.F_jacobian = jacobian(self.f, self.state_symbols)
         self.H_jacobian = jacobian(self.h, self.state_symbols)
 
-    def numeric_functions(self, params=None) -> dict[str, Callable | np.ndarray]:
+    def numeric_functions(self, params: Values | None = None
+                          ) -> dict[str, Callable | np.ndarray]:
         """NumPy callables ``f(x)``, ``F(x)``, ``h(x, u)``, ``H(x, u)`` and arrays Q, R.
 
         Vectors come back flat (shape (n,) or (m,)), Jacobians as 2-D arrays.
@@ -503,3 +527,9 @@ class NonlinearModel(_Model):
         return {"f": fn(self.f, False), "F": fn(self.F_jacobian, False),
                 "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
                 "Q": num(self.Q), "R": num(self.R)}
+
+
+Model = LinearModel | NonlinearModel
+"""A model object."""
+ModelRef = LinearModel | NonlinearModel | str | os.PathLike
+"""A model object, a catalog name or the path of a model file."""

@@ -29,6 +29,7 @@ from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError
 from .generation import check_lang, command_unit, resolve_model
+from .model import ModelRef
 from .options import SharedOptions
 
 #: The languages of each ``lang`` argument.
@@ -94,7 +95,7 @@ def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]
     return loaded
 
 
-def load_generated(model, filter: str, options: Mapping | SharedOptions | None = None,
+def load_generated(model: ModelRef, filter: str, options: Mapping | SharedOptions | None = None,
                    lang: str = "all", directory: str | Path | None = None, *,
                    model_ref: str | None = None, out_label: str = "generated",
                    extra_cflags: Sequence[str] = ()) -> Generated:

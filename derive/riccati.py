@@ -1,7 +1,8 @@
 """Riccati equations of the KF (REKF) and LF (RELF), solved per step and by doubling.
 
-Plain NumPy on numeric arrays (SPEC.md §3-4): the LF's off-line constants, the per-step
-recursions, structure-preserving doubling, and the steady-state gains of the SSKF and SSLF.
+Plain NumPy on numeric arrays (the equations of MPT3D and SSPRED): the LF's off-line
+constants, the per-step recursions, structure-preserving doubling, and the steady-state
+gains of the SSKF and SSLF.
 Every solver first checks the model (derive.system_checks: detectable and stabilisable);
 a failed check or a failed convergence raises derive.errors.SteadyStateError.
 
@@ -27,7 +28,7 @@ MAX_DOUBLINGS = 100
 
 # ---------------------------------------------------------------- LF constants
 class LainiotisConstants(NamedTuple):
-    """Off-line constants of the Lainiotis filter (SPEC §3)."""
+    """Off-line constants of the Lainiotis filter (MPT3D)."""
 
     A: np.ndarray
     Kn: np.ndarray

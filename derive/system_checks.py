@@ -1,6 +1,7 @@
 """Checks of a linear system (F, G, H, Q, R) before its steady state is computed.
 
-Plain NumPy on numeric arrays (SPEC.md §3-4). The arrays are coerced and their shapes and
+Plain NumPy on numeric arrays (the equations of MPT3D and SSPRED). The arrays are
+coerced and their shapes and
 covariances checked (failures raise derive.errors.ModelError subclasses); PBH tests then
 require (F, H) detectable and (F, G Q^1/2) stabilisable, i.e. every eigenvalue with
 |lambda| >= 1 observable / controllable, and a steady-state transition must be stable.

@@ -19,14 +19,14 @@ PACKAGE = ROOT / "derive"
 #: Third-party packages that are optional (extras in pyproject.toml, or C toolchains
 #: that may be missing): imported where they are needed, so that derive works without them.
 OPTIONAL_DEPENDENCIES = {
-    "casadi": "bench extra: CasADi's generated C as a peer, and the Jacobian cross-check",
+    "casadi": "casadi extra: the Jacobian witness of derive verify, CasADi's C in the bench",
     "scipy": "bench extra",
     "matplotlib": "report extra: figures",
     "filterpy": "bench extra: a peer implementation",
     "pykalman": "bench extra: a peer implementation",
     "simdkalman": "bench extra: a peer implementation",
     "rich": "report extra: progress display",
-    "georinex": "gnss extra: RINEX files",
+    "georinex": "test extra only: an independent parse of the RINEX files",
     "cffi": "C builds need a compiler and cffi, loaded only when something is compiled",
 }
 

@@ -24,12 +24,24 @@ class CasadiTranslationError(ModelError):
     """An expression with a node CasADi has no counterpart for, or an unbound symbol."""
 
 
+INSTALL_HINT = "pip install 'derive-filters[casadi]'"
+
+
+def unavailable() -> str | None:
+    """Why CasADi cannot be used in this environment, or None when it can."""
+    try:
+        import casadi  # noqa: F401  (an optional dependency: the casadi extra)
+    except ImportError:
+        return f"casadi is not installed ({INSTALL_HINT})"
+    return None
+
+
 def _casadi():
     try:
-        import casadi
-    except ModuleNotFoundError as exc:  # pragma: no cover - casadi is a test dependency
-        raise ModelError("the CasADi cross-check needs the package casadi "
-                         "(pip install casadi)") from exc
+        import casadi  # an optional dependency: the casadi extra
+    except ImportError as exc:
+        raise ModelError(f"the CasADi cross-check needs the package casadi "
+                         f"({INSTALL_HINT})") from exc
     return casadi
 
 

@@ -1,4 +1,4 @@
-"""The papers' burden formulas (SPEC §5), as exact integers in n and m.
+"""The papers' burden formulas (MPT3D Tables 2-3), as exact integers in n and m.
 
 Burden = scalar additions, subtractions, multiplications and divisions per
 iteration of the on-line part. Each filter formula is also given as the list of
@@ -74,7 +74,7 @@ OPERATION_COSTS = {
 
 
 def kf_operations(n: int, m: int) -> list[tuple[str, str, int]]:
-    """The KF formula as its matrix operations: (operation, kind, cost) (SPEC §5)."""
+    """The KF formula as its matrix operations: (operation, kind, cost) (MPT3D Tables 2-3)."""
     n, m = _size("n", n), _size("m", m)
     return [
         ("F x", "product", product(n, n, 1)),

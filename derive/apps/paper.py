@@ -1,4 +1,4 @@
-"""Paper mode: the dense, unspecialised filters exactly as the papers count them (SPEC §5).
+"""Paper mode: the dense, unspecialised filters exactly as the papers count them (MPT3D Tables 2-3).
 
 Every model matrix (and, for the LF, every off-line constant) is a runtime input
 in the parameter port ``p``, so nothing folds: the generated code is the papers'
@@ -156,7 +156,7 @@ def dense_inverse(prog: Program, A: sympy.Matrix, E: sympy.Matrix,
 
 
 def kf_step(prog: Program, b: dict, x, P, z):
-    """The KF as SPEC §5 lists it: Fx; FP; (FP)F^T; + GQG^T; PH^T; H(PH^T); + R; inverse;
+    """The KF as MPT3D lists it: Fx; FP; (FP)F^T; + GQG^T; PH^T; H(PH^T); + R; inverse;
     K; KH; I - KH; (I-KH)x; Kz; add; (I-KH)P."""
     F, H, R, W = b["F"], b["H"], b["R"], b["W"]
     n = F.rows
@@ -168,7 +168,7 @@ def kf_step(prog: Program, b: dict, x, P, z):
 
 
 def lf_step(prog: Program, b: dict, x, P, z):
-    """The LF as SPEC §5 lists it: POn; I + POn; inverse; M = Fn[.]^-1; MP; (MP)Fn^T;
+    """The LF as MPT3D lists it: POn; I + POn; inverse; M = Fn[.]^-1; MP; (MP)Fn^T;
     + Pn; Km z; P(Km z); + x; M(.); Kn z; add."""
     n = x.rows
     I_POn = staging.add(prog, sympy.eye(n), staging.matmul(prog, P, b["On"]))

@@ -23,7 +23,7 @@ GPS_ORBIT_RADIUS = 26_560e3
 GPS_ANGULAR_RATE = 2.0 * np.pi / 43_082.0
 """Mean motion of a GPS satellite (half a sidereal day per orbit), rad/s."""
 STADIUM = (40.988, 29.037, 50.0)
-"""Şükrü Saracoğlu stadium, Istanbul (SPEC §6): latitude, longitude (deg), height (m)."""
+"""Şükrü Saracoğlu stadium, Istanbul (the GNSS paper): latitude, longitude (deg), height (m)."""
 
 
 def _steps(steps: int) -> int:
@@ -155,7 +155,7 @@ def pseudorange_jacobian(x: np.ndarray, sats: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class GnssScenario:
-    """A stationary receiver, four satellites and pseudoranges (SPEC §6).
+    """A stationary receiver, four satellites and pseudoranges (the GNSS paper).
 
     truth: (steps+1, 4) states [x, y, z, b] (ECEF m, clock bias m) for k = 0..steps;
     satellites: (steps, 4, 3) ECEF positions at k = 1..steps; pseudoranges: (steps, 4).

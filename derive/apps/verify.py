@@ -18,6 +18,12 @@ change of the reference's output when every value of h is perturbed by one round
 ~2e7 m while their spread over the sigma points is metres, so one rounding of h (~4e-9 m)
 moves P by ~1e-9 relative per step; two correct implementations that round differently
 cannot agree better. The EKF's floor is ~1e-15.
+
+A nonlinear model also gets an independent witness for the Jacobians the EKF is generated
+from (:func:`jacobian_witness`): derive's sympy Jacobians of f and h against CasADi's
+automatic differentiation of the same f and h at :data:`WITNESS_POINTS` random points, bar
+:data:`WITNESS_TOLERANCE`. It needs the ``casadi`` extra; without it the witness is
+reported as skipped, with the reason.
 """
 
 from __future__ import annotations
@@ -29,15 +35,18 @@ from pathlib import Path
 import numpy as np
 
 from ..emit.unit import RUN_KINDS
-from ..errors import VerificationError
+from ..errors import ModelError, VerificationError
 from ..filters import kind
 from ..options import validate
 from ..pipeline import load_generated
+from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
 from .simulate import gnss_scenario, simulate_linear
 
 LINEAR_TOLERANCE = 1e-12
 NONLINEAR_TOLERANCE = 1e-10
 FLOOR_MARGIN = 4.0
+WITNESS_POINTS = 100
+WITNESS_TOLERANCE = 1e-12
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,46 @@ class Verification:
         mark = "ok  " if self.passed else "FAIL"
         return (f"{mark} {self.model:18s} {self.filter:7s} {self.lang:6s} {self.steps:5d} steps"
                 f"  max rel err {self.error:9.2e} <= {self.tolerance:.1e}")
+
+
+@dataclass(frozen=True)
+class JacobianWitness:
+    """CasADi's automatic differentiation as a witness for a nonlinear model's Jacobians:
+    the comparison (``check``), or why it was skipped (``skipped``)."""
+
+    model: str
+    check: JacobianCheck | None
+    skipped: str | None = None
+    tolerance: float = WITNESS_TOLERANCE
+
+    @property
+    def passed(self) -> bool:
+        return self.check is not None and bool(self.check.worst <= self.tolerance)
+
+    def line(self) -> str:
+        if self.check is None:
+            return f"skip {self.model:18s} F, H    casadi  witness skipped: {self.skipped}"
+        mark = "ok  " if self.passed else "FAIL"
+        return (f"{mark} {self.model:18s} F, H    casadi {self.check.points:5d} points"
+                f" max rel diff {self.check.worst:9.2e} <= {self.tolerance:.1e}"
+                f" (sympy Jacobians vs CasADi AD)")
+
+
+def jacobian_witness(model, points: int = WITNESS_POINTS, seed: int = 0
+                     ) -> JacobianWitness | None:
+    """The CasADi witness for ``model``'s Jacobians (None for a linear model: it has none).
+
+    Skipped, with the reason, when casadi is not installed, when an expression of the
+    model has no CasADi counterpart, or when too few random points are in its domain."""
+    if model.kind != "nonlinear":
+        return None
+    reason = unavailable()
+    if reason is not None:
+        return JacobianWitness(model.name, None, reason)
+    try:
+        return JacobianWitness(model.name, check_jacobians(model, points, seed))
+    except ModelError as exc:
+        return JacobianWitness(model.name, None, str(exc))
 
 
 def relative_error(a, b) -> float:
@@ -216,6 +265,7 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
     return verify_modules(model, name, modules, steps, seed, opts)
 
 
-__all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "NonlinearScenario", "Verification",
+__all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
+           "JacobianWitness", "NonlinearScenario", "Verification", "jacobian_witness",
            "nonlinear_reference", "nonlinear_scenario", "relative_error",
            "rounding_floor", "verify_filter", "verify_modules"]

@@ -1,4 +1,5 @@
-"""The models of the papers (SPEC §2), shipped as model files (see derive.modelfile).
+"""The models of the papers (MPT3D, GSM2D, MDKF, SSPRED, GNSS), shipped as model files
+(see derive.modelfile).
 
 The files are package data read with importlib.resources, so an installed (non-editable)
 package works too.

@@ -14,13 +14,16 @@ def add_arguments(parser) -> None:
                         help="tiny step and repeat counts (a smoke test; times meaningless)")
     parser.add_argument("--repeats", type=int, default=None,
                         help="repeats per measurement (default 7; the median is shown)")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress lines (they are shown only when stderr is a "
+                             "terminal)")
 
 
 def run(args) -> int:
     import json
-    import sys
     from dataclasses import replace
 
+    from .. import progress
     from ..apps.bench.run import Settings, run_bench
     from ..errors import ModelError
 
@@ -30,13 +33,14 @@ def run(args) -> int:
             raise ModelError(f"--repeats must be >= 1, got {args.repeats}")
         settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats)
 
-    def progress(text: str) -> None:
-        print(f"bench: {text}", file=sys.stderr, flush=True)
+    def report(text: str) -> None:
+        progress.report(f"bench: {text}")
 
     from ..build import BuildError
 
+    show_progress = not args.no_progress and progress.enabled()
     try:
-        result = run_bench(settings, progress if sys.stderr.isatty() else None)
+        result = run_bench(settings, report if show_progress else None)
     except BuildError as exc:
         raise ModelError(f"cannot compile the generated C: {exc}") from exc
     print(json.dumps(result.as_json(), indent=2) if args.json else result.text())

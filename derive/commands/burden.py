@@ -122,7 +122,7 @@ def _text(model, rows: list[dict]) -> str:
              "code, counted on what is emitted.",
              "flops = add + sub + mul + div + sqrt + 2 fma (an fma: 2 flops, 1 instruction); "
              "neg, cmp and calls are not flops; instr = every operation but calls.",
-             "papers: the papers' burden formula for this n, m (SPEC.md §5); mode paper: "
+             "papers: the papers' burden formula for this n, m (MPT3D Tables 2-3); mode paper: "
              "derive's dense, unspecialised code as the papers count it.", "",
              fmt.format(*head), fmt.format(*("-" * w for w in widths))]
     lines += [fmt.format(*r) for r in body]

@@ -20,7 +20,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--filter", action="append", dest="filters", metavar="F",
                         help="a filter name, as `derive list` shows them (repeatable; "
                              "default: all that apply)")
-    parser.add_argument("--lang", default="all", choices=("python", "c", "all"))
+    parser.add_argument("--lang", default="all", choices=("python", "c", "all"),
+                        help="which code to write: python, c, or all (default)")
     parser.add_argument("--out", default="generated", help="output directory (generated)")
     add_option_arguments(parser)
 

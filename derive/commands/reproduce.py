@@ -24,9 +24,9 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     import shlex
-    import sys
     from pathlib import Path
 
+    from .. import progress
     from ..errors import ModelError, VerificationError
 
     try:
@@ -34,7 +34,7 @@ def run(args) -> int:
 
         from ..apps.report import run as run_report
     except ImportError as exc:
-        raise ModelError(f"the report needs matplotlib ({exc}); install derive[report]") \
+        raise ModelError(f"the report needs matplotlib ({exc}); install derive-filters[report]") \
             from None
     from ..build import BuildError
 
@@ -45,7 +45,7 @@ def run(args) -> int:
     command = shlex.join(["derive", NAME, *_given(args)])
     try:
         result = run_report(args.out, args.generated, quick=args.quick,
-                            progress=not args.no_progress and sys.stderr.isatty(),
+                            progress=not args.no_progress and progress.enabled(),
                             command=command, results=args.results)
     except BuildError as exc:
         raise ModelError(f"cannot compile the generated C: {exc}") from exc

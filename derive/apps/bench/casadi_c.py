@@ -56,7 +56,7 @@ def _step_function(ca, case: Case, data: Data):
         K = ca.mtimes([Pp, Hj.T, ca.inv(ca.mtimes([Hj, Pp, Hj.T]) + R)])
         return ca.Function(NAME, [x, P, z, u], [x + ca.mtimes(K, z - y),
                                                 Pp - ca.mtimes([K, Hj, Pp])])
-    c = 3.0                                   # n + kappa = 3, kappa = 3 - n (SPEC §6)
+    c = 3.0                                   # n + kappa = 3, kappa = 3 - n (the GNSS paper)
     w0, wi = (c - n) / c, 1.0 / (2.0 * c)
     L = ca.chol(c * Pp)                       # upper: L^T L = c (P + Q)
     points = [x] + [x + L[i, :].T for i in range(n)] + [x - L[i, :].T for i in range(n)]

@@ -1,6 +1,6 @@
 """Peers for the benchmark: derive's NumPy reference, FilterPy and pykalman.
 
-Each is set up to compute the same filter from the same x(0/0), P(0/0) as derive (SPEC
+Each is set up to compute the same filter from the same x(0/0), P(0/0) as derive (the papers'
 conventions: z(k) observes x(k) = F x(k−1)); the agreement column of the table checks it.
 """
 

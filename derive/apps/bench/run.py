@@ -35,7 +35,8 @@ IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
 )
 
 
-#: The issue's reference points for the KF step on mpt3d_a where its bars were set.
+#: The reference points for the KF step on mpt3d_a on the machine where the performance
+#: targets (docs/performance.md) were set.
 ISSUE_CASADI_KF = 48e-9
 ISSUE_FILTERPY_KF = 17e-6
 
@@ -50,7 +51,7 @@ class Settings:
     batch_tracks: int = batch.TRACKS
     batch_steps: int = batch.STEPS
     batch_repeats: int = 5
-    catalog_generation: bool = True   # time `derive generate --all` (the issue's 30 s bar)
+    catalog_generation: bool = True   # time `derive generate --all` (the 30 s target)
 
     @classmethod
     def quick(cls) -> Settings:
@@ -104,7 +105,8 @@ class BenchResult:
         return r.timing.median if r is not None and r.timing else None
 
     def bars(self) -> list[Bar]:
-        """The issues' bars, each with the measured value and whether it is met."""
+        """The performance targets (docs/performance.md), each with the measured value and
+        whether it is met."""
         out = []
         for peer, need in (("FilterPy", 1000.0), ("CasADi C", 4.0)):
             r = self.row("KF mpt3d_a", peer)
@@ -136,7 +138,7 @@ class BenchResult:
         return out
 
     def _scaled_bars(self, fma2: float | None) -> list[Bar]:
-        """Issue 3's time bars restated for this machine through the issue's own reference
+        """The time targets restated for this machine through their own reference
         points measured in this run: CasADi's C for the KF step (about 48 ns where the
         bars were set), two dependent fmas for the SSKF (the bar's definition), FilterPy's
         KF step (about 17 µs) for the pure-Python KF."""
@@ -144,7 +146,7 @@ class BenchResult:
         casadi = self._seconds("KF mpt3d_a", "CasADi C")
         if casadi is not None:
             out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar 10 ns x CasADi's "
-                           f"{human(casadi)} here / its 48 ns in the issue",
+                           f"{human(casadi)} here / its 48 ns where the bar was set",
                            self._seconds("KF mpt3d_a", "generated C"),
                            10e-9 * casadi / ISSUE_CASADI_KF, "time"))
         if fma2 is not None:
@@ -154,7 +156,7 @@ class BenchResult:
         filterpy = self._seconds("KF mpt3d_a", "FilterPy")
         if filterpy is not None:
             out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar 1.2 µs "
-                           f"x FilterPy's {human(filterpy)} here / its 17 µs in the issue",
+                           f"x FilterPy's {human(filterpy)} here / its 17 µs where the bar was set",
                            self._seconds("KF mpt3d_b x 3", "generated Python"),
                            1.2e-6 * filterpy / ISSUE_FILTERPY_KF, "time"))
         return out
@@ -208,7 +210,7 @@ class BenchResult:
 
 @dataclass(frozen=True)
 class Bar:
-    """A bar of an issue: a ratio to reach (``>=``) or a time to stay under (``<=``)."""
+    """A performance target: a ratio to reach (``>=``) or a time to stay under (``<=``)."""
 
     claim: str
     value: float | None

@@ -1,4 +1,4 @@
-"""Real GPS data for the GNSS filters (SPEC §6): RINEX 3 reading, broadcast ephemerides,
+"""Real GPS data for the GNSS filters (the GNSS paper): RINEX 3 reading, broadcast ephemerides,
 atmospheric corrections, least-squares fixes and a driver for scalar-update filters.
 
 The data set comes from the optional package gnss-benchmark 2.3.0; everything else here

@@ -38,7 +38,7 @@ def scalar_model() -> NonlinearModel:
         R=[["sigma2"]], inputs=["sx", "sy", "sz"], parameters=PARAMETERS,
         description="One GNSS pseudorange per update; noise variances are runtime "
                     "parameters.",
-        source="SPEC §6 with Q and R free (derive.apps.gnss.generated)")
+        source="the GNSS paper with Q and R free (derive.apps.gnss.generated)")
 
 
 def parameters(settings: FilterSettings) -> np.ndarray:

@@ -43,7 +43,7 @@ class FilterSettings:
     per epoch: the receiver clock bias drifts (this receiver steers its clock: LS biases
     change by cm per second, at most 0.25 m), so its random walk is much looser than the
     position's. p0_std = 100 m for every state. alpha, beta, kappa: UKF weights
-    (kappa=None: 3 − n, the plain UKF of SPEC §6)."""
+    (kappa=None: 3 − n, the plain UKF of the GNSS paper)."""
 
     sigma: float = 3.0
     q_position: float = 1e-6

@@ -1,6 +1,6 @@
 """NumPy EKF and UKF for the GNSS model X = [x, y, z, b] with one pseudorange at a time.
 
-Model (SPEC §6): X(k) = X(k−1) + W(k), W ~ N(0, Q); one pseudorange
+Model (the GNSS paper): X(k) = X(k−1) + W(k), W ~ N(0, Q); one pseudorange
 ρ = ||s − [x, y, z]|| + b + v, v ~ N(0, σ²), per scalar update, with the satellite
 position s an input of that update. An epoch is one predict followed by one update1 per
 satellite, so any number of satellites per epoch works.
@@ -8,7 +8,7 @@ satellite, so any number of satellites per epoch works.
 Sequential scalar updates re-linearise (EKF) or redraw sigma points (UKF) after every
 pseudorange, so they differ slightly from one batch update with all of an epoch's
 pseudoranges (by second-order terms; for a linear h and diagonal R they coincide). For the
-UKF this is the usual sequential-measurement variant: each scalar update is the SPEC §6
+UKF this is the usual sequential-measurement variant: each scalar update is the GNSS paper's
 update with m = 1, sigma points drawn from the current (X, P).
 
 These are the stand-ins for the generated filters: predict(X, P) -> (X, P + Q) and

@@ -1,4 +1,4 @@
-"""Simulated reproduction of the GNSS paper's RMSE table (SPEC §6) by Monte Carlo, with
+"""Simulated reproduction of the GNSS paper's RMSE table (the GNSS paper) by Monte Carlo, with
 the generated EKF and UKF of the catalog model ``gnss_pseudorange``.
 
 The paper does not give its satellite geometry; this one is documented and fixed:
@@ -38,7 +38,7 @@ PAPER = {
                      [1.41, 1.30, 1.60, 0.85], [1.20, 1.16, 1.29, 0.64],
                      [0.92, 0.96, 1.02, 0.64]]),
 }
-"""The paper's RMSE (m) of x, y, z, b at TIMES (SPEC §6), as printed."""
+"""The paper's RMSE (m) of x, y, z, b at TIMES (the GNSS paper), as printed."""
 
 FILTERS = ("ekf", "ukf")
 LANGS = ("python", "c")

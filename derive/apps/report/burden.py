@@ -98,11 +98,11 @@ def section(ctx) -> Section:
     try:
         audit = ctx.result_of("audit", compute_audit)
     except ImportError:
-        s.add(Todo("derive.apps.audit (issue 4) is missing: no burden audit."))
+        s.add(Todo("derive.apps.audit is missing: no burden audit."))
         return s
     outcomes(s, audit)
     s.add(Text("For each implementation the papers compare: the number they print, their "
-               "formula (SPEC §5), the exact count of derive's paper-mode code (the dense "
+               "formula (MPT3D Tables 2-3), the exact count of derive's paper-mode code (the dense "
                "algorithm the formulas describe, generated and counted), and the count of "
                "derive's specialised code for the catalog model — also counted in the C file "
                "this run wrote ('written C'; in bold if it differed). Systems of independent "

@@ -29,6 +29,7 @@ class GenerationResult:
     files: list[Path] = field(default_factory=list)
     verifications: list = field(default_factory=list)   # derive.apps.verify.Verification
     checks: list = field(default_factory=list)          # derive.apps.checks.Check
+    witnesses: list = field(default_factory=list)       # derive.apps.verify.JacobianWitness
 
     @property
     def filters(self) -> int:
@@ -37,6 +38,7 @@ class GenerationResult:
     @property
     def failures(self) -> list[str]:
         return ([v.line() for v in self.verifications if not v.passed]
+                + [w.line() for w in self.witnesses if w.check is not None and not w.passed]
                 + [c.line() for c in self.checks if not c.passed])
 
     @property
@@ -76,13 +78,31 @@ def verify_model(ctx, name: str, result: GenerationResult) -> None:
     from ... import catalog
     from ...filters import available
     from ..checks import run_checks
+    from ..verify import jacobian_witness
 
     model = catalog.load(name)
     steps = QUICK_VERIFY_STEPS if ctx.quick else VERIFY_STEPS
     for f in available(model):
         modules = {"python": ctx.py_filter(name, f), "c": ctx.c_filter(name, f)}
         result.verifications += verify_built(model, f, modules, steps, VERIFY_SEED)
+    witness = jacobian_witness(model)
+    if witness is not None:
+        result.witnesses.append(witness)
     result.checks += run_checks(model)
+
+
+def witness_verdict(witnesses: list) -> tuple[str, str] | None:
+    """(verdict, evidence) of the CasADi Jacobian witnesses for the report's summary; None
+    when none ran (casadi absent): the appendix table and the command's summary say why,
+    and a skipped witness is no outcome of the papers' claims."""
+    ran = [w for w in witnesses if w.check is not None]
+    if not ran:
+        return None
+    failed = sum(not w.passed for w in ran)
+    skipped = len(witnesses) - len(ran)
+    return (DIFFERS if failed else MATCHED,
+            f"{len(ran)} models, {failed} failed, {skipped} skipped, largest relative "
+            f"difference {max(w.check.worst for w in ran):.1e}")
 
 
 def section(result: GenerationResult) -> Section:
@@ -94,6 +114,10 @@ def section(result: GenerationResult) -> Section:
               f"{result.filters} filters of {len(result.models)} models, "
               f"{len(result.verifications)} runs, {failed_v} failed, largest relative error "
               f"{result.max_error:.1e}")
+    verdict = witness_verdict(result.witnesses)
+    if verdict is not None:
+        s.outcome("every nonlinear model's sympy Jacobians equal CasADi's automatic "
+                  "differentiation (an independent witness)", *verdict)
     failed_c = sum(not c.passed for c in result.checks)
     s.outcome("the papers' equivalence claims, on the reference filters (`derive check`)",
               DIFFERS if failed_c else MATCHED,
@@ -118,6 +142,17 @@ def section(result: GenerationResult) -> Section:
           Table(("model", "filter", "steps", "Python max rel err", "C max rel err",
                  "tolerance", "status"), tuple(rows),
                 "Generated code against the NumPy reference", collapsed=True))
+    if result.witnesses:
+        s.add(Text("The Jacobians of f and h that the EKF is generated from, against CasADi's "
+                   "automatic differentiation of the same f and h at random points, as "
+                   "`derive verify` prints them (skipped, with the reason, without the "
+                   "`casadi` extra)."),
+              Table(("model", "points", "max rel diff", "tolerance", "status"),
+                    tuple((w.model, str(w.check.points) if w.check else "–",
+                           sci(w.check.worst) if w.check else "–", f"{w.tolerance:.0e}",
+                           "skipped: " + w.skipped if w.check is None
+                           else "ok" if w.passed else "**FAIL**") for w in result.witnesses),
+                    "Jacobians against CasADi", collapsed=True))
     s.add(Text("The papers' equivalence claims, measured on the reference filters over 500 "
                "simulated steps (seed 1), as `derive check` prints them; differences are "
                "relative to max(1, |reference|)."),

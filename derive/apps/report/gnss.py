@@ -123,7 +123,7 @@ def rmse(ctx, s: Section) -> list:
     try:
         from ..gnss.sim import PAPER, reproduce
     except ImportError:
-        return [Todo("derive.apps.gnss.sim (issue 5) is missing: no simulated RMSE table.")]
+        return [Todo("derive.apps.gnss.sim is missing: no simulated RMSE table.")]
     runs = QUICK_RUNS if ctx.quick else RUNS
     rep = reproduce(runs, lang="python")
     out = [Text(f"RMSE by Monte Carlo (`derive.apps.gnss.sim.reproduce`, {runs} runs of "

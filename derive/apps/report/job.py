@@ -54,6 +54,7 @@ class ReportResult:
             f"  verified  : {len(g.verifications)} runs (generated Python and C against the "
             f"NumPy reference), max rel error {g.max_error:.1e}, "
             f"{sum(not v.passed for v in g.verifications)} failed",
+            f"  jacobians : {witness_text(g.witnesses)}",
             f"  checks    : {len(g.checks)} equivalence claims measured, "
             f"{sum(not c.passed for c in g.checks)} failed",
             f"  report    : {self.page} (and {self.index.name}), {self.figures} figures, "
@@ -68,6 +69,18 @@ class ReportResult:
                          "report")
         lines += [f"  FAIL      : {line}" for line in self.failures[:10]]
         return "\n".join(lines)
+
+
+def witness_text(witnesses: list) -> str:
+    """The summary's line on the CasADi Jacobian witnesses."""
+    if not witnesses:
+        return "no nonlinear model"
+    skipped = [w for w in witnesses if w.check is None]
+    if skipped:
+        return f"CasADi witness skipped for {len(skipped)} model(s): {skipped[0].skipped}"
+    failed = sum(not w.passed for w in witnesses)
+    return (f"{len(witnesses)} nonlinear model(s) against CasADi's automatic "
+            f"differentiation, {failed} failed")
 
 
 class _Progress:

@@ -20,7 +20,7 @@ QUICK_SEEDS = 2
 PLOT_STEPS = 30
 TABLE_TOLERANCE = 5e-4   # percent points: "matches the printed Table 1"
 IDENTITY = 1e-12         # x(k+N/k) = F^N x(k/k), relative
-PAPER_TABLE1 = {  # SSPRED Table 1, percent (SPEC §7)
+PAPER_TABLE1 = {  # SSPRED Table 1, percent (as printed)
     "cv": (0.0111, (0.0142, 0.0156, 0.0165, 0.0172, 0.0177)),
     "ca": (0.0077, (0.0146, 0.0173, 0.0189, 0.0200, 0.0209)),
 }
