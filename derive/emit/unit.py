@@ -42,7 +42,8 @@ class RunKind:
     and has no free parameters (derive.emit.lookahead).  ``extra_programs``: programs a
     unit of this kind may add.  ``work``: C run's caller-provided scratch arrays, after
     the stored ones: (name, the ports of the unit's programs one row of it holds per
-    step, in order), e.g. a smoother's forward pass; Python run allocates its own.
+    step, in order), e.g. a smoother's forward pass; Python run allocates its own.  The
+    step's outputs are the carried ones, the stored ones, then those the work rows hold.
     """
 
     name: str
@@ -226,6 +227,8 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     outputs = [out for _, out in unit.carried]
     if "store" not in unit.programs:  # else the store program computes the rest
         outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
+    # then the ports the run's work rows hold that the step writes (a smoother's prediction)
+    outputs += [port for _, held in kind.work for port in held if port not in outputs]
     if kind.window:
         per_step = [("zw", (unit.window, m))]
     return carried_in + per_step + p, [(out, _shape(unit, out)) for out in outputs]
