@@ -306,13 +306,14 @@ def run_arguments(unit: Unit) -> list[Argument]:
     sizes = {"n": unit.n, "m": unit.m}
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",
-            "Ps": "covariance after each step (C: may be NULL)"}
+            "Ps": "covariance after each step"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
     args += [Argument(name, name, tuple(sizes[d] for d in dims), doc=docs.get(name, name))
              for name, dims in unit.run.start]
     args += [Argument(name, name, ("steps",) + tuple(sizes[d] for d in dims), output=True,
-                      optional=optional, doc=docs.get(name, f"{port} after each step"))
+                      optional=optional, doc=docs.get(name, f"{port} after each step")
+                      + (" (C: may be NULL)" if optional else ""))
              for name, port, dims, optional in unit.run.stores]
     ports = {p.name: p.size for program in unit.programs.values()
              for p in program.inputs + program.outputs}
