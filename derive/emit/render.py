@@ -478,6 +478,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "tracks": tracks,
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,
+        # the per-step inputs' rows alone (zk), for a template that points pk itself
+        "input_rows": step_rows[:len(unit.step_inputs)],
         "unused": unused,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,
