@@ -69,6 +69,10 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("predictor", programs=("init",), carried=(("x", "x_new"),),
             start=(("x0", ("n",)),), stores=(("xs", "x_new", ("n",), False),),
             lookahead=True),
+    RunKind("smoother", programs=("backward",), carried=(("x", "x_new"), ("P", "P_new")),
+            start=(("x0", ("n",)), ("P0", ("n", "n"))),
+            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), False)),
+            work=(("work", ("x_new", "P_new", "x_pred", "P_pred")),)),
 )})
 """The run-loop kinds; a unit names one (``Unit.run_kind``) and emit switches on it only."""
 
