@@ -32,9 +32,9 @@ from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 PATTERNS = ("dense", "zero", "diagonal", "block")
 """Declared sparsity patterns of P0 (derive.filters.pattern.declared)."""
 
-COVARIANCE_FILTERS = ("kf", "lf", "jklf", "ikf", "ekf", "ukf")
+COVARIANCE_FILTERS = ("kf", "lf", "jklf", "ikf", "ekf", "ukf", "rts")
 """The filters that carry P, so P0's declared pattern shapes their code."""
-MISSING_FILTERS = ("kf", "lf", "jklf", "ikf")
+MISSING_FILTERS = ("kf", "lf", "jklf", "ikf", "rts")
 """The filters that take the option ``missing`` (NaN-marked absent measurements)."""
 TRACK_FILTERS = ("kf", "lf", "jklf", "ikf", "sskf", "sslf", "jssklf")
 """The filters whose C has ``MODEL_FILTER_run_tracks`` (derive.emit.c_loops)."""

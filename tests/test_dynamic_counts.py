@@ -40,24 +40,26 @@ def _generated(model_name: str, filter_name: str, mode: str):
     return _CACHE[key]
 
 
-def _outside_pattern(program):
-    """Flat indices of P (both triangles) that the program requires to be zero."""
-    n = program.port("P").shape[0]
-    flat = [int(str(c.value)[2:-1]) for c in program.body
-            if isinstance(c, Check) and c.relation == ZERO]
+def _outside_pattern(program, port):
+    """Flat indices of the symmetric ``port`` (both triangles) that the program requires to
+    be zero."""
+    n = port.shape[0]
+    flat = [int(index) for name, index in (str(c.value)[:-1].split("[") for c in program.body
+                                           if isinstance(c, Check) and c.relation == ZERO)
+            if name == port.name]
     return [k for i, j in (divmod(k, n) for k in flat) for k in (i * n + j, j * n + i)]
 
 
 def _inputs(model, program, unit, mode, rng):
-    """Plausible values for every input port (P symmetric positive definite, zero outside
-    its pattern, so every check passes and every operation runs)."""
+    """Plausible values for every input port (each symmetric one positive definite, zero
+    outside its pattern, so every check passes and every operation runs)."""
     values = []
     for port in program.inputs:
-        if port.name == "P":
+        if port.symmetric:
             n = port.shape[0]
             A = rng.normal(size=(n, n))
             P = (A @ A.T + n * np.eye(n)).ravel()
-            P[_outside_pattern(program)] = 0.0
+            P[_outside_pattern(program, port)] = 0.0
             values.append(P)
         elif port.name == "p" and mode == "paper":
             N = PAPER_FIR_ORDER if unit.family == "fir" else None

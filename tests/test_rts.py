@@ -20,7 +20,7 @@ from derive.emit import c_printer
 from derive.emit.python_printer import python_function
 from derive.errors import FilterError, ModelError, NumericalError, PatternError
 from derive.filters.kf import kf_update, time_varying_program
-from derive.filters.rts import WorkLayout, header_facts, rts_programs
+from derive.filters.rts import rts_programs
 from derive.flops import OpCounter, count
 from derive.lowering import lower_program
 from derive.options import SharedOptions
@@ -133,30 +133,27 @@ def test_reference_names_a_singular_prediction():
 
 def run_programs(programs, zs, x0, P0, p=()):
     """The run loop of derive.filters.rts's docstring, on one flat work array of exactly
-    ``WorkLayout.size(steps)`` doubles; every double it must not read is NaN."""
-    forward = python_function(programs["forward"])
+    steps * (2 n + 2 n^2) doubles, one row per step; every double it must not read is
+    NaN."""
+    forward = python_function(programs["step"])
     backward = python_function(programs["backward"])
-    layout = WorkLayout.of(programs)
-    n, steps, entries = layout.n, len(zs), list(layout.prior_entries)
-    xs, Ps = np.full((steps, n), np.nan), np.full((steps, n * n), np.nan)
-    work = np.full(layout.size(steps), np.nan)
-    x_f, P_f = work[layout.x_f:layout.P_f], work[layout.P_f:layout.x_p]
-    x_p, P_p = work[layout.x_p:layout.P_p], work[layout.P_p:layout.scratch]
+    n, steps = programs["step"].port("x").shape[0], len(zs)
+    nn, row = n * n, 2 * n + 2 * n * n
+    xs, Ps = np.full((steps, n), np.nan), np.full((steps, nn), np.nan)
+    work = np.full(steps * row, np.nan)
 
-    def record(k):
-        start = layout.record_offset(k)
-        return work[start:start + layout.record]
+    def part(k, offset, size):
+        return work[k * row + offset:k * row + offset + size]
 
-    for k in range(1, steps + 1):
-        x_in, P_in = (x0, np.ravel(P0)) if k == 1 else (xs[k - 2], Ps[k - 2])
-        xs[k - 1], Ps[k - 1], x_p[:], P_p[:] = forward(x_in, P_in, zs[k - 1], *p)
-        record(k)[:n], record(k)[n:] = x_p, P_p[entries]
-    lower = [i * n + j for i in range(n) for j in range(i)]
-    P_p[lower] = np.nan          # the backward program reads upper triangles only
-    for k in range(steps - 1, 0, -1):
-        x_f[:], P_f[:] = xs[k - 1], Ps[k - 1]
-        x_p[:], P_p[entries] = record(k + 1)[:n], record(k + 1)[n:]
-        xs[k - 1], Ps[k - 1] = backward(x_f, P_f, x_p, P_p, xs[k], Ps[k], *p)
+    for k in range(steps):
+        x_in, P_in = (x0, np.ravel(P0)) if k == 0 else (part(k - 1, 0, n), part(k - 1, n, nn))
+        (part(k, 0, n)[:], part(k, n, nn)[:], part(k, n + nn, n)[:],
+         part(k, 2 * n + nn, nn)[:]) = forward(x_in, P_in, zs[k], *p)
+    if steps:
+        xs[-1], Ps[-1] = part(steps - 1, 0, n), part(steps - 1, n, nn)
+    for k in range(steps - 2, -1, -1):
+        xs[k], Ps[k] = backward(part(k, 0, n), part(k, n, nn), part(k + 1, n + nn, n),
+                                part(k + 1, 2 * n + nn, nn), xs[k + 1], Ps[k + 1], *p)
     return xs, Ps.reshape(steps, n, n)
 
 
@@ -206,7 +203,7 @@ def test_the_forward_pass_costs_exactly_the_kalman_filter_step():
     for name in LINEAR:
         model = catalog.load(name)
         for missing in (False, True):
-            forward = rts_programs(model, SharedOptions(missing=missing))["forward"]
+            forward = rts_programs(model, SharedOptions(missing=missing))["step"]
             step = time_varying_program(model, _kf_update(missing), "Kalman filter", None)
             assert count(forward, "c") == count(step, "c"), (name, missing)
 
@@ -218,14 +215,12 @@ def _kf_update(missing):
 def test_block_models_stay_block_diagonal_and_cost_their_blocks():
     a = rts_programs(catalog.load("mpt3d_a"), SharedOptions())
     b = rts_programs(catalog.load("mpt3d_b"), SharedOptions())
-    for which in ("forward", "backward"):
+    for which in ("step", "backward"):
         assert count(a[which], "c").flops == 3 * count(b[which], "c").flops
     P_smooth = np.reshape(a["backward"].results["P_smooth"], (6, 6))
     for i in range(6):
         for j in range(6):
             assert (P_smooth[i, j] != 0) == (i // 2 == j // 2)
-    assert WorkLayout.of(a).prior_entries == (0, 1, 7, 14, 15, 21, 28, 29, 35)
-    assert (WorkLayout.of(a).size(10), WorkLayout.of(b).size(10)) == (84 + 150, 12 + 50)
 
 
 def test_backward_solves_against_the_prediction_and_checks_its_pivots():
@@ -258,19 +253,9 @@ def test_static_and_dynamic_counts_agree():
         *(counter.wrap(np.ravel(v)) for v in (x, P, x, P + np.eye(6), x, P)))
     assert counter.snapshot() == count(programs["backward"], "python")
     counter = OpCounter()
-    python_function(programs["forward"])(
+    python_function(programs["step"])(
         *(counter.wrap(np.ravel(v)) for v in (x, P, [1.0, np.nan, 2.0])))
-    assert counter.snapshot() == count(programs["forward"], "python")
-
-
-def test_header_facts_state_the_patterns_and_the_work_size():
-    model = catalog.load("gps_static")
-    options = SharedOptions(missing=True)
-    facts = header_facts(model, rts_programs(model, options), options)
-    assert facts[0] == "P0 pattern declared: diagonal"
-    assert "x..|.x.|..x" in facts[1]
-    assert facts[2].startswith("work: 24 + 6 * steps")
-    assert facts[3].startswith("missing measurements")
+    assert counter.snapshot() == count(programs["step"], "python")
 
 
 @pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
@@ -310,7 +295,7 @@ def test_a_nonlinear_model_is_refused_with_one_line():
 @pytest.mark.parametrize("name", LINEAR)
 def test_smoothed_and_predicted_covariances_stay_in_the_filters_pattern(name):
     programs = rts_programs(catalog.load(name), SharedOptions())
-    filtered = programs["forward"].results["P_new"]
-    for values in (programs["forward"].results["P_pred"],
+    filtered = programs["step"].results["P_new"]
+    for values in (programs["step"].results["P_pred"],
                    programs["backward"].results["P_smooth"]):
         assert [v != 0 for v in values] == [v != 0 for v in filtered]

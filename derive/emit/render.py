@@ -440,6 +440,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
     used = step_lp.used_inputs()
+    rows = {name: f"{name}k" for name in
+            unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())}
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     context = {
@@ -462,8 +464,10 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "enter_call": _program_call(prefix, lowered["enter"], {})
         if "enter" in lowered else [],
         # every program's C call with its ports' own names, for a kind's template whose
-        # run keeps them in local arrays of those names (a smoother's backward pass)
-        "calls": {name: _program_call(prefix, lp, {}) for name, lp in lowered.items()},
+        # run keeps them in local arrays of those names (a smoother's backward pass); the
+        # per-step inputs and p read their row (zk, pk), which the template points at
+        "calls": {name: _program_call(prefix, lp, rows) for name, lp in lowered.items()},
+        "p_stride": P_STRIDE if unit.parameters else "",
         "call_status_decl": ["int status;"] if any(
             lowered[name].has_checks for name in ("enter", "store") if name in lowered)
         else [],
@@ -474,6 +478,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "tracks": tracks,
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,
+        # the per-step inputs' rows alone (zk), for a template that points pk itself
+        "input_rows": step_rows[:len(unit.step_inputs)],
         "unused": unused,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,

@@ -42,7 +42,8 @@ class RunKind:
     and has no free parameters (derive.emit.lookahead).  ``extra_programs``: programs a
     unit of this kind may add.  ``work``: C run's caller-provided scratch arrays, after
     the stored ones: (name, the ports of the unit's programs one row of it holds per
-    step, in order), e.g. a smoother's forward pass; Python run allocates its own.
+    step, in order), e.g. a smoother's forward pass; Python run allocates its own.  The
+    step's outputs are the carried ones, the stored ones, then those the work rows hold.
     """
 
     name: str
@@ -68,6 +69,10 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("predictor", programs=("init",), carried=(("x", "x_new"),),
             start=(("x0", ("n",)),), stores=(("xs", "x_new", ("n",), False),),
             lookahead=True),
+    RunKind("smoother", programs=("backward",), carried=(("x", "x_new"), ("P", "P_new")),
+            start=(("x0", ("n",)), ("P0", ("n", "n"))),
+            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), False)),
+            work=(("work", ("x_new", "P_new", "x_pred", "P_pred")),)),
 )})
 """The run-loop kinds; a unit names one (``Unit.run_kind``) and emit switches on it only."""
 
@@ -226,6 +231,8 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     outputs = [out for _, out in unit.carried]
     if "store" not in unit.programs:  # else the store program computes the rest
         outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
+    # then the ports the run's work rows hold that the step writes (a smoother's prediction)
+    outputs += [port for _, held in kind.work for port in held if port not in outputs]
     if kind.window:
         per_step = [("zw", (unit.window, m))]
     return carried_in + per_step + p, [(out, _shape(unit, out)) for out in outputs]
@@ -303,13 +310,14 @@ def run_arguments(unit: Unit) -> list[Argument]:
     sizes = {"n": unit.n, "m": unit.m}
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",
-            "Ps": "covariance after each step (C: may be NULL)"}
+            "Ps": "covariance after each step"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
     args += [Argument(name, name, tuple(sizes[d] for d in dims), doc=docs.get(name, name))
              for name, dims in unit.run.start]
     args += [Argument(name, name, ("steps",) + tuple(sizes[d] for d in dims), output=True,
-                      optional=optional, doc=docs.get(name, f"{port} after each step"))
+                      optional=optional, doc=docs.get(name, f"{port} after each step")
+                      + (" (C: may be NULL)" if optional else ""))
              for name, port, dims, optional in unit.run.stores]
     ports = {p.name: p.size for program in unit.programs.values()
              for p in program.inputs + program.outputs}

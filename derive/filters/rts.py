@@ -1,7 +1,7 @@
 """The Rauch-Tung-Striebel fixed-interval smoother (linear models), staged as two programs.
 
-``forward``: one Kalman filter step (:func:`derive.filters.kf.kf_update`, the KF's own
-staging, ``missing`` included) that also outputs the prediction it made:
+``step`` (the forward pass): one Kalman filter step (:func:`derive.filters.kf.kf_update`,
+the KF's own staging, ``missing`` included) that also outputs the prediction it made:
 
     x, P, z, [p]  ->  x_new = x(k+1/k+1), P_new = P(k+1/k+1),
                       x_pred = x(k+1/k),  P_pred = P(k+1/k)
@@ -25,41 +25,31 @@ be zero there (upper triangle), as the KF checks P.
 Indexing (derive.reference.smoother): x(0/0) = x0, P(0/0) = P0, z(k) = z[k-1] for
 k = 1..N, and the run returns xs[k-1] = x(k/N), Ps[k-1] = P(k/N), k = 1..N.
 
-The run ``MODEL_rts_run(steps, z, x0, P0, xs, Ps, work)`` (the kind "smoother"), with
-:class:`WorkLayout` giving every offset below.  Generated C marks the ports ``restrict``,
-so no output may alias an input: hence the scratch copies.
+The run ``MODEL_rts_run(steps, z, x0, P0, xs, Ps, work)`` (the run kind "smoother",
+derive.emit.unit.RUN_KINDS, templates/<language>/smoother.jinja).  Generated C marks the
+ports ``restrict``; every call below reads and writes disjoint rows, so nothing is copied.
 
-work (doubles), ``u`` = the upper-triangle entries of P(k+1/k)'s pattern (row-major,
-``WorkLayout.prior_entries``, flat indices into an n x n array):
+work (doubles, caller-provided in C; Python allocates its own): one row per step k = 1..N,
+row k - 1 = [x(k/k) (n), P(k/k) (n*n), x(k/k-1) (n), P(k/k-1) (n*n)], the step's outputs
+x_new, P_new, x_pred, P_pred in that order (the kind's ``work`` entry):
 
-    [0, n)                 x_f   scratch: a copy of x(k/k)
-    [n, n + n*n)           P_f   scratch: a copy of P(k/k), full row-major
-    [n + n*n, 2n + n*n)    x_p   scratch: x(k+1/k)
-    [2n + n*n, 2n + 2n*n)  P_p   scratch: P(k+1/k), full row-major
-    then one record per step k = 1..N at 2(n + n*n) + (k-1)(n + u):
-                           x(k/k-1) (n doubles), then P(k/k-1) at prior_entries (u doubles)
-
-size = 2 (n + n*n) + steps (n + u)  (``WorkLayout.size(steps)``).
+    size = steps * (2 n + 2 n*n)  (stated in the header's interface line).
 
 Loop order:
 
-1. (no initialisation: every scratch double is written before it is read; the forward
-   program writes P_p in full, zeros outside the pattern included);
-2. forward, k = 1..N: ``forward(x_in, P_in, z[k-1], [p]) -> xs[k-1], Ps[k-1], x_p, P_p``
-   with (x_in, P_in) = (x0, P0) for k = 1, else (xs[k-2], Ps[k-2]); then x_p and P_p at
-   prior_entries are copied into record k.  A failed check stops the run (its status);
-3. xs[N-1], Ps[N-1] already hold the smoothed x(N/N), P(N/N): they are the filtered ones;
-4. backward, k = N-1 down to 1: xs[k-1], Ps[k-1] are copied to x_f, P_f; record k+1 to x_p
-   and to P_p at prior_entries (its lower triangle is not read); then
-   ``backward(x_f, P_f, x_p, P_p, xs[k], Ps[k], [p]) -> xs[k-1], Ps[k-1]``.
+1. forward, k = 1..N: ``step(x_in, P_in, z[k-1], [p[k-1]]) -> row k - 1`` with
+   (x_in, P_in) = (x0, P0) for k = 1, else the x(k-1/k-1), P(k-1/k-1) of row k - 2.  A
+   failed check stops the run (its status);
+2. xs[N-1], Ps[N-1] = x(N/N), P(N/N) from row N - 1: the smoothed are the filtered there;
+3. backward, k = N-1 down to 1: ``backward(x(k/k), P(k/k) of row k - 1, x(k+1/k),
+   P(k+1/k) of row k, xs[k], Ps[k], [p[k]]) -> xs[k-1], Ps[k-1]`` (p[k]: the row whose F
+   predicted x(k+1/k)).
 
-Record 1 (P(1/0)) is written and never read back: P(1/0) is singular for the catalog's
-P0 = 0, so x(0/N) is not part of the run.
+Row 1's prediction (P(1/0)) is written and never read back: P(1/0) is singular for the
+catalog's P0 = 0, so x(0/N) is not part of the run.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import sympy
 
@@ -77,10 +67,13 @@ from .common import (
     parameter_port,
     pattern_message,
     time_varying_ports,
+    with_fact,
 )
 from .kf import kf_update, prior
-from .unit import accepted_P0
+from .spec import FilterSpec
+from .unit import make_unit
 
+NAME = "rts"
 TITLE = "Rauch-Tung-Striebel smoother"
 MODEL_KIND = "linear"
 RUN_KIND = "smoother"
@@ -97,7 +90,7 @@ def _forward_build(model, pattern, declared: str, missing: bool):
     n = model.n
     outputs = outputs + [Port("x_pred", (n,), doc="x(k+1/k)"),
                          Port("P_pred", (n, n), symmetric=True, doc="P(k+1/k), row-major")]
-    prog = Program("forward", inputs, outputs,
+    prog = Program("step", inputs, outputs,
                    doc=f"one forward (Kalman filter) step of the {TITLE}")
     mats = bound_matrices(model, prog)
     x, z = prog.matrix("x"), prog.matrix("z")
@@ -150,7 +143,7 @@ def _backward_build(model, filtered, predicted, smoothed, declared: str):
 
 
 def rts_programs(model, options: SharedOptions) -> dict[str, Program]:
-    """``{"forward": ..., "backward": ...}``, optimised, for the linear ``model``."""
+    """``{"step": forward, "backward": ...}``, optimised, for the linear ``model``."""
     if model.kind != "linear":
         raise FilterError(f"filter 'rts' needs a linear model; {model.name!r} is {model.kind}")
     declared = options.P0_pattern or model.P0_pattern
@@ -171,70 +164,35 @@ def rts_programs(model, options: SharedOptions) -> dict[str, Program]:
         forward.set_output(name, list(value))
     backward.set_output("x_smooth", list(x_smooth))
     backward.set_output("P_smooth", list(P_smooth))
-    return {"forward": forward.optimize(), "backward": backward.optimize()}
+    return {"step": forward.optimize(), "backward": backward.optimize()}
 
 
-def header_facts(model, programs: dict[str, Program], options: SharedOptions) -> list[str]:
-    """The header lines a generated smoother states: P0's declared and accepted patterns,
-    the work array's size, missing measurements."""
-    layout = WorkLayout.of(programs)
-    facts = [f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}",
-             accepted_P0(programs["forward"]),
-             f"work: {layout.formula()} doubles (caller-provided; no allocation)"]
-    return facts + ([MISSING_FACT] if options.missing else [])
+def work_fact(n: int) -> str:
+    """The header line stating the size of C run's work array."""
+    return (f"work: steps * {2 * n + 2 * n * n} doubles, steps * (2 n + 2 n^2) (C: "
+            "caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); "
+            "no allocation)")
 
 
-@dataclass(frozen=True)
-class WorkLayout:
-    """Offsets of the run's work array (see the module docstring)."""
+def derive_unit(model, spec, options: SharedOptions):
+    """The smoother's unit: the forward ``step`` and the ``backward`` program."""
+    unit = make_unit(model, spec, rts_programs(model, options), options)
+    unit = with_fact(unit, work_fact(model.n))
+    return with_fact(unit, MISSING_FACT) if options.missing else unit
 
-    n: int
-    prior_entries: tuple[int, ...]
-    """Flat row-major indices (i*n + j, i <= j) of the P(k+1/k) entries a record stores."""
 
-    @classmethod
-    def of(cls, programs: dict[str, Program]) -> WorkLayout:
-        forward = programs["forward"]
-        n = forward.port("x").shape[0]
-        values = forward.results["P_pred"]
-        entries = tuple(i * n + j for i in range(n) for j in range(i, n)
-                        if values[i * n + j] != 0)
-        return cls(n, entries)
+def reference(model, zs, options):
+    """derive.reference.smoother.rts from the model's x0 and P0 (NaN: absent, with
+    ``missing``): (xs, Ps)."""
+    num = model.numeric()
+    return reference_rts(num, zs, num.x0, num.P0, skip_nan=options.missing)
 
-    @property
-    def x_f(self) -> int:
-        return 0
 
-    @property
-    def P_f(self) -> int:
-        return self.n
-
-    @property
-    def x_p(self) -> int:
-        return self.n + self.n * self.n
-
-    @property
-    def P_p(self) -> int:
-        return 2 * self.n + self.n * self.n
-
-    @property
-    def scratch(self) -> int:
-        """Doubles before the first record: x_f, P_f, x_p, P_p."""
-        return 2 * (self.n + self.n * self.n)
-
-    @property
-    def record(self) -> int:
-        """Doubles per step: x(k/k-1) and the stored entries of P(k/k-1)."""
-        return self.n + len(self.prior_entries)
-
-    def record_offset(self, k: int) -> int:
-        """Offset of record k (k = 1..N)."""
-        return self.scratch + (k - 1) * self.record
-
-    def size(self, steps: int) -> int:
-        return self.scratch + steps * self.record
-
-    def formula(self) -> str:
-        """``2 (n + n^2) + steps (n + u)`` with the numbers of this layout."""
-        return (f"{self.scratch} + {self.record} * steps (2 (n + n^2) + steps (n + u), "
-                f"n = {self.n}, u = {len(self.prior_entries)} entries of P(k+1/k))")
+SPECS = (FilterSpec(
+    NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
+    missing=True, listing=95,
+    about={"python": "Run the Rauch-Tung-Striebel smoother: a Kalman filter forward, then "
+                     "x(k/N) = x(k/k) + C [x(k+1/N) - x(k+1/k)] backward; returns the "
+                     "smoothed (xs, Ps).",
+           "c": "Run the Rauch-Tung-Striebel smoother over steps steps: forward into work, "
+                "then backward into xs and Ps (both required)."}),)
