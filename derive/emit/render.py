@@ -198,8 +198,9 @@ def _python_functions(lp: LoweredProgram) -> list[dict]:
 
 
 def _python_run_checks(step: LoweredProgram, unit: Unit) -> list[str]:
-    """run's check of P0 against the pattern, once before the loop."""
-    if not step.pattern_checks:
+    """run's check of P0 against the pattern, once before the loop (none when an ``enter``
+    program starts the carried state: it checks run's arguments itself)."""
+    if not step.pattern_checks or "enter" in unit.programs:
         return []
     flat = f"P0.reshape(({unit.n * unit.n},) + P0.shape[2:])"
     return python_printer.pattern_check_lines(step, {"P": flat})
@@ -422,9 +423,11 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         return f"{start}[{track}{var.index}]" if not track else \
             f"{start}[{track} * {size} + {var.index}]"
 
-    run_checks = [line for c in step_lp.pattern_checks
+    # an enter program checks run's arguments itself (its own statuses)
+    start_checks = step_lp.pattern_checks if "enter" not in lowered else ()
+    run_checks = [line for c in start_checks
                   for line in c_printer.pattern_check_lines(c, start_element(c))]
-    tracks_checks = [line for c in step_lp.pattern_checks
+    tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"))]
     lookahead = two_step_body(unit, loop_step, two) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
