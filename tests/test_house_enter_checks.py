@@ -69,3 +69,34 @@ def test_enter_checks_p0_and_run_reports_its_pattern_status(tmp_path):
 def test_the_accepted_line_reads_enters_checks_of_p0():
     line = accepted_P0(_programs()["enter"], "P0")
     assert line.startswith("P0 accepted: exactly those zero outside P's pattern x.|.x")
+
+
+def test_a_one_state_p0_is_entered_flat_in_python(tmp_path):
+    """n = 1: run's P0 of shape (1, 1) reaches enter flattened (not as a track axis)."""
+    step = Program("step", [Port("x", (1,)), Port("S", (1, 1)), Port("z", (1,))],
+                   [Port("x_new", (1,)), Port("S_new", (1, 1))], doc="scalar KF on S = 2 P")
+    x, P, z = step.matrix("x")[0], step.matrix("S")[0] / 2, step.matrix("z")[0]
+    Pp = P + 1
+    gain = Pp / (Pp + 1)
+    step.set_output("x_new", [x + gain * (z - x)])
+    step.set_output("S_new", [2 * (Pp - gain * Pp)])
+    enter = Program("enter", [Port("x0", (1,)), Port("P0", (1, 1))],
+                    [Port("x", (1,)), Port("S", (1, 1))], doc="S = 2 P0")
+    enter.set_output("x", list(enter.matrix("x0")))
+    enter.set_output("S", [2 * enter.matrix("P0")[0]])
+    store = Program("store", [Port("x", (1,)), Port("S", (1, 1))], [Port("P_new", (1, 1))],
+                    doc="P = S / 2")
+    store.set_output("P_new", [store.matrix("S")[0] / 2])
+    unit = Unit(model="toy", filter="one", n=1, m=1,
+                programs={"step": step.optimize(), "enter": enter.optimize(),
+                          "store": store.optimize()},
+                carried=(("x", "x_new"), ("S", "S_new")), command="pytest",
+                **{**unit_fields("kf"), "extra_programs": ("enter", "store"), "batch": False})
+    paths = {p.suffix: p for p in write_files(tmp_path, "toy", render_files(unit))}
+    zs = np.array([[1.0], [2.0], [0.5]])
+    one = np.ones((1, 1))
+    xr, Pr = reference_kf(one, one, one, one, zs, np.zeros(1), 2 * one)
+    xs, Ps = load_python(paths[".py"]).run(zs, np.zeros(1), 2 * one)
+    assert xs.shape == (3, 1) and Ps.shape == (3, 1, 1)
+    np.testing.assert_allclose(xs, xr, rtol=1e-14)
+    np.testing.assert_allclose(Ps, Pr, rtol=1e-14)

@@ -304,7 +304,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         ports = {p.name: p for p in lowered["step"].inputs}
         names = ", ".join(s["name"] for s in state)
         context["carried"] = state
-        context["enter_line"] = (f"{names} = enter({', '.join(n for n, _ in unit.run.start)})"
+        context["enter_line"] = (f"{names} = enter({', '.join(_flat_start(unit))})"
                                  if "enter" in lowered else "")
         stores = []
         for s in stored_outputs(unit):
@@ -322,6 +322,16 @@ def render_python(unit: Unit) -> dict[str, str]:
             context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
                                                   rows, arrays, unit.carried, stored)
     return {f"{unit.filter}.py": _render(f"python/{unit.kind}.jinja", context)}
+
+
+def _flat_start(unit: Unit) -> list[str]:
+    """run's start arguments as enter takes them: a matrix (shaped (rows, cols) + track
+    by run's prologue) flattened row-major, so that a 1 x 1 P0 is not read as a track."""
+    sizes = {"n": unit.n, "m": unit.m}
+    return [name if len(dims) < 2 else
+            f"{name}.reshape(({int(np.prod([sizes[d] for d in dims]))},) + "
+            f"{name}.shape[{len(dims)}:])"
+            for name, dims in unit.run.start]
 
 
 #: C run's last argument with free parameters: 0 when p is one row for every step, NP
