@@ -32,12 +32,13 @@ from _backend_kf import (
     unit_fields,
 )
 
+from derive import catalog
 from derive.build import load_python
 from derive.emit.render import derive_version, environment, render_files
 from derive.emit.unit import RUN_KINDS, Unit
 from derive.emit.write import write_files
 from derive.errors import OutputPathError
-from derive.filters import FILTERS
+from derive.filters import FILTERS, derive_unit
 from derive.flops import count
 from derive.program import Port, Program, ProgramError
 
@@ -53,6 +54,7 @@ def _units():
         units.append(Unit(model="cv", filter=family, **unit_fields(family), n=2, m=1,
                           programs={"step": step}, parameters=("dt", "q", "r")))
     units.append(steady_unit("sslf"))
+    units.append(derive_unit(catalog.load("mpt3d_b"), "udkf", {"missing": True}))
     return units
 
 

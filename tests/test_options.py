@@ -134,7 +134,7 @@ def test_an_option_named_for_a_filter_that_does_not_take_it_is_refused(tmp_path)
     with pytest.raises(OptionError, match="option 'joseph' is taken by kf, not by lf; "
                                           "options of lf: P0_pattern, missing, run_tracks"):
         render_filter(catalog.load("mpt3d_b"), "lf", "all", {"joseph": True})
-    with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, "
+    with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, udkf, "
                                           "not by sskf"):
         generate("mpt3d_b", ["kf", "sskf"], "all", tmp_path,
                  per_filter_options={"sskf": {"missing": True}})
@@ -382,7 +382,7 @@ def test_typed_options_are_checked_too():
     with pytest.raises(OptionError, match=r"option 'eps' \(--eps\) must be a finite number "
                                           r"in \(0, 1\), got 5.0"):
         FirOptions(eps=5)
-    with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, "
+    with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, udkf, "
                                           "not by fir"):
         validate("fir", FirOptions(missing=True))
     assert type(FirOptions(order=np.int32(4)).order) is int
