@@ -24,7 +24,6 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import itertools
-import math
 import os
 import re
 import shutil
@@ -163,7 +162,7 @@ class FilterModule:
         c_args += strides
         status = getattr(self.lib, fn.name)(*c_args)
         if fn.returns_status and status:
-            raise status_error(self, name, status, values.get("P0", values.get("P")))
+            raise status_error(self, name, status, values)
         if fn.has_steps:
             shaped = [out.reshape(tuple(steps if d == "steps" else d for d in arg.dims))
                       for arg, out in outputs]
@@ -172,29 +171,41 @@ class FilterModule:
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
 
 
-def status_error(module: FilterModule, function: str, status: int, covariance
+#: The programs run (and run_tracks) calls, whose statuses it returns: ``enter`` (when the
+#: unit has one) checks run's start arguments, else run checks them with the step's checks.
+RUN_PROGRAMS = ("enter", "step")
+
+
+def status_error(module: FilterModule, function: str, status: int, values: dict
                  ) -> NumericalError | PatternError:
-    """The exception for a non-zero status of ``PREFIX_function``: PatternError naming the
-    first entry of ``covariance`` (P or P0, any track) outside the pattern the header
-    states, for the pattern status; NumericalError naming the failed check otherwise."""
-    program = "step" if function in ("run", "run_tracks") else function
+    """The exception for a non-zero status of ``PREFIX_function`` called with the input
+    arrays ``values`` (by argument name): PatternError naming the first entry of a square
+    input (P, P0, U; any track) outside the pattern the header states, for a pattern status
+    of a program the function runs; NumericalError naming the failed check otherwise."""
+    programs = (RUN_PROGRAMS if function in ("run", "run_tracks") else (function,))
     texts = module.statuses.get(status, [])
-    mine = [t.split(": ", 1)[1] for t in texts if t.startswith(f"{program}: ")]
     where = f"{module.prefix}_{function} failed with status {status}"
-    zero = module.interface.zero(program, status)
-    if mine and zero and covariance is not None:
-        nn = next(a.size() for a in module.functions[program].arguments if a.name == "P")
-        n = math.isqrt(nn)
-        name = "P" if function == "step" or program != "step" else "P0"
-        flat = np.asarray(covariance, dtype=float).reshape(-1, nn)
-        upper = [k for k in zero if k // n <= k % n]
-        for track, values in enumerate(flat):
-            for k in upper:
-                if not values[k] == 0:
-                    i, j = divmod(k, n)
-                    which = f" (track {track})" if len(flat) > 1 else ""
-                    return PatternError(f"{where}: {name}[{i}][{j}] = {float(values[k])!r}"
-                                        f"{which}: {mine[0]}")
+    arguments = {a.name: a for a in module.functions["run" if function == "run_tracks"
+                                                     else function].arguments
+                 if not a.output and len(a.dims) == 2 and a.dims[0] == a.dims[1]}
+    for program in programs:
+        mine = [t.split(": ", 1)[1] for t in texts if t.startswith(f"{program}: ")]
+        zero = module.interface.zero(program, status)
+        if not (mine and zero):
+            continue
+        for name, arg in arguments.items():
+            if values.get(name) is None:
+                continue
+            n = int(arg.dims[0])
+            flat = np.asarray(values[name], dtype=float).reshape(-1, n * n)
+            upper = [k for k in zero if k // n <= k % n]
+            for track, row in enumerate(flat):
+                for k in upper:
+                    if not row[k] == 0:
+                        i, j = divmod(k, n)
+                        which = f" (track {track})" if len(flat) > 1 else ""
+                        return PatternError(f"{where}: {name}[{i}][{j}] = {float(row[k])!r}"
+                                            f"{which}: {mine[0]}")
     return NumericalError(f"{where}: " + " or ".join(texts or ["unknown check"]))
 
 
@@ -235,7 +246,7 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
         args += [buf("double[]", p), inputs["p"].size() if p.ndim == 2 else 0]
     status = fn(*args)
     if status:
-        raise status_error(module, "run_tracks", status, P0)
+        raise status_error(module, "run_tracks", status, {"P0": P0})
     return xs if P0 is None else (xs, Ps)
 
 

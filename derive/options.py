@@ -1,5 +1,5 @@
 """Filter options, declared once: one typed options class per family, each field with its
-CLI flag, help, type, default, range and the filters that take it.
+CLI flag, help, type, default and range.
 
 ``SharedOptions`` holds what several families share (P0 pattern, missing measurements,
 the batch function ``run_tracks``); ``KalmanOptions`` (kf), ``FirOptions``,
@@ -8,6 +8,12 @@ and the parsed arguments of the CLI are validated here, once, into these types
 (:func:`validate`, :func:`per_filter`); the `derive generate` / `burden` / `verify` flags
 (:func:`add_arguments`) and the command that regenerates a filter's files
 (:func:`regenerate_command`) are built from the same declarations.
+
+Which filters take an option follows their specs (derive.filters.spec.FilterSpec): a
+filter takes the options of its options class (``FilterSpec.options``), a shared one only
+when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``).
+The registry hands its specs over once it is built (:func:`use_filters`, called by
+derive.filters), so this module names no filter and imports nothing from derive.filters.
 
 Every refusal is an :class:`derive.errors.OptionError` naming the option: an unknown
 name (with a close match), a wrong type (the string ``"False"`` for a bool), a value out
@@ -32,13 +38,6 @@ from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 PATTERNS = ("dense", "zero", "diagonal", "block")
 """Declared sparsity patterns of P0 (derive.filters.pattern.declared)."""
 
-COVARIANCE_FILTERS = ("kf", "lf", "jklf", "ikf", "ekf", "ukf", "rts")
-"""The filters that carry P, so P0's declared pattern shapes their code."""
-MISSING_FILTERS = ("kf", "lf", "jklf", "ikf", "rts")
-"""The filters that take the option ``missing`` (NaN-marked absent measurements)."""
-TRACK_FILTERS = ("kf", "lf", "jklf", "ikf", "sskf", "sslf", "jssklf")
-"""The filters whose C has ``MODEL_FILTER_run_tracks`` (derive.emit.c_loops)."""
-
 DEFAULT_EPS = 1e-6
 """The FIR order is the least N with ||A^N||_2 < eps, by default this eps."""
 UKF_ALPHA_RANGE = (1e-4, 1.0)
@@ -48,12 +47,16 @@ with the mean in double precision, and the weights grow past what doubles carry.
 
 @dataclass(frozen=True)
 class Spec:
-    """What an option is, besides its name and default: see :func:`option`."""
+    """What an option is, besides its name and default: see :func:`option`.
+
+    ``needs``: the flag of a filter's spec (derive.filters.spec.FilterSpec) without which
+    the filter does not take this option even when its options class has it (a shared
+    option); None: every filter whose options class has it takes it."""
 
     flag: str
     help: str
     kind: type
-    takers: tuple[str, ...]
+    needs: str | None = None
     low: float | None = None
     high: float | None = None
     open_low: bool = False
@@ -93,18 +96,19 @@ class SharedOptions:
     """Options several families share; the base of every family's options."""
 
     P0_pattern: str | None = option(
-        None, flag="--P0-pattern", kind=str, choices=PATTERNS, takers=COVARIANCE_FILTERS,
+        None, flag="--P0-pattern", kind=str, choices=PATTERNS, needs="covariance",
         help="declared sparsity of P0 (default: the model's)")
     missing: bool = option(
-        False, flag="--missing", kind=bool, takers=MISSING_FILTERS,
+        False, flag="--missing", kind=bool, needs="missing",
         help="a NaN in z skips that measurement")
     run_tracks: bool = option(
-        True, flag="--no-run-tracks", kind=bool, takers=TRACK_FILTERS,
+        True, flag="--no-run-tracks", kind=bool, needs="batch",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
 
     def __post_init__(self) -> None:
-        for key in self.specs():
-            object.__setattr__(self, key, check(key, getattr(self, key)))
+        for key, spec in self.specs().items():
+            object.__setattr__(self, key, _checked(key, spec, getattr(self, key),
+                                                   _default(type(self), key)))
 
     @classmethod
     def specs(cls) -> dict[str, Spec]:
@@ -124,18 +128,18 @@ class SharedOptions:
 @dataclass(frozen=True, kw_only=True)
 class KalmanOptions(SharedOptions):
     joseph: bool = option(
-        False, flag="--joseph", kind=bool, takers=("kf",),
+        False, flag="--joseph", kind=bool,
         help="Joseph-form covariance update")
 
 
 @dataclass(frozen=True, kw_only=True)
 class FirOptions(SharedOptions):
     eps: float = option(
-        DEFAULT_EPS, flag="--eps", kind=float, takers=("fir",), low=0.0, high=1.0,
+        DEFAULT_EPS, flag="--eps", kind=float, low=0.0, high=1.0,
         open_low=True, open_high=True, metavar="EPS",
         help=f"order N is the least with ||A^N||_2 < eps ({DEFAULT_EPS:g})")
     order: int | None = option(
-        None, flag="--order", kind=int, takers=("fir",), low=1, high=MAX_FIR_WINDOW,
+        None, flag="--order", kind=int, low=1, high=MAX_FIR_WINDOW,
         formerly=("N", "window"), metavar="N",
         help=f"order N directly (N m <= {MAX_FIR_WINDOW} and N n m <= {MAX_FIR_TAPS})")
 
@@ -143,45 +147,78 @@ class FirOptions(SharedOptions):
 @dataclass(frozen=True, kw_only=True)
 class PredictionOptions(SharedOptions):
     horizon: int = option(
-        1, flag="--horizon", kind=int, takers=("pred",), low=1, high=MAX_HORIZON,
+        1, flag="--horizon", kind=int, low=1, high=MAX_HORIZON,
         formerly=("N",), metavar="N", help="steps ahead N (1)")
 
 
 @dataclass(frozen=True, kw_only=True)
 class UnscentedOptions(SharedOptions):
     alpha: float = option(
-        1.0, flag="--alpha", kind=float, takers=("ukf",), low=UKF_ALPHA_RANGE[0],
+        1.0, flag="--alpha", kind=float, low=UKF_ALPHA_RANGE[0],
         high=UKF_ALPHA_RANGE[1], help="sigma-point spread alpha (1)")
     beta: float = option(
-        0.0, flag="--beta", kind=float, takers=("ukf",), help="sigma-point beta (0)")
+        0.0, flag="--beta", kind=float, help="sigma-point beta (0)")
     kappa: float | None = option(
-        None, flag="--kappa", kind=float, takers=("ukf",),
+        None, flag="--kappa", kind=float,
         help="sigma-point kappa (3 - n: the paper's n + kappa = 3)")
 
 
-FAMILY_OPTIONS: dict[str, type[SharedOptions]] = {
-    "kf": KalmanOptions, "fir": FirOptions, "pred": PredictionOptions,
-    "ukf": UnscentedOptions}
-"""The options type of each filter with options of its own (the others: SharedOptions)."""
-FAMILIES = (SharedOptions, KalmanOptions, FirOptions, PredictionOptions, UnscentedOptions)
+# -- the filters that take them: their specs, handed over by the registry ----------------------
+
+_filters: dict[str, object] = {}
+"""``{filter name: its spec}`` in listing order (:func:`use_filters`)."""
+
+
+def use_filters(filters: Mapping[str, object]) -> None:
+    """Take the filters' specs (``{name: spec}``, each with ``options``, the options class,
+    and the flags options need): derive.filters calls this once its registry is built, so
+    that which filters take an option follows the specs without this module importing
+    the registry (which imports the options classes from here)."""
+    _filters.clear()
+    _filters.update(filters)
+
+
+def _filter(name: str):
+    if not _filters:
+        raise RuntimeError("no filters registered with derive.options (derive.filters "
+                           "calls use_filters when it is imported)")
+    return _filters.get(name)
 
 
 def options_type(name: str) -> type[SharedOptions]:
-    """The options class of filter ``name``."""
-    return FAMILY_OPTIONS.get(name, SharedOptions)
+    """The options class of filter ``name`` (its spec's; SharedOptions when unknown)."""
+    spec = _filter(name)
+    return SharedOptions if spec is None else spec.options
+
+
+def families() -> list[type[SharedOptions]]:
+    """SharedOptions, then the options class of each filter (listing order), each once."""
+    _filter("")
+    return list(dict.fromkeys([SharedOptions] + [s.options for s in _filters.values()]))
 
 
 def all_specs() -> dict[str, Spec]:
     """Every option of every family, shared ones first, each once."""
     out: dict[str, Spec] = {}
-    for cls in FAMILIES:
+    for cls in families():
         out.update(cls.specs())
     return out
 
 
 def taken_by(name: str) -> list[str]:
-    """The names of the options filter ``name`` takes."""
-    return [key for key, spec in options_type(name).specs().items() if name in spec.takers]
+    """The names of the options filter ``name`` takes: those of its options class, a
+    shared one only when its spec has the flag the option needs."""
+    spec = _filter(name)
+    if spec is None:
+        return []
+    return [key for key, option_spec in spec.options.specs().items()
+            if option_spec.needs is None or getattr(spec, option_spec.needs)]
+
+
+def takers(key: str) -> list[str]:
+    """The filters (listing order) that take option ``key``."""
+    _filter("")
+    return [name for name in _filters if key in taken_by(name)]
 
 
 def validate(name: str, values: Mapping | SharedOptions | None = None) -> SharedOptions:
@@ -214,8 +251,8 @@ def per_filter(names: Iterable[str], options: Mapping | None = None,
         if key not in specs:
             raise OptionError(_unknown(key, list(specs), "options"))
         check(key, value)
-        if named and names and not any(n in specs[key].takers for n in names):
-            raise OptionError(f"option {key!r} is taken by {', '.join(specs[key].takers)}; "
+        if named and names and not any(n in takers(key) for n in names):
+            raise OptionError(f"option {key!r} is taken by {', '.join(takers(key))}; "
                               f"none of the filters of this call ({', '.join(names)}) "
                               "takes it")
     for filter_name in per:
@@ -234,9 +271,12 @@ def per_filter(names: Iterable[str], options: Mapping | None = None,
 def check(key: str, value):
     """``value`` of option ``key`` as its type (an int stays an int for a float option),
     refused when of the wrong type or out of range."""
-    spec = all_specs()[key]
+    return _checked(key, all_specs()[key], value, _default_anywhere(key))
+
+
+def _checked(key: str, spec: Spec, value, default):
     if value is None:
-        if _default_anywhere(key) is None:
+        if default is None:
             return None
         raise OptionError(f"option {_label(key, spec)} must be {_kind_words(spec)}, "
                           "got None")
@@ -279,7 +319,7 @@ def add_arguments(parser) -> None:
         "filter options", "each is given to the filters in brackets (and no other)")
     for key, spec in all_specs().items():
         bounds = f"; {spec.bounds()}" if spec.bounds() else ""
-        text = f"{spec.help}{bounds} [{', '.join(spec.takers)}]"
+        text = f"{spec.help}{bounds} [{', '.join(takers(key))}]"
         if spec.kind is bool:
             default = _default_anywhere(key)
             group.add_argument(spec.flag, dest=key, default=None,
@@ -358,7 +398,7 @@ def _close(key, known: list[str]) -> str:
 def _not_taken(key, name: str, takes: list[str]) -> str:
     specs = all_specs()
     if key in specs:
-        return (f"option {key!r} is taken by {', '.join(specs[key].takers)}, not by {name}; "
+        return (f"option {key!r} is taken by {', '.join(takers(key))}, not by {name}; "
                 f"options of {name}: {', '.join(takes) or 'none'}")
     return _unknown(key, takes, f"options of {name}")
 
@@ -377,14 +417,13 @@ def _default(cls: type[SharedOptions], key: str):
 
 
 def _default_anywhere(key: str):
-    for cls in FAMILIES:
+    for cls in families():
         if key in cls.specs():
             return _default(cls, key)
     raise KeyError(key)
 
 
-__all__ = ["COVARIANCE_FILTERS", "DEFAULT_EPS", "FAMILY_OPTIONS", "FirOptions",
-           "KalmanOptions", "MISSING_FILTERS", "PATTERNS", "PredictionOptions", "SharedOptions",
-           "Spec", "TRACK_FILTERS", "UnscentedOptions", "add_arguments", "all_specs", "check",
-           "from_arguments", "option", "options_type", "per_filter", "regenerate_command",
-           "taken_by", "validate"]
+__all__ = ["DEFAULT_EPS", "FirOptions", "KalmanOptions", "PATTERNS", "PredictionOptions",
+           "SharedOptions", "Spec", "UnscentedOptions", "add_arguments", "all_specs", "check",
+           "families", "from_arguments", "option", "options_type", "per_filter",
+           "regenerate_command", "taken_by", "takers", "use_filters", "validate"]

@@ -40,27 +40,37 @@ def _generated(model_name: str, filter_name: str, mode: str):
     return _CACHE[key]
 
 
-def _outside_pattern(program, port):
-    """Flat indices of the symmetric ``port`` (both triangles) that the program requires to
-    be zero."""
-    n = port.shape[0]
-    flat = [int(index) for name, index in (str(c.value)[:-1].split("[") for c in program.body
-                                           if isinstance(c, Check) and c.relation == ZERO)
-            if name == port.name]
-    return [k for i, j in (divmod(k, n) for k in flat) for k in (i * n + j, j * n + i)]
+def _outside_pattern(program, name="P", symmetric=True):
+    """Flat indices of the square input ``name`` that the program requires to be zero
+    (both triangles of a symmetric one)."""
+    n = program.port(name).shape[0]
+    element = f"{name}["
+    flat = [int(str(c.value)[len(element):-1]) for c in program.body
+            if isinstance(c, Check) and c.relation == ZERO
+            and str(c.value).startswith(element)]
+    pairs = [divmod(k, n) for k in flat]
+    return [i * n + j for i, j in pairs] + ([j * n + i for i, j in pairs] if symmetric else [])
 
 
 def _inputs(model, program, unit, mode, rng):
     """Plausible values for every input port (each symmetric one positive definite, zero
-    outside its pattern, so every check passes and every operation runs)."""
+    outside its pattern; a UD factor U unit upper triangular, zero outside its pattern,
+    and D positive; so every check passes and every operation runs)."""
     values = []
     for port in program.inputs:
         if port.symmetric:
             n = port.shape[0]
             A = rng.normal(size=(n, n))
             P = (A @ A.T + n * np.eye(n)).ravel()
-            P[_outside_pattern(program, port)] = 0.0
+            P[_outside_pattern(program, port.name)] = 0.0
             values.append(P)
+        elif port.name == "U" and unit.family == "udkf":
+            n = port.shape[0]
+            U = (np.triu(rng.uniform(-1.0, 1.0, (n, n)), 1) + np.eye(n)).ravel()
+            U[_outside_pattern(program, "U", symmetric=False)] = 0.0
+            values.append(U)
+        elif port.name == "D" and unit.family == "udkf":
+            values.append(rng.uniform(0.5, 1.5, port.size))
         elif port.name == "p" and mode == "paper":
             N = PAPER_FIR_ORDER if unit.family == "fir" else None
             values.append(paper.parameter_values(model, unit.family, N=N))

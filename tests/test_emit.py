@@ -55,6 +55,7 @@ def _units():
                           programs={"step": step}, parameters=("dt", "q", "r")))
     units.append(steady_unit("sslf"))
     units.append(derive_unit(catalog.load("cv"), "rts"))  # the smoother's run kind
+    units.append(derive_unit(catalog.load("mpt3d_b"), "udkf", {"missing": True}))
     return units
 
 

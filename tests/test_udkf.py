@@ -104,11 +104,12 @@ class Programs:
         self.functions = {k: python_function(p) for k, p in self.programs.items()}
 
     def enter(self, P):
-        U, D = self.functions["enter"](np.ravel(P))
+        _, U, D = self.functions["enter"](np.zeros(self.n), np.ravel(P))
         return np.reshape(U, (self.n, self.n)), np.asarray(D)
 
     def store(self, U, D):
-        return np.reshape(self.functions["store"](np.ravel(U), D), (self.n, self.n))
+        return np.reshape(self.functions["store"](np.zeros(self.n), np.ravel(U), D),
+                          (self.n, self.n))
 
     def run(self, zs, x0, P0):
         """(xs, Us, Ds, Ps) over the series, P0 entered and every P stored."""
@@ -225,7 +226,7 @@ def test_entries_outside_the_pattern_are_refused():
         programs.functions["step"](np.zeros(6), U.ravel(), D, np.zeros(3))
     P = np.eye(6)
     P[outside] = P[outside[::-1]] = 0.1
-    with pytest.raises(PatternError, match=f"P\\[{outside[0]}\\]\\[{outside[1]}\\]"):
+    with pytest.raises(PatternError, match=f"P0\\[{outside[0]}\\]\\[{outside[1]}\\]"):
         programs.enter(P)
 
 
@@ -339,7 +340,8 @@ def test_programs_print_as_c_that_compiles_and_matches_python(tmp_path):
     zs = with_gaps(series(num, 100, 6), 6)
     xs, Us, Ds, _ = programs.run(zs, num.x0, num.P0)
     U, D = np.zeros(36), np.zeros(6)
-    assert c_call(library.ud_enter, np.array(num.P0, dtype=float).ravel(), U, D) == 0
+    assert c_call(library.ud_enter, np.zeros(6), np.array(num.P0, dtype=float).ravel(),
+                  np.zeros(6), U, D) == 0
     x = np.array(num.x0, dtype=float)
     for k, z in enumerate(zs):
         x_new, U_new, D_new = np.zeros(6), np.zeros(36), np.zeros(6)
@@ -350,11 +352,10 @@ def test_programs_print_as_c_that_compiles_and_matches_python(tmp_path):
         assert relative_error(U[None], Us[k].ravel()[None]) <= TOLERANCE
         assert relative_error(D[None], Ds[k][None]) <= TOLERANCE
     P = np.zeros(36)
-    library.ud_store.restype = None
-    c_call(library.ud_store, U, D, P)
+    assert c_call(library.ud_store, x, U, D, P) == 0
     np.testing.assert_allclose(P.reshape(6, 6), programs.store(U.reshape(6, 6), D),
                                rtol=1e-12, atol=1e-15)
-    assert c_call(library.ud_enter, -np.eye(6).ravel(), U, D) != 0
+    assert c_call(library.ud_enter, x, -np.eye(6).ravel(), np.zeros(6), U, D) != 0
     assert c_call(library.ud_step, x, np.eye(6).ravel(), -np.ones(6), np.zeros(3),
                   np.zeros(6), np.zeros(36), np.zeros(6)) != 0
 

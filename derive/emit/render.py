@@ -198,8 +198,9 @@ def _python_functions(lp: LoweredProgram) -> list[dict]:
 
 
 def _python_run_checks(step: LoweredProgram, unit: Unit) -> list[str]:
-    """run's check of P0 against the pattern, once before the loop."""
-    if not step.pattern_checks:
+    """run's check of P0 against the pattern, once before the loop (none when an ``enter``
+    program starts the carried state: it checks run's arguments itself)."""
+    if not step.pattern_checks or "enter" in unit.programs:
         return []
     flat = f"P0.reshape(({unit.n * unit.n},) + P0.shape[2:])"
     return python_printer.pattern_check_lines(step, {"P": flat})
@@ -303,7 +304,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         ports = {p.name: p for p in lowered["step"].inputs}
         names = ", ".join(s["name"] for s in state)
         context["carried"] = state
-        context["enter_line"] = (f"{names} = enter({', '.join(n for n, _ in unit.run.start)})"
+        context["enter_line"] = (f"{names} = enter({', '.join(_flat_start(unit))})"
                                  if "enter" in lowered else "")
         stores = []
         for s in stored_outputs(unit):
@@ -321,6 +322,16 @@ def render_python(unit: Unit) -> dict[str, str]:
             context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
                                                   rows, arrays, unit.carried, stored)
     return {f"{unit.filter}.py": _render(f"python/{unit.kind}.jinja", context)}
+
+
+def _flat_start(unit: Unit) -> list[str]:
+    """run's start arguments as enter takes them: a matrix (shaped (rows, cols) + track
+    by run's prologue) flattened row-major, so that a 1 x 1 P0 is not read as a track."""
+    sizes = {"n": unit.n, "m": unit.m}
+    return [name if len(dims) < 2 else
+            f"{name}.reshape(({int(np.prod([sizes[d] for d in dims]))},) + "
+            f"{name}.shape[{len(dims)}:])"
+            for name, dims in unit.run.start]
 
 
 #: C run's last argument with free parameters: 0 when p is one row for every step, NP
@@ -422,9 +433,11 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         return f"{start}[{track}{var.index}]" if not track else \
             f"{start}[{track} * {size} + {var.index}]"
 
-    run_checks = [line for c in step_lp.pattern_checks
+    # an enter program checks run's arguments itself (its own statuses)
+    start_checks = step_lp.pattern_checks if "enter" not in lowered else ()
+    run_checks = [line for c in start_checks
                   for line in c_printer.pattern_check_lines(c, start_element(c))]
-    tracks_checks = [line for c in step_lp.pattern_checks
+    tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"))]
     lookahead = two_step_body(unit, loop_step, two) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"

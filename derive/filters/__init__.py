@@ -16,7 +16,7 @@ import pkgutil
 
 from .. import progress, system_checks
 from ..errors import FilterError, SteadyStateError
-from ..options import validate
+from ..options import use_filters, validate
 from .spec import FilterSpec
 
 
@@ -30,6 +30,7 @@ def _family_specs() -> list[FilterSpec]:
 
 FILTERS: dict[str, FilterSpec] = {spec.name: spec for spec in _family_specs()}
 """Every filter by name, in listing order."""
+use_filters(FILTERS)  # which filters take an option follows their specs (derive.options)
 
 MISSING_FILTERS = tuple(name for name, spec in FILTERS.items() if spec.missing)
 """The filters that take the option ``missing``."""

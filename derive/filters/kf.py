@@ -126,7 +126,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
-    options=KalmanOptions, missing=True, batch=True, listing=10,
+    options=KalmanOptions, covariance=True, missing=True, batch=True, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",
            "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

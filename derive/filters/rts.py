@@ -190,7 +190,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
-    missing=True, listing=95,
+    covariance=True, missing=True, listing=95,
     about={"python": "Run the Rauch-Tung-Striebel smoother: a Kalman filter forward, then "
                      "x(k/N) = x(k/k) + C [x(k+1/N) - x(k+1/k)] backward; returns the "
                      "smoothed (xs, Ps).",

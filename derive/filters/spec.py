@@ -22,8 +22,13 @@ class FilterSpec:
 
     ``run_kind``: the run loop (a key of :data:`derive.emit.kinds.RUN_KINDS`).
     ``steady``: needs the Riccati solution offline (numbers only, no free symbols).
+    ``options``: its options class (derive.options); it takes that class's options, the
+    shared ones only with the flag each needs:
+    ``covariance``: it carries P, so P0's declared pattern shapes its code (takes the
+    option ``P0_pattern``).
     ``missing``: takes the option ``missing`` (NaN-marked absent measurements).
-    ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``).
+    ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
+    option ``run_tracks``).
     ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
@@ -43,6 +48,7 @@ class FilterSpec:
     reference: Callable
     options: type[SharedOptions] = SharedOptions
     steady: bool = False
+    covariance: bool = False
     missing: bool = False
     batch: bool = False
     extra_programs: tuple[str, ...] = ()

@@ -19,10 +19,15 @@ Programs (:func:`udkf_programs`):
   not negative and divide as d'_j + DBL_MIN, so that a singular P(k+1/k) (P0 = 0 with a
   rank-deficient G Q Gᵀ, the catalog's usual start) gives D'_j = 0 and a zero column of
   U' instead of 0 / 0 (PIVOT_FLOOR: bitwise num / d for every d >= 4e-292);
-- ``enter`` P (symmetric) -> (U, D): the UD factorisation, last column first, pivots
-  checked not negative and floored as in the step (P0 = 0 enters as U = I, D = 0); P
-  outside the pattern of U D Uᵀ is refused (PatternError / status);
-- ``store`` (U, D) -> P: U D Uᵀ, the upper triangle computed and mirrored.
+- ``enter`` (x0, P0) -> (x, U, D): x = x0 and the UD factorisation of P0, last column
+  first, pivots checked not negative and floored as in the step (P0 = 0 enters as U = I,
+  D = 0); P0 outside the pattern of U D Uᵀ is refused (PatternError / status);
+- ``store`` (x, U, D) -> P_new: U D Uᵀ, the upper triangle computed and mirrored.
+
+Registered as ``udkf`` (:data:`SPECS`): the time-varying run loop carries (x, U, D);
+``run`` takes x0 and P0 (entered once) and returns xs and Ps (P stored from U and D after
+each step; C: only when Ps is given); ``step`` is the factored step.  The header states
+the pivot floor (:data:`PIVOT_FACT`).
 
 With ``missing`` a NaN in z[i] marks component i absent.  With a diagonal R each scalar
 update's results are kept only where z[i] is present (selects, no flop).  With a
@@ -43,19 +48,24 @@ from ..program import Port, Program
 from ..reference.ud import ud_kf
 from . import pattern as pat
 from .common import (
+    MISSING_FACT,
     bound_matrices,
     mask_columns,
     mask_symmetric,
     mask_vector,
-    masked_covariance,
+    masked,
     parameter_port,
+    pattern_message,
     pattern_text,
+    with_fact,
 )
+from .spec import FilterSpec
+from .unit import make_unit
 
 TITLE = "UD (Bierman-Thornton) Kalman filter"
 MODEL_KIND = "linear"
-CARRIED = ("x", "U", "D")
-"""The state the time-varying run loop carries from step to step."""
+CARRIED = (("x", "x_new"), ("U", "U_new"), ("D", "D_new"))
+"""The state the time-varying run loop carries from step to step (input, output)."""
 OPTIONS = SharedOptions
 REFERENCE = ud_kf
 """``ud_kf(numeric_model, zs, x0, P0) -> (xs, Ps)``, derive.reference.ud."""
@@ -83,6 +93,11 @@ rounds to d), so every quotient is bitwise num / d; a zero pivot (a singular P, 
 P0 = 0, or a singular P(k+1/k)) has an exactly zero numerator (its row is zero in the
 weights), so its column of U is 0 / DBL_MIN = 0, as in the reference, instead of 0 / 0.
 A normal number, so flush-to-zero arithmetic keeps it."""
+
+PIVOT_FACT = ("UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for "
+              "d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, "
+              "as the reference's; a negative pivot is refused")
+"""The header line that states :data:`PIVOT_FLOOR`."""
 
 
 def _pivot(prog: Program, d, message: str) -> sympy.Expr:
@@ -368,23 +383,60 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
 
 
 def enter_program(n: int, P_pattern, declared: str) -> Program:
-    """P -> (U, D); P outside ``P_pattern`` (that of U D Uᵀ over U's pattern) is refused."""
+    """(x0, P0) -> (x, U, D): x = x0, P0 = U D Uᵀ; P0 outside ``P_pattern`` (that of
+    U D Uᵀ over U's pattern; upper triangle read) is refused (the pattern status)."""
     U_port, D_port = factor_ports(n)
-    prog = Program("enter", [Port("P", (n, n), symmetric=True, doc="P, row-major, symmetric")],
-                   [U_port, D_port], doc=f"P = U D U^T for the {TITLE}")
-    U, D = ud_factor(prog, masked_covariance(prog, P_pattern, declared))
+    prog = Program("enter", [Port("x0", (n,), doc="initial state estimate"),
+                             Port("P0", (n, n), symmetric=True,
+                                  doc="initial covariance, row-major, symmetric")],
+                   [Port("x", (n,), doc="x0"), U_port, D_port],
+                   doc=f"x = x0 and P0 = U D U^T for the {TITLE}")
+    P0 = prog.matrix("P0")
+    message = pattern_message(P_pattern, declared)
+    for i in range(n):
+        for j in range(i, n):
+            if not P_pattern[i][j]:
+                prog.require_zero(prog.element("P0", i, j), message)
+    U, D = ud_factor(prog, masked(P0, P_pattern))
+    prog.set_output("x", list(prog.matrix("x0")))
     prog.set_output("U", _flat(U))
     prog.set_output("D", D)
     return prog.optimize()
 
 
 def store_program(n: int, U_pattern, declared: str) -> Program:
-    """(U, D) -> P = U D Uᵀ (upper triangle computed, mirrored)."""
+    """(x, U, D) -> P_new = U D Uᵀ (upper triangle computed, mirrored; x not read)."""
     U_port, D_port = factor_ports(n)
-    prog = Program("store", [U_port, D_port],
-                   [Port("P", (n, n), symmetric=True, doc="P = U D U^T, row-major")],
+    prog = Program("store", [Port("x", (n,), doc="x (not read)"), U_port, D_port],
+                   [Port("P_new", (n, n), symmetric=True, doc="P = U D U^T, row-major")],
                    doc=f"P = U D U^T from the factors of the {TITLE}")
     U = _unit_upper(prog, U_pattern)
     _check_unit_upper(prog, U_pattern, declared)
-    prog.set_output("P", ud_compose(prog, U, list(prog.matrix("D"))))
+    prog.set_output("P_new", ud_compose(prog, U, list(prog.matrix("D"))))
     return prog.optimize()
+
+
+# -- the family: spec, derivation, reference --------------------------------------------
+
+
+def derive_unit(model, spec: FilterSpec, options: SharedOptions):
+    """The Unit of the UD filter: the factored step, P0 entered and P stored."""
+    unit = make_unit(model, spec, udkf_programs(model, options), options, carried=CARRIED)
+    unit = with_fact(unit, PIVOT_FACT)
+    return with_fact(unit, MISSING_FACT) if options.missing else unit
+
+
+def reference(model, zs, options):
+    """derive.reference.ud.ud_kf from the model's x0 and P0: (xs, Ps)."""
+    return REFERENCE(model.numeric(), zs)
+
+
+SPECS = (FilterSpec(
+    "udkf", TITLE, MODEL_KIND, "timevarying", derive_unit, reference,
+    options=OPTIONS, covariance=True, missing=True, extra_programs=("enter", "store"),
+    listing=45,
+    about={"python": f"Run the {TITLE}: P0 factored as U D U^T, each step on U and D "
+                     "(Thornton's time update, Bierman's scalar updates), P = U D U^T "
+                     "stored.",
+           "c": f"Run the {TITLE} over steps steps from x0 and P0 (factored once); Ps "
+                "(P = U D U^T after each step) may be NULL."}),)

@@ -25,12 +25,15 @@ def _fmt(value) -> str:
                            floatmode="unique").replace("\n", "")
 
 
-def accepted_P0(step) -> str:
+def accepted_P0(program, port: str = "P") -> str:
     """The header line that says which P0 (and P) the code accepts: those zero outside the
-    closed pattern, which the step's zero checks (``Program.require_zero``) enforce."""
-    n = step.port("P").shape[0]
-    outside = {divmod(int(str(c.value)[2:-1]), n) for c in step.body
-               if isinstance(c, Check) and c.relation == ZERO}
+    closed pattern, which the zero checks (``Program.require_zero``) of ``program`` on its
+    input ``port`` enforce (the step's P, or an ``enter`` program's P0)."""
+    n = program.port(port).shape[0]
+    element = f"{port}["
+    outside = {divmod(int(str(c.value)[len(element):-1]), n) for c in program.body
+               if isinstance(c, Check) and c.relation == ZERO
+               and str(c.value).startswith(element)}
     if not outside:
         return "P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)"
     pattern = [[(i, j) not in outside and (j, i) not in outside for j in range(n)]
@@ -42,18 +45,24 @@ def accepted_P0(step) -> str:
 def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
               constants: dict | None = None, step_inputs: tuple[str, ...] = ("z",),
               window: int | None = None, horizon: int | None = None,
-              lookahead=None) -> Unit:
+              lookahead=None, carried: tuple[tuple[str, str], ...] | None = None) -> Unit:
     """The Unit for ``model`` and the filter of ``spec`` with its validated ``options``;
     ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N;
-    ``lookahead``: the two-step map of an affine step (derive.emit.lookahead).
+    ``lookahead``: the two-step map of an affine step (derive.emit.lookahead);
+    ``carried``: the unit's own carried (input port, output port) pairs (default: the run
+    kind's), entered by an ``enter`` program and stored by a ``store`` program.
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
-    batch function applies; the run kind its carried state."""
+    batch function applies; the run kind its carried state.  Which P0 the code accepts is
+    read from the program that takes it: ``enter`` (its P0) when there is one, else
+    ``step`` (its P)."""
     facts = []
-    if model.kind == "linear" and any(p.name == "P" for p in programs["step"].inputs):
+    takes_P0 = (("enter", "P0") if "P0" in _input_names(programs.get("enter")) else
+                ("step", "P") if "P" in _input_names(programs["step"]) else None)
+    if model.kind == "linear" and takes_P0 is not None:
         facts.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
-    if any(p.name == "P" for p in programs["step"].inputs):
-        facts.append(accepted_P0(programs["step"]))
+    if takes_P0 is not None:
+        facts.append(accepted_P0(programs[takes_P0[0]], takes_P0[1]))
     if getattr(model, "continuous", None):
         facts.append(f"discretisation: {METHODS[model.continuous['method']]}")
     for key, value in (constants or {}).items():
@@ -77,4 +86,9 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         step_inputs=step_inputs,
         facts=tuple(f for f in facts if f),
         options=unit_options,
+        carried=carried,
     )
+
+
+def _input_names(program) -> list[str]:
+    return [] if program is None else [p.name for p in program.inputs]
