@@ -81,6 +81,7 @@ from typing import Any
 
 import sympy
 
+from derive import catalog_files
 from derive.errors import ModelError, ModelFileError
 from derive.expressions import (
     RESERVED_NAMES,
@@ -628,14 +629,12 @@ class _File:
         return composed
 
     def block_model(self, reference: str, where: str) -> LinearModel | NonlinearModel:
-        from derive import catalog
-
         if reference.isidentifier():
             try:
-                text = catalog.read_text(reference)
+                text = catalog_files.read_text(reference)
             except ModelError as error:
                 raise self.error(where, str(error)) from None
-            label = catalog.label(reference)
+            label = catalog_files.label(reference)
             return self.loader.load_text(text, label, None, label)
         relative = PurePath(reference)
         if relative.is_absolute() or not reference:
