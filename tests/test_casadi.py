@@ -1,4 +1,4 @@
-"""derive's sympy Jacobians (derive.filters.ekf.linearise) against CasADi's automatic
+"""derive's sympy Jacobians (derive.filters.nonlinear.linearise) against CasADi's automatic
 differentiation of the same expressions (derive.apps.casadi_bridge)."""
 
 import numpy as np
@@ -14,7 +14,7 @@ from derive.apps.casadi_bridge import (  # noqa: E402
     check_jacobians,
     to_casadi,
 )
-from derive.filters import ekf as ekf_module  # noqa: E402
+from derive.filters import nonlinear as nonlinear_module  # noqa: E402
 
 RTOL = 1e-12
 NONLINEAR = [name for name in catalog.names() if catalog.load(name).kind == "nonlinear"]
@@ -66,16 +66,16 @@ def test_trigonometric_model_agrees_with_casadi():
 
 
 def test_a_wrong_jacobian_is_caught(monkeypatch):
-    real = ekf_module.linearise
+    real = nonlinear_module.linearise
 
     def off_by_a_little(values, wrt, with_jacobian=True):
         lin = real(values, wrt, with_jacobian)
         jac = sympy.ImmutableMatrix(lin.jacobian.rows, lin.jacobian.cols,
                                     lambda i, j: lin.jacobian[i, j] * (1 + sympy.Rational(1, 10**9)
                                                                        if (i, j) == (0, 0) else 1))
-        return ekf_module.Linearisation(lin.shared, lin.values, jac)
+        return nonlinear_module.Linearisation(lin.shared, lin.values, jac)
 
-    monkeypatch.setattr(ekf_module, "linearise", off_by_a_little)
+    monkeypatch.setattr(nonlinear_module, "linearise", off_by_a_little)
     check = check_jacobians(catalog.load("gnss_pseudorange"), points=5, seed=0)
     assert 1e-10 < check.h_jacobian < 1e-8
 

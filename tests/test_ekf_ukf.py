@@ -403,7 +403,7 @@ def _roots(expr):
 
 def test_jacobian_entries_are_shared_symbols():
     """H is built from h's shared subexpressions: one root per row, none in H itself."""
-    from derive.filters.ekf import linearise
+    from derive.filters.nonlinear import linearise
 
     lin = linearise(GNSS.subs(GNSS.h), GNSS.state_symbols)
     assert sum(len(_roots(e)) for _, e in lin.shared) == GNSS.m

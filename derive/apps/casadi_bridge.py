@@ -3,7 +3,7 @@ differentiation.
 
 :func:`to_casadi` translates one expression (numbers, symbols, + * ** and the functions of
 :data:`FUNCTIONS`); :func:`check_jacobians` compares the Jacobians derive generates code
-from (:func:`derive.filters.ekf.linearise`: simplified, sharing work with f and h) with
+from (:func:`derive.filters.nonlinear.linearise`: simplified, sharing work with f and h) with
 CasADi's ``jacobian`` of the model's own f and h at random points.
 """
 
@@ -17,7 +17,7 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import ModelError
-from derive.filters import ekf
+from derive.filters import nonlinear
 
 
 class CasadiTranslationError(ModelError):
@@ -157,7 +157,7 @@ def check_jacobians(model, points: int = 100, seed: int = 0,
     every = states + others
     results = {}
     for label, exprs in (("f", model.subs(model.f)), ("h", model.subs(model.h))):
-        values, jac = ekf.linearise(exprs, states).expanded()
+        values, jac = nonlinear.linearise(exprs, states).expanded()
         ours = sympy.lambdify([every], [values, jac], modules="numpy")
         theirs = casadi_function(label, list(exprs), states, others)
         rng = np.random.default_rng(seed)

@@ -7,12 +7,12 @@
 This module holds the EKF's predict and update stages and its unit. F and H come from
 :func:`derive.filters.nonlinear.linearise` (sympy Jacobians evaluated with f and h through
 shared subexpressions); the programs step, predict and update1 are the frame shared with
-the UKF (:func:`derive.filters.nonlinear.nonlinear_programs`). ``linearise`` and
-``Linearisation`` stay importable from here: derive.apps.casadi_bridge checks the EKF's
-Jacobians through this module.
+the UKF (:func:`derive.filters.nonlinear.nonlinear_programs`).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import sympy
 
@@ -87,8 +87,6 @@ def derive_unit(model, spec, options):
 
 
 def _with_facts(unit, facts: list[str]):
-    from dataclasses import replace
-
     return replace(unit, facts=tuple(unit.facts) + tuple(facts))
 
 
@@ -111,5 +109,4 @@ SPECS = (FilterSpec(
                      + NOTE_PY,
            "c": "Run the extended Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
 
-__all__ = ["SPECS", "Linearisation", "derive_unit", "ekf_predict_stage", "ekf_update_stage",
-           "linearise"]
+__all__ = ["SPECS", "derive_unit", "ekf_predict_stage", "ekf_update_stage"]
