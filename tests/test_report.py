@@ -183,7 +183,7 @@ def test_failed_verification_exits_1_after_writing(monkeypatch, tmp_path, capsys
                                                     provenance.collect(command))
         return result
 
-    monkeypatch.setattr("derive.apps.report.run", fake_run)
+    monkeypatch.setattr("derive.apps.report.job.run", fake_run)
     status = cli.main(["reproduce", "--out", str(tmp_path), "--no-progress"])
     captured = capsys.readouterr()
     assert status == 1

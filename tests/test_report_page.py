@@ -235,7 +235,7 @@ def test_progress_only_on_a_terminal(monkeypatch, tmp_path, tty):
         seen.update(progress=progress, command=command)
         raise OSError("stop here")
 
-    monkeypatch.setattr("derive.apps.report.run", fake_run)
+    monkeypatch.setattr("derive.apps.report.job.run", fake_run)
     monkeypatch.setattr("sys.stderr.isatty", lambda: tty)
     cli.main(["reproduce", "--quick", "--out", str(tmp_path)])
     assert seen["progress"] is tty

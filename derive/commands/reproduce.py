@@ -32,7 +32,7 @@ def run(args) -> int:
     try:
         import matplotlib  # noqa: F401
 
-        from ..apps.report import run as run_report
+        from ..apps.report.job import run as run_report
     except ImportError as exc:
         raise ModelError(f"the report needs matplotlib ({exc}); install derive-filters[report]") \
             from None

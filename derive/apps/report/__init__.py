@@ -6,16 +6,3 @@ Modules: job (the stages, progress bar, summary), context (what stages share), g
 figures (matplotlib, Agg), document and page (index.md, index.html, results.md),
 provenance (date, versions, machine, command: the footer and ``derive --version``).
 """
-
-from __future__ import annotations
-
-
-def run(out, generated=None, quick: bool = False, progress: bool = True,
-        command: str | None = None, results=None):
-    """Run the whole job (see :func:`derive.apps.report.job.run`)."""
-    from .job import run as _run
-
-    return _run(out, generated, quick, progress, command, results)
-
-
-__all__ = ["run"]

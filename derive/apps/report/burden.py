@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ... import catalog
+from ...flops import count_c_function
+from ..audit import run_audit
 from . import figures
 from .document import DIFFERS, MATCHED, Section, Table, Text, Todo
 
 
 def written_count(ctx, model: str, name: str) -> int:
     """Flops of one call of ``step`` in the written generated C of ``model``/``name``."""
-    from ... import catalog
-    from ...flops import count_c_function
-
     prefix = catalog.load(model).name
     return count_c_function(ctx.sources[(model, name)].read_text(),
                             f"{prefix}_{name}_step").flops
@@ -63,8 +63,6 @@ def audit_table(ctx, rows) -> Table:
 
 def compute_audit():
     """derive.apps.audit.run_audit() (run in a background process by the job)."""
-    from ..audit import run_audit
-
     return run_audit()
 
 

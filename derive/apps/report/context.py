@@ -7,6 +7,7 @@ unless a section says otherwise), so every figure is drawn from derive's own cod
 
 from __future__ import annotations
 
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,8 +36,6 @@ class Context:
     def result_of(self, name: str, compute):
         """The result of background job ``name`` if one was started (and its process did
         not die), else ``compute()`` here."""
-        from concurrent.futures.process import BrokenProcessPool
-
         future = self.background.get(name)
         if future is None:
             return compute()

@@ -14,8 +14,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ... import catalog
+from ...filters import available
 from ...generation import command_unit
 from ...pipeline import load_units
+from ..checks import run_checks
+from ..verify import jacobian_witness, verify_modules
 from .document import DIFFERS, MATCHED, Section, Table, Text, sci
 
 VERIFY_STEPS = 1000   # derive verify's default
@@ -52,9 +56,6 @@ def generate_model(ctx, name: str, result: GenerationResult) -> None:
     As ``derive generate NAME --out DIR``; in a scratch directory the files name
     ``generated`` as their output directory (a stable text, so the cffi build cache,
     keyed by the sources, is reused from one run to the next)."""
-    from ... import catalog
-    from ...filters import available
-
     model = catalog.load(name)
     label = str(ctx.generated) if ctx.label is None else ctx.label
     units = [command_unit(model, f, {}, name, label) for f in available(model)]
@@ -68,18 +69,11 @@ def generate_model(ctx, name: str, result: GenerationResult) -> None:
 
 def verify_built(model, name: str, modules: dict, steps: int, seed: int) -> list:
     """derive verify's comparison for modules already built ({lang: module})."""
-    from ..verify import verify_modules
-
     return verify_modules(model, name, modules, steps, seed)
 
 
 def verify_model(ctx, name: str, result: GenerationResult) -> None:
     """derive verify (on the files written and built) and derive check for ``name``."""
-    from ... import catalog
-    from ...filters import available
-    from ..checks import run_checks
-    from ..verify import jacobian_witness
-
     model = catalog.load(name)
     steps = QUICK_VERIFY_STEPS if ctx.quick else VERIFY_STEPS
     for f in available(model):

@@ -6,8 +6,16 @@ paper's Tables 1–5 — and the run on real GPS data (derive.apps.gnss.run_real
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from ... import catalog, reference
+from ...errors import ModelError
+from ..gnss.generated import generated_filters
+from ..gnss.run import FilterSettings, numpy_filters, run_real
+from ..gnss.sim import PAPER, reproduce
+from ..simulate import gnss_scenario
 from . import figures
 from .document import (
     DIFFERS,
@@ -32,8 +40,6 @@ UKF_GAIN = 1e-3        # the UKF "more accurate": its RMSE at least 0.1 % below 
 
 
 def _scenario(seed: int, steps: int = STEPS):
-    from ..simulate import gnss_scenario
-
     return gnss_scenario(steps=steps, seed=seed, **SCENARIO)
 
 
@@ -85,8 +91,6 @@ def _innovations_figure(ctx, refs: dict):
 
 
 def simulated(ctx, s: Section) -> None:
-    from ... import catalog, reference
-
     sc = _scenario(1)
     fns = catalog.load("gnss_pseudorange").numeric_functions()
     ins = list(sc.satellites.reshape(STEPS, -1))
@@ -120,10 +124,6 @@ def simulated(ctx, s: Section) -> None:
 
 def rmse(ctx, s: Section) -> list:
     """The paper's RMSE tables beside derive's Monte Carlo (derive.apps.gnss.sim)."""
-    try:
-        from ..gnss.sim import PAPER, reproduce
-    except ImportError:
-        return [Todo("derive.apps.gnss.sim is missing: no simulated RMSE table.")]
     runs = QUICK_RUNS if ctx.quick else RUNS
     rep = reproduce(runs, lang="python")
     out = [Text(f"RMSE by Monte Carlo (`derive.apps.gnss.sim.reproduce`, {runs} runs of "
@@ -165,13 +165,7 @@ def rmse(ctx, s: Section) -> list:
 
 def _real_filters():
     """(filters, what) for run_real: derive's generated C EKF/UKF and the NumPy stand-ins."""
-    from ..gnss.run import FilterSettings, numpy_filters
-
     stand_ins = {f"{k} numpy": v for k, v in numpy_filters(FilterSettings()).items()}
-    try:
-        from ..gnss.generated import generated_filters
-    except ImportError:
-        return stand_ins, "NumPy stand-ins (derive.apps.gnss.scalar_updates)"
     return ({**generated_filters(FilterSettings(), "c"), **stand_ins},
             "derive's generated C (derive.apps.gnss.generated), checked against the NumPy "
             "stand-ins (derive.apps.gnss.scalar_updates)")
@@ -183,11 +177,6 @@ def _gap(result, name: str) -> float:
 
 
 def real(ctx, s: Section) -> None:
-    from dataclasses import replace
-
-    from ...errors import ModelError
-    from ..gnss.run import run_real
-
     filters, what = _real_filters()
     try:
         result = run_real(filters, max_epochs=200 if ctx.quick else None)

@@ -3,13 +3,18 @@ experiments and write the report, reporting progress stage by stage."""
 
 from __future__ import annotations
 
+import multiprocessing
+import sys
 import tempfile
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import page, provenance
+from ... import catalog
+from . import burden, generation, gnss, mdkf, page, provenance, sspred, tracking
+from .burden import compute_audit
 from .context import Context
 from .document import Section
 from .generation import GenerationResult
@@ -114,8 +119,6 @@ class _Progress:
         if self.bar is not None:
             self.bar.update(self.task, description=text)
         elif self.enabled:
-            import sys
-
             print(f"[{self.done}/{self.total}] {text}", file=sys.stderr, flush=True)
 
     def advance(self) -> None:
@@ -134,8 +137,6 @@ TITLE = "derive: the papers reproduced"
 
 
 def _sections() -> list[tuple[str, Callable[[Context], Section]]]:
-    from . import burden, gnss, mdkf, sspred, tracking
-
     return ([(f"experiments: {p.label}", lambda ctx, p=p: tracking.section(ctx, p))
              for p in tracking.PAPERS]
             + [("experiments: SSPRED", sspred.section), ("experiments: MDKF", mdkf.section),
@@ -166,11 +167,6 @@ def results_intro(prov: provenance.Provenance, quick: bool) -> str:
 def _background(ctx: Context):
     """Start the burden audit in a second process (it is pure SymPy work, independent of
     the rest); returns the executor, or None when processes cannot be started."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    from .burden import compute_audit
-
     try:
         method = "fork" if "fork" in multiprocessing.get_all_start_methods() else None
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context(method))
@@ -186,9 +182,6 @@ def run(out: Path, generated: Path | None = None, quick: bool = False,
     """Run the whole job; the report goes to ``out`` (index.md, index.html, results.md,
     figures/), and a copy of results.md to ``results`` if given. ``command`` is the
     command line the report states (default: this process's)."""
-    from ... import catalog
-    from . import generation
-
     start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ... import catalog, reference
+from ..simulate import simulate_linear
 from . import figures
 from .document import DIFFERS, MATCHED, NOT_COMPARABLE, Section, Table, Text, sci
 
@@ -37,9 +39,6 @@ def statistics(truth: np.ndarray, estimate: np.ndarray) -> list[np.ndarray]:
 
 
 def section(ctx) -> Section:
-    from ... import catalog, reference
-    from ..simulate import simulate_linear
-
     steps = QUICK_STEPS if ctx.quick else STEPS
     num = catalog.load("gps_static").numeric()
     run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, SEED)

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ... import catalog
+from ..simulate import constant_acceleration_2d, constant_velocity_2d
+from ..verify import relative_error
 from . import figures
 from .document import DIFFERS, MATCHED, Section, Table, Text, sci
 
@@ -35,16 +38,12 @@ def percent_error(estimate: np.ndarray, truth: np.ndarray) -> float:
 
 
 def _truth(name: str, steps: int, seed: int):
-    from ..simulate import constant_acceleration_2d, constant_velocity_2d
-
     make = constant_velocity_2d if name == "cv" else constant_acceleration_2d
     return make(steps, seed)
 
 
 def predictors(ctx, name: str) -> dict:
     """The generated C predictor for each horizon (N = 1 from the catalog run)."""
-    from ... import catalog
-
     model = catalog.load(name)
     out = {1: ctx.c_filter(name, "pred")}
     for N in HORIZONS[1:]:
@@ -54,9 +53,6 @@ def predictors(ctx, name: str) -> dict:
 
 def experiment(ctx, name: str, seeds: int) -> dict:
     """Errors per seed (estimation, N = 1..5), the identity check, one run to plot."""
-    from ... import catalog
-    from ..verify import relative_error
-
     num = catalog.load(name).numeric()
     sskf = ctx.c_filter(name, "sskf")
     preds = predictors(ctx, name)

@@ -11,6 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ... import catalog
+from ...filters.fir import order
+from ...options import FirOptions
+from ..simulate import simulate_linear
 from . import figures
 from .document import DIFFERS, MATCHED, Section, Table, Text, sci
 
@@ -54,8 +58,6 @@ def rel(a, b) -> float:
 
 def implementations(ctx, paper: Paper, zs):
     """{('A' | 'B', filter): (xs, Ps or None)} and the block models of model A."""
-    from ... import catalog
-
     a, b = catalog.load(paper.model_a), catalog.load(paper.model_b)
     na, nb = a.numeric(), b.numeric()
     blocks = a.blocks()
@@ -135,10 +137,6 @@ def estimates_figure(ctx, paper: Paper, impl, truth) -> figures.Figure:
 
 def fir_part(ctx, paper: Paper, zs, impl, section: Section) -> list:
     """GSM2D §7 Fig. 2: FIR vs SSKF on model A, and the FIR burden table."""
-    from ... import catalog
-    from ...filters.fir import order
-    from ...options import FirOptions
-
     model = catalog.load(paper.model_a)
     N = order(model, FirOptions())
     fir = np.asarray(ctx.c_filter(paper.model_a, "fir").run(zs))
@@ -181,9 +179,6 @@ def fir_part(ctx, paper: Paper, zs, impl, section: Section) -> list:
 
 
 def section(ctx, paper: Paper) -> Section:
-    from ... import catalog
-    from ..simulate import simulate_linear
-
     steps = 40 if ctx.quick else 100
     a = catalog.load(paper.model_a)
     na = a.numeric()
