@@ -90,7 +90,9 @@ def _cdef(header: str) -> str:
     lines = [line for line in header.splitlines()
              if re.match(r"^(int|void) \w+\(.*\);$", line)
              or re.match(r"^#define \w+ \d+$", line)]
-    return "\n".join(line.replace("restrict ", "") for line in lines) + "\n"
+    # cffi's parser knows no restrict: the header spells it PREFIXDERIVE_RESTRICT
+    return "\n".join(re.sub(r"\w*DERIVE_RESTRICT |\brestrict ", "", line)
+                     for line in lines) + "\n"
 
 
 class FilterModule:

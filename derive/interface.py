@@ -11,6 +11,7 @@ derive.build reads that line back (:func:`read`): nothing parses the prose.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 
 #: The header line that carries the interface as JSON (after this marker).
@@ -18,6 +19,11 @@ MARKER = "derive-interface: "
 #: The C stride argument that follows an argument given one row for every step or one
 #: row per step (run's ``p``).
 STRIDE = "p_stride"
+
+
+#: Words left out of a status's C name (:meth:`Status.identifier`), and the most it keeps.
+_FILLER = frozenset({"a", "an", "the", "is", "of", "its", "has"})
+_NAME_WORDS = 8
 
 
 class InterfaceError(ValueError):
@@ -110,6 +116,20 @@ class Status:
     number: int
     message: str
     zero: tuple[int, ...] = ()
+
+    def identifier(self) -> str:
+        """The status's name in C's status enum, after the file's ``PREFIX_STATUS_``:
+        the program, the failed check in a few words and the number, upper case
+        (``STEP_S_NOT_POSITIVE_DEFINITE_1``, ``STEP_P_OUTSIDE_PATTERN_4``; at most
+        :data:`_NAME_WORDS` words of the check); unique in a
+        file, since a program's statuses have distinct numbers."""
+        if self.zero:  # a zero check: the input named first is outside its pattern
+            words = [self.message.split()[0], "outside", "pattern"]
+        else:  # the check, without its details (after ':', or in parentheses)
+            clause = re.sub(r"\s\([^()]*\)", "", self.message).split(":", 1)[0]
+            words = [w for w in re.split(r"[^A-Za-z0-9]+", clause)
+                     if w and w.lower() not in _FILLER][:_NAME_WORDS]
+        return "_".join([self.program, *words, str(self.number)]).upper()
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from numbers import Integral, Real
@@ -36,6 +37,9 @@ from .errors import OptionError
 from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 
 PATTERNS = ("dense", "zero", "diagonal", "block")
+C_PREFIX = r"(?:[A-Za-z][A-Za-z0-9_]*)?"
+"""What ``--prefix`` may be: empty, or a letter then letters, digits and underscores (so
+PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x``)."""
 """Declared sparsity patterns of P0 (derive.filters.pattern.declared)."""
 
 DEFAULT_EPS = 1e-6
@@ -64,6 +68,8 @@ class Spec:
     choices: tuple[str, ...] = ()
     formerly: tuple[str, ...] = ()
     metavar: str | None = None
+    pattern: str | None = None
+    pattern_words: str = ""
 
     def bounds(self) -> str:
         """``(0, 1)``, ``[1, 256]``, ``>= 1``: the range in words (empty: any value)."""
@@ -104,6 +110,11 @@ class SharedOptions:
     run_tracks: bool = option(
         True, flag="--no-run-tracks", kind=bool, needs="batch",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
+    prefix: str = option(
+        "", flag="--prefix", kind=str, metavar="PREFIX", pattern=C_PREFIX,
+        pattern_words="empty or a letter followed by letters, digits and underscores",
+        help="C: put PREFIX in front of every name the files export (functions, macros, "
+             "the status enum and the include guard)")
 
     def __post_init__(self) -> None:
         for key, spec in self.specs().items():
@@ -292,6 +303,9 @@ def _checked(key: str, spec: Spec, value, default):
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise OptionError(f"option {_label(key, spec)} must be one of "
                               f"{', '.join(spec.choices)}, got {value!r}{hint}")
+        if spec.pattern is not None and not re.fullmatch(spec.pattern, value):
+            raise OptionError(f"option {_label(key, spec)} must be {spec.pattern_words}, "
+                              f"got {value!r}")
         return value
     if isinstance(value, bool) or not isinstance(value, Real):
         raise OptionError(_wrong_type(key, spec, value))
@@ -325,7 +339,8 @@ def add_arguments(parser) -> None:
             group.add_argument(spec.flag, dest=key, default=None,
                                action="store_const", const=not default, help=text)
         elif spec.kind is str:
-            group.add_argument(spec.flag, dest=key, default=None, choices=spec.choices,
+            group.add_argument(spec.flag, dest=key, default=None,
+                               choices=spec.choices or None, metavar=spec.metavar,
                                help=text)
         else:
             group.add_argument(spec.flag, dest=key, default=None, type=spec.kind,

@@ -65,14 +65,46 @@ def needs_math_h(lowered: list[LoweredProgram]) -> bool:
     return False
 
 
-def parameters(lowered: LoweredProgram) -> list[str]:
-    """C parameters: the inputs except ``p``, the outputs, then ``p``."""
+def parameters(lowered: LoweredProgram, restrict: str = "restrict") -> list[str]:
+    """C parameters: the inputs except ``p``, the outputs, then ``p``; ``restrict``: how
+    the pointers are qualified (a header spells it with :func:`restrict_macro`)."""
     inputs = [p for p in lowered.inputs if p.name != PARAMETER_PORT]
-    params = [f"const double *restrict {p.name}" for p in inputs]
-    params += [f"double *restrict {p.name}" for p in lowered.outputs]
-    params += [f"const double *restrict {p.name}" for p in lowered.inputs
+    params = [f"const double *{restrict} {p.name}" for p in inputs]
+    params += [f"double *{restrict} {p.name}" for p in lowered.outputs]
+    params += [f"const double *{restrict} {p.name}" for p in lowered.inputs
                if p.name == PARAMETER_PORT]
     return params
+
+
+RESTRICT_NAME = "DERIVE_RESTRICT"
+
+
+def restrict_macro(symbol_prefix: str = "") -> str:
+    """The name a header spells ``restrict`` with: ``PREFIX`` DERIVE_RESTRICT."""
+    return f"{symbol_prefix}{RESTRICT_NAME}"
+
+
+def restrict_lines(symbol_prefix: str = "") -> list[str]:
+    """The header's definition of :func:`restrict_macro`, so that it is includable from C
+    and C++: ``restrict`` in C99 and later, ``__restrict__`` in GCC and Clang C++,
+    ``__restrict`` in MSVC C++, nothing otherwise; guarded, so that every header of one
+    prefix may define it (the definitions are identical)."""
+    name = restrict_macro(symbol_prefix)
+    return [f"#ifndef {name}",
+            "#if defined(__cplusplus)",
+            "#if defined(__GNUC__) || defined(__clang__)",
+            f"#define {name} __restrict__",
+            "#elif defined(_MSC_VER)",
+            f"#define {name} __restrict",
+            "#else",
+            f"#define {name}",
+            "#endif",
+            "#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L",
+            f"#define {name} restrict",
+            "#else",
+            f"#define {name}",
+            "#endif",
+            "#endif"]
 
 
 def argument_order(lowered: LoweredProgram) -> list[str]:
@@ -80,10 +112,10 @@ def argument_order(lowered: LoweredProgram) -> list[str]:
     return [p.split()[-1] for p in parameters(lowered)]
 
 
-def prototype(lowered: LoweredProgram, prefix: str) -> str:
+def prototype(lowered: LoweredProgram, prefix: str, restrict: str = "restrict") -> str:
     """``int|void PREFIX_NAME(...)`` (no semicolon); int when the program has checks."""
     result = "int" if lowered.has_checks else "void"
-    return f"{result} {prefix}_{lowered.name}({', '.join(parameters(lowered))})"
+    return f"{result} {prefix}_{lowered.name}({', '.join(parameters(lowered, restrict))})"
 
 
 def pattern_check_lines(check: LoweredCheck, element: str | None = None) -> list[str]:

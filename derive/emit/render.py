@@ -339,10 +339,27 @@ def _flat_start(unit: Unit) -> list[str]:
 P_STRIDE = "p_stride"
 
 
-def include_guard(prefix: str) -> str:
-    """The header's include guard: the prefix verbatim, so it is unique per model and filter
-    whatever the case of the names (``Axis_kf`` and ``axis_kf`` differ)."""
-    return f"DERIVE_{prefix}_H"
+def include_guard(name: str, symbol_prefix: str = "") -> str:
+    """The header's include guard: ``name`` (``MODEL_FILTER``) verbatim, so it is unique per
+    model and filter whatever the case of the names (``Axis_kf`` and ``axis_kf`` differ),
+    with the ``--prefix`` in front like every other name the header defines."""
+    return f"{symbol_prefix}DERIVE_{name}_H"
+
+
+def status_enum(prefix: str, described: interface.Interface) -> list[str]:
+    """The header's status enum (empty without statuses): ``PREFIX_STATUS_OK = 0``, then
+    each status of the header's list by its name (:meth:`interface.Status.identifier`)
+    and number. The functions return these values as ``int``: an enum's size is the
+    compiler's choice (``-fshort-enums``), an int is the same in every C and C++ ABI."""
+    if not described.statuses:
+        return []
+    constants = [f"{prefix}_STATUS_OK = 0"] + [
+        f"{prefix}_STATUS_{s.identifier()} = {s.number}" for s in described.statuses]
+    return (["/* the statuses listed above, by name (the functions return them as int) */",
+             f"enum {prefix}_status {{"]
+            + [f"    {c}{',' if i < len(constants) - 1 else ''}"
+               for i, c in enumerate(constants)]
+            + ["};"])
 
 
 def _c_call(function: str, args: str, status: bool) -> list[str]:
@@ -392,7 +409,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             "is carried from pass to pass",
             f"operations per pass of run, two steps ({_language('c', use_fma)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
-    header_lines.append(describe(unit.prefix, lowered, run_arguments(unit)).block())
+    described = describe(unit.prefix, lowered, run_arguments(unit))
+    header_lines.append(described.block())
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
@@ -402,10 +420,14 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
-    defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
-               f"#define {prefix}_NP {len(unit.parameters)}"]
+    sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+             f"#define {prefix}_NP {len(unit.parameters)}"]
     if unit.run.window:
-        defines.append(f"#define {prefix}_WINDOW {unit.window}")
+        sizes.append(f"#define {prefix}_WINDOW {unit.window}")
+    enum = status_enum(prefix, described)
+    defines = c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes + (
+        [""] + enum if enum else [])
+    restrict = c_printer.restrict_macro(unit.symbol_prefix)
     step_lp = lowered["step"]
     step_call = []
     if unit.run.window:
@@ -459,9 +481,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     context = {
         "header": header,
-        "guard": include_guard(prefix),
+        "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
         "defines": defines,
-        "prototypes": [c_printer.prototype(lp, prefix) + ";" for lp in lps]
+        "prototypes": [c_printer.prototype(lp, prefix, restrict) + ";" for lp in lps]
         + [run_signature + ";"] + ([tracks_signature + ";"] if tracks_signature else []),
         "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps),
@@ -558,6 +580,8 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
     fma = use_fma and lang == "c"
     lowered = {p.name: lower_program(p, use_fma=fma) for p in programs}
     lps = list(lowered.values())
+    described = describe(name, lowered)
+    enum = status_enum(name, described)
     if lang == "python":
         header = [python_printer.doc_text(x)
                   for x in _function_header(name, lang, lowered, command, facts)]
@@ -573,8 +597,10 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
     header = [c_printer.comment_text(x)
               for x in _function_header(name, lang, lowered, command, facts)]
     context = {
-        "header": header, "guard": include_guard(name), "defines": [],
-        "prototypes": [c_printer.prototype(lp, name) + ";" for lp in lps],
+        "header": header, "guard": include_guard(name),
+        "defines": c_printer.restrict_lines() + ([""] + enum if enum else []),
+        "prototypes": [c_printer.prototype(lp, name, c_printer.restrict_macro()) + ";"
+                       for lp in lps],
         "h_file": f"{name}.h", "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)
         else [],

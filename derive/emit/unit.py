@@ -142,11 +142,16 @@ class Unit:
     extra_programs: tuple[str, ...] = ()
     carried: tuple[tuple[str, str], ...] | None = None
     lookahead: Program | None = None
+    symbol_prefix: str = ""
 
     def __post_init__(self) -> None:
         for what, value in (("model", self.model), ("filter", self.filter)):
             if not isinstance(value, str) or not _IDENT.match(value) or keyword.iskeyword(value):
                 raise ProgramError(f"unit {what} name {value!r} is not a plain identifier")
+        if not isinstance(self.symbol_prefix, str) or (
+                self.symbol_prefix and not _IDENT.match(self.symbol_prefix)):
+            raise ProgramError(f"unit symbol prefix {self.symbol_prefix!r} is not empty or a "
+                               "C identifier")
         if self.run_kind not in RUN_KINDS:
             raise ProgramError(f"unknown run kind {self.run_kind!r}; known: "
                                f"{sorted(RUN_KINDS)}")
@@ -171,8 +176,10 @@ class Unit:
 
     @property
     def prefix(self) -> str:
-        """``MODEL_FILTER``: the C function prefix and the file stem."""
-        return f"{self.model}_{self.filter}"
+        """``PREFIX`` ``MODEL_FILTER``: the prefix of the C functions and macros
+        (``symbol_prefix``, the ``--prefix`` option, in front; the files are still
+        ``MODEL/FILTER.*``)."""
+        return f"{self.symbol_prefix}{self.model}_{self.filter}"
 
     @property
     def kind(self) -> str:

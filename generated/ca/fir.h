@@ -24,6 +24,22 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define ca_fir_N 3
 #define ca_fir_M 1
 #define ca_fir_NP 0
@@ -33,7 +49,7 @@
 extern "C" {
 #endif
 
-void ca_fir_step(const double *restrict zw, double *restrict x_new);
+void ca_fir_step(const double *DERIVE_RESTRICT zw, double *DERIVE_RESTRICT x_new);
 void ca_fir_run(size_t steps, const double *z, double *xs);
 
 #ifdef __cplusplus

@@ -26,6 +26,22 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define cv_sskf_N 2
 #define cv_sskf_M 1
 #define cv_sskf_NP 0
@@ -34,7 +50,7 @@
 extern "C" {
 #endif
 
-void cv_sskf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
+void cv_sskf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
 void cv_sskf_run(size_t steps, const double *z, const double *x0, double *xs);
 void cv_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 

@@ -46,17 +46,51 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define gnss_pseudorange_ukf_N 4
 #define gnss_pseudorange_ukf_M 4
 #define gnss_pseudorange_ukf_NP 0
+
+/* the statuses listed above, by name (the functions return them as int) */
+enum gnss_pseudorange_ukf_status {
+    gnss_pseudorange_ukf_STATUS_OK = 0,
+    gnss_pseudorange_ukf_STATUS_STEP_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_1 = 1,
+    gnss_pseudorange_ukf_STATUS_STEP_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_2 = 2,
+    gnss_pseudorange_ukf_STATUS_STEP_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_3 = 3,
+    gnss_pseudorange_ukf_STATUS_STEP_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_4 = 4,
+    gnss_pseudorange_ukf_STATUS_STEP_PVV_NOT_POSITIVE_DEFINITE_5 = 5,
+    gnss_pseudorange_ukf_STATUS_STEP_PVV_NOT_POSITIVE_DEFINITE_6 = 6,
+    gnss_pseudorange_ukf_STATUS_STEP_PVV_NOT_POSITIVE_DEFINITE_7 = 7,
+    gnss_pseudorange_ukf_STATUS_STEP_PVV_NOT_POSITIVE_DEFINITE_8 = 8,
+    gnss_pseudorange_ukf_STATUS_UPDATE1_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_1 = 1,
+    gnss_pseudorange_ukf_STATUS_UPDATE1_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_2 = 2,
+    gnss_pseudorange_ukf_STATUS_UPDATE1_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_3 = 3,
+    gnss_pseudorange_ukf_STATUS_UPDATE1_SIGMA_POINT_COVARIANCE_P_NOT_POSITIVE_DEFINITE_4 = 4,
+    gnss_pseudorange_ukf_STATUS_UPDATE1_PVV_NOT_POSITIVE_DEFINITE_5 = 5
+};
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new);
-void gnss_pseudorange_ukf_predict(const double *restrict x, const double *restrict P, double *restrict x_new, double *restrict P_new);
-int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, double *restrict innovation, double *restrict variance);
+int gnss_pseudorange_ukf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, const double *DERIVE_RESTRICT u, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
+void gnss_pseudorange_ukf_predict(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
+int gnss_pseudorange_ukf_update1(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, const double *DERIVE_RESTRICT u, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new, double *DERIVE_RESTRICT innovation, double *DERIVE_RESTRICT variance);
 int gnss_pseudorange_ukf_run(size_t steps, const double *z, const double *u, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus

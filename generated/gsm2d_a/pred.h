@@ -27,6 +27,22 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define gsm2d_a_pred_N 4
 #define gsm2d_a_pred_M 2
 #define gsm2d_a_pred_NP 0
@@ -35,8 +51,8 @@
 extern "C" {
 #endif
 
-void gsm2d_a_pred_init(const double *restrict x0, double *restrict x_new);
-void gsm2d_a_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new);
+void gsm2d_a_pred_init(const double *DERIVE_RESTRICT x0, double *DERIVE_RESTRICT x_new);
+void gsm2d_a_pred_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
 void gsm2d_a_pred_run(size_t steps, const double *z, const double *x0, double *xs);
 
 #ifdef __cplusplus

@@ -45,17 +45,53 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define gsm2d_a_udkf_N 4
 #define gsm2d_a_udkf_M 2
 #define gsm2d_a_udkf_NP 0
+
+/* the statuses listed above, by name (the functions return them as int) */
+enum gsm2d_a_udkf_status {
+    gsm2d_a_udkf_STATUS_OK = 0,
+    gsm2d_a_udkf_STATUS_STEP_P_K_1_K_NOT_POSITIVE_SEMIDEFINITE_1 = 1,
+    gsm2d_a_udkf_STATUS_STEP_P_K_1_K_NOT_POSITIVE_SEMIDEFINITE_2 = 2,
+    gsm2d_a_udkf_STATUS_STEP_P_K_1_K_NOT_POSITIVE_SEMIDEFINITE_3 = 3,
+    gsm2d_a_udkf_STATUS_STEP_P_K_1_K_NOT_POSITIVE_SEMIDEFINITE_4 = 4,
+    gsm2d_a_udkf_STATUS_STEP_INNOVATION_VARIANCE_0_SCALAR_UPDATE_NOT_POSITIVE_5 = 5,
+    gsm2d_a_udkf_STATUS_STEP_INNOVATION_VARIANCE_1_SCALAR_UPDATE_NOT_POSITIVE_6 = 6,
+    gsm2d_a_udkf_STATUS_STEP_INNOVATION_VARIANCE_2_SCALAR_UPDATE_NOT_POSITIVE_7 = 7,
+    gsm2d_a_udkf_STATUS_STEP_INNOVATION_VARIANCE_3_SCALAR_UPDATE_NOT_POSITIVE_8 = 8,
+    gsm2d_a_udkf_STATUS_STEP_U_OUTSIDE_PATTERN_9 = 9,
+    gsm2d_a_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_1 = 1,
+    gsm2d_a_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_2 = 2,
+    gsm2d_a_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_3 = 3,
+    gsm2d_a_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_4 = 4,
+    gsm2d_a_udkf_STATUS_ENTER_P_OUTSIDE_PATTERN_5 = 5,
+    gsm2d_a_udkf_STATUS_STORE_U_OUTSIDE_PATTERN_1 = 1
+};
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new);
-int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D);
-int gsm2d_a_udkf_store(const double *restrict x, const double *restrict U, const double *restrict D, double *restrict P_new);
+int gsm2d_a_udkf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT U, const double *DERIVE_RESTRICT D, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT U_new, double *DERIVE_RESTRICT D_new);
+int gsm2d_a_udkf_enter(const double *DERIVE_RESTRICT x0, const double *DERIVE_RESTRICT P0, double *DERIVE_RESTRICT x, double *DERIVE_RESTRICT U, double *DERIVE_RESTRICT D);
+int gsm2d_a_udkf_store(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT U, const double *DERIVE_RESTRICT D, double *DERIVE_RESTRICT P_new);
 int gsm2d_a_udkf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 
 #ifdef __cplusplus

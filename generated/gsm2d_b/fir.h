@@ -23,6 +23,22 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define gsm2d_b_fir_N 2
 #define gsm2d_b_fir_M 1
 #define gsm2d_b_fir_NP 0
@@ -32,7 +48,7 @@
 extern "C" {
 #endif
 
-void gsm2d_b_fir_step(const double *restrict zw, double *restrict x_new);
+void gsm2d_b_fir_step(const double *DERIVE_RESTRICT zw, double *DERIVE_RESTRICT x_new);
 void gsm2d_b_fir_run(size_t steps, const double *z, double *xs);
 
 #ifdef __cplusplus

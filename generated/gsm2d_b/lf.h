@@ -24,6 +24,22 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define gsm2d_b_lf_N 2
 #define gsm2d_b_lf_M 1
 #define gsm2d_b_lf_NP 0
@@ -32,7 +48,7 @@
 extern "C" {
 #endif
 
-void gsm2d_b_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
+void gsm2d_b_lf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
 void gsm2d_b_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 void gsm2d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 

@@ -29,15 +29,40 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define mpt3d_a_kf_N 6
 #define mpt3d_a_kf_M 3
 #define mpt3d_a_kf_NP 0
+
+/* the statuses listed above, by name (the functions return them as int) */
+enum mpt3d_a_kf_status {
+    mpt3d_a_kf_STATUS_OK = 0,
+    mpt3d_a_kf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    mpt3d_a_kf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
+    mpt3d_a_kf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_3 = 3,
+    mpt3d_a_kf_STATUS_STEP_P_OUTSIDE_PATTERN_4 = 4
+};
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new);
+int mpt3d_a_kf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new);
 int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps);
 

@@ -31,16 +31,40 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define mpt3d_b_rts_N 2
 #define mpt3d_b_rts_M 1
 #define mpt3d_b_rts_NP 0
+
+/* the statuses listed above, by name (the functions return them as int) */
+enum mpt3d_b_rts_status {
+    mpt3d_b_rts_STATUS_OK = 0,
+    mpt3d_b_rts_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    mpt3d_b_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_1 = 1,
+    mpt3d_b_rts_STATUS_BACKWARD_P_K_1_K_NOT_POSITIVE_DEFINITE_2 = 2
+};
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-int mpt3d_b_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred);
-int mpt3d_b_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth);
+int mpt3d_b_rts_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new, double *DERIVE_RESTRICT x_pred, double *DERIVE_RESTRICT P_pred);
+int mpt3d_b_rts_backward(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT x_pred, const double *DERIVE_RESTRICT P_pred, const double *DERIVE_RESTRICT x_smooth_next, const double *DERIVE_RESTRICT P_smooth_next, double *DERIVE_RESTRICT x_smooth, double *DERIVE_RESTRICT P_smooth);
 int mpt3d_b_rts_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps, double *work);
 
 #ifdef __cplusplus

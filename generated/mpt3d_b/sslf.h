@@ -25,6 +25,22 @@
 
 #include <stddef.h>
 
+#ifndef DERIVE_RESTRICT
+#if defined(__cplusplus)
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_RESTRICT __restrict__
+#elif defined(_MSC_VER)
+#define DERIVE_RESTRICT __restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#elif defined(__STDC_VERSION__) && __STDC_VERSION__ >= 199901L
+#define DERIVE_RESTRICT restrict
+#else
+#define DERIVE_RESTRICT
+#endif
+#endif
+
 #define mpt3d_b_sslf_N 2
 #define mpt3d_b_sslf_M 1
 #define mpt3d_b_sslf_NP 0
@@ -33,7 +49,7 @@
 extern "C" {
 #endif
 
-void mpt3d_b_sslf_step(const double *restrict x, const double *restrict z, double *restrict x_new);
+void mpt3d_b_sslf_step(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new);
 void mpt3d_b_sslf_run(size_t steps, const double *z, const double *x0, double *xs);
 void mpt3d_b_sslf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs);
 
