@@ -198,8 +198,8 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
                               _slice(P0s, layout.P0_shared, start, stop), p, with_covariance,
                               out=(xs[start:stop], None if Ps is None else Ps[start:stop]))
         except (NumericalError, PatternError) as exc:
-            raise type(exc)(f"tracks {start} to {stop - 1} (track numbers below count from "
-                            f"{start}): {exc}") from None
+            note = f" (its track numbers count from {start})" if "(track " in str(exc) else ""
+            raise type(exc)(f"tracks {start} to {stop - 1}{note}: {exc}") from None
 
     slices = split(tracks, workers)
     if len(slices) == 1:
