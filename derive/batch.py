@@ -50,6 +50,11 @@ class Kernel:
                 module = _KERNELS[self] = next(iter(built.filters.values()))
             return module
 
+    def preload(self) -> None:
+        """Load the kernel here and return nothing (``Client.run(kernel.preload)`` loads it
+        on every Dask worker ahead of a timed computation)."""
+        self.load()
+
 
 _KERNELS: dict[Kernel, FilterModule] = {}
 _LOCK = threading.Lock()

@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 import sympy
 
-from derive import LinearModel, batch
+from derive import LinearModel, batch, cli
+from derive.apps.bench import scaling
 from derive.apps.bench.batch import make_batch
+from derive.apps.bench.run import BenchResult, Settings
 from derive.errors import ModelError, NumericalError, ShapeError
 from derive.pipeline import load_generated
 
@@ -193,3 +195,30 @@ def test_a_two_worker_local_cluster_gives_the_numpy_result_bitwise(kf, tracks, w
         xs, Ps = da.compute(xd, Pd)
     np.testing.assert_array_equal(xs, whole[0])
     np.testing.assert_array_equal(Ps, whole[1])
+
+
+def test_the_bench_measures_threads_and_dask_with_one_and_two_workers(tmp_path):
+    pytest.importorskip("distributed")
+    rows = scaling.scaling_rows(250, 6, tmp_path, repeats=1, chunk=100)
+    assert [(r.implementation, r.workers) for r in rows] == [
+        ("threads", 1), ("threads", 2), ("Dask LocalCluster", 1), ("Dask LocalCluster", 2)]
+    for r in rows:
+        assert r.bitwise is True and r.track_steps_per_second > 0, r
+    result = BenchResult(Settings(scale_tracks=250, scale_steps=6), {}, scale=rows)
+    _, _, lines = scaling.scaling_table(rows)
+    assert [line.split(":")[0] for line in lines] == [
+        "scaling of threads from 1 to 2 workers",
+        "scaling of Dask LocalCluster from 1 to 2 workers"]
+    assert result.as_json()["scale"][2]["implementation"] == "Dask LocalCluster"
+
+
+def test_simulated_chunks_are_the_same_bits_however_made():
+    whole = np.concatenate([scaling.simulated_chunk(a, b, 5) for a, b in scaling.chunks(7, 3)])
+    assert [(a, b) for a, b in scaling.chunks(7, 3)] == [(0, 3), (3, 6), (6, 7)]
+    np.testing.assert_array_equal(whole[3:6], scaling.simulated_chunk(3, 6, 5))
+
+
+@pytest.mark.parametrize("option", ["--scale-tracks=-1", "--scale-steps=0"])
+def test_bench_scale_options_are_checked(option, capsys):
+    assert cli.main(["bench", "--quick", option]) == 2
+    assert "must be >=" in capsys.readouterr().err
