@@ -222,3 +222,14 @@ def test_simulated_chunks_are_the_same_bits_however_made():
 def test_bench_scale_options_are_checked(option, capsys):
     assert cli.main(["bench", "--quick", option]) == 2
     assert "must be >=" in capsys.readouterr().err
+
+
+def test_the_bench_skips_dask_rows_without_dask(tmp_path, monkeypatch):
+    for name in ("dask", "dask.array", "distributed"):
+        monkeypatch.setitem(sys.modules, name, None)   # import raises ImportError
+    rows = scaling.scaling_rows(30, 4, tmp_path, repeats=1)
+    assert [r.bitwise for r in rows[:2]] == [True, True]
+    for r in rows[2:]:
+        assert r.track_steps_per_second is None
+        assert r.note == ("skipped: dask[array] and distributed are not installed (the [dask] "
+                          "extra)")
