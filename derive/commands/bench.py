@@ -36,7 +36,8 @@ def run(args) -> int:
     if args.repeats is not None:
         if args.repeats < 1:
             raise ModelError(f"--repeats must be >= 1, got {args.repeats}")
-        settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats)
+        settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats,
+                           scale_repeats=args.repeats)
 
     if args.scale_tracks is not None:
         if args.scale_tracks < 0:
