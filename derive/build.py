@@ -211,9 +211,12 @@ def status_error(module: FilterModule, function: str, status: int, values: dict
     return NumericalError(f"{where}: " + " or ".join(texts or ["unknown check"]))
 
 
-def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True):
+def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True,
+                out=None):
     """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
-    (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None)."""
+    (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None).
+    ``out``: (xs, Ps) written in place instead (C-contiguous float64 of those shapes;
+    Ps None when not stored), as derive.batch passes the slices of one result."""
     fn = getattr(module.lib, f"{module.prefix}_run_tracks")
     run = module.functions["run"]
     inputs = {a.name: a for a in run.arguments if not a.output}
@@ -232,13 +235,14 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
 
     zs, x0 = track_major("z", zs), track_major("x0", x0)
     n = int(inputs["x0"].dims[0])
-    xs = np.empty((tracks, steps, n))
+    xs, Ps_out = out if out is not None else (np.empty((tracks, steps, n)), None)
     buf = module.ffi.from_buffer
     args = [steps, tracks, buf("double[]", zs), buf("double[]", x0)]
     Ps = None
     if P0 is not None:
         P0 = track_major("P0", P0)
-        Ps = np.empty((tracks, steps, n, n)) if with_covariance else None
+        Ps = (Ps_out if out is not None else np.empty((tracks, steps, n, n))
+              ) if with_covariance else None
         args += [buf("double[]", P0), buf("double[]", xs),
                  buf("double[]", Ps) if Ps is not None else module.ffi.NULL]
     else:

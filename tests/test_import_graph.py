@@ -31,6 +31,9 @@ OPTIONAL_DEPENDENCIES = {
     "rich": "report extra: progress display",
     "georinex": "test extra only: an independent parse of the RINEX files",
     "cffi": "C builds need a compiler and cffi, loaded only when something is compiled",
+    "dask": "dask extra: derive.batch on Dask arrays, the bench's Dask rows",
+    "dask.array": "dask extra: derive.batch on Dask arrays, the bench's Dask rows",
+    "distributed": "dask extra: the bench's Dask LocalCluster",
 }
 
 #: Modules that run when the CLI starts (``derive --help``): they import what a command

@@ -72,11 +72,14 @@ def test_one_pipeline_and_one_file_importer_in_the_source():
     tests do neither."""
     writers = {"generation.py", "paper.py", "pipeline.py", "write.py"}
     loaders = {"build.py", "pipeline.py"}
+    # derive.batch builds a .c file written before, by its path, in each Dask worker
+    # (a cffi object cannot travel there); it writes nothing
+    path_loaders = {ROOT / "derive" / "batch.py"}
     for path in [*(ROOT / "derive").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]:
         calls = _calls(path)
         if path.name not in writers:
             assert "write_files" not in calls, path
-        if path.name not in loaders:
+        if path.name not in loaders and path not in path_loaders:
             assert not calls & {"build_c", "load_python"}, path
         if path.name != "build.py":
             assert "spec_from_file_location" not in calls, path

@@ -14,6 +14,11 @@ def add_arguments(parser) -> None:
                         help="tiny step and repeat counts (a smoke test; times meaningless)")
     parser.add_argument("--repeats", type=int, default=None,
                         help="repeats per measurement (default 7; the median is shown)")
+    parser.add_argument("--scale-tracks", type=int, default=None,
+                        help="tracks of the every-core batch (derive.batch on threads and a "
+                             "Dask LocalCluster; default 1,000,000; 0 leaves it out)")
+    parser.add_argument("--scale-steps", type=int, default=None,
+                        help="steps per track of the every-core batch (default 100)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines (they are shown only when stderr is a "
                              "terminal)")
@@ -31,7 +36,17 @@ def run(args) -> int:
     if args.repeats is not None:
         if args.repeats < 1:
             raise ModelError(f"--repeats must be >= 1, got {args.repeats}")
-        settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats)
+        settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats,
+                           scale_repeats=args.repeats)
+
+    if args.scale_tracks is not None:
+        if args.scale_tracks < 0:
+            raise ModelError(f"--scale-tracks must be >= 0, got {args.scale_tracks}")
+        settings = replace(settings, scale_tracks=args.scale_tracks)
+    if args.scale_steps is not None:
+        if args.scale_steps < 1:
+            raise ModelError(f"--scale-steps must be >= 1, got {args.scale_steps}")
+        settings = replace(settings, scale_steps=args.scale_steps)
 
     def report(text: str) -> None:
         progress.report(f"bench: {text}")

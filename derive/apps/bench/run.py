@@ -18,7 +18,7 @@ import numpy as np
 from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
-from . import batch, casadi_c, generated, peers
+from . import batch, casadi_c, generated, peers, scaling
 from .bound import case_bound
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
@@ -51,6 +51,9 @@ class Settings:
     batch_tracks: int = batch.TRACKS
     batch_steps: int = batch.STEPS
     batch_repeats: int = 5
+    scale_tracks: int = scaling.TRACKS   # derive.batch on every core; 0: left out
+    scale_steps: int = scaling.STEPS
+    scale_repeats: int = 3
     catalog_generation: bool = True   # time `derive generate --all` (the 30 s target)
 
     @classmethod
@@ -58,6 +61,7 @@ class Settings:
         """Tiny counts, for tests: the same rows, meaningless times."""
         return cls(c_steps=300, python_steps=30, nonlinear_python_steps=20, repeats=2,
                    check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
+                   scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False)
 
 
@@ -89,6 +93,7 @@ class BenchResult:
     rows: list[Row] = field(default_factory=list)
     batch: list[BatchRow] = field(default_factory=list)
     generation_seconds: float | None = None
+    scale: list[scaling.ScaleRow] = field(default_factory=list)   # derive.batch, every core
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -97,6 +102,7 @@ class BenchResult:
     def as_json(self) -> dict:
         return {"settings": asdict(self.settings), "machine": self.machine,
                 "rows": [asdict(r) for r in self.rows], "batch": [asdict(b) for b in self.batch],
+                "scale": [asdict(r) for r in self.scale],
                 "generation_seconds": self.generation_seconds,
                 "bars": [asdict(b) for b in self.bars()]}
 
@@ -200,6 +206,14 @@ class BenchResult:
                 for b in self.batch]
         lines += _columns(head, body)
         lines.append("")
+        if self.scale:
+            lines += [f"every core: derive.batch.run_tracks, {s.scale_tracks:,} tracks x "
+                      f"{s.scale_steps} steps of {batch.MODEL} (KF, no covariances stored), "
+                      f"median of {s.scale_repeats} runs; threads split the NumPy arrays, "
+                      "Dask runs a LocalCluster of worker processes (1 thread each); "
+                      "'bitwise': equal to the threaded result", ""]
+            head, body, scaled = scaling.scaling_table(self.scale)
+            lines += _columns(head, body) + scaled + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -357,6 +371,9 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         for case in CASES:
             result.rows += _case_rows(case, s, Path(tmp), tick, result.machine.get("latency"))
         result.batch = _batch_rows(s, Path(tmp), tick)
+        if s.scale_tracks:
+            result.scale = scaling.scaling_rows(s.scale_tracks, s.scale_steps, Path(tmp),
+                                                  s.scale_repeats, tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")

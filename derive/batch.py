@@ -1,0 +1,272 @@
+"""Many independent tracks through a generated C ``run_tracks``, on every core.
+
+``run_tracks(kernel, zs, x0s, P0s, p=None, workers=None)`` splits the tracks into
+contiguous slices and runs each slice's ``MODEL_FILTER_run_tracks`` in its own thread
+(cffi releases the GIL during the call), writing into slices of one result. Given a
+Dask array ``zs`` chunked along the track axis it returns lazy Dask arrays instead: one
+task per chunk, each calling the kernel, which every worker compiles (or finds in the
+build cache) and loads once. Each track's result is bitwise the same however the tracks
+are split, since run_tracks treats every track on its own.
+
+The kernel travels to Dask's workers as a :class:`Kernel`: the path of the generated
+``.c`` file (its ``.h`` beside it) and the compiler flags, never a cffi object. Dask is
+imported only when a Dask array is given (``pip install derive-filters[dask]``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .build import FilterModule, build_c
+from .errors import ModelError, NumericalError, PatternError, ShapeError
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """A generated C filter to load where it runs: ``path`` to ``MODEL/FILTER.c`` (its
+    ``.h`` beside it), built by :func:`derive.build_c` with ``extra_cflags`` in the
+    build cache ``tmpdir`` (None: the user's cache)."""
+
+    path: str
+    extra_cflags: tuple[str, ...] = ()
+    tmpdir: str | None = None
+
+    def load(self) -> FilterModule:
+        """The filter's wrappers, built and loaded once per process."""
+        with _LOCK:
+            module = _KERNELS.get(self)
+            if module is None:
+                built = build_c(self.path, extra_cflags=self.extra_cflags, tmpdir=self.tmpdir)
+                if len(built.filters) != 1:
+                    raise ModelError(f"{self.path}: holds {len(built.filters)} filters; a "
+                                     "batch kernel is one generated filter")
+                module = _KERNELS[self] = next(iter(built.filters.values()))
+            return module
+
+    def preload(self) -> None:
+        """Load the kernel here and return nothing (``Client.run(kernel.preload)`` loads it
+        on every Dask worker ahead of a timed computation)."""
+        self.load()
+
+
+_KERNELS: dict[Kernel, FilterModule] = {}
+_LOCK = threading.Lock()
+
+
+def as_kernel(kernel) -> Kernel:
+    """``kernel`` as a :class:`Kernel`: a Kernel, or the path of a generated ``.c`` file."""
+    if isinstance(kernel, Kernel):
+        return kernel
+    if isinstance(kernel, (str, os.PathLike)):
+        return Kernel(str(Path(kernel).with_suffix(".c")))
+    raise ModelError("batch kernel: expected a derive.batch.Kernel or the path of a generated "
+                     f".c file, got {type(kernel).__name__}")
+
+
+def _module(kernel) -> FilterModule:
+    module = kernel if isinstance(kernel, FilterModule) else as_kernel(kernel).load()
+    if not hasattr(module.lib, f"{module.prefix}_run_tracks"):
+        raise ModelError(f"{module.prefix}: its C has no run_tracks (generated with "
+                         "--no-run-tracks, or a filter without a batch function)")
+    return module
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """The checked shapes of one batch: per track or shared (``*_shared``)."""
+
+    tracks: int
+    steps: int
+    n: int
+    x0_shared: bool
+    P0_shared: bool
+
+
+def _check(module: FilterModule, zs_shape, x0_shape, P0_shape, p) -> _Layout:
+    """The batch's layout, or ShapeError / ModelError naming the argument."""
+    name = f"{module.prefix} batch run_tracks"
+    inputs = {a.name: a for a in module.functions["run"].arguments if not a.output}
+    if len(zs_shape) < 2:
+        raise ShapeError(f"{name}: zs must have shape (tracks, steps, ...), got {zs_shape}")
+    tracks, steps = zs_shape[:2]
+    if any(not isinstance(d, (int, np.integer)) for d in zs_shape):
+        raise ShapeError(f"{name}: zs has unknown chunk sizes {zs_shape} (compute them "
+                         "first, e.g. dask's compute_chunk_sizes())")
+    accepted = [(tracks,) + s for s in inputs["z"].shapes(steps)]
+    if tuple(zs_shape) not in accepted:
+        raise ShapeError(f"{name}: zs must have shape " + " or ".join(map(str, accepted))
+                         + f", got {tuple(zs_shape)}")
+
+    def per_track_or_shared(arg: str, given: str, shape) -> bool:
+        own = [tuple(s) for s in inputs[arg].shapes(steps)]
+        if tuple(shape) in [(tracks,) + s for s in own]:
+            return False
+        if tuple(shape) in own:
+            return True
+        raise ShapeError(f"{name}: {given} must have shape "
+                         + " or ".join(str((tracks,) + s) for s in own) + " (one per track) or "
+                         + " or ".join(map(str, own)) + f" (shared), got {tuple(shape)}")
+
+    x0_shared = per_track_or_shared("x0", "x0s", x0_shape)
+    if ("P0" in inputs) != (P0_shape is not None):
+        raise ModelError(f"{name}: " + ("P0s is required (the filter starts from a "
+                                        "covariance)" if "P0" in inputs else
+                                        "the filter takes no P0s (it carries no covariance)"))
+    P0_shared = P0_shape is not None and per_track_or_shared("P0", "P0s", P0_shape)
+    if ("p" in inputs) != (p is not None):
+        raise ModelError(f"{name}: " + ("p is required (the filter has free parameters)"
+                                        if "p" in inputs else
+                                        "the filter takes no parameters p"))
+    if p is not None:
+        shapes = inputs["p"].shapes(steps)
+        if np.shape(p) not in shapes:
+            raise ShapeError(f"{name}: p must have shape " + " or ".join(map(str, shapes))
+                             + f" (shared by every track), got {np.shape(p)}")
+    return _Layout(int(tracks), int(steps), int(inputs["x0"].dims[0]), x0_shared, P0_shared)
+
+
+def _slice(array, shared: bool, start: int, stop: int):
+    if array is None:
+        return None
+    if shared:
+        return np.broadcast_to(array, (stop - start,) + np.shape(array))
+    return array[start:stop]
+
+
+def _is_dask(array) -> bool:
+    """A Dask array (dask.array is imported only by code that made one)."""
+    dask_array = sys.modules.get("dask.array")
+    return dask_array is not None and isinstance(array, dask_array.Array)
+
+
+def split(tracks: int, parts: int) -> list[tuple[int, int]]:
+    """``parts`` contiguous slices [start, stop) of ``tracks``, sizes differing by at most
+    one (no empty slice)."""
+    parts = max(1, min(parts, tracks))
+    edges = [tracks * i // parts for i in range(parts + 1)]
+    return [(a, b) for a, b in zip(edges, edges[1:]) if b > a]
+
+
+def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
+               with_covariance: bool = True):
+    """Filter ``tracks`` independent tracks with the generated C ``run_tracks``.
+
+    ``kernel``: a :class:`Kernel`, the path of a generated ``.c`` file, or (NumPy inputs
+    only) a loaded :class:`derive.build.FilterModule`. ``zs``: (tracks, steps, m) (or
+    (tracks, steps) when m = 1); ``x0s``: (tracks, n) or one (n,) shared by all;
+    ``P0s``: (tracks, n, n) / (tracks, n*n) or one shared, required exactly when the
+    filter starts from a covariance; ``p``: the free parameters, one row or one row per
+    step, shared by every track (as the C takes them).
+
+    NumPy inputs: the tracks are split into ``workers`` (default: the usable cores)
+    contiguous slices run in threads; returns ``xs`` (tracks, steps, n) and, for a filter
+    with P0, ``(xs, Ps)`` with Ps (tracks, steps, n, n) or None when ``with_covariance``
+    is False. A Dask ``zs`` (chunked along the track axis; ``x0s``, ``P0s`` NumPy or Dask)
+    returns the same as lazy Dask arrays, one task per chunk of tracks; ``workers`` is
+    then Dask's business (its scheduler) and must be None.
+
+    Each track's result is bitwise its own ``run``'s, however the tracks are split.
+    A failed check raises the wrapper's NumericalError or PatternError, naming the slice
+    of tracks it came from."""
+    if _is_dask(zs) or _is_dask(x0s) or _is_dask(P0s):
+        if workers is not None:
+            raise ModelError("batch run_tracks: workers= is for NumPy inputs; with Dask "
+                             "arrays the scheduler (e.g. a distributed Client) decides")
+        if not _is_dask(zs):
+            raise ModelError("batch run_tracks: Dask inputs need zs as a Dask array "
+                             "chunked along the track axis")
+        return _run_dask(as_kernel(kernel), zs, x0s, P0s, p, with_covariance)
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+            else (os.cpu_count() or 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ModelError(f"batch run_tracks: workers must be an integer >= 1, got {workers!r}")
+    module = _module(kernel)
+    zs = np.asarray(zs, dtype=np.float64)
+    x0s = np.asarray(x0s, dtype=np.float64)
+    P0s = None if P0s is None else np.asarray(P0s, dtype=np.float64)
+    layout = _check(module, zs.shape, x0s.shape, None if P0s is None else P0s.shape, p)
+    tracks, steps, n = layout.tracks, layout.steps, layout.n
+    xs = np.empty((tracks, steps, n))
+    Ps = np.empty((tracks, steps, n, n)) if P0s is not None and with_covariance else None
+
+    def one(start: int, stop: int) -> None:
+        try:
+            module.run_tracks(zs[start:stop], _slice(x0s, layout.x0_shared, start, stop),
+                              _slice(P0s, layout.P0_shared, start, stop), p, with_covariance,
+                              out=(xs[start:stop], None if Ps is None else Ps[start:stop]))
+        except (NumericalError, PatternError) as exc:
+            note = f" (its track numbers count from {start})" if "(track " in str(exc) else ""
+            raise type(exc)(f"tracks {start} to {stop - 1}{note}: {exc}") from None
+
+    slices = split(tracks, workers)
+    if len(slices) == 1:
+        one(*slices[0])
+    elif slices:
+        with ThreadPoolExecutor(max_workers=len(slices)) as pool:
+            for future in [pool.submit(one, a, b) for a, b in slices]:
+                future.result()
+    return xs if P0s is None else (xs, Ps)
+
+
+def _dask_block(zs, x0s, P0s=None, *, kernel: Kernel, x0_shared, P0_shared, p,
+                with_covariance: bool):
+    """One chunk of tracks on a Dask worker: the kernel loaded once per worker process;
+    xs and the flattened Ps side by side along the last axis."""
+    module = kernel.load()
+    tracks = zs.shape[0]
+    x0s = np.broadcast_to(x0_shared, (tracks,) + x0_shared.shape) if x0s is None else x0s
+    if P0_shared is not None:
+        P0s = np.broadcast_to(P0_shared, (tracks,) + P0_shared.shape)
+    result = module.run_tracks(zs, x0s, P0s, p, with_covariance)
+    if P0s is None:
+        return result
+    xs, Ps = result
+    if Ps is None:
+        return xs
+    return np.concatenate([xs, Ps.reshape(xs.shape[:2] + (-1,))], axis=2)
+
+
+def _run_dask(kernel: Kernel, zs, x0s, P0s, p, with_covariance: bool):
+    import dask.array as da
+
+    module = kernel.load()
+    layout = _check(module, zs.shape, np.shape(x0s), None if P0s is None else np.shape(P0s),
+                    p)
+    n, steps = layout.n, layout.steps
+    zs = zs.rechunk({axis: -1 for axis in range(1, zs.ndim)}).astype(np.float64)
+    track_chunks = zs.chunks[0]
+
+    def aligned(array):
+        """A per-track array chunked as zs along the tracks, whole along the rest."""
+        chunks = (track_chunks,) + tuple((d,) for d in np.shape(array)[1:])
+        if not _is_dask(array):
+            return da.from_array(np.asarray(array, dtype=np.float64), chunks=chunks)
+        return array.astype(np.float64).rechunk(chunks)
+
+    letters = "tsm"[:zs.ndim]
+    args = [zs, letters]
+    args += [None, None] if layout.x0_shared else [aligned(x0s), "t" + "abc"[:np.ndim(x0s) - 1]]
+    stored = P0s is not None and with_covariance
+    if P0s is not None:
+        args += [None, None] if layout.P0_shared else [aligned(P0s),
+                                                       "t" + "ij"[:np.ndim(P0s) - 1]]
+    width = n + n * n if stored else n
+    out = da.blockwise(
+        _dask_block, "tsk", *args, new_axes={"k": width}, concatenate=True, dtype=np.float64,
+        meta=np.empty((0, 0, 0)), kernel=kernel,
+        x0_shared=np.asarray(x0s, np.float64) if layout.x0_shared else None,
+        P0_shared=np.asarray(P0s, np.float64) if layout.P0_shared else None,
+        p=None if p is None else np.asarray(p, np.float64), with_covariance=with_covariance)
+    if P0s is None:
+        return out
+    if not stored:
+        return out, None
+    return out[:, :, :n], out[:, :, n:].reshape(layout.tracks, steps, n, n)
