@@ -1,4 +1,4 @@
-"""The extended Kalman filter (SPEC §6) for any NonlinearModel, as straight-line programs.
+"""The extended Kalman filter for any NonlinearModel, as straight-line programs.
 
     x(k/k-1) = f(x),  P(k/k-1) = F P F^T + Q,        F = ∂f/∂x at x(k-1/k-1)
     S = H P(k/k-1) H^T + R,  K = P(k/k-1) H^T S^-1,  H = ∂h/∂x at x(k/k-1) and u(k)

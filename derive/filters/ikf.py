@@ -1,4 +1,4 @@
-"""The information-form Kalman filter of MDKF (SPEC §3, case m >= n), u = 0.
+"""The information-form Kalman filter of MDKF (case m >= n), u = 0.
 
     P(k+1/k) = F P F^T + G Q G^T
     P_new^-1 = P(k+1/k)^-1 + H^T R^-1 H          (two unrolled LDL^T inverses)

@@ -1,4 +1,4 @@
-"""The joint Kalman-Lainiotis filter (SPEC §3): KF and LF from the same (x, P), averaged.
+"""The joint Kalman-Lainiotis filter: KF and LF from the same (x, P), averaged.
 
 Both filters start each step from the joined estimate, so the state stays the
 filter's interface (x, P); KF and LF are equal in exact arithmetic, so this is

@@ -1,4 +1,4 @@
-"""The Kalman filter (SPEC §3), one step, staged for the straight-line program.
+"""The Kalman filter, one step, staged for the straight-line program.
 
     x(k+1/k) = F x,  P(k+1/k) = F P F^T + G Q G^T,  S = H P(k+1/k) H^T + R,
     K = P(k+1/k) H^T S^-1 (an unrolled LDL^T solve, never an inverse),

@@ -1,4 +1,4 @@
-"""The Lainiotis filter (SPEC §3), one step.
+"""The Lainiotis filter, one step.
 
 Constants (folded to numbers when the model has no free symbols, otherwise staged
 in the step since they depend on the runtime parameters):

@@ -1,4 +1,4 @@
-"""What the EKF and the UKF (SPEC §6) share: Jacobians, measurement forms, the program frame.
+"""What the EKF and the UKF share: Jacobians, measurement forms, the program frame.
 
 The Jacobians are derived by sympy (an entry is replaced by its simplified form when that
 has fewer operations) and evaluated together with f and h through common subexpressions

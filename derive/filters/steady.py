@@ -1,4 +1,4 @@
-"""Steady-state filters (SPEC §4): SSKF, SSLF and their join, x_new = A x + B z.
+"""Steady-state filters: SSKF, SSLF and their join, x_new = A x + B z.
 
 A and B are solved offline (derive.riccati, doubling after the detectability and
 stabilisability checks) and baked into the code as exact binary values of the

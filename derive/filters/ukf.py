@@ -1,4 +1,4 @@
-"""The unscented Kalman filter (SPEC §6) for any NonlinearModel, as straight-line programs.
+"""The unscented Kalman filter for any NonlinearModel, as straight-line programs.
 
 Weights, the scaled form of Wan and van der Merwe (as derive.reference.sigma_weights):
 ``c = alpha² (n + kappa)``, ``Wm0 = (c - n)/c``, ``Wc0 = Wm0 + 1 - alpha² + beta``,

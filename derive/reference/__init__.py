@@ -1,4 +1,4 @@
-"""NumPy reference filters written straight from SPEC.md, on plain arrays.
+"""NumPy reference filters written straight from the papers' equations, on plain arrays.
 
 Indexing everywhere: zs[k-1] = z(k), k = 1..steps; estimates xs[k-1] = x(k/k)
 (pred: x(k+N/k)). Steady-state gains come from derive.riccati.

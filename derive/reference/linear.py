@@ -1,4 +1,4 @@
-"""Time-varying linear filters written straight from SPEC.md §3: KF, LF, JKLF and the two
+"""Time-varying linear filters written straight from the papers' equations: KF, LF, JKLF and the two
 algebraic forms of the MDKF (information form, covariance form; u = 0).
 
 Indexing for every function: zs[k-1] = z(k) for k = 1..steps, and the outputs are
@@ -49,7 +49,7 @@ def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True):
 
 
 def lf(F, G, H, Q, R, x0, P0, zs):
-    """Lainiotis filter (SPEC §3 constants and per-step equations). Returns (xs, Ps)."""
+    """Lainiotis filter (the papers' constants and per-step equations). Returns (xs, Ps)."""
     F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs)
     c = lf_constants(F, G, H, Q, R)
     n = F.shape[0]

@@ -1,4 +1,4 @@
-"""Nonlinear reference filters from SPEC.md §6: EKF and UKF with additive noise.
+"""Nonlinear reference filters from the GNSS paper's equations: EKF and UKF with additive noise.
 
 Model: x(k) = f(x(k-1)) + w(k), w ~ N(0, Q);  z(k) = h(x(k), u_k) + v(k), v ~ N(0, R).
 f=None means identity dynamics (the GNSS paper's stationary user). h and H_jac are called
@@ -64,7 +64,7 @@ def _setup(Q, R, x0, P0, zs, inputs, skip_nan):
 
 
 def ekf(f, F_jac, h, H_jac, Q, R, x0, P0, zs, inputs=None, skip_nan: bool = True):
-    """Extended Kalman filter (SPEC §6): x⁻ = f(x), P⁻ = F P Fᵀ + Q with F = F_jac(x(k-1/k-1))
+    """Extended Kalman filter: x⁻ = f(x), P⁻ = F P Fᵀ + Q with F = F_jac(x(k-1/k-1))
     (f=None, F_jac=None: identity); H = H_jac(x⁻); K = P⁻Hᵀ[H P⁻ Hᵀ + R]⁻¹;
     x = x⁻ + K[z − h(x⁻)]; P = P⁻ − K H P⁻. Returns a NonlinearResult."""
     x, P, Q, R, Z, U = _setup(Q, R, x0, P0, zs, inputs, skip_nan)
@@ -123,7 +123,7 @@ def ukf(f, h, Q, R, x0, P0, zs, alpha=None, beta=None, kappa=None, inputs=None,
     """Unscented Kalman filter with additive noise. Defaults (None): alpha = 1, beta = 0,
     kappa = 3 − n, the paper's plain UKF with n + kappa = 3.
 
-    f=None (identity dynamics, SPEC §6): sigma points are drawn once per step from
+    f=None (identity dynamics): sigma points are drawn once per step from
     (x, P + Q), x⁻ = x and P⁻ = P + Q. Otherwise sigma points from (x, P) pass through f,
     x⁻ and P⁻ = Σ Wc (·)(·)ᵀ + Q are formed and sigma points are redrawn from (x⁻, P⁻)
     (as FilterPy does); for an identity f the two coincide. Update: Ŷ = Σ Wm h(X_i),

@@ -8,7 +8,7 @@ pass, for k = N-1 down to 1:
     x(k/N)   = x(k/k) + C(k) [x(k+1/N) - x(k+1/k)]
     P(k/N)   = P(k/k) + C(k) [P(k+1/N) - P(k+1/k)] C(k)^T
 
-Indexing is derive's KF's (SPEC §3): x(0/0) = x0 and P(0/0) = P0 are the initial
+Indexing is derive's KF's: x(0/0) = x0 and P(0/0) = P0 are the initial
 conditions, the first measurement is z(1) = zs[0] and is applied after one prediction;
 the outputs are xs[k-1] = x(k/N), Ps[k-1] = P(k/N) for k = 1..N, so xs[N-1] is the
 filtered x(N/N).  x(0/N) is not computed (it would invert P(1/0), singular for the

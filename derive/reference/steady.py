@@ -1,4 +1,4 @@
-"""Steady-state filters written from SPEC.md §4: SSKF, SSLF, JSSKLF, the FIR steady-state
+"""Steady-state filters written from the papers' equations: SSKF, SSLF, JSSKLF, the FIR steady-state
 filter and the steady-state N-step predictor.
 
 Indexing: zs[k-1] = z(k) for k = 1..steps. Estimators return xs[k-1] = x(k/k); the
