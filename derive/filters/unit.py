@@ -30,10 +30,9 @@ def accepted_P0(program, port: str = "P") -> str:
     closed pattern, which the zero checks (``Program.require_zero``) of ``program`` on its
     input ``port`` enforce (the step's P, or an ``enter`` program's P0)."""
     n = program.port(port).shape[0]
-    element = f"{port}["
-    outside = {divmod(int(str(c.value)[len(element):-1]), n) for c in program.body
-               if isinstance(c, Check) and c.relation == ZERO
-               and str(c.value).startswith(element)}
+    position = {program.element(port, i, j): (i, j) for i in range(n) for j in range(i, n)}
+    outside = {position[c.value] for c in program.body
+               if isinstance(c, Check) and c.relation == ZERO and c.value in position}
     if not outside:
         return "P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)"
     pattern = [[(i, j) not in outside and (j, i) not in outside for j in range(n)]
