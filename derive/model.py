@@ -5,15 +5,15 @@ with a value in ``values`` are constants of the model; the others are free runti
 parameters, passed to generated code as ``p`` in the order of :attr:`parameters`: the
 names of the ``parameters`` argument first, in that order, then the other free symbols
 in order of first appearance, scanning the matrices in argument order (linear: F, G, H,
-Q, R; continuous: Phi, G, Qc, H, R, dt; nonlinear: f, h, Q, R), each row by row (within
-one entry, ``k2`` before ``k10``).
+Q, R, B, D; continuous: Phi, G, Qc, H, R, dt; nonlinear: f, h, Q, R), each row by row
+(within one entry, ``k2`` before ``k10``).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import sympy
@@ -67,6 +67,8 @@ class NumericLinear:
     R: np.ndarray
     x0: np.ndarray
     P0: np.ndarray
+    B: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    D: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     @property
     def GQGt(self) -> np.ndarray:
@@ -295,6 +297,13 @@ class LinearModel(_Model):
     """A linear time-invariant discrete model (the linear model of MPT3D and SSPRED).
 
     ``x(k+1) = F x(k) + G w(k)``, ``z(k) = H x(k) + v(k)``, ``w ~ N(0, Q)``, ``v ~ N(0, R)``.
+
+    With ``inputs`` (names of the per-step known inputs u, n_u of them) and the input
+    matrices ``B`` (n x n_u) and ``D`` (m x n_u), each zero when not given:
+    ``x(k+1) = F x(k) + B u(k) + G w(k)``, ``z(k+1) = H x(k+1) + D u(k) + v(k+1)``: the
+    input row u(k) that drives the transition into step k+1 also offsets z(k+1), so one
+    row of inputs goes with one row of measurements (a known state offset is an input
+    with a B column; an observation offset an input with a D column).
     """
 
     kind = "linear"
@@ -304,7 +313,8 @@ class LinearModel(_Model):
                  values: Values | None = None, x0: Vector | None = None,
                  P0: Matrix | None = None, P0_pattern: str | None = None,
                  description: str = "", source: str = "",
-                 parameters: Names | None = None) -> None:
+                 parameters: Names | None = None, B: Matrix | None = None,
+                 D: Matrix | None = None, inputs: Sequence[str] | None = None) -> None:
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
         table = SymbolTable()
@@ -322,46 +332,83 @@ class LinearModel(_Model):
         check_shape(self.Q, "Q", (q, q), "noise inputs x noise inputs, one per column of G")
         self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
-        self.F, self.G, self.H, self.Q, self.R = (
-            table.finish(mat) for mat in (self.F, self.G, self.H, self.Q, self.R))
+        self._init_inputs(inputs, B, D, table)
+        self.F, self.G, self.H, self.Q, self.R, self.B, self.D = (
+            table.finish(mat) for mat in (self.F, self.G, self.H, self.Q, self.R, self.B,
+                                          self.D))
         used = set()
-        for mat in (self.F, self.G, self.H, self.Q, self.R):
+        for mat in (self.F, self.G, self.H, self.Q, self.R, self.B, self.D):
             used |= mat.free_symbols
-        self._init_values(values, table, used, set(self.states), parameters)
+        input_names = {u.name for u in self.inputs}
+        for s in used:
+            if s.name in input_names:
+                raise SymbolError(f"symbol {s.name!r} is a per-step input; inputs enter only "
+                                  "through B u and D u, not inside a matrix")
+        self._init_values(values, table, used, set(self.states) | input_names, parameters)
         for s in used:
             if s.name in self.states:
                 raise SymbolError(f"symbol {s.name!r} is a state name; a linear model's "
                                   "matrices cannot depend on the state")
-        self._check_finite({"F": self.F, "G": self.G, "H": self.H, "Q": self.Q, "R": self.R})
+        self._check_finite({"F": self.F, "G": self.G, "H": self.H, "Q": self.Q, "R": self.R,
+                            "B": self.B, "D": self.D})
         self.Q = _symmetric(self.Q, "Q")
         self.R = _symmetric(self.R, "R")
         _check_definite(self.subs(self.Q), "Q", strict=False)
         _check_definite(self.subs(self.R), "R", strict=True)
         self._initial(x0, P0, P0_pattern)
 
+    def _init_inputs(self, inputs, B, D, table: SymbolTable) -> None:
+        """``self.inputs`` (symbols), ``B`` (n x n_u) and ``D`` (m x n_u), zero when not
+        given; B or D without inputs, or of the wrong shape, is refused naming it."""
+        names = check_names(inputs, "inputs") if inputs else ()
+        clash = set(names) & (set(self.states) | set(self.measurements))
+        if clash:
+            raise SymbolError(f"input {sorted(clash)[0]!r} has the name of a state or "
+                              "measurement")
+        self.inputs = tuple(symbol(u) for u in names)
+        n_u = len(names)
+        for given, nm, rows, what in ((B, "B", self.n, "states"),
+                                      (D, "D", self.m, "measurements")):
+            if given is None:
+                setattr(self, nm, sympy.ImmutableMatrix.zeros(rows, n_u))
+                continue
+            if not n_u:
+                raise ShapeError(f"matrix {nm} is given but the model declares no inputs "
+                                 "(inputs = [names of u])")
+            mat = as_matrix(given, nm, table, vector=True)
+            check_shape(mat, nm, (rows, n_u), f"{what} x inputs")
+            setattr(self, nm, mat)
+
     @property
     def noise_dim(self) -> int:
         return self.G.cols
 
+    @property
+    def n_inputs(self) -> int:
+        """n_u, the number of per-step inputs (0 without inputs)."""
+        return len(self.inputs)
+
     def matrix(self, which: str) -> sympy.ImmutableMatrix:
-        """``F, G, H, Q, R`` or ``GQGt`` with the given values substituted (exact)."""
+        """``F, G, H, Q, R, B, D`` or ``GQGt`` with the given values substituted (exact)."""
         if which == "GQGt":
             return sympy.ImmutableMatrix(
                 (self.subs(self.G) * self.subs(self.Q) * self.subs(self.G).T)
                 .applyfunc(sympy.expand))
-        if which not in ("F", "G", "H", "Q", "R"):
+        if which not in ("F", "G", "H", "Q", "R", "B", "D"):
             raise KeyError(which)
         return self.subs(getattr(self, which))
 
     def numeric(self, params: Values | None = None) -> NumericLinear:
         """The model at numbers; free parameters must be given in ``params``."""
         extra = self.parameter_values(params)
-        self._check_finite({k: getattr(self, k) for k in ("F", "G", "H", "Q", "R")}, extra)
+        names = ("F", "G", "H", "Q", "R", "B", "D")
+        self._check_finite({k: getattr(self, k) for k in names}, extra)
 
         def arr(mat):
-            return np.array(mat.xreplace(extra).evalf(17).tolist(), dtype=float)
+            return np.array(mat.xreplace(extra).evalf(17).tolist(),
+                            dtype=float).reshape(mat.shape)
 
-        m = {k: arr(self.matrix(k)) for k in ("F", "G", "H", "Q", "R")}
+        m = {k: arr(self.matrix(k)) for k in names}
         return NumericLinear(x0=np.array(self.x0.tolist(), dtype=float).ravel(),
                              P0=np.array(self.P0.tolist(), dtype=float), **m)
 
@@ -430,7 +477,12 @@ class LinearModel(_Model):
     def compose(cls, name: str, models: Sequence[LinearModel],
                 suffixes: Sequence[str] | None = None, description: str = "",
                 source: str = "") -> LinearModel:
-        """Block-diagonal composition (model A = three model-B axes)."""
+        """Block-diagonal composition (model A = three model-B axes); models with
+        per-step inputs are refused (their B, D and inputs are not composed)."""
+        for mdl in models:
+            if getattr(mdl, "inputs", ()):
+                raise ModelError(f"compose: model {mdl.name!r} has per-step inputs; "
+                                 "composing models with inputs is not supported")
         return structure.compose(cls, name, models, suffixes, description=description,
                                  source=source)
 

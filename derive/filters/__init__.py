@@ -49,6 +49,9 @@ def why_not(model, name: str) -> str | None:
     spec = kind(name)
     if spec.model_kind != model.kind:
         return f"filter {name!r} needs a {spec.model_kind} model; {model.name!r} is {model.kind}"
+    if getattr(model, "inputs", ()) and not spec.inputs:
+        return (f"filter {name!r} takes no per-step inputs; model {model.name!r} declares "
+                f"inputs {[u.name for u in model.inputs]}")
     if spec.steady and model.parameters:
         return (f"steady-state filter {name!r} needs every symbol to have a value; model "
                 f"{model.name!r} has free symbols {[p.name for p in model.parameters]}")

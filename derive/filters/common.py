@@ -21,21 +21,38 @@ def parameter_port(model) -> list[Port]:
                  doc="free parameters: " + ", ".join(p.name for p in model.parameters))]
 
 
+def input_port(model) -> list[Port]:
+    """The per-step port ``u`` (the row of inputs that goes with z(k+1)) when a linear model
+    declares inputs (none otherwise)."""
+    inputs = getattr(model, "inputs", ())
+    if model.kind != "linear" or not inputs:
+        return []
+    return [Port("u", (len(inputs),),
+                 doc="u(k): x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k); "
+                     + ", ".join(u.name for u in inputs))]
+
+
+def linear_step_inputs(model) -> tuple[str, ...]:
+    """The per-step inputs of a linear ``step``: z, and u when the model has inputs."""
+    return ("z", "u") if input_port(model) else ("z",)
+
+
 def time_varying_ports(model) -> tuple[list[Port], list[Port]]:
     n, m = model.n, model.m
     inputs = [Port("x", (n,), doc="x(k/k)"),
               Port("P", (n, n), symmetric=True, doc="P(k/k), row-major, symmetric"),
-              Port("z", (m,), doc="z(k+1)")]
+              Port("z", (m,), doc="z(k+1)")] + input_port(model)
     outputs = [Port("x_new", (n,), doc="x(k+1/k+1)"),
                Port("P_new", (n, n), symmetric=True, doc="P(k+1/k+1), row-major")]
     return inputs + parameter_port(model), outputs
 
 
 def bound_matrices(model, prog: Program) -> dict[str, sympy.Matrix]:
-    """F, G, H, Q, R, GQGt with values substituted and free symbols bound to ``p``."""
+    """F, G, H, Q, R, GQGt (and B, D for a model with inputs) with values substituted and
+    free symbols bound to ``p``."""
     binding = prog.bind("p", model.parameters) if model.parameters else {}
     out = {}
-    for k in ("F", "G", "H", "Q", "R", "GQGt"):
+    for k in ("F", "G", "H", "Q", "R", "GQGt") + (("B", "D") if input_port(model) else ()):
         out[k] = sympy.Matrix(model.matrix(k)).xreplace(binding)
     return out
 

@@ -104,7 +104,7 @@ def reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    covariance=True, extra_programs=("predict", "update1"), listing=100,
+    covariance=True, inputs=True, extra_programs=("predict", "update1"), listing=100,
     about={"python": "Run the extended Kalman filter: h linearised at each prediction."
                      + NOTE_PY,
            "c": "Run the extended Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)

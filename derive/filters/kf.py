@@ -14,6 +14,8 @@ dropped, for correlated R too.  The masks are selects: no flop.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import sympy
 
 from .. import reference as numpy_reference
@@ -25,6 +27,8 @@ from .common import (
     JOSEPH_FACT,
     MISSING_FACT,
     bound_matrices,
+    input_port,
+    linear_step_inputs,
     mask_columns,
     mask_symmetric,
     mask_vector,
@@ -52,16 +56,24 @@ def prior(prog: Program, F, W, H, R, x, P):
     return xp, Pp, PHt, S
 
 
-def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool = False):
+def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool = False,
+              u=None):
     """Stage one KF step; returns (x_new, P_new) as matrices of atoms.
 
-    ``missing``: NaN entries of z are absent measurements (skipped)."""
+    ``missing``: NaN entries of z are absent measurements (skipped).  ``u``: the step's
+    inputs (the model's ``inputs``): x(k+1/k) = F x + B u, innovation z - H x(k+1/k) - D u.
+    """
     F, H, R, W = mats["F"], mats["H"], mats["R"], mats["GQGt"]
     xp, Pp, PHt, S = prior(prog, F, W, H, R, x, P)
+    if u is not None:
+        xp = staging.add(prog, xp, staging.matmul(prog, mats["B"], u))
+    predicted_z = staging.matmul(prog, H, xp)
+    if u is not None:
+        predicted_z = staging.add(prog, predicted_z, staging.matmul(prog, mats["D"], u))
     if missing:
         S, PHt = mask_symmetric(prog, S, z), mask_columns(prog, PHt, z)
     K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
-    innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
+    innovation = staging.sub(prog, z, predicted_z)
     if missing:
         innovation = mask_vector(prog, innovation, z)
     x_new = staging.add(prog, xp, staging.matmul(prog, K, innovation))
@@ -79,7 +91,8 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
 
 
 def time_varying_program(model, update, title: str, P0_pattern: str | None) -> Program:
-    """Build ``step`` of the filter ``title`` from ``update(prog, mats, x, P, z)``.
+    """Build ``step`` of the filter ``title`` from ``update(prog, mats, x, P, z)``
+    (``update(prog, mats, x, P, z, u)`` for a model with inputs).
 
     P's pattern is the closure of P0's declared pattern (option ``P0_pattern``; None:
     the model's) under ``update``; entries outside it are neither read nor computed.
@@ -91,7 +104,8 @@ def time_varying_program(model, update, title: str, P0_pattern: str | None) -> P
                        doc=f"one step of the {title}")
         mats = bound_matrices(model, prog)
         P = masked_covariance(prog, pattern, declared_name)
-        x_new, P_new = update(prog, mats, prog.matrix("x"), P, prog.matrix("z"))
+        u = [prog.matrix("u")] if input_port(model) else []
+        x_new, P_new = update(prog, mats, prog.matrix("x"), P, prog.matrix("z"), *u)
         return prog, x_new, P_new
 
     def step_pattern(pattern):
@@ -108,11 +122,14 @@ def time_varying_program(model, update, title: str, P0_pattern: str | None) -> P
 def derive_unit(model, spec, options):
     joseph, missing = options.joseph, options.missing
 
-    def update(prog, mats, x, P, z):
-        return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing)
+    def update(prog, mats, x, P, z, u=None):
+        return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing, u=u)
 
     step = time_varying_program(model, update, spec.title, options.P0_pattern)
-    unit = make_unit(model, spec, {"step": step}, options)
+    unit = make_unit(model, spec, {"step": step}, options,
+                     step_inputs=linear_step_inputs(model))
+    if input_port(model):
+        unit = with_fact(replace(unit, batch=False), INPUTS_FACT)
     if joseph:
         unit = with_fact(unit, JOSEPH_FACT)
     return with_fact(unit, MISSING_FACT) if missing else unit
@@ -124,9 +141,14 @@ def reference(model, zs, options):
     return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
+INPUTS_FACT = ("per-step input u (us: one row per step, with the row of z): "
+               "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
+
+
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
-    options=KalmanOptions, covariance=True, missing=True, batch=True, listing=10,
+    options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True,
+    listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",
            "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

@@ -29,6 +29,8 @@ class FilterSpec:
     ``missing``: takes the option ``missing`` (NaN-marked absent measurements).
     ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
     option ``run_tracks``).
+    ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
+    refused by every filter without this flag, never filtered with u ignored).
     ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
@@ -51,6 +53,7 @@ class FilterSpec:
     covariance: bool = False
     missing: bool = False
     batch: bool = False
+    inputs: bool = False
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
     about: Mapping[str, str] = field(default_factory=dict)

@@ -237,7 +237,8 @@ def reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ukf", "unscented Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    options=UnscentedOptions, covariance=True, extra_programs=("predict", "update1"), listing=110,
+    options=UnscentedOptions, covariance=True, inputs=True, extra_programs=("predict", "update1"),
+    listing=110,
     about={"python": "Run the unscented Kalman filter: sigma points through h." + NOTE_PY,
            "c": "Run the unscented Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
 

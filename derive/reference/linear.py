@@ -24,17 +24,33 @@ def _setup(F, G, H, Q, R, x0, P0, zs, allow_nan=False):
     return F, G, H, Q, R, x, P, Z
 
 
-def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True):
+def _input_terms(B, D, us, n: int, m: int, steps: int):
+    """B u(k) (steps, n) and D u(k) (steps, m) for the rows of ``us`` (zero without)."""
+    if us is None:
+        return np.zeros((steps, n)), np.zeros((steps, m))
+    U = np.asarray(us, dtype=float)
+    B, D = np.asarray(B, dtype=float), np.asarray(D, dtype=float)
+    if U.ndim != 2 or U.shape[0] != steps or B.shape != (n, U.shape[1]) \
+            or D.shape != (m, U.shape[1]):
+        raise ValueError(f"us must be (steps={steps}, n_u) with B (n, n_u) and D (m, n_u); "
+                         f"got us {U.shape}, B {B.shape}, D {D.shape}")
+    return U @ B.T, U @ D.T
+
+
+def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None):
     """Kalman filter. Returns (xs (steps, n), Ps (steps, n, n)).
 
     skip_nan=True: a NaN in z(k) marks that component as absent; the update uses only the
-    present rows of H and R (all absent: prediction only). skip_nan=False refuses NaN."""
+    present rows of H and R (all absent: prediction only). skip_nan=False refuses NaN.
+    ``us`` (steps, n_u) with ``B`` (n, n_u), ``D`` (m, n_u): known inputs, row k with
+    zs[k]: x(k+1/k) = F x(k/k) + B us[k], and z(k+1) is predicted as H x(k+1/k) + D us[k]."""
     F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs, allow_nan=skip_nan)
     n = F.shape[0]
+    Bu, Du = _input_terms(B, D, us, n, H.shape[0], len(Z))
     GQG = G @ Q @ G.T
     xs, Ps = np.empty((len(Z), n)), np.empty((len(Z), n, n))
     for k, z in enumerate(Z):
-        x = F @ x                                   # x(k+1/k)
+        x = F @ x + Bu[k]                           # x(k+1/k)
         P = GQG + F @ P @ F.T                       # P(k+1/k)
         present = ~np.isnan(z)
         if present.any():
@@ -42,7 +58,7 @@ def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True):
             PHt = P @ Hk.T
             K = np.linalg.solve((Hk @ PHt + Rk).T, PHt.T).T   # P Hᵀ [H P Hᵀ + R]⁻¹
             IKH = np.eye(n) - K @ Hk
-            x = IKH @ x + K @ z[present]
+            x = IKH @ x + K @ (z - Du[k])[present]
             P = IKH @ P
         xs[k], Ps[k] = x, P
     return xs, Ps
