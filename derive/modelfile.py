@@ -19,6 +19,9 @@ A model file has a ``[model]`` table, an optional ``[parameters]`` table, exactl
     [discrete]                # x(k+1) = F x(k) + G w(k), z(k) = H x(k) + v(k)
     F = [[1, "dt"], [0, 1]]   # rows; entries are numbers or expression strings
     G = [["dt/2"], [1]]       # optional (identity); a flat list is a column
+    inputs = ["a"]            # optional per-step known inputs u(k) (not in any matrix):
+    B = ["dt**2/2", "dt"]     # x(k+1) = F x(k) + B u(k) + G w(k), z(k+1) = H x(k+1)
+    D = [[0]]                 # + D u(k) + v; B (n x n_u), D (m x n_u), each optional (zero)
     H = [[1, "dt"]]
     Q = "sq2"                 # a 1x1 matrix may be a scalar
     R = "sr2"
@@ -109,14 +112,14 @@ growing as the cube of the states (32 states take tens of seconds for every filt
 MAX_MEASUREMENTS = 32
 """Most measurements of a model."""
 MAX_INPUTS = 128
-"""Most per-step inputs of a nonlinear model."""
+"""Most per-step inputs of a model."""
 _MAX_NAMES = {"states": MAX_STATES, "measurements": MAX_MEASUREMENTS, "inputs": MAX_INPUTS}
 
 KINDS = ("discrete", "continuous", "nonlinear", "compose")
 _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "model": ("name", "description", "source", "states", "measurements"),
     "parameters": (),
-    "discrete": ("F", "G", "H", "Q", "R"),
+    "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
     "nonlinear": ("f", "h", "Q", "R", "inputs"),
     "compose": ("blocks",),
@@ -449,7 +452,7 @@ class _File:
         measurements = self.names(model, "measurements", "[model]")
         body = self.table(kind)
         inputs = self.names(body, "inputs", f"[{kind}]") if "inputs" in body else []
-        self.read_parameters(states, measurements, inputs)
+        self.read_parameters(states, measurements, inputs, f"[{kind}] inputs")
         if kind == "nonlinear":
             arguments = self.nonlinear(body, states, inputs)
         else:
@@ -461,7 +464,7 @@ class _File:
         return self.construct(kind, header, states, measurements, arguments)
 
     def read_parameters(self, states: list[str], measurements: list[str],
-                        inputs: list[str]) -> None:
+                        inputs: list[str], inputs_where: str) -> None:
         table = self.doc.get("parameters", {})
         if not isinstance(table, dict):
             raise self.error("[parameters]", f"must be a table, got {_kind_name(table)}")
@@ -469,7 +472,7 @@ class _File:
         taken.update(dict.fromkeys(measurements, "a measurement"))
         for name in inputs:
             if name in taken:
-                raise self.error("[nonlinear] inputs", f"{name!r} is also {taken[name]}")
+                raise self.error(inputs_where, f"{name!r} is also {taken[name]}")
             taken[name] = "an input"
         for name, spec in table.items():
             where = f"[parameters] {name}"
@@ -497,8 +500,11 @@ class _File:
         arguments: dict[str, Any] = {
             key: self.matrix(body[key], f"{where} {key}", names) for key in keys
         }
-        if "G" in body:
-            arguments["G"] = self.matrix(body["G"], f"{where} G", names, column=True)
+        for key in ("G", "B", "D"):
+            if key in body:
+                arguments[key] = self.matrix(body[key], f"{where} {key}", names, column=True)
+        if "inputs" in body:
+            arguments["inputs"] = self.names(body, "inputs", where)
         if kind == "continuous":
             dt = body["dt"]
             if isinstance(dt, list):

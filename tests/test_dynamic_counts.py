@@ -15,9 +15,22 @@ from derive.apps import paper
 from derive.filters import available, derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
+from derive.model import LinearModel
 from derive.program import ZERO, Check
 
+
+def _input_model():
+    """A linear model with per-step inputs (acceleration through B, a measurement offset
+    through D) and a free parameter in B: the KF's u port is counted too."""
+    return LinearModel("accel_offset", ["pos", "vel"], ["y"], [["1", "dt"], ["0", "1"]],
+                       [[1, 0]], [["q", 0], [0, "q"]], [[1]],
+                       B=[["dt**2/2", 0], ["dt", 0]], D=[[0, 1]], inputs=["acc", "bias"],
+                       values={"q": 0.01})
+
+
+INPUT_MODELS = {"accel_offset": _input_model}
 CASES = [(name, f) for name in catalog.names() for f in available(catalog.load(name))]
+INPUT_CASES = [(name, f) for name, make in INPUT_MODELS.items() for f in available(make())]
 PAPER_CASES = [(name, f) for name in ("mpt3d_a", "cv") for f in paper.PAPER_FILTERS]
 PAPER_FIR_ORDER = 3
 
@@ -28,7 +41,8 @@ def _generated(model_name: str, filter_name: str, mode: str):
     """(unit, files) of one filter, derived and rendered once per session."""
     key = (model_name, filter_name, mode)
     if key not in _CACHE:
-        model = catalog.load(model_name)
+        model = (INPUT_MODELS[model_name]() if model_name in INPUT_MODELS
+                 else catalog.load(model_name))
         if mode == "paper":
             N = PAPER_FIR_ORDER if filter_name == "fir" else None
             unit = paper.model_unit(model, filter_name, N=N)
@@ -110,6 +124,15 @@ def _check(model_name, filter_name, mode):
 @pytest.mark.parametrize("model_name,filter_name", CASES)
 def test_generated_filter_counts_match_at_run_time_and_in_the_c_text(model_name, filter_name):
     _check(model_name, filter_name, "specialised")
+
+
+@pytest.mark.parametrize("model_name,filter_name", INPUT_CASES)
+def test_input_model_counts_match_at_run_time_and_in_the_c_text(model_name, filter_name):
+    _check(model_name, filter_name, "specialised")
+
+
+def test_input_model_cases_cover_the_kf():
+    assert [f for _, f in INPUT_CASES] == ["kf"]
 
 
 @pytest.mark.parametrize("model_name,filter_name", PAPER_CASES)

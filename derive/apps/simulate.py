@@ -40,8 +40,11 @@ class LinearRun(NamedTuple):
     zs: np.ndarray
 
 
-def simulate_linear(F, G, H, Q, R, x0, steps: int, seed: int) -> LinearRun:
-    """x(k+1) = F x(k) + G w(k), z(k) = H x(k) + v(k), w ~ N(0, Q), v ~ N(0, R), x(0) = x0."""
+def simulate_linear(F, G, H, Q, R, x0, steps: int, seed: int, B=None, D=None,
+                    us=None) -> LinearRun:
+    """x(k+1) = F x(k) + G w(k), z(k) = H x(k) + v(k), w ~ N(0, Q), v ~ N(0, R), x(0) = x0;
+    with inputs ``us`` (steps, n_u): x(k+1) = F x(k) + B us[k] + G w(k),
+    z(k+1) = H x(k+1) + D us[k] + v(k+1)."""
     F, G, H, Q, R = system_arrays(F, G, H, Q, R)
     steps = _steps(steps)
     x = np.asarray(x0, dtype=float).reshape(-1)
@@ -50,11 +53,16 @@ def simulate_linear(F, G, H, Q, R, x0, steps: int, seed: int) -> LinearRun:
     rng = np.random.default_rng(seed)
     w = rng.standard_normal((steps, Q.shape[0])) @ psd_sqrt(Q)
     v = rng.standard_normal((steps, R.shape[0])) @ psd_sqrt(R)
+    if us is None:
+        Bu, Du = np.zeros((steps, F.shape[0])), np.zeros((steps, H.shape[0]))
+    else:
+        us = np.asarray(us, dtype=float).reshape(steps, -1)
+        Bu, Du = us @ np.asarray(B, dtype=float).T, us @ np.asarray(D, dtype=float).T
     xs = np.empty((steps + 1, F.shape[0]))
     xs[0] = x
     for k in range(steps):
-        xs[k + 1] = F @ xs[k] + G @ w[k]
-    return LinearRun(xs, xs[1:] @ H.T + v)
+        xs[k + 1] = F @ xs[k] + Bu[k] + G @ w[k]
+    return LinearRun(xs, xs[1:] @ H.T + Du + v)
 
 
 # ---------------------------------------------------------------- SSPRED truths

@@ -31,6 +31,7 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -214,13 +215,34 @@ def generated_run(module, name: str, zs, model, lang: str,
         xs, Ps = module.run(*args, scenario.x0, scenario.P0)
         return np.asarray(xs), np.asarray(Ps).reshape(len(scenario.zs), model.n, model.n)
     num = model.numeric()
-    # run's arguments after the measurements: what its run kind starts from
+    # run's arguments after the measurements (and inputs): what its run kind starts from
     start = {"x0": num.x0, "P0": num.P0}
-    out = module.run(zs, *(start[name] for name, _ in RUN_KINDS[spec.run_kind].start))
+    data = [zs.zs, zs.us] if model.inputs else [zs]
+    out = module.run(*data, *(start[name] for name, _ in RUN_KINDS[spec.run_kind].start))
     if not isinstance(out, tuple):
         return np.asarray(out), None
     xs, Ps = out
-    return np.asarray(xs), np.asarray(Ps).reshape(len(zs), model.n, model.n)
+    return np.asarray(xs), np.asarray(Ps).reshape(len(data[0]), model.n, model.n)
+
+
+class InputRun(NamedTuple):
+    """What a linear filter with inputs is verified on: zs (steps, m) and the inputs us
+    (steps, n_u), row k with zs[k]."""
+
+    zs: np.ndarray
+    us: np.ndarray
+
+
+def linear_run(model, steps: int, seed: int):
+    """The measurements a linear filter is verified on: zs (steps, m), or for a model with
+    inputs an InputRun (zs and its inputs us, uniform in [-1, 1])."""
+    num = model.numeric()
+    if not model.inputs:
+        return simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed).zs
+    us = np.random.default_rng(seed + 1).uniform(-1.0, 1.0, (steps, model.n_inputs))
+    run = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed,
+                          B=num.B, D=num.D, us=us)
+    return InputRun(run.zs, us)
 
 
 def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
@@ -235,8 +257,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         scenario = nonlinear_scenario(model, steps, seed)
         zs, tolerance = scenario.zs, NONLINEAR_TOLERANCE
     else:
-        num = model.numeric()
-        zs = simulate_linear(num.F, num.G, num.H, num.Q, num.R, num.x0, steps, seed).zs
+        zs = linear_run(model, steps, seed)
         tolerance = LINEAR_TOLERANCE
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
     if scenario is not None:
@@ -266,6 +287,6 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
-           "JacobianWitness", "NonlinearScenario", "Verification", "jacobian_witness",
+           "InputRun", "JacobianWitness", "NonlinearScenario", "Verification", "jacobian_witness",
            "nonlinear_reference", "nonlinear_scenario", "relative_error",
-           "rounding_floor", "verify_filter", "verify_modules"]
+           "linear_run", "rounding_floor", "verify_filter", "verify_modules"]

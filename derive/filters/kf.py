@@ -136,8 +136,12 @@ def derive_unit(model, spec, options):
 
 
 def reference(model, zs, options):
-    """derive.reference.kf from the model's x0 and P0: (xs, Ps)."""
+    """derive.reference.kf from the model's x0 and P0: (xs, Ps); ``zs`` is the
+    measurements, or for a model with inputs a run with ``zs`` and ``us``."""
     num = model.numeric()
+    if model.inputs:
+        return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs.zs,
+                                  B=num.B, D=num.D, us=zs.us)
     return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
