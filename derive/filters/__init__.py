@@ -44,14 +44,22 @@ def names(model_kind: str | None = None) -> list[str]:
             if model_kind is None or spec.model_kind == model_kind]
 
 
+def _inputs_refusal(model, spec: FilterSpec) -> str | None:
+    """Why a filter without input support refuses a model that declares inputs."""
+    if getattr(model, "inputs", ()) and not spec.inputs:
+        return (f"filter {spec.name!r} takes no per-step inputs; model {model.name!r} "
+                f"declares inputs {[u.name for u in model.inputs]}")
+    return None
+
+
 def why_not(model, name: str) -> str | None:
     """Why filter ``name`` does not apply to ``model`` (None when it does)."""
     spec = kind(name)
     if spec.model_kind != model.kind:
         return f"filter {name!r} needs a {spec.model_kind} model; {model.name!r} is {model.kind}"
-    if getattr(model, "inputs", ()) and not spec.inputs:
-        return (f"filter {name!r} takes no per-step inputs; model {model.name!r} declares "
-                f"inputs {[u.name for u in model.inputs]}")
+    refusal = _inputs_refusal(model, spec)
+    if refusal is not None:
+        return refusal
     if spec.steady and model.parameters:
         return (f"steady-state filter {name!r} needs every symbol to have a value; model "
                 f"{model.name!r} has free symbols {[p.name for p in model.parameters]}")
@@ -96,7 +104,8 @@ def derive_unit(model, name: str, options=None):
     typed = validate(name, options)
     reason = why_not(model, name)
     if reason is not None:
-        raise (SteadyStateError if f.steady and f.model_kind == model.kind else
+        raise (SteadyStateError if f.steady and f.model_kind == model.kind
+               and _inputs_refusal(model, f) is None else
                FilterError)(reason)
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "

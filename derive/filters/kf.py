@@ -145,7 +145,7 @@ def reference(model, zs, options):
     return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
-INPUTS_FACT = ("per-step input u (us: one row per step, with the row of z): "
+INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z): "
                "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
 
 
