@@ -130,7 +130,8 @@ def test_header_states_the_input_convention_and_run_tracks_is_left_out():
     ({"D": [[1]]}, "matrix D is given but the model declares no inputs"),
     ({"B": [["a"]], "inputs": ["a"]}, "symbol 'a' is a per-step input"),
     ({"inputs": ["x"]}, "input 'x' has the name of a state or measurement"),
-])
+], ids=["B shape", "D shape", "B without inputs", "D without inputs", "input in a matrix",
+        "input named as a state"])
 def test_model_errors_name_the_matrix_or_input(kw, message):
     with pytest.raises(ModelError, match=message.replace("(", r"\(").replace(")", r"\)")):
         LinearModel("bad", ["x"], ["z"], [[1]], [[1]], [[1]], [[1]], **kw)
@@ -199,7 +200,7 @@ def test_model_file_with_inputs_generates_compiles_strictly_and_verifies(tmp_pat
     ("discrete", 'inputs = ["a"]\nB = [[1, 2]]\n', "matrix B must be 2x1"),
     ("discrete", 'B = [[1], [2]]\n', "matrix B is given but the model declares no inputs"),
     ("continuous", 'inputs = ["a"]\n', "unknown key 'inputs'"),
-])
+], ids=["B shape", "B without inputs", "continuous inputs"])
 def test_model_file_input_errors_are_one_line_with_exit_status_2(tmp_path, table, extra,
                                                                   message):
     body = {"discrete": 'F = [[1, 1], [0, 1]]\nH = [[1, 0]]\nQ = [[1, 0], [0, 1]]\nR = 1\n',

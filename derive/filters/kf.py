@@ -67,12 +67,12 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
     xp, Pp, PHt, S = prior(prog, F, W, H, R, x, P)
     if u is not None:
         xp = staging.add(prog, xp, staging.matmul(prog, mats["B"], u))
-    predicted_z = staging.matmul(prog, H, xp)
-    if u is not None:
-        predicted_z = staging.add(prog, predicted_z, staging.matmul(prog, mats["D"], u))
     if missing:
         S, PHt = mask_symmetric(prog, S, z), mask_columns(prog, PHt, z)
     K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
+    predicted_z = staging.matmul(prog, H, xp)
+    if u is not None:
+        predicted_z = staging.add(prog, predicted_z, staging.matmul(prog, mats["D"], u))
     innovation = staging.sub(prog, z, predicted_z)
     if missing:
         innovation = mask_vector(prog, innovation, z)
