@@ -492,10 +492,15 @@ class LinearModel(_Model):
 
 
 class NonlinearModel(_Model):
-    """``x(k+1) = f(x(k)) + w(k)``, ``z(k) = h(x(k), u(k)) + v(k)`` (the GNSS paper).
+    """``x(k) = f(x(k-1), u(k)) + w(k)``, ``z(k) = h(x(k), u(k)) + v(k)`` (the GNSS paper).
 
-    ``inputs`` are per-step input symbols (satellite coordinates): they change every
-    step and are passed to the generated filter beside z.
+    ``inputs`` are per-step input symbols (satellite coordinates in h, a measured speed or
+    turn rate in f): they change every step and are passed to the generated filter beside
+    z; the row u(k) given with z(k) drives the prediction into step k and that step's
+    measurement (as the linear KF: row k of us goes with row k of zs). ``Qu`` (n_u x n_u,
+    over ``inputs`` in order) is the covariance of the noise on u: the prediction adds
+    ``Fu Qu Fu^T`` to Q with ``Fu = ∂f/∂u`` at x(k-1/k-1), u(k) (the IMU convention);
+    inputs f does not use have zero columns in Fu.
     """
 
     kind = "nonlinear"
@@ -505,7 +510,7 @@ class NonlinearModel(_Model):
                  inputs: Sequence[str] | None = None, x0: Vector | None = None,
                  P0: Matrix | None = None, P0_pattern: str | None = None,
                  description: str = "", source: str = "",
-                 parameters: Names | None = None) -> None:
+                 parameters: Names | None = None, Qu: Matrix | None = None) -> None:
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
         input_names = check_names(inputs, "inputs") if inputs else ()
@@ -522,41 +527,54 @@ class NonlinearModel(_Model):
         check_shape(self.Q, "Q", (n, n), "states x states")
         self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
-        self.f, self.h, self.Q, self.R = (
-            table.finish(mat) for mat in (self.f, self.h, self.Q, self.R))
+        n_u = len(input_names)
+        if Qu is None:
+            self.Qu = sympy.ImmutableMatrix.zeros(n_u, n_u)
+        elif not n_u:
+            raise ShapeError("matrix Qu is given but the model declares no inputs "
+                             "(inputs = [names of u])")
+        else:
+            self.Qu = as_matrix(Qu, "Qu", table)
+            check_shape(self.Qu, "Qu", (n_u, n_u), "inputs x inputs")
+        self.f, self.h, self.Q, self.R, self.Qu = (
+            table.finish(mat) for mat in (self.f, self.h, self.Q, self.R, self.Qu))
         # the state and input symbols are the ones written in f and h
         self.state_symbols = tuple(table.by_name.get(s) or symbol(s) for s in self.states)
         self.inputs = tuple(table.by_name.get(u) or symbol(u) for u in input_names)
         used = set()
-        for mat in (self.f, self.h, self.Q, self.R):
+        for mat in (self.f, self.h, self.Q, self.R, self.Qu):
             used |= mat.free_symbols
-        for mat, nm in ((self.Q, "Q"), (self.R, "R")):
+        for mat, nm in ((self.Q, "Q"), (self.R, "R"), (self.Qu, "Qu")):
             bad = {s.name for s in mat.free_symbols} & reserved
             if bad:
                 raise SymbolError(f"matrix {nm} depends on state or input {sorted(bad)[0]!r}")
-        bad_f = {s.name for s in self.f.free_symbols} & set(input_names)
-        if bad_f:
-            raise SymbolError(f"f depends on per-step input {sorted(bad_f)[0]!r}; inputs may "
-                              "only appear in h")
+        #: the inputs f uses, in ``inputs`` order (predict's u)
+        self.f_inputs = tuple(u for u in self.inputs if u in self.f.free_symbols)
         params = {s for s in used if s.name not in reserved}
         self._init_values(values, table, params, reserved, parameters)
-        self._check_finite({"f": self.f, "h": self.h, "Q": self.Q, "R": self.R})
+        self._check_finite({"f": self.f, "h": self.h, "Q": self.Q, "R": self.R, "Qu": self.Qu})
         self.Q = _symmetric(self.Q, "Q")
         self.R = _symmetric(self.R, "R")
+        self.Qu = _symmetric(self.Qu, "Qu")
         _check_definite(self.subs(self.Q), "Q", strict=False)
         _check_definite(self.subs(self.R), "R", strict=True)
+        _check_definite(self.subs(self.Qu), "Qu", strict=False)
         self._initial(x0, P0, P0_pattern)
         self.F_jacobian = jacobian(self.f, self.state_symbols)
         self.H_jacobian = jacobian(self.h, self.state_symbols)
+        self.Fu_jacobian = (jacobian(self.f, self.inputs) if self.inputs
+                            else sympy.ImmutableMatrix.zeros(n, 0))
 
     def numeric_functions(self, params: Values | None = None
                           ) -> dict[str, Callable | np.ndarray]:
-        """NumPy callables ``f(x)``, ``F(x)``, ``h(x, u)``, ``H(x, u)`` and arrays Q, R.
+        """NumPy callables ``f``, ``F``, ``h(x, u)``, ``H(x, u)`` and arrays Q, R, Qu.
 
-        Vectors come back flat (shape (n,) or (m,)), Jacobians as 2-D arrays.
+        ``f``, ``F`` (∂f/∂x) and ``Fu`` (∂f/∂u, n x n_u) take ``(x, u)`` when f uses
+        inputs (``f_inputs``), else ``(x)``. Vectors come back flat (shape (n,) or (m,)),
+        Jacobians as 2-D arrays.
         """
         extra = self.parameter_values(params)
-        self._check_finite({"Q": self.Q, "R": self.R}, extra)
+        self._check_finite({"Q": self.Q, "R": self.R, "Qu": self.Qu}, extra)
         X = sympy.Matrix(self.state_symbols)
         U = sympy.Matrix(self.inputs) if self.inputs else sympy.Matrix.zeros(0, 1)
 
@@ -576,9 +594,11 @@ class NonlinearModel(_Model):
         def num(mat):
             return np.array(self.subs(mat).xreplace(extra).evalf(17).tolist(), dtype=float)
 
-        return {"f": fn(self.f, False), "F": fn(self.F_jacobian, False),
+        in_f = bool(self.f_inputs)
+        return {"f": fn(self.f, in_f), "F": fn(self.F_jacobian, in_f),
+                "Fu": fn(self.Fu_jacobian, in_f),
                 "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
-                "Q": num(self.Q), "R": num(self.R)}
+                "Q": num(self.Q), "R": num(self.R), "Qu": num(self.Qu)}
 
 
 Model = LinearModel | NonlinearModel

@@ -79,7 +79,7 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
 KINDS = tuple(RUN_KINDS)
 
 #: Ports of the programs a run kind may add (``RunKind.extra_programs``):
-#: ``predict(x, P[, p]) -> (x_new, P_new)``,
+#: ``predict(x, P[, u][, p]) -> (x_new, P_new)`` (u when the prediction uses inputs),
 #: ``update1(x, P, z[1][, u][, p]) -> (x_new, P_new, innovation[1], variance[1])``,
 #: ``enter(<run's start arguments>) -> (<the carried input ports>)``: run's first state
 #: from its arguments (P0 into a factored covariance), and
@@ -218,8 +218,11 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     per_step = [(name, (m,) if name == "z" else None) for name in unit.step_inputs]
     if program == "init":
         return [("x0", (n,))] + p, [("x_new", (n,))]
-    if program == "predict":
-        return [("x", (n,)), ("P", (n, n))] + p, [("x_new", (n,)), ("P_new", (n, n))]
+    if program == "predict":  # u: the inputs the prediction uses (a nonlinear f's)
+        takes_u = "u" in unit.step_inputs and any(
+            port.name == "u" for port in unit.programs["predict"].inputs)
+        u = [("u", None)] if takes_u else []
+        return [("x", (n,)), ("P", (n, n))] + u + p, [("x_new", (n,)), ("P_new", (n, n))]
     if program == "update1":
         u = [("u", None)] if "u" in unit.step_inputs else []
         return ([("x", (n,)), ("P", (n, n)), ("z", (1,))] + u + p,

@@ -37,12 +37,23 @@ from .unit import make_unit
 
 
 def ekf_predict_stage(model) -> Predict:
-    """x(k/k-1) = f(x), P(k/k-1) = F P F^T + Q (F = I folds to P + Q)."""
+    """x(k/k-1) = f(x, u), P(k/k-1) = F P F^T + Q (F = I folds to P + Q); with inputs in
+    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k)."""
     lin = state_jacobian(model)
+    n = model.n
+    used = [model.inputs.index(u) for u in model.f_inputs]
+    Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used)
 
     def predict(prog, mapping, x, P):
         Q = sympy.Matrix(model.subs(model.Q)).xreplace(mapping)
-        values, F = stage_linearisation(prog, lin, {**mapping, **state_mapping(model, x)}, "f")
+        values, FFu = stage_linearisation(prog, lin, {**mapping, **state_mapping(model, x)},
+                                          "f")
+        F = FFu[:, :n]
+        if any(e != 0 for e in Qu):
+            Fu = FFu[:, n:]
+            FuQu = staging.matmul(prog, Fu, Qu.xreplace(mapping))
+            Q = staging.add(prog, staging.matmul(prog, FuQu, Fu.T, symmetric_result=True), Q,
+                            symmetric_result=True)
         FP = staging.matmul(prog, F, P)
         Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), Q,
                          symmetric_result=True)
@@ -96,9 +107,10 @@ def reference(model, data, options):
     scenario, fns = data
     identity = list(model.subs(model.f)) == list(model.state_symbols)
     f, F = (None, None) if identity else (fns["f"], fns["F"])
+    process = {"Fu_jac": fns["Fu"], "Qu": fns["Qu"]} if model.f_inputs else {}
     res = numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
                               scenario.P0, scenario.zs, inputs=list(scenario.us),
-                              skip_nan=False)
+                              skip_nan=False, **process)
     return res.xs, res.Ps
 
 

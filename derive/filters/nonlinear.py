@@ -130,8 +130,9 @@ def stage_linearisation(prog: Program, lin: Linearisation, mapping: Mapping,
 
 
 def state_jacobian(model) -> Linearisation:
-    """f and F = ∂f/∂x of a NonlinearModel (valued symbols substituted)."""
-    return linearise(model.subs(model.f), model.state_symbols)
+    """f and F = ∂f/∂x of a NonlinearModel (valued symbols substituted); when f uses
+    inputs, the Jacobian's last columns are ∂f/∂u over ``model.f_inputs``."""
+    return linearise(model.subs(model.f), model.state_symbols + model.f_inputs)
 
 
 # -- measurements: all rows, or one row with its own inputs --------------------------------
@@ -218,6 +219,9 @@ def _ports(model, name: str, meas: Measurement | None) -> tuple[list[Port], list
         if meas.inputs:
             inputs.append(Port("u", (len(meas.inputs),),
                                doc="inputs " + ", ".join(s.name for s in meas.inputs)))
+    elif name == "predict" and model.f_inputs:
+        inputs.append(Port("u", (len(model.f_inputs),), doc="u(k), the inputs f uses: "
+                           + ", ".join(s.name for s in model.f_inputs)))
     if name == "update1":
         outputs += [Port("innovation", (1,), doc="z - its prediction"),
                     Port("variance", (1,), doc="the innovation's variance")]
@@ -236,11 +240,13 @@ def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
     params = prog.bind("p", model.parameters) if model.parameters else {}
     x, P = prog.matrix("x"), masked_covariance(prog, P_pattern, declared)
     extra = ()
+    mapping = dict(params)
+    if predict is not None and model.f_inputs:  # u(k) drives the prediction into step k
+        mapping.update(prog.bind("u", meas.inputs if meas is not None else model.f_inputs))
     if predict is not None:
-        x, P = predict(prog, dict(params), x, P)
+        x, P = predict(prog, dict(mapping), x, P)
     if update is not None:
-        mapping = dict(params)
-        if meas.inputs:
+        if meas.inputs and not (predict is not None and model.f_inputs):
             mapping.update(prog.bind("u", meas.inputs))
         x, P, innovation, variance = update(prog, mapping, meas, x, P, prog.matrix("z"))
         extra = (innovation, variance)
@@ -282,6 +288,11 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
         programs[name] = prog.optimize()
     facts = ["per-step input u: " + ", ".join(s.name for s in model.inputs)
              if model.inputs else "per-step input u: none"]
+    if model.f_inputs:
+        facts.append("row k of us goes with row k of zs: u(k) drives the prediction into step "
+                     "k (f uses " + ", ".join(s.name for s in model.f_inputs) + "; predict "
+                     "takes those) and step k's measurement; Q(x, u) = Fu Qu Fu^T + Q, "
+                     "Fu = df/du at x(k-1/k-1), u(k)")
     if scalar is not None:
         facts.append("varying measurement count: call predict once per step, then update1 "
                      f"once per measurement (z = one {scalar.names[0]}-like measurement, "

@@ -208,6 +208,14 @@ def ukf_update_stage(model, w: Weights):
     return update
 
 
+def applies(model) -> str | None:
+    """The UKF takes inputs in h only: a model whose f uses an input is refused."""
+    if model.f_inputs:
+        return (f"filter 'ukf' does not support inputs in f (model {model.name!r} uses "
+                f"{model.f_inputs[0].name!r} in f); use the ekf")
+    return None
+
+
 def derive_unit(model, spec, options):
     """The UKF unit: programs step, predict, update1 (see the module docstring)."""
     check_nonlinear(model, spec.name)
@@ -238,7 +246,7 @@ def reference(model, data, options):
 SPECS = (FilterSpec(
     "ukf", "unscented Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
     options=UnscentedOptions, covariance=True, inputs=True, extra_programs=("predict", "update1"),
-    listing=110,
+    applies=applies, listing=110,
     about={"python": "Run the unscented Kalman filter: sigma points through h." + NOTE_PY,
            "c": "Run the unscented Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
 

@@ -63,17 +63,34 @@ def _setup(Q, R, x0, P0, zs, inputs, skip_nan):
     return x, P, Q, R, Z, inputs_series(inputs, len(Z))
 
 
-def ekf(f, F_jac, h, H_jac, Q, R, x0, P0, zs, inputs=None, skip_nan: bool = True):
+def ekf(f, F_jac, h, H_jac, Q, R, x0, P0, zs, inputs=None, skip_nan: bool = True,
+        Fu_jac=None, Qu=None):
     """Extended Kalman filter: x⁻ = f(x), P⁻ = F P Fᵀ + Q with F = F_jac(x(k-1/k-1))
     (f=None, F_jac=None: identity); H = H_jac(x⁻); K = P⁻Hᵀ[H P⁻ Hᵀ + R]⁻¹;
-    x = x⁻ + K[z − h(x⁻)]; P = P⁻ − K H P⁻. Returns a NonlinearResult."""
+    x = x⁻ + K[z − h(x⁻)]; P = P⁻ − K H P⁻. Returns a NonlinearResult.
+
+    Inputs in f: with ``Fu_jac`` (∂f/∂u) and ``Qu`` (n_u x n_u, the noise on u) given,
+    f, F_jac and Fu_jac are called as fn(x, inputs[k-1]) (the row that goes with zs[k-1])
+    and P⁻ = F P Fᵀ + Fu Qu Fuᵀ + Q."""
     x, P, Q, R, Z, U = _setup(Q, R, x0, P0, zs, inputs, skip_nan)
     n, m = x.shape[0], R.shape[0]
+    in_f = Fu_jac is not None
+    if in_f:
+        Qu = np.asarray(Qu, dtype=float)
+        if Qu.ndim != 2 or Qu.shape[0] != Qu.shape[1]:
+            raise ModelError(f"Qu must be a square matrix, got shape {Qu.shape}")
     out = _Recorder(len(Z), n, m)
     for k, (z, u) in enumerate(zip(Z, U)):
-        Fk = np.eye(n) if F_jac is None else np.asarray(F_jac(x), dtype=float)
-        x = x.copy() if f is None else np.asarray(f(x), dtype=float)
-        P = Fk @ P @ Fk.T + Q
+        if in_f:
+            Fk = np.asarray(F_jac(x, u), dtype=float)
+            Fu = np.asarray(Fu_jac(x, u), dtype=float).reshape(n, Qu.shape[0])
+            Qk = Fu @ Qu @ Fu.T + Q
+            x = np.asarray(f(x, u), dtype=float)
+        else:
+            Fk = np.eye(n) if F_jac is None else np.asarray(F_jac(x), dtype=float)
+            x = x.copy() if f is None else np.asarray(f(x), dtype=float)
+            Qk = Q
+        P = Fk @ P @ Fk.T + Qk
         present = ~np.isnan(z)
         if not present.any():
             out.save(k, x, P, present)
