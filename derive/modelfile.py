@@ -34,12 +34,13 @@ A model file has a ``[model]`` table, an optional ``[parameters]`` table, exactl
     R = "sr2"
     dt = "dt"                 # an expression (or a number)
 
-    [nonlinear]               # x(k+1) = f(x) + w, z = h(x, u) + v
+    [nonlinear]               # x(k) = f(x(k-1), u(k)) + w, z(k) = h(x(k), u(k)) + v
     inputs = ["xs1"]          # optional per-step inputs u (not parameters, not states)
-    f = ["x"]                 # n expressions in states and parameters
+    f = ["x"]                 # n expressions in states, inputs and parameters
     h = ["sqrt((xs1 - x)**2) + b"]   # m expressions in states, inputs and parameters
     Q = [[0.01]]              # parameters only
     R = "sigma2"
+    Qu = [[0]]                # optional (zero): noise on u, n_u x n_u; Q += Fu Qu Fu^T
 
     [compose]                 # block-diagonal composition of linear models
     blocks = [{ model = "mpt3d_b", suffix = "x" }, { model = "axis.toml", suffix = "y" }]
@@ -121,7 +122,7 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "parameters": (),
     "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
-    "nonlinear": ("f", "h", "Q", "R", "inputs"),
+    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu"),
     "compose": ("blocks",),
     "initial": ("x0", "P0", "P0_pattern"),
 }
@@ -522,6 +523,8 @@ class _File:
             "Q": self.matrix(body["Q"], "[nonlinear] Q", self.symbols),
             "R": self.matrix(body["R"], "[nonlinear] R", self.symbols),
             "inputs": inputs or None,
+            **({"Qu": self.matrix(body["Qu"], "[nonlinear] Qu", self.symbols)}
+               if "Qu" in body else {}),
         }
 
     def initial(self, kind: str) -> dict[str, Any]:

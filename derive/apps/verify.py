@@ -11,7 +11,9 @@ numbers it is computed from. The bar is 1e-12 for linear filters.
 Nonlinear filters (EKF, UKF) run on :func:`nonlinear_scenario`: for a model whose inputs
 are one satellite position per measurement and whose state is [x, y, z, b], the GNSS
 scenario of derive.apps.simulate (moving satellites, so the per-step inputs change); for a
-model without inputs, a run of its own f and h. Their bar is 1e-10, or the reference's own
+model whose f uses inputs, a run of its own f and h driven by seeded inputs (uniform in
+[-1, 1], perturbed by noise of covariance Qu); for a model without inputs, a run of its own
+f and h. Their bar is 1e-10, or the reference's own
 rounding floor times :data:`FLOOR_MARGIN` where that is larger: the floor is the largest
 change of the reference's output when every value of h is perturbed by one rounding
 (relative 2^-53, two seeded runs). For the GNSS UKF it is about 3e-10: pseudoranges are
@@ -138,6 +140,8 @@ def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScena
     fns = model.numeric_functions()
     rng = np.random.default_rng(seed + 1)
     n, m = model.n, model.m
+    if model.f_inputs:
+        return _input_driven_scenario(model, fns, rng, steps)
     if model.inputs:
         if len(model.inputs) != 3 * m or n != 4 or m < 4:
             raise VerificationError(
@@ -162,6 +166,25 @@ def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScena
     v = rng.multivariate_normal(np.zeros(m), fns["R"], size=steps, method="eigh")
     zs = np.array([fns["h"](truth[k + 1], us[k]) for k in range(steps)]) + v
     return NonlinearScenario(zs, us, truth, np.asarray(x0, float), np.asarray(P0, float))
+
+
+def _input_driven_scenario(model, fns, rng, steps: int) -> NonlinearScenario:
+    """A model whose f uses inputs: us uniform in [-1, 1] (seeded); the truth is driven by
+    the inputs plus noise of covariance Qu, and by process noise of covariance Q."""
+    n, m = model.n, model.m
+    n_u = len(model.inputs)
+    us = rng.uniform(-1.0, 1.0, (steps, n_u))
+    u_noise = rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps, method="eigh")
+    w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
+    x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
+    P0 = np.asarray(model.P0.tolist(), dtype=float)
+    truth = np.empty((steps + 1, n))
+    truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
+    for k in range(steps):  # row k of us drives the step into k + 1 (measured by zs[k])
+        truth[k + 1] = fns["f"](truth[k], us[k] + u_noise[k]) + w[k]
+    v = rng.multivariate_normal(np.zeros(m), fns["R"], size=steps, method="eigh")
+    zs = np.array([fns["h"](truth[k + 1], us[k]) for k in range(steps)]) + v
+    return NonlinearScenario(zs, us, truth, x0, P0)
 
 
 def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: dict,
