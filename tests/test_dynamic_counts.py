@@ -15,7 +15,7 @@ from derive.apps import paper
 from derive.filters import available, derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
-from derive.model import LinearModel
+from derive.model import LinearModel, NonlinearModel
 from derive.program import ZERO, Check
 
 
@@ -28,7 +28,17 @@ def _input_model():
                        values={"q": 0.01})
 
 
-INPUT_MODELS = {"accel_offset": _input_model}
+def _unicycle_model():
+    """A nonlinear model whose f uses per-step inputs (speed v, turn rate w) with input
+    noise Qu, a free parameter in Qu: the EKF's predict takes u and maps Qu through df/du."""
+    return NonlinearModel("unicycle", ["px", "py", "th"], ["zx", "zy"],
+                          ["px + dt*v*cos(th)", "py + dt*v*sin(th)", "th + dt*w"],
+                          ["px", "py"], [["q", 0, 0], [0, "q", 0], [0, 0, "q"]],
+                          [["r", 0], [0, "r"]], values={"dt": 0.1, "q": 1e-6, "r": 0.25},
+                          inputs=["v", "w"], Qu=[["sv", 0], [0, "sw"]])
+
+
+INPUT_MODELS = {"accel_offset": _input_model, "unicycle": _unicycle_model}
 CASES = [(name, f) for name in catalog.names() for f in available(catalog.load(name))]
 INPUT_CASES = [(name, f) for name, make in INPUT_MODELS.items() for f in available(make())]
 PAPER_CASES = [(name, f) for name in ("mpt3d_a", "cv") for f in paper.PAPER_FILTERS]
@@ -131,8 +141,8 @@ def test_input_model_counts_match_at_run_time_and_in_the_c_text(model_name, filt
     _check(model_name, filter_name, "specialised")
 
 
-def test_input_model_cases_cover_the_kf():
-    assert [f for _, f in INPUT_CASES] == ["kf"]
+def test_input_model_cases_cover_the_kf_and_the_ekf_with_inputs_in_f():
+    assert [f for _, f in INPUT_CASES] == ["kf", "ekf"]
 
 
 @pytest.mark.parametrize("model_name,filter_name", PAPER_CASES)
