@@ -558,7 +558,8 @@ class NonlinearModel(_Model):
         self.Qu = _symmetric(self.Qu, "Qu")
         _check_definite(self.subs(self.Q), "Q", strict=False)
         _check_definite(self.subs(self.R), "R", strict=True)
-        _check_definite(self.subs(self.Qu), "Qu", strict=False)
+        if input_names:
+            _check_definite(self.subs(self.Qu), "Qu", strict=False)
         self._initial(x0, P0, P0_pattern)
         self.F_jacobian = jacobian(self.f, self.state_symbols)
         self.H_jacobian = jacobian(self.h, self.state_symbols)

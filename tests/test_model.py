@@ -114,10 +114,16 @@ def test_nonlinear_jacobians_and_numeric():
     np.testing.assert_allclose(fns["f"](X), X, rtol=0)
 
 
-def test_nonlinear_inputs_only_in_h():
+def test_nonlinear_inputs_in_f_take_u_in_f_F_and_Fu():
     x, u = sympy.symbols("x u", real=True)
-    with pytest.raises(SymbolError, match="'u'"):
-        NonlinearModel("bad", ["x"], ["y"], [x + u], [x], [[1]], [[1]], inputs=["u"])
+    m = NonlinearModel("drive", ["x"], ["y"], [x + u * x], [x], [[1]], [[1]], inputs=["u"],
+                       Qu=[[2]])
+    assert m.f_inputs == (u,)
+    fns = m.numeric_functions()
+    assert fns["f"]([3.0], [0.5]).tolist() == [4.5]
+    assert fns["F"]([3.0], [0.5]).tolist() == [1.5]  # one column: flat, like a vector
+    assert fns["Fu"]([3.0], [0.5]).tolist() == [3.0]
+    assert fns["Qu"].tolist() == [[2.0]]
 
 
 def test_negative_and_signed_zero_floats_are_exact():

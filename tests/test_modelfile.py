@@ -17,7 +17,6 @@ from derive.errors import (
     ModelError,
     ModelFileError,
     ShapeError,
-    SymbolError,
 )
 from derive.model import LinearModel, NonlinearModel
 from derive.modelfile import load_model_file, loads_model
@@ -292,8 +291,8 @@ ERRORS = [
      ["m.toml: ", "F must be 2x2", "got 2x3"]),
     ("not positive", _edit('R = "sr2"', 'R = "-sr2"'), MatrixPropertyError,
      ["m.toml: ", "R must be positive definite"]),
-    ("input in f", _edit('f = ["x", "y"]', 'f = ["x", "xs"]', NONLINEAR), SymbolError,
-     ["m.toml: ", "f depends on per-step input 'xs'"]),
+    ("Qu shape", _edit('f = ["x", "y"]', 'f = ["x", "y + xs"]\nQu = [[1]]', NONLINEAR),
+     ShapeError, ["m.toml: ", "matrix Qu must be 2x2"]),
 ]
 
 
