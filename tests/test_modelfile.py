@@ -77,7 +77,7 @@ def doc_examples() -> list[tuple[str, str]]:
 def test_documented_examples_load(tmp_path):
     examples = doc_examples()
     assert [name for name, _ in examples] == ["axis.toml", "cart.toml", "ca.toml", "gnss.toml",
-                                              "plane.toml"]
+                                              "plane.toml", "unicycle.toml"]
     for name, text in examples:
         (tmp_path / name).write_text(text, encoding="utf-8")
     axis = load_model_file(tmp_path / "axis.toml")
@@ -93,6 +93,10 @@ def test_documented_examples_load(tmp_path):
     assert plane.states == ("sx", "vx", "sy", "vy")
     assert [p.name for p in plane.parameters] == ["r"]
     assert plane.R == sympy.diag(sr2, r)
+    unicycle = load_model_file(tmp_path / "unicycle.toml")
+    assert [u.name for u in unicycle.f_inputs] == ["v", "w"]
+    assert unicycle.subs(unicycle.Qu) == sympy.diag(sympy.Rational(1, 100),
+                                                    sympy.Rational(4, 10000))
 
 
 def test_discrete_file_gives_the_declared_matrices_exactly():
