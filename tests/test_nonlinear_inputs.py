@@ -225,3 +225,13 @@ def test_model_file_qu_errors_are_one_line_with_exit_status_2(tmp_path, extra, m
     assert message in done.stderr and "Traceback" not in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_show_prints_the_input_jacobian_and_qu(tmp_path):
+    path = tmp_path / "unicycle_file.toml"
+    path.write_text(UNICYCLE_FILE)
+    done = subprocess.run([sys.executable, "-m", "derive", "show", str(path)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "Fu_jacobian =" in done.stdout and "Qu =" in done.stdout
+    assert "dt*cos(th)" in done.stdout

@@ -30,6 +30,8 @@ def run(args) -> int:
                                            or "none"))
     mats = (("F", "G", "H", "Q", "R") if model.kind == "linear"
             else ("f", "h", "F_jacobian", "H_jacobian", "Q", "R"))
+    if getattr(model, "f_inputs", ()):  # inputs in f: their Jacobian and noise
+        mats += ("Fu_jacobian", "Qu")
     for k in mats:
         print(f"{k} =")
         print(textwrap.indent(sympy.pretty(getattr(model, k), use_unicode=False), "    "))

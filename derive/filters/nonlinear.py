@@ -7,7 +7,8 @@ of H. The UKF stages f and h the same way, without Jacobians.
 
 A unit has three programs (:func:`nonlinear_programs`; a filter supplies only its
 :data:`Predict` and :data:`Update` stages): ``step(x, P, z, u)`` predicts and updates with
-all m measurements; ``predict(x, P)`` and ``update1(x, P, z[1], u[k])`` are the sequential
+all m measurements; ``predict(x, P[, u])`` (u: the inputs f uses, when it uses any: the
+row given with the next z) and ``update1(x, P, z[1], u[k])`` are the sequential
 form: one scalar measurement per call, so a step may use any number of measurements (6 to
 12 satellites in view, in any order). ``update1`` exists when every row of h is the same
 function of its own inputs and R is diagonal with equal entries

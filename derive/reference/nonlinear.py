@@ -3,6 +3,8 @@
 Model: x(k) = f(x(k-1)) + w(k), w ~ N(0, Q);  z(k) = h(x(k), u_k) + v(k), v ~ N(0, R).
 f=None means identity dynamics (the GNSS paper's stationary user). h and H_jac are called
 as h(x) when inputs is None, else h(x, inputs[k-1]) (e.g. satellite positions at step k).
+The EKF also takes inputs in f, x(k) = f(x(k-1), u_k) + w(k), with noise Qu on u_k mapped
+through ∂f/∂u (see :func:`ekf`).
 Indexing: zs[k-1] = z(k); results hold x(k/k) at row k-1. A NaN in z marks an absent
 component (skip_nan=True): only the present components are used in that update.
 """
