@@ -235,3 +235,45 @@ def test_show_prints_the_input_jacobian_and_qu(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "Fu_jacobian =" in done.stdout and "Qu =" in done.stdout
     assert "dt*cos(th)" in done.stdout
+
+
+def test_inputs_in_f_and_h_together_keep_update1_and_match_the_reference(tmp_path):
+    """Ranges to two beacons whose positions are inputs of h, a speed input of f: step and
+    run take every input, predict only f's (v), update1 only its beacon's."""
+    model = NonlinearModel(
+        "ranger", ["x", "y"], ["r1", "r2"], ["x + dt*v", "y"],
+        ["sqrt((x - a1)**2 + (y - b1)**2)", "sqrt((x - a2)**2 + (y - b2)**2)"],
+        [["q", 0], [0, "q"]], [["r", 0], [0, "r"]], values={"dt": 0.5, "q": 1e-3, "r": 0.01},
+        inputs=["a1", "b1", "v", "a2", "b2"], Qu=np.diag([0, 0, 0.04, 0, 0]), x0=[0, 0],
+        P0=[[1, 0], [0, 1]])
+    unit = derive_unit(model, "ekf")
+    ports = {name: [p.name for p in program.inputs] for name, program in unit.programs.items()}
+    assert ports == {"step": ["x", "P", "z", "u"], "predict": ["x", "P", "u"],
+                     "update1": ["x", "P", "z", "u"]}
+    assert [p.shape for p in unit.programs["predict"].inputs][2] == (1,)
+    assert [p.shape for p in unit.programs["update1"].inputs][3] == (2,)
+    rng = np.random.default_rng(2)
+    steps = 30
+    us = np.column_stack([rng.uniform(5, 10, steps), rng.uniform(5, 10, steps),
+                          rng.uniform(0.5, 1, steps), rng.uniform(-10, -5, steps),
+                          rng.uniform(5, 10, steps)])
+    zs = rng.uniform(5, 15, (steps, 2))
+    fns = model.numeric_functions()
+    ref = reference.ekf(fns["f"], fns["F"], fns["h"], fns["H"], fns["Q"], fns["R"], [0, 0],
+                        np.eye(2), zs, inputs=us, Fu_jac=fns["Fu"], Qu=fns["Qu"])
+    generated = load_generated(model, "ekf", {}, "all", tmp_path)
+    for lang in ("python", "c"):
+        module = generated.module(lang)
+        xs, Ps = module.run(zs, us, np.zeros(2), np.eye(2))
+        assert relative(xs, ref.xs) < TOLERANCE, lang
+        assert relative(np.asarray(Ps).reshape(ref.Ps.shape), ref.Ps) < TOLERANCE, lang
+        # predict with v, then one update1 per beacon: the first update is the batch's
+        # (both linearise at x(1/0)); one measurement at a time agrees to first order only
+        x, P = module.predict(np.zeros(2), np.eye(2), us[0, [2]])
+        Fu = fns["Fu"](np.zeros(2), us[0])
+        want = fns["F"](np.zeros(2), us[0]) @ fns["F"](np.zeros(2), us[0]).T \
+            + Fu @ fns["Qu"] @ Fu.T + fns["Q"]
+        assert relative(np.asarray(P).reshape(2, 2), want) < TOLERANCE, lang
+        _, _, innovation, _ = module.update1(x, P, zs[0, [0]], us[0, [0, 1]])
+        assert np.isclose(np.asarray(innovation)[0],
+                          zs[0, 0] - fns["h"](np.asarray(x), us[0])[0], rtol=1e-13), lang
