@@ -420,9 +420,8 @@ class LinearModel(_Model):
                        if sensors is not None else ())
         if sensor_list:
             measurements = [z for sensor in sensor_list for z in sensor.measurements]
-        for key, value in (("measurements", measurements), ("F", F), ("H", H), ("Q", Q),
-                           ("R", R)):
-            if value is None and not (sensor_list and key in ("measurements", "H", "R")):
+        for key, value in (("F", F), ("H", H), ("Q", Q), ("R", R)):
+            if value is None and not (sensor_list and key in ("H", "R")):
                 raise ModelError(f"LinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
@@ -686,9 +685,8 @@ class NonlinearModel(_Model):
                        if sensors is not None else ())
         if sensor_list:
             measurements = [z for sensor in sensor_list for z in sensor.measurements]
-        for key, value in (("measurements", measurements), ("f", f), ("h", h), ("Q", Q),
-                           ("R", R)):
-            if value is None and not (sensor_list and key in ("measurements", "h", "R")):
+        for key, value in (("f", f), ("h", h), ("Q", Q), ("R", R)):
+            if value is None and not (sensor_list and key in ("h", "R")):
                 raise ModelError(f"NonlinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
