@@ -229,3 +229,39 @@ def test_one_sensor_models_keep_the_step_and_run():
                            sensors=[Sensor("s", ["z"], h=["x**2"], R=[[1]])])
     unit = derive_unit(model, "ekf")
     assert unit.run_kind == "timevarying" and "step" in unit.programs
+
+
+ONE_GROUP_WITH_UNIT_NORM = """
+[model]
+name = "att1"
+states = ["q0", "q1", "b"]
+measurements = ["c", "s", "zb"]
+
+[parameters]
+dt = 0.01
+
+[nonlinear]
+inputs = ["w"]
+f = ["q0 - dt*(w - b)*q1/2", "q1 + dt*(w - b)*q0/2", "b"]
+h = ["q0**2 - q1**2", "2*q0*q1", "b"]
+Q = [[1e-6, 0, 0], [0, 1e-6, 0], [0, 0, 1e-8]]
+R = [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01]]
+Qu = [[1e-4]]
+unit_norm = [["q0", "q1"]]
+
+[initial]
+x0 = [1, 0, 0]
+P0 = [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.0001]]
+"""
+
+
+def test_a_one_group_model_with_unit_norm_keeps_step_and_verifies(tmp_path, capsys):
+    path = tmp_path / "att1.toml"
+    path.write_text(ONE_GROUP_WITH_UNIT_NORM)
+    unit = derive_unit(loads_model(ONE_GROUP_WITH_UNIT_NORM), "ekf")
+    assert unit.run_kind == "timevarying"
+    assert "unit-norm groups, renormalised at the end of every update: (q0, q1)" in unit.facts
+    assert count(unit.programs["step"], "c").sqrt == 1
+    assert main(["verify", str(path), "--filter", "ekf"]) == 0
+    out = capsys.readouterr().out
+    assert "ok   att1               ekf     c" in out
