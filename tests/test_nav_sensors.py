@@ -294,3 +294,29 @@ def test_R_given_per_call_is_an_input_of_the_update_and_a_per_step_array_of_run(
     with pytest.raises(FilterError, match="filter 'lf' takes no R given per call; model "
                                           "'one' declares sensor R = 'argument'"):
         derive_unit(one, "lf")
+
+
+def test_per_step_dt_in_the_one_group_step_and_run_and_in_predict():
+    """Item 3: p one row per step reaches step/run, predict and update1 of today's EKF."""
+    q0, q1, b, w, dt = sympy.symbols("q0 q1 b w dt", real=True)
+    model = NonlinearModel(
+        "att1", ["q0", "q1", "b"], ["c", "s", "zb"],
+        f=[q0 - dt * (w - b) * q1 / 2, q1 + dt * (w - b) * q0 / 2, b],
+        h=[q0**2 - q1**2, 2 * q0 * q1, b], Q=sympy.diag(1e-5, 1e-5, 1e-7),
+        R=sympy.eye(3) / 100, inputs=["w"], Qu=[[1e-4]], parameters=["dt"])
+    generated = load_generated(model, "ekf")
+    assert generated.unit.run_kind == "timevarying"
+    rng = np.random.default_rng(12)
+    steps = 1000
+    us = 0.3 + 0.05 * rng.normal(size=(steps, 1))
+    dt = rng.uniform(0.005, 0.05, (steps, 1))
+    angle = np.cumsum(us[:, 0] * dt[:, 0])
+    zs = np.c_[np.cos(angle), np.sin(angle), np.zeros(steps)] + 0.1 * rng.normal(size=(steps, 3))
+    x0, P0 = np.array([1.0, 0.0, 0.0]), np.diag([0.01, 0.01, 1e-4])
+    ref = reference_run(model, {}, {"all": zs}, us, dt, x0, P0)
+    for module in (generated.python, generated.c):
+        xs, Ps = module.run(zs, us, x0, P0, p=dt)
+        assert relative(xs, ref.xs) <= 1e-9 and relative(Ps, ref.Ps) <= 1e-9
+    x, P = generated.python.predict(x0, P0.ravel(), us[0], dt[0])
+    x_ref, P_ref = generated.python.predict(x0, P0.ravel(), us[0], dt[1])
+    assert not np.allclose(x, x_ref)  # predict reads its own row of p
