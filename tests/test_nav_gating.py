@@ -127,3 +127,10 @@ def test_a_single_sensor_model_is_gated_through_its_one_update():
     assert applied.tolist() == [1.0, 1.0, 0.0, 1.0]
     assert nis[2] > chi2.ppf(0.99, 1) >= nis[[0, 1, 3]].max()
     assert xs[2, 0] == xs[1, 0]  # the rejected step keeps the prediction (F = 1)
+
+
+@pytest.mark.parametrize("key", ["missing", "joseph"])
+def test_missing_and_joseph_are_refused_with_sensors_in_one_line(key):
+    with pytest.raises(OptionError, match=rf"option '{key}' is not taken with several sensors, "
+                                          r"gating or update-first"):
+        derive_unit(gnss_like(), "kf", {key: True})
