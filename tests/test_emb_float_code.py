@@ -17,6 +17,7 @@ import pytest
 
 from derive import catalog, interface
 from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS
+from derive.cli import main
 from derive.emit import c_printer
 from derive.errors import DtypeError, OptionError
 from derive.generation import generate, render_filter, resolve_model
@@ -156,3 +157,21 @@ def test_a_float_kernel_takes_float32_and_refuses_float64_in_one_line():
         kernel.run_tracks(zs[np.newaxis], x0[np.newaxis].astype(float), P0[np.newaxis])
     tracks, _ = kernel.run_tracks(zs[np.newaxis], x0[np.newaxis], P0[np.newaxis])
     assert np.array_equal(tracks[0], xs)  # run_tracks is bitwise run, in float too
+
+
+def test_a_model_float_cannot_hold_is_refused_on_the_command_line(tmp_path, capsys):
+    """A process noise density of 1e39 is infinite as a float (the KF bakes Q into its
+    code): exit status 2, one line naming the constant and the option, and no output
+    directory written; the same model in double is generated."""
+    text = (ROOT / "derive" / "catalog" / "cv.toml").read_text()
+    model = tmp_path / "tiny.toml"
+    model.write_text(text.replace('name = "cv"', 'name = "tiny"').replace(
+        'sq2 = { value = 0.01,', 'sq2 = { value = 1e39,'))
+    out = tmp_path / "out"
+    status = main(["generate", str(model), "--filter", "kf", "--precision", "float",
+                   "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert status == 2 and "\n" not in err and not out.exists()
+    assert err.startswith("derive: error: the constant ")
+    assert "is not a normal float32 number" in err and "--precision float" in err
+    assert main(["generate", str(model), "--filter", "kf", "--out", str(out)]) == 0

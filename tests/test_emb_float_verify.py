@@ -143,8 +143,10 @@ def test_the_ud_filter_in_float32_beats_the_kf_on_an_ill_conditioned_model():
     assert kf_error > 1e3 * plain["kf"]
     assert kf_error > 1e5 * ud_error
     # and the full bound says float32 is not safe for this model (kappa = cond P(k+1/k))
-    full = verify_modules(model, "kf", {"c": kf.c}, steps, 7, FLOAT_OPTIONS, units[0])[0]
-    assert not full.bound.meaningful and not full.passed
+    for unit, generated in zip(units, (kf, udkf)):
+        full = verify_modules(model, unit.filter, {"c": generated.c}, steps, 7,
+                              FLOAT_OPTIONS, unit)[0]
+        assert not full.bound.meaningful and not full.passed
 
 
 def test_derive_verify_precision_float_prints_the_tolerance_it_used(capsys):
