@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from derive import catalog, interface
+from derive import batch, catalog, interface
 from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS
 from derive.cli import main
 from derive.emit import c_printer
@@ -175,3 +175,31 @@ def test_a_model_float_cannot_hold_is_refused_on_the_command_line(tmp_path, caps
     assert err.startswith("derive: error: the constant ")
     assert "is not a normal float32 number" in err and "--precision float" in err
     assert main(["generate", str(model), "--filter", "kf", "--out", str(out)]) == 0
+
+
+@needs_gcc
+def test_batch_run_tracks_threads_a_float_kernel_in_float32():
+    """derive.batch on a float kernel: float32 in and out, each track bitwise its run."""
+    kernel = load_generated("cv", "kf", {"precision": "float"}, "c").c
+    rng = np.random.default_rng(3)
+    zs = rng.normal(size=(5, 20, 1)).astype(np.float32)
+    x0s, P0 = np.zeros((5, 2), np.float32), np.eye(2, dtype=np.float32)
+    xs, Ps = batch.run_tracks(kernel, zs, x0s, P0, workers=2)
+    assert xs.dtype == np.float32 and Ps.dtype == np.float32
+    for track in range(5):
+        assert np.array_equal(xs[track], kernel.run(zs[track], x0s[track], P0)[0])
+    with pytest.raises(DtypeError, match=r"argument 'zs' is a float64 array"):
+        batch.run_tracks(kernel, zs.astype(np.float64), x0s, P0, workers=2)
+
+
+@pytest.mark.parametrize("model, name", [("mpt3d_a", "kf"), ("ca", "udkf"), ("cv", "sskf"),
+                                         ("gnss_pseudorange", "ukf")])
+def test_float_code_counts_the_same_operations_as_double(model, name):
+    """Precision changes types, literals and function names, never the operations: every
+    count line of the float header is the double header's, with float32 named."""
+    def counts(options):
+        header = _files(model, name, "c", options)[f"{name}.h"]
+        return [line for line in header.splitlines() if "operations per" in line]
+
+    double, single = counts(None), counts({"precision": "float"})
+    assert double and single == [line.replace("(C99", "(C99 float32") for line in double]
