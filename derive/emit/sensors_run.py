@@ -13,6 +13,7 @@ from __future__ import annotations
 from derive.emit import c_printer
 from derive.emit.unit import Unit
 from derive.lowering import LoweredProgram
+from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
 PARAMETER_ROWS = "p_rows"
@@ -82,23 +83,26 @@ def _gather(target: str, columns: tuple[int, ...]) -> list[str]:
     return [f"{target}[{j}] = uk[{c}];" for j, c in enumerate(columns)]
 
 
-def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
-    """The statements of C run (unindented; the template indents them)."""
+def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
+               real: Precision = DOUBLE) -> list[str]:
+    """The statements of C run (unindented; the template indents them), in the
+    precision's element type."""
+    t = real.c_type
     n, nn, prefix = unit.n, unit.n * unit.n, unit.prefix
     gated = any(s.gated for s in unit.sensors)
     status = any(lp.has_checks for lp in lowered.values())
     all_columns = tuple(range(unit.n_inputs))
-    lines = [f"double x[{n}];", f"double P[{nn}];", f"double x_new[{n}];",
-             f"double P_new[{nn}];"]
+    lines = [f"{t} x[{n}];", f"{t} P[{nn}];", f"{t} x_new[{n}];",
+             f"{t} P_new[{nn}];"]
     if gated:
-        lines += ["double nis[1];", "double applied[1];"]
+        lines += [f"{t} nis[1];", f"{t} applied[1];"]
     subsets = {}  # a function's u when it takes some of run's u columns, not all in order
     if unit.predict_inputs and unit.predict_inputs != all_columns:
         subsets["predict"] = ("u_predict", unit.predict_inputs)
     for s in unit.sensors:
         if s.inputs and s.inputs != all_columns:
             subsets[f"update_{s.name}"] = (f"u_{s.name}", s.inputs)
-    lines += [f"double {name}[{len(cols)}];" for name, cols in subsets.values()]
+    lines += [f"{t} {name}[{len(cols)}];" for name, cols in subsets.values()]
     lines += ["size_t k;", "size_t i;"] + (["int status;"] if status else [])
     used_u = bool(unit.predict_inputs) or any(s.inputs for s in unit.sensors)
     if unit.n_inputs and not used_u:
@@ -108,9 +112,9 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
               "for (k = 0; k < steps; ++k) {"]
     body = []
     if used_u:
-        body.append(f"const double *uk = u + k * {unit.n_inputs};")
+        body.append(f"const {t} *uk = u + k * {unit.n_inputs};")
     if unit.parameters:
-        body.append(f"const double *{PARAMETER_PORT}k = {PARAMETER_PORT} + k * p_stride;")
+        body.append(f"const {t} *{PARAMETER_PORT}k = {PARAMETER_PORT} + k * p_stride;")
     copy = [f"for (i = 0; i < {n}; ++i) {{", "    x[i] = x_new[i];", "}",
             f"for (i = 0; i < {nn}; ++i) {{", "    P[i] = P_new[i];", "}"]
     rows = {PARAMETER_PORT: f"{PARAMETER_PORT}k"}
@@ -134,13 +138,14 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
             inner += [f"if (nis_{s.name}) {{", f"    nis_{s.name}[k] = nis[0];", "}",
                       f"if (applied_{s.name}) {{", f"    applied_{s.name}[k] = applied[0];",
                       "}"]
-        body += ["{", f"    const double *zk = z_{s.name} + k * {s.m};",
+        body += ["{", f"    const {t} *zk = z_{s.name} + k * {s.m};",
                  f"    if ({test}) {{ /* a NaN: no {s.name} measurement at step k */"]
         body += ["        " + line for line in inner]
         if s.gated:
             body += ["    } else {", f"        if (nis_{s.name}) {{",
                      f"            nis_{s.name}[k] = NAN;", "        }",
-                     f"        if (applied_{s.name}) {{", f"            applied_{s.name}[k] = 0.0;",
+                     f"        if (applied_{s.name}) {{",
+                     f"            applied_{s.name}[k] = {real.zero()};",
                      "        }"]
         body += ["    }", "}"]
     body += [f"for (i = 0; i < {n}; ++i) {{", f"    xs[k * {n} + i] = x[i];", "}",
