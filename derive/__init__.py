@@ -4,9 +4,9 @@ from . import catalog
 from .build import build_c, load_python
 from .errors import ModelError
 from .generation import generate
-from .model import LinearModel, NonlinearModel
+from .model import LinearModel, NonlinearModel, Sensor
 from .pipeline import load_generated
 from .version import __version__
 
-__all__ = ["LinearModel", "ModelError", "NonlinearModel", "__version__", "build_c", "catalog",
-           "generate", "load_generated", "load_python"]
+__all__ = ["LinearModel", "ModelError", "NonlinearModel", "Sensor", "__version__", "build_c",
+           "catalog", "generate", "load_generated", "load_python"]

@@ -6,7 +6,8 @@ parameters, passed to generated code as ``p`` in the order of :attr:`parameters`
 names of the ``parameters`` argument first, in that order, then the other free symbols
 in order of first appearance, scanning the matrices in argument order (linear: F, G, H,
 Q, R, B, D; continuous: Phi, G, Qc, H, R, dt; nonlinear: f, h, Q, R), each row by row
-(within one entry, ``k2`` before ``k10``).
+(within one entry, ``k2`` before ``k10``). With ``sensors``, each sensor's matrices (linear:
+H, R, D; nonlinear: h, R) in declaration order take the place of the stacked H (h).
 """
 
 from __future__ import annotations
@@ -73,6 +74,102 @@ class NumericLinear:
     @property
     def GQGt(self) -> np.ndarray:
         return self.G @ self.Q @ self.G.T
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A named measurement group of a model (``sensors=[Sensor(...), ...]``): its own
+    measurements, h (NonlinearModel: expressions in states, its inputs and parameters) or
+    H (LinearModel; with D over its inputs: ``z = H x + D u + v``), R (constant or
+    symbolic in parameters) and inputs (names among the model's ``inputs``; default: a
+    nonlinear sensor's, those its h uses; a linear sensor's, all of them when D is given,
+    else none).
+
+    A model with sensors has one ``update_<name>`` per sensor beside ``predict``; its
+    ``measurements``, ``h``/``H``, ``R`` and ``D`` are the sensors' stacked (R block
+    diagonal), in declaration order.
+    """
+
+    name: str
+    measurements: Sequence[str]
+    h: Vector | None = None
+    H: Matrix | None = None
+    R: Matrix | None = None
+    inputs: Sequence[str] | None = None
+    D: Matrix | None = None
+
+
+@dataclass(frozen=True)
+class SensorGroup:
+    """A model's sensor, resolved: name, measurements, the rows it holds in the stacked
+    measurement vector, its inputs (symbols, a subset of the model's, in model order) and
+    its matrices with the model's symbols: ``h`` (nonlinear) or ``H`` and ``D`` (linear, D
+    over this sensor's inputs), ``R``."""
+
+    name: str
+    measurements: tuple[str, ...]
+    rows: tuple[int, int]
+    inputs: tuple[sympy.Symbol, ...]
+    R: sympy.ImmutableMatrix
+    h: sympy.ImmutableMatrix | None = None
+    H: sympy.ImmutableMatrix | None = None
+    D: sympy.ImmutableMatrix | None = None
+
+    @property
+    def m(self) -> int:
+        return len(self.measurements)
+
+
+def _sensor_list(sensors, kind: str, given: Mapping[str, object]) -> tuple[Sensor, ...]:
+    """The sensors as a tuple of :class:`Sensor`, refused when the stacked measurement
+    arguments (``given``: measurements, h/H, R, D) are given too, or a sensor has the
+    wrong matrix for ``kind`` (h for nonlinear, H and D for linear)."""
+    if isinstance(sensors, (str, Sensor)) or not isinstance(sensors, Sequence):
+        raise ModelError("sensors must be a list of derive.Sensor, got "
+                         f"{type(sensors).__name__}")
+    if not sensors:
+        raise ModelError("sensors must not be empty (leave it out for a model with one "
+                         "measurement group)")
+    both = [key for key, value in given.items() if value is not None]
+    if both:
+        raise ModelError(f"give either sensors or {', '.join(both)}, not both: a model with "
+                         "sensors takes its measurements, "
+                         + ("h" if kind == "nonlinear" else "H, D") + " and R from them")
+    names: set[str] = set()
+    for sensor in sensors:
+        if not isinstance(sensor, Sensor):
+            raise ModelError(f"sensors must hold derive.Sensor objects, got "
+                             f"{type(sensor).__name__} {sensor!r}")
+        name = check_identifier(sensor.name, "sensor name")
+        if name in names:
+            raise SymbolError(f"sensor {name!r} is declared twice")
+        names.add(name)
+        wanted, wrong = (("h",), ("H", "D")) if kind == "nonlinear" else (("H",), ("h",))
+        for key in wrong:
+            if getattr(sensor, key) is not None:
+                raise ModelError(f"sensor {name!r}: {key} is for a "
+                                 f"{'linear' if kind == 'nonlinear' else 'nonlinear'} model; "
+                                 f"a {kind} model's sensor gives {wanted[0]}")
+        for key in wanted + ("R",):
+            if getattr(sensor, key) is None:
+                raise ModelError(f"sensor {name!r}: missing {key}")
+    return tuple(sensors)
+
+
+def _sensor_inputs(sensor: Sensor, model_inputs: Sequence[str], default: Sequence[str]
+                   ) -> tuple[str, ...]:
+    """A sensor's input names: its own list (each one of the model's), else ``default``;
+    returned in the model's order."""
+    if sensor.inputs is None:
+        names = tuple(default)
+    else:
+        names = check_names(sensor.inputs, f"inputs of sensor {sensor.name!r}") \
+            if sensor.inputs else ()
+    for u in names:
+        if u not in model_inputs:
+            raise SymbolError(f"sensor {sensor.name!r}: input {u!r} is not one of the model's "
+                              f"inputs {list(model_inputs)}")
+    return tuple(u for u in model_inputs if u in names)
 
 
 class _Model:
@@ -308,13 +405,24 @@ class LinearModel(_Model):
 
     kind = "linear"
 
-    def __init__(self, name: str, states: Sequence[str], measurements: Sequence[str],
-                 F: Matrix, H: Matrix, Q: Matrix, R: Matrix, G: Matrix | Vector | None = None,
+    def __init__(self, name: str, states: Sequence[str],
+                 measurements: Sequence[str] | None = None, F: Matrix | None = None,
+                 H: Matrix | None = None, Q: Matrix | None = None, R: Matrix | None = None,
+                 G: Matrix | Vector | None = None,
                  values: Values | None = None, x0: Vector | None = None,
                  P0: Matrix | None = None, P0_pattern: str | None = None,
                  description: str = "", source: str = "",
                  parameters: Names | None = None, B: Matrix | None = None,
-                 D: Matrix | None = None, inputs: Sequence[str] | None = None) -> None:
+                 D: Matrix | None = None, inputs: Sequence[str] | None = None,
+                 sensors: Sequence[Sensor] | None = None) -> None:
+        sensor_list = (_sensor_list(sensors, "linear", {"measurements": measurements, "H": H,
+                                                        "R": R, "D": D})
+                       if sensors is not None else ())
+        if sensor_list:
+            measurements = [z for sensor in sensor_list for z in sensor.measurements]
+        for key, value in (("F", F), ("H", H), ("Q", Q), ("R", R)):
+            if value is None and not (sensor_list and key in ("H", "R")):
+                raise ModelError(f"LinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
         table = SymbolTable()
@@ -325,6 +433,8 @@ class LinearModel(_Model):
         if self.G.rows != n:
             raise ShapeError(f"matrix G must have {n} rows (one per state), got "
                              f"{self.G.rows}x{self.G.cols}")
+        if sensor_list:
+            H, R, D = self._stack_sensors(sensor_list, inputs, table)
         self.H = as_matrix(H, "H", table)
         check_shape(self.H, "H", (m, n), "measurements x states")
         q = self.G.cols
@@ -354,8 +464,63 @@ class LinearModel(_Model):
         self.Q = _symmetric(self.Q, "Q")
         self.R = _symmetric(self.R, "R")
         _check_definite(self.subs(self.Q), "Q", strict=False)
-        _check_definite(self.subs(self.R), "R", strict=True)
         self._initial(x0, P0, P0_pattern)
+        self.sensors = self._sensor_groups(sensor_list)
+        if not sensor_list:  # else each sensor's R is checked under its name
+            _check_definite(self.subs(self.R), "R", strict=True)
+
+    def _stack_sensors(self, sensor_list, inputs, table: SymbolTable):
+        """The sensors' H (stacked), R (block diagonal) and D (stacked, over the model's
+        inputs; None when no sensor gives one), each checked under the sensor's name."""
+        n = self.n
+        names = check_names(inputs, "inputs") if inputs else ()
+        Hs, Rs, Ds = [], [], []
+        self._sensor_input_names = {}
+        for sensor in sensor_list:
+            label = f"sensor {sensor.name!r}"
+            m_s = len(sensor.measurements)
+            H_s = as_matrix(sensor.H, f"H of {label}", table)
+            check_shape(H_s, f"H of {label}", (m_s, n), "its measurements x states")
+            R_s = as_matrix(sensor.R, f"R of {label}", table)
+            check_shape(R_s, f"R of {label}", (m_s, m_s), "its measurements x measurements")
+            Rs.append(_symmetric(R_s, f"R of {label}"))
+            Hs.append(H_s)
+            own = _sensor_inputs(sensor, names, names if sensor.D is not None else ())
+            self._sensor_input_names[sensor.name] = own
+            D_full = sympy.zeros(m_s, len(names))
+            if sensor.D is not None:
+                if not own:
+                    raise ShapeError(f"D of {label} is given but the sensor has no inputs")
+                D_s = as_matrix(sensor.D, f"D of {label}", table, vector=True)
+                check_shape(D_s, f"D of {label}", (m_s, len(own)),
+                            "its measurements x its inputs")
+                for j, u in enumerate(own):
+                    D_full[:, names.index(u)] = D_s[:, j]
+            Ds.append(D_full)
+        D = (sympy.ImmutableMatrix(sympy.Matrix.vstack(*Ds))
+             if any(s.D is not None for s in sensor_list) else None)
+        return (sympy.ImmutableMatrix(sympy.Matrix.vstack(*Hs)),
+                sympy.ImmutableMatrix(sympy.diag(*Rs)), D)
+
+    def _sensor_groups(self, sensor_list) -> tuple[SensorGroup, ...]:
+        """The resolved sensors: row blocks of the stacked H, R and D."""
+        groups, row = [], 0
+        for sensor in sensor_list:
+            label = f"R of sensor {sensor.name!r}"
+            m_s = len(sensor.measurements)
+            rows = slice(row, row + m_s)
+            own = self._sensor_input_names[sensor.name]
+            columns = [i for i, u in enumerate(self.inputs) if u.name in own]
+            R_s = self.R[rows, rows]
+            _check_definite(self.subs(R_s), label, strict=True)
+            groups.append(SensorGroup(
+                sensor.name, tuple(sensor.measurements), (row, row + m_s),
+                tuple(self.inputs[i] for i in columns), sympy.ImmutableMatrix(R_s),
+                H=sympy.ImmutableMatrix(self.H[rows, :]),
+                D=sympy.ImmutableMatrix(self.D.extract(list(range(row, row + m_s)), columns)
+                                        if columns else sympy.zeros(m_s, 0))))
+            row += m_s
+        return tuple(groups)
 
     def _init_inputs(self, inputs, B, D, table: SymbolTable) -> None:
         """``self.inputs`` (symbols), ``B`` (n x n_u) and ``D`` (m x n_u), zero when not
@@ -505,12 +670,24 @@ class NonlinearModel(_Model):
 
     kind = "nonlinear"
 
-    def __init__(self, name: str, states: Sequence[str], measurements: Sequence[str],
-                 f: Vector, h: Vector, Q: Matrix, R: Matrix, values: Values | None = None,
+    def __init__(self, name: str, states: Sequence[str],
+                 measurements: Sequence[str] | None = None, f: Vector | None = None,
+                 h: Vector | None = None, Q: Matrix | None = None, R: Matrix | None = None,
+                 values: Values | None = None,
                  inputs: Sequence[str] | None = None, x0: Vector | None = None,
                  P0: Matrix | None = None, P0_pattern: str | None = None,
                  description: str = "", source: str = "",
-                 parameters: Names | None = None, Qu: Matrix | None = None) -> None:
+                 parameters: Names | None = None, Qu: Matrix | None = None,
+                 sensors: Sequence[Sensor] | None = None,
+                 unit_norm: Sequence[Sequence[str]] | None = None) -> None:
+        sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
+                                                           "h": h, "R": R})
+                       if sensors is not None else ())
+        if sensor_list:
+            measurements = [z for sensor in sensor_list for z in sensor.measurements]
+        for key, value in (("f", f), ("h", h), ("Q", Q), ("R", R)):
+            if value is None and not (sensor_list and key in ("h", "R")):
+                raise ModelError(f"NonlinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
         n, m = self.n, self.m
         input_names = check_names(inputs, "inputs") if inputs else ()
@@ -521,6 +698,8 @@ class NonlinearModel(_Model):
         table = SymbolTable()
         self.f = as_matrix(f, "f", table, vector=True)
         check_shape(self.f, "f", (n, 1), "one expression per state")
+        if sensor_list:
+            h, R = self._stack_sensors(sensor_list, table)
         self.h = as_matrix(h, "h", table, vector=True)
         check_shape(self.h, "h", (m, 1), "one expression per measurement")
         self.Q = as_matrix(Q, "Q", table)
@@ -557,14 +736,56 @@ class NonlinearModel(_Model):
         self.R = _symmetric(self.R, "R")
         self.Qu = _symmetric(self.Qu, "Qu")
         _check_definite(self.subs(self.Q), "Q", strict=False)
-        _check_definite(self.subs(self.R), "R", strict=True)
+        if not sensor_list:  # else each sensor's R is checked under its name
+            _check_definite(self.subs(self.R), "R", strict=True)
         if input_names:
             _check_definite(self.subs(self.Qu), "Qu", strict=False)
         self._initial(x0, P0, P0_pattern)
+        self.sensors = self._sensor_groups(sensor_list)
+        self.unit_norm = _unit_norm_groups(unit_norm, self.states)
         self.F_jacobian = jacobian(self.f, self.state_symbols)
         self.H_jacobian = jacobian(self.h, self.state_symbols)
         self.Fu_jacobian = (jacobian(self.f, self.inputs) if self.inputs
                             else sympy.ImmutableMatrix.zeros(n, 0))
+
+    def _stack_sensors(self, sensor_list, table: SymbolTable):
+        """The sensors' h (stacked) and R (block diagonal), each checked under the
+        sensor's name."""
+        hs, Rs = [], []
+        for sensor in sensor_list:
+            label = f"sensor {sensor.name!r}"
+            m_s = len(sensor.measurements)
+            h_s = as_matrix(sensor.h, f"h of {label}", table, vector=True)
+            check_shape(h_s, f"h of {label}", (m_s, 1), "one expression per measurement")
+            R_s = as_matrix(sensor.R, f"R of {label}", table)
+            check_shape(R_s, f"R of {label}", (m_s, m_s), "its measurements x measurements")
+            hs.append(h_s)
+            Rs.append(_symmetric(R_s, f"R of {label}"))
+        return (sympy.ImmutableMatrix(sympy.Matrix.vstack(*hs)),
+                sympy.ImmutableMatrix(sympy.diag(*Rs)))
+
+    def _sensor_groups(self, sensor_list) -> tuple[SensorGroup, ...]:
+        """The resolved sensors: row blocks of the stacked h and R; a sensor's h may use
+        the states, parameters and its own inputs only."""
+        groups, row = [], 0
+        input_names = [u.name for u in self.inputs]
+        for sensor in sensor_list:
+            m_s = len(sensor.measurements)
+            rows = slice(row, row + m_s)
+            h_s = sympy.ImmutableMatrix(self.h[rows, :])
+            used = [u.name for u in self.inputs if u in h_s.free_symbols]
+            own = _sensor_inputs(sensor, input_names, used)
+            stray = [u for u in used if u not in own]
+            if stray:
+                raise SymbolError(f"h of sensor {sensor.name!r} uses input {stray[0]!r}, which "
+                                  f"is not one of the sensor's inputs {list(own)}")
+            R_s = sympy.ImmutableMatrix(self.R[rows, rows])
+            _check_definite(self.subs(R_s), f"R of sensor {sensor.name!r}", strict=True)
+            groups.append(SensorGroup(
+                sensor.name, tuple(sensor.measurements), (row, row + m_s),
+                tuple(u for u in self.inputs if u.name in own), R_s, h=h_s))
+            row += m_s
+        return tuple(groups)
 
     def numeric_functions(self, params: Values | None = None
                           ) -> dict[str, Callable | np.ndarray]:
@@ -600,6 +821,33 @@ class NonlinearModel(_Model):
                 "Fu": fn(self.Fu_jacobian, in_f),
                 "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
                 "Q": num(self.Q), "R": num(self.R), "Qu": num(self.Qu)}
+
+
+def _unit_norm_groups(groups, states: Sequence[str]) -> tuple[tuple[str, ...], ...]:
+    """The unit-norm groups as tuples of state names: each of two or more distinct states,
+    no state in two groups (a string or a flat list of names is refused)."""
+    if groups is None:
+        return ()
+    if isinstance(groups, str) or not isinstance(groups, Sequence):
+        raise ModelError("unit_norm must be a list of groups of state names, e.g. "
+                         f"[['q0', 'q1', 'q2', 'q3']], got {type(groups).__name__} {groups!r}")
+    out: list[tuple[str, ...]] = []
+    seen: set[str] = set()
+    for i, group in enumerate(groups):
+        if isinstance(group, str) or not isinstance(group, Sequence):
+            raise ModelError(f"unit_norm[{i}] must be a list of state names, got "
+                             f"{type(group).__name__} {group!r}")
+        names = check_names(group, f"unit_norm[{i}] states")
+        if len(names) < 2:
+            raise ModelError(f"unit_norm[{i}] must name at least two states, got {list(names)}")
+        for nm in names:
+            if nm not in states:
+                raise SymbolError(f"unit_norm[{i}] names {nm!r}, which is not a state")
+            if nm in seen:
+                raise SymbolError(f"unit_norm: state {nm!r} is in two groups")
+            seen.add(nm)
+        out.append(tuple(names))
+    return tuple(out)
 
 
 Model = LinearModel | NonlinearModel

@@ -94,7 +94,7 @@ from derive.expressions import (
     exact_number,
     parse_expression,
 )
-from derive.model import P0_PATTERNS, LinearModel, NonlinearModel
+from derive.model import P0_PATTERNS, LinearModel, NonlinearModel, Sensor
 from derive.symbols import check_identifier
 from derive.toml_limits import toml_shape_problem
 
@@ -122,13 +122,22 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "parameters": (),
     "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
-    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu"),
+    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm"),
     "compose": ("blocks",),
     "initial": ("x0", "P0", "P0_pattern"),
+    "sensors": (),
+}
+_SENSOR_KEYS: Mapping[str, tuple[str, ...]] = {
+    "discrete": ("measurements", "H", "D", "R", "inputs"),
+    "nonlinear": ("measurements", "h", "R", "inputs"),
+}
+_SENSOR_REQUIRED: Mapping[str, tuple[str, ...]] = {
+    "discrete": ("measurements", "H", "R"),
+    "nonlinear": ("measurements", "h", "R"),
 }
 _REQUIRED: Mapping[str, tuple[str, ...]] = {
     "model": ("name",),
-    "discrete": ("F", "H", "Q", "R"),
+    "discrete": ("F", "H", "Q", "R"),  # H and R (h and R) come from [sensors.NAME] if any
     "continuous": ("Phi", "Qc", "H", "R", "dt"),
     "nonlinear": ("f", "h", "Q", "R"),
     "compose": ("blocks",),
@@ -311,6 +320,7 @@ class _File:
         self.values: dict[str, sympy.Rational] = {}
         self.used_in_initial: set[str] = set()
         self.used: set[str] = set()
+        self.sensor_used: set[str] = set()
 
     # -- errors and plain values ----------------------------------------------------------
 
@@ -325,7 +335,10 @@ class _File:
             return None
         if not isinstance(value, dict):
             raise self.error(f"[{name}]", f"must be a table, got {_kind_name(value)}")
-        self.check_keys(value, _TABLE_KEYS[name], f"[{name}]", _REQUIRED.get(name, ()))
+        required = _REQUIRED.get(name, ())
+        if name in _SENSOR_KEYS and "sensors" in self.doc:  # the sensors give h/H and R
+            required = tuple(k for k in required if k not in ("h", "H", "R"))
+        self.check_keys(value, _TABLE_KEYS[name], f"[{name}]", required)
         return value
 
     def check_keys(
@@ -432,7 +445,7 @@ class _File:
                 raise self.error("top level", f"unknown table {key!r}"
                                               f"{_suggest(key, tuple(_TABLE_KEYS))}; allowed: "
                                               f"{', '.join(_TABLE_KEYS)}")
-        kinds = [kind for kind in KINDS if kind in self.doc]
+        kinds = [kind for kind in KINDS if kind in self.doc]  # [sensors] is not a kind
         if len(kinds) != 1:
             found = ", ".join(f"[{kind}]" for kind in kinds) or "none"
             raise self.error("top level", "needs exactly one of [discrete], [continuous], "
@@ -446,23 +459,37 @@ class _File:
         }
         if kind == "compose":
             return self.compose(model, header)
-        for key in ("states", "measurements"):
+        sensors = self.sensor_tables(kind)
+        for key in ("states",) + (() if sensors else ("measurements",)):
             if key not in model:
                 raise self.error("[model]", f"missing required key {key!r}")
+        if sensors and "measurements" in model:
+            raise self.error("[model] measurements", "not allowed with [sensors.NAME] tables: "
+                                                     "each sensor lists its own measurements")
         states = self.names(model, "states", "[model]")
-        measurements = self.names(model, "measurements", "[model]")
+        measurements = (self.names(model, "measurements", "[model]") if not sensors else
+                        [z for _, table in sensors for z in table["measurements"]])
         body = self.table(kind)
+        if sensors:
+            for key in ("h", "H", "R", "D"):
+                if key in body:
+                    raise self.error(f"[{kind}] {key}", "not allowed with [sensors.NAME] "
+                                                        "tables: each sensor gives its own")
         inputs = self.names(body, "inputs", f"[{kind}]") if "inputs" in body else []
         self.read_parameters(states, measurements, inputs, f"[{kind}] inputs")
         if kind == "nonlinear":
-            arguments = self.nonlinear(body, states, inputs)
+            arguments = self.nonlinear(body, states, inputs, bool(sensors))
         else:
-            arguments = self.linear(body, kind)
+            arguments = self.linear(body, kind, bool(sensors))
+        if sensors:
+            arguments["sensors"] = [self.sensor(kind, name, table, states, inputs)
+                                    for name, table in sensors]
         arguments.update(self.initial(kind))
         arguments["values"] = {name: value for name, value in self.values_used(arguments)}
         # p follows the [parameters] table (tomllib keeps its order)
         arguments["parameters"] = [name for name in self.symbols if name in self.used]
-        return self.construct(kind, header, states, measurements, arguments)
+        return self.construct(kind, header, states, None if sensors else measurements,
+                              arguments)
 
     def read_parameters(self, states: list[str], measurements: list[str],
                         inputs: list[str], inputs_where: str) -> None:
@@ -494,10 +521,64 @@ class _File:
                 self.values[name] = self.entry(value, where, {})
             self.symbols[name] = sympy.Symbol(name, real=True)
 
-    def linear(self, body: dict[str, Any], kind: str) -> dict[str, Any]:
+    def sensor_tables(self, kind: str) -> list[tuple[str, dict[str, Any]]]:
+        """The ``[sensors.NAME]`` tables in file order (empty without [sensors]), each
+        with its keys checked and its measurements read."""
+        value = self.doc.get("sensors")
+        if value is None:
+            return []
+        if kind not in _SENSOR_KEYS:
+            raise self.error("[sensors]", f"sensors are declared with [discrete] or "
+                                          f"[nonlinear], not [{kind}]")
+        if not isinstance(value, dict) or not value:
+            raise self.error("[sensors]", "must hold one table per sensor, [sensors.NAME]")
+        out = []
+        for name, table in value.items():
+            where = f"[sensors.{name}]"
+            self.identifier(name, where)
+            if not isinstance(table, dict):
+                raise self.error(where, f"must be a table, got {_kind_name(table)}")
+            self.check_keys(table, _SENSOR_KEYS[kind], where, _SENSOR_REQUIRED[kind])
+            table = dict(table)
+            table["measurements"] = self.names(table, "measurements", where)
+            out.append((name, table))
+        return out
+
+    def sensor(self, kind: str, name: str, table: dict[str, Any], states: list[str],
+               inputs: list[str]) -> Sensor:
+        """One sensor's Sensor: its matrices read like the model's (h in states, inputs
+        and parameters; H, D, R in parameters)."""
+        where = f"[sensors.{name}]"
+        own = None
+        if "inputs" in table:
+            value = table["inputs"]
+            if not isinstance(value, list) or not all(isinstance(u, str) for u in value):
+                raise self.error(f"{where} inputs", f"must be a list of strings, got "
+                                                    f"{_kind_name(value)} {value!r}")
+            for u in value:
+                if u not in inputs:
+                    raise self.error(f"{where} inputs", f"{u!r} is not one of the model's "
+                                                        f"inputs {inputs}")
+            own = list(value)
+        matrices: dict[str, Any] = {"R": self.matrix(table["R"], f"{where} R", self.symbols)}
+        if kind == "nonlinear":
+            names = {**self.symbols, **{s: sympy.Symbol(s, real=True) for s in states},
+                     **{u: sympy.Symbol(u, real=True) for u in inputs}}
+            matrices["h"] = self.vector(table["h"], f"{where} h", names)
+        else:
+            matrices["H"] = self.matrix(table["H"], f"{where} H", self.symbols)
+            if "D" in table:
+                matrices["D"] = self.matrix(table["D"], f"{where} D", self.symbols, column=True)
+        for value in matrices.values():
+            self.sensor_used |= {symbol.name for item in _flatten(value)
+                                 for symbol in item.free_symbols}
+        return Sensor(name, table["measurements"], inputs=own, **matrices)
+
+    def linear(self, body: dict[str, Any], kind: str, sensors: bool = False) -> dict[str, Any]:
         names = self.symbols
         where = f"[{kind}]"
-        keys = ("F", "H", "Q", "R") if kind == "discrete" else ("Phi", "Qc", "H", "R")
+        keys = (("F", "Q") if sensors else ("F", "H", "Q", "R")) if kind == "discrete" \
+            else ("Phi", "Qc", "H", "R")
         arguments: dict[str, Any] = {
             key: self.matrix(body[key], f"{where} {key}", names) for key in keys
         }
@@ -514,18 +595,35 @@ class _File:
         return arguments
 
     def nonlinear(self, body: dict[str, Any], states: list[str],
-                  inputs: list[str]) -> dict[str, Any]:
+                  inputs: list[str], sensors: bool = False) -> dict[str, Any]:
         state_names = {**self.symbols, **{s: sympy.Symbol(s, real=True) for s in states}}
         input_names = {**state_names, **{u: sympy.Symbol(u, real=True) for u in inputs}}
         return {
             "f": self.vector(body["f"], "[nonlinear] f", input_names),
-            "h": self.vector(body["h"], "[nonlinear] h", input_names),
+            **({} if sensors else {
+                "h": self.vector(body["h"], "[nonlinear] h", input_names),
+                "R": self.matrix(body["R"], "[nonlinear] R", self.symbols)}),
             "Q": self.matrix(body["Q"], "[nonlinear] Q", self.symbols),
-            "R": self.matrix(body["R"], "[nonlinear] R", self.symbols),
             "inputs": inputs or None,
             **({"Qu": self.matrix(body["Qu"], "[nonlinear] Qu", self.symbols)}
                if "Qu" in body else {}),
+            **({"unit_norm": self.unit_norm(body["unit_norm"], states)}
+               if "unit_norm" in body else {}),
         }
+
+    def unit_norm(self, value: object, states: list[str]) -> list[list[str]]:
+        """``unit_norm = [["q0", "q1", ...], ...]``: groups of state names."""
+        where = "[nonlinear] unit_norm"
+        if not isinstance(value, list) or not value or not all(
+                isinstance(group, list) and all(isinstance(s, str) for s in group)
+                for group in value):
+            raise self.error(where, "must be a list of lists of state names, e.g. "
+                                    f"[[\"q0\", \"q1\", \"q2\", \"q3\"]], got {value!r}")
+        for i, group in enumerate(value):
+            for name in group:
+                if name not in states:
+                    raise self.error(f"{where}[{i}]", f"{name!r} is not a state")
+        return value
 
     def initial(self, kind: str) -> dict[str, Any]:
         """x0, P0 and P0_pattern, with valued parameters replaced by their values."""
@@ -562,9 +660,10 @@ class _File:
     def values_used(self, arguments: dict[str, Any]) -> list[tuple[str, float | int]]:
         """The values of parameters used in the model matrices; unused parameters are
         errors, parameters used only in [initial] are substituted there and not passed."""
-        used: set[str] = set()
+        used: set[str] = set(self.sensor_used)
         for key, value in arguments.items():
-            if key in ("x0", "P0", "P0_pattern", "inputs") or value is None:
+            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm") \
+                    or value is None:
                 continue
             for item in _flatten(value):
                 used |= {symbol.name for symbol in item.free_symbols}
