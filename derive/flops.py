@@ -74,7 +74,7 @@ class OpCount:
 
 
 def _kind_field(kind: str) -> str:
-    if kind == "select":
+    if kind in ("select", "gate"):
         return "cmp"
     return "calls" if kind.startswith("call:") else kind
 

@@ -28,9 +28,12 @@ Rules (``e`` a sympy expression):
 - :class:`IfPresent` ``(z, a, b)`` is ``select(z, a, b)``: ``a`` where the input
   element ``z`` is not NaN, else ``b``; it costs one comparison (``z == z``) and no
   flop, and is counted as ``cmp``;
+- :class:`IfAtMost` ``(v, bound, a, b)`` is ``gate(v, bound, a, b)``: ``a`` where
+  ``v <= bound`` (a constant), else ``b`` (also for a NaN ``v``); one comparison, no flop,
+  counted as ``cmp`` (innovation gating);
 - anything else raises :class:`LoweringError`.
 
-Operation kinds: ``add sub mul div sqrt fma neg cmp select`` and ``call:NAME``.
+Operation kinds: ``add sub mul div sqrt fma neg cmp select gate`` and ``call:NAME``.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from derive.statements import POSITIVE, Assign, Check
 if TYPE_CHECKING:
     from derive.program import Port, Program
 
-KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "select")
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "select", "gate")
 
 #: sympy function -> name of the C function (math.h) it lowers to.
 FUNCTIONS = {
@@ -81,6 +84,21 @@ class IfPresent(sympy.Function):
             return b if z is sympy.nan else a
         if a.could_extract_minus_sign() and (b.is_zero or b.could_extract_minus_sign()):
             return -cls(z, -a, -b)
+        return None
+
+
+class IfAtMost(sympy.Function):
+    """``IfAtMost(v, bound, a, b)``: ``a`` where ``v <= bound``, else ``b`` (a NaN ``v``
+    gives ``b``); ``bound`` is a number. Generated code tests ``v <= bound`` once per
+    select (innovation gating: the update applies while its NIS is within the bound).
+    Folds when both branches are equal."""
+
+    nargs = 4
+
+    @classmethod
+    def eval(cls, v, bound, a, b):
+        if a == b:
+            return a
         return None
 
 
@@ -195,6 +213,12 @@ class _Lowerer:
             if not z.is_Symbol:
                 raise LoweringError(f"IfPresent tests an input element, not the expression {z}")
             return Op("select", (Var(z.name), self.lower(a), self.lower(b)))
+        if isinstance(e, IfAtMost):
+            v, bound, a, b = e.args
+            if not bound.is_number:
+                raise LoweringError(f"IfAtMost needs a numeric bound, got {bound}")
+            return Op("gate", (self.lower(v), Const(constant_value(bound)), self.lower(a),
+                               self.lower(b)))
         name = FUNCTIONS.get(e.func)
         if name is not None:
             return Op(f"call:{name}", tuple(self.lower(a) for a in e.args))

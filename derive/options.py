@@ -37,6 +37,8 @@ from .errors import OptionError
 from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 
 PATTERNS = ("dense", "zero", "diagonal", "block")
+START_CHOICES = ("predict", "update")
+"""run's first step (option ``start``): predict-first (the papers'), or update-first."""
 C_PREFIX = r"(?:[A-Za-z][A-Za-z0-9_]*)?"
 """What ``--prefix`` may be: empty, or a letter then letters, digits and underscores (so
 PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x``)."""
@@ -110,6 +112,22 @@ class SharedOptions:
     run_tracks: bool = option(
         True, flag="--no-run-tracks", kind=bool, needs="batch",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
+    gate: float | None = option(
+        None, flag="--gate", kind=float, low=0.0, high=1.0, open_low=True, open_high=True,
+        needs="sensors", metavar="PROB",
+        help="innovation gating: skip an update whose NIS exceeds the chi-square quantile "
+             "at PROB (its measurements' count of degrees of freedom); report NIS and "
+             "whether it was applied")
+    gate_sensors: str | None = option(
+        None, flag="--gate-sensors", kind=str, needs="sensors", metavar="NAME=PROB,...",
+        pattern=r"[A-Za-z][A-Za-z0-9_]*=[0-9.eE+-]+(,[A-Za-z][A-Za-z0-9_]*=[0-9.eE+-]+)*",
+        pattern_words="sensor=probability pairs separated by commas, e.g. gnss=0.999,baro=0.99",
+        help="innovation gating per sensor (overrides --gate for the sensors named)")
+    start: str = option(
+        "predict", flag="--start", kind=str, choices=START_CHOICES, needs="sensors",
+        help="run's first step: predict then update (predict, the default), or update x0 "
+             "with the first measurement without a prediction (update: pykalman's "
+             "convention)")
     prefix: str = option(
         "", flag="--prefix", kind=str, metavar="PREFIX", pattern=C_PREFIX,
         pattern_words="empty or a letter followed by letters, digits and underscores",

@@ -40,6 +40,9 @@ class CPrinter(InfixPrinter):
         if kind == "select":
             z, a, b = args
             return f"(({z} == {z}) ? {a} : {b})"
+        if kind == "gate":
+            v, bound, a, b = args
+            return f"(({v} <= {bound}) ? {a} : {b})"
         if kind.startswith("call:"):
             return f"{kind[5:]}({', '.join(args)})"
         raise ValueError(f"no C spelling for operation {kind!r}")

@@ -38,6 +38,15 @@ HELPERS = {
                '    value = a if present else b',
                '    counted = getattr(z, "derive_counted", None)',
                '    return value if counted is None else counted(value)'],
+    "gate": ['def _if_at_most(v, bound, a, b):',
+             '    """a where v <= bound, else b (also for a NaN v); per track for arrays.',
+             '    With a CountingFloat v a constant result is counted onwards."""',
+             '    within = v <= bound',
+             '    if isinstance(within, np.ndarray):',
+             '        return np.where(within, a, b)',
+             '    value = a if within else b',
+             '    counted = getattr(v, "derive_counted", None)',
+             '    return value if counted is None else counted(value)'],
     "pattern": ['def _require_zero(values, indices, n, name, message):',
                 '    """Raise PatternError unless values[k] == 0 for every k in indices (every',
                 '    track of an array): entries outside the pattern of the n x n matrix."""',
@@ -149,6 +158,8 @@ class PythonPrinter(InfixPrinter):
             return f"_sqrt({args[0]})"
         if kind == "select":
             return f"_if_present({', '.join(args)})"
+        if kind == "gate":
+            return f"_if_at_most({', '.join(args)})"
         if kind.startswith("call:") and kind[5:] in PY_CALLS:
             return f"{PY_CALLS[kind[5:]]}({', '.join(args)})"
         raise ValueError(f"no Python spelling for operation {kind!r} (fma is C only)")
@@ -167,6 +178,8 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
         needed.append("sqrt")
     if "select" in kinds:
         needed.append("select")
+    if "gate" in kinds:
+        needed.append("gate")
     if any(lp.pattern_checks for lp in lowered):
         needed.append("pattern")
     if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
@@ -177,7 +190,7 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return "select" in kinds or any(lp.pattern_checks or square_input_lines(lp)
+    return bool({"select", "gate"} & kinds) or any(lp.pattern_checks or square_input_lines(lp)
                                     for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 

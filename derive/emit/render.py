@@ -27,6 +27,7 @@ from derive.emit.c_loops import (
     two_step_body,
 )
 from derive.emit.python_loop import single_track_loop
+from derive.emit.sensors_run import c_run_body, python_loop
 from derive.emit.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_program
@@ -63,6 +64,8 @@ def environment() -> jinja2.Environment:
 
 
 def _order(unit: Unit) -> list[str]:
+    if unit.run.sensors:  # predict, then the updates in the sensors' order
+        return ["predict"] + [f"update_{s.name}" for s in unit.sensors]
     names = [n for n in ("init", "step") if n in unit.programs]
     return names + sorted(n for n in unit.programs if n not in ("init", "step"))
 
@@ -255,8 +258,77 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
     return lines
 
 
+def _render_python_sensors(unit: Unit) -> dict[str, str]:
+    """The Python file of a unit of the run kind ``sensors`` (derive.emit.sensors_run)."""
+    lowered = _lowered(unit, use_fma=False)
+    lps = list(lowered.values())
+    header = [python_printer.doc_text(line) for line in _header_lines(unit, "python", lowered)]
+    helpers = ["\n".join(python_printer.HELPERS[h])
+               for h in python_printer.helpers_needed(lps) + ["shape"]]
+    args = run_arguments(unit)
+    inputs = [a for a in args if not a.output]
+    context = {
+        "title": header[0], "header": header[1:], "numpy": True,
+        "error_imports": python_printer.error_imports(lps, run=True),
+        "helpers": helpers,
+        "functions": [python_printer.function_parts(lp) for lp in lps],
+        "run_checks": [],
+        "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
+        "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
+                    for a in args],
+        "prologue": _python_run_prologue(unit, inputs),
+        "n": unit.n,
+        "loop": python_loop(unit, lowered),
+        "about": unit.about.get("python", "Run the filter over a sequence of steps."),
+    }
+    return {f"{unit.filter}.py": _render("python/sensors.jinja", context)}
+
+
+def _render_c_sensors(unit: Unit, use_fma: bool) -> dict[str, str]:
+    """The C files of a unit of the run kind ``sensors`` (derive.emit.sensors_run)."""
+    lowered = _lowered(unit, use_fma=use_fma)
+    lps = list(lowered.values())
+    header_lines = _header_lines(unit, "c", lowered)
+    described = describe(unit.prefix, lowered, run_arguments(unit))
+    header_lines.append(described.block())
+    status = any(lp.has_checks for lp in lps)
+    args = run_arguments(unit)
+    stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
+    run_params = ["size_t steps"] + [
+        ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
+    prefix = unit.prefix
+    run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
+    enum = status_enum(prefix, described)
+    sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+             f"#define {prefix}_NP {len(unit.parameters)}",
+             f"#define {prefix}_NU {unit.n_inputs}"]
+    sizes += [f"#define {prefix}_M_{s.name.upper()} {s.m}" for s in unit.sensors]
+    restrict = c_printer.restrict_macro(unit.symbol_prefix)
+    context = {
+        "header": [c_printer.comment_text(line) for line in header_lines],
+        "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
+        "defines": c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes
+        + ([""] + enum if enum else []),
+        "prototypes": [c_printer.prototype(lp, prefix, restrict) + ";" for lp in lps]
+        + [run_signature + ";"],
+        "h_file": f"{unit.filter}.h",
+        "math_h": c_printer.needs_math_h(lps) or any(s.gated for s in unit.sensors),
+        "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)
+        else [],
+        "functions": [c_printer.function_parts(lp, prefix) for lp in lps],
+        "run_signature": run_signature,
+        "run_body": c_run_body(unit, lowered),
+        "tracks_signature": "",
+        "about": unit.about.get("c", "Run the filter over steps steps."),
+    }
+    return {f"{unit.filter}.h": _render("c/header.jinja", context),
+            f"{unit.filter}.c": _render("c/sensors.jinja", context)}
+
+
 def render_python(unit: Unit) -> dict[str, str]:
     """``{MODEL_FILTER.py: text}``."""
+    if unit.run.sensors:
+        return _render_python_sensors(unit)
     lowered = _lowered(unit, use_fma=False)
     lps = list(lowered.values())
     header = [python_printer.doc_text(line) for line in _header_lines(unit, "python", lowered)]
@@ -398,6 +470,8 @@ def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
 
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
+    if unit.run.sensors:
+        return _render_c_sensors(unit, use_fma)
     lowered = _lowered(unit, use_fma=use_fma)
     lps = list(lowered.values())
     header_lines = _header_lines(unit, "c", lowered)

@@ -56,6 +56,7 @@ class RunKind:
     lookahead: bool = False
     extra_programs: tuple[str, ...] = ()
     work: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    sensors: bool = False
 
 
 RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
@@ -73,6 +74,10 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
             start=(("x0", ("n",)), ("P0", ("n", "n"))),
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), False)),
             work=(("work", ("x_new", "P_new", "x_pred", "P_pred")),)),
+    RunKind("sensors", programs=("predict",), carried=(("x", "x_new"), ("P", "P_new")),
+            start=(("x0", ("n",)), ("P0", ("n", "n"))),
+            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), True)),
+            sensors=True),
 )})
 """The run-loop kinds; a unit names one (``Unit.run_kind``) and emit switches on it only."""
 
@@ -111,6 +116,18 @@ class Argument:
 
 
 @dataclass(frozen=True)
+class SensorSlot:
+    """One sensor of a unit of the run kind ``sensors``: its name, its measurement count,
+    the columns of run's u (the model's inputs) its update takes, and whether its update
+    is gated (returns nis and applied)."""
+
+    name: str
+    m: int
+    inputs: tuple[int, ...] = ()
+    gated: bool = False
+
+
+@dataclass(frozen=True)
 class Unit:
     """One generated filter for one model.
 
@@ -143,6 +160,10 @@ class Unit:
     carried: tuple[tuple[str, str], ...] | None = None
     lookahead: Program | None = None
     symbol_prefix: str = ""
+    sensors: tuple[SensorSlot, ...] = ()
+    n_inputs: int = 0
+    predict_inputs: tuple[int, ...] = ()
+    update_first: bool = False
 
     def __post_init__(self) -> None:
         for what, value in (("model", self.model), ("filter", self.filter)):
@@ -248,10 +269,47 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     return carried_in + per_step + p, [(out, _shape(unit, out)) for out in outputs]
 
 
+def _validate_sensors(unit: Unit) -> None:
+    """A unit of the run kind ``sensors``: ``predict`` and one ``update_<sensor>`` per
+    sensor, with the ports run calls them with, and no other program."""
+    n = unit.n
+    if not unit.sensors:
+        raise ProgramError(f"unit {unit.prefix}: run kind 'sensors' needs its sensors")
+    p = [(PARAMETER_PORT, (len(unit.parameters),))] if unit.parameters else []
+    want = {"predict": None}
+    for s in unit.sensors:
+        u = [("u", (len(s.inputs),))] if s.inputs else []
+        gated = [("nis", (1,)), ("applied", (1,))] if s.gated else []
+        want[f"update_{s.name}"] = ([("x", (n,)), ("P", (n, n)), ("z", (s.m,))] + u + p,
+                                    [("x_new", (n,)), ("P_new", (n, n))] + gated)
+    if set(unit.programs) != set(want):
+        raise ProgramError(f"unit {unit.prefix}: run kind 'sensors' takes the programs "
+                           f"{sorted(want)}, got {sorted(unit.programs)}")
+    columns = [c for s in unit.sensors for c in s.inputs] + list(unit.predict_inputs)
+    if any(not 0 <= c < unit.n_inputs for c in columns):
+        raise ProgramError(f"unit {unit.prefix}: an input column is outside run's u "
+                           f"({unit.n_inputs} inputs)")
+    u = [("u", (len(unit.predict_inputs),))] if unit.predict_inputs else []
+    want["predict"] = ([("x", (n,)), ("P", (n, n))] + u + p,
+                       [("x_new", (n,)), ("P_new", (n, n))])
+    for name, (inputs, outputs) in want.items():
+        program = unit.programs[name]
+        for what, expected, have in (("inputs", inputs, program.inputs),
+                                     ("outputs", outputs, program.outputs)):
+            if [(q.name, q.shape) for q in have] != [(w[0], tuple(w[1])) for w in expected]:
+                raise ProgramError(
+                    f"unit {unit.prefix}: program {name!r} must have {what} "
+                    f"{[(w[0], tuple(w[1])) for w in expected]}, got "
+                    f"{[(q.name, q.shape) for q in have]}")
+
+
 def _validate(unit: Unit) -> None:
     if not isinstance(unit.n, int) or not isinstance(unit.m, int) or unit.n < 1 or unit.m < 1:
         raise ProgramError(f"unit {unit.prefix}: n and m must be positive integers, "
                            f"got n={unit.n!r}, m={unit.m!r}")
+    if unit.run.sensors:
+        _validate_sensors(unit)
+        return
     if "step" not in unit.programs:
         raise ProgramError(f"unit {unit.prefix}: the program 'step' is required")
     for name in unit.run.programs:
@@ -315,8 +373,43 @@ def _validate(unit: Unit) -> None:
                         f"shape {shape}, got {port.shape}")
 
 
+def sensor_run_arguments(unit: Unit) -> list[Argument]:
+    """run's arguments for the run kind ``sensors``: u (when the model has inputs), one
+    z_<sensor> per sensor, x0, P0, then xs, Ps and, per gated sensor, nis_<sensor> and
+    applied_<sensor> (optional), then p."""
+    n = unit.n
+    args = []
+    if unit.n_inputs:
+        args.append(Argument("u", "us", ("steps", unit.n_inputs),
+                             doc="u(k) per step, one row each (predict's and the updates')"))
+    args += [Argument(f"z_{s.name}", f"z_{s.name}", ("steps", s.m),
+                      doc=f"sensor {s.name} per step, one row each; a row with a NaN: no "
+                          "measurement of this sensor at that step")
+             for s in unit.sensors]
+    args += [Argument("x0", "x0", (n,), doc="initial state estimate"),
+             Argument("P0", "P0", (n, n), doc="initial covariance (symmetric)"),
+             Argument("xs", "xs", ("steps", n), output=True, doc="estimate after each step"),
+             Argument("Ps", "Ps", ("steps", n, n), output=True, optional=True,
+                      doc="covariance after each step (C: may be NULL)")]
+    for s in unit.sensors:
+        if s.gated:
+            args += [Argument(f"nis_{s.name}", f"nis_{s.name}", ("steps",), output=True,
+                              optional=True, doc=f"NIS of {s.name} per step (NaN: no "
+                              "measurement) (C: may be NULL)"),
+                     Argument(f"applied_{s.name}", f"applied_{s.name}", ("steps",),
+                              output=True, optional=True,
+                              doc=f"1 where {s.name}'s update was applied, 0 where gated "
+                                  "out or absent (C: may be NULL)")]
+    if unit.parameters:
+        args.append(Argument(PARAMETER_PORT, PARAMETER_PORT, (len(unit.parameters),),
+                             doc="free parameters: " + ", ".join(unit.parameters)))
+    return args
+
+
 def run_arguments(unit: Unit) -> list[Argument]:
     """The array arguments of the run function, in C order (``steps`` comes first in C)."""
+    if unit.run.sensors:
+        return sensor_run_arguments(unit)
     sizes = {"n": unit.n, "m": unit.m}
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",

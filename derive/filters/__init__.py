@@ -52,12 +52,28 @@ def _inputs_refusal(model, spec: FilterSpec) -> str | None:
     return None
 
 
+def _sensors_refusal(model, spec: FilterSpec) -> str | None:
+    """Why a filter without sensor support refuses a model with several sensors or with
+    unit-norm groups."""
+    if spec.sensors:
+        return None
+    takers = ", ".join(name for name, s in FILTERS.items() if s.sensors)
+    if len(getattr(model, "sensors", ())) >= 2:
+        return (f"filter {spec.name!r} takes no model with several sensors; model "
+                f"{model.name!r} declares sensors {[s.name for s in model.sensors]} (the "
+                f"filters that do: {takers})")
+    if getattr(model, "unit_norm", ()):
+        return (f"filter {spec.name!r} does not renormalise unit-norm groups; model "
+                f"{model.name!r} declares unit_norm (the filters that do: {takers})")
+    return None
+
+
 def why_not(model, name: str) -> str | None:
     """Why filter ``name`` does not apply to ``model`` (None when it does)."""
     spec = kind(name)
     if spec.model_kind != model.kind:
         return f"filter {name!r} needs a {spec.model_kind} model; {model.name!r} is {model.kind}"
-    refusal = _inputs_refusal(model, spec)
+    refusal = _inputs_refusal(model, spec) or _sensors_refusal(model, spec)
     if refusal is not None:
         return refusal
     if spec.steady and model.parameters:
@@ -105,7 +121,8 @@ def derive_unit(model, name: str, options=None):
     reason = why_not(model, name)
     if reason is not None:
         raise (SteadyStateError if f.steady and f.model_kind == model.kind
-               and _inputs_refusal(model, f) is None else
+               and _inputs_refusal(model, f) is None and _sensors_refusal(model, f) is None
+               else
                FilterError)(reason)
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "

@@ -27,13 +27,22 @@ from .nonlinear import (
     check_nonlinear,
     linearise,
     nonlinear_programs,
+    sensor_measurement,
     stage_linearisation,
     state_jacobian,
     state_mapping,
     step_inputs,
 )
+from .sensors import (
+    gate_thresholds,
+    kalman_update,
+    sensor_facts,
+    sensor_groups,
+    unit_norm_fact,
+    uses_sensor_run,
+)
 from .spec import FilterSpec
-from .unit import make_unit
+from .unit import make_sensor_unit, make_unit
 
 
 def ekf_predict_stage(model) -> Predict:
@@ -76,25 +85,45 @@ def ekf_update_stage(model) -> Update:
         PHt = staging.matmul(prog, P, H.T)
         S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
                         symmetric_result=True)
-        K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt), name="S"))
-        innovation = staging.sub(prog, z, values)
-        x_new = staging.add(prog, x, staging.matmul(prog, K, innovation))
-        KPHt = staging.matmul(prog, K, staging.transpose(PHt), symmetric_result=True)
-        P_new = staging.sub(prog, P, KPHt, symmetric_result=True)
-        return x_new, P_new, innovation, S
+        staged = []
+
+        def innovation():
+            staged.append(staging.sub(prog, z, values))
+            return staged[0]
+
+        x_new, P_new, gated = kalman_update(prog, x, P, PHt, S, innovation, meas.gate)
+        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ())
 
     return update
 
 
 def derive_unit(model, spec, options):
-    """The EKF unit: programs step, predict, update1 (see the module docstring)."""
+    """The EKF unit: programs step, predict, update1 (see the module docstring); with
+    several sensors, gating or update-first: predict and update_<sensor> (the run kind
+    sensors, derive.filters.sensors)."""
     check_nonlinear(model, spec.name)
+    if uses_sensor_run(model, options):
+        groups = sensor_groups(model)
+        thresholds = gate_thresholds(groups, options)
+        sensors = {g.name: sensor_measurement(
+            model, g, None if thresholds[g.name] is None else thresholds[g.name][1])
+            for g in groups}
+        programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
+                                             ekf_update_stage(model), options, spec.title,
+                                             sensors=sensors)
+        facts = (["Jacobians: sympy, entries simplified, evaluated with f and h through "
+                  "shared subexpressions", *facts]
+                 + sensor_facts(model, groups, thresholds, options.start)
+                 + unit_norm_fact(model))
+        return make_sensor_unit(model, spec, programs, options, groups, thresholds,
+                                model.f_inputs, facts)
     programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                          ekf_update_stage(model), options,
                                          spec.title)
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
     return _with_facts(unit, ["Jacobians: sympy, entries simplified, evaluated with f and h "
-                              "through shared subexpressions", *facts])
+                              "through shared subexpressions", *facts,
+                              *unit_norm_fact(model)])
 
 
 def _with_facts(unit, facts: list[str]):
@@ -116,7 +145,8 @@ def reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    covariance=True, inputs=True, extra_programs=("predict", "update1"), listing=100,
+    covariance=True, inputs=True, sensors=True, extra_programs=("predict", "update1"),
+    listing=100,
     about={"python": "Run the extended Kalman filter: h linearised at each prediction."
                      + NOTE_PY,
            "c": "Run the extended Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)

@@ -20,8 +20,9 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
+from ..errors import OptionError
 from ..options import KalmanOptions
-from ..program import Program
+from ..program import Port, Program
 from . import pattern as pat
 from .common import (
     JOSEPH_FACT,
@@ -33,11 +34,20 @@ from .common import (
     mask_symmetric,
     mask_vector,
     masked_covariance,
+    parameter_port,
     time_varying_ports,
     with_fact,
 )
+from .sensors import (
+    gate_thresholds,
+    kalman_update,
+    program_name,
+    sensor_facts,
+    sensor_groups,
+    uses_sensor_run,
+)
 from .spec import FilterSpec
-from .unit import make_unit
+from .unit import make_sensor_unit, make_unit
 
 
 def prior(prog: Program, F, W, H, R, x, P):
@@ -119,7 +129,112 @@ def time_varying_program(model, update, title: str, P0_pattern: str | None) -> P
     return prog.optimize()
 
 
+def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | None
+                    ) -> dict[str, Program]:
+    """``predict(x, P[, u][, p])`` (x(k+1/k) = F x + B u, P(k+1/k) = F P F^T + G Q G^T) and
+    one ``update_<sensor>(x, P, z[, u][, p])`` per sensor (its H, R and D u), gated where
+    ``thresholds`` say; P's pattern is the closure of P0's declared pattern under all."""
+    n = model.n
+    p_port = parameter_port(model)
+
+    def build(name, group, pattern):
+        if group is None:
+            u = ([Port("u", (model.n_inputs,), doc="u(k): x(k+1) = F x(k) + B u(k); "
+                        + ", ".join(s.name for s in model.inputs))] if model.inputs else [])
+            inputs = [Port("x", (n,), doc="x(k/k)"),
+                      Port("P", (n, n), symmetric=True, doc="P(k/k), row-major, symmetric")]
+            outputs = [Port("x_new", (n,), doc="x(k+1/k)"),
+                       Port("P_new", (n, n), symmetric=True, doc="P(k+1/k), row-major")]
+            prog = Program(name, inputs + u + p_port, outputs, doc=f"Predict only: "
+                           f"x(k+1/k) and P(k+1/k) of the {title}.")
+        else:
+            gate = thresholds[group.name]
+            u = ([Port("u", (len(group.inputs),), doc="its inputs " + ", ".join(
+                s.name for s in group.inputs))] if group.inputs else [])
+            inputs = [Port("x", (n,), doc="x before the update (x(k/k-1))"),
+                      Port("P", (n, n), symmetric=True, doc="its covariance, symmetric"),
+                      Port("z", (group.m,), doc=", ".join(group.measurements))]
+            outputs = [Port("x_new", (n,), doc="x after the update"),
+                       Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
+            if gate is not None:
+                outputs += [Port("nis", (1,), doc="normalised innovation squared"),
+                            Port("applied", (1,), doc="1 when applied, else 0")]
+            prog = Program(name, inputs + u + p_port, outputs, doc=f"The {title} update "
+                           f"with the measurements of sensor {group.name!r}.")
+        binding = prog.bind("p", model.parameters) if model.parameters else {}
+        x, P = prog.matrix("x"), masked_covariance(prog, pattern, declared)
+        extra = ()
+        if group is None:
+            mats = bound_matrices(model, prog)
+            x_new = staging.matmul(prog, mats["F"], x)
+            if model.inputs:
+                x_new = staging.add(prog, x_new, staging.matmul(prog, mats["B"],
+                                                                prog.matrix("u")))
+            FP = staging.matmul(prog, mats["F"], P)
+            P_new = staging.add(prog, staging.matmul(prog, FP, mats["F"].T,
+                                                     symmetric_result=True),
+                                mats["GQGt"], symmetric_result=True)
+        else:
+            H = sympy.Matrix(model.subs(group.H)).xreplace(binding)
+            R = sympy.Matrix(model.subs(group.R)).xreplace(binding)
+            PHt = staging.matmul(prog, P, H.T)
+            S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
+                            symmetric_result=True)
+            z = prog.matrix("z")
+
+            def innovation():
+                predicted = staging.matmul(prog, H, x)
+                if group.inputs:
+                    D = sympy.Matrix(model.subs(group.D)).xreplace(binding)
+                    predicted = staging.add(prog, predicted,
+                                            staging.matmul(prog, D, prog.matrix("u")))
+                return staging.sub(prog, z, predicted)
+
+            gate = thresholds[group.name]
+            x_new, P_new, extra = kalman_update(prog, x, P, PHt, S, innovation,
+                                                None if gate is None else gate[1])
+        return prog, x_new, P_new, extra
+
+    specs = {"predict": None} | {program_name(g.name): g for g in groups}
+
+    def grow(pattern):
+        out = pattern
+        for name, group in specs.items():
+            out = pat.union(out, pat.of_matrix(build(name, group, pattern)[2]))
+        return out
+
+    declared = P0_pattern or model.P0_pattern
+    closed = pat.closure(grow, pat.declared(model, declared))
+    programs = {}
+    for name, group in specs.items():
+        prog, x_new, P_new, extra = build(name, group, closed)
+        prog.set_output("x_new", list(x_new))
+        prog.set_output("P_new", list(P_new))
+        if extra:
+            prog.set_output("nis", [extra[0]])
+            prog.set_output("applied", [extra[1]])
+        programs[name] = prog.optimize()
+    return programs
+
+
+def derive_sensor_unit(model, spec, options):
+    """The KF of the run kind ``sensors`` (derive.filters.sensors)."""
+    for key in ("joseph", "missing"):
+        if options.get(key):
+            raise OptionError(f"option {key!r} is not taken with several sensors, gating or "
+                              "update-first (the run kind sensors: a row of NaN skips a "
+                              "sensor's update)")
+    groups = sensor_groups(model)
+    thresholds = gate_thresholds(groups, options)
+    programs = sensor_programs(model, groups, thresholds, spec.title, options.P0_pattern)
+    facts = sensor_facts(model, groups, thresholds, options.start)
+    return make_sensor_unit(model, spec, programs, options, groups, thresholds,
+                            model.inputs, facts)
+
+
 def derive_unit(model, spec, options):
+    if uses_sensor_run(model, options):
+        return derive_sensor_unit(model, spec, options)
     joseph, missing = options.joseph, options.missing
 
     def update(prog, mats, x, P, z, u=None):
@@ -152,7 +267,7 @@ INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z)
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
     options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True,
-    listing=10,
+    sensors=True, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",
            "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

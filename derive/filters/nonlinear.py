@@ -29,6 +29,7 @@ from ..program import Port, Program
 from ..symbols import real_stand_ins
 from . import pattern as pat
 from .common import masked_covariance, parameter_port
+from .sensors import program_name, renormalised
 
 # -- the Jacobians -----------------------------------------------------------------------
 
@@ -147,6 +148,7 @@ class Measurement:
     inputs: tuple[sympy.Symbol, ...]
     R: sympy.Matrix
     names: tuple[str, ...]
+    gate: float | None = None  # the NIS threshold of a gated update (None: not gated)
 
 
 def all_measurements(model) -> Measurement:
@@ -202,7 +204,33 @@ Update = Callable[[Program, dict, Measurement, sympy.Matrix, sympy.Matrix, sympy
 mapping binds parameters and the measurement's inputs; variance is S (or Pvv), k x k."""
 
 
+def sensor_measurement(model, group, gate: float | None = None) -> Measurement:
+    """A sensor's rows (derive.model.SensorGroup) as the Measurement its update uses."""
+    return Measurement(sympy.Matrix(model.subs(group.h)), tuple(group.inputs),
+                       sympy.Matrix(model.subs(group.R)), tuple(group.measurements), gate)
+
+
+def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list[Port]]:
+    """``update_<sensor>(x, P, z[, u][, p]) -> (x_new, P_new[, nis, applied])``."""
+    n = model.n
+    inputs = [Port("x", (n,), doc="x before the update (x(k/k-1))"),
+              Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric"),
+              Port("z", (len(meas.names),), doc=", ".join(meas.names))]
+    if meas.inputs:
+        inputs.append(Port("u", (len(meas.inputs),),
+                           doc="its inputs " + ", ".join(s.name for s in meas.inputs)))
+    outputs = [Port("x_new", (n,), doc="x after the update"),
+               Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
+    if meas.gate is not None:
+        outputs += [Port("nis", (1,), doc="normalised innovation squared nu' S^-1 nu"),
+                    Port("applied", (1,), doc="1 when the update was applied (nis within "
+                                              "the gate), else 0 (x, P unchanged)")]
+    return inputs + parameter_port(model), outputs
+
+
 def _ports(model, name: str, meas: Measurement | None) -> tuple[list[Port], list[Port]]:
+    if name.startswith("update_"):
+        return _sensor_ports(model, name, meas)
     n = model.n
     inputs = [Port("x", (n,), doc="x(k-1/k-1)" if name != "update1" else "x before the update"),
               Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric")]
@@ -236,8 +264,9 @@ _DOCS = {"step": "One step of the {title}: predict, then update with all {m} mea
 
 def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
            update: Update | None, P_pattern, title: str, declared: str):
-    prog = Program(name, *_ports(model, name, meas),
-                   doc=_DOCS[name].format(title=title, m=model.m))
+    doc = (_DOCS[name].format(title=title, m=model.m) if name in _DOCS else
+           f"The {title} update with the measurements of sensor {name[7:]!r}.")
+    prog = Program(name, *_ports(model, name, meas), doc=doc)
     params = prog.bind("p", model.parameters) if model.parameters else {}
     x, P = prog.matrix("x"), masked_covariance(prog, P_pattern, declared)
     extra = ()
@@ -249,23 +278,33 @@ def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
     if update is not None:
         if meas.inputs and not (predict is not None and model.f_inputs):
             mapping.update(prog.bind("u", meas.inputs))
-        x, P, innovation, variance = update(prog, mapping, meas, x, P, prog.matrix("z"))
-        extra = (innovation, variance)
+        x, P, innovation, variance, *gated = update(prog, mapping, meas, x, P,
+                                                    prog.matrix("z"))
+        x = renormalised(prog, model, x)
+        extra = (innovation, variance, *gated)
     return prog, x, P, extra
 
 
 def nonlinear_programs(model, predict: Predict, update: Update, options: SharedOptions,
-                       title: str) -> tuple[dict[str, Program], list[str]]:
+                       title: str, sensors: dict[str, Measurement] | None = None
+                       ) -> tuple[dict[str, Program], list[str]]:
     """``step``, ``predict`` and (when it exists) ``update1``, optimised; and header facts.
+    With ``sensors`` (``{sensor name: its Measurement}``): ``predict`` and one
+    ``update_<sensor>`` each (the run kind ``sensors``).
 
     P's pattern is the closure of P0's declared pattern (option ``P0_pattern``) under
     every program, so entries outside it are never read.
     """
     scalar, why = scalar_measurement(model)
     batch = all_measurements(model)
-    specs = {"step": (batch, predict, update), "predict": (None, predict, None)}
-    if scalar is not None:
-        specs["update1"] = (scalar, None, update)
+    if sensors is not None:  # the run kind sensors: predict and one update per sensor
+        specs = {"predict": (None, predict, None)}
+        for meas_name, meas in sensors.items():
+            specs[program_name(meas_name)] = (meas, None, update)
+    else:
+        specs = {"step": (batch, predict, update), "predict": (None, predict, None)}
+        if scalar is not None:
+            specs["update1"] = (scalar, None, update)
 
     def grow(pattern):
         out = pattern
@@ -286,6 +325,9 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
         if name == "update1":
             prog.set_output("innovation", [extra[0][0, 0]])
             prog.set_output("variance", [extra[1][0, 0]])
+        if len(extra) > 2 and extra[2]:  # a gated update: nis, applied
+            prog.set_output("nis", [extra[2][0]])
+            prog.set_output("applied", [extra[2][1]])
         programs[name] = prog.optimize()
     facts = ["per-step input u: " + ", ".join(s.name for s in model.inputs)
              if model.inputs else "per-step input u: none"]
@@ -294,6 +336,8 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
                      "k (f uses " + ", ".join(s.name for s in model.f_inputs) + "; predict "
                      "takes those) and step k's measurement; Q(x, u) = Fu Qu Fu^T + Q, "
                      "Fu = df/du at x(k-1/k-1), u(k)")
+    if sensors is not None:
+        return programs, facts
     if scalar is not None:
         facts.append("varying measurement count: call predict once per step, then update1 "
                      f"once per measurement (z = one {scalar.names[0]}-like measurement, "

@@ -31,6 +31,10 @@ class FilterSpec:
     option ``run_tracks``).
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
     refused by every filter without this flag, never filtered with u ignored).
+    ``sensors``: it takes a model with several sensors (``predict`` and one
+    ``update_<sensor>`` per sensor, the run kind ``sensors``) and the options ``gate``,
+    ``gate_sensors`` and ``start`` (a model with sensors is refused by every filter
+    without this flag).
     ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
@@ -54,6 +58,7 @@ class FilterSpec:
     missing: bool = False
     batch: bool = False
     inputs: bool = False
+    sensors: bool = False
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
     about: Mapping[str, str] = field(default_factory=dict)

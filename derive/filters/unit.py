@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..discretize import METHODS
-from ..emit.unit import Unit
+from ..emit.unit import SensorSlot, Unit
 from ..options import SharedOptions
 from ..program import ZERO, Check
 from .common import pattern_text
@@ -88,6 +88,32 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         carried=carried,
         symbol_prefix=options.prefix,
     )
+
+
+def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
+                     groups, thresholds: dict, predict_inputs, facts: list[str]) -> Unit:
+    """The Unit of the run kind ``sensors``: ``programs`` are ``predict`` (taking the
+    model's inputs ``predict_inputs``) and one ``update_<sensor>`` per sensor of ``groups``
+    (derive.model.SensorGroup), gated where ``thresholds`` has a gate."""
+    names = [u.name for u in model.inputs]
+    slots = tuple(SensorSlot(g.name, g.m, tuple(names.index(u.name) for u in g.inputs),
+                             thresholds[g.name] is not None) for g in groups)
+    header = []
+    if model.kind == "linear":
+        header.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
+    header.append(accepted_P0(programs["predict"], "P"))
+    fields = spec.unit_fields(run_tracks=False)
+    fields.update(run_kind="sensors", batch=False, extra_programs=(), about={
+        "python": f"Run the {spec.title} over the steps: predict with u(k), then each "
+                  "sensor's update in declaration order where its row is not NaN.",
+        "c": f"Run the {spec.title} over steps steps (predict, then each sensor's update "
+             "where its row is not NaN); Ps, nis_* and applied_* may be NULL."})
+    return Unit(model=model.name, filter=spec.name, **fields, n=model.n, m=model.m,
+                programs=programs, parameters=tuple(p.name for p in model.parameters),
+                facts=tuple(header + facts), symbol_prefix=options.prefix, sensors=slots,
+                n_inputs=len(names),
+                predict_inputs=tuple(names.index(u.name) for u in predict_inputs),
+                update_first=options.get("start", "predict") == "update")
 
 
 def _input_names(program) -> list[str]:

@@ -1,0 +1,259 @@
+"""What the filters that take several sensors share: the sensors of a unit, the gating
+threshold, the gain-and-update stage with optional innovation gating, and the unit's
+header facts.
+
+A unit of the run kind ``sensors`` has ``predict(x, P[, u][, p])`` and one
+``update_<sensor>(x, P, z[, u][, p])`` per sensor (its own h or H, R and inputs). A model
+declaring two or more sensors gets this unit; a model with one sensor (or none declared)
+gets it when an option asks for it (``gate``, ``gate_sensors`` or ``start="update"``),
+with its one sensor named as declared, or ``all`` (every measurement) when none is.
+
+Gating (opt-in): ``nis = nu^T S^-1 nu`` from the LDL^T factorisation that gives the gain
+(one more right-hand side), compared with the chi-square quantile of the sensor's number
+of measurements at the option's probability, computed at generation; the update is
+applied only when ``nis <= threshold`` (a NaN NIS is not), by selects on the gain and the
+solved innovation (one comparison each, no flop). The program returns ``nis`` and
+``applied`` (1 or 0).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import sympy
+
+from .. import staging
+from ..errors import OptionError
+from ..lowering import IfAtMost
+from ..model import SensorGroup
+from ..program import Program
+from ..reference import sensors as reference
+from ..symbols import jacobian
+
+IMPLICIT_SENSOR = "all"
+"""The name of the one sensor of a model that declares none (all its measurements)."""
+
+
+def sensor_groups(model) -> tuple[SensorGroup, ...]:
+    """The model's sensors; one named :data:`IMPLICIT_SENSOR` when it declares none."""
+    if model.sensors:
+        return model.sensors
+    if model.kind == "linear":
+        return (SensorGroup(IMPLICIT_SENSOR, tuple(model.measurements), (0, model.m),
+                            tuple(model.inputs), model.R, H=model.H, D=model.D),)
+    return (SensorGroup(IMPLICIT_SENSOR, tuple(model.measurements), (0, model.m),
+                        tuple(u for u in model.inputs if u in model.h.free_symbols), model.R,
+                        h=model.h),)
+
+
+def uses_sensor_run(model, options) -> bool:
+    """Whether the unit is of the run kind ``sensors``: two or more sensors, or gating or
+    update-first asked for."""
+    return (len(model.sensors) >= 2 or options.get("gate") is not None
+            or options.get("gate_sensors") is not None
+            or options.get("start", "predict") != "predict")
+
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The chi-square quantile with ``dof`` degrees of freedom at ``probability``."""
+    # scipy.stats takes about half a second to import; only gated units need it
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(probability, dof))
+
+
+def gate_thresholds(groups, options) -> dict[str, tuple[float, float] | None]:
+    """``{sensor: (probability, threshold) or None}`` from the options ``gate`` (every
+    sensor) and ``gate_sensors`` (``"name=PROB,..."``, per sensor, overriding)."""
+    probability = {g.name: options.get("gate") for g in groups}
+    text = options.get("gate_sensors")
+    if text:
+        for pair in text.split(","):
+            name, value = pair.split("=", 1)
+            if name not in probability:
+                raise OptionError(f"option 'gate_sensors' (--gate-sensors) names sensor "
+                                  f"{name!r}; the sensors are {', '.join(probability)}")
+            try:
+                prob = float(value)
+            except ValueError:
+                prob = float("nan")
+            if not 0.0 < prob < 1.0:
+                raise OptionError(f"option 'gate_sensors' (--gate-sensors): the probability "
+                                  f"of {name!r} must be a number in (0, 1), got {value!r}")
+            probability[name] = prob
+    out: dict[str, tuple[float, float] | None] = {}
+    for g in groups:
+        prob = probability[g.name]
+        out[g.name] = None if prob is None else (prob, chi2_quantile(prob, g.m))
+    return out
+
+
+def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None):
+    """``K = P H^T S^-1`` (LDL^T solve), ``x + K nu``, ``P - K (P H^T)^T`` (upper
+    triangle); returns ``(x_new, P_new, ())``, or with a ``threshold`` the gated update and
+    ``(nis, applied)``: x and P unchanged when ``nis = nu^T S^-1 nu`` exceeds it.
+    ``innovation_of()`` stages nu (after the gain, in the papers' order, when ungated)."""
+    if threshold is None:
+        K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt), name="S"))
+        x_new = staging.add(prog, x, staging.matmul(prog, K, innovation_of()))
+        KPHt = staging.matmul(prog, K, staging.transpose(PHt), symmetric_result=True)
+        return x_new, staging.sub(prog, P, KPHt, symmetric_result=True), ()
+    n, m = PHt.shape
+    innovation = innovation_of()
+    solved = staging.spd_solve(prog, S, staging.transpose(PHt).row_join(innovation), name="S")
+    K = staging.transpose(solved[:, :n])
+    weights = solved[:, n]  # S^-1 nu
+    nis = prog.let(sympy.Add(*[innovation[i] * weights[i] for i in range(m)]), "nis")
+    bound = sympy.Float(threshold, 17)
+
+    def gated(M):
+        return staging.let_matrix(prog, M.applyfunc(lambda e: IfAtMost(nis, bound, e, 0)),
+                                  hint="gated")
+
+    applied = prog.let(IfAtMost(nis, bound, sympy.Integer(1), sympy.Integer(0)), "applied")
+    x_new = staging.add(prog, x, staging.matmul(prog, PHt, gated(weights)))
+    KPHt = staging.matmul(prog, gated(K), staging.transpose(PHt), symmetric_result=True)
+    return x_new, staging.sub(prog, P, KPHt, symmetric_result=True), (nis, applied)
+
+
+def renormalised(prog: Program, model, x):
+    """``x`` with each of the model's unit-norm groups divided by its Euclidean norm
+    (one square root and one division per group, then a product per state)."""
+    groups = getattr(model, "unit_norm", ())
+    if not groups:
+        return x
+    out = sympy.Matrix(x)
+    for group in groups:
+        index = [model.states.index(s) for s in group]
+        norm2 = prog.let(sympy.Add(*[out[i] ** 2 for i in index]), "norm2")
+        inverse = prog.let(1 / sympy.sqrt(norm2), "inorm")
+        for i in index:
+            out[i] = prog.let(out[i] * inverse, "x")
+    return out
+
+
+UNIT_NORM_FACT = "unit-norm groups, renormalised at the end of every update: {groups}"
+
+
+def unit_norm_fact(model) -> list[str]:
+    """The header line naming the model's unit-norm groups (none without)."""
+    groups = getattr(model, "unit_norm", ())
+    if not groups:
+        return []
+    return [UNIT_NORM_FACT.format(groups="; ".join("(" + ", ".join(g) + ")" for g in groups))]
+
+
+def sensor_facts(model, groups, thresholds, start: str) -> list[str]:
+    """Header lines: the sensors, their gates, the run's convention."""
+    lines = ["sensors (run: predict with u(k), then each sensor's update in this order "
+             "when its row k has no NaN): " + "; ".join(
+                 f"{g.name} ({', '.join(g.measurements)}"
+                 + (f"; inputs {', '.join(u.name for u in g.inputs)}" if g.inputs else "")
+                 + ")" for g in groups)]
+    for g in groups:
+        gate = thresholds[g.name]
+        if gate is not None:
+            lines.append(f"gate of {g.name}: update applied when nis <= {gate[1]!r} (the "
+                         f"chi-square quantile for {g.m} degrees of freedom at {gate[0]!r}); "
+                         f"update_{g.name} returns nis and applied (1 or 0)")
+    lines.append("start: " + ("update-first: step 0 updates x0, P0 with its measurements, "
+                              "without a prediction" if start == "update" else
+                              "predict-first: every step predicts, then updates"))
+    return lines
+
+
+def program_name(sensor: str) -> str:
+    """``update_<sensor>``."""
+    return f"update_{sensor}"
+
+
+SENSOR_PROGRAM = re.compile(r"^update_[A-Za-z][A-Za-z0-9_]*$")
+
+
+
+
+# -- the NumPy reference of a model's sensor unit --------------------------------------------
+
+
+def _numeric(model, matrix, arguments):
+    """``matrix`` (valued symbols substituted) as a NumPy function of ``arguments`` (lists
+    of symbols, one list per argument), returning a 2-D array of its shape."""
+    lam = sympy.lambdify(arguments, sympy.Matrix(model.subs(matrix)), modules="numpy",
+                         cse=True)
+    shape = matrix.shape
+
+    def call(*values):
+        return np.asarray(lam(*[list(np.ravel(v)) for v in values]),
+                          dtype=float).reshape(shape)
+    return call
+
+
+def reference_functions(model, thresholds):
+    """``(predict, [SensorFunctions], unit-norm index groups)`` of ``model`` at numbers,
+    with p as an argument (one row per step: dt may vary), for derive.reference.sensors."""
+    params = list(model.parameters)
+    groups = sensor_groups(model)
+    names = [u.name for u in model.inputs]
+    sensors = []
+    if model.kind == "linear":
+        F = _numeric(model, model.F, [params])
+        B = _numeric(model, model.B, [params])
+        W = _numeric(model, model.matrix("GQGt"), [params])
+
+        def predict(x, P, u, p):
+            A = F(p)
+            x_new = A @ x + (B(p) @ u if names else 0.0)
+            return x_new, A @ P @ A.T + W(p)
+
+        for g in groups:
+            H = _numeric(model, g.H, [params])
+            D = _numeric(model, g.D, [params])
+            R = _numeric(model, g.R, [params])
+            sensors.append(reference.SensorFunctions(
+                g.name, lambda x, u, p, H=H, D=D: H(p) @ x + (D(p) @ u if u.size else 0.0),
+                lambda x, u, p, H=H: H(p), R,
+                tuple(names.index(u.name) for u in g.inputs),
+                None if thresholds[g.name] is None else thresholds[g.name][1]))
+    else:
+        X, U = list(model.state_symbols), list(model.inputs)
+        f = _numeric(model, model.f, [X, U, params])
+        Fx = _numeric(model, model.F_jacobian, [X, U, params])
+        Fu = _numeric(model, model.Fu_jacobian, [X, U, params])
+        Q = _numeric(model, model.Q, [params])
+        Qu = _numeric(model, model.Qu, [params])
+
+        def predict(x, P, u, p):
+            A, G = Fx(x, u, p), Fu(x, u, p)
+            Qx = Q(p) + (G @ Qu(p) @ G.T if names else 0.0)
+            return f(x, u, p).ravel(), A @ P @ A.T + Qx
+
+        for g in groups:
+            own = list(g.inputs)
+            h = _numeric(model, g.h, [X, own, params])
+            H = _numeric(model, jacobian(g.h, model.state_symbols), [X, own, params])
+            R = _numeric(model, g.R, [params])
+            sensors.append(reference.SensorFunctions(
+                g.name, lambda x, u, p, h=h: h(x, u, p).ravel(), H, R,
+                tuple(names.index(u.name) for u in g.inputs),
+                None if thresholds[g.name] is None else thresholds[g.name][1]))
+    unit_norm = [[model.states.index(s) for s in group]
+                 for group in getattr(model, "unit_norm", ())]
+    return predict, sensors, unit_norm
+
+
+def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None):
+    """derive.reference.sensors.run for ``model`` and the filter ``options`` from x0 and
+    P0 (default: the model's); ``ps``: p, one row per step."""
+    groups = sensor_groups(model)
+    predict, sensors, unit_norm = reference_functions(model, gate_thresholds(groups, options))
+    num_x0 = np.array(model.x0.tolist(), dtype=float).ravel() if x0 is None else x0
+    num_P0 = np.array(model.P0.tolist(), dtype=float) if P0 is None else P0
+    return reference.run(predict, sensors, num_x0, num_P0, zs, us, ps,
+                         update_first=options.get("start", "predict") == "update",
+                         unit_norm=unit_norm)
+
+
+__all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "gate_thresholds", "kalman_update",
+           "program_name", "reference_functions", "reference_run", "renormalised",
+           "sensor_facts", "sensor_groups", "unit_norm_fact", "uses_sensor_run"]

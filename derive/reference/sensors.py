@@ -1,0 +1,98 @@
+"""NumPy reference of the multi-sensor Kalman filter and EKF, with gating, update-first
+start and unit-norm groups, written from the equations on plain arrays and callables.
+
+Per step k (0-based rows): predict with u(k) and p(k) (skipped at k = 0 with
+``update_first``), then for each sensor in order whose row k of z has no NaN:
+``nu = z - h(x, u_s)``, ``S = H P H^T + R``, ``nis = nu^T S^-1 nu``; the update
+``K = P H^T S^-1``, ``x + K nu``, ``P - K S K^T`` is applied unless a gate is given and
+``nis`` exceeds it (or is NaN); then each unit-norm group of x is divided by its norm
+(after every update of a present row, applied or not, as the generated update does).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SensorFunctions:
+    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(p)`` (m, m);
+    ``columns``: the columns of u(k) it takes; ``gate``: the NIS threshold or None."""
+
+    name: str
+    h: Callable
+    H: Callable
+    R: Callable
+    columns: tuple[int, ...] = ()
+    gate: float | None = None
+
+
+@dataclass(frozen=True)
+class SensorsResult:
+    """x(k) and P(k) after each step; per sensor the NIS (NaN where absent) and whether
+    its update was applied (1.0, else 0.0)."""
+
+    xs: np.ndarray
+    Ps: np.ndarray
+    nis: dict[str, np.ndarray]
+    applied: dict[str, np.ndarray]
+
+
+def update(x, P, z, h, H, R, gate=None):
+    """One update with all of z: (x, P, nis, applied)."""
+    nu = z - h
+    S = H @ P @ H.T + R
+    nis = float(nu @ np.linalg.solve(S, nu))
+    if gate is not None and not nis <= gate:
+        return x, P, nis, False
+    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
+    x = x + K @ nu
+    P = P - K @ S @ K.T
+    return x, (P + P.T) / 2, nis, True
+
+
+def renormalise(x, groups: Sequence[Sequence[int]]):
+    """x with each group of entries divided by its Euclidean norm."""
+    x = np.array(x, dtype=float)
+    for group in groups:
+        index = list(group)
+        x[index] = x[index] / np.sqrt(np.sum(x[index] ** 2))
+    return x
+
+
+def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict, us=None,
+        ps=None, update_first: bool = False, unit_norm: Sequence[Sequence[int]] = ()
+        ) -> SensorsResult:
+    """The multi-sensor filter over ``zs`` (``{sensor: (steps, m_s)}``, rows of NaN:
+    absent); ``predict(x, P, u, p) -> (x, P)``; ``us`` (steps, n_u) and ``ps`` (steps, np)
+    one row per step (None: empty rows)."""
+    steps = len(next(iter(zs.values())))
+    x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
+    n = x.shape[0]
+    us = np.zeros((steps, 0)) if us is None else np.asarray(us, dtype=float)
+    ps = np.zeros((steps, 0)) if ps is None else np.asarray(ps, dtype=float)
+    xs, Ps = np.empty((steps, n)), np.empty((steps, n, n))
+    nis = {s.name: np.full(steps, np.nan) for s in sensors}
+    applied = {s.name: np.zeros(steps) for s in sensors}
+    for k in range(steps):
+        if k or not update_first:
+            x, P = predict(x, P, us[k], ps[k])
+        for s in sensors:
+            z = np.asarray(zs[s.name][k], dtype=float)
+            if np.isnan(z).any():
+                continue
+            u = us[k, list(s.columns)]
+            x, P, nis[s.name][k], done = update(
+                x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(),
+                np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), n),
+                np.asarray(s.R(ps[k]), dtype=float).reshape(len(z), len(z)), s.gate)
+            applied[s.name][k] = float(done)
+            x = renormalise(x, unit_norm)  # after every update call, applied or not
+        xs[k], Ps[k] = x, P
+    return SensorsResult(xs, Ps, nis, applied)
+
+
+__all__ = ["SensorFunctions", "SensorsResult", "renormalise", "run", "update"]
