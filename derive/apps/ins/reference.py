@@ -6,7 +6,9 @@ State x = [q0..q3, vn, ve, vd, pn, pe, pd, bg(3), ba(3)], input u = [ω(3), a(3)
 dt. Predict: x ← f(x, u), P ← F P Fᵀ + Q(x, u) with F = ∂f/∂x, Fu = ∂f/∂u at (x, u) and
 Q(x, u) = Fu Qu Fuᵀ + diag(0 ×10, σbg² dt ×3, σba² dt ×3). Update (gnss: h = [p, v], baro:
 h = −pd): S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x ← x + K (z − h(x)), P ← P − K H P, then
-q ← q/‖q‖.
+q ← q/‖q‖. P is kept symmetric, (P + Pᵀ)/2 after each update: computed as written,
+P − K H P is symmetric only to rounding, and over a 12,000-step flight that asymmetry grows
+to ~1e-9 of the standard deviations (derive's code computes one triangle).
 """
 
 from __future__ import annotations
@@ -140,6 +142,7 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, sensor: str):
     K = np.linalg.solve(S, H @ P).T
     x = x + K @ innovation
     P = P - K @ H @ P
+    P = 0.5 * (P + P.T)  # symmetric to rounding (P - K H P is not, and the drift grows)
     x[Q_ROWS] = x[Q_ROWS] / np.linalg.norm(x[Q_ROWS])
     return x, P, innovation, S
 
