@@ -109,10 +109,7 @@ def _functions(sf):
 
 def generate(names=FUNCTIONS) -> dict[str, SymforceFunction]:
     """Generate SymForce's C++ for each function (timed one by one) and count it."""
-    import symforce  # optional: a benchmark peer
-
-    symforce.set_epsilon_to_symbol()
-    import symforce.symbolic as sf
+    import symforce.symbolic as sf  # optional: a benchmark peer
     from symforce.codegen import Codegen, CppConfig
 
     functions = _functions(sf)
