@@ -32,7 +32,7 @@ from _backend_kf import (
     unit_fields,
 )
 
-from derive import catalog
+from derive import LinearModel, Sensor, catalog
 from derive.build import load_python
 from derive.emit.render import derive_version, environment, render_files
 from derive.emit.unit import RUN_KINDS, Unit
@@ -56,6 +56,13 @@ def _units():
     units.append(steady_unit("sslf"))
     units.append(derive_unit(catalog.load("cv"), "rts"))  # the smoother's run kind
     units.append(derive_unit(catalog.load("mpt3d_b"), "udkf", {"missing": True}))
+    two_sensors = LinearModel(  # the sensors run kind: inputs, two sensors, a gate
+        "cart", ["p", "v"], F=[[1, "dt"], [0, 1]], Q=[[1, 0], [0, 1]], inputs=["a", "o"],
+        B=[["dt**2/2", 0], ["dt", 0]],
+        sensors=[Sensor("gps", ["zp"], H=[[1, 0]], R=4, inputs=["o"], D=[[1]]),
+                 Sensor("speed", ["zv"], H=[[0, 1]], R=1)])
+    units.append(derive_unit(two_sensors, "kf", {"gate_sensors": "gps=0.99",
+                                                 "start": "update"}))
     return units
 
 

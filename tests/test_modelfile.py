@@ -77,7 +77,8 @@ def doc_examples() -> list[tuple[str, str]]:
 def test_documented_examples_load(tmp_path):
     examples = doc_examples()
     assert [name for name, _ in examples] == ["axis.toml", "cart.toml", "ca.toml", "gnss.toml",
-                                              "plane.toml", "unicycle.toml"]
+                                              "plane.toml", "unicycle.toml", "cart2.toml",
+                                              "attitude.toml"]
     for name, text in examples:
         (tmp_path / name).write_text(text, encoding="utf-8")
     axis = load_model_file(tmp_path / "axis.toml")

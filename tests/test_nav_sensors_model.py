@@ -1,11 +1,17 @@
 """Several sensors and unit-norm groups in the model API and in model files."""
 
+import re
+from pathlib import Path
+
 import pytest
 import sympy
 
 from derive import LinearModel, NonlinearModel, Sensor
+from derive.cli import main
 from derive.errors import ModelError, ModelFileError
 from derive.modelfile import loads_model
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "model-files.md"
 
 TWO_SENSORS = """
 [model]
@@ -142,3 +148,21 @@ def test_bad_sensor_tables_give_one_line_naming_the_key(edit, message):
 def test_bad_unit_norm_in_a_file_names_the_key():
     with pytest.raises(ModelFileError, match=r"\[nonlinear\] unit_norm\[0\]: 'q9' is not a state"):
         loads_model(ATTITUDE.replace('[["q0", "q1"]]', '[["q0", "q9"]]'))
+
+
+def test_the_documented_sensor_examples_load_and_verify(tmp_path, capsys):
+    blocks = dict(
+        (re.match(r"# file: (\S+)", block).group(1), block)
+        for block in re.findall(r"```toml\n(.*?)```", DOCS.read_text(encoding="utf-8"), re.S))
+    for name, filter_name, sensors in (("cart2.toml", "kf", ["gps", "speed"]),
+                                       ("attitude.toml", "ekf", ["mag", "bias"])):
+        path = tmp_path / name
+        path.write_text(blocks[name], encoding="utf-8")
+        model = loads_model(blocks[name])
+        assert [s.name for s in model.sensors] == sensors
+        assert main(["verify", str(path), "--filter", filter_name]) == 0
+    assert loads_model(blocks["attitude.toml"]).unit_norm == (("q0", "q1"),)
+    out = capsys.readouterr().out
+    for model, filter_name in (("cart2", "kf"), ("att", "ekf")):
+        for lang in ("python", "c"):
+            assert re.search(rf"^ok +{model} +{filter_name} +{lang} ", out, re.M)

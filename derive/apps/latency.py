@@ -184,7 +184,10 @@ def _cycle_nodes(via: list[np.ndarray], start: int, steps: int) -> list[int]:
 
 def run_loop_bound(unit, latency: Mapping[str, float]) -> Bound | None:
     """The bound of ``unit``'s generated C run loop as emitted: its pass (the step, or a
-    steady-state two-step pass, :func:`derive.emit.lookahead.run_pass`), per step."""
+    steady-state two-step pass, :func:`derive.emit.lookahead.run_pass`), per step; None
+    for a run that calls its functions (the run kind sensors: no step program)."""
+    if "step" not in unit.programs:
+        return None
     program, steps = run_pass(unit)
     bound = carried_bound(lower_program(program, use_fma=True), latency)
     if bound is None:

@@ -225,3 +225,65 @@ def gnss_scenario(steps: int = 500, seed: int = 0, sigma: float = 10.0,
                         float(clock_bias), elev, azim, truth, sats, ranges, x0,
                         init_std ** 2 * np.eye(4), q * np.eye(4),
                         sigma ** 2 * np.eye(len(elev)))
+
+
+# ---------------------------------------------------------------- several sensors
+SENSOR_PERIODS = (1, 4, 10, 20)
+"""Steps between measurements of the first, second, third and later sensors of a model
+(an IMU-driven run at the step rate with slower sensors): the other rows are NaN."""
+
+
+@dataclass(frozen=True)
+class SensorRun:
+    """A seeded run of a model with sensors: ``zs`` ``{sensor: (steps, m_s)}`` (rows of
+    NaN where the sensor has no measurement), inputs ``us`` (steps, n_u), the truth
+    (steps + 1, n), and the x0, P0 the filters start from."""
+
+    zs: dict
+    us: np.ndarray
+    truth: np.ndarray
+    x0: np.ndarray
+    P0: np.ndarray
+
+
+def simulate_sensors(model, groups, steps: int, seed: int) -> SensorRun:
+    """The model's own process driven by inputs uniform in [-1, 1] (nonlinear: with noise
+    of covariance Qu on them) and process noise, measured by each sensor of ``groups``
+    (derive.model.SensorGroup, rows of the model's stacked h or H) every
+    :data:`SENSOR_PERIODS` steps, with noise of its R. Needs every symbol to have a value."""
+    steps = _steps(steps)
+    rng = np.random.default_rng(seed)
+    n, n_u = model.n, len(model.inputs)
+    x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
+    P0 = np.asarray(model.P0.tolist(), dtype=float)
+    us = rng.uniform(-1.0, 1.0, (steps, n_u))
+    truth = np.empty((steps + 1, n))
+    truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
+    if model.kind == "linear":
+        num = model.numeric()
+        w = rng.multivariate_normal(np.zeros(num.Q.shape[0]), num.Q, size=steps, method="eigh")
+        for k in range(steps):
+            truth[k + 1] = num.F @ truth[k] + num.B @ us[k] + num.G @ w[k]
+
+        def h(x, u):
+            return num.H @ x + num.D @ u
+        R = num.R
+    else:
+        fns = model.numeric_functions()
+        w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
+        noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
+                                              method="eigh") if n_u else 0.0)
+        for k in range(steps):
+            step_u = noisy[k, [model.inputs.index(u) for u in model.f_inputs]]
+            truth[k + 1] = (fns["f"](truth[k], step_u) if model.f_inputs
+                            else fns["f"](truth[k])) + w[k]
+        h, R = fns["h"], fns["R"]
+    v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
+    stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v
+    zs = {}
+    for i, group in enumerate(groups):
+        rows = stacked[:, group.rows[0]:group.rows[1]].copy()
+        period = SENSOR_PERIODS[min(i, len(SENSOR_PERIODS) - 1)]
+        rows[np.arange(steps) % period != 0] = np.nan
+        zs[group.name] = rows
+    return SensorRun(zs, us, truth, x0, P0)

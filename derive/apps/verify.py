@@ -40,10 +40,12 @@ import numpy as np
 from ..emit.unit import RUN_KINDS
 from ..errors import ModelError, VerificationError
 from ..filters import kind
+from ..filters.sensors import reference_run as sensors_reference
+from ..filters.sensors import sensor_groups, uses_sensor_run
 from ..options import validate
 from ..pipeline import load_generated
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
-from .simulate import gnss_scenario, simulate_linear
+from .simulate import gnss_scenario, simulate_linear, simulate_sensors
 
 LINEAR_TOLERANCE = 1e-12
 NONLINEAR_TOLERANCE = 1e-10
@@ -268,6 +270,29 @@ def linear_run(model, steps: int, seed: int):
     return InputRun(run.zs, us)
 
 
+def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,
+                          options) -> list[Verification]:
+    """A unit of the run kind sensors (several sensors, gating or update-first) on a
+    :func:`derive.apps.simulate.simulate_sensors` run (sensors at their periods, NaN rows
+    between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear)."""
+    if model.parameters:
+        raise VerificationError(
+            f"verify needs a value for every symbol of model {model.name!r} with sensors; "
+            f"free: {[p.name for p in model.parameters]}")
+    groups = sensor_groups(model)
+    run = simulate_sensors(model, groups, steps, seed)
+    ref = sensors_reference(model, options, run.zs, run.us, None, run.x0, run.P0)
+    tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
+    out = []
+    for lang, module in modules.items():
+        data = ([run.us] if model.inputs else []) + [run.zs[g.name] for g in groups]
+        result = module.run(*data, run.x0, run.P0)
+        xs, Ps = np.asarray(result[0]), np.asarray(result[1]).reshape(steps, model.n, model.n)
+        err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
+        out.append(Verification(model.name, name, lang, steps, err, tolerance))
+    return out
+
+
 def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
                    options: dict | None = None) -> list[Verification]:
     """Compare already built generated filters ({lang: module}) with the reference.
@@ -275,6 +300,8 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     The scenario, reference run, tolerance and error measure of `derive verify`.
     """
     opts = validate(name, options)
+    if kind(name).sensors and uses_sensor_run(model, opts):
+        return verify_sensor_modules(model, name, modules, steps, seed, opts)
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)

@@ -34,6 +34,7 @@ from .nonlinear import (
     step_inputs,
 )
 from .sensors import (
+    IMPLICIT_SENSOR,
     gate_thresholds,
     kalman_update,
     sensor_facts,
@@ -41,6 +42,7 @@ from .sensors import (
     unit_norm_fact,
     uses_sensor_run,
 )
+from .sensors import reference_run as sensors_reference
 from .spec import FilterSpec
 from .unit import make_sensor_unit, make_unit
 
@@ -134,6 +136,10 @@ def reference(model, data, options):
     """derive.reference.ekf on ``data`` = (scenario, numeric functions): (xs, Ps); an
     identity f is passed as None."""
     scenario, fns = data
+    if model.unit_norm:  # renormalised after every update: the reference that does so
+        res = sensors_reference(model, options, {IMPLICIT_SENSOR: scenario.zs}, scenario.us,
+                                None, scenario.x0, scenario.P0)
+        return res.xs, res.Ps
     identity = list(model.subs(model.f)) == list(model.state_symbols)
     f, F = (None, None) if identity else (fns["f"], fns["F"])
     process = {"Fu_jac": fns["Fu"], "Qu": fns["Qu"]} if model.f_inputs else {}
