@@ -18,12 +18,17 @@ SEED = 0
 MODEL = "ins_gnss"
 AXES = ("north", "east", "down")
 NIS_BAND = 0.95
+ZOOM_AFTER = 2.0   # s: the error panels' vertical scale is set by what follows
 
 
 def _bounded(ax, t, error, sigma, unit_scale, label):
     ax.plot(t, error * unit_scale, lw=0.7, color=figures.COLORS["ekf"], label=f"{label} error")
     ax.plot(t, 3 * sigma * unit_scale, lw=0.7, color="0.4", ls="--", label="±3σ")
     ax.plot(t, -3 * sigma * unit_scale, lw=0.7, color="0.4", ls="--")
+    # the first seconds (P0's wide bounds) would flatten the rest: scale to what follows
+    later = t >= ZOOM_AFTER
+    top = 1.15 * max(np.abs(error[later]).max(), 3 * sigma[later].max()) * unit_scale
+    ax.set_ylim(-top, top)
 
 
 def _error_figure(ctx, fl, err: compare.Errors):
@@ -44,7 +49,8 @@ def _error_figure(ctx, fl, err: compare.Errors):
         fig, ctx.figures, "ins_errors",
         "INS/GNSS (catalog model `ins_gnss`, generated C EKF, seed "
         f"{fl.seed}): estimate minus truth after each 100 Hz step with the filter's own ±3σ "
-        "(dashed). Attitude: the rotation vector of q̂ ⊗ q⁻¹ about the NED axes, its σ "
+        "(dashed); the vertical scale is set by the flight after its first "
+        f"{ZOOM_AFTER:g} s. Attitude: the rotation vector of q̂ ⊗ q⁻¹ about the NED axes, its σ "
         "from P's quaternion block mapped to first order. Heading is unobservable at rest "
         "(0–10 s) and becomes observable once the aircraft accelerates.")
 
