@@ -76,12 +76,18 @@ class NumericLinear:
         return self.G @ self.Q @ self.G.T
 
 
+R_ARGUMENT = "argument"
+"""A sensor's R given per call (``Sensor(..., R="argument")``, ``R = "argument"`` in a
+model file): its update takes R (m_s x m_s, symmetric positive definite) beside z."""
+
+
 @dataclass(frozen=True)
 class Sensor:
     """A named measurement group of a model (``sensors=[Sensor(...), ...]``): its own
     measurements, h (NonlinearModel: expressions in states, its inputs and parameters) or
-    H (LinearModel; with D over its inputs: ``z = H x + D u + v``), R (constant or
-    symbolic in parameters) and inputs (names among the model's ``inputs``; default: a
+    H (LinearModel; with D over its inputs: ``z = H x + D u + v``), R (constant, symbolic
+    in parameters, or :data:`R_ARGUMENT`: given per call, an input of its update and a
+    per-step array of run) and inputs (names among the model's ``inputs``; default: a
     nonlinear sensor's, those its h uses; a linear sensor's, all of them when D is given,
     else none).
 
@@ -114,6 +120,7 @@ class SensorGroup:
     h: sympy.ImmutableMatrix | None = None
     H: sympy.ImmutableMatrix | None = None
     D: sympy.ImmutableMatrix | None = None
+    R_argument: bool = False
 
     @property
     def m(self) -> int:
@@ -154,6 +161,22 @@ def _sensor_list(sensors, kind: str, given: Mapping[str, object]) -> tuple[Senso
             if getattr(sensor, key) is None:
                 raise ModelError(f"sensor {name!r}: missing {key}")
     return tuple(sensors)
+
+
+def _R_given_per_call(sensor: Sensor) -> bool:
+    return isinstance(sensor.R, str) and sensor.R == R_ARGUMENT
+
+
+def _sensor_R(sensor: Sensor, table: SymbolTable) -> sympy.ImmutableMatrix:
+    """A sensor's R, checked under its name (shape, symmetry); for :data:`R_ARGUMENT` the
+    identity, which stands in the stacked R (the update takes the real R per call)."""
+    label = f"R of sensor {sensor.name!r}"
+    m_s = len(sensor.measurements)
+    if _R_given_per_call(sensor):
+        return sympy.ImmutableMatrix.eye(m_s)
+    R_s = as_matrix(sensor.R, label, table)
+    check_shape(R_s, label, (m_s, m_s), "its measurements x measurements")
+    return _symmetric(R_s, label)
 
 
 def _sensor_inputs(sensor: Sensor, model_inputs: Sequence[str], default: Sequence[str]
@@ -506,9 +529,7 @@ class LinearModel(_Model):
             m_s = len(sensor.measurements)
             H_s = as_matrix(sensor.H, f"H of {label}", table)
             check_shape(H_s, f"H of {label}", (m_s, n), "its measurements x states")
-            R_s = as_matrix(sensor.R, f"R of {label}", table)
-            check_shape(R_s, f"R of {label}", (m_s, m_s), "its measurements x measurements")
-            Rs.append(_symmetric(R_s, f"R of {label}"))
+            Rs.append(_sensor_R(sensor, table))
             Hs.append(H_s)
             own = _sensor_inputs(sensor, names, names if sensor.D is not None else ())
             self._sensor_input_names[sensor.name] = own
@@ -537,11 +558,12 @@ class LinearModel(_Model):
             own = self._sensor_input_names[sensor.name]
             columns = [i for i, u in enumerate(self.inputs) if u.name in own]
             R_s = self.R[rows, rows]
-            _check_definite(self.subs(R_s), label, strict=True)
+            if not _R_given_per_call(sensor):
+                _check_definite(self.subs(R_s), label, strict=True)
             groups.append(SensorGroup(
                 sensor.name, tuple(sensor.measurements), (row, row + m_s),
                 tuple(self.inputs[i] for i in columns), sympy.ImmutableMatrix(R_s),
-                H=sympy.ImmutableMatrix(self.H[rows, :]),
+                H=sympy.ImmutableMatrix(self.H[rows, :]), R_argument=_R_given_per_call(sensor),
                 D=sympy.ImmutableMatrix(self.D.extract(list(range(row, row + m_s)), columns)
                                         if columns else sympy.zeros(m_s, 0))))
             row += m_s
@@ -785,10 +807,8 @@ class NonlinearModel(_Model):
             m_s = len(sensor.measurements)
             h_s = as_matrix(sensor.h, f"h of {label}", table, vector=True)
             check_shape(h_s, f"h of {label}", (m_s, 1), "one expression per measurement")
-            R_s = as_matrix(sensor.R, f"R of {label}", table)
-            check_shape(R_s, f"R of {label}", (m_s, m_s), "its measurements x measurements")
             hs.append(h_s)
-            Rs.append(_symmetric(R_s, f"R of {label}"))
+            Rs.append(_sensor_R(sensor, table))
         return (sympy.ImmutableMatrix(sympy.Matrix.vstack(*hs)),
                 sympy.ImmutableMatrix(sympy.diag(*Rs)))
 
@@ -808,10 +828,12 @@ class NonlinearModel(_Model):
                 raise SymbolError(f"h of sensor {sensor.name!r} uses input {stray[0]!r}, which "
                                   f"is not one of the sensor's inputs {list(own)}")
             R_s = sympy.ImmutableMatrix(self.R[rows, rows])
-            _check_definite(self.subs(R_s), f"R of sensor {sensor.name!r}", strict=True)
+            if not _R_given_per_call(sensor):
+                _check_definite(self.subs(R_s), f"R of sensor {sensor.name!r}", strict=True)
             groups.append(SensorGroup(
                 sensor.name, tuple(sensor.measurements), (row, row + m_s),
-                tuple(u for u in self.inputs if u.name in own), R_s, h=h_s))
+                tuple(u for u in self.inputs if u.name in own), R_s, h=h_s,
+                R_argument=_R_given_per_call(sensor)))
             row += m_s
         return tuple(groups)
 

@@ -94,7 +94,7 @@ from derive.expressions import (
     exact_number,
     parse_expression,
 )
-from derive.model import P0_PATTERNS, LinearModel, NonlinearModel, Sensor
+from derive.model import P0_PATTERNS, R_ARGUMENT, LinearModel, NonlinearModel, Sensor
 from derive.symbols import check_identifier
 from derive.toml_limits import toml_shape_problem
 
@@ -574,7 +574,8 @@ class _File:
                     raise self.error(f"{where} inputs", f"{u!r} is not one of the model's "
                                                         f"inputs {inputs}")
             own = list(value)
-        matrices: dict[str, Any] = {"R": self.matrix(table["R"], f"{where} R", self.symbols)}
+        matrices: dict[str, Any] = {"R": R_ARGUMENT if table["R"] == R_ARGUMENT else
+                                    self.matrix(table["R"], f"{where} R", self.symbols)}
         if kind == "nonlinear":
             names = {**self.symbols, **{s: sympy.Symbol(s, real=True) for s in states},
                      **{u: sympy.Symbol(u, real=True) for u in inputs}}

@@ -115,3 +115,15 @@ def test_gate_is_refused_by_filters_without_sensor_support():
     with pytest.raises(OptionError, match=r"option 'gate' is taken by kf, ekf, not by lf"):
         derive_unit(LinearModel("a", ["x"], ["z"], F=[[1]], H=[[1]], Q=[[1]], R=[[1]]),
                     "lf", {"gate": 0.99})
+
+
+def test_a_single_sensor_model_is_gated_through_its_one_update():
+    model = LinearModel("a", ["x"], ["z"], F=[[1]], H=[[1]], Q=[[0.01]], R=[[1]],
+                        x0=[0], P0=[[1]])
+    generated = load_generated(model, "kf", {"gate": 0.99})
+    assert list(generated.unit.programs) == ["predict", "update_all"]
+    zs = np.array([[0.1], [-0.2], [40.0], [0.3]])
+    xs, Ps, nis, applied = generated.c.run(zs, np.zeros(1), np.eye(1))
+    assert applied.tolist() == [1.0, 1.0, 0.0, 1.0]
+    assert nis[2] > chi2.ppf(0.99, 1) >= nis[[0, 1, 3]].max()
+    assert xs[2, 0] == xs[1, 0]  # the rejected step keeps the prediction (F = 1)

@@ -265,3 +265,58 @@ def test_a_one_group_model_with_unit_norm_keeps_step_and_verifies(tmp_path, caps
     assert main(["verify", str(path), "--filter", "ekf"]) == 0
     out = capsys.readouterr().out
     assert "ok   att1               ekf     c" in out
+
+
+def test_R_given_per_call_is_an_input_of_the_update_and_a_per_step_array_of_run(tmp_path):
+    text = TWO_SENSORS.replace("R = 4\n", 'R = "argument"\n').replace(
+        'dt = { description = "step, one value per step in p" }', "dt = 0.1")
+    model = loads_model(text)
+    assert [g.R_argument for g in model.sensors] == [True, False]
+    generated = load_generated(model, "kf")
+    ports = [p.name for p in generated.unit.programs["update_gps"].inputs]
+    assert ports == ["x", "P", "z", "R", "u"]
+    rng = np.random.default_rng(6)
+    steps = 500
+    us = rng.uniform(-1, 1, (steps, 2))
+    zs = {"gps": rates(steps, rng, 1, 4, 2.0), "speed": rates(steps, rng, 1, 1)}
+    Rs = {"gps": rng.uniform(0.5, 8.0, (steps, 1, 1))}  # R changes from call to call
+    x0, P0 = np.zeros(2), np.eye(2)
+    ref = reference_run(model, {}, zs, us, None, x0, P0, Rs)
+    for module in (generated.python, generated.c):
+        xs, Ps = module.run(us, zs["gps"], Rs["gps"], zs["speed"], x0, P0)
+        assert relative(xs, ref.xs) <= 1e-12 and relative(Ps, ref.Ps) <= 1e-12
+    path = tmp_path / "cart2r.toml"
+    path.write_text(text)
+    assert main(["verify", str(path), "--filter", "kf"]) == 0
+    one = LinearModel("one", ["p"], F=[[1]], Q=[[1]],
+                      sensors=[Sensor("gps", ["zp"], H=[[1]], R="argument")])
+    assert derive_unit(one, "kf").run_kind == "sensors"
+    with pytest.raises(FilterError, match="filter 'lf' takes no R given per call; model "
+                                          "'one' declares sensor R = 'argument'"):
+        derive_unit(one, "lf")
+
+
+def test_per_step_dt_in_the_one_group_step_and_run_and_in_predict():
+    """Item 3: p one row per step reaches step/run, predict and update1 of today's EKF."""
+    q0, q1, b, w, dt = sympy.symbols("q0 q1 b w dt", real=True)
+    model = NonlinearModel(
+        "att1", ["q0", "q1", "b"], ["c", "s", "zb"],
+        f=[q0 - dt * (w - b) * q1 / 2, q1 + dt * (w - b) * q0 / 2, b],
+        h=[q0**2 - q1**2, 2 * q0 * q1, b], Q=sympy.diag(1e-5, 1e-5, 1e-7),
+        R=sympy.eye(3) / 100, inputs=["w"], Qu=[[1e-4]], parameters=["dt"])
+    generated = load_generated(model, "ekf")
+    assert generated.unit.run_kind == "timevarying"
+    rng = np.random.default_rng(12)
+    steps = 1000
+    us = 0.3 + 0.05 * rng.normal(size=(steps, 1))
+    dt = rng.uniform(0.005, 0.05, (steps, 1))
+    angle = np.cumsum(us[:, 0] * dt[:, 0])
+    zs = np.c_[np.cos(angle), np.sin(angle), np.zeros(steps)] + 0.1 * rng.normal(size=(steps, 3))
+    x0, P0 = np.array([1.0, 0.0, 0.0]), np.diag([0.01, 0.01, 1e-4])
+    ref = reference_run(model, {}, {"all": zs}, us, dt, x0, P0)
+    for module in (generated.python, generated.c):
+        xs, Ps = module.run(zs, us, x0, P0, p=dt)
+        assert relative(xs, ref.xs) <= 1e-9 and relative(Ps, ref.Ps) <= 1e-9
+    x, P = generated.python.predict(x0, P0.ravel(), us[0], dt[0])
+    x_ref, P_ref = generated.python.predict(x0, P0.ravel(), us[0], dt[1])
+    assert not np.allclose(x, x_ref)  # predict reads its own row of p

@@ -244,14 +244,16 @@ class SensorRun:
     truth: np.ndarray
     x0: np.ndarray
     P0: np.ndarray
+    Rs: dict
 
 
 def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> SensorRun:
     """The model's own process driven by inputs uniform in [-1, 1] (nonlinear: with noise
     of covariance Qu on them) and process noise, measured by each sensor of ``groups``
     (derive.model.SensorGroup, rows of the model's stacked h or H) every
-    :data:`SENSOR_PERIODS` steps, with noise of its R. Needs every symbol to have a value
-    (``params``: values of the free parameters, name -> number)."""
+    :data:`SENSOR_PERIODS` steps, with noise of its R (a sensor whose R is given per call:
+    a diagonal R per step, uniform in [0.5, 2], in ``Rs``). Needs every symbol to have a
+    value (``params``: values of the free parameters, name -> number)."""
     steps = _steps(steps)
     rng = np.random.default_rng(seed)
     n, n_u = model.n, len(model.inputs)
@@ -281,10 +283,15 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
         h, R = fns["h"], fns["R"]
     v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
     stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v
-    zs = {}
+    zs, Rs = {}, {}
     for i, group in enumerate(groups):
         rows = stacked[:, group.rows[0]:group.rows[1]].copy()
+        if group.R_argument:  # R per step: a diagonal drawn in [0.5, 2], noise of that R
+            scale = rng.uniform(0.5, 2.0, (steps, group.m))
+            Rs[group.name] = np.einsum("ki,ij->kij", scale, np.eye(group.m))
+            rows = rows - v[:, group.rows[0]:group.rows[1]] + np.sqrt(scale) * rng.standard_normal(
+                (steps, group.m))
         period = SENSOR_PERIODS[min(i, len(SENSOR_PERIODS) - 1)]
         rows[np.arange(steps) % period != 0] = np.nan
         zs[group.name] = rows
-    return SensorRun(zs, us, truth, x0, P0)
+    return SensorRun(zs, us, truth, x0, P0, Rs)

@@ -288,11 +288,13 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
     run = simulate_sensors(model, groups, steps, seed, params)
     ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
           if model.parameters else None)
-    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0)
+    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     out = []
     for lang, module in modules.items():
-        data = ([run.us] if model.inputs else []) + [run.zs[g.name] for g in groups]
+        data = [run.us] if model.inputs else []
+        for g in groups:
+            data += [run.zs[g.name]] + ([run.Rs[g.name]] if g.R_argument else [])
         result = module.run(*data, run.x0, run.P0, *([] if ps is None else [ps]))
         xs, Ps = np.asarray(result[0]), np.asarray(result[1]).reshape(steps, model.n, model.n)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))

@@ -46,6 +46,8 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     for s in unit.sensors:
         z = f"z_{s.name}[k]"
         u = f", {_columns(s.inputs, unit.n_inputs)}" if s.inputs else ""
+        if s.R_argument:  # R before u, as the update takes them
+            u = f", R_{s.name}[k].reshape(({s.m * s.m},) + track)" + u
         outs = "x_up, P_up" + (", nis, applied" if s.gated else "")
         lines += [f"    present = ~np.isnan({z}).any(axis=0)",
                   "    if np.any(present):",
@@ -124,8 +126,10 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         name = f"update_{s.name}"
         u_name, cols = subsets.get(name, ("uk", ()))
         test = " && ".join(f"zk[{i}] == zk[{i}]" for i in range(s.m))
+        given = {"R": f"R_{s.name} + k * {s.m * s.m}"} if s.R_argument else {}
         inner = (_gather(u_name, cols)
-                 + _call(prefix, lowered[name], {**rows, "u": u_name, "z": "zk"}) + copy)
+                 + _call(prefix, lowered[name], {**rows, **given, "u": u_name, "z": "zk"})
+                 + copy)
         if s.gated:
             inner += [f"if (nis_{s.name}) {{", f"    nis_{s.name}[k] = nis[0];", "}",
                       f"if (applied_{s.name}) {{", f"    applied_{s.name}[k] = applied[0];",

@@ -119,12 +119,14 @@ class Argument:
 class SensorSlot:
     """One sensor of a unit of the run kind ``sensors``: its name, its measurement count,
     the columns of run's u (the model's inputs) its update takes, and whether its update
-    is gated (returns nis and applied)."""
+    is gated (returns nis and applied); ``R_argument``: its update takes R per call (run:
+    one R per step, ``R_<sensor>``)."""
 
     name: str
     m: int
     inputs: tuple[int, ...] = ()
     gated: bool = False
+    R_argument: bool = False
 
 
 @dataclass(frozen=True)
@@ -280,7 +282,8 @@ def _validate_sensors(unit: Unit) -> None:
     for s in unit.sensors:
         u = [("u", (len(s.inputs),))] if s.inputs else []
         gated = [("nis", (1,)), ("applied", (1,))] if s.gated else []
-        want[f"update_{s.name}"] = ([("x", (n,)), ("P", (n, n)), ("z", (s.m,))] + u + p,
+        R = [("R", (s.m, s.m))] if s.R_argument else []
+        want[f"update_{s.name}"] = ([("x", (n,)), ("P", (n, n)), ("z", (s.m,))] + R + u + p,
                                     [("x_new", (n,)), ("P_new", (n, n))] + gated)
     if set(unit.programs) != set(want):
         raise ProgramError(f"unit {unit.prefix}: run kind 'sensors' takes the programs "
@@ -382,10 +385,14 @@ def sensor_run_arguments(unit: Unit) -> list[Argument]:
     if unit.n_inputs:
         args.append(Argument("u", "us", ("steps", unit.n_inputs),
                              doc="u(k) per step, one row each (predict's and the updates')"))
-    args += [Argument(f"z_{s.name}", f"z_{s.name}", ("steps", s.m),
-                      doc=f"sensor {s.name} per step, one row each; a row with a NaN: no "
-                          "measurement of this sensor at that step")
-             for s in unit.sensors]
+    for s in unit.sensors:
+        args.append(Argument(f"z_{s.name}", f"z_{s.name}", ("steps", s.m),
+                             doc=f"sensor {s.name} per step, one row each; a row with a NaN: "
+                                 "no measurement of this sensor at that step"))
+        if s.R_argument:
+            args.append(Argument(f"R_{s.name}", f"R_{s.name}", ("steps", s.m, s.m),
+                                 doc=f"R of sensor {s.name} per step (symmetric; read where "
+                                     "its row of z is present)"))
     args += [Argument("x0", "x0", (n,), doc="initial state estimate"),
              Argument("P0", "P0", (n, n), doc="initial covariance (symmetric)"),
              Argument("xs", "xs", ("steps", n), output=True, doc="estimate after each step"),

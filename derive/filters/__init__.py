@@ -58,6 +58,9 @@ def _sensors_refusal(model, spec: FilterSpec) -> str | None:
     if spec.sensors:
         return None
     takers = ", ".join(name for name, s in FILTERS.items() if s.sensors)
+    if any(g.R_argument for g in getattr(model, "sensors", ())):
+        return (f"filter {spec.name!r} takes no R given per call; model {model.name!r} "
+                f"declares sensor R = 'argument' (the filters that do: {takers})")
     if len(getattr(model, "sensors", ())) >= 2:
         return (f"filter {spec.name!r} takes no model with several sensors; model "
                 f"{model.name!r} declares sensors {[s.name for s in model.sensors]} (the "

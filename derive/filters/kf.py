@@ -154,6 +154,9 @@ def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | Non
             inputs = [Port("x", (n,), doc="x before the update (x(k/k-1))"),
                       Port("P", (n, n), symmetric=True, doc="its covariance, symmetric"),
                       Port("z", (group.m,), doc=", ".join(group.measurements))]
+            if group.R_argument:
+                inputs.append(Port("R", (group.m, group.m), symmetric=True,
+                                   doc="its noise covariance R, given per call, symmetric"))
             outputs = [Port("x_new", (n,), doc="x after the update"),
                        Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
             if gate is not None:
@@ -176,7 +179,12 @@ def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | Non
                                 mats["GQGt"], symmetric_result=True)
         else:
             H = sympy.Matrix(model.subs(group.H)).xreplace(binding)
-            R = sympy.Matrix(model.subs(group.R)).xreplace(binding)
+            if group.R_argument:  # the port's upper triangle
+                given = prog.matrix("R")
+                R = sympy.Matrix(group.m, group.m,
+                                 lambda i, j: given[min(i, j), max(i, j)])
+            else:
+                R = sympy.Matrix(model.subs(group.R)).xreplace(binding)
             PHt = staging.matmul(prog, P, H.T)
             S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
                             symmetric_result=True)

@@ -149,6 +149,7 @@ class Measurement:
     R: sympy.Matrix
     names: tuple[str, ...]
     gate: float | None = None  # the NIS threshold of a gated update (None: not gated)
+    R_port: bool = False  # R is the update's input port R (R holds its stand-in symbols)
 
 
 def all_measurements(model) -> Measurement:
@@ -204,10 +205,17 @@ Update = Callable[[Program, dict, Measurement, sympy.Matrix, sympy.Matrix, sympy
 mapping binds parameters and the measurement's inputs; variance is S (or Pvv), k x k."""
 
 
+def R_stand_ins(m: int) -> sympy.Matrix:
+    """Symmetric m x m symbols standing for an R given per call (bound to the port R)."""
+    return sympy.Matrix(m, m, lambda i, j: sympy.Symbol(f"_R{min(i, j)}_{max(i, j)}",
+                                                        real=True))
+
+
 def sensor_measurement(model, group, gate: float | None = None) -> Measurement:
     """A sensor's rows (derive.model.SensorGroup) as the Measurement its update uses."""
-    return Measurement(sympy.Matrix(model.subs(group.h)), tuple(group.inputs),
-                       sympy.Matrix(model.subs(group.R)), tuple(group.measurements), gate)
+    R = (R_stand_ins(group.m) if group.R_argument else sympy.Matrix(model.subs(group.R)))
+    return Measurement(sympy.Matrix(model.subs(group.h)), tuple(group.inputs), R,
+                       tuple(group.measurements), gate, group.R_argument)
 
 
 def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list[Port]]:
@@ -216,6 +224,9 @@ def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list
     inputs = [Port("x", (n,), doc="x before the update (x(k/k-1))"),
               Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric"),
               Port("z", (len(meas.names),), doc=", ".join(meas.names))]
+    if meas.R_port:
+        inputs.append(Port("R", (len(meas.names),) * 2, symmetric=True,
+                           doc="its noise covariance R, given per call, symmetric"))
     if meas.inputs:
         inputs.append(Port("u", (len(meas.inputs),),
                            doc="its inputs " + ", ".join(s.name for s in meas.inputs)))
@@ -278,6 +289,12 @@ def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
     if update is not None:
         if meas.inputs and not (predict is not None and model.f_inputs):
             mapping.update(prog.bind("u", meas.inputs))
+        if meas.R_port:  # the stand-ins of R: the port's upper triangle
+            given = prog.matrix("R")
+            mapping.update({sym: given[min(i, j), max(i, j)]
+                            for (i, j), sym in zip(
+                                [(i, j) for i in range(meas.R.rows) for j in range(meas.R.cols)],
+                                meas.R)})
         x, P, innovation, variance, *gated = update(prog, mapping, meas, x, P,
                                                     prog.matrix("z"))
         x = renormalised(prog, model, x)

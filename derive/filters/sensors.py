@@ -48,9 +48,10 @@ def sensor_groups(model) -> tuple[SensorGroup, ...]:
 
 
 def uses_sensor_run(model, options) -> bool:
-    """Whether the unit is of the run kind ``sensors``: two or more sensors, or gating or
-    update-first asked for."""
-    return (len(model.sensors) >= 2 or options.get("gate") is not None
+    """Whether the unit is of the run kind ``sensors``: two or more sensors, a sensor whose
+    R is given per call, or gating or update-first asked for."""
+    return (len(model.sensors) >= 2 or any(g.R_argument for g in model.sensors)
+            or options.get("gate") is not None
             or options.get("gate_sensors") is not None
             or options.get("start", "predict") != "predict")
 
@@ -209,7 +210,7 @@ def reference_functions(model, thresholds):
         for g in groups:
             H = _numeric(model, g.H, [params])
             D = _numeric(model, g.D, [params])
-            R = _numeric(model, g.R, [params])
+            R = None if g.R_argument else _numeric(model, g.R, [params])
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, H=H, D=D: H(p) @ x + (D(p) @ u if u.size else 0.0),
                 lambda x, u, p, H=H: H(p), R,
@@ -232,7 +233,7 @@ def reference_functions(model, thresholds):
             own = list(g.inputs)
             h = _numeric(model, g.h, [X, own, params])
             H = _numeric(model, jacobian(g.h, model.state_symbols), [X, own, params])
-            R = _numeric(model, g.R, [params])
+            R = None if g.R_argument else _numeric(model, g.R, [params])
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, h=h: h(x, u, p).ravel(), H, R,
                 tuple(names.index(u.name) for u in g.inputs),
@@ -242,16 +243,17 @@ def reference_functions(model, thresholds):
     return predict, sensors, unit_norm
 
 
-def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None):
+def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None):
     """derive.reference.sensors.run for ``model`` and the filter ``options`` from x0 and
-    P0 (default: the model's); ``ps``: p, one row per step."""
+    P0 (default: the model's); ``ps``: p, one row per step; ``Rs``: the per-step R of the
+    sensors whose R is given per call."""
     groups = sensor_groups(model)
     predict, sensors, unit_norm = reference_functions(model, gate_thresholds(groups, options))
     num_x0 = np.array(model.x0.tolist(), dtype=float).ravel() if x0 is None else x0
     num_P0 = np.array(model.P0.tolist(), dtype=float) if P0 is None else P0
     return reference.run(predict, sensors, num_x0, num_P0, zs, us, ps,
                          update_first=options.get("start", "predict") == "update",
-                         unit_norm=unit_norm)
+                         unit_norm=unit_norm, Rs=Rs)
 
 
 __all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "gate_thresholds", "kalman_update",

@@ -19,13 +19,14 @@ import numpy as np
 
 @dataclass(frozen=True)
 class SensorFunctions:
-    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(p)`` (m, m);
-    ``columns``: the columns of u(k) it takes; ``gate``: the NIS threshold or None."""
+    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(p)`` (m, m),
+    or None when R is given per step (run's ``Rs``); ``columns``: the columns of u(k) it
+    takes; ``gate``: the NIS threshold or None."""
 
     name: str
     h: Callable
     H: Callable
-    R: Callable
+    R: Callable | None
     columns: tuple[int, ...] = ()
     gate: float | None = None
 
@@ -64,11 +65,12 @@ def renormalise(x, groups: Sequence[Sequence[int]]):
 
 
 def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict, us=None,
-        ps=None, update_first: bool = False, unit_norm: Sequence[Sequence[int]] = ()
-        ) -> SensorsResult:
+        ps=None, update_first: bool = False, unit_norm: Sequence[Sequence[int]] = (),
+        Rs: dict | None = None) -> SensorsResult:
     """The multi-sensor filter over ``zs`` (``{sensor: (steps, m_s)}``, rows of NaN:
     absent); ``predict(x, P, u, p) -> (x, P)``; ``us`` (steps, n_u) and ``ps`` (steps, np)
-    one row per step (None: empty rows)."""
+    one row per step (None: empty rows); ``Rs``: ``{sensor: (steps, m_s, m_s)}`` for the
+    sensors whose R is given per step."""
     steps = len(next(iter(zs.values())))
     x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
     n = x.shape[0]
@@ -88,7 +90,8 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
             x, P, nis[s.name][k], done = update(
                 x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(),
                 np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), n),
-                np.asarray(s.R(ps[k]), dtype=float).reshape(len(z), len(z)), s.gate)
+                np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
+                           dtype=float).reshape(len(z), len(z)), s.gate)
             applied[s.name][k] = float(done)
             x = renormalise(x, unit_norm)  # after every update call, applied or not
         xs[k], Ps[k] = x, P
