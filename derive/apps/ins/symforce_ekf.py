@@ -111,8 +111,9 @@ def generate(names=FUNCTIONS) -> dict[str, SymforceFunction]:
     """Generate SymForce's C++ for each function (timed one by one) and count it."""
     import symforce  # optional: a benchmark peer
 
-    symforce.set_log_level("error")  # its warning about epsilon: these functions divide
-    import symforce.symbolic as sf   # only by S and ‖q‖, never near zero
+    # its warning about epsilon: these functions divide only by S and ‖q‖, never near zero
+    symforce.set_log_level("error")
+    import symforce.symbolic as sf
     from symforce.codegen import Codegen, CppConfig
 
     functions = _functions(sf)
