@@ -127,3 +127,32 @@ def test_a_single_sensor_model_is_gated_through_its_one_update():
     assert applied.tolist() == [1.0, 1.0, 0.0, 1.0]
     assert nis[2] > chi2.ppf(0.99, 1) >= nis[[0, 1, 3]].max()
     assert xs[2, 0] == xs[1, 0]  # the rejected step keeps the prediction (F = 1)
+
+
+@pytest.mark.parametrize("key", ["missing", "joseph"])
+def test_missing_and_joseph_are_refused_with_sensors_in_one_line(key):
+    with pytest.raises(OptionError, match=rf"option '{key}' is not taken with several sensors, "
+                                          r"gating or update-first"):
+        derive_unit(gnss_like(), "kf", {key: True})
+
+
+def test_python_run_takes_tracks_each_with_its_own_absent_rows(gated):
+    model, generated = gated
+    zs = data()
+    tracks = 3
+    gnss = np.repeat(zs["gnss"][:, :, None], tracks, axis=2)
+    odo = np.repeat(zs["odo"][:, :, None], tracks, axis=2)
+    gnss[10, :, 1] = np.nan  # track 1 misses the fix of step 10
+    x0, P0 = np.array([0.0, 0.0, 1.0, 0.0]), np.eye(4)
+    xs, Ps, nis, applied = generated.python.run(
+        gnss, odo, np.repeat(x0[:, None], tracks, axis=1),
+        np.repeat(P0[:, :, None], tracks, axis=2))
+    one = generated.python.run(zs["gnss"], zs["odo"], x0, P0)
+    missed = dict(zs)
+    missed["gnss"] = zs["gnss"].copy()
+    missed["gnss"][10] = np.nan
+    other = generated.python.run(missed["gnss"], zs["odo"], x0, P0)
+    for track, expected in ((0, one), (1, other), (2, one)):
+        assert np.array_equal(xs[..., track], expected[0])
+        assert np.array_equal(nis[..., track], expected[2], equal_nan=True)
+        assert np.array_equal(applied[..., track], expected[3])
