@@ -85,3 +85,4 @@ def test_bad_examples_through_the_api_are_refused():
         LinearModel("m", ["p", "v"], **kwargs, examples={"q": 1.0})
     with pytest.raises(SymbolError, match="example of 'dt' must be a finite number"):
         LinearModel("m", ["p", "v"], **kwargs, examples={"dt": float("nan")})
+
