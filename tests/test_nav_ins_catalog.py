@@ -8,9 +8,9 @@ import numpy as np
 import sympy
 
 from derive import catalog
-from derive.cli import main
 from derive.apps.ins import constants as c
 from derive.apps.ins import reference as ref
+from derive.cli import main
 
 
 def test_sizes_sensors_parameters_and_unit_norm():
