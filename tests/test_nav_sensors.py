@@ -320,3 +320,20 @@ def test_per_step_dt_in_the_one_group_step_and_run_and_in_predict():
     x, P = generated.python.predict(x0, P0.ravel(), us[0], dt[0])
     x_ref, P_ref = generated.python.predict(x0, P0.ravel(), us[0], dt[1])
     assert not np.allclose(x, x_ref)  # predict reads its own row of p
+
+
+def test_R_symbolic_in_free_parameters_follows_p_per_step():
+    model = LinearModel("l", ["p", "v"], F=[[1, "dt"], [0, 1]], Q=np.eye(2) * 0.01,
+                        sensors=[Sensor("a", ["z1"], H=[[1, 0]], R="ra"),
+                                 Sensor("b", ["z2"], H=[[0, 1]], R=[["rb"]])],
+                        parameters=["dt", "ra", "rb"])
+    generated = load_generated(model, "kf")
+    rng = np.random.default_rng(0)
+    steps = 300
+    p = np.c_[rng.uniform(0.01, 0.1, steps), rng.uniform(0.5, 2, steps),
+              rng.uniform(0.1, 1, steps)]
+    z1, z2 = rates(steps, rng, 1, 3), rates(steps, rng, 1, 1)
+    ref = reference_run(model, {}, {"a": z1, "b": z2}, None, p, np.zeros(2), np.eye(2))
+    for module in (generated.python, generated.c):
+        xs, Ps = module.run(z1, z2, np.zeros(2), np.eye(2), p=p)
+        assert relative(xs, ref.xs) <= 1e-12 and relative(Ps, ref.Ps) <= 1e-12

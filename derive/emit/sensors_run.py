@@ -47,7 +47,7 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         z = f"z_{s.name}[k]"
         u = f", {_columns(s.inputs, unit.n_inputs)}" if s.inputs else ""
         if s.R_argument:  # R before u, as the update takes them
-            u = f", R_{s.name}[k].reshape(({s.m * s.m},) + track)" + u
+            u = f", R_{s.name}[k].reshape(({s.m * s.m},) + R_{s.name}.shape[3:])" + u
         outs = "x_up, P_up" + (", nis, applied" if s.gated else "")
         lines += [f"    present = ~np.isnan({z}).any(axis=0)",
                   "    if np.any(present):",

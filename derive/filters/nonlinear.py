@@ -312,14 +312,14 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
     P's pattern is the closure of P0's declared pattern (option ``P0_pattern``) under
     every program, so entries outside it are never read.
     """
-    scalar, why = scalar_measurement(model)
-    batch = all_measurements(model)
     if sensors is not None:  # the run kind sensors: predict and one update per sensor
         specs = {"predict": (None, predict, None)}
         for meas_name, meas in sensors.items():
             specs[program_name(meas_name)] = (meas, None, update)
     else:
-        specs = {"step": (batch, predict, update), "predict": (None, predict, None)}
+        scalar, why = scalar_measurement(model)
+        specs = {"step": (all_measurements(model), predict, update),
+                 "predict": (None, predict, None)}
         if scalar is not None:
             specs["update1"] = (scalar, None, update)
 
