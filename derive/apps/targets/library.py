@@ -43,8 +43,9 @@ def library_command(ref: str, units: list[Unit], out: str) -> str:
 
 def render_library(model, filters: Iterable[str] | None = None, out: str | Path = "generated",
                    options: Mapping | None = None, steps: int = TEST_STEPS,
-                   ref: str | None = None) -> tuple[dict[str, str], list[Unit]]:
-    """({file name: text} of the library of ``model``, the units), rendered, not written."""
+                   ref: str | None = None, with_data: bool = False):
+    """({file name: text} of the library of ``model``, the units), rendered, not written;
+    ``with_data``: also {filter: its VerificationData}."""
     model = resolve_model(model)
     ref = ref or model.name
     names = list(filters) if filters is not None else available(model)
@@ -54,20 +55,21 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
     files: dict[str, str] = {}
     units: list[Unit] = []
     tests: dict[str, str] = {}
+    data = {}
     for name in names:
         unit = command_unit(model, name, typed[name], ref, str(out))
         unit = dataclasses.replace(unit, command=unit.command.replace(
             " --lang all", " --layout library", 1))
         texts = render_c(unit)
         files.update(texts)
-        data = verification_data(model, name, typed[name], steps)
+        data[name] = verification_data(model, name, typed[name], steps)
         tests[name] = test_program_name(unit)
-        files[tests[name]] = render_test_program(unit, texts[f"{name}.h"], data,
+        files[tests[name]] = render_test_program(unit, texts[f"{name}.h"], data[name],
                                                  precision(unit))
         units.append(unit)
     files.update(render_build_files(model.name, names, library_command(ref, units, str(out)),
                                     tests))
-    return files, units
+    return (files, units, data) if with_data else (files, units)
 
 
 def generate_library(model, filters: Iterable[str] | None = None,

@@ -1,0 +1,196 @@
+"""The generated C on ARM: Cortex-M4F code and data sizes per function, and runs under
+``qemu-arm`` compared with the NumPy reference.
+
+Sizes: each filter's ``FILTER.c`` is written (derive.emit.write, into a scratch
+directory), compiled for the ``cortex-m4`` target at each level of
+:data:`~derive.apps.targets.toolchains.SIZE_LEVELS`, and the object read back
+(:func:`~derive.apps.targets.toolchains.read_sizes`). Runs: the filter's C and its test
+program (derive.emit.library: the verification data embedded) are built for
+``arm-linux-gnueabihf`` (static, ``-O2``), run under ``qemu-arm --states``; the states it
+prints (C99 ``%a``: exact) are compared in Python with the reference by the error measure
+of ``derive verify`` (derive.apps.verify.relative_error), against its tolerance.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import tempfile
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...build import BuildError
+from ...emit.write import write_files
+from ...filters import available
+from ...generation import render_unit, resolve_model
+from ...options import per_filter
+from ..verify import relative_error
+from .data import TEST_STEPS
+from .library import precision, render_library
+from .toolchains import SIZE_LEVELS, TARGETS, ObjectSize, compile_object, link_program, read_sizes
+
+#: A run under the emulator that takes longer than this is a hang.
+RUN_TIMEOUT = 600.0
+_PRINTED = re.compile(r"largest error (\S+) over (\d+) steps")
+
+
+@dataclass(frozen=True)
+class FilterSize:
+    """One filter compiled for a target at one optimisation level."""
+
+    model: str
+    filter: str
+    precision: str
+    target: str
+    level: str
+    object: ObjectSize
+
+
+def filter_names(model, filters: Iterable[str] | None) -> list[str]:
+    return list(filters) if filters is not None else available(model)
+
+
+def sizes(model, filters: Iterable[str] | None = None, options: Mapping | None = None,
+          target: str = "cortex-m4", levels: Iterable[str] = SIZE_LEVELS,
+          workdir: str | Path | None = None) -> list[FilterSize]:
+    """Sizes of the C of ``filters`` (default: all that apply) of ``model`` compiled for
+    ``target`` at each level, read from the objects."""
+    model = resolve_model(model)
+    tgt = TARGETS[target]
+    tgt.require()
+    names = filter_names(model, filters)
+    typed = per_filter(names, options, None, named=filters is not None)
+    files, scalars = {}, {}
+    for name in names:
+        unit, texts = render_unit(model, name, "c", typed[name])
+        files.update(texts)
+        scalars[name] = precision(unit)
+    out: list[FilterSize] = []
+    with tempfile.TemporaryDirectory(prefix="derive-size-", dir=workdir) as scratch:
+        write_files(scratch, model.name, files)
+        folder = Path(scratch) / model.name
+        for name in names:
+            out += file_sizes(folder / f"{name}.c", model.name, name, scalars[name], target,
+                              levels)
+    return out
+
+
+def file_sizes(source: Path, model: str, name: str, scalar: str, target: str = "cortex-m4",
+               levels: Iterable[str] = SIZE_LEVELS) -> list[FilterSize]:
+    """Sizes of one written generated ``FILTER.c`` (its header beside it) compiled for
+    ``target`` at each level; the objects go beside it in a scratch directory."""
+    tgt = TARGETS[target]
+    tgt.require()
+    out = []
+    with tempfile.TemporaryDirectory(prefix="derive-size-") as scratch:
+        for level in levels:
+            obj = compile_object(tgt, source, Path(scratch) / f"{name}{level}.o", level)
+            out.append(FilterSize(model, name, scalar, target, level, read_sizes(tgt, obj)))
+    return out
+
+
+@dataclass(frozen=True)
+class ArmRun:
+    """One filter run under the emulator: the error Python measured on the states the
+    program printed, the error the program printed itself, and the tolerance."""
+
+    model: str
+    filter: str
+    precision: str
+    steps: int
+    error: float
+    printed: float
+    tolerance: float
+
+    @property
+    def passed(self) -> bool:
+        return bool(np.isfinite(self.error) and self.error <= self.tolerance)
+
+    def line(self) -> str:
+        mark = "ok  " if self.passed else "FAIL"
+        return (f"{mark} {self.model:18s} {self.filter:7s} {self.precision:6s} qemu-arm "
+                f"{self.steps:4d} steps  max rel err {self.error:9.2e} <= "
+                f"{self.tolerance:.1e} (program: {self.printed:.2e})")
+
+
+def read_states(text: str) -> dict[str, np.ndarray]:
+    """{output name: values} from the ``--states`` lines of a test program."""
+    states = {}
+    for line in text.splitlines():
+        name, _, values = line.partition(" ")
+        if name.isidentifier() and values and values.lstrip().startswith(("0x", "-0x")):
+            states[name] = np.array([float.fromhex(v) for v in values.split()])
+    return states
+
+
+def run_under_qemu(model, filters: Iterable[str] | None = None, options: Mapping | None = None,
+                   steps: int = TEST_STEPS, workdir: str | Path | None = None
+                   ) -> list[ArmRun]:
+    """Build each filter with its test program for arm-linux-gnueabihf, run it under
+    qemu-arm and compare the states it prints with the reference."""
+    model = resolve_model(model)
+    tgt = TARGETS["arm-linux"]
+    tgt.require(run=True)
+    names = filter_names(model, filters)
+    files, units, data = render_library(model, names, "scratch", options, steps,
+                                        with_data=True)
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="derive-qemu-", dir=workdir) as scratch:
+        write_files(scratch, model.name, files)
+        folder = Path(scratch) / model.name
+        for unit in units:
+            name = unit.filter
+            objects = [compile_object(tgt, folder / f"{stem}.c", folder / f"{stem}.o", "-O2",
+                                      include=(Path(scratch),))
+                       for stem in (name, f"test_{name}")]
+            program = link_program(tgt, objects, folder / f"test_{name}")
+            done = subprocess.run([tgt.runner, str(program), "--states"], capture_output=True,
+                                  text=True, timeout=RUN_TIMEOUT)
+            printed = _PRINTED.search(done.stdout)
+            if done.returncode not in (0, 1) or printed is None:
+                raise BuildError(f"{tgt.runner} {program.name} exited with status "
+                                 f"{done.returncode}: {done.stdout[-300:]}{done.stderr[-300:]}")
+            states = read_states(done.stdout)
+            reference = data[name].reference
+            error = 0.0
+            for output, ref in reference.items():
+                if output not in states:
+                    raise BuildError(f"{program.name} printed no {output}")
+                error = max(error, relative_error(states[output].reshape(ref.shape), ref))
+            runs.append(ArmRun(model.name, name, precision(unit), steps, error,
+                               float(printed[1]), data[name].tolerance))
+    return runs
+
+
+def short_name(function: str, model: str, name: str) -> str:
+    """``step`` for ``acme_mpt3d_a_kf_step``: the function without its file's prefix."""
+    marker = f"{model}_{name}_"
+    return function.split(marker, 1)[1] if marker in function else function
+
+
+def size_rows(rows: Iterable[FilterSize]) -> list[tuple[str, ...]]:
+    """One row per filter and level: model, filter, precision, level, the object's text,
+    data and bss, and the code bytes of each function (largest first)."""
+    out = []
+    for r in rows:
+        functions = sorted(r.object.functions().items(), key=lambda kv: (-kv[1], kv[0]))
+        out.append((r.model, r.filter, r.precision, r.level, str(r.object.text),
+                    str(r.object.data), str(r.object.bss),
+                    ", ".join(f"{short_name(f, r.model, r.filter)} {b}" for f, b in functions)))
+    return out
+
+
+SIZE_COLUMNS = ("model", "filter", "precision", "level", "text", "data", "bss",
+                "code bytes per function")
+
+
+def size_table(rows: Iterable[FilterSize]) -> str:
+    """The rows as an aligned text table."""
+    body = [SIZE_COLUMNS] + size_rows(rows)
+    widths = [max(len(row[i]) for row in body) for i in range(len(SIZE_COLUMNS) - 1)]
+    return "\n".join("  ".join(cell.rjust(w) if cell.isdigit() else cell.ljust(w)
+                               for cell, w in zip(row, widths)) + "  " + row[-1]
+                     for row in body)
