@@ -111,3 +111,13 @@ def test_states_are_read_exactly():
     text = "noise line\nxs " + " ".join(v.hex() for v in values) + "\ncv kf: largest error 0"
     assert np.array_equal(read_states(text)["xs"], values)
 
+
+
+def test_a_missing_cross_compiler_is_named_in_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("PATH", str(tmp_path))   # no tool at all on PATH
+    assert main(["size", "cv", "--filter", "kf"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("derive: error: target cortex-m4: arm-none-eabi-gcc, ")
+    assert "apt-get install gcc-arm-none-eabi" in err and err.count("\n") == 1
+    assert main(["size", "cv", "--filter", "kf", "--target", "arm-linux", "--qemu"]) == 2
+    assert "arm-linux-gnueabihf-gcc" in capsys.readouterr().err

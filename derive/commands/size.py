@@ -45,6 +45,9 @@ def run(args) -> int:
     refs = catalog.names() if args.all else [args.model]
     levels = tuple(f"-{v}" for v in args.levels) if args.levels else SIZE_LEVELS
     target = TARGETS[args.target]
+    target.require()   # every tool named before any work
+    if args.qemu:
+        TARGETS["arm-linux"].require(run=True)
     print(f"{target.name}: {target.cc} {' '.join(target.flags)} (bytes read from each object "
           f"by {target.size} and {target.nm} --size-sort -S)")
     rows = [row for ref in refs for row in sizes(ref, args.filters, options, args.target,

@@ -191,6 +191,7 @@ def size_table(rows: Iterable[FilterSize]) -> str:
     """The rows as an aligned text table."""
     body = [SIZE_COLUMNS] + size_rows(rows)
     widths = [max(len(row[i]) for row in body) for i in range(len(SIZE_COLUMNS) - 1)]
-    return "\n".join("  ".join(cell.rjust(w) if cell.isdigit() else cell.ljust(w)
-                               for cell, w in zip(row, widths)) + "  " + row[-1]
-                     for row in body)
+    numeric = {SIZE_COLUMNS.index(c) for c in ("text", "data", "bss")}
+    return "\n".join("  ".join(cell.rjust(w) if i in numeric else cell.ljust(w)
+                               for i, (cell, w) in enumerate(zip(row, widths)))
+                      + "  " + row[-1] for row in body)
