@@ -17,6 +17,12 @@ the inputs in C order (``p`` as keyword) and returns the outputs flat, like the
 generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
 ``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`, or
 :class:`derive.errors.PatternError` naming the entry for the pattern status.
+
+The arrays are of the C's element type, which the interface line states (derive.interface:
+double unless it says ``"element": "float"``): a float32 kernel (``--precision float``)
+takes and returns float32 arrays, and refuses a float64 array (or a list of Python
+floats) with :class:`derive.errors.DtypeError` naming the argument, rather than rounding
+it silently; integer arrays are converted, as for a double kernel.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ import numpy as np
 
 from derive import interface
 from derive.errors import (
+    DtypeError,
     ModelError,
     NumericalError,
     PatternError,
@@ -105,6 +112,8 @@ class FilterModule:
         self.interface = described
         self.functions = {f.name[len(prefix) + 1:]: f for f in described.functions}
         self.statuses = described.messages()
+        self.dtype = np.dtype(described.dtype)
+        self.c_type = described.element
 
     def __getattr__(self, name: str):
         functions = self.__dict__.get("functions", {})
@@ -112,10 +121,32 @@ class FilterModule:
             return lambda *args, **kwargs: self.call(name, *args, **kwargs)
         raise AttributeError(name)
 
+    def buffer(self, array: np.ndarray):
+        """The cffi buffer of an array of the kernel's element type."""
+        return self.ffi.from_buffer(f"{self.c_type}[]", array)
+
+    def empty(self, shape) -> np.ndarray:
+        """An output array of the kernel's element type."""
+        return np.empty(shape, dtype=self.dtype)
+
+    def converted(self, function: str, name: str, value) -> np.ndarray:
+        """``value`` as a contiguous array of the kernel's dtype; DtypeError when that would
+        round it (a wider floating type given to a float32 kernel)."""
+        given = np.asarray(value)
+        if (given.dtype.kind in "fc" and given.dtype != self.dtype
+                and given.dtype.itemsize > self.dtype.itemsize):
+            what = "list of Python floats" if not isinstance(value, np.ndarray) else "array"
+            raise DtypeError(f"{self.prefix}_{function}: argument {name!r} is a "
+                             f"{given.dtype} {what}, but this kernel is {self.dtype} "
+                             f"(C {self.c_type}): pass np.asarray({name}, "
+                             f"dtype=np.{self.dtype})")
+        return np.ascontiguousarray(given, dtype=self.dtype)
+
     def _array(self, function: str, arg: CArgument, value, steps: int) -> np.ndarray:
-        """``value`` as contiguous float64 of one of the shapes ``arg`` accepts, or
-        ShapeError naming the argument, the shapes accepted and the shape given."""
-        array = np.ascontiguousarray(value, dtype=np.float64)
+        """``value`` as a contiguous array of the kernel's dtype (:meth:`converted`) of one
+        of the shapes ``arg`` accepts, or ShapeError naming the argument, the shapes
+        accepted and the shape given."""
+        array = self.converted(function, arg.name, value)
         accepted = arg.shapes(steps)
         if array.shape not in accepted:
             raise ShapeError(f"{self.prefix}_{function}: argument {arg.name!r} must have shape "
@@ -149,14 +180,14 @@ class FilterModule:
                 if arg.optional and not with_covariance:
                     c_args.append(self.ffi.NULL)
                     continue
-                out = np.empty(arg.size(steps))
+                out = self.empty(arg.size(steps))
                 if not arg.scratch:  # a work array is written, not returned
                     outputs.append((arg, out))
-                c_args.append(self.ffi.from_buffer("double[]", out))
+                c_args.append(self.buffer(out))
             else:
                 array = self._array(name, arg, values[arg.name], steps)
                 keep.append(array)
-                c_args.append(self.ffi.from_buffer("double[]", array))
+                c_args.append(self.buffer(array))
                 if arg.rows:  # 0: one row for every step; the row's length: one per step
                     strides.append(arg.size() if array.ndim == 2 else 0)
         if fn.has_steps:
@@ -215,18 +246,19 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
                 out=None):
     """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
     (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None).
-    ``out``: (xs, Ps) written in place instead (C-contiguous float64 of those shapes;
-    Ps None when not stored), as derive.batch passes the slices of one result."""
+    ``out``: (xs, Ps) written in place instead (C-contiguous, of those shapes; Ps None when
+    not stored), as derive.batch passes the slices of one result. Every array is of the
+    kernel's dtype (float32 for a float kernel)."""
     fn = getattr(module.lib, f"{module.prefix}_run_tracks")
     run = module.functions["run"]
     inputs = {a.name: a for a in run.arguments if not a.output}
-    zs = np.ascontiguousarray(zs, dtype=np.float64)
+    zs = module.converted("run_tracks", "z", zs)
     shape = zs.shape
     tracks, steps = (shape + (0, 0))[:2]
 
     def track_major(name: str, value) -> np.ndarray:
         """(tracks, the run's shape of the argument), or ShapeError."""
-        array = np.ascontiguousarray(value, dtype=np.float64)
+        array = module.converted("run_tracks", name, value)
         accepted = [(tracks,) + s for s in inputs[name].shapes(steps)]
         if array.shape not in accepted:
             raise ShapeError(f"{module.prefix}_run_tracks: argument {name!r} must have shape "
@@ -235,21 +267,20 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
 
     zs, x0 = track_major("z", zs), track_major("x0", x0)
     n = int(inputs["x0"].dims[0])
-    xs, Ps_out = out if out is not None else (np.empty((tracks, steps, n)), None)
-    buf = module.ffi.from_buffer
-    args = [steps, tracks, buf("double[]", zs), buf("double[]", x0)]
+    xs, Ps_out = out if out is not None else (module.empty((tracks, steps, n)), None)
+    buf = module.buffer
+    args = [steps, tracks, buf(zs), buf(x0)]
     Ps = None
     if P0 is not None:
         P0 = track_major("P0", P0)
-        Ps = (Ps_out if out is not None else np.empty((tracks, steps, n, n))
+        Ps = (Ps_out if out is not None else module.empty((tracks, steps, n, n))
               ) if with_covariance else None
-        args += [buf("double[]", P0), buf("double[]", xs),
-                 buf("double[]", Ps) if Ps is not None else module.ffi.NULL]
+        args += [buf(P0), buf(xs), buf(Ps) if Ps is not None else module.ffi.NULL]
     else:
-        args.append(buf("double[]", xs))
+        args.append(buf(xs))
     if p is not None:
         p = module._array("run_tracks", inputs["p"], p, steps)
-        args += [buf("double[]", p), inputs["p"].size() if p.ndim == 2 else 0]
+        args += [buf(p), inputs["p"].size() if p.ndim == 2 else 0]
     status = fn(*args)
     if status:
         raise status_error(module, "run_tracks", status, {"P0": P0})

@@ -13,6 +13,11 @@ class ShapeError(ModelError):
     """A matrix or vector has the wrong shape."""
 
 
+class DtypeError(ModelError):
+    """An array of the wrong floating-point type for a compiled kernel (float64 given to a
+    float32 kernel, which would round it silently)."""
+
+
 class SymbolError(ModelError):
     """An unknown, undeclared, repeated or badly named symbol."""
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from .errors import OptionError
 from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
+from .precision import NAMES as PRECISIONS
 
 PATTERNS = ("dense", "zero", "diagonal", "block")
 C_PREFIX = r"(?:[A-Za-z][A-Za-z0-9_]*)?"
@@ -115,6 +116,10 @@ class SharedOptions:
         pattern_words="empty or a letter followed by letters, digits and underscores",
         help="C: put PREFIX in front of every name the files export (functions, macros, "
              "the status enum and the include guard)")
+    precision: str = option(
+        "double", flag="--precision", kind=str, choices=PRECISIONS,
+        help="C: the floating-point type of the generated C, double or float (float32; "
+             "the Python stays double)")
 
     def __post_init__(self) -> None:
         for key, spec in self.specs().items():

@@ -15,6 +15,7 @@ from __future__ import annotations
 from derive.emit import c_printer
 from derive.emit.unit import LOOKAHEAD_NEXT, Unit
 from derive.lowering import LoweredProgram, lower_program
+from derive.precision import precision
 from derive.program import PARAMETER_PORT
 
 #: Tracks that run_tracks advances together: independent dependency chains in one basic
@@ -42,7 +43,8 @@ def fused_body(unit: Unit, step: LoweredProgram) -> list[str]:
     ``zk``, the row of step k; ``p`` reads ``pk``, ``p + k * p_stride``: one row for all
     steps or one per step).
     """
-    return c_printer.statements(step.renamed({name: _row(name) for name in _rows(unit)}))
+    return c_printer.statements(step.renamed({name: _row(name) for name in _rows(unit)}),
+                                precision(unit.precision))
 
 
 def lane_names(unit: Unit, label: str) -> dict[str, str]:
@@ -72,6 +74,7 @@ def tracks_parts(unit: Unit, step: LoweredProgram, lanes: int, state: list[dict]
     does, so every track's result is bitwise its run's.
     """
     n = unit.n
+    real = precision(unit.precision)
     by_output = {s["out"]: s["name"] for s in state}
     decl, load, body, store, pass_body, pass_store = [], [], [], [], [], []
     for lane in range(lanes):
@@ -80,14 +83,14 @@ def tracks_parts(unit: Unit, step: LoweredProgram, lanes: int, state: list[dict]
         names = lane_names(unit, label)
         for s in state:
             name, size = s["name"], s["size"]
-            decl.append(f"double {name}{label}[{size}], {name}n{label}[{size}];")
+            decl.append(f"{real.c_type} {name}{label}[{size}], {name}n{label}[{size}];")
             load += [f"{name}{label}[{i}] = {s['start']}[{track} * {size} + {i}];"
                      for i in range(size)]
         for name in unit.step_inputs:
             size = unit.step_input_size(name)
-            decl.append(f"const double *{name}{label};")
+            decl.append(f"const {real.c_type} *{name}{label};")
             body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
-        body += c_printer.statements(step.renamed(names, _lane_temporary(label)))
+        body += c_printer.statements(step.renamed(names, _lane_temporary(label)), real)
         for s in state:
             name, size = s["name"], s["size"]
             store += [(f"{s['store']}[({track} * steps + k) * {size} + {i}] = " if s["store"]
@@ -100,20 +103,21 @@ def tracks_parts(unit: Unit, step: LoweredProgram, lanes: int, state: list[dict]
                 for i in range(size)] + ["}"]
         if two is not None:
             mid = f"xm{label}"
-            decl += [f"double {mid}[{n}];", f"const double *{LOOKAHEAD_NEXT}{label};"]
+            decl += [f"{real.c_type} {mid}[{n}];",
+                     f"const {real.c_type} *{LOOKAHEAD_NEXT}{label};"]
             pass_body += [f"z{label} = z + ({track} * steps + k) * {unit.m};",
                           f"{LOOKAHEAD_NEXT}{label} = z + ({track} * steps + k + 1) * {unit.m};"]
             pass_body += c_printer.statements(
-                step.renamed({**names, "x_new": mid}, _lane_temporary(label)))
+                step.renamed({**names, "x_new": mid}, _lane_temporary(label)), real)
             pass_body += c_printer.statements(two.renamed(
                 {**names, LOOKAHEAD_NEXT: f"{LOOKAHEAD_NEXT}{label}"},
-                _lane_temporary(label, step.temporaries())))
+                _lane_temporary(label, step.temporaries())), real)
             pass_store += [f"xs[({track} * steps + k) * {n} + {i}] = {mid}[{i}];"
                            for i in range(n)]
             pass_store += [f"xs[({track} * steps + k + 1) * {n} + {i}] = x{label}[{i}] = "
                            f"xn{label}[{i}];" for i in range(n)]
     if unit.parameters and PARAMETER_PORT in step.used_inputs():  # the lanes share p's rows
-        body.insert(0, f"const double *{_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
+        body.insert(0, f"const {real.c_type} *{_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
                        "p_stride;")
     return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store,
             "pass_body": pass_body, "pass_store": pass_store}
@@ -132,8 +136,9 @@ def two_step_body(unit: Unit, step: LoweredProgram, two: LoweredProgram) -> list
     two-step map writing x(k+2) to ``x_new``, its temporaries numbered after the step's;
     rows k and k + 1 are read as ``zk`` and ``znk``."""
     rows = {name: _row(name) for name in _rows(unit)}
-    mid = c_printer.statements(step.renamed({**rows, "x_new": "x_mid"}))
+    real = precision(unit.precision)
+    mid = c_printer.statements(step.renamed({**rows, "x_new": "x_mid"}), real)
     first = step.temporaries()
     return mid + c_printer.statements(two.renamed(
         {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
-        lambda name: f"t{int(name[1:]) + first}"))
+        lambda name: f"t{int(name[1:]) + first}"), real)

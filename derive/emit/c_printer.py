@@ -8,46 +8,66 @@ libm beyond sqrt.  A select (the missing-measurement test) is
 ``((z[i] == z[i]) ? a : b)``, false only for NaN, so such code must not be compiled
 with ``-ffast-math`` (which assumes there is no NaN).  Constants are printed with
 ``repr`` (shortest round trip, always with a ``.`` or an exponent, so C reads a double).
+
+Every function takes the :class:`~derive.precision.Precision` of the file (default
+double): in float code the element type is ``float``, a constant is the float nearest
+the double (shortest round trip, ``f`` suffix), math.h functions are the ``f`` ones
+(``sqrtf``, ``sinf``) and ``DERIVE_FMA`` is ``fmaf`` where ``FP_FAST_FMAF`` says it is fast,
+so that the code is clean under ``-Wdouble-promotion -Wfloat-conversion``.
 """
 
 from __future__ import annotations
 
 from derive.emit.python_printer import InfixPrinter
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram, Tree
+from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
 FMA_NAME = "DERIVE_FMA"
 
-FMA_MACRO_LINES = [
-    "#ifndef DERIVE_FMA",
-    "#if defined(FP_FAST_FMA)",
-    "#define DERIVE_FMA(a, b, c) fma((a), (b), (c))",
-    "#else",
-    "#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))",
-    "#endif",
-    "#endif",
-]
+
+def fma_macro_lines(precision: Precision = DOUBLE) -> list[str]:
+    """The ``.c`` file's definition of ``DERIVE_FMA``: the hardware ``fma`` (``fmaf``) where
+    ``FP_FAST_FMA`` (``FP_FAST_FMAF``) says it is fast, else ``((a) * (b) + (c))``."""
+    return ["#ifndef DERIVE_FMA",
+            f"#if defined({precision.fast_fma})",
+            f"#define DERIVE_FMA(a, b, c) {precision.math('fma')}((a), (b), (c))",
+            "#else",
+            "#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))",
+            "#endif",
+            "#endif"]
+
+
+FMA_MACRO_LINES = fma_macro_lines()
 
 
 class CPrinter(InfixPrinter):
-    """C99 spelling."""
+    """C99 spelling in one precision (double by default)."""
+
+    def __init__(self, names=None, precision: Precision = DOUBLE) -> None:
+        super().__init__(names)
+        self.precision = precision
+
+    def const(self, value: float) -> str:
+        text = self.precision.literal(value)
+        return f"({text})" if text.startswith("-") else text
 
     def call(self, kind: str, args: list[str]) -> str:
         if kind == "sqrt":
-            return f"sqrt({args[0]})"
+            return f"{self.precision.math('sqrt')}({args[0]})"
         if kind == "fma":
             return f"{FMA_NAME}({', '.join(args)})"
         if kind == "select":
             z, a, b = args
             return f"(({z} == {z}) ? {a} : {b})"
         if kind.startswith("call:"):
-            return f"{kind[5:]}({', '.join(args)})"
+            return f"{self.precision.math(kind[5:])}({', '.join(args)})"
         raise ValueError(f"no C spelling for operation {kind!r}")
 
 
-def expression(tree: Tree) -> str:
+def expression(tree: Tree, precision: Precision = DOUBLE) -> str:
     """C text of one lowered tree."""
-    return CPrinter().expression(tree)
+    return CPrinter(precision=precision).expression(tree)
 
 
 def comment_text(text: str) -> str:
@@ -65,13 +85,15 @@ def needs_math_h(lowered: list[LoweredProgram]) -> bool:
     return False
 
 
-def parameters(lowered: LoweredProgram, restrict: str = "restrict") -> list[str]:
+def parameters(lowered: LoweredProgram, restrict: str = "restrict",
+               precision: Precision = DOUBLE) -> list[str]:
     """C parameters: the inputs except ``p``, the outputs, then ``p``; ``restrict``: how
     the pointers are qualified (a header spells it with :func:`restrict_macro`)."""
+    real = precision.c_type
     inputs = [p for p in lowered.inputs if p.name != PARAMETER_PORT]
-    params = [f"const double *{restrict} {p.name}" for p in inputs]
-    params += [f"double *{restrict} {p.name}" for p in lowered.outputs]
-    params += [f"const double *{restrict} {p.name}" for p in lowered.inputs
+    params = [f"const {real} *{restrict} {p.name}" for p in inputs]
+    params += [f"{real} *{restrict} {p.name}" for p in lowered.outputs]
+    params += [f"const {real} *{restrict} {p.name}" for p in lowered.inputs
                if p.name == PARAMETER_PORT]
     return params
 
@@ -112,45 +134,50 @@ def argument_order(lowered: LoweredProgram) -> list[str]:
     return [p.split()[-1] for p in parameters(lowered)]
 
 
-def prototype(lowered: LoweredProgram, prefix: str, restrict: str = "restrict") -> str:
+def prototype(lowered: LoweredProgram, prefix: str, restrict: str = "restrict",
+              precision: Precision = DOUBLE) -> str:
     """``int|void PREFIX_NAME(...)`` (no semicolon); int when the program has checks."""
     result = "int" if lowered.has_checks else "void"
-    return f"{result} {prefix}_{lowered.name}({', '.join(parameters(lowered, restrict))})"
+    params = parameters(lowered, restrict, precision)
+    return f"{result} {prefix}_{lowered.name}({', '.join(params)})"
 
 
-def pattern_check_lines(check: LoweredCheck, element: str | None = None) -> list[str]:
+def pattern_check_lines(check: LoweredCheck, element: str | None = None,
+                        precision: Precision = DOUBLE) -> list[str]:
     """``if (!(P[k] == 0.0)) return STATUS;`` for one zero check; ``element``: the C text
     to test instead of the checked input element (run tests P0)."""
     name = check.tree.args[0].name
     value = element or name
-    return [f"if (!({value} == 0.0)) {{",
+    return [f"if (!({value} == {precision.zero()})) {{",
             f"    return {check.status}; /* outside P's pattern */",
             "}"]
 
 
-def function_parts(lowered: LoweredProgram, prefix: str) -> dict:
+def function_parts(lowered: LoweredProgram, prefix: str,
+                   precision: Precision = DOUBLE) -> dict:
     """Precomputed strings of one function: ``signature`` and ``body`` lines (unindented)."""
     used = lowered.used_inputs()
     body = [f"(void){p.name};" for p in lowered.inputs if p.name not in used]
-    body += statements(lowered)
+    body += statements(lowered, precision)
     if lowered.has_checks:
         body.append("return 0;")
-    return {"signature": prototype(lowered, prefix), "body": body}
+    return {"signature": prototype(lowered, prefix, precision=precision), "body": body}
 
 
-def statements(lowered: LoweredProgram) -> list[str]:
+def statements(lowered: LoweredProgram, precision: Precision = DOUBLE) -> list[str]:
     """The program's statements (unindented): its temporaries and checks, then its
     results written to the output arrays; no declarations, no final ``return 0``."""
-    printer = CPrinter()
+    printer = CPrinter(precision=precision)
     body: list[str] = []
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
-            body.append(f"const double {st.target} = {printer.expression(st.tree)};")
+            body.append(f"const {precision.c_type} {st.target} = "
+                        f"{printer.expression(st.tree)};")
         elif st.is_pattern:
-            body += pattern_check_lines(st)
+            body += pattern_check_lines(st, precision=precision)
         else:
             value = printer.expression(st.tree.args[0])
-            body += [f"if (!({value} > 0.0)) {{",
+            body += [f"if (!({value} > {precision.zero()})) {{",
                      f"    return {st.status}; /* {comment_text(st.message)} */",
                      "}"]
     for name, leaves in lowered.results:

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from derive.precision import PRECISIONS
 from derive.program import PARAMETER_PORT, Program, ProgramError
 
 _IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
@@ -122,6 +123,8 @@ class Unit:
     ``lookahead``: the two-step map x(k+2) from x(k), z(k), z(k+1) (ports ``x``, ``z``,
     :data:`LOOKAHEAD_NEXT` -> ``x_new``), built by the derivation from its exact
     constants, for a run kind with ``lookahead``: C run takes two steps per pass.
+    ``precision``: the floating-point type of the C (``double`` or ``float``,
+    derive.precision); the Python is double in either.
     """
 
     model: str
@@ -143,6 +146,7 @@ class Unit:
     carried: tuple[tuple[str, str], ...] | None = None
     lookahead: Program | None = None
     symbol_prefix: str = ""
+    precision: str = "double"
 
     def __post_init__(self) -> None:
         for what, value in (("model", self.model), ("filter", self.filter)):
@@ -152,6 +156,9 @@ class Unit:
                 self.symbol_prefix and not _IDENT.match(self.symbol_prefix)):
             raise ProgramError(f"unit symbol prefix {self.symbol_prefix!r} is not empty or a "
                                "C identifier")
+        if self.precision not in PRECISIONS:
+            raise ProgramError(f"unit precision {self.precision!r} is not one of "
+                               f"{', '.join(PRECISIONS)}")
         if self.run_kind not in RUN_KINDS:
             raise ProgramError(f"unknown run kind {self.run_kind!r}; known: "
                                f"{sorted(RUN_KINDS)}")

@@ -38,12 +38,14 @@ r' = 1, so their scalar update changes nothing, exactly.
 
 from __future__ import annotations
 
+import numpy as np
 import sympy
 
 from .. import staging
 from ..errors import FilterError
 from ..lowering import IfPresent
 from ..options import SharedOptions
+from ..precision import DOUBLE, precision
 from ..program import Port, Program
 from ..reference.ud import ud_kf
 from . import pattern as pat
@@ -86,27 +88,50 @@ def _is_diagonal(M: sympy.Matrix) -> bool:
     return all(M[i, j] == 0 for i in range(M.rows) for j in range(M.cols) if i != j)
 
 
-PIVOT_FLOOR = sympy.Float(2.0**-1022)
+PIVOT_FLOOR = sympy.Float(DOUBLE.least_normal)
 """DBL_MIN, the least positive normal double, added to every pivot of a UD factorisation
 before it divides.  A pivot d >= 2^-968 (about 4e-292) is unchanged by it (d + DBL_MIN
 rounds to d), so every quotient is bitwise num / d; a zero pivot (a singular P, such as
 P0 = 0, or a singular P(k+1/k)) has an exactly zero numerator (its row is zero in the
 weights), so its column of U is 0 / DBL_MIN = 0, as in the reference, instead of 0 / 0.
-A normal number, so flush-to-zero arithmetic keeps it."""
+A normal number, so flush-to-zero arithmetic keeps it.
 
-PIVOT_FACT = ("UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for "
-              "d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, "
-              "as the reference's; a negative pivot is refused")
+In float code (``--precision float``) the floor is FLT_MIN (2^-126) instead
+(:func:`pivot_floor`): DBL_MIN is zero as a float, which would bring back 0 / 0; a pivot
+d >= 2^-101 (about 4e-31) is unchanged by FLT_MIN in float arithmetic."""
+
+
+def pivot_floor(name: str = DOUBLE.name) -> sympy.Float:
+    """The pivot floor of the C precision ``name``: its least positive normal number
+    (DBL_MIN, :data:`PIVOT_FLOOR`, or FLT_MIN)."""
+    return sympy.Float(precision(name).least_normal)
+
+
+def pivot_fact(name: str = DOUBLE.name) -> str:
+    """The header line that states the pivot floor of the precision ``name``."""
+    real = precision(name)
+    floor = real.least_normal
+    exponent = int(np.log2(floor))
+    # d + floor rounds to d once floor is less than half an ulp of d (p-bit significand):
+    # d >= 2^(e + p + 1)
+    unchanged = 2.0 ** (exponent + (53 if real is DOUBLE else 24) + 1)
+    return (f"UD pivots: each pivot d divides as d + {real.c_least_normal} (2^{exponent}), "
+            f"bitwise d for d >= {unchanged:.0e}; a zero pivot (singular P, e.g. P0 = 0) "
+            "gives a zero column of U, as the reference's; a negative pivot is refused")
+
+
+PIVOT_FACT = pivot_fact()
 """The header line that states :data:`PIVOT_FLOOR`."""
 
 
-def _pivot(prog: Program, d, message: str) -> sympy.Expr:
-    """The divisor ``d + DBL_MIN`` of the pivot ``d``, checked > 0: refuses a negative or
-    NaN pivot, lets a zero one through (see PIVOT_FLOOR)."""
+def _pivot(prog: Program, d, message: str, floor: sympy.Float = PIVOT_FLOOR) -> sympy.Expr:
+    """The divisor ``d + floor`` (DBL_MIN, or FLT_MIN in float code) of the pivot ``d``,
+    checked > 0: refuses a negative or NaN pivot, lets a zero one through (see
+    PIVOT_FLOOR)."""
     if d.is_number:
         prog.require_positive(d, message)
         return d
-    guarded = _stage(prog, d + PIVOT_FLOOR, "pivot")
+    guarded = _stage(prog, d + floor, "pivot")
     prog.require_positive(guarded, message)
     return guarded
 
@@ -124,7 +149,8 @@ def _quotients(prog: Program, numerators, divisor, hint: str = "t") -> list[symp
 # -- the three factorisations -----------------------------------------------------------
 
 
-def ud_factor(prog: Program, P: sympy.Matrix) -> tuple[sympy.Matrix, list[sympy.Expr]]:
+def ud_factor(prog: Program, P: sympy.Matrix, floor: sympy.Float = PIVOT_FLOOR
+              ) -> tuple[sympy.Matrix, list[sympy.Expr]]:
     """``P = U diag(D) Uᵀ`` (upper triangle of P read), U unit upper triangular, last
     column first; a negative pivot is refused at runtime, a zero one gives a zero column
     (PIVOT_FLOOR)."""
@@ -135,7 +161,7 @@ def ud_factor(prog: Program, P: sympy.Matrix) -> tuple[sympy.Matrix, list[sympy.
     for j in reversed(range(n)):
         D[j] = _stage(prog, P[j, j] - _dot(E[j, k] * U[j, k] for k in range(j + 1, n)), "d")
         divisor = _pivot(prog, D[j], f"P is not positive semidefinite: pivot {j} of its "
-                                     "UD factorisation is negative")
+                                     "UD factorisation is negative", floor)
         for i in range(j):
             E[i, j] = _stage(prog, P[i, j] - _dot(E[i, k] * U[j, k] for k in range(j + 1, n)))
         column = _quotients(prog, [E[i, j] for i in range(j)], divisor, "u")
@@ -150,7 +176,8 @@ def ud_compose(prog: Program, U: sympy.Matrix, D) -> sympy.Matrix:
     return staging.matmul(prog, UD, U.T, symmetric_result=True)
 
 
-def mwgs(prog: Program, W: sympy.Matrix, weights) -> tuple[sympy.Matrix, list[sympy.Expr]]:
+def mwgs(prog: Program, W: sympy.Matrix, weights, floor: sympy.Float = PIVOT_FLOOR
+         ) -> tuple[sympy.Matrix, list[sympy.Expr]]:
     """Thornton's modified weighted Gram-Schmidt: U, D with U diag(D) Uᵀ = W diag(weights) Wᵀ.
 
     Rows are orthogonalised from the last to the first; each pivot (the weighted squared
@@ -164,7 +191,7 @@ def mwgs(prog: Program, W: sympy.Matrix, weights) -> tuple[sympy.Matrix, list[sy
         c = [_stage(prog, weights[k] * W[j, k]) for k in range(N)]
         D[j] = _stage(prog, _dot(W[j, k] * c[k] for k in range(N)), "d")
         divisor = _pivot(prog, D[j], f"P(k+1/k) is not positive semidefinite: pivot {j} of "
-                                     "the time update (MWGS) is negative")
+                                     "the time update (MWGS) is negative", floor)
         numerators = [_stage(prog, _dot(W[i, k] * c[k] for k in range(N))) for i in range(j)]
         column = _quotients(prog, numerators, divisor, "u")
         for i in range(j):
@@ -245,14 +272,16 @@ def _whitened(prog: Program, H: sympy.Matrix, R: sympy.Matrix, z: sympy.Matrix,
     return Hw, zw, [Dr[i, i] for i in range(m)]
 
 
-def udkf_update(prog: Program, mats, x, U, D, z, missing: bool = False):
-    """Stage one UD step; returns (x_new, U_new, D_new): a column, a matrix, a list."""
+def udkf_update(prog: Program, mats, x, U, D, z, missing: bool = False,
+                floor: sympy.Float = PIVOT_FLOOR):
+    """Stage one UD step; returns (x_new, U_new, D_new): a column, a matrix, a list;
+    ``floor``: the pivot floor (:func:`pivot_floor`)."""
     F, G, H, Q, R = (mats[k] for k in ("F", "G", "H", "Q", "R"))
     n = F.rows
     Gw, Dq = _process_noise(prog, G, Q)
     FU = staging.matmul(prog, F, U)
     W = FU.row_join(Gw)
-    U, D = mwgs(prog, W, list(D) + Dq)
+    U, D = mwgs(prog, W, list(D) + Dq, floor)
     x = list(staging.matmul(prog, F, x))
     if missing and _is_diagonal(R):
         # independent components: run each update and keep its result only where z[i]
@@ -356,6 +385,7 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
     options = options or SharedOptions()
     missing = options.missing
     declared = options.P0_pattern or model.P0_pattern
+    floor = pivot_floor(options.precision)
     n = model.n
     inputs, outputs = step_ports(model)
 
@@ -366,7 +396,7 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
         U = _unit_upper(prog, U_pattern)
         D = list(prog.matrix("D"))
         return prog, udkf_update(prog, mats, prog.matrix("x"), U, D, prog.matrix("z"),
-                                 missing)
+                                 missing, floor)
 
     def step_pattern(U_pattern):
         return pat.of_matrix(build(U_pattern)[1][1])
@@ -378,11 +408,12 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
     prog.set_output("U_new", _flat(U_new))
     prog.set_output("D_new", D_new)
     P_pattern = _product_pattern(U_pattern)
-    return {"step": prog.optimize(), "enter": enter_program(n, P_pattern, declared),
+    return {"step": prog.optimize(), "enter": enter_program(n, P_pattern, declared, floor),
             "store": store_program(n, U_pattern, declared)}
 
 
-def enter_program(n: int, P_pattern, declared: str) -> Program:
+def enter_program(n: int, P_pattern, declared: str, floor: sympy.Float = PIVOT_FLOOR
+                  ) -> Program:
     """(x0, P0) -> (x, U, D): x = x0, P0 = U D Uᵀ; P0 outside ``P_pattern`` (that of
     U D Uᵀ over U's pattern; upper triangle read) is refused (the pattern status)."""
     U_port, D_port = factor_ports(n)
@@ -397,7 +428,7 @@ def enter_program(n: int, P_pattern, declared: str) -> Program:
         for j in range(i, n):
             if not P_pattern[i][j]:
                 prog.require_zero(prog.element("P0", i, j), message)
-    U, D = ud_factor(prog, masked(P0, P_pattern))
+    U, D = ud_factor(prog, masked(P0, P_pattern), floor)
     prog.set_output("x", list(prog.matrix("x0")))
     prog.set_output("U", _flat(U))
     prog.set_output("D", D)
@@ -422,7 +453,7 @@ def store_program(n: int, U_pattern, declared: str) -> Program:
 def derive_unit(model, spec: FilterSpec, options: SharedOptions):
     """The Unit of the UD filter: the factored step, P0 entered and P stored."""
     unit = make_unit(model, spec, udkf_programs(model, options), options, carried=CARRIED)
-    unit = with_fact(unit, PIVOT_FACT)
+    unit = with_fact(unit, pivot_fact(options.precision))
     return with_fact(unit, MISSING_FACT) if options.missing else unit
 
 
