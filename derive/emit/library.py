@@ -25,9 +25,8 @@ from derive import interface
 from derive.emit.render import derive_version, environment
 from derive.emit.unit import Unit
 from derive.errors import FilterError
+from derive.precision import DOUBLE, Precision, precision
 
-#: The C scalar of each precision, and the suffix of its literals.
-SCALARS = {"double": ("double", ""), "float": ("float", "f")}
 _PER_LINE = 4
 
 
@@ -39,14 +38,15 @@ class _Array:
     values: str
 
 
-def _literals(values: np.ndarray, scalar: str) -> str:
-    """Exact C literals, ``_PER_LINE`` a line: hexadecimal floats of the scalar's value."""
+def _literals(values: np.ndarray, kind: Precision) -> str:
+    """Exact C literals of ``kind``, ``_PER_LINE`` a line: hexadecimal floating constants
+    of each value rounded once to the type (float: to the nearest float, as build_c's
+    wrappers and derive verify give a float kernel its inputs)."""
     flat = np.asarray(values, dtype=float).ravel()
     if not np.isfinite(flat).all():
         raise FilterError("the verification data hold a value that is not finite")
-    suffix = SCALARS[scalar][1]
-    rounded = flat.astype(np.float32) if scalar == "float" else flat
-    texts = [float(v).hex() + suffix for v in rounded]
+    rounded = flat.astype(kind.dtype)
+    texts = [float(v).hex() + kind.suffix for v in rounded]
     return ",\n".join("    " + ", ".join(texts[i:i + _PER_LINE])
                       for i in range(0, len(texts), _PER_LINE))
 
@@ -55,12 +55,12 @@ def test_program_name(unit: Unit) -> str:
     return f"test_{unit.filter}.c"
 
 
-def render_test_program(unit: Unit, header: str, data, scalar: str = "double") -> str:
+def render_test_program(unit: Unit, header: str, data) -> str:
     """``test_FILTER.c``: runs the unit's ``run`` over ``data`` and prints the largest error
-    against ``data.reference``; ``header``: the unit's rendered ``FILTER.h``."""
-    if scalar not in SCALARS:
-        raise FilterError(f"precision {scalar!r} is not one of {', '.join(SCALARS)}")
+    against ``data.reference``; ``header``: the unit's rendered ``FILTER.h`` (its interface
+    line gives the functions, their arguments and the arrays' element type)."""
     described = interface.read(header)
+    kind = precision(described.element)
     runs = [f for f in described.functions if f.program == "run"]
     if not runs:
         raise FilterError(f"{unit.prefix} has no run function for a test program")
@@ -71,13 +71,13 @@ def render_test_program(unit: Unit, header: str, data, scalar: str = "double") -
     for arg in run.arguments:
         if arg.output:
             name = f"out_{arg.name}"
-            outputs.append(_Array(name, scalar, arg.size(steps), ""))
+            outputs.append(_Array(name, kind.c_type, arg.size(steps), ""))
             args.append(name)
             ref = data.reference.get(arg.name)
             if ref is not None and not arg.scratch:
                 ref_name = f"ref_{arg.name}"
                 references.append(_Array(ref_name, "double", arg.size(steps),
-                                         _literals(np.reshape(ref, arg.size(steps)), "double")))
+                                         _literals(np.reshape(ref, arg.size(steps)), DOUBLE)))
                 comparisons.append({"output": name, "reference": ref_name,
                                     "width": arg.size(steps) // steps, "size": arg.size(steps),
                                     "label": arg.name})
@@ -95,7 +95,7 @@ def render_test_program(unit: Unit, header: str, data, scalar: str = "double") -
             raise FilterError(f"{run.name}: verification data {arg.name!r} of {value.size} "
                               f"values, expected {expected}")
         name = f"in_{arg.name}"
-        inputs.append(_Array(name, scalar, value.size, _literals(value, scalar)))
+        inputs.append(_Array(name, kind.c_type, value.size, _literals(value, kind)))
         args.append(name)
         if arg.rows:  # run's stride: a row's length for one row per step, 0 for one row
             strides.append(str(arg.size()) if per_step_rows else "0")
@@ -108,7 +108,7 @@ def render_test_program(unit: Unit, header: str, data, scalar: str = "double") -
         tolerance_literal=float(data.tolerance).hex(),
         tolerance_text=f"{float(data.tolerance):.1e}", version=derive_version(),
         command=unit.command, inputs=inputs, references=references, outputs=outputs,
-        scalar=SCALARS[scalar][0], comparisons=comparisons,
+        scalar=kind.c_type, comparisons=comparisons,
         returns_status=run.returns_status, call=f"{run.name}({', '.join(call_args)})")
 
 

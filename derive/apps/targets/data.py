@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...errors import FilterError
 from ...filters import kind
 from ...options import validate
 from ..verify import (
@@ -62,6 +63,10 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         values = {"z": measured, "x0": num.x0, "P0": num.P0}
         if isinstance(zs, InputRun):
             values["u"] = zs.us
+    if opts.precision != "double":
+        raise FilterError(f"no {opts.precision} tolerance is stated for {model.name} {name} "
+                          "yet: the test program and the qemu-arm runs compare double code "
+                          "only")
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)

@@ -23,9 +23,8 @@ LAYOUTS = ("files", "library")
 
 
 def precision(unit: Unit) -> str:
-    """The C scalar of the unit's code ("double" unless generated with another
-    ``precision``)."""
-    return str(unit.options.get("precision", "double"))
+    """The C scalar of the unit's code (``double`` or ``float``: ``--precision``)."""
+    return unit.precision
 
 
 def library_command(ref: str, units: list[Unit], out: str) -> str:
@@ -64,8 +63,7 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
         files.update(texts)
         data[name] = verification_data(model, name, typed[name], steps)
         tests[name] = test_program_name(unit)
-        files[tests[name]] = render_test_program(unit, texts[f"{name}.h"], data[name],
-                                                 precision(unit))
+        files[tests[name]] = render_test_program(unit, texts[f"{name}.h"], data[name])
         units.append(unit)
     files.update(render_build_files(model.name, names, library_command(ref, units, str(out)),
                                     tests))
