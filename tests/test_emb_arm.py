@@ -36,11 +36,13 @@ def _own_reading(source, level, tmp_path):
 
 
 @needs_m4
-def test_cortex_m4_sizes_are_read_from_the_compiled_object(tmp_path):
-    rows = sizes("mpt3d_a", ["kf", "sskf"])
-    assert [(r.filter, r.level) for r in rows] == [
-        (f, level) for f in ("kf", "sskf") for level in SIZE_LEVELS]
-    generate("mpt3d_a", ["kf", "sskf"], "c", tmp_path)
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_cortex_m4_sizes_are_read_from_the_compiled_object(tmp_path, precision):
+    options = {"precision": precision}
+    rows = sizes("mpt3d_a", ["kf", "sskf"], options)
+    assert [(r.filter, r.level, r.precision) for r in rows] == [
+        (f, level, precision) for f in ("kf", "sskf") for level in SIZE_LEVELS]
+    generate("mpt3d_a", ["kf", "sskf"], "c", tmp_path, options=options)
     for row in rows:
         own = _own_reading(tmp_path / "mpt3d_a" / f"{row.filter}.c", row.level, tmp_path)
         functions = row.object.functions()
@@ -49,7 +51,7 @@ def test_cortex_m4_sizes_are_read_from_the_compiled_object(tmp_path):
         assert 0 < sum(functions.values()) <= row.object.text
         assert row.object.data == row.object.bss == 0   # no globals in generated C
     # the reading follows the code: leaving run_tracks out removes its bytes
-    smaller = sizes("mpt3d_a", ["kf"], {"run_tracks": False}, levels=("-Os",))[0]
+    smaller = sizes("mpt3d_a", ["kf"], {**options, "run_tracks": False}, levels=("-Os",))[0]
     full = next(r for r in rows if r.filter == "kf" and r.level == "-Os")
     assert "mpt3d_a_kf_run_tracks" not in smaller.object.functions()
     assert smaller.object.text == full.object.text - full.object.functions()[
@@ -57,16 +59,23 @@ def test_cortex_m4_sizes_are_read_from_the_compiled_object(tmp_path):
 
 
 @needs_m4
-def test_derive_size_prints_the_bytes_of_each_function(capsys):
+def test_derive_size_prints_the_bytes_of_each_function_in_both_precisions(capsys):
     assert main(["size", "cv", "--filter", "kf", "--level", "Os"]) == 0
     out = capsys.readouterr().out
-    row = sizes("cv", ["kf"], levels=("-Os",))[0]
-    functions = row.object.functions()
-    line = next(line for line in out.splitlines() if line.startswith("cv "))
-    assert line.split()[:7] == ["cv", "kf", "double", "-Os", str(row.object.text), "0", "0"]
-    for name, size in functions.items():
-        assert f"{name[len('cv_kf_'):]} {size}" in line
     assert "arm-none-eabi-gcc -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard" in out
+    lines = {line.split()[2]: line for line in out.splitlines() if line.startswith("cv ")}
+    assert sorted(lines) == ["double", "float"]
+    text = {}
+    for precision, line in lines.items():
+        row = sizes("cv", ["kf"], {"precision": precision}, levels=("-Os",))[0]
+        assert row.precision == precision
+        assert line.split()[:7] == ["cv", "kf", precision, "-Os", str(row.object.text), "0",
+                                    "0"]
+        for name, size in row.object.functions().items():
+            assert f"{name[len('cv_kf_'):]} {size}" in line
+        text[precision] = row.object.text
+    # the single-precision FPU runs float code; double arithmetic is calls into libgcc
+    assert text["float"] < text["double"]
 
 
 def test_size_refuses_a_bad_target_in_one_line(capsys):

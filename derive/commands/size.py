@@ -8,7 +8,8 @@ from ..options import add_arguments as add_option_arguments
 NAME = "size"
 ORDER = 65
 HELP = ("cross-compile generated C for ARM (Cortex-M4F): code and data bytes per function "
-        "at -Os and -O2; --qemu: run it under qemu-arm against the reference")
+        "at -Os and -O2, float and double (or --precision); --qemu: run it under qemu-arm "
+        "against the reference")
 EXAMPLE = "derive size mpt3d_a --filter kf\n  derive size --all --qemu"
 
 
@@ -50,8 +51,11 @@ def run(args) -> int:
         TARGETS["arm-linux"].require(run=True)
     print(f"{target.name}: {target.cc} {' '.join(target.flags)} (bytes read from each object "
           f"by {target.size} and {target.nm} --size-sort -S)")
-    rows = [row for ref in refs for row in sizes(ref, args.filters, options, args.target,
-                                                 levels)]
+    # both precisions unless --precision names one: float32 is what a Cortex-M4F's FPU runs
+    precisions = [options["precision"]] if "precision" in options else ["float", "double"]
+    rows = [row for ref in refs for p in precisions
+            for row in sizes(ref, args.filters, {**options, "precision": p}, args.target,
+                             levels)]
     print(size_table(rows))
     if not args.qemu:
         return 0
