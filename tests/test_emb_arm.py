@@ -53,9 +53,11 @@ def test_cortex_m4_sizes_are_read_from_the_compiled_object(tmp_path, precision):
     # the reading follows the code: leaving run_tracks out removes its bytes
     smaller = sizes("mpt3d_a", ["kf"], {**options, "run_tracks": False}, levels=("-Os",))[0]
     full = next(r for r in rows if r.filter == "kf" and r.level == "-Os")
-    assert "mpt3d_a_kf_run_tracks" not in smaller.object.functions()
-    assert smaller.object.text == full.object.text - full.object.functions()[
-        "mpt3d_a_kf_run_tracks"]
+    rest = dict(full.object.functions())
+    removed = rest.pop("mpt3d_a_kf_run_tracks")
+    assert smaller.object.functions() == rest
+    # the object shrinks by run_tracks' bytes, up to the padding that aligned what followed
+    assert 0 <= full.object.text - removed - smaller.object.text < 4
 
 
 @needs_m4
