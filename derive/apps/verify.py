@@ -21,6 +21,12 @@ change of the reference's output when every value of h is perturbed by one round
 moves P by ~1e-9 relative per step; two correct implementations that round differently
 cannot agree better. The EKF's floor is ~1e-15.
 
+With ``precision="float"`` (``derive verify --precision float``) the C is float32: it is
+given the data rounded to float32 and compared with the same float64 reference, within the
+tolerance derived for it by derive.apps.float_tolerance (c u32 L G kappa, from the
+generated step, the model's closed loop and its conditioning), which each line prints; the
+Python stays double and keeps its double bar.
+
 A nonlinear model also gets an independent witness for the Jacobians the EKF is generated
 from (:func:`jacobian_witness`): derive's sympy Jacobians of f and h against CasADi's
 automatic differentiation of the same f and h at :data:`WITNESS_POINTS` random points, bar
@@ -37,12 +43,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..emit.unit import RUN_KINDS
+from ..emit.unit import RUN_KINDS, Unit
 from ..errors import ModelError, VerificationError
 from ..filters import kind
+from ..generation import command_unit
 from ..options import validate
 from ..pipeline import load_generated
+from ..precision import DOUBLE
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
+from .float_tolerance import FloatTolerance, float_tolerance
 from .simulate import gnss_scenario, simulate_linear
 
 LINEAR_TOLERANCE = 1e-12
@@ -60,15 +69,22 @@ class Verification:
     steps: int
     error: float
     tolerance: float
+    bound: FloatTolerance | None = None
 
     @property
     def passed(self) -> bool:
-        return bool(np.isfinite(self.error) and self.error <= self.tolerance)
+        meaningful = self.bound is None or self.bound.meaningful
+        return bool(meaningful and np.isfinite(self.error) and self.error <= self.tolerance)
 
     def line(self) -> str:
         mark = "ok  " if self.passed else "FAIL"
-        return (f"{mark} {self.model:18s} {self.filter:7s} {self.lang:6s} {self.steps:5d} steps"
+        lang = self.lang if self.bound is None else f"{self.lang} f32"
+        text = (f"{mark} {self.model:18s} {self.filter:7s} {lang:6s} {self.steps:5d} steps"
                 f"  max rel err {self.error:9.2e} <= {self.tolerance:.1e}")
+        if self.bound is not None:
+            text += f"  ({self.bound.text()}"
+            text += ")" if self.bound.meaningful else "; >= 1: float32 cannot carry it)"
+        return text
 
 
 @dataclass(frozen=True)
@@ -231,21 +247,31 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
 def generated_run(module, name: str, zs, model, lang: str,
                   scenario: NonlinearScenario | None = None):
     """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
-    (nonlinear filters: the scenario's zs, us, x0 and P0)."""
+    (nonlinear filters: the scenario's zs, us, x0 and P0); every input is given in the
+    module's dtype (a float32 kernel's: each value rounded once to float), the outputs are
+    returned as float64."""
+    dtype = getattr(module, "dtype", np.float64)
+
+    def given(*arrays):
+        return [np.asarray(a, dtype=dtype) for a in arrays]
+
     spec = kind(name)
     if spec.model_kind == "nonlinear":
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
-        xs, Ps = module.run(*args, scenario.x0, scenario.P0)
-        return np.asarray(xs), np.asarray(Ps).reshape(len(scenario.zs), model.n, model.n)
+        xs, Ps = module.run(*given(*args, scenario.x0, scenario.P0))
+        return (np.asarray(xs, dtype=float),
+                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n, model.n))
     num = model.numeric()
     # run's arguments after the measurements (and inputs): what its run kind starts from
     start = {"x0": num.x0, "P0": num.P0}
     data = [zs.zs, zs.us] if model.inputs else [zs]
-    out = module.run(*data, *(start[name] for name, _ in RUN_KINDS[spec.run_kind].start))
+    out = module.run(*given(*data, *(start[name]
+                                     for name, _ in RUN_KINDS[spec.run_kind].start)))
     if not isinstance(out, tuple):
-        return np.asarray(out), None
+        return np.asarray(out, dtype=float), None
     xs, Ps = out
-    return np.asarray(xs), np.asarray(Ps).reshape(len(data[0]), model.n, model.n)
+    return (np.asarray(xs, dtype=float),
+            np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n, model.n))
 
 
 class InputRun(NamedTuple):
@@ -268,11 +294,25 @@ def linear_run(model, steps: int, seed: int):
     return InputRun(run.zs, us)
 
 
+def conditioning_run(model, zs, scenario: NonlinearScenario | None, xs_ref, Ps_ref):
+    """(xs, Ps, us) the float32 tolerance reads the model's conditioning from: the KF's
+    reference run on the same measurements for a linear model (every linear filter's P
+    follows it), the filter's own reference for a nonlinear one."""
+    if scenario is not None:
+        return xs_ref, Ps_ref, scenario.us
+    xs, Ps = kind("kf").reference(model, zs, validate("kf", {}))
+    return xs, np.asarray(Ps), None
+
+
 def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
-                   options: dict | None = None) -> list[Verification]:
+                   options: dict | None = None, unit: Unit | None = None
+                   ) -> list[Verification]:
     """Compare already built generated filters ({lang: module}) with the reference.
 
-    The scenario, reference run, tolerance and error measure of `derive verify`.
+    The scenario, reference run, tolerance and error measure of `derive verify`. With the
+    option ``precision`` "float" the C module is float32 and is held to the tolerance
+    derive.apps.float_tolerance derives (``unit``: the filter's unit, derived again when
+    not given).
     """
     opts = validate(name, options)
     scenario = None
@@ -286,13 +326,21 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
+    bound = None
+    if opts.precision != DOUBLE.name and "c" in modules:
+        unit = unit if unit is not None else command_unit(model, name, opts)
+        bound = float_tolerance(model, unit, steps,
+                                conditioning_run(model, zs, scenario, xs_ref, Ps_ref))
     out: list[Verification] = []
     for lang, module in modules.items():
         xs, Ps = generated_run(module, name, zs, model, lang, scenario)
         err = relative_error(xs, xs_ref)
         if Ps_ref is not None and Ps is not None:
             err = max(err, relative_error(Ps, Ps_ref))
-        out.append(Verification(model.name, name, lang, steps, err, tolerance))
+        if lang == "c" and bound is not None:
+            out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
+        else:
+            out.append(Verification(model.name, name, lang, steps, err, tolerance))
     return out
 
 
@@ -306,10 +354,11 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
         generated = load_generated(model, name, opts, only.pop() if len(only) == 1 else "all",
                                    tmp)
     modules = {lang: generated.module(lang) for lang in langs}
-    return verify_modules(model, name, modules, steps, seed, opts)
+    return verify_modules(model, name, modules, steps, seed, opts, generated.unit)
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
-           "InputRun", "JacobianWitness", "NonlinearScenario", "Verification", "jacobian_witness",
-           "nonlinear_reference", "nonlinear_scenario", "relative_error",
-           "linear_run", "rounding_floor", "verify_filter", "verify_modules"]
+           "InputRun", "JacobianWitness", "NonlinearScenario", "Verification",
+           "conditioning_run", "jacobian_witness", "linear_run", "nonlinear_reference",
+           "nonlinear_scenario", "relative_error", "rounding_floor", "verify_filter",
+           "verify_modules"]

@@ -9,8 +9,10 @@ NAME = "verify"
 ORDER = 45
 HELP = ("generate, compile (cffi) and run each filter on simulated data; compare with the "
         "NumPy reference (max relative error <= 1e-12 for linear filters; for nonlinear ones "
-        "1e-10, or 4 times the reference's own rounding floor where that is larger); check "
-        "each nonlinear model's Jacobians against CasADi's automatic differentiation")
+        "1e-10, or 4 times the reference's own rounding floor where that is larger; with "
+        "--precision float the C is float32, held to the tolerance c u32 L G kappa derived "
+        "from its step and the model, printed on its line); check each nonlinear model's "
+        "Jacobians against CasADi's automatic differentiation")
 EXAMPLE = "derive verify mpt3d_a --filter kf\n  derive verify all"
 
 
