@@ -44,16 +44,22 @@ def section(ctx) -> Section:
                 "Cortex-M4F: code and data bytes of each generated filter", collapsed=True))
     runs = []
     for model in models:
-        runs += run_under_qemu(model, sorted(n for m, n in ctx.sources if m == model))
+        for precision in ("float", "double"):
+            runs += run_under_qemu(model, sorted(n for m, n in ctx.sources if m == model),
+                                   {"precision": precision})
     failed = [r for r in runs if not r.passed]
     worst = max((r.error / r.tolerance for r in runs), default=0.0)
-    s.outcome("the generated C runs on ARM (arm-linux-gnueabihf under qemu-arm) and agrees "
-              "with the NumPy reference within derive verify's tolerance",
+    s.outcome("the generated C, float32 and double, runs on ARM (arm-linux-gnueabihf under "
+              "qemu-arm) and agrees with the NumPy reference within derive verify's "
+              "tolerance",
               MATCHED if runs and not failed else DIFFERS,
-              f"{len(runs) - len(failed)} of {len(runs)} filters of {len(models)} model(s) "
-              f"within tolerance; largest error / tolerance {sci(worst)}")
-    s.add(Table(("model", "filter", "precision", "steps", "max rel error", "tolerance"),
+              f"{len(runs) - len(failed)} of {len(runs)} runs ({len(models)} model(s)) "
+              f"within tolerance; largest error / tolerance {sci(worst)}"
+              + "".join(f"; {r.model} {r.filter} {r.precision} failed" for r in failed))
+    s.add(Table(("model", "filter", "precision", "steps", "max rel error", "tolerance",
+                 "float32 bound c u32 L G kappa", "verdict"),
                 tuple((r.model, r.filter, r.precision, str(r.steps), sci(r.error),
-                       sci(r.tolerance)) for r in runs),
+                       sci(r.tolerance), "–" if r.bound is None else r.bound.text(),
+                       "ok" if r.passed else "**FAIL**") for r in runs),
                 "qemu-arm: the states the ARM program printed against the NumPy reference"))
     return s

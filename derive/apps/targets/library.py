@@ -14,6 +14,7 @@ from ...emit.library import render_build_files, render_test_program, test_progra
 from ...emit.render import render_c
 from ...emit.unit import Unit
 from ...emit.write import write_files
+from ...errors import FilterError
 from ...filters import available, kind
 from ...generation import command_unit, resolve_model
 from ...options import per_filter
@@ -42,9 +43,11 @@ def library_command(ref: str, units: list[Unit], out: str) -> str:
 
 def render_library(model, filters: Iterable[str] | None = None, out: str | Path = "generated",
                    options: Mapping | None = None, steps: int = TEST_STEPS,
-                   ref: str | None = None, with_data: bool = False):
+                   ref: str | None = None, with_data: bool = False,
+                   refuse_uncarried: bool = True):
     """({file name: text} of the library of ``model``, the units), rendered, not written;
-    ``with_data``: also {filter: its VerificationData}."""
+    ``with_data``: also {filter: its VerificationData}; ``refuse_uncarried``: a FilterError
+    for a filter float32 cannot carry (derive.apps.float_tolerance)."""
     model = resolve_model(model)
     ref = ref or model.name
     names = list(filters) if filters is not None else available(model)
@@ -61,7 +64,11 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
             " --lang all", " --layout library", 1))
         texts = render_c(unit)
         files.update(texts)
-        data[name] = verification_data(model, name, typed[name], steps)
+        data[name] = verification_data(model, name, typed[name], steps, unit=unit)
+        if refuse_uncarried and not data[name].meaningful:
+            raise FilterError(f"{model.name} {name}: float32 cannot carry this filter (its "
+                              f"bound {data[name].bound.text()} is 1 or more), so its test "
+                              "program would hold it to nothing; generate it in double")
         tests[name] = test_program_name(unit)
         files[tests[name]] = render_test_program(unit, texts[f"{name}.h"], data[name])
         units.append(unit)
