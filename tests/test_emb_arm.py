@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import derive.apps.targets.library as library
-from derive import generate
+from derive import catalog, generate
 from derive.apps.targets.arm import read_states, run_under_qemu, sizes
 from derive.apps.targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS, TARGETS
-from derive.apps.verify import LINEAR_TOLERANCE
+from derive.apps.verify import LINEAR_TOLERANCE, verify_filter
 from derive.cli import main
 
 M4, LINUX = TARGETS["cortex-m4"], TARGETS["arm-linux"]
@@ -132,3 +132,19 @@ def test_a_missing_cross_compiler_is_named_in_one_line(tmp_path, monkeypatch, ca
     assert "apt-get install gcc-arm-none-eabi" in err and err.count("\n") == 1
     assert main(["size", "cv", "--filter", "kf", "--target", "arm-linux", "--qemu"]) == 2
     assert "arm-linux-gnueabihf-gcc" in capsys.readouterr().err
+
+
+@needs_qemu
+def test_float32_runs_under_qemu_arm_within_derive_verifys_float32_tolerance():
+    """float32 C on ARM, held to the tolerance derive verify --precision float derives
+    (derive.apps.float_tolerance) for the same filter, data and steps."""
+    options = {"precision": "float"}
+    runs = run_under_qemu("mpt3d_a", ["kf", "udkf"], options, steps=100)
+    for r in runs:
+        host = verify_filter(catalog.load("mpt3d_a"), r.filter, steps=100, langs=("c",),
+                             options=options)[0]
+        assert r.precision == "float" and r.bound is not None and r.bound.meaningful
+        assert r.tolerance == host.tolerance == host.bound.value
+        assert r.passed and r.error <= r.tolerance, r.line()
+        # float32, not double, was run: its error is far above double's rounding
+        assert r.error > 1e3 * LINEAR_TOLERANCE

@@ -15,7 +15,7 @@ import pytest
 
 from derive.apps.targets.data import verification_data
 from derive.apps.targets.library import render_library
-from derive.apps.verify import LINEAR_TOLERANCE, relative_error
+from derive.apps.verify import LINEAR_TOLERANCE, relative_error, verify_filter
 from derive.build import STRICT_CFLAGS, build_c
 from derive.cli import main
 from derive.emit.library import render_test_program
@@ -26,7 +26,7 @@ needs_cmake = pytest.mark.skipif(CMAKE is None or GCC is None, reason="no cmake 
 needs_make = pytest.mark.skipif(MAKE is None or GCC is None, reason="no make or gcc")
 FILTERS = ("kf", "rts", "sskf", "fir")
 STRICT = " ".join(STRICT_CFLAGS)
-PRINTED = re.compile(r"^cv (\w+): largest error (\S+) over (\d+) steps .*: (ok|FAIL)$", re.M)
+PRINTED = re.compile(r"^\w+ (\w+): largest error (\S+) over (\d+) steps .*: (ok|FAIL)$", re.M)
 
 
 @pytest.fixture
@@ -138,3 +138,34 @@ def test_library_refuses_python_and_bad_options_and_writes_nothing(tmp_path, cap
     err = capsys.readouterr().err
     assert err.count("\n") == 2 and "Traceback" not in err and "--lang python" in err
     assert not (out / "cv").exists()
+
+
+@needs_make
+def test_a_float32_library_builds_under_the_conversion_warnings_within_its_tolerance(tmp_path):
+    """--precision float: float arrays, float literals; the test programs' errors within
+    the float32 tolerance derive verify --precision float derives for the same data."""
+    out = tmp_path / "out"
+    assert main(["generate", "mpt3d_a", "--filter", "kf", "--filter", "udkf", "--precision",
+                 "float", "--layout", "library", "--out", str(out)]) == 0
+    assert "static const float in_z[" in (out / "mpt3d_a" / "test_kf.c").read_text()
+    done = subprocess.run([MAKE, "-C", str(out / "mpt3d_a"), f"CFLAGS={STRICT} "
+                           "-Wdouble-promotion -Wfloat-conversion -Wconversion", "check"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    errors = _errors(done.stdout)
+    assert sorted(errors) == ["kf", "udkf"]
+    model = resolve_model("mpt3d_a")
+    for name, (error, steps, verdict) in errors.items():
+        host = verify_filter(model, name, steps=steps, langs=("c",),
+                             options={"precision": "float"})[0]
+        assert verdict == "ok" and LINEAR_TOLERANCE < error <= host.tolerance, done.stdout
+        assert error == pytest.approx(host.error, rel=2e-3)   # the same float32 C, data
+
+
+def test_a_filter_float32_cannot_carry_gets_no_library(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["generate", "gnss_pseudorange", "--filter", "ukf", "--precision", "float",
+                 "--layout", "library", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "float32 cannot carry" in err and err.count("\n") == 1
+    assert not (out / "gnss_pseudorange").exists()
