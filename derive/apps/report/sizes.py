@@ -32,9 +32,9 @@ def section(ctx) -> Section:
     for (model, name), source in sorted(ctx.sources.items()):
         if model in models:
             rows += file_sizes(source, model, name, "double")
-    which = ("every catalog filter's" if not ctx.quick else
-             f"(quick run: the models {', '.join(models)} only) each filter's")
-    s.add(Text(f"The generated C of {which}, in float32 (`--precision float`) and as "
+    which = ("every catalog model" if not ctx.quick else
+             f"a quick run: the model(s) {', '.join(models)} only")
+    s.add(Text(f"The generated C of each filter ({which}), in float32 (`--precision float`) and as "
                f"written above in double, compiled by `{m4.cc} {' '.join(m4.flags)}` with "
                f"the strict flags at -Os and -O2; bytes read from each object by `{m4.size}` "
                f"(text, data, bss) and `{m4.nm} --size-sort -S` (code per function, literal "
