@@ -13,8 +13,10 @@ import subprocess
 import numpy as np
 import pytest
 
+from derive.apps.targets.arm import sizes
 from derive.apps.targets.data import verification_data
 from derive.apps.targets.library import render_library
+from derive.apps.targets.toolchains import CORTEX_M4_FLAGS, TARGETS
 from derive.apps.verify import LINEAR_TOLERANCE, relative_error, verify_filter
 from derive.build import STRICT_CFLAGS, build_c
 from derive.cli import main
@@ -169,3 +171,23 @@ def test_a_filter_float32_cannot_carry_gets_no_library(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "float32 cannot carry" in err and err.count("\n") == 1
     assert not (out / "gnss_pseudorange").exists()
+
+
+@needs_make
+@pytest.mark.skipif(bool(TARGETS["cortex-m4"].missing()), reason="no arm-none-eabi tools")
+def test_make_cross_builds_the_library_for_cortex_m4_with_the_sizes_derive_reports(library):
+    """The Makefile's documented cross build: the archive's objects are those derive size
+    measures (same compiler and flags), byte for byte in size."""
+    flags = " ".join(["-std=c99", "-Os", "-Wall", "-Wextra", "-Werror", "-pedantic",
+                      *CORTEX_M4_FLAGS])
+    done = subprocess.run([MAKE, "-C", str(library), "CC=arm-none-eabi-gcc",
+                           "AR=arm-none-eabi-ar", f"CFLAGS={flags}", "libcv.a"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    listing = subprocess.run(["arm-none-eabi-size", "-B", str(library / "libcv.a")],
+                             capture_output=True, text=True, check=True).stdout
+    # "text data bss dec hex kf.o (ex .../libcv.a)"
+    archived = {line.split()[5][:-len(".o")]: int(line.split()[0])
+                for line in listing.splitlines()[1:]}
+    measured = {r.filter: r.object.text for r in sizes("cv", FILTERS, levels=("-Os",))}
+    assert archived == measured
