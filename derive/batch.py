@@ -189,13 +189,14 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ModelError(f"batch run_tracks: workers must be an integer >= 1, got {workers!r}")
     module = _module(kernel)
-    zs = np.asarray(zs, dtype=np.float64)
-    x0s = np.asarray(x0s, dtype=np.float64)
-    P0s = None if P0s is None else np.asarray(P0s, dtype=np.float64)
+    # arrays of the kernel's dtype (float32 for --precision float; float64 refused there)
+    zs = module.converted("run_tracks", "zs", zs)
+    x0s = module.converted("run_tracks", "x0s", x0s)
+    P0s = None if P0s is None else module.converted("run_tracks", "P0s", P0s)
     layout = _check(module, zs.shape, x0s.shape, None if P0s is None else P0s.shape, p)
     tracks, steps, n = layout.tracks, layout.steps, layout.n
-    xs = np.empty((tracks, steps, n))
-    Ps = np.empty((tracks, steps, n, n)) if P0s is not None and with_covariance else None
+    xs = module.empty((tracks, steps, n))
+    Ps = module.empty((tracks, steps, n, n)) if P0s is not None and with_covariance else None
 
     def one(start: int, stop: int) -> None:
         try:

@@ -53,6 +53,9 @@ from derive.errors import (
 )
 
 STRICT_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic")
+#: Warnings generated C of either precision is also clean under (with STRICT_CFLAGS): any
+#: double that slips into float code, or a value narrowed without a cast, is an error.
+CONVERSION_CFLAGS = ("-Wdouble-promotion", "-Wfloat-conversion", "-Wconversion")
 
 
 class BuildError(RuntimeError):

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from derive import catalog, interface
-from derive.build import STRICT_CFLAGS
+from derive import batch, catalog, interface
+from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS
+from derive.cli import main
 from derive.emit import c_printer
 from derive.errors import DtypeError, OptionError
 from derive.generation import generate, render_filter, resolve_model
@@ -25,18 +26,14 @@ from derive.pipeline import load_generated
 from derive.precision import DOUBLE, FLOAT, PrecisionError
 
 ROOT = Path(__file__).resolve().parent.parent
-#: The flags of the issue: the house's strict ones and the conversion warnings that catch
-#: any double that slips into float code (or a float narrowed from a double).
-CONVERSION_WARNINGS = ("-Wdouble-promotion", "-Wfloat-conversion", "-Wconversion")
-
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 
-def _compile_models(root: Path) -> None:
+def _compile_models(root: Path, expected: int | None = None) -> None:
     """One ``gcc -c`` per model folder (its files' names are unique within it)."""
-    flags = list(STRICT_CFLAGS) + list(CONVERSION_WARNINGS)
+    flags = list(STRICT_CFLAGS) + list(CONVERSION_CFLAGS)
     folders = sorted(p for p in root.iterdir() if p.is_dir() and list(p.glob("*.c")))
-    assert len(folders) == len(catalog.names())
+    assert len(folders) == (len(catalog.names()) if expected is None else expected)
     for folder in folders:
         sources = sorted(p.name for p in folder.glob("*.c"))
         proc = subprocess.run(["gcc", *flags, "-c", *sources], cwd=folder,
@@ -45,17 +42,22 @@ def _compile_models(root: Path) -> None:
 
 
 @needs_gcc
-@pytest.mark.parametrize("precision", ["double", "float"])
-def test_every_catalog_filter_compiles_under_the_conversion_warnings(precision, tmp_path):
-    """Every catalog model with every filter that applies, in one precision: one
-    ``gcc -O2`` call per model with -Wdouble-promotion -Wfloat-conversion -Wconversion."""
-    if precision == "double":
-        root = ROOT / "generated"  # the committed double files (test_generate: up to date)
-    else:
-        root = tmp_path
-        for name in catalog.names():
-            generate(name, lang="c", out=root, options={"precision": "float"})
-    _compile_models(root)
+def test_every_catalog_filter_in_double_compiles_under_the_conversion_warnings(tmp_path):
+    """The committed double files (test_generate keeps them up to date), copied: one
+    ``gcc -O2`` call per model with -Wdouble-promotion -Wfloat-conversion -Wconversion.
+    The float files of every catalog filter are compiled with the same flags, once, by
+    tests/test_emb_float_verify.py, which runs them."""
+    for source in (ROOT / "generated").glob("*/*.[ch]"):
+        (tmp_path / source.parent.name).mkdir(exist_ok=True)
+        shutil.copy(source, tmp_path / source.parent.name / source.name)
+    _compile_models(tmp_path)
+
+
+@needs_gcc
+def test_float_files_compile_under_the_conversion_warnings(tmp_path):
+    """One model's float files by plain gcc (no cffi): the flags alone, outside build_c."""
+    generate("gsm2d_a", lang="c", out=tmp_path, options={"precision": "float"})
+    _compile_models(tmp_path, expected=1)
 
 
 def _files(model: str, name: str, lang: str = "c", options=None) -> dict[str, str]:
@@ -155,3 +157,49 @@ def test_a_float_kernel_takes_float32_and_refuses_float64_in_one_line():
         kernel.run_tracks(zs[np.newaxis], x0[np.newaxis].astype(float), P0[np.newaxis])
     tracks, _ = kernel.run_tracks(zs[np.newaxis], x0[np.newaxis], P0[np.newaxis])
     assert np.array_equal(tracks[0], xs)  # run_tracks is bitwise run, in float too
+
+
+def test_a_model_float_cannot_hold_is_refused_on_the_command_line(tmp_path, capsys):
+    """A process noise density of 1e39 is infinite as a float (the KF bakes Q into its
+    code): exit status 2, one line naming the constant and the option, and no output
+    directory written; the same model in double is generated."""
+    text = (ROOT / "derive" / "catalog" / "cv.toml").read_text()
+    model = tmp_path / "tiny.toml"
+    model.write_text(text.replace('name = "cv"', 'name = "tiny"').replace(
+        'sq2 = { value = 0.01,', 'sq2 = { value = 1e39,'))
+    out = tmp_path / "out"
+    status = main(["generate", str(model), "--filter", "kf", "--precision", "float",
+                   "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert status == 2 and "\n" not in err and not out.exists()
+    assert err.startswith("derive: error: the constant ")
+    assert "is not a normal float32 number" in err and "--precision float" in err
+    assert main(["generate", str(model), "--filter", "kf", "--out", str(out)]) == 0
+
+
+@needs_gcc
+def test_batch_run_tracks_threads_a_float_kernel_in_float32():
+    """derive.batch on a float kernel: float32 in and out, each track bitwise its run."""
+    kernel = load_generated("cv", "kf", {"precision": "float"}, "c").c
+    rng = np.random.default_rng(3)
+    zs = rng.normal(size=(5, 20, 1)).astype(np.float32)
+    x0s, P0 = np.zeros((5, 2), np.float32), np.eye(2, dtype=np.float32)
+    xs, Ps = batch.run_tracks(kernel, zs, x0s, P0, workers=2)
+    assert xs.dtype == np.float32 and Ps.dtype == np.float32
+    for track in range(5):
+        assert np.array_equal(xs[track], kernel.run(zs[track], x0s[track], P0)[0])
+    with pytest.raises(DtypeError, match=r"argument 'zs' is a float64 array"):
+        batch.run_tracks(kernel, zs.astype(np.float64), x0s, P0, workers=2)
+
+
+@pytest.mark.parametrize("model, name", [("mpt3d_a", "kf"), ("ca", "udkf"), ("cv", "sskf"),
+                                         ("gnss_pseudorange", "ukf")])
+def test_float_code_counts_the_same_operations_as_double(model, name):
+    """Precision changes types, literals and function names, never the operations: every
+    count line of the float header is the double header's, with float32 named."""
+    def counts(options):
+        header = _files(model, name, "c", options)[f"{name}.h"]
+        return [line for line in header.splitlines() if "operations per" in line]
+
+    double, single = counts(None), counts({"precision": "float"})
+    assert double and single == [line.replace("(C99", "(C99 float32") for line in double]
