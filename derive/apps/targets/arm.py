@@ -30,7 +30,7 @@ from ...options import per_filter
 from ..float_tolerance import FloatTolerance
 from ..verify import relative_error
 from .data import TEST_STEPS
-from .library import precision, render_library
+from .library import render_library
 from .toolchains import SIZE_LEVELS, TARGETS, ObjectSize, compile_object, link_program, read_sizes
 
 #: A run under the emulator that takes longer than this is a hang.
@@ -68,7 +68,7 @@ def sizes(model, filters: Iterable[str] | None = None, options: Mapping | None =
     for name in names:
         unit, texts = render_unit(model, name, "c", typed[name])
         files.update(texts)
-        scalars[name] = precision(unit)
+        scalars[name] = unit.precision
     out: list[FilterSize] = []
     with tempfile.TemporaryDirectory(prefix="derive-size-", dir=workdir) as scratch:
         write_files(scratch, model.name, files)
@@ -168,7 +168,7 @@ def run_under_qemu(model, filters: Iterable[str] | None = None, options: Mapping
                 if output not in states:
                     raise BuildError(f"{program.name} printed no {output}")
                 error = max(error, relative_error(states[output].reshape(ref.shape), ref))
-            runs.append(ArmRun(model.name, name, precision(unit), steps, error,
+            runs.append(ArmRun(model.name, name, unit.precision, steps, error,
                                float(printed[1]), data[name].tolerance, data[name].bound))
     return runs
 

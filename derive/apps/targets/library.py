@@ -20,13 +20,6 @@ from ...generation import command_unit, resolve_model
 from ...options import per_filter
 from .data import TEST_STEPS, verification_data
 
-LAYOUTS = ("files", "library")
-
-
-def precision(unit: Unit) -> str:
-    """The C scalar of the unit's code (``double`` or ``float``: ``--precision``)."""
-    return unit.precision
-
 
 def library_command(ref: str, units: list[Unit], out: str) -> str:
     """The command that regenerates the whole library: every filter of the call, and the
@@ -34,6 +27,9 @@ def library_command(ref: str, units: list[Unit], out: str) -> str:
     flags: dict[str, None] = {}
     for unit in units:
         head = f"derive generate {ref} --filter {unit.filter} --layout library --out {out}"
+        if not unit.command.startswith(head):
+            raise ValueError(f"{unit.prefix}: regenerate command {unit.command!r} does not "
+                             f"start with {head!r}")
         flags.update(dict.fromkeys(unit.command[len(head):].split(" --")))
     filters = " ".join(f"--filter {u.filter}" for u in units)
     options = " --".join(f for f in flags if f)
