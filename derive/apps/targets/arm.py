@@ -1,14 +1,16 @@
 """The generated C on ARM: Cortex-M4F code and data sizes per function, and runs under
 ``qemu-arm`` compared with the NumPy reference.
 
-Sizes: each filter's ``FILTER.c`` is written (derive.emit.write, into a scratch
-directory), compiled for the ``cortex-m4`` target at each level of
-:data:`~derive.apps.targets.toolchains.SIZE_LEVELS`, and the object read back
-(:func:`~derive.apps.targets.toolchains.read_sizes`). Runs: the filter's C and its test
-program (derive.emit.library: the verification data embedded) are built for
-``arm-linux-gnueabihf`` (static, ``-O2``), run under ``qemu-arm --states``; the states it
-prints (C99 ``%a``: exact) are compared in Python with the reference by the error measure
-of ``derive verify`` (derive.apps.verify.relative_error), against its tolerance.
+Sizes: the filters' C is generated (derive.generation, into a scratch directory),
+compiled for the ``cortex-m4`` target at each level of
+:data:`~derive.apps.targets.toolchains.SIZE_LEVELS`, and each object read back
+(:func:`~derive.apps.targets.toolchains.read_sizes`). Runs: the library layout is written
+(derive.apps.targets.library: each filter's C and its test program, the verification data
+embedded), each filter built with its test program for ``arm-linux-gnueabihf`` (static,
+``-O2``) and run under ``qemu-arm --states``; the states it prints (C99 ``%a``: exact) are
+compared in Python with the reference by the error measure of ``derive verify``
+(derive.apps.verify.relative_error), against the tolerance ``derive verify`` holds the
+same C to (float32: derive.apps.float_tolerance's bound).
 """
 
 from __future__ import annotations
@@ -23,14 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from ...build import BuildError
-from ...emit.write import write_files
-from ...filters import available
-from ...generation import render_unit, resolve_model
-from ...options import per_filter
+from ...generation import generate_units, resolve_model
 from ..float_tolerance import FloatTolerance
 from ..verify import relative_error
 from .data import TEST_STEPS
-from .library import render_library
+from .library import write_library
 from .toolchains import SIZE_LEVELS, TARGETS, ObjectSize, compile_object, link_program, read_sizes
 
 #: A run under the emulator that takes longer than this is a hang.
@@ -50,10 +49,6 @@ class FilterSize:
     object: ObjectSize
 
 
-def filter_names(model, filters: Iterable[str] | None) -> list[str]:
-    return list(filters) if filters is not None else available(model)
-
-
 def sizes(model, filters: Iterable[str] | None = None, options: Mapping | None = None,
           target: str = "cortex-m4", levels: Iterable[str] = SIZE_LEVELS,
           workdir: str | Path | None = None) -> list[FilterSize]:
@@ -62,20 +57,13 @@ def sizes(model, filters: Iterable[str] | None = None, options: Mapping | None =
     model = resolve_model(model)
     tgt = TARGETS[target]
     tgt.require()
-    names = filter_names(model, filters)
-    typed = per_filter(names, options, None, named=filters is not None)
-    files, scalars = {}, {}
-    for name in names:
-        unit, texts = render_unit(model, name, "c", typed[name])
-        files.update(texts)
-        scalars[name] = unit.precision
     out: list[FilterSize] = []
     with tempfile.TemporaryDirectory(prefix="derive-size-", dir=workdir) as scratch:
-        write_files(scratch, model.name, files)
+        _, units = generate_units(model, filters, "c", scratch, options)
         folder = Path(scratch) / model.name
-        for name in names:
-            out += file_sizes(folder / f"{name}.c", model.name, name, scalars[name], target,
-                              levels)
+        for unit in units:
+            out += file_sizes(folder / f"{unit.filter}.c", model.name, unit.filter,
+                              unit.precision, target, levels)
     return out
 
 
@@ -142,12 +130,10 @@ def run_under_qemu(model, filters: Iterable[str] | None = None, options: Mapping
     model = resolve_model(model)
     tgt = TARGETS["arm-linux"]
     tgt.require(run=True)
-    names = filter_names(model, filters)
-    files, units, data = render_library(model, names, "scratch", options, steps,
-                                        with_data=True, refuse_uncarried=False)
     runs = []
     with tempfile.TemporaryDirectory(prefix="derive-qemu-", dir=workdir) as scratch:
-        write_files(scratch, model.name, files)
+        _, units, data = write_library(model, filters, scratch, options, steps,
+                                       refuse_uncarried=False)
         folder = Path(scratch) / model.name
         for unit in units:
             name = unit.filter

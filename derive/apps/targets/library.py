@@ -77,7 +77,17 @@ def generate_library(model, filters: Iterable[str] | None = None,
                      out: str | Path = "generated", options: Mapping | None = None,
                      steps: int = TEST_STEPS) -> tuple[list[Path], list[Unit]]:
     """Write the library of ``model`` into ``out/MODEL/``; (the paths written, the units)."""
+    paths, units, _ = write_library(model, filters, out, options, steps)
+    return paths, units
+
+
+def write_library(model, filters: Iterable[str] | None = None, out: str | Path = "generated",
+                  options: Mapping | None = None, steps: int = TEST_STEPS,
+                  refuse_uncarried: bool = True):
+    """:func:`generate_library`, also returning {filter: its VerificationData} (what the
+    test programs embed, for a caller that runs them: derive.apps.targets.arm)."""
     ref = model if isinstance(model, str) else None
     model = resolve_model(model)
-    files, units = render_library(model, filters, out, options, steps, ref)
-    return write_files(out, model.name, files), units
+    files, units, data = render_library(model, filters, out, options, steps, ref,
+                                        with_data=True, refuse_uncarried=refuse_uncarried)
+    return write_files(out, model.name, files), units, data
