@@ -92,11 +92,14 @@ def test_float32_cannot_carry_the_gnss_ukf_and_the_bound_says_so(catalog_results
     assert "float32 cannot carry it" in ukf.line()
 
 
-def test_the_python_of_a_float_unit_stays_double():
+@pytest.mark.parametrize("name", ["kf", "udkf"])
+def test_the_python_of_a_float_unit_stays_double(name):
+    """The Python twin computes in double and meets the double bar (the UD filter's, with
+    the float pivot floor FLT_MIN, from cv's P0 = 0: zero pivots at the start)."""
     model = catalog.load("cv")
-    unit = command_unit(model, "kf", FLOAT_OPTIONS, "cv")
+    unit = command_unit(model, name, FLOAT_OPTIONS, "cv")
     generated = load_units([unit], "all", extra_cflags=CONVERSION_CFLAGS)[0]
-    python, c = verify_modules(model, "kf", {"python": generated.python, "c": generated.c},
+    python, c = verify_modules(model, name, {"python": generated.python, "c": generated.c},
                                300, 7, FLOAT_OPTIONS, unit)
     assert python.bound is None and python.tolerance == LINEAR_TOLERANCE and python.passed
     assert c.bound is not None and c.passed and c.error > 1e3 * python.error

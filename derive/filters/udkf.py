@@ -107,17 +107,25 @@ def pivot_floor(name: str = DOUBLE.name) -> sympy.Float:
     return sympy.Float(precision(name).least_normal)
 
 
+def _unchanged_from(exponent: int, significand_bits: int) -> float:
+    """The least d for which d + 2^exponent rounds to d with a p-bit significand: the floor
+    is then less than half an ulp of d, d >= 2^(exponent + p + 1)."""
+    return 2.0 ** (exponent + significand_bits + 1)
+
+
 def pivot_fact(name: str = DOUBLE.name) -> str:
-    """The header line that states the pivot floor of the precision ``name``."""
+    """The header line that states the pivot floor of the C precision ``name`` (the same
+    floor in both files of a unit; the Python computes it in double)."""
     real = precision(name)
-    floor = real.least_normal
-    exponent = int(np.log2(floor))
-    # d + floor rounds to d once floor is less than half an ulp of d (p-bit significand):
-    # d >= 2^(e + p + 1)
-    unchanged = 2.0 ** (exponent + (53 if real is DOUBLE else 24) + 1)
+    exponent = int(np.log2(real.least_normal))
+    in_double = f"d >= {_unchanged_from(exponent, 53):.0e}"
+    where = f"bitwise d for {in_double}"
+    if real is not DOUBLE:
+        where = (f"bitwise d for d >= {_unchanged_from(exponent, 24):.0e} in float "
+                 f"arithmetic (the C), for {in_double} in double (the Python)")
     return (f"UD pivots: each pivot d divides as d + {real.c_least_normal} (2^{exponent}), "
-            f"bitwise d for d >= {unchanged:.0e}; a zero pivot (singular P, e.g. P0 = 0) "
-            "gives a zero column of U, as the reference's; a negative pivot is refused")
+            f"{where}; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as "
+            "the reference's; a negative pivot is refused")
 
 
 PIVOT_FACT = pivot_fact()
