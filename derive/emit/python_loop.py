@@ -5,8 +5,12 @@ per element; on one track that is most of the time.  Here the loop carries the s
 in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), unpacks each
 row of the per-step inputs into locals, runs the step's own statements (same printer,
 same operations, same order, so the results are bitwise those of ``step``) and keeps
-its new elements in one flat list, turned into arrays once at the end.  A failed check
-raises :class:`NumericalError` with the step's message and the step's index.
+its new elements in one flat list (one tuple per step), packed into an array once at the
+end.  Per step it names only what is read twice: a temporary read once is printed inside
+its reader (unless a check lies between them, so nothing divides by a value before it is
+checked), and a new state element is written to its local where it is computed once the
+old value is dead.  A failed check raises :class:`NumericalError` with the step's message
+and the step's index (the rows kept so far: no counter per step).
 """
 
 from __future__ import annotations
@@ -94,7 +98,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
             if text(leaf) not in kept:
                 kept.append(text(leaf))
             columns[port].append(kept.index(text(leaf)))
-    out.append("rows = []")
+    out += ["rows = []", "keep = rows.extend"]
     # a row of one element is iterated as the element itself
     single = [ports[name].size == 1 for name in step_inputs]
     sources = [f"{arrays[name]}[:, 0].tolist()" if one else f"{arrays[name]}.tolist()"
@@ -126,8 +130,8 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
             body += [f"if not {value} > 0.0:",
                      f'    raise NumericalError(f"step {{{step}}}: " + {st.message!r})']
     kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
-    body += _wrap(f"rows += ({kept_now[0]},)" if width == 1 else
-                  f"rows += ({', '.join(kept_now)})")
+    body += _wrap(f"keep(({kept_now[0]},))" if width == 1 else
+                  f"keep(({', '.join(kept_now)}))")
     # the rest of the state (a leaf that reads the old state is bound first, so no
     # assignment sees a new value early)
     olds = {t for t, _ in leaves}
@@ -142,7 +146,9 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         assigned.append((target_, value))
     body += early + [f"{t} = {v}" for t, v in assigned]
     out += [f"    {line}" for line in body]
-    out.append(f"table = np.fromiter(rows, float, len(rows)).reshape(-1, {width})")
+    # packed once at the end: the fastest way from a list of floats to an array
+    out.append(f'table = np.frombuffer(struct.pack(f"{{len(rows)}}d", *rows))'
+               f".reshape(-1, {width})")
     ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
            f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
            for port, shape in stored]

@@ -21,6 +21,8 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -142,6 +144,7 @@ def run(zs, x0, P0):
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
         rows = []
+        keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1 + 0.5*x_2
             t1 = x_1 + x_2
@@ -171,8 +174,8 @@ def run(zs, x0, P0):
             P_4 = t13 - t11*t19
             P_5 = t14 - t12*t19
             P_8 = t15 - t12*t20
-            rows += (x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8)
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 9)
+            keep((x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

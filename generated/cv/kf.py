@@ -21,6 +21,8 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -123,6 +125,7 @@ def run(zs, x0, P0):
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
+        keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1
             t2 = P_1 + P_3
@@ -140,8 +143,8 @@ def run(zs, x0, P0):
             P_0 = t4 - t4*t8
             P_1 = t5 - t5*t8
             P_3 = t6 - t5*t9
-            rows += (x_0, x_1, P_0, P_1, P_3)
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 5)
+            keep((x_0, x_1, P_0, P_1, P_3))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -41,6 +41,8 @@ per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -688,6 +690,7 @@ def run(zs, us, x0, P0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
+        keep = rows.extend
         for (zk, uk) in zip(zs.tolist(), us.tolist()):
             z_0, z_1, z_2, z_3 = zk
             u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
@@ -999,8 +1002,8 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t262*t322 + t263*t321 + t264*t320 + t265*t312)
             P_11 = P_11 - (t266*t322 + t267*t321 + t268*t320 + t269*t312)
             P_15 = t3 - (t266*t325 + t267*t324 + t268*t323 + t269*t313)
-            rows += (x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15)
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 14)
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -20,6 +20,8 @@ P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -150,6 +152,7 @@ def run(zs, x0, P0):
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
+        keep = rows.extend
         for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t9 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_0))
@@ -161,8 +164,8 @@ def run(zs, x0, P0):
             P_0 = 0.00909090909090909 + 0.9090909090909091*(P_0*t9)
             P_4 = 0.00909090909090909 + 0.9090909090909091*(P_4*t10)
             P_8 = 0.00909090909090909 + 0.9090909090909091*(P_8*t11)
-            rows += (x_0, x_1, x_2, P_0, 0.0, P_4, P_8)
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 7)
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -22,6 +22,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -284,6 +286,7 @@ def run(zs, x0, P0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
+        keep = rows.extend
         for zk in zs.tolist():
             z_0, z_1 = zk
             t0 = x_0 + x_1
@@ -358,12 +361,12 @@ def run(zs, x0, P0):
             t147 = 0.5*(0.0020408163265306124 + (0.9387755102040817*t114 + 0.8775510204081632*t115) + (t11 - t16*t24))
             t148 = 0.5*(0.004081632653061225 + (0.7551020408163265*t115 - 0.12244897959183673*t114) + (t12 - t17*t24))
             P_15 = 0.5*(0.00816326530612245 + (0.7551020408163265*(P_15*t85 - P_11*t84) - 0.12244897959183673*(P_11*t85 - P_10*t84)) + (t13 - t17*t25))
-            rows += (x_0, x_1, x_2, x_3, t144, t145, 0.0, P_5, t147, t148, P_15)
+            keep((x_0, x_1, x_2, x_3, t144, t145, 0.0, P_5, t147, t148, P_15))
             P_0 = t144
             P_1 = t145
             P_10 = t147
             P_11 = t148
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 11)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

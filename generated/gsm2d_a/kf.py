@@ -22,6 +22,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -182,6 +184,7 @@ def run(zs, x0, P0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
+        keep = rows.extend
         for zk in zs.tolist():
             z_0, z_1 = zk
             t0 = x_0 + x_1
@@ -220,8 +223,8 @@ def run(zs, x0, P0):
             P_10 = t11 - t16*t24
             P_11 = t12 - t17*t24
             P_15 = t13 - t17*t25
-            rows += (x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15)
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 11)
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

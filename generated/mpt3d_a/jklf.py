@@ -23,6 +23,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -363,6 +365,7 @@ def run(zs, x0, P0):
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = []
+        keep = rows.extend
         for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = x_0 + x_1
@@ -473,15 +476,15 @@ def run(zs, x0, P0):
             t222 = 0.5*(0.0020408163265306124 + (0.9387755102040817*t173 + 0.8775510204081632*t174) + (t18 - t25*t37))
             t223 = 0.5*(0.004081632653061225 + (0.7551020408163265*t174 - 0.12244897959183673*t173) + (t19 - t26*t37))
             P_35 = 0.5*(0.00816326530612245 + (0.7551020408163265*(P_35*t128 - P_29*t127) - 0.12244897959183673*(P_29*t128 - P_28*t127)) + (t20 - t26*t38))
-            rows += (x_0, x_1, x_2, x_3, x_4, x_5, t216, t217, 0.0, P_7, t219, t220, P_21, t222,
-                    t223, P_35)
+            keep((x_0, x_1, x_2, x_3, x_4, x_5, t216, t217, 0.0, P_7, t219, t220, P_21, t222, t223,
+                    P_35))
             P_0 = t216
             P_1 = t217
             P_14 = t219
             P_15 = t220
             P_28 = t222
             P_29 = t223
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 16)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))

@@ -23,6 +23,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -213,6 +215,7 @@ def run(zs, x0, P0):
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = []
+        keep = rows.extend
         for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = x_0 + x_1
@@ -269,9 +272,9 @@ def run(zs, x0, P0):
             P_28 = t18 - t25*t37
             P_29 = t19 - t26*t37
             P_35 = t20 - t26*t38
-            rows += (x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21, P_28,
-                    P_29, P_35)
-        table = np.fromiter(rows, float, len(rows)).reshape(-1, 16)
+            keep((x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21, P_28, P_29,
+                    P_35))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))
