@@ -41,7 +41,7 @@ import sympy
 from sympy import default_sort_key
 
 from derive.emit.unit import Unit
-from derive.lowering import CARRIED, Op, Tree, Var, lower_program
+from derive.lowering import CARRIED, Op, Tree, Var, expression_lowerer
 from derive.program import Program
 from derive.statements import Assign, Check, InputElement, Statement, Temporary
 
@@ -175,6 +175,7 @@ class _Work:
         self.reciprocals: dict[sympy.Expr, Temporary] = {}
         self.negations: dict[sympy.Expr, Temporary] = {}
         self.directs: dict[Temporary, sympy.Expr] = {}
+        self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
 
     def fresh(self) -> Temporary:
         self.counter += 1
@@ -196,9 +197,8 @@ class _Work:
         return self.program._final(out, results)   # an optimised program, final as is
 
     def arrivals(self, body: Sequence[Statement]) -> dict[str, float]:
-        """Per temporary: the latest a carried input reaches it (reference cycles)."""
-        lowered = lower_program(self.program._final(list(body), dict(self.results)),
-                                use_fma=True)
+        """Per temporary: the latest a carried input reaches it (reference cycles), on
+        the statements as the lowering (with fma) emits them."""
         ready: dict[str, float] = {}
 
         def arrival(tree: Tree) -> float:
@@ -211,9 +211,9 @@ class _Work:
                 return start + operation_latency(tree.kind, REFERENCE_CYCLES)
             return -math.inf
 
-        for st in lowered.body:
-            if hasattr(st, "target"):
-                ready[st.target] = arrival(st.tree)
+        for st in body:
+            if isinstance(st, Assign):
+                ready[st.target.name] = arrival(self.lower(st.expr))
         return ready
 
     def score(self, body: Sequence[Statement]) -> tuple[float, float]:
