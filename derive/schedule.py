@@ -95,13 +95,15 @@ def latency_schedule(program: Program,
         if body == before:
             break
     body = work.prune(body)
-    body = work.order(_merge(_live(body, program.results)))
-    return work.build(body)
+    body, merged = _merge(_live(body, program.results))
+    work.results = {name: tuple(v.xreplace(merged) for v in values)
+                    for name, values in work.results.items()}
+    return work.build(work.order(body))
 
 
-def _merge(body: Sequence[Statement]) -> list[Statement]:
+def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
     """Each right-hand side computed once: a later temporary with the same expression as
-    an earlier one reads the earlier one."""
+    an earlier one reads the earlier one (the second item: ``{dropped: kept}``)."""
     seen: dict[sympy.Expr, Temporary] = {}
     names: dict[sympy.Symbol, sympy.Symbol] = {}
     out: list[Statement] = []
@@ -115,7 +117,7 @@ def _merge(body: Sequence[Statement]) -> list[Statement]:
             continue
         seen[expr] = st.target
         out.append(Assign(st.target, expr))
-    return out
+    return out, names
 
 
 def _live(body: Sequence[Statement], results: Mapping[str, tuple]) -> list[Statement]:
