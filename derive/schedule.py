@@ -250,7 +250,8 @@ class _Work:
         best = self.score(body)[0]
         for k in reversed(range(len(body))):
             st = body[k]
-            if not isinstance(st, Assign) or self.directs.get(st.target) != st.expr:
+            if not isinstance(st, Assign) or self.directs.get(st.target) != st.expr or \
+                    st.target not in self.original:
                 continue
             original = self.original[st.target]
             defined = {s.target for s in body[:k] if isinstance(s, Assign)}

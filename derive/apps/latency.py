@@ -178,15 +178,23 @@ def run_loop_bound(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Bou
     return Bound(bound.per_step / steps, bound.operations, bound.span, steps)
 
 
+#: Steps with more statements are not scheduled just to print a bound (``derive burden``,
+#: the bench): the schedule's search grows with the square of the step's size (about 6 s
+#: at 300 statements, twelve axes of mpt3d_b); ``--latency-schedule`` still applies it.
+MAX_BOUND_STATEMENTS = 400
+
+
 @dataclass(frozen=True)
 class ScheduleBounds:
     """A filter's run-loop bound in its default schedule and in the latency schedule
-    (None where the latency schedule does not apply: a two-step pass, no carried state),
-    and the flops per step the latency schedule adds (C, as counted)."""
+    (None where the latency schedule does not apply: a two-step pass, no carried state,
+    a filter without the option; or where it was not computed, ``note`` says why), and
+    the flops per step the latency schedule adds (C, as counted)."""
 
     default: Bound | None
     latency: Bound | None
     flops_added: int | None
+    note: str = ""
 
 
 def schedule_bounds(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> ScheduleBounds:
@@ -196,6 +204,11 @@ def schedule_bounds(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Sc
     if default is None or unit.lookahead is not None or \
             "latency_schedule" not in taken_by(unit.filter):
         return ScheduleBounds(default, None, None)
+    size = len(unit.programs["step"].optimize().body)
+    if size > MAX_BOUND_STATEMENTS:
+        return ScheduleBounds(default, None, None, f"latency schedule not computed for a step "
+                              f"of {size} statements (over {MAX_BOUND_STATEMENTS}); "
+                              "--latency-schedule applies it")
     scheduled = scheduled_unit(unit)
     added = count(scheduled.programs["step"], "c").flops - count(unit.programs["step"], "c").flops
     return ScheduleBounds(default, run_loop_bound(scheduled, latency), added)

@@ -94,6 +94,7 @@ def chain_rows(derived: list, latency: dict | None = None) -> list[dict]:
                      "per_step": None if bound is None else bound.per_step,
                      "operations_per_pass": None if bound is None else dict(bound.operations),
                      "chain": None if bound is None else bound.describe(),
+                     "latency_schedule_note": both.note or None,
                      "latency_schedule": None if fast is None else {
                          "per_step": fast.per_step, "chain": fast.describe(),
                          "operations_per_pass": dict(fast.operations),
@@ -117,6 +118,8 @@ def _chain_text(rows: list[dict], measured: bool) -> list[str]:
             continue
         lines.append(f"  {r['filter']}: {r['per_step'] * scale:.3g} {unit} ({r['chain']})")
         fast = r["latency_schedule"]
+        if r["latency_schedule_note"]:
+            lines.append(f"  {r['filter']}: {r['latency_schedule_note']}")
         if fast is not None:
             ratio = fast["per_step"] / r["per_step"]
             lines.append(f"  {r['filter']} --latency-schedule: {fast['per_step'] * scale:.3g} "
