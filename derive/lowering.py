@@ -495,3 +495,19 @@ def lower_program(program: Program, *, use_fma: bool = False,
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                           tuple(body), results, use_fma)
+
+
+def expression_lowerer(*, use_fma: bool = False,
+                       state_ports: tuple[str, ...] = STATE_PORTS) -> Callable[[sympy.Basic], Tree]:
+    """One expression's tree exactly as :func:`lower_program` lowers it inside a program
+    (same fma and ordering rules), remembered per expression: for passes that lower the
+    same statements again and again (derive.schedule scores each rewrite it tries)."""
+    lowerer = _Lowerer(use_fma, state_ports)
+    trees: dict[sympy.Basic, Tree] = {}
+
+    def lower_one(expr: sympy.Basic) -> Tree:
+        tree = trees.get(expr)
+        if tree is None:
+            tree = trees[expr] = lowerer.lower(expr)
+        return tree
+    return lower_one

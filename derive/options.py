@@ -164,6 +164,10 @@ class KalmanOptions(SharedOptions):
     joseph: bool = option(
         False, flag="--joseph", kind=bool,
         help="Joseph-form covariance update")
+    latency_schedule: bool = option(
+        False, flag="--latency-schedule", kind=bool,
+        help="a shorter carried chain for the run loop at the price of some flops "
+             "(derive burden prints both chains and the flops added)")
 
 
 @dataclass(frozen=True, kw_only=True)

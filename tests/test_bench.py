@@ -16,12 +16,14 @@ from derive.apps.bench.bound import case_bound
 from derive.apps.bench.cases import CASES, Case, Skip, make_data, states
 from derive.apps.bench.run import (
     IMPLEMENTATIONS,
+    LATENCY_SCHEDULE,
     Bar,
     BenchResult,
     Settings,
     run_bench,
     time_catalog_generation,
 )
+from derive.options import taken_by
 
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
                 check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
@@ -35,8 +37,13 @@ def result():
 
 
 def test_one_row_per_case_and_implementation(result):
-    assert [(r.case, r.implementation) for r in result.rows] == [
-        (c.label, name) for c in CASES for name, _, _ in IMPLEMENTATIONS]
+    expected = []
+    for c in CASES:
+        for name, _, _ in IMPLEMENTATIONS:
+            expected.append((c.label, name))
+            if name == "generated C" and "latency_schedule" in taken_by(c.filter):
+                expected.append((c.label, LATENCY_SCHEDULE))   # the KF cases
+    assert [(r.case, r.implementation) for r in result.rows] == expected
     assert [b.implementation for b in result.batch] == [
         "generated C, run_tracks",
         f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
@@ -83,9 +90,9 @@ def test_text_and_json(result):
     for case in CASES:
         assert case.label in text
     navigation = len(result.navigation.bars(Bar))  # the ins_gnss rows (bench/navigation.py)
-    assert text.count("bar: ") == 9 + navigation and text.count("bar: scaled: ") == 3
+    assert text.count("bar: ") == 12 + navigation and text.count("bar: scaled: ") == 3
     data = json.loads(json.dumps(result.as_json()))
-    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 9 + navigation
+    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 12 + navigation
     assert "two dependent fmas here take" in text
 
 

@@ -32,6 +32,8 @@ per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -386,7 +388,7 @@ def run(zs, us, x0, P0):
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
         keep = rows.extend
-        for k, (zk, uk) in enumerate(zip(zs.tolist(), us.tolist())):
+        for (zk, uk) in zip(zs.tolist(), us.tolist()):
             z_0, z_1, z_2, z_3 = zk
             u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
             t0 = 0.01 + P_0
@@ -445,29 +447,25 @@ def run(zs, us, x0, P0):
             t53 = t3 + P_11*t33 + P_3*t31 + P_7*t32
             t54 = t3 + P_11*t36 + P_3*t34 + P_7*t35
             t55 = t3 + P_11*t39 + P_3*t37 + P_7*t38
-            t56 = t52 + t28*t40 + t29*t44 + t30*t48
             t57 = t53 + t28*t41 + t29*t45 + t30*t49
             t58 = t54 + t28*t42 + t29*t46 + t30*t50
             t59 = t55 + t28*t43 + t29*t47 + t30*t51
-            t60 = t53 + t31*t41 + t32*t45 + t33*t49
             t61 = t54 + t31*t42 + t32*t46 + t33*t50
             t62 = t55 + t31*t43 + t32*t47 + t33*t51
-            t63 = t54 + t34*t42 + t35*t46 + t36*t50
             t64 = t55 + t34*t43 + t35*t47 + t36*t51
-            t65 = t55 + t37*t43 + t38*t47 + t39*t51
-            t66 = 100.0 + t56
-            t67 = 100.0 + t60
-            t68 = 100.0 + t63
-            t69 = 100.0 + t65
+            t66 = 100.0 + (t52 + t28*t40 + t29*t44 + t30*t48)
+            t67 = 100.0 + (t53 + t31*t41 + t32*t45 + t33*t49)
+            t68 = 100.0 + (t54 + t34*t42 + t35*t46 + t36*t50)
+            t69 = 100.0 + (t55 + t37*t43 + t38*t47 + t39*t51)
             if not t66 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t70 = 1.0/t66
             t71 = t57*t70
             t72 = t58*t70
             t73 = t59*t70
             t74 = t67 - t57*t71
             if not t74 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t75 = 1.0/t74
             t76 = t61 - t58*t71
             t77 = t75*t76
@@ -475,103 +473,58 @@ def run(zs, us, x0, P0):
             t79 = t75*t78
             t80 = t68 - t58*t72 - t76*t77
             if not t80 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t81 = 1.0/t80
             t82 = t64 - t59*t72 - t77*t78
             t83 = t81*t82
             t84 = t69 - t59*t73 - t78*t79 - t82*t83
             if not t84 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t85 = 1.0/t84
             t86 = t41 - t40*t71
             t87 = t42 - t40*t72 - t77*t86
-            t88 = t43 - t40*t73 - t79*t86 - t83*t87
             t89 = t45 - t44*t71
             t90 = t46 - t44*t72 - t77*t89
-            t91 = t47 - t44*t73 - t79*t89 - t83*t90
             t92 = t49 - t48*t71
             t93 = t50 - t48*t72 - t77*t92
-            t94 = t51 - t48*t73 - t79*t92 - t83*t93
             t95 = t53 - t52*t71
             t96 = t54 - t52*t72 - t77*t95
-            t97 = t55 - t52*t73 - t79*t95 - t83*t96
-            t98 = t40*t70
-            t99 = t44*t70
-            t100 = t48*t70
-            t101 = t52*t70
-            t102 = t75*t86
-            t103 = t75*t89
-            t104 = t75*t92
-            t105 = t75*t95
-            t106 = t81*t87
-            t107 = t81*t90
-            t108 = t81*t93
-            t109 = t81*t96
-            t110 = t85*t88
-            t111 = t85*t91
-            t112 = t85*t94
-            t113 = t85*t97
-            t114 = t106 - t110*t83
-            t115 = t102 - t110*t79 - t114*t77
-            t116 = t98 - t110*t73 - t114*t72 - t115*t71
-            t117 = t107 - t111*t83
-            t118 = t103 - t111*t79 - t117*t77
-            t119 = t99 - t111*t73 - t117*t72 - t118*t71
-            t120 = t108 - t112*t83
-            t121 = t104 - t112*t79 - t120*t77
-            t122 = t100 - t112*t73 - t120*t72 - t121*t71
-            t123 = t109 - t113*t83
-            t124 = t105 - t113*t79 - t123*t77
-            t125 = t101 - t113*t73 - t123*t72 - t124*t71
+            t110 = t85*(t43 - t40*t73 - t79*t86 - t83*t87)
+            t111 = t85*(t47 - t44*t73 - t79*t89 - t83*t90)
+            t112 = t85*(t51 - t48*t73 - t79*t92 - t83*t93)
+            t113 = t85*(t55 - t52*t73 - t79*t95 - t83*t96)
+            t114 = t81*t87 - t110*t83
+            t115 = t75*t86 - t110*t79 - t114*t77
+            t116 = t40*t70 - t110*t73 - t114*t72 - t115*t71
+            t117 = t81*t90 - t111*t83
+            t118 = t75*t89 - t111*t79 - t117*t77
+            t119 = t44*t70 - t111*t73 - t117*t72 - t118*t71
+            t120 = t81*t93 - t112*t83
+            t121 = t75*t92 - t112*t79 - t120*t77
+            t122 = t48*t70 - t112*t73 - t120*t72 - t121*t71
+            t123 = t81*t96 - t113*t83
+            t124 = t75*t95 - t113*t79 - t123*t77
+            t125 = t52*t70 - t113*t73 - t123*t72 - t124*t71
             t126 = z_0 - t24
             t127 = z_1 - t25
             t128 = z_2 - t26
             t129 = z_3 - t27
-            t130 = t110*t129 + t114*t128 + t115*t127 + t116*t126
-            t131 = t111*t129 + t117*t128 + t118*t127 + t119*t126
-            t132 = t112*t129 + t120*t128 + t121*t127 + t122*t126
-            t133 = t113*t129 + t123*t128 + t124*t127 + t125*t126
-            t134 = x_0 + t130
-            t135 = x_1 + t131
-            t136 = x_2 + t132
-            t137 = x_3 + t133
-            t138 = t110*t43 + t114*t42 + t115*t41 + t116*t40
-            t139 = t110*t47 + t114*t46 + t115*t45 + t116*t44
-            t140 = t110*t51 + t114*t50 + t115*t49 + t116*t48
-            t141 = t110*t55 + t114*t54 + t115*t53 + t116*t52
-            t142 = t111*t47 + t117*t46 + t118*t45 + t119*t44
-            t143 = t111*t51 + t117*t50 + t118*t49 + t119*t48
-            t144 = t111*t55 + t117*t54 + t118*t53 + t119*t52
-            t145 = t112*t51 + t120*t50 + t121*t49 + t122*t48
-            t146 = t112*t55 + t120*t54 + t121*t53 + t122*t52
-            t147 = t113*t55 + t123*t54 + t124*t53 + t125*t52
-            t148 = t0 - t138
-            t149 = P_1 - t139
-            t150 = P_2 - t140
-            t151 = P_3 - t141
-            t152 = t1 - t142
-            t153 = P_6 - t143
-            t154 = P_7 - t144
-            t155 = t2 - t145
-            t156 = P_11 - t146
-            t157 = t3 - t147
-            keep((t134, t135, t136, t137, t148, t149, t150, t151, t152, t153, t154, t155, t156,
-                    t157))
-            x_0 = t134
-            x_1 = t135
-            x_2 = t136
-            x_3 = t137
-            P_0 = t148
-            P_1 = t149
-            P_2 = t150
-            P_3 = t151
-            P_5 = t152
-            P_6 = t153
-            P_7 = t154
-            P_10 = t155
-            P_11 = t156
-            P_15 = t157
-        table = np.array(rows, dtype=float).reshape(-1, 14)
+            x_0 = x_0 + (t110*t129 + t114*t128 + t115*t127 + t116*t126)
+            x_1 = x_1 + (t111*t129 + t117*t128 + t118*t127 + t119*t126)
+            x_2 = x_2 + (t112*t129 + t120*t128 + t121*t127 + t122*t126)
+            x_3 = x_3 + (t113*t129 + t123*t128 + t124*t127 + t125*t126)
+            P_0 = t0 - (t110*t43 + t114*t42 + t115*t41 + t116*t40)
+            P_1 = P_1 - (t110*t47 + t114*t46 + t115*t45 + t116*t44)
+            P_2 = P_2 - (t110*t51 + t114*t50 + t115*t49 + t116*t48)
+            P_3 = P_3 - (t110*t55 + t114*t54 + t115*t53 + t116*t52)
+            P_5 = t1 - (t111*t47 + t117*t46 + t118*t45 + t119*t44)
+            P_6 = P_6 - (t111*t51 + t117*t50 + t118*t49 + t119*t48)
+            P_7 = P_7 - (t111*t55 + t117*t54 + t118*t53 + t119*t52)
+            P_10 = t2 - (t112*t51 + t120*t50 + t121*t49 + t122*t48)
+            P_11 = P_11 - (t112*t55 + t120*t54 + t121*t53 + t122*t52)
+            P_15 = t3 - (t113*t55 + t123*t54 + t124*t53 + t125*t52)
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -26,6 +26,8 @@ P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -165,52 +167,36 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.01 + P_0
             t1 = 0.01 + P_4
             t2 = 0.01 + P_8
             if not t0 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t3 = 1.0/t0
             if not t1 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t4 = 1.0/t1
             if not t2 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t5 = 1.0/t2
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t6 = 10.0 + t3
             t7 = 10.0 + t4
-            t8 = 10.0 + t5
+            t8 = 10.0 + 1.0/t2
             if not t6 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            t9 = 1.0/t6
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            P_0 = 1.0/t6
             if not t7 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            t10 = 1.0/t7
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            P_4 = 1.0/t7
             if not t8 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t11 = 1.0/t8
-            t12 = 10.0*t9
-            t13 = 10.0*t10
-            t14 = 10.0*t11
-            t15 = z_0 - x_0
-            t16 = z_1 - x_1
-            t17 = z_2 - x_2
-            t18 = t12*t15
-            t19 = t13*t16
-            t20 = t14*t17
-            t21 = x_0 + t18
-            t22 = x_1 + t19
-            t23 = x_2 + t20
-            keep((t21, t22, t23, t9, 0.0, t10, t11))
-            x_0 = t21
-            x_1 = t22
-            x_2 = t23
-            P_0 = t9
-            P_4 = t10
-            P_8 = t11
-        table = np.array(rows, dtype=float).reshape(-1, 7)
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            P_8 = 1.0/t8
+            x_0 = x_0 + 10.0*P_0*(z_0 - x_0)
+            x_1 = x_1 + 10.0*P_4*(z_1 - x_1)
+            x_2 = x_2 + 10.0*P_8*(z_2 - x_2)
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -23,6 +23,8 @@ P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -210,7 +212,7 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.01 + P_0
             t1 = 0.01 + P_4
@@ -219,88 +221,25 @@ def run(zs, x0, P0):
             t4 = 0.1 + t1
             t5 = 0.1 + t2
             if not t3 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             if not t4 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             if not t5 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t6 = t0/t3
             t7 = t1/t4
             t8 = t2/t5
-            t9 = z_0 - x_0
-            t10 = z_1 - x_1
-            t11 = z_2 - x_2
-            t12 = t6*t9
-            t13 = t10*t7
-            t14 = t11*t8
-            t15 = x_0 + t12
-            t16 = x_1 + t13
-            t17 = x_2 + t14
-            t18 = t0*t6
-            t19 = t1*t7
-            t20 = t2*t8
-            t21 = t0 - t18
-            t22 = t1 - t19
-            t23 = t2 - t20
-            t24 = 9.090909090909092*P_0
-            t25 = 9.090909090909092*P_4
-            t26 = 9.090909090909092*P_8
-            t27 = 1.0 + t24
-            t28 = 1.0 + t25
-            t29 = 1.0 + t26
-            t30 = 1.0/t27
-            t31 = 1.0/t28
-            t32 = 1.0/t29
-            t33 = 0.9090909090909091*t30
-            t34 = 0.9090909090909091*t31
-            t35 = 0.9090909090909091*t32
-            t36 = 9.090909090909092*z_0
-            t37 = 9.090909090909092*z_1
-            t38 = 9.090909090909092*z_2
-            t39 = P_0*t36
-            t40 = P_4*t37
-            t41 = P_8*t38
-            t42 = x_0 + t39
-            t43 = x_1 + t40
-            t44 = x_2 + t41
-            t45 = 0.09090909090909091*z_0
-            t46 = 0.09090909090909091*z_1
-            t47 = 0.09090909090909091*z_2
-            t48 = t33*t42
-            t49 = t34*t43
-            t50 = t35*t44
-            t51 = t45 + t48
-            t52 = t46 + t49
-            t53 = t47 + t50
-            t54 = P_0*t33
-            t55 = P_4*t34
-            t56 = P_8*t35
-            t57 = 0.9090909090909091*t54
-            t58 = 0.9090909090909091*t55
-            t59 = 0.9090909090909091*t56
-            t60 = 0.00909090909090909 + t57
-            t61 = 0.00909090909090909 + t58
-            t62 = 0.00909090909090909 + t59
-            t63 = t15 + t51
-            t64 = t16 + t52
-            t65 = t17 + t53
-            t66 = 0.5*t63
-            t67 = 0.5*t64
-            t68 = 0.5*t65
-            t69 = t21 + t60
-            t70 = t22 + t61
-            t71 = t23 + t62
-            t72 = 0.5*t69
-            t73 = 0.5*t70
-            t74 = 0.5*t71
-            keep((t66, t67, t68, t72, 0.0, t73, t74))
-            x_0 = t66
-            x_1 = t67
-            x_2 = t68
-            P_0 = t72
-            P_4 = t73
-            P_8 = t74
-        table = np.array(rows, dtype=float).reshape(-1, 7)
+            t33 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_0))
+            t34 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_4))
+            t35 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_8))
+            x_0 = 0.5*(x_0 + t6*(z_0 - x_0) + (0.09090909090909091*z_0 + t33*(x_0 + P_0*(9.090909090909092*z_0))))
+            x_1 = 0.5*(x_1 + (z_1 - x_1)*t7 + (0.09090909090909091*z_1 + t34*(x_1 + P_4*(9.090909090909092*z_1))))
+            x_2 = 0.5*(x_2 + (z_2 - x_2)*t8 + (0.09090909090909091*z_2 + t35*(x_2 + P_8*(9.090909090909092*z_2))))
+            P_0 = 0.5*(t0 - t0*t6 + (0.00909090909090909 + 0.9090909090909091*(P_0*t33)))
+            P_4 = 0.5*(t1 - t1*t7 + (0.00909090909090909 + 0.9090909090909091*(P_4*t34)))
+            P_8 = 0.5*(t2 - t2*t8 + (0.00909090909090909 + 0.9090909090909091*(P_8*t35)))
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -23,6 +23,8 @@ P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -159,7 +161,7 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.01 + P_0
             t1 = 0.01 + P_4
@@ -168,37 +170,22 @@ def run(zs, x0, P0):
             t4 = 0.1 + t1
             t5 = 0.1 + t2
             if not t3 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             if not t4 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             if not t5 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t6 = t0/t3
             t7 = t1/t4
             t8 = t2/t5
-            t9 = z_0 - x_0
-            t10 = z_1 - x_1
-            t11 = z_2 - x_2
-            t12 = t6*t9
-            t13 = t10*t7
-            t14 = t11*t8
-            t15 = x_0 + t12
-            t16 = x_1 + t13
-            t17 = x_2 + t14
-            t18 = t0*t6
-            t19 = t1*t7
-            t20 = t2*t8
-            t21 = t0 - t18
-            t22 = t1 - t19
-            t23 = t2 - t20
-            keep((t15, t16, t17, t21, 0.0, t22, t23))
-            x_0 = t15
-            x_1 = t16
-            x_2 = t17
-            P_0 = t21
-            P_4 = t22
-            P_8 = t23
-        table = np.array(rows, dtype=float).reshape(-1, 7)
+            x_0 = x_0 + t6*(z_0 - x_0)
+            x_1 = x_1 + (z_1 - x_1)*t7
+            x_2 = x_2 + (z_2 - x_2)*t8
+            P_0 = t0 - t0*t6
+            P_4 = t1 - t1*t7
+            P_8 = t2 - t2*t8
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -22,6 +22,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -183,74 +185,46 @@ def run(zs, x0, P0):
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1 = zk
             t0 = x_0 + x_1
             t1 = x_2 + x_3
-            t2 = P_0 + P_1
             t3 = P_1 + P_5
-            t4 = P_10 + P_11
             t5 = P_11 + P_15
-            t6 = t2 + t3
-            t7 = t4 + t5
-            t8 = 0.0025 + t6
+            t8 = 0.0025 + (P_0 + P_1 + t3)
             t9 = 0.005 + t3
             t10 = 0.01 + P_5
-            t11 = 0.0025 + t7
+            t11 = 0.0025 + (P_10 + P_11 + t5)
             t12 = 0.005 + t5
             t13 = 0.01 + P_15
             t14 = t8 + t9
             t15 = t10 + t9
             t16 = t11 + t12
             t17 = t12 + t13
-            t18 = t14 + t15
-            t19 = t16 + t17
-            t20 = 0.1 + t18
-            t21 = 0.1 + t19
+            t20 = 0.1 + (t14 + t15)
+            t21 = 0.1 + (t16 + t17)
             if not t20 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 11}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             if not t21 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 11}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t22 = t14/t20
             t23 = t15/t20
             t24 = t16/t21
             t25 = t17/t21
-            t26 = x_1 + t0
-            t27 = x_3 + t1
-            t28 = z_0 - t26
-            t29 = z_1 - t27
-            t30 = t22*t28
-            t31 = t23*t28
-            t32 = t24*t29
-            t33 = t25*t29
-            t34 = t0 + t30
-            t35 = x_1 + t31
-            t36 = t1 + t32
-            t37 = x_3 + t33
-            t38 = t14*t22
-            t39 = t15*t22
-            t40 = t15*t23
-            t41 = t16*t24
-            t42 = t17*t24
-            t43 = t17*t25
-            t44 = t8 - t38
-            t45 = t9 - t39
-            t46 = t10 - t40
-            t47 = t11 - t41
-            t48 = t12 - t42
-            t49 = t13 - t43
-            keep((t34, t35, t36, t37, t44, t45, 0.0, t46, t47, t48, t49))
-            x_0 = t34
-            x_1 = t35
-            x_2 = t36
-            x_3 = t37
-            P_0 = t44
-            P_1 = t45
-            P_5 = t46
-            P_10 = t47
-            P_11 = t48
-            P_15 = t49
-        table = np.array(rows, dtype=float).reshape(-1, 11)
+            t28 = z_0 - (x_1 + t0)
+            t29 = z_1 - (x_3 + t1)
+            x_0 = t0 + t22*t28
+            x_1 = x_1 + t23*t28
+            x_2 = t1 + t24*t29
+            x_3 = x_3 + t25*t29
+            P_0 = t8 - t14*t22
+            P_1 = t9 - t15*t22
+            P_5 = t10 - t15*t23
+            P_10 = t11 - t16*t24
+            P_11 = t12 - t17*t24
+            P_15 = t13 - t17*t25
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -23,6 +23,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -214,27 +216,21 @@ def run(zs, x0, P0):
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = x_0 + x_1
             t1 = x_2 + x_3
             t2 = x_4 + x_5
-            t3 = P_0 + P_1
             t4 = P_1 + P_7
-            t5 = P_14 + P_15
             t6 = P_15 + P_21
-            t7 = P_28 + P_29
             t8 = P_29 + P_35
-            t9 = t3 + t4
-            t10 = t5 + t6
-            t11 = t7 + t8
-            t12 = 0.0025 + t9
+            t12 = 0.0025 + (P_0 + P_1 + t4)
             t13 = 0.005 + t4
             t14 = 0.01 + P_7
-            t15 = 0.0025 + t10
+            t15 = 0.0025 + (P_14 + P_15 + t6)
             t16 = 0.005 + t6
             t17 = 0.01 + P_21
-            t18 = 0.0025 + t11
+            t18 = 0.0025 + (P_28 + P_29 + t8)
             t19 = 0.005 + t8
             t20 = 0.01 + P_35
             t21 = t12 + t13
@@ -243,77 +239,42 @@ def run(zs, x0, P0):
             t24 = t16 + t17
             t25 = t18 + t19
             t26 = t19 + t20
-            t27 = t21 + t22
-            t28 = t23 + t24
-            t29 = t25 + t26
-            t30 = 0.1 + t27
-            t31 = 0.1 + t28
-            t32 = 0.1 + t29
+            t30 = 0.1 + (t21 + t22)
+            t31 = 0.1 + (t23 + t24)
+            t32 = 0.1 + (t25 + t26)
             if not t30 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 16}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             if not t31 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 16}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             if not t32 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 16}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t33 = t21/t30
             t34 = t22/t30
             t35 = t23/t31
             t36 = t24/t31
             t37 = t25/t32
             t38 = t26/t32
-            t39 = x_1 + t0
-            t40 = x_3 + t1
-            t41 = x_5 + t2
-            t42 = z_0 - t39
-            t43 = z_1 - t40
-            t44 = z_2 - t41
-            t45 = t33*t42
-            t46 = t34*t42
-            t47 = t35*t43
-            t48 = t36*t43
-            t49 = t37*t44
-            t50 = t38*t44
-            t51 = t0 + t45
-            t52 = x_1 + t46
-            t53 = t1 + t47
-            t54 = x_3 + t48
-            t55 = t2 + t49
-            t56 = x_5 + t50
-            t57 = t21*t33
-            t58 = t22*t33
-            t59 = t22*t34
-            t60 = t23*t35
-            t61 = t24*t35
-            t62 = t24*t36
-            t63 = t25*t37
-            t64 = t26*t37
-            t65 = t26*t38
-            t66 = t12 - t57
-            t67 = t13 - t58
-            t68 = t14 - t59
-            t69 = t15 - t60
-            t70 = t16 - t61
-            t71 = t17 - t62
-            t72 = t18 - t63
-            t73 = t19 - t64
-            t74 = t20 - t65
-            keep((t51, t52, t53, t54, t55, t56, t66, t67, 0.0, t68, t69, t70, t71, t72, t73, t74))
-            x_0 = t51
-            x_1 = t52
-            x_2 = t53
-            x_3 = t54
-            x_4 = t55
-            x_5 = t56
-            P_0 = t66
-            P_1 = t67
-            P_7 = t68
-            P_14 = t69
-            P_15 = t70
-            P_21 = t71
-            P_28 = t72
-            P_29 = t73
-            P_35 = t74
-        table = np.array(rows, dtype=float).reshape(-1, 16)
+            t42 = z_0 - (x_1 + t0)
+            t43 = z_1 - (x_3 + t1)
+            t44 = z_2 - (x_5 + t2)
+            x_0 = t0 + t33*t42
+            x_1 = x_1 + t34*t42
+            x_2 = t1 + t35*t43
+            x_3 = x_3 + t36*t43
+            x_4 = t2 + t37*t44
+            x_5 = x_5 + t38*t44
+            P_0 = t12 - t21*t33
+            P_1 = t13 - t22*t33
+            P_7 = t14 - t22*t34
+            P_14 = t15 - t23*t35
+            P_15 = t16 - t24*t35
+            P_21 = t17 - t24*t36
+            P_28 = t18 - t25*t37
+            P_29 = t19 - t26*t37
+            P_35 = t20 - t26*t38
+            keep((x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21, P_28, P_29,
+                    P_35))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))

@@ -19,7 +19,7 @@ from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
 from . import batch, casadi_c, generated, navigation, peers, scaling
-from .bound import case_bound
+from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
 from .timing import Timing, human, measure
@@ -34,6 +34,9 @@ IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     ("CasADi C", casadi_c.casadi_c, True),
 )
 
+
+#: The row of the generated C in the latency schedule (time-varying filters).
+LATENCY_SCHEDULE = "generated C, --latency-schedule"
 
 #: The reference points for the KF step on mpt3d_a on the machine where the performance
 #: targets (docs/performance.md) were set.
@@ -78,6 +81,7 @@ class Row:
     agreement: float | None       # max rel error of the states against the NumPy reference
     note: str = ""
     bound: float | None = None    # generated C: latency bound of the carried chain, s/step
+    latency_bound: float | None = None   # the same in the latency schedule (time-varying)
 
 
 @dataclass(frozen=True)
@@ -142,13 +146,37 @@ class BenchResult:
                        _bound_note(sskf) + ("" if fma2 is None else
                                             f"; two dependent fmas here take {human(fma2)}")))
         out.append(Bar("generated pure-Python KF mpt3d_b x 3 per step",
-                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.2e-6, "time"))
+                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.0e-6, "time"))
+        out += self._chain_bars()
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
                            self.generation_seconds, 30.0, "time"))
         out += self._scaled_bars(fma2)
         if self.navigation is not None:
             out += self.navigation.bars(Bar)
+        return out
+
+    def _chain_bars(self) -> list[Bar]:
+        """The time per step against the latency bound of the chain derive emits by
+        default, measured in this run; and the latency schedule's bound against it."""
+        kf, sskf = self.row("KF mpt3d_a", "generated C"), self.row("SSKF mpt3d_a",
+                                                                    "generated C")
+        fast = self.row("KF mpt3d_a", LATENCY_SCHEDULE)
+        out = []
+        for row, need in ((kf, 1.2), (sskf, 1.5)):
+            bound = row.bound if row is not None else None
+            out.append(Bar(f"generated C {row.case if row else '?'} per step within {need:g}x "
+                           "the latency bound of its chain (default schedule) here",
+                           row.timing.median if bound and row.timing else None,
+                           need * (bound or 0.0), "time",
+                           f"bound {human(bound)}" if bound else "no bound measured"))
+        default = kf.bound if kf is not None else None
+        out.append(Bar("latency schedule (--latency-schedule): bound of the KF mpt3d_a chain "
+                       "within 0.75x the default schedule's, same run",
+                       kf.latency_bound if default else None, 0.75 * (default or 0.0), "time",
+                       "" if fast is None or fast.timing is None else
+                       f"it runs at {human(fast.timing.median)} per step, "
+                       f"{fast.timing.median / fast.latency_bound:.2f}x its bound"))
         return out
 
     def _scaled_bars(self, fma2: float | None) -> list[Bar]:
@@ -320,15 +348,34 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
         if name == "generated C":
             base = timing.median
         note = _NOTES.get((case.filter, name), "")
-        bound = None
+        bound = fast = None
         if name == "generated C" and latency:
             found = case_bound(case, latency)
             if found is not None:
                 bound = found[0]
                 note = f"latency bound {human(bound)}: carried chain {found[1]}"
+            both = case_schedule_bounds(case, latency)
+            if both.latency is not None:
+                fast = both.latency.per_step * case.copies
+                note += (f"; latency schedule's bound {human(fast)} "
+                         f"({both.latency.describe()}, {both.flops_added:+d} flops a copy)")
         rows.append(Row(case.label, name, timing, None if base is None else
-                        timing.median / base, agreement, note, bound))
+                        timing.median / base, agreement, note, bound, fast))
+        if fast is not None:
+            rows.append(_latency_schedule_row(case, data, workdir, s, reference, base, fast))
     return rows
+
+
+def _latency_schedule_row(case: Case, data, workdir: Path, s: Settings, reference,
+                          base: float | None, fast: float) -> Row:
+    """The generated C in the latency schedule (``--latency-schedule``), timed as the
+    default's."""
+    run = generated.generated_c_latency_schedule(case, data, workdir)
+    agreement = relative_error(states(run(s.check_steps), s.check_steps), reference)
+    timing = measure(lambda: run(s.c_steps), s.c_steps, s.repeats)
+    return Row(case.label, LATENCY_SCHEDULE, timing, None if base is None else
+               timing.median / base, agreement, f"its latency bound {human(fast)}", fast,
+               fast)
 
 
 _NOTES = {
