@@ -40,7 +40,7 @@ def lf_constants(prog: Program, mats, z=None):
                     symmetric_result=True)
     if z is not None:
         S, WHt = mask_symmetric(prog, S, z), mask_columns(prog, WHt, z)
-    A = staging.spd_inverse(prog, S)
+    A = staging.spd_inverse(prog, S, axis="measurements")
     Kn = staging.matmul(prog, WHt, A)
     HF = staging.matmul(prog, H, F)
     HFt = staging.transpose(HF) if z is None else mask_columns(prog, staging.transpose(HF), z)
