@@ -168,12 +168,15 @@ class Program:
         self._elements: dict[str, list[InputElement]] = {}
         self._owner: dict[sympy.Symbol, str] = {}
         for port in self.inputs:
-            flat = []
-            for k in range(port.size):
-                if port.symmetric:
-                    i, j = divmod(k, port.shape[1])
-                    k = min(i, j) * port.shape[1] + max(i, j)
-                flat.append(InputElement(f"{port.name}[{k}]"))
+            if port.symmetric:  # (j, i) reads (i, j), the upper triangle's element
+                cols = port.shape[1]
+                flat = [None] * port.size
+                for i in range(port.shape[0]):
+                    for j in range(i, cols):
+                        flat[i * cols + j] = flat[j * cols + i] = InputElement(
+                            f"{port.name}[{i * cols + j}]")
+            else:
+                flat = [InputElement(f"{port.name}[{k}]") for k in range(port.size)]
             self._elements[port.name] = flat
             for sym in flat:
                 self._owner[sym] = port.name
