@@ -18,7 +18,7 @@ import numpy as np
 from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
-from . import batch, casadi_c, generated, peers, scaling
+from . import batch, casadi_c, generated, generation_scaling, peers, scaling
 from .bound import case_bound
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
@@ -55,6 +55,7 @@ class Settings:
     scale_steps: int = scaling.STEPS
     scale_repeats: int = 3
     catalog_generation: bool = True   # time `derive generate --all` (the 30 s target)
+    generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
 
     @classmethod
     def quick(cls) -> Settings:
@@ -62,7 +63,7 @@ class Settings:
         return cls(c_steps=300, python_steps=30, nonlinear_python_steps=20, repeats=2,
                    check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
-                   catalog_generation=False)
+                   catalog_generation=False, generation_scaling=False)
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,7 @@ class BenchResult:
     batch: list[BatchRow] = field(default_factory=list)
     generation_seconds: float | None = None
     scale: list[scaling.ScaleRow] = field(default_factory=list)   # derive.batch, every core
+    generation: list[generation_scaling.GenerationRow] = field(default_factory=list)
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -104,6 +106,7 @@ class BenchResult:
                 "rows": [asdict(r) for r in self.rows], "batch": [asdict(b) for b in self.batch],
                 "scale": [asdict(r) for r in self.scale],
                 "generation_seconds": self.generation_seconds,
+                "generation": [asdict(r) for r in self.generation],
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -140,6 +143,7 @@ class BenchResult:
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
                            self.generation_seconds, 30.0, "time"))
+        out += [Bar(*bar) for bar in generation_scaling.generation_bars(self.generation)]
         out += self._scaled_bars(fma2)
         return out
 
@@ -214,6 +218,11 @@ class BenchResult:
                       "'bitwise': equal to the threaded result", ""]
             head, body, scaled = scaling.scaling_table(self.scale)
             lines += _columns(head, body) + scaled + [""]
+        if self.generation:
+            lines += ["generation of large models (derive.apps.bench.generation_scaling): "
+                      "one process each, the model built through the Python API, then "
+                      "render_unit (derive and render Python and C, nothing written)", ""]
+            lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -374,6 +383,8 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         if s.scale_tracks:
             result.scale = scaling.scaling_rows(s.scale_tracks, s.scale_steps, Path(tmp),
                                                   s.scale_repeats, tick)
+        if s.generation_scaling:
+            result.generation = generation_scaling.generation_rows(tick=tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")

@@ -1,0 +1,202 @@
+"""Generation linear in the blocks (derive.filters.blockwise): a model of k independent
+axes costs exactly k times one axis, filters like the NumPy reference, is the whole-model
+derivation up to naming and order, and generates at 120 axes (a hang guard, not a speed
+assertion: the times are printed by ``derive bench``)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from derive import LinearModel, catalog
+from derive.apps.bench.generation_scaling import (
+    generation_bars,
+    generation_rows,
+    generation_table,
+)
+from derive.emit.python_printer import python_function
+from derive.filters import FILTERS, derive_unit
+from derive.filters.blockwise import independent_blocks
+from derive.filters.kf import _time_varying_step, kf_update
+from derive.flops import count
+from derive.options import validate
+from derive.pipeline import load_generated
+from derive.staging import PivotMessage
+from derive.statements import ZERO, Check
+
+ROOT = Path(__file__).resolve().parents[1]
+HANG_GUARD = 240  # seconds for one 120-axis generation; it takes a few on an idle machine
+TIME_VARYING = ("kf", "lf", "jklf", "ikf")
+STEADY = ("sskf", "sslf", "jssklf", "pred")
+
+
+def axes(k: int, model: str = "cv") -> LinearModel:
+    """``k`` copies of one catalog axis, block diagonal (the axes share its symbols)."""
+    axis = catalog.load(model)
+    return LinearModel.compose(f"{model}_x{k}", [axis] * k, [f"_{i}" for i in range(k)])
+
+
+def _counts(unit) -> dict[tuple[str, str], dict[str, int]]:
+    programs = dict(unit.programs)
+    if unit.lookahead is not None:
+        programs["lookahead"] = unit.lookahead
+    return {(name, lang): count(prog, lang).as_dict()
+            for name, prog in programs.items() for lang in ("python", "c")}
+
+
+def _zero_checks(program) -> int:
+    return sum(1 for c in program.body if isinstance(c, Check) and c.relation == ZERO)
+
+
+@pytest.mark.parametrize("name", TIME_VARYING + STEADY)
+@pytest.mark.parametrize("k", [2, 7])
+def test_k_axes_cost_exactly_k_times_one_axis(name, k):
+    """Every kind of operation k times one axis's; the comparisons also hold the zero
+    checks of P's entries between the axes (those outside the closed pattern)."""
+    axis = derive_unit(catalog.load("cv"), name)
+    unit = derive_unit(axes(k), name)
+    n, nb = unit.n, axis.n
+    between = (n * (n + 1) - k * nb * (nb + 1)) // 2 if FILTERS[name].covariance else 0
+    assert "step" in axis.programs and _zero_checks(axis.programs["step"]) == 0
+    assert _zero_checks(unit.programs["step"]) == between
+    expected = {key: {kind: k * v for kind, v in kinds.items()}
+                for key, kinds in _counts(axis).items()}
+    for lang in ("python", "c"):
+        expected["step", lang]["cmp"] += between
+    assert _counts(unit) == expected
+
+
+@pytest.mark.parametrize("name", TIME_VARYING)
+def test_different_blocks_cost_the_sum_of_their_counts(name):
+    blocks = [catalog.load(m) for m in ("cv", "ca", "cv")]
+    model = LinearModel.compose("mixed", blocks, ["_a", "_b", "_c"])
+    expected = Counter()
+    for block in blocks:
+        for lang in ("python", "c"):
+            expected.update({(lang, kind): v for kind, v in
+                             count(derive_unit(block, name).programs["step"], lang)
+                             .as_dict().items()})
+    step = derive_unit(model, name).programs["step"]
+    got = Counter()
+    for lang in ("python", "c"):
+        got.update({(lang, kind): v for kind, v in count(step, lang).as_dict().items()})
+        expected[lang, "cmp"] += _zero_checks(step)  # P's entries between the blocks
+    n = model.n
+    assert _zero_checks(step) == (n * (n + 1) - sum(b.n * (b.n + 1) for b in blocks)) // 2
+    assert +got == +expected
+
+
+def test_blockwise_step_is_the_whole_derivation_up_to_naming_and_order():
+    """The same operations, checks, pattern and outputs as deriving the whole model at
+    once (the path every model took before): counts by kind, the zero checks' elements,
+    the pivot messages, and the step's values on random inputs (1e-14 relative)."""
+    model = LinearModel.compose("mixed", [catalog.load(m) for m in ("ca", "cv")],
+                                ["_a", "_b"])
+    step = derive_unit(model, "kf").programs["step"]
+    whole, _ = _time_varying_step(model, lambda *a: kf_update(*a), "Kalman filter",
+                                  model.P0_pattern)
+    for lang in ("python", "c"):
+        assert count(step, lang) == count(whole, lang)
+
+    def checks(program):
+        zero = sorted(str(c.value) for c in program.body
+                      if isinstance(c, Check) and c.relation == ZERO)
+        pivots = sorted(str(c.message) for c in program.body
+                        if isinstance(c, Check) and c.relation != ZERO)
+        return zero, pivots
+
+    assert checks(step) == checks(whole)
+    assert len(checks(step)[1]) == model.m  # one pivot per measurement, named globally
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(model.n, model.n))
+    inputs = (rng.normal(size=model.n), A @ A.T + np.eye(model.n), rng.normal(size=model.m))
+    mask = np.array(derive_unit(model, "kf").programs["step"].results["P_new"]) != 0
+    inputs = (inputs[0], np.where(mask.reshape(model.n, model.n), inputs[1], 0.0), inputs[2])
+    outs = [_python_step(prog)(*inputs) for prog in (step, whole)]
+    for a, b in zip(*outs):
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=0)
+
+
+def _python_step(program):
+    function = python_function(program)
+
+    def call(x, P, z):
+        return [np.asarray(v, dtype=float) for v in function(list(x), list(np.ravel(P)),
+                                                               list(z))]
+    return call
+
+
+def test_pivot_messages_name_the_row_of_the_whole_model():
+    message = PivotMessage("S", 1, "LDL^T", "measurements")
+    assert str(message) == ("S is not positive definite: pivot 1 of its LDL^T "
+                            "factorisation is not positive")
+    assert message.renumbered({"measurements": (4, 9), "states": (0, 1)}).pivot == 9
+    assert PivotMessage("S", 1, "LDL^T").renumbered({"measurements": (4, 9)}).pivot == 1
+
+
+def test_models_that_do_not_split_are_derived_whole():
+    assert independent_blocks(catalog.load("mpt3d_b"), "zero") is None
+    assert independent_blocks(axes(3), "dense") is None
+    assert len(independent_blocks(axes(3), "zero")) == 3
+
+
+@pytest.mark.parametrize("name", TIME_VARYING + ("sskf", "sslf", "jssklf"))
+def test_blockwise_filters_match_the_numpy_reference(name):
+    """Three different blocks (one of them twice): the generated Python run against the
+    family's NumPy reference, 1e-12 relative over 60 steps."""
+    blocks = [catalog.load(m) for m in ("cv", "ca", "cv")]
+    model = LinearModel.compose("mixed", blocks, ["_a", "_b", "_c"])
+    generated = load_generated(model, name, None, "python")
+    zs = np.random.default_rng(11).normal(size=(60, model.m))
+    num = model.numeric()
+    spec = FILTERS[name]
+    ref_xs, ref_Ps = spec.reference(model, zs, validate(name))
+    if spec.covariance:
+        xs, Ps = generated.python.run(zs, num.x0, num.P0)
+        np.testing.assert_allclose(np.asarray(Ps), ref_Ps, rtol=1e-12,
+                                   atol=1e-12 * np.abs(ref_Ps).max())
+    else:
+        xs = generated.python.run(zs, num.x0)
+    np.testing.assert_allclose(np.asarray(xs), ref_xs, rtol=1e-12,
+                               atol=1e-12 * np.abs(ref_xs).max())
+
+
+@pytest.mark.parametrize("name", ["kf", "lf", "sskf"])
+def test_120_axes_generate(tmp_path, name):
+    """A hang guard (not a speed assertion): 120 constant-velocity axes (n = 240) generate
+    in a subprocess; before block-by-block derivation the KF took minutes, the LF longer."""
+    script = (
+        "import sys\n"
+        "from derive import LinearModel, catalog, generate\n"
+        "axis = catalog.load('mpt3d_b')\n"
+        "model = LinearModel.compose('cv120', [axis] * 120, [f'_{i}' for i in range(120)])\n"
+        f"paths = generate(model, [{name!r}], 'all', sys.argv[1])\n"
+        "print(len(paths))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop("DERIVE_PROGRESS", None)
+    done = subprocess.run([sys.executable, "-c", script, str(tmp_path)], capture_output=True,
+                          text=True, timeout=HANG_GUARD, env=env, stdin=subprocess.DEVNULL)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["3"]
+    assert "n: 240 (states)" in (tmp_path / "cv120" / f"{name}.py").read_text()
+
+
+def test_bench_generation_rows_measure_a_process_each():
+    """The bench part (derive.apps.bench.generation_scaling) on two tiny models: times,
+    peak memory and the step's flops, which are the unit's own count."""
+    rows = generation_rows(axes=(2,), filters=("kf",), dense=False)
+    assert [(r.model, r.filter, r.states) for r in rows] == [("2 CV axes", "kf", 4)]
+    row = rows[0]
+    assert row.note == "" and row.seconds > 0 and row.cpu_seconds > 0 and row.peak_bytes > 0
+    expected = count(derive_unit(axes(2, "mpt3d_b"), "kf").programs["step"], "c").flops
+    assert row.flops == expected
+    head, body = generation_table(rows)
+    assert len(body[0]) == len(head)
+    bars = generation_bars(rows)
+    assert [b[0].split(" for ")[0] for b in bars] == ["generating kf"]
