@@ -88,6 +88,24 @@ def find_blocks(model) -> list[Block]:
     return [_sub_block(model, i, s, k, c) for i, (s, k, c) in enumerate(blocks)]
 
 
+def largest_block_size(model) -> int:
+    """The size (states or measurements, the larger) of the largest part of ``model`` a
+    filter may have to derive at once: its largest independent block (all of a nonlinear
+    model, or of one whose blocks :func:`find_blocks` refuses)."""
+    if model.kind != "linear":
+        return max(model.n, model.m)
+    try:
+        blocks = find_blocks(model)
+    except SymbolError:
+        return max(model.n, model.m)
+    return max(block_size(block) for block in blocks)
+
+
+def block_size(block: Block) -> int:
+    """The larger of a block's numbers of states and measurements."""
+    return max(len(block.states), len(block.measurements))
+
+
 def _sub_block(model, index: int, s, k, c) -> Block:
     if not k:
         raise SymbolError(f"states {[model.states[i] for i in s]} of model {model.name!r} "

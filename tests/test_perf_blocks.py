@@ -21,10 +21,11 @@ from derive.apps.bench.generation_scaling import (
     generation_table,
 )
 from derive.emit.python_printer import python_function
-from derive.filters import FILTERS, derive_unit
+from derive.filters import FILTERS, available, derive_unit
 from derive.filters.blockwise import independent_blocks
 from derive.filters.kf import _time_varying_step, kf_update
 from derive.flops import count
+from derive.modelfile import MAX_BLOCK_SIZE, MAX_STATES, load_model_file
 from derive.options import validate
 from derive.pipeline import load_generated
 from derive.staging import PivotMessage
@@ -200,3 +201,71 @@ def test_bench_generation_rows_measure_a_process_each():
     assert len(body[0]) == len(head)
     bars = generation_bars(rows)
     assert [b[0].split(" for ")[0] for b in bars] == ["generating kf"]
+
+
+# -- model files: states bounded by the part a filter derives at once --------------------
+
+def _cli(args, cwd):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop("DERIVE_PROGRESS", None)
+    return subprocess.run([sys.executable, "-m", "derive", "generate", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=HANG_GUARD, env=env,
+                          stdin=subprocess.DEVNULL)
+
+
+def _axes_file(path: Path, k: int) -> Path:
+    blocks = ", ".join(f'{{ model = "mpt3d_b", suffix = "_{i}" }}' for i in range(k))
+    path.write_text(f'[model]\nname = "{path.stem}"\n[compose]\nblocks = [{blocks}]\n')
+    return path
+
+
+def _one_line_refusal(result, *words):
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, lines
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+def test_a_model_file_of_120_axes_generates(tmp_path):
+    k = 120  # the issue's case: n = 240
+    assert k * catalog.load("mpt3d_b").n <= MAX_STATES
+    path = _axes_file(tmp_path / "axes.toml", k)
+    result = _cli([path.name, "--filter", "kf", "--out", "out"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert f"n: {2 * k} (states)" in (tmp_path / "out" / "axes" / "kf.py").read_text()
+
+
+def test_a_model_file_is_bounded_by_the_part_derived_at_once(tmp_path):
+    """Over MAX_BLOCK_SIZE states in one part: a filter derived whole (udkf), a dense P0
+    pattern, are refused in one line; unnamed, they are left out of "all that apply"."""
+    k = MAX_BLOCK_SIZE // 2 + 1
+    path = _axes_file(tmp_path / "axes.toml", k)
+    _one_line_refusal(_cli([path.name, "--filter", "udkf", "--out", "o1"], tmp_path),
+                      "axes.toml: filter 'udkf'", f"{2 * k} states",
+                      "derives the model whole", f"limit of {MAX_BLOCK_SIZE}")
+    _one_line_refusal(_cli([path.name, "--filter", "kf", "--P0-pattern", "dense", "--out",
+                            "o2"], tmp_path),
+                      "axes.toml: filter 'kf'", "P0 pattern dense", f"limit of {MAX_BLOCK_SIZE}")
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+    result = _cli([path.name, "--out", "all"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    written = {p.stem for p in (tmp_path / "all" / "axes").glob("*.py")}
+    model = load_model_file(path)
+    assert written == {name for name in available(model) if FILTERS[name].blockwise}
+    assert {"udkf", "rts", "fir"}.isdisjoint(written)
+
+
+def test_a_coupled_block_larger_than_the_bound_is_refused_when_loaded(tmp_path):
+    n = MAX_BLOCK_SIZE + 1
+    F = [[1 if j in (i, i + 1) else 0 for j in range(n)] for i in range(n)]
+    H = [[1 if j == i else 0 for j in range(n)] for i in range(n)]
+    Q = H
+    names = ", ".join(f'"s{i}"' for i in range(n))
+    measured = ", ".join(f'"z{i}"' for i in range(n))
+    path = tmp_path / "chain.toml"
+    path.write_text(f'[model]\nname = "chain"\nstates = [{names}]\nmeasurements = [{measured}]\n'
+                    f"[discrete]\nF = {F}\nH = {H}\nQ = {Q}\nR = {Q}\n")
+    _one_line_refusal(_cli([path.name, "--filter", "sskf", "--out", "out"], tmp_path),
+                      "chain.toml: [model] states", f"largest independent block has {n}",
+                      f"limit of {MAX_BLOCK_SIZE}")

@@ -41,7 +41,7 @@ from ..errors import SymbolError
 from ..program import Program
 from ..staging import PivotMessage
 from ..statements import ZERO, Assign, Check, Temporary
-from ..structure import Block, find_blocks
+from ..structure import Block, block_size, find_blocks, largest_block_size
 from .common import input_port, pattern_message, time_varying_ports
 from .pattern import Pattern
 
@@ -58,6 +58,20 @@ def independent_blocks(model, declared: str) -> list[Block] | None:
     except SymbolError:  # a state no measurement observes: the whole derivation copes
         return None
     return blocks if len(blocks) > 1 else None
+
+
+def whole_size(model, spec, P0_pattern: str | None = None) -> int:
+    """The size (states or measurements, the larger) of the largest part of ``model`` that
+    filter ``spec`` derives at once (with the option ``P0_pattern``; None: the model's):
+    its largest block for a blockwise family that splits the model, else all of it. A
+    time-varying step with a dense pattern (or a model with inputs) is derived whole; a
+    steady map is built from its non-zero constants, so its work follows the blocks."""
+    if model.kind != "linear" or not spec.blockwise:
+        return max(model.n, model.m)
+    if spec.covariance:
+        blocks = independent_blocks(model, P0_pattern or model.P0_pattern)
+        return max(model.n, model.m) if blocks is None else max(map(block_size, blocks))
+    return largest_block_size(model)
 
 
 def block_key(block_model, declared: str):

@@ -96,6 +96,6 @@ def applies(model) -> str | None:
 
 SPECS = (FilterSpec(
     "ikf", "information-form Kalman filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, applies=applies, listing=40,
+    covariance=True, missing=True, batch=True, blockwise=True, applies=applies, listing=40,
     about={"python": "Run the information-form Kalman filter.",
            "c": "Run the information-form Kalman filter over steps steps; Ps may be NULL."}),)

@@ -167,7 +167,7 @@ INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z)
 
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
-    options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True,
+    options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True, blockwise=True,
     listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",

@@ -91,7 +91,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "lf", "Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, listing=20,
+    covariance=True, missing=True, batch=True, blockwise=True, listing=20,
     about={"python": "Run the Lainiotis filter: the partitioned update with constants "
                      "precomputed offline.",
            "c": "Run the Lainiotis filter over steps steps; Ps may be NULL."}),)

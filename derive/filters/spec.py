@@ -31,6 +31,10 @@ class FilterSpec:
     option ``run_tracks``).
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
     refused by every filter without this flag, never filtered with u ignored).
+    ``blockwise``: its derivation's work grows with the model's independent blocks, not
+    with n as a whole (time-varying steps through derive.filters.blockwise unless P0's
+    pattern is dense; steady maps from their non-zero constants): what bounds the model
+    files it takes (derive.filters.blockwise.whole_states).
     ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
@@ -54,6 +58,7 @@ class FilterSpec:
     missing: bool = False
     batch: bool = False
     inputs: bool = False
+    blockwise: bool = False
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
     about: Mapping[str, str] = field(default_factory=dict)

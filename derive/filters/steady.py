@@ -72,7 +72,7 @@ def sparse_product(A: SparseRows, B: SparseRows) -> SparseRows:
     return out
 
 
-def _affine(rows: SparseRows, vector: sympy.Matrix) -> list[sympy.Expr]:
+def sparse_affine(rows: SparseRows, vector: sympy.Matrix) -> list[sympy.Expr]:
     """``rows * vector`` entry by entry (the products of the exact constants)."""
     return [sympy.Add(*(sympy.Rational(c.numerator, c.denominator) * vector[j]
                         for j, c in row)) for row in rows]
@@ -84,7 +84,7 @@ def affine_program(n: int, m: int, A, B, doc: str, out_doc: str, in_doc: str) ->
     prog = Program("step", [Port("x", (n,), doc=in_doc), Port("z", (m,), doc="z(k+1)")],
                    [Port("x_new", (n,), doc=out_doc)], doc=doc)
     x, z = prog.matrix("x"), prog.matrix("z")
-    terms = zip(_affine(sparse_exact(A), x), _affine(sparse_exact(B), z))
+    terms = zip(sparse_affine(sparse_exact(A), x), sparse_affine(sparse_exact(B), z))
     prog.set_output("x_new", [sympy.expand(ax + bz) for ax, bz in terms])
     return prog.optimize()
 
@@ -99,8 +99,8 @@ def two_step_program(n: int, m: int, A, B) -> Program:
                    [Port("x_new", (n,), doc="x(k+2)")],
                    doc="x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)")
     x, z, zn = prog.matrix("x"), prog.matrix("z"), prog.matrix(LOOKAHEAD_NEXT)
-    terms = zip(_affine(sparse_product(A, A), x), _affine(sparse_product(A, B), z),
-                _affine(B, zn))
+    terms = zip(sparse_affine(sparse_product(A, A), x), sparse_affine(sparse_product(A, B), z),
+                sparse_affine(B, zn))
     prog.set_output("x_new", [sympy.expand(a + b + c) for a, b, c in terms])
     return prog.optimize()
 
@@ -123,7 +123,7 @@ def reference(model, zs, options, name: str):
 def _spec(name: str, title: str, about: str, listing: int) -> FilterSpec:
     return FilterSpec(
         name, title, "linear", "steady", derive_unit, partial(reference, name=name),
-        steady=True, batch=True, listing=listing,
+        steady=True, batch=True, blockwise=True, listing=listing,
         about={"python": f"Run the {title}: {about}.",
                "c": f"Run the {title} over steps steps."})
 
@@ -136,4 +136,4 @@ SPECS = (
 )
 
 __all__ = ["SPECS", "affine_program", "baked", "derive_unit", "exact", "sparse_exact",
-           "sparse_product", "steady_gains", "two_step_program"]
+           "sparse_affine", "sparse_product", "steady_gains", "two_step_program"]
