@@ -24,6 +24,7 @@ from derive.emit.python_printer import python_function
 from derive.filters import FILTERS, available, derive_unit
 from derive.filters.blockwise import independent_blocks
 from derive.filters.kf import _time_varying_step, kf_update
+from derive.filters.lf import lf_update
 from derive.flops import count
 from derive.modelfile import MAX_BLOCK_SIZE, MAX_STATES, load_model_file
 from derive.options import validate
@@ -269,3 +270,43 @@ def test_a_coupled_block_larger_than_the_bound_is_refused_when_loaded(tmp_path):
     _one_line_refusal(_cli([path.name, "--filter", "sskf", "--out", "out"], tmp_path),
                       "chain.toml: [model] states", f"largest independent block has {n}",
                       f"limit of {MAX_BLOCK_SIZE}")
+
+
+@pytest.mark.parametrize("name, options", [
+    ("kf", {"missing": True}), ("kf", {"joseph": True}), ("lf", {"missing": True})])
+def test_options_give_the_whole_derivations_counts(name, options):
+    model = LinearModel.compose("mixed", [catalog.load(m) for m in ("ca", "cv", "ca")],
+                                ["_a", "_b", "_c"])
+    update = kf_update if name == "kf" else lf_update
+    whole, _ = _time_varying_step(model, lambda *a: update(*a, **{
+        k: v for k, v in options.items() if k in ("missing", "joseph")}), "filter",
+        model.P0_pattern)
+    step = derive_unit(model, name, options).programs["step"]
+    for lang in ("python", "c"):
+        assert count(step, lang) == count(whole, lang)
+
+
+def test_blocks_sharing_free_parameters_share_them_as_before():
+    """Free parameters shared by the blocks: the assembled step is optimised as a whole,
+    so the parameters' expressions are computed once (fewer flops than k times one block),
+    exactly the whole derivation's counts, and the same values."""
+    def axis(name, q):
+        return LinearModel(name, ["s", "v"], ["z"], [[1, "dt"], [0, 1]], [[1, 0]], [[q]],
+                           [["r"]], G=[["dt**2/2"], ["dt"]], P0_pattern="zero")
+
+    model = LinearModel.compose("shared", [axis("a", "q"), axis("b", "q2"), axis("a", "q")],
+                                ["_a", "_b", "_c"])
+    step = derive_unit(model, "kf").programs["step"]
+    whole, _ = _time_varying_step(model, lambda *a: kf_update(*a), "filter", "zero")
+    one = derive_unit(axis("a", "q"), "kf").programs["step"]
+    assert count(step, "c") == count(whole, "c")
+    assert count(step, "c").flops < 3 * count(one, "c").flops
+    rng = np.random.default_rng(1)
+    P = np.zeros((model.n, model.n))
+    for b in range(3):
+        A = rng.normal(size=(2, 2))
+        P[2 * b:2 * b + 2, 2 * b:2 * b + 2] = A @ A.T + np.eye(2)
+    args = (list(rng.normal(size=model.n)), list(P.ravel()), list(rng.normal(size=model.m)),
+            list(rng.uniform(0.01, 1.0, size=len(model.parameters))))
+    for a, b in zip(python_function(step)(*args), python_function(whole)(*args)):
+        np.testing.assert_allclose(a, b, rtol=1e-14, atol=0)
