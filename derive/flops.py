@@ -79,9 +79,7 @@ def _kind_field(kind: str) -> str:
     return "calls" if kind.startswith("call:") else kind
 
 
-def count_tree(tree: Tree) -> OpCount:
-    """Operations in one lowered tree."""
-    tally: dict[str, int] = {}
+def _tally_tree(tree: Tree, tally: dict[str, int]) -> None:
     stack = [tree]
     while stack:
         node = stack.pop()
@@ -89,18 +87,24 @@ def count_tree(tree: Tree) -> OpCount:
             key = _kind_field(node.kind)
             tally[key] = tally.get(key, 0) + 1
             stack.extend(node.args)
+
+
+def count_tree(tree: Tree) -> OpCount:
+    """Operations in one lowered tree."""
+    tally: dict[str, int] = {}
+    _tally_tree(tree, tally)
     return OpCount(**tally)
 
 
 def count_lowered(lowered: LoweredProgram) -> OpCount:
     """Operations of a lowered program (the results are atoms and cost nothing)."""
-    total = OpCount()
+    tally: dict[str, int] = {}
     for statement in lowered.body:
-        total = total + count_tree(statement.tree)
+        _tally_tree(statement.tree, tally)
     for _, leaves in lowered.results:
         for leaf in leaves:
-            total = total + count_tree(leaf)
-    return total
+            _tally_tree(leaf, tally)
+    return OpCount(**tally)
 
 
 def count(program: Program, lang: str = "python", *, use_fma: bool | None = None) -> OpCount:

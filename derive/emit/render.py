@@ -115,8 +115,10 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
     statuses = []
     for lp in lowered.values():
         messages = {c.status: c.message for c in lp.checks}
-        zero = {c.status: tuple(sorted(c.tree.args[0].index for c in lp.pattern_checks))
-                for c in lp.pattern_checks}
+        pattern_checks = lp.pattern_checks
+        zero = ({pattern_checks[0].status: tuple(sorted(c.tree.args[0].index
+                                                        for c in pattern_checks))}
+                if pattern_checks else {})
         statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()))
                      for number in sorted(messages)]
     return interface.Interface(tuple(functions), tuple(statuses), tuple(python),

@@ -16,16 +16,16 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 2: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 3: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 5: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gps_static_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_ikf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_ikf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <stddef.h>
 
@@ -43,59 +43,59 @@ int gps_static_ikf_step(const double *restrict x, const double *restrict P, cons
         return 7; /* outside P's pattern */
     }
     const double t0 = 0.01 + P[0];
-    const double t1 = 0.01 + P[4];
-    const double t2 = 0.01 + P[8];
     if (!(t0 > 0.0)) {
         return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
-    const double t3 = 1.0/t0;
-    if (!(t1 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    const double t4 = 1.0/t1;
+    const double t1 = 1.0/t0;
+    const double t2 = 10.0 + t1;
     if (!(t2 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
-    const double t5 = 1.0/t2;
-    const double t6 = 10.0 + t3;
-    const double t7 = 10.0 + t4;
-    const double t8 = 10.0 + t5;
-    if (!(t6 > 0.0)) {
-        return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    const double t9 = 1.0/t6;
-    if (!(t7 > 0.0)) {
-        return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    const double t10 = 1.0/t7;
+    const double t3 = 1.0/t2;
+    const double t4 = 10.0*t3;
+    const double t5 = z[0] - x[0];
+    const double t6 = t4*t5;
+    const double t7 = x[0] + t6;
+    const double t8 = 0.01 + P[4];
     if (!(t8 > 0.0)) {
+        return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t9 = 1.0/t8;
+    const double t10 = 10.0 + t9;
+    if (!(t10 > 0.0)) {
+        return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t11 = 1.0/t10;
+    const double t12 = 10.0*t11;
+    const double t13 = z[1] - x[1];
+    const double t14 = t12*t13;
+    const double t15 = x[1] + t14;
+    const double t16 = 0.01 + P[8];
+    if (!(t16 > 0.0)) {
+        return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    }
+    const double t17 = 1.0/t16;
+    const double t18 = 10.0 + t17;
+    if (!(t18 > 0.0)) {
         return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
-    const double t11 = 1.0/t8;
-    const double t12 = 10.0*t9;
-    const double t13 = 10.0*t10;
-    const double t14 = 10.0*t11;
-    const double t15 = z[0] - x[0];
-    const double t16 = z[1] - x[1];
-    const double t17 = z[2] - x[2];
-    const double t18 = t12*t15;
-    const double t19 = t13*t16;
-    const double t20 = t14*t17;
-    const double t21 = x[0] + t18;
-    const double t22 = x[1] + t19;
-    const double t23 = x[2] + t20;
-    x_new[0] = t21;
-    x_new[1] = t22;
+    const double t19 = 1.0/t18;
+    const double t20 = 10.0*t19;
+    const double t21 = z[2] - x[2];
+    const double t22 = t20*t21;
+    const double t23 = x[2] + t22;
+    x_new[0] = t7;
+    x_new[1] = t15;
     x_new[2] = t23;
-    P_new[0] = t9;
+    P_new[0] = t3;
     P_new[1] = 0.0;
     P_new[2] = 0.0;
     P_new[3] = 0.0;
-    P_new[4] = t10;
+    P_new[4] = t11;
     P_new[5] = 0.0;
     P_new[6] = 0.0;
     P_new[7] = 0.0;
-    P_new[8] = t11;
+    P_new[8] = t19;
     return 0;
 }
 
@@ -133,59 +133,59 @@ int gps_static_ikf_run(size_t steps, const double *z, const double *x0, const do
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const double t0 = 0.01 + P[0];
-        const double t1 = 0.01 + P[4];
-        const double t2 = 0.01 + P[8];
         if (!(t0 > 0.0)) {
             return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
         }
-        const double t3 = 1.0/t0;
-        if (!(t1 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        const double t4 = 1.0/t1;
+        const double t1 = 1.0/t0;
+        const double t2 = 10.0 + t1;
         if (!(t2 > 0.0)) {
-            return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
         }
-        const double t5 = 1.0/t2;
-        const double t6 = 10.0 + t3;
-        const double t7 = 10.0 + t4;
-        const double t8 = 10.0 + t5;
-        if (!(t6 > 0.0)) {
-            return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-        }
-        const double t9 = 1.0/t6;
-        if (!(t7 > 0.0)) {
-            return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        const double t10 = 1.0/t7;
+        const double t3 = 1.0/t2;
+        const double t4 = 10.0*t3;
+        const double t5 = zk[0] - x[0];
+        const double t6 = t4*t5;
+        const double t7 = x[0] + t6;
+        const double t8 = 0.01 + P[4];
         if (!(t8 > 0.0)) {
+            return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        }
+        const double t9 = 1.0/t8;
+        const double t10 = 10.0 + t9;
+        if (!(t10 > 0.0)) {
+            return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        }
+        const double t11 = 1.0/t10;
+        const double t12 = 10.0*t11;
+        const double t13 = zk[1] - x[1];
+        const double t14 = t12*t13;
+        const double t15 = x[1] + t14;
+        const double t16 = 0.01 + P[8];
+        if (!(t16 > 0.0)) {
+            return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        }
+        const double t17 = 1.0/t16;
+        const double t18 = 10.0 + t17;
+        if (!(t18 > 0.0)) {
             return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
         }
-        const double t11 = 1.0/t8;
-        const double t12 = 10.0*t9;
-        const double t13 = 10.0*t10;
-        const double t14 = 10.0*t11;
-        const double t15 = zk[0] - x[0];
-        const double t16 = zk[1] - x[1];
-        const double t17 = zk[2] - x[2];
-        const double t18 = t12*t15;
-        const double t19 = t13*t16;
-        const double t20 = t14*t17;
-        const double t21 = x[0] + t18;
-        const double t22 = x[1] + t19;
-        const double t23 = x[2] + t20;
-        x_new[0] = t21;
-        x_new[1] = t22;
+        const double t19 = 1.0/t18;
+        const double t20 = 10.0*t19;
+        const double t21 = zk[2] - x[2];
+        const double t22 = t20*t21;
+        const double t23 = x[2] + t22;
+        x_new[0] = t7;
+        x_new[1] = t15;
         x_new[2] = t23;
-        P_new[0] = t9;
+        P_new[0] = t3;
         P_new[1] = 0.0;
         P_new[2] = 0.0;
         P_new[3] = 0.0;
-        P_new[4] = t10;
+        P_new[4] = t11;
         P_new[5] = 0.0;
         P_new[6] = 0.0;
         P_new[7] = 0.0;
-        P_new[8] = t11;
+        P_new[8] = t19;
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -298,224 +298,224 @@ int gps_static_ikf_run_tracks(size_t steps, size_t tracks, const double *z, cons
         for (k = 0; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = 0.01 + P_l0[0];
-            const double t1_l0 = 0.01 + P_l0[4];
-            const double t2_l0 = 0.01 + P_l0[8];
             if (!(t0_l0 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t3_l0 = 1.0/t0_l0;
-            if (!(t1_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t4_l0 = 1.0/t1_l0;
+            const double t1_l0 = 1.0/t0_l0;
+            const double t2_l0 = 10.0 + t1_l0;
             if (!(t2_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+                return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t5_l0 = 1.0/t2_l0;
-            const double t6_l0 = 10.0 + t3_l0;
-            const double t7_l0 = 10.0 + t4_l0;
-            const double t8_l0 = 10.0 + t5_l0;
-            if (!(t6_l0 > 0.0)) {
-                return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t9_l0 = 1.0/t6_l0;
-            if (!(t7_l0 > 0.0)) {
-                return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t10_l0 = 1.0/t7_l0;
+            const double t3_l0 = 1.0/t2_l0;
+            const double t4_l0 = 10.0*t3_l0;
+            const double t5_l0 = z_l0[0] - x_l0[0];
+            const double t6_l0 = t4_l0*t5_l0;
+            const double t7_l0 = x_l0[0] + t6_l0;
+            const double t8_l0 = 0.01 + P_l0[4];
             if (!(t8_l0 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t9_l0 = 1.0/t8_l0;
+            const double t10_l0 = 10.0 + t9_l0;
+            if (!(t10_l0 > 0.0)) {
+                return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t11_l0 = 1.0/t10_l0;
+            const double t12_l0 = 10.0*t11_l0;
+            const double t13_l0 = z_l0[1] - x_l0[1];
+            const double t14_l0 = t12_l0*t13_l0;
+            const double t15_l0 = x_l0[1] + t14_l0;
+            const double t16_l0 = 0.01 + P_l0[8];
+            if (!(t16_l0 > 0.0)) {
+                return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t17_l0 = 1.0/t16_l0;
+            const double t18_l0 = 10.0 + t17_l0;
+            if (!(t18_l0 > 0.0)) {
                 return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t11_l0 = 1.0/t8_l0;
-            const double t12_l0 = 10.0*t9_l0;
-            const double t13_l0 = 10.0*t10_l0;
-            const double t14_l0 = 10.0*t11_l0;
-            const double t15_l0 = z_l0[0] - x_l0[0];
-            const double t16_l0 = z_l0[1] - x_l0[1];
-            const double t17_l0 = z_l0[2] - x_l0[2];
-            const double t18_l0 = t12_l0*t15_l0;
-            const double t19_l0 = t13_l0*t16_l0;
-            const double t20_l0 = t14_l0*t17_l0;
-            const double t21_l0 = x_l0[0] + t18_l0;
-            const double t22_l0 = x_l0[1] + t19_l0;
-            const double t23_l0 = x_l0[2] + t20_l0;
-            xn_l0[0] = t21_l0;
-            xn_l0[1] = t22_l0;
+            const double t19_l0 = 1.0/t18_l0;
+            const double t20_l0 = 10.0*t19_l0;
+            const double t21_l0 = z_l0[2] - x_l0[2];
+            const double t22_l0 = t20_l0*t21_l0;
+            const double t23_l0 = x_l0[2] + t22_l0;
+            xn_l0[0] = t7_l0;
+            xn_l0[1] = t15_l0;
             xn_l0[2] = t23_l0;
-            Pn_l0[0] = t9_l0;
+            Pn_l0[0] = t3_l0;
             Pn_l0[1] = 0.0;
             Pn_l0[2] = 0.0;
             Pn_l0[3] = 0.0;
-            Pn_l0[4] = t10_l0;
+            Pn_l0[4] = t11_l0;
             Pn_l0[5] = 0.0;
             Pn_l0[6] = 0.0;
             Pn_l0[7] = 0.0;
-            Pn_l0[8] = t11_l0;
+            Pn_l0[8] = t19_l0;
             z_l1 = z + ((t + 1) * steps + k) * 3;
             const double t0_l1 = 0.01 + P_l1[0];
-            const double t1_l1 = 0.01 + P_l1[4];
-            const double t2_l1 = 0.01 + P_l1[8];
             if (!(t0_l1 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t3_l1 = 1.0/t0_l1;
-            if (!(t1_l1 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t4_l1 = 1.0/t1_l1;
+            const double t1_l1 = 1.0/t0_l1;
+            const double t2_l1 = 10.0 + t1_l1;
             if (!(t2_l1 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+                return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t5_l1 = 1.0/t2_l1;
-            const double t6_l1 = 10.0 + t3_l1;
-            const double t7_l1 = 10.0 + t4_l1;
-            const double t8_l1 = 10.0 + t5_l1;
-            if (!(t6_l1 > 0.0)) {
-                return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t9_l1 = 1.0/t6_l1;
-            if (!(t7_l1 > 0.0)) {
-                return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t10_l1 = 1.0/t7_l1;
+            const double t3_l1 = 1.0/t2_l1;
+            const double t4_l1 = 10.0*t3_l1;
+            const double t5_l1 = z_l1[0] - x_l1[0];
+            const double t6_l1 = t4_l1*t5_l1;
+            const double t7_l1 = x_l1[0] + t6_l1;
+            const double t8_l1 = 0.01 + P_l1[4];
             if (!(t8_l1 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t9_l1 = 1.0/t8_l1;
+            const double t10_l1 = 10.0 + t9_l1;
+            if (!(t10_l1 > 0.0)) {
+                return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t11_l1 = 1.0/t10_l1;
+            const double t12_l1 = 10.0*t11_l1;
+            const double t13_l1 = z_l1[1] - x_l1[1];
+            const double t14_l1 = t12_l1*t13_l1;
+            const double t15_l1 = x_l1[1] + t14_l1;
+            const double t16_l1 = 0.01 + P_l1[8];
+            if (!(t16_l1 > 0.0)) {
+                return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t17_l1 = 1.0/t16_l1;
+            const double t18_l1 = 10.0 + t17_l1;
+            if (!(t18_l1 > 0.0)) {
                 return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t11_l1 = 1.0/t8_l1;
-            const double t12_l1 = 10.0*t9_l1;
-            const double t13_l1 = 10.0*t10_l1;
-            const double t14_l1 = 10.0*t11_l1;
-            const double t15_l1 = z_l1[0] - x_l1[0];
-            const double t16_l1 = z_l1[1] - x_l1[1];
-            const double t17_l1 = z_l1[2] - x_l1[2];
-            const double t18_l1 = t12_l1*t15_l1;
-            const double t19_l1 = t13_l1*t16_l1;
-            const double t20_l1 = t14_l1*t17_l1;
-            const double t21_l1 = x_l1[0] + t18_l1;
-            const double t22_l1 = x_l1[1] + t19_l1;
-            const double t23_l1 = x_l1[2] + t20_l1;
-            xn_l1[0] = t21_l1;
-            xn_l1[1] = t22_l1;
+            const double t19_l1 = 1.0/t18_l1;
+            const double t20_l1 = 10.0*t19_l1;
+            const double t21_l1 = z_l1[2] - x_l1[2];
+            const double t22_l1 = t20_l1*t21_l1;
+            const double t23_l1 = x_l1[2] + t22_l1;
+            xn_l1[0] = t7_l1;
+            xn_l1[1] = t15_l1;
             xn_l1[2] = t23_l1;
-            Pn_l1[0] = t9_l1;
+            Pn_l1[0] = t3_l1;
             Pn_l1[1] = 0.0;
             Pn_l1[2] = 0.0;
             Pn_l1[3] = 0.0;
-            Pn_l1[4] = t10_l1;
+            Pn_l1[4] = t11_l1;
             Pn_l1[5] = 0.0;
             Pn_l1[6] = 0.0;
             Pn_l1[7] = 0.0;
-            Pn_l1[8] = t11_l1;
+            Pn_l1[8] = t19_l1;
             z_l2 = z + ((t + 2) * steps + k) * 3;
             const double t0_l2 = 0.01 + P_l2[0];
-            const double t1_l2 = 0.01 + P_l2[4];
-            const double t2_l2 = 0.01 + P_l2[8];
             if (!(t0_l2 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t3_l2 = 1.0/t0_l2;
-            if (!(t1_l2 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t4_l2 = 1.0/t1_l2;
+            const double t1_l2 = 1.0/t0_l2;
+            const double t2_l2 = 10.0 + t1_l2;
             if (!(t2_l2 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+                return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t5_l2 = 1.0/t2_l2;
-            const double t6_l2 = 10.0 + t3_l2;
-            const double t7_l2 = 10.0 + t4_l2;
-            const double t8_l2 = 10.0 + t5_l2;
-            if (!(t6_l2 > 0.0)) {
-                return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t9_l2 = 1.0/t6_l2;
-            if (!(t7_l2 > 0.0)) {
-                return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t10_l2 = 1.0/t7_l2;
+            const double t3_l2 = 1.0/t2_l2;
+            const double t4_l2 = 10.0*t3_l2;
+            const double t5_l2 = z_l2[0] - x_l2[0];
+            const double t6_l2 = t4_l2*t5_l2;
+            const double t7_l2 = x_l2[0] + t6_l2;
+            const double t8_l2 = 0.01 + P_l2[4];
             if (!(t8_l2 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t9_l2 = 1.0/t8_l2;
+            const double t10_l2 = 10.0 + t9_l2;
+            if (!(t10_l2 > 0.0)) {
+                return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t11_l2 = 1.0/t10_l2;
+            const double t12_l2 = 10.0*t11_l2;
+            const double t13_l2 = z_l2[1] - x_l2[1];
+            const double t14_l2 = t12_l2*t13_l2;
+            const double t15_l2 = x_l2[1] + t14_l2;
+            const double t16_l2 = 0.01 + P_l2[8];
+            if (!(t16_l2 > 0.0)) {
+                return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t17_l2 = 1.0/t16_l2;
+            const double t18_l2 = 10.0 + t17_l2;
+            if (!(t18_l2 > 0.0)) {
                 return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t11_l2 = 1.0/t8_l2;
-            const double t12_l2 = 10.0*t9_l2;
-            const double t13_l2 = 10.0*t10_l2;
-            const double t14_l2 = 10.0*t11_l2;
-            const double t15_l2 = z_l2[0] - x_l2[0];
-            const double t16_l2 = z_l2[1] - x_l2[1];
-            const double t17_l2 = z_l2[2] - x_l2[2];
-            const double t18_l2 = t12_l2*t15_l2;
-            const double t19_l2 = t13_l2*t16_l2;
-            const double t20_l2 = t14_l2*t17_l2;
-            const double t21_l2 = x_l2[0] + t18_l2;
-            const double t22_l2 = x_l2[1] + t19_l2;
-            const double t23_l2 = x_l2[2] + t20_l2;
-            xn_l2[0] = t21_l2;
-            xn_l2[1] = t22_l2;
+            const double t19_l2 = 1.0/t18_l2;
+            const double t20_l2 = 10.0*t19_l2;
+            const double t21_l2 = z_l2[2] - x_l2[2];
+            const double t22_l2 = t20_l2*t21_l2;
+            const double t23_l2 = x_l2[2] + t22_l2;
+            xn_l2[0] = t7_l2;
+            xn_l2[1] = t15_l2;
             xn_l2[2] = t23_l2;
-            Pn_l2[0] = t9_l2;
+            Pn_l2[0] = t3_l2;
             Pn_l2[1] = 0.0;
             Pn_l2[2] = 0.0;
             Pn_l2[3] = 0.0;
-            Pn_l2[4] = t10_l2;
+            Pn_l2[4] = t11_l2;
             Pn_l2[5] = 0.0;
             Pn_l2[6] = 0.0;
             Pn_l2[7] = 0.0;
-            Pn_l2[8] = t11_l2;
+            Pn_l2[8] = t19_l2;
             z_l3 = z + ((t + 3) * steps + k) * 3;
             const double t0_l3 = 0.01 + P_l3[0];
-            const double t1_l3 = 0.01 + P_l3[4];
-            const double t2_l3 = 0.01 + P_l3[8];
             if (!(t0_l3 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t3_l3 = 1.0/t0_l3;
-            if (!(t1_l3 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t4_l3 = 1.0/t1_l3;
+            const double t1_l3 = 1.0/t0_l3;
+            const double t2_l3 = 10.0 + t1_l3;
             if (!(t2_l3 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+                return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t5_l3 = 1.0/t2_l3;
-            const double t6_l3 = 10.0 + t3_l3;
-            const double t7_l3 = 10.0 + t4_l3;
-            const double t8_l3 = 10.0 + t5_l3;
-            if (!(t6_l3 > 0.0)) {
-                return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t9_l3 = 1.0/t6_l3;
-            if (!(t7_l3 > 0.0)) {
-                return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t10_l3 = 1.0/t7_l3;
+            const double t3_l3 = 1.0/t2_l3;
+            const double t4_l3 = 10.0*t3_l3;
+            const double t5_l3 = z_l3[0] - x_l3[0];
+            const double t6_l3 = t4_l3*t5_l3;
+            const double t7_l3 = x_l3[0] + t6_l3;
+            const double t8_l3 = 0.01 + P_l3[4];
             if (!(t8_l3 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t9_l3 = 1.0/t8_l3;
+            const double t10_l3 = 10.0 + t9_l3;
+            if (!(t10_l3 > 0.0)) {
+                return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t11_l3 = 1.0/t10_l3;
+            const double t12_l3 = 10.0*t11_l3;
+            const double t13_l3 = z_l3[1] - x_l3[1];
+            const double t14_l3 = t12_l3*t13_l3;
+            const double t15_l3 = x_l3[1] + t14_l3;
+            const double t16_l3 = 0.01 + P_l3[8];
+            if (!(t16_l3 > 0.0)) {
+                return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t17_l3 = 1.0/t16_l3;
+            const double t18_l3 = 10.0 + t17_l3;
+            if (!(t18_l3 > 0.0)) {
                 return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t11_l3 = 1.0/t8_l3;
-            const double t12_l3 = 10.0*t9_l3;
-            const double t13_l3 = 10.0*t10_l3;
-            const double t14_l3 = 10.0*t11_l3;
-            const double t15_l3 = z_l3[0] - x_l3[0];
-            const double t16_l3 = z_l3[1] - x_l3[1];
-            const double t17_l3 = z_l3[2] - x_l3[2];
-            const double t18_l3 = t12_l3*t15_l3;
-            const double t19_l3 = t13_l3*t16_l3;
-            const double t20_l3 = t14_l3*t17_l3;
-            const double t21_l3 = x_l3[0] + t18_l3;
-            const double t22_l3 = x_l3[1] + t19_l3;
-            const double t23_l3 = x_l3[2] + t20_l3;
-            xn_l3[0] = t21_l3;
-            xn_l3[1] = t22_l3;
+            const double t19_l3 = 1.0/t18_l3;
+            const double t20_l3 = 10.0*t19_l3;
+            const double t21_l3 = z_l3[2] - x_l3[2];
+            const double t22_l3 = t20_l3*t21_l3;
+            const double t23_l3 = x_l3[2] + t22_l3;
+            xn_l3[0] = t7_l3;
+            xn_l3[1] = t15_l3;
             xn_l3[2] = t23_l3;
-            Pn_l3[0] = t9_l3;
+            Pn_l3[0] = t3_l3;
             Pn_l3[1] = 0.0;
             Pn_l3[2] = 0.0;
             Pn_l3[3] = 0.0;
-            Pn_l3[4] = t10_l3;
+            Pn_l3[4] = t11_l3;
             Pn_l3[5] = 0.0;
             Pn_l3[6] = 0.0;
             Pn_l3[7] = 0.0;
-            Pn_l3[8] = t11_l3;
+            Pn_l3[8] = t19_l3;
             xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
             xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
             xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
@@ -629,59 +629,59 @@ int gps_static_ikf_run_tracks(size_t steps, size_t tracks, const double *z, cons
         for (k = 0; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = 0.01 + P_l0[0];
-            const double t1_l0 = 0.01 + P_l0[4];
-            const double t2_l0 = 0.01 + P_l0[8];
             if (!(t0_l0 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t3_l0 = 1.0/t0_l0;
-            if (!(t1_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t4_l0 = 1.0/t1_l0;
+            const double t1_l0 = 1.0/t0_l0;
+            const double t2_l0 = 10.0 + t1_l0;
             if (!(t2_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+                return 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            const double t5_l0 = 1.0/t2_l0;
-            const double t6_l0 = 10.0 + t3_l0;
-            const double t7_l0 = 10.0 + t4_l0;
-            const double t8_l0 = 10.0 + t5_l0;
-            if (!(t6_l0 > 0.0)) {
-                return 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t9_l0 = 1.0/t6_l0;
-            if (!(t7_l0 > 0.0)) {
-                return 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t10_l0 = 1.0/t7_l0;
+            const double t3_l0 = 1.0/t2_l0;
+            const double t4_l0 = 10.0*t3_l0;
+            const double t5_l0 = z_l0[0] - x_l0[0];
+            const double t6_l0 = t4_l0*t5_l0;
+            const double t7_l0 = x_l0[0] + t6_l0;
+            const double t8_l0 = 0.01 + P_l0[4];
             if (!(t8_l0 > 0.0)) {
+                return 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t9_l0 = 1.0/t8_l0;
+            const double t10_l0 = 10.0 + t9_l0;
+            if (!(t10_l0 > 0.0)) {
+                return 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            }
+            const double t11_l0 = 1.0/t10_l0;
+            const double t12_l0 = 10.0*t11_l0;
+            const double t13_l0 = z_l0[1] - x_l0[1];
+            const double t14_l0 = t12_l0*t13_l0;
+            const double t15_l0 = x_l0[1] + t14_l0;
+            const double t16_l0 = 0.01 + P_l0[8];
+            if (!(t16_l0 > 0.0)) {
+                return 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            }
+            const double t17_l0 = 1.0/t16_l0;
+            const double t18_l0 = 10.0 + t17_l0;
+            if (!(t18_l0 > 0.0)) {
                 return 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t11_l0 = 1.0/t8_l0;
-            const double t12_l0 = 10.0*t9_l0;
-            const double t13_l0 = 10.0*t10_l0;
-            const double t14_l0 = 10.0*t11_l0;
-            const double t15_l0 = z_l0[0] - x_l0[0];
-            const double t16_l0 = z_l0[1] - x_l0[1];
-            const double t17_l0 = z_l0[2] - x_l0[2];
-            const double t18_l0 = t12_l0*t15_l0;
-            const double t19_l0 = t13_l0*t16_l0;
-            const double t20_l0 = t14_l0*t17_l0;
-            const double t21_l0 = x_l0[0] + t18_l0;
-            const double t22_l0 = x_l0[1] + t19_l0;
-            const double t23_l0 = x_l0[2] + t20_l0;
-            xn_l0[0] = t21_l0;
-            xn_l0[1] = t22_l0;
+            const double t19_l0 = 1.0/t18_l0;
+            const double t20_l0 = 10.0*t19_l0;
+            const double t21_l0 = z_l0[2] - x_l0[2];
+            const double t22_l0 = t20_l0*t21_l0;
+            const double t23_l0 = x_l0[2] + t22_l0;
+            xn_l0[0] = t7_l0;
+            xn_l0[1] = t15_l0;
             xn_l0[2] = t23_l0;
-            Pn_l0[0] = t9_l0;
+            Pn_l0[0] = t3_l0;
             Pn_l0[1] = 0.0;
             Pn_l0[2] = 0.0;
             Pn_l0[3] = 0.0;
-            Pn_l0[4] = t10_l0;
+            Pn_l0[4] = t11_l0;
             Pn_l0[5] = 0.0;
             Pn_l0[6] = 0.0;
             Pn_l0[7] = 0.0;
-            Pn_l0[8] = t11_l0;
+            Pn_l0[8] = t19_l0;
             xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
             xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
             xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];

@@ -40,46 +40,46 @@ int gps_static_kf_step(const double *restrict x, const double *restrict P, const
         return 4; /* outside P's pattern */
     }
     const double t0 = 0.01 + P[0];
-    const double t1 = 0.01 + P[4];
-    const double t2 = 0.01 + P[8];
-    const double t3 = 0.1 + t0;
-    const double t4 = 0.1 + t1;
-    const double t5 = 0.1 + t2;
-    if (!(t3 > 0.0)) {
+    const double t1 = 0.1 + t0;
+    if (!(t1 > 0.0)) {
         return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
-    if (!(t4 > 0.0)) {
+    const double t2 = t0/t1;
+    const double t3 = z[0] - x[0];
+    const double t4 = t2*t3;
+    const double t5 = x[0] + t4;
+    const double t6 = t0*t2;
+    const double t7 = t0 - t6;
+    const double t8 = 0.01 + P[4];
+    const double t9 = 0.1 + t8;
+    if (!(t9 > 0.0)) {
         return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
-    if (!(t5 > 0.0)) {
+    const double t10 = t8/t9;
+    const double t11 = z[1] - x[1];
+    const double t12 = t10*t11;
+    const double t13 = x[1] + t12;
+    const double t14 = t10*t8;
+    const double t15 = t8 - t14;
+    const double t16 = 0.01 + P[8];
+    const double t17 = 0.1 + t16;
+    if (!(t17 > 0.0)) {
         return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
-    const double t6 = t0/t3;
-    const double t7 = t1/t4;
-    const double t8 = t2/t5;
-    const double t9 = z[0] - x[0];
-    const double t10 = z[1] - x[1];
-    const double t11 = z[2] - x[2];
-    const double t12 = t6*t9;
-    const double t13 = t10*t7;
-    const double t14 = t11*t8;
-    const double t15 = x[0] + t12;
-    const double t16 = x[1] + t13;
-    const double t17 = x[2] + t14;
-    const double t18 = t0*t6;
-    const double t19 = t1*t7;
-    const double t20 = t2*t8;
-    const double t21 = t0 - t18;
-    const double t22 = t1 - t19;
-    const double t23 = t2 - t20;
-    x_new[0] = t15;
-    x_new[1] = t16;
-    x_new[2] = t17;
-    P_new[0] = t21;
+    const double t18 = t16/t17;
+    const double t19 = z[2] - x[2];
+    const double t20 = t18*t19;
+    const double t21 = x[2] + t20;
+    const double t22 = t16*t18;
+    const double t23 = t16 - t22;
+    x_new[0] = t5;
+    x_new[1] = t13;
+    x_new[2] = t21;
+    P_new[0] = t7;
     P_new[1] = 0.0;
     P_new[2] = 0.0;
     P_new[3] = 0.0;
-    P_new[4] = t22;
+    P_new[4] = t15;
     P_new[5] = 0.0;
     P_new[6] = 0.0;
     P_new[7] = 0.0;
@@ -121,46 +121,46 @@ int gps_static_kf_run(size_t steps, const double *z, const double *x0, const dou
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const double t0 = 0.01 + P[0];
-        const double t1 = 0.01 + P[4];
-        const double t2 = 0.01 + P[8];
-        const double t3 = 0.1 + t0;
-        const double t4 = 0.1 + t1;
-        const double t5 = 0.1 + t2;
-        if (!(t3 > 0.0)) {
+        const double t1 = 0.1 + t0;
+        if (!(t1 > 0.0)) {
             return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
         }
-        if (!(t4 > 0.0)) {
+        const double t2 = t0/t1;
+        const double t3 = zk[0] - x[0];
+        const double t4 = t2*t3;
+        const double t5 = x[0] + t4;
+        const double t6 = t0*t2;
+        const double t7 = t0 - t6;
+        const double t8 = 0.01 + P[4];
+        const double t9 = 0.1 + t8;
+        if (!(t9 > 0.0)) {
             return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
         }
-        if (!(t5 > 0.0)) {
+        const double t10 = t8/t9;
+        const double t11 = zk[1] - x[1];
+        const double t12 = t10*t11;
+        const double t13 = x[1] + t12;
+        const double t14 = t10*t8;
+        const double t15 = t8 - t14;
+        const double t16 = 0.01 + P[8];
+        const double t17 = 0.1 + t16;
+        if (!(t17 > 0.0)) {
             return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
         }
-        const double t6 = t0/t3;
-        const double t7 = t1/t4;
-        const double t8 = t2/t5;
-        const double t9 = zk[0] - x[0];
-        const double t10 = zk[1] - x[1];
-        const double t11 = zk[2] - x[2];
-        const double t12 = t6*t9;
-        const double t13 = t10*t7;
-        const double t14 = t11*t8;
-        const double t15 = x[0] + t12;
-        const double t16 = x[1] + t13;
-        const double t17 = x[2] + t14;
-        const double t18 = t0*t6;
-        const double t19 = t1*t7;
-        const double t20 = t2*t8;
-        const double t21 = t0 - t18;
-        const double t22 = t1 - t19;
-        const double t23 = t2 - t20;
-        x_new[0] = t15;
-        x_new[1] = t16;
-        x_new[2] = t17;
-        P_new[0] = t21;
+        const double t18 = t16/t17;
+        const double t19 = zk[2] - x[2];
+        const double t20 = t18*t19;
+        const double t21 = x[2] + t20;
+        const double t22 = t16*t18;
+        const double t23 = t16 - t22;
+        x_new[0] = t5;
+        x_new[1] = t13;
+        x_new[2] = t21;
+        P_new[0] = t7;
         P_new[1] = 0.0;
         P_new[2] = 0.0;
         P_new[3] = 0.0;
-        P_new[4] = t22;
+        P_new[4] = t15;
         P_new[5] = 0.0;
         P_new[6] = 0.0;
         P_new[7] = 0.0;
@@ -277,184 +277,184 @@ int gps_static_kf_run_tracks(size_t steps, size_t tracks, const double *z, const
         for (k = 0; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = 0.01 + P_l0[0];
-            const double t1_l0 = 0.01 + P_l0[4];
-            const double t2_l0 = 0.01 + P_l0[8];
-            const double t3_l0 = 0.1 + t0_l0;
-            const double t4_l0 = 0.1 + t1_l0;
-            const double t5_l0 = 0.1 + t2_l0;
-            if (!(t3_l0 > 0.0)) {
+            const double t1_l0 = 0.1 + t0_l0;
+            if (!(t1_l0 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            if (!(t4_l0 > 0.0)) {
+            const double t2_l0 = t0_l0/t1_l0;
+            const double t3_l0 = z_l0[0] - x_l0[0];
+            const double t4_l0 = t2_l0*t3_l0;
+            const double t5_l0 = x_l0[0] + t4_l0;
+            const double t6_l0 = t0_l0*t2_l0;
+            const double t7_l0 = t0_l0 - t6_l0;
+            const double t8_l0 = 0.01 + P_l0[4];
+            const double t9_l0 = 0.1 + t8_l0;
+            if (!(t9_l0 > 0.0)) {
                 return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
             }
-            if (!(t5_l0 > 0.0)) {
+            const double t10_l0 = t8_l0/t9_l0;
+            const double t11_l0 = z_l0[1] - x_l0[1];
+            const double t12_l0 = t10_l0*t11_l0;
+            const double t13_l0 = x_l0[1] + t12_l0;
+            const double t14_l0 = t10_l0*t8_l0;
+            const double t15_l0 = t8_l0 - t14_l0;
+            const double t16_l0 = 0.01 + P_l0[8];
+            const double t17_l0 = 0.1 + t16_l0;
+            if (!(t17_l0 > 0.0)) {
                 return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t6_l0 = t0_l0/t3_l0;
-            const double t7_l0 = t1_l0/t4_l0;
-            const double t8_l0 = t2_l0/t5_l0;
-            const double t9_l0 = z_l0[0] - x_l0[0];
-            const double t10_l0 = z_l0[1] - x_l0[1];
-            const double t11_l0 = z_l0[2] - x_l0[2];
-            const double t12_l0 = t6_l0*t9_l0;
-            const double t13_l0 = t10_l0*t7_l0;
-            const double t14_l0 = t11_l0*t8_l0;
-            const double t15_l0 = x_l0[0] + t12_l0;
-            const double t16_l0 = x_l0[1] + t13_l0;
-            const double t17_l0 = x_l0[2] + t14_l0;
-            const double t18_l0 = t0_l0*t6_l0;
-            const double t19_l0 = t1_l0*t7_l0;
-            const double t20_l0 = t2_l0*t8_l0;
-            const double t21_l0 = t0_l0 - t18_l0;
-            const double t22_l0 = t1_l0 - t19_l0;
-            const double t23_l0 = t2_l0 - t20_l0;
-            xn_l0[0] = t15_l0;
-            xn_l0[1] = t16_l0;
-            xn_l0[2] = t17_l0;
-            Pn_l0[0] = t21_l0;
+            const double t18_l0 = t16_l0/t17_l0;
+            const double t19_l0 = z_l0[2] - x_l0[2];
+            const double t20_l0 = t18_l0*t19_l0;
+            const double t21_l0 = x_l0[2] + t20_l0;
+            const double t22_l0 = t16_l0*t18_l0;
+            const double t23_l0 = t16_l0 - t22_l0;
+            xn_l0[0] = t5_l0;
+            xn_l0[1] = t13_l0;
+            xn_l0[2] = t21_l0;
+            Pn_l0[0] = t7_l0;
             Pn_l0[1] = 0.0;
             Pn_l0[2] = 0.0;
             Pn_l0[3] = 0.0;
-            Pn_l0[4] = t22_l0;
+            Pn_l0[4] = t15_l0;
             Pn_l0[5] = 0.0;
             Pn_l0[6] = 0.0;
             Pn_l0[7] = 0.0;
             Pn_l0[8] = t23_l0;
             z_l1 = z + ((t + 1) * steps + k) * 3;
             const double t0_l1 = 0.01 + P_l1[0];
-            const double t1_l1 = 0.01 + P_l1[4];
-            const double t2_l1 = 0.01 + P_l1[8];
-            const double t3_l1 = 0.1 + t0_l1;
-            const double t4_l1 = 0.1 + t1_l1;
-            const double t5_l1 = 0.1 + t2_l1;
-            if (!(t3_l1 > 0.0)) {
+            const double t1_l1 = 0.1 + t0_l1;
+            if (!(t1_l1 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            if (!(t4_l1 > 0.0)) {
+            const double t2_l1 = t0_l1/t1_l1;
+            const double t3_l1 = z_l1[0] - x_l1[0];
+            const double t4_l1 = t2_l1*t3_l1;
+            const double t5_l1 = x_l1[0] + t4_l1;
+            const double t6_l1 = t0_l1*t2_l1;
+            const double t7_l1 = t0_l1 - t6_l1;
+            const double t8_l1 = 0.01 + P_l1[4];
+            const double t9_l1 = 0.1 + t8_l1;
+            if (!(t9_l1 > 0.0)) {
                 return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
             }
-            if (!(t5_l1 > 0.0)) {
+            const double t10_l1 = t8_l1/t9_l1;
+            const double t11_l1 = z_l1[1] - x_l1[1];
+            const double t12_l1 = t10_l1*t11_l1;
+            const double t13_l1 = x_l1[1] + t12_l1;
+            const double t14_l1 = t10_l1*t8_l1;
+            const double t15_l1 = t8_l1 - t14_l1;
+            const double t16_l1 = 0.01 + P_l1[8];
+            const double t17_l1 = 0.1 + t16_l1;
+            if (!(t17_l1 > 0.0)) {
                 return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t6_l1 = t0_l1/t3_l1;
-            const double t7_l1 = t1_l1/t4_l1;
-            const double t8_l1 = t2_l1/t5_l1;
-            const double t9_l1 = z_l1[0] - x_l1[0];
-            const double t10_l1 = z_l1[1] - x_l1[1];
-            const double t11_l1 = z_l1[2] - x_l1[2];
-            const double t12_l1 = t6_l1*t9_l1;
-            const double t13_l1 = t10_l1*t7_l1;
-            const double t14_l1 = t11_l1*t8_l1;
-            const double t15_l1 = x_l1[0] + t12_l1;
-            const double t16_l1 = x_l1[1] + t13_l1;
-            const double t17_l1 = x_l1[2] + t14_l1;
-            const double t18_l1 = t0_l1*t6_l1;
-            const double t19_l1 = t1_l1*t7_l1;
-            const double t20_l1 = t2_l1*t8_l1;
-            const double t21_l1 = t0_l1 - t18_l1;
-            const double t22_l1 = t1_l1 - t19_l1;
-            const double t23_l1 = t2_l1 - t20_l1;
-            xn_l1[0] = t15_l1;
-            xn_l1[1] = t16_l1;
-            xn_l1[2] = t17_l1;
-            Pn_l1[0] = t21_l1;
+            const double t18_l1 = t16_l1/t17_l1;
+            const double t19_l1 = z_l1[2] - x_l1[2];
+            const double t20_l1 = t18_l1*t19_l1;
+            const double t21_l1 = x_l1[2] + t20_l1;
+            const double t22_l1 = t16_l1*t18_l1;
+            const double t23_l1 = t16_l1 - t22_l1;
+            xn_l1[0] = t5_l1;
+            xn_l1[1] = t13_l1;
+            xn_l1[2] = t21_l1;
+            Pn_l1[0] = t7_l1;
             Pn_l1[1] = 0.0;
             Pn_l1[2] = 0.0;
             Pn_l1[3] = 0.0;
-            Pn_l1[4] = t22_l1;
+            Pn_l1[4] = t15_l1;
             Pn_l1[5] = 0.0;
             Pn_l1[6] = 0.0;
             Pn_l1[7] = 0.0;
             Pn_l1[8] = t23_l1;
             z_l2 = z + ((t + 2) * steps + k) * 3;
             const double t0_l2 = 0.01 + P_l2[0];
-            const double t1_l2 = 0.01 + P_l2[4];
-            const double t2_l2 = 0.01 + P_l2[8];
-            const double t3_l2 = 0.1 + t0_l2;
-            const double t4_l2 = 0.1 + t1_l2;
-            const double t5_l2 = 0.1 + t2_l2;
-            if (!(t3_l2 > 0.0)) {
+            const double t1_l2 = 0.1 + t0_l2;
+            if (!(t1_l2 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            if (!(t4_l2 > 0.0)) {
+            const double t2_l2 = t0_l2/t1_l2;
+            const double t3_l2 = z_l2[0] - x_l2[0];
+            const double t4_l2 = t2_l2*t3_l2;
+            const double t5_l2 = x_l2[0] + t4_l2;
+            const double t6_l2 = t0_l2*t2_l2;
+            const double t7_l2 = t0_l2 - t6_l2;
+            const double t8_l2 = 0.01 + P_l2[4];
+            const double t9_l2 = 0.1 + t8_l2;
+            if (!(t9_l2 > 0.0)) {
                 return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
             }
-            if (!(t5_l2 > 0.0)) {
+            const double t10_l2 = t8_l2/t9_l2;
+            const double t11_l2 = z_l2[1] - x_l2[1];
+            const double t12_l2 = t10_l2*t11_l2;
+            const double t13_l2 = x_l2[1] + t12_l2;
+            const double t14_l2 = t10_l2*t8_l2;
+            const double t15_l2 = t8_l2 - t14_l2;
+            const double t16_l2 = 0.01 + P_l2[8];
+            const double t17_l2 = 0.1 + t16_l2;
+            if (!(t17_l2 > 0.0)) {
                 return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t6_l2 = t0_l2/t3_l2;
-            const double t7_l2 = t1_l2/t4_l2;
-            const double t8_l2 = t2_l2/t5_l2;
-            const double t9_l2 = z_l2[0] - x_l2[0];
-            const double t10_l2 = z_l2[1] - x_l2[1];
-            const double t11_l2 = z_l2[2] - x_l2[2];
-            const double t12_l2 = t6_l2*t9_l2;
-            const double t13_l2 = t10_l2*t7_l2;
-            const double t14_l2 = t11_l2*t8_l2;
-            const double t15_l2 = x_l2[0] + t12_l2;
-            const double t16_l2 = x_l2[1] + t13_l2;
-            const double t17_l2 = x_l2[2] + t14_l2;
-            const double t18_l2 = t0_l2*t6_l2;
-            const double t19_l2 = t1_l2*t7_l2;
-            const double t20_l2 = t2_l2*t8_l2;
-            const double t21_l2 = t0_l2 - t18_l2;
-            const double t22_l2 = t1_l2 - t19_l2;
-            const double t23_l2 = t2_l2 - t20_l2;
-            xn_l2[0] = t15_l2;
-            xn_l2[1] = t16_l2;
-            xn_l2[2] = t17_l2;
-            Pn_l2[0] = t21_l2;
+            const double t18_l2 = t16_l2/t17_l2;
+            const double t19_l2 = z_l2[2] - x_l2[2];
+            const double t20_l2 = t18_l2*t19_l2;
+            const double t21_l2 = x_l2[2] + t20_l2;
+            const double t22_l2 = t16_l2*t18_l2;
+            const double t23_l2 = t16_l2 - t22_l2;
+            xn_l2[0] = t5_l2;
+            xn_l2[1] = t13_l2;
+            xn_l2[2] = t21_l2;
+            Pn_l2[0] = t7_l2;
             Pn_l2[1] = 0.0;
             Pn_l2[2] = 0.0;
             Pn_l2[3] = 0.0;
-            Pn_l2[4] = t22_l2;
+            Pn_l2[4] = t15_l2;
             Pn_l2[5] = 0.0;
             Pn_l2[6] = 0.0;
             Pn_l2[7] = 0.0;
             Pn_l2[8] = t23_l2;
             z_l3 = z + ((t + 3) * steps + k) * 3;
             const double t0_l3 = 0.01 + P_l3[0];
-            const double t1_l3 = 0.01 + P_l3[4];
-            const double t2_l3 = 0.01 + P_l3[8];
-            const double t3_l3 = 0.1 + t0_l3;
-            const double t4_l3 = 0.1 + t1_l3;
-            const double t5_l3 = 0.1 + t2_l3;
-            if (!(t3_l3 > 0.0)) {
+            const double t1_l3 = 0.1 + t0_l3;
+            if (!(t1_l3 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            if (!(t4_l3 > 0.0)) {
+            const double t2_l3 = t0_l3/t1_l3;
+            const double t3_l3 = z_l3[0] - x_l3[0];
+            const double t4_l3 = t2_l3*t3_l3;
+            const double t5_l3 = x_l3[0] + t4_l3;
+            const double t6_l3 = t0_l3*t2_l3;
+            const double t7_l3 = t0_l3 - t6_l3;
+            const double t8_l3 = 0.01 + P_l3[4];
+            const double t9_l3 = 0.1 + t8_l3;
+            if (!(t9_l3 > 0.0)) {
                 return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
             }
-            if (!(t5_l3 > 0.0)) {
+            const double t10_l3 = t8_l3/t9_l3;
+            const double t11_l3 = z_l3[1] - x_l3[1];
+            const double t12_l3 = t10_l3*t11_l3;
+            const double t13_l3 = x_l3[1] + t12_l3;
+            const double t14_l3 = t10_l3*t8_l3;
+            const double t15_l3 = t8_l3 - t14_l3;
+            const double t16_l3 = 0.01 + P_l3[8];
+            const double t17_l3 = 0.1 + t16_l3;
+            if (!(t17_l3 > 0.0)) {
                 return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t6_l3 = t0_l3/t3_l3;
-            const double t7_l3 = t1_l3/t4_l3;
-            const double t8_l3 = t2_l3/t5_l3;
-            const double t9_l3 = z_l3[0] - x_l3[0];
-            const double t10_l3 = z_l3[1] - x_l3[1];
-            const double t11_l3 = z_l3[2] - x_l3[2];
-            const double t12_l3 = t6_l3*t9_l3;
-            const double t13_l3 = t10_l3*t7_l3;
-            const double t14_l3 = t11_l3*t8_l3;
-            const double t15_l3 = x_l3[0] + t12_l3;
-            const double t16_l3 = x_l3[1] + t13_l3;
-            const double t17_l3 = x_l3[2] + t14_l3;
-            const double t18_l3 = t0_l3*t6_l3;
-            const double t19_l3 = t1_l3*t7_l3;
-            const double t20_l3 = t2_l3*t8_l3;
-            const double t21_l3 = t0_l3 - t18_l3;
-            const double t22_l3 = t1_l3 - t19_l3;
-            const double t23_l3 = t2_l3 - t20_l3;
-            xn_l3[0] = t15_l3;
-            xn_l3[1] = t16_l3;
-            xn_l3[2] = t17_l3;
-            Pn_l3[0] = t21_l3;
+            const double t18_l3 = t16_l3/t17_l3;
+            const double t19_l3 = z_l3[2] - x_l3[2];
+            const double t20_l3 = t18_l3*t19_l3;
+            const double t21_l3 = x_l3[2] + t20_l3;
+            const double t22_l3 = t16_l3*t18_l3;
+            const double t23_l3 = t16_l3 - t22_l3;
+            xn_l3[0] = t5_l3;
+            xn_l3[1] = t13_l3;
+            xn_l3[2] = t21_l3;
+            Pn_l3[0] = t7_l3;
             Pn_l3[1] = 0.0;
             Pn_l3[2] = 0.0;
             Pn_l3[3] = 0.0;
-            Pn_l3[4] = t22_l3;
+            Pn_l3[4] = t15_l3;
             Pn_l3[5] = 0.0;
             Pn_l3[6] = 0.0;
             Pn_l3[7] = 0.0;
@@ -572,46 +572,46 @@ int gps_static_kf_run_tracks(size_t steps, size_t tracks, const double *z, const
         for (k = 0; k < steps; ++k) {
             z_l0 = z + ((t + 0) * steps + k) * 3;
             const double t0_l0 = 0.01 + P_l0[0];
-            const double t1_l0 = 0.01 + P_l0[4];
-            const double t2_l0 = 0.01 + P_l0[8];
-            const double t3_l0 = 0.1 + t0_l0;
-            const double t4_l0 = 0.1 + t1_l0;
-            const double t5_l0 = 0.1 + t2_l0;
-            if (!(t3_l0 > 0.0)) {
+            const double t1_l0 = 0.1 + t0_l0;
+            if (!(t1_l0 > 0.0)) {
                 return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
             }
-            if (!(t4_l0 > 0.0)) {
+            const double t2_l0 = t0_l0/t1_l0;
+            const double t3_l0 = z_l0[0] - x_l0[0];
+            const double t4_l0 = t2_l0*t3_l0;
+            const double t5_l0 = x_l0[0] + t4_l0;
+            const double t6_l0 = t0_l0*t2_l0;
+            const double t7_l0 = t0_l0 - t6_l0;
+            const double t8_l0 = 0.01 + P_l0[4];
+            const double t9_l0 = 0.1 + t8_l0;
+            if (!(t9_l0 > 0.0)) {
                 return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
             }
-            if (!(t5_l0 > 0.0)) {
+            const double t10_l0 = t8_l0/t9_l0;
+            const double t11_l0 = z_l0[1] - x_l0[1];
+            const double t12_l0 = t10_l0*t11_l0;
+            const double t13_l0 = x_l0[1] + t12_l0;
+            const double t14_l0 = t10_l0*t8_l0;
+            const double t15_l0 = t8_l0 - t14_l0;
+            const double t16_l0 = 0.01 + P_l0[8];
+            const double t17_l0 = 0.1 + t16_l0;
+            if (!(t17_l0 > 0.0)) {
                 return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
             }
-            const double t6_l0 = t0_l0/t3_l0;
-            const double t7_l0 = t1_l0/t4_l0;
-            const double t8_l0 = t2_l0/t5_l0;
-            const double t9_l0 = z_l0[0] - x_l0[0];
-            const double t10_l0 = z_l0[1] - x_l0[1];
-            const double t11_l0 = z_l0[2] - x_l0[2];
-            const double t12_l0 = t6_l0*t9_l0;
-            const double t13_l0 = t10_l0*t7_l0;
-            const double t14_l0 = t11_l0*t8_l0;
-            const double t15_l0 = x_l0[0] + t12_l0;
-            const double t16_l0 = x_l0[1] + t13_l0;
-            const double t17_l0 = x_l0[2] + t14_l0;
-            const double t18_l0 = t0_l0*t6_l0;
-            const double t19_l0 = t1_l0*t7_l0;
-            const double t20_l0 = t2_l0*t8_l0;
-            const double t21_l0 = t0_l0 - t18_l0;
-            const double t22_l0 = t1_l0 - t19_l0;
-            const double t23_l0 = t2_l0 - t20_l0;
-            xn_l0[0] = t15_l0;
-            xn_l0[1] = t16_l0;
-            xn_l0[2] = t17_l0;
-            Pn_l0[0] = t21_l0;
+            const double t18_l0 = t16_l0/t17_l0;
+            const double t19_l0 = z_l0[2] - x_l0[2];
+            const double t20_l0 = t18_l0*t19_l0;
+            const double t21_l0 = x_l0[2] + t20_l0;
+            const double t22_l0 = t16_l0*t18_l0;
+            const double t23_l0 = t16_l0 - t22_l0;
+            xn_l0[0] = t5_l0;
+            xn_l0[1] = t13_l0;
+            xn_l0[2] = t21_l0;
+            Pn_l0[0] = t7_l0;
             Pn_l0[1] = 0.0;
             Pn_l0[2] = 0.0;
             Pn_l0[3] = 0.0;
-            Pn_l0[4] = t22_l0;
+            Pn_l0[4] = t15_l0;
             Pn_l0[5] = 0.0;
             Pn_l0[6] = 0.0;
             Pn_l0[7] = 0.0;

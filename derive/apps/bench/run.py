@@ -18,7 +18,7 @@ import numpy as np
 from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
-from . import batch, casadi_c, generated, navigation, peers, scaling
+from . import batch, casadi_c, generated, generation_scaling, navigation, peers, scaling
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
@@ -61,6 +61,7 @@ class Settings:
     navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
+    generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
 
     @classmethod
     def quick(cls) -> Settings:
@@ -69,7 +70,8 @@ class Settings:
                    check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
-                   navigation_symforce=False)
+                   navigation_symforce=False,
+                   generation_scaling=False)
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,7 @@ class BenchResult:
     generation_seconds: float | None = None
     scale: list[scaling.ScaleRow] = field(default_factory=list)   # derive.batch, every core
     navigation: navigation.NavigationResult | None = None
+    generation: list[generation_scaling.GenerationRow] = field(default_factory=list)
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -114,6 +117,7 @@ class BenchResult:
                 "scale": [asdict(r) for r in self.scale],
                 "generation_seconds": self.generation_seconds,
                 "navigation": self.navigation.as_json() if self.navigation else None,
+                "generation": [asdict(r) for r in self.generation],
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -151,6 +155,7 @@ class BenchResult:
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
                            self.generation_seconds, 30.0, "time"))
+        out += [Bar(*bar) for bar in generation_scaling.generation_bars(self.generation)]
         out += self._scaled_bars(fma2)
         if self.navigation is not None:
             out += self.navigation.bars(Bar)
@@ -252,6 +257,11 @@ class BenchResult:
             lines += _columns(head, body) + scaled + [""]
         if self.navigation is not None:
             lines += self.navigation.lines() + [""]
+        if self.generation:
+            lines += ["generation of large models (derive.apps.bench.generation_scaling): "
+                      "one process each, the model built through the Python API, then "
+                      "render_unit (derive and render Python and C, nothing written)", ""]
+            lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -434,6 +444,8 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         result.navigation = navigation.run_navigation(
             Path(tmp) / "navigation", s.navigation_calls, s.navigation_python_calls, s.repeats,
             s.navigation_symforce, tick)
+        if s.generation_scaling:
+            result.generation = generation_scaling.generation_rows(tick=tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
