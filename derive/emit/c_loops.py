@@ -1,13 +1,20 @@
-"""The statements of the generated C run loops, built from a unit's lowered programs.
+"""The generated C run loops, built on the step's statements printed once per file.
 
-``run`` holds the step's statements with the state in local arrays (:func:`fused_body`),
-or, for a unit with a two-step map (``Unit.lookahead``), a two-step pass
-(:func:`two_step`, :func:`two_step_body`); ``run_tracks`` advances :data:`LANES` tracks
-together, each lane with its own temporaries, state and inputs (:func:`tracks_parts`).
+The step's statements (without its pattern check) are printed once, in a static
+function of the file, the *step body* (:func:`body_function`): every element of a port
+is read and written at ``[i * s]``, ``s`` the body's last argument, so that one copy
+serves one track (``s`` = 1: the public ``step``, ``run``'s loop with the state in local
+arrays) and a lane of a block of tracks (``s`` = the block's width, the state laid out
+structure-of-arrays: ``run_tracks``).  A failed check of the body sets its status and
+the statements run to the end: no branch leaves them, so the loop over a block's lanes
+is one basic block the compiler vectorises (:func:`tracks_parts`), and each lane runs
+exactly the operations of one track's ``run``, in the same order.
 
-Every renaming is done on the lowered program (:meth:`LoweredProgram.renamed`) before it
-is printed: the per-step rows (``z`` read as ``zk``), a lane's state and temporaries, the
-second step's temporaries.  No printed line is edited.
+A small body is inlined into each caller (:data:`INLINE_STATEMENTS`; always_inline where
+GCC and Clang take it), so run keeps the state in registers and the lane loop is
+vectorised; a large one stays one function that every caller calls, so the file
+compiles it once.  A unit with a two-step map (``Unit.lookahead``) has a second body for
+the map (:func:`two_step`); its run takes two steps per pass, and so do the lanes.
 """
 
 from __future__ import annotations
@@ -17,9 +24,123 @@ from derive.emit.unit import LOOKAHEAD_NEXT, Unit
 from derive.lowering import LoweredProgram, lower_program
 from derive.program import PARAMETER_PORT
 
-#: Tracks that run_tracks advances together: independent dependency chains in one basic
-#: block that the compiler interleaves, so one track's latency hides another's.
-LANES = 4
+#: The step body's stride argument: element i of a port is at [i * STRIDE].
+STRIDE = "s"
+#: The status a step body's failed check sets (the first failed check's).
+STATUS = "status"
+#: The lane count of run_tracks' blocks: the doubles in the target's widest vector
+#: register (AVX-512: 8, AVX: 4, else 2), unless the build defines it.
+LANES = "DERIVE_LANES"
+#: Put before the loop over a block's lanes: ``omp simd`` under OpenMP (``-fopenmp``),
+#: ``GCC ivdep`` / Clang's ``loop vectorize(enable)`` else (no lane depends on another;
+#: the compilers vectorise it at -O3, or at -O2 with -ftree-vectorize); a build may
+#: define it, e.g. ``-D'DERIVE_SIMD=_Pragma("omp simd")'`` with ``-fopenmp-simd``.
+SIMD = "DERIVE_SIMD"
+#: How a step body small enough to inline is declared.
+INLINE = "DERIVE_INLINE"
+#: Bodies of at most this many statements are inlined into their callers (run, the lane
+#: loop); larger ones are compiled once and called: a file's compile time and memory
+#: grow with one copy of the step, not one per caller.
+INLINE_STATEMENTS = 2000
+
+MACRO_LINES = [
+    f"#ifndef {LANES}",
+    "#if defined(__AVX512F__)",
+    f"#define {LANES} 8",
+    "#elif defined(__AVX__)",
+    f"#define {LANES} 4",
+    "#else",
+    f"#define {LANES} 2",
+    "#endif",
+    "#endif",
+    f"#ifndef {SIMD}",
+    "#if defined(_OPENMP)",
+    f'#define {SIMD} _Pragma("omp simd")',
+    "#elif defined(__clang__)",
+    f'#define {SIMD} _Pragma("clang loop vectorize(enable)")',
+    "#elif defined(__GNUC__)",
+    f'#define {SIMD} _Pragma("GCC ivdep")',
+    "#else",
+    f"#define {SIMD}",
+    "#endif",
+    "#endif",
+]
+INLINE_LINES = [
+    f"#ifndef {INLINE}",
+    "#if defined(__GNUC__)",
+    f"#define {INLINE} static inline __attribute__((always_inline))",
+    "#else",
+    f"#define {INLINE} static inline",
+    "#endif",
+    "#endif",
+]
+
+
+def body_name(prefix: str, program: str = "step") -> str:
+    """The step body's C name: ``PREFIX_step_body`` (the two-step map's: ``PREFIX_pass_body``)."""
+    return f"{prefix}_{program}_body"
+
+
+def inlined(body: LoweredProgram) -> bool:
+    """True when the body is small enough to inline into its callers."""
+    return len(body.body) + sum(len(leaves) for _, leaves in body.results) \
+        <= INLINE_STATEMENTS
+
+
+def _element(port: str, index: int) -> str:
+    """Element ``index`` of a port in a step body: strided, except the parameters ``p``
+    (one row that every lane shares)."""
+    if port == PARAMETER_PORT or index == 0:
+        return f"{port}[{index}]"
+    return f"{port}[{index} * {STRIDE}]"
+
+
+def body_function(body: LoweredProgram, name: str) -> dict:
+    """The step body as a function (``signature``, ``body`` lines): the program's ports as
+    pointers, then the stride; returns the status of the first failed check (int), or
+    nothing when the program has no check."""
+    status = bool(body.checks)
+    params = c_printer.parameters(body) + [f"const size_t {STRIDE}"]
+    qualifier = INLINE if inlined(body) else "static"
+    lines = [f"(void){p.name};" for p in body.inputs if p.name not in body.used_inputs()]
+    if status:
+        lines.append(f"int {STATUS} = 0;")
+    statements = c_printer.statements(body, _element, STATUS if status else None)
+    if not any(f"* {STRIDE}]" in line for line in statements):  # n = 1: element 0 only
+        lines.append(f"(void){STRIDE};")
+    lines += statements
+    if status:
+        lines.append(f"return {STATUS};")
+    return {"signature": f"{qualifier} {'int' if status else 'void'} {name}({', '.join(params)})",
+            "body": lines}
+
+
+def _call(body: LoweredProgram, name: str, names: dict[str, str], stride: str) -> str:
+    args = ", ".join(names.get(port, port) for port in c_printer.argument_order(body))
+    return f"{name}({args}, {stride})"
+
+
+def checked_call(body: LoweredProgram, name: str, names: dict[str, str], result: str,
+                 stride: str = "1") -> list[str]:
+    """The body called with its ports named by ``names``; a non-zero status returned at
+    once (held in the const int ``result``)."""
+    call = _call(body, name, names, stride)
+    if not body.checks:
+        return [f"{call};"]
+    return [f"const int {result} = {call};", f"if ({result}) {{", f"    return {result};",
+            "}"]
+
+
+def step_function_body(step: LoweredProgram, body: LoweredProgram, name: str) -> list[str]:
+    """The public step's statements: its pattern check of the inputs, then the body over
+    its own arrays (stride 1)."""
+    lines = []
+    for check in step.pattern_checks:
+        lines += c_printer.pattern_check_lines(check)
+    call = _call(body, name, {}, "1")
+    if body.checks:
+        return lines + [f"return {call};"]
+    return lines + [f"{call};"] + (["return 0;"] if step.has_checks else [])
 
 
 def _rows(unit: Unit) -> tuple[str, ...]:
@@ -32,91 +153,20 @@ def _row(name: str) -> str:
     return f"{name}k"
 
 
-def fused_body(unit: Unit, step: LoweredProgram) -> list[str]:
-    """The step's statements for the run loop, reading per-step inputs at row k.
-
-    The run loop keeps the state and the step's outputs in local arrays indexed by
-    constants, so the compiler holds them in registers: nothing is stored and reloaded
-    between steps except the rows of the stored results. The statements are the step's
-    own (same operations, same count); only the per-step inputs are renamed (``z`` reads
-    ``zk``, the row of step k; ``p`` reads ``pk``, ``p + k * p_stride``: one row for all
-    steps or one per step).
-    """
-    return c_printer.statements(step.renamed({name: _row(name) for name in _rows(unit)}))
-
-
-def lane_names(unit: Unit, label: str) -> dict[str, str]:
-    """One lane's names: its own state (``x`` -> ``x_l0``, ``x_new`` -> ``xn_l0``) and
-    per-step inputs (``z`` -> ``z_l0``); the parameters' row ``pk`` is shared."""
-    names = {port: f"{port}{label}" for port, _ in unit.carried}
-    names.update({new: f"{port}n{label}" for port, new in unit.carried})
-    names.update({name: f"{name}{label}" for name in unit.step_inputs})
+def _row_names(unit: Unit, body: LoweredProgram) -> dict[str, str]:
+    """run's names of the body's per-step inputs: row k (``zk``; ``pk`` when the body
+    reads p, else p itself, which the body does not read)."""
+    names = {name: _row(name) for name in unit.step_inputs}
     if unit.parameters:
-        names[PARAMETER_PORT] = _row(PARAMETER_PORT)
+        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
+                                 else PARAMETER_PORT)
     return names
 
 
-def _lane_temporary(label: str, offset: int = 0):
-    return lambda name: f"t{int(name[1:]) + offset}{label}"
-
-
-def tracks_parts(unit: Unit, step: LoweredProgram, lanes: int, state: list[dict],
-                 optional_stores: list[dict], two: LoweredProgram | None = None) -> dict:
-    """Statements of run_tracks for ``lanes`` tracks at a time.
-
-    Track-major arrays: track t's z, x0, P0, xs, Ps are laid out exactly as for run,
-    one after the other, so every lane reads and writes its own sequential stream.
-    ``state``: the carried state (derive.emit.render.carried_state); ``optional_stores``:
-    run's outputs that may be NULL (each stores a carried output port).
-    With ``two`` (the lowered two-step map) each lane takes two steps per pass as run
-    does, so every track's result is bitwise its run's.
-    """
-    n = unit.n
-    by_output = {s["out"]: s["name"] for s in state}
-    decl, load, body, store, pass_body, pass_store = [], [], [], [], [], []
-    for lane in range(lanes):
-        label = f"_l{lane}"  # never x0 or P0: those are the run's arguments
-        track = f"(t + {lane})"
-        names = lane_names(unit, label)
-        for s in state:
-            name, size = s["name"], s["size"]
-            decl.append(f"double {name}{label}[{size}], {name}n{label}[{size}];")
-            load += [f"{name}{label}[{i}] = {s['start']}[{track} * {size} + {i}];"
-                     for i in range(size)]
-        for name in unit.step_inputs:
-            size = unit.step_input_size(name)
-            decl.append(f"const double *{name}{label};")
-            body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
-        body += c_printer.statements(step.renamed(names, _lane_temporary(label)))
-        for s in state:
-            name, size = s["name"], s["size"]
-            store += [(f"{s['store']}[({track} * steps + k) * {size} + {i}] = " if s["store"]
-                       else "") + f"{name}{label}[{i}] = {name}n{label}[{i}];"
-                      for i in range(size)]
-        for s in optional_stores:
-            array, size, name = s["array"], s["size"], by_output[s["out"]]
-            store += [f"if ({array}) {{"] + [
-                f"    {array}[({track} * steps + k) * {size} + {i}] = {name}n{label}[{i}];"
-                for i in range(size)] + ["}"]
-        if two is not None:
-            mid = f"xm{label}"
-            decl += [f"double {mid}[{n}];", f"const double *{LOOKAHEAD_NEXT}{label};"]
-            pass_body += [f"z{label} = z + ({track} * steps + k) * {unit.m};",
-                          f"{LOOKAHEAD_NEXT}{label} = z + ({track} * steps + k + 1) * {unit.m};"]
-            pass_body += c_printer.statements(
-                step.renamed({**names, "x_new": mid}, _lane_temporary(label)))
-            pass_body += c_printer.statements(two.renamed(
-                {**names, LOOKAHEAD_NEXT: f"{LOOKAHEAD_NEXT}{label}"},
-                _lane_temporary(label, step.temporaries())))
-            pass_store += [f"xs[({track} * steps + k) * {n} + {i}] = {mid}[{i}];"
-                           for i in range(n)]
-            pass_store += [f"xs[({track} * steps + k + 1) * {n} + {i}] = x{label}[{i}] = "
-                           f"xn{label}[{i}];" for i in range(n)]
-    if unit.parameters and PARAMETER_PORT in step.used_inputs():  # the lanes share p's rows
-        body.insert(0, f"const double *{_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
-                       "p_stride;")
-    return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store,
-            "pass_body": pass_body, "pass_store": pass_store}
+def fused_body(unit: Unit, body: LoweredProgram, prefix: str) -> list[str]:
+    """run's step: the body over run's local arrays (the state, the step's outputs: held
+    in registers once the body is inlined), reading the per-step inputs at row k."""
+    return checked_call(body, body_name(prefix), _row_names(unit, body), "step_status")
 
 
 def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
@@ -127,13 +177,103 @@ def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
                          state_ports=tuple(port for port, _ in unit.carried))
 
 
-def two_step_body(unit: Unit, step: LoweredProgram, two: LoweredProgram) -> list[str]:
-    """The pass's statements: the step's own writing x(k+1) to ``x_mid``, then the
-    two-step map writing x(k+2) to ``x_new``, its temporaries numbered after the step's;
-    rows k and k + 1 are read as ``zk`` and ``znk``."""
-    rows = {name: _row(name) for name in _rows(unit)}
-    mid = c_printer.statements(step.renamed({**rows, "x_new": "x_mid"}))
-    first = step.temporaries()
-    return mid + c_printer.statements(two.renamed(
-        {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
-        lambda name: f"t{int(name[1:]) + first}"))
+def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,
+                  prefix: str) -> list[str]:
+    """run's pass: the step body writing x(k+1) to ``x_mid``, then the two-step map's body
+    writing x(k+2) to ``x_new``; rows k and k + 1 are read as ``zk`` and ``znk``."""
+    rows = _row_names(unit, body)
+    return (checked_call(body, body_name(prefix), {**rows, "x_new": "x_mid"}, "step_status")
+            + checked_call(two, body_name(prefix, "pass"),
+                           {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
+                           "pass_status"))
+
+
+def _block(name: str) -> str:
+    """A block's array of a port: ``x_b`` (element i of lane j at [i * LANES + j])."""
+    return f"{name}_b"
+
+
+def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
+                 optional_stores: list[dict], prefix: str, run_call: str,
+                 two: LoweredProgram | None = None) -> dict:
+    """The pieces of run_tracks: blocks of :data:`LANES` tracks, structure-of-arrays.
+
+    The caller's arrays stay track after track (track t's z, x0, P0, xs, Ps laid out
+    exactly as for run); each block copies its tracks' state and each step's inputs into
+    block arrays (element i of lane j at ``[i * LANES + j]``), runs the step body over
+    the lanes in one loop (``LANES`` as the stride), and copies the results back to the
+    tracks' rows. ``state``: the carried state (derive.emit.render.carried_state);
+    ``optional_stores``: run's outputs that may be NULL; ``run_call``: the call of run on
+    track t's arrays, for the last tracks (fewer than a block); ``two``: the two-step map
+    (the lanes take two steps per pass, as run does).
+    """
+    lanes = LANES
+    names = {port: _block(port) for port, _ in unit.carried}
+    names.update({out: _block(out) for _, out in unit.carried})
+    names.update({name: _block(name) for name in unit.step_inputs})
+    if unit.parameters:
+        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
+                                 else PARAMETER_PORT)
+    arrays = [f"{_block(s['name'])}[{s['size']} * {lanes}]" for s in state]
+    arrays += [f"{_block(s['out'])}[{s['size']} * {lanes}]" for s in state]
+    arrays += [f"{_block(name)}[{unit.step_input_size(name)} * {lanes}]"
+               for name in unit.step_inputs]
+    load = [{"array": _block(s["name"]), "source": s["start"], "size": s["size"]}
+            for s in state]
+
+    def gather(row: str, names_of: dict[str, str]) -> list[dict]:
+        """Row ``row`` of each per-step input of the block's tracks into its block array."""
+        return [{"array": _block(names_of.get(name, name)), "source": name,
+                 "size": unit.step_input_size(name), "row": row}
+                for name in unit.step_inputs]
+
+    def stores(row: str, values: dict[str, str]) -> list[dict]:
+        """The rows ``row`` of run's stored outputs from the block arrays ``values``."""
+        out = [{"array": s["store"], "source": values[s["out"]], "size": s["size"],
+                "row": row, "optional": False} for s in state if s["store"]]
+        out += [{"array": s["array"], "source": values[s["out"]], "size": s["size"],
+                 "row": row, "optional": True} for s in optional_stores if s["out"] in values]
+        return out
+
+    status = bool(body.checks) or (two is not None and bool(two.checks))
+    step_call = _call(body, body_name(prefix), {port: f"{block} + j" if port != PARAMETER_PORT
+                                                else block for port, block in names.items()},
+                      lanes)
+    news = {s["out"]: _block(s["out"]) for s in state}
+    parts = {
+        "lanes": lanes, "simd": SIMD, "arrays": arrays, "load": load,
+        "status": status,
+        "p_row": (f"const double *restrict {_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
+                  "p_stride;" if unit.parameters and PARAMETER_PORT in body.used_inputs()
+                  else ""),
+        "gather": gather("k", {}),
+        "lane": [(f"status_b[j] = {step_call};" if body.checks else f"{step_call};")],
+        "store": stores("k", news),
+        "shift": [{"array": _block(s["name"]), "source": _block(s["out"]),
+                   "size": s["size"]} for s in state],
+        "run_call": run_call,
+        "pass": None,
+    }
+    if two is not None:
+        mid = _block("x_mid")
+        parts["arrays"] += [f"{mid}[{unit.n} * {lanes}]",
+                            f"{_block(LOOKAHEAD_NEXT)}[{unit.m} * {lanes}]"]
+        first = _call(body, body_name(prefix), {**{p: f"{b} + j" for p, b in names.items()},
+                                                "x_new": f"{mid} + j"}, lanes)
+        second = _call(two, body_name(prefix, "pass"),
+                       {"x": f"{_block('x')} + j", "z": f"{_block('z')} + j",
+                        LOOKAHEAD_NEXT: f"{_block(LOOKAHEAD_NEXT)} + j",
+                        "x_new": f"{_block('x_new')} + j"}, lanes)
+        lane = [f"const int step_status = {first};" if body.checks else f"{first};",
+                f"const int pass_status = {second};" if two.checks else f"{second};"]
+        held = [name for name, checks in (("step_status", body.checks),
+                                          ("pass_status", two.checks)) if checks]
+        if held:  # the step's failed check first, as in run
+            lane.append("status_b[j] = " + (" ? step_status : ".join(held)) + ";")
+        parts["pass"] = {
+            "gather": gather("k", {}) + [{"array": _block(LOOKAHEAD_NEXT), "source": "z",
+                                          "size": unit.m, "row": "k + 1"}],
+            "lane": lane,
+            "store": stores("k", {"x_new": mid}) + stores("k + 1", news),
+        }
+    return parts

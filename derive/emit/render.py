@@ -19,9 +19,12 @@ import numpy as np
 
 from derive import interface
 from derive.emit import c_printer, python_printer
+from derive.emit import c_loops
 from derive.emit.c_loops import (
-    LANES,
+    body_function,
+    body_name,
     fused_body,
+    step_function_body,
     tracks_parts,
     two_step,
     two_step_body,
@@ -436,9 +439,12 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
-    # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
+    # run checks P0 once (run_checks); the loop's P stays in the pattern by construction.
+    # The step's statements are printed once, in its body (derive.emit.c_loops): step, run
+    # and run_tracks call it
     loop_step = step_lp.without_pattern_checks()
-    fused = fused_body(unit, loop_step) if not unit.run.window else []
+    step_body = body_name(prefix)
+    fused = fused_body(unit, loop_step, prefix) if not unit.run.window else []
     state = carried_state(unit, step_lp)
     optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
     starts = {s["name"]: (s["start"], s["size"]) for s in state}
@@ -461,19 +467,43 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c))]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"))]
-    lookahead = two_step_body(unit, loop_step, two) if two is not None else []
+    lookahead = two_step_body(unit, loop_step, two, prefix) if two is not None else []
     step_rows = [f"const double *restrict {name}k = {name} + k * {unit.step_input_size(name)};"
                  for name in unit.step_inputs]
     if fused and unit.parameters and PARAMETER_PORT in loop_step.used_inputs():
         step_rows.append(f"const double *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                          f"{P_STRIDE};")
     batch = unit.batch
-    tracks = [tracks_parts(unit, loop_step, lanes, state, optional_stores, two)
-              for lanes in (LANES, 1)] if batch else []
+    run_args = {a.c_name: a for a in args}
+    sizes = {"n": unit.n, "m": unit.m}
+
+    def track_array(name: str) -> str:
+        """Track t's part of a run_tracks argument (optional ones may be NULL)."""
+        arg = run_args[name]
+        size = " * ".join(str(sizes.get(d, d)) for d in arg.dims)
+        part = f"{name} + t * {size}"
+        return f"{name} ? {part} : NULL" if arg.optional else part
+
+    tail = f"{prefix}_run(steps, " + ", ".join(
+        track_array(a.c_name) if a.c_name != PARAMETER_PORT else a.c_name
+        for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
+    run_call = ([f"const int track_status = {tail};", "if (track_status) {",
+                 "    return track_status;", "}"] if status else [f"{tail};"])
+    tracks = tracks_parts(unit, loop_step, state, optional_stores, prefix, run_call,
+                          two) if batch else {}
     tracks_params = ["size_t steps", "size_t tracks"] + [
         ("double *" if a.output else "const double *") + a.c_name for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
+    bodies = [loop_step] + ([two] if two is not None else [])
+    functions = [body_function(loop_step, step_body)]
+    if two is not None:
+        functions.append(body_function(two, body_name(prefix, "pass")))
+    for lp in lps:
+        parts = c_printer.function_parts(lp, prefix)
+        if lp.name == "step":
+            parts["body"] = step_function_body(lp, loop_step, step_body)
+        functions.append(parts)
     used = step_lp.used_inputs()
     rows = {name: f"{name}k" for name in
             unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())}
@@ -489,7 +519,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)
         else [],
-        "functions": [c_printer.function_parts(lp, prefix) for lp in lps],
+        "loop_macros": (c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies)
+                        else []) + (c_loops.MACRO_LINES if batch else []),
+        "functions": functions,
         "run_signature": run_signature,
         "status_decl": ["int status;"] if status else [],
         "run_tail": ["return 0;"] if status else [],
