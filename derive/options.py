@@ -115,6 +115,10 @@ class SharedOptions:
         pattern_words="empty or a letter followed by letters, digits and underscores",
         help="C: put PREFIX in front of every name the files export (functions, macros, "
              "the status enum and the include guard)")
+    run: bool = option(
+        True, flag="--no-run", kind=bool,
+        help="C: leave out MODEL_FILTER_run (run_tracks, when kept, keeps it as a static "
+             "function for its last tracks); --lang c leaves out the Python file")
 
     def __post_init__(self) -> None:
         for key, spec in self.specs().items():

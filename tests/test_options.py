@@ -116,7 +116,7 @@ def test_an_unknown_option_is_refused_with_a_close_match(tmp_path, capsys):
         generate("mpt3d_b", ["kf"], "all", tmp_path, options={"jospeh": True})
     with pytest.raises(OptionError, match=r"unknown option 'jospeh' \(did you mean "
                                           r"'joseph'\?\); options of kf: P0_pattern, "
-                                          r"missing, run_tracks, prefix, joseph$"):
+                                          r"missing, run_tracks, prefix, run, joseph$"):
         derive_unit(catalog.load("mpt3d_b"), "kf", {"jospeh": True})
     line = refused_line(capsys, ["generate", "mpt3d_b", "--filter", "kf", "--jospeh",
                                  "--out", str(tmp_path)])
@@ -219,11 +219,12 @@ def test_declarations_are_consistent_with_the_registry():
         assert takers(key) and set(takers(key)) <= set(FILTERS), key
         for name in takers(key):
             assert key in options_type(name).specs(), (key, name)
-    assert taken_by("kf") == ["P0_pattern", "missing", "run_tracks", "prefix", "joseph"]
-    assert taken_by("fir") == ["prefix", "eps", "order"]
-    assert taken_by("pred") == ["prefix", "horizon"]
-    assert taken_by("ukf") == ["P0_pattern", "prefix", "alpha", "beta", "kappa"]
-    assert taken_by("sskf") == ["run_tracks", "prefix"]
+    assert taken_by("kf") == ["P0_pattern", "missing", "run_tracks", "prefix", "run",
+                                "joseph"]
+    assert taken_by("fir") == ["prefix", "run", "eps", "order"]
+    assert taken_by("pred") == ["prefix", "run", "horizon"]
+    assert taken_by("ukf") == ["P0_pattern", "prefix", "run", "alpha", "beta", "kappa"]
+    assert taken_by("sskf") == ["run_tracks", "prefix", "run"]
     assert takers("prefix") == list(FILTERS)  # every filter's C exports names
 
 

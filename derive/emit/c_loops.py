@@ -28,9 +28,14 @@ from derive.program import PARAMETER_PORT
 STRIDE = "s"
 #: The status a step body's failed check sets (the first failed check's).
 STATUS = "status"
-#: The lane count of run_tracks' blocks: the doubles in the target's widest vector
-#: register (AVX-512: 8, AVX: 4, else 2), unless the build defines it.
+#: The lane count of run_tracks' blocks: :func:`interleave` vector registers' worth of
+#: doubles (AVX-512: 8 a register, AVX: 4, else 2), unless the build defines it.
 LANES = "DERIVE_LANES"
+#: The most registers a block's statement spans: independent chains that hide the latency
+#: of a division (4 was fastest of 1, 2, 4, 8 for mpt3d_b's KF on AVX-512, AVX2 and SSE2).
+INTERLEAVE = 4
+#: The most bytes of a block's arrays at the widest lanes (AVX-512): in L1 and on the stack.
+BLOCK_BYTES = 64 * 1024
 #: Put before the loop over a block's lanes: ``omp simd`` under OpenMP (``-fopenmp``),
 #: ``GCC ivdep`` / Clang's ``loop vectorize(enable)`` else (no lane depends on another;
 #: the compilers vectorise it at -O3, or at -O2 with -ftree-vectorize); a build may
@@ -43,28 +48,41 @@ INLINE = "DERIVE_INLINE"
 #: grow with one copy of the step, not one per caller.
 INLINE_STATEMENTS = 2000
 
-MACRO_LINES = [
-    f"#ifndef {LANES}",
-    "#if defined(__AVX512F__)",
-    f"#define {LANES} 8",
-    "#elif defined(__AVX__)",
-    f"#define {LANES} 4",
-    "#else",
-    f"#define {LANES} 2",
-    "#endif",
-    "#endif",
-    f"#ifndef {SIMD}",
-    "#if defined(_OPENMP)",
-    f'#define {SIMD} _Pragma("omp simd")',
-    "#elif defined(__clang__)",
-    f'#define {SIMD} _Pragma("clang loop vectorize(enable)")',
-    "#elif defined(__GNUC__)",
-    f'#define {SIMD} _Pragma("GCC ivdep")',
-    "#else",
-    f"#define {SIMD}",
-    "#endif",
-    "#endif",
-]
+def interleave(doubles_per_lane: int) -> int:
+    """Registers per statement of a block (:data:`INTERLEAVE`, halved until the block of
+    ``doubles_per_lane`` doubles a lane fits :data:`BLOCK_BYTES` at 8 doubles a register)."""
+    registers = INTERLEAVE
+    while registers > 1 and doubles_per_lane * 8 * registers * 8 > BLOCK_BYTES:
+        registers //= 2
+    return registers
+
+
+def macro_lines(registers: int) -> list[str]:
+    """The .c file's definitions of :data:`LANES` and :data:`SIMD` (each unless defined)."""
+    return [
+        f"#ifndef {LANES}",
+        "#if defined(__AVX512F__)",
+        f"#define {LANES} {8 * registers}",
+        "#elif defined(__AVX__)",
+        f"#define {LANES} {4 * registers}",
+        "#else",
+        f"#define {LANES} {2 * registers}",
+        "#endif",
+        "#endif",
+        f"#ifndef {SIMD}",
+        "#if defined(_OPENMP)",
+        f'#define {SIMD} _Pragma("omp simd")',
+        "#elif defined(__clang__)",
+        f'#define {SIMD} _Pragma("clang loop vectorize(enable)")',
+        "#elif defined(__GNUC__)",
+        f'#define {SIMD} _Pragma("GCC ivdep")',
+        "#else",
+        f"#define {SIMD}",
+        "#endif",
+        "#endif",
+    ]
+
+
 INLINE_LINES = [
     f"#ifndef {INLINE}",
     "#if defined(__GNUC__)",
@@ -220,6 +238,9 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
                for name in unit.step_inputs]
     load = [{"array": _block(s["name"]), "source": s["start"], "size": s["size"]}
             for s in state]
+    per_lane = 2 * sum(s["size"] for s in state) + sum(
+        unit.step_input_size(name) for name in unit.step_inputs) + (
+        unit.n + unit.m if two is not None else 0)
 
     def gather(row: str, names_of: dict[str, str]) -> list[dict]:
         """Row ``row`` of each per-step input of the block's tracks into its block array."""
@@ -242,6 +263,7 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
     news = {s["out"]: _block(s["out"]) for s in state}
     parts = {
         "lanes": lanes, "simd": SIMD, "arrays": arrays, "load": load,
+        "macros": macro_lines(interleave(per_lane)),
         "status": status,
         "p_row": (f"const double *restrict {_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
                   "p_stride;" if unit.parameters and PARAMETER_PORT in body.used_inputs()

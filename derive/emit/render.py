@@ -18,8 +18,7 @@ import jinja2
 import numpy as np
 
 from derive import interface
-from derive.emit import c_printer, python_printer
-from derive.emit import c_loops
+from derive.emit import c_loops, c_printer, python_printer
 from derive.emit.c_loops import (
     body_function,
     body_name,
@@ -85,9 +84,12 @@ def _dims(arg: Argument, sep: str) -> str:
 
 
 def describe(prefix: str, lowered: dict[str, LoweredProgram],
-             run: list[Argument] | None = None) -> interface.Interface:
+             run: list[Argument] | None = None, *, c_run: bool = True,
+             tracks: bool = False) -> interface.Interface:
     """The interface of one file: a function per program (C: ``PREFIX_NAME``) and, with
-    ``run`` (the run function's arguments), the run function; statuses of every check."""
+    ``run`` (the run function's arguments), the run function (in C only when ``c_run``;
+    with ``tracks``, C's ``PREFIX_run_tracks`` too, taking run's arguments per track);
+    statuses of every check."""
     functions, python = [], []
     for lp in lowered.values():
         ports = {p.name: p for p in lp.inputs + lp.outputs}
@@ -106,7 +108,11 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
                                         rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
                                         scratch=a.scratch)
                      for a in run)
-        functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
+        if c_run:
+            functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
+        if tracks:
+            functions.append(interface.Function(f"{prefix}_run_tracks", "run_tracks", status,
+                                                args, True))
         python.append(interface.Function("run", "run", status,
                                          tuple(a for a in args if not a.scratch), True))
     statuses = []
@@ -141,7 +147,8 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     if unit.run.window:
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
-    described = describe(unit.prefix, lowered, run_arguments(unit))
+    described = describe(unit.prefix, lowered, run_arguments(unit), c_run=unit.run_function,
+                         tracks=unit.batch)
     lines += described.c_lines() if lang == "c" else described.python_lines()
     if lang == "c" and unit.batch:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
@@ -412,7 +419,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             "is carried from pass to pass",
             f"operations per pass of run, two steps ({_language('c', use_fma)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
-    described = describe(unit.prefix, lowered, run_arguments(unit))
+    described = describe(unit.prefix, lowered, run_arguments(unit), c_run=unit.run_function,
+                         tracks=unit.batch)
     header_lines.append(described.block())
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
@@ -439,6 +447,10 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
+    # without --no-run run is exported; else private to run_tracks (its last tracks), or none
+    exported_run = [run_signature + ";"] if unit.run_function else []
+    if not unit.run_function:
+        run_signature = f"static {run_signature}" if unit.batch else ""
     # run checks P0 once (run_checks); the loop's P stays in the pattern by construction.
     # The step's statements are printed once, in its body (derive.emit.c_loops): step, run
     # and run_tracks call it
@@ -514,13 +526,13 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
         "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix, restrict) + ";" for lp in lps]
-        + [run_signature + ";"] + ([tracks_signature + ";"] if tracks_signature else []),
+        + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)
         else [],
         "loop_macros": (c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies)
-                        else []) + (c_loops.MACRO_LINES if batch else []),
+                        else []) + (tracks["macros"] if batch else []),
         "functions": functions,
         "run_signature": run_signature,
         "status_decl": ["int status;"] if status else [],

@@ -87,6 +87,7 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         options=unit_options,
         carried=carried,
         symbol_prefix=options.prefix,
+        run_function=options.run,
     )
 
 
