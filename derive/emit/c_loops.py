@@ -44,9 +44,11 @@ SIMD = "DERIVE_SIMD"
 #: How a step body small enough to inline is declared.
 INLINE = "DERIVE_INLINE"
 #: Bodies of at most this many statements are inlined into their callers (run, the lane
-#: loop); larger ones are compiled once and called: a file's compile time and memory
-#: grow with one copy of the step, not one per caller.
-INLINE_STATEMENTS = 2000
+#: loop; every catalog filter's, the UKF's 386 the largest); larger ones are compiled
+#: once and called: a file's compile time and memory grow with one copy of the step, not
+#: one per caller (a dense 12-state KF, 730 statements: gcc -O2 5.8 s CPU inlined into
+#: step, run and the lanes, 1.7 s called), and run_tracks' lanes call it one by one.
+INLINE_STATEMENTS = 500
 
 def interleave(doubles_per_lane: int) -> int:
     """Registers per statement of a block (:data:`INTERLEAVE`, halved until the block of
@@ -83,6 +85,17 @@ def macro_lines(registers: int) -> list[str]:
     ]
 
 
+#: Every file keeps a*b + c as two roundings whatever -ffp-contract says (GCC's default in
+#: its GNU modes is to fuse them): the code fuses what it means to itself (DERIVE_FMA), so
+#: the operations executed are those the header counts, and a statement the compiler
+#: if-converts in the vectorised lanes (a missing measurement's select) rounds as in run.
+CONTRACT_LINES = [
+    "#if defined(__clang__)",
+    "#pragma STDC FP_CONTRACT OFF",
+    "#elif defined(__GNUC__)",
+    '#pragma GCC optimize ("fp-contract=off")',
+    "#endif",
+]
 INLINE_LINES = [
     f"#ifndef {INLINE}",
     "#if defined(__GNUC__)",

@@ -531,8 +531,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.FMA_MACRO_LINES if any("fma" in lp.kinds() for lp in lps)
         else [],
-        "loop_macros": (c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies)
-                        else []) + (tracks["macros"] if batch else []),
+        "loop_macros": c_loops.CONTRACT_LINES + (
+            c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
+        + (tracks["macros"] if batch else []),
         "functions": functions,
         "run_signature": run_signature,
         "status_decl": ["int status;"] if status else [],
