@@ -25,7 +25,7 @@ from derive.apps.bench.run import (
 
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
                 check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
-                scale_tracks=0, catalog_generation=False)
+                scale_tracks=0, catalog_generation=False, compile_states=(2,))
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 
@@ -38,7 +38,7 @@ def test_one_row_per_case_and_implementation(result):
     assert [(r.case, r.implementation) for r in result.rows] == [
         (c.label, name) for c in CASES for name, _, _ in IMPLEMENTATIONS]
     assert [b.implementation for b in result.batch] == [
-        "generated C, run_tracks",
+        "generated C, run_tracks", "generated C, run_tracks, covariances stored",
         f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
         "generated C, run per track", "generated Python (NumPy arrays)",
         "vectorised NumPy KF", "simdkalman"]

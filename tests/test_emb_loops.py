@@ -15,6 +15,7 @@ import pytest
 from conftest import AXIS_VALUES, axis_model
 
 from derive import catalog, cli
+from derive.apps.bench import compile_size
 from derive.build import build_c
 from derive.emit import c_printer
 from derive.emit.c_loops import LANES, _element, two_step
@@ -220,3 +221,22 @@ def test_build_loads_a_file_without_run(tmp_path):
 def test_the_lane_width_is_a_macro_the_build_may_set():
     c = render_filter(catalog.load("mpt3d_b"), "kf", "c")["kf.c"]
     assert f"#ifndef {LANES}" in c and f"t + {LANES} <= tracks" in c
+
+
+# -- the bench's compile-size rows --------------------------------------------------------------
+
+
+@needs_gcc
+def test_the_bench_measures_generation_and_compilation_in_child_processes(tmp_path):
+    rows = compile_size.compile_rows((2,), tmp_path)
+    (row,) = rows
+    assert row.case == "dense KF n=2 m=1" and not row.note
+    for measured in (row.generate, row.compile):
+        assert measured.seconds > 0 and measured.cpu_seconds > 0 and measured.peak_bytes > 0
+    c_file = tmp_path / "dense2" / "dense2" / "kf.c"
+    assert row.c_bytes == c_file.stat().st_size
+    head, body, bars = compile_size.compile_table(rows)
+    assert len(body) == 1 and len(body[0]) == len(head) and len(bars) == 3
+    model = compile_size.dense_model(5)
+    num = model.numeric()
+    assert np.count_nonzero(num.F) == 25 and np.shape(num.H) == (1, 5)
