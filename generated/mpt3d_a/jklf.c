@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int mpt3d_a_jklf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
  *     int mpt3d_a_jklf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
+ *     int mpt3d_a_jklf_run_tracks(steps, tracks, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -22,7 +23,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 84, sub 15, mul 114, div 12, sqrt 0, fma 60, neg 9, cmp 15, calls 0 (flops 345, instructions 309)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["mpt3d_a_jklf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_jklf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -37,65 +38,63 @@
 #endif
 #endif
 
-int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[3] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[4] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[8] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[9] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[10] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[11] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[16] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[17] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[22] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P[23] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    const double t0 = x[0] + x[1];
-    const double t1 = x[2] + x[3];
-    const double t2 = x[4] + x[5];
-    const double t3 = P[0] + P[1];
-    const double t4 = P[1] + P[7];
-    const double t5 = P[14] + P[15];
-    const double t6 = P[15] + P[21];
-    const double t7 = P[28] + P[29];
-    const double t8 = P[29] + P[35];
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = x[2 * s] + x[3 * s];
+    const double t2 = x[4 * s] + x[5 * s];
+    const double t3 = P[0] + P[1 * s];
+    const double t4 = P[1 * s] + P[7 * s];
+    const double t5 = P[14 * s] + P[15 * s];
+    const double t6 = P[15 * s] + P[21 * s];
+    const double t7 = P[28 * s] + P[29 * s];
+    const double t8 = P[29 * s] + P[35 * s];
     const double t9 = t3 + t4;
     const double t10 = t5 + t6;
     const double t11 = t7 + t8;
     const double t12 = 0.0025 + t9;
     const double t13 = 0.005 + t4;
-    const double t14 = 0.01 + P[7];
+    const double t14 = 0.01 + P[7 * s];
     const double t15 = 0.0025 + t10;
     const double t16 = 0.005 + t6;
-    const double t17 = 0.01 + P[21];
+    const double t17 = 0.01 + P[21 * s];
     const double t18 = 0.0025 + t11;
     const double t19 = 0.005 + t8;
-    const double t20 = 0.01 + P[35];
+    const double t20 = 0.01 + P[35 * s];
     const double t21 = t12 + t13;
     const double t22 = t13 + t14;
     const double t23 = t15 + t16;
@@ -108,14 +107,14 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t30 = 0.1 + t27;
     const double t31 = 0.1 + t28;
     const double t32 = 0.1 + t29;
-    if (!(t30 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t30 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
-    if (!(t31 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    if (!(t31 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
-    if (!(t32 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    if (!(t32 > 0.0) && !status) {
+        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t33 = t21/t30;
     const double t34 = t22/t30;
@@ -123,12 +122,12 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t36 = t24/t31;
     const double t37 = t25/t32;
     const double t38 = t26/t32;
-    const double t39 = x[1] + t0;
-    const double t40 = x[3] + t1;
-    const double t41 = x[5] + t2;
+    const double t39 = x[1 * s] + t0;
+    const double t40 = x[3 * s] + t1;
+    const double t41 = x[5 * s] + t2;
     const double t42 = z[0] - t39;
-    const double t43 = z[1] - t40;
-    const double t44 = z[2] - t41;
+    const double t43 = z[1 * s] - t40;
+    const double t44 = z[2 * s] - t41;
     const double t45 = t33*t42;
     const double t46 = t34*t42;
     const double t47 = t35*t43;
@@ -136,11 +135,11 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t49 = t37*t44;
     const double t50 = t38*t44;
     const double t51 = t0 + t45;
-    const double t52 = x[1] + t46;
+    const double t52 = x[1 * s] + t46;
     const double t53 = t1 + t47;
-    const double t54 = x[3] + t48;
+    const double t54 = x[3 * s] + t48;
     const double t55 = t2 + t49;
-    const double t56 = x[5] + t50;
+    const double t56 = x[5 * s] + t50;
     const double t57 = t21*t33;
     const double t58 = t22*t33;
     const double t59 = t22*t34;
@@ -159,21 +158,21 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t72 = t18 - t63;
     const double t73 = t19 - t64;
     const double t74 = t20 - t65;
-    const double t75 = 16.3265306122449*P[1];
+    const double t75 = 16.3265306122449*P[1 * s];
     const double t76 = DERIVE_FMA(8.16326530612245, P[0], t75);
-    const double t77 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-    const double t78 = DERIVE_FMA(16.3265306122449, P[7], 8.16326530612245*P[1]);
-    const double t79 = DERIVE_FMA(32.6530612244898, P[7], t75);
-    const double t80 = 16.3265306122449*P[15];
-    const double t81 = DERIVE_FMA(8.16326530612245, P[14], t80);
-    const double t82 = DERIVE_FMA(32.6530612244898, P[15], 16.3265306122449*P[14]);
-    const double t83 = DERIVE_FMA(16.3265306122449, P[21], 8.16326530612245*P[15]);
-    const double t84 = DERIVE_FMA(32.6530612244898, P[21], t80);
-    const double t85 = 16.3265306122449*P[29];
-    const double t86 = DERIVE_FMA(8.16326530612245, P[28], t85);
-    const double t87 = DERIVE_FMA(32.6530612244898, P[29], 16.3265306122449*P[28]);
-    const double t88 = DERIVE_FMA(16.3265306122449, P[35], 8.16326530612245*P[29]);
-    const double t89 = DERIVE_FMA(32.6530612244898, P[35], t85);
+    const double t77 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
+    const double t78 = DERIVE_FMA(16.3265306122449, P[7 * s], 8.16326530612245*P[1 * s]);
+    const double t79 = DERIVE_FMA(32.6530612244898, P[7 * s], t75);
+    const double t80 = 16.3265306122449*P[15 * s];
+    const double t81 = DERIVE_FMA(8.16326530612245, P[14 * s], t80);
+    const double t82 = DERIVE_FMA(32.6530612244898, P[15 * s], 16.3265306122449*P[14 * s]);
+    const double t83 = DERIVE_FMA(16.3265306122449, P[21 * s], 8.16326530612245*P[15 * s]);
+    const double t84 = DERIVE_FMA(32.6530612244898, P[21 * s], t80);
+    const double t85 = 16.3265306122449*P[29 * s];
+    const double t86 = DERIVE_FMA(8.16326530612245, P[28 * s], t85);
+    const double t87 = DERIVE_FMA(32.6530612244898, P[29 * s], 16.3265306122449*P[28 * s]);
+    const double t88 = DERIVE_FMA(16.3265306122449, P[35 * s], 8.16326530612245*P[29 * s]);
+    const double t89 = DERIVE_FMA(32.6530612244898, P[35 * s], t85);
     const double t90 = 1.0 + t76;
     const double t91 = 1.0 + t79;
     const double t92 = 1.0 + t81;
@@ -215,28 +214,28 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t128 = DERIVE_FMA(0.12244897959183673, t116, 0.7551020408163265*t107);
     const double t129 = 8.16326530612245*z[0];
     const double t130 = 16.3265306122449*z[0];
-    const double t131 = 8.16326530612245*z[1];
-    const double t132 = 16.3265306122449*z[1];
-    const double t133 = 8.16326530612245*z[2];
-    const double t134 = 16.3265306122449*z[2];
-    const double t135 = DERIVE_FMA(P[1], t130, P[0]*t129);
-    const double t136 = DERIVE_FMA(P[7], t130, P[1]*t129);
-    const double t137 = DERIVE_FMA(P[15], t132, P[14]*t131);
-    const double t138 = DERIVE_FMA(P[21], t132, P[15]*t131);
-    const double t139 = DERIVE_FMA(P[29], t134, P[28]*t133);
-    const double t140 = DERIVE_FMA(P[35], t134, P[29]*t133);
+    const double t131 = 8.16326530612245*z[1 * s];
+    const double t132 = 16.3265306122449*z[1 * s];
+    const double t133 = 8.16326530612245*z[2 * s];
+    const double t134 = 16.3265306122449*z[2 * s];
+    const double t135 = DERIVE_FMA(P[1 * s], t130, P[0]*t129);
+    const double t136 = DERIVE_FMA(P[7 * s], t130, P[1 * s]*t129);
+    const double t137 = DERIVE_FMA(P[15 * s], t132, P[14 * s]*t131);
+    const double t138 = DERIVE_FMA(P[21 * s], t132, P[15 * s]*t131);
+    const double t139 = DERIVE_FMA(P[29 * s], t134, P[28 * s]*t133);
+    const double t140 = DERIVE_FMA(P[35 * s], t134, P[29 * s]*t133);
     const double t141 = x[0] + t135;
-    const double t142 = x[1] + t136;
-    const double t143 = x[2] + t137;
-    const double t144 = x[3] + t138;
-    const double t145 = x[4] + t139;
-    const double t146 = x[5] + t140;
+    const double t142 = x[1 * s] + t136;
+    const double t143 = x[2 * s] + t137;
+    const double t144 = x[3 * s] + t138;
+    const double t145 = x[4 * s] + t139;
+    const double t146 = x[5 * s] + t140;
     const double t147 = 0.061224489795918366*z[0];
     const double t148 = 0.12244897959183673*z[0];
-    const double t149 = 0.061224489795918366*z[1];
-    const double t150 = 0.12244897959183673*z[1];
-    const double t151 = 0.061224489795918366*z[2];
-    const double t152 = 0.12244897959183673*z[2];
+    const double t149 = 0.061224489795918366*z[1 * s];
+    const double t150 = 0.12244897959183673*z[1 * s];
+    const double t151 = 0.061224489795918366*z[2 * s];
+    const double t152 = 0.12244897959183673*z[2 * s];
     const double t153 = DERIVE_FMA(t118, t142, t117*t141);
     const double t154 = DERIVE_FMA(t120, t142, -(t119*t141));
     const double t155 = DERIVE_FMA(t122, t144, t121*t143);
@@ -249,18 +248,18 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t162 = t150 + t156;
     const double t163 = t151 + t157;
     const double t164 = t152 + t158;
-    const double t165 = DERIVE_FMA(P[1], t118, P[0]*t117);
-    const double t166 = DERIVE_FMA(P[7], t118, P[1]*t117);
-    const double t167 = DERIVE_FMA(P[1], t120, -(P[0]*t119));
-    const double t168 = DERIVE_FMA(P[7], t120, -(P[1]*t119));
-    const double t169 = DERIVE_FMA(P[15], t122, P[14]*t121);
-    const double t170 = DERIVE_FMA(P[21], t122, P[15]*t121);
-    const double t171 = DERIVE_FMA(P[15], t124, -(P[14]*t123));
-    const double t172 = DERIVE_FMA(P[21], t124, -(P[15]*t123));
-    const double t173 = DERIVE_FMA(P[29], t126, P[28]*t125);
-    const double t174 = DERIVE_FMA(P[35], t126, P[29]*t125);
-    const double t175 = DERIVE_FMA(P[29], t128, -(P[28]*t127));
-    const double t176 = DERIVE_FMA(P[35], t128, -(P[29]*t127));
+    const double t165 = DERIVE_FMA(P[1 * s], t118, P[0]*t117);
+    const double t166 = DERIVE_FMA(P[7 * s], t118, P[1 * s]*t117);
+    const double t167 = DERIVE_FMA(P[1 * s], t120, -(P[0]*t119));
+    const double t168 = DERIVE_FMA(P[7 * s], t120, -(P[1 * s]*t119));
+    const double t169 = DERIVE_FMA(P[15 * s], t122, P[14 * s]*t121);
+    const double t170 = DERIVE_FMA(P[21 * s], t122, P[15 * s]*t121);
+    const double t171 = DERIVE_FMA(P[15 * s], t124, -(P[14 * s]*t123));
+    const double t172 = DERIVE_FMA(P[21 * s], t124, -(P[15 * s]*t123));
+    const double t173 = DERIVE_FMA(P[29 * s], t126, P[28 * s]*t125);
+    const double t174 = DERIVE_FMA(P[35 * s], t126, P[29 * s]*t125);
+    const double t175 = DERIVE_FMA(P[29 * s], t128, -(P[28 * s]*t127));
+    const double t176 = DERIVE_FMA(P[35 * s], t128, -(P[29 * s]*t127));
     const double t177 = DERIVE_FMA(0.8775510204081632, t166, 0.9387755102040817*t165);
     const double t178 = DERIVE_FMA(0.7551020408163265, t166, (-0.12244897959183673)*t165);
     const double t179 = DERIVE_FMA(0.7551020408163265, t168, (-0.12244897959183673)*t167);
@@ -310,48 +309,89 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     const double t223 = 0.5*t214;
     const double t224 = 0.5*t215;
     x_new[0] = t201;
-    x_new[1] = t202;
-    x_new[2] = t203;
-    x_new[3] = t204;
-    x_new[4] = t205;
-    x_new[5] = t206;
+    x_new[1 * s] = t202;
+    x_new[2 * s] = t203;
+    x_new[3 * s] = t204;
+    x_new[4 * s] = t205;
+    x_new[5 * s] = t206;
     P_new[0] = t216;
-    P_new[1] = t217;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = 0.0;
-    P_new[5] = 0.0;
-    P_new[6] = t217;
-    P_new[7] = t218;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = 0.0;
-    P_new[11] = 0.0;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t219;
-    P_new[15] = t220;
-    P_new[16] = 0.0;
-    P_new[17] = 0.0;
-    P_new[18] = 0.0;
-    P_new[19] = 0.0;
-    P_new[20] = t220;
-    P_new[21] = t221;
-    P_new[22] = 0.0;
-    P_new[23] = 0.0;
-    P_new[24] = 0.0;
-    P_new[25] = 0.0;
-    P_new[26] = 0.0;
-    P_new[27] = 0.0;
-    P_new[28] = t222;
-    P_new[29] = t223;
-    P_new[30] = 0.0;
-    P_new[31] = 0.0;
-    P_new[32] = 0.0;
-    P_new[33] = 0.0;
-    P_new[34] = t223;
-    P_new[35] = t224;
-    return 0;
+    P_new[1 * s] = t217;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = 0.0;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = t217;
+    P_new[7 * s] = t218;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = 0.0;
+    P_new[11 * s] = 0.0;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t219;
+    P_new[15 * s] = t220;
+    P_new[16 * s] = 0.0;
+    P_new[17 * s] = 0.0;
+    P_new[18 * s] = 0.0;
+    P_new[19 * s] = 0.0;
+    P_new[20 * s] = t220;
+    P_new[21 * s] = t221;
+    P_new[22 * s] = 0.0;
+    P_new[23 * s] = 0.0;
+    P_new[24 * s] = 0.0;
+    P_new[25 * s] = 0.0;
+    P_new[26 * s] = 0.0;
+    P_new[27 * s] = 0.0;
+    P_new[28 * s] = t222;
+    P_new[29 * s] = t223;
+    P_new[30 * s] = 0.0;
+    P_new[31 * s] = 0.0;
+    P_new[32 * s] = 0.0;
+    P_new[33 * s] = 0.0;
+    P_new[34 * s] = t223;
+    P_new[35 * s] = t224;
+    return status;
+}
+
+int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    if (!(P[2] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[3] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[4] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[5] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[8] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[9] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[10] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[11] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[16] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[17] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[22] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P[23] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    return mpt3d_a_jklf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL. */
@@ -441,285 +481,13 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
     P[33] = P0[33];
     P[34] = P0[34];
     P[35] = P0[35];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = x[0] + x[1];
-        const double t1 = x[2] + x[3];
-        const double t2 = x[4] + x[5];
-        const double t3 = P[0] + P[1];
-        const double t4 = P[1] + P[7];
-        const double t5 = P[14] + P[15];
-        const double t6 = P[15] + P[21];
-        const double t7 = P[28] + P[29];
-        const double t8 = P[29] + P[35];
-        const double t9 = t3 + t4;
-        const double t10 = t5 + t6;
-        const double t11 = t7 + t8;
-        const double t12 = 0.0025 + t9;
-        const double t13 = 0.005 + t4;
-        const double t14 = 0.01 + P[7];
-        const double t15 = 0.0025 + t10;
-        const double t16 = 0.005 + t6;
-        const double t17 = 0.01 + P[21];
-        const double t18 = 0.0025 + t11;
-        const double t19 = 0.005 + t8;
-        const double t20 = 0.01 + P[35];
-        const double t21 = t12 + t13;
-        const double t22 = t13 + t14;
-        const double t23 = t15 + t16;
-        const double t24 = t16 + t17;
-        const double t25 = t18 + t19;
-        const double t26 = t19 + t20;
-        const double t27 = t21 + t22;
-        const double t28 = t23 + t24;
-        const double t29 = t25 + t26;
-        const double t30 = 0.1 + t27;
-        const double t31 = 0.1 + t28;
-        const double t32 = 0.1 + t29;
-        if (!(t30 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = mpt3d_a_jklf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        if (!(t31 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        if (!(t32 > 0.0)) {
-            return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-        }
-        const double t33 = t21/t30;
-        const double t34 = t22/t30;
-        const double t35 = t23/t31;
-        const double t36 = t24/t31;
-        const double t37 = t25/t32;
-        const double t38 = t26/t32;
-        const double t39 = x[1] + t0;
-        const double t40 = x[3] + t1;
-        const double t41 = x[5] + t2;
-        const double t42 = zk[0] - t39;
-        const double t43 = zk[1] - t40;
-        const double t44 = zk[2] - t41;
-        const double t45 = t33*t42;
-        const double t46 = t34*t42;
-        const double t47 = t35*t43;
-        const double t48 = t36*t43;
-        const double t49 = t37*t44;
-        const double t50 = t38*t44;
-        const double t51 = t0 + t45;
-        const double t52 = x[1] + t46;
-        const double t53 = t1 + t47;
-        const double t54 = x[3] + t48;
-        const double t55 = t2 + t49;
-        const double t56 = x[5] + t50;
-        const double t57 = t21*t33;
-        const double t58 = t22*t33;
-        const double t59 = t22*t34;
-        const double t60 = t23*t35;
-        const double t61 = t24*t35;
-        const double t62 = t24*t36;
-        const double t63 = t25*t37;
-        const double t64 = t26*t37;
-        const double t65 = t26*t38;
-        const double t66 = t12 - t57;
-        const double t67 = t13 - t58;
-        const double t68 = t14 - t59;
-        const double t69 = t15 - t60;
-        const double t70 = t16 - t61;
-        const double t71 = t17 - t62;
-        const double t72 = t18 - t63;
-        const double t73 = t19 - t64;
-        const double t74 = t20 - t65;
-        const double t75 = 16.3265306122449*P[1];
-        const double t76 = DERIVE_FMA(8.16326530612245, P[0], t75);
-        const double t77 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-        const double t78 = DERIVE_FMA(16.3265306122449, P[7], 8.16326530612245*P[1]);
-        const double t79 = DERIVE_FMA(32.6530612244898, P[7], t75);
-        const double t80 = 16.3265306122449*P[15];
-        const double t81 = DERIVE_FMA(8.16326530612245, P[14], t80);
-        const double t82 = DERIVE_FMA(32.6530612244898, P[15], 16.3265306122449*P[14]);
-        const double t83 = DERIVE_FMA(16.3265306122449, P[21], 8.16326530612245*P[15]);
-        const double t84 = DERIVE_FMA(32.6530612244898, P[21], t80);
-        const double t85 = 16.3265306122449*P[29];
-        const double t86 = DERIVE_FMA(8.16326530612245, P[28], t85);
-        const double t87 = DERIVE_FMA(32.6530612244898, P[29], 16.3265306122449*P[28]);
-        const double t88 = DERIVE_FMA(16.3265306122449, P[35], 8.16326530612245*P[29]);
-        const double t89 = DERIVE_FMA(32.6530612244898, P[35], t85);
-        const double t90 = 1.0 + t76;
-        const double t91 = 1.0 + t79;
-        const double t92 = 1.0 + t81;
-        const double t93 = 1.0 + t84;
-        const double t94 = 1.0 + t86;
-        const double t95 = 1.0 + t89;
-        const double t96 = 1.0/t90;
-        const double t97 = t78*t96;
-        const double t98 = t91 - t77*t97;
-        const double t99 = 1.0/t98;
-        const double t100 = 1.0/t92;
-        const double t101 = t100*t83;
-        const double t102 = t93 - t101*t82;
-        const double t103 = 1.0/t102;
-        const double t104 = 1.0/t94;
-        const double t105 = t104*t88;
-        const double t106 = t95 - t105*t87;
-        const double t107 = 1.0/t106;
-        const double t108 = t97*t99;
-        const double t109 = t96*DERIVE_FMA(t108, t77, 1.0);
-        const double t110 = t77*t96*t99;
-        const double t111 = t101*t103;
-        const double t112 = t100*DERIVE_FMA(t111, t82, 1.0);
-        const double t113 = t100*t103*t82;
-        const double t114 = t105*t107;
-        const double t115 = t104*DERIVE_FMA(t114, t87, 1.0);
-        const double t116 = t104*t107*t87;
-        const double t117 = DERIVE_FMA(0.9387755102040817, t109, (-0.8775510204081632)*t108);
-        const double t118 = DERIVE_FMA(0.8775510204081632, t99, (-0.9387755102040817)*t110);
-        const double t119 = DERIVE_FMA(0.12244897959183673, t109, 0.7551020408163265*t108);
-        const double t120 = DERIVE_FMA(0.7551020408163265, t99, 0.12244897959183673*t110);
-        const double t121 = DERIVE_FMA(0.9387755102040817, t112, (-0.8775510204081632)*t111);
-        const double t122 = DERIVE_FMA((-0.9387755102040817), t113, 0.8775510204081632*t103);
-        const double t123 = DERIVE_FMA(0.12244897959183673, t112, 0.7551020408163265*t111);
-        const double t124 = DERIVE_FMA(0.12244897959183673, t113, 0.7551020408163265*t103);
-        const double t125 = DERIVE_FMA(0.9387755102040817, t115, (-0.8775510204081632)*t114);
-        const double t126 = DERIVE_FMA((-0.9387755102040817), t116, 0.8775510204081632*t107);
-        const double t127 = DERIVE_FMA(0.12244897959183673, t115, 0.7551020408163265*t114);
-        const double t128 = DERIVE_FMA(0.12244897959183673, t116, 0.7551020408163265*t107);
-        const double t129 = 8.16326530612245*zk[0];
-        const double t130 = 16.3265306122449*zk[0];
-        const double t131 = 8.16326530612245*zk[1];
-        const double t132 = 16.3265306122449*zk[1];
-        const double t133 = 8.16326530612245*zk[2];
-        const double t134 = 16.3265306122449*zk[2];
-        const double t135 = DERIVE_FMA(P[1], t130, P[0]*t129);
-        const double t136 = DERIVE_FMA(P[7], t130, P[1]*t129);
-        const double t137 = DERIVE_FMA(P[15], t132, P[14]*t131);
-        const double t138 = DERIVE_FMA(P[21], t132, P[15]*t131);
-        const double t139 = DERIVE_FMA(P[29], t134, P[28]*t133);
-        const double t140 = DERIVE_FMA(P[35], t134, P[29]*t133);
-        const double t141 = x[0] + t135;
-        const double t142 = x[1] + t136;
-        const double t143 = x[2] + t137;
-        const double t144 = x[3] + t138;
-        const double t145 = x[4] + t139;
-        const double t146 = x[5] + t140;
-        const double t147 = 0.061224489795918366*zk[0];
-        const double t148 = 0.12244897959183673*zk[0];
-        const double t149 = 0.061224489795918366*zk[1];
-        const double t150 = 0.12244897959183673*zk[1];
-        const double t151 = 0.061224489795918366*zk[2];
-        const double t152 = 0.12244897959183673*zk[2];
-        const double t153 = DERIVE_FMA(t118, t142, t117*t141);
-        const double t154 = DERIVE_FMA(t120, t142, -(t119*t141));
-        const double t155 = DERIVE_FMA(t122, t144, t121*t143);
-        const double t156 = DERIVE_FMA(t124, t144, -(t123*t143));
-        const double t157 = DERIVE_FMA(t126, t146, t125*t145);
-        const double t158 = DERIVE_FMA(t128, t146, -(t127*t145));
-        const double t159 = t147 + t153;
-        const double t160 = t148 + t154;
-        const double t161 = t149 + t155;
-        const double t162 = t150 + t156;
-        const double t163 = t151 + t157;
-        const double t164 = t152 + t158;
-        const double t165 = DERIVE_FMA(P[1], t118, P[0]*t117);
-        const double t166 = DERIVE_FMA(P[7], t118, P[1]*t117);
-        const double t167 = DERIVE_FMA(P[1], t120, -(P[0]*t119));
-        const double t168 = DERIVE_FMA(P[7], t120, -(P[1]*t119));
-        const double t169 = DERIVE_FMA(P[15], t122, P[14]*t121);
-        const double t170 = DERIVE_FMA(P[21], t122, P[15]*t121);
-        const double t171 = DERIVE_FMA(P[15], t124, -(P[14]*t123));
-        const double t172 = DERIVE_FMA(P[21], t124, -(P[15]*t123));
-        const double t173 = DERIVE_FMA(P[29], t126, P[28]*t125);
-        const double t174 = DERIVE_FMA(P[35], t126, P[29]*t125);
-        const double t175 = DERIVE_FMA(P[29], t128, -(P[28]*t127));
-        const double t176 = DERIVE_FMA(P[35], t128, -(P[29]*t127));
-        const double t177 = DERIVE_FMA(0.8775510204081632, t166, 0.9387755102040817*t165);
-        const double t178 = DERIVE_FMA(0.7551020408163265, t166, (-0.12244897959183673)*t165);
-        const double t179 = DERIVE_FMA(0.7551020408163265, t168, (-0.12244897959183673)*t167);
-        const double t180 = DERIVE_FMA(0.8775510204081632, t170, 0.9387755102040817*t169);
-        const double t181 = DERIVE_FMA(0.7551020408163265, t170, (-0.12244897959183673)*t169);
-        const double t182 = DERIVE_FMA(0.7551020408163265, t172, (-0.12244897959183673)*t171);
-        const double t183 = DERIVE_FMA(0.8775510204081632, t174, 0.9387755102040817*t173);
-        const double t184 = DERIVE_FMA(0.7551020408163265, t174, (-0.12244897959183673)*t173);
-        const double t185 = DERIVE_FMA(0.7551020408163265, t176, (-0.12244897959183673)*t175);
-        const double t186 = 0.0020408163265306124 + t177;
-        const double t187 = 0.004081632653061225 + t178;
-        const double t188 = 0.00816326530612245 + t179;
-        const double t189 = 0.0020408163265306124 + t180;
-        const double t190 = 0.004081632653061225 + t181;
-        const double t191 = 0.00816326530612245 + t182;
-        const double t192 = 0.0020408163265306124 + t183;
-        const double t193 = 0.004081632653061225 + t184;
-        const double t194 = 0.00816326530612245 + t185;
-        const double t195 = t159 + t51;
-        const double t196 = t160 + t52;
-        const double t197 = t161 + t53;
-        const double t198 = t162 + t54;
-        const double t199 = t163 + t55;
-        const double t200 = t164 + t56;
-        const double t201 = 0.5*t195;
-        const double t202 = 0.5*t196;
-        const double t203 = 0.5*t197;
-        const double t204 = 0.5*t198;
-        const double t205 = 0.5*t199;
-        const double t206 = 0.5*t200;
-        const double t207 = t186 + t66;
-        const double t208 = t187 + t67;
-        const double t209 = t188 + t68;
-        const double t210 = t189 + t69;
-        const double t211 = t190 + t70;
-        const double t212 = t191 + t71;
-        const double t213 = t192 + t72;
-        const double t214 = t193 + t73;
-        const double t215 = t194 + t74;
-        const double t216 = 0.5*t207;
-        const double t217 = 0.5*t208;
-        const double t218 = 0.5*t209;
-        const double t219 = 0.5*t210;
-        const double t220 = 0.5*t211;
-        const double t221 = 0.5*t212;
-        const double t222 = 0.5*t213;
-        const double t223 = 0.5*t214;
-        const double t224 = 0.5*t215;
-        x_new[0] = t201;
-        x_new[1] = t202;
-        x_new[2] = t203;
-        x_new[3] = t204;
-        x_new[4] = t205;
-        x_new[5] = t206;
-        P_new[0] = t216;
-        P_new[1] = t217;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = 0.0;
-        P_new[5] = 0.0;
-        P_new[6] = t217;
-        P_new[7] = t218;
-        P_new[8] = 0.0;
-        P_new[9] = 0.0;
-        P_new[10] = 0.0;
-        P_new[11] = 0.0;
-        P_new[12] = 0.0;
-        P_new[13] = 0.0;
-        P_new[14] = t219;
-        P_new[15] = t220;
-        P_new[16] = 0.0;
-        P_new[17] = 0.0;
-        P_new[18] = 0.0;
-        P_new[19] = 0.0;
-        P_new[20] = t220;
-        P_new[21] = t221;
-        P_new[22] = 0.0;
-        P_new[23] = 0.0;
-        P_new[24] = 0.0;
-        P_new[25] = 0.0;
-        P_new[26] = 0.0;
-        P_new[27] = 0.0;
-        P_new[28] = t222;
-        P_new[29] = t223;
-        P_new[30] = 0.0;
-        P_new[31] = 0.0;
-        P_new[32] = 0.0;
-        P_new[33] = 0.0;
-        P_new[34] = t223;
-        P_new[35] = t224;
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -806,12 +574,15 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers of doubles), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int mpt3d_a_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 36 + 2] == 0.0)) {
@@ -852,2022 +623,59 @@ int mpt3d_a_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const 
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[6], xn_l0[6];
-        double P_l0[36], Pn_l0[36];
-        const double *z_l0;
-        double x_l1[6], xn_l1[6];
-        double P_l1[36], Pn_l1[36];
-        const double *z_l1;
-        double x_l2[6], xn_l2[6];
-        double P_l2[36], Pn_l2[36];
-        const double *z_l2;
-        double x_l3[6], xn_l3[6];
-        double P_l3[36], Pn_l3[36];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        P_l0[0] = P0[(t + 0) * 36 + 0];
-        P_l0[1] = P0[(t + 0) * 36 + 1];
-        P_l0[2] = P0[(t + 0) * 36 + 2];
-        P_l0[3] = P0[(t + 0) * 36 + 3];
-        P_l0[4] = P0[(t + 0) * 36 + 4];
-        P_l0[5] = P0[(t + 0) * 36 + 5];
-        P_l0[6] = P0[(t + 0) * 36 + 6];
-        P_l0[7] = P0[(t + 0) * 36 + 7];
-        P_l0[8] = P0[(t + 0) * 36 + 8];
-        P_l0[9] = P0[(t + 0) * 36 + 9];
-        P_l0[10] = P0[(t + 0) * 36 + 10];
-        P_l0[11] = P0[(t + 0) * 36 + 11];
-        P_l0[12] = P0[(t + 0) * 36 + 12];
-        P_l0[13] = P0[(t + 0) * 36 + 13];
-        P_l0[14] = P0[(t + 0) * 36 + 14];
-        P_l0[15] = P0[(t + 0) * 36 + 15];
-        P_l0[16] = P0[(t + 0) * 36 + 16];
-        P_l0[17] = P0[(t + 0) * 36 + 17];
-        P_l0[18] = P0[(t + 0) * 36 + 18];
-        P_l0[19] = P0[(t + 0) * 36 + 19];
-        P_l0[20] = P0[(t + 0) * 36 + 20];
-        P_l0[21] = P0[(t + 0) * 36 + 21];
-        P_l0[22] = P0[(t + 0) * 36 + 22];
-        P_l0[23] = P0[(t + 0) * 36 + 23];
-        P_l0[24] = P0[(t + 0) * 36 + 24];
-        P_l0[25] = P0[(t + 0) * 36 + 25];
-        P_l0[26] = P0[(t + 0) * 36 + 26];
-        P_l0[27] = P0[(t + 0) * 36 + 27];
-        P_l0[28] = P0[(t + 0) * 36 + 28];
-        P_l0[29] = P0[(t + 0) * 36 + 29];
-        P_l0[30] = P0[(t + 0) * 36 + 30];
-        P_l0[31] = P0[(t + 0) * 36 + 31];
-        P_l0[32] = P0[(t + 0) * 36 + 32];
-        P_l0[33] = P0[(t + 0) * 36 + 33];
-        P_l0[34] = P0[(t + 0) * 36 + 34];
-        P_l0[35] = P0[(t + 0) * 36 + 35];
-        x_l1[0] = x0[(t + 1) * 6 + 0];
-        x_l1[1] = x0[(t + 1) * 6 + 1];
-        x_l1[2] = x0[(t + 1) * 6 + 2];
-        x_l1[3] = x0[(t + 1) * 6 + 3];
-        x_l1[4] = x0[(t + 1) * 6 + 4];
-        x_l1[5] = x0[(t + 1) * 6 + 5];
-        P_l1[0] = P0[(t + 1) * 36 + 0];
-        P_l1[1] = P0[(t + 1) * 36 + 1];
-        P_l1[2] = P0[(t + 1) * 36 + 2];
-        P_l1[3] = P0[(t + 1) * 36 + 3];
-        P_l1[4] = P0[(t + 1) * 36 + 4];
-        P_l1[5] = P0[(t + 1) * 36 + 5];
-        P_l1[6] = P0[(t + 1) * 36 + 6];
-        P_l1[7] = P0[(t + 1) * 36 + 7];
-        P_l1[8] = P0[(t + 1) * 36 + 8];
-        P_l1[9] = P0[(t + 1) * 36 + 9];
-        P_l1[10] = P0[(t + 1) * 36 + 10];
-        P_l1[11] = P0[(t + 1) * 36 + 11];
-        P_l1[12] = P0[(t + 1) * 36 + 12];
-        P_l1[13] = P0[(t + 1) * 36 + 13];
-        P_l1[14] = P0[(t + 1) * 36 + 14];
-        P_l1[15] = P0[(t + 1) * 36 + 15];
-        P_l1[16] = P0[(t + 1) * 36 + 16];
-        P_l1[17] = P0[(t + 1) * 36 + 17];
-        P_l1[18] = P0[(t + 1) * 36 + 18];
-        P_l1[19] = P0[(t + 1) * 36 + 19];
-        P_l1[20] = P0[(t + 1) * 36 + 20];
-        P_l1[21] = P0[(t + 1) * 36 + 21];
-        P_l1[22] = P0[(t + 1) * 36 + 22];
-        P_l1[23] = P0[(t + 1) * 36 + 23];
-        P_l1[24] = P0[(t + 1) * 36 + 24];
-        P_l1[25] = P0[(t + 1) * 36 + 25];
-        P_l1[26] = P0[(t + 1) * 36 + 26];
-        P_l1[27] = P0[(t + 1) * 36 + 27];
-        P_l1[28] = P0[(t + 1) * 36 + 28];
-        P_l1[29] = P0[(t + 1) * 36 + 29];
-        P_l1[30] = P0[(t + 1) * 36 + 30];
-        P_l1[31] = P0[(t + 1) * 36 + 31];
-        P_l1[32] = P0[(t + 1) * 36 + 32];
-        P_l1[33] = P0[(t + 1) * 36 + 33];
-        P_l1[34] = P0[(t + 1) * 36 + 34];
-        P_l1[35] = P0[(t + 1) * 36 + 35];
-        x_l2[0] = x0[(t + 2) * 6 + 0];
-        x_l2[1] = x0[(t + 2) * 6 + 1];
-        x_l2[2] = x0[(t + 2) * 6 + 2];
-        x_l2[3] = x0[(t + 2) * 6 + 3];
-        x_l2[4] = x0[(t + 2) * 6 + 4];
-        x_l2[5] = x0[(t + 2) * 6 + 5];
-        P_l2[0] = P0[(t + 2) * 36 + 0];
-        P_l2[1] = P0[(t + 2) * 36 + 1];
-        P_l2[2] = P0[(t + 2) * 36 + 2];
-        P_l2[3] = P0[(t + 2) * 36 + 3];
-        P_l2[4] = P0[(t + 2) * 36 + 4];
-        P_l2[5] = P0[(t + 2) * 36 + 5];
-        P_l2[6] = P0[(t + 2) * 36 + 6];
-        P_l2[7] = P0[(t + 2) * 36 + 7];
-        P_l2[8] = P0[(t + 2) * 36 + 8];
-        P_l2[9] = P0[(t + 2) * 36 + 9];
-        P_l2[10] = P0[(t + 2) * 36 + 10];
-        P_l2[11] = P0[(t + 2) * 36 + 11];
-        P_l2[12] = P0[(t + 2) * 36 + 12];
-        P_l2[13] = P0[(t + 2) * 36 + 13];
-        P_l2[14] = P0[(t + 2) * 36 + 14];
-        P_l2[15] = P0[(t + 2) * 36 + 15];
-        P_l2[16] = P0[(t + 2) * 36 + 16];
-        P_l2[17] = P0[(t + 2) * 36 + 17];
-        P_l2[18] = P0[(t + 2) * 36 + 18];
-        P_l2[19] = P0[(t + 2) * 36 + 19];
-        P_l2[20] = P0[(t + 2) * 36 + 20];
-        P_l2[21] = P0[(t + 2) * 36 + 21];
-        P_l2[22] = P0[(t + 2) * 36 + 22];
-        P_l2[23] = P0[(t + 2) * 36 + 23];
-        P_l2[24] = P0[(t + 2) * 36 + 24];
-        P_l2[25] = P0[(t + 2) * 36 + 25];
-        P_l2[26] = P0[(t + 2) * 36 + 26];
-        P_l2[27] = P0[(t + 2) * 36 + 27];
-        P_l2[28] = P0[(t + 2) * 36 + 28];
-        P_l2[29] = P0[(t + 2) * 36 + 29];
-        P_l2[30] = P0[(t + 2) * 36 + 30];
-        P_l2[31] = P0[(t + 2) * 36 + 31];
-        P_l2[32] = P0[(t + 2) * 36 + 32];
-        P_l2[33] = P0[(t + 2) * 36 + 33];
-        P_l2[34] = P0[(t + 2) * 36 + 34];
-        P_l2[35] = P0[(t + 2) * 36 + 35];
-        x_l3[0] = x0[(t + 3) * 6 + 0];
-        x_l3[1] = x0[(t + 3) * 6 + 1];
-        x_l3[2] = x0[(t + 3) * 6 + 2];
-        x_l3[3] = x0[(t + 3) * 6 + 3];
-        x_l3[4] = x0[(t + 3) * 6 + 4];
-        x_l3[5] = x0[(t + 3) * 6 + 5];
-        P_l3[0] = P0[(t + 3) * 36 + 0];
-        P_l3[1] = P0[(t + 3) * 36 + 1];
-        P_l3[2] = P0[(t + 3) * 36 + 2];
-        P_l3[3] = P0[(t + 3) * 36 + 3];
-        P_l3[4] = P0[(t + 3) * 36 + 4];
-        P_l3[5] = P0[(t + 3) * 36 + 5];
-        P_l3[6] = P0[(t + 3) * 36 + 6];
-        P_l3[7] = P0[(t + 3) * 36 + 7];
-        P_l3[8] = P0[(t + 3) * 36 + 8];
-        P_l3[9] = P0[(t + 3) * 36 + 9];
-        P_l3[10] = P0[(t + 3) * 36 + 10];
-        P_l3[11] = P0[(t + 3) * 36 + 11];
-        P_l3[12] = P0[(t + 3) * 36 + 12];
-        P_l3[13] = P0[(t + 3) * 36 + 13];
-        P_l3[14] = P0[(t + 3) * 36 + 14];
-        P_l3[15] = P0[(t + 3) * 36 + 15];
-        P_l3[16] = P0[(t + 3) * 36 + 16];
-        P_l3[17] = P0[(t + 3) * 36 + 17];
-        P_l3[18] = P0[(t + 3) * 36 + 18];
-        P_l3[19] = P0[(t + 3) * 36 + 19];
-        P_l3[20] = P0[(t + 3) * 36 + 20];
-        P_l3[21] = P0[(t + 3) * 36 + 21];
-        P_l3[22] = P0[(t + 3) * 36 + 22];
-        P_l3[23] = P0[(t + 3) * 36 + 23];
-        P_l3[24] = P0[(t + 3) * 36 + 24];
-        P_l3[25] = P0[(t + 3) * 36 + 25];
-        P_l3[26] = P0[(t + 3) * 36 + 26];
-        P_l3[27] = P0[(t + 3) * 36 + 27];
-        P_l3[28] = P0[(t + 3) * 36 + 28];
-        P_l3[29] = P0[(t + 3) * 36 + 29];
-        P_l3[30] = P0[(t + 3) * 36 + 30];
-        P_l3[31] = P0[(t + 3) * 36 + 31];
-        P_l3[32] = P0[(t + 3) * 36 + 32];
-        P_l3[33] = P0[(t + 3) * 36 + 33];
-        P_l3[34] = P0[(t + 3) * 36 + 34];
-        P_l3[35] = P0[(t + 3) * 36 + 35];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[6 * DERIVE_LANES];
+        double P_b[36 * DERIVE_LANES];
+        double x_new_b[6 * DERIVE_LANES];
+        double P_new_b[36 * DERIVE_LANES];
+        double z_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 6; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 6 + i];
+            }
+            for (i = 0; i < 36; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 36 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = x_l0[4] + x_l0[5];
-            const double t3_l0 = P_l0[0] + P_l0[1];
-            const double t4_l0 = P_l0[1] + P_l0[7];
-            const double t5_l0 = P_l0[14] + P_l0[15];
-            const double t6_l0 = P_l0[15] + P_l0[21];
-            const double t7_l0 = P_l0[28] + P_l0[29];
-            const double t8_l0 = P_l0[29] + P_l0[35];
-            const double t9_l0 = t3_l0 + t4_l0;
-            const double t10_l0 = t5_l0 + t6_l0;
-            const double t11_l0 = t7_l0 + t8_l0;
-            const double t12_l0 = 0.0025 + t9_l0;
-            const double t13_l0 = 0.005 + t4_l0;
-            const double t14_l0 = 0.01 + P_l0[7];
-            const double t15_l0 = 0.0025 + t10_l0;
-            const double t16_l0 = 0.005 + t6_l0;
-            const double t17_l0 = 0.01 + P_l0[21];
-            const double t18_l0 = 0.0025 + t11_l0;
-            const double t19_l0 = 0.005 + t8_l0;
-            const double t20_l0 = 0.01 + P_l0[35];
-            const double t21_l0 = t12_l0 + t13_l0;
-            const double t22_l0 = t13_l0 + t14_l0;
-            const double t23_l0 = t15_l0 + t16_l0;
-            const double t24_l0 = t16_l0 + t17_l0;
-            const double t25_l0 = t18_l0 + t19_l0;
-            const double t26_l0 = t19_l0 + t20_l0;
-            const double t27_l0 = t21_l0 + t22_l0;
-            const double t28_l0 = t23_l0 + t24_l0;
-            const double t29_l0 = t25_l0 + t26_l0;
-            const double t30_l0 = 0.1 + t27_l0;
-            const double t31_l0 = 0.1 + t28_l0;
-            const double t32_l0 = 0.1 + t29_l0;
-            if (!(t30_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
             }
-            if (!(t31_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = mpt3d_a_jklf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            if (!(t32_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            const double t33_l0 = t21_l0/t30_l0;
-            const double t34_l0 = t22_l0/t30_l0;
-            const double t35_l0 = t23_l0/t31_l0;
-            const double t36_l0 = t24_l0/t31_l0;
-            const double t37_l0 = t25_l0/t32_l0;
-            const double t38_l0 = t26_l0/t32_l0;
-            const double t39_l0 = x_l0[1] + t0_l0;
-            const double t40_l0 = x_l0[3] + t1_l0;
-            const double t41_l0 = x_l0[5] + t2_l0;
-            const double t42_l0 = z_l0[0] - t39_l0;
-            const double t43_l0 = z_l0[1] - t40_l0;
-            const double t44_l0 = z_l0[2] - t41_l0;
-            const double t45_l0 = t33_l0*t42_l0;
-            const double t46_l0 = t34_l0*t42_l0;
-            const double t47_l0 = t35_l0*t43_l0;
-            const double t48_l0 = t36_l0*t43_l0;
-            const double t49_l0 = t37_l0*t44_l0;
-            const double t50_l0 = t38_l0*t44_l0;
-            const double t51_l0 = t0_l0 + t45_l0;
-            const double t52_l0 = x_l0[1] + t46_l0;
-            const double t53_l0 = t1_l0 + t47_l0;
-            const double t54_l0 = x_l0[3] + t48_l0;
-            const double t55_l0 = t2_l0 + t49_l0;
-            const double t56_l0 = x_l0[5] + t50_l0;
-            const double t57_l0 = t21_l0*t33_l0;
-            const double t58_l0 = t22_l0*t33_l0;
-            const double t59_l0 = t22_l0*t34_l0;
-            const double t60_l0 = t23_l0*t35_l0;
-            const double t61_l0 = t24_l0*t35_l0;
-            const double t62_l0 = t24_l0*t36_l0;
-            const double t63_l0 = t25_l0*t37_l0;
-            const double t64_l0 = t26_l0*t37_l0;
-            const double t65_l0 = t26_l0*t38_l0;
-            const double t66_l0 = t12_l0 - t57_l0;
-            const double t67_l0 = t13_l0 - t58_l0;
-            const double t68_l0 = t14_l0 - t59_l0;
-            const double t69_l0 = t15_l0 - t60_l0;
-            const double t70_l0 = t16_l0 - t61_l0;
-            const double t71_l0 = t17_l0 - t62_l0;
-            const double t72_l0 = t18_l0 - t63_l0;
-            const double t73_l0 = t19_l0 - t64_l0;
-            const double t74_l0 = t20_l0 - t65_l0;
-            const double t75_l0 = 16.3265306122449*P_l0[1];
-            const double t76_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t75_l0);
-            const double t77_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t78_l0 = DERIVE_FMA(16.3265306122449, P_l0[7], 8.16326530612245*P_l0[1]);
-            const double t79_l0 = DERIVE_FMA(32.6530612244898, P_l0[7], t75_l0);
-            const double t80_l0 = 16.3265306122449*P_l0[15];
-            const double t81_l0 = DERIVE_FMA(8.16326530612245, P_l0[14], t80_l0);
-            const double t82_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], 16.3265306122449*P_l0[14]);
-            const double t83_l0 = DERIVE_FMA(16.3265306122449, P_l0[21], 8.16326530612245*P_l0[15]);
-            const double t84_l0 = DERIVE_FMA(32.6530612244898, P_l0[21], t80_l0);
-            const double t85_l0 = 16.3265306122449*P_l0[29];
-            const double t86_l0 = DERIVE_FMA(8.16326530612245, P_l0[28], t85_l0);
-            const double t87_l0 = DERIVE_FMA(32.6530612244898, P_l0[29], 16.3265306122449*P_l0[28]);
-            const double t88_l0 = DERIVE_FMA(16.3265306122449, P_l0[35], 8.16326530612245*P_l0[29]);
-            const double t89_l0 = DERIVE_FMA(32.6530612244898, P_l0[35], t85_l0);
-            const double t90_l0 = 1.0 + t76_l0;
-            const double t91_l0 = 1.0 + t79_l0;
-            const double t92_l0 = 1.0 + t81_l0;
-            const double t93_l0 = 1.0 + t84_l0;
-            const double t94_l0 = 1.0 + t86_l0;
-            const double t95_l0 = 1.0 + t89_l0;
-            const double t96_l0 = 1.0/t90_l0;
-            const double t97_l0 = t78_l0*t96_l0;
-            const double t98_l0 = t91_l0 - t77_l0*t97_l0;
-            const double t99_l0 = 1.0/t98_l0;
-            const double t100_l0 = 1.0/t92_l0;
-            const double t101_l0 = t100_l0*t83_l0;
-            const double t102_l0 = t93_l0 - t101_l0*t82_l0;
-            const double t103_l0 = 1.0/t102_l0;
-            const double t104_l0 = 1.0/t94_l0;
-            const double t105_l0 = t104_l0*t88_l0;
-            const double t106_l0 = t95_l0 - t105_l0*t87_l0;
-            const double t107_l0 = 1.0/t106_l0;
-            const double t108_l0 = t97_l0*t99_l0;
-            const double t109_l0 = t96_l0*DERIVE_FMA(t108_l0, t77_l0, 1.0);
-            const double t110_l0 = t77_l0*t96_l0*t99_l0;
-            const double t111_l0 = t101_l0*t103_l0;
-            const double t112_l0 = t100_l0*DERIVE_FMA(t111_l0, t82_l0, 1.0);
-            const double t113_l0 = t100_l0*t103_l0*t82_l0;
-            const double t114_l0 = t105_l0*t107_l0;
-            const double t115_l0 = t104_l0*DERIVE_FMA(t114_l0, t87_l0, 1.0);
-            const double t116_l0 = t104_l0*t107_l0*t87_l0;
-            const double t117_l0 = DERIVE_FMA(0.9387755102040817, t109_l0, (-0.8775510204081632)*t108_l0);
-            const double t118_l0 = DERIVE_FMA(0.8775510204081632, t99_l0, (-0.9387755102040817)*t110_l0);
-            const double t119_l0 = DERIVE_FMA(0.12244897959183673, t109_l0, 0.7551020408163265*t108_l0);
-            const double t120_l0 = DERIVE_FMA(0.7551020408163265, t99_l0, 0.12244897959183673*t110_l0);
-            const double t121_l0 = DERIVE_FMA(0.9387755102040817, t112_l0, (-0.8775510204081632)*t111_l0);
-            const double t122_l0 = DERIVE_FMA((-0.9387755102040817), t113_l0, 0.8775510204081632*t103_l0);
-            const double t123_l0 = DERIVE_FMA(0.12244897959183673, t112_l0, 0.7551020408163265*t111_l0);
-            const double t124_l0 = DERIVE_FMA(0.12244897959183673, t113_l0, 0.7551020408163265*t103_l0);
-            const double t125_l0 = DERIVE_FMA(0.9387755102040817, t115_l0, (-0.8775510204081632)*t114_l0);
-            const double t126_l0 = DERIVE_FMA((-0.9387755102040817), t116_l0, 0.8775510204081632*t107_l0);
-            const double t127_l0 = DERIVE_FMA(0.12244897959183673, t115_l0, 0.7551020408163265*t114_l0);
-            const double t128_l0 = DERIVE_FMA(0.12244897959183673, t116_l0, 0.7551020408163265*t107_l0);
-            const double t129_l0 = 8.16326530612245*z_l0[0];
-            const double t130_l0 = 16.3265306122449*z_l0[0];
-            const double t131_l0 = 8.16326530612245*z_l0[1];
-            const double t132_l0 = 16.3265306122449*z_l0[1];
-            const double t133_l0 = 8.16326530612245*z_l0[2];
-            const double t134_l0 = 16.3265306122449*z_l0[2];
-            const double t135_l0 = DERIVE_FMA(P_l0[1], t130_l0, P_l0[0]*t129_l0);
-            const double t136_l0 = DERIVE_FMA(P_l0[7], t130_l0, P_l0[1]*t129_l0);
-            const double t137_l0 = DERIVE_FMA(P_l0[15], t132_l0, P_l0[14]*t131_l0);
-            const double t138_l0 = DERIVE_FMA(P_l0[21], t132_l0, P_l0[15]*t131_l0);
-            const double t139_l0 = DERIVE_FMA(P_l0[29], t134_l0, P_l0[28]*t133_l0);
-            const double t140_l0 = DERIVE_FMA(P_l0[35], t134_l0, P_l0[29]*t133_l0);
-            const double t141_l0 = x_l0[0] + t135_l0;
-            const double t142_l0 = x_l0[1] + t136_l0;
-            const double t143_l0 = x_l0[2] + t137_l0;
-            const double t144_l0 = x_l0[3] + t138_l0;
-            const double t145_l0 = x_l0[4] + t139_l0;
-            const double t146_l0 = x_l0[5] + t140_l0;
-            const double t147_l0 = 0.061224489795918366*z_l0[0];
-            const double t148_l0 = 0.12244897959183673*z_l0[0];
-            const double t149_l0 = 0.061224489795918366*z_l0[1];
-            const double t150_l0 = 0.12244897959183673*z_l0[1];
-            const double t151_l0 = 0.061224489795918366*z_l0[2];
-            const double t152_l0 = 0.12244897959183673*z_l0[2];
-            const double t153_l0 = DERIVE_FMA(t118_l0, t142_l0, t117_l0*t141_l0);
-            const double t154_l0 = DERIVE_FMA(t120_l0, t142_l0, -(t119_l0*t141_l0));
-            const double t155_l0 = DERIVE_FMA(t122_l0, t144_l0, t121_l0*t143_l0);
-            const double t156_l0 = DERIVE_FMA(t124_l0, t144_l0, -(t123_l0*t143_l0));
-            const double t157_l0 = DERIVE_FMA(t126_l0, t146_l0, t125_l0*t145_l0);
-            const double t158_l0 = DERIVE_FMA(t128_l0, t146_l0, -(t127_l0*t145_l0));
-            const double t159_l0 = t147_l0 + t153_l0;
-            const double t160_l0 = t148_l0 + t154_l0;
-            const double t161_l0 = t149_l0 + t155_l0;
-            const double t162_l0 = t150_l0 + t156_l0;
-            const double t163_l0 = t151_l0 + t157_l0;
-            const double t164_l0 = t152_l0 + t158_l0;
-            const double t165_l0 = DERIVE_FMA(P_l0[1], t118_l0, P_l0[0]*t117_l0);
-            const double t166_l0 = DERIVE_FMA(P_l0[7], t118_l0, P_l0[1]*t117_l0);
-            const double t167_l0 = DERIVE_FMA(P_l0[1], t120_l0, -(P_l0[0]*t119_l0));
-            const double t168_l0 = DERIVE_FMA(P_l0[7], t120_l0, -(P_l0[1]*t119_l0));
-            const double t169_l0 = DERIVE_FMA(P_l0[15], t122_l0, P_l0[14]*t121_l0);
-            const double t170_l0 = DERIVE_FMA(P_l0[21], t122_l0, P_l0[15]*t121_l0);
-            const double t171_l0 = DERIVE_FMA(P_l0[15], t124_l0, -(P_l0[14]*t123_l0));
-            const double t172_l0 = DERIVE_FMA(P_l0[21], t124_l0, -(P_l0[15]*t123_l0));
-            const double t173_l0 = DERIVE_FMA(P_l0[29], t126_l0, P_l0[28]*t125_l0);
-            const double t174_l0 = DERIVE_FMA(P_l0[35], t126_l0, P_l0[29]*t125_l0);
-            const double t175_l0 = DERIVE_FMA(P_l0[29], t128_l0, -(P_l0[28]*t127_l0));
-            const double t176_l0 = DERIVE_FMA(P_l0[35], t128_l0, -(P_l0[29]*t127_l0));
-            const double t177_l0 = DERIVE_FMA(0.8775510204081632, t166_l0, 0.9387755102040817*t165_l0);
-            const double t178_l0 = DERIVE_FMA(0.7551020408163265, t166_l0, (-0.12244897959183673)*t165_l0);
-            const double t179_l0 = DERIVE_FMA(0.7551020408163265, t168_l0, (-0.12244897959183673)*t167_l0);
-            const double t180_l0 = DERIVE_FMA(0.8775510204081632, t170_l0, 0.9387755102040817*t169_l0);
-            const double t181_l0 = DERIVE_FMA(0.7551020408163265, t170_l0, (-0.12244897959183673)*t169_l0);
-            const double t182_l0 = DERIVE_FMA(0.7551020408163265, t172_l0, (-0.12244897959183673)*t171_l0);
-            const double t183_l0 = DERIVE_FMA(0.8775510204081632, t174_l0, 0.9387755102040817*t173_l0);
-            const double t184_l0 = DERIVE_FMA(0.7551020408163265, t174_l0, (-0.12244897959183673)*t173_l0);
-            const double t185_l0 = DERIVE_FMA(0.7551020408163265, t176_l0, (-0.12244897959183673)*t175_l0);
-            const double t186_l0 = 0.0020408163265306124 + t177_l0;
-            const double t187_l0 = 0.004081632653061225 + t178_l0;
-            const double t188_l0 = 0.00816326530612245 + t179_l0;
-            const double t189_l0 = 0.0020408163265306124 + t180_l0;
-            const double t190_l0 = 0.004081632653061225 + t181_l0;
-            const double t191_l0 = 0.00816326530612245 + t182_l0;
-            const double t192_l0 = 0.0020408163265306124 + t183_l0;
-            const double t193_l0 = 0.004081632653061225 + t184_l0;
-            const double t194_l0 = 0.00816326530612245 + t185_l0;
-            const double t195_l0 = t159_l0 + t51_l0;
-            const double t196_l0 = t160_l0 + t52_l0;
-            const double t197_l0 = t161_l0 + t53_l0;
-            const double t198_l0 = t162_l0 + t54_l0;
-            const double t199_l0 = t163_l0 + t55_l0;
-            const double t200_l0 = t164_l0 + t56_l0;
-            const double t201_l0 = 0.5*t195_l0;
-            const double t202_l0 = 0.5*t196_l0;
-            const double t203_l0 = 0.5*t197_l0;
-            const double t204_l0 = 0.5*t198_l0;
-            const double t205_l0 = 0.5*t199_l0;
-            const double t206_l0 = 0.5*t200_l0;
-            const double t207_l0 = t186_l0 + t66_l0;
-            const double t208_l0 = t187_l0 + t67_l0;
-            const double t209_l0 = t188_l0 + t68_l0;
-            const double t210_l0 = t189_l0 + t69_l0;
-            const double t211_l0 = t190_l0 + t70_l0;
-            const double t212_l0 = t191_l0 + t71_l0;
-            const double t213_l0 = t192_l0 + t72_l0;
-            const double t214_l0 = t193_l0 + t73_l0;
-            const double t215_l0 = t194_l0 + t74_l0;
-            const double t216_l0 = 0.5*t207_l0;
-            const double t217_l0 = 0.5*t208_l0;
-            const double t218_l0 = 0.5*t209_l0;
-            const double t219_l0 = 0.5*t210_l0;
-            const double t220_l0 = 0.5*t211_l0;
-            const double t221_l0 = 0.5*t212_l0;
-            const double t222_l0 = 0.5*t213_l0;
-            const double t223_l0 = 0.5*t214_l0;
-            const double t224_l0 = 0.5*t215_l0;
-            xn_l0[0] = t201_l0;
-            xn_l0[1] = t202_l0;
-            xn_l0[2] = t203_l0;
-            xn_l0[3] = t204_l0;
-            xn_l0[4] = t205_l0;
-            xn_l0[5] = t206_l0;
-            Pn_l0[0] = t216_l0;
-            Pn_l0[1] = t217_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = 0.0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = t217_l0;
-            Pn_l0[7] = t218_l0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = 0.0;
-            Pn_l0[11] = 0.0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t219_l0;
-            Pn_l0[15] = t220_l0;
-            Pn_l0[16] = 0.0;
-            Pn_l0[17] = 0.0;
-            Pn_l0[18] = 0.0;
-            Pn_l0[19] = 0.0;
-            Pn_l0[20] = t220_l0;
-            Pn_l0[21] = t221_l0;
-            Pn_l0[22] = 0.0;
-            Pn_l0[23] = 0.0;
-            Pn_l0[24] = 0.0;
-            Pn_l0[25] = 0.0;
-            Pn_l0[26] = 0.0;
-            Pn_l0[27] = 0.0;
-            Pn_l0[28] = t222_l0;
-            Pn_l0[29] = t223_l0;
-            Pn_l0[30] = 0.0;
-            Pn_l0[31] = 0.0;
-            Pn_l0[32] = 0.0;
-            Pn_l0[33] = 0.0;
-            Pn_l0[34] = t223_l0;
-            Pn_l0[35] = t224_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            const double t0_l1 = x_l1[0] + x_l1[1];
-            const double t1_l1 = x_l1[2] + x_l1[3];
-            const double t2_l1 = x_l1[4] + x_l1[5];
-            const double t3_l1 = P_l1[0] + P_l1[1];
-            const double t4_l1 = P_l1[1] + P_l1[7];
-            const double t5_l1 = P_l1[14] + P_l1[15];
-            const double t6_l1 = P_l1[15] + P_l1[21];
-            const double t7_l1 = P_l1[28] + P_l1[29];
-            const double t8_l1 = P_l1[29] + P_l1[35];
-            const double t9_l1 = t3_l1 + t4_l1;
-            const double t10_l1 = t5_l1 + t6_l1;
-            const double t11_l1 = t7_l1 + t8_l1;
-            const double t12_l1 = 0.0025 + t9_l1;
-            const double t13_l1 = 0.005 + t4_l1;
-            const double t14_l1 = 0.01 + P_l1[7];
-            const double t15_l1 = 0.0025 + t10_l1;
-            const double t16_l1 = 0.005 + t6_l1;
-            const double t17_l1 = 0.01 + P_l1[21];
-            const double t18_l1 = 0.0025 + t11_l1;
-            const double t19_l1 = 0.005 + t8_l1;
-            const double t20_l1 = 0.01 + P_l1[35];
-            const double t21_l1 = t12_l1 + t13_l1;
-            const double t22_l1 = t13_l1 + t14_l1;
-            const double t23_l1 = t15_l1 + t16_l1;
-            const double t24_l1 = t16_l1 + t17_l1;
-            const double t25_l1 = t18_l1 + t19_l1;
-            const double t26_l1 = t19_l1 + t20_l1;
-            const double t27_l1 = t21_l1 + t22_l1;
-            const double t28_l1 = t23_l1 + t24_l1;
-            const double t29_l1 = t25_l1 + t26_l1;
-            const double t30_l1 = 0.1 + t27_l1;
-            const double t31_l1 = 0.1 + t28_l1;
-            const double t32_l1 = 0.1 + t29_l1;
-            if (!(t30_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 6; ++i) {
+                    xs[((t + j) * steps + k) * 6 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 36; ++i) {
+                        Ps[((t + j) * steps + k) * 36 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            if (!(t31_l1 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (i = 0; i < 6 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            if (!(t32_l1 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l1 = t21_l1/t30_l1;
-            const double t34_l1 = t22_l1/t30_l1;
-            const double t35_l1 = t23_l1/t31_l1;
-            const double t36_l1 = t24_l1/t31_l1;
-            const double t37_l1 = t25_l1/t32_l1;
-            const double t38_l1 = t26_l1/t32_l1;
-            const double t39_l1 = x_l1[1] + t0_l1;
-            const double t40_l1 = x_l1[3] + t1_l1;
-            const double t41_l1 = x_l1[5] + t2_l1;
-            const double t42_l1 = z_l1[0] - t39_l1;
-            const double t43_l1 = z_l1[1] - t40_l1;
-            const double t44_l1 = z_l1[2] - t41_l1;
-            const double t45_l1 = t33_l1*t42_l1;
-            const double t46_l1 = t34_l1*t42_l1;
-            const double t47_l1 = t35_l1*t43_l1;
-            const double t48_l1 = t36_l1*t43_l1;
-            const double t49_l1 = t37_l1*t44_l1;
-            const double t50_l1 = t38_l1*t44_l1;
-            const double t51_l1 = t0_l1 + t45_l1;
-            const double t52_l1 = x_l1[1] + t46_l1;
-            const double t53_l1 = t1_l1 + t47_l1;
-            const double t54_l1 = x_l1[3] + t48_l1;
-            const double t55_l1 = t2_l1 + t49_l1;
-            const double t56_l1 = x_l1[5] + t50_l1;
-            const double t57_l1 = t21_l1*t33_l1;
-            const double t58_l1 = t22_l1*t33_l1;
-            const double t59_l1 = t22_l1*t34_l1;
-            const double t60_l1 = t23_l1*t35_l1;
-            const double t61_l1 = t24_l1*t35_l1;
-            const double t62_l1 = t24_l1*t36_l1;
-            const double t63_l1 = t25_l1*t37_l1;
-            const double t64_l1 = t26_l1*t37_l1;
-            const double t65_l1 = t26_l1*t38_l1;
-            const double t66_l1 = t12_l1 - t57_l1;
-            const double t67_l1 = t13_l1 - t58_l1;
-            const double t68_l1 = t14_l1 - t59_l1;
-            const double t69_l1 = t15_l1 - t60_l1;
-            const double t70_l1 = t16_l1 - t61_l1;
-            const double t71_l1 = t17_l1 - t62_l1;
-            const double t72_l1 = t18_l1 - t63_l1;
-            const double t73_l1 = t19_l1 - t64_l1;
-            const double t74_l1 = t20_l1 - t65_l1;
-            const double t75_l1 = 16.3265306122449*P_l1[1];
-            const double t76_l1 = DERIVE_FMA(8.16326530612245, P_l1[0], t75_l1);
-            const double t77_l1 = DERIVE_FMA(32.6530612244898, P_l1[1], 16.3265306122449*P_l1[0]);
-            const double t78_l1 = DERIVE_FMA(16.3265306122449, P_l1[7], 8.16326530612245*P_l1[1]);
-            const double t79_l1 = DERIVE_FMA(32.6530612244898, P_l1[7], t75_l1);
-            const double t80_l1 = 16.3265306122449*P_l1[15];
-            const double t81_l1 = DERIVE_FMA(8.16326530612245, P_l1[14], t80_l1);
-            const double t82_l1 = DERIVE_FMA(32.6530612244898, P_l1[15], 16.3265306122449*P_l1[14]);
-            const double t83_l1 = DERIVE_FMA(16.3265306122449, P_l1[21], 8.16326530612245*P_l1[15]);
-            const double t84_l1 = DERIVE_FMA(32.6530612244898, P_l1[21], t80_l1);
-            const double t85_l1 = 16.3265306122449*P_l1[29];
-            const double t86_l1 = DERIVE_FMA(8.16326530612245, P_l1[28], t85_l1);
-            const double t87_l1 = DERIVE_FMA(32.6530612244898, P_l1[29], 16.3265306122449*P_l1[28]);
-            const double t88_l1 = DERIVE_FMA(16.3265306122449, P_l1[35], 8.16326530612245*P_l1[29]);
-            const double t89_l1 = DERIVE_FMA(32.6530612244898, P_l1[35], t85_l1);
-            const double t90_l1 = 1.0 + t76_l1;
-            const double t91_l1 = 1.0 + t79_l1;
-            const double t92_l1 = 1.0 + t81_l1;
-            const double t93_l1 = 1.0 + t84_l1;
-            const double t94_l1 = 1.0 + t86_l1;
-            const double t95_l1 = 1.0 + t89_l1;
-            const double t96_l1 = 1.0/t90_l1;
-            const double t97_l1 = t78_l1*t96_l1;
-            const double t98_l1 = t91_l1 - t77_l1*t97_l1;
-            const double t99_l1 = 1.0/t98_l1;
-            const double t100_l1 = 1.0/t92_l1;
-            const double t101_l1 = t100_l1*t83_l1;
-            const double t102_l1 = t93_l1 - t101_l1*t82_l1;
-            const double t103_l1 = 1.0/t102_l1;
-            const double t104_l1 = 1.0/t94_l1;
-            const double t105_l1 = t104_l1*t88_l1;
-            const double t106_l1 = t95_l1 - t105_l1*t87_l1;
-            const double t107_l1 = 1.0/t106_l1;
-            const double t108_l1 = t97_l1*t99_l1;
-            const double t109_l1 = t96_l1*DERIVE_FMA(t108_l1, t77_l1, 1.0);
-            const double t110_l1 = t77_l1*t96_l1*t99_l1;
-            const double t111_l1 = t101_l1*t103_l1;
-            const double t112_l1 = t100_l1*DERIVE_FMA(t111_l1, t82_l1, 1.0);
-            const double t113_l1 = t100_l1*t103_l1*t82_l1;
-            const double t114_l1 = t105_l1*t107_l1;
-            const double t115_l1 = t104_l1*DERIVE_FMA(t114_l1, t87_l1, 1.0);
-            const double t116_l1 = t104_l1*t107_l1*t87_l1;
-            const double t117_l1 = DERIVE_FMA(0.9387755102040817, t109_l1, (-0.8775510204081632)*t108_l1);
-            const double t118_l1 = DERIVE_FMA(0.8775510204081632, t99_l1, (-0.9387755102040817)*t110_l1);
-            const double t119_l1 = DERIVE_FMA(0.12244897959183673, t109_l1, 0.7551020408163265*t108_l1);
-            const double t120_l1 = DERIVE_FMA(0.7551020408163265, t99_l1, 0.12244897959183673*t110_l1);
-            const double t121_l1 = DERIVE_FMA(0.9387755102040817, t112_l1, (-0.8775510204081632)*t111_l1);
-            const double t122_l1 = DERIVE_FMA((-0.9387755102040817), t113_l1, 0.8775510204081632*t103_l1);
-            const double t123_l1 = DERIVE_FMA(0.12244897959183673, t112_l1, 0.7551020408163265*t111_l1);
-            const double t124_l1 = DERIVE_FMA(0.12244897959183673, t113_l1, 0.7551020408163265*t103_l1);
-            const double t125_l1 = DERIVE_FMA(0.9387755102040817, t115_l1, (-0.8775510204081632)*t114_l1);
-            const double t126_l1 = DERIVE_FMA((-0.9387755102040817), t116_l1, 0.8775510204081632*t107_l1);
-            const double t127_l1 = DERIVE_FMA(0.12244897959183673, t115_l1, 0.7551020408163265*t114_l1);
-            const double t128_l1 = DERIVE_FMA(0.12244897959183673, t116_l1, 0.7551020408163265*t107_l1);
-            const double t129_l1 = 8.16326530612245*z_l1[0];
-            const double t130_l1 = 16.3265306122449*z_l1[0];
-            const double t131_l1 = 8.16326530612245*z_l1[1];
-            const double t132_l1 = 16.3265306122449*z_l1[1];
-            const double t133_l1 = 8.16326530612245*z_l1[2];
-            const double t134_l1 = 16.3265306122449*z_l1[2];
-            const double t135_l1 = DERIVE_FMA(P_l1[1], t130_l1, P_l1[0]*t129_l1);
-            const double t136_l1 = DERIVE_FMA(P_l1[7], t130_l1, P_l1[1]*t129_l1);
-            const double t137_l1 = DERIVE_FMA(P_l1[15], t132_l1, P_l1[14]*t131_l1);
-            const double t138_l1 = DERIVE_FMA(P_l1[21], t132_l1, P_l1[15]*t131_l1);
-            const double t139_l1 = DERIVE_FMA(P_l1[29], t134_l1, P_l1[28]*t133_l1);
-            const double t140_l1 = DERIVE_FMA(P_l1[35], t134_l1, P_l1[29]*t133_l1);
-            const double t141_l1 = x_l1[0] + t135_l1;
-            const double t142_l1 = x_l1[1] + t136_l1;
-            const double t143_l1 = x_l1[2] + t137_l1;
-            const double t144_l1 = x_l1[3] + t138_l1;
-            const double t145_l1 = x_l1[4] + t139_l1;
-            const double t146_l1 = x_l1[5] + t140_l1;
-            const double t147_l1 = 0.061224489795918366*z_l1[0];
-            const double t148_l1 = 0.12244897959183673*z_l1[0];
-            const double t149_l1 = 0.061224489795918366*z_l1[1];
-            const double t150_l1 = 0.12244897959183673*z_l1[1];
-            const double t151_l1 = 0.061224489795918366*z_l1[2];
-            const double t152_l1 = 0.12244897959183673*z_l1[2];
-            const double t153_l1 = DERIVE_FMA(t118_l1, t142_l1, t117_l1*t141_l1);
-            const double t154_l1 = DERIVE_FMA(t120_l1, t142_l1, -(t119_l1*t141_l1));
-            const double t155_l1 = DERIVE_FMA(t122_l1, t144_l1, t121_l1*t143_l1);
-            const double t156_l1 = DERIVE_FMA(t124_l1, t144_l1, -(t123_l1*t143_l1));
-            const double t157_l1 = DERIVE_FMA(t126_l1, t146_l1, t125_l1*t145_l1);
-            const double t158_l1 = DERIVE_FMA(t128_l1, t146_l1, -(t127_l1*t145_l1));
-            const double t159_l1 = t147_l1 + t153_l1;
-            const double t160_l1 = t148_l1 + t154_l1;
-            const double t161_l1 = t149_l1 + t155_l1;
-            const double t162_l1 = t150_l1 + t156_l1;
-            const double t163_l1 = t151_l1 + t157_l1;
-            const double t164_l1 = t152_l1 + t158_l1;
-            const double t165_l1 = DERIVE_FMA(P_l1[1], t118_l1, P_l1[0]*t117_l1);
-            const double t166_l1 = DERIVE_FMA(P_l1[7], t118_l1, P_l1[1]*t117_l1);
-            const double t167_l1 = DERIVE_FMA(P_l1[1], t120_l1, -(P_l1[0]*t119_l1));
-            const double t168_l1 = DERIVE_FMA(P_l1[7], t120_l1, -(P_l1[1]*t119_l1));
-            const double t169_l1 = DERIVE_FMA(P_l1[15], t122_l1, P_l1[14]*t121_l1);
-            const double t170_l1 = DERIVE_FMA(P_l1[21], t122_l1, P_l1[15]*t121_l1);
-            const double t171_l1 = DERIVE_FMA(P_l1[15], t124_l1, -(P_l1[14]*t123_l1));
-            const double t172_l1 = DERIVE_FMA(P_l1[21], t124_l1, -(P_l1[15]*t123_l1));
-            const double t173_l1 = DERIVE_FMA(P_l1[29], t126_l1, P_l1[28]*t125_l1);
-            const double t174_l1 = DERIVE_FMA(P_l1[35], t126_l1, P_l1[29]*t125_l1);
-            const double t175_l1 = DERIVE_FMA(P_l1[29], t128_l1, -(P_l1[28]*t127_l1));
-            const double t176_l1 = DERIVE_FMA(P_l1[35], t128_l1, -(P_l1[29]*t127_l1));
-            const double t177_l1 = DERIVE_FMA(0.8775510204081632, t166_l1, 0.9387755102040817*t165_l1);
-            const double t178_l1 = DERIVE_FMA(0.7551020408163265, t166_l1, (-0.12244897959183673)*t165_l1);
-            const double t179_l1 = DERIVE_FMA(0.7551020408163265, t168_l1, (-0.12244897959183673)*t167_l1);
-            const double t180_l1 = DERIVE_FMA(0.8775510204081632, t170_l1, 0.9387755102040817*t169_l1);
-            const double t181_l1 = DERIVE_FMA(0.7551020408163265, t170_l1, (-0.12244897959183673)*t169_l1);
-            const double t182_l1 = DERIVE_FMA(0.7551020408163265, t172_l1, (-0.12244897959183673)*t171_l1);
-            const double t183_l1 = DERIVE_FMA(0.8775510204081632, t174_l1, 0.9387755102040817*t173_l1);
-            const double t184_l1 = DERIVE_FMA(0.7551020408163265, t174_l1, (-0.12244897959183673)*t173_l1);
-            const double t185_l1 = DERIVE_FMA(0.7551020408163265, t176_l1, (-0.12244897959183673)*t175_l1);
-            const double t186_l1 = 0.0020408163265306124 + t177_l1;
-            const double t187_l1 = 0.004081632653061225 + t178_l1;
-            const double t188_l1 = 0.00816326530612245 + t179_l1;
-            const double t189_l1 = 0.0020408163265306124 + t180_l1;
-            const double t190_l1 = 0.004081632653061225 + t181_l1;
-            const double t191_l1 = 0.00816326530612245 + t182_l1;
-            const double t192_l1 = 0.0020408163265306124 + t183_l1;
-            const double t193_l1 = 0.004081632653061225 + t184_l1;
-            const double t194_l1 = 0.00816326530612245 + t185_l1;
-            const double t195_l1 = t159_l1 + t51_l1;
-            const double t196_l1 = t160_l1 + t52_l1;
-            const double t197_l1 = t161_l1 + t53_l1;
-            const double t198_l1 = t162_l1 + t54_l1;
-            const double t199_l1 = t163_l1 + t55_l1;
-            const double t200_l1 = t164_l1 + t56_l1;
-            const double t201_l1 = 0.5*t195_l1;
-            const double t202_l1 = 0.5*t196_l1;
-            const double t203_l1 = 0.5*t197_l1;
-            const double t204_l1 = 0.5*t198_l1;
-            const double t205_l1 = 0.5*t199_l1;
-            const double t206_l1 = 0.5*t200_l1;
-            const double t207_l1 = t186_l1 + t66_l1;
-            const double t208_l1 = t187_l1 + t67_l1;
-            const double t209_l1 = t188_l1 + t68_l1;
-            const double t210_l1 = t189_l1 + t69_l1;
-            const double t211_l1 = t190_l1 + t70_l1;
-            const double t212_l1 = t191_l1 + t71_l1;
-            const double t213_l1 = t192_l1 + t72_l1;
-            const double t214_l1 = t193_l1 + t73_l1;
-            const double t215_l1 = t194_l1 + t74_l1;
-            const double t216_l1 = 0.5*t207_l1;
-            const double t217_l1 = 0.5*t208_l1;
-            const double t218_l1 = 0.5*t209_l1;
-            const double t219_l1 = 0.5*t210_l1;
-            const double t220_l1 = 0.5*t211_l1;
-            const double t221_l1 = 0.5*t212_l1;
-            const double t222_l1 = 0.5*t213_l1;
-            const double t223_l1 = 0.5*t214_l1;
-            const double t224_l1 = 0.5*t215_l1;
-            xn_l1[0] = t201_l1;
-            xn_l1[1] = t202_l1;
-            xn_l1[2] = t203_l1;
-            xn_l1[3] = t204_l1;
-            xn_l1[4] = t205_l1;
-            xn_l1[5] = t206_l1;
-            Pn_l1[0] = t216_l1;
-            Pn_l1[1] = t217_l1;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = 0.0;
-            Pn_l1[5] = 0.0;
-            Pn_l1[6] = t217_l1;
-            Pn_l1[7] = t218_l1;
-            Pn_l1[8] = 0.0;
-            Pn_l1[9] = 0.0;
-            Pn_l1[10] = 0.0;
-            Pn_l1[11] = 0.0;
-            Pn_l1[12] = 0.0;
-            Pn_l1[13] = 0.0;
-            Pn_l1[14] = t219_l1;
-            Pn_l1[15] = t220_l1;
-            Pn_l1[16] = 0.0;
-            Pn_l1[17] = 0.0;
-            Pn_l1[18] = 0.0;
-            Pn_l1[19] = 0.0;
-            Pn_l1[20] = t220_l1;
-            Pn_l1[21] = t221_l1;
-            Pn_l1[22] = 0.0;
-            Pn_l1[23] = 0.0;
-            Pn_l1[24] = 0.0;
-            Pn_l1[25] = 0.0;
-            Pn_l1[26] = 0.0;
-            Pn_l1[27] = 0.0;
-            Pn_l1[28] = t222_l1;
-            Pn_l1[29] = t223_l1;
-            Pn_l1[30] = 0.0;
-            Pn_l1[31] = 0.0;
-            Pn_l1[32] = 0.0;
-            Pn_l1[33] = 0.0;
-            Pn_l1[34] = t223_l1;
-            Pn_l1[35] = t224_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            const double t0_l2 = x_l2[0] + x_l2[1];
-            const double t1_l2 = x_l2[2] + x_l2[3];
-            const double t2_l2 = x_l2[4] + x_l2[5];
-            const double t3_l2 = P_l2[0] + P_l2[1];
-            const double t4_l2 = P_l2[1] + P_l2[7];
-            const double t5_l2 = P_l2[14] + P_l2[15];
-            const double t6_l2 = P_l2[15] + P_l2[21];
-            const double t7_l2 = P_l2[28] + P_l2[29];
-            const double t8_l2 = P_l2[29] + P_l2[35];
-            const double t9_l2 = t3_l2 + t4_l2;
-            const double t10_l2 = t5_l2 + t6_l2;
-            const double t11_l2 = t7_l2 + t8_l2;
-            const double t12_l2 = 0.0025 + t9_l2;
-            const double t13_l2 = 0.005 + t4_l2;
-            const double t14_l2 = 0.01 + P_l2[7];
-            const double t15_l2 = 0.0025 + t10_l2;
-            const double t16_l2 = 0.005 + t6_l2;
-            const double t17_l2 = 0.01 + P_l2[21];
-            const double t18_l2 = 0.0025 + t11_l2;
-            const double t19_l2 = 0.005 + t8_l2;
-            const double t20_l2 = 0.01 + P_l2[35];
-            const double t21_l2 = t12_l2 + t13_l2;
-            const double t22_l2 = t13_l2 + t14_l2;
-            const double t23_l2 = t15_l2 + t16_l2;
-            const double t24_l2 = t16_l2 + t17_l2;
-            const double t25_l2 = t18_l2 + t19_l2;
-            const double t26_l2 = t19_l2 + t20_l2;
-            const double t27_l2 = t21_l2 + t22_l2;
-            const double t28_l2 = t23_l2 + t24_l2;
-            const double t29_l2 = t25_l2 + t26_l2;
-            const double t30_l2 = 0.1 + t27_l2;
-            const double t31_l2 = 0.1 + t28_l2;
-            const double t32_l2 = 0.1 + t29_l2;
-            if (!(t30_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t31_l2 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t32_l2 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l2 = t21_l2/t30_l2;
-            const double t34_l2 = t22_l2/t30_l2;
-            const double t35_l2 = t23_l2/t31_l2;
-            const double t36_l2 = t24_l2/t31_l2;
-            const double t37_l2 = t25_l2/t32_l2;
-            const double t38_l2 = t26_l2/t32_l2;
-            const double t39_l2 = x_l2[1] + t0_l2;
-            const double t40_l2 = x_l2[3] + t1_l2;
-            const double t41_l2 = x_l2[5] + t2_l2;
-            const double t42_l2 = z_l2[0] - t39_l2;
-            const double t43_l2 = z_l2[1] - t40_l2;
-            const double t44_l2 = z_l2[2] - t41_l2;
-            const double t45_l2 = t33_l2*t42_l2;
-            const double t46_l2 = t34_l2*t42_l2;
-            const double t47_l2 = t35_l2*t43_l2;
-            const double t48_l2 = t36_l2*t43_l2;
-            const double t49_l2 = t37_l2*t44_l2;
-            const double t50_l2 = t38_l2*t44_l2;
-            const double t51_l2 = t0_l2 + t45_l2;
-            const double t52_l2 = x_l2[1] + t46_l2;
-            const double t53_l2 = t1_l2 + t47_l2;
-            const double t54_l2 = x_l2[3] + t48_l2;
-            const double t55_l2 = t2_l2 + t49_l2;
-            const double t56_l2 = x_l2[5] + t50_l2;
-            const double t57_l2 = t21_l2*t33_l2;
-            const double t58_l2 = t22_l2*t33_l2;
-            const double t59_l2 = t22_l2*t34_l2;
-            const double t60_l2 = t23_l2*t35_l2;
-            const double t61_l2 = t24_l2*t35_l2;
-            const double t62_l2 = t24_l2*t36_l2;
-            const double t63_l2 = t25_l2*t37_l2;
-            const double t64_l2 = t26_l2*t37_l2;
-            const double t65_l2 = t26_l2*t38_l2;
-            const double t66_l2 = t12_l2 - t57_l2;
-            const double t67_l2 = t13_l2 - t58_l2;
-            const double t68_l2 = t14_l2 - t59_l2;
-            const double t69_l2 = t15_l2 - t60_l2;
-            const double t70_l2 = t16_l2 - t61_l2;
-            const double t71_l2 = t17_l2 - t62_l2;
-            const double t72_l2 = t18_l2 - t63_l2;
-            const double t73_l2 = t19_l2 - t64_l2;
-            const double t74_l2 = t20_l2 - t65_l2;
-            const double t75_l2 = 16.3265306122449*P_l2[1];
-            const double t76_l2 = DERIVE_FMA(8.16326530612245, P_l2[0], t75_l2);
-            const double t77_l2 = DERIVE_FMA(32.6530612244898, P_l2[1], 16.3265306122449*P_l2[0]);
-            const double t78_l2 = DERIVE_FMA(16.3265306122449, P_l2[7], 8.16326530612245*P_l2[1]);
-            const double t79_l2 = DERIVE_FMA(32.6530612244898, P_l2[7], t75_l2);
-            const double t80_l2 = 16.3265306122449*P_l2[15];
-            const double t81_l2 = DERIVE_FMA(8.16326530612245, P_l2[14], t80_l2);
-            const double t82_l2 = DERIVE_FMA(32.6530612244898, P_l2[15], 16.3265306122449*P_l2[14]);
-            const double t83_l2 = DERIVE_FMA(16.3265306122449, P_l2[21], 8.16326530612245*P_l2[15]);
-            const double t84_l2 = DERIVE_FMA(32.6530612244898, P_l2[21], t80_l2);
-            const double t85_l2 = 16.3265306122449*P_l2[29];
-            const double t86_l2 = DERIVE_FMA(8.16326530612245, P_l2[28], t85_l2);
-            const double t87_l2 = DERIVE_FMA(32.6530612244898, P_l2[29], 16.3265306122449*P_l2[28]);
-            const double t88_l2 = DERIVE_FMA(16.3265306122449, P_l2[35], 8.16326530612245*P_l2[29]);
-            const double t89_l2 = DERIVE_FMA(32.6530612244898, P_l2[35], t85_l2);
-            const double t90_l2 = 1.0 + t76_l2;
-            const double t91_l2 = 1.0 + t79_l2;
-            const double t92_l2 = 1.0 + t81_l2;
-            const double t93_l2 = 1.0 + t84_l2;
-            const double t94_l2 = 1.0 + t86_l2;
-            const double t95_l2 = 1.0 + t89_l2;
-            const double t96_l2 = 1.0/t90_l2;
-            const double t97_l2 = t78_l2*t96_l2;
-            const double t98_l2 = t91_l2 - t77_l2*t97_l2;
-            const double t99_l2 = 1.0/t98_l2;
-            const double t100_l2 = 1.0/t92_l2;
-            const double t101_l2 = t100_l2*t83_l2;
-            const double t102_l2 = t93_l2 - t101_l2*t82_l2;
-            const double t103_l2 = 1.0/t102_l2;
-            const double t104_l2 = 1.0/t94_l2;
-            const double t105_l2 = t104_l2*t88_l2;
-            const double t106_l2 = t95_l2 - t105_l2*t87_l2;
-            const double t107_l2 = 1.0/t106_l2;
-            const double t108_l2 = t97_l2*t99_l2;
-            const double t109_l2 = t96_l2*DERIVE_FMA(t108_l2, t77_l2, 1.0);
-            const double t110_l2 = t77_l2*t96_l2*t99_l2;
-            const double t111_l2 = t101_l2*t103_l2;
-            const double t112_l2 = t100_l2*DERIVE_FMA(t111_l2, t82_l2, 1.0);
-            const double t113_l2 = t100_l2*t103_l2*t82_l2;
-            const double t114_l2 = t105_l2*t107_l2;
-            const double t115_l2 = t104_l2*DERIVE_FMA(t114_l2, t87_l2, 1.0);
-            const double t116_l2 = t104_l2*t107_l2*t87_l2;
-            const double t117_l2 = DERIVE_FMA(0.9387755102040817, t109_l2, (-0.8775510204081632)*t108_l2);
-            const double t118_l2 = DERIVE_FMA(0.8775510204081632, t99_l2, (-0.9387755102040817)*t110_l2);
-            const double t119_l2 = DERIVE_FMA(0.12244897959183673, t109_l2, 0.7551020408163265*t108_l2);
-            const double t120_l2 = DERIVE_FMA(0.7551020408163265, t99_l2, 0.12244897959183673*t110_l2);
-            const double t121_l2 = DERIVE_FMA(0.9387755102040817, t112_l2, (-0.8775510204081632)*t111_l2);
-            const double t122_l2 = DERIVE_FMA((-0.9387755102040817), t113_l2, 0.8775510204081632*t103_l2);
-            const double t123_l2 = DERIVE_FMA(0.12244897959183673, t112_l2, 0.7551020408163265*t111_l2);
-            const double t124_l2 = DERIVE_FMA(0.12244897959183673, t113_l2, 0.7551020408163265*t103_l2);
-            const double t125_l2 = DERIVE_FMA(0.9387755102040817, t115_l2, (-0.8775510204081632)*t114_l2);
-            const double t126_l2 = DERIVE_FMA((-0.9387755102040817), t116_l2, 0.8775510204081632*t107_l2);
-            const double t127_l2 = DERIVE_FMA(0.12244897959183673, t115_l2, 0.7551020408163265*t114_l2);
-            const double t128_l2 = DERIVE_FMA(0.12244897959183673, t116_l2, 0.7551020408163265*t107_l2);
-            const double t129_l2 = 8.16326530612245*z_l2[0];
-            const double t130_l2 = 16.3265306122449*z_l2[0];
-            const double t131_l2 = 8.16326530612245*z_l2[1];
-            const double t132_l2 = 16.3265306122449*z_l2[1];
-            const double t133_l2 = 8.16326530612245*z_l2[2];
-            const double t134_l2 = 16.3265306122449*z_l2[2];
-            const double t135_l2 = DERIVE_FMA(P_l2[1], t130_l2, P_l2[0]*t129_l2);
-            const double t136_l2 = DERIVE_FMA(P_l2[7], t130_l2, P_l2[1]*t129_l2);
-            const double t137_l2 = DERIVE_FMA(P_l2[15], t132_l2, P_l2[14]*t131_l2);
-            const double t138_l2 = DERIVE_FMA(P_l2[21], t132_l2, P_l2[15]*t131_l2);
-            const double t139_l2 = DERIVE_FMA(P_l2[29], t134_l2, P_l2[28]*t133_l2);
-            const double t140_l2 = DERIVE_FMA(P_l2[35], t134_l2, P_l2[29]*t133_l2);
-            const double t141_l2 = x_l2[0] + t135_l2;
-            const double t142_l2 = x_l2[1] + t136_l2;
-            const double t143_l2 = x_l2[2] + t137_l2;
-            const double t144_l2 = x_l2[3] + t138_l2;
-            const double t145_l2 = x_l2[4] + t139_l2;
-            const double t146_l2 = x_l2[5] + t140_l2;
-            const double t147_l2 = 0.061224489795918366*z_l2[0];
-            const double t148_l2 = 0.12244897959183673*z_l2[0];
-            const double t149_l2 = 0.061224489795918366*z_l2[1];
-            const double t150_l2 = 0.12244897959183673*z_l2[1];
-            const double t151_l2 = 0.061224489795918366*z_l2[2];
-            const double t152_l2 = 0.12244897959183673*z_l2[2];
-            const double t153_l2 = DERIVE_FMA(t118_l2, t142_l2, t117_l2*t141_l2);
-            const double t154_l2 = DERIVE_FMA(t120_l2, t142_l2, -(t119_l2*t141_l2));
-            const double t155_l2 = DERIVE_FMA(t122_l2, t144_l2, t121_l2*t143_l2);
-            const double t156_l2 = DERIVE_FMA(t124_l2, t144_l2, -(t123_l2*t143_l2));
-            const double t157_l2 = DERIVE_FMA(t126_l2, t146_l2, t125_l2*t145_l2);
-            const double t158_l2 = DERIVE_FMA(t128_l2, t146_l2, -(t127_l2*t145_l2));
-            const double t159_l2 = t147_l2 + t153_l2;
-            const double t160_l2 = t148_l2 + t154_l2;
-            const double t161_l2 = t149_l2 + t155_l2;
-            const double t162_l2 = t150_l2 + t156_l2;
-            const double t163_l2 = t151_l2 + t157_l2;
-            const double t164_l2 = t152_l2 + t158_l2;
-            const double t165_l2 = DERIVE_FMA(P_l2[1], t118_l2, P_l2[0]*t117_l2);
-            const double t166_l2 = DERIVE_FMA(P_l2[7], t118_l2, P_l2[1]*t117_l2);
-            const double t167_l2 = DERIVE_FMA(P_l2[1], t120_l2, -(P_l2[0]*t119_l2));
-            const double t168_l2 = DERIVE_FMA(P_l2[7], t120_l2, -(P_l2[1]*t119_l2));
-            const double t169_l2 = DERIVE_FMA(P_l2[15], t122_l2, P_l2[14]*t121_l2);
-            const double t170_l2 = DERIVE_FMA(P_l2[21], t122_l2, P_l2[15]*t121_l2);
-            const double t171_l2 = DERIVE_FMA(P_l2[15], t124_l2, -(P_l2[14]*t123_l2));
-            const double t172_l2 = DERIVE_FMA(P_l2[21], t124_l2, -(P_l2[15]*t123_l2));
-            const double t173_l2 = DERIVE_FMA(P_l2[29], t126_l2, P_l2[28]*t125_l2);
-            const double t174_l2 = DERIVE_FMA(P_l2[35], t126_l2, P_l2[29]*t125_l2);
-            const double t175_l2 = DERIVE_FMA(P_l2[29], t128_l2, -(P_l2[28]*t127_l2));
-            const double t176_l2 = DERIVE_FMA(P_l2[35], t128_l2, -(P_l2[29]*t127_l2));
-            const double t177_l2 = DERIVE_FMA(0.8775510204081632, t166_l2, 0.9387755102040817*t165_l2);
-            const double t178_l2 = DERIVE_FMA(0.7551020408163265, t166_l2, (-0.12244897959183673)*t165_l2);
-            const double t179_l2 = DERIVE_FMA(0.7551020408163265, t168_l2, (-0.12244897959183673)*t167_l2);
-            const double t180_l2 = DERIVE_FMA(0.8775510204081632, t170_l2, 0.9387755102040817*t169_l2);
-            const double t181_l2 = DERIVE_FMA(0.7551020408163265, t170_l2, (-0.12244897959183673)*t169_l2);
-            const double t182_l2 = DERIVE_FMA(0.7551020408163265, t172_l2, (-0.12244897959183673)*t171_l2);
-            const double t183_l2 = DERIVE_FMA(0.8775510204081632, t174_l2, 0.9387755102040817*t173_l2);
-            const double t184_l2 = DERIVE_FMA(0.7551020408163265, t174_l2, (-0.12244897959183673)*t173_l2);
-            const double t185_l2 = DERIVE_FMA(0.7551020408163265, t176_l2, (-0.12244897959183673)*t175_l2);
-            const double t186_l2 = 0.0020408163265306124 + t177_l2;
-            const double t187_l2 = 0.004081632653061225 + t178_l2;
-            const double t188_l2 = 0.00816326530612245 + t179_l2;
-            const double t189_l2 = 0.0020408163265306124 + t180_l2;
-            const double t190_l2 = 0.004081632653061225 + t181_l2;
-            const double t191_l2 = 0.00816326530612245 + t182_l2;
-            const double t192_l2 = 0.0020408163265306124 + t183_l2;
-            const double t193_l2 = 0.004081632653061225 + t184_l2;
-            const double t194_l2 = 0.00816326530612245 + t185_l2;
-            const double t195_l2 = t159_l2 + t51_l2;
-            const double t196_l2 = t160_l2 + t52_l2;
-            const double t197_l2 = t161_l2 + t53_l2;
-            const double t198_l2 = t162_l2 + t54_l2;
-            const double t199_l2 = t163_l2 + t55_l2;
-            const double t200_l2 = t164_l2 + t56_l2;
-            const double t201_l2 = 0.5*t195_l2;
-            const double t202_l2 = 0.5*t196_l2;
-            const double t203_l2 = 0.5*t197_l2;
-            const double t204_l2 = 0.5*t198_l2;
-            const double t205_l2 = 0.5*t199_l2;
-            const double t206_l2 = 0.5*t200_l2;
-            const double t207_l2 = t186_l2 + t66_l2;
-            const double t208_l2 = t187_l2 + t67_l2;
-            const double t209_l2 = t188_l2 + t68_l2;
-            const double t210_l2 = t189_l2 + t69_l2;
-            const double t211_l2 = t190_l2 + t70_l2;
-            const double t212_l2 = t191_l2 + t71_l2;
-            const double t213_l2 = t192_l2 + t72_l2;
-            const double t214_l2 = t193_l2 + t73_l2;
-            const double t215_l2 = t194_l2 + t74_l2;
-            const double t216_l2 = 0.5*t207_l2;
-            const double t217_l2 = 0.5*t208_l2;
-            const double t218_l2 = 0.5*t209_l2;
-            const double t219_l2 = 0.5*t210_l2;
-            const double t220_l2 = 0.5*t211_l2;
-            const double t221_l2 = 0.5*t212_l2;
-            const double t222_l2 = 0.5*t213_l2;
-            const double t223_l2 = 0.5*t214_l2;
-            const double t224_l2 = 0.5*t215_l2;
-            xn_l2[0] = t201_l2;
-            xn_l2[1] = t202_l2;
-            xn_l2[2] = t203_l2;
-            xn_l2[3] = t204_l2;
-            xn_l2[4] = t205_l2;
-            xn_l2[5] = t206_l2;
-            Pn_l2[0] = t216_l2;
-            Pn_l2[1] = t217_l2;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = 0.0;
-            Pn_l2[5] = 0.0;
-            Pn_l2[6] = t217_l2;
-            Pn_l2[7] = t218_l2;
-            Pn_l2[8] = 0.0;
-            Pn_l2[9] = 0.0;
-            Pn_l2[10] = 0.0;
-            Pn_l2[11] = 0.0;
-            Pn_l2[12] = 0.0;
-            Pn_l2[13] = 0.0;
-            Pn_l2[14] = t219_l2;
-            Pn_l2[15] = t220_l2;
-            Pn_l2[16] = 0.0;
-            Pn_l2[17] = 0.0;
-            Pn_l2[18] = 0.0;
-            Pn_l2[19] = 0.0;
-            Pn_l2[20] = t220_l2;
-            Pn_l2[21] = t221_l2;
-            Pn_l2[22] = 0.0;
-            Pn_l2[23] = 0.0;
-            Pn_l2[24] = 0.0;
-            Pn_l2[25] = 0.0;
-            Pn_l2[26] = 0.0;
-            Pn_l2[27] = 0.0;
-            Pn_l2[28] = t222_l2;
-            Pn_l2[29] = t223_l2;
-            Pn_l2[30] = 0.0;
-            Pn_l2[31] = 0.0;
-            Pn_l2[32] = 0.0;
-            Pn_l2[33] = 0.0;
-            Pn_l2[34] = t223_l2;
-            Pn_l2[35] = t224_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            const double t0_l3 = x_l3[0] + x_l3[1];
-            const double t1_l3 = x_l3[2] + x_l3[3];
-            const double t2_l3 = x_l3[4] + x_l3[5];
-            const double t3_l3 = P_l3[0] + P_l3[1];
-            const double t4_l3 = P_l3[1] + P_l3[7];
-            const double t5_l3 = P_l3[14] + P_l3[15];
-            const double t6_l3 = P_l3[15] + P_l3[21];
-            const double t7_l3 = P_l3[28] + P_l3[29];
-            const double t8_l3 = P_l3[29] + P_l3[35];
-            const double t9_l3 = t3_l3 + t4_l3;
-            const double t10_l3 = t5_l3 + t6_l3;
-            const double t11_l3 = t7_l3 + t8_l3;
-            const double t12_l3 = 0.0025 + t9_l3;
-            const double t13_l3 = 0.005 + t4_l3;
-            const double t14_l3 = 0.01 + P_l3[7];
-            const double t15_l3 = 0.0025 + t10_l3;
-            const double t16_l3 = 0.005 + t6_l3;
-            const double t17_l3 = 0.01 + P_l3[21];
-            const double t18_l3 = 0.0025 + t11_l3;
-            const double t19_l3 = 0.005 + t8_l3;
-            const double t20_l3 = 0.01 + P_l3[35];
-            const double t21_l3 = t12_l3 + t13_l3;
-            const double t22_l3 = t13_l3 + t14_l3;
-            const double t23_l3 = t15_l3 + t16_l3;
-            const double t24_l3 = t16_l3 + t17_l3;
-            const double t25_l3 = t18_l3 + t19_l3;
-            const double t26_l3 = t19_l3 + t20_l3;
-            const double t27_l3 = t21_l3 + t22_l3;
-            const double t28_l3 = t23_l3 + t24_l3;
-            const double t29_l3 = t25_l3 + t26_l3;
-            const double t30_l3 = 0.1 + t27_l3;
-            const double t31_l3 = 0.1 + t28_l3;
-            const double t32_l3 = 0.1 + t29_l3;
-            if (!(t30_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t31_l3 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t32_l3 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l3 = t21_l3/t30_l3;
-            const double t34_l3 = t22_l3/t30_l3;
-            const double t35_l3 = t23_l3/t31_l3;
-            const double t36_l3 = t24_l3/t31_l3;
-            const double t37_l3 = t25_l3/t32_l3;
-            const double t38_l3 = t26_l3/t32_l3;
-            const double t39_l3 = x_l3[1] + t0_l3;
-            const double t40_l3 = x_l3[3] + t1_l3;
-            const double t41_l3 = x_l3[5] + t2_l3;
-            const double t42_l3 = z_l3[0] - t39_l3;
-            const double t43_l3 = z_l3[1] - t40_l3;
-            const double t44_l3 = z_l3[2] - t41_l3;
-            const double t45_l3 = t33_l3*t42_l3;
-            const double t46_l3 = t34_l3*t42_l3;
-            const double t47_l3 = t35_l3*t43_l3;
-            const double t48_l3 = t36_l3*t43_l3;
-            const double t49_l3 = t37_l3*t44_l3;
-            const double t50_l3 = t38_l3*t44_l3;
-            const double t51_l3 = t0_l3 + t45_l3;
-            const double t52_l3 = x_l3[1] + t46_l3;
-            const double t53_l3 = t1_l3 + t47_l3;
-            const double t54_l3 = x_l3[3] + t48_l3;
-            const double t55_l3 = t2_l3 + t49_l3;
-            const double t56_l3 = x_l3[5] + t50_l3;
-            const double t57_l3 = t21_l3*t33_l3;
-            const double t58_l3 = t22_l3*t33_l3;
-            const double t59_l3 = t22_l3*t34_l3;
-            const double t60_l3 = t23_l3*t35_l3;
-            const double t61_l3 = t24_l3*t35_l3;
-            const double t62_l3 = t24_l3*t36_l3;
-            const double t63_l3 = t25_l3*t37_l3;
-            const double t64_l3 = t26_l3*t37_l3;
-            const double t65_l3 = t26_l3*t38_l3;
-            const double t66_l3 = t12_l3 - t57_l3;
-            const double t67_l3 = t13_l3 - t58_l3;
-            const double t68_l3 = t14_l3 - t59_l3;
-            const double t69_l3 = t15_l3 - t60_l3;
-            const double t70_l3 = t16_l3 - t61_l3;
-            const double t71_l3 = t17_l3 - t62_l3;
-            const double t72_l3 = t18_l3 - t63_l3;
-            const double t73_l3 = t19_l3 - t64_l3;
-            const double t74_l3 = t20_l3 - t65_l3;
-            const double t75_l3 = 16.3265306122449*P_l3[1];
-            const double t76_l3 = DERIVE_FMA(8.16326530612245, P_l3[0], t75_l3);
-            const double t77_l3 = DERIVE_FMA(32.6530612244898, P_l3[1], 16.3265306122449*P_l3[0]);
-            const double t78_l3 = DERIVE_FMA(16.3265306122449, P_l3[7], 8.16326530612245*P_l3[1]);
-            const double t79_l3 = DERIVE_FMA(32.6530612244898, P_l3[7], t75_l3);
-            const double t80_l3 = 16.3265306122449*P_l3[15];
-            const double t81_l3 = DERIVE_FMA(8.16326530612245, P_l3[14], t80_l3);
-            const double t82_l3 = DERIVE_FMA(32.6530612244898, P_l3[15], 16.3265306122449*P_l3[14]);
-            const double t83_l3 = DERIVE_FMA(16.3265306122449, P_l3[21], 8.16326530612245*P_l3[15]);
-            const double t84_l3 = DERIVE_FMA(32.6530612244898, P_l3[21], t80_l3);
-            const double t85_l3 = 16.3265306122449*P_l3[29];
-            const double t86_l3 = DERIVE_FMA(8.16326530612245, P_l3[28], t85_l3);
-            const double t87_l3 = DERIVE_FMA(32.6530612244898, P_l3[29], 16.3265306122449*P_l3[28]);
-            const double t88_l3 = DERIVE_FMA(16.3265306122449, P_l3[35], 8.16326530612245*P_l3[29]);
-            const double t89_l3 = DERIVE_FMA(32.6530612244898, P_l3[35], t85_l3);
-            const double t90_l3 = 1.0 + t76_l3;
-            const double t91_l3 = 1.0 + t79_l3;
-            const double t92_l3 = 1.0 + t81_l3;
-            const double t93_l3 = 1.0 + t84_l3;
-            const double t94_l3 = 1.0 + t86_l3;
-            const double t95_l3 = 1.0 + t89_l3;
-            const double t96_l3 = 1.0/t90_l3;
-            const double t97_l3 = t78_l3*t96_l3;
-            const double t98_l3 = t91_l3 - t77_l3*t97_l3;
-            const double t99_l3 = 1.0/t98_l3;
-            const double t100_l3 = 1.0/t92_l3;
-            const double t101_l3 = t100_l3*t83_l3;
-            const double t102_l3 = t93_l3 - t101_l3*t82_l3;
-            const double t103_l3 = 1.0/t102_l3;
-            const double t104_l3 = 1.0/t94_l3;
-            const double t105_l3 = t104_l3*t88_l3;
-            const double t106_l3 = t95_l3 - t105_l3*t87_l3;
-            const double t107_l3 = 1.0/t106_l3;
-            const double t108_l3 = t97_l3*t99_l3;
-            const double t109_l3 = t96_l3*DERIVE_FMA(t108_l3, t77_l3, 1.0);
-            const double t110_l3 = t77_l3*t96_l3*t99_l3;
-            const double t111_l3 = t101_l3*t103_l3;
-            const double t112_l3 = t100_l3*DERIVE_FMA(t111_l3, t82_l3, 1.0);
-            const double t113_l3 = t100_l3*t103_l3*t82_l3;
-            const double t114_l3 = t105_l3*t107_l3;
-            const double t115_l3 = t104_l3*DERIVE_FMA(t114_l3, t87_l3, 1.0);
-            const double t116_l3 = t104_l3*t107_l3*t87_l3;
-            const double t117_l3 = DERIVE_FMA(0.9387755102040817, t109_l3, (-0.8775510204081632)*t108_l3);
-            const double t118_l3 = DERIVE_FMA(0.8775510204081632, t99_l3, (-0.9387755102040817)*t110_l3);
-            const double t119_l3 = DERIVE_FMA(0.12244897959183673, t109_l3, 0.7551020408163265*t108_l3);
-            const double t120_l3 = DERIVE_FMA(0.7551020408163265, t99_l3, 0.12244897959183673*t110_l3);
-            const double t121_l3 = DERIVE_FMA(0.9387755102040817, t112_l3, (-0.8775510204081632)*t111_l3);
-            const double t122_l3 = DERIVE_FMA((-0.9387755102040817), t113_l3, 0.8775510204081632*t103_l3);
-            const double t123_l3 = DERIVE_FMA(0.12244897959183673, t112_l3, 0.7551020408163265*t111_l3);
-            const double t124_l3 = DERIVE_FMA(0.12244897959183673, t113_l3, 0.7551020408163265*t103_l3);
-            const double t125_l3 = DERIVE_FMA(0.9387755102040817, t115_l3, (-0.8775510204081632)*t114_l3);
-            const double t126_l3 = DERIVE_FMA((-0.9387755102040817), t116_l3, 0.8775510204081632*t107_l3);
-            const double t127_l3 = DERIVE_FMA(0.12244897959183673, t115_l3, 0.7551020408163265*t114_l3);
-            const double t128_l3 = DERIVE_FMA(0.12244897959183673, t116_l3, 0.7551020408163265*t107_l3);
-            const double t129_l3 = 8.16326530612245*z_l3[0];
-            const double t130_l3 = 16.3265306122449*z_l3[0];
-            const double t131_l3 = 8.16326530612245*z_l3[1];
-            const double t132_l3 = 16.3265306122449*z_l3[1];
-            const double t133_l3 = 8.16326530612245*z_l3[2];
-            const double t134_l3 = 16.3265306122449*z_l3[2];
-            const double t135_l3 = DERIVE_FMA(P_l3[1], t130_l3, P_l3[0]*t129_l3);
-            const double t136_l3 = DERIVE_FMA(P_l3[7], t130_l3, P_l3[1]*t129_l3);
-            const double t137_l3 = DERIVE_FMA(P_l3[15], t132_l3, P_l3[14]*t131_l3);
-            const double t138_l3 = DERIVE_FMA(P_l3[21], t132_l3, P_l3[15]*t131_l3);
-            const double t139_l3 = DERIVE_FMA(P_l3[29], t134_l3, P_l3[28]*t133_l3);
-            const double t140_l3 = DERIVE_FMA(P_l3[35], t134_l3, P_l3[29]*t133_l3);
-            const double t141_l3 = x_l3[0] + t135_l3;
-            const double t142_l3 = x_l3[1] + t136_l3;
-            const double t143_l3 = x_l3[2] + t137_l3;
-            const double t144_l3 = x_l3[3] + t138_l3;
-            const double t145_l3 = x_l3[4] + t139_l3;
-            const double t146_l3 = x_l3[5] + t140_l3;
-            const double t147_l3 = 0.061224489795918366*z_l3[0];
-            const double t148_l3 = 0.12244897959183673*z_l3[0];
-            const double t149_l3 = 0.061224489795918366*z_l3[1];
-            const double t150_l3 = 0.12244897959183673*z_l3[1];
-            const double t151_l3 = 0.061224489795918366*z_l3[2];
-            const double t152_l3 = 0.12244897959183673*z_l3[2];
-            const double t153_l3 = DERIVE_FMA(t118_l3, t142_l3, t117_l3*t141_l3);
-            const double t154_l3 = DERIVE_FMA(t120_l3, t142_l3, -(t119_l3*t141_l3));
-            const double t155_l3 = DERIVE_FMA(t122_l3, t144_l3, t121_l3*t143_l3);
-            const double t156_l3 = DERIVE_FMA(t124_l3, t144_l3, -(t123_l3*t143_l3));
-            const double t157_l3 = DERIVE_FMA(t126_l3, t146_l3, t125_l3*t145_l3);
-            const double t158_l3 = DERIVE_FMA(t128_l3, t146_l3, -(t127_l3*t145_l3));
-            const double t159_l3 = t147_l3 + t153_l3;
-            const double t160_l3 = t148_l3 + t154_l3;
-            const double t161_l3 = t149_l3 + t155_l3;
-            const double t162_l3 = t150_l3 + t156_l3;
-            const double t163_l3 = t151_l3 + t157_l3;
-            const double t164_l3 = t152_l3 + t158_l3;
-            const double t165_l3 = DERIVE_FMA(P_l3[1], t118_l3, P_l3[0]*t117_l3);
-            const double t166_l3 = DERIVE_FMA(P_l3[7], t118_l3, P_l3[1]*t117_l3);
-            const double t167_l3 = DERIVE_FMA(P_l3[1], t120_l3, -(P_l3[0]*t119_l3));
-            const double t168_l3 = DERIVE_FMA(P_l3[7], t120_l3, -(P_l3[1]*t119_l3));
-            const double t169_l3 = DERIVE_FMA(P_l3[15], t122_l3, P_l3[14]*t121_l3);
-            const double t170_l3 = DERIVE_FMA(P_l3[21], t122_l3, P_l3[15]*t121_l3);
-            const double t171_l3 = DERIVE_FMA(P_l3[15], t124_l3, -(P_l3[14]*t123_l3));
-            const double t172_l3 = DERIVE_FMA(P_l3[21], t124_l3, -(P_l3[15]*t123_l3));
-            const double t173_l3 = DERIVE_FMA(P_l3[29], t126_l3, P_l3[28]*t125_l3);
-            const double t174_l3 = DERIVE_FMA(P_l3[35], t126_l3, P_l3[29]*t125_l3);
-            const double t175_l3 = DERIVE_FMA(P_l3[29], t128_l3, -(P_l3[28]*t127_l3));
-            const double t176_l3 = DERIVE_FMA(P_l3[35], t128_l3, -(P_l3[29]*t127_l3));
-            const double t177_l3 = DERIVE_FMA(0.8775510204081632, t166_l3, 0.9387755102040817*t165_l3);
-            const double t178_l3 = DERIVE_FMA(0.7551020408163265, t166_l3, (-0.12244897959183673)*t165_l3);
-            const double t179_l3 = DERIVE_FMA(0.7551020408163265, t168_l3, (-0.12244897959183673)*t167_l3);
-            const double t180_l3 = DERIVE_FMA(0.8775510204081632, t170_l3, 0.9387755102040817*t169_l3);
-            const double t181_l3 = DERIVE_FMA(0.7551020408163265, t170_l3, (-0.12244897959183673)*t169_l3);
-            const double t182_l3 = DERIVE_FMA(0.7551020408163265, t172_l3, (-0.12244897959183673)*t171_l3);
-            const double t183_l3 = DERIVE_FMA(0.8775510204081632, t174_l3, 0.9387755102040817*t173_l3);
-            const double t184_l3 = DERIVE_FMA(0.7551020408163265, t174_l3, (-0.12244897959183673)*t173_l3);
-            const double t185_l3 = DERIVE_FMA(0.7551020408163265, t176_l3, (-0.12244897959183673)*t175_l3);
-            const double t186_l3 = 0.0020408163265306124 + t177_l3;
-            const double t187_l3 = 0.004081632653061225 + t178_l3;
-            const double t188_l3 = 0.00816326530612245 + t179_l3;
-            const double t189_l3 = 0.0020408163265306124 + t180_l3;
-            const double t190_l3 = 0.004081632653061225 + t181_l3;
-            const double t191_l3 = 0.00816326530612245 + t182_l3;
-            const double t192_l3 = 0.0020408163265306124 + t183_l3;
-            const double t193_l3 = 0.004081632653061225 + t184_l3;
-            const double t194_l3 = 0.00816326530612245 + t185_l3;
-            const double t195_l3 = t159_l3 + t51_l3;
-            const double t196_l3 = t160_l3 + t52_l3;
-            const double t197_l3 = t161_l3 + t53_l3;
-            const double t198_l3 = t162_l3 + t54_l3;
-            const double t199_l3 = t163_l3 + t55_l3;
-            const double t200_l3 = t164_l3 + t56_l3;
-            const double t201_l3 = 0.5*t195_l3;
-            const double t202_l3 = 0.5*t196_l3;
-            const double t203_l3 = 0.5*t197_l3;
-            const double t204_l3 = 0.5*t198_l3;
-            const double t205_l3 = 0.5*t199_l3;
-            const double t206_l3 = 0.5*t200_l3;
-            const double t207_l3 = t186_l3 + t66_l3;
-            const double t208_l3 = t187_l3 + t67_l3;
-            const double t209_l3 = t188_l3 + t68_l3;
-            const double t210_l3 = t189_l3 + t69_l3;
-            const double t211_l3 = t190_l3 + t70_l3;
-            const double t212_l3 = t191_l3 + t71_l3;
-            const double t213_l3 = t192_l3 + t72_l3;
-            const double t214_l3 = t193_l3 + t73_l3;
-            const double t215_l3 = t194_l3 + t74_l3;
-            const double t216_l3 = 0.5*t207_l3;
-            const double t217_l3 = 0.5*t208_l3;
-            const double t218_l3 = 0.5*t209_l3;
-            const double t219_l3 = 0.5*t210_l3;
-            const double t220_l3 = 0.5*t211_l3;
-            const double t221_l3 = 0.5*t212_l3;
-            const double t222_l3 = 0.5*t213_l3;
-            const double t223_l3 = 0.5*t214_l3;
-            const double t224_l3 = 0.5*t215_l3;
-            xn_l3[0] = t201_l3;
-            xn_l3[1] = t202_l3;
-            xn_l3[2] = t203_l3;
-            xn_l3[3] = t204_l3;
-            xn_l3[4] = t205_l3;
-            xn_l3[5] = t206_l3;
-            Pn_l3[0] = t216_l3;
-            Pn_l3[1] = t217_l3;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = 0.0;
-            Pn_l3[5] = 0.0;
-            Pn_l3[6] = t217_l3;
-            Pn_l3[7] = t218_l3;
-            Pn_l3[8] = 0.0;
-            Pn_l3[9] = 0.0;
-            Pn_l3[10] = 0.0;
-            Pn_l3[11] = 0.0;
-            Pn_l3[12] = 0.0;
-            Pn_l3[13] = 0.0;
-            Pn_l3[14] = t219_l3;
-            Pn_l3[15] = t220_l3;
-            Pn_l3[16] = 0.0;
-            Pn_l3[17] = 0.0;
-            Pn_l3[18] = 0.0;
-            Pn_l3[19] = 0.0;
-            Pn_l3[20] = t220_l3;
-            Pn_l3[21] = t221_l3;
-            Pn_l3[22] = 0.0;
-            Pn_l3[23] = 0.0;
-            Pn_l3[24] = 0.0;
-            Pn_l3[25] = 0.0;
-            Pn_l3[26] = 0.0;
-            Pn_l3[27] = 0.0;
-            Pn_l3[28] = t222_l3;
-            Pn_l3[29] = t223_l3;
-            Pn_l3[30] = 0.0;
-            Pn_l3[31] = 0.0;
-            Pn_l3[32] = 0.0;
-            Pn_l3[33] = 0.0;
-            Pn_l3[34] = t223_l3;
-            Pn_l3[35] = t224_l3;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            P_l0[16] = Pn_l0[16];
-            P_l0[17] = Pn_l0[17];
-            P_l0[18] = Pn_l0[18];
-            P_l0[19] = Pn_l0[19];
-            P_l0[20] = Pn_l0[20];
-            P_l0[21] = Pn_l0[21];
-            P_l0[22] = Pn_l0[22];
-            P_l0[23] = Pn_l0[23];
-            P_l0[24] = Pn_l0[24];
-            P_l0[25] = Pn_l0[25];
-            P_l0[26] = Pn_l0[26];
-            P_l0[27] = Pn_l0[27];
-            P_l0[28] = Pn_l0[28];
-            P_l0[29] = Pn_l0[29];
-            P_l0[30] = Pn_l0[30];
-            P_l0[31] = Pn_l0[31];
-            P_l0[32] = Pn_l0[32];
-            P_l0[33] = Pn_l0[33];
-            P_l0[34] = Pn_l0[34];
-            P_l0[35] = Pn_l0[35];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 36 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 36 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 36 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 36 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 36 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 36 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 36 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 36 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 36 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 36 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 36 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 36 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 36 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 36 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 36 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 36 + 15] = Pn_l0[15];
-                Ps[((t + 0) * steps + k) * 36 + 16] = Pn_l0[16];
-                Ps[((t + 0) * steps + k) * 36 + 17] = Pn_l0[17];
-                Ps[((t + 0) * steps + k) * 36 + 18] = Pn_l0[18];
-                Ps[((t + 0) * steps + k) * 36 + 19] = Pn_l0[19];
-                Ps[((t + 0) * steps + k) * 36 + 20] = Pn_l0[20];
-                Ps[((t + 0) * steps + k) * 36 + 21] = Pn_l0[21];
-                Ps[((t + 0) * steps + k) * 36 + 22] = Pn_l0[22];
-                Ps[((t + 0) * steps + k) * 36 + 23] = Pn_l0[23];
-                Ps[((t + 0) * steps + k) * 36 + 24] = Pn_l0[24];
-                Ps[((t + 0) * steps + k) * 36 + 25] = Pn_l0[25];
-                Ps[((t + 0) * steps + k) * 36 + 26] = Pn_l0[26];
-                Ps[((t + 0) * steps + k) * 36 + 27] = Pn_l0[27];
-                Ps[((t + 0) * steps + k) * 36 + 28] = Pn_l0[28];
-                Ps[((t + 0) * steps + k) * 36 + 29] = Pn_l0[29];
-                Ps[((t + 0) * steps + k) * 36 + 30] = Pn_l0[30];
-                Ps[((t + 0) * steps + k) * 36 + 31] = Pn_l0[31];
-                Ps[((t + 0) * steps + k) * 36 + 32] = Pn_l0[32];
-                Ps[((t + 0) * steps + k) * 36 + 33] = Pn_l0[33];
-                Ps[((t + 0) * steps + k) * 36 + 34] = Pn_l0[34];
-                Ps[((t + 0) * steps + k) * 36 + 35] = Pn_l0[35];
-            }
-            xs[((t + 1) * steps + k) * 6 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 6 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 6 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 6 + 3] = x_l1[3] = xn_l1[3];
-            xs[((t + 1) * steps + k) * 6 + 4] = x_l1[4] = xn_l1[4];
-            xs[((t + 1) * steps + k) * 6 + 5] = x_l1[5] = xn_l1[5];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            P_l1[9] = Pn_l1[9];
-            P_l1[10] = Pn_l1[10];
-            P_l1[11] = Pn_l1[11];
-            P_l1[12] = Pn_l1[12];
-            P_l1[13] = Pn_l1[13];
-            P_l1[14] = Pn_l1[14];
-            P_l1[15] = Pn_l1[15];
-            P_l1[16] = Pn_l1[16];
-            P_l1[17] = Pn_l1[17];
-            P_l1[18] = Pn_l1[18];
-            P_l1[19] = Pn_l1[19];
-            P_l1[20] = Pn_l1[20];
-            P_l1[21] = Pn_l1[21];
-            P_l1[22] = Pn_l1[22];
-            P_l1[23] = Pn_l1[23];
-            P_l1[24] = Pn_l1[24];
-            P_l1[25] = Pn_l1[25];
-            P_l1[26] = Pn_l1[26];
-            P_l1[27] = Pn_l1[27];
-            P_l1[28] = Pn_l1[28];
-            P_l1[29] = Pn_l1[29];
-            P_l1[30] = Pn_l1[30];
-            P_l1[31] = Pn_l1[31];
-            P_l1[32] = Pn_l1[32];
-            P_l1[33] = Pn_l1[33];
-            P_l1[34] = Pn_l1[34];
-            P_l1[35] = Pn_l1[35];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 36 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 36 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 36 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 36 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 36 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 36 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 36 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 36 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 36 + 8] = Pn_l1[8];
-                Ps[((t + 1) * steps + k) * 36 + 9] = Pn_l1[9];
-                Ps[((t + 1) * steps + k) * 36 + 10] = Pn_l1[10];
-                Ps[((t + 1) * steps + k) * 36 + 11] = Pn_l1[11];
-                Ps[((t + 1) * steps + k) * 36 + 12] = Pn_l1[12];
-                Ps[((t + 1) * steps + k) * 36 + 13] = Pn_l1[13];
-                Ps[((t + 1) * steps + k) * 36 + 14] = Pn_l1[14];
-                Ps[((t + 1) * steps + k) * 36 + 15] = Pn_l1[15];
-                Ps[((t + 1) * steps + k) * 36 + 16] = Pn_l1[16];
-                Ps[((t + 1) * steps + k) * 36 + 17] = Pn_l1[17];
-                Ps[((t + 1) * steps + k) * 36 + 18] = Pn_l1[18];
-                Ps[((t + 1) * steps + k) * 36 + 19] = Pn_l1[19];
-                Ps[((t + 1) * steps + k) * 36 + 20] = Pn_l1[20];
-                Ps[((t + 1) * steps + k) * 36 + 21] = Pn_l1[21];
-                Ps[((t + 1) * steps + k) * 36 + 22] = Pn_l1[22];
-                Ps[((t + 1) * steps + k) * 36 + 23] = Pn_l1[23];
-                Ps[((t + 1) * steps + k) * 36 + 24] = Pn_l1[24];
-                Ps[((t + 1) * steps + k) * 36 + 25] = Pn_l1[25];
-                Ps[((t + 1) * steps + k) * 36 + 26] = Pn_l1[26];
-                Ps[((t + 1) * steps + k) * 36 + 27] = Pn_l1[27];
-                Ps[((t + 1) * steps + k) * 36 + 28] = Pn_l1[28];
-                Ps[((t + 1) * steps + k) * 36 + 29] = Pn_l1[29];
-                Ps[((t + 1) * steps + k) * 36 + 30] = Pn_l1[30];
-                Ps[((t + 1) * steps + k) * 36 + 31] = Pn_l1[31];
-                Ps[((t + 1) * steps + k) * 36 + 32] = Pn_l1[32];
-                Ps[((t + 1) * steps + k) * 36 + 33] = Pn_l1[33];
-                Ps[((t + 1) * steps + k) * 36 + 34] = Pn_l1[34];
-                Ps[((t + 1) * steps + k) * 36 + 35] = Pn_l1[35];
-            }
-            xs[((t + 2) * steps + k) * 6 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 6 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 6 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 6 + 3] = x_l2[3] = xn_l2[3];
-            xs[((t + 2) * steps + k) * 6 + 4] = x_l2[4] = xn_l2[4];
-            xs[((t + 2) * steps + k) * 6 + 5] = x_l2[5] = xn_l2[5];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            P_l2[9] = Pn_l2[9];
-            P_l2[10] = Pn_l2[10];
-            P_l2[11] = Pn_l2[11];
-            P_l2[12] = Pn_l2[12];
-            P_l2[13] = Pn_l2[13];
-            P_l2[14] = Pn_l2[14];
-            P_l2[15] = Pn_l2[15];
-            P_l2[16] = Pn_l2[16];
-            P_l2[17] = Pn_l2[17];
-            P_l2[18] = Pn_l2[18];
-            P_l2[19] = Pn_l2[19];
-            P_l2[20] = Pn_l2[20];
-            P_l2[21] = Pn_l2[21];
-            P_l2[22] = Pn_l2[22];
-            P_l2[23] = Pn_l2[23];
-            P_l2[24] = Pn_l2[24];
-            P_l2[25] = Pn_l2[25];
-            P_l2[26] = Pn_l2[26];
-            P_l2[27] = Pn_l2[27];
-            P_l2[28] = Pn_l2[28];
-            P_l2[29] = Pn_l2[29];
-            P_l2[30] = Pn_l2[30];
-            P_l2[31] = Pn_l2[31];
-            P_l2[32] = Pn_l2[32];
-            P_l2[33] = Pn_l2[33];
-            P_l2[34] = Pn_l2[34];
-            P_l2[35] = Pn_l2[35];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 36 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 36 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 36 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 36 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 36 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 36 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 36 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 36 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 36 + 8] = Pn_l2[8];
-                Ps[((t + 2) * steps + k) * 36 + 9] = Pn_l2[9];
-                Ps[((t + 2) * steps + k) * 36 + 10] = Pn_l2[10];
-                Ps[((t + 2) * steps + k) * 36 + 11] = Pn_l2[11];
-                Ps[((t + 2) * steps + k) * 36 + 12] = Pn_l2[12];
-                Ps[((t + 2) * steps + k) * 36 + 13] = Pn_l2[13];
-                Ps[((t + 2) * steps + k) * 36 + 14] = Pn_l2[14];
-                Ps[((t + 2) * steps + k) * 36 + 15] = Pn_l2[15];
-                Ps[((t + 2) * steps + k) * 36 + 16] = Pn_l2[16];
-                Ps[((t + 2) * steps + k) * 36 + 17] = Pn_l2[17];
-                Ps[((t + 2) * steps + k) * 36 + 18] = Pn_l2[18];
-                Ps[((t + 2) * steps + k) * 36 + 19] = Pn_l2[19];
-                Ps[((t + 2) * steps + k) * 36 + 20] = Pn_l2[20];
-                Ps[((t + 2) * steps + k) * 36 + 21] = Pn_l2[21];
-                Ps[((t + 2) * steps + k) * 36 + 22] = Pn_l2[22];
-                Ps[((t + 2) * steps + k) * 36 + 23] = Pn_l2[23];
-                Ps[((t + 2) * steps + k) * 36 + 24] = Pn_l2[24];
-                Ps[((t + 2) * steps + k) * 36 + 25] = Pn_l2[25];
-                Ps[((t + 2) * steps + k) * 36 + 26] = Pn_l2[26];
-                Ps[((t + 2) * steps + k) * 36 + 27] = Pn_l2[27];
-                Ps[((t + 2) * steps + k) * 36 + 28] = Pn_l2[28];
-                Ps[((t + 2) * steps + k) * 36 + 29] = Pn_l2[29];
-                Ps[((t + 2) * steps + k) * 36 + 30] = Pn_l2[30];
-                Ps[((t + 2) * steps + k) * 36 + 31] = Pn_l2[31];
-                Ps[((t + 2) * steps + k) * 36 + 32] = Pn_l2[32];
-                Ps[((t + 2) * steps + k) * 36 + 33] = Pn_l2[33];
-                Ps[((t + 2) * steps + k) * 36 + 34] = Pn_l2[34];
-                Ps[((t + 2) * steps + k) * 36 + 35] = Pn_l2[35];
-            }
-            xs[((t + 3) * steps + k) * 6 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 6 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 6 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 6 + 3] = x_l3[3] = xn_l3[3];
-            xs[((t + 3) * steps + k) * 6 + 4] = x_l3[4] = xn_l3[4];
-            xs[((t + 3) * steps + k) * 6 + 5] = x_l3[5] = xn_l3[5];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            P_l3[9] = Pn_l3[9];
-            P_l3[10] = Pn_l3[10];
-            P_l3[11] = Pn_l3[11];
-            P_l3[12] = Pn_l3[12];
-            P_l3[13] = Pn_l3[13];
-            P_l3[14] = Pn_l3[14];
-            P_l3[15] = Pn_l3[15];
-            P_l3[16] = Pn_l3[16];
-            P_l3[17] = Pn_l3[17];
-            P_l3[18] = Pn_l3[18];
-            P_l3[19] = Pn_l3[19];
-            P_l3[20] = Pn_l3[20];
-            P_l3[21] = Pn_l3[21];
-            P_l3[22] = Pn_l3[22];
-            P_l3[23] = Pn_l3[23];
-            P_l3[24] = Pn_l3[24];
-            P_l3[25] = Pn_l3[25];
-            P_l3[26] = Pn_l3[26];
-            P_l3[27] = Pn_l3[27];
-            P_l3[28] = Pn_l3[28];
-            P_l3[29] = Pn_l3[29];
-            P_l3[30] = Pn_l3[30];
-            P_l3[31] = Pn_l3[31];
-            P_l3[32] = Pn_l3[32];
-            P_l3[33] = Pn_l3[33];
-            P_l3[34] = Pn_l3[34];
-            P_l3[35] = Pn_l3[35];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 36 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 36 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 36 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 36 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 36 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 36 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 36 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 36 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 36 + 8] = Pn_l3[8];
-                Ps[((t + 3) * steps + k) * 36 + 9] = Pn_l3[9];
-                Ps[((t + 3) * steps + k) * 36 + 10] = Pn_l3[10];
-                Ps[((t + 3) * steps + k) * 36 + 11] = Pn_l3[11];
-                Ps[((t + 3) * steps + k) * 36 + 12] = Pn_l3[12];
-                Ps[((t + 3) * steps + k) * 36 + 13] = Pn_l3[13];
-                Ps[((t + 3) * steps + k) * 36 + 14] = Pn_l3[14];
-                Ps[((t + 3) * steps + k) * 36 + 15] = Pn_l3[15];
-                Ps[((t + 3) * steps + k) * 36 + 16] = Pn_l3[16];
-                Ps[((t + 3) * steps + k) * 36 + 17] = Pn_l3[17];
-                Ps[((t + 3) * steps + k) * 36 + 18] = Pn_l3[18];
-                Ps[((t + 3) * steps + k) * 36 + 19] = Pn_l3[19];
-                Ps[((t + 3) * steps + k) * 36 + 20] = Pn_l3[20];
-                Ps[((t + 3) * steps + k) * 36 + 21] = Pn_l3[21];
-                Ps[((t + 3) * steps + k) * 36 + 22] = Pn_l3[22];
-                Ps[((t + 3) * steps + k) * 36 + 23] = Pn_l3[23];
-                Ps[((t + 3) * steps + k) * 36 + 24] = Pn_l3[24];
-                Ps[((t + 3) * steps + k) * 36 + 25] = Pn_l3[25];
-                Ps[((t + 3) * steps + k) * 36 + 26] = Pn_l3[26];
-                Ps[((t + 3) * steps + k) * 36 + 27] = Pn_l3[27];
-                Ps[((t + 3) * steps + k) * 36 + 28] = Pn_l3[28];
-                Ps[((t + 3) * steps + k) * 36 + 29] = Pn_l3[29];
-                Ps[((t + 3) * steps + k) * 36 + 30] = Pn_l3[30];
-                Ps[((t + 3) * steps + k) * 36 + 31] = Pn_l3[31];
-                Ps[((t + 3) * steps + k) * 36 + 32] = Pn_l3[32];
-                Ps[((t + 3) * steps + k) * 36 + 33] = Pn_l3[33];
-                Ps[((t + 3) * steps + k) * 36 + 34] = Pn_l3[34];
-                Ps[((t + 3) * steps + k) * 36 + 35] = Pn_l3[35];
+            for (i = 0; i < 36 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[6], xn_l0[6];
-        double P_l0[36], Pn_l0[36];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        P_l0[0] = P0[(t + 0) * 36 + 0];
-        P_l0[1] = P0[(t + 0) * 36 + 1];
-        P_l0[2] = P0[(t + 0) * 36 + 2];
-        P_l0[3] = P0[(t + 0) * 36 + 3];
-        P_l0[4] = P0[(t + 0) * 36 + 4];
-        P_l0[5] = P0[(t + 0) * 36 + 5];
-        P_l0[6] = P0[(t + 0) * 36 + 6];
-        P_l0[7] = P0[(t + 0) * 36 + 7];
-        P_l0[8] = P0[(t + 0) * 36 + 8];
-        P_l0[9] = P0[(t + 0) * 36 + 9];
-        P_l0[10] = P0[(t + 0) * 36 + 10];
-        P_l0[11] = P0[(t + 0) * 36 + 11];
-        P_l0[12] = P0[(t + 0) * 36 + 12];
-        P_l0[13] = P0[(t + 0) * 36 + 13];
-        P_l0[14] = P0[(t + 0) * 36 + 14];
-        P_l0[15] = P0[(t + 0) * 36 + 15];
-        P_l0[16] = P0[(t + 0) * 36 + 16];
-        P_l0[17] = P0[(t + 0) * 36 + 17];
-        P_l0[18] = P0[(t + 0) * 36 + 18];
-        P_l0[19] = P0[(t + 0) * 36 + 19];
-        P_l0[20] = P0[(t + 0) * 36 + 20];
-        P_l0[21] = P0[(t + 0) * 36 + 21];
-        P_l0[22] = P0[(t + 0) * 36 + 22];
-        P_l0[23] = P0[(t + 0) * 36 + 23];
-        P_l0[24] = P0[(t + 0) * 36 + 24];
-        P_l0[25] = P0[(t + 0) * 36 + 25];
-        P_l0[26] = P0[(t + 0) * 36 + 26];
-        P_l0[27] = P0[(t + 0) * 36 + 27];
-        P_l0[28] = P0[(t + 0) * 36 + 28];
-        P_l0[29] = P0[(t + 0) * 36 + 29];
-        P_l0[30] = P0[(t + 0) * 36 + 30];
-        P_l0[31] = P0[(t + 0) * 36 + 31];
-        P_l0[32] = P0[(t + 0) * 36 + 32];
-        P_l0[33] = P0[(t + 0) * 36 + 33];
-        P_l0[34] = P0[(t + 0) * 36 + 34];
-        P_l0[35] = P0[(t + 0) * 36 + 35];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = x_l0[4] + x_l0[5];
-            const double t3_l0 = P_l0[0] + P_l0[1];
-            const double t4_l0 = P_l0[1] + P_l0[7];
-            const double t5_l0 = P_l0[14] + P_l0[15];
-            const double t6_l0 = P_l0[15] + P_l0[21];
-            const double t7_l0 = P_l0[28] + P_l0[29];
-            const double t8_l0 = P_l0[29] + P_l0[35];
-            const double t9_l0 = t3_l0 + t4_l0;
-            const double t10_l0 = t5_l0 + t6_l0;
-            const double t11_l0 = t7_l0 + t8_l0;
-            const double t12_l0 = 0.0025 + t9_l0;
-            const double t13_l0 = 0.005 + t4_l0;
-            const double t14_l0 = 0.01 + P_l0[7];
-            const double t15_l0 = 0.0025 + t10_l0;
-            const double t16_l0 = 0.005 + t6_l0;
-            const double t17_l0 = 0.01 + P_l0[21];
-            const double t18_l0 = 0.0025 + t11_l0;
-            const double t19_l0 = 0.005 + t8_l0;
-            const double t20_l0 = 0.01 + P_l0[35];
-            const double t21_l0 = t12_l0 + t13_l0;
-            const double t22_l0 = t13_l0 + t14_l0;
-            const double t23_l0 = t15_l0 + t16_l0;
-            const double t24_l0 = t16_l0 + t17_l0;
-            const double t25_l0 = t18_l0 + t19_l0;
-            const double t26_l0 = t19_l0 + t20_l0;
-            const double t27_l0 = t21_l0 + t22_l0;
-            const double t28_l0 = t23_l0 + t24_l0;
-            const double t29_l0 = t25_l0 + t26_l0;
-            const double t30_l0 = 0.1 + t27_l0;
-            const double t31_l0 = 0.1 + t28_l0;
-            const double t32_l0 = 0.1 + t29_l0;
-            if (!(t30_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t31_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t32_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l0 = t21_l0/t30_l0;
-            const double t34_l0 = t22_l0/t30_l0;
-            const double t35_l0 = t23_l0/t31_l0;
-            const double t36_l0 = t24_l0/t31_l0;
-            const double t37_l0 = t25_l0/t32_l0;
-            const double t38_l0 = t26_l0/t32_l0;
-            const double t39_l0 = x_l0[1] + t0_l0;
-            const double t40_l0 = x_l0[3] + t1_l0;
-            const double t41_l0 = x_l0[5] + t2_l0;
-            const double t42_l0 = z_l0[0] - t39_l0;
-            const double t43_l0 = z_l0[1] - t40_l0;
-            const double t44_l0 = z_l0[2] - t41_l0;
-            const double t45_l0 = t33_l0*t42_l0;
-            const double t46_l0 = t34_l0*t42_l0;
-            const double t47_l0 = t35_l0*t43_l0;
-            const double t48_l0 = t36_l0*t43_l0;
-            const double t49_l0 = t37_l0*t44_l0;
-            const double t50_l0 = t38_l0*t44_l0;
-            const double t51_l0 = t0_l0 + t45_l0;
-            const double t52_l0 = x_l0[1] + t46_l0;
-            const double t53_l0 = t1_l0 + t47_l0;
-            const double t54_l0 = x_l0[3] + t48_l0;
-            const double t55_l0 = t2_l0 + t49_l0;
-            const double t56_l0 = x_l0[5] + t50_l0;
-            const double t57_l0 = t21_l0*t33_l0;
-            const double t58_l0 = t22_l0*t33_l0;
-            const double t59_l0 = t22_l0*t34_l0;
-            const double t60_l0 = t23_l0*t35_l0;
-            const double t61_l0 = t24_l0*t35_l0;
-            const double t62_l0 = t24_l0*t36_l0;
-            const double t63_l0 = t25_l0*t37_l0;
-            const double t64_l0 = t26_l0*t37_l0;
-            const double t65_l0 = t26_l0*t38_l0;
-            const double t66_l0 = t12_l0 - t57_l0;
-            const double t67_l0 = t13_l0 - t58_l0;
-            const double t68_l0 = t14_l0 - t59_l0;
-            const double t69_l0 = t15_l0 - t60_l0;
-            const double t70_l0 = t16_l0 - t61_l0;
-            const double t71_l0 = t17_l0 - t62_l0;
-            const double t72_l0 = t18_l0 - t63_l0;
-            const double t73_l0 = t19_l0 - t64_l0;
-            const double t74_l0 = t20_l0 - t65_l0;
-            const double t75_l0 = 16.3265306122449*P_l0[1];
-            const double t76_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t75_l0);
-            const double t77_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t78_l0 = DERIVE_FMA(16.3265306122449, P_l0[7], 8.16326530612245*P_l0[1]);
-            const double t79_l0 = DERIVE_FMA(32.6530612244898, P_l0[7], t75_l0);
-            const double t80_l0 = 16.3265306122449*P_l0[15];
-            const double t81_l0 = DERIVE_FMA(8.16326530612245, P_l0[14], t80_l0);
-            const double t82_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], 16.3265306122449*P_l0[14]);
-            const double t83_l0 = DERIVE_FMA(16.3265306122449, P_l0[21], 8.16326530612245*P_l0[15]);
-            const double t84_l0 = DERIVE_FMA(32.6530612244898, P_l0[21], t80_l0);
-            const double t85_l0 = 16.3265306122449*P_l0[29];
-            const double t86_l0 = DERIVE_FMA(8.16326530612245, P_l0[28], t85_l0);
-            const double t87_l0 = DERIVE_FMA(32.6530612244898, P_l0[29], 16.3265306122449*P_l0[28]);
-            const double t88_l0 = DERIVE_FMA(16.3265306122449, P_l0[35], 8.16326530612245*P_l0[29]);
-            const double t89_l0 = DERIVE_FMA(32.6530612244898, P_l0[35], t85_l0);
-            const double t90_l0 = 1.0 + t76_l0;
-            const double t91_l0 = 1.0 + t79_l0;
-            const double t92_l0 = 1.0 + t81_l0;
-            const double t93_l0 = 1.0 + t84_l0;
-            const double t94_l0 = 1.0 + t86_l0;
-            const double t95_l0 = 1.0 + t89_l0;
-            const double t96_l0 = 1.0/t90_l0;
-            const double t97_l0 = t78_l0*t96_l0;
-            const double t98_l0 = t91_l0 - t77_l0*t97_l0;
-            const double t99_l0 = 1.0/t98_l0;
-            const double t100_l0 = 1.0/t92_l0;
-            const double t101_l0 = t100_l0*t83_l0;
-            const double t102_l0 = t93_l0 - t101_l0*t82_l0;
-            const double t103_l0 = 1.0/t102_l0;
-            const double t104_l0 = 1.0/t94_l0;
-            const double t105_l0 = t104_l0*t88_l0;
-            const double t106_l0 = t95_l0 - t105_l0*t87_l0;
-            const double t107_l0 = 1.0/t106_l0;
-            const double t108_l0 = t97_l0*t99_l0;
-            const double t109_l0 = t96_l0*DERIVE_FMA(t108_l0, t77_l0, 1.0);
-            const double t110_l0 = t77_l0*t96_l0*t99_l0;
-            const double t111_l0 = t101_l0*t103_l0;
-            const double t112_l0 = t100_l0*DERIVE_FMA(t111_l0, t82_l0, 1.0);
-            const double t113_l0 = t100_l0*t103_l0*t82_l0;
-            const double t114_l0 = t105_l0*t107_l0;
-            const double t115_l0 = t104_l0*DERIVE_FMA(t114_l0, t87_l0, 1.0);
-            const double t116_l0 = t104_l0*t107_l0*t87_l0;
-            const double t117_l0 = DERIVE_FMA(0.9387755102040817, t109_l0, (-0.8775510204081632)*t108_l0);
-            const double t118_l0 = DERIVE_FMA(0.8775510204081632, t99_l0, (-0.9387755102040817)*t110_l0);
-            const double t119_l0 = DERIVE_FMA(0.12244897959183673, t109_l0, 0.7551020408163265*t108_l0);
-            const double t120_l0 = DERIVE_FMA(0.7551020408163265, t99_l0, 0.12244897959183673*t110_l0);
-            const double t121_l0 = DERIVE_FMA(0.9387755102040817, t112_l0, (-0.8775510204081632)*t111_l0);
-            const double t122_l0 = DERIVE_FMA((-0.9387755102040817), t113_l0, 0.8775510204081632*t103_l0);
-            const double t123_l0 = DERIVE_FMA(0.12244897959183673, t112_l0, 0.7551020408163265*t111_l0);
-            const double t124_l0 = DERIVE_FMA(0.12244897959183673, t113_l0, 0.7551020408163265*t103_l0);
-            const double t125_l0 = DERIVE_FMA(0.9387755102040817, t115_l0, (-0.8775510204081632)*t114_l0);
-            const double t126_l0 = DERIVE_FMA((-0.9387755102040817), t116_l0, 0.8775510204081632*t107_l0);
-            const double t127_l0 = DERIVE_FMA(0.12244897959183673, t115_l0, 0.7551020408163265*t114_l0);
-            const double t128_l0 = DERIVE_FMA(0.12244897959183673, t116_l0, 0.7551020408163265*t107_l0);
-            const double t129_l0 = 8.16326530612245*z_l0[0];
-            const double t130_l0 = 16.3265306122449*z_l0[0];
-            const double t131_l0 = 8.16326530612245*z_l0[1];
-            const double t132_l0 = 16.3265306122449*z_l0[1];
-            const double t133_l0 = 8.16326530612245*z_l0[2];
-            const double t134_l0 = 16.3265306122449*z_l0[2];
-            const double t135_l0 = DERIVE_FMA(P_l0[1], t130_l0, P_l0[0]*t129_l0);
-            const double t136_l0 = DERIVE_FMA(P_l0[7], t130_l0, P_l0[1]*t129_l0);
-            const double t137_l0 = DERIVE_FMA(P_l0[15], t132_l0, P_l0[14]*t131_l0);
-            const double t138_l0 = DERIVE_FMA(P_l0[21], t132_l0, P_l0[15]*t131_l0);
-            const double t139_l0 = DERIVE_FMA(P_l0[29], t134_l0, P_l0[28]*t133_l0);
-            const double t140_l0 = DERIVE_FMA(P_l0[35], t134_l0, P_l0[29]*t133_l0);
-            const double t141_l0 = x_l0[0] + t135_l0;
-            const double t142_l0 = x_l0[1] + t136_l0;
-            const double t143_l0 = x_l0[2] + t137_l0;
-            const double t144_l0 = x_l0[3] + t138_l0;
-            const double t145_l0 = x_l0[4] + t139_l0;
-            const double t146_l0 = x_l0[5] + t140_l0;
-            const double t147_l0 = 0.061224489795918366*z_l0[0];
-            const double t148_l0 = 0.12244897959183673*z_l0[0];
-            const double t149_l0 = 0.061224489795918366*z_l0[1];
-            const double t150_l0 = 0.12244897959183673*z_l0[1];
-            const double t151_l0 = 0.061224489795918366*z_l0[2];
-            const double t152_l0 = 0.12244897959183673*z_l0[2];
-            const double t153_l0 = DERIVE_FMA(t118_l0, t142_l0, t117_l0*t141_l0);
-            const double t154_l0 = DERIVE_FMA(t120_l0, t142_l0, -(t119_l0*t141_l0));
-            const double t155_l0 = DERIVE_FMA(t122_l0, t144_l0, t121_l0*t143_l0);
-            const double t156_l0 = DERIVE_FMA(t124_l0, t144_l0, -(t123_l0*t143_l0));
-            const double t157_l0 = DERIVE_FMA(t126_l0, t146_l0, t125_l0*t145_l0);
-            const double t158_l0 = DERIVE_FMA(t128_l0, t146_l0, -(t127_l0*t145_l0));
-            const double t159_l0 = t147_l0 + t153_l0;
-            const double t160_l0 = t148_l0 + t154_l0;
-            const double t161_l0 = t149_l0 + t155_l0;
-            const double t162_l0 = t150_l0 + t156_l0;
-            const double t163_l0 = t151_l0 + t157_l0;
-            const double t164_l0 = t152_l0 + t158_l0;
-            const double t165_l0 = DERIVE_FMA(P_l0[1], t118_l0, P_l0[0]*t117_l0);
-            const double t166_l0 = DERIVE_FMA(P_l0[7], t118_l0, P_l0[1]*t117_l0);
-            const double t167_l0 = DERIVE_FMA(P_l0[1], t120_l0, -(P_l0[0]*t119_l0));
-            const double t168_l0 = DERIVE_FMA(P_l0[7], t120_l0, -(P_l0[1]*t119_l0));
-            const double t169_l0 = DERIVE_FMA(P_l0[15], t122_l0, P_l0[14]*t121_l0);
-            const double t170_l0 = DERIVE_FMA(P_l0[21], t122_l0, P_l0[15]*t121_l0);
-            const double t171_l0 = DERIVE_FMA(P_l0[15], t124_l0, -(P_l0[14]*t123_l0));
-            const double t172_l0 = DERIVE_FMA(P_l0[21], t124_l0, -(P_l0[15]*t123_l0));
-            const double t173_l0 = DERIVE_FMA(P_l0[29], t126_l0, P_l0[28]*t125_l0);
-            const double t174_l0 = DERIVE_FMA(P_l0[35], t126_l0, P_l0[29]*t125_l0);
-            const double t175_l0 = DERIVE_FMA(P_l0[29], t128_l0, -(P_l0[28]*t127_l0));
-            const double t176_l0 = DERIVE_FMA(P_l0[35], t128_l0, -(P_l0[29]*t127_l0));
-            const double t177_l0 = DERIVE_FMA(0.8775510204081632, t166_l0, 0.9387755102040817*t165_l0);
-            const double t178_l0 = DERIVE_FMA(0.7551020408163265, t166_l0, (-0.12244897959183673)*t165_l0);
-            const double t179_l0 = DERIVE_FMA(0.7551020408163265, t168_l0, (-0.12244897959183673)*t167_l0);
-            const double t180_l0 = DERIVE_FMA(0.8775510204081632, t170_l0, 0.9387755102040817*t169_l0);
-            const double t181_l0 = DERIVE_FMA(0.7551020408163265, t170_l0, (-0.12244897959183673)*t169_l0);
-            const double t182_l0 = DERIVE_FMA(0.7551020408163265, t172_l0, (-0.12244897959183673)*t171_l0);
-            const double t183_l0 = DERIVE_FMA(0.8775510204081632, t174_l0, 0.9387755102040817*t173_l0);
-            const double t184_l0 = DERIVE_FMA(0.7551020408163265, t174_l0, (-0.12244897959183673)*t173_l0);
-            const double t185_l0 = DERIVE_FMA(0.7551020408163265, t176_l0, (-0.12244897959183673)*t175_l0);
-            const double t186_l0 = 0.0020408163265306124 + t177_l0;
-            const double t187_l0 = 0.004081632653061225 + t178_l0;
-            const double t188_l0 = 0.00816326530612245 + t179_l0;
-            const double t189_l0 = 0.0020408163265306124 + t180_l0;
-            const double t190_l0 = 0.004081632653061225 + t181_l0;
-            const double t191_l0 = 0.00816326530612245 + t182_l0;
-            const double t192_l0 = 0.0020408163265306124 + t183_l0;
-            const double t193_l0 = 0.004081632653061225 + t184_l0;
-            const double t194_l0 = 0.00816326530612245 + t185_l0;
-            const double t195_l0 = t159_l0 + t51_l0;
-            const double t196_l0 = t160_l0 + t52_l0;
-            const double t197_l0 = t161_l0 + t53_l0;
-            const double t198_l0 = t162_l0 + t54_l0;
-            const double t199_l0 = t163_l0 + t55_l0;
-            const double t200_l0 = t164_l0 + t56_l0;
-            const double t201_l0 = 0.5*t195_l0;
-            const double t202_l0 = 0.5*t196_l0;
-            const double t203_l0 = 0.5*t197_l0;
-            const double t204_l0 = 0.5*t198_l0;
-            const double t205_l0 = 0.5*t199_l0;
-            const double t206_l0 = 0.5*t200_l0;
-            const double t207_l0 = t186_l0 + t66_l0;
-            const double t208_l0 = t187_l0 + t67_l0;
-            const double t209_l0 = t188_l0 + t68_l0;
-            const double t210_l0 = t189_l0 + t69_l0;
-            const double t211_l0 = t190_l0 + t70_l0;
-            const double t212_l0 = t191_l0 + t71_l0;
-            const double t213_l0 = t192_l0 + t72_l0;
-            const double t214_l0 = t193_l0 + t73_l0;
-            const double t215_l0 = t194_l0 + t74_l0;
-            const double t216_l0 = 0.5*t207_l0;
-            const double t217_l0 = 0.5*t208_l0;
-            const double t218_l0 = 0.5*t209_l0;
-            const double t219_l0 = 0.5*t210_l0;
-            const double t220_l0 = 0.5*t211_l0;
-            const double t221_l0 = 0.5*t212_l0;
-            const double t222_l0 = 0.5*t213_l0;
-            const double t223_l0 = 0.5*t214_l0;
-            const double t224_l0 = 0.5*t215_l0;
-            xn_l0[0] = t201_l0;
-            xn_l0[1] = t202_l0;
-            xn_l0[2] = t203_l0;
-            xn_l0[3] = t204_l0;
-            xn_l0[4] = t205_l0;
-            xn_l0[5] = t206_l0;
-            Pn_l0[0] = t216_l0;
-            Pn_l0[1] = t217_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = 0.0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = t217_l0;
-            Pn_l0[7] = t218_l0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = 0.0;
-            Pn_l0[11] = 0.0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t219_l0;
-            Pn_l0[15] = t220_l0;
-            Pn_l0[16] = 0.0;
-            Pn_l0[17] = 0.0;
-            Pn_l0[18] = 0.0;
-            Pn_l0[19] = 0.0;
-            Pn_l0[20] = t220_l0;
-            Pn_l0[21] = t221_l0;
-            Pn_l0[22] = 0.0;
-            Pn_l0[23] = 0.0;
-            Pn_l0[24] = 0.0;
-            Pn_l0[25] = 0.0;
-            Pn_l0[26] = 0.0;
-            Pn_l0[27] = 0.0;
-            Pn_l0[28] = t222_l0;
-            Pn_l0[29] = t223_l0;
-            Pn_l0[30] = 0.0;
-            Pn_l0[31] = 0.0;
-            Pn_l0[32] = 0.0;
-            Pn_l0[33] = 0.0;
-            Pn_l0[34] = t223_l0;
-            Pn_l0[35] = t224_l0;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            P_l0[16] = Pn_l0[16];
-            P_l0[17] = Pn_l0[17];
-            P_l0[18] = Pn_l0[18];
-            P_l0[19] = Pn_l0[19];
-            P_l0[20] = Pn_l0[20];
-            P_l0[21] = Pn_l0[21];
-            P_l0[22] = Pn_l0[22];
-            P_l0[23] = Pn_l0[23];
-            P_l0[24] = Pn_l0[24];
-            P_l0[25] = Pn_l0[25];
-            P_l0[26] = Pn_l0[26];
-            P_l0[27] = Pn_l0[27];
-            P_l0[28] = Pn_l0[28];
-            P_l0[29] = Pn_l0[29];
-            P_l0[30] = Pn_l0[30];
-            P_l0[31] = Pn_l0[31];
-            P_l0[32] = Pn_l0[32];
-            P_l0[33] = Pn_l0[33];
-            P_l0[34] = Pn_l0[34];
-            P_l0[35] = Pn_l0[35];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 36 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 36 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 36 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 36 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 36 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 36 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 36 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 36 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 36 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 36 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 36 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 36 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 36 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 36 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 36 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 36 + 15] = Pn_l0[15];
-                Ps[((t + 0) * steps + k) * 36 + 16] = Pn_l0[16];
-                Ps[((t + 0) * steps + k) * 36 + 17] = Pn_l0[17];
-                Ps[((t + 0) * steps + k) * 36 + 18] = Pn_l0[18];
-                Ps[((t + 0) * steps + k) * 36 + 19] = Pn_l0[19];
-                Ps[((t + 0) * steps + k) * 36 + 20] = Pn_l0[20];
-                Ps[((t + 0) * steps + k) * 36 + 21] = Pn_l0[21];
-                Ps[((t + 0) * steps + k) * 36 + 22] = Pn_l0[22];
-                Ps[((t + 0) * steps + k) * 36 + 23] = Pn_l0[23];
-                Ps[((t + 0) * steps + k) * 36 + 24] = Pn_l0[24];
-                Ps[((t + 0) * steps + k) * 36 + 25] = Pn_l0[25];
-                Ps[((t + 0) * steps + k) * 36 + 26] = Pn_l0[26];
-                Ps[((t + 0) * steps + k) * 36 + 27] = Pn_l0[27];
-                Ps[((t + 0) * steps + k) * 36 + 28] = Pn_l0[28];
-                Ps[((t + 0) * steps + k) * 36 + 29] = Pn_l0[29];
-                Ps[((t + 0) * steps + k) * 36 + 30] = Pn_l0[30];
-                Ps[((t + 0) * steps + k) * 36 + 31] = Pn_l0[31];
-                Ps[((t + 0) * steps + k) * 36 + 32] = Pn_l0[32];
-                Ps[((t + 0) * steps + k) * 36 + 33] = Pn_l0[33];
-                Ps[((t + 0) * steps + k) * 36 + 34] = Pn_l0[34];
-                Ps[((t + 0) * steps + k) * 36 + 35] = Pn_l0[35];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = mpt3d_a_jklf_run(steps, z + t * steps * 3, x0 + t * 6, P0 + t * 6 * 6, xs + t * steps * 6, Ps ? Ps + t * steps * 6 * 6 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

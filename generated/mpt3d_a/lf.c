@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int mpt3d_a_lf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
  *     int mpt3d_a_lf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
+ *     int mpt3d_a_lf_run_tracks(steps, tracks, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -19,7 +20,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 12, calls 0 (flops 240, instructions 201)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -34,59 +35,56 @@
 #endif
 #endif
 
-int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    if (!(P[2] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[3] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[4] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[5] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[8] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[9] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[10] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[11] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[16] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[17] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[22] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    if (!(P[23] == 0.0)) {
-        return 1; /* outside P's pattern */
-    }
-    const double t0 = 16.3265306122449*P[1];
+    const double t0 = 16.3265306122449*P[1 * s];
     const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
-    const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-    const double t3 = DERIVE_FMA(16.3265306122449, P[7], 8.16326530612245*P[1]);
-    const double t4 = DERIVE_FMA(32.6530612244898, P[7], t0);
-    const double t5 = 16.3265306122449*P[15];
-    const double t6 = DERIVE_FMA(8.16326530612245, P[14], t5);
-    const double t7 = DERIVE_FMA(32.6530612244898, P[15], 16.3265306122449*P[14]);
-    const double t8 = DERIVE_FMA(16.3265306122449, P[21], 8.16326530612245*P[15]);
-    const double t9 = DERIVE_FMA(32.6530612244898, P[21], t5);
-    const double t10 = 16.3265306122449*P[29];
-    const double t11 = DERIVE_FMA(8.16326530612245, P[28], t10);
-    const double t12 = DERIVE_FMA(32.6530612244898, P[29], 16.3265306122449*P[28]);
-    const double t13 = DERIVE_FMA(16.3265306122449, P[35], 8.16326530612245*P[29]);
-    const double t14 = DERIVE_FMA(32.6530612244898, P[35], t10);
+    const double t2 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
+    const double t3 = DERIVE_FMA(16.3265306122449, P[7 * s], 8.16326530612245*P[1 * s]);
+    const double t4 = DERIVE_FMA(32.6530612244898, P[7 * s], t0);
+    const double t5 = 16.3265306122449*P[15 * s];
+    const double t6 = DERIVE_FMA(8.16326530612245, P[14 * s], t5);
+    const double t7 = DERIVE_FMA(32.6530612244898, P[15 * s], 16.3265306122449*P[14 * s]);
+    const double t8 = DERIVE_FMA(16.3265306122449, P[21 * s], 8.16326530612245*P[15 * s]);
+    const double t9 = DERIVE_FMA(32.6530612244898, P[21 * s], t5);
+    const double t10 = 16.3265306122449*P[29 * s];
+    const double t11 = DERIVE_FMA(8.16326530612245, P[28 * s], t10);
+    const double t12 = DERIVE_FMA(32.6530612244898, P[29 * s], 16.3265306122449*P[28 * s]);
+    const double t13 = DERIVE_FMA(16.3265306122449, P[35 * s], 8.16326530612245*P[29 * s]);
+    const double t14 = DERIVE_FMA(32.6530612244898, P[35 * s], t10);
     const double t15 = 1.0 + t1;
     const double t16 = 1.0 + t4;
     const double t17 = 1.0 + t6;
@@ -128,28 +126,28 @@ int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const do
     const double t53 = DERIVE_FMA(0.12244897959183673, t41, 0.7551020408163265*t32);
     const double t54 = 8.16326530612245*z[0];
     const double t55 = 16.3265306122449*z[0];
-    const double t56 = 8.16326530612245*z[1];
-    const double t57 = 16.3265306122449*z[1];
-    const double t58 = 8.16326530612245*z[2];
-    const double t59 = 16.3265306122449*z[2];
-    const double t60 = DERIVE_FMA(P[1], t55, P[0]*t54);
-    const double t61 = DERIVE_FMA(P[7], t55, P[1]*t54);
-    const double t62 = DERIVE_FMA(P[15], t57, P[14]*t56);
-    const double t63 = DERIVE_FMA(P[21], t57, P[15]*t56);
-    const double t64 = DERIVE_FMA(P[29], t59, P[28]*t58);
-    const double t65 = DERIVE_FMA(P[35], t59, P[29]*t58);
+    const double t56 = 8.16326530612245*z[1 * s];
+    const double t57 = 16.3265306122449*z[1 * s];
+    const double t58 = 8.16326530612245*z[2 * s];
+    const double t59 = 16.3265306122449*z[2 * s];
+    const double t60 = DERIVE_FMA(P[1 * s], t55, P[0]*t54);
+    const double t61 = DERIVE_FMA(P[7 * s], t55, P[1 * s]*t54);
+    const double t62 = DERIVE_FMA(P[15 * s], t57, P[14 * s]*t56);
+    const double t63 = DERIVE_FMA(P[21 * s], t57, P[15 * s]*t56);
+    const double t64 = DERIVE_FMA(P[29 * s], t59, P[28 * s]*t58);
+    const double t65 = DERIVE_FMA(P[35 * s], t59, P[29 * s]*t58);
     const double t66 = x[0] + t60;
-    const double t67 = x[1] + t61;
-    const double t68 = x[2] + t62;
-    const double t69 = x[3] + t63;
-    const double t70 = x[4] + t64;
-    const double t71 = x[5] + t65;
+    const double t67 = x[1 * s] + t61;
+    const double t68 = x[2 * s] + t62;
+    const double t69 = x[3 * s] + t63;
+    const double t70 = x[4 * s] + t64;
+    const double t71 = x[5 * s] + t65;
     const double t72 = 0.061224489795918366*z[0];
     const double t73 = 0.12244897959183673*z[0];
-    const double t74 = 0.061224489795918366*z[1];
-    const double t75 = 0.12244897959183673*z[1];
-    const double t76 = 0.061224489795918366*z[2];
-    const double t77 = 0.12244897959183673*z[2];
+    const double t74 = 0.061224489795918366*z[1 * s];
+    const double t75 = 0.12244897959183673*z[1 * s];
+    const double t76 = 0.061224489795918366*z[2 * s];
+    const double t77 = 0.12244897959183673*z[2 * s];
     const double t78 = DERIVE_FMA(t43, t67, t42*t66);
     const double t79 = DERIVE_FMA(t45, t67, -(t44*t66));
     const double t80 = DERIVE_FMA(t47, t69, t46*t68);
@@ -162,18 +160,18 @@ int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const do
     const double t87 = t75 + t81;
     const double t88 = t76 + t82;
     const double t89 = t77 + t83;
-    const double t90 = DERIVE_FMA(P[1], t43, P[0]*t42);
-    const double t91 = DERIVE_FMA(P[7], t43, P[1]*t42);
-    const double t92 = DERIVE_FMA(P[1], t45, -(P[0]*t44));
-    const double t93 = DERIVE_FMA(P[7], t45, -(P[1]*t44));
-    const double t94 = DERIVE_FMA(P[15], t47, P[14]*t46);
-    const double t95 = DERIVE_FMA(P[21], t47, P[15]*t46);
-    const double t96 = DERIVE_FMA(P[15], t49, -(P[14]*t48));
-    const double t97 = DERIVE_FMA(P[21], t49, -(P[15]*t48));
-    const double t98 = DERIVE_FMA(P[29], t51, P[28]*t50);
-    const double t99 = DERIVE_FMA(P[35], t51, P[29]*t50);
-    const double t100 = DERIVE_FMA(P[29], t53, -(P[28]*t52));
-    const double t101 = DERIVE_FMA(P[35], t53, -(P[29]*t52));
+    const double t90 = DERIVE_FMA(P[1 * s], t43, P[0]*t42);
+    const double t91 = DERIVE_FMA(P[7 * s], t43, P[1 * s]*t42);
+    const double t92 = DERIVE_FMA(P[1 * s], t45, -(P[0]*t44));
+    const double t93 = DERIVE_FMA(P[7 * s], t45, -(P[1 * s]*t44));
+    const double t94 = DERIVE_FMA(P[15 * s], t47, P[14 * s]*t46);
+    const double t95 = DERIVE_FMA(P[21 * s], t47, P[15 * s]*t46);
+    const double t96 = DERIVE_FMA(P[15 * s], t49, -(P[14 * s]*t48));
+    const double t97 = DERIVE_FMA(P[21 * s], t49, -(P[15 * s]*t48));
+    const double t98 = DERIVE_FMA(P[29 * s], t51, P[28 * s]*t50);
+    const double t99 = DERIVE_FMA(P[35 * s], t51, P[29 * s]*t50);
+    const double t100 = DERIVE_FMA(P[29 * s], t53, -(P[28 * s]*t52));
+    const double t101 = DERIVE_FMA(P[35 * s], t53, -(P[29 * s]*t52));
     const double t102 = DERIVE_FMA(0.8775510204081632, t91, 0.9387755102040817*t90);
     const double t103 = DERIVE_FMA(0.7551020408163265, t91, (-0.12244897959183673)*t90);
     const double t104 = DERIVE_FMA(0.7551020408163265, t93, (-0.12244897959183673)*t92);
@@ -193,47 +191,88 @@ int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const do
     const double t118 = 0.004081632653061225 + t109;
     const double t119 = 0.00816326530612245 + t110;
     x_new[0] = t84;
-    x_new[1] = t85;
-    x_new[2] = t86;
-    x_new[3] = t87;
-    x_new[4] = t88;
-    x_new[5] = t89;
+    x_new[1 * s] = t85;
+    x_new[2 * s] = t86;
+    x_new[3 * s] = t87;
+    x_new[4 * s] = t88;
+    x_new[5 * s] = t89;
     P_new[0] = t111;
-    P_new[1] = t112;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = 0.0;
-    P_new[5] = 0.0;
-    P_new[6] = t112;
-    P_new[7] = t113;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = 0.0;
-    P_new[11] = 0.0;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t114;
-    P_new[15] = t115;
-    P_new[16] = 0.0;
-    P_new[17] = 0.0;
-    P_new[18] = 0.0;
-    P_new[19] = 0.0;
-    P_new[20] = t115;
-    P_new[21] = t116;
-    P_new[22] = 0.0;
-    P_new[23] = 0.0;
-    P_new[24] = 0.0;
-    P_new[25] = 0.0;
-    P_new[26] = 0.0;
-    P_new[27] = 0.0;
-    P_new[28] = t117;
-    P_new[29] = t118;
-    P_new[30] = 0.0;
-    P_new[31] = 0.0;
-    P_new[32] = 0.0;
-    P_new[33] = 0.0;
-    P_new[34] = t118;
-    P_new[35] = t119;
+    P_new[1 * s] = t112;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = 0.0;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = t112;
+    P_new[7 * s] = t113;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = 0.0;
+    P_new[11 * s] = 0.0;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t114;
+    P_new[15 * s] = t115;
+    P_new[16 * s] = 0.0;
+    P_new[17 * s] = 0.0;
+    P_new[18 * s] = 0.0;
+    P_new[19 * s] = 0.0;
+    P_new[20 * s] = t115;
+    P_new[21 * s] = t116;
+    P_new[22 * s] = 0.0;
+    P_new[23 * s] = 0.0;
+    P_new[24 * s] = 0.0;
+    P_new[25 * s] = 0.0;
+    P_new[26 * s] = 0.0;
+    P_new[27 * s] = 0.0;
+    P_new[28 * s] = t117;
+    P_new[29 * s] = t118;
+    P_new[30 * s] = 0.0;
+    P_new[31 * s] = 0.0;
+    P_new[32 * s] = 0.0;
+    P_new[33 * s] = 0.0;
+    P_new[34 * s] = t118;
+    P_new[35 * s] = t119;
+}
+
+int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    if (!(P[2] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[3] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[4] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[5] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[8] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[9] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[10] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[11] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[16] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[17] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[22] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    if (!(P[23] == 0.0)) {
+        return 1; /* outside P's pattern */
+    }
+    mpt3d_a_lf_step_body(x, P, z, x_new, P_new, 1);
     return 0;
 }
 
@@ -324,171 +363,10 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     P[33] = P0[33];
     P[34] = P0[34];
     P[35] = P0[35];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = 16.3265306122449*P[1];
-        const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
-        const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-        const double t3 = DERIVE_FMA(16.3265306122449, P[7], 8.16326530612245*P[1]);
-        const double t4 = DERIVE_FMA(32.6530612244898, P[7], t0);
-        const double t5 = 16.3265306122449*P[15];
-        const double t6 = DERIVE_FMA(8.16326530612245, P[14], t5);
-        const double t7 = DERIVE_FMA(32.6530612244898, P[15], 16.3265306122449*P[14]);
-        const double t8 = DERIVE_FMA(16.3265306122449, P[21], 8.16326530612245*P[15]);
-        const double t9 = DERIVE_FMA(32.6530612244898, P[21], t5);
-        const double t10 = 16.3265306122449*P[29];
-        const double t11 = DERIVE_FMA(8.16326530612245, P[28], t10);
-        const double t12 = DERIVE_FMA(32.6530612244898, P[29], 16.3265306122449*P[28]);
-        const double t13 = DERIVE_FMA(16.3265306122449, P[35], 8.16326530612245*P[29]);
-        const double t14 = DERIVE_FMA(32.6530612244898, P[35], t10);
-        const double t15 = 1.0 + t1;
-        const double t16 = 1.0 + t4;
-        const double t17 = 1.0 + t6;
-        const double t18 = 1.0 + t9;
-        const double t19 = 1.0 + t11;
-        const double t20 = 1.0 + t14;
-        const double t21 = 1.0/t15;
-        const double t22 = t21*t3;
-        const double t23 = t16 - t2*t22;
-        const double t24 = 1.0/t23;
-        const double t25 = 1.0/t17;
-        const double t26 = t25*t8;
-        const double t27 = t18 - t26*t7;
-        const double t28 = 1.0/t27;
-        const double t29 = 1.0/t19;
-        const double t30 = t13*t29;
-        const double t31 = t20 - t12*t30;
-        const double t32 = 1.0/t31;
-        const double t33 = t22*t24;
-        const double t34 = t21*DERIVE_FMA(t2, t33, 1.0);
-        const double t35 = t2*t21*t24;
-        const double t36 = t26*t28;
-        const double t37 = t25*DERIVE_FMA(t36, t7, 1.0);
-        const double t38 = t25*t28*t7;
-        const double t39 = t30*t32;
-        const double t40 = t29*DERIVE_FMA(t12, t39, 1.0);
-        const double t41 = t12*t29*t32;
-        const double t42 = DERIVE_FMA(0.9387755102040817, t34, (-0.8775510204081632)*t33);
-        const double t43 = DERIVE_FMA((-0.9387755102040817), t35, 0.8775510204081632*t24);
-        const double t44 = DERIVE_FMA(0.12244897959183673, t34, 0.7551020408163265*t33);
-        const double t45 = DERIVE_FMA(0.12244897959183673, t35, 0.7551020408163265*t24);
-        const double t46 = DERIVE_FMA(0.9387755102040817, t37, (-0.8775510204081632)*t36);
-        const double t47 = DERIVE_FMA((-0.9387755102040817), t38, 0.8775510204081632*t28);
-        const double t48 = DERIVE_FMA(0.12244897959183673, t37, 0.7551020408163265*t36);
-        const double t49 = DERIVE_FMA(0.12244897959183673, t38, 0.7551020408163265*t28);
-        const double t50 = DERIVE_FMA(0.9387755102040817, t40, (-0.8775510204081632)*t39);
-        const double t51 = DERIVE_FMA((-0.9387755102040817), t41, 0.8775510204081632*t32);
-        const double t52 = DERIVE_FMA(0.12244897959183673, t40, 0.7551020408163265*t39);
-        const double t53 = DERIVE_FMA(0.12244897959183673, t41, 0.7551020408163265*t32);
-        const double t54 = 8.16326530612245*zk[0];
-        const double t55 = 16.3265306122449*zk[0];
-        const double t56 = 8.16326530612245*zk[1];
-        const double t57 = 16.3265306122449*zk[1];
-        const double t58 = 8.16326530612245*zk[2];
-        const double t59 = 16.3265306122449*zk[2];
-        const double t60 = DERIVE_FMA(P[1], t55, P[0]*t54);
-        const double t61 = DERIVE_FMA(P[7], t55, P[1]*t54);
-        const double t62 = DERIVE_FMA(P[15], t57, P[14]*t56);
-        const double t63 = DERIVE_FMA(P[21], t57, P[15]*t56);
-        const double t64 = DERIVE_FMA(P[29], t59, P[28]*t58);
-        const double t65 = DERIVE_FMA(P[35], t59, P[29]*t58);
-        const double t66 = x[0] + t60;
-        const double t67 = x[1] + t61;
-        const double t68 = x[2] + t62;
-        const double t69 = x[3] + t63;
-        const double t70 = x[4] + t64;
-        const double t71 = x[5] + t65;
-        const double t72 = 0.061224489795918366*zk[0];
-        const double t73 = 0.12244897959183673*zk[0];
-        const double t74 = 0.061224489795918366*zk[1];
-        const double t75 = 0.12244897959183673*zk[1];
-        const double t76 = 0.061224489795918366*zk[2];
-        const double t77 = 0.12244897959183673*zk[2];
-        const double t78 = DERIVE_FMA(t43, t67, t42*t66);
-        const double t79 = DERIVE_FMA(t45, t67, -(t44*t66));
-        const double t80 = DERIVE_FMA(t47, t69, t46*t68);
-        const double t81 = DERIVE_FMA(t49, t69, -(t48*t68));
-        const double t82 = DERIVE_FMA(t51, t71, t50*t70);
-        const double t83 = DERIVE_FMA(t53, t71, -(t52*t70));
-        const double t84 = t72 + t78;
-        const double t85 = t73 + t79;
-        const double t86 = t74 + t80;
-        const double t87 = t75 + t81;
-        const double t88 = t76 + t82;
-        const double t89 = t77 + t83;
-        const double t90 = DERIVE_FMA(P[1], t43, P[0]*t42);
-        const double t91 = DERIVE_FMA(P[7], t43, P[1]*t42);
-        const double t92 = DERIVE_FMA(P[1], t45, -(P[0]*t44));
-        const double t93 = DERIVE_FMA(P[7], t45, -(P[1]*t44));
-        const double t94 = DERIVE_FMA(P[15], t47, P[14]*t46);
-        const double t95 = DERIVE_FMA(P[21], t47, P[15]*t46);
-        const double t96 = DERIVE_FMA(P[15], t49, -(P[14]*t48));
-        const double t97 = DERIVE_FMA(P[21], t49, -(P[15]*t48));
-        const double t98 = DERIVE_FMA(P[29], t51, P[28]*t50);
-        const double t99 = DERIVE_FMA(P[35], t51, P[29]*t50);
-        const double t100 = DERIVE_FMA(P[29], t53, -(P[28]*t52));
-        const double t101 = DERIVE_FMA(P[35], t53, -(P[29]*t52));
-        const double t102 = DERIVE_FMA(0.8775510204081632, t91, 0.9387755102040817*t90);
-        const double t103 = DERIVE_FMA(0.7551020408163265, t91, (-0.12244897959183673)*t90);
-        const double t104 = DERIVE_FMA(0.7551020408163265, t93, (-0.12244897959183673)*t92);
-        const double t105 = DERIVE_FMA(0.8775510204081632, t95, 0.9387755102040817*t94);
-        const double t106 = DERIVE_FMA(0.7551020408163265, t95, (-0.12244897959183673)*t94);
-        const double t107 = DERIVE_FMA(0.7551020408163265, t97, (-0.12244897959183673)*t96);
-        const double t108 = DERIVE_FMA(0.8775510204081632, t99, 0.9387755102040817*t98);
-        const double t109 = DERIVE_FMA(0.7551020408163265, t99, (-0.12244897959183673)*t98);
-        const double t110 = DERIVE_FMA(0.7551020408163265, t101, (-0.12244897959183673)*t100);
-        const double t111 = 0.0020408163265306124 + t102;
-        const double t112 = 0.004081632653061225 + t103;
-        const double t113 = 0.00816326530612245 + t104;
-        const double t114 = 0.0020408163265306124 + t105;
-        const double t115 = 0.004081632653061225 + t106;
-        const double t116 = 0.00816326530612245 + t107;
-        const double t117 = 0.0020408163265306124 + t108;
-        const double t118 = 0.004081632653061225 + t109;
-        const double t119 = 0.00816326530612245 + t110;
-        x_new[0] = t84;
-        x_new[1] = t85;
-        x_new[2] = t86;
-        x_new[3] = t87;
-        x_new[4] = t88;
-        x_new[5] = t89;
-        P_new[0] = t111;
-        P_new[1] = t112;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = 0.0;
-        P_new[5] = 0.0;
-        P_new[6] = t112;
-        P_new[7] = t113;
-        P_new[8] = 0.0;
-        P_new[9] = 0.0;
-        P_new[10] = 0.0;
-        P_new[11] = 0.0;
-        P_new[12] = 0.0;
-        P_new[13] = 0.0;
-        P_new[14] = t114;
-        P_new[15] = t115;
-        P_new[16] = 0.0;
-        P_new[17] = 0.0;
-        P_new[18] = 0.0;
-        P_new[19] = 0.0;
-        P_new[20] = t115;
-        P_new[21] = t116;
-        P_new[22] = 0.0;
-        P_new[23] = 0.0;
-        P_new[24] = 0.0;
-        P_new[25] = 0.0;
-        P_new[26] = 0.0;
-        P_new[27] = 0.0;
-        P_new[28] = t117;
-        P_new[29] = t118;
-        P_new[30] = 0.0;
-        P_new[31] = 0.0;
-        P_new[32] = 0.0;
-        P_new[33] = 0.0;
-        P_new[34] = t118;
-        P_new[35] = t119;
+        mpt3d_a_lf_step_body(x, P, zk, x_new, P_new, 1);
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -575,12 +453,15 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers of doubles), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 36 + 2] == 0.0)) {
@@ -621,1452 +502,53 @@ int mpt3d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[6], xn_l0[6];
-        double P_l0[36], Pn_l0[36];
-        const double *z_l0;
-        double x_l1[6], xn_l1[6];
-        double P_l1[36], Pn_l1[36];
-        const double *z_l1;
-        double x_l2[6], xn_l2[6];
-        double P_l2[36], Pn_l2[36];
-        const double *z_l2;
-        double x_l3[6], xn_l3[6];
-        double P_l3[36], Pn_l3[36];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        P_l0[0] = P0[(t + 0) * 36 + 0];
-        P_l0[1] = P0[(t + 0) * 36 + 1];
-        P_l0[2] = P0[(t + 0) * 36 + 2];
-        P_l0[3] = P0[(t + 0) * 36 + 3];
-        P_l0[4] = P0[(t + 0) * 36 + 4];
-        P_l0[5] = P0[(t + 0) * 36 + 5];
-        P_l0[6] = P0[(t + 0) * 36 + 6];
-        P_l0[7] = P0[(t + 0) * 36 + 7];
-        P_l0[8] = P0[(t + 0) * 36 + 8];
-        P_l0[9] = P0[(t + 0) * 36 + 9];
-        P_l0[10] = P0[(t + 0) * 36 + 10];
-        P_l0[11] = P0[(t + 0) * 36 + 11];
-        P_l0[12] = P0[(t + 0) * 36 + 12];
-        P_l0[13] = P0[(t + 0) * 36 + 13];
-        P_l0[14] = P0[(t + 0) * 36 + 14];
-        P_l0[15] = P0[(t + 0) * 36 + 15];
-        P_l0[16] = P0[(t + 0) * 36 + 16];
-        P_l0[17] = P0[(t + 0) * 36 + 17];
-        P_l0[18] = P0[(t + 0) * 36 + 18];
-        P_l0[19] = P0[(t + 0) * 36 + 19];
-        P_l0[20] = P0[(t + 0) * 36 + 20];
-        P_l0[21] = P0[(t + 0) * 36 + 21];
-        P_l0[22] = P0[(t + 0) * 36 + 22];
-        P_l0[23] = P0[(t + 0) * 36 + 23];
-        P_l0[24] = P0[(t + 0) * 36 + 24];
-        P_l0[25] = P0[(t + 0) * 36 + 25];
-        P_l0[26] = P0[(t + 0) * 36 + 26];
-        P_l0[27] = P0[(t + 0) * 36 + 27];
-        P_l0[28] = P0[(t + 0) * 36 + 28];
-        P_l0[29] = P0[(t + 0) * 36 + 29];
-        P_l0[30] = P0[(t + 0) * 36 + 30];
-        P_l0[31] = P0[(t + 0) * 36 + 31];
-        P_l0[32] = P0[(t + 0) * 36 + 32];
-        P_l0[33] = P0[(t + 0) * 36 + 33];
-        P_l0[34] = P0[(t + 0) * 36 + 34];
-        P_l0[35] = P0[(t + 0) * 36 + 35];
-        x_l1[0] = x0[(t + 1) * 6 + 0];
-        x_l1[1] = x0[(t + 1) * 6 + 1];
-        x_l1[2] = x0[(t + 1) * 6 + 2];
-        x_l1[3] = x0[(t + 1) * 6 + 3];
-        x_l1[4] = x0[(t + 1) * 6 + 4];
-        x_l1[5] = x0[(t + 1) * 6 + 5];
-        P_l1[0] = P0[(t + 1) * 36 + 0];
-        P_l1[1] = P0[(t + 1) * 36 + 1];
-        P_l1[2] = P0[(t + 1) * 36 + 2];
-        P_l1[3] = P0[(t + 1) * 36 + 3];
-        P_l1[4] = P0[(t + 1) * 36 + 4];
-        P_l1[5] = P0[(t + 1) * 36 + 5];
-        P_l1[6] = P0[(t + 1) * 36 + 6];
-        P_l1[7] = P0[(t + 1) * 36 + 7];
-        P_l1[8] = P0[(t + 1) * 36 + 8];
-        P_l1[9] = P0[(t + 1) * 36 + 9];
-        P_l1[10] = P0[(t + 1) * 36 + 10];
-        P_l1[11] = P0[(t + 1) * 36 + 11];
-        P_l1[12] = P0[(t + 1) * 36 + 12];
-        P_l1[13] = P0[(t + 1) * 36 + 13];
-        P_l1[14] = P0[(t + 1) * 36 + 14];
-        P_l1[15] = P0[(t + 1) * 36 + 15];
-        P_l1[16] = P0[(t + 1) * 36 + 16];
-        P_l1[17] = P0[(t + 1) * 36 + 17];
-        P_l1[18] = P0[(t + 1) * 36 + 18];
-        P_l1[19] = P0[(t + 1) * 36 + 19];
-        P_l1[20] = P0[(t + 1) * 36 + 20];
-        P_l1[21] = P0[(t + 1) * 36 + 21];
-        P_l1[22] = P0[(t + 1) * 36 + 22];
-        P_l1[23] = P0[(t + 1) * 36 + 23];
-        P_l1[24] = P0[(t + 1) * 36 + 24];
-        P_l1[25] = P0[(t + 1) * 36 + 25];
-        P_l1[26] = P0[(t + 1) * 36 + 26];
-        P_l1[27] = P0[(t + 1) * 36 + 27];
-        P_l1[28] = P0[(t + 1) * 36 + 28];
-        P_l1[29] = P0[(t + 1) * 36 + 29];
-        P_l1[30] = P0[(t + 1) * 36 + 30];
-        P_l1[31] = P0[(t + 1) * 36 + 31];
-        P_l1[32] = P0[(t + 1) * 36 + 32];
-        P_l1[33] = P0[(t + 1) * 36 + 33];
-        P_l1[34] = P0[(t + 1) * 36 + 34];
-        P_l1[35] = P0[(t + 1) * 36 + 35];
-        x_l2[0] = x0[(t + 2) * 6 + 0];
-        x_l2[1] = x0[(t + 2) * 6 + 1];
-        x_l2[2] = x0[(t + 2) * 6 + 2];
-        x_l2[3] = x0[(t + 2) * 6 + 3];
-        x_l2[4] = x0[(t + 2) * 6 + 4];
-        x_l2[5] = x0[(t + 2) * 6 + 5];
-        P_l2[0] = P0[(t + 2) * 36 + 0];
-        P_l2[1] = P0[(t + 2) * 36 + 1];
-        P_l2[2] = P0[(t + 2) * 36 + 2];
-        P_l2[3] = P0[(t + 2) * 36 + 3];
-        P_l2[4] = P0[(t + 2) * 36 + 4];
-        P_l2[5] = P0[(t + 2) * 36 + 5];
-        P_l2[6] = P0[(t + 2) * 36 + 6];
-        P_l2[7] = P0[(t + 2) * 36 + 7];
-        P_l2[8] = P0[(t + 2) * 36 + 8];
-        P_l2[9] = P0[(t + 2) * 36 + 9];
-        P_l2[10] = P0[(t + 2) * 36 + 10];
-        P_l2[11] = P0[(t + 2) * 36 + 11];
-        P_l2[12] = P0[(t + 2) * 36 + 12];
-        P_l2[13] = P0[(t + 2) * 36 + 13];
-        P_l2[14] = P0[(t + 2) * 36 + 14];
-        P_l2[15] = P0[(t + 2) * 36 + 15];
-        P_l2[16] = P0[(t + 2) * 36 + 16];
-        P_l2[17] = P0[(t + 2) * 36 + 17];
-        P_l2[18] = P0[(t + 2) * 36 + 18];
-        P_l2[19] = P0[(t + 2) * 36 + 19];
-        P_l2[20] = P0[(t + 2) * 36 + 20];
-        P_l2[21] = P0[(t + 2) * 36 + 21];
-        P_l2[22] = P0[(t + 2) * 36 + 22];
-        P_l2[23] = P0[(t + 2) * 36 + 23];
-        P_l2[24] = P0[(t + 2) * 36 + 24];
-        P_l2[25] = P0[(t + 2) * 36 + 25];
-        P_l2[26] = P0[(t + 2) * 36 + 26];
-        P_l2[27] = P0[(t + 2) * 36 + 27];
-        P_l2[28] = P0[(t + 2) * 36 + 28];
-        P_l2[29] = P0[(t + 2) * 36 + 29];
-        P_l2[30] = P0[(t + 2) * 36 + 30];
-        P_l2[31] = P0[(t + 2) * 36 + 31];
-        P_l2[32] = P0[(t + 2) * 36 + 32];
-        P_l2[33] = P0[(t + 2) * 36 + 33];
-        P_l2[34] = P0[(t + 2) * 36 + 34];
-        P_l2[35] = P0[(t + 2) * 36 + 35];
-        x_l3[0] = x0[(t + 3) * 6 + 0];
-        x_l3[1] = x0[(t + 3) * 6 + 1];
-        x_l3[2] = x0[(t + 3) * 6 + 2];
-        x_l3[3] = x0[(t + 3) * 6 + 3];
-        x_l3[4] = x0[(t + 3) * 6 + 4];
-        x_l3[5] = x0[(t + 3) * 6 + 5];
-        P_l3[0] = P0[(t + 3) * 36 + 0];
-        P_l3[1] = P0[(t + 3) * 36 + 1];
-        P_l3[2] = P0[(t + 3) * 36 + 2];
-        P_l3[3] = P0[(t + 3) * 36 + 3];
-        P_l3[4] = P0[(t + 3) * 36 + 4];
-        P_l3[5] = P0[(t + 3) * 36 + 5];
-        P_l3[6] = P0[(t + 3) * 36 + 6];
-        P_l3[7] = P0[(t + 3) * 36 + 7];
-        P_l3[8] = P0[(t + 3) * 36 + 8];
-        P_l3[9] = P0[(t + 3) * 36 + 9];
-        P_l3[10] = P0[(t + 3) * 36 + 10];
-        P_l3[11] = P0[(t + 3) * 36 + 11];
-        P_l3[12] = P0[(t + 3) * 36 + 12];
-        P_l3[13] = P0[(t + 3) * 36 + 13];
-        P_l3[14] = P0[(t + 3) * 36 + 14];
-        P_l3[15] = P0[(t + 3) * 36 + 15];
-        P_l3[16] = P0[(t + 3) * 36 + 16];
-        P_l3[17] = P0[(t + 3) * 36 + 17];
-        P_l3[18] = P0[(t + 3) * 36 + 18];
-        P_l3[19] = P0[(t + 3) * 36 + 19];
-        P_l3[20] = P0[(t + 3) * 36 + 20];
-        P_l3[21] = P0[(t + 3) * 36 + 21];
-        P_l3[22] = P0[(t + 3) * 36 + 22];
-        P_l3[23] = P0[(t + 3) * 36 + 23];
-        P_l3[24] = P0[(t + 3) * 36 + 24];
-        P_l3[25] = P0[(t + 3) * 36 + 25];
-        P_l3[26] = P0[(t + 3) * 36 + 26];
-        P_l3[27] = P0[(t + 3) * 36 + 27];
-        P_l3[28] = P0[(t + 3) * 36 + 28];
-        P_l3[29] = P0[(t + 3) * 36 + 29];
-        P_l3[30] = P0[(t + 3) * 36 + 30];
-        P_l3[31] = P0[(t + 3) * 36 + 31];
-        P_l3[32] = P0[(t + 3) * 36 + 32];
-        P_l3[33] = P0[(t + 3) * 36 + 33];
-        P_l3[34] = P0[(t + 3) * 36 + 34];
-        P_l3[35] = P0[(t + 3) * 36 + 35];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[6 * DERIVE_LANES];
+        double P_b[36 * DERIVE_LANES];
+        double x_new_b[6 * DERIVE_LANES];
+        double P_new_b[36 * DERIVE_LANES];
+        double z_b[3 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 6; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 6 + i];
+            }
+            for (i = 0; i < 36; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 36 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = 16.3265306122449*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t3_l0 = DERIVE_FMA(16.3265306122449, P_l0[7], 8.16326530612245*P_l0[1]);
-            const double t4_l0 = DERIVE_FMA(32.6530612244898, P_l0[7], t0_l0);
-            const double t5_l0 = 16.3265306122449*P_l0[15];
-            const double t6_l0 = DERIVE_FMA(8.16326530612245, P_l0[14], t5_l0);
-            const double t7_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], 16.3265306122449*P_l0[14]);
-            const double t8_l0 = DERIVE_FMA(16.3265306122449, P_l0[21], 8.16326530612245*P_l0[15]);
-            const double t9_l0 = DERIVE_FMA(32.6530612244898, P_l0[21], t5_l0);
-            const double t10_l0 = 16.3265306122449*P_l0[29];
-            const double t11_l0 = DERIVE_FMA(8.16326530612245, P_l0[28], t10_l0);
-            const double t12_l0 = DERIVE_FMA(32.6530612244898, P_l0[29], 16.3265306122449*P_l0[28]);
-            const double t13_l0 = DERIVE_FMA(16.3265306122449, P_l0[35], 8.16326530612245*P_l0[29]);
-            const double t14_l0 = DERIVE_FMA(32.6530612244898, P_l0[35], t10_l0);
-            const double t15_l0 = 1.0 + t1_l0;
-            const double t16_l0 = 1.0 + t4_l0;
-            const double t17_l0 = 1.0 + t6_l0;
-            const double t18_l0 = 1.0 + t9_l0;
-            const double t19_l0 = 1.0 + t11_l0;
-            const double t20_l0 = 1.0 + t14_l0;
-            const double t21_l0 = 1.0/t15_l0;
-            const double t22_l0 = t21_l0*t3_l0;
-            const double t23_l0 = t16_l0 - t2_l0*t22_l0;
-            const double t24_l0 = 1.0/t23_l0;
-            const double t25_l0 = 1.0/t17_l0;
-            const double t26_l0 = t25_l0*t8_l0;
-            const double t27_l0 = t18_l0 - t26_l0*t7_l0;
-            const double t28_l0 = 1.0/t27_l0;
-            const double t29_l0 = 1.0/t19_l0;
-            const double t30_l0 = t13_l0*t29_l0;
-            const double t31_l0 = t20_l0 - t12_l0*t30_l0;
-            const double t32_l0 = 1.0/t31_l0;
-            const double t33_l0 = t22_l0*t24_l0;
-            const double t34_l0 = t21_l0*DERIVE_FMA(t2_l0, t33_l0, 1.0);
-            const double t35_l0 = t2_l0*t21_l0*t24_l0;
-            const double t36_l0 = t26_l0*t28_l0;
-            const double t37_l0 = t25_l0*DERIVE_FMA(t36_l0, t7_l0, 1.0);
-            const double t38_l0 = t25_l0*t28_l0*t7_l0;
-            const double t39_l0 = t30_l0*t32_l0;
-            const double t40_l0 = t29_l0*DERIVE_FMA(t12_l0, t39_l0, 1.0);
-            const double t41_l0 = t12_l0*t29_l0*t32_l0;
-            const double t42_l0 = DERIVE_FMA(0.9387755102040817, t34_l0, (-0.8775510204081632)*t33_l0);
-            const double t43_l0 = DERIVE_FMA((-0.9387755102040817), t35_l0, 0.8775510204081632*t24_l0);
-            const double t44_l0 = DERIVE_FMA(0.12244897959183673, t34_l0, 0.7551020408163265*t33_l0);
-            const double t45_l0 = DERIVE_FMA(0.12244897959183673, t35_l0, 0.7551020408163265*t24_l0);
-            const double t46_l0 = DERIVE_FMA(0.9387755102040817, t37_l0, (-0.8775510204081632)*t36_l0);
-            const double t47_l0 = DERIVE_FMA((-0.9387755102040817), t38_l0, 0.8775510204081632*t28_l0);
-            const double t48_l0 = DERIVE_FMA(0.12244897959183673, t37_l0, 0.7551020408163265*t36_l0);
-            const double t49_l0 = DERIVE_FMA(0.12244897959183673, t38_l0, 0.7551020408163265*t28_l0);
-            const double t50_l0 = DERIVE_FMA(0.9387755102040817, t40_l0, (-0.8775510204081632)*t39_l0);
-            const double t51_l0 = DERIVE_FMA((-0.9387755102040817), t41_l0, 0.8775510204081632*t32_l0);
-            const double t52_l0 = DERIVE_FMA(0.12244897959183673, t40_l0, 0.7551020408163265*t39_l0);
-            const double t53_l0 = DERIVE_FMA(0.12244897959183673, t41_l0, 0.7551020408163265*t32_l0);
-            const double t54_l0 = 8.16326530612245*z_l0[0];
-            const double t55_l0 = 16.3265306122449*z_l0[0];
-            const double t56_l0 = 8.16326530612245*z_l0[1];
-            const double t57_l0 = 16.3265306122449*z_l0[1];
-            const double t58_l0 = 8.16326530612245*z_l0[2];
-            const double t59_l0 = 16.3265306122449*z_l0[2];
-            const double t60_l0 = DERIVE_FMA(P_l0[1], t55_l0, P_l0[0]*t54_l0);
-            const double t61_l0 = DERIVE_FMA(P_l0[7], t55_l0, P_l0[1]*t54_l0);
-            const double t62_l0 = DERIVE_FMA(P_l0[15], t57_l0, P_l0[14]*t56_l0);
-            const double t63_l0 = DERIVE_FMA(P_l0[21], t57_l0, P_l0[15]*t56_l0);
-            const double t64_l0 = DERIVE_FMA(P_l0[29], t59_l0, P_l0[28]*t58_l0);
-            const double t65_l0 = DERIVE_FMA(P_l0[35], t59_l0, P_l0[29]*t58_l0);
-            const double t66_l0 = x_l0[0] + t60_l0;
-            const double t67_l0 = x_l0[1] + t61_l0;
-            const double t68_l0 = x_l0[2] + t62_l0;
-            const double t69_l0 = x_l0[3] + t63_l0;
-            const double t70_l0 = x_l0[4] + t64_l0;
-            const double t71_l0 = x_l0[5] + t65_l0;
-            const double t72_l0 = 0.061224489795918366*z_l0[0];
-            const double t73_l0 = 0.12244897959183673*z_l0[0];
-            const double t74_l0 = 0.061224489795918366*z_l0[1];
-            const double t75_l0 = 0.12244897959183673*z_l0[1];
-            const double t76_l0 = 0.061224489795918366*z_l0[2];
-            const double t77_l0 = 0.12244897959183673*z_l0[2];
-            const double t78_l0 = DERIVE_FMA(t43_l0, t67_l0, t42_l0*t66_l0);
-            const double t79_l0 = DERIVE_FMA(t45_l0, t67_l0, -(t44_l0*t66_l0));
-            const double t80_l0 = DERIVE_FMA(t47_l0, t69_l0, t46_l0*t68_l0);
-            const double t81_l0 = DERIVE_FMA(t49_l0, t69_l0, -(t48_l0*t68_l0));
-            const double t82_l0 = DERIVE_FMA(t51_l0, t71_l0, t50_l0*t70_l0);
-            const double t83_l0 = DERIVE_FMA(t53_l0, t71_l0, -(t52_l0*t70_l0));
-            const double t84_l0 = t72_l0 + t78_l0;
-            const double t85_l0 = t73_l0 + t79_l0;
-            const double t86_l0 = t74_l0 + t80_l0;
-            const double t87_l0 = t75_l0 + t81_l0;
-            const double t88_l0 = t76_l0 + t82_l0;
-            const double t89_l0 = t77_l0 + t83_l0;
-            const double t90_l0 = DERIVE_FMA(P_l0[1], t43_l0, P_l0[0]*t42_l0);
-            const double t91_l0 = DERIVE_FMA(P_l0[7], t43_l0, P_l0[1]*t42_l0);
-            const double t92_l0 = DERIVE_FMA(P_l0[1], t45_l0, -(P_l0[0]*t44_l0));
-            const double t93_l0 = DERIVE_FMA(P_l0[7], t45_l0, -(P_l0[1]*t44_l0));
-            const double t94_l0 = DERIVE_FMA(P_l0[15], t47_l0, P_l0[14]*t46_l0);
-            const double t95_l0 = DERIVE_FMA(P_l0[21], t47_l0, P_l0[15]*t46_l0);
-            const double t96_l0 = DERIVE_FMA(P_l0[15], t49_l0, -(P_l0[14]*t48_l0));
-            const double t97_l0 = DERIVE_FMA(P_l0[21], t49_l0, -(P_l0[15]*t48_l0));
-            const double t98_l0 = DERIVE_FMA(P_l0[29], t51_l0, P_l0[28]*t50_l0);
-            const double t99_l0 = DERIVE_FMA(P_l0[35], t51_l0, P_l0[29]*t50_l0);
-            const double t100_l0 = DERIVE_FMA(P_l0[29], t53_l0, -(P_l0[28]*t52_l0));
-            const double t101_l0 = DERIVE_FMA(P_l0[35], t53_l0, -(P_l0[29]*t52_l0));
-            const double t102_l0 = DERIVE_FMA(0.8775510204081632, t91_l0, 0.9387755102040817*t90_l0);
-            const double t103_l0 = DERIVE_FMA(0.7551020408163265, t91_l0, (-0.12244897959183673)*t90_l0);
-            const double t104_l0 = DERIVE_FMA(0.7551020408163265, t93_l0, (-0.12244897959183673)*t92_l0);
-            const double t105_l0 = DERIVE_FMA(0.8775510204081632, t95_l0, 0.9387755102040817*t94_l0);
-            const double t106_l0 = DERIVE_FMA(0.7551020408163265, t95_l0, (-0.12244897959183673)*t94_l0);
-            const double t107_l0 = DERIVE_FMA(0.7551020408163265, t97_l0, (-0.12244897959183673)*t96_l0);
-            const double t108_l0 = DERIVE_FMA(0.8775510204081632, t99_l0, 0.9387755102040817*t98_l0);
-            const double t109_l0 = DERIVE_FMA(0.7551020408163265, t99_l0, (-0.12244897959183673)*t98_l0);
-            const double t110_l0 = DERIVE_FMA(0.7551020408163265, t101_l0, (-0.12244897959183673)*t100_l0);
-            const double t111_l0 = 0.0020408163265306124 + t102_l0;
-            const double t112_l0 = 0.004081632653061225 + t103_l0;
-            const double t113_l0 = 0.00816326530612245 + t104_l0;
-            const double t114_l0 = 0.0020408163265306124 + t105_l0;
-            const double t115_l0 = 0.004081632653061225 + t106_l0;
-            const double t116_l0 = 0.00816326530612245 + t107_l0;
-            const double t117_l0 = 0.0020408163265306124 + t108_l0;
-            const double t118_l0 = 0.004081632653061225 + t109_l0;
-            const double t119_l0 = 0.00816326530612245 + t110_l0;
-            xn_l0[0] = t84_l0;
-            xn_l0[1] = t85_l0;
-            xn_l0[2] = t86_l0;
-            xn_l0[3] = t87_l0;
-            xn_l0[4] = t88_l0;
-            xn_l0[5] = t89_l0;
-            Pn_l0[0] = t111_l0;
-            Pn_l0[1] = t112_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = 0.0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = t112_l0;
-            Pn_l0[7] = t113_l0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = 0.0;
-            Pn_l0[11] = 0.0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t114_l0;
-            Pn_l0[15] = t115_l0;
-            Pn_l0[16] = 0.0;
-            Pn_l0[17] = 0.0;
-            Pn_l0[18] = 0.0;
-            Pn_l0[19] = 0.0;
-            Pn_l0[20] = t115_l0;
-            Pn_l0[21] = t116_l0;
-            Pn_l0[22] = 0.0;
-            Pn_l0[23] = 0.0;
-            Pn_l0[24] = 0.0;
-            Pn_l0[25] = 0.0;
-            Pn_l0[26] = 0.0;
-            Pn_l0[27] = 0.0;
-            Pn_l0[28] = t117_l0;
-            Pn_l0[29] = t118_l0;
-            Pn_l0[30] = 0.0;
-            Pn_l0[31] = 0.0;
-            Pn_l0[32] = 0.0;
-            Pn_l0[33] = 0.0;
-            Pn_l0[34] = t118_l0;
-            Pn_l0[35] = t119_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            const double t0_l1 = 16.3265306122449*P_l1[1];
-            const double t1_l1 = DERIVE_FMA(8.16326530612245, P_l1[0], t0_l1);
-            const double t2_l1 = DERIVE_FMA(32.6530612244898, P_l1[1], 16.3265306122449*P_l1[0]);
-            const double t3_l1 = DERIVE_FMA(16.3265306122449, P_l1[7], 8.16326530612245*P_l1[1]);
-            const double t4_l1 = DERIVE_FMA(32.6530612244898, P_l1[7], t0_l1);
-            const double t5_l1 = 16.3265306122449*P_l1[15];
-            const double t6_l1 = DERIVE_FMA(8.16326530612245, P_l1[14], t5_l1);
-            const double t7_l1 = DERIVE_FMA(32.6530612244898, P_l1[15], 16.3265306122449*P_l1[14]);
-            const double t8_l1 = DERIVE_FMA(16.3265306122449, P_l1[21], 8.16326530612245*P_l1[15]);
-            const double t9_l1 = DERIVE_FMA(32.6530612244898, P_l1[21], t5_l1);
-            const double t10_l1 = 16.3265306122449*P_l1[29];
-            const double t11_l1 = DERIVE_FMA(8.16326530612245, P_l1[28], t10_l1);
-            const double t12_l1 = DERIVE_FMA(32.6530612244898, P_l1[29], 16.3265306122449*P_l1[28]);
-            const double t13_l1 = DERIVE_FMA(16.3265306122449, P_l1[35], 8.16326530612245*P_l1[29]);
-            const double t14_l1 = DERIVE_FMA(32.6530612244898, P_l1[35], t10_l1);
-            const double t15_l1 = 1.0 + t1_l1;
-            const double t16_l1 = 1.0 + t4_l1;
-            const double t17_l1 = 1.0 + t6_l1;
-            const double t18_l1 = 1.0 + t9_l1;
-            const double t19_l1 = 1.0 + t11_l1;
-            const double t20_l1 = 1.0 + t14_l1;
-            const double t21_l1 = 1.0/t15_l1;
-            const double t22_l1 = t21_l1*t3_l1;
-            const double t23_l1 = t16_l1 - t2_l1*t22_l1;
-            const double t24_l1 = 1.0/t23_l1;
-            const double t25_l1 = 1.0/t17_l1;
-            const double t26_l1 = t25_l1*t8_l1;
-            const double t27_l1 = t18_l1 - t26_l1*t7_l1;
-            const double t28_l1 = 1.0/t27_l1;
-            const double t29_l1 = 1.0/t19_l1;
-            const double t30_l1 = t13_l1*t29_l1;
-            const double t31_l1 = t20_l1 - t12_l1*t30_l1;
-            const double t32_l1 = 1.0/t31_l1;
-            const double t33_l1 = t22_l1*t24_l1;
-            const double t34_l1 = t21_l1*DERIVE_FMA(t2_l1, t33_l1, 1.0);
-            const double t35_l1 = t2_l1*t21_l1*t24_l1;
-            const double t36_l1 = t26_l1*t28_l1;
-            const double t37_l1 = t25_l1*DERIVE_FMA(t36_l1, t7_l1, 1.0);
-            const double t38_l1 = t25_l1*t28_l1*t7_l1;
-            const double t39_l1 = t30_l1*t32_l1;
-            const double t40_l1 = t29_l1*DERIVE_FMA(t12_l1, t39_l1, 1.0);
-            const double t41_l1 = t12_l1*t29_l1*t32_l1;
-            const double t42_l1 = DERIVE_FMA(0.9387755102040817, t34_l1, (-0.8775510204081632)*t33_l1);
-            const double t43_l1 = DERIVE_FMA((-0.9387755102040817), t35_l1, 0.8775510204081632*t24_l1);
-            const double t44_l1 = DERIVE_FMA(0.12244897959183673, t34_l1, 0.7551020408163265*t33_l1);
-            const double t45_l1 = DERIVE_FMA(0.12244897959183673, t35_l1, 0.7551020408163265*t24_l1);
-            const double t46_l1 = DERIVE_FMA(0.9387755102040817, t37_l1, (-0.8775510204081632)*t36_l1);
-            const double t47_l1 = DERIVE_FMA((-0.9387755102040817), t38_l1, 0.8775510204081632*t28_l1);
-            const double t48_l1 = DERIVE_FMA(0.12244897959183673, t37_l1, 0.7551020408163265*t36_l1);
-            const double t49_l1 = DERIVE_FMA(0.12244897959183673, t38_l1, 0.7551020408163265*t28_l1);
-            const double t50_l1 = DERIVE_FMA(0.9387755102040817, t40_l1, (-0.8775510204081632)*t39_l1);
-            const double t51_l1 = DERIVE_FMA((-0.9387755102040817), t41_l1, 0.8775510204081632*t32_l1);
-            const double t52_l1 = DERIVE_FMA(0.12244897959183673, t40_l1, 0.7551020408163265*t39_l1);
-            const double t53_l1 = DERIVE_FMA(0.12244897959183673, t41_l1, 0.7551020408163265*t32_l1);
-            const double t54_l1 = 8.16326530612245*z_l1[0];
-            const double t55_l1 = 16.3265306122449*z_l1[0];
-            const double t56_l1 = 8.16326530612245*z_l1[1];
-            const double t57_l1 = 16.3265306122449*z_l1[1];
-            const double t58_l1 = 8.16326530612245*z_l1[2];
-            const double t59_l1 = 16.3265306122449*z_l1[2];
-            const double t60_l1 = DERIVE_FMA(P_l1[1], t55_l1, P_l1[0]*t54_l1);
-            const double t61_l1 = DERIVE_FMA(P_l1[7], t55_l1, P_l1[1]*t54_l1);
-            const double t62_l1 = DERIVE_FMA(P_l1[15], t57_l1, P_l1[14]*t56_l1);
-            const double t63_l1 = DERIVE_FMA(P_l1[21], t57_l1, P_l1[15]*t56_l1);
-            const double t64_l1 = DERIVE_FMA(P_l1[29], t59_l1, P_l1[28]*t58_l1);
-            const double t65_l1 = DERIVE_FMA(P_l1[35], t59_l1, P_l1[29]*t58_l1);
-            const double t66_l1 = x_l1[0] + t60_l1;
-            const double t67_l1 = x_l1[1] + t61_l1;
-            const double t68_l1 = x_l1[2] + t62_l1;
-            const double t69_l1 = x_l1[3] + t63_l1;
-            const double t70_l1 = x_l1[4] + t64_l1;
-            const double t71_l1 = x_l1[5] + t65_l1;
-            const double t72_l1 = 0.061224489795918366*z_l1[0];
-            const double t73_l1 = 0.12244897959183673*z_l1[0];
-            const double t74_l1 = 0.061224489795918366*z_l1[1];
-            const double t75_l1 = 0.12244897959183673*z_l1[1];
-            const double t76_l1 = 0.061224489795918366*z_l1[2];
-            const double t77_l1 = 0.12244897959183673*z_l1[2];
-            const double t78_l1 = DERIVE_FMA(t43_l1, t67_l1, t42_l1*t66_l1);
-            const double t79_l1 = DERIVE_FMA(t45_l1, t67_l1, -(t44_l1*t66_l1));
-            const double t80_l1 = DERIVE_FMA(t47_l1, t69_l1, t46_l1*t68_l1);
-            const double t81_l1 = DERIVE_FMA(t49_l1, t69_l1, -(t48_l1*t68_l1));
-            const double t82_l1 = DERIVE_FMA(t51_l1, t71_l1, t50_l1*t70_l1);
-            const double t83_l1 = DERIVE_FMA(t53_l1, t71_l1, -(t52_l1*t70_l1));
-            const double t84_l1 = t72_l1 + t78_l1;
-            const double t85_l1 = t73_l1 + t79_l1;
-            const double t86_l1 = t74_l1 + t80_l1;
-            const double t87_l1 = t75_l1 + t81_l1;
-            const double t88_l1 = t76_l1 + t82_l1;
-            const double t89_l1 = t77_l1 + t83_l1;
-            const double t90_l1 = DERIVE_FMA(P_l1[1], t43_l1, P_l1[0]*t42_l1);
-            const double t91_l1 = DERIVE_FMA(P_l1[7], t43_l1, P_l1[1]*t42_l1);
-            const double t92_l1 = DERIVE_FMA(P_l1[1], t45_l1, -(P_l1[0]*t44_l1));
-            const double t93_l1 = DERIVE_FMA(P_l1[7], t45_l1, -(P_l1[1]*t44_l1));
-            const double t94_l1 = DERIVE_FMA(P_l1[15], t47_l1, P_l1[14]*t46_l1);
-            const double t95_l1 = DERIVE_FMA(P_l1[21], t47_l1, P_l1[15]*t46_l1);
-            const double t96_l1 = DERIVE_FMA(P_l1[15], t49_l1, -(P_l1[14]*t48_l1));
-            const double t97_l1 = DERIVE_FMA(P_l1[21], t49_l1, -(P_l1[15]*t48_l1));
-            const double t98_l1 = DERIVE_FMA(P_l1[29], t51_l1, P_l1[28]*t50_l1);
-            const double t99_l1 = DERIVE_FMA(P_l1[35], t51_l1, P_l1[29]*t50_l1);
-            const double t100_l1 = DERIVE_FMA(P_l1[29], t53_l1, -(P_l1[28]*t52_l1));
-            const double t101_l1 = DERIVE_FMA(P_l1[35], t53_l1, -(P_l1[29]*t52_l1));
-            const double t102_l1 = DERIVE_FMA(0.8775510204081632, t91_l1, 0.9387755102040817*t90_l1);
-            const double t103_l1 = DERIVE_FMA(0.7551020408163265, t91_l1, (-0.12244897959183673)*t90_l1);
-            const double t104_l1 = DERIVE_FMA(0.7551020408163265, t93_l1, (-0.12244897959183673)*t92_l1);
-            const double t105_l1 = DERIVE_FMA(0.8775510204081632, t95_l1, 0.9387755102040817*t94_l1);
-            const double t106_l1 = DERIVE_FMA(0.7551020408163265, t95_l1, (-0.12244897959183673)*t94_l1);
-            const double t107_l1 = DERIVE_FMA(0.7551020408163265, t97_l1, (-0.12244897959183673)*t96_l1);
-            const double t108_l1 = DERIVE_FMA(0.8775510204081632, t99_l1, 0.9387755102040817*t98_l1);
-            const double t109_l1 = DERIVE_FMA(0.7551020408163265, t99_l1, (-0.12244897959183673)*t98_l1);
-            const double t110_l1 = DERIVE_FMA(0.7551020408163265, t101_l1, (-0.12244897959183673)*t100_l1);
-            const double t111_l1 = 0.0020408163265306124 + t102_l1;
-            const double t112_l1 = 0.004081632653061225 + t103_l1;
-            const double t113_l1 = 0.00816326530612245 + t104_l1;
-            const double t114_l1 = 0.0020408163265306124 + t105_l1;
-            const double t115_l1 = 0.004081632653061225 + t106_l1;
-            const double t116_l1 = 0.00816326530612245 + t107_l1;
-            const double t117_l1 = 0.0020408163265306124 + t108_l1;
-            const double t118_l1 = 0.004081632653061225 + t109_l1;
-            const double t119_l1 = 0.00816326530612245 + t110_l1;
-            xn_l1[0] = t84_l1;
-            xn_l1[1] = t85_l1;
-            xn_l1[2] = t86_l1;
-            xn_l1[3] = t87_l1;
-            xn_l1[4] = t88_l1;
-            xn_l1[5] = t89_l1;
-            Pn_l1[0] = t111_l1;
-            Pn_l1[1] = t112_l1;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = 0.0;
-            Pn_l1[5] = 0.0;
-            Pn_l1[6] = t112_l1;
-            Pn_l1[7] = t113_l1;
-            Pn_l1[8] = 0.0;
-            Pn_l1[9] = 0.0;
-            Pn_l1[10] = 0.0;
-            Pn_l1[11] = 0.0;
-            Pn_l1[12] = 0.0;
-            Pn_l1[13] = 0.0;
-            Pn_l1[14] = t114_l1;
-            Pn_l1[15] = t115_l1;
-            Pn_l1[16] = 0.0;
-            Pn_l1[17] = 0.0;
-            Pn_l1[18] = 0.0;
-            Pn_l1[19] = 0.0;
-            Pn_l1[20] = t115_l1;
-            Pn_l1[21] = t116_l1;
-            Pn_l1[22] = 0.0;
-            Pn_l1[23] = 0.0;
-            Pn_l1[24] = 0.0;
-            Pn_l1[25] = 0.0;
-            Pn_l1[26] = 0.0;
-            Pn_l1[27] = 0.0;
-            Pn_l1[28] = t117_l1;
-            Pn_l1[29] = t118_l1;
-            Pn_l1[30] = 0.0;
-            Pn_l1[31] = 0.0;
-            Pn_l1[32] = 0.0;
-            Pn_l1[33] = 0.0;
-            Pn_l1[34] = t118_l1;
-            Pn_l1[35] = t119_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            const double t0_l2 = 16.3265306122449*P_l2[1];
-            const double t1_l2 = DERIVE_FMA(8.16326530612245, P_l2[0], t0_l2);
-            const double t2_l2 = DERIVE_FMA(32.6530612244898, P_l2[1], 16.3265306122449*P_l2[0]);
-            const double t3_l2 = DERIVE_FMA(16.3265306122449, P_l2[7], 8.16326530612245*P_l2[1]);
-            const double t4_l2 = DERIVE_FMA(32.6530612244898, P_l2[7], t0_l2);
-            const double t5_l2 = 16.3265306122449*P_l2[15];
-            const double t6_l2 = DERIVE_FMA(8.16326530612245, P_l2[14], t5_l2);
-            const double t7_l2 = DERIVE_FMA(32.6530612244898, P_l2[15], 16.3265306122449*P_l2[14]);
-            const double t8_l2 = DERIVE_FMA(16.3265306122449, P_l2[21], 8.16326530612245*P_l2[15]);
-            const double t9_l2 = DERIVE_FMA(32.6530612244898, P_l2[21], t5_l2);
-            const double t10_l2 = 16.3265306122449*P_l2[29];
-            const double t11_l2 = DERIVE_FMA(8.16326530612245, P_l2[28], t10_l2);
-            const double t12_l2 = DERIVE_FMA(32.6530612244898, P_l2[29], 16.3265306122449*P_l2[28]);
-            const double t13_l2 = DERIVE_FMA(16.3265306122449, P_l2[35], 8.16326530612245*P_l2[29]);
-            const double t14_l2 = DERIVE_FMA(32.6530612244898, P_l2[35], t10_l2);
-            const double t15_l2 = 1.0 + t1_l2;
-            const double t16_l2 = 1.0 + t4_l2;
-            const double t17_l2 = 1.0 + t6_l2;
-            const double t18_l2 = 1.0 + t9_l2;
-            const double t19_l2 = 1.0 + t11_l2;
-            const double t20_l2 = 1.0 + t14_l2;
-            const double t21_l2 = 1.0/t15_l2;
-            const double t22_l2 = t21_l2*t3_l2;
-            const double t23_l2 = t16_l2 - t2_l2*t22_l2;
-            const double t24_l2 = 1.0/t23_l2;
-            const double t25_l2 = 1.0/t17_l2;
-            const double t26_l2 = t25_l2*t8_l2;
-            const double t27_l2 = t18_l2 - t26_l2*t7_l2;
-            const double t28_l2 = 1.0/t27_l2;
-            const double t29_l2 = 1.0/t19_l2;
-            const double t30_l2 = t13_l2*t29_l2;
-            const double t31_l2 = t20_l2 - t12_l2*t30_l2;
-            const double t32_l2 = 1.0/t31_l2;
-            const double t33_l2 = t22_l2*t24_l2;
-            const double t34_l2 = t21_l2*DERIVE_FMA(t2_l2, t33_l2, 1.0);
-            const double t35_l2 = t2_l2*t21_l2*t24_l2;
-            const double t36_l2 = t26_l2*t28_l2;
-            const double t37_l2 = t25_l2*DERIVE_FMA(t36_l2, t7_l2, 1.0);
-            const double t38_l2 = t25_l2*t28_l2*t7_l2;
-            const double t39_l2 = t30_l2*t32_l2;
-            const double t40_l2 = t29_l2*DERIVE_FMA(t12_l2, t39_l2, 1.0);
-            const double t41_l2 = t12_l2*t29_l2*t32_l2;
-            const double t42_l2 = DERIVE_FMA(0.9387755102040817, t34_l2, (-0.8775510204081632)*t33_l2);
-            const double t43_l2 = DERIVE_FMA((-0.9387755102040817), t35_l2, 0.8775510204081632*t24_l2);
-            const double t44_l2 = DERIVE_FMA(0.12244897959183673, t34_l2, 0.7551020408163265*t33_l2);
-            const double t45_l2 = DERIVE_FMA(0.12244897959183673, t35_l2, 0.7551020408163265*t24_l2);
-            const double t46_l2 = DERIVE_FMA(0.9387755102040817, t37_l2, (-0.8775510204081632)*t36_l2);
-            const double t47_l2 = DERIVE_FMA((-0.9387755102040817), t38_l2, 0.8775510204081632*t28_l2);
-            const double t48_l2 = DERIVE_FMA(0.12244897959183673, t37_l2, 0.7551020408163265*t36_l2);
-            const double t49_l2 = DERIVE_FMA(0.12244897959183673, t38_l2, 0.7551020408163265*t28_l2);
-            const double t50_l2 = DERIVE_FMA(0.9387755102040817, t40_l2, (-0.8775510204081632)*t39_l2);
-            const double t51_l2 = DERIVE_FMA((-0.9387755102040817), t41_l2, 0.8775510204081632*t32_l2);
-            const double t52_l2 = DERIVE_FMA(0.12244897959183673, t40_l2, 0.7551020408163265*t39_l2);
-            const double t53_l2 = DERIVE_FMA(0.12244897959183673, t41_l2, 0.7551020408163265*t32_l2);
-            const double t54_l2 = 8.16326530612245*z_l2[0];
-            const double t55_l2 = 16.3265306122449*z_l2[0];
-            const double t56_l2 = 8.16326530612245*z_l2[1];
-            const double t57_l2 = 16.3265306122449*z_l2[1];
-            const double t58_l2 = 8.16326530612245*z_l2[2];
-            const double t59_l2 = 16.3265306122449*z_l2[2];
-            const double t60_l2 = DERIVE_FMA(P_l2[1], t55_l2, P_l2[0]*t54_l2);
-            const double t61_l2 = DERIVE_FMA(P_l2[7], t55_l2, P_l2[1]*t54_l2);
-            const double t62_l2 = DERIVE_FMA(P_l2[15], t57_l2, P_l2[14]*t56_l2);
-            const double t63_l2 = DERIVE_FMA(P_l2[21], t57_l2, P_l2[15]*t56_l2);
-            const double t64_l2 = DERIVE_FMA(P_l2[29], t59_l2, P_l2[28]*t58_l2);
-            const double t65_l2 = DERIVE_FMA(P_l2[35], t59_l2, P_l2[29]*t58_l2);
-            const double t66_l2 = x_l2[0] + t60_l2;
-            const double t67_l2 = x_l2[1] + t61_l2;
-            const double t68_l2 = x_l2[2] + t62_l2;
-            const double t69_l2 = x_l2[3] + t63_l2;
-            const double t70_l2 = x_l2[4] + t64_l2;
-            const double t71_l2 = x_l2[5] + t65_l2;
-            const double t72_l2 = 0.061224489795918366*z_l2[0];
-            const double t73_l2 = 0.12244897959183673*z_l2[0];
-            const double t74_l2 = 0.061224489795918366*z_l2[1];
-            const double t75_l2 = 0.12244897959183673*z_l2[1];
-            const double t76_l2 = 0.061224489795918366*z_l2[2];
-            const double t77_l2 = 0.12244897959183673*z_l2[2];
-            const double t78_l2 = DERIVE_FMA(t43_l2, t67_l2, t42_l2*t66_l2);
-            const double t79_l2 = DERIVE_FMA(t45_l2, t67_l2, -(t44_l2*t66_l2));
-            const double t80_l2 = DERIVE_FMA(t47_l2, t69_l2, t46_l2*t68_l2);
-            const double t81_l2 = DERIVE_FMA(t49_l2, t69_l2, -(t48_l2*t68_l2));
-            const double t82_l2 = DERIVE_FMA(t51_l2, t71_l2, t50_l2*t70_l2);
-            const double t83_l2 = DERIVE_FMA(t53_l2, t71_l2, -(t52_l2*t70_l2));
-            const double t84_l2 = t72_l2 + t78_l2;
-            const double t85_l2 = t73_l2 + t79_l2;
-            const double t86_l2 = t74_l2 + t80_l2;
-            const double t87_l2 = t75_l2 + t81_l2;
-            const double t88_l2 = t76_l2 + t82_l2;
-            const double t89_l2 = t77_l2 + t83_l2;
-            const double t90_l2 = DERIVE_FMA(P_l2[1], t43_l2, P_l2[0]*t42_l2);
-            const double t91_l2 = DERIVE_FMA(P_l2[7], t43_l2, P_l2[1]*t42_l2);
-            const double t92_l2 = DERIVE_FMA(P_l2[1], t45_l2, -(P_l2[0]*t44_l2));
-            const double t93_l2 = DERIVE_FMA(P_l2[7], t45_l2, -(P_l2[1]*t44_l2));
-            const double t94_l2 = DERIVE_FMA(P_l2[15], t47_l2, P_l2[14]*t46_l2);
-            const double t95_l2 = DERIVE_FMA(P_l2[21], t47_l2, P_l2[15]*t46_l2);
-            const double t96_l2 = DERIVE_FMA(P_l2[15], t49_l2, -(P_l2[14]*t48_l2));
-            const double t97_l2 = DERIVE_FMA(P_l2[21], t49_l2, -(P_l2[15]*t48_l2));
-            const double t98_l2 = DERIVE_FMA(P_l2[29], t51_l2, P_l2[28]*t50_l2);
-            const double t99_l2 = DERIVE_FMA(P_l2[35], t51_l2, P_l2[29]*t50_l2);
-            const double t100_l2 = DERIVE_FMA(P_l2[29], t53_l2, -(P_l2[28]*t52_l2));
-            const double t101_l2 = DERIVE_FMA(P_l2[35], t53_l2, -(P_l2[29]*t52_l2));
-            const double t102_l2 = DERIVE_FMA(0.8775510204081632, t91_l2, 0.9387755102040817*t90_l2);
-            const double t103_l2 = DERIVE_FMA(0.7551020408163265, t91_l2, (-0.12244897959183673)*t90_l2);
-            const double t104_l2 = DERIVE_FMA(0.7551020408163265, t93_l2, (-0.12244897959183673)*t92_l2);
-            const double t105_l2 = DERIVE_FMA(0.8775510204081632, t95_l2, 0.9387755102040817*t94_l2);
-            const double t106_l2 = DERIVE_FMA(0.7551020408163265, t95_l2, (-0.12244897959183673)*t94_l2);
-            const double t107_l2 = DERIVE_FMA(0.7551020408163265, t97_l2, (-0.12244897959183673)*t96_l2);
-            const double t108_l2 = DERIVE_FMA(0.8775510204081632, t99_l2, 0.9387755102040817*t98_l2);
-            const double t109_l2 = DERIVE_FMA(0.7551020408163265, t99_l2, (-0.12244897959183673)*t98_l2);
-            const double t110_l2 = DERIVE_FMA(0.7551020408163265, t101_l2, (-0.12244897959183673)*t100_l2);
-            const double t111_l2 = 0.0020408163265306124 + t102_l2;
-            const double t112_l2 = 0.004081632653061225 + t103_l2;
-            const double t113_l2 = 0.00816326530612245 + t104_l2;
-            const double t114_l2 = 0.0020408163265306124 + t105_l2;
-            const double t115_l2 = 0.004081632653061225 + t106_l2;
-            const double t116_l2 = 0.00816326530612245 + t107_l2;
-            const double t117_l2 = 0.0020408163265306124 + t108_l2;
-            const double t118_l2 = 0.004081632653061225 + t109_l2;
-            const double t119_l2 = 0.00816326530612245 + t110_l2;
-            xn_l2[0] = t84_l2;
-            xn_l2[1] = t85_l2;
-            xn_l2[2] = t86_l2;
-            xn_l2[3] = t87_l2;
-            xn_l2[4] = t88_l2;
-            xn_l2[5] = t89_l2;
-            Pn_l2[0] = t111_l2;
-            Pn_l2[1] = t112_l2;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = 0.0;
-            Pn_l2[5] = 0.0;
-            Pn_l2[6] = t112_l2;
-            Pn_l2[7] = t113_l2;
-            Pn_l2[8] = 0.0;
-            Pn_l2[9] = 0.0;
-            Pn_l2[10] = 0.0;
-            Pn_l2[11] = 0.0;
-            Pn_l2[12] = 0.0;
-            Pn_l2[13] = 0.0;
-            Pn_l2[14] = t114_l2;
-            Pn_l2[15] = t115_l2;
-            Pn_l2[16] = 0.0;
-            Pn_l2[17] = 0.0;
-            Pn_l2[18] = 0.0;
-            Pn_l2[19] = 0.0;
-            Pn_l2[20] = t115_l2;
-            Pn_l2[21] = t116_l2;
-            Pn_l2[22] = 0.0;
-            Pn_l2[23] = 0.0;
-            Pn_l2[24] = 0.0;
-            Pn_l2[25] = 0.0;
-            Pn_l2[26] = 0.0;
-            Pn_l2[27] = 0.0;
-            Pn_l2[28] = t117_l2;
-            Pn_l2[29] = t118_l2;
-            Pn_l2[30] = 0.0;
-            Pn_l2[31] = 0.0;
-            Pn_l2[32] = 0.0;
-            Pn_l2[33] = 0.0;
-            Pn_l2[34] = t118_l2;
-            Pn_l2[35] = t119_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            const double t0_l3 = 16.3265306122449*P_l3[1];
-            const double t1_l3 = DERIVE_FMA(8.16326530612245, P_l3[0], t0_l3);
-            const double t2_l3 = DERIVE_FMA(32.6530612244898, P_l3[1], 16.3265306122449*P_l3[0]);
-            const double t3_l3 = DERIVE_FMA(16.3265306122449, P_l3[7], 8.16326530612245*P_l3[1]);
-            const double t4_l3 = DERIVE_FMA(32.6530612244898, P_l3[7], t0_l3);
-            const double t5_l3 = 16.3265306122449*P_l3[15];
-            const double t6_l3 = DERIVE_FMA(8.16326530612245, P_l3[14], t5_l3);
-            const double t7_l3 = DERIVE_FMA(32.6530612244898, P_l3[15], 16.3265306122449*P_l3[14]);
-            const double t8_l3 = DERIVE_FMA(16.3265306122449, P_l3[21], 8.16326530612245*P_l3[15]);
-            const double t9_l3 = DERIVE_FMA(32.6530612244898, P_l3[21], t5_l3);
-            const double t10_l3 = 16.3265306122449*P_l3[29];
-            const double t11_l3 = DERIVE_FMA(8.16326530612245, P_l3[28], t10_l3);
-            const double t12_l3 = DERIVE_FMA(32.6530612244898, P_l3[29], 16.3265306122449*P_l3[28]);
-            const double t13_l3 = DERIVE_FMA(16.3265306122449, P_l3[35], 8.16326530612245*P_l3[29]);
-            const double t14_l3 = DERIVE_FMA(32.6530612244898, P_l3[35], t10_l3);
-            const double t15_l3 = 1.0 + t1_l3;
-            const double t16_l3 = 1.0 + t4_l3;
-            const double t17_l3 = 1.0 + t6_l3;
-            const double t18_l3 = 1.0 + t9_l3;
-            const double t19_l3 = 1.0 + t11_l3;
-            const double t20_l3 = 1.0 + t14_l3;
-            const double t21_l3 = 1.0/t15_l3;
-            const double t22_l3 = t21_l3*t3_l3;
-            const double t23_l3 = t16_l3 - t2_l3*t22_l3;
-            const double t24_l3 = 1.0/t23_l3;
-            const double t25_l3 = 1.0/t17_l3;
-            const double t26_l3 = t25_l3*t8_l3;
-            const double t27_l3 = t18_l3 - t26_l3*t7_l3;
-            const double t28_l3 = 1.0/t27_l3;
-            const double t29_l3 = 1.0/t19_l3;
-            const double t30_l3 = t13_l3*t29_l3;
-            const double t31_l3 = t20_l3 - t12_l3*t30_l3;
-            const double t32_l3 = 1.0/t31_l3;
-            const double t33_l3 = t22_l3*t24_l3;
-            const double t34_l3 = t21_l3*DERIVE_FMA(t2_l3, t33_l3, 1.0);
-            const double t35_l3 = t2_l3*t21_l3*t24_l3;
-            const double t36_l3 = t26_l3*t28_l3;
-            const double t37_l3 = t25_l3*DERIVE_FMA(t36_l3, t7_l3, 1.0);
-            const double t38_l3 = t25_l3*t28_l3*t7_l3;
-            const double t39_l3 = t30_l3*t32_l3;
-            const double t40_l3 = t29_l3*DERIVE_FMA(t12_l3, t39_l3, 1.0);
-            const double t41_l3 = t12_l3*t29_l3*t32_l3;
-            const double t42_l3 = DERIVE_FMA(0.9387755102040817, t34_l3, (-0.8775510204081632)*t33_l3);
-            const double t43_l3 = DERIVE_FMA((-0.9387755102040817), t35_l3, 0.8775510204081632*t24_l3);
-            const double t44_l3 = DERIVE_FMA(0.12244897959183673, t34_l3, 0.7551020408163265*t33_l3);
-            const double t45_l3 = DERIVE_FMA(0.12244897959183673, t35_l3, 0.7551020408163265*t24_l3);
-            const double t46_l3 = DERIVE_FMA(0.9387755102040817, t37_l3, (-0.8775510204081632)*t36_l3);
-            const double t47_l3 = DERIVE_FMA((-0.9387755102040817), t38_l3, 0.8775510204081632*t28_l3);
-            const double t48_l3 = DERIVE_FMA(0.12244897959183673, t37_l3, 0.7551020408163265*t36_l3);
-            const double t49_l3 = DERIVE_FMA(0.12244897959183673, t38_l3, 0.7551020408163265*t28_l3);
-            const double t50_l3 = DERIVE_FMA(0.9387755102040817, t40_l3, (-0.8775510204081632)*t39_l3);
-            const double t51_l3 = DERIVE_FMA((-0.9387755102040817), t41_l3, 0.8775510204081632*t32_l3);
-            const double t52_l3 = DERIVE_FMA(0.12244897959183673, t40_l3, 0.7551020408163265*t39_l3);
-            const double t53_l3 = DERIVE_FMA(0.12244897959183673, t41_l3, 0.7551020408163265*t32_l3);
-            const double t54_l3 = 8.16326530612245*z_l3[0];
-            const double t55_l3 = 16.3265306122449*z_l3[0];
-            const double t56_l3 = 8.16326530612245*z_l3[1];
-            const double t57_l3 = 16.3265306122449*z_l3[1];
-            const double t58_l3 = 8.16326530612245*z_l3[2];
-            const double t59_l3 = 16.3265306122449*z_l3[2];
-            const double t60_l3 = DERIVE_FMA(P_l3[1], t55_l3, P_l3[0]*t54_l3);
-            const double t61_l3 = DERIVE_FMA(P_l3[7], t55_l3, P_l3[1]*t54_l3);
-            const double t62_l3 = DERIVE_FMA(P_l3[15], t57_l3, P_l3[14]*t56_l3);
-            const double t63_l3 = DERIVE_FMA(P_l3[21], t57_l3, P_l3[15]*t56_l3);
-            const double t64_l3 = DERIVE_FMA(P_l3[29], t59_l3, P_l3[28]*t58_l3);
-            const double t65_l3 = DERIVE_FMA(P_l3[35], t59_l3, P_l3[29]*t58_l3);
-            const double t66_l3 = x_l3[0] + t60_l3;
-            const double t67_l3 = x_l3[1] + t61_l3;
-            const double t68_l3 = x_l3[2] + t62_l3;
-            const double t69_l3 = x_l3[3] + t63_l3;
-            const double t70_l3 = x_l3[4] + t64_l3;
-            const double t71_l3 = x_l3[5] + t65_l3;
-            const double t72_l3 = 0.061224489795918366*z_l3[0];
-            const double t73_l3 = 0.12244897959183673*z_l3[0];
-            const double t74_l3 = 0.061224489795918366*z_l3[1];
-            const double t75_l3 = 0.12244897959183673*z_l3[1];
-            const double t76_l3 = 0.061224489795918366*z_l3[2];
-            const double t77_l3 = 0.12244897959183673*z_l3[2];
-            const double t78_l3 = DERIVE_FMA(t43_l3, t67_l3, t42_l3*t66_l3);
-            const double t79_l3 = DERIVE_FMA(t45_l3, t67_l3, -(t44_l3*t66_l3));
-            const double t80_l3 = DERIVE_FMA(t47_l3, t69_l3, t46_l3*t68_l3);
-            const double t81_l3 = DERIVE_FMA(t49_l3, t69_l3, -(t48_l3*t68_l3));
-            const double t82_l3 = DERIVE_FMA(t51_l3, t71_l3, t50_l3*t70_l3);
-            const double t83_l3 = DERIVE_FMA(t53_l3, t71_l3, -(t52_l3*t70_l3));
-            const double t84_l3 = t72_l3 + t78_l3;
-            const double t85_l3 = t73_l3 + t79_l3;
-            const double t86_l3 = t74_l3 + t80_l3;
-            const double t87_l3 = t75_l3 + t81_l3;
-            const double t88_l3 = t76_l3 + t82_l3;
-            const double t89_l3 = t77_l3 + t83_l3;
-            const double t90_l3 = DERIVE_FMA(P_l3[1], t43_l3, P_l3[0]*t42_l3);
-            const double t91_l3 = DERIVE_FMA(P_l3[7], t43_l3, P_l3[1]*t42_l3);
-            const double t92_l3 = DERIVE_FMA(P_l3[1], t45_l3, -(P_l3[0]*t44_l3));
-            const double t93_l3 = DERIVE_FMA(P_l3[7], t45_l3, -(P_l3[1]*t44_l3));
-            const double t94_l3 = DERIVE_FMA(P_l3[15], t47_l3, P_l3[14]*t46_l3);
-            const double t95_l3 = DERIVE_FMA(P_l3[21], t47_l3, P_l3[15]*t46_l3);
-            const double t96_l3 = DERIVE_FMA(P_l3[15], t49_l3, -(P_l3[14]*t48_l3));
-            const double t97_l3 = DERIVE_FMA(P_l3[21], t49_l3, -(P_l3[15]*t48_l3));
-            const double t98_l3 = DERIVE_FMA(P_l3[29], t51_l3, P_l3[28]*t50_l3);
-            const double t99_l3 = DERIVE_FMA(P_l3[35], t51_l3, P_l3[29]*t50_l3);
-            const double t100_l3 = DERIVE_FMA(P_l3[29], t53_l3, -(P_l3[28]*t52_l3));
-            const double t101_l3 = DERIVE_FMA(P_l3[35], t53_l3, -(P_l3[29]*t52_l3));
-            const double t102_l3 = DERIVE_FMA(0.8775510204081632, t91_l3, 0.9387755102040817*t90_l3);
-            const double t103_l3 = DERIVE_FMA(0.7551020408163265, t91_l3, (-0.12244897959183673)*t90_l3);
-            const double t104_l3 = DERIVE_FMA(0.7551020408163265, t93_l3, (-0.12244897959183673)*t92_l3);
-            const double t105_l3 = DERIVE_FMA(0.8775510204081632, t95_l3, 0.9387755102040817*t94_l3);
-            const double t106_l3 = DERIVE_FMA(0.7551020408163265, t95_l3, (-0.12244897959183673)*t94_l3);
-            const double t107_l3 = DERIVE_FMA(0.7551020408163265, t97_l3, (-0.12244897959183673)*t96_l3);
-            const double t108_l3 = DERIVE_FMA(0.8775510204081632, t99_l3, 0.9387755102040817*t98_l3);
-            const double t109_l3 = DERIVE_FMA(0.7551020408163265, t99_l3, (-0.12244897959183673)*t98_l3);
-            const double t110_l3 = DERIVE_FMA(0.7551020408163265, t101_l3, (-0.12244897959183673)*t100_l3);
-            const double t111_l3 = 0.0020408163265306124 + t102_l3;
-            const double t112_l3 = 0.004081632653061225 + t103_l3;
-            const double t113_l3 = 0.00816326530612245 + t104_l3;
-            const double t114_l3 = 0.0020408163265306124 + t105_l3;
-            const double t115_l3 = 0.004081632653061225 + t106_l3;
-            const double t116_l3 = 0.00816326530612245 + t107_l3;
-            const double t117_l3 = 0.0020408163265306124 + t108_l3;
-            const double t118_l3 = 0.004081632653061225 + t109_l3;
-            const double t119_l3 = 0.00816326530612245 + t110_l3;
-            xn_l3[0] = t84_l3;
-            xn_l3[1] = t85_l3;
-            xn_l3[2] = t86_l3;
-            xn_l3[3] = t87_l3;
-            xn_l3[4] = t88_l3;
-            xn_l3[5] = t89_l3;
-            Pn_l3[0] = t111_l3;
-            Pn_l3[1] = t112_l3;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = 0.0;
-            Pn_l3[5] = 0.0;
-            Pn_l3[6] = t112_l3;
-            Pn_l3[7] = t113_l3;
-            Pn_l3[8] = 0.0;
-            Pn_l3[9] = 0.0;
-            Pn_l3[10] = 0.0;
-            Pn_l3[11] = 0.0;
-            Pn_l3[12] = 0.0;
-            Pn_l3[13] = 0.0;
-            Pn_l3[14] = t114_l3;
-            Pn_l3[15] = t115_l3;
-            Pn_l3[16] = 0.0;
-            Pn_l3[17] = 0.0;
-            Pn_l3[18] = 0.0;
-            Pn_l3[19] = 0.0;
-            Pn_l3[20] = t115_l3;
-            Pn_l3[21] = t116_l3;
-            Pn_l3[22] = 0.0;
-            Pn_l3[23] = 0.0;
-            Pn_l3[24] = 0.0;
-            Pn_l3[25] = 0.0;
-            Pn_l3[26] = 0.0;
-            Pn_l3[27] = 0.0;
-            Pn_l3[28] = t117_l3;
-            Pn_l3[29] = t118_l3;
-            Pn_l3[30] = 0.0;
-            Pn_l3[31] = 0.0;
-            Pn_l3[32] = 0.0;
-            Pn_l3[33] = 0.0;
-            Pn_l3[34] = t118_l3;
-            Pn_l3[35] = t119_l3;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            P_l0[16] = Pn_l0[16];
-            P_l0[17] = Pn_l0[17];
-            P_l0[18] = Pn_l0[18];
-            P_l0[19] = Pn_l0[19];
-            P_l0[20] = Pn_l0[20];
-            P_l0[21] = Pn_l0[21];
-            P_l0[22] = Pn_l0[22];
-            P_l0[23] = Pn_l0[23];
-            P_l0[24] = Pn_l0[24];
-            P_l0[25] = Pn_l0[25];
-            P_l0[26] = Pn_l0[26];
-            P_l0[27] = Pn_l0[27];
-            P_l0[28] = Pn_l0[28];
-            P_l0[29] = Pn_l0[29];
-            P_l0[30] = Pn_l0[30];
-            P_l0[31] = Pn_l0[31];
-            P_l0[32] = Pn_l0[32];
-            P_l0[33] = Pn_l0[33];
-            P_l0[34] = Pn_l0[34];
-            P_l0[35] = Pn_l0[35];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 36 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 36 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 36 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 36 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 36 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 36 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 36 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 36 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 36 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 36 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 36 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 36 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 36 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 36 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 36 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 36 + 15] = Pn_l0[15];
-                Ps[((t + 0) * steps + k) * 36 + 16] = Pn_l0[16];
-                Ps[((t + 0) * steps + k) * 36 + 17] = Pn_l0[17];
-                Ps[((t + 0) * steps + k) * 36 + 18] = Pn_l0[18];
-                Ps[((t + 0) * steps + k) * 36 + 19] = Pn_l0[19];
-                Ps[((t + 0) * steps + k) * 36 + 20] = Pn_l0[20];
-                Ps[((t + 0) * steps + k) * 36 + 21] = Pn_l0[21];
-                Ps[((t + 0) * steps + k) * 36 + 22] = Pn_l0[22];
-                Ps[((t + 0) * steps + k) * 36 + 23] = Pn_l0[23];
-                Ps[((t + 0) * steps + k) * 36 + 24] = Pn_l0[24];
-                Ps[((t + 0) * steps + k) * 36 + 25] = Pn_l0[25];
-                Ps[((t + 0) * steps + k) * 36 + 26] = Pn_l0[26];
-                Ps[((t + 0) * steps + k) * 36 + 27] = Pn_l0[27];
-                Ps[((t + 0) * steps + k) * 36 + 28] = Pn_l0[28];
-                Ps[((t + 0) * steps + k) * 36 + 29] = Pn_l0[29];
-                Ps[((t + 0) * steps + k) * 36 + 30] = Pn_l0[30];
-                Ps[((t + 0) * steps + k) * 36 + 31] = Pn_l0[31];
-                Ps[((t + 0) * steps + k) * 36 + 32] = Pn_l0[32];
-                Ps[((t + 0) * steps + k) * 36 + 33] = Pn_l0[33];
-                Ps[((t + 0) * steps + k) * 36 + 34] = Pn_l0[34];
-                Ps[((t + 0) * steps + k) * 36 + 35] = Pn_l0[35];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
             }
-            xs[((t + 1) * steps + k) * 6 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 6 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 6 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 6 + 3] = x_l1[3] = xn_l1[3];
-            xs[((t + 1) * steps + k) * 6 + 4] = x_l1[4] = xn_l1[4];
-            xs[((t + 1) * steps + k) * 6 + 5] = x_l1[5] = xn_l1[5];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            P_l1[9] = Pn_l1[9];
-            P_l1[10] = Pn_l1[10];
-            P_l1[11] = Pn_l1[11];
-            P_l1[12] = Pn_l1[12];
-            P_l1[13] = Pn_l1[13];
-            P_l1[14] = Pn_l1[14];
-            P_l1[15] = Pn_l1[15];
-            P_l1[16] = Pn_l1[16];
-            P_l1[17] = Pn_l1[17];
-            P_l1[18] = Pn_l1[18];
-            P_l1[19] = Pn_l1[19];
-            P_l1[20] = Pn_l1[20];
-            P_l1[21] = Pn_l1[21];
-            P_l1[22] = Pn_l1[22];
-            P_l1[23] = Pn_l1[23];
-            P_l1[24] = Pn_l1[24];
-            P_l1[25] = Pn_l1[25];
-            P_l1[26] = Pn_l1[26];
-            P_l1[27] = Pn_l1[27];
-            P_l1[28] = Pn_l1[28];
-            P_l1[29] = Pn_l1[29];
-            P_l1[30] = Pn_l1[30];
-            P_l1[31] = Pn_l1[31];
-            P_l1[32] = Pn_l1[32];
-            P_l1[33] = Pn_l1[33];
-            P_l1[34] = Pn_l1[34];
-            P_l1[35] = Pn_l1[35];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 36 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 36 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 36 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 36 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 36 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 36 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 36 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 36 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 36 + 8] = Pn_l1[8];
-                Ps[((t + 1) * steps + k) * 36 + 9] = Pn_l1[9];
-                Ps[((t + 1) * steps + k) * 36 + 10] = Pn_l1[10];
-                Ps[((t + 1) * steps + k) * 36 + 11] = Pn_l1[11];
-                Ps[((t + 1) * steps + k) * 36 + 12] = Pn_l1[12];
-                Ps[((t + 1) * steps + k) * 36 + 13] = Pn_l1[13];
-                Ps[((t + 1) * steps + k) * 36 + 14] = Pn_l1[14];
-                Ps[((t + 1) * steps + k) * 36 + 15] = Pn_l1[15];
-                Ps[((t + 1) * steps + k) * 36 + 16] = Pn_l1[16];
-                Ps[((t + 1) * steps + k) * 36 + 17] = Pn_l1[17];
-                Ps[((t + 1) * steps + k) * 36 + 18] = Pn_l1[18];
-                Ps[((t + 1) * steps + k) * 36 + 19] = Pn_l1[19];
-                Ps[((t + 1) * steps + k) * 36 + 20] = Pn_l1[20];
-                Ps[((t + 1) * steps + k) * 36 + 21] = Pn_l1[21];
-                Ps[((t + 1) * steps + k) * 36 + 22] = Pn_l1[22];
-                Ps[((t + 1) * steps + k) * 36 + 23] = Pn_l1[23];
-                Ps[((t + 1) * steps + k) * 36 + 24] = Pn_l1[24];
-                Ps[((t + 1) * steps + k) * 36 + 25] = Pn_l1[25];
-                Ps[((t + 1) * steps + k) * 36 + 26] = Pn_l1[26];
-                Ps[((t + 1) * steps + k) * 36 + 27] = Pn_l1[27];
-                Ps[((t + 1) * steps + k) * 36 + 28] = Pn_l1[28];
-                Ps[((t + 1) * steps + k) * 36 + 29] = Pn_l1[29];
-                Ps[((t + 1) * steps + k) * 36 + 30] = Pn_l1[30];
-                Ps[((t + 1) * steps + k) * 36 + 31] = Pn_l1[31];
-                Ps[((t + 1) * steps + k) * 36 + 32] = Pn_l1[32];
-                Ps[((t + 1) * steps + k) * 36 + 33] = Pn_l1[33];
-                Ps[((t + 1) * steps + k) * 36 + 34] = Pn_l1[34];
-                Ps[((t + 1) * steps + k) * 36 + 35] = Pn_l1[35];
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                mpt3d_a_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            xs[((t + 2) * steps + k) * 6 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 6 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 6 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 6 + 3] = x_l2[3] = xn_l2[3];
-            xs[((t + 2) * steps + k) * 6 + 4] = x_l2[4] = xn_l2[4];
-            xs[((t + 2) * steps + k) * 6 + 5] = x_l2[5] = xn_l2[5];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            P_l2[9] = Pn_l2[9];
-            P_l2[10] = Pn_l2[10];
-            P_l2[11] = Pn_l2[11];
-            P_l2[12] = Pn_l2[12];
-            P_l2[13] = Pn_l2[13];
-            P_l2[14] = Pn_l2[14];
-            P_l2[15] = Pn_l2[15];
-            P_l2[16] = Pn_l2[16];
-            P_l2[17] = Pn_l2[17];
-            P_l2[18] = Pn_l2[18];
-            P_l2[19] = Pn_l2[19];
-            P_l2[20] = Pn_l2[20];
-            P_l2[21] = Pn_l2[21];
-            P_l2[22] = Pn_l2[22];
-            P_l2[23] = Pn_l2[23];
-            P_l2[24] = Pn_l2[24];
-            P_l2[25] = Pn_l2[25];
-            P_l2[26] = Pn_l2[26];
-            P_l2[27] = Pn_l2[27];
-            P_l2[28] = Pn_l2[28];
-            P_l2[29] = Pn_l2[29];
-            P_l2[30] = Pn_l2[30];
-            P_l2[31] = Pn_l2[31];
-            P_l2[32] = Pn_l2[32];
-            P_l2[33] = Pn_l2[33];
-            P_l2[34] = Pn_l2[34];
-            P_l2[35] = Pn_l2[35];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 36 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 36 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 36 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 36 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 36 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 36 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 36 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 36 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 36 + 8] = Pn_l2[8];
-                Ps[((t + 2) * steps + k) * 36 + 9] = Pn_l2[9];
-                Ps[((t + 2) * steps + k) * 36 + 10] = Pn_l2[10];
-                Ps[((t + 2) * steps + k) * 36 + 11] = Pn_l2[11];
-                Ps[((t + 2) * steps + k) * 36 + 12] = Pn_l2[12];
-                Ps[((t + 2) * steps + k) * 36 + 13] = Pn_l2[13];
-                Ps[((t + 2) * steps + k) * 36 + 14] = Pn_l2[14];
-                Ps[((t + 2) * steps + k) * 36 + 15] = Pn_l2[15];
-                Ps[((t + 2) * steps + k) * 36 + 16] = Pn_l2[16];
-                Ps[((t + 2) * steps + k) * 36 + 17] = Pn_l2[17];
-                Ps[((t + 2) * steps + k) * 36 + 18] = Pn_l2[18];
-                Ps[((t + 2) * steps + k) * 36 + 19] = Pn_l2[19];
-                Ps[((t + 2) * steps + k) * 36 + 20] = Pn_l2[20];
-                Ps[((t + 2) * steps + k) * 36 + 21] = Pn_l2[21];
-                Ps[((t + 2) * steps + k) * 36 + 22] = Pn_l2[22];
-                Ps[((t + 2) * steps + k) * 36 + 23] = Pn_l2[23];
-                Ps[((t + 2) * steps + k) * 36 + 24] = Pn_l2[24];
-                Ps[((t + 2) * steps + k) * 36 + 25] = Pn_l2[25];
-                Ps[((t + 2) * steps + k) * 36 + 26] = Pn_l2[26];
-                Ps[((t + 2) * steps + k) * 36 + 27] = Pn_l2[27];
-                Ps[((t + 2) * steps + k) * 36 + 28] = Pn_l2[28];
-                Ps[((t + 2) * steps + k) * 36 + 29] = Pn_l2[29];
-                Ps[((t + 2) * steps + k) * 36 + 30] = Pn_l2[30];
-                Ps[((t + 2) * steps + k) * 36 + 31] = Pn_l2[31];
-                Ps[((t + 2) * steps + k) * 36 + 32] = Pn_l2[32];
-                Ps[((t + 2) * steps + k) * 36 + 33] = Pn_l2[33];
-                Ps[((t + 2) * steps + k) * 36 + 34] = Pn_l2[34];
-                Ps[((t + 2) * steps + k) * 36 + 35] = Pn_l2[35];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 6; ++i) {
+                    xs[((t + j) * steps + k) * 6 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 36; ++i) {
+                        Ps[((t + j) * steps + k) * 36 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            xs[((t + 3) * steps + k) * 6 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 6 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 6 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 6 + 3] = x_l3[3] = xn_l3[3];
-            xs[((t + 3) * steps + k) * 6 + 4] = x_l3[4] = xn_l3[4];
-            xs[((t + 3) * steps + k) * 6 + 5] = x_l3[5] = xn_l3[5];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            P_l3[9] = Pn_l3[9];
-            P_l3[10] = Pn_l3[10];
-            P_l3[11] = Pn_l3[11];
-            P_l3[12] = Pn_l3[12];
-            P_l3[13] = Pn_l3[13];
-            P_l3[14] = Pn_l3[14];
-            P_l3[15] = Pn_l3[15];
-            P_l3[16] = Pn_l3[16];
-            P_l3[17] = Pn_l3[17];
-            P_l3[18] = Pn_l3[18];
-            P_l3[19] = Pn_l3[19];
-            P_l3[20] = Pn_l3[20];
-            P_l3[21] = Pn_l3[21];
-            P_l3[22] = Pn_l3[22];
-            P_l3[23] = Pn_l3[23];
-            P_l3[24] = Pn_l3[24];
-            P_l3[25] = Pn_l3[25];
-            P_l3[26] = Pn_l3[26];
-            P_l3[27] = Pn_l3[27];
-            P_l3[28] = Pn_l3[28];
-            P_l3[29] = Pn_l3[29];
-            P_l3[30] = Pn_l3[30];
-            P_l3[31] = Pn_l3[31];
-            P_l3[32] = Pn_l3[32];
-            P_l3[33] = Pn_l3[33];
-            P_l3[34] = Pn_l3[34];
-            P_l3[35] = Pn_l3[35];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 36 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 36 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 36 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 36 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 36 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 36 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 36 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 36 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 36 + 8] = Pn_l3[8];
-                Ps[((t + 3) * steps + k) * 36 + 9] = Pn_l3[9];
-                Ps[((t + 3) * steps + k) * 36 + 10] = Pn_l3[10];
-                Ps[((t + 3) * steps + k) * 36 + 11] = Pn_l3[11];
-                Ps[((t + 3) * steps + k) * 36 + 12] = Pn_l3[12];
-                Ps[((t + 3) * steps + k) * 36 + 13] = Pn_l3[13];
-                Ps[((t + 3) * steps + k) * 36 + 14] = Pn_l3[14];
-                Ps[((t + 3) * steps + k) * 36 + 15] = Pn_l3[15];
-                Ps[((t + 3) * steps + k) * 36 + 16] = Pn_l3[16];
-                Ps[((t + 3) * steps + k) * 36 + 17] = Pn_l3[17];
-                Ps[((t + 3) * steps + k) * 36 + 18] = Pn_l3[18];
-                Ps[((t + 3) * steps + k) * 36 + 19] = Pn_l3[19];
-                Ps[((t + 3) * steps + k) * 36 + 20] = Pn_l3[20];
-                Ps[((t + 3) * steps + k) * 36 + 21] = Pn_l3[21];
-                Ps[((t + 3) * steps + k) * 36 + 22] = Pn_l3[22];
-                Ps[((t + 3) * steps + k) * 36 + 23] = Pn_l3[23];
-                Ps[((t + 3) * steps + k) * 36 + 24] = Pn_l3[24];
-                Ps[((t + 3) * steps + k) * 36 + 25] = Pn_l3[25];
-                Ps[((t + 3) * steps + k) * 36 + 26] = Pn_l3[26];
-                Ps[((t + 3) * steps + k) * 36 + 27] = Pn_l3[27];
-                Ps[((t + 3) * steps + k) * 36 + 28] = Pn_l3[28];
-                Ps[((t + 3) * steps + k) * 36 + 29] = Pn_l3[29];
-                Ps[((t + 3) * steps + k) * 36 + 30] = Pn_l3[30];
-                Ps[((t + 3) * steps + k) * 36 + 31] = Pn_l3[31];
-                Ps[((t + 3) * steps + k) * 36 + 32] = Pn_l3[32];
-                Ps[((t + 3) * steps + k) * 36 + 33] = Pn_l3[33];
-                Ps[((t + 3) * steps + k) * 36 + 34] = Pn_l3[34];
-                Ps[((t + 3) * steps + k) * 36 + 35] = Pn_l3[35];
+            for (i = 0; i < 6 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
+            for (i = 0; i < 36 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[6], xn_l0[6];
-        double P_l0[36], Pn_l0[36];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        P_l0[0] = P0[(t + 0) * 36 + 0];
-        P_l0[1] = P0[(t + 0) * 36 + 1];
-        P_l0[2] = P0[(t + 0) * 36 + 2];
-        P_l0[3] = P0[(t + 0) * 36 + 3];
-        P_l0[4] = P0[(t + 0) * 36 + 4];
-        P_l0[5] = P0[(t + 0) * 36 + 5];
-        P_l0[6] = P0[(t + 0) * 36 + 6];
-        P_l0[7] = P0[(t + 0) * 36 + 7];
-        P_l0[8] = P0[(t + 0) * 36 + 8];
-        P_l0[9] = P0[(t + 0) * 36 + 9];
-        P_l0[10] = P0[(t + 0) * 36 + 10];
-        P_l0[11] = P0[(t + 0) * 36 + 11];
-        P_l0[12] = P0[(t + 0) * 36 + 12];
-        P_l0[13] = P0[(t + 0) * 36 + 13];
-        P_l0[14] = P0[(t + 0) * 36 + 14];
-        P_l0[15] = P0[(t + 0) * 36 + 15];
-        P_l0[16] = P0[(t + 0) * 36 + 16];
-        P_l0[17] = P0[(t + 0) * 36 + 17];
-        P_l0[18] = P0[(t + 0) * 36 + 18];
-        P_l0[19] = P0[(t + 0) * 36 + 19];
-        P_l0[20] = P0[(t + 0) * 36 + 20];
-        P_l0[21] = P0[(t + 0) * 36 + 21];
-        P_l0[22] = P0[(t + 0) * 36 + 22];
-        P_l0[23] = P0[(t + 0) * 36 + 23];
-        P_l0[24] = P0[(t + 0) * 36 + 24];
-        P_l0[25] = P0[(t + 0) * 36 + 25];
-        P_l0[26] = P0[(t + 0) * 36 + 26];
-        P_l0[27] = P0[(t + 0) * 36 + 27];
-        P_l0[28] = P0[(t + 0) * 36 + 28];
-        P_l0[29] = P0[(t + 0) * 36 + 29];
-        P_l0[30] = P0[(t + 0) * 36 + 30];
-        P_l0[31] = P0[(t + 0) * 36 + 31];
-        P_l0[32] = P0[(t + 0) * 36 + 32];
-        P_l0[33] = P0[(t + 0) * 36 + 33];
-        P_l0[34] = P0[(t + 0) * 36 + 34];
-        P_l0[35] = P0[(t + 0) * 36 + 35];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = 16.3265306122449*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t3_l0 = DERIVE_FMA(16.3265306122449, P_l0[7], 8.16326530612245*P_l0[1]);
-            const double t4_l0 = DERIVE_FMA(32.6530612244898, P_l0[7], t0_l0);
-            const double t5_l0 = 16.3265306122449*P_l0[15];
-            const double t6_l0 = DERIVE_FMA(8.16326530612245, P_l0[14], t5_l0);
-            const double t7_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], 16.3265306122449*P_l0[14]);
-            const double t8_l0 = DERIVE_FMA(16.3265306122449, P_l0[21], 8.16326530612245*P_l0[15]);
-            const double t9_l0 = DERIVE_FMA(32.6530612244898, P_l0[21], t5_l0);
-            const double t10_l0 = 16.3265306122449*P_l0[29];
-            const double t11_l0 = DERIVE_FMA(8.16326530612245, P_l0[28], t10_l0);
-            const double t12_l0 = DERIVE_FMA(32.6530612244898, P_l0[29], 16.3265306122449*P_l0[28]);
-            const double t13_l0 = DERIVE_FMA(16.3265306122449, P_l0[35], 8.16326530612245*P_l0[29]);
-            const double t14_l0 = DERIVE_FMA(32.6530612244898, P_l0[35], t10_l0);
-            const double t15_l0 = 1.0 + t1_l0;
-            const double t16_l0 = 1.0 + t4_l0;
-            const double t17_l0 = 1.0 + t6_l0;
-            const double t18_l0 = 1.0 + t9_l0;
-            const double t19_l0 = 1.0 + t11_l0;
-            const double t20_l0 = 1.0 + t14_l0;
-            const double t21_l0 = 1.0/t15_l0;
-            const double t22_l0 = t21_l0*t3_l0;
-            const double t23_l0 = t16_l0 - t2_l0*t22_l0;
-            const double t24_l0 = 1.0/t23_l0;
-            const double t25_l0 = 1.0/t17_l0;
-            const double t26_l0 = t25_l0*t8_l0;
-            const double t27_l0 = t18_l0 - t26_l0*t7_l0;
-            const double t28_l0 = 1.0/t27_l0;
-            const double t29_l0 = 1.0/t19_l0;
-            const double t30_l0 = t13_l0*t29_l0;
-            const double t31_l0 = t20_l0 - t12_l0*t30_l0;
-            const double t32_l0 = 1.0/t31_l0;
-            const double t33_l0 = t22_l0*t24_l0;
-            const double t34_l0 = t21_l0*DERIVE_FMA(t2_l0, t33_l0, 1.0);
-            const double t35_l0 = t2_l0*t21_l0*t24_l0;
-            const double t36_l0 = t26_l0*t28_l0;
-            const double t37_l0 = t25_l0*DERIVE_FMA(t36_l0, t7_l0, 1.0);
-            const double t38_l0 = t25_l0*t28_l0*t7_l0;
-            const double t39_l0 = t30_l0*t32_l0;
-            const double t40_l0 = t29_l0*DERIVE_FMA(t12_l0, t39_l0, 1.0);
-            const double t41_l0 = t12_l0*t29_l0*t32_l0;
-            const double t42_l0 = DERIVE_FMA(0.9387755102040817, t34_l0, (-0.8775510204081632)*t33_l0);
-            const double t43_l0 = DERIVE_FMA((-0.9387755102040817), t35_l0, 0.8775510204081632*t24_l0);
-            const double t44_l0 = DERIVE_FMA(0.12244897959183673, t34_l0, 0.7551020408163265*t33_l0);
-            const double t45_l0 = DERIVE_FMA(0.12244897959183673, t35_l0, 0.7551020408163265*t24_l0);
-            const double t46_l0 = DERIVE_FMA(0.9387755102040817, t37_l0, (-0.8775510204081632)*t36_l0);
-            const double t47_l0 = DERIVE_FMA((-0.9387755102040817), t38_l0, 0.8775510204081632*t28_l0);
-            const double t48_l0 = DERIVE_FMA(0.12244897959183673, t37_l0, 0.7551020408163265*t36_l0);
-            const double t49_l0 = DERIVE_FMA(0.12244897959183673, t38_l0, 0.7551020408163265*t28_l0);
-            const double t50_l0 = DERIVE_FMA(0.9387755102040817, t40_l0, (-0.8775510204081632)*t39_l0);
-            const double t51_l0 = DERIVE_FMA((-0.9387755102040817), t41_l0, 0.8775510204081632*t32_l0);
-            const double t52_l0 = DERIVE_FMA(0.12244897959183673, t40_l0, 0.7551020408163265*t39_l0);
-            const double t53_l0 = DERIVE_FMA(0.12244897959183673, t41_l0, 0.7551020408163265*t32_l0);
-            const double t54_l0 = 8.16326530612245*z_l0[0];
-            const double t55_l0 = 16.3265306122449*z_l0[0];
-            const double t56_l0 = 8.16326530612245*z_l0[1];
-            const double t57_l0 = 16.3265306122449*z_l0[1];
-            const double t58_l0 = 8.16326530612245*z_l0[2];
-            const double t59_l0 = 16.3265306122449*z_l0[2];
-            const double t60_l0 = DERIVE_FMA(P_l0[1], t55_l0, P_l0[0]*t54_l0);
-            const double t61_l0 = DERIVE_FMA(P_l0[7], t55_l0, P_l0[1]*t54_l0);
-            const double t62_l0 = DERIVE_FMA(P_l0[15], t57_l0, P_l0[14]*t56_l0);
-            const double t63_l0 = DERIVE_FMA(P_l0[21], t57_l0, P_l0[15]*t56_l0);
-            const double t64_l0 = DERIVE_FMA(P_l0[29], t59_l0, P_l0[28]*t58_l0);
-            const double t65_l0 = DERIVE_FMA(P_l0[35], t59_l0, P_l0[29]*t58_l0);
-            const double t66_l0 = x_l0[0] + t60_l0;
-            const double t67_l0 = x_l0[1] + t61_l0;
-            const double t68_l0 = x_l0[2] + t62_l0;
-            const double t69_l0 = x_l0[3] + t63_l0;
-            const double t70_l0 = x_l0[4] + t64_l0;
-            const double t71_l0 = x_l0[5] + t65_l0;
-            const double t72_l0 = 0.061224489795918366*z_l0[0];
-            const double t73_l0 = 0.12244897959183673*z_l0[0];
-            const double t74_l0 = 0.061224489795918366*z_l0[1];
-            const double t75_l0 = 0.12244897959183673*z_l0[1];
-            const double t76_l0 = 0.061224489795918366*z_l0[2];
-            const double t77_l0 = 0.12244897959183673*z_l0[2];
-            const double t78_l0 = DERIVE_FMA(t43_l0, t67_l0, t42_l0*t66_l0);
-            const double t79_l0 = DERIVE_FMA(t45_l0, t67_l0, -(t44_l0*t66_l0));
-            const double t80_l0 = DERIVE_FMA(t47_l0, t69_l0, t46_l0*t68_l0);
-            const double t81_l0 = DERIVE_FMA(t49_l0, t69_l0, -(t48_l0*t68_l0));
-            const double t82_l0 = DERIVE_FMA(t51_l0, t71_l0, t50_l0*t70_l0);
-            const double t83_l0 = DERIVE_FMA(t53_l0, t71_l0, -(t52_l0*t70_l0));
-            const double t84_l0 = t72_l0 + t78_l0;
-            const double t85_l0 = t73_l0 + t79_l0;
-            const double t86_l0 = t74_l0 + t80_l0;
-            const double t87_l0 = t75_l0 + t81_l0;
-            const double t88_l0 = t76_l0 + t82_l0;
-            const double t89_l0 = t77_l0 + t83_l0;
-            const double t90_l0 = DERIVE_FMA(P_l0[1], t43_l0, P_l0[0]*t42_l0);
-            const double t91_l0 = DERIVE_FMA(P_l0[7], t43_l0, P_l0[1]*t42_l0);
-            const double t92_l0 = DERIVE_FMA(P_l0[1], t45_l0, -(P_l0[0]*t44_l0));
-            const double t93_l0 = DERIVE_FMA(P_l0[7], t45_l0, -(P_l0[1]*t44_l0));
-            const double t94_l0 = DERIVE_FMA(P_l0[15], t47_l0, P_l0[14]*t46_l0);
-            const double t95_l0 = DERIVE_FMA(P_l0[21], t47_l0, P_l0[15]*t46_l0);
-            const double t96_l0 = DERIVE_FMA(P_l0[15], t49_l0, -(P_l0[14]*t48_l0));
-            const double t97_l0 = DERIVE_FMA(P_l0[21], t49_l0, -(P_l0[15]*t48_l0));
-            const double t98_l0 = DERIVE_FMA(P_l0[29], t51_l0, P_l0[28]*t50_l0);
-            const double t99_l0 = DERIVE_FMA(P_l0[35], t51_l0, P_l0[29]*t50_l0);
-            const double t100_l0 = DERIVE_FMA(P_l0[29], t53_l0, -(P_l0[28]*t52_l0));
-            const double t101_l0 = DERIVE_FMA(P_l0[35], t53_l0, -(P_l0[29]*t52_l0));
-            const double t102_l0 = DERIVE_FMA(0.8775510204081632, t91_l0, 0.9387755102040817*t90_l0);
-            const double t103_l0 = DERIVE_FMA(0.7551020408163265, t91_l0, (-0.12244897959183673)*t90_l0);
-            const double t104_l0 = DERIVE_FMA(0.7551020408163265, t93_l0, (-0.12244897959183673)*t92_l0);
-            const double t105_l0 = DERIVE_FMA(0.8775510204081632, t95_l0, 0.9387755102040817*t94_l0);
-            const double t106_l0 = DERIVE_FMA(0.7551020408163265, t95_l0, (-0.12244897959183673)*t94_l0);
-            const double t107_l0 = DERIVE_FMA(0.7551020408163265, t97_l0, (-0.12244897959183673)*t96_l0);
-            const double t108_l0 = DERIVE_FMA(0.8775510204081632, t99_l0, 0.9387755102040817*t98_l0);
-            const double t109_l0 = DERIVE_FMA(0.7551020408163265, t99_l0, (-0.12244897959183673)*t98_l0);
-            const double t110_l0 = DERIVE_FMA(0.7551020408163265, t101_l0, (-0.12244897959183673)*t100_l0);
-            const double t111_l0 = 0.0020408163265306124 + t102_l0;
-            const double t112_l0 = 0.004081632653061225 + t103_l0;
-            const double t113_l0 = 0.00816326530612245 + t104_l0;
-            const double t114_l0 = 0.0020408163265306124 + t105_l0;
-            const double t115_l0 = 0.004081632653061225 + t106_l0;
-            const double t116_l0 = 0.00816326530612245 + t107_l0;
-            const double t117_l0 = 0.0020408163265306124 + t108_l0;
-            const double t118_l0 = 0.004081632653061225 + t109_l0;
-            const double t119_l0 = 0.00816326530612245 + t110_l0;
-            xn_l0[0] = t84_l0;
-            xn_l0[1] = t85_l0;
-            xn_l0[2] = t86_l0;
-            xn_l0[3] = t87_l0;
-            xn_l0[4] = t88_l0;
-            xn_l0[5] = t89_l0;
-            Pn_l0[0] = t111_l0;
-            Pn_l0[1] = t112_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = 0.0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = t112_l0;
-            Pn_l0[7] = t113_l0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = 0.0;
-            Pn_l0[11] = 0.0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t114_l0;
-            Pn_l0[15] = t115_l0;
-            Pn_l0[16] = 0.0;
-            Pn_l0[17] = 0.0;
-            Pn_l0[18] = 0.0;
-            Pn_l0[19] = 0.0;
-            Pn_l0[20] = t115_l0;
-            Pn_l0[21] = t116_l0;
-            Pn_l0[22] = 0.0;
-            Pn_l0[23] = 0.0;
-            Pn_l0[24] = 0.0;
-            Pn_l0[25] = 0.0;
-            Pn_l0[26] = 0.0;
-            Pn_l0[27] = 0.0;
-            Pn_l0[28] = t117_l0;
-            Pn_l0[29] = t118_l0;
-            Pn_l0[30] = 0.0;
-            Pn_l0[31] = 0.0;
-            Pn_l0[32] = 0.0;
-            Pn_l0[33] = 0.0;
-            Pn_l0[34] = t118_l0;
-            Pn_l0[35] = t119_l0;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            P_l0[16] = Pn_l0[16];
-            P_l0[17] = Pn_l0[17];
-            P_l0[18] = Pn_l0[18];
-            P_l0[19] = Pn_l0[19];
-            P_l0[20] = Pn_l0[20];
-            P_l0[21] = Pn_l0[21];
-            P_l0[22] = Pn_l0[22];
-            P_l0[23] = Pn_l0[23];
-            P_l0[24] = Pn_l0[24];
-            P_l0[25] = Pn_l0[25];
-            P_l0[26] = Pn_l0[26];
-            P_l0[27] = Pn_l0[27];
-            P_l0[28] = Pn_l0[28];
-            P_l0[29] = Pn_l0[29];
-            P_l0[30] = Pn_l0[30];
-            P_l0[31] = Pn_l0[31];
-            P_l0[32] = Pn_l0[32];
-            P_l0[33] = Pn_l0[33];
-            P_l0[34] = Pn_l0[34];
-            P_l0[35] = Pn_l0[35];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 36 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 36 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 36 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 36 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 36 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 36 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 36 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 36 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 36 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 36 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 36 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 36 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 36 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 36 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 36 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 36 + 15] = Pn_l0[15];
-                Ps[((t + 0) * steps + k) * 36 + 16] = Pn_l0[16];
-                Ps[((t + 0) * steps + k) * 36 + 17] = Pn_l0[17];
-                Ps[((t + 0) * steps + k) * 36 + 18] = Pn_l0[18];
-                Ps[((t + 0) * steps + k) * 36 + 19] = Pn_l0[19];
-                Ps[((t + 0) * steps + k) * 36 + 20] = Pn_l0[20];
-                Ps[((t + 0) * steps + k) * 36 + 21] = Pn_l0[21];
-                Ps[((t + 0) * steps + k) * 36 + 22] = Pn_l0[22];
-                Ps[((t + 0) * steps + k) * 36 + 23] = Pn_l0[23];
-                Ps[((t + 0) * steps + k) * 36 + 24] = Pn_l0[24];
-                Ps[((t + 0) * steps + k) * 36 + 25] = Pn_l0[25];
-                Ps[((t + 0) * steps + k) * 36 + 26] = Pn_l0[26];
-                Ps[((t + 0) * steps + k) * 36 + 27] = Pn_l0[27];
-                Ps[((t + 0) * steps + k) * 36 + 28] = Pn_l0[28];
-                Ps[((t + 0) * steps + k) * 36 + 29] = Pn_l0[29];
-                Ps[((t + 0) * steps + k) * 36 + 30] = Pn_l0[30];
-                Ps[((t + 0) * steps + k) * 36 + 31] = Pn_l0[31];
-                Ps[((t + 0) * steps + k) * 36 + 32] = Pn_l0[32];
-                Ps[((t + 0) * steps + k) * 36 + 33] = Pn_l0[33];
-                Ps[((t + 0) * steps + k) * 36 + 34] = Pn_l0[34];
-                Ps[((t + 0) * steps + k) * 36 + 35] = Pn_l0[35];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = mpt3d_a_lf_run(steps, z + t * steps * 3, x0 + t * 6, P0 + t * 6 * 6, xs + t * steps * 6, Ps ? Ps + t * steps * 6 * 6 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;
