@@ -17,7 +17,7 @@ from conftest import AXIS_VALUES, axis_model
 from derive import catalog, cli
 from derive.apps.bench import compile_size
 from derive.build import build_c
-from derive.emit import c_printer
+from derive.emit import c_loops, c_printer
 from derive.emit.c_loops import LANES, _element, two_step
 from derive.errors import NumericalError
 from derive.generation import command_unit, render_filter
@@ -240,3 +240,18 @@ def test_the_bench_measures_generation_and_compilation_in_child_processes(tmp_pa
     model = compile_size.dense_model(5)
     num = model.numeric()
     assert np.count_nonzero(num.F) == 25 and np.shape(num.H) == (1, 5)
+
+
+@needs_gcc
+def test_a_body_too_large_to_inline_is_called_unstrided_and_run_tracks_runs_each_track(
+        tmp_path, monkeypatch):
+    monkeypatch.setattr(c_loops, "INLINE_STATEMENTS", 10)   # mpt3d_b's KF: 32 statements
+    generated = load_generated("mpt3d_b", "kf", {}, "c", tmp_path)
+    c = generated.paths[".c"].read_text()
+    assert "\nstatic int mpt3d_b_kf_step_body(" in c and " * s]" not in c
+    assert LANES not in c and c.count("mpt3d_b_kf_step_body(") == 3   # defined; step, run
+    zs, x0s, P0s = _tracks("mpt3d_b")
+    xs, Ps = generated.c.run_tracks(zs, x0s, P0s)
+    for t in range(TRACKS):
+        x_run, P_run = generated.c.run(zs[t], x0s[t], P0s[t])
+        assert np.array_equal(xs[t], x_run) and np.array_equal(Ps[t], P_run)

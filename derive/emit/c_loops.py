@@ -45,9 +45,10 @@ SIMD = "DERIVE_SIMD"
 INLINE = "DERIVE_INLINE"
 #: Bodies of at most this many statements are inlined into their callers (run, the lane
 #: loop; every catalog filter's, the UKF's 386 the largest); larger ones are compiled
-#: once and called: a file's compile time and memory grow with one copy of the step, not
-#: one per caller (a dense 12-state KF, 730 statements: gcc -O2 5.8 s CPU inlined into
-#: step, run and the lanes, 1.7 s called), and run_tracks' lanes call it one by one.
+#: once and called, unstrided (no lanes: run_tracks runs run on each track): a file's
+#: compile time and memory grow with one copy of the step, not one per caller (a dense
+#: 12-state KF, 730 statements: gcc -O2 5.8 s CPU inlined into step, run and the lanes,
+#: 1.7 s called).
 INLINE_STATEMENTS = 500
 
 def interleave(doubles_per_lane: int) -> int:
@@ -128,16 +129,19 @@ def _element(port: str, index: int) -> str:
 
 def body_function(body: LoweredProgram, name: str) -> dict:
     """The step body as a function (``signature``, ``body`` lines): the program's ports as
-    pointers, then the stride; returns the status of the first failed check (int), or
-    nothing when the program has no check."""
+    pointers, then the stride (a body too large to inline has none: its elements are at
+    ``[i]``, and run_tracks runs it track by track); returns the status of the first failed
+    check (int), or nothing when the program has no check."""
     status = bool(body.checks)
-    params = c_printer.parameters(body) + [f"const size_t {STRIDE}"]
-    qualifier = INLINE if inlined(body) else "static"
+    strided = inlined(body)
+    params = c_printer.parameters(body) + ([f"const size_t {STRIDE}"] if strided else [])
+    qualifier = INLINE if strided else "static"
     lines = [f"(void){p.name};" for p in body.inputs if p.name not in body.used_inputs()]
     if status:
         lines.append(f"int {STATUS} = 0;")
-    statements = c_printer.statements(body, _element, STATUS if status else None)
-    if not any(f"* {STRIDE}]" in line for line in statements):  # n = 1: element 0 only
+    statements = c_printer.statements(body, _element if strided else None,
+                                       STATUS if status else None)
+    if strided and not any(f"* {STRIDE}]" in line for line in statements):  # element 0 only
         lines.append(f"(void){STRIDE};")
     lines += statements
     if status:
@@ -147,8 +151,8 @@ def body_function(body: LoweredProgram, name: str) -> dict:
 
 
 def _call(body: LoweredProgram, name: str, names: dict[str, str], stride: str) -> str:
-    args = ", ".join(names.get(port, port) for port in c_printer.argument_order(body))
-    return f"{name}({args}, {stride})"
+    args = [names.get(port, port) for port in c_printer.argument_order(body)]
+    return f"{name}({', '.join(args + ([stride] if inlined(body) else []))})"
 
 
 def checked_call(body: LoweredProgram, name: str, names: dict[str, str], result: str,
@@ -238,6 +242,8 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
     track t's arrays, for the last tracks (fewer than a block); ``two``: the two-step map
     (the lanes take two steps per pass, as run does).
     """
+    if not inlined(body) or (two is not None and not inlined(two)):  # run on every track
+        return {"lanes": None, "status": False, "macros": [], "run_call": run_call}
     lanes = LANES
     names = {port: _block(port) for port, _ in unit.carried}
     names.update({out: _block(out) for _, out in unit.carried})
