@@ -20,6 +20,7 @@ from derive.build import build_c
 from derive.emit import c_loops, c_printer
 from derive.emit.c_loops import LANES, _element, two_step
 from derive.errors import NumericalError
+from derive.flops import count, count_c_function
 from derive.generation import command_unit, render_filter
 from derive.lowering import lower_program
 from derive.pipeline import load_generated
@@ -255,3 +256,26 @@ def test_a_body_too_large_to_inline_is_called_unstrided_and_run_tracks_runs_each
     for t in range(TRACKS):
         x_run, P_run = generated.c.run(zs[t], x0s[t], P0s[t])
         assert np.array_equal(xs[t], x_run) and np.array_equal(Ps[t], P_run)
+
+
+@needs_gcc
+@pytest.mark.parametrize("model_name, filter_name", [("mpt3d_a", "kf"), ("mpt3d_a", "udkf"),
+                                                     ("mpt3d_a", "sskf")])
+def test_a_large_body_is_printed_in_parts_with_the_same_bits_and_count(
+        tmp_path, monkeypatch, model_name, filter_name):
+    zs, x0s, P0s = _tracks(model_name)
+    whole = load_generated(model_name, filter_name, {}, "c", tmp_path / "whole").c
+    monkeypatch.setattr(c_loops, "INLINE_STATEMENTS", 10)
+    monkeypatch.setattr(c_loops, "PART_STATEMENTS", 3)
+    parted = load_generated(model_name, filter_name, {}, "c", tmp_path / "parted")
+    c = parted.paths[".c"].read_text()
+    assert f"{model_name}_{filter_name}_step_body_part1(" in c
+    assert count_c_function(c, f"{model_name}_{filter_name}_step") == count(
+        parted.unit.programs["step"], "c")
+    assert not re.findall(r"^(?:int|void) \w+_(?:body|part\d+)\(", c, flags=re.M)  # static
+    if filter_name == "sskf":
+        runs = (whole.run(zs[0], x0s[0]), parted.c.run(zs[0], x0s[0]))
+    else:
+        runs = (whole.run(zs[0], x0s[0], P0s[0]), parted.c.run(zs[0], x0s[0], P0s[0]))
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)

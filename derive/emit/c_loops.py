@@ -19,9 +19,11 @@ the map (:func:`two_step`); its run takes two steps per pass, and so do the lane
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from derive.emit import c_printer
 from derive.emit.unit import LOOKAHEAD_NEXT, Unit
-from derive.lowering import LoweredProgram, lower_program
+from derive.lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
 from derive.program import PARAMETER_PORT
 
 #: The step body's stride argument: element i of a port is at [i * STRIDE].
@@ -148,6 +150,90 @@ def body_function(body: LoweredProgram, name: str) -> dict:
         lines.append(f"return {STATUS};")
     return {"signature": f"{qualifier} {'int' if status else 'void'} {name}({', '.join(params)})",
             "body": lines}
+
+
+#: A body too large to inline is printed in parts of at most this many statements, each a
+#: function of its own (the temporaries one part leaves to a later one in a local array):
+#: the compiler's time and memory grow faster than the size of a function (a dense
+#: 24-state KF in one function: gcc -O2 45 s CPU and 1.4 GB).
+PART_STATEMENTS = 500
+#: The local array of a parted body that carries temporaries from part to part.
+CARRIED = "w"
+
+
+def _temporaries(tree: Tree, found: set[str]) -> set[str]:
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, Op):
+            stack.extend(node.args)
+        elif isinstance(node, Var) and node.index is None:
+            found.add(node.name)
+    return found
+
+
+def parted_functions(body: LoweredProgram, name: str) -> list[dict]:
+    """A large body as its parts (``NAME_partK``) and the body calling them in order, each
+    part taking every port, the array of carried temporaries and (with checks) the status
+    so far; the statements are the body's, printed once, in order."""
+    statements = list(body.body)
+    chunks = [statements[i:i + PART_STATEMENTS]
+              for i in range(0, len(statements), PART_STATEMENTS)] or [[]]
+    # the results go with the last part
+    defined_in = {s.target: k for k, chunk in enumerate(chunks) for s in chunk
+                  if isinstance(s, LoweredAssign)}
+    used_in: list[set[str]] = []
+    for k, chunk in enumerate(chunks):
+        used: set[str] = set()
+        for s in chunk:
+            _temporaries(s.tree, used)
+        if k == len(chunks) - 1:
+            for _, leaves in body.results:
+                for leaf in leaves:
+                    _temporaries(leaf, used)
+        used_in.append({t for t in used if defined_in.get(t, k) != k})
+    crossing = sorted(set().union(*used_in), key=lambda t: (defined_in[t], int(t[1:])))
+    slot = {t: i for i, t in enumerate(crossing)}
+    status = bool(body.checks)
+    params = c_printer.parameters(body)
+    args = ", ".join(c_printer.argument_order(body))
+    functions, calls = [], []
+    for k, chunk in enumerate(chunks):
+        last = k == len(chunks) - 1
+        part = replace(body, body=tuple(chunk), results=body.results if last else ())
+        here = used_in[k]
+        part = part.renamed({}, lambda t, here=here: f"{CARRIED}[{slot[t]}]" if t in here
+                            else t)
+        lines = [f"(void){p};" for p in c_printer.argument_order(body)
+                 if p not in part.used_inputs()
+                 and not (last and p in {o.name for o in body.outputs})]
+        lines += c_printer.statements(part, None, STATUS if status else None)
+        lines += [f"{CARRIED}[{slot[s.target]}] = {s.target};" for s in chunk
+                  if isinstance(s, LoweredAssign) and s.target in slot]
+        part_name = f"{name}_part{k}"
+        signature = (f"static {'int' if status else 'void'} {part_name}("
+                     f"{', '.join(params + [f'double *restrict {CARRIED}'])}"
+                     + (f", int {STATUS})" if status else ")"))
+        if status:
+            lines.append(f"return {STATUS};")
+        functions.append({"signature": signature, "body": lines})
+        call = f"{part_name}({args}, {CARRIED}" + (f", {STATUS})" if status else ")")
+        calls.append(f"{STATUS} = {call};" if status else f"{call};")
+    head = [f"double {CARRIED}[{max(1, len(crossing))}];"]
+    if status:
+        head.append(f"int {STATUS} = 0;")
+    body_lines = head + calls + ([f"return {STATUS};"] if status else [])
+    functions.append({"signature": f"static {'int' if status else 'void'} {name}("
+                                    f"{', '.join(params)})", "body": body_lines})
+    return functions
+
+
+def body_functions(body: LoweredProgram, name: str) -> list[dict]:
+    """The body's function(s): one (:func:`body_function`), or a large body in parts
+    (:func:`parted_functions`)."""
+    if inlined(body) or len(body.body) <= PART_STATEMENTS:
+        return [body_function(body, name)]
+    return parted_functions(body, name)
 
 
 def _call(body: LoweredProgram, name: str, names: dict[str, str], stride: str) -> str:

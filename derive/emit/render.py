@@ -20,7 +20,7 @@ import numpy as np
 from derive import interface
 from derive.emit import c_loops, c_printer, python_printer
 from derive.emit.c_loops import (
-    body_function,
+    body_functions,
     body_name,
     fused_body,
     step_function_body,
@@ -508,9 +508,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
     bodies = [loop_step] + ([two] if two is not None else [])
-    functions = [body_function(loop_step, step_body)]
+    functions = body_functions(loop_step, step_body)
     if two is not None:
-        functions.append(body_function(two, body_name(prefix, "pass")))
+        functions += body_functions(two, body_name(prefix, "pass"))
     for lp in lps:
         parts = c_printer.function_parts(lp, prefix)
         if lp.name == "step":
