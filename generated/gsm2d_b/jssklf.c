@@ -55,6 +55,13 @@
 #define DERIVE_LANES 8
 #endif
 #endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
 #ifndef DERIVE_SIMD
 #if defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
@@ -141,6 +148,12 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
         }
         for (k = 0; k + 2 <= steps; k += 2) {
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
+                }
+            }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 1; ++i) {
                     z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
@@ -167,6 +180,12 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
         }
         for (; k < steps; ++k) {
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
+                }
+            }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 1; ++i) {
                     z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];

@@ -50,6 +50,13 @@
 #define DERIVE_LANES 8
 #endif
 #endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
 #ifndef DERIVE_SIMD
 #if defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
@@ -480,6 +487,12 @@ int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
             }
         }
         for (k = 0; k < steps; ++k) {
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 3], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 6], 1);
+                }
+            }
             for (j = 0; j < DERIVE_LANES; ++j) {
                 for (i = 0; i < 3; ++i) {
                     z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
