@@ -168,8 +168,9 @@ def body_function(body: LoweredProgram, name: str) -> dict:
 #: A body too large to inline is printed in parts of at most this many statements, each a
 #: function of its own (the temporaries one part leaves to a later one in a local array):
 #: the compiler's time and memory grow faster than the size of a function (a dense
-#: 24-state KF in one function: gcc -O2 45 s CPU and 1.4 GB).
-PART_STATEMENTS = 500
+#: 24-state KF, gcc -O2: in one function 45 s CPU and 1.4 GB; in parts of 500, 100 and 200
+#: statements 26.9 s and 482 MB, 13.5 s and 359 MB, 16.3 s and 382 MB).
+PART_STATEMENTS = 200
 #: The local array of a parted body that carries temporaries from part to part.
 CARRIED = "w"
 
