@@ -139,11 +139,13 @@ def compile_table(rows: list[CompileRow]) -> tuple[tuple, list[tuple], list[str]
     for r in rows:
         for what, m in (("generates", r.generate), ("compiles", r.compile)):
             if m is not None:
-                ok = m.seconds <= SECONDS_BAR and m.peak_bytes <= MEMORY_BAR
+                memory = m.peak_bytes <= MEMORY_BAR
                 bars.append(f"bar: {r.case} {what} in {human(m.seconds)} (CPU "
                             f"{human(m.cpu_seconds)}), peak {m.peak_bytes / 1e6:,.0f} MB "
                             f"(<= {SECONDS_BAR:g} s and <= {MEMORY_BAR / 1e9:g} GB: "
-                            f"{_verdict(ok)})")
+                            f"{_verdict(m.seconds <= SECONDS_BAR and memory)}; by CPU "
+                            f"seconds, which other jobs on the machine do not inflate: "
+                            f"{_verdict(m.cpu_seconds <= SECONDS_BAR and memory)})")
         if r.c_bytes is not None:
             bars.append(f"bar: {r.case} .c file {r.c_bytes / 1e6:.2f} MB (<= SymForce's "
                         f"{SIZE_BAR / 1e6:g} MB: {_verdict(r.c_bytes <= SIZE_BAR)})")
