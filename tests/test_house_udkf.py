@@ -40,7 +40,7 @@ def spd(n, seed):
 def test_udkf_is_registered_with_its_carried_state_and_options():
     spec = FILTERS["udkf"]
     assert spec.run_kind == "timevarying" and spec.model_kind == "linear"
-    assert taken_by("udkf") == ["P0_pattern", "missing", "prefix"]  # no run_tracks: carried U, D
+    assert taken_by("udkf") == ["P0_pattern", "missing", "prefix", "run"]  # no run_tracks: U, D
     for name in LINEAR:
         assert "udkf" in available(catalog.load(name)), name
 

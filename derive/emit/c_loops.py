@@ -34,13 +34,13 @@ STATUS = "status"
 #: doubles (AVX-512: 8 a register, AVX: 4, else 2), unless the build defines it.
 LANES = "DERIVE_LANES"
 #: The most registers a block's statement spans: independent chains that hide the latency
-#: of a division (4 was fastest of 1, 2, 4, 8 for mpt3d_b's KF on AVX-512, AVX2 and SSE2).
+#: of a division (4 was fastest of 1, 2, 4, 8 on AVX-512, AVX2 and SSE2: docs/performance.md).
 INTERLEAVE = 4
 #: The most bytes of a block's arrays at the widest lanes (AVX-512): in L1 and on the stack.
 BLOCK_BYTES = 64 * 1024
 #: Prefetch a block's tracks' rows this many steps ahead (``DERIVE_PREFETCH``: GCC's and
 #: Clang's __builtin_prefetch, else nothing): a block reads and writes as many streams as
-#: it has lanes, more than the hardware prefetchers follow (mpt3d_b's KF, 10,000 tracks:
+#: it has lanes, more than the hardware prefetchers follow (the batch of the bench:
 #: 3.2e8 track-steps/s on one core with it, 1.3e8 to 2.0e8 without; 8 of 8, 16, 32 best).
 AHEAD = 8
 PREFETCH = "DERIVE_PREFETCH"
@@ -52,12 +52,13 @@ SIMD = "DERIVE_SIMD"
 #: How a step body small enough to inline is declared.
 INLINE = "DERIVE_INLINE"
 #: Bodies of at most this many statements are inlined into their callers (run, the lane
-#: loop; every catalog filter's, the UKF's 386 the largest); larger ones are compiled
+#: loop; every catalog filter's, 386 the largest); larger ones are compiled
 #: once and called, unstrided (no lanes: run_tracks runs run on each track): a file's
 #: compile time and memory grow with one copy of the step, not one per caller (a dense
-#: 12-state KF, 730 statements: gcc -O2 5.8 s CPU inlined into step, run and the lanes,
+#: 12-state filter, 730 statements: gcc -O2 5.8 s CPU inlined into step, run and lanes,
 #: 1.7 s called).
 INLINE_STATEMENTS = 500
+
 
 def interleave(doubles_per_lane: int) -> int:
     """Registers per statement of a block (:data:`INTERLEAVE`, halved until the block of
@@ -168,7 +169,7 @@ def body_function(body: LoweredProgram, name: str) -> dict:
 #: A body too large to inline is printed in parts of at most this many statements, each a
 #: function of its own (the temporaries one part leaves to a later one in a local array):
 #: the compiler's time and memory grow faster than the size of a function (a dense
-#: 24-state KF, gcc -O2: in one function 45 s CPU and 1.4 GB; in parts of 500, 100 and 200
+#: 24-state filter, gcc -O2: in one function 45 s CPU and 1.4 GB; in parts of 500, 100, 200
 #: statements 26.9 s and 482 MB, 13.5 s and 359 MB, 16.3 s and 382 MB).
 PART_STATEMENTS = 200
 #: The local array of a parted body that carries temporaries from part to part.
