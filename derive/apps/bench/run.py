@@ -18,7 +18,16 @@ import numpy as np
 from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
-from . import batch, casadi_c, generated, generation_scaling, navigation, peers, scaling
+from . import (
+    batch,
+    casadi_c,
+    compile_size,
+    generated,
+    generation_scaling,
+    navigation,
+    peers,
+    scaling,
+)
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
@@ -62,6 +71,7 @@ class Settings:
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
     generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
+    compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
 
     @classmethod
     def quick(cls) -> Settings:
@@ -71,7 +81,7 @@ class Settings:
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
                    navigation_symforce=False,
-                   generation_scaling=False)
+                   generation_scaling=False, compile_states=(3,))
 
 
 @dataclass(frozen=True)
@@ -106,6 +116,7 @@ class BenchResult:
     scale: list[scaling.ScaleRow] = field(default_factory=list)   # derive.batch, every core
     navigation: navigation.NavigationResult | None = None
     generation: list[generation_scaling.GenerationRow] = field(default_factory=list)
+    compile: list[compile_size.CompileRow] = field(default_factory=list)
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -118,6 +129,7 @@ class BenchResult:
                 "generation_seconds": self.generation_seconds,
                 "navigation": self.navigation.as_json() if self.navigation else None,
                 "generation": [asdict(r) for r in self.generation],
+                "compile": [asdict(r) for r in self.compile],
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -262,6 +274,12 @@ class BenchResult:
                       "one process each, the model built through the Python API, then "
                       "render_unit (derive and render Python and C, nothing written)", ""]
             lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
+        if self.compile:
+            head, body, compile_bars = compile_size.compile_table(self.compile)
+            lines += ["files that compile in seconds: a dense random KF generated (a child "
+                      "process), then compiled (gcc and derive.build's strict flags); wall "
+                      "and CPU seconds, peak memory of each", ""]
+            lines += _columns(head, body) + compile_bars + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -402,6 +420,8 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
     check = sorted({0, 1, s.batch_tracks - 1} & set(range(s.batch_tracks)))  # the last may
     reference = {t: batch.batch_reference(b, t) for t in check}      # be in a partial block
     impls = (("generated C, run_tracks", lambda: batch.generated_c_tracks(b, workdir)),
+             ("generated C, run_tracks, covariances stored",
+              lambda: batch.generated_c_tracks(b, workdir, with_covariance=True)),
              (f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
               lambda: batch.generated_c(b, workdir, "batch_step")),
              ("generated C, run per track", lambda: batch.generated_c(b, workdir, "batch_run")),
@@ -409,6 +429,7 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
              ("vectorised NumPy KF", lambda: (lambda: batch.numpy_kf(b))),
              ("simdkalman", lambda: batch.simdkalman_kf(b)))
     rows = []
+    bandwidth = batch.copy_bandwidth()
     for name, prepare in impls:
         tick(f"batch: {name}")
         try:
@@ -420,13 +441,24 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
         agreement = max(relative_error(out[t], reference[t]) for t in check)
         timing = measure(run, 1, s.batch_repeats)
         rows.append(BatchRow(name, b.track_steps / timing.median, timing.median, None,
-                             agreement))
+                             agreement, _traffic_note(b, name, bandwidth)))
     simd = next((r for r in rows if r.implementation == "simdkalman"
                  and r.track_steps_per_second), None)
     return [BatchRow(r.implementation, r.track_steps_per_second, r.seconds,
                      None if simd is None or r.track_steps_per_second is None else
                      r.track_steps_per_second / simd.track_steps_per_second, r.agreement,
                      r.note) for r in rows]
+
+
+def _traffic_note(b: batch.Batch, name: str, bandwidth: float) -> str:
+    """For run_tracks: the memory-traffic bound, this machine's copy bandwidth over the
+    bytes a track-step moves (with or without its covariance)."""
+    if not name.startswith("generated C, run_tracks"):
+        return ""
+    stored = "covariances stored" in name
+    per = batch.track_step_bytes(b, stored)
+    return (f"memory-traffic bound {bandwidth / per:,.3g} track-steps/s ({per} bytes a "
+            f"track-step at {bandwidth / 1e9:.1f} GB/s, a NumPy copy here)")
 
 
 def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
@@ -446,6 +478,7 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
             s.navigation_symforce, tick)
         if s.generation_scaling:
             result.generation = generation_scaling.generation_rows(tick=tick)
+        result.compile = compile_size.compile_rows(s.compile_states, Path(tmp), tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
