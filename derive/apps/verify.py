@@ -53,7 +53,7 @@ from ..options import validate
 from ..pipeline import load_generated
 from ..precision import DOUBLE
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
-from .float_tolerance import FloatTolerance, float_tolerance
+from .float_tolerance import FloatTolerance, float_tolerance, sensors_conditioning
 from .simulate import gnss_scenario, simulate_linear, simulate_sensors
 
 LINEAR_TOLERANCE = 1e-12
@@ -297,28 +297,45 @@ def linear_run(model, steps: int, seed: int):
 
 
 def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,
-                          options) -> list[Verification]:
+                          options, unit: Unit | None = None) -> list[Verification]:
     """A unit of the run kind sensors (several sensors, gating or update-first) on a
     :func:`derive.apps.simulate.simulate_sensors` run (sensors at their periods, NaN rows
-    between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear)."""
+    between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear).
+    With the option ``precision`` "float" the C module is float32, given the data rounded
+    to float32 and held to the tolerance derive.apps.float_tolerance derives from the
+    unit's programs and the reference run's trace (``unit``: derived again when not
+    given)."""
     if model.parameters:
         raise VerificationError(
             f"verify needs a value for every symbol of model {model.name!r} with sensors; "
             f"free: {[p.name for p in model.parameters]}")
     groups = sensor_groups(model)
     run = simulate_sensors(model, groups, steps, seed)
-    ref = sensors_reference(model, options, run.zs, run.us, None, run.x0, run.P0, run.Rs)
+    trace: list = []
+    ref = sensors_reference(model, options, run.zs, run.us, None, run.x0, run.P0, run.Rs,
+                            trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
+    bound = None
+    if options.precision != DOUBLE.name and "c" in modules:
+        unit = unit if unit is not None else command_unit(model, name, options)
+        bound = float_tolerance(model, unit, steps, sensors_conditioning(model, trace))
     out = []
     for lang, module in modules.items():
+        dtype = getattr(module, "dtype", np.float64)
         data = [run.us] if model.inputs else []
         for g in groups:
             data += [run.zs[g.name]] + ([run.Rs[g.name]] if g.R_argument else [])
-        result = module.run(*data, run.x0, run.P0)
-        xs, Ps = np.asarray(result[0]), np.asarray(result[1]).reshape(steps, model.n, model.n)
+        result = module.run(*[np.asarray(a, dtype=dtype) for a in data + [run.x0, run.P0]])
+        xs = np.asarray(result[0], dtype=float)
+        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
-        out.append(Verification(model.name, name, lang, steps, err, tolerance))
+        if lang == "c" and bound is not None:
+            out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
+        else:
+            out.append(Verification(model.name, name, lang, steps, err, tolerance))
     return out
+
+
 def conditioning_run(model, zs, scenario: NonlinearScenario | None, xs_ref, Ps_ref):
     """(xs, Ps, us) the float32 tolerance reads the model's conditioning from: the KF's
     reference run on the same measurements for a linear model (every linear filter's P
@@ -341,7 +358,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     """
     opts = validate(name, options)
     if kind(name).sensors and uses_sensor_run(model, opts):
-        return verify_sensor_modules(model, name, modules, steps, seed, opts)
+        return verify_sensor_modules(model, name, modules, steps, seed, opts, unit)
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)
