@@ -39,7 +39,10 @@ NumPy reference on the same data. The bound is
   step k is carried by that step's map A_k = prod_s (I - K_s H_s) F_k (the sensors
   present and applied at step k, in order; F_k the transition or the EKF's Jacobian at
   x(k-1/k-1); no F at an update-first step 0), so G = max_k sum_j ||A_k ... A_{k-j+1}||_inf
-  (:func:`run_growth`), and kappa is the largest cond_2 of every S = H_s P H_s^T + R_s an
+  (:func:`run_growth`) over the endpoints k of the run's last cycle (its last W steps, W
+  the longest gap between two updates of one sensor: the run has settled there, and the
+  cycle holds every phase of the sensors' rates, the step before the slowest sensor's
+  update too), and kappa is the largest cond_2 of every S = H_s P H_s^T + R_s an
   update solved (each sensor's own, as its update solves it) and of every P(k/k-1).
 * ``c = 2`` (:data:`C`): the state's error and the covariance's error reach the measure by
   two routes (x through the recursion, P directly and through the gain), each bounded by
@@ -221,11 +224,13 @@ def condition(model, name: str, run) -> float:
 @dataclass(frozen=True)
 class SensorsConditioning:
     """What a sensors unit's reference run gives the tolerance: per step the map A_k that
-    carries the error of x(k-1/k-1) to x(k/k), and every matrix solved or inverted (each
-    update's S, each P(k/k-1))."""
+    carries the error of x(k-1/k-1) to x(k/k); every matrix solved or inverted (each
+    update's S, each P(k/k-1)); and ``cycle``, the longest gap between two updates of one
+    sensor (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
 
     maps: tuple[np.ndarray, ...]
     solved: tuple[np.ndarray, ...]
+    cycle: int
 
 
 def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
@@ -233,35 +238,44 @@ def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
     ``trace`` (derive.reference.sensors.StepTrace per step)."""
     F = transition_function(model)
     n = model.n
-    maps, solved = [], []
-    for step in trace:
+    maps, solved, present = [], [], {}
+    for k, step in enumerate(trace):
         A = np.eye(n)
         if step.P_predicted is not None:
             A = F(step.x_before, step.u, step.p)
             solved.append(step.P_predicted)
         for update in step.updates:
             solved.append(update.S)
+            present.setdefault(update.sensor, []).append(k)
             if update.applied:
                 A = (np.eye(n) - update.K @ update.H) @ A
         maps.append(A)
-    return SensorsConditioning(tuple(maps), tuple(solved))
+    gaps = [int(np.max(np.diff(rows))) if len(rows) > 1 else len(trace)
+            for rows in present.values()]
+    return SensorsConditioning(tuple(maps), tuple(solved),
+                               max(1, min(max(gaps, default=len(trace)), len(trace))))
 
 
-def run_growth(maps: Sequence[np.ndarray]) -> float:
-    """max_k sum_j ||A_k ... A_{k-j+1}||_inf over a run's per-step maps (the j = 0 term:
-    1); a product below 2^-24 of its sum is dropped (it no longer adds to the sum)."""
-    if not len(maps):
+def run_growth(maps: Sequence[np.ndarray], cycle: int = 1) -> float:
+    """max over the endpoints e of the run's last ``cycle`` steps of
+    sum_{j >= 0} ||A_e A_{e-1} ... A_{e-j+1}||_inf (the j = 0 term: 1), the products formed
+    backwards from every endpoint at once; the sums stop once every new term is below
+    2^-24 of its sum."""
+    steps = len(maps)
+    if not steps:
         return 1.0
     n = maps[0].shape[0]
-    products = np.empty((0, n, n))  # A_k ... A_{k-j+1}, j = 1, 2, ..., still counted
-    growth = 1.0
-    for A in maps:
-        products = np.concatenate([A[np.newaxis], A @ products])
-        norms = np.abs(products).sum(axis=2).max(axis=1)
-        total = 1.0 + float(norms.sum())
-        growth = max(growth, total)
-        products = products[norms >= FLOAT.unit_roundoff * total]
-    return growth
+    ends = np.arange(max(steps - cycle, 0), steps)
+    products = np.broadcast_to(np.eye(n), (len(ends), n, n)).copy()
+    sums = np.ones(len(ends))
+    for i in range(steps - 1, 0, -1):
+        active = ends >= i  # the endpoints whose product reaches back past A_i
+        products[active] = products[active] @ maps[i]
+        terms = np.abs(products[active]).sum(axis=2).max(axis=1)
+        sums[active] += terms
+        if active.all() and np.all(terms < FLOAT.unit_roundoff * sums):
+            break
+    return float(sums.max())
 
 
 def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
@@ -271,7 +285,7 @@ def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
     the run kind ``sensors`` the :class:`SensorsConditioning` of its reference run."""
     if isinstance(run, SensorsConditioning):
         return FloatTolerance(
-            roundings=run_roundings(unit), growth=run_growth(run.maps),
+            roundings=run_roundings(unit), growth=run_growth(run.maps, run.cycle),
             condition=max([1.0] + [float(np.linalg.cond(M)) for M in run.solved]))
     return FloatTolerance(roundings=run_roundings(unit),
                           growth=error_growth(model, unit.filter, steps, run),
