@@ -188,11 +188,13 @@ def test_the_update_first_step_has_no_prediction_in_its_map():
                                   (np.eye(2) - K2 @ H2) @ ((np.eye(2) - K1 @ H1) @ np.eye(2)))
 
 
-@pytest.mark.parametrize("gate", [[], ["--gate", "0.999"]], ids=["plain", "gated"])
+@pytest.mark.parametrize("gate, R", [([], "4"), (["--gate", "0.999"], "4"),
+                                     ([], '"argument"')],
+                         ids=["plain", "gated", "R per call"])
 def test_derive_verify_precision_float_holds_the_sensors_c_to_its_printed_bound(
-        tmp_path, capsys, gate):
+        tmp_path, capsys, gate, R):
     path = tmp_path / "cart2.toml"
-    path.write_text(TWO_SENSORS.replace(FREE_DT, "dt = 0.1"))
+    path.write_text(TWO_SENSORS.replace(FREE_DT, "dt = 0.1").replace("R = 4\n", f"R = {R}\n"))
     assert main(["verify", str(path), "--filter", "kf", "--precision", "float",
                  "--steps", "500", "--no-progress", *gate]) == 0
     out = capsys.readouterr().out.splitlines()
