@@ -303,18 +303,24 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
     """A unit of the run kind sensors (several sensors, gating or update-first) on a
     :func:`derive.apps.simulate.simulate_sensors` run (sensors at their periods, NaN rows
     between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear).
-    With the option ``precision`` "float" the C module is float32, given the data rounded
-    to float32 and held to the tolerance derive.apps.float_tolerance derives from the
-    unit's programs and the reference run's trace (``unit``: derived again when not
+    Free parameters take the model's examples (``dt = { example = 0.01 }``), one p row per
+    step. With the option ``precision`` "float" the C module is float32, given the data
+    rounded to float32 and held to the tolerance derive.apps.float_tolerance derives from
+    the unit's programs and the reference run's trace (``unit``: derived again when not
     given)."""
-    if model.parameters:
+    missing = [p.name for p in model.parameters if p.name not in model.examples]
+    if missing:
         raise VerificationError(
             f"verify needs a value for every symbol of model {model.name!r} with sensors; "
-            f"free: {[p.name for p in model.parameters]}")
+            f"free: {missing} (give each an example, e.g. {missing[0]} = {{ example = ... }} "
+            "in [parameters])")
     groups = sensor_groups(model)
-    run = simulate_sensors(model, groups, steps, seed)
+    params = dict(model.examples)
+    run = simulate_sensors(model, groups, steps, seed, params)
+    ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
+          if model.parameters else None)
     trace: list = []
-    ref = sensors_reference(model, options, run.zs, run.us, None, run.x0, run.P0, run.Rs,
+    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
                             trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     bound = None
@@ -327,7 +333,8 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
         data = [run.us] if model.inputs else []
         for g in groups:
             data += [run.zs[g.name]] + ([run.Rs[g.name]] if g.R_argument else [])
-        result = module.run(*[np.asarray(a, dtype=dtype) for a in data + [run.x0, run.P0]])
+        given = data + [run.x0, run.P0] + ([] if ps is None else [ps])
+        result = module.run(*[np.asarray(a, dtype=dtype) for a in given])
         xs = np.asarray(result[0], dtype=float)
         Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))

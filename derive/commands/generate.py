@@ -23,6 +23,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--lang", default="all", choices=("python", "c", "all"),
                         help="which code to write: python, c, or all (default)")
     parser.add_argument("--out", default="generated", help="output directory (generated)")
+    parser.add_argument("--layout", default="files", choices=("files", "library"),
+                        help="files: the filters' files (default); library: their C with a "
+                             "test program per filter, a CMakeLists.txt and a Makefile "
+                             "(docs/embedded.md)")
     add_option_arguments(parser)
 
 
@@ -50,7 +54,15 @@ def run(args) -> int:
     refs = catalog.names() if args.all else [args.model]
     total = 0
     for ref in refs:
-        paths, units = generate_units(ref, args.filters, args.lang, args.out, options)
+        if args.layout == "library":
+            from ..apps.targets.library import generate_library
+
+            if args.lang == "python":
+                raise FilterError("--layout library writes C (with its build files and test "
+                                  "programs); --lang python does not apply")
+            paths, units = generate_library(ref, args.filters, args.out, options)
+        else:
+            paths, units = generate_units(ref, args.filters, args.lang, args.out, options)
         total += len(paths)
         print(f"{ref}: {len(paths)} files in {paths[0].parent if paths else args.out}")
         for unit in units:

@@ -112,9 +112,10 @@ def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOpt
     return Unit(model=model.name, filter=spec.name, **fields, n=model.n, m=model.m,
                 programs=programs, parameters=tuple(p.name for p in model.parameters),
                 facts=tuple(header + facts), symbol_prefix=options.prefix, sensors=slots,
-                n_inputs=len(names), precision=options.precision,
+                n_inputs=len(names),
                 predict_inputs=tuple(names.index(u.name) for u in predict_inputs),
-                update_first=options.get("start", "predict") == "update")
+                update_first=options.get("start", "predict") == "update",
+                precision=options.precision)
 
 
 def _input_names(program) -> list[str]:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ... import catalog
-from . import burden, generation, gnss, mdkf, page, provenance, sspred, tracking
+from . import burden, generation, gnss, mdkf, navigation, page, provenance, sizes, sspred, tracking
 from .burden import compute_audit
 from .context import Context
 from .document import Section
@@ -140,7 +140,9 @@ def _sections() -> list[tuple[str, Callable[[Context], Section]]]:
     return ([(f"experiments: {p.label}", lambda ctx, p=p: tracking.section(ctx, p))
              for p in tracking.PAPERS]
             + [("experiments: SSPRED", sspred.section), ("experiments: MDKF", mdkf.section),
-               ("experiments: GNSS", gnss.section), ("burden", burden.section)])
+               ("experiments: GNSS", gnss.section),
+               ("experiments: INS/GNSS", navigation.section), ("burden", burden.section),
+               ("ARM: Cortex-M4F sizes, qemu-arm runs", sizes.section)])
 
 
 def intro(result: ReportResult, prov: provenance.Provenance, quick: bool) -> list[str]:

@@ -1,0 +1,96 @@
+"""The verification data of one filter as the C ``run`` takes it, with the reference.
+
+The same scenario, reference and tolerance as ``derive verify`` (derive.apps.verify):
+linear filters on the seeded simulated run, nonlinear filters on their scenario with the
+reference's rounding floor, float32 code (``precision`` float) the bound of
+derive.apps.float_tolerance; the inputs are keyed by the C ``run`` function's argument names
+(``z``, ``u``, ``x0``, ``P0``) and the reference by its output names (``xs``, ``Ps``),
+so a program generated from the header's interface can hold both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...emit.unit import Unit
+from ...filters import kind
+from ...generation import command_unit
+from ...options import validate
+from ...precision import DOUBLE
+from ..float_tolerance import FloatTolerance, float_tolerance
+from ..verify import (
+    FLOOR_MARGIN,
+    LINEAR_TOLERANCE,
+    NONLINEAR_TOLERANCE,
+    InputRun,
+    conditioning_run,
+    linear_run,
+    nonlinear_scenario,
+    reference_run,
+    rounding_floor,
+)
+
+#: Steps of the verification data a generated test program embeds (``derive verify``
+#: runs 1000; 200 steps of a 6-state KF with its P are ~150 kB of C).
+TEST_STEPS = 200
+SEED = 7
+
+
+@dataclass(frozen=True)
+class VerificationData:
+    """``inputs``: {C run argument: float64 array}; ``reference``: {C run output: array
+    (steps, ...)} of the NumPy reference; ``tolerance``: the bar of ``derive verify``
+    for the error measure of derive.apps.verify.relative_error; ``bound``: for float32
+    code, the derivation of that bar (c u32 L G kappa)."""
+
+    model: str
+    filter: str
+    steps: int
+    inputs: dict[str, np.ndarray]
+    reference: dict[str, np.ndarray]
+    tolerance: float
+    bound: FloatTolerance | None = None
+
+    @property
+    def meaningful(self) -> bool:
+        """False when the float32 bound is 1 or more: float32 cannot carry the filter."""
+        return self.bound is None or self.bound.meaningful
+
+
+def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
+                      seed: int = SEED, unit: Unit | None = None) -> VerificationData:
+    """The data ``derive verify`` runs filter ``name`` of ``model`` on, the reference, and
+    the tolerance ``derive verify`` holds the C to: for ``precision`` float the float32
+    bound of derive.apps.float_tolerance (``unit``: the filter's unit, derived again when
+    not given)."""
+    opts = validate(name, options)
+    scenario = None
+    if kind(name).model_kind == "nonlinear":
+        scenario = nonlinear_scenario(model, steps, seed)
+        zs, tolerance = scenario.zs, NONLINEAR_TOLERANCE
+        values = {"z": scenario.zs, "u": scenario.us, "x0": scenario.x0, "P0": scenario.P0}
+    else:
+        zs, tolerance = linear_run(model, steps, seed), LINEAR_TOLERANCE
+        num = model.numeric()
+        measured = zs.zs if isinstance(zs, InputRun) else zs
+        values = {"z": measured, "x0": num.x0, "P0": num.P0}
+        if isinstance(zs, InputRun):
+            values["u"] = zs.us
+    xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
+    if scenario is not None:
+        floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
+        tolerance = max(tolerance, FLOOR_MARGIN * floor)
+    bound = None
+    if opts.precision != DOUBLE.name:   # the float32 bound of derive verify --precision float
+        unit = unit if unit is not None else command_unit(model, name, opts)
+        bound = float_tolerance(model, unit, steps,
+                                conditioning_run(model, zs, scenario, xs_ref, Ps_ref))
+        tolerance = bound.value
+    reference = {"xs": np.asarray(xs_ref, dtype=float)}
+    if Ps_ref is not None:
+        reference["Ps"] = np.asarray(Ps_ref, dtype=float).reshape(steps, model.n, model.n)
+    return VerificationData(model.name, name, steps,
+                            {k: np.asarray(v, dtype=float) for k, v in values.items()},
+                            reference, float(tolerance), bound)
