@@ -25,7 +25,9 @@ With ``precision="float"`` (``derive verify --precision float``) the C is float3
 given the data rounded to float32 and compared with the same float64 reference, within the
 tolerance derived for it by derive.apps.float_tolerance (c u32 L G kappa, from the
 generated step, the model's closed loop and its conditioning), which each line prints; the
-Python stays double and keeps its double bar.
+Python stays double and keeps its double bar. A unit of the run kind sensors gets the same,
+its L through predict and every update, its G and kappa from its reference run's trace
+(derive.apps.float_tolerance.sensors_conditioning).
 
 A nonlinear model also gets an independent witness for the Jacobians the EKF is generated
 from (:func:`jacobian_witness`): derive's sympy Jacobians of f and h against CasADi's
@@ -53,7 +55,7 @@ from ..options import validate
 from ..pipeline import load_generated
 from ..precision import DOUBLE
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
-from .float_tolerance import FloatTolerance, float_tolerance
+from .float_tolerance import FloatTolerance, float_tolerance, sensors_conditioning
 from .simulate import gnss_scenario, simulate_linear, simulate_sensors
 
 LINEAR_TOLERANCE = 1e-12
@@ -297,12 +299,15 @@ def linear_run(model, steps: int, seed: int):
 
 
 def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,
-                          options) -> list[Verification]:
+                          options, unit: Unit | None = None) -> list[Verification]:
     """A unit of the run kind sensors (several sensors, gating or update-first) on a
     :func:`derive.apps.simulate.simulate_sensors` run (sensors at their periods, NaN rows
     between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear).
     Free parameters take the model's examples (``dt = { example = 0.01 }``), one p row per
-    step."""
+    step. With the option ``precision`` "float" the C module is float32, given the data
+    rounded to float32 and held to the tolerance derive.apps.float_tolerance derives from
+    the unit's programs and the reference run's trace (``unit``: derived again when not
+    given)."""
     missing = [p.name for p in model.parameters if p.name not in model.examples]
     if missing:
         raise VerificationError(
@@ -314,18 +319,32 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
     run = simulate_sensors(model, groups, steps, seed, params)
     ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
           if model.parameters else None)
-    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs)
+    trace: list = []
+    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
+                            trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
+    bound = None
+    if options.precision != DOUBLE.name and "c" in modules:
+        unit = unit if unit is not None else command_unit(model, name, options)
+        bound = float_tolerance(model, unit, steps, sensors_conditioning(model, trace))
     out = []
     for lang, module in modules.items():
+        dtype = getattr(module, "dtype", np.float64)
         data = [run.us] if model.inputs else []
         for g in groups:
             data += [run.zs[g.name]] + ([run.Rs[g.name]] if g.R_argument else [])
-        result = module.run(*data, run.x0, run.P0, *([] if ps is None else [ps]))
-        xs, Ps = np.asarray(result[0]), np.asarray(result[1]).reshape(steps, model.n, model.n)
+        given = data + [run.x0, run.P0] + ([] if ps is None else [ps])
+        result = module.run(*[np.asarray(a, dtype=dtype) for a in given])
+        xs = np.asarray(result[0], dtype=float)
+        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
-        out.append(Verification(model.name, name, lang, steps, err, tolerance))
+        if lang == "c" and bound is not None:
+            out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
+        else:
+            out.append(Verification(model.name, name, lang, steps, err, tolerance))
     return out
+
+
 def conditioning_run(model, zs, scenario: NonlinearScenario | None, xs_ref, Ps_ref):
     """(xs, Ps, us) the float32 tolerance reads the model's conditioning from: the KF's
     reference run on the same measurements for a linear model (every linear filter's P
@@ -348,7 +367,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     """
     opts = validate(name, options)
     if kind(name).sensors and uses_sensor_run(model, opts):
-        return verify_sensor_modules(model, name, modules, steps, seed, opts)
+        return verify_sensor_modules(model, name, modules, steps, seed, opts, unit)
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)
