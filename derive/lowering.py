@@ -341,7 +341,9 @@ def _late(tree: Tree, state_ports: frozenset[str]) -> bool:
 def _signed_chain(terms: list[tuple[int, Tree]]) -> Tree:
     start = next((k for k, (sign, _) in enumerate(terms) if sign > 0), None)
     if start is None:
-        acc: Tree = Op("neg", (terms[0][1],))
+        first = terms[0][1]
+        # a negative constant is printed signed (-1.0), not negated: no operation
+        acc: Tree = Const(-first.value) if isinstance(first, Const) else Op("neg", (first,))
         rest = terms[1:]
     else:
         acc = terms[start][1]

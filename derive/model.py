@@ -239,6 +239,29 @@ class _Model:
             [s for s in first if s.name not in self.values], order, used_names))
         self._subs = {self._by_name[k]: v for k, v in self.values.items()}
 
+    def _init_examples(self, examples) -> None:
+        """``examples``: name -> a typical value of a free parameter (a time step, say), used
+        where derive needs numbers and the model gives none (derive verify's simulation);
+        the parameter stays free in generated code."""
+        self.examples: dict[str, float] = {}
+        if examples is None:
+            return
+        if not isinstance(examples, Mapping):
+            raise SymbolError(f"examples must map free parameter names to numbers, got "
+                              f"{type(examples).__name__} {examples!r}")
+        free = [p.name for p in self.parameters]
+        for nm, value in examples.items():
+            if nm not in free:
+                raise SymbolError(f"example given for {nm!r}, which is not a free parameter "
+                                  f"of model {self.name!r} (free: {free})")
+            try:
+                number = float(value)
+            except (TypeError, ValueError):
+                number = float("nan")
+            if isinstance(value, (bool, str)) or not np.isfinite(number):
+                raise SymbolError(f"example of {nm!r} must be a finite number, got {value!r}")
+            self.examples[nm] = number
+
     def _ordered(self, free: list[sympy.Symbol], order, used_names: set[str]):
         """``free`` with the names listed in ``order`` first, in that order."""
         if order is None:
@@ -437,7 +460,8 @@ class LinearModel(_Model):
                  description: str = "", source: str = "",
                  parameters: Names | None = None, B: Matrix | None = None,
                  D: Matrix | None = None, inputs: Sequence[str] | None = None,
-                 sensors: Sequence[Sensor] | None = None) -> None:
+                 sensors: Sequence[Sensor] | None = None,
+                 examples: Values | None = None) -> None:
         sensor_list = (_sensor_list(sensors, "linear", {"measurements": measurements, "H": H,
                                                         "R": R, "D": D})
                        if sensors is not None else ())
@@ -478,6 +502,7 @@ class LinearModel(_Model):
                 raise SymbolError(f"symbol {s.name!r} is a per-step input; inputs enter only "
                                   "through B u and D u, not inside a matrix")
         self._init_values(values, table, used, set(self.states) | input_names, parameters)
+        self._init_examples(examples)
         for s in used:
             if s.name in self.states:
                 raise SymbolError(f"symbol {s.name!r} is a state name; a linear model's "
@@ -605,7 +630,8 @@ class LinearModel(_Model):
                         G: Matrix | Vector | None = None, values: Values | None = None,
                         x0: Vector | None = None, P0: Matrix | None = None,
                         P0_pattern: str | None = None, description: str = "",
-                        source: str = "", parameters: Names | None = None) -> LinearModel:
+                        source: str = "", parameters: Names | None = None,
+                        examples: Values | None = None) -> LinearModel:
         """Discretise ``dx/dt = Phi x + G w`` (spectral density Qc) exactly over ``dt``.
 
         Free parameters not listed in ``parameters`` follow in order of first appearance
@@ -655,7 +681,7 @@ class LinearModel(_Model):
         order = [nm for nm in dict.fromkeys(listed + first) if nm in present_names]
         model = cls(name, states, measurements, F, H_m, Qd, R_m, G=None, values=values, x0=x0,
                     P0=P0, P0_pattern=P0_pattern, description=description, source=source,
-                    parameters=order)
+                    parameters=order, examples=examples)
         model.continuous = {"Phi": Phi_m, "G": G_m, "Qc": Qc_m, "dt": dt_e,
                             "method": method}
         return model
@@ -701,7 +727,8 @@ class NonlinearModel(_Model):
                  description: str = "", source: str = "",
                  parameters: Names | None = None, Qu: Matrix | None = None,
                  sensors: Sequence[Sensor] | None = None,
-                 unit_norm: Sequence[Sequence[str]] | None = None) -> None:
+                 unit_norm: Sequence[Sequence[str]] | None = None,
+                 examples: Values | None = None) -> None:
         sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
                                                            "h": h, "R": R})
                        if sensors is not None else ())
@@ -753,6 +780,7 @@ class NonlinearModel(_Model):
         self.f_inputs = tuple(u for u in self.inputs if u in self.f.free_symbols)
         params = {s for s in used if s.name not in reserved}
         self._init_values(values, table, params, reserved, parameters)
+        self._init_examples(examples)
         self._check_finite({"f": self.f, "h": self.h, "Q": self.Q, "R": self.R, "Qu": self.Qu})
         self.Q = _symmetric(self.Q, "Q")
         self.R = _symmetric(self.R, "R")

@@ -142,7 +142,7 @@ _REQUIRED: Mapping[str, tuple[str, ...]] = {
     "nonlinear": ("f", "h", "Q", "R"),
     "compose": ("blocks",),
 }
-_PARAMETER_KEYS = ("value", "description")
+_PARAMETER_KEYS = ("value", "description", "example")
 _BLOCK_KEYS = ("model", "suffix")
 
 
@@ -321,6 +321,7 @@ class _File:
         self.used_in_initial: set[str] = set()
         self.used: set[str] = set()
         self.sensor_used: set[str] = set()
+        self.examples: dict[str, float] = {}
 
     # -- errors and plain values ----------------------------------------------------------
 
@@ -488,6 +489,9 @@ class _File:
         arguments["values"] = {name: value for name, value in self.values_used(arguments)}
         # p follows the [parameters] table (tomllib keeps its order)
         arguments["parameters"] = [name for name in self.symbols if name in self.used]
+        if self.examples:
+            arguments["examples"] = {k: v for k, v in self.examples.items()
+                                     if k in arguments["parameters"]}
         return self.construct(kind, header, states, None if sensors else measurements,
                               arguments)
 
@@ -511,6 +515,16 @@ class _File:
                 self.check_keys(spec, _PARAMETER_KEYS, where)
                 self.string(spec, "description", where)
                 value = spec.get("value")
+                if "example" in spec:
+                    example = spec["example"]
+                    if value is not None:
+                        raise self.error(f"{where} example", "only a free parameter (no value) "
+                                                             "takes an example")
+                    if isinstance(example, bool) or not isinstance(example, (int, _Decimal)):
+                        raise self.error(f"{where} example", f"must be a number, got "
+                                                             f"{_kind_name(example)} "
+                                                             f"{example!r}")
+                    self.examples[name] = float(str(example))
             else:
                 value = spec
             if value is not None:

@@ -27,6 +27,7 @@ OPTIONAL_DEPENDENCIES = {
     "matplotlib": "report extra: figures",
     "filterpy": "bench extra: a peer implementation",
     "pykalman": "bench extra: a peer implementation",
+    "symforce": "bench: SymForce's generated C++ for the INS/GNSS EKF, a peer (ops, time)",
     "simdkalman": "bench extra: a peer implementation",
     "rich": "report extra: progress display",
     "georinex": "test extra only: an independent parse of the RINEX files",

@@ -247,13 +247,13 @@ class SensorRun:
     Rs: dict
 
 
-def simulate_sensors(model, groups, steps: int, seed: int) -> SensorRun:
+def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> SensorRun:
     """The model's own process driven by inputs uniform in [-1, 1] (nonlinear: with noise
     of covariance Qu on them) and process noise, measured by each sensor of ``groups``
     (derive.model.SensorGroup, rows of the model's stacked h or H) every
     :data:`SENSOR_PERIODS` steps, with noise of its R (a sensor whose R is given per call:
     a diagonal R per step, uniform in [0.5, 2], in ``Rs``). Needs every symbol to have a
-    value."""
+    value (``params``: values of the free parameters, name -> number)."""
     steps = _steps(steps)
     rng = np.random.default_rng(seed)
     n, n_u = model.n, len(model.inputs)
@@ -263,7 +263,7 @@ def simulate_sensors(model, groups, steps: int, seed: int) -> SensorRun:
     truth = np.empty((steps + 1, n))
     truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
     if model.kind == "linear":
-        num = model.numeric()
+        num = model.numeric(params)
         w = rng.multivariate_normal(np.zeros(num.Q.shape[0]), num.Q, size=steps, method="eigh")
         for k in range(steps):
             truth[k + 1] = num.F @ truth[k] + num.B @ us[k] + num.G @ w[k]
@@ -272,7 +272,7 @@ def simulate_sensors(model, groups, steps: int, seed: int) -> SensorRun:
             return num.H @ x + num.D @ u
         R = num.R
     else:
-        fns = model.numeric_functions()
+        fns = model.numeric_functions(params)
         w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
         noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
                                               method="eigh") if n_u else 0.0)

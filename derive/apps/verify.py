@@ -274,21 +274,28 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
                           options) -> list[Verification]:
     """A unit of the run kind sensors (several sensors, gating or update-first) on a
     :func:`derive.apps.simulate.simulate_sensors` run (sensors at their periods, NaN rows
-    between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear)."""
-    if model.parameters:
+    between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear).
+    Free parameters take the model's examples (``dt = { example = 0.01 }``), one p row per
+    step."""
+    missing = [p.name for p in model.parameters if p.name not in model.examples]
+    if missing:
         raise VerificationError(
             f"verify needs a value for every symbol of model {model.name!r} with sensors; "
-            f"free: {[p.name for p in model.parameters]}")
+            f"free: {missing} (give each an example, e.g. {missing[0]} = {{ example = ... }} "
+            "in [parameters])")
     groups = sensor_groups(model)
-    run = simulate_sensors(model, groups, steps, seed)
-    ref = sensors_reference(model, options, run.zs, run.us, None, run.x0, run.P0, run.Rs)
+    params = dict(model.examples)
+    run = simulate_sensors(model, groups, steps, seed, params)
+    ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
+          if model.parameters else None)
+    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     out = []
     for lang, module in modules.items():
         data = [run.us] if model.inputs else []
         for g in groups:
             data += [run.zs[g.name]] + ([run.Rs[g.name]] if g.R_argument else [])
-        result = module.run(*data, run.x0, run.P0)
+        result = module.run(*data, run.x0, run.P0, *([] if ps is None else [ps]))
         xs, Ps = np.asarray(result[0]), np.asarray(result[1]).reshape(steps, model.n, model.n)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
         out.append(Verification(model.name, name, lang, steps, err, tolerance))

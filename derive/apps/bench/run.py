@@ -18,7 +18,7 @@ import numpy as np
 from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
-from . import batch, casadi_c, generated, peers, scaling
+from . import batch, casadi_c, generated, navigation, peers, scaling
 from .bound import case_bound
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
@@ -55,6 +55,9 @@ class Settings:
     scale_steps: int = scaling.STEPS
     scale_repeats: int = 3
     catalog_generation: bool = True   # time `derive generate --all` (the 30 s target)
+    navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
+    navigation_python_calls: int = 200   # ... per FilterPy timing
+    navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
 
     @classmethod
     def quick(cls) -> Settings:
@@ -62,7 +65,8 @@ class Settings:
         return cls(c_steps=300, python_steps=30, nonlinear_python_steps=20, repeats=2,
                    check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
-                   catalog_generation=False)
+                   catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
+                   navigation_symforce=False)
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,7 @@ class BenchResult:
     batch: list[BatchRow] = field(default_factory=list)
     generation_seconds: float | None = None
     scale: list[scaling.ScaleRow] = field(default_factory=list)   # derive.batch, every core
+    navigation: navigation.NavigationResult | None = None
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -104,6 +109,7 @@ class BenchResult:
                 "rows": [asdict(r) for r in self.rows], "batch": [asdict(b) for b in self.batch],
                 "scale": [asdict(r) for r in self.scale],
                 "generation_seconds": self.generation_seconds,
+                "navigation": self.navigation.as_json() if self.navigation else None,
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -141,6 +147,8 @@ class BenchResult:
             out.append(Bar("generating the whole catalog (derive generate --all)",
                            self.generation_seconds, 30.0, "time"))
         out += self._scaled_bars(fma2)
+        if self.navigation is not None:
+            out += self.navigation.bars(Bar)
         return out
 
     def _scaled_bars(self, fma2: float | None) -> list[Bar]:
@@ -214,6 +222,8 @@ class BenchResult:
                       "'bitwise': equal to the threaded result", ""]
             head, body, scaled = scaling.scaling_table(self.scale)
             lines += _columns(head, body) + scaled + [""]
+        if self.navigation is not None:
+            lines += self.navigation.lines() + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -374,6 +384,9 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         if s.scale_tracks:
             result.scale = scaling.scaling_rows(s.scale_tracks, s.scale_steps, Path(tmp),
                                                   s.scale_repeats, tick)
+        result.navigation = navigation.run_navigation(
+            Path(tmp) / "navigation", s.navigation_calls, s.navigation_python_calls, s.repeats,
+            s.navigation_symforce, tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")

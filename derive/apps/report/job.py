@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ... import catalog
-from . import burden, generation, gnss, mdkf, page, provenance, sspred, tracking
+from . import burden, generation, gnss, mdkf, navigation, page, provenance, sspred, tracking
 from .burden import compute_audit
 from .context import Context
 from .document import Section
@@ -140,7 +140,8 @@ def _sections() -> list[tuple[str, Callable[[Context], Section]]]:
     return ([(f"experiments: {p.label}", lambda ctx, p=p: tracking.section(ctx, p))
              for p in tracking.PAPERS]
             + [("experiments: SSPRED", sspred.section), ("experiments: MDKF", mdkf.section),
-               ("experiments: GNSS", gnss.section), ("burden", burden.section)])
+               ("experiments: GNSS", gnss.section),
+               ("experiments: INS/GNSS", navigation.section), ("burden", burden.section)])
 
 
 def intro(result: ReportResult, prov: provenance.Provenance, quick: bool) -> list[str]:

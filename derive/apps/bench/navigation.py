@@ -1,0 +1,300 @@
+"""The navigation rows of ``derive bench``: the INS/GNSS EKF of the catalog model
+``ins_gnss`` (SPEC.md §8) against its peers.
+
+- Generation: seconds for derive to generate the EKF's C (predict and both updates, with
+  run), against SymForce's C++ codegen of the same three functions
+  (derive.apps.ins.symforce_ekf).
+- Operations per function: derive's header counts (flops: add + sub + mul + div + sqrt +
+  2 fma) against SymForce's C++ counted by derive's C rules (no fma there, so its flops
+  are its instructions), SymForce's own ``Total ops`` beside it.
+- Per-call time of the generated C predict and GNSS update, each called in a C loop
+  (derive.apps.ins.c_loop), against CasADi's generated C of the same functions in the
+  same loop and FilterPy's ExtendedKalmanFilter doing the same step in Python
+  (derive.apps.ins.filterpy_ekf). Each implementation's first call is checked against the
+  NumPy reference (derive.apps.ins.reference).
+
+The state, covariance and inputs of the timed calls are those of the seeded flight at its
+GNSS epoch 20 s in (the filter converged, P realistic).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ...build import STRICT_CFLAGS
+from ...flops import OpCount
+from ...generation import generate_units
+from ...interface import read as read_interface
+from ..ins import c_loop, casadi_ekf, filterpy_ekf, flight, reference, symforce_ekf
+from . import casadi_c, generated
+from .cases import Skip
+from .timing import Timing, human, measure
+
+MODEL = "ins_gnss"
+FUNCTIONS = ("predict", "update_gnss", "update_baro")
+TIMED = ("predict", "update_gnss")
+GENERATION_BAR = 2.0
+FILTERPY_BAR = 300.0
+CASADI_BAR = 2.0
+EPOCH_SECONDS = 20.0
+
+
+@dataclass(frozen=True)
+class CountRow:
+    function: str
+    derive: OpCount
+    symforce: OpCount | None
+    symforce_total: int | None
+
+    @property
+    def ratio(self) -> float | None:
+        """derive's flops over SymForce's (counted by derive's rules)."""
+        return None if self.symforce is None else self.derive.flops / self.symforce.flops
+
+
+@dataclass(frozen=True)
+class TimeRow:
+    function: str
+    implementation: str
+    timing: Timing | None
+    ratio: float | None          # time per call / generated C's
+    agreement: float | None      # first call against the NumPy reference, relative
+    note: str = ""
+
+
+@dataclass
+class NavigationResult:
+    generation_seconds: float | None = None
+    generation_cpu_seconds: float | None = None   # this process's CPU time (a loaded machine)
+    symforce_seconds: float | None = None
+    counts: list[CountRow] = field(default_factory=list)
+    times: list[TimeRow] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def time_row(self, function: str, implementation: str) -> TimeRow | None:
+        return next((r for r in self.times if r.function == function
+                     and r.implementation == implementation), None)
+
+    def lines(self) -> list[str]:
+        out = [f"navigation: {MODEL} EKF (SPEC §8, 16 states, inputs in f, sensors gnss and "
+               "baro); generation of predict + update_gnss + update_baro: derive "
+               + ("n/a" if self.generation_seconds is None else
+                  f"{self.generation_seconds:.2f} s (C; CPU {self.generation_cpu_seconds:.2f} s)")
+               + ", SymForce " + ("n/a" if self.symforce_seconds is None else
+                                  f"{self.symforce_seconds:.2f} s (C++)"), ""]
+        head = ("function", "derive flops", "derive instructions", "SymForce flops (derive's "
+                "rules)", "SymForce Total ops (its own)", "derive / SymForce")
+        body = [(r.function, str(r.derive.flops), str(r.derive.instructions),
+                 "n/a" if r.symforce is None else str(r.symforce.flops),
+                 "n/a" if r.symforce_total is None else str(r.symforce_total),
+                 "" if r.ratio is None else f"{r.ratio:.2f}") for r in self.counts]
+        out += _columns(head, body) + [""]
+        head = ("function", "implementation", "per call", "min-max", "ratio", "agrees", "note")
+        body = []
+        for r in self.times:
+            t = r.timing
+            body.append((r.function, r.implementation, human(t.median) if t else "skipped",
+                         f"{human(t.low)}-{human(t.high)}" if t else "",
+                         "" if r.ratio is None else f"{r.ratio:,.1f}x",
+                         "" if r.agreement is None else f"{r.agreement:.1e}", r.note))
+        out += _columns(head, body)
+        out += [f"note: {n}" for n in self.notes]
+        return out
+
+    def bars(self, bar_type):
+        cpu = self.generation_cpu_seconds
+        out = [bar_type(f"generating {MODEL} EKF (predict + both updates), C",
+                        self.generation_seconds, GENERATION_BAR, "time",
+                        "" if cpu is None else f"CPU time of this process {human(cpu)}")]
+        for r in self.counts:
+            if r.ratio is not None:  # fewer: SymForce has at least one flop more
+                out.append(bar_type(f"{MODEL} {r.function}: SymForce's flops over derive's",
+                                    1.0 / r.ratio, 1.0 + 1.0 / r.derive.flops, "ratio",
+                                    f"derive {r.derive.flops}, SymForce {r.symforce.flops} "
+                                    f"(its own Total ops {r.symforce_total})"))
+        for function in TIMED:
+            for peer, need in (("FilterPy", FILTERPY_BAR), ("CasADi C", CASADI_BAR)):
+                row = self.time_row(function, peer)
+                out.append(bar_type(f"generated C {MODEL} {function} faster per call than "
+                                    f"{peer}", None if row is None else row.ratio, need,
+                                    "ratio"))
+        return out
+
+    def as_json(self) -> dict:
+        return {"generation_seconds": self.generation_seconds,
+                "generation_cpu_seconds": self.generation_cpu_seconds,
+                "symforce_seconds": self.symforce_seconds,
+                "counts": [{"function": r.function, "derive": r.derive.__dict__,
+                            "symforce": None if r.symforce is None else r.symforce.__dict__,
+                            "symforce_total": r.symforce_total} for r in self.counts],
+                "times": [{"function": r.function, "implementation": r.implementation,
+                           "median": r.timing.median if r.timing else None,
+                           "ratio": r.ratio, "agreement": r.agreement, "note": r.note}
+                          for r in self.times],
+                "notes": self.notes}
+
+
+def _columns(head, body) -> list[str]:
+    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
+        [fmt.format(*r).rstrip() for r in body]
+
+
+@dataclass(frozen=True)
+class Point:
+    """Where the timed calls start: x, P, u, z_gnss, z_baro and dt."""
+
+    x: np.ndarray
+    P: np.ndarray
+    u: np.ndarray
+    z: dict
+    dt: float
+
+
+def operating_point() -> Point:
+    """The seeded flight's filter state at the GNSS epoch EPOCH_SECONDS in."""
+    fl = flight.simulate(seed=0, duration=EPOCH_SECONDS + 1.0)
+    row = int(fl.gnss_rows[np.searchsorted(fl.gnss_rows, int(EPOCH_SECONDS / fl.dt[0])) - 1])
+    short = type(fl)(**{**fl.__dict__, "imu": fl.imu[:row], "dt": fl.dt[:row],
+                        "gnss": fl.gnss[:row], "baro": fl.baro[:row]})
+    run = reference.run(short)
+    return Point(run.xs[-1], run.Ps[-1], fl.imu[row], {"gnss": fl.gnss[row],
+                                                     "baro": fl.baro[row]}, float(fl.dt[row]))
+
+
+def _expected(point: Point, function: str):
+    if function == "predict":
+        return reference.predict(point.x, point.P, point.u, point.dt)
+    sensor = function.split("_", 1)[1]
+    return reference.update(point.x, point.P, point.z[sensor], sensor)[:2]
+
+
+def _agreement(got, expected) -> float:
+    x, P = (np.asarray(v, dtype=float) for v in got)
+    x_ref, P_ref = expected
+    sd = np.sqrt(np.diag(P_ref))
+    return float(max(np.abs(x - x_ref).max() / np.abs(x_ref).max(),
+                     (np.abs(P.reshape(P_ref.shape) - P_ref) / np.outer(sd, sd)).max()))
+
+
+def _derive(workdir: Path, result: NavigationResult):
+    """Generate (timed), count, and build the loops of derive's C."""
+    start, cpu = time.perf_counter(), time.process_time()
+    paths, _ = generate_units(MODEL, ["ekf"], "c", workdir / "derive")
+    result.generation_seconds = time.perf_counter() - start
+    result.generation_cpu_seconds = time.process_time() - cpu
+    header = next(p for p in paths if p.suffix == ".h")
+    source = next(p for p in paths if p.suffix == ".c")
+    functions = {f.program: f for f in read_interface(header.read_text()).functions}
+    derive_counts = {name: _header_count(header.read_text(), name) for name in FUNCTIONS}
+    loops = [c_loop.derive_call(functions[name], f"derive_{name}") for name in TIMED]
+    built = c_loop.build(workdir / "derive_loops", [str(header)], [source], loops,
+                         [*STRICT_CFLAGS, *generated.CFLAGS])
+    return derive_counts, built
+
+
+def _header_count(text: str, function: str) -> OpCount:
+    line = re.search(rf"operations per call of {function} \(C99[^)]*\): ([^\n]*) \(flops",
+                     text)
+    if line is None:
+        raise ValueError(f"no operation count of {function} in the generated header")
+    fields = dict((k, int(v)) for v, k in (part.strip().split(" ")[::-1]
+                                             for part in line.group(1).split(",")))
+    return OpCount(**fields)
+
+
+def _casadi(workdir: Path):
+    try:
+        source, fns = casadi_ekf.generate(workdir / "casadi")
+    except ImportError as exc:
+        raise Skip(f"{exc.name} is not installed") from None
+    loops = [c_loop.casadi_call(name, fns[name], f"casadi_{name}") for name in TIMED]
+    return c_loop.build(workdir / "casadi", ["ins_casadi.h"], [source], loops,
+                        casadi_c.CFLAGS)
+
+
+def _arg(point: Point, function: str) -> np.ndarray:
+    return point.u if function == "predict" else point.z[function.split("_", 1)[1]]
+
+
+def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
+                   symforce: bool = True, tick=lambda text: None) -> NavigationResult:
+    """Measure everything above; ``calls`` per C timing, ``python_calls`` per FilterPy
+    timing."""
+    result = NavigationResult()
+    tick("navigation: the flight's operating point")
+    point = operating_point()
+    tick("navigation: derive generates ins_gnss")
+    derive_counts, derive_loops = _derive(workdir, result)
+    symforce_functions = {}
+    if symforce:
+        tick("navigation: SymForce codegen")
+        try:
+            symforce_functions = symforce_ekf.generate(FUNCTIONS)
+            result.symforce_seconds = sum(f.seconds for f in symforce_functions.values())
+        except ImportError as exc:
+            result.notes.append(f"SymForce skipped: {exc.name} is not installed")
+    else:
+        result.notes.append("SymForce codegen left out (--quick)")
+    for name in FUNCTIONS:
+        sf = symforce_functions.get(name)
+        result.counts.append(CountRow(name, derive_counts[name], sf and sf.count,
+                                      sf and sf.total_ops))
+    tick("navigation: CasADi C")
+    try:
+        casadi_loops = _casadi(workdir)
+    except Skip as exc:
+        casadi_loops, casadi_note = None, f"skipped: {exc}"
+    p = np.array([point.dt])
+    for name in TIMED:
+        expected = _expected(point, name)
+        tick(f"navigation: {name}")
+        run = derive_loops.runner(f"derive_{name}", point.x, point.P, _arg(point, name), p)
+        base = measure(lambda run=run: run(calls), calls, repeats)
+        result.times.append(TimeRow(name, "generated C", base, 1.0,
+                                    _agreement(run(1), expected), "a C loop of calls"))
+        if casadi_loops is None:
+            result.times.append(TimeRow(name, "CasADi C", None, None, None, casadi_note))
+        else:
+            run = casadi_loops.runner(f"casadi_{name}", point.x, point.P, _arg(point, name), p)
+            t = measure(lambda run=run: run(calls), calls, repeats)
+            result.times.append(TimeRow(name, "CasADi C", t, t.median / base.median,
+                                        _agreement(run(1), expected),
+                                        "dense P read symmetric, symbolic Jacobians and "
+                                        "inverse; the same C loop"))
+        result.times.append(_filterpy_row(name, point, python_calls, repeats, base, expected))
+    return result
+
+
+def _filterpy_row(name: str, point: Point, calls: int, repeats: int, base: Timing,
+                  expected) -> TimeRow:
+    try:
+        ekf = filterpy_ekf.make_filter(point.x, point.P)
+    except ImportError as exc:
+        return TimeRow(name, "FilterPy", None, None, None, f"skipped: {exc.name} is not "
+                                                            "installed")
+    sensor = name.split("_", 1)[1] if name != "predict" else None
+
+    def step():
+        if sensor is None:
+            ekf.predict_step(point.u, point.dt)
+        else:
+            ekf.update_step(point.z[sensor], sensor)
+
+    step()
+    agreement = _agreement((ekf.x.ravel(), ekf.P), expected)
+
+    def run():
+        for _ in range(calls):
+            ekf.x, ekf.P = point.x.reshape(-1, 1).copy(), point.P.copy()
+            step()
+    t = measure(run, calls, repeats)
+    return TimeRow(name, "FilterPy", t, t.median / base.median, agreement,
+                   "ExtendedKalmanFilter; F, Q (predict) and H from the NumPy reference's "
+                   "hand-written Jacobians each call")
