@@ -27,7 +27,7 @@ operations per call of step (Python): add 144, sub 84, mul 238, div 8, sqrt 4, f
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 1, calls 0 (flops 79, instructions 80)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
-Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
+Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
 """
