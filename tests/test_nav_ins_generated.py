@@ -6,6 +6,8 @@ with the single ``run`` call."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -60,7 +62,7 @@ def test_dt_is_a_per_step_parameter(setup):
     fl, _, generated = setup
     short = flight.simulate(seed=1, duration=2.0)
     dts = np.where(np.arange(short.steps) % 2 == 0, 0.01, 0.005)
-    varied = type(short)(**{**short.__dict__, "dt": dts})
+    varied = replace(short, dt=dts)
     xs, Ps = generated_run(generated.c, varied)
     expected = reference.run(varied)
     assert compare.state_agreement(xs, expected.xs).max() <= AGREEMENT

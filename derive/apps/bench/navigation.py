@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -161,8 +161,8 @@ def operating_point() -> Point:
     """The seeded flight's filter state at the GNSS epoch EPOCH_SECONDS in."""
     fl = flight.simulate(seed=0, duration=EPOCH_SECONDS + 1.0)
     row = int(fl.gnss_rows[np.searchsorted(fl.gnss_rows, int(EPOCH_SECONDS / fl.dt[0])) - 1])
-    short = type(fl)(**{**fl.__dict__, "imu": fl.imu[:row], "dt": fl.dt[:row],
-                        "gnss": fl.gnss[:row], "baro": fl.baro[:row]})
+    short = replace(fl, imu=fl.imu[:row], dt=fl.dt[:row], gnss=fl.gnss[:row],
+                    baro=fl.baro[:row])
     run = reference.run(short)
     return Point(run.xs[-1], run.Ps[-1], fl.imu[row], {"gnss": fl.gnss[row],
                                                      "baro": fl.baro[row]}, float(fl.dt[row]))
