@@ -16,6 +16,7 @@ from derive.filters import nonlinear
 from derive.filters.sensors import kalman_update
 from derive.flops import count
 from derive.generation import command_unit
+from derive.lowering import Const, Op, Var, lower_program
 from derive.program import Port, Program
 
 
@@ -108,3 +109,35 @@ def test_update_without_back_substitution_agrees_and_costs_fewer_flops():
     # substitution, m (m - 1) / 2, is new: fewer flops and fewer instructions
     assert count(ours, "c").flops < count(textbook, "c").flops
     assert count(ours, "c").instructions < count(textbook, "c").instructions
+
+
+# -- no multiplication by 0 or ±1 and no addition of 0 survives ----------------------------
+
+
+def _trivial_operations(tree) -> int:
+    """Operations of ``tree`` that multiply by 0 or ±1 or add or subtract 0."""
+    if not isinstance(tree, Op):
+        return 0
+    trivial = {"mul": {0.0, 1.0, -1.0}, "fma": {0.0, 1.0, -1.0}, "add": {0.0},
+               "sub": {0.0}}.get(tree.kind, set())
+    factors = tree.args[:2]
+    found = sum(1 for a in factors if isinstance(a, Const) and a.value in trivial)
+    if tree.kind == "fma" and isinstance(tree.args[2], Const) and tree.args[2].value == 0.0:
+        found += 1
+    return found + sum(_trivial_operations(a) for a in tree.args)
+
+
+def test_ins_gnss_programs_have_no_multiplication_by_zero_or_one():
+    unit = command_unit(_model(), "ekf")
+    names = ("predict", "update_gnss", "update_baro")
+    trees = {name: [s.tree for s in lower_program(unit.programs[name], use_fma=True).body]
+             for name in names}
+    assert all(trees[name] for name in names)
+    assert {name: sum(map(_trivial_operations, trees[name])) for name in names} == \
+        dict.fromkeys(names, 0)
+
+
+def test_trivial_operations_are_found():
+    a = Var("a")
+    assert _trivial_operations(Op("fma", (Const(1.0), a, Const(0.0)))) == 2
+    assert _trivial_operations(Op("add", (a, Op("mul", (Const(-1.0), a))))) == 1
