@@ -193,9 +193,22 @@ def ldl(prog: Program, S: sympy.Matrix, *, name: str = "S") -> tuple[sympy.Matri
 DIRECT_DIVISIONS = 2
 
 
-def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
-              name: str = "S", axis: str | None = None) -> sympy.Matrix:
-    """``S^-1 B`` for symmetric positive-definite ``S`` via LDL^T: forward, diagonal, back.
+def forward_substitute(prog: Program, L: sympy.Matrix, B: sympy.Matrix) -> sympy.Matrix:
+    """``L^-1 B`` for unit lower-triangular ``L`` (column by column)."""
+    Y = sympy.zeros(L.rows, B.cols)
+    for c in range(B.cols):
+        for i in range(L.rows):
+            Y[i, c] = _stage(prog, B[i, c] - _dot([L[i, k] * Y[k, c] for k in range(i)]))
+    return Y
+
+
+def ldl_forward(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
+                name: str = "S", axis: str | None = None
+                ) -> tuple[sympy.Matrix, sympy.Matrix, sympy.Matrix]:
+    """``(L, Y, Z)``: ``S = L D L^T``, ``Y = L^-1 B`` (forward substitution) and
+    ``Z = D^-1 Y``, the first two stages of :func:`spd_solve`. Then ``S^-1 B = L^-T Z``
+    and ``B^T S^-1 B = Z^T Y``, which needs no back substitution (a Kalman gain's
+    ``P H^T S^-1 H P`` from ``B = H P``).
 
     Per pivot, the entries it divides are divided directly when there are at most
     `DIRECT_DIVISIONS` of them (m = 1 with a 2-column B: two divisions), else one
@@ -207,15 +220,22 @@ def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     if B.rows != m:
         raise ShapeError(f"spd_solve: {name} has shape {_shape(S)} but B has shape {_shape(B)}")
     L, D, Dinv = _ldl(prog, S, name, axis)
-    Y = sympy.zeros(m, B.cols)
-    for c in range(B.cols):
-        for i in range(m):
-            Y[i, c] = _stage(prog, B[i, c] - _dot([L[i, k] * Y[k, c] for k in range(i)]))
+    Y = forward_substitute(prog, L, B)
     Z = sympy.zeros(m, B.cols)
     for i in range(m):
         direct = sum(1 for c in range(B.cols) if Y[i, c] != 0) <= DIRECT_DIVISIONS
         for c in range(B.cols):
             Z[i, c] = _stage(prog, Y[i, c] / D[i] if direct else Y[i, c] * Dinv[i])
+    return L, Y, Z
+
+
+def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
+              name: str = "S", axis: str | None = None) -> sympy.Matrix:
+    """``S^-1 B`` for symmetric positive-definite ``S`` via LDL^T: forward, diagonal
+    (:func:`ldl_forward`), back; ``axis``: what ``S``'s rows are (see
+    :class:`PivotMessage`)."""
+    L, _, Z = ldl_forward(prog, S, B, name=name, axis=axis)
+    m = L.rows
     X = sympy.zeros(m, B.cols)
     for c in range(B.cols):
         for i in reversed(range(m)):

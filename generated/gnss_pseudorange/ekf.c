@@ -23,11 +23,11 @@
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
  *     update1 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 84, mul 110, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 478, instructions 354)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 66, mul 92, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 442, instructions 318)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
  * operations per call of update1 (C99, fma through DERIVE_FMA): add 6, sub 14, mul 22, div 2, sqrt 1, fma 17, neg 0, cmp 1, calls 0 (flops 79, instructions 63)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
+ * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
  * derive-interface: {"functions":[["gnss_pseudorange_ekf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ekf_run","run",true,true,[["z",["steps",4],false,false,false],["u",["steps",12],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["update1",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
@@ -187,70 +187,61 @@ DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const
     const double t111 = t85*t91;
     const double t112 = t85*t94;
     const double t113 = t85*t97;
-    const double t114 = t106 - t110*t83;
-    const double t115 = t102 - t110*t79 - t114*t77;
-    const double t116 = t98 - t110*t73 - t114*t72 - t115*t71;
-    const double t117 = t107 - t111*t83;
-    const double t118 = t103 - t111*t79 - t117*t77;
-    const double t119 = t99 - t111*t73 - t117*t72 - t118*t71;
-    const double t120 = t108 - t112*t83;
-    const double t121 = t104 - t112*t79 - t120*t77;
-    const double t122 = t100 - t112*t73 - t120*t72 - t121*t71;
-    const double t123 = t109 - t113*t83;
-    const double t124 = t105 - t113*t79 - t123*t77;
-    const double t125 = t101 - t113*t73 - t123*t72 - t124*t71;
-    const double t126 = z[0] - t24;
-    const double t127 = z[1 * s] - t25;
-    const double t128 = z[2 * s] - t26;
-    const double t129 = z[3 * s] - t27;
-    const double t130 = DERIVE_FMA(t116, t126, DERIVE_FMA(t115, t127, DERIVE_FMA(t114, t128, t110*t129)));
-    const double t131 = DERIVE_FMA(t119, t126, DERIVE_FMA(t118, t127, DERIVE_FMA(t117, t128, t111*t129)));
-    const double t132 = DERIVE_FMA(t122, t126, DERIVE_FMA(t121, t127, DERIVE_FMA(t120, t128, t112*t129)));
-    const double t133 = DERIVE_FMA(t125, t126, DERIVE_FMA(t124, t127, DERIVE_FMA(t123, t128, t113*t129)));
-    const double t134 = x[0] + t130;
-    const double t135 = x[1 * s] + t131;
-    const double t136 = x[2 * s] + t132;
-    const double t137 = x[3 * s] + t133;
-    const double t138 = DERIVE_FMA(t116, t40, DERIVE_FMA(t115, t41, DERIVE_FMA(t114, t42, t110*t43)));
-    const double t139 = DERIVE_FMA(t116, t44, DERIVE_FMA(t115, t45, DERIVE_FMA(t114, t46, t110*t47)));
-    const double t140 = DERIVE_FMA(t116, t48, DERIVE_FMA(t115, t49, DERIVE_FMA(t114, t50, t110*t51)));
-    const double t141 = DERIVE_FMA(t116, t52, DERIVE_FMA(t115, t53, DERIVE_FMA(t114, t54, t110*t55)));
-    const double t142 = DERIVE_FMA(t119, t44, DERIVE_FMA(t118, t45, DERIVE_FMA(t117, t46, t111*t47)));
-    const double t143 = DERIVE_FMA(t119, t48, DERIVE_FMA(t118, t49, DERIVE_FMA(t117, t50, t111*t51)));
-    const double t144 = DERIVE_FMA(t119, t52, DERIVE_FMA(t118, t53, DERIVE_FMA(t117, t54, t111*t55)));
-    const double t145 = DERIVE_FMA(t122, t48, DERIVE_FMA(t121, t49, DERIVE_FMA(t120, t50, t112*t51)));
-    const double t146 = DERIVE_FMA(t122, t52, DERIVE_FMA(t121, t53, DERIVE_FMA(t120, t54, t112*t55)));
-    const double t147 = DERIVE_FMA(t125, t52, DERIVE_FMA(t124, t53, DERIVE_FMA(t123, t54, t113*t55)));
-    const double t148 = t0 - t138;
-    const double t149 = P[1 * s] - t139;
-    const double t150 = P[2 * s] - t140;
-    const double t151 = P[3 * s] - t141;
-    const double t152 = t1 - t142;
-    const double t153 = P[6 * s] - t143;
-    const double t154 = P[7 * s] - t144;
-    const double t155 = t2 - t145;
-    const double t156 = P[11 * s] - t146;
-    const double t157 = t3 - t147;
-    x_new[0] = t134;
-    x_new[1 * s] = t135;
-    x_new[2 * s] = t136;
-    x_new[3 * s] = t137;
-    P_new[0] = t148;
-    P_new[1 * s] = t149;
-    P_new[2 * s] = t150;
-    P_new[3 * s] = t151;
-    P_new[4 * s] = t149;
-    P_new[5 * s] = t152;
-    P_new[6 * s] = t153;
-    P_new[7 * s] = t154;
-    P_new[8 * s] = t150;
-    P_new[9 * s] = t153;
-    P_new[10 * s] = t155;
-    P_new[11 * s] = t156;
-    P_new[12 * s] = t151;
-    P_new[13 * s] = t154;
-    P_new[14 * s] = t156;
-    P_new[15 * s] = t157;
+    const double t114 = z[0] - t24;
+    const double t115 = z[1 * s] - t25;
+    const double t116 = z[2 * s] - t26;
+    const double t117 = z[3 * s] - t27;
+    const double t118 = t115 - t114*t71;
+    const double t119 = t116 - t114*t72 - t118*t77;
+    const double t120 = t117 - t114*t73 - t118*t79 - t119*t83;
+    const double t121 = DERIVE_FMA(t114, t98, DERIVE_FMA(t110, t120, DERIVE_FMA(t106, t119, t102*t118)));
+    const double t122 = DERIVE_FMA(t114, t99, DERIVE_FMA(t111, t120, DERIVE_FMA(t107, t119, t103*t118)));
+    const double t123 = DERIVE_FMA(t112, t120, DERIVE_FMA(t108, t119, DERIVE_FMA(t104, t118, t100*t114)));
+    const double t124 = DERIVE_FMA(t113, t120, DERIVE_FMA(t109, t119, DERIVE_FMA(t105, t118, t101*t114)));
+    const double t125 = x[0] + t121;
+    const double t126 = x[1 * s] + t122;
+    const double t127 = x[2 * s] + t123;
+    const double t128 = x[3 * s] + t124;
+    const double t129 = DERIVE_FMA(t40, t98, DERIVE_FMA(t110, t88, DERIVE_FMA(t106, t87, t102*t86)));
+    const double t130 = DERIVE_FMA(t44, t98, DERIVE_FMA(t110, t91, DERIVE_FMA(t106, t90, t102*t89)));
+    const double t131 = DERIVE_FMA(t48, t98, DERIVE_FMA(t110, t94, DERIVE_FMA(t106, t93, t102*t92)));
+    const double t132 = DERIVE_FMA(t52, t98, DERIVE_FMA(t110, t97, DERIVE_FMA(t106, t96, t102*t95)));
+    const double t133 = DERIVE_FMA(t44, t99, DERIVE_FMA(t111, t91, DERIVE_FMA(t107, t90, t103*t89)));
+    const double t134 = DERIVE_FMA(t48, t99, DERIVE_FMA(t111, t94, DERIVE_FMA(t107, t93, t103*t92)));
+    const double t135 = DERIVE_FMA(t52, t99, DERIVE_FMA(t111, t97, DERIVE_FMA(t107, t96, t103*t95)));
+    const double t136 = DERIVE_FMA(t112, t94, DERIVE_FMA(t108, t93, DERIVE_FMA(t104, t92, t100*t48)));
+    const double t137 = DERIVE_FMA(t112, t97, DERIVE_FMA(t108, t96, DERIVE_FMA(t104, t95, t100*t52)));
+    const double t138 = DERIVE_FMA(t113, t97, DERIVE_FMA(t109, t96, DERIVE_FMA(t105, t95, t101*t52)));
+    const double t139 = t0 - t129;
+    const double t140 = P[1 * s] - t130;
+    const double t141 = P[2 * s] - t131;
+    const double t142 = P[3 * s] - t132;
+    const double t143 = t1 - t133;
+    const double t144 = P[6 * s] - t134;
+    const double t145 = P[7 * s] - t135;
+    const double t146 = t2 - t136;
+    const double t147 = P[11 * s] - t137;
+    const double t148 = t3 - t138;
+    x_new[0] = t125;
+    x_new[1 * s] = t126;
+    x_new[2 * s] = t127;
+    x_new[3 * s] = t128;
+    P_new[0] = t139;
+    P_new[1 * s] = t140;
+    P_new[2 * s] = t141;
+    P_new[3 * s] = t142;
+    P_new[4 * s] = t140;
+    P_new[5 * s] = t143;
+    P_new[6 * s] = t144;
+    P_new[7 * s] = t145;
+    P_new[8 * s] = t141;
+    P_new[9 * s] = t144;
+    P_new[10 * s] = t146;
+    P_new[11 * s] = t147;
+    P_new[12 * s] = t142;
+    P_new[13 * s] = t145;
+    P_new[14 * s] = t147;
+    P_new[15 * s] = t148;
     return status;
 }
 
