@@ -242,30 +242,41 @@ def _run_dask(kernel: Kernel, zs, x0s, P0s, p, with_covariance: bool):
     layout = _check(module, zs.shape, np.shape(x0s), None if P0s is None else np.shape(P0s),
                     p)
     n, steps = layout.n, layout.steps
-    zs = zs.rechunk({axis: -1 for axis in range(1, zs.ndim)}).astype(np.float64)
+    # the kernel's element type, as the thread path (float32 for --precision float): a
+    # wider float is refused here with DtypeError naming the argument, before any task
+
+    def element(name: str, array) -> np.dtype:
+        """The kernel's dtype, once the Dask ``array``'s has been checked against it."""
+        return module.converted("run_tracks", name, np.empty(0, array.dtype)).dtype
+
+    zs = zs.rechunk({axis: -1 for axis in range(1, zs.ndim)}).astype(element("zs", zs))
     track_chunks = zs.chunks[0]
 
-    def aligned(array):
+    def aligned(array, name: str):
         """A per-track array chunked as zs along the tracks, whole along the rest."""
         chunks = (track_chunks,) + tuple((d,) for d in np.shape(array)[1:])
         if not _is_dask(array):
-            return da.from_array(np.asarray(array, dtype=np.float64), chunks=chunks)
-        return array.astype(np.float64).rechunk(chunks)
+            return da.from_array(module.converted("run_tracks", name, array), chunks=chunks)
+        return array.astype(element(name, array)).rechunk(chunks)
+
+    def shared(array, name: str):
+        return None if array is None else module.converted("run_tracks", name, array)
 
     letters = "tsm"[:zs.ndim]
     args = [zs, letters]
-    args += [None, None] if layout.x0_shared else [aligned(x0s), "t" + "abc"[:np.ndim(x0s) - 1]]
+    args += ([None, None] if layout.x0_shared
+             else [aligned(x0s, "x0s"), "t" + "abc"[:np.ndim(x0s) - 1]])
     stored = P0s is not None and with_covariance
     if P0s is not None:
-        args += [None, None] if layout.P0_shared else [aligned(P0s),
+        args += [None, None] if layout.P0_shared else [aligned(P0s, "P0s"),
                                                        "t" + "ij"[:np.ndim(P0s) - 1]]
     width = n + n * n if stored else n
     out = da.blockwise(
-        _dask_block, "tsk", *args, new_axes={"k": width}, concatenate=True, dtype=np.float64,
-        meta=np.empty((0, 0, 0)), kernel=kernel,
-        x0_shared=np.asarray(x0s, np.float64) if layout.x0_shared else None,
-        P0_shared=np.asarray(P0s, np.float64) if layout.P0_shared else None,
-        p=None if p is None else np.asarray(p, np.float64), with_covariance=with_covariance)
+        _dask_block, "tsk", *args, new_axes={"k": width}, concatenate=True,
+        dtype=module.dtype, meta=module.empty((0, 0, 0)), kernel=kernel,
+        x0_shared=shared(x0s, "x0s") if layout.x0_shared else None,
+        P0_shared=shared(P0s, "P0s") if layout.P0_shared else None,
+        p=shared(p, "p"), with_covariance=with_covariance)
     if P0s is None:
         return out
     if not stored:

@@ -8,9 +8,12 @@ NumPy reference on the same data. The bound is
     tol = c * u32 * L * G * kappa,      u32 = 2^-24 (FLOAT.unit_roundoff)
 
 * ``L`` (:func:`run_roundings`): the roundings on the longest chain of the step, read
-  from its lowered C program (:func:`rounding_depth`: each add, sub, mul, div, fma, sqrt
+  from its lowered C programs (:func:`rounding_depth`: each add, sub, mul, div, fma, sqrt
   or call rounds once; a temporary passes its depth on; the two-step map instead where
-  run takes two steps per pass, if deeper), plus those of the other programs run calls
+  run takes two steps per pass, if deeper). Where run calls several programs per step in
+  sequence (:func:`step_programs`: a unit of the run kind ``sensors`` calls ``predict``
+  then each ``update_<sensor>``), the chain runs through all of them and their depths
+  add up. Plus those of the other programs run calls
   on the way to a stored result (init, enter, store, the smoother's backward pass), plus
   2: the rounding of the inputs to float (x0, P0, z) and of the baked constants (each
   rounded once from its double). A chain of L roundings
@@ -30,6 +33,17 @@ NumPy reference on the same data. The bound is
   of magnitude sqrt(H P H^T) computed from values of magnitude |h|: max |h| / sqrt(min
   diag H P H^T), squared since P_zz multiplies two spreads; 1 for a filter whose constants
   are all computed offline in double (sskf, sslf, jssklf, fir, pred).
+* A unit of the run kind ``sensors`` (several sensors at their own rates, gating,
+  update-first) has no one closed loop: its G and kappa are read from the trace of its
+  reference run (derive.reference.sensors, :func:`sensors_conditioning`). The error of
+  step k is carried by that step's map A_k = prod_s (I - K_s H_s) F_k (the sensors
+  present and applied at step k, in order; F_k the transition or the EKF's Jacobian at
+  x(k-1/k-1); no F at an update-first step 0), so G = max_k sum_j ||A_k ... A_{k-j+1}||_inf
+  (:func:`run_growth`) over the endpoints k of the run's last cycle (its last W steps, W
+  the longest gap between two updates of one sensor: the run has settled there, and the
+  cycle holds every phase of the sensors' rates, the step before the slowest sensor's
+  update too), and kappa is the largest cond_2 of every S = H_s P H_s^T + R_s an
+  update solved (each sensor's own, as its update solves it) and of every P(k/k-1).
 * ``c = 2`` (:data:`C`): the state's error and the covariance's error reach the measure by
   two routes (x through the recursion, P directly and through the gain), each bounded by
   the first-order gamma_L; second-order terms (L u)^2 are below 1e-4 of it for L < 2000.
@@ -42,6 +56,7 @@ failed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +65,7 @@ from ..emit.c_loops import two_step
 from ..emit.unit import Unit
 from ..errors import ModelError
 from ..filters import kind
+from ..filters.sensors import program_name, transition_function
 from ..lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
 from ..precision import FLOAT
 from ..riccati import kf_steady
@@ -110,6 +126,14 @@ def rounding_depth(lowered: LoweredProgram) -> int:
 RUN_PROGRAMS = ("init", "enter", "store", "backward")
 
 
+def step_programs(unit: Unit) -> tuple[str, ...]:
+    """The programs run calls one after the other on one step: ``step``, or (a unit
+    without one, of the run kind ``sensors``) ``predict`` then each sensor's update."""
+    if "step" in unit.programs:
+        return ("step",)
+    return ("predict",) + tuple(program_name(s.name) for s in unit.sensors)
+
+
 def run_roundings(unit: Unit) -> int:
     """L: the roundings on the longest chain from run's inputs to a stored result, as the
     C computes them (fma through DERIVE_FMA), plus :data:`EXTRA_ROUNDINGS`."""
@@ -120,7 +144,8 @@ def run_roundings(unit: Unit) -> int:
                                             state_ports=state))
 
     two = two_step(unit, use_fma=True)
-    step = max(depth("step"), rounding_depth(two) if two is not None else 0)
+    step = max(sum(depth(name) for name in step_programs(unit)),
+               rounding_depth(two) if two is not None else 0)
     return step + sum(depth(name) for name in RUN_PROGRAMS if name in unit.programs) + \
         EXTRA_ROUNDINGS
 
@@ -196,14 +221,77 @@ def condition(model, name: str, run) -> float:
     return kappa
 
 
+@dataclass(frozen=True)
+class SensorsConditioning:
+    """What a sensors unit's reference run gives the tolerance: per step the map A_k that
+    carries the error of x(k-1/k-1) to x(k/k); every matrix solved or inverted (each
+    update's S, each P(k/k-1)); and ``cycle``, the longest gap between two updates of one
+    sensor (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
+
+    maps: tuple[np.ndarray, ...]
+    solved: tuple[np.ndarray, ...]
+    cycle: int
+
+
+def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
+    """The :class:`SensorsConditioning` of ``model``'s sensors reference run from its
+    ``trace`` (derive.reference.sensors.StepTrace per step)."""
+    F = transition_function(model)
+    n = model.n
+    maps, solved, present = [], [], {}
+    for k, step in enumerate(trace):
+        A = np.eye(n)
+        if step.P_predicted is not None:
+            A = F(step.x_before, step.u, step.p)
+            solved.append(step.P_predicted)
+        for update in step.updates:
+            solved.append(update.S)
+            present.setdefault(update.sensor, []).append(k)
+            if update.applied:
+                A = (np.eye(n) - update.K @ update.H) @ A
+        maps.append(A)
+    gaps = [int(np.max(np.diff(rows))) if len(rows) > 1 else len(trace)
+            for rows in present.values()]
+    return SensorsConditioning(tuple(maps), tuple(solved),
+                               max(1, min(max(gaps, default=len(trace)), len(trace))))
+
+
+def run_growth(maps: Sequence[np.ndarray], cycle: int = 1) -> float:
+    """max over the endpoints e of the run's last ``cycle`` steps of
+    sum_{j >= 0} ||A_e A_{e-1} ... A_{e-j+1}||_inf (the j = 0 term: 1), the products formed
+    backwards from every endpoint at once; the sums stop once every new term is below
+    2^-24 of its sum."""
+    steps = len(maps)
+    if not steps:
+        return 1.0
+    n = maps[0].shape[0]
+    ends = np.arange(max(steps - cycle, 0), steps)
+    products = np.broadcast_to(np.eye(n), (len(ends), n, n)).copy()
+    sums = np.ones(len(ends))
+    for i in range(steps - 1, 0, -1):
+        active = ends >= i  # the endpoints whose product reaches back past A_i
+        products[active] = products[active] @ maps[i]
+        terms = np.abs(products[active]).sum(axis=2).max(axis=1)
+        sums[active] += terms
+        if active.all() and np.all(terms < FLOAT.unit_roundoff * sums):
+            break
+    return float(sums.max())
+
+
 def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
     """The float32 tolerance of ``unit`` (a filter of ``model``) for a run of ``steps``
     steps; ``run`` (xs, Ps, us): the float64 reference run the conditioning is read from
-    (the KF's for a linear model, the filter's own for a nonlinear one)."""
+    (the KF's for a linear model, the filter's own for a nonlinear one), or for a unit of
+    the run kind ``sensors`` the :class:`SensorsConditioning` of its reference run."""
+    if isinstance(run, SensorsConditioning):
+        return FloatTolerance(
+            roundings=run_roundings(unit), growth=run_growth(run.maps, run.cycle),
+            condition=max([1.0] + [float(np.linalg.cond(M)) for M in run.solved]))
     return FloatTolerance(roundings=run_roundings(unit),
                           growth=error_growth(model, unit.filter, steps, run),
                           condition=condition(model, unit.filter, run))
 
 
-__all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "condition",
-           "error_growth", "float_tolerance", "growth_of", "rounding_depth", "run_roundings"]
+__all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "SensorsConditioning",
+           "condition", "error_growth", "float_tolerance", "growth_of", "rounding_depth",
+           "run_growth", "run_roundings", "sensors_conditioning", "step_programs"]

@@ -190,6 +190,17 @@ def _numeric(model, matrix, arguments):
     return call
 
 
+def transition_function(model):
+    """``F(x, u, p)``: the model's transition matrix (linear: F(p)) or the Jacobian of f
+    with respect to x (nonlinear) at numbers, (n, n), u all of the model's inputs."""
+    params = list(model.parameters)
+    if model.kind == "linear":
+        F = _numeric(model, model.F, [params])
+        return lambda x, u, p: F(p)
+    return _numeric(model, model.F_jacobian,
+                    [list(model.state_symbols), list(model.inputs), params])
+
+
 def reference_functions(model, thresholds):
     """``(predict, [SensorFunctions], unit-norm index groups)`` of ``model`` at numbers,
     with p as an argument (one row per step: dt may vary), for derive.reference.sensors."""
@@ -197,13 +208,13 @@ def reference_functions(model, thresholds):
     groups = sensor_groups(model)
     names = [u.name for u in model.inputs]
     sensors = []
+    F = transition_function(model)
     if model.kind == "linear":
-        F = _numeric(model, model.F, [params])
         B = _numeric(model, model.B, [params])
         W = _numeric(model, model.matrix("GQGt"), [params])
 
         def predict(x, P, u, p):
-            A = F(p)
+            A = F(x, u, p)
             x_new = A @ x + (B(p) @ u if names else 0.0)
             return x_new, A @ P @ A.T + W(p)
 
@@ -219,13 +230,12 @@ def reference_functions(model, thresholds):
     else:
         X, U = list(model.state_symbols), list(model.inputs)
         f = _numeric(model, model.f, [X, U, params])
-        Fx = _numeric(model, model.F_jacobian, [X, U, params])
         Fu = _numeric(model, model.Fu_jacobian, [X, U, params])
         Q = _numeric(model, model.Q, [params])
         Qu = _numeric(model, model.Qu, [params])
 
         def predict(x, P, u, p):
-            A, G = Fx(x, u, p), Fu(x, u, p)
+            A, G = F(x, u, p), Fu(x, u, p)
             Qx = Q(p) + (G @ Qu(p) @ G.T if names else 0.0)
             return f(x, u, p).ravel(), A @ P @ A.T + Qx
 
@@ -243,19 +253,22 @@ def reference_functions(model, thresholds):
     return predict, sensors, unit_norm
 
 
-def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None):
+def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None,
+                  trace: list | None = None):
     """derive.reference.sensors.run for ``model`` and the filter ``options`` from x0 and
     P0 (default: the model's); ``ps``: p, one row per step; ``Rs``: the per-step R of the
-    sensors whose R is given per call."""
+    sensors whose R is given per call; ``trace``: a list each step's
+    derive.reference.sensors.StepTrace is appended to."""
     groups = sensor_groups(model)
     predict, sensors, unit_norm = reference_functions(model, gate_thresholds(groups, options))
     num_x0 = np.array(model.x0.tolist(), dtype=float).ravel() if x0 is None else x0
     num_P0 = np.array(model.P0.tolist(), dtype=float) if P0 is None else P0
     return reference.run(predict, sensors, num_x0, num_P0, zs, us, ps,
                          update_first=options.get("start", "predict") == "update",
-                         unit_norm=unit_norm, Rs=Rs)
+                         unit_norm=unit_norm, Rs=Rs, trace=trace)
 
 
 __all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "gate_thresholds", "kalman_update",
            "program_name", "reference_functions", "reference_run", "renormalised",
-           "sensor_facts", "sensor_groups", "unit_norm_fact", "uses_sensor_run"]
+           "sensor_facts", "sensor_groups", "transition_function", "unit_norm_fact",
+           "uses_sensor_run"]

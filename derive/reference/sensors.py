@@ -7,6 +7,11 @@ Per step k (0-based rows): predict with u(k) and p(k) (skipped at k = 0 with
 ``K = P H^T S^-1``, ``x + K nu``, ``P - K S K^T`` is applied unless a gate is given and
 ``nis`` exceeds it (or is NaN); then each unit-norm group of x is divided by its norm
 (after every update of a present row, applied or not, as the generated update does).
+
+With a ``trace`` list, :func:`run` also records each step's :class:`StepTrace` (the state
+it predicted from, P(k/k-1), and each present sensor's H, S and gain K): what the float32
+tolerance of derive.apps.float_tolerance reads the run's conditioning and error growth
+from.
 """
 
 from __future__ import annotations
@@ -42,17 +47,47 @@ class SensorsResult:
     applied: dict[str, np.ndarray]
 
 
-def update(x, P, z, h, H, R, gate=None):
-    """One update with all of z: (x, P, nis, applied)."""
+@dataclass(frozen=True)
+class UpdateTrace:
+    """One sensor's update of a step: its H, S = H P H^T + R, the gain K = P H^T S^-1,
+    and whether it was applied (not gated out)."""
+
+    sensor: str
+    H: np.ndarray
+    S: np.ndarray
+    K: np.ndarray
+    applied: bool
+
+
+@dataclass(frozen=True)
+class StepTrace:
+    """One step of a run: x, u and p it predicted from (``P_predicted`` None: no
+    prediction, the update-first step 0), P(k/k-1), and its updates in order."""
+
+    x_before: np.ndarray
+    u: np.ndarray
+    p: np.ndarray
+    P_predicted: np.ndarray | None
+    updates: tuple[UpdateTrace, ...]
+
+
+def _update(x, P, z, h, H, R, gate=None):
+    """One update with all of z: (x, P, nis, S, K, applied)."""
     nu = z - h
     S = H @ P @ H.T + R
     nis = float(nu @ np.linalg.solve(S, nu))
-    if gate is not None and not nis <= gate:
-        return x, P, nis, False
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
+    if gate is not None and not nis <= gate:
+        return x, P, nis, S, K, False
     x = x + K @ nu
     P = P - K @ S @ K.T
-    return x, (P + P.T) / 2, nis, True
+    return x, (P + P.T) / 2, nis, S, K, True
+
+
+def update(x, P, z, h, H, R, gate=None):
+    """One update with all of z: (x, P, nis, applied)."""
+    x, P, nis, _, _, applied = _update(x, P, z, h, H, R, gate)
+    return x, P, nis, applied
 
 
 def renormalise(x, groups: Sequence[Sequence[int]]):
@@ -66,11 +101,12 @@ def renormalise(x, groups: Sequence[Sequence[int]]):
 
 def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict, us=None,
         ps=None, update_first: bool = False, unit_norm: Sequence[Sequence[int]] = (),
-        Rs: dict | None = None) -> SensorsResult:
+        Rs: dict | None = None, trace: list | None = None) -> SensorsResult:
     """The multi-sensor filter over ``zs`` (``{sensor: (steps, m_s)}``, rows of NaN:
     absent); ``predict(x, P, u, p) -> (x, P)``; ``us`` (steps, n_u) and ``ps`` (steps, np)
     one row per step (None: empty rows); ``Rs``: ``{sensor: (steps, m_s, m_s)}`` for the
-    sensors whose R is given per step."""
+    sensors whose R is given per step; ``trace``: a list :class:`StepTrace` s are appended
+    to, one per step."""
     steps = len(next(iter(zs.values())))
     x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
     n = x.shape[0]
@@ -80,22 +116,28 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
     nis = {s.name: np.full(steps, np.nan) for s in sensors}
     applied = {s.name: np.zeros(steps) for s in sensors}
     for k in range(steps):
+        x_before, predicted, updates = x, None, []
         if k or not update_first:
             x, P = predict(x, P, us[k], ps[k])
+            predicted = P
         for s in sensors:
             z = np.asarray(zs[s.name][k], dtype=float)
             if np.isnan(z).any():
                 continue
             u = us[k, list(s.columns)]
-            x, P, nis[s.name][k], done = update(
-                x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(),
-                np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), n),
+            H = np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), n)
+            x, P, nis[s.name][k], S, K, done = _update(
+                x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(), H,
                 np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
                            dtype=float).reshape(len(z), len(z)), s.gate)
             applied[s.name][k] = float(done)
+            updates.append(UpdateTrace(s.name, H, S, K, done))
             x = renormalise(x, unit_norm)  # after every update call, applied or not
         xs[k], Ps[k] = x, P
+        if trace is not None:
+            trace.append(StepTrace(x_before, us[k], ps[k], predicted, tuple(updates)))
     return SensorsResult(xs, Ps, nis, applied)
 
 
-__all__ = ["SensorFunctions", "SensorsResult", "renormalise", "run", "update"]
+__all__ = ["SensorFunctions", "SensorsResult", "StepTrace", "UpdateTrace", "renormalise",
+           "run", "update"]
