@@ -100,32 +100,30 @@ def check_entries(matrices: Mapping[str, sympy.MatrixBase],
     """Refuse an entry whose symbols all have values in ``at`` but that is not a finite
     double there; name the matrix, the entry, its expression and the values."""
     for name, mat in matrices.items():
-        for i in range(mat.rows):
-            for j in range(mat.cols):
-                entry = mat[i, j]
-                if entry.is_Rational and abs(entry) <= DOUBLE_MAX:
-                    continue
-                symbols = entry.free_symbols
-                if any(s not in at for s in symbols):
-                    continue
-                where = f"{name}[{i}]" if mat.cols == 1 and name in ("f", "h", "x0") \
-                    else f"{name}[{i}][{j}]"
-                values = ", ".join(f"{s.name} = {decimal(at[s])}"
-                                   for s in sorted(symbols, key=lambda s: s.name))
-                at_text = f" at {values}" if values else ""
-                try:
-                    problem = _problem(_floating(entry, at))
-                except TypeError:  # a construct floats cannot evaluate: left to sympy
-                    continue
-                except _Beyond:
-                    problem = (f"inf (an intermediate value exceeds 2**{MAX_EXPONENT_BITS}, "
-                               "far beyond the range of a double)")
-                if problem is None:
-                    bits = _exact_bits(entry, at)
-                    if bits > MAX_EXACT_BITS:
-                        raise NotFiniteError(
-                            f"{where} = {entry}{at_text} needs an exact number of about "
-                            f"{bits} bits, more than the limit of {MAX_EXACT_BITS}")
-                    continue
-                raise NotFiniteError(f"{where} = {entry} is not a finite double{at_text}: "
-                                     f"it evaluates to {problem}")
+        for (i, j), entry in sorted(mat.todok().items()):  # a zero entry is always finite
+            if entry.is_Rational and abs(entry) <= DOUBLE_MAX:
+                continue
+            symbols = entry.free_symbols
+            if any(s not in at for s in symbols):
+                continue
+            where = f"{name}[{i}]" if mat.cols == 1 and name in ("f", "h", "x0") \
+                else f"{name}[{i}][{j}]"
+            values = ", ".join(f"{s.name} = {decimal(at[s])}"
+                               for s in sorted(symbols, key=lambda s: s.name))
+            at_text = f" at {values}" if values else ""
+            try:
+                problem = _problem(_floating(entry, at))
+            except TypeError:  # a construct floats cannot evaluate: left to sympy
+                continue
+            except _Beyond:
+                problem = (f"inf (an intermediate value exceeds 2**{MAX_EXPONENT_BITS}, "
+                           "far beyond the range of a double)")
+            if problem is None:
+                bits = _exact_bits(entry, at)
+                if bits > MAX_EXACT_BITS:
+                    raise NotFiniteError(
+                        f"{where} = {entry}{at_text} needs an exact number of about "
+                        f"{bits} bits, more than the limit of {MAX_EXACT_BITS}")
+                continue
+            raise NotFiniteError(f"{where} = {entry} is not a finite double{at_text}: "
+                                 f"it evaluates to {problem}")

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 from derive.lowering import Op, Tree, lower_program
@@ -79,9 +79,7 @@ def _kind_field(kind: str) -> str:
     return "calls" if kind.startswith("call:") else kind
 
 
-def count_tree(tree: Tree) -> OpCount:
-    """Operations in one lowered tree."""
-    tally: dict[str, int] = {}
+def _tally_tree(tree: Tree, tally: dict[str, int]) -> None:
     stack = [tree]
     while stack:
         node = stack.pop()
@@ -89,18 +87,24 @@ def count_tree(tree: Tree) -> OpCount:
             key = _kind_field(node.kind)
             tally[key] = tally.get(key, 0) + 1
             stack.extend(node.args)
+
+
+def count_tree(tree: Tree) -> OpCount:
+    """Operations in one lowered tree."""
+    tally: dict[str, int] = {}
+    _tally_tree(tree, tally)
     return OpCount(**tally)
 
 
 def count_lowered(lowered: LoweredProgram) -> OpCount:
     """Operations of a lowered program (the results are atoms and cost nothing)."""
-    total = OpCount()
+    tally: dict[str, int] = {}
     for statement in lowered.body:
-        total = total + count_tree(statement.tree)
+        _tally_tree(statement.tree, tally)
     for _, leaves in lowered.results:
         for leaf in leaves:
-            total = total + count_tree(leaf)
-    return total
+            _tally_tree(leaf, tally)
+    return OpCount(**tally)
 
 
 def count(program: Program, lang: str = "python", *, use_fma: bool | None = None) -> OpCount:
@@ -318,6 +322,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA") -> OpCount:
     tokens = _tokens(text)
     tally = dict.fromkeys((f.name for f in fields(OpCount)), 0)
     prev: str | None = None
+    depth = 0  # inside [...]: an element's address, not arithmetic of the program
     for k, (kind, tok) in enumerate(tokens):
         nxt = tokens[k + 1] if k + 1 < len(tokens) else (None, None)
         if kind == "name" and nxt[1] == "(":
@@ -327,7 +332,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA") -> OpCount:
                 tally["sqrt"] += 1
             elif tok not in ("if", "return", "sizeof", "for", "while", "switch", "void"):
                 tally["calls"] += 1
-        elif kind == "op":
+        elif kind == "op" and not depth:
             unary = prev is None or prev in _UNARY_BEFORE
             if tok == "-":
                 if not unary:
@@ -342,6 +347,10 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA") -> OpCount:
                 tally["div"] += 1
             elif tok in _COMPARISONS:
                 tally["cmp"] += 1
+        if tok == "[":
+            depth += 1
+        elif tok == "]":
+            depth -= 1
         prev = tok
     return OpCount(**tally)
 
@@ -367,5 +376,27 @@ def c_function_body(source: str, function_name: str) -> str:
 
 
 def count_c_function(source: str, function_name: str) -> OpCount:
-    """:func:`count_c_text` of the body of one function in C source."""
-    return count_c_text(c_function_body(source, function_name))
+    """:func:`count_c_text` of the body of one function in C source, a call of a function
+    the source defines counted as that function's operations (:func:`count_c_calls`)."""
+    return count_c_calls(source, c_function_body(source, function_name))
+
+
+def count_c_calls(source: str, text: str) -> OpCount:
+    """:func:`count_c_text` of ``text``, where a call of a function that ``source`` defines
+    counts as that function's operations, not as a call (a generated step, run's loop and
+    run_tracks call the step body: the step's statements printed once in the file)."""
+    total = count_c_text(text)
+    called = re.findall(r"\b([A-Za-z_]\w*)\s*\(", re.sub(r"/\*.*?\*/", " ", text, flags=re.S))
+    for name in called:
+        if name in _C_WORDS:
+            continue
+        try:
+            body = c_function_body(source, name)
+        except ValueError:  # not defined here: a math.h call, a macro
+            continue
+        total = total + count_c_calls(source, body)
+        total = replace(total, calls=total.calls - 1)
+    return total
+
+
+_C_WORDS = ("if", "return", "sizeof", "for", "while", "switch", "void", "sqrt", "DERIVE_FMA")

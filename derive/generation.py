@@ -16,22 +16,51 @@ from . import catalog
 from .emit.render import render_c, render_python
 from .emit.unit import Unit
 from .emit.write import write_files
-from .errors import FilterError
+from .errors import FilterError, ModelFileError
 from .filters import available, derive_unit, kind
+from .filters.blockwise import whole_size
+from .filters.sensors import uses_sensor_run
 from .model import ModelRef
-from .modelfile import load_model_file
+from .modelfile import MAX_BLOCK_SIZE, load_model_file
 from .options import SharedOptions, per_filter, regenerate_command, validate
 
 LANGS = ("python", "c", "all")
+
+
+def is_model_file(ref: str) -> bool:
+    """True when the model reference ``ref`` names a model file (not a catalog model)."""
+    return ref.endswith(".toml") or "/" in ref or "\\" in ref
 
 
 def resolve_model(model):
     """A model object from a model, a catalog name or a model-file path."""
     if not isinstance(model, str):
         return model
-    if model.endswith(".toml") or "/" in model or "\\" in model:
+    if is_model_file(model):
         return load_model_file(model)
     return catalog.load(model)
+
+
+def file_bound_refusal(model, name: str, options: SharedOptions, model_ref: str | None
+                       ) -> str | None:
+    """Why filter ``name`` is refused for the model of file ``model_ref``: the part of it
+    the filter derives at once is larger than a model file may ask for
+    (derive.modelfile.MAX_BLOCK_SIZE); None for a model given as an object or a catalog
+    name, or within the bound."""
+    if model_ref is None or not is_model_file(model_ref):
+        return None
+    spec = kind(name)
+    pattern = getattr(options, "P0_pattern", None)
+    # the run kind sensors (predict and one update per sensor) derives the model whole
+    sensor_run = spec.sensors and uses_sensor_run(model, options)
+    size = max(model.n, model.m) if sensor_run else whole_size(model, spec, pattern)
+    if size <= MAX_BLOCK_SIZE:
+        return None
+    why = ("its P0 pattern dense couples the blocks"
+           if spec.blockwise and spec.covariance and not sensor_run
+           else "it derives the model whole, not block by block")
+    return (f"{model_ref}: filter {name!r} would derive {size} states or measurements at "
+            f"once ({why}), more than the limit of {MAX_BLOCK_SIZE} for a model file")
 
 
 def check_lang(lang: str) -> None:
@@ -45,6 +74,9 @@ def command_unit(model, name: str, options: Mapping | SharedOptions | None = Non
     """The Unit of one filter, its options validated, carrying the command that
     regenerates its files (``derive generate MODEL_REF ... --out OUT_LABEL``)."""
     typed = validate(name, options)
+    refusal = file_bound_refusal(model, name, typed, model_ref)
+    if refusal is not None:
+        raise ModelFileError(refusal)
     unit = derive_unit(model, name, typed)
     return dataclasses.replace(unit, command=regenerate_command(model_ref or model.name, name,
                                                                 typed, out_label))
@@ -83,6 +115,9 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     for name in names:
         kind(name)
     typed = per_filter(names, options, per_filter_options, named=filters is not None)
+    if filters is None:  # all that apply: those within a model file's bound
+        names = [name for name in names
+                 if file_bound_refusal(model, name, typed[name], ref) is None]
     files: dict[str, str] = {}
     units = []
     for name in names:

@@ -94,7 +94,9 @@ class Function:
     has_steps: bool = False
 
     def c_line(self) -> str:
-        args = (["steps"] if self.has_steps else []) + [a.c_text() for a in self.arguments]
+        tracks = ["tracks"] if self.program == "run_tracks" else []  # run's arrays per track
+        args = (["steps"] if self.has_steps else []) + tracks + [a.c_text()
+                                                                 for a in self.arguments]
         return f"    {'int' if self.returns_status else 'void'} {self.name}({', '.join(args)})"
 
     def python_line(self) -> str:

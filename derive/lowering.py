@@ -172,8 +172,35 @@ def depth(tree: Tree) -> int:
     return 0
 
 
+def negative_number(value: sympy.Expr) -> bool:
+    """``value.is_negative`` for a sympy number, answered directly for the kinds derivations
+    make (a Rational by its numerator, a Float by comparison): sympy's assumption system
+    deduces every fact of each new number it is asked about, about 0.1 ms each, which
+    dominated the generation of dense models."""
+    if value.is_Rational:
+        return value.p < 0
+    if value.is_Float:
+        return bool(value < 0)
+    return bool(value.is_negative)
+
+
+_CONSTANTS: dict[sympy.Expr, float] = {}
+"""constant_value's results by expression (numbers recur across a program's statements)."""
+
+
 def constant_value(expr: sympy.Expr) -> float:
     """The double nearest to a numeric sympy expression; non-finite or complex raises."""
+    known = _CONSTANTS.get(expr)
+    if known is not None:
+        return known
+    result = _constant_value(expr)
+    if len(_CONSTANTS) > 100_000:
+        _CONSTANTS.clear()
+    _CONSTANTS[expr] = result
+    return result
+
+
+def _constant_value(expr: sympy.Expr) -> float:
     value = expr if expr.is_Float else sympy.N(expr, 40)
     if not value.is_real:
         raise LoweringError(f"constant {expr} is not a real number")
@@ -252,7 +279,7 @@ class _Lowerer:
         for factor in sympy.Mul.make_args(rest):
             if factor.is_number:
                 coeff = coeff * factor
-            elif factor.is_Pow and factor.exp.is_Rational and factor.exp.is_negative:
+            elif factor.is_Pow and factor.exp.is_Rational and negative_number(factor.exp):
                 denominator.append(sympy.Pow(factor.base, -factor.exp))
             else:
                 numerator.append(factor)
@@ -285,7 +312,7 @@ class _Lowerer:
                 constant += term
                 continue
             coeff, rest = term.as_coeff_Mul()
-            if coeff.is_negative:
+            if negative_number(coeff):
                 terms.append((-1, self._product(-coeff, rest)))
             else:
                 terms.append((1, self.lower(term)))
@@ -495,3 +522,19 @@ def lower_program(program: Program, *, use_fma: bool = False,
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                           tuple(body), results, use_fma)
+
+
+def expression_lowerer(*, use_fma: bool = False,
+                       state_ports: tuple[str, ...] = STATE_PORTS) -> Callable[[sympy.Basic], Tree]:
+    """One expression's tree exactly as :func:`lower_program` lowers it inside a program
+    (same fma and ordering rules), remembered per expression: for passes that lower the
+    same statements again and again (derive.schedule scores each rewrite it tries)."""
+    lowerer = _Lowerer(use_fma, state_ports)
+    trees: dict[sympy.Basic, Tree] = {}
+
+    def lower_one(expr: sympy.Basic) -> Tree:
+        tree = trees.get(expr)
+        if tree is None:
+            tree = trees[expr] = lowerer.lower(expr)
+        return tree
+    return lower_one

@@ -12,6 +12,7 @@ H, R, D; nonlinear: h, R) in declaration order take the place of the stacked H (
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -793,10 +794,21 @@ class NonlinearModel(_Model):
         self._initial(x0, P0, P0_pattern)
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
-        self.F_jacobian = jacobian(self.f, self.state_symbols)
-        self.H_jacobian = jacobian(self.h, self.state_symbols)
-        self.Fu_jacobian = (jacobian(self.f, self.inputs) if self.inputs
-                            else sympy.ImmutableMatrix.zeros(n, 0))
+
+    # The Jacobians are derived when first asked for (the EKF derives its own, simplified
+    # and shared with f and h; these serve the references, the UKF and derive show).
+    @functools.cached_property
+    def F_jacobian(self) -> sympy.ImmutableMatrix:
+        return jacobian(self.f, self.state_symbols)
+
+    @functools.cached_property
+    def H_jacobian(self) -> sympy.ImmutableMatrix:
+        return jacobian(self.h, self.state_symbols)
+
+    @functools.cached_property
+    def Fu_jacobian(self) -> sympy.ImmutableMatrix:
+        return (jacobian(self.f, self.inputs) if self.inputs
+                else sympy.ImmutableMatrix.zeros(self.n, 0))
 
     def _stack_sensors(self, sensor_list, table: SymbolTable):
         """The sensors' h (stacked) and R (block diagonal), each checked under the

@@ -95,6 +95,7 @@ from derive.expressions import (
     parse_expression,
 )
 from derive.model import P0_PATTERNS, R_ARGUMENT, LinearModel, NonlinearModel, Sensor
+from derive.structure import largest_block_size
 from derive.symbols import check_identifier
 from derive.toml_limits import toml_shape_problem
 
@@ -107,11 +108,18 @@ MAX_FILE_BYTES = 1_000_000
 """Largest model file accepted (at most this much is read, whatever the file system says)."""
 MAX_COMPOSE_DEPTH = 8
 """Deepest nesting of [compose] files."""
-MAX_STATES = 32
-"""Most states of a model, composed or not: the generated filters are unrolled, with work
-growing as the cube of the states (32 states take tens of seconds for every filter)."""
-MAX_MEASUREMENTS = 32
-"""Most measurements of a model."""
+MAX_STATES = 256
+"""Most states of a model, composed or not, when it splits into independent blocks of at
+most MAX_BLOCK_SIZE states and measurements (derive.structure.find_blocks): filters that
+derive such a model block by block do work linear in the blocks (120 constant-velocity
+axes, 240 states, take seconds)."""
+MAX_MEASUREMENTS = 256
+"""Most measurements of a model (with the same condition)."""
+MAX_BLOCK_SIZE = 32
+"""Most states, and most measurements, of one independent block of a model, and of a
+model derived whole (nonlinear, continuous, or a filter that does not work block by
+block: derive.filters.blockwise.whole_size): the generated filters are unrolled, with
+work growing as the cube of the part derived at once (32 states take tens of seconds)."""
 MAX_INPUTS = 128
 """Most per-step inputs of a model."""
 _MAX_NAMES = {"states": MAX_STATES, "measurements": MAX_MEASUREMENTS, "inputs": MAX_INPUTS}
@@ -459,7 +467,7 @@ class _File:
             "source": self.string(model, "source", "[model]"),
         }
         if kind == "compose":
-            return self.compose(model, header)
+            return self.bounded(self.compose(model, header), "[compose] blocks")
         sensors = self.sensor_tables(kind)
         for key in ("states",) + (() if sensors else ("measurements",)):
             if key not in model:
@@ -470,6 +478,12 @@ class _File:
         states = self.names(model, "states", "[model]")
         measurements = (self.names(model, "measurements", "[model]") if not sensors else
                         [z for _, table in sensors for z in table["measurements"]])
+        if kind in ("nonlinear", "continuous"):  # derived (discretised) whole
+            for key, names in (("states", states), ("measurements", measurements)):
+                if len(names) > MAX_BLOCK_SIZE:
+                    raise self.error(f"[model] {key}", f"{len(names)} names, more than the "
+                                                       f"limit of {MAX_BLOCK_SIZE} of a "
+                                                       f"[{kind}] model")
         body = self.table(kind)
         if sensors:
             for key in ("h", "H", "R", "D"):
@@ -492,8 +506,21 @@ class _File:
         if self.examples:
             arguments["examples"] = {k: v for k, v in self.examples.items()
                                      if k in arguments["parameters"]}
-        return self.construct(kind, header, states, None if sensors else measurements,
-                              arguments)
+        return self.bounded(self.construct(kind, header, states,
+                                           None if sensors else measurements, arguments),
+                            "[model] states")
+
+    def bounded(self, model: LinearModel | NonlinearModel,
+                where: str) -> LinearModel | NonlinearModel:
+        """``model`` when no part of it a filter must derive at once is larger than
+        MAX_BLOCK_SIZE (its largest independent block), else the error naming the sizes."""
+        largest = largest_block_size(model)
+        if largest > MAX_BLOCK_SIZE:
+            raise self.error(where, f"{model.n} states and {model.m} measurements whose "
+                                    f"largest independent block has {largest} states or "
+                                    f"measurements, more than the limit of {MAX_BLOCK_SIZE} "
+                                    "(F, G Q G^T, H and R must split into blocks that small)")
+        return model
 
     def read_parameters(self, states: list[str], measurements: list[str],
                         inputs: list[str], inputs_where: str) -> None:

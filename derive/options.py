@@ -138,6 +138,10 @@ class SharedOptions:
         "double", flag="--precision", kind=str, choices=PRECISIONS,
         help="C: the floating-point type of the generated C, double or float (float32; "
              "the Python stays double)")
+    run: bool = option(
+        True, flag="--no-run", kind=bool,
+        help="C: leave out MODEL_FILTER_run (run_tracks, when kept, keeps it as a static "
+             "function for its last tracks); --lang c leaves out the Python file")
 
     def __post_init__(self) -> None:
         for key, spec in self.specs().items():
@@ -164,6 +168,10 @@ class KalmanOptions(SharedOptions):
     joseph: bool = option(
         False, flag="--joseph", kind=bool,
         help="Joseph-form covariance update")
+    latency_schedule: bool = option(
+        False, flag="--latency-schedule", kind=bool,
+        help="a shorter carried chain for the run loop at the price of some flops "
+             "(derive burden prints both chains and the flops added)")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -168,12 +168,15 @@ class Program:
         self._elements: dict[str, list[InputElement]] = {}
         self._owner: dict[sympy.Symbol, str] = {}
         for port in self.inputs:
-            flat = []
-            for k in range(port.size):
-                if port.symmetric:
-                    i, j = divmod(k, port.shape[1])
-                    k = min(i, j) * port.shape[1] + max(i, j)
-                flat.append(InputElement(f"{port.name}[{k}]"))
+            if port.symmetric:  # (j, i) reads (i, j), the upper triangle's element
+                cols = port.shape[1]
+                flat = [None] * port.size
+                for i in range(port.shape[0]):
+                    for j in range(i, cols):
+                        flat[i * cols + j] = flat[j * cols + i] = InputElement(
+                            f"{port.name}[{i * cols + j}]")
+            else:
+                flat = [InputElement(f"{port.name}[{k}]") for k in range(port.size)]
             self._elements[port.name] = flat
             for sym in flat:
                 self._owner[sym] = port.name
@@ -345,7 +348,7 @@ class Program:
             if value.is_positive is not True:
                 raise MatrixPropertyError(f"{message} (the value is structurally {value})")
             return
-        self._body.append(Check(value, str(message)))
+        self._body.append(Check(value, message if isinstance(message, str) else str(message)))
 
     def require_zero(self, element: InputElement, message: str) -> None:
         """Runtime check that the input element ``element`` is exactly 0 (a NaN fails).
@@ -385,6 +388,26 @@ class Program:
 
         body, results = optimize_body(self._body, self._results, fresh)
         return self._final(body, results)
+
+    def assembled(self, body: Sequence[Statement], results: dict[str, Sequence[sympy.Expr]],
+                  *, optimize: bool) -> Program:
+        """A final program with this one's ports and a ``body`` built elsewhere (renamed
+        parts of other programs: :mod:`derive.filters.blockwise`), its temporaries named
+        ``t0, t1, ...`` in order, each output port's atoms in ``results``; optimised as a
+        whole when ``optimize``, else taken as it is."""
+        self._check_open()
+        missing = [p.name for p in self.outputs if p.name not in results]
+        if missing:
+            raise ProgramError(f"program {self.name!r}: outputs {missing} were never set")
+        results = {name: tuple(values) for name, values in results.items()}
+        if not optimize:
+            return self._final(list(body), results)
+        out = Program(self.name, self.inputs, self.outputs, self.doc)
+        out._body = list(body)
+        out._results = results
+        out._defined = {st.target: k for k, st in enumerate(out._body) if isinstance(st, Assign)}
+        out._counter = len(out._defined)
+        return out.optimize()
 
     def _final(self, body: list[Statement], results: dict[str, tuple[sympy.Expr, ...]]) -> Program:
         out = Program(self.name, self.inputs, self.outputs, self.doc)

@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 import sympy
 
 from derive.errors import MatrixPropertyError, ShapeError
+from derive.lowering import negative_number
 from derive.program import Program
 
 
@@ -51,7 +52,7 @@ def _stage(prog: Program, expr: sympy.Expr, hint: str = "t") -> sympy.Expr:
     """``prog.let(expr)``; an expression whose every term is negative is staged positive and
     returned negated (``-t``), so the sign folds into later sums instead of costing a neg."""
     expr = sympy.sympify(expr)
-    if not expr.is_number and all(term.as_coeff_Mul()[0].is_negative
+    if not expr.is_number and all(negative_number(term.as_coeff_Mul()[0])
                                   for term in sympy.Add.make_args(expr)):
         return -prog.let(-expr, hint)
     return prog.let(expr, hint)
@@ -127,7 +128,37 @@ def transpose(A: sympy.Matrix) -> sympy.Matrix:
     return _need_matrix(A, "transpose").T
 
 
-def _ldl(prog: Program, S: sympy.Matrix, name: str):
+class PivotMessage(str):
+    """The message of a pivot check (``S is not positive definite: pivot 2 of its LDL^T
+    factorisation is not positive``) that remembers its parts: ``axis`` says what the
+    factorised matrix's rows are (``"states"``, ``"measurements"``; None: not said), so
+    the program of one block of a model can name the pivot by its row in the whole model
+    (:meth:`renumbered`, used by :mod:`derive.filters.blockwise`)."""
+
+    matrix: str
+    pivot: int
+    factorisation: str
+    axis: str | None
+
+    def __new__(cls, matrix: str, pivot: int, factorisation: str, axis: str | None = None):
+        text = (f"{matrix} is not positive definite: pivot {pivot} of its {factorisation} "
+                "factorisation is not positive")
+        message = super().__new__(cls, text)
+        message.matrix, message.pivot = matrix, pivot
+        message.factorisation, message.axis = factorisation, axis
+        return message
+
+    def renumbered(self, rows: dict[str, Sequence[int]]) -> PivotMessage:
+        """The same message with the pivot numbered by ``rows[axis]`` (row i of the
+        factorised matrix is row ``rows[axis][i]`` of the whole); unchanged without an
+        axis."""
+        if self.axis is None:
+            return self
+        return PivotMessage(self.matrix, rows[self.axis][self.pivot], self.factorisation,
+                            self.axis)
+
+
+def _ldl(prog: Program, S: sympy.Matrix, name: str, axis: str | None = None):
     """Unit lower ``L``, pivots ``D`` and their reciprocals (one division each)."""
     m = _need_square(S, name, "ldl")
     L = sympy.eye(m)
@@ -136,8 +167,7 @@ def _ldl(prog: Program, S: sympy.Matrix, name: str):
     Dinv: list[sympy.Expr] = []
     for j in range(m):
         d = _stage(prog, S[j, j] - _dot([E[j, k] * L[j, k] for k in range(j)]), "d")
-        prog.require_positive(d, f"{name} is not positive definite: pivot {j} of its "
-                                 "LDL^T factorisation is not positive")
+        prog.require_positive(d, PivotMessage(name, j, "LDL^T", axis))
         D.append(d)
         Dinv.append(_stage(prog, 1 / d, "dinv"))
         for i in range(j + 1, m):
@@ -163,28 +193,49 @@ def ldl(prog: Program, S: sympy.Matrix, *, name: str = "S") -> tuple[sympy.Matri
 DIRECT_DIVISIONS = 2
 
 
-def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
-              name: str = "S") -> sympy.Matrix:
-    """``S^-1 B`` for symmetric positive-definite ``S`` via LDL^T: forward, diagonal, back.
+def forward_substitute(prog: Program, L: sympy.Matrix, B: sympy.Matrix) -> sympy.Matrix:
+    """``L^-1 B`` for unit lower-triangular ``L`` (column by column)."""
+    Y = sympy.zeros(L.rows, B.cols)
+    for c in range(B.cols):
+        for i in range(L.rows):
+            Y[i, c] = _stage(prog, B[i, c] - _dot([L[i, k] * Y[k, c] for k in range(i)]))
+    return Y
+
+
+def ldl_forward(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
+                name: str = "S", axis: str | None = None
+                ) -> tuple[sympy.Matrix, sympy.Matrix, sympy.Matrix]:
+    """``(L, Y, Z)``: ``S = L D L^T``, ``Y = L^-1 B`` (forward substitution) and
+    ``Z = D^-1 Y``, the first two stages of :func:`spd_solve`. Then ``S^-1 B = L^-T Z``
+    and ``B^T S^-1 B = Z^T Y``, which needs no back substitution (a Kalman gain's
+    ``P H^T S^-1 H P`` from ``B = H P``).
 
     Per pivot, the entries it divides are divided directly when there are at most
     `DIRECT_DIVISIONS` of them (m = 1 with a 2-column B: two divisions), else one
-    reciprocal is shared by all of them (m = 1: exactly one ``1/S``).
+    reciprocal is shared by all of them (m = 1: exactly one ``1/S``).  ``axis``: what
+    ``S``'s rows are (see :class:`PivotMessage`).
     """
     m = _need_square(S, name, "spd_solve")
     _need_matrix(B, "spd_solve")
     if B.rows != m:
         raise ShapeError(f"spd_solve: {name} has shape {_shape(S)} but B has shape {_shape(B)}")
-    L, D, Dinv = _ldl(prog, S, name)
-    Y = sympy.zeros(m, B.cols)
-    for c in range(B.cols):
-        for i in range(m):
-            Y[i, c] = _stage(prog, B[i, c] - _dot([L[i, k] * Y[k, c] for k in range(i)]))
+    L, D, Dinv = _ldl(prog, S, name, axis)
+    Y = forward_substitute(prog, L, B)
     Z = sympy.zeros(m, B.cols)
     for i in range(m):
         direct = sum(1 for c in range(B.cols) if Y[i, c] != 0) <= DIRECT_DIVISIONS
         for c in range(B.cols):
             Z[i, c] = _stage(prog, Y[i, c] / D[i] if direct else Y[i, c] * Dinv[i])
+    return L, Y, Z
+
+
+def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
+              name: str = "S", axis: str | None = None) -> sympy.Matrix:
+    """``S^-1 B`` for symmetric positive-definite ``S`` via LDL^T: forward, diagonal
+    (:func:`ldl_forward`), back; ``axis``: what ``S``'s rows are (see
+    :class:`PivotMessage`)."""
+    L, _, Z = ldl_forward(prog, S, B, name=name, axis=axis)
+    m = L.rows
     X = sympy.zeros(m, B.cols)
     for c in range(B.cols):
         for i in reversed(range(m)):
@@ -192,10 +243,12 @@ def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     return X
 
 
-def spd_inverse(prog: Program, S: sympy.Matrix, *, name: str = "S") -> sympy.Matrix:
-    """``S^-1`` (symmetric) of a symmetric positive-definite ``S``: ``W^T D^-1 W``, ``W = L^-1``."""
+def spd_inverse(prog: Program, S: sympy.Matrix, *, name: str = "S",
+                axis: str | None = None) -> sympy.Matrix:
+    """``S^-1`` (symmetric) of a symmetric positive-definite ``S``: ``W^T D^-1 W``, ``W = L^-1``;
+    ``axis``: what ``S``'s rows are (see :class:`PivotMessage`)."""
     m = _need_square(S, name, "spd_inverse")
-    L, _, Dinv = _ldl(prog, S, name)
+    L, _, Dinv = _ldl(prog, S, name, axis)
     W = sympy.eye(m)
     for j in range(m):
         for i in range(j + 1, m):

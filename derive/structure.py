@@ -46,6 +46,13 @@ def _components(size: int, edges) -> list[list[int]]:
     return sorted(groups.values())
 
 
+def _nonzero(mat) -> list[tuple[int, int]]:
+    """The positions of the entries of ``mat`` that are not zero, read from its sparse form
+    (a k-block model holds k blocks' entries, not n^2; todok keeps a 0.0, which != 0
+    drops)."""
+    return [position for position, value in mat.todok().items() if value != 0]
+
+
 def find_blocks(model) -> list[Block]:
     """Split ``model`` into independent blocks, ordered by their first state.
 
@@ -58,11 +65,11 @@ def find_blocks(model) -> list[Block]:
     ns = [n + c for c in range(q)]
     me = [n + q + k for k in range(m)]
     edges = []
-    edges += [(st[i], st[j]) for i in range(n) for j in range(n) if F[i, j] != 0]
-    edges += [(st[i], ns[c]) for i in range(n) for c in range(q) if G[i, c] != 0]
-    edges += [(ns[c], ns[d]) for c in range(q) for d in range(q) if Q[c, d] != 0]
-    edges += [(me[k], st[i]) for k in range(m) for i in range(n) if H[k, i] != 0]
-    edges += [(me[k], me[j]) for k in range(m) for j in range(m) if R[k, j] != 0]
+    edges += [(st[i], st[j]) for i, j in _nonzero(F)]
+    edges += [(st[i], ns[c]) for i, c in _nonzero(G)]
+    edges += [(ns[c], ns[d]) for c, d in _nonzero(Q)]
+    edges += [(me[k], st[i]) for k, i in _nonzero(H)]
+    edges += [(me[k], me[j]) for k, j in _nonzero(R)]
     blocks = []
     for comp in _components(n + q + m, edges):
         s = tuple(a for a in comp if a < n)
@@ -79,6 +86,24 @@ def find_blocks(model) -> list[Block]:
         s, k, c = blocks[0]
         return [Block(s, k, c, model)]
     return [_sub_block(model, i, s, k, c) for i, (s, k, c) in enumerate(blocks)]
+
+
+def largest_block_size(model) -> int:
+    """The size (states or measurements, the larger) of the largest part of ``model`` a
+    filter may have to derive at once: its largest independent block (all of a nonlinear
+    model, or of one whose blocks :func:`find_blocks` refuses)."""
+    if model.kind != "linear":
+        return max(model.n, model.m)
+    try:
+        blocks = find_blocks(model)
+    except SymbolError:
+        return max(model.n, model.m)
+    return max(block_size(block) for block in blocks)
+
+
+def block_size(block: Block) -> int:
+    """The larger of a block's numbers of states and measurements."""
+    return max(len(block.states), len(block.measurements))
 
 
 def _sub_block(model, index: int, s, k, c) -> Block:

@@ -132,11 +132,48 @@ def check_stabilizable(F, G, Q) -> None:
             "no steady-state filter exists")
 
 
+def independent_parts(F, G, H, Q, R) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(states, noise inputs, measurements) of each independent block of the validated
+    arrays: the connected components of the graph with an edge wherever a non-zero entry
+    of F, G, Q, H or R couples two of them (as derive.structure.find_blocks, on numbers).
+    """
+    n, q, m = F.shape[0], G.shape[1], H.shape[0]
+    parent = list(range(n + q + m))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for mat, row0, col0 in ((F, 0, 0), (G, 0, n), (Q, n, n), (H, n + q, 0),
+                            (R, n + q, n + q)):
+        for i, j in zip(*np.nonzero(mat)):
+            a, b = find(row0 + int(i)), find(col0 + int(j))
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    groups: dict[int, list[int]] = {}
+    for a in range(n + q + m):
+        groups.setdefault(find(a), []).append(a)
+    parts = []
+    for members in groups.values():
+        nodes = np.array(members)
+        states = nodes[nodes < n]
+        if states.size:
+            parts.append((states, nodes[(nodes >= n) & (nodes < n + q)] - n,
+                          nodes[nodes >= n + q] - n - q))
+    return parts
+
+
 def check_steady_state(F, G, H, Q, R) -> None:
-    """Validate the arrays, then check detectability and stabilisability."""
+    """Validate the arrays, then check detectability and stabilisability, block by
+    independent block (a mode of a block-diagonal system is one block's; the PBH tests
+    cost a singular value decomposition per eigenvalue, so whole they grow like n^4)."""
     F, G, H, Q, R = system_arrays(F, G, H, Q, R)
-    check_detectable(F, H)
-    check_stabilizable(F, G, Q)
+    for states, noises, measurements in independent_parts(F, G, H, Q, R):
+        Fb = F[np.ix_(states, states)]
+        check_detectable(Fb, H[np.ix_(measurements, states)])
+        check_stabilizable(Fb, G[np.ix_(states, noises)], Q[np.ix_(noises, noises)])
 
 
 # ---------------------------------------------------------------- stability
@@ -148,4 +185,5 @@ def check_stable(A: np.ndarray, what: str) -> None:
 
 
 __all__ = ["PBH_RANK_TOL", "UNIT_CIRCLE_MARGIN", "check_detectable", "check_stabilizable",
-           "check_stable", "check_steady_state", "numeric_matrix", "psd_sqrt", "system_arrays"]
+           "check_stable", "check_steady_state", "independent_parts", "numeric_matrix",
+           "psd_sqrt", "system_arrays"]

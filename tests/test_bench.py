@@ -16,16 +16,19 @@ from derive.apps.bench.bound import case_bound
 from derive.apps.bench.cases import CASES, Case, Skip, make_data, states
 from derive.apps.bench.run import (
     IMPLEMENTATIONS,
+    LATENCY_SCHEDULE,
     Bar,
     BenchResult,
     Settings,
     run_bench,
     time_catalog_generation,
 )
+from derive.options import taken_by
 
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
                 check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
-                scale_tracks=0, catalog_generation=False)
+                scale_tracks=0, catalog_generation=False, generation_scaling=False,
+                compile_states=(2,))
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 
@@ -35,10 +38,15 @@ def result():
 
 
 def test_one_row_per_case_and_implementation(result):
-    assert [(r.case, r.implementation) for r in result.rows] == [
-        (c.label, name) for c in CASES for name, _, _ in IMPLEMENTATIONS]
+    expected = []
+    for c in CASES:
+        for name, _, _ in IMPLEMENTATIONS:
+            expected.append((c.label, name))
+            if name == "generated C" and "latency_schedule" in taken_by(c.filter):
+                expected.append((c.label, LATENCY_SCHEDULE))   # the KF cases
+    assert [(r.case, r.implementation) for r in result.rows] == expected
     assert [b.implementation for b in result.batch] == [
-        "generated C, run_tracks",
+        "generated C, run_tracks", "generated C, run_tracks, covariances stored",
         f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
         "generated C, run per track", "generated Python (NumPy arrays)",
         "vectorised NumPy KF", "simdkalman"]
@@ -83,9 +91,12 @@ def test_text_and_json(result):
     for case in CASES:
         assert case.label in text
     navigation = len(result.navigation.bars(Bar))  # the ins_gnss rows (bench/navigation.py)
-    assert text.count("bar: ") == 9 + navigation and text.count("bar: scaled: ") == 3
+    compile_bars = 3 * len(result.compile)   # generation, compilation, .c size
+    assert text.count("bar: ") == 12 + navigation + compile_bars
+    assert text.count("bar: scaled: ") == 3
     data = json.loads(json.dumps(result.as_json()))
-    assert len(data["rows"]) == len(result.rows) and len(data["bars"]) == 9 + navigation
+    assert len(data["rows"]) == len(result.rows)
+    assert len(data["bars"]) == 12 + navigation   # the compile bars are in the text only
     assert "two dependent fmas here take" in text
 
 

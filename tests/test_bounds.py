@@ -21,6 +21,7 @@ from derive import catalog
 from derive.discretize import METHODS, DiscretizationError, discretize
 from derive.errors import ExpressionError
 from derive.expressions import check_values, parse_expression
+from derive.modelfile import MAX_STATES
 from derive.toml_limits import MAX_DIGITS, MAX_KEY_PARTS, MAX_NESTING, toml_shape_problem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -264,7 +265,7 @@ def test_compose_of_300_blocks_is_refused(tmp_path):
     path = _compose(tmp_path / "many.toml",
                     [f'{{ model = "cv", suffix = "b{i}" }}' for i in range(300)])
     assert path.stat().st_size < 12_000
-    _refused(path, "many.toml: [compose] blocks: 300 blocks", "limit of 32")
+    _refused(path, "many.toml: [compose] blocks: 300 blocks", f"limit of {MAX_STATES}")
 
 
 def test_compose_amplification_through_two_files_is_refused(tmp_path):
@@ -272,7 +273,10 @@ def test_compose_amplification_through_two_files_is_refused(tmp_path):
              [f'{{ model = "cv", suffix = "b{i}" }}' for i in range(20)])
     outer = _compose(tmp_path / "outer.toml",
                      [f'{{ model = "inner.toml", suffix = "a{i}" }}' for i in range(20)])
-    _refused(outer, "inner.toml: [compose] blocks[16] model", "34 states", "limit of 32")
+    inner = 20 * catalog.load("cv").n
+    passing = MAX_STATES // inner  # the block that takes the composed model past the limit
+    _refused(outer, f"outer.toml: [compose] blocks[{passing}] model",
+             f"{(passing + 1) * inner} states", f"limit of {MAX_STATES}")
 
 
 def test_compose_within_the_limit_reuses_loaded_blocks(tmp_path):
@@ -314,7 +318,8 @@ def test_many_states_are_refused_quickly(tmp_path):
     names = ", ".join(f'"s{i}"' for i in range(100_000))
     path.write_text(f'[model]\nname = "st"\nstates = [{names}]\nmeasurements = ["z"]\n'
                     "[discrete]\nF = 1\nH = 1\nQ = 1\nR = 1\n")
-    _refused(path, "states.toml: [model] states: 100000 names, more than the limit of 32")
+    _refused(path, "states.toml: [model] states: 100000 names, more than the limit of "
+                   f"{MAX_STATES}")
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")

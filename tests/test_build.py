@@ -141,7 +141,8 @@ def test_wrong_sizes_and_bad_sources_are_reported(tmp_path, cache):
 def test_parse_interface_reads_the_header():
     unit = kf_unit(axes=1)
     functions, statuses = parse_interface(render_files(unit)["kf.h"])
-    step, run = functions
+    step, run, tracks = functions
+    assert tracks.name == "cv_kf_run_tracks" and tracks.arguments == run.arguments
     assert step.name == "cv_kf_step" and step.returns_status and not step.has_steps
     assert [(a.name, a.size(), a.output) for a in step.arguments] == [
         ("x", 2, False), ("P", 4, False), ("z", 1, False), ("x_new", 2, True),

@@ -247,8 +247,8 @@ def test_ekf_step_has_one_sqrt_per_satellite(units):
         assert count(unit.programs["step"], lang).sqrt == GNSS.m
         assert count(unit.programs["update1"], lang).sqrt == 1
     c = render_unit(unit, "c")["ekf.c"]
-    body = c.split("gnss_pseudorange_ekf_step(", 2)[2].split("\n}\n")[0]
-    assert body.count("sqrt(") == GNSS.m
+    body = c.split("gnss_pseudorange_ekf_step_body(", 2)[1].split("\n}\n")[0]
+    assert body.count("sqrt(") == GNSS.m == c.count("sqrt(") - 1  # step once; update1: 1
     assert count_c_function(c, "gnss_pseudorange_ekf_step") == count(unit.programs["step"], "c")
 
 

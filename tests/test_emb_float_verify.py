@@ -84,9 +84,9 @@ def test_every_catalog_filter_in_float32_agrees_within_its_derived_tolerance(cat
 def test_float32_cannot_carry_the_gnss_ukf_and_the_bound_says_so(catalog_results):
     """Pseudoranges of 2e7 m have float32 spacing 2 m; the UKF's sigma-point spreads are
     metres, so its P is wrong at order 1. The bound (kappa: the spreads' cancellation
-    squared) is >= 1 there, and the verification fails it. The only other filter with a
-    bound >= 1 is ins_gnss's EKF (a sensors unit, its bound from float-sensors' trace:
-    kappa, the largest cond of an S or P(k/k-1), is ~2e6 there)."""
+    squared) is >= 1 there, and the verification fails it. The one other bound >= 1 is the
+    INS/GNSS EKF's (a sensors unit: kappa = cond P(1/0) ~ 2e6, G ~ 4e3), whose error is
+    float32-small all the same (tests/test_float_sensors.py measures it)."""
     refused = [(r.model, r.filter) for r in catalog_results if not r.bound.meaningful]
     assert refused == [("gnss_pseudorange", "ukf"), ("ins_gnss", "ekf")]
     ukf = next(r for r in catalog_results if (r.model, r.filter) == refused[0])

@@ -5,21 +5,19 @@ reference within the tolerance derived for it (derive.apps.float_tolerance: L th
 predict and every update run calls on a step, G and kappa from the sensors reference
 run's trace); and derive.batch's Dask path in the kernel's element type.
 
-The 16-state INS/GNSS EKF (SPEC.md section 8) comes from branch nav-ins; until that lands
-on main, tests/data/ins_gnss_dt.toml is its catalog file with dt given a value (main has
-no parameter examples yet).
+The 16-state INS/GNSS EKF (SPEC.md section 8) is the catalog's ins_gnss (verify runs it with
+its example dt = 0.01, one p row per step).
 """
 
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 from test_nav_sensors import TWO_SENSORS, attitude, rates  # the models of the sensors tests
 
-from derive import batch
+from derive import batch, catalog
 from derive.apps.float_tolerance import (
     EXTRA_ROUNDINGS,
     C,
@@ -38,7 +36,7 @@ from derive.errors import DtypeError
 from derive.filters.sensors import reference_run
 from derive.generation import command_unit
 from derive.lowering import lower_program
-from derive.modelfile import load_model_file, loads_model
+from derive.modelfile import loads_model
 from derive.pipeline import load_generated, load_units
 from derive.precision import FLOAT
 
@@ -47,7 +45,6 @@ pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 FLOAT_OPTIONS = {"precision": "float"}
 GATED = {"precision": "float", "gate": 0.999}
 FREE_DT = 'dt = { description = "step, one value per step in p" }'
-INS_GNSS = Path(__file__).parent / "data" / "ins_gnss_dt.toml"
 
 
 def cart2_data(steps: int, seed: int):
@@ -188,11 +185,13 @@ def test_the_update_first_step_has_no_prediction_in_its_map():
                                   (np.eye(2) - K2 @ H2) @ ((np.eye(2) - K1 @ H1) @ np.eye(2)))
 
 
-@pytest.mark.parametrize("gate", [[], ["--gate", "0.999"]], ids=["plain", "gated"])
+@pytest.mark.parametrize("gate, R", [([], "4"), (["--gate", "0.999"], "4"),
+                                     ([], '"argument"')],
+                         ids=["plain", "gated", "R per call"])
 def test_derive_verify_precision_float_holds_the_sensors_c_to_its_printed_bound(
-        tmp_path, capsys, gate):
+        tmp_path, capsys, gate, R):
     path = tmp_path / "cart2.toml"
-    path.write_text(TWO_SENSORS.replace(FREE_DT, "dt = 0.1"))
+    path.write_text(TWO_SENSORS.replace(FREE_DT, "dt = 0.1").replace("R = 4\n", f"R = {R}\n"))
     assert main(["verify", str(path), "--filter", "kf", "--precision", "float",
                  "--steps", "500", "--no-progress", *gate]) == 0
     out = capsys.readouterr().out.splitlines()
@@ -213,7 +212,7 @@ def test_the_ins_gnss_ekf_in_float32_and_its_bound(capsys):
     against its bound. kappa is cond P(k/k-1), largest at the start (P0 spans 4e-6 rad^2
     of gyro bias to 9 m^2 of position), so the bound is >= 1 and verify says float32
     cannot be vouched for, though the measured error is float32-small."""
-    model = load_model_file(INS_GNSS)
+    model = catalog.load("ins_gnss")
     assert model.n == 16 and [g.name for g in model.sensors] == ["gnss", "baro"]
     c = verify_filter(model, "ekf", 1000, 7, ("c",), FLOAT_OPTIONS)[0]
     print(c.line())

@@ -28,13 +28,13 @@ def test_header_prose_is_rendered_from_the_description():
                for name in unit.programs}
     described = describe(unit.prefix, lowered, run_arguments(unit))
     text = _header(unit)
-    assert len(described.c_lines()) == 2
+    assert len(described.c_lines()) == 2  # step, run (run_tracks: only when told)
     for line in described.c_lines() + described.status_lines("NumericalError, or "
                                                              "PatternError for P's pattern"):
         assert f" * {line}\n" in text
     read = interface.read(text)
     assert [f.name for f in read.functions] == [
-        f"{unit.prefix}_step", f"{unit.prefix}_run"]
+        f"{unit.prefix}_step", f"{unit.prefix}_run", f"{unit.prefix}_run_tracks"]
 
 
 def test_build_reads_the_description_not_the_prose():
@@ -44,7 +44,7 @@ def test_build_reads_the_description_not_the_prose():
     stripped = "\n".join(line for line in text.splitlines()
                          if not line.startswith((" *     ", " * status")))
     assert parse_interface(stripped) == (functions, statuses)
-    assert [f.name for f in functions] == ["cv_kf_step", "cv_kf_run"]
+    assert [f.name for f in functions] == ["cv_kf_step", "cv_kf_run", "cv_kf_run_tracks"]
     # without the description line there is no interface, whatever the prose says
     without = "\n".join(line for line in text.splitlines() if interface.MARKER not in line)
     with pytest.raises(BuildError, match="states no interface"):

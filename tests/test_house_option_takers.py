@@ -57,7 +57,7 @@ def test_the_takers_follow_the_flags_of_the_specs():
 
 
 def test_a_new_family_takes_its_options_without_touching_options_py(toy_registered):
-    assert taken_by("toy") == ["P0_pattern", "missing", "prefix", "precision", "gain"]
+    assert taken_by("toy") == ["P0_pattern", "missing", "prefix", "precision", "run", "gain"]
     assert "toy" in takers("P0_pattern") and "toy" in takers("missing")
     assert "toy" not in takers("run_tracks") and takers("gain") == ["toy"]
     typed = validate("toy", {"missing": True, "gain": 2})

@@ -10,7 +10,9 @@ computes that bound from the lowered statements exactly as they are emitted, and
 operations along the critical cycle.
 
 Operation kinds are those of :mod:`derive.lowering`; a check (``cmp``) only branches,
-so it adds no latency to the data path.
+so it adds no latency to the data path.  :func:`schedule_bounds` gives both bounds of a
+time-varying filter: its default schedule's and the latency schedule's
+(:mod:`derive.schedule`, ``--latency-schedule``), with the flops the latter adds.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from derive.emit.lookahead import run_pass
+from derive.flops import count
 from derive.lowering import (
     CARRIED,
     Const,
@@ -32,13 +35,8 @@ from derive.lowering import (
     Var,
     lower_program,
 )
-
-#: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
-#: latencies for double add, multiply, fma, divide and square root; a call of a math
-#: function taken as 40). ``derive burden`` reports chains in it; ``derive bench`` and
-#: ``derive burden --measure`` use latencies measured on the machine instead.
-REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0,
-                    "call": 40.0}
+from derive.options import taken_by
+from derive.schedule import REFERENCE_CYCLES, operation_latency, scheduled_unit
 
 _NONE = -np.inf
 
@@ -56,18 +54,6 @@ class Bound:
     def describe(self) -> str:
         ops = ", ".join(f"{c:g} {k}" for k, c in sorted(self.operations.items()))
         return ops + (f" per pass of {self.steps} steps" if self.steps > 1 else "")
-
-
-def _latency_of(kind: str, latency: Mapping[str, float]) -> float:
-    if kind == "cmp":
-        return 0.0
-    if kind in latency:
-        return float(latency[kind])
-    if kind in ("sub", "neg", "select") and "add" in latency:
-        return float(latency["add"])
-    if kind.startswith("call:") and "call" in latency:
-        return float(latency["call"])
-    raise KeyError(f"no latency given for operation kind {kind!r}")
 
 
 class _Graph:
@@ -101,7 +87,7 @@ class _Graph:
             value = np.full(size, _NONE)
             for arg in tree.args:
                 value = np.maximum(value, self.arrival(arg))
-            value = value + _latency_of(tree.kind, self.latency)
+            value = value + operation_latency(tree.kind, self.latency)
         self._memo[key] = value
         return value
 
@@ -182,7 +168,7 @@ def _cycle_nodes(via: list[np.ndarray], start: int, steps: int) -> list[int]:
     return [start] + walk[:-1] if steps > 1 else [start]
 
 
-def run_loop_bound(unit, latency: Mapping[str, float]) -> Bound | None:
+def run_loop_bound(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Bound | None:
     """The bound of ``unit``'s generated C run loop as emitted: its pass (the step, or a
     steady-state two-step pass, :func:`derive.emit.lookahead.run_pass`), per step; None
     for a run that calls its functions (the run kind sensors: no step program)."""
@@ -193,3 +179,39 @@ def run_loop_bound(unit, latency: Mapping[str, float]) -> Bound | None:
     if bound is None:
         return None
     return Bound(bound.per_step / steps, bound.operations, bound.span, steps)
+
+
+#: Steps with more statements are not scheduled just to print a bound (``derive burden``,
+#: the bench): the schedule's search grows with the square of the step's size (about 6 s
+#: at 300 statements, twelve axes of mpt3d_b); ``--latency-schedule`` still applies it.
+MAX_BOUND_STATEMENTS = 400
+
+
+@dataclass(frozen=True)
+class ScheduleBounds:
+    """A filter's run-loop bound in its default schedule and in the latency schedule
+    (None where the latency schedule does not apply: a two-step pass, no carried state,
+    a filter without the option; or where it was not computed, ``note`` says why), and
+    the flops per step the latency schedule adds (C, as counted)."""
+
+    default: Bound | None
+    latency: Bound | None
+    flops_added: int | None
+    note: str = ""
+
+
+def schedule_bounds(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> ScheduleBounds:
+    """Both bounds of ``unit`` (derived in its default schedule); the latency schedule's
+    for a filter that takes the option ``latency_schedule``."""
+    default = run_loop_bound(unit, latency)
+    if default is None or unit.lookahead is not None or \
+            "latency_schedule" not in taken_by(unit.filter):
+        return ScheduleBounds(default, None, None)
+    size = len(unit.programs["step"].optimize().body)
+    if size > MAX_BOUND_STATEMENTS:
+        return ScheduleBounds(default, None, None, f"latency schedule not computed for a step "
+                              f"of {size} statements (over {MAX_BOUND_STATEMENTS}); "
+                              "--latency-schedule applies it")
+    scheduled = scheduled_unit(unit)
+    added = count(scheduled.programs["step"], "c").flops - count(unit.programs["step"], "c").flops
+    return ScheduleBounds(default, run_loop_bound(scheduled, latency), added)

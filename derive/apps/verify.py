@@ -25,7 +25,9 @@ With ``precision="float"`` (``derive verify --precision float``) the C is float3
 given the data rounded to float32 and compared with the same float64 reference, within the
 tolerance derived for it by derive.apps.float_tolerance (c u32 L G kappa, from the
 generated step, the model's closed loop and its conditioning), which each line prints; the
-Python stays double and keeps its double bar.
+Python stays double and keeps its double bar. A unit of the run kind sensors gets the same,
+its L through predict and every update, its G and kappa from its reference run's trace
+(derive.apps.float_tolerance.sensors_conditioning).
 
 A nonlinear model also gets an independent witness for the Jacobians the EKF is generated
 from (:func:`jacobian_witness`): derive's sympy Jacobians of f and h against CasADi's

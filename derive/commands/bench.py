@@ -19,6 +19,10 @@ def add_arguments(parser) -> None:
                              "Dask LocalCluster; default 1,000,000; 0 leaves it out)")
     parser.add_argument("--scale-steps", type=int, default=None,
                         help="steps per track of the every-core batch (default 100)")
+    parser.add_argument("--compile-states", type=int, action="append", default=None,
+                        metavar="N", help="a dense random KF of N states (m = N/3) generated "
+                        "and compiled: time, peak memory, .c size (repeatable; default 16 and "
+                        "24; 0 leaves it out)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines (they are shown only when stderr is a "
                              "terminal)")
@@ -47,6 +51,11 @@ def run(args) -> int:
         if args.scale_steps < 1:
             raise ModelError(f"--scale-steps must be >= 1, got {args.scale_steps}")
         settings = replace(settings, scale_steps=args.scale_steps)
+
+    if args.compile_states is not None:
+        if any(n < 0 for n in args.compile_states):
+            raise ModelError(f"--compile-states must be >= 0, got {args.compile_states}")
+        settings = replace(settings, compile_states=tuple(n for n in args.compile_states if n))
 
     def report(text: str) -> None:
         progress.report(f"bench: {text}")

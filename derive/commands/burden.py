@@ -79,18 +79,26 @@ def burden_rows(model, derived: list, paper: bool) -> list[dict]:
 
 
 def chain_rows(derived: list, latency: dict | None = None) -> list[dict]:
-    """Per filter of ``derived`` ``[(filter, Unit)]``: the carried chain of its generated C
-    run loop (derive.apps.latency), per step, in the units of ``latency`` (default:
-    derive.apps.latency.REFERENCE_CYCLES)."""
-    from ..apps.latency import REFERENCE_CYCLES, run_loop_bound
+    """Per filter of ``derived`` ``[(filter, Unit)]`` (in their default schedule): the
+    carried chain of its generated C run loop (derive.apps.latency), per step, in the
+    units of ``latency`` (default: derive.apps.latency.REFERENCE_CYCLES); and the same in
+    the latency schedule (derive.schedule) with the flops per step it adds (None where it
+    does not apply)."""
+    from ..apps.latency import REFERENCE_CYCLES, schedule_bounds
 
     rows = []
     for name, unit in derived:
-        bound = run_loop_bound(unit, latency or REFERENCE_CYCLES)
+        both = schedule_bounds(unit, latency or REFERENCE_CYCLES)
+        bound, fast = both.default, both.latency
         rows.append({"filter": name, "steps_per_pass": 1 if bound is None else bound.steps,
                      "per_step": None if bound is None else bound.per_step,
                      "operations_per_pass": None if bound is None else dict(bound.operations),
-                     "chain": None if bound is None else bound.describe()})
+                     "chain": None if bound is None else bound.describe(),
+                     "latency_schedule_note": both.note or None,
+                     "latency_schedule": None if fast is None else {
+                         "per_step": fast.per_step, "chain": fast.describe(),
+                         "operations_per_pass": dict(fast.operations),
+                         "flops_added": both.flops_added}})
     return rows
 
 
@@ -101,13 +109,22 @@ def _chain_text(rows: list[dict], measured: bool) -> list[str]:
     model = ("operation latencies measured here" if measured else "reference latencies in "
              "cycles: " + ", ".join(f"{k} {v:g}" for k, v in REFERENCE_CYCLES.items()))
     lines = ["", f"carried chain of the C run loop, per step ({model}): the bound on the time "
-                 "per step however wide the core"]
+                 "per step however wide the core; default schedule, then the latency schedule "
+                 "(--latency-schedule) and the flops per step it adds"]
+    scale = 1e9 if measured else 1
     for r in rows:
         if r["per_step"] is None:
             lines.append(f"  {r['filter']}: no carried state")
             continue
-        value = r["per_step"] * (1e9 if measured else 1)
-        lines.append(f"  {r['filter']}: {value:.3g} {unit} ({r['chain']})")
+        lines.append(f"  {r['filter']}: {r['per_step'] * scale:.3g} {unit} ({r['chain']})")
+        fast = r["latency_schedule"]
+        if r["latency_schedule_note"]:
+            lines.append(f"  {r['filter']}: {r['latency_schedule_note']}")
+        if fast is not None:
+            ratio = fast["per_step"] / r["per_step"]
+            lines.append(f"  {r['filter']} --latency-schedule: {fast['per_step'] * scale:.3g} "
+                         f"{unit} ({fast['chain']}; {ratio:.2f}x the default's), "
+                         f"{fast['flops_added']:+d} flops per step")
     return lines
 
 
@@ -144,7 +161,10 @@ def run(args) -> int:
         from ..apps.bench.probe import measure_latencies
 
         latency = measure_latencies(CFLAGS)
-    chains = chain_rows(derived, latency)
+    options = from_arguments(args)
+    plain = derived if not options.get("latency_schedule") else units(
+        model, args.filters, {**options, "latency_schedule": False})   # chains: both schedules
+    chains = chain_rows(plain, latency)
     if args.json:
         print(json.dumps({"model": model.name, "n": model.n, "m": model.m, "rows": rows,
                           "chains": chains, "chain_unit": "s" if latency else "cycles"},

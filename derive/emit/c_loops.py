@@ -1,26 +1,285 @@
-"""The statements of the generated C run loops, built from a unit's lowered programs.
+"""The generated C run loops, built on the step's statements printed once per file.
 
-``run`` holds the step's statements with the state in local arrays (:func:`fused_body`),
-or, for a unit with a two-step map (``Unit.lookahead``), a two-step pass
-(:func:`two_step`, :func:`two_step_body`); ``run_tracks`` advances :data:`LANES` tracks
-together, each lane with its own temporaries, state and inputs (:func:`tracks_parts`).
+The step's statements (without its pattern check) are printed once, in a static
+function of the file, the *step body* (:func:`body_function`): every element of a port
+is read and written at ``[i * s]``, ``s`` the body's last argument, so that one copy
+serves one track (``s`` = 1: the public ``step``, ``run``'s loop with the state in local
+arrays) and a lane of a block of tracks (``s`` = the block's width, the state laid out
+structure-of-arrays: ``run_tracks``).  A failed check of the body sets its status and
+the statements run to the end: no branch leaves them, so the loop over a block's lanes
+is one basic block the compiler vectorises (:func:`tracks_parts`), and each lane runs
+exactly the operations of one track's ``run``, in the same order.
 
-Every renaming is done on the lowered program (:meth:`LoweredProgram.renamed`) before it
-is printed: the per-step rows (``z`` read as ``zk``), a lane's state and temporaries, the
-second step's temporaries.  No printed line is edited.
+A small body is inlined into each caller (:data:`INLINE_STATEMENTS`; always_inline where
+GCC and Clang take it), so run keeps the state in registers and the lane loop is
+vectorised; a large one stays one function that every caller calls, so the file
+compiles it once.  A unit with a two-step map (``Unit.lookahead``) has a second body for
+the map (:func:`two_step`); its run takes two steps per pass, and so do the lanes.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from derive.emit import c_printer
 from derive.emit.unit import LOOKAHEAD_NEXT, Unit
-from derive.lowering import LoweredProgram, lower_program
-from derive.precision import precision
+from derive.lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
-#: Tracks that run_tracks advances together: independent dependency chains in one basic
-#: block that the compiler interleaves, so one track's latency hides another's.
-LANES = 4
+#: The step body's stride argument: element i of a port is at [i * STRIDE].
+STRIDE = "s"
+#: The status a step body's failed check sets (the first failed check's).
+STATUS = "status"
+#: The lane count of run_tracks' blocks: :func:`interleave` vector registers' worth of
+#: doubles (AVX-512: 8 a register, AVX: 4, else 2), unless the build defines it.
+LANES = "DERIVE_LANES"
+#: The most registers a block's statement spans: independent chains that hide the latency
+#: of a division (4 was fastest of 1, 2, 4, 8 on AVX-512, AVX2 and SSE2: docs/performance.md).
+INTERLEAVE = 4
+#: The most bytes of a block's arrays at the widest lanes (AVX-512): in L1 and on the stack.
+BLOCK_BYTES = 64 * 1024
+#: Prefetch a block's tracks' rows this many steps ahead (``DERIVE_PREFETCH``: GCC's and
+#: Clang's __builtin_prefetch, else nothing): a block reads and writes as many streams as
+#: it has lanes, more than the hardware prefetchers follow (the batch of the bench:
+#: 3.2e8 track-steps/s on one core with it, 1.3e8 to 2.0e8 without; 8 of 8, 16, 32 best).
+AHEAD = 8
+PREFETCH = "DERIVE_PREFETCH"
+#: Put before the loop over a block's lanes: ``omp simd`` under OpenMP (``-fopenmp``),
+#: ``GCC ivdep`` / Clang's ``loop vectorize(enable)`` else (no lane depends on another;
+#: the compilers vectorise it at -O3, or at -O2 with -ftree-vectorize); a build may
+#: define it, e.g. ``-D'DERIVE_SIMD=_Pragma("omp simd")'`` with ``-fopenmp-simd``.
+SIMD = "DERIVE_SIMD"
+#: How a step body small enough to inline is declared.
+INLINE = "DERIVE_INLINE"
+#: Bodies of at most this many statements are inlined into their callers (run, the lane
+#: loop; every catalog filter's, 386 the largest); larger ones are compiled
+#: once and called, unstrided (no lanes: run_tracks runs run on each track): a file's
+#: compile time and memory grow with one copy of the step, not one per caller (a dense
+#: 12-state filter, 730 statements: gcc -O2 5.8 s CPU inlined into step, run and lanes,
+#: 1.7 s called).
+INLINE_STATEMENTS = 500
+
+
+def interleave(doubles_per_lane: int) -> int:
+    """Registers per statement of a block (:data:`INTERLEAVE`, halved until the block of
+    ``doubles_per_lane`` doubles a lane fits :data:`BLOCK_BYTES` at 8 doubles a register)."""
+    registers = INTERLEAVE
+    while registers > 1 and doubles_per_lane * 8 * registers * 8 > BLOCK_BYTES:
+        registers //= 2
+    return registers
+
+
+def macro_lines(registers: int) -> list[str]:
+    """The .c file's definitions of :data:`LANES` and :data:`SIMD` (each unless defined)."""
+    return [
+        f"#ifndef {LANES}",
+        "#if defined(__AVX512F__)",
+        f"#define {LANES} {8 * registers}",
+        "#elif defined(__AVX__)",
+        f"#define {LANES} {4 * registers}",
+        "#else",
+        f"#define {LANES} {2 * registers}",
+        "#endif",
+        "#endif",
+        f"#ifndef {PREFETCH}",
+        "#if defined(__GNUC__)",
+        f"#define {PREFETCH}(address, write) __builtin_prefetch((address), (write), 0)",
+        "#else",
+        f"#define {PREFETCH}(address, write) ((void)(address))",
+        "#endif",
+        "#endif",
+        f"#ifndef {SIMD}",
+        "#if defined(_OPENMP)",
+        f'#define {SIMD} _Pragma("omp simd")',
+        "#elif defined(__clang__)",
+        f'#define {SIMD} _Pragma("clang loop vectorize(enable)")',
+        "#elif defined(__GNUC__)",
+        f'#define {SIMD} _Pragma("GCC ivdep")',
+        "#else",
+        f"#define {SIMD}",
+        "#endif",
+        "#endif",
+    ]
+
+
+#: Every file keeps a*b + c as two roundings whatever -ffp-contract says (GCC's default in
+#: its GNU modes is to fuse them): the code fuses what it means to itself (DERIVE_FMA), so
+#: the operations executed are those the header counts, and a statement the compiler
+#: if-converts in the vectorised lanes (a missing measurement's select) rounds as in run.
+CONTRACT_LINES = [
+    "#if defined(__clang__)",
+    "#pragma STDC FP_CONTRACT OFF",
+    "#elif defined(__GNUC__)",
+    '#pragma GCC optimize ("fp-contract=off")',
+    "#endif",
+]
+INLINE_LINES = [
+    f"#ifndef {INLINE}",
+    "#if defined(__GNUC__)",
+    f"#define {INLINE} static inline __attribute__((always_inline))",
+    "#else",
+    f"#define {INLINE} static inline",
+    "#endif",
+    "#endif",
+]
+
+
+def body_name(prefix: str, program: str = "step") -> str:
+    """The step body's C name: ``PREFIX_step_body`` (the two-step map's: ``PREFIX_pass_body``)."""
+    return f"{prefix}_{program}_body"
+
+
+def inlined(body: LoweredProgram) -> bool:
+    """True when the body is small enough to inline into its callers."""
+    return len(body.body) + sum(len(leaves) for _, leaves in body.results) \
+        <= INLINE_STATEMENTS
+
+
+def _element(port: str, index: int) -> str:
+    """Element ``index`` of a port in a step body: strided, except the parameters ``p``
+    (one row that every lane shares)."""
+    if port == PARAMETER_PORT or index == 0:
+        return f"{port}[{index}]"
+    return f"{port}[{index} * {STRIDE}]"
+
+
+def body_function(body: LoweredProgram, name: str, real: Precision = DOUBLE) -> dict:
+    """The step body as a function (``signature``, ``body`` lines): the program's ports as
+    pointers, then the stride (a body too large to inline has none: its elements are at
+    ``[i]``, and run_tracks runs it track by track); returns the status of the first failed
+    check (int), or nothing when the program has no check."""
+    status = bool(body.checks)
+    strided = inlined(body)
+    params = c_printer.parameters(body, precision=real) + (
+        [f"const size_t {STRIDE}"] if strided else [])
+    qualifier = INLINE if strided else "static"
+    lines = [f"(void){p.name};" for p in body.inputs if p.name not in body.used_inputs()]
+    if status:
+        lines.append(f"int {STATUS} = 0;")
+    statements = c_printer.statements(body, real, _element if strided else None,
+                                       STATUS if status else None)
+    if strided and not any(f"* {STRIDE}]" in line for line in statements):  # element 0 only
+        lines.append(f"(void){STRIDE};")
+    lines += statements
+    if status:
+        lines.append(f"return {STATUS};")
+    return {"signature": f"{qualifier} {'int' if status else 'void'} {name}({', '.join(params)})",
+            "body": lines}
+
+
+#: A body too large to inline is printed in parts of at most this many statements, each a
+#: function of its own (the temporaries one part leaves to a later one in a local array):
+#: the compiler's time and memory grow faster than the size of a function (a dense
+#: 24-state filter, gcc -O2: in one function 45 s CPU and 1.4 GB; in parts of 500, 100, 200
+#: statements 26.9 s and 482 MB, 13.5 s and 359 MB, 16.3 s and 382 MB).
+PART_STATEMENTS = 200
+#: The local array of a parted body that carries temporaries from part to part.
+CARRIED = "w"
+
+
+def _temporaries(tree: Tree, found: set[str]) -> set[str]:
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, Op):
+            stack.extend(node.args)
+        elif isinstance(node, Var) and node.index is None:
+            found.add(node.name)
+    return found
+
+
+def parted_functions(body: LoweredProgram, name: str, real: Precision = DOUBLE) -> list[dict]:
+    """A large body as its parts (``NAME_partK``) and the body calling them in order, each
+    part taking every port, the array of carried temporaries and (with checks) the status
+    so far; the statements are the body's, printed once, in order."""
+    statements = list(body.body)
+    chunks = [statements[i:i + PART_STATEMENTS]
+              for i in range(0, len(statements), PART_STATEMENTS)] or [[]]
+    # the results go with the last part
+    defined_in = {s.target: k for k, chunk in enumerate(chunks) for s in chunk
+                  if isinstance(s, LoweredAssign)}
+    used_in: list[set[str]] = []
+    for k, chunk in enumerate(chunks):
+        used: set[str] = set()
+        for s in chunk:
+            _temporaries(s.tree, used)
+        if k == len(chunks) - 1:
+            for _, leaves in body.results:
+                for leaf in leaves:
+                    _temporaries(leaf, used)
+        used_in.append({t for t in used if defined_in.get(t, k) != k})
+    crossing = sorted(set().union(*used_in), key=lambda t: (defined_in[t], int(t[1:])))
+    slot = {t: i for i, t in enumerate(crossing)}
+    status = bool(body.checks)
+    params = c_printer.parameters(body, precision=real)
+    args = ", ".join(c_printer.argument_order(body))
+    functions, calls = [], []
+    for k, chunk in enumerate(chunks):
+        last = k == len(chunks) - 1
+        part = replace(body, body=tuple(chunk), results=body.results if last else ())
+        here = used_in[k]
+        part = part.renamed({}, lambda t, here=here: f"{CARRIED}[{slot[t]}]" if t in here
+                            else t)
+        lines = [f"(void){p};" for p in c_printer.argument_order(body)
+                 if p not in part.used_inputs()
+                 and not (last and p in {o.name for o in body.outputs})]
+        lines += c_printer.statements(part, real, None, STATUS if status else None)
+        lines += [f"{CARRIED}[{slot[s.target]}] = {s.target};" for s in chunk
+                  if isinstance(s, LoweredAssign) and s.target in slot]
+        part_name = f"{name}_part{k}"
+        signature = (f"static {'int' if status else 'void'} {part_name}("
+                     f"{', '.join(params + [f'{real.c_type} *restrict {CARRIED}'])}"
+                     + (f", int {STATUS})" if status else ")"))
+        if status:
+            lines.append(f"return {STATUS};")
+        functions.append({"signature": signature, "body": lines})
+        call = f"{part_name}({args}, {CARRIED}" + (f", {STATUS})" if status else ")")
+        calls.append(f"{STATUS} = {call};" if status else f"{call};")
+    head = [f"{real.c_type} {CARRIED}[{max(1, len(crossing))}];"]
+    if status:
+        head.append(f"int {STATUS} = 0;")
+    body_lines = head + calls + ([f"return {STATUS};"] if status else [])
+    functions.append({"signature": f"static {'int' if status else 'void'} {name}("
+                                    f"{', '.join(params)})", "body": body_lines})
+    return functions
+
+
+def body_functions(body: LoweredProgram, name: str, real: Precision = DOUBLE) -> list[dict]:
+    """The body's function(s): one (:func:`body_function`), or a large body in parts
+    (:func:`parted_functions`)."""
+    if inlined(body) or len(body.body) <= PART_STATEMENTS:
+        return [body_function(body, name, real)]
+    return parted_functions(body, name, real)
+
+
+def _call(body: LoweredProgram, name: str, names: dict[str, str], stride: str) -> str:
+    args = [names.get(port, port) for port in c_printer.argument_order(body)]
+    return f"{name}({', '.join(args + ([stride] if inlined(body) else []))})"
+
+
+def checked_call(body: LoweredProgram, name: str, names: dict[str, str], result: str,
+                 stride: str = "1") -> list[str]:
+    """The body called with its ports named by ``names``; a non-zero status returned at
+    once (held in the const int ``result``)."""
+    call = _call(body, name, names, stride)
+    if not body.checks:
+        return [f"{call};"]
+    return [f"const int {result} = {call};", f"if ({result}) {{", f"    return {result};",
+            "}"]
+
+
+def step_function_body(step: LoweredProgram, body: LoweredProgram, name: str,
+                       real: Precision = DOUBLE) -> list[str]:
+    """The public step's statements: its pattern check of the inputs, then the body over
+    its own arrays (stride 1)."""
+    lines = []
+    for check in step.pattern_checks:
+        lines += c_printer.pattern_check_lines(check, precision=real)
+    call = _call(body, name, {}, "1")
+    if body.checks:
+        return lines + [f"return {call};"]
+    return lines + [f"{call};"] + (["return 0;"] if step.has_checks else [])
 
 
 def _rows(unit: Unit) -> tuple[str, ...]:
@@ -33,94 +292,20 @@ def _row(name: str) -> str:
     return f"{name}k"
 
 
-def fused_body(unit: Unit, step: LoweredProgram) -> list[str]:
-    """The step's statements for the run loop, reading per-step inputs at row k.
-
-    The run loop keeps the state and the step's outputs in local arrays indexed by
-    constants, so the compiler holds them in registers: nothing is stored and reloaded
-    between steps except the rows of the stored results. The statements are the step's
-    own (same operations, same count); only the per-step inputs are renamed (``z`` reads
-    ``zk``, the row of step k; ``p`` reads ``pk``, ``p + k * p_stride``: one row for all
-    steps or one per step).
-    """
-    return c_printer.statements(step.renamed({name: _row(name) for name in _rows(unit)}),
-                                precision(unit.precision))
-
-
-def lane_names(unit: Unit, label: str) -> dict[str, str]:
-    """One lane's names: its own state (``x`` -> ``x_l0``, ``x_new`` -> ``xn_l0``) and
-    per-step inputs (``z`` -> ``z_l0``); the parameters' row ``pk`` is shared."""
-    names = {port: f"{port}{label}" for port, _ in unit.carried}
-    names.update({new: f"{port}n{label}" for port, new in unit.carried})
-    names.update({name: f"{name}{label}" for name in unit.step_inputs})
+def _row_names(unit: Unit, body: LoweredProgram) -> dict[str, str]:
+    """run's names of the body's per-step inputs: row k (``zk``; ``pk`` when the body
+    reads p, else p itself, which the body does not read)."""
+    names = {name: _row(name) for name in unit.step_inputs}
     if unit.parameters:
-        names[PARAMETER_PORT] = _row(PARAMETER_PORT)
+        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
+                                 else PARAMETER_PORT)
     return names
 
 
-def _lane_temporary(label: str, offset: int = 0):
-    return lambda name: f"t{int(name[1:]) + offset}{label}"
-
-
-def tracks_parts(unit: Unit, step: LoweredProgram, lanes: int, state: list[dict],
-                 optional_stores: list[dict], two: LoweredProgram | None = None) -> dict:
-    """Statements of run_tracks for ``lanes`` tracks at a time.
-
-    Track-major arrays: track t's z, x0, P0, xs, Ps are laid out exactly as for run,
-    one after the other, so every lane reads and writes its own sequential stream.
-    ``state``: the carried state (derive.emit.render.carried_state); ``optional_stores``:
-    run's outputs that may be NULL (each stores a carried output port).
-    With ``two`` (the lowered two-step map) each lane takes two steps per pass as run
-    does, so every track's result is bitwise its run's.
-    """
-    n = unit.n
-    real = precision(unit.precision)
-    by_output = {s["out"]: s["name"] for s in state}
-    decl, load, body, store, pass_body, pass_store = [], [], [], [], [], []
-    for lane in range(lanes):
-        label = f"_l{lane}"  # never x0 or P0: those are the run's arguments
-        track = f"(t + {lane})"
-        names = lane_names(unit, label)
-        for s in state:
-            name, size = s["name"], s["size"]
-            decl.append(f"{real.c_type} {name}{label}[{size}], {name}n{label}[{size}];")
-            load += [f"{name}{label}[{i}] = {s['start']}[{track} * {size} + {i}];"
-                     for i in range(size)]
-        for name in unit.step_inputs:
-            size = unit.step_input_size(name)
-            decl.append(f"const {real.c_type} *{name}{label};")
-            body.append(f"{name}{label} = {name} + ({track} * steps + k) * {size};")
-        body += c_printer.statements(step.renamed(names, _lane_temporary(label)), real)
-        for s in state:
-            name, size = s["name"], s["size"]
-            store += [(f"{s['store']}[({track} * steps + k) * {size} + {i}] = " if s["store"]
-                       else "") + f"{name}{label}[{i}] = {name}n{label}[{i}];"
-                      for i in range(size)]
-        for s in optional_stores:
-            array, size, name = s["array"], s["size"], by_output[s["out"]]
-            store += [f"if ({array}) {{"] + [
-                f"    {array}[({track} * steps + k) * {size} + {i}] = {name}n{label}[{i}];"
-                for i in range(size)] + ["}"]
-        if two is not None:
-            mid = f"xm{label}"
-            decl += [f"{real.c_type} {mid}[{n}];",
-                     f"const {real.c_type} *{LOOKAHEAD_NEXT}{label};"]
-            pass_body += [f"z{label} = z + ({track} * steps + k) * {unit.m};",
-                          f"{LOOKAHEAD_NEXT}{label} = z + ({track} * steps + k + 1) * {unit.m};"]
-            pass_body += c_printer.statements(
-                step.renamed({**names, "x_new": mid}, _lane_temporary(label)), real)
-            pass_body += c_printer.statements(two.renamed(
-                {**names, LOOKAHEAD_NEXT: f"{LOOKAHEAD_NEXT}{label}"},
-                _lane_temporary(label, step.temporaries())), real)
-            pass_store += [f"xs[({track} * steps + k) * {n} + {i}] = {mid}[{i}];"
-                           for i in range(n)]
-            pass_store += [f"xs[({track} * steps + k + 1) * {n} + {i}] = x{label}[{i}] = "
-                           f"xn{label}[{i}];" for i in range(n)]
-    if unit.parameters and PARAMETER_PORT in step.used_inputs():  # the lanes share p's rows
-        body.insert(0, f"const {real.c_type} *{_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
-                       "p_stride;")
-    return {"lanes": lanes, "decl": decl, "load": load, "body": body, "store": store,
-            "pass_body": pass_body, "pass_store": pass_store}
+def fused_body(unit: Unit, body: LoweredProgram, prefix: str) -> list[str]:
+    """run's step: the body over run's local arrays (the state, the step's outputs: held
+    in registers once the body is inlined), reading the per-step inputs at row k."""
+    return checked_call(body, body_name(prefix), _row_names(unit, body), "step_status")
 
 
 def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
@@ -131,14 +316,120 @@ def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
                          state_ports=tuple(port for port, _ in unit.carried))
 
 
-def two_step_body(unit: Unit, step: LoweredProgram, two: LoweredProgram) -> list[str]:
-    """The pass's statements: the step's own writing x(k+1) to ``x_mid``, then the
-    two-step map writing x(k+2) to ``x_new``, its temporaries numbered after the step's;
-    rows k and k + 1 are read as ``zk`` and ``znk``."""
-    rows = {name: _row(name) for name in _rows(unit)}
-    real = precision(unit.precision)
-    mid = c_printer.statements(step.renamed({**rows, "x_new": "x_mid"}), real)
-    first = step.temporaries()
-    return mid + c_printer.statements(two.renamed(
-        {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
-        lambda name: f"t{int(name[1:]) + first}"), real)
+def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,
+                  prefix: str) -> list[str]:
+    """run's pass: the step body writing x(k+1) to ``x_mid``, then the two-step map's body
+    writing x(k+2) to ``x_new``; rows k and k + 1 are read as ``zk`` and ``znk``."""
+    rows = _row_names(unit, body)
+    return (checked_call(body, body_name(prefix), {**rows, "x_new": "x_mid"}, "step_status")
+            + checked_call(two, body_name(prefix, "pass"),
+                           {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
+                           "pass_status"))
+
+
+def _block(name: str) -> str:
+    """A block's array of a port: ``x_b`` (element i of lane j at [i * LANES + j])."""
+    return f"{name}_b"
+
+
+def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
+                 optional_stores: list[dict], prefix: str, run_call: str,
+                 two: LoweredProgram | None = None, real: Precision = DOUBLE) -> dict:
+    """The pieces of run_tracks: blocks of :data:`LANES` tracks, structure-of-arrays.
+
+    The caller's arrays stay track after track (track t's z, x0, P0, xs, Ps laid out
+    exactly as for run); each block copies its tracks' state and each step's inputs into
+    block arrays (element i of lane j at ``[i * LANES + j]``), runs the step body over
+    the lanes in one loop (``LANES`` as the stride), and copies the results back to the
+    tracks' rows. ``state``: the carried state (derive.emit.render.carried_state);
+    ``optional_stores``: run's outputs that may be NULL; ``run_call``: the call of run on
+    track t's arrays, for the last tracks (fewer than a block); ``two``: the two-step map
+    (the lanes take two steps per pass, as run does).
+    """
+    if not inlined(body) or (two is not None and not inlined(two)):  # run on every track
+        return {"lanes": None, "status": False, "macros": [], "run_call": run_call}
+    lanes = LANES
+    names = {port: _block(port) for port, _ in unit.carried}
+    names.update({out: _block(out) for _, out in unit.carried})
+    names.update({name: _block(name) for name in unit.step_inputs})
+    if unit.parameters:
+        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
+                                 else PARAMETER_PORT)
+    arrays = [f"{_block(s['name'])}[{s['size']} * {lanes}]" for s in state]
+    arrays += [f"{_block(s['out'])}[{s['size']} * {lanes}]" for s in state]
+    arrays += [f"{_block(name)}[{unit.step_input_size(name)} * {lanes}]"
+               for name in unit.step_inputs]
+    load = [{"array": _block(s["name"]), "source": s["start"], "size": s["size"]}
+            for s in state]
+    per_lane = 2 * sum(s["size"] for s in state) + sum(
+        unit.step_input_size(name) for name in unit.step_inputs) + (
+        unit.n + unit.m if two is not None else 0)
+
+    def gather(row: str, names_of: dict[str, str]) -> list[dict]:
+        """Row ``row`` of each per-step input of the block's tracks into its block array."""
+        return [{"array": _block(names_of.get(name, name)), "source": name,
+                 "size": unit.step_input_size(name), "row": row}
+                for name in unit.step_inputs]
+
+    def prefetch(row: str) -> list[dict]:
+        """The rows AHEAD steps after ``row`` of the per-step inputs (read) and the stored
+        outputs (written)."""
+        ahead = f"{row} + {AHEAD}"
+        return ([{"array": name, "size": unit.step_input_size(name), "row": ahead,
+                  "write": 0} for name in unit.step_inputs]
+                + [{"array": s["store"], "size": s["size"], "row": ahead, "write": 1}
+                   for s in state if s["store"]])
+
+    def stores(row: str, values: dict[str, str]) -> list[dict]:
+        """The rows ``row`` of run's stored outputs from the block arrays ``values``."""
+        out = [{"array": s["store"], "source": values[s["out"]], "size": s["size"],
+                "row": row, "optional": False} for s in state if s["store"]]
+        out += [{"array": s["array"], "source": values[s["out"]], "size": s["size"],
+                 "row": row, "optional": True} for s in optional_stores if s["out"] in values]
+        return out
+
+    status = bool(body.checks) or (two is not None and bool(two.checks))
+    step_call = _call(body, body_name(prefix), {port: f"{block} + j" if port != PARAMETER_PORT
+                                                else block for port, block in names.items()},
+                      lanes)
+    news = {s["out"]: _block(s["out"]) for s in state}
+    parts = {
+        "lanes": lanes, "simd": SIMD, "arrays": arrays, "load": load,
+        "macros": macro_lines(interleave(per_lane)),
+        "status": status,
+        "p_row": (f"const {real.c_type} *restrict {_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
+                  "p_stride;" if unit.parameters and PARAMETER_PORT in body.used_inputs()
+                  else ""),
+        "gather": gather("k", {}),
+        "prefetch": prefetch("k"), "ahead": AHEAD, "prefetch_macro": PREFETCH,
+        "lane": [(f"status_b[j] = {step_call};" if body.checks else f"{step_call};")],
+        "store": stores("k", news),
+        "shift": [{"array": _block(s["name"]), "source": _block(s["out"]),
+                   "size": s["size"]} for s in state],
+        "run_call": run_call,
+        "pass": None,
+    }
+    if two is not None:
+        mid = _block("x_mid")
+        parts["arrays"] += [f"{mid}[{unit.n} * {lanes}]",
+                            f"{_block(LOOKAHEAD_NEXT)}[{unit.m} * {lanes}]"]
+        first = _call(body, body_name(prefix), {**{p: f"{b} + j" for p, b in names.items()},
+                                                "x_new": f"{mid} + j"}, lanes)
+        second = _call(two, body_name(prefix, "pass"),
+                       {"x": f"{_block('x')} + j", "z": f"{_block('z')} + j",
+                        LOOKAHEAD_NEXT: f"{_block(LOOKAHEAD_NEXT)} + j",
+                        "x_new": f"{_block('x_new')} + j"}, lanes)
+        lane = [f"const int step_status = {first};" if body.checks else f"{first};",
+                f"const int pass_status = {second};" if two.checks else f"{second};"]
+        held = [name for name, checks in (("step_status", body.checks),
+                                          ("pass_status", two.checks)) if checks]
+        if held:  # the step's failed check first, as in run
+            lane.append("status_b[j] = " + (" ? step_status : ".join(held)) + ";")
+        parts["pass"] = {
+            "gather": gather("k", {}) + [{"array": _block(LOOKAHEAD_NEXT), "source": "z",
+                                          "size": unit.m, "row": "k + 1"}],
+            "prefetch": prefetch("k"),
+            "lane": lane,
+            "store": stores("k", {"x_new": mid}) + stores("k + 1", news),
+        }
+    return parts

@@ -18,6 +18,8 @@ so that the code is clean under ``-Wdouble-promotion -Wfloat-conversion``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from derive.emit.python_printer import InfixPrinter
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram, Tree
 from derive.precision import DOUBLE, Precision
@@ -167,10 +169,19 @@ def function_parts(lowered: LoweredProgram, prefix: str,
     return {"signature": prototype(lowered, prefix, precision=precision), "body": body}
 
 
-def statements(lowered: LoweredProgram, precision: Precision = DOUBLE) -> list[str]:
-    """The program's statements (unindented): its temporaries and checks, then its
-    results written to the output arrays; no declarations, no final ``return 0``."""
-    printer = CPrinter(precision=precision)
+def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
+               element: Callable[[str, int], str] | None = None,
+               status: str | None = None) -> list[str]:
+    """The program's statements (unindented) in ``precision``: its temporaries and checks,
+    then its results written to the output arrays; no declarations, no final ``return 0``.
+
+    ``element(port, index)``: the C text of an element of a port (default ``x[3]``);
+    ``status``: the name of an int a failed check sets, when it is still 0, instead of
+    returning (the statements then run to the end: no branch leaves them, so a loop
+    over tracks around them is vectorised); pattern checks always return."""
+    printer = CPrinter(None if element is None else
+                       lambda v: v.name if v.index is None else element(v.base, v.index),
+                       precision=precision)
     body: list[str] = []
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
@@ -178,11 +189,18 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE) -> list[s
                         f"{printer.expression(st.tree)};")
         elif st.is_pattern:
             body += pattern_check_lines(st, precision=precision)
+        elif status is not None:
+            value = printer.expression(st.tree.args[0])
+            body += [f"if (!({value} > {precision.zero()}) && !{status}) {{",
+                     f"    {status} = {st.status}; /* {comment_text(st.message)} */",
+                     "}"]
         else:
             value = printer.expression(st.tree.args[0])
             body += [f"if (!({value} > {precision.zero()})) {{",
                      f"    return {st.status}; /* {comment_text(st.message)} */",
                      "}"]
+    place = element or (lambda name, k: f"{name}[{k}]")
     for name, leaves in lowered.results:
-        body += [f"{name}[{k}] = {printer.expression(leaf)};" for k, leaf in enumerate(leaves)]
+        body += [f"{place(name, k)} = {printer.expression(leaf)};"
+                 for k, leaf in enumerate(leaves)]
     return body

@@ -5,14 +5,18 @@ per element; on one track that is most of the time.  Here the loop carries the s
 in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), unpacks each
 row of the per-step inputs into locals, runs the step's own statements (same printer,
 same operations, same order, so the results are bitwise those of ``step``) and keeps
-its new elements in one flat list, turned into arrays once at the end.  A failed check
-raises :class:`NumericalError` with the step's message and the step's index.
+its new elements in one flat list (one tuple per step), packed into an array once at the
+end.  Per step it names only what is read twice: a temporary read once is printed inside
+its reader (unless a check lies between them, so nothing divides by a value before it is
+checked), and a new state element is written to its local where it is computed once the
+old value is dead.  A failed check raises :class:`NumericalError` with the step's message
+and the step's index (the rows kept so far: no counter per step).
 """
 
 from __future__ import annotations
 
 from derive.emit.python_printer import PythonPrinter
-from derive.lowering import LoweredAssign, LoweredProgram, Var, tree_vars
+from derive.lowering import LoweredAssign, LoweredProgram, Op, Var, tree_vars
 from derive.program import PARAMETER_PORT
 
 
@@ -103,39 +107,140 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
                  for name, one in zip(step_inputs, single, strict=True)]
     rows = sources[0] if len(sources) == 1 else f"zip({', '.join(sources)})"
     target = row_names[0] if len(row_names) == 1 else f"({', '.join(row_names)})"
-    out.append(f"for k, {target} in enumerate({rows}):" if lowered.has_checks
-               else f"for {target} in {rows}:")
+    out.append(f"for {target} in {rows}:")
     body: list[str] = []
     for name, row, one in zip(step_inputs, row_names, single, strict=True):
         if read.get(name) and not one:
             body += _unpack([local_name(name, i) for i in range(ports[name].size)], row)
-    for st in lowered.body:
-        if isinstance(st, LoweredAssign):
-            body.append(f"{st.target} = {text(st.tree)}")
-        else:
-            body += [f"if not {text(st.tree.args[0])} > 0.0:",
-                     f'    raise NumericalError(f"step {{k}}: " + {st.message!r})']
-    body += _wrap(f"keep(({kept[0]},))" if len(kept) == 1 else f"keep(({', '.join(kept)}))")
-    # the new state: every element the next step reads, from this step's leaves; a leaf
-    # that reads the old state is bound first, so no assignment sees a new value early
+    # the new state: every element the next step reads, from this step's leaves
     leaves = [(local_name(port, i), results[result][i])
               for port, result in carried for i in sorted(read.get(port, ()))]
+    inlined = _single_use(lowered)
+    direct = _direct_state(lowered, leaves, name_of, inlined)
+    printer = PythonPrinter(lambda var: direct.get(var.name) or name_of(var))
+    width = len(kept)
+    for st in lowered.body:
+        if isinstance(st, LoweredAssign):
+            if st.target not in inlined:
+                tree = _substitute(st.tree, inlined)
+                body.append(f"{direct.get(st.target, st.target)} = {printer.expression(tree)}")
+        else:
+            value = printer.expression(_substitute(st.tree.args[0], inlined))
+            step = "len(rows)" if width == 1 else f"len(rows) // {width}"
+            body += [f"if not {value} > 0.0:",
+                     f'    raise NumericalError(f"step {{{step}}}: " + {st.message!r})']
+    kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
+    body += _wrap(f"keep(({kept_now[0]},))" if width == 1 else
+                  f"keep(({', '.join(kept_now)}))")
+    # the rest of the state (a leaf that reads the old state is bound first, so no
+    # assignment sees a new value early)
     olds = {t for t, _ in leaves}
     assigned, early = [], []
     for target_, leaf in leaves:
-        value = text(leaf)
-        if {name_of(v) for v in tree_vars(leaf)} & olds and value != target_:
+        value = printer.expression(leaf)
+        if value == target_:
+            continue
+        if {name_of(v) for v in tree_vars(leaf)} & olds:
             early.append(f"n_{target_} = {value}")
             value = f"n_{target_}"
         assigned.append((target_, value))
-    body += early + [f"{t} = {v}" for t, v in assigned if t != v]
+    body += early + [f"{t} = {v}" for t, v in assigned]
     out += [f"    {line}" for line in body]
-    out.append(f"table = np.array(rows, dtype=float).reshape(-1, {len(kept)})")
+    # packed once at the end: the fastest way from a list of floats to an array
+    out.append(f'table = np.frombuffer(struct.pack(f"{{len(rows)}}d", *rows))'
+               f".reshape(-1, {width})")
     ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
            f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
            for port, shape in stored]
     out += _wrap(f"return {ret[0]}" if len(ret) == 1 else f"return ({', '.join(ret)})")
     return tuple(indent + line for line in out)
+
+
+def _kept_leaves(carried, results, text) -> list:
+    """The distinct leaves of the carried results, in the order ``kept`` lists them."""
+    seen: dict[str, object] = {}
+    for _, result in carried:
+        for leaf in results[result]:
+            seen.setdefault(text(leaf), leaf)
+    return list(seen.values())
+
+
+def _direct_state(lowered: LoweredProgram, leaves, name_of,
+                  inlined: dict[str, object]) -> dict[str, str]:
+    """``{temporary: state local}`` for the temporaries that can be assigned to the state's
+    local directly: the leaf of one state element, defined after the last statement that
+    reads that element's old value (so the old value is dead when it is overwritten; a
+    read inside an inlined temporary happens where its reader is)."""
+    position = {st.target: k for k, st in enumerate(lowered.body)
+                if isinstance(st, LoweredAssign)}
+    reader = {v.name: k for k, st in enumerate(lowered.body)
+              for v in tree_vars(st.tree) if v.name in inlined}
+    last_read: dict[str, int] = {}
+    for k, st in enumerate(lowered.body):
+        at, target = k, getattr(st, "target", None)
+        while target in inlined:
+            at = reader[target]
+            target = getattr(lowered.body[at], "target", None)
+        for v in tree_vars(st.tree):
+            last_read[name_of(v)] = max(last_read.get(name_of(v), -1), at)
+    leaf_reads = {name_of(v) for _, leaf in leaves for v in tree_vars(leaf)}
+    direct: dict[str, str] = {}
+    for target, leaf in leaves:
+        if not isinstance(leaf, Var) or leaf.index is not None or leaf.name in direct or \
+                leaf.name not in position or target in leaf_reads:
+            continue
+        if last_read.get(target, -1) <= position[leaf.name]:
+            direct[leaf.name] = target
+    return direct
+
+
+def _single_use(lowered: LoweredProgram) -> dict[str, object]:
+    """``{temporary: tree}`` of the temporaries read exactly once, by a later statement with
+    no check between: printed inside their reader (same operations, same order, one
+    name fewer)."""
+    uses: dict[str, int] = {}
+    reader: dict[str, int] = {}
+    for k, st in enumerate(lowered.body):
+        for v in _var_occurrences(st.tree):
+            if v.index is None:
+                uses[v.name] = uses.get(v.name, 0) + 1
+                reader[v.name] = k
+    for _, leaves in lowered.results:
+        for leaf in leaves:
+            for v in _var_occurrences(leaf):
+                uses[v.name] = uses.get(v.name, 0) + 2     # kept: never inlined
+    checks = [k for k, st in enumerate(lowered.body) if not isinstance(st, LoweredAssign)]
+    inlined: dict[str, object] = {}
+    for k, st in enumerate(lowered.body):
+        if not isinstance(st, LoweredAssign) or uses.get(st.target) != 1:
+            continue
+        if any(k < c < reader[st.target] for c in checks):
+            continue
+        if not isinstance(lowered.body[reader[st.target]], LoweredAssign):
+            continue
+        inlined[st.target] = st.tree
+    return inlined
+
+
+def _var_occurrences(tree) -> list[Var]:
+    found, stack = [], [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, Var):
+            found.append(node)
+        else:
+            stack.extend(getattr(node, "args", ()))
+    return found
+
+
+def _substitute(tree, inlined: dict[str, object]):
+    """``tree`` with each inlined temporary replaced by its own tree (recursively)."""
+    if isinstance(tree, Var):
+        inner = inlined.get(tree.name) if tree.index is None else None
+        return tree if inner is None else _substitute(inner, inlined)
+    if isinstance(tree, Op):
+        return Op(tree.kind, tuple(_substitute(a, inlined) for a in tree.args))
+    return tree
 
 
 def _wrap(line: str, width: int = 88) -> list[str]:

@@ -18,10 +18,12 @@ import jinja2
 import numpy as np
 
 from derive import interface
-from derive.emit import c_printer, python_printer
+from derive.emit import c_loops, c_printer, python_printer
 from derive.emit.c_loops import (
-    LANES,
+    body_functions,
+    body_name,
     fused_body,
+    step_function_body,
     tracks_parts,
     two_step,
     two_step_body,
@@ -86,11 +88,12 @@ def _dims(arg: Argument, sep: str) -> str:
 
 
 def describe(prefix: str, lowered: dict[str, LoweredProgram],
-             run: list[Argument] | None = None, real: Precision = DOUBLE
-             ) -> interface.Interface:
+             run: list[Argument] | None = None, real: Precision = DOUBLE, *,
+             c_run: bool = True, tracks: bool = False) -> interface.Interface:
     """The interface of one file: a function per program (C: ``PREFIX_NAME``) and, with
-    ``run`` (the run function's arguments), the run function; statuses of every check;
-    ``real``: the C's element type."""
+    ``run`` (the run function's arguments), the run function (in C only when ``c_run``;
+    with ``tracks``, C's ``PREFIX_run_tracks`` too, taking run's arguments per track);
+    statuses of every check; ``real``: the C's element type."""
     functions, python = [], []
     for lp in lowered.values():
         ports = {p.name: p for p in lp.inputs + lp.outputs}
@@ -109,14 +112,20 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
                                         rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
                                         scratch=a.scratch)
                      for a in run)
-        functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
+        if c_run:
+            functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
+        if tracks:
+            functions.append(interface.Function(f"{prefix}_run_tracks", "run_tracks", status,
+                                                args, True))
         python.append(interface.Function("run", "run", status,
                                          tuple(a for a in args if not a.scratch), True))
     statuses = []
     for lp in lowered.values():
         messages = {c.status: c.message for c in lp.checks}
-        zero = {c.status: tuple(sorted(c.tree.args[0].index for c in lp.pattern_checks))
-                for c in lp.pattern_checks}
+        pattern_checks = lp.pattern_checks
+        zero = ({pattern_checks[0].status: tuple(sorted(c.tree.args[0].index
+                                                        for c in pattern_checks))}
+                if pattern_checks else {})
         statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()))
                      for number in sorted(messages)]
     return interface.Interface(tuple(functions), tuple(statuses), tuple(python),
@@ -163,7 +172,8 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
     if unit.run.window:
         lines.append(f"window: {unit.window} (last measurements, newest first)")
     lines.append("interface (flat row-major arrays; steps = number of steps):")
-    described = describe(unit.prefix, lowered, run_arguments(unit), real)
+    described = describe(unit.prefix, lowered, run_arguments(unit), real,
+                         c_run=unit.run_function, tracks=unit.batch)
     lines += described.c_lines() if lang == "c" else described.python_lines()
     if lang == "c" and unit.batch:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
@@ -507,7 +517,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             "is carried from pass to pass",
             f"operations per pass of run, two steps ({_language('c', use_fma, real)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
-    described = describe(unit.prefix, lowered, run_arguments(unit), real)
+    described = describe(unit.prefix, lowered, run_arguments(unit), real,
+                         c_run=unit.run_function, tracks=unit.batch)
     header_lines.append(described.block())
     header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
@@ -535,9 +546,16 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
-    # run checks P0 once (run_checks); the loop's P stays in the pattern by construction
+    # without --no-run run is exported; else private to run_tracks (its last tracks), or none
+    exported_run = [run_signature + ";"] if unit.run_function else []
+    if not unit.run_function:
+        run_signature = f"static {run_signature}" if unit.batch else ""
+    # run checks P0 once (run_checks); the loop's P stays in the pattern by construction.
+    # The step's statements are printed once, in its body (derive.emit.c_loops): step, run
+    # and run_tracks call it
     loop_step = step_lp.without_pattern_checks()
-    fused = fused_body(unit, loop_step) if not unit.run.window else []
+    step_body = body_name(prefix)
+    fused = fused_body(unit, loop_step, prefix) if not unit.run.window else []
     state = carried_state(unit, step_lp)
     optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
     starts = {s["name"]: (s["start"], s["size"]) for s in state}
@@ -560,20 +578,44 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c), real)]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
-    lookahead = two_step_body(unit, loop_step, two) if two is not None else []
+    lookahead = two_step_body(unit, loop_step, two, prefix) if two is not None else []
     step_rows = [f"const {real.c_type} *restrict {name}k = {name} + k * "
                  f"{unit.step_input_size(name)};" for name in unit.step_inputs]
     if fused and unit.parameters and PARAMETER_PORT in loop_step.used_inputs():
         step_rows.append(f"const {real.c_type} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT}"
                          f" + k * {P_STRIDE};")
     batch = unit.batch
-    tracks = [tracks_parts(unit, loop_step, lanes, state, optional_stores, two)
-              for lanes in (LANES, 1)] if batch else []
+    run_args = {a.c_name: a for a in args}
+    sizes = {"n": unit.n, "m": unit.m}
+
+    def track_array(name: str) -> str:
+        """Track t's part of a run_tracks argument (optional ones may be NULL)."""
+        arg = run_args[name]
+        size = " * ".join(str(sizes.get(d, d)) for d in arg.dims)
+        part = f"{name} + t * {size}"
+        return f"{name} ? {part} : NULL" if arg.optional else part
+
+    tail = f"{prefix}_run(steps, " + ", ".join(
+        track_array(a.c_name) if a.c_name != PARAMETER_PORT else a.c_name
+        for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
+    run_call = ([f"const int track_status = {tail};", "if (track_status) {",
+                 "    return track_status;", "}"] if status else [f"{tail};"])
+    tracks = tracks_parts(unit, loop_step, state, optional_stores, prefix, run_call,
+                          two, real) if batch else {}
     tracks_params = ["size_t steps", "size_t tracks"] + [
         (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
         for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{', '.join(tracks_params)})") if batch else ""
+    bodies = [loop_step] + ([two] if two is not None else [])
+    functions = body_functions(loop_step, step_body, real)
+    if two is not None:
+        functions += body_functions(two, body_name(prefix, "pass"), real)
+    for lp in lps:
+        parts = c_printer.function_parts(lp, prefix, real)
+        if lp.name == "step":
+            parts["body"] = step_function_body(lp, loop_step, step_body, real)
+        functions.append(parts)
     used = step_lp.used_inputs()
     rows = {name: f"{name}k" for name in
             unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())}
@@ -584,12 +626,15 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
         "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix, restrict, real) + ";" for lp in lps]
-        + [run_signature + ";"] + ([tracks_signature + ";"] if tracks_signature else []),
+        + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps),
         "fma_macro": c_printer.fma_macro_lines(real) if any("fma" in lp.kinds() for lp in lps)
         else [],
-        "functions": [c_printer.function_parts(lp, prefix, real) for lp in lps],
+        "loop_macros": c_loops.CONTRACT_LINES + (
+            c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
+        + (tracks["macros"] if batch else []),
+        "functions": functions,
         "real": real.c_type,
         "zero": real.zero(),
         "run_signature": run_signature,

@@ -138,6 +138,8 @@ class Unit:
     no ``p`` anywhere).  ``step_inputs``: the per-step input ports of ``step``
     (their sequences are the run's inputs).  ``facts``: extra ``"key: value"``
     header lines.  ``command``: the command that regenerates the files.
+    ``run_function``: False leaves ``MODEL_FILTER_run`` out of the C (its loop stays
+    private to run_tracks when the unit has one; the Python run stays).
     ``options``: e.g. ``{"window": N}`` (required by a windowed run), ``{"horizon": N}``.
     ``lookahead``: the two-step map x(k+2) from x(k), z(k), z(k+1) (ports ``x``, ``z``,
     :data:`LOOKAHEAD_NEXT` -> ``x_new``), built by the derivation from its exact
@@ -170,6 +172,7 @@ class Unit:
     predict_inputs: tuple[int, ...] = ()
     update_first: bool = False
     precision: str = "double"
+    run_function: bool = True
 
     def __post_init__(self) -> None:
         for what, value in (("model", self.model), ("filter", self.filter)):

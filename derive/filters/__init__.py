@@ -17,6 +17,7 @@ import pkgutil
 from .. import progress, system_checks
 from ..errors import FilterError, SteadyStateError
 from ..options import use_filters, validate
+from ..schedule import scheduled_unit
 from .spec import FilterSpec
 
 
@@ -130,7 +131,10 @@ def derive_unit(model, name: str, options=None):
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "
                         f"{model.m} measurements)...")
-    return f.derive(model, f, typed)
+    unit = f.derive(model, f, typed)
+    if typed.get("latency_schedule"):
+        unit = scheduled_unit(unit)
+    return unit
 
 
 __all__ = ["BATCH_FILTERS", "FILTERS", "MISSING_FILTERS", "FilterSpec", "available",

@@ -46,6 +46,9 @@ from .sensors import reference_run as sensors_reference
 from .spec import FilterSpec
 from .unit import make_sensor_unit, make_unit
 
+JACOBIAN_FACT = ("Jacobians: sympy, polynomial entries as derived, others simplified, "
+                 "evaluated with f and h through shared subexpressions")
+
 
 def ekf_predict_stage(model) -> Predict:
     """x(k/k-1) = f(x, u), P(k/k-1) = F P F^T + Q (F = I folds to P + Q); with inputs in
@@ -113,8 +116,7 @@ def derive_unit(model, spec, options):
         programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                              ekf_update_stage(model), options, spec.title,
                                              sensors=sensors)
-        facts = (["Jacobians: sympy, entries simplified, evaluated with f and h through "
-                  "shared subexpressions", *facts]
+        facts = ([JACOBIAN_FACT, *facts]
                  + sensor_facts(model, groups, thresholds, options.start)
                  + unit_norm_fact(model))
         return make_sensor_unit(model, spec, programs, options, groups, thresholds,
@@ -123,9 +125,7 @@ def derive_unit(model, spec, options):
                                          ekf_update_stage(model), options,
                                          spec.title)
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
-    return _with_facts(unit, ["Jacobians: sympy, entries simplified, evaluated with f and h "
-                              "through shared subexpressions", *facts,
-                              *unit_norm_fact(model)])
+    return _with_facts(unit, [JACOBIAN_FACT, *facts, *unit_norm_fact(model)])
 
 
 def _with_facts(unit, facts: list[str]):

@@ -42,19 +42,22 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
     Pp = staging.add(prog, staging.matmul(prog, staging.matmul(prog, F, P), F.T,
                                           symmetric_result=True), W, symmetric_result=True)
     if not missing:
-        HtRinv = staging.transpose(staging.spd_solve(prog, R, H))  # H^T R^-1 (constant)
+        # H^T R^-1 (constant)
+        HtRinv = staging.transpose(staging.spd_solve(prog, R, H, axis="measurements"))
     elif _is_diagonal(R):
-        HtRinv = mask_columns(prog, staging.transpose(staging.spd_solve(prog, R, H)), z)
+        HtRinv = mask_columns(prog, staging.transpose(
+            staging.spd_solve(prog, R, H, axis="measurements")), z)
     else:
         H_present = staging.let_matrix(
             prog, sympy.Matrix(H.rows, H.cols, lambda i, j: IfPresent(z[i], H[i, j], 0)),
             hint="present")
         HtRinv = staging.transpose(staging.spd_solve(prog, mask_symmetric(prog, R, z),
-                                                     H_present, name="R"))
-    info = staging.add(prog, staging.spd_inverse(prog, Pp),
+                                                     H_present, name="R",
+                                                     axis="measurements"))
+    info = staging.add(prog, staging.spd_inverse(prog, Pp, axis="states"),
                        staging.matmul(prog, HtRinv, H, symmetric_result=True),
                        symmetric_result=True)
-    P_new = staging.spd_inverse(prog, info)
+    P_new = staging.spd_inverse(prog, info, axis="states")
     K = staging.matmul(prog, P_new, HtRinv)
     innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
     if missing:
@@ -93,6 +96,6 @@ def applies(model) -> str | None:
 
 SPECS = (FilterSpec(
     "ikf", "information-form Kalman filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, applies=applies, listing=40,
+    covariance=True, missing=True, batch=True, blockwise=True, applies=applies, listing=40,
     about={"python": "Run the information-form Kalman filter.",
            "c": "Run the information-form Kalman filter over steps steps; Ps may be NULL."}),)

@@ -45,7 +45,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "jklf", "joint Kalman-Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, listing=30,
+    covariance=True, missing=True, batch=True, blockwise=True, listing=30,
     about={"python": "Run the joint Kalman-Lainiotis filter: the mean of the KF and LF "
                      "estimates.",
            "c": "Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL."}),)

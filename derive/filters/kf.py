@@ -24,6 +24,7 @@ from ..errors import OptionError
 from ..options import KalmanOptions
 from ..program import Port, Program
 from . import pattern as pat
+from .blockwise import blockwise_step
 from .common import (
     JOSEPH_FACT,
     MISSING_FACT,
@@ -79,7 +80,8 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
         xp = staging.add(prog, xp, staging.matmul(prog, mats["B"], u))
     if missing:
         S, PHt = mask_symmetric(prog, S, z), mask_columns(prog, PHt, z)
-    K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt)))
+    K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt),
+                                            axis="measurements"))
     predicted_z = staging.matmul(prog, H, xp)
     if u is not None:
         predicted_z = staging.add(prog, predicted_z, staging.matmul(prog, mats["D"], u))
@@ -106,7 +108,22 @@ def time_varying_program(model, update, title: str, P0_pattern: str | None) -> P
 
     P's pattern is the closure of P0's declared pattern (option ``P0_pattern``; None:
     the model's) under ``update``; entries outside it are neither read nor computed.
+    A model of independent blocks is derived block by block, each distinct block once
+    (:mod:`derive.filters.blockwise`).
     """
+    declared_name = P0_pattern or model.P0_pattern
+
+    def derive_block(block_model):
+        return _time_varying_step(block_model, update, title, declared_name)
+
+    assembled = blockwise_step(model, declared_name, derive_block)
+    if assembled is not None:
+        return assembled[0]
+    return derive_block(model)[0]
+
+
+def _time_varying_step(model, update, title: str, declared_name: str):
+    """(the optimised step of ``model``, derived whole, and P's closed pattern)."""
     inputs, outputs = time_varying_ports(model)
 
     def build(pattern):
@@ -121,12 +138,11 @@ def time_varying_program(model, update, title: str, P0_pattern: str | None) -> P
     def step_pattern(pattern):
         return pat.of_matrix(build(pattern)[2])
 
-    declared_name = P0_pattern or model.P0_pattern
     closed = pat.closure(step_pattern, pat.declared(model, declared_name))
     prog, x_new, P_new = build(closed)
     prog.set_output("x_new", list(x_new))
     prog.set_output("P_new", list(P_new))
-    return prog.optimize()
+    return prog.optimize(), closed
 
 
 def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | None
@@ -275,7 +291,7 @@ INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z)
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
     options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True,
-    sensors=True, listing=10,
+    sensors=True, blockwise=True, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",
            "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

@@ -40,7 +40,7 @@ def lf_constants(prog: Program, mats, z=None):
                     symmetric_result=True)
     if z is not None:
         S, WHt = mask_symmetric(prog, S, z), mask_columns(prog, WHt, z)
-    A = staging.spd_inverse(prog, S)
+    A = staging.spd_inverse(prog, S, axis="measurements")
     Kn = staging.matmul(prog, WHt, A)
     HF = staging.matmul(prog, H, F)
     HFt = staging.transpose(HF) if z is None else mask_columns(prog, staging.transpose(HF), z)
@@ -91,7 +91,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "lf", "Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, listing=20,
+    covariance=True, missing=True, batch=True, blockwise=True, listing=20,
     about={"python": "Run the Lainiotis filter: the partitioned update with constants "
                      "precomputed offline.",
            "c": "Run the Lainiotis filter over steps steps; Ps may be NULL."}),)

@@ -72,13 +72,20 @@ MAX_SIMPLIFY_BUDGET = 2000
 
 class _Simplifier:
     """``expr`` or its simplified form, whichever has strictly fewer operations, within
-    the bounds above (deterministic: the same model is always simplified the same way)."""
+    the bounds above (deterministic: the same model is always simplified the same way).
+
+    A polynomial entry is kept as derived: differentiating a polynomial leaves the
+    products and differences f or h is written with (``(wx - bgx)*dt/2``), which the
+    program shares with f's own evaluation and across entries, while ``simplify`` only
+    factors or flips signs (``dt*(bgx - wx)/2``), fewer operations alone but a new
+    subexpression in the program (ins_gnss: 11 more flops in predict), and most of the
+    generation time."""
 
     def __init__(self) -> None:
         self.spent = 0
 
     def __call__(self, expr: sympy.Expr) -> sympy.Expr:
-        if expr.is_Atom:
+        if expr.is_Atom or expr.is_polynomial():
             return expr
         operations = sympy.count_ops(expr)
         if operations > MAX_SIMPLIFY_OPERATIONS or \

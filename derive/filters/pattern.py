@@ -24,8 +24,11 @@ def closure(step_pattern, start: Pattern) -> Pattern:
     """Least fixed point of ``p -> p | step_pattern(p)`` above ``start``.
 
     ``step_pattern(p)`` returns the pattern of P_new when P has pattern ``p``.
-    Patterns only grow, so this ends after at most n*n rounds.
+    Patterns only grow, so this ends after at most n*n rounds; a dense ``start`` is its
+    own closure (no step is derived for it).
     """
+    if all(all(row) for row in start):
+        return start
     current = start
     while True:
         nxt = union(current, step_pattern(current))

@@ -15,7 +15,7 @@ from .. import reference as numpy_reference
 from ..options import PredictionOptions
 from ..program import Port, Program
 from .spec import FilterSpec
-from .steady import affine_program, baked, two_step_program
+from .steady import affine_program, sparse_affine, sparse_exact, two_step_program
 from .unit import make_unit
 
 
@@ -30,7 +30,8 @@ def derive_unit(model, spec, options: PredictionOptions):
     init = Program("init", [Port("x0", (n,), doc="x(0/0)")],
                    [Port("x_new", (n,), doc=f"x({N}/0) = F^{N} x(0/0)")], doc="start of the run")
     FN = np.linalg.matrix_power(num.F, N)
-    init.set_output("x_new", [sympy.expand(e) for e in baked(FN) * init.matrix("x0")])
+    init.set_output("x_new", [sympy.expand(e)
+                              for e in sparse_affine(sparse_exact(FN), init.matrix("x0"))])
     return make_unit(model, spec, {"step": step, "init": init.optimize()}, options,
                      horizon=N, lookahead=two_step_program(n, m, pc.A_N, pc.B_N),
                      constants={"A_N": pc.A_N, "B_N": pc.B_N, "N": N})
@@ -45,7 +46,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "pred", "steady-state N-step predictor", "linear", "predictor", derive_unit, reference,
-    options=PredictionOptions, steady=True, listing=90,
+    options=PredictionOptions, steady=True, blockwise=True, listing=90,
     about={"python": "Run the predictor from x(N/0) = init(x0): row k is the prediction "
                      "after z[k].",
            "c": "Run the predictor from x(N/0) = init(x0): row k of xs is the prediction "

@@ -91,21 +91,26 @@ def gate_thresholds(groups, options) -> dict[str, tuple[float, float] | None]:
 
 
 def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None):
-    """``K = P H^T S^-1`` (LDL^T solve), ``x + K nu``, ``P - K (P H^T)^T`` (upper
-    triangle); returns ``(x_new, P_new, ())``, or with a ``threshold`` the gated update and
-    ``(nis, applied)``: x and P unchanged when ``nis = nu^T S^-1 nu`` exceeds it.
-    ``innovation_of()`` stages nu (after the gain, in the papers' order, when ungated)."""
+    """``K = P H^T S^-1``, ``x + K nu``, ``P - K (P H^T)^T`` (upper triangle) through
+    ``S = L D L^T`` without the back substitution: with ``Y = L^-1 (P H^T)^T`` and
+    ``Z = D^-1 Y``, ``K (P H^T)^T = Z^T Y`` and ``K nu = Z^T L^-1 nu``. Returns
+    ``(x_new, P_new, ())``, or with a ``threshold`` the gated update and ``(nis,
+    applied)``: x and P unchanged when ``nis = (L^-1 nu)^T D^-1 (L^-1 nu)`` exceeds it.
+    ``innovation_of()`` stages nu (after the gain's factors, in the papers' order, when
+    ungated)."""
+    n = PHt.rows
     if threshold is None:
-        K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt), name="S"))
-        x_new = staging.add(prog, x, staging.matmul(prog, K, innovation_of()))
-        KPHt = staging.matmul(prog, K, staging.transpose(PHt), symmetric_result=True)
-        return x_new, staging.sub(prog, P, KPHt, symmetric_result=True), ()
-    n, m = PHt.shape
+        L, Y, Z = staging.ldl_forward(prog, S, staging.transpose(PHt), name="S")
+        weights = staging.forward_substitute(prog, L, innovation_of())  # L^-1 nu
+        x_new = staging.add(prog, x, staging.matmul(prog, Z.T, weights))
+        ZtY = staging.matmul(prog, Z.T, Y, symmetric_result=True)
+        return x_new, staging.sub(prog, P, ZtY, symmetric_result=True), ()
+    m = PHt.cols
     innovation = innovation_of()
-    solved = staging.spd_solve(prog, S, staging.transpose(PHt).row_join(innovation), name="S")
-    K = staging.transpose(solved[:, :n])
-    weights = solved[:, n]  # S^-1 nu
-    nis = prog.let(sympy.Add(*[innovation[i] * weights[i] for i in range(m)]), "nis")
+    L, Y, Z = staging.ldl_forward(prog, S, staging.transpose(PHt).row_join(innovation),
+                                  name="S")
+    weights = Y[:, n]  # L^-1 nu
+    nis = prog.let(sympy.Add(*[weights[i] * Z[i, n] for i in range(m)]), "nis")
     bound = sympy.Float(threshold, 17)
 
     def gated(M):
@@ -113,9 +118,9 @@ def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float |
                                   hint="gated")
 
     applied = prog.let(IfAtMost(nis, bound, sympy.Integer(1), sympy.Integer(0)), "applied")
-    x_new = staging.add(prog, x, staging.matmul(prog, PHt, gated(weights)))
-    KPHt = staging.matmul(prog, gated(K), staging.transpose(PHt), symmetric_result=True)
-    return x_new, staging.sub(prog, P, KPHt, symmetric_result=True), (nis, applied)
+    x_new = staging.add(prog, x, staging.matmul(prog, Z[:, :n].T, gated(weights)))
+    ZtY = staging.matmul(prog, gated(Z[:, :n]).T, Y[:, :n], symmetric_result=True)
+    return x_new, staging.sub(prog, P, ZtY, symmetric_result=True), (nis, applied)
 
 
 def renormalised(prog: Program, model, x):

@@ -35,6 +35,10 @@ class FilterSpec:
     ``update_<sensor>`` per sensor, the run kind ``sensors``) and the options ``gate``,
     ``gate_sensors`` and ``start`` (a model with sensors is refused by every filter
     without this flag).
+    ``blockwise``: its derivation's work grows with the model's independent blocks, not
+    with n as a whole (time-varying steps through derive.filters.blockwise unless P0's
+    pattern is dense; steady maps from their non-zero constants): what bounds the model
+    files it takes (derive.filters.blockwise.whole_states).
     ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
@@ -59,6 +63,7 @@ class FilterSpec:
     batch: bool = False
     inputs: bool = False
     sensors: bool = False
+    blockwise: bool = False
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
     about: Mapping[str, str] = field(default_factory=dict)

@@ -9,6 +9,7 @@ the SSKF's.
 
 from __future__ import annotations
 
+from fractions import Fraction
 from functools import partial
 
 import numpy as np
@@ -47,14 +48,44 @@ def steady_gains(model, name: str):
     return (k.A + lf.A) / 2, (k.B + lf.B) / 2
 
 
+SparseRows = list[list[tuple[int, Fraction]]]
+"""A matrix by rows, each the (column, exact value) of its non-zero entries in order."""
+
+
+def sparse_exact(array) -> SparseRows:
+    """The doubles of ``array`` as exact fractions, by rows, zeros left out: a
+    block-diagonal matrix of k blocks holds k times one block's entries, not n^2."""
+    a = np.atleast_2d(np.asarray(array, dtype=float))
+    return [[(int(j), Fraction(float(a[i, j]))) for j in np.flatnonzero(a[i])]
+            for i in range(a.shape[0])]
+
+
+def sparse_product(A: SparseRows, B: SparseRows) -> SparseRows:
+    """``A B``, exact (the sum of exact products; an entry that cancels to 0 is left out)."""
+    out: SparseRows = []
+    for row in A:
+        acc: dict[int, Fraction] = {}
+        for j, a in row:
+            for col, b in B[j]:
+                acc[col] = acc.get(col, 0) + a * b
+        out.append([(col, value) for col, value in sorted(acc.items()) if value])
+    return out
+
+
+def sparse_affine(rows: SparseRows, vector: sympy.Matrix) -> list[sympy.Expr]:
+    """``rows * vector`` entry by entry (the products of the exact constants)."""
+    return [sympy.Add(*(sympy.Rational(c.numerator, c.denominator) * vector[j]
+                        for j, c in row)) for row in rows]
+
+
 def affine_program(n: int, m: int, A, B, doc: str, out_doc: str, in_doc: str) -> Program:
-    """``x_new = A x + B z`` with constant A (n x n) and B (n x m)."""
+    """``x_new = A x + B z`` with constant A (n x n) and B (n x m); each entry sums the
+    non-zero terms only (the sums of the dense product, with its zero terms left out)."""
     prog = Program("step", [Port("x", (n,), doc=in_doc), Port("z", (m,), doc="z(k+1)")],
                    [Port("x_new", (n,), doc=out_doc)], doc=doc)
     x, z = prog.matrix("x"), prog.matrix("z")
-    Ax = baked(A) * x
-    Bz = baked(B) * z
-    prog.set_output("x_new", [sympy.expand(e) for e in (Ax + Bz)])
+    terms = zip(sparse_affine(sparse_exact(A), x), sparse_affine(sparse_exact(B), z))
+    prog.set_output("x_new", [sympy.expand(ax + bz) for ax, bz in terms])
     return prog.optimize()
 
 
@@ -62,14 +93,15 @@ def two_step_program(n: int, m: int, A, B) -> Program:
     """The two-step map of ``x_new = A x + B z``: x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)
     from ports ``x``, ``z`` (row k) and the next row, with the products of the exact
     baked doubles taken exactly (rounded once when printed); derive.emit.lookahead."""
-    A, B = baked(A), baked(B)
+    A, B = sparse_exact(A), sparse_exact(B)
     prog = Program("step2", [Port("x", (n,), doc="x(k)"), Port("z", (m,), doc="z(k)"),
                              Port(LOOKAHEAD_NEXT, (m,), doc="z(k+1)")],
                    [Port("x_new", (n,), doc="x(k+2)")],
                    doc="x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)")
     x, z, zn = prog.matrix("x"), prog.matrix("z"), prog.matrix(LOOKAHEAD_NEXT)
-    two = (A * A) * x + (A * B) * z + B * zn
-    prog.set_output("x_new", [sympy.expand(e) for e in two])
+    terms = zip(sparse_affine(sparse_product(A, A), x), sparse_affine(sparse_product(A, B), z),
+                sparse_affine(B, zn))
+    prog.set_output("x_new", [sympy.expand(a + b + c) for a, b, c in terms])
     return prog.optimize()
 
 
@@ -91,7 +123,7 @@ def reference(model, zs, options, name: str):
 def _spec(name: str, title: str, about: str, listing: int) -> FilterSpec:
     return FilterSpec(
         name, title, "linear", "steady", derive_unit, partial(reference, name=name),
-        steady=True, batch=True, listing=listing,
+        steady=True, batch=True, blockwise=True, listing=listing,
         about={"python": f"Run the {title}: {about}.",
                "c": f"Run the {title} over steps steps."})
 
@@ -103,5 +135,5 @@ SPECS = (
           70),
 )
 
-__all__ = ["SPECS", "affine_program", "baked", "derive_unit", "exact", "steady_gains",
-           "two_step_program"]
+__all__ = ["SPECS", "affine_program", "baked", "derive_unit", "exact", "sparse_exact",
+           "sparse_affine", "sparse_product", "steady_gains", "two_step_program"]

@@ -88,6 +88,7 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         carried=carried,
         symbol_prefix=options.prefix,
         precision=options.precision,
+        run_function=options.run,
     )
 
 

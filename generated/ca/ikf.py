@@ -26,6 +26,8 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -174,91 +176,70 @@ def run(zs, x0, P0):
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, z_0 in enumerate(zs[:, 0].tolist()):
+        for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1 + 0.5*x_2
             t1 = x_1 + x_2
-            t2 = P_0 + P_1 + 0.5*P_2
             t3 = P_1 + P_4 + 0.5*P_5
             t4 = P_2 + P_5 + 0.5*P_8
-            t5 = P_4 + P_5
             t6 = P_5 + P_8
-            t7 = t2 + t3 + 0.5*t4
-            t8 = t3 + t4
-            t9 = t5 + t6
-            t10 = 0.0005 + t7
-            t11 = 0.00125 + t8
+            t10 = 0.0005 + (P_0 + P_1 + 0.5*P_2 + t3 + 0.5*t4)
+            t11 = 0.00125 + (t3 + t4)
             t12 = 0.0016666666666666668 + t4
-            t13 = 0.0033333333333333335 + t9
+            t13 = 0.0033333333333333335 + (P_4 + P_5 + t6)
             t14 = 0.005 + t6
             t15 = 0.01 + P_8
             if not t10 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t16 = 1.0/t10
             t17 = t11*t16
             t18 = t12*t16
             t19 = t13 - t11*t17
             if not t19 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t20 = 1.0/t19
             t21 = t14 - t12*t17
             t22 = t20*t21
             t23 = t15 - t12*t18 - t21*t22
             if not t23 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t24 = 1.0/t23
             t25 = t17*t22 - t18
             t26 = t17*t20
             t27 = t24*t25
             t28 = t22*t24
-            t29 = t16 + t17*t26 + t25*t27
             t30 = t26 + t25*t28
             t31 = t20 + t22*t28
-            t32 = 10.0 + t29
+            t32 = 10.0 + (t16 + t17*t26 + t25*t27)
             if not t32 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t33 = 1.0/t32
             t34 = t30*t33
             t35 = t27*t33
             t36 = t31 - t30*t34
             if not t36 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t37 = 1.0/t36
             t38 = t27*t34 - t28
             t39 = t37*t38
             t40 = t24 - t27*t35 - t38*t39
             if not t40 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t41 = 1.0/t40
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            P_8 = 1.0/t40
             t42 = t35 + t34*t39
             t43 = t34*t37
-            t44 = t41*t42
-            t45 = t39*t41
-            t46 = t33 + t34*t43 + t42*t44
-            t47 = t43 + t42*t45
-            t48 = t37 + t39*t45
-            t49 = 10.0*t46
-            t50 = 10.0*t47
-            t51 = 10.0*t44
+            t44 = P_8*t42
+            t45 = t39*P_8
+            P_0 = t33 + t34*t43 + t42*t44
+            P_1 = t43 + t42*t45
+            P_4 = t37 + t39*t45
             t52 = z_0 - t0
-            t53 = t49*t52
-            t54 = t50*t52
-            t55 = t51*t52
-            t56 = t0 + t53
-            t57 = t1 + t54
-            t58 = x_2 - t55
-            t59 = -t44
-            t60 = -t45
-            keep((t56, t57, t58, t46, t47, t59, t48, t60, t41))
-            x_0 = t56
-            x_1 = t57
-            x_2 = t58
-            P_0 = t46
-            P_1 = t47
-            P_2 = t59
-            P_4 = t48
-            P_5 = t60
-            P_8 = t41
-        table = np.array(rows, dtype=float).reshape(-1, 9)
+            x_0 = t0 + 10.0*P_0*t52
+            x_1 = t1 + 10.0*P_1*t52
+            x_2 = x_2 - 10.0*t44*t52
+            P_2 = -t44
+            P_5 = -t45
+            keep((x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

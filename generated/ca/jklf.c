@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int ca_jklf_step(x[3], P[3*3], z[1], x_new[3] out, P_new[3*3] out)
  *     int ca_jklf_run(steps, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int ca_jklf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
@@ -20,7 +21,7 @@
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_jklf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_jklf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -35,15 +36,56 @@
 #endif
 #endif
 
-int ca_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int ca_jklf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-    const double t1 = x[1] + x[2];
-    const double t2 = DERIVE_FMA(0.5, P[2], P[0] + P[1]);
-    const double t3 = DERIVE_FMA(0.5, P[5], P[1] + P[4]);
-    const double t4 = DERIVE_FMA(0.5, P[8], P[2] + P[5]);
-    const double t5 = P[4] + P[5];
-    const double t6 = P[5] + P[8];
+    int status = 0;
+    const double t0 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
+    const double t1 = x[1 * s] + x[2 * s];
+    const double t2 = DERIVE_FMA(0.5, P[2 * s], P[0] + P[1 * s]);
+    const double t3 = DERIVE_FMA(0.5, P[5 * s], P[1 * s] + P[4 * s]);
+    const double t4 = DERIVE_FMA(0.5, P[8 * s], P[2 * s] + P[5 * s]);
+    const double t5 = P[4 * s] + P[5 * s];
+    const double t6 = P[5 * s] + P[8 * s];
     const double t7 = DERIVE_FMA(0.5, t4, t2 + t3);
     const double t8 = t3 + t4;
     const double t9 = t5 + t6;
@@ -52,10 +94,10 @@ int ca_jklf_step(const double *restrict x, const double *restrict P, const doubl
     const double t12 = 0.0016666666666666668 + t4;
     const double t13 = 0.0033333333333333335 + t9;
     const double t14 = 0.005 + t6;
-    const double t15 = 0.01 + P[8];
+    const double t15 = 0.01 + P[8 * s];
     const double t16 = 0.1 + t10;
-    if (!(t16 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t16 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t17 = 1.0/t16;
     const double t18 = t10*t17;
@@ -67,7 +109,7 @@ int ca_jklf_step(const double *restrict x, const double *restrict P, const doubl
     const double t24 = t20*t21;
     const double t25 = t0 + t22;
     const double t26 = t1 + t23;
-    const double t27 = x[2] + t24;
+    const double t27 = x[2 * s] + t24;
     const double t28 = t10*t18;
     const double t29 = t11*t18;
     const double t30 = t12*t18;
@@ -80,16 +122,16 @@ int ca_jklf_step(const double *restrict x, const double *restrict P, const doubl
     const double t37 = t13 - t31;
     const double t38 = t14 - t32;
     const double t39 = t15 - t33;
-    const double t40 = 9.950248756218905*P[1];
-    const double t41 = 4.975124378109452*P[2];
+    const double t40 = 9.950248756218905*P[1 * s];
+    const double t41 = 4.975124378109452*P[2 * s];
     const double t42 = DERIVE_FMA(9.950248756218905, P[0], t40 + t41);
-    const double t43 = 4.975124378109452*P[1];
-    const double t44 = DERIVE_FMA(2.487562189054726, P[2], DERIVE_FMA(4.975124378109452, P[0], t43));
-    const double t45 = 4.975124378109452*P[5];
-    const double t46 = DERIVE_FMA(9.950248756218905, P[4], t40 + t45);
-    const double t47 = DERIVE_FMA(2.487562189054726, P[5], DERIVE_FMA(4.975124378109452, P[4], t43));
-    const double t48 = DERIVE_FMA(4.975124378109452, P[8], DERIVE_FMA(9.950248756218905, P[5], 9.950248756218905*P[2]));
-    const double t49 = DERIVE_FMA(2.487562189054726, P[8], t41 + t45);
+    const double t43 = 4.975124378109452*P[1 * s];
+    const double t44 = DERIVE_FMA(2.487562189054726, P[2 * s], DERIVE_FMA(4.975124378109452, P[0], t43));
+    const double t45 = 4.975124378109452*P[5 * s];
+    const double t46 = DERIVE_FMA(9.950248756218905, P[4 * s], t40 + t45);
+    const double t47 = DERIVE_FMA(2.487562189054726, P[5 * s], DERIVE_FMA(4.975124378109452, P[4 * s], t43));
+    const double t48 = DERIVE_FMA(4.975124378109452, P[8 * s], DERIVE_FMA(9.950248756218905, P[5 * s], 9.950248756218905*P[2 * s]));
+    const double t49 = DERIVE_FMA(2.487562189054726, P[8 * s], t41 + t45);
     const double t50 = 1.0 + t42;
     const double t51 = 1.0 + t46;
     const double t52 = 1.0 + t49;
@@ -122,13 +164,13 @@ int ca_jklf_step(const double *restrict x, const double *restrict P, const doubl
     const double t79 = DERIVE_FMA((-0.01658374792703151), t70, DERIVE_FMA(0.01658374792703151, t69, 0.9917081260364843*t61));
     const double t80 = 9.950248756218905*z[0];
     const double t81 = 4.975124378109452*z[0];
-    const double t82 = P[1]*t80;
-    const double t83 = DERIVE_FMA(P[2], t81, DERIVE_FMA(P[0], t80, t82));
-    const double t84 = DERIVE_FMA(P[5], t81, DERIVE_FMA(P[4], t80, t82));
-    const double t85 = DERIVE_FMA(P[8], t81, DERIVE_FMA(P[5], t80, P[2]*t80));
+    const double t82 = P[1 * s]*t80;
+    const double t83 = DERIVE_FMA(P[2 * s], t81, DERIVE_FMA(P[0], t80, t82));
+    const double t84 = DERIVE_FMA(P[5 * s], t81, DERIVE_FMA(P[4 * s], t80, t82));
+    const double t85 = DERIVE_FMA(P[8 * s], t81, DERIVE_FMA(P[5 * s], t80, P[2 * s]*t80));
     const double t86 = x[0] + t83;
-    const double t87 = x[1] + t84;
-    const double t88 = x[2] + t85;
+    const double t87 = x[1 * s] + t84;
+    const double t88 = x[2 * s] + t85;
     const double t89 = 0.004975124378109453*z[0];
     const double t90 = 0.012437810945273632*z[0];
     const double t91 = 0.01658374792703151*z[0];
@@ -138,15 +180,15 @@ int ca_jklf_step(const double *restrict x, const double *restrict P, const doubl
     const double t95 = t89 + t92;
     const double t96 = t90 + t93;
     const double t97 = t91 + t94;
-    const double t98 = DERIVE_FMA(P[2], t73, DERIVE_FMA(P[1], t72, P[0]*t71));
-    const double t99 = DERIVE_FMA(P[5], t73, DERIVE_FMA(P[4], t72, P[1]*t71));
-    const double t100 = DERIVE_FMA(P[8], t73, DERIVE_FMA(P[5], t72, P[2]*t71));
-    const double t101 = DERIVE_FMA(P[2], t76, DERIVE_FMA(P[1], t75, P[0]*t74));
-    const double t102 = DERIVE_FMA(P[5], t76, DERIVE_FMA(P[4], t75, P[1]*t74));
-    const double t103 = DERIVE_FMA(P[8], t76, DERIVE_FMA(P[5], t75, P[2]*t74));
-    const double t104 = DERIVE_FMA(P[2], t79, DERIVE_FMA(P[0], t77, -(P[1]*t78)));
-    const double t105 = DERIVE_FMA(P[5], t79, DERIVE_FMA(P[1], t77, -(P[4]*t78)));
-    const double t106 = DERIVE_FMA(P[8], t79, DERIVE_FMA(P[2], t77, -(P[5]*t78)));
+    const double t98 = DERIVE_FMA(P[2 * s], t73, DERIVE_FMA(P[1 * s], t72, P[0]*t71));
+    const double t99 = DERIVE_FMA(P[5 * s], t73, DERIVE_FMA(P[4 * s], t72, P[1 * s]*t71));
+    const double t100 = DERIVE_FMA(P[8 * s], t73, DERIVE_FMA(P[5 * s], t72, P[2 * s]*t71));
+    const double t101 = DERIVE_FMA(P[2 * s], t76, DERIVE_FMA(P[1 * s], t75, P[0]*t74));
+    const double t102 = DERIVE_FMA(P[5 * s], t76, DERIVE_FMA(P[4 * s], t75, P[1 * s]*t74));
+    const double t103 = DERIVE_FMA(P[8 * s], t76, DERIVE_FMA(P[5 * s], t75, P[2 * s]*t74));
+    const double t104 = DERIVE_FMA(P[2 * s], t79, DERIVE_FMA(P[0], t77, -(P[1 * s]*t78)));
+    const double t105 = DERIVE_FMA(P[5 * s], t79, DERIVE_FMA(P[1 * s], t77, -(P[4 * s]*t78)));
+    const double t106 = DERIVE_FMA(P[8 * s], t79, DERIVE_FMA(P[2 * s], t77, -(P[5 * s]*t78)));
     const double t107 = DERIVE_FMA(0.9950248756218906, t99, DERIVE_FMA(0.9950248756218906, t98, 0.4975124378109453*t100));
     const double t108 = DERIVE_FMA(0.9875621890547264, t99, DERIVE_FMA((-0.012437810945273632), t98, 0.9937810945273632*t100));
     const double t109 = DERIVE_FMA((-0.01658374792703151), t99, DERIVE_FMA((-0.01658374792703151), t98, 0.9917081260364843*t100));
@@ -178,18 +220,23 @@ int ca_jklf_step(const double *restrict x, const double *restrict P, const doubl
     const double t135 = 0.5*t129;
     const double t136 = 0.5*t130;
     x_new[0] = t122;
-    x_new[1] = t123;
-    x_new[2] = t124;
+    x_new[1 * s] = t123;
+    x_new[2 * s] = t124;
     P_new[0] = t131;
-    P_new[1] = t132;
-    P_new[2] = t133;
-    P_new[3] = t132;
-    P_new[4] = t134;
-    P_new[5] = t135;
-    P_new[6] = t133;
-    P_new[7] = t135;
-    P_new[8] = t136;
-    return 0;
+    P_new[1 * s] = t132;
+    P_new[2 * s] = t133;
+    P_new[3 * s] = t132;
+    P_new[4 * s] = t134;
+    P_new[5 * s] = t135;
+    P_new[6 * s] = t133;
+    P_new[7 * s] = t135;
+    P_new[8 * s] = t136;
+    return status;
+}
+
+int ca_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    return ca_jklf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL. */
@@ -212,161 +259,13 @@ int ca_jklf_run(size_t steps, const double *z, const double *x0, const double *P
     P[6] = P0[6];
     P[7] = P0[7];
     P[8] = P0[8];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-        const double t1 = x[1] + x[2];
-        const double t2 = DERIVE_FMA(0.5, P[2], P[0] + P[1]);
-        const double t3 = DERIVE_FMA(0.5, P[5], P[1] + P[4]);
-        const double t4 = DERIVE_FMA(0.5, P[8], P[2] + P[5]);
-        const double t5 = P[4] + P[5];
-        const double t6 = P[5] + P[8];
-        const double t7 = DERIVE_FMA(0.5, t4, t2 + t3);
-        const double t8 = t3 + t4;
-        const double t9 = t5 + t6;
-        const double t10 = 0.0005 + t7;
-        const double t11 = 0.00125 + t8;
-        const double t12 = 0.0016666666666666668 + t4;
-        const double t13 = 0.0033333333333333335 + t9;
-        const double t14 = 0.005 + t6;
-        const double t15 = 0.01 + P[8];
-        const double t16 = 0.1 + t10;
-        if (!(t16 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = ca_jklf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t17 = 1.0/t16;
-        const double t18 = t10*t17;
-        const double t19 = t11*t17;
-        const double t20 = t12*t17;
-        const double t21 = zk[0] - t0;
-        const double t22 = t18*t21;
-        const double t23 = t19*t21;
-        const double t24 = t20*t21;
-        const double t25 = t0 + t22;
-        const double t26 = t1 + t23;
-        const double t27 = x[2] + t24;
-        const double t28 = t10*t18;
-        const double t29 = t11*t18;
-        const double t30 = t12*t18;
-        const double t31 = t11*t19;
-        const double t32 = t12*t19;
-        const double t33 = t12*t20;
-        const double t34 = t10 - t28;
-        const double t35 = t11 - t29;
-        const double t36 = t12 - t30;
-        const double t37 = t13 - t31;
-        const double t38 = t14 - t32;
-        const double t39 = t15 - t33;
-        const double t40 = 9.950248756218905*P[1];
-        const double t41 = 4.975124378109452*P[2];
-        const double t42 = DERIVE_FMA(9.950248756218905, P[0], t40 + t41);
-        const double t43 = 4.975124378109452*P[1];
-        const double t44 = DERIVE_FMA(2.487562189054726, P[2], DERIVE_FMA(4.975124378109452, P[0], t43));
-        const double t45 = 4.975124378109452*P[5];
-        const double t46 = DERIVE_FMA(9.950248756218905, P[4], t40 + t45);
-        const double t47 = DERIVE_FMA(2.487562189054726, P[5], DERIVE_FMA(4.975124378109452, P[4], t43));
-        const double t48 = DERIVE_FMA(4.975124378109452, P[8], DERIVE_FMA(9.950248756218905, P[5], 9.950248756218905*P[2]));
-        const double t49 = DERIVE_FMA(2.487562189054726, P[8], t41 + t45);
-        const double t50 = 1.0 + t42;
-        const double t51 = 1.0 + t46;
-        const double t52 = 1.0 + t49;
-        const double t53 = 1.0/t50;
-        const double t54 = t46*t53;
-        const double t55 = t48*t53;
-        const double t56 = t51 - t42*t54;
-        const double t57 = t47 - t44*t54;
-        const double t58 = 1.0/t56;
-        const double t59 = t58*(t48 - t42*t55);
-        const double t60 = t52 - t44*t55 - t57*t59;
-        const double t61 = 1.0/t60;
-        const double t62 = DERIVE_FMA(t54, t59, -t55);
-        const double t63 = t61*t62;
-        const double t64 = t58*(-t54 - t57*t63);
-        const double t65 = t53*(1.0 - t42*t64 - t44*t63);
-        const double t66 = t59*t61;
-        const double t67 = t58*DERIVE_FMA(t57, t66, 1.0);
-        const double t68 = t53*DERIVE_FMA(t44, t66, -(t42*t67));
-        const double t69 = t57*t58*t61;
-        const double t70 = t53*DERIVE_FMA(t42, t69, -(t44*t61));
-        const double t71 = DERIVE_FMA(0.9950248756218906, t65, DERIVE_FMA(0.9950248756218906, t64, 0.4975124378109453*t63));
-        const double t72 = DERIVE_FMA(0.9950248756218906, t68, DERIVE_FMA(0.9950248756218906, t67, (-0.4975124378109453)*t66));
-        const double t73 = DERIVE_FMA(0.9950248756218906, t70, DERIVE_FMA((-0.9950248756218906), t69, 0.4975124378109453*t61));
-        const double t74 = DERIVE_FMA((-0.012437810945273632), t65, DERIVE_FMA(0.9875621890547264, t64, 0.9937810945273632*t63));
-        const double t75 = DERIVE_FMA((-0.012437810945273632), t68, DERIVE_FMA(0.9875621890547264, t67, (-0.9937810945273632)*t66));
-        const double t76 = DERIVE_FMA((-0.012437810945273632), t70, DERIVE_FMA((-0.9875621890547264), t69, 0.9937810945273632*t61));
-        const double t77 = DERIVE_FMA((-0.01658374792703151), t65, DERIVE_FMA((-0.01658374792703151), t64, 0.9917081260364843*t63));
-        const double t78 = DERIVE_FMA(0.01658374792703151, t68, DERIVE_FMA(0.01658374792703151, t67, 0.9917081260364843*t66));
-        const double t79 = DERIVE_FMA((-0.01658374792703151), t70, DERIVE_FMA(0.01658374792703151, t69, 0.9917081260364843*t61));
-        const double t80 = 9.950248756218905*zk[0];
-        const double t81 = 4.975124378109452*zk[0];
-        const double t82 = P[1]*t80;
-        const double t83 = DERIVE_FMA(P[2], t81, DERIVE_FMA(P[0], t80, t82));
-        const double t84 = DERIVE_FMA(P[5], t81, DERIVE_FMA(P[4], t80, t82));
-        const double t85 = DERIVE_FMA(P[8], t81, DERIVE_FMA(P[5], t80, P[2]*t80));
-        const double t86 = x[0] + t83;
-        const double t87 = x[1] + t84;
-        const double t88 = x[2] + t85;
-        const double t89 = 0.004975124378109453*zk[0];
-        const double t90 = 0.012437810945273632*zk[0];
-        const double t91 = 0.01658374792703151*zk[0];
-        const double t92 = DERIVE_FMA(t73, t88, DERIVE_FMA(t72, t87, t71*t86));
-        const double t93 = DERIVE_FMA(t76, t88, DERIVE_FMA(t75, t87, t74*t86));
-        const double t94 = DERIVE_FMA(t79, t88, DERIVE_FMA(t77, t86, -(t78*t87)));
-        const double t95 = t89 + t92;
-        const double t96 = t90 + t93;
-        const double t97 = t91 + t94;
-        const double t98 = DERIVE_FMA(P[2], t73, DERIVE_FMA(P[1], t72, P[0]*t71));
-        const double t99 = DERIVE_FMA(P[5], t73, DERIVE_FMA(P[4], t72, P[1]*t71));
-        const double t100 = DERIVE_FMA(P[8], t73, DERIVE_FMA(P[5], t72, P[2]*t71));
-        const double t101 = DERIVE_FMA(P[2], t76, DERIVE_FMA(P[1], t75, P[0]*t74));
-        const double t102 = DERIVE_FMA(P[5], t76, DERIVE_FMA(P[4], t75, P[1]*t74));
-        const double t103 = DERIVE_FMA(P[8], t76, DERIVE_FMA(P[5], t75, P[2]*t74));
-        const double t104 = DERIVE_FMA(P[2], t79, DERIVE_FMA(P[0], t77, -(P[1]*t78)));
-        const double t105 = DERIVE_FMA(P[5], t79, DERIVE_FMA(P[1], t77, -(P[4]*t78)));
-        const double t106 = DERIVE_FMA(P[8], t79, DERIVE_FMA(P[2], t77, -(P[5]*t78)));
-        const double t107 = DERIVE_FMA(0.9950248756218906, t99, DERIVE_FMA(0.9950248756218906, t98, 0.4975124378109453*t100));
-        const double t108 = DERIVE_FMA(0.9875621890547264, t99, DERIVE_FMA((-0.012437810945273632), t98, 0.9937810945273632*t100));
-        const double t109 = DERIVE_FMA((-0.01658374792703151), t99, DERIVE_FMA((-0.01658374792703151), t98, 0.9917081260364843*t100));
-        const double t110 = DERIVE_FMA(0.9937810945273632, t103, DERIVE_FMA(0.9875621890547264, t102, (-0.012437810945273632)*t101));
-        const double t111 = DERIVE_FMA(0.9917081260364843, t103, DERIVE_FMA((-0.01658374792703151), t102, (-0.01658374792703151)*t101));
-        const double t112 = DERIVE_FMA(0.9917081260364843, t106, DERIVE_FMA((-0.01658374792703151), t105, (-0.01658374792703151)*t104));
-        const double t113 = 0.0004975124378109452 + t107;
-        const double t114 = 0.0012437810945273632 + t108;
-        const double t115 = 0.001658374792703151 + t109;
-        const double t116 = 0.0033177860696517415 + t110;
-        const double t117 = 0.004979270315091211 + t111;
-        const double t118 = 0.009972360420121614 + t112;
-        const double t119 = t25 + t95;
-        const double t120 = t26 + t96;
-        const double t121 = t27 + t97;
-        const double t122 = 0.5*t119;
-        const double t123 = 0.5*t120;
-        const double t124 = 0.5*t121;
-        const double t125 = t113 + t34;
-        const double t126 = t114 + t35;
-        const double t127 = t115 + t36;
-        const double t128 = t116 + t37;
-        const double t129 = t117 + t38;
-        const double t130 = t118 + t39;
-        const double t131 = 0.5*t125;
-        const double t132 = 0.5*t126;
-        const double t133 = 0.5*t127;
-        const double t134 = 0.5*t128;
-        const double t135 = 0.5*t129;
-        const double t136 = 0.5*t130;
-        x_new[0] = t122;
-        x_new[1] = t123;
-        x_new[2] = t124;
-        P_new[0] = t131;
-        P_new[1] = t132;
-        P_new[2] = t133;
-        P_new[3] = t132;
-        P_new[4] = t134;
-        P_new[5] = t135;
-        P_new[6] = t133;
-        P_new[7] = t135;
-        P_new[8] = t136;
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -396,973 +295,74 @@ int ca_jklf_run(size_t steps, const double *z, const double *x0, const double *P
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int ca_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        double x_l1[3], xn_l1[3];
-        double P_l1[9], Pn_l1[9];
-        const double *z_l1;
-        double x_l2[3], xn_l2[3];
-        double P_l2[9], Pn_l2[9];
-        const double *z_l2;
-        double x_l3[3], xn_l3[3];
-        double P_l3[9], Pn_l3[9];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        x_l1[0] = x0[(t + 1) * 3 + 0];
-        x_l1[1] = x0[(t + 1) * 3 + 1];
-        x_l1[2] = x0[(t + 1) * 3 + 2];
-        P_l1[0] = P0[(t + 1) * 9 + 0];
-        P_l1[1] = P0[(t + 1) * 9 + 1];
-        P_l1[2] = P0[(t + 1) * 9 + 2];
-        P_l1[3] = P0[(t + 1) * 9 + 3];
-        P_l1[4] = P0[(t + 1) * 9 + 4];
-        P_l1[5] = P0[(t + 1) * 9 + 5];
-        P_l1[6] = P0[(t + 1) * 9 + 6];
-        P_l1[7] = P0[(t + 1) * 9 + 7];
-        P_l1[8] = P0[(t + 1) * 9 + 8];
-        x_l2[0] = x0[(t + 2) * 3 + 0];
-        x_l2[1] = x0[(t + 2) * 3 + 1];
-        x_l2[2] = x0[(t + 2) * 3 + 2];
-        P_l2[0] = P0[(t + 2) * 9 + 0];
-        P_l2[1] = P0[(t + 2) * 9 + 1];
-        P_l2[2] = P0[(t + 2) * 9 + 2];
-        P_l2[3] = P0[(t + 2) * 9 + 3];
-        P_l2[4] = P0[(t + 2) * 9 + 4];
-        P_l2[5] = P0[(t + 2) * 9 + 5];
-        P_l2[6] = P0[(t + 2) * 9 + 6];
-        P_l2[7] = P0[(t + 2) * 9 + 7];
-        P_l2[8] = P0[(t + 2) * 9 + 8];
-        x_l3[0] = x0[(t + 3) * 3 + 0];
-        x_l3[1] = x0[(t + 3) * 3 + 1];
-        x_l3[2] = x0[(t + 3) * 3 + 2];
-        P_l3[0] = P0[(t + 3) * 9 + 0];
-        P_l3[1] = P0[(t + 3) * 9 + 1];
-        P_l3[2] = P0[(t + 3) * 9 + 2];
-        P_l3[3] = P0[(t + 3) * 9 + 3];
-        P_l3[4] = P0[(t + 3) * 9 + 4];
-        P_l3[5] = P0[(t + 3) * 9 + 5];
-        P_l3[6] = P0[(t + 3) * 9 + 6];
-        P_l3[7] = P0[(t + 3) * 9 + 7];
-        P_l3[8] = P0[(t + 3) * 9 + 8];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[3 * DERIVE_LANES];
+        double P_b[9 * DERIVE_LANES];
+        double x_new_b[3 * DERIVE_LANES];
+        double P_new_b[9 * DERIVE_LANES];
+        double z_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 3; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
+            }
+            for (i = 0; i < 9; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 9 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = DERIVE_FMA(0.5, x_l0[2], x_l0[0] + x_l0[1]);
-            const double t1_l0 = x_l0[1] + x_l0[2];
-            const double t2_l0 = DERIVE_FMA(0.5, P_l0[2], P_l0[0] + P_l0[1]);
-            const double t3_l0 = DERIVE_FMA(0.5, P_l0[5], P_l0[1] + P_l0[4]);
-            const double t4_l0 = DERIVE_FMA(0.5, P_l0[8], P_l0[2] + P_l0[5]);
-            const double t5_l0 = P_l0[4] + P_l0[5];
-            const double t6_l0 = P_l0[5] + P_l0[8];
-            const double t7_l0 = DERIVE_FMA(0.5, t4_l0, t2_l0 + t3_l0);
-            const double t8_l0 = t3_l0 + t4_l0;
-            const double t9_l0 = t5_l0 + t6_l0;
-            const double t10_l0 = 0.0005 + t7_l0;
-            const double t11_l0 = 0.00125 + t8_l0;
-            const double t12_l0 = 0.0016666666666666668 + t4_l0;
-            const double t13_l0 = 0.0033333333333333335 + t9_l0;
-            const double t14_l0 = 0.005 + t6_l0;
-            const double t15_l0 = 0.01 + P_l0[8];
-            const double t16_l0 = 0.1 + t10_l0;
-            if (!(t16_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 3], 1);
+                }
             }
-            const double t17_l0 = 1.0/t16_l0;
-            const double t18_l0 = t10_l0*t17_l0;
-            const double t19_l0 = t11_l0*t17_l0;
-            const double t20_l0 = t12_l0*t17_l0;
-            const double t21_l0 = z_l0[0] - t0_l0;
-            const double t22_l0 = t18_l0*t21_l0;
-            const double t23_l0 = t19_l0*t21_l0;
-            const double t24_l0 = t20_l0*t21_l0;
-            const double t25_l0 = t0_l0 + t22_l0;
-            const double t26_l0 = t1_l0 + t23_l0;
-            const double t27_l0 = x_l0[2] + t24_l0;
-            const double t28_l0 = t10_l0*t18_l0;
-            const double t29_l0 = t11_l0*t18_l0;
-            const double t30_l0 = t12_l0*t18_l0;
-            const double t31_l0 = t11_l0*t19_l0;
-            const double t32_l0 = t12_l0*t19_l0;
-            const double t33_l0 = t12_l0*t20_l0;
-            const double t34_l0 = t10_l0 - t28_l0;
-            const double t35_l0 = t11_l0 - t29_l0;
-            const double t36_l0 = t12_l0 - t30_l0;
-            const double t37_l0 = t13_l0 - t31_l0;
-            const double t38_l0 = t14_l0 - t32_l0;
-            const double t39_l0 = t15_l0 - t33_l0;
-            const double t40_l0 = 9.950248756218905*P_l0[1];
-            const double t41_l0 = 4.975124378109452*P_l0[2];
-            const double t42_l0 = DERIVE_FMA(9.950248756218905, P_l0[0], t40_l0 + t41_l0);
-            const double t43_l0 = 4.975124378109452*P_l0[1];
-            const double t44_l0 = DERIVE_FMA(2.487562189054726, P_l0[2], DERIVE_FMA(4.975124378109452, P_l0[0], t43_l0));
-            const double t45_l0 = 4.975124378109452*P_l0[5];
-            const double t46_l0 = DERIVE_FMA(9.950248756218905, P_l0[4], t40_l0 + t45_l0);
-            const double t47_l0 = DERIVE_FMA(2.487562189054726, P_l0[5], DERIVE_FMA(4.975124378109452, P_l0[4], t43_l0));
-            const double t48_l0 = DERIVE_FMA(4.975124378109452, P_l0[8], DERIVE_FMA(9.950248756218905, P_l0[5], 9.950248756218905*P_l0[2]));
-            const double t49_l0 = DERIVE_FMA(2.487562189054726, P_l0[8], t41_l0 + t45_l0);
-            const double t50_l0 = 1.0 + t42_l0;
-            const double t51_l0 = 1.0 + t46_l0;
-            const double t52_l0 = 1.0 + t49_l0;
-            const double t53_l0 = 1.0/t50_l0;
-            const double t54_l0 = t46_l0*t53_l0;
-            const double t55_l0 = t48_l0*t53_l0;
-            const double t56_l0 = t51_l0 - t42_l0*t54_l0;
-            const double t57_l0 = t47_l0 - t44_l0*t54_l0;
-            const double t58_l0 = 1.0/t56_l0;
-            const double t59_l0 = t58_l0*(t48_l0 - t42_l0*t55_l0);
-            const double t60_l0 = t52_l0 - t44_l0*t55_l0 - t57_l0*t59_l0;
-            const double t61_l0 = 1.0/t60_l0;
-            const double t62_l0 = DERIVE_FMA(t54_l0, t59_l0, -t55_l0);
-            const double t63_l0 = t61_l0*t62_l0;
-            const double t64_l0 = t58_l0*(-t54_l0 - t57_l0*t63_l0);
-            const double t65_l0 = t53_l0*(1.0 - t42_l0*t64_l0 - t44_l0*t63_l0);
-            const double t66_l0 = t59_l0*t61_l0;
-            const double t67_l0 = t58_l0*DERIVE_FMA(t57_l0, t66_l0, 1.0);
-            const double t68_l0 = t53_l0*DERIVE_FMA(t44_l0, t66_l0, -(t42_l0*t67_l0));
-            const double t69_l0 = t57_l0*t58_l0*t61_l0;
-            const double t70_l0 = t53_l0*DERIVE_FMA(t42_l0, t69_l0, -(t44_l0*t61_l0));
-            const double t71_l0 = DERIVE_FMA(0.9950248756218906, t65_l0, DERIVE_FMA(0.9950248756218906, t64_l0, 0.4975124378109453*t63_l0));
-            const double t72_l0 = DERIVE_FMA(0.9950248756218906, t68_l0, DERIVE_FMA(0.9950248756218906, t67_l0, (-0.4975124378109453)*t66_l0));
-            const double t73_l0 = DERIVE_FMA(0.9950248756218906, t70_l0, DERIVE_FMA((-0.9950248756218906), t69_l0, 0.4975124378109453*t61_l0));
-            const double t74_l0 = DERIVE_FMA((-0.012437810945273632), t65_l0, DERIVE_FMA(0.9875621890547264, t64_l0, 0.9937810945273632*t63_l0));
-            const double t75_l0 = DERIVE_FMA((-0.012437810945273632), t68_l0, DERIVE_FMA(0.9875621890547264, t67_l0, (-0.9937810945273632)*t66_l0));
-            const double t76_l0 = DERIVE_FMA((-0.012437810945273632), t70_l0, DERIVE_FMA((-0.9875621890547264), t69_l0, 0.9937810945273632*t61_l0));
-            const double t77_l0 = DERIVE_FMA((-0.01658374792703151), t65_l0, DERIVE_FMA((-0.01658374792703151), t64_l0, 0.9917081260364843*t63_l0));
-            const double t78_l0 = DERIVE_FMA(0.01658374792703151, t68_l0, DERIVE_FMA(0.01658374792703151, t67_l0, 0.9917081260364843*t66_l0));
-            const double t79_l0 = DERIVE_FMA((-0.01658374792703151), t70_l0, DERIVE_FMA(0.01658374792703151, t69_l0, 0.9917081260364843*t61_l0));
-            const double t80_l0 = 9.950248756218905*z_l0[0];
-            const double t81_l0 = 4.975124378109452*z_l0[0];
-            const double t82_l0 = P_l0[1]*t80_l0;
-            const double t83_l0 = DERIVE_FMA(P_l0[2], t81_l0, DERIVE_FMA(P_l0[0], t80_l0, t82_l0));
-            const double t84_l0 = DERIVE_FMA(P_l0[5], t81_l0, DERIVE_FMA(P_l0[4], t80_l0, t82_l0));
-            const double t85_l0 = DERIVE_FMA(P_l0[8], t81_l0, DERIVE_FMA(P_l0[5], t80_l0, P_l0[2]*t80_l0));
-            const double t86_l0 = x_l0[0] + t83_l0;
-            const double t87_l0 = x_l0[1] + t84_l0;
-            const double t88_l0 = x_l0[2] + t85_l0;
-            const double t89_l0 = 0.004975124378109453*z_l0[0];
-            const double t90_l0 = 0.012437810945273632*z_l0[0];
-            const double t91_l0 = 0.01658374792703151*z_l0[0];
-            const double t92_l0 = DERIVE_FMA(t73_l0, t88_l0, DERIVE_FMA(t72_l0, t87_l0, t71_l0*t86_l0));
-            const double t93_l0 = DERIVE_FMA(t76_l0, t88_l0, DERIVE_FMA(t75_l0, t87_l0, t74_l0*t86_l0));
-            const double t94_l0 = DERIVE_FMA(t79_l0, t88_l0, DERIVE_FMA(t77_l0, t86_l0, -(t78_l0*t87_l0)));
-            const double t95_l0 = t89_l0 + t92_l0;
-            const double t96_l0 = t90_l0 + t93_l0;
-            const double t97_l0 = t91_l0 + t94_l0;
-            const double t98_l0 = DERIVE_FMA(P_l0[2], t73_l0, DERIVE_FMA(P_l0[1], t72_l0, P_l0[0]*t71_l0));
-            const double t99_l0 = DERIVE_FMA(P_l0[5], t73_l0, DERIVE_FMA(P_l0[4], t72_l0, P_l0[1]*t71_l0));
-            const double t100_l0 = DERIVE_FMA(P_l0[8], t73_l0, DERIVE_FMA(P_l0[5], t72_l0, P_l0[2]*t71_l0));
-            const double t101_l0 = DERIVE_FMA(P_l0[2], t76_l0, DERIVE_FMA(P_l0[1], t75_l0, P_l0[0]*t74_l0));
-            const double t102_l0 = DERIVE_FMA(P_l0[5], t76_l0, DERIVE_FMA(P_l0[4], t75_l0, P_l0[1]*t74_l0));
-            const double t103_l0 = DERIVE_FMA(P_l0[8], t76_l0, DERIVE_FMA(P_l0[5], t75_l0, P_l0[2]*t74_l0));
-            const double t104_l0 = DERIVE_FMA(P_l0[2], t79_l0, DERIVE_FMA(P_l0[0], t77_l0, -(P_l0[1]*t78_l0)));
-            const double t105_l0 = DERIVE_FMA(P_l0[5], t79_l0, DERIVE_FMA(P_l0[1], t77_l0, -(P_l0[4]*t78_l0)));
-            const double t106_l0 = DERIVE_FMA(P_l0[8], t79_l0, DERIVE_FMA(P_l0[2], t77_l0, -(P_l0[5]*t78_l0)));
-            const double t107_l0 = DERIVE_FMA(0.9950248756218906, t99_l0, DERIVE_FMA(0.9950248756218906, t98_l0, 0.4975124378109453*t100_l0));
-            const double t108_l0 = DERIVE_FMA(0.9875621890547264, t99_l0, DERIVE_FMA((-0.012437810945273632), t98_l0, 0.9937810945273632*t100_l0));
-            const double t109_l0 = DERIVE_FMA((-0.01658374792703151), t99_l0, DERIVE_FMA((-0.01658374792703151), t98_l0, 0.9917081260364843*t100_l0));
-            const double t110_l0 = DERIVE_FMA(0.9937810945273632, t103_l0, DERIVE_FMA(0.9875621890547264, t102_l0, (-0.012437810945273632)*t101_l0));
-            const double t111_l0 = DERIVE_FMA(0.9917081260364843, t103_l0, DERIVE_FMA((-0.01658374792703151), t102_l0, (-0.01658374792703151)*t101_l0));
-            const double t112_l0 = DERIVE_FMA(0.9917081260364843, t106_l0, DERIVE_FMA((-0.01658374792703151), t105_l0, (-0.01658374792703151)*t104_l0));
-            const double t113_l0 = 0.0004975124378109452 + t107_l0;
-            const double t114_l0 = 0.0012437810945273632 + t108_l0;
-            const double t115_l0 = 0.001658374792703151 + t109_l0;
-            const double t116_l0 = 0.0033177860696517415 + t110_l0;
-            const double t117_l0 = 0.004979270315091211 + t111_l0;
-            const double t118_l0 = 0.009972360420121614 + t112_l0;
-            const double t119_l0 = t25_l0 + t95_l0;
-            const double t120_l0 = t26_l0 + t96_l0;
-            const double t121_l0 = t27_l0 + t97_l0;
-            const double t122_l0 = 0.5*t119_l0;
-            const double t123_l0 = 0.5*t120_l0;
-            const double t124_l0 = 0.5*t121_l0;
-            const double t125_l0 = t113_l0 + t34_l0;
-            const double t126_l0 = t114_l0 + t35_l0;
-            const double t127_l0 = t115_l0 + t36_l0;
-            const double t128_l0 = t116_l0 + t37_l0;
-            const double t129_l0 = t117_l0 + t38_l0;
-            const double t130_l0 = t118_l0 + t39_l0;
-            const double t131_l0 = 0.5*t125_l0;
-            const double t132_l0 = 0.5*t126_l0;
-            const double t133_l0 = 0.5*t127_l0;
-            const double t134_l0 = 0.5*t128_l0;
-            const double t135_l0 = 0.5*t129_l0;
-            const double t136_l0 = 0.5*t130_l0;
-            xn_l0[0] = t122_l0;
-            xn_l0[1] = t123_l0;
-            xn_l0[2] = t124_l0;
-            Pn_l0[0] = t131_l0;
-            Pn_l0[1] = t132_l0;
-            Pn_l0[2] = t133_l0;
-            Pn_l0[3] = t132_l0;
-            Pn_l0[4] = t134_l0;
-            Pn_l0[5] = t135_l0;
-            Pn_l0[6] = t133_l0;
-            Pn_l0[7] = t135_l0;
-            Pn_l0[8] = t136_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 1;
-            const double t0_l1 = DERIVE_FMA(0.5, x_l1[2], x_l1[0] + x_l1[1]);
-            const double t1_l1 = x_l1[1] + x_l1[2];
-            const double t2_l1 = DERIVE_FMA(0.5, P_l1[2], P_l1[0] + P_l1[1]);
-            const double t3_l1 = DERIVE_FMA(0.5, P_l1[5], P_l1[1] + P_l1[4]);
-            const double t4_l1 = DERIVE_FMA(0.5, P_l1[8], P_l1[2] + P_l1[5]);
-            const double t5_l1 = P_l1[4] + P_l1[5];
-            const double t6_l1 = P_l1[5] + P_l1[8];
-            const double t7_l1 = DERIVE_FMA(0.5, t4_l1, t2_l1 + t3_l1);
-            const double t8_l1 = t3_l1 + t4_l1;
-            const double t9_l1 = t5_l1 + t6_l1;
-            const double t10_l1 = 0.0005 + t7_l1;
-            const double t11_l1 = 0.00125 + t8_l1;
-            const double t12_l1 = 0.0016666666666666668 + t4_l1;
-            const double t13_l1 = 0.0033333333333333335 + t9_l1;
-            const double t14_l1 = 0.005 + t6_l1;
-            const double t15_l1 = 0.01 + P_l1[8];
-            const double t16_l1 = 0.1 + t10_l1;
-            if (!(t16_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 1; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
+                }
             }
-            const double t17_l1 = 1.0/t16_l1;
-            const double t18_l1 = t10_l1*t17_l1;
-            const double t19_l1 = t11_l1*t17_l1;
-            const double t20_l1 = t12_l1*t17_l1;
-            const double t21_l1 = z_l1[0] - t0_l1;
-            const double t22_l1 = t18_l1*t21_l1;
-            const double t23_l1 = t19_l1*t21_l1;
-            const double t24_l1 = t20_l1*t21_l1;
-            const double t25_l1 = t0_l1 + t22_l1;
-            const double t26_l1 = t1_l1 + t23_l1;
-            const double t27_l1 = x_l1[2] + t24_l1;
-            const double t28_l1 = t10_l1*t18_l1;
-            const double t29_l1 = t11_l1*t18_l1;
-            const double t30_l1 = t12_l1*t18_l1;
-            const double t31_l1 = t11_l1*t19_l1;
-            const double t32_l1 = t12_l1*t19_l1;
-            const double t33_l1 = t12_l1*t20_l1;
-            const double t34_l1 = t10_l1 - t28_l1;
-            const double t35_l1 = t11_l1 - t29_l1;
-            const double t36_l1 = t12_l1 - t30_l1;
-            const double t37_l1 = t13_l1 - t31_l1;
-            const double t38_l1 = t14_l1 - t32_l1;
-            const double t39_l1 = t15_l1 - t33_l1;
-            const double t40_l1 = 9.950248756218905*P_l1[1];
-            const double t41_l1 = 4.975124378109452*P_l1[2];
-            const double t42_l1 = DERIVE_FMA(9.950248756218905, P_l1[0], t40_l1 + t41_l1);
-            const double t43_l1 = 4.975124378109452*P_l1[1];
-            const double t44_l1 = DERIVE_FMA(2.487562189054726, P_l1[2], DERIVE_FMA(4.975124378109452, P_l1[0], t43_l1));
-            const double t45_l1 = 4.975124378109452*P_l1[5];
-            const double t46_l1 = DERIVE_FMA(9.950248756218905, P_l1[4], t40_l1 + t45_l1);
-            const double t47_l1 = DERIVE_FMA(2.487562189054726, P_l1[5], DERIVE_FMA(4.975124378109452, P_l1[4], t43_l1));
-            const double t48_l1 = DERIVE_FMA(4.975124378109452, P_l1[8], DERIVE_FMA(9.950248756218905, P_l1[5], 9.950248756218905*P_l1[2]));
-            const double t49_l1 = DERIVE_FMA(2.487562189054726, P_l1[8], t41_l1 + t45_l1);
-            const double t50_l1 = 1.0 + t42_l1;
-            const double t51_l1 = 1.0 + t46_l1;
-            const double t52_l1 = 1.0 + t49_l1;
-            const double t53_l1 = 1.0/t50_l1;
-            const double t54_l1 = t46_l1*t53_l1;
-            const double t55_l1 = t48_l1*t53_l1;
-            const double t56_l1 = t51_l1 - t42_l1*t54_l1;
-            const double t57_l1 = t47_l1 - t44_l1*t54_l1;
-            const double t58_l1 = 1.0/t56_l1;
-            const double t59_l1 = t58_l1*(t48_l1 - t42_l1*t55_l1);
-            const double t60_l1 = t52_l1 - t44_l1*t55_l1 - t57_l1*t59_l1;
-            const double t61_l1 = 1.0/t60_l1;
-            const double t62_l1 = DERIVE_FMA(t54_l1, t59_l1, -t55_l1);
-            const double t63_l1 = t61_l1*t62_l1;
-            const double t64_l1 = t58_l1*(-t54_l1 - t57_l1*t63_l1);
-            const double t65_l1 = t53_l1*(1.0 - t42_l1*t64_l1 - t44_l1*t63_l1);
-            const double t66_l1 = t59_l1*t61_l1;
-            const double t67_l1 = t58_l1*DERIVE_FMA(t57_l1, t66_l1, 1.0);
-            const double t68_l1 = t53_l1*DERIVE_FMA(t44_l1, t66_l1, -(t42_l1*t67_l1));
-            const double t69_l1 = t57_l1*t58_l1*t61_l1;
-            const double t70_l1 = t53_l1*DERIVE_FMA(t42_l1, t69_l1, -(t44_l1*t61_l1));
-            const double t71_l1 = DERIVE_FMA(0.9950248756218906, t65_l1, DERIVE_FMA(0.9950248756218906, t64_l1, 0.4975124378109453*t63_l1));
-            const double t72_l1 = DERIVE_FMA(0.9950248756218906, t68_l1, DERIVE_FMA(0.9950248756218906, t67_l1, (-0.4975124378109453)*t66_l1));
-            const double t73_l1 = DERIVE_FMA(0.9950248756218906, t70_l1, DERIVE_FMA((-0.9950248756218906), t69_l1, 0.4975124378109453*t61_l1));
-            const double t74_l1 = DERIVE_FMA((-0.012437810945273632), t65_l1, DERIVE_FMA(0.9875621890547264, t64_l1, 0.9937810945273632*t63_l1));
-            const double t75_l1 = DERIVE_FMA((-0.012437810945273632), t68_l1, DERIVE_FMA(0.9875621890547264, t67_l1, (-0.9937810945273632)*t66_l1));
-            const double t76_l1 = DERIVE_FMA((-0.012437810945273632), t70_l1, DERIVE_FMA((-0.9875621890547264), t69_l1, 0.9937810945273632*t61_l1));
-            const double t77_l1 = DERIVE_FMA((-0.01658374792703151), t65_l1, DERIVE_FMA((-0.01658374792703151), t64_l1, 0.9917081260364843*t63_l1));
-            const double t78_l1 = DERIVE_FMA(0.01658374792703151, t68_l1, DERIVE_FMA(0.01658374792703151, t67_l1, 0.9917081260364843*t66_l1));
-            const double t79_l1 = DERIVE_FMA((-0.01658374792703151), t70_l1, DERIVE_FMA(0.01658374792703151, t69_l1, 0.9917081260364843*t61_l1));
-            const double t80_l1 = 9.950248756218905*z_l1[0];
-            const double t81_l1 = 4.975124378109452*z_l1[0];
-            const double t82_l1 = P_l1[1]*t80_l1;
-            const double t83_l1 = DERIVE_FMA(P_l1[2], t81_l1, DERIVE_FMA(P_l1[0], t80_l1, t82_l1));
-            const double t84_l1 = DERIVE_FMA(P_l1[5], t81_l1, DERIVE_FMA(P_l1[4], t80_l1, t82_l1));
-            const double t85_l1 = DERIVE_FMA(P_l1[8], t81_l1, DERIVE_FMA(P_l1[5], t80_l1, P_l1[2]*t80_l1));
-            const double t86_l1 = x_l1[0] + t83_l1;
-            const double t87_l1 = x_l1[1] + t84_l1;
-            const double t88_l1 = x_l1[2] + t85_l1;
-            const double t89_l1 = 0.004975124378109453*z_l1[0];
-            const double t90_l1 = 0.012437810945273632*z_l1[0];
-            const double t91_l1 = 0.01658374792703151*z_l1[0];
-            const double t92_l1 = DERIVE_FMA(t73_l1, t88_l1, DERIVE_FMA(t72_l1, t87_l1, t71_l1*t86_l1));
-            const double t93_l1 = DERIVE_FMA(t76_l1, t88_l1, DERIVE_FMA(t75_l1, t87_l1, t74_l1*t86_l1));
-            const double t94_l1 = DERIVE_FMA(t79_l1, t88_l1, DERIVE_FMA(t77_l1, t86_l1, -(t78_l1*t87_l1)));
-            const double t95_l1 = t89_l1 + t92_l1;
-            const double t96_l1 = t90_l1 + t93_l1;
-            const double t97_l1 = t91_l1 + t94_l1;
-            const double t98_l1 = DERIVE_FMA(P_l1[2], t73_l1, DERIVE_FMA(P_l1[1], t72_l1, P_l1[0]*t71_l1));
-            const double t99_l1 = DERIVE_FMA(P_l1[5], t73_l1, DERIVE_FMA(P_l1[4], t72_l1, P_l1[1]*t71_l1));
-            const double t100_l1 = DERIVE_FMA(P_l1[8], t73_l1, DERIVE_FMA(P_l1[5], t72_l1, P_l1[2]*t71_l1));
-            const double t101_l1 = DERIVE_FMA(P_l1[2], t76_l1, DERIVE_FMA(P_l1[1], t75_l1, P_l1[0]*t74_l1));
-            const double t102_l1 = DERIVE_FMA(P_l1[5], t76_l1, DERIVE_FMA(P_l1[4], t75_l1, P_l1[1]*t74_l1));
-            const double t103_l1 = DERIVE_FMA(P_l1[8], t76_l1, DERIVE_FMA(P_l1[5], t75_l1, P_l1[2]*t74_l1));
-            const double t104_l1 = DERIVE_FMA(P_l1[2], t79_l1, DERIVE_FMA(P_l1[0], t77_l1, -(P_l1[1]*t78_l1)));
-            const double t105_l1 = DERIVE_FMA(P_l1[5], t79_l1, DERIVE_FMA(P_l1[1], t77_l1, -(P_l1[4]*t78_l1)));
-            const double t106_l1 = DERIVE_FMA(P_l1[8], t79_l1, DERIVE_FMA(P_l1[2], t77_l1, -(P_l1[5]*t78_l1)));
-            const double t107_l1 = DERIVE_FMA(0.9950248756218906, t99_l1, DERIVE_FMA(0.9950248756218906, t98_l1, 0.4975124378109453*t100_l1));
-            const double t108_l1 = DERIVE_FMA(0.9875621890547264, t99_l1, DERIVE_FMA((-0.012437810945273632), t98_l1, 0.9937810945273632*t100_l1));
-            const double t109_l1 = DERIVE_FMA((-0.01658374792703151), t99_l1, DERIVE_FMA((-0.01658374792703151), t98_l1, 0.9917081260364843*t100_l1));
-            const double t110_l1 = DERIVE_FMA(0.9937810945273632, t103_l1, DERIVE_FMA(0.9875621890547264, t102_l1, (-0.012437810945273632)*t101_l1));
-            const double t111_l1 = DERIVE_FMA(0.9917081260364843, t103_l1, DERIVE_FMA((-0.01658374792703151), t102_l1, (-0.01658374792703151)*t101_l1));
-            const double t112_l1 = DERIVE_FMA(0.9917081260364843, t106_l1, DERIVE_FMA((-0.01658374792703151), t105_l1, (-0.01658374792703151)*t104_l1));
-            const double t113_l1 = 0.0004975124378109452 + t107_l1;
-            const double t114_l1 = 0.0012437810945273632 + t108_l1;
-            const double t115_l1 = 0.001658374792703151 + t109_l1;
-            const double t116_l1 = 0.0033177860696517415 + t110_l1;
-            const double t117_l1 = 0.004979270315091211 + t111_l1;
-            const double t118_l1 = 0.009972360420121614 + t112_l1;
-            const double t119_l1 = t25_l1 + t95_l1;
-            const double t120_l1 = t26_l1 + t96_l1;
-            const double t121_l1 = t27_l1 + t97_l1;
-            const double t122_l1 = 0.5*t119_l1;
-            const double t123_l1 = 0.5*t120_l1;
-            const double t124_l1 = 0.5*t121_l1;
-            const double t125_l1 = t113_l1 + t34_l1;
-            const double t126_l1 = t114_l1 + t35_l1;
-            const double t127_l1 = t115_l1 + t36_l1;
-            const double t128_l1 = t116_l1 + t37_l1;
-            const double t129_l1 = t117_l1 + t38_l1;
-            const double t130_l1 = t118_l1 + t39_l1;
-            const double t131_l1 = 0.5*t125_l1;
-            const double t132_l1 = 0.5*t126_l1;
-            const double t133_l1 = 0.5*t127_l1;
-            const double t134_l1 = 0.5*t128_l1;
-            const double t135_l1 = 0.5*t129_l1;
-            const double t136_l1 = 0.5*t130_l1;
-            xn_l1[0] = t122_l1;
-            xn_l1[1] = t123_l1;
-            xn_l1[2] = t124_l1;
-            Pn_l1[0] = t131_l1;
-            Pn_l1[1] = t132_l1;
-            Pn_l1[2] = t133_l1;
-            Pn_l1[3] = t132_l1;
-            Pn_l1[4] = t134_l1;
-            Pn_l1[5] = t135_l1;
-            Pn_l1[6] = t133_l1;
-            Pn_l1[7] = t135_l1;
-            Pn_l1[8] = t136_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 1;
-            const double t0_l2 = DERIVE_FMA(0.5, x_l2[2], x_l2[0] + x_l2[1]);
-            const double t1_l2 = x_l2[1] + x_l2[2];
-            const double t2_l2 = DERIVE_FMA(0.5, P_l2[2], P_l2[0] + P_l2[1]);
-            const double t3_l2 = DERIVE_FMA(0.5, P_l2[5], P_l2[1] + P_l2[4]);
-            const double t4_l2 = DERIVE_FMA(0.5, P_l2[8], P_l2[2] + P_l2[5]);
-            const double t5_l2 = P_l2[4] + P_l2[5];
-            const double t6_l2 = P_l2[5] + P_l2[8];
-            const double t7_l2 = DERIVE_FMA(0.5, t4_l2, t2_l2 + t3_l2);
-            const double t8_l2 = t3_l2 + t4_l2;
-            const double t9_l2 = t5_l2 + t6_l2;
-            const double t10_l2 = 0.0005 + t7_l2;
-            const double t11_l2 = 0.00125 + t8_l2;
-            const double t12_l2 = 0.0016666666666666668 + t4_l2;
-            const double t13_l2 = 0.0033333333333333335 + t9_l2;
-            const double t14_l2 = 0.005 + t6_l2;
-            const double t15_l2 = 0.01 + P_l2[8];
-            const double t16_l2 = 0.1 + t10_l2;
-            if (!(t16_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = ca_jklf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            const double t17_l2 = 1.0/t16_l2;
-            const double t18_l2 = t10_l2*t17_l2;
-            const double t19_l2 = t11_l2*t17_l2;
-            const double t20_l2 = t12_l2*t17_l2;
-            const double t21_l2 = z_l2[0] - t0_l2;
-            const double t22_l2 = t18_l2*t21_l2;
-            const double t23_l2 = t19_l2*t21_l2;
-            const double t24_l2 = t20_l2*t21_l2;
-            const double t25_l2 = t0_l2 + t22_l2;
-            const double t26_l2 = t1_l2 + t23_l2;
-            const double t27_l2 = x_l2[2] + t24_l2;
-            const double t28_l2 = t10_l2*t18_l2;
-            const double t29_l2 = t11_l2*t18_l2;
-            const double t30_l2 = t12_l2*t18_l2;
-            const double t31_l2 = t11_l2*t19_l2;
-            const double t32_l2 = t12_l2*t19_l2;
-            const double t33_l2 = t12_l2*t20_l2;
-            const double t34_l2 = t10_l2 - t28_l2;
-            const double t35_l2 = t11_l2 - t29_l2;
-            const double t36_l2 = t12_l2 - t30_l2;
-            const double t37_l2 = t13_l2 - t31_l2;
-            const double t38_l2 = t14_l2 - t32_l2;
-            const double t39_l2 = t15_l2 - t33_l2;
-            const double t40_l2 = 9.950248756218905*P_l2[1];
-            const double t41_l2 = 4.975124378109452*P_l2[2];
-            const double t42_l2 = DERIVE_FMA(9.950248756218905, P_l2[0], t40_l2 + t41_l2);
-            const double t43_l2 = 4.975124378109452*P_l2[1];
-            const double t44_l2 = DERIVE_FMA(2.487562189054726, P_l2[2], DERIVE_FMA(4.975124378109452, P_l2[0], t43_l2));
-            const double t45_l2 = 4.975124378109452*P_l2[5];
-            const double t46_l2 = DERIVE_FMA(9.950248756218905, P_l2[4], t40_l2 + t45_l2);
-            const double t47_l2 = DERIVE_FMA(2.487562189054726, P_l2[5], DERIVE_FMA(4.975124378109452, P_l2[4], t43_l2));
-            const double t48_l2 = DERIVE_FMA(4.975124378109452, P_l2[8], DERIVE_FMA(9.950248756218905, P_l2[5], 9.950248756218905*P_l2[2]));
-            const double t49_l2 = DERIVE_FMA(2.487562189054726, P_l2[8], t41_l2 + t45_l2);
-            const double t50_l2 = 1.0 + t42_l2;
-            const double t51_l2 = 1.0 + t46_l2;
-            const double t52_l2 = 1.0 + t49_l2;
-            const double t53_l2 = 1.0/t50_l2;
-            const double t54_l2 = t46_l2*t53_l2;
-            const double t55_l2 = t48_l2*t53_l2;
-            const double t56_l2 = t51_l2 - t42_l2*t54_l2;
-            const double t57_l2 = t47_l2 - t44_l2*t54_l2;
-            const double t58_l2 = 1.0/t56_l2;
-            const double t59_l2 = t58_l2*(t48_l2 - t42_l2*t55_l2);
-            const double t60_l2 = t52_l2 - t44_l2*t55_l2 - t57_l2*t59_l2;
-            const double t61_l2 = 1.0/t60_l2;
-            const double t62_l2 = DERIVE_FMA(t54_l2, t59_l2, -t55_l2);
-            const double t63_l2 = t61_l2*t62_l2;
-            const double t64_l2 = t58_l2*(-t54_l2 - t57_l2*t63_l2);
-            const double t65_l2 = t53_l2*(1.0 - t42_l2*t64_l2 - t44_l2*t63_l2);
-            const double t66_l2 = t59_l2*t61_l2;
-            const double t67_l2 = t58_l2*DERIVE_FMA(t57_l2, t66_l2, 1.0);
-            const double t68_l2 = t53_l2*DERIVE_FMA(t44_l2, t66_l2, -(t42_l2*t67_l2));
-            const double t69_l2 = t57_l2*t58_l2*t61_l2;
-            const double t70_l2 = t53_l2*DERIVE_FMA(t42_l2, t69_l2, -(t44_l2*t61_l2));
-            const double t71_l2 = DERIVE_FMA(0.9950248756218906, t65_l2, DERIVE_FMA(0.9950248756218906, t64_l2, 0.4975124378109453*t63_l2));
-            const double t72_l2 = DERIVE_FMA(0.9950248756218906, t68_l2, DERIVE_FMA(0.9950248756218906, t67_l2, (-0.4975124378109453)*t66_l2));
-            const double t73_l2 = DERIVE_FMA(0.9950248756218906, t70_l2, DERIVE_FMA((-0.9950248756218906), t69_l2, 0.4975124378109453*t61_l2));
-            const double t74_l2 = DERIVE_FMA((-0.012437810945273632), t65_l2, DERIVE_FMA(0.9875621890547264, t64_l2, 0.9937810945273632*t63_l2));
-            const double t75_l2 = DERIVE_FMA((-0.012437810945273632), t68_l2, DERIVE_FMA(0.9875621890547264, t67_l2, (-0.9937810945273632)*t66_l2));
-            const double t76_l2 = DERIVE_FMA((-0.012437810945273632), t70_l2, DERIVE_FMA((-0.9875621890547264), t69_l2, 0.9937810945273632*t61_l2));
-            const double t77_l2 = DERIVE_FMA((-0.01658374792703151), t65_l2, DERIVE_FMA((-0.01658374792703151), t64_l2, 0.9917081260364843*t63_l2));
-            const double t78_l2 = DERIVE_FMA(0.01658374792703151, t68_l2, DERIVE_FMA(0.01658374792703151, t67_l2, 0.9917081260364843*t66_l2));
-            const double t79_l2 = DERIVE_FMA((-0.01658374792703151), t70_l2, DERIVE_FMA(0.01658374792703151, t69_l2, 0.9917081260364843*t61_l2));
-            const double t80_l2 = 9.950248756218905*z_l2[0];
-            const double t81_l2 = 4.975124378109452*z_l2[0];
-            const double t82_l2 = P_l2[1]*t80_l2;
-            const double t83_l2 = DERIVE_FMA(P_l2[2], t81_l2, DERIVE_FMA(P_l2[0], t80_l2, t82_l2));
-            const double t84_l2 = DERIVE_FMA(P_l2[5], t81_l2, DERIVE_FMA(P_l2[4], t80_l2, t82_l2));
-            const double t85_l2 = DERIVE_FMA(P_l2[8], t81_l2, DERIVE_FMA(P_l2[5], t80_l2, P_l2[2]*t80_l2));
-            const double t86_l2 = x_l2[0] + t83_l2;
-            const double t87_l2 = x_l2[1] + t84_l2;
-            const double t88_l2 = x_l2[2] + t85_l2;
-            const double t89_l2 = 0.004975124378109453*z_l2[0];
-            const double t90_l2 = 0.012437810945273632*z_l2[0];
-            const double t91_l2 = 0.01658374792703151*z_l2[0];
-            const double t92_l2 = DERIVE_FMA(t73_l2, t88_l2, DERIVE_FMA(t72_l2, t87_l2, t71_l2*t86_l2));
-            const double t93_l2 = DERIVE_FMA(t76_l2, t88_l2, DERIVE_FMA(t75_l2, t87_l2, t74_l2*t86_l2));
-            const double t94_l2 = DERIVE_FMA(t79_l2, t88_l2, DERIVE_FMA(t77_l2, t86_l2, -(t78_l2*t87_l2)));
-            const double t95_l2 = t89_l2 + t92_l2;
-            const double t96_l2 = t90_l2 + t93_l2;
-            const double t97_l2 = t91_l2 + t94_l2;
-            const double t98_l2 = DERIVE_FMA(P_l2[2], t73_l2, DERIVE_FMA(P_l2[1], t72_l2, P_l2[0]*t71_l2));
-            const double t99_l2 = DERIVE_FMA(P_l2[5], t73_l2, DERIVE_FMA(P_l2[4], t72_l2, P_l2[1]*t71_l2));
-            const double t100_l2 = DERIVE_FMA(P_l2[8], t73_l2, DERIVE_FMA(P_l2[5], t72_l2, P_l2[2]*t71_l2));
-            const double t101_l2 = DERIVE_FMA(P_l2[2], t76_l2, DERIVE_FMA(P_l2[1], t75_l2, P_l2[0]*t74_l2));
-            const double t102_l2 = DERIVE_FMA(P_l2[5], t76_l2, DERIVE_FMA(P_l2[4], t75_l2, P_l2[1]*t74_l2));
-            const double t103_l2 = DERIVE_FMA(P_l2[8], t76_l2, DERIVE_FMA(P_l2[5], t75_l2, P_l2[2]*t74_l2));
-            const double t104_l2 = DERIVE_FMA(P_l2[2], t79_l2, DERIVE_FMA(P_l2[0], t77_l2, -(P_l2[1]*t78_l2)));
-            const double t105_l2 = DERIVE_FMA(P_l2[5], t79_l2, DERIVE_FMA(P_l2[1], t77_l2, -(P_l2[4]*t78_l2)));
-            const double t106_l2 = DERIVE_FMA(P_l2[8], t79_l2, DERIVE_FMA(P_l2[2], t77_l2, -(P_l2[5]*t78_l2)));
-            const double t107_l2 = DERIVE_FMA(0.9950248756218906, t99_l2, DERIVE_FMA(0.9950248756218906, t98_l2, 0.4975124378109453*t100_l2));
-            const double t108_l2 = DERIVE_FMA(0.9875621890547264, t99_l2, DERIVE_FMA((-0.012437810945273632), t98_l2, 0.9937810945273632*t100_l2));
-            const double t109_l2 = DERIVE_FMA((-0.01658374792703151), t99_l2, DERIVE_FMA((-0.01658374792703151), t98_l2, 0.9917081260364843*t100_l2));
-            const double t110_l2 = DERIVE_FMA(0.9937810945273632, t103_l2, DERIVE_FMA(0.9875621890547264, t102_l2, (-0.012437810945273632)*t101_l2));
-            const double t111_l2 = DERIVE_FMA(0.9917081260364843, t103_l2, DERIVE_FMA((-0.01658374792703151), t102_l2, (-0.01658374792703151)*t101_l2));
-            const double t112_l2 = DERIVE_FMA(0.9917081260364843, t106_l2, DERIVE_FMA((-0.01658374792703151), t105_l2, (-0.01658374792703151)*t104_l2));
-            const double t113_l2 = 0.0004975124378109452 + t107_l2;
-            const double t114_l2 = 0.0012437810945273632 + t108_l2;
-            const double t115_l2 = 0.001658374792703151 + t109_l2;
-            const double t116_l2 = 0.0033177860696517415 + t110_l2;
-            const double t117_l2 = 0.004979270315091211 + t111_l2;
-            const double t118_l2 = 0.009972360420121614 + t112_l2;
-            const double t119_l2 = t25_l2 + t95_l2;
-            const double t120_l2 = t26_l2 + t96_l2;
-            const double t121_l2 = t27_l2 + t97_l2;
-            const double t122_l2 = 0.5*t119_l2;
-            const double t123_l2 = 0.5*t120_l2;
-            const double t124_l2 = 0.5*t121_l2;
-            const double t125_l2 = t113_l2 + t34_l2;
-            const double t126_l2 = t114_l2 + t35_l2;
-            const double t127_l2 = t115_l2 + t36_l2;
-            const double t128_l2 = t116_l2 + t37_l2;
-            const double t129_l2 = t117_l2 + t38_l2;
-            const double t130_l2 = t118_l2 + t39_l2;
-            const double t131_l2 = 0.5*t125_l2;
-            const double t132_l2 = 0.5*t126_l2;
-            const double t133_l2 = 0.5*t127_l2;
-            const double t134_l2 = 0.5*t128_l2;
-            const double t135_l2 = 0.5*t129_l2;
-            const double t136_l2 = 0.5*t130_l2;
-            xn_l2[0] = t122_l2;
-            xn_l2[1] = t123_l2;
-            xn_l2[2] = t124_l2;
-            Pn_l2[0] = t131_l2;
-            Pn_l2[1] = t132_l2;
-            Pn_l2[2] = t133_l2;
-            Pn_l2[3] = t132_l2;
-            Pn_l2[4] = t134_l2;
-            Pn_l2[5] = t135_l2;
-            Pn_l2[6] = t133_l2;
-            Pn_l2[7] = t135_l2;
-            Pn_l2[8] = t136_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 1;
-            const double t0_l3 = DERIVE_FMA(0.5, x_l3[2], x_l3[0] + x_l3[1]);
-            const double t1_l3 = x_l3[1] + x_l3[2];
-            const double t2_l3 = DERIVE_FMA(0.5, P_l3[2], P_l3[0] + P_l3[1]);
-            const double t3_l3 = DERIVE_FMA(0.5, P_l3[5], P_l3[1] + P_l3[4]);
-            const double t4_l3 = DERIVE_FMA(0.5, P_l3[8], P_l3[2] + P_l3[5]);
-            const double t5_l3 = P_l3[4] + P_l3[5];
-            const double t6_l3 = P_l3[5] + P_l3[8];
-            const double t7_l3 = DERIVE_FMA(0.5, t4_l3, t2_l3 + t3_l3);
-            const double t8_l3 = t3_l3 + t4_l3;
-            const double t9_l3 = t5_l3 + t6_l3;
-            const double t10_l3 = 0.0005 + t7_l3;
-            const double t11_l3 = 0.00125 + t8_l3;
-            const double t12_l3 = 0.0016666666666666668 + t4_l3;
-            const double t13_l3 = 0.0033333333333333335 + t9_l3;
-            const double t14_l3 = 0.005 + t6_l3;
-            const double t15_l3 = 0.01 + P_l3[8];
-            const double t16_l3 = 0.1 + t10_l3;
-            if (!(t16_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            const double t17_l3 = 1.0/t16_l3;
-            const double t18_l3 = t10_l3*t17_l3;
-            const double t19_l3 = t11_l3*t17_l3;
-            const double t20_l3 = t12_l3*t17_l3;
-            const double t21_l3 = z_l3[0] - t0_l3;
-            const double t22_l3 = t18_l3*t21_l3;
-            const double t23_l3 = t19_l3*t21_l3;
-            const double t24_l3 = t20_l3*t21_l3;
-            const double t25_l3 = t0_l3 + t22_l3;
-            const double t26_l3 = t1_l3 + t23_l3;
-            const double t27_l3 = x_l3[2] + t24_l3;
-            const double t28_l3 = t10_l3*t18_l3;
-            const double t29_l3 = t11_l3*t18_l3;
-            const double t30_l3 = t12_l3*t18_l3;
-            const double t31_l3 = t11_l3*t19_l3;
-            const double t32_l3 = t12_l3*t19_l3;
-            const double t33_l3 = t12_l3*t20_l3;
-            const double t34_l3 = t10_l3 - t28_l3;
-            const double t35_l3 = t11_l3 - t29_l3;
-            const double t36_l3 = t12_l3 - t30_l3;
-            const double t37_l3 = t13_l3 - t31_l3;
-            const double t38_l3 = t14_l3 - t32_l3;
-            const double t39_l3 = t15_l3 - t33_l3;
-            const double t40_l3 = 9.950248756218905*P_l3[1];
-            const double t41_l3 = 4.975124378109452*P_l3[2];
-            const double t42_l3 = DERIVE_FMA(9.950248756218905, P_l3[0], t40_l3 + t41_l3);
-            const double t43_l3 = 4.975124378109452*P_l3[1];
-            const double t44_l3 = DERIVE_FMA(2.487562189054726, P_l3[2], DERIVE_FMA(4.975124378109452, P_l3[0], t43_l3));
-            const double t45_l3 = 4.975124378109452*P_l3[5];
-            const double t46_l3 = DERIVE_FMA(9.950248756218905, P_l3[4], t40_l3 + t45_l3);
-            const double t47_l3 = DERIVE_FMA(2.487562189054726, P_l3[5], DERIVE_FMA(4.975124378109452, P_l3[4], t43_l3));
-            const double t48_l3 = DERIVE_FMA(4.975124378109452, P_l3[8], DERIVE_FMA(9.950248756218905, P_l3[5], 9.950248756218905*P_l3[2]));
-            const double t49_l3 = DERIVE_FMA(2.487562189054726, P_l3[8], t41_l3 + t45_l3);
-            const double t50_l3 = 1.0 + t42_l3;
-            const double t51_l3 = 1.0 + t46_l3;
-            const double t52_l3 = 1.0 + t49_l3;
-            const double t53_l3 = 1.0/t50_l3;
-            const double t54_l3 = t46_l3*t53_l3;
-            const double t55_l3 = t48_l3*t53_l3;
-            const double t56_l3 = t51_l3 - t42_l3*t54_l3;
-            const double t57_l3 = t47_l3 - t44_l3*t54_l3;
-            const double t58_l3 = 1.0/t56_l3;
-            const double t59_l3 = t58_l3*(t48_l3 - t42_l3*t55_l3);
-            const double t60_l3 = t52_l3 - t44_l3*t55_l3 - t57_l3*t59_l3;
-            const double t61_l3 = 1.0/t60_l3;
-            const double t62_l3 = DERIVE_FMA(t54_l3, t59_l3, -t55_l3);
-            const double t63_l3 = t61_l3*t62_l3;
-            const double t64_l3 = t58_l3*(-t54_l3 - t57_l3*t63_l3);
-            const double t65_l3 = t53_l3*(1.0 - t42_l3*t64_l3 - t44_l3*t63_l3);
-            const double t66_l3 = t59_l3*t61_l3;
-            const double t67_l3 = t58_l3*DERIVE_FMA(t57_l3, t66_l3, 1.0);
-            const double t68_l3 = t53_l3*DERIVE_FMA(t44_l3, t66_l3, -(t42_l3*t67_l3));
-            const double t69_l3 = t57_l3*t58_l3*t61_l3;
-            const double t70_l3 = t53_l3*DERIVE_FMA(t42_l3, t69_l3, -(t44_l3*t61_l3));
-            const double t71_l3 = DERIVE_FMA(0.9950248756218906, t65_l3, DERIVE_FMA(0.9950248756218906, t64_l3, 0.4975124378109453*t63_l3));
-            const double t72_l3 = DERIVE_FMA(0.9950248756218906, t68_l3, DERIVE_FMA(0.9950248756218906, t67_l3, (-0.4975124378109453)*t66_l3));
-            const double t73_l3 = DERIVE_FMA(0.9950248756218906, t70_l3, DERIVE_FMA((-0.9950248756218906), t69_l3, 0.4975124378109453*t61_l3));
-            const double t74_l3 = DERIVE_FMA((-0.012437810945273632), t65_l3, DERIVE_FMA(0.9875621890547264, t64_l3, 0.9937810945273632*t63_l3));
-            const double t75_l3 = DERIVE_FMA((-0.012437810945273632), t68_l3, DERIVE_FMA(0.9875621890547264, t67_l3, (-0.9937810945273632)*t66_l3));
-            const double t76_l3 = DERIVE_FMA((-0.012437810945273632), t70_l3, DERIVE_FMA((-0.9875621890547264), t69_l3, 0.9937810945273632*t61_l3));
-            const double t77_l3 = DERIVE_FMA((-0.01658374792703151), t65_l3, DERIVE_FMA((-0.01658374792703151), t64_l3, 0.9917081260364843*t63_l3));
-            const double t78_l3 = DERIVE_FMA(0.01658374792703151, t68_l3, DERIVE_FMA(0.01658374792703151, t67_l3, 0.9917081260364843*t66_l3));
-            const double t79_l3 = DERIVE_FMA((-0.01658374792703151), t70_l3, DERIVE_FMA(0.01658374792703151, t69_l3, 0.9917081260364843*t61_l3));
-            const double t80_l3 = 9.950248756218905*z_l3[0];
-            const double t81_l3 = 4.975124378109452*z_l3[0];
-            const double t82_l3 = P_l3[1]*t80_l3;
-            const double t83_l3 = DERIVE_FMA(P_l3[2], t81_l3, DERIVE_FMA(P_l3[0], t80_l3, t82_l3));
-            const double t84_l3 = DERIVE_FMA(P_l3[5], t81_l3, DERIVE_FMA(P_l3[4], t80_l3, t82_l3));
-            const double t85_l3 = DERIVE_FMA(P_l3[8], t81_l3, DERIVE_FMA(P_l3[5], t80_l3, P_l3[2]*t80_l3));
-            const double t86_l3 = x_l3[0] + t83_l3;
-            const double t87_l3 = x_l3[1] + t84_l3;
-            const double t88_l3 = x_l3[2] + t85_l3;
-            const double t89_l3 = 0.004975124378109453*z_l3[0];
-            const double t90_l3 = 0.012437810945273632*z_l3[0];
-            const double t91_l3 = 0.01658374792703151*z_l3[0];
-            const double t92_l3 = DERIVE_FMA(t73_l3, t88_l3, DERIVE_FMA(t72_l3, t87_l3, t71_l3*t86_l3));
-            const double t93_l3 = DERIVE_FMA(t76_l3, t88_l3, DERIVE_FMA(t75_l3, t87_l3, t74_l3*t86_l3));
-            const double t94_l3 = DERIVE_FMA(t79_l3, t88_l3, DERIVE_FMA(t77_l3, t86_l3, -(t78_l3*t87_l3)));
-            const double t95_l3 = t89_l3 + t92_l3;
-            const double t96_l3 = t90_l3 + t93_l3;
-            const double t97_l3 = t91_l3 + t94_l3;
-            const double t98_l3 = DERIVE_FMA(P_l3[2], t73_l3, DERIVE_FMA(P_l3[1], t72_l3, P_l3[0]*t71_l3));
-            const double t99_l3 = DERIVE_FMA(P_l3[5], t73_l3, DERIVE_FMA(P_l3[4], t72_l3, P_l3[1]*t71_l3));
-            const double t100_l3 = DERIVE_FMA(P_l3[8], t73_l3, DERIVE_FMA(P_l3[5], t72_l3, P_l3[2]*t71_l3));
-            const double t101_l3 = DERIVE_FMA(P_l3[2], t76_l3, DERIVE_FMA(P_l3[1], t75_l3, P_l3[0]*t74_l3));
-            const double t102_l3 = DERIVE_FMA(P_l3[5], t76_l3, DERIVE_FMA(P_l3[4], t75_l3, P_l3[1]*t74_l3));
-            const double t103_l3 = DERIVE_FMA(P_l3[8], t76_l3, DERIVE_FMA(P_l3[5], t75_l3, P_l3[2]*t74_l3));
-            const double t104_l3 = DERIVE_FMA(P_l3[2], t79_l3, DERIVE_FMA(P_l3[0], t77_l3, -(P_l3[1]*t78_l3)));
-            const double t105_l3 = DERIVE_FMA(P_l3[5], t79_l3, DERIVE_FMA(P_l3[1], t77_l3, -(P_l3[4]*t78_l3)));
-            const double t106_l3 = DERIVE_FMA(P_l3[8], t79_l3, DERIVE_FMA(P_l3[2], t77_l3, -(P_l3[5]*t78_l3)));
-            const double t107_l3 = DERIVE_FMA(0.9950248756218906, t99_l3, DERIVE_FMA(0.9950248756218906, t98_l3, 0.4975124378109453*t100_l3));
-            const double t108_l3 = DERIVE_FMA(0.9875621890547264, t99_l3, DERIVE_FMA((-0.012437810945273632), t98_l3, 0.9937810945273632*t100_l3));
-            const double t109_l3 = DERIVE_FMA((-0.01658374792703151), t99_l3, DERIVE_FMA((-0.01658374792703151), t98_l3, 0.9917081260364843*t100_l3));
-            const double t110_l3 = DERIVE_FMA(0.9937810945273632, t103_l3, DERIVE_FMA(0.9875621890547264, t102_l3, (-0.012437810945273632)*t101_l3));
-            const double t111_l3 = DERIVE_FMA(0.9917081260364843, t103_l3, DERIVE_FMA((-0.01658374792703151), t102_l3, (-0.01658374792703151)*t101_l3));
-            const double t112_l3 = DERIVE_FMA(0.9917081260364843, t106_l3, DERIVE_FMA((-0.01658374792703151), t105_l3, (-0.01658374792703151)*t104_l3));
-            const double t113_l3 = 0.0004975124378109452 + t107_l3;
-            const double t114_l3 = 0.0012437810945273632 + t108_l3;
-            const double t115_l3 = 0.001658374792703151 + t109_l3;
-            const double t116_l3 = 0.0033177860696517415 + t110_l3;
-            const double t117_l3 = 0.004979270315091211 + t111_l3;
-            const double t118_l3 = 0.009972360420121614 + t112_l3;
-            const double t119_l3 = t25_l3 + t95_l3;
-            const double t120_l3 = t26_l3 + t96_l3;
-            const double t121_l3 = t27_l3 + t97_l3;
-            const double t122_l3 = 0.5*t119_l3;
-            const double t123_l3 = 0.5*t120_l3;
-            const double t124_l3 = 0.5*t121_l3;
-            const double t125_l3 = t113_l3 + t34_l3;
-            const double t126_l3 = t114_l3 + t35_l3;
-            const double t127_l3 = t115_l3 + t36_l3;
-            const double t128_l3 = t116_l3 + t37_l3;
-            const double t129_l3 = t117_l3 + t38_l3;
-            const double t130_l3 = t118_l3 + t39_l3;
-            const double t131_l3 = 0.5*t125_l3;
-            const double t132_l3 = 0.5*t126_l3;
-            const double t133_l3 = 0.5*t127_l3;
-            const double t134_l3 = 0.5*t128_l3;
-            const double t135_l3 = 0.5*t129_l3;
-            const double t136_l3 = 0.5*t130_l3;
-            xn_l3[0] = t122_l3;
-            xn_l3[1] = t123_l3;
-            xn_l3[2] = t124_l3;
-            Pn_l3[0] = t131_l3;
-            Pn_l3[1] = t132_l3;
-            Pn_l3[2] = t133_l3;
-            Pn_l3[3] = t132_l3;
-            Pn_l3[4] = t134_l3;
-            Pn_l3[5] = t135_l3;
-            Pn_l3[6] = t133_l3;
-            Pn_l3[7] = t135_l3;
-            Pn_l3[8] = t136_l3;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    xs[((t + j) * steps + k) * 3 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 9; ++i) {
+                        Ps[((t + j) * steps + k) * 9 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 9 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 9 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 9 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 9 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 9 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 9 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 9 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 9 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 9 + 8] = Pn_l1[8];
+            for (i = 0; i < 3 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 9 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 9 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 9 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 9 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 9 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 9 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 9 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 9 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 9 + 8] = Pn_l2[8];
-            }
-            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 9 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 9 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 9 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 9 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 9 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 9 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 9 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 9 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 9 + 8] = Pn_l3[8];
+            for (i = 0; i < 9 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = DERIVE_FMA(0.5, x_l0[2], x_l0[0] + x_l0[1]);
-            const double t1_l0 = x_l0[1] + x_l0[2];
-            const double t2_l0 = DERIVE_FMA(0.5, P_l0[2], P_l0[0] + P_l0[1]);
-            const double t3_l0 = DERIVE_FMA(0.5, P_l0[5], P_l0[1] + P_l0[4]);
-            const double t4_l0 = DERIVE_FMA(0.5, P_l0[8], P_l0[2] + P_l0[5]);
-            const double t5_l0 = P_l0[4] + P_l0[5];
-            const double t6_l0 = P_l0[5] + P_l0[8];
-            const double t7_l0 = DERIVE_FMA(0.5, t4_l0, t2_l0 + t3_l0);
-            const double t8_l0 = t3_l0 + t4_l0;
-            const double t9_l0 = t5_l0 + t6_l0;
-            const double t10_l0 = 0.0005 + t7_l0;
-            const double t11_l0 = 0.00125 + t8_l0;
-            const double t12_l0 = 0.0016666666666666668 + t4_l0;
-            const double t13_l0 = 0.0033333333333333335 + t9_l0;
-            const double t14_l0 = 0.005 + t6_l0;
-            const double t15_l0 = 0.01 + P_l0[8];
-            const double t16_l0 = 0.1 + t10_l0;
-            if (!(t16_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t17_l0 = 1.0/t16_l0;
-            const double t18_l0 = t10_l0*t17_l0;
-            const double t19_l0 = t11_l0*t17_l0;
-            const double t20_l0 = t12_l0*t17_l0;
-            const double t21_l0 = z_l0[0] - t0_l0;
-            const double t22_l0 = t18_l0*t21_l0;
-            const double t23_l0 = t19_l0*t21_l0;
-            const double t24_l0 = t20_l0*t21_l0;
-            const double t25_l0 = t0_l0 + t22_l0;
-            const double t26_l0 = t1_l0 + t23_l0;
-            const double t27_l0 = x_l0[2] + t24_l0;
-            const double t28_l0 = t10_l0*t18_l0;
-            const double t29_l0 = t11_l0*t18_l0;
-            const double t30_l0 = t12_l0*t18_l0;
-            const double t31_l0 = t11_l0*t19_l0;
-            const double t32_l0 = t12_l0*t19_l0;
-            const double t33_l0 = t12_l0*t20_l0;
-            const double t34_l0 = t10_l0 - t28_l0;
-            const double t35_l0 = t11_l0 - t29_l0;
-            const double t36_l0 = t12_l0 - t30_l0;
-            const double t37_l0 = t13_l0 - t31_l0;
-            const double t38_l0 = t14_l0 - t32_l0;
-            const double t39_l0 = t15_l0 - t33_l0;
-            const double t40_l0 = 9.950248756218905*P_l0[1];
-            const double t41_l0 = 4.975124378109452*P_l0[2];
-            const double t42_l0 = DERIVE_FMA(9.950248756218905, P_l0[0], t40_l0 + t41_l0);
-            const double t43_l0 = 4.975124378109452*P_l0[1];
-            const double t44_l0 = DERIVE_FMA(2.487562189054726, P_l0[2], DERIVE_FMA(4.975124378109452, P_l0[0], t43_l0));
-            const double t45_l0 = 4.975124378109452*P_l0[5];
-            const double t46_l0 = DERIVE_FMA(9.950248756218905, P_l0[4], t40_l0 + t45_l0);
-            const double t47_l0 = DERIVE_FMA(2.487562189054726, P_l0[5], DERIVE_FMA(4.975124378109452, P_l0[4], t43_l0));
-            const double t48_l0 = DERIVE_FMA(4.975124378109452, P_l0[8], DERIVE_FMA(9.950248756218905, P_l0[5], 9.950248756218905*P_l0[2]));
-            const double t49_l0 = DERIVE_FMA(2.487562189054726, P_l0[8], t41_l0 + t45_l0);
-            const double t50_l0 = 1.0 + t42_l0;
-            const double t51_l0 = 1.0 + t46_l0;
-            const double t52_l0 = 1.0 + t49_l0;
-            const double t53_l0 = 1.0/t50_l0;
-            const double t54_l0 = t46_l0*t53_l0;
-            const double t55_l0 = t48_l0*t53_l0;
-            const double t56_l0 = t51_l0 - t42_l0*t54_l0;
-            const double t57_l0 = t47_l0 - t44_l0*t54_l0;
-            const double t58_l0 = 1.0/t56_l0;
-            const double t59_l0 = t58_l0*(t48_l0 - t42_l0*t55_l0);
-            const double t60_l0 = t52_l0 - t44_l0*t55_l0 - t57_l0*t59_l0;
-            const double t61_l0 = 1.0/t60_l0;
-            const double t62_l0 = DERIVE_FMA(t54_l0, t59_l0, -t55_l0);
-            const double t63_l0 = t61_l0*t62_l0;
-            const double t64_l0 = t58_l0*(-t54_l0 - t57_l0*t63_l0);
-            const double t65_l0 = t53_l0*(1.0 - t42_l0*t64_l0 - t44_l0*t63_l0);
-            const double t66_l0 = t59_l0*t61_l0;
-            const double t67_l0 = t58_l0*DERIVE_FMA(t57_l0, t66_l0, 1.0);
-            const double t68_l0 = t53_l0*DERIVE_FMA(t44_l0, t66_l0, -(t42_l0*t67_l0));
-            const double t69_l0 = t57_l0*t58_l0*t61_l0;
-            const double t70_l0 = t53_l0*DERIVE_FMA(t42_l0, t69_l0, -(t44_l0*t61_l0));
-            const double t71_l0 = DERIVE_FMA(0.9950248756218906, t65_l0, DERIVE_FMA(0.9950248756218906, t64_l0, 0.4975124378109453*t63_l0));
-            const double t72_l0 = DERIVE_FMA(0.9950248756218906, t68_l0, DERIVE_FMA(0.9950248756218906, t67_l0, (-0.4975124378109453)*t66_l0));
-            const double t73_l0 = DERIVE_FMA(0.9950248756218906, t70_l0, DERIVE_FMA((-0.9950248756218906), t69_l0, 0.4975124378109453*t61_l0));
-            const double t74_l0 = DERIVE_FMA((-0.012437810945273632), t65_l0, DERIVE_FMA(0.9875621890547264, t64_l0, 0.9937810945273632*t63_l0));
-            const double t75_l0 = DERIVE_FMA((-0.012437810945273632), t68_l0, DERIVE_FMA(0.9875621890547264, t67_l0, (-0.9937810945273632)*t66_l0));
-            const double t76_l0 = DERIVE_FMA((-0.012437810945273632), t70_l0, DERIVE_FMA((-0.9875621890547264), t69_l0, 0.9937810945273632*t61_l0));
-            const double t77_l0 = DERIVE_FMA((-0.01658374792703151), t65_l0, DERIVE_FMA((-0.01658374792703151), t64_l0, 0.9917081260364843*t63_l0));
-            const double t78_l0 = DERIVE_FMA(0.01658374792703151, t68_l0, DERIVE_FMA(0.01658374792703151, t67_l0, 0.9917081260364843*t66_l0));
-            const double t79_l0 = DERIVE_FMA((-0.01658374792703151), t70_l0, DERIVE_FMA(0.01658374792703151, t69_l0, 0.9917081260364843*t61_l0));
-            const double t80_l0 = 9.950248756218905*z_l0[0];
-            const double t81_l0 = 4.975124378109452*z_l0[0];
-            const double t82_l0 = P_l0[1]*t80_l0;
-            const double t83_l0 = DERIVE_FMA(P_l0[2], t81_l0, DERIVE_FMA(P_l0[0], t80_l0, t82_l0));
-            const double t84_l0 = DERIVE_FMA(P_l0[5], t81_l0, DERIVE_FMA(P_l0[4], t80_l0, t82_l0));
-            const double t85_l0 = DERIVE_FMA(P_l0[8], t81_l0, DERIVE_FMA(P_l0[5], t80_l0, P_l0[2]*t80_l0));
-            const double t86_l0 = x_l0[0] + t83_l0;
-            const double t87_l0 = x_l0[1] + t84_l0;
-            const double t88_l0 = x_l0[2] + t85_l0;
-            const double t89_l0 = 0.004975124378109453*z_l0[0];
-            const double t90_l0 = 0.012437810945273632*z_l0[0];
-            const double t91_l0 = 0.01658374792703151*z_l0[0];
-            const double t92_l0 = DERIVE_FMA(t73_l0, t88_l0, DERIVE_FMA(t72_l0, t87_l0, t71_l0*t86_l0));
-            const double t93_l0 = DERIVE_FMA(t76_l0, t88_l0, DERIVE_FMA(t75_l0, t87_l0, t74_l0*t86_l0));
-            const double t94_l0 = DERIVE_FMA(t79_l0, t88_l0, DERIVE_FMA(t77_l0, t86_l0, -(t78_l0*t87_l0)));
-            const double t95_l0 = t89_l0 + t92_l0;
-            const double t96_l0 = t90_l0 + t93_l0;
-            const double t97_l0 = t91_l0 + t94_l0;
-            const double t98_l0 = DERIVE_FMA(P_l0[2], t73_l0, DERIVE_FMA(P_l0[1], t72_l0, P_l0[0]*t71_l0));
-            const double t99_l0 = DERIVE_FMA(P_l0[5], t73_l0, DERIVE_FMA(P_l0[4], t72_l0, P_l0[1]*t71_l0));
-            const double t100_l0 = DERIVE_FMA(P_l0[8], t73_l0, DERIVE_FMA(P_l0[5], t72_l0, P_l0[2]*t71_l0));
-            const double t101_l0 = DERIVE_FMA(P_l0[2], t76_l0, DERIVE_FMA(P_l0[1], t75_l0, P_l0[0]*t74_l0));
-            const double t102_l0 = DERIVE_FMA(P_l0[5], t76_l0, DERIVE_FMA(P_l0[4], t75_l0, P_l0[1]*t74_l0));
-            const double t103_l0 = DERIVE_FMA(P_l0[8], t76_l0, DERIVE_FMA(P_l0[5], t75_l0, P_l0[2]*t74_l0));
-            const double t104_l0 = DERIVE_FMA(P_l0[2], t79_l0, DERIVE_FMA(P_l0[0], t77_l0, -(P_l0[1]*t78_l0)));
-            const double t105_l0 = DERIVE_FMA(P_l0[5], t79_l0, DERIVE_FMA(P_l0[1], t77_l0, -(P_l0[4]*t78_l0)));
-            const double t106_l0 = DERIVE_FMA(P_l0[8], t79_l0, DERIVE_FMA(P_l0[2], t77_l0, -(P_l0[5]*t78_l0)));
-            const double t107_l0 = DERIVE_FMA(0.9950248756218906, t99_l0, DERIVE_FMA(0.9950248756218906, t98_l0, 0.4975124378109453*t100_l0));
-            const double t108_l0 = DERIVE_FMA(0.9875621890547264, t99_l0, DERIVE_FMA((-0.012437810945273632), t98_l0, 0.9937810945273632*t100_l0));
-            const double t109_l0 = DERIVE_FMA((-0.01658374792703151), t99_l0, DERIVE_FMA((-0.01658374792703151), t98_l0, 0.9917081260364843*t100_l0));
-            const double t110_l0 = DERIVE_FMA(0.9937810945273632, t103_l0, DERIVE_FMA(0.9875621890547264, t102_l0, (-0.012437810945273632)*t101_l0));
-            const double t111_l0 = DERIVE_FMA(0.9917081260364843, t103_l0, DERIVE_FMA((-0.01658374792703151), t102_l0, (-0.01658374792703151)*t101_l0));
-            const double t112_l0 = DERIVE_FMA(0.9917081260364843, t106_l0, DERIVE_FMA((-0.01658374792703151), t105_l0, (-0.01658374792703151)*t104_l0));
-            const double t113_l0 = 0.0004975124378109452 + t107_l0;
-            const double t114_l0 = 0.0012437810945273632 + t108_l0;
-            const double t115_l0 = 0.001658374792703151 + t109_l0;
-            const double t116_l0 = 0.0033177860696517415 + t110_l0;
-            const double t117_l0 = 0.004979270315091211 + t111_l0;
-            const double t118_l0 = 0.009972360420121614 + t112_l0;
-            const double t119_l0 = t25_l0 + t95_l0;
-            const double t120_l0 = t26_l0 + t96_l0;
-            const double t121_l0 = t27_l0 + t97_l0;
-            const double t122_l0 = 0.5*t119_l0;
-            const double t123_l0 = 0.5*t120_l0;
-            const double t124_l0 = 0.5*t121_l0;
-            const double t125_l0 = t113_l0 + t34_l0;
-            const double t126_l0 = t114_l0 + t35_l0;
-            const double t127_l0 = t115_l0 + t36_l0;
-            const double t128_l0 = t116_l0 + t37_l0;
-            const double t129_l0 = t117_l0 + t38_l0;
-            const double t130_l0 = t118_l0 + t39_l0;
-            const double t131_l0 = 0.5*t125_l0;
-            const double t132_l0 = 0.5*t126_l0;
-            const double t133_l0 = 0.5*t127_l0;
-            const double t134_l0 = 0.5*t128_l0;
-            const double t135_l0 = 0.5*t129_l0;
-            const double t136_l0 = 0.5*t130_l0;
-            xn_l0[0] = t122_l0;
-            xn_l0[1] = t123_l0;
-            xn_l0[2] = t124_l0;
-            Pn_l0[0] = t131_l0;
-            Pn_l0[1] = t132_l0;
-            Pn_l0[2] = t133_l0;
-            Pn_l0[3] = t132_l0;
-            Pn_l0[4] = t134_l0;
-            Pn_l0[5] = t135_l0;
-            Pn_l0[6] = t133_l0;
-            Pn_l0[7] = t135_l0;
-            Pn_l0[8] = t136_l0;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = ca_jklf_run(steps, z + t * steps * 1, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int ca_kf_step(x[3], P[3*3], z[1], x_new[3] out, P_new[3*3] out)
  *     int ca_kf_run(steps, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int ca_kf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
@@ -20,7 +21,7 @@
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_kf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_kf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_kf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_kf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_kf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -35,15 +36,56 @@
 #endif
 #endif
 
-int ca_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int ca_kf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-    const double t1 = x[1] + x[2];
-    const double t2 = DERIVE_FMA(0.5, P[2], P[0] + P[1]);
-    const double t3 = DERIVE_FMA(0.5, P[5], P[1] + P[4]);
-    const double t4 = DERIVE_FMA(0.5, P[8], P[2] + P[5]);
-    const double t5 = P[4] + P[5];
-    const double t6 = P[5] + P[8];
+    int status = 0;
+    const double t0 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
+    const double t1 = x[1 * s] + x[2 * s];
+    const double t2 = DERIVE_FMA(0.5, P[2 * s], P[0] + P[1 * s]);
+    const double t3 = DERIVE_FMA(0.5, P[5 * s], P[1 * s] + P[4 * s]);
+    const double t4 = DERIVE_FMA(0.5, P[8 * s], P[2 * s] + P[5 * s]);
+    const double t5 = P[4 * s] + P[5 * s];
+    const double t6 = P[5 * s] + P[8 * s];
     const double t7 = DERIVE_FMA(0.5, t4, t2 + t3);
     const double t8 = t3 + t4;
     const double t9 = t5 + t6;
@@ -52,10 +94,10 @@ int ca_kf_step(const double *restrict x, const double *restrict P, const double 
     const double t12 = 0.0016666666666666668 + t4;
     const double t13 = 0.0033333333333333335 + t9;
     const double t14 = 0.005 + t6;
-    const double t15 = 0.01 + P[8];
+    const double t15 = 0.01 + P[8 * s];
     const double t16 = 0.1 + t10;
-    if (!(t16 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t16 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t17 = 1.0/t16;
     const double t18 = t10*t17;
@@ -67,7 +109,7 @@ int ca_kf_step(const double *restrict x, const double *restrict P, const double 
     const double t24 = t20*t21;
     const double t25 = t0 + t22;
     const double t26 = t1 + t23;
-    const double t27 = x[2] + t24;
+    const double t27 = x[2 * s] + t24;
     const double t28 = t10*t18;
     const double t29 = t11*t18;
     const double t30 = t12*t18;
@@ -81,18 +123,23 @@ int ca_kf_step(const double *restrict x, const double *restrict P, const double 
     const double t38 = t14 - t32;
     const double t39 = t15 - t33;
     x_new[0] = t25;
-    x_new[1] = t26;
-    x_new[2] = t27;
+    x_new[1 * s] = t26;
+    x_new[2 * s] = t27;
     P_new[0] = t34;
-    P_new[1] = t35;
-    P_new[2] = t36;
-    P_new[3] = t35;
-    P_new[4] = t37;
-    P_new[5] = t38;
-    P_new[6] = t36;
-    P_new[7] = t38;
-    P_new[8] = t39;
-    return 0;
+    P_new[1 * s] = t35;
+    P_new[2 * s] = t36;
+    P_new[3 * s] = t35;
+    P_new[4 * s] = t37;
+    P_new[5 * s] = t38;
+    P_new[6 * s] = t36;
+    P_new[7 * s] = t38;
+    P_new[8 * s] = t39;
+    return status;
+}
+
+int ca_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    return ca_kf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
@@ -115,64 +162,13 @@ int ca_kf_run(size_t steps, const double *z, const double *x0, const double *P0,
     P[6] = P0[6];
     P[7] = P0[7];
     P[8] = P0[8];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-        const double t1 = x[1] + x[2];
-        const double t2 = DERIVE_FMA(0.5, P[2], P[0] + P[1]);
-        const double t3 = DERIVE_FMA(0.5, P[5], P[1] + P[4]);
-        const double t4 = DERIVE_FMA(0.5, P[8], P[2] + P[5]);
-        const double t5 = P[4] + P[5];
-        const double t6 = P[5] + P[8];
-        const double t7 = DERIVE_FMA(0.5, t4, t2 + t3);
-        const double t8 = t3 + t4;
-        const double t9 = t5 + t6;
-        const double t10 = 0.0005 + t7;
-        const double t11 = 0.00125 + t8;
-        const double t12 = 0.0016666666666666668 + t4;
-        const double t13 = 0.0033333333333333335 + t9;
-        const double t14 = 0.005 + t6;
-        const double t15 = 0.01 + P[8];
-        const double t16 = 0.1 + t10;
-        if (!(t16 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = ca_kf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t17 = 1.0/t16;
-        const double t18 = t10*t17;
-        const double t19 = t11*t17;
-        const double t20 = t12*t17;
-        const double t21 = zk[0] - t0;
-        const double t22 = t18*t21;
-        const double t23 = t19*t21;
-        const double t24 = t20*t21;
-        const double t25 = t0 + t22;
-        const double t26 = t1 + t23;
-        const double t27 = x[2] + t24;
-        const double t28 = t10*t18;
-        const double t29 = t11*t18;
-        const double t30 = t12*t18;
-        const double t31 = t11*t19;
-        const double t32 = t12*t19;
-        const double t33 = t12*t20;
-        const double t34 = t10 - t28;
-        const double t35 = t11 - t29;
-        const double t36 = t12 - t30;
-        const double t37 = t13 - t31;
-        const double t38 = t14 - t32;
-        const double t39 = t15 - t33;
-        x_new[0] = t25;
-        x_new[1] = t26;
-        x_new[2] = t27;
-        P_new[0] = t34;
-        P_new[1] = t35;
-        P_new[2] = t36;
-        P_new[3] = t35;
-        P_new[4] = t37;
-        P_new[5] = t38;
-        P_new[6] = t36;
-        P_new[7] = t38;
-        P_new[8] = t39;
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -202,488 +198,74 @@ int ca_kf_run(size_t steps, const double *z, const double *x0, const double *P0,
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int ca_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        double x_l1[3], xn_l1[3];
-        double P_l1[9], Pn_l1[9];
-        const double *z_l1;
-        double x_l2[3], xn_l2[3];
-        double P_l2[9], Pn_l2[9];
-        const double *z_l2;
-        double x_l3[3], xn_l3[3];
-        double P_l3[9], Pn_l3[9];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        x_l1[0] = x0[(t + 1) * 3 + 0];
-        x_l1[1] = x0[(t + 1) * 3 + 1];
-        x_l1[2] = x0[(t + 1) * 3 + 2];
-        P_l1[0] = P0[(t + 1) * 9 + 0];
-        P_l1[1] = P0[(t + 1) * 9 + 1];
-        P_l1[2] = P0[(t + 1) * 9 + 2];
-        P_l1[3] = P0[(t + 1) * 9 + 3];
-        P_l1[4] = P0[(t + 1) * 9 + 4];
-        P_l1[5] = P0[(t + 1) * 9 + 5];
-        P_l1[6] = P0[(t + 1) * 9 + 6];
-        P_l1[7] = P0[(t + 1) * 9 + 7];
-        P_l1[8] = P0[(t + 1) * 9 + 8];
-        x_l2[0] = x0[(t + 2) * 3 + 0];
-        x_l2[1] = x0[(t + 2) * 3 + 1];
-        x_l2[2] = x0[(t + 2) * 3 + 2];
-        P_l2[0] = P0[(t + 2) * 9 + 0];
-        P_l2[1] = P0[(t + 2) * 9 + 1];
-        P_l2[2] = P0[(t + 2) * 9 + 2];
-        P_l2[3] = P0[(t + 2) * 9 + 3];
-        P_l2[4] = P0[(t + 2) * 9 + 4];
-        P_l2[5] = P0[(t + 2) * 9 + 5];
-        P_l2[6] = P0[(t + 2) * 9 + 6];
-        P_l2[7] = P0[(t + 2) * 9 + 7];
-        P_l2[8] = P0[(t + 2) * 9 + 8];
-        x_l3[0] = x0[(t + 3) * 3 + 0];
-        x_l3[1] = x0[(t + 3) * 3 + 1];
-        x_l3[2] = x0[(t + 3) * 3 + 2];
-        P_l3[0] = P0[(t + 3) * 9 + 0];
-        P_l3[1] = P0[(t + 3) * 9 + 1];
-        P_l3[2] = P0[(t + 3) * 9 + 2];
-        P_l3[3] = P0[(t + 3) * 9 + 3];
-        P_l3[4] = P0[(t + 3) * 9 + 4];
-        P_l3[5] = P0[(t + 3) * 9 + 5];
-        P_l3[6] = P0[(t + 3) * 9 + 6];
-        P_l3[7] = P0[(t + 3) * 9 + 7];
-        P_l3[8] = P0[(t + 3) * 9 + 8];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[3 * DERIVE_LANES];
+        double P_b[9 * DERIVE_LANES];
+        double x_new_b[3 * DERIVE_LANES];
+        double P_new_b[9 * DERIVE_LANES];
+        double z_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 3; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
+            }
+            for (i = 0; i < 9; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 9 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = DERIVE_FMA(0.5, x_l0[2], x_l0[0] + x_l0[1]);
-            const double t1_l0 = x_l0[1] + x_l0[2];
-            const double t2_l0 = DERIVE_FMA(0.5, P_l0[2], P_l0[0] + P_l0[1]);
-            const double t3_l0 = DERIVE_FMA(0.5, P_l0[5], P_l0[1] + P_l0[4]);
-            const double t4_l0 = DERIVE_FMA(0.5, P_l0[8], P_l0[2] + P_l0[5]);
-            const double t5_l0 = P_l0[4] + P_l0[5];
-            const double t6_l0 = P_l0[5] + P_l0[8];
-            const double t7_l0 = DERIVE_FMA(0.5, t4_l0, t2_l0 + t3_l0);
-            const double t8_l0 = t3_l0 + t4_l0;
-            const double t9_l0 = t5_l0 + t6_l0;
-            const double t10_l0 = 0.0005 + t7_l0;
-            const double t11_l0 = 0.00125 + t8_l0;
-            const double t12_l0 = 0.0016666666666666668 + t4_l0;
-            const double t13_l0 = 0.0033333333333333335 + t9_l0;
-            const double t14_l0 = 0.005 + t6_l0;
-            const double t15_l0 = 0.01 + P_l0[8];
-            const double t16_l0 = 0.1 + t10_l0;
-            if (!(t16_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 3], 1);
+                }
             }
-            const double t17_l0 = 1.0/t16_l0;
-            const double t18_l0 = t10_l0*t17_l0;
-            const double t19_l0 = t11_l0*t17_l0;
-            const double t20_l0 = t12_l0*t17_l0;
-            const double t21_l0 = z_l0[0] - t0_l0;
-            const double t22_l0 = t18_l0*t21_l0;
-            const double t23_l0 = t19_l0*t21_l0;
-            const double t24_l0 = t20_l0*t21_l0;
-            const double t25_l0 = t0_l0 + t22_l0;
-            const double t26_l0 = t1_l0 + t23_l0;
-            const double t27_l0 = x_l0[2] + t24_l0;
-            const double t28_l0 = t10_l0*t18_l0;
-            const double t29_l0 = t11_l0*t18_l0;
-            const double t30_l0 = t12_l0*t18_l0;
-            const double t31_l0 = t11_l0*t19_l0;
-            const double t32_l0 = t12_l0*t19_l0;
-            const double t33_l0 = t12_l0*t20_l0;
-            const double t34_l0 = t10_l0 - t28_l0;
-            const double t35_l0 = t11_l0 - t29_l0;
-            const double t36_l0 = t12_l0 - t30_l0;
-            const double t37_l0 = t13_l0 - t31_l0;
-            const double t38_l0 = t14_l0 - t32_l0;
-            const double t39_l0 = t15_l0 - t33_l0;
-            xn_l0[0] = t25_l0;
-            xn_l0[1] = t26_l0;
-            xn_l0[2] = t27_l0;
-            Pn_l0[0] = t34_l0;
-            Pn_l0[1] = t35_l0;
-            Pn_l0[2] = t36_l0;
-            Pn_l0[3] = t35_l0;
-            Pn_l0[4] = t37_l0;
-            Pn_l0[5] = t38_l0;
-            Pn_l0[6] = t36_l0;
-            Pn_l0[7] = t38_l0;
-            Pn_l0[8] = t39_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 1;
-            const double t0_l1 = DERIVE_FMA(0.5, x_l1[2], x_l1[0] + x_l1[1]);
-            const double t1_l1 = x_l1[1] + x_l1[2];
-            const double t2_l1 = DERIVE_FMA(0.5, P_l1[2], P_l1[0] + P_l1[1]);
-            const double t3_l1 = DERIVE_FMA(0.5, P_l1[5], P_l1[1] + P_l1[4]);
-            const double t4_l1 = DERIVE_FMA(0.5, P_l1[8], P_l1[2] + P_l1[5]);
-            const double t5_l1 = P_l1[4] + P_l1[5];
-            const double t6_l1 = P_l1[5] + P_l1[8];
-            const double t7_l1 = DERIVE_FMA(0.5, t4_l1, t2_l1 + t3_l1);
-            const double t8_l1 = t3_l1 + t4_l1;
-            const double t9_l1 = t5_l1 + t6_l1;
-            const double t10_l1 = 0.0005 + t7_l1;
-            const double t11_l1 = 0.00125 + t8_l1;
-            const double t12_l1 = 0.0016666666666666668 + t4_l1;
-            const double t13_l1 = 0.0033333333333333335 + t9_l1;
-            const double t14_l1 = 0.005 + t6_l1;
-            const double t15_l1 = 0.01 + P_l1[8];
-            const double t16_l1 = 0.1 + t10_l1;
-            if (!(t16_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 1; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
+                }
             }
-            const double t17_l1 = 1.0/t16_l1;
-            const double t18_l1 = t10_l1*t17_l1;
-            const double t19_l1 = t11_l1*t17_l1;
-            const double t20_l1 = t12_l1*t17_l1;
-            const double t21_l1 = z_l1[0] - t0_l1;
-            const double t22_l1 = t18_l1*t21_l1;
-            const double t23_l1 = t19_l1*t21_l1;
-            const double t24_l1 = t20_l1*t21_l1;
-            const double t25_l1 = t0_l1 + t22_l1;
-            const double t26_l1 = t1_l1 + t23_l1;
-            const double t27_l1 = x_l1[2] + t24_l1;
-            const double t28_l1 = t10_l1*t18_l1;
-            const double t29_l1 = t11_l1*t18_l1;
-            const double t30_l1 = t12_l1*t18_l1;
-            const double t31_l1 = t11_l1*t19_l1;
-            const double t32_l1 = t12_l1*t19_l1;
-            const double t33_l1 = t12_l1*t20_l1;
-            const double t34_l1 = t10_l1 - t28_l1;
-            const double t35_l1 = t11_l1 - t29_l1;
-            const double t36_l1 = t12_l1 - t30_l1;
-            const double t37_l1 = t13_l1 - t31_l1;
-            const double t38_l1 = t14_l1 - t32_l1;
-            const double t39_l1 = t15_l1 - t33_l1;
-            xn_l1[0] = t25_l1;
-            xn_l1[1] = t26_l1;
-            xn_l1[2] = t27_l1;
-            Pn_l1[0] = t34_l1;
-            Pn_l1[1] = t35_l1;
-            Pn_l1[2] = t36_l1;
-            Pn_l1[3] = t35_l1;
-            Pn_l1[4] = t37_l1;
-            Pn_l1[5] = t38_l1;
-            Pn_l1[6] = t36_l1;
-            Pn_l1[7] = t38_l1;
-            Pn_l1[8] = t39_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 1;
-            const double t0_l2 = DERIVE_FMA(0.5, x_l2[2], x_l2[0] + x_l2[1]);
-            const double t1_l2 = x_l2[1] + x_l2[2];
-            const double t2_l2 = DERIVE_FMA(0.5, P_l2[2], P_l2[0] + P_l2[1]);
-            const double t3_l2 = DERIVE_FMA(0.5, P_l2[5], P_l2[1] + P_l2[4]);
-            const double t4_l2 = DERIVE_FMA(0.5, P_l2[8], P_l2[2] + P_l2[5]);
-            const double t5_l2 = P_l2[4] + P_l2[5];
-            const double t6_l2 = P_l2[5] + P_l2[8];
-            const double t7_l2 = DERIVE_FMA(0.5, t4_l2, t2_l2 + t3_l2);
-            const double t8_l2 = t3_l2 + t4_l2;
-            const double t9_l2 = t5_l2 + t6_l2;
-            const double t10_l2 = 0.0005 + t7_l2;
-            const double t11_l2 = 0.00125 + t8_l2;
-            const double t12_l2 = 0.0016666666666666668 + t4_l2;
-            const double t13_l2 = 0.0033333333333333335 + t9_l2;
-            const double t14_l2 = 0.005 + t6_l2;
-            const double t15_l2 = 0.01 + P_l2[8];
-            const double t16_l2 = 0.1 + t10_l2;
-            if (!(t16_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = ca_kf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            const double t17_l2 = 1.0/t16_l2;
-            const double t18_l2 = t10_l2*t17_l2;
-            const double t19_l2 = t11_l2*t17_l2;
-            const double t20_l2 = t12_l2*t17_l2;
-            const double t21_l2 = z_l2[0] - t0_l2;
-            const double t22_l2 = t18_l2*t21_l2;
-            const double t23_l2 = t19_l2*t21_l2;
-            const double t24_l2 = t20_l2*t21_l2;
-            const double t25_l2 = t0_l2 + t22_l2;
-            const double t26_l2 = t1_l2 + t23_l2;
-            const double t27_l2 = x_l2[2] + t24_l2;
-            const double t28_l2 = t10_l2*t18_l2;
-            const double t29_l2 = t11_l2*t18_l2;
-            const double t30_l2 = t12_l2*t18_l2;
-            const double t31_l2 = t11_l2*t19_l2;
-            const double t32_l2 = t12_l2*t19_l2;
-            const double t33_l2 = t12_l2*t20_l2;
-            const double t34_l2 = t10_l2 - t28_l2;
-            const double t35_l2 = t11_l2 - t29_l2;
-            const double t36_l2 = t12_l2 - t30_l2;
-            const double t37_l2 = t13_l2 - t31_l2;
-            const double t38_l2 = t14_l2 - t32_l2;
-            const double t39_l2 = t15_l2 - t33_l2;
-            xn_l2[0] = t25_l2;
-            xn_l2[1] = t26_l2;
-            xn_l2[2] = t27_l2;
-            Pn_l2[0] = t34_l2;
-            Pn_l2[1] = t35_l2;
-            Pn_l2[2] = t36_l2;
-            Pn_l2[3] = t35_l2;
-            Pn_l2[4] = t37_l2;
-            Pn_l2[5] = t38_l2;
-            Pn_l2[6] = t36_l2;
-            Pn_l2[7] = t38_l2;
-            Pn_l2[8] = t39_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 1;
-            const double t0_l3 = DERIVE_FMA(0.5, x_l3[2], x_l3[0] + x_l3[1]);
-            const double t1_l3 = x_l3[1] + x_l3[2];
-            const double t2_l3 = DERIVE_FMA(0.5, P_l3[2], P_l3[0] + P_l3[1]);
-            const double t3_l3 = DERIVE_FMA(0.5, P_l3[5], P_l3[1] + P_l3[4]);
-            const double t4_l3 = DERIVE_FMA(0.5, P_l3[8], P_l3[2] + P_l3[5]);
-            const double t5_l3 = P_l3[4] + P_l3[5];
-            const double t6_l3 = P_l3[5] + P_l3[8];
-            const double t7_l3 = DERIVE_FMA(0.5, t4_l3, t2_l3 + t3_l3);
-            const double t8_l3 = t3_l3 + t4_l3;
-            const double t9_l3 = t5_l3 + t6_l3;
-            const double t10_l3 = 0.0005 + t7_l3;
-            const double t11_l3 = 0.00125 + t8_l3;
-            const double t12_l3 = 0.0016666666666666668 + t4_l3;
-            const double t13_l3 = 0.0033333333333333335 + t9_l3;
-            const double t14_l3 = 0.005 + t6_l3;
-            const double t15_l3 = 0.01 + P_l3[8];
-            const double t16_l3 = 0.1 + t10_l3;
-            if (!(t16_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            const double t17_l3 = 1.0/t16_l3;
-            const double t18_l3 = t10_l3*t17_l3;
-            const double t19_l3 = t11_l3*t17_l3;
-            const double t20_l3 = t12_l3*t17_l3;
-            const double t21_l3 = z_l3[0] - t0_l3;
-            const double t22_l3 = t18_l3*t21_l3;
-            const double t23_l3 = t19_l3*t21_l3;
-            const double t24_l3 = t20_l3*t21_l3;
-            const double t25_l3 = t0_l3 + t22_l3;
-            const double t26_l3 = t1_l3 + t23_l3;
-            const double t27_l3 = x_l3[2] + t24_l3;
-            const double t28_l3 = t10_l3*t18_l3;
-            const double t29_l3 = t11_l3*t18_l3;
-            const double t30_l3 = t12_l3*t18_l3;
-            const double t31_l3 = t11_l3*t19_l3;
-            const double t32_l3 = t12_l3*t19_l3;
-            const double t33_l3 = t12_l3*t20_l3;
-            const double t34_l3 = t10_l3 - t28_l3;
-            const double t35_l3 = t11_l3 - t29_l3;
-            const double t36_l3 = t12_l3 - t30_l3;
-            const double t37_l3 = t13_l3 - t31_l3;
-            const double t38_l3 = t14_l3 - t32_l3;
-            const double t39_l3 = t15_l3 - t33_l3;
-            xn_l3[0] = t25_l3;
-            xn_l3[1] = t26_l3;
-            xn_l3[2] = t27_l3;
-            Pn_l3[0] = t34_l3;
-            Pn_l3[1] = t35_l3;
-            Pn_l3[2] = t36_l3;
-            Pn_l3[3] = t35_l3;
-            Pn_l3[4] = t37_l3;
-            Pn_l3[5] = t38_l3;
-            Pn_l3[6] = t36_l3;
-            Pn_l3[7] = t38_l3;
-            Pn_l3[8] = t39_l3;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    xs[((t + j) * steps + k) * 3 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 9; ++i) {
+                        Ps[((t + j) * steps + k) * 9 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 9 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 9 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 9 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 9 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 9 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 9 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 9 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 9 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 9 + 8] = Pn_l1[8];
+            for (i = 0; i < 3 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 9 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 9 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 9 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 9 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 9 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 9 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 9 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 9 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 9 + 8] = Pn_l2[8];
-            }
-            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 9 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 9 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 9 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 9 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 9 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 9 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 9 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 9 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 9 + 8] = Pn_l3[8];
+            for (i = 0; i < 9 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = DERIVE_FMA(0.5, x_l0[2], x_l0[0] + x_l0[1]);
-            const double t1_l0 = x_l0[1] + x_l0[2];
-            const double t2_l0 = DERIVE_FMA(0.5, P_l0[2], P_l0[0] + P_l0[1]);
-            const double t3_l0 = DERIVE_FMA(0.5, P_l0[5], P_l0[1] + P_l0[4]);
-            const double t4_l0 = DERIVE_FMA(0.5, P_l0[8], P_l0[2] + P_l0[5]);
-            const double t5_l0 = P_l0[4] + P_l0[5];
-            const double t6_l0 = P_l0[5] + P_l0[8];
-            const double t7_l0 = DERIVE_FMA(0.5, t4_l0, t2_l0 + t3_l0);
-            const double t8_l0 = t3_l0 + t4_l0;
-            const double t9_l0 = t5_l0 + t6_l0;
-            const double t10_l0 = 0.0005 + t7_l0;
-            const double t11_l0 = 0.00125 + t8_l0;
-            const double t12_l0 = 0.0016666666666666668 + t4_l0;
-            const double t13_l0 = 0.0033333333333333335 + t9_l0;
-            const double t14_l0 = 0.005 + t6_l0;
-            const double t15_l0 = 0.01 + P_l0[8];
-            const double t16_l0 = 0.1 + t10_l0;
-            if (!(t16_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t17_l0 = 1.0/t16_l0;
-            const double t18_l0 = t10_l0*t17_l0;
-            const double t19_l0 = t11_l0*t17_l0;
-            const double t20_l0 = t12_l0*t17_l0;
-            const double t21_l0 = z_l0[0] - t0_l0;
-            const double t22_l0 = t18_l0*t21_l0;
-            const double t23_l0 = t19_l0*t21_l0;
-            const double t24_l0 = t20_l0*t21_l0;
-            const double t25_l0 = t0_l0 + t22_l0;
-            const double t26_l0 = t1_l0 + t23_l0;
-            const double t27_l0 = x_l0[2] + t24_l0;
-            const double t28_l0 = t10_l0*t18_l0;
-            const double t29_l0 = t11_l0*t18_l0;
-            const double t30_l0 = t12_l0*t18_l0;
-            const double t31_l0 = t11_l0*t19_l0;
-            const double t32_l0 = t12_l0*t19_l0;
-            const double t33_l0 = t12_l0*t20_l0;
-            const double t34_l0 = t10_l0 - t28_l0;
-            const double t35_l0 = t11_l0 - t29_l0;
-            const double t36_l0 = t12_l0 - t30_l0;
-            const double t37_l0 = t13_l0 - t31_l0;
-            const double t38_l0 = t14_l0 - t32_l0;
-            const double t39_l0 = t15_l0 - t33_l0;
-            xn_l0[0] = t25_l0;
-            xn_l0[1] = t26_l0;
-            xn_l0[2] = t27_l0;
-            Pn_l0[0] = t34_l0;
-            Pn_l0[1] = t35_l0;
-            Pn_l0[2] = t36_l0;
-            Pn_l0[3] = t35_l0;
-            Pn_l0[4] = t37_l0;
-            Pn_l0[5] = t38_l0;
-            Pn_l0[6] = t36_l0;
-            Pn_l0[7] = t38_l0;
-            Pn_l0[8] = t39_l0;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = ca_kf_run(steps, z + t * steps * 1, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

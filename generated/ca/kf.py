@@ -21,6 +21,8 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -143,60 +145,37 @@ def run(zs, x0, P0):
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, z_0 in enumerate(zs[:, 0].tolist()):
+        for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1 + 0.5*x_2
             t1 = x_1 + x_2
-            t2 = P_0 + P_1 + 0.5*P_2
             t3 = P_1 + P_4 + 0.5*P_5
             t4 = P_2 + P_5 + 0.5*P_8
-            t5 = P_4 + P_5
             t6 = P_5 + P_8
-            t7 = t2 + t3 + 0.5*t4
-            t8 = t3 + t4
-            t9 = t5 + t6
-            t10 = 0.0005 + t7
-            t11 = 0.00125 + t8
+            t10 = 0.0005 + (P_0 + P_1 + 0.5*P_2 + t3 + 0.5*t4)
+            t11 = 0.00125 + (t3 + t4)
             t12 = 0.0016666666666666668 + t4
-            t13 = 0.0033333333333333335 + t9
+            t13 = 0.0033333333333333335 + (P_4 + P_5 + t6)
             t14 = 0.005 + t6
             t15 = 0.01 + P_8
             t16 = 0.1 + t10
             if not t16 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t17 = 1.0/t16
             t18 = t10*t17
             t19 = t11*t17
             t20 = t12*t17
             t21 = z_0 - t0
-            t22 = t18*t21
-            t23 = t19*t21
-            t24 = t20*t21
-            t25 = t0 + t22
-            t26 = t1 + t23
-            t27 = x_2 + t24
-            t28 = t10*t18
-            t29 = t11*t18
-            t30 = t12*t18
-            t31 = t11*t19
-            t32 = t12*t19
-            t33 = t12*t20
-            t34 = t10 - t28
-            t35 = t11 - t29
-            t36 = t12 - t30
-            t37 = t13 - t31
-            t38 = t14 - t32
-            t39 = t15 - t33
-            keep((t25, t26, t27, t34, t35, t36, t37, t38, t39))
-            x_0 = t25
-            x_1 = t26
-            x_2 = t27
-            P_0 = t34
-            P_1 = t35
-            P_2 = t36
-            P_4 = t37
-            P_5 = t38
-            P_8 = t39
-        table = np.array(rows, dtype=float).reshape(-1, 9)
+            x_0 = t0 + t18*t21
+            x_1 = t1 + t19*t21
+            x_2 = x_2 + t20*t21
+            P_0 = t10 - t10*t18
+            P_1 = t11 - t11*t18
+            P_2 = t12 - t12*t18
+            P_4 = t13 - t11*t19
+            P_5 = t14 - t12*t19
+            P_8 = t15 - t12*t20
+            keep((x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

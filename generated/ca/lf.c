@@ -12,13 +12,14 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void ca_lf_step(x[3], P[3*3], z[1], x_new[3] out, P_new[3*3] out)
  *     void ca_lf_run(steps, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     void ca_lf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 8, mul 61, div 3, sqrt 0, fma 73, neg 8, cmp 0, calls 0 (flops 236, instructions 171)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_lf_step","step",false,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["ca_lf_step","step",false,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -33,18 +34,58 @@
 #endif
 #endif
 
-void ca_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void ca_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = 9.950248756218905*P[1];
-    const double t1 = 4.975124378109452*P[2];
+    const double t0 = 9.950248756218905*P[1 * s];
+    const double t1 = 4.975124378109452*P[2 * s];
     const double t2 = DERIVE_FMA(9.950248756218905, P[0], t0 + t1);
-    const double t3 = 4.975124378109452*P[1];
-    const double t4 = DERIVE_FMA(2.487562189054726, P[2], DERIVE_FMA(4.975124378109452, P[0], t3));
-    const double t5 = 4.975124378109452*P[5];
-    const double t6 = DERIVE_FMA(9.950248756218905, P[4], t0 + t5);
-    const double t7 = DERIVE_FMA(2.487562189054726, P[5], DERIVE_FMA(4.975124378109452, P[4], t3));
-    const double t8 = DERIVE_FMA(4.975124378109452, P[8], DERIVE_FMA(9.950248756218905, P[5], 9.950248756218905*P[2]));
-    const double t9 = DERIVE_FMA(2.487562189054726, P[8], t1 + t5);
+    const double t3 = 4.975124378109452*P[1 * s];
+    const double t4 = DERIVE_FMA(2.487562189054726, P[2 * s], DERIVE_FMA(4.975124378109452, P[0], t3));
+    const double t5 = 4.975124378109452*P[5 * s];
+    const double t6 = DERIVE_FMA(9.950248756218905, P[4 * s], t0 + t5);
+    const double t7 = DERIVE_FMA(2.487562189054726, P[5 * s], DERIVE_FMA(4.975124378109452, P[4 * s], t3));
+    const double t8 = DERIVE_FMA(4.975124378109452, P[8 * s], DERIVE_FMA(9.950248756218905, P[5 * s], 9.950248756218905*P[2 * s]));
+    const double t9 = DERIVE_FMA(2.487562189054726, P[8 * s], t1 + t5);
     const double t10 = 1.0 + t2;
     const double t11 = 1.0 + t6;
     const double t12 = 1.0 + t9;
@@ -77,13 +118,13 @@ void ca_lf_step(const double *restrict x, const double *restrict P, const double
     const double t39 = DERIVE_FMA((-0.01658374792703151), t30, DERIVE_FMA(0.01658374792703151, t29, 0.9917081260364843*t21));
     const double t40 = 9.950248756218905*z[0];
     const double t41 = 4.975124378109452*z[0];
-    const double t42 = P[1]*t40;
-    const double t43 = DERIVE_FMA(P[2], t41, DERIVE_FMA(P[0], t40, t42));
-    const double t44 = DERIVE_FMA(P[5], t41, DERIVE_FMA(P[4], t40, t42));
-    const double t45 = DERIVE_FMA(P[8], t41, DERIVE_FMA(P[5], t40, P[2]*t40));
+    const double t42 = P[1 * s]*t40;
+    const double t43 = DERIVE_FMA(P[2 * s], t41, DERIVE_FMA(P[0], t40, t42));
+    const double t44 = DERIVE_FMA(P[5 * s], t41, DERIVE_FMA(P[4 * s], t40, t42));
+    const double t45 = DERIVE_FMA(P[8 * s], t41, DERIVE_FMA(P[5 * s], t40, P[2 * s]*t40));
     const double t46 = x[0] + t43;
-    const double t47 = x[1] + t44;
-    const double t48 = x[2] + t45;
+    const double t47 = x[1 * s] + t44;
+    const double t48 = x[2 * s] + t45;
     const double t49 = 0.004975124378109453*z[0];
     const double t50 = 0.012437810945273632*z[0];
     const double t51 = 0.01658374792703151*z[0];
@@ -93,15 +134,15 @@ void ca_lf_step(const double *restrict x, const double *restrict P, const double
     const double t55 = t49 + t52;
     const double t56 = t50 + t53;
     const double t57 = t51 + t54;
-    const double t58 = DERIVE_FMA(P[2], t33, DERIVE_FMA(P[1], t32, P[0]*t31));
-    const double t59 = DERIVE_FMA(P[5], t33, DERIVE_FMA(P[4], t32, P[1]*t31));
-    const double t60 = DERIVE_FMA(P[8], t33, DERIVE_FMA(P[5], t32, P[2]*t31));
-    const double t61 = DERIVE_FMA(P[2], t36, DERIVE_FMA(P[1], t35, P[0]*t34));
-    const double t62 = DERIVE_FMA(P[5], t36, DERIVE_FMA(P[4], t35, P[1]*t34));
-    const double t63 = DERIVE_FMA(P[8], t36, DERIVE_FMA(P[5], t35, P[2]*t34));
-    const double t64 = DERIVE_FMA(P[2], t39, DERIVE_FMA(P[0], t37, -(P[1]*t38)));
-    const double t65 = DERIVE_FMA(P[5], t39, DERIVE_FMA(P[1], t37, -(P[4]*t38)));
-    const double t66 = DERIVE_FMA(P[8], t39, DERIVE_FMA(P[2], t37, -(P[5]*t38)));
+    const double t58 = DERIVE_FMA(P[2 * s], t33, DERIVE_FMA(P[1 * s], t32, P[0]*t31));
+    const double t59 = DERIVE_FMA(P[5 * s], t33, DERIVE_FMA(P[4 * s], t32, P[1 * s]*t31));
+    const double t60 = DERIVE_FMA(P[8 * s], t33, DERIVE_FMA(P[5 * s], t32, P[2 * s]*t31));
+    const double t61 = DERIVE_FMA(P[2 * s], t36, DERIVE_FMA(P[1 * s], t35, P[0]*t34));
+    const double t62 = DERIVE_FMA(P[5 * s], t36, DERIVE_FMA(P[4 * s], t35, P[1 * s]*t34));
+    const double t63 = DERIVE_FMA(P[8 * s], t36, DERIVE_FMA(P[5 * s], t35, P[2 * s]*t34));
+    const double t64 = DERIVE_FMA(P[2 * s], t39, DERIVE_FMA(P[0], t37, -(P[1 * s]*t38)));
+    const double t65 = DERIVE_FMA(P[5 * s], t39, DERIVE_FMA(P[1 * s], t37, -(P[4 * s]*t38)));
+    const double t66 = DERIVE_FMA(P[8 * s], t39, DERIVE_FMA(P[2 * s], t37, -(P[5 * s]*t38)));
     const double t67 = DERIVE_FMA(0.4975124378109453, t60, DERIVE_FMA(0.9950248756218906, t59, 0.9950248756218906*t58));
     const double t68 = DERIVE_FMA(0.9937810945273632, t60, DERIVE_FMA(0.9875621890547264, t59, (-0.012437810945273632)*t58));
     const double t69 = DERIVE_FMA(0.9917081260364843, t60, DERIVE_FMA((-0.01658374792703151), t59, (-0.01658374792703151)*t58));
@@ -115,17 +156,22 @@ void ca_lf_step(const double *restrict x, const double *restrict P, const double
     const double t77 = 0.004979270315091211 + t71;
     const double t78 = 0.009972360420121614 + t72;
     x_new[0] = t55;
-    x_new[1] = t56;
-    x_new[2] = t57;
+    x_new[1 * s] = t56;
+    x_new[2 * s] = t57;
     P_new[0] = t73;
-    P_new[1] = t74;
-    P_new[2] = t75;
-    P_new[3] = t74;
-    P_new[4] = t76;
-    P_new[5] = t77;
-    P_new[6] = t75;
-    P_new[7] = t77;
-    P_new[8] = t78;
+    P_new[1 * s] = t74;
+    P_new[2 * s] = t75;
+    P_new[3 * s] = t74;
+    P_new[4 * s] = t76;
+    P_new[5 * s] = t77;
+    P_new[6 * s] = t75;
+    P_new[7 * s] = t77;
+    P_new[8 * s] = t78;
+}
+
+void ca_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    ca_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
@@ -148,100 +194,10 @@ void ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0
     P[6] = P0[6];
     P[7] = P0[7];
     P[8] = P0[8];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = 9.950248756218905*P[1];
-        const double t1 = 4.975124378109452*P[2];
-        const double t2 = DERIVE_FMA(9.950248756218905, P[0], t0 + t1);
-        const double t3 = 4.975124378109452*P[1];
-        const double t4 = DERIVE_FMA(2.487562189054726, P[2], DERIVE_FMA(4.975124378109452, P[0], t3));
-        const double t5 = 4.975124378109452*P[5];
-        const double t6 = DERIVE_FMA(9.950248756218905, P[4], t0 + t5);
-        const double t7 = DERIVE_FMA(2.487562189054726, P[5], DERIVE_FMA(4.975124378109452, P[4], t3));
-        const double t8 = DERIVE_FMA(4.975124378109452, P[8], DERIVE_FMA(9.950248756218905, P[5], 9.950248756218905*P[2]));
-        const double t9 = DERIVE_FMA(2.487562189054726, P[8], t1 + t5);
-        const double t10 = 1.0 + t2;
-        const double t11 = 1.0 + t6;
-        const double t12 = 1.0 + t9;
-        const double t13 = 1.0/t10;
-        const double t14 = t13*t6;
-        const double t15 = t13*t8;
-        const double t16 = t11 - t14*t2;
-        const double t17 = t7 - t14*t4;
-        const double t18 = 1.0/t16;
-        const double t19 = t18*(t8 - t15*t2);
-        const double t20 = t12 - t15*t4 - t17*t19;
-        const double t21 = 1.0/t20;
-        const double t22 = DERIVE_FMA(t14, t19, -t15);
-        const double t23 = t21*t22;
-        const double t24 = t18*(-t14 - t17*t23);
-        const double t25 = t13*(1.0 - t2*t24 - t23*t4);
-        const double t26 = t19*t21;
-        const double t27 = t18*DERIVE_FMA(t17, t26, 1.0);
-        const double t28 = t13*DERIVE_FMA(t26, t4, -(t2*t27));
-        const double t29 = t17*t18*t21;
-        const double t30 = t13*DERIVE_FMA(t2, t29, -(t21*t4));
-        const double t31 = DERIVE_FMA(0.9950248756218906, t25, DERIVE_FMA(0.9950248756218906, t24, 0.4975124378109453*t23));
-        const double t32 = DERIVE_FMA(0.9950248756218906, t28, DERIVE_FMA(0.9950248756218906, t27, (-0.4975124378109453)*t26));
-        const double t33 = DERIVE_FMA(0.9950248756218906, t30, DERIVE_FMA((-0.9950248756218906), t29, 0.4975124378109453*t21));
-        const double t34 = DERIVE_FMA((-0.012437810945273632), t25, DERIVE_FMA(0.9875621890547264, t24, 0.9937810945273632*t23));
-        const double t35 = DERIVE_FMA((-0.012437810945273632), t28, DERIVE_FMA(0.9875621890547264, t27, (-0.9937810945273632)*t26));
-        const double t36 = DERIVE_FMA((-0.012437810945273632), t30, DERIVE_FMA((-0.9875621890547264), t29, 0.9937810945273632*t21));
-        const double t37 = DERIVE_FMA((-0.01658374792703151), t25, DERIVE_FMA((-0.01658374792703151), t24, 0.9917081260364843*t23));
-        const double t38 = DERIVE_FMA(0.01658374792703151, t28, DERIVE_FMA(0.01658374792703151, t27, 0.9917081260364843*t26));
-        const double t39 = DERIVE_FMA((-0.01658374792703151), t30, DERIVE_FMA(0.01658374792703151, t29, 0.9917081260364843*t21));
-        const double t40 = 9.950248756218905*zk[0];
-        const double t41 = 4.975124378109452*zk[0];
-        const double t42 = P[1]*t40;
-        const double t43 = DERIVE_FMA(P[2], t41, DERIVE_FMA(P[0], t40, t42));
-        const double t44 = DERIVE_FMA(P[5], t41, DERIVE_FMA(P[4], t40, t42));
-        const double t45 = DERIVE_FMA(P[8], t41, DERIVE_FMA(P[5], t40, P[2]*t40));
-        const double t46 = x[0] + t43;
-        const double t47 = x[1] + t44;
-        const double t48 = x[2] + t45;
-        const double t49 = 0.004975124378109453*zk[0];
-        const double t50 = 0.012437810945273632*zk[0];
-        const double t51 = 0.01658374792703151*zk[0];
-        const double t52 = DERIVE_FMA(t33, t48, DERIVE_FMA(t32, t47, t31*t46));
-        const double t53 = DERIVE_FMA(t36, t48, DERIVE_FMA(t35, t47, t34*t46));
-        const double t54 = DERIVE_FMA(t39, t48, DERIVE_FMA(t37, t46, -(t38*t47)));
-        const double t55 = t49 + t52;
-        const double t56 = t50 + t53;
-        const double t57 = t51 + t54;
-        const double t58 = DERIVE_FMA(P[2], t33, DERIVE_FMA(P[1], t32, P[0]*t31));
-        const double t59 = DERIVE_FMA(P[5], t33, DERIVE_FMA(P[4], t32, P[1]*t31));
-        const double t60 = DERIVE_FMA(P[8], t33, DERIVE_FMA(P[5], t32, P[2]*t31));
-        const double t61 = DERIVE_FMA(P[2], t36, DERIVE_FMA(P[1], t35, P[0]*t34));
-        const double t62 = DERIVE_FMA(P[5], t36, DERIVE_FMA(P[4], t35, P[1]*t34));
-        const double t63 = DERIVE_FMA(P[8], t36, DERIVE_FMA(P[5], t35, P[2]*t34));
-        const double t64 = DERIVE_FMA(P[2], t39, DERIVE_FMA(P[0], t37, -(P[1]*t38)));
-        const double t65 = DERIVE_FMA(P[5], t39, DERIVE_FMA(P[1], t37, -(P[4]*t38)));
-        const double t66 = DERIVE_FMA(P[8], t39, DERIVE_FMA(P[2], t37, -(P[5]*t38)));
-        const double t67 = DERIVE_FMA(0.4975124378109453, t60, DERIVE_FMA(0.9950248756218906, t59, 0.9950248756218906*t58));
-        const double t68 = DERIVE_FMA(0.9937810945273632, t60, DERIVE_FMA(0.9875621890547264, t59, (-0.012437810945273632)*t58));
-        const double t69 = DERIVE_FMA(0.9917081260364843, t60, DERIVE_FMA((-0.01658374792703151), t59, (-0.01658374792703151)*t58));
-        const double t70 = DERIVE_FMA(0.9937810945273632, t63, DERIVE_FMA(0.9875621890547264, t62, (-0.012437810945273632)*t61));
-        const double t71 = DERIVE_FMA(0.9917081260364843, t63, DERIVE_FMA((-0.01658374792703151), t62, (-0.01658374792703151)*t61));
-        const double t72 = DERIVE_FMA(0.9917081260364843, t66, DERIVE_FMA((-0.01658374792703151), t65, (-0.01658374792703151)*t64));
-        const double t73 = 0.0004975124378109452 + t67;
-        const double t74 = 0.0012437810945273632 + t68;
-        const double t75 = 0.001658374792703151 + t69;
-        const double t76 = 0.0033177860696517415 + t70;
-        const double t77 = 0.004979270315091211 + t71;
-        const double t78 = 0.009972360420121614 + t72;
-        x_new[0] = t55;
-        x_new[1] = t56;
-        x_new[2] = t57;
-        P_new[0] = t73;
-        P_new[1] = t74;
-        P_new[2] = t75;
-        P_new[3] = t74;
-        P_new[4] = t76;
-        P_new[5] = t77;
-        P_new[6] = t75;
-        P_new[7] = t77;
-        P_new[8] = t78;
+        ca_lf_step_body(x, P, zk, x_new, P_new, 1);
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -270,668 +226,65 @@ void ca_lf_run(size_t steps, const double *z, const double *x0, const double *P0
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 void ca_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        double x_l1[3], xn_l1[3];
-        double P_l1[9], Pn_l1[9];
-        const double *z_l1;
-        double x_l2[3], xn_l2[3];
-        double P_l2[9], Pn_l2[9];
-        const double *z_l2;
-        double x_l3[3], xn_l3[3];
-        double P_l3[9], Pn_l3[9];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        x_l1[0] = x0[(t + 1) * 3 + 0];
-        x_l1[1] = x0[(t + 1) * 3 + 1];
-        x_l1[2] = x0[(t + 1) * 3 + 2];
-        P_l1[0] = P0[(t + 1) * 9 + 0];
-        P_l1[1] = P0[(t + 1) * 9 + 1];
-        P_l1[2] = P0[(t + 1) * 9 + 2];
-        P_l1[3] = P0[(t + 1) * 9 + 3];
-        P_l1[4] = P0[(t + 1) * 9 + 4];
-        P_l1[5] = P0[(t + 1) * 9 + 5];
-        P_l1[6] = P0[(t + 1) * 9 + 6];
-        P_l1[7] = P0[(t + 1) * 9 + 7];
-        P_l1[8] = P0[(t + 1) * 9 + 8];
-        x_l2[0] = x0[(t + 2) * 3 + 0];
-        x_l2[1] = x0[(t + 2) * 3 + 1];
-        x_l2[2] = x0[(t + 2) * 3 + 2];
-        P_l2[0] = P0[(t + 2) * 9 + 0];
-        P_l2[1] = P0[(t + 2) * 9 + 1];
-        P_l2[2] = P0[(t + 2) * 9 + 2];
-        P_l2[3] = P0[(t + 2) * 9 + 3];
-        P_l2[4] = P0[(t + 2) * 9 + 4];
-        P_l2[5] = P0[(t + 2) * 9 + 5];
-        P_l2[6] = P0[(t + 2) * 9 + 6];
-        P_l2[7] = P0[(t + 2) * 9 + 7];
-        P_l2[8] = P0[(t + 2) * 9 + 8];
-        x_l3[0] = x0[(t + 3) * 3 + 0];
-        x_l3[1] = x0[(t + 3) * 3 + 1];
-        x_l3[2] = x0[(t + 3) * 3 + 2];
-        P_l3[0] = P0[(t + 3) * 9 + 0];
-        P_l3[1] = P0[(t + 3) * 9 + 1];
-        P_l3[2] = P0[(t + 3) * 9 + 2];
-        P_l3[3] = P0[(t + 3) * 9 + 3];
-        P_l3[4] = P0[(t + 3) * 9 + 4];
-        P_l3[5] = P0[(t + 3) * 9 + 5];
-        P_l3[6] = P0[(t + 3) * 9 + 6];
-        P_l3[7] = P0[(t + 3) * 9 + 7];
-        P_l3[8] = P0[(t + 3) * 9 + 8];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[3 * DERIVE_LANES];
+        double P_b[9 * DERIVE_LANES];
+        double x_new_b[3 * DERIVE_LANES];
+        double P_new_b[9 * DERIVE_LANES];
+        double z_b[1 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 3; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
+            }
+            for (i = 0; i < 9; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 9 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = 9.950248756218905*P_l0[1];
-            const double t1_l0 = 4.975124378109452*P_l0[2];
-            const double t2_l0 = DERIVE_FMA(9.950248756218905, P_l0[0], t0_l0 + t1_l0);
-            const double t3_l0 = 4.975124378109452*P_l0[1];
-            const double t4_l0 = DERIVE_FMA(2.487562189054726, P_l0[2], DERIVE_FMA(4.975124378109452, P_l0[0], t3_l0));
-            const double t5_l0 = 4.975124378109452*P_l0[5];
-            const double t6_l0 = DERIVE_FMA(9.950248756218905, P_l0[4], t0_l0 + t5_l0);
-            const double t7_l0 = DERIVE_FMA(2.487562189054726, P_l0[5], DERIVE_FMA(4.975124378109452, P_l0[4], t3_l0));
-            const double t8_l0 = DERIVE_FMA(4.975124378109452, P_l0[8], DERIVE_FMA(9.950248756218905, P_l0[5], 9.950248756218905*P_l0[2]));
-            const double t9_l0 = DERIVE_FMA(2.487562189054726, P_l0[8], t1_l0 + t5_l0);
-            const double t10_l0 = 1.0 + t2_l0;
-            const double t11_l0 = 1.0 + t6_l0;
-            const double t12_l0 = 1.0 + t9_l0;
-            const double t13_l0 = 1.0/t10_l0;
-            const double t14_l0 = t13_l0*t6_l0;
-            const double t15_l0 = t13_l0*t8_l0;
-            const double t16_l0 = t11_l0 - t14_l0*t2_l0;
-            const double t17_l0 = t7_l0 - t14_l0*t4_l0;
-            const double t18_l0 = 1.0/t16_l0;
-            const double t19_l0 = t18_l0*(t8_l0 - t15_l0*t2_l0);
-            const double t20_l0 = t12_l0 - t15_l0*t4_l0 - t17_l0*t19_l0;
-            const double t21_l0 = 1.0/t20_l0;
-            const double t22_l0 = DERIVE_FMA(t14_l0, t19_l0, -t15_l0);
-            const double t23_l0 = t21_l0*t22_l0;
-            const double t24_l0 = t18_l0*(-t14_l0 - t17_l0*t23_l0);
-            const double t25_l0 = t13_l0*(1.0 - t2_l0*t24_l0 - t23_l0*t4_l0);
-            const double t26_l0 = t19_l0*t21_l0;
-            const double t27_l0 = t18_l0*DERIVE_FMA(t17_l0, t26_l0, 1.0);
-            const double t28_l0 = t13_l0*DERIVE_FMA(t26_l0, t4_l0, -(t2_l0*t27_l0));
-            const double t29_l0 = t17_l0*t18_l0*t21_l0;
-            const double t30_l0 = t13_l0*DERIVE_FMA(t2_l0, t29_l0, -(t21_l0*t4_l0));
-            const double t31_l0 = DERIVE_FMA(0.9950248756218906, t25_l0, DERIVE_FMA(0.9950248756218906, t24_l0, 0.4975124378109453*t23_l0));
-            const double t32_l0 = DERIVE_FMA(0.9950248756218906, t28_l0, DERIVE_FMA(0.9950248756218906, t27_l0, (-0.4975124378109453)*t26_l0));
-            const double t33_l0 = DERIVE_FMA(0.9950248756218906, t30_l0, DERIVE_FMA((-0.9950248756218906), t29_l0, 0.4975124378109453*t21_l0));
-            const double t34_l0 = DERIVE_FMA((-0.012437810945273632), t25_l0, DERIVE_FMA(0.9875621890547264, t24_l0, 0.9937810945273632*t23_l0));
-            const double t35_l0 = DERIVE_FMA((-0.012437810945273632), t28_l0, DERIVE_FMA(0.9875621890547264, t27_l0, (-0.9937810945273632)*t26_l0));
-            const double t36_l0 = DERIVE_FMA((-0.012437810945273632), t30_l0, DERIVE_FMA((-0.9875621890547264), t29_l0, 0.9937810945273632*t21_l0));
-            const double t37_l0 = DERIVE_FMA((-0.01658374792703151), t25_l0, DERIVE_FMA((-0.01658374792703151), t24_l0, 0.9917081260364843*t23_l0));
-            const double t38_l0 = DERIVE_FMA(0.01658374792703151, t28_l0, DERIVE_FMA(0.01658374792703151, t27_l0, 0.9917081260364843*t26_l0));
-            const double t39_l0 = DERIVE_FMA((-0.01658374792703151), t30_l0, DERIVE_FMA(0.01658374792703151, t29_l0, 0.9917081260364843*t21_l0));
-            const double t40_l0 = 9.950248756218905*z_l0[0];
-            const double t41_l0 = 4.975124378109452*z_l0[0];
-            const double t42_l0 = P_l0[1]*t40_l0;
-            const double t43_l0 = DERIVE_FMA(P_l0[2], t41_l0, DERIVE_FMA(P_l0[0], t40_l0, t42_l0));
-            const double t44_l0 = DERIVE_FMA(P_l0[5], t41_l0, DERIVE_FMA(P_l0[4], t40_l0, t42_l0));
-            const double t45_l0 = DERIVE_FMA(P_l0[8], t41_l0, DERIVE_FMA(P_l0[5], t40_l0, P_l0[2]*t40_l0));
-            const double t46_l0 = x_l0[0] + t43_l0;
-            const double t47_l0 = x_l0[1] + t44_l0;
-            const double t48_l0 = x_l0[2] + t45_l0;
-            const double t49_l0 = 0.004975124378109453*z_l0[0];
-            const double t50_l0 = 0.012437810945273632*z_l0[0];
-            const double t51_l0 = 0.01658374792703151*z_l0[0];
-            const double t52_l0 = DERIVE_FMA(t33_l0, t48_l0, DERIVE_FMA(t32_l0, t47_l0, t31_l0*t46_l0));
-            const double t53_l0 = DERIVE_FMA(t36_l0, t48_l0, DERIVE_FMA(t35_l0, t47_l0, t34_l0*t46_l0));
-            const double t54_l0 = DERIVE_FMA(t39_l0, t48_l0, DERIVE_FMA(t37_l0, t46_l0, -(t38_l0*t47_l0)));
-            const double t55_l0 = t49_l0 + t52_l0;
-            const double t56_l0 = t50_l0 + t53_l0;
-            const double t57_l0 = t51_l0 + t54_l0;
-            const double t58_l0 = DERIVE_FMA(P_l0[2], t33_l0, DERIVE_FMA(P_l0[1], t32_l0, P_l0[0]*t31_l0));
-            const double t59_l0 = DERIVE_FMA(P_l0[5], t33_l0, DERIVE_FMA(P_l0[4], t32_l0, P_l0[1]*t31_l0));
-            const double t60_l0 = DERIVE_FMA(P_l0[8], t33_l0, DERIVE_FMA(P_l0[5], t32_l0, P_l0[2]*t31_l0));
-            const double t61_l0 = DERIVE_FMA(P_l0[2], t36_l0, DERIVE_FMA(P_l0[1], t35_l0, P_l0[0]*t34_l0));
-            const double t62_l0 = DERIVE_FMA(P_l0[5], t36_l0, DERIVE_FMA(P_l0[4], t35_l0, P_l0[1]*t34_l0));
-            const double t63_l0 = DERIVE_FMA(P_l0[8], t36_l0, DERIVE_FMA(P_l0[5], t35_l0, P_l0[2]*t34_l0));
-            const double t64_l0 = DERIVE_FMA(P_l0[2], t39_l0, DERIVE_FMA(P_l0[0], t37_l0, -(P_l0[1]*t38_l0)));
-            const double t65_l0 = DERIVE_FMA(P_l0[5], t39_l0, DERIVE_FMA(P_l0[1], t37_l0, -(P_l0[4]*t38_l0)));
-            const double t66_l0 = DERIVE_FMA(P_l0[8], t39_l0, DERIVE_FMA(P_l0[2], t37_l0, -(P_l0[5]*t38_l0)));
-            const double t67_l0 = DERIVE_FMA(0.4975124378109453, t60_l0, DERIVE_FMA(0.9950248756218906, t59_l0, 0.9950248756218906*t58_l0));
-            const double t68_l0 = DERIVE_FMA(0.9937810945273632, t60_l0, DERIVE_FMA(0.9875621890547264, t59_l0, (-0.012437810945273632)*t58_l0));
-            const double t69_l0 = DERIVE_FMA(0.9917081260364843, t60_l0, DERIVE_FMA((-0.01658374792703151), t59_l0, (-0.01658374792703151)*t58_l0));
-            const double t70_l0 = DERIVE_FMA(0.9937810945273632, t63_l0, DERIVE_FMA(0.9875621890547264, t62_l0, (-0.012437810945273632)*t61_l0));
-            const double t71_l0 = DERIVE_FMA(0.9917081260364843, t63_l0, DERIVE_FMA((-0.01658374792703151), t62_l0, (-0.01658374792703151)*t61_l0));
-            const double t72_l0 = DERIVE_FMA(0.9917081260364843, t66_l0, DERIVE_FMA((-0.01658374792703151), t65_l0, (-0.01658374792703151)*t64_l0));
-            const double t73_l0 = 0.0004975124378109452 + t67_l0;
-            const double t74_l0 = 0.0012437810945273632 + t68_l0;
-            const double t75_l0 = 0.001658374792703151 + t69_l0;
-            const double t76_l0 = 0.0033177860696517415 + t70_l0;
-            const double t77_l0 = 0.004979270315091211 + t71_l0;
-            const double t78_l0 = 0.009972360420121614 + t72_l0;
-            xn_l0[0] = t55_l0;
-            xn_l0[1] = t56_l0;
-            xn_l0[2] = t57_l0;
-            Pn_l0[0] = t73_l0;
-            Pn_l0[1] = t74_l0;
-            Pn_l0[2] = t75_l0;
-            Pn_l0[3] = t74_l0;
-            Pn_l0[4] = t76_l0;
-            Pn_l0[5] = t77_l0;
-            Pn_l0[6] = t75_l0;
-            Pn_l0[7] = t77_l0;
-            Pn_l0[8] = t78_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 1;
-            const double t0_l1 = 9.950248756218905*P_l1[1];
-            const double t1_l1 = 4.975124378109452*P_l1[2];
-            const double t2_l1 = DERIVE_FMA(9.950248756218905, P_l1[0], t0_l1 + t1_l1);
-            const double t3_l1 = 4.975124378109452*P_l1[1];
-            const double t4_l1 = DERIVE_FMA(2.487562189054726, P_l1[2], DERIVE_FMA(4.975124378109452, P_l1[0], t3_l1));
-            const double t5_l1 = 4.975124378109452*P_l1[5];
-            const double t6_l1 = DERIVE_FMA(9.950248756218905, P_l1[4], t0_l1 + t5_l1);
-            const double t7_l1 = DERIVE_FMA(2.487562189054726, P_l1[5], DERIVE_FMA(4.975124378109452, P_l1[4], t3_l1));
-            const double t8_l1 = DERIVE_FMA(4.975124378109452, P_l1[8], DERIVE_FMA(9.950248756218905, P_l1[5], 9.950248756218905*P_l1[2]));
-            const double t9_l1 = DERIVE_FMA(2.487562189054726, P_l1[8], t1_l1 + t5_l1);
-            const double t10_l1 = 1.0 + t2_l1;
-            const double t11_l1 = 1.0 + t6_l1;
-            const double t12_l1 = 1.0 + t9_l1;
-            const double t13_l1 = 1.0/t10_l1;
-            const double t14_l1 = t13_l1*t6_l1;
-            const double t15_l1 = t13_l1*t8_l1;
-            const double t16_l1 = t11_l1 - t14_l1*t2_l1;
-            const double t17_l1 = t7_l1 - t14_l1*t4_l1;
-            const double t18_l1 = 1.0/t16_l1;
-            const double t19_l1 = t18_l1*(t8_l1 - t15_l1*t2_l1);
-            const double t20_l1 = t12_l1 - t15_l1*t4_l1 - t17_l1*t19_l1;
-            const double t21_l1 = 1.0/t20_l1;
-            const double t22_l1 = DERIVE_FMA(t14_l1, t19_l1, -t15_l1);
-            const double t23_l1 = t21_l1*t22_l1;
-            const double t24_l1 = t18_l1*(-t14_l1 - t17_l1*t23_l1);
-            const double t25_l1 = t13_l1*(1.0 - t2_l1*t24_l1 - t23_l1*t4_l1);
-            const double t26_l1 = t19_l1*t21_l1;
-            const double t27_l1 = t18_l1*DERIVE_FMA(t17_l1, t26_l1, 1.0);
-            const double t28_l1 = t13_l1*DERIVE_FMA(t26_l1, t4_l1, -(t2_l1*t27_l1));
-            const double t29_l1 = t17_l1*t18_l1*t21_l1;
-            const double t30_l1 = t13_l1*DERIVE_FMA(t2_l1, t29_l1, -(t21_l1*t4_l1));
-            const double t31_l1 = DERIVE_FMA(0.9950248756218906, t25_l1, DERIVE_FMA(0.9950248756218906, t24_l1, 0.4975124378109453*t23_l1));
-            const double t32_l1 = DERIVE_FMA(0.9950248756218906, t28_l1, DERIVE_FMA(0.9950248756218906, t27_l1, (-0.4975124378109453)*t26_l1));
-            const double t33_l1 = DERIVE_FMA(0.9950248756218906, t30_l1, DERIVE_FMA((-0.9950248756218906), t29_l1, 0.4975124378109453*t21_l1));
-            const double t34_l1 = DERIVE_FMA((-0.012437810945273632), t25_l1, DERIVE_FMA(0.9875621890547264, t24_l1, 0.9937810945273632*t23_l1));
-            const double t35_l1 = DERIVE_FMA((-0.012437810945273632), t28_l1, DERIVE_FMA(0.9875621890547264, t27_l1, (-0.9937810945273632)*t26_l1));
-            const double t36_l1 = DERIVE_FMA((-0.012437810945273632), t30_l1, DERIVE_FMA((-0.9875621890547264), t29_l1, 0.9937810945273632*t21_l1));
-            const double t37_l1 = DERIVE_FMA((-0.01658374792703151), t25_l1, DERIVE_FMA((-0.01658374792703151), t24_l1, 0.9917081260364843*t23_l1));
-            const double t38_l1 = DERIVE_FMA(0.01658374792703151, t28_l1, DERIVE_FMA(0.01658374792703151, t27_l1, 0.9917081260364843*t26_l1));
-            const double t39_l1 = DERIVE_FMA((-0.01658374792703151), t30_l1, DERIVE_FMA(0.01658374792703151, t29_l1, 0.9917081260364843*t21_l1));
-            const double t40_l1 = 9.950248756218905*z_l1[0];
-            const double t41_l1 = 4.975124378109452*z_l1[0];
-            const double t42_l1 = P_l1[1]*t40_l1;
-            const double t43_l1 = DERIVE_FMA(P_l1[2], t41_l1, DERIVE_FMA(P_l1[0], t40_l1, t42_l1));
-            const double t44_l1 = DERIVE_FMA(P_l1[5], t41_l1, DERIVE_FMA(P_l1[4], t40_l1, t42_l1));
-            const double t45_l1 = DERIVE_FMA(P_l1[8], t41_l1, DERIVE_FMA(P_l1[5], t40_l1, P_l1[2]*t40_l1));
-            const double t46_l1 = x_l1[0] + t43_l1;
-            const double t47_l1 = x_l1[1] + t44_l1;
-            const double t48_l1 = x_l1[2] + t45_l1;
-            const double t49_l1 = 0.004975124378109453*z_l1[0];
-            const double t50_l1 = 0.012437810945273632*z_l1[0];
-            const double t51_l1 = 0.01658374792703151*z_l1[0];
-            const double t52_l1 = DERIVE_FMA(t33_l1, t48_l1, DERIVE_FMA(t32_l1, t47_l1, t31_l1*t46_l1));
-            const double t53_l1 = DERIVE_FMA(t36_l1, t48_l1, DERIVE_FMA(t35_l1, t47_l1, t34_l1*t46_l1));
-            const double t54_l1 = DERIVE_FMA(t39_l1, t48_l1, DERIVE_FMA(t37_l1, t46_l1, -(t38_l1*t47_l1)));
-            const double t55_l1 = t49_l1 + t52_l1;
-            const double t56_l1 = t50_l1 + t53_l1;
-            const double t57_l1 = t51_l1 + t54_l1;
-            const double t58_l1 = DERIVE_FMA(P_l1[2], t33_l1, DERIVE_FMA(P_l1[1], t32_l1, P_l1[0]*t31_l1));
-            const double t59_l1 = DERIVE_FMA(P_l1[5], t33_l1, DERIVE_FMA(P_l1[4], t32_l1, P_l1[1]*t31_l1));
-            const double t60_l1 = DERIVE_FMA(P_l1[8], t33_l1, DERIVE_FMA(P_l1[5], t32_l1, P_l1[2]*t31_l1));
-            const double t61_l1 = DERIVE_FMA(P_l1[2], t36_l1, DERIVE_FMA(P_l1[1], t35_l1, P_l1[0]*t34_l1));
-            const double t62_l1 = DERIVE_FMA(P_l1[5], t36_l1, DERIVE_FMA(P_l1[4], t35_l1, P_l1[1]*t34_l1));
-            const double t63_l1 = DERIVE_FMA(P_l1[8], t36_l1, DERIVE_FMA(P_l1[5], t35_l1, P_l1[2]*t34_l1));
-            const double t64_l1 = DERIVE_FMA(P_l1[2], t39_l1, DERIVE_FMA(P_l1[0], t37_l1, -(P_l1[1]*t38_l1)));
-            const double t65_l1 = DERIVE_FMA(P_l1[5], t39_l1, DERIVE_FMA(P_l1[1], t37_l1, -(P_l1[4]*t38_l1)));
-            const double t66_l1 = DERIVE_FMA(P_l1[8], t39_l1, DERIVE_FMA(P_l1[2], t37_l1, -(P_l1[5]*t38_l1)));
-            const double t67_l1 = DERIVE_FMA(0.4975124378109453, t60_l1, DERIVE_FMA(0.9950248756218906, t59_l1, 0.9950248756218906*t58_l1));
-            const double t68_l1 = DERIVE_FMA(0.9937810945273632, t60_l1, DERIVE_FMA(0.9875621890547264, t59_l1, (-0.012437810945273632)*t58_l1));
-            const double t69_l1 = DERIVE_FMA(0.9917081260364843, t60_l1, DERIVE_FMA((-0.01658374792703151), t59_l1, (-0.01658374792703151)*t58_l1));
-            const double t70_l1 = DERIVE_FMA(0.9937810945273632, t63_l1, DERIVE_FMA(0.9875621890547264, t62_l1, (-0.012437810945273632)*t61_l1));
-            const double t71_l1 = DERIVE_FMA(0.9917081260364843, t63_l1, DERIVE_FMA((-0.01658374792703151), t62_l1, (-0.01658374792703151)*t61_l1));
-            const double t72_l1 = DERIVE_FMA(0.9917081260364843, t66_l1, DERIVE_FMA((-0.01658374792703151), t65_l1, (-0.01658374792703151)*t64_l1));
-            const double t73_l1 = 0.0004975124378109452 + t67_l1;
-            const double t74_l1 = 0.0012437810945273632 + t68_l1;
-            const double t75_l1 = 0.001658374792703151 + t69_l1;
-            const double t76_l1 = 0.0033177860696517415 + t70_l1;
-            const double t77_l1 = 0.004979270315091211 + t71_l1;
-            const double t78_l1 = 0.009972360420121614 + t72_l1;
-            xn_l1[0] = t55_l1;
-            xn_l1[1] = t56_l1;
-            xn_l1[2] = t57_l1;
-            Pn_l1[0] = t73_l1;
-            Pn_l1[1] = t74_l1;
-            Pn_l1[2] = t75_l1;
-            Pn_l1[3] = t74_l1;
-            Pn_l1[4] = t76_l1;
-            Pn_l1[5] = t77_l1;
-            Pn_l1[6] = t75_l1;
-            Pn_l1[7] = t77_l1;
-            Pn_l1[8] = t78_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 1;
-            const double t0_l2 = 9.950248756218905*P_l2[1];
-            const double t1_l2 = 4.975124378109452*P_l2[2];
-            const double t2_l2 = DERIVE_FMA(9.950248756218905, P_l2[0], t0_l2 + t1_l2);
-            const double t3_l2 = 4.975124378109452*P_l2[1];
-            const double t4_l2 = DERIVE_FMA(2.487562189054726, P_l2[2], DERIVE_FMA(4.975124378109452, P_l2[0], t3_l2));
-            const double t5_l2 = 4.975124378109452*P_l2[5];
-            const double t6_l2 = DERIVE_FMA(9.950248756218905, P_l2[4], t0_l2 + t5_l2);
-            const double t7_l2 = DERIVE_FMA(2.487562189054726, P_l2[5], DERIVE_FMA(4.975124378109452, P_l2[4], t3_l2));
-            const double t8_l2 = DERIVE_FMA(4.975124378109452, P_l2[8], DERIVE_FMA(9.950248756218905, P_l2[5], 9.950248756218905*P_l2[2]));
-            const double t9_l2 = DERIVE_FMA(2.487562189054726, P_l2[8], t1_l2 + t5_l2);
-            const double t10_l2 = 1.0 + t2_l2;
-            const double t11_l2 = 1.0 + t6_l2;
-            const double t12_l2 = 1.0 + t9_l2;
-            const double t13_l2 = 1.0/t10_l2;
-            const double t14_l2 = t13_l2*t6_l2;
-            const double t15_l2 = t13_l2*t8_l2;
-            const double t16_l2 = t11_l2 - t14_l2*t2_l2;
-            const double t17_l2 = t7_l2 - t14_l2*t4_l2;
-            const double t18_l2 = 1.0/t16_l2;
-            const double t19_l2 = t18_l2*(t8_l2 - t15_l2*t2_l2);
-            const double t20_l2 = t12_l2 - t15_l2*t4_l2 - t17_l2*t19_l2;
-            const double t21_l2 = 1.0/t20_l2;
-            const double t22_l2 = DERIVE_FMA(t14_l2, t19_l2, -t15_l2);
-            const double t23_l2 = t21_l2*t22_l2;
-            const double t24_l2 = t18_l2*(-t14_l2 - t17_l2*t23_l2);
-            const double t25_l2 = t13_l2*(1.0 - t2_l2*t24_l2 - t23_l2*t4_l2);
-            const double t26_l2 = t19_l2*t21_l2;
-            const double t27_l2 = t18_l2*DERIVE_FMA(t17_l2, t26_l2, 1.0);
-            const double t28_l2 = t13_l2*DERIVE_FMA(t26_l2, t4_l2, -(t2_l2*t27_l2));
-            const double t29_l2 = t17_l2*t18_l2*t21_l2;
-            const double t30_l2 = t13_l2*DERIVE_FMA(t2_l2, t29_l2, -(t21_l2*t4_l2));
-            const double t31_l2 = DERIVE_FMA(0.9950248756218906, t25_l2, DERIVE_FMA(0.9950248756218906, t24_l2, 0.4975124378109453*t23_l2));
-            const double t32_l2 = DERIVE_FMA(0.9950248756218906, t28_l2, DERIVE_FMA(0.9950248756218906, t27_l2, (-0.4975124378109453)*t26_l2));
-            const double t33_l2 = DERIVE_FMA(0.9950248756218906, t30_l2, DERIVE_FMA((-0.9950248756218906), t29_l2, 0.4975124378109453*t21_l2));
-            const double t34_l2 = DERIVE_FMA((-0.012437810945273632), t25_l2, DERIVE_FMA(0.9875621890547264, t24_l2, 0.9937810945273632*t23_l2));
-            const double t35_l2 = DERIVE_FMA((-0.012437810945273632), t28_l2, DERIVE_FMA(0.9875621890547264, t27_l2, (-0.9937810945273632)*t26_l2));
-            const double t36_l2 = DERIVE_FMA((-0.012437810945273632), t30_l2, DERIVE_FMA((-0.9875621890547264), t29_l2, 0.9937810945273632*t21_l2));
-            const double t37_l2 = DERIVE_FMA((-0.01658374792703151), t25_l2, DERIVE_FMA((-0.01658374792703151), t24_l2, 0.9917081260364843*t23_l2));
-            const double t38_l2 = DERIVE_FMA(0.01658374792703151, t28_l2, DERIVE_FMA(0.01658374792703151, t27_l2, 0.9917081260364843*t26_l2));
-            const double t39_l2 = DERIVE_FMA((-0.01658374792703151), t30_l2, DERIVE_FMA(0.01658374792703151, t29_l2, 0.9917081260364843*t21_l2));
-            const double t40_l2 = 9.950248756218905*z_l2[0];
-            const double t41_l2 = 4.975124378109452*z_l2[0];
-            const double t42_l2 = P_l2[1]*t40_l2;
-            const double t43_l2 = DERIVE_FMA(P_l2[2], t41_l2, DERIVE_FMA(P_l2[0], t40_l2, t42_l2));
-            const double t44_l2 = DERIVE_FMA(P_l2[5], t41_l2, DERIVE_FMA(P_l2[4], t40_l2, t42_l2));
-            const double t45_l2 = DERIVE_FMA(P_l2[8], t41_l2, DERIVE_FMA(P_l2[5], t40_l2, P_l2[2]*t40_l2));
-            const double t46_l2 = x_l2[0] + t43_l2;
-            const double t47_l2 = x_l2[1] + t44_l2;
-            const double t48_l2 = x_l2[2] + t45_l2;
-            const double t49_l2 = 0.004975124378109453*z_l2[0];
-            const double t50_l2 = 0.012437810945273632*z_l2[0];
-            const double t51_l2 = 0.01658374792703151*z_l2[0];
-            const double t52_l2 = DERIVE_FMA(t33_l2, t48_l2, DERIVE_FMA(t32_l2, t47_l2, t31_l2*t46_l2));
-            const double t53_l2 = DERIVE_FMA(t36_l2, t48_l2, DERIVE_FMA(t35_l2, t47_l2, t34_l2*t46_l2));
-            const double t54_l2 = DERIVE_FMA(t39_l2, t48_l2, DERIVE_FMA(t37_l2, t46_l2, -(t38_l2*t47_l2)));
-            const double t55_l2 = t49_l2 + t52_l2;
-            const double t56_l2 = t50_l2 + t53_l2;
-            const double t57_l2 = t51_l2 + t54_l2;
-            const double t58_l2 = DERIVE_FMA(P_l2[2], t33_l2, DERIVE_FMA(P_l2[1], t32_l2, P_l2[0]*t31_l2));
-            const double t59_l2 = DERIVE_FMA(P_l2[5], t33_l2, DERIVE_FMA(P_l2[4], t32_l2, P_l2[1]*t31_l2));
-            const double t60_l2 = DERIVE_FMA(P_l2[8], t33_l2, DERIVE_FMA(P_l2[5], t32_l2, P_l2[2]*t31_l2));
-            const double t61_l2 = DERIVE_FMA(P_l2[2], t36_l2, DERIVE_FMA(P_l2[1], t35_l2, P_l2[0]*t34_l2));
-            const double t62_l2 = DERIVE_FMA(P_l2[5], t36_l2, DERIVE_FMA(P_l2[4], t35_l2, P_l2[1]*t34_l2));
-            const double t63_l2 = DERIVE_FMA(P_l2[8], t36_l2, DERIVE_FMA(P_l2[5], t35_l2, P_l2[2]*t34_l2));
-            const double t64_l2 = DERIVE_FMA(P_l2[2], t39_l2, DERIVE_FMA(P_l2[0], t37_l2, -(P_l2[1]*t38_l2)));
-            const double t65_l2 = DERIVE_FMA(P_l2[5], t39_l2, DERIVE_FMA(P_l2[1], t37_l2, -(P_l2[4]*t38_l2)));
-            const double t66_l2 = DERIVE_FMA(P_l2[8], t39_l2, DERIVE_FMA(P_l2[2], t37_l2, -(P_l2[5]*t38_l2)));
-            const double t67_l2 = DERIVE_FMA(0.4975124378109453, t60_l2, DERIVE_FMA(0.9950248756218906, t59_l2, 0.9950248756218906*t58_l2));
-            const double t68_l2 = DERIVE_FMA(0.9937810945273632, t60_l2, DERIVE_FMA(0.9875621890547264, t59_l2, (-0.012437810945273632)*t58_l2));
-            const double t69_l2 = DERIVE_FMA(0.9917081260364843, t60_l2, DERIVE_FMA((-0.01658374792703151), t59_l2, (-0.01658374792703151)*t58_l2));
-            const double t70_l2 = DERIVE_FMA(0.9937810945273632, t63_l2, DERIVE_FMA(0.9875621890547264, t62_l2, (-0.012437810945273632)*t61_l2));
-            const double t71_l2 = DERIVE_FMA(0.9917081260364843, t63_l2, DERIVE_FMA((-0.01658374792703151), t62_l2, (-0.01658374792703151)*t61_l2));
-            const double t72_l2 = DERIVE_FMA(0.9917081260364843, t66_l2, DERIVE_FMA((-0.01658374792703151), t65_l2, (-0.01658374792703151)*t64_l2));
-            const double t73_l2 = 0.0004975124378109452 + t67_l2;
-            const double t74_l2 = 0.0012437810945273632 + t68_l2;
-            const double t75_l2 = 0.001658374792703151 + t69_l2;
-            const double t76_l2 = 0.0033177860696517415 + t70_l2;
-            const double t77_l2 = 0.004979270315091211 + t71_l2;
-            const double t78_l2 = 0.009972360420121614 + t72_l2;
-            xn_l2[0] = t55_l2;
-            xn_l2[1] = t56_l2;
-            xn_l2[2] = t57_l2;
-            Pn_l2[0] = t73_l2;
-            Pn_l2[1] = t74_l2;
-            Pn_l2[2] = t75_l2;
-            Pn_l2[3] = t74_l2;
-            Pn_l2[4] = t76_l2;
-            Pn_l2[5] = t77_l2;
-            Pn_l2[6] = t75_l2;
-            Pn_l2[7] = t77_l2;
-            Pn_l2[8] = t78_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 1;
-            const double t0_l3 = 9.950248756218905*P_l3[1];
-            const double t1_l3 = 4.975124378109452*P_l3[2];
-            const double t2_l3 = DERIVE_FMA(9.950248756218905, P_l3[0], t0_l3 + t1_l3);
-            const double t3_l3 = 4.975124378109452*P_l3[1];
-            const double t4_l3 = DERIVE_FMA(2.487562189054726, P_l3[2], DERIVE_FMA(4.975124378109452, P_l3[0], t3_l3));
-            const double t5_l3 = 4.975124378109452*P_l3[5];
-            const double t6_l3 = DERIVE_FMA(9.950248756218905, P_l3[4], t0_l3 + t5_l3);
-            const double t7_l3 = DERIVE_FMA(2.487562189054726, P_l3[5], DERIVE_FMA(4.975124378109452, P_l3[4], t3_l3));
-            const double t8_l3 = DERIVE_FMA(4.975124378109452, P_l3[8], DERIVE_FMA(9.950248756218905, P_l3[5], 9.950248756218905*P_l3[2]));
-            const double t9_l3 = DERIVE_FMA(2.487562189054726, P_l3[8], t1_l3 + t5_l3);
-            const double t10_l3 = 1.0 + t2_l3;
-            const double t11_l3 = 1.0 + t6_l3;
-            const double t12_l3 = 1.0 + t9_l3;
-            const double t13_l3 = 1.0/t10_l3;
-            const double t14_l3 = t13_l3*t6_l3;
-            const double t15_l3 = t13_l3*t8_l3;
-            const double t16_l3 = t11_l3 - t14_l3*t2_l3;
-            const double t17_l3 = t7_l3 - t14_l3*t4_l3;
-            const double t18_l3 = 1.0/t16_l3;
-            const double t19_l3 = t18_l3*(t8_l3 - t15_l3*t2_l3);
-            const double t20_l3 = t12_l3 - t15_l3*t4_l3 - t17_l3*t19_l3;
-            const double t21_l3 = 1.0/t20_l3;
-            const double t22_l3 = DERIVE_FMA(t14_l3, t19_l3, -t15_l3);
-            const double t23_l3 = t21_l3*t22_l3;
-            const double t24_l3 = t18_l3*(-t14_l3 - t17_l3*t23_l3);
-            const double t25_l3 = t13_l3*(1.0 - t2_l3*t24_l3 - t23_l3*t4_l3);
-            const double t26_l3 = t19_l3*t21_l3;
-            const double t27_l3 = t18_l3*DERIVE_FMA(t17_l3, t26_l3, 1.0);
-            const double t28_l3 = t13_l3*DERIVE_FMA(t26_l3, t4_l3, -(t2_l3*t27_l3));
-            const double t29_l3 = t17_l3*t18_l3*t21_l3;
-            const double t30_l3 = t13_l3*DERIVE_FMA(t2_l3, t29_l3, -(t21_l3*t4_l3));
-            const double t31_l3 = DERIVE_FMA(0.9950248756218906, t25_l3, DERIVE_FMA(0.9950248756218906, t24_l3, 0.4975124378109453*t23_l3));
-            const double t32_l3 = DERIVE_FMA(0.9950248756218906, t28_l3, DERIVE_FMA(0.9950248756218906, t27_l3, (-0.4975124378109453)*t26_l3));
-            const double t33_l3 = DERIVE_FMA(0.9950248756218906, t30_l3, DERIVE_FMA((-0.9950248756218906), t29_l3, 0.4975124378109453*t21_l3));
-            const double t34_l3 = DERIVE_FMA((-0.012437810945273632), t25_l3, DERIVE_FMA(0.9875621890547264, t24_l3, 0.9937810945273632*t23_l3));
-            const double t35_l3 = DERIVE_FMA((-0.012437810945273632), t28_l3, DERIVE_FMA(0.9875621890547264, t27_l3, (-0.9937810945273632)*t26_l3));
-            const double t36_l3 = DERIVE_FMA((-0.012437810945273632), t30_l3, DERIVE_FMA((-0.9875621890547264), t29_l3, 0.9937810945273632*t21_l3));
-            const double t37_l3 = DERIVE_FMA((-0.01658374792703151), t25_l3, DERIVE_FMA((-0.01658374792703151), t24_l3, 0.9917081260364843*t23_l3));
-            const double t38_l3 = DERIVE_FMA(0.01658374792703151, t28_l3, DERIVE_FMA(0.01658374792703151, t27_l3, 0.9917081260364843*t26_l3));
-            const double t39_l3 = DERIVE_FMA((-0.01658374792703151), t30_l3, DERIVE_FMA(0.01658374792703151, t29_l3, 0.9917081260364843*t21_l3));
-            const double t40_l3 = 9.950248756218905*z_l3[0];
-            const double t41_l3 = 4.975124378109452*z_l3[0];
-            const double t42_l3 = P_l3[1]*t40_l3;
-            const double t43_l3 = DERIVE_FMA(P_l3[2], t41_l3, DERIVE_FMA(P_l3[0], t40_l3, t42_l3));
-            const double t44_l3 = DERIVE_FMA(P_l3[5], t41_l3, DERIVE_FMA(P_l3[4], t40_l3, t42_l3));
-            const double t45_l3 = DERIVE_FMA(P_l3[8], t41_l3, DERIVE_FMA(P_l3[5], t40_l3, P_l3[2]*t40_l3));
-            const double t46_l3 = x_l3[0] + t43_l3;
-            const double t47_l3 = x_l3[1] + t44_l3;
-            const double t48_l3 = x_l3[2] + t45_l3;
-            const double t49_l3 = 0.004975124378109453*z_l3[0];
-            const double t50_l3 = 0.012437810945273632*z_l3[0];
-            const double t51_l3 = 0.01658374792703151*z_l3[0];
-            const double t52_l3 = DERIVE_FMA(t33_l3, t48_l3, DERIVE_FMA(t32_l3, t47_l3, t31_l3*t46_l3));
-            const double t53_l3 = DERIVE_FMA(t36_l3, t48_l3, DERIVE_FMA(t35_l3, t47_l3, t34_l3*t46_l3));
-            const double t54_l3 = DERIVE_FMA(t39_l3, t48_l3, DERIVE_FMA(t37_l3, t46_l3, -(t38_l3*t47_l3)));
-            const double t55_l3 = t49_l3 + t52_l3;
-            const double t56_l3 = t50_l3 + t53_l3;
-            const double t57_l3 = t51_l3 + t54_l3;
-            const double t58_l3 = DERIVE_FMA(P_l3[2], t33_l3, DERIVE_FMA(P_l3[1], t32_l3, P_l3[0]*t31_l3));
-            const double t59_l3 = DERIVE_FMA(P_l3[5], t33_l3, DERIVE_FMA(P_l3[4], t32_l3, P_l3[1]*t31_l3));
-            const double t60_l3 = DERIVE_FMA(P_l3[8], t33_l3, DERIVE_FMA(P_l3[5], t32_l3, P_l3[2]*t31_l3));
-            const double t61_l3 = DERIVE_FMA(P_l3[2], t36_l3, DERIVE_FMA(P_l3[1], t35_l3, P_l3[0]*t34_l3));
-            const double t62_l3 = DERIVE_FMA(P_l3[5], t36_l3, DERIVE_FMA(P_l3[4], t35_l3, P_l3[1]*t34_l3));
-            const double t63_l3 = DERIVE_FMA(P_l3[8], t36_l3, DERIVE_FMA(P_l3[5], t35_l3, P_l3[2]*t34_l3));
-            const double t64_l3 = DERIVE_FMA(P_l3[2], t39_l3, DERIVE_FMA(P_l3[0], t37_l3, -(P_l3[1]*t38_l3)));
-            const double t65_l3 = DERIVE_FMA(P_l3[5], t39_l3, DERIVE_FMA(P_l3[1], t37_l3, -(P_l3[4]*t38_l3)));
-            const double t66_l3 = DERIVE_FMA(P_l3[8], t39_l3, DERIVE_FMA(P_l3[2], t37_l3, -(P_l3[5]*t38_l3)));
-            const double t67_l3 = DERIVE_FMA(0.4975124378109453, t60_l3, DERIVE_FMA(0.9950248756218906, t59_l3, 0.9950248756218906*t58_l3));
-            const double t68_l3 = DERIVE_FMA(0.9937810945273632, t60_l3, DERIVE_FMA(0.9875621890547264, t59_l3, (-0.012437810945273632)*t58_l3));
-            const double t69_l3 = DERIVE_FMA(0.9917081260364843, t60_l3, DERIVE_FMA((-0.01658374792703151), t59_l3, (-0.01658374792703151)*t58_l3));
-            const double t70_l3 = DERIVE_FMA(0.9937810945273632, t63_l3, DERIVE_FMA(0.9875621890547264, t62_l3, (-0.012437810945273632)*t61_l3));
-            const double t71_l3 = DERIVE_FMA(0.9917081260364843, t63_l3, DERIVE_FMA((-0.01658374792703151), t62_l3, (-0.01658374792703151)*t61_l3));
-            const double t72_l3 = DERIVE_FMA(0.9917081260364843, t66_l3, DERIVE_FMA((-0.01658374792703151), t65_l3, (-0.01658374792703151)*t64_l3));
-            const double t73_l3 = 0.0004975124378109452 + t67_l3;
-            const double t74_l3 = 0.0012437810945273632 + t68_l3;
-            const double t75_l3 = 0.001658374792703151 + t69_l3;
-            const double t76_l3 = 0.0033177860696517415 + t70_l3;
-            const double t77_l3 = 0.004979270315091211 + t71_l3;
-            const double t78_l3 = 0.009972360420121614 + t72_l3;
-            xn_l3[0] = t55_l3;
-            xn_l3[1] = t56_l3;
-            xn_l3[2] = t57_l3;
-            Pn_l3[0] = t73_l3;
-            Pn_l3[1] = t74_l3;
-            Pn_l3[2] = t75_l3;
-            Pn_l3[3] = t74_l3;
-            Pn_l3[4] = t76_l3;
-            Pn_l3[5] = t77_l3;
-            Pn_l3[6] = t75_l3;
-            Pn_l3[7] = t77_l3;
-            Pn_l3[8] = t78_l3;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 3], 1);
+                }
             }
-            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 9 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 9 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 9 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 9 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 9 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 9 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 9 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 9 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 9 + 8] = Pn_l1[8];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 1; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
+                }
             }
-            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 9 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 9 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 9 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 9 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 9 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 9 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 9 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 9 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 9 + 8] = Pn_l2[8];
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                ca_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 9 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 9 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 9 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 9 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 9 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 9 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 9 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 9 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 9 + 8] = Pn_l3[8];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    xs[((t + j) * steps + k) * 3 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 9; ++i) {
+                        Ps[((t + j) * steps + k) * 9 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
+            }
+            for (i = 0; i < 3 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
+            for (i = 0; i < 9 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = 9.950248756218905*P_l0[1];
-            const double t1_l0 = 4.975124378109452*P_l0[2];
-            const double t2_l0 = DERIVE_FMA(9.950248756218905, P_l0[0], t0_l0 + t1_l0);
-            const double t3_l0 = 4.975124378109452*P_l0[1];
-            const double t4_l0 = DERIVE_FMA(2.487562189054726, P_l0[2], DERIVE_FMA(4.975124378109452, P_l0[0], t3_l0));
-            const double t5_l0 = 4.975124378109452*P_l0[5];
-            const double t6_l0 = DERIVE_FMA(9.950248756218905, P_l0[4], t0_l0 + t5_l0);
-            const double t7_l0 = DERIVE_FMA(2.487562189054726, P_l0[5], DERIVE_FMA(4.975124378109452, P_l0[4], t3_l0));
-            const double t8_l0 = DERIVE_FMA(4.975124378109452, P_l0[8], DERIVE_FMA(9.950248756218905, P_l0[5], 9.950248756218905*P_l0[2]));
-            const double t9_l0 = DERIVE_FMA(2.487562189054726, P_l0[8], t1_l0 + t5_l0);
-            const double t10_l0 = 1.0 + t2_l0;
-            const double t11_l0 = 1.0 + t6_l0;
-            const double t12_l0 = 1.0 + t9_l0;
-            const double t13_l0 = 1.0/t10_l0;
-            const double t14_l0 = t13_l0*t6_l0;
-            const double t15_l0 = t13_l0*t8_l0;
-            const double t16_l0 = t11_l0 - t14_l0*t2_l0;
-            const double t17_l0 = t7_l0 - t14_l0*t4_l0;
-            const double t18_l0 = 1.0/t16_l0;
-            const double t19_l0 = t18_l0*(t8_l0 - t15_l0*t2_l0);
-            const double t20_l0 = t12_l0 - t15_l0*t4_l0 - t17_l0*t19_l0;
-            const double t21_l0 = 1.0/t20_l0;
-            const double t22_l0 = DERIVE_FMA(t14_l0, t19_l0, -t15_l0);
-            const double t23_l0 = t21_l0*t22_l0;
-            const double t24_l0 = t18_l0*(-t14_l0 - t17_l0*t23_l0);
-            const double t25_l0 = t13_l0*(1.0 - t2_l0*t24_l0 - t23_l0*t4_l0);
-            const double t26_l0 = t19_l0*t21_l0;
-            const double t27_l0 = t18_l0*DERIVE_FMA(t17_l0, t26_l0, 1.0);
-            const double t28_l0 = t13_l0*DERIVE_FMA(t26_l0, t4_l0, -(t2_l0*t27_l0));
-            const double t29_l0 = t17_l0*t18_l0*t21_l0;
-            const double t30_l0 = t13_l0*DERIVE_FMA(t2_l0, t29_l0, -(t21_l0*t4_l0));
-            const double t31_l0 = DERIVE_FMA(0.9950248756218906, t25_l0, DERIVE_FMA(0.9950248756218906, t24_l0, 0.4975124378109453*t23_l0));
-            const double t32_l0 = DERIVE_FMA(0.9950248756218906, t28_l0, DERIVE_FMA(0.9950248756218906, t27_l0, (-0.4975124378109453)*t26_l0));
-            const double t33_l0 = DERIVE_FMA(0.9950248756218906, t30_l0, DERIVE_FMA((-0.9950248756218906), t29_l0, 0.4975124378109453*t21_l0));
-            const double t34_l0 = DERIVE_FMA((-0.012437810945273632), t25_l0, DERIVE_FMA(0.9875621890547264, t24_l0, 0.9937810945273632*t23_l0));
-            const double t35_l0 = DERIVE_FMA((-0.012437810945273632), t28_l0, DERIVE_FMA(0.9875621890547264, t27_l0, (-0.9937810945273632)*t26_l0));
-            const double t36_l0 = DERIVE_FMA((-0.012437810945273632), t30_l0, DERIVE_FMA((-0.9875621890547264), t29_l0, 0.9937810945273632*t21_l0));
-            const double t37_l0 = DERIVE_FMA((-0.01658374792703151), t25_l0, DERIVE_FMA((-0.01658374792703151), t24_l0, 0.9917081260364843*t23_l0));
-            const double t38_l0 = DERIVE_FMA(0.01658374792703151, t28_l0, DERIVE_FMA(0.01658374792703151, t27_l0, 0.9917081260364843*t26_l0));
-            const double t39_l0 = DERIVE_FMA((-0.01658374792703151), t30_l0, DERIVE_FMA(0.01658374792703151, t29_l0, 0.9917081260364843*t21_l0));
-            const double t40_l0 = 9.950248756218905*z_l0[0];
-            const double t41_l0 = 4.975124378109452*z_l0[0];
-            const double t42_l0 = P_l0[1]*t40_l0;
-            const double t43_l0 = DERIVE_FMA(P_l0[2], t41_l0, DERIVE_FMA(P_l0[0], t40_l0, t42_l0));
-            const double t44_l0 = DERIVE_FMA(P_l0[5], t41_l0, DERIVE_FMA(P_l0[4], t40_l0, t42_l0));
-            const double t45_l0 = DERIVE_FMA(P_l0[8], t41_l0, DERIVE_FMA(P_l0[5], t40_l0, P_l0[2]*t40_l0));
-            const double t46_l0 = x_l0[0] + t43_l0;
-            const double t47_l0 = x_l0[1] + t44_l0;
-            const double t48_l0 = x_l0[2] + t45_l0;
-            const double t49_l0 = 0.004975124378109453*z_l0[0];
-            const double t50_l0 = 0.012437810945273632*z_l0[0];
-            const double t51_l0 = 0.01658374792703151*z_l0[0];
-            const double t52_l0 = DERIVE_FMA(t33_l0, t48_l0, DERIVE_FMA(t32_l0, t47_l0, t31_l0*t46_l0));
-            const double t53_l0 = DERIVE_FMA(t36_l0, t48_l0, DERIVE_FMA(t35_l0, t47_l0, t34_l0*t46_l0));
-            const double t54_l0 = DERIVE_FMA(t39_l0, t48_l0, DERIVE_FMA(t37_l0, t46_l0, -(t38_l0*t47_l0)));
-            const double t55_l0 = t49_l0 + t52_l0;
-            const double t56_l0 = t50_l0 + t53_l0;
-            const double t57_l0 = t51_l0 + t54_l0;
-            const double t58_l0 = DERIVE_FMA(P_l0[2], t33_l0, DERIVE_FMA(P_l0[1], t32_l0, P_l0[0]*t31_l0));
-            const double t59_l0 = DERIVE_FMA(P_l0[5], t33_l0, DERIVE_FMA(P_l0[4], t32_l0, P_l0[1]*t31_l0));
-            const double t60_l0 = DERIVE_FMA(P_l0[8], t33_l0, DERIVE_FMA(P_l0[5], t32_l0, P_l0[2]*t31_l0));
-            const double t61_l0 = DERIVE_FMA(P_l0[2], t36_l0, DERIVE_FMA(P_l0[1], t35_l0, P_l0[0]*t34_l0));
-            const double t62_l0 = DERIVE_FMA(P_l0[5], t36_l0, DERIVE_FMA(P_l0[4], t35_l0, P_l0[1]*t34_l0));
-            const double t63_l0 = DERIVE_FMA(P_l0[8], t36_l0, DERIVE_FMA(P_l0[5], t35_l0, P_l0[2]*t34_l0));
-            const double t64_l0 = DERIVE_FMA(P_l0[2], t39_l0, DERIVE_FMA(P_l0[0], t37_l0, -(P_l0[1]*t38_l0)));
-            const double t65_l0 = DERIVE_FMA(P_l0[5], t39_l0, DERIVE_FMA(P_l0[1], t37_l0, -(P_l0[4]*t38_l0)));
-            const double t66_l0 = DERIVE_FMA(P_l0[8], t39_l0, DERIVE_FMA(P_l0[2], t37_l0, -(P_l0[5]*t38_l0)));
-            const double t67_l0 = DERIVE_FMA(0.4975124378109453, t60_l0, DERIVE_FMA(0.9950248756218906, t59_l0, 0.9950248756218906*t58_l0));
-            const double t68_l0 = DERIVE_FMA(0.9937810945273632, t60_l0, DERIVE_FMA(0.9875621890547264, t59_l0, (-0.012437810945273632)*t58_l0));
-            const double t69_l0 = DERIVE_FMA(0.9917081260364843, t60_l0, DERIVE_FMA((-0.01658374792703151), t59_l0, (-0.01658374792703151)*t58_l0));
-            const double t70_l0 = DERIVE_FMA(0.9937810945273632, t63_l0, DERIVE_FMA(0.9875621890547264, t62_l0, (-0.012437810945273632)*t61_l0));
-            const double t71_l0 = DERIVE_FMA(0.9917081260364843, t63_l0, DERIVE_FMA((-0.01658374792703151), t62_l0, (-0.01658374792703151)*t61_l0));
-            const double t72_l0 = DERIVE_FMA(0.9917081260364843, t66_l0, DERIVE_FMA((-0.01658374792703151), t65_l0, (-0.01658374792703151)*t64_l0));
-            const double t73_l0 = 0.0004975124378109452 + t67_l0;
-            const double t74_l0 = 0.0012437810945273632 + t68_l0;
-            const double t75_l0 = 0.001658374792703151 + t69_l0;
-            const double t76_l0 = 0.0033177860696517415 + t70_l0;
-            const double t77_l0 = 0.004979270315091211 + t71_l0;
-            const double t78_l0 = 0.009972360420121614 + t72_l0;
-            xn_l0[0] = t55_l0;
-            xn_l0[1] = t56_l0;
-            xn_l0[2] = t57_l0;
-            Pn_l0[0] = t73_l0;
-            Pn_l0[1] = t74_l0;
-            Pn_l0[2] = t75_l0;
-            Pn_l0[3] = t74_l0;
-            Pn_l0[4] = t76_l0;
-            Pn_l0[5] = t77_l0;
-            Pn_l0[6] = t75_l0;
-            Pn_l0[7] = t77_l0;
-            Pn_l0[8] = t78_l0;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
-            }
-        }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        ca_lf_run(steps, z + t * steps * 1, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
     }
 }

@@ -12,13 +12,14 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void ca_lf_step(x[3], P[3*3], z[1], x_new[3] out, P_new[3*3] out)
  *     void ca_lf_run(steps, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     void ca_lf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 8, mul 61, div 3, sqrt 0, fma 73, neg 8, cmp 0, calls 0 (flops 236, instructions 171)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_lf_step","step",false,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["ca_lf_step","step",false,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_ca_lf_H
 #define DERIVE_ca_lf_H

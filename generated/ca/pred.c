@@ -36,6 +36,39 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE void ca_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.5, x[2 * s], DERIVE_FMA((-0.31193539150247196), x[0], DERIVE_FMA(1.311935391502472, z[0], x[1 * s])));
+    const double t1 = DERIVE_FMA((-0.6479337786543731), x[0], DERIVE_FMA(0.6479337786543731, z[0], x[1 * s] + x[2 * s]));
+    const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, z[0], x[2 * s]));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+    x_new[2 * s] = t2;
+}
+
+DERIVE_INLINE void ca_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(1.344032304248764, x[2 * s], DERIVE_FMA(0.688064608497528, x[1 * s], DERIVE_FMA((-0.63062987222987), x[0], DERIVE_FMA(1.311935391502472, zn[0], 0.31869448072739803*z[0]))));
+    const double t1 = DERIVE_FMA(1.6760331106728135, x[2 * s], DERIVE_FMA(0.35206622134562693, x[1 * s], DERIVE_FMA((-0.6058198658367401), x[0], DERIVE_FMA(0.6479337786543731, zn[0], (-0.0421139128176331)*z[0]))));
+    const double t2 = DERIVE_FMA(0.9200002179527026, x[2 * s], DERIVE_FMA((-0.15999956409459484), x[1 * s], DERIVE_FMA((-0.11009003742852254), x[0], DERIVE_FMA(0.15999956409459484, zn[0], (-0.04990952666607232)*z[0]))));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+    x_new[2 * s] = t2;
+}
+
 void ca_pred_init(const double *restrict x0, double *restrict x_new)
 {
     const double t0 = DERIVE_FMA(0.5, x0[2], x0[0] + x0[1]);
@@ -47,12 +80,7 @@ void ca_pred_init(const double *restrict x0, double *restrict x_new)
 
 void ca_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    const double t0 = DERIVE_FMA(0.5, x[2], DERIVE_FMA((-0.31193539150247196), x[0], DERIVE_FMA(1.311935391502472, z[0], x[1])));
-    const double t1 = DERIVE_FMA((-0.6479337786543731), x[0], DERIVE_FMA(0.6479337786543731, z[0], x[1] + x[2]));
-    const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, z[0], x[2]));
-    x_new[0] = t0;
-    x_new[1] = t1;
-    x_new[2] = t2;
+    ca_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
@@ -72,18 +100,8 @@ void ca_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        const double t0 = DERIVE_FMA(0.5, x[2], DERIVE_FMA((-0.31193539150247196), x[0], DERIVE_FMA(1.311935391502472, zk[0], x[1])));
-        const double t1 = DERIVE_FMA((-0.6479337786543731), x[0], DERIVE_FMA(0.6479337786543731, zk[0], x[1] + x[2]));
-        const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, zk[0], x[2]));
-        x_mid[0] = t0;
-        x_mid[1] = t1;
-        x_mid[2] = t2;
-        const double t3 = DERIVE_FMA(1.344032304248764, x[2], DERIVE_FMA(0.688064608497528, x[1], DERIVE_FMA((-0.63062987222987), x[0], DERIVE_FMA(1.311935391502472, znk[0], 0.31869448072739803*zk[0]))));
-        const double t4 = DERIVE_FMA(1.6760331106728135, x[2], DERIVE_FMA(0.35206622134562693, x[1], DERIVE_FMA((-0.6058198658367401), x[0], DERIVE_FMA(0.6479337786543731, znk[0], (-0.0421139128176331)*zk[0]))));
-        const double t5 = DERIVE_FMA(0.9200002179527026, x[2], DERIVE_FMA((-0.15999956409459484), x[1], DERIVE_FMA((-0.11009003742852254), x[0], DERIVE_FMA(0.15999956409459484, znk[0], (-0.04990952666607232)*zk[0]))));
-        x_new[0] = t3;
-        x_new[1] = t4;
-        x_new[2] = t5;
+        ca_pred_step_body(x, zk, x_mid, 1);
+        ca_pred_pass_body(x, zk, znk, x_new, 1);
         xs[k * 3 + 0] = x_mid[0];
         xs[k * 3 + 1] = x_mid[1];
         xs[k * 3 + 2] = x_mid[2];
@@ -94,12 +112,7 @@ void ca_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = DERIVE_FMA(0.5, x[2], DERIVE_FMA((-0.31193539150247196), x[0], DERIVE_FMA(1.311935391502472, zk[0], x[1])));
-        const double t1 = DERIVE_FMA((-0.6479337786543731), x[0], DERIVE_FMA(0.6479337786543731, zk[0], x[1] + x[2]));
-        const double t2 = DERIVE_FMA((-0.15999956409459484), x[0], DERIVE_FMA(0.15999956409459484, zk[0], x[2]));
-        x_new[0] = t0;
-        x_new[1] = t1;
-        x_new[2] = t2;
+        ca_pred_step_body(x, zk, x_new, 1);
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];

@@ -21,6 +21,8 @@ B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
 N = 1
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -93,13 +95,11 @@ def run(zs, x0):
         keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = x_1 - 0.31193539150247196*x_0 + 0.5*x_2 + 1.311935391502472*z_0
-            t1 = x_1 - 0.6479337786543731*x_0 + x_2 + 0.6479337786543731*z_0
-            t2 = x_2 - 0.15999956409459484*x_0 + 0.15999956409459484*z_0
-            keep((t0, t1, t2))
+            x_1 = x_1 - 0.6479337786543731*x_0 + x_2 + 0.6479337786543731*z_0
+            x_2 = x_2 - 0.15999956409459484*x_0 + 0.15999956409459484*z_0
+            keep((t0, x_1, x_2))
             x_0 = t0
-            x_1 = t1
-            x_2 = t2
-        table = np.array(rows, dtype=float).reshape(-1, 3)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     x = init(x0)
     for k in range(steps):

@@ -41,15 +41,29 @@
 #endif
 #endif
 
-int ca_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int ca_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
-    const double t0 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-    const double t1 = x[1] + x[2];
-    const double t2 = DERIVE_FMA(0.5, P[2], P[0] + P[1]);
-    const double t3 = DERIVE_FMA(0.5, P[5], P[1] + P[4]);
-    const double t4 = DERIVE_FMA(0.5, P[8], P[2] + P[5]);
-    const double t5 = P[4] + P[5];
-    const double t6 = P[5] + P[8];
+    int status = 0;
+    const double t0 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
+    const double t1 = x[1 * s] + x[2 * s];
+    const double t2 = DERIVE_FMA(0.5, P[2 * s], P[0] + P[1 * s]);
+    const double t3 = DERIVE_FMA(0.5, P[5 * s], P[1 * s] + P[4 * s]);
+    const double t4 = DERIVE_FMA(0.5, P[8 * s], P[2 * s] + P[5 * s]);
+    const double t5 = P[4 * s] + P[5 * s];
+    const double t6 = P[5 * s] + P[8 * s];
     const double t7 = DERIVE_FMA(0.5, t4, t2 + t3);
     const double t8 = t3 + t4;
     const double t9 = t5 + t6;
@@ -58,10 +72,10 @@ int ca_rts_step(const double *restrict x, const double *restrict P, const double
     const double t12 = 0.0016666666666666668 + t4;
     const double t13 = 0.0033333333333333335 + t9;
     const double t14 = 0.005 + t6;
-    const double t15 = 0.01 + P[8];
+    const double t15 = 0.01 + P[8 * s];
     const double t16 = 0.1 + t10;
-    if (!(t16 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t16 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t17 = 1.0/t16;
     const double t18 = t10*t17;
@@ -73,7 +87,7 @@ int ca_rts_step(const double *restrict x, const double *restrict P, const double
     const double t24 = t20*t21;
     const double t25 = t0 + t22;
     const double t26 = t1 + t23;
-    const double t27 = x[2] + t24;
+    const double t27 = x[2 * s] + t24;
     const double t28 = t10*t18;
     const double t29 = t11*t18;
     const double t30 = t12*t18;
@@ -87,30 +101,35 @@ int ca_rts_step(const double *restrict x, const double *restrict P, const double
     const double t38 = t14 - t32;
     const double t39 = t15 - t33;
     x_new[0] = t25;
-    x_new[1] = t26;
-    x_new[2] = t27;
+    x_new[1 * s] = t26;
+    x_new[2 * s] = t27;
     P_new[0] = t34;
-    P_new[1] = t35;
-    P_new[2] = t36;
-    P_new[3] = t35;
-    P_new[4] = t37;
-    P_new[5] = t38;
-    P_new[6] = t36;
-    P_new[7] = t38;
-    P_new[8] = t39;
+    P_new[1 * s] = t35;
+    P_new[2 * s] = t36;
+    P_new[3 * s] = t35;
+    P_new[4 * s] = t37;
+    P_new[5 * s] = t38;
+    P_new[6 * s] = t36;
+    P_new[7 * s] = t38;
+    P_new[8 * s] = t39;
     x_pred[0] = t0;
-    x_pred[1] = t1;
-    x_pred[2] = x[2];
+    x_pred[1 * s] = t1;
+    x_pred[2 * s] = x[2 * s];
     P_pred[0] = t10;
-    P_pred[1] = t11;
-    P_pred[2] = t12;
-    P_pred[3] = t11;
-    P_pred[4] = t13;
-    P_pred[5] = t14;
-    P_pred[6] = t12;
-    P_pred[7] = t14;
-    P_pred[8] = t15;
-    return 0;
+    P_pred[1 * s] = t11;
+    P_pred[2 * s] = t12;
+    P_pred[3 * s] = t11;
+    P_pred[4 * s] = t13;
+    P_pred[5 * s] = t14;
+    P_pred[6 * s] = t12;
+    P_pred[7 * s] = t14;
+    P_pred[8 * s] = t15;
+    return status;
+}
+
+int ca_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
+{
+    return ca_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
 
 int ca_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)

@@ -48,18 +48,32 @@
 #endif
 #endif
 
-int ca_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
-    const double t0 = 1.0 + U[1];
-    const double t1 = 0.5 + U[2] + U[5];
-    const double t2 = 1.0 + U[5];
-    const double t3 = 0.01 + D[2];
+    int status = 0;
+    const double t0 = 1.0 + U[1 * s];
+    const double t1 = 0.5 + U[2 * s] + U[5 * s];
+    const double t2 = 1.0 + U[5 * s];
+    const double t3 = 0.01 + D[2 * s];
     const double t4 = 2.2250738585072014e-308 + t3;
-    if (!(t4 > 0.0)) {
-        return 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+    if (!(t4 > 0.0) && !status) {
+        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     }
-    const double t5 = DERIVE_FMA(D[2], t1, 0.0016666666666666668);
-    const double t6 = DERIVE_FMA(D[2], t2, 0.005);
+    const double t5 = DERIVE_FMA(D[2 * s], t1, 0.0016666666666666668);
+    const double t6 = DERIVE_FMA(D[2 * s], t2, 0.005);
     const double t7 = t5/t4;
     const double t8 = t6/t4;
     const double t9 = t1 - t7;
@@ -68,46 +82,46 @@ int ca_udkf_step(const double *restrict x, const double *restrict U, const doubl
     const double t12 = t2 - t8;
     const double t13 = DERIVE_FMA((-3.3333333333333335), t8, 2.5);
     const double t14 = DERIVE_FMA((-4.0), t8, 1.0);
-    const double t15 = D[2]*t12;
+    const double t15 = D[2 * s]*t12;
     const double t16 = 0.0005*t13;
     const double t17 = 0.00020833333333333335*t14;
     const double t18 = 0.0011111111111111111*t8;
-    const double t19 = DERIVE_FMA(t18, t8, DERIVE_FMA(t14, t17, DERIVE_FMA(t13, t16, DERIVE_FMA(t12, t15, D[1]))));
+    const double t19 = DERIVE_FMA(t18, t8, DERIVE_FMA(t14, t17, DERIVE_FMA(t13, t16, DERIVE_FMA(t12, t15, D[1 * s]))));
     const double t20 = 2.2250738585072014e-308 + t19;
-    if (!(t20 > 0.0)) {
-        return 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
+    if (!(t20 > 0.0) && !status) {
+        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
-    const double t21 = DERIVE_FMA(t18, t7, DERIVE_FMA(t15, t9, DERIVE_FMA(t10, t16, DERIVE_FMA(D[1], t0, -(t11*t17)))));
+    const double t21 = DERIVE_FMA(t18, t7, DERIVE_FMA(t15, t9, DERIVE_FMA(t10, t16, DERIVE_FMA(D[1 * s], t0, -(t11*t17)))));
     const double t22 = t21/t20;
     const double t23 = t0 - t22;
     const double t24 = t9 - t12*t22;
     const double t25 = t10 - t13*t22;
     const double t26 = DERIVE_FMA(t14, t22, t11);
     const double t27 = DERIVE_FMA(t22, t8, -t7);
-    const double t28 = D[1]*t23;
-    const double t29 = D[2]*t24;
+    const double t28 = D[1 * s]*t23;
+    const double t29 = D[2 * s]*t24;
     const double t30 = 0.0005*t25;
     const double t31 = 0.00020833333333333335*t26;
     const double t32 = 0.0011111111111111111*t27;
     const double t33 = DERIVE_FMA(t27, t32, DERIVE_FMA(t26, t31, DERIVE_FMA(t25, t30, DERIVE_FMA(t24, t29, DERIVE_FMA(t23, t28, D[0])))));
     const double t34 = 2.2250738585072014e-308 + t33;
-    if (!(t34 > 0.0)) {
-        return 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
+    if (!(t34 > 0.0) && !status) {
+        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     }
-    const double t35 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-    const double t36 = x[1] + x[2];
+    const double t35 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
+    const double t36 = x[1 * s] + x[2 * s];
     const double t37 = t19*t22;
     const double t38 = t3*t7;
     const double t39 = 0.1 + t33;
-    if (!(t39 > 0.0)) {
-        return 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
+    if (!(t39 > 0.0) && !status) {
+        status = 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
     const double t40 = 1.0/t39;
     const double t41 = 0.1*(t33*t40);
     const double t42 = t22*t37;
     const double t43 = t39 + t42;
-    if (!(t43 > 0.0)) {
-        return 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
+    if (!(t43 > 0.0) && !status) {
+        status = 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
     const double t44 = 1.0/t43;
     const double t45 = t19*t39*t44;
@@ -116,8 +130,8 @@ int ca_udkf_step(const double *restrict x, const double *restrict U, const doubl
     const double t48 = t33 + t42;
     const double t49 = t38*t7;
     const double t50 = t43 + t49;
-    if (!(t50 > 0.0)) {
-        return 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
+    if (!(t50 > 0.0) && !status) {
+        status = 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     }
     const double t51 = 1.0/t50;
     const double t52 = t3*t43*t51;
@@ -130,23 +144,28 @@ int ca_udkf_step(const double *restrict x, const double *restrict U, const doubl
     const double t59 = t51*t58;
     const double t60 = DERIVE_FMA(t55, t59, t35);
     const double t61 = DERIVE_FMA(t57, t59, t36);
-    const double t62 = DERIVE_FMA(t38, t59, x[2]);
+    const double t62 = DERIVE_FMA(t38, t59, x[2 * s]);
     x_new[0] = t60;
-    x_new[1] = t61;
-    x_new[2] = t62;
+    x_new[1 * s] = t61;
+    x_new[2 * s] = t62;
     U_new[0] = 1.0;
-    U_new[1] = t47;
-    U_new[2] = t54;
-    U_new[3] = 0.0;
-    U_new[4] = 1.0;
-    U_new[5] = t56;
-    U_new[6] = 0.0;
-    U_new[7] = 0.0;
-    U_new[8] = 1.0;
+    U_new[1 * s] = t47;
+    U_new[2 * s] = t54;
+    U_new[3 * s] = 0.0;
+    U_new[4 * s] = 1.0;
+    U_new[5 * s] = t56;
+    U_new[6 * s] = 0.0;
+    U_new[7 * s] = 0.0;
+    U_new[8 * s] = 1.0;
     D_new[0] = t41;
-    D_new[1] = t45;
-    D_new[2] = t52;
-    return 0;
+    D_new[1 * s] = t45;
+    D_new[2 * s] = t52;
+    return status;
+}
+
+int ca_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
+{
+    return ca_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
 
 int ca_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
@@ -223,105 +242,13 @@ int ca_udkf_run(size_t steps, const double *z, const double *x0, const double *P
     if (status) {
         return status;
     }
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = 1.0 + U[1];
-        const double t1 = 0.5 + U[2] + U[5];
-        const double t2 = 1.0 + U[5];
-        const double t3 = 0.01 + D[2];
-        const double t4 = 2.2250738585072014e-308 + t3;
-        if (!(t4 > 0.0)) {
-            return 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+        const int step_status = ca_udkf_step_body(x, U, D, zk, x_new, U_new, D_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t5 = DERIVE_FMA(D[2], t1, 0.0016666666666666668);
-        const double t6 = DERIVE_FMA(D[2], t2, 0.005);
-        const double t7 = t5/t4;
-        const double t8 = t6/t4;
-        const double t9 = t1 - t7;
-        const double t10 = DERIVE_FMA((-3.3333333333333335), t7, 1.0);
-        const double t11 = 4.0*t7;
-        const double t12 = t2 - t8;
-        const double t13 = DERIVE_FMA((-3.3333333333333335), t8, 2.5);
-        const double t14 = DERIVE_FMA((-4.0), t8, 1.0);
-        const double t15 = D[2]*t12;
-        const double t16 = 0.0005*t13;
-        const double t17 = 0.00020833333333333335*t14;
-        const double t18 = 0.0011111111111111111*t8;
-        const double t19 = DERIVE_FMA(t18, t8, DERIVE_FMA(t14, t17, DERIVE_FMA(t13, t16, DERIVE_FMA(t12, t15, D[1]))));
-        const double t20 = 2.2250738585072014e-308 + t19;
-        if (!(t20 > 0.0)) {
-            return 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-        }
-        const double t21 = DERIVE_FMA(t18, t7, DERIVE_FMA(t15, t9, DERIVE_FMA(t10, t16, DERIVE_FMA(D[1], t0, -(t11*t17)))));
-        const double t22 = t21/t20;
-        const double t23 = t0 - t22;
-        const double t24 = t9 - t12*t22;
-        const double t25 = t10 - t13*t22;
-        const double t26 = DERIVE_FMA(t14, t22, t11);
-        const double t27 = DERIVE_FMA(t22, t8, -t7);
-        const double t28 = D[1]*t23;
-        const double t29 = D[2]*t24;
-        const double t30 = 0.0005*t25;
-        const double t31 = 0.00020833333333333335*t26;
-        const double t32 = 0.0011111111111111111*t27;
-        const double t33 = DERIVE_FMA(t27, t32, DERIVE_FMA(t26, t31, DERIVE_FMA(t25, t30, DERIVE_FMA(t24, t29, DERIVE_FMA(t23, t28, D[0])))));
-        const double t34 = 2.2250738585072014e-308 + t33;
-        if (!(t34 > 0.0)) {
-            return 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-        }
-        const double t35 = DERIVE_FMA(0.5, x[2], x[0] + x[1]);
-        const double t36 = x[1] + x[2];
-        const double t37 = t19*t22;
-        const double t38 = t3*t7;
-        const double t39 = 0.1 + t33;
-        if (!(t39 > 0.0)) {
-            return 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t40 = 1.0/t39;
-        const double t41 = 0.1*(t33*t40);
-        const double t42 = t22*t37;
-        const double t43 = t39 + t42;
-        if (!(t43 > 0.0)) {
-            return 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t44 = 1.0/t43;
-        const double t45 = t19*t39*t44;
-        const double t46 = t22*t40;
-        const double t47 = t22 - t33*t46;
-        const double t48 = t33 + t42;
-        const double t49 = t38*t7;
-        const double t50 = t43 + t49;
-        if (!(t50 > 0.0)) {
-            return 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t51 = 1.0/t50;
-        const double t52 = t3*t43*t51;
-        const double t53 = t44*t7;
-        const double t54 = t7 - t48*t53;
-        const double t55 = t48 + t49;
-        const double t56 = t8 - t37*t53;
-        const double t57 = DERIVE_FMA(t38, t8, t37);
-        const double t58 = zk[0] - t35;
-        const double t59 = t51*t58;
-        const double t60 = DERIVE_FMA(t55, t59, t35);
-        const double t61 = DERIVE_FMA(t57, t59, t36);
-        const double t62 = DERIVE_FMA(t38, t59, x[2]);
-        x_new[0] = t60;
-        x_new[1] = t61;
-        x_new[2] = t62;
-        U_new[0] = 1.0;
-        U_new[1] = t47;
-        U_new[2] = t54;
-        U_new[3] = 0.0;
-        U_new[4] = 1.0;
-        U_new[5] = t56;
-        U_new[6] = 0.0;
-        U_new[7] = 0.0;
-        U_new[8] = 1.0;
-        D_new[0] = t41;
-        D_new[1] = t45;
-        D_new[2] = t52;
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];

@@ -21,6 +21,8 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -172,39 +174,24 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         keep = rows.extend
-        for k, z_0 in enumerate(zs[:, 0].tolist()):
+        for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1
-            t1 = P_0 + P_1
             t2 = P_1 + P_3
-            t3 = t1 + t2
-            t4 = 0.0033333333333333335 + t3
+            t4 = 0.0033333333333333335 + (P_0 + P_1 + t2)
             t5 = 0.005 + t2
             t6 = 0.01 + P_3
             t7 = 0.1 + t4
             if not t7 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 5}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t8 = t4/t7
             t9 = t5/t7
             t10 = z_0 - t0
-            t11 = t10*t8
-            t12 = t10*t9
-            t13 = t0 + t11
-            t14 = x_1 + t12
-            t15 = t4*t8
-            t16 = t5*t8
-            t17 = t5*t9
-            t18 = t4 - t15
-            t19 = t5 - t16
-            t20 = t6 - t17
             t21 = 9.67741935483871*P_1
             t22 = 9.67741935483871*P_0 + t21
             t23 = 9.67741935483871*P_3 + t21
-            t24 = 1.0 + t22
-            t25 = 1.0 + t23
-            t26 = 1.0/t24
+            t26 = 1.0/(1.0 + t22)
             t27 = t23*t26
-            t28 = t25 - t22*t27
-            t29 = 1.0/t28
+            t29 = 1.0/(1.0 + t23 - t22*t27)
             t30 = t27*t29
             t31 = t26*(1.0 + t22*t30)
             t32 = t22*t26*t29
@@ -214,43 +201,19 @@ def run(zs, x0, P0):
             t36 = 0.9516129032258065*t29 + 0.04838709677419355*t32
             t37 = 9.67741935483871*z_0
             t38 = P_1*t37
-            t39 = t38 + P_0*t37
-            t40 = t38 + P_3*t37
-            t41 = x_0 + t39
-            t42 = x_1 + t40
-            t43 = 0.03225806451612903*z_0
-            t44 = 0.04838709677419355*z_0
-            t45 = t33*t41 + t34*t42
-            t46 = t36*t42 - t35*t41
-            t47 = t43 + t45
-            t48 = t44 + t46
+            t41 = x_0 + (t38 + P_0*t37)
+            t42 = x_1 + (t38 + P_3*t37)
             t49 = P_0*t33 + P_1*t34
             t50 = P_1*t33 + P_3*t34
-            t51 = P_1*t36 - P_0*t35
-            t52 = P_3*t36 - P_1*t35
-            t53 = 0.967741935483871*t49 + 0.967741935483871*t50
-            t54 = 0.9516129032258065*t50 - 0.04838709677419355*t49
-            t55 = 0.9516129032258065*t52 - 0.04838709677419355*t51
-            t56 = 0.0032258064516129032 + t53
-            t57 = 0.004838709677419355 + t54
-            t58 = 0.009758064516129032 + t55
-            t59 = t13 + t47
-            t60 = t14 + t48
-            t61 = 0.5*t59
-            t62 = 0.5*t60
-            t63 = t18 + t56
-            t64 = t19 + t57
-            t65 = t20 + t58
-            t66 = 0.5*t63
-            t67 = 0.5*t64
-            t68 = 0.5*t65
-            keep((t61, t62, t66, t67, t68))
-            x_0 = t61
-            x_1 = t62
+            x_0 = 0.5*(t0 + t10*t8 + (0.03225806451612903*z_0 + (t33*t41 + t34*t42)))
+            x_1 = 0.5*(x_1 + t10*t9 + (0.04838709677419355*z_0 + (t36*t42 - t35*t41)))
+            t66 = 0.5*(t4 - t4*t8 + (0.0032258064516129032 + (0.967741935483871*t49 + 0.967741935483871*t50)))
+            t67 = 0.5*(t5 - t5*t8 + (0.004838709677419355 + (0.9516129032258065*t50 - 0.04838709677419355*t49)))
+            P_3 = 0.5*(t6 - t5*t9 + (0.009758064516129032 + (0.9516129032258065*(P_3*t36 - P_1*t35) - 0.04838709677419355*(P_1*t36 - P_0*t35))))
+            keep((x_0, x_1, t66, t67, P_3))
             P_0 = t66
             P_1 = t67
-            P_3 = t68
-        table = np.array(rows, dtype=float).reshape(-1, 5)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -18,6 +18,8 @@ A = [[ 0.45147237290283504,  0.45147237290283504], [-0.21247879256594887,  0.787
 B = [[0.548527627097165 ], [0.2124787925659489]]
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -74,11 +76,10 @@ def run(zs, x0):
         keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = 0.45147237290283504*x_0 + 0.45147237290283504*x_1 + 0.548527627097165*z_0
-            t1 = 0.7875212074340512*x_1 - 0.21247879256594887*x_0 + 0.2124787925659489*z_0
-            keep((t0, t1))
+            x_1 = 0.7875212074340512*x_1 - 0.21247879256594887*x_0 + 0.2124787925659489*z_0
+            keep((t0, x_1))
             x_0 = t0
-            x_1 = t1
-        table = np.array(rows, dtype=float).reshape(-1, 2)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 2)
         return table[:, [0, 1]]
     x = x0
     for k in range(steps):

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int cv_kf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
  *     int cv_kf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int cv_kf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: cv_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
@@ -20,24 +21,65 @@
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["cv_kf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_kf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["cv_kf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_kf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_kf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <stddef.h>
 
 #include "kf.h"
 
-int cv_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int cv_kf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = x[0] + x[1];
-    const double t1 = P[0] + P[1];
-    const double t2 = P[1] + P[3];
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = P[0] + P[1 * s];
+    const double t2 = P[1 * s] + P[3 * s];
     const double t3 = t1 + t2;
     const double t4 = 0.0033333333333333335 + t3;
     const double t5 = 0.005 + t2;
-    const double t6 = 0.01 + P[3];
+    const double t6 = 0.01 + P[3 * s];
     const double t7 = 0.1 + t4;
-    if (!(t7 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t7 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t8 = t4/t7;
     const double t9 = t5/t7;
@@ -45,7 +87,7 @@ int cv_kf_step(const double *restrict x, const double *restrict P, const double 
     const double t11 = t10*t8;
     const double t12 = t10*t9;
     const double t13 = t0 + t11;
-    const double t14 = x[1] + t12;
+    const double t14 = x[1 * s] + t12;
     const double t15 = t4*t8;
     const double t16 = t5*t8;
     const double t17 = t5*t9;
@@ -53,12 +95,17 @@ int cv_kf_step(const double *restrict x, const double *restrict P, const double 
     const double t19 = t5 - t16;
     const double t20 = t6 - t17;
     x_new[0] = t13;
-    x_new[1] = t14;
+    x_new[1 * s] = t14;
     P_new[0] = t18;
-    P_new[1] = t19;
-    P_new[2] = t19;
-    P_new[3] = t20;
-    return 0;
+    P_new[1 * s] = t19;
+    P_new[2 * s] = t19;
+    P_new[3 * s] = t20;
+    return status;
+}
+
+int cv_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    return cv_kf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
@@ -75,39 +122,13 @@ int cv_kf_run(size_t steps, const double *z, const double *x0, const double *P0,
     P[1] = P0[1];
     P[2] = P0[2];
     P[3] = P0[3];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = x[0] + x[1];
-        const double t1 = P[0] + P[1];
-        const double t2 = P[1] + P[3];
-        const double t3 = t1 + t2;
-        const double t4 = 0.0033333333333333335 + t3;
-        const double t5 = 0.005 + t2;
-        const double t6 = 0.01 + P[3];
-        const double t7 = 0.1 + t4;
-        if (!(t7 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = cv_kf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t8 = t4/t7;
-        const double t9 = t5/t7;
-        const double t10 = zk[0] - t0;
-        const double t11 = t10*t8;
-        const double t12 = t10*t9;
-        const double t13 = t0 + t11;
-        const double t14 = x[1] + t12;
-        const double t15 = t4*t8;
-        const double t16 = t5*t8;
-        const double t17 = t5*t9;
-        const double t18 = t4 - t15;
-        const double t19 = t5 - t16;
-        const double t20 = t6 - t17;
-        x_new[0] = t13;
-        x_new[1] = t14;
-        P_new[0] = t18;
-        P_new[1] = t19;
-        P_new[2] = t19;
-        P_new[3] = t20;
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
         P[0] = P_new[0];
@@ -126,278 +147,74 @@ int cv_kf_run(size_t steps, const double *z, const double *x0, const double *P0,
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int cv_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[2], xn_l0[2];
-        double P_l0[4], Pn_l0[4];
-        const double *z_l0;
-        double x_l1[2], xn_l1[2];
-        double P_l1[4], Pn_l1[4];
-        const double *z_l1;
-        double x_l2[2], xn_l2[2];
-        double P_l2[4], Pn_l2[4];
-        const double *z_l2;
-        double x_l3[2], xn_l3[2];
-        double P_l3[4], Pn_l3[4];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 2 + 0];
-        x_l0[1] = x0[(t + 0) * 2 + 1];
-        P_l0[0] = P0[(t + 0) * 4 + 0];
-        P_l0[1] = P0[(t + 0) * 4 + 1];
-        P_l0[2] = P0[(t + 0) * 4 + 2];
-        P_l0[3] = P0[(t + 0) * 4 + 3];
-        x_l1[0] = x0[(t + 1) * 2 + 0];
-        x_l1[1] = x0[(t + 1) * 2 + 1];
-        P_l1[0] = P0[(t + 1) * 4 + 0];
-        P_l1[1] = P0[(t + 1) * 4 + 1];
-        P_l1[2] = P0[(t + 1) * 4 + 2];
-        P_l1[3] = P0[(t + 1) * 4 + 3];
-        x_l2[0] = x0[(t + 2) * 2 + 0];
-        x_l2[1] = x0[(t + 2) * 2 + 1];
-        P_l2[0] = P0[(t + 2) * 4 + 0];
-        P_l2[1] = P0[(t + 2) * 4 + 1];
-        P_l2[2] = P0[(t + 2) * 4 + 2];
-        P_l2[3] = P0[(t + 2) * 4 + 3];
-        x_l3[0] = x0[(t + 3) * 2 + 0];
-        x_l3[1] = x0[(t + 3) * 2 + 1];
-        P_l3[0] = P0[(t + 3) * 4 + 0];
-        P_l3[1] = P0[(t + 3) * 4 + 1];
-        P_l3[2] = P0[(t + 3) * 4 + 2];
-        P_l3[3] = P0[(t + 3) * 4 + 3];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[2 * DERIVE_LANES];
+        double P_b[4 * DERIVE_LANES];
+        double x_new_b[2 * DERIVE_LANES];
+        double P_new_b[4 * DERIVE_LANES];
+        double z_b[1 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 2; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 2 + i];
+            }
+            for (i = 0; i < 4; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 4 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = P_l0[0] + P_l0[1];
-            const double t2_l0 = P_l0[1] + P_l0[3];
-            const double t3_l0 = t1_l0 + t2_l0;
-            const double t4_l0 = 0.0033333333333333335 + t3_l0;
-            const double t5_l0 = 0.005 + t2_l0;
-            const double t6_l0 = 0.01 + P_l0[3];
-            const double t7_l0 = 0.1 + t4_l0;
-            if (!(t7_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
+                }
             }
-            const double t8_l0 = t4_l0/t7_l0;
-            const double t9_l0 = t5_l0/t7_l0;
-            const double t10_l0 = z_l0[0] - t0_l0;
-            const double t11_l0 = t10_l0*t8_l0;
-            const double t12_l0 = t10_l0*t9_l0;
-            const double t13_l0 = t0_l0 + t11_l0;
-            const double t14_l0 = x_l0[1] + t12_l0;
-            const double t15_l0 = t4_l0*t8_l0;
-            const double t16_l0 = t5_l0*t8_l0;
-            const double t17_l0 = t5_l0*t9_l0;
-            const double t18_l0 = t4_l0 - t15_l0;
-            const double t19_l0 = t5_l0 - t16_l0;
-            const double t20_l0 = t6_l0 - t17_l0;
-            xn_l0[0] = t13_l0;
-            xn_l0[1] = t14_l0;
-            Pn_l0[0] = t18_l0;
-            Pn_l0[1] = t19_l0;
-            Pn_l0[2] = t19_l0;
-            Pn_l0[3] = t20_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 1;
-            const double t0_l1 = x_l1[0] + x_l1[1];
-            const double t1_l1 = P_l1[0] + P_l1[1];
-            const double t2_l1 = P_l1[1] + P_l1[3];
-            const double t3_l1 = t1_l1 + t2_l1;
-            const double t4_l1 = 0.0033333333333333335 + t3_l1;
-            const double t5_l1 = 0.005 + t2_l1;
-            const double t6_l1 = 0.01 + P_l1[3];
-            const double t7_l1 = 0.1 + t4_l1;
-            if (!(t7_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 1; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
+                }
             }
-            const double t8_l1 = t4_l1/t7_l1;
-            const double t9_l1 = t5_l1/t7_l1;
-            const double t10_l1 = z_l1[0] - t0_l1;
-            const double t11_l1 = t10_l1*t8_l1;
-            const double t12_l1 = t10_l1*t9_l1;
-            const double t13_l1 = t0_l1 + t11_l1;
-            const double t14_l1 = x_l1[1] + t12_l1;
-            const double t15_l1 = t4_l1*t8_l1;
-            const double t16_l1 = t5_l1*t8_l1;
-            const double t17_l1 = t5_l1*t9_l1;
-            const double t18_l1 = t4_l1 - t15_l1;
-            const double t19_l1 = t5_l1 - t16_l1;
-            const double t20_l1 = t6_l1 - t17_l1;
-            xn_l1[0] = t13_l1;
-            xn_l1[1] = t14_l1;
-            Pn_l1[0] = t18_l1;
-            Pn_l1[1] = t19_l1;
-            Pn_l1[2] = t19_l1;
-            Pn_l1[3] = t20_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 1;
-            const double t0_l2 = x_l2[0] + x_l2[1];
-            const double t1_l2 = P_l2[0] + P_l2[1];
-            const double t2_l2 = P_l2[1] + P_l2[3];
-            const double t3_l2 = t1_l2 + t2_l2;
-            const double t4_l2 = 0.0033333333333333335 + t3_l2;
-            const double t5_l2 = 0.005 + t2_l2;
-            const double t6_l2 = 0.01 + P_l2[3];
-            const double t7_l2 = 0.1 + t4_l2;
-            if (!(t7_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = cv_kf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            const double t8_l2 = t4_l2/t7_l2;
-            const double t9_l2 = t5_l2/t7_l2;
-            const double t10_l2 = z_l2[0] - t0_l2;
-            const double t11_l2 = t10_l2*t8_l2;
-            const double t12_l2 = t10_l2*t9_l2;
-            const double t13_l2 = t0_l2 + t11_l2;
-            const double t14_l2 = x_l2[1] + t12_l2;
-            const double t15_l2 = t4_l2*t8_l2;
-            const double t16_l2 = t5_l2*t8_l2;
-            const double t17_l2 = t5_l2*t9_l2;
-            const double t18_l2 = t4_l2 - t15_l2;
-            const double t19_l2 = t5_l2 - t16_l2;
-            const double t20_l2 = t6_l2 - t17_l2;
-            xn_l2[0] = t13_l2;
-            xn_l2[1] = t14_l2;
-            Pn_l2[0] = t18_l2;
-            Pn_l2[1] = t19_l2;
-            Pn_l2[2] = t19_l2;
-            Pn_l2[3] = t20_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 1;
-            const double t0_l3 = x_l3[0] + x_l3[1];
-            const double t1_l3 = P_l3[0] + P_l3[1];
-            const double t2_l3 = P_l3[1] + P_l3[3];
-            const double t3_l3 = t1_l3 + t2_l3;
-            const double t4_l3 = 0.0033333333333333335 + t3_l3;
-            const double t5_l3 = 0.005 + t2_l3;
-            const double t6_l3 = 0.01 + P_l3[3];
-            const double t7_l3 = 0.1 + t4_l3;
-            if (!(t7_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            const double t8_l3 = t4_l3/t7_l3;
-            const double t9_l3 = t5_l3/t7_l3;
-            const double t10_l3 = z_l3[0] - t0_l3;
-            const double t11_l3 = t10_l3*t8_l3;
-            const double t12_l3 = t10_l3*t9_l3;
-            const double t13_l3 = t0_l3 + t11_l3;
-            const double t14_l3 = x_l3[1] + t12_l3;
-            const double t15_l3 = t4_l3*t8_l3;
-            const double t16_l3 = t5_l3*t8_l3;
-            const double t17_l3 = t5_l3*t9_l3;
-            const double t18_l3 = t4_l3 - t15_l3;
-            const double t19_l3 = t5_l3 - t16_l3;
-            const double t20_l3 = t6_l3 - t17_l3;
-            xn_l3[0] = t13_l3;
-            xn_l3[1] = t14_l3;
-            Pn_l3[0] = t18_l3;
-            Pn_l3[1] = t19_l3;
-            Pn_l3[2] = t19_l3;
-            Pn_l3[3] = t20_l3;
-            xs[((t + 0) * steps + k) * 2 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 2 + 1] = x_l0[1] = xn_l0[1];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 4 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 4 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 4 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 4 + 3] = Pn_l0[3];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 2; ++i) {
+                    xs[((t + j) * steps + k) * 2 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 4; ++i) {
+                        Ps[((t + j) * steps + k) * 4 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            xs[((t + 1) * steps + k) * 2 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 2 + 1] = x_l1[1] = xn_l1[1];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 4 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 4 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 4 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 4 + 3] = Pn_l1[3];
+            for (i = 0; i < 2 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            xs[((t + 2) * steps + k) * 2 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 2 + 1] = x_l2[1] = xn_l2[1];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 4 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 4 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 4 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 4 + 3] = Pn_l2[3];
-            }
-            xs[((t + 3) * steps + k) * 2 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 2 + 1] = x_l3[1] = xn_l3[1];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 4 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 4 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 4 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 4 + 3] = Pn_l3[3];
+            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[2], xn_l0[2];
-        double P_l0[4], Pn_l0[4];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 2 + 0];
-        x_l0[1] = x0[(t + 0) * 2 + 1];
-        P_l0[0] = P0[(t + 0) * 4 + 0];
-        P_l0[1] = P0[(t + 0) * 4 + 1];
-        P_l0[2] = P0[(t + 0) * 4 + 2];
-        P_l0[3] = P0[(t + 0) * 4 + 3];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = P_l0[0] + P_l0[1];
-            const double t2_l0 = P_l0[1] + P_l0[3];
-            const double t3_l0 = t1_l0 + t2_l0;
-            const double t4_l0 = 0.0033333333333333335 + t3_l0;
-            const double t5_l0 = 0.005 + t2_l0;
-            const double t6_l0 = 0.01 + P_l0[3];
-            const double t7_l0 = 0.1 + t4_l0;
-            if (!(t7_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            const double t8_l0 = t4_l0/t7_l0;
-            const double t9_l0 = t5_l0/t7_l0;
-            const double t10_l0 = z_l0[0] - t0_l0;
-            const double t11_l0 = t10_l0*t8_l0;
-            const double t12_l0 = t10_l0*t9_l0;
-            const double t13_l0 = t0_l0 + t11_l0;
-            const double t14_l0 = x_l0[1] + t12_l0;
-            const double t15_l0 = t4_l0*t8_l0;
-            const double t16_l0 = t5_l0*t8_l0;
-            const double t17_l0 = t5_l0*t9_l0;
-            const double t18_l0 = t4_l0 - t15_l0;
-            const double t19_l0 = t5_l0 - t16_l0;
-            const double t20_l0 = t6_l0 - t17_l0;
-            xn_l0[0] = t13_l0;
-            xn_l0[1] = t14_l0;
-            Pn_l0[0] = t18_l0;
-            Pn_l0[1] = t19_l0;
-            Pn_l0[2] = t19_l0;
-            Pn_l0[3] = t20_l0;
-            xs[((t + 0) * steps + k) * 2 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 2 + 1] = x_l0[1] = xn_l0[1];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 4 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 4 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 4 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 4 + 3] = Pn_l0[3];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = cv_kf_run(steps, z + t * steps * 1, x0 + t * 2, P0 + t * 2 * 2, xs + t * steps * 2, Ps ? Ps + t * steps * 2 * 2 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

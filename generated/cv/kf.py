@@ -21,6 +21,8 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -124,37 +126,25 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         keep = rows.extend
-        for k, z_0 in enumerate(zs[:, 0].tolist()):
+        for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1
-            t1 = P_0 + P_1
             t2 = P_1 + P_3
-            t3 = t1 + t2
-            t4 = 0.0033333333333333335 + t3
+            t4 = 0.0033333333333333335 + (P_0 + P_1 + t2)
             t5 = 0.005 + t2
             t6 = 0.01 + P_3
             t7 = 0.1 + t4
             if not t7 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 5}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t8 = t4/t7
             t9 = t5/t7
             t10 = z_0 - t0
-            t11 = t10*t8
-            t12 = t10*t9
-            t13 = t0 + t11
-            t14 = x_1 + t12
-            t15 = t4*t8
-            t16 = t5*t8
-            t17 = t5*t9
-            t18 = t4 - t15
-            t19 = t5 - t16
-            t20 = t6 - t17
-            keep((t13, t14, t18, t19, t20))
-            x_0 = t13
-            x_1 = t14
-            P_0 = t18
-            P_1 = t19
-            P_3 = t20
-        table = np.array(rows, dtype=float).reshape(-1, 5)
+            x_0 = t0 + t10*t8
+            x_1 = x_1 + t10*t9
+            P_0 = t4 - t4*t8
+            P_1 = t5 - t5*t8
+            P_3 = t6 - t5*t9
+            keep((x_0, x_1, P_0, P_1, P_3))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

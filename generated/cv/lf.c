@@ -12,13 +12,14 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void cv_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
  *     void cv_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     void cv_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: cv_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 24, div 2, sqrt 0, fma 18, neg 3, cmp 0, calls 0 (flops 72, instructions 57)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["cv_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["cv_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -33,11 +34,51 @@
 #endif
 #endif
 
-void cv_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void cv_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = 9.67741935483871*P[1];
+    const double t0 = 9.67741935483871*P[1 * s];
     const double t1 = DERIVE_FMA(9.67741935483871, P[0], t0);
-    const double t2 = DERIVE_FMA(9.67741935483871, P[3], t0);
+    const double t2 = DERIVE_FMA(9.67741935483871, P[3 * s], t0);
     const double t3 = 1.0 + t1;
     const double t4 = 1.0 + t2;
     const double t5 = 1.0/t3;
@@ -52,21 +93,21 @@ void cv_lf_step(const double *restrict x, const double *restrict P, const double
     const double t14 = DERIVE_FMA(0.9516129032258065, t9, 0.04838709677419355*t10);
     const double t15 = DERIVE_FMA(0.9516129032258065, t8, 0.04838709677419355*t11);
     const double t16 = 9.67741935483871*z[0];
-    const double t17 = P[1]*t16;
+    const double t17 = P[1 * s]*t16;
     const double t18 = DERIVE_FMA(P[0], t16, t17);
-    const double t19 = DERIVE_FMA(P[3], t16, t17);
+    const double t19 = DERIVE_FMA(P[3 * s], t16, t17);
     const double t20 = x[0] + t18;
-    const double t21 = x[1] + t19;
+    const double t21 = x[1 * s] + t19;
     const double t22 = 0.03225806451612903*z[0];
     const double t23 = 0.04838709677419355*z[0];
     const double t24 = DERIVE_FMA(t13, t21, t12*t20);
     const double t25 = DERIVE_FMA(t15, t21, -(t14*t20));
     const double t26 = t22 + t24;
     const double t27 = t23 + t25;
-    const double t28 = DERIVE_FMA(P[1], t13, P[0]*t12);
-    const double t29 = DERIVE_FMA(P[3], t13, P[1]*t12);
-    const double t30 = DERIVE_FMA(P[1], t15, -(P[0]*t14));
-    const double t31 = DERIVE_FMA(P[3], t15, -(P[1]*t14));
+    const double t28 = DERIVE_FMA(P[1 * s], t13, P[0]*t12);
+    const double t29 = DERIVE_FMA(P[3 * s], t13, P[1 * s]*t12);
+    const double t30 = DERIVE_FMA(P[1 * s], t15, -(P[0]*t14));
+    const double t31 = DERIVE_FMA(P[3 * s], t15, -(P[1 * s]*t14));
     const double t32 = DERIVE_FMA(0.967741935483871, t29, 0.967741935483871*t28);
     const double t33 = DERIVE_FMA(0.9516129032258065, t29, (-0.04838709677419355)*t28);
     const double t34 = DERIVE_FMA(0.9516129032258065, t31, (-0.04838709677419355)*t30);
@@ -74,11 +115,16 @@ void cv_lf_step(const double *restrict x, const double *restrict P, const double
     const double t36 = 0.004838709677419355 + t33;
     const double t37 = 0.009758064516129032 + t34;
     x_new[0] = t26;
-    x_new[1] = t27;
+    x_new[1 * s] = t27;
     P_new[0] = t35;
-    P_new[1] = t36;
-    P_new[2] = t36;
-    P_new[3] = t37;
+    P_new[1 * s] = t36;
+    P_new[2 * s] = t36;
+    P_new[3 * s] = t37;
+}
+
+void cv_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    cv_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
@@ -95,53 +141,10 @@ void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0
     P[1] = P0[1];
     P[2] = P0[2];
     P[3] = P0[3];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = 9.67741935483871*P[1];
-        const double t1 = DERIVE_FMA(9.67741935483871, P[0], t0);
-        const double t2 = DERIVE_FMA(9.67741935483871, P[3], t0);
-        const double t3 = 1.0 + t1;
-        const double t4 = 1.0 + t2;
-        const double t5 = 1.0/t3;
-        const double t6 = t2*t5;
-        const double t7 = t4 - t1*t6;
-        const double t8 = 1.0/t7;
-        const double t9 = t6*t8;
-        const double t10 = t5*DERIVE_FMA(t1, t9, 1.0);
-        const double t11 = t1*t5*t8;
-        const double t12 = DERIVE_FMA((-0.967741935483871), t9, 0.967741935483871*t10);
-        const double t13 = DERIVE_FMA(0.967741935483871, t8, (-0.967741935483871)*t11);
-        const double t14 = DERIVE_FMA(0.9516129032258065, t9, 0.04838709677419355*t10);
-        const double t15 = DERIVE_FMA(0.9516129032258065, t8, 0.04838709677419355*t11);
-        const double t16 = 9.67741935483871*zk[0];
-        const double t17 = P[1]*t16;
-        const double t18 = DERIVE_FMA(P[0], t16, t17);
-        const double t19 = DERIVE_FMA(P[3], t16, t17);
-        const double t20 = x[0] + t18;
-        const double t21 = x[1] + t19;
-        const double t22 = 0.03225806451612903*zk[0];
-        const double t23 = 0.04838709677419355*zk[0];
-        const double t24 = DERIVE_FMA(t13, t21, t12*t20);
-        const double t25 = DERIVE_FMA(t15, t21, -(t14*t20));
-        const double t26 = t22 + t24;
-        const double t27 = t23 + t25;
-        const double t28 = DERIVE_FMA(P[1], t13, P[0]*t12);
-        const double t29 = DERIVE_FMA(P[3], t13, P[1]*t12);
-        const double t30 = DERIVE_FMA(P[1], t15, -(P[0]*t14));
-        const double t31 = DERIVE_FMA(P[3], t15, -(P[1]*t14));
-        const double t32 = DERIVE_FMA(0.967741935483871, t29, 0.967741935483871*t28);
-        const double t33 = DERIVE_FMA(0.9516129032258065, t29, (-0.04838709677419355)*t28);
-        const double t34 = DERIVE_FMA(0.9516129032258065, t31, (-0.04838709677419355)*t30);
-        const double t35 = 0.0032258064516129032 + t32;
-        const double t36 = 0.004838709677419355 + t33;
-        const double t37 = 0.009758064516129032 + t34;
-        x_new[0] = t26;
-        x_new[1] = t27;
-        P_new[0] = t35;
-        P_new[1] = t36;
-        P_new[2] = t36;
-        P_new[3] = t37;
+        cv_lf_step_body(x, P, zk, x_new, P_new, 1);
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
         P[0] = P_new[0];
@@ -159,348 +162,65 @@ void cv_lf_run(size_t steps, const double *z, const double *x0, const double *P0
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 void cv_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[2], xn_l0[2];
-        double P_l0[4], Pn_l0[4];
-        const double *z_l0;
-        double x_l1[2], xn_l1[2];
-        double P_l1[4], Pn_l1[4];
-        const double *z_l1;
-        double x_l2[2], xn_l2[2];
-        double P_l2[4], Pn_l2[4];
-        const double *z_l2;
-        double x_l3[2], xn_l3[2];
-        double P_l3[4], Pn_l3[4];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 2 + 0];
-        x_l0[1] = x0[(t + 0) * 2 + 1];
-        P_l0[0] = P0[(t + 0) * 4 + 0];
-        P_l0[1] = P0[(t + 0) * 4 + 1];
-        P_l0[2] = P0[(t + 0) * 4 + 2];
-        P_l0[3] = P0[(t + 0) * 4 + 3];
-        x_l1[0] = x0[(t + 1) * 2 + 0];
-        x_l1[1] = x0[(t + 1) * 2 + 1];
-        P_l1[0] = P0[(t + 1) * 4 + 0];
-        P_l1[1] = P0[(t + 1) * 4 + 1];
-        P_l1[2] = P0[(t + 1) * 4 + 2];
-        P_l1[3] = P0[(t + 1) * 4 + 3];
-        x_l2[0] = x0[(t + 2) * 2 + 0];
-        x_l2[1] = x0[(t + 2) * 2 + 1];
-        P_l2[0] = P0[(t + 2) * 4 + 0];
-        P_l2[1] = P0[(t + 2) * 4 + 1];
-        P_l2[2] = P0[(t + 2) * 4 + 2];
-        P_l2[3] = P0[(t + 2) * 4 + 3];
-        x_l3[0] = x0[(t + 3) * 2 + 0];
-        x_l3[1] = x0[(t + 3) * 2 + 1];
-        P_l3[0] = P0[(t + 3) * 4 + 0];
-        P_l3[1] = P0[(t + 3) * 4 + 1];
-        P_l3[2] = P0[(t + 3) * 4 + 2];
-        P_l3[3] = P0[(t + 3) * 4 + 3];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[2 * DERIVE_LANES];
+        double P_b[4 * DERIVE_LANES];
+        double x_new_b[2 * DERIVE_LANES];
+        double P_new_b[4 * DERIVE_LANES];
+        double z_b[1 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 2; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 2 + i];
+            }
+            for (i = 0; i < 4; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 4 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = 9.67741935483871*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(9.67741935483871, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(9.67741935483871, P_l0[3], t0_l0);
-            const double t3_l0 = 1.0 + t1_l0;
-            const double t4_l0 = 1.0 + t2_l0;
-            const double t5_l0 = 1.0/t3_l0;
-            const double t6_l0 = t2_l0*t5_l0;
-            const double t7_l0 = t4_l0 - t1_l0*t6_l0;
-            const double t8_l0 = 1.0/t7_l0;
-            const double t9_l0 = t6_l0*t8_l0;
-            const double t10_l0 = t5_l0*DERIVE_FMA(t1_l0, t9_l0, 1.0);
-            const double t11_l0 = t1_l0*t5_l0*t8_l0;
-            const double t12_l0 = DERIVE_FMA((-0.967741935483871), t9_l0, 0.967741935483871*t10_l0);
-            const double t13_l0 = DERIVE_FMA(0.967741935483871, t8_l0, (-0.967741935483871)*t11_l0);
-            const double t14_l0 = DERIVE_FMA(0.9516129032258065, t9_l0, 0.04838709677419355*t10_l0);
-            const double t15_l0 = DERIVE_FMA(0.9516129032258065, t8_l0, 0.04838709677419355*t11_l0);
-            const double t16_l0 = 9.67741935483871*z_l0[0];
-            const double t17_l0 = P_l0[1]*t16_l0;
-            const double t18_l0 = DERIVE_FMA(P_l0[0], t16_l0, t17_l0);
-            const double t19_l0 = DERIVE_FMA(P_l0[3], t16_l0, t17_l0);
-            const double t20_l0 = x_l0[0] + t18_l0;
-            const double t21_l0 = x_l0[1] + t19_l0;
-            const double t22_l0 = 0.03225806451612903*z_l0[0];
-            const double t23_l0 = 0.04838709677419355*z_l0[0];
-            const double t24_l0 = DERIVE_FMA(t13_l0, t21_l0, t12_l0*t20_l0);
-            const double t25_l0 = DERIVE_FMA(t15_l0, t21_l0, -(t14_l0*t20_l0));
-            const double t26_l0 = t22_l0 + t24_l0;
-            const double t27_l0 = t23_l0 + t25_l0;
-            const double t28_l0 = DERIVE_FMA(P_l0[1], t13_l0, P_l0[0]*t12_l0);
-            const double t29_l0 = DERIVE_FMA(P_l0[3], t13_l0, P_l0[1]*t12_l0);
-            const double t30_l0 = DERIVE_FMA(P_l0[1], t15_l0, -(P_l0[0]*t14_l0));
-            const double t31_l0 = DERIVE_FMA(P_l0[3], t15_l0, -(P_l0[1]*t14_l0));
-            const double t32_l0 = DERIVE_FMA(0.967741935483871, t29_l0, 0.967741935483871*t28_l0);
-            const double t33_l0 = DERIVE_FMA(0.9516129032258065, t29_l0, (-0.04838709677419355)*t28_l0);
-            const double t34_l0 = DERIVE_FMA(0.9516129032258065, t31_l0, (-0.04838709677419355)*t30_l0);
-            const double t35_l0 = 0.0032258064516129032 + t32_l0;
-            const double t36_l0 = 0.004838709677419355 + t33_l0;
-            const double t37_l0 = 0.009758064516129032 + t34_l0;
-            xn_l0[0] = t26_l0;
-            xn_l0[1] = t27_l0;
-            Pn_l0[0] = t35_l0;
-            Pn_l0[1] = t36_l0;
-            Pn_l0[2] = t36_l0;
-            Pn_l0[3] = t37_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 1;
-            const double t0_l1 = 9.67741935483871*P_l1[1];
-            const double t1_l1 = DERIVE_FMA(9.67741935483871, P_l1[0], t0_l1);
-            const double t2_l1 = DERIVE_FMA(9.67741935483871, P_l1[3], t0_l1);
-            const double t3_l1 = 1.0 + t1_l1;
-            const double t4_l1 = 1.0 + t2_l1;
-            const double t5_l1 = 1.0/t3_l1;
-            const double t6_l1 = t2_l1*t5_l1;
-            const double t7_l1 = t4_l1 - t1_l1*t6_l1;
-            const double t8_l1 = 1.0/t7_l1;
-            const double t9_l1 = t6_l1*t8_l1;
-            const double t10_l1 = t5_l1*DERIVE_FMA(t1_l1, t9_l1, 1.0);
-            const double t11_l1 = t1_l1*t5_l1*t8_l1;
-            const double t12_l1 = DERIVE_FMA((-0.967741935483871), t9_l1, 0.967741935483871*t10_l1);
-            const double t13_l1 = DERIVE_FMA(0.967741935483871, t8_l1, (-0.967741935483871)*t11_l1);
-            const double t14_l1 = DERIVE_FMA(0.9516129032258065, t9_l1, 0.04838709677419355*t10_l1);
-            const double t15_l1 = DERIVE_FMA(0.9516129032258065, t8_l1, 0.04838709677419355*t11_l1);
-            const double t16_l1 = 9.67741935483871*z_l1[0];
-            const double t17_l1 = P_l1[1]*t16_l1;
-            const double t18_l1 = DERIVE_FMA(P_l1[0], t16_l1, t17_l1);
-            const double t19_l1 = DERIVE_FMA(P_l1[3], t16_l1, t17_l1);
-            const double t20_l1 = x_l1[0] + t18_l1;
-            const double t21_l1 = x_l1[1] + t19_l1;
-            const double t22_l1 = 0.03225806451612903*z_l1[0];
-            const double t23_l1 = 0.04838709677419355*z_l1[0];
-            const double t24_l1 = DERIVE_FMA(t13_l1, t21_l1, t12_l1*t20_l1);
-            const double t25_l1 = DERIVE_FMA(t15_l1, t21_l1, -(t14_l1*t20_l1));
-            const double t26_l1 = t22_l1 + t24_l1;
-            const double t27_l1 = t23_l1 + t25_l1;
-            const double t28_l1 = DERIVE_FMA(P_l1[1], t13_l1, P_l1[0]*t12_l1);
-            const double t29_l1 = DERIVE_FMA(P_l1[3], t13_l1, P_l1[1]*t12_l1);
-            const double t30_l1 = DERIVE_FMA(P_l1[1], t15_l1, -(P_l1[0]*t14_l1));
-            const double t31_l1 = DERIVE_FMA(P_l1[3], t15_l1, -(P_l1[1]*t14_l1));
-            const double t32_l1 = DERIVE_FMA(0.967741935483871, t29_l1, 0.967741935483871*t28_l1);
-            const double t33_l1 = DERIVE_FMA(0.9516129032258065, t29_l1, (-0.04838709677419355)*t28_l1);
-            const double t34_l1 = DERIVE_FMA(0.9516129032258065, t31_l1, (-0.04838709677419355)*t30_l1);
-            const double t35_l1 = 0.0032258064516129032 + t32_l1;
-            const double t36_l1 = 0.004838709677419355 + t33_l1;
-            const double t37_l1 = 0.009758064516129032 + t34_l1;
-            xn_l1[0] = t26_l1;
-            xn_l1[1] = t27_l1;
-            Pn_l1[0] = t35_l1;
-            Pn_l1[1] = t36_l1;
-            Pn_l1[2] = t36_l1;
-            Pn_l1[3] = t37_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 1;
-            const double t0_l2 = 9.67741935483871*P_l2[1];
-            const double t1_l2 = DERIVE_FMA(9.67741935483871, P_l2[0], t0_l2);
-            const double t2_l2 = DERIVE_FMA(9.67741935483871, P_l2[3], t0_l2);
-            const double t3_l2 = 1.0 + t1_l2;
-            const double t4_l2 = 1.0 + t2_l2;
-            const double t5_l2 = 1.0/t3_l2;
-            const double t6_l2 = t2_l2*t5_l2;
-            const double t7_l2 = t4_l2 - t1_l2*t6_l2;
-            const double t8_l2 = 1.0/t7_l2;
-            const double t9_l2 = t6_l2*t8_l2;
-            const double t10_l2 = t5_l2*DERIVE_FMA(t1_l2, t9_l2, 1.0);
-            const double t11_l2 = t1_l2*t5_l2*t8_l2;
-            const double t12_l2 = DERIVE_FMA((-0.967741935483871), t9_l2, 0.967741935483871*t10_l2);
-            const double t13_l2 = DERIVE_FMA(0.967741935483871, t8_l2, (-0.967741935483871)*t11_l2);
-            const double t14_l2 = DERIVE_FMA(0.9516129032258065, t9_l2, 0.04838709677419355*t10_l2);
-            const double t15_l2 = DERIVE_FMA(0.9516129032258065, t8_l2, 0.04838709677419355*t11_l2);
-            const double t16_l2 = 9.67741935483871*z_l2[0];
-            const double t17_l2 = P_l2[1]*t16_l2;
-            const double t18_l2 = DERIVE_FMA(P_l2[0], t16_l2, t17_l2);
-            const double t19_l2 = DERIVE_FMA(P_l2[3], t16_l2, t17_l2);
-            const double t20_l2 = x_l2[0] + t18_l2;
-            const double t21_l2 = x_l2[1] + t19_l2;
-            const double t22_l2 = 0.03225806451612903*z_l2[0];
-            const double t23_l2 = 0.04838709677419355*z_l2[0];
-            const double t24_l2 = DERIVE_FMA(t13_l2, t21_l2, t12_l2*t20_l2);
-            const double t25_l2 = DERIVE_FMA(t15_l2, t21_l2, -(t14_l2*t20_l2));
-            const double t26_l2 = t22_l2 + t24_l2;
-            const double t27_l2 = t23_l2 + t25_l2;
-            const double t28_l2 = DERIVE_FMA(P_l2[1], t13_l2, P_l2[0]*t12_l2);
-            const double t29_l2 = DERIVE_FMA(P_l2[3], t13_l2, P_l2[1]*t12_l2);
-            const double t30_l2 = DERIVE_FMA(P_l2[1], t15_l2, -(P_l2[0]*t14_l2));
-            const double t31_l2 = DERIVE_FMA(P_l2[3], t15_l2, -(P_l2[1]*t14_l2));
-            const double t32_l2 = DERIVE_FMA(0.967741935483871, t29_l2, 0.967741935483871*t28_l2);
-            const double t33_l2 = DERIVE_FMA(0.9516129032258065, t29_l2, (-0.04838709677419355)*t28_l2);
-            const double t34_l2 = DERIVE_FMA(0.9516129032258065, t31_l2, (-0.04838709677419355)*t30_l2);
-            const double t35_l2 = 0.0032258064516129032 + t32_l2;
-            const double t36_l2 = 0.004838709677419355 + t33_l2;
-            const double t37_l2 = 0.009758064516129032 + t34_l2;
-            xn_l2[0] = t26_l2;
-            xn_l2[1] = t27_l2;
-            Pn_l2[0] = t35_l2;
-            Pn_l2[1] = t36_l2;
-            Pn_l2[2] = t36_l2;
-            Pn_l2[3] = t37_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 1;
-            const double t0_l3 = 9.67741935483871*P_l3[1];
-            const double t1_l3 = DERIVE_FMA(9.67741935483871, P_l3[0], t0_l3);
-            const double t2_l3 = DERIVE_FMA(9.67741935483871, P_l3[3], t0_l3);
-            const double t3_l3 = 1.0 + t1_l3;
-            const double t4_l3 = 1.0 + t2_l3;
-            const double t5_l3 = 1.0/t3_l3;
-            const double t6_l3 = t2_l3*t5_l3;
-            const double t7_l3 = t4_l3 - t1_l3*t6_l3;
-            const double t8_l3 = 1.0/t7_l3;
-            const double t9_l3 = t6_l3*t8_l3;
-            const double t10_l3 = t5_l3*DERIVE_FMA(t1_l3, t9_l3, 1.0);
-            const double t11_l3 = t1_l3*t5_l3*t8_l3;
-            const double t12_l3 = DERIVE_FMA((-0.967741935483871), t9_l3, 0.967741935483871*t10_l3);
-            const double t13_l3 = DERIVE_FMA(0.967741935483871, t8_l3, (-0.967741935483871)*t11_l3);
-            const double t14_l3 = DERIVE_FMA(0.9516129032258065, t9_l3, 0.04838709677419355*t10_l3);
-            const double t15_l3 = DERIVE_FMA(0.9516129032258065, t8_l3, 0.04838709677419355*t11_l3);
-            const double t16_l3 = 9.67741935483871*z_l3[0];
-            const double t17_l3 = P_l3[1]*t16_l3;
-            const double t18_l3 = DERIVE_FMA(P_l3[0], t16_l3, t17_l3);
-            const double t19_l3 = DERIVE_FMA(P_l3[3], t16_l3, t17_l3);
-            const double t20_l3 = x_l3[0] + t18_l3;
-            const double t21_l3 = x_l3[1] + t19_l3;
-            const double t22_l3 = 0.03225806451612903*z_l3[0];
-            const double t23_l3 = 0.04838709677419355*z_l3[0];
-            const double t24_l3 = DERIVE_FMA(t13_l3, t21_l3, t12_l3*t20_l3);
-            const double t25_l3 = DERIVE_FMA(t15_l3, t21_l3, -(t14_l3*t20_l3));
-            const double t26_l3 = t22_l3 + t24_l3;
-            const double t27_l3 = t23_l3 + t25_l3;
-            const double t28_l3 = DERIVE_FMA(P_l3[1], t13_l3, P_l3[0]*t12_l3);
-            const double t29_l3 = DERIVE_FMA(P_l3[3], t13_l3, P_l3[1]*t12_l3);
-            const double t30_l3 = DERIVE_FMA(P_l3[1], t15_l3, -(P_l3[0]*t14_l3));
-            const double t31_l3 = DERIVE_FMA(P_l3[3], t15_l3, -(P_l3[1]*t14_l3));
-            const double t32_l3 = DERIVE_FMA(0.967741935483871, t29_l3, 0.967741935483871*t28_l3);
-            const double t33_l3 = DERIVE_FMA(0.9516129032258065, t29_l3, (-0.04838709677419355)*t28_l3);
-            const double t34_l3 = DERIVE_FMA(0.9516129032258065, t31_l3, (-0.04838709677419355)*t30_l3);
-            const double t35_l3 = 0.0032258064516129032 + t32_l3;
-            const double t36_l3 = 0.004838709677419355 + t33_l3;
-            const double t37_l3 = 0.009758064516129032 + t34_l3;
-            xn_l3[0] = t26_l3;
-            xn_l3[1] = t27_l3;
-            Pn_l3[0] = t35_l3;
-            Pn_l3[1] = t36_l3;
-            Pn_l3[2] = t36_l3;
-            Pn_l3[3] = t37_l3;
-            xs[((t + 0) * steps + k) * 2 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 2 + 1] = x_l0[1] = xn_l0[1];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 4 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 4 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 4 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 4 + 3] = Pn_l0[3];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
+                }
             }
-            xs[((t + 1) * steps + k) * 2 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 2 + 1] = x_l1[1] = xn_l1[1];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 4 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 4 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 4 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 4 + 3] = Pn_l1[3];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 1; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
+                }
             }
-            xs[((t + 2) * steps + k) * 2 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 2 + 1] = x_l2[1] = xn_l2[1];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 4 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 4 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 4 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 4 + 3] = Pn_l2[3];
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                cv_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            xs[((t + 3) * steps + k) * 2 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 2 + 1] = x_l3[1] = xn_l3[1];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 4 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 4 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 4 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 4 + 3] = Pn_l3[3];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 2; ++i) {
+                    xs[((t + j) * steps + k) * 2 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 4; ++i) {
+                        Ps[((t + j) * steps + k) * 4 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
+            }
+            for (i = 0; i < 2 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
+            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[2], xn_l0[2];
-        double P_l0[4], Pn_l0[4];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 2 + 0];
-        x_l0[1] = x0[(t + 0) * 2 + 1];
-        P_l0[0] = P0[(t + 0) * 4 + 0];
-        P_l0[1] = P0[(t + 0) * 4 + 1];
-        P_l0[2] = P0[(t + 0) * 4 + 2];
-        P_l0[3] = P0[(t + 0) * 4 + 3];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = 9.67741935483871*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(9.67741935483871, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(9.67741935483871, P_l0[3], t0_l0);
-            const double t3_l0 = 1.0 + t1_l0;
-            const double t4_l0 = 1.0 + t2_l0;
-            const double t5_l0 = 1.0/t3_l0;
-            const double t6_l0 = t2_l0*t5_l0;
-            const double t7_l0 = t4_l0 - t1_l0*t6_l0;
-            const double t8_l0 = 1.0/t7_l0;
-            const double t9_l0 = t6_l0*t8_l0;
-            const double t10_l0 = t5_l0*DERIVE_FMA(t1_l0, t9_l0, 1.0);
-            const double t11_l0 = t1_l0*t5_l0*t8_l0;
-            const double t12_l0 = DERIVE_FMA((-0.967741935483871), t9_l0, 0.967741935483871*t10_l0);
-            const double t13_l0 = DERIVE_FMA(0.967741935483871, t8_l0, (-0.967741935483871)*t11_l0);
-            const double t14_l0 = DERIVE_FMA(0.9516129032258065, t9_l0, 0.04838709677419355*t10_l0);
-            const double t15_l0 = DERIVE_FMA(0.9516129032258065, t8_l0, 0.04838709677419355*t11_l0);
-            const double t16_l0 = 9.67741935483871*z_l0[0];
-            const double t17_l0 = P_l0[1]*t16_l0;
-            const double t18_l0 = DERIVE_FMA(P_l0[0], t16_l0, t17_l0);
-            const double t19_l0 = DERIVE_FMA(P_l0[3], t16_l0, t17_l0);
-            const double t20_l0 = x_l0[0] + t18_l0;
-            const double t21_l0 = x_l0[1] + t19_l0;
-            const double t22_l0 = 0.03225806451612903*z_l0[0];
-            const double t23_l0 = 0.04838709677419355*z_l0[0];
-            const double t24_l0 = DERIVE_FMA(t13_l0, t21_l0, t12_l0*t20_l0);
-            const double t25_l0 = DERIVE_FMA(t15_l0, t21_l0, -(t14_l0*t20_l0));
-            const double t26_l0 = t22_l0 + t24_l0;
-            const double t27_l0 = t23_l0 + t25_l0;
-            const double t28_l0 = DERIVE_FMA(P_l0[1], t13_l0, P_l0[0]*t12_l0);
-            const double t29_l0 = DERIVE_FMA(P_l0[3], t13_l0, P_l0[1]*t12_l0);
-            const double t30_l0 = DERIVE_FMA(P_l0[1], t15_l0, -(P_l0[0]*t14_l0));
-            const double t31_l0 = DERIVE_FMA(P_l0[3], t15_l0, -(P_l0[1]*t14_l0));
-            const double t32_l0 = DERIVE_FMA(0.967741935483871, t29_l0, 0.967741935483871*t28_l0);
-            const double t33_l0 = DERIVE_FMA(0.9516129032258065, t29_l0, (-0.04838709677419355)*t28_l0);
-            const double t34_l0 = DERIVE_FMA(0.9516129032258065, t31_l0, (-0.04838709677419355)*t30_l0);
-            const double t35_l0 = 0.0032258064516129032 + t32_l0;
-            const double t36_l0 = 0.004838709677419355 + t33_l0;
-            const double t37_l0 = 0.009758064516129032 + t34_l0;
-            xn_l0[0] = t26_l0;
-            xn_l0[1] = t27_l0;
-            Pn_l0[0] = t35_l0;
-            Pn_l0[1] = t36_l0;
-            Pn_l0[2] = t36_l0;
-            Pn_l0[3] = t37_l0;
-            xs[((t + 0) * steps + k) * 2 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 2 + 1] = x_l0[1] = xn_l0[1];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 4 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 4 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 4 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 4 + 3] = Pn_l0[3];
-            }
-        }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        cv_lf_run(steps, z + t * steps * 1, x0 + t * 2, P0 + t * 2 * 2, xs + t * steps * 2, Ps ? Ps + t * steps * 2 * 2 : NULL);
     }
 }

@@ -36,6 +36,35 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE void cv_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.23899358033688614, x[0], DERIVE_FMA(0.7610064196631139, z[0], x[1 * s]));
+    const double t1 = DERIVE_FMA((-0.2124787925659489), x[0], DERIVE_FMA(0.2124787925659489, z[0], x[1 * s]));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+}
+
+DERIVE_INLINE void cv_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(1.2389935803368861, x[1 * s], DERIVE_FMA((-0.15536086112370526), x[0], DERIVE_FMA(0.7610064196631139, zn[0], 0.3943544414605914*z[0])));
+    const double t1 = DERIVE_FMA(0.7875212074340511, x[1 * s], DERIVE_FMA((-0.26325985994694356), x[0], DERIVE_FMA(0.2124787925659489, zn[0], 0.050781067380994666*z[0])));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+}
+
 void cv_pred_init(const double *restrict x0, double *restrict x_new)
 {
     const double t0 = x0[0] + x0[1];
@@ -45,10 +74,7 @@ void cv_pred_init(const double *restrict x0, double *restrict x_new)
 
 void cv_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    const double t0 = DERIVE_FMA(0.23899358033688614, x[0], DERIVE_FMA(0.7610064196631139, z[0], x[1]));
-    const double t1 = DERIVE_FMA((-0.2124787925659489), x[0], DERIVE_FMA(0.2124787925659489, z[0], x[1]));
-    x_new[0] = t0;
-    x_new[1] = t1;
+    cv_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
@@ -67,14 +93,8 @@ void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        const double t0 = DERIVE_FMA(0.23899358033688614, x[0], DERIVE_FMA(0.7610064196631139, zk[0], x[1]));
-        const double t1 = DERIVE_FMA((-0.2124787925659489), x[0], DERIVE_FMA(0.2124787925659489, zk[0], x[1]));
-        x_mid[0] = t0;
-        x_mid[1] = t1;
-        const double t2 = DERIVE_FMA(1.2389935803368861, x[1], DERIVE_FMA((-0.15536086112370526), x[0], DERIVE_FMA(0.7610064196631139, znk[0], 0.3943544414605914*zk[0])));
-        const double t3 = DERIVE_FMA(0.7875212074340511, x[1], DERIVE_FMA((-0.26325985994694356), x[0], DERIVE_FMA(0.2124787925659489, znk[0], 0.050781067380994666*zk[0])));
-        x_new[0] = t2;
-        x_new[1] = t3;
+        cv_pred_step_body(x, zk, x_mid, 1);
+        cv_pred_pass_body(x, zk, znk, x_new, 1);
         xs[k * 2 + 0] = x_mid[0];
         xs[k * 2 + 1] = x_mid[1];
         xs[(k + 1) * 2 + 0] = x[0] = x_new[0];
@@ -83,10 +103,7 @@ void cv_pred_run(size_t steps, const double *z, const double *x0, double *xs)
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = DERIVE_FMA(0.23899358033688614, x[0], DERIVE_FMA(0.7610064196631139, zk[0], x[1]));
-        const double t1 = DERIVE_FMA((-0.2124787925659489), x[0], DERIVE_FMA(0.2124787925659489, zk[0], x[1]));
-        x_new[0] = t0;
-        x_new[1] = t1;
+        cv_pred_step_body(x, zk, x_new, 1);
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
     }

@@ -21,6 +21,8 @@ B_N = [[0.7610064196631139], [0.2124787925659489]]
 N = 1
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -91,11 +93,10 @@ def run(zs, x0):
         keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = 0.23899358033688614*x_0 + x_1 + 0.7610064196631139*z_0
-            t1 = x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
-            keep((t0, t1))
+            x_1 = x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
+            keep((t0, x_1))
             x_0 = t0
-            x_1 = t1
-        table = np.array(rows, dtype=float).reshape(-1, 2)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 2)
         return table[:, [0, 1]]
     x = init(x0)
     for k in range(steps):

@@ -40,18 +40,32 @@
 #endif
 #endif
 
-int cv_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int cv_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
-    const double t0 = x[0] + x[1];
-    const double t1 = P[0] + P[1];
-    const double t2 = P[1] + P[3];
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = P[0] + P[1 * s];
+    const double t2 = P[1 * s] + P[3 * s];
     const double t3 = t1 + t2;
     const double t4 = 0.0033333333333333335 + t3;
     const double t5 = 0.005 + t2;
-    const double t6 = 0.01 + P[3];
+    const double t6 = 0.01 + P[3 * s];
     const double t7 = 0.1 + t4;
-    if (!(t7 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t7 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t8 = t4/t7;
     const double t9 = t5/t7;
@@ -59,7 +73,7 @@ int cv_rts_step(const double *restrict x, const double *restrict P, const double
     const double t11 = t10*t8;
     const double t12 = t10*t9;
     const double t13 = t0 + t11;
-    const double t14 = x[1] + t12;
+    const double t14 = x[1 * s] + t12;
     const double t15 = t4*t8;
     const double t16 = t5*t8;
     const double t17 = t5*t9;
@@ -67,18 +81,23 @@ int cv_rts_step(const double *restrict x, const double *restrict P, const double
     const double t19 = t5 - t16;
     const double t20 = t6 - t17;
     x_new[0] = t13;
-    x_new[1] = t14;
+    x_new[1 * s] = t14;
     P_new[0] = t18;
-    P_new[1] = t19;
-    P_new[2] = t19;
-    P_new[3] = t20;
+    P_new[1 * s] = t19;
+    P_new[2 * s] = t19;
+    P_new[3 * s] = t20;
     x_pred[0] = t0;
-    x_pred[1] = x[1];
+    x_pred[1 * s] = x[1 * s];
     P_pred[0] = t4;
-    P_pred[1] = t5;
-    P_pred[2] = t5;
-    P_pred[3] = t6;
-    return 0;
+    P_pred[1 * s] = t5;
+    P_pred[2 * s] = t5;
+    P_pred[3 * s] = t6;
+    return status;
+}
+
+int cv_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
+{
+    return cv_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
 
 int cv_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)

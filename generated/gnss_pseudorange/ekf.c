@@ -23,11 +23,11 @@
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
  *     update1 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 84, mul 110, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 478, instructions 354)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 66, mul 92, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 442, instructions 318)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
  * operations per call of update1 (C99, fma through DERIVE_FMA): add 6, sub 14, mul 22, div 2, sqrt 1, fma 17, neg 0, cmp 1, calls 0 (flops 79, instructions 63)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
+ * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
  * derive-interface: {"functions":[["gnss_pseudorange_ekf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ekf_run","run",true,true,[["z",["steps",4],false,false,false],["u",["steps",12],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["update1",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
@@ -45,36 +45,50 @@
 #endif
 #endif
 
-int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t0 = 0.01 + P[0];
-    const double t1 = 0.01 + P[5];
-    const double t2 = 0.01 + P[10];
-    const double t3 = 0.01 + P[15];
+    const double t1 = 0.01 + P[5 * s];
+    const double t2 = 0.01 + P[10 * s];
+    const double t3 = 0.01 + P[15 * s];
     const double t4 = x[0] - u[0];
-    const double t5 = x[1] - u[1];
-    const double t6 = x[2] - u[2];
+    const double t5 = x[1 * s] - u[1 * s];
+    const double t6 = x[2 * s] - u[2 * s];
     const double t7 = sqrt(DERIVE_FMA(t6, t6, DERIVE_FMA(t5, t5, t4*t4)));
-    const double t8 = x[0] - u[3];
-    const double t9 = x[1] - u[4];
-    const double t10 = x[2] - u[5];
+    const double t8 = x[0] - u[3 * s];
+    const double t9 = x[1 * s] - u[4 * s];
+    const double t10 = x[2 * s] - u[5 * s];
     const double t11 = sqrt(DERIVE_FMA(t9, t9, DERIVE_FMA(t8, t8, t10*t10)));
-    const double t12 = x[0] - u[6];
-    const double t13 = x[1] - u[7];
-    const double t14 = x[2] - u[8];
+    const double t12 = x[0] - u[6 * s];
+    const double t13 = x[1 * s] - u[7 * s];
+    const double t14 = x[2 * s] - u[8 * s];
     const double t15 = sqrt(DERIVE_FMA(t14, t14, DERIVE_FMA(t13, t13, t12*t12)));
-    const double t16 = x[0] - u[9];
-    const double t17 = x[1] - u[10];
-    const double t18 = x[2] - u[11];
+    const double t16 = x[0] - u[9 * s];
+    const double t17 = x[1 * s] - u[10 * s];
+    const double t18 = x[2 * s] - u[11 * s];
     const double t19 = sqrt(DERIVE_FMA(t18, t18, DERIVE_FMA(t17, t17, t16*t16)));
     const double t20 = 1.0/t7;
     const double t21 = 1.0/t11;
     const double t22 = 1.0/t15;
     const double t23 = 1.0/t19;
-    const double t24 = x[3] + t7;
-    const double t25 = x[3] + t11;
-    const double t26 = x[3] + t15;
-    const double t27 = x[3] + t19;
+    const double t24 = x[3 * s] + t7;
+    const double t25 = x[3 * s] + t11;
+    const double t26 = x[3 * s] + t15;
+    const double t27 = x[3 * s] + t19;
     const double t28 = t20*t4;
     const double t29 = t20*t5;
     const double t30 = t20*t6;
@@ -87,22 +101,22 @@ int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P
     const double t37 = t16*t23;
     const double t38 = t17*t23;
     const double t39 = t18*t23;
-    const double t40 = DERIVE_FMA(t0, t28, DERIVE_FMA(P[2], t30, DERIVE_FMA(P[1], t29, P[3])));
-    const double t41 = DERIVE_FMA(t0, t31, DERIVE_FMA(P[2], t33, DERIVE_FMA(P[1], t32, P[3])));
-    const double t42 = DERIVE_FMA(t0, t34, DERIVE_FMA(P[2], t36, DERIVE_FMA(P[1], t35, P[3])));
-    const double t43 = DERIVE_FMA(t0, t37, DERIVE_FMA(P[2], t39, DERIVE_FMA(P[1], t38, P[3])));
-    const double t44 = DERIVE_FMA(t1, t29, DERIVE_FMA(P[6], t30, DERIVE_FMA(P[1], t28, P[7])));
-    const double t45 = DERIVE_FMA(t1, t32, DERIVE_FMA(P[6], t33, DERIVE_FMA(P[1], t31, P[7])));
-    const double t46 = DERIVE_FMA(t1, t35, DERIVE_FMA(P[6], t36, DERIVE_FMA(P[1], t34, P[7])));
-    const double t47 = DERIVE_FMA(t1, t38, DERIVE_FMA(P[6], t39, DERIVE_FMA(P[1], t37, P[7])));
-    const double t48 = DERIVE_FMA(t2, t30, DERIVE_FMA(P[6], t29, DERIVE_FMA(P[2], t28, P[11])));
-    const double t49 = DERIVE_FMA(t2, t33, DERIVE_FMA(P[6], t32, DERIVE_FMA(P[2], t31, P[11])));
-    const double t50 = DERIVE_FMA(t2, t36, DERIVE_FMA(P[6], t35, DERIVE_FMA(P[2], t34, P[11])));
-    const double t51 = DERIVE_FMA(t2, t39, DERIVE_FMA(P[6], t38, DERIVE_FMA(P[2], t37, P[11])));
-    const double t52 = DERIVE_FMA(P[7], t29, DERIVE_FMA(P[3], t28, DERIVE_FMA(P[11], t30, t3)));
-    const double t53 = DERIVE_FMA(P[7], t32, DERIVE_FMA(P[3], t31, DERIVE_FMA(P[11], t33, t3)));
-    const double t54 = DERIVE_FMA(P[7], t35, DERIVE_FMA(P[3], t34, DERIVE_FMA(P[11], t36, t3)));
-    const double t55 = DERIVE_FMA(P[7], t38, DERIVE_FMA(P[3], t37, DERIVE_FMA(P[11], t39, t3)));
+    const double t40 = DERIVE_FMA(t0, t28, DERIVE_FMA(P[2 * s], t30, DERIVE_FMA(P[1 * s], t29, P[3 * s])));
+    const double t41 = DERIVE_FMA(t0, t31, DERIVE_FMA(P[2 * s], t33, DERIVE_FMA(P[1 * s], t32, P[3 * s])));
+    const double t42 = DERIVE_FMA(t0, t34, DERIVE_FMA(P[2 * s], t36, DERIVE_FMA(P[1 * s], t35, P[3 * s])));
+    const double t43 = DERIVE_FMA(t0, t37, DERIVE_FMA(P[2 * s], t39, DERIVE_FMA(P[1 * s], t38, P[3 * s])));
+    const double t44 = DERIVE_FMA(t1, t29, DERIVE_FMA(P[6 * s], t30, DERIVE_FMA(P[1 * s], t28, P[7 * s])));
+    const double t45 = DERIVE_FMA(t1, t32, DERIVE_FMA(P[6 * s], t33, DERIVE_FMA(P[1 * s], t31, P[7 * s])));
+    const double t46 = DERIVE_FMA(t1, t35, DERIVE_FMA(P[6 * s], t36, DERIVE_FMA(P[1 * s], t34, P[7 * s])));
+    const double t47 = DERIVE_FMA(t1, t38, DERIVE_FMA(P[6 * s], t39, DERIVE_FMA(P[1 * s], t37, P[7 * s])));
+    const double t48 = DERIVE_FMA(t2, t30, DERIVE_FMA(P[6 * s], t29, DERIVE_FMA(P[2 * s], t28, P[11 * s])));
+    const double t49 = DERIVE_FMA(t2, t33, DERIVE_FMA(P[6 * s], t32, DERIVE_FMA(P[2 * s], t31, P[11 * s])));
+    const double t50 = DERIVE_FMA(t2, t36, DERIVE_FMA(P[6 * s], t35, DERIVE_FMA(P[2 * s], t34, P[11 * s])));
+    const double t51 = DERIVE_FMA(t2, t39, DERIVE_FMA(P[6 * s], t38, DERIVE_FMA(P[2 * s], t37, P[11 * s])));
+    const double t52 = DERIVE_FMA(P[7 * s], t29, DERIVE_FMA(P[3 * s], t28, DERIVE_FMA(P[11 * s], t30, t3)));
+    const double t53 = DERIVE_FMA(P[7 * s], t32, DERIVE_FMA(P[3 * s], t31, DERIVE_FMA(P[11 * s], t33, t3)));
+    const double t54 = DERIVE_FMA(P[7 * s], t35, DERIVE_FMA(P[3 * s], t34, DERIVE_FMA(P[11 * s], t36, t3)));
+    const double t55 = DERIVE_FMA(P[7 * s], t38, DERIVE_FMA(P[3 * s], t37, DERIVE_FMA(P[11 * s], t39, t3)));
     const double t56 = DERIVE_FMA(t30, t48, DERIVE_FMA(t29, t44, DERIVE_FMA(t28, t40, t52)));
     const double t57 = DERIVE_FMA(t30, t49, DERIVE_FMA(t29, t45, DERIVE_FMA(t28, t41, t53)));
     const double t58 = DERIVE_FMA(t30, t50, DERIVE_FMA(t29, t46, DERIVE_FMA(t28, t42, t54)));
@@ -117,16 +131,16 @@ int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P
     const double t67 = 100.0 + t60;
     const double t68 = 100.0 + t63;
     const double t69 = 100.0 + t65;
-    if (!(t66 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t66 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t70 = 1.0/t66;
     const double t71 = t57*t70;
     const double t72 = t58*t70;
     const double t73 = t59*t70;
     const double t74 = t67 - t57*t71;
-    if (!(t74 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    if (!(t74 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t75 = 1.0/t74;
     const double t76 = t61 - t58*t71;
@@ -134,15 +148,15 @@ int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P
     const double t78 = t62 - t59*t71;
     const double t79 = t75*t78;
     const double t80 = t68 - t58*t72 - t76*t77;
-    if (!(t80 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    if (!(t80 > 0.0) && !status) {
+        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t81 = 1.0/t80;
     const double t82 = t64 - t59*t72 - t77*t78;
     const double t83 = t81*t82;
     const double t84 = t69 - t59*t73 - t78*t79 - t82*t83;
-    if (!(t84 > 0.0)) {
-        return 4; /* S is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
+    if (!(t84 > 0.0) && !status) {
+        status = 4; /* S is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
     const double t85 = 1.0/t84;
     const double t86 = t41 - t40*t71;
@@ -173,71 +187,67 @@ int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P
     const double t111 = t85*t91;
     const double t112 = t85*t94;
     const double t113 = t85*t97;
-    const double t114 = t106 - t110*t83;
-    const double t115 = t102 - t110*t79 - t114*t77;
-    const double t116 = t98 - t110*t73 - t114*t72 - t115*t71;
-    const double t117 = t107 - t111*t83;
-    const double t118 = t103 - t111*t79 - t117*t77;
-    const double t119 = t99 - t111*t73 - t117*t72 - t118*t71;
-    const double t120 = t108 - t112*t83;
-    const double t121 = t104 - t112*t79 - t120*t77;
-    const double t122 = t100 - t112*t73 - t120*t72 - t121*t71;
-    const double t123 = t109 - t113*t83;
-    const double t124 = t105 - t113*t79 - t123*t77;
-    const double t125 = t101 - t113*t73 - t123*t72 - t124*t71;
-    const double t126 = z[0] - t24;
-    const double t127 = z[1] - t25;
-    const double t128 = z[2] - t26;
-    const double t129 = z[3] - t27;
-    const double t130 = DERIVE_FMA(t116, t126, DERIVE_FMA(t115, t127, DERIVE_FMA(t114, t128, t110*t129)));
-    const double t131 = DERIVE_FMA(t119, t126, DERIVE_FMA(t118, t127, DERIVE_FMA(t117, t128, t111*t129)));
-    const double t132 = DERIVE_FMA(t122, t126, DERIVE_FMA(t121, t127, DERIVE_FMA(t120, t128, t112*t129)));
-    const double t133 = DERIVE_FMA(t125, t126, DERIVE_FMA(t124, t127, DERIVE_FMA(t123, t128, t113*t129)));
-    const double t134 = x[0] + t130;
-    const double t135 = x[1] + t131;
-    const double t136 = x[2] + t132;
-    const double t137 = x[3] + t133;
-    const double t138 = DERIVE_FMA(t116, t40, DERIVE_FMA(t115, t41, DERIVE_FMA(t114, t42, t110*t43)));
-    const double t139 = DERIVE_FMA(t116, t44, DERIVE_FMA(t115, t45, DERIVE_FMA(t114, t46, t110*t47)));
-    const double t140 = DERIVE_FMA(t116, t48, DERIVE_FMA(t115, t49, DERIVE_FMA(t114, t50, t110*t51)));
-    const double t141 = DERIVE_FMA(t116, t52, DERIVE_FMA(t115, t53, DERIVE_FMA(t114, t54, t110*t55)));
-    const double t142 = DERIVE_FMA(t119, t44, DERIVE_FMA(t118, t45, DERIVE_FMA(t117, t46, t111*t47)));
-    const double t143 = DERIVE_FMA(t119, t48, DERIVE_FMA(t118, t49, DERIVE_FMA(t117, t50, t111*t51)));
-    const double t144 = DERIVE_FMA(t119, t52, DERIVE_FMA(t118, t53, DERIVE_FMA(t117, t54, t111*t55)));
-    const double t145 = DERIVE_FMA(t122, t48, DERIVE_FMA(t121, t49, DERIVE_FMA(t120, t50, t112*t51)));
-    const double t146 = DERIVE_FMA(t122, t52, DERIVE_FMA(t121, t53, DERIVE_FMA(t120, t54, t112*t55)));
-    const double t147 = DERIVE_FMA(t125, t52, DERIVE_FMA(t124, t53, DERIVE_FMA(t123, t54, t113*t55)));
-    const double t148 = t0 - t138;
-    const double t149 = P[1] - t139;
-    const double t150 = P[2] - t140;
-    const double t151 = P[3] - t141;
-    const double t152 = t1 - t142;
-    const double t153 = P[6] - t143;
-    const double t154 = P[7] - t144;
-    const double t155 = t2 - t145;
-    const double t156 = P[11] - t146;
-    const double t157 = t3 - t147;
-    x_new[0] = t134;
-    x_new[1] = t135;
-    x_new[2] = t136;
-    x_new[3] = t137;
-    P_new[0] = t148;
-    P_new[1] = t149;
-    P_new[2] = t150;
-    P_new[3] = t151;
-    P_new[4] = t149;
-    P_new[5] = t152;
-    P_new[6] = t153;
-    P_new[7] = t154;
-    P_new[8] = t150;
-    P_new[9] = t153;
-    P_new[10] = t155;
-    P_new[11] = t156;
-    P_new[12] = t151;
-    P_new[13] = t154;
-    P_new[14] = t156;
-    P_new[15] = t157;
-    return 0;
+    const double t114 = z[0] - t24;
+    const double t115 = z[1 * s] - t25;
+    const double t116 = z[2 * s] - t26;
+    const double t117 = z[3 * s] - t27;
+    const double t118 = t115 - t114*t71;
+    const double t119 = t116 - t114*t72 - t118*t77;
+    const double t120 = t117 - t114*t73 - t118*t79 - t119*t83;
+    const double t121 = DERIVE_FMA(t114, t98, DERIVE_FMA(t110, t120, DERIVE_FMA(t106, t119, t102*t118)));
+    const double t122 = DERIVE_FMA(t114, t99, DERIVE_FMA(t111, t120, DERIVE_FMA(t107, t119, t103*t118)));
+    const double t123 = DERIVE_FMA(t112, t120, DERIVE_FMA(t108, t119, DERIVE_FMA(t104, t118, t100*t114)));
+    const double t124 = DERIVE_FMA(t113, t120, DERIVE_FMA(t109, t119, DERIVE_FMA(t105, t118, t101*t114)));
+    const double t125 = x[0] + t121;
+    const double t126 = x[1 * s] + t122;
+    const double t127 = x[2 * s] + t123;
+    const double t128 = x[3 * s] + t124;
+    const double t129 = DERIVE_FMA(t40, t98, DERIVE_FMA(t110, t88, DERIVE_FMA(t106, t87, t102*t86)));
+    const double t130 = DERIVE_FMA(t44, t98, DERIVE_FMA(t110, t91, DERIVE_FMA(t106, t90, t102*t89)));
+    const double t131 = DERIVE_FMA(t48, t98, DERIVE_FMA(t110, t94, DERIVE_FMA(t106, t93, t102*t92)));
+    const double t132 = DERIVE_FMA(t52, t98, DERIVE_FMA(t110, t97, DERIVE_FMA(t106, t96, t102*t95)));
+    const double t133 = DERIVE_FMA(t44, t99, DERIVE_FMA(t111, t91, DERIVE_FMA(t107, t90, t103*t89)));
+    const double t134 = DERIVE_FMA(t48, t99, DERIVE_FMA(t111, t94, DERIVE_FMA(t107, t93, t103*t92)));
+    const double t135 = DERIVE_FMA(t52, t99, DERIVE_FMA(t111, t97, DERIVE_FMA(t107, t96, t103*t95)));
+    const double t136 = DERIVE_FMA(t112, t94, DERIVE_FMA(t108, t93, DERIVE_FMA(t104, t92, t100*t48)));
+    const double t137 = DERIVE_FMA(t112, t97, DERIVE_FMA(t108, t96, DERIVE_FMA(t104, t95, t100*t52)));
+    const double t138 = DERIVE_FMA(t113, t97, DERIVE_FMA(t109, t96, DERIVE_FMA(t105, t95, t101*t52)));
+    const double t139 = t0 - t129;
+    const double t140 = P[1 * s] - t130;
+    const double t141 = P[2 * s] - t131;
+    const double t142 = P[3 * s] - t132;
+    const double t143 = t1 - t133;
+    const double t144 = P[6 * s] - t134;
+    const double t145 = P[7 * s] - t135;
+    const double t146 = t2 - t136;
+    const double t147 = P[11 * s] - t137;
+    const double t148 = t3 - t138;
+    x_new[0] = t125;
+    x_new[1 * s] = t126;
+    x_new[2 * s] = t127;
+    x_new[3 * s] = t128;
+    P_new[0] = t139;
+    P_new[1 * s] = t140;
+    P_new[2 * s] = t141;
+    P_new[3 * s] = t142;
+    P_new[4 * s] = t140;
+    P_new[5 * s] = t143;
+    P_new[6 * s] = t144;
+    P_new[7 * s] = t145;
+    P_new[8 * s] = t141;
+    P_new[9 * s] = t144;
+    P_new[10 * s] = t146;
+    P_new[11 * s] = t147;
+    P_new[12 * s] = t142;
+    P_new[13 * s] = t145;
+    P_new[14 * s] = t147;
+    P_new[15 * s] = t148;
+    return status;
+}
+
+int gnss_pseudorange_ekf_step(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new)
+{
+    return gnss_pseudorange_ekf_step_body(x, P, z, u, x_new, P_new, 1);
 }
 
 void gnss_pseudorange_ekf_predict(const double *restrict x, const double *restrict P, double *restrict x_new, double *restrict P_new)
@@ -377,200 +387,14 @@ int gnss_pseudorange_ekf_run(size_t steps, const double *z, const double *u, con
     P[13] = P0[13];
     P[14] = P0[14];
     P[15] = P0[15];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 4;
         const double *restrict uk = u + k * 12;
-        const double t0 = 0.01 + P[0];
-        const double t1 = 0.01 + P[5];
-        const double t2 = 0.01 + P[10];
-        const double t3 = 0.01 + P[15];
-        const double t4 = x[0] - uk[0];
-        const double t5 = x[1] - uk[1];
-        const double t6 = x[2] - uk[2];
-        const double t7 = sqrt(DERIVE_FMA(t6, t6, DERIVE_FMA(t5, t5, t4*t4)));
-        const double t8 = x[0] - uk[3];
-        const double t9 = x[1] - uk[4];
-        const double t10 = x[2] - uk[5];
-        const double t11 = sqrt(DERIVE_FMA(t9, t9, DERIVE_FMA(t8, t8, t10*t10)));
-        const double t12 = x[0] - uk[6];
-        const double t13 = x[1] - uk[7];
-        const double t14 = x[2] - uk[8];
-        const double t15 = sqrt(DERIVE_FMA(t14, t14, DERIVE_FMA(t13, t13, t12*t12)));
-        const double t16 = x[0] - uk[9];
-        const double t17 = x[1] - uk[10];
-        const double t18 = x[2] - uk[11];
-        const double t19 = sqrt(DERIVE_FMA(t18, t18, DERIVE_FMA(t17, t17, t16*t16)));
-        const double t20 = 1.0/t7;
-        const double t21 = 1.0/t11;
-        const double t22 = 1.0/t15;
-        const double t23 = 1.0/t19;
-        const double t24 = x[3] + t7;
-        const double t25 = x[3] + t11;
-        const double t26 = x[3] + t15;
-        const double t27 = x[3] + t19;
-        const double t28 = t20*t4;
-        const double t29 = t20*t5;
-        const double t30 = t20*t6;
-        const double t31 = t21*t8;
-        const double t32 = t21*t9;
-        const double t33 = t10*t21;
-        const double t34 = t12*t22;
-        const double t35 = t13*t22;
-        const double t36 = t14*t22;
-        const double t37 = t16*t23;
-        const double t38 = t17*t23;
-        const double t39 = t18*t23;
-        const double t40 = DERIVE_FMA(t0, t28, DERIVE_FMA(P[2], t30, DERIVE_FMA(P[1], t29, P[3])));
-        const double t41 = DERIVE_FMA(t0, t31, DERIVE_FMA(P[2], t33, DERIVE_FMA(P[1], t32, P[3])));
-        const double t42 = DERIVE_FMA(t0, t34, DERIVE_FMA(P[2], t36, DERIVE_FMA(P[1], t35, P[3])));
-        const double t43 = DERIVE_FMA(t0, t37, DERIVE_FMA(P[2], t39, DERIVE_FMA(P[1], t38, P[3])));
-        const double t44 = DERIVE_FMA(t1, t29, DERIVE_FMA(P[6], t30, DERIVE_FMA(P[1], t28, P[7])));
-        const double t45 = DERIVE_FMA(t1, t32, DERIVE_FMA(P[6], t33, DERIVE_FMA(P[1], t31, P[7])));
-        const double t46 = DERIVE_FMA(t1, t35, DERIVE_FMA(P[6], t36, DERIVE_FMA(P[1], t34, P[7])));
-        const double t47 = DERIVE_FMA(t1, t38, DERIVE_FMA(P[6], t39, DERIVE_FMA(P[1], t37, P[7])));
-        const double t48 = DERIVE_FMA(t2, t30, DERIVE_FMA(P[6], t29, DERIVE_FMA(P[2], t28, P[11])));
-        const double t49 = DERIVE_FMA(t2, t33, DERIVE_FMA(P[6], t32, DERIVE_FMA(P[2], t31, P[11])));
-        const double t50 = DERIVE_FMA(t2, t36, DERIVE_FMA(P[6], t35, DERIVE_FMA(P[2], t34, P[11])));
-        const double t51 = DERIVE_FMA(t2, t39, DERIVE_FMA(P[6], t38, DERIVE_FMA(P[2], t37, P[11])));
-        const double t52 = DERIVE_FMA(P[7], t29, DERIVE_FMA(P[3], t28, DERIVE_FMA(P[11], t30, t3)));
-        const double t53 = DERIVE_FMA(P[7], t32, DERIVE_FMA(P[3], t31, DERIVE_FMA(P[11], t33, t3)));
-        const double t54 = DERIVE_FMA(P[7], t35, DERIVE_FMA(P[3], t34, DERIVE_FMA(P[11], t36, t3)));
-        const double t55 = DERIVE_FMA(P[7], t38, DERIVE_FMA(P[3], t37, DERIVE_FMA(P[11], t39, t3)));
-        const double t56 = DERIVE_FMA(t30, t48, DERIVE_FMA(t29, t44, DERIVE_FMA(t28, t40, t52)));
-        const double t57 = DERIVE_FMA(t30, t49, DERIVE_FMA(t29, t45, DERIVE_FMA(t28, t41, t53)));
-        const double t58 = DERIVE_FMA(t30, t50, DERIVE_FMA(t29, t46, DERIVE_FMA(t28, t42, t54)));
-        const double t59 = DERIVE_FMA(t30, t51, DERIVE_FMA(t29, t47, DERIVE_FMA(t28, t43, t55)));
-        const double t60 = DERIVE_FMA(t33, t49, DERIVE_FMA(t32, t45, DERIVE_FMA(t31, t41, t53)));
-        const double t61 = DERIVE_FMA(t33, t50, DERIVE_FMA(t32, t46, DERIVE_FMA(t31, t42, t54)));
-        const double t62 = DERIVE_FMA(t33, t51, DERIVE_FMA(t32, t47, DERIVE_FMA(t31, t43, t55)));
-        const double t63 = DERIVE_FMA(t36, t50, DERIVE_FMA(t35, t46, DERIVE_FMA(t34, t42, t54)));
-        const double t64 = DERIVE_FMA(t36, t51, DERIVE_FMA(t35, t47, DERIVE_FMA(t34, t43, t55)));
-        const double t65 = DERIVE_FMA(t39, t51, DERIVE_FMA(t38, t47, DERIVE_FMA(t37, t43, t55)));
-        const double t66 = 100.0 + t56;
-        const double t67 = 100.0 + t60;
-        const double t68 = 100.0 + t63;
-        const double t69 = 100.0 + t65;
-        if (!(t66 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = gnss_pseudorange_ekf_step_body(x, P, zk, uk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t70 = 1.0/t66;
-        const double t71 = t57*t70;
-        const double t72 = t58*t70;
-        const double t73 = t59*t70;
-        const double t74 = t67 - t57*t71;
-        if (!(t74 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        const double t75 = 1.0/t74;
-        const double t76 = t61 - t58*t71;
-        const double t77 = t75*t76;
-        const double t78 = t62 - t59*t71;
-        const double t79 = t75*t78;
-        const double t80 = t68 - t58*t72 - t76*t77;
-        if (!(t80 > 0.0)) {
-            return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-        }
-        const double t81 = 1.0/t80;
-        const double t82 = t64 - t59*t72 - t77*t78;
-        const double t83 = t81*t82;
-        const double t84 = t69 - t59*t73 - t78*t79 - t82*t83;
-        if (!(t84 > 0.0)) {
-            return 4; /* S is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
-        }
-        const double t85 = 1.0/t84;
-        const double t86 = t41 - t40*t71;
-        const double t87 = t42 - t40*t72 - t77*t86;
-        const double t88 = t43 - t40*t73 - t79*t86 - t83*t87;
-        const double t89 = t45 - t44*t71;
-        const double t90 = t46 - t44*t72 - t77*t89;
-        const double t91 = t47 - t44*t73 - t79*t89 - t83*t90;
-        const double t92 = t49 - t48*t71;
-        const double t93 = t50 - t48*t72 - t77*t92;
-        const double t94 = t51 - t48*t73 - t79*t92 - t83*t93;
-        const double t95 = t53 - t52*t71;
-        const double t96 = t54 - t52*t72 - t77*t95;
-        const double t97 = t55 - t52*t73 - t79*t95 - t83*t96;
-        const double t98 = t40*t70;
-        const double t99 = t44*t70;
-        const double t100 = t48*t70;
-        const double t101 = t52*t70;
-        const double t102 = t75*t86;
-        const double t103 = t75*t89;
-        const double t104 = t75*t92;
-        const double t105 = t75*t95;
-        const double t106 = t81*t87;
-        const double t107 = t81*t90;
-        const double t108 = t81*t93;
-        const double t109 = t81*t96;
-        const double t110 = t85*t88;
-        const double t111 = t85*t91;
-        const double t112 = t85*t94;
-        const double t113 = t85*t97;
-        const double t114 = t106 - t110*t83;
-        const double t115 = t102 - t110*t79 - t114*t77;
-        const double t116 = t98 - t110*t73 - t114*t72 - t115*t71;
-        const double t117 = t107 - t111*t83;
-        const double t118 = t103 - t111*t79 - t117*t77;
-        const double t119 = t99 - t111*t73 - t117*t72 - t118*t71;
-        const double t120 = t108 - t112*t83;
-        const double t121 = t104 - t112*t79 - t120*t77;
-        const double t122 = t100 - t112*t73 - t120*t72 - t121*t71;
-        const double t123 = t109 - t113*t83;
-        const double t124 = t105 - t113*t79 - t123*t77;
-        const double t125 = t101 - t113*t73 - t123*t72 - t124*t71;
-        const double t126 = zk[0] - t24;
-        const double t127 = zk[1] - t25;
-        const double t128 = zk[2] - t26;
-        const double t129 = zk[3] - t27;
-        const double t130 = DERIVE_FMA(t116, t126, DERIVE_FMA(t115, t127, DERIVE_FMA(t114, t128, t110*t129)));
-        const double t131 = DERIVE_FMA(t119, t126, DERIVE_FMA(t118, t127, DERIVE_FMA(t117, t128, t111*t129)));
-        const double t132 = DERIVE_FMA(t122, t126, DERIVE_FMA(t121, t127, DERIVE_FMA(t120, t128, t112*t129)));
-        const double t133 = DERIVE_FMA(t125, t126, DERIVE_FMA(t124, t127, DERIVE_FMA(t123, t128, t113*t129)));
-        const double t134 = x[0] + t130;
-        const double t135 = x[1] + t131;
-        const double t136 = x[2] + t132;
-        const double t137 = x[3] + t133;
-        const double t138 = DERIVE_FMA(t116, t40, DERIVE_FMA(t115, t41, DERIVE_FMA(t114, t42, t110*t43)));
-        const double t139 = DERIVE_FMA(t116, t44, DERIVE_FMA(t115, t45, DERIVE_FMA(t114, t46, t110*t47)));
-        const double t140 = DERIVE_FMA(t116, t48, DERIVE_FMA(t115, t49, DERIVE_FMA(t114, t50, t110*t51)));
-        const double t141 = DERIVE_FMA(t116, t52, DERIVE_FMA(t115, t53, DERIVE_FMA(t114, t54, t110*t55)));
-        const double t142 = DERIVE_FMA(t119, t44, DERIVE_FMA(t118, t45, DERIVE_FMA(t117, t46, t111*t47)));
-        const double t143 = DERIVE_FMA(t119, t48, DERIVE_FMA(t118, t49, DERIVE_FMA(t117, t50, t111*t51)));
-        const double t144 = DERIVE_FMA(t119, t52, DERIVE_FMA(t118, t53, DERIVE_FMA(t117, t54, t111*t55)));
-        const double t145 = DERIVE_FMA(t122, t48, DERIVE_FMA(t121, t49, DERIVE_FMA(t120, t50, t112*t51)));
-        const double t146 = DERIVE_FMA(t122, t52, DERIVE_FMA(t121, t53, DERIVE_FMA(t120, t54, t112*t55)));
-        const double t147 = DERIVE_FMA(t125, t52, DERIVE_FMA(t124, t53, DERIVE_FMA(t123, t54, t113*t55)));
-        const double t148 = t0 - t138;
-        const double t149 = P[1] - t139;
-        const double t150 = P[2] - t140;
-        const double t151 = P[3] - t141;
-        const double t152 = t1 - t142;
-        const double t153 = P[6] - t143;
-        const double t154 = P[7] - t144;
-        const double t155 = t2 - t145;
-        const double t156 = P[11] - t146;
-        const double t157 = t3 - t147;
-        x_new[0] = t134;
-        x_new[1] = t135;
-        x_new[2] = t136;
-        x_new[3] = t137;
-        P_new[0] = t148;
-        P_new[1] = t149;
-        P_new[2] = t150;
-        P_new[3] = t151;
-        P_new[4] = t149;
-        P_new[5] = t152;
-        P_new[6] = t153;
-        P_new[7] = t154;
-        P_new[8] = t150;
-        P_new[9] = t153;
-        P_new[10] = t155;
-        P_new[11] = t156;
-        P_new[12] = t151;
-        P_new[13] = t154;
-        P_new[14] = t156;
-        P_new[15] = t157;
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];

@@ -23,14 +23,16 @@ status (C return value; Python raises NumericalError): 0 success
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
     update1 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 144, sub 84, mul 238, div 8, sqrt 4, fma 0, neg 0, cmp 4, calls 0 (flops 478, instructions 482)
+operations per call of step (Python): add 144, sub 66, mul 220, div 8, sqrt 4, fma 0, neg 0, cmp 4, calls 0 (flops 442, instructions 446)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 1, calls 0 (flops 79, instructions 80)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
-Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
+Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
 per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
 """
+
+import struct
 
 import numpy as np
 
@@ -203,54 +205,45 @@ def step(x, P, z, u):
     t111 = t85*t91
     t112 = t85*t94
     t113 = t85*t97
-    t114 = t106 - t110*t83
-    t115 = t102 - t110*t79 - t114*t77
-    t116 = t98 - t110*t73 - t114*t72 - t115*t71
-    t117 = t107 - t111*t83
-    t118 = t103 - t111*t79 - t117*t77
-    t119 = t99 - t111*t73 - t117*t72 - t118*t71
-    t120 = t108 - t112*t83
-    t121 = t104 - t112*t79 - t120*t77
-    t122 = t100 - t112*t73 - t120*t72 - t121*t71
-    t123 = t109 - t113*t83
-    t124 = t105 - t113*t79 - t123*t77
-    t125 = t101 - t113*t73 - t123*t72 - t124*t71
-    t126 = z[0] - t24
-    t127 = z[1] - t25
-    t128 = z[2] - t26
-    t129 = z[3] - t27
-    t130 = t110*t129 + t114*t128 + t115*t127 + t116*t126
-    t131 = t111*t129 + t117*t128 + t118*t127 + t119*t126
-    t132 = t112*t129 + t120*t128 + t121*t127 + t122*t126
-    t133 = t113*t129 + t123*t128 + t124*t127 + t125*t126
-    t134 = x[0] + t130
-    t135 = x[1] + t131
-    t136 = x[2] + t132
-    t137 = x[3] + t133
-    t138 = t110*t43 + t114*t42 + t115*t41 + t116*t40
-    t139 = t110*t47 + t114*t46 + t115*t45 + t116*t44
-    t140 = t110*t51 + t114*t50 + t115*t49 + t116*t48
-    t141 = t110*t55 + t114*t54 + t115*t53 + t116*t52
-    t142 = t111*t47 + t117*t46 + t118*t45 + t119*t44
-    t143 = t111*t51 + t117*t50 + t118*t49 + t119*t48
-    t144 = t111*t55 + t117*t54 + t118*t53 + t119*t52
-    t145 = t112*t51 + t120*t50 + t121*t49 + t122*t48
-    t146 = t112*t55 + t120*t54 + t121*t53 + t122*t52
-    t147 = t113*t55 + t123*t54 + t124*t53 + t125*t52
-    t148 = t0 - t138
-    t149 = P[1] - t139
-    t150 = P[2] - t140
-    t151 = P[3] - t141
-    t152 = t1 - t142
-    t153 = P[6] - t143
-    t154 = P[7] - t144
-    t155 = t2 - t145
-    t156 = P[11] - t146
-    t157 = t3 - t147
-    x_new = [t134, t135, t136, t137]
+    t114 = z[0] - t24
+    t115 = z[1] - t25
+    t116 = z[2] - t26
+    t117 = z[3] - t27
+    t118 = t115 - t114*t71
+    t119 = t116 - t114*t72 - t118*t77
+    t120 = t117 - t114*t73 - t118*t79 - t119*t83
+    t121 = t102*t118 + t106*t119 + t110*t120 + t114*t98
+    t122 = t103*t118 + t107*t119 + t111*t120 + t114*t99
+    t123 = t100*t114 + t104*t118 + t108*t119 + t112*t120
+    t124 = t101*t114 + t105*t118 + t109*t119 + t113*t120
+    t125 = x[0] + t121
+    t126 = x[1] + t122
+    t127 = x[2] + t123
+    t128 = x[3] + t124
+    t129 = t102*t86 + t106*t87 + t110*t88 + t40*t98
+    t130 = t102*t89 + t106*t90 + t110*t91 + t44*t98
+    t131 = t102*t92 + t106*t93 + t110*t94 + t48*t98
+    t132 = t102*t95 + t106*t96 + t110*t97 + t52*t98
+    t133 = t103*t89 + t107*t90 + t111*t91 + t44*t99
+    t134 = t103*t92 + t107*t93 + t111*t94 + t48*t99
+    t135 = t103*t95 + t107*t96 + t111*t97 + t52*t99
+    t136 = t100*t48 + t104*t92 + t108*t93 + t112*t94
+    t137 = t100*t52 + t104*t95 + t108*t96 + t112*t97
+    t138 = t101*t52 + t105*t95 + t109*t96 + t113*t97
+    t139 = t0 - t129
+    t140 = P[1] - t130
+    t141 = P[2] - t131
+    t142 = P[3] - t132
+    t143 = t1 - t133
+    t144 = P[6] - t134
+    t145 = P[7] - t135
+    t146 = t2 - t136
+    t147 = P[11] - t137
+    t148 = t3 - t138
+    x_new = [t125, t126, t127, t128]
     P_new = [
-        t148, t149, t150, t151, t149, t152, t153, t154, t150, t153, t155, t156, t151, t154,
-        t156, t157,
+        t139, t140, t141, t142, t140, t143, t144, t145, t141, t144, t146, t147, t142, t145,
+        t147, t148,
     ]
     return x_new, P_new
 
@@ -386,7 +379,7 @@ def run(zs, us, x0, P0):
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
         keep = rows.extend
-        for k, (zk, uk) in enumerate(zip(zs.tolist(), us.tolist())):
+        for (zk, uk) in zip(zs.tolist(), us.tolist()):
             z_0, z_1, z_2, z_3 = zk
             u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
             t0 = 0.01 + P_0
@@ -445,29 +438,25 @@ def run(zs, us, x0, P0):
             t53 = t3 + P_11*t33 + P_3*t31 + P_7*t32
             t54 = t3 + P_11*t36 + P_3*t34 + P_7*t35
             t55 = t3 + P_11*t39 + P_3*t37 + P_7*t38
-            t56 = t52 + t28*t40 + t29*t44 + t30*t48
             t57 = t53 + t28*t41 + t29*t45 + t30*t49
             t58 = t54 + t28*t42 + t29*t46 + t30*t50
             t59 = t55 + t28*t43 + t29*t47 + t30*t51
-            t60 = t53 + t31*t41 + t32*t45 + t33*t49
             t61 = t54 + t31*t42 + t32*t46 + t33*t50
             t62 = t55 + t31*t43 + t32*t47 + t33*t51
-            t63 = t54 + t34*t42 + t35*t46 + t36*t50
             t64 = t55 + t34*t43 + t35*t47 + t36*t51
-            t65 = t55 + t37*t43 + t38*t47 + t39*t51
-            t66 = 100.0 + t56
-            t67 = 100.0 + t60
-            t68 = 100.0 + t63
-            t69 = 100.0 + t65
+            t66 = 100.0 + (t52 + t28*t40 + t29*t44 + t30*t48)
+            t67 = 100.0 + (t53 + t31*t41 + t32*t45 + t33*t49)
+            t68 = 100.0 + (t54 + t34*t42 + t35*t46 + t36*t50)
+            t69 = 100.0 + (t55 + t37*t43 + t38*t47 + t39*t51)
             if not t66 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t70 = 1.0/t66
             t71 = t57*t70
             t72 = t58*t70
             t73 = t59*t70
             t74 = t67 - t57*t71
             if not t74 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t75 = 1.0/t74
             t76 = t61 - t58*t71
             t77 = t75*t76
@@ -475,13 +464,13 @@ def run(zs, us, x0, P0):
             t79 = t75*t78
             t80 = t68 - t58*t72 - t76*t77
             if not t80 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t81 = 1.0/t80
             t82 = t64 - t59*t72 - t77*t78
             t83 = t81*t82
             t84 = t69 - t59*t73 - t78*t79 - t82*t83
             if not t84 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t85 = 1.0/t84
             t86 = t41 - t40*t71
             t87 = t42 - t40*t72 - t77*t86
@@ -511,67 +500,26 @@ def run(zs, us, x0, P0):
             t111 = t85*t91
             t112 = t85*t94
             t113 = t85*t97
-            t114 = t106 - t110*t83
-            t115 = t102 - t110*t79 - t114*t77
-            t116 = t98 - t110*t73 - t114*t72 - t115*t71
-            t117 = t107 - t111*t83
-            t118 = t103 - t111*t79 - t117*t77
-            t119 = t99 - t111*t73 - t117*t72 - t118*t71
-            t120 = t108 - t112*t83
-            t121 = t104 - t112*t79 - t120*t77
-            t122 = t100 - t112*t73 - t120*t72 - t121*t71
-            t123 = t109 - t113*t83
-            t124 = t105 - t113*t79 - t123*t77
-            t125 = t101 - t113*t73 - t123*t72 - t124*t71
-            t126 = z_0 - t24
-            t127 = z_1 - t25
-            t128 = z_2 - t26
-            t129 = z_3 - t27
-            t130 = t110*t129 + t114*t128 + t115*t127 + t116*t126
-            t131 = t111*t129 + t117*t128 + t118*t127 + t119*t126
-            t132 = t112*t129 + t120*t128 + t121*t127 + t122*t126
-            t133 = t113*t129 + t123*t128 + t124*t127 + t125*t126
-            t134 = x_0 + t130
-            t135 = x_1 + t131
-            t136 = x_2 + t132
-            t137 = x_3 + t133
-            t138 = t110*t43 + t114*t42 + t115*t41 + t116*t40
-            t139 = t110*t47 + t114*t46 + t115*t45 + t116*t44
-            t140 = t110*t51 + t114*t50 + t115*t49 + t116*t48
-            t141 = t110*t55 + t114*t54 + t115*t53 + t116*t52
-            t142 = t111*t47 + t117*t46 + t118*t45 + t119*t44
-            t143 = t111*t51 + t117*t50 + t118*t49 + t119*t48
-            t144 = t111*t55 + t117*t54 + t118*t53 + t119*t52
-            t145 = t112*t51 + t120*t50 + t121*t49 + t122*t48
-            t146 = t112*t55 + t120*t54 + t121*t53 + t122*t52
-            t147 = t113*t55 + t123*t54 + t124*t53 + t125*t52
-            t148 = t0 - t138
-            t149 = P_1 - t139
-            t150 = P_2 - t140
-            t151 = P_3 - t141
-            t152 = t1 - t142
-            t153 = P_6 - t143
-            t154 = P_7 - t144
-            t155 = t2 - t145
-            t156 = P_11 - t146
-            t157 = t3 - t147
-            keep((t134, t135, t136, t137, t148, t149, t150, t151, t152, t153, t154, t155, t156,
-                    t157))
-            x_0 = t134
-            x_1 = t135
-            x_2 = t136
-            x_3 = t137
-            P_0 = t148
-            P_1 = t149
-            P_2 = t150
-            P_3 = t151
-            P_5 = t152
-            P_6 = t153
-            P_7 = t154
-            P_10 = t155
-            P_11 = t156
-            P_15 = t157
-        table = np.array(rows, dtype=float).reshape(-1, 14)
+            t114 = z_0 - t24
+            t118 = z_1 - t25 - t114*t71
+            t119 = z_2 - t26 - t114*t72 - t118*t77
+            t120 = z_3 - t27 - t114*t73 - t118*t79 - t119*t83
+            x_0 = x_0 + (t102*t118 + t106*t119 + t110*t120 + t114*t98)
+            x_1 = x_1 + (t103*t118 + t107*t119 + t111*t120 + t114*t99)
+            x_2 = x_2 + (t100*t114 + t104*t118 + t108*t119 + t112*t120)
+            x_3 = x_3 + (t101*t114 + t105*t118 + t109*t119 + t113*t120)
+            P_0 = t0 - (t102*t86 + t106*t87 + t110*t88 + t40*t98)
+            P_1 = P_1 - (t102*t89 + t106*t90 + t110*t91 + t44*t98)
+            P_2 = P_2 - (t102*t92 + t106*t93 + t110*t94 + t48*t98)
+            P_3 = P_3 - (t102*t95 + t106*t96 + t110*t97 + t52*t98)
+            P_5 = t1 - (t103*t89 + t107*t90 + t111*t91 + t44*t99)
+            P_6 = P_6 - (t103*t92 + t107*t93 + t111*t94 + t48*t99)
+            P_7 = P_7 - (t103*t95 + t107*t96 + t111*t97 + t52*t99)
+            P_10 = t2 - (t100*t48 + t104*t92 + t108*t93 + t112*t94)
+            P_11 = P_11 - (t100*t52 + t104*t95 + t108*t96 + t112*t97)
+            P_15 = t3 - (t101*t52 + t105*t95 + t109*t96 + t113*t97)
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

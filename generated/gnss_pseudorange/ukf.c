@@ -54,38 +54,52 @@
 #endif
 #endif
 
-int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new, const size_t s)
 {
+    int status = 0;
     const double t0 = 0.01 + P[0];
-    const double t1 = 0.01 + P[5];
-    const double t2 = 0.01 + P[10];
-    const double t3 = 0.01 + P[15];
-    if (!(t0 > 0.0)) {
-        return 1; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
+    const double t1 = 0.01 + P[5 * s];
+    const double t2 = 0.01 + P[10 * s];
+    const double t3 = 0.01 + P[15 * s];
+    if (!(t0 > 0.0) && !status) {
+        status = 1; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     }
     const double t4 = sqrt(t0);
     const double t5 = 1.0/t4;
-    const double t6 = P[1]*t5;
-    const double t7 = P[2]*t5;
-    const double t8 = P[3]*t5;
+    const double t6 = P[1 * s]*t5;
+    const double t7 = P[2 * s]*t5;
+    const double t8 = P[3 * s]*t5;
     const double t9 = t1 - t6*t6;
-    if (!(t9 > 0.0)) {
-        return 2; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
+    if (!(t9 > 0.0) && !status) {
+        status = 2; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     }
     const double t10 = sqrt(t9);
     const double t11 = 1.0/t10;
-    const double t12 = t11*(P[6] - t6*t7);
-    const double t13 = t11*(P[7] - t6*t8);
+    const double t12 = t11*(P[6 * s] - t6*t7);
+    const double t13 = t11*(P[7 * s] - t6*t8);
     const double t14 = t2 - t12*t12 - t7*t7;
-    if (!(t14 > 0.0)) {
-        return 3; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
+    if (!(t14 > 0.0) && !status) {
+        status = 3; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     }
     const double t15 = sqrt(t14);
     const double t16 = 1.0/t15;
-    const double t17 = t16*(P[11] - t12*t13 - t7*t8);
+    const double t17 = t16*(P[11 * s] - t12*t13 - t7*t8);
     const double t18 = t3 - t13*t13 - t17*t17 - t8*t8;
-    if (!(t18 > 0.0)) {
-        return 4; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
+    if (!(t18 > 0.0) && !status) {
+        status = 4; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     }
     const double t19 = sqrt(t18);
     const double t20 = 1.7320508075688772*t4;
@@ -99,128 +113,128 @@ int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P
     const double t28 = 1.7320508075688772*t17;
     const double t29 = 1.7320508075688772*t19;
     const double t30 = x[0] + t20;
-    const double t31 = x[1] + t21;
-    const double t32 = x[2] + t23;
-    const double t33 = x[3] + t26;
-    const double t34 = x[1] + t22;
-    const double t35 = x[2] + t24;
-    const double t36 = x[3] + t27;
-    const double t37 = x[2] + t25;
-    const double t38 = x[3] + t28;
-    const double t39 = x[3] + t29;
+    const double t31 = x[1 * s] + t21;
+    const double t32 = x[2 * s] + t23;
+    const double t33 = x[3 * s] + t26;
+    const double t34 = x[1 * s] + t22;
+    const double t35 = x[2 * s] + t24;
+    const double t36 = x[3 * s] + t27;
+    const double t37 = x[2 * s] + t25;
+    const double t38 = x[3 * s] + t28;
+    const double t39 = x[3 * s] + t29;
     const double t40 = x[0] - t20;
-    const double t41 = x[1] - t21;
-    const double t42 = x[2] - t23;
-    const double t43 = x[3] - t26;
-    const double t44 = x[1] - t22;
-    const double t45 = x[2] - t24;
-    const double t46 = x[3] - t27;
-    const double t47 = x[2] - t25;
-    const double t48 = x[3] - t28;
-    const double t49 = x[3] - t29;
+    const double t41 = x[1 * s] - t21;
+    const double t42 = x[2 * s] - t23;
+    const double t43 = x[3 * s] - t26;
+    const double t44 = x[1 * s] - t22;
+    const double t45 = x[2 * s] - t24;
+    const double t46 = x[3 * s] - t27;
+    const double t47 = x[2 * s] - t25;
+    const double t48 = x[3 * s] - t28;
+    const double t49 = x[3 * s] - t29;
     const double t50 = u[0] - x[0];
-    const double t51 = u[1] - x[1];
-    const double t52 = u[2] - x[2];
+    const double t51 = u[1 * s] - x[1 * s];
+    const double t52 = u[2 * s] - x[2 * s];
     const double t53 = t50*t50;
     const double t54 = t51*t51;
     const double t55 = sqrt(DERIVE_FMA(t52, t52, t53 + t54));
-    const double t56 = x[3] + t55;
-    const double t57 = u[3] - x[0];
-    const double t58 = u[4] - x[1];
-    const double t59 = u[5] - x[2];
+    const double t56 = x[3 * s] + t55;
+    const double t57 = u[3 * s] - x[0];
+    const double t58 = u[4 * s] - x[1 * s];
+    const double t59 = u[5 * s] - x[2 * s];
     const double t60 = t57*t57;
     const double t61 = t58*t58;
     const double t62 = sqrt(DERIVE_FMA(t59, t59, t60 + t61));
-    const double t63 = x[3] + t62;
-    const double t64 = u[6] - x[0];
-    const double t65 = u[7] - x[1];
-    const double t66 = u[8] - x[2];
+    const double t63 = x[3 * s] + t62;
+    const double t64 = u[6 * s] - x[0];
+    const double t65 = u[7 * s] - x[1 * s];
+    const double t66 = u[8 * s] - x[2 * s];
     const double t67 = t64*t64;
     const double t68 = t65*t65;
     const double t69 = sqrt(DERIVE_FMA(t66, t66, t67 + t68));
-    const double t70 = x[3] + t69;
-    const double t71 = u[9] - x[0];
-    const double t72 = u[10] - x[1];
-    const double t73 = u[11] - x[2];
+    const double t70 = x[3 * s] + t69;
+    const double t71 = u[9 * s] - x[0];
+    const double t72 = u[10 * s] - x[1 * s];
+    const double t73 = u[11 * s] - x[2 * s];
     const double t74 = t71*t71;
     const double t75 = t72*t72;
     const double t76 = sqrt(DERIVE_FMA(t73, t73, t74 + t75));
-    const double t77 = x[3] + t76;
+    const double t77 = x[3 * s] + t76;
     const double t78 = u[0] - t30;
-    const double t79 = u[1] - t31;
-    const double t80 = u[2] - t32;
+    const double t79 = u[1 * s] - t31;
+    const double t80 = u[2 * s] - t32;
     const double t81 = t33 + sqrt(DERIVE_FMA(t80, t80, DERIVE_FMA(t79, t79, t78*t78)));
-    const double t82 = u[3] - t30;
-    const double t83 = u[4] - t31;
-    const double t84 = u[5] - t32;
+    const double t82 = u[3 * s] - t30;
+    const double t83 = u[4 * s] - t31;
+    const double t84 = u[5 * s] - t32;
     const double t85 = t33 + sqrt(DERIVE_FMA(t84, t84, DERIVE_FMA(t83, t83, t82*t82)));
-    const double t86 = u[6] - t30;
-    const double t87 = u[7] - t31;
-    const double t88 = u[8] - t32;
+    const double t86 = u[6 * s] - t30;
+    const double t87 = u[7 * s] - t31;
+    const double t88 = u[8 * s] - t32;
     const double t89 = t33 + sqrt(DERIVE_FMA(t88, t88, DERIVE_FMA(t87, t87, t86*t86)));
-    const double t90 = u[9] - t30;
-    const double t91 = u[10] - t31;
-    const double t92 = u[11] - t32;
+    const double t90 = u[9 * s] - t30;
+    const double t91 = u[10 * s] - t31;
+    const double t92 = u[11 * s] - t32;
     const double t93 = t33 + sqrt(DERIVE_FMA(t92, t92, DERIVE_FMA(t91, t91, t90*t90)));
-    const double t94 = u[1] - t34;
-    const double t95 = u[2] - t35;
+    const double t94 = u[1 * s] - t34;
+    const double t95 = u[2 * s] - t35;
     const double t96 = t36 + sqrt(DERIVE_FMA(t95, t95, DERIVE_FMA(t94, t94, t53)));
-    const double t97 = u[4] - t34;
-    const double t98 = u[5] - t35;
+    const double t97 = u[4 * s] - t34;
+    const double t98 = u[5 * s] - t35;
     const double t99 = t36 + sqrt(DERIVE_FMA(t98, t98, DERIVE_FMA(t97, t97, t60)));
-    const double t100 = u[7] - t34;
-    const double t101 = u[8] - t35;
+    const double t100 = u[7 * s] - t34;
+    const double t101 = u[8 * s] - t35;
     const double t102 = t36 + sqrt(DERIVE_FMA(t101, t101, DERIVE_FMA(t100, t100, t67)));
-    const double t103 = u[10] - t34;
-    const double t104 = u[11] - t35;
+    const double t103 = u[10 * s] - t34;
+    const double t104 = u[11 * s] - t35;
     const double t105 = t36 + sqrt(DERIVE_FMA(t104, t104, DERIVE_FMA(t103, t103, t74)));
-    const double t106 = u[2] - t37;
+    const double t106 = u[2 * s] - t37;
     const double t107 = t38 + sqrt(DERIVE_FMA(t106, t106, t53 + t54));
-    const double t108 = u[5] - t37;
+    const double t108 = u[5 * s] - t37;
     const double t109 = t38 + sqrt(DERIVE_FMA(t108, t108, t60 + t61));
-    const double t110 = u[8] - t37;
+    const double t110 = u[8 * s] - t37;
     const double t111 = t38 + sqrt(DERIVE_FMA(t110, t110, t67 + t68));
-    const double t112 = u[11] - t37;
+    const double t112 = u[11 * s] - t37;
     const double t113 = t38 + sqrt(DERIVE_FMA(t112, t112, t74 + t75));
     const double t114 = t39 + t55;
     const double t115 = t39 + t62;
     const double t116 = t39 + t69;
     const double t117 = t39 + t76;
     const double t118 = u[0] - t40;
-    const double t119 = u[1] - t41;
-    const double t120 = u[2] - t42;
+    const double t119 = u[1 * s] - t41;
+    const double t120 = u[2 * s] - t42;
     const double t121 = t43 + sqrt(DERIVE_FMA(t120, t120, DERIVE_FMA(t119, t119, t118*t118)));
-    const double t122 = u[3] - t40;
-    const double t123 = u[4] - t41;
-    const double t124 = u[5] - t42;
+    const double t122 = u[3 * s] - t40;
+    const double t123 = u[4 * s] - t41;
+    const double t124 = u[5 * s] - t42;
     const double t125 = t43 + sqrt(DERIVE_FMA(t124, t124, DERIVE_FMA(t123, t123, t122*t122)));
-    const double t126 = u[6] - t40;
-    const double t127 = u[7] - t41;
-    const double t128 = u[8] - t42;
+    const double t126 = u[6 * s] - t40;
+    const double t127 = u[7 * s] - t41;
+    const double t128 = u[8 * s] - t42;
     const double t129 = t43 + sqrt(DERIVE_FMA(t128, t128, DERIVE_FMA(t127, t127, t126*t126)));
-    const double t130 = u[9] - t40;
-    const double t131 = u[10] - t41;
-    const double t132 = u[11] - t42;
+    const double t130 = u[9 * s] - t40;
+    const double t131 = u[10 * s] - t41;
+    const double t132 = u[11 * s] - t42;
     const double t133 = t43 + sqrt(DERIVE_FMA(t132, t132, DERIVE_FMA(t131, t131, t130*t130)));
-    const double t134 = u[1] - t44;
-    const double t135 = u[2] - t45;
+    const double t134 = u[1 * s] - t44;
+    const double t135 = u[2 * s] - t45;
     const double t136 = t46 + sqrt(DERIVE_FMA(t135, t135, DERIVE_FMA(t134, t134, t53)));
-    const double t137 = u[4] - t44;
-    const double t138 = u[5] - t45;
+    const double t137 = u[4 * s] - t44;
+    const double t138 = u[5 * s] - t45;
     const double t139 = t46 + sqrt(DERIVE_FMA(t138, t138, DERIVE_FMA(t137, t137, t60)));
-    const double t140 = u[7] - t44;
-    const double t141 = u[8] - t45;
+    const double t140 = u[7 * s] - t44;
+    const double t141 = u[8 * s] - t45;
     const double t142 = t46 + sqrt(DERIVE_FMA(t141, t141, DERIVE_FMA(t140, t140, t67)));
-    const double t143 = u[10] - t44;
-    const double t144 = u[11] - t45;
+    const double t143 = u[10 * s] - t44;
+    const double t144 = u[11 * s] - t45;
     const double t145 = t46 + sqrt(DERIVE_FMA(t144, t144, DERIVE_FMA(t143, t143, t74)));
-    const double t146 = u[2] - t47;
+    const double t146 = u[2 * s] - t47;
     const double t147 = t48 + sqrt(DERIVE_FMA(t146, t146, t53 + t54));
-    const double t148 = u[5] - t47;
+    const double t148 = u[5 * s] - t47;
     const double t149 = t48 + sqrt(DERIVE_FMA(t148, t148, t60 + t61));
-    const double t150 = u[8] - t47;
+    const double t150 = u[8 * s] - t47;
     const double t151 = t48 + sqrt(DERIVE_FMA(t150, t150, t67 + t68));
-    const double t152 = u[11] - t47;
+    const double t152 = u[11 * s] - t47;
     const double t153 = t48 + sqrt(DERIVE_FMA(t152, t152, t74 + t75));
     const double t154 = t49 + t55;
     const double t155 = t49 + t62;
@@ -338,16 +352,16 @@ int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P
     const double t267 = 0.16666666666666666*t251;
     const double t268 = 0.16666666666666666*t252;
     const double t269 = 0.16666666666666666*t253;
-    if (!(t203 > 0.0)) {
-        return 5; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t203 > 0.0) && !status) {
+        status = 5; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t270 = 1.0/t203;
     const double t271 = t205*t270;
     const double t272 = t207*t270;
     const double t273 = t209*t270;
     const double t274 = t211 - t205*t271;
-    if (!(t274 > 0.0)) {
-        return 6; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    if (!(t274 > 0.0) && !status) {
+        status = 6; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t275 = 1.0/t274;
     const double t276 = t213 - t207*t271;
@@ -355,15 +369,15 @@ int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P
     const double t278 = t215 - t209*t271;
     const double t279 = t275*t278;
     const double t280 = t217 - t207*t272 - t276*t277;
-    if (!(t280 > 0.0)) {
-        return 7; /* Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    if (!(t280 > 0.0) && !status) {
+        status = 7; /* Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t281 = 1.0/t280;
     const double t282 = t219 - t209*t272 - t277*t278;
     const double t283 = t281*t282;
     const double t284 = t221 - t209*t273 - t278*t279 - t282*t283;
-    if (!(t284 > 0.0)) {
-        return 8; /* Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
+    if (!(t284 > 0.0) && !status) {
+        status = 8; /* Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
     const double t285 = 1.0/t284;
     const double t286 = t255 - t254*t271;
@@ -407,17 +421,17 @@ int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P
     const double t324 = t305 - t277*t323 - t279*t313;
     const double t325 = t301 - t271*t324 - t272*t323 - t273*t313;
     const double t326 = z[0] - t159;
-    const double t327 = z[1] - t161;
-    const double t328 = z[2] - t163;
-    const double t329 = z[3] - t165;
+    const double t327 = z[1 * s] - t161;
+    const double t328 = z[2 * s] - t163;
+    const double t329 = z[3 * s] - t165;
     const double t330 = DERIVE_FMA(t316, t326, DERIVE_FMA(t315, t327, DERIVE_FMA(t314, t328, t310*t329)));
     const double t331 = DERIVE_FMA(t319, t326, DERIVE_FMA(t318, t327, DERIVE_FMA(t317, t328, t311*t329)));
     const double t332 = DERIVE_FMA(t322, t326, DERIVE_FMA(t321, t327, DERIVE_FMA(t320, t328, t312*t329)));
     const double t333 = DERIVE_FMA(t325, t326, DERIVE_FMA(t324, t327, DERIVE_FMA(t323, t328, t313*t329)));
     const double t334 = x[0] + t330;
-    const double t335 = x[1] + t331;
-    const double t336 = x[2] + t332;
-    const double t337 = x[3] + t333;
+    const double t335 = x[1 * s] + t331;
+    const double t336 = x[2 * s] + t332;
+    const double t337 = x[3 * s] + t333;
     const double t338 = DERIVE_FMA(t257, t310, DERIVE_FMA(t256, t314, DERIVE_FMA(t255, t315, t254*t316)));
     const double t339 = DERIVE_FMA(t261, t310, DERIVE_FMA(t260, t314, DERIVE_FMA(t259, t315, t258*t316)));
     const double t340 = DERIVE_FMA(t265, t310, DERIVE_FMA(t264, t314, DERIVE_FMA(t263, t315, t262*t316)));
@@ -429,36 +443,41 @@ int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P
     const double t346 = DERIVE_FMA(t269, t312, DERIVE_FMA(t268, t320, DERIVE_FMA(t267, t321, t266*t322)));
     const double t347 = DERIVE_FMA(t269, t313, DERIVE_FMA(t268, t323, DERIVE_FMA(t267, t324, t266*t325)));
     const double t348 = t0 - t338;
-    const double t349 = P[1] - t339;
-    const double t350 = P[2] - t340;
-    const double t351 = P[3] - t341;
+    const double t349 = P[1 * s] - t339;
+    const double t350 = P[2 * s] - t340;
+    const double t351 = P[3 * s] - t341;
     const double t352 = t1 - t342;
-    const double t353 = P[6] - t343;
-    const double t354 = P[7] - t344;
+    const double t353 = P[6 * s] - t343;
+    const double t354 = P[7 * s] - t344;
     const double t355 = t2 - t345;
-    const double t356 = P[11] - t346;
+    const double t356 = P[11 * s] - t346;
     const double t357 = t3 - t347;
     x_new[0] = t334;
-    x_new[1] = t335;
-    x_new[2] = t336;
-    x_new[3] = t337;
+    x_new[1 * s] = t335;
+    x_new[2 * s] = t336;
+    x_new[3 * s] = t337;
     P_new[0] = t348;
-    P_new[1] = t349;
-    P_new[2] = t350;
-    P_new[3] = t351;
-    P_new[4] = t349;
-    P_new[5] = t352;
-    P_new[6] = t353;
-    P_new[7] = t354;
-    P_new[8] = t350;
-    P_new[9] = t353;
-    P_new[10] = t355;
-    P_new[11] = t356;
-    P_new[12] = t351;
-    P_new[13] = t354;
-    P_new[14] = t356;
-    P_new[15] = t357;
-    return 0;
+    P_new[1 * s] = t349;
+    P_new[2 * s] = t350;
+    P_new[3 * s] = t351;
+    P_new[4 * s] = t349;
+    P_new[5 * s] = t352;
+    P_new[6 * s] = t353;
+    P_new[7 * s] = t354;
+    P_new[8 * s] = t350;
+    P_new[9 * s] = t353;
+    P_new[10 * s] = t355;
+    P_new[11 * s] = t356;
+    P_new[12 * s] = t351;
+    P_new[13 * s] = t354;
+    P_new[14 * s] = t356;
+    P_new[15 * s] = t357;
+    return status;
+}
+
+int gnss_pseudorange_ukf_step(const double *restrict x, const double *restrict P, const double *restrict z, const double *restrict u, double *restrict x_new, double *restrict P_new)
+{
+    return gnss_pseudorange_ukf_step_body(x, P, z, u, x_new, P_new, 1);
 }
 
 void gnss_pseudorange_ukf_predict(const double *restrict x, const double *restrict P, double *restrict x_new, double *restrict P_new)
@@ -693,412 +712,14 @@ int gnss_pseudorange_ukf_run(size_t steps, const double *z, const double *u, con
     P[13] = P0[13];
     P[14] = P0[14];
     P[15] = P0[15];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 4;
         const double *restrict uk = u + k * 12;
-        const double t0 = 0.01 + P[0];
-        const double t1 = 0.01 + P[5];
-        const double t2 = 0.01 + P[10];
-        const double t3 = 0.01 + P[15];
-        if (!(t0 > 0.0)) {
-            return 1; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
+        const int step_status = gnss_pseudorange_ukf_step_body(x, P, zk, uk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t4 = sqrt(t0);
-        const double t5 = 1.0/t4;
-        const double t6 = P[1]*t5;
-        const double t7 = P[2]*t5;
-        const double t8 = P[3]*t5;
-        const double t9 = t1 - t6*t6;
-        if (!(t9 > 0.0)) {
-            return 2; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
-        }
-        const double t10 = sqrt(t9);
-        const double t11 = 1.0/t10;
-        const double t12 = t11*(P[6] - t6*t7);
-        const double t13 = t11*(P[7] - t6*t8);
-        const double t14 = t2 - t12*t12 - t7*t7;
-        if (!(t14 > 0.0)) {
-            return 3; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
-        }
-        const double t15 = sqrt(t14);
-        const double t16 = 1.0/t15;
-        const double t17 = t16*(P[11] - t12*t13 - t7*t8);
-        const double t18 = t3 - t13*t13 - t17*t17 - t8*t8;
-        if (!(t18 > 0.0)) {
-            return 4; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
-        }
-        const double t19 = sqrt(t18);
-        const double t20 = 1.7320508075688772*t4;
-        const double t21 = 1.7320508075688772*t6;
-        const double t22 = 1.7320508075688772*t10;
-        const double t23 = 1.7320508075688772*t7;
-        const double t24 = 1.7320508075688772*t12;
-        const double t25 = 1.7320508075688772*t15;
-        const double t26 = 1.7320508075688772*t8;
-        const double t27 = 1.7320508075688772*t13;
-        const double t28 = 1.7320508075688772*t17;
-        const double t29 = 1.7320508075688772*t19;
-        const double t30 = x[0] + t20;
-        const double t31 = x[1] + t21;
-        const double t32 = x[2] + t23;
-        const double t33 = x[3] + t26;
-        const double t34 = x[1] + t22;
-        const double t35 = x[2] + t24;
-        const double t36 = x[3] + t27;
-        const double t37 = x[2] + t25;
-        const double t38 = x[3] + t28;
-        const double t39 = x[3] + t29;
-        const double t40 = x[0] - t20;
-        const double t41 = x[1] - t21;
-        const double t42 = x[2] - t23;
-        const double t43 = x[3] - t26;
-        const double t44 = x[1] - t22;
-        const double t45 = x[2] - t24;
-        const double t46 = x[3] - t27;
-        const double t47 = x[2] - t25;
-        const double t48 = x[3] - t28;
-        const double t49 = x[3] - t29;
-        const double t50 = uk[0] - x[0];
-        const double t51 = uk[1] - x[1];
-        const double t52 = uk[2] - x[2];
-        const double t53 = t50*t50;
-        const double t54 = t51*t51;
-        const double t55 = sqrt(DERIVE_FMA(t52, t52, t53 + t54));
-        const double t56 = x[3] + t55;
-        const double t57 = uk[3] - x[0];
-        const double t58 = uk[4] - x[1];
-        const double t59 = uk[5] - x[2];
-        const double t60 = t57*t57;
-        const double t61 = t58*t58;
-        const double t62 = sqrt(DERIVE_FMA(t59, t59, t60 + t61));
-        const double t63 = x[3] + t62;
-        const double t64 = uk[6] - x[0];
-        const double t65 = uk[7] - x[1];
-        const double t66 = uk[8] - x[2];
-        const double t67 = t64*t64;
-        const double t68 = t65*t65;
-        const double t69 = sqrt(DERIVE_FMA(t66, t66, t67 + t68));
-        const double t70 = x[3] + t69;
-        const double t71 = uk[9] - x[0];
-        const double t72 = uk[10] - x[1];
-        const double t73 = uk[11] - x[2];
-        const double t74 = t71*t71;
-        const double t75 = t72*t72;
-        const double t76 = sqrt(DERIVE_FMA(t73, t73, t74 + t75));
-        const double t77 = x[3] + t76;
-        const double t78 = uk[0] - t30;
-        const double t79 = uk[1] - t31;
-        const double t80 = uk[2] - t32;
-        const double t81 = t33 + sqrt(DERIVE_FMA(t80, t80, DERIVE_FMA(t79, t79, t78*t78)));
-        const double t82 = uk[3] - t30;
-        const double t83 = uk[4] - t31;
-        const double t84 = uk[5] - t32;
-        const double t85 = t33 + sqrt(DERIVE_FMA(t84, t84, DERIVE_FMA(t83, t83, t82*t82)));
-        const double t86 = uk[6] - t30;
-        const double t87 = uk[7] - t31;
-        const double t88 = uk[8] - t32;
-        const double t89 = t33 + sqrt(DERIVE_FMA(t88, t88, DERIVE_FMA(t87, t87, t86*t86)));
-        const double t90 = uk[9] - t30;
-        const double t91 = uk[10] - t31;
-        const double t92 = uk[11] - t32;
-        const double t93 = t33 + sqrt(DERIVE_FMA(t92, t92, DERIVE_FMA(t91, t91, t90*t90)));
-        const double t94 = uk[1] - t34;
-        const double t95 = uk[2] - t35;
-        const double t96 = t36 + sqrt(DERIVE_FMA(t95, t95, DERIVE_FMA(t94, t94, t53)));
-        const double t97 = uk[4] - t34;
-        const double t98 = uk[5] - t35;
-        const double t99 = t36 + sqrt(DERIVE_FMA(t98, t98, DERIVE_FMA(t97, t97, t60)));
-        const double t100 = uk[7] - t34;
-        const double t101 = uk[8] - t35;
-        const double t102 = t36 + sqrt(DERIVE_FMA(t101, t101, DERIVE_FMA(t100, t100, t67)));
-        const double t103 = uk[10] - t34;
-        const double t104 = uk[11] - t35;
-        const double t105 = t36 + sqrt(DERIVE_FMA(t104, t104, DERIVE_FMA(t103, t103, t74)));
-        const double t106 = uk[2] - t37;
-        const double t107 = t38 + sqrt(DERIVE_FMA(t106, t106, t53 + t54));
-        const double t108 = uk[5] - t37;
-        const double t109 = t38 + sqrt(DERIVE_FMA(t108, t108, t60 + t61));
-        const double t110 = uk[8] - t37;
-        const double t111 = t38 + sqrt(DERIVE_FMA(t110, t110, t67 + t68));
-        const double t112 = uk[11] - t37;
-        const double t113 = t38 + sqrt(DERIVE_FMA(t112, t112, t74 + t75));
-        const double t114 = t39 + t55;
-        const double t115 = t39 + t62;
-        const double t116 = t39 + t69;
-        const double t117 = t39 + t76;
-        const double t118 = uk[0] - t40;
-        const double t119 = uk[1] - t41;
-        const double t120 = uk[2] - t42;
-        const double t121 = t43 + sqrt(DERIVE_FMA(t120, t120, DERIVE_FMA(t119, t119, t118*t118)));
-        const double t122 = uk[3] - t40;
-        const double t123 = uk[4] - t41;
-        const double t124 = uk[5] - t42;
-        const double t125 = t43 + sqrt(DERIVE_FMA(t124, t124, DERIVE_FMA(t123, t123, t122*t122)));
-        const double t126 = uk[6] - t40;
-        const double t127 = uk[7] - t41;
-        const double t128 = uk[8] - t42;
-        const double t129 = t43 + sqrt(DERIVE_FMA(t128, t128, DERIVE_FMA(t127, t127, t126*t126)));
-        const double t130 = uk[9] - t40;
-        const double t131 = uk[10] - t41;
-        const double t132 = uk[11] - t42;
-        const double t133 = t43 + sqrt(DERIVE_FMA(t132, t132, DERIVE_FMA(t131, t131, t130*t130)));
-        const double t134 = uk[1] - t44;
-        const double t135 = uk[2] - t45;
-        const double t136 = t46 + sqrt(DERIVE_FMA(t135, t135, DERIVE_FMA(t134, t134, t53)));
-        const double t137 = uk[4] - t44;
-        const double t138 = uk[5] - t45;
-        const double t139 = t46 + sqrt(DERIVE_FMA(t138, t138, DERIVE_FMA(t137, t137, t60)));
-        const double t140 = uk[7] - t44;
-        const double t141 = uk[8] - t45;
-        const double t142 = t46 + sqrt(DERIVE_FMA(t141, t141, DERIVE_FMA(t140, t140, t67)));
-        const double t143 = uk[10] - t44;
-        const double t144 = uk[11] - t45;
-        const double t145 = t46 + sqrt(DERIVE_FMA(t144, t144, DERIVE_FMA(t143, t143, t74)));
-        const double t146 = uk[2] - t47;
-        const double t147 = t48 + sqrt(DERIVE_FMA(t146, t146, t53 + t54));
-        const double t148 = uk[5] - t47;
-        const double t149 = t48 + sqrt(DERIVE_FMA(t148, t148, t60 + t61));
-        const double t150 = uk[8] - t47;
-        const double t151 = t48 + sqrt(DERIVE_FMA(t150, t150, t67 + t68));
-        const double t152 = uk[11] - t47;
-        const double t153 = t48 + sqrt(DERIVE_FMA(t152, t152, t74 + t75));
-        const double t154 = t49 + t55;
-        const double t155 = t49 + t62;
-        const double t156 = t49 + t69;
-        const double t157 = t49 + t76;
-        const double t158 = t107 + t114 + t121 + t136 + t147 + t154 + t81 + t96;
-        const double t159 = DERIVE_FMA((-0.3333333333333333), t56, 0.16666666666666666*t158);
-        const double t160 = t109 + t115 + t125 + t139 + t149 + t155 + t85 + t99;
-        const double t161 = DERIVE_FMA((-0.3333333333333333), t63, 0.16666666666666666*t160);
-        const double t162 = t102 + t111 + t116 + t129 + t142 + t151 + t156 + t89;
-        const double t163 = DERIVE_FMA((-0.3333333333333333), t70, 0.16666666666666666*t162);
-        const double t164 = t105 + t113 + t117 + t133 + t145 + t153 + t157 + t93;
-        const double t165 = DERIVE_FMA((-0.3333333333333333), t77, 0.16666666666666666*t164);
-        const double t166 = t56 - t159;
-        const double t167 = t63 - t161;
-        const double t168 = t70 - t163;
-        const double t169 = t77 - t165;
-        const double t170 = t81 - t159;
-        const double t171 = t85 - t161;
-        const double t172 = t89 - t163;
-        const double t173 = t93 - t165;
-        const double t174 = t96 - t159;
-        const double t175 = t99 - t161;
-        const double t176 = t102 - t163;
-        const double t177 = t105 - t165;
-        const double t178 = t107 - t159;
-        const double t179 = t109 - t161;
-        const double t180 = t111 - t163;
-        const double t181 = t113 - t165;
-        const double t182 = t114 - t159;
-        const double t183 = t115 - t161;
-        const double t184 = t116 - t163;
-        const double t185 = t117 - t165;
-        const double t186 = t121 - t159;
-        const double t187 = t125 - t161;
-        const double t188 = t129 - t163;
-        const double t189 = t133 - t165;
-        const double t190 = t136 - t159;
-        const double t191 = t139 - t161;
-        const double t192 = t142 - t163;
-        const double t193 = t145 - t165;
-        const double t194 = t147 - t159;
-        const double t195 = t149 - t161;
-        const double t196 = t151 - t163;
-        const double t197 = t153 - t165;
-        const double t198 = t154 - t159;
-        const double t199 = t155 - t161;
-        const double t200 = t156 - t163;
-        const double t201 = t157 - t165;
-        const double t202 = DERIVE_FMA(t198, t198, DERIVE_FMA(t194, t194, DERIVE_FMA(t190, t190, DERIVE_FMA(t186, t186, DERIVE_FMA(t182, t182, DERIVE_FMA(t178, t178, DERIVE_FMA(t174, t174, t170*t170)))))));
-        const double t203 = DERIVE_FMA((-0.3333333333333333), t166*t166, DERIVE_FMA(0.16666666666666666, t202, 100.0));
-        const double t204 = DERIVE_FMA(t198, t199, DERIVE_FMA(t194, t195, DERIVE_FMA(t190, t191, DERIVE_FMA(t186, t187, DERIVE_FMA(t182, t183, DERIVE_FMA(t178, t179, DERIVE_FMA(t174, t175, t170*t171)))))));
-        const double t205 = DERIVE_FMA((-0.3333333333333333), t166*t167, 0.16666666666666666*t204);
-        const double t206 = DERIVE_FMA(t198, t200, DERIVE_FMA(t194, t196, DERIVE_FMA(t190, t192, DERIVE_FMA(t186, t188, DERIVE_FMA(t182, t184, DERIVE_FMA(t178, t180, DERIVE_FMA(t174, t176, t170*t172)))))));
-        const double t207 = DERIVE_FMA((-0.3333333333333333), t166*t168, 0.16666666666666666*t206);
-        const double t208 = DERIVE_FMA(t198, t201, DERIVE_FMA(t194, t197, DERIVE_FMA(t190, t193, DERIVE_FMA(t186, t189, DERIVE_FMA(t182, t185, DERIVE_FMA(t178, t181, DERIVE_FMA(t174, t177, t170*t173)))))));
-        const double t209 = DERIVE_FMA((-0.3333333333333333), t166*t169, 0.16666666666666666*t208);
-        const double t210 = DERIVE_FMA(t199, t199, DERIVE_FMA(t195, t195, DERIVE_FMA(t191, t191, DERIVE_FMA(t187, t187, DERIVE_FMA(t183, t183, DERIVE_FMA(t179, t179, DERIVE_FMA(t175, t175, t171*t171)))))));
-        const double t211 = DERIVE_FMA((-0.3333333333333333), t167*t167, DERIVE_FMA(0.16666666666666666, t210, 100.0));
-        const double t212 = DERIVE_FMA(t199, t200, DERIVE_FMA(t195, t196, DERIVE_FMA(t191, t192, DERIVE_FMA(t187, t188, DERIVE_FMA(t183, t184, DERIVE_FMA(t179, t180, DERIVE_FMA(t175, t176, t171*t172)))))));
-        const double t213 = DERIVE_FMA((-0.3333333333333333), t167*t168, 0.16666666666666666*t212);
-        const double t214 = DERIVE_FMA(t199, t201, DERIVE_FMA(t195, t197, DERIVE_FMA(t191, t193, DERIVE_FMA(t187, t189, DERIVE_FMA(t183, t185, DERIVE_FMA(t179, t181, DERIVE_FMA(t175, t177, t171*t173)))))));
-        const double t215 = DERIVE_FMA((-0.3333333333333333), t167*t169, 0.16666666666666666*t214);
-        const double t216 = DERIVE_FMA(t200, t200, DERIVE_FMA(t196, t196, DERIVE_FMA(t192, t192, DERIVE_FMA(t188, t188, DERIVE_FMA(t184, t184, DERIVE_FMA(t180, t180, DERIVE_FMA(t176, t176, t172*t172)))))));
-        const double t217 = DERIVE_FMA((-0.3333333333333333), t168*t168, DERIVE_FMA(0.16666666666666666, t216, 100.0));
-        const double t218 = DERIVE_FMA(t200, t201, DERIVE_FMA(t196, t197, DERIVE_FMA(t192, t193, DERIVE_FMA(t188, t189, DERIVE_FMA(t184, t185, DERIVE_FMA(t180, t181, DERIVE_FMA(t176, t177, t172*t173)))))));
-        const double t219 = DERIVE_FMA((-0.3333333333333333), t168*t169, 0.16666666666666666*t218);
-        const double t220 = DERIVE_FMA(t201, t201, DERIVE_FMA(t197, t197, DERIVE_FMA(t193, t193, DERIVE_FMA(t189, t189, DERIVE_FMA(t185, t185, DERIVE_FMA(t181, t181, DERIVE_FMA(t177, t177, t173*t173)))))));
-        const double t221 = DERIVE_FMA((-0.3333333333333333), t169*t169, DERIVE_FMA(0.16666666666666666, t220, 100.0));
-        const double t222 = t81 - t121;
-        const double t223 = t85 - t125;
-        const double t224 = t89 - t129;
-        const double t225 = t93 - t133;
-        const double t226 = t96 - t136;
-        const double t227 = t99 - t139;
-        const double t228 = t102 - t142;
-        const double t229 = t105 - t145;
-        const double t230 = t107 - t147;
-        const double t231 = t109 - t149;
-        const double t232 = t111 - t151;
-        const double t233 = t113 - t153;
-        const double t234 = t114 - t154;
-        const double t235 = t115 - t155;
-        const double t236 = t116 - t156;
-        const double t237 = t117 - t157;
-        const double t238 = t20*t222;
-        const double t239 = t20*t223;
-        const double t240 = t20*t224;
-        const double t241 = t20*t225;
-        const double t242 = DERIVE_FMA(t22, t226, t21*t222);
-        const double t243 = DERIVE_FMA(t22, t227, t21*t223);
-        const double t244 = DERIVE_FMA(t22, t228, t21*t224);
-        const double t245 = DERIVE_FMA(t22, t229, t21*t225);
-        const double t246 = DERIVE_FMA(t230, t25, DERIVE_FMA(t226, t24, t222*t23));
-        const double t247 = DERIVE_FMA(t231, t25, DERIVE_FMA(t227, t24, t223*t23));
-        const double t248 = DERIVE_FMA(t232, t25, DERIVE_FMA(t228, t24, t224*t23));
-        const double t249 = DERIVE_FMA(t233, t25, DERIVE_FMA(t229, t24, t225*t23));
-        const double t250 = DERIVE_FMA(t234, t29, DERIVE_FMA(t230, t28, DERIVE_FMA(t226, t27, t222*t26)));
-        const double t251 = DERIVE_FMA(t235, t29, DERIVE_FMA(t231, t28, DERIVE_FMA(t227, t27, t223*t26)));
-        const double t252 = DERIVE_FMA(t236, t29, DERIVE_FMA(t232, t28, DERIVE_FMA(t228, t27, t224*t26)));
-        const double t253 = DERIVE_FMA(t237, t29, DERIVE_FMA(t233, t28, DERIVE_FMA(t229, t27, t225*t26)));
-        const double t254 = 0.16666666666666666*t238;
-        const double t255 = 0.16666666666666666*t239;
-        const double t256 = 0.16666666666666666*t240;
-        const double t257 = 0.16666666666666666*t241;
-        const double t258 = 0.16666666666666666*t242;
-        const double t259 = 0.16666666666666666*t243;
-        const double t260 = 0.16666666666666666*t244;
-        const double t261 = 0.16666666666666666*t245;
-        const double t262 = 0.16666666666666666*t246;
-        const double t263 = 0.16666666666666666*t247;
-        const double t264 = 0.16666666666666666*t248;
-        const double t265 = 0.16666666666666666*t249;
-        const double t266 = 0.16666666666666666*t250;
-        const double t267 = 0.16666666666666666*t251;
-        const double t268 = 0.16666666666666666*t252;
-        const double t269 = 0.16666666666666666*t253;
-        if (!(t203 > 0.0)) {
-            return 5; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-        }
-        const double t270 = 1.0/t203;
-        const double t271 = t205*t270;
-        const double t272 = t207*t270;
-        const double t273 = t209*t270;
-        const double t274 = t211 - t205*t271;
-        if (!(t274 > 0.0)) {
-            return 6; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        const double t275 = 1.0/t274;
-        const double t276 = t213 - t207*t271;
-        const double t277 = t275*t276;
-        const double t278 = t215 - t209*t271;
-        const double t279 = t275*t278;
-        const double t280 = t217 - t207*t272 - t276*t277;
-        if (!(t280 > 0.0)) {
-            return 7; /* Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-        }
-        const double t281 = 1.0/t280;
-        const double t282 = t219 - t209*t272 - t277*t278;
-        const double t283 = t281*t282;
-        const double t284 = t221 - t209*t273 - t278*t279 - t282*t283;
-        if (!(t284 > 0.0)) {
-            return 8; /* Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
-        }
-        const double t285 = 1.0/t284;
-        const double t286 = t255 - t254*t271;
-        const double t287 = t256 - t254*t272 - t277*t286;
-        const double t288 = t257 - t254*t273 - t279*t286 - t283*t287;
-        const double t289 = t259 - t258*t271;
-        const double t290 = t260 - t258*t272 - t277*t289;
-        const double t291 = t261 - t258*t273 - t279*t289 - t283*t290;
-        const double t292 = t263 - t262*t271;
-        const double t293 = t264 - t262*t272 - t277*t292;
-        const double t294 = t265 - t262*t273 - t279*t292 - t283*t293;
-        const double t295 = t267 - t266*t271;
-        const double t296 = t268 - t266*t272 - t277*t295;
-        const double t297 = t269 - t266*t273 - t279*t295 - t283*t296;
-        const double t298 = t254*t270;
-        const double t299 = t258*t270;
-        const double t300 = t262*t270;
-        const double t301 = t266*t270;
-        const double t302 = t275*t286;
-        const double t303 = t275*t289;
-        const double t304 = t275*t292;
-        const double t305 = t275*t295;
-        const double t306 = t281*t287;
-        const double t307 = t281*t290;
-        const double t308 = t281*t293;
-        const double t309 = t281*t296;
-        const double t310 = t285*t288;
-        const double t311 = t285*t291;
-        const double t312 = t285*t294;
-        const double t313 = t285*t297;
-        const double t314 = t306 - t283*t310;
-        const double t315 = t302 - t277*t314 - t279*t310;
-        const double t316 = t298 - t271*t315 - t272*t314 - t273*t310;
-        const double t317 = t307 - t283*t311;
-        const double t318 = t303 - t277*t317 - t279*t311;
-        const double t319 = t299 - t271*t318 - t272*t317 - t273*t311;
-        const double t320 = t308 - t283*t312;
-        const double t321 = t304 - t277*t320 - t279*t312;
-        const double t322 = t300 - t271*t321 - t272*t320 - t273*t312;
-        const double t323 = t309 - t283*t313;
-        const double t324 = t305 - t277*t323 - t279*t313;
-        const double t325 = t301 - t271*t324 - t272*t323 - t273*t313;
-        const double t326 = zk[0] - t159;
-        const double t327 = zk[1] - t161;
-        const double t328 = zk[2] - t163;
-        const double t329 = zk[3] - t165;
-        const double t330 = DERIVE_FMA(t316, t326, DERIVE_FMA(t315, t327, DERIVE_FMA(t314, t328, t310*t329)));
-        const double t331 = DERIVE_FMA(t319, t326, DERIVE_FMA(t318, t327, DERIVE_FMA(t317, t328, t311*t329)));
-        const double t332 = DERIVE_FMA(t322, t326, DERIVE_FMA(t321, t327, DERIVE_FMA(t320, t328, t312*t329)));
-        const double t333 = DERIVE_FMA(t325, t326, DERIVE_FMA(t324, t327, DERIVE_FMA(t323, t328, t313*t329)));
-        const double t334 = x[0] + t330;
-        const double t335 = x[1] + t331;
-        const double t336 = x[2] + t332;
-        const double t337 = x[3] + t333;
-        const double t338 = DERIVE_FMA(t257, t310, DERIVE_FMA(t256, t314, DERIVE_FMA(t255, t315, t254*t316)));
-        const double t339 = DERIVE_FMA(t261, t310, DERIVE_FMA(t260, t314, DERIVE_FMA(t259, t315, t258*t316)));
-        const double t340 = DERIVE_FMA(t265, t310, DERIVE_FMA(t264, t314, DERIVE_FMA(t263, t315, t262*t316)));
-        const double t341 = DERIVE_FMA(t269, t310, DERIVE_FMA(t268, t314, DERIVE_FMA(t267, t315, t266*t316)));
-        const double t342 = DERIVE_FMA(t261, t311, DERIVE_FMA(t260, t317, DERIVE_FMA(t259, t318, t258*t319)));
-        const double t343 = DERIVE_FMA(t265, t311, DERIVE_FMA(t264, t317, DERIVE_FMA(t263, t318, t262*t319)));
-        const double t344 = DERIVE_FMA(t269, t311, DERIVE_FMA(t268, t317, DERIVE_FMA(t267, t318, t266*t319)));
-        const double t345 = DERIVE_FMA(t265, t312, DERIVE_FMA(t264, t320, DERIVE_FMA(t263, t321, t262*t322)));
-        const double t346 = DERIVE_FMA(t269, t312, DERIVE_FMA(t268, t320, DERIVE_FMA(t267, t321, t266*t322)));
-        const double t347 = DERIVE_FMA(t269, t313, DERIVE_FMA(t268, t323, DERIVE_FMA(t267, t324, t266*t325)));
-        const double t348 = t0 - t338;
-        const double t349 = P[1] - t339;
-        const double t350 = P[2] - t340;
-        const double t351 = P[3] - t341;
-        const double t352 = t1 - t342;
-        const double t353 = P[6] - t343;
-        const double t354 = P[7] - t344;
-        const double t355 = t2 - t345;
-        const double t356 = P[11] - t346;
-        const double t357 = t3 - t347;
-        x_new[0] = t334;
-        x_new[1] = t335;
-        x_new[2] = t336;
-        x_new[3] = t337;
-        P_new[0] = t348;
-        P_new[1] = t349;
-        P_new[2] = t350;
-        P_new[3] = t351;
-        P_new[4] = t349;
-        P_new[5] = t352;
-        P_new[6] = t353;
-        P_new[7] = t354;
-        P_new[8] = t350;
-        P_new[9] = t353;
-        P_new[10] = t355;
-        P_new[11] = t356;
-        P_new[12] = t351;
-        P_new[13] = t354;
-        P_new[14] = t356;
-        P_new[15] = t357;
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];

@@ -41,6 +41,8 @@ per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
 varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -689,7 +691,7 @@ def run(zs, us, x0, P0):
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
         keep = rows.extend
-        for k, (zk, uk) in enumerate(zip(zs.tolist(), us.tolist())):
+        for (zk, uk) in zip(zs.tolist(), us.tolist()):
             z_0, z_1, z_2, z_3 = zk
             u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
             t0 = 0.01 + P_0
@@ -697,7 +699,7 @@ def run(zs, us, x0, P0):
             t2 = 0.01 + P_10
             t3 = 0.01 + P_15
             if not t0 > 0.0:
-                raise NumericalError(f"step {k}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
             t4 = _sqrt(t0)
             t5 = 1.0/t4
             t6 = P_1*t5
@@ -705,21 +707,19 @@ def run(zs, us, x0, P0):
             t8 = P_3*t5
             t9 = t1 - t6*t6
             if not t9 > 0.0:
-                raise NumericalError(f"step {k}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive')
             t10 = _sqrt(t9)
             t11 = 1.0/t10
             t12 = t11*(P_6 - t6*t7)
             t13 = t11*(P_7 - t6*t8)
             t14 = t2 - t12*t12 - t7*t7
             if not t14 > 0.0:
-                raise NumericalError(f"step {k}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive')
             t15 = _sqrt(t14)
-            t16 = 1.0/t15
-            t17 = t16*(P_11 - t12*t13 - t7*t8)
+            t17 = 1.0/t15*(P_11 - t12*t13 - t7*t8)
             t18 = t3 - t13*t13 - t17*t17 - t8*t8
             if not t18 > 0.0:
-                raise NumericalError(f"step {k}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive')
-            t19 = _sqrt(t18)
+                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive')
             t20 = 1.7320508075688772*t4
             t21 = 1.7320508075688772*t6
             t22 = 1.7320508075688772*t10
@@ -729,7 +729,7 @@ def run(zs, us, x0, P0):
             t26 = 1.7320508075688772*t8
             t27 = 1.7320508075688772*t13
             t28 = 1.7320508075688772*t17
-            t29 = 1.7320508075688772*t19
+            t29 = 1.7320508075688772*_sqrt(t18)
             t30 = x_0 + t20
             t31 = x_1 + t21
             t32 = x_2 + t23
@@ -858,14 +858,10 @@ def run(zs, us, x0, P0):
             t155 = t49 + t62
             t156 = t49 + t69
             t157 = t49 + t76
-            t158 = t107 + t114 + t121 + t136 + t147 + t154 + t81 + t96
-            t159 = 0.16666666666666666*t158 - 0.3333333333333333*t56
-            t160 = t109 + t115 + t125 + t139 + t149 + t155 + t85 + t99
-            t161 = 0.16666666666666666*t160 - 0.3333333333333333*t63
-            t162 = t102 + t111 + t116 + t129 + t142 + t151 + t156 + t89
-            t163 = 0.16666666666666666*t162 - 0.3333333333333333*t70
-            t164 = t105 + t113 + t117 + t133 + t145 + t153 + t157 + t93
-            t165 = 0.16666666666666666*t164 - 0.3333333333333333*t77
+            t159 = 0.16666666666666666*(t107 + t114 + t121 + t136 + t147 + t154 + t81 + t96) - 0.3333333333333333*t56
+            t161 = 0.16666666666666666*(t109 + t115 + t125 + t139 + t149 + t155 + t85 + t99) - 0.3333333333333333*t63
+            t163 = 0.16666666666666666*(t102 + t111 + t116 + t129 + t142 + t151 + t156 + t89) - 0.3333333333333333*t70
+            t165 = 0.16666666666666666*(t105 + t113 + t117 + t133 + t145 + t153 + t157 + t93) - 0.3333333333333333*t77
             t166 = t56 - t159
             t167 = t63 - t161
             t168 = t70 - t163
@@ -902,26 +898,16 @@ def run(zs, us, x0, P0):
             t199 = t155 - t161
             t200 = t156 - t163
             t201 = t157 - t165
-            t202 = t170*t170 + t174*t174 + t178*t178 + t182*t182 + t186*t186 + t190*t190 + t194*t194 + t198*t198
-            t203 = 100.0 - 0.3333333333333333*(t166*t166) + 0.16666666666666666*t202
-            t204 = t170*t171 + t174*t175 + t178*t179 + t182*t183 + t186*t187 + t190*t191 + t194*t195 + t198*t199
-            t205 = 0.16666666666666666*t204 - 0.3333333333333333*(t166*t167)
-            t206 = t170*t172 + t174*t176 + t178*t180 + t182*t184 + t186*t188 + t190*t192 + t194*t196 + t198*t200
-            t207 = 0.16666666666666666*t206 - 0.3333333333333333*(t166*t168)
-            t208 = t170*t173 + t174*t177 + t178*t181 + t182*t185 + t186*t189 + t190*t193 + t194*t197 + t198*t201
-            t209 = 0.16666666666666666*t208 - 0.3333333333333333*(t166*t169)
-            t210 = t171*t171 + t175*t175 + t179*t179 + t183*t183 + t187*t187 + t191*t191 + t195*t195 + t199*t199
-            t211 = 100.0 - 0.3333333333333333*(t167*t167) + 0.16666666666666666*t210
-            t212 = t171*t172 + t175*t176 + t179*t180 + t183*t184 + t187*t188 + t191*t192 + t195*t196 + t199*t200
-            t213 = 0.16666666666666666*t212 - 0.3333333333333333*(t167*t168)
-            t214 = t171*t173 + t175*t177 + t179*t181 + t183*t185 + t187*t189 + t191*t193 + t195*t197 + t199*t201
-            t215 = 0.16666666666666666*t214 - 0.3333333333333333*(t167*t169)
-            t216 = t172*t172 + t176*t176 + t180*t180 + t184*t184 + t188*t188 + t192*t192 + t196*t196 + t200*t200
-            t217 = 100.0 - 0.3333333333333333*(t168*t168) + 0.16666666666666666*t216
-            t218 = t172*t173 + t176*t177 + t180*t181 + t184*t185 + t188*t189 + t192*t193 + t196*t197 + t200*t201
-            t219 = 0.16666666666666666*t218 - 0.3333333333333333*(t168*t169)
-            t220 = t173*t173 + t177*t177 + t181*t181 + t185*t185 + t189*t189 + t193*t193 + t197*t197 + t201*t201
-            t221 = 100.0 - 0.3333333333333333*(t169*t169) + 0.16666666666666666*t220
+            t203 = 100.0 - 0.3333333333333333*(t166*t166) + 0.16666666666666666*(t170*t170 + t174*t174 + t178*t178 + t182*t182 + t186*t186 + t190*t190 + t194*t194 + t198*t198)
+            t205 = 0.16666666666666666*(t170*t171 + t174*t175 + t178*t179 + t182*t183 + t186*t187 + t190*t191 + t194*t195 + t198*t199) - 0.3333333333333333*(t166*t167)
+            t207 = 0.16666666666666666*(t170*t172 + t174*t176 + t178*t180 + t182*t184 + t186*t188 + t190*t192 + t194*t196 + t198*t200) - 0.3333333333333333*(t166*t168)
+            t209 = 0.16666666666666666*(t170*t173 + t174*t177 + t178*t181 + t182*t185 + t186*t189 + t190*t193 + t194*t197 + t198*t201) - 0.3333333333333333*(t166*t169)
+            t211 = 100.0 - 0.3333333333333333*(t167*t167) + 0.16666666666666666*(t171*t171 + t175*t175 + t179*t179 + t183*t183 + t187*t187 + t191*t191 + t195*t195 + t199*t199)
+            t213 = 0.16666666666666666*(t171*t172 + t175*t176 + t179*t180 + t183*t184 + t187*t188 + t191*t192 + t195*t196 + t199*t200) - 0.3333333333333333*(t167*t168)
+            t215 = 0.16666666666666666*(t171*t173 + t175*t177 + t179*t181 + t183*t185 + t187*t189 + t191*t193 + t195*t197 + t199*t201) - 0.3333333333333333*(t167*t169)
+            t217 = 100.0 - 0.3333333333333333*(t168*t168) + 0.16666666666666666*(t172*t172 + t176*t176 + t180*t180 + t184*t184 + t188*t188 + t192*t192 + t196*t196 + t200*t200)
+            t219 = 0.16666666666666666*(t172*t173 + t176*t177 + t180*t181 + t184*t185 + t188*t189 + t192*t193 + t196*t197 + t200*t201) - 0.3333333333333333*(t168*t169)
+            t221 = 100.0 - 0.3333333333333333*(t169*t169) + 0.16666666666666666*(t173*t173 + t177*t177 + t181*t181 + t185*t185 + t189*t189 + t193*t193 + t197*t197 + t201*t201)
             t222 = t81 - t121
             t223 = t85 - t125
             t224 = t89 - t129
@@ -934,51 +920,31 @@ def run(zs, us, x0, P0):
             t231 = t109 - t149
             t232 = t111 - t151
             t233 = t113 - t153
-            t234 = t114 - t154
-            t235 = t115 - t155
-            t236 = t116 - t156
-            t237 = t117 - t157
-            t238 = t20*t222
-            t239 = t20*t223
-            t240 = t20*t224
-            t241 = t20*t225
-            t242 = t21*t222 + t22*t226
-            t243 = t21*t223 + t22*t227
-            t244 = t21*t224 + t22*t228
-            t245 = t21*t225 + t22*t229
-            t246 = t222*t23 + t226*t24 + t230*t25
-            t247 = t223*t23 + t227*t24 + t231*t25
-            t248 = t224*t23 + t228*t24 + t232*t25
-            t249 = t225*t23 + t229*t24 + t233*t25
-            t250 = t222*t26 + t226*t27 + t230*t28 + t234*t29
-            t251 = t223*t26 + t227*t27 + t231*t28 + t235*t29
-            t252 = t224*t26 + t228*t27 + t232*t28 + t236*t29
-            t253 = t225*t26 + t229*t27 + t233*t28 + t237*t29
-            t254 = 0.16666666666666666*t238
-            t255 = 0.16666666666666666*t239
-            t256 = 0.16666666666666666*t240
-            t257 = 0.16666666666666666*t241
-            t258 = 0.16666666666666666*t242
-            t259 = 0.16666666666666666*t243
-            t260 = 0.16666666666666666*t244
-            t261 = 0.16666666666666666*t245
-            t262 = 0.16666666666666666*t246
-            t263 = 0.16666666666666666*t247
-            t264 = 0.16666666666666666*t248
-            t265 = 0.16666666666666666*t249
-            t266 = 0.16666666666666666*t250
-            t267 = 0.16666666666666666*t251
-            t268 = 0.16666666666666666*t252
-            t269 = 0.16666666666666666*t253
+            t254 = 0.16666666666666666*(t20*t222)
+            t255 = 0.16666666666666666*(t20*t223)
+            t256 = 0.16666666666666666*(t20*t224)
+            t257 = 0.16666666666666666*(t20*t225)
+            t258 = 0.16666666666666666*(t21*t222 + t22*t226)
+            t259 = 0.16666666666666666*(t21*t223 + t22*t227)
+            t260 = 0.16666666666666666*(t21*t224 + t22*t228)
+            t261 = 0.16666666666666666*(t21*t225 + t22*t229)
+            t262 = 0.16666666666666666*(t222*t23 + t226*t24 + t230*t25)
+            t263 = 0.16666666666666666*(t223*t23 + t227*t24 + t231*t25)
+            t264 = 0.16666666666666666*(t224*t23 + t228*t24 + t232*t25)
+            t265 = 0.16666666666666666*(t225*t23 + t229*t24 + t233*t25)
+            t266 = 0.16666666666666666*(t222*t26 + t226*t27 + t230*t28 + (t114 - t154)*t29)
+            t267 = 0.16666666666666666*(t223*t26 + t227*t27 + t231*t28 + (t115 - t155)*t29)
+            t268 = 0.16666666666666666*(t224*t26 + t228*t27 + t232*t28 + (t116 - t156)*t29)
+            t269 = 0.16666666666666666*(t225*t26 + t229*t27 + t233*t28 + (t117 - t157)*t29)
             if not t203 > 0.0:
-                raise NumericalError(f"step {k}: " + 'Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t270 = 1.0/t203
             t271 = t205*t270
             t272 = t207*t270
             t273 = t209*t270
             t274 = t211 - t205*t271
             if not t274 > 0.0:
-                raise NumericalError(f"step {k}: " + 'Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t275 = 1.0/t274
             t276 = t213 - t207*t271
             t277 = t275*t276
@@ -986,103 +952,58 @@ def run(zs, us, x0, P0):
             t279 = t275*t278
             t280 = t217 - t207*t272 - t276*t277
             if not t280 > 0.0:
-                raise NumericalError(f"step {k}: " + 'Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t281 = 1.0/t280
             t282 = t219 - t209*t272 - t277*t278
             t283 = t281*t282
             t284 = t221 - t209*t273 - t278*t279 - t282*t283
             if not t284 > 0.0:
-                raise NumericalError(f"step {k}: " + 'Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t285 = 1.0/t284
             t286 = t255 - t254*t271
             t287 = t256 - t254*t272 - t277*t286
-            t288 = t257 - t254*t273 - t279*t286 - t283*t287
             t289 = t259 - t258*t271
             t290 = t260 - t258*t272 - t277*t289
-            t291 = t261 - t258*t273 - t279*t289 - t283*t290
             t292 = t263 - t262*t271
             t293 = t264 - t262*t272 - t277*t292
-            t294 = t265 - t262*t273 - t279*t292 - t283*t293
             t295 = t267 - t266*t271
             t296 = t268 - t266*t272 - t277*t295
-            t297 = t269 - t266*t273 - t279*t295 - t283*t296
-            t298 = t254*t270
-            t299 = t258*t270
-            t300 = t262*t270
-            t301 = t266*t270
-            t302 = t275*t286
-            t303 = t275*t289
-            t304 = t275*t292
-            t305 = t275*t295
-            t306 = t281*t287
-            t307 = t281*t290
-            t308 = t281*t293
-            t309 = t281*t296
-            t310 = t285*t288
-            t311 = t285*t291
-            t312 = t285*t294
-            t313 = t285*t297
-            t314 = t306 - t283*t310
-            t315 = t302 - t277*t314 - t279*t310
-            t316 = t298 - t271*t315 - t272*t314 - t273*t310
-            t317 = t307 - t283*t311
-            t318 = t303 - t277*t317 - t279*t311
-            t319 = t299 - t271*t318 - t272*t317 - t273*t311
-            t320 = t308 - t283*t312
-            t321 = t304 - t277*t320 - t279*t312
-            t322 = t300 - t271*t321 - t272*t320 - t273*t312
-            t323 = t309 - t283*t313
-            t324 = t305 - t277*t323 - t279*t313
-            t325 = t301 - t271*t324 - t272*t323 - t273*t313
+            t310 = t285*(t257 - t254*t273 - t279*t286 - t283*t287)
+            t311 = t285*(t261 - t258*t273 - t279*t289 - t283*t290)
+            t312 = t285*(t265 - t262*t273 - t279*t292 - t283*t293)
+            t313 = t285*(t269 - t266*t273 - t279*t295 - t283*t296)
+            t314 = t281*t287 - t283*t310
+            t315 = t275*t286 - t277*t314 - t279*t310
+            t316 = t254*t270 - t271*t315 - t272*t314 - t273*t310
+            t317 = t281*t290 - t283*t311
+            t318 = t275*t289 - t277*t317 - t279*t311
+            t319 = t258*t270 - t271*t318 - t272*t317 - t273*t311
+            t320 = t281*t293 - t283*t312
+            t321 = t275*t292 - t277*t320 - t279*t312
+            t322 = t262*t270 - t271*t321 - t272*t320 - t273*t312
+            t323 = t281*t296 - t283*t313
+            t324 = t275*t295 - t277*t323 - t279*t313
+            t325 = t266*t270 - t271*t324 - t272*t323 - t273*t313
             t326 = z_0 - t159
             t327 = z_1 - t161
             t328 = z_2 - t163
             t329 = z_3 - t165
-            t330 = t310*t329 + t314*t328 + t315*t327 + t316*t326
-            t331 = t311*t329 + t317*t328 + t318*t327 + t319*t326
-            t332 = t312*t329 + t320*t328 + t321*t327 + t322*t326
-            t333 = t313*t329 + t323*t328 + t324*t327 + t325*t326
-            t334 = x_0 + t330
-            t335 = x_1 + t331
-            t336 = x_2 + t332
-            t337 = x_3 + t333
-            t338 = t254*t316 + t255*t315 + t256*t314 + t257*t310
-            t339 = t258*t316 + t259*t315 + t260*t314 + t261*t310
-            t340 = t262*t316 + t263*t315 + t264*t314 + t265*t310
-            t341 = t266*t316 + t267*t315 + t268*t314 + t269*t310
-            t342 = t258*t319 + t259*t318 + t260*t317 + t261*t311
-            t343 = t262*t319 + t263*t318 + t264*t317 + t265*t311
-            t344 = t266*t319 + t267*t318 + t268*t317 + t269*t311
-            t345 = t262*t322 + t263*t321 + t264*t320 + t265*t312
-            t346 = t266*t322 + t267*t321 + t268*t320 + t269*t312
-            t347 = t266*t325 + t267*t324 + t268*t323 + t269*t313
-            t348 = t0 - t338
-            t349 = P_1 - t339
-            t350 = P_2 - t340
-            t351 = P_3 - t341
-            t352 = t1 - t342
-            t353 = P_6 - t343
-            t354 = P_7 - t344
-            t355 = t2 - t345
-            t356 = P_11 - t346
-            t357 = t3 - t347
-            keep((t334, t335, t336, t337, t348, t349, t350, t351, t352, t353, t354, t355, t356,
-                    t357))
-            x_0 = t334
-            x_1 = t335
-            x_2 = t336
-            x_3 = t337
-            P_0 = t348
-            P_1 = t349
-            P_2 = t350
-            P_3 = t351
-            P_5 = t352
-            P_6 = t353
-            P_7 = t354
-            P_10 = t355
-            P_11 = t356
-            P_15 = t357
-        table = np.array(rows, dtype=float).reshape(-1, 14)
+            x_0 = x_0 + (t310*t329 + t314*t328 + t315*t327 + t316*t326)
+            x_1 = x_1 + (t311*t329 + t317*t328 + t318*t327 + t319*t326)
+            x_2 = x_2 + (t312*t329 + t320*t328 + t321*t327 + t322*t326)
+            x_3 = x_3 + (t313*t329 + t323*t328 + t324*t327 + t325*t326)
+            P_0 = t0 - (t254*t316 + t255*t315 + t256*t314 + t257*t310)
+            P_1 = P_1 - (t258*t316 + t259*t315 + t260*t314 + t261*t310)
+            P_2 = P_2 - (t262*t316 + t263*t315 + t264*t314 + t265*t310)
+            P_3 = P_3 - (t266*t316 + t267*t315 + t268*t314 + t269*t310)
+            P_5 = t1 - (t258*t319 + t259*t318 + t260*t317 + t261*t311)
+            P_6 = P_6 - (t262*t319 + t263*t318 + t264*t317 + t265*t311)
+            P_7 = P_7 - (t266*t319 + t267*t318 + t268*t317 + t269*t311)
+            P_10 = t2 - (t262*t322 + t263*t321 + t264*t320 + t265*t312)
+            P_11 = P_11 - (t266*t322 + t267*t321 + t268*t320 + t269*t312)
+            P_15 = t3 - (t266*t325 + t267*t324 + t268*t323 + t269*t313)
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

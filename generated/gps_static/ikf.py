@@ -15,16 +15,18 @@ interface (flat row-major arrays; steps = number of steps):
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 2: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 3: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 5: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
 P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
+
+import struct
 
 import numpy as np
 
@@ -103,37 +105,37 @@ def _step_in_pattern(x, P, z):
     """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = 0.01 + P[0]
-    t1 = 0.01 + P[4]
-    t2 = 0.01 + P[8]
     _require_positive(t0, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    t3 = 1.0/t0
-    _require_positive(t1, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-    t4 = 1.0/t1
-    _require_positive(t2, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-    t5 = 1.0/t2
-    t6 = 10.0 + t3
-    t7 = 10.0 + t4
-    t8 = 10.0 + t5
-    _require_positive(t6, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    t9 = 1.0/t6
-    _require_positive(t7, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-    t10 = 1.0/t7
-    _require_positive(t8, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-    t11 = 1.0/t8
-    t12 = 10.0*t9
-    t13 = 10.0*t10
-    t14 = 10.0*t11
-    t15 = z[0] - x[0]
-    t16 = z[1] - x[1]
-    t17 = z[2] - x[2]
-    t18 = t12*t15
-    t19 = t13*t16
-    t20 = t14*t17
-    t21 = x[0] + t18
-    t22 = x[1] + t19
-    t23 = x[2] + t20
-    x_new = [t21, t22, t23]
-    P_new = [t9, 0.0, 0.0, 0.0, t10, 0.0, 0.0, 0.0, t11]
+    t1 = 1.0/t0
+    t2 = 10.0 + t1
+    _require_positive(t2, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    t3 = 1.0/t2
+    t4 = 10.0*t3
+    t5 = z[0] - x[0]
+    t6 = t4*t5
+    t7 = x[0] + t6
+    t8 = 0.01 + P[4]
+    _require_positive(t8, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    t9 = 1.0/t8
+    t10 = 10.0 + t9
+    _require_positive(t10, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    t11 = 1.0/t10
+    t12 = 10.0*t11
+    t13 = z[1] - x[1]
+    t14 = t12*t13
+    t15 = x[1] + t14
+    t16 = 0.01 + P[8]
+    _require_positive(t16, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    t17 = 1.0/t16
+    t18 = 10.0 + t17
+    _require_positive(t18, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    t19 = 1.0/t18
+    t20 = 10.0*t19
+    t21 = z[2] - x[2]
+    t22 = t20*t21
+    t23 = x[2] + t22
+    x_new = [t7, t15, t23]
+    P_new = [t3, 0.0, 0.0, 0.0, t11, 0.0, 0.0, 0.0, t19]
     return x_new, P_new
 
 
@@ -165,52 +167,34 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.01 + P_0
-            t1 = 0.01 + P_4
-            t2 = 0.01 + P_8
             if not t0 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            t3 = 1.0/t0
-            if not t1 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            t4 = 1.0/t1
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t2 = 10.0 + 1.0/t0
             if not t2 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t5 = 1.0/t2
-            t6 = 10.0 + t3
-            t7 = 10.0 + t4
-            t8 = 10.0 + t5
-            if not t6 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            t9 = 1.0/t6
-            if not t7 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            t10 = 1.0/t7
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            P_0 = 1.0/t2
+            x_0 = x_0 + 10.0*P_0*(z_0 - x_0)
+            t8 = 0.01 + P_4
             if not t8 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t11 = 1.0/t8
-            t12 = 10.0*t9
-            t13 = 10.0*t10
-            t14 = 10.0*t11
-            t15 = z_0 - x_0
-            t16 = z_1 - x_1
-            t17 = z_2 - x_2
-            t18 = t12*t15
-            t19 = t13*t16
-            t20 = t14*t17
-            t21 = x_0 + t18
-            t22 = x_1 + t19
-            t23 = x_2 + t20
-            keep((t21, t22, t23, t9, 0.0, t10, t11))
-            x_0 = t21
-            x_1 = t22
-            x_2 = t23
-            P_0 = t9
-            P_4 = t10
-            P_8 = t11
-        table = np.array(rows, dtype=float).reshape(-1, 7)
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t10 = 10.0 + 1.0/t8
+            if not t10 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            P_4 = 1.0/t10
+            x_1 = x_1 + 10.0*P_4*(z_1 - x_1)
+            t16 = 0.01 + P_8
+            if not t16 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            t18 = 10.0 + 1.0/t16
+            if not t18 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            P_8 = 1.0/t18
+            x_2 = x_2 + 10.0*P_8*(z_2 - x_2)
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

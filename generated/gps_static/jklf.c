@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gps_static_jklf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
  *     int gps_static_jklf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int gps_static_jklf_run_tracks(steps, tracks, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -22,11 +23,153 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 75, instructions 81)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gps_static_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <stddef.h>
 
 #include "jklf.h"
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+{
+    int status = 0;
+    const double t0 = 0.01 + P[0];
+    const double t1 = 0.1 + t0;
+    if (!(t1 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    const double t2 = t0/t1;
+    const double t3 = z[0] - x[0];
+    const double t4 = t2*t3;
+    const double t5 = x[0] + t4;
+    const double t6 = t0*t2;
+    const double t7 = t0 - t6;
+    const double t8 = 9.090909090909092*P[0];
+    const double t9 = 1.0 + t8;
+    const double t10 = 1.0/t9;
+    const double t11 = 0.9090909090909091*t10;
+    const double t12 = 9.090909090909092*z[0];
+    const double t13 = P[0]*t12;
+    const double t14 = x[0] + t13;
+    const double t15 = 0.09090909090909091*z[0];
+    const double t16 = t11*t14;
+    const double t17 = t15 + t16;
+    const double t18 = P[0]*t11;
+    const double t19 = 0.9090909090909091*t18;
+    const double t20 = 0.00909090909090909 + t19;
+    const double t21 = t17 + t5;
+    const double t22 = 0.5*t21;
+    const double t23 = t20 + t7;
+    const double t24 = 0.5*t23;
+    const double t25 = 0.01 + P[4 * s];
+    const double t26 = 0.1 + t25;
+    if (!(t26 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t27 = t25/t26;
+    const double t28 = z[1 * s] - x[1 * s];
+    const double t29 = t27*t28;
+    const double t30 = x[1 * s] + t29;
+    const double t31 = t25*t27;
+    const double t32 = t25 - t31;
+    const double t33 = 9.090909090909092*P[4 * s];
+    const double t34 = 1.0 + t33;
+    const double t35 = 1.0/t34;
+    const double t36 = 0.9090909090909091*t35;
+    const double t37 = 9.090909090909092*z[1 * s];
+    const double t38 = P[4 * s]*t37;
+    const double t39 = x[1 * s] + t38;
+    const double t40 = 0.09090909090909091*z[1 * s];
+    const double t41 = t36*t39;
+    const double t42 = t40 + t41;
+    const double t43 = P[4 * s]*t36;
+    const double t44 = 0.9090909090909091*t43;
+    const double t45 = 0.00909090909090909 + t44;
+    const double t46 = t30 + t42;
+    const double t47 = 0.5*t46;
+    const double t48 = t32 + t45;
+    const double t49 = 0.5*t48;
+    const double t50 = 0.01 + P[8 * s];
+    const double t51 = 0.1 + t50;
+    if (!(t51 > 0.0) && !status) {
+        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    }
+    const double t52 = t50/t51;
+    const double t53 = z[2 * s] - x[2 * s];
+    const double t54 = t52*t53;
+    const double t55 = x[2 * s] + t54;
+    const double t56 = t50*t52;
+    const double t57 = t50 - t56;
+    const double t58 = 9.090909090909092*P[8 * s];
+    const double t59 = 1.0 + t58;
+    const double t60 = 1.0/t59;
+    const double t61 = 0.9090909090909091*t60;
+    const double t62 = 9.090909090909092*z[2 * s];
+    const double t63 = P[8 * s]*t62;
+    const double t64 = x[2 * s] + t63;
+    const double t65 = 0.09090909090909091*z[2 * s];
+    const double t66 = t61*t64;
+    const double t67 = t65 + t66;
+    const double t68 = P[8 * s]*t61;
+    const double t69 = 0.9090909090909091*t68;
+    const double t70 = 0.00909090909090909 + t69;
+    const double t71 = t55 + t67;
+    const double t72 = 0.5*t71;
+    const double t73 = t57 + t70;
+    const double t74 = 0.5*t73;
+    x_new[0] = t22;
+    x_new[1 * s] = t47;
+    x_new[2 * s] = t72;
+    P_new[0] = t24;
+    P_new[1 * s] = 0.0;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t49;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = t74;
+    return status;
+}
 
 int gps_static_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
@@ -39,103 +182,7 @@ int gps_static_jklf_step(const double *restrict x, const double *restrict P, con
     if (!(P[5] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-    const double t0 = 0.01 + P[0];
-    const double t1 = 0.01 + P[4];
-    const double t2 = 0.01 + P[8];
-    const double t3 = 0.1 + t0;
-    const double t4 = 0.1 + t1;
-    const double t5 = 0.1 + t2;
-    if (!(t3 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t4 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    if (!(t5 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
-    const double t6 = t0/t3;
-    const double t7 = t1/t4;
-    const double t8 = t2/t5;
-    const double t9 = z[0] - x[0];
-    const double t10 = z[1] - x[1];
-    const double t11 = z[2] - x[2];
-    const double t12 = t6*t9;
-    const double t13 = t10*t7;
-    const double t14 = t11*t8;
-    const double t15 = x[0] + t12;
-    const double t16 = x[1] + t13;
-    const double t17 = x[2] + t14;
-    const double t18 = t0*t6;
-    const double t19 = t1*t7;
-    const double t20 = t2*t8;
-    const double t21 = t0 - t18;
-    const double t22 = t1 - t19;
-    const double t23 = t2 - t20;
-    const double t24 = 9.090909090909092*P[0];
-    const double t25 = 9.090909090909092*P[4];
-    const double t26 = 9.090909090909092*P[8];
-    const double t27 = 1.0 + t24;
-    const double t28 = 1.0 + t25;
-    const double t29 = 1.0 + t26;
-    const double t30 = 1.0/t27;
-    const double t31 = 1.0/t28;
-    const double t32 = 1.0/t29;
-    const double t33 = 0.9090909090909091*t30;
-    const double t34 = 0.9090909090909091*t31;
-    const double t35 = 0.9090909090909091*t32;
-    const double t36 = 9.090909090909092*z[0];
-    const double t37 = 9.090909090909092*z[1];
-    const double t38 = 9.090909090909092*z[2];
-    const double t39 = P[0]*t36;
-    const double t40 = P[4]*t37;
-    const double t41 = P[8]*t38;
-    const double t42 = x[0] + t39;
-    const double t43 = x[1] + t40;
-    const double t44 = x[2] + t41;
-    const double t45 = 0.09090909090909091*z[0];
-    const double t46 = 0.09090909090909091*z[1];
-    const double t47 = 0.09090909090909091*z[2];
-    const double t48 = t33*t42;
-    const double t49 = t34*t43;
-    const double t50 = t35*t44;
-    const double t51 = t45 + t48;
-    const double t52 = t46 + t49;
-    const double t53 = t47 + t50;
-    const double t54 = P[0]*t33;
-    const double t55 = P[4]*t34;
-    const double t56 = P[8]*t35;
-    const double t57 = 0.9090909090909091*t54;
-    const double t58 = 0.9090909090909091*t55;
-    const double t59 = 0.9090909090909091*t56;
-    const double t60 = 0.00909090909090909 + t57;
-    const double t61 = 0.00909090909090909 + t58;
-    const double t62 = 0.00909090909090909 + t59;
-    const double t63 = t15 + t51;
-    const double t64 = t16 + t52;
-    const double t65 = t17 + t53;
-    const double t66 = 0.5*t63;
-    const double t67 = 0.5*t64;
-    const double t68 = 0.5*t65;
-    const double t69 = t21 + t60;
-    const double t70 = t22 + t61;
-    const double t71 = t23 + t62;
-    const double t72 = 0.5*t69;
-    const double t73 = 0.5*t70;
-    const double t74 = 0.5*t71;
-    x_new[0] = t66;
-    x_new[1] = t67;
-    x_new[2] = t68;
-    P_new[0] = t72;
-    P_new[1] = 0.0;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t73;
-    P_new[5] = 0.0;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = t74;
-    return 0;
+    return gps_static_jklf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL. */
@@ -168,105 +215,13 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
     P[6] = P0[6];
     P[7] = P0[7];
     P[8] = P0[8];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = 0.01 + P[0];
-        const double t1 = 0.01 + P[4];
-        const double t2 = 0.01 + P[8];
-        const double t3 = 0.1 + t0;
-        const double t4 = 0.1 + t1;
-        const double t5 = 0.1 + t2;
-        if (!(t3 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = gps_static_jklf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        if (!(t4 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        if (!(t5 > 0.0)) {
-            return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-        }
-        const double t6 = t0/t3;
-        const double t7 = t1/t4;
-        const double t8 = t2/t5;
-        const double t9 = zk[0] - x[0];
-        const double t10 = zk[1] - x[1];
-        const double t11 = zk[2] - x[2];
-        const double t12 = t6*t9;
-        const double t13 = t10*t7;
-        const double t14 = t11*t8;
-        const double t15 = x[0] + t12;
-        const double t16 = x[1] + t13;
-        const double t17 = x[2] + t14;
-        const double t18 = t0*t6;
-        const double t19 = t1*t7;
-        const double t20 = t2*t8;
-        const double t21 = t0 - t18;
-        const double t22 = t1 - t19;
-        const double t23 = t2 - t20;
-        const double t24 = 9.090909090909092*P[0];
-        const double t25 = 9.090909090909092*P[4];
-        const double t26 = 9.090909090909092*P[8];
-        const double t27 = 1.0 + t24;
-        const double t28 = 1.0 + t25;
-        const double t29 = 1.0 + t26;
-        const double t30 = 1.0/t27;
-        const double t31 = 1.0/t28;
-        const double t32 = 1.0/t29;
-        const double t33 = 0.9090909090909091*t30;
-        const double t34 = 0.9090909090909091*t31;
-        const double t35 = 0.9090909090909091*t32;
-        const double t36 = 9.090909090909092*zk[0];
-        const double t37 = 9.090909090909092*zk[1];
-        const double t38 = 9.090909090909092*zk[2];
-        const double t39 = P[0]*t36;
-        const double t40 = P[4]*t37;
-        const double t41 = P[8]*t38;
-        const double t42 = x[0] + t39;
-        const double t43 = x[1] + t40;
-        const double t44 = x[2] + t41;
-        const double t45 = 0.09090909090909091*zk[0];
-        const double t46 = 0.09090909090909091*zk[1];
-        const double t47 = 0.09090909090909091*zk[2];
-        const double t48 = t33*t42;
-        const double t49 = t34*t43;
-        const double t50 = t35*t44;
-        const double t51 = t45 + t48;
-        const double t52 = t46 + t49;
-        const double t53 = t47 + t50;
-        const double t54 = P[0]*t33;
-        const double t55 = P[4]*t34;
-        const double t56 = P[8]*t35;
-        const double t57 = 0.9090909090909091*t54;
-        const double t58 = 0.9090909090909091*t55;
-        const double t59 = 0.9090909090909091*t56;
-        const double t60 = 0.00909090909090909 + t57;
-        const double t61 = 0.00909090909090909 + t58;
-        const double t62 = 0.00909090909090909 + t59;
-        const double t63 = t15 + t51;
-        const double t64 = t16 + t52;
-        const double t65 = t17 + t53;
-        const double t66 = 0.5*t63;
-        const double t67 = 0.5*t64;
-        const double t68 = 0.5*t65;
-        const double t69 = t21 + t60;
-        const double t70 = t22 + t61;
-        const double t71 = t23 + t62;
-        const double t72 = 0.5*t69;
-        const double t73 = 0.5*t70;
-        const double t74 = 0.5*t71;
-        x_new[0] = t66;
-        x_new[1] = t67;
-        x_new[2] = t68;
-        P_new[0] = t72;
-        P_new[1] = 0.0;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = t73;
-        P_new[5] = 0.0;
-        P_new[6] = 0.0;
-        P_new[7] = 0.0;
-        P_new[8] = t74;
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -296,12 +251,15 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int gps_static_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 9 + 1] == 0.0)) {
@@ -315,687 +273,65 @@ int gps_static_jklf_run_tracks(size_t steps, size_t tracks, const double *z, con
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        double x_l1[3], xn_l1[3];
-        double P_l1[9], Pn_l1[9];
-        const double *z_l1;
-        double x_l2[3], xn_l2[3];
-        double P_l2[9], Pn_l2[9];
-        const double *z_l2;
-        double x_l3[3], xn_l3[3];
-        double P_l3[9], Pn_l3[9];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        x_l1[0] = x0[(t + 1) * 3 + 0];
-        x_l1[1] = x0[(t + 1) * 3 + 1];
-        x_l1[2] = x0[(t + 1) * 3 + 2];
-        P_l1[0] = P0[(t + 1) * 9 + 0];
-        P_l1[1] = P0[(t + 1) * 9 + 1];
-        P_l1[2] = P0[(t + 1) * 9 + 2];
-        P_l1[3] = P0[(t + 1) * 9 + 3];
-        P_l1[4] = P0[(t + 1) * 9 + 4];
-        P_l1[5] = P0[(t + 1) * 9 + 5];
-        P_l1[6] = P0[(t + 1) * 9 + 6];
-        P_l1[7] = P0[(t + 1) * 9 + 7];
-        P_l1[8] = P0[(t + 1) * 9 + 8];
-        x_l2[0] = x0[(t + 2) * 3 + 0];
-        x_l2[1] = x0[(t + 2) * 3 + 1];
-        x_l2[2] = x0[(t + 2) * 3 + 2];
-        P_l2[0] = P0[(t + 2) * 9 + 0];
-        P_l2[1] = P0[(t + 2) * 9 + 1];
-        P_l2[2] = P0[(t + 2) * 9 + 2];
-        P_l2[3] = P0[(t + 2) * 9 + 3];
-        P_l2[4] = P0[(t + 2) * 9 + 4];
-        P_l2[5] = P0[(t + 2) * 9 + 5];
-        P_l2[6] = P0[(t + 2) * 9 + 6];
-        P_l2[7] = P0[(t + 2) * 9 + 7];
-        P_l2[8] = P0[(t + 2) * 9 + 8];
-        x_l3[0] = x0[(t + 3) * 3 + 0];
-        x_l3[1] = x0[(t + 3) * 3 + 1];
-        x_l3[2] = x0[(t + 3) * 3 + 2];
-        P_l3[0] = P0[(t + 3) * 9 + 0];
-        P_l3[1] = P0[(t + 3) * 9 + 1];
-        P_l3[2] = P0[(t + 3) * 9 + 2];
-        P_l3[3] = P0[(t + 3) * 9 + 3];
-        P_l3[4] = P0[(t + 3) * 9 + 4];
-        P_l3[5] = P0[(t + 3) * 9 + 5];
-        P_l3[6] = P0[(t + 3) * 9 + 6];
-        P_l3[7] = P0[(t + 3) * 9 + 7];
-        P_l3[8] = P0[(t + 3) * 9 + 8];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[3 * DERIVE_LANES];
+        double P_b[9 * DERIVE_LANES];
+        double x_new_b[3 * DERIVE_LANES];
+        double P_new_b[9 * DERIVE_LANES];
+        double z_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 3; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
+            }
+            for (i = 0; i < 9; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 9 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = 0.01 + P_l0[0];
-            const double t1_l0 = 0.01 + P_l0[4];
-            const double t2_l0 = 0.01 + P_l0[8];
-            const double t3_l0 = 0.1 + t0_l0;
-            const double t4_l0 = 0.1 + t1_l0;
-            const double t5_l0 = 0.1 + t2_l0;
-            if (!(t3_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 3], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 3], 1);
+                }
             }
-            if (!(t4_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
             }
-            if (!(t5_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = gps_static_jklf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            const double t6_l0 = t0_l0/t3_l0;
-            const double t7_l0 = t1_l0/t4_l0;
-            const double t8_l0 = t2_l0/t5_l0;
-            const double t9_l0 = z_l0[0] - x_l0[0];
-            const double t10_l0 = z_l0[1] - x_l0[1];
-            const double t11_l0 = z_l0[2] - x_l0[2];
-            const double t12_l0 = t6_l0*t9_l0;
-            const double t13_l0 = t10_l0*t7_l0;
-            const double t14_l0 = t11_l0*t8_l0;
-            const double t15_l0 = x_l0[0] + t12_l0;
-            const double t16_l0 = x_l0[1] + t13_l0;
-            const double t17_l0 = x_l0[2] + t14_l0;
-            const double t18_l0 = t0_l0*t6_l0;
-            const double t19_l0 = t1_l0*t7_l0;
-            const double t20_l0 = t2_l0*t8_l0;
-            const double t21_l0 = t0_l0 - t18_l0;
-            const double t22_l0 = t1_l0 - t19_l0;
-            const double t23_l0 = t2_l0 - t20_l0;
-            const double t24_l0 = 9.090909090909092*P_l0[0];
-            const double t25_l0 = 9.090909090909092*P_l0[4];
-            const double t26_l0 = 9.090909090909092*P_l0[8];
-            const double t27_l0 = 1.0 + t24_l0;
-            const double t28_l0 = 1.0 + t25_l0;
-            const double t29_l0 = 1.0 + t26_l0;
-            const double t30_l0 = 1.0/t27_l0;
-            const double t31_l0 = 1.0/t28_l0;
-            const double t32_l0 = 1.0/t29_l0;
-            const double t33_l0 = 0.9090909090909091*t30_l0;
-            const double t34_l0 = 0.9090909090909091*t31_l0;
-            const double t35_l0 = 0.9090909090909091*t32_l0;
-            const double t36_l0 = 9.090909090909092*z_l0[0];
-            const double t37_l0 = 9.090909090909092*z_l0[1];
-            const double t38_l0 = 9.090909090909092*z_l0[2];
-            const double t39_l0 = P_l0[0]*t36_l0;
-            const double t40_l0 = P_l0[4]*t37_l0;
-            const double t41_l0 = P_l0[8]*t38_l0;
-            const double t42_l0 = x_l0[0] + t39_l0;
-            const double t43_l0 = x_l0[1] + t40_l0;
-            const double t44_l0 = x_l0[2] + t41_l0;
-            const double t45_l0 = 0.09090909090909091*z_l0[0];
-            const double t46_l0 = 0.09090909090909091*z_l0[1];
-            const double t47_l0 = 0.09090909090909091*z_l0[2];
-            const double t48_l0 = t33_l0*t42_l0;
-            const double t49_l0 = t34_l0*t43_l0;
-            const double t50_l0 = t35_l0*t44_l0;
-            const double t51_l0 = t45_l0 + t48_l0;
-            const double t52_l0 = t46_l0 + t49_l0;
-            const double t53_l0 = t47_l0 + t50_l0;
-            const double t54_l0 = P_l0[0]*t33_l0;
-            const double t55_l0 = P_l0[4]*t34_l0;
-            const double t56_l0 = P_l0[8]*t35_l0;
-            const double t57_l0 = 0.9090909090909091*t54_l0;
-            const double t58_l0 = 0.9090909090909091*t55_l0;
-            const double t59_l0 = 0.9090909090909091*t56_l0;
-            const double t60_l0 = 0.00909090909090909 + t57_l0;
-            const double t61_l0 = 0.00909090909090909 + t58_l0;
-            const double t62_l0 = 0.00909090909090909 + t59_l0;
-            const double t63_l0 = t15_l0 + t51_l0;
-            const double t64_l0 = t16_l0 + t52_l0;
-            const double t65_l0 = t17_l0 + t53_l0;
-            const double t66_l0 = 0.5*t63_l0;
-            const double t67_l0 = 0.5*t64_l0;
-            const double t68_l0 = 0.5*t65_l0;
-            const double t69_l0 = t21_l0 + t60_l0;
-            const double t70_l0 = t22_l0 + t61_l0;
-            const double t71_l0 = t23_l0 + t62_l0;
-            const double t72_l0 = 0.5*t69_l0;
-            const double t73_l0 = 0.5*t70_l0;
-            const double t74_l0 = 0.5*t71_l0;
-            xn_l0[0] = t66_l0;
-            xn_l0[1] = t67_l0;
-            xn_l0[2] = t68_l0;
-            Pn_l0[0] = t72_l0;
-            Pn_l0[1] = 0.0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t73_l0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = t74_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            const double t0_l1 = 0.01 + P_l1[0];
-            const double t1_l1 = 0.01 + P_l1[4];
-            const double t2_l1 = 0.01 + P_l1[8];
-            const double t3_l1 = 0.1 + t0_l1;
-            const double t4_l1 = 0.1 + t1_l1;
-            const double t5_l1 = 0.1 + t2_l1;
-            if (!(t3_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            if (!(t4_l1 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    xs[((t + j) * steps + k) * 3 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 9; ++i) {
+                        Ps[((t + j) * steps + k) * 9 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            if (!(t5_l1 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            for (i = 0; i < 3 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            const double t6_l1 = t0_l1/t3_l1;
-            const double t7_l1 = t1_l1/t4_l1;
-            const double t8_l1 = t2_l1/t5_l1;
-            const double t9_l1 = z_l1[0] - x_l1[0];
-            const double t10_l1 = z_l1[1] - x_l1[1];
-            const double t11_l1 = z_l1[2] - x_l1[2];
-            const double t12_l1 = t6_l1*t9_l1;
-            const double t13_l1 = t10_l1*t7_l1;
-            const double t14_l1 = t11_l1*t8_l1;
-            const double t15_l1 = x_l1[0] + t12_l1;
-            const double t16_l1 = x_l1[1] + t13_l1;
-            const double t17_l1 = x_l1[2] + t14_l1;
-            const double t18_l1 = t0_l1*t6_l1;
-            const double t19_l1 = t1_l1*t7_l1;
-            const double t20_l1 = t2_l1*t8_l1;
-            const double t21_l1 = t0_l1 - t18_l1;
-            const double t22_l1 = t1_l1 - t19_l1;
-            const double t23_l1 = t2_l1 - t20_l1;
-            const double t24_l1 = 9.090909090909092*P_l1[0];
-            const double t25_l1 = 9.090909090909092*P_l1[4];
-            const double t26_l1 = 9.090909090909092*P_l1[8];
-            const double t27_l1 = 1.0 + t24_l1;
-            const double t28_l1 = 1.0 + t25_l1;
-            const double t29_l1 = 1.0 + t26_l1;
-            const double t30_l1 = 1.0/t27_l1;
-            const double t31_l1 = 1.0/t28_l1;
-            const double t32_l1 = 1.0/t29_l1;
-            const double t33_l1 = 0.9090909090909091*t30_l1;
-            const double t34_l1 = 0.9090909090909091*t31_l1;
-            const double t35_l1 = 0.9090909090909091*t32_l1;
-            const double t36_l1 = 9.090909090909092*z_l1[0];
-            const double t37_l1 = 9.090909090909092*z_l1[1];
-            const double t38_l1 = 9.090909090909092*z_l1[2];
-            const double t39_l1 = P_l1[0]*t36_l1;
-            const double t40_l1 = P_l1[4]*t37_l1;
-            const double t41_l1 = P_l1[8]*t38_l1;
-            const double t42_l1 = x_l1[0] + t39_l1;
-            const double t43_l1 = x_l1[1] + t40_l1;
-            const double t44_l1 = x_l1[2] + t41_l1;
-            const double t45_l1 = 0.09090909090909091*z_l1[0];
-            const double t46_l1 = 0.09090909090909091*z_l1[1];
-            const double t47_l1 = 0.09090909090909091*z_l1[2];
-            const double t48_l1 = t33_l1*t42_l1;
-            const double t49_l1 = t34_l1*t43_l1;
-            const double t50_l1 = t35_l1*t44_l1;
-            const double t51_l1 = t45_l1 + t48_l1;
-            const double t52_l1 = t46_l1 + t49_l1;
-            const double t53_l1 = t47_l1 + t50_l1;
-            const double t54_l1 = P_l1[0]*t33_l1;
-            const double t55_l1 = P_l1[4]*t34_l1;
-            const double t56_l1 = P_l1[8]*t35_l1;
-            const double t57_l1 = 0.9090909090909091*t54_l1;
-            const double t58_l1 = 0.9090909090909091*t55_l1;
-            const double t59_l1 = 0.9090909090909091*t56_l1;
-            const double t60_l1 = 0.00909090909090909 + t57_l1;
-            const double t61_l1 = 0.00909090909090909 + t58_l1;
-            const double t62_l1 = 0.00909090909090909 + t59_l1;
-            const double t63_l1 = t15_l1 + t51_l1;
-            const double t64_l1 = t16_l1 + t52_l1;
-            const double t65_l1 = t17_l1 + t53_l1;
-            const double t66_l1 = 0.5*t63_l1;
-            const double t67_l1 = 0.5*t64_l1;
-            const double t68_l1 = 0.5*t65_l1;
-            const double t69_l1 = t21_l1 + t60_l1;
-            const double t70_l1 = t22_l1 + t61_l1;
-            const double t71_l1 = t23_l1 + t62_l1;
-            const double t72_l1 = 0.5*t69_l1;
-            const double t73_l1 = 0.5*t70_l1;
-            const double t74_l1 = 0.5*t71_l1;
-            xn_l1[0] = t66_l1;
-            xn_l1[1] = t67_l1;
-            xn_l1[2] = t68_l1;
-            Pn_l1[0] = t72_l1;
-            Pn_l1[1] = 0.0;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = t73_l1;
-            Pn_l1[5] = 0.0;
-            Pn_l1[6] = 0.0;
-            Pn_l1[7] = 0.0;
-            Pn_l1[8] = t74_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            const double t0_l2 = 0.01 + P_l2[0];
-            const double t1_l2 = 0.01 + P_l2[4];
-            const double t2_l2 = 0.01 + P_l2[8];
-            const double t3_l2 = 0.1 + t0_l2;
-            const double t4_l2 = 0.1 + t1_l2;
-            const double t5_l2 = 0.1 + t2_l2;
-            if (!(t3_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t4_l2 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t5_l2 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t6_l2 = t0_l2/t3_l2;
-            const double t7_l2 = t1_l2/t4_l2;
-            const double t8_l2 = t2_l2/t5_l2;
-            const double t9_l2 = z_l2[0] - x_l2[0];
-            const double t10_l2 = z_l2[1] - x_l2[1];
-            const double t11_l2 = z_l2[2] - x_l2[2];
-            const double t12_l2 = t6_l2*t9_l2;
-            const double t13_l2 = t10_l2*t7_l2;
-            const double t14_l2 = t11_l2*t8_l2;
-            const double t15_l2 = x_l2[0] + t12_l2;
-            const double t16_l2 = x_l2[1] + t13_l2;
-            const double t17_l2 = x_l2[2] + t14_l2;
-            const double t18_l2 = t0_l2*t6_l2;
-            const double t19_l2 = t1_l2*t7_l2;
-            const double t20_l2 = t2_l2*t8_l2;
-            const double t21_l2 = t0_l2 - t18_l2;
-            const double t22_l2 = t1_l2 - t19_l2;
-            const double t23_l2 = t2_l2 - t20_l2;
-            const double t24_l2 = 9.090909090909092*P_l2[0];
-            const double t25_l2 = 9.090909090909092*P_l2[4];
-            const double t26_l2 = 9.090909090909092*P_l2[8];
-            const double t27_l2 = 1.0 + t24_l2;
-            const double t28_l2 = 1.0 + t25_l2;
-            const double t29_l2 = 1.0 + t26_l2;
-            const double t30_l2 = 1.0/t27_l2;
-            const double t31_l2 = 1.0/t28_l2;
-            const double t32_l2 = 1.0/t29_l2;
-            const double t33_l2 = 0.9090909090909091*t30_l2;
-            const double t34_l2 = 0.9090909090909091*t31_l2;
-            const double t35_l2 = 0.9090909090909091*t32_l2;
-            const double t36_l2 = 9.090909090909092*z_l2[0];
-            const double t37_l2 = 9.090909090909092*z_l2[1];
-            const double t38_l2 = 9.090909090909092*z_l2[2];
-            const double t39_l2 = P_l2[0]*t36_l2;
-            const double t40_l2 = P_l2[4]*t37_l2;
-            const double t41_l2 = P_l2[8]*t38_l2;
-            const double t42_l2 = x_l2[0] + t39_l2;
-            const double t43_l2 = x_l2[1] + t40_l2;
-            const double t44_l2 = x_l2[2] + t41_l2;
-            const double t45_l2 = 0.09090909090909091*z_l2[0];
-            const double t46_l2 = 0.09090909090909091*z_l2[1];
-            const double t47_l2 = 0.09090909090909091*z_l2[2];
-            const double t48_l2 = t33_l2*t42_l2;
-            const double t49_l2 = t34_l2*t43_l2;
-            const double t50_l2 = t35_l2*t44_l2;
-            const double t51_l2 = t45_l2 + t48_l2;
-            const double t52_l2 = t46_l2 + t49_l2;
-            const double t53_l2 = t47_l2 + t50_l2;
-            const double t54_l2 = P_l2[0]*t33_l2;
-            const double t55_l2 = P_l2[4]*t34_l2;
-            const double t56_l2 = P_l2[8]*t35_l2;
-            const double t57_l2 = 0.9090909090909091*t54_l2;
-            const double t58_l2 = 0.9090909090909091*t55_l2;
-            const double t59_l2 = 0.9090909090909091*t56_l2;
-            const double t60_l2 = 0.00909090909090909 + t57_l2;
-            const double t61_l2 = 0.00909090909090909 + t58_l2;
-            const double t62_l2 = 0.00909090909090909 + t59_l2;
-            const double t63_l2 = t15_l2 + t51_l2;
-            const double t64_l2 = t16_l2 + t52_l2;
-            const double t65_l2 = t17_l2 + t53_l2;
-            const double t66_l2 = 0.5*t63_l2;
-            const double t67_l2 = 0.5*t64_l2;
-            const double t68_l2 = 0.5*t65_l2;
-            const double t69_l2 = t21_l2 + t60_l2;
-            const double t70_l2 = t22_l2 + t61_l2;
-            const double t71_l2 = t23_l2 + t62_l2;
-            const double t72_l2 = 0.5*t69_l2;
-            const double t73_l2 = 0.5*t70_l2;
-            const double t74_l2 = 0.5*t71_l2;
-            xn_l2[0] = t66_l2;
-            xn_l2[1] = t67_l2;
-            xn_l2[2] = t68_l2;
-            Pn_l2[0] = t72_l2;
-            Pn_l2[1] = 0.0;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = t73_l2;
-            Pn_l2[5] = 0.0;
-            Pn_l2[6] = 0.0;
-            Pn_l2[7] = 0.0;
-            Pn_l2[8] = t74_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            const double t0_l3 = 0.01 + P_l3[0];
-            const double t1_l3 = 0.01 + P_l3[4];
-            const double t2_l3 = 0.01 + P_l3[8];
-            const double t3_l3 = 0.1 + t0_l3;
-            const double t4_l3 = 0.1 + t1_l3;
-            const double t5_l3 = 0.1 + t2_l3;
-            if (!(t3_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t4_l3 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t5_l3 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t6_l3 = t0_l3/t3_l3;
-            const double t7_l3 = t1_l3/t4_l3;
-            const double t8_l3 = t2_l3/t5_l3;
-            const double t9_l3 = z_l3[0] - x_l3[0];
-            const double t10_l3 = z_l3[1] - x_l3[1];
-            const double t11_l3 = z_l3[2] - x_l3[2];
-            const double t12_l3 = t6_l3*t9_l3;
-            const double t13_l3 = t10_l3*t7_l3;
-            const double t14_l3 = t11_l3*t8_l3;
-            const double t15_l3 = x_l3[0] + t12_l3;
-            const double t16_l3 = x_l3[1] + t13_l3;
-            const double t17_l3 = x_l3[2] + t14_l3;
-            const double t18_l3 = t0_l3*t6_l3;
-            const double t19_l3 = t1_l3*t7_l3;
-            const double t20_l3 = t2_l3*t8_l3;
-            const double t21_l3 = t0_l3 - t18_l3;
-            const double t22_l3 = t1_l3 - t19_l3;
-            const double t23_l3 = t2_l3 - t20_l3;
-            const double t24_l3 = 9.090909090909092*P_l3[0];
-            const double t25_l3 = 9.090909090909092*P_l3[4];
-            const double t26_l3 = 9.090909090909092*P_l3[8];
-            const double t27_l3 = 1.0 + t24_l3;
-            const double t28_l3 = 1.0 + t25_l3;
-            const double t29_l3 = 1.0 + t26_l3;
-            const double t30_l3 = 1.0/t27_l3;
-            const double t31_l3 = 1.0/t28_l3;
-            const double t32_l3 = 1.0/t29_l3;
-            const double t33_l3 = 0.9090909090909091*t30_l3;
-            const double t34_l3 = 0.9090909090909091*t31_l3;
-            const double t35_l3 = 0.9090909090909091*t32_l3;
-            const double t36_l3 = 9.090909090909092*z_l3[0];
-            const double t37_l3 = 9.090909090909092*z_l3[1];
-            const double t38_l3 = 9.090909090909092*z_l3[2];
-            const double t39_l3 = P_l3[0]*t36_l3;
-            const double t40_l3 = P_l3[4]*t37_l3;
-            const double t41_l3 = P_l3[8]*t38_l3;
-            const double t42_l3 = x_l3[0] + t39_l3;
-            const double t43_l3 = x_l3[1] + t40_l3;
-            const double t44_l3 = x_l3[2] + t41_l3;
-            const double t45_l3 = 0.09090909090909091*z_l3[0];
-            const double t46_l3 = 0.09090909090909091*z_l3[1];
-            const double t47_l3 = 0.09090909090909091*z_l3[2];
-            const double t48_l3 = t33_l3*t42_l3;
-            const double t49_l3 = t34_l3*t43_l3;
-            const double t50_l3 = t35_l3*t44_l3;
-            const double t51_l3 = t45_l3 + t48_l3;
-            const double t52_l3 = t46_l3 + t49_l3;
-            const double t53_l3 = t47_l3 + t50_l3;
-            const double t54_l3 = P_l3[0]*t33_l3;
-            const double t55_l3 = P_l3[4]*t34_l3;
-            const double t56_l3 = P_l3[8]*t35_l3;
-            const double t57_l3 = 0.9090909090909091*t54_l3;
-            const double t58_l3 = 0.9090909090909091*t55_l3;
-            const double t59_l3 = 0.9090909090909091*t56_l3;
-            const double t60_l3 = 0.00909090909090909 + t57_l3;
-            const double t61_l3 = 0.00909090909090909 + t58_l3;
-            const double t62_l3 = 0.00909090909090909 + t59_l3;
-            const double t63_l3 = t15_l3 + t51_l3;
-            const double t64_l3 = t16_l3 + t52_l3;
-            const double t65_l3 = t17_l3 + t53_l3;
-            const double t66_l3 = 0.5*t63_l3;
-            const double t67_l3 = 0.5*t64_l3;
-            const double t68_l3 = 0.5*t65_l3;
-            const double t69_l3 = t21_l3 + t60_l3;
-            const double t70_l3 = t22_l3 + t61_l3;
-            const double t71_l3 = t23_l3 + t62_l3;
-            const double t72_l3 = 0.5*t69_l3;
-            const double t73_l3 = 0.5*t70_l3;
-            const double t74_l3 = 0.5*t71_l3;
-            xn_l3[0] = t66_l3;
-            xn_l3[1] = t67_l3;
-            xn_l3[2] = t68_l3;
-            Pn_l3[0] = t72_l3;
-            Pn_l3[1] = 0.0;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = t73_l3;
-            Pn_l3[5] = 0.0;
-            Pn_l3[6] = 0.0;
-            Pn_l3[7] = 0.0;
-            Pn_l3[8] = t74_l3;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
-            }
-            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 9 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 9 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 9 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 9 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 9 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 9 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 9 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 9 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 9 + 8] = Pn_l1[8];
-            }
-            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 9 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 9 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 9 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 9 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 9 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 9 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 9 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 9 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 9 + 8] = Pn_l2[8];
-            }
-            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 9 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 9 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 9 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 9 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 9 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 9 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 9 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 9 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 9 + 8] = Pn_l3[8];
+            for (i = 0; i < 9 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = 0.01 + P_l0[0];
-            const double t1_l0 = 0.01 + P_l0[4];
-            const double t2_l0 = 0.01 + P_l0[8];
-            const double t3_l0 = 0.1 + t0_l0;
-            const double t4_l0 = 0.1 + t1_l0;
-            const double t5_l0 = 0.1 + t2_l0;
-            if (!(t3_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t4_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t5_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t6_l0 = t0_l0/t3_l0;
-            const double t7_l0 = t1_l0/t4_l0;
-            const double t8_l0 = t2_l0/t5_l0;
-            const double t9_l0 = z_l0[0] - x_l0[0];
-            const double t10_l0 = z_l0[1] - x_l0[1];
-            const double t11_l0 = z_l0[2] - x_l0[2];
-            const double t12_l0 = t6_l0*t9_l0;
-            const double t13_l0 = t10_l0*t7_l0;
-            const double t14_l0 = t11_l0*t8_l0;
-            const double t15_l0 = x_l0[0] + t12_l0;
-            const double t16_l0 = x_l0[1] + t13_l0;
-            const double t17_l0 = x_l0[2] + t14_l0;
-            const double t18_l0 = t0_l0*t6_l0;
-            const double t19_l0 = t1_l0*t7_l0;
-            const double t20_l0 = t2_l0*t8_l0;
-            const double t21_l0 = t0_l0 - t18_l0;
-            const double t22_l0 = t1_l0 - t19_l0;
-            const double t23_l0 = t2_l0 - t20_l0;
-            const double t24_l0 = 9.090909090909092*P_l0[0];
-            const double t25_l0 = 9.090909090909092*P_l0[4];
-            const double t26_l0 = 9.090909090909092*P_l0[8];
-            const double t27_l0 = 1.0 + t24_l0;
-            const double t28_l0 = 1.0 + t25_l0;
-            const double t29_l0 = 1.0 + t26_l0;
-            const double t30_l0 = 1.0/t27_l0;
-            const double t31_l0 = 1.0/t28_l0;
-            const double t32_l0 = 1.0/t29_l0;
-            const double t33_l0 = 0.9090909090909091*t30_l0;
-            const double t34_l0 = 0.9090909090909091*t31_l0;
-            const double t35_l0 = 0.9090909090909091*t32_l0;
-            const double t36_l0 = 9.090909090909092*z_l0[0];
-            const double t37_l0 = 9.090909090909092*z_l0[1];
-            const double t38_l0 = 9.090909090909092*z_l0[2];
-            const double t39_l0 = P_l0[0]*t36_l0;
-            const double t40_l0 = P_l0[4]*t37_l0;
-            const double t41_l0 = P_l0[8]*t38_l0;
-            const double t42_l0 = x_l0[0] + t39_l0;
-            const double t43_l0 = x_l0[1] + t40_l0;
-            const double t44_l0 = x_l0[2] + t41_l0;
-            const double t45_l0 = 0.09090909090909091*z_l0[0];
-            const double t46_l0 = 0.09090909090909091*z_l0[1];
-            const double t47_l0 = 0.09090909090909091*z_l0[2];
-            const double t48_l0 = t33_l0*t42_l0;
-            const double t49_l0 = t34_l0*t43_l0;
-            const double t50_l0 = t35_l0*t44_l0;
-            const double t51_l0 = t45_l0 + t48_l0;
-            const double t52_l0 = t46_l0 + t49_l0;
-            const double t53_l0 = t47_l0 + t50_l0;
-            const double t54_l0 = P_l0[0]*t33_l0;
-            const double t55_l0 = P_l0[4]*t34_l0;
-            const double t56_l0 = P_l0[8]*t35_l0;
-            const double t57_l0 = 0.9090909090909091*t54_l0;
-            const double t58_l0 = 0.9090909090909091*t55_l0;
-            const double t59_l0 = 0.9090909090909091*t56_l0;
-            const double t60_l0 = 0.00909090909090909 + t57_l0;
-            const double t61_l0 = 0.00909090909090909 + t58_l0;
-            const double t62_l0 = 0.00909090909090909 + t59_l0;
-            const double t63_l0 = t15_l0 + t51_l0;
-            const double t64_l0 = t16_l0 + t52_l0;
-            const double t65_l0 = t17_l0 + t53_l0;
-            const double t66_l0 = 0.5*t63_l0;
-            const double t67_l0 = 0.5*t64_l0;
-            const double t68_l0 = 0.5*t65_l0;
-            const double t69_l0 = t21_l0 + t60_l0;
-            const double t70_l0 = t22_l0 + t61_l0;
-            const double t71_l0 = t23_l0 + t62_l0;
-            const double t72_l0 = 0.5*t69_l0;
-            const double t73_l0 = 0.5*t70_l0;
-            const double t74_l0 = 0.5*t71_l0;
-            xn_l0[0] = t66_l0;
-            xn_l0[1] = t67_l0;
-            xn_l0[2] = t68_l0;
-            Pn_l0[0] = t72_l0;
-            Pn_l0[1] = 0.0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t73_l0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = t74_l0;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = gps_static_jklf_run(steps, z + t * steps * 3, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

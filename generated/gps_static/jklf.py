@@ -23,6 +23,8 @@ P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -100,85 +102,85 @@ def _step_in_pattern(x, P, z):
     """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = 0.01 + P[0]
-    t1 = 0.01 + P[4]
-    t2 = 0.01 + P[8]
-    t3 = 0.1 + t0
-    t4 = 0.1 + t1
-    t5 = 0.1 + t2
-    _require_positive(t3, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    _require_positive(t4, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-    _require_positive(t5, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-    t6 = t0/t3
-    t7 = t1/t4
-    t8 = t2/t5
-    t9 = z[0] - x[0]
-    t10 = z[1] - x[1]
-    t11 = z[2] - x[2]
-    t12 = t6*t9
-    t13 = t10*t7
-    t14 = t11*t8
-    t15 = x[0] + t12
-    t16 = x[1] + t13
-    t17 = x[2] + t14
-    t18 = t0*t6
-    t19 = t1*t7
-    t20 = t2*t8
-    t21 = t0 - t18
-    t22 = t1 - t19
-    t23 = t2 - t20
-    t24 = 9.090909090909092*P[0]
-    t25 = 9.090909090909092*P[4]
-    t26 = 9.090909090909092*P[8]
-    t27 = 1.0 + t24
-    t28 = 1.0 + t25
-    t29 = 1.0 + t26
-    t30 = 1.0/t27
-    t31 = 1.0/t28
-    t32 = 1.0/t29
-    t33 = 0.9090909090909091*t30
-    t34 = 0.9090909090909091*t31
-    t35 = 0.9090909090909091*t32
-    t36 = 9.090909090909092*z[0]
+    t1 = 0.1 + t0
+    _require_positive(t1, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    t2 = t0/t1
+    t3 = z[0] - x[0]
+    t4 = t2*t3
+    t5 = x[0] + t4
+    t6 = t0*t2
+    t7 = t0 - t6
+    t8 = 9.090909090909092*P[0]
+    t9 = 1.0 + t8
+    t10 = 1.0/t9
+    t11 = 0.9090909090909091*t10
+    t12 = 9.090909090909092*z[0]
+    t13 = P[0]*t12
+    t14 = x[0] + t13
+    t15 = 0.09090909090909091*z[0]
+    t16 = t11*t14
+    t17 = t15 + t16
+    t18 = P[0]*t11
+    t19 = 0.9090909090909091*t18
+    t20 = 0.00909090909090909 + t19
+    t21 = t17 + t5
+    t22 = 0.5*t21
+    t23 = t20 + t7
+    t24 = 0.5*t23
+    t25 = 0.01 + P[4]
+    t26 = 0.1 + t25
+    _require_positive(t26, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    t27 = t25/t26
+    t28 = z[1] - x[1]
+    t29 = t27*t28
+    t30 = x[1] + t29
+    t31 = t25*t27
+    t32 = t25 - t31
+    t33 = 9.090909090909092*P[4]
+    t34 = 1.0 + t33
+    t35 = 1.0/t34
+    t36 = 0.9090909090909091*t35
     t37 = 9.090909090909092*z[1]
-    t38 = 9.090909090909092*z[2]
-    t39 = P[0]*t36
-    t40 = P[4]*t37
-    t41 = P[8]*t38
-    t42 = x[0] + t39
-    t43 = x[1] + t40
-    t44 = x[2] + t41
-    t45 = 0.09090909090909091*z[0]
-    t46 = 0.09090909090909091*z[1]
-    t47 = 0.09090909090909091*z[2]
-    t48 = t33*t42
-    t49 = t34*t43
-    t50 = t35*t44
-    t51 = t45 + t48
-    t52 = t46 + t49
-    t53 = t47 + t50
-    t54 = P[0]*t33
-    t55 = P[4]*t34
-    t56 = P[8]*t35
-    t57 = 0.9090909090909091*t54
-    t58 = 0.9090909090909091*t55
-    t59 = 0.9090909090909091*t56
-    t60 = 0.00909090909090909 + t57
-    t61 = 0.00909090909090909 + t58
-    t62 = 0.00909090909090909 + t59
-    t63 = t15 + t51
-    t64 = t16 + t52
-    t65 = t17 + t53
-    t66 = 0.5*t63
-    t67 = 0.5*t64
-    t68 = 0.5*t65
-    t69 = t21 + t60
-    t70 = t22 + t61
-    t71 = t23 + t62
-    t72 = 0.5*t69
-    t73 = 0.5*t70
-    t74 = 0.5*t71
-    x_new = [t66, t67, t68]
-    P_new = [t72, 0.0, 0.0, 0.0, t73, 0.0, 0.0, 0.0, t74]
+    t38 = P[4]*t37
+    t39 = x[1] + t38
+    t40 = 0.09090909090909091*z[1]
+    t41 = t36*t39
+    t42 = t40 + t41
+    t43 = P[4]*t36
+    t44 = 0.9090909090909091*t43
+    t45 = 0.00909090909090909 + t44
+    t46 = t30 + t42
+    t47 = 0.5*t46
+    t48 = t32 + t45
+    t49 = 0.5*t48
+    t50 = 0.01 + P[8]
+    t51 = 0.1 + t50
+    _require_positive(t51, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    t52 = t50/t51
+    t53 = z[2] - x[2]
+    t54 = t52*t53
+    t55 = x[2] + t54
+    t56 = t50*t52
+    t57 = t50 - t56
+    t58 = 9.090909090909092*P[8]
+    t59 = 1.0 + t58
+    t60 = 1.0/t59
+    t61 = 0.9090909090909091*t60
+    t62 = 9.090909090909092*z[2]
+    t63 = P[8]*t62
+    t64 = x[2] + t63
+    t65 = 0.09090909090909091*z[2]
+    t66 = t61*t64
+    t67 = t65 + t66
+    t68 = P[8]*t61
+    t69 = 0.9090909090909091*t68
+    t70 = 0.00909090909090909 + t69
+    t71 = t55 + t67
+    t72 = 0.5*t71
+    t73 = t57 + t70
+    t74 = 0.5*t73
+    x_new = [t22, t47, t72]
+    P_new = [t24, 0.0, 0.0, 0.0, t49, 0.0, 0.0, 0.0, t74]
     return x_new, P_new
 
 
@@ -210,97 +212,34 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.01 + P_0
-            t1 = 0.01 + P_4
-            t2 = 0.01 + P_8
-            t3 = 0.1 + t0
-            t4 = 0.1 + t1
-            t5 = 0.1 + t2
-            if not t3 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            if not t4 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            if not t5 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t6 = t0/t3
-            t7 = t1/t4
-            t8 = t2/t5
-            t9 = z_0 - x_0
-            t10 = z_1 - x_1
-            t11 = z_2 - x_2
-            t12 = t6*t9
-            t13 = t10*t7
-            t14 = t11*t8
-            t15 = x_0 + t12
-            t16 = x_1 + t13
-            t17 = x_2 + t14
-            t18 = t0*t6
-            t19 = t1*t7
-            t20 = t2*t8
-            t21 = t0 - t18
-            t22 = t1 - t19
-            t23 = t2 - t20
-            t24 = 9.090909090909092*P_0
-            t25 = 9.090909090909092*P_4
-            t26 = 9.090909090909092*P_8
-            t27 = 1.0 + t24
-            t28 = 1.0 + t25
-            t29 = 1.0 + t26
-            t30 = 1.0/t27
-            t31 = 1.0/t28
-            t32 = 1.0/t29
-            t33 = 0.9090909090909091*t30
-            t34 = 0.9090909090909091*t31
-            t35 = 0.9090909090909091*t32
-            t36 = 9.090909090909092*z_0
-            t37 = 9.090909090909092*z_1
-            t38 = 9.090909090909092*z_2
-            t39 = P_0*t36
-            t40 = P_4*t37
-            t41 = P_8*t38
-            t42 = x_0 + t39
-            t43 = x_1 + t40
-            t44 = x_2 + t41
-            t45 = 0.09090909090909091*z_0
-            t46 = 0.09090909090909091*z_1
-            t47 = 0.09090909090909091*z_2
-            t48 = t33*t42
-            t49 = t34*t43
-            t50 = t35*t44
-            t51 = t45 + t48
-            t52 = t46 + t49
-            t53 = t47 + t50
-            t54 = P_0*t33
-            t55 = P_4*t34
-            t56 = P_8*t35
-            t57 = 0.9090909090909091*t54
-            t58 = 0.9090909090909091*t55
-            t59 = 0.9090909090909091*t56
-            t60 = 0.00909090909090909 + t57
-            t61 = 0.00909090909090909 + t58
-            t62 = 0.00909090909090909 + t59
-            t63 = t15 + t51
-            t64 = t16 + t52
-            t65 = t17 + t53
-            t66 = 0.5*t63
-            t67 = 0.5*t64
-            t68 = 0.5*t65
-            t69 = t21 + t60
-            t70 = t22 + t61
-            t71 = t23 + t62
-            t72 = 0.5*t69
-            t73 = 0.5*t70
-            t74 = 0.5*t71
-            keep((t66, t67, t68, t72, 0.0, t73, t74))
-            x_0 = t66
-            x_1 = t67
-            x_2 = t68
-            P_0 = t72
-            P_4 = t73
-            P_8 = t74
-        table = np.array(rows, dtype=float).reshape(-1, 7)
+            t1 = 0.1 + t0
+            if not t1 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t2 = t0/t1
+            t11 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_0))
+            x_0 = 0.5*(0.09090909090909091*z_0 + t11*(x_0 + P_0*(9.090909090909092*z_0)) + (x_0 + t2*(z_0 - x_0)))
+            P_0 = 0.5*(0.00909090909090909 + 0.9090909090909091*(P_0*t11) + (t0 - t0*t2))
+            t25 = 0.01 + P_4
+            t26 = 0.1 + t25
+            if not t26 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t27 = t25/t26
+            t36 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_4))
+            x_1 = 0.5*(x_1 + t27*(z_1 - x_1) + (0.09090909090909091*z_1 + t36*(x_1 + P_4*(9.090909090909092*z_1))))
+            P_4 = 0.5*(t25 - t25*t27 + (0.00909090909090909 + 0.9090909090909091*(P_4*t36)))
+            t50 = 0.01 + P_8
+            t51 = 0.1 + t50
+            if not t51 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            t52 = t50/t51
+            t61 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_8))
+            x_2 = 0.5*(x_2 + t52*(z_2 - x_2) + (0.09090909090909091*z_2 + t61*(x_2 + P_8*(9.090909090909092*z_2))))
+            P_8 = 0.5*(t50 - t50*t52 + (0.00909090909090909 + 0.9090909090909091*(P_8*t61)))
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

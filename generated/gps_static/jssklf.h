@@ -12,13 +12,14 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gps_static_jssklf_step(x[3], z[3], x_new[3] out)
  *     void gps_static_jssklf_run(steps, z[steps*3], x0[3], xs[steps*3] out)
+ *     void gps_static_jssklf_run_tracks(steps, tracks, z[steps*3], x0[3], xs[steps*3] out)
  *     many tracks: gps_static_jssklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 0, calls 0 (flops 9, instructions 6)
  * A = [[0.7298437881283575, 0.                , 0.                ], [0.                , 0.7298437881283575, 0.                ], [0.                , 0.                , 0.7298437881283575]]
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
- * derive-interface: {"functions":[["gps_static_jssklf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_jssklf_run","run",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gps_static_jssklf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_jssklf_run","run",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_gps_static_jssklf_H
 #define DERIVE_gps_static_jssklf_H

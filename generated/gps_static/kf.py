@@ -23,6 +23,8 @@ P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -100,34 +102,34 @@ def _step_in_pattern(x, P, z):
     """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = 0.01 + P[0]
-    t1 = 0.01 + P[4]
-    t2 = 0.01 + P[8]
-    t3 = 0.1 + t0
-    t4 = 0.1 + t1
-    t5 = 0.1 + t2
-    _require_positive(t3, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    _require_positive(t4, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-    _require_positive(t5, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-    t6 = t0/t3
-    t7 = t1/t4
-    t8 = t2/t5
-    t9 = z[0] - x[0]
-    t10 = z[1] - x[1]
-    t11 = z[2] - x[2]
-    t12 = t6*t9
-    t13 = t10*t7
-    t14 = t11*t8
-    t15 = x[0] + t12
-    t16 = x[1] + t13
-    t17 = x[2] + t14
-    t18 = t0*t6
-    t19 = t1*t7
-    t20 = t2*t8
-    t21 = t0 - t18
-    t22 = t1 - t19
-    t23 = t2 - t20
-    x_new = [t15, t16, t17]
-    P_new = [t21, 0.0, 0.0, 0.0, t22, 0.0, 0.0, 0.0, t23]
+    t1 = 0.1 + t0
+    _require_positive(t1, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    t2 = t0/t1
+    t3 = z[0] - x[0]
+    t4 = t2*t3
+    t5 = x[0] + t4
+    t6 = t0*t2
+    t7 = t0 - t6
+    t8 = 0.01 + P[4]
+    t9 = 0.1 + t8
+    _require_positive(t9, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    t10 = t8/t9
+    t11 = z[1] - x[1]
+    t12 = t10*t11
+    t13 = x[1] + t12
+    t14 = t10*t8
+    t15 = t8 - t14
+    t16 = 0.01 + P[8]
+    t17 = 0.1 + t16
+    _require_positive(t17, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    t18 = t16/t17
+    t19 = z[2] - x[2]
+    t20 = t18*t19
+    t21 = x[2] + t20
+    t22 = t16*t18
+    t23 = t16 - t22
+    x_new = [t5, t13, t21]
+    P_new = [t7, 0.0, 0.0, 0.0, t15, 0.0, 0.0, 0.0, t23]
     return x_new, P_new
 
 
@@ -159,46 +161,31 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.01 + P_0
-            t1 = 0.01 + P_4
-            t2 = 0.01 + P_8
-            t3 = 0.1 + t0
-            t4 = 0.1 + t1
-            t5 = 0.1 + t2
-            if not t3 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            if not t4 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            if not t5 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t6 = t0/t3
-            t7 = t1/t4
-            t8 = t2/t5
-            t9 = z_0 - x_0
-            t10 = z_1 - x_1
-            t11 = z_2 - x_2
-            t12 = t6*t9
-            t13 = t10*t7
-            t14 = t11*t8
-            t15 = x_0 + t12
-            t16 = x_1 + t13
-            t17 = x_2 + t14
-            t18 = t0*t6
-            t19 = t1*t7
-            t20 = t2*t8
-            t21 = t0 - t18
-            t22 = t1 - t19
-            t23 = t2 - t20
-            keep((t15, t16, t17, t21, 0.0, t22, t23))
-            x_0 = t15
-            x_1 = t16
-            x_2 = t17
-            P_0 = t21
-            P_4 = t22
-            P_8 = t23
-        table = np.array(rows, dtype=float).reshape(-1, 7)
+            t1 = 0.1 + t0
+            if not t1 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t2 = t0/t1
+            x_0 = x_0 + t2*(z_0 - x_0)
+            P_0 = t0 - t0*t2
+            t8 = 0.01 + P_4
+            t9 = 0.1 + t8
+            if not t9 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t10 = t8/t9
+            x_1 = x_1 + t10*(z_1 - x_1)
+            P_4 = t8 - t10*t8
+            t16 = 0.01 + P_8
+            t17 = 0.1 + t16
+            if not t17 > 0.0:
+                raise NumericalError(f"step {len(rows) // 7}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            t18 = t16/t17
+            x_2 = x_2 + t18*(z_2 - x_2)
+            P_8 = t16 - t16*t18
+            keep((x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gps_static_lf_step(x[3], P[3*3], z[3], x_new[3] out, P_new[3*3] out)
  *     int gps_static_lf_run(steps, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
+ *     int gps_static_lf_run_tracks(steps, tracks, z[steps*3], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: gps_static_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -19,11 +20,106 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 39, instructions 42)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gps_static_lf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_lf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <stddef.h>
 
 #include "lf.h"
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void gps_static_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+{
+    const double t0 = 9.090909090909092*P[0];
+    const double t1 = 1.0 + t0;
+    const double t2 = 1.0/t1;
+    const double t3 = 0.9090909090909091*t2;
+    const double t4 = 9.090909090909092*z[0];
+    const double t5 = P[0]*t4;
+    const double t6 = x[0] + t5;
+    const double t7 = 0.09090909090909091*z[0];
+    const double t8 = t3*t6;
+    const double t9 = t7 + t8;
+    const double t10 = P[0]*t3;
+    const double t11 = 0.9090909090909091*t10;
+    const double t12 = 0.00909090909090909 + t11;
+    const double t13 = 9.090909090909092*P[4 * s];
+    const double t14 = 1.0 + t13;
+    const double t15 = 1.0/t14;
+    const double t16 = 0.9090909090909091*t15;
+    const double t17 = 9.090909090909092*z[1 * s];
+    const double t18 = P[4 * s]*t17;
+    const double t19 = x[1 * s] + t18;
+    const double t20 = 0.09090909090909091*z[1 * s];
+    const double t21 = t16*t19;
+    const double t22 = t20 + t21;
+    const double t23 = P[4 * s]*t16;
+    const double t24 = 0.9090909090909091*t23;
+    const double t25 = 0.00909090909090909 + t24;
+    const double t26 = 9.090909090909092*P[8 * s];
+    const double t27 = 1.0 + t26;
+    const double t28 = 1.0/t27;
+    const double t29 = 0.9090909090909091*t28;
+    const double t30 = 9.090909090909092*z[2 * s];
+    const double t31 = P[8 * s]*t30;
+    const double t32 = x[2 * s] + t31;
+    const double t33 = 0.09090909090909091*z[2 * s];
+    const double t34 = t29*t32;
+    const double t35 = t33 + t34;
+    const double t36 = P[8 * s]*t29;
+    const double t37 = 0.9090909090909091*t36;
+    const double t38 = 0.00909090909090909 + t37;
+    x_new[0] = t9;
+    x_new[1 * s] = t22;
+    x_new[2 * s] = t35;
+    P_new[0] = t12;
+    P_new[1 * s] = 0.0;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t25;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = t38;
+}
 
 int gps_static_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
@@ -36,57 +132,7 @@ int gps_static_lf_step(const double *restrict x, const double *restrict P, const
     if (!(P[5] == 0.0)) {
         return 1; /* outside P's pattern */
     }
-    const double t0 = 9.090909090909092*P[0];
-    const double t1 = 9.090909090909092*P[4];
-    const double t2 = 9.090909090909092*P[8];
-    const double t3 = 1.0 + t0;
-    const double t4 = 1.0 + t1;
-    const double t5 = 1.0 + t2;
-    const double t6 = 1.0/t3;
-    const double t7 = 1.0/t4;
-    const double t8 = 1.0/t5;
-    const double t9 = 0.9090909090909091*t6;
-    const double t10 = 0.9090909090909091*t7;
-    const double t11 = 0.9090909090909091*t8;
-    const double t12 = 9.090909090909092*z[0];
-    const double t13 = 9.090909090909092*z[1];
-    const double t14 = 9.090909090909092*z[2];
-    const double t15 = P[0]*t12;
-    const double t16 = P[4]*t13;
-    const double t17 = P[8]*t14;
-    const double t18 = x[0] + t15;
-    const double t19 = x[1] + t16;
-    const double t20 = x[2] + t17;
-    const double t21 = 0.09090909090909091*z[0];
-    const double t22 = 0.09090909090909091*z[1];
-    const double t23 = 0.09090909090909091*z[2];
-    const double t24 = t18*t9;
-    const double t25 = t10*t19;
-    const double t26 = t11*t20;
-    const double t27 = t21 + t24;
-    const double t28 = t22 + t25;
-    const double t29 = t23 + t26;
-    const double t30 = P[0]*t9;
-    const double t31 = P[4]*t10;
-    const double t32 = P[8]*t11;
-    const double t33 = 0.9090909090909091*t30;
-    const double t34 = 0.9090909090909091*t31;
-    const double t35 = 0.9090909090909091*t32;
-    const double t36 = 0.00909090909090909 + t33;
-    const double t37 = 0.00909090909090909 + t34;
-    const double t38 = 0.00909090909090909 + t35;
-    x_new[0] = t27;
-    x_new[1] = t28;
-    x_new[2] = t29;
-    P_new[0] = t36;
-    P_new[1] = 0.0;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t37;
-    P_new[5] = 0.0;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = t38;
+    gps_static_lf_step_body(x, P, z, x_new, P_new, 1);
     return 0;
 }
 
@@ -120,60 +166,10 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
     P[6] = P0[6];
     P[7] = P0[7];
     P[8] = P0[8];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = 9.090909090909092*P[0];
-        const double t1 = 9.090909090909092*P[4];
-        const double t2 = 9.090909090909092*P[8];
-        const double t3 = 1.0 + t0;
-        const double t4 = 1.0 + t1;
-        const double t5 = 1.0 + t2;
-        const double t6 = 1.0/t3;
-        const double t7 = 1.0/t4;
-        const double t8 = 1.0/t5;
-        const double t9 = 0.9090909090909091*t6;
-        const double t10 = 0.9090909090909091*t7;
-        const double t11 = 0.9090909090909091*t8;
-        const double t12 = 9.090909090909092*zk[0];
-        const double t13 = 9.090909090909092*zk[1];
-        const double t14 = 9.090909090909092*zk[2];
-        const double t15 = P[0]*t12;
-        const double t16 = P[4]*t13;
-        const double t17 = P[8]*t14;
-        const double t18 = x[0] + t15;
-        const double t19 = x[1] + t16;
-        const double t20 = x[2] + t17;
-        const double t21 = 0.09090909090909091*zk[0];
-        const double t22 = 0.09090909090909091*zk[1];
-        const double t23 = 0.09090909090909091*zk[2];
-        const double t24 = t18*t9;
-        const double t25 = t10*t19;
-        const double t26 = t11*t20;
-        const double t27 = t21 + t24;
-        const double t28 = t22 + t25;
-        const double t29 = t23 + t26;
-        const double t30 = P[0]*t9;
-        const double t31 = P[4]*t10;
-        const double t32 = P[8]*t11;
-        const double t33 = 0.9090909090909091*t30;
-        const double t34 = 0.9090909090909091*t31;
-        const double t35 = 0.9090909090909091*t32;
-        const double t36 = 0.00909090909090909 + t33;
-        const double t37 = 0.00909090909090909 + t34;
-        const double t38 = 0.00909090909090909 + t35;
-        x_new[0] = t27;
-        x_new[1] = t28;
-        x_new[2] = t29;
-        P_new[0] = t36;
-        P_new[1] = 0.0;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = t37;
-        P_new[5] = 0.0;
-        P_new[6] = 0.0;
-        P_new[7] = 0.0;
-        P_new[8] = t38;
+        gps_static_lf_step_body(x, P, zk, x_new, P_new, 1);
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];
@@ -203,12 +199,15 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 9 + 1] == 0.0)) {
@@ -222,462 +221,59 @@ int gps_static_lf_run_tracks(size_t steps, size_t tracks, const double *z, const
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        double x_l1[3], xn_l1[3];
-        double P_l1[9], Pn_l1[9];
-        const double *z_l1;
-        double x_l2[3], xn_l2[3];
-        double P_l2[9], Pn_l2[9];
-        const double *z_l2;
-        double x_l3[3], xn_l3[3];
-        double P_l3[9], Pn_l3[9];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        x_l1[0] = x0[(t + 1) * 3 + 0];
-        x_l1[1] = x0[(t + 1) * 3 + 1];
-        x_l1[2] = x0[(t + 1) * 3 + 2];
-        P_l1[0] = P0[(t + 1) * 9 + 0];
-        P_l1[1] = P0[(t + 1) * 9 + 1];
-        P_l1[2] = P0[(t + 1) * 9 + 2];
-        P_l1[3] = P0[(t + 1) * 9 + 3];
-        P_l1[4] = P0[(t + 1) * 9 + 4];
-        P_l1[5] = P0[(t + 1) * 9 + 5];
-        P_l1[6] = P0[(t + 1) * 9 + 6];
-        P_l1[7] = P0[(t + 1) * 9 + 7];
-        P_l1[8] = P0[(t + 1) * 9 + 8];
-        x_l2[0] = x0[(t + 2) * 3 + 0];
-        x_l2[1] = x0[(t + 2) * 3 + 1];
-        x_l2[2] = x0[(t + 2) * 3 + 2];
-        P_l2[0] = P0[(t + 2) * 9 + 0];
-        P_l2[1] = P0[(t + 2) * 9 + 1];
-        P_l2[2] = P0[(t + 2) * 9 + 2];
-        P_l2[3] = P0[(t + 2) * 9 + 3];
-        P_l2[4] = P0[(t + 2) * 9 + 4];
-        P_l2[5] = P0[(t + 2) * 9 + 5];
-        P_l2[6] = P0[(t + 2) * 9 + 6];
-        P_l2[7] = P0[(t + 2) * 9 + 7];
-        P_l2[8] = P0[(t + 2) * 9 + 8];
-        x_l3[0] = x0[(t + 3) * 3 + 0];
-        x_l3[1] = x0[(t + 3) * 3 + 1];
-        x_l3[2] = x0[(t + 3) * 3 + 2];
-        P_l3[0] = P0[(t + 3) * 9 + 0];
-        P_l3[1] = P0[(t + 3) * 9 + 1];
-        P_l3[2] = P0[(t + 3) * 9 + 2];
-        P_l3[3] = P0[(t + 3) * 9 + 3];
-        P_l3[4] = P0[(t + 3) * 9 + 4];
-        P_l3[5] = P0[(t + 3) * 9 + 5];
-        P_l3[6] = P0[(t + 3) * 9 + 6];
-        P_l3[7] = P0[(t + 3) * 9 + 7];
-        P_l3[8] = P0[(t + 3) * 9 + 8];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[3 * DERIVE_LANES];
+        double P_b[9 * DERIVE_LANES];
+        double x_new_b[3 * DERIVE_LANES];
+        double P_new_b[9 * DERIVE_LANES];
+        double z_b[3 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 3; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 3 + i];
+            }
+            for (i = 0; i < 9; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 9 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = 9.090909090909092*P_l0[0];
-            const double t1_l0 = 9.090909090909092*P_l0[4];
-            const double t2_l0 = 9.090909090909092*P_l0[8];
-            const double t3_l0 = 1.0 + t0_l0;
-            const double t4_l0 = 1.0 + t1_l0;
-            const double t5_l0 = 1.0 + t2_l0;
-            const double t6_l0 = 1.0/t3_l0;
-            const double t7_l0 = 1.0/t4_l0;
-            const double t8_l0 = 1.0/t5_l0;
-            const double t9_l0 = 0.9090909090909091*t6_l0;
-            const double t10_l0 = 0.9090909090909091*t7_l0;
-            const double t11_l0 = 0.9090909090909091*t8_l0;
-            const double t12_l0 = 9.090909090909092*z_l0[0];
-            const double t13_l0 = 9.090909090909092*z_l0[1];
-            const double t14_l0 = 9.090909090909092*z_l0[2];
-            const double t15_l0 = P_l0[0]*t12_l0;
-            const double t16_l0 = P_l0[4]*t13_l0;
-            const double t17_l0 = P_l0[8]*t14_l0;
-            const double t18_l0 = x_l0[0] + t15_l0;
-            const double t19_l0 = x_l0[1] + t16_l0;
-            const double t20_l0 = x_l0[2] + t17_l0;
-            const double t21_l0 = 0.09090909090909091*z_l0[0];
-            const double t22_l0 = 0.09090909090909091*z_l0[1];
-            const double t23_l0 = 0.09090909090909091*z_l0[2];
-            const double t24_l0 = t18_l0*t9_l0;
-            const double t25_l0 = t10_l0*t19_l0;
-            const double t26_l0 = t11_l0*t20_l0;
-            const double t27_l0 = t21_l0 + t24_l0;
-            const double t28_l0 = t22_l0 + t25_l0;
-            const double t29_l0 = t23_l0 + t26_l0;
-            const double t30_l0 = P_l0[0]*t9_l0;
-            const double t31_l0 = P_l0[4]*t10_l0;
-            const double t32_l0 = P_l0[8]*t11_l0;
-            const double t33_l0 = 0.9090909090909091*t30_l0;
-            const double t34_l0 = 0.9090909090909091*t31_l0;
-            const double t35_l0 = 0.9090909090909091*t32_l0;
-            const double t36_l0 = 0.00909090909090909 + t33_l0;
-            const double t37_l0 = 0.00909090909090909 + t34_l0;
-            const double t38_l0 = 0.00909090909090909 + t35_l0;
-            xn_l0[0] = t27_l0;
-            xn_l0[1] = t28_l0;
-            xn_l0[2] = t29_l0;
-            Pn_l0[0] = t36_l0;
-            Pn_l0[1] = 0.0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t37_l0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = t38_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            const double t0_l1 = 9.090909090909092*P_l1[0];
-            const double t1_l1 = 9.090909090909092*P_l1[4];
-            const double t2_l1 = 9.090909090909092*P_l1[8];
-            const double t3_l1 = 1.0 + t0_l1;
-            const double t4_l1 = 1.0 + t1_l1;
-            const double t5_l1 = 1.0 + t2_l1;
-            const double t6_l1 = 1.0/t3_l1;
-            const double t7_l1 = 1.0/t4_l1;
-            const double t8_l1 = 1.0/t5_l1;
-            const double t9_l1 = 0.9090909090909091*t6_l1;
-            const double t10_l1 = 0.9090909090909091*t7_l1;
-            const double t11_l1 = 0.9090909090909091*t8_l1;
-            const double t12_l1 = 9.090909090909092*z_l1[0];
-            const double t13_l1 = 9.090909090909092*z_l1[1];
-            const double t14_l1 = 9.090909090909092*z_l1[2];
-            const double t15_l1 = P_l1[0]*t12_l1;
-            const double t16_l1 = P_l1[4]*t13_l1;
-            const double t17_l1 = P_l1[8]*t14_l1;
-            const double t18_l1 = x_l1[0] + t15_l1;
-            const double t19_l1 = x_l1[1] + t16_l1;
-            const double t20_l1 = x_l1[2] + t17_l1;
-            const double t21_l1 = 0.09090909090909091*z_l1[0];
-            const double t22_l1 = 0.09090909090909091*z_l1[1];
-            const double t23_l1 = 0.09090909090909091*z_l1[2];
-            const double t24_l1 = t18_l1*t9_l1;
-            const double t25_l1 = t10_l1*t19_l1;
-            const double t26_l1 = t11_l1*t20_l1;
-            const double t27_l1 = t21_l1 + t24_l1;
-            const double t28_l1 = t22_l1 + t25_l1;
-            const double t29_l1 = t23_l1 + t26_l1;
-            const double t30_l1 = P_l1[0]*t9_l1;
-            const double t31_l1 = P_l1[4]*t10_l1;
-            const double t32_l1 = P_l1[8]*t11_l1;
-            const double t33_l1 = 0.9090909090909091*t30_l1;
-            const double t34_l1 = 0.9090909090909091*t31_l1;
-            const double t35_l1 = 0.9090909090909091*t32_l1;
-            const double t36_l1 = 0.00909090909090909 + t33_l1;
-            const double t37_l1 = 0.00909090909090909 + t34_l1;
-            const double t38_l1 = 0.00909090909090909 + t35_l1;
-            xn_l1[0] = t27_l1;
-            xn_l1[1] = t28_l1;
-            xn_l1[2] = t29_l1;
-            Pn_l1[0] = t36_l1;
-            Pn_l1[1] = 0.0;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = t37_l1;
-            Pn_l1[5] = 0.0;
-            Pn_l1[6] = 0.0;
-            Pn_l1[7] = 0.0;
-            Pn_l1[8] = t38_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            const double t0_l2 = 9.090909090909092*P_l2[0];
-            const double t1_l2 = 9.090909090909092*P_l2[4];
-            const double t2_l2 = 9.090909090909092*P_l2[8];
-            const double t3_l2 = 1.0 + t0_l2;
-            const double t4_l2 = 1.0 + t1_l2;
-            const double t5_l2 = 1.0 + t2_l2;
-            const double t6_l2 = 1.0/t3_l2;
-            const double t7_l2 = 1.0/t4_l2;
-            const double t8_l2 = 1.0/t5_l2;
-            const double t9_l2 = 0.9090909090909091*t6_l2;
-            const double t10_l2 = 0.9090909090909091*t7_l2;
-            const double t11_l2 = 0.9090909090909091*t8_l2;
-            const double t12_l2 = 9.090909090909092*z_l2[0];
-            const double t13_l2 = 9.090909090909092*z_l2[1];
-            const double t14_l2 = 9.090909090909092*z_l2[2];
-            const double t15_l2 = P_l2[0]*t12_l2;
-            const double t16_l2 = P_l2[4]*t13_l2;
-            const double t17_l2 = P_l2[8]*t14_l2;
-            const double t18_l2 = x_l2[0] + t15_l2;
-            const double t19_l2 = x_l2[1] + t16_l2;
-            const double t20_l2 = x_l2[2] + t17_l2;
-            const double t21_l2 = 0.09090909090909091*z_l2[0];
-            const double t22_l2 = 0.09090909090909091*z_l2[1];
-            const double t23_l2 = 0.09090909090909091*z_l2[2];
-            const double t24_l2 = t18_l2*t9_l2;
-            const double t25_l2 = t10_l2*t19_l2;
-            const double t26_l2 = t11_l2*t20_l2;
-            const double t27_l2 = t21_l2 + t24_l2;
-            const double t28_l2 = t22_l2 + t25_l2;
-            const double t29_l2 = t23_l2 + t26_l2;
-            const double t30_l2 = P_l2[0]*t9_l2;
-            const double t31_l2 = P_l2[4]*t10_l2;
-            const double t32_l2 = P_l2[8]*t11_l2;
-            const double t33_l2 = 0.9090909090909091*t30_l2;
-            const double t34_l2 = 0.9090909090909091*t31_l2;
-            const double t35_l2 = 0.9090909090909091*t32_l2;
-            const double t36_l2 = 0.00909090909090909 + t33_l2;
-            const double t37_l2 = 0.00909090909090909 + t34_l2;
-            const double t38_l2 = 0.00909090909090909 + t35_l2;
-            xn_l2[0] = t27_l2;
-            xn_l2[1] = t28_l2;
-            xn_l2[2] = t29_l2;
-            Pn_l2[0] = t36_l2;
-            Pn_l2[1] = 0.0;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = t37_l2;
-            Pn_l2[5] = 0.0;
-            Pn_l2[6] = 0.0;
-            Pn_l2[7] = 0.0;
-            Pn_l2[8] = t38_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            const double t0_l3 = 9.090909090909092*P_l3[0];
-            const double t1_l3 = 9.090909090909092*P_l3[4];
-            const double t2_l3 = 9.090909090909092*P_l3[8];
-            const double t3_l3 = 1.0 + t0_l3;
-            const double t4_l3 = 1.0 + t1_l3;
-            const double t5_l3 = 1.0 + t2_l3;
-            const double t6_l3 = 1.0/t3_l3;
-            const double t7_l3 = 1.0/t4_l3;
-            const double t8_l3 = 1.0/t5_l3;
-            const double t9_l3 = 0.9090909090909091*t6_l3;
-            const double t10_l3 = 0.9090909090909091*t7_l3;
-            const double t11_l3 = 0.9090909090909091*t8_l3;
-            const double t12_l3 = 9.090909090909092*z_l3[0];
-            const double t13_l3 = 9.090909090909092*z_l3[1];
-            const double t14_l3 = 9.090909090909092*z_l3[2];
-            const double t15_l3 = P_l3[0]*t12_l3;
-            const double t16_l3 = P_l3[4]*t13_l3;
-            const double t17_l3 = P_l3[8]*t14_l3;
-            const double t18_l3 = x_l3[0] + t15_l3;
-            const double t19_l3 = x_l3[1] + t16_l3;
-            const double t20_l3 = x_l3[2] + t17_l3;
-            const double t21_l3 = 0.09090909090909091*z_l3[0];
-            const double t22_l3 = 0.09090909090909091*z_l3[1];
-            const double t23_l3 = 0.09090909090909091*z_l3[2];
-            const double t24_l3 = t18_l3*t9_l3;
-            const double t25_l3 = t10_l3*t19_l3;
-            const double t26_l3 = t11_l3*t20_l3;
-            const double t27_l3 = t21_l3 + t24_l3;
-            const double t28_l3 = t22_l3 + t25_l3;
-            const double t29_l3 = t23_l3 + t26_l3;
-            const double t30_l3 = P_l3[0]*t9_l3;
-            const double t31_l3 = P_l3[4]*t10_l3;
-            const double t32_l3 = P_l3[8]*t11_l3;
-            const double t33_l3 = 0.9090909090909091*t30_l3;
-            const double t34_l3 = 0.9090909090909091*t31_l3;
-            const double t35_l3 = 0.9090909090909091*t32_l3;
-            const double t36_l3 = 0.00909090909090909 + t33_l3;
-            const double t37_l3 = 0.00909090909090909 + t34_l3;
-            const double t38_l3 = 0.00909090909090909 + t35_l3;
-            xn_l3[0] = t27_l3;
-            xn_l3[1] = t28_l3;
-            xn_l3[2] = t29_l3;
-            Pn_l3[0] = t36_l3;
-            Pn_l3[1] = 0.0;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = t37_l3;
-            Pn_l3[5] = 0.0;
-            Pn_l3[6] = 0.0;
-            Pn_l3[7] = 0.0;
-            Pn_l3[8] = t38_l3;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 3], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 3], 1);
+                }
             }
-            xs[((t + 1) * steps + k) * 3 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 3 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 3 + 2] = x_l1[2] = xn_l1[2];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 9 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 9 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 9 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 9 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 9 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 9 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 9 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 9 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 9 + 8] = Pn_l1[8];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
             }
-            xs[((t + 2) * steps + k) * 3 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 3 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 3 + 2] = x_l2[2] = xn_l2[2];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 9 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 9 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 9 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 9 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 9 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 9 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 9 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 9 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 9 + 8] = Pn_l2[8];
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                gps_static_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            xs[((t + 3) * steps + k) * 3 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 3 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 3 + 2] = x_l3[2] = xn_l3[2];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 9 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 9 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 9 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 9 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 9 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 9 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 9 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 9 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 9 + 8] = Pn_l3[8];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    xs[((t + j) * steps + k) * 3 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 9; ++i) {
+                        Ps[((t + j) * steps + k) * 9 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
+            }
+            for (i = 0; i < 3 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
+            for (i = 0; i < 9 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[3], xn_l0[3];
-        double P_l0[9], Pn_l0[9];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 3 + 0];
-        x_l0[1] = x0[(t + 0) * 3 + 1];
-        x_l0[2] = x0[(t + 0) * 3 + 2];
-        P_l0[0] = P0[(t + 0) * 9 + 0];
-        P_l0[1] = P0[(t + 0) * 9 + 1];
-        P_l0[2] = P0[(t + 0) * 9 + 2];
-        P_l0[3] = P0[(t + 0) * 9 + 3];
-        P_l0[4] = P0[(t + 0) * 9 + 4];
-        P_l0[5] = P0[(t + 0) * 9 + 5];
-        P_l0[6] = P0[(t + 0) * 9 + 6];
-        P_l0[7] = P0[(t + 0) * 9 + 7];
-        P_l0[8] = P0[(t + 0) * 9 + 8];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = 9.090909090909092*P_l0[0];
-            const double t1_l0 = 9.090909090909092*P_l0[4];
-            const double t2_l0 = 9.090909090909092*P_l0[8];
-            const double t3_l0 = 1.0 + t0_l0;
-            const double t4_l0 = 1.0 + t1_l0;
-            const double t5_l0 = 1.0 + t2_l0;
-            const double t6_l0 = 1.0/t3_l0;
-            const double t7_l0 = 1.0/t4_l0;
-            const double t8_l0 = 1.0/t5_l0;
-            const double t9_l0 = 0.9090909090909091*t6_l0;
-            const double t10_l0 = 0.9090909090909091*t7_l0;
-            const double t11_l0 = 0.9090909090909091*t8_l0;
-            const double t12_l0 = 9.090909090909092*z_l0[0];
-            const double t13_l0 = 9.090909090909092*z_l0[1];
-            const double t14_l0 = 9.090909090909092*z_l0[2];
-            const double t15_l0 = P_l0[0]*t12_l0;
-            const double t16_l0 = P_l0[4]*t13_l0;
-            const double t17_l0 = P_l0[8]*t14_l0;
-            const double t18_l0 = x_l0[0] + t15_l0;
-            const double t19_l0 = x_l0[1] + t16_l0;
-            const double t20_l0 = x_l0[2] + t17_l0;
-            const double t21_l0 = 0.09090909090909091*z_l0[0];
-            const double t22_l0 = 0.09090909090909091*z_l0[1];
-            const double t23_l0 = 0.09090909090909091*z_l0[2];
-            const double t24_l0 = t18_l0*t9_l0;
-            const double t25_l0 = t10_l0*t19_l0;
-            const double t26_l0 = t11_l0*t20_l0;
-            const double t27_l0 = t21_l0 + t24_l0;
-            const double t28_l0 = t22_l0 + t25_l0;
-            const double t29_l0 = t23_l0 + t26_l0;
-            const double t30_l0 = P_l0[0]*t9_l0;
-            const double t31_l0 = P_l0[4]*t10_l0;
-            const double t32_l0 = P_l0[8]*t11_l0;
-            const double t33_l0 = 0.9090909090909091*t30_l0;
-            const double t34_l0 = 0.9090909090909091*t31_l0;
-            const double t35_l0 = 0.9090909090909091*t32_l0;
-            const double t36_l0 = 0.00909090909090909 + t33_l0;
-            const double t37_l0 = 0.00909090909090909 + t34_l0;
-            const double t38_l0 = 0.00909090909090909 + t35_l0;
-            xn_l0[0] = t27_l0;
-            xn_l0[1] = t28_l0;
-            xn_l0[2] = t29_l0;
-            Pn_l0[0] = t36_l0;
-            Pn_l0[1] = 0.0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t37_l0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = t38_l0;
-            xs[((t + 0) * steps + k) * 3 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 3 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 3 + 2] = x_l0[2] = xn_l0[2];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 9 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 9 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 9 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 9 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 9 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 9 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 9 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 9 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 9 + 8] = Pn_l0[8];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = gps_static_lf_run(steps, z + t * steps * 3, x0 + t * 3, P0 + t * 3 * 3, xs + t * steps * 3, Ps ? Ps + t * steps * 3 * 3 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

@@ -35,6 +35,39 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE void gps_static_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.7298437881283576, x[0], 0.2701562118716424*z[0]);
+    const double t1 = DERIVE_FMA(0.7298437881283576, x[1 * s], 0.2701562118716424*z[1 * s]);
+    const double t2 = DERIVE_FMA(0.7298437881283576, x[2 * s], 0.2701562118716424*z[2 * s]);
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+    x_new[2 * s] = t2;
+}
+
+DERIVE_INLINE void gps_static_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.5326719550695509, x[0], DERIVE_FMA(0.2701562118716424, zn[0], 0.19717183305880667*z[0]));
+    const double t1 = DERIVE_FMA(0.5326719550695509, x[1 * s], DERIVE_FMA(0.2701562118716424, zn[1 * s], 0.19717183305880667*z[1 * s]));
+    const double t2 = DERIVE_FMA(0.5326719550695509, x[2 * s], DERIVE_FMA(0.2701562118716424, zn[2 * s], 0.19717183305880667*z[2 * s]));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+    x_new[2 * s] = t2;
+}
+
 void gps_static_pred_init(const double *restrict x0, double *restrict x_new)
 {
     x_new[0] = x0[0];
@@ -44,12 +77,7 @@ void gps_static_pred_init(const double *restrict x0, double *restrict x_new)
 
 void gps_static_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    const double t0 = DERIVE_FMA(0.7298437881283576, x[0], 0.2701562118716424*z[0]);
-    const double t1 = DERIVE_FMA(0.7298437881283576, x[1], 0.2701562118716424*z[1]);
-    const double t2 = DERIVE_FMA(0.7298437881283576, x[2], 0.2701562118716424*z[2]);
-    x_new[0] = t0;
-    x_new[1] = t1;
-    x_new[2] = t2;
+    gps_static_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
@@ -69,18 +97,8 @@ void gps_static_pred_run(size_t steps, const double *z, const double *x0, double
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
-        const double t0 = DERIVE_FMA(0.7298437881283576, x[0], 0.2701562118716424*zk[0]);
-        const double t1 = DERIVE_FMA(0.7298437881283576, x[1], 0.2701562118716424*zk[1]);
-        const double t2 = DERIVE_FMA(0.7298437881283576, x[2], 0.2701562118716424*zk[2]);
-        x_mid[0] = t0;
-        x_mid[1] = t1;
-        x_mid[2] = t2;
-        const double t3 = DERIVE_FMA(0.5326719550695509, x[0], DERIVE_FMA(0.2701562118716424, znk[0], 0.19717183305880667*zk[0]));
-        const double t4 = DERIVE_FMA(0.5326719550695509, x[1], DERIVE_FMA(0.2701562118716424, znk[1], 0.19717183305880667*zk[1]));
-        const double t5 = DERIVE_FMA(0.5326719550695509, x[2], DERIVE_FMA(0.2701562118716424, znk[2], 0.19717183305880667*zk[2]));
-        x_new[0] = t3;
-        x_new[1] = t4;
-        x_new[2] = t5;
+        gps_static_pred_step_body(x, zk, x_mid, 1);
+        gps_static_pred_pass_body(x, zk, znk, x_new, 1);
         xs[k * 3 + 0] = x_mid[0];
         xs[k * 3 + 1] = x_mid[1];
         xs[k * 3 + 2] = x_mid[2];
@@ -91,12 +109,7 @@ void gps_static_pred_run(size_t steps, const double *z, const double *x0, double
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = DERIVE_FMA(0.7298437881283576, x[0], 0.2701562118716424*zk[0]);
-        const double t1 = DERIVE_FMA(0.7298437881283576, x[1], 0.2701562118716424*zk[1]);
-        const double t2 = DERIVE_FMA(0.7298437881283576, x[2], 0.2701562118716424*zk[2]);
-        x_new[0] = t0;
-        x_new[1] = t1;
-        x_new[2] = t2;
+        gps_static_pred_step_body(x, zk, x_new, 1);
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];

@@ -20,6 +20,8 @@ B_N = [[0.2701562118716424, 0.                , 0.                ], [0.        
 N = 1
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -88,14 +90,11 @@ def run(zs, x0):
         keep = rows.extend
         for zk in zs.tolist():
             z_0, z_1, z_2 = zk
-            t0 = 0.7298437881283576*x_0 + 0.2701562118716424*z_0
-            t1 = 0.7298437881283576*x_1 + 0.2701562118716424*z_1
-            t2 = 0.7298437881283576*x_2 + 0.2701562118716424*z_2
-            keep((t0, t1, t2))
-            x_0 = t0
-            x_1 = t1
-            x_2 = t2
-        table = np.array(rows, dtype=float).reshape(-1, 3)
+            x_0 = 0.7298437881283576*x_0 + 0.2701562118716424*z_0
+            x_1 = 0.7298437881283576*x_1 + 0.2701562118716424*z_1
+            x_2 = 0.7298437881283576*x_2 + 0.2701562118716424*z_2
+            keep((x_0, x_1, x_2))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     x = init(x0)
     for k in range(steps):

@@ -35,6 +35,82 @@
 
 #include "rts.h"
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int gps_static_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
+{
+    int status = 0;
+    const double t0 = 0.01 + P[0];
+    const double t1 = 0.01 + P[4 * s];
+    const double t2 = 0.01 + P[8 * s];
+    const double t3 = 0.1 + t0;
+    const double t4 = 0.1 + t1;
+    const double t5 = 0.1 + t2;
+    if (!(t3 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    if (!(t4 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    if (!(t5 > 0.0) && !status) {
+        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    }
+    const double t6 = t0/t3;
+    const double t7 = t1/t4;
+    const double t8 = t2/t5;
+    const double t9 = z[0] - x[0];
+    const double t10 = z[1 * s] - x[1 * s];
+    const double t11 = z[2 * s] - x[2 * s];
+    const double t12 = t6*t9;
+    const double t13 = t10*t7;
+    const double t14 = t11*t8;
+    const double t15 = x[0] + t12;
+    const double t16 = x[1 * s] + t13;
+    const double t17 = x[2 * s] + t14;
+    const double t18 = t0*t6;
+    const double t19 = t1*t7;
+    const double t20 = t2*t8;
+    const double t21 = t0 - t18;
+    const double t22 = t1 - t19;
+    const double t23 = t2 - t20;
+    x_new[0] = t15;
+    x_new[1 * s] = t16;
+    x_new[2 * s] = t17;
+    P_new[0] = t21;
+    P_new[1 * s] = 0.0;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t22;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = t23;
+    x_pred[0] = x[0];
+    x_pred[1 * s] = x[1 * s];
+    x_pred[2 * s] = x[2 * s];
+    P_pred[0] = t0;
+    P_pred[1 * s] = 0.0;
+    P_pred[2 * s] = 0.0;
+    P_pred[3 * s] = 0.0;
+    P_pred[4 * s] = t1;
+    P_pred[5 * s] = 0.0;
+    P_pred[6 * s] = 0.0;
+    P_pred[7 * s] = 0.0;
+    P_pred[8 * s] = t2;
+    return status;
+}
+
 int gps_static_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[1] == 0.0)) {
@@ -46,64 +122,7 @@ int gps_static_rts_step(const double *restrict x, const double *restrict P, cons
     if (!(P[5] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-    const double t0 = 0.01 + P[0];
-    const double t1 = 0.01 + P[4];
-    const double t2 = 0.01 + P[8];
-    const double t3 = 0.1 + t0;
-    const double t4 = 0.1 + t1;
-    const double t5 = 0.1 + t2;
-    if (!(t3 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t4 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    if (!(t5 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
-    const double t6 = t0/t3;
-    const double t7 = t1/t4;
-    const double t8 = t2/t5;
-    const double t9 = z[0] - x[0];
-    const double t10 = z[1] - x[1];
-    const double t11 = z[2] - x[2];
-    const double t12 = t6*t9;
-    const double t13 = t10*t7;
-    const double t14 = t11*t8;
-    const double t15 = x[0] + t12;
-    const double t16 = x[1] + t13;
-    const double t17 = x[2] + t14;
-    const double t18 = t0*t6;
-    const double t19 = t1*t7;
-    const double t20 = t2*t8;
-    const double t21 = t0 - t18;
-    const double t22 = t1 - t19;
-    const double t23 = t2 - t20;
-    x_new[0] = t15;
-    x_new[1] = t16;
-    x_new[2] = t17;
-    P_new[0] = t21;
-    P_new[1] = 0.0;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t22;
-    P_new[5] = 0.0;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = t23;
-    x_pred[0] = x[0];
-    x_pred[1] = x[1];
-    x_pred[2] = x[2];
-    P_pred[0] = t0;
-    P_pred[1] = 0.0;
-    P_pred[2] = 0.0;
-    P_pred[3] = 0.0;
-    P_pred[4] = t1;
-    P_pred[5] = 0.0;
-    P_pred[6] = 0.0;
-    P_pred[7] = 0.0;
-    P_pred[8] = t2;
-    return 0;
+    return gps_static_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
 
 int gps_static_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)

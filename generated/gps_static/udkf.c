@@ -50,6 +50,83 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
+{
+    (void)U;
+    int status = 0;
+    const double t0 = 0.01 + D[2 * s];
+    const double t1 = 2.2250738585072014e-308 + t0;
+    if (!(t1 > 0.0) && !status) {
+        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+    }
+    const double t2 = 0.01 + D[1 * s];
+    const double t3 = 2.2250738585072014e-308 + t2;
+    if (!(t3 > 0.0) && !status) {
+        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
+    }
+    const double t4 = 0.01 + D[0];
+    const double t5 = 2.2250738585072014e-308 + t4;
+    if (!(t5 > 0.0) && !status) {
+        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
+    }
+    const double t6 = 0.1 + t4;
+    if (!(t6 > 0.0) && !status) {
+        status = 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t7 = 1.0/t6;
+    const double t8 = 0.1*(t4*t7);
+    const double t9 = z[0] - x[0];
+    const double t10 = t7*t9;
+    const double t11 = DERIVE_FMA(t10, t4, x[0]);
+    const double t12 = 0.1 + t2;
+    if (!(t12 > 0.0) && !status) {
+        status = 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t13 = 1.0/t12;
+    const double t14 = 0.1*(t13*t2);
+    const double t15 = z[1 * s] - x[1 * s];
+    const double t16 = t13*t15;
+    const double t17 = DERIVE_FMA(t16, t2, x[1 * s]);
+    const double t18 = 0.1 + t0;
+    if (!(t18 > 0.0) && !status) {
+        status = 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t19 = 1.0/t18;
+    const double t20 = 0.1*(t0*t19);
+    const double t21 = z[2 * s] - x[2 * s];
+    const double t22 = t19*t21;
+    const double t23 = DERIVE_FMA(t0, t22, x[2 * s]);
+    x_new[0] = t11;
+    x_new[1 * s] = t17;
+    x_new[2 * s] = t23;
+    U_new[0] = 1.0;
+    U_new[1 * s] = 0.0;
+    U_new[2 * s] = 0.0;
+    U_new[3 * s] = 0.0;
+    U_new[4 * s] = 1.0;
+    U_new[5 * s] = 0.0;
+    U_new[6 * s] = 0.0;
+    U_new[7 * s] = 0.0;
+    U_new[8 * s] = 1.0;
+    D_new[0] = t8;
+    D_new[1 * s] = t14;
+    D_new[2 * s] = t20;
+    return status;
+}
+
 int gps_static_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
 {
     if (!(U[1] == 0.0)) {
@@ -61,64 +138,7 @@ int gps_static_udkf_step(const double *restrict x, const double *restrict U, con
     if (!(U[5] == 0.0)) {
         return 7; /* outside P's pattern */
     }
-    const double t0 = 0.01 + D[2];
-    const double t1 = 2.2250738585072014e-308 + t0;
-    if (!(t1 > 0.0)) {
-        return 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
-    const double t2 = 0.01 + D[1];
-    const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0)) {
-        return 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
-    const double t4 = 0.01 + D[0];
-    const double t5 = 2.2250738585072014e-308 + t4;
-    if (!(t5 > 0.0)) {
-        return 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
-    const double t6 = 0.1 + t4;
-    if (!(t6 > 0.0)) {
-        return 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t7 = 1.0/t6;
-    const double t8 = 0.1*(t4*t7);
-    const double t9 = z[0] - x[0];
-    const double t10 = t7*t9;
-    const double t11 = DERIVE_FMA(t10, t4, x[0]);
-    const double t12 = 0.1 + t2;
-    if (!(t12 > 0.0)) {
-        return 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t13 = 1.0/t12;
-    const double t14 = 0.1*(t13*t2);
-    const double t15 = z[1] - x[1];
-    const double t16 = t13*t15;
-    const double t17 = DERIVE_FMA(t16, t2, x[1]);
-    const double t18 = 0.1 + t0;
-    if (!(t18 > 0.0)) {
-        return 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t19 = 1.0/t18;
-    const double t20 = 0.1*(t0*t19);
-    const double t21 = z[2] - x[2];
-    const double t22 = t19*t21;
-    const double t23 = DERIVE_FMA(t0, t22, x[2]);
-    x_new[0] = t11;
-    x_new[1] = t17;
-    x_new[2] = t23;
-    U_new[0] = 1.0;
-    U_new[1] = 0.0;
-    U_new[2] = 0.0;
-    U_new[3] = 0.0;
-    U_new[4] = 1.0;
-    U_new[5] = 0.0;
-    U_new[6] = 0.0;
-    U_new[7] = 0.0;
-    U_new[8] = 1.0;
-    D_new[0] = t8;
-    D_new[1] = t14;
-    D_new[2] = t20;
-    return 0;
+    return gps_static_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
 
 int gps_static_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
@@ -202,66 +222,13 @@ int gps_static_udkf_run(size_t steps, const double *z, const double *x0, const d
     if (status) {
         return status;
     }
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = 0.01 + D[2];
-        const double t1 = 2.2250738585072014e-308 + t0;
-        if (!(t1 > 0.0)) {
-            return 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+        const int step_status = gps_static_udkf_step_body(x, U, D, zk, x_new, U_new, D_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t2 = 0.01 + D[1];
-        const double t3 = 2.2250738585072014e-308 + t2;
-        if (!(t3 > 0.0)) {
-            return 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-        }
-        const double t4 = 0.01 + D[0];
-        const double t5 = 2.2250738585072014e-308 + t4;
-        if (!(t5 > 0.0)) {
-            return 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-        }
-        const double t6 = 0.1 + t4;
-        if (!(t6 > 0.0)) {
-            return 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t7 = 1.0/t6;
-        const double t8 = 0.1*(t4*t7);
-        const double t9 = zk[0] - x[0];
-        const double t10 = t7*t9;
-        const double t11 = DERIVE_FMA(t10, t4, x[0]);
-        const double t12 = 0.1 + t2;
-        if (!(t12 > 0.0)) {
-            return 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t13 = 1.0/t12;
-        const double t14 = 0.1*(t13*t2);
-        const double t15 = zk[1] - x[1];
-        const double t16 = t13*t15;
-        const double t17 = DERIVE_FMA(t16, t2, x[1]);
-        const double t18 = 0.1 + t0;
-        if (!(t18 > 0.0)) {
-            return 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t19 = 1.0/t18;
-        const double t20 = 0.1*(t0*t19);
-        const double t21 = zk[2] - x[2];
-        const double t22 = t19*t21;
-        const double t23 = DERIVE_FMA(t0, t22, x[2]);
-        x_new[0] = t11;
-        x_new[1] = t17;
-        x_new[2] = t23;
-        U_new[0] = 1.0;
-        U_new[1] = 0.0;
-        U_new[2] = 0.0;
-        U_new[3] = 0.0;
-        U_new[4] = 1.0;
-        U_new[5] = 0.0;
-        U_new[6] = 0.0;
-        U_new[7] = 0.0;
-        U_new[8] = 1.0;
-        D_new[0] = t8;
-        D_new[1] = t14;
-        D_new[2] = t20;
         xs[k * 3 + 0] = x[0] = x_new[0];
         xs[k * 3 + 1] = x[1] = x_new[1];
         xs[k * 3 + 2] = x[2] = x_new[2];

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gsm2d_a_jklf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
  *     int gsm2d_a_jklf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     int gsm2d_a_jklf_run_tracks(steps, tracks, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -21,7 +22,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 6, calls 0 (flops 230, instructions 202)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -35,6 +36,228 @@
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #endif
 #endif
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+{
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = P[0] + P[1 * s];
+    const double t2 = P[1 * s] + P[5 * s];
+    const double t3 = t1 + t2;
+    const double t4 = 0.0025 + t3;
+    const double t5 = 0.005 + t2;
+    const double t6 = 0.01 + P[5 * s];
+    const double t7 = t4 + t5;
+    const double t8 = t5 + t6;
+    const double t9 = t7 + t8;
+    const double t10 = 0.1 + t9;
+    if (!(t10 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    const double t11 = t7/t10;
+    const double t12 = t8/t10;
+    const double t13 = x[1 * s] + t0;
+    const double t14 = z[0] - t13;
+    const double t15 = t11*t14;
+    const double t16 = t12*t14;
+    const double t17 = t0 + t15;
+    const double t18 = x[1 * s] + t16;
+    const double t19 = t11*t7;
+    const double t20 = t11*t8;
+    const double t21 = t12*t8;
+    const double t22 = t4 - t19;
+    const double t23 = t5 - t20;
+    const double t24 = t6 - t21;
+    const double t25 = 16.3265306122449*P[1 * s];
+    const double t26 = DERIVE_FMA(8.16326530612245, P[0], t25);
+    const double t27 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
+    const double t28 = DERIVE_FMA(16.3265306122449, P[5 * s], 8.16326530612245*P[1 * s]);
+    const double t29 = DERIVE_FMA(32.6530612244898, P[5 * s], t25);
+    const double t30 = 1.0 + t26;
+    const double t31 = 1.0 + t29;
+    const double t32 = 1.0/t30;
+    const double t33 = t28*t32;
+    const double t34 = t31 - t27*t33;
+    const double t35 = 1.0/t34;
+    const double t36 = t33*t35;
+    const double t37 = t32*DERIVE_FMA(t27, t36, 1.0);
+    const double t38 = t27*t32*t35;
+    const double t39 = DERIVE_FMA(0.9387755102040817, t37, (-0.8775510204081632)*t36);
+    const double t40 = DERIVE_FMA((-0.9387755102040817), t38, 0.8775510204081632*t35);
+    const double t41 = DERIVE_FMA(0.12244897959183673, t37, 0.7551020408163265*t36);
+    const double t42 = DERIVE_FMA(0.12244897959183673, t38, 0.7551020408163265*t35);
+    const double t43 = 8.16326530612245*z[0];
+    const double t44 = 16.3265306122449*z[0];
+    const double t45 = DERIVE_FMA(P[1 * s], t44, P[0]*t43);
+    const double t46 = DERIVE_FMA(P[5 * s], t44, P[1 * s]*t43);
+    const double t47 = x[0] + t45;
+    const double t48 = x[1 * s] + t46;
+    const double t49 = 0.061224489795918366*z[0];
+    const double t50 = 0.12244897959183673*z[0];
+    const double t51 = DERIVE_FMA(t40, t48, t39*t47);
+    const double t52 = DERIVE_FMA(t42, t48, -(t41*t47));
+    const double t53 = t49 + t51;
+    const double t54 = t50 + t52;
+    const double t55 = DERIVE_FMA(P[1 * s], t40, P[0]*t39);
+    const double t56 = DERIVE_FMA(P[5 * s], t40, P[1 * s]*t39);
+    const double t57 = DERIVE_FMA(P[1 * s], t42, -(P[0]*t41));
+    const double t58 = DERIVE_FMA(P[5 * s], t42, -(P[1 * s]*t41));
+    const double t59 = DERIVE_FMA(0.8775510204081632, t56, 0.9387755102040817*t55);
+    const double t60 = DERIVE_FMA(0.7551020408163265, t56, (-0.12244897959183673)*t55);
+    const double t61 = DERIVE_FMA(0.7551020408163265, t58, (-0.12244897959183673)*t57);
+    const double t62 = 0.0020408163265306124 + t59;
+    const double t63 = 0.004081632653061225 + t60;
+    const double t64 = 0.00816326530612245 + t61;
+    const double t65 = t17 + t53;
+    const double t66 = t18 + t54;
+    const double t67 = 0.5*t65;
+    const double t68 = 0.5*t66;
+    const double t69 = t22 + t62;
+    const double t70 = t23 + t63;
+    const double t71 = t24 + t64;
+    const double t72 = 0.5*t69;
+    const double t73 = 0.5*t70;
+    const double t74 = 0.5*t71;
+    const double t75 = x[2 * s] + x[3 * s];
+    const double t76 = P[10 * s] + P[11 * s];
+    const double t77 = P[11 * s] + P[15 * s];
+    const double t78 = t76 + t77;
+    const double t79 = 0.0025 + t78;
+    const double t80 = 0.005 + t77;
+    const double t81 = 0.01 + P[15 * s];
+    const double t82 = t79 + t80;
+    const double t83 = t80 + t81;
+    const double t84 = t82 + t83;
+    const double t85 = 0.1 + t84;
+    if (!(t85 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t86 = t82/t85;
+    const double t87 = t83/t85;
+    const double t88 = x[3 * s] + t75;
+    const double t89 = z[1 * s] - t88;
+    const double t90 = t86*t89;
+    const double t91 = t87*t89;
+    const double t92 = t75 + t90;
+    const double t93 = x[3 * s] + t91;
+    const double t94 = t82*t86;
+    const double t95 = t83*t86;
+    const double t96 = t83*t87;
+    const double t97 = t79 - t94;
+    const double t98 = t80 - t95;
+    const double t99 = t81 - t96;
+    const double t100 = 16.3265306122449*P[11 * s];
+    const double t101 = DERIVE_FMA(8.16326530612245, P[10 * s], t100);
+    const double t102 = DERIVE_FMA(32.6530612244898, P[11 * s], 16.3265306122449*P[10 * s]);
+    const double t103 = DERIVE_FMA(16.3265306122449, P[15 * s], 8.16326530612245*P[11 * s]);
+    const double t104 = DERIVE_FMA(32.6530612244898, P[15 * s], t100);
+    const double t105 = 1.0 + t101;
+    const double t106 = 1.0 + t104;
+    const double t107 = 1.0/t105;
+    const double t108 = t103*t107;
+    const double t109 = t106 - t102*t108;
+    const double t110 = 1.0/t109;
+    const double t111 = t108*t110;
+    const double t112 = t107*DERIVE_FMA(t102, t111, 1.0);
+    const double t113 = t102*t107*t110;
+    const double t114 = DERIVE_FMA(0.9387755102040817, t112, (-0.8775510204081632)*t111);
+    const double t115 = DERIVE_FMA((-0.9387755102040817), t113, 0.8775510204081632*t110);
+    const double t116 = DERIVE_FMA(0.12244897959183673, t112, 0.7551020408163265*t111);
+    const double t117 = DERIVE_FMA(0.12244897959183673, t113, 0.7551020408163265*t110);
+    const double t118 = 8.16326530612245*z[1 * s];
+    const double t119 = 16.3265306122449*z[1 * s];
+    const double t120 = DERIVE_FMA(P[11 * s], t119, P[10 * s]*t118);
+    const double t121 = DERIVE_FMA(P[15 * s], t119, P[11 * s]*t118);
+    const double t122 = x[2 * s] + t120;
+    const double t123 = x[3 * s] + t121;
+    const double t124 = 0.061224489795918366*z[1 * s];
+    const double t125 = 0.12244897959183673*z[1 * s];
+    const double t126 = DERIVE_FMA(t115, t123, t114*t122);
+    const double t127 = DERIVE_FMA(t117, t123, -(t116*t122));
+    const double t128 = t124 + t126;
+    const double t129 = t125 + t127;
+    const double t130 = DERIVE_FMA(P[11 * s], t115, P[10 * s]*t114);
+    const double t131 = DERIVE_FMA(P[15 * s], t115, P[11 * s]*t114);
+    const double t132 = DERIVE_FMA(P[11 * s], t117, -(P[10 * s]*t116));
+    const double t133 = DERIVE_FMA(P[15 * s], t117, -(P[11 * s]*t116));
+    const double t134 = DERIVE_FMA(0.8775510204081632, t131, 0.9387755102040817*t130);
+    const double t135 = DERIVE_FMA(0.7551020408163265, t131, (-0.12244897959183673)*t130);
+    const double t136 = DERIVE_FMA(0.7551020408163265, t133, (-0.12244897959183673)*t132);
+    const double t137 = 0.0020408163265306124 + t134;
+    const double t138 = 0.004081632653061225 + t135;
+    const double t139 = 0.00816326530612245 + t136;
+    const double t140 = t128 + t92;
+    const double t141 = t129 + t93;
+    const double t142 = 0.5*t140;
+    const double t143 = 0.5*t141;
+    const double t144 = t137 + t97;
+    const double t145 = t138 + t98;
+    const double t146 = t139 + t99;
+    const double t147 = 0.5*t144;
+    const double t148 = 0.5*t145;
+    const double t149 = 0.5*t146;
+    x_new[0] = t67;
+    x_new[1 * s] = t68;
+    x_new[2 * s] = t142;
+    x_new[3 * s] = t143;
+    P_new[0] = t72;
+    P_new[1 * s] = t73;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t73;
+    P_new[5 * s] = t74;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = t147;
+    P_new[11 * s] = t148;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t148;
+    P_new[15 * s] = t149;
+    return status;
+}
 
 int gsm2d_a_jklf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
@@ -50,183 +273,7 @@ int gsm2d_a_jklf_step(const double *restrict x, const double *restrict P, const 
     if (!(P[7] == 0.0)) {
         return 3; /* outside P's pattern */
     }
-    const double t0 = x[0] + x[1];
-    const double t1 = x[2] + x[3];
-    const double t2 = P[0] + P[1];
-    const double t3 = P[1] + P[5];
-    const double t4 = P[10] + P[11];
-    const double t5 = P[11] + P[15];
-    const double t6 = t2 + t3;
-    const double t7 = t4 + t5;
-    const double t8 = 0.0025 + t6;
-    const double t9 = 0.005 + t3;
-    const double t10 = 0.01 + P[5];
-    const double t11 = 0.0025 + t7;
-    const double t12 = 0.005 + t5;
-    const double t13 = 0.01 + P[15];
-    const double t14 = t8 + t9;
-    const double t15 = t10 + t9;
-    const double t16 = t11 + t12;
-    const double t17 = t12 + t13;
-    const double t18 = t14 + t15;
-    const double t19 = t16 + t17;
-    const double t20 = 0.1 + t18;
-    const double t21 = 0.1 + t19;
-    if (!(t20 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t21 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    const double t22 = t14/t20;
-    const double t23 = t15/t20;
-    const double t24 = t16/t21;
-    const double t25 = t17/t21;
-    const double t26 = x[1] + t0;
-    const double t27 = x[3] + t1;
-    const double t28 = z[0] - t26;
-    const double t29 = z[1] - t27;
-    const double t30 = t22*t28;
-    const double t31 = t23*t28;
-    const double t32 = t24*t29;
-    const double t33 = t25*t29;
-    const double t34 = t0 + t30;
-    const double t35 = x[1] + t31;
-    const double t36 = t1 + t32;
-    const double t37 = x[3] + t33;
-    const double t38 = t14*t22;
-    const double t39 = t15*t22;
-    const double t40 = t15*t23;
-    const double t41 = t16*t24;
-    const double t42 = t17*t24;
-    const double t43 = t17*t25;
-    const double t44 = t8 - t38;
-    const double t45 = t9 - t39;
-    const double t46 = t10 - t40;
-    const double t47 = t11 - t41;
-    const double t48 = t12 - t42;
-    const double t49 = t13 - t43;
-    const double t50 = 16.3265306122449*P[1];
-    const double t51 = DERIVE_FMA(8.16326530612245, P[0], t50);
-    const double t52 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-    const double t53 = DERIVE_FMA(16.3265306122449, P[5], 8.16326530612245*P[1]);
-    const double t54 = DERIVE_FMA(32.6530612244898, P[5], t50);
-    const double t55 = 16.3265306122449*P[11];
-    const double t56 = DERIVE_FMA(8.16326530612245, P[10], t55);
-    const double t57 = DERIVE_FMA(32.6530612244898, P[11], 16.3265306122449*P[10]);
-    const double t58 = DERIVE_FMA(16.3265306122449, P[15], 8.16326530612245*P[11]);
-    const double t59 = DERIVE_FMA(32.6530612244898, P[15], t55);
-    const double t60 = 1.0 + t51;
-    const double t61 = 1.0 + t54;
-    const double t62 = 1.0 + t56;
-    const double t63 = 1.0 + t59;
-    const double t64 = 1.0/t60;
-    const double t65 = t53*t64;
-    const double t66 = t61 - t52*t65;
-    const double t67 = 1.0/t66;
-    const double t68 = 1.0/t62;
-    const double t69 = t58*t68;
-    const double t70 = t63 - t57*t69;
-    const double t71 = 1.0/t70;
-    const double t72 = t65*t67;
-    const double t73 = t64*DERIVE_FMA(t52, t72, 1.0);
-    const double t74 = t52*t64*t67;
-    const double t75 = t69*t71;
-    const double t76 = t68*DERIVE_FMA(t57, t75, 1.0);
-    const double t77 = t57*t68*t71;
-    const double t78 = DERIVE_FMA(0.9387755102040817, t73, (-0.8775510204081632)*t72);
-    const double t79 = DERIVE_FMA((-0.9387755102040817), t74, 0.8775510204081632*t67);
-    const double t80 = DERIVE_FMA(0.12244897959183673, t73, 0.7551020408163265*t72);
-    const double t81 = DERIVE_FMA(0.12244897959183673, t74, 0.7551020408163265*t67);
-    const double t82 = DERIVE_FMA(0.9387755102040817, t76, (-0.8775510204081632)*t75);
-    const double t83 = DERIVE_FMA((-0.9387755102040817), t77, 0.8775510204081632*t71);
-    const double t84 = DERIVE_FMA(0.12244897959183673, t76, 0.7551020408163265*t75);
-    const double t85 = DERIVE_FMA(0.12244897959183673, t77, 0.7551020408163265*t71);
-    const double t86 = 8.16326530612245*z[0];
-    const double t87 = 16.3265306122449*z[0];
-    const double t88 = 8.16326530612245*z[1];
-    const double t89 = 16.3265306122449*z[1];
-    const double t90 = DERIVE_FMA(P[1], t87, P[0]*t86);
-    const double t91 = DERIVE_FMA(P[5], t87, P[1]*t86);
-    const double t92 = DERIVE_FMA(P[11], t89, P[10]*t88);
-    const double t93 = DERIVE_FMA(P[15], t89, P[11]*t88);
-    const double t94 = x[0] + t90;
-    const double t95 = x[1] + t91;
-    const double t96 = x[2] + t92;
-    const double t97 = x[3] + t93;
-    const double t98 = 0.061224489795918366*z[0];
-    const double t99 = 0.12244897959183673*z[0];
-    const double t100 = 0.061224489795918366*z[1];
-    const double t101 = 0.12244897959183673*z[1];
-    const double t102 = DERIVE_FMA(t79, t95, t78*t94);
-    const double t103 = DERIVE_FMA(t81, t95, -(t80*t94));
-    const double t104 = DERIVE_FMA(t83, t97, t82*t96);
-    const double t105 = DERIVE_FMA(t85, t97, -(t84*t96));
-    const double t106 = t102 + t98;
-    const double t107 = t103 + t99;
-    const double t108 = t100 + t104;
-    const double t109 = t101 + t105;
-    const double t110 = DERIVE_FMA(P[1], t79, P[0]*t78);
-    const double t111 = DERIVE_FMA(P[5], t79, P[1]*t78);
-    const double t112 = DERIVE_FMA(P[1], t81, -(P[0]*t80));
-    const double t113 = DERIVE_FMA(P[5], t81, -(P[1]*t80));
-    const double t114 = DERIVE_FMA(P[11], t83, P[10]*t82);
-    const double t115 = DERIVE_FMA(P[15], t83, P[11]*t82);
-    const double t116 = DERIVE_FMA(P[11], t85, -(P[10]*t84));
-    const double t117 = DERIVE_FMA(P[15], t85, -(P[11]*t84));
-    const double t118 = DERIVE_FMA(0.8775510204081632, t111, 0.9387755102040817*t110);
-    const double t119 = DERIVE_FMA(0.7551020408163265, t111, (-0.12244897959183673)*t110);
-    const double t120 = DERIVE_FMA(0.7551020408163265, t113, (-0.12244897959183673)*t112);
-    const double t121 = DERIVE_FMA(0.8775510204081632, t115, 0.9387755102040817*t114);
-    const double t122 = DERIVE_FMA(0.7551020408163265, t115, (-0.12244897959183673)*t114);
-    const double t123 = DERIVE_FMA(0.7551020408163265, t117, (-0.12244897959183673)*t116);
-    const double t124 = 0.0020408163265306124 + t118;
-    const double t125 = 0.004081632653061225 + t119;
-    const double t126 = 0.00816326530612245 + t120;
-    const double t127 = 0.0020408163265306124 + t121;
-    const double t128 = 0.004081632653061225 + t122;
-    const double t129 = 0.00816326530612245 + t123;
-    const double t130 = t106 + t34;
-    const double t131 = t107 + t35;
-    const double t132 = t108 + t36;
-    const double t133 = t109 + t37;
-    const double t134 = 0.5*t130;
-    const double t135 = 0.5*t131;
-    const double t136 = 0.5*t132;
-    const double t137 = 0.5*t133;
-    const double t138 = t124 + t44;
-    const double t139 = t125 + t45;
-    const double t140 = t126 + t46;
-    const double t141 = t127 + t47;
-    const double t142 = t128 + t48;
-    const double t143 = t129 + t49;
-    const double t144 = 0.5*t138;
-    const double t145 = 0.5*t139;
-    const double t146 = 0.5*t140;
-    const double t147 = 0.5*t141;
-    const double t148 = 0.5*t142;
-    const double t149 = 0.5*t143;
-    x_new[0] = t134;
-    x_new[1] = t135;
-    x_new[2] = t136;
-    x_new[3] = t137;
-    P_new[0] = t144;
-    P_new[1] = t145;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t145;
-    P_new[5] = t146;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = t147;
-    P_new[11] = t148;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t148;
-    P_new[15] = t149;
-    return 0;
+    return gsm2d_a_jklf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL. */
@@ -270,185 +317,13 @@ int gsm2d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
     P[13] = P0[13];
     P[14] = P0[14];
     P[15] = P0[15];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
-        const double t0 = x[0] + x[1];
-        const double t1 = x[2] + x[3];
-        const double t2 = P[0] + P[1];
-        const double t3 = P[1] + P[5];
-        const double t4 = P[10] + P[11];
-        const double t5 = P[11] + P[15];
-        const double t6 = t2 + t3;
-        const double t7 = t4 + t5;
-        const double t8 = 0.0025 + t6;
-        const double t9 = 0.005 + t3;
-        const double t10 = 0.01 + P[5];
-        const double t11 = 0.0025 + t7;
-        const double t12 = 0.005 + t5;
-        const double t13 = 0.01 + P[15];
-        const double t14 = t8 + t9;
-        const double t15 = t10 + t9;
-        const double t16 = t11 + t12;
-        const double t17 = t12 + t13;
-        const double t18 = t14 + t15;
-        const double t19 = t16 + t17;
-        const double t20 = 0.1 + t18;
-        const double t21 = 0.1 + t19;
-        if (!(t20 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = gsm2d_a_jklf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        if (!(t21 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        const double t22 = t14/t20;
-        const double t23 = t15/t20;
-        const double t24 = t16/t21;
-        const double t25 = t17/t21;
-        const double t26 = x[1] + t0;
-        const double t27 = x[3] + t1;
-        const double t28 = zk[0] - t26;
-        const double t29 = zk[1] - t27;
-        const double t30 = t22*t28;
-        const double t31 = t23*t28;
-        const double t32 = t24*t29;
-        const double t33 = t25*t29;
-        const double t34 = t0 + t30;
-        const double t35 = x[1] + t31;
-        const double t36 = t1 + t32;
-        const double t37 = x[3] + t33;
-        const double t38 = t14*t22;
-        const double t39 = t15*t22;
-        const double t40 = t15*t23;
-        const double t41 = t16*t24;
-        const double t42 = t17*t24;
-        const double t43 = t17*t25;
-        const double t44 = t8 - t38;
-        const double t45 = t9 - t39;
-        const double t46 = t10 - t40;
-        const double t47 = t11 - t41;
-        const double t48 = t12 - t42;
-        const double t49 = t13 - t43;
-        const double t50 = 16.3265306122449*P[1];
-        const double t51 = DERIVE_FMA(8.16326530612245, P[0], t50);
-        const double t52 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-        const double t53 = DERIVE_FMA(16.3265306122449, P[5], 8.16326530612245*P[1]);
-        const double t54 = DERIVE_FMA(32.6530612244898, P[5], t50);
-        const double t55 = 16.3265306122449*P[11];
-        const double t56 = DERIVE_FMA(8.16326530612245, P[10], t55);
-        const double t57 = DERIVE_FMA(32.6530612244898, P[11], 16.3265306122449*P[10]);
-        const double t58 = DERIVE_FMA(16.3265306122449, P[15], 8.16326530612245*P[11]);
-        const double t59 = DERIVE_FMA(32.6530612244898, P[15], t55);
-        const double t60 = 1.0 + t51;
-        const double t61 = 1.0 + t54;
-        const double t62 = 1.0 + t56;
-        const double t63 = 1.0 + t59;
-        const double t64 = 1.0/t60;
-        const double t65 = t53*t64;
-        const double t66 = t61 - t52*t65;
-        const double t67 = 1.0/t66;
-        const double t68 = 1.0/t62;
-        const double t69 = t58*t68;
-        const double t70 = t63 - t57*t69;
-        const double t71 = 1.0/t70;
-        const double t72 = t65*t67;
-        const double t73 = t64*DERIVE_FMA(t52, t72, 1.0);
-        const double t74 = t52*t64*t67;
-        const double t75 = t69*t71;
-        const double t76 = t68*DERIVE_FMA(t57, t75, 1.0);
-        const double t77 = t57*t68*t71;
-        const double t78 = DERIVE_FMA(0.9387755102040817, t73, (-0.8775510204081632)*t72);
-        const double t79 = DERIVE_FMA((-0.9387755102040817), t74, 0.8775510204081632*t67);
-        const double t80 = DERIVE_FMA(0.12244897959183673, t73, 0.7551020408163265*t72);
-        const double t81 = DERIVE_FMA(0.12244897959183673, t74, 0.7551020408163265*t67);
-        const double t82 = DERIVE_FMA(0.9387755102040817, t76, (-0.8775510204081632)*t75);
-        const double t83 = DERIVE_FMA((-0.9387755102040817), t77, 0.8775510204081632*t71);
-        const double t84 = DERIVE_FMA(0.12244897959183673, t76, 0.7551020408163265*t75);
-        const double t85 = DERIVE_FMA(0.12244897959183673, t77, 0.7551020408163265*t71);
-        const double t86 = 8.16326530612245*zk[0];
-        const double t87 = 16.3265306122449*zk[0];
-        const double t88 = 8.16326530612245*zk[1];
-        const double t89 = 16.3265306122449*zk[1];
-        const double t90 = DERIVE_FMA(P[1], t87, P[0]*t86);
-        const double t91 = DERIVE_FMA(P[5], t87, P[1]*t86);
-        const double t92 = DERIVE_FMA(P[11], t89, P[10]*t88);
-        const double t93 = DERIVE_FMA(P[15], t89, P[11]*t88);
-        const double t94 = x[0] + t90;
-        const double t95 = x[1] + t91;
-        const double t96 = x[2] + t92;
-        const double t97 = x[3] + t93;
-        const double t98 = 0.061224489795918366*zk[0];
-        const double t99 = 0.12244897959183673*zk[0];
-        const double t100 = 0.061224489795918366*zk[1];
-        const double t101 = 0.12244897959183673*zk[1];
-        const double t102 = DERIVE_FMA(t79, t95, t78*t94);
-        const double t103 = DERIVE_FMA(t81, t95, -(t80*t94));
-        const double t104 = DERIVE_FMA(t83, t97, t82*t96);
-        const double t105 = DERIVE_FMA(t85, t97, -(t84*t96));
-        const double t106 = t102 + t98;
-        const double t107 = t103 + t99;
-        const double t108 = t100 + t104;
-        const double t109 = t101 + t105;
-        const double t110 = DERIVE_FMA(P[1], t79, P[0]*t78);
-        const double t111 = DERIVE_FMA(P[5], t79, P[1]*t78);
-        const double t112 = DERIVE_FMA(P[1], t81, -(P[0]*t80));
-        const double t113 = DERIVE_FMA(P[5], t81, -(P[1]*t80));
-        const double t114 = DERIVE_FMA(P[11], t83, P[10]*t82);
-        const double t115 = DERIVE_FMA(P[15], t83, P[11]*t82);
-        const double t116 = DERIVE_FMA(P[11], t85, -(P[10]*t84));
-        const double t117 = DERIVE_FMA(P[15], t85, -(P[11]*t84));
-        const double t118 = DERIVE_FMA(0.8775510204081632, t111, 0.9387755102040817*t110);
-        const double t119 = DERIVE_FMA(0.7551020408163265, t111, (-0.12244897959183673)*t110);
-        const double t120 = DERIVE_FMA(0.7551020408163265, t113, (-0.12244897959183673)*t112);
-        const double t121 = DERIVE_FMA(0.8775510204081632, t115, 0.9387755102040817*t114);
-        const double t122 = DERIVE_FMA(0.7551020408163265, t115, (-0.12244897959183673)*t114);
-        const double t123 = DERIVE_FMA(0.7551020408163265, t117, (-0.12244897959183673)*t116);
-        const double t124 = 0.0020408163265306124 + t118;
-        const double t125 = 0.004081632653061225 + t119;
-        const double t126 = 0.00816326530612245 + t120;
-        const double t127 = 0.0020408163265306124 + t121;
-        const double t128 = 0.004081632653061225 + t122;
-        const double t129 = 0.00816326530612245 + t123;
-        const double t130 = t106 + t34;
-        const double t131 = t107 + t35;
-        const double t132 = t108 + t36;
-        const double t133 = t109 + t37;
-        const double t134 = 0.5*t130;
-        const double t135 = 0.5*t131;
-        const double t136 = 0.5*t132;
-        const double t137 = 0.5*t133;
-        const double t138 = t124 + t44;
-        const double t139 = t125 + t45;
-        const double t140 = t126 + t46;
-        const double t141 = t127 + t47;
-        const double t142 = t128 + t48;
-        const double t143 = t129 + t49;
-        const double t144 = 0.5*t138;
-        const double t145 = 0.5*t139;
-        const double t146 = 0.5*t140;
-        const double t147 = 0.5*t141;
-        const double t148 = 0.5*t142;
-        const double t149 = 0.5*t143;
-        x_new[0] = t134;
-        x_new[1] = t135;
-        x_new[2] = t136;
-        x_new[3] = t137;
-        P_new[0] = t144;
-        P_new[1] = t145;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = t145;
-        P_new[5] = t146;
-        P_new[6] = 0.0;
-        P_new[7] = 0.0;
-        P_new[8] = 0.0;
-        P_new[9] = 0.0;
-        P_new[10] = t147;
-        P_new[11] = t148;
-        P_new[12] = 0.0;
-        P_new[13] = 0.0;
-        P_new[14] = t148;
-        P_new[15] = t149;
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];
@@ -493,12 +368,15 @@ int gsm2d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int gsm2d_a_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 16 + 2] == 0.0)) {
@@ -515,1202 +393,65 @@ int gsm2d_a_jklf_run_tracks(size_t steps, size_t tracks, const double *z, const 
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[4], xn_l0[4];
-        double P_l0[16], Pn_l0[16];
-        const double *z_l0;
-        double x_l1[4], xn_l1[4];
-        double P_l1[16], Pn_l1[16];
-        const double *z_l1;
-        double x_l2[4], xn_l2[4];
-        double P_l2[16], Pn_l2[16];
-        const double *z_l2;
-        double x_l3[4], xn_l3[4];
-        double P_l3[16], Pn_l3[16];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 4 + 0];
-        x_l0[1] = x0[(t + 0) * 4 + 1];
-        x_l0[2] = x0[(t + 0) * 4 + 2];
-        x_l0[3] = x0[(t + 0) * 4 + 3];
-        P_l0[0] = P0[(t + 0) * 16 + 0];
-        P_l0[1] = P0[(t + 0) * 16 + 1];
-        P_l0[2] = P0[(t + 0) * 16 + 2];
-        P_l0[3] = P0[(t + 0) * 16 + 3];
-        P_l0[4] = P0[(t + 0) * 16 + 4];
-        P_l0[5] = P0[(t + 0) * 16 + 5];
-        P_l0[6] = P0[(t + 0) * 16 + 6];
-        P_l0[7] = P0[(t + 0) * 16 + 7];
-        P_l0[8] = P0[(t + 0) * 16 + 8];
-        P_l0[9] = P0[(t + 0) * 16 + 9];
-        P_l0[10] = P0[(t + 0) * 16 + 10];
-        P_l0[11] = P0[(t + 0) * 16 + 11];
-        P_l0[12] = P0[(t + 0) * 16 + 12];
-        P_l0[13] = P0[(t + 0) * 16 + 13];
-        P_l0[14] = P0[(t + 0) * 16 + 14];
-        P_l0[15] = P0[(t + 0) * 16 + 15];
-        x_l1[0] = x0[(t + 1) * 4 + 0];
-        x_l1[1] = x0[(t + 1) * 4 + 1];
-        x_l1[2] = x0[(t + 1) * 4 + 2];
-        x_l1[3] = x0[(t + 1) * 4 + 3];
-        P_l1[0] = P0[(t + 1) * 16 + 0];
-        P_l1[1] = P0[(t + 1) * 16 + 1];
-        P_l1[2] = P0[(t + 1) * 16 + 2];
-        P_l1[3] = P0[(t + 1) * 16 + 3];
-        P_l1[4] = P0[(t + 1) * 16 + 4];
-        P_l1[5] = P0[(t + 1) * 16 + 5];
-        P_l1[6] = P0[(t + 1) * 16 + 6];
-        P_l1[7] = P0[(t + 1) * 16 + 7];
-        P_l1[8] = P0[(t + 1) * 16 + 8];
-        P_l1[9] = P0[(t + 1) * 16 + 9];
-        P_l1[10] = P0[(t + 1) * 16 + 10];
-        P_l1[11] = P0[(t + 1) * 16 + 11];
-        P_l1[12] = P0[(t + 1) * 16 + 12];
-        P_l1[13] = P0[(t + 1) * 16 + 13];
-        P_l1[14] = P0[(t + 1) * 16 + 14];
-        P_l1[15] = P0[(t + 1) * 16 + 15];
-        x_l2[0] = x0[(t + 2) * 4 + 0];
-        x_l2[1] = x0[(t + 2) * 4 + 1];
-        x_l2[2] = x0[(t + 2) * 4 + 2];
-        x_l2[3] = x0[(t + 2) * 4 + 3];
-        P_l2[0] = P0[(t + 2) * 16 + 0];
-        P_l2[1] = P0[(t + 2) * 16 + 1];
-        P_l2[2] = P0[(t + 2) * 16 + 2];
-        P_l2[3] = P0[(t + 2) * 16 + 3];
-        P_l2[4] = P0[(t + 2) * 16 + 4];
-        P_l2[5] = P0[(t + 2) * 16 + 5];
-        P_l2[6] = P0[(t + 2) * 16 + 6];
-        P_l2[7] = P0[(t + 2) * 16 + 7];
-        P_l2[8] = P0[(t + 2) * 16 + 8];
-        P_l2[9] = P0[(t + 2) * 16 + 9];
-        P_l2[10] = P0[(t + 2) * 16 + 10];
-        P_l2[11] = P0[(t + 2) * 16 + 11];
-        P_l2[12] = P0[(t + 2) * 16 + 12];
-        P_l2[13] = P0[(t + 2) * 16 + 13];
-        P_l2[14] = P0[(t + 2) * 16 + 14];
-        P_l2[15] = P0[(t + 2) * 16 + 15];
-        x_l3[0] = x0[(t + 3) * 4 + 0];
-        x_l3[1] = x0[(t + 3) * 4 + 1];
-        x_l3[2] = x0[(t + 3) * 4 + 2];
-        x_l3[3] = x0[(t + 3) * 4 + 3];
-        P_l3[0] = P0[(t + 3) * 16 + 0];
-        P_l3[1] = P0[(t + 3) * 16 + 1];
-        P_l3[2] = P0[(t + 3) * 16 + 2];
-        P_l3[3] = P0[(t + 3) * 16 + 3];
-        P_l3[4] = P0[(t + 3) * 16 + 4];
-        P_l3[5] = P0[(t + 3) * 16 + 5];
-        P_l3[6] = P0[(t + 3) * 16 + 6];
-        P_l3[7] = P0[(t + 3) * 16 + 7];
-        P_l3[8] = P0[(t + 3) * 16 + 8];
-        P_l3[9] = P0[(t + 3) * 16 + 9];
-        P_l3[10] = P0[(t + 3) * 16 + 10];
-        P_l3[11] = P0[(t + 3) * 16 + 11];
-        P_l3[12] = P0[(t + 3) * 16 + 12];
-        P_l3[13] = P0[(t + 3) * 16 + 13];
-        P_l3[14] = P0[(t + 3) * 16 + 14];
-        P_l3[15] = P0[(t + 3) * 16 + 15];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[4 * DERIVE_LANES];
+        double P_b[16 * DERIVE_LANES];
+        double x_new_b[4 * DERIVE_LANES];
+        double P_new_b[16 * DERIVE_LANES];
+        double z_b[2 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 4; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 4 + i];
+            }
+            for (i = 0; i < 16; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 16 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 2;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = P_l0[0] + P_l0[1];
-            const double t3_l0 = P_l0[1] + P_l0[5];
-            const double t4_l0 = P_l0[10] + P_l0[11];
-            const double t5_l0 = P_l0[11] + P_l0[15];
-            const double t6_l0 = t2_l0 + t3_l0;
-            const double t7_l0 = t4_l0 + t5_l0;
-            const double t8_l0 = 0.0025 + t6_l0;
-            const double t9_l0 = 0.005 + t3_l0;
-            const double t10_l0 = 0.01 + P_l0[5];
-            const double t11_l0 = 0.0025 + t7_l0;
-            const double t12_l0 = 0.005 + t5_l0;
-            const double t13_l0 = 0.01 + P_l0[15];
-            const double t14_l0 = t8_l0 + t9_l0;
-            const double t15_l0 = t10_l0 + t9_l0;
-            const double t16_l0 = t11_l0 + t12_l0;
-            const double t17_l0 = t12_l0 + t13_l0;
-            const double t18_l0 = t14_l0 + t15_l0;
-            const double t19_l0 = t16_l0 + t17_l0;
-            const double t20_l0 = 0.1 + t18_l0;
-            const double t21_l0 = 0.1 + t19_l0;
-            if (!(t20_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 2], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 4], 1);
+                }
             }
-            if (!(t21_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 2; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 2 + i];
+                }
             }
-            const double t22_l0 = t14_l0/t20_l0;
-            const double t23_l0 = t15_l0/t20_l0;
-            const double t24_l0 = t16_l0/t21_l0;
-            const double t25_l0 = t17_l0/t21_l0;
-            const double t26_l0 = x_l0[1] + t0_l0;
-            const double t27_l0 = x_l0[3] + t1_l0;
-            const double t28_l0 = z_l0[0] - t26_l0;
-            const double t29_l0 = z_l0[1] - t27_l0;
-            const double t30_l0 = t22_l0*t28_l0;
-            const double t31_l0 = t23_l0*t28_l0;
-            const double t32_l0 = t24_l0*t29_l0;
-            const double t33_l0 = t25_l0*t29_l0;
-            const double t34_l0 = t0_l0 + t30_l0;
-            const double t35_l0 = x_l0[1] + t31_l0;
-            const double t36_l0 = t1_l0 + t32_l0;
-            const double t37_l0 = x_l0[3] + t33_l0;
-            const double t38_l0 = t14_l0*t22_l0;
-            const double t39_l0 = t15_l0*t22_l0;
-            const double t40_l0 = t15_l0*t23_l0;
-            const double t41_l0 = t16_l0*t24_l0;
-            const double t42_l0 = t17_l0*t24_l0;
-            const double t43_l0 = t17_l0*t25_l0;
-            const double t44_l0 = t8_l0 - t38_l0;
-            const double t45_l0 = t9_l0 - t39_l0;
-            const double t46_l0 = t10_l0 - t40_l0;
-            const double t47_l0 = t11_l0 - t41_l0;
-            const double t48_l0 = t12_l0 - t42_l0;
-            const double t49_l0 = t13_l0 - t43_l0;
-            const double t50_l0 = 16.3265306122449*P_l0[1];
-            const double t51_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t50_l0);
-            const double t52_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t53_l0 = DERIVE_FMA(16.3265306122449, P_l0[5], 8.16326530612245*P_l0[1]);
-            const double t54_l0 = DERIVE_FMA(32.6530612244898, P_l0[5], t50_l0);
-            const double t55_l0 = 16.3265306122449*P_l0[11];
-            const double t56_l0 = DERIVE_FMA(8.16326530612245, P_l0[10], t55_l0);
-            const double t57_l0 = DERIVE_FMA(32.6530612244898, P_l0[11], 16.3265306122449*P_l0[10]);
-            const double t58_l0 = DERIVE_FMA(16.3265306122449, P_l0[15], 8.16326530612245*P_l0[11]);
-            const double t59_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], t55_l0);
-            const double t60_l0 = 1.0 + t51_l0;
-            const double t61_l0 = 1.0 + t54_l0;
-            const double t62_l0 = 1.0 + t56_l0;
-            const double t63_l0 = 1.0 + t59_l0;
-            const double t64_l0 = 1.0/t60_l0;
-            const double t65_l0 = t53_l0*t64_l0;
-            const double t66_l0 = t61_l0 - t52_l0*t65_l0;
-            const double t67_l0 = 1.0/t66_l0;
-            const double t68_l0 = 1.0/t62_l0;
-            const double t69_l0 = t58_l0*t68_l0;
-            const double t70_l0 = t63_l0 - t57_l0*t69_l0;
-            const double t71_l0 = 1.0/t70_l0;
-            const double t72_l0 = t65_l0*t67_l0;
-            const double t73_l0 = t64_l0*DERIVE_FMA(t52_l0, t72_l0, 1.0);
-            const double t74_l0 = t52_l0*t64_l0*t67_l0;
-            const double t75_l0 = t69_l0*t71_l0;
-            const double t76_l0 = t68_l0*DERIVE_FMA(t57_l0, t75_l0, 1.0);
-            const double t77_l0 = t57_l0*t68_l0*t71_l0;
-            const double t78_l0 = DERIVE_FMA(0.9387755102040817, t73_l0, (-0.8775510204081632)*t72_l0);
-            const double t79_l0 = DERIVE_FMA((-0.9387755102040817), t74_l0, 0.8775510204081632*t67_l0);
-            const double t80_l0 = DERIVE_FMA(0.12244897959183673, t73_l0, 0.7551020408163265*t72_l0);
-            const double t81_l0 = DERIVE_FMA(0.12244897959183673, t74_l0, 0.7551020408163265*t67_l0);
-            const double t82_l0 = DERIVE_FMA(0.9387755102040817, t76_l0, (-0.8775510204081632)*t75_l0);
-            const double t83_l0 = DERIVE_FMA((-0.9387755102040817), t77_l0, 0.8775510204081632*t71_l0);
-            const double t84_l0 = DERIVE_FMA(0.12244897959183673, t76_l0, 0.7551020408163265*t75_l0);
-            const double t85_l0 = DERIVE_FMA(0.12244897959183673, t77_l0, 0.7551020408163265*t71_l0);
-            const double t86_l0 = 8.16326530612245*z_l0[0];
-            const double t87_l0 = 16.3265306122449*z_l0[0];
-            const double t88_l0 = 8.16326530612245*z_l0[1];
-            const double t89_l0 = 16.3265306122449*z_l0[1];
-            const double t90_l0 = DERIVE_FMA(P_l0[1], t87_l0, P_l0[0]*t86_l0);
-            const double t91_l0 = DERIVE_FMA(P_l0[5], t87_l0, P_l0[1]*t86_l0);
-            const double t92_l0 = DERIVE_FMA(P_l0[11], t89_l0, P_l0[10]*t88_l0);
-            const double t93_l0 = DERIVE_FMA(P_l0[15], t89_l0, P_l0[11]*t88_l0);
-            const double t94_l0 = x_l0[0] + t90_l0;
-            const double t95_l0 = x_l0[1] + t91_l0;
-            const double t96_l0 = x_l0[2] + t92_l0;
-            const double t97_l0 = x_l0[3] + t93_l0;
-            const double t98_l0 = 0.061224489795918366*z_l0[0];
-            const double t99_l0 = 0.12244897959183673*z_l0[0];
-            const double t100_l0 = 0.061224489795918366*z_l0[1];
-            const double t101_l0 = 0.12244897959183673*z_l0[1];
-            const double t102_l0 = DERIVE_FMA(t79_l0, t95_l0, t78_l0*t94_l0);
-            const double t103_l0 = DERIVE_FMA(t81_l0, t95_l0, -(t80_l0*t94_l0));
-            const double t104_l0 = DERIVE_FMA(t83_l0, t97_l0, t82_l0*t96_l0);
-            const double t105_l0 = DERIVE_FMA(t85_l0, t97_l0, -(t84_l0*t96_l0));
-            const double t106_l0 = t102_l0 + t98_l0;
-            const double t107_l0 = t103_l0 + t99_l0;
-            const double t108_l0 = t100_l0 + t104_l0;
-            const double t109_l0 = t101_l0 + t105_l0;
-            const double t110_l0 = DERIVE_FMA(P_l0[1], t79_l0, P_l0[0]*t78_l0);
-            const double t111_l0 = DERIVE_FMA(P_l0[5], t79_l0, P_l0[1]*t78_l0);
-            const double t112_l0 = DERIVE_FMA(P_l0[1], t81_l0, -(P_l0[0]*t80_l0));
-            const double t113_l0 = DERIVE_FMA(P_l0[5], t81_l0, -(P_l0[1]*t80_l0));
-            const double t114_l0 = DERIVE_FMA(P_l0[11], t83_l0, P_l0[10]*t82_l0);
-            const double t115_l0 = DERIVE_FMA(P_l0[15], t83_l0, P_l0[11]*t82_l0);
-            const double t116_l0 = DERIVE_FMA(P_l0[11], t85_l0, -(P_l0[10]*t84_l0));
-            const double t117_l0 = DERIVE_FMA(P_l0[15], t85_l0, -(P_l0[11]*t84_l0));
-            const double t118_l0 = DERIVE_FMA(0.8775510204081632, t111_l0, 0.9387755102040817*t110_l0);
-            const double t119_l0 = DERIVE_FMA(0.7551020408163265, t111_l0, (-0.12244897959183673)*t110_l0);
-            const double t120_l0 = DERIVE_FMA(0.7551020408163265, t113_l0, (-0.12244897959183673)*t112_l0);
-            const double t121_l0 = DERIVE_FMA(0.8775510204081632, t115_l0, 0.9387755102040817*t114_l0);
-            const double t122_l0 = DERIVE_FMA(0.7551020408163265, t115_l0, (-0.12244897959183673)*t114_l0);
-            const double t123_l0 = DERIVE_FMA(0.7551020408163265, t117_l0, (-0.12244897959183673)*t116_l0);
-            const double t124_l0 = 0.0020408163265306124 + t118_l0;
-            const double t125_l0 = 0.004081632653061225 + t119_l0;
-            const double t126_l0 = 0.00816326530612245 + t120_l0;
-            const double t127_l0 = 0.0020408163265306124 + t121_l0;
-            const double t128_l0 = 0.004081632653061225 + t122_l0;
-            const double t129_l0 = 0.00816326530612245 + t123_l0;
-            const double t130_l0 = t106_l0 + t34_l0;
-            const double t131_l0 = t107_l0 + t35_l0;
-            const double t132_l0 = t108_l0 + t36_l0;
-            const double t133_l0 = t109_l0 + t37_l0;
-            const double t134_l0 = 0.5*t130_l0;
-            const double t135_l0 = 0.5*t131_l0;
-            const double t136_l0 = 0.5*t132_l0;
-            const double t137_l0 = 0.5*t133_l0;
-            const double t138_l0 = t124_l0 + t44_l0;
-            const double t139_l0 = t125_l0 + t45_l0;
-            const double t140_l0 = t126_l0 + t46_l0;
-            const double t141_l0 = t127_l0 + t47_l0;
-            const double t142_l0 = t128_l0 + t48_l0;
-            const double t143_l0 = t129_l0 + t49_l0;
-            const double t144_l0 = 0.5*t138_l0;
-            const double t145_l0 = 0.5*t139_l0;
-            const double t146_l0 = 0.5*t140_l0;
-            const double t147_l0 = 0.5*t141_l0;
-            const double t148_l0 = 0.5*t142_l0;
-            const double t149_l0 = 0.5*t143_l0;
-            xn_l0[0] = t134_l0;
-            xn_l0[1] = t135_l0;
-            xn_l0[2] = t136_l0;
-            xn_l0[3] = t137_l0;
-            Pn_l0[0] = t144_l0;
-            Pn_l0[1] = t145_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t145_l0;
-            Pn_l0[5] = t146_l0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = t147_l0;
-            Pn_l0[11] = t148_l0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t148_l0;
-            Pn_l0[15] = t149_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 2;
-            const double t0_l1 = x_l1[0] + x_l1[1];
-            const double t1_l1 = x_l1[2] + x_l1[3];
-            const double t2_l1 = P_l1[0] + P_l1[1];
-            const double t3_l1 = P_l1[1] + P_l1[5];
-            const double t4_l1 = P_l1[10] + P_l1[11];
-            const double t5_l1 = P_l1[11] + P_l1[15];
-            const double t6_l1 = t2_l1 + t3_l1;
-            const double t7_l1 = t4_l1 + t5_l1;
-            const double t8_l1 = 0.0025 + t6_l1;
-            const double t9_l1 = 0.005 + t3_l1;
-            const double t10_l1 = 0.01 + P_l1[5];
-            const double t11_l1 = 0.0025 + t7_l1;
-            const double t12_l1 = 0.005 + t5_l1;
-            const double t13_l1 = 0.01 + P_l1[15];
-            const double t14_l1 = t8_l1 + t9_l1;
-            const double t15_l1 = t10_l1 + t9_l1;
-            const double t16_l1 = t11_l1 + t12_l1;
-            const double t17_l1 = t12_l1 + t13_l1;
-            const double t18_l1 = t14_l1 + t15_l1;
-            const double t19_l1 = t16_l1 + t17_l1;
-            const double t20_l1 = 0.1 + t18_l1;
-            const double t21_l1 = 0.1 + t19_l1;
-            if (!(t20_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = gsm2d_a_jklf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            if (!(t21_l1 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            const double t22_l1 = t14_l1/t20_l1;
-            const double t23_l1 = t15_l1/t20_l1;
-            const double t24_l1 = t16_l1/t21_l1;
-            const double t25_l1 = t17_l1/t21_l1;
-            const double t26_l1 = x_l1[1] + t0_l1;
-            const double t27_l1 = x_l1[3] + t1_l1;
-            const double t28_l1 = z_l1[0] - t26_l1;
-            const double t29_l1 = z_l1[1] - t27_l1;
-            const double t30_l1 = t22_l1*t28_l1;
-            const double t31_l1 = t23_l1*t28_l1;
-            const double t32_l1 = t24_l1*t29_l1;
-            const double t33_l1 = t25_l1*t29_l1;
-            const double t34_l1 = t0_l1 + t30_l1;
-            const double t35_l1 = x_l1[1] + t31_l1;
-            const double t36_l1 = t1_l1 + t32_l1;
-            const double t37_l1 = x_l1[3] + t33_l1;
-            const double t38_l1 = t14_l1*t22_l1;
-            const double t39_l1 = t15_l1*t22_l1;
-            const double t40_l1 = t15_l1*t23_l1;
-            const double t41_l1 = t16_l1*t24_l1;
-            const double t42_l1 = t17_l1*t24_l1;
-            const double t43_l1 = t17_l1*t25_l1;
-            const double t44_l1 = t8_l1 - t38_l1;
-            const double t45_l1 = t9_l1 - t39_l1;
-            const double t46_l1 = t10_l1 - t40_l1;
-            const double t47_l1 = t11_l1 - t41_l1;
-            const double t48_l1 = t12_l1 - t42_l1;
-            const double t49_l1 = t13_l1 - t43_l1;
-            const double t50_l1 = 16.3265306122449*P_l1[1];
-            const double t51_l1 = DERIVE_FMA(8.16326530612245, P_l1[0], t50_l1);
-            const double t52_l1 = DERIVE_FMA(32.6530612244898, P_l1[1], 16.3265306122449*P_l1[0]);
-            const double t53_l1 = DERIVE_FMA(16.3265306122449, P_l1[5], 8.16326530612245*P_l1[1]);
-            const double t54_l1 = DERIVE_FMA(32.6530612244898, P_l1[5], t50_l1);
-            const double t55_l1 = 16.3265306122449*P_l1[11];
-            const double t56_l1 = DERIVE_FMA(8.16326530612245, P_l1[10], t55_l1);
-            const double t57_l1 = DERIVE_FMA(32.6530612244898, P_l1[11], 16.3265306122449*P_l1[10]);
-            const double t58_l1 = DERIVE_FMA(16.3265306122449, P_l1[15], 8.16326530612245*P_l1[11]);
-            const double t59_l1 = DERIVE_FMA(32.6530612244898, P_l1[15], t55_l1);
-            const double t60_l1 = 1.0 + t51_l1;
-            const double t61_l1 = 1.0 + t54_l1;
-            const double t62_l1 = 1.0 + t56_l1;
-            const double t63_l1 = 1.0 + t59_l1;
-            const double t64_l1 = 1.0/t60_l1;
-            const double t65_l1 = t53_l1*t64_l1;
-            const double t66_l1 = t61_l1 - t52_l1*t65_l1;
-            const double t67_l1 = 1.0/t66_l1;
-            const double t68_l1 = 1.0/t62_l1;
-            const double t69_l1 = t58_l1*t68_l1;
-            const double t70_l1 = t63_l1 - t57_l1*t69_l1;
-            const double t71_l1 = 1.0/t70_l1;
-            const double t72_l1 = t65_l1*t67_l1;
-            const double t73_l1 = t64_l1*DERIVE_FMA(t52_l1, t72_l1, 1.0);
-            const double t74_l1 = t52_l1*t64_l1*t67_l1;
-            const double t75_l1 = t69_l1*t71_l1;
-            const double t76_l1 = t68_l1*DERIVE_FMA(t57_l1, t75_l1, 1.0);
-            const double t77_l1 = t57_l1*t68_l1*t71_l1;
-            const double t78_l1 = DERIVE_FMA(0.9387755102040817, t73_l1, (-0.8775510204081632)*t72_l1);
-            const double t79_l1 = DERIVE_FMA((-0.9387755102040817), t74_l1, 0.8775510204081632*t67_l1);
-            const double t80_l1 = DERIVE_FMA(0.12244897959183673, t73_l1, 0.7551020408163265*t72_l1);
-            const double t81_l1 = DERIVE_FMA(0.12244897959183673, t74_l1, 0.7551020408163265*t67_l1);
-            const double t82_l1 = DERIVE_FMA(0.9387755102040817, t76_l1, (-0.8775510204081632)*t75_l1);
-            const double t83_l1 = DERIVE_FMA((-0.9387755102040817), t77_l1, 0.8775510204081632*t71_l1);
-            const double t84_l1 = DERIVE_FMA(0.12244897959183673, t76_l1, 0.7551020408163265*t75_l1);
-            const double t85_l1 = DERIVE_FMA(0.12244897959183673, t77_l1, 0.7551020408163265*t71_l1);
-            const double t86_l1 = 8.16326530612245*z_l1[0];
-            const double t87_l1 = 16.3265306122449*z_l1[0];
-            const double t88_l1 = 8.16326530612245*z_l1[1];
-            const double t89_l1 = 16.3265306122449*z_l1[1];
-            const double t90_l1 = DERIVE_FMA(P_l1[1], t87_l1, P_l1[0]*t86_l1);
-            const double t91_l1 = DERIVE_FMA(P_l1[5], t87_l1, P_l1[1]*t86_l1);
-            const double t92_l1 = DERIVE_FMA(P_l1[11], t89_l1, P_l1[10]*t88_l1);
-            const double t93_l1 = DERIVE_FMA(P_l1[15], t89_l1, P_l1[11]*t88_l1);
-            const double t94_l1 = x_l1[0] + t90_l1;
-            const double t95_l1 = x_l1[1] + t91_l1;
-            const double t96_l1 = x_l1[2] + t92_l1;
-            const double t97_l1 = x_l1[3] + t93_l1;
-            const double t98_l1 = 0.061224489795918366*z_l1[0];
-            const double t99_l1 = 0.12244897959183673*z_l1[0];
-            const double t100_l1 = 0.061224489795918366*z_l1[1];
-            const double t101_l1 = 0.12244897959183673*z_l1[1];
-            const double t102_l1 = DERIVE_FMA(t79_l1, t95_l1, t78_l1*t94_l1);
-            const double t103_l1 = DERIVE_FMA(t81_l1, t95_l1, -(t80_l1*t94_l1));
-            const double t104_l1 = DERIVE_FMA(t83_l1, t97_l1, t82_l1*t96_l1);
-            const double t105_l1 = DERIVE_FMA(t85_l1, t97_l1, -(t84_l1*t96_l1));
-            const double t106_l1 = t102_l1 + t98_l1;
-            const double t107_l1 = t103_l1 + t99_l1;
-            const double t108_l1 = t100_l1 + t104_l1;
-            const double t109_l1 = t101_l1 + t105_l1;
-            const double t110_l1 = DERIVE_FMA(P_l1[1], t79_l1, P_l1[0]*t78_l1);
-            const double t111_l1 = DERIVE_FMA(P_l1[5], t79_l1, P_l1[1]*t78_l1);
-            const double t112_l1 = DERIVE_FMA(P_l1[1], t81_l1, -(P_l1[0]*t80_l1));
-            const double t113_l1 = DERIVE_FMA(P_l1[5], t81_l1, -(P_l1[1]*t80_l1));
-            const double t114_l1 = DERIVE_FMA(P_l1[11], t83_l1, P_l1[10]*t82_l1);
-            const double t115_l1 = DERIVE_FMA(P_l1[15], t83_l1, P_l1[11]*t82_l1);
-            const double t116_l1 = DERIVE_FMA(P_l1[11], t85_l1, -(P_l1[10]*t84_l1));
-            const double t117_l1 = DERIVE_FMA(P_l1[15], t85_l1, -(P_l1[11]*t84_l1));
-            const double t118_l1 = DERIVE_FMA(0.8775510204081632, t111_l1, 0.9387755102040817*t110_l1);
-            const double t119_l1 = DERIVE_FMA(0.7551020408163265, t111_l1, (-0.12244897959183673)*t110_l1);
-            const double t120_l1 = DERIVE_FMA(0.7551020408163265, t113_l1, (-0.12244897959183673)*t112_l1);
-            const double t121_l1 = DERIVE_FMA(0.8775510204081632, t115_l1, 0.9387755102040817*t114_l1);
-            const double t122_l1 = DERIVE_FMA(0.7551020408163265, t115_l1, (-0.12244897959183673)*t114_l1);
-            const double t123_l1 = DERIVE_FMA(0.7551020408163265, t117_l1, (-0.12244897959183673)*t116_l1);
-            const double t124_l1 = 0.0020408163265306124 + t118_l1;
-            const double t125_l1 = 0.004081632653061225 + t119_l1;
-            const double t126_l1 = 0.00816326530612245 + t120_l1;
-            const double t127_l1 = 0.0020408163265306124 + t121_l1;
-            const double t128_l1 = 0.004081632653061225 + t122_l1;
-            const double t129_l1 = 0.00816326530612245 + t123_l1;
-            const double t130_l1 = t106_l1 + t34_l1;
-            const double t131_l1 = t107_l1 + t35_l1;
-            const double t132_l1 = t108_l1 + t36_l1;
-            const double t133_l1 = t109_l1 + t37_l1;
-            const double t134_l1 = 0.5*t130_l1;
-            const double t135_l1 = 0.5*t131_l1;
-            const double t136_l1 = 0.5*t132_l1;
-            const double t137_l1 = 0.5*t133_l1;
-            const double t138_l1 = t124_l1 + t44_l1;
-            const double t139_l1 = t125_l1 + t45_l1;
-            const double t140_l1 = t126_l1 + t46_l1;
-            const double t141_l1 = t127_l1 + t47_l1;
-            const double t142_l1 = t128_l1 + t48_l1;
-            const double t143_l1 = t129_l1 + t49_l1;
-            const double t144_l1 = 0.5*t138_l1;
-            const double t145_l1 = 0.5*t139_l1;
-            const double t146_l1 = 0.5*t140_l1;
-            const double t147_l1 = 0.5*t141_l1;
-            const double t148_l1 = 0.5*t142_l1;
-            const double t149_l1 = 0.5*t143_l1;
-            xn_l1[0] = t134_l1;
-            xn_l1[1] = t135_l1;
-            xn_l1[2] = t136_l1;
-            xn_l1[3] = t137_l1;
-            Pn_l1[0] = t144_l1;
-            Pn_l1[1] = t145_l1;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = t145_l1;
-            Pn_l1[5] = t146_l1;
-            Pn_l1[6] = 0.0;
-            Pn_l1[7] = 0.0;
-            Pn_l1[8] = 0.0;
-            Pn_l1[9] = 0.0;
-            Pn_l1[10] = t147_l1;
-            Pn_l1[11] = t148_l1;
-            Pn_l1[12] = 0.0;
-            Pn_l1[13] = 0.0;
-            Pn_l1[14] = t148_l1;
-            Pn_l1[15] = t149_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 2;
-            const double t0_l2 = x_l2[0] + x_l2[1];
-            const double t1_l2 = x_l2[2] + x_l2[3];
-            const double t2_l2 = P_l2[0] + P_l2[1];
-            const double t3_l2 = P_l2[1] + P_l2[5];
-            const double t4_l2 = P_l2[10] + P_l2[11];
-            const double t5_l2 = P_l2[11] + P_l2[15];
-            const double t6_l2 = t2_l2 + t3_l2;
-            const double t7_l2 = t4_l2 + t5_l2;
-            const double t8_l2 = 0.0025 + t6_l2;
-            const double t9_l2 = 0.005 + t3_l2;
-            const double t10_l2 = 0.01 + P_l2[5];
-            const double t11_l2 = 0.0025 + t7_l2;
-            const double t12_l2 = 0.005 + t5_l2;
-            const double t13_l2 = 0.01 + P_l2[15];
-            const double t14_l2 = t8_l2 + t9_l2;
-            const double t15_l2 = t10_l2 + t9_l2;
-            const double t16_l2 = t11_l2 + t12_l2;
-            const double t17_l2 = t12_l2 + t13_l2;
-            const double t18_l2 = t14_l2 + t15_l2;
-            const double t19_l2 = t16_l2 + t17_l2;
-            const double t20_l2 = 0.1 + t18_l2;
-            const double t21_l2 = 0.1 + t19_l2;
-            if (!(t20_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 4; ++i) {
+                    xs[((t + j) * steps + k) * 4 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 16; ++i) {
+                        Ps[((t + j) * steps + k) * 16 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            if (!(t21_l2 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            const double t22_l2 = t14_l2/t20_l2;
-            const double t23_l2 = t15_l2/t20_l2;
-            const double t24_l2 = t16_l2/t21_l2;
-            const double t25_l2 = t17_l2/t21_l2;
-            const double t26_l2 = x_l2[1] + t0_l2;
-            const double t27_l2 = x_l2[3] + t1_l2;
-            const double t28_l2 = z_l2[0] - t26_l2;
-            const double t29_l2 = z_l2[1] - t27_l2;
-            const double t30_l2 = t22_l2*t28_l2;
-            const double t31_l2 = t23_l2*t28_l2;
-            const double t32_l2 = t24_l2*t29_l2;
-            const double t33_l2 = t25_l2*t29_l2;
-            const double t34_l2 = t0_l2 + t30_l2;
-            const double t35_l2 = x_l2[1] + t31_l2;
-            const double t36_l2 = t1_l2 + t32_l2;
-            const double t37_l2 = x_l2[3] + t33_l2;
-            const double t38_l2 = t14_l2*t22_l2;
-            const double t39_l2 = t15_l2*t22_l2;
-            const double t40_l2 = t15_l2*t23_l2;
-            const double t41_l2 = t16_l2*t24_l2;
-            const double t42_l2 = t17_l2*t24_l2;
-            const double t43_l2 = t17_l2*t25_l2;
-            const double t44_l2 = t8_l2 - t38_l2;
-            const double t45_l2 = t9_l2 - t39_l2;
-            const double t46_l2 = t10_l2 - t40_l2;
-            const double t47_l2 = t11_l2 - t41_l2;
-            const double t48_l2 = t12_l2 - t42_l2;
-            const double t49_l2 = t13_l2 - t43_l2;
-            const double t50_l2 = 16.3265306122449*P_l2[1];
-            const double t51_l2 = DERIVE_FMA(8.16326530612245, P_l2[0], t50_l2);
-            const double t52_l2 = DERIVE_FMA(32.6530612244898, P_l2[1], 16.3265306122449*P_l2[0]);
-            const double t53_l2 = DERIVE_FMA(16.3265306122449, P_l2[5], 8.16326530612245*P_l2[1]);
-            const double t54_l2 = DERIVE_FMA(32.6530612244898, P_l2[5], t50_l2);
-            const double t55_l2 = 16.3265306122449*P_l2[11];
-            const double t56_l2 = DERIVE_FMA(8.16326530612245, P_l2[10], t55_l2);
-            const double t57_l2 = DERIVE_FMA(32.6530612244898, P_l2[11], 16.3265306122449*P_l2[10]);
-            const double t58_l2 = DERIVE_FMA(16.3265306122449, P_l2[15], 8.16326530612245*P_l2[11]);
-            const double t59_l2 = DERIVE_FMA(32.6530612244898, P_l2[15], t55_l2);
-            const double t60_l2 = 1.0 + t51_l2;
-            const double t61_l2 = 1.0 + t54_l2;
-            const double t62_l2 = 1.0 + t56_l2;
-            const double t63_l2 = 1.0 + t59_l2;
-            const double t64_l2 = 1.0/t60_l2;
-            const double t65_l2 = t53_l2*t64_l2;
-            const double t66_l2 = t61_l2 - t52_l2*t65_l2;
-            const double t67_l2 = 1.0/t66_l2;
-            const double t68_l2 = 1.0/t62_l2;
-            const double t69_l2 = t58_l2*t68_l2;
-            const double t70_l2 = t63_l2 - t57_l2*t69_l2;
-            const double t71_l2 = 1.0/t70_l2;
-            const double t72_l2 = t65_l2*t67_l2;
-            const double t73_l2 = t64_l2*DERIVE_FMA(t52_l2, t72_l2, 1.0);
-            const double t74_l2 = t52_l2*t64_l2*t67_l2;
-            const double t75_l2 = t69_l2*t71_l2;
-            const double t76_l2 = t68_l2*DERIVE_FMA(t57_l2, t75_l2, 1.0);
-            const double t77_l2 = t57_l2*t68_l2*t71_l2;
-            const double t78_l2 = DERIVE_FMA(0.9387755102040817, t73_l2, (-0.8775510204081632)*t72_l2);
-            const double t79_l2 = DERIVE_FMA((-0.9387755102040817), t74_l2, 0.8775510204081632*t67_l2);
-            const double t80_l2 = DERIVE_FMA(0.12244897959183673, t73_l2, 0.7551020408163265*t72_l2);
-            const double t81_l2 = DERIVE_FMA(0.12244897959183673, t74_l2, 0.7551020408163265*t67_l2);
-            const double t82_l2 = DERIVE_FMA(0.9387755102040817, t76_l2, (-0.8775510204081632)*t75_l2);
-            const double t83_l2 = DERIVE_FMA((-0.9387755102040817), t77_l2, 0.8775510204081632*t71_l2);
-            const double t84_l2 = DERIVE_FMA(0.12244897959183673, t76_l2, 0.7551020408163265*t75_l2);
-            const double t85_l2 = DERIVE_FMA(0.12244897959183673, t77_l2, 0.7551020408163265*t71_l2);
-            const double t86_l2 = 8.16326530612245*z_l2[0];
-            const double t87_l2 = 16.3265306122449*z_l2[0];
-            const double t88_l2 = 8.16326530612245*z_l2[1];
-            const double t89_l2 = 16.3265306122449*z_l2[1];
-            const double t90_l2 = DERIVE_FMA(P_l2[1], t87_l2, P_l2[0]*t86_l2);
-            const double t91_l2 = DERIVE_FMA(P_l2[5], t87_l2, P_l2[1]*t86_l2);
-            const double t92_l2 = DERIVE_FMA(P_l2[11], t89_l2, P_l2[10]*t88_l2);
-            const double t93_l2 = DERIVE_FMA(P_l2[15], t89_l2, P_l2[11]*t88_l2);
-            const double t94_l2 = x_l2[0] + t90_l2;
-            const double t95_l2 = x_l2[1] + t91_l2;
-            const double t96_l2 = x_l2[2] + t92_l2;
-            const double t97_l2 = x_l2[3] + t93_l2;
-            const double t98_l2 = 0.061224489795918366*z_l2[0];
-            const double t99_l2 = 0.12244897959183673*z_l2[0];
-            const double t100_l2 = 0.061224489795918366*z_l2[1];
-            const double t101_l2 = 0.12244897959183673*z_l2[1];
-            const double t102_l2 = DERIVE_FMA(t79_l2, t95_l2, t78_l2*t94_l2);
-            const double t103_l2 = DERIVE_FMA(t81_l2, t95_l2, -(t80_l2*t94_l2));
-            const double t104_l2 = DERIVE_FMA(t83_l2, t97_l2, t82_l2*t96_l2);
-            const double t105_l2 = DERIVE_FMA(t85_l2, t97_l2, -(t84_l2*t96_l2));
-            const double t106_l2 = t102_l2 + t98_l2;
-            const double t107_l2 = t103_l2 + t99_l2;
-            const double t108_l2 = t100_l2 + t104_l2;
-            const double t109_l2 = t101_l2 + t105_l2;
-            const double t110_l2 = DERIVE_FMA(P_l2[1], t79_l2, P_l2[0]*t78_l2);
-            const double t111_l2 = DERIVE_FMA(P_l2[5], t79_l2, P_l2[1]*t78_l2);
-            const double t112_l2 = DERIVE_FMA(P_l2[1], t81_l2, -(P_l2[0]*t80_l2));
-            const double t113_l2 = DERIVE_FMA(P_l2[5], t81_l2, -(P_l2[1]*t80_l2));
-            const double t114_l2 = DERIVE_FMA(P_l2[11], t83_l2, P_l2[10]*t82_l2);
-            const double t115_l2 = DERIVE_FMA(P_l2[15], t83_l2, P_l2[11]*t82_l2);
-            const double t116_l2 = DERIVE_FMA(P_l2[11], t85_l2, -(P_l2[10]*t84_l2));
-            const double t117_l2 = DERIVE_FMA(P_l2[15], t85_l2, -(P_l2[11]*t84_l2));
-            const double t118_l2 = DERIVE_FMA(0.8775510204081632, t111_l2, 0.9387755102040817*t110_l2);
-            const double t119_l2 = DERIVE_FMA(0.7551020408163265, t111_l2, (-0.12244897959183673)*t110_l2);
-            const double t120_l2 = DERIVE_FMA(0.7551020408163265, t113_l2, (-0.12244897959183673)*t112_l2);
-            const double t121_l2 = DERIVE_FMA(0.8775510204081632, t115_l2, 0.9387755102040817*t114_l2);
-            const double t122_l2 = DERIVE_FMA(0.7551020408163265, t115_l2, (-0.12244897959183673)*t114_l2);
-            const double t123_l2 = DERIVE_FMA(0.7551020408163265, t117_l2, (-0.12244897959183673)*t116_l2);
-            const double t124_l2 = 0.0020408163265306124 + t118_l2;
-            const double t125_l2 = 0.004081632653061225 + t119_l2;
-            const double t126_l2 = 0.00816326530612245 + t120_l2;
-            const double t127_l2 = 0.0020408163265306124 + t121_l2;
-            const double t128_l2 = 0.004081632653061225 + t122_l2;
-            const double t129_l2 = 0.00816326530612245 + t123_l2;
-            const double t130_l2 = t106_l2 + t34_l2;
-            const double t131_l2 = t107_l2 + t35_l2;
-            const double t132_l2 = t108_l2 + t36_l2;
-            const double t133_l2 = t109_l2 + t37_l2;
-            const double t134_l2 = 0.5*t130_l2;
-            const double t135_l2 = 0.5*t131_l2;
-            const double t136_l2 = 0.5*t132_l2;
-            const double t137_l2 = 0.5*t133_l2;
-            const double t138_l2 = t124_l2 + t44_l2;
-            const double t139_l2 = t125_l2 + t45_l2;
-            const double t140_l2 = t126_l2 + t46_l2;
-            const double t141_l2 = t127_l2 + t47_l2;
-            const double t142_l2 = t128_l2 + t48_l2;
-            const double t143_l2 = t129_l2 + t49_l2;
-            const double t144_l2 = 0.5*t138_l2;
-            const double t145_l2 = 0.5*t139_l2;
-            const double t146_l2 = 0.5*t140_l2;
-            const double t147_l2 = 0.5*t141_l2;
-            const double t148_l2 = 0.5*t142_l2;
-            const double t149_l2 = 0.5*t143_l2;
-            xn_l2[0] = t134_l2;
-            xn_l2[1] = t135_l2;
-            xn_l2[2] = t136_l2;
-            xn_l2[3] = t137_l2;
-            Pn_l2[0] = t144_l2;
-            Pn_l2[1] = t145_l2;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = t145_l2;
-            Pn_l2[5] = t146_l2;
-            Pn_l2[6] = 0.0;
-            Pn_l2[7] = 0.0;
-            Pn_l2[8] = 0.0;
-            Pn_l2[9] = 0.0;
-            Pn_l2[10] = t147_l2;
-            Pn_l2[11] = t148_l2;
-            Pn_l2[12] = 0.0;
-            Pn_l2[13] = 0.0;
-            Pn_l2[14] = t148_l2;
-            Pn_l2[15] = t149_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 2;
-            const double t0_l3 = x_l3[0] + x_l3[1];
-            const double t1_l3 = x_l3[2] + x_l3[3];
-            const double t2_l3 = P_l3[0] + P_l3[1];
-            const double t3_l3 = P_l3[1] + P_l3[5];
-            const double t4_l3 = P_l3[10] + P_l3[11];
-            const double t5_l3 = P_l3[11] + P_l3[15];
-            const double t6_l3 = t2_l3 + t3_l3;
-            const double t7_l3 = t4_l3 + t5_l3;
-            const double t8_l3 = 0.0025 + t6_l3;
-            const double t9_l3 = 0.005 + t3_l3;
-            const double t10_l3 = 0.01 + P_l3[5];
-            const double t11_l3 = 0.0025 + t7_l3;
-            const double t12_l3 = 0.005 + t5_l3;
-            const double t13_l3 = 0.01 + P_l3[15];
-            const double t14_l3 = t8_l3 + t9_l3;
-            const double t15_l3 = t10_l3 + t9_l3;
-            const double t16_l3 = t11_l3 + t12_l3;
-            const double t17_l3 = t12_l3 + t13_l3;
-            const double t18_l3 = t14_l3 + t15_l3;
-            const double t19_l3 = t16_l3 + t17_l3;
-            const double t20_l3 = 0.1 + t18_l3;
-            const double t21_l3 = 0.1 + t19_l3;
-            if (!(t20_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t21_l3 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t22_l3 = t14_l3/t20_l3;
-            const double t23_l3 = t15_l3/t20_l3;
-            const double t24_l3 = t16_l3/t21_l3;
-            const double t25_l3 = t17_l3/t21_l3;
-            const double t26_l3 = x_l3[1] + t0_l3;
-            const double t27_l3 = x_l3[3] + t1_l3;
-            const double t28_l3 = z_l3[0] - t26_l3;
-            const double t29_l3 = z_l3[1] - t27_l3;
-            const double t30_l3 = t22_l3*t28_l3;
-            const double t31_l3 = t23_l3*t28_l3;
-            const double t32_l3 = t24_l3*t29_l3;
-            const double t33_l3 = t25_l3*t29_l3;
-            const double t34_l3 = t0_l3 + t30_l3;
-            const double t35_l3 = x_l3[1] + t31_l3;
-            const double t36_l3 = t1_l3 + t32_l3;
-            const double t37_l3 = x_l3[3] + t33_l3;
-            const double t38_l3 = t14_l3*t22_l3;
-            const double t39_l3 = t15_l3*t22_l3;
-            const double t40_l3 = t15_l3*t23_l3;
-            const double t41_l3 = t16_l3*t24_l3;
-            const double t42_l3 = t17_l3*t24_l3;
-            const double t43_l3 = t17_l3*t25_l3;
-            const double t44_l3 = t8_l3 - t38_l3;
-            const double t45_l3 = t9_l3 - t39_l3;
-            const double t46_l3 = t10_l3 - t40_l3;
-            const double t47_l3 = t11_l3 - t41_l3;
-            const double t48_l3 = t12_l3 - t42_l3;
-            const double t49_l3 = t13_l3 - t43_l3;
-            const double t50_l3 = 16.3265306122449*P_l3[1];
-            const double t51_l3 = DERIVE_FMA(8.16326530612245, P_l3[0], t50_l3);
-            const double t52_l3 = DERIVE_FMA(32.6530612244898, P_l3[1], 16.3265306122449*P_l3[0]);
-            const double t53_l3 = DERIVE_FMA(16.3265306122449, P_l3[5], 8.16326530612245*P_l3[1]);
-            const double t54_l3 = DERIVE_FMA(32.6530612244898, P_l3[5], t50_l3);
-            const double t55_l3 = 16.3265306122449*P_l3[11];
-            const double t56_l3 = DERIVE_FMA(8.16326530612245, P_l3[10], t55_l3);
-            const double t57_l3 = DERIVE_FMA(32.6530612244898, P_l3[11], 16.3265306122449*P_l3[10]);
-            const double t58_l3 = DERIVE_FMA(16.3265306122449, P_l3[15], 8.16326530612245*P_l3[11]);
-            const double t59_l3 = DERIVE_FMA(32.6530612244898, P_l3[15], t55_l3);
-            const double t60_l3 = 1.0 + t51_l3;
-            const double t61_l3 = 1.0 + t54_l3;
-            const double t62_l3 = 1.0 + t56_l3;
-            const double t63_l3 = 1.0 + t59_l3;
-            const double t64_l3 = 1.0/t60_l3;
-            const double t65_l3 = t53_l3*t64_l3;
-            const double t66_l3 = t61_l3 - t52_l3*t65_l3;
-            const double t67_l3 = 1.0/t66_l3;
-            const double t68_l3 = 1.0/t62_l3;
-            const double t69_l3 = t58_l3*t68_l3;
-            const double t70_l3 = t63_l3 - t57_l3*t69_l3;
-            const double t71_l3 = 1.0/t70_l3;
-            const double t72_l3 = t65_l3*t67_l3;
-            const double t73_l3 = t64_l3*DERIVE_FMA(t52_l3, t72_l3, 1.0);
-            const double t74_l3 = t52_l3*t64_l3*t67_l3;
-            const double t75_l3 = t69_l3*t71_l3;
-            const double t76_l3 = t68_l3*DERIVE_FMA(t57_l3, t75_l3, 1.0);
-            const double t77_l3 = t57_l3*t68_l3*t71_l3;
-            const double t78_l3 = DERIVE_FMA(0.9387755102040817, t73_l3, (-0.8775510204081632)*t72_l3);
-            const double t79_l3 = DERIVE_FMA((-0.9387755102040817), t74_l3, 0.8775510204081632*t67_l3);
-            const double t80_l3 = DERIVE_FMA(0.12244897959183673, t73_l3, 0.7551020408163265*t72_l3);
-            const double t81_l3 = DERIVE_FMA(0.12244897959183673, t74_l3, 0.7551020408163265*t67_l3);
-            const double t82_l3 = DERIVE_FMA(0.9387755102040817, t76_l3, (-0.8775510204081632)*t75_l3);
-            const double t83_l3 = DERIVE_FMA((-0.9387755102040817), t77_l3, 0.8775510204081632*t71_l3);
-            const double t84_l3 = DERIVE_FMA(0.12244897959183673, t76_l3, 0.7551020408163265*t75_l3);
-            const double t85_l3 = DERIVE_FMA(0.12244897959183673, t77_l3, 0.7551020408163265*t71_l3);
-            const double t86_l3 = 8.16326530612245*z_l3[0];
-            const double t87_l3 = 16.3265306122449*z_l3[0];
-            const double t88_l3 = 8.16326530612245*z_l3[1];
-            const double t89_l3 = 16.3265306122449*z_l3[1];
-            const double t90_l3 = DERIVE_FMA(P_l3[1], t87_l3, P_l3[0]*t86_l3);
-            const double t91_l3 = DERIVE_FMA(P_l3[5], t87_l3, P_l3[1]*t86_l3);
-            const double t92_l3 = DERIVE_FMA(P_l3[11], t89_l3, P_l3[10]*t88_l3);
-            const double t93_l3 = DERIVE_FMA(P_l3[15], t89_l3, P_l3[11]*t88_l3);
-            const double t94_l3 = x_l3[0] + t90_l3;
-            const double t95_l3 = x_l3[1] + t91_l3;
-            const double t96_l3 = x_l3[2] + t92_l3;
-            const double t97_l3 = x_l3[3] + t93_l3;
-            const double t98_l3 = 0.061224489795918366*z_l3[0];
-            const double t99_l3 = 0.12244897959183673*z_l3[0];
-            const double t100_l3 = 0.061224489795918366*z_l3[1];
-            const double t101_l3 = 0.12244897959183673*z_l3[1];
-            const double t102_l3 = DERIVE_FMA(t79_l3, t95_l3, t78_l3*t94_l3);
-            const double t103_l3 = DERIVE_FMA(t81_l3, t95_l3, -(t80_l3*t94_l3));
-            const double t104_l3 = DERIVE_FMA(t83_l3, t97_l3, t82_l3*t96_l3);
-            const double t105_l3 = DERIVE_FMA(t85_l3, t97_l3, -(t84_l3*t96_l3));
-            const double t106_l3 = t102_l3 + t98_l3;
-            const double t107_l3 = t103_l3 + t99_l3;
-            const double t108_l3 = t100_l3 + t104_l3;
-            const double t109_l3 = t101_l3 + t105_l3;
-            const double t110_l3 = DERIVE_FMA(P_l3[1], t79_l3, P_l3[0]*t78_l3);
-            const double t111_l3 = DERIVE_FMA(P_l3[5], t79_l3, P_l3[1]*t78_l3);
-            const double t112_l3 = DERIVE_FMA(P_l3[1], t81_l3, -(P_l3[0]*t80_l3));
-            const double t113_l3 = DERIVE_FMA(P_l3[5], t81_l3, -(P_l3[1]*t80_l3));
-            const double t114_l3 = DERIVE_FMA(P_l3[11], t83_l3, P_l3[10]*t82_l3);
-            const double t115_l3 = DERIVE_FMA(P_l3[15], t83_l3, P_l3[11]*t82_l3);
-            const double t116_l3 = DERIVE_FMA(P_l3[11], t85_l3, -(P_l3[10]*t84_l3));
-            const double t117_l3 = DERIVE_FMA(P_l3[15], t85_l3, -(P_l3[11]*t84_l3));
-            const double t118_l3 = DERIVE_FMA(0.8775510204081632, t111_l3, 0.9387755102040817*t110_l3);
-            const double t119_l3 = DERIVE_FMA(0.7551020408163265, t111_l3, (-0.12244897959183673)*t110_l3);
-            const double t120_l3 = DERIVE_FMA(0.7551020408163265, t113_l3, (-0.12244897959183673)*t112_l3);
-            const double t121_l3 = DERIVE_FMA(0.8775510204081632, t115_l3, 0.9387755102040817*t114_l3);
-            const double t122_l3 = DERIVE_FMA(0.7551020408163265, t115_l3, (-0.12244897959183673)*t114_l3);
-            const double t123_l3 = DERIVE_FMA(0.7551020408163265, t117_l3, (-0.12244897959183673)*t116_l3);
-            const double t124_l3 = 0.0020408163265306124 + t118_l3;
-            const double t125_l3 = 0.004081632653061225 + t119_l3;
-            const double t126_l3 = 0.00816326530612245 + t120_l3;
-            const double t127_l3 = 0.0020408163265306124 + t121_l3;
-            const double t128_l3 = 0.004081632653061225 + t122_l3;
-            const double t129_l3 = 0.00816326530612245 + t123_l3;
-            const double t130_l3 = t106_l3 + t34_l3;
-            const double t131_l3 = t107_l3 + t35_l3;
-            const double t132_l3 = t108_l3 + t36_l3;
-            const double t133_l3 = t109_l3 + t37_l3;
-            const double t134_l3 = 0.5*t130_l3;
-            const double t135_l3 = 0.5*t131_l3;
-            const double t136_l3 = 0.5*t132_l3;
-            const double t137_l3 = 0.5*t133_l3;
-            const double t138_l3 = t124_l3 + t44_l3;
-            const double t139_l3 = t125_l3 + t45_l3;
-            const double t140_l3 = t126_l3 + t46_l3;
-            const double t141_l3 = t127_l3 + t47_l3;
-            const double t142_l3 = t128_l3 + t48_l3;
-            const double t143_l3 = t129_l3 + t49_l3;
-            const double t144_l3 = 0.5*t138_l3;
-            const double t145_l3 = 0.5*t139_l3;
-            const double t146_l3 = 0.5*t140_l3;
-            const double t147_l3 = 0.5*t141_l3;
-            const double t148_l3 = 0.5*t142_l3;
-            const double t149_l3 = 0.5*t143_l3;
-            xn_l3[0] = t134_l3;
-            xn_l3[1] = t135_l3;
-            xn_l3[2] = t136_l3;
-            xn_l3[3] = t137_l3;
-            Pn_l3[0] = t144_l3;
-            Pn_l3[1] = t145_l3;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = t145_l3;
-            Pn_l3[5] = t146_l3;
-            Pn_l3[6] = 0.0;
-            Pn_l3[7] = 0.0;
-            Pn_l3[8] = 0.0;
-            Pn_l3[9] = 0.0;
-            Pn_l3[10] = t147_l3;
-            Pn_l3[11] = t148_l3;
-            Pn_l3[12] = 0.0;
-            Pn_l3[13] = 0.0;
-            Pn_l3[14] = t148_l3;
-            Pn_l3[15] = t149_l3;
-            xs[((t + 0) * steps + k) * 4 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 4 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 4 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 4 + 3] = x_l0[3] = xn_l0[3];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 16 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 16 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 16 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 16 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 16 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 16 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 16 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 16 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 16 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 16 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 16 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 16 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 16 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 16 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 16 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 16 + 15] = Pn_l0[15];
-            }
-            xs[((t + 1) * steps + k) * 4 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 4 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 4 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 4 + 3] = x_l1[3] = xn_l1[3];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            P_l1[9] = Pn_l1[9];
-            P_l1[10] = Pn_l1[10];
-            P_l1[11] = Pn_l1[11];
-            P_l1[12] = Pn_l1[12];
-            P_l1[13] = Pn_l1[13];
-            P_l1[14] = Pn_l1[14];
-            P_l1[15] = Pn_l1[15];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 16 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 16 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 16 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 16 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 16 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 16 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 16 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 16 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 16 + 8] = Pn_l1[8];
-                Ps[((t + 1) * steps + k) * 16 + 9] = Pn_l1[9];
-                Ps[((t + 1) * steps + k) * 16 + 10] = Pn_l1[10];
-                Ps[((t + 1) * steps + k) * 16 + 11] = Pn_l1[11];
-                Ps[((t + 1) * steps + k) * 16 + 12] = Pn_l1[12];
-                Ps[((t + 1) * steps + k) * 16 + 13] = Pn_l1[13];
-                Ps[((t + 1) * steps + k) * 16 + 14] = Pn_l1[14];
-                Ps[((t + 1) * steps + k) * 16 + 15] = Pn_l1[15];
-            }
-            xs[((t + 2) * steps + k) * 4 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 4 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 4 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 4 + 3] = x_l2[3] = xn_l2[3];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            P_l2[9] = Pn_l2[9];
-            P_l2[10] = Pn_l2[10];
-            P_l2[11] = Pn_l2[11];
-            P_l2[12] = Pn_l2[12];
-            P_l2[13] = Pn_l2[13];
-            P_l2[14] = Pn_l2[14];
-            P_l2[15] = Pn_l2[15];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 16 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 16 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 16 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 16 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 16 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 16 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 16 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 16 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 16 + 8] = Pn_l2[8];
-                Ps[((t + 2) * steps + k) * 16 + 9] = Pn_l2[9];
-                Ps[((t + 2) * steps + k) * 16 + 10] = Pn_l2[10];
-                Ps[((t + 2) * steps + k) * 16 + 11] = Pn_l2[11];
-                Ps[((t + 2) * steps + k) * 16 + 12] = Pn_l2[12];
-                Ps[((t + 2) * steps + k) * 16 + 13] = Pn_l2[13];
-                Ps[((t + 2) * steps + k) * 16 + 14] = Pn_l2[14];
-                Ps[((t + 2) * steps + k) * 16 + 15] = Pn_l2[15];
-            }
-            xs[((t + 3) * steps + k) * 4 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 4 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 4 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 4 + 3] = x_l3[3] = xn_l3[3];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            P_l3[9] = Pn_l3[9];
-            P_l3[10] = Pn_l3[10];
-            P_l3[11] = Pn_l3[11];
-            P_l3[12] = Pn_l3[12];
-            P_l3[13] = Pn_l3[13];
-            P_l3[14] = Pn_l3[14];
-            P_l3[15] = Pn_l3[15];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 16 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 16 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 16 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 16 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 16 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 16 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 16 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 16 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 16 + 8] = Pn_l3[8];
-                Ps[((t + 3) * steps + k) * 16 + 9] = Pn_l3[9];
-                Ps[((t + 3) * steps + k) * 16 + 10] = Pn_l3[10];
-                Ps[((t + 3) * steps + k) * 16 + 11] = Pn_l3[11];
-                Ps[((t + 3) * steps + k) * 16 + 12] = Pn_l3[12];
-                Ps[((t + 3) * steps + k) * 16 + 13] = Pn_l3[13];
-                Ps[((t + 3) * steps + k) * 16 + 14] = Pn_l3[14];
-                Ps[((t + 3) * steps + k) * 16 + 15] = Pn_l3[15];
+            for (i = 0; i < 16 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[4], xn_l0[4];
-        double P_l0[16], Pn_l0[16];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 4 + 0];
-        x_l0[1] = x0[(t + 0) * 4 + 1];
-        x_l0[2] = x0[(t + 0) * 4 + 2];
-        x_l0[3] = x0[(t + 0) * 4 + 3];
-        P_l0[0] = P0[(t + 0) * 16 + 0];
-        P_l0[1] = P0[(t + 0) * 16 + 1];
-        P_l0[2] = P0[(t + 0) * 16 + 2];
-        P_l0[3] = P0[(t + 0) * 16 + 3];
-        P_l0[4] = P0[(t + 0) * 16 + 4];
-        P_l0[5] = P0[(t + 0) * 16 + 5];
-        P_l0[6] = P0[(t + 0) * 16 + 6];
-        P_l0[7] = P0[(t + 0) * 16 + 7];
-        P_l0[8] = P0[(t + 0) * 16 + 8];
-        P_l0[9] = P0[(t + 0) * 16 + 9];
-        P_l0[10] = P0[(t + 0) * 16 + 10];
-        P_l0[11] = P0[(t + 0) * 16 + 11];
-        P_l0[12] = P0[(t + 0) * 16 + 12];
-        P_l0[13] = P0[(t + 0) * 16 + 13];
-        P_l0[14] = P0[(t + 0) * 16 + 14];
-        P_l0[15] = P0[(t + 0) * 16 + 15];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 2;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = P_l0[0] + P_l0[1];
-            const double t3_l0 = P_l0[1] + P_l0[5];
-            const double t4_l0 = P_l0[10] + P_l0[11];
-            const double t5_l0 = P_l0[11] + P_l0[15];
-            const double t6_l0 = t2_l0 + t3_l0;
-            const double t7_l0 = t4_l0 + t5_l0;
-            const double t8_l0 = 0.0025 + t6_l0;
-            const double t9_l0 = 0.005 + t3_l0;
-            const double t10_l0 = 0.01 + P_l0[5];
-            const double t11_l0 = 0.0025 + t7_l0;
-            const double t12_l0 = 0.005 + t5_l0;
-            const double t13_l0 = 0.01 + P_l0[15];
-            const double t14_l0 = t8_l0 + t9_l0;
-            const double t15_l0 = t10_l0 + t9_l0;
-            const double t16_l0 = t11_l0 + t12_l0;
-            const double t17_l0 = t12_l0 + t13_l0;
-            const double t18_l0 = t14_l0 + t15_l0;
-            const double t19_l0 = t16_l0 + t17_l0;
-            const double t20_l0 = 0.1 + t18_l0;
-            const double t21_l0 = 0.1 + t19_l0;
-            if (!(t20_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t21_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t22_l0 = t14_l0/t20_l0;
-            const double t23_l0 = t15_l0/t20_l0;
-            const double t24_l0 = t16_l0/t21_l0;
-            const double t25_l0 = t17_l0/t21_l0;
-            const double t26_l0 = x_l0[1] + t0_l0;
-            const double t27_l0 = x_l0[3] + t1_l0;
-            const double t28_l0 = z_l0[0] - t26_l0;
-            const double t29_l0 = z_l0[1] - t27_l0;
-            const double t30_l0 = t22_l0*t28_l0;
-            const double t31_l0 = t23_l0*t28_l0;
-            const double t32_l0 = t24_l0*t29_l0;
-            const double t33_l0 = t25_l0*t29_l0;
-            const double t34_l0 = t0_l0 + t30_l0;
-            const double t35_l0 = x_l0[1] + t31_l0;
-            const double t36_l0 = t1_l0 + t32_l0;
-            const double t37_l0 = x_l0[3] + t33_l0;
-            const double t38_l0 = t14_l0*t22_l0;
-            const double t39_l0 = t15_l0*t22_l0;
-            const double t40_l0 = t15_l0*t23_l0;
-            const double t41_l0 = t16_l0*t24_l0;
-            const double t42_l0 = t17_l0*t24_l0;
-            const double t43_l0 = t17_l0*t25_l0;
-            const double t44_l0 = t8_l0 - t38_l0;
-            const double t45_l0 = t9_l0 - t39_l0;
-            const double t46_l0 = t10_l0 - t40_l0;
-            const double t47_l0 = t11_l0 - t41_l0;
-            const double t48_l0 = t12_l0 - t42_l0;
-            const double t49_l0 = t13_l0 - t43_l0;
-            const double t50_l0 = 16.3265306122449*P_l0[1];
-            const double t51_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t50_l0);
-            const double t52_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t53_l0 = DERIVE_FMA(16.3265306122449, P_l0[5], 8.16326530612245*P_l0[1]);
-            const double t54_l0 = DERIVE_FMA(32.6530612244898, P_l0[5], t50_l0);
-            const double t55_l0 = 16.3265306122449*P_l0[11];
-            const double t56_l0 = DERIVE_FMA(8.16326530612245, P_l0[10], t55_l0);
-            const double t57_l0 = DERIVE_FMA(32.6530612244898, P_l0[11], 16.3265306122449*P_l0[10]);
-            const double t58_l0 = DERIVE_FMA(16.3265306122449, P_l0[15], 8.16326530612245*P_l0[11]);
-            const double t59_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], t55_l0);
-            const double t60_l0 = 1.0 + t51_l0;
-            const double t61_l0 = 1.0 + t54_l0;
-            const double t62_l0 = 1.0 + t56_l0;
-            const double t63_l0 = 1.0 + t59_l0;
-            const double t64_l0 = 1.0/t60_l0;
-            const double t65_l0 = t53_l0*t64_l0;
-            const double t66_l0 = t61_l0 - t52_l0*t65_l0;
-            const double t67_l0 = 1.0/t66_l0;
-            const double t68_l0 = 1.0/t62_l0;
-            const double t69_l0 = t58_l0*t68_l0;
-            const double t70_l0 = t63_l0 - t57_l0*t69_l0;
-            const double t71_l0 = 1.0/t70_l0;
-            const double t72_l0 = t65_l0*t67_l0;
-            const double t73_l0 = t64_l0*DERIVE_FMA(t52_l0, t72_l0, 1.0);
-            const double t74_l0 = t52_l0*t64_l0*t67_l0;
-            const double t75_l0 = t69_l0*t71_l0;
-            const double t76_l0 = t68_l0*DERIVE_FMA(t57_l0, t75_l0, 1.0);
-            const double t77_l0 = t57_l0*t68_l0*t71_l0;
-            const double t78_l0 = DERIVE_FMA(0.9387755102040817, t73_l0, (-0.8775510204081632)*t72_l0);
-            const double t79_l0 = DERIVE_FMA((-0.9387755102040817), t74_l0, 0.8775510204081632*t67_l0);
-            const double t80_l0 = DERIVE_FMA(0.12244897959183673, t73_l0, 0.7551020408163265*t72_l0);
-            const double t81_l0 = DERIVE_FMA(0.12244897959183673, t74_l0, 0.7551020408163265*t67_l0);
-            const double t82_l0 = DERIVE_FMA(0.9387755102040817, t76_l0, (-0.8775510204081632)*t75_l0);
-            const double t83_l0 = DERIVE_FMA((-0.9387755102040817), t77_l0, 0.8775510204081632*t71_l0);
-            const double t84_l0 = DERIVE_FMA(0.12244897959183673, t76_l0, 0.7551020408163265*t75_l0);
-            const double t85_l0 = DERIVE_FMA(0.12244897959183673, t77_l0, 0.7551020408163265*t71_l0);
-            const double t86_l0 = 8.16326530612245*z_l0[0];
-            const double t87_l0 = 16.3265306122449*z_l0[0];
-            const double t88_l0 = 8.16326530612245*z_l0[1];
-            const double t89_l0 = 16.3265306122449*z_l0[1];
-            const double t90_l0 = DERIVE_FMA(P_l0[1], t87_l0, P_l0[0]*t86_l0);
-            const double t91_l0 = DERIVE_FMA(P_l0[5], t87_l0, P_l0[1]*t86_l0);
-            const double t92_l0 = DERIVE_FMA(P_l0[11], t89_l0, P_l0[10]*t88_l0);
-            const double t93_l0 = DERIVE_FMA(P_l0[15], t89_l0, P_l0[11]*t88_l0);
-            const double t94_l0 = x_l0[0] + t90_l0;
-            const double t95_l0 = x_l0[1] + t91_l0;
-            const double t96_l0 = x_l0[2] + t92_l0;
-            const double t97_l0 = x_l0[3] + t93_l0;
-            const double t98_l0 = 0.061224489795918366*z_l0[0];
-            const double t99_l0 = 0.12244897959183673*z_l0[0];
-            const double t100_l0 = 0.061224489795918366*z_l0[1];
-            const double t101_l0 = 0.12244897959183673*z_l0[1];
-            const double t102_l0 = DERIVE_FMA(t79_l0, t95_l0, t78_l0*t94_l0);
-            const double t103_l0 = DERIVE_FMA(t81_l0, t95_l0, -(t80_l0*t94_l0));
-            const double t104_l0 = DERIVE_FMA(t83_l0, t97_l0, t82_l0*t96_l0);
-            const double t105_l0 = DERIVE_FMA(t85_l0, t97_l0, -(t84_l0*t96_l0));
-            const double t106_l0 = t102_l0 + t98_l0;
-            const double t107_l0 = t103_l0 + t99_l0;
-            const double t108_l0 = t100_l0 + t104_l0;
-            const double t109_l0 = t101_l0 + t105_l0;
-            const double t110_l0 = DERIVE_FMA(P_l0[1], t79_l0, P_l0[0]*t78_l0);
-            const double t111_l0 = DERIVE_FMA(P_l0[5], t79_l0, P_l0[1]*t78_l0);
-            const double t112_l0 = DERIVE_FMA(P_l0[1], t81_l0, -(P_l0[0]*t80_l0));
-            const double t113_l0 = DERIVE_FMA(P_l0[5], t81_l0, -(P_l0[1]*t80_l0));
-            const double t114_l0 = DERIVE_FMA(P_l0[11], t83_l0, P_l0[10]*t82_l0);
-            const double t115_l0 = DERIVE_FMA(P_l0[15], t83_l0, P_l0[11]*t82_l0);
-            const double t116_l0 = DERIVE_FMA(P_l0[11], t85_l0, -(P_l0[10]*t84_l0));
-            const double t117_l0 = DERIVE_FMA(P_l0[15], t85_l0, -(P_l0[11]*t84_l0));
-            const double t118_l0 = DERIVE_FMA(0.8775510204081632, t111_l0, 0.9387755102040817*t110_l0);
-            const double t119_l0 = DERIVE_FMA(0.7551020408163265, t111_l0, (-0.12244897959183673)*t110_l0);
-            const double t120_l0 = DERIVE_FMA(0.7551020408163265, t113_l0, (-0.12244897959183673)*t112_l0);
-            const double t121_l0 = DERIVE_FMA(0.8775510204081632, t115_l0, 0.9387755102040817*t114_l0);
-            const double t122_l0 = DERIVE_FMA(0.7551020408163265, t115_l0, (-0.12244897959183673)*t114_l0);
-            const double t123_l0 = DERIVE_FMA(0.7551020408163265, t117_l0, (-0.12244897959183673)*t116_l0);
-            const double t124_l0 = 0.0020408163265306124 + t118_l0;
-            const double t125_l0 = 0.004081632653061225 + t119_l0;
-            const double t126_l0 = 0.00816326530612245 + t120_l0;
-            const double t127_l0 = 0.0020408163265306124 + t121_l0;
-            const double t128_l0 = 0.004081632653061225 + t122_l0;
-            const double t129_l0 = 0.00816326530612245 + t123_l0;
-            const double t130_l0 = t106_l0 + t34_l0;
-            const double t131_l0 = t107_l0 + t35_l0;
-            const double t132_l0 = t108_l0 + t36_l0;
-            const double t133_l0 = t109_l0 + t37_l0;
-            const double t134_l0 = 0.5*t130_l0;
-            const double t135_l0 = 0.5*t131_l0;
-            const double t136_l0 = 0.5*t132_l0;
-            const double t137_l0 = 0.5*t133_l0;
-            const double t138_l0 = t124_l0 + t44_l0;
-            const double t139_l0 = t125_l0 + t45_l0;
-            const double t140_l0 = t126_l0 + t46_l0;
-            const double t141_l0 = t127_l0 + t47_l0;
-            const double t142_l0 = t128_l0 + t48_l0;
-            const double t143_l0 = t129_l0 + t49_l0;
-            const double t144_l0 = 0.5*t138_l0;
-            const double t145_l0 = 0.5*t139_l0;
-            const double t146_l0 = 0.5*t140_l0;
-            const double t147_l0 = 0.5*t141_l0;
-            const double t148_l0 = 0.5*t142_l0;
-            const double t149_l0 = 0.5*t143_l0;
-            xn_l0[0] = t134_l0;
-            xn_l0[1] = t135_l0;
-            xn_l0[2] = t136_l0;
-            xn_l0[3] = t137_l0;
-            Pn_l0[0] = t144_l0;
-            Pn_l0[1] = t145_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t145_l0;
-            Pn_l0[5] = t146_l0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = t147_l0;
-            Pn_l0[11] = t148_l0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t148_l0;
-            Pn_l0[15] = t149_l0;
-            xs[((t + 0) * steps + k) * 4 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 4 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 4 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 4 + 3] = x_l0[3] = xn_l0[3];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 16 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 16 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 16 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 16 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 16 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 16 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 16 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 16 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 16 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 16 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 16 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 16 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 16 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 16 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 16 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 16 + 15] = Pn_l0[15];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = gsm2d_a_jklf_run(steps, z + t * steps * 2, x0 + t * 4, P0 + t * 4 * 4, xs + t * steps * 4, Ps ? Ps + t * steps * 4 * 4 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

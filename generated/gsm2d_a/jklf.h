@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gsm2d_a_jklf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
  *     int gsm2d_a_jklf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     int gsm2d_a_jklf_run_tracks(steps, tracks, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -21,7 +22,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 6, calls 0 (flops 230, instructions 202)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #ifndef DERIVE_gsm2d_a_jklf_H
 #define DERIVE_gsm2d_a_jklf_H

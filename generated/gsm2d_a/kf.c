@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gsm2d_a_kf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
  *     int gsm2d_a_kf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     int gsm2d_a_kf_run_tracks(steps, tracks, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -21,11 +22,133 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_kf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_kf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_kf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_kf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <stddef.h>
 
 #include "kf.h"
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+{
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = P[0] + P[1 * s];
+    const double t2 = P[1 * s] + P[5 * s];
+    const double t3 = t1 + t2;
+    const double t4 = 0.0025 + t3;
+    const double t5 = 0.005 + t2;
+    const double t6 = 0.01 + P[5 * s];
+    const double t7 = t4 + t5;
+    const double t8 = t5 + t6;
+    const double t9 = t7 + t8;
+    const double t10 = 0.1 + t9;
+    if (!(t10 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    const double t11 = t7/t10;
+    const double t12 = t8/t10;
+    const double t13 = x[1 * s] + t0;
+    const double t14 = z[0] - t13;
+    const double t15 = t11*t14;
+    const double t16 = t12*t14;
+    const double t17 = t0 + t15;
+    const double t18 = x[1 * s] + t16;
+    const double t19 = t11*t7;
+    const double t20 = t11*t8;
+    const double t21 = t12*t8;
+    const double t22 = t4 - t19;
+    const double t23 = t5 - t20;
+    const double t24 = t6 - t21;
+    const double t25 = x[2 * s] + x[3 * s];
+    const double t26 = P[10 * s] + P[11 * s];
+    const double t27 = P[11 * s] + P[15 * s];
+    const double t28 = t26 + t27;
+    const double t29 = 0.0025 + t28;
+    const double t30 = 0.005 + t27;
+    const double t31 = 0.01 + P[15 * s];
+    const double t32 = t29 + t30;
+    const double t33 = t30 + t31;
+    const double t34 = t32 + t33;
+    const double t35 = 0.1 + t34;
+    if (!(t35 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t36 = t32/t35;
+    const double t37 = t33/t35;
+    const double t38 = x[3 * s] + t25;
+    const double t39 = z[1 * s] - t38;
+    const double t40 = t36*t39;
+    const double t41 = t37*t39;
+    const double t42 = t25 + t40;
+    const double t43 = x[3 * s] + t41;
+    const double t44 = t32*t36;
+    const double t45 = t33*t36;
+    const double t46 = t33*t37;
+    const double t47 = t29 - t44;
+    const double t48 = t30 - t45;
+    const double t49 = t31 - t46;
+    x_new[0] = t17;
+    x_new[1 * s] = t18;
+    x_new[2 * s] = t42;
+    x_new[3 * s] = t43;
+    P_new[0] = t22;
+    P_new[1 * s] = t23;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t23;
+    P_new[5 * s] = t24;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = t47;
+    P_new[11 * s] = t48;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t48;
+    P_new[15 * s] = t49;
+    return status;
+}
 
 int gsm2d_a_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
@@ -41,83 +164,7 @@ int gsm2d_a_kf_step(const double *restrict x, const double *restrict P, const do
     if (!(P[7] == 0.0)) {
         return 3; /* outside P's pattern */
     }
-    const double t0 = x[0] + x[1];
-    const double t1 = x[2] + x[3];
-    const double t2 = P[0] + P[1];
-    const double t3 = P[1] + P[5];
-    const double t4 = P[10] + P[11];
-    const double t5 = P[11] + P[15];
-    const double t6 = t2 + t3;
-    const double t7 = t4 + t5;
-    const double t8 = 0.0025 + t6;
-    const double t9 = 0.005 + t3;
-    const double t10 = 0.01 + P[5];
-    const double t11 = 0.0025 + t7;
-    const double t12 = 0.005 + t5;
-    const double t13 = 0.01 + P[15];
-    const double t14 = t8 + t9;
-    const double t15 = t10 + t9;
-    const double t16 = t11 + t12;
-    const double t17 = t12 + t13;
-    const double t18 = t14 + t15;
-    const double t19 = t16 + t17;
-    const double t20 = 0.1 + t18;
-    const double t21 = 0.1 + t19;
-    if (!(t20 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t21 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    const double t22 = t14/t20;
-    const double t23 = t15/t20;
-    const double t24 = t16/t21;
-    const double t25 = t17/t21;
-    const double t26 = x[1] + t0;
-    const double t27 = x[3] + t1;
-    const double t28 = z[0] - t26;
-    const double t29 = z[1] - t27;
-    const double t30 = t22*t28;
-    const double t31 = t23*t28;
-    const double t32 = t24*t29;
-    const double t33 = t25*t29;
-    const double t34 = t0 + t30;
-    const double t35 = x[1] + t31;
-    const double t36 = t1 + t32;
-    const double t37 = x[3] + t33;
-    const double t38 = t14*t22;
-    const double t39 = t15*t22;
-    const double t40 = t15*t23;
-    const double t41 = t16*t24;
-    const double t42 = t17*t24;
-    const double t43 = t17*t25;
-    const double t44 = t8 - t38;
-    const double t45 = t9 - t39;
-    const double t46 = t10 - t40;
-    const double t47 = t11 - t41;
-    const double t48 = t12 - t42;
-    const double t49 = t13 - t43;
-    x_new[0] = t34;
-    x_new[1] = t35;
-    x_new[2] = t36;
-    x_new[3] = t37;
-    P_new[0] = t44;
-    P_new[1] = t45;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t45;
-    P_new[5] = t46;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = t47;
-    P_new[11] = t48;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t48;
-    P_new[15] = t49;
-    return 0;
+    return gsm2d_a_kf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
@@ -161,85 +208,13 @@ int gsm2d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     P[13] = P0[13];
     P[14] = P0[14];
     P[15] = P0[15];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
-        const double t0 = x[0] + x[1];
-        const double t1 = x[2] + x[3];
-        const double t2 = P[0] + P[1];
-        const double t3 = P[1] + P[5];
-        const double t4 = P[10] + P[11];
-        const double t5 = P[11] + P[15];
-        const double t6 = t2 + t3;
-        const double t7 = t4 + t5;
-        const double t8 = 0.0025 + t6;
-        const double t9 = 0.005 + t3;
-        const double t10 = 0.01 + P[5];
-        const double t11 = 0.0025 + t7;
-        const double t12 = 0.005 + t5;
-        const double t13 = 0.01 + P[15];
-        const double t14 = t8 + t9;
-        const double t15 = t10 + t9;
-        const double t16 = t11 + t12;
-        const double t17 = t12 + t13;
-        const double t18 = t14 + t15;
-        const double t19 = t16 + t17;
-        const double t20 = 0.1 + t18;
-        const double t21 = 0.1 + t19;
-        if (!(t20 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = gsm2d_a_kf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        if (!(t21 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        const double t22 = t14/t20;
-        const double t23 = t15/t20;
-        const double t24 = t16/t21;
-        const double t25 = t17/t21;
-        const double t26 = x[1] + t0;
-        const double t27 = x[3] + t1;
-        const double t28 = zk[0] - t26;
-        const double t29 = zk[1] - t27;
-        const double t30 = t22*t28;
-        const double t31 = t23*t28;
-        const double t32 = t24*t29;
-        const double t33 = t25*t29;
-        const double t34 = t0 + t30;
-        const double t35 = x[1] + t31;
-        const double t36 = t1 + t32;
-        const double t37 = x[3] + t33;
-        const double t38 = t14*t22;
-        const double t39 = t15*t22;
-        const double t40 = t15*t23;
-        const double t41 = t16*t24;
-        const double t42 = t17*t24;
-        const double t43 = t17*t25;
-        const double t44 = t8 - t38;
-        const double t45 = t9 - t39;
-        const double t46 = t10 - t40;
-        const double t47 = t11 - t41;
-        const double t48 = t12 - t42;
-        const double t49 = t13 - t43;
-        x_new[0] = t34;
-        x_new[1] = t35;
-        x_new[2] = t36;
-        x_new[3] = t37;
-        P_new[0] = t44;
-        P_new[1] = t45;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = t45;
-        P_new[5] = t46;
-        P_new[6] = 0.0;
-        P_new[7] = 0.0;
-        P_new[8] = 0.0;
-        P_new[9] = 0.0;
-        P_new[10] = t47;
-        P_new[11] = t48;
-        P_new[12] = 0.0;
-        P_new[13] = 0.0;
-        P_new[14] = t48;
-        P_new[15] = t49;
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];
@@ -284,12 +259,15 @@ int gsm2d_a_kf_run(size_t steps, const double *z, const double *x0, const double
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int gsm2d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 16 + 2] == 0.0)) {
@@ -306,702 +284,65 @@ int gsm2d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[4], xn_l0[4];
-        double P_l0[16], Pn_l0[16];
-        const double *z_l0;
-        double x_l1[4], xn_l1[4];
-        double P_l1[16], Pn_l1[16];
-        const double *z_l1;
-        double x_l2[4], xn_l2[4];
-        double P_l2[16], Pn_l2[16];
-        const double *z_l2;
-        double x_l3[4], xn_l3[4];
-        double P_l3[16], Pn_l3[16];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 4 + 0];
-        x_l0[1] = x0[(t + 0) * 4 + 1];
-        x_l0[2] = x0[(t + 0) * 4 + 2];
-        x_l0[3] = x0[(t + 0) * 4 + 3];
-        P_l0[0] = P0[(t + 0) * 16 + 0];
-        P_l0[1] = P0[(t + 0) * 16 + 1];
-        P_l0[2] = P0[(t + 0) * 16 + 2];
-        P_l0[3] = P0[(t + 0) * 16 + 3];
-        P_l0[4] = P0[(t + 0) * 16 + 4];
-        P_l0[5] = P0[(t + 0) * 16 + 5];
-        P_l0[6] = P0[(t + 0) * 16 + 6];
-        P_l0[7] = P0[(t + 0) * 16 + 7];
-        P_l0[8] = P0[(t + 0) * 16 + 8];
-        P_l0[9] = P0[(t + 0) * 16 + 9];
-        P_l0[10] = P0[(t + 0) * 16 + 10];
-        P_l0[11] = P0[(t + 0) * 16 + 11];
-        P_l0[12] = P0[(t + 0) * 16 + 12];
-        P_l0[13] = P0[(t + 0) * 16 + 13];
-        P_l0[14] = P0[(t + 0) * 16 + 14];
-        P_l0[15] = P0[(t + 0) * 16 + 15];
-        x_l1[0] = x0[(t + 1) * 4 + 0];
-        x_l1[1] = x0[(t + 1) * 4 + 1];
-        x_l1[2] = x0[(t + 1) * 4 + 2];
-        x_l1[3] = x0[(t + 1) * 4 + 3];
-        P_l1[0] = P0[(t + 1) * 16 + 0];
-        P_l1[1] = P0[(t + 1) * 16 + 1];
-        P_l1[2] = P0[(t + 1) * 16 + 2];
-        P_l1[3] = P0[(t + 1) * 16 + 3];
-        P_l1[4] = P0[(t + 1) * 16 + 4];
-        P_l1[5] = P0[(t + 1) * 16 + 5];
-        P_l1[6] = P0[(t + 1) * 16 + 6];
-        P_l1[7] = P0[(t + 1) * 16 + 7];
-        P_l1[8] = P0[(t + 1) * 16 + 8];
-        P_l1[9] = P0[(t + 1) * 16 + 9];
-        P_l1[10] = P0[(t + 1) * 16 + 10];
-        P_l1[11] = P0[(t + 1) * 16 + 11];
-        P_l1[12] = P0[(t + 1) * 16 + 12];
-        P_l1[13] = P0[(t + 1) * 16 + 13];
-        P_l1[14] = P0[(t + 1) * 16 + 14];
-        P_l1[15] = P0[(t + 1) * 16 + 15];
-        x_l2[0] = x0[(t + 2) * 4 + 0];
-        x_l2[1] = x0[(t + 2) * 4 + 1];
-        x_l2[2] = x0[(t + 2) * 4 + 2];
-        x_l2[3] = x0[(t + 2) * 4 + 3];
-        P_l2[0] = P0[(t + 2) * 16 + 0];
-        P_l2[1] = P0[(t + 2) * 16 + 1];
-        P_l2[2] = P0[(t + 2) * 16 + 2];
-        P_l2[3] = P0[(t + 2) * 16 + 3];
-        P_l2[4] = P0[(t + 2) * 16 + 4];
-        P_l2[5] = P0[(t + 2) * 16 + 5];
-        P_l2[6] = P0[(t + 2) * 16 + 6];
-        P_l2[7] = P0[(t + 2) * 16 + 7];
-        P_l2[8] = P0[(t + 2) * 16 + 8];
-        P_l2[9] = P0[(t + 2) * 16 + 9];
-        P_l2[10] = P0[(t + 2) * 16 + 10];
-        P_l2[11] = P0[(t + 2) * 16 + 11];
-        P_l2[12] = P0[(t + 2) * 16 + 12];
-        P_l2[13] = P0[(t + 2) * 16 + 13];
-        P_l2[14] = P0[(t + 2) * 16 + 14];
-        P_l2[15] = P0[(t + 2) * 16 + 15];
-        x_l3[0] = x0[(t + 3) * 4 + 0];
-        x_l3[1] = x0[(t + 3) * 4 + 1];
-        x_l3[2] = x0[(t + 3) * 4 + 2];
-        x_l3[3] = x0[(t + 3) * 4 + 3];
-        P_l3[0] = P0[(t + 3) * 16 + 0];
-        P_l3[1] = P0[(t + 3) * 16 + 1];
-        P_l3[2] = P0[(t + 3) * 16 + 2];
-        P_l3[3] = P0[(t + 3) * 16 + 3];
-        P_l3[4] = P0[(t + 3) * 16 + 4];
-        P_l3[5] = P0[(t + 3) * 16 + 5];
-        P_l3[6] = P0[(t + 3) * 16 + 6];
-        P_l3[7] = P0[(t + 3) * 16 + 7];
-        P_l3[8] = P0[(t + 3) * 16 + 8];
-        P_l3[9] = P0[(t + 3) * 16 + 9];
-        P_l3[10] = P0[(t + 3) * 16 + 10];
-        P_l3[11] = P0[(t + 3) * 16 + 11];
-        P_l3[12] = P0[(t + 3) * 16 + 12];
-        P_l3[13] = P0[(t + 3) * 16 + 13];
-        P_l3[14] = P0[(t + 3) * 16 + 14];
-        P_l3[15] = P0[(t + 3) * 16 + 15];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[4 * DERIVE_LANES];
+        double P_b[16 * DERIVE_LANES];
+        double x_new_b[4 * DERIVE_LANES];
+        double P_new_b[16 * DERIVE_LANES];
+        double z_b[2 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 4; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 4 + i];
+            }
+            for (i = 0; i < 16; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 16 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 2;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = P_l0[0] + P_l0[1];
-            const double t3_l0 = P_l0[1] + P_l0[5];
-            const double t4_l0 = P_l0[10] + P_l0[11];
-            const double t5_l0 = P_l0[11] + P_l0[15];
-            const double t6_l0 = t2_l0 + t3_l0;
-            const double t7_l0 = t4_l0 + t5_l0;
-            const double t8_l0 = 0.0025 + t6_l0;
-            const double t9_l0 = 0.005 + t3_l0;
-            const double t10_l0 = 0.01 + P_l0[5];
-            const double t11_l0 = 0.0025 + t7_l0;
-            const double t12_l0 = 0.005 + t5_l0;
-            const double t13_l0 = 0.01 + P_l0[15];
-            const double t14_l0 = t8_l0 + t9_l0;
-            const double t15_l0 = t10_l0 + t9_l0;
-            const double t16_l0 = t11_l0 + t12_l0;
-            const double t17_l0 = t12_l0 + t13_l0;
-            const double t18_l0 = t14_l0 + t15_l0;
-            const double t19_l0 = t16_l0 + t17_l0;
-            const double t20_l0 = 0.1 + t18_l0;
-            const double t21_l0 = 0.1 + t19_l0;
-            if (!(t20_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 2], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 4], 1);
+                }
             }
-            if (!(t21_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 2; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 2 + i];
+                }
             }
-            const double t22_l0 = t14_l0/t20_l0;
-            const double t23_l0 = t15_l0/t20_l0;
-            const double t24_l0 = t16_l0/t21_l0;
-            const double t25_l0 = t17_l0/t21_l0;
-            const double t26_l0 = x_l0[1] + t0_l0;
-            const double t27_l0 = x_l0[3] + t1_l0;
-            const double t28_l0 = z_l0[0] - t26_l0;
-            const double t29_l0 = z_l0[1] - t27_l0;
-            const double t30_l0 = t22_l0*t28_l0;
-            const double t31_l0 = t23_l0*t28_l0;
-            const double t32_l0 = t24_l0*t29_l0;
-            const double t33_l0 = t25_l0*t29_l0;
-            const double t34_l0 = t0_l0 + t30_l0;
-            const double t35_l0 = x_l0[1] + t31_l0;
-            const double t36_l0 = t1_l0 + t32_l0;
-            const double t37_l0 = x_l0[3] + t33_l0;
-            const double t38_l0 = t14_l0*t22_l0;
-            const double t39_l0 = t15_l0*t22_l0;
-            const double t40_l0 = t15_l0*t23_l0;
-            const double t41_l0 = t16_l0*t24_l0;
-            const double t42_l0 = t17_l0*t24_l0;
-            const double t43_l0 = t17_l0*t25_l0;
-            const double t44_l0 = t8_l0 - t38_l0;
-            const double t45_l0 = t9_l0 - t39_l0;
-            const double t46_l0 = t10_l0 - t40_l0;
-            const double t47_l0 = t11_l0 - t41_l0;
-            const double t48_l0 = t12_l0 - t42_l0;
-            const double t49_l0 = t13_l0 - t43_l0;
-            xn_l0[0] = t34_l0;
-            xn_l0[1] = t35_l0;
-            xn_l0[2] = t36_l0;
-            xn_l0[3] = t37_l0;
-            Pn_l0[0] = t44_l0;
-            Pn_l0[1] = t45_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t45_l0;
-            Pn_l0[5] = t46_l0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = t47_l0;
-            Pn_l0[11] = t48_l0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t48_l0;
-            Pn_l0[15] = t49_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 2;
-            const double t0_l1 = x_l1[0] + x_l1[1];
-            const double t1_l1 = x_l1[2] + x_l1[3];
-            const double t2_l1 = P_l1[0] + P_l1[1];
-            const double t3_l1 = P_l1[1] + P_l1[5];
-            const double t4_l1 = P_l1[10] + P_l1[11];
-            const double t5_l1 = P_l1[11] + P_l1[15];
-            const double t6_l1 = t2_l1 + t3_l1;
-            const double t7_l1 = t4_l1 + t5_l1;
-            const double t8_l1 = 0.0025 + t6_l1;
-            const double t9_l1 = 0.005 + t3_l1;
-            const double t10_l1 = 0.01 + P_l1[5];
-            const double t11_l1 = 0.0025 + t7_l1;
-            const double t12_l1 = 0.005 + t5_l1;
-            const double t13_l1 = 0.01 + P_l1[15];
-            const double t14_l1 = t8_l1 + t9_l1;
-            const double t15_l1 = t10_l1 + t9_l1;
-            const double t16_l1 = t11_l1 + t12_l1;
-            const double t17_l1 = t12_l1 + t13_l1;
-            const double t18_l1 = t14_l1 + t15_l1;
-            const double t19_l1 = t16_l1 + t17_l1;
-            const double t20_l1 = 0.1 + t18_l1;
-            const double t21_l1 = 0.1 + t19_l1;
-            if (!(t20_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = gsm2d_a_kf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            if (!(t21_l1 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            const double t22_l1 = t14_l1/t20_l1;
-            const double t23_l1 = t15_l1/t20_l1;
-            const double t24_l1 = t16_l1/t21_l1;
-            const double t25_l1 = t17_l1/t21_l1;
-            const double t26_l1 = x_l1[1] + t0_l1;
-            const double t27_l1 = x_l1[3] + t1_l1;
-            const double t28_l1 = z_l1[0] - t26_l1;
-            const double t29_l1 = z_l1[1] - t27_l1;
-            const double t30_l1 = t22_l1*t28_l1;
-            const double t31_l1 = t23_l1*t28_l1;
-            const double t32_l1 = t24_l1*t29_l1;
-            const double t33_l1 = t25_l1*t29_l1;
-            const double t34_l1 = t0_l1 + t30_l1;
-            const double t35_l1 = x_l1[1] + t31_l1;
-            const double t36_l1 = t1_l1 + t32_l1;
-            const double t37_l1 = x_l1[3] + t33_l1;
-            const double t38_l1 = t14_l1*t22_l1;
-            const double t39_l1 = t15_l1*t22_l1;
-            const double t40_l1 = t15_l1*t23_l1;
-            const double t41_l1 = t16_l1*t24_l1;
-            const double t42_l1 = t17_l1*t24_l1;
-            const double t43_l1 = t17_l1*t25_l1;
-            const double t44_l1 = t8_l1 - t38_l1;
-            const double t45_l1 = t9_l1 - t39_l1;
-            const double t46_l1 = t10_l1 - t40_l1;
-            const double t47_l1 = t11_l1 - t41_l1;
-            const double t48_l1 = t12_l1 - t42_l1;
-            const double t49_l1 = t13_l1 - t43_l1;
-            xn_l1[0] = t34_l1;
-            xn_l1[1] = t35_l1;
-            xn_l1[2] = t36_l1;
-            xn_l1[3] = t37_l1;
-            Pn_l1[0] = t44_l1;
-            Pn_l1[1] = t45_l1;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = t45_l1;
-            Pn_l1[5] = t46_l1;
-            Pn_l1[6] = 0.0;
-            Pn_l1[7] = 0.0;
-            Pn_l1[8] = 0.0;
-            Pn_l1[9] = 0.0;
-            Pn_l1[10] = t47_l1;
-            Pn_l1[11] = t48_l1;
-            Pn_l1[12] = 0.0;
-            Pn_l1[13] = 0.0;
-            Pn_l1[14] = t48_l1;
-            Pn_l1[15] = t49_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 2;
-            const double t0_l2 = x_l2[0] + x_l2[1];
-            const double t1_l2 = x_l2[2] + x_l2[3];
-            const double t2_l2 = P_l2[0] + P_l2[1];
-            const double t3_l2 = P_l2[1] + P_l2[5];
-            const double t4_l2 = P_l2[10] + P_l2[11];
-            const double t5_l2 = P_l2[11] + P_l2[15];
-            const double t6_l2 = t2_l2 + t3_l2;
-            const double t7_l2 = t4_l2 + t5_l2;
-            const double t8_l2 = 0.0025 + t6_l2;
-            const double t9_l2 = 0.005 + t3_l2;
-            const double t10_l2 = 0.01 + P_l2[5];
-            const double t11_l2 = 0.0025 + t7_l2;
-            const double t12_l2 = 0.005 + t5_l2;
-            const double t13_l2 = 0.01 + P_l2[15];
-            const double t14_l2 = t8_l2 + t9_l2;
-            const double t15_l2 = t10_l2 + t9_l2;
-            const double t16_l2 = t11_l2 + t12_l2;
-            const double t17_l2 = t12_l2 + t13_l2;
-            const double t18_l2 = t14_l2 + t15_l2;
-            const double t19_l2 = t16_l2 + t17_l2;
-            const double t20_l2 = 0.1 + t18_l2;
-            const double t21_l2 = 0.1 + t19_l2;
-            if (!(t20_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 4; ++i) {
+                    xs[((t + j) * steps + k) * 4 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 16; ++i) {
+                        Ps[((t + j) * steps + k) * 16 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            if (!(t21_l2 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            const double t22_l2 = t14_l2/t20_l2;
-            const double t23_l2 = t15_l2/t20_l2;
-            const double t24_l2 = t16_l2/t21_l2;
-            const double t25_l2 = t17_l2/t21_l2;
-            const double t26_l2 = x_l2[1] + t0_l2;
-            const double t27_l2 = x_l2[3] + t1_l2;
-            const double t28_l2 = z_l2[0] - t26_l2;
-            const double t29_l2 = z_l2[1] - t27_l2;
-            const double t30_l2 = t22_l2*t28_l2;
-            const double t31_l2 = t23_l2*t28_l2;
-            const double t32_l2 = t24_l2*t29_l2;
-            const double t33_l2 = t25_l2*t29_l2;
-            const double t34_l2 = t0_l2 + t30_l2;
-            const double t35_l2 = x_l2[1] + t31_l2;
-            const double t36_l2 = t1_l2 + t32_l2;
-            const double t37_l2 = x_l2[3] + t33_l2;
-            const double t38_l2 = t14_l2*t22_l2;
-            const double t39_l2 = t15_l2*t22_l2;
-            const double t40_l2 = t15_l2*t23_l2;
-            const double t41_l2 = t16_l2*t24_l2;
-            const double t42_l2 = t17_l2*t24_l2;
-            const double t43_l2 = t17_l2*t25_l2;
-            const double t44_l2 = t8_l2 - t38_l2;
-            const double t45_l2 = t9_l2 - t39_l2;
-            const double t46_l2 = t10_l2 - t40_l2;
-            const double t47_l2 = t11_l2 - t41_l2;
-            const double t48_l2 = t12_l2 - t42_l2;
-            const double t49_l2 = t13_l2 - t43_l2;
-            xn_l2[0] = t34_l2;
-            xn_l2[1] = t35_l2;
-            xn_l2[2] = t36_l2;
-            xn_l2[3] = t37_l2;
-            Pn_l2[0] = t44_l2;
-            Pn_l2[1] = t45_l2;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = t45_l2;
-            Pn_l2[5] = t46_l2;
-            Pn_l2[6] = 0.0;
-            Pn_l2[7] = 0.0;
-            Pn_l2[8] = 0.0;
-            Pn_l2[9] = 0.0;
-            Pn_l2[10] = t47_l2;
-            Pn_l2[11] = t48_l2;
-            Pn_l2[12] = 0.0;
-            Pn_l2[13] = 0.0;
-            Pn_l2[14] = t48_l2;
-            Pn_l2[15] = t49_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 2;
-            const double t0_l3 = x_l3[0] + x_l3[1];
-            const double t1_l3 = x_l3[2] + x_l3[3];
-            const double t2_l3 = P_l3[0] + P_l3[1];
-            const double t3_l3 = P_l3[1] + P_l3[5];
-            const double t4_l3 = P_l3[10] + P_l3[11];
-            const double t5_l3 = P_l3[11] + P_l3[15];
-            const double t6_l3 = t2_l3 + t3_l3;
-            const double t7_l3 = t4_l3 + t5_l3;
-            const double t8_l3 = 0.0025 + t6_l3;
-            const double t9_l3 = 0.005 + t3_l3;
-            const double t10_l3 = 0.01 + P_l3[5];
-            const double t11_l3 = 0.0025 + t7_l3;
-            const double t12_l3 = 0.005 + t5_l3;
-            const double t13_l3 = 0.01 + P_l3[15];
-            const double t14_l3 = t8_l3 + t9_l3;
-            const double t15_l3 = t10_l3 + t9_l3;
-            const double t16_l3 = t11_l3 + t12_l3;
-            const double t17_l3 = t12_l3 + t13_l3;
-            const double t18_l3 = t14_l3 + t15_l3;
-            const double t19_l3 = t16_l3 + t17_l3;
-            const double t20_l3 = 0.1 + t18_l3;
-            const double t21_l3 = 0.1 + t19_l3;
-            if (!(t20_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t21_l3 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t22_l3 = t14_l3/t20_l3;
-            const double t23_l3 = t15_l3/t20_l3;
-            const double t24_l3 = t16_l3/t21_l3;
-            const double t25_l3 = t17_l3/t21_l3;
-            const double t26_l3 = x_l3[1] + t0_l3;
-            const double t27_l3 = x_l3[3] + t1_l3;
-            const double t28_l3 = z_l3[0] - t26_l3;
-            const double t29_l3 = z_l3[1] - t27_l3;
-            const double t30_l3 = t22_l3*t28_l3;
-            const double t31_l3 = t23_l3*t28_l3;
-            const double t32_l3 = t24_l3*t29_l3;
-            const double t33_l3 = t25_l3*t29_l3;
-            const double t34_l3 = t0_l3 + t30_l3;
-            const double t35_l3 = x_l3[1] + t31_l3;
-            const double t36_l3 = t1_l3 + t32_l3;
-            const double t37_l3 = x_l3[3] + t33_l3;
-            const double t38_l3 = t14_l3*t22_l3;
-            const double t39_l3 = t15_l3*t22_l3;
-            const double t40_l3 = t15_l3*t23_l3;
-            const double t41_l3 = t16_l3*t24_l3;
-            const double t42_l3 = t17_l3*t24_l3;
-            const double t43_l3 = t17_l3*t25_l3;
-            const double t44_l3 = t8_l3 - t38_l3;
-            const double t45_l3 = t9_l3 - t39_l3;
-            const double t46_l3 = t10_l3 - t40_l3;
-            const double t47_l3 = t11_l3 - t41_l3;
-            const double t48_l3 = t12_l3 - t42_l3;
-            const double t49_l3 = t13_l3 - t43_l3;
-            xn_l3[0] = t34_l3;
-            xn_l3[1] = t35_l3;
-            xn_l3[2] = t36_l3;
-            xn_l3[3] = t37_l3;
-            Pn_l3[0] = t44_l3;
-            Pn_l3[1] = t45_l3;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = t45_l3;
-            Pn_l3[5] = t46_l3;
-            Pn_l3[6] = 0.0;
-            Pn_l3[7] = 0.0;
-            Pn_l3[8] = 0.0;
-            Pn_l3[9] = 0.0;
-            Pn_l3[10] = t47_l3;
-            Pn_l3[11] = t48_l3;
-            Pn_l3[12] = 0.0;
-            Pn_l3[13] = 0.0;
-            Pn_l3[14] = t48_l3;
-            Pn_l3[15] = t49_l3;
-            xs[((t + 0) * steps + k) * 4 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 4 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 4 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 4 + 3] = x_l0[3] = xn_l0[3];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 16 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 16 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 16 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 16 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 16 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 16 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 16 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 16 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 16 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 16 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 16 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 16 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 16 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 16 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 16 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 16 + 15] = Pn_l0[15];
-            }
-            xs[((t + 1) * steps + k) * 4 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 4 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 4 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 4 + 3] = x_l1[3] = xn_l1[3];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            P_l1[9] = Pn_l1[9];
-            P_l1[10] = Pn_l1[10];
-            P_l1[11] = Pn_l1[11];
-            P_l1[12] = Pn_l1[12];
-            P_l1[13] = Pn_l1[13];
-            P_l1[14] = Pn_l1[14];
-            P_l1[15] = Pn_l1[15];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 16 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 16 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 16 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 16 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 16 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 16 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 16 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 16 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 16 + 8] = Pn_l1[8];
-                Ps[((t + 1) * steps + k) * 16 + 9] = Pn_l1[9];
-                Ps[((t + 1) * steps + k) * 16 + 10] = Pn_l1[10];
-                Ps[((t + 1) * steps + k) * 16 + 11] = Pn_l1[11];
-                Ps[((t + 1) * steps + k) * 16 + 12] = Pn_l1[12];
-                Ps[((t + 1) * steps + k) * 16 + 13] = Pn_l1[13];
-                Ps[((t + 1) * steps + k) * 16 + 14] = Pn_l1[14];
-                Ps[((t + 1) * steps + k) * 16 + 15] = Pn_l1[15];
-            }
-            xs[((t + 2) * steps + k) * 4 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 4 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 4 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 4 + 3] = x_l2[3] = xn_l2[3];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            P_l2[9] = Pn_l2[9];
-            P_l2[10] = Pn_l2[10];
-            P_l2[11] = Pn_l2[11];
-            P_l2[12] = Pn_l2[12];
-            P_l2[13] = Pn_l2[13];
-            P_l2[14] = Pn_l2[14];
-            P_l2[15] = Pn_l2[15];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 16 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 16 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 16 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 16 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 16 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 16 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 16 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 16 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 16 + 8] = Pn_l2[8];
-                Ps[((t + 2) * steps + k) * 16 + 9] = Pn_l2[9];
-                Ps[((t + 2) * steps + k) * 16 + 10] = Pn_l2[10];
-                Ps[((t + 2) * steps + k) * 16 + 11] = Pn_l2[11];
-                Ps[((t + 2) * steps + k) * 16 + 12] = Pn_l2[12];
-                Ps[((t + 2) * steps + k) * 16 + 13] = Pn_l2[13];
-                Ps[((t + 2) * steps + k) * 16 + 14] = Pn_l2[14];
-                Ps[((t + 2) * steps + k) * 16 + 15] = Pn_l2[15];
-            }
-            xs[((t + 3) * steps + k) * 4 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 4 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 4 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 4 + 3] = x_l3[3] = xn_l3[3];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            P_l3[9] = Pn_l3[9];
-            P_l3[10] = Pn_l3[10];
-            P_l3[11] = Pn_l3[11];
-            P_l3[12] = Pn_l3[12];
-            P_l3[13] = Pn_l3[13];
-            P_l3[14] = Pn_l3[14];
-            P_l3[15] = Pn_l3[15];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 16 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 16 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 16 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 16 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 16 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 16 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 16 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 16 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 16 + 8] = Pn_l3[8];
-                Ps[((t + 3) * steps + k) * 16 + 9] = Pn_l3[9];
-                Ps[((t + 3) * steps + k) * 16 + 10] = Pn_l3[10];
-                Ps[((t + 3) * steps + k) * 16 + 11] = Pn_l3[11];
-                Ps[((t + 3) * steps + k) * 16 + 12] = Pn_l3[12];
-                Ps[((t + 3) * steps + k) * 16 + 13] = Pn_l3[13];
-                Ps[((t + 3) * steps + k) * 16 + 14] = Pn_l3[14];
-                Ps[((t + 3) * steps + k) * 16 + 15] = Pn_l3[15];
+            for (i = 0; i < 16 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[4], xn_l0[4];
-        double P_l0[16], Pn_l0[16];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 4 + 0];
-        x_l0[1] = x0[(t + 0) * 4 + 1];
-        x_l0[2] = x0[(t + 0) * 4 + 2];
-        x_l0[3] = x0[(t + 0) * 4 + 3];
-        P_l0[0] = P0[(t + 0) * 16 + 0];
-        P_l0[1] = P0[(t + 0) * 16 + 1];
-        P_l0[2] = P0[(t + 0) * 16 + 2];
-        P_l0[3] = P0[(t + 0) * 16 + 3];
-        P_l0[4] = P0[(t + 0) * 16 + 4];
-        P_l0[5] = P0[(t + 0) * 16 + 5];
-        P_l0[6] = P0[(t + 0) * 16 + 6];
-        P_l0[7] = P0[(t + 0) * 16 + 7];
-        P_l0[8] = P0[(t + 0) * 16 + 8];
-        P_l0[9] = P0[(t + 0) * 16 + 9];
-        P_l0[10] = P0[(t + 0) * 16 + 10];
-        P_l0[11] = P0[(t + 0) * 16 + 11];
-        P_l0[12] = P0[(t + 0) * 16 + 12];
-        P_l0[13] = P0[(t + 0) * 16 + 13];
-        P_l0[14] = P0[(t + 0) * 16 + 14];
-        P_l0[15] = P0[(t + 0) * 16 + 15];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 2;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = P_l0[0] + P_l0[1];
-            const double t3_l0 = P_l0[1] + P_l0[5];
-            const double t4_l0 = P_l0[10] + P_l0[11];
-            const double t5_l0 = P_l0[11] + P_l0[15];
-            const double t6_l0 = t2_l0 + t3_l0;
-            const double t7_l0 = t4_l0 + t5_l0;
-            const double t8_l0 = 0.0025 + t6_l0;
-            const double t9_l0 = 0.005 + t3_l0;
-            const double t10_l0 = 0.01 + P_l0[5];
-            const double t11_l0 = 0.0025 + t7_l0;
-            const double t12_l0 = 0.005 + t5_l0;
-            const double t13_l0 = 0.01 + P_l0[15];
-            const double t14_l0 = t8_l0 + t9_l0;
-            const double t15_l0 = t10_l0 + t9_l0;
-            const double t16_l0 = t11_l0 + t12_l0;
-            const double t17_l0 = t12_l0 + t13_l0;
-            const double t18_l0 = t14_l0 + t15_l0;
-            const double t19_l0 = t16_l0 + t17_l0;
-            const double t20_l0 = 0.1 + t18_l0;
-            const double t21_l0 = 0.1 + t19_l0;
-            if (!(t20_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t21_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            const double t22_l0 = t14_l0/t20_l0;
-            const double t23_l0 = t15_l0/t20_l0;
-            const double t24_l0 = t16_l0/t21_l0;
-            const double t25_l0 = t17_l0/t21_l0;
-            const double t26_l0 = x_l0[1] + t0_l0;
-            const double t27_l0 = x_l0[3] + t1_l0;
-            const double t28_l0 = z_l0[0] - t26_l0;
-            const double t29_l0 = z_l0[1] - t27_l0;
-            const double t30_l0 = t22_l0*t28_l0;
-            const double t31_l0 = t23_l0*t28_l0;
-            const double t32_l0 = t24_l0*t29_l0;
-            const double t33_l0 = t25_l0*t29_l0;
-            const double t34_l0 = t0_l0 + t30_l0;
-            const double t35_l0 = x_l0[1] + t31_l0;
-            const double t36_l0 = t1_l0 + t32_l0;
-            const double t37_l0 = x_l0[3] + t33_l0;
-            const double t38_l0 = t14_l0*t22_l0;
-            const double t39_l0 = t15_l0*t22_l0;
-            const double t40_l0 = t15_l0*t23_l0;
-            const double t41_l0 = t16_l0*t24_l0;
-            const double t42_l0 = t17_l0*t24_l0;
-            const double t43_l0 = t17_l0*t25_l0;
-            const double t44_l0 = t8_l0 - t38_l0;
-            const double t45_l0 = t9_l0 - t39_l0;
-            const double t46_l0 = t10_l0 - t40_l0;
-            const double t47_l0 = t11_l0 - t41_l0;
-            const double t48_l0 = t12_l0 - t42_l0;
-            const double t49_l0 = t13_l0 - t43_l0;
-            xn_l0[0] = t34_l0;
-            xn_l0[1] = t35_l0;
-            xn_l0[2] = t36_l0;
-            xn_l0[3] = t37_l0;
-            Pn_l0[0] = t44_l0;
-            Pn_l0[1] = t45_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t45_l0;
-            Pn_l0[5] = t46_l0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = t47_l0;
-            Pn_l0[11] = t48_l0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t48_l0;
-            Pn_l0[15] = t49_l0;
-            xs[((t + 0) * steps + k) * 4 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 4 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 4 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 4 + 3] = x_l0[3] = xn_l0[3];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 16 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 16 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 16 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 16 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 16 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 16 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 16 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 16 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 16 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 16 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 16 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 16 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 16 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 16 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 16 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 16 + 15] = Pn_l0[15];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = gsm2d_a_kf_run(steps, z + t * steps * 2, x0 + t * 4, P0 + t * 4 * 4, xs + t * steps * 4, Ps ? Ps + t * steps * 4 * 4 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

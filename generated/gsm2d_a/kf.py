@@ -22,6 +22,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -99,59 +101,59 @@ def _step_in_pattern(x, P, z):
     """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = x[0] + x[1]
-    t1 = x[2] + x[3]
-    t2 = P[0] + P[1]
-    t3 = P[1] + P[5]
-    t4 = P[10] + P[11]
-    t5 = P[11] + P[15]
-    t6 = t2 + t3
+    t1 = P[0] + P[1]
+    t2 = P[1] + P[5]
+    t3 = t1 + t2
+    t4 = 0.0025 + t3
+    t5 = 0.005 + t2
+    t6 = 0.01 + P[5]
     t7 = t4 + t5
-    t8 = 0.0025 + t6
-    t9 = 0.005 + t3
-    t10 = 0.01 + P[5]
-    t11 = 0.0025 + t7
-    t12 = 0.005 + t5
-    t13 = 0.01 + P[15]
-    t14 = t8 + t9
-    t15 = t10 + t9
-    t16 = t11 + t12
-    t17 = t12 + t13
-    t18 = t14 + t15
-    t19 = t16 + t17
-    t20 = 0.1 + t18
-    t21 = 0.1 + t19
-    _require_positive(t20, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    _require_positive(t21, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-    t22 = t14/t20
-    t23 = t15/t20
-    t24 = t16/t21
-    t25 = t17/t21
-    t26 = x[1] + t0
-    t27 = x[3] + t1
-    t28 = z[0] - t26
-    t29 = z[1] - t27
-    t30 = t22*t28
-    t31 = t23*t28
-    t32 = t24*t29
-    t33 = t25*t29
-    t34 = t0 + t30
-    t35 = x[1] + t31
-    t36 = t1 + t32
-    t37 = x[3] + t33
-    t38 = t14*t22
-    t39 = t15*t22
-    t40 = t15*t23
-    t41 = t16*t24
-    t42 = t17*t24
-    t43 = t17*t25
-    t44 = t8 - t38
-    t45 = t9 - t39
-    t46 = t10 - t40
-    t47 = t11 - t41
-    t48 = t12 - t42
-    t49 = t13 - t43
-    x_new = [t34, t35, t36, t37]
-    P_new = [t44, t45, 0.0, 0.0, t45, t46, 0.0, 0.0, 0.0, 0.0, t47, t48, 0.0, 0.0, t48, t49]
+    t8 = t5 + t6
+    t9 = t7 + t8
+    t10 = 0.1 + t9
+    _require_positive(t10, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    t11 = t7/t10
+    t12 = t8/t10
+    t13 = x[1] + t0
+    t14 = z[0] - t13
+    t15 = t11*t14
+    t16 = t12*t14
+    t17 = t0 + t15
+    t18 = x[1] + t16
+    t19 = t11*t7
+    t20 = t11*t8
+    t21 = t12*t8
+    t22 = t4 - t19
+    t23 = t5 - t20
+    t24 = t6 - t21
+    t25 = x[2] + x[3]
+    t26 = P[10] + P[11]
+    t27 = P[11] + P[15]
+    t28 = t26 + t27
+    t29 = 0.0025 + t28
+    t30 = 0.005 + t27
+    t31 = 0.01 + P[15]
+    t32 = t29 + t30
+    t33 = t30 + t31
+    t34 = t32 + t33
+    t35 = 0.1 + t34
+    _require_positive(t35, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    t36 = t32/t35
+    t37 = t33/t35
+    t38 = x[3] + t25
+    t39 = z[1] - t38
+    t40 = t36*t39
+    t41 = t37*t39
+    t42 = t25 + t40
+    t43 = x[3] + t41
+    t44 = t32*t36
+    t45 = t33*t36
+    t46 = t33*t37
+    t47 = t29 - t44
+    t48 = t30 - t45
+    t49 = t31 - t46
+    x_new = [t17, t18, t42, t43]
+    P_new = [t22, t23, 0.0, 0.0, t23, t24, 0.0, 0.0, 0.0, 0.0, t47, t48, 0.0, 0.0, t48, t49]
     return x_new, P_new
 
 
@@ -183,74 +185,46 @@ def run(zs, x0, P0):
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1 = zk
             t0 = x_0 + x_1
-            t1 = x_2 + x_3
-            t2 = P_0 + P_1
-            t3 = P_1 + P_5
-            t4 = P_10 + P_11
-            t5 = P_11 + P_15
-            t6 = t2 + t3
+            t2 = P_1 + P_5
+            t4 = 0.0025 + (P_0 + P_1 + t2)
+            t5 = 0.005 + t2
+            t6 = 0.01 + P_5
             t7 = t4 + t5
-            t8 = 0.0025 + t6
-            t9 = 0.005 + t3
-            t10 = 0.01 + P_5
-            t11 = 0.0025 + t7
-            t12 = 0.005 + t5
-            t13 = 0.01 + P_15
-            t14 = t8 + t9
-            t15 = t10 + t9
-            t16 = t11 + t12
-            t17 = t12 + t13
-            t18 = t14 + t15
-            t19 = t16 + t17
-            t20 = 0.1 + t18
-            t21 = 0.1 + t19
-            if not t20 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            if not t21 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            t22 = t14/t20
-            t23 = t15/t20
-            t24 = t16/t21
-            t25 = t17/t21
-            t26 = x_1 + t0
-            t27 = x_3 + t1
-            t28 = z_0 - t26
-            t29 = z_1 - t27
-            t30 = t22*t28
-            t31 = t23*t28
-            t32 = t24*t29
-            t33 = t25*t29
-            t34 = t0 + t30
-            t35 = x_1 + t31
-            t36 = t1 + t32
-            t37 = x_3 + t33
-            t38 = t14*t22
-            t39 = t15*t22
-            t40 = t15*t23
-            t41 = t16*t24
-            t42 = t17*t24
-            t43 = t17*t25
-            t44 = t8 - t38
-            t45 = t9 - t39
-            t46 = t10 - t40
-            t47 = t11 - t41
-            t48 = t12 - t42
-            t49 = t13 - t43
-            keep((t34, t35, t36, t37, t44, t45, 0.0, t46, t47, t48, t49))
-            x_0 = t34
-            x_1 = t35
-            x_2 = t36
-            x_3 = t37
-            P_0 = t44
-            P_1 = t45
-            P_5 = t46
-            P_10 = t47
-            P_11 = t48
-            P_15 = t49
-        table = np.array(rows, dtype=float).reshape(-1, 11)
+            t8 = t5 + t6
+            t10 = 0.1 + (t7 + t8)
+            if not t10 > 0.0:
+                raise NumericalError(f"step {len(rows) // 11}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t11 = t7/t10
+            t12 = t8/t10
+            t14 = z_0 - (x_1 + t0)
+            x_0 = t0 + t11*t14
+            x_1 = x_1 + t12*t14
+            P_0 = t4 - t11*t7
+            P_1 = t5 - t11*t8
+            P_5 = t6 - t12*t8
+            t25 = x_2 + x_3
+            t27 = P_11 + P_15
+            t29 = 0.0025 + (P_10 + P_11 + t27)
+            t30 = 0.005 + t27
+            t31 = 0.01 + P_15
+            t32 = t29 + t30
+            t33 = t30 + t31
+            t35 = 0.1 + (t32 + t33)
+            if not t35 > 0.0:
+                raise NumericalError(f"step {len(rows) // 11}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t36 = t32/t35
+            t37 = t33/t35
+            t39 = z_1 - (x_3 + t25)
+            x_2 = t25 + t36*t39
+            x_3 = x_3 + t37*t39
+            P_10 = t29 - t32*t36
+            P_11 = t30 - t33*t36
+            P_15 = t31 - t33*t37
+            keep((x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int gsm2d_a_lf_step(x[4], P[4*4], z[2], x_new[4] out, P_new[4*4] out)
  *     int gsm2d_a_lf_run(steps, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
+ *     int gsm2d_a_lf_run_tracks(steps, tracks, z[steps*2], x0[4], P0[4*4], xs[steps*4] out, Ps[steps*4*4] out optional)
  *     many tracks: gsm2d_a_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -19,7 +20,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 4, calls 0 (flops 160, instructions 130)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["gsm2d_a_lf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_lf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_lf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_lf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -33,6 +34,150 @@
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #endif
 #endif
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+{
+    const double t0 = 16.3265306122449*P[1 * s];
+    const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
+    const double t2 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
+    const double t3 = DERIVE_FMA(16.3265306122449, P[5 * s], 8.16326530612245*P[1 * s]);
+    const double t4 = DERIVE_FMA(32.6530612244898, P[5 * s], t0);
+    const double t5 = 1.0 + t1;
+    const double t6 = 1.0 + t4;
+    const double t7 = 1.0/t5;
+    const double t8 = t3*t7;
+    const double t9 = t6 - t2*t8;
+    const double t10 = 1.0/t9;
+    const double t11 = t10*t8;
+    const double t12 = t7*DERIVE_FMA(t11, t2, 1.0);
+    const double t13 = t10*t2*t7;
+    const double t14 = DERIVE_FMA(0.9387755102040817, t12, (-0.8775510204081632)*t11);
+    const double t15 = DERIVE_FMA((-0.9387755102040817), t13, 0.8775510204081632*t10);
+    const double t16 = DERIVE_FMA(0.12244897959183673, t12, 0.7551020408163265*t11);
+    const double t17 = DERIVE_FMA(0.12244897959183673, t13, 0.7551020408163265*t10);
+    const double t18 = 8.16326530612245*z[0];
+    const double t19 = 16.3265306122449*z[0];
+    const double t20 = DERIVE_FMA(P[1 * s], t19, P[0]*t18);
+    const double t21 = DERIVE_FMA(P[5 * s], t19, P[1 * s]*t18);
+    const double t22 = x[0] + t20;
+    const double t23 = x[1 * s] + t21;
+    const double t24 = 0.061224489795918366*z[0];
+    const double t25 = 0.12244897959183673*z[0];
+    const double t26 = DERIVE_FMA(t15, t23, t14*t22);
+    const double t27 = DERIVE_FMA(t17, t23, -(t16*t22));
+    const double t28 = t24 + t26;
+    const double t29 = t25 + t27;
+    const double t30 = DERIVE_FMA(P[1 * s], t15, P[0]*t14);
+    const double t31 = DERIVE_FMA(P[5 * s], t15, P[1 * s]*t14);
+    const double t32 = DERIVE_FMA(P[1 * s], t17, -(P[0]*t16));
+    const double t33 = DERIVE_FMA(P[5 * s], t17, -(P[1 * s]*t16));
+    const double t34 = DERIVE_FMA(0.8775510204081632, t31, 0.9387755102040817*t30);
+    const double t35 = DERIVE_FMA(0.7551020408163265, t31, (-0.12244897959183673)*t30);
+    const double t36 = DERIVE_FMA(0.7551020408163265, t33, (-0.12244897959183673)*t32);
+    const double t37 = 0.0020408163265306124 + t34;
+    const double t38 = 0.004081632653061225 + t35;
+    const double t39 = 0.00816326530612245 + t36;
+    const double t40 = 16.3265306122449*P[11 * s];
+    const double t41 = DERIVE_FMA(8.16326530612245, P[10 * s], t40);
+    const double t42 = DERIVE_FMA(32.6530612244898, P[11 * s], 16.3265306122449*P[10 * s]);
+    const double t43 = DERIVE_FMA(16.3265306122449, P[15 * s], 8.16326530612245*P[11 * s]);
+    const double t44 = DERIVE_FMA(32.6530612244898, P[15 * s], t40);
+    const double t45 = 1.0 + t41;
+    const double t46 = 1.0 + t44;
+    const double t47 = 1.0/t45;
+    const double t48 = t43*t47;
+    const double t49 = t46 - t42*t48;
+    const double t50 = 1.0/t49;
+    const double t51 = t48*t50;
+    const double t52 = t47*DERIVE_FMA(t42, t51, 1.0);
+    const double t53 = t42*t47*t50;
+    const double t54 = DERIVE_FMA(0.9387755102040817, t52, (-0.8775510204081632)*t51);
+    const double t55 = DERIVE_FMA((-0.9387755102040817), t53, 0.8775510204081632*t50);
+    const double t56 = DERIVE_FMA(0.12244897959183673, t52, 0.7551020408163265*t51);
+    const double t57 = DERIVE_FMA(0.12244897959183673, t53, 0.7551020408163265*t50);
+    const double t58 = 8.16326530612245*z[1 * s];
+    const double t59 = 16.3265306122449*z[1 * s];
+    const double t60 = DERIVE_FMA(P[11 * s], t59, P[10 * s]*t58);
+    const double t61 = DERIVE_FMA(P[15 * s], t59, P[11 * s]*t58);
+    const double t62 = x[2 * s] + t60;
+    const double t63 = x[3 * s] + t61;
+    const double t64 = 0.061224489795918366*z[1 * s];
+    const double t65 = 0.12244897959183673*z[1 * s];
+    const double t66 = DERIVE_FMA(t55, t63, t54*t62);
+    const double t67 = DERIVE_FMA(t57, t63, -(t56*t62));
+    const double t68 = t64 + t66;
+    const double t69 = t65 + t67;
+    const double t70 = DERIVE_FMA(P[11 * s], t55, P[10 * s]*t54);
+    const double t71 = DERIVE_FMA(P[15 * s], t55, P[11 * s]*t54);
+    const double t72 = DERIVE_FMA(P[11 * s], t57, -(P[10 * s]*t56));
+    const double t73 = DERIVE_FMA(P[15 * s], t57, -(P[11 * s]*t56));
+    const double t74 = DERIVE_FMA(0.8775510204081632, t71, 0.9387755102040817*t70);
+    const double t75 = DERIVE_FMA(0.7551020408163265, t71, (-0.12244897959183673)*t70);
+    const double t76 = DERIVE_FMA(0.7551020408163265, t73, (-0.12244897959183673)*t72);
+    const double t77 = 0.0020408163265306124 + t74;
+    const double t78 = 0.004081632653061225 + t75;
+    const double t79 = 0.00816326530612245 + t76;
+    x_new[0] = t28;
+    x_new[1 * s] = t29;
+    x_new[2 * s] = t68;
+    x_new[3 * s] = t69;
+    P_new[0] = t37;
+    P_new[1 * s] = t38;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t38;
+    P_new[5 * s] = t39;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = t77;
+    P_new[11 * s] = t78;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t78;
+    P_new[15 * s] = t79;
+}
 
 int gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
@@ -48,106 +193,7 @@ int gsm2d_a_lf_step(const double *restrict x, const double *restrict P, const do
     if (!(P[7] == 0.0)) {
         return 1; /* outside P's pattern */
     }
-    const double t0 = 16.3265306122449*P[1];
-    const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
-    const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-    const double t3 = DERIVE_FMA(16.3265306122449, P[5], 8.16326530612245*P[1]);
-    const double t4 = DERIVE_FMA(32.6530612244898, P[5], t0);
-    const double t5 = 16.3265306122449*P[11];
-    const double t6 = DERIVE_FMA(8.16326530612245, P[10], t5);
-    const double t7 = DERIVE_FMA(32.6530612244898, P[11], 16.3265306122449*P[10]);
-    const double t8 = DERIVE_FMA(16.3265306122449, P[15], 8.16326530612245*P[11]);
-    const double t9 = DERIVE_FMA(32.6530612244898, P[15], t5);
-    const double t10 = 1.0 + t1;
-    const double t11 = 1.0 + t4;
-    const double t12 = 1.0 + t6;
-    const double t13 = 1.0 + t9;
-    const double t14 = 1.0/t10;
-    const double t15 = t14*t3;
-    const double t16 = t11 - t15*t2;
-    const double t17 = 1.0/t16;
-    const double t18 = 1.0/t12;
-    const double t19 = t18*t8;
-    const double t20 = t13 - t19*t7;
-    const double t21 = 1.0/t20;
-    const double t22 = t15*t17;
-    const double t23 = t14*DERIVE_FMA(t2, t22, 1.0);
-    const double t24 = t14*t17*t2;
-    const double t25 = t19*t21;
-    const double t26 = t18*DERIVE_FMA(t25, t7, 1.0);
-    const double t27 = t18*t21*t7;
-    const double t28 = DERIVE_FMA(0.9387755102040817, t23, (-0.8775510204081632)*t22);
-    const double t29 = DERIVE_FMA((-0.9387755102040817), t24, 0.8775510204081632*t17);
-    const double t30 = DERIVE_FMA(0.12244897959183673, t23, 0.7551020408163265*t22);
-    const double t31 = DERIVE_FMA(0.12244897959183673, t24, 0.7551020408163265*t17);
-    const double t32 = DERIVE_FMA(0.9387755102040817, t26, (-0.8775510204081632)*t25);
-    const double t33 = DERIVE_FMA((-0.9387755102040817), t27, 0.8775510204081632*t21);
-    const double t34 = DERIVE_FMA(0.12244897959183673, t26, 0.7551020408163265*t25);
-    const double t35 = DERIVE_FMA(0.12244897959183673, t27, 0.7551020408163265*t21);
-    const double t36 = 8.16326530612245*z[0];
-    const double t37 = 16.3265306122449*z[0];
-    const double t38 = 8.16326530612245*z[1];
-    const double t39 = 16.3265306122449*z[1];
-    const double t40 = DERIVE_FMA(P[1], t37, P[0]*t36);
-    const double t41 = DERIVE_FMA(P[5], t37, P[1]*t36);
-    const double t42 = DERIVE_FMA(P[11], t39, P[10]*t38);
-    const double t43 = DERIVE_FMA(P[15], t39, P[11]*t38);
-    const double t44 = x[0] + t40;
-    const double t45 = x[1] + t41;
-    const double t46 = x[2] + t42;
-    const double t47 = x[3] + t43;
-    const double t48 = 0.061224489795918366*z[0];
-    const double t49 = 0.12244897959183673*z[0];
-    const double t50 = 0.061224489795918366*z[1];
-    const double t51 = 0.12244897959183673*z[1];
-    const double t52 = DERIVE_FMA(t29, t45, t28*t44);
-    const double t53 = DERIVE_FMA(t31, t45, -(t30*t44));
-    const double t54 = DERIVE_FMA(t33, t47, t32*t46);
-    const double t55 = DERIVE_FMA(t35, t47, -(t34*t46));
-    const double t56 = t48 + t52;
-    const double t57 = t49 + t53;
-    const double t58 = t50 + t54;
-    const double t59 = t51 + t55;
-    const double t60 = DERIVE_FMA(P[1], t29, P[0]*t28);
-    const double t61 = DERIVE_FMA(P[5], t29, P[1]*t28);
-    const double t62 = DERIVE_FMA(P[1], t31, -(P[0]*t30));
-    const double t63 = DERIVE_FMA(P[5], t31, -(P[1]*t30));
-    const double t64 = DERIVE_FMA(P[11], t33, P[10]*t32);
-    const double t65 = DERIVE_FMA(P[15], t33, P[11]*t32);
-    const double t66 = DERIVE_FMA(P[11], t35, -(P[10]*t34));
-    const double t67 = DERIVE_FMA(P[15], t35, -(P[11]*t34));
-    const double t68 = DERIVE_FMA(0.8775510204081632, t61, 0.9387755102040817*t60);
-    const double t69 = DERIVE_FMA(0.7551020408163265, t61, (-0.12244897959183673)*t60);
-    const double t70 = DERIVE_FMA(0.7551020408163265, t63, (-0.12244897959183673)*t62);
-    const double t71 = DERIVE_FMA(0.8775510204081632, t65, 0.9387755102040817*t64);
-    const double t72 = DERIVE_FMA(0.7551020408163265, t65, (-0.12244897959183673)*t64);
-    const double t73 = DERIVE_FMA(0.7551020408163265, t67, (-0.12244897959183673)*t66);
-    const double t74 = 0.0020408163265306124 + t68;
-    const double t75 = 0.004081632653061225 + t69;
-    const double t76 = 0.00816326530612245 + t70;
-    const double t77 = 0.0020408163265306124 + t71;
-    const double t78 = 0.004081632653061225 + t72;
-    const double t79 = 0.00816326530612245 + t73;
-    x_new[0] = t56;
-    x_new[1] = t57;
-    x_new[2] = t58;
-    x_new[3] = t59;
-    P_new[0] = t74;
-    P_new[1] = t75;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t75;
-    P_new[5] = t76;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = t77;
-    P_new[11] = t78;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t78;
-    P_new[15] = t79;
+    gsm2d_a_lf_step_body(x, P, z, x_new, P_new, 1);
     return 0;
 }
 
@@ -192,109 +238,10 @@ int gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     P[13] = P0[13];
     P[14] = P0[14];
     P[15] = P0[15];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
-        const double t0 = 16.3265306122449*P[1];
-        const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
-        const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-        const double t3 = DERIVE_FMA(16.3265306122449, P[5], 8.16326530612245*P[1]);
-        const double t4 = DERIVE_FMA(32.6530612244898, P[5], t0);
-        const double t5 = 16.3265306122449*P[11];
-        const double t6 = DERIVE_FMA(8.16326530612245, P[10], t5);
-        const double t7 = DERIVE_FMA(32.6530612244898, P[11], 16.3265306122449*P[10]);
-        const double t8 = DERIVE_FMA(16.3265306122449, P[15], 8.16326530612245*P[11]);
-        const double t9 = DERIVE_FMA(32.6530612244898, P[15], t5);
-        const double t10 = 1.0 + t1;
-        const double t11 = 1.0 + t4;
-        const double t12 = 1.0 + t6;
-        const double t13 = 1.0 + t9;
-        const double t14 = 1.0/t10;
-        const double t15 = t14*t3;
-        const double t16 = t11 - t15*t2;
-        const double t17 = 1.0/t16;
-        const double t18 = 1.0/t12;
-        const double t19 = t18*t8;
-        const double t20 = t13 - t19*t7;
-        const double t21 = 1.0/t20;
-        const double t22 = t15*t17;
-        const double t23 = t14*DERIVE_FMA(t2, t22, 1.0);
-        const double t24 = t14*t17*t2;
-        const double t25 = t19*t21;
-        const double t26 = t18*DERIVE_FMA(t25, t7, 1.0);
-        const double t27 = t18*t21*t7;
-        const double t28 = DERIVE_FMA(0.9387755102040817, t23, (-0.8775510204081632)*t22);
-        const double t29 = DERIVE_FMA((-0.9387755102040817), t24, 0.8775510204081632*t17);
-        const double t30 = DERIVE_FMA(0.12244897959183673, t23, 0.7551020408163265*t22);
-        const double t31 = DERIVE_FMA(0.12244897959183673, t24, 0.7551020408163265*t17);
-        const double t32 = DERIVE_FMA(0.9387755102040817, t26, (-0.8775510204081632)*t25);
-        const double t33 = DERIVE_FMA((-0.9387755102040817), t27, 0.8775510204081632*t21);
-        const double t34 = DERIVE_FMA(0.12244897959183673, t26, 0.7551020408163265*t25);
-        const double t35 = DERIVE_FMA(0.12244897959183673, t27, 0.7551020408163265*t21);
-        const double t36 = 8.16326530612245*zk[0];
-        const double t37 = 16.3265306122449*zk[0];
-        const double t38 = 8.16326530612245*zk[1];
-        const double t39 = 16.3265306122449*zk[1];
-        const double t40 = DERIVE_FMA(P[1], t37, P[0]*t36);
-        const double t41 = DERIVE_FMA(P[5], t37, P[1]*t36);
-        const double t42 = DERIVE_FMA(P[11], t39, P[10]*t38);
-        const double t43 = DERIVE_FMA(P[15], t39, P[11]*t38);
-        const double t44 = x[0] + t40;
-        const double t45 = x[1] + t41;
-        const double t46 = x[2] + t42;
-        const double t47 = x[3] + t43;
-        const double t48 = 0.061224489795918366*zk[0];
-        const double t49 = 0.12244897959183673*zk[0];
-        const double t50 = 0.061224489795918366*zk[1];
-        const double t51 = 0.12244897959183673*zk[1];
-        const double t52 = DERIVE_FMA(t29, t45, t28*t44);
-        const double t53 = DERIVE_FMA(t31, t45, -(t30*t44));
-        const double t54 = DERIVE_FMA(t33, t47, t32*t46);
-        const double t55 = DERIVE_FMA(t35, t47, -(t34*t46));
-        const double t56 = t48 + t52;
-        const double t57 = t49 + t53;
-        const double t58 = t50 + t54;
-        const double t59 = t51 + t55;
-        const double t60 = DERIVE_FMA(P[1], t29, P[0]*t28);
-        const double t61 = DERIVE_FMA(P[5], t29, P[1]*t28);
-        const double t62 = DERIVE_FMA(P[1], t31, -(P[0]*t30));
-        const double t63 = DERIVE_FMA(P[5], t31, -(P[1]*t30));
-        const double t64 = DERIVE_FMA(P[11], t33, P[10]*t32);
-        const double t65 = DERIVE_FMA(P[15], t33, P[11]*t32);
-        const double t66 = DERIVE_FMA(P[11], t35, -(P[10]*t34));
-        const double t67 = DERIVE_FMA(P[15], t35, -(P[11]*t34));
-        const double t68 = DERIVE_FMA(0.8775510204081632, t61, 0.9387755102040817*t60);
-        const double t69 = DERIVE_FMA(0.7551020408163265, t61, (-0.12244897959183673)*t60);
-        const double t70 = DERIVE_FMA(0.7551020408163265, t63, (-0.12244897959183673)*t62);
-        const double t71 = DERIVE_FMA(0.8775510204081632, t65, 0.9387755102040817*t64);
-        const double t72 = DERIVE_FMA(0.7551020408163265, t65, (-0.12244897959183673)*t64);
-        const double t73 = DERIVE_FMA(0.7551020408163265, t67, (-0.12244897959183673)*t66);
-        const double t74 = 0.0020408163265306124 + t68;
-        const double t75 = 0.004081632653061225 + t69;
-        const double t76 = 0.00816326530612245 + t70;
-        const double t77 = 0.0020408163265306124 + t71;
-        const double t78 = 0.004081632653061225 + t72;
-        const double t79 = 0.00816326530612245 + t73;
-        x_new[0] = t56;
-        x_new[1] = t57;
-        x_new[2] = t58;
-        x_new[3] = t59;
-        P_new[0] = t74;
-        P_new[1] = t75;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = t75;
-        P_new[5] = t76;
-        P_new[6] = 0.0;
-        P_new[7] = 0.0;
-        P_new[8] = 0.0;
-        P_new[9] = 0.0;
-        P_new[10] = t77;
-        P_new[11] = t78;
-        P_new[12] = 0.0;
-        P_new[13] = 0.0;
-        P_new[14] = t78;
-        P_new[15] = t79;
+        gsm2d_a_lf_step_body(x, P, zk, x_new, P_new, 1);
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];
@@ -339,12 +286,15 @@ int gsm2d_a_lf_run(size_t steps, const double *z, const double *x0, const double
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 16 + 2] == 0.0)) {
@@ -361,822 +311,59 @@ int gsm2d_a_lf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[4], xn_l0[4];
-        double P_l0[16], Pn_l0[16];
-        const double *z_l0;
-        double x_l1[4], xn_l1[4];
-        double P_l1[16], Pn_l1[16];
-        const double *z_l1;
-        double x_l2[4], xn_l2[4];
-        double P_l2[16], Pn_l2[16];
-        const double *z_l2;
-        double x_l3[4], xn_l3[4];
-        double P_l3[16], Pn_l3[16];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 4 + 0];
-        x_l0[1] = x0[(t + 0) * 4 + 1];
-        x_l0[2] = x0[(t + 0) * 4 + 2];
-        x_l0[3] = x0[(t + 0) * 4 + 3];
-        P_l0[0] = P0[(t + 0) * 16 + 0];
-        P_l0[1] = P0[(t + 0) * 16 + 1];
-        P_l0[2] = P0[(t + 0) * 16 + 2];
-        P_l0[3] = P0[(t + 0) * 16 + 3];
-        P_l0[4] = P0[(t + 0) * 16 + 4];
-        P_l0[5] = P0[(t + 0) * 16 + 5];
-        P_l0[6] = P0[(t + 0) * 16 + 6];
-        P_l0[7] = P0[(t + 0) * 16 + 7];
-        P_l0[8] = P0[(t + 0) * 16 + 8];
-        P_l0[9] = P0[(t + 0) * 16 + 9];
-        P_l0[10] = P0[(t + 0) * 16 + 10];
-        P_l0[11] = P0[(t + 0) * 16 + 11];
-        P_l0[12] = P0[(t + 0) * 16 + 12];
-        P_l0[13] = P0[(t + 0) * 16 + 13];
-        P_l0[14] = P0[(t + 0) * 16 + 14];
-        P_l0[15] = P0[(t + 0) * 16 + 15];
-        x_l1[0] = x0[(t + 1) * 4 + 0];
-        x_l1[1] = x0[(t + 1) * 4 + 1];
-        x_l1[2] = x0[(t + 1) * 4 + 2];
-        x_l1[3] = x0[(t + 1) * 4 + 3];
-        P_l1[0] = P0[(t + 1) * 16 + 0];
-        P_l1[1] = P0[(t + 1) * 16 + 1];
-        P_l1[2] = P0[(t + 1) * 16 + 2];
-        P_l1[3] = P0[(t + 1) * 16 + 3];
-        P_l1[4] = P0[(t + 1) * 16 + 4];
-        P_l1[5] = P0[(t + 1) * 16 + 5];
-        P_l1[6] = P0[(t + 1) * 16 + 6];
-        P_l1[7] = P0[(t + 1) * 16 + 7];
-        P_l1[8] = P0[(t + 1) * 16 + 8];
-        P_l1[9] = P0[(t + 1) * 16 + 9];
-        P_l1[10] = P0[(t + 1) * 16 + 10];
-        P_l1[11] = P0[(t + 1) * 16 + 11];
-        P_l1[12] = P0[(t + 1) * 16 + 12];
-        P_l1[13] = P0[(t + 1) * 16 + 13];
-        P_l1[14] = P0[(t + 1) * 16 + 14];
-        P_l1[15] = P0[(t + 1) * 16 + 15];
-        x_l2[0] = x0[(t + 2) * 4 + 0];
-        x_l2[1] = x0[(t + 2) * 4 + 1];
-        x_l2[2] = x0[(t + 2) * 4 + 2];
-        x_l2[3] = x0[(t + 2) * 4 + 3];
-        P_l2[0] = P0[(t + 2) * 16 + 0];
-        P_l2[1] = P0[(t + 2) * 16 + 1];
-        P_l2[2] = P0[(t + 2) * 16 + 2];
-        P_l2[3] = P0[(t + 2) * 16 + 3];
-        P_l2[4] = P0[(t + 2) * 16 + 4];
-        P_l2[5] = P0[(t + 2) * 16 + 5];
-        P_l2[6] = P0[(t + 2) * 16 + 6];
-        P_l2[7] = P0[(t + 2) * 16 + 7];
-        P_l2[8] = P0[(t + 2) * 16 + 8];
-        P_l2[9] = P0[(t + 2) * 16 + 9];
-        P_l2[10] = P0[(t + 2) * 16 + 10];
-        P_l2[11] = P0[(t + 2) * 16 + 11];
-        P_l2[12] = P0[(t + 2) * 16 + 12];
-        P_l2[13] = P0[(t + 2) * 16 + 13];
-        P_l2[14] = P0[(t + 2) * 16 + 14];
-        P_l2[15] = P0[(t + 2) * 16 + 15];
-        x_l3[0] = x0[(t + 3) * 4 + 0];
-        x_l3[1] = x0[(t + 3) * 4 + 1];
-        x_l3[2] = x0[(t + 3) * 4 + 2];
-        x_l3[3] = x0[(t + 3) * 4 + 3];
-        P_l3[0] = P0[(t + 3) * 16 + 0];
-        P_l3[1] = P0[(t + 3) * 16 + 1];
-        P_l3[2] = P0[(t + 3) * 16 + 2];
-        P_l3[3] = P0[(t + 3) * 16 + 3];
-        P_l3[4] = P0[(t + 3) * 16 + 4];
-        P_l3[5] = P0[(t + 3) * 16 + 5];
-        P_l3[6] = P0[(t + 3) * 16 + 6];
-        P_l3[7] = P0[(t + 3) * 16 + 7];
-        P_l3[8] = P0[(t + 3) * 16 + 8];
-        P_l3[9] = P0[(t + 3) * 16 + 9];
-        P_l3[10] = P0[(t + 3) * 16 + 10];
-        P_l3[11] = P0[(t + 3) * 16 + 11];
-        P_l3[12] = P0[(t + 3) * 16 + 12];
-        P_l3[13] = P0[(t + 3) * 16 + 13];
-        P_l3[14] = P0[(t + 3) * 16 + 14];
-        P_l3[15] = P0[(t + 3) * 16 + 15];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[4 * DERIVE_LANES];
+        double P_b[16 * DERIVE_LANES];
+        double x_new_b[4 * DERIVE_LANES];
+        double P_new_b[16 * DERIVE_LANES];
+        double z_b[2 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 4; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 4 + i];
+            }
+            for (i = 0; i < 16; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 16 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 2;
-            const double t0_l0 = 16.3265306122449*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t3_l0 = DERIVE_FMA(16.3265306122449, P_l0[5], 8.16326530612245*P_l0[1]);
-            const double t4_l0 = DERIVE_FMA(32.6530612244898, P_l0[5], t0_l0);
-            const double t5_l0 = 16.3265306122449*P_l0[11];
-            const double t6_l0 = DERIVE_FMA(8.16326530612245, P_l0[10], t5_l0);
-            const double t7_l0 = DERIVE_FMA(32.6530612244898, P_l0[11], 16.3265306122449*P_l0[10]);
-            const double t8_l0 = DERIVE_FMA(16.3265306122449, P_l0[15], 8.16326530612245*P_l0[11]);
-            const double t9_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], t5_l0);
-            const double t10_l0 = 1.0 + t1_l0;
-            const double t11_l0 = 1.0 + t4_l0;
-            const double t12_l0 = 1.0 + t6_l0;
-            const double t13_l0 = 1.0 + t9_l0;
-            const double t14_l0 = 1.0/t10_l0;
-            const double t15_l0 = t14_l0*t3_l0;
-            const double t16_l0 = t11_l0 - t15_l0*t2_l0;
-            const double t17_l0 = 1.0/t16_l0;
-            const double t18_l0 = 1.0/t12_l0;
-            const double t19_l0 = t18_l0*t8_l0;
-            const double t20_l0 = t13_l0 - t19_l0*t7_l0;
-            const double t21_l0 = 1.0/t20_l0;
-            const double t22_l0 = t15_l0*t17_l0;
-            const double t23_l0 = t14_l0*DERIVE_FMA(t2_l0, t22_l0, 1.0);
-            const double t24_l0 = t14_l0*t17_l0*t2_l0;
-            const double t25_l0 = t19_l0*t21_l0;
-            const double t26_l0 = t18_l0*DERIVE_FMA(t25_l0, t7_l0, 1.0);
-            const double t27_l0 = t18_l0*t21_l0*t7_l0;
-            const double t28_l0 = DERIVE_FMA(0.9387755102040817, t23_l0, (-0.8775510204081632)*t22_l0);
-            const double t29_l0 = DERIVE_FMA((-0.9387755102040817), t24_l0, 0.8775510204081632*t17_l0);
-            const double t30_l0 = DERIVE_FMA(0.12244897959183673, t23_l0, 0.7551020408163265*t22_l0);
-            const double t31_l0 = DERIVE_FMA(0.12244897959183673, t24_l0, 0.7551020408163265*t17_l0);
-            const double t32_l0 = DERIVE_FMA(0.9387755102040817, t26_l0, (-0.8775510204081632)*t25_l0);
-            const double t33_l0 = DERIVE_FMA((-0.9387755102040817), t27_l0, 0.8775510204081632*t21_l0);
-            const double t34_l0 = DERIVE_FMA(0.12244897959183673, t26_l0, 0.7551020408163265*t25_l0);
-            const double t35_l0 = DERIVE_FMA(0.12244897959183673, t27_l0, 0.7551020408163265*t21_l0);
-            const double t36_l0 = 8.16326530612245*z_l0[0];
-            const double t37_l0 = 16.3265306122449*z_l0[0];
-            const double t38_l0 = 8.16326530612245*z_l0[1];
-            const double t39_l0 = 16.3265306122449*z_l0[1];
-            const double t40_l0 = DERIVE_FMA(P_l0[1], t37_l0, P_l0[0]*t36_l0);
-            const double t41_l0 = DERIVE_FMA(P_l0[5], t37_l0, P_l0[1]*t36_l0);
-            const double t42_l0 = DERIVE_FMA(P_l0[11], t39_l0, P_l0[10]*t38_l0);
-            const double t43_l0 = DERIVE_FMA(P_l0[15], t39_l0, P_l0[11]*t38_l0);
-            const double t44_l0 = x_l0[0] + t40_l0;
-            const double t45_l0 = x_l0[1] + t41_l0;
-            const double t46_l0 = x_l0[2] + t42_l0;
-            const double t47_l0 = x_l0[3] + t43_l0;
-            const double t48_l0 = 0.061224489795918366*z_l0[0];
-            const double t49_l0 = 0.12244897959183673*z_l0[0];
-            const double t50_l0 = 0.061224489795918366*z_l0[1];
-            const double t51_l0 = 0.12244897959183673*z_l0[1];
-            const double t52_l0 = DERIVE_FMA(t29_l0, t45_l0, t28_l0*t44_l0);
-            const double t53_l0 = DERIVE_FMA(t31_l0, t45_l0, -(t30_l0*t44_l0));
-            const double t54_l0 = DERIVE_FMA(t33_l0, t47_l0, t32_l0*t46_l0);
-            const double t55_l0 = DERIVE_FMA(t35_l0, t47_l0, -(t34_l0*t46_l0));
-            const double t56_l0 = t48_l0 + t52_l0;
-            const double t57_l0 = t49_l0 + t53_l0;
-            const double t58_l0 = t50_l0 + t54_l0;
-            const double t59_l0 = t51_l0 + t55_l0;
-            const double t60_l0 = DERIVE_FMA(P_l0[1], t29_l0, P_l0[0]*t28_l0);
-            const double t61_l0 = DERIVE_FMA(P_l0[5], t29_l0, P_l0[1]*t28_l0);
-            const double t62_l0 = DERIVE_FMA(P_l0[1], t31_l0, -(P_l0[0]*t30_l0));
-            const double t63_l0 = DERIVE_FMA(P_l0[5], t31_l0, -(P_l0[1]*t30_l0));
-            const double t64_l0 = DERIVE_FMA(P_l0[11], t33_l0, P_l0[10]*t32_l0);
-            const double t65_l0 = DERIVE_FMA(P_l0[15], t33_l0, P_l0[11]*t32_l0);
-            const double t66_l0 = DERIVE_FMA(P_l0[11], t35_l0, -(P_l0[10]*t34_l0));
-            const double t67_l0 = DERIVE_FMA(P_l0[15], t35_l0, -(P_l0[11]*t34_l0));
-            const double t68_l0 = DERIVE_FMA(0.8775510204081632, t61_l0, 0.9387755102040817*t60_l0);
-            const double t69_l0 = DERIVE_FMA(0.7551020408163265, t61_l0, (-0.12244897959183673)*t60_l0);
-            const double t70_l0 = DERIVE_FMA(0.7551020408163265, t63_l0, (-0.12244897959183673)*t62_l0);
-            const double t71_l0 = DERIVE_FMA(0.8775510204081632, t65_l0, 0.9387755102040817*t64_l0);
-            const double t72_l0 = DERIVE_FMA(0.7551020408163265, t65_l0, (-0.12244897959183673)*t64_l0);
-            const double t73_l0 = DERIVE_FMA(0.7551020408163265, t67_l0, (-0.12244897959183673)*t66_l0);
-            const double t74_l0 = 0.0020408163265306124 + t68_l0;
-            const double t75_l0 = 0.004081632653061225 + t69_l0;
-            const double t76_l0 = 0.00816326530612245 + t70_l0;
-            const double t77_l0 = 0.0020408163265306124 + t71_l0;
-            const double t78_l0 = 0.004081632653061225 + t72_l0;
-            const double t79_l0 = 0.00816326530612245 + t73_l0;
-            xn_l0[0] = t56_l0;
-            xn_l0[1] = t57_l0;
-            xn_l0[2] = t58_l0;
-            xn_l0[3] = t59_l0;
-            Pn_l0[0] = t74_l0;
-            Pn_l0[1] = t75_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t75_l0;
-            Pn_l0[5] = t76_l0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = t77_l0;
-            Pn_l0[11] = t78_l0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t78_l0;
-            Pn_l0[15] = t79_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 2;
-            const double t0_l1 = 16.3265306122449*P_l1[1];
-            const double t1_l1 = DERIVE_FMA(8.16326530612245, P_l1[0], t0_l1);
-            const double t2_l1 = DERIVE_FMA(32.6530612244898, P_l1[1], 16.3265306122449*P_l1[0]);
-            const double t3_l1 = DERIVE_FMA(16.3265306122449, P_l1[5], 8.16326530612245*P_l1[1]);
-            const double t4_l1 = DERIVE_FMA(32.6530612244898, P_l1[5], t0_l1);
-            const double t5_l1 = 16.3265306122449*P_l1[11];
-            const double t6_l1 = DERIVE_FMA(8.16326530612245, P_l1[10], t5_l1);
-            const double t7_l1 = DERIVE_FMA(32.6530612244898, P_l1[11], 16.3265306122449*P_l1[10]);
-            const double t8_l1 = DERIVE_FMA(16.3265306122449, P_l1[15], 8.16326530612245*P_l1[11]);
-            const double t9_l1 = DERIVE_FMA(32.6530612244898, P_l1[15], t5_l1);
-            const double t10_l1 = 1.0 + t1_l1;
-            const double t11_l1 = 1.0 + t4_l1;
-            const double t12_l1 = 1.0 + t6_l1;
-            const double t13_l1 = 1.0 + t9_l1;
-            const double t14_l1 = 1.0/t10_l1;
-            const double t15_l1 = t14_l1*t3_l1;
-            const double t16_l1 = t11_l1 - t15_l1*t2_l1;
-            const double t17_l1 = 1.0/t16_l1;
-            const double t18_l1 = 1.0/t12_l1;
-            const double t19_l1 = t18_l1*t8_l1;
-            const double t20_l1 = t13_l1 - t19_l1*t7_l1;
-            const double t21_l1 = 1.0/t20_l1;
-            const double t22_l1 = t15_l1*t17_l1;
-            const double t23_l1 = t14_l1*DERIVE_FMA(t2_l1, t22_l1, 1.0);
-            const double t24_l1 = t14_l1*t17_l1*t2_l1;
-            const double t25_l1 = t19_l1*t21_l1;
-            const double t26_l1 = t18_l1*DERIVE_FMA(t25_l1, t7_l1, 1.0);
-            const double t27_l1 = t18_l1*t21_l1*t7_l1;
-            const double t28_l1 = DERIVE_FMA(0.9387755102040817, t23_l1, (-0.8775510204081632)*t22_l1);
-            const double t29_l1 = DERIVE_FMA((-0.9387755102040817), t24_l1, 0.8775510204081632*t17_l1);
-            const double t30_l1 = DERIVE_FMA(0.12244897959183673, t23_l1, 0.7551020408163265*t22_l1);
-            const double t31_l1 = DERIVE_FMA(0.12244897959183673, t24_l1, 0.7551020408163265*t17_l1);
-            const double t32_l1 = DERIVE_FMA(0.9387755102040817, t26_l1, (-0.8775510204081632)*t25_l1);
-            const double t33_l1 = DERIVE_FMA((-0.9387755102040817), t27_l1, 0.8775510204081632*t21_l1);
-            const double t34_l1 = DERIVE_FMA(0.12244897959183673, t26_l1, 0.7551020408163265*t25_l1);
-            const double t35_l1 = DERIVE_FMA(0.12244897959183673, t27_l1, 0.7551020408163265*t21_l1);
-            const double t36_l1 = 8.16326530612245*z_l1[0];
-            const double t37_l1 = 16.3265306122449*z_l1[0];
-            const double t38_l1 = 8.16326530612245*z_l1[1];
-            const double t39_l1 = 16.3265306122449*z_l1[1];
-            const double t40_l1 = DERIVE_FMA(P_l1[1], t37_l1, P_l1[0]*t36_l1);
-            const double t41_l1 = DERIVE_FMA(P_l1[5], t37_l1, P_l1[1]*t36_l1);
-            const double t42_l1 = DERIVE_FMA(P_l1[11], t39_l1, P_l1[10]*t38_l1);
-            const double t43_l1 = DERIVE_FMA(P_l1[15], t39_l1, P_l1[11]*t38_l1);
-            const double t44_l1 = x_l1[0] + t40_l1;
-            const double t45_l1 = x_l1[1] + t41_l1;
-            const double t46_l1 = x_l1[2] + t42_l1;
-            const double t47_l1 = x_l1[3] + t43_l1;
-            const double t48_l1 = 0.061224489795918366*z_l1[0];
-            const double t49_l1 = 0.12244897959183673*z_l1[0];
-            const double t50_l1 = 0.061224489795918366*z_l1[1];
-            const double t51_l1 = 0.12244897959183673*z_l1[1];
-            const double t52_l1 = DERIVE_FMA(t29_l1, t45_l1, t28_l1*t44_l1);
-            const double t53_l1 = DERIVE_FMA(t31_l1, t45_l1, -(t30_l1*t44_l1));
-            const double t54_l1 = DERIVE_FMA(t33_l1, t47_l1, t32_l1*t46_l1);
-            const double t55_l1 = DERIVE_FMA(t35_l1, t47_l1, -(t34_l1*t46_l1));
-            const double t56_l1 = t48_l1 + t52_l1;
-            const double t57_l1 = t49_l1 + t53_l1;
-            const double t58_l1 = t50_l1 + t54_l1;
-            const double t59_l1 = t51_l1 + t55_l1;
-            const double t60_l1 = DERIVE_FMA(P_l1[1], t29_l1, P_l1[0]*t28_l1);
-            const double t61_l1 = DERIVE_FMA(P_l1[5], t29_l1, P_l1[1]*t28_l1);
-            const double t62_l1 = DERIVE_FMA(P_l1[1], t31_l1, -(P_l1[0]*t30_l1));
-            const double t63_l1 = DERIVE_FMA(P_l1[5], t31_l1, -(P_l1[1]*t30_l1));
-            const double t64_l1 = DERIVE_FMA(P_l1[11], t33_l1, P_l1[10]*t32_l1);
-            const double t65_l1 = DERIVE_FMA(P_l1[15], t33_l1, P_l1[11]*t32_l1);
-            const double t66_l1 = DERIVE_FMA(P_l1[11], t35_l1, -(P_l1[10]*t34_l1));
-            const double t67_l1 = DERIVE_FMA(P_l1[15], t35_l1, -(P_l1[11]*t34_l1));
-            const double t68_l1 = DERIVE_FMA(0.8775510204081632, t61_l1, 0.9387755102040817*t60_l1);
-            const double t69_l1 = DERIVE_FMA(0.7551020408163265, t61_l1, (-0.12244897959183673)*t60_l1);
-            const double t70_l1 = DERIVE_FMA(0.7551020408163265, t63_l1, (-0.12244897959183673)*t62_l1);
-            const double t71_l1 = DERIVE_FMA(0.8775510204081632, t65_l1, 0.9387755102040817*t64_l1);
-            const double t72_l1 = DERIVE_FMA(0.7551020408163265, t65_l1, (-0.12244897959183673)*t64_l1);
-            const double t73_l1 = DERIVE_FMA(0.7551020408163265, t67_l1, (-0.12244897959183673)*t66_l1);
-            const double t74_l1 = 0.0020408163265306124 + t68_l1;
-            const double t75_l1 = 0.004081632653061225 + t69_l1;
-            const double t76_l1 = 0.00816326530612245 + t70_l1;
-            const double t77_l1 = 0.0020408163265306124 + t71_l1;
-            const double t78_l1 = 0.004081632653061225 + t72_l1;
-            const double t79_l1 = 0.00816326530612245 + t73_l1;
-            xn_l1[0] = t56_l1;
-            xn_l1[1] = t57_l1;
-            xn_l1[2] = t58_l1;
-            xn_l1[3] = t59_l1;
-            Pn_l1[0] = t74_l1;
-            Pn_l1[1] = t75_l1;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = t75_l1;
-            Pn_l1[5] = t76_l1;
-            Pn_l1[6] = 0.0;
-            Pn_l1[7] = 0.0;
-            Pn_l1[8] = 0.0;
-            Pn_l1[9] = 0.0;
-            Pn_l1[10] = t77_l1;
-            Pn_l1[11] = t78_l1;
-            Pn_l1[12] = 0.0;
-            Pn_l1[13] = 0.0;
-            Pn_l1[14] = t78_l1;
-            Pn_l1[15] = t79_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 2;
-            const double t0_l2 = 16.3265306122449*P_l2[1];
-            const double t1_l2 = DERIVE_FMA(8.16326530612245, P_l2[0], t0_l2);
-            const double t2_l2 = DERIVE_FMA(32.6530612244898, P_l2[1], 16.3265306122449*P_l2[0]);
-            const double t3_l2 = DERIVE_FMA(16.3265306122449, P_l2[5], 8.16326530612245*P_l2[1]);
-            const double t4_l2 = DERIVE_FMA(32.6530612244898, P_l2[5], t0_l2);
-            const double t5_l2 = 16.3265306122449*P_l2[11];
-            const double t6_l2 = DERIVE_FMA(8.16326530612245, P_l2[10], t5_l2);
-            const double t7_l2 = DERIVE_FMA(32.6530612244898, P_l2[11], 16.3265306122449*P_l2[10]);
-            const double t8_l2 = DERIVE_FMA(16.3265306122449, P_l2[15], 8.16326530612245*P_l2[11]);
-            const double t9_l2 = DERIVE_FMA(32.6530612244898, P_l2[15], t5_l2);
-            const double t10_l2 = 1.0 + t1_l2;
-            const double t11_l2 = 1.0 + t4_l2;
-            const double t12_l2 = 1.0 + t6_l2;
-            const double t13_l2 = 1.0 + t9_l2;
-            const double t14_l2 = 1.0/t10_l2;
-            const double t15_l2 = t14_l2*t3_l2;
-            const double t16_l2 = t11_l2 - t15_l2*t2_l2;
-            const double t17_l2 = 1.0/t16_l2;
-            const double t18_l2 = 1.0/t12_l2;
-            const double t19_l2 = t18_l2*t8_l2;
-            const double t20_l2 = t13_l2 - t19_l2*t7_l2;
-            const double t21_l2 = 1.0/t20_l2;
-            const double t22_l2 = t15_l2*t17_l2;
-            const double t23_l2 = t14_l2*DERIVE_FMA(t2_l2, t22_l2, 1.0);
-            const double t24_l2 = t14_l2*t17_l2*t2_l2;
-            const double t25_l2 = t19_l2*t21_l2;
-            const double t26_l2 = t18_l2*DERIVE_FMA(t25_l2, t7_l2, 1.0);
-            const double t27_l2 = t18_l2*t21_l2*t7_l2;
-            const double t28_l2 = DERIVE_FMA(0.9387755102040817, t23_l2, (-0.8775510204081632)*t22_l2);
-            const double t29_l2 = DERIVE_FMA((-0.9387755102040817), t24_l2, 0.8775510204081632*t17_l2);
-            const double t30_l2 = DERIVE_FMA(0.12244897959183673, t23_l2, 0.7551020408163265*t22_l2);
-            const double t31_l2 = DERIVE_FMA(0.12244897959183673, t24_l2, 0.7551020408163265*t17_l2);
-            const double t32_l2 = DERIVE_FMA(0.9387755102040817, t26_l2, (-0.8775510204081632)*t25_l2);
-            const double t33_l2 = DERIVE_FMA((-0.9387755102040817), t27_l2, 0.8775510204081632*t21_l2);
-            const double t34_l2 = DERIVE_FMA(0.12244897959183673, t26_l2, 0.7551020408163265*t25_l2);
-            const double t35_l2 = DERIVE_FMA(0.12244897959183673, t27_l2, 0.7551020408163265*t21_l2);
-            const double t36_l2 = 8.16326530612245*z_l2[0];
-            const double t37_l2 = 16.3265306122449*z_l2[0];
-            const double t38_l2 = 8.16326530612245*z_l2[1];
-            const double t39_l2 = 16.3265306122449*z_l2[1];
-            const double t40_l2 = DERIVE_FMA(P_l2[1], t37_l2, P_l2[0]*t36_l2);
-            const double t41_l2 = DERIVE_FMA(P_l2[5], t37_l2, P_l2[1]*t36_l2);
-            const double t42_l2 = DERIVE_FMA(P_l2[11], t39_l2, P_l2[10]*t38_l2);
-            const double t43_l2 = DERIVE_FMA(P_l2[15], t39_l2, P_l2[11]*t38_l2);
-            const double t44_l2 = x_l2[0] + t40_l2;
-            const double t45_l2 = x_l2[1] + t41_l2;
-            const double t46_l2 = x_l2[2] + t42_l2;
-            const double t47_l2 = x_l2[3] + t43_l2;
-            const double t48_l2 = 0.061224489795918366*z_l2[0];
-            const double t49_l2 = 0.12244897959183673*z_l2[0];
-            const double t50_l2 = 0.061224489795918366*z_l2[1];
-            const double t51_l2 = 0.12244897959183673*z_l2[1];
-            const double t52_l2 = DERIVE_FMA(t29_l2, t45_l2, t28_l2*t44_l2);
-            const double t53_l2 = DERIVE_FMA(t31_l2, t45_l2, -(t30_l2*t44_l2));
-            const double t54_l2 = DERIVE_FMA(t33_l2, t47_l2, t32_l2*t46_l2);
-            const double t55_l2 = DERIVE_FMA(t35_l2, t47_l2, -(t34_l2*t46_l2));
-            const double t56_l2 = t48_l2 + t52_l2;
-            const double t57_l2 = t49_l2 + t53_l2;
-            const double t58_l2 = t50_l2 + t54_l2;
-            const double t59_l2 = t51_l2 + t55_l2;
-            const double t60_l2 = DERIVE_FMA(P_l2[1], t29_l2, P_l2[0]*t28_l2);
-            const double t61_l2 = DERIVE_FMA(P_l2[5], t29_l2, P_l2[1]*t28_l2);
-            const double t62_l2 = DERIVE_FMA(P_l2[1], t31_l2, -(P_l2[0]*t30_l2));
-            const double t63_l2 = DERIVE_FMA(P_l2[5], t31_l2, -(P_l2[1]*t30_l2));
-            const double t64_l2 = DERIVE_FMA(P_l2[11], t33_l2, P_l2[10]*t32_l2);
-            const double t65_l2 = DERIVE_FMA(P_l2[15], t33_l2, P_l2[11]*t32_l2);
-            const double t66_l2 = DERIVE_FMA(P_l2[11], t35_l2, -(P_l2[10]*t34_l2));
-            const double t67_l2 = DERIVE_FMA(P_l2[15], t35_l2, -(P_l2[11]*t34_l2));
-            const double t68_l2 = DERIVE_FMA(0.8775510204081632, t61_l2, 0.9387755102040817*t60_l2);
-            const double t69_l2 = DERIVE_FMA(0.7551020408163265, t61_l2, (-0.12244897959183673)*t60_l2);
-            const double t70_l2 = DERIVE_FMA(0.7551020408163265, t63_l2, (-0.12244897959183673)*t62_l2);
-            const double t71_l2 = DERIVE_FMA(0.8775510204081632, t65_l2, 0.9387755102040817*t64_l2);
-            const double t72_l2 = DERIVE_FMA(0.7551020408163265, t65_l2, (-0.12244897959183673)*t64_l2);
-            const double t73_l2 = DERIVE_FMA(0.7551020408163265, t67_l2, (-0.12244897959183673)*t66_l2);
-            const double t74_l2 = 0.0020408163265306124 + t68_l2;
-            const double t75_l2 = 0.004081632653061225 + t69_l2;
-            const double t76_l2 = 0.00816326530612245 + t70_l2;
-            const double t77_l2 = 0.0020408163265306124 + t71_l2;
-            const double t78_l2 = 0.004081632653061225 + t72_l2;
-            const double t79_l2 = 0.00816326530612245 + t73_l2;
-            xn_l2[0] = t56_l2;
-            xn_l2[1] = t57_l2;
-            xn_l2[2] = t58_l2;
-            xn_l2[3] = t59_l2;
-            Pn_l2[0] = t74_l2;
-            Pn_l2[1] = t75_l2;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = t75_l2;
-            Pn_l2[5] = t76_l2;
-            Pn_l2[6] = 0.0;
-            Pn_l2[7] = 0.0;
-            Pn_l2[8] = 0.0;
-            Pn_l2[9] = 0.0;
-            Pn_l2[10] = t77_l2;
-            Pn_l2[11] = t78_l2;
-            Pn_l2[12] = 0.0;
-            Pn_l2[13] = 0.0;
-            Pn_l2[14] = t78_l2;
-            Pn_l2[15] = t79_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 2;
-            const double t0_l3 = 16.3265306122449*P_l3[1];
-            const double t1_l3 = DERIVE_FMA(8.16326530612245, P_l3[0], t0_l3);
-            const double t2_l3 = DERIVE_FMA(32.6530612244898, P_l3[1], 16.3265306122449*P_l3[0]);
-            const double t3_l3 = DERIVE_FMA(16.3265306122449, P_l3[5], 8.16326530612245*P_l3[1]);
-            const double t4_l3 = DERIVE_FMA(32.6530612244898, P_l3[5], t0_l3);
-            const double t5_l3 = 16.3265306122449*P_l3[11];
-            const double t6_l3 = DERIVE_FMA(8.16326530612245, P_l3[10], t5_l3);
-            const double t7_l3 = DERIVE_FMA(32.6530612244898, P_l3[11], 16.3265306122449*P_l3[10]);
-            const double t8_l3 = DERIVE_FMA(16.3265306122449, P_l3[15], 8.16326530612245*P_l3[11]);
-            const double t9_l3 = DERIVE_FMA(32.6530612244898, P_l3[15], t5_l3);
-            const double t10_l3 = 1.0 + t1_l3;
-            const double t11_l3 = 1.0 + t4_l3;
-            const double t12_l3 = 1.0 + t6_l3;
-            const double t13_l3 = 1.0 + t9_l3;
-            const double t14_l3 = 1.0/t10_l3;
-            const double t15_l3 = t14_l3*t3_l3;
-            const double t16_l3 = t11_l3 - t15_l3*t2_l3;
-            const double t17_l3 = 1.0/t16_l3;
-            const double t18_l3 = 1.0/t12_l3;
-            const double t19_l3 = t18_l3*t8_l3;
-            const double t20_l3 = t13_l3 - t19_l3*t7_l3;
-            const double t21_l3 = 1.0/t20_l3;
-            const double t22_l3 = t15_l3*t17_l3;
-            const double t23_l3 = t14_l3*DERIVE_FMA(t2_l3, t22_l3, 1.0);
-            const double t24_l3 = t14_l3*t17_l3*t2_l3;
-            const double t25_l3 = t19_l3*t21_l3;
-            const double t26_l3 = t18_l3*DERIVE_FMA(t25_l3, t7_l3, 1.0);
-            const double t27_l3 = t18_l3*t21_l3*t7_l3;
-            const double t28_l3 = DERIVE_FMA(0.9387755102040817, t23_l3, (-0.8775510204081632)*t22_l3);
-            const double t29_l3 = DERIVE_FMA((-0.9387755102040817), t24_l3, 0.8775510204081632*t17_l3);
-            const double t30_l3 = DERIVE_FMA(0.12244897959183673, t23_l3, 0.7551020408163265*t22_l3);
-            const double t31_l3 = DERIVE_FMA(0.12244897959183673, t24_l3, 0.7551020408163265*t17_l3);
-            const double t32_l3 = DERIVE_FMA(0.9387755102040817, t26_l3, (-0.8775510204081632)*t25_l3);
-            const double t33_l3 = DERIVE_FMA((-0.9387755102040817), t27_l3, 0.8775510204081632*t21_l3);
-            const double t34_l3 = DERIVE_FMA(0.12244897959183673, t26_l3, 0.7551020408163265*t25_l3);
-            const double t35_l3 = DERIVE_FMA(0.12244897959183673, t27_l3, 0.7551020408163265*t21_l3);
-            const double t36_l3 = 8.16326530612245*z_l3[0];
-            const double t37_l3 = 16.3265306122449*z_l3[0];
-            const double t38_l3 = 8.16326530612245*z_l3[1];
-            const double t39_l3 = 16.3265306122449*z_l3[1];
-            const double t40_l3 = DERIVE_FMA(P_l3[1], t37_l3, P_l3[0]*t36_l3);
-            const double t41_l3 = DERIVE_FMA(P_l3[5], t37_l3, P_l3[1]*t36_l3);
-            const double t42_l3 = DERIVE_FMA(P_l3[11], t39_l3, P_l3[10]*t38_l3);
-            const double t43_l3 = DERIVE_FMA(P_l3[15], t39_l3, P_l3[11]*t38_l3);
-            const double t44_l3 = x_l3[0] + t40_l3;
-            const double t45_l3 = x_l3[1] + t41_l3;
-            const double t46_l3 = x_l3[2] + t42_l3;
-            const double t47_l3 = x_l3[3] + t43_l3;
-            const double t48_l3 = 0.061224489795918366*z_l3[0];
-            const double t49_l3 = 0.12244897959183673*z_l3[0];
-            const double t50_l3 = 0.061224489795918366*z_l3[1];
-            const double t51_l3 = 0.12244897959183673*z_l3[1];
-            const double t52_l3 = DERIVE_FMA(t29_l3, t45_l3, t28_l3*t44_l3);
-            const double t53_l3 = DERIVE_FMA(t31_l3, t45_l3, -(t30_l3*t44_l3));
-            const double t54_l3 = DERIVE_FMA(t33_l3, t47_l3, t32_l3*t46_l3);
-            const double t55_l3 = DERIVE_FMA(t35_l3, t47_l3, -(t34_l3*t46_l3));
-            const double t56_l3 = t48_l3 + t52_l3;
-            const double t57_l3 = t49_l3 + t53_l3;
-            const double t58_l3 = t50_l3 + t54_l3;
-            const double t59_l3 = t51_l3 + t55_l3;
-            const double t60_l3 = DERIVE_FMA(P_l3[1], t29_l3, P_l3[0]*t28_l3);
-            const double t61_l3 = DERIVE_FMA(P_l3[5], t29_l3, P_l3[1]*t28_l3);
-            const double t62_l3 = DERIVE_FMA(P_l3[1], t31_l3, -(P_l3[0]*t30_l3));
-            const double t63_l3 = DERIVE_FMA(P_l3[5], t31_l3, -(P_l3[1]*t30_l3));
-            const double t64_l3 = DERIVE_FMA(P_l3[11], t33_l3, P_l3[10]*t32_l3);
-            const double t65_l3 = DERIVE_FMA(P_l3[15], t33_l3, P_l3[11]*t32_l3);
-            const double t66_l3 = DERIVE_FMA(P_l3[11], t35_l3, -(P_l3[10]*t34_l3));
-            const double t67_l3 = DERIVE_FMA(P_l3[15], t35_l3, -(P_l3[11]*t34_l3));
-            const double t68_l3 = DERIVE_FMA(0.8775510204081632, t61_l3, 0.9387755102040817*t60_l3);
-            const double t69_l3 = DERIVE_FMA(0.7551020408163265, t61_l3, (-0.12244897959183673)*t60_l3);
-            const double t70_l3 = DERIVE_FMA(0.7551020408163265, t63_l3, (-0.12244897959183673)*t62_l3);
-            const double t71_l3 = DERIVE_FMA(0.8775510204081632, t65_l3, 0.9387755102040817*t64_l3);
-            const double t72_l3 = DERIVE_FMA(0.7551020408163265, t65_l3, (-0.12244897959183673)*t64_l3);
-            const double t73_l3 = DERIVE_FMA(0.7551020408163265, t67_l3, (-0.12244897959183673)*t66_l3);
-            const double t74_l3 = 0.0020408163265306124 + t68_l3;
-            const double t75_l3 = 0.004081632653061225 + t69_l3;
-            const double t76_l3 = 0.00816326530612245 + t70_l3;
-            const double t77_l3 = 0.0020408163265306124 + t71_l3;
-            const double t78_l3 = 0.004081632653061225 + t72_l3;
-            const double t79_l3 = 0.00816326530612245 + t73_l3;
-            xn_l3[0] = t56_l3;
-            xn_l3[1] = t57_l3;
-            xn_l3[2] = t58_l3;
-            xn_l3[3] = t59_l3;
-            Pn_l3[0] = t74_l3;
-            Pn_l3[1] = t75_l3;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = t75_l3;
-            Pn_l3[5] = t76_l3;
-            Pn_l3[6] = 0.0;
-            Pn_l3[7] = 0.0;
-            Pn_l3[8] = 0.0;
-            Pn_l3[9] = 0.0;
-            Pn_l3[10] = t77_l3;
-            Pn_l3[11] = t78_l3;
-            Pn_l3[12] = 0.0;
-            Pn_l3[13] = 0.0;
-            Pn_l3[14] = t78_l3;
-            Pn_l3[15] = t79_l3;
-            xs[((t + 0) * steps + k) * 4 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 4 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 4 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 4 + 3] = x_l0[3] = xn_l0[3];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 16 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 16 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 16 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 16 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 16 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 16 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 16 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 16 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 16 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 16 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 16 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 16 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 16 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 16 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 16 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 16 + 15] = Pn_l0[15];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 2], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 4], 1);
+                }
             }
-            xs[((t + 1) * steps + k) * 4 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 4 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 4 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 4 + 3] = x_l1[3] = xn_l1[3];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            P_l1[9] = Pn_l1[9];
-            P_l1[10] = Pn_l1[10];
-            P_l1[11] = Pn_l1[11];
-            P_l1[12] = Pn_l1[12];
-            P_l1[13] = Pn_l1[13];
-            P_l1[14] = Pn_l1[14];
-            P_l1[15] = Pn_l1[15];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 16 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 16 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 16 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 16 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 16 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 16 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 16 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 16 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 16 + 8] = Pn_l1[8];
-                Ps[((t + 1) * steps + k) * 16 + 9] = Pn_l1[9];
-                Ps[((t + 1) * steps + k) * 16 + 10] = Pn_l1[10];
-                Ps[((t + 1) * steps + k) * 16 + 11] = Pn_l1[11];
-                Ps[((t + 1) * steps + k) * 16 + 12] = Pn_l1[12];
-                Ps[((t + 1) * steps + k) * 16 + 13] = Pn_l1[13];
-                Ps[((t + 1) * steps + k) * 16 + 14] = Pn_l1[14];
-                Ps[((t + 1) * steps + k) * 16 + 15] = Pn_l1[15];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 2; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 2 + i];
+                }
             }
-            xs[((t + 2) * steps + k) * 4 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 4 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 4 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 4 + 3] = x_l2[3] = xn_l2[3];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            P_l2[9] = Pn_l2[9];
-            P_l2[10] = Pn_l2[10];
-            P_l2[11] = Pn_l2[11];
-            P_l2[12] = Pn_l2[12];
-            P_l2[13] = Pn_l2[13];
-            P_l2[14] = Pn_l2[14];
-            P_l2[15] = Pn_l2[15];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 16 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 16 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 16 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 16 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 16 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 16 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 16 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 16 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 16 + 8] = Pn_l2[8];
-                Ps[((t + 2) * steps + k) * 16 + 9] = Pn_l2[9];
-                Ps[((t + 2) * steps + k) * 16 + 10] = Pn_l2[10];
-                Ps[((t + 2) * steps + k) * 16 + 11] = Pn_l2[11];
-                Ps[((t + 2) * steps + k) * 16 + 12] = Pn_l2[12];
-                Ps[((t + 2) * steps + k) * 16 + 13] = Pn_l2[13];
-                Ps[((t + 2) * steps + k) * 16 + 14] = Pn_l2[14];
-                Ps[((t + 2) * steps + k) * 16 + 15] = Pn_l2[15];
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                gsm2d_a_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            xs[((t + 3) * steps + k) * 4 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 4 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 4 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 4 + 3] = x_l3[3] = xn_l3[3];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            P_l3[9] = Pn_l3[9];
-            P_l3[10] = Pn_l3[10];
-            P_l3[11] = Pn_l3[11];
-            P_l3[12] = Pn_l3[12];
-            P_l3[13] = Pn_l3[13];
-            P_l3[14] = Pn_l3[14];
-            P_l3[15] = Pn_l3[15];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 16 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 16 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 16 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 16 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 16 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 16 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 16 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 16 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 16 + 8] = Pn_l3[8];
-                Ps[((t + 3) * steps + k) * 16 + 9] = Pn_l3[9];
-                Ps[((t + 3) * steps + k) * 16 + 10] = Pn_l3[10];
-                Ps[((t + 3) * steps + k) * 16 + 11] = Pn_l3[11];
-                Ps[((t + 3) * steps + k) * 16 + 12] = Pn_l3[12];
-                Ps[((t + 3) * steps + k) * 16 + 13] = Pn_l3[13];
-                Ps[((t + 3) * steps + k) * 16 + 14] = Pn_l3[14];
-                Ps[((t + 3) * steps + k) * 16 + 15] = Pn_l3[15];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 4; ++i) {
+                    xs[((t + j) * steps + k) * 4 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 16; ++i) {
+                        Ps[((t + j) * steps + k) * 16 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
+            }
+            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
+            for (i = 0; i < 16 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[4], xn_l0[4];
-        double P_l0[16], Pn_l0[16];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 4 + 0];
-        x_l0[1] = x0[(t + 0) * 4 + 1];
-        x_l0[2] = x0[(t + 0) * 4 + 2];
-        x_l0[3] = x0[(t + 0) * 4 + 3];
-        P_l0[0] = P0[(t + 0) * 16 + 0];
-        P_l0[1] = P0[(t + 0) * 16 + 1];
-        P_l0[2] = P0[(t + 0) * 16 + 2];
-        P_l0[3] = P0[(t + 0) * 16 + 3];
-        P_l0[4] = P0[(t + 0) * 16 + 4];
-        P_l0[5] = P0[(t + 0) * 16 + 5];
-        P_l0[6] = P0[(t + 0) * 16 + 6];
-        P_l0[7] = P0[(t + 0) * 16 + 7];
-        P_l0[8] = P0[(t + 0) * 16 + 8];
-        P_l0[9] = P0[(t + 0) * 16 + 9];
-        P_l0[10] = P0[(t + 0) * 16 + 10];
-        P_l0[11] = P0[(t + 0) * 16 + 11];
-        P_l0[12] = P0[(t + 0) * 16 + 12];
-        P_l0[13] = P0[(t + 0) * 16 + 13];
-        P_l0[14] = P0[(t + 0) * 16 + 14];
-        P_l0[15] = P0[(t + 0) * 16 + 15];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 2;
-            const double t0_l0 = 16.3265306122449*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t3_l0 = DERIVE_FMA(16.3265306122449, P_l0[5], 8.16326530612245*P_l0[1]);
-            const double t4_l0 = DERIVE_FMA(32.6530612244898, P_l0[5], t0_l0);
-            const double t5_l0 = 16.3265306122449*P_l0[11];
-            const double t6_l0 = DERIVE_FMA(8.16326530612245, P_l0[10], t5_l0);
-            const double t7_l0 = DERIVE_FMA(32.6530612244898, P_l0[11], 16.3265306122449*P_l0[10]);
-            const double t8_l0 = DERIVE_FMA(16.3265306122449, P_l0[15], 8.16326530612245*P_l0[11]);
-            const double t9_l0 = DERIVE_FMA(32.6530612244898, P_l0[15], t5_l0);
-            const double t10_l0 = 1.0 + t1_l0;
-            const double t11_l0 = 1.0 + t4_l0;
-            const double t12_l0 = 1.0 + t6_l0;
-            const double t13_l0 = 1.0 + t9_l0;
-            const double t14_l0 = 1.0/t10_l0;
-            const double t15_l0 = t14_l0*t3_l0;
-            const double t16_l0 = t11_l0 - t15_l0*t2_l0;
-            const double t17_l0 = 1.0/t16_l0;
-            const double t18_l0 = 1.0/t12_l0;
-            const double t19_l0 = t18_l0*t8_l0;
-            const double t20_l0 = t13_l0 - t19_l0*t7_l0;
-            const double t21_l0 = 1.0/t20_l0;
-            const double t22_l0 = t15_l0*t17_l0;
-            const double t23_l0 = t14_l0*DERIVE_FMA(t2_l0, t22_l0, 1.0);
-            const double t24_l0 = t14_l0*t17_l0*t2_l0;
-            const double t25_l0 = t19_l0*t21_l0;
-            const double t26_l0 = t18_l0*DERIVE_FMA(t25_l0, t7_l0, 1.0);
-            const double t27_l0 = t18_l0*t21_l0*t7_l0;
-            const double t28_l0 = DERIVE_FMA(0.9387755102040817, t23_l0, (-0.8775510204081632)*t22_l0);
-            const double t29_l0 = DERIVE_FMA((-0.9387755102040817), t24_l0, 0.8775510204081632*t17_l0);
-            const double t30_l0 = DERIVE_FMA(0.12244897959183673, t23_l0, 0.7551020408163265*t22_l0);
-            const double t31_l0 = DERIVE_FMA(0.12244897959183673, t24_l0, 0.7551020408163265*t17_l0);
-            const double t32_l0 = DERIVE_FMA(0.9387755102040817, t26_l0, (-0.8775510204081632)*t25_l0);
-            const double t33_l0 = DERIVE_FMA((-0.9387755102040817), t27_l0, 0.8775510204081632*t21_l0);
-            const double t34_l0 = DERIVE_FMA(0.12244897959183673, t26_l0, 0.7551020408163265*t25_l0);
-            const double t35_l0 = DERIVE_FMA(0.12244897959183673, t27_l0, 0.7551020408163265*t21_l0);
-            const double t36_l0 = 8.16326530612245*z_l0[0];
-            const double t37_l0 = 16.3265306122449*z_l0[0];
-            const double t38_l0 = 8.16326530612245*z_l0[1];
-            const double t39_l0 = 16.3265306122449*z_l0[1];
-            const double t40_l0 = DERIVE_FMA(P_l0[1], t37_l0, P_l0[0]*t36_l0);
-            const double t41_l0 = DERIVE_FMA(P_l0[5], t37_l0, P_l0[1]*t36_l0);
-            const double t42_l0 = DERIVE_FMA(P_l0[11], t39_l0, P_l0[10]*t38_l0);
-            const double t43_l0 = DERIVE_FMA(P_l0[15], t39_l0, P_l0[11]*t38_l0);
-            const double t44_l0 = x_l0[0] + t40_l0;
-            const double t45_l0 = x_l0[1] + t41_l0;
-            const double t46_l0 = x_l0[2] + t42_l0;
-            const double t47_l0 = x_l0[3] + t43_l0;
-            const double t48_l0 = 0.061224489795918366*z_l0[0];
-            const double t49_l0 = 0.12244897959183673*z_l0[0];
-            const double t50_l0 = 0.061224489795918366*z_l0[1];
-            const double t51_l0 = 0.12244897959183673*z_l0[1];
-            const double t52_l0 = DERIVE_FMA(t29_l0, t45_l0, t28_l0*t44_l0);
-            const double t53_l0 = DERIVE_FMA(t31_l0, t45_l0, -(t30_l0*t44_l0));
-            const double t54_l0 = DERIVE_FMA(t33_l0, t47_l0, t32_l0*t46_l0);
-            const double t55_l0 = DERIVE_FMA(t35_l0, t47_l0, -(t34_l0*t46_l0));
-            const double t56_l0 = t48_l0 + t52_l0;
-            const double t57_l0 = t49_l0 + t53_l0;
-            const double t58_l0 = t50_l0 + t54_l0;
-            const double t59_l0 = t51_l0 + t55_l0;
-            const double t60_l0 = DERIVE_FMA(P_l0[1], t29_l0, P_l0[0]*t28_l0);
-            const double t61_l0 = DERIVE_FMA(P_l0[5], t29_l0, P_l0[1]*t28_l0);
-            const double t62_l0 = DERIVE_FMA(P_l0[1], t31_l0, -(P_l0[0]*t30_l0));
-            const double t63_l0 = DERIVE_FMA(P_l0[5], t31_l0, -(P_l0[1]*t30_l0));
-            const double t64_l0 = DERIVE_FMA(P_l0[11], t33_l0, P_l0[10]*t32_l0);
-            const double t65_l0 = DERIVE_FMA(P_l0[15], t33_l0, P_l0[11]*t32_l0);
-            const double t66_l0 = DERIVE_FMA(P_l0[11], t35_l0, -(P_l0[10]*t34_l0));
-            const double t67_l0 = DERIVE_FMA(P_l0[15], t35_l0, -(P_l0[11]*t34_l0));
-            const double t68_l0 = DERIVE_FMA(0.8775510204081632, t61_l0, 0.9387755102040817*t60_l0);
-            const double t69_l0 = DERIVE_FMA(0.7551020408163265, t61_l0, (-0.12244897959183673)*t60_l0);
-            const double t70_l0 = DERIVE_FMA(0.7551020408163265, t63_l0, (-0.12244897959183673)*t62_l0);
-            const double t71_l0 = DERIVE_FMA(0.8775510204081632, t65_l0, 0.9387755102040817*t64_l0);
-            const double t72_l0 = DERIVE_FMA(0.7551020408163265, t65_l0, (-0.12244897959183673)*t64_l0);
-            const double t73_l0 = DERIVE_FMA(0.7551020408163265, t67_l0, (-0.12244897959183673)*t66_l0);
-            const double t74_l0 = 0.0020408163265306124 + t68_l0;
-            const double t75_l0 = 0.004081632653061225 + t69_l0;
-            const double t76_l0 = 0.00816326530612245 + t70_l0;
-            const double t77_l0 = 0.0020408163265306124 + t71_l0;
-            const double t78_l0 = 0.004081632653061225 + t72_l0;
-            const double t79_l0 = 0.00816326530612245 + t73_l0;
-            xn_l0[0] = t56_l0;
-            xn_l0[1] = t57_l0;
-            xn_l0[2] = t58_l0;
-            xn_l0[3] = t59_l0;
-            Pn_l0[0] = t74_l0;
-            Pn_l0[1] = t75_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = t75_l0;
-            Pn_l0[5] = t76_l0;
-            Pn_l0[6] = 0.0;
-            Pn_l0[7] = 0.0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = t77_l0;
-            Pn_l0[11] = t78_l0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t78_l0;
-            Pn_l0[15] = t79_l0;
-            xs[((t + 0) * steps + k) * 4 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 4 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 4 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 4 + 3] = x_l0[3] = xn_l0[3];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 16 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 16 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 16 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 16 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 16 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 16 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 16 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 16 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 16 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 16 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 16 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 16 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 16 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 16 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 16 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 16 + 15] = Pn_l0[15];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = gsm2d_a_lf_run(steps, z + t * steps * 2, x0 + t * 4, P0 + t * 4 * 4, xs + t * steps * 4, Ps ? Ps + t * steps * 4 * 4 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

@@ -44,6 +44,121 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int gsm2d_a_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
+{
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = x[2 * s] + x[3 * s];
+    const double t2 = P[0] + P[1 * s];
+    const double t3 = P[1 * s] + P[5 * s];
+    const double t4 = P[10 * s] + P[11 * s];
+    const double t5 = P[11 * s] + P[15 * s];
+    const double t6 = t2 + t3;
+    const double t7 = t4 + t5;
+    const double t8 = 0.0025 + t6;
+    const double t9 = 0.005 + t3;
+    const double t10 = 0.01 + P[5 * s];
+    const double t11 = 0.0025 + t7;
+    const double t12 = 0.005 + t5;
+    const double t13 = 0.01 + P[15 * s];
+    const double t14 = t8 + t9;
+    const double t15 = t10 + t9;
+    const double t16 = t11 + t12;
+    const double t17 = t12 + t13;
+    const double t18 = t14 + t15;
+    const double t19 = t16 + t17;
+    const double t20 = 0.1 + t18;
+    const double t21 = 0.1 + t19;
+    if (!(t20 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    if (!(t21 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t22 = t14/t20;
+    const double t23 = t15/t20;
+    const double t24 = t16/t21;
+    const double t25 = t17/t21;
+    const double t26 = x[1 * s] + t0;
+    const double t27 = x[3 * s] + t1;
+    const double t28 = z[0] - t26;
+    const double t29 = z[1 * s] - t27;
+    const double t30 = t22*t28;
+    const double t31 = t23*t28;
+    const double t32 = t24*t29;
+    const double t33 = t25*t29;
+    const double t34 = t0 + t30;
+    const double t35 = x[1 * s] + t31;
+    const double t36 = t1 + t32;
+    const double t37 = x[3 * s] + t33;
+    const double t38 = t14*t22;
+    const double t39 = t15*t22;
+    const double t40 = t15*t23;
+    const double t41 = t16*t24;
+    const double t42 = t17*t24;
+    const double t43 = t17*t25;
+    const double t44 = t8 - t38;
+    const double t45 = t9 - t39;
+    const double t46 = t10 - t40;
+    const double t47 = t11 - t41;
+    const double t48 = t12 - t42;
+    const double t49 = t13 - t43;
+    x_new[0] = t34;
+    x_new[1 * s] = t35;
+    x_new[2 * s] = t36;
+    x_new[3 * s] = t37;
+    P_new[0] = t44;
+    P_new[1 * s] = t45;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = t45;
+    P_new[5 * s] = t46;
+    P_new[6 * s] = 0.0;
+    P_new[7 * s] = 0.0;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = t47;
+    P_new[11 * s] = t48;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t48;
+    P_new[15 * s] = t49;
+    x_pred[0] = t0;
+    x_pred[1 * s] = x[1 * s];
+    x_pred[2 * s] = t1;
+    x_pred[3 * s] = x[3 * s];
+    P_pred[0] = t8;
+    P_pred[1 * s] = t9;
+    P_pred[2 * s] = 0.0;
+    P_pred[3 * s] = 0.0;
+    P_pred[4 * s] = t9;
+    P_pred[5 * s] = t10;
+    P_pred[6 * s] = 0.0;
+    P_pred[7 * s] = 0.0;
+    P_pred[8 * s] = 0.0;
+    P_pred[9 * s] = 0.0;
+    P_pred[10 * s] = t11;
+    P_pred[11 * s] = t12;
+    P_pred[12 * s] = 0.0;
+    P_pred[13 * s] = 0.0;
+    P_pred[14 * s] = t12;
+    P_pred[15 * s] = t13;
+    return status;
+}
+
 int gsm2d_a_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[2] == 0.0)) {
@@ -58,103 +173,7 @@ int gsm2d_a_rts_step(const double *restrict x, const double *restrict P, const d
     if (!(P[7] == 0.0)) {
         return 3; /* outside P's pattern */
     }
-    const double t0 = x[0] + x[1];
-    const double t1 = x[2] + x[3];
-    const double t2 = P[0] + P[1];
-    const double t3 = P[1] + P[5];
-    const double t4 = P[10] + P[11];
-    const double t5 = P[11] + P[15];
-    const double t6 = t2 + t3;
-    const double t7 = t4 + t5;
-    const double t8 = 0.0025 + t6;
-    const double t9 = 0.005 + t3;
-    const double t10 = 0.01 + P[5];
-    const double t11 = 0.0025 + t7;
-    const double t12 = 0.005 + t5;
-    const double t13 = 0.01 + P[15];
-    const double t14 = t8 + t9;
-    const double t15 = t10 + t9;
-    const double t16 = t11 + t12;
-    const double t17 = t12 + t13;
-    const double t18 = t14 + t15;
-    const double t19 = t16 + t17;
-    const double t20 = 0.1 + t18;
-    const double t21 = 0.1 + t19;
-    if (!(t20 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t21 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    const double t22 = t14/t20;
-    const double t23 = t15/t20;
-    const double t24 = t16/t21;
-    const double t25 = t17/t21;
-    const double t26 = x[1] + t0;
-    const double t27 = x[3] + t1;
-    const double t28 = z[0] - t26;
-    const double t29 = z[1] - t27;
-    const double t30 = t22*t28;
-    const double t31 = t23*t28;
-    const double t32 = t24*t29;
-    const double t33 = t25*t29;
-    const double t34 = t0 + t30;
-    const double t35 = x[1] + t31;
-    const double t36 = t1 + t32;
-    const double t37 = x[3] + t33;
-    const double t38 = t14*t22;
-    const double t39 = t15*t22;
-    const double t40 = t15*t23;
-    const double t41 = t16*t24;
-    const double t42 = t17*t24;
-    const double t43 = t17*t25;
-    const double t44 = t8 - t38;
-    const double t45 = t9 - t39;
-    const double t46 = t10 - t40;
-    const double t47 = t11 - t41;
-    const double t48 = t12 - t42;
-    const double t49 = t13 - t43;
-    x_new[0] = t34;
-    x_new[1] = t35;
-    x_new[2] = t36;
-    x_new[3] = t37;
-    P_new[0] = t44;
-    P_new[1] = t45;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = t45;
-    P_new[5] = t46;
-    P_new[6] = 0.0;
-    P_new[7] = 0.0;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = t47;
-    P_new[11] = t48;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t48;
-    P_new[15] = t49;
-    x_pred[0] = t0;
-    x_pred[1] = x[1];
-    x_pred[2] = t1;
-    x_pred[3] = x[3];
-    P_pred[0] = t8;
-    P_pred[1] = t9;
-    P_pred[2] = 0.0;
-    P_pred[3] = 0.0;
-    P_pred[4] = t9;
-    P_pred[5] = t10;
-    P_pred[6] = 0.0;
-    P_pred[7] = 0.0;
-    P_pred[8] = 0.0;
-    P_pred[9] = 0.0;
-    P_pred[10] = t11;
-    P_pred[11] = t12;
-    P_pred[12] = 0.0;
-    P_pred[13] = 0.0;
-    P_pred[14] = t12;
-    P_pred[15] = t13;
-    return 0;
+    return gsm2d_a_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
 
 int gsm2d_a_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)

@@ -53,6 +53,127 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
+{
+    int status = 0;
+    const double t0 = 1.0 + U[1 * s];
+    const double t1 = 1.0 + U[11 * s];
+    const double t2 = 0.01 + D[3 * s];
+    const double t3 = 2.2250738585072014e-308 + t2;
+    if (!(t3 > 0.0) && !status) {
+        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
+    }
+    const double t4 = DERIVE_FMA(D[3 * s], t1, 0.005);
+    const double t5 = t4/t3;
+    const double t6 = t1 - t5;
+    const double t7 = 0.5 - t5;
+    const double t8 = D[3 * s]*t6;
+    const double t9 = 0.01*t7;
+    const double t10 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, D[2 * s]));
+    const double t11 = 2.2250738585072014e-308 + t10;
+    if (!(t11 > 0.0) && !status) {
+        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+    }
+    const double t12 = 0.01 + D[1 * s];
+    const double t13 = 2.2250738585072014e-308 + t12;
+    if (!(t13 > 0.0) && !status) {
+        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
+    }
+    const double t14 = DERIVE_FMA(D[1 * s], t0, 0.005);
+    const double t15 = t14/t13;
+    const double t16 = t0 - t15;
+    const double t17 = 0.5 - t15;
+    const double t18 = D[1 * s]*t16;
+    const double t19 = 0.01*t17;
+    const double t20 = DERIVE_FMA(t17, t19, DERIVE_FMA(t16, t18, D[0]));
+    const double t21 = 2.2250738585072014e-308 + t20;
+    if (!(t21 > 0.0) && !status) {
+        status = 4; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
+    }
+    const double t22 = x[0] + x[1 * s];
+    const double t23 = x[2 * s] + x[3 * s];
+    const double t24 = 1.0 + t15;
+    const double t25 = t12*t24;
+    const double t26 = 0.1 + t20;
+    if (!(t26 > 0.0) && !status) {
+        status = 5; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t27 = 1.0/t26;
+    const double t28 = 0.1*(t20*t27);
+    const double t29 = DERIVE_FMA(t24, t25, t26);
+    if (!(t29 > 0.0) && !status) {
+        status = 6; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t30 = 1.0/t29;
+    const double t31 = t12*t26*t30;
+    const double t32 = t24*t27;
+    const double t33 = t15 - t20*t32;
+    const double t34 = DERIVE_FMA(t15, t25, t20);
+    const double t35 = z[0] - x[1 * s] - t22;
+    const double t36 = t30*t35;
+    const double t37 = DERIVE_FMA(t34, t36, t22);
+    const double t38 = DERIVE_FMA(t25, t36, x[1 * s]);
+    const double t39 = 1.0 + t5;
+    const double t40 = t2*t39;
+    const double t41 = 0.1 + t10;
+    if (!(t41 > 0.0) && !status) {
+        status = 7; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t42 = 1.0/t41;
+    const double t43 = 0.1*(t10*t42);
+    const double t44 = DERIVE_FMA(t39, t40, t41);
+    if (!(t44 > 0.0) && !status) {
+        status = 8; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t45 = 1.0/t44;
+    const double t46 = t2*t41*t45;
+    const double t47 = t39*t42;
+    const double t48 = t5 - t10*t47;
+    const double t49 = DERIVE_FMA(t40, t5, t10);
+    const double t50 = z[1 * s] - x[3 * s] - t23;
+    const double t51 = t45*t50;
+    const double t52 = DERIVE_FMA(t49, t51, t23);
+    const double t53 = DERIVE_FMA(t40, t51, x[3 * s]);
+    x_new[0] = t37;
+    x_new[1 * s] = t38;
+    x_new[2 * s] = t52;
+    x_new[3 * s] = t53;
+    U_new[0] = 1.0;
+    U_new[1 * s] = t33;
+    U_new[2 * s] = 0.0;
+    U_new[3 * s] = 0.0;
+    U_new[4 * s] = 0.0;
+    U_new[5 * s] = 1.0;
+    U_new[6 * s] = 0.0;
+    U_new[7 * s] = 0.0;
+    U_new[8 * s] = 0.0;
+    U_new[9 * s] = 0.0;
+    U_new[10 * s] = 1.0;
+    U_new[11 * s] = t48;
+    U_new[12 * s] = 0.0;
+    U_new[13 * s] = 0.0;
+    U_new[14 * s] = 0.0;
+    U_new[15 * s] = 1.0;
+    D_new[0] = t28;
+    D_new[1 * s] = t31;
+    D_new[2 * s] = t43;
+    D_new[3 * s] = t46;
+    return status;
+}
+
 int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
 {
     if (!(U[2] == 0.0)) {
@@ -67,109 +188,7 @@ int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const 
     if (!(U[7] == 0.0)) {
         return 9; /* outside P's pattern */
     }
-    const double t0 = 1.0 + U[1];
-    const double t1 = 1.0 + U[11];
-    const double t2 = 0.01 + D[3];
-    const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0)) {
-        return 1; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
-    }
-    const double t4 = DERIVE_FMA(D[3], t1, 0.005);
-    const double t5 = t4/t3;
-    const double t6 = t1 - t5;
-    const double t7 = 0.5 - t5;
-    const double t8 = D[3]*t6;
-    const double t9 = 0.01*t7;
-    const double t10 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, D[2]));
-    const double t11 = 2.2250738585072014e-308 + t10;
-    if (!(t11 > 0.0)) {
-        return 2; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
-    const double t12 = 0.01 + D[1];
-    const double t13 = 2.2250738585072014e-308 + t12;
-    if (!(t13 > 0.0)) {
-        return 3; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
-    const double t14 = DERIVE_FMA(D[1], t0, 0.005);
-    const double t15 = t14/t13;
-    const double t16 = t0 - t15;
-    const double t17 = 0.5 - t15;
-    const double t18 = D[1]*t16;
-    const double t19 = 0.01*t17;
-    const double t20 = DERIVE_FMA(t17, t19, DERIVE_FMA(t16, t18, D[0]));
-    const double t21 = 2.2250738585072014e-308 + t20;
-    if (!(t21 > 0.0)) {
-        return 4; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
-    const double t22 = x[0] + x[1];
-    const double t23 = x[2] + x[3];
-    const double t24 = 1.0 + t15;
-    const double t25 = t12*t24;
-    const double t26 = 0.1 + t20;
-    if (!(t26 > 0.0)) {
-        return 5; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t27 = 1.0/t26;
-    const double t28 = 0.1*(t20*t27);
-    const double t29 = DERIVE_FMA(t24, t25, t26);
-    if (!(t29 > 0.0)) {
-        return 6; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t30 = 1.0/t29;
-    const double t31 = t12*t26*t30;
-    const double t32 = t24*t27;
-    const double t33 = t15 - t20*t32;
-    const double t34 = DERIVE_FMA(t15, t25, t20);
-    const double t35 = z[0] - x[1] - t22;
-    const double t36 = t30*t35;
-    const double t37 = DERIVE_FMA(t34, t36, t22);
-    const double t38 = DERIVE_FMA(t25, t36, x[1]);
-    const double t39 = 1.0 + t5;
-    const double t40 = t2*t39;
-    const double t41 = 0.1 + t10;
-    if (!(t41 > 0.0)) {
-        return 7; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t42 = 1.0/t41;
-    const double t43 = 0.1*(t10*t42);
-    const double t44 = DERIVE_FMA(t39, t40, t41);
-    if (!(t44 > 0.0)) {
-        return 8; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t45 = 1.0/t44;
-    const double t46 = t2*t41*t45;
-    const double t47 = t39*t42;
-    const double t48 = t5 - t10*t47;
-    const double t49 = DERIVE_FMA(t40, t5, t10);
-    const double t50 = z[1] - x[3] - t23;
-    const double t51 = t45*t50;
-    const double t52 = DERIVE_FMA(t49, t51, t23);
-    const double t53 = DERIVE_FMA(t40, t51, x[3]);
-    x_new[0] = t37;
-    x_new[1] = t38;
-    x_new[2] = t52;
-    x_new[3] = t53;
-    U_new[0] = 1.0;
-    U_new[1] = t33;
-    U_new[2] = 0.0;
-    U_new[3] = 0.0;
-    U_new[4] = 0.0;
-    U_new[5] = 1.0;
-    U_new[6] = 0.0;
-    U_new[7] = 0.0;
-    U_new[8] = 0.0;
-    U_new[9] = 0.0;
-    U_new[10] = 1.0;
-    U_new[11] = t48;
-    U_new[12] = 0.0;
-    U_new[13] = 0.0;
-    U_new[14] = 0.0;
-    U_new[15] = 1.0;
-    D_new[0] = t28;
-    D_new[1] = t31;
-    D_new[2] = t43;
-    D_new[3] = t46;
-    return 0;
+    return gsm2d_a_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
 
 int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
@@ -287,111 +306,13 @@ int gsm2d_a_udkf_run(size_t steps, const double *z, const double *x0, const doub
     if (status) {
         return status;
     }
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 2;
-        const double t0 = 1.0 + U[1];
-        const double t1 = 1.0 + U[11];
-        const double t2 = 0.01 + D[3];
-        const double t3 = 2.2250738585072014e-308 + t2;
-        if (!(t3 > 0.0)) {
-            return 1; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
+        const int step_status = gsm2d_a_udkf_step_body(x, U, D, zk, x_new, U_new, D_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t4 = DERIVE_FMA(D[3], t1, 0.005);
-        const double t5 = t4/t3;
-        const double t6 = t1 - t5;
-        const double t7 = 0.5 - t5;
-        const double t8 = D[3]*t6;
-        const double t9 = 0.01*t7;
-        const double t10 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, D[2]));
-        const double t11 = 2.2250738585072014e-308 + t10;
-        if (!(t11 > 0.0)) {
-            return 2; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-        }
-        const double t12 = 0.01 + D[1];
-        const double t13 = 2.2250738585072014e-308 + t12;
-        if (!(t13 > 0.0)) {
-            return 3; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-        }
-        const double t14 = DERIVE_FMA(D[1], t0, 0.005);
-        const double t15 = t14/t13;
-        const double t16 = t0 - t15;
-        const double t17 = 0.5 - t15;
-        const double t18 = D[1]*t16;
-        const double t19 = 0.01*t17;
-        const double t20 = DERIVE_FMA(t17, t19, DERIVE_FMA(t16, t18, D[0]));
-        const double t21 = 2.2250738585072014e-308 + t20;
-        if (!(t21 > 0.0)) {
-            return 4; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-        }
-        const double t22 = x[0] + x[1];
-        const double t23 = x[2] + x[3];
-        const double t24 = 1.0 + t15;
-        const double t25 = t12*t24;
-        const double t26 = 0.1 + t20;
-        if (!(t26 > 0.0)) {
-            return 5; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t27 = 1.0/t26;
-        const double t28 = 0.1*(t20*t27);
-        const double t29 = DERIVE_FMA(t24, t25, t26);
-        if (!(t29 > 0.0)) {
-            return 6; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t30 = 1.0/t29;
-        const double t31 = t12*t26*t30;
-        const double t32 = t24*t27;
-        const double t33 = t15 - t20*t32;
-        const double t34 = DERIVE_FMA(t15, t25, t20);
-        const double t35 = zk[0] - x[1] - t22;
-        const double t36 = t30*t35;
-        const double t37 = DERIVE_FMA(t34, t36, t22);
-        const double t38 = DERIVE_FMA(t25, t36, x[1]);
-        const double t39 = 1.0 + t5;
-        const double t40 = t2*t39;
-        const double t41 = 0.1 + t10;
-        if (!(t41 > 0.0)) {
-            return 7; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t42 = 1.0/t41;
-        const double t43 = 0.1*(t10*t42);
-        const double t44 = DERIVE_FMA(t39, t40, t41);
-        if (!(t44 > 0.0)) {
-            return 8; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t45 = 1.0/t44;
-        const double t46 = t2*t41*t45;
-        const double t47 = t39*t42;
-        const double t48 = t5 - t10*t47;
-        const double t49 = DERIVE_FMA(t40, t5, t10);
-        const double t50 = zk[1] - x[3] - t23;
-        const double t51 = t45*t50;
-        const double t52 = DERIVE_FMA(t49, t51, t23);
-        const double t53 = DERIVE_FMA(t40, t51, x[3]);
-        x_new[0] = t37;
-        x_new[1] = t38;
-        x_new[2] = t52;
-        x_new[3] = t53;
-        U_new[0] = 1.0;
-        U_new[1] = t33;
-        U_new[2] = 0.0;
-        U_new[3] = 0.0;
-        U_new[4] = 0.0;
-        U_new[5] = 1.0;
-        U_new[6] = 0.0;
-        U_new[7] = 0.0;
-        U_new[8] = 0.0;
-        U_new[9] = 0.0;
-        U_new[10] = 1.0;
-        U_new[11] = t48;
-        U_new[12] = 0.0;
-        U_new[13] = 0.0;
-        U_new[14] = 0.0;
-        U_new[15] = 1.0;
-        D_new[0] = t28;
-        D_new[1] = t31;
-        D_new[2] = t43;
-        D_new[3] = t46;
         xs[k * 4 + 0] = x[0] = x_new[0];
         xs[k * 4 + 1] = x[1] = x_new[1];
         xs[k * 4 + 2] = x[2] = x_new[2];

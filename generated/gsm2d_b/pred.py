@@ -20,6 +20,8 @@ B_N = [[0.5721936193726429], [0.2068348086341748]]
 N = 1
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -90,11 +92,10 @@ def run(zs, x0):
         keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = 0.4278063806273572*x_0 + 0.42780638062735715*x_1 + 0.5721936193726429*z_0
-            t1 = 0.7931651913658252*x_1 - 0.2068348086341748*x_0 + 0.2068348086341748*z_0
-            keep((t0, t1))
+            x_1 = 0.7931651913658252*x_1 - 0.2068348086341748*x_0 + 0.2068348086341748*z_0
+            keep((t0, x_1))
             x_0 = t0
-            x_1 = t1
-        table = np.array(rows, dtype=float).reshape(-1, 2)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 2)
         return table[:, [0, 1]]
     x = init(x0)
     for k in range(steps):

@@ -17,6 +17,8 @@ A = [[ 0.6346411892615319 ,  0.2692823785230638 ], [-0.20683480863417475,  0.586
 B = [[0.36535881073846804], [0.20683480863417475]]
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -73,11 +75,10 @@ def run(zs, x0):
         keep = rows.extend
         for z_0 in zs[:, 0].tolist():
             t0 = 0.6346411892615319*x_0 + 0.2692823785230638*x_1 + 0.36535881073846804*z_0
-            t1 = 0.5863303827316503*x_1 - 0.20683480863417475*x_0 + 0.20683480863417475*z_0
-            keep((t0, t1))
+            x_1 = 0.5863303827316503*x_1 - 0.20683480863417475*x_0 + 0.20683480863417475*z_0
+            keep((t0, x_1))
             x_0 = t0
-            x_1 = t1
-        table = np.array(rows, dtype=float).reshape(-1, 2)
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 2)
         return table[:, [0, 1]]
     x = x0
     for k in range(steps):

@@ -26,11 +26,11 @@
  *     update_gnss 5: S is not positive definite: pivot 4 of its LDL^T factorisation is not positive
  *     update_gnss 6: S is not positive definite: pivot 5 of its LDL^T factorisation is not positive
  *     update_baro 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA): add 69, sub 87, mul 189, div 0, sqrt 0, fma 927, neg 21, cmp 0, calls 0 (flops 2199, instructions 1293)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA): add 52, sub 607, mul 733, div 7, sqrt 1, fma 763, neg 15, cmp 6, calls 0 (flops 2926, instructions 2184)
+ * operations per call of predict (C99, fma through DERIVE_FMA): add 67, sub 91, mul 192, div 0, sqrt 0, fma 919, neg 18, cmp 0, calls 0 (flops 2188, instructions 1287)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA): add 166, sub 382, mul 455, div 7, sqrt 1, fma 649, neg 15, cmp 6, calls 0 (flops 2309, instructions 1681)
  * operations per call of update_baro (C99, fma through DERIVE_FMA): add 1, sub 153, mul 173, div 2, sqrt 1, fma 3, neg 1, cmp 1, calls 0 (flops 336, instructions 335)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * Jacobians: sympy, entries simplified, evaluated with f and h through shared subexpressions
+ * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: wx, wy, wz, ax, ay, az
  * row k of us goes with row k of zs: u(k) drives the prediction into step k (f uses wx, wy, wz, ax, ay, az; predict takes those) and step k's measurement; Q(x, u) = Fu Qu Fu^T + Q, Fu = df/du at x(k-1/k-1), u(k)
  * sensors (run: predict with u(k), then each sensor's update in this order when its row k has no NaN): gnss (gpn, gpe, gpd, gvn, gve, gvd); baro (alt)

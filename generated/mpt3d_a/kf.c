@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int mpt3d_a_kf_step(x[6], P[6*6], z[3], x_new[6] out, P_new[6*6] out)
  *     int mpt3d_a_kf_run(steps, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
+ *     int mpt3d_a_kf_run_tracks(steps, tracks, z[steps*3], x0[6], P0[6*6], xs[steps*6] out, Ps[steps*6*6] out optional)
  *     many tracks: mpt3d_a_kf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -22,11 +23,183 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <stddef.h>
 
 #include "kf.h"
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
+{
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = P[0] + P[1 * s];
+    const double t2 = P[1 * s] + P[7 * s];
+    const double t3 = t1 + t2;
+    const double t4 = 0.0025 + t3;
+    const double t5 = 0.005 + t2;
+    const double t6 = 0.01 + P[7 * s];
+    const double t7 = t4 + t5;
+    const double t8 = t5 + t6;
+    const double t9 = t7 + t8;
+    const double t10 = 0.1 + t9;
+    if (!(t10 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    const double t11 = t7/t10;
+    const double t12 = t8/t10;
+    const double t13 = x[1 * s] + t0;
+    const double t14 = z[0] - t13;
+    const double t15 = t11*t14;
+    const double t16 = t12*t14;
+    const double t17 = t0 + t15;
+    const double t18 = x[1 * s] + t16;
+    const double t19 = t11*t7;
+    const double t20 = t11*t8;
+    const double t21 = t12*t8;
+    const double t22 = t4 - t19;
+    const double t23 = t5 - t20;
+    const double t24 = t6 - t21;
+    const double t25 = x[2 * s] + x[3 * s];
+    const double t26 = P[14 * s] + P[15 * s];
+    const double t27 = P[15 * s] + P[21 * s];
+    const double t28 = t26 + t27;
+    const double t29 = 0.0025 + t28;
+    const double t30 = 0.005 + t27;
+    const double t31 = 0.01 + P[21 * s];
+    const double t32 = t29 + t30;
+    const double t33 = t30 + t31;
+    const double t34 = t32 + t33;
+    const double t35 = 0.1 + t34;
+    if (!(t35 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    const double t36 = t32/t35;
+    const double t37 = t33/t35;
+    const double t38 = x[3 * s] + t25;
+    const double t39 = z[1 * s] - t38;
+    const double t40 = t36*t39;
+    const double t41 = t37*t39;
+    const double t42 = t25 + t40;
+    const double t43 = x[3 * s] + t41;
+    const double t44 = t32*t36;
+    const double t45 = t33*t36;
+    const double t46 = t33*t37;
+    const double t47 = t29 - t44;
+    const double t48 = t30 - t45;
+    const double t49 = t31 - t46;
+    const double t50 = x[4 * s] + x[5 * s];
+    const double t51 = P[28 * s] + P[29 * s];
+    const double t52 = P[29 * s] + P[35 * s];
+    const double t53 = t51 + t52;
+    const double t54 = 0.0025 + t53;
+    const double t55 = 0.005 + t52;
+    const double t56 = 0.01 + P[35 * s];
+    const double t57 = t54 + t55;
+    const double t58 = t55 + t56;
+    const double t59 = t57 + t58;
+    const double t60 = 0.1 + t59;
+    if (!(t60 > 0.0) && !status) {
+        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    }
+    const double t61 = t57/t60;
+    const double t62 = t58/t60;
+    const double t63 = x[5 * s] + t50;
+    const double t64 = z[2 * s] - t63;
+    const double t65 = t61*t64;
+    const double t66 = t62*t64;
+    const double t67 = t50 + t65;
+    const double t68 = x[5 * s] + t66;
+    const double t69 = t57*t61;
+    const double t70 = t58*t61;
+    const double t71 = t58*t62;
+    const double t72 = t54 - t69;
+    const double t73 = t55 - t70;
+    const double t74 = t56 - t71;
+    x_new[0] = t17;
+    x_new[1 * s] = t18;
+    x_new[2 * s] = t42;
+    x_new[3 * s] = t43;
+    x_new[4 * s] = t67;
+    x_new[5 * s] = t68;
+    P_new[0] = t22;
+    P_new[1 * s] = t23;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = 0.0;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = t23;
+    P_new[7 * s] = t24;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = 0.0;
+    P_new[11 * s] = 0.0;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t47;
+    P_new[15 * s] = t48;
+    P_new[16 * s] = 0.0;
+    P_new[17 * s] = 0.0;
+    P_new[18 * s] = 0.0;
+    P_new[19 * s] = 0.0;
+    P_new[20 * s] = t48;
+    P_new[21 * s] = t49;
+    P_new[22 * s] = 0.0;
+    P_new[23 * s] = 0.0;
+    P_new[24 * s] = 0.0;
+    P_new[25 * s] = 0.0;
+    P_new[26 * s] = 0.0;
+    P_new[27 * s] = 0.0;
+    P_new[28 * s] = t72;
+    P_new[29 * s] = t73;
+    P_new[30 * s] = 0.0;
+    P_new[31 * s] = 0.0;
+    P_new[32 * s] = 0.0;
+    P_new[33 * s] = 0.0;
+    P_new[34 * s] = t73;
+    P_new[35 * s] = t74;
+    return status;
+}
 
 int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
@@ -66,133 +239,7 @@ int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const do
     if (!(P[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-    const double t0 = x[0] + x[1];
-    const double t1 = x[2] + x[3];
-    const double t2 = x[4] + x[5];
-    const double t3 = P[0] + P[1];
-    const double t4 = P[1] + P[7];
-    const double t5 = P[14] + P[15];
-    const double t6 = P[15] + P[21];
-    const double t7 = P[28] + P[29];
-    const double t8 = P[29] + P[35];
-    const double t9 = t3 + t4;
-    const double t10 = t5 + t6;
-    const double t11 = t7 + t8;
-    const double t12 = 0.0025 + t9;
-    const double t13 = 0.005 + t4;
-    const double t14 = 0.01 + P[7];
-    const double t15 = 0.0025 + t10;
-    const double t16 = 0.005 + t6;
-    const double t17 = 0.01 + P[21];
-    const double t18 = 0.0025 + t11;
-    const double t19 = 0.005 + t8;
-    const double t20 = 0.01 + P[35];
-    const double t21 = t12 + t13;
-    const double t22 = t13 + t14;
-    const double t23 = t15 + t16;
-    const double t24 = t16 + t17;
-    const double t25 = t18 + t19;
-    const double t26 = t19 + t20;
-    const double t27 = t21 + t22;
-    const double t28 = t23 + t24;
-    const double t29 = t25 + t26;
-    const double t30 = 0.1 + t27;
-    const double t31 = 0.1 + t28;
-    const double t32 = 0.1 + t29;
-    if (!(t30 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t31 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    if (!(t32 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
-    const double t33 = t21/t30;
-    const double t34 = t22/t30;
-    const double t35 = t23/t31;
-    const double t36 = t24/t31;
-    const double t37 = t25/t32;
-    const double t38 = t26/t32;
-    const double t39 = x[1] + t0;
-    const double t40 = x[3] + t1;
-    const double t41 = x[5] + t2;
-    const double t42 = z[0] - t39;
-    const double t43 = z[1] - t40;
-    const double t44 = z[2] - t41;
-    const double t45 = t33*t42;
-    const double t46 = t34*t42;
-    const double t47 = t35*t43;
-    const double t48 = t36*t43;
-    const double t49 = t37*t44;
-    const double t50 = t38*t44;
-    const double t51 = t0 + t45;
-    const double t52 = x[1] + t46;
-    const double t53 = t1 + t47;
-    const double t54 = x[3] + t48;
-    const double t55 = t2 + t49;
-    const double t56 = x[5] + t50;
-    const double t57 = t21*t33;
-    const double t58 = t22*t33;
-    const double t59 = t22*t34;
-    const double t60 = t23*t35;
-    const double t61 = t24*t35;
-    const double t62 = t24*t36;
-    const double t63 = t25*t37;
-    const double t64 = t26*t37;
-    const double t65 = t26*t38;
-    const double t66 = t12 - t57;
-    const double t67 = t13 - t58;
-    const double t68 = t14 - t59;
-    const double t69 = t15 - t60;
-    const double t70 = t16 - t61;
-    const double t71 = t17 - t62;
-    const double t72 = t18 - t63;
-    const double t73 = t19 - t64;
-    const double t74 = t20 - t65;
-    x_new[0] = t51;
-    x_new[1] = t52;
-    x_new[2] = t53;
-    x_new[3] = t54;
-    x_new[4] = t55;
-    x_new[5] = t56;
-    P_new[0] = t66;
-    P_new[1] = t67;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = 0.0;
-    P_new[5] = 0.0;
-    P_new[6] = t67;
-    P_new[7] = t68;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = 0.0;
-    P_new[11] = 0.0;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t69;
-    P_new[15] = t70;
-    P_new[16] = 0.0;
-    P_new[17] = 0.0;
-    P_new[18] = 0.0;
-    P_new[19] = 0.0;
-    P_new[20] = t70;
-    P_new[21] = t71;
-    P_new[22] = 0.0;
-    P_new[23] = 0.0;
-    P_new[24] = 0.0;
-    P_new[25] = 0.0;
-    P_new[26] = 0.0;
-    P_new[27] = 0.0;
-    P_new[28] = t72;
-    P_new[29] = t73;
-    P_new[30] = 0.0;
-    P_new[31] = 0.0;
-    P_new[32] = 0.0;
-    P_new[33] = 0.0;
-    P_new[34] = t73;
-    P_new[35] = t74;
-    return 0;
+    return mpt3d_a_kf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
@@ -282,135 +329,13 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     P[33] = P0[33];
     P[34] = P0[34];
     P[35] = P0[35];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = x[0] + x[1];
-        const double t1 = x[2] + x[3];
-        const double t2 = x[4] + x[5];
-        const double t3 = P[0] + P[1];
-        const double t4 = P[1] + P[7];
-        const double t5 = P[14] + P[15];
-        const double t6 = P[15] + P[21];
-        const double t7 = P[28] + P[29];
-        const double t8 = P[29] + P[35];
-        const double t9 = t3 + t4;
-        const double t10 = t5 + t6;
-        const double t11 = t7 + t8;
-        const double t12 = 0.0025 + t9;
-        const double t13 = 0.005 + t4;
-        const double t14 = 0.01 + P[7];
-        const double t15 = 0.0025 + t10;
-        const double t16 = 0.005 + t6;
-        const double t17 = 0.01 + P[21];
-        const double t18 = 0.0025 + t11;
-        const double t19 = 0.005 + t8;
-        const double t20 = 0.01 + P[35];
-        const double t21 = t12 + t13;
-        const double t22 = t13 + t14;
-        const double t23 = t15 + t16;
-        const double t24 = t16 + t17;
-        const double t25 = t18 + t19;
-        const double t26 = t19 + t20;
-        const double t27 = t21 + t22;
-        const double t28 = t23 + t24;
-        const double t29 = t25 + t26;
-        const double t30 = 0.1 + t27;
-        const double t31 = 0.1 + t28;
-        const double t32 = 0.1 + t29;
-        if (!(t30 > 0.0)) {
-            return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        const int step_status = mpt3d_a_kf_step_body(x, P, zk, x_new, P_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        if (!(t31 > 0.0)) {
-            return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-        }
-        if (!(t32 > 0.0)) {
-            return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-        }
-        const double t33 = t21/t30;
-        const double t34 = t22/t30;
-        const double t35 = t23/t31;
-        const double t36 = t24/t31;
-        const double t37 = t25/t32;
-        const double t38 = t26/t32;
-        const double t39 = x[1] + t0;
-        const double t40 = x[3] + t1;
-        const double t41 = x[5] + t2;
-        const double t42 = zk[0] - t39;
-        const double t43 = zk[1] - t40;
-        const double t44 = zk[2] - t41;
-        const double t45 = t33*t42;
-        const double t46 = t34*t42;
-        const double t47 = t35*t43;
-        const double t48 = t36*t43;
-        const double t49 = t37*t44;
-        const double t50 = t38*t44;
-        const double t51 = t0 + t45;
-        const double t52 = x[1] + t46;
-        const double t53 = t1 + t47;
-        const double t54 = x[3] + t48;
-        const double t55 = t2 + t49;
-        const double t56 = x[5] + t50;
-        const double t57 = t21*t33;
-        const double t58 = t22*t33;
-        const double t59 = t22*t34;
-        const double t60 = t23*t35;
-        const double t61 = t24*t35;
-        const double t62 = t24*t36;
-        const double t63 = t25*t37;
-        const double t64 = t26*t37;
-        const double t65 = t26*t38;
-        const double t66 = t12 - t57;
-        const double t67 = t13 - t58;
-        const double t68 = t14 - t59;
-        const double t69 = t15 - t60;
-        const double t70 = t16 - t61;
-        const double t71 = t17 - t62;
-        const double t72 = t18 - t63;
-        const double t73 = t19 - t64;
-        const double t74 = t20 - t65;
-        x_new[0] = t51;
-        x_new[1] = t52;
-        x_new[2] = t53;
-        x_new[3] = t54;
-        x_new[4] = t55;
-        x_new[5] = t56;
-        P_new[0] = t66;
-        P_new[1] = t67;
-        P_new[2] = 0.0;
-        P_new[3] = 0.0;
-        P_new[4] = 0.0;
-        P_new[5] = 0.0;
-        P_new[6] = t67;
-        P_new[7] = t68;
-        P_new[8] = 0.0;
-        P_new[9] = 0.0;
-        P_new[10] = 0.0;
-        P_new[11] = 0.0;
-        P_new[12] = 0.0;
-        P_new[13] = 0.0;
-        P_new[14] = t69;
-        P_new[15] = t70;
-        P_new[16] = 0.0;
-        P_new[17] = 0.0;
-        P_new[18] = 0.0;
-        P_new[19] = 0.0;
-        P_new[20] = t70;
-        P_new[21] = t71;
-        P_new[22] = 0.0;
-        P_new[23] = 0.0;
-        P_new[24] = 0.0;
-        P_new[25] = 0.0;
-        P_new[26] = 0.0;
-        P_new[27] = 0.0;
-        P_new[28] = t72;
-        P_new[29] = t73;
-        P_new[30] = 0.0;
-        P_new[31] = 0.0;
-        P_new[32] = 0.0;
-        P_new[33] = 0.0;
-        P_new[34] = t73;
-        P_new[35] = t74;
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -497,12 +422,15 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
+    size_t k, i, j;
     /* every track's P0 must be zero outside P's pattern; checked before any step */
     for (t = 0; t < tracks; ++t) {
         if (!(P0[t * 36 + 2] == 0.0)) {
@@ -543,1272 +471,65 @@ int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
         }
     }
     t = 0;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[6], xn_l0[6];
-        double P_l0[36], Pn_l0[36];
-        const double *z_l0;
-        double x_l1[6], xn_l1[6];
-        double P_l1[36], Pn_l1[36];
-        const double *z_l1;
-        double x_l2[6], xn_l2[6];
-        double P_l2[36], Pn_l2[36];
-        const double *z_l2;
-        double x_l3[6], xn_l3[6];
-        double P_l3[36], Pn_l3[36];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        P_l0[0] = P0[(t + 0) * 36 + 0];
-        P_l0[1] = P0[(t + 0) * 36 + 1];
-        P_l0[2] = P0[(t + 0) * 36 + 2];
-        P_l0[3] = P0[(t + 0) * 36 + 3];
-        P_l0[4] = P0[(t + 0) * 36 + 4];
-        P_l0[5] = P0[(t + 0) * 36 + 5];
-        P_l0[6] = P0[(t + 0) * 36 + 6];
-        P_l0[7] = P0[(t + 0) * 36 + 7];
-        P_l0[8] = P0[(t + 0) * 36 + 8];
-        P_l0[9] = P0[(t + 0) * 36 + 9];
-        P_l0[10] = P0[(t + 0) * 36 + 10];
-        P_l0[11] = P0[(t + 0) * 36 + 11];
-        P_l0[12] = P0[(t + 0) * 36 + 12];
-        P_l0[13] = P0[(t + 0) * 36 + 13];
-        P_l0[14] = P0[(t + 0) * 36 + 14];
-        P_l0[15] = P0[(t + 0) * 36 + 15];
-        P_l0[16] = P0[(t + 0) * 36 + 16];
-        P_l0[17] = P0[(t + 0) * 36 + 17];
-        P_l0[18] = P0[(t + 0) * 36 + 18];
-        P_l0[19] = P0[(t + 0) * 36 + 19];
-        P_l0[20] = P0[(t + 0) * 36 + 20];
-        P_l0[21] = P0[(t + 0) * 36 + 21];
-        P_l0[22] = P0[(t + 0) * 36 + 22];
-        P_l0[23] = P0[(t + 0) * 36 + 23];
-        P_l0[24] = P0[(t + 0) * 36 + 24];
-        P_l0[25] = P0[(t + 0) * 36 + 25];
-        P_l0[26] = P0[(t + 0) * 36 + 26];
-        P_l0[27] = P0[(t + 0) * 36 + 27];
-        P_l0[28] = P0[(t + 0) * 36 + 28];
-        P_l0[29] = P0[(t + 0) * 36 + 29];
-        P_l0[30] = P0[(t + 0) * 36 + 30];
-        P_l0[31] = P0[(t + 0) * 36 + 31];
-        P_l0[32] = P0[(t + 0) * 36 + 32];
-        P_l0[33] = P0[(t + 0) * 36 + 33];
-        P_l0[34] = P0[(t + 0) * 36 + 34];
-        P_l0[35] = P0[(t + 0) * 36 + 35];
-        x_l1[0] = x0[(t + 1) * 6 + 0];
-        x_l1[1] = x0[(t + 1) * 6 + 1];
-        x_l1[2] = x0[(t + 1) * 6 + 2];
-        x_l1[3] = x0[(t + 1) * 6 + 3];
-        x_l1[4] = x0[(t + 1) * 6 + 4];
-        x_l1[5] = x0[(t + 1) * 6 + 5];
-        P_l1[0] = P0[(t + 1) * 36 + 0];
-        P_l1[1] = P0[(t + 1) * 36 + 1];
-        P_l1[2] = P0[(t + 1) * 36 + 2];
-        P_l1[3] = P0[(t + 1) * 36 + 3];
-        P_l1[4] = P0[(t + 1) * 36 + 4];
-        P_l1[5] = P0[(t + 1) * 36 + 5];
-        P_l1[6] = P0[(t + 1) * 36 + 6];
-        P_l1[7] = P0[(t + 1) * 36 + 7];
-        P_l1[8] = P0[(t + 1) * 36 + 8];
-        P_l1[9] = P0[(t + 1) * 36 + 9];
-        P_l1[10] = P0[(t + 1) * 36 + 10];
-        P_l1[11] = P0[(t + 1) * 36 + 11];
-        P_l1[12] = P0[(t + 1) * 36 + 12];
-        P_l1[13] = P0[(t + 1) * 36 + 13];
-        P_l1[14] = P0[(t + 1) * 36 + 14];
-        P_l1[15] = P0[(t + 1) * 36 + 15];
-        P_l1[16] = P0[(t + 1) * 36 + 16];
-        P_l1[17] = P0[(t + 1) * 36 + 17];
-        P_l1[18] = P0[(t + 1) * 36 + 18];
-        P_l1[19] = P0[(t + 1) * 36 + 19];
-        P_l1[20] = P0[(t + 1) * 36 + 20];
-        P_l1[21] = P0[(t + 1) * 36 + 21];
-        P_l1[22] = P0[(t + 1) * 36 + 22];
-        P_l1[23] = P0[(t + 1) * 36 + 23];
-        P_l1[24] = P0[(t + 1) * 36 + 24];
-        P_l1[25] = P0[(t + 1) * 36 + 25];
-        P_l1[26] = P0[(t + 1) * 36 + 26];
-        P_l1[27] = P0[(t + 1) * 36 + 27];
-        P_l1[28] = P0[(t + 1) * 36 + 28];
-        P_l1[29] = P0[(t + 1) * 36 + 29];
-        P_l1[30] = P0[(t + 1) * 36 + 30];
-        P_l1[31] = P0[(t + 1) * 36 + 31];
-        P_l1[32] = P0[(t + 1) * 36 + 32];
-        P_l1[33] = P0[(t + 1) * 36 + 33];
-        P_l1[34] = P0[(t + 1) * 36 + 34];
-        P_l1[35] = P0[(t + 1) * 36 + 35];
-        x_l2[0] = x0[(t + 2) * 6 + 0];
-        x_l2[1] = x0[(t + 2) * 6 + 1];
-        x_l2[2] = x0[(t + 2) * 6 + 2];
-        x_l2[3] = x0[(t + 2) * 6 + 3];
-        x_l2[4] = x0[(t + 2) * 6 + 4];
-        x_l2[5] = x0[(t + 2) * 6 + 5];
-        P_l2[0] = P0[(t + 2) * 36 + 0];
-        P_l2[1] = P0[(t + 2) * 36 + 1];
-        P_l2[2] = P0[(t + 2) * 36 + 2];
-        P_l2[3] = P0[(t + 2) * 36 + 3];
-        P_l2[4] = P0[(t + 2) * 36 + 4];
-        P_l2[5] = P0[(t + 2) * 36 + 5];
-        P_l2[6] = P0[(t + 2) * 36 + 6];
-        P_l2[7] = P0[(t + 2) * 36 + 7];
-        P_l2[8] = P0[(t + 2) * 36 + 8];
-        P_l2[9] = P0[(t + 2) * 36 + 9];
-        P_l2[10] = P0[(t + 2) * 36 + 10];
-        P_l2[11] = P0[(t + 2) * 36 + 11];
-        P_l2[12] = P0[(t + 2) * 36 + 12];
-        P_l2[13] = P0[(t + 2) * 36 + 13];
-        P_l2[14] = P0[(t + 2) * 36 + 14];
-        P_l2[15] = P0[(t + 2) * 36 + 15];
-        P_l2[16] = P0[(t + 2) * 36 + 16];
-        P_l2[17] = P0[(t + 2) * 36 + 17];
-        P_l2[18] = P0[(t + 2) * 36 + 18];
-        P_l2[19] = P0[(t + 2) * 36 + 19];
-        P_l2[20] = P0[(t + 2) * 36 + 20];
-        P_l2[21] = P0[(t + 2) * 36 + 21];
-        P_l2[22] = P0[(t + 2) * 36 + 22];
-        P_l2[23] = P0[(t + 2) * 36 + 23];
-        P_l2[24] = P0[(t + 2) * 36 + 24];
-        P_l2[25] = P0[(t + 2) * 36 + 25];
-        P_l2[26] = P0[(t + 2) * 36 + 26];
-        P_l2[27] = P0[(t + 2) * 36 + 27];
-        P_l2[28] = P0[(t + 2) * 36 + 28];
-        P_l2[29] = P0[(t + 2) * 36 + 29];
-        P_l2[30] = P0[(t + 2) * 36 + 30];
-        P_l2[31] = P0[(t + 2) * 36 + 31];
-        P_l2[32] = P0[(t + 2) * 36 + 32];
-        P_l2[33] = P0[(t + 2) * 36 + 33];
-        P_l2[34] = P0[(t + 2) * 36 + 34];
-        P_l2[35] = P0[(t + 2) * 36 + 35];
-        x_l3[0] = x0[(t + 3) * 6 + 0];
-        x_l3[1] = x0[(t + 3) * 6 + 1];
-        x_l3[2] = x0[(t + 3) * 6 + 2];
-        x_l3[3] = x0[(t + 3) * 6 + 3];
-        x_l3[4] = x0[(t + 3) * 6 + 4];
-        x_l3[5] = x0[(t + 3) * 6 + 5];
-        P_l3[0] = P0[(t + 3) * 36 + 0];
-        P_l3[1] = P0[(t + 3) * 36 + 1];
-        P_l3[2] = P0[(t + 3) * 36 + 2];
-        P_l3[3] = P0[(t + 3) * 36 + 3];
-        P_l3[4] = P0[(t + 3) * 36 + 4];
-        P_l3[5] = P0[(t + 3) * 36 + 5];
-        P_l3[6] = P0[(t + 3) * 36 + 6];
-        P_l3[7] = P0[(t + 3) * 36 + 7];
-        P_l3[8] = P0[(t + 3) * 36 + 8];
-        P_l3[9] = P0[(t + 3) * 36 + 9];
-        P_l3[10] = P0[(t + 3) * 36 + 10];
-        P_l3[11] = P0[(t + 3) * 36 + 11];
-        P_l3[12] = P0[(t + 3) * 36 + 12];
-        P_l3[13] = P0[(t + 3) * 36 + 13];
-        P_l3[14] = P0[(t + 3) * 36 + 14];
-        P_l3[15] = P0[(t + 3) * 36 + 15];
-        P_l3[16] = P0[(t + 3) * 36 + 16];
-        P_l3[17] = P0[(t + 3) * 36 + 17];
-        P_l3[18] = P0[(t + 3) * 36 + 18];
-        P_l3[19] = P0[(t + 3) * 36 + 19];
-        P_l3[20] = P0[(t + 3) * 36 + 20];
-        P_l3[21] = P0[(t + 3) * 36 + 21];
-        P_l3[22] = P0[(t + 3) * 36 + 22];
-        P_l3[23] = P0[(t + 3) * 36 + 23];
-        P_l3[24] = P0[(t + 3) * 36 + 24];
-        P_l3[25] = P0[(t + 3) * 36 + 25];
-        P_l3[26] = P0[(t + 3) * 36 + 26];
-        P_l3[27] = P0[(t + 3) * 36 + 27];
-        P_l3[28] = P0[(t + 3) * 36 + 28];
-        P_l3[29] = P0[(t + 3) * 36 + 29];
-        P_l3[30] = P0[(t + 3) * 36 + 30];
-        P_l3[31] = P0[(t + 3) * 36 + 31];
-        P_l3[32] = P0[(t + 3) * 36 + 32];
-        P_l3[33] = P0[(t + 3) * 36 + 33];
-        P_l3[34] = P0[(t + 3) * 36 + 34];
-        P_l3[35] = P0[(t + 3) * 36 + 35];
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[6 * DERIVE_LANES];
+        double P_b[36 * DERIVE_LANES];
+        double x_new_b[6 * DERIVE_LANES];
+        double P_new_b[36 * DERIVE_LANES];
+        double z_b[3 * DERIVE_LANES];
+        int status_b[DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 6; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 6 + i];
+            }
+            for (i = 0; i < 36; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 36 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = x_l0[4] + x_l0[5];
-            const double t3_l0 = P_l0[0] + P_l0[1];
-            const double t4_l0 = P_l0[1] + P_l0[7];
-            const double t5_l0 = P_l0[14] + P_l0[15];
-            const double t6_l0 = P_l0[15] + P_l0[21];
-            const double t7_l0 = P_l0[28] + P_l0[29];
-            const double t8_l0 = P_l0[29] + P_l0[35];
-            const double t9_l0 = t3_l0 + t4_l0;
-            const double t10_l0 = t5_l0 + t6_l0;
-            const double t11_l0 = t7_l0 + t8_l0;
-            const double t12_l0 = 0.0025 + t9_l0;
-            const double t13_l0 = 0.005 + t4_l0;
-            const double t14_l0 = 0.01 + P_l0[7];
-            const double t15_l0 = 0.0025 + t10_l0;
-            const double t16_l0 = 0.005 + t6_l0;
-            const double t17_l0 = 0.01 + P_l0[21];
-            const double t18_l0 = 0.0025 + t11_l0;
-            const double t19_l0 = 0.005 + t8_l0;
-            const double t20_l0 = 0.01 + P_l0[35];
-            const double t21_l0 = t12_l0 + t13_l0;
-            const double t22_l0 = t13_l0 + t14_l0;
-            const double t23_l0 = t15_l0 + t16_l0;
-            const double t24_l0 = t16_l0 + t17_l0;
-            const double t25_l0 = t18_l0 + t19_l0;
-            const double t26_l0 = t19_l0 + t20_l0;
-            const double t27_l0 = t21_l0 + t22_l0;
-            const double t28_l0 = t23_l0 + t24_l0;
-            const double t29_l0 = t25_l0 + t26_l0;
-            const double t30_l0 = 0.1 + t27_l0;
-            const double t31_l0 = 0.1 + t28_l0;
-            const double t32_l0 = 0.1 + t29_l0;
-            if (!(t30_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 3], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 6], 1);
+                }
             }
-            if (!(t31_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
             }
-            if (!(t32_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                status_b[j] = mpt3d_a_kf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            const double t33_l0 = t21_l0/t30_l0;
-            const double t34_l0 = t22_l0/t30_l0;
-            const double t35_l0 = t23_l0/t31_l0;
-            const double t36_l0 = t24_l0/t31_l0;
-            const double t37_l0 = t25_l0/t32_l0;
-            const double t38_l0 = t26_l0/t32_l0;
-            const double t39_l0 = x_l0[1] + t0_l0;
-            const double t40_l0 = x_l0[3] + t1_l0;
-            const double t41_l0 = x_l0[5] + t2_l0;
-            const double t42_l0 = z_l0[0] - t39_l0;
-            const double t43_l0 = z_l0[1] - t40_l0;
-            const double t44_l0 = z_l0[2] - t41_l0;
-            const double t45_l0 = t33_l0*t42_l0;
-            const double t46_l0 = t34_l0*t42_l0;
-            const double t47_l0 = t35_l0*t43_l0;
-            const double t48_l0 = t36_l0*t43_l0;
-            const double t49_l0 = t37_l0*t44_l0;
-            const double t50_l0 = t38_l0*t44_l0;
-            const double t51_l0 = t0_l0 + t45_l0;
-            const double t52_l0 = x_l0[1] + t46_l0;
-            const double t53_l0 = t1_l0 + t47_l0;
-            const double t54_l0 = x_l0[3] + t48_l0;
-            const double t55_l0 = t2_l0 + t49_l0;
-            const double t56_l0 = x_l0[5] + t50_l0;
-            const double t57_l0 = t21_l0*t33_l0;
-            const double t58_l0 = t22_l0*t33_l0;
-            const double t59_l0 = t22_l0*t34_l0;
-            const double t60_l0 = t23_l0*t35_l0;
-            const double t61_l0 = t24_l0*t35_l0;
-            const double t62_l0 = t24_l0*t36_l0;
-            const double t63_l0 = t25_l0*t37_l0;
-            const double t64_l0 = t26_l0*t37_l0;
-            const double t65_l0 = t26_l0*t38_l0;
-            const double t66_l0 = t12_l0 - t57_l0;
-            const double t67_l0 = t13_l0 - t58_l0;
-            const double t68_l0 = t14_l0 - t59_l0;
-            const double t69_l0 = t15_l0 - t60_l0;
-            const double t70_l0 = t16_l0 - t61_l0;
-            const double t71_l0 = t17_l0 - t62_l0;
-            const double t72_l0 = t18_l0 - t63_l0;
-            const double t73_l0 = t19_l0 - t64_l0;
-            const double t74_l0 = t20_l0 - t65_l0;
-            xn_l0[0] = t51_l0;
-            xn_l0[1] = t52_l0;
-            xn_l0[2] = t53_l0;
-            xn_l0[3] = t54_l0;
-            xn_l0[4] = t55_l0;
-            xn_l0[5] = t56_l0;
-            Pn_l0[0] = t66_l0;
-            Pn_l0[1] = t67_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = 0.0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = t67_l0;
-            Pn_l0[7] = t68_l0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = 0.0;
-            Pn_l0[11] = 0.0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t69_l0;
-            Pn_l0[15] = t70_l0;
-            Pn_l0[16] = 0.0;
-            Pn_l0[17] = 0.0;
-            Pn_l0[18] = 0.0;
-            Pn_l0[19] = 0.0;
-            Pn_l0[20] = t70_l0;
-            Pn_l0[21] = t71_l0;
-            Pn_l0[22] = 0.0;
-            Pn_l0[23] = 0.0;
-            Pn_l0[24] = 0.0;
-            Pn_l0[25] = 0.0;
-            Pn_l0[26] = 0.0;
-            Pn_l0[27] = 0.0;
-            Pn_l0[28] = t72_l0;
-            Pn_l0[29] = t73_l0;
-            Pn_l0[30] = 0.0;
-            Pn_l0[31] = 0.0;
-            Pn_l0[32] = 0.0;
-            Pn_l0[33] = 0.0;
-            Pn_l0[34] = t73_l0;
-            Pn_l0[35] = t74_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            const double t0_l1 = x_l1[0] + x_l1[1];
-            const double t1_l1 = x_l1[2] + x_l1[3];
-            const double t2_l1 = x_l1[4] + x_l1[5];
-            const double t3_l1 = P_l1[0] + P_l1[1];
-            const double t4_l1 = P_l1[1] + P_l1[7];
-            const double t5_l1 = P_l1[14] + P_l1[15];
-            const double t6_l1 = P_l1[15] + P_l1[21];
-            const double t7_l1 = P_l1[28] + P_l1[29];
-            const double t8_l1 = P_l1[29] + P_l1[35];
-            const double t9_l1 = t3_l1 + t4_l1;
-            const double t10_l1 = t5_l1 + t6_l1;
-            const double t11_l1 = t7_l1 + t8_l1;
-            const double t12_l1 = 0.0025 + t9_l1;
-            const double t13_l1 = 0.005 + t4_l1;
-            const double t14_l1 = 0.01 + P_l1[7];
-            const double t15_l1 = 0.0025 + t10_l1;
-            const double t16_l1 = 0.005 + t6_l1;
-            const double t17_l1 = 0.01 + P_l1[21];
-            const double t18_l1 = 0.0025 + t11_l1;
-            const double t19_l1 = 0.005 + t8_l1;
-            const double t20_l1 = 0.01 + P_l1[35];
-            const double t21_l1 = t12_l1 + t13_l1;
-            const double t22_l1 = t13_l1 + t14_l1;
-            const double t23_l1 = t15_l1 + t16_l1;
-            const double t24_l1 = t16_l1 + t17_l1;
-            const double t25_l1 = t18_l1 + t19_l1;
-            const double t26_l1 = t19_l1 + t20_l1;
-            const double t27_l1 = t21_l1 + t22_l1;
-            const double t28_l1 = t23_l1 + t24_l1;
-            const double t29_l1 = t25_l1 + t26_l1;
-            const double t30_l1 = 0.1 + t27_l1;
-            const double t31_l1 = 0.1 + t28_l1;
-            const double t32_l1 = 0.1 + t29_l1;
-            if (!(t30_l1 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                if (status_b[j]) {
+                    return status_b[j];
+                }
             }
-            if (!(t31_l1 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 6; ++i) {
+                    xs[((t + j) * steps + k) * 6 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 36; ++i) {
+                        Ps[((t + j) * steps + k) * 36 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
             }
-            if (!(t32_l1 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+            for (i = 0; i < 6 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
             }
-            const double t33_l1 = t21_l1/t30_l1;
-            const double t34_l1 = t22_l1/t30_l1;
-            const double t35_l1 = t23_l1/t31_l1;
-            const double t36_l1 = t24_l1/t31_l1;
-            const double t37_l1 = t25_l1/t32_l1;
-            const double t38_l1 = t26_l1/t32_l1;
-            const double t39_l1 = x_l1[1] + t0_l1;
-            const double t40_l1 = x_l1[3] + t1_l1;
-            const double t41_l1 = x_l1[5] + t2_l1;
-            const double t42_l1 = z_l1[0] - t39_l1;
-            const double t43_l1 = z_l1[1] - t40_l1;
-            const double t44_l1 = z_l1[2] - t41_l1;
-            const double t45_l1 = t33_l1*t42_l1;
-            const double t46_l1 = t34_l1*t42_l1;
-            const double t47_l1 = t35_l1*t43_l1;
-            const double t48_l1 = t36_l1*t43_l1;
-            const double t49_l1 = t37_l1*t44_l1;
-            const double t50_l1 = t38_l1*t44_l1;
-            const double t51_l1 = t0_l1 + t45_l1;
-            const double t52_l1 = x_l1[1] + t46_l1;
-            const double t53_l1 = t1_l1 + t47_l1;
-            const double t54_l1 = x_l1[3] + t48_l1;
-            const double t55_l1 = t2_l1 + t49_l1;
-            const double t56_l1 = x_l1[5] + t50_l1;
-            const double t57_l1 = t21_l1*t33_l1;
-            const double t58_l1 = t22_l1*t33_l1;
-            const double t59_l1 = t22_l1*t34_l1;
-            const double t60_l1 = t23_l1*t35_l1;
-            const double t61_l1 = t24_l1*t35_l1;
-            const double t62_l1 = t24_l1*t36_l1;
-            const double t63_l1 = t25_l1*t37_l1;
-            const double t64_l1 = t26_l1*t37_l1;
-            const double t65_l1 = t26_l1*t38_l1;
-            const double t66_l1 = t12_l1 - t57_l1;
-            const double t67_l1 = t13_l1 - t58_l1;
-            const double t68_l1 = t14_l1 - t59_l1;
-            const double t69_l1 = t15_l1 - t60_l1;
-            const double t70_l1 = t16_l1 - t61_l1;
-            const double t71_l1 = t17_l1 - t62_l1;
-            const double t72_l1 = t18_l1 - t63_l1;
-            const double t73_l1 = t19_l1 - t64_l1;
-            const double t74_l1 = t20_l1 - t65_l1;
-            xn_l1[0] = t51_l1;
-            xn_l1[1] = t52_l1;
-            xn_l1[2] = t53_l1;
-            xn_l1[3] = t54_l1;
-            xn_l1[4] = t55_l1;
-            xn_l1[5] = t56_l1;
-            Pn_l1[0] = t66_l1;
-            Pn_l1[1] = t67_l1;
-            Pn_l1[2] = 0.0;
-            Pn_l1[3] = 0.0;
-            Pn_l1[4] = 0.0;
-            Pn_l1[5] = 0.0;
-            Pn_l1[6] = t67_l1;
-            Pn_l1[7] = t68_l1;
-            Pn_l1[8] = 0.0;
-            Pn_l1[9] = 0.0;
-            Pn_l1[10] = 0.0;
-            Pn_l1[11] = 0.0;
-            Pn_l1[12] = 0.0;
-            Pn_l1[13] = 0.0;
-            Pn_l1[14] = t69_l1;
-            Pn_l1[15] = t70_l1;
-            Pn_l1[16] = 0.0;
-            Pn_l1[17] = 0.0;
-            Pn_l1[18] = 0.0;
-            Pn_l1[19] = 0.0;
-            Pn_l1[20] = t70_l1;
-            Pn_l1[21] = t71_l1;
-            Pn_l1[22] = 0.0;
-            Pn_l1[23] = 0.0;
-            Pn_l1[24] = 0.0;
-            Pn_l1[25] = 0.0;
-            Pn_l1[26] = 0.0;
-            Pn_l1[27] = 0.0;
-            Pn_l1[28] = t72_l1;
-            Pn_l1[29] = t73_l1;
-            Pn_l1[30] = 0.0;
-            Pn_l1[31] = 0.0;
-            Pn_l1[32] = 0.0;
-            Pn_l1[33] = 0.0;
-            Pn_l1[34] = t73_l1;
-            Pn_l1[35] = t74_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            const double t0_l2 = x_l2[0] + x_l2[1];
-            const double t1_l2 = x_l2[2] + x_l2[3];
-            const double t2_l2 = x_l2[4] + x_l2[5];
-            const double t3_l2 = P_l2[0] + P_l2[1];
-            const double t4_l2 = P_l2[1] + P_l2[7];
-            const double t5_l2 = P_l2[14] + P_l2[15];
-            const double t6_l2 = P_l2[15] + P_l2[21];
-            const double t7_l2 = P_l2[28] + P_l2[29];
-            const double t8_l2 = P_l2[29] + P_l2[35];
-            const double t9_l2 = t3_l2 + t4_l2;
-            const double t10_l2 = t5_l2 + t6_l2;
-            const double t11_l2 = t7_l2 + t8_l2;
-            const double t12_l2 = 0.0025 + t9_l2;
-            const double t13_l2 = 0.005 + t4_l2;
-            const double t14_l2 = 0.01 + P_l2[7];
-            const double t15_l2 = 0.0025 + t10_l2;
-            const double t16_l2 = 0.005 + t6_l2;
-            const double t17_l2 = 0.01 + P_l2[21];
-            const double t18_l2 = 0.0025 + t11_l2;
-            const double t19_l2 = 0.005 + t8_l2;
-            const double t20_l2 = 0.01 + P_l2[35];
-            const double t21_l2 = t12_l2 + t13_l2;
-            const double t22_l2 = t13_l2 + t14_l2;
-            const double t23_l2 = t15_l2 + t16_l2;
-            const double t24_l2 = t16_l2 + t17_l2;
-            const double t25_l2 = t18_l2 + t19_l2;
-            const double t26_l2 = t19_l2 + t20_l2;
-            const double t27_l2 = t21_l2 + t22_l2;
-            const double t28_l2 = t23_l2 + t24_l2;
-            const double t29_l2 = t25_l2 + t26_l2;
-            const double t30_l2 = 0.1 + t27_l2;
-            const double t31_l2 = 0.1 + t28_l2;
-            const double t32_l2 = 0.1 + t29_l2;
-            if (!(t30_l2 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t31_l2 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t32_l2 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l2 = t21_l2/t30_l2;
-            const double t34_l2 = t22_l2/t30_l2;
-            const double t35_l2 = t23_l2/t31_l2;
-            const double t36_l2 = t24_l2/t31_l2;
-            const double t37_l2 = t25_l2/t32_l2;
-            const double t38_l2 = t26_l2/t32_l2;
-            const double t39_l2 = x_l2[1] + t0_l2;
-            const double t40_l2 = x_l2[3] + t1_l2;
-            const double t41_l2 = x_l2[5] + t2_l2;
-            const double t42_l2 = z_l2[0] - t39_l2;
-            const double t43_l2 = z_l2[1] - t40_l2;
-            const double t44_l2 = z_l2[2] - t41_l2;
-            const double t45_l2 = t33_l2*t42_l2;
-            const double t46_l2 = t34_l2*t42_l2;
-            const double t47_l2 = t35_l2*t43_l2;
-            const double t48_l2 = t36_l2*t43_l2;
-            const double t49_l2 = t37_l2*t44_l2;
-            const double t50_l2 = t38_l2*t44_l2;
-            const double t51_l2 = t0_l2 + t45_l2;
-            const double t52_l2 = x_l2[1] + t46_l2;
-            const double t53_l2 = t1_l2 + t47_l2;
-            const double t54_l2 = x_l2[3] + t48_l2;
-            const double t55_l2 = t2_l2 + t49_l2;
-            const double t56_l2 = x_l2[5] + t50_l2;
-            const double t57_l2 = t21_l2*t33_l2;
-            const double t58_l2 = t22_l2*t33_l2;
-            const double t59_l2 = t22_l2*t34_l2;
-            const double t60_l2 = t23_l2*t35_l2;
-            const double t61_l2 = t24_l2*t35_l2;
-            const double t62_l2 = t24_l2*t36_l2;
-            const double t63_l2 = t25_l2*t37_l2;
-            const double t64_l2 = t26_l2*t37_l2;
-            const double t65_l2 = t26_l2*t38_l2;
-            const double t66_l2 = t12_l2 - t57_l2;
-            const double t67_l2 = t13_l2 - t58_l2;
-            const double t68_l2 = t14_l2 - t59_l2;
-            const double t69_l2 = t15_l2 - t60_l2;
-            const double t70_l2 = t16_l2 - t61_l2;
-            const double t71_l2 = t17_l2 - t62_l2;
-            const double t72_l2 = t18_l2 - t63_l2;
-            const double t73_l2 = t19_l2 - t64_l2;
-            const double t74_l2 = t20_l2 - t65_l2;
-            xn_l2[0] = t51_l2;
-            xn_l2[1] = t52_l2;
-            xn_l2[2] = t53_l2;
-            xn_l2[3] = t54_l2;
-            xn_l2[4] = t55_l2;
-            xn_l2[5] = t56_l2;
-            Pn_l2[0] = t66_l2;
-            Pn_l2[1] = t67_l2;
-            Pn_l2[2] = 0.0;
-            Pn_l2[3] = 0.0;
-            Pn_l2[4] = 0.0;
-            Pn_l2[5] = 0.0;
-            Pn_l2[6] = t67_l2;
-            Pn_l2[7] = t68_l2;
-            Pn_l2[8] = 0.0;
-            Pn_l2[9] = 0.0;
-            Pn_l2[10] = 0.0;
-            Pn_l2[11] = 0.0;
-            Pn_l2[12] = 0.0;
-            Pn_l2[13] = 0.0;
-            Pn_l2[14] = t69_l2;
-            Pn_l2[15] = t70_l2;
-            Pn_l2[16] = 0.0;
-            Pn_l2[17] = 0.0;
-            Pn_l2[18] = 0.0;
-            Pn_l2[19] = 0.0;
-            Pn_l2[20] = t70_l2;
-            Pn_l2[21] = t71_l2;
-            Pn_l2[22] = 0.0;
-            Pn_l2[23] = 0.0;
-            Pn_l2[24] = 0.0;
-            Pn_l2[25] = 0.0;
-            Pn_l2[26] = 0.0;
-            Pn_l2[27] = 0.0;
-            Pn_l2[28] = t72_l2;
-            Pn_l2[29] = t73_l2;
-            Pn_l2[30] = 0.0;
-            Pn_l2[31] = 0.0;
-            Pn_l2[32] = 0.0;
-            Pn_l2[33] = 0.0;
-            Pn_l2[34] = t73_l2;
-            Pn_l2[35] = t74_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            const double t0_l3 = x_l3[0] + x_l3[1];
-            const double t1_l3 = x_l3[2] + x_l3[3];
-            const double t2_l3 = x_l3[4] + x_l3[5];
-            const double t3_l3 = P_l3[0] + P_l3[1];
-            const double t4_l3 = P_l3[1] + P_l3[7];
-            const double t5_l3 = P_l3[14] + P_l3[15];
-            const double t6_l3 = P_l3[15] + P_l3[21];
-            const double t7_l3 = P_l3[28] + P_l3[29];
-            const double t8_l3 = P_l3[29] + P_l3[35];
-            const double t9_l3 = t3_l3 + t4_l3;
-            const double t10_l3 = t5_l3 + t6_l3;
-            const double t11_l3 = t7_l3 + t8_l3;
-            const double t12_l3 = 0.0025 + t9_l3;
-            const double t13_l3 = 0.005 + t4_l3;
-            const double t14_l3 = 0.01 + P_l3[7];
-            const double t15_l3 = 0.0025 + t10_l3;
-            const double t16_l3 = 0.005 + t6_l3;
-            const double t17_l3 = 0.01 + P_l3[21];
-            const double t18_l3 = 0.0025 + t11_l3;
-            const double t19_l3 = 0.005 + t8_l3;
-            const double t20_l3 = 0.01 + P_l3[35];
-            const double t21_l3 = t12_l3 + t13_l3;
-            const double t22_l3 = t13_l3 + t14_l3;
-            const double t23_l3 = t15_l3 + t16_l3;
-            const double t24_l3 = t16_l3 + t17_l3;
-            const double t25_l3 = t18_l3 + t19_l3;
-            const double t26_l3 = t19_l3 + t20_l3;
-            const double t27_l3 = t21_l3 + t22_l3;
-            const double t28_l3 = t23_l3 + t24_l3;
-            const double t29_l3 = t25_l3 + t26_l3;
-            const double t30_l3 = 0.1 + t27_l3;
-            const double t31_l3 = 0.1 + t28_l3;
-            const double t32_l3 = 0.1 + t29_l3;
-            if (!(t30_l3 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t31_l3 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t32_l3 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l3 = t21_l3/t30_l3;
-            const double t34_l3 = t22_l3/t30_l3;
-            const double t35_l3 = t23_l3/t31_l3;
-            const double t36_l3 = t24_l3/t31_l3;
-            const double t37_l3 = t25_l3/t32_l3;
-            const double t38_l3 = t26_l3/t32_l3;
-            const double t39_l3 = x_l3[1] + t0_l3;
-            const double t40_l3 = x_l3[3] + t1_l3;
-            const double t41_l3 = x_l3[5] + t2_l3;
-            const double t42_l3 = z_l3[0] - t39_l3;
-            const double t43_l3 = z_l3[1] - t40_l3;
-            const double t44_l3 = z_l3[2] - t41_l3;
-            const double t45_l3 = t33_l3*t42_l3;
-            const double t46_l3 = t34_l3*t42_l3;
-            const double t47_l3 = t35_l3*t43_l3;
-            const double t48_l3 = t36_l3*t43_l3;
-            const double t49_l3 = t37_l3*t44_l3;
-            const double t50_l3 = t38_l3*t44_l3;
-            const double t51_l3 = t0_l3 + t45_l3;
-            const double t52_l3 = x_l3[1] + t46_l3;
-            const double t53_l3 = t1_l3 + t47_l3;
-            const double t54_l3 = x_l3[3] + t48_l3;
-            const double t55_l3 = t2_l3 + t49_l3;
-            const double t56_l3 = x_l3[5] + t50_l3;
-            const double t57_l3 = t21_l3*t33_l3;
-            const double t58_l3 = t22_l3*t33_l3;
-            const double t59_l3 = t22_l3*t34_l3;
-            const double t60_l3 = t23_l3*t35_l3;
-            const double t61_l3 = t24_l3*t35_l3;
-            const double t62_l3 = t24_l3*t36_l3;
-            const double t63_l3 = t25_l3*t37_l3;
-            const double t64_l3 = t26_l3*t37_l3;
-            const double t65_l3 = t26_l3*t38_l3;
-            const double t66_l3 = t12_l3 - t57_l3;
-            const double t67_l3 = t13_l3 - t58_l3;
-            const double t68_l3 = t14_l3 - t59_l3;
-            const double t69_l3 = t15_l3 - t60_l3;
-            const double t70_l3 = t16_l3 - t61_l3;
-            const double t71_l3 = t17_l3 - t62_l3;
-            const double t72_l3 = t18_l3 - t63_l3;
-            const double t73_l3 = t19_l3 - t64_l3;
-            const double t74_l3 = t20_l3 - t65_l3;
-            xn_l3[0] = t51_l3;
-            xn_l3[1] = t52_l3;
-            xn_l3[2] = t53_l3;
-            xn_l3[3] = t54_l3;
-            xn_l3[4] = t55_l3;
-            xn_l3[5] = t56_l3;
-            Pn_l3[0] = t66_l3;
-            Pn_l3[1] = t67_l3;
-            Pn_l3[2] = 0.0;
-            Pn_l3[3] = 0.0;
-            Pn_l3[4] = 0.0;
-            Pn_l3[5] = 0.0;
-            Pn_l3[6] = t67_l3;
-            Pn_l3[7] = t68_l3;
-            Pn_l3[8] = 0.0;
-            Pn_l3[9] = 0.0;
-            Pn_l3[10] = 0.0;
-            Pn_l3[11] = 0.0;
-            Pn_l3[12] = 0.0;
-            Pn_l3[13] = 0.0;
-            Pn_l3[14] = t69_l3;
-            Pn_l3[15] = t70_l3;
-            Pn_l3[16] = 0.0;
-            Pn_l3[17] = 0.0;
-            Pn_l3[18] = 0.0;
-            Pn_l3[19] = 0.0;
-            Pn_l3[20] = t70_l3;
-            Pn_l3[21] = t71_l3;
-            Pn_l3[22] = 0.0;
-            Pn_l3[23] = 0.0;
-            Pn_l3[24] = 0.0;
-            Pn_l3[25] = 0.0;
-            Pn_l3[26] = 0.0;
-            Pn_l3[27] = 0.0;
-            Pn_l3[28] = t72_l3;
-            Pn_l3[29] = t73_l3;
-            Pn_l3[30] = 0.0;
-            Pn_l3[31] = 0.0;
-            Pn_l3[32] = 0.0;
-            Pn_l3[33] = 0.0;
-            Pn_l3[34] = t73_l3;
-            Pn_l3[35] = t74_l3;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            P_l0[16] = Pn_l0[16];
-            P_l0[17] = Pn_l0[17];
-            P_l0[18] = Pn_l0[18];
-            P_l0[19] = Pn_l0[19];
-            P_l0[20] = Pn_l0[20];
-            P_l0[21] = Pn_l0[21];
-            P_l0[22] = Pn_l0[22];
-            P_l0[23] = Pn_l0[23];
-            P_l0[24] = Pn_l0[24];
-            P_l0[25] = Pn_l0[25];
-            P_l0[26] = Pn_l0[26];
-            P_l0[27] = Pn_l0[27];
-            P_l0[28] = Pn_l0[28];
-            P_l0[29] = Pn_l0[29];
-            P_l0[30] = Pn_l0[30];
-            P_l0[31] = Pn_l0[31];
-            P_l0[32] = Pn_l0[32];
-            P_l0[33] = Pn_l0[33];
-            P_l0[34] = Pn_l0[34];
-            P_l0[35] = Pn_l0[35];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 36 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 36 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 36 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 36 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 36 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 36 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 36 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 36 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 36 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 36 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 36 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 36 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 36 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 36 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 36 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 36 + 15] = Pn_l0[15];
-                Ps[((t + 0) * steps + k) * 36 + 16] = Pn_l0[16];
-                Ps[((t + 0) * steps + k) * 36 + 17] = Pn_l0[17];
-                Ps[((t + 0) * steps + k) * 36 + 18] = Pn_l0[18];
-                Ps[((t + 0) * steps + k) * 36 + 19] = Pn_l0[19];
-                Ps[((t + 0) * steps + k) * 36 + 20] = Pn_l0[20];
-                Ps[((t + 0) * steps + k) * 36 + 21] = Pn_l0[21];
-                Ps[((t + 0) * steps + k) * 36 + 22] = Pn_l0[22];
-                Ps[((t + 0) * steps + k) * 36 + 23] = Pn_l0[23];
-                Ps[((t + 0) * steps + k) * 36 + 24] = Pn_l0[24];
-                Ps[((t + 0) * steps + k) * 36 + 25] = Pn_l0[25];
-                Ps[((t + 0) * steps + k) * 36 + 26] = Pn_l0[26];
-                Ps[((t + 0) * steps + k) * 36 + 27] = Pn_l0[27];
-                Ps[((t + 0) * steps + k) * 36 + 28] = Pn_l0[28];
-                Ps[((t + 0) * steps + k) * 36 + 29] = Pn_l0[29];
-                Ps[((t + 0) * steps + k) * 36 + 30] = Pn_l0[30];
-                Ps[((t + 0) * steps + k) * 36 + 31] = Pn_l0[31];
-                Ps[((t + 0) * steps + k) * 36 + 32] = Pn_l0[32];
-                Ps[((t + 0) * steps + k) * 36 + 33] = Pn_l0[33];
-                Ps[((t + 0) * steps + k) * 36 + 34] = Pn_l0[34];
-                Ps[((t + 0) * steps + k) * 36 + 35] = Pn_l0[35];
-            }
-            xs[((t + 1) * steps + k) * 6 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 6 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 6 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 6 + 3] = x_l1[3] = xn_l1[3];
-            xs[((t + 1) * steps + k) * 6 + 4] = x_l1[4] = xn_l1[4];
-            xs[((t + 1) * steps + k) * 6 + 5] = x_l1[5] = xn_l1[5];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            P_l1[4] = Pn_l1[4];
-            P_l1[5] = Pn_l1[5];
-            P_l1[6] = Pn_l1[6];
-            P_l1[7] = Pn_l1[7];
-            P_l1[8] = Pn_l1[8];
-            P_l1[9] = Pn_l1[9];
-            P_l1[10] = Pn_l1[10];
-            P_l1[11] = Pn_l1[11];
-            P_l1[12] = Pn_l1[12];
-            P_l1[13] = Pn_l1[13];
-            P_l1[14] = Pn_l1[14];
-            P_l1[15] = Pn_l1[15];
-            P_l1[16] = Pn_l1[16];
-            P_l1[17] = Pn_l1[17];
-            P_l1[18] = Pn_l1[18];
-            P_l1[19] = Pn_l1[19];
-            P_l1[20] = Pn_l1[20];
-            P_l1[21] = Pn_l1[21];
-            P_l1[22] = Pn_l1[22];
-            P_l1[23] = Pn_l1[23];
-            P_l1[24] = Pn_l1[24];
-            P_l1[25] = Pn_l1[25];
-            P_l1[26] = Pn_l1[26];
-            P_l1[27] = Pn_l1[27];
-            P_l1[28] = Pn_l1[28];
-            P_l1[29] = Pn_l1[29];
-            P_l1[30] = Pn_l1[30];
-            P_l1[31] = Pn_l1[31];
-            P_l1[32] = Pn_l1[32];
-            P_l1[33] = Pn_l1[33];
-            P_l1[34] = Pn_l1[34];
-            P_l1[35] = Pn_l1[35];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 36 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 36 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 36 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 36 + 3] = Pn_l1[3];
-                Ps[((t + 1) * steps + k) * 36 + 4] = Pn_l1[4];
-                Ps[((t + 1) * steps + k) * 36 + 5] = Pn_l1[5];
-                Ps[((t + 1) * steps + k) * 36 + 6] = Pn_l1[6];
-                Ps[((t + 1) * steps + k) * 36 + 7] = Pn_l1[7];
-                Ps[((t + 1) * steps + k) * 36 + 8] = Pn_l1[8];
-                Ps[((t + 1) * steps + k) * 36 + 9] = Pn_l1[9];
-                Ps[((t + 1) * steps + k) * 36 + 10] = Pn_l1[10];
-                Ps[((t + 1) * steps + k) * 36 + 11] = Pn_l1[11];
-                Ps[((t + 1) * steps + k) * 36 + 12] = Pn_l1[12];
-                Ps[((t + 1) * steps + k) * 36 + 13] = Pn_l1[13];
-                Ps[((t + 1) * steps + k) * 36 + 14] = Pn_l1[14];
-                Ps[((t + 1) * steps + k) * 36 + 15] = Pn_l1[15];
-                Ps[((t + 1) * steps + k) * 36 + 16] = Pn_l1[16];
-                Ps[((t + 1) * steps + k) * 36 + 17] = Pn_l1[17];
-                Ps[((t + 1) * steps + k) * 36 + 18] = Pn_l1[18];
-                Ps[((t + 1) * steps + k) * 36 + 19] = Pn_l1[19];
-                Ps[((t + 1) * steps + k) * 36 + 20] = Pn_l1[20];
-                Ps[((t + 1) * steps + k) * 36 + 21] = Pn_l1[21];
-                Ps[((t + 1) * steps + k) * 36 + 22] = Pn_l1[22];
-                Ps[((t + 1) * steps + k) * 36 + 23] = Pn_l1[23];
-                Ps[((t + 1) * steps + k) * 36 + 24] = Pn_l1[24];
-                Ps[((t + 1) * steps + k) * 36 + 25] = Pn_l1[25];
-                Ps[((t + 1) * steps + k) * 36 + 26] = Pn_l1[26];
-                Ps[((t + 1) * steps + k) * 36 + 27] = Pn_l1[27];
-                Ps[((t + 1) * steps + k) * 36 + 28] = Pn_l1[28];
-                Ps[((t + 1) * steps + k) * 36 + 29] = Pn_l1[29];
-                Ps[((t + 1) * steps + k) * 36 + 30] = Pn_l1[30];
-                Ps[((t + 1) * steps + k) * 36 + 31] = Pn_l1[31];
-                Ps[((t + 1) * steps + k) * 36 + 32] = Pn_l1[32];
-                Ps[((t + 1) * steps + k) * 36 + 33] = Pn_l1[33];
-                Ps[((t + 1) * steps + k) * 36 + 34] = Pn_l1[34];
-                Ps[((t + 1) * steps + k) * 36 + 35] = Pn_l1[35];
-            }
-            xs[((t + 2) * steps + k) * 6 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 6 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 6 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 6 + 3] = x_l2[3] = xn_l2[3];
-            xs[((t + 2) * steps + k) * 6 + 4] = x_l2[4] = xn_l2[4];
-            xs[((t + 2) * steps + k) * 6 + 5] = x_l2[5] = xn_l2[5];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            P_l2[4] = Pn_l2[4];
-            P_l2[5] = Pn_l2[5];
-            P_l2[6] = Pn_l2[6];
-            P_l2[7] = Pn_l2[7];
-            P_l2[8] = Pn_l2[8];
-            P_l2[9] = Pn_l2[9];
-            P_l2[10] = Pn_l2[10];
-            P_l2[11] = Pn_l2[11];
-            P_l2[12] = Pn_l2[12];
-            P_l2[13] = Pn_l2[13];
-            P_l2[14] = Pn_l2[14];
-            P_l2[15] = Pn_l2[15];
-            P_l2[16] = Pn_l2[16];
-            P_l2[17] = Pn_l2[17];
-            P_l2[18] = Pn_l2[18];
-            P_l2[19] = Pn_l2[19];
-            P_l2[20] = Pn_l2[20];
-            P_l2[21] = Pn_l2[21];
-            P_l2[22] = Pn_l2[22];
-            P_l2[23] = Pn_l2[23];
-            P_l2[24] = Pn_l2[24];
-            P_l2[25] = Pn_l2[25];
-            P_l2[26] = Pn_l2[26];
-            P_l2[27] = Pn_l2[27];
-            P_l2[28] = Pn_l2[28];
-            P_l2[29] = Pn_l2[29];
-            P_l2[30] = Pn_l2[30];
-            P_l2[31] = Pn_l2[31];
-            P_l2[32] = Pn_l2[32];
-            P_l2[33] = Pn_l2[33];
-            P_l2[34] = Pn_l2[34];
-            P_l2[35] = Pn_l2[35];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 36 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 36 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 36 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 36 + 3] = Pn_l2[3];
-                Ps[((t + 2) * steps + k) * 36 + 4] = Pn_l2[4];
-                Ps[((t + 2) * steps + k) * 36 + 5] = Pn_l2[5];
-                Ps[((t + 2) * steps + k) * 36 + 6] = Pn_l2[6];
-                Ps[((t + 2) * steps + k) * 36 + 7] = Pn_l2[7];
-                Ps[((t + 2) * steps + k) * 36 + 8] = Pn_l2[8];
-                Ps[((t + 2) * steps + k) * 36 + 9] = Pn_l2[9];
-                Ps[((t + 2) * steps + k) * 36 + 10] = Pn_l2[10];
-                Ps[((t + 2) * steps + k) * 36 + 11] = Pn_l2[11];
-                Ps[((t + 2) * steps + k) * 36 + 12] = Pn_l2[12];
-                Ps[((t + 2) * steps + k) * 36 + 13] = Pn_l2[13];
-                Ps[((t + 2) * steps + k) * 36 + 14] = Pn_l2[14];
-                Ps[((t + 2) * steps + k) * 36 + 15] = Pn_l2[15];
-                Ps[((t + 2) * steps + k) * 36 + 16] = Pn_l2[16];
-                Ps[((t + 2) * steps + k) * 36 + 17] = Pn_l2[17];
-                Ps[((t + 2) * steps + k) * 36 + 18] = Pn_l2[18];
-                Ps[((t + 2) * steps + k) * 36 + 19] = Pn_l2[19];
-                Ps[((t + 2) * steps + k) * 36 + 20] = Pn_l2[20];
-                Ps[((t + 2) * steps + k) * 36 + 21] = Pn_l2[21];
-                Ps[((t + 2) * steps + k) * 36 + 22] = Pn_l2[22];
-                Ps[((t + 2) * steps + k) * 36 + 23] = Pn_l2[23];
-                Ps[((t + 2) * steps + k) * 36 + 24] = Pn_l2[24];
-                Ps[((t + 2) * steps + k) * 36 + 25] = Pn_l2[25];
-                Ps[((t + 2) * steps + k) * 36 + 26] = Pn_l2[26];
-                Ps[((t + 2) * steps + k) * 36 + 27] = Pn_l2[27];
-                Ps[((t + 2) * steps + k) * 36 + 28] = Pn_l2[28];
-                Ps[((t + 2) * steps + k) * 36 + 29] = Pn_l2[29];
-                Ps[((t + 2) * steps + k) * 36 + 30] = Pn_l2[30];
-                Ps[((t + 2) * steps + k) * 36 + 31] = Pn_l2[31];
-                Ps[((t + 2) * steps + k) * 36 + 32] = Pn_l2[32];
-                Ps[((t + 2) * steps + k) * 36 + 33] = Pn_l2[33];
-                Ps[((t + 2) * steps + k) * 36 + 34] = Pn_l2[34];
-                Ps[((t + 2) * steps + k) * 36 + 35] = Pn_l2[35];
-            }
-            xs[((t + 3) * steps + k) * 6 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 6 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 6 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 6 + 3] = x_l3[3] = xn_l3[3];
-            xs[((t + 3) * steps + k) * 6 + 4] = x_l3[4] = xn_l3[4];
-            xs[((t + 3) * steps + k) * 6 + 5] = x_l3[5] = xn_l3[5];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            P_l3[4] = Pn_l3[4];
-            P_l3[5] = Pn_l3[5];
-            P_l3[6] = Pn_l3[6];
-            P_l3[7] = Pn_l3[7];
-            P_l3[8] = Pn_l3[8];
-            P_l3[9] = Pn_l3[9];
-            P_l3[10] = Pn_l3[10];
-            P_l3[11] = Pn_l3[11];
-            P_l3[12] = Pn_l3[12];
-            P_l3[13] = Pn_l3[13];
-            P_l3[14] = Pn_l3[14];
-            P_l3[15] = Pn_l3[15];
-            P_l3[16] = Pn_l3[16];
-            P_l3[17] = Pn_l3[17];
-            P_l3[18] = Pn_l3[18];
-            P_l3[19] = Pn_l3[19];
-            P_l3[20] = Pn_l3[20];
-            P_l3[21] = Pn_l3[21];
-            P_l3[22] = Pn_l3[22];
-            P_l3[23] = Pn_l3[23];
-            P_l3[24] = Pn_l3[24];
-            P_l3[25] = Pn_l3[25];
-            P_l3[26] = Pn_l3[26];
-            P_l3[27] = Pn_l3[27];
-            P_l3[28] = Pn_l3[28];
-            P_l3[29] = Pn_l3[29];
-            P_l3[30] = Pn_l3[30];
-            P_l3[31] = Pn_l3[31];
-            P_l3[32] = Pn_l3[32];
-            P_l3[33] = Pn_l3[33];
-            P_l3[34] = Pn_l3[34];
-            P_l3[35] = Pn_l3[35];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 36 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 36 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 36 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 36 + 3] = Pn_l3[3];
-                Ps[((t + 3) * steps + k) * 36 + 4] = Pn_l3[4];
-                Ps[((t + 3) * steps + k) * 36 + 5] = Pn_l3[5];
-                Ps[((t + 3) * steps + k) * 36 + 6] = Pn_l3[6];
-                Ps[((t + 3) * steps + k) * 36 + 7] = Pn_l3[7];
-                Ps[((t + 3) * steps + k) * 36 + 8] = Pn_l3[8];
-                Ps[((t + 3) * steps + k) * 36 + 9] = Pn_l3[9];
-                Ps[((t + 3) * steps + k) * 36 + 10] = Pn_l3[10];
-                Ps[((t + 3) * steps + k) * 36 + 11] = Pn_l3[11];
-                Ps[((t + 3) * steps + k) * 36 + 12] = Pn_l3[12];
-                Ps[((t + 3) * steps + k) * 36 + 13] = Pn_l3[13];
-                Ps[((t + 3) * steps + k) * 36 + 14] = Pn_l3[14];
-                Ps[((t + 3) * steps + k) * 36 + 15] = Pn_l3[15];
-                Ps[((t + 3) * steps + k) * 36 + 16] = Pn_l3[16];
-                Ps[((t + 3) * steps + k) * 36 + 17] = Pn_l3[17];
-                Ps[((t + 3) * steps + k) * 36 + 18] = Pn_l3[18];
-                Ps[((t + 3) * steps + k) * 36 + 19] = Pn_l3[19];
-                Ps[((t + 3) * steps + k) * 36 + 20] = Pn_l3[20];
-                Ps[((t + 3) * steps + k) * 36 + 21] = Pn_l3[21];
-                Ps[((t + 3) * steps + k) * 36 + 22] = Pn_l3[22];
-                Ps[((t + 3) * steps + k) * 36 + 23] = Pn_l3[23];
-                Ps[((t + 3) * steps + k) * 36 + 24] = Pn_l3[24];
-                Ps[((t + 3) * steps + k) * 36 + 25] = Pn_l3[25];
-                Ps[((t + 3) * steps + k) * 36 + 26] = Pn_l3[26];
-                Ps[((t + 3) * steps + k) * 36 + 27] = Pn_l3[27];
-                Ps[((t + 3) * steps + k) * 36 + 28] = Pn_l3[28];
-                Ps[((t + 3) * steps + k) * 36 + 29] = Pn_l3[29];
-                Ps[((t + 3) * steps + k) * 36 + 30] = Pn_l3[30];
-                Ps[((t + 3) * steps + k) * 36 + 31] = Pn_l3[31];
-                Ps[((t + 3) * steps + k) * 36 + 32] = Pn_l3[32];
-                Ps[((t + 3) * steps + k) * 36 + 33] = Pn_l3[33];
-                Ps[((t + 3) * steps + k) * 36 + 34] = Pn_l3[34];
-                Ps[((t + 3) * steps + k) * 36 + 35] = Pn_l3[35];
+            for (i = 0; i < 36 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[6], xn_l0[6];
-        double P_l0[36], Pn_l0[36];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        P_l0[0] = P0[(t + 0) * 36 + 0];
-        P_l0[1] = P0[(t + 0) * 36 + 1];
-        P_l0[2] = P0[(t + 0) * 36 + 2];
-        P_l0[3] = P0[(t + 0) * 36 + 3];
-        P_l0[4] = P0[(t + 0) * 36 + 4];
-        P_l0[5] = P0[(t + 0) * 36 + 5];
-        P_l0[6] = P0[(t + 0) * 36 + 6];
-        P_l0[7] = P0[(t + 0) * 36 + 7];
-        P_l0[8] = P0[(t + 0) * 36 + 8];
-        P_l0[9] = P0[(t + 0) * 36 + 9];
-        P_l0[10] = P0[(t + 0) * 36 + 10];
-        P_l0[11] = P0[(t + 0) * 36 + 11];
-        P_l0[12] = P0[(t + 0) * 36 + 12];
-        P_l0[13] = P0[(t + 0) * 36 + 13];
-        P_l0[14] = P0[(t + 0) * 36 + 14];
-        P_l0[15] = P0[(t + 0) * 36 + 15];
-        P_l0[16] = P0[(t + 0) * 36 + 16];
-        P_l0[17] = P0[(t + 0) * 36 + 17];
-        P_l0[18] = P0[(t + 0) * 36 + 18];
-        P_l0[19] = P0[(t + 0) * 36 + 19];
-        P_l0[20] = P0[(t + 0) * 36 + 20];
-        P_l0[21] = P0[(t + 0) * 36 + 21];
-        P_l0[22] = P0[(t + 0) * 36 + 22];
-        P_l0[23] = P0[(t + 0) * 36 + 23];
-        P_l0[24] = P0[(t + 0) * 36 + 24];
-        P_l0[25] = P0[(t + 0) * 36 + 25];
-        P_l0[26] = P0[(t + 0) * 36 + 26];
-        P_l0[27] = P0[(t + 0) * 36 + 27];
-        P_l0[28] = P0[(t + 0) * 36 + 28];
-        P_l0[29] = P0[(t + 0) * 36 + 29];
-        P_l0[30] = P0[(t + 0) * 36 + 30];
-        P_l0[31] = P0[(t + 0) * 36 + 31];
-        P_l0[32] = P0[(t + 0) * 36 + 32];
-        P_l0[33] = P0[(t + 0) * 36 + 33];
-        P_l0[34] = P0[(t + 0) * 36 + 34];
-        P_l0[35] = P0[(t + 0) * 36 + 35];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = x_l0[0] + x_l0[1];
-            const double t1_l0 = x_l0[2] + x_l0[3];
-            const double t2_l0 = x_l0[4] + x_l0[5];
-            const double t3_l0 = P_l0[0] + P_l0[1];
-            const double t4_l0 = P_l0[1] + P_l0[7];
-            const double t5_l0 = P_l0[14] + P_l0[15];
-            const double t6_l0 = P_l0[15] + P_l0[21];
-            const double t7_l0 = P_l0[28] + P_l0[29];
-            const double t8_l0 = P_l0[29] + P_l0[35];
-            const double t9_l0 = t3_l0 + t4_l0;
-            const double t10_l0 = t5_l0 + t6_l0;
-            const double t11_l0 = t7_l0 + t8_l0;
-            const double t12_l0 = 0.0025 + t9_l0;
-            const double t13_l0 = 0.005 + t4_l0;
-            const double t14_l0 = 0.01 + P_l0[7];
-            const double t15_l0 = 0.0025 + t10_l0;
-            const double t16_l0 = 0.005 + t6_l0;
-            const double t17_l0 = 0.01 + P_l0[21];
-            const double t18_l0 = 0.0025 + t11_l0;
-            const double t19_l0 = 0.005 + t8_l0;
-            const double t20_l0 = 0.01 + P_l0[35];
-            const double t21_l0 = t12_l0 + t13_l0;
-            const double t22_l0 = t13_l0 + t14_l0;
-            const double t23_l0 = t15_l0 + t16_l0;
-            const double t24_l0 = t16_l0 + t17_l0;
-            const double t25_l0 = t18_l0 + t19_l0;
-            const double t26_l0 = t19_l0 + t20_l0;
-            const double t27_l0 = t21_l0 + t22_l0;
-            const double t28_l0 = t23_l0 + t24_l0;
-            const double t29_l0 = t25_l0 + t26_l0;
-            const double t30_l0 = 0.1 + t27_l0;
-            const double t31_l0 = 0.1 + t28_l0;
-            const double t32_l0 = 0.1 + t29_l0;
-            if (!(t30_l0 > 0.0)) {
-                return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-            }
-            if (!(t31_l0 > 0.0)) {
-                return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-            }
-            if (!(t32_l0 > 0.0)) {
-                return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-            }
-            const double t33_l0 = t21_l0/t30_l0;
-            const double t34_l0 = t22_l0/t30_l0;
-            const double t35_l0 = t23_l0/t31_l0;
-            const double t36_l0 = t24_l0/t31_l0;
-            const double t37_l0 = t25_l0/t32_l0;
-            const double t38_l0 = t26_l0/t32_l0;
-            const double t39_l0 = x_l0[1] + t0_l0;
-            const double t40_l0 = x_l0[3] + t1_l0;
-            const double t41_l0 = x_l0[5] + t2_l0;
-            const double t42_l0 = z_l0[0] - t39_l0;
-            const double t43_l0 = z_l0[1] - t40_l0;
-            const double t44_l0 = z_l0[2] - t41_l0;
-            const double t45_l0 = t33_l0*t42_l0;
-            const double t46_l0 = t34_l0*t42_l0;
-            const double t47_l0 = t35_l0*t43_l0;
-            const double t48_l0 = t36_l0*t43_l0;
-            const double t49_l0 = t37_l0*t44_l0;
-            const double t50_l0 = t38_l0*t44_l0;
-            const double t51_l0 = t0_l0 + t45_l0;
-            const double t52_l0 = x_l0[1] + t46_l0;
-            const double t53_l0 = t1_l0 + t47_l0;
-            const double t54_l0 = x_l0[3] + t48_l0;
-            const double t55_l0 = t2_l0 + t49_l0;
-            const double t56_l0 = x_l0[5] + t50_l0;
-            const double t57_l0 = t21_l0*t33_l0;
-            const double t58_l0 = t22_l0*t33_l0;
-            const double t59_l0 = t22_l0*t34_l0;
-            const double t60_l0 = t23_l0*t35_l0;
-            const double t61_l0 = t24_l0*t35_l0;
-            const double t62_l0 = t24_l0*t36_l0;
-            const double t63_l0 = t25_l0*t37_l0;
-            const double t64_l0 = t26_l0*t37_l0;
-            const double t65_l0 = t26_l0*t38_l0;
-            const double t66_l0 = t12_l0 - t57_l0;
-            const double t67_l0 = t13_l0 - t58_l0;
-            const double t68_l0 = t14_l0 - t59_l0;
-            const double t69_l0 = t15_l0 - t60_l0;
-            const double t70_l0 = t16_l0 - t61_l0;
-            const double t71_l0 = t17_l0 - t62_l0;
-            const double t72_l0 = t18_l0 - t63_l0;
-            const double t73_l0 = t19_l0 - t64_l0;
-            const double t74_l0 = t20_l0 - t65_l0;
-            xn_l0[0] = t51_l0;
-            xn_l0[1] = t52_l0;
-            xn_l0[2] = t53_l0;
-            xn_l0[3] = t54_l0;
-            xn_l0[4] = t55_l0;
-            xn_l0[5] = t56_l0;
-            Pn_l0[0] = t66_l0;
-            Pn_l0[1] = t67_l0;
-            Pn_l0[2] = 0.0;
-            Pn_l0[3] = 0.0;
-            Pn_l0[4] = 0.0;
-            Pn_l0[5] = 0.0;
-            Pn_l0[6] = t67_l0;
-            Pn_l0[7] = t68_l0;
-            Pn_l0[8] = 0.0;
-            Pn_l0[9] = 0.0;
-            Pn_l0[10] = 0.0;
-            Pn_l0[11] = 0.0;
-            Pn_l0[12] = 0.0;
-            Pn_l0[13] = 0.0;
-            Pn_l0[14] = t69_l0;
-            Pn_l0[15] = t70_l0;
-            Pn_l0[16] = 0.0;
-            Pn_l0[17] = 0.0;
-            Pn_l0[18] = 0.0;
-            Pn_l0[19] = 0.0;
-            Pn_l0[20] = t70_l0;
-            Pn_l0[21] = t71_l0;
-            Pn_l0[22] = 0.0;
-            Pn_l0[23] = 0.0;
-            Pn_l0[24] = 0.0;
-            Pn_l0[25] = 0.0;
-            Pn_l0[26] = 0.0;
-            Pn_l0[27] = 0.0;
-            Pn_l0[28] = t72_l0;
-            Pn_l0[29] = t73_l0;
-            Pn_l0[30] = 0.0;
-            Pn_l0[31] = 0.0;
-            Pn_l0[32] = 0.0;
-            Pn_l0[33] = 0.0;
-            Pn_l0[34] = t73_l0;
-            Pn_l0[35] = t74_l0;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            P_l0[4] = Pn_l0[4];
-            P_l0[5] = Pn_l0[5];
-            P_l0[6] = Pn_l0[6];
-            P_l0[7] = Pn_l0[7];
-            P_l0[8] = Pn_l0[8];
-            P_l0[9] = Pn_l0[9];
-            P_l0[10] = Pn_l0[10];
-            P_l0[11] = Pn_l0[11];
-            P_l0[12] = Pn_l0[12];
-            P_l0[13] = Pn_l0[13];
-            P_l0[14] = Pn_l0[14];
-            P_l0[15] = Pn_l0[15];
-            P_l0[16] = Pn_l0[16];
-            P_l0[17] = Pn_l0[17];
-            P_l0[18] = Pn_l0[18];
-            P_l0[19] = Pn_l0[19];
-            P_l0[20] = Pn_l0[20];
-            P_l0[21] = Pn_l0[21];
-            P_l0[22] = Pn_l0[22];
-            P_l0[23] = Pn_l0[23];
-            P_l0[24] = Pn_l0[24];
-            P_l0[25] = Pn_l0[25];
-            P_l0[26] = Pn_l0[26];
-            P_l0[27] = Pn_l0[27];
-            P_l0[28] = Pn_l0[28];
-            P_l0[29] = Pn_l0[29];
-            P_l0[30] = Pn_l0[30];
-            P_l0[31] = Pn_l0[31];
-            P_l0[32] = Pn_l0[32];
-            P_l0[33] = Pn_l0[33];
-            P_l0[34] = Pn_l0[34];
-            P_l0[35] = Pn_l0[35];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 36 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 36 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 36 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 36 + 3] = Pn_l0[3];
-                Ps[((t + 0) * steps + k) * 36 + 4] = Pn_l0[4];
-                Ps[((t + 0) * steps + k) * 36 + 5] = Pn_l0[5];
-                Ps[((t + 0) * steps + k) * 36 + 6] = Pn_l0[6];
-                Ps[((t + 0) * steps + k) * 36 + 7] = Pn_l0[7];
-                Ps[((t + 0) * steps + k) * 36 + 8] = Pn_l0[8];
-                Ps[((t + 0) * steps + k) * 36 + 9] = Pn_l0[9];
-                Ps[((t + 0) * steps + k) * 36 + 10] = Pn_l0[10];
-                Ps[((t + 0) * steps + k) * 36 + 11] = Pn_l0[11];
-                Ps[((t + 0) * steps + k) * 36 + 12] = Pn_l0[12];
-                Ps[((t + 0) * steps + k) * 36 + 13] = Pn_l0[13];
-                Ps[((t + 0) * steps + k) * 36 + 14] = Pn_l0[14];
-                Ps[((t + 0) * steps + k) * 36 + 15] = Pn_l0[15];
-                Ps[((t + 0) * steps + k) * 36 + 16] = Pn_l0[16];
-                Ps[((t + 0) * steps + k) * 36 + 17] = Pn_l0[17];
-                Ps[((t + 0) * steps + k) * 36 + 18] = Pn_l0[18];
-                Ps[((t + 0) * steps + k) * 36 + 19] = Pn_l0[19];
-                Ps[((t + 0) * steps + k) * 36 + 20] = Pn_l0[20];
-                Ps[((t + 0) * steps + k) * 36 + 21] = Pn_l0[21];
-                Ps[((t + 0) * steps + k) * 36 + 22] = Pn_l0[22];
-                Ps[((t + 0) * steps + k) * 36 + 23] = Pn_l0[23];
-                Ps[((t + 0) * steps + k) * 36 + 24] = Pn_l0[24];
-                Ps[((t + 0) * steps + k) * 36 + 25] = Pn_l0[25];
-                Ps[((t + 0) * steps + k) * 36 + 26] = Pn_l0[26];
-                Ps[((t + 0) * steps + k) * 36 + 27] = Pn_l0[27];
-                Ps[((t + 0) * steps + k) * 36 + 28] = Pn_l0[28];
-                Ps[((t + 0) * steps + k) * 36 + 29] = Pn_l0[29];
-                Ps[((t + 0) * steps + k) * 36 + 30] = Pn_l0[30];
-                Ps[((t + 0) * steps + k) * 36 + 31] = Pn_l0[31];
-                Ps[((t + 0) * steps + k) * 36 + 32] = Pn_l0[32];
-                Ps[((t + 0) * steps + k) * 36 + 33] = Pn_l0[33];
-                Ps[((t + 0) * steps + k) * 36 + 34] = Pn_l0[34];
-                Ps[((t + 0) * steps + k) * 36 + 35] = Pn_l0[35];
-            }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        const int track_status = mpt3d_a_kf_run(steps, z + t * steps * 3, x0 + t * 6, P0 + t * 6 * 6, xs + t * steps * 6, Ps ? Ps + t * steps * 6 * 6 : NULL);
+        if (track_status) {
+            return track_status;
         }
     }
     return 0;

@@ -23,6 +23,8 @@ P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -100,87 +102,87 @@ def _step_in_pattern(x, P, z):
     """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = x[0] + x[1]
-    t1 = x[2] + x[3]
-    t2 = x[4] + x[5]
-    t3 = P[0] + P[1]
-    t4 = P[1] + P[7]
-    t5 = P[14] + P[15]
-    t6 = P[15] + P[21]
-    t7 = P[28] + P[29]
-    t8 = P[29] + P[35]
-    t9 = t3 + t4
-    t10 = t5 + t6
-    t11 = t7 + t8
-    t12 = 0.0025 + t9
-    t13 = 0.005 + t4
-    t14 = 0.01 + P[7]
-    t15 = 0.0025 + t10
-    t16 = 0.005 + t6
-    t17 = 0.01 + P[21]
-    t18 = 0.0025 + t11
-    t19 = 0.005 + t8
-    t20 = 0.01 + P[35]
-    t21 = t12 + t13
-    t22 = t13 + t14
-    t23 = t15 + t16
-    t24 = t16 + t17
-    t25 = t18 + t19
-    t26 = t19 + t20
-    t27 = t21 + t22
-    t28 = t23 + t24
-    t29 = t25 + t26
-    t30 = 0.1 + t27
-    t31 = 0.1 + t28
-    t32 = 0.1 + t29
-    _require_positive(t30, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    _require_positive(t31, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-    _require_positive(t32, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-    t33 = t21/t30
-    t34 = t22/t30
-    t35 = t23/t31
-    t36 = t24/t31
-    t37 = t25/t32
-    t38 = t26/t32
-    t39 = x[1] + t0
-    t40 = x[3] + t1
-    t41 = x[5] + t2
-    t42 = z[0] - t39
-    t43 = z[1] - t40
-    t44 = z[2] - t41
-    t45 = t33*t42
-    t46 = t34*t42
-    t47 = t35*t43
-    t48 = t36*t43
-    t49 = t37*t44
-    t50 = t38*t44
-    t51 = t0 + t45
-    t52 = x[1] + t46
-    t53 = t1 + t47
-    t54 = x[3] + t48
-    t55 = t2 + t49
-    t56 = x[5] + t50
-    t57 = t21*t33
-    t58 = t22*t33
-    t59 = t22*t34
-    t60 = t23*t35
-    t61 = t24*t35
-    t62 = t24*t36
-    t63 = t25*t37
-    t64 = t26*t37
-    t65 = t26*t38
-    t66 = t12 - t57
-    t67 = t13 - t58
-    t68 = t14 - t59
-    t69 = t15 - t60
-    t70 = t16 - t61
-    t71 = t17 - t62
-    t72 = t18 - t63
-    t73 = t19 - t64
-    t74 = t20 - t65
-    x_new = [t51, t52, t53, t54, t55, t56]
+    t1 = P[0] + P[1]
+    t2 = P[1] + P[7]
+    t3 = t1 + t2
+    t4 = 0.0025 + t3
+    t5 = 0.005 + t2
+    t6 = 0.01 + P[7]
+    t7 = t4 + t5
+    t8 = t5 + t6
+    t9 = t7 + t8
+    t10 = 0.1 + t9
+    _require_positive(t10, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    t11 = t7/t10
+    t12 = t8/t10
+    t13 = x[1] + t0
+    t14 = z[0] - t13
+    t15 = t11*t14
+    t16 = t12*t14
+    t17 = t0 + t15
+    t18 = x[1] + t16
+    t19 = t11*t7
+    t20 = t11*t8
+    t21 = t12*t8
+    t22 = t4 - t19
+    t23 = t5 - t20
+    t24 = t6 - t21
+    t25 = x[2] + x[3]
+    t26 = P[14] + P[15]
+    t27 = P[15] + P[21]
+    t28 = t26 + t27
+    t29 = 0.0025 + t28
+    t30 = 0.005 + t27
+    t31 = 0.01 + P[21]
+    t32 = t29 + t30
+    t33 = t30 + t31
+    t34 = t32 + t33
+    t35 = 0.1 + t34
+    _require_positive(t35, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    t36 = t32/t35
+    t37 = t33/t35
+    t38 = x[3] + t25
+    t39 = z[1] - t38
+    t40 = t36*t39
+    t41 = t37*t39
+    t42 = t25 + t40
+    t43 = x[3] + t41
+    t44 = t32*t36
+    t45 = t33*t36
+    t46 = t33*t37
+    t47 = t29 - t44
+    t48 = t30 - t45
+    t49 = t31 - t46
+    t50 = x[4] + x[5]
+    t51 = P[28] + P[29]
+    t52 = P[29] + P[35]
+    t53 = t51 + t52
+    t54 = 0.0025 + t53
+    t55 = 0.005 + t52
+    t56 = 0.01 + P[35]
+    t57 = t54 + t55
+    t58 = t55 + t56
+    t59 = t57 + t58
+    t60 = 0.1 + t59
+    _require_positive(t60, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    t61 = t57/t60
+    t62 = t58/t60
+    t63 = x[5] + t50
+    t64 = z[2] - t63
+    t65 = t61*t64
+    t66 = t62*t64
+    t67 = t50 + t65
+    t68 = x[5] + t66
+    t69 = t57*t61
+    t70 = t58*t61
+    t71 = t58*t62
+    t72 = t54 - t69
+    t73 = t55 - t70
+    t74 = t56 - t71
+    x_new = [t17, t18, t42, t43, t67, t68]
     P_new = [
-        t66, t67, 0.0, 0.0, 0.0, 0.0, t67, t68, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t69, t70, 0.0,
-        0.0, 0.0, 0.0, t70, t71, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t72, t73, 0.0, 0.0, 0.0, 0.0,
+        t22, t23, 0.0, 0.0, 0.0, 0.0, t23, t24, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t47, t48, 0.0,
+        0.0, 0.0, 0.0, t48, t49, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, t72, t73, 0.0, 0.0, 0.0, 0.0,
         t73, t74,
     ]
     return x_new, P_new
@@ -214,106 +216,65 @@ def run(zs, x0, P0):
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = []
         keep = rows.extend
-        for k, zk in enumerate(zs.tolist()):
+        for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = x_0 + x_1
-            t1 = x_2 + x_3
-            t2 = x_4 + x_5
-            t3 = P_0 + P_1
-            t4 = P_1 + P_7
-            t5 = P_14 + P_15
-            t6 = P_15 + P_21
-            t7 = P_28 + P_29
-            t8 = P_29 + P_35
-            t9 = t3 + t4
-            t10 = t5 + t6
-            t11 = t7 + t8
-            t12 = 0.0025 + t9
-            t13 = 0.005 + t4
-            t14 = 0.01 + P_7
-            t15 = 0.0025 + t10
-            t16 = 0.005 + t6
-            t17 = 0.01 + P_21
-            t18 = 0.0025 + t11
-            t19 = 0.005 + t8
-            t20 = 0.01 + P_35
-            t21 = t12 + t13
-            t22 = t13 + t14
-            t23 = t15 + t16
-            t24 = t16 + t17
-            t25 = t18 + t19
-            t26 = t19 + t20
-            t27 = t21 + t22
-            t28 = t23 + t24
-            t29 = t25 + t26
-            t30 = 0.1 + t27
-            t31 = 0.1 + t28
-            t32 = 0.1 + t29
-            if not t30 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-            if not t31 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
-            if not t32 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
-            t33 = t21/t30
-            t34 = t22/t30
-            t35 = t23/t31
-            t36 = t24/t31
-            t37 = t25/t32
-            t38 = t26/t32
-            t39 = x_1 + t0
-            t40 = x_3 + t1
-            t41 = x_5 + t2
-            t42 = z_0 - t39
-            t43 = z_1 - t40
-            t44 = z_2 - t41
-            t45 = t33*t42
-            t46 = t34*t42
-            t47 = t35*t43
-            t48 = t36*t43
-            t49 = t37*t44
-            t50 = t38*t44
-            t51 = t0 + t45
-            t52 = x_1 + t46
-            t53 = t1 + t47
-            t54 = x_3 + t48
-            t55 = t2 + t49
-            t56 = x_5 + t50
-            t57 = t21*t33
-            t58 = t22*t33
-            t59 = t22*t34
-            t60 = t23*t35
-            t61 = t24*t35
-            t62 = t24*t36
-            t63 = t25*t37
-            t64 = t26*t37
-            t65 = t26*t38
-            t66 = t12 - t57
-            t67 = t13 - t58
-            t68 = t14 - t59
-            t69 = t15 - t60
-            t70 = t16 - t61
-            t71 = t17 - t62
-            t72 = t18 - t63
-            t73 = t19 - t64
-            t74 = t20 - t65
-            keep((t51, t52, t53, t54, t55, t56, t66, t67, 0.0, t68, t69, t70, t71, t72, t73, t74))
-            x_0 = t51
-            x_1 = t52
-            x_2 = t53
-            x_3 = t54
-            x_4 = t55
-            x_5 = t56
-            P_0 = t66
-            P_1 = t67
-            P_7 = t68
-            P_14 = t69
-            P_15 = t70
-            P_21 = t71
-            P_28 = t72
-            P_29 = t73
-            P_35 = t74
-        table = np.array(rows, dtype=float).reshape(-1, 16)
+            t2 = P_1 + P_7
+            t4 = 0.0025 + (P_0 + P_1 + t2)
+            t5 = 0.005 + t2
+            t6 = 0.01 + P_7
+            t7 = t4 + t5
+            t8 = t5 + t6
+            t10 = 0.1 + (t7 + t8)
+            if not t10 > 0.0:
+                raise NumericalError(f"step {len(rows) // 16}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+            t11 = t7/t10
+            t12 = t8/t10
+            t14 = z_0 - (x_1 + t0)
+            x_0 = t0 + t11*t14
+            x_1 = x_1 + t12*t14
+            P_0 = t4 - t11*t7
+            P_1 = t5 - t11*t8
+            P_7 = t6 - t12*t8
+            t25 = x_2 + x_3
+            t27 = P_15 + P_21
+            t29 = 0.0025 + (P_14 + P_15 + t27)
+            t30 = 0.005 + t27
+            t31 = 0.01 + P_21
+            t32 = t29 + t30
+            t33 = t30 + t31
+            t35 = 0.1 + (t32 + t33)
+            if not t35 > 0.0:
+                raise NumericalError(f"step {len(rows) // 16}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+            t36 = t32/t35
+            t37 = t33/t35
+            t39 = z_1 - (x_3 + t25)
+            x_2 = t25 + t36*t39
+            x_3 = x_3 + t37*t39
+            P_14 = t29 - t32*t36
+            P_15 = t30 - t33*t36
+            P_21 = t31 - t33*t37
+            t50 = x_4 + x_5
+            t52 = P_29 + P_35
+            t54 = 0.0025 + (P_28 + P_29 + t52)
+            t55 = 0.005 + t52
+            t56 = 0.01 + P_35
+            t57 = t54 + t55
+            t58 = t55 + t56
+            t60 = 0.1 + (t57 + t58)
+            if not t60 > 0.0:
+                raise NumericalError(f"step {len(rows) // 16}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+            t61 = t57/t60
+            t62 = t58/t60
+            t64 = z_2 - (x_5 + t50)
+            x_4 = t50 + t61*t64
+            x_5 = x_5 + t62*t64
+            P_28 = t54 - t57*t61
+            P_29 = t55 - t58*t61
+            P_35 = t56 - t58*t62
+            keep((x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21, P_28, P_29,
+                    P_35))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))

@@ -47,6 +47,193 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
+{
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = x[2 * s] + x[3 * s];
+    const double t2 = x[4 * s] + x[5 * s];
+    const double t3 = P[0] + P[1 * s];
+    const double t4 = P[1 * s] + P[7 * s];
+    const double t5 = P[14 * s] + P[15 * s];
+    const double t6 = P[15 * s] + P[21 * s];
+    const double t7 = P[28 * s] + P[29 * s];
+    const double t8 = P[29 * s] + P[35 * s];
+    const double t9 = t3 + t4;
+    const double t10 = t5 + t6;
+    const double t11 = t7 + t8;
+    const double t12 = 0.0025 + t9;
+    const double t13 = 0.005 + t4;
+    const double t14 = 0.01 + P[7 * s];
+    const double t15 = 0.0025 + t10;
+    const double t16 = 0.005 + t6;
+    const double t17 = 0.01 + P[21 * s];
+    const double t18 = 0.0025 + t11;
+    const double t19 = 0.005 + t8;
+    const double t20 = 0.01 + P[35 * s];
+    const double t21 = t12 + t13;
+    const double t22 = t13 + t14;
+    const double t23 = t15 + t16;
+    const double t24 = t16 + t17;
+    const double t25 = t18 + t19;
+    const double t26 = t19 + t20;
+    const double t27 = t21 + t22;
+    const double t28 = t23 + t24;
+    const double t29 = t25 + t26;
+    const double t30 = 0.1 + t27;
+    const double t31 = 0.1 + t28;
+    const double t32 = 0.1 + t29;
+    if (!(t30 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    }
+    if (!(t31 > 0.0) && !status) {
+        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+    }
+    if (!(t32 > 0.0) && !status) {
+        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+    }
+    const double t33 = t21/t30;
+    const double t34 = t22/t30;
+    const double t35 = t23/t31;
+    const double t36 = t24/t31;
+    const double t37 = t25/t32;
+    const double t38 = t26/t32;
+    const double t39 = x[1 * s] + t0;
+    const double t40 = x[3 * s] + t1;
+    const double t41 = x[5 * s] + t2;
+    const double t42 = z[0] - t39;
+    const double t43 = z[1 * s] - t40;
+    const double t44 = z[2 * s] - t41;
+    const double t45 = t33*t42;
+    const double t46 = t34*t42;
+    const double t47 = t35*t43;
+    const double t48 = t36*t43;
+    const double t49 = t37*t44;
+    const double t50 = t38*t44;
+    const double t51 = t0 + t45;
+    const double t52 = x[1 * s] + t46;
+    const double t53 = t1 + t47;
+    const double t54 = x[3 * s] + t48;
+    const double t55 = t2 + t49;
+    const double t56 = x[5 * s] + t50;
+    const double t57 = t21*t33;
+    const double t58 = t22*t33;
+    const double t59 = t22*t34;
+    const double t60 = t23*t35;
+    const double t61 = t24*t35;
+    const double t62 = t24*t36;
+    const double t63 = t25*t37;
+    const double t64 = t26*t37;
+    const double t65 = t26*t38;
+    const double t66 = t12 - t57;
+    const double t67 = t13 - t58;
+    const double t68 = t14 - t59;
+    const double t69 = t15 - t60;
+    const double t70 = t16 - t61;
+    const double t71 = t17 - t62;
+    const double t72 = t18 - t63;
+    const double t73 = t19 - t64;
+    const double t74 = t20 - t65;
+    x_new[0] = t51;
+    x_new[1 * s] = t52;
+    x_new[2 * s] = t53;
+    x_new[3 * s] = t54;
+    x_new[4 * s] = t55;
+    x_new[5 * s] = t56;
+    P_new[0] = t66;
+    P_new[1 * s] = t67;
+    P_new[2 * s] = 0.0;
+    P_new[3 * s] = 0.0;
+    P_new[4 * s] = 0.0;
+    P_new[5 * s] = 0.0;
+    P_new[6 * s] = t67;
+    P_new[7 * s] = t68;
+    P_new[8 * s] = 0.0;
+    P_new[9 * s] = 0.0;
+    P_new[10 * s] = 0.0;
+    P_new[11 * s] = 0.0;
+    P_new[12 * s] = 0.0;
+    P_new[13 * s] = 0.0;
+    P_new[14 * s] = t69;
+    P_new[15 * s] = t70;
+    P_new[16 * s] = 0.0;
+    P_new[17 * s] = 0.0;
+    P_new[18 * s] = 0.0;
+    P_new[19 * s] = 0.0;
+    P_new[20 * s] = t70;
+    P_new[21 * s] = t71;
+    P_new[22 * s] = 0.0;
+    P_new[23 * s] = 0.0;
+    P_new[24 * s] = 0.0;
+    P_new[25 * s] = 0.0;
+    P_new[26 * s] = 0.0;
+    P_new[27 * s] = 0.0;
+    P_new[28 * s] = t72;
+    P_new[29 * s] = t73;
+    P_new[30 * s] = 0.0;
+    P_new[31 * s] = 0.0;
+    P_new[32 * s] = 0.0;
+    P_new[33 * s] = 0.0;
+    P_new[34 * s] = t73;
+    P_new[35 * s] = t74;
+    x_pred[0] = t0;
+    x_pred[1 * s] = x[1 * s];
+    x_pred[2 * s] = t1;
+    x_pred[3 * s] = x[3 * s];
+    x_pred[4 * s] = t2;
+    x_pred[5 * s] = x[5 * s];
+    P_pred[0] = t12;
+    P_pred[1 * s] = t13;
+    P_pred[2 * s] = 0.0;
+    P_pred[3 * s] = 0.0;
+    P_pred[4 * s] = 0.0;
+    P_pred[5 * s] = 0.0;
+    P_pred[6 * s] = t13;
+    P_pred[7 * s] = t14;
+    P_pred[8 * s] = 0.0;
+    P_pred[9 * s] = 0.0;
+    P_pred[10 * s] = 0.0;
+    P_pred[11 * s] = 0.0;
+    P_pred[12 * s] = 0.0;
+    P_pred[13 * s] = 0.0;
+    P_pred[14 * s] = t15;
+    P_pred[15 * s] = t16;
+    P_pred[16 * s] = 0.0;
+    P_pred[17 * s] = 0.0;
+    P_pred[18 * s] = 0.0;
+    P_pred[19 * s] = 0.0;
+    P_pred[20 * s] = t16;
+    P_pred[21 * s] = t17;
+    P_pred[22 * s] = 0.0;
+    P_pred[23 * s] = 0.0;
+    P_pred[24 * s] = 0.0;
+    P_pred[25 * s] = 0.0;
+    P_pred[26 * s] = 0.0;
+    P_pred[27 * s] = 0.0;
+    P_pred[28 * s] = t18;
+    P_pred[29 * s] = t19;
+    P_pred[30 * s] = 0.0;
+    P_pred[31 * s] = 0.0;
+    P_pred[32 * s] = 0.0;
+    P_pred[33 * s] = 0.0;
+    P_pred[34 * s] = t19;
+    P_pred[35 * s] = t20;
+    return status;
+}
+
 int mpt3d_a_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
 {
     if (!(P[2] == 0.0)) {
@@ -85,175 +272,7 @@ int mpt3d_a_rts_step(const double *restrict x, const double *restrict P, const d
     if (!(P[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-    const double t0 = x[0] + x[1];
-    const double t1 = x[2] + x[3];
-    const double t2 = x[4] + x[5];
-    const double t3 = P[0] + P[1];
-    const double t4 = P[1] + P[7];
-    const double t5 = P[14] + P[15];
-    const double t6 = P[15] + P[21];
-    const double t7 = P[28] + P[29];
-    const double t8 = P[29] + P[35];
-    const double t9 = t3 + t4;
-    const double t10 = t5 + t6;
-    const double t11 = t7 + t8;
-    const double t12 = 0.0025 + t9;
-    const double t13 = 0.005 + t4;
-    const double t14 = 0.01 + P[7];
-    const double t15 = 0.0025 + t10;
-    const double t16 = 0.005 + t6;
-    const double t17 = 0.01 + P[21];
-    const double t18 = 0.0025 + t11;
-    const double t19 = 0.005 + t8;
-    const double t20 = 0.01 + P[35];
-    const double t21 = t12 + t13;
-    const double t22 = t13 + t14;
-    const double t23 = t15 + t16;
-    const double t24 = t16 + t17;
-    const double t25 = t18 + t19;
-    const double t26 = t19 + t20;
-    const double t27 = t21 + t22;
-    const double t28 = t23 + t24;
-    const double t29 = t25 + t26;
-    const double t30 = 0.1 + t27;
-    const double t31 = 0.1 + t28;
-    const double t32 = 0.1 + t29;
-    if (!(t30 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
-    }
-    if (!(t31 > 0.0)) {
-        return 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
-    }
-    if (!(t32 > 0.0)) {
-        return 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
-    }
-    const double t33 = t21/t30;
-    const double t34 = t22/t30;
-    const double t35 = t23/t31;
-    const double t36 = t24/t31;
-    const double t37 = t25/t32;
-    const double t38 = t26/t32;
-    const double t39 = x[1] + t0;
-    const double t40 = x[3] + t1;
-    const double t41 = x[5] + t2;
-    const double t42 = z[0] - t39;
-    const double t43 = z[1] - t40;
-    const double t44 = z[2] - t41;
-    const double t45 = t33*t42;
-    const double t46 = t34*t42;
-    const double t47 = t35*t43;
-    const double t48 = t36*t43;
-    const double t49 = t37*t44;
-    const double t50 = t38*t44;
-    const double t51 = t0 + t45;
-    const double t52 = x[1] + t46;
-    const double t53 = t1 + t47;
-    const double t54 = x[3] + t48;
-    const double t55 = t2 + t49;
-    const double t56 = x[5] + t50;
-    const double t57 = t21*t33;
-    const double t58 = t22*t33;
-    const double t59 = t22*t34;
-    const double t60 = t23*t35;
-    const double t61 = t24*t35;
-    const double t62 = t24*t36;
-    const double t63 = t25*t37;
-    const double t64 = t26*t37;
-    const double t65 = t26*t38;
-    const double t66 = t12 - t57;
-    const double t67 = t13 - t58;
-    const double t68 = t14 - t59;
-    const double t69 = t15 - t60;
-    const double t70 = t16 - t61;
-    const double t71 = t17 - t62;
-    const double t72 = t18 - t63;
-    const double t73 = t19 - t64;
-    const double t74 = t20 - t65;
-    x_new[0] = t51;
-    x_new[1] = t52;
-    x_new[2] = t53;
-    x_new[3] = t54;
-    x_new[4] = t55;
-    x_new[5] = t56;
-    P_new[0] = t66;
-    P_new[1] = t67;
-    P_new[2] = 0.0;
-    P_new[3] = 0.0;
-    P_new[4] = 0.0;
-    P_new[5] = 0.0;
-    P_new[6] = t67;
-    P_new[7] = t68;
-    P_new[8] = 0.0;
-    P_new[9] = 0.0;
-    P_new[10] = 0.0;
-    P_new[11] = 0.0;
-    P_new[12] = 0.0;
-    P_new[13] = 0.0;
-    P_new[14] = t69;
-    P_new[15] = t70;
-    P_new[16] = 0.0;
-    P_new[17] = 0.0;
-    P_new[18] = 0.0;
-    P_new[19] = 0.0;
-    P_new[20] = t70;
-    P_new[21] = t71;
-    P_new[22] = 0.0;
-    P_new[23] = 0.0;
-    P_new[24] = 0.0;
-    P_new[25] = 0.0;
-    P_new[26] = 0.0;
-    P_new[27] = 0.0;
-    P_new[28] = t72;
-    P_new[29] = t73;
-    P_new[30] = 0.0;
-    P_new[31] = 0.0;
-    P_new[32] = 0.0;
-    P_new[33] = 0.0;
-    P_new[34] = t73;
-    P_new[35] = t74;
-    x_pred[0] = t0;
-    x_pred[1] = x[1];
-    x_pred[2] = t1;
-    x_pred[3] = x[3];
-    x_pred[4] = t2;
-    x_pred[5] = x[5];
-    P_pred[0] = t12;
-    P_pred[1] = t13;
-    P_pred[2] = 0.0;
-    P_pred[3] = 0.0;
-    P_pred[4] = 0.0;
-    P_pred[5] = 0.0;
-    P_pred[6] = t13;
-    P_pred[7] = t14;
-    P_pred[8] = 0.0;
-    P_pred[9] = 0.0;
-    P_pred[10] = 0.0;
-    P_pred[11] = 0.0;
-    P_pred[12] = 0.0;
-    P_pred[13] = 0.0;
-    P_pred[14] = t15;
-    P_pred[15] = t16;
-    P_pred[16] = 0.0;
-    P_pred[17] = 0.0;
-    P_pred[18] = 0.0;
-    P_pred[19] = 0.0;
-    P_pred[20] = t16;
-    P_pred[21] = t17;
-    P_pred[22] = 0.0;
-    P_pred[23] = 0.0;
-    P_pred[24] = 0.0;
-    P_pred[25] = 0.0;
-    P_pred[26] = 0.0;
-    P_pred[27] = 0.0;
-    P_pred[28] = t18;
-    P_pred[29] = t19;
-    P_pred[30] = 0.0;
-    P_pred[31] = 0.0;
-    P_pred[32] = 0.0;
-    P_pred[33] = 0.0;
-    P_pred[34] = t19;
-    P_pred[35] = t20;
-    return 0;
+    return mpt3d_a_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
 
 int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)

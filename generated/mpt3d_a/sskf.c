@@ -12,13 +12,14 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void mpt3d_a_sskf_step(x[6], z[3], x_new[6] out)
  *     void mpt3d_a_sskf_run(steps, z[steps*3], x0[6], xs[steps*6] out)
+ *     void mpt3d_a_sskf_run_tracks(steps, tracks, z[steps*3], x0[6], xs[steps*6] out)
  *     many tracks: mpt3d_a_sskf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 12, neg 0, cmp 0, calls 0 (flops 30, instructions 18)
  * A: (6, 6) constants baked into the code
  * B: (6, 3) constants baked into the code
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 12, div 0, sqrt 0, fma 30, neg 0, cmp 0, calls 0 (flops 72, instructions 42)
- * derive-interface: {"functions":[["mpt3d_a_sskf_step","step",false,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_sskf_run","run",false,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_a_sskf_step","step",false,false,[["x",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_sskf_run","run",false,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]],["mpt3d_a_sskf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -33,20 +34,81 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void mpt3d_a_sskf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.26928237852306397, x[1 * s], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
+    const double t1 = DERIVE_FMA(0.5863303827316504, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
+    const double t2 = DERIVE_FMA(0.26928237852306397, x[3 * s], DERIVE_FMA(0.634641189261532, x[2 * s], 0.36535881073846804*z[1 * s]));
+    const double t3 = DERIVE_FMA(0.5863303827316504, x[3 * s], DERIVE_FMA((-0.2068348086341748), x[2 * s], 0.2068348086341748*z[1 * s]));
+    const double t4 = DERIVE_FMA(0.26928237852306397, x[5 * s], DERIVE_FMA(0.634641189261532, x[4 * s], 0.36535881073846804*z[2 * s]));
+    const double t5 = DERIVE_FMA(0.5863303827316504, x[5 * s], DERIVE_FMA((-0.2068348086341748), x[4 * s], 0.2068348086341748*z[2 * s]));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+    x_new[2 * s] = t2;
+    x_new[3 * s] = t3;
+    x_new[4 * s] = t4;
+    x_new[5 * s] = t5;
+}
+
+DERIVE_INLINE void mpt3d_a_sskf_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.3287861290153686, x[1 * s], DERIVE_FMA(0.3470724698769183, x[0], DERIVE_FMA(0.36535881073846804, zn[0], 0.2875687193846137*z[0])));
+    const double t1 = DERIVE_FMA(0.28808634848387027, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680265*z[0])));
+    const double t2 = DERIVE_FMA(0.3287861290153686, x[3 * s], DERIVE_FMA(0.3470724698769183, x[2 * s], DERIVE_FMA(0.36535881073846804, zn[1 * s], 0.2875687193846137*z[1 * s])));
+    const double t3 = DERIVE_FMA(0.28808634848387027, x[3 * s], DERIVE_FMA((-0.25253942144097746), x[2 * s], DERIVE_FMA(0.2068348086341748, zn[1 * s], 0.04570461280680265*z[1 * s])));
+    const double t4 = DERIVE_FMA(0.3287861290153686, x[5 * s], DERIVE_FMA(0.3470724698769183, x[4 * s], DERIVE_FMA(0.36535881073846804, zn[2 * s], 0.2875687193846137*z[2 * s])));
+    const double t5 = DERIVE_FMA(0.28808634848387027, x[5 * s], DERIVE_FMA((-0.25253942144097746), x[4 * s], DERIVE_FMA(0.2068348086341748, zn[2 * s], 0.04570461280680265*z[2 * s])));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+    x_new[2 * s] = t2;
+    x_new[3 * s] = t3;
+    x_new[4 * s] = t4;
+    x_new[5 * s] = t5;
+}
+
 void mpt3d_a_sskf_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    const double t0 = DERIVE_FMA(0.26928237852306397, x[1], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*z[0]));
-    const double t1 = DERIVE_FMA(0.5863303827316504, x[1], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
-    const double t2 = DERIVE_FMA(0.26928237852306397, x[3], DERIVE_FMA(0.634641189261532, x[2], 0.36535881073846804*z[1]));
-    const double t3 = DERIVE_FMA(0.5863303827316504, x[3], DERIVE_FMA((-0.2068348086341748), x[2], 0.2068348086341748*z[1]));
-    const double t4 = DERIVE_FMA(0.26928237852306397, x[5], DERIVE_FMA(0.634641189261532, x[4], 0.36535881073846804*z[2]));
-    const double t5 = DERIVE_FMA(0.5863303827316504, x[5], DERIVE_FMA((-0.2068348086341748), x[4], 0.2068348086341748*z[2]));
-    x_new[0] = t0;
-    x_new[1] = t1;
-    x_new[2] = t2;
-    x_new[3] = t3;
-    x_new[4] = t4;
-    x_new[5] = t5;
+    mpt3d_a_sskf_step_body(x, z, x_new, 1);
 }
 
 /* Run the steady-state Kalman filter over steps steps. */
@@ -67,30 +129,8 @@ void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *x
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
-        const double t0 = DERIVE_FMA(0.26928237852306397, x[1], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*zk[0]));
-        const double t1 = DERIVE_FMA(0.5863303827316504, x[1], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*zk[0]));
-        const double t2 = DERIVE_FMA(0.26928237852306397, x[3], DERIVE_FMA(0.634641189261532, x[2], 0.36535881073846804*zk[1]));
-        const double t3 = DERIVE_FMA(0.5863303827316504, x[3], DERIVE_FMA((-0.2068348086341748), x[2], 0.2068348086341748*zk[1]));
-        const double t4 = DERIVE_FMA(0.26928237852306397, x[5], DERIVE_FMA(0.634641189261532, x[4], 0.36535881073846804*zk[2]));
-        const double t5 = DERIVE_FMA(0.5863303827316504, x[5], DERIVE_FMA((-0.2068348086341748), x[4], 0.2068348086341748*zk[2]));
-        x_mid[0] = t0;
-        x_mid[1] = t1;
-        x_mid[2] = t2;
-        x_mid[3] = t3;
-        x_mid[4] = t4;
-        x_mid[5] = t5;
-        const double t6 = DERIVE_FMA(0.3287861290153686, x[1], DERIVE_FMA(0.3470724698769183, x[0], DERIVE_FMA(0.36535881073846804, znk[0], 0.2875687193846137*zk[0])));
-        const double t7 = DERIVE_FMA(0.28808634848387027, x[1], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, znk[0], 0.04570461280680265*zk[0])));
-        const double t8 = DERIVE_FMA(0.3287861290153686, x[3], DERIVE_FMA(0.3470724698769183, x[2], DERIVE_FMA(0.36535881073846804, znk[1], 0.2875687193846137*zk[1])));
-        const double t9 = DERIVE_FMA(0.28808634848387027, x[3], DERIVE_FMA((-0.25253942144097746), x[2], DERIVE_FMA(0.2068348086341748, znk[1], 0.04570461280680265*zk[1])));
-        const double t10 = DERIVE_FMA(0.3287861290153686, x[5], DERIVE_FMA(0.3470724698769183, x[4], DERIVE_FMA(0.36535881073846804, znk[2], 0.2875687193846137*zk[2])));
-        const double t11 = DERIVE_FMA(0.28808634848387027, x[5], DERIVE_FMA((-0.25253942144097746), x[4], DERIVE_FMA(0.2068348086341748, znk[2], 0.04570461280680265*zk[2])));
-        x_new[0] = t6;
-        x_new[1] = t7;
-        x_new[2] = t8;
-        x_new[3] = t9;
-        x_new[4] = t10;
-        x_new[5] = t11;
+        mpt3d_a_sskf_step_body(x, zk, x_mid, 1);
+        mpt3d_a_sskf_pass_body(x, zk, znk, x_new, 1);
         xs[k * 6 + 0] = x_mid[0];
         xs[k * 6 + 1] = x_mid[1];
         xs[k * 6 + 2] = x_mid[2];
@@ -107,18 +147,7 @@ void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *x
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = DERIVE_FMA(0.26928237852306397, x[1], DERIVE_FMA(0.634641189261532, x[0], 0.36535881073846804*zk[0]));
-        const double t1 = DERIVE_FMA(0.5863303827316504, x[1], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*zk[0]));
-        const double t2 = DERIVE_FMA(0.26928237852306397, x[3], DERIVE_FMA(0.634641189261532, x[2], 0.36535881073846804*zk[1]));
-        const double t3 = DERIVE_FMA(0.5863303827316504, x[3], DERIVE_FMA((-0.2068348086341748), x[2], 0.2068348086341748*zk[1]));
-        const double t4 = DERIVE_FMA(0.26928237852306397, x[5], DERIVE_FMA(0.634641189261532, x[4], 0.36535881073846804*zk[2]));
-        const double t5 = DERIVE_FMA(0.5863303827316504, x[5], DERIVE_FMA((-0.2068348086341748), x[4], 0.2068348086341748*zk[2]));
-        x_new[0] = t0;
-        x_new[1] = t1;
-        x_new[2] = t2;
-        x_new[3] = t3;
-        x_new[4] = t4;
-        x_new[5] = t5;
+        mpt3d_a_sskf_step_body(x, zk, x_new, 1);
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];
@@ -130,357 +159,86 @@ void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *x
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 void mpt3d_a_sskf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, double *xs)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[6], xn_l0[6];
-        const double *z_l0;
-        double xm_l0[6];
-        const double *zn_l0;
-        double x_l1[6], xn_l1[6];
-        const double *z_l1;
-        double xm_l1[6];
-        const double *zn_l1;
-        double x_l2[6], xn_l2[6];
-        const double *z_l2;
-        double xm_l2[6];
-        const double *zn_l2;
-        double x_l3[6], xn_l3[6];
-        const double *z_l3;
-        double xm_l3[6];
-        const double *zn_l3;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        x_l1[0] = x0[(t + 1) * 6 + 0];
-        x_l1[1] = x0[(t + 1) * 6 + 1];
-        x_l1[2] = x0[(t + 1) * 6 + 2];
-        x_l1[3] = x0[(t + 1) * 6 + 3];
-        x_l1[4] = x0[(t + 1) * 6 + 4];
-        x_l1[5] = x0[(t + 1) * 6 + 5];
-        x_l2[0] = x0[(t + 2) * 6 + 0];
-        x_l2[1] = x0[(t + 2) * 6 + 1];
-        x_l2[2] = x0[(t + 2) * 6 + 2];
-        x_l2[3] = x0[(t + 2) * 6 + 3];
-        x_l2[4] = x0[(t + 2) * 6 + 4];
-        x_l2[5] = x0[(t + 2) * 6 + 5];
-        x_l3[0] = x0[(t + 3) * 6 + 0];
-        x_l3[1] = x0[(t + 3) * 6 + 1];
-        x_l3[2] = x0[(t + 3) * 6 + 2];
-        x_l3[3] = x0[(t + 3) * 6 + 3];
-        x_l3[4] = x0[(t + 3) * 6 + 4];
-        x_l3[5] = x0[(t + 3) * 6 + 5];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[6 * DERIVE_LANES];
+        double x_new_b[6 * DERIVE_LANES];
+        double z_b[3 * DERIVE_LANES];
+        double x_mid_b[6 * DERIVE_LANES];
+        double zn_b[3 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 6; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 6 + i];
+            }
+        }
         for (k = 0; k + 2 <= steps; k += 2) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            zn_l0 = z + ((t + 0) * steps + k + 1) * 3;
-            const double t0_l0 = DERIVE_FMA(0.26928237852306397, x_l0[1], DERIVE_FMA(0.634641189261532, x_l0[0], 0.36535881073846804*z_l0[0]));
-            const double t1_l0 = DERIVE_FMA(0.5863303827316504, x_l0[1], DERIVE_FMA((-0.2068348086341748), x_l0[0], 0.2068348086341748*z_l0[0]));
-            const double t2_l0 = DERIVE_FMA(0.26928237852306397, x_l0[3], DERIVE_FMA(0.634641189261532, x_l0[2], 0.36535881073846804*z_l0[1]));
-            const double t3_l0 = DERIVE_FMA(0.5863303827316504, x_l0[3], DERIVE_FMA((-0.2068348086341748), x_l0[2], 0.2068348086341748*z_l0[1]));
-            const double t4_l0 = DERIVE_FMA(0.26928237852306397, x_l0[5], DERIVE_FMA(0.634641189261532, x_l0[4], 0.36535881073846804*z_l0[2]));
-            const double t5_l0 = DERIVE_FMA(0.5863303827316504, x_l0[5], DERIVE_FMA((-0.2068348086341748), x_l0[4], 0.2068348086341748*z_l0[2]));
-            xm_l0[0] = t0_l0;
-            xm_l0[1] = t1_l0;
-            xm_l0[2] = t2_l0;
-            xm_l0[3] = t3_l0;
-            xm_l0[4] = t4_l0;
-            xm_l0[5] = t5_l0;
-            const double t6_l0 = DERIVE_FMA(0.3287861290153686, x_l0[1], DERIVE_FMA(0.3470724698769183, x_l0[0], DERIVE_FMA(0.36535881073846804, zn_l0[0], 0.2875687193846137*z_l0[0])));
-            const double t7_l0 = DERIVE_FMA(0.28808634848387027, x_l0[1], DERIVE_FMA((-0.25253942144097746), x_l0[0], DERIVE_FMA(0.2068348086341748, zn_l0[0], 0.04570461280680265*z_l0[0])));
-            const double t8_l0 = DERIVE_FMA(0.3287861290153686, x_l0[3], DERIVE_FMA(0.3470724698769183, x_l0[2], DERIVE_FMA(0.36535881073846804, zn_l0[1], 0.2875687193846137*z_l0[1])));
-            const double t9_l0 = DERIVE_FMA(0.28808634848387027, x_l0[3], DERIVE_FMA((-0.25253942144097746), x_l0[2], DERIVE_FMA(0.2068348086341748, zn_l0[1], 0.04570461280680265*z_l0[1])));
-            const double t10_l0 = DERIVE_FMA(0.3287861290153686, x_l0[5], DERIVE_FMA(0.3470724698769183, x_l0[4], DERIVE_FMA(0.36535881073846804, zn_l0[2], 0.2875687193846137*z_l0[2])));
-            const double t11_l0 = DERIVE_FMA(0.28808634848387027, x_l0[5], DERIVE_FMA((-0.25253942144097746), x_l0[4], DERIVE_FMA(0.2068348086341748, zn_l0[2], 0.04570461280680265*z_l0[2])));
-            xn_l0[0] = t6_l0;
-            xn_l0[1] = t7_l0;
-            xn_l0[2] = t8_l0;
-            xn_l0[3] = t9_l0;
-            xn_l0[4] = t10_l0;
-            xn_l0[5] = t11_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            zn_l1 = z + ((t + 1) * steps + k + 1) * 3;
-            const double t0_l1 = DERIVE_FMA(0.26928237852306397, x_l1[1], DERIVE_FMA(0.634641189261532, x_l1[0], 0.36535881073846804*z_l1[0]));
-            const double t1_l1 = DERIVE_FMA(0.5863303827316504, x_l1[1], DERIVE_FMA((-0.2068348086341748), x_l1[0], 0.2068348086341748*z_l1[0]));
-            const double t2_l1 = DERIVE_FMA(0.26928237852306397, x_l1[3], DERIVE_FMA(0.634641189261532, x_l1[2], 0.36535881073846804*z_l1[1]));
-            const double t3_l1 = DERIVE_FMA(0.5863303827316504, x_l1[3], DERIVE_FMA((-0.2068348086341748), x_l1[2], 0.2068348086341748*z_l1[1]));
-            const double t4_l1 = DERIVE_FMA(0.26928237852306397, x_l1[5], DERIVE_FMA(0.634641189261532, x_l1[4], 0.36535881073846804*z_l1[2]));
-            const double t5_l1 = DERIVE_FMA(0.5863303827316504, x_l1[5], DERIVE_FMA((-0.2068348086341748), x_l1[4], 0.2068348086341748*z_l1[2]));
-            xm_l1[0] = t0_l1;
-            xm_l1[1] = t1_l1;
-            xm_l1[2] = t2_l1;
-            xm_l1[3] = t3_l1;
-            xm_l1[4] = t4_l1;
-            xm_l1[5] = t5_l1;
-            const double t6_l1 = DERIVE_FMA(0.3287861290153686, x_l1[1], DERIVE_FMA(0.3470724698769183, x_l1[0], DERIVE_FMA(0.36535881073846804, zn_l1[0], 0.2875687193846137*z_l1[0])));
-            const double t7_l1 = DERIVE_FMA(0.28808634848387027, x_l1[1], DERIVE_FMA((-0.25253942144097746), x_l1[0], DERIVE_FMA(0.2068348086341748, zn_l1[0], 0.04570461280680265*z_l1[0])));
-            const double t8_l1 = DERIVE_FMA(0.3287861290153686, x_l1[3], DERIVE_FMA(0.3470724698769183, x_l1[2], DERIVE_FMA(0.36535881073846804, zn_l1[1], 0.2875687193846137*z_l1[1])));
-            const double t9_l1 = DERIVE_FMA(0.28808634848387027, x_l1[3], DERIVE_FMA((-0.25253942144097746), x_l1[2], DERIVE_FMA(0.2068348086341748, zn_l1[1], 0.04570461280680265*z_l1[1])));
-            const double t10_l1 = DERIVE_FMA(0.3287861290153686, x_l1[5], DERIVE_FMA(0.3470724698769183, x_l1[4], DERIVE_FMA(0.36535881073846804, zn_l1[2], 0.2875687193846137*z_l1[2])));
-            const double t11_l1 = DERIVE_FMA(0.28808634848387027, x_l1[5], DERIVE_FMA((-0.25253942144097746), x_l1[4], DERIVE_FMA(0.2068348086341748, zn_l1[2], 0.04570461280680265*z_l1[2])));
-            xn_l1[0] = t6_l1;
-            xn_l1[1] = t7_l1;
-            xn_l1[2] = t8_l1;
-            xn_l1[3] = t9_l1;
-            xn_l1[4] = t10_l1;
-            xn_l1[5] = t11_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            zn_l2 = z + ((t + 2) * steps + k + 1) * 3;
-            const double t0_l2 = DERIVE_FMA(0.26928237852306397, x_l2[1], DERIVE_FMA(0.634641189261532, x_l2[0], 0.36535881073846804*z_l2[0]));
-            const double t1_l2 = DERIVE_FMA(0.5863303827316504, x_l2[1], DERIVE_FMA((-0.2068348086341748), x_l2[0], 0.2068348086341748*z_l2[0]));
-            const double t2_l2 = DERIVE_FMA(0.26928237852306397, x_l2[3], DERIVE_FMA(0.634641189261532, x_l2[2], 0.36535881073846804*z_l2[1]));
-            const double t3_l2 = DERIVE_FMA(0.5863303827316504, x_l2[3], DERIVE_FMA((-0.2068348086341748), x_l2[2], 0.2068348086341748*z_l2[1]));
-            const double t4_l2 = DERIVE_FMA(0.26928237852306397, x_l2[5], DERIVE_FMA(0.634641189261532, x_l2[4], 0.36535881073846804*z_l2[2]));
-            const double t5_l2 = DERIVE_FMA(0.5863303827316504, x_l2[5], DERIVE_FMA((-0.2068348086341748), x_l2[4], 0.2068348086341748*z_l2[2]));
-            xm_l2[0] = t0_l2;
-            xm_l2[1] = t1_l2;
-            xm_l2[2] = t2_l2;
-            xm_l2[3] = t3_l2;
-            xm_l2[4] = t4_l2;
-            xm_l2[5] = t5_l2;
-            const double t6_l2 = DERIVE_FMA(0.3287861290153686, x_l2[1], DERIVE_FMA(0.3470724698769183, x_l2[0], DERIVE_FMA(0.36535881073846804, zn_l2[0], 0.2875687193846137*z_l2[0])));
-            const double t7_l2 = DERIVE_FMA(0.28808634848387027, x_l2[1], DERIVE_FMA((-0.25253942144097746), x_l2[0], DERIVE_FMA(0.2068348086341748, zn_l2[0], 0.04570461280680265*z_l2[0])));
-            const double t8_l2 = DERIVE_FMA(0.3287861290153686, x_l2[3], DERIVE_FMA(0.3470724698769183, x_l2[2], DERIVE_FMA(0.36535881073846804, zn_l2[1], 0.2875687193846137*z_l2[1])));
-            const double t9_l2 = DERIVE_FMA(0.28808634848387027, x_l2[3], DERIVE_FMA((-0.25253942144097746), x_l2[2], DERIVE_FMA(0.2068348086341748, zn_l2[1], 0.04570461280680265*z_l2[1])));
-            const double t10_l2 = DERIVE_FMA(0.3287861290153686, x_l2[5], DERIVE_FMA(0.3470724698769183, x_l2[4], DERIVE_FMA(0.36535881073846804, zn_l2[2], 0.2875687193846137*z_l2[2])));
-            const double t11_l2 = DERIVE_FMA(0.28808634848387027, x_l2[5], DERIVE_FMA((-0.25253942144097746), x_l2[4], DERIVE_FMA(0.2068348086341748, zn_l2[2], 0.04570461280680265*z_l2[2])));
-            xn_l2[0] = t6_l2;
-            xn_l2[1] = t7_l2;
-            xn_l2[2] = t8_l2;
-            xn_l2[3] = t9_l2;
-            xn_l2[4] = t10_l2;
-            xn_l2[5] = t11_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            zn_l3 = z + ((t + 3) * steps + k + 1) * 3;
-            const double t0_l3 = DERIVE_FMA(0.26928237852306397, x_l3[1], DERIVE_FMA(0.634641189261532, x_l3[0], 0.36535881073846804*z_l3[0]));
-            const double t1_l3 = DERIVE_FMA(0.5863303827316504, x_l3[1], DERIVE_FMA((-0.2068348086341748), x_l3[0], 0.2068348086341748*z_l3[0]));
-            const double t2_l3 = DERIVE_FMA(0.26928237852306397, x_l3[3], DERIVE_FMA(0.634641189261532, x_l3[2], 0.36535881073846804*z_l3[1]));
-            const double t3_l3 = DERIVE_FMA(0.5863303827316504, x_l3[3], DERIVE_FMA((-0.2068348086341748), x_l3[2], 0.2068348086341748*z_l3[1]));
-            const double t4_l3 = DERIVE_FMA(0.26928237852306397, x_l3[5], DERIVE_FMA(0.634641189261532, x_l3[4], 0.36535881073846804*z_l3[2]));
-            const double t5_l3 = DERIVE_FMA(0.5863303827316504, x_l3[5], DERIVE_FMA((-0.2068348086341748), x_l3[4], 0.2068348086341748*z_l3[2]));
-            xm_l3[0] = t0_l3;
-            xm_l3[1] = t1_l3;
-            xm_l3[2] = t2_l3;
-            xm_l3[3] = t3_l3;
-            xm_l3[4] = t4_l3;
-            xm_l3[5] = t5_l3;
-            const double t6_l3 = DERIVE_FMA(0.3287861290153686, x_l3[1], DERIVE_FMA(0.3470724698769183, x_l3[0], DERIVE_FMA(0.36535881073846804, zn_l3[0], 0.2875687193846137*z_l3[0])));
-            const double t7_l3 = DERIVE_FMA(0.28808634848387027, x_l3[1], DERIVE_FMA((-0.25253942144097746), x_l3[0], DERIVE_FMA(0.2068348086341748, zn_l3[0], 0.04570461280680265*z_l3[0])));
-            const double t8_l3 = DERIVE_FMA(0.3287861290153686, x_l3[3], DERIVE_FMA(0.3470724698769183, x_l3[2], DERIVE_FMA(0.36535881073846804, zn_l3[1], 0.2875687193846137*z_l3[1])));
-            const double t9_l3 = DERIVE_FMA(0.28808634848387027, x_l3[3], DERIVE_FMA((-0.25253942144097746), x_l3[2], DERIVE_FMA(0.2068348086341748, zn_l3[1], 0.04570461280680265*z_l3[1])));
-            const double t10_l3 = DERIVE_FMA(0.3287861290153686, x_l3[5], DERIVE_FMA(0.3470724698769183, x_l3[4], DERIVE_FMA(0.36535881073846804, zn_l3[2], 0.2875687193846137*z_l3[2])));
-            const double t11_l3 = DERIVE_FMA(0.28808634848387027, x_l3[5], DERIVE_FMA((-0.25253942144097746), x_l3[4], DERIVE_FMA(0.2068348086341748, zn_l3[2], 0.04570461280680265*z_l3[2])));
-            xn_l3[0] = t6_l3;
-            xn_l3[1] = t7_l3;
-            xn_l3[2] = t8_l3;
-            xn_l3[3] = t9_l3;
-            xn_l3[4] = t10_l3;
-            xn_l3[5] = t11_l3;
-            xs[((t + 0) * steps + k) * 6 + 0] = xm_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = xm_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = xm_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = xm_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = xm_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = xm_l0[5];
-            xs[((t + 0) * steps + k + 1) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k + 1) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k + 1) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k + 1) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k + 1) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k + 1) * 6 + 5] = x_l0[5] = xn_l0[5];
-            xs[((t + 1) * steps + k) * 6 + 0] = xm_l1[0];
-            xs[((t + 1) * steps + k) * 6 + 1] = xm_l1[1];
-            xs[((t + 1) * steps + k) * 6 + 2] = xm_l1[2];
-            xs[((t + 1) * steps + k) * 6 + 3] = xm_l1[3];
-            xs[((t + 1) * steps + k) * 6 + 4] = xm_l1[4];
-            xs[((t + 1) * steps + k) * 6 + 5] = xm_l1[5];
-            xs[((t + 1) * steps + k + 1) * 6 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k + 1) * 6 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k + 1) * 6 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k + 1) * 6 + 3] = x_l1[3] = xn_l1[3];
-            xs[((t + 1) * steps + k + 1) * 6 + 4] = x_l1[4] = xn_l1[4];
-            xs[((t + 1) * steps + k + 1) * 6 + 5] = x_l1[5] = xn_l1[5];
-            xs[((t + 2) * steps + k) * 6 + 0] = xm_l2[0];
-            xs[((t + 2) * steps + k) * 6 + 1] = xm_l2[1];
-            xs[((t + 2) * steps + k) * 6 + 2] = xm_l2[2];
-            xs[((t + 2) * steps + k) * 6 + 3] = xm_l2[3];
-            xs[((t + 2) * steps + k) * 6 + 4] = xm_l2[4];
-            xs[((t + 2) * steps + k) * 6 + 5] = xm_l2[5];
-            xs[((t + 2) * steps + k + 1) * 6 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k + 1) * 6 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k + 1) * 6 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k + 1) * 6 + 3] = x_l2[3] = xn_l2[3];
-            xs[((t + 2) * steps + k + 1) * 6 + 4] = x_l2[4] = xn_l2[4];
-            xs[((t + 2) * steps + k + 1) * 6 + 5] = x_l2[5] = xn_l2[5];
-            xs[((t + 3) * steps + k) * 6 + 0] = xm_l3[0];
-            xs[((t + 3) * steps + k) * 6 + 1] = xm_l3[1];
-            xs[((t + 3) * steps + k) * 6 + 2] = xm_l3[2];
-            xs[((t + 3) * steps + k) * 6 + 3] = xm_l3[3];
-            xs[((t + 3) * steps + k) * 6 + 4] = xm_l3[4];
-            xs[((t + 3) * steps + k) * 6 + 5] = xm_l3[5];
-            xs[((t + 3) * steps + k + 1) * 6 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k + 1) * 6 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k + 1) * 6 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k + 1) * 6 + 3] = x_l3[3] = xn_l3[3];
-            xs[((t + 3) * steps + k + 1) * 6 + 4] = x_l3[4] = xn_l3[4];
-            xs[((t + 3) * steps + k + 1) * 6 + 5] = x_l3[5] = xn_l3[5];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 3], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 6], 1);
+                }
+            }
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
+                for (i = 0; i < 3; ++i) {
+                    zn_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k + 1) * 3 + i];
+                }
+            }
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                mpt3d_a_sskf_step_body(x_b + j, z_b + j, x_mid_b + j, DERIVE_LANES);
+                mpt3d_a_sskf_pass_body(x_b + j, z_b + j, zn_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 6; ++i) {
+                    xs[((t + j) * steps + k) * 6 + i] = x_mid_b[i * DERIVE_LANES + j];
+                }
+                for (i = 0; i < 6; ++i) {
+                    xs[((t + j) * steps + k + 1) * 6 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+            }
+            for (i = 0; i < 6 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
         }
         for (; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = DERIVE_FMA(0.26928237852306397, x_l0[1], DERIVE_FMA(0.634641189261532, x_l0[0], 0.36535881073846804*z_l0[0]));
-            const double t1_l0 = DERIVE_FMA(0.5863303827316504, x_l0[1], DERIVE_FMA((-0.2068348086341748), x_l0[0], 0.2068348086341748*z_l0[0]));
-            const double t2_l0 = DERIVE_FMA(0.26928237852306397, x_l0[3], DERIVE_FMA(0.634641189261532, x_l0[2], 0.36535881073846804*z_l0[1]));
-            const double t3_l0 = DERIVE_FMA(0.5863303827316504, x_l0[3], DERIVE_FMA((-0.2068348086341748), x_l0[2], 0.2068348086341748*z_l0[1]));
-            const double t4_l0 = DERIVE_FMA(0.26928237852306397, x_l0[5], DERIVE_FMA(0.634641189261532, x_l0[4], 0.36535881073846804*z_l0[2]));
-            const double t5_l0 = DERIVE_FMA(0.5863303827316504, x_l0[5], DERIVE_FMA((-0.2068348086341748), x_l0[4], 0.2068348086341748*z_l0[2]));
-            xn_l0[0] = t0_l0;
-            xn_l0[1] = t1_l0;
-            xn_l0[2] = t2_l0;
-            xn_l0[3] = t3_l0;
-            xn_l0[4] = t4_l0;
-            xn_l0[5] = t5_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 3;
-            const double t0_l1 = DERIVE_FMA(0.26928237852306397, x_l1[1], DERIVE_FMA(0.634641189261532, x_l1[0], 0.36535881073846804*z_l1[0]));
-            const double t1_l1 = DERIVE_FMA(0.5863303827316504, x_l1[1], DERIVE_FMA((-0.2068348086341748), x_l1[0], 0.2068348086341748*z_l1[0]));
-            const double t2_l1 = DERIVE_FMA(0.26928237852306397, x_l1[3], DERIVE_FMA(0.634641189261532, x_l1[2], 0.36535881073846804*z_l1[1]));
-            const double t3_l1 = DERIVE_FMA(0.5863303827316504, x_l1[3], DERIVE_FMA((-0.2068348086341748), x_l1[2], 0.2068348086341748*z_l1[1]));
-            const double t4_l1 = DERIVE_FMA(0.26928237852306397, x_l1[5], DERIVE_FMA(0.634641189261532, x_l1[4], 0.36535881073846804*z_l1[2]));
-            const double t5_l1 = DERIVE_FMA(0.5863303827316504, x_l1[5], DERIVE_FMA((-0.2068348086341748), x_l1[4], 0.2068348086341748*z_l1[2]));
-            xn_l1[0] = t0_l1;
-            xn_l1[1] = t1_l1;
-            xn_l1[2] = t2_l1;
-            xn_l1[3] = t3_l1;
-            xn_l1[4] = t4_l1;
-            xn_l1[5] = t5_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 3;
-            const double t0_l2 = DERIVE_FMA(0.26928237852306397, x_l2[1], DERIVE_FMA(0.634641189261532, x_l2[0], 0.36535881073846804*z_l2[0]));
-            const double t1_l2 = DERIVE_FMA(0.5863303827316504, x_l2[1], DERIVE_FMA((-0.2068348086341748), x_l2[0], 0.2068348086341748*z_l2[0]));
-            const double t2_l2 = DERIVE_FMA(0.26928237852306397, x_l2[3], DERIVE_FMA(0.634641189261532, x_l2[2], 0.36535881073846804*z_l2[1]));
-            const double t3_l2 = DERIVE_FMA(0.5863303827316504, x_l2[3], DERIVE_FMA((-0.2068348086341748), x_l2[2], 0.2068348086341748*z_l2[1]));
-            const double t4_l2 = DERIVE_FMA(0.26928237852306397, x_l2[5], DERIVE_FMA(0.634641189261532, x_l2[4], 0.36535881073846804*z_l2[2]));
-            const double t5_l2 = DERIVE_FMA(0.5863303827316504, x_l2[5], DERIVE_FMA((-0.2068348086341748), x_l2[4], 0.2068348086341748*z_l2[2]));
-            xn_l2[0] = t0_l2;
-            xn_l2[1] = t1_l2;
-            xn_l2[2] = t2_l2;
-            xn_l2[3] = t3_l2;
-            xn_l2[4] = t4_l2;
-            xn_l2[5] = t5_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 3;
-            const double t0_l3 = DERIVE_FMA(0.26928237852306397, x_l3[1], DERIVE_FMA(0.634641189261532, x_l3[0], 0.36535881073846804*z_l3[0]));
-            const double t1_l3 = DERIVE_FMA(0.5863303827316504, x_l3[1], DERIVE_FMA((-0.2068348086341748), x_l3[0], 0.2068348086341748*z_l3[0]));
-            const double t2_l3 = DERIVE_FMA(0.26928237852306397, x_l3[3], DERIVE_FMA(0.634641189261532, x_l3[2], 0.36535881073846804*z_l3[1]));
-            const double t3_l3 = DERIVE_FMA(0.5863303827316504, x_l3[3], DERIVE_FMA((-0.2068348086341748), x_l3[2], 0.2068348086341748*z_l3[1]));
-            const double t4_l3 = DERIVE_FMA(0.26928237852306397, x_l3[5], DERIVE_FMA(0.634641189261532, x_l3[4], 0.36535881073846804*z_l3[2]));
-            const double t5_l3 = DERIVE_FMA(0.5863303827316504, x_l3[5], DERIVE_FMA((-0.2068348086341748), x_l3[4], 0.2068348086341748*z_l3[2]));
-            xn_l3[0] = t0_l3;
-            xn_l3[1] = t1_l3;
-            xn_l3[2] = t2_l3;
-            xn_l3[3] = t3_l3;
-            xn_l3[4] = t4_l3;
-            xn_l3[5] = t5_l3;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-            xs[((t + 1) * steps + k) * 6 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 6 + 1] = x_l1[1] = xn_l1[1];
-            xs[((t + 1) * steps + k) * 6 + 2] = x_l1[2] = xn_l1[2];
-            xs[((t + 1) * steps + k) * 6 + 3] = x_l1[3] = xn_l1[3];
-            xs[((t + 1) * steps + k) * 6 + 4] = x_l1[4] = xn_l1[4];
-            xs[((t + 1) * steps + k) * 6 + 5] = x_l1[5] = xn_l1[5];
-            xs[((t + 2) * steps + k) * 6 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 6 + 1] = x_l2[1] = xn_l2[1];
-            xs[((t + 2) * steps + k) * 6 + 2] = x_l2[2] = xn_l2[2];
-            xs[((t + 2) * steps + k) * 6 + 3] = x_l2[3] = xn_l2[3];
-            xs[((t + 2) * steps + k) * 6 + 4] = x_l2[4] = xn_l2[4];
-            xs[((t + 2) * steps + k) * 6 + 5] = x_l2[5] = xn_l2[5];
-            xs[((t + 3) * steps + k) * 6 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 6 + 1] = x_l3[1] = xn_l3[1];
-            xs[((t + 3) * steps + k) * 6 + 2] = x_l3[2] = xn_l3[2];
-            xs[((t + 3) * steps + k) * 6 + 3] = x_l3[3] = xn_l3[3];
-            xs[((t + 3) * steps + k) * 6 + 4] = x_l3[4] = xn_l3[4];
-            xs[((t + 3) * steps + k) * 6 + 5] = x_l3[5] = xn_l3[5];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 3], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 6], 1);
+                }
+            }
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 3; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 3 + i];
+                }
+            }
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                mpt3d_a_sskf_step_body(x_b + j, z_b + j, x_new_b + j, DERIVE_LANES);
+            }
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 6; ++i) {
+                    xs[((t + j) * steps + k) * 6 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+            }
+            for (i = 0; i < 6 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[6], xn_l0[6];
-        const double *z_l0;
-        double xm_l0[6];
-        const double *zn_l0;
-        x_l0[0] = x0[(t + 0) * 6 + 0];
-        x_l0[1] = x0[(t + 0) * 6 + 1];
-        x_l0[2] = x0[(t + 0) * 6 + 2];
-        x_l0[3] = x0[(t + 0) * 6 + 3];
-        x_l0[4] = x0[(t + 0) * 6 + 4];
-        x_l0[5] = x0[(t + 0) * 6 + 5];
-        for (k = 0; k + 2 <= steps; k += 2) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            zn_l0 = z + ((t + 0) * steps + k + 1) * 3;
-            const double t0_l0 = DERIVE_FMA(0.26928237852306397, x_l0[1], DERIVE_FMA(0.634641189261532, x_l0[0], 0.36535881073846804*z_l0[0]));
-            const double t1_l0 = DERIVE_FMA(0.5863303827316504, x_l0[1], DERIVE_FMA((-0.2068348086341748), x_l0[0], 0.2068348086341748*z_l0[0]));
-            const double t2_l0 = DERIVE_FMA(0.26928237852306397, x_l0[3], DERIVE_FMA(0.634641189261532, x_l0[2], 0.36535881073846804*z_l0[1]));
-            const double t3_l0 = DERIVE_FMA(0.5863303827316504, x_l0[3], DERIVE_FMA((-0.2068348086341748), x_l0[2], 0.2068348086341748*z_l0[1]));
-            const double t4_l0 = DERIVE_FMA(0.26928237852306397, x_l0[5], DERIVE_FMA(0.634641189261532, x_l0[4], 0.36535881073846804*z_l0[2]));
-            const double t5_l0 = DERIVE_FMA(0.5863303827316504, x_l0[5], DERIVE_FMA((-0.2068348086341748), x_l0[4], 0.2068348086341748*z_l0[2]));
-            xm_l0[0] = t0_l0;
-            xm_l0[1] = t1_l0;
-            xm_l0[2] = t2_l0;
-            xm_l0[3] = t3_l0;
-            xm_l0[4] = t4_l0;
-            xm_l0[5] = t5_l0;
-            const double t6_l0 = DERIVE_FMA(0.3287861290153686, x_l0[1], DERIVE_FMA(0.3470724698769183, x_l0[0], DERIVE_FMA(0.36535881073846804, zn_l0[0], 0.2875687193846137*z_l0[0])));
-            const double t7_l0 = DERIVE_FMA(0.28808634848387027, x_l0[1], DERIVE_FMA((-0.25253942144097746), x_l0[0], DERIVE_FMA(0.2068348086341748, zn_l0[0], 0.04570461280680265*z_l0[0])));
-            const double t8_l0 = DERIVE_FMA(0.3287861290153686, x_l0[3], DERIVE_FMA(0.3470724698769183, x_l0[2], DERIVE_FMA(0.36535881073846804, zn_l0[1], 0.2875687193846137*z_l0[1])));
-            const double t9_l0 = DERIVE_FMA(0.28808634848387027, x_l0[3], DERIVE_FMA((-0.25253942144097746), x_l0[2], DERIVE_FMA(0.2068348086341748, zn_l0[1], 0.04570461280680265*z_l0[1])));
-            const double t10_l0 = DERIVE_FMA(0.3287861290153686, x_l0[5], DERIVE_FMA(0.3470724698769183, x_l0[4], DERIVE_FMA(0.36535881073846804, zn_l0[2], 0.2875687193846137*z_l0[2])));
-            const double t11_l0 = DERIVE_FMA(0.28808634848387027, x_l0[5], DERIVE_FMA((-0.25253942144097746), x_l0[4], DERIVE_FMA(0.2068348086341748, zn_l0[2], 0.04570461280680265*z_l0[2])));
-            xn_l0[0] = t6_l0;
-            xn_l0[1] = t7_l0;
-            xn_l0[2] = t8_l0;
-            xn_l0[3] = t9_l0;
-            xn_l0[4] = t10_l0;
-            xn_l0[5] = t11_l0;
-            xs[((t + 0) * steps + k) * 6 + 0] = xm_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = xm_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = xm_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = xm_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = xm_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = xm_l0[5];
-            xs[((t + 0) * steps + k + 1) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k + 1) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k + 1) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k + 1) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k + 1) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k + 1) * 6 + 5] = x_l0[5] = xn_l0[5];
-        }
-        for (; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 3;
-            const double t0_l0 = DERIVE_FMA(0.26928237852306397, x_l0[1], DERIVE_FMA(0.634641189261532, x_l0[0], 0.36535881073846804*z_l0[0]));
-            const double t1_l0 = DERIVE_FMA(0.5863303827316504, x_l0[1], DERIVE_FMA((-0.2068348086341748), x_l0[0], 0.2068348086341748*z_l0[0]));
-            const double t2_l0 = DERIVE_FMA(0.26928237852306397, x_l0[3], DERIVE_FMA(0.634641189261532, x_l0[2], 0.36535881073846804*z_l0[1]));
-            const double t3_l0 = DERIVE_FMA(0.5863303827316504, x_l0[3], DERIVE_FMA((-0.2068348086341748), x_l0[2], 0.2068348086341748*z_l0[1]));
-            const double t4_l0 = DERIVE_FMA(0.26928237852306397, x_l0[5], DERIVE_FMA(0.634641189261532, x_l0[4], 0.36535881073846804*z_l0[2]));
-            const double t5_l0 = DERIVE_FMA(0.5863303827316504, x_l0[5], DERIVE_FMA((-0.2068348086341748), x_l0[4], 0.2068348086341748*z_l0[2]));
-            xn_l0[0] = t0_l0;
-            xn_l0[1] = t1_l0;
-            xn_l0[2] = t2_l0;
-            xn_l0[3] = t3_l0;
-            xn_l0[4] = t4_l0;
-            xn_l0[5] = t5_l0;
-            xs[((t + 0) * steps + k) * 6 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 6 + 1] = x_l0[1] = xn_l0[1];
-            xs[((t + 0) * steps + k) * 6 + 2] = x_l0[2] = xn_l0[2];
-            xs[((t + 0) * steps + k) * 6 + 3] = x_l0[3] = xn_l0[3];
-            xs[((t + 0) * steps + k) * 6 + 4] = x_l0[4] = xn_l0[4];
-            xs[((t + 0) * steps + k) * 6 + 5] = x_l0[5] = xn_l0[5];
-        }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        mpt3d_a_sskf_run(steps, z + t * steps * 3, x0 + t * 6, xs + t * steps * 6);
     }
 }

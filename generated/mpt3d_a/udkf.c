@@ -59,6 +59,190 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
+{
+    int status = 0;
+    const double t0 = 1.0 + U[1 * s];
+    const double t1 = 1.0 + U[15 * s];
+    const double t2 = 1.0 + U[29 * s];
+    const double t3 = 0.01 + D[5 * s];
+    const double t4 = 2.2250738585072014e-308 + t3;
+    if (!(t4 > 0.0) && !status) {
+        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative */
+    }
+    const double t5 = DERIVE_FMA(D[5 * s], t2, 0.005);
+    const double t6 = t5/t4;
+    const double t7 = t2 - t6;
+    const double t8 = 0.5 - t6;
+    const double t9 = D[5 * s]*t7;
+    const double t10 = 0.01*t8;
+    const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t10, t8, D[4 * s]));
+    const double t12 = 2.2250738585072014e-308 + t11;
+    if (!(t12 > 0.0) && !status) {
+        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative */
+    }
+    const double t13 = 0.01 + D[3 * s];
+    const double t14 = 2.2250738585072014e-308 + t13;
+    if (!(t14 > 0.0) && !status) {
+        status = 3; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
+    }
+    const double t15 = DERIVE_FMA(D[3 * s], t1, 0.005);
+    const double t16 = t15/t14;
+    const double t17 = t1 - t16;
+    const double t18 = 0.5 - t16;
+    const double t19 = D[3 * s]*t17;
+    const double t20 = 0.01*t18;
+    const double t21 = DERIVE_FMA(t18, t20, DERIVE_FMA(t17, t19, D[2 * s]));
+    const double t22 = 2.2250738585072014e-308 + t21;
+    if (!(t22 > 0.0) && !status) {
+        status = 4; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+    }
+    const double t23 = 0.01 + D[1 * s];
+    const double t24 = 2.2250738585072014e-308 + t23;
+    if (!(t24 > 0.0) && !status) {
+        status = 5; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
+    }
+    const double t25 = DERIVE_FMA(D[1 * s], t0, 0.005);
+    const double t26 = t25/t24;
+    const double t27 = t0 - t26;
+    const double t28 = 0.5 - t26;
+    const double t29 = D[1 * s]*t27;
+    const double t30 = 0.01*t28;
+    const double t31 = DERIVE_FMA(t28, t30, DERIVE_FMA(t27, t29, D[0]));
+    const double t32 = 2.2250738585072014e-308 + t31;
+    if (!(t32 > 0.0) && !status) {
+        status = 6; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
+    }
+    const double t33 = x[0] + x[1 * s];
+    const double t34 = x[2 * s] + x[3 * s];
+    const double t35 = x[4 * s] + x[5 * s];
+    const double t36 = 1.0 + t26;
+    const double t37 = t23*t36;
+    const double t38 = 0.1 + t31;
+    if (!(t38 > 0.0) && !status) {
+        status = 7; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t39 = 1.0/t38;
+    const double t40 = 0.1*(t31*t39);
+    const double t41 = DERIVE_FMA(t36, t37, t38);
+    if (!(t41 > 0.0) && !status) {
+        status = 8; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t42 = 1.0/t41;
+    const double t43 = t23*t38*t42;
+    const double t44 = t36*t39;
+    const double t45 = t26 - t31*t44;
+    const double t46 = DERIVE_FMA(t26, t37, t31);
+    const double t47 = z[0] - x[1 * s] - t33;
+    const double t48 = t42*t47;
+    const double t49 = DERIVE_FMA(t46, t48, t33);
+    const double t50 = DERIVE_FMA(t37, t48, x[1 * s]);
+    const double t51 = 1.0 + t16;
+    const double t52 = t13*t51;
+    const double t53 = 0.1 + t21;
+    if (!(t53 > 0.0) && !status) {
+        status = 9; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t54 = 1.0/t53;
+    const double t55 = 0.1*(t21*t54);
+    const double t56 = DERIVE_FMA(t51, t52, t53);
+    if (!(t56 > 0.0) && !status) {
+        status = 10; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t57 = 1.0/t56;
+    const double t58 = t13*t53*t57;
+    const double t59 = t51*t54;
+    const double t60 = t16 - t21*t59;
+    const double t61 = DERIVE_FMA(t16, t52, t21);
+    const double t62 = z[1 * s] - x[3 * s] - t34;
+    const double t63 = t57*t62;
+    const double t64 = DERIVE_FMA(t61, t63, t34);
+    const double t65 = DERIVE_FMA(t52, t63, x[3 * s]);
+    const double t66 = 1.0 + t6;
+    const double t67 = t3*t66;
+    const double t68 = 0.1 + t11;
+    if (!(t68 > 0.0) && !status) {
+        status = 11; /* innovation variance 4 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t69 = 1.0/t68;
+    const double t70 = 0.1*(t11*t69);
+    const double t71 = DERIVE_FMA(t66, t67, t68);
+    if (!(t71 > 0.0) && !status) {
+        status = 12; /* innovation variance 5 of a scalar update is not positive (D or R not positive) */
+    }
+    const double t72 = 1.0/t71;
+    const double t73 = t3*t68*t72;
+    const double t74 = t66*t69;
+    const double t75 = t6 - t11*t74;
+    const double t76 = DERIVE_FMA(t6, t67, t11);
+    const double t77 = z[2 * s] - x[5 * s] - t35;
+    const double t78 = t72*t77;
+    const double t79 = DERIVE_FMA(t76, t78, t35);
+    const double t80 = DERIVE_FMA(t67, t78, x[5 * s]);
+    x_new[0] = t49;
+    x_new[1 * s] = t50;
+    x_new[2 * s] = t64;
+    x_new[3 * s] = t65;
+    x_new[4 * s] = t79;
+    x_new[5 * s] = t80;
+    U_new[0] = 1.0;
+    U_new[1 * s] = t45;
+    U_new[2 * s] = 0.0;
+    U_new[3 * s] = 0.0;
+    U_new[4 * s] = 0.0;
+    U_new[5 * s] = 0.0;
+    U_new[6 * s] = 0.0;
+    U_new[7 * s] = 1.0;
+    U_new[8 * s] = 0.0;
+    U_new[9 * s] = 0.0;
+    U_new[10 * s] = 0.0;
+    U_new[11 * s] = 0.0;
+    U_new[12 * s] = 0.0;
+    U_new[13 * s] = 0.0;
+    U_new[14 * s] = 1.0;
+    U_new[15 * s] = t60;
+    U_new[16 * s] = 0.0;
+    U_new[17 * s] = 0.0;
+    U_new[18 * s] = 0.0;
+    U_new[19 * s] = 0.0;
+    U_new[20 * s] = 0.0;
+    U_new[21 * s] = 1.0;
+    U_new[22 * s] = 0.0;
+    U_new[23 * s] = 0.0;
+    U_new[24 * s] = 0.0;
+    U_new[25 * s] = 0.0;
+    U_new[26 * s] = 0.0;
+    U_new[27 * s] = 0.0;
+    U_new[28 * s] = 1.0;
+    U_new[29 * s] = t75;
+    U_new[30 * s] = 0.0;
+    U_new[31 * s] = 0.0;
+    U_new[32 * s] = 0.0;
+    U_new[33 * s] = 0.0;
+    U_new[34 * s] = 0.0;
+    U_new[35 * s] = 1.0;
+    D_new[0] = t40;
+    D_new[1 * s] = t43;
+    D_new[2 * s] = t55;
+    D_new[3 * s] = t58;
+    D_new[4 * s] = t70;
+    D_new[5 * s] = t73;
+    return status;
+}
+
 int mpt3d_a_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
 {
     if (!(U[2] == 0.0)) {
@@ -97,172 +281,7 @@ int mpt3d_a_udkf_step(const double *restrict x, const double *restrict U, const 
     if (!(U[23] == 0.0)) {
         return 13; /* outside P's pattern */
     }
-    const double t0 = 1.0 + U[1];
-    const double t1 = 1.0 + U[15];
-    const double t2 = 1.0 + U[29];
-    const double t3 = 0.01 + D[5];
-    const double t4 = 2.2250738585072014e-308 + t3;
-    if (!(t4 > 0.0)) {
-        return 1; /* P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative */
-    }
-    const double t5 = DERIVE_FMA(D[5], t2, 0.005);
-    const double t6 = t5/t4;
-    const double t7 = t2 - t6;
-    const double t8 = 0.5 - t6;
-    const double t9 = D[5]*t7;
-    const double t10 = 0.01*t8;
-    const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t10, t8, D[4]));
-    const double t12 = 2.2250738585072014e-308 + t11;
-    if (!(t12 > 0.0)) {
-        return 2; /* P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative */
-    }
-    const double t13 = 0.01 + D[3];
-    const double t14 = 2.2250738585072014e-308 + t13;
-    if (!(t14 > 0.0)) {
-        return 3; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
-    }
-    const double t15 = DERIVE_FMA(D[3], t1, 0.005);
-    const double t16 = t15/t14;
-    const double t17 = t1 - t16;
-    const double t18 = 0.5 - t16;
-    const double t19 = D[3]*t17;
-    const double t20 = 0.01*t18;
-    const double t21 = DERIVE_FMA(t18, t20, DERIVE_FMA(t17, t19, D[2]));
-    const double t22 = 2.2250738585072014e-308 + t21;
-    if (!(t22 > 0.0)) {
-        return 4; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
-    const double t23 = 0.01 + D[1];
-    const double t24 = 2.2250738585072014e-308 + t23;
-    if (!(t24 > 0.0)) {
-        return 5; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-    }
-    const double t25 = DERIVE_FMA(D[1], t0, 0.005);
-    const double t26 = t25/t24;
-    const double t27 = t0 - t26;
-    const double t28 = 0.5 - t26;
-    const double t29 = D[1]*t27;
-    const double t30 = 0.01*t28;
-    const double t31 = DERIVE_FMA(t28, t30, DERIVE_FMA(t27, t29, D[0]));
-    const double t32 = 2.2250738585072014e-308 + t31;
-    if (!(t32 > 0.0)) {
-        return 6; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-    }
-    const double t33 = x[0] + x[1];
-    const double t34 = x[2] + x[3];
-    const double t35 = x[4] + x[5];
-    const double t36 = 1.0 + t26;
-    const double t37 = t23*t36;
-    const double t38 = 0.1 + t31;
-    if (!(t38 > 0.0)) {
-        return 7; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t39 = 1.0/t38;
-    const double t40 = 0.1*(t31*t39);
-    const double t41 = DERIVE_FMA(t36, t37, t38);
-    if (!(t41 > 0.0)) {
-        return 8; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t42 = 1.0/t41;
-    const double t43 = t23*t38*t42;
-    const double t44 = t36*t39;
-    const double t45 = t26 - t31*t44;
-    const double t46 = DERIVE_FMA(t26, t37, t31);
-    const double t47 = z[0] - x[1] - t33;
-    const double t48 = t42*t47;
-    const double t49 = DERIVE_FMA(t46, t48, t33);
-    const double t50 = DERIVE_FMA(t37, t48, x[1]);
-    const double t51 = 1.0 + t16;
-    const double t52 = t13*t51;
-    const double t53 = 0.1 + t21;
-    if (!(t53 > 0.0)) {
-        return 9; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t54 = 1.0/t53;
-    const double t55 = 0.1*(t21*t54);
-    const double t56 = DERIVE_FMA(t51, t52, t53);
-    if (!(t56 > 0.0)) {
-        return 10; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t57 = 1.0/t56;
-    const double t58 = t13*t53*t57;
-    const double t59 = t51*t54;
-    const double t60 = t16 - t21*t59;
-    const double t61 = DERIVE_FMA(t16, t52, t21);
-    const double t62 = z[1] - x[3] - t34;
-    const double t63 = t57*t62;
-    const double t64 = DERIVE_FMA(t61, t63, t34);
-    const double t65 = DERIVE_FMA(t52, t63, x[3]);
-    const double t66 = 1.0 + t6;
-    const double t67 = t3*t66;
-    const double t68 = 0.1 + t11;
-    if (!(t68 > 0.0)) {
-        return 11; /* innovation variance 4 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t69 = 1.0/t68;
-    const double t70 = 0.1*(t11*t69);
-    const double t71 = DERIVE_FMA(t66, t67, t68);
-    if (!(t71 > 0.0)) {
-        return 12; /* innovation variance 5 of a scalar update is not positive (D or R not positive) */
-    }
-    const double t72 = 1.0/t71;
-    const double t73 = t3*t68*t72;
-    const double t74 = t66*t69;
-    const double t75 = t6 - t11*t74;
-    const double t76 = DERIVE_FMA(t6, t67, t11);
-    const double t77 = z[2] - x[5] - t35;
-    const double t78 = t72*t77;
-    const double t79 = DERIVE_FMA(t76, t78, t35);
-    const double t80 = DERIVE_FMA(t67, t78, x[5]);
-    x_new[0] = t49;
-    x_new[1] = t50;
-    x_new[2] = t64;
-    x_new[3] = t65;
-    x_new[4] = t79;
-    x_new[5] = t80;
-    U_new[0] = 1.0;
-    U_new[1] = t45;
-    U_new[2] = 0.0;
-    U_new[3] = 0.0;
-    U_new[4] = 0.0;
-    U_new[5] = 0.0;
-    U_new[6] = 0.0;
-    U_new[7] = 1.0;
-    U_new[8] = 0.0;
-    U_new[9] = 0.0;
-    U_new[10] = 0.0;
-    U_new[11] = 0.0;
-    U_new[12] = 0.0;
-    U_new[13] = 0.0;
-    U_new[14] = 1.0;
-    U_new[15] = t60;
-    U_new[16] = 0.0;
-    U_new[17] = 0.0;
-    U_new[18] = 0.0;
-    U_new[19] = 0.0;
-    U_new[20] = 0.0;
-    U_new[21] = 1.0;
-    U_new[22] = 0.0;
-    U_new[23] = 0.0;
-    U_new[24] = 0.0;
-    U_new[25] = 0.0;
-    U_new[26] = 0.0;
-    U_new[27] = 0.0;
-    U_new[28] = 1.0;
-    U_new[29] = t75;
-    U_new[30] = 0.0;
-    U_new[31] = 0.0;
-    U_new[32] = 0.0;
-    U_new[33] = 0.0;
-    U_new[34] = 0.0;
-    U_new[35] = 1.0;
-    D_new[0] = t40;
-    D_new[1] = t43;
-    D_new[2] = t55;
-    D_new[3] = t58;
-    D_new[4] = t70;
-    D_new[5] = t73;
-    return 0;
+    return mpt3d_a_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
 
 int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
@@ -484,174 +503,13 @@ int mpt3d_a_udkf_run(size_t steps, const double *z, const double *x0, const doub
     if (status) {
         return status;
     }
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const double t0 = 1.0 + U[1];
-        const double t1 = 1.0 + U[15];
-        const double t2 = 1.0 + U[29];
-        const double t3 = 0.01 + D[5];
-        const double t4 = 2.2250738585072014e-308 + t3;
-        if (!(t4 > 0.0)) {
-            return 1; /* P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative */
+        const int step_status = mpt3d_a_udkf_step_body(x, U, D, zk, x_new, U_new, D_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t5 = DERIVE_FMA(D[5], t2, 0.005);
-        const double t6 = t5/t4;
-        const double t7 = t2 - t6;
-        const double t8 = 0.5 - t6;
-        const double t9 = D[5]*t7;
-        const double t10 = 0.01*t8;
-        const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t10, t8, D[4]));
-        const double t12 = 2.2250738585072014e-308 + t11;
-        if (!(t12 > 0.0)) {
-            return 2; /* P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative */
-        }
-        const double t13 = 0.01 + D[3];
-        const double t14 = 2.2250738585072014e-308 + t13;
-        if (!(t14 > 0.0)) {
-            return 3; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
-        }
-        const double t15 = DERIVE_FMA(D[3], t1, 0.005);
-        const double t16 = t15/t14;
-        const double t17 = t1 - t16;
-        const double t18 = 0.5 - t16;
-        const double t19 = D[3]*t17;
-        const double t20 = 0.01*t18;
-        const double t21 = DERIVE_FMA(t18, t20, DERIVE_FMA(t17, t19, D[2]));
-        const double t22 = 2.2250738585072014e-308 + t21;
-        if (!(t22 > 0.0)) {
-            return 4; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-        }
-        const double t23 = 0.01 + D[1];
-        const double t24 = 2.2250738585072014e-308 + t23;
-        if (!(t24 > 0.0)) {
-            return 5; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
-        }
-        const double t25 = DERIVE_FMA(D[1], t0, 0.005);
-        const double t26 = t25/t24;
-        const double t27 = t0 - t26;
-        const double t28 = 0.5 - t26;
-        const double t29 = D[1]*t27;
-        const double t30 = 0.01*t28;
-        const double t31 = DERIVE_FMA(t28, t30, DERIVE_FMA(t27, t29, D[0]));
-        const double t32 = 2.2250738585072014e-308 + t31;
-        if (!(t32 > 0.0)) {
-            return 6; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-        }
-        const double t33 = x[0] + x[1];
-        const double t34 = x[2] + x[3];
-        const double t35 = x[4] + x[5];
-        const double t36 = 1.0 + t26;
-        const double t37 = t23*t36;
-        const double t38 = 0.1 + t31;
-        if (!(t38 > 0.0)) {
-            return 7; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t39 = 1.0/t38;
-        const double t40 = 0.1*(t31*t39);
-        const double t41 = DERIVE_FMA(t36, t37, t38);
-        if (!(t41 > 0.0)) {
-            return 8; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t42 = 1.0/t41;
-        const double t43 = t23*t38*t42;
-        const double t44 = t36*t39;
-        const double t45 = t26 - t31*t44;
-        const double t46 = DERIVE_FMA(t26, t37, t31);
-        const double t47 = zk[0] - x[1] - t33;
-        const double t48 = t42*t47;
-        const double t49 = DERIVE_FMA(t46, t48, t33);
-        const double t50 = DERIVE_FMA(t37, t48, x[1]);
-        const double t51 = 1.0 + t16;
-        const double t52 = t13*t51;
-        const double t53 = 0.1 + t21;
-        if (!(t53 > 0.0)) {
-            return 9; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t54 = 1.0/t53;
-        const double t55 = 0.1*(t21*t54);
-        const double t56 = DERIVE_FMA(t51, t52, t53);
-        if (!(t56 > 0.0)) {
-            return 10; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t57 = 1.0/t56;
-        const double t58 = t13*t53*t57;
-        const double t59 = t51*t54;
-        const double t60 = t16 - t21*t59;
-        const double t61 = DERIVE_FMA(t16, t52, t21);
-        const double t62 = zk[1] - x[3] - t34;
-        const double t63 = t57*t62;
-        const double t64 = DERIVE_FMA(t61, t63, t34);
-        const double t65 = DERIVE_FMA(t52, t63, x[3]);
-        const double t66 = 1.0 + t6;
-        const double t67 = t3*t66;
-        const double t68 = 0.1 + t11;
-        if (!(t68 > 0.0)) {
-            return 11; /* innovation variance 4 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t69 = 1.0/t68;
-        const double t70 = 0.1*(t11*t69);
-        const double t71 = DERIVE_FMA(t66, t67, t68);
-        if (!(t71 > 0.0)) {
-            return 12; /* innovation variance 5 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t72 = 1.0/t71;
-        const double t73 = t3*t68*t72;
-        const double t74 = t66*t69;
-        const double t75 = t6 - t11*t74;
-        const double t76 = DERIVE_FMA(t6, t67, t11);
-        const double t77 = zk[2] - x[5] - t35;
-        const double t78 = t72*t77;
-        const double t79 = DERIVE_FMA(t76, t78, t35);
-        const double t80 = DERIVE_FMA(t67, t78, x[5]);
-        x_new[0] = t49;
-        x_new[1] = t50;
-        x_new[2] = t64;
-        x_new[3] = t65;
-        x_new[4] = t79;
-        x_new[5] = t80;
-        U_new[0] = 1.0;
-        U_new[1] = t45;
-        U_new[2] = 0.0;
-        U_new[3] = 0.0;
-        U_new[4] = 0.0;
-        U_new[5] = 0.0;
-        U_new[6] = 0.0;
-        U_new[7] = 1.0;
-        U_new[8] = 0.0;
-        U_new[9] = 0.0;
-        U_new[10] = 0.0;
-        U_new[11] = 0.0;
-        U_new[12] = 0.0;
-        U_new[13] = 0.0;
-        U_new[14] = 1.0;
-        U_new[15] = t60;
-        U_new[16] = 0.0;
-        U_new[17] = 0.0;
-        U_new[18] = 0.0;
-        U_new[19] = 0.0;
-        U_new[20] = 0.0;
-        U_new[21] = 1.0;
-        U_new[22] = 0.0;
-        U_new[23] = 0.0;
-        U_new[24] = 0.0;
-        U_new[25] = 0.0;
-        U_new[26] = 0.0;
-        U_new[27] = 0.0;
-        U_new[28] = 1.0;
-        U_new[29] = t75;
-        U_new[30] = 0.0;
-        U_new[31] = 0.0;
-        U_new[32] = 0.0;
-        U_new[33] = 0.0;
-        U_new[34] = 0.0;
-        U_new[35] = 1.0;
-        D_new[0] = t40;
-        D_new[1] = t43;
-        D_new[2] = t55;
-        D_new[3] = t58;
-        D_new[4] = t70;
-        D_new[5] = t73;
         xs[k * 6 + 0] = x[0] = x_new[0];
         xs[k * 6 + 1] = x[1] = x_new[1];
         xs[k * 6 + 2] = x[2] = x_new[2];

@@ -12,6 +12,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     int mpt3d_b_jklf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
  *     int mpt3d_b_jklf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     int mpt3d_b_jklf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: mpt3d_b_jklf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
@@ -19,7 +20,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 5, mul 38, div 4, sqrt 0, fma 20, neg 3, cmp 1, calls 0 (flops 115, instructions 99)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["mpt3d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["mpt3d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["mpt3d_b_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #ifndef DERIVE_mpt3d_b_jklf_H
 #define DERIVE_mpt3d_b_jklf_H

@@ -20,6 +20,8 @@ P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
+import struct
+
 import numpy as np
 
 try:
@@ -127,41 +129,27 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         keep = rows.extend
-        for k, z_0 in enumerate(zs[:, 0].tolist()):
+        for z_0 in zs[:, 0].tolist():
             t0 = x_0 + x_1
-            t1 = P_0 + P_1
             t2 = P_1 + P_3
-            t3 = t1 + t2
-            t4 = 0.0025 + t3
+            t4 = 0.0025 + (P_0 + P_1 + t2)
             t5 = 0.005 + t2
             t6 = 0.01 + P_3
             t7 = t4 + t5
             t8 = t5 + t6
-            t9 = t7 + t8
-            t10 = 0.1 + t9
+            t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {k}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 5}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
-            t13 = x_1 + t0
-            t14 = z_0 - t13
-            t15 = t11*t14
-            t16 = t12*t14
-            t17 = t0 + t15
-            t18 = x_1 + t16
-            t19 = t11*t7
-            t20 = t11*t8
-            t21 = t12*t8
-            t22 = t4 - t19
-            t23 = t5 - t20
-            t24 = t6 - t21
-            keep((t17, t18, t22, t23, t24))
-            x_0 = t17
-            x_1 = t18
-            P_0 = t22
-            P_1 = t23
-            P_3 = t24
-        table = np.array(rows, dtype=float).reshape(-1, 5)
+            t14 = z_0 - (x_1 + t0)
+            x_0 = t0 + t11*t14
+            x_1 = x_1 + t12*t14
+            P_0 = t4 - t11*t7
+            P_1 = t5 - t11*t8
+            P_3 = t6 - t12*t8
+            keep((x_0, x_1, P_0, P_1, P_3))
+        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -12,12 +12,13 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void mpt3d_b_lf_step(x[2], P[2*2], z[1], x_new[2] out, P_new[2*2] out)
  *     void mpt3d_b_lf_run(steps, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
+ *     void mpt3d_b_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: mpt3d_b_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 28, div 2, sqrt 0, fma 20, neg 3, cmp 0, calls 0 (flops 80, instructions 63)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["mpt3d_b_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_b_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["mpt3d_b_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["mpt3d_b_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -32,13 +33,53 @@
 #endif
 #endif
 
-void mpt3d_b_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+#ifndef DERIVE_LANES
+#if defined(__AVX512F__)
+#define DERIVE_LANES 32
+#elif defined(__AVX__)
+#define DERIVE_LANES 16
+#else
+#define DERIVE_LANES 8
+#endif
+#endif
+#ifndef DERIVE_PREFETCH
+#if defined(__GNUC__)
+#define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
+#else
+#define DERIVE_PREFETCH(address, write) ((void)(address))
+#endif
+#endif
+#ifndef DERIVE_SIMD
+#if defined(_OPENMP)
+#define DERIVE_SIMD _Pragma("omp simd")
+#elif defined(__clang__)
+#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#elif defined(__GNUC__)
+#define DERIVE_SIMD _Pragma("GCC ivdep")
+#else
+#define DERIVE_SIMD
+#endif
+#endif
+
+DERIVE_INLINE void mpt3d_b_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = 16.3265306122449*P[1];
+    const double t0 = 16.3265306122449*P[1 * s];
     const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
-    const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-    const double t3 = DERIVE_FMA(16.3265306122449, P[3], 8.16326530612245*P[1]);
-    const double t4 = DERIVE_FMA(32.6530612244898, P[3], t0);
+    const double t2 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
+    const double t3 = DERIVE_FMA(16.3265306122449, P[3 * s], 8.16326530612245*P[1 * s]);
+    const double t4 = DERIVE_FMA(32.6530612244898, P[3 * s], t0);
     const double t5 = 1.0 + t1;
     const double t6 = 1.0 + t4;
     const double t7 = 1.0/t5;
@@ -54,20 +95,20 @@ void mpt3d_b_lf_step(const double *restrict x, const double *restrict P, const d
     const double t17 = DERIVE_FMA(0.12244897959183673, t13, 0.7551020408163265*t10);
     const double t18 = 8.16326530612245*z[0];
     const double t19 = 16.3265306122449*z[0];
-    const double t20 = DERIVE_FMA(P[1], t19, P[0]*t18);
-    const double t21 = DERIVE_FMA(P[3], t19, P[1]*t18);
+    const double t20 = DERIVE_FMA(P[1 * s], t19, P[0]*t18);
+    const double t21 = DERIVE_FMA(P[3 * s], t19, P[1 * s]*t18);
     const double t22 = x[0] + t20;
-    const double t23 = x[1] + t21;
+    const double t23 = x[1 * s] + t21;
     const double t24 = 0.061224489795918366*z[0];
     const double t25 = 0.12244897959183673*z[0];
     const double t26 = DERIVE_FMA(t15, t23, t14*t22);
     const double t27 = DERIVE_FMA(t17, t23, -(t16*t22));
     const double t28 = t24 + t26;
     const double t29 = t25 + t27;
-    const double t30 = DERIVE_FMA(P[1], t15, P[0]*t14);
-    const double t31 = DERIVE_FMA(P[3], t15, P[1]*t14);
-    const double t32 = DERIVE_FMA(P[1], t17, -(P[0]*t16));
-    const double t33 = DERIVE_FMA(P[3], t17, -(P[1]*t16));
+    const double t30 = DERIVE_FMA(P[1 * s], t15, P[0]*t14);
+    const double t31 = DERIVE_FMA(P[3 * s], t15, P[1 * s]*t14);
+    const double t32 = DERIVE_FMA(P[1 * s], t17, -(P[0]*t16));
+    const double t33 = DERIVE_FMA(P[3 * s], t17, -(P[1 * s]*t16));
     const double t34 = DERIVE_FMA(0.8775510204081632, t31, 0.9387755102040817*t30);
     const double t35 = DERIVE_FMA(0.7551020408163265, t31, (-0.12244897959183673)*t30);
     const double t36 = DERIVE_FMA(0.7551020408163265, t33, (-0.12244897959183673)*t32);
@@ -75,11 +116,16 @@ void mpt3d_b_lf_step(const double *restrict x, const double *restrict P, const d
     const double t38 = 0.004081632653061225 + t35;
     const double t39 = 0.00816326530612245 + t36;
     x_new[0] = t28;
-    x_new[1] = t29;
+    x_new[1 * s] = t29;
     P_new[0] = t37;
-    P_new[1] = t38;
-    P_new[2] = t38;
-    P_new[3] = t39;
+    P_new[1 * s] = t38;
+    P_new[2 * s] = t38;
+    P_new[3 * s] = t39;
+}
+
+void mpt3d_b_lf_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
+{
+    mpt3d_b_lf_step_body(x, P, z, x_new, P_new, 1);
 }
 
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
@@ -96,55 +142,10 @@ void mpt3d_b_lf_run(size_t steps, const double *z, const double *x0, const doubl
     P[1] = P0[1];
     P[2] = P0[2];
     P[3] = P0[3];
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = 16.3265306122449*P[1];
-        const double t1 = DERIVE_FMA(8.16326530612245, P[0], t0);
-        const double t2 = DERIVE_FMA(32.6530612244898, P[1], 16.3265306122449*P[0]);
-        const double t3 = DERIVE_FMA(16.3265306122449, P[3], 8.16326530612245*P[1]);
-        const double t4 = DERIVE_FMA(32.6530612244898, P[3], t0);
-        const double t5 = 1.0 + t1;
-        const double t6 = 1.0 + t4;
-        const double t7 = 1.0/t5;
-        const double t8 = t3*t7;
-        const double t9 = t6 - t2*t8;
-        const double t10 = 1.0/t9;
-        const double t11 = t10*t8;
-        const double t12 = t7*DERIVE_FMA(t11, t2, 1.0);
-        const double t13 = t10*t2*t7;
-        const double t14 = DERIVE_FMA(0.9387755102040817, t12, (-0.8775510204081632)*t11);
-        const double t15 = DERIVE_FMA((-0.9387755102040817), t13, 0.8775510204081632*t10);
-        const double t16 = DERIVE_FMA(0.12244897959183673, t12, 0.7551020408163265*t11);
-        const double t17 = DERIVE_FMA(0.12244897959183673, t13, 0.7551020408163265*t10);
-        const double t18 = 8.16326530612245*zk[0];
-        const double t19 = 16.3265306122449*zk[0];
-        const double t20 = DERIVE_FMA(P[1], t19, P[0]*t18);
-        const double t21 = DERIVE_FMA(P[3], t19, P[1]*t18);
-        const double t22 = x[0] + t20;
-        const double t23 = x[1] + t21;
-        const double t24 = 0.061224489795918366*zk[0];
-        const double t25 = 0.12244897959183673*zk[0];
-        const double t26 = DERIVE_FMA(t15, t23, t14*t22);
-        const double t27 = DERIVE_FMA(t17, t23, -(t16*t22));
-        const double t28 = t24 + t26;
-        const double t29 = t25 + t27;
-        const double t30 = DERIVE_FMA(P[1], t15, P[0]*t14);
-        const double t31 = DERIVE_FMA(P[3], t15, P[1]*t14);
-        const double t32 = DERIVE_FMA(P[1], t17, -(P[0]*t16));
-        const double t33 = DERIVE_FMA(P[3], t17, -(P[1]*t16));
-        const double t34 = DERIVE_FMA(0.8775510204081632, t31, 0.9387755102040817*t30);
-        const double t35 = DERIVE_FMA(0.7551020408163265, t31, (-0.12244897959183673)*t30);
-        const double t36 = DERIVE_FMA(0.7551020408163265, t33, (-0.12244897959183673)*t32);
-        const double t37 = 0.0020408163265306124 + t34;
-        const double t38 = 0.004081632653061225 + t35;
-        const double t39 = 0.00816326530612245 + t36;
-        x_new[0] = t28;
-        x_new[1] = t29;
-        P_new[0] = t37;
-        P_new[1] = t38;
-        P_new[2] = t38;
-        P_new[3] = t39;
+        mpt3d_b_lf_step_body(x, P, zk, x_new, P_new, 1);
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
         P[0] = P_new[0];
@@ -162,358 +163,65 @@ void mpt3d_b_lf_run(size_t steps, const double *z, const double *x0, const doubl
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
  * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may be NULL).
- * 4 tracks advance together, their steps interleaved by the compiler;
- * a non-zero status stops the whole run. */
+ * Tracks go in blocks of DERIVE_LANES (a few vector registers wide), copied into
+ * block arrays here, element i of lane j at [i * DERIVE_LANES + j]: the step body runs
+ * over the lanes in one loop the compiler vectorises, each lane the operations of its own
+ * run in the same order; the last tracks, fewer than a block, by run itself.
+ * A non-zero status stops the whole run. */
 void mpt3d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
     size_t t = 0;
-    size_t k;
-    for (; t + 4 <= tracks; t += 4) {
-        double x_l0[2], xn_l0[2];
-        double P_l0[4], Pn_l0[4];
-        const double *z_l0;
-        double x_l1[2], xn_l1[2];
-        double P_l1[4], Pn_l1[4];
-        const double *z_l1;
-        double x_l2[2], xn_l2[2];
-        double P_l2[4], Pn_l2[4];
-        const double *z_l2;
-        double x_l3[2], xn_l3[2];
-        double P_l3[4], Pn_l3[4];
-        const double *z_l3;
-        x_l0[0] = x0[(t + 0) * 2 + 0];
-        x_l0[1] = x0[(t + 0) * 2 + 1];
-        P_l0[0] = P0[(t + 0) * 4 + 0];
-        P_l0[1] = P0[(t + 0) * 4 + 1];
-        P_l0[2] = P0[(t + 0) * 4 + 2];
-        P_l0[3] = P0[(t + 0) * 4 + 3];
-        x_l1[0] = x0[(t + 1) * 2 + 0];
-        x_l1[1] = x0[(t + 1) * 2 + 1];
-        P_l1[0] = P0[(t + 1) * 4 + 0];
-        P_l1[1] = P0[(t + 1) * 4 + 1];
-        P_l1[2] = P0[(t + 1) * 4 + 2];
-        P_l1[3] = P0[(t + 1) * 4 + 3];
-        x_l2[0] = x0[(t + 2) * 2 + 0];
-        x_l2[1] = x0[(t + 2) * 2 + 1];
-        P_l2[0] = P0[(t + 2) * 4 + 0];
-        P_l2[1] = P0[(t + 2) * 4 + 1];
-        P_l2[2] = P0[(t + 2) * 4 + 2];
-        P_l2[3] = P0[(t + 2) * 4 + 3];
-        x_l3[0] = x0[(t + 3) * 2 + 0];
-        x_l3[1] = x0[(t + 3) * 2 + 1];
-        P_l3[0] = P0[(t + 3) * 4 + 0];
-        P_l3[1] = P0[(t + 3) * 4 + 1];
-        P_l3[2] = P0[(t + 3) * 4 + 2];
-        P_l3[3] = P0[(t + 3) * 4 + 3];
+    size_t k, i, j;
+    for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
+        double x_b[2 * DERIVE_LANES];
+        double P_b[4 * DERIVE_LANES];
+        double x_new_b[2 * DERIVE_LANES];
+        double P_new_b[4 * DERIVE_LANES];
+        double z_b[1 * DERIVE_LANES];
+        for (j = 0; j < DERIVE_LANES; ++j) {
+            for (i = 0; i < 2; ++i) {
+                x_b[i * DERIVE_LANES + j] = x0[(t + j) * 2 + i];
+            }
+            for (i = 0; i < 4; ++i) {
+                P_b[i * DERIVE_LANES + j] = P0[(t + j) * 4 + i];
+            }
+        }
         for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = 16.3265306122449*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t3_l0 = DERIVE_FMA(16.3265306122449, P_l0[3], 8.16326530612245*P_l0[1]);
-            const double t4_l0 = DERIVE_FMA(32.6530612244898, P_l0[3], t0_l0);
-            const double t5_l0 = 1.0 + t1_l0;
-            const double t6_l0 = 1.0 + t4_l0;
-            const double t7_l0 = 1.0/t5_l0;
-            const double t8_l0 = t3_l0*t7_l0;
-            const double t9_l0 = t6_l0 - t2_l0*t8_l0;
-            const double t10_l0 = 1.0/t9_l0;
-            const double t11_l0 = t10_l0*t8_l0;
-            const double t12_l0 = t7_l0*DERIVE_FMA(t11_l0, t2_l0, 1.0);
-            const double t13_l0 = t10_l0*t2_l0*t7_l0;
-            const double t14_l0 = DERIVE_FMA(0.9387755102040817, t12_l0, (-0.8775510204081632)*t11_l0);
-            const double t15_l0 = DERIVE_FMA((-0.9387755102040817), t13_l0, 0.8775510204081632*t10_l0);
-            const double t16_l0 = DERIVE_FMA(0.12244897959183673, t12_l0, 0.7551020408163265*t11_l0);
-            const double t17_l0 = DERIVE_FMA(0.12244897959183673, t13_l0, 0.7551020408163265*t10_l0);
-            const double t18_l0 = 8.16326530612245*z_l0[0];
-            const double t19_l0 = 16.3265306122449*z_l0[0];
-            const double t20_l0 = DERIVE_FMA(P_l0[1], t19_l0, P_l0[0]*t18_l0);
-            const double t21_l0 = DERIVE_FMA(P_l0[3], t19_l0, P_l0[1]*t18_l0);
-            const double t22_l0 = x_l0[0] + t20_l0;
-            const double t23_l0 = x_l0[1] + t21_l0;
-            const double t24_l0 = 0.061224489795918366*z_l0[0];
-            const double t25_l0 = 0.12244897959183673*z_l0[0];
-            const double t26_l0 = DERIVE_FMA(t15_l0, t23_l0, t14_l0*t22_l0);
-            const double t27_l0 = DERIVE_FMA(t17_l0, t23_l0, -(t16_l0*t22_l0));
-            const double t28_l0 = t24_l0 + t26_l0;
-            const double t29_l0 = t25_l0 + t27_l0;
-            const double t30_l0 = DERIVE_FMA(P_l0[1], t15_l0, P_l0[0]*t14_l0);
-            const double t31_l0 = DERIVE_FMA(P_l0[3], t15_l0, P_l0[1]*t14_l0);
-            const double t32_l0 = DERIVE_FMA(P_l0[1], t17_l0, -(P_l0[0]*t16_l0));
-            const double t33_l0 = DERIVE_FMA(P_l0[3], t17_l0, -(P_l0[1]*t16_l0));
-            const double t34_l0 = DERIVE_FMA(0.8775510204081632, t31_l0, 0.9387755102040817*t30_l0);
-            const double t35_l0 = DERIVE_FMA(0.7551020408163265, t31_l0, (-0.12244897959183673)*t30_l0);
-            const double t36_l0 = DERIVE_FMA(0.7551020408163265, t33_l0, (-0.12244897959183673)*t32_l0);
-            const double t37_l0 = 0.0020408163265306124 + t34_l0;
-            const double t38_l0 = 0.004081632653061225 + t35_l0;
-            const double t39_l0 = 0.00816326530612245 + t36_l0;
-            xn_l0[0] = t28_l0;
-            xn_l0[1] = t29_l0;
-            Pn_l0[0] = t37_l0;
-            Pn_l0[1] = t38_l0;
-            Pn_l0[2] = t38_l0;
-            Pn_l0[3] = t39_l0;
-            z_l1 = z + ((t + 1) * steps + k) * 1;
-            const double t0_l1 = 16.3265306122449*P_l1[1];
-            const double t1_l1 = DERIVE_FMA(8.16326530612245, P_l1[0], t0_l1);
-            const double t2_l1 = DERIVE_FMA(32.6530612244898, P_l1[1], 16.3265306122449*P_l1[0]);
-            const double t3_l1 = DERIVE_FMA(16.3265306122449, P_l1[3], 8.16326530612245*P_l1[1]);
-            const double t4_l1 = DERIVE_FMA(32.6530612244898, P_l1[3], t0_l1);
-            const double t5_l1 = 1.0 + t1_l1;
-            const double t6_l1 = 1.0 + t4_l1;
-            const double t7_l1 = 1.0/t5_l1;
-            const double t8_l1 = t3_l1*t7_l1;
-            const double t9_l1 = t6_l1 - t2_l1*t8_l1;
-            const double t10_l1 = 1.0/t9_l1;
-            const double t11_l1 = t10_l1*t8_l1;
-            const double t12_l1 = t7_l1*DERIVE_FMA(t11_l1, t2_l1, 1.0);
-            const double t13_l1 = t10_l1*t2_l1*t7_l1;
-            const double t14_l1 = DERIVE_FMA(0.9387755102040817, t12_l1, (-0.8775510204081632)*t11_l1);
-            const double t15_l1 = DERIVE_FMA((-0.9387755102040817), t13_l1, 0.8775510204081632*t10_l1);
-            const double t16_l1 = DERIVE_FMA(0.12244897959183673, t12_l1, 0.7551020408163265*t11_l1);
-            const double t17_l1 = DERIVE_FMA(0.12244897959183673, t13_l1, 0.7551020408163265*t10_l1);
-            const double t18_l1 = 8.16326530612245*z_l1[0];
-            const double t19_l1 = 16.3265306122449*z_l1[0];
-            const double t20_l1 = DERIVE_FMA(P_l1[1], t19_l1, P_l1[0]*t18_l1);
-            const double t21_l1 = DERIVE_FMA(P_l1[3], t19_l1, P_l1[1]*t18_l1);
-            const double t22_l1 = x_l1[0] + t20_l1;
-            const double t23_l1 = x_l1[1] + t21_l1;
-            const double t24_l1 = 0.061224489795918366*z_l1[0];
-            const double t25_l1 = 0.12244897959183673*z_l1[0];
-            const double t26_l1 = DERIVE_FMA(t15_l1, t23_l1, t14_l1*t22_l1);
-            const double t27_l1 = DERIVE_FMA(t17_l1, t23_l1, -(t16_l1*t22_l1));
-            const double t28_l1 = t24_l1 + t26_l1;
-            const double t29_l1 = t25_l1 + t27_l1;
-            const double t30_l1 = DERIVE_FMA(P_l1[1], t15_l1, P_l1[0]*t14_l1);
-            const double t31_l1 = DERIVE_FMA(P_l1[3], t15_l1, P_l1[1]*t14_l1);
-            const double t32_l1 = DERIVE_FMA(P_l1[1], t17_l1, -(P_l1[0]*t16_l1));
-            const double t33_l1 = DERIVE_FMA(P_l1[3], t17_l1, -(P_l1[1]*t16_l1));
-            const double t34_l1 = DERIVE_FMA(0.8775510204081632, t31_l1, 0.9387755102040817*t30_l1);
-            const double t35_l1 = DERIVE_FMA(0.7551020408163265, t31_l1, (-0.12244897959183673)*t30_l1);
-            const double t36_l1 = DERIVE_FMA(0.7551020408163265, t33_l1, (-0.12244897959183673)*t32_l1);
-            const double t37_l1 = 0.0020408163265306124 + t34_l1;
-            const double t38_l1 = 0.004081632653061225 + t35_l1;
-            const double t39_l1 = 0.00816326530612245 + t36_l1;
-            xn_l1[0] = t28_l1;
-            xn_l1[1] = t29_l1;
-            Pn_l1[0] = t37_l1;
-            Pn_l1[1] = t38_l1;
-            Pn_l1[2] = t38_l1;
-            Pn_l1[3] = t39_l1;
-            z_l2 = z + ((t + 2) * steps + k) * 1;
-            const double t0_l2 = 16.3265306122449*P_l2[1];
-            const double t1_l2 = DERIVE_FMA(8.16326530612245, P_l2[0], t0_l2);
-            const double t2_l2 = DERIVE_FMA(32.6530612244898, P_l2[1], 16.3265306122449*P_l2[0]);
-            const double t3_l2 = DERIVE_FMA(16.3265306122449, P_l2[3], 8.16326530612245*P_l2[1]);
-            const double t4_l2 = DERIVE_FMA(32.6530612244898, P_l2[3], t0_l2);
-            const double t5_l2 = 1.0 + t1_l2;
-            const double t6_l2 = 1.0 + t4_l2;
-            const double t7_l2 = 1.0/t5_l2;
-            const double t8_l2 = t3_l2*t7_l2;
-            const double t9_l2 = t6_l2 - t2_l2*t8_l2;
-            const double t10_l2 = 1.0/t9_l2;
-            const double t11_l2 = t10_l2*t8_l2;
-            const double t12_l2 = t7_l2*DERIVE_FMA(t11_l2, t2_l2, 1.0);
-            const double t13_l2 = t10_l2*t2_l2*t7_l2;
-            const double t14_l2 = DERIVE_FMA(0.9387755102040817, t12_l2, (-0.8775510204081632)*t11_l2);
-            const double t15_l2 = DERIVE_FMA((-0.9387755102040817), t13_l2, 0.8775510204081632*t10_l2);
-            const double t16_l2 = DERIVE_FMA(0.12244897959183673, t12_l2, 0.7551020408163265*t11_l2);
-            const double t17_l2 = DERIVE_FMA(0.12244897959183673, t13_l2, 0.7551020408163265*t10_l2);
-            const double t18_l2 = 8.16326530612245*z_l2[0];
-            const double t19_l2 = 16.3265306122449*z_l2[0];
-            const double t20_l2 = DERIVE_FMA(P_l2[1], t19_l2, P_l2[0]*t18_l2);
-            const double t21_l2 = DERIVE_FMA(P_l2[3], t19_l2, P_l2[1]*t18_l2);
-            const double t22_l2 = x_l2[0] + t20_l2;
-            const double t23_l2 = x_l2[1] + t21_l2;
-            const double t24_l2 = 0.061224489795918366*z_l2[0];
-            const double t25_l2 = 0.12244897959183673*z_l2[0];
-            const double t26_l2 = DERIVE_FMA(t15_l2, t23_l2, t14_l2*t22_l2);
-            const double t27_l2 = DERIVE_FMA(t17_l2, t23_l2, -(t16_l2*t22_l2));
-            const double t28_l2 = t24_l2 + t26_l2;
-            const double t29_l2 = t25_l2 + t27_l2;
-            const double t30_l2 = DERIVE_FMA(P_l2[1], t15_l2, P_l2[0]*t14_l2);
-            const double t31_l2 = DERIVE_FMA(P_l2[3], t15_l2, P_l2[1]*t14_l2);
-            const double t32_l2 = DERIVE_FMA(P_l2[1], t17_l2, -(P_l2[0]*t16_l2));
-            const double t33_l2 = DERIVE_FMA(P_l2[3], t17_l2, -(P_l2[1]*t16_l2));
-            const double t34_l2 = DERIVE_FMA(0.8775510204081632, t31_l2, 0.9387755102040817*t30_l2);
-            const double t35_l2 = DERIVE_FMA(0.7551020408163265, t31_l2, (-0.12244897959183673)*t30_l2);
-            const double t36_l2 = DERIVE_FMA(0.7551020408163265, t33_l2, (-0.12244897959183673)*t32_l2);
-            const double t37_l2 = 0.0020408163265306124 + t34_l2;
-            const double t38_l2 = 0.004081632653061225 + t35_l2;
-            const double t39_l2 = 0.00816326530612245 + t36_l2;
-            xn_l2[0] = t28_l2;
-            xn_l2[1] = t29_l2;
-            Pn_l2[0] = t37_l2;
-            Pn_l2[1] = t38_l2;
-            Pn_l2[2] = t38_l2;
-            Pn_l2[3] = t39_l2;
-            z_l3 = z + ((t + 3) * steps + k) * 1;
-            const double t0_l3 = 16.3265306122449*P_l3[1];
-            const double t1_l3 = DERIVE_FMA(8.16326530612245, P_l3[0], t0_l3);
-            const double t2_l3 = DERIVE_FMA(32.6530612244898, P_l3[1], 16.3265306122449*P_l3[0]);
-            const double t3_l3 = DERIVE_FMA(16.3265306122449, P_l3[3], 8.16326530612245*P_l3[1]);
-            const double t4_l3 = DERIVE_FMA(32.6530612244898, P_l3[3], t0_l3);
-            const double t5_l3 = 1.0 + t1_l3;
-            const double t6_l3 = 1.0 + t4_l3;
-            const double t7_l3 = 1.0/t5_l3;
-            const double t8_l3 = t3_l3*t7_l3;
-            const double t9_l3 = t6_l3 - t2_l3*t8_l3;
-            const double t10_l3 = 1.0/t9_l3;
-            const double t11_l3 = t10_l3*t8_l3;
-            const double t12_l3 = t7_l3*DERIVE_FMA(t11_l3, t2_l3, 1.0);
-            const double t13_l3 = t10_l3*t2_l3*t7_l3;
-            const double t14_l3 = DERIVE_FMA(0.9387755102040817, t12_l3, (-0.8775510204081632)*t11_l3);
-            const double t15_l3 = DERIVE_FMA((-0.9387755102040817), t13_l3, 0.8775510204081632*t10_l3);
-            const double t16_l3 = DERIVE_FMA(0.12244897959183673, t12_l3, 0.7551020408163265*t11_l3);
-            const double t17_l3 = DERIVE_FMA(0.12244897959183673, t13_l3, 0.7551020408163265*t10_l3);
-            const double t18_l3 = 8.16326530612245*z_l3[0];
-            const double t19_l3 = 16.3265306122449*z_l3[0];
-            const double t20_l3 = DERIVE_FMA(P_l3[1], t19_l3, P_l3[0]*t18_l3);
-            const double t21_l3 = DERIVE_FMA(P_l3[3], t19_l3, P_l3[1]*t18_l3);
-            const double t22_l3 = x_l3[0] + t20_l3;
-            const double t23_l3 = x_l3[1] + t21_l3;
-            const double t24_l3 = 0.061224489795918366*z_l3[0];
-            const double t25_l3 = 0.12244897959183673*z_l3[0];
-            const double t26_l3 = DERIVE_FMA(t15_l3, t23_l3, t14_l3*t22_l3);
-            const double t27_l3 = DERIVE_FMA(t17_l3, t23_l3, -(t16_l3*t22_l3));
-            const double t28_l3 = t24_l3 + t26_l3;
-            const double t29_l3 = t25_l3 + t27_l3;
-            const double t30_l3 = DERIVE_FMA(P_l3[1], t15_l3, P_l3[0]*t14_l3);
-            const double t31_l3 = DERIVE_FMA(P_l3[3], t15_l3, P_l3[1]*t14_l3);
-            const double t32_l3 = DERIVE_FMA(P_l3[1], t17_l3, -(P_l3[0]*t16_l3));
-            const double t33_l3 = DERIVE_FMA(P_l3[3], t17_l3, -(P_l3[1]*t16_l3));
-            const double t34_l3 = DERIVE_FMA(0.8775510204081632, t31_l3, 0.9387755102040817*t30_l3);
-            const double t35_l3 = DERIVE_FMA(0.7551020408163265, t31_l3, (-0.12244897959183673)*t30_l3);
-            const double t36_l3 = DERIVE_FMA(0.7551020408163265, t33_l3, (-0.12244897959183673)*t32_l3);
-            const double t37_l3 = 0.0020408163265306124 + t34_l3;
-            const double t38_l3 = 0.004081632653061225 + t35_l3;
-            const double t39_l3 = 0.00816326530612245 + t36_l3;
-            xn_l3[0] = t28_l3;
-            xn_l3[1] = t29_l3;
-            Pn_l3[0] = t37_l3;
-            Pn_l3[1] = t38_l3;
-            Pn_l3[2] = t38_l3;
-            Pn_l3[3] = t39_l3;
-            xs[((t + 0) * steps + k) * 2 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 2 + 1] = x_l0[1] = xn_l0[1];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 4 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 4 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 4 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 4 + 3] = Pn_l0[3];
+            if (k + 8 < steps) {
+                for (j = 0; j < DERIVE_LANES; ++j) {
+                    DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
+                    DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
+                }
             }
-            xs[((t + 1) * steps + k) * 2 + 0] = x_l1[0] = xn_l1[0];
-            xs[((t + 1) * steps + k) * 2 + 1] = x_l1[1] = xn_l1[1];
-            P_l1[0] = Pn_l1[0];
-            P_l1[1] = Pn_l1[1];
-            P_l1[2] = Pn_l1[2];
-            P_l1[3] = Pn_l1[3];
-            if (Ps) {
-                Ps[((t + 1) * steps + k) * 4 + 0] = Pn_l1[0];
-                Ps[((t + 1) * steps + k) * 4 + 1] = Pn_l1[1];
-                Ps[((t + 1) * steps + k) * 4 + 2] = Pn_l1[2];
-                Ps[((t + 1) * steps + k) * 4 + 3] = Pn_l1[3];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 1; ++i) {
+                    z_b[i * DERIVE_LANES + j] = z[((t + j) * steps + k) * 1 + i];
+                }
             }
-            xs[((t + 2) * steps + k) * 2 + 0] = x_l2[0] = xn_l2[0];
-            xs[((t + 2) * steps + k) * 2 + 1] = x_l2[1] = xn_l2[1];
-            P_l2[0] = Pn_l2[0];
-            P_l2[1] = Pn_l2[1];
-            P_l2[2] = Pn_l2[2];
-            P_l2[3] = Pn_l2[3];
-            if (Ps) {
-                Ps[((t + 2) * steps + k) * 4 + 0] = Pn_l2[0];
-                Ps[((t + 2) * steps + k) * 4 + 1] = Pn_l2[1];
-                Ps[((t + 2) * steps + k) * 4 + 2] = Pn_l2[2];
-                Ps[((t + 2) * steps + k) * 4 + 3] = Pn_l2[3];
+            DERIVE_SIMD
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                mpt3d_b_lf_step_body(x_b + j, P_b + j, z_b + j, x_new_b + j, P_new_b + j, DERIVE_LANES);
             }
-            xs[((t + 3) * steps + k) * 2 + 0] = x_l3[0] = xn_l3[0];
-            xs[((t + 3) * steps + k) * 2 + 1] = x_l3[1] = xn_l3[1];
-            P_l3[0] = Pn_l3[0];
-            P_l3[1] = Pn_l3[1];
-            P_l3[2] = Pn_l3[2];
-            P_l3[3] = Pn_l3[3];
-            if (Ps) {
-                Ps[((t + 3) * steps + k) * 4 + 0] = Pn_l3[0];
-                Ps[((t + 3) * steps + k) * 4 + 1] = Pn_l3[1];
-                Ps[((t + 3) * steps + k) * 4 + 2] = Pn_l3[2];
-                Ps[((t + 3) * steps + k) * 4 + 3] = Pn_l3[3];
+            for (j = 0; j < DERIVE_LANES; ++j) {
+                for (i = 0; i < 2; ++i) {
+                    xs[((t + j) * steps + k) * 2 + i] = x_new_b[i * DERIVE_LANES + j];
+                }
+                if (Ps) {
+                    for (i = 0; i < 4; ++i) {
+                        Ps[((t + j) * steps + k) * 4 + i] = P_new_b[i * DERIVE_LANES + j];
+                    }
+                }
+            }
+            for (i = 0; i < 2 * DERIVE_LANES; ++i) {
+                x_b[i] = x_new_b[i];
+            }
+            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
+                P_b[i] = P_new_b[i];
             }
         }
     }
-    for (; t + 1 <= tracks; t += 1) {
-        double x_l0[2], xn_l0[2];
-        double P_l0[4], Pn_l0[4];
-        const double *z_l0;
-        x_l0[0] = x0[(t + 0) * 2 + 0];
-        x_l0[1] = x0[(t + 0) * 2 + 1];
-        P_l0[0] = P0[(t + 0) * 4 + 0];
-        P_l0[1] = P0[(t + 0) * 4 + 1];
-        P_l0[2] = P0[(t + 0) * 4 + 2];
-        P_l0[3] = P0[(t + 0) * 4 + 3];
-        for (k = 0; k < steps; ++k) {
-            z_l0 = z + ((t + 0) * steps + k) * 1;
-            const double t0_l0 = 16.3265306122449*P_l0[1];
-            const double t1_l0 = DERIVE_FMA(8.16326530612245, P_l0[0], t0_l0);
-            const double t2_l0 = DERIVE_FMA(32.6530612244898, P_l0[1], 16.3265306122449*P_l0[0]);
-            const double t3_l0 = DERIVE_FMA(16.3265306122449, P_l0[3], 8.16326530612245*P_l0[1]);
-            const double t4_l0 = DERIVE_FMA(32.6530612244898, P_l0[3], t0_l0);
-            const double t5_l0 = 1.0 + t1_l0;
-            const double t6_l0 = 1.0 + t4_l0;
-            const double t7_l0 = 1.0/t5_l0;
-            const double t8_l0 = t3_l0*t7_l0;
-            const double t9_l0 = t6_l0 - t2_l0*t8_l0;
-            const double t10_l0 = 1.0/t9_l0;
-            const double t11_l0 = t10_l0*t8_l0;
-            const double t12_l0 = t7_l0*DERIVE_FMA(t11_l0, t2_l0, 1.0);
-            const double t13_l0 = t10_l0*t2_l0*t7_l0;
-            const double t14_l0 = DERIVE_FMA(0.9387755102040817, t12_l0, (-0.8775510204081632)*t11_l0);
-            const double t15_l0 = DERIVE_FMA((-0.9387755102040817), t13_l0, 0.8775510204081632*t10_l0);
-            const double t16_l0 = DERIVE_FMA(0.12244897959183673, t12_l0, 0.7551020408163265*t11_l0);
-            const double t17_l0 = DERIVE_FMA(0.12244897959183673, t13_l0, 0.7551020408163265*t10_l0);
-            const double t18_l0 = 8.16326530612245*z_l0[0];
-            const double t19_l0 = 16.3265306122449*z_l0[0];
-            const double t20_l0 = DERIVE_FMA(P_l0[1], t19_l0, P_l0[0]*t18_l0);
-            const double t21_l0 = DERIVE_FMA(P_l0[3], t19_l0, P_l0[1]*t18_l0);
-            const double t22_l0 = x_l0[0] + t20_l0;
-            const double t23_l0 = x_l0[1] + t21_l0;
-            const double t24_l0 = 0.061224489795918366*z_l0[0];
-            const double t25_l0 = 0.12244897959183673*z_l0[0];
-            const double t26_l0 = DERIVE_FMA(t15_l0, t23_l0, t14_l0*t22_l0);
-            const double t27_l0 = DERIVE_FMA(t17_l0, t23_l0, -(t16_l0*t22_l0));
-            const double t28_l0 = t24_l0 + t26_l0;
-            const double t29_l0 = t25_l0 + t27_l0;
-            const double t30_l0 = DERIVE_FMA(P_l0[1], t15_l0, P_l0[0]*t14_l0);
-            const double t31_l0 = DERIVE_FMA(P_l0[3], t15_l0, P_l0[1]*t14_l0);
-            const double t32_l0 = DERIVE_FMA(P_l0[1], t17_l0, -(P_l0[0]*t16_l0));
-            const double t33_l0 = DERIVE_FMA(P_l0[3], t17_l0, -(P_l0[1]*t16_l0));
-            const double t34_l0 = DERIVE_FMA(0.8775510204081632, t31_l0, 0.9387755102040817*t30_l0);
-            const double t35_l0 = DERIVE_FMA(0.7551020408163265, t31_l0, (-0.12244897959183673)*t30_l0);
-            const double t36_l0 = DERIVE_FMA(0.7551020408163265, t33_l0, (-0.12244897959183673)*t32_l0);
-            const double t37_l0 = 0.0020408163265306124 + t34_l0;
-            const double t38_l0 = 0.004081632653061225 + t35_l0;
-            const double t39_l0 = 0.00816326530612245 + t36_l0;
-            xn_l0[0] = t28_l0;
-            xn_l0[1] = t29_l0;
-            Pn_l0[0] = t37_l0;
-            Pn_l0[1] = t38_l0;
-            Pn_l0[2] = t38_l0;
-            Pn_l0[3] = t39_l0;
-            xs[((t + 0) * steps + k) * 2 + 0] = x_l0[0] = xn_l0[0];
-            xs[((t + 0) * steps + k) * 2 + 1] = x_l0[1] = xn_l0[1];
-            P_l0[0] = Pn_l0[0];
-            P_l0[1] = Pn_l0[1];
-            P_l0[2] = Pn_l0[2];
-            P_l0[3] = Pn_l0[3];
-            if (Ps) {
-                Ps[((t + 0) * steps + k) * 4 + 0] = Pn_l0[0];
-                Ps[((t + 0) * steps + k) * 4 + 1] = Pn_l0[1];
-                Ps[((t + 0) * steps + k) * 4 + 2] = Pn_l0[2];
-                Ps[((t + 0) * steps + k) * 4 + 3] = Pn_l0[3];
-            }
-        }
+    /* the last tracks, fewer than a block: run on each */
+    for (; t < tracks; ++t) {
+        mpt3d_b_lf_run(steps, z + t * steps * 1, x0 + t * 2, P0 + t * 2 * 2, xs + t * steps * 2, Ps ? Ps + t * steps * 2 * 2 : NULL);
     }
 }

@@ -35,6 +35,35 @@
 #endif
 #endif
 
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE void mpt3d_b_pred_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.42780638062735715, x[1 * s], DERIVE_FMA(0.4278063806273572, x[0], 0.5721936193726429*z[0]));
+    const double t1 = DERIVE_FMA(0.7931651913658252, x[1 * s], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+}
+
+DERIVE_INLINE void mpt3d_b_pred_pass_body(const double *restrict x, const double *restrict z, const double *restrict zn, double *restrict x_new, const size_t s)
+{
+    const double t0 = DERIVE_FMA(0.522339429063298, x[1 * s], DERIVE_FMA(0.09453304843594088, x[0], DERIVE_FMA(0.5721936193726429, zn[0], 0.33327333219141636*z[0])));
+    const double t1 = DERIVE_FMA(0.5406257699248478, x[1 * s], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, zn[0], 0.04570461280680264*z[0])));
+    x_new[0] = t0;
+    x_new[1 * s] = t1;
+}
+
 void mpt3d_b_pred_init(const double *restrict x0, double *restrict x_new)
 {
     const double t0 = x0[0] + x0[1];
@@ -44,10 +73,7 @@ void mpt3d_b_pred_init(const double *restrict x0, double *restrict x_new)
 
 void mpt3d_b_pred_step(const double *restrict x, const double *restrict z, double *restrict x_new)
 {
-    const double t0 = DERIVE_FMA(0.42780638062735715, x[1], DERIVE_FMA(0.4278063806273572, x[0], 0.5721936193726429*z[0]));
-    const double t1 = DERIVE_FMA(0.7931651913658252, x[1], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*z[0]));
-    x_new[0] = t0;
-    x_new[1] = t1;
+    mpt3d_b_pred_step_body(x, z, x_new, 1);
 }
 
 /* Run the predictor from x(N/0) = init(x0): row k of xs is the prediction after z[k]. */
@@ -66,14 +92,8 @@ void mpt3d_b_pred_run(size_t steps, const double *z, const double *x0, double *x
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 1;
         const double *restrict znk = z + (k + 1) * 1;
-        const double t0 = DERIVE_FMA(0.42780638062735715, x[1], DERIVE_FMA(0.4278063806273572, x[0], 0.5721936193726429*zk[0]));
-        const double t1 = DERIVE_FMA(0.7931651913658252, x[1], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*zk[0]));
-        x_mid[0] = t0;
-        x_mid[1] = t1;
-        const double t2 = DERIVE_FMA(0.522339429063298, x[1], DERIVE_FMA(0.09453304843594088, x[0], DERIVE_FMA(0.5721936193726429, znk[0], 0.33327333219141636*zk[0])));
-        const double t3 = DERIVE_FMA(0.5406257699248478, x[1], DERIVE_FMA((-0.25253942144097746), x[0], DERIVE_FMA(0.2068348086341748, znk[0], 0.04570461280680264*zk[0])));
-        x_new[0] = t2;
-        x_new[1] = t3;
+        mpt3d_b_pred_step_body(x, zk, x_mid, 1);
+        mpt3d_b_pred_pass_body(x, zk, znk, x_new, 1);
         xs[k * 2 + 0] = x_mid[0];
         xs[k * 2 + 1] = x_mid[1];
         xs[(k + 1) * 2 + 0] = x[0] = x_new[0];
@@ -82,10 +102,7 @@ void mpt3d_b_pred_run(size_t steps, const double *z, const double *x0, double *x
     /* an odd last step */
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = DERIVE_FMA(0.42780638062735715, x[1], DERIVE_FMA(0.4278063806273572, x[0], 0.5721936193726429*zk[0]));
-        const double t1 = DERIVE_FMA(0.7931651913658252, x[1], DERIVE_FMA((-0.2068348086341748), x[0], 0.2068348086341748*zk[0]));
-        x_new[0] = t0;
-        x_new[1] = t1;
+        mpt3d_b_pred_step_body(x, zk, x_new, 1);
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
     }

@@ -39,30 +39,44 @@
 #endif
 #endif
 
-int mpt3d_b_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int mpt3d_b_rts_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred, const size_t s)
 {
-    const double t0 = x[0] + x[1];
-    const double t1 = P[0] + P[1];
-    const double t2 = P[1] + P[3];
+    int status = 0;
+    const double t0 = x[0] + x[1 * s];
+    const double t1 = P[0] + P[1 * s];
+    const double t2 = P[1 * s] + P[3 * s];
     const double t3 = t1 + t2;
     const double t4 = 0.0025 + t3;
     const double t5 = 0.005 + t2;
-    const double t6 = 0.01 + P[3];
+    const double t6 = 0.01 + P[3 * s];
     const double t7 = t4 + t5;
     const double t8 = t5 + t6;
     const double t9 = t7 + t8;
     const double t10 = 0.1 + t9;
-    if (!(t10 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    if (!(t10 > 0.0) && !status) {
+        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t11 = t7/t10;
     const double t12 = t8/t10;
-    const double t13 = x[1] + t0;
+    const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
     const double t15 = t11*t14;
     const double t16 = t12*t14;
     const double t17 = t0 + t15;
-    const double t18 = x[1] + t16;
+    const double t18 = x[1 * s] + t16;
     const double t19 = t11*t7;
     const double t20 = t11*t8;
     const double t21 = t12*t8;
@@ -70,18 +84,23 @@ int mpt3d_b_rts_step(const double *restrict x, const double *restrict P, const d
     const double t23 = t5 - t20;
     const double t24 = t6 - t21;
     x_new[0] = t17;
-    x_new[1] = t18;
+    x_new[1 * s] = t18;
     P_new[0] = t22;
-    P_new[1] = t23;
-    P_new[2] = t23;
-    P_new[3] = t24;
+    P_new[1 * s] = t23;
+    P_new[2 * s] = t23;
+    P_new[3 * s] = t24;
     x_pred[0] = t0;
-    x_pred[1] = x[1];
+    x_pred[1 * s] = x[1 * s];
     P_pred[0] = t4;
-    P_pred[1] = t5;
-    P_pred[2] = t5;
-    P_pred[3] = t6;
-    return 0;
+    P_pred[1 * s] = t5;
+    P_pred[2 * s] = t5;
+    P_pred[3 * s] = t6;
+    return status;
+}
+
+int mpt3d_b_rts_step(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict x_pred, double *restrict P_pred)
+{
+    return mpt3d_b_rts_step_body(x, P, z, x_new, P_new, x_pred, P_pred, 1);
 }
 
 int mpt3d_b_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)

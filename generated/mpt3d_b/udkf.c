@@ -44,56 +44,75 @@
 #endif
 #endif
 
-int mpt3d_b_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#elif defined(__GNUC__)
+#pragma GCC optimize ("fp-contract=off")
+#endif
+#ifndef DERIVE_INLINE
+#if defined(__GNUC__)
+#define DERIVE_INLINE static inline __attribute__((always_inline))
+#else
+#define DERIVE_INLINE static inline
+#endif
+#endif
+
+DERIVE_INLINE int mpt3d_b_udkf_step_body(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new, const size_t s)
 {
-    const double t0 = 1.0 + U[1];
-    const double t1 = 0.01 + D[1];
+    int status = 0;
+    const double t0 = 1.0 + U[1 * s];
+    const double t1 = 0.01 + D[1 * s];
     const double t2 = 2.2250738585072014e-308 + t1;
-    if (!(t2 > 0.0)) {
-        return 1; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
+    if (!(t2 > 0.0) && !status) {
+        status = 1; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
-    const double t3 = DERIVE_FMA(D[1], t0, 0.005);
+    const double t3 = DERIVE_FMA(D[1 * s], t0, 0.005);
     const double t4 = t3/t2;
     const double t5 = t0 - t4;
     const double t6 = 0.5 - t4;
-    const double t7 = D[1]*t5;
+    const double t7 = D[1 * s]*t5;
     const double t8 = 0.01*t6;
     const double t9 = DERIVE_FMA(t6, t8, DERIVE_FMA(t5, t7, D[0]));
     const double t10 = 2.2250738585072014e-308 + t9;
-    if (!(t10 > 0.0)) {
-        return 2; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
+    if (!(t10 > 0.0) && !status) {
+        status = 2; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     }
-    const double t11 = x[0] + x[1];
+    const double t11 = x[0] + x[1 * s];
     const double t12 = 1.0 + t4;
     const double t13 = t1*t12;
     const double t14 = 0.1 + t9;
-    if (!(t14 > 0.0)) {
-        return 3; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
+    if (!(t14 > 0.0) && !status) {
+        status = 3; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
     const double t15 = 1.0/t14;
     const double t16 = 0.1*(t15*t9);
     const double t17 = DERIVE_FMA(t12, t13, t14);
-    if (!(t17 > 0.0)) {
-        return 4; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
+    if (!(t17 > 0.0) && !status) {
+        status = 4; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
     const double t18 = 1.0/t17;
     const double t19 = t1*t14*t18;
     const double t20 = t12*t15;
     const double t21 = t4 - t20*t9;
     const double t22 = DERIVE_FMA(t13, t4, t9);
-    const double t23 = z[0] - x[1] - t11;
+    const double t23 = z[0] - x[1 * s] - t11;
     const double t24 = t18*t23;
     const double t25 = DERIVE_FMA(t22, t24, t11);
-    const double t26 = DERIVE_FMA(t13, t24, x[1]);
+    const double t26 = DERIVE_FMA(t13, t24, x[1 * s]);
     x_new[0] = t25;
-    x_new[1] = t26;
+    x_new[1 * s] = t26;
     U_new[0] = 1.0;
-    U_new[1] = t21;
-    U_new[2] = 0.0;
-    U_new[3] = 1.0;
+    U_new[1 * s] = t21;
+    U_new[2 * s] = 0.0;
+    U_new[3 * s] = 1.0;
     D_new[0] = t16;
-    D_new[1] = t19;
-    return 0;
+    D_new[1 * s] = t19;
+    return status;
+}
+
+int mpt3d_b_udkf_step(const double *restrict x, const double *restrict U, const double *restrict D, const double *restrict z, double *restrict x_new, double *restrict U_new, double *restrict D_new)
+{
+    return mpt3d_b_udkf_step_body(x, U, D, z, x_new, U_new, D_new, 1);
 }
 
 int mpt3d_b_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
@@ -146,56 +165,13 @@ int mpt3d_b_udkf_run(size_t steps, const double *z, const double *x0, const doub
     if (status) {
         return status;
     }
-    /* the step's statements, with the state in local arrays (registers) */
+    /* the step body on local arrays: inlined, it holds the state in registers */
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 1;
-        const double t0 = 1.0 + U[1];
-        const double t1 = 0.01 + D[1];
-        const double t2 = 2.2250738585072014e-308 + t1;
-        if (!(t2 > 0.0)) {
-            return 1; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
+        const int step_status = mpt3d_b_udkf_step_body(x, U, D, zk, x_new, U_new, D_new, 1);
+        if (step_status) {
+            return step_status;
         }
-        const double t3 = DERIVE_FMA(D[1], t0, 0.005);
-        const double t4 = t3/t2;
-        const double t5 = t0 - t4;
-        const double t6 = 0.5 - t4;
-        const double t7 = D[1]*t5;
-        const double t8 = 0.01*t6;
-        const double t9 = DERIVE_FMA(t6, t8, DERIVE_FMA(t5, t7, D[0]));
-        const double t10 = 2.2250738585072014e-308 + t9;
-        if (!(t10 > 0.0)) {
-            return 2; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
-        }
-        const double t11 = x[0] + x[1];
-        const double t12 = 1.0 + t4;
-        const double t13 = t1*t12;
-        const double t14 = 0.1 + t9;
-        if (!(t14 > 0.0)) {
-            return 3; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t15 = 1.0/t14;
-        const double t16 = 0.1*(t15*t9);
-        const double t17 = DERIVE_FMA(t12, t13, t14);
-        if (!(t17 > 0.0)) {
-            return 4; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
-        }
-        const double t18 = 1.0/t17;
-        const double t19 = t1*t14*t18;
-        const double t20 = t12*t15;
-        const double t21 = t4 - t20*t9;
-        const double t22 = DERIVE_FMA(t13, t4, t9);
-        const double t23 = zk[0] - x[1] - t11;
-        const double t24 = t18*t23;
-        const double t25 = DERIVE_FMA(t22, t24, t11);
-        const double t26 = DERIVE_FMA(t13, t24, x[1]);
-        x_new[0] = t25;
-        x_new[1] = t26;
-        U_new[0] = 1.0;
-        U_new[1] = t21;
-        U_new[2] = 0.0;
-        U_new[3] = 1.0;
-        D_new[0] = t16;
-        D_new[1] = t19;
         xs[k * 2 + 0] = x[0] = x_new[0];
         xs[k * 2 + 1] = x[1] = x_new[1];
         U[0] = U_new[0];

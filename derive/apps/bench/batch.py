@@ -6,6 +6,7 @@ operation, all tracks at once), simdkalman and a vectorised NumPy KF written her
 from __future__ import annotations
 
 import subprocess
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,15 +108,35 @@ def generated_python(b: Batch, workdir: Path):
     return lambda: np.asarray(module.run(zs, x0, P0)[0]).transpose(2, 0, 1)
 
 
-def generated_c_tracks(b: Batch, workdir: Path):
-    """The generated ``run_tracks``: 4 tracks advanced together in registers, each track's
-    arrays contiguous (no covariance output, like the other batch rows)."""
+def generated_c_tracks(b: Batch, workdir: Path, with_covariance: bool = False):
+    """The generated ``run_tracks``: blocks of tracks in vector lanes, each track's arrays
+    contiguous (by default no covariance output, like the other batch rows)."""
     module = load(Case("kf", MODEL), workdir, "c").c
     tracks = b.zs.shape[0]
     zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
     x0 = np.ascontiguousarray(np.repeat(b.x0[None, :], tracks, axis=0))
     P0 = np.ascontiguousarray(np.repeat(b.P0[None, :, :], tracks, axis=0))
-    return lambda: module.run_tracks(zs, x0, P0, with_covariance=False)[0]
+    return lambda: module.run_tracks(zs, x0, P0, with_covariance=with_covariance)[0]
+
+
+def track_step_bytes(b: Batch, with_covariance: bool) -> int:
+    """Bytes a track-step moves to or from memory: its z row read, its x (and P) row
+    written, doubles."""
+    m, n = b.zs.shape[2], len(b.x0)
+    return 8 * (m + n + (n * n if with_covariance else 0))
+
+
+def copy_bandwidth(megabytes: int = 256, repeats: int = 3) -> float:
+    """This machine's memory bandwidth in bytes per second: the best of ``repeats`` copies
+    of a ``megabytes`` array (bytes read plus bytes written)."""
+    src = np.ones(megabytes * 2**20 // 8)
+    dst = np.empty_like(src)
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        np.copyto(dst, src)
+        best = min(best, time.perf_counter() - start)
+    return 2 * src.nbytes / best
 
 
 INTERLEAVE = 4

@@ -16,10 +16,11 @@ Contraction stays off as ISO C has it: the generated code fuses a*b + c itself
 (``DERIVE_FMA``), so the operations executed are those the header counts."""
 
 
-def load(case: Case, workdir: Path, lang: str = "all") -> Generated:
-    """Generate the case's filter into ``workdir/generated`` and load it (the C compiled
-    with :data:`CFLAGS`)."""
-    return load_generated(case.model, case.filter, {}, lang, workdir / "generated",
+def load(case: Case, workdir: Path, lang: str = "all", options=None) -> Generated:
+    """Generate the case's filter (with ``options``) into ``workdir/generated`` and load
+    it (the C compiled with :data:`CFLAGS`)."""
+    out = workdir / ("generated" if not options else "generated-" + "-".join(sorted(options)))
+    return load_generated(case.model, case.filter, dict(options or {}), lang, out,
                           out_label="bench", extra_cflags=CFLAGS)
 
 
@@ -73,3 +74,8 @@ def generated_c(case: Case, data: Data, workdir: Path):
 
 def generated_python(case: Case, data: Data, workdir: Path):
     return _python_runner(load(case, workdir, "python").python, case, data)
+
+
+def generated_c_latency_schedule(case: Case, data: Data, workdir: Path):
+    """The generated C in the latency schedule (``--latency-schedule``)."""
+    return _c_runner(load(case, workdir, "c", {"latency_schedule": True}).c, data)

@@ -63,21 +63,25 @@ def _module(cflags: tuple[str, ...]):
     return load_module_file(name, path).lib
 
 
-def measure_latencies(cflags: tuple[str, ...], repeats: int = 5,
+def measure_latencies(cflags: tuple[str, ...], repeats: int = 7,
                       scale: float = 1.0) -> dict[str, float]:
-    """Seconds per dependent operation, per kind (the minimum over ``repeats``)."""
+    """Seconds per dependent operation, per kind (the minimum over ``repeats``).
+
+    The kinds take turns within each repeat, so that a moment of load on a shared
+    machine slows every kind's probe alike rather than one kind's: the ratios between
+    kinds, which the chain bounds of two schedules compare, come from the same moments."""
     lib = _module(cflags)
-    seconds: dict[str, float] = {}
-    for kind, (_, iterations) in PROBES.items():
-        fn = getattr(lib, f"derive_probe_{kind}")
-        n = max(1, int(iterations * scale))
+    probes = {kind: (getattr(lib, f"derive_probe_{kind}"), max(1, int(iterations * scale)))
+              for kind, (_, iterations) in PROBES.items()}
+    for fn, n in probes.values():
         fn(n // 10 + 1, 1.0, 0.999999, 1e-9)          # warm up
-        best = float("inf")
-        for _ in range(repeats):
+    best = dict.fromkeys(probes, float("inf"))
+    for _ in range(repeats):
+        for kind, (fn, n) in probes.items():
             start = time.perf_counter()
             fn(n, 1.0, 0.999999, 1e-9)
-            best = min(best, time.perf_counter() - start)
-        seconds[kind] = best / n
+            best[kind] = min(best[kind], (time.perf_counter() - start) / n)
+    seconds = dict(best)
     for kind in _INCLUDES_ADD:
         seconds[kind] = max(seconds[kind] - seconds["add"], 0.0)
     return seconds

@@ -18,8 +18,17 @@ import numpy as np
 from ... import cli
 from ...build import STRICT_CFLAGS
 from ..verify import relative_error
-from . import batch, casadi_c, generated, navigation, peers, scaling
-from .bound import case_bound
+from . import (
+    batch,
+    casadi_c,
+    compile_size,
+    generated,
+    generation_scaling,
+    navigation,
+    peers,
+    scaling,
+)
+from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
 from .timing import Timing, human, measure
@@ -34,6 +43,9 @@ IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     ("CasADi C", casadi_c.casadi_c, True),
 )
 
+
+#: The row of the generated C in the latency schedule (time-varying filters).
+LATENCY_SCHEDULE = "generated C, --latency-schedule"
 
 #: The reference points for the KF step on mpt3d_a on the machine where the performance
 #: targets (docs/performance.md) were set.
@@ -58,6 +70,8 @@ class Settings:
     navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
+    generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
+    compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
 
     @classmethod
     def quick(cls) -> Settings:
@@ -66,7 +80,8 @@ class Settings:
                    check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
-                   navigation_symforce=False)
+                   navigation_symforce=False,
+                   generation_scaling=False, compile_states=(3,))
 
 
 @dataclass(frozen=True)
@@ -78,6 +93,7 @@ class Row:
     agreement: float | None       # max rel error of the states against the NumPy reference
     note: str = ""
     bound: float | None = None    # generated C: latency bound of the carried chain, s/step
+    latency_bound: float | None = None   # the same in the latency schedule (time-varying)
 
 
 @dataclass(frozen=True)
@@ -99,6 +115,8 @@ class BenchResult:
     generation_seconds: float | None = None
     scale: list[scaling.ScaleRow] = field(default_factory=list)   # derive.batch, every core
     navigation: navigation.NavigationResult | None = None
+    generation: list[generation_scaling.GenerationRow] = field(default_factory=list)
+    compile: list[compile_size.CompileRow] = field(default_factory=list)
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -110,6 +128,8 @@ class BenchResult:
                 "scale": [asdict(r) for r in self.scale],
                 "generation_seconds": self.generation_seconds,
                 "navigation": self.navigation.as_json() if self.navigation else None,
+                "generation": [asdict(r) for r in self.generation],
+                "compile": [asdict(r) for r in self.compile],
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -142,13 +162,38 @@ class BenchResult:
                        _bound_note(sskf) + ("" if fma2 is None else
                                             f"; two dependent fmas here take {human(fma2)}")))
         out.append(Bar("generated pure-Python KF mpt3d_b x 3 per step",
-                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.2e-6, "time"))
+                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.0e-6, "time"))
+        out += self._chain_bars()
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
                            self.generation_seconds, 30.0, "time"))
+        out += [Bar(*bar) for bar in generation_scaling.generation_bars(self.generation)]
         out += self._scaled_bars(fma2)
         if self.navigation is not None:
             out += self.navigation.bars(Bar)
+        return out
+
+    def _chain_bars(self) -> list[Bar]:
+        """The time per step against the latency bound of the chain derive emits by
+        default, measured in this run; and the latency schedule's bound against it."""
+        kf, sskf = self.row("KF mpt3d_a", "generated C"), self.row("SSKF mpt3d_a",
+                                                                    "generated C")
+        fast = self.row("KF mpt3d_a", LATENCY_SCHEDULE)
+        out = []
+        for row, need in ((kf, 1.2), (sskf, 1.5)):
+            bound = row.bound if row is not None else None
+            out.append(Bar(f"generated C {row.case if row else '?'} per step within {need:g}x "
+                           "the latency bound of its chain (default schedule) here",
+                           row.timing.median if bound and row.timing else None,
+                           need * (bound or 0.0), "time",
+                           f"bound {human(bound)}" if bound else "no bound measured"))
+        default = kf.bound if kf is not None else None
+        out.append(Bar("latency schedule (--latency-schedule): bound of the KF mpt3d_a chain "
+                       "within 0.75x the default schedule's, same run",
+                       kf.latency_bound if default else None, 0.75 * (default or 0.0), "time",
+                       "" if fast is None or fast.timing is None else
+                       f"it runs at {human(fast.timing.median)} per step, "
+                       f"{fast.timing.median / fast.latency_bound:.2f}x its bound"))
         return out
 
     def _scaled_bars(self, fma2: float | None) -> list[Bar]:
@@ -224,6 +269,17 @@ class BenchResult:
             lines += _columns(head, body) + scaled + [""]
         if self.navigation is not None:
             lines += self.navigation.lines() + [""]
+        if self.generation:
+            lines += ["generation of large models (derive.apps.bench.generation_scaling): "
+                      "one process each, the model built through the Python API, then "
+                      "render_unit (derive and render Python and C, nothing written)", ""]
+            lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
+        if self.compile:
+            head, body, compile_bars = compile_size.compile_table(self.compile)
+            lines += ["files that compile in seconds: a dense random KF generated (a child "
+                      "process), then compiled (gcc and derive.build's strict flags); wall "
+                      "and CPU seconds, peak memory of each", ""]
+            lines += _columns(head, body) + compile_bars + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -320,15 +376,34 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
         if name == "generated C":
             base = timing.median
         note = _NOTES.get((case.filter, name), "")
-        bound = None
+        bound = fast = None
         if name == "generated C" and latency:
             found = case_bound(case, latency)
             if found is not None:
                 bound = found[0]
                 note = f"latency bound {human(bound)}: carried chain {found[1]}"
+            both = case_schedule_bounds(case, latency)
+            if both.latency is not None:
+                fast = both.latency.per_step * case.copies
+                note += (f"; latency schedule's bound {human(fast)} "
+                         f"({both.latency.describe()}, {both.flops_added:+d} flops a copy)")
         rows.append(Row(case.label, name, timing, None if base is None else
-                        timing.median / base, agreement, note, bound))
+                        timing.median / base, agreement, note, bound, fast))
+        if fast is not None:
+            rows.append(_latency_schedule_row(case, data, workdir, s, reference, base, fast))
     return rows
+
+
+def _latency_schedule_row(case: Case, data, workdir: Path, s: Settings, reference,
+                          base: float | None, fast: float) -> Row:
+    """The generated C in the latency schedule (``--latency-schedule``), timed as the
+    default's."""
+    run = generated.generated_c_latency_schedule(case, data, workdir)
+    agreement = relative_error(states(run(s.check_steps), s.check_steps), reference)
+    timing = measure(lambda: run(s.c_steps), s.c_steps, s.repeats)
+    return Row(case.label, LATENCY_SCHEDULE, timing, None if base is None else
+               timing.median / base, agreement, f"its latency bound {human(fast)}", fast,
+               fast)
 
 
 _NOTES = {
@@ -345,6 +420,8 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
     check = sorted({0, 1, s.batch_tracks - 1} & set(range(s.batch_tracks)))  # the last may
     reference = {t: batch.batch_reference(b, t) for t in check}      # be in a partial block
     impls = (("generated C, run_tracks", lambda: batch.generated_c_tracks(b, workdir)),
+             ("generated C, run_tracks, covariances stored",
+              lambda: batch.generated_c_tracks(b, workdir, with_covariance=True)),
              (f"generated C, step, {batch.INTERLEAVE} tracks interleaved",
               lambda: batch.generated_c(b, workdir, "batch_step")),
              ("generated C, run per track", lambda: batch.generated_c(b, workdir, "batch_run")),
@@ -352,6 +429,7 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
              ("vectorised NumPy KF", lambda: (lambda: batch.numpy_kf(b))),
              ("simdkalman", lambda: batch.simdkalman_kf(b)))
     rows = []
+    bandwidth = batch.copy_bandwidth()
     for name, prepare in impls:
         tick(f"batch: {name}")
         try:
@@ -363,13 +441,24 @@ def _batch_rows(s: Settings, workdir: Path, tick) -> list[BatchRow]:
         agreement = max(relative_error(out[t], reference[t]) for t in check)
         timing = measure(run, 1, s.batch_repeats)
         rows.append(BatchRow(name, b.track_steps / timing.median, timing.median, None,
-                             agreement))
+                             agreement, _traffic_note(b, name, bandwidth)))
     simd = next((r for r in rows if r.implementation == "simdkalman"
                  and r.track_steps_per_second), None)
     return [BatchRow(r.implementation, r.track_steps_per_second, r.seconds,
                      None if simd is None or r.track_steps_per_second is None else
                      r.track_steps_per_second / simd.track_steps_per_second, r.agreement,
                      r.note) for r in rows]
+
+
+def _traffic_note(b: batch.Batch, name: str, bandwidth: float) -> str:
+    """For run_tracks: the memory-traffic bound, this machine's copy bandwidth over the
+    bytes a track-step moves (with or without its covariance)."""
+    if not name.startswith("generated C, run_tracks"):
+        return ""
+    stored = "covariances stored" in name
+    per = batch.track_step_bytes(b, stored)
+    return (f"memory-traffic bound {bandwidth / per:,.3g} track-steps/s ({per} bytes a "
+            f"track-step at {bandwidth / 1e9:.1f} GB/s, a NumPy copy here)")
 
 
 def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
@@ -387,6 +476,9 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         result.navigation = navigation.run_navigation(
             Path(tmp) / "navigation", s.navigation_calls, s.navigation_python_calls, s.repeats,
             s.navigation_symforce, tick)
+        if s.generation_scaling:
+            result.generation = generation_scaling.generation_rows(tick=tick)
+        result.compile = compile_size.compile_rows(s.compile_states, Path(tmp), tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")

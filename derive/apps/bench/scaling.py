@@ -29,6 +29,8 @@ STEPS = 100
 CHUNK = 50_000
 """Tracks per chunk of the simulated input (and per Dask task)."""
 WORKERS = (1, 2)
+THREADS_BAR = 6e8
+"""Track-steps per second the batch reaches on both cores (docs/performance.md)."""
 _RUNS = itertools.count()   # names the input of each Dask run (see _dask_rows)
 
 
@@ -146,4 +148,10 @@ def scaling_table(rows: list[ScaleRow]) -> tuple[tuple[str, ...], list[tuple[str
         if speed.get(1) and speed.get(2):
             scaling.append(f"scaling of {name} from 1 to 2 workers: "
                            f"{speed[2] / speed[1]:.2f}x")
+    both = next((r.track_steps_per_second for r in rows if r.implementation == "threads"
+                 and r.workers == max(WORKERS) and r.track_steps_per_second), None)
+    if both is not None:
+        scaling.append(f"bar: batch {MODEL} KF, covariances not stored, "
+                       f"{max(WORKERS)} threads: {both:,.3g} track-steps/s (>= "
+                       f"{THREADS_BAR:.3g}: {'met' if both >= THREADS_BAR else 'NOT met'})")
     return head, body, scaling

@@ -1,0 +1,489 @@
+"""The latency schedule of a step: a shorter carried chain, at the price of some flops.
+
+A run loop feeds each step's new state back into the next step, so a step cannot finish
+sooner than the longest chain of dependent operations from the carried inputs (x, P) to
+the carried outputs (x_new, P_new) allows (:mod:`derive.apps.latency` computes that
+bound).  The optimiser (:mod:`derive.optimise`) minimises operations; this module
+rewrites an optimised step so that the chain gets shorter, by three rewrites, each kept
+only where it shortens the chain as the lowering (:mod:`derive.lowering`, with fma)
+emits it:
+
+* **direct sums**: a temporary that is an affine function of the inputs (in a KF, the
+  predicted covariance, P H^T and the innovation variance S) is computed straight from
+  the inputs as a balanced tree (terms grouped by coefficient, a group summed pairwise,
+  each group joined by an fma), instead of through the chain of shared partial sums the
+  optimiser built: S(k+1) comes from P(k/k) in two operations.
+* **fused updates**: a product used once, in a sum, moves into it, so the lowering fuses
+  it into an fma (``c - a*b`` becomes ``fma(-a, b, c)``; the ``-a`` is a ``neg``, off
+  the chain).
+* **the late factor last**: in a fused product whose second factor is itself a product or
+  a quotient (``a * (x / d)``, the gain in ``P - PH K``), the early factors are
+  multiplied first and the late one, ``1/d`` (one division by ``d`` shared by every
+  such product), enters last: ``fma(a*x, 1/d, c)``, so the chain through ``d`` is one
+  division and one fma.
+
+Then the statements are ordered by when their operands are ready (independent blocks,
+such as the three axes of ``mpt3d_a``, interleave), checks keeping their order and
+every statement that reads a checked value staying after its check.
+
+Decisions use :data:`REFERENCE_CYCLES`, never a measurement, so generation stays
+deterministic.  The rewrites change rounding (a direct sum, a reciprocal), not the
+mathematics; the added flops are what :func:`derive.flops.count` counts on the result.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
+
+import sympy
+from sympy import default_sort_key
+
+from derive.emit.unit import Unit
+from derive.lowering import CARRIED, Op, Tree, Var, expression_lowerer
+from derive.program import Program
+from derive.statements import Assign, Check, InputElement, Statement, Temporary
+
+#: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
+#: latencies for double add, multiply, fma, divide and square root; a call of a math
+#: function taken as 40). The schedule decides with it; ``derive burden`` reports chains
+#: in it; ``derive bench`` and ``derive burden --measure`` use latencies measured on the
+#: machine instead.
+REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0,
+                    "call": 40.0}
+
+_ONE = sympy.S.One
+_ROUNDS = 3
+
+
+def operation_latency(kind: str, latency: Mapping[str, float]) -> float:
+    """The latency of one operation of ``kind`` (a kind of :mod:`derive.lowering`) in
+    ``latency``: ``sub``, ``neg`` and ``select`` as ``add``, a call as ``call``; a check
+    (``cmp``) only branches, so it adds nothing to the data path."""
+    if kind == "cmp":
+        return 0.0
+    if kind in latency:
+        return float(latency[kind])
+    if kind in ("sub", "neg", "select") and "add" in latency:
+        return float(latency["add"])
+    if kind.startswith("call:") and "call" in latency:
+        return float(latency["call"])
+    raise KeyError(f"no latency given for operation kind {kind!r}")
+
+
+def latency_schedule(program: Program,
+                     carried: Sequence[tuple[str, str]] = CARRIED) -> Program:
+    """``program`` (a step; optimised first) rewritten for a short carried chain; the
+    same program when it carries nothing (``carried``: (input port, output port) pairs,
+    as :data:`derive.lowering.CARRIED`)."""
+    program = program.optimize()
+    inputs = {p.name for p in program.inputs}
+    pairs = [(port, out) for port, out in carried
+             if port in inputs and out in program.results]
+    if not pairs:
+        return program
+    work = _Work(program, pairs)
+    body = list(program.body)
+    for _ in range(_ROUNDS):
+        before = body
+        body = work.fuse(body)
+        body = work.greedy(body, work.direct_candidates)
+        body = work.fuse(body)
+        body = work.greedy(body, work.late_candidates)
+        body = work.share_reciprocals(body)
+        if body == before:
+            break
+    body = work.prune(body)
+    body, merged = _merge(_live(body, program.results))
+    work.results = {name: tuple(v.xreplace(merged) for v in values)
+                    for name, values in work.results.items()}
+    return work.build(work.order(body))
+
+
+def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
+    """Each right-hand side computed once: a later temporary with the same expression as
+    an earlier one reads the earlier one (the second item: ``{dropped: kept}``)."""
+    seen: dict[sympy.Expr, Temporary] = {}
+    names: dict[sympy.Symbol, sympy.Symbol] = {}
+    out: list[Statement] = []
+    for st in body:
+        if isinstance(st, Check):
+            out.append(Check(st.value.xreplace(names), st.message, st.relation))
+            continue
+        expr = st.expr.xreplace(names)
+        if expr in seen:
+            names[st.target] = seen[expr]
+            continue
+        seen[expr] = st.target
+        out.append(Assign(st.target, expr))
+    return out, names
+
+
+def _live(body: Sequence[Statement], results: Mapping[str, tuple]) -> list[Statement]:
+    live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
+    out: list[Statement] = []
+    for st in reversed(body):
+        if isinstance(st, Assign):
+            if st.target not in live:
+                continue
+            expr = st.expr
+        else:
+            expr = st.value
+        out.append(st)
+        live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
+    out.reverse()
+    return out
+
+
+def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
+    """``{input element or 1: coefficient}`` of an affine ``expr`` (temporaries by their
+    ``forms``), None otherwise."""
+    if expr.is_number:
+        return {_ONE: expr}
+    if isinstance(expr, InputElement):
+        return {expr: _ONE}
+    if isinstance(expr, Temporary):
+        form = forms.get(expr)
+        return None if form is None else dict(form)
+    if expr.is_Add:
+        total: dict = {}
+        for arg in expr.args:
+            form = _affine(arg, forms)
+            if form is None:
+                return None
+            for key, value in form.items():
+                total[key] = total.get(key, 0) + value
+        return {k: v for k, v in total.items() if v != 0}
+    if expr.is_Mul:
+        coeff, rest = expr.as_coeff_Mul()
+        if coeff == 1 or rest.is_Mul:
+            return None
+        form = _affine(rest, forms)
+        return None if form is None else {k: coeff * v for k, v in form.items()}
+    return None
+
+
+class _Work:
+    """The rewrites of one step, scored on the lowered step in reference cycles."""
+
+    def __init__(self, program: Program, pairs: list[tuple[str, str]]) -> None:
+        self.program = program
+        self.results = program.results
+        self.carried_ports = {port for port, _ in pairs}
+        self.leaves = [leaf for _, out in pairs for leaf in self.results[out]]
+        self.original = {st.target: st.expr for st in program.body if isinstance(st, Assign)}
+        self.counter = 0
+        self.reciprocals: dict[sympy.Expr, Temporary] = {}
+        self.negations: dict[sympy.Expr, Temporary] = {}
+        self.directs: dict[Temporary, sympy.Expr] = {}
+        self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
+
+    def fresh(self) -> Temporary:
+        self.counter += 1
+        return Temporary(f"s{self.counter}")
+
+    # -- building and scoring ------------------------------------------------------------
+
+    def build(self, body: Sequence[Statement]) -> Program:
+        """The final program: temporaries renumbered t0, t1, ... in order."""
+        names: dict[sympy.Symbol, sympy.Symbol] = {}
+        for st in body:
+            if isinstance(st, Assign):
+                names[st.target] = Temporary(f"t{len(names)}")
+        out: list[Statement] = [
+            Assign(names[st.target], st.expr.xreplace(names)) if isinstance(st, Assign)
+            else Check(st.value.xreplace(names), st.message, st.relation) for st in body]
+        results = {name: tuple(v.xreplace(names) for v in values)
+                   for name, values in self.results.items()}
+        return self.program._final(out, results)   # an optimised program, final as is
+
+    def arrivals(self, body: Sequence[Statement]) -> dict[str, float]:
+        """Per temporary: the latest a carried input reaches it (reference cycles), on
+        the statements as the lowering (with fma) emits them."""
+        ready: dict[str, float] = {}
+
+        def arrival(tree: Tree) -> float:
+            if isinstance(tree, Var):
+                if tree.index is None:
+                    return ready.get(tree.name, -math.inf)
+                return 0.0 if tree.base in self.carried_ports else -math.inf
+            if isinstance(tree, Op):
+                start = max((arrival(a) for a in tree.args), default=-math.inf)
+                return start + operation_latency(tree.kind, REFERENCE_CYCLES)
+            return -math.inf
+
+        for st in body:
+            if isinstance(st, Assign):
+                ready[st.target.name] = arrival(self.lower(st.expr))
+        return ready
+
+    def score(self, body: Sequence[Statement]) -> tuple[float, float]:
+        """(longest chain to a carried output, their sum): smaller is better."""
+        ready = self.arrivals(body)
+        lowered_names = self._carried_leaf_names()
+        values = [ready.get(name, -math.inf) for name in lowered_names]
+        finite = [v for v in values if v > -math.inf]
+        return (max(finite, default=0.0), sum(finite))
+
+    def _carried_leaf_names(self) -> list[str]:
+        return [leaf.name for leaf in self.leaves if isinstance(leaf, Temporary)]
+
+    def greedy(self, body: list[Statement],
+               candidates: Callable[[list[Statement]], list[Callable]]) -> list[Statement]:
+        """Apply each candidate rewrite that lowers the score, until none does."""
+        best = self.score(body)
+        improved = True
+        while improved:
+            improved = False
+            for rewrite in candidates(body):
+                trial = rewrite(body)
+                if trial is None:
+                    continue
+                score = self.score(trial)
+                if score < best:
+                    body, best, improved = trial, score, True
+        return body
+
+    def prune(self, body: list[Statement]) -> list[Statement]:
+        """Undo each direct sum whose undoing leaves the longest chain as it is."""
+        best = self.score(body)[0]
+        for k in reversed(range(len(body))):
+            st = body[k]
+            if not isinstance(st, Assign) or self.directs.get(st.target) != st.expr or \
+                    st.target not in self.original:
+                continue
+            original = self.original[st.target]
+            defined = {s.target for s in body[:k] if isinstance(s, Assign)}
+            if any(isinstance(s, Temporary) and s not in defined
+                   for s in original.free_symbols):
+                continue
+            trial = body[:k] + [Assign(st.target, original)] + body[k + 1:]
+            if self.score(trial)[0] <= best:
+                body = trial
+        return body
+
+    # -- the rewrites --------------------------------------------------------------------
+
+    def direct_candidates(self, body: list[Statement]) -> list[Callable]:
+        """Direct sums of the affine temporaries, the latest first."""
+        forms: dict = {}
+        for st in body:
+            if isinstance(st, Assign):
+                form = _affine(st.expr, forms)
+                if form is not None:
+                    forms[st.target] = form
+        ready = self.arrivals(body)
+        found = [(target, form) for target, form in forms.items()
+                 if sum(1 for key in form if key is not _ONE) >= 2]
+        found.sort(key=lambda tf: (-ready.get(tf[0].name, -math.inf),
+                                   default_sort_key(tf[0])))
+        return [lambda b, t=target, f=form: self._direct(b, t, f) for target, form in found]
+
+    def _direct(self, body: list[Statement], target: Temporary, form: dict):
+        k = next(i for i, st in enumerate(body)
+                 if isinstance(st, Assign) and st.target == target)
+        const = form.get(_ONE, 0)
+        groups: dict = {}
+        for key in sorted((key for key in form if key is not _ONE), key=default_sort_key):
+            groups.setdefault(form[key], []).append(key)
+        new: list[Statement] = []
+        terms = []
+        for coeff in sorted(groups, key=default_sort_key):
+            level = groups[coeff]
+            while len(level) > 1:
+                paired = []
+                for a, b in zip(level[0::2], level[1::2], strict=False):
+                    t = self.fresh()
+                    new.append(Assign(t, a + b))
+                    paired.append(t)
+                if len(level) % 2:
+                    paired.append(level[-1])
+                level = paired
+            terms.append(coeff * level[0])
+        expr = sympy.Add(const, *terms)
+        if expr == body[k].expr:
+            return None
+        self.directs[target] = expr
+        return body[:k] + new + [Assign(target, expr)] + body[k + 1:]
+
+    def fuse(self, body: list[Statement]) -> list[Statement]:
+        """Move each product used once, in a sum, into that sum (an fma when lowered)."""
+        uses = _uses(_live(body, self.results), self.results)
+        define = {st.target: st.expr for st in body if isinstance(st, Assign)}
+        ready = self.arrivals(body)
+        out: list[Statement] = []
+        for st in body:
+            if not (isinstance(st, Assign) and st.expr.is_Add):
+                out.append(st)
+                continue
+            terms = []
+            for term in sympy.Add.make_args(st.expr):
+                coeff, rest = term.as_coeff_Mul()
+                product = define.get(rest)
+                if not (isinstance(rest, Temporary) and uses.get(rest) == 1 and
+                        product is not None and _is_product(product)):
+                    terms.append(term)
+                    continue
+                p_coeff, factors = product.as_coeff_Mul()
+                coeff = coeff * p_coeff
+                if coeff != -1:
+                    terms.append(coeff * factors)
+                    continue
+                args = sorted(sympy.Mul.make_args(factors),
+                              key=lambda a: (ready.get(getattr(a, "name", ""), -math.inf),
+                                             default_sort_key(a)))
+                negated = self._negation(args[0], out)
+                terms.append(sympy.Mul(negated, *args[1:]))
+            expr = sympy.Add(*terms)
+            out.append(st if expr == st.expr else Assign(st.target, expr))
+        return out if out != body else body
+
+    def _negation(self, value: sympy.Expr, out: list[Statement]) -> Temporary:
+        """A temporary holding ``-value`` (one per value), appended to ``out`` if new."""
+        negated = self.negations.get(value)
+        if negated is None:
+            negated = self.negations[value] = self.fresh()
+        if not any(isinstance(s, Assign) and s.target == negated for s in out):
+            out.append(Assign(negated, -value))
+        return negated
+
+    def late_candidates(self, body: list[Statement]) -> list[Callable]:
+        """For each product ``a * q`` in a sum, ``q`` a product or quotient: the early
+        factors first, the late one (a reciprocal for a quotient) last."""
+        define = {st.target: st.expr for st in body if isinstance(st, Assign)}
+        found = []
+        for st in body:
+            if not (isinstance(st, Assign) and st.expr.is_Add):
+                continue
+            for term in sympy.Add.make_args(st.expr):
+                if not term.is_Mul:
+                    continue
+                for factor in term.args:
+                    inner = define.get(factor)
+                    if isinstance(factor, Temporary) and inner is not None and inner.is_Mul:
+                        found.append(lambda b, s=st.target, t=term, f=factor:
+                                     self._late(b, s, t, f))
+        return found
+
+    def _late(self, body: list[Statement], target: Temporary, term: sympy.Expr,
+              factor: Temporary):
+        k = next((i for i, st in enumerate(body)
+                  if isinstance(st, Assign) and st.target == target), None)
+        if k is None or term not in sympy.Add.make_args(body[k].expr):
+            return None
+        inner = next(st.expr for st in body if isinstance(st, Assign) and st.target == factor)
+        ready = self.arrivals(body)
+
+        def when(a: sympy.Expr) -> float:
+            base = a.base if a.is_Pow else a
+            extra = REFERENCE_CYCLES["div"] if a.is_Pow else 0.0
+            return ready.get(getattr(base, "name", ""), -math.inf) + extra
+
+        coeff, rest = inner.as_coeff_Mul()
+        args = sorted(sympy.Mul.make_args(rest), key=lambda a: (when(a), default_sort_key(a)))
+        last = args[-1]
+        reciprocal = None
+        if last.is_Pow:
+            if last.exp != -1:
+                return None
+            late = self.reciprocals.get(last.base)
+            if late is None:
+                late = self.reciprocals[last.base] = self.fresh()
+            if not any(isinstance(s, Assign) and s.target == late for s in body):
+                reciprocal = Assign(late, 1 / last.base)
+        else:
+            late = last
+        early = [a for a in sympy.Mul.make_args(term) if a != factor]
+        w = self.fresh()
+        expr = sympy.Add(*[w * late if t == term else t
+                           for t in sympy.Add.make_args(body[k].expr)])
+        body = body[:k] + [Assign(w, sympy.Mul(coeff, *early, *args[:-1])),
+                           Assign(target, expr)] + body[k + 1:]
+        if reciprocal is not None:
+            at = next((i + 1 for i, st in enumerate(body)
+                       if isinstance(st, Assign) and st.target == last.base), 0)
+            body = body[:at] + [reciprocal] + body[at:]
+        return body
+
+    def share_reciprocals(self, body: list[Statement]) -> list[Statement]:
+        """Every other division by a value whose reciprocal the step computes becomes a
+        multiplication by it (one division for all)."""
+        present = {st.target for st in body if isinstance(st, Assign)}
+        swap = {sympy.Pow(d, -1): r for d, r in self.reciprocals.items() if r in present}
+        if not swap:
+            return body
+        out = [st if not isinstance(st, Assign) or st.target in swap.values()
+               else Assign(st.target, st.expr.xreplace(swap)) for st in body]
+        return out if out != body else body
+
+    # -- the order -----------------------------------------------------------------------
+
+    def order(self, body: list[Statement]) -> list[Statement]:
+        """Statements by when their operands are ready (ties: as they were); checks in
+        their order, and what reads a checked value after its check."""
+        ready = self.arrivals(body)
+        defined = {st.target: k for k, st in enumerate(body) if isinstance(st, Assign)}
+        checks = [k for k, st in enumerate(body) if isinstance(st, Check)]
+        checked: dict[sympy.Symbol, int] = {}
+        for k in checks:
+            for s in body[k].value.free_symbols:
+                checked.setdefault(s, k)
+        after: dict[int, set[int]] = {k: set() for k in range(len(body))}
+        for k, st in enumerate(body):
+            expr = st.expr if isinstance(st, Assign) else st.value
+            for s in expr.free_symbols:
+                if s in defined:
+                    after[k].add(defined[s])
+                if isinstance(st, Assign) and s in checked:
+                    after[k].add(checked[s])
+        for earlier, later in zip(checks, checks[1:]):
+            after[later].add(earlier)
+
+        def key(k: int) -> tuple[float, int]:
+            st = body[k]
+            name = st.target.name if isinstance(st, Assign) else None
+            value = ready.get(name, -math.inf) if name else -math.inf
+            return (value if value > -math.inf else -1.0, k)
+
+        done: set[int] = set()
+        out: list[Statement] = []
+        waiting = sorted(range(len(body)), key=key)
+        while waiting:
+            k = next(k for k in waiting if after[k] <= done)
+            waiting.remove(k)
+            done.add(k)
+            out.append(body[k])
+        return out
+
+
+def _is_product(expr: sympy.Expr) -> bool:
+    """A product with no division (the lowering fuses only those into an fma)."""
+    return expr.is_Mul and not any(a.is_Pow and a.exp.is_negative for a in expr.args)
+
+
+def _uses(body: Sequence[Statement], results: Mapping[str, tuple]) -> dict:
+    counts: dict = {}
+    for st in body:
+        expr = st.expr if isinstance(st, Assign) else st.value
+        for s in expr.free_symbols:
+            if isinstance(s, Temporary):
+                counts[s] = counts.get(s, 0) + _occurrences(expr, s)
+    for values in results.values():
+        for v in values:
+            if isinstance(v, Temporary):
+                counts[v] = counts.get(v, 0) + 1
+    return counts
+
+
+def _occurrences(expr: sympy.Expr, symbol: sympy.Symbol) -> int:
+    if expr == symbol:
+        return 1
+    return sum(_occurrences(a, symbol) for a in expr.args)
+
+
+def scheduled_unit(unit: Unit) -> Unit:
+    """``unit`` with its step in the latency schedule (its carried state as the unit
+    declares it)."""
+    step = latency_schedule(unit.programs["step"], unit.carried)
+    return replace(unit, programs={**unit.programs, "step": step})
