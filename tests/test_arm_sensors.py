@@ -193,3 +193,17 @@ def test_a_free_parameter_without_an_example_is_one_refusal_line(tmp_path, capsy
         assert "['dt'] have no example" in captured.err and "Traceback" not in captured.err
         assert "model" not in captured.out   # refused before any table
     assert not out.exists()
+
+
+def test_free_parameters_outside_a_sensors_run_are_refused_as_derive_verify_does(tmp_path,
+                                                                                capsys):
+    """One sensor, no gate: not a sensors run; derive verify runs examples only there."""
+    path = tmp_path / "one_free_dt.toml"
+    path.write_text(CART.format(example=", example = 0.1").split("[sensors.speed]")[0]
+                    + "[initial]\nx0 = [0, 0]\nP0 = [[1, 0], [0, 1]]\n")
+    out = tmp_path / "out"
+    assert main(["generate", str(path), "--filter", "kf", "--layout", "library",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "kf is not a sensors run" in err, err
+    assert not out.exists()
