@@ -298,23 +298,48 @@ def linear_run(model, steps: int, seed: int):
     return InputRun(run.zs, us)
 
 
-def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,
-                          options, unit: Unit | None = None) -> list[Verification]:
-    """A unit of the run kind sensors (several sensors, gating or update-first) on a
-    :func:`derive.apps.simulate.simulate_sensors` run (sensors at their periods, NaN rows
-    between), against derive.reference.sensors; bar: 1e-12 (linear), 1e-10 (nonlinear).
-    Free parameters take the model's examples (``dt = { example = 0.01 }``), one p row per
-    step. With the option ``precision`` "float" the C module is float32, given the data
-    rounded to float32 and held to the tolerance derive.apps.float_tolerance derives from
-    the unit's programs and the reference run's trace (``unit``: derived again when not
-    given)."""
+@dataclass(frozen=True)
+class SensorsCase:
+    """What a unit of the run kind sensors is verified on: the
+    :func:`derive.apps.simulate.simulate_sensors` run (``groups``: its sensors), ``ps``
+    (one row per step of the free parameters' examples; None without parameters), the
+    reference (derive.reference.sensors), the bar (1e-12 linear, 1e-10 nonlinear) and, for
+    float32 C, its bound (derive.apps.float_tolerance)."""
+
+    groups: tuple
+    run: object
+    ps: np.ndarray | None
+    reference: object
+    tolerance: float
+    bound: FloatTolerance | None
+
+    def arguments(self) -> dict[str, np.ndarray]:
+        """run's arguments by their C names, in run's order: u, z_<sensor> (and R_<sensor>
+        where R is given per call), x0, P0, p."""
+        args = {"u": self.run.us} if self.run.us.shape[1] else {}
+        for g in self.groups:
+            args[f"z_{g.name}"] = self.run.zs[g.name]
+            if g.R_argument:
+                args[f"R_{g.name}"] = self.run.Rs[g.name]
+        args.update(x0=self.run.x0, P0=self.run.P0)
+        if self.ps is not None:
+            args["p"] = self.ps
+        return args
+
+
+def sensors_case(model, name: str, steps: int, seed: int, options, unit: Unit | None = None,
+                 float_c: bool = True) -> SensorsCase:
+    """The :class:`SensorsCase` of filter ``name`` of ``model`` (a unit of the run kind
+    sensors). Free parameters take the model's examples (``dt = { example = 0.01 }``);
+    with the option ``precision`` "float" and ``float_c``, the bound of the float32 C
+    (``unit``: derived again when not given)."""
     missing = [p.name for p in model.parameters if p.name not in model.examples]
     if missing:
         raise VerificationError(
             f"verify needs a value for every symbol of model {model.name!r} with sensors; "
             f"free: {missing} (give each an example, e.g. {missing[0]} = {{ example = ... }} "
             "in [parameters])")
-    groups = sensor_groups(model)
+    groups = tuple(sensor_groups(model))
     params = dict(model.examples)
     run = simulate_sensors(model, groups, steps, seed, params)
     ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
@@ -324,24 +349,35 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
                             trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     bound = None
-    if options.precision != DOUBLE.name and "c" in modules:
+    if options.precision != DOUBLE.name and float_c:
         unit = unit if unit is not None else command_unit(model, name, options)
         bound = float_tolerance(model, unit, steps, sensors_conditioning(model, trace))
+    return SensorsCase(groups, run, ps, ref, tolerance, bound)
+
+
+def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,
+                          options, unit: Unit | None = None) -> list[Verification]:
+    """A unit of the run kind sensors (several sensors, gating or update-first) on its
+    :func:`sensors_case` (sensors at their periods, NaN rows between; free parameters at
+    their examples, one p row per step), against derive.reference.sensors; bar: 1e-12
+    (linear), 1e-10 (nonlinear). With the option ``precision`` "float" the C module is
+    float32, given the data rounded to float32 and held to the tolerance
+    derive.apps.float_tolerance derives from the unit's programs and the reference run's
+    trace (``unit``: derived again when not given)."""
+    case = sensors_case(model, name, steps, seed, options, unit, float_c="c" in modules)
+    ref = case.reference
     out = []
     for lang, module in modules.items():
         dtype = getattr(module, "dtype", np.float64)
-        data = [run.us] if model.inputs else []
-        for g in groups:
-            data += [run.zs[g.name]] + ([run.Rs[g.name]] if g.R_argument else [])
-        given = data + [run.x0, run.P0] + ([] if ps is None else [ps])
-        result = module.run(*[np.asarray(a, dtype=dtype) for a in given])
+        result = module.run(*[np.asarray(a, dtype=dtype) for a in case.arguments().values()])
         xs = np.asarray(result[0], dtype=float)
         Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
-        if lang == "c" and bound is not None:
-            out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
+        if lang == "c" and case.bound is not None:
+            out.append(Verification(model.name, name, lang, steps, err, case.bound.value,
+                                    case.bound))
         else:
-            out.append(Verification(model.name, name, lang, steps, err, tolerance))
+            out.append(Verification(model.name, name, lang, steps, err, case.tolerance))
     return out
 
 
@@ -411,7 +447,7 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
-           "InputRun", "JacobianWitness", "NonlinearScenario", "Verification",
+           "InputRun", "JacobianWitness", "NonlinearScenario", "SensorsCase", "Verification",
            "conditioning_run", "jacobian_witness", "linear_run", "nonlinear_reference",
-           "nonlinear_scenario", "relative_error", "rounding_floor", "verify_filter",
-           "verify_modules"]
+           "nonlinear_scenario", "relative_error", "rounding_floor", "sensors_case",
+           "verify_filter", "verify_modules"]

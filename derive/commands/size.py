@@ -36,8 +36,10 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from .. import catalog
     from ..apps.targets.arm import run_under_qemu, size_table, sizes
+    from ..apps.targets.data import require_examples
     from ..apps.targets.toolchains import SIZE_LEVELS, TARGETS
     from ..errors import FilterError, VerificationError
+    from ..generation import resolve_model
     from ..options import from_arguments
 
     if args.all == bool(args.model):
@@ -46,6 +48,9 @@ def run(args) -> int:
     refs = catalog.names() if args.all else [args.model]
     levels = tuple(f"-{v}" for v in args.levels) if args.levels else SIZE_LEVELS
     target = TARGETS[args.target]
+    if args.qemu:   # the runs need every free parameter's example: before any work
+        for ref in refs:
+            require_examples(resolve_model(ref))
     target.require()   # every tool named before any work
     if args.qemu:
         TARGETS["arm-linux"].require(run=True)

@@ -38,15 +38,19 @@ class _Array:
     values: str
 
 
-def _literals(values: np.ndarray, kind: Precision) -> str:
+def _literals(values: np.ndarray, kind: Precision, missing: bool = False) -> str:
     """Exact C literals of ``kind``, ``_PER_LINE`` a line: hexadecimal floating constants
     of each value rounded once to the type (float: to the nearest float, as build_c's
-    wrappers and derive verify give a float kernel its inputs)."""
+    wrappers and derive verify give a float kernel its inputs). ``missing``: a NaN (a
+    sensor's row without a measurement) is C99's ``NAN`` of math.h, a constant
+    expression of type float (a quiet NaN in either type; clean under the strict and
+    conversion warnings)."""
     flat = np.asarray(values, dtype=float).ravel()
-    if not np.isfinite(flat).all():
+    finite = np.isfinite(flat) | (missing & np.isnan(flat))
+    if not finite.all():
         raise FilterError("the verification data hold a value that is not finite")
     rounded = flat.astype(kind.dtype)
-    texts = [float(v).hex() + kind.suffix for v in rounded]
+    texts = ["NAN" if np.isnan(v) else float(v).hex() + kind.suffix for v in rounded]
     return ",\n".join("    " + ", ".join(texts[i:i + _PER_LINE])
                       for i in range(0, len(texts), _PER_LINE))
 
@@ -67,6 +71,7 @@ def render_test_program(unit: Unit, header: str, data) -> str:
     run = runs[0]
     steps = int(data.steps)
     inputs, outputs, references, comparisons, args, strides = [], [], [], [], [], []
+    sensor_rows = {f"z_{s.name}" for s in unit.sensors}  # a NaN row: no measurement
     compared = []
     for arg in run.arguments:
         if arg.output:
@@ -86,8 +91,7 @@ def render_test_program(unit: Unit, header: str, data) -> str:
         value = data.inputs.get(arg.name)
         if value is None:
             raise FilterError(f"{run.name} takes {arg.name!r}, which the verification data "
-                              "do not hold (a model with free parameters p has no test "
-                              "program)")
+                              "do not hold")
         value = np.asarray(value, dtype=float)
         per_step_rows = arg.rows and value.ndim == 2
         expected = steps * arg.size() if per_step_rows else arg.size(steps)
@@ -95,7 +99,8 @@ def render_test_program(unit: Unit, header: str, data) -> str:
             raise FilterError(f"{run.name}: verification data {arg.name!r} of {value.size} "
                               f"values, expected {expected}")
         name = f"in_{arg.name}"
-        inputs.append(_Array(name, kind.c_type, value.size, _literals(value, kind)))
+        inputs.append(_Array(name, kind.c_type, value.size,
+                             _literals(value, kind, missing=arg.name in sensor_rows)))
         args.append(name)
         if arg.rows:  # run's stride: a row's length for one row per step, 0 for one row
             strides.append(str(arg.size()) if per_step_rows else "0")

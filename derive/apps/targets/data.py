@@ -3,9 +3,12 @@
 The same scenario, reference and tolerance as ``derive verify`` (derive.apps.verify):
 linear filters on the seeded simulated run, nonlinear filters on their scenario with the
 reference's rounding floor, float32 code (``precision`` float) the bound of
-derive.apps.float_tolerance; the inputs are keyed by the C ``run`` function's argument names
-(``z``, ``u``, ``x0``, ``P0``) and the reference by its output names (``xs``, ``Ps``),
-so a program generated from the header's interface can hold both.
+derive.apps.float_tolerance; a unit of the run kind ``sensors`` on its
+derive.apps.verify.sensors_case (each sensor at its period, NaN rows between; free
+parameters at their examples, one ``p`` row per step). The inputs are keyed by the C
+``run`` function's argument names (``z``, ``u``, ``x0``, ``P0``; ``z_<sensor>``,
+``R_<sensor>``, ``p``) and the reference by its output names (``xs``, ``Ps``), so a
+program generated from the header's interface can hold both.
 """
 
 from __future__ import annotations
@@ -15,7 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...emit.unit import Unit
+from ...errors import SymbolError
 from ...filters import kind
+from ...filters.sensors import uses_sensor_run
 from ...generation import command_unit
 from ...options import validate
 from ...precision import DOUBLE
@@ -30,6 +35,7 @@ from ..verify import (
     nonlinear_scenario,
     reference_run,
     rounding_floor,
+    sensors_case,
 )
 
 #: Steps of the verification data a generated test program embeds (``derive verify``
@@ -59,6 +65,17 @@ class VerificationData:
         return self.bound is None or self.bound.meaningful
 
 
+def require_examples(model) -> None:
+    """SymbolError naming the free parameters of ``model`` without an example: the
+    verification data run them at their examples (``dt = { example = 0.01 }``)."""
+    missing = [p.name for p in model.parameters if p.name not in model.examples]
+    if missing:
+        raise SymbolError(
+            f"model {model.name!r}: free parameters {missing} have no example, so there is "
+            f"no verification data to run its C on (give each one, e.g. {missing[0]} = "
+            "{ example = ... } in [parameters])")
+
+
 def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
                       seed: int = SEED, unit: Unit | None = None) -> VerificationData:
     """The data ``derive verify`` runs filter ``name`` of ``model`` on, the reference, and
@@ -66,6 +83,22 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
     bound of derive.apps.float_tolerance (``unit``: the filter's unit, derived again when
     not given)."""
     opts = validate(name, options)
+    require_examples(model)
+    if kind(name).sensors and uses_sensor_run(model, opts):
+        case = sensors_case(model, name, steps, seed, opts, unit)
+        reference = {"xs": np.asarray(case.reference.xs, dtype=float),
+                     "Ps": np.asarray(case.reference.Ps, dtype=float).reshape(
+                         steps, model.n, model.n)}
+        tolerance = case.bound.value if case.bound is not None else case.tolerance
+        return VerificationData(model.name, name, steps,
+                                {k: np.asarray(v, dtype=float)
+                                 for k, v in case.arguments().items()},
+                                reference, float(tolerance), case.bound)
+    if model.parameters:
+        raise SymbolError(
+            f"model {model.name!r}: {name} is not a sensors run, and derive verify runs the "
+            f"examples of free parameters {[p.name for p in model.parameters]} only in a "
+            "sensors run (several sensors, gating or update-first)")
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)

@@ -18,7 +18,7 @@ from ...errors import FilterError
 from ...filters import available, kind
 from ...generation import command_unit, resolve_model
 from ...options import per_filter
-from .data import TEST_STEPS, verification_data
+from .data import TEST_STEPS, require_examples, verification_data
 
 
 def library_command(ref: str, units: list[Unit], out: str) -> str:
@@ -45,6 +45,7 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
     ``with_data``: also {filter: its VerificationData}; ``refuse_uncarried``: a FilterError
     for a filter float32 cannot carry (derive.apps.float_tolerance)."""
     model = resolve_model(model)
+    require_examples(model)   # the test programs run free parameters at their examples
     ref = ref or model.name
     names = list(filters) if filters is not None else available(model)
     for name in names:
