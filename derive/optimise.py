@@ -33,6 +33,7 @@ from derive.statements import (
     Statement,
     Temporary,
     is_atom,
+    live_statements,
 )
 
 Cost = tuple[int, int]  # (flops, instructions) of the lowered Python form
@@ -249,19 +250,7 @@ def _share(body: Sequence[Statement], fresh, cost: _CostCache) -> list[Statement
 
 def _dead_code(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):
     """Drop assignments that reach neither an output nor a check."""
-    live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
-    out: list[Statement] = []
-    for st in reversed(body):
-        if isinstance(st, Assign):
-            if st.target not in live:
-                continue
-            expr = st.expr
-        else:
-            expr = st.value
-        out.append(st)
-        live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
-    out.reverse()
-    return out, results
+    return live_statements(body, results), results
 
 
 def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...]]):

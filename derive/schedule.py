@@ -43,7 +43,14 @@ from sympy import default_sort_key
 from derive.emit.unit import Unit
 from derive.lowering import CARRIED, Op, Tree, Var, expression_lowerer
 from derive.program import Program
-from derive.statements import Assign, Check, InputElement, Statement, Temporary
+from derive.statements import (
+    Assign,
+    Check,
+    InputElement,
+    Statement,
+    Temporary,
+    live_statements,
+)
 
 #: A reference latency model in cycles (a Skylake-class x86-64 core: its documented
 #: latencies for double add, multiply, fma, divide and square root; a call of a math
@@ -95,7 +102,7 @@ def latency_schedule(program: Program,
         if body == before:
             break
     body = work.prune(body)
-    body, merged = _merge(_live(body, program.results))
+    body, merged = _merge(live_statements(body, program.results))
     work.results = {name: tuple(v.xreplace(merged) for v in values)
                     for name, values in work.results.items()}
     return work.build(work.order(body))
@@ -118,22 +125,6 @@ def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
         seen[expr] = st.target
         out.append(Assign(st.target, expr))
     return out, names
-
-
-def _live(body: Sequence[Statement], results: Mapping[str, tuple]) -> list[Statement]:
-    live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
-    out: list[Statement] = []
-    for st in reversed(body):
-        if isinstance(st, Assign):
-            if st.target not in live:
-                continue
-            expr = st.expr
-        else:
-            expr = st.value
-        out.append(st)
-        live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
-    out.reverse()
-    return out
 
 
 def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
@@ -309,7 +300,7 @@ class _Work:
 
     def fuse(self, body: list[Statement]) -> list[Statement]:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
-        uses = _uses(_live(body, self.results), self.results)
+        uses = _uses(live_statements(body, self.results), self.results)
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
         ready = self.arrivals(body)
         out: list[Statement] = []

@@ -8,6 +8,7 @@ them): input elements (``P[3]``, how generated code reads an input), temporaries
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import sympy
@@ -60,3 +61,21 @@ def is_atom(expr: sympy.Basic) -> bool:
 
 #: Values an expression of a program must never hold (a structurally zero divisor).
 NON_FINITE = (sympy.zoo, sympy.nan, sympy.oo, -sympy.oo)
+
+
+def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> list[Statement]:
+    """``body`` without the assignments that reach neither a result nor a check (dead
+    code), in order."""
+    live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
+    out: list[Statement] = []
+    for st in reversed(body):
+        if isinstance(st, Assign):
+            if st.target not in live:
+                continue
+            expr = st.expr
+        else:
+            expr = st.value
+        out.append(st)
+        live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
+    out.reverse()
+    return out

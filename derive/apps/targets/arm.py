@@ -27,7 +27,7 @@ import numpy as np
 from ...build import BuildError
 from ...generation import generate_units, resolve_model
 from ..float_tolerance import FloatTolerance
-from ..verify import relative_error
+from ..verify import relative_error, within_tolerance
 from .data import TEST_STEPS
 from .library import write_library
 from .toolchains import SIZE_LEVELS, TARGETS, ObjectSize, compile_object, link_program, read_sizes
@@ -98,8 +98,7 @@ class ArmRun:
     @property
     def passed(self) -> bool:
         """Within the tolerance, and (float32) a bound below 1, as derive verify judges."""
-        meaningful = self.bound is None or self.bound.meaningful
-        return bool(meaningful and np.isfinite(self.error) and self.error <= self.tolerance)
+        return within_tolerance(self.error, self.tolerance, self.bound)
 
     def line(self) -> str:
         mark = "ok  " if self.passed else "FAIL"
