@@ -2,18 +2,16 @@
 its C compiled with derive.build's strict flags (``gcc -std=c99 -O2 ...``): seconds (wall
 and CPU) and peak memory of each, and the size of the .c file.
 
-Each is measured in a child process of its own (``os.wait4`` gives that child's CPU time
-and peak resident memory), so neither the bench's own memory nor another child's counts.
+Each is measured in a child process of its own under a small launcher
+(:mod:`.child_usage`: ``os.wait4`` gives that child's CPU time and peak resident memory),
+so neither the bench's own memory nor another child's counts.
 The bars (docs/performance.md): a dense 24-state KF (m = 8) generates and compiles in at
 most 30 s and 1 GB each, its .c no larger than SymForce's generated step for the same
 model (2.5 MB)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import numpy as np
 from ...build import STRICT_CFLAGS
 from ...generation import generate
 from ...model import LinearModel
+from .child_usage import run_measured
 from .timing import human
 
 #: The bars: seconds and bytes of memory for each of generation and compilation, bytes
@@ -71,17 +70,11 @@ def dense_model(n: int, m: int | None = None, seed: int = 1) -> LinearModel:
 def _child(cmd: list[str]) -> Measured:
     """Run ``cmd`` to its end: its wall and CPU seconds and peak memory (RuntimeError with
     its output when it fails)."""
-    start = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    _, status, usage = os.wait4(proc.pid, 0)
-    seconds = time.perf_counter() - start
-    output = proc.stdout.read().decode(errors="replace") if proc.stdout else ""
-    proc.stdout.close()
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd[:3])} ... failed: {output.strip()[-500:]}")
-    # ru_maxrss is in kilobytes on Linux
-    return Measured(seconds, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024.0)
+    usage = run_measured(cmd)
+    if usage.returncode != 0:
+        output = (usage.stdout + usage.stderr).strip()
+        raise RuntimeError(f"{' '.join(cmd[:3])} ... failed: {output[-500:]}")
+    return Measured(usage.seconds, usage.cpu_seconds, usage.peak_bytes)
 
 
 def generate_dense(n: int, out: str) -> None:

@@ -3,20 +3,21 @@ diagonal) for kf, lf and sskf, and a dense random 24-state KF (m = 8).
 
 Each generation runs in its own Python process, which builds the model through the
 Python API and times :func:`derive.generation.render_unit` (derivation and rendering of
-both languages, nothing written); the parent reads that process's peak resident memory
-from ``os.wait4``. Times are wall-clock and CPU (user + system of the generation), since
-the machine may be shared: CPU time is what the work costs, wall time what a user waits.
+both languages, nothing written); its peak resident memory is read by
+:mod:`.child_usage` (a small launcher, so the bench's own memory does not count).
+Times are wall-clock and CPU (user + system of the generation), since the machine may
+be shared: CPU time is what the work costs, wall time what a user waits.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from .child_usage import run_measured
 
 AXES = (15, 30, 60, 120)
 """Constant-velocity axes per model: n = 30, 60, 120, 240."""
@@ -86,30 +87,17 @@ def _run(args: list[str], label: str, name: str, timeout: float) -> GenerationRo
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
         [str(root)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else []))}
     env.pop("DERIVE_PROGRESS", None)
-    child = subprocess.Popen([sys.executable, "-c", _CHILD, *args], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, env=env,
-                             text=True)
-    start = time.monotonic()
-    while True:
-        pid, status, usage = os.wait4(child.pid, os.WNOHANG)
-        if pid:
-            break
-        if time.monotonic() - start > timeout:
-            child.kill()
-            os.wait4(child.pid, 0)
-            return GenerationRow(label, name, 0, None, None, None, None,
-                                 f"stopped after {timeout:.0f} s")
-        time.sleep(0.05)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    out, err = child.stdout.read(), child.stderr.read()
-    child.stdout.close()
-    child.stderr.close()
-    if child.returncode != 0:
-        last = (err.strip().splitlines() or ["no output"])[-1]
+    try:
+        usage = run_measured([sys.executable, "-c", _CHILD, *args], timeout, env)
+    except TimeoutError:
+        return GenerationRow(label, name, 0, None, None, None, None,
+                             f"stopped after {timeout:.0f} s")
+    if usage.returncode != 0:
+        last = (usage.stderr.strip().splitlines() or ["no output"])[-1]
         return GenerationRow(label, name, 0, None, None, None, None, f"failed: {last}")
-    result = json.loads(out.strip().splitlines()[-1])
+    result = json.loads(usage.stdout.strip().splitlines()[-1])
     return GenerationRow(label, name, result["n"], result["seconds"], result["cpu_seconds"],
-                         usage.ru_maxrss * 1024, result["flops"])
+                         int(usage.peak_bytes), result["flops"])
 
 
 def generation_rows(axes=AXES, filters=FILTERS, dense: bool = True, tick=lambda text: None,
