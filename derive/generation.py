@@ -70,16 +70,17 @@ def check_lang(lang: str) -> None:
 
 
 def command_unit(model, name: str, options: Mapping | SharedOptions | None = None,
-                 model_ref: str | None = None, out_label: str = "generated") -> Unit:
+                 model_ref: str | None = None, out_label: str = "generated",
+                 lang: str = "all") -> Unit:
     """The Unit of one filter, its options validated, carrying the command that
-    regenerates its files (``derive generate MODEL_REF ... --out OUT_LABEL``)."""
+    regenerates its files (``derive generate MODEL_REF ... --lang LANG --out OUT_LABEL``)."""
     typed = validate(name, options)
     refusal = file_bound_refusal(model, name, typed, model_ref)
     if refusal is not None:
         raise ModelFileError(refusal)
     unit = derive_unit(model, name, typed)
     return dataclasses.replace(unit, command=regenerate_command(model_ref or model.name, name,
-                                                                typed, out_label))
+                                                                typed, out_label, lang))
 
 
 def render_unit(model, name: str, lang: str = "all",
@@ -87,7 +88,7 @@ def render_unit(model, name: str, lang: str = "all",
                 out_label: str = "generated") -> tuple[Unit, dict[str, str]]:
     """(the Unit, ``{file name: text}``) of one filter; ``options``: those it takes."""
     check_lang(lang)
-    unit = command_unit(model, name, options, model_ref, out_label)
+    unit = command_unit(model, name, options, model_ref, out_label, lang)
     files: dict[str, str] = {}
     if lang in ("python", "all"):
         files.update(render_python(unit))

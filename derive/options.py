@@ -384,9 +384,12 @@ def from_arguments(args) -> dict[str, object]:
             if getattr(args, key, None) is not None}
 
 
-def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: str) -> str:
-    """The command line that regenerates filter ``name``'s files with ``options``."""
-    parts = ["derive generate", model_ref, f"--filter {name}", "--lang all", f"--out {out}"]
+def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: str,
+                       lang: str = "all") -> str:
+    """The command line that regenerates filter ``name``'s files (those of ``lang``) with
+    ``options``."""
+    parts = ["derive generate", model_ref, f"--filter {name}", f"--lang {lang}",
+             f"--out {out}"]
     specs = options.specs()
     for key, value in options.changed().items():
         spec = specs[key]

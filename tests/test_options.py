@@ -392,3 +392,15 @@ def test_typed_options_are_checked_too():
                                           "udkf, rts, not by fir"):
         validate("fir", FirOptions(missing=True))
     assert type(FirOptions(order=np.int32(4)).order) is int
+
+
+def test_the_regenerate_command_gives_back_the_language():
+    """A file generated for one language says that language in its command (regenerating
+    with ``--lang all`` would write files the user did not ask for)."""
+    model = catalog.load("mpt3d_b")
+    parser = build_parser()
+    for lang, file in (("c", "kf.h"), ("python", "kf.py"), ("all", "kf.c")):
+        files = render_filter(model, "kf", lang, None, "mpt3d_b", "out")
+        command = next(line for line in files[file].splitlines() if "derive generate" in line)
+        args = parser.parse_args(command[command.index("derive generate") + 7:].split())
+        assert args.lang == lang, (lang, command)
