@@ -33,6 +33,13 @@ Rules (``e`` a sympy expression):
   counted as ``cmp`` (innovation gating);
 - anything else raises :class:`LoweringError`.
 
+A program's trees are at most :data:`MAX_DEPTH` operations deep: :func:`lower_program`
+names each subtree that reaches that depth as a temporary of its own, computed just
+before the statement that reads it (the same operations in the same order, so the
+results and the counts do not change). A 600-term sum is otherwise a chain 600 deep,
+deeper than the printers' and passes' recursion allows, and C99 only promises 63
+nesting levels of parentheses in one expression.
+
 Operation kinds: ``add sub mul div sqrt fma neg cmp select gate`` and ``call:NAME``.
 """
 
@@ -53,6 +60,10 @@ if TYPE_CHECKING:
     from derive.program import Port, Program
 
 KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "select", "gate")
+
+#: The deepest tree a lowered program holds (C99's translation limits promise 63 nesting
+#: levels of parenthesised expressions; Python's default recursion limit is 1000 frames).
+MAX_DEPTH = 60
 
 #: sympy function -> name of the C function (math.h) it lowers to.
 FUNCTIONS = {
@@ -505,23 +516,61 @@ def lower_program(program: Program, *, use_fma: bool = False,
     program = program.optimize()
     lowerer = _Lowerer(use_fma, state_ports)
     body: list[LoweredAssign | LoweredCheck] = []
+    cut = _DepthCut(1 + max((int(st.target.name[1:]) for st in program.body
+                             if isinstance(st, Assign) and st.target.name[1:].isdigit()),
+                            default=-1), body)
     status = 0
     pattern_status = 1 + sum(1 for st in program.body
                              if isinstance(st, Check) and st.relation == POSITIVE)
     for st in program.body:
         if isinstance(st, Assign):
-            body.append(LoweredAssign(st.target.name, lowerer.lower(st.expr)))
+            body.append(LoweredAssign(st.target.name, cut(lowerer.lower(st.expr))))
             continue
-        tree = Op("cmp", (lowerer.lower(st.value), Const(0.0)))
+        tree = Op("cmp", (cut(lowerer.lower(st.value)), Const(0.0)))
         if st.relation == POSITIVE:
             status += 1
             body.append(LoweredCheck(tree, st.message, status))
         else:
             body.append(LoweredCheck(tree, st.message, pattern_status, "zero"))
-    results = tuple((name, tuple(lowerer.lower(v) for v in values))
+    results = tuple((name, tuple(cut(lowerer.lower(v)) for v in values))
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                           tuple(body), results, use_fma)
+
+
+class _DepthCut:
+    """Calls give a tree no deeper than :data:`MAX_DEPTH`: each subtree that reaches that
+    depth becomes a temporary ``tN`` (numbered from ``first``) appended to ``body``, in the
+    order the operations are evaluated. Iterative: the trees it cuts are too deep to
+    recurse over."""
+
+    def __init__(self, first: int, body: list) -> None:
+        self.next = first
+        self.body = body
+
+    def __call__(self, tree: Tree) -> Tree:
+        done: dict[int, tuple[Tree, int]] = {}     # id(node) -> (its cut tree, its depth)
+        stack: list[tuple[Tree, bool]] = [(tree, False)]
+        while stack:
+            node, expanded = stack.pop()
+            if id(node) in done:
+                continue
+            if not isinstance(node, Op):
+                done[id(node)] = (node, 0)
+            elif not expanded:
+                stack.append((node, True))
+                stack.extend((a, False) for a in reversed(node.args))
+            else:
+                args = [done[id(a)] for a in node.args]
+                cut = Op(node.kind, tuple(a for a, _ in args))
+                deep = 1 + max(d for _, d in args)
+                if deep >= MAX_DEPTH and node is not tree:
+                    name = f"t{self.next}"
+                    self.next += 1
+                    self.body.append(LoweredAssign(name, cut))
+                    cut, deep = Var(name), 0
+                done[id(node)] = (cut, deep)
+        return done[id(tree)][0]
 
 
 def expression_lowerer(*, use_fma: bool = False,

@@ -16,7 +16,7 @@ and the step's index (the rows kept so far: no counter per step).
 from __future__ import annotations
 
 from derive.emit.python_printer import PythonPrinter
-from derive.lowering import LoweredAssign, LoweredProgram, Op, Var, tree_vars
+from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredProgram, Op, Var, tree_vars
 from derive.program import PARAMETER_PORT
 
 
@@ -219,7 +219,34 @@ def _single_use(lowered: LoweredProgram) -> dict[str, object]:
         if not isinstance(lowered.body[reader[st.target]], LoweredAssign):
             continue
         inlined[st.target] = st.tree
+    # no printed expression deeper than the lowering allows (derive.lowering.MAX_DEPTH):
+    # a reader that would be keeps its deepest inlined temporaries as names
+    depth: dict[str, int] = {}      # an inlined temporary's depth, with those inlined in it
+    for st in lowered.body:
+        if not isinstance(st, LoweredAssign):
+            continue
+        inner = {v.name for v in _var_occurrences(st.tree) if v.name in inlined}
+        while inner and _depth(st.tree, {name: depth[name] for name in inner}) > MAX_DEPTH:
+            deepest = max(inner, key=depth.__getitem__)
+            del inlined[deepest]
+            inner.discard(deepest)
+        if st.target in inlined:
+            depth[st.target] = _depth(st.tree, {name: depth[name] for name in inner})
     return inlined
+
+
+def _depth(tree, inlined_depth: dict[str, int]) -> int:
+    """How deep ``tree`` prints with the temporaries of ``inlined_depth`` (name: depth)
+    printed inside it (iterative: the trees may be deep)."""
+    deepest, stack = 0, [(tree, 0)]
+    while stack:
+        node, above = stack.pop()
+        if isinstance(node, Op):
+            stack.extend((a, above + 1) for a in node.args)
+        else:
+            below = inlined_depth.get(node.name, 0) if isinstance(node, Var) else 0
+            deepest = max(deepest, above + below)
+    return deepest
 
 
 def _var_occurrences(tree) -> list[Var]:
