@@ -98,7 +98,9 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
             if text(leaf) not in kept:
                 kept.append(text(leaf))
             columns[port].append(kept.index(text(leaf)))
-    out += ["rows = []", "keep = rows.extend"]
+    # each step's row packed into bytes at once (its floats freed at once, none kept
+    # alive), the bytes joined and read as an array at the end
+    out += ["rows = []", f'pack = struct.Struct("{len(kept)}d").pack']
     # a row of one element is iterated as the element itself
     single = [ports[name].size == 1 for name in step_inputs]
     sources = [f"{arrays[name]}[:, 0].tolist()" if one else f"{arrays[name]}.tolist()"
@@ -126,12 +128,10 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
                 body.append(f"{direct.get(st.target, st.target)} = {printer.expression(tree)}")
         else:
             value = printer.expression(_substitute(st.tree.args[0], inlined))
-            step = "len(rows)" if width == 1 else f"len(rows) // {width}"
             body += [f"if not {value} > 0.0:",
-                     f'    raise NumericalError(f"step {{{step}}}: " + {st.message!r})']
+                     f'    raise NumericalError(f"step {{len(rows)}}: " + {st.message!r})']
     kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
-    body += _wrap(f"keep(({kept_now[0]},))" if width == 1 else
-                  f"keep(({', '.join(kept_now)}))")
+    body += _wrap(f"rows.append(pack({', '.join(kept_now)}))")
     # the rest of the state (a leaf that reads the old state is bound first, so no
     # assignment sees a new value early)
     olds = {t for t, _ in leaves}
@@ -146,9 +146,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         assigned.append((target_, value))
     body += early + [f"{t} = {v}" for t, v in assigned]
     out += [f"    {line}" for line in body]
-    # packed once at the end: the fastest way from a list of floats to an array
-    out.append(f'table = np.frombuffer(struct.pack(f"{{len(rows)}}d", *rows))'
-               f".reshape(-1, {width})")
+    out.append(f'table = np.frombuffer(b"".join(rows)).reshape(-1, {width})')
     ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
            f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
            for port, shape in stored]

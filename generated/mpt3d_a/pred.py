@@ -93,7 +93,7 @@ def run(zs, x0):
         x_start = np.asarray(init(x0), dtype=float)
         x_0, x_1, x_2, x_3, x_4, x_5 = x_start.reshape(-1).tolist()
         rows = []
-        keep = rows.extend
+        pack = struct.Struct("6d").pack
         for zk in zs.tolist():
             z_0, z_1, z_2 = zk
             t0 = 0.4278063806273572*x_0 + 0.42780638062735715*x_1 + 0.5721936193726429*z_0
@@ -102,11 +102,11 @@ def run(zs, x0):
             x_3 = 0.7931651913658252*x_3 - 0.2068348086341748*x_2 + 0.2068348086341748*z_1
             t4 = 0.4278063806273572*x_4 + 0.42780638062735715*x_5 + 0.5721936193726429*z_2
             x_5 = 0.7931651913658252*x_5 - 0.2068348086341748*x_4 + 0.2068348086341748*z_2
-            keep((t0, x_1, t2, x_3, t4, x_5))
+            rows.append(pack(t0, x_1, t2, x_3, t4, x_5))
             x_0 = t0
             x_2 = t2
             x_4 = t4
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 6)
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 6)
         return table[:, [0, 1, 2, 3, 4, 5]]
     x = init(x0)
     for k in range(steps):
