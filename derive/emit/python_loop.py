@@ -40,6 +40,33 @@ def _unpack(names: list[str], source: str) -> list[str]:
     return [f"{', '.join(names)} = {source}"]
 
 
+def _values(array: str) -> str:
+    """The doubles of a float64 array, row-major, as an ``array('d')``."""
+    return f'array("d", {array}.tobytes())'
+
+
+def _loop_target(step_inputs, ports, read) -> str:
+    """The loop's target: each element of each per-step input (``_`` if the step does not
+    read it), in the order of the inputs."""
+    names = [local_name(name, i) if i in read.get(name, ()) else "_"
+             for name in step_inputs for i in range(ports[name].size)]
+    return names[0] if len(names) == 1 else f"({', '.join(names)})"
+
+
+def _loop_source(step_inputs, ports, arrays, out: list[str]) -> str:
+    """What the loop iterates: one input of one element directly; otherwise one iterator
+    per input (bound in ``out``), given to one zip as many times as the input has
+    elements, so zip takes each step's elements in order."""
+    if len(step_inputs) == 1 and ports[step_inputs[0]].size == 1:
+        return _values(arrays[step_inputs[0]])
+    iterators = []
+    for name in step_inputs:
+        out.append(f"{name}_values = iter({_values(arrays[name])})")
+        size = ports[name].size
+        iterators.append(f"{name}_values" if size == 1 else f"*[{name}_values] * {size}")
+    return f"zip({', '.join(iterators)})"
+
+
 def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
     """Element indices of every input port that the step reads."""
     read: dict[str, set[int]] = {}
@@ -101,19 +128,12 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
     # each step's row packed into bytes at once (its floats freed at once, none kept
     # alive), the bytes joined and read as an array at the end
     out += ["rows = []", f'pack = struct.Struct("{len(kept)}d").pack']
-    # a row of one element is iterated as the element itself
-    single = [ports[name].size == 1 for name in step_inputs]
-    sources = [f"{arrays[name]}[:, 0].tolist()" if one else f"{arrays[name]}.tolist()"
-               for name, one in zip(step_inputs, single, strict=True)]
-    row_names = [local_name(name, 0) if one else f"{name}k"
-                 for name, one in zip(step_inputs, single, strict=True)]
-    rows = sources[0] if len(sources) == 1 else f"zip({', '.join(sources)})"
-    target = row_names[0] if len(row_names) == 1 else f"({', '.join(row_names)})"
-    out.append(f"for {target} in {rows}:")
+    # the per-step inputs as doubles in one array each, iterated element by element (a
+    # float made as it is read, freed with the step; no list of rows): an input of size
+    # s repeats its iterator s times in one zip, so each step unpacks its elements
+    source = _loop_source(step_inputs, ports, arrays, out)
+    out += _wrap(f"for {_loop_target(step_inputs, ports, read)} in {source}:")
     body: list[str] = []
-    for name, row, one in zip(step_inputs, row_names, single, strict=True):
-        if read.get(name) and not one:
-            body += _unpack([local_name(name, i) for i in range(ports[name].size)], row)
     # the new state: every element the next step reads, from this step's leaves
     leaves = [(local_name(port, i), results[result][i])
               for port, result in carried for i in sorted(read.get(port, ()))]

@@ -27,6 +27,7 @@ discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matri
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -176,7 +177,7 @@ def run(zs, x0, P0):
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
         rows = []
         pack = struct.Struct("9d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1 + 0.5*x_2
             t1 = x_1 + x_2
             t3 = P_1 + P_4 + 0.5*P_5

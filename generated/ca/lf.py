@@ -20,6 +20,7 @@ discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matri
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -164,7 +165,7 @@ def run(zs, x0, P0):
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
         rows = []
         pack = struct.Struct("9d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = 9.950248756218905*P_1
             t1 = 4.975124378109452*P_2
             t2 = 9.950248756218905*P_0 + t0 + t1

@@ -22,6 +22,7 @@ N = 1
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -93,7 +94,7 @@ def run(zs, x0):
         x_0, x_1, x_2 = x_start.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("3d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = x_1 - 0.31193539150247196*x_0 + 0.5*x_2 + 1.311935391502472*z_0
             x_1 = x_1 - 0.6479337786543731*x_0 + x_2 + 0.6479337786543731*z_0
             x_2 = x_2 - 0.15999956409459484*x_0 + 0.15999956409459484*z_0

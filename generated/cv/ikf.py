@@ -25,6 +25,7 @@ discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matri
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -138,7 +139,7 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         pack = struct.Struct("5d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
             t2 = P_1 + P_3
             t4 = 0.0033333333333333335 + (P_0 + P_1 + t2)

@@ -20,6 +20,7 @@ discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matri
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -123,7 +124,7 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         pack = struct.Struct("5d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = 9.67741935483871*P_1
             t1 = 9.67741935483871*P_0 + t0
             t2 = 9.67741935483871*P_3 + t0

@@ -22,6 +22,7 @@ N = 1
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -91,7 +92,7 @@ def run(zs, x0):
         x_0, x_1 = x_start.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("2d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = 0.23899358033688614*x_0 + x_1 + 0.7610064196631139*z_0
             x_1 = x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
             rows.append(pack(t0, x_1))

@@ -19,6 +19,7 @@ B = [[0.548527627097165 ], [0.2124787925659489]]
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -74,7 +75,7 @@ def run(zs, x0):
         x_0, x_1 = x0.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("2d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = 0.45147237290283504*x_0 + 0.45147237290283504*x_1 + 0.548527627097165*z_0
             x_1 = 0.7875212074340512*x_1 - 0.21247879256594884*x_0 + 0.2124787925659489*z_0
             rows.append(pack(t0, x_1))

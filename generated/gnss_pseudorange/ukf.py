@@ -42,6 +42,7 @@ varying measurement count: call predict once per step, then update1 once per mea
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -691,9 +692,10 @@ def run(zs, us, x0, P0):
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
         pack = struct.Struct("14d").pack
-        for (zk, uk) in zip(zs.tolist(), us.tolist()):
-            z_0, z_1, z_2, z_3 = zk
-            u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
+        z_values = iter(array("d", zs.tobytes()))
+        u_values = iter(array("d", us.tobytes()))
+        for (z_0, z_1, z_2, z_3, u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10,
+                u_11) in zip(*[z_values] * 4, *[u_values] * 12):
             t0 = 0.01 + P_0
             t1 = 0.01 + P_5
             t2 = 0.01 + P_10

@@ -24,6 +24,7 @@ P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-ze
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -212,8 +213,8 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         pack = struct.Struct("7d").pack
-        for zk in zs.tolist():
-            z_0, z_1, z_2 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = 0.01 + P_0
             t1 = 0.1 + t0
             if not t1 > 0.0:

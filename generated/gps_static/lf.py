@@ -21,6 +21,7 @@ P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-ze
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -153,8 +154,8 @@ def run(zs, x0, P0):
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = []
         pack = struct.Struct("7d").pack
-        for zk in zs.tolist():
-            z_0, z_1, z_2 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t3 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_0))
             x_0 = 0.09090909090909091*z_0 + t3*(x_0 + P_0*(9.090909090909092*z_0))
             P_0 = 0.00909090909090909 + 0.9090909090909091*(P_0*t3)

@@ -21,6 +21,7 @@ N = 1
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -88,8 +89,8 @@ def run(zs, x0):
         x_0, x_1, x_2 = x_start.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("3d").pack
-        for zk in zs.tolist():
-            z_0, z_1, z_2 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             x_0 = 0.7298437881283576*x_0 + 0.2701562118716424*z_0
             x_1 = 0.7298437881283576*x_1 + 0.2701562118716424*z_1
             x_2 = 0.7298437881283576*x_2 + 0.2701562118716424*z_2

@@ -18,6 +18,7 @@ B = [[0.36535881073846804, 0.                 ], [0.20683480863417478, 0.       
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -73,8 +74,8 @@ def run(zs, x0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("4d").pack
-        for zk in zs.tolist():
-            z_0, z_1 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1) in zip(*[z_values] * 2):
             t0 = 0.634641189261532*x_0 + 0.2692823785230639*x_1 + 0.36535881073846804*z_0
             x_1 = 0.5863303827316504*x_1 - 0.20683480863417478*x_0 + 0.20683480863417478*z_0
             t2 = 0.634641189261532*x_2 + 0.2692823785230639*x_3 + 0.36535881073846804*z_1

@@ -23,6 +23,7 @@ P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may b
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -185,8 +186,8 @@ def run(zs, x0, P0):
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
         pack = struct.Struct("11d").pack
-        for zk in zs.tolist():
-            z_0, z_1 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1) in zip(*[z_values] * 2):
             t0 = x_0 + x_1
             t2 = P_1 + P_5
             t4 = 0.0025 + (P_0 + P_1 + t2)

@@ -21,6 +21,7 @@ P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may b
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -194,8 +195,8 @@ def run(zs, x0, P0):
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
         pack = struct.Struct("11d").pack
-        for zk in zs.tolist():
-            z_0, z_1 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1) in zip(*[z_values] * 2):
             t0 = 16.3265306122449*P_1
             t2 = 16.3265306122449*P_0 + 32.6530612244898*P_1
             t7 = 1.0/(1.0 + (8.16326530612245*P_0 + t0))

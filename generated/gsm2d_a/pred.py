@@ -21,6 +21,7 @@ N = 1
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -91,8 +92,8 @@ def run(zs, x0):
         x_0, x_1, x_2, x_3 = x_start.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("4d").pack
-        for zk in zs.tolist():
-            z_0, z_1 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1) in zip(*[z_values] * 2):
             t0 = 0.4278063806273572*x_0 + 0.42780638062735715*x_1 + 0.5721936193726429*z_0
             x_1 = 0.7931651913658252*x_1 - 0.2068348086341748*x_0 + 0.2068348086341748*z_0
             t2 = 0.4278063806273572*x_2 + 0.42780638062735715*x_3 + 0.5721936193726429*z_1

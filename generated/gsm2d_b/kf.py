@@ -21,6 +21,7 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -129,7 +130,7 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         pack = struct.Struct("5d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
             t2 = P_1 + P_3
             t4 = 0.0025 + (P_0 + P_1 + t2)

@@ -18,6 +18,7 @@ B = [[0.36535881073846804], [0.2068348086341748 ]]
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -73,7 +74,7 @@ def run(zs, x0):
         x_0, x_1 = x0.reshape(-1).tolist()
         rows = []
         pack = struct.Struct("2d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = 0.634641189261532*x_0 + 0.26928237852306397*x_1 + 0.36535881073846804*z_0
             x_1 = 0.5863303827316504*x_1 - 0.2068348086341748*x_0 + 0.2068348086341748*z_0
             rows.append(pack(t0, x_1))

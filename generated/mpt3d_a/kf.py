@@ -24,6 +24,7 @@ P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -216,8 +217,8 @@ def run(zs, x0, P0):
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = []
         pack = struct.Struct("16d").pack
-        for zk in zs.tolist():
-            z_0, z_1, z_2 = zk
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = x_0 + x_1
             t2 = P_1 + P_7
             t4 = 0.0025 + (P_0 + P_1 + t2)

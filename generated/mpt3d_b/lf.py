@@ -19,6 +19,7 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -124,7 +125,7 @@ def run(zs, x0, P0):
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
         rows = []
         pack = struct.Struct("5d").pack
-        for z_0 in zs[:, 0].tolist():
+        for z_0 in array("d", zs.tobytes()):
             t0 = 16.3265306122449*P_1
             t2 = 16.3265306122449*P_0 + 32.6530612244898*P_1
             t7 = 1.0/(1.0 + (8.16326530612245*P_0 + t0))
