@@ -2,15 +2,18 @@
 
 Calling ``step`` once per step costs a function call, a list per output and an index
 per element; on one track that is most of the time.  Here the loop carries the state
-in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), unpacks each
-row of the per-step inputs into locals, runs the step's own statements (same printer,
-same operations, same order, so the results are bitwise those of ``step``) and keeps
-its new elements in one flat list (one tuple per step), packed into an array once at the
-end.  Per step it names only what is read twice: a temporary read once is printed inside
-its reader (unless a check lies between them, so nothing divides by a value before it is
-checked), and a new state element is written to its local where it is computed once the
-old value is dead.  A failed check raises :class:`NumericalError` with the step's message
-and the step's index (the rows kept so far: no counter per step).
+in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), reads each
+per-step input element by element from an ``array('d')`` of its doubles (a float made
+as it is read and freed with the step; an input of several elements through one zip
+of its repeated iterator), runs the step's own statements (same printer, same
+operations, same order, so the results are bitwise those of ``step``) and packs its new
+elements into bytes at once (one ``Struct.pack`` per step: no tuple, no float kept
+alive), joined and read as an array once at the end.  Per step it names only what is
+read twice: a temporary read once is printed inside its reader (unless a check lies
+between them, so nothing divides by a value before it is checked), and a new state
+element is written to its local where it is computed once the old value is dead.  A
+failed check raises :class:`NumericalError` with the step's message and the step's
+index (the rows kept so far: no counter per step).
 """
 
 from __future__ import annotations
