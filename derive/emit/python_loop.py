@@ -2,15 +2,18 @@
 
 Calling ``step`` once per step costs a function call, a list per output and an index
 per element; on one track that is most of the time.  Here the loop carries the state
-in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), unpacks each
-row of the per-step inputs into locals, runs the step's own statements (same printer,
-same operations, same order, so the results are bitwise those of ``step``) and keeps
-its new elements in one flat list (one tuple per step), packed into an array once at the
-end.  Per step it names only what is read twice: a temporary read once is printed inside
-its reader (unless a check lies between them, so nothing divides by a value before it is
-checked), and a new state element is written to its local where it is computed once the
-old value is dead.  A failed check raises :class:`NumericalError` with the step's message
-and the step's index (the rows kept so far: no counter per step).
+in local variables (``x[1]`` becomes ``x_1``, ``P[3]`` becomes ``P_3``), reads each
+per-step input element by element from an ``array('d')`` of its doubles (a float made
+as it is read and freed with the step; an input of several elements through one zip
+of its repeated iterator), runs the step's own statements (same printer, same
+operations, same order, so the results are bitwise those of ``step``) and packs its new
+elements into bytes at once (one ``Struct.pack`` per step: no tuple, no float kept
+alive), joined and read as an array once at the end.  Per step it names only what is
+read twice: a temporary read once is printed inside its reader (unless a check lies
+between them, so nothing divides by a value before it is checked), and a new state
+element is written to its local where it is computed once the old value is dead.  A
+failed check raises :class:`NumericalError` with the step's message and the step's
+index (the rows kept so far: no counter per step).
 """
 
 from __future__ import annotations
@@ -38,6 +41,33 @@ def _unpack(names: list[str], source: str) -> list[str]:
     if len(names) == 1:
         return [f"{names[0]} = {source}[0]"]
     return [f"{', '.join(names)} = {source}"]
+
+
+def _values(array: str) -> str:
+    """The doubles of a float64 array, row-major, as an ``array('d')``."""
+    return f'array("d", {array}.tobytes())'
+
+
+def _loop_target(step_inputs, ports, read) -> str:
+    """The loop's target: each element of each per-step input (``_`` if the step does not
+    read it), in the order of the inputs."""
+    names = [local_name(name, i) if i in read.get(name, ()) else "_"
+             for name in step_inputs for i in range(ports[name].size)]
+    return names[0] if len(names) == 1 else f"({', '.join(names)})"
+
+
+def _loop_source(step_inputs, ports, arrays, out: list[str]) -> str:
+    """What the loop iterates: one input of one element directly; otherwise one iterator
+    per input (bound in ``out``), given to one zip as many times as the input has
+    elements, so zip takes each step's elements in order."""
+    if len(step_inputs) == 1 and ports[step_inputs[0]].size == 1:
+        return _values(arrays[step_inputs[0]])
+    iterators = []
+    for name in step_inputs:
+        out.append(f"{name}_values = iter({_values(arrays[name])})")
+        size = ports[name].size
+        iterators.append(f"{name}_values" if size == 1 else f"*[{name}_values] * {size}")
+    return f"zip({', '.join(iterators)})"
 
 
 def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
@@ -98,20 +128,15 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
             if text(leaf) not in kept:
                 kept.append(text(leaf))
             columns[port].append(kept.index(text(leaf)))
-    out += ["rows = []", "keep = rows.extend"]
-    # a row of one element is iterated as the element itself
-    single = [ports[name].size == 1 for name in step_inputs]
-    sources = [f"{arrays[name]}[:, 0].tolist()" if one else f"{arrays[name]}.tolist()"
-               for name, one in zip(step_inputs, single, strict=True)]
-    row_names = [local_name(name, 0) if one else f"{name}k"
-                 for name, one in zip(step_inputs, single, strict=True)]
-    rows = sources[0] if len(sources) == 1 else f"zip({', '.join(sources)})"
-    target = row_names[0] if len(row_names) == 1 else f"({', '.join(row_names)})"
-    out.append(f"for {target} in {rows}:")
+    # each step's row packed into bytes at once (its floats freed at once, none kept
+    # alive), the bytes joined and read as an array at the end
+    out += ["rows = []", f'pack = struct.Struct("{len(kept)}d").pack']
+    # the per-step inputs as doubles in one array each, iterated element by element (a
+    # float made as it is read, freed with the step; no list of rows): an input of size
+    # s repeats its iterator s times in one zip, so each step unpacks its elements
+    source = _loop_source(step_inputs, ports, arrays, out)
+    out += _wrap(f"for {_loop_target(step_inputs, ports, read)} in {source}:")
     body: list[str] = []
-    for name, row, one in zip(step_inputs, row_names, single, strict=True):
-        if read.get(name) and not one:
-            body += _unpack([local_name(name, i) for i in range(ports[name].size)], row)
     # the new state: every element the next step reads, from this step's leaves
     leaves = [(local_name(port, i), results[result][i])
               for port, result in carried for i in sorted(read.get(port, ()))]
@@ -126,12 +151,10 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
                 body.append(f"{direct.get(st.target, st.target)} = {printer.expression(tree)}")
         else:
             value = printer.expression(_substitute(st.tree.args[0], inlined))
-            step = "len(rows)" if width == 1 else f"len(rows) // {width}"
             body += [f"if not {value} > 0.0:",
-                     f'    raise NumericalError(f"step {{{step}}}: " + {st.message!r})']
+                     f'    raise NumericalError(f"step {{len(rows)}}: " + {st.message!r})']
     kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
-    body += _wrap(f"keep(({kept_now[0]},))" if width == 1 else
-                  f"keep(({', '.join(kept_now)}))")
+    body += _wrap(f"rows.append(pack({', '.join(kept_now)}))")
     # the rest of the state (a leaf that reads the old state is bound first, so no
     # assignment sees a new value early)
     olds = {t for t, _ in leaves}
@@ -146,9 +169,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         assigned.append((target_, value))
     body += early + [f"{t} = {v}" for t, v in assigned]
     out += [f"    {line}" for line in body]
-    # packed once at the end: the fastest way from a list of floats to an array
-    out.append(f'table = np.frombuffer(struct.pack(f"{{len(rows)}}d", *rows))'
-               f".reshape(-1, {width})")
+    out.append(f'table = np.frombuffer(b"".join(rows)).reshape(-1, {width})')
     ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
            f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
            for port, shape in stored]

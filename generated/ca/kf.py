@@ -22,6 +22,7 @@ discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matri
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -144,8 +145,8 @@ def run(zs, x0, P0):
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
         rows = []
-        keep = rows.extend
-        for z_0 in zs[:, 0].tolist():
+        pack = struct.Struct("9d").pack
+        for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1 + 0.5*x_2
             t1 = x_1 + x_2
             t3 = P_1 + P_4 + 0.5*P_5
@@ -159,7 +160,7 @@ def run(zs, x0, P0):
             t15 = 0.01 + P_8
             t16 = 0.1 + t10
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows) // 9}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t17 = 1.0/t16
             t18 = t10*t17
             t19 = t11*t17
@@ -174,8 +175,8 @@ def run(zs, x0, P0):
             P_4 = t13 - t11*t19
             P_5 = t14 - t12*t19
             P_8 = t15 - t12*t20
-            keep((x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 9)
+            rows.append(pack(x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

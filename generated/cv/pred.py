@@ -22,6 +22,7 @@ N = 1
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -90,13 +91,13 @@ def run(zs, x0):
         x_start = np.asarray(init(x0), dtype=float)
         x_0, x_1 = x_start.reshape(-1).tolist()
         rows = []
-        keep = rows.extend
-        for z_0 in zs[:, 0].tolist():
+        pack = struct.Struct("2d").pack
+        for z_0 in array("d", zs.tobytes()):
             t0 = 0.23899358033688614*x_0 + x_1 + 0.7610064196631139*z_0
             x_1 = x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
-            keep((t0, x_1))
+            rows.append(pack(t0, x_1))
             x_0 = t0
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 2)
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 2)
         return table[:, [0, 1]]
     x = init(x0)
     for k in range(steps):

@@ -33,6 +33,7 @@ varying measurement count: call predict once per step, then update1 once per mea
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -378,10 +379,11 @@ def run(zs, us, x0, P0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
-        keep = rows.extend
-        for (zk, uk) in zip(zs.tolist(), us.tolist()):
-            z_0, z_1, z_2, z_3 = zk
-            u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
+        pack = struct.Struct("14d").pack
+        z_values = iter(array("d", zs.tobytes()))
+        u_values = iter(array("d", us.tobytes()))
+        for (z_0, z_1, z_2, z_3, u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10,
+                u_11) in zip(*[z_values] * 4, *[u_values] * 12):
             t0 = 0.01 + P_0
             t1 = 0.01 + P_5
             t2 = 0.01 + P_10
@@ -449,14 +451,14 @@ def run(zs, us, x0, P0):
             t68 = 100.0 + (t54 + t34*t42 + t35*t46 + t36*t50)
             t69 = 100.0 + (t55 + t37*t43 + t38*t47 + t39*t51)
             if not t66 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t70 = 1.0/t66
             t71 = t57*t70
             t72 = t58*t70
             t73 = t59*t70
             t74 = t67 - t57*t71
             if not t74 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t75 = 1.0/t74
             t76 = t61 - t58*t71
             t77 = t75*t76
@@ -464,13 +466,13 @@ def run(zs, us, x0, P0):
             t79 = t75*t78
             t80 = t68 - t58*t72 - t76*t77
             if not t80 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t81 = 1.0/t80
             t82 = t64 - t59*t72 - t77*t78
             t83 = t81*t82
             t84 = t69 - t59*t73 - t78*t79 - t82*t83
             if not t84 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t85 = 1.0/t84
             t86 = t41 - t40*t71
             t87 = t42 - t40*t72 - t77*t86
@@ -518,8 +520,9 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t100*t48 + t104*t92 + t108*t93 + t112*t94)
             P_11 = P_11 - (t100*t52 + t104*t95 + t108*t96 + t112*t97)
             P_15 = t3 - (t101*t52 + t105*t95 + t109*t96 + t113*t97)
-            keep((x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 14)
+            rows.append(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11,
+                    P_15))
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

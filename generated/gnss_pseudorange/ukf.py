@@ -42,6 +42,7 @@ varying measurement count: call predict once per step, then update1 once per mea
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -690,16 +691,17 @@ def run(zs, us, x0, P0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
         rows = []
-        keep = rows.extend
-        for (zk, uk) in zip(zs.tolist(), us.tolist()):
-            z_0, z_1, z_2, z_3 = zk
-            u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10, u_11 = uk
+        pack = struct.Struct("14d").pack
+        z_values = iter(array("d", zs.tobytes()))
+        u_values = iter(array("d", us.tobytes()))
+        for (z_0, z_1, z_2, z_3, u_0, u_1, u_2, u_3, u_4, u_5, u_6, u_7, u_8, u_9, u_10,
+                u_11) in zip(*[z_values] * 4, *[u_values] * 12):
             t0 = 0.01 + P_0
             t1 = 0.01 + P_5
             t2 = 0.01 + P_10
             t3 = 0.01 + P_15
             if not t0 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
             t4 = _sqrt(t0)
             t5 = 1.0/t4
             t6 = P_1*t5
@@ -707,19 +709,19 @@ def run(zs, us, x0, P0):
             t8 = P_3*t5
             t9 = t1 - t6*t6
             if not t9 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive')
             t10 = _sqrt(t9)
             t11 = 1.0/t10
             t12 = t11*(P_6 - t6*t7)
             t13 = t11*(P_7 - t6*t8)
             t14 = t2 - t12*t12 - t7*t7
             if not t14 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive')
             t15 = _sqrt(t14)
             t17 = 1.0/t15*(P_11 - t12*t13 - t7*t8)
             t18 = t3 - t13*t13 - t17*t17 - t8*t8
             if not t18 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive')
             t20 = 1.7320508075688772*t4
             t21 = 1.7320508075688772*t6
             t22 = 1.7320508075688772*t10
@@ -937,14 +939,14 @@ def run(zs, us, x0, P0):
             t268 = 0.16666666666666666*(t224*t26 + t228*t27 + t232*t28 + (t116 - t156)*t29)
             t269 = 0.16666666666666666*(t225*t26 + t229*t27 + t233*t28 + (t117 - t157)*t29)
             if not t203 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t270 = 1.0/t203
             t271 = t205*t270
             t272 = t207*t270
             t273 = t209*t270
             t274 = t211 - t205*t271
             if not t274 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t275 = 1.0/t274
             t276 = t213 - t207*t271
             t277 = t275*t276
@@ -952,13 +954,13 @@ def run(zs, us, x0, P0):
             t279 = t275*t278
             t280 = t217 - t207*t272 - t276*t277
             if not t280 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t281 = 1.0/t280
             t282 = t219 - t209*t272 - t277*t278
             t283 = t281*t282
             t284 = t221 - t209*t273 - t278*t279 - t282*t283
             if not t284 > 0.0:
-                raise NumericalError(f"step {len(rows) // 14}: " + 'Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t285 = 1.0/t284
             t286 = t255 - t254*t271
             t287 = t256 - t254*t272 - t277*t286
@@ -1002,8 +1004,9 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t262*t322 + t263*t321 + t264*t320 + t265*t312)
             P_11 = P_11 - (t266*t322 + t267*t321 + t268*t320 + t269*t312)
             P_15 = t3 - (t266*t325 + t267*t324 + t268*t323 + t269*t313)
-            keep((x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 14)
+            rows.append(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11,
+                    P_15))
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

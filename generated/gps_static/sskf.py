@@ -18,6 +18,7 @@ B = [[0.2701562118716424, 0.                , 0.                ], [0.          
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -71,14 +72,14 @@ def run(zs, x0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         rows = []
-        keep = rows.extend
-        for zk in zs.tolist():
-            z_0, z_1, z_2 = zk
+        pack = struct.Struct("3d").pack
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             x_0 = 0.7298437881283576*x_0 + 0.2701562118716424*z_0
             x_1 = 0.7298437881283576*x_1 + 0.2701562118716424*z_1
             x_2 = 0.7298437881283576*x_2 + 0.2701562118716424*z_2
-            keep((x_0, x_1, x_2))
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 3)
+            rows.append(pack(x_0, x_1, x_2))
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     x = x0
     for k in range(steps):

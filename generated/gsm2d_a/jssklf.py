@@ -18,6 +18,7 @@ B = [[0.36535881073846804, 0.                 ], [0.20683480863417478, 0.       
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -72,17 +73,17 @@ def run(zs, x0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         rows = []
-        keep = rows.extend
-        for zk in zs.tolist():
-            z_0, z_1 = zk
+        pack = struct.Struct("4d").pack
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1) in zip(*[z_values] * 2):
             t0 = 0.634641189261532*x_0 + 0.2692823785230639*x_1 + 0.36535881073846804*z_0
             x_1 = 0.5863303827316504*x_1 - 0.20683480863417478*x_0 + 0.20683480863417478*z_0
             t2 = 0.634641189261532*x_2 + 0.2692823785230639*x_3 + 0.36535881073846804*z_1
             x_3 = 0.5863303827316504*x_3 - 0.20683480863417478*x_2 + 0.20683480863417478*z_1
-            keep((t0, x_1, t2, x_3))
+            rows.append(pack(t0, x_1, t2, x_3))
             x_0 = t0
             x_2 = t2
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 4)
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 4)
         return table[:, [0, 1, 2, 3]]
     x = x0
     for k in range(steps):

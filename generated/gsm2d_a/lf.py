@@ -21,6 +21,7 @@ P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may b
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -193,9 +194,9 @@ def run(zs, x0, P0):
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = []
-        keep = rows.extend
-        for zk in zs.tolist():
-            z_0, z_1 = zk
+        pack = struct.Struct("11d").pack
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1) in zip(*[z_values] * 2):
             t0 = 16.3265306122449*P_1
             t2 = 16.3265306122449*P_0 + 32.6530612244898*P_1
             t7 = 1.0/(1.0 + (8.16326530612245*P_0 + t0))
@@ -242,12 +243,12 @@ def run(zs, x0, P0):
             t77 = 0.0020408163265306124 + (0.9387755102040817*t70 + 0.8775510204081632*t71)
             t78 = 0.004081632653061225 + (0.7551020408163265*t71 - 0.12244897959183673*t70)
             P_15 = 0.00816326530612245 + (0.7551020408163265*(P_15*t57 - P_11*t56) - 0.12244897959183673*(P_11*t57 - P_10*t56))
-            keep((x_0, x_1, x_2, x_3, t37, t38, 0.0, P_5, t77, t78, P_15))
+            rows.append(pack(x_0, x_1, x_2, x_3, t37, t38, 0.0, P_5, t77, t78, P_15))
             P_0 = t37
             P_1 = t38
             P_10 = t77
             P_11 = t78
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 11)
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -18,6 +18,7 @@ B: (6, 3) constants baked into the code
 """
 
 import struct
+from array import array
 
 import numpy as np
 
@@ -74,20 +75,20 @@ def run(zs, x0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         rows = []
-        keep = rows.extend
-        for zk in zs.tolist():
-            z_0, z_1, z_2 = zk
+        pack = struct.Struct("6d").pack
+        z_values = iter(array("d", zs.tobytes()))
+        for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = 0.6346411892615319*x_0 + 0.2692823785230638*x_1 + 0.36535881073846804*z_0
             x_1 = 0.5863303827316503*x_1 - 0.20683480863417475*x_0 + 0.20683480863417475*z_0
             t2 = 0.6346411892615319*x_2 + 0.2692823785230638*x_3 + 0.36535881073846804*z_1
             x_3 = 0.5863303827316503*x_3 - 0.20683480863417475*x_2 + 0.20683480863417475*z_1
             t4 = 0.6346411892615319*x_4 + 0.2692823785230638*x_5 + 0.36535881073846804*z_2
             x_5 = 0.5863303827316503*x_5 - 0.20683480863417475*x_4 + 0.20683480863417475*z_2
-            keep((t0, x_1, t2, x_3, t4, x_5))
+            rows.append(pack(t0, x_1, t2, x_3, t4, x_5))
             x_0 = t0
             x_2 = t2
             x_4 = t4
-        table = np.frombuffer(struct.pack(f"{len(rows)}d", *rows)).reshape(-1, 6)
+        table = np.frombuffer(b"".join(rows)).reshape(-1, 6)
         return table[:, [0, 1, 2, 3, 4, 5]]
     x = x0
     for k in range(steps):

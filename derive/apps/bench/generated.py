@@ -24,7 +24,7 @@ def load(case: Case, workdir: Path, lang: str = "all", options=None) -> Generate
                           out_label="bench", extra_cflags=CFLAGS)
 
 
-def _python_runner(module, case: Case, data: Data):
+def python_runner(module, case: Case, data: Data):
     if case.nonlinear:
         return lambda steps: module.run(data.zs[0][:steps], data.us[:steps], data.x0,
                                         data.P0)[0]
@@ -73,7 +73,7 @@ def generated_c(case: Case, data: Data, workdir: Path):
 
 
 def generated_python(case: Case, data: Data, workdir: Path):
-    return _python_runner(load(case, workdir, "python").python, case, data)
+    return python_runner(load(case, workdir, "python").python, case, data)
 
 
 def generated_c_latency_schedule(case: Case, data: Data, workdir: Path):

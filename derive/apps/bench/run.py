@@ -26,6 +26,7 @@ from . import (
     generation_scaling,
     navigation,
     peers,
+    python_floor,
     scaling,
 )
 from .bound import case_bound, case_schedule_bounds
@@ -94,6 +95,7 @@ class Row:
     note: str = ""
     bound: float | None = None    # generated C: latency bound of the carried chain, s/step
     latency_bound: float | None = None   # the same in the latency schedule (time-varying)
+    floor: float | None = None    # generated Python: its loop keeping nothing, s/step
 
 
 @dataclass(frozen=True)
@@ -161,8 +163,10 @@ class BenchResult:
                        1.25 * 2.3e-9, "time",
                        _bound_note(sskf) + ("" if fma2 is None else
                                             f"; two dependent fmas here take {human(fma2)}")))
+        python = self.row("KF mpt3d_b x 3", "generated Python")
         out.append(Bar("generated pure-Python KF mpt3d_b x 3 per step",
-                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.0e-6, "time"))
+                       self._seconds("KF mpt3d_b x 3", "generated Python"), 1.0e-6, "time",
+                       _floor_note(python)))
         out += self._chain_bars()
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
@@ -316,6 +320,13 @@ class Bar:
         return f"bar: {self.claim}: {shown} ({need}: {verdict}){note}"
 
 
+def _floor_note(row: Row | None) -> str:
+    if row is None or row.floor is None:
+        return ""
+    return (f"the same loop keeping nothing (its float operations, checks and iteration "
+            f"alone) here {human(row.floor)}")
+
+
 def _bound_note(row: Row | None) -> str:
     if row is None or row.bound is None:
         return ""
@@ -376,7 +387,12 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
         if name == "generated C":
             base = timing.median
         note = _NOTES.get((case.filter, name), "")
-        bound = fast = None
+        bound = fast = floor = None
+        if name == "generated Python":
+            floor = _python_floor(case, data, workdir, steps, s.repeats)
+            if floor is not None:
+                note = (note + "; " if note else "") + \
+                    f"the loop keeping nothing: {human(floor)}"
         if name == "generated C" and latency:
             found = case_bound(case, latency)
             if found is not None:
@@ -388,10 +404,21 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
                 note += (f"; latency schedule's bound {human(fast)} "
                          f"({both.latency.describe()}, {both.flops_added:+d} flops a copy)")
         rows.append(Row(case.label, name, timing, None if base is None else
-                        timing.median / base, agreement, note, bound, fast))
+                        timing.median / base, agreement, note, bound, fast, floor))
         if fast is not None:
             rows.append(_latency_schedule_row(case, data, workdir, s, reference, base, fast))
     return rows
+
+
+def _python_floor(case: Case, data, workdir: Path, steps: int, repeats: int) -> float | None:
+    """Seconds per step of the generated Python's single-track loop keeping nothing
+    (derive.apps.bench.python_floor), timed as the generated Python row; None without
+    such a loop."""
+    try:
+        run = python_floor.python_floor(case, data, workdir)
+    except Skip:
+        return None
+    return measure(lambda: run(steps), steps, repeats).median
 
 
 def _latency_schedule_row(case: Case, data, workdir: Path, s: Settings, reference,
