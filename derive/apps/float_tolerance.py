@@ -56,8 +56,9 @@ failed.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,6 +67,17 @@ from ..emit.unit import Unit
 from ..errors import ModelError
 from ..filters import kind
 from ..filters.sensors import program_name, transition_function
+from ..filters.spec import (
+    INNOVATION,
+    LAINIOTIS,
+    NOISE,
+    NOMINAL,
+    POSTERIOR,
+    PRIOR,
+    UPDATE,
+    Conditioned,
+    FilterSpec,
+)
 from ..lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
 from ..precision import FLOAT
 from ..riccati import kf_steady
@@ -167,9 +179,23 @@ def _closed_loop(F: np.ndarray, H: np.ndarray, Pp: np.ndarray, R: np.ndarray) ->
     return (np.eye(F.shape[0]) - K @ H) @ F
 
 
-def _predicted(model, xs, Ps, us=None):
-    """(x, P(k+1/k), F, H, R) per step of a reference run (linear: the model's matrices;
-    nonlinear: the Jacobians at each filtered state)."""
+class ReferenceRun(NamedTuple):
+    """A float64 reference run the tolerance reads the conditioning from: xs and Ps (x(k/k),
+    P(k/k) per step), the inputs us (row k with step k; None: none) and x0, P0, where the
+    run starts (the first prediction's P(1/0) = F P0 F^T + G Q G^T is often the worst
+    conditioned)."""
+
+    xs: np.ndarray
+    Ps: np.ndarray
+    us: np.ndarray | None
+    x0: np.ndarray
+    P0: np.ndarray
+
+
+def _predicted(model, xs, Ps, us=None, offset: int = 1):
+    """(P(k+1/k), F, H, R, h) per step of a reference run (linear: the model's matrices;
+    nonlinear: the Jacobians at each filtered state); the prediction from row k of xs and
+    Ps takes row k + ``offset`` of the inputs us."""
     if model.kind == "linear":
         num = model.numeric()
         for P in Ps:
@@ -178,7 +204,7 @@ def _predicted(model, xs, Ps, us=None):
     fns = model.numeric_functions()
     for k, (x, P) in enumerate(zip(xs, Ps)):
         # the next step's inputs (row k + 1 drives the prediction from x(k/k))
-        u = us[min(k + 1, len(us) - 1)] if us is not None and len(us) else ()
+        u = us[min(k + offset, len(us) - 1)] if us is not None and len(us) else ()
         args = (x, u) if model.f_inputs else (x,)
         F = np.atleast_2d(fns["F"](*args))
         x_pred = fns["f"](*args)
@@ -186,9 +212,9 @@ def _predicted(model, xs, Ps, us=None):
         yield F @ P @ F.T + fns["Q"], F, H, fns["R"], fns["h"](x_pred, u)
 
 
-def error_growth(model, name: str, steps: int, run=None) -> float:
+def error_growth(model, name: str, steps: int, run: ReferenceRun | None = None) -> float:
     """G: the accumulation of one step's error along the carried state (module docstring);
-    ``run``: (xs, Ps, us) of the KF (linear) or the filter's (nonlinear) reference."""
+    ``run``: the KF's (linear) or the filter's (nonlinear) :class:`ReferenceRun`."""
     spec = kind(name)
     if spec.run_kind == "windowed":
         return 1.0
@@ -197,39 +223,121 @@ def error_growth(model, name: str, steps: int, run=None) -> float:
         try:
             A = kf_steady(num.F, num.G, num.H, num.Q, num.R).A
         except (ModelError, np.linalg.LinAlgError):  # no steady state: the run's last P
-            Pp, F, H, R, _ = list(_predicted(model, *run))[-1]
+            Pp, F, H, R, _ = list(_predicted(model, run.xs, run.Ps, run.us))[-1]
             A = _closed_loop(F, H, Pp, R)
         return growth_of(A, steps)
-    Pp, F, H, R, _ = list(_predicted(model, *run))[-1]
+    Pp, F, H, R, _ = list(_predicted(model, run.xs, run.Ps, run.us))[-1]
     return growth_of(_closed_loop(F, H, Pp, R), steps)
 
 
-def condition(model, name: str, run) -> float:
-    """kappa (module docstring) from a reference run ``(xs, Ps, us)``."""
-    spec = kind(name)
-    if not spec.covariance:
-        return 1.0
+def scaled_condition(M: np.ndarray) -> float:
+    """cond_2 of ``M`` scaled to a unit diagonal, D^-1/2 M D^-1/2 with D = diag(M) (a
+    matrix with a diagonal entry <= 0 unscaled): what bounds an LDL^T or Cholesky solve
+    with ``M``, whose backward error is componentwise bounded by sqrt(m_ii m_jj) (Higham,
+    Thm 10.3 and Section 10.1.1: invariant under diagonal scaling)."""
+    d = np.diag(M)
+    if np.any(d <= 0) or not np.all(np.isfinite(M)):
+        return float(np.linalg.cond(M))
+    scale = 1.0 / np.sqrt(d)
+    return float(np.linalg.cond(M * scale[:, None] * scale[None, :]))
+
+
+def cancellation(before: np.ndarray, after: np.ndarray) -> float:
+    """The update's subtraction P(k/k) = P(k/k-1) - K S K^T: its operands (at most
+    ||P(k/k-1)|| each, K S K^T <= P(k/k-1)) over its result, each at the error measure's
+    scale max(||.||_inf, 1): the factor by which the roundings of the operands, relative
+    to them, grow relative to the result."""
+    return float(max(np.abs(before).sum(axis=1).max(), 1.0) /
+                 max(np.abs(after).sum(axis=1).max(), 1.0))
+
+
+def conditioned(entry: Conditioned, matrices: Sequence) -> float:
+    """The conditioning of one :class:`~derive.filters.spec.Conditioned` entry of a step:
+    ``matrices`` the step's instances (for ``cancel``: (before, after) pairs); the
+    largest."""
+    if entry.method == "cancel":
+        values = [cancellation(before, after) for before, after in matrices]
+    elif entry.method == "solve":
+        values = [scaled_condition(M) for M in matrices]
+    else:
+        values = [float(np.linalg.cond(M)) for M in matrices]
+    return max(values, default=1.0)
+
+
+def step_condition(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]) -> float:
+    """kappa of one step: the product of its entries' conditioning (each multiplies the
+    relative error the previous ones leave: a solve's error relative to P(k/k-1) is
+    amplified by the update's cancellation relative to P(k/k))."""
     kappa = 1.0
-    sigma_points = "alpha" in spec.options.specs()
-    for Pp, _, H, R, h in _predicted(model, *run):
-        HPH = H @ Pp @ H.T
-        kappa = max(kappa, float(np.linalg.cond(HPH + R)), float(np.linalg.cond(Pp)))
-        if sigma_points:
-            spread = float(np.sqrt(np.min(np.diag(HPH))))
-            cancellation = float(np.max(np.abs(h))) / spread if spread > 0 else np.inf
-            kappa = max(kappa, cancellation**2)
+    for entry in conditioning:
+        kappa *= conditioned(entry, step[entry.matrix])
     return kappa
+
+
+def run_steps(model, spec: FilterSpec, run: ReferenceRun):
+    """Per step of a reference run (from P0 on), the matrices ``spec.conditioning`` names:
+    a dict from each of derive.filters.spec.MATRICES the filter declares to its instances
+    in the step (UPDATE: the pair (P(k/k-1), P(k/k)))."""
+    wanted = {entry.matrix for entry in spec.conditioning}
+    previous = [run.P0] + list(run.Ps[:-1])
+    predicted = _predicted(model, [run.x0] + list(run.xs[:-1]), previous, run.us, offset=0)
+    lainiotis = lainiotis_matrices(model) if wanted & {LAINIOTIS, NOMINAL} else None
+    for P_before, P, (Pp, _, H, R, _) in zip(previous, run.Ps, predicted):
+        step = {INNOVATION: [H @ Pp @ H.T + R], PRIOR: [Pp], POSTERIOR: [P], NOISE: [R],
+                UPDATE: [(Pp, P)]}
+        if lainiotis is not None:
+            On, nominal = lainiotis
+            step[LAINIOTIS] = [np.eye(len(P)) + P_before @ On]
+            step[NOMINAL] = [nominal]
+        yield step
+
+
+def lainiotis_matrices(model) -> tuple[np.ndarray, np.ndarray]:
+    """(On, H GQG^T H^T + R) of a linear model (derive.filters.lf's constants)."""
+    num = model.numeric()
+    nominal = num.H @ num.GQGt @ num.H.T + num.R
+    HF = num.H @ num.F
+    return HF.T @ np.linalg.solve(nominal, HF), nominal
+
+
+def spread_cancellation(model, spec: FilterSpec, run: ReferenceRun) -> float:
+    """A sigma-point filter's (whose options have ``alpha``) cancellation of its spreads:
+    h(sigma_i) - h_mean, of magnitude sqrt(H P H^T), is computed from values of magnitude
+    |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two spreads; 1 for
+    any other filter. (Kept apart from the factorisations: it describes how the UKF's
+    generated update forms its spreads, and changes with it.)"""
+    if "alpha" not in spec.options.specs():
+        return 1.0
+    worst = 1.0
+    for Pp, _, H, _, h in _predicted(model, run.xs, run.Ps, run.us):
+        spread = float(np.sqrt(np.min(np.diag(H @ Pp @ H.T))))
+        ratio = float(np.max(np.abs(h))) / spread if spread > 0 else np.inf
+        worst = max(worst, ratio**2)
+    return worst
+
+
+def condition(model, name: str, run: ReferenceRun) -> float:
+    """kappa (module docstring) from a reference run: the largest over its steps of the
+    product of what the filter's spec declares its step factorises, solves with, inverts
+    or cancels (derive.filters.spec.Conditioned), and a sigma-point filter's spread
+    cancellation where that is larger."""
+    spec = kind(name)
+    kappa = max((step_condition(spec.conditioning, step)
+                 for step in run_steps(model, spec, run)), default=1.0) \
+        if spec.conditioning else 1.0
+    return max(kappa, spread_cancellation(model, spec, run))
 
 
 @dataclass(frozen=True)
 class SensorsConditioning:
     """What a sensors unit's reference run gives the tolerance: per step the map A_k that
-    carries the error of x(k-1/k-1) to x(k/k); every matrix solved or inverted (each
-    update's S, each P(k/k-1)); and ``cycle``, the longest gap between two updates of one
-    sensor (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
+    carries the error of x(k-1/k-1) to x(k/k); per step the matrices it factorises, solves
+    or cancels (derive.filters.spec.MATRICES: each update's S and its pair (P before, P
+    after), P(k/k-1)); and ``cycle``, the longest gap between two updates of one sensor
+    (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
 
     maps: tuple[np.ndarray, ...]
-    solved: tuple[np.ndarray, ...]
+    steps: tuple[Mapping[str, tuple], ...]
     cycle: int
 
 
@@ -238,21 +346,24 @@ def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
     ``trace`` (derive.reference.sensors.StepTrace per step)."""
     F = transition_function(model)
     n = model.n
-    maps, solved, present = [], [], {}
+    maps, steps, present = [], [], {}
     for k, step in enumerate(trace):
         A = np.eye(n)
+        matrices: dict[str, list] = {INNOVATION: [], PRIOR: [], UPDATE: []}
         if step.P_predicted is not None:
             A = F(step.x_before, step.u, step.p)
-            solved.append(step.P_predicted)
+            matrices[PRIOR].append(step.P_predicted)
         for update in step.updates:
-            solved.append(update.S)
+            matrices[INNOVATION].append(update.S)
             present.setdefault(update.sensor, []).append(k)
             if update.applied:
                 A = (np.eye(n) - update.K @ update.H) @ A
+                matrices[UPDATE].append((update.P, update.P - update.K @ update.S @ update.K.T))
         maps.append(A)
+        steps.append({name: tuple(found) for name, found in matrices.items()})
     gaps = [int(np.max(np.diff(rows))) if len(rows) > 1 else len(trace)
             for rows in present.values()]
-    return SensorsConditioning(tuple(maps), tuple(solved),
+    return SensorsConditioning(tuple(maps), tuple(steps),
                                max(1, min(max(gaps, default=len(trace)), len(trace))))
 
 
@@ -280,18 +391,22 @@ def run_growth(maps: Sequence[np.ndarray], cycle: int = 1) -> float:
 
 def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
     """The float32 tolerance of ``unit`` (a filter of ``model``) for a run of ``steps``
-    steps; ``run`` (xs, Ps, us): the float64 reference run the conditioning is read from
+    steps; ``run`` (a :class:`ReferenceRun`): the float64 reference run the conditioning is
+    read from
     (the KF's for a linear model, the filter's own for a nonlinear one), or for a unit of
     the run kind ``sensors`` the :class:`SensorsConditioning` of its reference run."""
     if isinstance(run, SensorsConditioning):
+        conditioning = kind(unit.filter).conditioning
         return FloatTolerance(
             roundings=run_roundings(unit), growth=run_growth(run.maps, run.cycle),
-            condition=max([1.0] + [float(np.linalg.cond(M)) for M in run.solved]))
+            condition=max([1.0] + [step_condition(conditioning, step) for step in run.steps]))
     return FloatTolerance(roundings=run_roundings(unit),
                           growth=error_growth(model, unit.filter, steps, run),
                           condition=condition(model, unit.filter, run))
 
 
-__all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "SensorsConditioning",
-           "condition", "error_growth", "float_tolerance", "growth_of", "rounding_depth",
-           "run_growth", "run_roundings", "sensors_conditioning", "step_programs"]
+__all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceRun",
+           "SensorsConditioning", "cancellation", "condition", "conditioned", "error_growth",
+           "float_tolerance", "growth_of", "lainiotis_matrices", "rounding_depth",
+           "run_growth", "run_roundings", "run_steps", "scaled_condition",
+           "sensors_conditioning", "spread_cancellation", "step_condition", "step_programs"]
