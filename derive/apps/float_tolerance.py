@@ -70,6 +70,7 @@ from ..filters.sensors import program_name, transition_function
 from ..filters.spec import (
     INNOVATION,
     LAINIOTIS,
+    NEXT_PRIOR,
     NOISE,
     NOMINAL,
     POSTERIOR,
@@ -257,7 +258,7 @@ def conditioned(entry: Conditioned, matrices: Sequence) -> float:
     largest."""
     if entry.method == "cancel":
         values = [cancellation(before, after) for before, after in matrices]
-    elif entry.method == "solve":
+    elif entry.method == "ldl":
         values = [scaled_condition(M) for M in matrices]
     else:
         values = [float(np.linalg.cond(M)) for M in matrices]
@@ -274,7 +275,7 @@ def step_condition(conditioning: Sequence[Conditioned], step: Mapping[str, Seque
     return kappa
 
 
-def run_steps(model, spec: FilterSpec, run: ReferenceRun):
+def run_steps(model, spec: FilterSpec, run: ReferenceRun) -> list[dict[str, list]]:
     """Per step of a reference run (from P0 on), the matrices ``spec.conditioning`` names:
     a dict from each of derive.filters.spec.MATRICES the filter declares to its instances
     in the step (UPDATE: the pair (P(k/k-1), P(k/k)))."""
@@ -282,14 +283,26 @@ def run_steps(model, spec: FilterSpec, run: ReferenceRun):
     previous = [run.P0] + list(run.Ps[:-1])
     predicted = _predicted(model, [run.x0] + list(run.xs[:-1]), previous, run.us, offset=0)
     lainiotis = lainiotis_matrices(model) if wanted & {LAINIOTIS, NOMINAL} else None
+    steps = []
     for P_before, P, (Pp, _, H, R, _) in zip(previous, run.Ps, predicted):
-        step = {INNOVATION: [H @ Pp @ H.T + R], PRIOR: [Pp], POSTERIOR: [P], NOISE: [R],
-                UPDATE: [(Pp, P)]}
+        step = {INNOVATION: [H @ Pp @ H.T + R], PRIOR: [Pp], POSTERIOR: [information(P)],
+                NOISE: [R], UPDATE: [(Pp, P)]}
         if lainiotis is not None:
             On, nominal = lainiotis
             step[LAINIOTIS] = [np.eye(len(P)) + P_before @ On]
             step[NOMINAL] = [nominal]
-        yield step
+        steps.append(step)
+    for step, following in zip(steps, steps[1:] + [{PRIOR: []}]):
+        step[NEXT_PRIOR] = following[PRIOR]
+    return steps
+
+
+def information(P: np.ndarray) -> np.ndarray:
+    """P^-1 (infinite where P is singular: nothing inverts it finitely)."""
+    try:
+        return np.linalg.inv(P)
+    except np.linalg.LinAlgError:
+        return np.full_like(P, np.inf)
 
 
 def lainiotis_matrices(model) -> tuple[np.ndarray, np.ndarray]:

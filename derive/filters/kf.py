@@ -288,7 +288,7 @@ INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z)
                "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
 
 
-CONDITIONING = (Conditioned(INNOVATION, "solve"), Conditioned(UPDATE, "cancel"))
+CONDITIONING = (Conditioned(INNOVATION, "ldl"), Conditioned(UPDATE, "cancel"))
 """What the KF's step factorises and cancels: S, by the LDL^T solve for the gain (never
 P), and the update's subtraction P(k/k-1) - K S K^T."""
 

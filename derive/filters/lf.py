@@ -89,7 +89,7 @@ def reference(model, zs, options):
     return numpy_reference.lf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
-CONDITIONING = (Conditioned(NOMINAL, "inverse"), Conditioned(LAINIOTIS, "inverse"))
+CONDITIONING = (Conditioned(NOMINAL, "ldl"), Conditioned(LAINIOTIS, "lu"))
 """What the LF's step factorises: A's matrix (folded offline unless it depends on the
 present measurements or on free symbols) and I + P On (the unrolled LU inverse)."""
 

@@ -71,7 +71,7 @@ from .common import (
 )
 from .kf import CONDITIONING as KF_CONDITIONING
 from .kf import kf_update, prior
-from .spec import PRIOR, Conditioned, FilterSpec
+from .spec import NEXT_PRIOR, Conditioned, FilterSpec
 from .unit import make_unit
 
 NAME = "rts"
@@ -193,7 +193,7 @@ SPECS = (FilterSpec(
     NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
     covariance=True, missing=True, listing=95,
     # the forward KF's S; the backward gain's LDL^T solve with P(k+1/k)
-    conditioning=KF_CONDITIONING + (Conditioned(PRIOR, "solve"),),
+    conditioning=KF_CONDITIONING + (Conditioned(NEXT_PRIOR, "ldl"),),
     about={"python": "Run the Rauch-Tung-Striebel smoother: a Kalman filter forward, then "
                      "x(k/N) = x(k/k) + C [x(k+1/N) - x(k+1/k)] backward; returns the "
                      "smoothed (xs, Ps).",

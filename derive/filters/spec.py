@@ -21,26 +21,30 @@ from ..options import SharedOptions
 INNOVATION = "S"
 """The innovation covariance S = H P(k/k-1) H^T + R (the gain K = P H^T S^-1)."""
 PRIOR = "P(k/k-1)"
-"""The predicted covariance (RTS: P(k+1/k), the backward gain's solve)."""
-POSTERIOR = "P(k/k)"
-"""The filtered covariance (the information form inverts its inverse, the information)."""
+"""The predicted covariance."""
+NEXT_PRIOR = "P(k+1/k)"
+"""The next step's predicted covariance (the RTS smoother's backward gain solves with it
+at output k)."""
+POSTERIOR = "P(k/k)^-1"
+"""The information, the filtered covariance's inverse (the information form inverts it)."""
 NOISE = "R"
 """The measurement noise covariance (the information form's H^T R^-1)."""
 LAINIOTIS = "I + P On"
 """The Lainiotis filter's I + P(k-1/k-1) On, On = F^T H^T A H F (its unpivoted LU)."""
 NOMINAL = "H GQG^T H^T + R"
 """The Lainiotis filter's A^-1: the innovation covariance from P(k/k-1) = G Q G^T."""
-UPDATE = "P(k/k-1) - K S K^T"
-"""The standard-form update, P(k/k) = P(k/k-1) - K (H P(k/k-1)) and x(k/k) = x(k/k-1) +
-K nu: a subtraction whose result may be far smaller than its operands."""
-MATRICES = (INNOVATION, PRIOR, POSTERIOR, NOISE, LAINIOTIS, NOMINAL, UPDATE)
+UPDATE = "P(k/k-1) -> P(k/k)"
+"""The update from P(k/k-1) to P(k/k): the standard form's subtraction P(k/k-1) - K (H
+P(k/k-1)), whose result may be far smaller than its operands (the information form's
+inverse of P(k/k-1) reaches P(k/k) as (I - K H) E (I - K H)^T, E of P(k/k-1)'s size)."""
+MATRICES = (INNOVATION, PRIOR, NEXT_PRIOR, POSTERIOR, NOISE, LAINIOTIS, NOMINAL, UPDATE)
 
-#: How: ``solve``, an LDL^T (or Cholesky) solve with a symmetric positive-definite
-#: matrix, whose backward error is componentwise scaled by the diagonal (so the
-#: condition of the diagonally scaled matrix bounds its effect); ``inverse``, an explicit
-#: inverse (LDL^T or LU) or the U D U^T factors a filter carries (the condition of the
-#: matrix itself); ``cancel``, a subtraction (the ratio of its operands to its result).
-METHODS = ("solve", "inverse", "cancel")
+#: How: ``ldl``, an LDL^T solve with (or inverse of: one solve per column) a symmetric
+#: positive-definite matrix, whose backward error is componentwise bounded by the
+#: diagonal (so the condition of the diagonally scaled matrix bounds its effect); ``lu``,
+#: an unpivoted LU inverse of a general matrix (the condition of the matrix itself);
+#: ``cancel``, a subtraction (the ratio of its operands to its result).
+METHODS = ("ldl", "lu", "cancel")
 
 
 @dataclass(frozen=True)
@@ -132,5 +136,6 @@ class FilterSpec:
                 "batch": self.batch and run_tracks, "extra_programs": self.extra_programs}
 
 
-__all__ = ["INNOVATION", "LAINIOTIS", "MATRICES", "METHODS", "NOISE", "NOMINAL", "POSTERIOR",
+__all__ = ["INNOVATION", "LAINIOTIS", "MATRICES", "METHODS", "NEXT_PRIOR", "NOISE", "NOMINAL",
+           "POSTERIOR",
            "PRIOR", "UPDATE", "Conditioned", "FilterSpec"]
