@@ -130,7 +130,10 @@ def test_float32_sensors_c_agrees_with_the_float64_reference_within_its_bound(
 
 def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
     """L: the depths of predict and every update added up (one chain through them all),
-    + 2; G from the run's per-step maps; kappa: the largest cond of the S's and P(k/k-1)."""
+    + 2; G from the run's per-step maps; kappa: the largest over the steps of the KF's
+    conditioning (its spec's): the S's condition scaled to a unit diagonal (what an LDL^T
+    solve's error depends on) times the update's ratio ||P before|| / ||P after|| (at the
+    measure's scale, max(., 1)); never P's condition (the KF does not invert P)."""
     model = loads_model(TWO_SENSORS)
     unit = command_unit(model, "kf", GATED)
     assert step_programs(unit) == ("predict", "update_gps", "update_speed")
@@ -145,8 +148,17 @@ def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
     reference_run(model, GATED, zs, us, dt, np.zeros(2), np.eye(2), trace=trace)
     run = sensors_conditioning(model, trace)
     assert len(run.maps) == steps and run.cycle == 20  # the GPS's period
-    kappa = max(np.linalg.cond(M) for step in trace
-                for M in [step.P_predicted] + [u.S for u in step.updates])
+    def unit_diagonal(S):
+        d = 1.0 / np.sqrt(np.diag(S))
+        return np.linalg.cond(S * np.outer(d, d))
+
+    def at_scale(P):
+        return max(np.abs(P).sum(axis=1).max(), 1.0)
+
+    kappa = max(max([unit_diagonal(u.S) for u in step.updates], default=1.0)
+                * max([at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T)
+                       for u in step.updates if u.applied], default=1.0)
+                for step in trace)
     bound = float_tolerance(model, unit, steps, run)
     assert bound.condition == kappa and bound.growth == run_growth(run.maps, 20)
     assert bound.value == C * FLOAT.unit_roundoff * bound.roundings * bound.growth * kappa
