@@ -93,13 +93,16 @@ _EXACT = frozenset({"neg", "select", "cmp"})
 
 @dataclass(frozen=True)
 class FloatTolerance:
-    """The float32 tolerance of one filter on one run: ``value`` = c u L G kappa."""
+    """The float32 tolerance of one filter on one run: ``value`` = c u L G kappa;
+    ``terms``: what kappa is made of, (name, value) at the step where it is largest (each
+    thing the filter's step factorises, solves or cancels: :func:`condition_terms`)."""
 
     roundings: int
     growth: float
     condition: float
     unit_roundoff: float = FLOAT.unit_roundoff
     c: float = C
+    terms: tuple[tuple[str, float], ...] = ()
 
     @property
     def value(self) -> float:
@@ -111,10 +114,14 @@ class FloatTolerance:
         return self.value < 1.0
 
     def text(self) -> str:
-        """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06``."""
-        return (f"c u32 L G kappa = {self.c:g} * 2^{int(np.log2(self.unit_roundoff))} * "
+        """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06``, then what kappa is
+        made of (``; kappa: cond S 1 * P(k/k-1) -> P(k/k) 2.51``)."""
+        text = (f"c u32 L G kappa = {self.c:g} * 2^{int(np.log2(self.unit_roundoff))} * "
                 f"{self.roundings} * {self.growth:.3g} * {self.condition:.3g} = "
                 f"{self.value:.2e}")
+        if self.terms:
+            text += "; kappa: " + " * ".join(f"{name} {value:.3g}" for name, value in self.terms)
+        return text
 
 
 def rounding_depth(lowered: LoweredProgram) -> int:
@@ -265,14 +272,39 @@ def conditioned(entry: Conditioned, matrices: Sequence) -> float:
     return max(values, default=1.0)
 
 
+def term_name(entry: Conditioned) -> str:
+    """How a kappa term is printed: ``cond S`` (a factorisation), ``P(k/k-1) -> P(k/k)``
+    (a cancellation)."""
+    return entry.matrix if entry.method == "cancel" else f"cond {entry.matrix}"
+
+
+def step_terms(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]
+               ) -> tuple[tuple[str, float], ...]:
+    """Each entry's conditioning in one step, by :func:`term_name`."""
+    return tuple((term_name(entry), conditioned(entry, step[entry.matrix]))
+                 for entry in conditioning)
+
+
 def step_condition(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]) -> float:
     """kappa of one step: the product of its entries' conditioning (each multiplies the
     relative error the previous ones leave: a solve's error relative to P(k/k-1) is
     amplified by the update's cancellation relative to P(k/k))."""
-    kappa = 1.0
-    for entry in conditioning:
-        kappa *= conditioned(entry, step[entry.matrix])
-    return kappa
+    return float(np.prod([value for _, value in step_terms(conditioning, step)]))
+
+
+def worst_step(conditioning: Sequence[Conditioned], steps: Sequence[Mapping[str, Sequence]]
+               ) -> tuple[float, tuple[tuple[str, float], ...]]:
+    """(kappa, its terms): the largest :func:`step_condition` over ``steps`` and the terms
+    of that step; (1, ()) for a filter that declares nothing."""
+    if not conditioning:
+        return 1.0, ()
+    kappa, terms = 1.0, step_terms(conditioning, steps[0]) if steps else ()
+    for step in steps:
+        found = step_terms(conditioning, step)
+        value = float(np.prod([v for _, v in found]))
+        if value > kappa:
+            kappa, terms = value, found
+    return kappa, terms
 
 
 def run_steps(model, spec: FilterSpec, run: ReferenceRun) -> list[dict[str, list]]:
@@ -329,16 +361,24 @@ def spread_cancellation(model, spec: FilterSpec, run: ReferenceRun) -> float:
     return worst
 
 
-def condition(model, name: str, run: ReferenceRun) -> float:
-    """kappa (module docstring) from a reference run: the largest over its steps of the
-    product of what the filter's spec declares its step factorises, solves with, inverts
-    or cancels (derive.filters.spec.Conditioned), and a sigma-point filter's spread
-    cancellation where that is larger."""
+def condition_terms(model, name: str, run: ReferenceRun
+                    ) -> tuple[float, tuple[tuple[str, float], ...]]:
+    """(kappa, its terms) (module docstring) from a reference run: the largest over its
+    steps of the product of what the filter's spec declares its step factorises, solves
+    with, inverts or cancels (derive.filters.spec.Conditioned), or a sigma-point filter's
+    spread cancellation where that is larger."""
     spec = kind(name)
-    kappa = max((step_condition(spec.conditioning, step)
-                 for step in run_steps(model, spec, run)), default=1.0) \
-        if spec.conditioning else 1.0
-    return max(kappa, spread_cancellation(model, spec, run))
+    kappa, terms = worst_step(spec.conditioning, run_steps(model, spec, run)
+                              if spec.conditioning else [])
+    spreads = spread_cancellation(model, spec, run)
+    if spreads > kappa:
+        return spreads, (("spreads", spreads),)
+    return kappa, terms
+
+
+def condition(model, name: str, run: ReferenceRun) -> float:
+    """kappa (:func:`condition_terms`)."""
+    return condition_terms(model, name, run)[0]
 
 
 @dataclass(frozen=True)
@@ -409,17 +449,20 @@ def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
     (the KF's for a linear model, the filter's own for a nonlinear one), or for a unit of
     the run kind ``sensors`` the :class:`SensorsConditioning` of its reference run."""
     if isinstance(run, SensorsConditioning):
-        conditioning = kind(unit.filter).conditioning
-        return FloatTolerance(
-            roundings=run_roundings(unit), growth=run_growth(run.maps, run.cycle),
-            condition=max([1.0] + [step_condition(conditioning, step) for step in run.steps]))
+        kappa, terms = worst_step(kind(unit.filter).conditioning, run.steps)
+        return FloatTolerance(roundings=run_roundings(unit),
+                              growth=run_growth(run.maps, run.cycle), condition=kappa,
+                              terms=terms)
+    kappa, terms = condition_terms(model, unit.filter, run)
     return FloatTolerance(roundings=run_roundings(unit),
                           growth=error_growth(model, unit.filter, steps, run),
-                          condition=condition(model, unit.filter, run))
+                          condition=kappa, terms=terms)
 
 
 __all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceRun",
-           "SensorsConditioning", "cancellation", "condition", "conditioned", "error_growth",
+           "SensorsConditioning", "cancellation", "condition", "condition_terms", "conditioned",
+           "error_growth",
            "float_tolerance", "growth_of", "lainiotis_matrices", "rounding_depth",
            "run_growth", "run_roundings", "run_steps", "scaled_condition",
-           "sensors_conditioning", "spread_cancellation", "step_condition", "step_programs"]
+           "sensors_conditioning", "spread_cancellation", "step_condition", "step_programs",
+           "step_terms", "term_name", "worst_step"]
