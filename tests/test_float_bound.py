@@ -67,7 +67,7 @@ def ins_gnss_trace(steps: int):
 def ins_gnss_kappas(trace) -> tuple[float, float]:
     """(the EKF's kappa recomputed from the trace, the largest cond_2 of P(k/k-1))."""
     kappa = max(max([unit_diagonal_cond(u.S) for u in step.updates], default=1.0)
-                * max([at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T)
+                * max([max(1.0, at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T))
                        for u in step.updates if u.applied], default=1.0)
                 for step in trace)
     prior = max(np.linalg.cond(step.P_predicted) for step in trace
@@ -119,7 +119,7 @@ def test_a_kfs_kappa_is_cond_s_and_an_information_forms_includes_p():
     run = conditioning_run(model, zs, None, xs, Ps)
     num = model.numeric()
     priors = [num.F @ P @ num.F.T + num.GQGt for P in [num.P0] + list(run.Ps[:-1])]
-    ratios = [at_scale(Pp) / at_scale(P) for Pp, P in zip(priors, run.Ps)]
+    ratios = [max(1.0, at_scale(Pp) / at_scale(P)) for Pp, P in zip(priors, run.Ps)]
     S = [num.H @ Pp @ num.H.T + num.R for Pp in priors]
     kf_kappa = max(unit_diagonal_cond(s) * r for s, r in zip(S, ratios))
     information = [unit_diagonal_cond(np.linalg.inv(P)) for P in run.Ps]

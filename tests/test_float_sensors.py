@@ -156,7 +156,7 @@ def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
         return max(np.abs(P).sum(axis=1).max(), 1.0)
 
     kappa = max(max([unit_diagonal(u.S) for u in step.updates], default=1.0)
-                * max([at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T)
+                * max([max(1.0, at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T))
                        for u in step.updates if u.applied], default=1.0)
                 for step in trace)
     bound = float_tolerance(model, unit, steps, run)

@@ -25,14 +25,41 @@ NumPy reference on the same data. The bound is
   linear model (derive.riccati; every linear filter of derive converges to it), the EKF
   linearisation at the reference's last state and P for a nonlinear one. 1 for a filter
   that carries no state (the FIR's window).
-* ``kappa`` (:func:`condition`): the conditioning of what the step solves or cancels:
-  for a filter that carries P, the largest over the run of cond_2 of the innovation
-  covariance S = H P(k/k-1) H^T + R (solved for the gain: K's relative error is
-  cond(S) u) and of P(k/k-1) (the information forms invert it); for a sigma-point filter
-  (whose options have ``alpha``) also the cancellation of its spreads, h(sigma_i) - h_mean
-  of magnitude sqrt(H P H^T) computed from values of magnitude |h|: max |h| / sqrt(min
-  diag H P H^T), squared since P_zz multiplies two spreads; 1 for a filter whose constants
-  are all computed offline in double (sskf, sslf, jssklf, fir, pred).
+* ``kappa`` (:func:`condition_terms`): the conditioning of what the filter's step
+  factorises, solves with, inverts or cancels, as its spec declares it
+  (``FilterSpec.conditioning``, derive.filters.spec: the KF's S and its update, the
+  information form's R, its update and P(k/k)^-1, ...), read from the reference run from
+  P0 on: per step the product of the declared terms (each amplifies the relative error
+  the ones before it leave), the largest over the run. The terms:
+
+  - an LDL^T solve with (or inverse of, one solve per column) a symmetric positive-
+    definite M (``ldl``: the KF's S, the information form's R and P(k/k)^-1, the RTS
+    backward gain's P(k+1/k)): cond_2 of M scaled to a unit diagonal,
+    D^-1/2 M D^-1/2 (:func:`scaled_condition`). The computed solution solves
+    (M + dM) X = B with |dM| <= gamma |L||D||L^T| (Higham, Thm 10.3), and
+    (|L||D||L^T|)_ij <= sqrt(m_ii m_jj), so dM = D^1/2 E D^1/2 with ||E|| of order gamma:
+    for the gain, P(k/k) moves by K dM K^T, ||K D K^T|| <= cond_2(D^-1/2 S D^-1/2)
+    ||K S K^T|| <= that condition times ||P(k/k-1)|| (Higham Section 10.1.1: Cholesky is
+    invariant under diagonal scaling). cond_2(S) itself would charge the units of S
+    (metres against metres per second) as error;
+  - an unpivoted LU inverse of a general matrix (``lu``: the LF's I + P On): cond_2;
+  - the update P(k/k-1) -> P(k/k) (``cancel``: the standard form's P(k/k-1) - K S K^T,
+    whose roundings and the solve's error are relative to ||P(k/k-1)||; the information
+    form's inverse of P(k/k-1), whose residual reaches P(k/k) as (I - K H) E (I - K H)^T):
+    max(||P(k/k-1)||_inf, 1) / max(||P(k/k)||_inf, 1), at least 1 (:func:`cancellation`);
+  - a sigma-point filter (whose options have ``alpha``) also has the cancellation of its
+    spreads, h(sigma_i) - h_mean of magnitude sqrt(H P H^T) computed from values of
+    magnitude |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two
+    spreads (:func:`spread_cancellation`, kept apart: it describes how the UKF's update
+    forms its spreads); kappa is the larger of the two.
+
+  A filter that never inverts or cancels P pays nothing for P's conditioning: the KF and
+  EKF solve only S (cond P(1/0) = 2.25e6 for the INS/GNSS EKF, whose kappa is 2.5), the
+  UD filter carries P's factors (Bierman's updates divide by S's pivots; its U D U^T is
+  an LDL^T, backward stable, never inverted), the UKF's Cholesky of P only spreads its
+  sigma points (its backward error, bounded by P's diagonal, is a perturbation of P that
+  L counts). 1 for a filter whose constants are all computed offline in double (sskf,
+  sslf, jssklf, fir, pred: nothing declared).
 * A unit of the run kind ``sensors`` (several sensors at their own rates, gating,
   update-first) has no one closed loop: its G and kappa are read from the trace of its
   reference run (derive.reference.sensors, :func:`sensors_conditioning`). The error of
@@ -42,8 +69,8 @@ NumPy reference on the same data. The bound is
   (:func:`run_growth`) over the endpoints k of the run's last cycle (its last W steps, W
   the longest gap between two updates of one sensor: the run has settled there, and the
   cycle holds every phase of the sensors' rates, the step before the slowest sensor's
-  update too), and kappa is the largest cond_2 of every S = H_s P H_s^T + R_s an
-  update solved (each sensor's own, as its update solves it) and of every P(k/k-1).
+  update too), and kappa is read as above from the trace's steps: each update's own
+  S = H_s P H_s^T + R_s and its P before and after (:attr:`SensorsConditioning.steps`).
 * ``c = 2`` (:data:`C`): the state's error and the covariance's error reach the measure by
   two routes (x through the recursion, P directly and through the gain), each bounded by
   the first-order gamma_L; second-order terms (L u)^2 are below 1e-4 of it for L < 2000.
@@ -251,12 +278,12 @@ def scaled_condition(M: np.ndarray) -> float:
 
 
 def cancellation(before: np.ndarray, after: np.ndarray) -> float:
-    """The update's subtraction P(k/k) = P(k/k-1) - K S K^T: its operands (at most
-    ||P(k/k-1)|| each, K S K^T <= P(k/k-1)) over its result, each at the error measure's
-    scale max(||.||_inf, 1): the factor by which the roundings of the operands, relative
-    to them, grow relative to the result."""
-    return float(max(np.abs(before).sum(axis=1).max(), 1.0) /
-                 max(np.abs(after).sum(axis=1).max(), 1.0))
+    """The update's subtraction P(k/k) = P(k/k-1) - K S K^T: its operands (K S K^T <=
+    P(k/k-1)) over its result, each at the error measure's scale max(||.||_inf, 1): the
+    factor by which the roundings of the operands, relative to them, grow relative to the
+    result; at least 1 (the roundings relative to the result itself)."""
+    return max(1.0, float(max(np.abs(before).sum(axis=1).max(), 1.0) /
+                          max(np.abs(after).sum(axis=1).max(), 1.0)))
 
 
 def conditioned(entry: Conditioned, matrices: Sequence) -> float:
