@@ -16,7 +16,9 @@ import pytest
 from derive import catalog
 from derive.apps.float_tolerance import (
     FloatTolerance,
+    chained_depth,
     condition_terms,
+    rounding_depth,
     run_roundings,
     run_steps,
     scaled_condition,
@@ -35,6 +37,7 @@ from derive.filters import FILTERS, kind
 from derive.filters.sensors import reference_run as sensors_reference
 from derive.filters.spec import INNOVATION, MATRICES, METHODS, UPDATE, Conditioned
 from derive.generation import command_unit
+from derive.lowering import lower_program
 from derive.options import validate
 
 FLOAT_OPTIONS = {"precision": "float"}
@@ -169,3 +172,17 @@ def test_the_sensors_kappa_is_read_from_the_trace_steps():
     for step, record in zip(trace, run.steps):
         assert len(record[INNOVATION]) == len(step.updates)
         assert len(record[UPDATE]) == sum(u.applied for u in step.updates)
+
+
+def test_the_chain_through_the_ins_gnss_programs_is_composed_not_added():
+    """L follows one chain through predict, update_gnss and update_baro: x_new and P_new
+    of each enter the next at their own depths, so L is below the sum of the programs'
+    deepest chains (predict's deepest is P's, update_baro's x's through the gain)."""
+    model = catalog.load("ins_gnss")
+    unit = command_unit(model, "ekf", validate("ekf", FLOAT_OPTIONS))
+    names = ("predict", "update_gnss", "update_baro")
+    depths = [rounding_depth(lower_program(unit.programs[name], use_fma=True,
+                                           state_ports=("x", "P"))) for name in names]
+    chained = chained_depth(unit, names)
+    assert max(depths) < chained < sum(depths)
+    assert run_roundings(unit) == chained + 2

@@ -21,6 +21,7 @@ from derive import batch, catalog
 from derive.apps.float_tolerance import (
     EXTRA_ROUNDINGS,
     C,
+    chained_depth,
     float_tolerance,
     growth_of,
     rounding_depth,
@@ -129,11 +130,13 @@ def test_float32_sensors_c_agrees_with_the_float64_reference_within_its_bound(
 
 
 def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
-    """L: the depths of predict and every update added up (one chain through them all),
-    + 2; G from the run's per-step maps; kappa: the largest over the steps of the KF's
-    conditioning (its spec's): the S's condition scaled to a unit diagonal (what an LDL^T
-    solve's error depends on) times the update's ratio ||P before|| / ||P after|| (at the
-    measure's scale, max(., 1)); never P's condition (the KF does not invert P)."""
+    """L: the longest chain through predict and every update (each program's x_new and
+    P_new enter the next at the depth they left with: at least the deepest program's, at
+    most their sum), + 2; G from the run's per-step maps; kappa: the largest over the
+    steps of the KF's conditioning (its spec's): the S's condition scaled to a unit
+    diagonal (what an LDL^T solve's error depends on) times the update's ratio ||P before||
+    / ||P after|| (at the measure's scale, max(., 1), at least 1); never P's condition
+    (the KF does not invert P)."""
     model = loads_model(TWO_SENSORS)
     unit = command_unit(model, "kf", GATED)
     assert step_programs(unit) == ("predict", "update_gps", "update_speed")
@@ -141,7 +144,9 @@ def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
                                            state_ports=("x", "P")))
               for name in step_programs(unit)]
     assert all(d > 0 for d in depths)
-    assert run_roundings(unit) == sum(depths) + EXTRA_ROUNDINGS
+    chained = chained_depth(unit, step_programs(unit))
+    assert max(depths) <= chained <= sum(depths)
+    assert run_roundings(unit) == chained + EXTRA_ROUNDINGS
     steps = 400
     us, dt, zs = cart2_data(steps, 5)
     trace: list = []

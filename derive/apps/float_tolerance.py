@@ -12,8 +12,9 @@ NumPy reference on the same data. The bound is
   or call rounds once; a temporary passes its depth on; the two-step map instead where
   run takes two steps per pass, if deeper). Where run calls several programs per step in
   sequence (:func:`step_programs`: a unit of the run kind ``sensors`` calls ``predict``
-  then each ``update_<sensor>``), the chain runs through all of them and their depths
-  add up. Plus those of the other programs run calls
+  then each ``update_<sensor>``), the chain runs through all of them: each program's
+  carried outputs enter the next at the depth they left with (:func:`chained_depth`; at
+  most the sum of their depths). Plus those of the other programs run calls
   on the way to a stored result (init, enter, store, the smoother's backward pass), plus
   2: the rounding of the inputs to float (x0, P0, z) and of the baked constants (each
   rounded once from its double). A chain of L roundings
@@ -106,7 +107,15 @@ from ..filters.spec import (
     Conditioned,
     FilterSpec,
 )
-from ..lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from ..lowering import (
+    LoweredAssign,
+    LoweredProgram,
+    Op,
+    Tree,
+    Var,
+    element_name,
+    lower_program,
+)
 from ..precision import FLOAT
 from ..riccati import kf_steady
 
@@ -151,9 +160,12 @@ class FloatTolerance:
         return text
 
 
-def rounding_depth(lowered: LoweredProgram) -> int:
-    """The most roundings on one chain from the program's inputs to an output."""
-    depths: dict[str, int] = {}
+def output_depths(lowered: LoweredProgram, inputs: Mapping[str, int] | None = None
+                  ) -> dict[str, list[int]]:
+    """Per output port, the most roundings on one chain to each of its elements, from the
+    program's inputs (each input element ``x[3]`` starting at ``inputs``' depth, 0 when
+    not given)."""
+    depths: dict[str, int] = dict(inputs or {})
 
     def depth(tree: Tree) -> int:
         if isinstance(tree, Var):
@@ -166,7 +178,29 @@ def rounding_depth(lowered: LoweredProgram) -> int:
     for statement in lowered.body:
         if isinstance(statement, LoweredAssign):
             depths[statement.target] = depth(statement.tree)
-    return max((depth(leaf) for _, leaves in lowered.results for leaf in leaves), default=0)
+    return {port: [depth(leaf) for leaf in leaves] for port, leaves in lowered.results}
+
+
+def rounding_depth(lowered: LoweredProgram) -> int:
+    """The most roundings on one chain from the program's inputs to an output."""
+    return max((d for found in output_depths(lowered).values() for d in found), default=0)
+
+
+def chained_depth(unit: Unit, names: Sequence[str]) -> int:
+    """The most roundings on one chain through the programs ``names`` run one after the
+    other on a step: each program's carried outputs (``x_new``, ``P_new``) enter the next
+    as its inputs (``x``, ``P``) at the depth they left with."""
+    state = tuple(port for port, _ in unit.carried)
+    carried = {out: port for port, out in unit.carried}
+    entering: dict[str, int] = {}
+    deepest = 0
+    for name in names:
+        found = output_depths(lower_program(unit.programs[name], use_fma=True,
+                                            state_ports=state), entering)
+        deepest = max([deepest] + [d for depths in found.values() for d in depths])
+        entering = {element_name(carried[port], i): d for port, depths in found.items()
+                    if port in carried for i, d in enumerate(depths)}
+    return deepest
 
 
 #: The programs run calls besides the step, whose roundings a stored result also carries.
@@ -183,7 +217,8 @@ def step_programs(unit: Unit) -> tuple[str, ...]:
 
 def run_roundings(unit: Unit) -> int:
     """L: the roundings on the longest chain from run's inputs to a stored result, as the
-    C computes them (fma through DERIVE_FMA), plus :data:`EXTRA_ROUNDINGS`."""
+    C computes them (fma through DERIVE_FMA), plus :data:`EXTRA_ROUNDINGS`; through the
+    programs run calls on one step, chained (:func:`chained_depth`)."""
     state = tuple(port for port, _ in unit.carried)
 
     def depth(name: str) -> int:
@@ -191,7 +226,7 @@ def run_roundings(unit: Unit) -> int:
                                             state_ports=state))
 
     two = two_step(unit, use_fma=True)
-    step = max(sum(depth(name) for name in step_programs(unit)),
+    step = max(chained_depth(unit, step_programs(unit)),
                rounding_depth(two) if two is not None else 0)
     return step + sum(depth(name) for name in RUN_PROGRAMS if name in unit.programs) + \
         EXTRA_ROUNDINGS
@@ -487,6 +522,7 @@ def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
 
 
 __all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceRun",
+           "chained_depth", "output_depths",
            "SensorsConditioning", "cancellation", "condition", "condition_terms", "conditioned",
            "error_growth",
            "float_tolerance", "growth_of", "lainiotis_matrices", "rounding_depth",
