@@ -8,7 +8,9 @@ recomputed here from the same reference run with NumPy, none typed."""
 
 from __future__ import annotations
 
+import re
 import shutil
+import subprocess
 
 import numpy as np
 import pytest
@@ -25,6 +27,7 @@ from derive.apps.float_tolerance import (
     sensors_conditioning,
 )
 from derive.apps.targets.arm import run_under_qemu
+from derive.apps.targets.data import verification_data
 from derive.apps.targets.toolchains import TARGETS
 from derive.apps.verify import (
     conditioning_run,
@@ -33,6 +36,8 @@ from derive.apps.verify import (
     sensors_case,
     verify_filter,
 )
+from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS
+from derive.cli import main
 from derive.filters import FILTERS, kind
 from derive.filters.sensors import reference_run as sensors_reference
 from derive.filters.spec import INNOVATION, MATRICES, METHODS, UPDATE, Conditioned
@@ -44,6 +49,8 @@ FLOAT_OPTIONS = {"precision": "float"}
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 needs_qemu = pytest.mark.skipif(bool(TARGETS["arm-linux"].missing()),
                                 reason="arm-linux tools missing")
+MAKE = shutil.which("make")
+PRINTED = re.compile(r"^\w+ (\w+): largest error (\S+) over (\d+) steps .*: (ok|FAIL)$", re.M)
 
 
 def unit_diagonal_cond(M: np.ndarray) -> float:
@@ -186,3 +193,23 @@ def test_the_chain_through_the_ins_gnss_programs_is_composed_not_added():
     chained = chained_depth(unit, names)
     assert max(depths) < chained < sum(depths)
     assert run_roundings(unit) == chained + 2
+
+
+@needs_gcc
+@pytest.mark.skipif(MAKE is None, reason="no make")
+def test_the_ins_gnss_float32_library_is_written_and_its_test_program_passes(tmp_path):
+    """Refused while its bound was >= 1 ("float32 cannot carry this filter"): now its
+    library builds with the conversion flags and its test program meets the bound."""
+    out = tmp_path / "out"
+    assert main(["generate", "ins_gnss", "--layout", "library", "--precision", "float",
+                 "--out", str(out)]) == 0
+    flags = " ".join(STRICT_CFLAGS + CONVERSION_CFLAGS)
+    done = subprocess.run([MAKE, "-C", str(out / "ins_gnss"), f"CFLAGS={flags}", "check"],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    ((name, error, steps, verdict),) = PRINTED.findall(done.stdout)
+    data = verification_data(catalog.load("ins_gnss"), "ekf", FLOAT_OPTIONS,
+                             steps=int(steps))
+    assert data.bound is not None and data.bound.meaningful
+    assert (name, verdict) == ("ekf", "ok")
+    assert 0.0 < float(error) <= data.tolerance == data.bound.value
