@@ -302,11 +302,14 @@ def error_growth(model, name: str, steps: int, run: ReferenceRun | None = None) 
 
 def scaled_condition(M: np.ndarray) -> float:
     """cond_2 of ``M`` scaled to a unit diagonal, D^-1/2 M D^-1/2 with D = diag(M) (a
-    matrix with a diagonal entry <= 0 unscaled): what bounds an LDL^T or Cholesky solve
+    matrix with a diagonal entry <= 0 unscaled, one with a non-finite entry infinite):
+    what bounds an LDL^T or Cholesky solve
     with ``M``, whose backward error is componentwise bounded by sqrt(m_ii m_jj) (Higham,
     Thm 10.3 and Section 10.1.1: invariant under diagonal scaling)."""
+    if not np.all(np.isfinite(M)):
+        return float("inf")
     d = np.diag(M)
-    if np.any(d <= 0) or not np.all(np.isfinite(M)):
+    if np.any(d <= 0):
         return float(np.linalg.cond(M))
     scale = 1.0 / np.sqrt(d)
     return float(np.linalg.cond(M * scale[:, None] * scale[None, :]))
@@ -379,15 +382,26 @@ def run_steps(model, spec: FilterSpec, run: ReferenceRun) -> list[dict[str, list
     lainiotis = lainiotis_matrices(model) if wanted & {LAINIOTIS, NOMINAL} else None
     steps = []
     for P_before, P, (Pp, _, H, R, _) in zip(previous, run.Ps, predicted):
-        step = {INNOVATION: [H @ Pp @ H.T + R], PRIOR: [Pp], POSTERIOR: [information(P)],
-                NOISE: [R], UPDATE: [(Pp, P)]}
-        if lainiotis is not None:
-            On, nominal = lainiotis
-            step[LAINIOTIS] = [np.eye(len(P)) + P_before @ On]
-            step[NOMINAL] = [nominal]
+        step: dict[str, list] = {}
+        for name in wanted:
+            if name == INNOVATION:
+                step[name] = [H @ Pp @ H.T + R]
+            elif name in (PRIOR, NEXT_PRIOR):  # NEXT_PRIOR: moved one step back below
+                step[name] = [Pp]
+            elif name == POSTERIOR:
+                step[name] = [information(P)]
+            elif name == NOISE:
+                step[name] = [R]
+            elif name == UPDATE:
+                step[name] = [(Pp, P)]
+            elif name == LAINIOTIS:
+                step[name] = [np.eye(len(P)) + P_before @ lainiotis[0]]
+            else:  # NOMINAL
+                step[name] = [lainiotis[1]]
         steps.append(step)
-    for step, following in zip(steps, steps[1:] + [{PRIOR: []}]):
-        step[NEXT_PRIOR] = following[PRIOR]
+    if NEXT_PRIOR in wanted:  # output k's backward solve takes step k + 1's P(k+1/k)
+        for step, following in zip(steps, steps[1:] + [{NEXT_PRIOR: []}]):
+            step[NEXT_PRIOR] = following[NEXT_PRIOR]
     return steps
 
 
