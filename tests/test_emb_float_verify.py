@@ -5,8 +5,10 @@ standard KF in float32 on an ill-conditioned model.
 The tolerance is tol = c * u32 * L * G * kappa, u32 = 2^-24, computed for each filter
 (nothing typed): L the roundings on the longest chain of its generated step (+ 2 for the
 inputs and constants rounded to float), G = sum_j ||A^j||_inf for the closed loop
-A = (I - K H) F of the model, kappa the largest cond_2 of S and P(k+1/k) over the run (a
-sigma-point filter: also its spreads' cancellation squared), c = 2 (the state's and the
+A = (I - K H) F of the model, kappa the largest over the run of the product of what the
+filter's step factorises, solves or cancels (its spec's conditioning: a KF's S, scaled to
+a unit diagonal, and its update's ratio ||P(k/k-1)|| / ||P(k/k)||; an information form's
+P(k/k)^-1; a sigma-point filter: also its spreads' cancellation squared), c = 2 (the state's and the
 covariance's error, each at most the first-order gamma_L = L u of Higham's Lemma 3.1).
 docs/generated-code.md states it and the measured ratios.
 
@@ -84,11 +86,11 @@ def test_every_catalog_filter_in_float32_agrees_within_its_derived_tolerance(cat
 def test_float32_cannot_carry_the_gnss_ukf_and_the_bound_says_so(catalog_results):
     """Pseudoranges of 2e7 m have float32 spacing 2 m; the UKF's sigma-point spreads are
     metres, so its P is wrong at order 1. The bound (kappa: the spreads' cancellation
-    squared) is >= 1 there, and the verification fails it. The one other bound >= 1 is the
-    INS/GNSS EKF's (a sensors unit: kappa = cond P(1/0) ~ 2e6, G ~ 4e3), whose error is
-    float32-small all the same (tests/test_float_sensors.py measures it)."""
+    squared) is >= 1 there, and the verification fails it. It is the only one (the
+    INS/GNSS EKF's, once refused for cond P(1/0) ~ 2e6, which the EKF never inverts:
+    tests/test_float_bound.py)."""
     refused = [(r.model, r.filter) for r in catalog_results if not r.bound.meaningful]
-    assert refused == [("gnss_pseudorange", "ukf"), ("ins_gnss", "ekf")]
+    assert refused == [("gnss_pseudorange", "ukf")]
     ukf = next(r for r in catalog_results if (r.model, r.filter) == refused[0])
     assert not ukf.passed and ukf.error > FLOAT.unit_roundoff**0.5  # half the digits gone
     assert "float32 cannot carry it" in ukf.line()
@@ -147,11 +149,14 @@ def test_the_ud_filter_in_float32_beats_the_kf_on_an_ill_conditioned_model():
     assert ud_error <= plain["udkf"]
     assert kf_error > 1e3 * plain["kf"]
     assert kf_error > 1e5 * ud_error
-    # and the full bound says float32 is not safe for this model (kappa = cond P(k+1/k))
-    for unit, generated in zip(units, (kf, udkf)):
-        full = verify_modules(model, unit.filter, {"c": generated.c}, steps, 7,
-                              FLOAT_OPTIONS, unit)[0]
-        assert not full.bound.meaningful and not full.passed
+    # and the full bound says so: float32 is not safe for the KF here (kappa: its
+    # update's cancellation ||P(k/k-1)|| / ||P(k/k)||, ~1e6 at the first step), and is for
+    # the UD filter (it never inverts or cancels P: kappa, S's scaled condition, is 1)
+    full = {g.unit.filter: verify_modules(model, unit.filter, {"c": g.c}, steps, 7,
+                                          FLOAT_OPTIONS, unit)[0]
+            for unit, g in zip(units, (kf, udkf))}
+    assert not full["kf"].bound.meaningful and not full["kf"].passed
+    assert full["udkf"].bound.condition == 1.0 and full["udkf"].passed
 
 
 def test_derive_verify_precision_float_prints_the_tolerance_it_used(capsys):

@@ -21,6 +21,7 @@ from derive import batch, catalog
 from derive.apps.float_tolerance import (
     EXTRA_ROUNDINGS,
     C,
+    chained_depth,
     float_tolerance,
     growth_of,
     rounding_depth,
@@ -129,8 +130,13 @@ def test_float32_sensors_c_agrees_with_the_float64_reference_within_its_bound(
 
 
 def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
-    """L: the depths of predict and every update added up (one chain through them all),
-    + 2; G from the run's per-step maps; kappa: the largest cond of the S's and P(k/k-1)."""
+    """L: the longest chain through predict and every update (each program's x_new and
+    P_new enter the next at the depth they left with: at least the deepest program's, at
+    most their sum), + 2; G from the run's per-step maps; kappa: the largest over the
+    steps of the KF's conditioning (its spec's): the S's condition scaled to a unit
+    diagonal (what an LDL^T solve's error depends on) times the update's ratio ||P before||
+    / ||P after|| (at the measure's scale, max(., 1), at least 1); never P's condition
+    (the KF does not invert P)."""
     model = loads_model(TWO_SENSORS)
     unit = command_unit(model, "kf", GATED)
     assert step_programs(unit) == ("predict", "update_gps", "update_speed")
@@ -138,15 +144,26 @@ def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
                                            state_ports=("x", "P")))
               for name in step_programs(unit)]
     assert all(d > 0 for d in depths)
-    assert run_roundings(unit) == sum(depths) + EXTRA_ROUNDINGS
+    chained = chained_depth(unit, step_programs(unit))
+    assert max(depths) <= chained <= sum(depths)
+    assert run_roundings(unit) == chained + EXTRA_ROUNDINGS
     steps = 400
     us, dt, zs = cart2_data(steps, 5)
     trace: list = []
     reference_run(model, GATED, zs, us, dt, np.zeros(2), np.eye(2), trace=trace)
     run = sensors_conditioning(model, trace)
     assert len(run.maps) == steps and run.cycle == 20  # the GPS's period
-    kappa = max(np.linalg.cond(M) for step in trace
-                for M in [step.P_predicted] + [u.S for u in step.updates])
+    def unit_diagonal(S):
+        d = 1.0 / np.sqrt(np.diag(S))
+        return np.linalg.cond(S * np.outer(d, d))
+
+    def at_scale(P):
+        return max(np.abs(P).sum(axis=1).max(), 1.0)
+
+    kappa = max(max([unit_diagonal(u.S) for u in step.updates], default=1.0)
+                * max([max(1.0, at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T))
+                       for u in step.updates if u.applied], default=1.0)
+                for step in trace)
     bound = float_tolerance(model, unit, steps, run)
     assert bound.condition == kappa and bound.growth == run_growth(run.maps, 20)
     assert bound.value == C * FLOAT.unit_roundoff * bound.roundings * bound.growth * kappa

@@ -12,8 +12,9 @@ NumPy reference on the same data. The bound is
   or call rounds once; a temporary passes its depth on; the two-step map instead where
   run takes two steps per pass, if deeper). Where run calls several programs per step in
   sequence (:func:`step_programs`: a unit of the run kind ``sensors`` calls ``predict``
-  then each ``update_<sensor>``), the chain runs through all of them and their depths
-  add up. Plus those of the other programs run calls
+  then each ``update_<sensor>``), the chain runs through all of them: each program's
+  carried outputs enter the next at the depth they left with (:func:`chained_depth`; at
+  most the sum of their depths). Plus those of the other programs run calls
   on the way to a stored result (init, enter, store, the smoother's backward pass), plus
   2: the rounding of the inputs to float (x0, P0, z) and of the baked constants (each
   rounded once from its double). A chain of L roundings
@@ -25,14 +26,41 @@ NumPy reference on the same data. The bound is
   linear model (derive.riccati; every linear filter of derive converges to it), the EKF
   linearisation at the reference's last state and P for a nonlinear one. 1 for a filter
   that carries no state (the FIR's window).
-* ``kappa`` (:func:`condition`): the conditioning of what the step solves or cancels:
-  for a filter that carries P, the largest over the run of cond_2 of the innovation
-  covariance S = H P(k/k-1) H^T + R (solved for the gain: K's relative error is
-  cond(S) u) and of P(k/k-1) (the information forms invert it); for a sigma-point filter
-  (whose options have ``alpha``) also the cancellation of its spreads, h(sigma_i) - h_mean
-  of magnitude sqrt(H P H^T) computed from values of magnitude |h|: max |h| / sqrt(min
-  diag H P H^T), squared since P_zz multiplies two spreads; 1 for a filter whose constants
-  are all computed offline in double (sskf, sslf, jssklf, fir, pred).
+* ``kappa`` (:func:`condition_terms`): the conditioning of what the filter's step
+  factorises, solves with, inverts or cancels, as its spec declares it
+  (``FilterSpec.conditioning``, derive.filters.spec: the KF's S and its update, the
+  information form's R, its update and P(k/k)^-1, ...), read from the reference run from
+  P0 on: per step the product of the declared terms (each amplifies the relative error
+  the ones before it leave), the largest over the run. The terms:
+
+  - an LDL^T solve with (or inverse of, one solve per column) a symmetric positive-
+    definite M (``ldl``: the KF's S, the information form's R and P(k/k)^-1, the RTS
+    backward gain's P(k+1/k)): cond_2 of M scaled to a unit diagonal,
+    D^-1/2 M D^-1/2 (:func:`scaled_condition`). The computed solution solves
+    (M + dM) X = B with |dM| <= gamma |L||D||L^T| (Higham, Thm 10.3), and
+    (|L||D||L^T|)_ij <= sqrt(m_ii m_jj), so dM = D^1/2 E D^1/2 with ||E|| of order gamma:
+    for the gain, P(k/k) moves by K dM K^T, ||K D K^T|| <= cond_2(D^-1/2 S D^-1/2)
+    ||K S K^T|| <= that condition times ||P(k/k-1)|| (Higham Section 10.1.1: Cholesky is
+    invariant under diagonal scaling). cond_2(S) itself would charge the units of S
+    (metres against metres per second) as error;
+  - an unpivoted LU inverse of a general matrix (``lu``: the LF's I + P On): cond_2;
+  - the update P(k/k-1) -> P(k/k) (``cancel``: the standard form's P(k/k-1) - K S K^T,
+    whose roundings and the solve's error are relative to ||P(k/k-1)||; the information
+    form's inverse of P(k/k-1), whose residual reaches P(k/k) as (I - K H) E (I - K H)^T):
+    max(||P(k/k-1)||_inf, 1) / max(||P(k/k)||_inf, 1), at least 1 (:func:`cancellation`);
+  - a sigma-point filter (whose options have ``alpha``) also has the cancellation of its
+    spreads, h(sigma_i) - h_mean of magnitude sqrt(H P H^T) computed from values of
+    magnitude |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two
+    spreads (:func:`spread_cancellation`, kept apart: it describes how the UKF's update
+    forms its spreads); kappa is the larger of the two.
+
+  A filter that never inverts or cancels P pays nothing for P's conditioning: the KF and
+  EKF solve only S (cond P(1/0) = 2.25e6 for the INS/GNSS EKF, whose kappa is 2.5), the
+  UD filter carries P's factors (Bierman's updates divide by S's pivots; its U D U^T is
+  an LDL^T, backward stable, never inverted), the UKF's Cholesky of P only spreads its
+  sigma points (its backward error, bounded by P's diagonal, is a perturbation of P that
+  L counts). 1 for a filter whose constants are all computed offline in double (sskf,
+  sslf, jssklf, fir, pred: nothing declared).
 * A unit of the run kind ``sensors`` (several sensors at their own rates, gating,
   update-first) has no one closed loop: its G and kappa are read from the trace of its
   reference run (derive.reference.sensors, :func:`sensors_conditioning`). The error of
@@ -42,8 +70,8 @@ NumPy reference on the same data. The bound is
   (:func:`run_growth`) over the endpoints k of the run's last cycle (its last W steps, W
   the longest gap between two updates of one sensor: the run has settled there, and the
   cycle holds every phase of the sensors' rates, the step before the slowest sensor's
-  update too), and kappa is the largest cond_2 of every S = H_s P H_s^T + R_s an
-  update solved (each sensor's own, as its update solves it) and of every P(k/k-1).
+  update too), and kappa is read as above from the trace's steps: each update's own
+  S = H_s P H_s^T + R_s and its P before and after (:attr:`SensorsConditioning.steps`).
 * ``c = 2`` (:data:`C`): the state's error and the covariance's error reach the measure by
   two routes (x through the recursion, P directly and through the gain), each bounded by
   the first-order gamma_L; second-order terms (L u)^2 are below 1e-4 of it for L < 2000.
@@ -56,8 +84,9 @@ failed.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,7 +95,27 @@ from ..emit.unit import Unit
 from ..errors import ModelError
 from ..filters import kind
 from ..filters.sensors import program_name, transition_function
-from ..lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from ..filters.spec import (
+    INNOVATION,
+    LAINIOTIS,
+    NEXT_PRIOR,
+    NOISE,
+    NOMINAL,
+    POSTERIOR,
+    PRIOR,
+    UPDATE,
+    Conditioned,
+    FilterSpec,
+)
+from ..lowering import (
+    LoweredAssign,
+    LoweredProgram,
+    Op,
+    Tree,
+    Var,
+    element_name,
+    lower_program,
+)
 from ..precision import FLOAT
 from ..riccati import kf_steady
 
@@ -80,13 +129,16 @@ _EXACT = frozenset({"neg", "select", "cmp"})
 
 @dataclass(frozen=True)
 class FloatTolerance:
-    """The float32 tolerance of one filter on one run: ``value`` = c u L G kappa."""
+    """The float32 tolerance of one filter on one run: ``value`` = c u L G kappa;
+    ``terms``: what kappa is made of, (name, value) at the step where it is largest (each
+    thing the filter's step factorises, solves or cancels: :func:`condition_terms`)."""
 
     roundings: int
     growth: float
     condition: float
     unit_roundoff: float = FLOAT.unit_roundoff
     c: float = C
+    terms: tuple[tuple[str, float], ...] = ()
 
     @property
     def value(self) -> float:
@@ -98,15 +150,22 @@ class FloatTolerance:
         return self.value < 1.0
 
     def text(self) -> str:
-        """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06``."""
-        return (f"c u32 L G kappa = {self.c:g} * 2^{int(np.log2(self.unit_roundoff))} * "
+        """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06``, then what kappa is
+        made of (``; kappa: cond S 1 * P(k/k-1) -> P(k/k) 2.51``)."""
+        text = (f"c u32 L G kappa = {self.c:g} * 2^{int(np.log2(self.unit_roundoff))} * "
                 f"{self.roundings} * {self.growth:.3g} * {self.condition:.3g} = "
                 f"{self.value:.2e}")
+        if self.terms:
+            text += "; kappa: " + " * ".join(f"{name} {value:.3g}" for name, value in self.terms)
+        return text
 
 
-def rounding_depth(lowered: LoweredProgram) -> int:
-    """The most roundings on one chain from the program's inputs to an output."""
-    depths: dict[str, int] = {}
+def output_depths(lowered: LoweredProgram, inputs: Mapping[str, int] | None = None
+                  ) -> dict[str, list[int]]:
+    """Per output port, the most roundings on one chain to each of its elements, from the
+    program's inputs (each input element ``x[3]`` starting at ``inputs``' depth, 0 when
+    not given)."""
+    depths: dict[str, int] = dict(inputs or {})
 
     def depth(tree: Tree) -> int:
         if isinstance(tree, Var):
@@ -119,7 +178,29 @@ def rounding_depth(lowered: LoweredProgram) -> int:
     for statement in lowered.body:
         if isinstance(statement, LoweredAssign):
             depths[statement.target] = depth(statement.tree)
-    return max((depth(leaf) for _, leaves in lowered.results for leaf in leaves), default=0)
+    return {port: [depth(leaf) for leaf in leaves] for port, leaves in lowered.results}
+
+
+def rounding_depth(lowered: LoweredProgram) -> int:
+    """The most roundings on one chain from the program's inputs to an output."""
+    return max((d for found in output_depths(lowered).values() for d in found), default=0)
+
+
+def chained_depth(unit: Unit, names: Sequence[str]) -> int:
+    """The most roundings on one chain through the programs ``names`` run one after the
+    other on a step: each program's carried outputs (``x_new``, ``P_new``) enter the next
+    as its inputs (``x``, ``P``) at the depth they left with."""
+    state = tuple(port for port, _ in unit.carried)
+    carried = {out: port for port, out in unit.carried}
+    entering: dict[str, int] = {}
+    deepest = 0
+    for name in names:
+        found = output_depths(lower_program(unit.programs[name], use_fma=True,
+                                            state_ports=state), entering)
+        deepest = max([deepest] + [d for depths in found.values() for d in depths])
+        entering = {element_name(carried[port], i): d for port, depths in found.items()
+                    if port in carried for i, d in enumerate(depths)}
+    return deepest
 
 
 #: The programs run calls besides the step, whose roundings a stored result also carries.
@@ -136,7 +217,8 @@ def step_programs(unit: Unit) -> tuple[str, ...]:
 
 def run_roundings(unit: Unit) -> int:
     """L: the roundings on the longest chain from run's inputs to a stored result, as the
-    C computes them (fma through DERIVE_FMA), plus :data:`EXTRA_ROUNDINGS`."""
+    C computes them (fma through DERIVE_FMA), plus :data:`EXTRA_ROUNDINGS`; through the
+    programs run calls on one step, chained (:func:`chained_depth`)."""
     state = tuple(port for port, _ in unit.carried)
 
     def depth(name: str) -> int:
@@ -144,7 +226,7 @@ def run_roundings(unit: Unit) -> int:
                                             state_ports=state))
 
     two = two_step(unit, use_fma=True)
-    step = max(sum(depth(name) for name in step_programs(unit)),
+    step = max(chained_depth(unit, step_programs(unit)),
                rounding_depth(two) if two is not None else 0)
     return step + sum(depth(name) for name in RUN_PROGRAMS if name in unit.programs) + \
         EXTRA_ROUNDINGS
@@ -167,9 +249,23 @@ def _closed_loop(F: np.ndarray, H: np.ndarray, Pp: np.ndarray, R: np.ndarray) ->
     return (np.eye(F.shape[0]) - K @ H) @ F
 
 
-def _predicted(model, xs, Ps, us=None):
-    """(x, P(k+1/k), F, H, R) per step of a reference run (linear: the model's matrices;
-    nonlinear: the Jacobians at each filtered state)."""
+class ReferenceRun(NamedTuple):
+    """A float64 reference run the tolerance reads the conditioning from: xs and Ps (x(k/k),
+    P(k/k) per step), the inputs us (row k with step k; None: none) and x0, P0, where the
+    run starts (the first prediction's P(1/0) = F P0 F^T + G Q G^T is often the worst
+    conditioned)."""
+
+    xs: np.ndarray
+    Ps: np.ndarray
+    us: np.ndarray | None
+    x0: np.ndarray
+    P0: np.ndarray
+
+
+def _predicted(model, xs, Ps, us=None, offset: int = 1):
+    """(P(k+1/k), F, H, R, h) per step of a reference run (linear: the model's matrices;
+    nonlinear: the Jacobians at each filtered state); the prediction from row k of xs and
+    Ps takes row k + ``offset`` of the inputs us."""
     if model.kind == "linear":
         num = model.numeric()
         for P in Ps:
@@ -178,7 +274,7 @@ def _predicted(model, xs, Ps, us=None):
     fns = model.numeric_functions()
     for k, (x, P) in enumerate(zip(xs, Ps)):
         # the next step's inputs (row k + 1 drives the prediction from x(k/k))
-        u = us[min(k + 1, len(us) - 1)] if us is not None and len(us) else ()
+        u = us[min(k + offset, len(us) - 1)] if us is not None and len(us) else ()
         args = (x, u) if model.f_inputs else (x,)
         F = np.atleast_2d(fns["F"](*args))
         x_pred = fns["f"](*args)
@@ -186,9 +282,9 @@ def _predicted(model, xs, Ps, us=None):
         yield F @ P @ F.T + fns["Q"], F, H, fns["R"], fns["h"](x_pred, u)
 
 
-def error_growth(model, name: str, steps: int, run=None) -> float:
+def error_growth(model, name: str, steps: int, run: ReferenceRun | None = None) -> float:
     """G: the accumulation of one step's error along the carried state (module docstring);
-    ``run``: (xs, Ps, us) of the KF (linear) or the filter's (nonlinear) reference."""
+    ``run``: the KF's (linear) or the filter's (nonlinear) :class:`ReferenceRun`."""
     spec = kind(name)
     if spec.run_kind == "windowed":
         return 1.0
@@ -197,39 +293,180 @@ def error_growth(model, name: str, steps: int, run=None) -> float:
         try:
             A = kf_steady(num.F, num.G, num.H, num.Q, num.R).A
         except (ModelError, np.linalg.LinAlgError):  # no steady state: the run's last P
-            Pp, F, H, R, _ = list(_predicted(model, *run))[-1]
+            Pp, F, H, R, _ = list(_predicted(model, run.xs, run.Ps, run.us))[-1]
             A = _closed_loop(F, H, Pp, R)
         return growth_of(A, steps)
-    Pp, F, H, R, _ = list(_predicted(model, *run))[-1]
+    Pp, F, H, R, _ = list(_predicted(model, run.xs, run.Ps, run.us))[-1]
     return growth_of(_closed_loop(F, H, Pp, R), steps)
 
 
-def condition(model, name: str, run) -> float:
-    """kappa (module docstring) from a reference run ``(xs, Ps, us)``."""
-    spec = kind(name)
-    if not spec.covariance:
+def scaled_condition(M: np.ndarray) -> float:
+    """cond_2 of ``M`` scaled to a unit diagonal, D^-1/2 M D^-1/2 with D = diag(M) (a
+    matrix with a diagonal entry <= 0 unscaled, one with a non-finite entry infinite):
+    what bounds an LDL^T or Cholesky solve
+    with ``M``, whose backward error is componentwise bounded by sqrt(m_ii m_jj) (Higham,
+    Thm 10.3 and Section 10.1.1: invariant under diagonal scaling)."""
+    if not np.all(np.isfinite(M)):
+        return float("inf")
+    d = np.diag(M)
+    if np.any(d <= 0):
+        return float(np.linalg.cond(M))
+    scale = 1.0 / np.sqrt(d)
+    return float(np.linalg.cond(M * scale[:, None] * scale[None, :]))
+
+
+def cancellation(before: np.ndarray, after: np.ndarray) -> float:
+    """The update's subtraction P(k/k) = P(k/k-1) - K S K^T: its operands (K S K^T <=
+    P(k/k-1)) over its result, each at the error measure's scale max(||.||_inf, 1): the
+    factor by which the roundings of the operands, relative to them, grow relative to the
+    result; at least 1 (the roundings relative to the result itself)."""
+    return max(1.0, float(max(np.abs(before).sum(axis=1).max(), 1.0) /
+                          max(np.abs(after).sum(axis=1).max(), 1.0)))
+
+
+def conditioned(entry: Conditioned, matrices: Sequence) -> float:
+    """The conditioning of one :class:`~derive.filters.spec.Conditioned` entry of a step:
+    ``matrices`` the step's instances (for ``cancel``: (before, after) pairs); the
+    largest."""
+    if entry.method == "cancel":
+        values = [cancellation(before, after) for before, after in matrices]
+    elif entry.method == "ldl":
+        values = [scaled_condition(M) for M in matrices]
+    else:
+        values = [float(np.linalg.cond(M)) for M in matrices]
+    return max(values, default=1.0)
+
+
+def term_name(entry: Conditioned) -> str:
+    """How a kappa term is printed: ``cond S`` (a factorisation), ``P(k/k-1) -> P(k/k)``
+    (a cancellation)."""
+    return entry.matrix if entry.method == "cancel" else f"cond {entry.matrix}"
+
+
+def step_terms(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]
+               ) -> tuple[tuple[str, float], ...]:
+    """Each entry's conditioning in one step, by :func:`term_name`."""
+    return tuple((term_name(entry), conditioned(entry, step[entry.matrix]))
+                 for entry in conditioning)
+
+
+def step_condition(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]) -> float:
+    """kappa of one step: the product of its entries' conditioning (each multiplies the
+    relative error the previous ones leave: a solve's error relative to P(k/k-1) is
+    amplified by the update's cancellation relative to P(k/k))."""
+    return float(np.prod([value for _, value in step_terms(conditioning, step)]))
+
+
+def worst_step(conditioning: Sequence[Conditioned], steps: Sequence[Mapping[str, Sequence]]
+               ) -> tuple[float, tuple[tuple[str, float], ...]]:
+    """(kappa, its terms): the largest :func:`step_condition` over ``steps`` and the terms
+    of that step; (1, ()) for a filter that declares nothing."""
+    if not conditioning:
+        return 1.0, ()
+    kappa, terms = 1.0, step_terms(conditioning, steps[0]) if steps else ()
+    for step in steps:
+        found = step_terms(conditioning, step)
+        value = float(np.prod([v for _, v in found]))
+        if value > kappa:
+            kappa, terms = value, found
+    return kappa, terms
+
+
+def run_steps(model, spec: FilterSpec, run: ReferenceRun) -> list[dict[str, list]]:
+    """Per step of a reference run (from P0 on), the matrices ``spec.conditioning`` names:
+    a dict from each of derive.filters.spec.MATRICES the filter declares to its instances
+    in the step (UPDATE: the pair (P(k/k-1), P(k/k)))."""
+    wanted = {entry.matrix for entry in spec.conditioning}
+    previous = [run.P0] + list(run.Ps[:-1])
+    predicted = _predicted(model, [run.x0] + list(run.xs[:-1]), previous, run.us, offset=0)
+    lainiotis = lainiotis_matrices(model) if wanted & {LAINIOTIS, NOMINAL} else None
+    steps = []
+    for P_before, P, (Pp, _, H, R, _) in zip(previous, run.Ps, predicted):
+        step: dict[str, list] = {}
+        for name in wanted:
+            if name == INNOVATION:
+                step[name] = [H @ Pp @ H.T + R]
+            elif name in (PRIOR, NEXT_PRIOR):  # NEXT_PRIOR: moved one step back below
+                step[name] = [Pp]
+            elif name == POSTERIOR:
+                step[name] = [information(P)]
+            elif name == NOISE:
+                step[name] = [R]
+            elif name == UPDATE:
+                step[name] = [(Pp, P)]
+            elif name == LAINIOTIS:
+                step[name] = [np.eye(len(P)) + P_before @ lainiotis[0]]
+            else:  # NOMINAL
+                step[name] = [lainiotis[1]]
+        steps.append(step)
+    if NEXT_PRIOR in wanted:  # output k's backward solve takes step k + 1's P(k+1/k)
+        for step, following in zip(steps, steps[1:] + [{NEXT_PRIOR: []}]):
+            step[NEXT_PRIOR] = following[NEXT_PRIOR]
+    return steps
+
+
+def information(P: np.ndarray) -> np.ndarray:
+    """P^-1 (infinite where P is singular: nothing inverts it finitely)."""
+    try:
+        return np.linalg.inv(P)
+    except np.linalg.LinAlgError:
+        return np.full_like(P, np.inf)
+
+
+def lainiotis_matrices(model) -> tuple[np.ndarray, np.ndarray]:
+    """(On, H GQG^T H^T + R) of a linear model (derive.filters.lf's constants)."""
+    num = model.numeric()
+    nominal = num.H @ num.GQGt @ num.H.T + num.R
+    HF = num.H @ num.F
+    return HF.T @ np.linalg.solve(nominal, HF), nominal
+
+
+def spread_cancellation(model, spec: FilterSpec, run: ReferenceRun) -> float:
+    """A sigma-point filter's (whose options have ``alpha``) cancellation of its spreads:
+    h(sigma_i) - h_mean, of magnitude sqrt(H P H^T), is computed from values of magnitude
+    |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two spreads; 1 for
+    any other filter. (Kept apart from the factorisations: it describes how the UKF's
+    generated update forms its spreads, and changes with it.)"""
+    if "alpha" not in spec.options.specs():
         return 1.0
-    kappa = 1.0
-    sigma_points = "alpha" in spec.options.specs()
-    for Pp, _, H, R, h in _predicted(model, *run):
-        HPH = H @ Pp @ H.T
-        kappa = max(kappa, float(np.linalg.cond(HPH + R)), float(np.linalg.cond(Pp)))
-        if sigma_points:
-            spread = float(np.sqrt(np.min(np.diag(HPH))))
-            cancellation = float(np.max(np.abs(h))) / spread if spread > 0 else np.inf
-            kappa = max(kappa, cancellation**2)
-    return kappa
+    worst = 1.0
+    for Pp, _, H, _, h in _predicted(model, run.xs, run.Ps, run.us):
+        spread = float(np.sqrt(np.min(np.diag(H @ Pp @ H.T))))
+        ratio = float(np.max(np.abs(h))) / spread if spread > 0 else np.inf
+        worst = max(worst, ratio**2)
+    return worst
+
+
+def condition_terms(model, name: str, run: ReferenceRun
+                    ) -> tuple[float, tuple[tuple[str, float], ...]]:
+    """(kappa, its terms) (module docstring) from a reference run: the largest over its
+    steps of the product of what the filter's spec declares its step factorises, solves
+    with, inverts or cancels (derive.filters.spec.Conditioned), or a sigma-point filter's
+    spread cancellation where that is larger."""
+    spec = kind(name)
+    kappa, terms = worst_step(spec.conditioning, run_steps(model, spec, run)
+                              if spec.conditioning else [])
+    spreads = spread_cancellation(model, spec, run)
+    if spreads > kappa:
+        return spreads, (("spreads", spreads),)
+    return kappa, terms
+
+
+def condition(model, name: str, run: ReferenceRun) -> float:
+    """kappa (:func:`condition_terms`)."""
+    return condition_terms(model, name, run)[0]
 
 
 @dataclass(frozen=True)
 class SensorsConditioning:
     """What a sensors unit's reference run gives the tolerance: per step the map A_k that
-    carries the error of x(k-1/k-1) to x(k/k); every matrix solved or inverted (each
-    update's S, each P(k/k-1)); and ``cycle``, the longest gap between two updates of one
-    sensor (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
+    carries the error of x(k-1/k-1) to x(k/k); per step the matrices it factorises, solves
+    or cancels (derive.filters.spec.MATRICES: each update's S and its pair (P before, P
+    after), P(k/k-1)); and ``cycle``, the longest gap between two updates of one sensor
+    (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
 
     maps: tuple[np.ndarray, ...]
-    solved: tuple[np.ndarray, ...]
+    steps: tuple[Mapping[str, tuple], ...]
     cycle: int
 
 
@@ -238,21 +475,24 @@ def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
     ``trace`` (derive.reference.sensors.StepTrace per step)."""
     F = transition_function(model)
     n = model.n
-    maps, solved, present = [], [], {}
+    maps, steps, present = [], [], {}
     for k, step in enumerate(trace):
         A = np.eye(n)
+        matrices: dict[str, list] = {INNOVATION: [], PRIOR: [], UPDATE: []}
         if step.P_predicted is not None:
             A = F(step.x_before, step.u, step.p)
-            solved.append(step.P_predicted)
+            matrices[PRIOR].append(step.P_predicted)
         for update in step.updates:
-            solved.append(update.S)
+            matrices[INNOVATION].append(update.S)
             present.setdefault(update.sensor, []).append(k)
             if update.applied:
                 A = (np.eye(n) - update.K @ update.H) @ A
+                matrices[UPDATE].append((update.P, update.P - update.K @ update.S @ update.K.T))
         maps.append(A)
+        steps.append({name: tuple(found) for name, found in matrices.items()})
     gaps = [int(np.max(np.diff(rows))) if len(rows) > 1 else len(trace)
             for rows in present.values()]
-    return SensorsConditioning(tuple(maps), tuple(solved),
+    return SensorsConditioning(tuple(maps), tuple(steps),
                                max(1, min(max(gaps, default=len(trace)), len(trace))))
 
 
@@ -280,18 +520,26 @@ def run_growth(maps: Sequence[np.ndarray], cycle: int = 1) -> float:
 
 def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
     """The float32 tolerance of ``unit`` (a filter of ``model``) for a run of ``steps``
-    steps; ``run`` (xs, Ps, us): the float64 reference run the conditioning is read from
+    steps; ``run`` (a :class:`ReferenceRun`): the float64 reference run the conditioning is
+    read from
     (the KF's for a linear model, the filter's own for a nonlinear one), or for a unit of
     the run kind ``sensors`` the :class:`SensorsConditioning` of its reference run."""
     if isinstance(run, SensorsConditioning):
-        return FloatTolerance(
-            roundings=run_roundings(unit), growth=run_growth(run.maps, run.cycle),
-            condition=max([1.0] + [float(np.linalg.cond(M)) for M in run.solved]))
+        kappa, terms = worst_step(kind(unit.filter).conditioning, run.steps)
+        return FloatTolerance(roundings=run_roundings(unit),
+                              growth=run_growth(run.maps, run.cycle), condition=kappa,
+                              terms=terms)
+    kappa, terms = condition_terms(model, unit.filter, run)
     return FloatTolerance(roundings=run_roundings(unit),
                           growth=error_growth(model, unit.filter, steps, run),
-                          condition=condition(model, unit.filter, run))
+                          condition=kappa, terms=terms)
 
 
-__all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "SensorsConditioning",
-           "condition", "error_growth", "float_tolerance", "growth_of", "rounding_depth",
-           "run_growth", "run_roundings", "sensors_conditioning", "step_programs"]
+__all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceRun",
+           "chained_depth", "output_depths",
+           "SensorsConditioning", "cancellation", "condition", "condition_terms", "conditioned",
+           "error_growth",
+           "float_tolerance", "growth_of", "lainiotis_matrices", "rounding_depth",
+           "run_growth", "run_roundings", "run_steps", "scaled_condition",
+           "sensors_conditioning", "spread_cancellation", "step_condition", "step_programs",
+           "step_terms", "term_name", "worst_step"]

@@ -55,7 +55,12 @@ from ..options import validate
 from ..pipeline import load_generated
 from ..precision import DOUBLE
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
-from .float_tolerance import FloatTolerance, float_tolerance, sensors_conditioning
+from .float_tolerance import (
+    FloatTolerance,
+    ReferenceRun,
+    float_tolerance,
+    sensors_conditioning,
+)
 from .simulate import gnss_scenario, simulate_linear, simulate_sensors
 
 LINEAR_TOLERANCE = 1e-12
@@ -387,14 +392,17 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
     return out
 
 
-def conditioning_run(model, zs, scenario: NonlinearScenario | None, xs_ref, Ps_ref):
-    """(xs, Ps, us) the float32 tolerance reads the model's conditioning from: the KF's
+def conditioning_run(model, zs, scenario: NonlinearScenario | None, xs_ref, Ps_ref
+                     ) -> ReferenceRun:
+    """The run the float32 tolerance reads the model's conditioning from: the KF's
     reference run on the same measurements for a linear model (every linear filter's P
-    follows it), the filter's own reference for a nonlinear one."""
+    follows it), the filter's own reference for a nonlinear one; from x0, P0 as run."""
     if scenario is not None:
-        return xs_ref, Ps_ref, scenario.us
+        return ReferenceRun(np.asarray(xs_ref), np.asarray(Ps_ref), scenario.us,
+                            scenario.x0, scenario.P0)
     xs, Ps = kind("kf").reference(model, zs, validate("kf", {}))
-    return xs, np.asarray(Ps), None
+    num = model.numeric()
+    return ReferenceRun(np.asarray(xs), np.asarray(Ps), None, num.x0, num.P0)
 
 
 def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,

@@ -18,6 +18,7 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
+from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
     NOTE_PY,
@@ -152,6 +153,7 @@ def reference(model, data, options):
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
     covariance=True, inputs=True, sensors=True, extra_programs=("predict", "update1"),
+    conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
     listing=100,
     about={"python": "Run the extended Kalman filter: h linearised at each prediction."
                      + NOTE_PY,

@@ -27,7 +27,7 @@ from .common import (
     with_fact,
 )
 from .kf import time_varying_program
-from .spec import FilterSpec
+from .spec import NOISE, POSTERIOR, UPDATE, Conditioned, FilterSpec
 from .unit import make_unit
 
 
@@ -97,5 +97,9 @@ def applies(model) -> str | None:
 SPECS = (FilterSpec(
     "ikf", "information-form Kalman filter", "linear", "timevarying", derive_unit, reference,
     covariance=True, missing=True, batch=True, blockwise=True, applies=applies, listing=40,
+    # H^T R^-1 by an LDL^T solve; P(k+1/k) inverted (its residual reaches P_new scaled by
+    # P(k+1/k), as an update's operands), and the information P_new^-1 inverted
+    conditioning=(Conditioned(NOISE, "ldl"), Conditioned(UPDATE, "cancel"),
+                  Conditioned(POSTERIOR, "ldl")),
     about={"python": "Run the information-form Kalman filter.",
            "c": "Run the information-form Kalman filter over steps steps; Ps may be NULL."}),)

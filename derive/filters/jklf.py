@@ -11,7 +11,9 @@ from __future__ import annotations
 from .. import reference as numpy_reference
 from .. import staging
 from .common import MISSING_FACT, with_fact
+from .kf import CONDITIONING as KF_CONDITIONING
 from .kf import kf_update, time_varying_program
+from .lf import CONDITIONING as LF_CONDITIONING
 from .lf import lf_update
 from .spec import FilterSpec
 from .unit import make_unit
@@ -45,7 +47,8 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "jklf", "joint Kalman-Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, blockwise=True, listing=30,
+    covariance=True, missing=True, batch=True, blockwise=True,
+    conditioning=KF_CONDITIONING + LF_CONDITIONING, listing=30,
     about={"python": "Run the joint Kalman-Lainiotis filter: the mean of the KF and LF "
                      "estimates.",
            "c": "Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL."}),)

@@ -47,7 +47,7 @@ from .sensors import (
     sensor_groups,
     uses_sensor_run,
 )
-from .spec import FilterSpec
+from .spec import INNOVATION, UPDATE, Conditioned, FilterSpec
 from .unit import make_sensor_unit, make_unit
 
 
@@ -288,10 +288,14 @@ INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z)
                "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
 
 
+CONDITIONING = (Conditioned(INNOVATION, "ldl"), Conditioned(UPDATE, "cancel"))
+"""What the KF's step factorises and cancels: S, by the LDL^T solve for the gain (never
+P), and the update's subtraction P(k/k-1) - K S K^T."""
+
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
     options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True,
-    sensors=True, blockwise=True, listing=10,
+    sensors=True, blockwise=True, conditioning=CONDITIONING, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",
            "c": "Run the Kalman filter over steps steps; Ps may be NULL."}),)

@@ -28,7 +28,7 @@ from .common import (
     with_fact,
 )
 from .kf import time_varying_program
-from .spec import FilterSpec
+from .spec import LAINIOTIS, NOMINAL, Conditioned, FilterSpec
 from .unit import make_unit
 
 
@@ -89,9 +89,14 @@ def reference(model, zs, options):
     return numpy_reference.lf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
+CONDITIONING = (Conditioned(NOMINAL, "ldl"), Conditioned(LAINIOTIS, "lu"))
+"""What the LF's step factorises: A's matrix (folded offline unless it depends on the
+present measurements or on free symbols) and I + P On (the unrolled LU inverse)."""
+
 SPECS = (FilterSpec(
     "lf", "Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, blockwise=True, listing=20,
+    covariance=True, missing=True, batch=True, blockwise=True, conditioning=CONDITIONING,
+    listing=20,
     about={"python": "Run the Lainiotis filter: the partitioned update with constants "
                      "precomputed offline.",
            "c": "Run the Lainiotis filter over steps steps; Ps may be NULL."}),)

@@ -69,8 +69,9 @@ from .common import (
     time_varying_ports,
     with_fact,
 )
+from .kf import CONDITIONING as KF_CONDITIONING
 from .kf import kf_update, prior
-from .spec import FilterSpec
+from .spec import NEXT_PRIOR, Conditioned, FilterSpec
 from .unit import make_unit
 
 NAME = "rts"
@@ -191,6 +192,8 @@ def reference(model, zs, options):
 SPECS = (FilterSpec(
     NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
     covariance=True, missing=True, listing=95,
+    # the forward KF's S; the backward gain's LDL^T solve with P(k+1/k)
+    conditioning=KF_CONDITIONING + (Conditioned(NEXT_PRIOR, "ldl"),),
     about={"python": "Run the Rauch-Tung-Striebel smoother: a Kalman filter forward, then "
                      "x(k/N) = x(k/k) + C [x(k+1/N) - x(k+1/k)] backward; returns the "
                      "smoothed (xs, Ps).",

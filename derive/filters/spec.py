@@ -15,6 +15,50 @@ from types import MappingProxyType
 from ..emit.unit import LANGUAGES
 from ..options import SharedOptions
 
+#: What a filter's step factorises, solves with, inverts or cancels (its
+#: :attr:`FilterSpec.conditioning`); derive.apps.float_tolerance reads each one's
+#: conditioning from a reference run.
+INNOVATION = "S"
+"""The innovation covariance S = H P(k/k-1) H^T + R (the gain K = P H^T S^-1)."""
+PRIOR = "P(k/k-1)"
+"""The predicted covariance."""
+NEXT_PRIOR = "P(k+1/k)"
+"""The next step's predicted covariance (the RTS smoother's backward gain solves with it
+at output k)."""
+POSTERIOR = "P(k/k)^-1"
+"""The information, the filtered covariance's inverse (the information form inverts it)."""
+NOISE = "R"
+"""The measurement noise covariance (the information form's H^T R^-1)."""
+LAINIOTIS = "I + P On"
+"""The Lainiotis filter's I + P(k-1/k-1) On, On = F^T H^T A H F (its unpivoted LU)."""
+NOMINAL = "H GQG^T H^T + R"
+"""The Lainiotis filter's A^-1: the innovation covariance from P(k/k-1) = G Q G^T."""
+UPDATE = "P(k/k-1) -> P(k/k)"
+"""The update from P(k/k-1) to P(k/k): the standard form's subtraction P(k/k-1) - K (H
+P(k/k-1)), whose result may be far smaller than its operands (the information form's
+inverse of P(k/k-1) reaches P(k/k) as (I - K H) E (I - K H)^T, E of P(k/k-1)'s size)."""
+MATRICES = (INNOVATION, PRIOR, NEXT_PRIOR, POSTERIOR, NOISE, LAINIOTIS, NOMINAL, UPDATE)
+
+#: How: ``ldl``, an LDL^T solve with (or inverse of: one solve per column) a symmetric
+#: positive-definite matrix, whose backward error is componentwise bounded by the
+#: diagonal (so the condition of the diagonally scaled matrix bounds its effect); ``lu``,
+#: an unpivoted LU inverse of a general matrix (the condition of the matrix itself);
+#: ``cancel``, a subtraction (the ratio of its operands to its result).
+METHODS = ("ldl", "lu", "cancel")
+
+
+@dataclass(frozen=True)
+class Conditioned:
+    """One thing a filter's step factorises, solves with, inverts or cancels: ``matrix``
+    (one of :data:`MATRICES`) and ``method`` (one of :data:`METHODS`)."""
+
+    matrix: str
+    method: str
+
+    def __post_init__(self) -> None:
+        if self.matrix not in MATRICES or self.method not in METHODS:
+            raise ValueError(f"unknown conditioning: {self.matrix!r} by {self.method!r}")
+
 
 @dataclass(frozen=True)
 class FilterSpec:
@@ -39,6 +83,10 @@ class FilterSpec:
     with n as a whole (time-varying steps through derive.filters.blockwise unless P0's
     pattern is dense; steady maps from their non-zero constants): what bounds the model
     files it takes (derive.filters.blockwise.whole_states).
+    ``conditioning``: what its step factorises, solves with, inverts or cancels at run
+    time (:class:`Conditioned` s; empty for a filter whose constants are all computed
+    offline in double): the conditioning its float32 tolerance takes
+    (derive.apps.float_tolerance).
     ``extra_programs``: programs besides those of its run kind (ekf/ukf: predict, update1).
     ``derive``: ``derive(model, name, options) -> Unit``.
     ``applies``: ``applies(model) -> None`` or why the filter does not apply (checked after
@@ -64,6 +112,7 @@ class FilterSpec:
     inputs: bool = False
     sensors: bool = False
     blockwise: bool = False
+    conditioning: tuple[Conditioned, ...] = ()
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
     about: Mapping[str, str] = field(default_factory=dict)
@@ -72,6 +121,7 @@ class FilterSpec:
     def __post_init__(self) -> None:
         object.__setattr__(self, "about", MappingProxyType(dict(self.about)))
         object.__setattr__(self, "extra_programs", tuple(self.extra_programs))
+        object.__setattr__(self, "conditioning", tuple(self.conditioning))
 
     def run_about(self, lang: str) -> str:
         """The run function's description in ``lang`` (the title's when none is given)."""
@@ -86,4 +136,6 @@ class FilterSpec:
                 "batch": self.batch and run_tracks, "extra_programs": self.extra_programs}
 
 
-__all__ = ["FilterSpec"]
+__all__ = ["INNOVATION", "LAINIOTIS", "MATRICES", "METHODS", "NEXT_PRIOR", "NOISE", "NOMINAL",
+           "POSTERIOR",
+           "PRIOR", "UPDATE", "Conditioned", "FilterSpec"]

@@ -61,7 +61,7 @@ from .common import (
     pattern_text,
     with_fact,
 )
-from .spec import FilterSpec
+from .spec import INNOVATION, Conditioned, FilterSpec
 from .unit import make_unit
 
 TITLE = "UD (Bierman-Thornton) Kalman filter"
@@ -473,6 +473,10 @@ def reference(model, zs, options):
 SPECS = (FilterSpec(
     "udkf", TITLE, MODEL_KIND, "timevarying", derive_unit, reference,
     options=OPTIONS, covariance=True, missing=True, extra_programs=("enter", "store"),
+    # Bierman's scalar updates divide by the innovation variances (S's LDL^T pivots);
+    # P is only ever factored (enter: its U D U^T, backward stable as LDL^T) and carried as
+    # factors (Thornton's weighted Gram-Schmidt): never inverted, never cancelled
+    conditioning=(Conditioned(INNOVATION, "ldl"),),
     listing=45,
     about={"python": f"Run the {TITLE}: P0 factored as U D U^T, each step on U and D "
                      "(Thornton's time update, Bierman's scalar updates), P = U D U^T "

@@ -32,6 +32,7 @@ from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
+from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
     NOTE_PY,
@@ -246,6 +247,10 @@ def reference(model, data, options):
 SPECS = (FilterSpec(
     "ukf", "unscented Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
     options=UnscentedOptions, covariance=True, inputs=True, extra_programs=("predict", "update1"),
+    # the KF's: Pvv (S) by the LDL^T solve, P - K Pvv K^T; the Cholesky factor of P only
+    # spreads the sigma points: its backward error is a perturbation of P bounded by P's
+    # diagonal (Higham Thm 10.3), which L counts (no condition number)
+    conditioning=CONDITIONING,
     applies=applies, listing=110,
     about={"python": "Run the unscented Kalman filter: sigma points through h." + NOTE_PY,
            "c": "Run the unscented Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)

@@ -9,9 +9,9 @@ Per step k (0-based rows): predict with u(k) and p(k) (skipped at k = 0 with
 (after every update of a present row, applied or not, as the generated update does).
 
 With a ``trace`` list, :func:`run` also records each step's :class:`StepTrace` (the state
-it predicted from, P(k/k-1), and each present sensor's H, S and gain K): what the float32
-tolerance of derive.apps.float_tolerance reads the run's conditioning and error growth
-from.
+it predicted from, P(k/k-1), and each present sensor's H, S, gain K and the P it
+updated): what the float32 tolerance of derive.apps.float_tolerance reads the run's
+conditioning and error growth from.
 """
 
 from __future__ import annotations
@@ -50,13 +50,14 @@ class SensorsResult:
 @dataclass(frozen=True)
 class UpdateTrace:
     """One sensor's update of a step: its H, S = H P H^T + R, the gain K = P H^T S^-1,
-    and whether it was applied (not gated out)."""
+    whether it was applied (not gated out), and the P it started from."""
 
     sensor: str
     H: np.ndarray
     S: np.ndarray
     K: np.ndarray
     applied: bool
+    P: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -126,12 +127,13 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
                 continue
             u = us[k, list(s.columns)]
             H = np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), n)
+            P_before = P
             x, P, nis[s.name][k], S, K, done = _update(
                 x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(), H,
                 np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
                            dtype=float).reshape(len(z), len(z)), s.gate)
             applied[s.name][k] = float(done)
-            updates.append(UpdateTrace(s.name, H, S, K, done))
+            updates.append(UpdateTrace(s.name, H, S, K, done, P_before))
             x = renormalise(x, unit_norm)  # after every update call, applied or not
         xs[k], Ps[k] = x, P
         if trace is not None:
