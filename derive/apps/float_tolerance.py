@@ -29,9 +29,11 @@ NumPy reference on the same data. The bound is
   for a filter that carries P, the largest over the run of cond_2 of the innovation
   covariance S = H P(k/k-1) H^T + R (solved for the gain: K's relative error is
   cond(S) u) and of P(k/k-1) (the information forms invert it); for a sigma-point filter
-  (whose options have ``alpha``) also the cancellation of its spreads, h(sigma_i) - h_mean
-  of magnitude sqrt(H P H^T) computed from values of magnitude |h|: max |h| / sqrt(min
-  diag H P H^T), squared since P_zz multiplies two spreads; 1 for a filter whose constants
+  (whose options have ``alpha``) whose h has a node no rule of the difference form
+  covers (derive.filters.difference: its spread there is g(a') - g(a)) also the
+  cancellation of its spreads, of magnitude sqrt(H P H^T) computed from values of
+  magnitude |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two
+  spreads (the other spreads are computed without it); 1 for a filter whose constants
   are all computed offline in double (sskf, sslf, jssklf, fir, pred).
 * A unit of the run kind ``sensors`` (several sensors at their own rates, gating,
   update-first) has no one closed loop: its G and kappa are read from the trace of its
@@ -48,10 +50,8 @@ NumPy reference on the same data. The bound is
   two routes (x through the recursion, P directly and through the gain), each bounded by
   the first-order gamma_L; second-order terms (L u)^2 are below 1e-4 of it for L < 2000.
 
-A bound at or above 1 says the model cannot be computed meaningfully in float32 (the
-GNSS UKF's pseudoranges of 2e7 m have float32 spacing 2 m, their sigma-point spreads a few
-metres); :attr:`FloatTolerance.meaningful` says so and the verification reports it
-failed.
+A bound at or above 1 says the model cannot be computed meaningfully in float32;
+:attr:`FloatTolerance.meaningful` says so and the verification reports it failed.
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ from ..emit.c_loops import two_step
 from ..emit.unit import Unit
 from ..errors import ModelError
 from ..filters import kind
+from ..filters.difference import difference_form
 from ..filters.sensors import program_name, transition_function
 from ..lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
 from ..precision import FLOAT
@@ -204,13 +205,20 @@ def error_growth(model, name: str, steps: int, run=None) -> float:
     return growth_of(_closed_loop(F, H, Pp, R), steps)
 
 
+def _spreads_cancel(model) -> bool:
+    """Whether a sigma-point filter still forms a spread of h by subtracting values of h's
+    size: only at the nodes h's difference form computes as g(a') - g(a)
+    (derive.filters.difference; the UKF computes every other spread without that)."""
+    return bool(difference_form(model.subs(model.h), model.state_symbols).fallbacks)
+
+
 def condition(model, name: str, run) -> float:
     """kappa (module docstring) from a reference run ``(xs, Ps, us)``."""
     spec = kind(name)
     if not spec.covariance:
         return 1.0
     kappa = 1.0
-    sigma_points = "alpha" in spec.options.specs()
+    sigma_points = "alpha" in spec.options.specs() and _spreads_cancel(model)
     for Pp, _, H, R, h in _predicted(model, *run):
         HPH = H @ Pp @ H.T
         kappa = max(kappa, float(np.linalg.cond(HPH + R)), float(np.linalg.cond(Pp)))
