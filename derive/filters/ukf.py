@@ -10,14 +10,24 @@ with ``L`` the unrolled lower Cholesky factor of P; each pivot is checked at run
 an indefinite P (a negative W0 can make it so) gives a non-zero C status and a Python
 NumericalError, never silent garbage.
 
+Spreads in difference form (:mod:`derive.filters.difference`): the program never forms
+``X_i`` nor subtracts two values of g's size. With ``δ_i = ±sqrt(c) L_i`` it computes
+``g(x)`` once and ``D_i = g(x + δ_i) - g(x)`` per sigma point from g's expression tree,
+in which the large terms cancel exactly before anything is rounded (a pseudorange of
+2e7 m, float32 spacing 2 m, against spreads of metres); then, since ``D_0 = 0`` and
+``Wm0 + 2n Wi = 1``, ``Σ Wm g(X_i) = g(x) + dbar`` with ``dbar = Wi Σ D_i``, and the
+spreads ``g(X_i) - mean`` are ``-dbar`` (i = 0) and ``D_i - dbar``.
+
 predict: for an affine f (F free of the state) the unscented transform is exact, and the
 program computes it as ``f(x)``, ``F P F^T + Q``; otherwise the sigma points of (x, P)
-pass through f, ``x⁻ = Σ Wm f(X_i)``, ``P⁻ = Σ Wc (f(X_i) - x⁻)(·)^T + Q``.
-update: sigma points redrawn from (x⁻, P⁻), ``Y_i = h(X_i, u)``, ``ŷ = Σ Wm Y_i``,
-``Pvv = Σ Wc (Y_i - ŷ)(·)^T + R``, ``Pxy = Σ Wc (X_i - x⁻)(Y_i - ŷ)^T``, which is
-``Wi sqrt(c) L (Y_1..n - Y_n+1..2n)^T`` since ``X_i - x⁻ = ±sqrt(c) L_i``;
-``K = Pxy Pvv⁻¹`` (LDL^T solve), ``x = x⁻ + K (z - ŷ)``, ``P = P⁻ - K Pxy^T``
-(``= P⁻ - K Pvv K^T``).  Programs step, predict, update1 as for the EKF
+pass through f in difference form: ``x⁻ = f(x) + dbar``,
+``P⁻ = Σ Wc (f(X_i) - x⁻)(·)^T + Q`` over those spreads.
+update: sigma points redrawn from (x⁻, P⁻), through h in difference form:
+``ŷ = h(x⁻) + dbar``, ``Pvv = Σ Wc (Y_i - ŷ)(·)^T + R``,
+``Pxy = Σ Wc (X_i - x⁻)(Y_i - ŷ)^T``, which is ``Wi sqrt(c) L (D_1..n - D_n+1..2n)^T``
+since ``X_i - x⁻ = ±sqrt(c) L_i``; ``K = Pxy Pvv⁻¹`` (LDL^T solve),
+``x = x⁻ + K ((z - h(x⁻)) - dbar)``, ``P = P⁻ - K Pxy^T`` (``= P⁻ - K Pvv K^T``).
+Programs step, predict, update1 as for the EKF
 (:func:`derive.filters.nonlinear.nonlinear_programs`).
 """
 
@@ -233,6 +243,23 @@ def ukf_update_stage(model, w: Weights):
     return update
 
 
+def spreads_fact(model, affine: bool) -> str:
+    """The header's line on how the spreads are computed, naming any node of h (or of a
+    non-affine f) whose difference falls back to g(a') - g(a)."""
+    functions = {"h": model.subs(model.h)} if affine else \
+        {"f": model.subs(model.f), "h": model.subs(model.h)}
+    fallbacks = [f"{name}: {node}" for name, values in functions.items()
+                 for node in _differences(model, values).fallbacks]
+    text = (f"spreads: {' and '.join(functions)} in difference form, "
+            f"{'/'.join(functions)}(x + d_i) - {'/'.join(functions)}(x) derived node by node "
+            "so that the large terms cancel before rounding; the sigma points x + d_i are "
+            "never formed")
+    if fallbacks:
+        text += ("; no rule for " + ", ".join(fallbacks)
+                 + ", whose differences are g(a + D[a]) - g(a) (they cancel)")
+    return text
+
+
 def applies(model) -> str | None:
     """The UKF takes inputs in h only: a model whose f uses an input is refused."""
     if model.f_inputs:
@@ -249,9 +276,11 @@ def derive_unit(model, spec, options):
                                          ukf_update_stage(model, w), options,
                                          spec.title)
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
+    affine = _is_affine(model)
     predict = ("predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q"
-               if _is_affine(model) else "predict: sigma points of (x, P) through f")
-    return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict, *facts),
+               if affine else "predict: sigma points of (x, P) through f")
+    return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict,
+                                                    spreads_fact(model, affine), *facts),
                    options={**unit.options, "alpha": float(w.alpha), "beta": float(w.beta),
                             "kappa": float(w.kappa)})
 
