@@ -195,7 +195,7 @@ RULE_CHECKS = {
     rule: (_straight_line(difference_form([g], (X, Y, Z))),
            sympy.lambdify([X, Y, Z, S], g, modules="mpmath"),
            [_lambda(sympy.diff(g, s), [X, Y, Z, S]) for s in (X, Y, Z)])
-    for rule, g in RULES.items()}
+    for rule, g in RULES.items() if rule != "fallback"}  # the fallback cancels, by design
 
 
 @settings(max_examples=40, deadline=None)

@@ -152,8 +152,15 @@ def stage_differences(prog, form: DifferenceForm, subs: dict,
     from :func:`stage_values`)."""
     subs = {**subs, **dict(zip(form.deltas, delta))}
     for sym, expr in form.steps:
-        subs[sym] = prog.let(expr.xreplace(subs), "diff")
-    return sympy.Matrix([prog.let(d.xreplace(subs), "diff") for d in form.differences])
+        subs[sym] = _signed_let(prog, expr.xreplace(subs))
+    return sympy.Matrix([_signed_let(prog, d.xreplace(subs)) for d in form.differences])
+
+
+def _signed_let(prog, expr: sympy.Expr) -> sympy.Expr:
+    """A difference staged as staging stages any entry: one whose terms are all negative
+    (a minus sigma point's ``-δ``) staged positive and returned negated, so the sign folds
+    into the sums that use it instead of costing a negation."""
+    return staging.let_matrix(prog, sympy.Matrix([expr]), hint="diff")[0, 0]
 
 
 def sigma_spreads(prog, form: DifferenceForm, subs: dict, offsets: sympy.Matrix
