@@ -166,11 +166,11 @@ def test_a_float32_library_builds_under_the_conversion_warnings_within_its_toler
 
 def test_a_filter_float32_cannot_carry_gets_no_library(tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["generate", "gnss_pseudorange", "--filter", "ukf", "--precision", "float",
+    assert main(["generate", "ins_gnss", "--filter", "ekf", "--precision", "float",
                  "--layout", "library", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "float32 cannot carry" in err and err.count("\n") == 1
-    assert not (out / "gnss_pseudorange").exists()
+    assert not (out / "ins_gnss").exists()
 
 
 @needs_make
