@@ -33,6 +33,8 @@ from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
 from derive.pipeline import load_units
 from derive.program import ProgramError
+from derive.reference.nonlinear import sigma_points as reference_sigma_points
+from derive.reference.nonlinear import sigma_weights
 
 GNSS = catalog.load("gnss_pseudorange")
 STEPS = 500
@@ -374,7 +376,21 @@ def test_parametrised_update1_equals_stand_ins(parametrised, seed):
             assert np.max(np.abs(g.x - r.x)) <= 1e-6
             assert np.max(np.abs(g.P - r.P)) <= 1e-8 * np.abs(r.P).max()
             assert abs(g.innovation - r.innovation) <= 1e-6
-            assert abs(g.variance - r.variance) <= 1e-10 * r.variance
+            floor = _stand_in_variance_floor(s, xr, Pr, sat) if name == "UKF" else 0.0
+            assert abs(g.variance - r.variance) <= 1e-10 * r.variance + floor
+
+
+def _stand_in_variance_floor(s, x, P, sat) -> float:
+    """How far the NumPy stand-in's UKF variance may be from the exact one: it forms each
+    spread h(X_i) - y_hat from two values of size |h| (ranges up to 4e7 m), each within
+    u |h| of exact, so Σ Wc dy² may be off by 2 Σ |Wc_i| |dy_i| 2 u max|h|. The generated
+    UKF computes the spreads in difference form, without that cancellation (measured
+    against an exact mpmath evaluation: 1e-17 where the stand-in is 6e-10 off)."""
+    c, Wm, Wc = sigma_weights(4, s.alpha, s.beta, -1.0 if s.kappa is None else s.kappa)
+    X = reference_sigma_points(x, P, c, 0)
+    Y = np.linalg.norm(np.asarray(sat) - X[:, :3], axis=1) + X[:, 3]
+    dy = Y - Wm @ Y
+    return 4 * np.finfo(float).eps / 2 * np.abs(Y).max() * float(np.abs(Wc) @ np.abs(dy))
 
 
 def test_generated_filters_drive_like_the_stand_ins(parametrised):

@@ -164,13 +164,37 @@ def test_a_float32_library_builds_under_the_conversion_warnings_within_its_toler
         assert error == pytest.approx(host.error, rel=2e-3)   # the same float32 C, data
 
 
+#: A constant-velocity track whose P0 is 10^8 times R (tests/test_emb_float_verify.py's
+#: ill-conditioned model): the KF's update cancels ~1e6 against ~1e6 to leave ~1e-2,
+#: beyond float32 (spacing 0.06 at 1e6); its bound says so (kappa >= 1e6).
+ILL_CONDITIONED = """\
+[model]
+name = "illcond"
+states = ["s", "v"]
+measurements = ["z"]
+
+[discrete]
+F = [[1, 1], [0, 1]]
+H = [[1, 0]]
+Q = [[1e-6, 0], [0, 1e-6]]
+R = [[1e-2]]
+
+[initial]
+x0 = [0, 0]
+P0 = [[1e6, 0], [0, 1e6]]
+P0_pattern = "dense"
+"""
+
+
 def test_a_filter_float32_cannot_carry_gets_no_library(tmp_path, capsys):
+    model = tmp_path / "illcond.toml"
+    model.write_text(ILL_CONDITIONED, encoding="utf-8")
     out = tmp_path / "out"
-    assert main(["generate", "gnss_pseudorange", "--filter", "ukf", "--precision", "float",
+    assert main(["generate", str(model), "--filter", "kf", "--precision", "float",
                  "--layout", "library", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "float32 cannot carry" in err and err.count("\n") == 1
-    assert not (out / "gnss_pseudorange").exists()
+    assert not (out / "illcond").exists()
 
 
 @needs_make

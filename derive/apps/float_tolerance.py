@@ -48,11 +48,13 @@ NumPy reference on the same data. The bound is
     whose roundings and the solve's error are relative to ||P(k/k-1)||; the information
     form's inverse of P(k/k-1), whose residual reaches P(k/k) as (I - K H) E (I - K H)^T):
     max(||P(k/k-1)||_inf, 1) / max(||P(k/k)||_inf, 1), at least 1 (:func:`cancellation`);
-  - a sigma-point filter (whose options have ``alpha``) also has the cancellation of its
-    spreads, h(sigma_i) - h_mean of magnitude sqrt(H P H^T) computed from values of
-    magnitude |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two
-    spreads (:func:`spread_cancellation`, kept apart: it describes how the UKF's update
-    forms its spreads); kappa is the larger of the two.
+  - a sigma-point filter (whose options have ``alpha``) whose h has a node no rule of the
+    difference form covers (derive.filters.difference: its spread there is computed as
+    g(a') - g(a)) also has the cancellation of its spreads, of magnitude sqrt(H P H^T)
+    computed from values of magnitude |h|: max |h| / sqrt(min diag H P H^T), squared
+    since P_zz multiplies two spreads (:func:`spread_cancellation`, kept apart: it
+    describes how the UKF's update forms its spreads; every other spread is computed
+    without it); kappa is the larger of the two.
 
   A filter that never inverts or cancels P pays nothing for P's conditioning: the KF and
   EKF solve only S (cond P(1/0) = 2.25e6 for the INS/GNSS EKF, whose kappa is 2.5), the
@@ -76,10 +78,8 @@ NumPy reference on the same data. The bound is
   two routes (x through the recursion, P directly and through the gain), each bounded by
   the first-order gamma_L; second-order terms (L u)^2 are below 1e-4 of it for L < 2000.
 
-A bound at or above 1 says the model cannot be computed meaningfully in float32 (the
-GNSS UKF's pseudoranges of 2e7 m have float32 spacing 2 m, their sigma-point spreads a few
-metres); :attr:`FloatTolerance.meaningful` says so and the verification reports it
-failed.
+A bound at or above 1 says the model cannot be computed meaningfully in float32;
+:attr:`FloatTolerance.meaningful` says so and the verification reports it failed.
 """
 
 from __future__ import annotations
@@ -94,6 +94,7 @@ from ..emit.c_loops import two_step
 from ..emit.unit import Unit
 from ..errors import ModelError
 from ..filters import kind
+from ..filters.difference import difference_form
 from ..filters.sensors import program_name, transition_function
 from ..filters.spec import (
     INNOVATION,
@@ -421,13 +422,21 @@ def lainiotis_matrices(model) -> tuple[np.ndarray, np.ndarray]:
     return HF.T @ np.linalg.solve(nominal, HF), nominal
 
 
+def spreads_cancel(model) -> bool:
+    """Whether a sigma-point filter still forms a spread of h by subtracting values of h's
+    size: only at the nodes h's difference form computes as g(a') - g(a)
+    (derive.filters.difference; the UKF computes every other spread without that)."""
+    return bool(difference_form(model.subs(model.h), model.state_symbols).fallbacks)
+
+
 def spread_cancellation(model, spec: FilterSpec, run: ReferenceRun) -> float:
     """A sigma-point filter's (whose options have ``alpha``) cancellation of its spreads:
     h(sigma_i) - h_mean, of magnitude sqrt(H P H^T), is computed from values of magnitude
     |h|: max |h| / sqrt(min diag H P H^T), squared since P_zz multiplies two spreads; 1 for
-    any other filter. (Kept apart from the factorisations: it describes how the UKF's
-    generated update forms its spreads, and changes with it.)"""
-    if "alpha" not in spec.options.specs():
+    any other filter, and for one whose h's difference form has a rule for every node
+    (:func:`spreads_cancel`). (Kept apart from the factorisations: it describes how the
+    UKF's generated update forms its spreads, and changes with it.)"""
+    if "alpha" not in spec.options.specs() or not spreads_cancel(model):
         return 1.0
     worst = 1.0
     for Pp, _, H, _, h in _predicted(model, run.xs, run.Ps, run.us):

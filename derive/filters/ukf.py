@@ -10,20 +10,31 @@ with ``L`` the unrolled lower Cholesky factor of P; each pivot is checked at run
 an indefinite P (a negative W0 can make it so) gives a non-zero C status and a Python
 NumericalError, never silent garbage.
 
+Spreads in difference form (:mod:`derive.filters.difference`): the program never forms
+``X_i`` nor subtracts two values of g's size. With ``δ_i = ±sqrt(c) L_i`` it computes
+``g(x)`` once and ``D_i = g(x + δ_i) - g(x)`` per sigma point from g's expression tree,
+in which the large terms cancel exactly before anything is rounded (a pseudorange of
+2e7 m, float32 spacing 2 m, against spreads of metres); then, since ``D_0 = 0`` and
+``Wm0 + 2n Wi = 1``, ``Σ Wm g(X_i) = g(x) + dbar`` with ``dbar = Wi Σ D_i``, and the
+spreads ``g(X_i) - mean`` are ``-dbar`` (i = 0) and ``D_i - dbar``.
+
 predict: for an affine f (F free of the state) the unscented transform is exact, and the
 program computes it as ``f(x)``, ``F P F^T + Q``; otherwise the sigma points of (x, P)
-pass through f, ``x⁻ = Σ Wm f(X_i)``, ``P⁻ = Σ Wc (f(X_i) - x⁻)(·)^T + Q``.
-update: sigma points redrawn from (x⁻, P⁻), ``Y_i = h(X_i, u)``, ``ŷ = Σ Wm Y_i``,
-``Pvv = Σ Wc (Y_i - ŷ)(·)^T + R``, ``Pxy = Σ Wc (X_i - x⁻)(Y_i - ŷ)^T``, which is
-``Wi sqrt(c) L (Y_1..n - Y_n+1..2n)^T`` since ``X_i - x⁻ = ±sqrt(c) L_i``;
-``K = Pxy Pvv⁻¹`` (LDL^T solve), ``x = x⁻ + K (z - ŷ)``, ``P = P⁻ - K Pxy^T``
-(``= P⁻ - K Pvv K^T``).  Programs step, predict, update1 as for the EKF
+pass through f in difference form: ``x⁻ = f(x) + dbar``,
+``P⁻ = Σ Wc (f(X_i) - x⁻)(·)^T + Q`` over those spreads.
+update: sigma points redrawn from (x⁻, P⁻), through h in difference form:
+``ŷ = h(x⁻) + dbar``, ``Pvv = Σ Wc (Y_i - ŷ)(·)^T + R``,
+``Pxy = Σ Wc (X_i - x⁻)(Y_i - ŷ)^T``, which is ``Wi sqrt(c) L (D_1..n - D_n+1..2n)^T``
+since ``X_i - x⁻ = ±sqrt(c) L_i``; ``K = Pxy Pvv⁻¹`` (LDL^T solve),
+``x = x⁻ + K ((z - h(x⁻)) - dbar)``, ``P = P⁻ - K Pxy^T`` (``= P⁻ - K Pvv K^T``).
+Programs step, predict, update1 as for the EKF
 (:func:`derive.filters.nonlinear.nonlinear_programs`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import sympy
@@ -32,12 +43,12 @@ from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
+from .difference import DifferenceForm, difference_form
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
     NOTE_PY,
     check_nonlinear,
-    linearise,
     nonlinear_programs,
     stage_linearisation,
     state_jacobian,
@@ -123,21 +134,55 @@ def sigma_offsets(prog, P: sympy.Matrix, w: Weights) -> sympy.Matrix:
     return staging.scale(prog, L, sympy.sqrt(w.c))
 
 
-def sigma_points(prog, x: sympy.Matrix, offsets: sympy.Matrix) -> list[sympy.Matrix]:
-    n = x.rows
-    plus = [staging.add(prog, x, offsets[:, j]) for j in range(n)]
-    minus = [staging.sub(prog, x, offsets[:, j]) for j in range(n)]
-    return [x] + plus + minus
+def _differences(model, values) -> DifferenceForm:
+    return difference_form(list(values), model.state_symbols)
 
 
-def _weighted_mean(prog, points: list[sympy.Matrix], w: Weights) -> sympy.Matrix:
-    """``Wm0 p0 + Wi Σ_{i>0} p_i`` (the sum staged before it is scaled)."""
-    rows = points[0].rows
-    out = sympy.zeros(rows, 1)
-    for r in range(rows):
-        total = prog.let(sympy.Add(*[p[r, 0] for p in points[1:]]), "sum")
-        out[r, 0] = prog.let(w.wm0 * points[0][r, 0] + w.wi * total, "mean")
-    return out
+def stage_values(prog, form: DifferenceForm, mapping: Mapping) -> tuple[sympy.Matrix, dict]:
+    """g(x) staged once (``mapping``: the model's symbols -> program atoms), and the
+    mapping extended by the base symbols the differences read."""
+    subs = dict(mapping)
+    for sym, expr in form.base:
+        subs[sym] = prog.let(expr.xreplace(subs), "at_x")
+    return sympy.Matrix([prog.let(v.xreplace(subs), "at_x") for v in form.values]), subs
+
+
+def stage_differences(prog, form: DifferenceForm, subs: dict,
+                      delta: Sequence[sympy.Expr]) -> sympy.Matrix:
+    """D = g(x + delta) - g(x) staged for one sigma-point offset ``delta`` (``subs``:
+    from :func:`stage_values`)."""
+    subs = {**subs, **dict(zip(form.deltas, delta))}
+    for sym, expr in form.steps:
+        subs[sym] = _signed_let(prog, expr.xreplace(subs))
+    return sympy.Matrix([_signed_let(prog, d.xreplace(subs)) for d in form.differences])
+
+
+def _signed_let(prog, expr: sympy.Expr) -> sympy.Expr:
+    """A difference staged as staging stages any entry: one whose terms are all negative
+    (a minus sigma point's ``-δ``) staged positive and returned negated, so the sign folds
+    into the sums that use it instead of costing a negation."""
+    return staging.let_matrix(prog, sympy.Matrix([expr]), hint="diff")[0, 0]
+
+
+def sigma_spreads(prog, form: DifferenceForm, subs: dict, offsets: sympy.Matrix
+                  ) -> list[sympy.Matrix]:
+    """D_i = g(x ± offsets_i) - g(x) for the 2n sigma points after X_0 = x, in the order
+    X_1..X_n (+), X_n+1..X_2n (-): the sigma points themselves are never formed."""
+    n = offsets.cols
+    plus = [stage_differences(prog, form, subs, list(offsets[:, j])) for j in range(n)]
+    minus = [stage_differences(prog, form, subs, [-e for e in offsets[:, j]])
+             for j in range(n)]
+    return plus + minus
+
+
+def _mean_and_spreads(prog, values: sympy.Matrix, D: list[sympy.Matrix], w: Weights):
+    """(the mean offset dbar = Wi Σ D_i, the spreads Y_i - mean of all 2n + 1 points):
+    Σ Wm Y_i = g(x) + dbar since Wm0 + 2n Wi = 1 and D_0 = 0; the spreads are
+    -dbar (X_0) and D_i - dbar."""
+    rows = values.rows
+    dbar = sympy.Matrix([prog.let(w.wi * prog.let(sympy.Add(*[d[r, 0] for d in D]), "sum"),
+                                  "mean") for r in range(rows)])
+    return dbar, [-dbar] + [staging.sub(prog, d, dbar) for d in D]
 
 
 def _weighted_covariance(prog, D: list[sympy.Matrix], w: Weights, add) -> sympy.Matrix:
@@ -153,60 +198,74 @@ def _weighted_covariance(prog, D: list[sympy.Matrix], w: Weights, add) -> sympy.
 
 
 def ukf_predict_stage(model, w: Weights):
-    """Exact linear propagation for an affine f, else the unscented transform through f."""
+    """Exact linear propagation for an affine f, else the unscented transform through f
+    in difference form: x⁻ = f(x) + dbar, spreads f(X_i) - x⁻ = D_i - dbar."""
     lin = state_jacobian(model)
     affine = _is_affine(model)
-    lin_f = lin if affine else linearise(model.subs(model.f), model.state_symbols,
-                                         with_jacobian=False)
+    form = None if affine else _differences(model, model.subs(model.f))
 
     def predict(prog, mapping, x, P):
         Q = sympy.Matrix(model.subs(model.Q)).xreplace(mapping)
+        at_x = {**mapping, **state_mapping(model, x)}
         if affine:
-            at_x = {**mapping, **state_mapping(model, x)}
-            values, F = stage_linearisation(prog, lin_f, at_x, "f")
+            values, F = stage_linearisation(prog, lin, at_x, "f")
             FP = staging.matmul(prog, F, P)
             Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), Q,
                              symmetric_result=True)
             return values, Pp
-        points = sigma_points(prog, x, sigma_offsets(prog, P, w))
-        moved = [stage_linearisation(prog, lin_f, {**mapping, **state_mapping(model, X)},
-                                     "f")[0] for X in points]
-        xp = _weighted_mean(prog, moved, w)
-        D = [staging.sub(prog, Xf, xp) for Xf in moved]
-        return xp, _weighted_covariance(prog, D, w, Q)
+        values, subs = stage_values(prog, form, at_x)
+        D = sigma_spreads(prog, form, subs, sigma_offsets(prog, P, w))
+        dbar, spreads = _mean_and_spreads(prog, values, D, w)
+        return staging.add(prog, values, dbar), _weighted_covariance(prog, spreads, w, Q)
 
     return predict
 
 
 def ukf_update_stage(model, w: Weights):
-    """Sigma points of (x⁻, P⁻) through h; Pvv, Pxy, the gain and the update."""
-    cache: dict[tuple, object] = {}
+    """Sigma points of (x⁻, P⁻) through h in difference form; Pvv, Pxy, the gain and the
+    update."""
+    cache: dict[tuple, DifferenceForm] = {}
 
     def update(prog, mapping, meas, x, P, z):
         key = tuple(sympy.srepr(e) for e in meas.h)
         if key not in cache:
-            cache[key] = linearise(meas.h, model.state_symbols, with_jacobian=False)
-        lin_h = cache[key]
+            cache[key] = _differences(model, meas.h)
+        form = cache[key]
         n = x.rows
         offsets = sigma_offsets(prog, P, w)
-        points = sigma_points(prog, x, offsets)
-        Y = [stage_linearisation(prog, lin_h, {**mapping, **state_mapping(model, X)},
-                                 "h")[0] for X in points]
-        y_hat = _weighted_mean(prog, Y, w)
-        DY = [staging.sub(prog, y, y_hat) for y in Y]
+        h_x, subs = stage_values(prog, form, {**mapping, **state_mapping(model, x)})
+        D = sigma_spreads(prog, form, subs, offsets)
+        dbar, spreads = _mean_and_spreads(prog, h_x, D, w)
         R = meas.R.xreplace(mapping)
-        Pvv = _weighted_covariance(prog, DY, w, R)
-        k = y_hat.rows
-        E = sympy.Matrix(n, k, lambda j, b: prog.let(Y[1 + j][b, 0] - Y[1 + n + j][b, 0], "dy"))
+        Pvv = _weighted_covariance(prog, spreads, w, R)
+        k = h_x.rows
+        E = sympy.Matrix(n, k, lambda j, b: prog.let(D[j][b, 0] - D[n + j][b, 0], "dy"))
         Pxy = staging.scale(prog, staging.matmul(prog, offsets, E), w.wi)
         K = staging.transpose(staging.spd_solve(prog, Pvv, staging.transpose(Pxy), name="Pvv"))
-        innovation = staging.sub(prog, z, y_hat)
+        innovation = staging.sub(prog, staging.sub(prog, z, h_x), dbar)
         x_new = staging.add(prog, x, staging.matmul(prog, K, innovation))
         KPxy = staging.matmul(prog, K, staging.transpose(Pxy), symmetric_result=True)
         P_new = staging.sub(prog, P, KPxy, symmetric_result=True)
         return x_new, P_new, innovation, Pvv
 
     return update
+
+
+def spreads_fact(model, affine: bool) -> str:
+    """The header's line on how the spreads are computed, naming any node of h (or of a
+    non-affine f) whose difference falls back to g(a') - g(a)."""
+    functions = {"h": model.subs(model.h)} if affine else \
+        {"f": model.subs(model.f), "h": model.subs(model.h)}
+    fallbacks = [f"{name}: {node}" for name, values in functions.items()
+                 for node in _differences(model, values).fallbacks]
+    text = (f"spreads: {' and '.join(functions)} in difference form, "
+            f"{'/'.join(functions)}(x + d_i) - {'/'.join(functions)}(x) derived node by node "
+            "so that the large terms cancel before rounding; the sigma points x + d_i are "
+            "never formed")
+    if fallbacks:
+        text += ("; no rule for " + ", ".join(fallbacks)
+                 + ", whose differences are g(a + D[a]) - g(a) (they cancel)")
+    return text
 
 
 def applies(model) -> str | None:
@@ -225,9 +284,11 @@ def derive_unit(model, spec, options):
                                          ukf_update_stage(model, w), options,
                                          spec.title)
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
+    affine = _is_affine(model)
     predict = ("predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q"
-               if _is_affine(model) else "predict: sigma points of (x, P) through f")
-    return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict, *facts),
+               if affine else "predict: sigma points of (x, P) through f")
+    return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict,
+                                                    spreads_fact(model, affine), *facts),
                    options={**unit.options, "alpha": float(w.alpha), "beta": float(w.beta),
                             "kappa": float(w.kappa)})
 
@@ -255,5 +316,5 @@ SPECS = (FilterSpec(
     about={"python": "Run the unscented Kalman filter: sigma points through h." + NOTE_PY,
            "c": "Run the unscented Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
 
-__all__ = ["SPECS", "Weights", "derive_unit", "sigma_offsets", "sigma_points", "ukf_predict_stage",
-           "ukf_update_stage", "weights"]
+__all__ = ["SPECS", "Weights", "derive_unit", "sigma_offsets", "sigma_spreads", "stage_differences",
+           "stage_values", "ukf_predict_stage", "ukf_update_stage", "weights"]
