@@ -59,8 +59,10 @@ def test_floor_is_the_slowest_pipe_bound(rates):
     assert t.floor_text(count).startswith(f"{t.floor_seconds(count) * 1e9:.0f} ns (11 mul+fma")
 
 
-def _timing(seconds: float) -> Timing:
-    return Timing(seconds, seconds, seconds, 1, 1)
+def _timing(fastest: float) -> Timing:
+    """A timing whose fastest repeat is ``fastest`` and whose median is a quarter slower
+    (a loaded machine)."""
+    return Timing(1.25 * fastest, fastest, 1.5 * fastest, 1, 3)
 
 
 def _result(base: float, peers: dict[str, float], t: Throughput | None) -> NavigationResult:
@@ -68,8 +70,8 @@ def _result(base: float, peers: dict[str, float], t: Throughput | None) -> Navig
     for function in TIMED:
         result.counts.append(CountRow(function, _count(), None, None))
         result.times.append(TimeRow(function, "generated C", _timing(base), 1.0, None))
-        for peer, seconds in peers.items():
-            result.times.append(TimeRow(function, peer, _timing(seconds), seconds / base,
+        for peer, fastest in peers.items():
+            result.times.append(TimeRow(function, peer, _timing(fastest), fastest / base,
                                         None))
     return result
 
@@ -77,9 +79,10 @@ def _result(base: float, peers: dict[str, float], t: Throughput | None) -> Navig
 def test_bars_carry_the_need_and_the_floor():
     t = Throughput(1e-9, 1e-9, 0.5e-9)
     floor = t.floor_seconds(_count())
-    # FilterPy's bar needs a time below the floor, CasADi's one above it
+    # FilterPy's bar needs a time below the floor, CasADi's one above it; from the fastest
+    # repeats: the medians, a quarter slower, would put FilterPy's need above the floor
     filterpy_ratio, casadi_ratio = dict(PEER_BARS)["FilterPy"], dict(PEER_BARS)["CasADi C"]
-    peers = {"FilterPy": 0.5 * floor * filterpy_ratio, "CasADi C": 3.0 * floor * casadi_ratio}
+    peers = {"FilterPy": 0.9 * floor * filterpy_ratio, "CasADi C": 3.0 * floor * casadi_ratio}
     result = _result(5 * floor, peers, t)
     bars = {b.claim: b for b in result.bars(Bar)}
     for function in TIMED:
@@ -87,7 +90,7 @@ def test_bars_carry_the_need_and_the_floor():
         below = bars[f"generated C ins_gnss {function} faster per call than FilterPy"]
         above = bars[f"generated C ins_gnss {function} faster per call than CasADi C"]
         assert result.needed_seconds(function, "FilterPy", filterpy_ratio) == pytest.approx(
-            0.5 * floor, rel=1e-15)
+            0.9 * floor, rel=1e-15)
         assert "out of reach of scalar code" in below.note
         assert "out of reach" not in above.note and "floor of scalar code" in above.note
     lines = result.decisive_lines()

@@ -12,11 +12,12 @@
   same loop and FilterPy's ExtendedKalmanFilter doing the same step in Python
   (derive.apps.ins.filterpy_ekf). Each implementation's first call is checked against the
   NumPy reference (derive.apps.ins.reference).
-- What decides the per-call bars: the time each bar needs (the peer's time over the bar's
-  ratio) beside the floor of scalar code with the function's operation count on this
-  machine, from its scalar throughput measured in the same run
-  (derive.apps.bench.throughput). A bar whose need is below that floor is out of reach of
-  scalar code with that count.
+- What decides the per-call bars: the time each bar needs (the peer's fastest repeat over
+  the bar's ratio: best case against best case, so that load on a shared machine, which
+  inflates the medians, does not hide it) beside the floor of scalar code with the
+  function's operation count on this machine, from its scalar throughput measured in the
+  same run (derive.apps.bench.throughput). A bar whose need is below that floor is out of
+  reach of scalar code with that count.
 
 The state, covariance and inputs of the timed calls are those of the seeded flight at its
 GNSS epoch 20 s in (the filter converged, P realistic).
@@ -101,11 +102,11 @@ class NavigationResult:
 
     def needed_seconds(self, function: str, peer: str, ratio: float) -> float | None:
         """The time per call of the generated C that makes it ``ratio`` times faster than
-        ``peer`` (the peer's time measured in this run over the ratio)."""
+        ``peer``: the peer's fastest repeat in this run over the ratio."""
         row = self.time_row(function, peer)
         if row is None or row.timing is None:
             return None
-        return row.timing.median / ratio
+        return row.timing.low / ratio
 
     def decisive_lines(self) -> list[str]:
         """Per timed function: what each per-call bar needs, against the floor."""
@@ -120,7 +121,7 @@ class NavigationResult:
                      else self.throughput.floor_text(count))
             out.append(f"{function}: generated C "
                        + ("n/a" if base is None or base.timing is None
-                          else human(base.timing.median))
+                          else f"{human(base.timing.low)} (fastest repeat)")
                        + f"; needs {', '.join(needs) or 'n/a'}; floor of scalar code with its "
                        f"count here {floor}")
         return out
@@ -176,8 +177,8 @@ class NavigationResult:
         floor = self.floor_seconds(function)
         if need is None or floor is None:
             return ""
-        note = (f"needs <= {human(need)} per call; floor of scalar code with its count here "
-                f"{human(floor)}")
+        note = (f"needs <= {human(need)} per call ({peer}'s fastest repeat / {ratio:g}); floor "
+                f"of scalar code with its count here {human(floor)}")
         if need < floor:
             note += " (the need is below the floor: out of reach of scalar code with this count)"
         return note
