@@ -12,6 +12,12 @@
   same loop and FilterPy's ExtendedKalmanFilter doing the same step in Python
   (derive.apps.ins.filterpy_ekf). Each implementation's first call is checked against the
   NumPy reference (derive.apps.ins.reference).
+- What decides the per-call bars: the time each bar needs (the peer's fastest repeat over
+  the bar's ratio: best case against best case, so that load on a shared machine, which
+  inflates the medians, does not hide it) beside the floor of scalar code with the
+  function's operation count on this machine, from its scalar throughput measured in the
+  same run (derive.apps.bench.throughput). A bar whose need is below that floor is out of
+  reach of scalar code with that count.
 
 The state, covariance and inputs of the timed calls are those of the seeded flight at its
 GNSS epoch 20 s in (the filter converged, P realistic).
@@ -33,6 +39,7 @@ from ...interface import read as read_interface
 from ..ins import c_loop, casadi_ekf, filterpy_ekf, flight, reference, symforce_ekf
 from . import casadi_c, generated
 from .cases import Skip
+from .throughput import Throughput, measure_throughput
 from .timing import Timing, human, measure
 
 MODEL = "ins_gnss"
@@ -42,6 +49,8 @@ GENERATION_BAR = 2.0
 FILTERPY_BAR = 300.0
 CASADI_BAR = 2.0
 EPOCH_SECONDS = 20.0
+PEER_BARS = (("FilterPy", FILTERPY_BAR), ("CasADi C", CASADI_BAR))
+"""The per-call bars: (peer, how many times faster the generated C must be)."""
 
 
 @dataclass(frozen=True)
@@ -74,11 +83,48 @@ class NavigationResult:
     symforce_seconds: float | None = None
     counts: list[CountRow] = field(default_factory=list)
     times: list[TimeRow] = field(default_factory=list)
+    throughput: Throughput | None = None   # this machine's scalar throughput, same run
     notes: list[str] = field(default_factory=list)
 
     def time_row(self, function: str, implementation: str) -> TimeRow | None:
         return next((r for r in self.times if r.function == function
                      and r.implementation == implementation), None)
+
+    def count(self, function: str) -> OpCount | None:
+        return next((r.derive for r in self.counts if r.function == function), None)
+
+    def floor_seconds(self, function: str) -> float | None:
+        """The floor of scalar code with ``function``'s count here (None unmeasured)."""
+        count = self.count(function)
+        if self.throughput is None or count is None:
+            return None
+        return self.throughput.floor_seconds(count)
+
+    def needed_seconds(self, function: str, peer: str, ratio: float) -> float | None:
+        """The time per call of the generated C that makes it ``ratio`` times faster than
+        ``peer``: the peer's fastest repeat in this run over the ratio."""
+        row = self.time_row(function, peer)
+        if row is None or row.timing is None:
+            return None
+        return row.timing.low / ratio
+
+    def decisive_lines(self) -> list[str]:
+        """Per timed function: what each per-call bar needs, against the floor."""
+        out = []
+        for function in TIMED:
+            base = self.time_row(function, "generated C")
+            needs = [f"<= {human(need)} for {ratio:g}x {peer} ({human(need * ratio)} / "
+                     f"{ratio:g})" for peer, ratio in PEER_BARS
+                     if (need := self.needed_seconds(function, peer, ratio)) is not None]
+            count = self.count(function)
+            floor = ("n/a" if self.throughput is None or count is None
+                     else self.throughput.floor_text(count))
+            out.append(f"{function}: generated C "
+                       + ("n/a" if base is None or base.timing is None
+                          else f"{human(base.timing.low)} (fastest repeat)")
+                       + f"; needs {', '.join(needs) or 'n/a'}; floor of scalar code with its "
+                       f"count here {floor}")
+        return out
 
     def lines(self) -> list[str]:
         out = [f"navigation: {MODEL} EKF (SPEC §8, 16 states, inputs in f, sensors gnss and "
@@ -103,6 +149,7 @@ class NavigationResult:
                          "" if r.ratio is None else f"{r.ratio:,.1f}x",
                          "" if r.agreement is None else f"{r.agreement:.1e}", r.note))
         out += _columns(head, body)
+        out += [""] + self.decisive_lines()
         out += [f"note: {n}" for n in self.notes]
         return out
 
@@ -118,12 +165,23 @@ class NavigationResult:
                                     f"derive {r.derive.flops}, SymForce {r.symforce.flops} "
                                     f"(its own Total ops {r.symforce_total})"))
         for function in TIMED:
-            for peer, need in (("FilterPy", FILTERPY_BAR), ("CasADi C", CASADI_BAR)):
+            for peer, need in PEER_BARS:
                 row = self.time_row(function, peer)
                 out.append(bar_type(f"generated C {MODEL} {function} faster per call than "
                                     f"{peer}", None if row is None else row.ratio, need,
-                                    "ratio"))
+                                    "ratio", self._bar_note(function, peer, need)))
         return out
+
+    def _bar_note(self, function: str, peer: str, ratio: float) -> str:
+        need = self.needed_seconds(function, peer, ratio)
+        floor = self.floor_seconds(function)
+        if need is None or floor is None:
+            return ""
+        note = (f"needs <= {human(need)} per call ({peer}'s fastest repeat / {ratio:g}); floor "
+                f"of scalar code with its count here {human(floor)}")
+        if need < floor:
+            note += " (the need is below the floor: out of reach of scalar code with this count)"
+        return note
 
     def as_json(self) -> dict:
         return {"generation_seconds": self.generation_seconds,
@@ -136,6 +194,8 @@ class NavigationResult:
                            "median": r.timing.median if r.timing else None,
                            "ratio": r.ratio, "agreement": r.agreement, "note": r.note}
                           for r in self.times],
+                "throughput": None if self.throughput is None else self.throughput.__dict__,
+                "floors": {f: self.floor_seconds(f) for f in TIMED},
                 "notes": self.notes}
 
 
@@ -251,6 +311,11 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
         casadi_loops = _casadi(workdir)
     except Skip as exc:
         casadi_loops, casadi_note = None, f"skipped: {exc}"
+    tick("navigation: this machine's scalar throughput")
+    try:
+        result.throughput = measure_throughput(generated.CFLAGS, repeats)
+    except Exception as exc:  # no compiler or cffi failure: the floors are left out
+        result.notes.append(f"scalar throughput not measured: {str(exc).splitlines()[0][:200]}")
     p = np.array([point.dt])
     for name in TIMED:
         expected = _expected(point, name)
