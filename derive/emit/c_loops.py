@@ -414,8 +414,8 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
                    for s in optional_stores])
     for a in streamed:
         a["lines"] = f"{a['array']}_lines"
-    track_step = " + ".join(f"({a['array']} ? {a['size']} : 0)" if a["optional"]
-                            else str(a["size"]) for a in streamed) or "0"
+    track_step = " + ".join(f"({a['array']} ? {a['size']}u : 0u)" if a["optional"]
+                            else f"{a['size']}u" for a in streamed) or "0u"
 
     def prefetch(row: str) -> list[dict]:
         """The rows AHEAD steps after ``row`` of the per-step inputs (read) and the stored

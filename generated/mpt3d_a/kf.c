@@ -480,7 +480,7 @@ int mpt3d_a_kf_run_tracks(size_t steps, size_t tracks, const double *z, const do
     /* a block's tracks are contiguous in each array: while one block runs, the next one's
      * cache lines are prefetched, a share each step, when they fit DERIVE_AHEAD_BYTES;
      * else (and for the first block) each lane's rows 8 steps on */
-    const int next_fits = steps * DERIVE_LANES * sizeof(double) * (3 + 6 + (Ps ? 36 : 0)) <= DERIVE_AHEAD_BYTES;
+    const int next_fits = steps * DERIVE_LANES * sizeof(double) * (3u + 6u + (Ps ? 36u : 0u)) <= DERIVE_AHEAD_BYTES;
     const size_t z_lines = (DERIVE_LANES * steps * 3 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
     const size_t xs_lines = (DERIVE_LANES * steps * 6 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
     const size_t Ps_lines = (DERIVE_LANES * steps * 36 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;

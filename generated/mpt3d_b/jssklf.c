@@ -145,7 +145,7 @@ void mpt3d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
     /* a block's tracks are contiguous in each array: while one block runs, the next one's
      * cache lines are prefetched, a share each step, when they fit DERIVE_AHEAD_BYTES;
      * else (and for the first block) each lane's rows 8 steps on */
-    const int next_fits = steps * DERIVE_LANES * sizeof(double) * (1 + 2) <= DERIVE_AHEAD_BYTES;
+    const int next_fits = steps * DERIVE_LANES * sizeof(double) * (1u + 2u) <= DERIVE_AHEAD_BYTES;
     const size_t z_lines = (DERIVE_LANES * steps * 1 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
     const size_t xs_lines = (DERIVE_LANES * steps * 2 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
     for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
