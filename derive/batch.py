@@ -158,6 +158,10 @@ def _is_dask(array) -> bool:
 TRACK_MULTIPLE = 64
 #: The alignment of the outputs run_tracks allocates, bytes (a cache line).
 ALIGNMENT = 64
+#: Slices of tracks per thread when there are enough tracks (each at least
+#: TRACK_MULTIPLE): the threads take them in turn, so a thread whose core is shared with
+#: another job does less of the batch instead of the others waiting for it.
+SLICES_PER_WORKER = 8
 
 
 def split(tracks: int, parts: int, multiple: int = 1) -> list[tuple[int, int]]:
@@ -245,8 +249,9 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
     filter starts from a covariance; ``p``: the free parameters, one row or one row per
     step, shared by every track (as the C takes them).
 
-    NumPy inputs: the tracks are split into ``workers`` (default: the usable cores)
-    contiguous slices run in threads; returns ``xs`` (tracks, steps, n) and, for a filter
+    NumPy inputs: the tracks are split into contiguous slices (``workers`` of them, or
+    :data:`SLICES_PER_WORKER` times as many for a large batch) run by ``workers`` threads
+    (default: the usable cores); returns ``xs`` (tracks, steps, n) and, for a filter
     with P0, ``(xs, Ps)`` with Ps (tracks, steps, n, n) or None when ``with_covariance``
     is False. A Dask ``zs`` (chunked along the track axis; ``x0s``, ``P0s`` NumPy or Dask)
     returns the same as lazy Dask arrays, one task per chunk of tracks; ``workers`` is
@@ -302,11 +307,13 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
             note = f" (its track numbers count from {start})" if "(track " in str(exc) else ""
             raise type(exc)(f"tracks {start} to {stop - 1}{note}: {exc}") from None
 
-    slices = split(tracks, workers, TRACK_MULTIPLE)
+    many = workers * SLICES_PER_WORKER
+    slices = split(tracks, many if tracks >= many * TRACK_MULTIPLE else workers,
+                   TRACK_MULTIPLE)
     if len(slices) == 1:
         one(*slices[0])
     elif slices:
-        with ThreadPoolExecutor(max_workers=len(slices)) as pool:
+        with ThreadPoolExecutor(max_workers=min(workers, len(slices))) as pool:
             for future in [pool.submit(one, a, b) for a, b in slices]:
                 future.result()
     return xs if P0s is None else (xs, Ps)

@@ -282,3 +282,30 @@ def test_the_limits_are_measured_on_as_many_threads(kf):
         assert copy_bandwidth(megabytes=4, repeats=1, threads=threads) > 0
         assert scaling.compute_ceiling(module, start.x0, start.P0, 5, threads, 1,
                                        work=10_000) > 0
+
+
+@needs_gcc
+def test_a_large_batch_is_cut_into_more_slices_than_threads_taken_in_turn(kf, monkeypatch):
+    _, module = kf
+    workers = 2
+    tracks = workers * batch.SLICES_PER_WORKER * batch.TRACK_MULTIPLE * 2 + 7
+    zs, x0s, P0s = _tracks("mpt3d_b", tracks=tracks)
+    whole = module.run_tracks(zs, x0s, P0s)
+    calls = []
+    original = module.run_tracks
+
+    def recorded(zs_slice, *args, **kwargs):
+        calls.append(zs_slice.__array_interface__["data"][0])
+        return original(zs_slice, *args, **kwargs)
+    monkeypatch.setattr(module, "run_tracks", recorded)
+    xs, Ps = batch.run_tracks(module, zs, x0s, P0s, workers=workers)
+    starts = sorted((address - zs.__array_interface__["data"][0]) // zs[0].nbytes
+                    for address in calls)
+    assert starts == [a for a, _ in batch.split(tracks, workers * batch.SLICES_PER_WORKER,
+                                                 batch.TRACK_MULTIPLE)]
+    assert len(starts) == workers * batch.SLICES_PER_WORKER
+    assert np.array_equal(xs, whole[0]) and np.array_equal(Ps, whole[1])
+    few = batch.SLICES_PER_WORKER * batch.TRACK_MULTIPLE       # fewer: one slice a thread
+    calls.clear()
+    batch.run_tracks(module, zs[:few], x0s[:few], P0s[:few], workers=workers)
+    assert len(calls) == workers

@@ -52,9 +52,9 @@ PREFETCH = "DERIVE_PREFETCH"
 #: A block's tracks are contiguous in every array of run_tracks: while a block runs, the
 #: next block's arrays are prefetched, a share of their cache lines each step, when they
 #: hold at most this many bytes (``DERIVE_AHEAD_BYTES``, a quarter of a 1 MB L2), else each
-#: lane's rows :data:`AHEAD` steps on. mpt3d_b's KF, 100 steps (77 kB a block), CPU time
-#: per core out of cache: 4.1e8 track-steps/s against 2.8e8 with the rows; at 1,000 steps
-#: (768 kB) the rows were faster (docs/performance.md).
+#: lane's rows :data:`AHEAD` steps on. The bench's batch, 100 steps (77 kB a block), CPU time
+#: per core out of cache: 3.6e8 to 4.0e8 track-steps/s against 2.4e8 to 2.9e8 with the
+#: rows; at 1,000 steps (768 kB) as fast as the rows, at 10,000 slower (docs/performance.md).
 AHEAD_BYTES = "DERIVE_AHEAD_BYTES"
 AHEAD_BYTES_DEFAULT = 256 * 1024
 #: The cache line the next block's prefetches step by (``DERIVE_LINE``, bytes).

@@ -111,13 +111,18 @@ def generated_python(b: Batch, workdir: Path):
 
 def generated_c_tracks(b: Batch, workdir: Path, with_covariance: bool = False):
     """The generated ``run_tracks``: blocks of tracks in vector lanes, each track's arrays
-    contiguous (by default no covariance output, like the other batch rows)."""
+    contiguous (by default no covariance output, like the other batch rows), writing into
+    outputs allocated once (as the C driver's), not new pages each call."""
     module = load(Case("kf", MODEL), workdir, "c").c
-    tracks = b.zs.shape[0]
+    tracks, steps, _ = b.zs.shape
+    n = len(b.x0)
     zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
     x0 = np.ascontiguousarray(np.repeat(b.x0[None, :], tracks, axis=0))
     P0 = np.ascontiguousarray(np.repeat(b.P0[None, :, :], tracks, axis=0))
-    return lambda: module.run_tracks(zs, x0, P0, with_covariance=with_covariance)[0]
+    out = (np.empty((tracks, steps, n)),
+           np.empty((tracks, steps, n, n)) if with_covariance else None)
+    return lambda: module.run_tracks(zs, x0, P0, with_covariance=with_covariance,
+                                     out=out)[0]
 
 
 def track_step_bytes(b: Batch, with_covariance: bool) -> int:
