@@ -6,7 +6,11 @@ contiguous slices and runs each slice's ``MODEL_FILTER_run_tracks`` in its own t
 Dask array ``zs`` chunked along the track axis it returns lazy Dask arrays instead: one
 task per chunk, each calling the kernel, which every worker compiles (or finds in the
 build cache) and loads once. Each track's result is bitwise the same however the tracks
-are split, since run_tracks treats every track on its own.
+are split, since run_tracks treats every track on its own. The threads' slices start at
+multiples of :data:`TRACK_MULTIPLE` tracks (whole blocks of lanes, no cache line shared
+between threads in the outputs, which are allocated cache-line aligned) and each thread
+is the first to write its slice of a new output; a caller may pass its own outputs
+(``out=``) to reuse them from call to call.
 
 The kernel travels to Dask's workers as a :class:`Kernel`: the path of the generated
 ``.c`` file (its ``.h`` beside it) and the compiler flags, never a cffi object. Dask is
@@ -25,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .build import FilterModule, build_c
-from .errors import ModelError, NumericalError, PatternError, ShapeError
+from .errors import DtypeError, ModelError, NumericalError, PatternError, ShapeError
 
 
 @dataclass(frozen=True)
@@ -146,16 +150,96 @@ def _is_dask(array) -> bool:
     return dask_array is not None and isinstance(array, dask_array.Array)
 
 
-def split(tracks: int, parts: int) -> list[tuple[int, int]]:
-    """``parts`` contiguous slices [start, stop) of ``tracks``, sizes differing by at most
-    one (no empty slice)."""
+#: Threads' slices of tracks start at multiples of this many tracks (when every thread
+#: gets at least as many): a multiple of every default lane count of run_tracks (8 to 64),
+#: so each slice runs whole blocks and only the last has a scalar tail, and of a 64-byte
+#: cache line in every array of one track after another, so that two threads never write
+#: the same line of an aligned output (:func:`aligned_empty`).
+TRACK_MULTIPLE = 64
+#: The alignment of the outputs run_tracks allocates, bytes (a cache line).
+ALIGNMENT = 64
+#: Slices of tracks per thread when there are enough tracks (each at least
+#: TRACK_MULTIPLE): the threads take them in turn, so a thread whose core is shared with
+#: another job does less of the batch instead of the others waiting for it.
+SLICES_PER_WORKER = 8
+
+
+def split(tracks: int, parts: int, multiple: int = 1) -> list[tuple[int, int]]:
+    """``parts`` contiguous slices [start, stop) of ``tracks`` (no empty slice): when each
+    part gets at least ``multiple`` tracks, every start the multiple of ``multiple``
+    nearest the even split (sizes differ by at most ``multiple``); else sizes differing
+    by at most one."""
     parts = max(1, min(parts, tracks))
-    edges = [tracks * i // parts for i in range(parts + 1)]
+    if multiple > 1 and tracks >= parts * multiple:
+        edges = [multiple * ((tracks * i // parts + multiple // 2) // multiple)
+                 for i in range(parts)] + [tracks]
+    else:
+        edges = [tracks * i // parts for i in range(parts + 1)]
     return [(a, b) for a, b in zip(edges, edges[1:]) if b > a]
 
 
+def aligned_empty(shape, dtype) -> np.ndarray:
+    """An uninitialised C-contiguous array whose data starts on an :data:`ALIGNMENT`-byte
+    boundary (its pages untouched until a thread writes them)."""
+    dtype = np.dtype(dtype)
+    count = int(np.prod(shape, dtype=np.int64))
+    raw = np.empty(count * dtype.itemsize + ALIGNMENT, dtype=np.uint8)
+    offset = -raw.ctypes.data % ALIGNMENT
+    return raw[offset:offset + count * dtype.itemsize].view(dtype).reshape(shape)
+
+
+def _checked_out(module: FilterModule, out, layout: _Layout, has_P0: bool,
+                 with_covariance: bool, inputs: dict[str, np.ndarray]):
+    """The caller's output arrays ``out`` (xs, or (xs, Ps) for a filter with P0, Ps None
+    when covariances are not stored) as (xs, Ps), checked: ndarrays of the kernel's dtype
+    and the result's shapes, C-contiguous, writeable, sharing no memory with the inputs or
+    with each other; DtypeError / ShapeError / ModelError naming the array."""
+    name = f"{module.prefix} batch run_tracks"
+    tracks, steps, n = layout.tracks, layout.steps, layout.n
+    if has_P0:
+        if not (isinstance(out, tuple) and len(out) == 2):
+            raise ModelError(f"{name}: out must be a pair (xs, Ps) for a filter with P0 "
+                             f"(Ps None when with_covariance is False), got "
+                             f"{type(out).__name__}")
+        xs, Ps = out
+        if (Ps is None) == with_covariance:
+            raise ModelError(f"{name}: out's Ps must be " + (
+                "an array (tracks, steps, n, n): with_covariance is True" if with_covariance
+                else "None: with_covariance is False"))
+    elif isinstance(out, tuple):
+        raise ModelError(f"{name}: out must be one array xs for a filter without P0, got a "
+                         "tuple")
+    else:
+        xs, Ps = out, None
+    wanted = {"xs": (xs, (tracks, steps, n)), "Ps": (Ps, (tracks, steps, n, n))}
+    checked = {}
+    for label, (array, shape) in wanted.items():
+        if array is None:
+            continue
+        if not isinstance(array, np.ndarray):
+            raise ModelError(f"{name}: out {label} must be a NumPy array, got "
+                             f"{type(array).__name__}")
+        if array.dtype != module.dtype:
+            raise DtypeError(f"{name}: out {label} is {array.dtype}, but this kernel writes "
+                             f"{module.dtype} (C {module.c_type})")
+        if array.shape != shape:
+            raise ShapeError(f"{name}: out {label} must have shape {shape}, got "
+                             f"{array.shape}")
+        if not array.flags.c_contiguous:
+            raise ShapeError(f"{name}: out {label} must be C-contiguous (one track after "
+                             "another)")
+        if not array.flags.writeable:
+            raise ModelError(f"{name}: out {label} is read-only")
+        for other, value in {**inputs, **checked}.items():
+            if value is not None and np.may_share_memory(array, value):
+                raise ModelError(f"{name}: out {label} shares memory with {other}: the "
+                                 "outputs must be arrays of their own")
+        checked[label] = array
+    return xs, Ps
+
+
 def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
-               with_covariance: bool = True):
+               with_covariance: bool = True, out=None):
     """Filter ``tracks`` independent tracks with the generated C ``run_tracks``.
 
     ``kernel``: a :class:`Kernel`, the path of a generated ``.c`` file, or (NumPy inputs
@@ -165,12 +249,19 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
     filter starts from a covariance; ``p``: the free parameters, one row or one row per
     step, shared by every track (as the C takes them).
 
-    NumPy inputs: the tracks are split into ``workers`` (default: the usable cores)
-    contiguous slices run in threads; returns ``xs`` (tracks, steps, n) and, for a filter
+    NumPy inputs: the tracks are split into contiguous slices (``workers`` of them, or
+    :data:`SLICES_PER_WORKER` times as many for a large batch) run by ``workers`` threads
+    (default: the usable cores); returns ``xs`` (tracks, steps, n) and, for a filter
     with P0, ``(xs, Ps)`` with Ps (tracks, steps, n, n) or None when ``with_covariance``
     is False. A Dask ``zs`` (chunked along the track axis; ``x0s``, ``P0s`` NumPy or Dask)
     returns the same as lazy Dask arrays, one task per chunk of tracks; ``workers`` is
     then Dask's business (its scheduler) and must be None.
+
+    ``out`` (NumPy inputs only): the arrays to write the result into and return, instead
+    of new ones: ``xs``, or ``(xs, Ps)`` for a filter with P0 (Ps None when
+    ``with_covariance`` is False), of the kernel's dtype, C-contiguous. New outputs cost
+    a page fault per page on their first writing (as much as the filter's own work for
+    small models); a caller filtering batch after batch passes the same ``out`` again.
 
     Each track's result is bitwise its own ``run``'s, however the tracks are split.
     A failed check raises the wrapper's NumericalError or PatternError, naming the slice
@@ -179,6 +270,9 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
         if workers is not None:
             raise ModelError("batch run_tracks: workers= is for NumPy inputs; with Dask "
                              "arrays the scheduler (e.g. a distributed Client) decides")
+        if out is not None:
+            raise ModelError("batch run_tracks: out= is for NumPy inputs; Dask arrays give "
+                             "lazy results (store them with e.g. to_zarr)")
         if not _is_dask(zs):
             raise ModelError("batch run_tracks: Dask inputs need zs as a Dask array "
                              "chunked along the track axis")
@@ -195,8 +289,14 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
     P0s = None if P0s is None else module.converted("run_tracks", "P0s", P0s)
     layout = _check(module, zs.shape, x0s.shape, None if P0s is None else P0s.shape, p)
     tracks, steps, n = layout.tracks, layout.steps, layout.n
-    xs = module.empty((tracks, steps, n))
-    Ps = module.empty((tracks, steps, n, n)) if P0s is not None and with_covariance else None
+    if out is not None:
+        xs, Ps = _checked_out(module, out, layout, P0s is not None, with_covariance,
+                              {"zs": zs, "x0s": x0s, "P0s": P0s,
+                               "p": None if p is None else np.asarray(p)})
+    else:   # aligned: the threads' slices (TRACK_MULTIPLE) share no cache line
+        xs = aligned_empty((tracks, steps, n), module.dtype)
+        Ps = (aligned_empty((tracks, steps, n, n), module.dtype)
+              if P0s is not None and with_covariance else None)
 
     def one(start: int, stop: int) -> None:
         try:
@@ -207,11 +307,13 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
             note = f" (its track numbers count from {start})" if "(track " in str(exc) else ""
             raise type(exc)(f"tracks {start} to {stop - 1}{note}: {exc}") from None
 
-    slices = split(tracks, workers)
+    many = workers * SLICES_PER_WORKER
+    slices = split(tracks, many if tracks >= many * TRACK_MULTIPLE else workers,
+                   TRACK_MULTIPLE)
     if len(slices) == 1:
         one(*slices[0])
     elif slices:
-        with ThreadPoolExecutor(max_workers=len(slices)) as pool:
+        with ThreadPoolExecutor(max_workers=min(workers, len(slices))) as pool:
             for future in [pool.submit(one, a, b) for a, b in slices]:
                 future.result()
     return xs if P0s is None else (xs, Ps)

@@ -32,19 +32,33 @@ STRIDE = "s"
 #: The status a step body's failed check sets (the first failed check's).
 STATUS = "status"
 #: The lane count of run_tracks' blocks: :func:`interleave` vector registers' worth of
-#: doubles (AVX-512: 8 a register, AVX: 4, else 2), unless the build defines it.
+#: elements (AVX-512: 64 bytes a register, 8 doubles or 16 floats; AVX: 32 bytes; else 16),
+#: unless the build defines it.
 LANES = "DERIVE_LANES"
+#: Bytes of a vector register: AVX-512, AVX (and AVX2), else (SSE2, NEON).
+REGISTER_BYTES = (("__AVX512F__", 64), ("__AVX__", 32), (None, 16))
 #: The most registers a block's statement spans: independent chains that hide the latency
 #: of a division (4 was fastest of 1, 2, 4, 8 on AVX-512, AVX2 and SSE2: docs/performance.md).
 INTERLEAVE = 4
 #: The most bytes of a block's arrays at the widest lanes (AVX-512): in L1 and on the stack.
 BLOCK_BYTES = 64 * 1024
 #: Prefetch a block's tracks' rows this many steps ahead (``DERIVE_PREFETCH``: GCC's and
-#: Clang's __builtin_prefetch, else nothing): a block reads and writes as many streams as
-#: it has lanes, more than the hardware prefetchers follow (the batch of the bench:
-#: 3.2e8 track-steps/s on one core with it, 1.3e8 to 2.0e8 without; 8 of 8, 16, 32 best).
+#: Clang's __builtin_prefetch, else nothing) when the next block does not fit
+#: :data:`AHEAD_BYTES`: a block reads and writes as many streams as it has lanes, more
+#: than the hardware prefetchers follow (the batch of the bench: 3.2e8 track-steps/s on
+#: one core with it, 1.3e8 to 2.0e8 without; 8 of 8, 16, 32 best).
 AHEAD = 8
 PREFETCH = "DERIVE_PREFETCH"
+#: A block's tracks are contiguous in every array of run_tracks: while a block runs, the
+#: next block's arrays are prefetched, a share of their cache lines each step, when they
+#: hold at most this many bytes (``DERIVE_AHEAD_BYTES``, a quarter of a 1 MB L2), else each
+#: lane's rows :data:`AHEAD` steps on. The bench's batch, 100 steps (77 kB a block), CPU time
+#: per core out of cache: 3.6e8 to 4.0e8 track-steps/s against 2.4e8 to 2.9e8 with the
+#: rows; at 1,000 steps (768 kB) as fast as the rows, at 10,000 slower (docs/performance.md).
+AHEAD_BYTES = "DERIVE_AHEAD_BYTES"
+AHEAD_BYTES_DEFAULT = 256 * 1024
+#: The cache line the next block's prefetches step by (``DERIVE_LINE``, bytes).
+LINE = "DERIVE_LINE"
 #: Put before the loop over a block's lanes: ``omp simd`` under OpenMP (``-fopenmp``),
 #: ``GCC ivdep`` / Clang's ``loop vectorize(enable)`` else (no lane depends on another;
 #: the compilers vectorise it at -O3, or at -O2 with -ftree-vectorize); a build may
@@ -61,26 +75,43 @@ INLINE = "DERIVE_INLINE"
 INLINE_STATEMENTS = 500
 
 
-def interleave(doubles_per_lane: int) -> int:
+def interleave(elements_per_lane: int, element_bytes: int = 8) -> int:
     """Registers per statement of a block (:data:`INTERLEAVE`, halved until the block of
-    ``doubles_per_lane`` doubles a lane fits :data:`BLOCK_BYTES` at 8 doubles a register)."""
+    ``elements_per_lane`` elements a lane fits :data:`BLOCK_BYTES` at the widest
+    registers, as many lanes as a 64-byte register holds elements of ``element_bytes``)."""
     registers = INTERLEAVE
-    while registers > 1 and doubles_per_lane * 8 * registers * 8 > BLOCK_BYTES:
+    lanes_per_register = 64 // element_bytes
+    while registers > 1 and (elements_per_lane * element_bytes * registers
+                             * lanes_per_register > BLOCK_BYTES):
         registers //= 2
     return registers
 
 
-def macro_lines(registers: int) -> list[str]:
-    """The .c file's definitions of :data:`LANES` and :data:`SIMD` (each unless defined)."""
+def lanes(registers: int, element_bytes: int = 8) -> dict[str | None, int]:
+    """:data:`LANES` for each target macro of :data:`REGISTER_BYTES` (None: the others):
+    ``registers`` registers' worth of elements of ``element_bytes`` (float32 has twice the
+    lanes of float64 in the same registers)."""
+    return {macro: registers * size // element_bytes for macro, size in REGISTER_BYTES}
+
+
+def macro_lines(registers: int, element_bytes: int = 8) -> list[str]:
+    """The .c file's definitions of :data:`LANES`, the prefetch macros and :data:`SIMD`
+    (each unless defined)."""
+    lane_lines = []
+    for macro, count in lanes(registers, element_bytes).items():
+        test = (f"#elif defined({macro})" if lane_lines else f"#if defined({macro})") \
+            if macro else "#else"
+        lane_lines += [test, f"#define {LANES} {count}"]
     return [
         f"#ifndef {LANES}",
-        "#if defined(__AVX512F__)",
-        f"#define {LANES} {8 * registers}",
-        "#elif defined(__AVX__)",
-        f"#define {LANES} {4 * registers}",
-        "#else",
-        f"#define {LANES} {2 * registers}",
+        *lane_lines,
         "#endif",
+        "#endif",
+        f"#ifndef {AHEAD_BYTES}",
+        f"#define {AHEAD_BYTES} {AHEAD_BYTES_DEFAULT}",
+        "#endif",
+        f"#ifndef {LINE}",
+        f"#define {LINE} 64",
         "#endif",
         f"#ifndef {PREFETCH}",
         "#if defined(__GNUC__)",
@@ -355,10 +386,12 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
     if unit.parameters:
         names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
                                  else PARAMETER_PORT)
-    arrays = [f"{_block(s['name'])}[{s['size']} * {lanes}]" for s in state]
-    arrays += [f"{_block(s['out'])}[{s['size']} * {lanes}]" for s in state]
-    arrays += [f"{_block(name)}[{unit.step_input_size(name)} * {lanes}]"
-               for name in unit.step_inputs]
+    # the carried state in two block arrays each, the step reading one and writing the other,
+    # which then swap (pointers): no copy of the state from step to step
+    pairs = [{"pair": f"{_block(s['name'])}_pair", "array": _block(s["name"]),
+              "source": _block(s["out"]), "size": s["size"]} for s in state]
+    arrays = [f"{_block(name)}[{unit.step_input_size(name)} * {lanes}]"
+              for name in unit.step_inputs]
     load = [{"array": _block(s["name"]), "source": s["start"], "size": s["size"]}
             for s in state]
     per_lane = 2 * sum(s["size"] for s in state) + sum(
@@ -370,6 +403,19 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
         return [{"array": _block(names_of.get(name, name)), "source": name,
                  "size": unit.step_input_size(name), "row": row}
                 for name in unit.step_inputs]
+
+    # every array a block reads or writes a row of each step: its tracks' rows are
+    # contiguous there, the next block's prefetched while this one runs (AHEAD_BYTES)
+    streamed = ([{"array": name, "size": unit.step_input_size(name), "write": 0,
+                  "optional": False} for name in unit.step_inputs]
+                + [{"array": s["store"], "size": s["size"], "write": 1, "optional": False}
+                   for s in state if s["store"]]
+                + [{"array": s["array"], "size": s["size"], "write": 1, "optional": True}
+                   for s in optional_stores])
+    for a in streamed:
+        a["lines"] = f"{a['array']}_lines"
+    track_step = " + ".join(f"({a['array']} ? {a['size']}u : 0u)" if a["optional"]
+                            else f"{a['size']}u" for a in streamed) or "0u"
 
     def prefetch(row: str) -> list[dict]:
         """The rows AHEAD steps after ``row`` of the per-step inputs (read) and the stored
@@ -395,7 +441,9 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
     news = {s["out"]: _block(s["out"]) for s in state}
     parts = {
         "lanes": lanes, "simd": SIMD, "arrays": arrays, "load": load,
-        "macros": macro_lines(interleave(per_lane)),
+        "macros": macro_lines(interleave(per_lane, real.bits // 8), real.bits // 8),
+        "pairs": pairs, "streamed": streamed, "track_step": track_step,
+        "ahead_bytes": AHEAD_BYTES, "line": LINE, "next_row": "k + 1",
         "status": status,
         "p_row": (f"const {real.c_type} *restrict {_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
                   "p_stride;" if unit.parameters and PARAMETER_PORT in body.used_inputs()
@@ -404,8 +452,6 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
         "prefetch": prefetch("k"), "ahead": AHEAD, "prefetch_macro": PREFETCH,
         "lane": [(f"status_b[j] = {step_call};" if body.checks else f"{step_call};")],
         "store": stores("k", news),
-        "shift": [{"array": _block(s["name"]), "source": _block(s["out"]),
-                   "size": s["size"]} for s in state],
         "run_call": run_call,
         "pass": None,
     }
@@ -426,6 +472,7 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
         if held:  # the step's failed check first, as in run
             lane.append("status_b[j] = " + (" ? step_status : ".join(held)) + ";")
         parts["pass"] = {
+            "next_row": "k + 2",
             "gather": gather("k", {}) + [{"array": _block(LOOKAHEAD_NEXT), "source": "z",
                                           "size": unit.m, "row": "k + 1"}],
             "prefetch": prefetch("k"),

@@ -55,6 +55,12 @@
 #define DERIVE_LANES 8
 #endif
 #endif
+#ifndef DERIVE_AHEAD_BYTES
+#define DERIVE_AHEAD_BYTES 262144
+#endif
+#ifndef DERIVE_LINE
+#define DERIVE_LINE 64
+#endif
 #ifndef DERIVE_PREFETCH
 #if defined(__GNUC__)
 #define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
@@ -136,9 +142,18 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
 {
     size_t t = 0;
     size_t k, i, j;
+    /* a block's tracks are contiguous in each array: while one block runs, the next one's
+     * cache lines are prefetched, a share each step, when they fit DERIVE_AHEAD_BYTES;
+     * else (and for the first block) each lane's rows 8 steps on */
+    const int next_fits = steps * DERIVE_LANES * sizeof(double) * (1u + 2u) <= DERIVE_AHEAD_BYTES;
+    const size_t z_lines = (DERIVE_LANES * steps * 1 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
+    const size_t xs_lines = (DERIVE_LANES * steps * 2 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
     for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
-        double x_b[2 * DERIVE_LANES];
-        double x_new_b[2 * DERIVE_LANES];
+        const int prefetch_next = next_fits && t + 2 * DERIVE_LANES <= tracks;
+        const int prefetch_rows = !next_fits || t == 0;
+        double x_b_pair[2][2 * DERIVE_LANES];
+        double *x_b = x_b_pair[0];
+        double *x_new_b = x_b_pair[1];
         double z_b[1 * DERIVE_LANES];
         double x_mid_b[2 * DERIVE_LANES];
         double zn_b[1 * DERIVE_LANES];
@@ -148,7 +163,15 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
             }
         }
         for (k = 0; k + 2 <= steps; k += 2) {
-            if (k + 8 < steps) {
+            if (prefetch_next) {
+                for (i = z_lines * k / steps; i < z_lines * (k + 2) / steps; ++i) {
+                    DERIVE_PREFETCH((const char *)(z + (t + DERIVE_LANES) * steps * 1) + DERIVE_LINE * i, 0);
+                }
+                for (i = xs_lines * k / steps; i < xs_lines * (k + 2) / steps; ++i) {
+                    DERIVE_PREFETCH((const char *)(xs + (t + DERIVE_LANES) * steps * 2) + DERIVE_LINE * i, 1);
+                }
+            }
+            if (prefetch_rows && k + 8 < steps) {
                 for (j = 0; j < DERIVE_LANES; ++j) {
                     DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
                     DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
@@ -175,12 +198,22 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
                     xs[((t + j) * steps + k + 1) * 2 + i] = x_new_b[i * DERIVE_LANES + j];
                 }
             }
-            for (i = 0; i < 2 * DERIVE_LANES; ++i) {
-                x_b[i] = x_new_b[i];
+            {
+                double *const swap = x_b;
+                x_b = x_new_b;
+                x_new_b = swap;
             }
         }
         for (; k < steps; ++k) {
-            if (k + 8 < steps) {
+            if (prefetch_next) {
+                for (i = z_lines * k / steps; i < z_lines * (k + 1) / steps; ++i) {
+                    DERIVE_PREFETCH((const char *)(z + (t + DERIVE_LANES) * steps * 1) + DERIVE_LINE * i, 0);
+                }
+                for (i = xs_lines * k / steps; i < xs_lines * (k + 1) / steps; ++i) {
+                    DERIVE_PREFETCH((const char *)(xs + (t + DERIVE_LANES) * steps * 2) + DERIVE_LINE * i, 1);
+                }
+            }
+            if (prefetch_rows && k + 8 < steps) {
                 for (j = 0; j < DERIVE_LANES; ++j) {
                     DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
                     DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
@@ -200,8 +233,10 @@ void gsm2d_b_jssklf_run_tracks(size_t steps, size_t tracks, const double *z, con
                     xs[((t + j) * steps + k) * 2 + i] = x_new_b[i * DERIVE_LANES + j];
                 }
             }
-            for (i = 0; i < 2 * DERIVE_LANES; ++i) {
-                x_b[i] = x_new_b[i];
+            {
+                double *const swap = x_b;
+                x_b = x_new_b;
+                x_new_b = swap;
             }
         }
     }

@@ -54,6 +54,12 @@
 #define DERIVE_LANES 8
 #endif
 #endif
+#ifndef DERIVE_AHEAD_BYTES
+#define DERIVE_AHEAD_BYTES 262144
+#endif
+#ifndef DERIVE_LINE
+#define DERIVE_LINE 64
+#endif
 #ifndef DERIVE_PREFETCH
 #if defined(__GNUC__)
 #define DERIVE_PREFETCH(address, write) __builtin_prefetch((address), (write), 0)
@@ -172,11 +178,22 @@ void mpt3d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
 {
     size_t t = 0;
     size_t k, i, j;
+    /* a block's tracks are contiguous in each array: while one block runs, the next one's
+     * cache lines are prefetched, a share each step, when they fit DERIVE_AHEAD_BYTES;
+     * else (and for the first block) each lane's rows 8 steps on */
+    const int next_fits = steps * DERIVE_LANES * sizeof(double) * (1u + 2u + (Ps ? 4u : 0u)) <= DERIVE_AHEAD_BYTES;
+    const size_t z_lines = (DERIVE_LANES * steps * 1 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
+    const size_t xs_lines = (DERIVE_LANES * steps * 2 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
+    const size_t Ps_lines = (DERIVE_LANES * steps * 4 * sizeof(double) + DERIVE_LINE - 1) / DERIVE_LINE;
     for (; t + DERIVE_LANES <= tracks; t += DERIVE_LANES) {
-        double x_b[2 * DERIVE_LANES];
-        double P_b[4 * DERIVE_LANES];
-        double x_new_b[2 * DERIVE_LANES];
-        double P_new_b[4 * DERIVE_LANES];
+        const int prefetch_next = next_fits && t + 2 * DERIVE_LANES <= tracks;
+        const int prefetch_rows = !next_fits || t == 0;
+        double x_b_pair[2][2 * DERIVE_LANES];
+        double *x_b = x_b_pair[0];
+        double *x_new_b = x_b_pair[1];
+        double P_b_pair[2][4 * DERIVE_LANES];
+        double *P_b = P_b_pair[0];
+        double *P_new_b = P_b_pair[1];
         double z_b[1 * DERIVE_LANES];
         for (j = 0; j < DERIVE_LANES; ++j) {
             for (i = 0; i < 2; ++i) {
@@ -187,7 +204,20 @@ void mpt3d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
             }
         }
         for (k = 0; k < steps; ++k) {
-            if (k + 8 < steps) {
+            if (prefetch_next) {
+                for (i = z_lines * k / steps; i < z_lines * (k + 1) / steps; ++i) {
+                    DERIVE_PREFETCH((const char *)(z + (t + DERIVE_LANES) * steps * 1) + DERIVE_LINE * i, 0);
+                }
+                for (i = xs_lines * k / steps; i < xs_lines * (k + 1) / steps; ++i) {
+                    DERIVE_PREFETCH((const char *)(xs + (t + DERIVE_LANES) * steps * 2) + DERIVE_LINE * i, 1);
+                }
+                if (Ps) {
+                    for (i = Ps_lines * k / steps; i < Ps_lines * (k + 1) / steps; ++i) {
+                        DERIVE_PREFETCH((const char *)(Ps + (t + DERIVE_LANES) * steps * 4) + DERIVE_LINE * i, 1);
+                    }
+                }
+            }
+            if (prefetch_rows && k + 8 < steps) {
                 for (j = 0; j < DERIVE_LANES; ++j) {
                     DERIVE_PREFETCH(&z[((t + j) * steps + k + 8) * 1], 0);
                     DERIVE_PREFETCH(&xs[((t + j) * steps + k + 8) * 2], 1);
@@ -212,11 +242,15 @@ void mpt3d_b_lf_run_tracks(size_t steps, size_t tracks, const double *z, const d
                     }
                 }
             }
-            for (i = 0; i < 2 * DERIVE_LANES; ++i) {
-                x_b[i] = x_new_b[i];
+            {
+                double *const swap = x_b;
+                x_b = x_new_b;
+                x_new_b = swap;
             }
-            for (i = 0; i < 4 * DERIVE_LANES; ++i) {
-                P_b[i] = P_new_b[i];
+            {
+                double *const swap = P_b;
+                P_b = P_new_b;
+                P_new_b = swap;
             }
         }
     }

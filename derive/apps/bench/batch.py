@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,13 +111,18 @@ def generated_python(b: Batch, workdir: Path):
 
 def generated_c_tracks(b: Batch, workdir: Path, with_covariance: bool = False):
     """The generated ``run_tracks``: blocks of tracks in vector lanes, each track's arrays
-    contiguous (by default no covariance output, like the other batch rows)."""
+    contiguous (by default no covariance output, like the other batch rows), writing into
+    outputs allocated once (as the C driver's), not new pages each call."""
     module = load(Case("kf", MODEL), workdir, "c").c
-    tracks = b.zs.shape[0]
+    tracks, steps, _ = b.zs.shape
+    n = len(b.x0)
     zs = np.ascontiguousarray(b.zs)                               # (tracks, steps, m)
     x0 = np.ascontiguousarray(np.repeat(b.x0[None, :], tracks, axis=0))
     P0 = np.ascontiguousarray(np.repeat(b.P0[None, :, :], tracks, axis=0))
-    return lambda: module.run_tracks(zs, x0, P0, with_covariance=with_covariance)[0]
+    out = (np.empty((tracks, steps, n)),
+           np.empty((tracks, steps, n, n)) if with_covariance else None)
+    return lambda: module.run_tracks(zs, x0, P0, with_covariance=with_covariance,
+                                     out=out)[0]
 
 
 def track_step_bytes(b: Batch, with_covariance: bool) -> int:
@@ -126,17 +132,21 @@ def track_step_bytes(b: Batch, with_covariance: bool) -> int:
     return 8 * (m + n + (n * n if with_covariance else 0))
 
 
-def copy_bandwidth(megabytes: int = 256, repeats: int = 3) -> float:
-    """This machine's memory bandwidth in bytes per second: the best of ``repeats`` copies
-    of a ``megabytes`` array (bytes read plus bytes written)."""
-    src = np.ones(megabytes * 2**20 // 8)
-    dst = np.empty_like(src)
+def copy_bandwidth(megabytes: int = 256, repeats: int = 3, threads: int = 1) -> float:
+    """This machine's memory bandwidth in bytes per second: the best of ``repeats`` rounds
+    of ``threads`` threads each copying its own ``megabytes`` array (NumPy releases the GIL
+    while it copies), bytes read plus bytes written by all of them over the round's time."""
+    sources = [np.ones(megabytes * 2**20 // 8) for _ in range(threads)]
+    targets = [np.empty_like(src) for src in sources]
+    for target, src in zip(targets, sources):       # every page touched before the timing
+        np.copyto(target, src)
     best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        np.copyto(dst, src)
-        best = min(best, time.perf_counter() - start)
-    return 2 * src.nbytes / best
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for _ in range(repeats):
+            start = time.perf_counter()
+            list(pool.map(np.copyto, targets, sources))
+            best = min(best, time.perf_counter() - start)
+    return 2 * threads * sources[0].nbytes / best
 
 
 INTERLEAVE = 4
