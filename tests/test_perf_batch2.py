@@ -262,15 +262,16 @@ def test_out_is_for_numpy_inputs_only(kf):
 def test_the_bar_line_prints_both_limits_and_the_share_of_the_lower():
     limits = scaling.Limits(2, 24e9, 24, 24e9 / 24, 8e8)
     rows = [scaling.ScaleRow("threads", 1, 4e8, 1.0, True, "", limits),
-            scaling.ScaleRow("threads", 2, 5e8, 0.8, True, "", limits)]
+            scaling.ScaleRow("threads", 2, 5e8, 0.8, True, "", limits, 3e8)]
     head, body, lines = scaling.scaling_table(rows)
     assert head[5] == "this machine's limits, same run"
     text = scaling.limits_text(limits)
     assert body[1][5] == text
     assert text == ("memory traffic 1e+09 (2-thread copy 24.0 GB/s / 24 B); compute 8e+08 "
                     "(2 thread(s) in cache)")
-    assert lines[-1].startswith("bar: batch mpt3d_b KF, covariances not stored, 2 threads: "
-                                "5e+08 track-steps/s (>= 6e+08: NOT met)")
+    assert lines[-1].startswith("bar: batch mpt3d_b KF, covariances not stored, 2 threads, "
+                                "into outputs reused (out=): 5e+08 track-steps/s (>= 6e+08: "
+                                "NOT met); into new outputs each call 3e+08")
     assert lines[-1].endswith(f"{text}; the figure is {5e8 / 8e8:.0%} of the lower")
 
 
