@@ -29,9 +29,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from derive.emit.c_printer import CPrinter
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var
+from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
 from derive.emit.unit import LOOKAHEAD_NEXT
+from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
@@ -60,13 +60,36 @@ def vector_width(lanes: int) -> int:
     return width
 
 
+#: The vector fma: lane by lane exactly the file's DERIVE_FMA.
+VECTOR_FMA = "DERIVE_VFMA"
+#: x86's vector fma of each width (one rounding per lane, as fma()), and what it needs.
+_X86_FMA = {2: ("_mm_fmadd_pd", "__FMA__"), 4: ("_mm256_fmadd_pd", "__FMA__"),
+            8: ("_mm512_fmadd_pd", "__AVX512F__")}
+
+
 def macro_lines(width: int) -> list[str]:
-    """The .c file's definition of :data:`VECTOR` and of the vector type of ``width``."""
-    return [f"#if defined(__GNUC__) && !defined({NO_VECTOR})",
-            f"#define {VECTOR} 1",
-            f"__extension__ typedef double {vector_type(width)} "
-            f"__attribute__((vector_size({8 * width})));",
-            "#endif"]
+    """The .c file's definitions of :data:`VECTOR`, the vector type of ``width`` and
+    :data:`VECTOR_FMA`: a product and a sum where DERIVE_FMA is (contraction is off), the
+    hardware's vector fma where DERIVE_FMA is fma() (Clang's elementwise builtin, x86's
+    intrinsic), else DERIVE_FMA lane by lane (a DERIVE_FMA the build defines)."""
+    vtype = vector_type(width)
+    lanes = ", ".join(f"DERIVE_FMA((a)[{b}], (b)[{b}], (c)[{b}])" for b in range(width))
+    x86, needs = _X86_FMA.get(width, ("", ""))
+    lines = [f"#if defined(__GNUC__) && !defined({NO_VECTOR})",
+             f"#define {VECTOR} 1",
+             f"__extension__ typedef double {vtype} __attribute__((vector_size({8 * width})));",
+             f"#if defined({FMA_PLAIN})",
+             f"#define {VECTOR_FMA}(a, b, c) ((a) * (b) + (c))",
+             f"#elif defined({FMA_FUSED}) && defined(__clang__)",
+             f"#define {VECTOR_FMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))"]
+    if x86:
+        lines += [f"#elif defined({FMA_FUSED}) && defined({needs})",
+                  "#include <immintrin.h>",
+                  f"#define {VECTOR_FMA}(a, b, c) {x86}((a), (b), (c))"]
+    return lines + ["#else",
+                    f"#define {VECTOR_FMA}(a, b, c) (({vtype}){{{lanes}}})",
+                    "#endif",
+                    "#endif"]
 
 
 @dataclass(frozen=True)
@@ -204,6 +227,21 @@ def split(program: LoweredProgram) -> Lanes | None:
                  tuple((c, b) for _, c, b in order), constants)
 
 
+def _commuted(tree: Tree) -> Tree:
+    """``tree`` with the operands of each sum and product (an fma's two factors) in one
+    order: blocks whose statements differ only there compute the same values (IEEE
+    addition and multiplication are commutative), and the sympy order of a product's
+    factors follows the names of its block's temporaries."""
+    if not isinstance(tree, Op):
+        return tree
+    args = tuple(_commuted(a) for a in tree.args)
+    if tree.kind in ("add", "mul"):
+        args = tuple(sorted(args, key=repr))
+    elif tree.kind == "fma":
+        args = tuple(sorted(args[:2], key=repr)) + args[2:]
+    return Op(tree.kind, args)
+
+
 def _canonical(body: list, results: list) -> dict:
     """One block renamed by local indices: its statements, results, the maps from local to
     global indices, its checks' positions and statuses, and the key blocks compare by."""
@@ -216,8 +254,8 @@ def _canonical(body: list, results: list) -> dict:
         for v in _vars(leaf):
             if v.index is not None and v.base != PARAMETER_PORT:
                 elements.setdefault(v.base, set()).add(v.index)
-    local = {(port, g): l for port, indices in elements.items()
-             for l, g in enumerate(sorted(indices))}
+    local = {(port, g): local_index for port, indices in elements.items()
+             for local_index, g in enumerate(sorted(indices))}
     temps: dict[str, str] = {}
 
     def name(v: Var) -> Var:
@@ -247,18 +285,20 @@ def _canonical(body: list, results: list) -> dict:
     out_indices: dict[str, list[int]] = {}
     for port, index, _ in results:
         out_indices.setdefault(port, []).append(index)
-    out_local = {(port, g): l for port, indices in out_indices.items()
-                 for l, g in enumerate(sorted(indices))}
+    out_local = {(port, g): local_index for port, indices in out_indices.items()
+                 for local_index, g in enumerate(sorted(indices))}
     by_port: dict[str, list] = {}
-    for port, index, leaf in sorted(results, key=lambda r: (r[0], r[1])):
+    for port, _, leaf in sorted(results, key=lambda r: (r[0], r[1])):
         by_port.setdefault(port, []).append(renamed(leaf))
     result_trees = tuple((port, tuple(leaves)) for port, leaves in by_port.items())
-    body_key = tuple((s.target, s.tree) if isinstance(s, LoweredAssign)
-                     else ("check", s.tree, s.relation) for s in statements)
-    return {"key": (body_key, result_trees), "body": tuple(statements),
+    body_key = tuple((s.target, _commuted(s.tree)) if isinstance(s, LoweredAssign)
+                     else ("check", _commuted(s.tree), s.relation) for s in statements)
+    results_key = tuple((port, tuple(_commuted(leaf) for leaf in leaves))
+                        for port, leaves in result_trees)
+    return {"key": (body_key, results_key), "body": tuple(statements),
             "results": result_trees,
-            "inputs": {(port, l): g for (port, g), l in local.items()},
-            "outputs": {(port, l): g for (port, g), l in out_local.items()},
+            "inputs": {(port, local_index): g for (port, g), local_index in local.items()},
+            "outputs": {(port, local_index): g for (port, g), local_index in out_local.items()},
             "checks": checks, "statuses": statuses}
 
 
@@ -292,9 +332,9 @@ class VectorStatements:
             text = self.scalar.expression(Op(tree.kind, tuple(Var(t) for t, _ in args)))
             return f"({text})", False
         if tree.kind == "fma":
-            lanes = [f"DERIVE_FMA({', '.join(f'{t}[{b}]' if v else t for t, v in args)})"
-                     for b in range(self.width)]
-            return self._new("{" + ", ".join(lanes) + "}"), True
+            splat = [t if v else f"(({self.type}){{{', '.join([t] * self.width)}}})"
+                     for t, v in args]
+            return self._new(f"{VECTOR_FMA}({', '.join(splat)})"), True
         if tree.kind == "neg":
             return self._new(f"-{args[0][0]}"), True
         (a, _), (b, _) = args
@@ -303,7 +343,7 @@ class VectorStatements:
     def block(self, lanes: Lanes, inputs: Callable[[str, int], str],
               status: str | None) -> dict[tuple[str, int], str]:
         """The block's statements; returns each output (port, local index) -> its vector.
-        ``inputs(port, l)``: the vector of the block's input element ``port[l]``;
+        ``inputs(port, local_index)``: the vector of the block's input element ``port[l]``;
         ``status``: the int the checks set (the first failing, in the scalar order)."""
         temps: dict[str, tuple[str, bool]] = {}
 
@@ -327,9 +367,9 @@ class VectorStatements:
                            f"    {status} = {lanes.statuses[c][b]};", "}"]
         outputs = {}
         for port, leaves in lanes.block.results:
-            for l, leaf in enumerate(leaves):
+            for local_index, leaf in enumerate(leaves):
                 text, vector = self.value(leaf, names)
-                outputs[(port, l)] = text if vector else self._new(
+                outputs[(port, local_index)] = text if vector else self._new(
                     "{" + ", ".join([text] * self.width) + "}")
         return outputs
 
@@ -375,8 +415,8 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
         found = {}
         for (port, table), name in carried.items():
             out = ins[port]["out"]
-            local = next((l for (p, l), t in lanes.outputs.items() if p == out and t == table),
-                         None)
+            local = next((index for (p, index), t in lanes.outputs.items()
+                          if p == out and t == table), None)
             if local is None:
                 return None
             found[name] = (out, local)
@@ -400,19 +440,19 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
         """One program's gathers and statements: (lines, its outputs' vectors, gathered)."""
         out: list[str] = []
         gathered: dict[tuple[str, int], str] = {}
-        for (port, l), table in lanes.inputs.items():
+        for (port, local_index), table in lanes.inputs.items():
             if port in ins:
-                gathered[(port, l)] = carried[(port, table)]
+                gathered[(port, local_index)] = carried[(port, table)]
             else:
-                name = f"{prefix}{port}{l}"
+                name = f"{prefix}{port}{local_index}"
                 row = rows.get(port, _row(port))
                 out.append(f"const {vtype} {name} = "
                            f"{gather(tuple(f'{row}[{g}]' for g in table), width)};")
-                gathered[(port, l)] = name
+                gathered[(port, local_index)] = name
         writer = VectorStatements(width, prefix, real)
         if lanes.block.checks:
             out.append(f"int {status} = 0;")
-        outputs = writer.block(lanes, lambda port, l: gathered[(port, l)], status)
+        outputs = writer.block(lanes, lambda port, index: gathered[(port, index)], status)
         out += writer.lines
         if lanes.block.checks:
             out += [f"if ({status}) {{", f"    return {status};", "}"]
