@@ -23,6 +23,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, issued as one block's count of vector operations per step; bitwise the scalar run's results
  * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <stddef.h>
@@ -66,6 +67,20 @@
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
 #define DERIVE_SIMD
+#endif
+#endif
+#if defined(__GNUC__) && !defined(DERIVE_NO_BLOCK_VECTOR)
+#define DERIVE_BLOCK_VECTOR 1
+__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(__clang__)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
 #endif
 
@@ -245,6 +260,144 @@ int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const do
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
 int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
+#if defined(DERIVE_BLOCK_VECTOR)
+    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
+    if (!(P0[2] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[3] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[4] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[5] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[8] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[9] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[10] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[11] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[16] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[17] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[22] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    if (!(P0[23] == 0.0)) {
+        return 4; /* outside P's pattern */
+    }
+    /* the identical blocks in the lanes of one vector (lane b: block b) */
+    derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
+    derive_v4 P_v2 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_v4 P_v3 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_v4 P_v4 = {P0[7], P0[21], P0[35], P0[7]};
+    size_t k;
+    for (k = 0; k < steps; ++k) {
+        const double *restrict zk = z + k * 3;
+        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
+        const derive_v4 a0 = x_v0 + x_v1;
+        const derive_v4 a1 = P_v2 + P_v3;
+        const derive_v4 a2 = P_v3 + P_v4;
+        const derive_v4 a3 = a1 + a2;
+        const derive_v4 a4 = 0.0025 + a3;
+        const derive_v4 a5 = 0.005 + a2;
+        const derive_v4 a6 = 0.01 + P_v4;
+        const derive_v4 a7 = a4 + a5;
+        const derive_v4 a8 = a5 + a6;
+        const derive_v4 a9 = a7 + a8;
+        const derive_v4 a10 = 0.1 + a9;
+        const derive_v4 a11 = a7 / a10;
+        const derive_v4 a12 = a8 / a10;
+        const derive_v4 a13 = x_v1 + a0;
+        const derive_v4 a14 = az0 - a13;
+        const derive_v4 a15 = a11 * a14;
+        const derive_v4 a16 = a12 * a14;
+        const derive_v4 a17 = a0 + a15;
+        const derive_v4 a18 = x_v1 + a16;
+        const derive_v4 a19 = a11 * a7;
+        const derive_v4 a20 = a11 * a8;
+        const derive_v4 a21 = a12 * a8;
+        const derive_v4 a22 = a4 - a19;
+        const derive_v4 a23 = a5 - a20;
+        const derive_v4 a24 = a6 - a21;
+        if (!(a10[0] > 0.0) && !step_status) {
+            step_status = 1;
+        }
+        if (!(a10[1] > 0.0) && !step_status) {
+            step_status = 2;
+        }
+        if (!(a10[2] > 0.0) && !step_status) {
+            step_status = 3;
+        }
+        if (step_status) {
+            return step_status;
+        }
+        xs[k * 6 + 0] = a17[0];
+        xs[k * 6 + 1] = a18[0];
+        xs[k * 6 + 2] = a17[1];
+        xs[k * 6 + 3] = a18[1];
+        xs[k * 6 + 4] = a17[2];
+        xs[k * 6 + 5] = a18[2];
+        if (Ps) {
+            Ps[k * 36 + 0] = a22[0];
+            Ps[k * 36 + 1] = a23[0];
+            Ps[k * 36 + 2] = 0.0;
+            Ps[k * 36 + 3] = 0.0;
+            Ps[k * 36 + 4] = 0.0;
+            Ps[k * 36 + 5] = 0.0;
+            Ps[k * 36 + 6] = a23[0];
+            Ps[k * 36 + 7] = a24[0];
+            Ps[k * 36 + 8] = 0.0;
+            Ps[k * 36 + 9] = 0.0;
+            Ps[k * 36 + 10] = 0.0;
+            Ps[k * 36 + 11] = 0.0;
+            Ps[k * 36 + 12] = 0.0;
+            Ps[k * 36 + 13] = 0.0;
+            Ps[k * 36 + 14] = a22[1];
+            Ps[k * 36 + 15] = a23[1];
+            Ps[k * 36 + 16] = 0.0;
+            Ps[k * 36 + 17] = 0.0;
+            Ps[k * 36 + 18] = 0.0;
+            Ps[k * 36 + 19] = 0.0;
+            Ps[k * 36 + 20] = a23[1];
+            Ps[k * 36 + 21] = a24[1];
+            Ps[k * 36 + 22] = 0.0;
+            Ps[k * 36 + 23] = 0.0;
+            Ps[k * 36 + 24] = 0.0;
+            Ps[k * 36 + 25] = 0.0;
+            Ps[k * 36 + 26] = 0.0;
+            Ps[k * 36 + 27] = 0.0;
+            Ps[k * 36 + 28] = a22[2];
+            Ps[k * 36 + 29] = a23[2];
+            Ps[k * 36 + 30] = 0.0;
+            Ps[k * 36 + 31] = 0.0;
+            Ps[k * 36 + 32] = 0.0;
+            Ps[k * 36 + 33] = 0.0;
+            Ps[k * 36 + 34] = a23[2];
+            Ps[k * 36 + 35] = a24[2];
+        }
+        x_v0 = a17;
+        x_v1 = a18;
+        P_v2 = a22;
+        P_v3 = a23;
+        P_v4 = a24;
+    }
+    return 0;
+#else
     double x[6];
     double P[36];
     double x_new[6];
@@ -418,6 +571,7 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         }
     }
     return 0;
+#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
