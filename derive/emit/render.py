@@ -620,10 +620,14 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
+    # (a pass body not inlined is called by the scalar run alone)
+    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None and \
+        not c_loops.inlined(two) else []
     vector_run, vector_macros, vector_header = block_lanes.vector_run(
         unit, loop_step, two, state, optional_stores,
-        unused + (["/* P0 must be zero outside P's pattern; the loop keeps P inside it */"]
-                  + run_checks if run_checks else []),
+        unused + called_elsewhere
+        + (["/* P0 must be zero outside P's pattern; the loop keeps P inside it */"]
+           + run_checks if run_checks else []),
         ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
         else ([], [], "")
     header_lines += [vector_header] if vector_header else []
