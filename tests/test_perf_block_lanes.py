@@ -33,11 +33,12 @@ FLAGS = {"strict": (), "native": ("-O3", "-march=native"),
          "contract": ("-O3", "-march=native", "-ffp-contract=fast"),
          "gnu": ("-O3", "-march=native", "-std=gnu99"),
          "own_fma": ("-O2", "-march=native", "-DDERIVE_FMA(a,b,c)=fma((a),(b),(c))")}
-#: Filters whose run carries identical blocks: three axes (mpt3d_a), two (gsm2d_a), and
+#: Filters whose run carries identical blocks (three axes: mpt3d_a, gps_static):
 #: time-varying, information, joint and steady-state kinds, with and without the
 #: two-step pass.
 CASES = [("mpt3d_a", "kf"), ("mpt3d_a", "sskf"), ("mpt3d_a", "jklf"), ("mpt3d_a", "sslf"),
-         ("gsm2d_a", "kf"), ("gsm2d_a", "sskf"), ("gps_static", "lf"), ("gps_static", "ikf")]
+         ("gps_static", "kf"), ("gps_static", "sskf"), ("gps_static", "lf"),
+         ("gps_static", "ikf")]
 STEPS = 157   # odd: the steady filters' two-step pass and its last single step
 
 
@@ -165,8 +166,9 @@ def test_blocks_that_differ_in_one_constant_are_not_put_in_lanes():
     assert block_lanes.split(replace(step, body=tuple(body))) is None
 
 
-@pytest.mark.parametrize("model_name, filter_name", [("mpt3d_b", "kf"), ("cv", "sskf")])
-def test_a_single_block_keeps_the_scalar_run(model_name, filter_name):
+@pytest.mark.parametrize("model_name, filter_name", [("mpt3d_b", "kf"), ("cv", "sskf"),
+                                                     ("gsm2d_a", "kf"), ("gsm2d_a", "sskf")])
+def test_fewer_than_three_blocks_keep_the_scalar_run(model_name, filter_name):
     assert _split(model_name, filter_name)[1] is None
     c = render_filter(catalog.load(model_name), filter_name, "c")[f"{filter_name}.c"]
     assert block_lanes.VECTOR not in c

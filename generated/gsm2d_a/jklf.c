@@ -22,7 +22,6 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 6, calls 0 (flops 230, instructions 202)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 2 identical blocks of the step in the lanes of one vector of 2 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, issued as one block's count of vector operations per step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <math.h>
@@ -77,20 +76,6 @@
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
 #define DERIVE_SIMD
-#endif
-#endif
-#if defined(__GNUC__) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v2 __attribute__((vector_size(16)));
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__clang__)
-#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
-#include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm_fmadd_pd((a), (b), (c))
-#else
-#define DERIVE_VFMA(a, b, c) ((derive_v2){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1])})
 #endif
 #endif
 
@@ -296,168 +281,6 @@ int gsm2d_a_jklf_step(const double *restrict x, const double *restrict P, const 
 /* Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL. */
 int gsm2d_a_jklf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
-#if defined(DERIVE_BLOCK_VECTOR)
-    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
-    if (!(P0[2] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    if (!(P0[3] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    if (!(P0[6] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    if (!(P0[7] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v2 x_v0 = {x0[0], x0[2]};
-    derive_v2 x_v1 = {x0[1], x0[3]};
-    derive_v2 P_v2 = {P0[0], P0[10]};
-    derive_v2 P_v3 = {P0[1], P0[11]};
-    derive_v2 P_v4 = {P0[5], P0[15]};
-    size_t k;
-    for (k = 0; k < steps; ++k) {
-        const double *restrict zk = z + k * 2;
-        const derive_v2 az0 = {zk[0], zk[1]};
-        int step_status = 0;
-        const derive_v2 a0 = x_v0 + x_v1;
-        const derive_v2 a1 = P_v2 + P_v3;
-        const derive_v2 a2 = P_v3 + P_v4;
-        const derive_v2 a3 = a1 + a2;
-        const derive_v2 a4 = 0.0025 + a3;
-        const derive_v2 a5 = 0.005 + a2;
-        const derive_v2 a6 = 0.01 + P_v4;
-        const derive_v2 a7 = a4 + a5;
-        const derive_v2 a8 = a5 + a6;
-        const derive_v2 a9 = a7 + a8;
-        const derive_v2 a10 = 0.1 + a9;
-        const derive_v2 a11 = a7 / a10;
-        const derive_v2 a12 = a8 / a10;
-        const derive_v2 a13 = x_v1 + a0;
-        const derive_v2 a14 = az0 - a13;
-        const derive_v2 a15 = a11 * a14;
-        const derive_v2 a16 = a12 * a14;
-        const derive_v2 a17 = a0 + a15;
-        const derive_v2 a18 = x_v1 + a16;
-        const derive_v2 a19 = a11 * a7;
-        const derive_v2 a20 = a11 * a8;
-        const derive_v2 a21 = a12 * a8;
-        const derive_v2 a22 = a4 - a19;
-        const derive_v2 a23 = a5 - a20;
-        const derive_v2 a24 = a6 - a21;
-        const derive_v2 a25 = 16.3265306122449 * P_v3;
-        const derive_v2 a26 = DERIVE_VFMA(((derive_v2){8.16326530612245, 8.16326530612245}), P_v2, a25);
-        const derive_v2 a27 = 16.3265306122449 * P_v2;
-        const derive_v2 a28 = DERIVE_VFMA(((derive_v2){32.6530612244898, 32.6530612244898}), P_v3, a27);
-        const derive_v2 a29 = 8.16326530612245 * P_v3;
-        const derive_v2 a30 = DERIVE_VFMA(((derive_v2){16.3265306122449, 16.3265306122449}), P_v4, a29);
-        const derive_v2 a31 = DERIVE_VFMA(((derive_v2){32.6530612244898, 32.6530612244898}), P_v4, a25);
-        const derive_v2 a32 = 1.0 + a26;
-        const derive_v2 a33 = 1.0 + a31;
-        const derive_v2 a34 = 1.0 / a32;
-        const derive_v2 a35 = a30 * a34;
-        const derive_v2 a36 = a28 * a35;
-        const derive_v2 a37 = a33 - a36;
-        const derive_v2 a38 = 1.0 / a37;
-        const derive_v2 a39 = a35 * a38;
-        const derive_v2 a40 = DERIVE_VFMA(a28, a39, ((derive_v2){1.0, 1.0}));
-        const derive_v2 a41 = a34 * a40;
-        const derive_v2 a42 = a28 * a34;
-        const derive_v2 a43 = a42 * a38;
-        const derive_v2 a44 = (-0.8775510204081632) * a39;
-        const derive_v2 a45 = DERIVE_VFMA(((derive_v2){0.9387755102040817, 0.9387755102040817}), a41, a44);
-        const derive_v2 a46 = 0.8775510204081632 * a38;
-        const derive_v2 a47 = DERIVE_VFMA(((derive_v2){(-0.9387755102040817), (-0.9387755102040817)}), a43, a46);
-        const derive_v2 a48 = 0.7551020408163265 * a39;
-        const derive_v2 a49 = DERIVE_VFMA(((derive_v2){0.12244897959183673, 0.12244897959183673}), a41, a48);
-        const derive_v2 a50 = 0.7551020408163265 * a38;
-        const derive_v2 a51 = DERIVE_VFMA(((derive_v2){0.12244897959183673, 0.12244897959183673}), a43, a50);
-        const derive_v2 a52 = 8.16326530612245 * az0;
-        const derive_v2 a53 = 16.3265306122449 * az0;
-        const derive_v2 a54 = P_v2 * a52;
-        const derive_v2 a55 = DERIVE_VFMA(P_v3, a53, a54);
-        const derive_v2 a56 = P_v3 * a52;
-        const derive_v2 a57 = DERIVE_VFMA(P_v4, a53, a56);
-        const derive_v2 a58 = x_v0 + a55;
-        const derive_v2 a59 = x_v1 + a57;
-        const derive_v2 a60 = 0.061224489795918366 * az0;
-        const derive_v2 a61 = 0.12244897959183673 * az0;
-        const derive_v2 a62 = a45 * a58;
-        const derive_v2 a63 = DERIVE_VFMA(a47, a59, a62);
-        const derive_v2 a64 = a49 * a58;
-        const derive_v2 a65 = -a64;
-        const derive_v2 a66 = DERIVE_VFMA(a51, a59, a65);
-        const derive_v2 a67 = a60 + a63;
-        const derive_v2 a68 = a61 + a66;
-        const derive_v2 a69 = P_v2 * a45;
-        const derive_v2 a70 = DERIVE_VFMA(P_v3, a47, a69);
-        const derive_v2 a71 = P_v3 * a45;
-        const derive_v2 a72 = DERIVE_VFMA(P_v4, a47, a71);
-        const derive_v2 a73 = P_v2 * a49;
-        const derive_v2 a74 = -a73;
-        const derive_v2 a75 = DERIVE_VFMA(P_v3, a51, a74);
-        const derive_v2 a76 = P_v3 * a49;
-        const derive_v2 a77 = -a76;
-        const derive_v2 a78 = DERIVE_VFMA(P_v4, a51, a77);
-        const derive_v2 a79 = 0.9387755102040817 * a70;
-        const derive_v2 a80 = DERIVE_VFMA(((derive_v2){0.8775510204081632, 0.8775510204081632}), a72, a79);
-        const derive_v2 a81 = (-0.12244897959183673) * a70;
-        const derive_v2 a82 = DERIVE_VFMA(((derive_v2){0.7551020408163265, 0.7551020408163265}), a72, a81);
-        const derive_v2 a83 = (-0.12244897959183673) * a75;
-        const derive_v2 a84 = DERIVE_VFMA(((derive_v2){0.7551020408163265, 0.7551020408163265}), a78, a83);
-        const derive_v2 a85 = 0.0020408163265306124 + a80;
-        const derive_v2 a86 = 0.004081632653061225 + a82;
-        const derive_v2 a87 = 0.00816326530612245 + a84;
-        const derive_v2 a88 = a17 + a67;
-        const derive_v2 a89 = a18 + a68;
-        const derive_v2 a90 = 0.5 * a88;
-        const derive_v2 a91 = 0.5 * a89;
-        const derive_v2 a92 = a22 + a85;
-        const derive_v2 a93 = a23 + a86;
-        const derive_v2 a94 = a24 + a87;
-        const derive_v2 a95 = 0.5 * a92;
-        const derive_v2 a96 = 0.5 * a93;
-        const derive_v2 a97 = 0.5 * a94;
-        if (!(a10[0] > 0.0) && !step_status) {
-            step_status = 1;
-        }
-        if (!(a10[1] > 0.0) && !step_status) {
-            step_status = 2;
-        }
-        if (step_status) {
-            return step_status;
-        }
-        xs[k * 4 + 0] = a90[0];
-        xs[k * 4 + 1] = a91[0];
-        xs[k * 4 + 2] = a90[1];
-        xs[k * 4 + 3] = a91[1];
-        if (Ps) {
-            Ps[k * 16 + 0] = a95[0];
-            Ps[k * 16 + 1] = a96[0];
-            Ps[k * 16 + 2] = 0.0;
-            Ps[k * 16 + 3] = 0.0;
-            Ps[k * 16 + 4] = a96[0];
-            Ps[k * 16 + 5] = a97[0];
-            Ps[k * 16 + 6] = 0.0;
-            Ps[k * 16 + 7] = 0.0;
-            Ps[k * 16 + 8] = 0.0;
-            Ps[k * 16 + 9] = 0.0;
-            Ps[k * 16 + 10] = a95[1];
-            Ps[k * 16 + 11] = a96[1];
-            Ps[k * 16 + 12] = 0.0;
-            Ps[k * 16 + 13] = 0.0;
-            Ps[k * 16 + 14] = a96[1];
-            Ps[k * 16 + 15] = a97[1];
-        }
-        x_v0 = a90;
-        x_v1 = a91;
-        P_v2 = a95;
-        P_v3 = a96;
-        P_v4 = a97;
-    }
-    return 0;
-#else
     double x[4];
     double P[16];
     double x_new[4];
@@ -543,7 +366,6 @@ int gsm2d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
         }
     }
     return 0;
-#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after

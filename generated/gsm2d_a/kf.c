@@ -22,7 +22,6 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 2 identical blocks of the step in the lanes of one vector of 2 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, issued as one block's count of vector operations per step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gsm2d_a_kf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_kf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <stddef.h>
@@ -66,20 +65,6 @@
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
 #define DERIVE_SIMD
-#endif
-#endif
-#if defined(__GNUC__) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v2 __attribute__((vector_size(16)));
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__clang__)
-#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
-#include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm_fmadd_pd((a), (b), (c))
-#else
-#define DERIVE_VFMA(a, b, c) ((derive_v2){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1])})
 #endif
 #endif
 
@@ -185,95 +170,6 @@ int gsm2d_a_kf_step(const double *restrict x, const double *restrict P, const do
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
 int gsm2d_a_kf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
-#if defined(DERIVE_BLOCK_VECTOR)
-    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
-    if (!(P0[2] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    if (!(P0[3] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    if (!(P0[6] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    if (!(P0[7] == 0.0)) {
-        return 3; /* outside P's pattern */
-    }
-    /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v2 x_v0 = {x0[0], x0[2]};
-    derive_v2 x_v1 = {x0[1], x0[3]};
-    derive_v2 P_v2 = {P0[0], P0[10]};
-    derive_v2 P_v3 = {P0[1], P0[11]};
-    derive_v2 P_v4 = {P0[5], P0[15]};
-    size_t k;
-    for (k = 0; k < steps; ++k) {
-        const double *restrict zk = z + k * 2;
-        const derive_v2 az0 = {zk[0], zk[1]};
-        int step_status = 0;
-        const derive_v2 a0 = x_v0 + x_v1;
-        const derive_v2 a1 = P_v2 + P_v3;
-        const derive_v2 a2 = P_v3 + P_v4;
-        const derive_v2 a3 = a1 + a2;
-        const derive_v2 a4 = 0.0025 + a3;
-        const derive_v2 a5 = 0.005 + a2;
-        const derive_v2 a6 = 0.01 + P_v4;
-        const derive_v2 a7 = a4 + a5;
-        const derive_v2 a8 = a5 + a6;
-        const derive_v2 a9 = a7 + a8;
-        const derive_v2 a10 = 0.1 + a9;
-        const derive_v2 a11 = a7 / a10;
-        const derive_v2 a12 = a8 / a10;
-        const derive_v2 a13 = x_v1 + a0;
-        const derive_v2 a14 = az0 - a13;
-        const derive_v2 a15 = a11 * a14;
-        const derive_v2 a16 = a12 * a14;
-        const derive_v2 a17 = a0 + a15;
-        const derive_v2 a18 = x_v1 + a16;
-        const derive_v2 a19 = a11 * a7;
-        const derive_v2 a20 = a11 * a8;
-        const derive_v2 a21 = a12 * a8;
-        const derive_v2 a22 = a4 - a19;
-        const derive_v2 a23 = a5 - a20;
-        const derive_v2 a24 = a6 - a21;
-        if (!(a10[0] > 0.0) && !step_status) {
-            step_status = 1;
-        }
-        if (!(a10[1] > 0.0) && !step_status) {
-            step_status = 2;
-        }
-        if (step_status) {
-            return step_status;
-        }
-        xs[k * 4 + 0] = a17[0];
-        xs[k * 4 + 1] = a18[0];
-        xs[k * 4 + 2] = a17[1];
-        xs[k * 4 + 3] = a18[1];
-        if (Ps) {
-            Ps[k * 16 + 0] = a22[0];
-            Ps[k * 16 + 1] = a23[0];
-            Ps[k * 16 + 2] = 0.0;
-            Ps[k * 16 + 3] = 0.0;
-            Ps[k * 16 + 4] = a23[0];
-            Ps[k * 16 + 5] = a24[0];
-            Ps[k * 16 + 6] = 0.0;
-            Ps[k * 16 + 7] = 0.0;
-            Ps[k * 16 + 8] = 0.0;
-            Ps[k * 16 + 9] = 0.0;
-            Ps[k * 16 + 10] = a22[1];
-            Ps[k * 16 + 11] = a23[1];
-            Ps[k * 16 + 12] = 0.0;
-            Ps[k * 16 + 13] = 0.0;
-            Ps[k * 16 + 14] = a23[1];
-            Ps[k * 16 + 15] = a24[1];
-        }
-        x_v0 = a17;
-        x_v1 = a18;
-        P_v2 = a22;
-        P_v3 = a23;
-        P_v4 = a24;
-    }
-    return 0;
-#else
     double x[4];
     double P[16];
     double x_new[4];
@@ -359,7 +255,6 @@ int gsm2d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         }
     }
     return 0;
-#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after

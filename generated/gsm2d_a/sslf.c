@@ -19,7 +19,6 @@
  * B = [[0.36535881073846804, 0.                 ], [0.20683480863417475, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417475]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 0, calls 0 (flops 48, instructions 28)
- * run: the 2 identical blocks of the step in the lanes of one vector of 2 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, issued as one block's count of vector operations per step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gsm2d_a_sslf_step","step",false,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_sslf_run","run",false,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_sslf_run_tracks","run_tracks",false,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
@@ -76,20 +75,6 @@
 #define DERIVE_SIMD
 #endif
 #endif
-#if defined(__GNUC__) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v2 __attribute__((vector_size(16)));
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__clang__)
-#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
-#include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm_fmadd_pd((a), (b), (c))
-#else
-#define DERIVE_VFMA(a, b, c) ((derive_v2){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1])})
-#endif
-#endif
 
 DERIVE_INLINE void gsm2d_a_sslf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
 {
@@ -123,59 +108,6 @@ void gsm2d_a_sslf_step(const double *restrict x, const double *restrict z, doubl
 /* Run the steady-state Lainiotis filter over steps steps. */
 void gsm2d_a_sslf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
-#if defined(DERIVE_BLOCK_VECTOR)
-    /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v2 x_v0 = {x0[0], x0[2]};
-    derive_v2 x_v1 = {x0[1], x0[3]};
-    size_t k;
-    for (k = 0; k + 2 <= steps; k += 2) {
-        const double *restrict zk = z + k * 2;
-        const double *restrict znk = z + (k + 1) * 2;
-        const derive_v2 az0 = {zk[0], zk[1]};
-        const derive_v2 a0 = 0.36535881073846804 * az0;
-        const derive_v2 a1 = DERIVE_VFMA(((derive_v2){0.6346411892615319, 0.6346411892615319}), x_v0, a0);
-        const derive_v2 a2 = DERIVE_VFMA(((derive_v2){0.2692823785230638, 0.2692823785230638}), x_v1, a1);
-        const derive_v2 a3 = 0.20683480863417475 * az0;
-        const derive_v2 a4 = DERIVE_VFMA(((derive_v2){(-0.20683480863417475), (-0.20683480863417475)}), x_v0, a3);
-        const derive_v2 a5 = DERIVE_VFMA(((derive_v2){0.5863303827316503, 0.5863303827316503}), x_v1, a4);
-        const derive_v2 bzn0 = {znk[0], znk[1]};
-        const derive_v2 bz0 = {zk[0], zk[1]};
-        const derive_v2 b0 = 0.28756871938461365 * bz0;
-        const derive_v2 b1 = DERIVE_VFMA(((derive_v2){0.36535881073846804, 0.36535881073846804}), bzn0, b0);
-        const derive_v2 b2 = DERIVE_VFMA(((derive_v2){0.34707246987691825, 0.34707246987691825}), x_v0, b1);
-        const derive_v2 b3 = DERIVE_VFMA(((derive_v2){0.32878612901536836, 0.32878612901536836}), x_v1, b2);
-        const derive_v2 b4 = 0.045704612806802616 * bz0;
-        const derive_v2 b5 = DERIVE_VFMA(((derive_v2){0.20683480863417475, 0.20683480863417475}), bzn0, b4);
-        const derive_v2 b6 = DERIVE_VFMA(((derive_v2){(-0.25253942144097735), (-0.25253942144097735)}), x_v0, b5);
-        const derive_v2 b7 = DERIVE_VFMA(((derive_v2){0.2880863484838702, 0.2880863484838702}), x_v1, b6);
-        xs[k * 4 + 0] = a2[0];
-        xs[k * 4 + 1] = a5[0];
-        xs[k * 4 + 2] = a2[1];
-        xs[k * 4 + 3] = a5[1];
-        xs[(k + 1) * 4 + 0] = b3[0];
-        xs[(k + 1) * 4 + 1] = b7[0];
-        xs[(k + 1) * 4 + 2] = b3[1];
-        xs[(k + 1) * 4 + 3] = b7[1];
-        x_v0 = b3;
-        x_v1 = b7;
-    }
-    for (; k < steps; ++k) {
-        const double *restrict zk = z + k * 2;
-        const derive_v2 az0 = {zk[0], zk[1]};
-        const derive_v2 a0 = 0.36535881073846804 * az0;
-        const derive_v2 a1 = DERIVE_VFMA(((derive_v2){0.6346411892615319, 0.6346411892615319}), x_v0, a0);
-        const derive_v2 a2 = DERIVE_VFMA(((derive_v2){0.2692823785230638, 0.2692823785230638}), x_v1, a1);
-        const derive_v2 a3 = 0.20683480863417475 * az0;
-        const derive_v2 a4 = DERIVE_VFMA(((derive_v2){(-0.20683480863417475), (-0.20683480863417475)}), x_v0, a3);
-        const derive_v2 a5 = DERIVE_VFMA(((derive_v2){0.5863303827316503, 0.5863303827316503}), x_v1, a4);
-        xs[k * 4 + 0] = a2[0];
-        xs[k * 4 + 1] = a5[0];
-        xs[k * 4 + 2] = a2[1];
-        xs[k * 4 + 3] = a5[1];
-        x_v0 = a2;
-        x_v1 = a5;
-    }
-#else
     double x[4];
     double x_new[4];
     double x_mid[4];
@@ -209,7 +141,6 @@ void gsm2d_a_sslf_run(size_t steps, const double *z, const double *x0, double *x
         xs[k * 4 + 2] = x[2] = x_new[2];
         xs[k * 4 + 3] = x[3] = x_new[3];
     }
-#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
