@@ -19,8 +19,9 @@ fma where the target has one), so the results are bitwise those of the scalar ru
 failed check sets the status of the first failing check in the scalar step's order.
 Lanes beyond k (the vector's width is a power of two) repeat lane 0's values.
 
-The vector run is compiled where ``DERIVE_BLOCK_VECTOR`` is defined (GCC and Clang,
-unless the build defines ``DERIVE_NO_BLOCK_VECTOR``); otherwise the scalar C99 run.
+The vector run is compiled where ``DERIVE_BLOCK_VECTOR`` is defined (GCC and Clang on a
+target with vectors of doubles, unless the build defines ``DERIVE_NO_BLOCK_VECTOR``);
+otherwise the scalar C99 run.
 Counts are unchanged: the header counts the scalar operations of every block.
 """
 
@@ -40,6 +41,9 @@ from derive.program import PARAMETER_PORT
 VECTOR = "DERIVE_BLOCK_VECTOR"
 #: A build that defines this compiles the scalar C99 run loops.
 NO_VECTOR = "DERIVE_NO_BLOCK_VECTOR"
+#: The targets with vector registers of doubles (x86-64's SSE2 and up, AArch64's NEON):
+#: elsewhere (32-bit Arm, Cortex-M) GCC would split the vectors into scalar code.
+TARGETS = "(defined(__SSE2__) || defined(__aarch64__))"
 #: The operations a vector statement spells (lane-wise IEEE: bitwise those of the scalar).
 VECTOR_KINDS = frozenset({"add", "sub", "mul", "div", "neg", "fma"})
 #: The most lanes (blocks) of one vector: 8 doubles, one AVX-512 register.
@@ -80,7 +84,7 @@ def macro_lines(width: int) -> list[str]:
     vtype = vector_type(width)
     lanes = ", ".join(f"DERIVE_FMA((a)[{b}], (b)[{b}], (c)[{b}])" for b in range(width))
     x86, needs = _X86_FMA.get(width, ("", ""))
-    lines = [f"#if defined(__GNUC__) && !defined({NO_VECTOR})",
+    lines = [f"#if defined(__GNUC__) && {TARGETS} && !defined({NO_VECTOR})",
              f"#define {VECTOR} 1",
              f"__extension__ typedef double {vtype} __attribute__((vector_size({8 * width})));",
              f"#if defined({FMA_PLAIN})",
@@ -520,8 +524,9 @@ def header_line(lanes: Lanes) -> str:
     """The header's statement of how the vector run issues the counted operations."""
     width = vector_width(lanes.lanes)
     return (f"run: the {lanes.lanes} identical blocks of the step in the lanes of one vector "
-            f"of {width} doubles where {VECTOR} is defined (GCC, Clang; a build defining "
-            f"{NO_VECTOR} runs the scalar C99 loop): each lane executes its block's "
+            f"of {width} doubles where {VECTOR} is defined (GCC, Clang on x86-64, AArch64; "
+            f"a build defining {NO_VECTOR} runs the scalar C99 loop): each lane executes "
+            "its block's "
             "operations of the counts above in the same order, issued as one block's count "
             "of vector operations per step; bitwise the scalar run's results")
 
