@@ -444,20 +444,22 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
                      f"{gather(tuple(f'{start}[{g}]' for g in table), width)};")
     lines.append("size_t k;")
 
-    def step_lines(lanes: Lanes, rows: dict[str, str], prefix: str,
-                   status: str) -> tuple[list[str], dict, dict]:
-        """One program's gathers and statements: (lines, its outputs' vectors, gathered)."""
+    def step_lines(lanes: Lanes, prefix: str, status: str,
+                   rows: dict[tuple[str, tuple[int, ...]], str]) -> tuple[list[str], dict]:
+        """One program's gathers and statements: (lines, its outputs' vectors); ``rows``:
+        the vectors already gathered this pass, by row and elements (added to)."""
         out: list[str] = []
         gathered: dict[tuple[str, int], str] = {}
         for (port, local_index), table in lanes.inputs.items():
             if port in ins:
                 gathered[(port, local_index)] = carried[(port, table)]
-            else:
-                name = f"{prefix}{port}{local_index}"
-                row = rows.get(port, _row(port))
-                out.append(f"const {vtype} {name} = "
+                continue
+            row = _row(port)
+            if (row, table) not in rows:
+                rows[(row, table)] = f"{prefix}{port}{local_index}"
+                out.append(f"const {vtype} {rows[(row, table)]} = "
                            f"{gather(tuple(f'{row}[{g}]' for g in table), width)};")
-                gathered[(port, local_index)] = name
+            gathered[(port, local_index)] = rows[(row, table)]
         writer = VectorStatements(width, prefix, real)
         if lanes.block.checks:
             out.append(f"int {status} = 0;")
@@ -465,7 +467,7 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
         out += writer.lines
         if lanes.block.checks:
             out += [f"if ({status}) {{", f"    return {status};", "}"]
-        return out, outputs, gathered
+        return out, outputs
 
     def element(lanes: Lanes, outputs: dict, port: str, g: int) -> str:
         where = lanes.output_of(port, g)
@@ -498,7 +500,7 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
         if unit.parameters and PARAMETER_PORT in step.block.used_inputs():
             out.append(f"const {real.c_type} *restrict {_row(PARAMETER_PORT)} = "
                        f"{PARAMETER_PORT} + k * p_stride;")
-        body, outputs, _ = step_lines(step, {}, "a", "step_status")
+        body, outputs = step_lines(step, "a", "step_status", {})
         return out + body + stores(step, outputs, "k") + carry(0, outputs)
 
     indent = "    "
@@ -507,8 +509,9 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
         m = unit.step_input_size("z")
         body = [f"const {real.c_type} *restrict zk = z + k * {m};",
                 f"const {real.c_type} *restrict {_row(LOOKAHEAD_NEXT)} = z + (k + 1) * {m};"]
-        first, mid, _ = step_lines(step, {}, "a", "step_status")
-        second, new, _ = step_lines(two, {}, "b", "pass_status")
+        rows: dict[tuple[str, tuple[int, ...]], str] = {}
+        first, mid = step_lines(step, "a", "step_status", rows)
+        second, new = step_lines(two, "b", "pass_status", rows)
         body += first + second
         body += stores(step, mid, "k") + stores(two, new, "(k + 1)") + carry(1, new)
         lines += [indent + line for line in body]

@@ -130,8 +130,7 @@ void gps_static_jssklf_run(size_t steps, const double *z, const double *x0, doub
         const derive_v4 a0 = 0.2701562118716424 * az0;
         const derive_v4 a1 = DERIVE_VFMA(((derive_v4){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
         const derive_v4 bzn0 = {znk[0], znk[1], znk[2], znk[0]};
-        const derive_v4 bz0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 b0 = 0.19717183305880664 * bz0;
+        const derive_v4 b0 = 0.19717183305880664 * az0;
         const derive_v4 b1 = DERIVE_VFMA(((derive_v4){0.2701562118716424, 0.2701562118716424, 0.2701562118716424, 0.2701562118716424}), bzn0, b0);
         const derive_v4 b2 = DERIVE_VFMA(((derive_v4){0.5326719550695508, 0.5326719550695508, 0.5326719550695508, 0.5326719550695508}), x_v0, b1);
         xs[k * 3 + 0] = a1[0];

@@ -147,12 +147,11 @@ void mpt3d_a_jssklf_run(size_t steps, const double *z, const double *x0, double 
         const derive_v4 a4 = DERIVE_VFMA(((derive_v4){(-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478), (-0.20683480863417478)}), x_v0, a3);
         const derive_v4 a5 = DERIVE_VFMA(((derive_v4){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
         const derive_v4 bzn0 = {znk[0], znk[1], znk[2], znk[0]};
-        const derive_v4 bz0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 b0 = 0.2875687193846137 * bz0;
+        const derive_v4 b0 = 0.2875687193846137 * az0;
         const derive_v4 b1 = DERIVE_VFMA(((derive_v4){0.36535881073846804, 0.36535881073846804, 0.36535881073846804, 0.36535881073846804}), bzn0, b0);
         const derive_v4 b2 = DERIVE_VFMA(((derive_v4){0.34707246987691837, 0.34707246987691837, 0.34707246987691837, 0.34707246987691837}), x_v0, b1);
         const derive_v4 b3 = DERIVE_VFMA(((derive_v4){0.3287861290153685, 0.3287861290153685, 0.3287861290153685, 0.3287861290153685}), x_v1, b2);
-        const derive_v4 b4 = 0.045704612806802644 * bz0;
+        const derive_v4 b4 = 0.045704612806802644 * az0;
         const derive_v4 b5 = DERIVE_VFMA(((derive_v4){0.20683480863417478, 0.20683480863417478, 0.20683480863417478, 0.20683480863417478}), bzn0, b4);
         const derive_v4 b6 = DERIVE_VFMA(((derive_v4){(-0.2525394214409774), (-0.2525394214409774), (-0.2525394214409774), (-0.2525394214409774)}), x_v0, b5);
         const derive_v4 b7 = DERIVE_VFMA(((derive_v4){0.28808634848387027, 0.28808634848387027, 0.28808634848387027, 0.28808634848387027}), x_v1, b6);

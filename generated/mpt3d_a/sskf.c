@@ -147,12 +147,11 @@ void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *x
         const derive_v4 a4 = DERIVE_VFMA(((derive_v4){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
         const derive_v4 a5 = DERIVE_VFMA(((derive_v4){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
         const derive_v4 bzn0 = {znk[0], znk[1], znk[2], znk[0]};
-        const derive_v4 bz0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 b0 = 0.2875687193846137 * bz0;
+        const derive_v4 b0 = 0.2875687193846137 * az0;
         const derive_v4 b1 = DERIVE_VFMA(((derive_v4){0.36535881073846804, 0.36535881073846804, 0.36535881073846804, 0.36535881073846804}), bzn0, b0);
         const derive_v4 b2 = DERIVE_VFMA(((derive_v4){0.3470724698769183, 0.3470724698769183, 0.3470724698769183, 0.3470724698769183}), x_v0, b1);
         const derive_v4 b3 = DERIVE_VFMA(((derive_v4){0.3287861290153686, 0.3287861290153686, 0.3287861290153686, 0.3287861290153686}), x_v1, b2);
-        const derive_v4 b4 = 0.04570461280680265 * bz0;
+        const derive_v4 b4 = 0.04570461280680265 * az0;
         const derive_v4 b5 = DERIVE_VFMA(((derive_v4){0.2068348086341748, 0.2068348086341748, 0.2068348086341748, 0.2068348086341748}), bzn0, b4);
         const derive_v4 b6 = DERIVE_VFMA(((derive_v4){(-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746)}), x_v0, b5);
         const derive_v4 b7 = DERIVE_VFMA(((derive_v4){0.28808634848387027, 0.28808634848387027, 0.28808634848387027, 0.28808634848387027}), x_v1, b6);

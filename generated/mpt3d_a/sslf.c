@@ -147,12 +147,11 @@ void mpt3d_a_sslf_run(size_t steps, const double *z, const double *x0, double *x
         const derive_v4 a4 = DERIVE_VFMA(((derive_v4){(-0.20683480863417475), (-0.20683480863417475), (-0.20683480863417475), (-0.20683480863417475)}), x_v0, a3);
         const derive_v4 a5 = DERIVE_VFMA(((derive_v4){0.5863303827316503, 0.5863303827316503, 0.5863303827316503, 0.5863303827316503}), x_v1, a4);
         const derive_v4 bzn0 = {znk[0], znk[1], znk[2], znk[0]};
-        const derive_v4 bz0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 b0 = 0.28756871938461365 * bz0;
+        const derive_v4 b0 = 0.28756871938461365 * az0;
         const derive_v4 b1 = DERIVE_VFMA(((derive_v4){0.36535881073846804, 0.36535881073846804, 0.36535881073846804, 0.36535881073846804}), bzn0, b0);
         const derive_v4 b2 = DERIVE_VFMA(((derive_v4){0.34707246987691825, 0.34707246987691825, 0.34707246987691825, 0.34707246987691825}), x_v0, b1);
         const derive_v4 b3 = DERIVE_VFMA(((derive_v4){0.32878612901536836, 0.32878612901536836, 0.32878612901536836, 0.32878612901536836}), x_v1, b2);
-        const derive_v4 b4 = 0.045704612806802616 * bz0;
+        const derive_v4 b4 = 0.045704612806802616 * az0;
         const derive_v4 b5 = DERIVE_VFMA(((derive_v4){0.20683480863417475, 0.20683480863417475, 0.20683480863417475, 0.20683480863417475}), bzn0, b4);
         const derive_v4 b6 = DERIVE_VFMA(((derive_v4){(-0.25253942144097735), (-0.25253942144097735), (-0.25253942144097735), (-0.25253942144097735)}), x_v0, b5);
         const derive_v4 b7 = DERIVE_VFMA(((derive_v4){0.2880863484838702, 0.2880863484838702, 0.2880863484838702, 0.2880863484838702}), x_v1, b6);
