@@ -13,6 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import sympy
+from conftest import AXIS_VALUES, LinearModel, dt, sq2, sr2
 
 from derive import catalog
 from derive.emit import block_lanes
@@ -172,3 +174,38 @@ def test_fewer_than_three_blocks_keep_the_scalar_run(model_name, filter_name):
     assert _split(model_name, filter_name)[1] is None
     c = render_filter(catalog.load(model_name), filter_name, "c")[f"{filter_name}.c"]
     assert block_lanes.VECTOR not in c
+
+
+def _three_axes_with_parameters():
+    """Three MPT3D axes with the free parameters dt, sq2, sr2 (p) and P0 pattern zero:
+    the blocks share the statements of the parameters alone (0.25 dt^2 sq2, ...)."""
+    F, G, H = sympy.zeros(6, 6), sympy.zeros(6, 3), sympy.zeros(3, 6)
+    for a in range(3):
+        F[2 * a, 2 * a] = F[2 * a + 1, 2 * a + 1] = 1
+        F[2 * a, 2 * a + 1] = dt
+        G[2 * a, a], G[2 * a + 1, a] = dt / 2, 1
+        H[a, 2 * a], H[a, 2 * a + 1] = 1, dt
+    return LinearModel("axes3", ["s1", "v1", "s2", "v2", "s3", "v3"], ["z1", "z2", "z3"],
+                       F.tolist(), H.tolist(), (sq2 * sympy.eye(3)).tolist(),
+                       (sr2 * sympy.eye(3)).tolist(), G=G.tolist(), values={},
+                       P0_pattern="zero")
+
+
+@needs_gcc
+@pytest.mark.parametrize("flags", ["strict", "native"])
+def test_blocks_sharing_statements_of_the_parameters_are_bitwise_the_scalar_run(tmp_path,
+                                                                                flags):
+    model = _three_axes_with_parameters()
+    lanes = block_lanes.split(_lowered(command_unit(model, "kf"), True)["step"]
+                              .without_pattern_checks())
+    assert lanes is not None and lanes.lanes == 3 and lanes.shared
+    runs = []
+    for where, extra in (("vector", ()), ("scalar", SCALAR)):
+        generated = load_generated(model, "kf", {}, "c", tmp_path / where,
+                                   extra_cflags=FLAGS[flags] + extra)
+        rng = np.random.default_rng(8)
+        p = np.array([float(AXIS_VALUES[name]) for name in generated.unit.parameters])
+        runs.append(generated.c.run(rng.normal(size=(STEPS, 3)) * 10, rng.normal(size=6),
+                               np.eye(6) * 2.0, p=p))
+    for a, b in zip(*runs):
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64))

@@ -112,6 +112,8 @@ class Lanes:
     block. ``statuses``: for each check of ``block`` (in order) the status of each lane;
     ``order``: the checks of the scalar step in its order, as (check, lane).
     ``constants``: output elements no block writes -> their constant value.
+    ``shared``: the statements of the parameters alone, which every block reads (a model
+    with free parameters computes them once for all blocks): scalars, before the blocks.
     """
 
     lanes: int
@@ -121,6 +123,7 @@ class Lanes:
     statuses: tuple[tuple[int, ...], ...]
     order: tuple[tuple[int, int], ...]
     constants: dict[tuple[str, int], float]
+    shared: tuple[LoweredAssign, ...] = ()
 
     def output_of(self, port: str, index: int) -> tuple[int, int] | None:
         """(local index, lane) of an output element, or None (a constant)."""
@@ -169,9 +172,10 @@ class _Union:
         return self.find(roots[0]) if roots else None
 
 
-def _joined(var: Var) -> bool:
-    """True for what joins statements into one block: temporaries, input elements but p."""
-    return var.index is None or var.base != PARAMETER_PORT
+def _scalar(var: Var, shared: set[str]) -> bool:
+    """True for what every block may read: the parameters p and the temporaries computed
+    from them alone (``shared``)."""
+    return var.name in shared if var.index is None else var.base == PARAMETER_PORT
 
 
 def split(program: LoweredProgram) -> Lanes | None:
@@ -181,17 +185,22 @@ def split(program: LoweredProgram) -> Lanes | None:
     if program.pattern_checks:
         return None
     union = _Union()
-    items: list[tuple[str, object]] = []  # (root, statement or (port, index, leaf))
+    shared: set[str] = set()
+    shared_statements: list[LoweredAssign] = []
+    items = []
     for st in program.body:
         if not _kinds(st.tree) <= VECTOR_KINDS | {"cmp"}:
             return None
-        names = [v.name for v in _vars(st.tree) if _joined(v)]
+        names = [v.name for v in _vars(st.tree) if not _scalar(v, shared)]
+        if isinstance(st, LoweredAssign) and not names:
+            shared.add(st.target)
+            shared_statements.append(st)
+            continue
         if isinstance(st, LoweredAssign):
             names.append(st.target)
-        root = union.join(names)
-        if root is None:
+        if union.join(names) is None:
             return None
-        items.append((st, None))
+        items.append(st)
     constants: dict[tuple[str, int], float] = {}
     results = []
     for port, leaves in program.results:
@@ -201,7 +210,7 @@ def split(program: LoweredProgram) -> Lanes | None:
                 continue
             if not _kinds(leaf) <= VECTOR_KINDS:
                 return None
-            names = [v.name for v in _vars(leaf) if _joined(v)]
+            names = [v.name for v in _vars(leaf) if not _scalar(v, shared)]
             if not names:
                 return None
             union.join(names)
@@ -213,13 +222,13 @@ def split(program: LoweredProgram) -> Lanes | None:
         root = union.find(name)
         return blocks.setdefault(root, {"body": [], "results": []})
 
-    for position, (st, _) in enumerate(items):
+    for position, st in enumerate(items):
         name = st.target if isinstance(st, LoweredAssign) else next(
-            v.name for v in _vars(st.tree) if _joined(v))
+            v.name for v in _vars(st.tree) if not _scalar(v, shared))
         block_of(name)["body"].append((position, st))
     for port, index, leaf, name in results:
         block_of(name)["results"].append((port, index, leaf))
-    parts = [_canonical(b["body"], b["results"]) for b in blocks.values()]
+    parts = [_canonical(b["body"], b["results"], shared) for b in blocks.values()]
     lanes = len(parts)
     if not FEWEST_LANES <= lanes <= MOST_LANES or any(p["key"] != parts[0]["key"] for p in parts):
         return None
@@ -233,7 +242,7 @@ def split(program: LoweredProgram) -> Lanes | None:
     block = LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                            first["body"], first["results"], program.use_fma)
     return Lanes(lanes, block, inputs, outputs, statuses,
-                 tuple((c, b) for _, c, b in order), constants)
+                 tuple((c, b) for _, c, b in order), constants, tuple(shared_statements))
 
 
 def _commuted(tree: Tree) -> Tree:
@@ -251,7 +260,7 @@ def _commuted(tree: Tree) -> Tree:
     return Op(tree.kind, args)
 
 
-def _canonical(body: list, results: list) -> dict:
+def _canonical(body: list, results: list, shared: set[str]) -> dict:
     """One block renamed by local indices: its statements, results, the maps from local to
     global indices, its checks' positions and statuses, and the key blocks compare by."""
     elements: dict[str, set[int]] = {}
@@ -269,7 +278,7 @@ def _canonical(body: list, results: list) -> dict:
 
     def name(v: Var) -> Var:
         if v.index is None:
-            return Var(temps[v.name])
+            return v if v.name in shared else Var(temps[v.name])
         if v.base == PARAMETER_PORT:
             return v
         return Var(f"{v.base}[{local[(v.base, v.index)]}]")
@@ -362,6 +371,13 @@ class VectorStatements:
             if v.base == PARAMETER_PORT:
                 return f"{PARAMETER_PORT}k[{v.index}]", False
             return inputs(v.base, v.index), True
+
+        scalar = CPrinter(lambda v: names(v)[0], precision=self.scalar.precision)
+        for st in lanes.shared:  # of the parameters alone: once, as in the scalar step
+            name = f"{self.prefix}{st.target}"
+            self.lines.append(f"const {self.scalar.precision.c_type} {name} = "
+                              f"{scalar.expression(st.tree)};")
+            temps[st.target] = name, False
 
         checked = []
         for st in lanes.block.body:
