@@ -49,9 +49,10 @@ VECTOR_KINDS = frozenset({"add", "sub", "mul", "div", "neg", "fma"})
 #: The most lanes (blocks) of one vector: 8 doubles, one AVX-512 register.
 MOST_LANES = 8
 #: The fewest: two blocks in a vector of two doubles measured 4 to 12 % slower than the
-#: scalar run for gsm2d_a's steady filters (their scalar runs are within 1.2x of their
-#: chains' bound: the gathers and the stores lane by lane cost more than the issue they
-#: save) and no faster for its KF; three (mpt3d_a) measured 0.5 to 0.9 of the scalar time.
+#: scalar run for gsm2d_a's steady-state filters (their scalar runs are within 1.2x of
+#: their chains' bound: the gathers and the stores lane by lane cost more than the issue
+#: they save) and no faster for its time-varying one; three (mpt3d_a) measured 0.5 to
+#: 0.9 of the scalar time (docs/performance.md).
 FEWEST_LANES = 3
 _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
 
@@ -71,6 +72,8 @@ def vector_width(lanes: int) -> int:
 
 #: The vector fma: lane by lane exactly the file's DERIVE_FMA.
 VECTOR_FMA = "DERIVE_VFMA"
+#: Defined where Clang has its elementwise fma (Clang 14 and later).
+ELEMENTWISE_FMA = "DERIVE_ELEMENTWISE_FMA"
 #: x86's vector fma of each width (one rounding per lane, as fma()), and what it needs.
 _X86_FMA = {2: ("_mm_fmadd_pd", "__FMA__"), 4: ("_mm256_fmadd_pd", "__FMA__"),
             8: ("_mm512_fmadd_pd", "__AVX512F__")}
@@ -79,22 +82,28 @@ _X86_FMA = {2: ("_mm_fmadd_pd", "__FMA__"), 4: ("_mm256_fmadd_pd", "__FMA__"),
 def macro_lines(width: int) -> list[str]:
     """The .c file's definitions of :data:`VECTOR`, the vector type of ``width`` and
     :data:`VECTOR_FMA`: a product and a sum where DERIVE_FMA is (contraction is off), the
-    hardware's vector fma where DERIVE_FMA is fma() (Clang's elementwise builtin, x86's
-    intrinsic), else DERIVE_FMA lane by lane (a DERIVE_FMA the build defines)."""
+    hardware's vector fma where DERIVE_FMA is fma() (x86's intrinsic, else Clang's
+    elementwise builtin), else DERIVE_FMA lane by lane (a DERIVE_FMA the build defines, or
+    no vector fma known)."""
     vtype = vector_type(width)
     lanes = ", ".join(f"DERIVE_FMA((a)[{b}], (b)[{b}], (c)[{b}])" for b in range(width))
     x86, needs = _X86_FMA.get(width, ("", ""))
     lines = [f"#if defined(__GNUC__) && {TARGETS} && !defined({NO_VECTOR})",
              f"#define {VECTOR} 1",
              f"__extension__ typedef double {vtype} __attribute__((vector_size({8 * width})));",
+             "#if defined(__clang__) && defined(__has_builtin)",
+             "#if __has_builtin(__builtin_elementwise_fma)",
+             f"#define {ELEMENTWISE_FMA} 1",
+             "#endif",
+             "#endif",
              f"#if defined({FMA_PLAIN})",
-             f"#define {VECTOR_FMA}(a, b, c) ((a) * (b) + (c))",
-             f"#elif defined({FMA_FUSED}) && defined(__clang__)",
-             f"#define {VECTOR_FMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))"]
+             f"#define {VECTOR_FMA}(a, b, c) ((a) * (b) + (c))"]
     if x86:
         lines += [f"#elif defined({FMA_FUSED}) && defined({needs})",
                   "#include <immintrin.h>",
                   f"#define {VECTOR_FMA}(a, b, c) {x86}((a), (b), (c))"]
+    lines += [f"#elif defined({FMA_FUSED}) && defined({ELEMENTWISE_FMA})",
+              f"#define {VECTOR_FMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))"]
     return lines + ["#else",
                     f"#define {VECTOR_FMA}(a, b, c) (({vtype}){{{lanes}}})",
                     "#endif",
@@ -545,9 +554,9 @@ def header_line(lanes: Lanes) -> str:
     return (f"run: the {lanes.lanes} identical blocks of the step in the lanes of one vector "
             f"of {width} doubles where {VECTOR} is defined (GCC, Clang on x86-64, AArch64; "
             f"a build defining {NO_VECTOR} runs the scalar C99 loop): each lane executes "
-            "its block's "
-            "operations of the counts above in the same order, issued as one block's count "
-            "of vector operations per step; bitwise the scalar run's results")
+            "its block's operations of the counts above in the same order, one block's "
+            "count of vector instructions issuing them each step; bitwise the scalar run's "
+            "results")
 
 
 def vector_run(unit, step: LoweredProgram, two: LoweredProgram | None, state: list[dict],

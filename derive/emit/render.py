@@ -624,10 +624,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None and \
         not c_loops.inlined(two) else []
     vector_run, vector_macros, vector_header = block_lanes.vector_run(
-        unit, loop_step, two, state, optional_stores,
-        unused + called_elsewhere
-        + (["/* P0 must be zero outside P's pattern; the loop keeps P inside it */"]
-           + run_checks if run_checks else []),
+        unit, loop_step, two, state, optional_stores, unused + called_elsewhere,
         ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
         else ([], [], "")
     header_lines += [vector_header] if vector_header else []
@@ -635,6 +632,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     header = [c_printer.comment_text(line) for line in header_lines]
     context = {
         "header": header,
+        # with a vector run, run checks P0 before either run (the template then does not)
         "block_run": vector_run,
         "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
         "defines": defines,

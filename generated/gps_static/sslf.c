@@ -19,7 +19,7 @@
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, issued as one block's count of vector operations per step; bitwise the scalar run's results
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_sslf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_sslf_run","run",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_sslf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
@@ -79,13 +79,18 @@
 #if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
 #define DERIVE_BLOCK_VECTOR 1
 __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__clang__)
-#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
 #elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
 #include <immintrin.h>
 #define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif

@@ -23,7 +23,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, issued as one block's count of vector operations per step; bitwise the scalar run's results
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <stddef.h>
@@ -72,13 +72,18 @@
 #if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
 #define DERIVE_BLOCK_VECTOR 1
 __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__clang__)
-#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
 #elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
 #include <immintrin.h>
 #define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
@@ -260,7 +265,6 @@ int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const do
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
 int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
-#if defined(DERIVE_BLOCK_VECTOR)
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
         return 4; /* outside P's pattern */
@@ -298,6 +302,7 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     if (!(P0[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
+#if defined(DERIVE_BLOCK_VECTOR)
     /* the identical blocks in the lanes of one vector (lane b: block b) */
     derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
     derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
@@ -403,43 +408,6 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     double x_new[6];
     double P_new[36];
     size_t k;
-    /* P0 must be zero outside P's pattern; the loop keeps P inside it */
-    if (!(P0[2] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[3] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[4] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[5] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[8] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[9] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[10] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[11] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[16] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[17] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[22] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
-    if (!(P0[23] == 0.0)) {
-        return 4; /* outside P's pattern */
-    }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
