@@ -106,8 +106,7 @@ def macro_lines(width: int) -> list[str]:
               f"#define {VECTOR_FMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))"]
     return lines + ["#else",
                     f"#define {VECTOR_FMA}(a, b, c) (({vtype}){{{lanes}}})",
-                    "#endif",
-                    "#endif"]
+                    "#endif"] + pair_lines(width) + ["#endif"]
 
 
 @dataclass(frozen=True)
@@ -505,7 +504,15 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
         """Run's stored rows ``row`` of a program's outputs."""
         out = []
         for s in state:
-            if s["store"]:
+            if s["store"] and paired(lanes, s["out"], s["size"]):
+                first, second = (outputs[(s["out"], i)] for i in range(2))
+                start = f"&{s['store']}[{row} * {s['size']}"
+                out += [f"{{ const {vtype} lo = {PAIRS}_LO({first}, {second});",
+                        f"  const {vtype} hi = {PAIRS}_HI({first}, {second});",
+                        f"  __builtin_memcpy({start}], &lo, sizeof lo);",
+                        f"  __builtin_memcpy({start} + {width}], &hi, "
+                        f"{s['size'] - width} * sizeof hi[0]); }}"]
+            elif s["store"]:
                 out += [f"{s['store']}[{row} * {s['size']} + {g}] = "
                         f"{element(lanes, outputs, s['out'], g)};" for g in range(s["size"])]
         for s in optional_stores:
@@ -514,6 +521,15 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
                     f"{element(lanes, outputs, s['out'], g)};" for g in range(s["size"])]
             out.append("}")
         return out
+
+    def paired(lanes: Lanes, port: str, size: int) -> bool:
+        """True when each block's two elements of ``port`` are adjacent in its row, block
+        after block (x of three 2-state axes: 0 1 | 2 3 | 4 5): the row is the two vectors
+        interleaved (:func:`pair_lines`), stored in two pieces."""
+        locals_ = [index for (name, index) in lanes.outputs if name == port]
+        return (len(locals_) == 2 and size == 2 * lanes.lanes and all(
+            lanes.outputs[(port, i)] == tuple(2 * b + i for b in range(lanes.lanes))
+            for i in range(2)))
 
     def carry(lanes_index: int, outputs: dict) -> list[str]:
         return [f"{name} = {outputs[where]};"
@@ -546,6 +562,34 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
     lines += [indent + line for line in one_step()]
     lines.append("}")
     return lines + list(tail)
+
+
+#: The macros interleaving two vectors a, b: ``PAIRS_LO`` is a0 b0 a1 b1 ..., the first
+#: half of the lanes; ``PAIRS_HI`` the second half.
+PAIRS = "DERIVE_PAIRS"
+
+
+def pair_lines(width: int) -> list[str]:
+    """The definitions of the :data:`PAIRS` macros for vectors of ``width`` doubles (GCC's
+    ``__builtin_shuffle``, Clang's ``__builtin_shufflevector``)."""
+    def mask(half: int) -> list[int]:
+        return [half * width // 2 + j // 2 + (width if j % 2 else 0) for j in range(width)]
+
+    lo, hi = mask(0), mask(1)
+    index = f"derive_i{width}"
+    return ["#if defined(__clang__)",
+            f"#define {PAIRS}_LO(a, b) __builtin_shufflevector((a), (b), "
+            f"{', '.join(map(str, lo))})",
+            f"#define {PAIRS}_HI(a, b) __builtin_shufflevector((a), (b), "
+            f"{', '.join(map(str, hi))})",
+            "#else",
+            f"__extension__ typedef long long {index} "
+            f"__attribute__((vector_size({8 * width})));",
+            f"#define {PAIRS}_LO(a, b) __builtin_shuffle((a), (b), "
+            f"({index}){{{', '.join(map(str, lo))}}})",
+            f"#define {PAIRS}_HI(a, b) __builtin_shuffle((a), (b), "
+            f"({index}){{{', '.join(map(str, hi))}}})",
+            "#endif"]
 
 
 def header_line(lanes: Lanes) -> str:

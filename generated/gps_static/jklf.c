@@ -87,6 +87,14 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(__clang__)
+#define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
+#define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
+#else
+__extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
+#define DERIVE_PAIRS_LO(a, b) __builtin_shuffle((a), (b), (derive_i4){0, 4, 1, 5})
+#define DERIVE_PAIRS_HI(a, b) __builtin_shuffle((a), (b), (derive_i4){2, 6, 3, 7})
+#endif
 #endif
 
 DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)

@@ -98,6 +98,14 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(__clang__)
+#define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
+#define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
+#else
+__extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
+#define DERIVE_PAIRS_LO(a, b) __builtin_shuffle((a), (b), (derive_i4){0, 4, 1, 5})
+#define DERIVE_PAIRS_HI(a, b) __builtin_shuffle((a), (b), (derive_i4){2, 6, 3, 7})
+#endif
 #endif
 
 DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
@@ -585,12 +593,10 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
         if (step_status) {
             return step_status;
         }
-        xs[k * 6 + 0] = a90[0];
-        xs[k * 6 + 1] = a91[0];
-        xs[k * 6 + 2] = a90[1];
-        xs[k * 6 + 3] = a91[1];
-        xs[k * 6 + 4] = a90[2];
-        xs[k * 6 + 5] = a91[2];
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a90, a91);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a90, a91);
+          __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {
             Ps[k * 36 + 0] = a95[0];
             Ps[k * 36 + 1] = a96[0];

@@ -94,6 +94,14 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(__clang__)
+#define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
+#define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
+#else
+__extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
+#define DERIVE_PAIRS_LO(a, b) __builtin_shuffle((a), (b), (derive_i4){0, 4, 1, 5})
+#define DERIVE_PAIRS_HI(a, b) __builtin_shuffle((a), (b), (derive_i4){2, 6, 3, 7})
+#endif
 #endif
 
 DERIVE_INLINE void mpt3d_a_sskf_step_body(const double *restrict x, const double *restrict z, double *restrict x_new, const size_t s)
@@ -160,18 +168,14 @@ void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *x
         const derive_v4 b5 = DERIVE_VFMA(((derive_v4){0.2068348086341748, 0.2068348086341748, 0.2068348086341748, 0.2068348086341748}), bzn0, b4);
         const derive_v4 b6 = DERIVE_VFMA(((derive_v4){(-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746), (-0.25253942144097746)}), x_v0, b5);
         const derive_v4 b7 = DERIVE_VFMA(((derive_v4){0.28808634848387027, 0.28808634848387027, 0.28808634848387027, 0.28808634848387027}), x_v1, b6);
-        xs[k * 6 + 0] = a2[0];
-        xs[k * 6 + 1] = a5[0];
-        xs[k * 6 + 2] = a2[1];
-        xs[k * 6 + 3] = a5[1];
-        xs[k * 6 + 4] = a2[2];
-        xs[k * 6 + 5] = a5[2];
-        xs[(k + 1) * 6 + 0] = b3[0];
-        xs[(k + 1) * 6 + 1] = b7[0];
-        xs[(k + 1) * 6 + 2] = b3[1];
-        xs[(k + 1) * 6 + 3] = b7[1];
-        xs[(k + 1) * 6 + 4] = b3[2];
-        xs[(k + 1) * 6 + 5] = b7[2];
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a2, a5);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a2, a5);
+          __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
+        { const derive_v4 lo = DERIVE_PAIRS_LO(b3, b7);
+          const derive_v4 hi = DERIVE_PAIRS_HI(b3, b7);
+          __builtin_memcpy(&xs[(k + 1) * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[(k + 1) * 6 + 4], &hi, 2 * sizeof hi[0]); }
         x_v0 = b3;
         x_v1 = b7;
     }
@@ -184,12 +188,10 @@ void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *x
         const derive_v4 a3 = 0.2068348086341748 * az0;
         const derive_v4 a4 = DERIVE_VFMA(((derive_v4){(-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748), (-0.2068348086341748)}), x_v0, a3);
         const derive_v4 a5 = DERIVE_VFMA(((derive_v4){0.5863303827316504, 0.5863303827316504, 0.5863303827316504, 0.5863303827316504}), x_v1, a4);
-        xs[k * 6 + 0] = a2[0];
-        xs[k * 6 + 1] = a5[0];
-        xs[k * 6 + 2] = a2[1];
-        xs[k * 6 + 3] = a5[1];
-        xs[k * 6 + 4] = a2[2];
-        xs[k * 6 + 5] = a5[2];
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a2, a5);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a2, a5);
+          __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         x_v0 = a2;
         x_v1 = a5;
     }
