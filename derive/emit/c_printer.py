@@ -26,6 +26,11 @@ from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
 FMA_NAME = "DERIVE_FMA"
+#: Defined where the file's own DERIVE_FMA is the hardware fma (one rounding), and where it
+#: is a product and a sum (two): a vector path (derive.emit.block_lanes) fuses exactly when
+#: the scalar one does; neither is defined where the build defines DERIVE_FMA itself.
+FMA_FUSED = "DERIVE_FMA_FUSED"
+FMA_PLAIN = "DERIVE_FMA_PLAIN"
 
 
 def fma_macro_lines(precision: Precision = DOUBLE) -> list[str]:
@@ -34,8 +39,10 @@ def fma_macro_lines(precision: Precision = DOUBLE) -> list[str]:
     return ["#ifndef DERIVE_FMA",
             f"#if defined({precision.fast_fma})",
             f"#define DERIVE_FMA(a, b, c) {precision.math('fma')}((a), (b), (c))",
+            f"#define {FMA_FUSED} 1",
             "#else",
             "#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))",
+            f"#define {FMA_PLAIN} 1",
             "#endif",
             "#endif"]
 

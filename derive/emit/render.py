@@ -18,7 +18,7 @@ import jinja2
 import numpy as np
 
 from derive import interface
-from derive.emit import c_loops, c_printer, python_printer
+from derive.emit import block_lanes, c_loops, c_printer, python_printer
 from derive.emit.c_loops import (
     body_functions,
     body_name,
@@ -519,8 +519,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
                          c_run=unit.run_function, tracks=unit.batch)
-    header_lines.append(described.block())
-    header = [c_printer.comment_text(line) for line in header_lines]
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
     stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
@@ -621,8 +619,21 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())}
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
+    # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
+    # (a pass body not inlined is called by the scalar run alone)
+    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None and \
+        not c_loops.inlined(two) else []
+    vector_run, vector_macros, vector_header = block_lanes.vector_run(
+        unit, loop_step, two, state, optional_stores, unused + called_elsewhere,
+        ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
+        else ([], [], "")
+    header_lines += [vector_header] if vector_header else []
+    header_lines.append(described.block())
+    header = [c_printer.comment_text(line) for line in header_lines]
     context = {
         "header": header,
+        # with a vector run, run checks P0 before either run (the template then does not)
+        "block_run": vector_run,
         "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
         "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix, restrict, real) + ";" for lp in lps]
@@ -633,7 +644,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         else [],
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
-        + (tracks["macros"] if batch else []),
+        + (tracks["macros"] if batch else []) + vector_macros,
         "functions": functions,
         "real": real.c_type,
         "zero": real.zero(),

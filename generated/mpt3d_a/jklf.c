@@ -23,6 +23,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 84, sub 15, mul 114, div 12, sqrt 0, fma 60, neg 9, cmp 15, calls 0 (flops 345, instructions 309)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["mpt3d_a_jklf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
@@ -33,8 +34,10 @@
 #ifndef DERIVE_FMA
 #if defined(FP_FAST_FMA)
 #define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
 #endif
 #endif
 
@@ -81,6 +84,33 @@
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
 #define DERIVE_SIMD
+#endif
+#endif
+#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
+#define DERIVE_BLOCK_VECTOR 1
+__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#endif
+#if defined(__clang__)
+#define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
+#define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
+#else
+__extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
+#define DERIVE_PAIRS_LO(a, b) __builtin_shuffle((a), (b), (derive_i4){0, 4, 1, 5})
+#define DERIVE_PAIRS_HI(a, b) __builtin_shuffle((a), (b), (derive_i4){2, 6, 3, 7})
 #endif
 #endif
 
@@ -410,11 +440,6 @@ int mpt3d_a_jklf_step(const double *restrict x, const double *restrict P, const 
 /* Run the joint Kalman-Lainiotis filter over steps steps; Ps may be NULL. */
 int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
-    double x[6];
-    double P[36];
-    double x_new[6];
-    double P_new[36];
-    size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
         return 4; /* outside P's pattern */
@@ -452,6 +477,183 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
     if (!(P0[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
+#if defined(DERIVE_BLOCK_VECTOR)
+    /* the identical blocks in the lanes of one vector (lane b: block b) */
+    derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
+    derive_v4 P_v2 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_v4 P_v3 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_v4 P_v4 = {P0[7], P0[21], P0[35], P0[7]};
+    size_t k;
+    for (k = 0; k < steps; ++k) {
+        const double *restrict zk = z + k * 3;
+        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
+        const derive_v4 a0 = x_v0 + x_v1;
+        const derive_v4 a1 = P_v2 + P_v3;
+        const derive_v4 a2 = P_v3 + P_v4;
+        const derive_v4 a3 = a1 + a2;
+        const derive_v4 a4 = 0.0025 + a3;
+        const derive_v4 a5 = 0.005 + a2;
+        const derive_v4 a6 = 0.01 + P_v4;
+        const derive_v4 a7 = a4 + a5;
+        const derive_v4 a8 = a5 + a6;
+        const derive_v4 a9 = a7 + a8;
+        const derive_v4 a10 = 0.1 + a9;
+        const derive_v4 a11 = a7 / a10;
+        const derive_v4 a12 = a8 / a10;
+        const derive_v4 a13 = x_v1 + a0;
+        const derive_v4 a14 = az0 - a13;
+        const derive_v4 a15 = a11 * a14;
+        const derive_v4 a16 = a12 * a14;
+        const derive_v4 a17 = a0 + a15;
+        const derive_v4 a18 = x_v1 + a16;
+        const derive_v4 a19 = a11 * a7;
+        const derive_v4 a20 = a11 * a8;
+        const derive_v4 a21 = a12 * a8;
+        const derive_v4 a22 = a4 - a19;
+        const derive_v4 a23 = a5 - a20;
+        const derive_v4 a24 = a6 - a21;
+        const derive_v4 a25 = 16.3265306122449 * P_v3;
+        const derive_v4 a26 = DERIVE_VFMA(((derive_v4){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v2, a25);
+        const derive_v4 a27 = 16.3265306122449 * P_v2;
+        const derive_v4 a28 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v3, a27);
+        const derive_v4 a29 = 8.16326530612245 * P_v3;
+        const derive_v4 a30 = DERIVE_VFMA(((derive_v4){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v4, a29);
+        const derive_v4 a31 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v4, a25);
+        const derive_v4 a32 = 1.0 + a26;
+        const derive_v4 a33 = 1.0 + a31;
+        const derive_v4 a34 = 1.0 / a32;
+        const derive_v4 a35 = a30 * a34;
+        const derive_v4 a36 = a28 * a35;
+        const derive_v4 a37 = a33 - a36;
+        const derive_v4 a38 = 1.0 / a37;
+        const derive_v4 a39 = a35 * a38;
+        const derive_v4 a40 = DERIVE_VFMA(a28, a39, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
+        const derive_v4 a41 = a34 * a40;
+        const derive_v4 a42 = a28 * a34;
+        const derive_v4 a43 = a42 * a38;
+        const derive_v4 a44 = (-0.8775510204081632) * a39;
+        const derive_v4 a45 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a41, a44);
+        const derive_v4 a46 = 0.8775510204081632 * a38;
+        const derive_v4 a47 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a43, a46);
+        const derive_v4 a48 = 0.7551020408163265 * a39;
+        const derive_v4 a49 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a41, a48);
+        const derive_v4 a50 = 0.7551020408163265 * a38;
+        const derive_v4 a51 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a43, a50);
+        const derive_v4 a52 = 8.16326530612245 * az0;
+        const derive_v4 a53 = 16.3265306122449 * az0;
+        const derive_v4 a54 = P_v2 * a52;
+        const derive_v4 a55 = DERIVE_VFMA(P_v3, a53, a54);
+        const derive_v4 a56 = P_v3 * a52;
+        const derive_v4 a57 = DERIVE_VFMA(P_v4, a53, a56);
+        const derive_v4 a58 = x_v0 + a55;
+        const derive_v4 a59 = x_v1 + a57;
+        const derive_v4 a60 = 0.061224489795918366 * az0;
+        const derive_v4 a61 = 0.12244897959183673 * az0;
+        const derive_v4 a62 = a45 * a58;
+        const derive_v4 a63 = DERIVE_VFMA(a47, a59, a62);
+        const derive_v4 a64 = a49 * a58;
+        const derive_v4 a65 = -a64;
+        const derive_v4 a66 = DERIVE_VFMA(a51, a59, a65);
+        const derive_v4 a67 = a60 + a63;
+        const derive_v4 a68 = a61 + a66;
+        const derive_v4 a69 = P_v2 * a45;
+        const derive_v4 a70 = DERIVE_VFMA(P_v3, a47, a69);
+        const derive_v4 a71 = P_v3 * a45;
+        const derive_v4 a72 = DERIVE_VFMA(P_v4, a47, a71);
+        const derive_v4 a73 = P_v2 * a49;
+        const derive_v4 a74 = -a73;
+        const derive_v4 a75 = DERIVE_VFMA(P_v3, a51, a74);
+        const derive_v4 a76 = P_v3 * a49;
+        const derive_v4 a77 = -a76;
+        const derive_v4 a78 = DERIVE_VFMA(P_v4, a51, a77);
+        const derive_v4 a79 = 0.9387755102040817 * a70;
+        const derive_v4 a80 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a72, a79);
+        const derive_v4 a81 = (-0.12244897959183673) * a70;
+        const derive_v4 a82 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a72, a81);
+        const derive_v4 a83 = (-0.12244897959183673) * a75;
+        const derive_v4 a84 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a78, a83);
+        const derive_v4 a85 = 0.0020408163265306124 + a80;
+        const derive_v4 a86 = 0.004081632653061225 + a82;
+        const derive_v4 a87 = 0.00816326530612245 + a84;
+        const derive_v4 a88 = a17 + a67;
+        const derive_v4 a89 = a18 + a68;
+        const derive_v4 a90 = 0.5 * a88;
+        const derive_v4 a91 = 0.5 * a89;
+        const derive_v4 a92 = a22 + a85;
+        const derive_v4 a93 = a23 + a86;
+        const derive_v4 a94 = a24 + a87;
+        const derive_v4 a95 = 0.5 * a92;
+        const derive_v4 a96 = 0.5 * a93;
+        const derive_v4 a97 = 0.5 * a94;
+        if (!(a10[0] > 0.0) && !step_status) {
+            step_status = 1;
+        }
+        if (!(a10[1] > 0.0) && !step_status) {
+            step_status = 2;
+        }
+        if (!(a10[2] > 0.0) && !step_status) {
+            step_status = 3;
+        }
+        if (step_status) {
+            return step_status;
+        }
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a90, a91);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a90, a91);
+          __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
+        if (Ps) {
+            Ps[k * 36 + 0] = a95[0];
+            Ps[k * 36 + 1] = a96[0];
+            Ps[k * 36 + 2] = 0.0;
+            Ps[k * 36 + 3] = 0.0;
+            Ps[k * 36 + 4] = 0.0;
+            Ps[k * 36 + 5] = 0.0;
+            Ps[k * 36 + 6] = a96[0];
+            Ps[k * 36 + 7] = a97[0];
+            Ps[k * 36 + 8] = 0.0;
+            Ps[k * 36 + 9] = 0.0;
+            Ps[k * 36 + 10] = 0.0;
+            Ps[k * 36 + 11] = 0.0;
+            Ps[k * 36 + 12] = 0.0;
+            Ps[k * 36 + 13] = 0.0;
+            Ps[k * 36 + 14] = a95[1];
+            Ps[k * 36 + 15] = a96[1];
+            Ps[k * 36 + 16] = 0.0;
+            Ps[k * 36 + 17] = 0.0;
+            Ps[k * 36 + 18] = 0.0;
+            Ps[k * 36 + 19] = 0.0;
+            Ps[k * 36 + 20] = a96[1];
+            Ps[k * 36 + 21] = a97[1];
+            Ps[k * 36 + 22] = 0.0;
+            Ps[k * 36 + 23] = 0.0;
+            Ps[k * 36 + 24] = 0.0;
+            Ps[k * 36 + 25] = 0.0;
+            Ps[k * 36 + 26] = 0.0;
+            Ps[k * 36 + 27] = 0.0;
+            Ps[k * 36 + 28] = a95[2];
+            Ps[k * 36 + 29] = a96[2];
+            Ps[k * 36 + 30] = 0.0;
+            Ps[k * 36 + 31] = 0.0;
+            Ps[k * 36 + 32] = 0.0;
+            Ps[k * 36 + 33] = 0.0;
+            Ps[k * 36 + 34] = a96[2];
+            Ps[k * 36 + 35] = a97[2];
+        }
+        x_v0 = a90;
+        x_v1 = a91;
+        P_v2 = a95;
+        P_v3 = a96;
+        P_v4 = a97;
+    }
+    return 0;
+#else
+    double x[6];
+    double P[36];
+    double x_new[6];
+    double P_new[36];
+    size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -583,6 +785,7 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
         }
     }
     return 0;
+#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after

@@ -23,6 +23,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <stddef.h>
@@ -72,6 +73,33 @@
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
 #define DERIVE_SIMD
+#endif
+#endif
+#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
+#define DERIVE_BLOCK_VECTOR 1
+__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#endif
+#if defined(__clang__)
+#define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
+#define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
+#else
+__extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
+#define DERIVE_PAIRS_LO(a, b) __builtin_shuffle((a), (b), (derive_i4){0, 4, 1, 5})
+#define DERIVE_PAIRS_HI(a, b) __builtin_shuffle((a), (b), (derive_i4){2, 6, 3, 7})
 #endif
 #endif
 
@@ -251,11 +279,6 @@ int mpt3d_a_kf_step(const double *restrict x, const double *restrict P, const do
 /* Run the Kalman filter over steps steps; Ps may be NULL. */
 int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
-    double x[6];
-    double P[36];
-    double x_new[6];
-    double P_new[36];
-    size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
         return 4; /* outside P's pattern */
@@ -293,6 +316,110 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     if (!(P0[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
+#if defined(DERIVE_BLOCK_VECTOR)
+    /* the identical blocks in the lanes of one vector (lane b: block b) */
+    derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
+    derive_v4 P_v2 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_v4 P_v3 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_v4 P_v4 = {P0[7], P0[21], P0[35], P0[7]};
+    size_t k;
+    for (k = 0; k < steps; ++k) {
+        const double *restrict zk = z + k * 3;
+        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        int step_status = 0;
+        const derive_v4 a0 = x_v0 + x_v1;
+        const derive_v4 a1 = P_v2 + P_v3;
+        const derive_v4 a2 = P_v3 + P_v4;
+        const derive_v4 a3 = a1 + a2;
+        const derive_v4 a4 = 0.0025 + a3;
+        const derive_v4 a5 = 0.005 + a2;
+        const derive_v4 a6 = 0.01 + P_v4;
+        const derive_v4 a7 = a4 + a5;
+        const derive_v4 a8 = a5 + a6;
+        const derive_v4 a9 = a7 + a8;
+        const derive_v4 a10 = 0.1 + a9;
+        const derive_v4 a11 = a7 / a10;
+        const derive_v4 a12 = a8 / a10;
+        const derive_v4 a13 = x_v1 + a0;
+        const derive_v4 a14 = az0 - a13;
+        const derive_v4 a15 = a11 * a14;
+        const derive_v4 a16 = a12 * a14;
+        const derive_v4 a17 = a0 + a15;
+        const derive_v4 a18 = x_v1 + a16;
+        const derive_v4 a19 = a11 * a7;
+        const derive_v4 a20 = a11 * a8;
+        const derive_v4 a21 = a12 * a8;
+        const derive_v4 a22 = a4 - a19;
+        const derive_v4 a23 = a5 - a20;
+        const derive_v4 a24 = a6 - a21;
+        if (!(a10[0] > 0.0) && !step_status) {
+            step_status = 1;
+        }
+        if (!(a10[1] > 0.0) && !step_status) {
+            step_status = 2;
+        }
+        if (!(a10[2] > 0.0) && !step_status) {
+            step_status = 3;
+        }
+        if (step_status) {
+            return step_status;
+        }
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a17, a18);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a17, a18);
+          __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
+        if (Ps) {
+            Ps[k * 36 + 0] = a22[0];
+            Ps[k * 36 + 1] = a23[0];
+            Ps[k * 36 + 2] = 0.0;
+            Ps[k * 36 + 3] = 0.0;
+            Ps[k * 36 + 4] = 0.0;
+            Ps[k * 36 + 5] = 0.0;
+            Ps[k * 36 + 6] = a23[0];
+            Ps[k * 36 + 7] = a24[0];
+            Ps[k * 36 + 8] = 0.0;
+            Ps[k * 36 + 9] = 0.0;
+            Ps[k * 36 + 10] = 0.0;
+            Ps[k * 36 + 11] = 0.0;
+            Ps[k * 36 + 12] = 0.0;
+            Ps[k * 36 + 13] = 0.0;
+            Ps[k * 36 + 14] = a22[1];
+            Ps[k * 36 + 15] = a23[1];
+            Ps[k * 36 + 16] = 0.0;
+            Ps[k * 36 + 17] = 0.0;
+            Ps[k * 36 + 18] = 0.0;
+            Ps[k * 36 + 19] = 0.0;
+            Ps[k * 36 + 20] = a23[1];
+            Ps[k * 36 + 21] = a24[1];
+            Ps[k * 36 + 22] = 0.0;
+            Ps[k * 36 + 23] = 0.0;
+            Ps[k * 36 + 24] = 0.0;
+            Ps[k * 36 + 25] = 0.0;
+            Ps[k * 36 + 26] = 0.0;
+            Ps[k * 36 + 27] = 0.0;
+            Ps[k * 36 + 28] = a22[2];
+            Ps[k * 36 + 29] = a23[2];
+            Ps[k * 36 + 30] = 0.0;
+            Ps[k * 36 + 31] = 0.0;
+            Ps[k * 36 + 32] = 0.0;
+            Ps[k * 36 + 33] = 0.0;
+            Ps[k * 36 + 34] = a23[2];
+            Ps[k * 36 + 35] = a24[2];
+        }
+        x_v0 = a17;
+        x_v1 = a18;
+        P_v2 = a22;
+        P_v3 = a23;
+        P_v4 = a24;
+    }
+    return 0;
+#else
+    double x[6];
+    double P[36];
+    double x_new[6];
+    double P_new[36];
+    size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -424,6 +551,7 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         }
     }
     return 0;
+#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after

@@ -29,8 +29,10 @@
 #ifndef DERIVE_FMA
 #if defined(FP_FAST_FMA)
 #define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
 #endif
 #endif
 
