@@ -54,7 +54,7 @@ def test_a_temporary_read_once_is_printed_inside_its_reader(model, name, options
 def test_the_loop_keeps_each_step_in_one_pack_and_counts_steps_by_it():
     text = render_filter(catalog.load("mpt3d_b"), "kf", "python", {})["kf.py"]
     body = _loop_body(text)
-    assert sum(line.startswith("rows.append(pack(") for line in body) == 1
+    assert sum(line.startswith("keep(pack(") for line in body) == 1
     assert not any("enumerate(" in line for line in body)
     # the new state is written where it is computed when the old value is dead by then
     assert "x_0 = t0 + t11*t14" in body and "P_0 = t4 - t11*t7" in body

@@ -64,7 +64,7 @@ def test_a_step_of_the_loop_builds_no_tuple_list_or_row_list(model, name, option
     assert not built, (model, name, [ast.unparse(node) for node in built])
     assert "tolist" not in ast.unparse(loop.iter)
     keeps = [node for node in loop.body if isinstance(node, ast.Expr)]
-    assert [ast.unparse(node.value.func) for node in keeps] == ["rows.append"]
+    assert [ast.unparse(node.value.func) for node in keeps] == ["keep"]
     assert ast.unparse(keeps[0].value.args[0].func) == "pack"
 
 
@@ -111,6 +111,18 @@ def test_inputs_of_several_elements_and_a_parameter_row_per_step_are_stepped_bit
     # a transposed (not C-contiguous) zs is read in its logical order
     xt, _ = module.run(np.ascontiguousarray(zs.T).T, x0, P0, p_rows)
     np.testing.assert_array_equal(xt, xr)
+
+
+def test_a_failed_check_names_its_own_step():
+    """The step index of the error is counted from the bytes kept so far (no counter per
+    step): a negative r in row 7 makes S negative there, and the message says step 7."""
+    module = load_units([kf_unit(axes=2)], "python")[0].python
+    rng = np.random.default_rng(17)
+    steps = 20
+    p_rows = np.column_stack([np.full(steps, 0.1), np.full(steps, 0.05), np.full(steps, 0.5)])
+    p_rows[7, 2] = -1e9
+    with pytest.raises(NumericalError, match=r"^step 7: S is not positive definite"):
+        module.run(rng.normal(size=(steps, 2)), np.zeros(4), np.eye(4), p_rows)
 
 
 def test_the_bench_limit_keeps_the_operations_and_the_checks(tmp_path):

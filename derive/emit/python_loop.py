@@ -8,12 +8,14 @@ as it is read and freed with the step; an input of several elements through one 
 of its repeated iterator), runs the step's own statements (same printer, same
 operations, same order, so the results are bitwise those of ``step``) and packs its new
 elements into bytes at once (one ``Struct.pack`` per step: no tuple, no float kept
-alive), joined and read as an array once at the end.  Per step it names only what is
+alive), appended to one ``bytearray`` and read as an array once at the end (a list of
+one bytes object per step was as fast for 2,000 steps, 8 % slower at 20,000 and 25 %
+at 100,000: each object its own allocation, out of cache).  Per step it names only what is
 read twice: a temporary read once is printed inside its reader (unless a check lies
 between them, so nothing divides by a value before it is checked), and a new state
 element is written to its local where it is computed once the old value is dead.  A
 failed check raises :class:`NumericalError` with the step's message and the step's
-index (the rows kept so far: no counter per step).
+index (the bytes kept so far over a row's: no counter per step).
 """
 
 from __future__ import annotations
@@ -129,8 +131,9 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
                 kept.append(text(leaf))
             columns[port].append(kept.index(text(leaf)))
     # each step's row packed into bytes at once (its floats freed at once, none kept
-    # alive), the bytes joined and read as an array at the end
-    out += ["rows = []", f'pack = struct.Struct("{len(kept)}d").pack']
+    # alive), appended to one bytearray, read as an array at the end
+    out += ["rows = bytearray()", "keep = rows.extend",
+            f'pack = struct.Struct("{len(kept)}d").pack']
     # the per-step inputs as doubles in one array each, iterated element by element (a
     # float made as it is read, freed with the step; no list of rows): an input of size
     # s repeats its iterator s times in one zip, so each step unpacks its elements
@@ -152,9 +155,10 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         else:
             value = printer.expression(_substitute(st.tree.args[0], inlined))
             body += [f"if not {value} > 0.0:",
-                     f'    raise NumericalError(f"step {{len(rows)}}: " + {st.message!r})']
+                     f'    raise NumericalError(f"step {{len(rows) // {8 * width}}}: " '
+                     f'+ {st.message!r})']
     kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
-    body += _wrap(f"rows.append(pack({', '.join(kept_now)}))")
+    body += _wrap(f"keep(pack({', '.join(kept_now)}))")
     # the rest of the state (a leaf that reads the old state is bound first, so no
     # assignment sees a new value early)
     olds = {t for t, _ in leaves}
@@ -169,7 +173,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         assigned.append((target_, value))
     body += early + [f"{t} = {v}" for t, v in assigned]
     out += [f"    {line}" for line in body]
-    out.append(f'table = np.frombuffer(b"".join(rows)).reshape(-1, {width})')
+    out.append(f'table = np.frombuffer(rows).reshape(-1, {width})')
     ret = [f"table[:, {columns[port]}]" if len(shape) == 1 else
            f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
            for port, shape in stored]

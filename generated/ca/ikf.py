@@ -175,7 +175,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("9d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1 + 0.5*x_2
@@ -190,19 +191,19 @@ def run(zs, x0, P0):
             t14 = 0.005 + t6
             t15 = 0.01 + P_8
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t16 = 1.0/t10
             t17 = t11*t16
             t18 = t12*t16
             t19 = t13 - t11*t17
             if not t19 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t20 = 1.0/t19
             t21 = t14 - t12*t17
             t22 = t20*t21
             t23 = t15 - t12*t18 - t21*t22
             if not t23 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t24 = 1.0/t23
             t25 = t17*t22 - t18
             t26 = t17*t20
@@ -212,19 +213,19 @@ def run(zs, x0, P0):
             t31 = t20 + t22*t28
             t32 = 10.0 + (t16 + t17*t26 + t25*t27)
             if not t32 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t33 = 1.0/t32
             t34 = t30*t33
             t35 = t27*t33
             t36 = t31 - t30*t34
             if not t36 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t37 = 1.0/t36
             t38 = t27*t34 - t28
             t39 = t37*t38
             t40 = t24 - t27*t35 - t38*t39
             if not t40 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             P_8 = 1.0/t40
             t42 = t35 + t34*t39
             t43 = t34*t37
@@ -239,8 +240,8 @@ def run(zs, x0, P0):
             x_2 = x_2 - 10.0*t44*t52
             P_2 = -t44
             P_5 = -t45
-            rows.append(pack(x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 9)
+            keep(pack(x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
+        table = np.frombuffer(rows).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

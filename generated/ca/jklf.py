@@ -241,7 +241,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("9d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1 + 0.5*x_2
@@ -257,7 +258,7 @@ def run(zs, x0, P0):
             t15 = 0.01 + P_8
             t16 = 0.1 + t10
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t17 = 1.0/t16
             t18 = t10*t17
             t19 = t11*t17
@@ -316,13 +317,13 @@ def run(zs, x0, P0):
             t134 = 0.5*(0.0033177860696517415 + (0.9875621890547264*t102 - 0.012437810945273632*t101 + 0.9937810945273632*t103) + (t13 - t11*t19))
             t135 = 0.5*(0.004979270315091211 + (0.9917081260364843*t103 - 0.01658374792703151*t101 - 0.01658374792703151*t102) + (t14 - t12*t19))
             P_8 = 0.5*(0.009972360420121614 + (0.9917081260364843*(P_2*t77 - P_5*t78 + P_8*t79) - 0.01658374792703151*(P_0*t77 - P_1*t78 + P_2*t79) - 0.01658374792703151*(P_1*t77 - P_4*t78 + P_5*t79)) + (t15 - t12*t20))
-            rows.append(pack(x_0, x_1, x_2, t131, t132, t133, t134, t135, P_8))
+            keep(pack(x_0, x_1, x_2, t131, t132, t133, t134, t135, P_8))
             P_0 = t131
             P_1 = t132
             P_2 = t133
             P_4 = t134
             P_5 = t135
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 9)
+        table = np.frombuffer(rows).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -74,16 +74,17 @@ def run(zs, x0):
     xs = np.empty((steps, 3) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("3d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = 0.2559986051046037*x_0 + 0.25599860510460365*x_1 + 0.12799930255230185*x_2 + 0.7440013948953963*z_0
             t1 = 0.5120657854402215*x_1 - 0.4879342145597783*x_0 + 0.7560328927201108*x_2 + 0.48793421455977826*z_0
             x_2 = 0.9200002179527026*x_2 - 0.15999956409459487*x_0 - 0.15999956409459484*x_1 + 0.15999956409459481*z_0
-            rows.append(pack(t0, t1, x_2))
+            keep(pack(t0, t1, x_2))
             x_0 = t0
             x_1 = t1
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 3)
+        table = np.frombuffer(rows).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     x = x0
     for k in range(steps):

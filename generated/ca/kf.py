@@ -144,7 +144,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("9d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1 + 0.5*x_2
@@ -160,7 +161,7 @@ def run(zs, x0, P0):
             t15 = 0.01 + P_8
             t16 = 0.1 + t10
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t17 = 1.0/t16
             t18 = t10*t17
             t19 = t11*t17
@@ -175,8 +176,8 @@ def run(zs, x0, P0):
             P_4 = t13 - t11*t19
             P_5 = t14 - t12*t19
             P_8 = t15 - t12*t20
-            rows.append(pack(x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 9)
+            keep(pack(x_0, x_1, x_2, P_0, P_1, P_2, P_4, P_5, P_8))
+        table = np.frombuffer(rows).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -163,7 +163,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("9d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = 9.950248756218905*P_1
@@ -219,13 +220,13 @@ def run(zs, x0, P0):
             t76 = 0.0033177860696517415 + (0.9875621890547264*t62 - 0.012437810945273632*t61 + 0.9937810945273632*t63)
             t77 = 0.004979270315091211 + (0.9917081260364843*t63 - 0.01658374792703151*t61 - 0.01658374792703151*t62)
             P_8 = 0.009972360420121614 + (0.9917081260364843*(P_2*t37 - P_5*t38 + P_8*t39) - 0.01658374792703151*(P_0*t37 - P_1*t38 + P_2*t39) - 0.01658374792703151*(P_1*t37 - P_4*t38 + P_5*t39))
-            rows.append(pack(x_0, x_1, x_2, t73, t74, t75, t76, t77, P_8))
+            keep(pack(x_0, x_1, x_2, t73, t74, t75, t76, t77, P_8))
             P_0 = t73
             P_1 = t74
             P_2 = t75
             P_4 = t76
             P_5 = t77
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 9)
+        table = np.frombuffer(rows).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -92,15 +92,16 @@ def run(zs, x0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_start = np.asarray(init(x0), dtype=float)
         x_0, x_1, x_2 = x_start.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("3d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_1 - 0.31193539150247196*x_0 + 0.5*x_2 + 1.311935391502472*z_0
             x_1 = x_1 - 0.6479337786543731*x_0 + x_2 + 0.6479337786543731*z_0
             x_2 = x_2 - 0.15999956409459484*x_0 + 0.15999956409459484*z_0
-            rows.append(pack(t0, x_1, x_2))
+            keep(pack(t0, x_1, x_2))
             x_0 = t0
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 3)
+        table = np.frombuffer(rows).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     x = init(x0)
     for k in range(steps):

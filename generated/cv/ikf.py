@@ -137,7 +137,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
@@ -146,30 +147,30 @@ def run(zs, x0, P0):
             t5 = 0.005 + t2
             t6 = 0.01 + P_3
             if not t4 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t7 = 1.0/t4
             t8 = t5*t7
             t9 = t6 - t5*t8
             if not t9 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t10 = 1.0/t9
             t11 = t10*t8
             t13 = 10.0 + (t7 + t11*t8)
             if not t13 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t14 = 1.0/t13
             t15 = t11*t14
             t16 = t10 - t11*t15
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             P_3 = 1.0/t16
             P_1 = t15*P_3
             P_0 = t14 + t15*P_1
             t22 = z_0 - t0
             x_0 = t0 + 10.0*P_0*t22
             x_1 = x_1 + 10.0*P_1*t22
-            rows.append(pack(x_0, x_1, P_0, P_1, P_3))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+            keep(pack(x_0, x_1, P_0, P_1, P_3))
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -173,7 +173,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
@@ -183,7 +184,7 @@ def run(zs, x0, P0):
             t6 = 0.01 + P_3
             t7 = 0.1 + t4
             if not t7 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t8 = t4/t7
             t9 = t5/t7
             t10 = z_0 - t0
@@ -211,10 +212,10 @@ def run(zs, x0, P0):
             t66 = 0.5*(t4 - t4*t8 + (0.0032258064516129032 + (0.967741935483871*t49 + 0.967741935483871*t50)))
             t67 = 0.5*(t5 - t5*t8 + (0.004838709677419355 + (0.9516129032258065*t50 - 0.04838709677419355*t49)))
             P_3 = 0.5*(t6 - t5*t9 + (0.009758064516129032 + (0.9516129032258065*(P_3*t36 - P_1*t35) - 0.04838709677419355*(P_1*t36 - P_0*t35))))
-            rows.append(pack(x_0, x_1, t66, t67, P_3))
+            keep(pack(x_0, x_1, t66, t67, P_3))
             P_0 = t66
             P_1 = t67
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

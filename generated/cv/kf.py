@@ -125,7 +125,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
@@ -135,7 +136,7 @@ def run(zs, x0, P0):
             t6 = 0.01 + P_3
             t7 = 0.1 + t4
             if not t7 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t8 = t4/t7
             t9 = t5/t7
             t10 = z_0 - t0
@@ -144,8 +145,8 @@ def run(zs, x0, P0):
             P_0 = t4 - t4*t8
             P_1 = t5 - t5*t8
             P_3 = t6 - t5*t9
-            rows.append(pack(x_0, x_1, P_0, P_1, P_3))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+            keep(pack(x_0, x_1, P_0, P_1, P_3))
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -122,7 +122,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = 9.67741935483871*P_1
@@ -149,10 +150,10 @@ def run(zs, x0, P0):
             t35 = 0.0032258064516129032 + (0.967741935483871*t28 + 0.967741935483871*t29)
             t36 = 0.004838709677419355 + (0.9516129032258065*t29 - 0.04838709677419355*t28)
             P_3 = 0.009758064516129032 + (0.9516129032258065*(P_3*t15 - P_1*t14) - 0.04838709677419355*(P_1*t15 - P_0*t14))
-            rows.append(pack(x_0, x_1, t35, t36, P_3))
+            keep(pack(x_0, x_1, t35, t36, P_3))
             P_0 = t35
             P_1 = t36
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

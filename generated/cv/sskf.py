@@ -73,14 +73,15 @@ def run(zs, x0):
     xs = np.empty((steps, 2) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("2d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = 0.45147237290283504*x_0 + 0.45147237290283504*x_1 + 0.548527627097165*z_0
             x_1 = 0.7875212074340511*x_1 - 0.2124787925659489*x_0 + 0.2124787925659489*z_0
-            rows.append(pack(t0, x_1))
+            keep(pack(t0, x_1))
             x_0 = t0
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 2)
+        table = np.frombuffer(rows).reshape(-1, 2)
         return table[:, [0, 1]]
     x = x0
     for k in range(steps):

@@ -378,7 +378,8 @@ def run(zs, us, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("14d").pack
         z_values = iter(array("d", zs.tobytes()))
         u_values = iter(array("d", us.tobytes()))
@@ -451,14 +452,14 @@ def run(zs, us, x0, P0):
             t68 = 100.0 + (t54 + t34*t42 + t35*t46 + t36*t50)
             t69 = 100.0 + (t55 + t37*t43 + t38*t47 + t39*t51)
             if not t66 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t70 = 1.0/t66
             t71 = t57*t70
             t72 = t58*t70
             t73 = t59*t70
             t74 = t67 - t57*t71
             if not t74 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t75 = 1.0/t74
             t76 = t61 - t58*t71
             t77 = t75*t76
@@ -466,13 +467,13 @@ def run(zs, us, x0, P0):
             t79 = t75*t78
             t80 = t68 - t58*t72 - t76*t77
             if not t80 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t81 = 1.0/t80
             t82 = t64 - t59*t72 - t77*t78
             t83 = t81*t82
             t84 = t69 - t59*t73 - t78*t79 - t82*t83
             if not t84 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'S is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t85 = 1.0/t84
             t86 = t41 - t40*t71
             t87 = t42 - t40*t72 - t77*t86
@@ -520,9 +521,8 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t100*t48 + t104*t92 + t108*t93 + t112*t94)
             P_11 = P_11 - (t100*t52 + t104*t95 + t108*t96 + t112*t97)
             P_15 = t3 - (t101*t52 + t105*t95 + t109*t96 + t113*t97)
-            rows.append(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11,
-                    P_15))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 14)
+            keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
+        table = np.frombuffer(rows).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

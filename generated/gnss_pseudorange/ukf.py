@@ -714,7 +714,8 @@ def run(zs, us, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("14d").pack
         z_values = iter(array("d", zs.tobytes()))
         u_values = iter(array("d", us.tobytes()))
@@ -725,7 +726,7 @@ def run(zs, us, x0, P0):
             t2 = 0.01 + P_10
             t3 = 0.01 + P_15
             if not t0 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive')
             t4 = _sqrt(t0)
             t5 = 1.0/t4
             t6 = P_1*t5
@@ -733,19 +734,19 @@ def run(zs, us, x0, P0):
             t8 = P_3*t5
             t9 = t1 - t6*t6
             if not t9 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive')
             t10 = _sqrt(t9)
             t11 = 1.0/t10
             t12 = t11*(P_6 - t6*t7)
             t13 = t11*(P_7 - t6*t8)
             t14 = t2 - t12*t12 - t7*t7
             if not t14 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive')
             t15 = _sqrt(t14)
             t17 = 1.0/t15*(P_11 - t12*t13 - t7*t8)
             t18 = t3 - t13*t13 - t17*t17 - t8*t8
             if not t18 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive')
             t20 = 1.7320508075688772*t4
             t21 = 1.7320508075688772*t6
             t22 = 1.7320508075688772*t10
@@ -916,14 +917,14 @@ def run(zs, us, x0, P0):
             t294 = 0.16666666666666666*(t275 + t252*t26 + t256*t27 + t260*t28)
             t295 = 0.16666666666666666*(t275 + t253*t26 + t257*t27 + t261*t28)
             if not t231 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t296 = 1.0/t231
             t297 = t233*t296
             t298 = t235*t296
             t299 = t237*t296
             t300 = t239 - t233*t297
             if not t300 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t301 = 1.0/t300
             t302 = t241 - t235*t297
             t303 = t301*t302
@@ -931,13 +932,13 @@ def run(zs, us, x0, P0):
             t305 = t301*t304
             t306 = t245 - t235*t298 - t302*t303
             if not t306 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t307 = 1.0/t306
             t308 = t247 - t237*t298 - t303*t304
             t309 = t307*t308
             t310 = t249 - t237*t299 - t304*t305 - t308*t309
             if not t310 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 112}: " + 'Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive')
             t311 = 1.0/t310
             t312 = t281 - t280*t297
             t313 = t282 - t280*t298 - t303*t312
@@ -981,9 +982,8 @@ def run(zs, us, x0, P0):
             P_10 = t2 - (t288*t348 + t289*t347 + t290*t346 + t291*t338)
             P_11 = P_11 - (t292*t348 + t293*t347 + t294*t346 + t295*t338)
             P_15 = t3 - (t292*t351 + t293*t350 + t294*t349 + t295*t339)
-            rows.append(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11,
-                    P_15))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 14)
+            keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15))
+        table = np.frombuffer(rows).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

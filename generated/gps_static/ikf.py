@@ -166,36 +166,37 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("7d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = 0.01 + P_0
             if not t0 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t2 = 10.0 + 1.0/t0
             if not t2 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             P_0 = 1.0/t2
             x_0 = x_0 + 10.0*P_0*(z_0 - x_0)
             t8 = 0.01 + P_4
             if not t8 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t10 = 10.0 + 1.0/t8
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             P_4 = 1.0/t10
             x_1 = x_1 + 10.0*P_4*(z_1 - x_1)
             t16 = 0.01 + P_8
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t18 = 10.0 + 1.0/t16
             if not t18 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             P_8 = 1.0/t18
             x_2 = x_2 + 10.0*P_8*(z_2 - x_2)
-            rows.append(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 7)
+            keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

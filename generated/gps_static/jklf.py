@@ -211,14 +211,15 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("7d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = 0.01 + P_0
             t1 = 0.1 + t0
             if not t1 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t2 = t0/t1
             t11 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_0))
             x_0 = 0.5*(0.09090909090909091*z_0 + t11*(x_0 + P_0*(9.090909090909092*z_0)) + (x_0 + t2*(z_0 - x_0)))
@@ -226,7 +227,7 @@ def run(zs, x0, P0):
             t25 = 0.01 + P_4
             t26 = 0.1 + t25
             if not t26 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t27 = t25/t26
             t36 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_4))
             x_1 = 0.5*(x_1 + t27*(z_1 - x_1) + (0.09090909090909091*z_1 + t36*(x_1 + P_4*(9.090909090909092*z_1))))
@@ -234,13 +235,13 @@ def run(zs, x0, P0):
             t50 = 0.01 + P_8
             t51 = 0.1 + t50
             if not t51 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t52 = t50/t51
             t61 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_8))
             x_2 = 0.5*(x_2 + t52*(z_2 - x_2) + (0.09090909090909091*z_2 + t61*(x_2 + P_8*(9.090909090909092*z_2))))
             P_8 = 0.5*(t50 - t50*t52 + (0.00909090909090909 + 0.9090909090909091*(P_8*t61)))
-            rows.append(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 7)
+            keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

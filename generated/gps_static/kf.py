@@ -160,33 +160,34 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("7d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = 0.01 + P_0
             t1 = 0.1 + t0
             if not t1 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t2 = t0/t1
             x_0 = x_0 + t2*(z_0 - x_0)
             P_0 = t0 - t0*t2
             t8 = 0.01 + P_4
             t9 = 0.1 + t8
             if not t9 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t10 = t8/t9
             x_1 = x_1 + t10*(z_1 - x_1)
             P_4 = t8 - t10*t8
             t16 = 0.01 + P_8
             t17 = 0.1 + t16
             if not t17 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t18 = t16/t17
             x_2 = x_2 + t18*(z_2 - x_2)
             P_8 = t16 - t16*t18
-            rows.append(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 7)
+            keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

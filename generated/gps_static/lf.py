@@ -152,7 +152,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("7d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
@@ -165,8 +166,8 @@ def run(zs, x0, P0):
             t29 = 0.9090909090909091*(1.0/(1.0 + 9.090909090909092*P_8))
             x_2 = 0.09090909090909091*z_2 + t29*(x_2 + P_8*(9.090909090909092*z_2))
             P_8 = 0.00909090909090909 + 0.9090909090909091*(P_8*t29)
-            rows.append(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 7)
+            keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
+        table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
     Ps = np.empty((steps, 9) + track)
     x = x0

@@ -71,15 +71,16 @@ def run(zs, x0):
     xs = np.empty((steps, 3) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("3d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             x_0 = 0.7298437881283576*x_0 + 0.2701562118716424*z_0
             x_1 = 0.7298437881283576*x_1 + 0.2701562118716424*z_1
             x_2 = 0.7298437881283576*x_2 + 0.2701562118716424*z_2
-            rows.append(pack(x_0, x_1, x_2))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 3)
+            keep(pack(x_0, x_1, x_2))
+        table = np.frombuffer(rows).reshape(-1, 3)
         return table[:, [0, 1, 2]]
     x = x0
     for k in range(steps):

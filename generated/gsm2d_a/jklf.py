@@ -284,7 +284,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("11d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1) in zip(*[z_values] * 2):
@@ -297,7 +298,7 @@ def run(zs, x0, P0):
             t8 = t5 + t6
             t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 88}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
             t14 = z_0 - (x_1 + t0)
@@ -333,7 +334,7 @@ def run(zs, x0, P0):
             t83 = t80 + t81
             t85 = 0.1 + (t82 + t83)
             if not t85 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 88}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t86 = t82/t85
             t87 = t83/t85
             t89 = z_1 - (x_3 + t75)
@@ -360,12 +361,12 @@ def run(zs, x0, P0):
             t147 = 0.5*(0.0020408163265306124 + (0.9387755102040817*t130 + 0.8775510204081632*t131) + (t79 - t82*t86))
             t148 = 0.5*(0.004081632653061225 + (0.7551020408163265*t131 - 0.12244897959183673*t130) + (t80 - t83*t86))
             P_15 = 0.5*(0.00816326530612245 + (0.7551020408163265*(P_15*t117 - P_11*t116) - 0.12244897959183673*(P_11*t117 - P_10*t116)) + (t81 - t83*t87))
-            rows.append(pack(x_0, x_1, x_2, x_3, t72, t73, 0.0, P_5, t147, t148, P_15))
+            keep(pack(x_0, x_1, x_2, x_3, t72, t73, 0.0, P_5, t147, t148, P_15))
             P_0 = t72
             P_1 = t73
             P_10 = t147
             P_11 = t148
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 11)
+        table = np.frombuffer(rows).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -72,7 +72,8 @@ def run(zs, x0):
     xs = np.empty((steps, 4) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("4d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1) in zip(*[z_values] * 2):
@@ -80,10 +81,10 @@ def run(zs, x0):
             x_1 = 0.5863303827316504*x_1 - 0.20683480863417478*x_0 + 0.20683480863417478*z_0
             t2 = 0.634641189261532*x_2 + 0.2692823785230639*x_3 + 0.36535881073846804*z_1
             x_3 = 0.5863303827316504*x_3 - 0.20683480863417478*x_2 + 0.20683480863417478*z_1
-            rows.append(pack(t0, x_1, t2, x_3))
+            keep(pack(t0, x_1, t2, x_3))
             x_0 = t0
             x_2 = t2
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 4)
+        table = np.frombuffer(rows).reshape(-1, 4)
         return table[:, [0, 1, 2, 3]]
     x = x0
     for k in range(steps):

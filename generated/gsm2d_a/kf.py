@@ -184,7 +184,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("11d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1) in zip(*[z_values] * 2):
@@ -197,7 +198,7 @@ def run(zs, x0, P0):
             t8 = t5 + t6
             t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 88}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
             t14 = z_0 - (x_1 + t0)
@@ -215,7 +216,7 @@ def run(zs, x0, P0):
             t33 = t30 + t31
             t35 = 0.1 + (t32 + t33)
             if not t35 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 88}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t36 = t32/t35
             t37 = t33/t35
             t39 = z_1 - (x_3 + t25)
@@ -224,8 +225,8 @@ def run(zs, x0, P0):
             P_10 = t29 - t32*t36
             P_11 = t30 - t33*t36
             P_15 = t31 - t33*t37
-            rows.append(pack(x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 11)
+            keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
+        table = np.frombuffer(rows).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -193,7 +193,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("11d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1) in zip(*[z_values] * 2):
@@ -243,12 +244,12 @@ def run(zs, x0, P0):
             t77 = 0.0020408163265306124 + (0.9387755102040817*t70 + 0.8775510204081632*t71)
             t78 = 0.004081632653061225 + (0.7551020408163265*t71 - 0.12244897959183673*t70)
             P_15 = 0.00816326530612245 + (0.7551020408163265*(P_15*t57 - P_11*t56) - 0.12244897959183673*(P_11*t57 - P_10*t56))
-            rows.append(pack(x_0, x_1, x_2, x_3, t37, t38, 0.0, P_5, t77, t78, P_15))
+            keep(pack(x_0, x_1, x_2, x_3, t37, t38, 0.0, P_5, t77, t78, P_15))
             P_0 = t37
             P_1 = t38
             P_10 = t77
             P_11 = t78
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 11)
+        table = np.frombuffer(rows).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
     Ps = np.empty((steps, 16) + track)

@@ -128,7 +128,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
@@ -140,7 +141,7 @@ def run(zs, x0, P0):
             t8 = t5 + t6
             t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
             t14 = z_0 - (x_1 + t0)
@@ -149,8 +150,8 @@ def run(zs, x0, P0):
             P_0 = t4 - t11*t7
             P_1 = t5 - t11*t8
             P_3 = t6 - t12*t8
-            rows.append(pack(x_0, x_1, P_0, P_1, P_3))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+            keep(pack(x_0, x_1, P_0, P_1, P_3))
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

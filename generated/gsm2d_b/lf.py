@@ -123,7 +123,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = 16.3265306122449*P_1
@@ -149,10 +150,10 @@ def run(zs, x0, P0):
             t37 = 0.0020408163265306124 + (0.9387755102040817*t30 + 0.8775510204081632*t31)
             t38 = 0.004081632653061225 + (0.7551020408163265*t31 - 0.12244897959183673*t30)
             P_3 = 0.00816326530612245 + (0.7551020408163265*(P_3*t17 - P_1*t16) - 0.12244897959183673*(P_1*t17 - P_0*t16))
-            rows.append(pack(x_0, x_1, t37, t38, P_3))
+            keep(pack(x_0, x_1, t37, t38, P_3))
             P_0 = t37
             P_1 = t38
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -365,7 +365,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("16d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
@@ -378,7 +379,7 @@ def run(zs, x0, P0):
             t8 = t5 + t6
             t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 128}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
             t14 = z_0 - (x_1 + t0)
@@ -414,7 +415,7 @@ def run(zs, x0, P0):
             t83 = t80 + t81
             t85 = 0.1 + (t82 + t83)
             if not t85 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 128}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t86 = t82/t85
             t87 = t83/t85
             t89 = z_1 - (x_3 + t75)
@@ -450,7 +451,7 @@ def run(zs, x0, P0):
             t158 = t155 + t156
             t160 = 0.1 + (t157 + t158)
             if not t160 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 128}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t161 = t157/t160
             t162 = t158/t160
             t164 = z_2 - (x_5 + t150)
@@ -477,15 +478,15 @@ def run(zs, x0, P0):
             t222 = 0.5*(t154 - t157*t161 + (0.0020408163265306124 + (0.9387755102040817*t205 + 0.8775510204081632*t206)))
             t223 = 0.5*(t155 - t158*t161 + (0.004081632653061225 + (0.7551020408163265*t206 - 0.12244897959183673*t205)))
             P_35 = 0.5*(t156 - t158*t162 + (0.00816326530612245 + (0.7551020408163265*(P_35*t192 - P_29*t191) - 0.12244897959183673*(P_29*t192 - P_28*t191))))
-            rows.append(pack(x_0, x_1, x_2, x_3, x_4, x_5, t72, t73, 0.0, P_7, t147, t148, P_21,
-                    t222, t223, P_35))
+            keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t72, t73, 0.0, P_7, t147, t148, P_21, t222,
+                    t223, P_35))
             P_0 = t72
             P_1 = t73
             P_14 = t147
             P_15 = t148
             P_28 = t222
             P_29 = t223
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 16)
+        table = np.frombuffer(rows).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))

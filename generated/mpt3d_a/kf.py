@@ -215,7 +215,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("16d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
@@ -228,7 +229,7 @@ def run(zs, x0, P0):
             t8 = t5 + t6
             t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 128}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
             t14 = z_0 - (x_1 + t0)
@@ -246,7 +247,7 @@ def run(zs, x0, P0):
             t33 = t30 + t31
             t35 = 0.1 + (t32 + t33)
             if not t35 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 128}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t36 = t32/t35
             t37 = t33/t35
             t39 = z_1 - (x_3 + t25)
@@ -264,7 +265,7 @@ def run(zs, x0, P0):
             t58 = t55 + t56
             t60 = 0.1 + (t57 + t58)
             if not t60 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 128}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t61 = t57/t60
             t62 = t58/t60
             t64 = z_2 - (x_5 + t50)
@@ -273,9 +274,9 @@ def run(zs, x0, P0):
             P_28 = t54 - t57*t61
             P_29 = t55 - t58*t61
             P_35 = t56 - t58*t62
-            rows.append(pack(x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21,
-                    P_28, P_29, P_35))
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 16)
+            keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7, P_14, P_15, P_21, P_28,
+                    P_29, P_35))
+        table = np.frombuffer(rows).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))

@@ -237,7 +237,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("16d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
@@ -310,15 +311,15 @@ def run(zs, x0, P0):
             t117 = 0.0020408163265306124 + (0.9387755102040817*t110 + 0.8775510204081632*t111)
             t118 = 0.004081632653061225 + (0.7551020408163265*t111 - 0.12244897959183673*t110)
             P_35 = 0.00816326530612245 + (0.7551020408163265*(P_35*t97 - P_29*t96) - 0.12244897959183673*(P_29*t97 - P_28*t96))
-            rows.append(pack(x_0, x_1, x_2, x_3, x_4, x_5, t37, t38, 0.0, P_7, t77, t78, P_21,
-                    t117, t118, P_35))
+            keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t37, t38, 0.0, P_7, t77, t78, P_21, t117, t118,
+                    P_35))
             P_0 = t37
             P_1 = t38
             P_14 = t77
             P_15 = t78
             P_28 = t117
             P_29 = t118
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 16)
+        table = np.frombuffer(rows).reshape(-1, 16)
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))

@@ -93,7 +93,8 @@ def run(zs, x0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_start = np.asarray(init(x0), dtype=float)
         x_0, x_1, x_2, x_3, x_4, x_5 = x_start.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("6d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
@@ -103,11 +104,11 @@ def run(zs, x0):
             x_3 = 0.7931651913658252*x_3 - 0.2068348086341748*x_2 + 0.2068348086341748*z_1
             t4 = 0.4278063806273572*x_4 + 0.42780638062735715*x_5 + 0.5721936193726429*z_2
             x_5 = 0.7931651913658252*x_5 - 0.2068348086341748*x_4 + 0.2068348086341748*z_2
-            rows.append(pack(t0, x_1, t2, x_3, t4, x_5))
+            keep(pack(t0, x_1, t2, x_3, t4, x_5))
             x_0 = t0
             x_2 = t2
             x_4 = t4
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 6)
+        table = np.frombuffer(rows).reshape(-1, 6)
         return table[:, [0, 1, 2, 3, 4, 5]]
     x = init(x0)
     for k in range(steps):

@@ -74,7 +74,8 @@ def run(zs, x0):
     xs = np.empty((steps, 6) + track)
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("6d").pack
         z_values = iter(array("d", zs.tobytes()))
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
@@ -84,11 +85,11 @@ def run(zs, x0):
             x_3 = 0.5863303827316503*x_3 - 0.20683480863417475*x_2 + 0.20683480863417475*z_1
             t4 = 0.6346411892615319*x_4 + 0.2692823785230638*x_5 + 0.36535881073846804*z_2
             x_5 = 0.5863303827316503*x_5 - 0.20683480863417475*x_4 + 0.20683480863417475*z_2
-            rows.append(pack(t0, x_1, t2, x_3, t4, x_5))
+            keep(pack(t0, x_1, t2, x_3, t4, x_5))
             x_0 = t0
             x_2 = t2
             x_4 = t4
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 6)
+        table = np.frombuffer(rows).reshape(-1, 6)
         return table[:, [0, 1, 2, 3, 4, 5]]
     x = x0
     for k in range(steps):

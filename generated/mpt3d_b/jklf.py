@@ -178,7 +178,8 @@ def run(zs, x0, P0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("5d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = x_0 + x_1
@@ -190,7 +191,7 @@ def run(zs, x0, P0):
             t8 = t5 + t6
             t10 = 0.1 + (t7 + t8)
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows)}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t11 = t7/t10
             t12 = t8/t10
             t14 = z_0 - (x_1 + t0)
@@ -217,10 +218,10 @@ def run(zs, x0, P0):
             t72 = 0.5*(t4 - t11*t7 + (0.0020408163265306124 + (0.9387755102040817*t55 + 0.8775510204081632*t56)))
             t73 = 0.5*(t5 - t11*t8 + (0.004081632653061225 + (0.7551020408163265*t56 - 0.12244897959183673*t55)))
             P_3 = 0.5*(t6 - t12*t8 + (0.00816326530612245 + (0.7551020408163265*(P_3*t42 - P_1*t41) - 0.12244897959183673*(P_1*t42 - P_0*t41))))
-            rows.append(pack(x_0, x_1, t72, t73, P_3))
+            keep(pack(x_0, x_1, t72, t73, P_3))
             P_0 = t72
             P_1 = t73
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 5)
+        table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
     Ps = np.empty((steps, 4) + track)
     x = x0

@@ -89,14 +89,15 @@ def run(zs, x0):
     if not track:  # one track: the step's statements inline, on Python floats
         x_start = np.asarray(init(x0), dtype=float)
         x_0, x_1 = x_start.reshape(-1).tolist()
-        rows = []
+        rows = bytearray()
+        keep = rows.extend
         pack = struct.Struct("2d").pack
         for z_0 in array("d", zs.tobytes()):
             t0 = 0.4278063806273572*x_0 + 0.42780638062735715*x_1 + 0.5721936193726429*z_0
             x_1 = 0.7931651913658252*x_1 - 0.2068348086341748*x_0 + 0.2068348086341748*z_0
-            rows.append(pack(t0, x_1))
+            keep(pack(t0, x_1))
             x_0 = t0
-        table = np.frombuffer(b"".join(rows)).reshape(-1, 2)
+        table = np.frombuffer(rows).reshape(-1, 2)
         return table[:, [0, 1]]
     x = init(x0)
     for k in range(steps):
