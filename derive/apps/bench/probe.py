@@ -10,11 +10,9 @@ loop on this machine, in seconds.
 
 from __future__ import annotations
 
-import hashlib
 import time
-from pathlib import Path
 
-from ...build import _compiler, cache_dir, cached_extension, load_module_file
+from .c_kernels import compiled_kernels
 
 #: kind -> (C statement on double a and b, iterations per timing)
 PROBES = {
@@ -44,23 +42,12 @@ _FUNCTION = """double derive_probe_{kind}(long n, double a, double b, double c)
 
 
 def _module(cflags: tuple[str, ...]):
-    import cffi
-
     source = _SOURCE.format(functions="\n".join(
         _FUNCTION.format(kind=k, statement=s) for k, (s, _) in PROBES.items()))
-    flags = ["-std=c99", *cflags]   # the cffi wrapper around the probes is not ISO C
-    key = hashlib.sha256("\0".join([_compiler(), source, *flags]).encode()).hexdigest()[:16]
-    name = f"_derive_probe_{key}"
-
-    def build(work: Path) -> None:
-        ffi = cffi.FFI()
-        ffi.cdef("".join(f"double derive_probe_{k}(long n, double a, double b, double c);\n"
-                         for k in PROBES))
-        ffi.set_source(name, source, libraries=["m"], extra_compile_args=flags)
-        ffi.compile(tmpdir=str(work), verbose=False)
-
-    path = cached_extension(cache_dir(), f"probe-{key}", name, build)
-    return load_module_file(name, path).lib
+    # the cffi wrapper around the probes is not ISO C
+    return compiled_kernels("probe", source, "".join(
+        f"double derive_probe_{k}(long n, double a, double b, double c);\n" for k in PROBES),
+        ["-std=c99", *cflags])
 
 
 def measure_latencies(cflags: tuple[str, ...], repeats: int = 7,

@@ -18,13 +18,11 @@ top; the floor leaves them out, so it is below any real scalar code's time.
 
 from __future__ import annotations
 
-import hashlib
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
-from ...build import _compiler, cache_dir, cached_extension, load_module_file
 from ...flops import OpCount
+from .c_kernels import compiled_kernels
 
 #: independent chains per kernel: multiply pipes, add pipes (``mixed`` runs both sets)
 CHAINS = {"fma": (12, 0), "add": (0, 12), "mixed": (8, 8)}
@@ -65,23 +63,11 @@ def kernel_source(kind: str) -> str:
 
 
 def _module(cflags: tuple[str, ...]):
-    import cffi  # C builds load cffi only when something is compiled
-
     source = "#include <math.h>\n" + "\n".join(kernel_source(k) for k in CHAINS)
     # the cffi wrapper is not ISO C; the chains stay scalar like the generated code
-    flags = ["-std=c99", *cflags, "-fno-tree-vectorize"]
-    key = hashlib.sha256("\0".join([_compiler(), source, *flags]).encode()).hexdigest()[:16]
-    name = f"_derive_throughput_{key}"
-
-    def build(work: Path) -> None:
-        ffi = cffi.FFI()
-        ffi.cdef("".join(f"double derive_throughput_{k}(long n, double b, double c);\n"
-                         for k in CHAINS))
-        ffi.set_source(name, source, libraries=["m"], extra_compile_args=flags)
-        ffi.compile(tmpdir=str(work), verbose=False)
-
-    path = cached_extension(cache_dir(), f"throughput-{key}", name, build)
-    return load_module_file(name, path).lib
+    return compiled_kernels("throughput", source, "".join(
+        f"double derive_throughput_{k}(long n, double b, double c);\n" for k in CHAINS),
+        ["-std=c99", *cflags, "-fno-tree-vectorize"])
 
 
 def kernels(cflags: tuple[str, ...]) -> dict:
