@@ -176,6 +176,18 @@ class Op:
 Tree = Const | Var | Op
 
 
+def tree_kinds(*trees: Tree) -> set[str]:
+    """Every operation kind in ``trees`` (iterative)."""
+    found: set[str] = set()
+    stack: list[Tree] = list(trees)
+    while stack:
+        tree = stack.pop()
+        if isinstance(tree, Op):
+            found.add(tree.kind)
+            stack.extend(tree.args)
+    return found
+
+
 def depth(tree: Tree) -> int:
     """Longest chain of operations from a leaf to the root."""
     if isinstance(tree, Op):
@@ -484,14 +496,7 @@ class LoweredProgram:
 
     def kinds(self) -> set[str]:
         """Every operation kind used."""
-        found: set[str] = set()
-        stack: list[Tree] = [s.tree for s in self.body]
-        while stack:
-            tree = stack.pop()
-            if isinstance(tree, Op):
-                found.add(tree.kind)
-                stack.extend(tree.args)
-        return found
+        return tree_kinds(*(s.tree for s in self.body))
 
     def used_inputs(self) -> set[str]:
         """Names of the input ports read anywhere."""

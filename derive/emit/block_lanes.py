@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
 from derive.emit.unit import LOOKAHEAD_NEXT
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var
+from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, tree_kinds
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
@@ -152,16 +152,6 @@ def _vars(tree: Tree) -> list[Var]:
     return found
 
 
-def _kinds(tree: Tree) -> set[str]:
-    found, stack = set(), [tree]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, Op):
-            found.add(node.kind)
-            stack.extend(node.args)
-    return found
-
-
 class _Union:
     def __init__(self) -> None:
         self.parent: dict[str, str] = {}
@@ -197,7 +187,7 @@ def split(program: LoweredProgram) -> Lanes | None:
     shared_statements: list[LoweredAssign] = []
     items = []
     for st in program.body:
-        if not _kinds(st.tree) <= VECTOR_KINDS | {"cmp"}:
+        if not tree_kinds(st.tree) <= VECTOR_KINDS | {"cmp"}:
             return None
         names = [v.name for v in _vars(st.tree) if not _scalar(v, shared)]
         if isinstance(st, LoweredAssign) and not names:
@@ -216,7 +206,7 @@ def split(program: LoweredProgram) -> Lanes | None:
             if isinstance(leaf, Const):
                 constants[(port, index)] = leaf.value
                 continue
-            if not _kinds(leaf) <= VECTOR_KINDS:
+            if not tree_kinds(leaf) <= VECTOR_KINDS:
                 return None
             names = [v.name for v in _vars(leaf) if not _scalar(v, shared)]
             if not names:
