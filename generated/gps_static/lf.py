@@ -43,6 +43,12 @@ except ImportError:  # derive not installed: a stand-in with the same base
 def _require_zero(values, indices, n, name, message):
     """Raise PatternError unless values[k] == 0 for every k in indices (every
     track of an array): entries outside the pattern of the n x n matrix."""
+    if isinstance(values, np.ndarray) and indices:  # all in one comparison
+        rows = values[list(indices)].reshape(len(indices), -1)
+        wrong = np.flatnonzero((rows != 0).any(axis=1))
+        if not wrong.size:
+            return
+        indices = [indices[wrong[0]]]
     for k in indices:
         zero = values[k] == 0
         if hasattr(zero, "all"):
