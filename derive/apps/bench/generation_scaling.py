@@ -32,8 +32,8 @@ TIMEOUT = 1800.0    # seconds, a hang guard per generation
 
 _CHILD = r"""
 import json, sys, time
-import numpy as np
 from derive import LinearModel, catalog
+from derive.apps.bench.compile_size import dense_model
 from derive.flops import count
 from derive.generation import render_unit
 
@@ -42,19 +42,7 @@ if kind == "axes":
     axis = catalog.load(sys.argv[4])
     model = LinearModel.compose(f"cv{size}", [axis] * size, [f"_{i}" for i in range(size)])
 else:
-    n, m = size, int(sys.argv[4])
-    rng = np.random.default_rng(int(sys.argv[5]))
-    F = rng.normal(size=(n, n))
-    F *= 0.95 / max(abs(np.linalg.eigvals(F)))
-    H = rng.normal(size=(m, n))
-    L = rng.normal(size=(n, n))
-    Q = L @ L.T / n + 0.1 * np.eye(n)
-    Lr = rng.normal(size=(m, m))
-    R = Lr @ Lr.T / m + 0.2 * np.eye(m)
-    rounded = lambda a: np.round(a, 3).tolist()
-    model = LinearModel(f"dense{n}", [f"x{i}" for i in range(n)],
-                        [f"y{i}" for i in range(m)], rounded(F), rounded(H),
-                        rounded((Q + Q.T) / 2), rounded((R + R.T) / 2))
+    model = dense_model(size, int(sys.argv[4]), int(sys.argv[5]))
 wall, cpu = time.perf_counter(), time.process_time()
 unit, files = render_unit(model, name, "all")
 wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
