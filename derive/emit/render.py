@@ -290,29 +290,36 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
     return lines
 
 
+def _python_context(unit: Unit, lowered: dict[str, LoweredProgram]) -> dict:
+    """What every Python file's template is given: the header, the helpers its programs
+    need, run's signature, doc and prologue."""
+    lps = list(lowered.values())
+    header = [python_printer.doc_text(line) for line in _header_lines(unit, "python", lowered)]
+    args = run_arguments(unit)
+    inputs = [a for a in args if not a.output]
+    return {
+        "title": header[0],
+        "header": header[1:],
+        "numpy": True,
+        "error_imports": python_printer.error_imports(lps, run=True),
+        "helpers": ["\n".join(python_printer.HELPERS[h])
+                    for h in python_printer.helpers_needed(lps) + ["shape"]],
+        "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
+        "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
+                    for a in args if not a.scratch],
+        "prologue": _python_run_prologue(unit, inputs),
+        "n": unit.n,
+        "about": unit.about.get("python", "Run the filter over a sequence of steps."),
+    }
+
+
 def _render_python_sensors(unit: Unit) -> dict[str, str]:
     """The Python file of a unit of the run kind ``sensors`` (derive.emit.sensors_run)."""
     lowered = _lowered(unit, use_fma=False)
-    lps = list(lowered.values())
-    header = [python_printer.doc_text(line) for line in _header_lines(unit, "python", lowered)]
-    helpers = ["\n".join(python_printer.HELPERS[h])
-               for h in python_printer.helpers_needed(lps) + ["shape"]]
-    args = run_arguments(unit)
-    inputs = [a for a in args if not a.output]
-    context = {
-        "title": header[0], "header": header[1:], "numpy": True,
-        "error_imports": python_printer.error_imports(lps, run=True),
-        "helpers": helpers,
-        "functions": [python_printer.function_parts(lp) for lp in lps],
-        "run_checks": [],
-        "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
-        "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
-                    for a in args],
-        "prologue": _python_run_prologue(unit, inputs),
-        "n": unit.n,
-        "loop": python_loop(unit, lowered),
-        "about": unit.about.get("python", "Run the filter over a sequence of steps."),
-    }
+    context = {**_python_context(unit, lowered),
+               "functions": [python_printer.function_parts(lp) for lp in lowered.values()],
+               "run_checks": [],
+               "loop": python_loop(unit, lowered)}
     return {f"{unit.filter}.py": _render("python/sensors.jinja", context)}
 
 
@@ -363,38 +370,23 @@ def render_python(unit: Unit) -> dict[str, str]:
     if unit.run.sensors:
         return _render_python_sensors(unit)
     lowered = _lowered(unit, use_fma=False)
-    lps = list(lowered.values())
-    header = [python_printer.doc_text(line) for line in _header_lines(unit, "python", lowered)]
-    helpers = ["\n".join(python_printer.HELPERS[h])
-               for h in python_printer.helpers_needed(lps) + ["shape"]]
     args = run_arguments(unit)
-    inputs = [a for a in args if not a.output]
     per_step = [f"{name}s[k]" for name in unit.step_inputs]
     p_arg = f", {PARAMETER_ROWS}[k]" if unit.parameters else ""
     context = {
-        "title": header[0],
-        "header": header[1:],
-        "numpy": True,
-        "error_imports": python_printer.error_imports(lps, run=True),
-        "helpers": helpers,
-        "functions": [part for lp in lps for part in _python_functions(lp)],
+        **_python_context(unit, lowered),
+        "functions": [part for lp in lowered.values() for part in _python_functions(lp)],
         "run_checks": _python_run_checks(lowered["step"], unit),
         "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
-        "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
-        "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
-                    for a in args if not a.scratch],
-        "prologue": _python_run_prologue(unit, inputs),
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,
         "p_start": f", {PARAMETER_START}" if unit.parameters else "",
-        "n": unit.n,
         "nn": unit.n * unit.n,
         "m": unit.m,
         "window": unit.window if unit.run.window else 0,
         "window_m": unit.window * unit.m if unit.run.window else 0,
         "padding": unit.window - 1 if unit.run.window else 0,
         "single": [],
-        "about": unit.about.get("python", "Run the filter over a sequence of steps."),
     }
     if not unit.run.window:
         ports = {a.c_name: a.py_name for a in args if not a.output}
