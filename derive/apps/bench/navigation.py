@@ -40,7 +40,7 @@ from ..ins import c_loop, casadi_ekf, filterpy_ekf, flight, reference, symforce_
 from . import casadi_c, generated
 from .cases import Skip
 from .throughput import Throughput, measure_throughput
-from .timing import Timing, human, measure
+from .timing import Timing, human, measure, timing_cells
 
 MODEL = "ins_gnss"
 FUNCTIONS = ("predict", "update_gnss", "update_baro")
@@ -143,11 +143,8 @@ class NavigationResult:
         head = ("function", "implementation", "per call", "min-max", "ratio", "agrees", "note")
         body = []
         for r in self.times:
-            t = r.timing
-            body.append((r.function, r.implementation, human(t.median) if t else "skipped",
-                         f"{human(t.low)}-{human(t.high)}" if t else "",
-                         "" if r.ratio is None else f"{r.ratio:,.1f}x",
-                         "" if r.agreement is None else f"{r.agreement:.1e}", r.note))
+            body.append((r.function, r.implementation,
+                         *timing_cells(r.timing, r.ratio, r.agreement), r.note))
         out += _columns(head, body)
         out += [""] + self.decisive_lines()
         out += [f"note: {n}" for n in self.notes]

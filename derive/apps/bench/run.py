@@ -32,7 +32,7 @@ from . import (
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
-from .timing import Timing, human, measure
+from .timing import Timing, human, measure, timing_cells
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     # (name, prepare(case, data, workdir), loop in C: long runs)
@@ -250,11 +250,8 @@ class BenchResult:
         head = ("case", "implementation", "per step", "min-max", "ratio", "agrees", "note")
         body = []
         for r in self.rows:
-            t = r.timing
-            body.append((r.case, r.implementation, human(t.median) if t else "skipped",
-                         f"{human(t.low)}-{human(t.high)}" if t else "",
-                         "" if r.ratio is None else f"{r.ratio:,.1f}x",
-                         "" if r.agreement is None else f"{r.agreement:.1e}", r.note))
+            body.append((r.case, r.implementation,
+                         *timing_cells(r.timing, r.ratio, r.agreement), r.note))
         lines += _columns(head, body)
         lines += ["", f"batch: {s.batch_tracks:,} independent tracks x {s.batch_steps} steps of "
                       f"{batch.MODEL} (KF), median of {s.batch_repeats} runs; ratio = "

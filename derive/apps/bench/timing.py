@@ -35,6 +35,15 @@ def measure(run: Callable[[], object], steps: int, repeats: int) -> Timing:
     return Timing(median, times[0], times[-1], steps, repeats)
 
 
+def timing_cells(timing: Timing | None, ratio: float | None, agreement: float | None
+                 ) -> tuple[str, str, str, str]:
+    """A timed row's cells: median, min-max, ratio and agreement ("skipped" untimed)."""
+    return (human(timing.median) if timing else "skipped",
+            f"{human(timing.low)}-{human(timing.high)}" if timing else "",
+            "" if ratio is None else f"{ratio:,.1f}x",
+            "" if agreement is None else f"{agreement:.1e}")
+
+
 def human(seconds: float) -> str:
     """A duration with a unit that keeps three significant digits (ns, µs, ms, s)."""
     for unit, scale in (("ns", 1e-9), ("µs", 1e-6), ("ms", 1e-3)):
