@@ -32,7 +32,16 @@ from dataclasses import dataclass
 
 from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
 from derive.emit.unit import LOOKAHEAD_NEXT
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, tree_kinds
+from derive.lowering import (
+    Const,
+    LoweredAssign,
+    LoweredCheck,
+    LoweredProgram,
+    Op,
+    Tree,
+    Var,
+    tree_kinds,
+)
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
@@ -176,19 +185,40 @@ def _scalar(var: Var, shared: set[str]) -> bool:
     return var.name in shared if var.index is None else var.base == PARAMETER_PORT
 
 
-def split(program: LoweredProgram) -> Lanes | None:
-    """The program as identical blocks in lanes, or None: fewer than :data:`FEWEST_LANES`
-    blocks, more than :data:`MOST_LANES`, blocks that differ, an operation a vector does
-    not spell, or a result that reads no block and is not a constant."""
+@dataclass(frozen=True)
+class Part:
+    """One independent block of a step: its statements and checks with their positions in
+    the step's body, its results (port, index, leaf), and its canonical form
+    (:func:`_canonical`: renamed by local indices; ``key`` compares parts)."""
+
+    body: tuple[tuple[int, LoweredAssign | LoweredCheck], ...]
+    results: tuple[tuple[str, int, Tree], ...]
+    canonical: dict
+
+
+@dataclass(frozen=True)
+class Parts:
+    """A step split into its independent blocks (:func:`independent_parts`), in the order
+    of their first statement; ``shared``: the statements of the parameters alone (every
+    block may read them); ``constants``: output elements no block writes."""
+
+    parts: tuple[Part, ...]
+    shared: tuple[LoweredAssign, ...]
+    constants: dict[tuple[str, int], float]
+
+
+def independent_parts(program: LoweredProgram) -> Parts | None:
+    """The step's independent blocks: its statements, checks and results joined by the
+    temporaries and input elements they share (the parameters ``p`` and the statements of
+    them alone join nothing); None for a step with zero checks, a check that reads no
+    block, or a result that reads no block and is not a constant."""
     if program.pattern_checks:
         return None
     union = _Union()
     shared: set[str] = set()
     shared_statements: list[LoweredAssign] = []
     items = []
-    for st in program.body:
-        if not tree_kinds(st.tree) <= VECTOR_KINDS | {"cmp"}:
-            return None
+    for position, st in enumerate(program.body):
         names = [v.name for v in _vars(st.tree) if not _scalar(v, shared)]
         if isinstance(st, LoweredAssign) and not names:
             shared.add(st.target)
@@ -198,7 +228,7 @@ def split(program: LoweredProgram) -> Lanes | None:
             names.append(st.target)
         if union.join(names) is None:
             return None
-        items.append(st)
+        items.append((position, st))
     constants: dict[tuple[str, int], float] = {}
     results = []
     for port, leaves in program.results:
@@ -206,8 +236,6 @@ def split(program: LoweredProgram) -> Lanes | None:
             if isinstance(leaf, Const):
                 constants[(port, index)] = leaf.value
                 continue
-            if not tree_kinds(leaf) <= VECTOR_KINDS:
-                return None
             names = [v.name for v in _vars(leaf) if not _scalar(v, shared)]
             if not names:
                 return None
@@ -220,13 +248,29 @@ def split(program: LoweredProgram) -> Lanes | None:
         root = union.find(name)
         return blocks.setdefault(root, {"body": [], "results": []})
 
-    for position, st in enumerate(items):
+    for position, st in items:
         name = st.target if isinstance(st, LoweredAssign) else next(
             v.name for v in _vars(st.tree) if not _scalar(v, shared))
         block_of(name)["body"].append((position, st))
     for port, index, leaf, name in results:
         block_of(name)["results"].append((port, index, leaf))
-    parts = [_canonical(b["body"], b["results"], shared) for b in blocks.values()]
+    parts = tuple(Part(tuple(b["body"]), tuple(b["results"]),
+                       _canonical(b["body"], b["results"], shared)) for b in blocks.values())
+    return Parts(parts, tuple(shared_statements), constants)
+
+
+def split(program: LoweredProgram) -> Lanes | None:
+    """The program as identical blocks in lanes, or None: fewer than :data:`FEWEST_LANES`
+    blocks, more than :data:`MOST_LANES`, blocks that differ, an operation a vector does
+    not spell, or what :func:`independent_parts` refuses."""
+    if any(not tree_kinds(st.tree) <= VECTOR_KINDS | {"cmp"} for st in program.body) or \
+            any(not isinstance(leaf, Const) and not tree_kinds(leaf) <= VECTOR_KINDS
+                for _, leaves in program.results for leaf in leaves):
+        return None
+    found = independent_parts(program)
+    if found is None:
+        return None
+    parts = [part.canonical for part in found.parts]
     lanes = len(parts)
     if not FEWEST_LANES <= lanes <= MOST_LANES or any(p["key"] != parts[0]["key"] for p in parts):
         return None
@@ -240,7 +284,7 @@ def split(program: LoweredProgram) -> Lanes | None:
     block = LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                            first["body"], first["results"], program.use_fma)
     return Lanes(lanes, block, inputs, outputs, statuses,
-                 tuple((c, b) for _, c, b in order), constants, tuple(shared_statements))
+                 tuple((c, b) for _, c, b in order), found.constants, found.shared)
 
 
 def _commuted(tree: Tree) -> Tree:
