@@ -21,6 +21,7 @@ index (the bytes kept so far over a row's: no counter per step).
 from __future__ import annotations
 
 from derive.emit.python_printer import PythonPrinter
+from derive.emit.shared_blocks import shared_step
 from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredProgram, Op, Var, tree_vars
 from derive.program import PARAMETER_PORT
 
@@ -98,7 +99,35 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
     ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  ``stored``: the carried input
     ports run returns, each with its shape per step.  The branch returns them exactly as
     the general branch does.
+
+    A step of identical blocks whose carried elements that read no data start bitwise
+    equal (:mod:`derive.emit.shared_blocks`: the covariances of identical axes from equal
+    P0 blocks) first tries a loop that computes those statements once for all blocks,
+    under a test of the initial state; its rows are bitwise those of the full loop.
     """
+    lines = _loop_lines(lowered, step_inputs, arrays, carried, stored)
+    ports = {p.name for p in lowered.inputs}
+    outputs = dict(lowered.results)
+    shared = shared_step(lowered, [(port, out) for port, out in carried
+                                   if port in ports and out in outputs])
+    if shared is not None:
+        tests = [f"{arrays[port]}.reshape(-1)[{list(later)}].tobytes() == "
+                 f"{arrays[port]}.reshape(-1)[{list(firsts)}].tobytes()"
+                 for port, later, firsts in shared.equal]
+        starts = " and ".join(arrays[port] for port, _, _ in shared.equal)
+        lines = [f"# identical blocks starting equal in {starts}: {shared.dropped} statements "
+                 "of the step",
+                 "# read no data and are computed once (derive.emit.shared_blocks)",
+                 *_wrap(f"if {' and '.join(tests)}:")] + \
+            [f"    {line}" for line in _loop_lines(shared.program, step_inputs, arrays, carried,
+                                                   stored)] + lines
+    return tuple(indent + line for line in lines)
+
+
+def _loop_lines(lowered: LoweredProgram, step_inputs: tuple[str, ...],
+                arrays: dict[str, str], carried: tuple[tuple[str, str], ...],
+                stored: tuple[tuple[str, tuple[int, ...]], ...]) -> list[str]:
+    """The single-track loop of ``lowered`` and its return (unindented lines)."""
     ports = {p.name: p for p in lowered.inputs}
     name_of = local_names(set(ports))
     printer = PythonPrinter(name_of)
@@ -178,7 +207,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
            f"table[:, {columns[port]}].reshape(-1, {', '.join(str(d) for d in shape)})"
            for port, shape in stored]
     out += _wrap(f"return {ret[0]}" if len(ret) == 1 else f"return ({', '.join(ret)})")
-    return tuple(indent + line for line in out)
+    return out
 
 
 def _kept_leaves(carried, results, text) -> list:

@@ -164,6 +164,28 @@ def run(zs, x0, P0):
     xs = np.empty((steps, 3) + track)
     _require_zero(P0.reshape((9,) + P0.shape[2:]), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
+        # identical blocks starting equal in P0: 12 statements of the step
+        # read no data and are computed once (derive.emit.shared_blocks)
+        if P0.reshape(-1)[[4, 8]].tobytes() == P0.reshape(-1)[[0, 0]].tobytes():
+            x_0, x_1, x_2 = x0.reshape(-1).tolist()
+            P_0 = P0.reshape(-1)[[0]].tolist()[0]
+            rows = bytearray()
+            keep = rows.extend
+            pack = struct.Struct("5d").pack
+            z_values = iter(array("d", zs.tobytes()))
+            for (z_0, z_1, z_2) in zip(*[z_values] * 3):
+                t0 = 0.01 + P_0
+                t1 = 0.1 + t0
+                if not t1 > 0.0:
+                    raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                t2 = t0/t1
+                x_0 = x_0 + t2*(z_0 - x_0)
+                P_0 = t0 - t0*t2
+                x_1 = x_1 + t2*(z_1 - x_1)
+                x_2 = x_2 + t2*(z_2 - x_2)
+                keep(pack(x_0, x_1, x_2, P_0, 0.0))
+            table = np.frombuffer(rows).reshape(-1, 5)
+            return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 3, 4, 4, 4, 3]].reshape(-1, 3, 3))
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_4, P_8 = P0.reshape(-1)[[0, 4, 8]].tolist()
         rows = bytearray()

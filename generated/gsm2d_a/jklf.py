@@ -288,6 +288,67 @@ def run(zs, x0, P0):
     xs = np.empty((steps, 4) + track)
     _require_zero(P0.reshape((16,) + P0.shape[2:]), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
+        # identical blocks starting equal in P0: 53 statements of the step
+        # read no data and are computed once (derive.emit.shared_blocks)
+        if P0.reshape(-1)[[10, 11, 15]].tobytes() == P0.reshape(-1)[[0, 1, 5]].tobytes():
+            x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
+            P_0, P_1, P_5 = P0.reshape(-1)[[0, 1, 5]].tolist()
+            rows = bytearray()
+            keep = rows.extend
+            pack = struct.Struct("8d").pack
+            z_values = iter(array("d", zs.tobytes()))
+            for (z_0, z_1) in zip(*[z_values] * 2):
+                t0 = x_0 + x_1
+                t2 = P_1 + P_5
+                t4 = 0.0025 + (P_0 + P_1 + t2)
+                t5 = 0.005 + t2
+                t6 = 0.01 + P_5
+                t7 = t4 + t5
+                t8 = t5 + t6
+                t10 = 0.1 + (t7 + t8)
+                if not t10 > 0.0:
+                    raise NumericalError(f"step {len(rows) // 64}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                t11 = t7/t10
+                t12 = t8/t10
+                t14 = z_0 - (x_1 + t0)
+                t25 = 16.3265306122449*P_1
+                t27 = 16.3265306122449*P_0 + 32.6530612244898*P_1
+                t32 = 1.0/(1.0 + (8.16326530612245*P_0 + t25))
+                t33 = (8.16326530612245*P_1 + 16.3265306122449*P_5)*t32
+                t35 = 1.0/(1.0 + (32.6530612244898*P_5 + t25) - t27*t33)
+                t36 = t33*t35
+                t37 = t32*(1.0 + t27*t36)
+                t38 = t27*t32*t35
+                t39 = 0.9387755102040817*t37 - 0.8775510204081632*t36
+                t40 = 0.8775510204081632*t35 - 0.9387755102040817*t38
+                t41 = 0.7551020408163265*t36 + 0.12244897959183673*t37
+                t42 = 0.7551020408163265*t35 + 0.12244897959183673*t38
+                t43 = 8.16326530612245*z_0
+                t44 = 16.3265306122449*z_0
+                t47 = x_0 + (P_0*t43 + P_1*t44)
+                t48 = x_1 + (P_1*t43 + P_5*t44)
+                t55 = P_0*t39 + P_1*t40
+                t56 = P_1*t39 + P_5*t40
+                x_0 = 0.5*(t0 + t11*t14 + (0.061224489795918366*z_0 + (t39*t47 + t40*t48)))
+                x_1 = 0.5*(x_1 + t12*t14 + (0.12244897959183673*z_0 + (t42*t48 - t41*t47)))
+                t72 = 0.5*(t4 - t11*t7 + (0.0020408163265306124 + (0.9387755102040817*t55 + 0.8775510204081632*t56)))
+                t73 = 0.5*(t5 - t11*t8 + (0.004081632653061225 + (0.7551020408163265*t56 - 0.12244897959183673*t55)))
+                t74 = 0.5*(t6 - t12*t8 + (0.00816326530612245 + (0.7551020408163265*(P_5*t42 - P_1*t41) - 0.12244897959183673*(P_1*t42 - P_0*t41))))
+                t75 = x_2 + x_3
+                t89 = z_1 - (x_3 + t75)
+                t118 = 8.16326530612245*z_1
+                t119 = 16.3265306122449*z_1
+                t122 = x_2 + (P_0*t118 + P_1*t119)
+                t123 = x_3 + (P_1*t118 + P_5*t119)
+                x_2 = 0.5*(0.061224489795918366*z_1 + (t39*t122 + t40*t123) + (t75 + t11*t89))
+                x_3 = 0.5*(0.12244897959183673*z_1 + (t42*t123 - t41*t122) + (x_3 + t12*t89))
+                keep(pack(x_0, x_1, x_2, x_3, t72, t73, 0.0, t74))
+                P_0 = t72
+                P_1 = t73
+                P_5 = t74
+            table = np.frombuffer(rows).reshape(-1, 8)
+            return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 4, 5, 6, 6, 5,
+                    7]].reshape(-1, 4, 4))
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = bytearray()

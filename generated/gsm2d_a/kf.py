@@ -188,6 +188,42 @@ def run(zs, x0, P0):
     xs = np.empty((steps, 4) + track)
     _require_zero(P0.reshape((16,) + P0.shape[2:]), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
+        # identical blocks starting equal in P0: 19 statements of the step
+        # read no data and are computed once (derive.emit.shared_blocks)
+        if P0.reshape(-1)[[10, 11, 15]].tobytes() == P0.reshape(-1)[[0, 1, 5]].tobytes():
+            x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
+            P_0, P_1, P_5 = P0.reshape(-1)[[0, 1, 5]].tolist()
+            rows = bytearray()
+            keep = rows.extend
+            pack = struct.Struct("8d").pack
+            z_values = iter(array("d", zs.tobytes()))
+            for (z_0, z_1) in zip(*[z_values] * 2):
+                t0 = x_0 + x_1
+                t2 = P_1 + P_5
+                t4 = 0.0025 + (P_0 + P_1 + t2)
+                t5 = 0.005 + t2
+                t6 = 0.01 + P_5
+                t7 = t4 + t5
+                t8 = t5 + t6
+                t10 = 0.1 + (t7 + t8)
+                if not t10 > 0.0:
+                    raise NumericalError(f"step {len(rows) // 64}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                t11 = t7/t10
+                t12 = t8/t10
+                t14 = z_0 - (x_1 + t0)
+                x_0 = t0 + t11*t14
+                x_1 = x_1 + t12*t14
+                P_0 = t4 - t11*t7
+                P_1 = t5 - t11*t8
+                P_5 = t6 - t12*t8
+                t25 = x_2 + x_3
+                t39 = z_1 - (x_3 + t25)
+                x_2 = t25 + t11*t39
+                x_3 = x_3 + t12*t39
+                keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5))
+            table = np.frombuffer(rows).reshape(-1, 8)
+            return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 4, 5, 6, 6, 5,
+                    7]].reshape(-1, 4, 4))
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = bytearray()

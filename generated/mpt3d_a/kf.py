@@ -219,6 +219,48 @@ def run(zs, x0, P0):
     xs = np.empty((steps, 6) + track)
     _require_zero(P0.reshape((36,) + P0.shape[2:]), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
+        # identical blocks starting equal in P0: 38 statements of the step
+        # read no data and are computed once (derive.emit.shared_blocks)
+        if P0.reshape(-1)[[14, 28, 15, 29, 21, 35]].tobytes() == P0.reshape(-1)[[0, 0, 1, 1, 7,
+                7]].tobytes():
+            x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
+            P_0, P_1, P_7 = P0.reshape(-1)[[0, 1, 7]].tolist()
+            rows = bytearray()
+            keep = rows.extend
+            pack = struct.Struct("10d").pack
+            z_values = iter(array("d", zs.tobytes()))
+            for (z_0, z_1, z_2) in zip(*[z_values] * 3):
+                t0 = x_0 + x_1
+                t2 = P_1 + P_7
+                t4 = 0.0025 + (P_0 + P_1 + t2)
+                t5 = 0.005 + t2
+                t6 = 0.01 + P_7
+                t7 = t4 + t5
+                t8 = t5 + t6
+                t10 = 0.1 + (t7 + t8)
+                if not t10 > 0.0:
+                    raise NumericalError(f"step {len(rows) // 80}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                t11 = t7/t10
+                t12 = t8/t10
+                t14 = z_0 - (x_1 + t0)
+                x_0 = t0 + t11*t14
+                x_1 = x_1 + t12*t14
+                P_0 = t4 - t11*t7
+                P_1 = t5 - t11*t8
+                P_7 = t6 - t12*t8
+                t25 = x_2 + x_3
+                t39 = z_1 - (x_3 + t25)
+                x_2 = t25 + t11*t39
+                x_3 = x_3 + t12*t39
+                t50 = x_4 + x_5
+                t64 = z_2 - (x_5 + t50)
+                x_4 = t50 + t11*t64
+                x_5 = x_5 + t12*t64
+                keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, P_0, P_1, 0.0, P_7))
+            table = np.frombuffer(rows).reshape(-1, 10)
+            return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
+                    8, 6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8, 8, 6, 7, 8, 8, 8, 8, 7,
+                    9]].reshape(-1, 6, 6))
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = bytearray()

@@ -33,25 +33,37 @@ def _is_single_track_branch(node: ast.stmt) -> bool:
 
 
 def keeping_nothing(run_function):
-    """``run_function`` (a generated ``run``) with its single-track loop keeping nothing:
-    the loop's bare-expression statements dropped and the branch returning ``(None,
+    """``run_function`` (a generated ``run``) with its single-track loops keeping nothing:
+    each loop's bare-expression statements dropped and its block returning ``(None,
     None)`` after the loop (where run returns its arrays: the runners index its result).
-    Raises :class:`Skip` when the run has no such loop."""
+    The loops are the branch's own and those of an ``if`` in it (the loop that computes
+    what identical blocks share once, derive.emit.shared_blocks). Raises :class:`Skip`
+    when the run has no such loop."""
     tree = ast.parse(textwrap.dedent(inspect.getsource(run_function)))
     function = tree.body[0]
     branch = next((node for node in function.body if _is_single_track_branch(node)), None)
-    loops = [k for k, node in enumerate(branch.body) if isinstance(node, ast.For)] \
+    blocks = [branch] + [node for node in branch.body if isinstance(node, ast.If)] \
         if branch is not None else []
-    if not loops:
+    stripped = [_strip_loop(block) for block in blocks]
+    if not any(stripped):
         raise Skip("the generated run has no single-track loop")
-    loop = branch.body[loops[-1]]
-    loop.body = [node for node in loop.body if not isinstance(node, ast.Expr)]
-    branch.body = branch.body[:loops[-1] + 1] + [
-        ast.Return(ast.Tuple([ast.Constant(None)] * 2, ast.Load()))]
     function.name = FLOOR_NAME
     namespace = dict(run_function.__globals__)
     exec(compile(ast.fix_missing_locations(tree), "<keeping nothing>", "exec"), namespace)
     return namespace[FLOOR_NAME]
+
+
+def _strip_loop(block: ast.If) -> bool:
+    """Strip the last loop of ``block``'s body (see :func:`keeping_nothing`); False when it
+    has none."""
+    loops = [k for k, node in enumerate(block.body) if isinstance(node, ast.For)]
+    if not loops:
+        return False
+    loop = block.body[loops[-1]]
+    loop.body = [node for node in loop.body if not isinstance(node, ast.Expr)]
+    block.body = block.body[:loops[-1] + 1] + [
+        ast.Return(ast.Tuple([ast.Constant(None)] * 2, ast.Load()))]
+    return True
 
 
 def python_floor(case: Case, data: Data, workdir: Path):
