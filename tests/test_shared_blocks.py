@@ -14,6 +14,9 @@ import pytest
 import sympy
 
 from derive import catalog
+from derive.apps.bench import run as bench_run
+from derive.apps.bench.cases import Case, make_data
+from derive.apps.bench.python_floor import keeping_nothing
 from derive.emit.shared_blocks import shared_step
 from derive.errors import NumericalError
 from derive.flops import count_lowered
@@ -253,3 +256,19 @@ def _outside_raises(loop: ast.For) -> list[ast.AST]:
         found.append(node)
         stack.extend(ast.iter_child_nodes(node))
     return found
+
+
+def test_the_bench_times_the_full_loop_beside_the_shared_one(tmp_path):
+    """The bench's generated Python row of a model of several blocks carries its time from a
+    P0 whose blocks differ (the full loop) beside the catalog start's; a one-block model
+    has none. The floor (the loop keeping nothing) strips whichever loop runs."""
+    case = Case("kf", "mpt3d_a", 1)
+    data = make_data(case, 20)
+    unequal = bench_run._python_unequal_start(case, data, tmp_path, 20, 1)
+    assert unequal is not None and unequal > 0.0
+    one = Case("kf", "mpt3d_b", 1)
+    assert bench_run._python_unequal_start(one, make_data(one, 20), tmp_path, 20, 1) is None
+    floor = keeping_nothing(load_generated("mpt3d_a", "kf", lang="python",
+                                           directory=tmp_path / "floor").python.run)
+    assert floor(data.zs[0], data.x0, data.P0) == (None, None)
+    assert floor(data.zs[0], data.x0, data.P0 + np.diag(np.arange(1.0, 7.0))) == (None, None)

@@ -10,13 +10,15 @@ import platform
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ... import cli
 from ...build import STRICT_CFLAGS
+from ...errors import ModelError
+from ...structure import find_blocks
 from ..verify import relative_error
 from . import (
     batch,
@@ -96,6 +98,7 @@ class Row:
     bound: float | None = None    # generated C: latency bound of the carried chain, s/step
     latency_bound: float | None = None   # the same in the latency schedule (time-varying)
     floor: float | None = None    # generated Python: its loop keeping nothing, s/step
+    unequal: float | None = None  # generated Python: from a P0 whose blocks differ, s/step
 
 
 @dataclass(frozen=True)
@@ -171,6 +174,8 @@ class BenchResult:
                        "step", self._seconds("KF mpt3d_a", "generated Python"), 1.0e-6, "time",
                        "; ".join(part for part in (
                            _floor_note(python),
+                           "" if python is None or python.unequal is None else
+                           f"from a P0 whose blocks differ (the full loop) {human(python.unequal)}",
                            "" if apart is None else
                            f"three runs of one axis (KF mpt3d_b x 3) {human(apart)}") if part)))
         out += self._chain_bars()
@@ -390,12 +395,16 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
         if name == "generated C":
             base = timing.median
         note = _NOTES.get((case.filter, name), "")
-        bound = fast = floor = None
+        bound = fast = floor = unequal = None
         if name == "generated Python":
             floor = _python_floor(case, data, workdir, steps, s.repeats)
             if floor is not None:
                 note = (note + "; " if note else "") + \
                     f"the loop keeping nothing: {human(floor)}"
+            unequal = _python_unequal_start(case, data, workdir, steps, s.repeats)
+            if unequal is not None:
+                note = (note + "; " if note else "") + \
+                    f"from a P0 whose blocks differ (the full loop): {human(unequal)}"
         if name == "generated C" and latency:
             found = case_bound(case, latency)
             if found is not None:
@@ -407,7 +416,7 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
                 note += (f"; latency schedule's bound {human(fast)} "
                          f"({both.latency.describe()}, {both.flops_added:+d} flops a copy)")
         rows.append(Row(case.label, name, timing, None if base is None else
-                        timing.median / base, agreement, note, bound, fast, floor))
+                        timing.median / base, agreement, note, bound, fast, floor, unequal))
         if fast is not None:
             rows.append(_latency_schedule_row(case, data, workdir, s, reference, base, fast))
     return rows
@@ -421,6 +430,25 @@ def _python_floor(case: Case, data, workdir: Path, steps: int, repeats: int) -> 
         run = python_floor.python_floor(case, data, workdir)
     except Skip:
         return None
+    return measure(lambda: run(steps), steps, repeats).median
+
+
+def _python_unequal_start(case: Case, data, workdir: Path, steps: int, repeats: int
+                          ) -> float | None:
+    """Seconds per step of the generated Python from the case's P0 with a different number
+    added to each diagonal entry, so no two blocks start equal and the single-track run
+    takes its full loop (derive.emit.shared_blocks); None for a case without P0 or whose
+    model is one block (the runners pass P0 to the KF's run)."""
+    if case.nonlinear or case.filter != "kf":
+        return None
+    try:
+        if len(find_blocks(data.model)) < 2:
+            return None
+    except ModelError:
+        return None
+    n = len(data.x0)
+    P0 = data.P0 + np.diag(1e-3 * np.arange(1, n + 1))
+    run = generated.generated_python(case, replace(data, P0=P0), workdir)
     return measure(lambda: run(steps), steps, repeats).median
 
 
