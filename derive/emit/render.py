@@ -286,7 +286,9 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
                           f"    {name} = {name}.reshape({dims} + {name}.shape[1:])"]
             lines.append(f"_require_shape({name!r}, {name}, {dims}, {text!r})")
         tracks.append(f"{name}.shape[{len(a.dims)}:]")
-    lines.append(f"track = np.broadcast_shapes({', '.join(tracks)})")
+    # one track (no trailing axes) without np.broadcast_shapes, which costs microseconds
+    lines += [f"tracks = ({', '.join(tracks)}{',' if len(tracks) == 1 else ''})",
+              "track = np.broadcast_shapes(*tracks) if any(tracks) else ()"]
     return lines
 
 

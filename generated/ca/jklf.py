@@ -236,8 +236,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (9,):  # flat, row-major
         P0 = P0.reshape((3, 3) + P0.shape[1:])
     _require_shape('P0', P0, (3, 3), '(3, 3)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
-    xs = np.empty((steps, 3) + track)
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_4, P_5, P_8 = P0.reshape(-1)[[0, 1, 2, 4, 5, 8]].tolist()
@@ -325,6 +325,7 @@ def run(zs, x0, P0):
             P_5 = t135
         table = np.frombuffer(rows).reshape(-1, 9)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3))
+    xs = np.empty((steps, 3) + track)
     Ps = np.empty((steps, 9) + track)
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])

@@ -248,7 +248,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (9,):  # flat, row-major
         P0 = P0.reshape((3, 3) + P0.shape[1:])
     _require_shape('P0', P0, (3, 3), '(3, 3)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 3) + track)
     Ps = np.empty((steps, 9) + track)
     x = x0

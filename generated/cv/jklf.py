@@ -168,8 +168,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (4,):  # flat, row-major
         P0 = P0.reshape((2, 2) + P0.shape[1:])
     _require_shape('P0', P0, (2, 2), '(2, 2)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
-    xs = np.empty((steps, 2) + track)
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1 = x0.reshape(-1).tolist()
         P_0, P_1, P_3 = P0.reshape(-1)[[0, 1, 3]].tolist()
@@ -217,6 +217,7 @@ def run(zs, x0, P0):
             P_1 = t67
         table = np.frombuffer(rows).reshape(-1, 5)
         return (table[:, [0, 1]], table[:, [2, 3, 3, 4]].reshape(-1, 2, 2))
+    xs = np.empty((steps, 2) + track)
     Ps = np.empty((steps, 4) + track)
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])

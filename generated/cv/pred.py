@@ -85,8 +85,8 @@ def run(zs, x0):
     _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
     _require_shape('x0', x0, (2,), '(2,)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
-    xs = np.empty((steps, 2) + track)
+    tracks = (zs.shape[2:], x0.shape[1:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     if not track:  # one track: the step's statements inline, on Python floats
         x_start = np.asarray(init(x0), dtype=float)
         x_0, x_1 = x_start.reshape(-1).tolist()
@@ -100,6 +100,7 @@ def run(zs, x0):
             x_0 = t0
         table = np.frombuffer(rows).reshape(-1, 2)
         return table[:, [0, 1]]
+    xs = np.empty((steps, 2) + track)
     x = init(x0)
     for k in range(steps):
         x = step(x, zs[k])

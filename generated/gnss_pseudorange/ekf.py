@@ -373,8 +373,8 @@ def run(zs, us, x0, P0):
     if P0.shape[:1] == (16,):  # flat, row-major
         P0 = P0.reshape((4, 4) + P0.shape[1:])
     _require_shape('P0', P0, (4, 4), '(4, 4)')
-    track = np.broadcast_shapes(zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
-    xs = np.empty((steps, 4) + track)
+    tracks = (zs.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_2, P_3, P_5, P_6, P_7, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 2, 3, 5, 6, 7, 10, 11, 15]].tolist()
@@ -525,6 +525,7 @@ def run(zs, us, x0, P0):
         table = np.frombuffer(rows).reshape(-1, 14)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 7, 5, 8, 9, 10, 6, 9, 11, 12, 7, 10,
                 12, 13]].reshape(-1, 4, 4))
+    xs = np.empty((steps, 4) + track)
     Ps = np.empty((steps, 16) + track)
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])

@@ -67,8 +67,8 @@ def run(zs, x0):
     _require_shape('zs', zs, zs.shape[:1] + (3,), '(steps, 3)')
     steps = zs.shape[0]
     _require_shape('x0', x0, (3,), '(3,)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
-    xs = np.empty((steps, 3) + track)
+    tracks = (zs.shape[2:], x0.shape[1:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2 = x0.reshape(-1).tolist()
         rows = bytearray()
@@ -82,6 +82,7 @@ def run(zs, x0):
             keep(pack(x_0, x_1, x_2))
         table = np.frombuffer(rows).reshape(-1, 3)
         return table[:, [0, 1, 2]]
+    xs = np.empty((steps, 3) + track)
     x = x0
     for k in range(steps):
         x = step(x, zs[k])

@@ -160,8 +160,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (9,):  # flat, row-major
         P0 = P0.reshape((3, 3) + P0.shape[1:])
     _require_shape('P0', P0, (3, 3), '(3, 3)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
-    xs = np.empty((steps, 3) + track)
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     _require_zero(P0.reshape((9,) + P0.shape[2:]), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         # identical blocks starting equal in P0: 12 statements of the step
@@ -217,6 +217,7 @@ def run(zs, x0, P0):
             keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))
         table = np.frombuffer(rows).reshape(-1, 7)
         return (table[:, [0, 1, 2]], table[:, [3, 4, 4, 4, 5, 4, 4, 4, 6]].reshape(-1, 3, 3))
+    xs = np.empty((steps, 3) + track)
     Ps = np.empty((steps, 9) + track)
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])

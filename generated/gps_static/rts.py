@@ -228,7 +228,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (9,):  # flat, row-major
         P0 = P0.reshape((3, 3) + P0.shape[1:])
     _require_shape('P0', P0, (3, 3), '(3, 3)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 3) + track)
     _require_zero(P0.reshape((9,) + P0.shape[2:]), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     Ps = np.empty((steps, 9) + track)

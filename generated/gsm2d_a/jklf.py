@@ -284,8 +284,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (16,):  # flat, row-major
         P0 = P0.reshape((4, 4) + P0.shape[1:])
     _require_shape('P0', P0, (4, 4), '(4, 4)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
-    xs = np.empty((steps, 4) + track)
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     _require_zero(P0.reshape((16,) + P0.shape[2:]), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         # identical blocks starting equal in P0: 53 statements of the step
@@ -436,6 +436,7 @@ def run(zs, x0, P0):
         table = np.frombuffer(rows).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,
                 10]].reshape(-1, 4, 4))
+    xs = np.empty((steps, 4) + track)
     Ps = np.empty((steps, 16) + track)
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])

@@ -68,8 +68,8 @@ def run(zs, x0):
     _require_shape('zs', zs, zs.shape[:1] + (2,), '(steps, 2)')
     steps = zs.shape[0]
     _require_shape('x0', x0, (4,), '(4,)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:])
-    xs = np.empty((steps, 4) + track)
+    tracks = (zs.shape[2:], x0.shape[1:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     if not track:  # one track: the step's statements inline, on Python floats
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         rows = bytearray()
@@ -86,6 +86,7 @@ def run(zs, x0):
             x_2 = t2
         table = np.frombuffer(rows).reshape(-1, 4)
         return table[:, [0, 1, 2, 3]]
+    xs = np.empty((steps, 4) + track)
     x = x0
     for k in range(steps):
         x = step(x, zs[k])

@@ -268,7 +268,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (16,):  # flat, row-major
         P0 = P0.reshape((4, 4) + P0.shape[1:])
     _require_shape('P0', P0, (4, 4), '(4, 4)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 4) + track)
     Ps = np.empty((steps, 16) + track)
     x, U, D = enter(x0, P0.reshape((16,) + P0.shape[2:]))

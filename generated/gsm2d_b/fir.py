@@ -64,7 +64,8 @@ def run(zs):
         zs = zs[:, np.newaxis]
     _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
     steps = zs.shape[0]
-    track = np.broadcast_shapes(zs.shape[2:])
+    tracks = (zs.shape[2:],)
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 2) + track)
     padded = np.concatenate([np.zeros((32, 1) + zs.shape[2:]), zs])
     for k in range(steps):

@@ -183,7 +183,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (4,):  # flat, row-major
         P0 = P0.reshape((2, 2) + P0.shape[1:])
     _require_shape('P0', P0, (2, 2), '(2, 2)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 2) + track)
     Ps = np.empty((steps, 4) + track)
     x, U, D = enter(x0, P0.reshape((4,) + P0.shape[2:]))

@@ -1641,7 +1641,8 @@ def run(us, z_gnss, z_baro, x0, P0, p):
     else:  # one row per step
         _require_shape('p', p, (steps,) + (1,), '(1,) or (steps, 1)')
         p_rows = p
-    track = np.broadcast_shapes(us.shape[2:], z_gnss.shape[2:], z_baro.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
+    tracks = (us.shape[2:], z_gnss.shape[2:], z_baro.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 16) + track)
     Ps = np.empty((steps, 256) + track)
     x = x0

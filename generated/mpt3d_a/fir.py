@@ -66,7 +66,8 @@ def run(zs):
     zs = np.asarray(zs, dtype=float)
     _require_shape('zs', zs, zs.shape[:1] + (3,), '(steps, 3)')
     steps = zs.shape[0]
-    track = np.broadcast_shapes(zs.shape[2:])
+    tracks = (zs.shape[2:],)
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 6) + track)
     padded = np.concatenate([np.zeros((32, 3) + zs.shape[2:]), zs])
     for k in range(steps):

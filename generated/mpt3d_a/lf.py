@@ -237,8 +237,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (36,):  # flat, row-major
         P0 = P0.reshape((6, 6) + P0.shape[1:])
     _require_shape('P0', P0, (6, 6), '(6, 6)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
-    xs = np.empty((steps, 6) + track)
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     _require_zero(P0.reshape((36,) + P0.shape[2:]), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         # identical blocks starting equal in P0: 28 statements of the step
@@ -401,6 +401,7 @@ def run(zs, x0, P0):
         return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
                 8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 13, 14, 8, 8, 8, 8, 14,
                 15]].reshape(-1, 6, 6))
+    xs = np.empty((steps, 6) + track)
     Ps = np.empty((steps, 36) + track)
     x = x0
     P = P0.reshape((36,) + P0.shape[2:])

@@ -369,7 +369,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (36,):  # flat, row-major
         P0 = P0.reshape((6, 6) + P0.shape[1:])
     _require_shape('P0', P0, (6, 6), '(6, 6)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 6) + track)
     _require_zero(P0.reshape((36,) + P0.shape[2:]), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     Ps = np.empty((steps, 36) + track)

@@ -324,7 +324,8 @@ def run(zs, x0, P0):
     if P0.shape[:1] == (36,):  # flat, row-major
         P0 = P0.reshape((6, 6) + P0.shape[1:])
     _require_shape('P0', P0, (6, 6), '(6, 6)')
-    track = np.broadcast_shapes(zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    tracks = (zs.shape[2:], x0.shape[1:], P0.shape[2:])
+    track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 6) + track)
     Ps = np.empty((steps, 36) + track)
     x, U, D = enter(x0, P0.reshape((36,) + P0.shape[2:]))
