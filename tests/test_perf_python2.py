@@ -11,6 +11,7 @@ import ast
 import numpy as np
 import pytest
 from _backend_kf import kf_unit
+from _loop_ast import outside_raises, single_track_branch
 
 from derive import catalog
 from derive.apps.bench import run as bench_run
@@ -31,23 +32,7 @@ CASES = [("mpt3d_b", "kf", {}), ("mpt3d_a", "kf", {}), ("mpt3d_a", "lf", {}),
 
 def _single_track_loop(text: str) -> ast.For:
     """The for loop of ``run``'s branch ``if not track:``."""
-    run = next(node for node in ast.parse(text).body
-               if isinstance(node, ast.FunctionDef) and node.name == "run")
-    branch = next(node for node in run.body if isinstance(node, ast.If) and
-                  ast.unparse(node.test) == "not track")
-    return next(node for node in branch.body if isinstance(node, ast.For))
-
-
-def _outside_raises(loop: ast.For) -> list[ast.AST]:
-    """Every node of the loop's body but those of its raise statements (an error path)."""
-    found, stack = [], list(loop.body)
-    while stack:
-        node = stack.pop()
-        if isinstance(node, ast.Raise):
-            continue
-        found.append(node)
-        stack.extend(ast.iter_child_nodes(node))
-    return found
+    return next(node for node in single_track_branch(text).body if isinstance(node, ast.For))
 
 
 def _text(model, name, options) -> str:
@@ -59,7 +44,7 @@ def test_a_step_of_the_loop_builds_no_tuple_list_or_row_list(model, name, option
     """The row is packed into bytes (one call), not a tuple extended into a list of floats;
     the inputs come from an array of doubles, not from a list made by ``tolist``."""
     loop = _single_track_loop(_text(model, name, options))
-    built = [node for node in _outside_raises(loop)
+    built = [node for node in outside_raises(loop)
              if isinstance(node, ast.Tuple | ast.List) and isinstance(node.ctx, ast.Load)]
     assert not built, (model, name, [ast.unparse(node) for node in built])
     assert "tolist" not in ast.unparse(loop.iter)
@@ -73,7 +58,7 @@ def test_the_loop_does_the_operations_the_header_counts(model, name, options):
     """One binary operator per counted add, sub, mul and div of the step (the operations of
     a raise are an error path), and nothing else in float arithmetic."""
     loop = _single_track_loop(_text(model, name, options))
-    operators = [type(node.op) for node in _outside_raises(loop)
+    operators = [type(node.op) for node in outside_raises(loop)
                  if isinstance(node, ast.BinOp)]
     counted = count(derive_unit(catalog.load(model), name, options).programs["step"],
                     "python")

@@ -12,11 +12,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import sympy
+from _loop_ast import outside_raises, single_track_branch
 
 from derive import catalog
-from derive.apps.bench import run as bench_run
-from derive.apps.bench.cases import Case, make_data
-from derive.apps.bench.python_floor import keeping_nothing
 from derive.emit.shared_blocks import shared_step
 from derive.errors import NumericalError
 from derive.flops import count_lowered
@@ -228,16 +226,13 @@ def test_the_shared_loop_does_the_operations_of_the_shared_step(model_name, name
     shared = shared_step(lowered, unit.carried)
     assert shared is not None
     text = render_filter(catalog.load(model_name), name, "python", {})[f"{name}.py"]
-    run = next(node for node in ast.parse(text).body
-               if isinstance(node, ast.FunctionDef) and node.name == "run")
-    branch = next(node for node in run.body if isinstance(node, ast.If) and
-                  ast.unparse(node.test) == "not track")
+    branch = single_track_branch(text)
     shared_loop = next(node for node in next(
         node for node in branch.body if isinstance(node, ast.If)).body
         if isinstance(node, ast.For))
     full_loop = next(node for node in branch.body if isinstance(node, ast.For))
     for loop, program in ((shared_loop, shared.program), (full_loop, lowered)):
-        operators = [type(node.op) for node in _outside_raises(loop)
+        operators = [type(node.op) for node in outside_raises(loop)
                      if isinstance(node, ast.BinOp)]
         counted = count_lowered(program)
         assert (operators.count(ast.Add), operators.count(ast.Sub), operators.count(ast.Mult),
@@ -245,30 +240,3 @@ def test_the_shared_loop_does_the_operations_of_the_shared_step(model_name, name
                                               counted.div)
     assert count_lowered(shared.program).flops < count_lowered(lowered).flops
 
-
-def _outside_raises(loop: ast.For) -> list[ast.AST]:
-    """Every node of the loop's body but those of its raise statements (an error path)."""
-    found, stack = [], list(loop.body)
-    while stack:
-        node = stack.pop()
-        if isinstance(node, ast.Raise):
-            continue
-        found.append(node)
-        stack.extend(ast.iter_child_nodes(node))
-    return found
-
-
-def test_the_bench_times_the_full_loop_beside_the_shared_one(tmp_path):
-    """The bench's generated Python row of a model of several blocks carries its time from a
-    P0 whose blocks differ (the full loop) beside the catalog start's; a one-block model
-    has none. The floor (the loop keeping nothing) strips whichever loop runs."""
-    case = Case("kf", "mpt3d_a", 1)
-    data = make_data(case, 20)
-    unequal = bench_run._python_unequal_start(case, data, tmp_path, 20, 1)
-    assert unequal is not None and unequal > 0.0
-    one = Case("kf", "mpt3d_b", 1)
-    assert bench_run._python_unequal_start(one, make_data(one, 20), tmp_path, 20, 1) is None
-    floor = keeping_nothing(load_generated("mpt3d_a", "kf", lang="python",
-                                           directory=tmp_path / "floor").python.run)
-    assert floor(data.zs[0], data.x0, data.P0) == (None, None)
-    assert floor(data.zs[0], data.x0, data.P0 + np.diag(np.arange(1.0, 7.0))) == (None, None)
