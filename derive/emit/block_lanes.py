@@ -28,18 +28,18 @@ The runs it serves (:data:`RUN_KINDS`): the time-varying filters, the steady-sta
 and the predictor (whose run starts from init's ``x_init``); with the two-step pass where
 the scalar run takes it. Not served, and why:
 
-* the UDKF: its run starts from ``enter``'s factors of P0 and stores P through the
-  ``store`` program each step (a program of its own, not vector statements), and its step,
-  derived whole rather than block by block, sums one block's products in another order
-  (sympy's order of the whole model's names), so its blocks are not the same statements
-  up to naming;
-* the smoother (RTS): its run is a forward loop that also writes each step's predicted
-  x and P into work rows, then a backward loop over them in reverse, with a carried
-  state of its own; both steps split into identical blocks (up to naming), but the
-  vector run spells one loop storing the carried outputs, so lanes there would take a
-  vector forward loop writing the work rows and a vector backward loop (not done, not
-  measured);
-* the windowed (FIR) run carries no state, and the sensors' run applies one group of
+* a time-varying run with ``enter`` and ``store`` programs (a factored covariance): it
+  starts from ``enter``'s factors of P0 and stores P through ``store`` each step (a
+  program of its own, not vector statements); the one such filter's step is also derived
+  whole rather than block by block, and for ``mpt3d_a`` sums one block's products in
+  another order (sympy's order of the whole model's names), so its blocks are not the
+  same statements up to naming there;
+* the smoother run kind: a forward loop that also writes each step's predicted x and P
+  into work rows, then a backward loop over them in reverse, with a carried state of its
+  own; both steps split into identical blocks (up to naming), but the vector run spells
+  one loop storing the carried outputs, so lanes there would take a vector forward loop
+  writing the work rows and a vector backward loop (not done, not measured);
+* the windowed run carries no state, and the sensors' run applies one group of
   measurements at a time.
 """
 
