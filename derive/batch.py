@@ -154,10 +154,8 @@ def _is_dask(array) -> bool:
 #: gets at least as many): a multiple of every default lane count of run_tracks (8 to 64),
 #: so each slice runs whole blocks and only the last has a scalar tail, and of a 64-byte
 #: cache line in every array of one track after another, so that two threads never write
-#: the same line of an aligned output (:func:`aligned_empty`).
+#: the same line of an aligned output (:func:`derive.aligned.aligned_empty`).
 TRACK_MULTIPLE = 64
-#: The alignment of the outputs run_tracks allocates, bytes (a cache line).
-ALIGNMENT = 64
 #: Slices of tracks per thread when there are enough tracks (each at least
 #: TRACK_MULTIPLE): the threads take them in turn, so a thread whose core is shared with
 #: another job does less of the batch instead of the others waiting for it.
@@ -176,16 +174,6 @@ def split(tracks: int, parts: int, multiple: int = 1) -> list[tuple[int, int]]:
     else:
         edges = [tracks * i // parts for i in range(parts + 1)]
     return [(a, b) for a, b in zip(edges, edges[1:]) if b > a]
-
-
-def aligned_empty(shape, dtype) -> np.ndarray:
-    """An uninitialised C-contiguous array whose data starts on an :data:`ALIGNMENT`-byte
-    boundary (its pages untouched until a thread writes them)."""
-    dtype = np.dtype(dtype)
-    count = int(np.prod(shape, dtype=np.int64))
-    raw = np.empty(count * dtype.itemsize + ALIGNMENT, dtype=np.uint8)
-    offset = -raw.ctypes.data % ALIGNMENT
-    return raw[offset:offset + count * dtype.itemsize].view(dtype).reshape(shape)
 
 
 def _checked_out(module: FilterModule, out, layout: _Layout, has_P0: bool,
@@ -293,9 +281,9 @@ def run_tracks(kernel, zs, x0s, P0s=None, p=None, *, workers: int | None = None,
         xs, Ps = _checked_out(module, out, layout, P0s is not None, with_covariance,
                               {"zs": zs, "x0s": x0s, "P0s": P0s,
                                "p": None if p is None else np.asarray(p)})
-    else:   # aligned: the threads' slices (TRACK_MULTIPLE) share no cache line
-        xs = aligned_empty((tracks, steps, n), module.dtype)
-        Ps = (aligned_empty((tracks, steps, n, n), module.dtype)
+    else:   # aligned (module.empty): the threads' slices (TRACK_MULTIPLE) share no line
+        xs = module.empty((tracks, steps, n))
+        Ps = (module.empty((tracks, steps, n, n))
               if P0s is not None and with_covariance else None)
 
     def one(start: int, stop: int) -> None:

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from derive import interface
+from derive.aligned import aligned_empty
 from derive.errors import (
     DtypeError,
     ModelError,
@@ -129,8 +130,9 @@ class FilterModule:
         return self.ffi.from_buffer(f"{self.c_type}[]", array)
 
     def empty(self, shape) -> np.ndarray:
-        """An output array of the kernel's element type."""
-        return np.empty(shape, dtype=self.dtype)
+        """An output array of the kernel's element type, starting on a cache line
+        (:func:`derive.aligned.aligned_empty`, as derive.batch's outputs)."""
+        return aligned_empty(shape, self.dtype)
 
     def converted(self, function: str, name: str, value) -> np.ndarray:
         """``value`` as a contiguous array of the kernel's dtype; DtypeError when that would

@@ -8,14 +8,15 @@ Rules (``e`` a sympy expression):
 
 - a number, or any expression without free symbols (``sqrt(2)``, ``pi``), is one
   double constant; a symbol is a variable;
-- ``Add``: terms in :func:`sympy.default_sort_key` order, numeric terms merged
+- ``Add``: terms in :func:`sympy.default_sort_key` order (of the program's
+  ``order_names``, see below), numeric terms merged
   into one constant; a term with a negative numeric coefficient is subtracted
   as its positive part (``a - 2*b`` is ``sub(a, mul(2, b))``); the chain starts
   at the first positive term (all negative: ``neg`` of the first);
 - ``Mul``: numeric factors merged into one coefficient ``c``; factors with a
   negative exponent form a denominator (``a/b`` is ``div(a, b)``, ``c/b`` is
-  ``div(c, b)``); ``c = -1`` is ``neg`` (or folds into a surrounding ``sub``);
-  other ``c`` multiply first: ``mul(c, ...)``;
+  ``div(c, b)``; factors in the order of terms); ``c = -1`` is ``neg`` (or folds
+  into a surrounding ``sub``); other ``c`` multiply first: ``mul(c, ...)``;
 - ``x**k`` (integer ``k > 0``): ``k - 1`` multiplications; ``x**-k``:
   ``div(1, x**k)``; ``x**(1/2)``: ``sqrt``; ``x**(-1/2)``: ``div(1, sqrt(x))``;
   ``x**(k/2)``: ``mul(x**((k-1)/2), sqrt(x))``;
@@ -32,6 +33,14 @@ Rules (``e`` a sympy expression):
   ``v <= bound`` (a constant), else ``b`` (also for a NaN ``v``); one comparison, no flop,
   counted as ``cmp`` (innovation gating);
 - anything else raises :class:`LoweringError`.
+
+The order of terms and factors follows sympy's order of the symbols' names, so it can
+change when symbols are renamed (``t10*t2*t7`` is ``(t10*t2)*t7``, ``t22*t27*t30`` is
+``(t22*t27)*t30``). A program assembled from renamed copies of another
+(:mod:`derive.filters.blockwise`) names in ``Program.order_names`` the symbol each of its
+symbols copies: terms and factors are ordered as those of the copied program, so each
+copy lowers to the operations of the original in the same order
+(:mod:`derive.emit.block_lanes` carries identical copies in the lanes of one vector).
 
 A program's trees are at most :data:`MAX_DEPTH` operations deep: :func:`lower_program`
 names each subtree that reaches that depth as a temporary of its own, computed just
@@ -243,9 +252,16 @@ def _chain(kind: str, trees: list[Tree]) -> Tree | None:
 
 
 class _Lowerer:
-    def __init__(self, use_fma: bool, state_ports: tuple[str, ...] = ()) -> None:
+    def __init__(self, use_fma: bool, state_ports: tuple[str, ...] = (),
+                 order_names: Mapping[sympy.Symbol, sympy.Symbol] | None = None) -> None:
         self.use_fma = use_fma
         self.state_ports = frozenset(state_ports)
+        self.order_names = dict(order_names or {})
+
+    def order(self, e: sympy.Expr):
+        """The key terms and factors are lowered in: sympy's order of ``e`` with its
+        symbols named as in :attr:`order_names` (the symbols they copy)."""
+        return default_sort_key(e.xreplace(self.order_names) if self.order_names else e)
 
     def lower(self, e: sympy.Basic) -> Tree:
         if e.is_number:
@@ -308,8 +324,8 @@ class _Lowerer:
                 numerator.append(factor)
         if coeff == 0:
             return Const(0.0)
-        num = _chain("mul", [self.lower(f) for f in sorted(numerator, key=default_sort_key)])
-        den = _chain("mul", [self.lower(f) for f in sorted(denominator, key=default_sort_key)])
+        num = _chain("mul", [self.lower(f) for f in sorted(numerator, key=self.order)])
+        den = _chain("mul", [self.lower(f) for f in sorted(denominator, key=self.order)])
         c = Const(constant_value(coeff))
         if den is None:
             if num is None:
@@ -330,7 +346,7 @@ class _Lowerer:
     def _add(self, e: sympy.Expr) -> Tree:
         constant = sympy.S.Zero
         terms: list[tuple[int, Tree]] = []
-        for term in sorted(sympy.Add.make_args(e), key=default_sort_key):
+        for term in sorted(sympy.Add.make_args(e), key=self.order):
             if term.is_number:
                 constant += term
                 continue
@@ -519,7 +535,7 @@ def lower_program(program: Program, *, use_fma: bool = False,
     ``state_ports``: the input ports that carry state from step to step; in an fma chain
     products that read them go last (see :func:`_late`)."""
     program = program.optimize()
-    lowerer = _Lowerer(use_fma, state_ports)
+    lowerer = _Lowerer(use_fma, state_ports, program.order_names)
     body: list[LoweredAssign | LoweredCheck] = []
     cut = _DepthCut(1 + max((int(st.target.name[1:]) for st in program.body
                              if isinstance(st, Assign) and st.target.name[1:].isdigit()),

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import keyword
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from math import prod
 
@@ -185,6 +185,7 @@ class Program:
         self._results: dict[str, tuple[sympy.Expr, ...]] = {}
         self._counter = 0
         self._optimized = False
+        self._order_names: dict[sympy.Symbol, sympy.Symbol] = {}
 
     # -- reading the program -------------------------------------------------------------
 
@@ -192,6 +193,13 @@ class Program:
     def body(self) -> tuple[Statement, ...]:
         """The statements in order."""
         return tuple(self._body)
+
+    @property
+    def order_names(self) -> dict[sympy.Symbol, sympy.Symbol]:
+        """For a program assembled from renamed copies of other programs: each symbol ->
+        the symbol it copies, whose name orders the terms and factors it appears in when
+        lowered (:mod:`derive.lowering`); empty: the symbols' own names."""
+        return dict(self._order_names)
 
     @property
     def results(self) -> dict[str, tuple[sympy.Expr, ...]]:
@@ -390,18 +398,27 @@ class Program:
         return self._final(body, results)
 
     def assembled(self, body: Sequence[Statement], results: dict[str, Sequence[sympy.Expr]],
-                  *, optimize: bool) -> Program:
+                  *, optimize: bool,
+                  order_names: Mapping[sympy.Symbol, sympy.Symbol] | None = None) -> Program:
         """A final program with this one's ports and a ``body`` built elsewhere (renamed
         parts of other programs: :mod:`derive.filters.blockwise`), its temporaries named
         ``t0, t1, ...`` in order, each output port's atoms in ``results``; optimised as a
-        whole when ``optimize``, else taken as it is."""
+        whole when ``optimize``, else taken as it is, its :attr:`order_names`
+        ``order_names`` (each renamed symbol -> the symbol of the part it copies).
+        Optimising renames the temporaries, so an optimised program takes no
+        ``order_names``."""
         self._check_open()
         missing = [p.name for p in self.outputs if p.name not in results]
         if missing:
             raise ProgramError(f"program {self.name!r}: outputs {missing} were never set")
         results = {name: tuple(values) for name, values in results.items()}
         if not optimize:
-            return self._final(list(body), results)
+            out = self._final(list(body), results)
+            out._order_names = dict(order_names or {})
+            return out
+        if order_names:
+            raise ProgramError(f"program {self.name!r}: an optimised assembly renumbers its "
+                               "temporaries, so it cannot keep the order of its parts' names")
         out = Program(self.name, self.inputs, self.outputs, self.doc)
         out._body = list(body)
         out._results = results

@@ -14,7 +14,7 @@ import shutil
 import numpy as np
 import pytest
 
-from derive import batch, catalog
+from derive import aligned, batch, catalog
 from derive.apps.bench import scaling
 from derive.apps.bench.batch import copy_bandwidth, make_batch
 from derive.emit import c_loops
@@ -142,7 +142,7 @@ def test_new_outputs_are_aligned_and_each_slice_edge_is_its_own_run(kf, workers)
     kernel, module = kf
     zs, x0s, P0s = _tracks("mpt3d_b", tracks=1000)
     xs, Ps = batch.run_tracks(kernel, zs, x0s, P0s, workers=workers)
-    assert xs.ctypes.data % batch.ALIGNMENT == 0 and Ps.ctypes.data % batch.ALIGNMENT == 0
+    assert xs.ctypes.data % aligned.ALIGNMENT == 0 and Ps.ctypes.data % aligned.ALIGNMENT == 0
     edges = {t for a, b in batch.split(1000, workers, batch.TRACK_MULTIPLE)
              for t in (a - 1, a, b - 1) if t >= 0}
     for t in sorted(edges):
@@ -152,9 +152,9 @@ def test_new_outputs_are_aligned_and_each_slice_edge_is_its_own_run(kf, workers)
 
 def test_an_aligned_empty_array_starts_on_a_cache_line():
     for count in (1, 3, 1000):
-        array = batch.aligned_empty((count, 7), np.float32)
+        array = aligned.aligned_empty((count, 7), np.float32)
         assert array.shape == (count, 7) and array.dtype == np.float32
-        assert array.flags.c_contiguous and array.ctypes.data % batch.ALIGNMENT == 0
+        assert array.flags.c_contiguous and array.ctypes.data % aligned.ALIGNMENT == 0
 
 
 @needs_gcc

@@ -23,6 +23,24 @@ The vector run is compiled where ``DERIVE_BLOCK_VECTOR`` is defined (GCC and Cla
 target with vectors of doubles, unless the build defines ``DERIVE_NO_BLOCK_VECTOR``);
 otherwise the scalar C99 run.
 Counts are unchanged: the header counts the scalar operations of every block.
+
+The runs it serves (:data:`RUN_KINDS`): the time-varying filters, the steady-state ones
+and the predictor (whose run starts from init's ``x_init``); with the two-step pass where
+the scalar run takes it. Not served, and why:
+
+* a time-varying run with ``enter`` and ``store`` programs (a factored covariance): it
+  starts from ``enter``'s factors of P0 and stores P through ``store`` each step (a
+  program of its own, not vector statements); the one such filter's step is also derived
+  whole rather than block by block, and for ``mpt3d_a`` sums one block's products in
+  another order (sympy's order of the whole model's names), so its blocks are not the
+  same statements up to naming there;
+* the smoother run kind: a forward loop that also writes each step's predicted x and P
+  into work rows, then a backward loop over them in reverse, with a carried state of its
+  own; both steps split into identical blocks (up to naming), but the vector run spells
+  one loop storing the carried outputs, so lanes there would take a vector forward loop
+  writing the work rows and a vector backward loop (not done, not measured);
+* the windowed run carries no state, and the sensors' run applies one group of
+  measurements at a time.
 """
 
 from __future__ import annotations
@@ -64,6 +82,10 @@ MOST_LANES = 8
 #: 0.9 of the scalar time (docs/performance.md).
 FEWEST_LANES = 3
 _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+#: The run kinds whose C run may carry identical blocks in lanes: one carried state
+#: from step to step, one row of z a step (two a pass with the two-step map); the others
+#: and why: the module docstring.
+RUN_KINDS = ("timevarying", "steady", "predictor")
 
 
 def vector_type(width: int) -> str:
@@ -642,8 +664,9 @@ def vector_run(unit, step: LoweredProgram, two: LoweredProgram | None, state: li
                real: Precision = DOUBLE) -> tuple[list[str], list[str], str]:
     """C run's vector body, the file's macro lines for it and the header's line about it,
     or nothing (``[], [], ""``) for a run loop the scalar C99 run alone serves: a run kind
-    other than ``timevarying`` and ``steady``, or a step that is not identical blocks."""
-    if unit.kind not in ("timevarying", "steady") or unit.run.window:
+    other than ``timevarying``, ``steady`` and ``predictor`` (its prologue calls init and
+    ``state`` starts from init's result), or a step that is not identical blocks."""
+    if unit.kind not in RUN_KINDS or unit.run.window:
         return [], [], ""
     step_lanes = split(step)
     two_lanes = split(two) if two is not None else None

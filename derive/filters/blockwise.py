@@ -21,7 +21,12 @@ The assembled step is the one the whole-model derivation gives, up to naming and
 * each block's pivot checks name the pivot by its row in the whole model
   (:class:`derive.staging.PivotMessage`), so their messages are the whole model's and
   their statuses are numbered in block order;
-* the terms of a sum follow sympy's order of the renamed symbols, as before.
+* the terms of a sum and the factors of a product are lowered in the order of the block's
+  own program (``Program.order_names``: each renamed symbol -> the block's symbol), so
+  the renamed copies of a block lower to its operations in the same order (before,
+  sympy's order of the renamed names: ``t10*t2*t7`` and ``t22*t27*t30`` multiply in
+  different orders) and identical blocks are identical up to naming
+  (:mod:`derive.emit.block_lanes` carries them in the lanes of one vector).
 
 A model with free parameters is optimised once more as a whole, so that expressions of
 the parameters alone that several blocks compute are shared as before. Counts are
@@ -109,12 +114,14 @@ def blockwise_step(model, declared: str, derive_block: DeriveBlock
     P_new: list[sympy.Expr] = [sympy.Integer(0)] * (n * n)
     parameter_index = {p.name: i for i, p in enumerate(model.parameters)}
     temporaries = 0
+    copied: dict[sympy.Symbol, sympy.Symbol] = {}
     for block, program, _ in parts:
         names = _port_names(program, whole, block, parameter_index)
         for st in program.body:
             if isinstance(st, Assign):
                 names[st.target] = Temporary(f"t{temporaries}")
                 temporaries += 1
+        copied.update((new, old) for old, new in names.items())
         rows = {"states": block.states, "measurements": block.measurements}
         for st in program.body:
             if isinstance(st, Assign):
@@ -131,8 +138,11 @@ def blockwise_step(model, declared: str, derive_block: DeriveBlock
         for i in range(nb):
             for j in range(nb):
                 P_new[s[i] * n + s[j]] = results["P_new"][i * nb + j].xreplace(names)
+    # with free parameters the whole is optimised again: its temporaries are renumbered,
+    # and the blocks share the parameters' expressions (sympy's order of its own names)
+    shared = bool(model.parameters)
     step = whole.assembled(body, {"x_new": tuple(x_new), "P_new": tuple(P_new)},
-                           optimize=bool(model.parameters))
+                           optimize=shared, order_names=None if shared else copied)
     return step, closed
 
 

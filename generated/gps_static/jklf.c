@@ -158,9 +158,9 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     const double t43 = P[4 * s]*t36;
     const double t44 = 0.9090909090909091*t43;
     const double t45 = 0.00909090909090909 + t44;
-    const double t46 = t30 + t42;
+    const double t46 = t42 + t30;
     const double t47 = 0.5*t46;
-    const double t48 = t32 + t45;
+    const double t48 = t45 + t32;
     const double t49 = 0.5*t48;
     const double t50 = 0.01 + P[8 * s];
     const double t51 = 0.1 + t50;
@@ -186,9 +186,9 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     const double t68 = P[8 * s]*t61;
     const double t69 = 0.9090909090909091*t68;
     const double t70 = 0.00909090909090909 + t69;
-    const double t71 = t55 + t67;
+    const double t71 = t67 + t55;
     const double t72 = 0.5*t71;
-    const double t73 = t57 + t70;
+    const double t73 = t70 + t57;
     const double t74 = 0.5*t73;
     x_new[0] = t22;
     x_new[1 * s] = t47;

@@ -126,7 +126,7 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
     const double t11 = z[1 * s] - x[1 * s];
     const double t12 = t10*t11;
     const double t13 = x[1 * s] + t12;
-    const double t14 = t10*t8;
+    const double t14 = t8*t10;
     const double t15 = t8 - t14;
     const double t16 = 0.01 + P[8 * s];
     const double t17 = 0.1 + t16;

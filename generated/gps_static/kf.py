@@ -124,7 +124,7 @@ def _step_in_pattern(x, P, z):
     t11 = z[1] - x[1]
     t12 = t10*t11
     t13 = x[1] + t12
-    t14 = t10*t8
+    t14 = t8*t10
     t15 = t8 - t14
     t16 = 0.01 + P[8]
     t17 = 0.1 + t16
@@ -206,7 +206,7 @@ def run(zs, x0, P0):
                 raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t10 = t8/t9
             x_1 = x_1 + t10*(z_1 - x_1)
-            P_4 = t8 - t10*t8
+            P_4 = t8 - t8*t10
             t16 = 0.01 + P_8
             t17 = 0.1 + t16
             if not t17 > 0.0:

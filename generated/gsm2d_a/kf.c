@@ -127,9 +127,9 @@ DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *r
     const double t41 = t37*t39;
     const double t42 = t25 + t40;
     const double t43 = x[3 * s] + t41;
-    const double t44 = t32*t36;
-    const double t45 = t33*t36;
-    const double t46 = t33*t37;
+    const double t44 = t36*t32;
+    const double t45 = t36*t33;
+    const double t46 = t37*t33;
     const double t47 = t29 - t44;
     const double t48 = t30 - t45;
     const double t49 = t31 - t46;

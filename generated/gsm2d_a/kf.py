@@ -153,9 +153,9 @@ def _step_in_pattern(x, P, z):
     t41 = t37*t39
     t42 = t25 + t40
     t43 = x[3] + t41
-    t44 = t32*t36
-    t45 = t33*t36
-    t46 = t33*t37
+    t44 = t36*t32
+    t45 = t36*t33
+    t46 = t37*t33
     t47 = t29 - t44
     t48 = t30 - t45
     t49 = t31 - t46
@@ -264,9 +264,9 @@ def run(zs, x0, P0):
             t39 = z_1 - (x_3 + t25)
             x_2 = t25 + t36*t39
             x_3 = x_3 + t37*t39
-            P_10 = t29 - t32*t36
-            P_11 = t30 - t33*t36
-            P_15 = t31 - t33*t37
+            P_10 = t29 - t36*t32
+            P_11 = t30 - t36*t33
+            P_15 = t31 - t37*t33
             keep(pack(x_0, x_1, x_2, x_3, P_0, P_1, 0.0, P_5, P_10, P_11, P_15))
         table = np.frombuffer(rows).reshape(-1, 11)
         return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 8, 9, 6, 6, 9,

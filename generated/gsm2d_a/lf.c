@@ -136,9 +136,9 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     const double t48 = t43*t47;
     const double t49 = t46 - t42*t48;
     const double t50 = 1.0/t49;
-    const double t51 = t48*t50;
-    const double t52 = t47*DERIVE_FMA(t42, t51, 1.0);
-    const double t53 = t42*t47*t50;
+    const double t51 = t50*t48;
+    const double t52 = t47*DERIVE_FMA(t51, t42, 1.0);
+    const double t53 = t50*t42*t47;
     const double t54 = DERIVE_FMA(0.9387755102040817, t52, (-0.8775510204081632)*t51);
     const double t55 = DERIVE_FMA((-0.9387755102040817), t53, 0.8775510204081632*t50);
     const double t56 = DERIVE_FMA(0.12244897959183673, t52, 0.7551020408163265*t51);

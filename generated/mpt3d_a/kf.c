@@ -156,9 +156,9 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t41 = t37*t39;
     const double t42 = t25 + t40;
     const double t43 = x[3 * s] + t41;
-    const double t44 = t32*t36;
-    const double t45 = t33*t36;
-    const double t46 = t33*t37;
+    const double t44 = t36*t32;
+    const double t45 = t36*t33;
+    const double t46 = t37*t33;
     const double t47 = t29 - t44;
     const double t48 = t30 - t45;
     const double t49 = t31 - t46;
@@ -184,9 +184,9 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t66 = t62*t64;
     const double t67 = t50 + t65;
     const double t68 = x[5 * s] + t66;
-    const double t69 = t57*t61;
-    const double t70 = t58*t61;
-    const double t71 = t58*t62;
+    const double t69 = t61*t57;
+    const double t70 = t61*t58;
+    const double t71 = t62*t58;
     const double t72 = t54 - t69;
     const double t73 = t55 - t70;
     const double t74 = t56 - t71;

@@ -20,6 +20,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 12, calls 0 (flops 240, instructions 201)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
@@ -82,6 +83,33 @@
 #define DERIVE_SIMD
 #endif
 #endif
+#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
+#define DERIVE_BLOCK_VECTOR 1
+__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#endif
+#if defined(__clang__)
+#define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
+#define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
+#else
+__extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
+#define DERIVE_PAIRS_LO(a, b) __builtin_shuffle((a), (b), (derive_i4){0, 4, 1, 5})
+#define DERIVE_PAIRS_HI(a, b) __builtin_shuffle((a), (b), (derive_i4){2, 6, 3, 7})
+#endif
+#endif
 
 DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
@@ -136,9 +164,9 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t48 = t43*t47;
     const double t49 = t46 - t42*t48;
     const double t50 = 1.0/t49;
-    const double t51 = t48*t50;
-    const double t52 = t47*DERIVE_FMA(t42, t51, 1.0);
-    const double t53 = t42*t47*t50;
+    const double t51 = t50*t48;
+    const double t52 = t47*DERIVE_FMA(t51, t42, 1.0);
+    const double t53 = t50*t42*t47;
     const double t54 = DERIVE_FMA(0.9387755102040817, t52, (-0.8775510204081632)*t51);
     const double t55 = DERIVE_FMA((-0.9387755102040817), t53, 0.8775510204081632*t50);
     const double t56 = DERIVE_FMA(0.12244897959183673, t52, 0.7551020408163265*t51);
@@ -176,9 +204,9 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t88 = t83*t87;
     const double t89 = t86 - t82*t88;
     const double t90 = 1.0/t89;
-    const double t91 = t88*t90;
-    const double t92 = t87*DERIVE_FMA(t82, t91, 1.0);
-    const double t93 = t82*t87*t90;
+    const double t91 = t90*t88;
+    const double t92 = t87*DERIVE_FMA(t91, t82, 1.0);
+    const double t93 = t90*t82*t87;
     const double t94 = DERIVE_FMA(0.9387755102040817, t92, (-0.8775510204081632)*t91);
     const double t95 = DERIVE_FMA((-0.9387755102040817), t93, 0.8775510204081632*t90);
     const double t96 = DERIVE_FMA(0.12244897959183673, t92, 0.7551020408163265*t91);
@@ -191,8 +219,8 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t103 = x[5 * s] + t101;
     const double t104 = 0.061224489795918366*z[2 * s];
     const double t105 = 0.12244897959183673*z[2 * s];
-    const double t106 = DERIVE_FMA(t103, t95, t102*t94);
-    const double t107 = DERIVE_FMA(t103, t97, -(t102*t96));
+    const double t106 = DERIVE_FMA(t95, t103, t94*t102);
+    const double t107 = DERIVE_FMA(t97, t103, -(t96*t102));
     const double t108 = t104 + t106;
     const double t109 = t105 + t107;
     const double t110 = DERIVE_FMA(P[29 * s], t95, P[28 * s]*t94);
@@ -294,11 +322,6 @@ int mpt3d_a_lf_step(const double *restrict x, const double *restrict P, const do
 /* Run the Lainiotis filter over steps steps; Ps may be NULL. */
 int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double *P0, double *xs, double *Ps)
 {
-    double x[6];
-    double P[36];
-    double x_new[6];
-    double P_new[36];
-    size_t k;
     /* P0 must be zero outside P's pattern; the loop keeps P inside it */
     if (!(P0[2] == 0.0)) {
         return 1; /* outside P's pattern */
@@ -336,6 +359,135 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     if (!(P0[23] == 0.0)) {
         return 1; /* outside P's pattern */
     }
+#if defined(DERIVE_BLOCK_VECTOR)
+    /* the identical blocks in the lanes of one vector (lane b: block b) */
+    derive_v4 P_v0 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_v4 P_v1 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_v4 P_v2 = {P0[7], P0[21], P0[35], P0[7]};
+    derive_v4 x_v3 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_v4 x_v4 = {x0[1], x0[3], x0[5], x0[1]};
+    size_t k;
+    for (k = 0; k < steps; ++k) {
+        const double *restrict zk = z + k * 3;
+        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_v4 a0 = 16.3265306122449 * P_v1;
+        const derive_v4 a1 = DERIVE_VFMA(((derive_v4){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v0, a0);
+        const derive_v4 a2 = 16.3265306122449 * P_v0;
+        const derive_v4 a3 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v1, a2);
+        const derive_v4 a4 = 8.16326530612245 * P_v1;
+        const derive_v4 a5 = DERIVE_VFMA(((derive_v4){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v2, a4);
+        const derive_v4 a6 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v2, a0);
+        const derive_v4 a7 = 1.0 + a1;
+        const derive_v4 a8 = 1.0 + a6;
+        const derive_v4 a9 = 1.0 / a7;
+        const derive_v4 a10 = a5 * a9;
+        const derive_v4 a11 = a3 * a10;
+        const derive_v4 a12 = a8 - a11;
+        const derive_v4 a13 = 1.0 / a12;
+        const derive_v4 a14 = a13 * a10;
+        const derive_v4 a15 = DERIVE_VFMA(a14, a3, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
+        const derive_v4 a16 = a9 * a15;
+        const derive_v4 a17 = a13 * a3;
+        const derive_v4 a18 = a17 * a9;
+        const derive_v4 a19 = (-0.8775510204081632) * a14;
+        const derive_v4 a20 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a16, a19);
+        const derive_v4 a21 = 0.8775510204081632 * a13;
+        const derive_v4 a22 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a18, a21);
+        const derive_v4 a23 = 0.7551020408163265 * a14;
+        const derive_v4 a24 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a16, a23);
+        const derive_v4 a25 = 0.7551020408163265 * a13;
+        const derive_v4 a26 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a18, a25);
+        const derive_v4 a27 = 8.16326530612245 * az0;
+        const derive_v4 a28 = 16.3265306122449 * az0;
+        const derive_v4 a29 = P_v0 * a27;
+        const derive_v4 a30 = DERIVE_VFMA(P_v1, a28, a29);
+        const derive_v4 a31 = P_v1 * a27;
+        const derive_v4 a32 = DERIVE_VFMA(P_v2, a28, a31);
+        const derive_v4 a33 = x_v3 + a30;
+        const derive_v4 a34 = x_v4 + a32;
+        const derive_v4 a35 = 0.061224489795918366 * az0;
+        const derive_v4 a36 = 0.12244897959183673 * az0;
+        const derive_v4 a37 = a20 * a33;
+        const derive_v4 a38 = DERIVE_VFMA(a22, a34, a37);
+        const derive_v4 a39 = a24 * a33;
+        const derive_v4 a40 = -a39;
+        const derive_v4 a41 = DERIVE_VFMA(a26, a34, a40);
+        const derive_v4 a42 = a35 + a38;
+        const derive_v4 a43 = a36 + a41;
+        const derive_v4 a44 = P_v0 * a20;
+        const derive_v4 a45 = DERIVE_VFMA(P_v1, a22, a44);
+        const derive_v4 a46 = P_v1 * a20;
+        const derive_v4 a47 = DERIVE_VFMA(P_v2, a22, a46);
+        const derive_v4 a48 = P_v0 * a24;
+        const derive_v4 a49 = -a48;
+        const derive_v4 a50 = DERIVE_VFMA(P_v1, a26, a49);
+        const derive_v4 a51 = P_v1 * a24;
+        const derive_v4 a52 = -a51;
+        const derive_v4 a53 = DERIVE_VFMA(P_v2, a26, a52);
+        const derive_v4 a54 = 0.9387755102040817 * a45;
+        const derive_v4 a55 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a47, a54);
+        const derive_v4 a56 = (-0.12244897959183673) * a45;
+        const derive_v4 a57 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a47, a56);
+        const derive_v4 a58 = (-0.12244897959183673) * a50;
+        const derive_v4 a59 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a53, a58);
+        const derive_v4 a60 = 0.0020408163265306124 + a55;
+        const derive_v4 a61 = 0.004081632653061225 + a57;
+        const derive_v4 a62 = 0.00816326530612245 + a59;
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a42, a43);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a42, a43);
+          __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
+          __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
+        if (Ps) {
+            Ps[k * 36 + 0] = a60[0];
+            Ps[k * 36 + 1] = a61[0];
+            Ps[k * 36 + 2] = 0.0;
+            Ps[k * 36 + 3] = 0.0;
+            Ps[k * 36 + 4] = 0.0;
+            Ps[k * 36 + 5] = 0.0;
+            Ps[k * 36 + 6] = a61[0];
+            Ps[k * 36 + 7] = a62[0];
+            Ps[k * 36 + 8] = 0.0;
+            Ps[k * 36 + 9] = 0.0;
+            Ps[k * 36 + 10] = 0.0;
+            Ps[k * 36 + 11] = 0.0;
+            Ps[k * 36 + 12] = 0.0;
+            Ps[k * 36 + 13] = 0.0;
+            Ps[k * 36 + 14] = a60[1];
+            Ps[k * 36 + 15] = a61[1];
+            Ps[k * 36 + 16] = 0.0;
+            Ps[k * 36 + 17] = 0.0;
+            Ps[k * 36 + 18] = 0.0;
+            Ps[k * 36 + 19] = 0.0;
+            Ps[k * 36 + 20] = a61[1];
+            Ps[k * 36 + 21] = a62[1];
+            Ps[k * 36 + 22] = 0.0;
+            Ps[k * 36 + 23] = 0.0;
+            Ps[k * 36 + 24] = 0.0;
+            Ps[k * 36 + 25] = 0.0;
+            Ps[k * 36 + 26] = 0.0;
+            Ps[k * 36 + 27] = 0.0;
+            Ps[k * 36 + 28] = a60[2];
+            Ps[k * 36 + 29] = a61[2];
+            Ps[k * 36 + 30] = 0.0;
+            Ps[k * 36 + 31] = 0.0;
+            Ps[k * 36 + 32] = 0.0;
+            Ps[k * 36 + 33] = 0.0;
+            Ps[k * 36 + 34] = a61[2];
+            Ps[k * 36 + 35] = a62[2];
+        }
+        P_v0 = a60;
+        P_v1 = a61;
+        P_v2 = a62;
+        x_v3 = a42;
+        x_v4 = a43;
+    }
+    return 0;
+#else
+    double x[6];
+    double P[36];
+    double x_new[6];
+    double P_new[36];
+    size_t k;
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
@@ -464,6 +616,7 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
         }
     }
     return 0;
+#endif
 }
 
 /* Run many independent tracks: each array holds one run's array per track, one track after
