@@ -197,6 +197,52 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     _require_zero(P0.reshape((16,) + P0.shape[2:]), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
+        # identical blocks starting equal in P0: 28 statements of the step
+        # read no data and are computed once (derive.emit.shared_blocks)
+        if P0.reshape(-1)[[10, 11, 15]].tobytes() == P0.reshape(-1)[[0, 1, 5]].tobytes():
+            x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
+            P_0, P_1, P_5 = P0.reshape(-1)[[0, 1, 5]].tolist()
+            rows = bytearray()
+            keep = rows.extend
+            pack = struct.Struct("8d").pack
+            z_values = iter(array("d", zs.tobytes()))
+            for (z_0, z_1) in zip(*[z_values] * 2):
+                t0 = 16.3265306122449*P_1
+                t2 = 16.3265306122449*P_0 + 32.6530612244898*P_1
+                t7 = 1.0/(1.0 + (8.16326530612245*P_0 + t0))
+                t8 = (8.16326530612245*P_1 + 16.3265306122449*P_5)*t7
+                t10 = 1.0/(1.0 + (32.6530612244898*P_5 + t0) - t2*t8)
+                t11 = t10*t8
+                t12 = t7*(1.0 + t11*t2)
+                t13 = t10*t2*t7
+                t14 = 0.9387755102040817*t12 - 0.8775510204081632*t11
+                t15 = 0.8775510204081632*t10 - 0.9387755102040817*t13
+                t16 = 0.7551020408163265*t11 + 0.12244897959183673*t12
+                t17 = 0.7551020408163265*t10 + 0.12244897959183673*t13
+                t18 = 8.16326530612245*z_0
+                t19 = 16.3265306122449*z_0
+                t22 = x_0 + (P_0*t18 + P_1*t19)
+                t23 = x_1 + (P_1*t18 + P_5*t19)
+                x_0 = 0.061224489795918366*z_0 + (t14*t22 + t15*t23)
+                x_1 = 0.12244897959183673*z_0 + (t17*t23 - t16*t22)
+                t30 = P_0*t14 + P_1*t15
+                t31 = P_1*t14 + P_5*t15
+                t37 = 0.0020408163265306124 + (0.9387755102040817*t30 + 0.8775510204081632*t31)
+                t38 = 0.004081632653061225 + (0.7551020408163265*t31 - 0.12244897959183673*t30)
+                t39 = 0.00816326530612245 + (0.7551020408163265*(P_5*t17 - P_1*t16) - 0.12244897959183673*(P_1*t17 - P_0*t16))
+                t58 = 8.16326530612245*z_1
+                t59 = 16.3265306122449*z_1
+                t62 = x_2 + (P_0*t58 + P_1*t59)
+                t63 = x_3 + (P_1*t58 + P_5*t59)
+                x_2 = 0.061224489795918366*z_1 + (t14*t62 + t15*t63)
+                x_3 = 0.12244897959183673*z_1 + (t17*t63 - t16*t62)
+                keep(pack(x_0, x_1, x_2, x_3, t37, t38, 0.0, t39))
+                P_0 = t37
+                P_1 = t38
+                P_5 = t39
+            table = np.frombuffer(rows).reshape(-1, 8)
+            return (table[:, [0, 1, 2, 3]], table[:, [4, 5, 6, 6, 5, 7, 6, 6, 6, 6, 4, 5, 6, 6, 5,
+                    7]].reshape(-1, 4, 4))
         x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
         P_0, P_1, P_5, P_10, P_11, P_15 = P0.reshape(-1)[[0, 1, 5, 10, 11, 15]].tolist()
         rows = bytearray()

@@ -241,14 +241,15 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     _require_zero(P0.reshape((36,) + P0.shape[2:]), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
-        # identical blocks starting equal in P0: 28 statements of the step
+        # identical blocks starting equal in P0: 56 statements of the step
         # read no data and are computed once (derive.emit.shared_blocks)
-        if P0.reshape(-1)[[28, 29, 35]].tobytes() == P0.reshape(-1)[[14, 15, 21]].tobytes():
+        if P0.reshape(-1)[[14, 28, 15, 29, 21, 35]].tobytes() == P0.reshape(-1)[[0, 0, 1, 1, 7,
+                7]].tobytes():
             x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
-            P_0, P_1, P_7, P_14, P_15, P_21 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21]].tolist()
+            P_0, P_1, P_7 = P0.reshape(-1)[[0, 1, 7]].tolist()
             rows = bytearray()
             keep = rows.extend
-            pack = struct.Struct("13d").pack
+            pack = struct.Struct("10d").pack
             z_values = iter(array("d", zs.tobytes()))
             for (z_0, z_1, z_2) in zip(*[z_values] * 3):
                 t0 = 16.3265306122449*P_1
@@ -273,46 +274,27 @@ def run(zs, x0, P0):
                 t31 = P_1*t14 + P_7*t15
                 t37 = 0.0020408163265306124 + (0.9387755102040817*t30 + 0.8775510204081632*t31)
                 t38 = 0.004081632653061225 + (0.7551020408163265*t31 - 0.12244897959183673*t30)
-                P_7 = 0.00816326530612245 + (0.7551020408163265*(P_7*t17 - P_1*t16) - 0.12244897959183673*(P_1*t17 - P_0*t16))
-                t40 = 16.3265306122449*P_15
-                t42 = 16.3265306122449*P_14 + 32.6530612244898*P_15
-                t47 = 1.0/(1.0 + (8.16326530612245*P_14 + t40))
-                t48 = (8.16326530612245*P_15 + 16.3265306122449*P_21)*t47
-                t50 = 1.0/(1.0 + (32.6530612244898*P_21 + t40) - t42*t48)
-                t51 = t48*t50
-                t52 = t47*(1.0 + t42*t51)
-                t53 = t42*t47*t50
-                t54 = 0.9387755102040817*t52 - 0.8775510204081632*t51
-                t55 = 0.8775510204081632*t50 - 0.9387755102040817*t53
-                t56 = 0.7551020408163265*t51 + 0.12244897959183673*t52
-                t57 = 0.7551020408163265*t50 + 0.12244897959183673*t53
+                t39 = 0.00816326530612245 + (0.7551020408163265*(P_7*t17 - P_1*t16) - 0.12244897959183673*(P_1*t17 - P_0*t16))
                 t58 = 8.16326530612245*z_1
                 t59 = 16.3265306122449*z_1
-                t62 = x_2 + (P_14*t58 + P_15*t59)
-                t63 = x_3 + (P_15*t58 + P_21*t59)
-                x_2 = 0.061224489795918366*z_1 + (t54*t62 + t55*t63)
-                x_3 = 0.12244897959183673*z_1 + (t57*t63 - t56*t62)
-                t70 = P_14*t54 + P_15*t55
-                t71 = P_15*t54 + P_21*t55
-                t77 = 0.0020408163265306124 + (0.9387755102040817*t70 + 0.8775510204081632*t71)
-                t78 = 0.004081632653061225 + (0.7551020408163265*t71 - 0.12244897959183673*t70)
-                t79 = 0.00816326530612245 + (0.7551020408163265*(P_21*t57 - P_15*t56) - 0.12244897959183673*(P_15*t57 - P_14*t56))
+                t62 = x_2 + (P_0*t58 + P_1*t59)
+                t63 = x_3 + (P_1*t58 + P_7*t59)
+                x_2 = 0.061224489795918366*z_1 + (t14*t62 + t15*t63)
+                x_3 = 0.12244897959183673*z_1 + (t17*t63 - t16*t62)
                 t98 = 8.16326530612245*z_2
                 t99 = 16.3265306122449*z_2
-                t102 = x_4 + (P_14*t98 + P_15*t99)
-                t103 = x_5 + (P_15*t98 + P_21*t99)
-                x_4 = 0.061224489795918366*z_2 + (t102*t54 + t103*t55)
-                x_5 = 0.12244897959183673*z_2 + (t103*t57 - t102*t56)
-                keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t37, t38, 0.0, P_7, t77, t78, t79))
+                t102 = x_4 + (P_0*t98 + P_1*t99)
+                t103 = x_5 + (P_1*t98 + P_7*t99)
+                x_4 = 0.061224489795918366*z_2 + (t14*t102 + t15*t103)
+                x_5 = 0.12244897959183673*z_2 + (t17*t103 - t16*t102)
+                keep(pack(x_0, x_1, x_2, x_3, x_4, x_5, t37, t38, 0.0, t39))
                 P_0 = t37
                 P_1 = t38
-                P_14 = t77
-                P_15 = t78
-                P_21 = t79
-            table = np.frombuffer(rows).reshape(-1, 13)
+                P_7 = t39
+            table = np.frombuffer(rows).reshape(-1, 10)
             return (table[:, [0, 1, 2, 3, 4, 5]], table[:, [6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8,
-                    8, 10, 11, 8, 8, 8, 8, 11, 12, 8, 8, 8, 8, 8, 8, 10, 11, 8, 8, 8, 8, 11,
-                    12]].reshape(-1, 6, 6))
+                    8, 6, 7, 8, 8, 8, 8, 7, 9, 8, 8, 8, 8, 8, 8, 6, 7, 8, 8, 8, 8, 7,
+                    9]].reshape(-1, 6, 6))
         x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()
         P_0, P_1, P_7, P_14, P_15, P_21, P_28, P_29, P_35 = P0.reshape(-1)[[0, 1, 7, 14, 15, 21, 28, 29, 35]].tolist()
         rows = bytearray()
