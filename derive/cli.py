@@ -41,15 +41,19 @@ def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
     prefix = "unrecognized arguments: "
     if not message.startswith(prefix):
         return ""
+    unknown = [arg.split("=")[0] for arg in message[len(prefix):].split()
+               if arg.startswith("--")]
+    if not unknown:   # no flag to match: the other commands' parsers stay unbuilt
+        return ""
     parsers = [parser, *_command_parsers(parser)]
     for command_parser in parsers[1:]:
         command_parser.complete()   # the flags of commands not given are candidates too
     flags = sorted({s for p in parsers for a in p._actions for s in a.option_strings})
     hints = []
-    for arg in message[len(prefix):].split():
-        close = difflib.get_close_matches(arg.split("=")[0], flags, n=1)
-        if arg.startswith("--") and close:
-            hints.append(f"{arg.split('=')[0]}: did you mean {close[0]}?")
+    for flag in unknown:
+        close = difflib.get_close_matches(flag, flags, n=1)
+        if close:
+            hints.append(f"{flag}: did you mean {close[0]}?")
     return f" ({'; '.join(hints)})" if hints else ""
 
 
