@@ -13,6 +13,7 @@ import pytest
 
 import derive
 from derive import cli, commands
+from derive.apps.bench import startup
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -146,3 +147,20 @@ def test_an_unknown_api_name_is_an_attribute_error():
         derive.no_such_name  # noqa: B018
     assert not hasattr(derive, "no_such_name")
 
+
+
+def test_the_bench_times_every_start_up_call(tmp_path, monkeypatch, capsys):
+    """`derive bench`'s start-up rows: the floor, each call and each command's help, with
+    the exit status the same call gives in this process."""
+    rows = startup.startup_rows(1, tmp_path)
+    assert [r.call for r in rows] == [startup.FLOOR, *(name for name, _ in startup.CALLS),
+                                      *(f"derive {m.NAME} --help" for m in commands.modules())]
+    monkeypatch.chdir(tmp_path)
+    expected = [0]
+    for argv in [args for _, args in startup.CALLS] + [(m.NAME, "--help")
+                                                       for m in commands.modules()]:
+        expected.append(cli.main(list(argv)))
+        capsys.readouterr()
+    assert [r.returncode for r in rows] == expected
+    assert 2 in expected and 0 in expected
+    assert all(r.seconds > 0 and r.cpu_seconds >= 0 for r in rows)
