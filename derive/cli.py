@@ -22,6 +22,7 @@ import difflib
 import os
 import sys
 
+from . import commands
 from .errors import ModelError, NumericalError, VerificationError
 
 
@@ -40,16 +41,19 @@ def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
     prefix = "unrecognized arguments: "
     if not message.startswith(prefix):
         return ""
-    parsers = [parser]
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            parsers += list(action.choices.values())
+    unknown = [arg.split("=")[0] for arg in message[len(prefix):].split()
+               if arg.startswith("--")]
+    if not unknown:   # no flag to match: the other commands' parsers stay unbuilt
+        return ""
+    parsers = [parser, *_command_parsers(parser)]
+    for command_parser in parsers[1:]:
+        command_parser.complete()   # the flags of commands not given are candidates too
     flags = sorted({s for p in parsers for a in p._actions for s in a.option_strings})
     hints = []
-    for arg in message[len(prefix):].split():
-        close = difflib.get_close_matches(arg.split("=")[0], flags, n=1)
-        if arg.startswith("--") and close:
-            hints.append(f"{arg.split('=')[0]}: did you mean {close[0]}?")
+    for flag in unknown:
+        close = difflib.get_close_matches(flag, flags, n=1)
+        if close:
+            hints.append(f"{flag}: did you mean {close[0]}?")
     return f" ({'; '.join(hints)})" if hints else ""
 
 
@@ -64,9 +68,39 @@ class _Version(argparse.Action):
         parser.exit(0)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from . import commands
+class _CommandParser(_Parser):
+    """The parser of one command: the command's arguments are added when it is first
+    used (its command parses, or its help or usage is shown), so that ``derive`` imports
+    what a command's arguments need (derive.options and the filter registry, for one)
+    only for the command that runs."""
 
+    def __init__(self, *args, command=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._command = command
+
+    def complete(self) -> None:
+        """Add the command's arguments (once)."""
+        command, self._command = self._command, None
+        if command is not None:
+            command.add_arguments(self)
+            self.set_defaults(func=command.run)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.complete()
+        return super().parse_known_args(args, namespace)
+
+    def format_usage(self) -> str:
+        self.complete()
+        return super().format_usage()
+
+    def format_help(self) -> str:
+        self.complete()
+        return super().format_help()
+
+
+def build_parser(*, complete: bool = True) -> argparse.ArgumentParser:
+    """The parser of ``derive`` and of every command. ``complete=False`` (what
+    :func:`main` uses): each command's arguments are added when that command is used."""
     parser = _Parser(
         prog="derive",
         description="Derive specialised, unrolled Python and C99 Kalman-family filters from "
@@ -78,17 +112,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action=_Version, nargs=0,
                         help="print the versions of derive, Python and the key dependencies "
                              "and exit")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND",
+                                parser_class=_CommandParser)
     sub.required = True
     for module in commands.modules():
-        p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
-                           epilog=f"example:\n  {module.EXAMPLE}",
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
-        module.add_arguments(p)
-        p.set_defaults(func=module.run)
+        sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
+                       epilog=f"example:\n  {module.EXAMPLE}",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, command=module)
+    if complete:
+        for command_parser in _command_parsers(parser):
+            command_parser.complete()
     return parser
 
 
+def _command_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    return [p for action in parser._actions if isinstance(action, argparse._SubParsersAction)
+            for p in action.choices.values()]
 
 
 def main(argv=None) -> int:
@@ -127,7 +166,7 @@ def main(argv=None) -> int:
 def _main(argv: list[str]) -> int:
     for arg in argv:
         _check_utf8(arg)
-    parser = build_parser()
+    parser = build_parser(complete=False)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: usage errors are bad input (2), --help is 0

@@ -28,7 +28,7 @@ from derive.options import taken_by
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
                 check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
                 scale_tracks=0, catalog_generation=False, generation_scaling=False,
-                compile_states=(2,))
+                compile_states=(2,), startup_repeats=1)
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 
@@ -98,6 +98,8 @@ def test_text_and_json(result):
     assert len(data["rows"]) == len(result.rows)
     assert len(data["bars"]) == 12 + navigation   # the compile bars are in the text only
     assert "two dependent fmas here take" in text
+    assert "start-up of the command line" in text and "derive --help" in text
+    assert len(data["startup"]) == len(result.startup) > 0
 
 
 def test_generated_c_rows_carry_the_latency_bound_of_their_chain(result):

@@ -21,8 +21,19 @@ def modules():
     return sorted(found, key=lambda m: (getattr(m, "ORDER", 50), m.NAME))
 
 
+def add_filter_options(parser) -> None:
+    """The filter options' flags (derive.options), for the commands that take them; their
+    help names the filters that take each option, from the registry (derive.filters)."""
+    # here, not at the top: the registry loads SymPy and every filter family, which only
+    # the commands that take filter options need, and only when their parser is built
+    from .. import filters  # noqa: F401  (builds the registry the options' help reads)
+    from ..options import add_arguments
+
+    add_arguments(parser)
+
+
 def load_model(ref: str):
     """A model by catalog name or model-file path (both errors are ModelErrors)."""
-    from ..generation import resolve_model
+    from ..generation import resolve_model  # here: only the commands that load a model
 
     return resolve_model(ref)

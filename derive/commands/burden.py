@@ -1,6 +1,6 @@
 """`derive burden MODEL [--filter F] [--paper] [--json]`: exact operation counts by kind."""
 
-from ..options import add_arguments as add_option_arguments
+from . import add_filter_options
 
 NAME = "burden"
 ORDER = 50
@@ -22,7 +22,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--measure", action="store_true",
                         help="chains in ns with operation latencies measured here (needs gcc) "
                              "instead of the reference cycle counts")
-    add_option_arguments(parser)
+    add_filter_options(parser)
 
 
 def units(model, filters, options: dict):

@@ -3,8 +3,7 @@
 The filter options' flags come from their declarations (derive.options); each option
 given applies to the filters that take it."""
 
-from ..options import DEFAULT_EPS
-from ..options import add_arguments as add_option_arguments
+from . import add_filter_options
 
 NAME = "generate"
 ORDER = 40
@@ -27,12 +26,14 @@ def add_arguments(parser) -> None:
                         help="files: the filters' files (default); library: their C with a "
                              "test program per filter, a CMakeLists.txt and a Makefile "
                              "(docs/embedded.md)")
-    add_option_arguments(parser)
+    add_filter_options(parser)
 
 
 def horizon_line(unit, options: dict) -> str | None:
     """``  fir: order N = 33 ...`` for a FIR or a predictor (None for other filters), given
     the options of the command line."""
+    from ..options import DEFAULT_EPS  # here, not at the top: `derive` starts without NumPy
+
     if unit.run.window:
         rule = (" (--order)" if "order" in options else
                 f", the least with ||A^N||_2 < {options.get('eps', DEFAULT_EPS)!r}")

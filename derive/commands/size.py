@@ -3,7 +3,7 @@ C cross-compiled for a microcontroller, its code and data size per function read
 object; with ``--qemu``, also built for arm-linux-gnueabihf, run under qemu-arm and compared
 with the NumPy reference."""
 
-from ..options import add_arguments as add_option_arguments
+from . import add_filter_options
 
 NAME = "size"
 ORDER = 65
@@ -30,7 +30,7 @@ def add_arguments(parser) -> None:
                         help="also run each filter under qemu-arm (arm-linux-gnueabihf, "
                              "static) on the verification data and compare with the "
                              "reference")
-    add_option_arguments(parser)
+    add_filter_options(parser)
 
 
 def run(args) -> int:

@@ -3,7 +3,7 @@
 Takes the filter options of `derive generate` (derive.options), each given to the filters
 that take it."""
 
-from ..options import add_arguments as add_option_arguments
+from . import add_filter_options
 
 NAME = "verify"
 ORDER = 45
@@ -26,7 +26,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines (they are shown only when stderr is a "
                              "terminal)")
-    add_option_arguments(parser)
+    add_filter_options(parser)
 
 
 def run(args) -> int:

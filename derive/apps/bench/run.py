@@ -30,6 +30,7 @@ from . import (
     peers,
     python_floor,
     scaling,
+    startup,
 )
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
@@ -75,6 +76,7 @@ class Settings:
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
     generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
     compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
+    startup_repeats: int = 5          # each `derive` start-up call; 0: left out
 
     @classmethod
     def quick(cls) -> Settings:
@@ -84,7 +86,7 @@ class Settings:
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
                    navigation_symforce=False,
-                   generation_scaling=False, compile_states=(3,))
+                   generation_scaling=False, compile_states=(3,), startup_repeats=1)
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,8 @@ class BenchResult:
     navigation: navigation.NavigationResult | None = None
     generation: list[generation_scaling.GenerationRow] = field(default_factory=list)
     compile: list[compile_size.CompileRow] = field(default_factory=list)
+    startup: list[startup.StartupRow] = field(default_factory=list)
+    startup_load: tuple[float, float, float] | None = None   # load average before it
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -135,6 +139,7 @@ class BenchResult:
                 "navigation": self.navigation.as_json() if self.navigation else None,
                 "generation": [asdict(r) for r in self.generation],
                 "compile": [asdict(r) for r in self.compile],
+                "startup": [asdict(r) for r in self.startup], "startup_load": self.startup_load,
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -292,6 +297,12 @@ class BenchResult:
                       "process), then compiled (gcc and derive.build's strict flags); wall "
                       "and CPU seconds, peak memory of each", ""]
             lines += _columns(head, body) + compile_bars + [""]
+        if self.startup:
+            lines += [f"start-up of the command line (derive.apps.bench.startup): a fresh "
+                      f"`python -m derive` per call, least wall and CPU time of "
+                      f"{s.startup_repeats} runs taken in turns; load average "
+                      f"{self.startup_load} before it", ""]
+            lines += _columns(*startup.startup_table(self.startup)) + [""]
         lat = self.machine.get("latency")
         if lat:
             lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
@@ -537,6 +548,10 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         if s.generation_scaling:
             result.generation = generation_scaling.generation_rows(tick=tick)
         result.compile = compile_size.compile_rows(s.compile_states, Path(tmp), tick)
+        if s.startup_repeats:
+            tick("start-up of the command line")
+            result.startup_load = os.getloadavg()
+            result.startup = startup.startup_rows(s.startup_repeats, Path(tmp))
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
