@@ -40,7 +40,7 @@ OPTIONAL_DEPENDENCIES = {
 #: Modules that run when the CLI starts (``derive --help``): they import what a command
 #: needs when that command runs, so that start-up stays fast.
 CLI_START_UP = {
-    "derive.cli": "the entry point: builds the parser of every command",
+    "derive.cli": "the entry point: each command's arguments added when it is used",
     "derive.commands": "one module per command: each imports its work when it runs",
     "derive.apps.gnss.command": "the `derive gnss --real` command, imported by the CLI parser",
 }
