@@ -418,14 +418,23 @@ def _symmetric(mat: sympy.MatrixBase, name: str) -> sympy.ImmutableMatrix:
     return sympy.ImmutableMatrix(out)
 
 
+DEFINITE_TOLERANCE = 1e-12
+"""Eigenvalues of Q, R, P0 within this fraction of the matrix's largest |eigenvalue| of 0
+count as 0 (rounding of a fitted covariance): refused for a definite R, accepted for a
+semidefinite Q."""
+
+
 def _check_definite(mat: sympy.MatrixBase, name: str, strict: bool) -> None:
     """Check a numeric symmetric matrix is positive (semi)definite; skip if symbolic."""
     if mat.free_symbols:
         return
     a = np.array(mat.tolist(), dtype=float)
     eig = np.linalg.eigvalsh(a)
-    scale = max(1.0, float(np.max(np.abs(eig)))) if eig.size else 1.0
-    tol = 1e-12 * scale
+    # relative to the matrix's own scale (its largest |eigenvalue|): a model in small
+    # units (R = 1e-160 I) is as definite as one in large units, and an indefinite Q of
+    # small entries is as indefinite
+    scale = float(np.max(np.abs(eig))) if eig.size else 0.0
+    tol = DEFINITE_TOLERANCE * scale
     low = float(eig.min())
     if strict and low <= tol:
         raise MatrixPropertyError(
