@@ -419,7 +419,7 @@ def _symmetric(mat: sympy.MatrixBase, name: str) -> sympy.ImmutableMatrix:
 
 
 DEFINITE_TOLERANCE = 1e-12
-"""Eigenvalues of Q, R, P0 within this fraction of the matrix's largest |eigenvalue| of 0
+"""Eigenvalues of Q, Qu, R within this fraction of the matrix's largest |eigenvalue| of 0
 count as 0 (rounding of a fitted covariance): refused for a definite R, accepted for a
 semidefinite Q."""
 
