@@ -143,15 +143,21 @@ def _sensor_list(sensors, kind: str, given: Mapping[str, object]) -> tuple[Senso
         raise ModelError(f"give either sensors or {', '.join(both)}, not both: a model with "
                          "sensors takes its measurements, "
                          + ("h" if kind == "nonlinear" else "H, D") + " and R from them")
-    names: set[str] = set()
+    names: dict[str, str] = {}  # upper case -> as declared
     for sensor in sensors:
         if not isinstance(sensor, Sensor):
             raise ModelError(f"sensors must hold derive.Sensor objects, got "
                              f"{type(sensor).__name__} {sensor!r}")
         name = check_identifier(sensor.name, "sensor name")
-        if name in names:
+        if name in names.values():
             raise SymbolError(f"sensor {name!r} is declared twice")
-        names.add(name)
+        if name.upper() in names:
+            # generated C names each sensor in upper case too (PREFIX_M_GPS, the status
+            # enum's PREFIX_STATUS_UPDATE_GPS_...): two such names would be one
+            raise SymbolError(f"sensor names {names[name.upper()]!r} and {name!r} differ "
+                              f"only in case; generated C names sensors in upper case "
+                              f"({name.upper()}), so they would be one name")
+        names[name.upper()] = name
         wanted, wrong = (("h",), ("H", "D")) if kind == "nonlinear" else (("H",), ("h",))
         for key in wrong:
             if getattr(sensor, key) is not None:
