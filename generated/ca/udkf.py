@@ -23,9 +23,9 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
-    enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
 operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 109, instructions 117)
 operations per call of enter (Python): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 14, instructions 19)
 operations per call of store (Python): add 4, sub 0, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 11, instructions 11)

@@ -21,8 +21,8 @@ status (C return value; Python raises NumericalError): 0 success
     step 2: P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative
     step 3: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
-    enter 1: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
 operations per call of step (Python): add 14, sub 4, mul 19, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 40, instructions 45)
 operations per call of enter (Python): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 5, instructions 8)
 operations per call of store (Python): add 1, sub 0, mul 2, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 3, instructions 3)

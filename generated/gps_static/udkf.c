@@ -24,18 +24,18 @@
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
  *     step 7: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 9, div 3, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 30, instructions 36)
  * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["gps_static_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["gps_static_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["gps_static_udkf_store","store",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["gps_static_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["enter",1,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["store",1,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["gps_static_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["gps_static_udkf_store","store",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["gps_static_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["enter",8,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",10,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",11,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["store",12,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -149,25 +149,25 @@ int gps_static_udkf_step(const double *restrict x, const double *restrict U, con
 int gps_static_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 11; /* outside P's pattern */
     }
     if (!(P0[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 11; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 11; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[8];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 8; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t1 = 2.2250738585072014e-308 + P0[4];
     if (!(t1 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 9; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t2 = 2.2250738585072014e-308 + P0[0];
     if (!(t2 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 10; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -191,13 +191,13 @@ int gps_static_udkf_store(const double *restrict x, const double *restrict U, co
 {
     (void)x;
     if (!(U[1] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(U[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     P_new[0] = D[0];
     P_new[1] = 0.0;

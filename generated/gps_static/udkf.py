@@ -24,11 +24,11 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
     step 7: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 12, sub 3, mul 12, div 3, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 30, instructions 39)
 operations per call of enter (Python): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
 operations per call of store (Python): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)

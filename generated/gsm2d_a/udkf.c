@@ -26,19 +26,19 @@
  *     step 7: innovation variance 2 of a scalar update is not positive (D or R not positive)
  *     step 8: innovation variance 3 of a scalar update is not positive (D or R not positive)
  *     step 9: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 1: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 4: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- *     store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 10: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+ *     enter 11: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 12: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ *     store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 10, mul 20, div 6, sqrt 0, fma 14, neg 0, cmp 14, calls 0 (flops 78, instructions 78)
  * operations per call of enter (C99, fma through DERIVE_FMA): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, calls 0 (flops 10, instructions 20)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 6, instructions 8)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["gsm2d_a_udkf_step","step",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["U_new",[4,4],true,false,false],["D_new",[4],true,false,false]]],["gsm2d_a_udkf_enter","enter",true,false,[["x0",[4],false,false,false],["P0",[4,4],false,false,false],["x",[4],true,false,false],["U",[4,4],true,false,false],["D",[4],true,false,false]]],["gsm2d_a_udkf_store","store",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_udkf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",5,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",7,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",9,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["enter",1,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",4,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["store",1,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * derive-interface: {"functions":[["gsm2d_a_udkf_step","step",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["U_new",[4,4],true,false,false],["D_new",[4],true,false,false]]],["gsm2d_a_udkf_enter","enter",true,false,[["x0",[4],false,false,false],["P0",[4,4],false,false,false],["x",[4],true,false,false],["U",[4,4],true,false,false],["D",[4],true,false,false]]],["gsm2d_a_udkf_store","store",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_udkf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",5,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",7,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",9,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["enter",10,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",11,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",12,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",13,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",14,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["store",15,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -202,38 +202,38 @@ int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const 
 int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[2] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(P0[6] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(P0[7] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[15];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
+        return 10; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
     }
     const double t1 = ((P0[15] <= 0.0) ? 1.0 : P0[15]);
     const double t2 = P0[11]/t1;
     const double t3 = P0[10] - P0[11]*t2;
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 11; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t5 = 2.2250738585072014e-308 + P0[5];
     if (!(t5 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 12; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t6 = ((P0[5] <= 0.0) ? 1.0 : P0[5]);
     const double t7 = P0[1]/t6;
     const double t8 = P0[0] - P0[1]*t7;
     const double t9 = 2.2250738585072014e-308 + t8;
     if (!(t9 > 0.0)) {
-        return 4; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 13; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -266,16 +266,16 @@ int gsm2d_a_udkf_store(const double *restrict x, const double *restrict U, const
 {
     (void)x;
     if (!(U[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(U[6] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(U[7] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     const double t0 = D[1]*U[1];
     const double t1 = D[3]*U[11];

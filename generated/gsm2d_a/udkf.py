@@ -26,12 +26,12 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 7: innovation variance 2 of a scalar update is not positive (D or R not positive)
     step 8: innovation variance 3 of a scalar update is not positive (D or R not positive)
     step 9: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
-    enter 1: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 4: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-    store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+    enter 10: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+    enter 11: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 12: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+    store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 14, calls 0 (flops 78, instructions 92)
 operations per call of enter (Python): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, calls 0 (flops 10, instructions 20)
 operations per call of store (Python): add 2, sub 0, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 6, instructions 10)

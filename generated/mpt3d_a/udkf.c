@@ -30,21 +30,21 @@
  *     step 11: innovation variance 4 of a scalar update is not positive (D or R not positive)
  *     step 12: innovation variance 5 of a scalar update is not positive (D or R not positive)
  *     step 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 1: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
- *     enter 4: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- *     store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 14: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
+ *     enter 15: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
+ *     enter 16: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+ *     enter 17: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 18: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ *     store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 21, sub 15, mul 30, div 9, sqrt 0, fma 21, neg 0, cmp 27, calls 0 (flops 117, instructions 123)
  * operations per call of enter (C99, fma through DERIVE_FMA): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, calls 0 (flops 15, instructions 36)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 12, calls 0 (flops 9, instructions 18)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
- * derive-interface: {"functions":[["mpt3d_a_udkf_step","step",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["U_new",[6,6],true,false,false],["D_new",[6],true,false,false]]],["mpt3d_a_udkf_enter","enter",true,false,[["x0",[6],false,false,false],["P0",[6,6],false,false,false],["x",[6],true,false,false],["U",[6,6],true,false,false],["D",[6],true,false,false]]],["mpt3d_a_udkf_store","store",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",5,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",6,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",7,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",9,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",10,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",11,"innovation variance 4 of a scalar update is not positive (D or R not positive)",[]],["step",12,"innovation variance 5 of a scalar update is not positive (D or R not positive)",[]],["step",13,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["enter",1,"P is not positive semidefinite: pivot 5 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 4 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",4,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",5,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",6,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["store",1,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * derive-interface: {"functions":[["mpt3d_a_udkf_step","step",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["U_new",[6,6],true,false,false],["D_new",[6],true,false,false]]],["mpt3d_a_udkf_enter","enter",true,false,[["x0",[6],false,false,false],["P0",[6,6],false,false,false],["x",[6],true,false,false],["U",[6,6],true,false,false],["D",[6],true,false,false]]],["mpt3d_a_udkf_store","store",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",5,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",6,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",7,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",9,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",10,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",11,"innovation variance 4 of a scalar update is not positive (D or R not positive)",[]],["step",12,"innovation variance 5 of a scalar update is not positive (D or R not positive)",[]],["step",13,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["enter",14,"P is not positive semidefinite: pivot 5 of its UD factorisation is negative",[]],["enter",15,"P is not positive semidefinite: pivot 4 of its UD factorisation is negative",[]],["enter",16,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",17,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",18,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",19,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",20,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["store",21,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -298,73 +298,73 @@ int mpt3d_a_udkf_step(const double *restrict x, const double *restrict U, const 
 int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[2] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[4] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[8] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[9] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[10] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[11] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[16] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[17] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[22] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[23] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[35];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 5 of its UD factorisation is negative */
+        return 14; /* P is not positive semidefinite: pivot 5 of its UD factorisation is negative */
     }
     const double t1 = ((P0[35] <= 0.0) ? 1.0 : P0[35]);
     const double t2 = P0[29]/t1;
     const double t3 = P0[28] - P0[29]*t2;
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
+        return 15; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
     }
     const double t5 = 2.2250738585072014e-308 + P0[21];
     if (!(t5 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
+        return 16; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
     }
     const double t6 = ((P0[21] <= 0.0) ? 1.0 : P0[21]);
     const double t7 = P0[15]/t6;
     const double t8 = P0[14] - P0[15]*t7;
     const double t9 = 2.2250738585072014e-308 + t8;
     if (!(t9 > 0.0)) {
-        return 4; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 17; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t10 = 2.2250738585072014e-308 + P0[7];
     if (!(t10 > 0.0)) {
-        return 5; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 18; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t11 = ((P0[7] <= 0.0) ? 1.0 : P0[7]);
     const double t12 = P0[1]/t11;
     const double t13 = P0[0] - P0[1]*t12;
     const double t14 = 2.2250738585072014e-308 + t13;
     if (!(t14 > 0.0)) {
-        return 6; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 19; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -421,40 +421,40 @@ int mpt3d_a_udkf_store(const double *restrict x, const double *restrict U, const
 {
     (void)x;
     if (!(U[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[4] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[8] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[9] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[10] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[11] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[16] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[17] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[22] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[23] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     const double t0 = D[1]*U[1];
     const double t1 = D[3]*U[15];

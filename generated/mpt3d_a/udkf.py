@@ -30,14 +30,14 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 11: innovation variance 4 of a scalar update is not positive (D or R not positive)
     step 12: innovation variance 5 of a scalar update is not positive (D or R not positive)
     step 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
-    enter 1: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
-    enter 4: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-    store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+    enter 14: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
+    enter 15: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
+    enter 16: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+    enter 17: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 18: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+    store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 27, calls 0 (flops 117, instructions 144)
 operations per call of enter (Python): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, calls 0 (flops 15, instructions 36)
 operations per call of store (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 9, instructions 21)
