@@ -6,6 +6,7 @@ found right has one that keeps it so."""
 from __future__ import annotations
 
 import hashlib
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from derive.apps.simulate import simulate_linear
 from derive.apps.targets.library import CMAKE_RESERVED_TARGETS, render_library
 from derive.batch import run_tracks
 from derive.cli import main
-from derive.errors import NameError_, OptionError, SymbolError
+from derive.errors import DtypeError, NameError_, OptionError, SymbolError
 from derive.filters import derive_unit
 from derive.filters.sensors import reference_run
 from derive.modelfile import loads_model
@@ -222,3 +223,36 @@ def test_the_library_layout_refuses_a_model_named_like_a_reserved_cmake_target(
     one_line_exit_2(capsys, ["generate", str(path), "--filter", "kf", "--layout", "library",
                              "--lang", "c", "--out", str(out)], f"'{name}'", "CMake")
     assert tree_hash(out) == before
+
+
+# -- compiled kernels: arrays that are not the kernel's real numbers ----------------------
+
+
+@pytest.fixture(scope="module")
+def cv_kernels():
+    return (load_generated("cv", "kf", lang="c").c,
+            load_generated("cv", "kf", {"precision": "float"}, lang="c").c)
+
+
+def test_a_kernel_refuses_values_it_would_change_silently(cv_kernels):
+    """complex (the imaginary part was dropped), bool, str (parsed as numbers), object
+    (None became NaN) and integers the dtype cannot hold exactly (2^53 + 1 in double,
+    2^24 + 1 in float: rounded) are refused with DtypeError naming the argument; integers
+    it holds exactly, and narrower floats, are taken."""
+    double, single = cv_kernels
+    eye = np.eye(2)
+    cases = [(double, np.ones((2, 1), np.complex64), "complex64"),
+             (double, np.array([[True], [False]]), "bool"),
+             (double, np.array([["1.5"]]), "<U3"),
+             (double, [[1.0], [None]], "object"),
+             (double, np.array([[2**53 + 1]]), "9007199254740993"),
+             (single, np.array([[2**24 + 1]], dtype=np.int32), "16777217")]
+    for kernel, zs, words in cases:
+        P0 = eye.astype(kernel.dtype)
+        with pytest.raises(DtypeError, match=rf"_run: argument 'z' .*{re.escape(words)}"):
+            kernel.run(zs, np.zeros(2, kernel.dtype), P0)
+    exact = double.run([[1], [2]], [0, 0], [[1, 0], [0, 1]])[0]
+    assert np.array_equal(exact, double.run([[1.0], [2.0]], [0.0, 0.0], eye)[0])
+    small = single.run(np.array([[2**24]], dtype=np.int32), np.zeros(2, np.float32),
+                       eye.astype(np.float32))[0]
+    assert np.all(np.isfinite(small))
