@@ -256,3 +256,24 @@ def test_a_kernel_refuses_values_it_would_change_silently(cv_kernels):
     small = single.run(np.array([[2**24]], dtype=np.int32), np.zeros(2, np.float32),
                        eye.astype(np.float32))[0]
     assert np.all(np.isfinite(small))
+
+
+@pytest.mark.parametrize("first, second", [("x", "P"), ("z", "p"), ("status", "k")])
+def test_sensors_named_like_the_generated_codes_own_names_run_right(first, second):
+    """Sensor names only ever appear inside longer identifiers (update_x, z_x, nis_x,
+    PREFIX_M_X), so a sensor named as a port, a local or a parameter array is harmless:
+    Python and C agree with the reference to 1e-12."""
+    text = TWO_SENSORS.replace("[sensors.gps]", f"[sensors.{first}]").replace(
+        "[sensors.speed]", f"[sensors.{second}]")
+    model = loads_model(text)
+    generated = load_generated(model, "kf", {"gate": 0.999})
+    rng = np.random.default_rng(8)
+    steps = 25
+    zs = {first: rng.normal(size=(steps, 2)), second: rng.normal(size=(steps, 1))}
+    zs[first][::4] = np.nan
+    x0, P0 = np.zeros(2), np.eye(2)
+    ref = reference_run(model, {"gate": 0.999}, zs, x0=x0, P0=P0)
+    for module in (generated.python, generated.c):
+        xs, Ps, *_ = module.run(zs[first], zs[second], x0, P0)
+        assert np.max(np.abs(xs - ref.xs)) <= 1e-12 * np.max(np.abs(ref.xs))
+        assert np.max(np.abs(Ps - ref.Ps)) <= 1e-12 * np.max(np.abs(ref.Ps))
