@@ -322,7 +322,9 @@ def _dask_block(zs, x0s, P0s=None, *, kernel: Kernel, x0_shared, P0_shared, p,
     xs, Ps = result
     if Ps is None:
         return xs
-    return np.concatenate([xs, Ps.reshape(xs.shape[:2] + (-1,))], axis=2)
+    # the width spelled out: -1 cannot be inferred for a chunk of 0 tracks
+    width = int(np.prod(Ps.shape[2:]))
+    return np.concatenate([xs, Ps.reshape(xs.shape[:2] + (width,))], axis=2)
 
 
 def _run_dask(kernel: Kernel, zs, x0s, P0s, p, with_covariance: bool):

@@ -136,12 +136,25 @@ class FilterModule:
 
     def converted(self, function: str, name: str, value) -> np.ndarray:
         """``value`` as a contiguous array of the kernel's dtype; DtypeError when that would
-        round it (a wider floating type given to a float32 kernel)."""
+        round it (a wider floating type given to a float32 kernel, an integer the dtype
+        cannot hold exactly) or when it is not real numbers (complex, bool, str, object)."""
         given = np.asarray(value)
-        if (given.dtype.kind in "fc" and given.dtype != self.dtype
+        where = f"{self.prefix}_{function}: argument {name!r}"
+        if given.dtype.kind not in "fiu":
+            # complex (its imaginary part would be dropped), bool, str (parsed), object
+            # (None would become NaN): not numbers the kernel takes
+            raise DtypeError(f"{where} is an array of {given.dtype}; this kernel takes real "
+                             f"numbers ({self.dtype}, C {self.c_type})")
+        if given.dtype.kind in "iu":
+            exact = np.asarray(given.astype(self.dtype)).astype(given.dtype) == given
+            if not np.all(exact):
+                wrong = given.ravel()[np.flatnonzero(~exact.ravel())[0]]
+                raise DtypeError(f"{where} holds the integer {int(wrong)}, which this kernel's "
+                                 f"{self.dtype} (C {self.c_type}) cannot represent exactly")
+        if (given.dtype.kind == "f" and given.dtype != self.dtype
                 and given.dtype.itemsize > self.dtype.itemsize):
             what = "list of Python floats" if not isinstance(value, np.ndarray) else "array"
-            raise DtypeError(f"{self.prefix}_{function}: argument {name!r} is a "
+            raise DtypeError(f"{where} is a "
                              f"{given.dtype} {what}, but this kernel is {self.dtype} "
                              f"(C {self.c_type}): pass np.asarray({name}, "
                              f"dtype=np.{self.dtype})")

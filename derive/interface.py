@@ -132,7 +132,8 @@ class Status:
         the program, the failed check in a few words and the number, upper case
         (``STEP_S_NOT_POSITIVE_DEFINITE_1``, ``STEP_P_OUTSIDE_PATTERN_4``; at most
         :data:`_NAME_WORDS` words of the check); unique in a
-        file, since a program's statuses have distinct numbers."""
+        file, since the statuses of a file have distinct numbers
+        (derive.lowering.lower_programs)."""
         if self.zero:  # a zero check: the input named first is outside its pattern
             words = [self.message.split()[0], "outside", "pattern"]
         else:  # the check, without its details (after ':', or in parentheses)

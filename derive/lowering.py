@@ -55,7 +55,7 @@ Operation kinds: ``add sub mul div sqrt fma neg cmp select gate`` and ``call:NAM
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -529,20 +529,23 @@ class LoweredProgram:
 
 
 def lower_program(program: Program, *, use_fma: bool = False,
-                  state_ports: tuple[str, ...] = STATE_PORTS) -> LoweredProgram:
+                  state_ports: tuple[str, ...] = STATE_PORTS,
+                  first_status: int = 1) -> LoweredProgram:
     """Lower every statement of ``program.optimize()`` (an optimised program as is).
 
     ``state_ports``: the input ports that carry state from step to step; in an fma chain
-    products that read them go last (see :func:`_late`)."""
+    products that read them go last (see :func:`_late`). ``first_status``: the status of
+    the program's first check (the next ones count on from it), so that the programs of
+    one file number their checks apart (:func:`lower_programs`)."""
     program = program.optimize()
     lowerer = _Lowerer(use_fma, state_ports, program.order_names)
     body: list[LoweredAssign | LoweredCheck] = []
     cut = _DepthCut(1 + max((int(st.target.name[1:]) for st in program.body
                              if isinstance(st, Assign) and st.target.name[1:].isdigit()),
                             default=-1), body)
-    status = 0
-    pattern_status = 1 + sum(1 for st in program.body
-                             if isinstance(st, Check) and st.relation == POSITIVE)
+    status = first_status - 1
+    pattern_status = first_status + sum(1 for st in program.body
+                                        if isinstance(st, Check) and st.relation == POSITIVE)
     for st in program.body:
         if isinstance(st, Assign):
             body.append(LoweredAssign(st.target.name, cut(lowerer.lower(st.expr))))
@@ -557,6 +560,27 @@ def lower_program(program: Program, *, use_fma: bool = False,
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                           tuple(body), results, use_fma)
+
+
+def next_status(lowered: LoweredProgram, first_status: int) -> int:
+    """The first status free after ``lowered``'s checks (``first_status`` without any)."""
+    return max((c.status for c in lowered.checks), default=first_status - 1) + 1
+
+
+def lower_programs(programs: Sequence[Program], *, use_fma: bool = False,
+                   state_ports: tuple[str, ...] = STATE_PORTS) -> dict[str, LoweredProgram]:
+    """:func:`lower_program` of each of the programs of one file, in order, their checks
+    numbered apart: the first program's from 1, each next one's from the first status
+    after the previous one's, so that a status (what a C function returns, what run
+    returns from whichever program failed) names exactly one check of the file."""
+    lowered: dict[str, LoweredProgram] = {}
+    first = 1
+    for program in programs:
+        lp = lower_program(program, use_fma=use_fma, state_ports=state_ports,
+                           first_status=first)
+        lowered[lp.name] = lp
+        first = next_status(lp, first)
+    return lowered
 
 
 class _DepthCut:

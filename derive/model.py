@@ -143,15 +143,21 @@ def _sensor_list(sensors, kind: str, given: Mapping[str, object]) -> tuple[Senso
         raise ModelError(f"give either sensors or {', '.join(both)}, not both: a model with "
                          "sensors takes its measurements, "
                          + ("h" if kind == "nonlinear" else "H, D") + " and R from them")
-    names: set[str] = set()
+    names: dict[str, str] = {}  # upper case -> as declared
     for sensor in sensors:
         if not isinstance(sensor, Sensor):
             raise ModelError(f"sensors must hold derive.Sensor objects, got "
                              f"{type(sensor).__name__} {sensor!r}")
         name = check_identifier(sensor.name, "sensor name")
-        if name in names:
+        if name in names.values():
             raise SymbolError(f"sensor {name!r} is declared twice")
-        names.add(name)
+        if name.upper() in names:
+            # generated C names each sensor in upper case too (PREFIX_M_GPS, the status
+            # enum's PREFIX_STATUS_UPDATE_GPS_...): two such names would be one
+            raise SymbolError(f"sensor names {names[name.upper()]!r} and {name!r} differ "
+                              f"only in case; generated C names sensors in upper case "
+                              f"({name.upper()}), so they would be one name")
+        names[name.upper()] = name
         wanted, wrong = (("h",), ("H", "D")) if kind == "nonlinear" else (("H",), ("h",))
         for key in wrong:
             if getattr(sensor, key) is not None:
@@ -418,14 +424,23 @@ def _symmetric(mat: sympy.MatrixBase, name: str) -> sympy.ImmutableMatrix:
     return sympy.ImmutableMatrix(out)
 
 
+DEFINITE_TOLERANCE = 1e-12
+"""Eigenvalues of Q, Qu, R within this fraction of the matrix's largest |eigenvalue| of 0
+count as 0 (rounding of a fitted covariance): refused for a definite R, accepted for a
+semidefinite Q."""
+
+
 def _check_definite(mat: sympy.MatrixBase, name: str, strict: bool) -> None:
     """Check a numeric symmetric matrix is positive (semi)definite; skip if symbolic."""
     if mat.free_symbols:
         return
     a = np.array(mat.tolist(), dtype=float)
     eig = np.linalg.eigvalsh(a)
-    scale = max(1.0, float(np.max(np.abs(eig)))) if eig.size else 1.0
-    tol = 1e-12 * scale
+    # relative to the matrix's own scale (its largest |eigenvalue|): a model in small
+    # units (R = 1e-160 I) is as definite as one in large units, and an indefinite Q of
+    # small entries is as indefinite
+    scale = float(np.max(np.abs(eig))) if eig.size else 0.0
+    tol = DEFINITE_TOLERANCE * scale
     low = float(eig.min())
     if strict and low <= tol:
         raise MatrixPropertyError(

@@ -66,13 +66,14 @@ _ROUNDS = 3
 
 def operation_latency(kind: str, latency: Mapping[str, float]) -> float:
     """The latency of one operation of ``kind`` (a kind of :mod:`derive.lowering`) in
-    ``latency``: ``sub``, ``neg`` and ``select`` as ``add``, a call as ``call``; a check
+    ``latency``: ``sub``, ``neg``, ``select`` and ``gate`` (a compare and a select) as
+    ``add``, a call as ``call``; a check
     (``cmp``) only branches, so it adds nothing to the data path."""
     if kind == "cmp":
         return 0.0
     if kind in latency:
         return float(latency[kind])
-    if kind in ("sub", "neg", "select") and "add" in latency:
+    if kind in ("sub", "neg", "select", "gate") and "add" in latency:
         return float(latency["add"])
     if kind.startswith("call:") and "call" in latency:
         return float(latency["call"])

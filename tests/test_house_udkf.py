@@ -2,7 +2,8 @@
 registry, generated for every linear catalog model, its ``run`` takes and returns P (P0
 entered as U D Uᵀ, P stored from U and D) around a factored ``step``, and the generated
 Python and C agree with the covariance KF (derive.reference.kf) to 1e-12 on the catalog
-and on random stable models; the header states the pivot floor (d + DBL_MIN)."""
+and on random stable models; the header states how pivots are checked (d + DBL_MIN > 0)
+and divided by."""
 
 from __future__ import annotations
 
@@ -54,8 +55,8 @@ def test_generated_udkf_matches_the_covariance_kf_on_the_catalog(name):
     directory = ROOT / "generated" / name
     zs = series(num, 300, 11)
     header = (directory / "udkf.h").read_text()
-    assert "udkf_run(steps, z[steps*" in header and "UD pivots: each pivot d divides as d + " \
-        "DBL_MIN" in header
+    assert "udkf_run(steps, z[steps*" in header and "UD pivots: each pivot d is checked as " \
+        "d + DBL_MIN" in header
     assert "U D U^T" in (directory / "udkf.py").read_text()
     c_module = build_c(directory / "udkf.c")
     for module in (load_python(directory / "udkf.py"), c_module):

@@ -191,7 +191,7 @@ def test_no_square_root_and_every_divisor_checked():
 
 def test_zero_pivots_give_zero_columns_and_negative_ones_are_refused():
     """P0 = 0 (the catalog's) enters as U = I, D = 0, and P(1/0) = G Q Gᵀ of mpt3d_b (one
-    noise input, two states) is singular: the zero pivots divide as 0 / DBL_MIN = 0 (the
+    noise input, two states) is singular: the zero pivots divide as 0 / 1 = 0 (the
     reference's zero column); a negative pivot (P not positive semidefinite) is refused."""
     programs = Programs(catalog.load("mpt3d_b"))
     U, D = programs.enter(np.zeros((2, 2)))
@@ -206,12 +206,13 @@ def test_zero_pivots_give_zero_columns_and_negative_ones_are_refused():
 
 
 def test_the_pivot_floor_changes_no_quotient_of_a_normal_pivot():
-    """d + DBL_MIN == d for d >= 2^-968, and 0 / DBL_MIN == 0."""
+    """d + DBL_MIN == d for d >= 2^-968, so the pivot check d + DBL_MIN > 0 is that of d
+    itself there (and lets d = 0 through)."""
     floor = float(PIVOT_FLOOR)
     assert floor == np.finfo(float).tiny
     d = np.geomspace(2.0**-968, 1e300, 10000)
     assert np.array_equal(d + floor, d)
-    assert 0.0 / floor == 0.0
+    assert 0.0 + floor > 0
 
 
 def test_entries_outside_the_pattern_are_refused():

@@ -32,7 +32,7 @@ from derive.emit.python_loop import single_track_loop
 from derive.emit.sensors_run import c_run_body, python_loop
 from derive.emit.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.flops import count_lowered
-from derive.lowering import LoweredProgram, lower_program
+from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
 from derive.version import __version__
@@ -74,9 +74,10 @@ def _order(unit: Unit) -> list[str]:
 
 
 def _lowered(unit: Unit, use_fma: bool) -> dict[str, LoweredProgram]:
+    """The unit's programs lowered in the file's order, their statuses numbered apart."""
     state = tuple(port for port, _ in unit.carried)
-    return {name: lower_program(unit.programs[name], use_fma=use_fma, state_ports=state)
-            for name in _order(unit)}
+    return lower_programs([unit.programs[name] for name in _order(unit)], use_fma=use_fma,
+                          state_ports=state)
 
 
 def _size(port) -> str:
@@ -735,7 +736,7 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
     if lang not in LANGUAGES:
         raise ValueError(f"unknown language {lang!r}; expected one of {LANGUAGES}")
     fma = use_fma and lang == "c"
-    lowered = {p.name: lower_program(p, use_fma=fma) for p in programs}
+    lowered = lower_programs(programs, use_fma=fma)
     lps = list(lowered.values())
     described = describe(name, lowered)
     enum = status_enum(name, described)

@@ -101,7 +101,9 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
         subsets["predict"] = ("u_predict", unit.predict_inputs)
     for s in unit.sensors:
         if s.inputs and s.inputs != all_columns:
-            subsets[f"update_{s.name}"] = (f"u_{s.name}", s.inputs)
+            # named for the function, not the sensor: a sensor named predict would
+            # otherwise declare predict's u_predict a second time
+            subsets[f"update_{s.name}"] = (f"u_update_{s.name}", s.inputs)
     lines += [f"{t} {name}[{len(cols)}];" for name, cols in subsets.values()]
     lines += ["size_t k;", "size_t i;"] + (["int status;"] if status else [])
     used_u = bool(unit.predict_inputs) or any(s.inputs for s in unit.sensors)

@@ -70,8 +70,13 @@ def gate_thresholds(groups, options) -> dict[str, tuple[float, float] | None]:
     probability = {g.name: options.get("gate") for g in groups}
     text = options.get("gate_sensors")
     if text:
+        named: set[str] = set()
         for pair in text.split(","):
             name, value = pair.split("=", 1)
+            if name in named:  # which one would hold is a guess: refused
+                raise OptionError(f"option 'gate_sensors' (--gate-sensors) names sensor "
+                                  f"{name!r} twice ({text!r})")
+            named.add(name)
             if name not in probability:
                 raise OptionError(f"option 'gate_sensors' (--gate-sensors) names sensor "
                                   f"{name!r}; the sensors are {', '.join(probability)}")

@@ -16,18 +16,21 @@ Programs (:func:`udkf_programs`):
   R = L Dr Lᵀ (z' = L⁻¹ z, H' = L⁻¹ H, R' = Dr; nothing to do when R is diagonal).
   Bierman's divisors, the innovation variances, are checked positive
   (``Program.require_positive``); the MWGS pivots d'_j (P(k+1/k) = U' D' U'ᵀ) are checked
-  not negative and divide as d'_j + DBL_MIN, so that a singular P(k+1/k) (P0 = 0 with a
-  rank-deficient G Q Gᵀ, the catalog's usual start) gives D'_j = 0 and a zero column of
-  U' instead of 0 / 0 (PIVOT_FLOOR: bitwise num / d for every d >= 4e-292);
+  not negative (d'_j + DBL_MIN > 0) and divide as d'_j itself, or as 1 where d'_j <= 0,
+  so that a singular P(k+1/k) (P0 = 0 with a rank-deficient G Q Gᵀ, the catalog's usual
+  start) gives D'_j = 0 and a zero column of U' instead of 0 / 0 (PIVOT_FLOOR), and a
+  tiny positive pivot is divided by exactly (P ~ 1e-300 is filtered as P ~ 1);
 - ``enter`` (x0, P0) -> (x, U, D): x = x0 and the UD factorisation of P0, last column
-  first, pivots checked not negative and floored as in the step (P0 = 0 enters as U = I,
+  first, pivots checked not negative and divided by as in the step (P0 = 0 enters as U = I,
   D = 0); P0 outside the pattern of U D Uᵀ is refused (PatternError / status);
 - ``store`` (x, U, D) -> P_new: U D Uᵀ, the upper triangle computed and mirrored.
 
 Registered as ``udkf`` (:data:`SPECS`): the time-varying run loop carries (x, U, D);
 ``run`` takes x0 and P0 (entered once) and returns xs and Ps (P stored from U and D after
 each step; C: only when Ps is given); ``step`` is the factored step.  The header states
-the pivot floor (:data:`PIVOT_FACT`).
+how pivots divide (:data:`PIVOT_FACT`).  No product of two variances is formed (Bierman's
+new D_j is D_j (alpha_(j-1) / alpha_j), the ratio first), so nothing underflows before P
+itself does.
 
 With ``missing`` a NaN in z[i] marks component i absent.  With a diagonal R each scalar
 update's results are kept only where z[i] is present (selects, no flop).  With a
@@ -43,7 +46,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
-from ..lowering import IfPresent
+from ..lowering import IfAtMost, IfPresent
 from ..options import SharedOptions
 from ..precision import DOUBLE, precision
 from ..program import Port, Program
@@ -89,16 +92,20 @@ def _is_diagonal(M: sympy.Matrix) -> bool:
 
 
 PIVOT_FLOOR = sympy.Float(DOUBLE.least_normal)
-"""DBL_MIN, the least positive normal double, added to every pivot of a UD factorisation
-before it divides.  A pivot d >= 2^-968 (about 4e-292) is unchanged by it (d + DBL_MIN
-rounds to d), so every quotient is bitwise num / d; a zero pivot (a singular P, such as
-P0 = 0, or a singular P(k+1/k)) has an exactly zero numerator (its row is zero in the
-weights), so its column of U is 0 / DBL_MIN = 0, as in the reference, instead of 0 / 0.
+"""DBL_MIN, the least positive normal double: each pivot d of a UD factorisation is
+checked as d + DBL_MIN > 0, which refuses a negative (or NaN) pivot and lets a zero one
+through.  The pivot then divides as d itself where d > 0 (every quotient is num / d, for
+a subnormal d too), and as 1 where d <= 0 (a select, no flop): a zero pivot (a singular
+P, such as P0 = 0, or a singular P(k+1/k)) has an exactly zero numerator when its row is
+zero in the weights, so its column of U is 0, as in the reference, instead of 0 / 0; when
+d is 0 only because every term of it underflowed, its column of U is finite and only ever
+read multiplied by D_j = 0 (in U D Uᵀ, in the weights of the next time update, in
+Bierman's v_j = D_j f_j), so it changes nothing.  (The floor was once added to the
+divisor, d + DBL_MIN, which is not d below 2^-968, about 4e-292: a wrong P, status 0.)
 A normal number, so flush-to-zero arithmetic keeps it.
 
 In float code (``--precision float``) the floor is FLT_MIN (2^-126) instead
-(:func:`pivot_floor`): DBL_MIN is zero as a float, which would bring back 0 / 0; a pivot
-d >= 2^-101 (about 4e-31) is unchanged by FLT_MIN in float arithmetic."""
+(:func:`pivot_floor`): DBL_MIN is zero as a float."""
 
 
 def pivot_floor(name: str = DOUBLE.name) -> sympy.Float:
@@ -107,25 +114,15 @@ def pivot_floor(name: str = DOUBLE.name) -> sympy.Float:
     return sympy.Float(precision(name).least_normal)
 
 
-def _unchanged_from(exponent: int, significand_bits: int) -> float:
-    """The least d for which d + 2^exponent rounds to d with a p-bit significand: the floor
-    is then less than half an ulp of d, d >= 2^(exponent + p + 1)."""
-    return 2.0 ** (exponent + significand_bits + 1)
-
-
 def pivot_fact(name: str = DOUBLE.name) -> str:
-    """The header line that states the pivot floor of the C precision ``name`` (the same
-    floor in both files of a unit; the Python computes it in double)."""
+    """The header line that states how the UD pivots of the C precision ``name`` are
+    checked and divided by (the same floor in both files of a unit)."""
     real = precision(name)
     exponent = int(np.log2(real.least_normal))
-    in_double = f"d >= {_unchanged_from(exponent, 53):.0e}"
-    where = f"bitwise d for {in_double}"
-    if real is not DOUBLE:
-        where = (f"bitwise d for d >= {_unchanged_from(exponent, 24):.0e} in float "
-                 f"arithmetic (the C), for {in_double} in double (the Python)")
-    return (f"UD pivots: each pivot d divides as d + {real.c_least_normal} (2^{exponent}), "
-            f"{where}; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as "
-            "the reference's; a negative pivot is refused")
+    return (f"UD pivots: each pivot d is checked as d + {real.c_least_normal} "
+            f"(2^{exponent}) > 0 (a negative pivot is refused) and divides as d itself, "
+            "or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero "
+            "column of U, as the reference's, read only times D_j = 0")
 
 
 PIVOT_FACT = pivot_fact()
@@ -133,15 +130,16 @@ PIVOT_FACT = pivot_fact()
 
 
 def _pivot(prog: Program, d, message: str, floor: sympy.Float = PIVOT_FLOOR) -> sympy.Expr:
-    """The divisor ``d + floor`` (DBL_MIN, or FLT_MIN in float code) of the pivot ``d``,
-    checked > 0: refuses a negative or NaN pivot, lets a zero one through (see
-    PIVOT_FLOOR)."""
+    """The divisor of the pivot ``d``: ``d`` itself where ``d > 0`` (so every quotient is
+    num / d, however small d is), 1 where ``d <= 0`` (a select, no flop: a zero pivot's
+    column of U is multiplied by D_j = 0 wherever it is read, see :data:`PIVOT_FLOOR`).
+    Checked first: ``d + floor > 0`` (DBL_MIN, or FLT_MIN in float code) refuses a negative
+    or NaN pivot and lets a zero one through."""
     if d.is_number:
         prog.require_positive(d, message)
         return d
-    guarded = _stage(prog, d + floor, "pivot")
-    prog.require_positive(guarded, message)
-    return guarded
+    prog.require_positive(_stage(prog, d + floor, "pivot"), message)
+    return _stage(prog, IfAtMost(d, _ZERO, _ONE, d), "pivot")
 
 
 def _quotients(prog: Program, numerators, divisor, hint: str = "t") -> list[sympy.Expr]:
@@ -234,7 +232,9 @@ def bierman(prog: Program, x, U: sympy.Matrix, D, z, h, r):
         prog.require_positive(alpha, f"innovation variance {j} of a scalar update is not "
                                      "positive (D or R not positive)")
         inverse = _stage(prog, 1 / alpha, "inv")
-        D[j] = _stage(prog, D[j] * before * inverse, "d")
+        # D_j before / alpha as D_j (before / alpha): the ratio is in (0, 1], while
+        # D_j before is a product of two variances, which underflows for P ~ 1e-154
+        D[j] = _stage(prog, D[j] * _stage(prog, before * inverse, "ratio"), "d")
         gain = _stage(prog, -f[j] * (before_inverse if before_inverse is not None
                                       else 1 / before), "g")
         for i in range(j):

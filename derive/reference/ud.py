@@ -15,8 +15,10 @@ square root is taken anywhere.  One step, x(k/k), U(k/k), D(k/k) -> x(k+1/k+1), 
 
 A zero pivot (a singular P(k+1/k), e.g. P0 = 0 with a rank-deficient G Q Gᵀ) is exact
 here: its column of U is set to zero (any column gives the same P); a negative pivot
-raises NumericalError.  The generated programs (derive.filters.udkf) divide by
-d + DBL_MIN, which gives the same zero column.
+raises NumericalError.  The generated programs (derive.filters.udkf) divide by d itself,
+or by 1 where d <= 0, which gives the same zero column.  Bierman's new D_j is
+D_j (alpha_(j-1) / alpha_j), the ratio first: D_j alpha_(j-1), a product of two variances,
+underflows for P ~ 1e-154 (in float32 for P ~ 1e-19).
 
 Indexing as in derive.reference.linear: zs[k-1] = z(k); outputs [k-1] are at step k.
 """
@@ -98,7 +100,7 @@ def bierman(x, U, D, z, h, r) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         alpha = before + f[j] * v[j]
         if not alpha > 0:
             raise NumericalError(f"bierman: innovation variance {j} is {alpha!r}")
-        D[j] = D[j] * before / alpha
+        D[j] = D[j] * (before / alpha)   # D[j] * before underflows for P ~ 1e-154
         gain = -f[j] / before
         for i in range(j):
             old = U[i, j]

@@ -17,9 +17,9 @@ symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: writt
 symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 1: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 2: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    backward 3: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    backward 4: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 25, sub 7, mul 17, div 1, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 50, instructions 51)
 operations per call of backward (Python): add 54, sub 31, mul 91, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 179, instructions 182)
 P0 pattern declared: zero

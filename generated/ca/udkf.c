@@ -23,17 +23,17 @@
  *     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
- *     enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 9, mul 29, div 6, sqrt 0, fma 25, neg 2, cmp 6, calls 0 (flops 109, instructions 92)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 14, instructions 17)
+ *     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 9, mul 29, div 6, sqrt 0, fma 25, neg 2, cmp 8, calls 0 (flops 109, instructions 94)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 14, instructions 19)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 11, instructions 7)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
- * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["enter",1,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
+ * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["enter",7,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",8,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -74,94 +74,99 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     if (!(t4 > 0.0) && !status) {
         status = 1; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     }
-    const double t5 = DERIVE_FMA(D[2 * s], t1, 0.0016666666666666668);
-    const double t6 = DERIVE_FMA(D[2 * s], t2, 0.005);
-    const double t7 = t5/t4;
-    const double t8 = t6/t4;
-    const double t9 = t1 - t7;
-    const double t10 = DERIVE_FMA((-3.3333333333333335), t7, 1.0);
-    const double t11 = 4.0*t7;
-    const double t12 = t2 - t8;
-    const double t13 = DERIVE_FMA((-3.3333333333333335), t8, 2.5);
-    const double t14 = DERIVE_FMA((-4.0), t8, 1.0);
-    const double t15 = D[2 * s]*t12;
-    const double t16 = 0.0005*t13;
-    const double t17 = 0.00020833333333333335*t14;
-    const double t18 = 0.0011111111111111111*t8;
-    const double t19 = DERIVE_FMA(t18, t8, DERIVE_FMA(t14, t17, DERIVE_FMA(t13, t16, DERIVE_FMA(t12, t15, D[1 * s]))));
-    const double t20 = 2.2250738585072014e-308 + t19;
-    if (!(t20 > 0.0) && !status) {
+    const double t5 = ((t3 <= 0.0) ? 1.0 : t3);
+    const double t6 = DERIVE_FMA(D[2 * s], t1, 0.0016666666666666668);
+    const double t7 = DERIVE_FMA(D[2 * s], t2, 0.005);
+    const double t8 = t6/t5;
+    const double t9 = t7/t5;
+    const double t10 = t1 - t8;
+    const double t11 = DERIVE_FMA((-3.3333333333333335), t8, 1.0);
+    const double t12 = 4.0*t8;
+    const double t13 = t2 - t9;
+    const double t14 = DERIVE_FMA((-3.3333333333333335), t9, 2.5);
+    const double t15 = DERIVE_FMA((-4.0), t9, 1.0);
+    const double t16 = D[2 * s]*t13;
+    const double t17 = 0.0005*t14;
+    const double t18 = 0.00020833333333333335*t15;
+    const double t19 = 0.0011111111111111111*t9;
+    const double t20 = DERIVE_FMA(t19, t9, DERIVE_FMA(t15, t18, DERIVE_FMA(t14, t17, DERIVE_FMA(t13, t16, D[1 * s]))));
+    const double t21 = 2.2250738585072014e-308 + t20;
+    if (!(t21 > 0.0) && !status) {
         status = 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
-    const double t21 = DERIVE_FMA(t18, t7, DERIVE_FMA(t15, t9, DERIVE_FMA(t10, t16, DERIVE_FMA(D[1 * s], t0, -(t11*t17)))));
-    const double t22 = t21/t20;
-    const double t23 = t0 - t22;
-    const double t24 = t9 - t12*t22;
-    const double t25 = t10 - t13*t22;
-    const double t26 = DERIVE_FMA(t14, t22, t11);
-    const double t27 = DERIVE_FMA(t22, t8, -t7);
-    const double t28 = D[1 * s]*t23;
-    const double t29 = D[2 * s]*t24;
-    const double t30 = 0.0005*t25;
-    const double t31 = 0.00020833333333333335*t26;
-    const double t32 = 0.0011111111111111111*t27;
-    const double t33 = DERIVE_FMA(t27, t32, DERIVE_FMA(t26, t31, DERIVE_FMA(t25, t30, DERIVE_FMA(t24, t29, DERIVE_FMA(t23, t28, D[0])))));
-    const double t34 = 2.2250738585072014e-308 + t33;
-    if (!(t34 > 0.0) && !status) {
+    const double t22 = ((t20 <= 0.0) ? 1.0 : t20);
+    const double t23 = DERIVE_FMA(t19, t8, DERIVE_FMA(t11, t17, DERIVE_FMA(t10, t16, DERIVE_FMA(D[1 * s], t0, -(t12*t18)))));
+    const double t24 = t23/t22;
+    const double t25 = t0 - t24;
+    const double t26 = t10 - t13*t24;
+    const double t27 = t11 - t14*t24;
+    const double t28 = DERIVE_FMA(t15, t24, t12);
+    const double t29 = DERIVE_FMA(t24, t9, -t8);
+    const double t30 = D[1 * s]*t25;
+    const double t31 = D[2 * s]*t26;
+    const double t32 = 0.0005*t27;
+    const double t33 = 0.00020833333333333335*t28;
+    const double t34 = 0.0011111111111111111*t29;
+    const double t35 = DERIVE_FMA(t29, t34, DERIVE_FMA(t28, t33, DERIVE_FMA(t27, t32, DERIVE_FMA(t26, t31, DERIVE_FMA(t25, t30, D[0])))));
+    const double t36 = 2.2250738585072014e-308 + t35;
+    if (!(t36 > 0.0) && !status) {
         status = 3; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     }
-    const double t35 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
-    const double t36 = x[1 * s] + x[2 * s];
-    const double t37 = t19*t22;
-    const double t38 = t3*t7;
-    const double t39 = 0.1 + t33;
-    if (!(t39 > 0.0) && !status) {
+    const double t37 = DERIVE_FMA(0.5, x[2 * s], x[0] + x[1 * s]);
+    const double t38 = x[1 * s] + x[2 * s];
+    const double t39 = t20*t24;
+    const double t40 = t3*t8;
+    const double t41 = 0.1 + t35;
+    if (!(t41 > 0.0) && !status) {
         status = 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
-    const double t40 = 1.0/t39;
-    const double t41 = 0.1*(t33*t40);
-    const double t42 = t22*t37;
-    const double t43 = t39 + t42;
-    if (!(t43 > 0.0) && !status) {
+    const double t42 = 1.0/t41;
+    const double t43 = 0.1*t42;
+    const double t44 = t35*t43;
+    const double t45 = t24*t39;
+    const double t46 = t41 + t45;
+    if (!(t46 > 0.0) && !status) {
         status = 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
-    const double t44 = 1.0/t43;
-    const double t45 = t19*t39*t44;
-    const double t46 = t22*t40;
-    const double t47 = t22 - t33*t46;
-    const double t48 = t33 + t42;
-    const double t49 = t38*t7;
-    const double t50 = t43 + t49;
-    if (!(t50 > 0.0) && !status) {
+    const double t47 = 1.0/t46;
+    const double t48 = t41*t47;
+    const double t49 = t20*t48;
+    const double t50 = t24*t42;
+    const double t51 = t24 - t35*t50;
+    const double t52 = t35 + t45;
+    const double t53 = t40*t8;
+    const double t54 = t46 + t53;
+    if (!(t54 > 0.0) && !status) {
         status = 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     }
-    const double t51 = 1.0/t50;
-    const double t52 = t3*t43*t51;
-    const double t53 = t44*t7;
-    const double t54 = t7 - t48*t53;
-    const double t55 = t48 + t49;
-    const double t56 = t8 - t37*t53;
-    const double t57 = DERIVE_FMA(t38, t8, t37);
-    const double t58 = z[0] - t35;
-    const double t59 = t51*t58;
-    const double t60 = DERIVE_FMA(t55, t59, t35);
-    const double t61 = DERIVE_FMA(t57, t59, t36);
-    const double t62 = DERIVE_FMA(t38, t59, x[2 * s]);
-    x_new[0] = t60;
-    x_new[1 * s] = t61;
-    x_new[2 * s] = t62;
+    const double t55 = 1.0/t54;
+    const double t56 = t46*t55;
+    const double t57 = t3*t56;
+    const double t58 = t47*t8;
+    const double t59 = t8 - t52*t58;
+    const double t60 = t52 + t53;
+    const double t61 = t9 - t39*t58;
+    const double t62 = DERIVE_FMA(t40, t9, t39);
+    const double t63 = z[0] - t37;
+    const double t64 = t55*t63;
+    const double t65 = DERIVE_FMA(t60, t64, t37);
+    const double t66 = DERIVE_FMA(t62, t64, t38);
+    const double t67 = DERIVE_FMA(t40, t64, x[2 * s]);
+    x_new[0] = t65;
+    x_new[1 * s] = t66;
+    x_new[2 * s] = t67;
     U_new[0] = 1.0;
-    U_new[1 * s] = t47;
-    U_new[2 * s] = t54;
+    U_new[1 * s] = t51;
+    U_new[2 * s] = t59;
     U_new[3 * s] = 0.0;
     U_new[4 * s] = 1.0;
-    U_new[5 * s] = t56;
+    U_new[5 * s] = t61;
     U_new[6 * s] = 0.0;
     U_new[7 * s] = 0.0;
     U_new[8 * s] = 1.0;
-    D_new[0] = t41;
-    D_new[1 * s] = t45;
-    D_new[2 * s] = t52;
+    D_new[0] = t44;
+    D_new[1 * s] = t49;
+    D_new[2 * s] = t57;
     return status;
 }
 
@@ -174,36 +179,38 @@ int ca_udkf_enter(const double *restrict x0, const double *restrict P0, double *
 {
     const double t0 = 2.2250738585072014e-308 + P0[8];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 7; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
-    const double t1 = P0[2]/t0;
-    const double t2 = P0[5]/t0;
-    const double t3 = P0[4] - P0[5]*t2;
-    const double t4 = 2.2250738585072014e-308 + t3;
-    if (!(t4 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+    const double t1 = ((P0[8] <= 0.0) ? 1.0 : P0[8]);
+    const double t2 = P0[2]/t1;
+    const double t3 = P0[5]/t1;
+    const double t4 = P0[4] - P0[5]*t3;
+    const double t5 = 2.2250738585072014e-308 + t4;
+    if (!(t5 > 0.0)) {
+        return 8; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
-    const double t5 = P0[1] - P0[2]*t2;
-    const double t6 = t5/t4;
-    const double t7 = P0[0] - P0[2]*t1 - t5*t6;
-    const double t8 = 2.2250738585072014e-308 + t7;
-    if (!(t8 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+    const double t6 = ((t4 <= 0.0) ? 1.0 : t4);
+    const double t7 = P0[1] - P0[2]*t3;
+    const double t8 = t7/t6;
+    const double t9 = P0[0] - P0[2]*t2 - t7*t8;
+    const double t10 = 2.2250738585072014e-308 + t9;
+    if (!(t10 > 0.0)) {
+        return 9; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
     U[0] = 1.0;
-    U[1] = t6;
-    U[2] = t1;
+    U[1] = t8;
+    U[2] = t2;
     U[3] = 0.0;
     U[4] = 1.0;
-    U[5] = t2;
+    U[5] = t3;
     U[6] = 0.0;
     U[7] = 0.0;
     U[8] = 1.0;
-    D[0] = t7;
-    D[1] = t3;
+    D[0] = t9;
+    D[1] = t4;
     D[2] = P0[8];
     return 0;
 }

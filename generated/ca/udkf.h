@@ -23,17 +23,17 @@
  *     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
- *     enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 9, mul 29, div 6, sqrt 0, fma 25, neg 2, cmp 6, calls 0 (flops 109, instructions 92)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 14, instructions 17)
+ *     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 9, mul 29, div 6, sqrt 0, fma 25, neg 2, cmp 8, calls 0 (flops 109, instructions 94)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 14, instructions 19)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 11, instructions 7)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
- * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["enter",1,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
+ * derive-interface: {"functions":[["ca_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["ca_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["ca_udkf_store","store",false,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["ca_udkf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["enter",7,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",8,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
  */
 #ifndef DERIVE_ca_udkf_H
 #define DERIVE_ca_udkf_H
@@ -69,9 +69,9 @@ enum ca_udkf_status {
     ca_udkf_STATUS_STEP_INNOVATION_VARIANCE_0_SCALAR_UPDATE_NOT_POSITIVE_4 = 4,
     ca_udkf_STATUS_STEP_INNOVATION_VARIANCE_1_SCALAR_UPDATE_NOT_POSITIVE_5 = 5,
     ca_udkf_STATUS_STEP_INNOVATION_VARIANCE_2_SCALAR_UPDATE_NOT_POSITIVE_6 = 6,
-    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_1 = 1,
-    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_2 = 2,
-    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_3 = 3
+    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_7 = 7,
+    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_8 = 8,
+    ca_udkf_STATUS_ENTER_P_NOT_POSITIVE_SEMIDEFINITE_9 = 9
 };
 
 #ifdef __cplusplus

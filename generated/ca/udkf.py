@@ -23,16 +23,16 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
-    enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 109, instructions 115)
-operations per call of enter (Python): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 14, instructions 17)
+    enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 109, instructions 117)
+operations per call of enter (Python): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 14, instructions 19)
 operations per call of store (Python): add 4, sub 0, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 11, instructions 11)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
-UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
+UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
 """
 
 import numpy as np
@@ -50,6 +50,17 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class NumericalError(ArithmeticError):
         """A numerical failure such as a non-positive pivot."""
+
+
+def _if_at_most(v, bound, a, b):
+    """a where v <= bound, else b (also for a NaN v); per track for arrays.
+    With a CountingFloat v a constant result is counted onwards."""
+    within = v <= bound
+    if isinstance(within, np.ndarray):
+        return np.where(within, a, b)
+    value = a if within else b
+    counted = getattr(v, "derive_counted", None)
+    return value if counted is None else counted(value)
 
 
 def _require_positive(value, message):
@@ -90,72 +101,77 @@ def step(x, U, D, z):
     t3 = 0.01 + D[2]
     t4 = 2.2250738585072014e-308 + t3
     _require_positive(t4, 'P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative')
-    t5 = 0.0016666666666666668 + D[2]*t1
-    t6 = 0.005 + D[2]*t2
-    t7 = t5/t4
-    t8 = t6/t4
-    t9 = t1 - t7
-    t10 = 1.0 - 3.3333333333333335*t7
-    t11 = 4.0*t7
-    t12 = t2 - t8
-    t13 = 2.5 - 3.3333333333333335*t8
-    t14 = 1.0 - 4.0*t8
-    t15 = D[2]*t12
-    t16 = 0.0005*t13
-    t17 = 0.00020833333333333335*t14
-    t18 = 0.0011111111111111111*t8
-    t19 = D[1] + t12*t15 + t13*t16 + t14*t17 + t18*t8
-    t20 = 2.2250738585072014e-308 + t19
-    _require_positive(t20, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
-    t21 = D[1]*t0 + t10*t16 - t11*t17 + t15*t9 + t18*t7
-    t22 = t21/t20
-    t23 = t0 - t22
-    t24 = t9 - t12*t22
-    t25 = t10 - t13*t22
-    t26 = t11 + t14*t22
-    t27 = t22*t8 - t7
-    t28 = D[1]*t23
-    t29 = D[2]*t24
-    t30 = 0.0005*t25
-    t31 = 0.00020833333333333335*t26
-    t32 = 0.0011111111111111111*t27
-    t33 = D[0] + t23*t28 + t24*t29 + t25*t30 + t26*t31 + t27*t32
-    t34 = 2.2250738585072014e-308 + t33
-    _require_positive(t34, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
-    t35 = x[0] + x[1] + 0.5*x[2]
-    t36 = x[1] + x[2]
-    t37 = t19*t22
-    t38 = t3*t7
-    t39 = 0.1 + t33
-    _require_positive(t39, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
-    t40 = 1.0/t39
-    t41 = 0.1*(t33*t40)
-    t42 = t22*t37
-    t43 = t39 + t42
-    _require_positive(t43, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
-    t44 = 1.0/t43
-    t45 = t19*t39*t44
-    t46 = t22*t40
-    t47 = t22 - t33*t46
-    t48 = t33 + t42
-    t49 = t38*t7
-    t50 = t43 + t49
-    _require_positive(t50, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
-    t51 = 1.0/t50
-    t52 = t3*t43*t51
-    t53 = t44*t7
-    t54 = t7 - t48*t53
-    t55 = t48 + t49
-    t56 = t8 - t37*t53
-    t57 = t37 + t38*t8
-    t58 = z[0] - t35
-    t59 = t51*t58
-    t60 = t35 + t55*t59
-    t61 = t36 + t57*t59
-    t62 = x[2] + t38*t59
-    x_new = [t60, t61, t62]
-    U_new = [1.0, t47, t54, 0.0, 1.0, t56, 0.0, 0.0, 1.0]
-    D_new = [t41, t45, t52]
+    t5 = _if_at_most(t3, 0.0, 1.0, t3)
+    t6 = 0.0016666666666666668 + D[2]*t1
+    t7 = 0.005 + D[2]*t2
+    t8 = t6/t5
+    t9 = t7/t5
+    t10 = t1 - t8
+    t11 = 1.0 - 3.3333333333333335*t8
+    t12 = 4.0*t8
+    t13 = t2 - t9
+    t14 = 2.5 - 3.3333333333333335*t9
+    t15 = 1.0 - 4.0*t9
+    t16 = D[2]*t13
+    t17 = 0.0005*t14
+    t18 = 0.00020833333333333335*t15
+    t19 = 0.0011111111111111111*t9
+    t20 = D[1] + t13*t16 + t14*t17 + t15*t18 + t19*t9
+    t21 = 2.2250738585072014e-308 + t20
+    _require_positive(t21, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
+    t22 = _if_at_most(t20, 0.0, 1.0, t20)
+    t23 = D[1]*t0 + t10*t16 + t11*t17 - t12*t18 + t19*t8
+    t24 = t23/t22
+    t25 = t0 - t24
+    t26 = t10 - t13*t24
+    t27 = t11 - t14*t24
+    t28 = t12 + t15*t24
+    t29 = t24*t9 - t8
+    t30 = D[1]*t25
+    t31 = D[2]*t26
+    t32 = 0.0005*t27
+    t33 = 0.00020833333333333335*t28
+    t34 = 0.0011111111111111111*t29
+    t35 = D[0] + t25*t30 + t26*t31 + t27*t32 + t28*t33 + t29*t34
+    t36 = 2.2250738585072014e-308 + t35
+    _require_positive(t36, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
+    t37 = x[0] + x[1] + 0.5*x[2]
+    t38 = x[1] + x[2]
+    t39 = t20*t24
+    t40 = t3*t8
+    t41 = 0.1 + t35
+    _require_positive(t41, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
+    t42 = 1.0/t41
+    t43 = 0.1*t42
+    t44 = t35*t43
+    t45 = t24*t39
+    t46 = t41 + t45
+    _require_positive(t46, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
+    t47 = 1.0/t46
+    t48 = t41*t47
+    t49 = t20*t48
+    t50 = t24*t42
+    t51 = t24 - t35*t50
+    t52 = t35 + t45
+    t53 = t40*t8
+    t54 = t46 + t53
+    _require_positive(t54, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
+    t55 = 1.0/t54
+    t56 = t46*t55
+    t57 = t3*t56
+    t58 = t47*t8
+    t59 = t8 - t52*t58
+    t60 = t52 + t53
+    t61 = t9 - t39*t58
+    t62 = t39 + t40*t9
+    t63 = z[0] - t37
+    t64 = t55*t63
+    t65 = t37 + t60*t64
+    t66 = t38 + t62*t64
+    t67 = x[2] + t40*t64
+    x_new = [t65, t66, t67]
+    U_new = [1.0, t51, t59, 0.0, 1.0, t61, 0.0, 0.0, 1.0]
+    D_new = [t44, t49, t57]
     return x_new, U_new, D_new
 
 
@@ -175,19 +191,21 @@ def enter(x0, P0):
         P0 = np.reshape(P0, (9,) + np.shape(P0)[2:])
     t0 = 2.2250738585072014e-308 + P0[8]
     _require_positive(t0, 'P is not positive semidefinite: pivot 2 of its UD factorisation is negative')
-    t1 = P0[2]/t0
-    t2 = P0[5]/t0
-    t3 = P0[4] - P0[5]*t2
-    t4 = 2.2250738585072014e-308 + t3
-    _require_positive(t4, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
-    t5 = P0[1] - P0[2]*t2
-    t6 = t5/t4
-    t7 = P0[0] - P0[2]*t1 - t5*t6
-    t8 = 2.2250738585072014e-308 + t7
-    _require_positive(t8, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
+    t1 = _if_at_most(P0[8], 0.0, 1.0, P0[8])
+    t2 = P0[2]/t1
+    t3 = P0[5]/t1
+    t4 = P0[4] - P0[5]*t3
+    t5 = 2.2250738585072014e-308 + t4
+    _require_positive(t5, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
+    t6 = _if_at_most(t4, 0.0, 1.0, t4)
+    t7 = P0[1] - P0[2]*t3
+    t8 = t7/t6
+    t9 = P0[0] - P0[2]*t2 - t7*t8
+    t10 = 2.2250738585072014e-308 + t9
+    _require_positive(t10, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
     x = [x0[0], x0[1], x0[2]]
-    U = [1.0, t6, t1, 0.0, 1.0, t2, 0.0, 0.0, 1.0]
-    D = [t7, t3, P0[8]]
+    U = [1.0, t8, t2, 0.0, 1.0, t3, 0.0, 0.0, 1.0]
+    D = [t9, t4, P0[8]]
     return x, U, D
 
 

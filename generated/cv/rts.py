@@ -17,8 +17,8 @@ symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: writt
 symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 1: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 2: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 10, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 21, instructions 22)
 operations per call of backward (Python): add 16, sub 10, mul 24, div 5, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 55, instructions 57)
 P0 pattern declared: zero

@@ -21,16 +21,16 @@
  *     step 2: P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative
  *     step 3: innovation variance 0 of a scalar update is not positive (D or R not positive)
  *     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
- *     enter 1: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA): add 8, sub 3, mul 12, div 3, sqrt 0, fma 7, neg 0, cmp 4, calls 0 (flops 40, instructions 37)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 5, instructions 7)
+ *     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ * operations per call of step (C99, fma through DERIVE_FMA): add 8, sub 3, mul 12, div 3, sqrt 0, fma 7, neg 0, cmp 5, calls 0 (flops 40, instructions 38)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 5, instructions 8)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 1, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 3, instructions 2)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
- * derive-interface: {"functions":[["cv_udkf_step","step",true,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["U_new",[2,2],true,false,false],["D_new",[2],true,false,false]]],["cv_udkf_enter","enter",true,false,[["x0",[2],false,false,false],["P0",[2,2],false,false,false],["x",[2],true,false,false],["U",[2,2],true,false,false],["D",[2],true,false,false]]],["cv_udkf_store","store",false,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["P_new",[2,2],true,false,false]]],["cv_udkf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",3,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",4,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["enter",1,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
+ * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
+ * derive-interface: {"functions":[["cv_udkf_step","step",true,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["U_new",[2,2],true,false,false],["D_new",[2],true,false,false]]],["cv_udkf_enter","enter",true,false,[["x0",[2],false,false,false],["P0",[2,2],false,false,false],["x",[2],true,false,false],["U",[2,2],true,false,false],["D",[2],true,false,false]]],["cv_udkf_store","store",false,false,[["x",[2],false,false,false],["U",[2,2],false,false,false],["D",[2],false,false,false],["P_new",[2,2],true,false,false]]],["cv_udkf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",3,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",4,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["enter",5,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",6,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -69,48 +69,51 @@ DERIVE_INLINE int cv_udkf_step_body(const double *restrict x, const double *rest
     if (!(t2 > 0.0) && !status) {
         status = 1; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
-    const double t3 = DERIVE_FMA(D[1 * s], t0, 0.005);
-    const double t4 = t3/t2;
-    const double t5 = t0 - t4;
-    const double t6 = DERIVE_FMA((-1.5), t4, 1.0);
-    const double t7 = D[1 * s]*t5;
-    const double t8 = 0.0033333333333333335*t6;
-    const double t9 = 0.0025*t4;
-    const double t10 = DERIVE_FMA(t6, t8, DERIVE_FMA(t5, t7, DERIVE_FMA(t4, t9, D[0])));
-    const double t11 = 2.2250738585072014e-308 + t10;
-    if (!(t11 > 0.0) && !status) {
+    const double t3 = ((t1 <= 0.0) ? 1.0 : t1);
+    const double t4 = DERIVE_FMA(D[1 * s], t0, 0.005);
+    const double t5 = t4/t3;
+    const double t6 = t0 - t5;
+    const double t7 = DERIVE_FMA((-1.5), t5, 1.0);
+    const double t8 = D[1 * s]*t6;
+    const double t9 = 0.0033333333333333335*t7;
+    const double t10 = 0.0025*t5;
+    const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, DERIVE_FMA(t10, t5, D[0])));
+    const double t12 = 2.2250738585072014e-308 + t11;
+    if (!(t12 > 0.0) && !status) {
         status = 2; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     }
-    const double t12 = x[0] + x[1 * s];
-    const double t13 = t1*t4;
-    const double t14 = 0.1 + t10;
-    if (!(t14 > 0.0) && !status) {
+    const double t13 = x[0] + x[1 * s];
+    const double t14 = t1*t5;
+    const double t15 = 0.1 + t11;
+    if (!(t15 > 0.0) && !status) {
         status = 3; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
-    const double t15 = 1.0/t14;
-    const double t16 = 0.1*(t10*t15);
-    const double t17 = t13*t4;
-    const double t18 = t14 + t17;
-    if (!(t18 > 0.0) && !status) {
+    const double t16 = 1.0/t15;
+    const double t17 = 0.1*t16;
+    const double t18 = t11*t17;
+    const double t19 = t14*t5;
+    const double t20 = t15 + t19;
+    if (!(t20 > 0.0) && !status) {
         status = 4; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
-    const double t19 = 1.0/t18;
-    const double t20 = t1*t14*t19;
-    const double t21 = t15*t4;
-    const double t22 = t4 - t10*t21;
-    const double t23 = t10 + t17;
-    const double t24 = z[0] - t12;
-    const double t25 = t19*t24;
-    const double t26 = DERIVE_FMA(t23, t25, t12);
-    const double t27 = DERIVE_FMA(t13, t25, x[1 * s]);
-    x_new[0] = t26;
-    x_new[1 * s] = t27;
+    const double t21 = 1.0/t20;
+    const double t22 = t15*t21;
+    const double t23 = t1*t22;
+    const double t24 = t16*t5;
+    const double t25 = t5 - t11*t24;
+    const double t26 = t11 + t19;
+    const double t27 = z[0] - t13;
+    const double t28 = t21*t27;
+    const double t29 = DERIVE_FMA(t26, t28, t13);
+    const double t30 = DERIVE_FMA(t14, t28, x[1 * s]);
+    x_new[0] = t29;
+    x_new[1 * s] = t30;
     U_new[0] = 1.0;
-    U_new[1 * s] = t22;
+    U_new[1 * s] = t25;
     U_new[2 * s] = 0.0;
     U_new[3 * s] = 1.0;
-    D_new[0] = t16;
-    D_new[1 * s] = t20;
+    D_new[0] = t18;
+    D_new[1 * s] = t23;
     return status;
 }
 
@@ -123,21 +126,22 @@ int cv_udkf_enter(const double *restrict x0, const double *restrict P0, double *
 {
     const double t0 = 2.2250738585072014e-308 + P0[3];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 5; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
-    const double t1 = P0[1]/t0;
-    const double t2 = P0[0] - P0[1]*t1;
-    const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+    const double t1 = ((P0[3] <= 0.0) ? 1.0 : P0[3]);
+    const double t2 = P0[1]/t1;
+    const double t3 = P0[0] - P0[1]*t2;
+    const double t4 = 2.2250738585072014e-308 + t3;
+    if (!(t4 > 0.0)) {
+        return 6; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
     U[0] = 1.0;
-    U[1] = t1;
+    U[1] = t2;
     U[2] = 0.0;
     U[3] = 1.0;
-    D[0] = t2;
+    D[0] = t3;
     D[1] = P0[3];
     return 0;
 }

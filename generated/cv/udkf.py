@@ -21,15 +21,15 @@ status (C return value; Python raises NumericalError): 0 success
     step 2: P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative
     step 3: innovation variance 0 of a scalar update is not positive (D or R not positive)
     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
-    enter 1: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-operations per call of step (Python): add 14, sub 4, mul 19, div 3, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 40, instructions 44)
-operations per call of enter (Python): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 2, calls 0 (flops 5, instructions 7)
+    enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+operations per call of step (Python): add 14, sub 4, mul 19, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 40, instructions 45)
+operations per call of enter (Python): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 5, instructions 8)
 operations per call of store (Python): add 1, sub 0, mul 2, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 3, instructions 3)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
-UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
+UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
 """
 
 import numpy as np
@@ -47,6 +47,17 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class NumericalError(ArithmeticError):
         """A numerical failure such as a non-positive pivot."""
+
+
+def _if_at_most(v, bound, a, b):
+    """a where v <= bound, else b (also for a NaN v); per track for arrays.
+    With a CountingFloat v a constant result is counted onwards."""
+    within = v <= bound
+    if isinstance(within, np.ndarray):
+        return np.where(within, a, b)
+    value = a if within else b
+    counted = getattr(v, "derive_counted", None)
+    return value if counted is None else counted(value)
 
 
 def _require_positive(value, message):
@@ -85,37 +96,40 @@ def step(x, U, D, z):
     t1 = 0.01 + D[1]
     t2 = 2.2250738585072014e-308 + t1
     _require_positive(t2, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
-    t3 = 0.005 + D[1]*t0
-    t4 = t3/t2
-    t5 = t0 - t4
-    t6 = 1.0 - 1.5*t4
-    t7 = D[1]*t5
-    t8 = 0.0033333333333333335*t6
-    t9 = 0.0025*t4
-    t10 = D[0] + t4*t9 + t5*t7 + t6*t8
-    t11 = 2.2250738585072014e-308 + t10
-    _require_positive(t11, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
-    t12 = x[0] + x[1]
-    t13 = t1*t4
-    t14 = 0.1 + t10
-    _require_positive(t14, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
-    t15 = 1.0/t14
-    t16 = 0.1*(t10*t15)
-    t17 = t13*t4
-    t18 = t14 + t17
-    _require_positive(t18, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
-    t19 = 1.0/t18
-    t20 = t1*t14*t19
-    t21 = t15*t4
-    t22 = t4 - t10*t21
-    t23 = t10 + t17
-    t24 = z[0] - t12
-    t25 = t19*t24
-    t26 = t12 + t23*t25
-    t27 = x[1] + t13*t25
-    x_new = [t26, t27]
-    U_new = [1.0, t22, 0.0, 1.0]
-    D_new = [t16, t20]
+    t3 = _if_at_most(t1, 0.0, 1.0, t1)
+    t4 = 0.005 + D[1]*t0
+    t5 = t4/t3
+    t6 = t0 - t5
+    t7 = 1.0 - 1.5*t5
+    t8 = D[1]*t6
+    t9 = 0.0033333333333333335*t7
+    t10 = 0.0025*t5
+    t11 = D[0] + t10*t5 + t6*t8 + t7*t9
+    t12 = 2.2250738585072014e-308 + t11
+    _require_positive(t12, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
+    t13 = x[0] + x[1]
+    t14 = t1*t5
+    t15 = 0.1 + t11
+    _require_positive(t15, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
+    t16 = 1.0/t15
+    t17 = 0.1*t16
+    t18 = t11*t17
+    t19 = t14*t5
+    t20 = t15 + t19
+    _require_positive(t20, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
+    t21 = 1.0/t20
+    t22 = t15*t21
+    t23 = t1*t22
+    t24 = t16*t5
+    t25 = t5 - t11*t24
+    t26 = t11 + t19
+    t27 = z[0] - t13
+    t28 = t21*t27
+    t29 = t13 + t26*t28
+    t30 = x[1] + t14*t28
+    x_new = [t29, t30]
+    U_new = [1.0, t25, 0.0, 1.0]
+    D_new = [t18, t23]
     return x_new, U_new, D_new
 
 
@@ -135,13 +149,14 @@ def enter(x0, P0):
         P0 = np.reshape(P0, (4,) + np.shape(P0)[2:])
     t0 = 2.2250738585072014e-308 + P0[3]
     _require_positive(t0, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
-    t1 = P0[1]/t0
-    t2 = P0[0] - P0[1]*t1
-    t3 = 2.2250738585072014e-308 + t2
-    _require_positive(t3, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
+    t1 = _if_at_most(P0[3], 0.0, 1.0, P0[3])
+    t2 = P0[1]/t1
+    t3 = P0[0] - P0[1]*t2
+    t4 = 2.2250738585072014e-308 + t3
+    _require_positive(t4, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
     x = [x0[0], x0[1]]
-    U = [1.0, t1, 0.0, 1.0]
-    D = [t2, P0[3]]
+    U = [1.0, t2, 0.0, 1.0]
+    D = [t3, P0[3]]
     return x, U, D
 
 

@@ -22,7 +22,7 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
- *     update1 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     update1 5: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 66, mul 92, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 442, instructions 318)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
  * operations per call of update1 (C99, fma through DERIVE_FMA): add 6, sub 14, mul 22, div 2, sqrt 1, fma 17, neg 0, cmp 1, calls 0 (flops 79, instructions 63)
@@ -30,7 +30,7 @@
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
  * varying measurement count: call predict once per step, then update1 once per measurement (z = one D1-like measurement, u = its inputs xs1, ys1, zs1)
- * derive-interface: {"functions":[["gnss_pseudorange_ekf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ekf_run","run",true,true,[["z",["steps",4],false,false,false],["u",["steps",12],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["update1",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["gnss_pseudorange_ekf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[4],false,false,false],["u",[12],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_predict","predict",false,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gnss_pseudorange_ekf_update1","update1",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[1],false,false,false],["u",[3],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false],["innovation",[1],true,false,false],["variance",[1],true,false,false]]],["gnss_pseudorange_ekf_run","run",true,true,[["z",["steps",4],false,false,false],["u",["steps",12],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 3 of its LDL^T factorisation is not positive",[]],["update1",5,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -298,7 +298,7 @@ int gnss_pseudorange_ekf_update1(const double *restrict x, const double *restric
     const double t13 = DERIVE_FMA(t6, t9, DERIVE_FMA(t11, t8, DERIVE_FMA(t10, t7, t12)));
     const double t14 = 100.0 + t13;
     if (!(t14 > 0.0)) {
-        return 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 5; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t15 = 1.0/t14;
     const double t16 = t15*t9;

@@ -22,7 +22,7 @@ status (C return value; Python raises NumericalError): 0 success
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    update1 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    update1 5: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 144, sub 66, mul 220, div 8, sqrt 4, fma 0, neg 0, cmp 4, calls 0 (flops 442, instructions 446)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 23, sub 14, mul 39, div 2, sqrt 1, fma 0, neg 0, cmp 1, calls 0 (flops 79, instructions 80)

@@ -26,11 +26,11 @@ status (C return value; Python raises NumericalError): 0 success
     step 6: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 7: Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 8: Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    update1 1: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
-    update1 2: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
-    update1 3: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
-    update1 4: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
-    update1 5: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    update1 9: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+    update1 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+    update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+    update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+    update1 13: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 268, sub 208, mul 402, div 31, sqrt 32, fma 0, neg 0, cmp 8, calls 0 (flops 941, instructions 949)
 operations per call of predict (Python): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
 operations per call of update1 (Python): add 48, sub 51, mul 89, div 10, sqrt 11, fma 0, neg 0, cmp 5, calls 0 (flops 209, instructions 214)

@@ -20,16 +20,16 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     backward 1: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     backward 2: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     backward 3: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     backward 4: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
  * operations per call of backward (C99, fma through DERIVE_FMA): add 6, sub 6, mul 9, div 3, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 24, instructions 36)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 24 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
- * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",1,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",2,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",3,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",4,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]]}
+ * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]]}
  */
 #include <stddef.h>
 
@@ -128,40 +128,40 @@ int gps_static_rts_step(const double *restrict x, const double *restrict P, cons
 int gps_static_rts_backward(const double *restrict x, const double *restrict P, const double *restrict x_pred, const double *restrict P_pred, const double *restrict x_smooth_next, const double *restrict P_smooth_next, double *restrict x_smooth, double *restrict P_smooth)
 {
     if (!(P[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_pred[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_pred[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_pred[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_smooth_next[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_smooth_next[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_smooth_next[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 8; /* outside P's pattern */
     }
     if (!(P_pred[0] > 0.0)) {
-        return 1; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 5; /* P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[4] > 0.0)) {
-        return 2; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        return 6; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     if (!(P_pred[8] > 0.0)) {
-        return 3; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        return 7; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t0 = P[0]/P_pred[0];
     const double t1 = P[4]/P_pred[4];

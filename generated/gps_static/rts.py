@@ -20,10 +20,10 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    backward 1: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 2: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    backward 3: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    backward 4: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
 operations per call of backward (Python): add 6, sub 6, mul 9, div 3, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 24, instructions 36)
 P0 pattern declared: diagonal

@@ -24,18 +24,18 @@
  *     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
  *     step 7: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- *     store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+ *     store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 9, div 3, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 30, instructions 36)
  * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
- * derive-interface: {"functions":[["gps_static_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["gps_static_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["gps_static_udkf_store","store",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["gps_static_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["enter",1,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["store",1,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
+ * derive-interface: {"functions":[["gps_static_udkf_step","step",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["U_new",[3,3],true,false,false],["D_new",[3],true,false,false]]],["gps_static_udkf_enter","enter",true,false,[["x0",[3],false,false,false],["P0",[3,3],false,false,false],["x",[3],true,false,false],["U",[3,3],true,false,false],["D",[3],true,false,false]]],["gps_static_udkf_store","store",true,false,[["x",[3],false,false,false],["U",[3,3],false,false,false],["D",[3],false,false,false],["P_new",[3,3],true,false,false]]],["gps_static_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",4,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",5,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",7,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["enter",8,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",9,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",10,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",11,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["store",12,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -89,31 +89,34 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
         status = 4; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
     const double t7 = 1.0/t6;
-    const double t8 = 0.1*(t4*t7);
-    const double t9 = z[0] - x[0];
-    const double t10 = t7*t9;
-    const double t11 = DERIVE_FMA(t10, t4, x[0]);
-    const double t12 = 0.1 + t2;
-    if (!(t12 > 0.0) && !status) {
+    const double t8 = 0.1*t7;
+    const double t9 = t4*t8;
+    const double t10 = z[0] - x[0];
+    const double t11 = t10*t7;
+    const double t12 = DERIVE_FMA(t11, t4, x[0]);
+    const double t13 = 0.1 + t2;
+    if (!(t13 > 0.0) && !status) {
         status = 5; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
-    const double t13 = 1.0/t12;
-    const double t14 = 0.1*(t13*t2);
-    const double t15 = z[1 * s] - x[1 * s];
-    const double t16 = t13*t15;
-    const double t17 = DERIVE_FMA(t16, t2, x[1 * s]);
-    const double t18 = 0.1 + t0;
-    if (!(t18 > 0.0) && !status) {
+    const double t14 = 1.0/t13;
+    const double t15 = 0.1*t14;
+    const double t16 = t15*t2;
+    const double t17 = z[1 * s] - x[1 * s];
+    const double t18 = t14*t17;
+    const double t19 = DERIVE_FMA(t18, t2, x[1 * s]);
+    const double t20 = 0.1 + t0;
+    if (!(t20 > 0.0) && !status) {
         status = 6; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     }
-    const double t19 = 1.0/t18;
-    const double t20 = 0.1*(t0*t19);
-    const double t21 = z[2 * s] - x[2 * s];
-    const double t22 = t19*t21;
-    const double t23 = DERIVE_FMA(t0, t22, x[2 * s]);
-    x_new[0] = t11;
-    x_new[1 * s] = t17;
-    x_new[2 * s] = t23;
+    const double t21 = 1.0/t20;
+    const double t22 = 0.1*t21;
+    const double t23 = t0*t22;
+    const double t24 = z[2 * s] - x[2 * s];
+    const double t25 = t21*t24;
+    const double t26 = DERIVE_FMA(t0, t25, x[2 * s]);
+    x_new[0] = t12;
+    x_new[1 * s] = t19;
+    x_new[2 * s] = t26;
     U_new[0] = 1.0;
     U_new[1 * s] = 0.0;
     U_new[2 * s] = 0.0;
@@ -123,9 +126,9 @@ DERIVE_INLINE int gps_static_udkf_step_body(const double *restrict x, const doub
     U_new[6 * s] = 0.0;
     U_new[7 * s] = 0.0;
     U_new[8 * s] = 1.0;
-    D_new[0] = t8;
-    D_new[1 * s] = t14;
-    D_new[2 * s] = t20;
+    D_new[0] = t9;
+    D_new[1 * s] = t16;
+    D_new[2 * s] = t23;
     return status;
 }
 
@@ -146,25 +149,25 @@ int gps_static_udkf_step(const double *restrict x, const double *restrict U, con
 int gps_static_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[1] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 11; /* outside P's pattern */
     }
     if (!(P0[2] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 11; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 4; /* outside P's pattern */
+        return 11; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[8];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+        return 8; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
     const double t1 = 2.2250738585072014e-308 + P0[4];
     if (!(t1 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 9; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t2 = 2.2250738585072014e-308 + P0[0];
     if (!(t2 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+        return 10; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -188,13 +191,13 @@ int gps_static_udkf_store(const double *restrict x, const double *restrict U, co
 {
     (void)x;
     if (!(U[1] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(U[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 12; /* outside P's pattern */
     }
     P_new[0] = D[0];
     P_new[1] = 0.0;

@@ -24,17 +24,17 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 5: innovation variance 1 of a scalar update is not positive (D or R not positive)
     step 6: innovation variance 2 of a scalar update is not positive (D or R not positive)
     step 7: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    enter 1: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
-    store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    enter 8: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 9: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
+    store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 12, sub 3, mul 12, div 3, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 30, instructions 39)
 operations per call of enter (Python): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
 operations per call of store (Python): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
 P0 pattern declared: diagonal
 P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
-UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
+UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
 """
 
 import numpy as np
@@ -133,27 +133,30 @@ def _step_in_pattern(x, U, D, z):
     t6 = 0.1 + t4
     _require_positive(t6, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
     t7 = 1.0/t6
-    t8 = 0.1*(t4*t7)
-    t9 = z[0] - x[0]
-    t10 = t7*t9
-    t11 = x[0] + t10*t4
-    t12 = 0.1 + t2
-    _require_positive(t12, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
-    t13 = 1.0/t12
-    t14 = 0.1*(t13*t2)
-    t15 = z[1] - x[1]
-    t16 = t13*t15
-    t17 = x[1] + t16*t2
-    t18 = 0.1 + t0
-    _require_positive(t18, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
-    t19 = 1.0/t18
-    t20 = 0.1*(t0*t19)
-    t21 = z[2] - x[2]
-    t22 = t19*t21
-    t23 = x[2] + t0*t22
-    x_new = [t11, t17, t23]
+    t8 = 0.1*t7
+    t9 = t4*t8
+    t10 = z[0] - x[0]
+    t11 = t10*t7
+    t12 = x[0] + t11*t4
+    t13 = 0.1 + t2
+    _require_positive(t13, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
+    t14 = 1.0/t13
+    t15 = 0.1*t14
+    t16 = t15*t2
+    t17 = z[1] - x[1]
+    t18 = t14*t17
+    t19 = x[1] + t18*t2
+    t20 = 0.1 + t0
+    _require_positive(t20, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
+    t21 = 1.0/t20
+    t22 = 0.1*t21
+    t23 = t0*t22
+    t24 = z[2] - x[2]
+    t25 = t21*t24
+    t26 = x[2] + t0*t25
+    x_new = [t12, t19, t26]
     U_new = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    D_new = [t8, t14, t20]
+    D_new = [t9, t16, t23]
     return x_new, U_new, D_new
 
 

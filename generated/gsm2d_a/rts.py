@@ -19,11 +19,11 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-    backward 1: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 2: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    backward 3: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    backward 4: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    backward 5: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+    backward 4: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 5: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    backward 6: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    backward 7: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+    backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
 operations per call of backward (Python): add 32, sub 20, mul 48, div 10, sqrt 0, fma 0, neg 0, cmp 16, calls 0 (flops 110, instructions 126)
 P0 pattern declared: zero

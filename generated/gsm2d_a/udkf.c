@@ -26,19 +26,19 @@
  *     step 7: innovation variance 2 of a scalar update is not positive (D or R not positive)
  *     step 8: innovation variance 3 of a scalar update is not positive (D or R not positive)
  *     step 9: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 1: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 4: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- *     store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 10, mul 20, div 6, sqrt 0, fma 14, neg 0, cmp 12, calls 0 (flops 78, instructions 76)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 10, instructions 18)
+ *     enter 10: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+ *     enter 11: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 12: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+ *     store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 10, mul 20, div 6, sqrt 0, fma 14, neg 0, cmp 14, calls 0 (flops 78, instructions 78)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, calls 0 (flops 10, instructions 20)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 6, instructions 8)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
- * UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
- * derive-interface: {"functions":[["gsm2d_a_udkf_step","step",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["U_new",[4,4],true,false,false],["D_new",[4],true,false,false]]],["gsm2d_a_udkf_enter","enter",true,false,[["x0",[4],false,false,false],["P0",[4,4],false,false,false],["x",[4],true,false,false],["U",[4,4],true,false,false],["D",[4],true,false,false]]],["gsm2d_a_udkf_store","store",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_udkf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",5,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",7,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",9,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["enter",1,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",4,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",5,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["store",1,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
+ * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
+ * derive-interface: {"functions":[["gsm2d_a_udkf_step","step",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["U_new",[4,4],true,false,false],["D_new",[4],true,false,false]]],["gsm2d_a_udkf_enter","enter",true,false,[["x0",[4],false,false,false],["P0",[4,4],false,false,false],["x",[4],true,false,false],["U",[4,4],true,false,false],["D",[4],true,false,false]]],["gsm2d_a_udkf_store","store",true,false,[["x",[4],false,false,false],["U",[4,4],false,false,false],["D",[4],false,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_udkf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",5,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",6,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",7,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",9,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["enter",10,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",11,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",12,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",13,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",14,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]],["store",15,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -78,83 +78,89 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     if (!(t3 > 0.0) && !status) {
         status = 1; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
     }
-    const double t4 = DERIVE_FMA(D[3 * s], t1, 0.005);
-    const double t5 = t4/t3;
-    const double t6 = t1 - t5;
-    const double t7 = 0.5 - t5;
-    const double t8 = D[3 * s]*t6;
-    const double t9 = 0.01*t7;
-    const double t10 = DERIVE_FMA(t7, t9, DERIVE_FMA(t6, t8, D[2 * s]));
-    const double t11 = 2.2250738585072014e-308 + t10;
-    if (!(t11 > 0.0) && !status) {
+    const double t4 = ((t2 <= 0.0) ? 1.0 : t2);
+    const double t5 = DERIVE_FMA(D[3 * s], t1, 0.005);
+    const double t6 = t5/t4;
+    const double t7 = t1 - t6;
+    const double t8 = 0.5 - t6;
+    const double t9 = D[3 * s]*t7;
+    const double t10 = 0.01*t8;
+    const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t10, t8, D[2 * s]));
+    const double t12 = 2.2250738585072014e-308 + t11;
+    if (!(t12 > 0.0) && !status) {
         status = 2; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
     }
-    const double t12 = 0.01 + D[1 * s];
-    const double t13 = 2.2250738585072014e-308 + t12;
-    if (!(t13 > 0.0) && !status) {
+    const double t13 = 0.01 + D[1 * s];
+    const double t14 = 2.2250738585072014e-308 + t13;
+    if (!(t14 > 0.0) && !status) {
         status = 3; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
-    const double t14 = DERIVE_FMA(D[1 * s], t0, 0.005);
-    const double t15 = t14/t13;
-    const double t16 = t0 - t15;
-    const double t17 = 0.5 - t15;
-    const double t18 = D[1 * s]*t16;
-    const double t19 = 0.01*t17;
-    const double t20 = DERIVE_FMA(t17, t19, DERIVE_FMA(t16, t18, D[0]));
-    const double t21 = 2.2250738585072014e-308 + t20;
-    if (!(t21 > 0.0) && !status) {
+    const double t15 = ((t13 <= 0.0) ? 1.0 : t13);
+    const double t16 = DERIVE_FMA(D[1 * s], t0, 0.005);
+    const double t17 = t16/t15;
+    const double t18 = t0 - t17;
+    const double t19 = 0.5 - t17;
+    const double t20 = D[1 * s]*t18;
+    const double t21 = 0.01*t19;
+    const double t22 = DERIVE_FMA(t19, t21, DERIVE_FMA(t18, t20, D[0]));
+    const double t23 = 2.2250738585072014e-308 + t22;
+    if (!(t23 > 0.0) && !status) {
         status = 4; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     }
-    const double t22 = x[0] + x[1 * s];
-    const double t23 = x[2 * s] + x[3 * s];
-    const double t24 = 1.0 + t15;
-    const double t25 = t12*t24;
-    const double t26 = 0.1 + t20;
-    if (!(t26 > 0.0) && !status) {
+    const double t24 = x[0] + x[1 * s];
+    const double t25 = x[2 * s] + x[3 * s];
+    const double t26 = 1.0 + t17;
+    const double t27 = t13*t26;
+    const double t28 = 0.1 + t22;
+    if (!(t28 > 0.0) && !status) {
         status = 5; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
-    const double t27 = 1.0/t26;
-    const double t28 = 0.1*(t20*t27);
-    const double t29 = DERIVE_FMA(t24, t25, t26);
-    if (!(t29 > 0.0) && !status) {
+    const double t29 = 1.0/t28;
+    const double t30 = 0.1*t29;
+    const double t31 = t22*t30;
+    const double t32 = DERIVE_FMA(t26, t27, t28);
+    if (!(t32 > 0.0) && !status) {
         status = 6; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
-    const double t30 = 1.0/t29;
-    const double t31 = t12*t26*t30;
-    const double t32 = t24*t27;
-    const double t33 = t15 - t20*t32;
-    const double t34 = DERIVE_FMA(t15, t25, t20);
-    const double t35 = z[0] - x[1 * s] - t22;
-    const double t36 = t30*t35;
-    const double t37 = DERIVE_FMA(t34, t36, t22);
-    const double t38 = DERIVE_FMA(t25, t36, x[1 * s]);
-    const double t39 = 1.0 + t5;
-    const double t40 = t2*t39;
-    const double t41 = 0.1 + t10;
-    if (!(t41 > 0.0) && !status) {
+    const double t33 = 1.0/t32;
+    const double t34 = t28*t33;
+    const double t35 = t13*t34;
+    const double t36 = t26*t29;
+    const double t37 = t17 - t22*t36;
+    const double t38 = DERIVE_FMA(t17, t27, t22);
+    const double t39 = z[0] - x[1 * s] - t24;
+    const double t40 = t33*t39;
+    const double t41 = DERIVE_FMA(t38, t40, t24);
+    const double t42 = DERIVE_FMA(t27, t40, x[1 * s]);
+    const double t43 = 1.0 + t6;
+    const double t44 = t2*t43;
+    const double t45 = 0.1 + t11;
+    if (!(t45 > 0.0) && !status) {
         status = 7; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     }
-    const double t42 = 1.0/t41;
-    const double t43 = 0.1*(t10*t42);
-    const double t44 = DERIVE_FMA(t39, t40, t41);
-    if (!(t44 > 0.0) && !status) {
+    const double t46 = 1.0/t45;
+    const double t47 = 0.1*t46;
+    const double t48 = t11*t47;
+    const double t49 = DERIVE_FMA(t43, t44, t45);
+    if (!(t49 > 0.0) && !status) {
         status = 8; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
     }
-    const double t45 = 1.0/t44;
-    const double t46 = t2*t41*t45;
-    const double t47 = t39*t42;
-    const double t48 = t5 - t10*t47;
-    const double t49 = DERIVE_FMA(t40, t5, t10);
-    const double t50 = z[1 * s] - x[3 * s] - t23;
+    const double t50 = 1.0/t49;
     const double t51 = t45*t50;
-    const double t52 = DERIVE_FMA(t49, t51, t23);
-    const double t53 = DERIVE_FMA(t40, t51, x[3 * s]);
-    x_new[0] = t37;
-    x_new[1 * s] = t38;
-    x_new[2 * s] = t52;
-    x_new[3 * s] = t53;
+    const double t52 = t2*t51;
+    const double t53 = t43*t46;
+    const double t54 = t6 - t11*t53;
+    const double t55 = DERIVE_FMA(t44, t6, t11);
+    const double t56 = z[1 * s] - x[3 * s] - t25;
+    const double t57 = t50*t56;
+    const double t58 = DERIVE_FMA(t55, t57, t25);
+    const double t59 = DERIVE_FMA(t44, t57, x[3 * s]);
+    x_new[0] = t41;
+    x_new[1 * s] = t42;
+    x_new[2 * s] = t58;
+    x_new[3 * s] = t59;
     U_new[0] = 1.0;
-    U_new[1 * s] = t33;
+    U_new[1 * s] = t37;
     U_new[2 * s] = 0.0;
     U_new[3 * s] = 0.0;
     U_new[4 * s] = 0.0;
@@ -164,15 +170,15 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     U_new[8 * s] = 0.0;
     U_new[9 * s] = 0.0;
     U_new[10 * s] = 1.0;
-    U_new[11 * s] = t48;
+    U_new[11 * s] = t54;
     U_new[12 * s] = 0.0;
     U_new[13 * s] = 0.0;
     U_new[14 * s] = 0.0;
     U_new[15 * s] = 1.0;
-    D_new[0] = t28;
-    D_new[1 * s] = t31;
-    D_new[2 * s] = t43;
-    D_new[3 * s] = t46;
+    D_new[0] = t31;
+    D_new[1 * s] = t35;
+    D_new[2 * s] = t48;
+    D_new[3 * s] = t52;
     return status;
 }
 
@@ -196,43 +202,45 @@ int gsm2d_a_udkf_step(const double *restrict x, const double *restrict U, const 
 int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[2] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(P0[6] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     if (!(P0[7] == 0.0)) {
-        return 5; /* outside P's pattern */
+        return 14; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[15];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
+        return 10; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
     }
-    const double t1 = P0[11]/t0;
-    const double t2 = P0[10] - P0[11]*t1;
-    const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
-    }
-    const double t4 = 2.2250738585072014e-308 + P0[5];
+    const double t1 = ((P0[15] <= 0.0) ? 1.0 : P0[15]);
+    const double t2 = P0[11]/t1;
+    const double t3 = P0[10] - P0[11]*t2;
+    const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+        return 11; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
-    const double t5 = P0[1]/t4;
-    const double t6 = P0[0] - P0[1]*t5;
-    const double t7 = 2.2250738585072014e-308 + t6;
-    if (!(t7 > 0.0)) {
-        return 4; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+    const double t5 = 2.2250738585072014e-308 + P0[5];
+    if (!(t5 > 0.0)) {
+        return 12; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+    }
+    const double t6 = ((P0[5] <= 0.0) ? 1.0 : P0[5]);
+    const double t7 = P0[1]/t6;
+    const double t8 = P0[0] - P0[1]*t7;
+    const double t9 = 2.2250738585072014e-308 + t8;
+    if (!(t9 > 0.0)) {
+        return 13; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
     x[2] = x0[2];
     x[3] = x0[3];
     U[0] = 1.0;
-    U[1] = t5;
+    U[1] = t7;
     U[2] = 0.0;
     U[3] = 0.0;
     U[4] = 0.0;
@@ -242,14 +250,14 @@ int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     U[8] = 0.0;
     U[9] = 0.0;
     U[10] = 1.0;
-    U[11] = t1;
+    U[11] = t2;
     U[12] = 0.0;
     U[13] = 0.0;
     U[14] = 0.0;
     U[15] = 1.0;
-    D[0] = t6;
+    D[0] = t8;
     D[1] = P0[5];
-    D[2] = t2;
+    D[2] = t3;
     D[3] = P0[15];
     return 0;
 }
@@ -258,16 +266,16 @@ int gsm2d_a_udkf_store(const double *restrict x, const double *restrict U, const
 {
     (void)x;
     if (!(U[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(U[6] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     if (!(U[7] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 15; /* outside P's pattern */
     }
     const double t0 = D[1]*U[1];
     const double t1 = D[3]*U[11];

@@ -26,18 +26,18 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 7: innovation variance 2 of a scalar update is not positive (D or R not positive)
     step 8: innovation variance 3 of a scalar update is not positive (D or R not positive)
     step 9: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
-    enter 1: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 4: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 5: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
-    store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 78, instructions 90)
-operations per call of enter (Python): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 10, instructions 18)
+    enter 10: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+    enter 11: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 12: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
+    store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 14, calls 0 (flops 78, instructions 92)
+operations per call of enter (Python): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, calls 0 (flops 10, instructions 20)
 operations per call of store (Python): add 2, sub 0, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 6, instructions 10)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
-UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
+UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
 """
 
 import numpy as np
@@ -62,6 +62,17 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class PatternError(ValueError):
         """P (or P0) is not zero outside the pattern the code was generated for."""
+
+
+def _if_at_most(v, bound, a, b):
+    """a where v <= bound, else b (also for a NaN v); per track for arrays.
+    With a CountingFloat v a constant result is counted onwards."""
+    within = v <= bound
+    if isinstance(within, np.ndarray):
+        return np.where(within, a, b)
+    value = a if within else b
+    counted = getattr(v, "derive_counted", None)
+    return value if counted is None else counted(value)
 
 
 def _require_zero(values, indices, n, name, message):
@@ -129,66 +140,72 @@ def _step_in_pattern(x, U, D, z):
     t2 = 0.01 + D[3]
     t3 = 2.2250738585072014e-308 + t2
     _require_positive(t3, 'P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative')
-    t4 = 0.005 + D[3]*t1
-    t5 = t4/t3
-    t6 = t1 - t5
-    t7 = 0.5 - t5
-    t8 = D[3]*t6
-    t9 = 0.01*t7
-    t10 = D[2] + t6*t8 + t7*t9
-    t11 = 2.2250738585072014e-308 + t10
-    _require_positive(t11, 'P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative')
-    t12 = 0.01 + D[1]
-    t13 = 2.2250738585072014e-308 + t12
-    _require_positive(t13, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
-    t14 = 0.005 + D[1]*t0
-    t15 = t14/t13
-    t16 = t0 - t15
-    t17 = 0.5 - t15
-    t18 = D[1]*t16
-    t19 = 0.01*t17
-    t20 = D[0] + t16*t18 + t17*t19
-    t21 = 2.2250738585072014e-308 + t20
-    _require_positive(t21, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
-    t22 = x[0] + x[1]
-    t23 = x[2] + x[3]
-    t24 = 1.0 + t15
-    t25 = t12*t24
-    t26 = 0.1 + t20
-    _require_positive(t26, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
-    t27 = 1.0/t26
-    t28 = 0.1*(t20*t27)
-    t29 = t26 + t24*t25
-    _require_positive(t29, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
-    t30 = 1.0/t29
-    t31 = t12*t26*t30
-    t32 = t24*t27
-    t33 = t15 - t20*t32
-    t34 = t20 + t15*t25
-    t35 = z[0] - x[1] - t22
-    t36 = t30*t35
-    t37 = t22 + t34*t36
-    t38 = x[1] + t25*t36
-    t39 = 1.0 + t5
-    t40 = t2*t39
-    t41 = 0.1 + t10
-    _require_positive(t41, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
-    t42 = 1.0/t41
-    t43 = 0.1*(t10*t42)
-    t44 = t41 + t39*t40
-    _require_positive(t44, 'innovation variance 3 of a scalar update is not positive (D or R not positive)')
-    t45 = 1.0/t44
-    t46 = t2*t41*t45
-    t47 = t39*t42
-    t48 = t5 - t10*t47
-    t49 = t10 + t40*t5
-    t50 = z[1] - x[3] - t23
+    t4 = _if_at_most(t2, 0.0, 1.0, t2)
+    t5 = 0.005 + D[3]*t1
+    t6 = t5/t4
+    t7 = t1 - t6
+    t8 = 0.5 - t6
+    t9 = D[3]*t7
+    t10 = 0.01*t8
+    t11 = D[2] + t10*t8 + t7*t9
+    t12 = 2.2250738585072014e-308 + t11
+    _require_positive(t12, 'P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative')
+    t13 = 0.01 + D[1]
+    t14 = 2.2250738585072014e-308 + t13
+    _require_positive(t14, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
+    t15 = _if_at_most(t13, 0.0, 1.0, t13)
+    t16 = 0.005 + D[1]*t0
+    t17 = t16/t15
+    t18 = t0 - t17
+    t19 = 0.5 - t17
+    t20 = D[1]*t18
+    t21 = 0.01*t19
+    t22 = D[0] + t18*t20 + t19*t21
+    t23 = 2.2250738585072014e-308 + t22
+    _require_positive(t23, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
+    t24 = x[0] + x[1]
+    t25 = x[2] + x[3]
+    t26 = 1.0 + t17
+    t27 = t13*t26
+    t28 = 0.1 + t22
+    _require_positive(t28, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
+    t29 = 1.0/t28
+    t30 = 0.1*t29
+    t31 = t22*t30
+    t32 = t28 + t26*t27
+    _require_positive(t32, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
+    t33 = 1.0/t32
+    t34 = t28*t33
+    t35 = t13*t34
+    t36 = t26*t29
+    t37 = t17 - t22*t36
+    t38 = t22 + t17*t27
+    t39 = z[0] - x[1] - t24
+    t40 = t33*t39
+    t41 = t24 + t38*t40
+    t42 = x[1] + t27*t40
+    t43 = 1.0 + t6
+    t44 = t2*t43
+    t45 = 0.1 + t11
+    _require_positive(t45, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
+    t46 = 1.0/t45
+    t47 = 0.1*t46
+    t48 = t11*t47
+    t49 = t45 + t43*t44
+    _require_positive(t49, 'innovation variance 3 of a scalar update is not positive (D or R not positive)')
+    t50 = 1.0/t49
     t51 = t45*t50
-    t52 = t23 + t49*t51
-    t53 = x[3] + t40*t51
-    x_new = [t37, t38, t52, t53]
-    U_new = [1.0, t33, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, t48, 0.0, 0.0, 0.0, 1.0]
-    D_new = [t28, t31, t43, t46]
+    t52 = t2*t51
+    t53 = t43*t46
+    t54 = t6 - t11*t53
+    t55 = t11 + t44*t6
+    t56 = z[1] - x[3] - t25
+    t57 = t50*t56
+    t58 = t25 + t55*t57
+    t59 = x[3] + t44*t57
+    x_new = [t41, t42, t58, t59]
+    U_new = [1.0, t37, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, t54, 0.0, 0.0, 0.0, 1.0]
+    D_new = [t31, t35, t48, t52]
     return x_new, U_new, D_new
 
 
@@ -210,19 +227,21 @@ def enter(x0, P0):
     _require_zero(P0, (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     t0 = 2.2250738585072014e-308 + P0[15]
     _require_positive(t0, 'P is not positive semidefinite: pivot 3 of its UD factorisation is negative')
-    t1 = P0[11]/t0
-    t2 = P0[10] - P0[11]*t1
-    t3 = 2.2250738585072014e-308 + t2
-    _require_positive(t3, 'P is not positive semidefinite: pivot 2 of its UD factorisation is negative')
-    t4 = 2.2250738585072014e-308 + P0[5]
-    _require_positive(t4, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
-    t5 = P0[1]/t4
-    t6 = P0[0] - P0[1]*t5
-    t7 = 2.2250738585072014e-308 + t6
-    _require_positive(t7, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
+    t1 = _if_at_most(P0[15], 0.0, 1.0, P0[15])
+    t2 = P0[11]/t1
+    t3 = P0[10] - P0[11]*t2
+    t4 = 2.2250738585072014e-308 + t3
+    _require_positive(t4, 'P is not positive semidefinite: pivot 2 of its UD factorisation is negative')
+    t5 = 2.2250738585072014e-308 + P0[5]
+    _require_positive(t5, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
+    t6 = _if_at_most(P0[5], 0.0, 1.0, P0[5])
+    t7 = P0[1]/t6
+    t8 = P0[0] - P0[1]*t7
+    t9 = 2.2250738585072014e-308 + t8
+    _require_positive(t9, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
     x = [x0[0], x0[1], x0[2], x0[3]]
-    U = [1.0, t5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, t1, 0.0, 0.0, 0.0, 1.0]
-    D = [t6, P0[5], t2, P0[15]]
+    U = [1.0, t7, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, t2, 0.0, 0.0, 0.0, 1.0]
+    D = [t8, P0[5], t3, P0[15]]
     return x, U, D
 
 

@@ -25,7 +25,7 @@ status (C return value; Python raises NumericalError): 0 success
     update_gnss 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
     update_gnss 5: S is not positive definite: pivot 4 of its LDL^T factorisation is not positive
     update_gnss 6: S is not positive definite: pivot 5 of its LDL^T factorisation is not positive
-    update_baro 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
 operations per call of predict (Python): add 984, sub 93, mul 1111, div 0, sqrt 0, fma 0, neg 17, cmp 0, calls 0 (flops 2188, instructions 2205)
 operations per call of update_gnss (Python): add 815, sub 382, mul 1104, div 7, sqrt 1, fma 0, neg 15, cmp 6, calls 0 (flops 2309, instructions 2330)
 operations per call of update_baro (Python): add 4, sub 153, mul 176, div 2, sqrt 1, fma 0, neg 1, cmp 1, calls 0 (flops 336, instructions 338)

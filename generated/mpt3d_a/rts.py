@@ -20,13 +20,13 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-    backward 1: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    backward 2: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    backward 3: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    backward 4: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
-    backward 5: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
-    backward 6: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
-    backward 7: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+    backward 5: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    backward 8: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
+    backward 9: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
+    backward 10: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
+    backward 11: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
 operations per call of backward (Python): add 48, sub 30, mul 72, div 15, sqrt 0, fma 0, neg 0, cmp 42, calls 0 (flops 165, instructions 207)
 P0 pattern declared: zero

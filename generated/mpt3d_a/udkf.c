@@ -30,21 +30,21 @@
  *     step 11: innovation variance 4 of a scalar update is not positive (D or R not positive)
  *     step 12: innovation variance 5 of a scalar update is not positive (D or R not positive)
  *     step 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- *     enter 1: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
- *     enter 2: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
- *     enter 3: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
- *     enter 4: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
- *     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
- *     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- *     enter 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- *     store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 21, sub 15, mul 30, div 9, sqrt 0, fma 21, neg 0, cmp 24, calls 0 (flops 117, instructions 120)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 18, calls 0 (flops 15, instructions 33)
+ *     enter 14: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
+ *     enter 15: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
+ *     enter 16: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+ *     enter 17: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+ *     enter 18: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+ *     enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+ *     enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+ *     store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+ * operations per call of step (C99, fma through DERIVE_FMA): add 21, sub 15, mul 30, div 9, sqrt 0, fma 21, neg 0, cmp 27, calls 0 (flops 117, instructions 123)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, calls 0 (flops 15, instructions 36)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 12, calls 0 (flops 9, instructions 18)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
- * derive-interface: {"functions":[["mpt3d_a_udkf_step","step",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["U_new",[6,6],true,false,false],["D_new",[6],true,false,false]]],["mpt3d_a_udkf_enter","enter",true,false,[["x0",[6],false,false,false],["P0",[6,6],false,false,false],["x",[6],true,false,false],["U",[6,6],true,false,false],["D",[6],true,false,false]]],["mpt3d_a_udkf_store","store",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",5,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",6,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",7,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",9,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",10,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",11,"innovation variance 4 of a scalar update is not positive (D or R not positive)",[]],["step",12,"innovation variance 5 of a scalar update is not positive (D or R not positive)",[]],["step",13,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["enter",1,"P is not positive semidefinite: pivot 5 of its UD factorisation is negative",[]],["enter",2,"P is not positive semidefinite: pivot 4 of its UD factorisation is negative",[]],["enter",3,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",4,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",5,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",6,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["store",1,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
+ * derive-interface: {"functions":[["mpt3d_a_udkf_step","step",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["U_new",[6,6],true,false,false],["D_new",[6],true,false,false]]],["mpt3d_a_udkf_enter","enter",true,false,[["x0",[6],false,false,false],["P0",[6,6],false,false,false],["x",[6],true,false,false],["U",[6,6],true,false,false],["D",[6],true,false,false]]],["mpt3d_a_udkf_store","store",true,false,[["x",[6],false,false,false],["U",[6,6],false,false,false],["D",[6],false,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_udkf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative",[]],["step",2,"P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative",[]],["step",3,"P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative",[]],["step",4,"P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative",[]],["step",5,"P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative",[]],["step",6,"P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative",[]],["step",7,"innovation variance 0 of a scalar update is not positive (D or R not positive)",[]],["step",8,"innovation variance 1 of a scalar update is not positive (D or R not positive)",[]],["step",9,"innovation variance 2 of a scalar update is not positive (D or R not positive)",[]],["step",10,"innovation variance 3 of a scalar update is not positive (D or R not positive)",[]],["step",11,"innovation variance 4 of a scalar update is not positive (D or R not positive)",[]],["step",12,"innovation variance 5 of a scalar update is not positive (D or R not positive)",[]],["step",13,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["enter",14,"P is not positive semidefinite: pivot 5 of its UD factorisation is negative",[]],["enter",15,"P is not positive semidefinite: pivot 4 of its UD factorisation is negative",[]],["enter",16,"P is not positive semidefinite: pivot 3 of its UD factorisation is negative",[]],["enter",17,"P is not positive semidefinite: pivot 2 of its UD factorisation is negative",[]],["enter",18,"P is not positive semidefinite: pivot 1 of its UD factorisation is negative",[]],["enter",19,"P is not positive semidefinite: pivot 0 of its UD factorisation is negative",[]],["enter",20,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]],["store",21,"U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -85,123 +85,132 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     if (!(t4 > 0.0) && !status) {
         status = 1; /* P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative */
     }
-    const double t5 = DERIVE_FMA(D[5 * s], t2, 0.005);
-    const double t6 = t5/t4;
-    const double t7 = t2 - t6;
-    const double t8 = 0.5 - t6;
-    const double t9 = D[5 * s]*t7;
-    const double t10 = 0.01*t8;
-    const double t11 = DERIVE_FMA(t7, t9, DERIVE_FMA(t10, t8, D[4 * s]));
-    const double t12 = 2.2250738585072014e-308 + t11;
-    if (!(t12 > 0.0) && !status) {
+    const double t5 = ((t3 <= 0.0) ? 1.0 : t3);
+    const double t6 = DERIVE_FMA(D[5 * s], t2, 0.005);
+    const double t7 = t6/t5;
+    const double t8 = t2 - t7;
+    const double t9 = 0.5 - t7;
+    const double t10 = D[5 * s]*t8;
+    const double t11 = 0.01*t9;
+    const double t12 = DERIVE_FMA(t11, t9, DERIVE_FMA(t10, t8, D[4 * s]));
+    const double t13 = 2.2250738585072014e-308 + t12;
+    if (!(t13 > 0.0) && !status) {
         status = 2; /* P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative */
     }
-    const double t13 = 0.01 + D[3 * s];
-    const double t14 = 2.2250738585072014e-308 + t13;
-    if (!(t14 > 0.0) && !status) {
+    const double t14 = 0.01 + D[3 * s];
+    const double t15 = 2.2250738585072014e-308 + t14;
+    if (!(t15 > 0.0) && !status) {
         status = 3; /* P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative */
     }
-    const double t15 = DERIVE_FMA(D[3 * s], t1, 0.005);
-    const double t16 = t15/t14;
-    const double t17 = t1 - t16;
-    const double t18 = 0.5 - t16;
-    const double t19 = D[3 * s]*t17;
-    const double t20 = 0.01*t18;
-    const double t21 = DERIVE_FMA(t18, t20, DERIVE_FMA(t17, t19, D[2 * s]));
-    const double t22 = 2.2250738585072014e-308 + t21;
-    if (!(t22 > 0.0) && !status) {
-        status = 4; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
-    }
-    const double t23 = 0.01 + D[1 * s];
+    const double t16 = ((t14 <= 0.0) ? 1.0 : t14);
+    const double t17 = DERIVE_FMA(D[3 * s], t1, 0.005);
+    const double t18 = t17/t16;
+    const double t19 = t1 - t18;
+    const double t20 = 0.5 - t18;
+    const double t21 = D[3 * s]*t19;
+    const double t22 = 0.01*t20;
+    const double t23 = DERIVE_FMA(t20, t22, DERIVE_FMA(t19, t21, D[2 * s]));
     const double t24 = 2.2250738585072014e-308 + t23;
     if (!(t24 > 0.0) && !status) {
+        status = 4; /* P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative */
+    }
+    const double t25 = 0.01 + D[1 * s];
+    const double t26 = 2.2250738585072014e-308 + t25;
+    if (!(t26 > 0.0) && !status) {
         status = 5; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
-    const double t25 = DERIVE_FMA(D[1 * s], t0, 0.005);
-    const double t26 = t25/t24;
-    const double t27 = t0 - t26;
-    const double t28 = 0.5 - t26;
-    const double t29 = D[1 * s]*t27;
-    const double t30 = 0.01*t28;
-    const double t31 = DERIVE_FMA(t28, t30, DERIVE_FMA(t27, t29, D[0]));
-    const double t32 = 2.2250738585072014e-308 + t31;
-    if (!(t32 > 0.0) && !status) {
+    const double t27 = ((t25 <= 0.0) ? 1.0 : t25);
+    const double t28 = DERIVE_FMA(D[1 * s], t0, 0.005);
+    const double t29 = t28/t27;
+    const double t30 = t0 - t29;
+    const double t31 = 0.5 - t29;
+    const double t32 = D[1 * s]*t30;
+    const double t33 = 0.01*t31;
+    const double t34 = DERIVE_FMA(t31, t33, DERIVE_FMA(t30, t32, D[0]));
+    const double t35 = 2.2250738585072014e-308 + t34;
+    if (!(t35 > 0.0) && !status) {
         status = 6; /* P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative */
     }
-    const double t33 = x[0] + x[1 * s];
-    const double t34 = x[2 * s] + x[3 * s];
-    const double t35 = x[4 * s] + x[5 * s];
-    const double t36 = 1.0 + t26;
-    const double t37 = t23*t36;
-    const double t38 = 0.1 + t31;
-    if (!(t38 > 0.0) && !status) {
+    const double t36 = x[0] + x[1 * s];
+    const double t37 = x[2 * s] + x[3 * s];
+    const double t38 = x[4 * s] + x[5 * s];
+    const double t39 = 1.0 + t29;
+    const double t40 = t25*t39;
+    const double t41 = 0.1 + t34;
+    if (!(t41 > 0.0) && !status) {
         status = 7; /* innovation variance 0 of a scalar update is not positive (D or R not positive) */
     }
-    const double t39 = 1.0/t38;
-    const double t40 = 0.1*(t31*t39);
-    const double t41 = DERIVE_FMA(t36, t37, t38);
-    if (!(t41 > 0.0) && !status) {
+    const double t42 = 1.0/t41;
+    const double t43 = 0.1*t42;
+    const double t44 = t34*t43;
+    const double t45 = DERIVE_FMA(t39, t40, t41);
+    if (!(t45 > 0.0) && !status) {
         status = 8; /* innovation variance 1 of a scalar update is not positive (D or R not positive) */
     }
-    const double t42 = 1.0/t41;
-    const double t43 = t23*t38*t42;
-    const double t44 = t36*t39;
-    const double t45 = t26 - t31*t44;
-    const double t46 = DERIVE_FMA(t26, t37, t31);
-    const double t47 = z[0] - x[1 * s] - t33;
-    const double t48 = t42*t47;
-    const double t49 = DERIVE_FMA(t46, t48, t33);
-    const double t50 = DERIVE_FMA(t37, t48, x[1 * s]);
-    const double t51 = 1.0 + t16;
-    const double t52 = t13*t51;
-    const double t53 = 0.1 + t21;
-    if (!(t53 > 0.0) && !status) {
+    const double t46 = 1.0/t45;
+    const double t47 = t41*t46;
+    const double t48 = t25*t47;
+    const double t49 = t39*t42;
+    const double t50 = t29 - t34*t49;
+    const double t51 = DERIVE_FMA(t29, t40, t34);
+    const double t52 = z[0] - x[1 * s] - t36;
+    const double t53 = t46*t52;
+    const double t54 = DERIVE_FMA(t51, t53, t36);
+    const double t55 = DERIVE_FMA(t40, t53, x[1 * s]);
+    const double t56 = 1.0 + t18;
+    const double t57 = t14*t56;
+    const double t58 = 0.1 + t23;
+    if (!(t58 > 0.0) && !status) {
         status = 9; /* innovation variance 2 of a scalar update is not positive (D or R not positive) */
     }
-    const double t54 = 1.0/t53;
-    const double t55 = 0.1*(t21*t54);
-    const double t56 = DERIVE_FMA(t51, t52, t53);
-    if (!(t56 > 0.0) && !status) {
+    const double t59 = 1.0/t58;
+    const double t60 = 0.1*t59;
+    const double t61 = t23*t60;
+    const double t62 = DERIVE_FMA(t56, t57, t58);
+    if (!(t62 > 0.0) && !status) {
         status = 10; /* innovation variance 3 of a scalar update is not positive (D or R not positive) */
     }
-    const double t57 = 1.0/t56;
-    const double t58 = t13*t53*t57;
-    const double t59 = t51*t54;
-    const double t60 = t16 - t21*t59;
-    const double t61 = DERIVE_FMA(t16, t52, t21);
-    const double t62 = z[1 * s] - x[3 * s] - t34;
-    const double t63 = t57*t62;
-    const double t64 = DERIVE_FMA(t61, t63, t34);
-    const double t65 = DERIVE_FMA(t52, t63, x[3 * s]);
-    const double t66 = 1.0 + t6;
-    const double t67 = t3*t66;
-    const double t68 = 0.1 + t11;
-    if (!(t68 > 0.0) && !status) {
+    const double t63 = 1.0/t62;
+    const double t64 = t58*t63;
+    const double t65 = t14*t64;
+    const double t66 = t56*t59;
+    const double t67 = t18 - t23*t66;
+    const double t68 = DERIVE_FMA(t18, t57, t23);
+    const double t69 = z[1 * s] - x[3 * s] - t37;
+    const double t70 = t63*t69;
+    const double t71 = DERIVE_FMA(t68, t70, t37);
+    const double t72 = DERIVE_FMA(t57, t70, x[3 * s]);
+    const double t73 = 1.0 + t7;
+    const double t74 = t3*t73;
+    const double t75 = 0.1 + t12;
+    if (!(t75 > 0.0) && !status) {
         status = 11; /* innovation variance 4 of a scalar update is not positive (D or R not positive) */
     }
-    const double t69 = 1.0/t68;
-    const double t70 = 0.1*(t11*t69);
-    const double t71 = DERIVE_FMA(t66, t67, t68);
-    if (!(t71 > 0.0) && !status) {
+    const double t76 = 1.0/t75;
+    const double t77 = 0.1*t76;
+    const double t78 = t12*t77;
+    const double t79 = DERIVE_FMA(t73, t74, t75);
+    if (!(t79 > 0.0) && !status) {
         status = 12; /* innovation variance 5 of a scalar update is not positive (D or R not positive) */
     }
-    const double t72 = 1.0/t71;
-    const double t73 = t3*t68*t72;
-    const double t74 = t66*t69;
-    const double t75 = t6 - t11*t74;
-    const double t76 = DERIVE_FMA(t6, t67, t11);
-    const double t77 = z[2 * s] - x[5 * s] - t35;
-    const double t78 = t72*t77;
-    const double t79 = DERIVE_FMA(t76, t78, t35);
-    const double t80 = DERIVE_FMA(t67, t78, x[5 * s]);
-    x_new[0] = t49;
-    x_new[1 * s] = t50;
-    x_new[2 * s] = t64;
-    x_new[3 * s] = t65;
-    x_new[4 * s] = t79;
-    x_new[5 * s] = t80;
+    const double t80 = 1.0/t79;
+    const double t81 = t75*t80;
+    const double t82 = t3*t81;
+    const double t83 = t73*t76;
+    const double t84 = t7 - t12*t83;
+    const double t85 = DERIVE_FMA(t7, t74, t12);
+    const double t86 = z[2 * s] - x[5 * s] - t38;
+    const double t87 = t80*t86;
+    const double t88 = DERIVE_FMA(t85, t87, t38);
+    const double t89 = DERIVE_FMA(t74, t87, x[5 * s]);
+    x_new[0] = t54;
+    x_new[1 * s] = t55;
+    x_new[2 * s] = t71;
+    x_new[3 * s] = t72;
+    x_new[4 * s] = t88;
+    x_new[5 * s] = t89;
     U_new[0] = 1.0;
-    U_new[1 * s] = t45;
+    U_new[1 * s] = t50;
     U_new[2 * s] = 0.0;
     U_new[3 * s] = 0.0;
     U_new[4 * s] = 0.0;
@@ -215,7 +224,7 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     U_new[12 * s] = 0.0;
     U_new[13 * s] = 0.0;
     U_new[14 * s] = 1.0;
-    U_new[15 * s] = t60;
+    U_new[15 * s] = t67;
     U_new[16 * s] = 0.0;
     U_new[17 * s] = 0.0;
     U_new[18 * s] = 0.0;
@@ -229,19 +238,19 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     U_new[26 * s] = 0.0;
     U_new[27 * s] = 0.0;
     U_new[28 * s] = 1.0;
-    U_new[29 * s] = t75;
+    U_new[29 * s] = t84;
     U_new[30 * s] = 0.0;
     U_new[31 * s] = 0.0;
     U_new[32 * s] = 0.0;
     U_new[33 * s] = 0.0;
     U_new[34 * s] = 0.0;
     U_new[35 * s] = 1.0;
-    D_new[0] = t40;
-    D_new[1 * s] = t43;
-    D_new[2 * s] = t55;
-    D_new[3 * s] = t58;
-    D_new[4 * s] = t70;
-    D_new[5 * s] = t73;
+    D_new[0] = t44;
+    D_new[1 * s] = t48;
+    D_new[2 * s] = t61;
+    D_new[3 * s] = t65;
+    D_new[4 * s] = t78;
+    D_new[5 * s] = t82;
     return status;
 }
 
@@ -289,70 +298,73 @@ int mpt3d_a_udkf_step(const double *restrict x, const double *restrict U, const 
 int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, double *restrict x, double *restrict U, double *restrict D)
 {
     if (!(P0[2] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[3] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[4] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[5] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[8] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[9] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[10] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[11] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[16] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[17] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[22] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     if (!(P0[23] == 0.0)) {
-        return 7; /* outside P's pattern */
+        return 20; /* outside P's pattern */
     }
     const double t0 = 2.2250738585072014e-308 + P0[35];
     if (!(t0 > 0.0)) {
-        return 1; /* P is not positive semidefinite: pivot 5 of its UD factorisation is negative */
+        return 14; /* P is not positive semidefinite: pivot 5 of its UD factorisation is negative */
     }
-    const double t1 = P0[29]/t0;
-    const double t2 = P0[28] - P0[29]*t1;
-    const double t3 = 2.2250738585072014e-308 + t2;
-    if (!(t3 > 0.0)) {
-        return 2; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
-    }
-    const double t4 = 2.2250738585072014e-308 + P0[21];
+    const double t1 = ((P0[35] <= 0.0) ? 1.0 : P0[35]);
+    const double t2 = P0[29]/t1;
+    const double t3 = P0[28] - P0[29]*t2;
+    const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
-        return 3; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
+        return 15; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
     }
-    const double t5 = P0[15]/t4;
-    const double t6 = P0[14] - P0[15]*t5;
-    const double t7 = 2.2250738585072014e-308 + t6;
-    if (!(t7 > 0.0)) {
-        return 4; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
+    const double t5 = 2.2250738585072014e-308 + P0[21];
+    if (!(t5 > 0.0)) {
+        return 16; /* P is not positive semidefinite: pivot 3 of its UD factorisation is negative */
     }
-    const double t8 = 2.2250738585072014e-308 + P0[7];
-    if (!(t8 > 0.0)) {
-        return 5; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+    const double t6 = ((P0[21] <= 0.0) ? 1.0 : P0[21]);
+    const double t7 = P0[15]/t6;
+    const double t8 = P0[14] - P0[15]*t7;
+    const double t9 = 2.2250738585072014e-308 + t8;
+    if (!(t9 > 0.0)) {
+        return 17; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
     }
-    const double t9 = P0[1]/t8;
-    const double t10 = P0[0] - P0[1]*t9;
-    const double t11 = 2.2250738585072014e-308 + t10;
-    if (!(t11 > 0.0)) {
-        return 6; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
+    const double t10 = 2.2250738585072014e-308 + P0[7];
+    if (!(t10 > 0.0)) {
+        return 18; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
+    }
+    const double t11 = ((P0[7] <= 0.0) ? 1.0 : P0[7]);
+    const double t12 = P0[1]/t11;
+    const double t13 = P0[0] - P0[1]*t12;
+    const double t14 = 2.2250738585072014e-308 + t13;
+    if (!(t14 > 0.0)) {
+        return 19; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */
     }
     x[0] = x0[0];
     x[1] = x0[1];
@@ -361,7 +373,7 @@ int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     x[4] = x0[4];
     x[5] = x0[5];
     U[0] = 1.0;
-    U[1] = t9;
+    U[1] = t12;
     U[2] = 0.0;
     U[3] = 0.0;
     U[4] = 0.0;
@@ -375,7 +387,7 @@ int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     U[12] = 0.0;
     U[13] = 0.0;
     U[14] = 1.0;
-    U[15] = t5;
+    U[15] = t7;
     U[16] = 0.0;
     U[17] = 0.0;
     U[18] = 0.0;
@@ -389,18 +401,18 @@ int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     U[26] = 0.0;
     U[27] = 0.0;
     U[28] = 1.0;
-    U[29] = t1;
+    U[29] = t2;
     U[30] = 0.0;
     U[31] = 0.0;
     U[32] = 0.0;
     U[33] = 0.0;
     U[34] = 0.0;
     U[35] = 1.0;
-    D[0] = t10;
+    D[0] = t13;
     D[1] = P0[7];
-    D[2] = t6;
+    D[2] = t8;
     D[3] = P0[21];
-    D[4] = t2;
+    D[4] = t3;
     D[5] = P0[35];
     return 0;
 }
@@ -409,40 +421,40 @@ int mpt3d_a_udkf_store(const double *restrict x, const double *restrict U, const
 {
     (void)x;
     if (!(U[2] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[3] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[4] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[5] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[8] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[9] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[10] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[11] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[16] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[17] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[22] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     if (!(U[23] == 0.0)) {
-        return 1; /* outside P's pattern */
+        return 21; /* outside P's pattern */
     }
     const double t0 = D[1]*U[1];
     const double t1 = D[3]*U[15];

@@ -30,20 +30,20 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     step 11: innovation variance 4 of a scalar update is not positive (D or R not positive)
     step 12: innovation variance 5 of a scalar update is not positive (D or R not positive)
     step 13: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
-    enter 1: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
-    enter 2: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
-    enter 3: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
-    enter 4: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
-    enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
-    enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-    enter 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
-    store 1: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 24, calls 0 (flops 117, instructions 141)
-operations per call of enter (Python): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 18, calls 0 (flops 15, instructions 33)
+    enter 14: P is not positive semidefinite: pivot 5 of its UD factorisation is negative
+    enter 15: P is not positive semidefinite: pivot 4 of its UD factorisation is negative
+    enter 16: P is not positive semidefinite: pivot 3 of its UD factorisation is negative
+    enter 17: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
+    enter 18: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
+    enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
+    enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
+    store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
+operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 27, calls 0 (flops 117, instructions 144)
+operations per call of enter (Python): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, calls 0 (flops 15, instructions 36)
 operations per call of store (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 9, instructions 21)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
-UD pivots: each pivot d divides as d + DBL_MIN (2^-1022), bitwise d for d >= 4e-292; a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's; a negative pivot is refused
+UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0
 """
 
 import numpy as np
@@ -68,6 +68,17 @@ except ImportError:  # derive not installed: a stand-in with the same base
 
     class PatternError(ValueError):
         """P (or P0) is not zero outside the pattern the code was generated for."""
+
+
+def _if_at_most(v, bound, a, b):
+    """a where v <= bound, else b (also for a NaN v); per track for arrays.
+    With a CountingFloat v a constant result is counted onwards."""
+    within = v <= bound
+    if isinstance(within, np.ndarray):
+        return np.where(within, a, b)
+    value = a if within else b
+    counted = getattr(v, "derive_counted", None)
+    return value if counted is None else counted(value)
 
 
 def _require_zero(values, indices, n, name, message):
@@ -136,100 +147,109 @@ def _step_in_pattern(x, U, D, z):
     t3 = 0.01 + D[5]
     t4 = 2.2250738585072014e-308 + t3
     _require_positive(t4, 'P(k+1/k) is not positive semidefinite: pivot 5 of the time update (MWGS) is negative')
-    t5 = 0.005 + D[5]*t2
-    t6 = t5/t4
-    t7 = t2 - t6
-    t8 = 0.5 - t6
-    t9 = D[5]*t7
-    t10 = 0.01*t8
-    t11 = D[4] + t10*t8 + t7*t9
-    t12 = 2.2250738585072014e-308 + t11
-    _require_positive(t12, 'P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative')
-    t13 = 0.01 + D[3]
-    t14 = 2.2250738585072014e-308 + t13
-    _require_positive(t14, 'P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative')
-    t15 = 0.005 + D[3]*t1
-    t16 = t15/t14
-    t17 = t1 - t16
-    t18 = 0.5 - t16
-    t19 = D[3]*t17
-    t20 = 0.01*t18
-    t21 = D[2] + t17*t19 + t18*t20
-    t22 = 2.2250738585072014e-308 + t21
-    _require_positive(t22, 'P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative')
-    t23 = 0.01 + D[1]
+    t5 = _if_at_most(t3, 0.0, 1.0, t3)
+    t6 = 0.005 + D[5]*t2
+    t7 = t6/t5
+    t8 = t2 - t7
+    t9 = 0.5 - t7
+    t10 = D[5]*t8
+    t11 = 0.01*t9
+    t12 = D[4] + t10*t8 + t11*t9
+    t13 = 2.2250738585072014e-308 + t12
+    _require_positive(t13, 'P(k+1/k) is not positive semidefinite: pivot 4 of the time update (MWGS) is negative')
+    t14 = 0.01 + D[3]
+    t15 = 2.2250738585072014e-308 + t14
+    _require_positive(t15, 'P(k+1/k) is not positive semidefinite: pivot 3 of the time update (MWGS) is negative')
+    t16 = _if_at_most(t14, 0.0, 1.0, t14)
+    t17 = 0.005 + D[3]*t1
+    t18 = t17/t16
+    t19 = t1 - t18
+    t20 = 0.5 - t18
+    t21 = D[3]*t19
+    t22 = 0.01*t20
+    t23 = D[2] + t19*t21 + t20*t22
     t24 = 2.2250738585072014e-308 + t23
-    _require_positive(t24, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
-    t25 = 0.005 + D[1]*t0
-    t26 = t25/t24
-    t27 = t0 - t26
-    t28 = 0.5 - t26
-    t29 = D[1]*t27
-    t30 = 0.01*t28
-    t31 = D[0] + t27*t29 + t28*t30
-    t32 = 2.2250738585072014e-308 + t31
-    _require_positive(t32, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
-    t33 = x[0] + x[1]
-    t34 = x[2] + x[3]
-    t35 = x[4] + x[5]
-    t36 = 1.0 + t26
-    t37 = t23*t36
-    t38 = 0.1 + t31
-    _require_positive(t38, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
-    t39 = 1.0/t38
-    t40 = 0.1*(t31*t39)
-    t41 = t38 + t36*t37
-    _require_positive(t41, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
+    _require_positive(t24, 'P(k+1/k) is not positive semidefinite: pivot 2 of the time update (MWGS) is negative')
+    t25 = 0.01 + D[1]
+    t26 = 2.2250738585072014e-308 + t25
+    _require_positive(t26, 'P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative')
+    t27 = _if_at_most(t25, 0.0, 1.0, t25)
+    t28 = 0.005 + D[1]*t0
+    t29 = t28/t27
+    t30 = t0 - t29
+    t31 = 0.5 - t29
+    t32 = D[1]*t30
+    t33 = 0.01*t31
+    t34 = D[0] + t30*t32 + t31*t33
+    t35 = 2.2250738585072014e-308 + t34
+    _require_positive(t35, 'P(k+1/k) is not positive semidefinite: pivot 0 of the time update (MWGS) is negative')
+    t36 = x[0] + x[1]
+    t37 = x[2] + x[3]
+    t38 = x[4] + x[5]
+    t39 = 1.0 + t29
+    t40 = t25*t39
+    t41 = 0.1 + t34
+    _require_positive(t41, 'innovation variance 0 of a scalar update is not positive (D or R not positive)')
     t42 = 1.0/t41
-    t43 = t23*t38*t42
-    t44 = t36*t39
-    t45 = t26 - t31*t44
-    t46 = t31 + t26*t37
-    t47 = z[0] - x[1] - t33
-    t48 = t42*t47
-    t49 = t33 + t46*t48
-    t50 = x[1] + t37*t48
-    t51 = 1.0 + t16
-    t52 = t13*t51
-    t53 = 0.1 + t21
-    _require_positive(t53, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
-    t54 = 1.0/t53
-    t55 = 0.1*(t21*t54)
-    t56 = t53 + t51*t52
-    _require_positive(t56, 'innovation variance 3 of a scalar update is not positive (D or R not positive)')
-    t57 = 1.0/t56
-    t58 = t13*t53*t57
-    t59 = t51*t54
-    t60 = t16 - t21*t59
-    t61 = t21 + t16*t52
-    t62 = z[1] - x[3] - t34
-    t63 = t57*t62
-    t64 = t34 + t61*t63
-    t65 = x[3] + t52*t63
-    t66 = 1.0 + t6
-    t67 = t3*t66
-    t68 = 0.1 + t11
-    _require_positive(t68, 'innovation variance 4 of a scalar update is not positive (D or R not positive)')
-    t69 = 1.0/t68
-    t70 = 0.1*(t11*t69)
-    t71 = t68 + t66*t67
-    _require_positive(t71, 'innovation variance 5 of a scalar update is not positive (D or R not positive)')
-    t72 = 1.0/t71
-    t73 = t3*t68*t72
-    t74 = t66*t69
-    t75 = t6 - t11*t74
-    t76 = t11 + t6*t67
-    t77 = z[2] - x[5] - t35
-    t78 = t72*t77
-    t79 = t35 + t76*t78
-    t80 = x[5] + t67*t78
-    x_new = [t49, t50, t64, t65, t79, t80]
+    t43 = 0.1*t42
+    t44 = t34*t43
+    t45 = t41 + t39*t40
+    _require_positive(t45, 'innovation variance 1 of a scalar update is not positive (D or R not positive)')
+    t46 = 1.0/t45
+    t47 = t41*t46
+    t48 = t25*t47
+    t49 = t39*t42
+    t50 = t29 - t34*t49
+    t51 = t34 + t29*t40
+    t52 = z[0] - x[1] - t36
+    t53 = t46*t52
+    t54 = t36 + t51*t53
+    t55 = x[1] + t40*t53
+    t56 = 1.0 + t18
+    t57 = t14*t56
+    t58 = 0.1 + t23
+    _require_positive(t58, 'innovation variance 2 of a scalar update is not positive (D or R not positive)')
+    t59 = 1.0/t58
+    t60 = 0.1*t59
+    t61 = t23*t60
+    t62 = t58 + t56*t57
+    _require_positive(t62, 'innovation variance 3 of a scalar update is not positive (D or R not positive)')
+    t63 = 1.0/t62
+    t64 = t58*t63
+    t65 = t14*t64
+    t66 = t56*t59
+    t67 = t18 - t23*t66
+    t68 = t23 + t18*t57
+    t69 = z[1] - x[3] - t37
+    t70 = t63*t69
+    t71 = t37 + t68*t70
+    t72 = x[3] + t57*t70
+    t73 = 1.0 + t7
+    t74 = t3*t73
+    t75 = 0.1 + t12
+    _require_positive(t75, 'innovation variance 4 of a scalar update is not positive (D or R not positive)')
+    t76 = 1.0/t75
+    t77 = 0.1*t76
+    t78 = t12*t77
+    t79 = t75 + t73*t74
+    _require_positive(t79, 'innovation variance 5 of a scalar update is not positive (D or R not positive)')
+    t80 = 1.0/t79
+    t81 = t75*t80
+    t82 = t3*t81
+    t83 = t73*t76
+    t84 = t7 - t12*t83
+    t85 = t12 + t7*t74
+    t86 = z[2] - x[5] - t38
+    t87 = t80*t86
+    t88 = t38 + t85*t87
+    t89 = x[5] + t74*t87
+    x_new = [t54, t55, t71, t72, t88, t89]
     U_new = [
-        1.0, t45, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t60, 0.0,
-        0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t75, 0.0, 0.0, 0.0, 0.0,
+        1.0, t50, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t67, 0.0,
+        0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t84, 0.0, 0.0, 0.0, 0.0,
         0.0, 1.0,
     ]
-    D_new = [t40, t43, t55, t58, t70, t73]
+    D_new = [t44, t48, t61, t65, t78, t82]
     return x_new, U_new, D_new
 
 
@@ -251,29 +271,32 @@ def enter(x0, P0):
     _require_zero(P0, (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     t0 = 2.2250738585072014e-308 + P0[35]
     _require_positive(t0, 'P is not positive semidefinite: pivot 5 of its UD factorisation is negative')
-    t1 = P0[29]/t0
-    t2 = P0[28] - P0[29]*t1
-    t3 = 2.2250738585072014e-308 + t2
-    _require_positive(t3, 'P is not positive semidefinite: pivot 4 of its UD factorisation is negative')
-    t4 = 2.2250738585072014e-308 + P0[21]
-    _require_positive(t4, 'P is not positive semidefinite: pivot 3 of its UD factorisation is negative')
-    t5 = P0[15]/t4
-    t6 = P0[14] - P0[15]*t5
-    t7 = 2.2250738585072014e-308 + t6
-    _require_positive(t7, 'P is not positive semidefinite: pivot 2 of its UD factorisation is negative')
-    t8 = 2.2250738585072014e-308 + P0[7]
-    _require_positive(t8, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
-    t9 = P0[1]/t8
-    t10 = P0[0] - P0[1]*t9
-    t11 = 2.2250738585072014e-308 + t10
-    _require_positive(t11, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
+    t1 = _if_at_most(P0[35], 0.0, 1.0, P0[35])
+    t2 = P0[29]/t1
+    t3 = P0[28] - P0[29]*t2
+    t4 = 2.2250738585072014e-308 + t3
+    _require_positive(t4, 'P is not positive semidefinite: pivot 4 of its UD factorisation is negative')
+    t5 = 2.2250738585072014e-308 + P0[21]
+    _require_positive(t5, 'P is not positive semidefinite: pivot 3 of its UD factorisation is negative')
+    t6 = _if_at_most(P0[21], 0.0, 1.0, P0[21])
+    t7 = P0[15]/t6
+    t8 = P0[14] - P0[15]*t7
+    t9 = 2.2250738585072014e-308 + t8
+    _require_positive(t9, 'P is not positive semidefinite: pivot 2 of its UD factorisation is negative')
+    t10 = 2.2250738585072014e-308 + P0[7]
+    _require_positive(t10, 'P is not positive semidefinite: pivot 1 of its UD factorisation is negative')
+    t11 = _if_at_most(P0[7], 0.0, 1.0, P0[7])
+    t12 = P0[1]/t11
+    t13 = P0[0] - P0[1]*t12
+    t14 = 2.2250738585072014e-308 + t13
+    _require_positive(t14, 'P is not positive semidefinite: pivot 0 of its UD factorisation is negative')
     x = [x0[0], x0[1], x0[2], x0[3], x0[4], x0[5]]
     U = [
-        1.0, t9, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t5, 0.0, 0.0,
-        0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t1, 0.0, 0.0, 0.0, 0.0, 0.0,
-        1.0,
+        1.0, t12, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t7, 0.0,
+        0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, t2, 0.0, 0.0, 0.0, 0.0,
+        0.0, 1.0,
     ]
-    D = [t10, P0[7], t6, P0[21], t2, P0[35]]
+    D = [t13, P0[7], t8, P0[21], t3, P0[35]]
     return x, U, D
 
 

@@ -14,7 +14,7 @@ from ...emit.library import render_build_files, render_test_program, test_progra
 from ...emit.render import render_c
 from ...emit.unit import Unit
 from ...emit.write import write_files
-from ...errors import FilterError
+from ...errors import FilterError, NameError_
 from ...filters import available, kind
 from ...generation import command_unit, resolve_model
 from ...options import per_filter
@@ -37,6 +37,23 @@ def library_command(ref: str, units: list[Unit], out: str) -> str:
             + (f" --{options}" if options else ""))
 
 
+CMAKE_RESERVED_TARGETS = frozenset((
+    "all", "clean", "help", "install", "preinstall", "rebuild_cache", "edit_cache",
+    "ALL_BUILD", "ZERO_CHECK", "INSTALL", "test", "RUN_TESTS", "package",
+    "package_source", "PACKAGE"))
+"""Target names CMake reserves (policy CMP0037; ``test`` and ``RUN_TESTS`` with CTest,
+the ``package`` ones with CPack): the library's CMakeLists.txt names its target after
+the model, so a model of one of these names could not be configured."""
+
+
+def check_library_name(name: str) -> None:
+    """Refuse a model name the library layout cannot use as a CMake target (NameError_)."""
+    if name in CMAKE_RESERVED_TARGETS:
+        raise NameError_(f"model name {name!r} is reserved by CMake as a target name, and "
+                         "--layout library names its CMake library target after the model; "
+                         "rename the model")
+
+
 def render_library(model, filters: Iterable[str] | None = None, out: str | Path = "generated",
                    options: Mapping | None = None, steps: int = TEST_STEPS,
                    ref: str | None = None, with_data: bool = False,
@@ -45,6 +62,7 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
     ``with_data``: also {filter: its VerificationData}; ``refuse_uncarried``: a FilterError
     for a filter float32 cannot carry (derive.apps.float_tolerance)."""
     model = resolve_model(model)
+    check_library_name(model.name)
     require_examples(model)   # the test programs run free parameters at their examples
     ref = ref or model.name
     names = list(filters) if filters is not None else available(model)
