@@ -70,6 +70,22 @@ HELPERS = {
               '    if array.shape[:len(shape)] != shape:',
               '        raise ShapeError(f"run: {name} must have shape {text}, then any "',
               '                         f"track axes; got {array.shape}")'],
+    "real": ['def _real(name, value):',
+             '    """value as a float64 array; DtypeError unless it holds real numbers that',
+             '    float64 holds exactly (not complex, bool, str or object; no wider float)."""',
+             '    array = np.asarray(value)',
+             '    if array.dtype.kind not in "fiu" or (array.dtype.kind == "f" and',
+             '                                         array.dtype.itemsize > 8):',
+             '        raise DtypeError(f"run: {name} is an array of {array.dtype}; run takes "',
+             '                         "real numbers as float64")',
+             '    if array.dtype == np.float64:',
+             '        return array',
+             '    converted = array.astype(np.float64)',
+             '    whole = array.dtype.kind in "iu"',
+             '    if whole and not (converted.astype(array.dtype) == array).all():',
+             '        raise DtypeError(f"run: {name} holds an integer float64 cannot represent "',
+             '                         "exactly")',
+             '    return converted'],
     "check": ['def _require_positive(value, message):',
               '    """Raise NumericalError unless value > 0 (every track of an array)."""',
               '    positive = value > 0',
@@ -104,9 +120,18 @@ SHAPE_ERROR_IMPORT = [
     '        """An argument of the wrong shape."""']
 
 
+DTYPE_ERROR_IMPORT = [
+    'try:',
+    '    from derive.errors import DtypeError',
+    'except ImportError:  # derive not installed: a stand-in with the same base',
+    '',
+    '    class DtypeError(ValueError):',
+    '        """An argument that is not an array of real numbers run takes exactly."""']
+
+
 def error_imports(lowered: list[LoweredProgram], run: bool = False) -> list[list[str]]:
     """The import blocks of the exception classes the programs (and ``run``) raise."""
-    blocks = [SHAPE_ERROR_IMPORT] if run else []
+    blocks = [SHAPE_ERROR_IMPORT, DTYPE_ERROR_IMPORT] if run else []
     if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
         blocks.append(ERROR_IMPORT)
     if any(lp.pattern_checks for lp in lowered):

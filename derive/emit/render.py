@@ -249,11 +249,12 @@ PARAMETER_ROWS, PARAMETER_START = "p_rows", "p_start"
 
 def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
     """run's first lines: every input as a float64 array of the documented shape (then any
-    track axes), or ShapeError naming the argument and both shapes.
+    track axes), or ShapeError naming the argument and both shapes (DtypeError for an
+    array that is not real numbers float64 holds exactly: ``_real``).
 
     Accepted besides: a per-step input of one value per step as shape (steps,); P0 flat
     (n*n,); p as one row (np,) for every step or one row per step (steps, np)."""
-    lines = [f"{a.py_name} = np.asarray({a.py_name}, dtype=float)" for a in inputs]
+    lines = [f"{a.py_name} = _real({a.py_name!r}, {a.py_name})" for a in inputs]
     tracks = []
     for a in inputs:
         name, dims = a.py_name, tuple(d for d in a.dims if d != "steps")
@@ -306,7 +307,7 @@ def _python_context(unit: Unit, lowered: dict[str, LoweredProgram]) -> dict:
         "numpy": True,
         "error_imports": python_printer.error_imports(lps, run=True),
         "helpers": ["\n".join(python_printer.HELPERS[h])
-                    for h in python_printer.helpers_needed(lps) + ["shape"]],
+                    for h in python_printer.helpers_needed(lps) + ["real", "shape"]],
         "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
                     for a in args if not a.scratch],

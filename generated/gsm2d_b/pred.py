@@ -32,6 +32,31 @@ except ImportError:  # derive not installed: a stand-in with the same base
     class ShapeError(ValueError):
         """An argument of the wrong shape."""
 
+try:
+    from derive.errors import DtypeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class DtypeError(ValueError):
+        """An argument that is not an array of real numbers run takes exactly."""
+
+
+def _real(name, value):
+    """value as a float64 array; DtypeError unless it holds real numbers that
+    float64 holds exactly (not complex, bool, str or object; no wider float)."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "fiu" or (array.dtype.kind == "f" and
+                                         array.dtype.itemsize > 8):
+        raise DtypeError(f"run: {name} is an array of {array.dtype}; run takes "
+                         "real numbers as float64")
+    if array.dtype == np.float64:
+        return array
+    converted = array.astype(np.float64)
+    whole = array.dtype.kind in "iu"
+    if whole and not (converted.astype(array.dtype) == array).all():
+        raise DtypeError(f"run: {name} holds an integer float64 cannot represent "
+                         "exactly")
+    return converted
+
 
 def _require_shape(name, array, shape, text):
     """Raise ShapeError unless the leading axes are shape (then tracks)."""
@@ -77,8 +102,8 @@ def run(zs, x0):
     x0 [2]: initial state estimate
     xs [steps, 2]: estimate after each step
     """
-    zs = np.asarray(zs, dtype=float)
-    x0 = np.asarray(x0, dtype=float)
+    zs = _real('zs', zs)
+    x0 = _real('x0', x0)
     if zs.ndim == 1:  # one value per step
         zs = zs[:, np.newaxis]
     _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')

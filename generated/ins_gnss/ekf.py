@@ -48,6 +48,13 @@ except ImportError:  # derive not installed: a stand-in with the same base
         """An argument of the wrong shape."""
 
 try:
+    from derive.errors import DtypeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class DtypeError(ValueError):
+        """An argument that is not an array of real numbers run takes exactly."""
+
+try:
     from derive.errors import NumericalError
 except ImportError:  # derive not installed: a stand-in with the same base
 
@@ -67,6 +74,24 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _real(name, value):
+    """value as a float64 array; DtypeError unless it holds real numbers that
+    float64 holds exactly (not complex, bool, str or object; no wider float)."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "fiu" or (array.dtype.kind == "f" and
+                                         array.dtype.itemsize > 8):
+        raise DtypeError(f"run: {name} is an array of {array.dtype}; run takes "
+                         "real numbers as float64")
+    if array.dtype == np.float64:
+        return array
+    converted = array.astype(np.float64)
+    whole = array.dtype.kind in "iu"
+    if whole and not (converted.astype(array.dtype) == array).all():
+        raise DtypeError(f"run: {name} holds an integer float64 cannot represent "
+                         "exactly")
+    return converted
 
 
 def _require_shape(name, array, shape, text):
@@ -1619,12 +1644,12 @@ def run(us, z_gnss, z_baro, x0, P0, p):
     Ps [steps, 16, 16]: covariance after each step (C: may be NULL)
     p [1]: free parameters: dt
     """
-    us = np.asarray(us, dtype=float)
-    z_gnss = np.asarray(z_gnss, dtype=float)
-    z_baro = np.asarray(z_baro, dtype=float)
-    x0 = np.asarray(x0, dtype=float)
-    P0 = np.asarray(P0, dtype=float)
-    p = np.asarray(p, dtype=float)
+    us = _real('us', us)
+    z_gnss = _real('z_gnss', z_gnss)
+    z_baro = _real('z_baro', z_baro)
+    x0 = _real('x0', x0)
+    P0 = _real('P0', P0)
+    p = _real('p', p)
     _require_shape('us', us, us.shape[:1] + (6,), '(steps, 6)')
     steps = us.shape[0]
     _require_shape('z_gnss', z_gnss, (steps,) + (6,), '(steps, 6)')

@@ -36,6 +36,13 @@ except ImportError:  # derive not installed: a stand-in with the same base
         """An argument of the wrong shape."""
 
 try:
+    from derive.errors import DtypeError
+except ImportError:  # derive not installed: a stand-in with the same base
+
+    class DtypeError(ValueError):
+        """An argument that is not an array of real numbers run takes exactly."""
+
+try:
     from derive.errors import NumericalError
 except ImportError:  # derive not installed: a stand-in with the same base
 
@@ -50,6 +57,24 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _real(name, value):
+    """value as a float64 array; DtypeError unless it holds real numbers that
+    float64 holds exactly (not complex, bool, str or object; no wider float)."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "fiu" or (array.dtype.kind == "f" and
+                                         array.dtype.itemsize > 8):
+        raise DtypeError(f"run: {name} is an array of {array.dtype}; run takes "
+                         "real numbers as float64")
+    if array.dtype == np.float64:
+        return array
+    converted = array.astype(np.float64)
+    whole = array.dtype.kind in "iu"
+    if whole and not (converted.astype(array.dtype) == array).all():
+        raise DtypeError(f"run: {name} holds an integer float64 cannot represent "
+                         "exactly")
+    return converted
 
 
 def _require_shape(name, array, shape, text):
@@ -179,9 +204,9 @@ def run(zs, x0, P0):
     xs [steps, 2]: estimate after each step
     Ps [steps, 2, 2]: covariance after each step
     """
-    zs = np.asarray(zs, dtype=float)
-    x0 = np.asarray(x0, dtype=float)
-    P0 = np.asarray(P0, dtype=float)
+    zs = _real('zs', zs)
+    x0 = _real('x0', x0)
+    P0 = _real('P0', P0)
     if zs.ndim == 1:  # one value per step
         zs = zs[:, np.newaxis]
     _require_shape('zs', zs, zs.shape[:1] + (1,), '(steps, 1)')
