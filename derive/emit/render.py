@@ -265,7 +265,8 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
                       f"    _require_shape({name!r}, {name}, {dims}, {either!r})",
                       f"    {PARAMETER_ROWS} = np.broadcast_to({name}, (steps,) + {name}.shape)",
                       "else:  # one row per step",
-                      f"    _require_shape({name!r}, {name}, (steps,) + {dims}, {either!r})",
+                      f"    _require_shape({name!r}, {name}, (steps,) + {dims}, "
+                      f"f{either + ', steps = {steps} as ' + inputs[0].py_name + ' has'!r})",
                       f"    {PARAMETER_ROWS} = {name}"]
             if "init" in unit.programs:
                 lines.append(f"{PARAMETER_START} = {PARAMETER_ROWS}[0] if steps else "
@@ -279,8 +280,10 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
             if a is inputs[0]:
                 lines += [f"_require_shape({name!r}, {name}, {name}.shape[:1] + {dims}, "
                           f"{text!r})", f"steps = {name}.shape[0]"]
-            else:
-                lines.append(f"_require_shape({name!r}, {name}, (steps,) + {dims}, {text!r})")
+            else:  # steps are the rows of the first input: the message says so
+                counted = f"{text}, steps = {{steps}} as {inputs[0].py_name} has"
+                lines.append(f"_require_shape({name!r}, {name}, (steps,) + {dims}, "
+                             f"f{counted!r})")
         else:
             if len(dims) == 2 and dims[0] * dims[1] != dims[0]:
                 flat = dims[0] * dims[1]

@@ -393,7 +393,7 @@ def run(zs, us, x0, P0):
     P0 = _real('P0', P0)
     _require_shape('zs', zs, zs.shape[:1] + (4,), '(steps, 4)')
     steps = zs.shape[0]
-    _require_shape('us', us, (steps,) + (12,), '(steps, 12)')
+    _require_shape('us', us, (steps,) + (12,), f'(steps, 12), steps = {steps} as zs has')
     _require_shape('x0', x0, (4,), '(4,)')
     if P0.shape[:1] == (16,):  # flat, row-major
         P0 = P0.reshape((4, 4) + P0.shape[1:])

@@ -1652,10 +1652,10 @@ def run(us, z_gnss, z_baro, x0, P0, p):
     p = _real('p', p)
     _require_shape('us', us, us.shape[:1] + (6,), '(steps, 6)')
     steps = us.shape[0]
-    _require_shape('z_gnss', z_gnss, (steps,) + (6,), '(steps, 6)')
+    _require_shape('z_gnss', z_gnss, (steps,) + (6,), f'(steps, 6), steps = {steps} as us has')
     if z_baro.ndim == 1:  # one value per step
         z_baro = z_baro[:, np.newaxis]
-    _require_shape('z_baro', z_baro, (steps,) + (1,), '(steps, 1)')
+    _require_shape('z_baro', z_baro, (steps,) + (1,), f'(steps, 1), steps = {steps} as us has')
     _require_shape('x0', x0, (16,), '(16,)')
     if P0.shape[:1] == (256,):  # flat, row-major
         P0 = P0.reshape((16, 16) + P0.shape[1:])
@@ -1664,7 +1664,7 @@ def run(us, z_gnss, z_baro, x0, P0, p):
         _require_shape('p', p, (1,), '(1,) or (steps, 1)')
         p_rows = np.broadcast_to(p, (steps,) + p.shape)
     else:  # one row per step
-        _require_shape('p', p, (steps,) + (1,), '(1,) or (steps, 1)')
+        _require_shape('p', p, (steps,) + (1,), f'(1,) or (steps, 1), steps = {steps} as us has')
         p_rows = p
     tracks = (us.shape[2:], z_gnss.shape[2:], z_baro.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
