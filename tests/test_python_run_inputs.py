@@ -59,3 +59,17 @@ def test_a_step_count_that_differs_names_where_steps_came_from():
     with pytest.raises(ShapeError, match=r"^run: p must have shape \(1,\) or \(steps, 1\), "
                                          r"steps = 100 as us has"):
         module.run(*rows.values(), *start, np.full((99, 1), 0.01))
+
+
+def test_one_parameter_may_be_given_as_a_number():
+    """A model with one free parameter (ins_gnss: dt) takes it as a number too, as the C
+    wrapper does: the same result as the row [dt]."""
+    module = load_python(Path(__file__).parents[1] / "generated" / "ins_gnss" / "ekf.py")
+    rng = np.random.default_rng(4)
+    us = rng.normal(scale=0.01, size=(20, 6)) + [0, 0, 0, 0, 0, -9.80665]
+    nan = np.full((20, 6), np.nan)
+    start = (np.r_[1.0, np.zeros(15)], np.eye(16) * 0.01)
+    as_row = module.run(us, nan, np.full(20, np.nan), *start, [0.01])
+    as_number = module.run(us, nan, np.full(20, np.nan), *start, 0.01)
+    for a, b in zip(as_row, as_number, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -261,6 +261,8 @@ def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
         text = "(" + ", ".join(str(d) for d in a.dims) + ("," if len(a.dims) == 1 else "") + ")"
         if a.c_name == PARAMETER_PORT:
             either = f"{text} or (steps, {dims[0]})"
+            if dims == (1,):  # one parameter: a number is its row (as C's wrapper takes it)
+                lines += [f"if {name}.ndim == 0:", f"    {name} = {name}.reshape(1)"]
             lines += [f"if {name}.ndim < 2:  # one row for every step",
                       f"    _require_shape({name!r}, {name}, {dims}, {either!r})",
                       f"    {PARAMETER_ROWS} = np.broadcast_to({name}, (steps,) + {name}.shape)",

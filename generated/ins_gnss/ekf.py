@@ -1660,6 +1660,8 @@ def run(us, z_gnss, z_baro, x0, P0, p):
     if P0.shape[:1] == (256,):  # flat, row-major
         P0 = P0.reshape((16, 16) + P0.shape[1:])
     _require_shape('P0', P0, (16, 16), '(16, 16)')
+    if p.ndim == 0:
+        p = p.reshape(1)
     if p.ndim < 2:  # one row for every step
         _require_shape('p', p, (1,), '(1,) or (steps, 1)')
         p_rows = np.broadcast_to(p, (steps,) + p.shape)
