@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from derive.arrivals import operation_latency
 from derive.emit.lookahead import run_pass
 from derive.flops import count
 from derive.lowering import (
@@ -36,7 +37,7 @@ from derive.lowering import (
     lower_program,
 )
 from derive.options import taken_by
-from derive.schedule import REFERENCE_CYCLES, operation_latency, scheduled_unit
+from derive.schedule import REFERENCE_CYCLES, scheduled_unit
 
 _NONE = -np.inf
 
