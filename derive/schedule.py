@@ -202,19 +202,21 @@ class _Work:
                ) -> list[Statement]:
         """Apply each candidate rewrite that lowers the score, until none does."""
         state = self.arrivals(body)
-        at = _positions(body)
+        slots = _Slots(body)
         improved = True
         while improved:
             improved = False
             for rewrite in candidates(body, state):
-                edit = rewrite(body, state, at)
+                edit = rewrite(slots, state)
                 if edit is None:
                     continue
-                trial = state.trial(edit[1])
+                changed, placements = edit
+                trial = state.trial(changed)
                 if trial.score() < state.score():
                     state.accept(trial)
-                    body, improved = edit[0], True
-                    at = _positions(body)
+                    slots.place(placements)
+                    improved = True
+            body = slots.body()
         return body
 
     def prune(self, body: list[Statement]) -> list[Statement]:
@@ -256,11 +258,10 @@ class _Work:
                  if sum(1 for key in form if key is not _ONE) >= 2]
         found.sort(key=lambda tf: (-ready.get(tf[0].name, -math.inf),
                                    default_sort_key(tf[0])))
-        return [lambda b, s, at, t=target, f=form: self._direct(b, at, t, f)
+        return [lambda slots, s, t=target, f=form: self._direct(slots, t, f)
                 for target, form in found]
 
-    def _direct(self, body: list[Statement], at: Mapping, target: Temporary, form: dict):
-        k = at[target]
+    def _direct(self, slots: _Slots, target: Temporary, form: dict):
         const = form.get(_ONE, 0)
         groups: dict = {}
         for key in sorted((key for key in form if key is not _ONE), key=default_sort_key):
@@ -280,11 +281,11 @@ class _Work:
                 level = paired
             terms.append(coeff * level[0])
         expr = sympy.Add(const, *terms)
-        if expr == body[k].expr:
+        if expr == slots.statement(target).expr:
             return None
         self.directs[target] = expr
         changed = new + [Assign(target, expr)]
-        return body[:k] + changed + body[k + 1:], changed
+        return changed, [(target, changed)]
 
     def fuse(self, body: list[Statement]) -> list[Statement]:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
@@ -344,16 +345,16 @@ class _Work:
                 for factor in term.args:
                     inner = define.get(factor)
                     if isinstance(factor, Temporary) and inner is not None and inner.is_Mul:
-                        found.append(lambda b, s, at, t=st.target, m=term, f=factor:
-                                     self._late(b, s, at, t, m, f))
+                        found.append(lambda slots, s, t=st.target, m=term, f=factor:
+                                     self._late(slots, s, t, m, f))
         return found
 
-    def _late(self, body: list[Statement], state: Arrivals, at: Mapping, target: Temporary,
-              term: sympy.Expr, factor: Temporary):
-        k = at.get(target)
-        if k is None or term not in sympy.Add.make_args(body[k].expr):
+    def _late(self, slots: _Slots, state: Arrivals, target: Temporary, term: sympy.Expr,
+              factor: Temporary):
+        current = slots.statement(target)
+        if current is None or term not in sympy.Add.make_args(current.expr):
             return None
-        inner = body[at[factor]].expr
+        inner = slots.statement(factor).expr
         ready = state.ready
 
         def when(a: sympy.Expr) -> float:
@@ -371,22 +372,22 @@ class _Work:
             late = self.reciprocals.get(last.base)
             if late is None:
                 late = self.reciprocals[last.base] = self.fresh()
-            if late not in at:
+            if slots.statement(late) is None:
                 reciprocal = Assign(late, 1 / last.base)
         else:
             late = last
         early = [a for a in sympy.Mul.make_args(term) if a != factor]
         w = self.fresh()
         expr = sympy.Add(*[w * late if t == term else t
-                           for t in sympy.Add.make_args(body[k].expr)])
+                           for t in sympy.Add.make_args(current.expr)])
         changed = [Assign(w, sympy.Mul(coeff, *early, *args[:-1])), Assign(target, expr)]
-        body = body[:k] + changed + body[k + 1:]
+        placements = [(target, changed)]
         if reciprocal is not None:
-            where = at.get(last.base, -1) + 1
-            where += where > k            # after the two statements that replaced one
-            body = body[:where] + [reciprocal] + body[where:]
+            before = slots.statement(last.base)
+            placements.append((last.base, [before, reciprocal]) if before is not None
+                              else (None, [reciprocal]))
             changed = [reciprocal, *changed]
-        return body, changed
+        return changed, placements
 
     def share_reciprocals(self, body: list[Statement]) -> list[Statement]:
         """Every other division by a value whose reciprocal the step computes becomes a
@@ -449,13 +450,42 @@ class _Work:
         return out
 
 
-def _positions(body: Sequence[Statement]) -> dict[sympy.Symbol, int]:
-    """Each temporary's first definition in ``body``: its index."""
-    at: dict[sympy.Symbol, int] = {}
-    for k, st in enumerate(body):
-        if isinstance(st, Assign) and st.target not in at:
-            at[st.target] = k
-    return at
+class _Slots:
+    """A step under edit: each statement of the step as given holds a slot, and an edit
+    puts statements in the place of one (so a temporary's slot never moves however many
+    are inserted before it); the step is the slots in order."""
+
+    def __init__(self, body: Sequence[Statement]) -> None:
+        self.slots = [[st] for st in body]
+        self.slot: dict[sympy.Symbol, int] = {}
+        for k, st in enumerate(body):
+            if isinstance(st, Assign):
+                self.slot.setdefault(st.target, k)
+
+    def statement(self, target: sympy.Symbol) -> Assign | None:
+        """The first statement that defines ``target`` (None if none does)."""
+        k = self.slot.get(target)
+        if k is None:
+            return None
+        return next(st for st in self.slots[k]
+                    if isinstance(st, Assign) and st.target == target)
+
+    def place(self, placements: Sequence[tuple[sympy.Symbol | None, list[Statement]]]
+              ) -> None:
+        """Each ``(target, statements)``: ``statements`` in the place of ``target``'s
+        first definition (``target`` None: before the whole step)."""
+        for target, statements in placements:
+            k = 0 if target is None else self.slot[target]
+            slot = self.slots[k]
+            at = 0 if target is None else next(
+                i for i, st in enumerate(slot) if isinstance(st, Assign) and st.target == target)
+            slot[at:at + (target is not None)] = statements
+            for st in statements:
+                if isinstance(st, Assign):
+                    self.slot.setdefault(st.target, k)
+
+    def body(self) -> list[Statement]:
+        return [st for slot in self.slots for st in slot]
 
 
 def _append(out: list[Statement], done: set[sympy.Symbol], st: Statement) -> None:
