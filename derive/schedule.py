@@ -396,7 +396,8 @@ class _Work:
         swap = {sympy.Pow(d, -1): r for d, r in self.reciprocals.items() if r in present}
         if not swap:
             return body
-        out = [st if not isinstance(st, Assign) or st.target in swap.values()
+        reciprocals = set(swap.values())
+        out = [st if not isinstance(st, Assign) or st.target in reciprocals
                else Assign(st.target, st.expr.xreplace(swap)) for st in body]
         return out if out != body else body
 
