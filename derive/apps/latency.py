@@ -235,10 +235,12 @@ def run_loop_bound(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Bou
     return Bound(bound.per_step / steps, bound.operations, bound.span, steps)
 
 
-#: Steps with more statements are not scheduled just to print a bound (``derive burden``,
-#: the bench): the schedule's search grows with the square of the step's size (about 6 s
-#: at 300 statements, twelve axes of mpt3d_b); ``--latency-schedule`` still applies it.
-MAX_BOUND_STATEMENTS = 400
+#: Steps of more flops (C, as counted) are not scheduled just to print a bound (``derive
+#: burden``, the bench), a note says so; ``--latency-schedule`` still applies it.  The
+#: schedule's search takes time in proportion to the work of its rewrites, about 1 to
+#: 1.5 ms of CPU per flop of the step (120 constant-velocity axes: 3,000 flops, 31,680
+#: statements, 4 s; a dense 16-state KF: 18,004 flops, 19 s).
+MAX_BOUND_FLOPS = 4000
 
 
 @dataclass(frozen=True)
@@ -261,11 +263,11 @@ def schedule_bounds(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Sc
     if default is None or unit.lookahead is not None or \
             "latency_schedule" not in taken_by(unit.filter):
         return ScheduleBounds(default, None, None)
-    size = len(unit.programs["step"].optimize().body)
-    if size > MAX_BOUND_STATEMENTS:
+    flops = count(unit.programs["step"], "c").flops
+    if flops > MAX_BOUND_FLOPS:
         return ScheduleBounds(default, None, None, f"latency schedule not computed for a step "
-                              f"of {size} statements (over {MAX_BOUND_STATEMENTS}); "
+                              f"of {flops} flops (over {MAX_BOUND_FLOPS}); "
                               "--latency-schedule applies it")
     scheduled = scheduled_unit(unit)
-    added = count(scheduled.programs["step"], "c").flops - count(unit.programs["step"], "c").flops
+    added = count(scheduled.programs["step"], "c").flops - flops
     return ScheduleBounds(default, run_loop_bound(scheduled, latency), added)
