@@ -87,6 +87,17 @@ def statement_form(tree: Tree, carried_ports: Iterable[str],
     return Form(carried, tuple(sorted(reads.items())))
 
 
+def arrival_times(body: Sequence[Statement], form_of: Callable[[sympy.Expr], Form]
+                  ) -> dict[str, float]:
+    """Per temporary of ``body`` (in order): its arrival, nothing kept for edits."""
+    ready: dict[str, float] = {}
+    for st in body:
+        if isinstance(st, Assign):
+            ready[st.target.name] = form_of(st.expr).arrival(
+                lambda name: ready.get(name, _NEVER))
+    return ready
+
+
 class Arrivals:
     """The arrivals of one step's temporaries (statements in a valid order: each
     temporary defined before it is read) and the score of its carried outputs.

@@ -41,7 +41,7 @@ from dataclasses import replace
 import sympy
 from sympy import default_sort_key
 
-from derive.arrivals import Arrivals, Form, statement_form
+from derive.arrivals import Arrivals, Form, arrival_times, statement_form
 from derive.emit.unit import Unit
 from derive.lowering import CARRIED, expression_lowerer
 from derive.program import Program
@@ -291,7 +291,7 @@ class _Work:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
         uses = _uses(live_statements(body, self.results), self.results)
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
-        ready = self.arrivals(body).ready
+        ready = arrival_times(body, self.form)
         out: list[Statement] = []
         done: set[sympy.Symbol] = set()
         for st in body:
@@ -406,7 +406,7 @@ class _Work:
     def order(self, body: list[Statement]) -> list[Statement]:
         """Statements by when their operands are ready (ties: as they were); checks in
         their order, and what reads a checked value after its check."""
-        ready = self.arrivals(body).ready
+        ready = arrival_times(body, self.form)
         defined = {st.target: k for k, st in enumerate(body) if isinstance(st, Assign)}
         checks = [k for k, st in enumerate(body) if isinstance(st, Check)]
         checked: dict[sympy.Symbol, int] = {}
