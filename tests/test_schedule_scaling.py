@@ -158,3 +158,18 @@ def test_a_trial_scores_as_a_rescore_of_the_edited_step(seed):
             body = edited
             assert state.score() == whole.score()
             assert state.ready == whole.ready
+
+
+def test_the_bench_prints_both_bounds_of_k_axes(one_axis):
+    """derive bench's table of large KFs: both bounds of k axes, those of one axis."""
+    from derive.apps.bench.run import Settings, _columns
+    from derive.apps.bench.schedule_scaling import schedule_rows, schedule_table
+
+    single = schedule_bounds(one_axis)
+    (row,) = schedule_rows((4,))
+    assert (row.axes, row.states, row.default_cycles, row.latency_cycles, row.flops_added) == \
+        (4, 8, single.default.per_step, single.latency.per_step, 4 * single.flops_added)
+    assert row.flops == 4 * count(one_axis.programs["step"], "c").flops and row.note == ""
+    lines = _columns(*schedule_table([row]))
+    assert f"+{4 * single.flops_added}" in lines[-1]
+    assert 120 in Settings().schedule_axes

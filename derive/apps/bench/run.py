@@ -28,6 +28,7 @@ from . import (
     peers,
     python_floor,
     scaling,
+    schedule_scaling,
 )
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
@@ -73,6 +74,7 @@ class Settings:
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
     generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
     compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
+    schedule_axes: tuple[int, ...] = schedule_scaling.AXES   # both bounds of k CV axes
 
     @classmethod
     def quick(cls) -> Settings:
@@ -82,7 +84,7 @@ class Settings:
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
                    navigation_symforce=False,
-                   generation_scaling=False, compile_states=(3,))
+                   generation_scaling=False, compile_states=(3,), schedule_axes=(3,))
 
 
 @dataclass(frozen=True)
@@ -119,6 +121,7 @@ class BenchResult:
     navigation: navigation.NavigationResult | None = None
     generation: list[generation_scaling.GenerationRow] = field(default_factory=list)
     compile: list[compile_size.CompileRow] = field(default_factory=list)
+    schedule: list[schedule_scaling.ScheduleRow] = field(default_factory=list)
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -132,6 +135,7 @@ class BenchResult:
                 "navigation": self.navigation.as_json() if self.navigation else None,
                 "generation": [asdict(r) for r in self.generation],
                 "compile": [asdict(r) for r in self.compile],
+                "schedule": [asdict(r) for r in self.schedule],
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -281,6 +285,11 @@ class BenchResult:
                       "one process each, the model built through the Python API, then "
                       "render_unit (derive and render Python and C, nothing written)", ""]
             lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
+        if self.schedule:
+            lines += ["both bounds of large KFs (derive.apps.bench.schedule_scaling): k CV "
+                      "axes, carried chain per step in reference cycles; CPU seconds of the "
+                      "latency schedule's search and of both bounds (derive burden's)", ""]
+            lines += _columns(*schedule_scaling.schedule_table(self.schedule)) + [""]
         if self.compile:
             head, body, compile_bars = compile_size.compile_table(self.compile)
             lines += ["files that compile in seconds: a dense random KF generated (a child "
@@ -509,6 +518,7 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
         if s.generation_scaling:
             result.generation = generation_scaling.generation_rows(tick=tick)
         result.compile = compile_size.compile_rows(s.compile_states, Path(tmp), tick)
+        result.schedule = schedule_scaling.schedule_rows(s.schedule_axes, tick=tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
