@@ -145,9 +145,10 @@ def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
 class _Work:
     """The rewrites of one step, scored on the lowered step in reference cycles.
 
-    A rewrite takes the step and its :class:`~derive.arrivals.Arrivals` and returns the
-    edited step with the statements it adds or changes (None if it does not apply); the
-    search scores only what the edit changes (:meth:`Arrivals.trial`)."""
+    A rewrite takes the step under edit (:class:`_Slots`) and its arrivals
+    (:class:`~derive.arrivals.Arrivals`) and returns the statements it adds or changes,
+    in the step's order, and where they go (None if it does not apply); the search
+    scores only what the edit changes (:meth:`Arrivals.trial`)."""
 
     def __init__(self, program: Program, pairs: list[tuple[str, str]]) -> None:
         self.program = program
