@@ -33,6 +33,7 @@ mathematics; the added flops are what :func:`derive.flops.count` counts on the r
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -40,8 +41,9 @@ from dataclasses import replace
 import sympy
 from sympy import default_sort_key
 
+from derive.arrivals import Arrivals, Form, arrival_times, statement_form
 from derive.emit.unit import Unit
-from derive.lowering import CARRIED, Op, Tree, Var, expression_lowerer
+from derive.lowering import CARRIED, expression_lowerer
 from derive.program import Program
 from derive.statements import (
     Assign,
@@ -62,22 +64,6 @@ REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.
 
 _ONE = sympy.S.One
 _ROUNDS = 3
-
-
-def operation_latency(kind: str, latency: Mapping[str, float]) -> float:
-    """The latency of one operation of ``kind`` (a kind of :mod:`derive.lowering`) in
-    ``latency``: ``sub``, ``neg``, ``select`` and ``gate`` (a compare and a select) as
-    ``add``, a call as ``call``; a check
-    (``cmp``) only branches, so it adds nothing to the data path."""
-    if kind == "cmp":
-        return 0.0
-    if kind in latency:
-        return float(latency[kind])
-    if kind in ("sub", "neg", "select", "gate") and "add" in latency:
-        return float(latency["add"])
-    if kind.startswith("call:") and "call" in latency:
-        return float(latency["call"])
-    raise KeyError(f"no latency given for operation kind {kind!r}")
 
 
 def latency_schedule(program: Program,
@@ -157,7 +143,12 @@ def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
 
 
 class _Work:
-    """The rewrites of one step, scored on the lowered step in reference cycles."""
+    """The rewrites of one step, scored on the lowered step in reference cycles.
+
+    A rewrite takes the step under edit (:class:`_Slots`) and its arrivals
+    (:class:`~derive.arrivals.Arrivals`) and returns the statements it adds or changes,
+    in the step's order, and where they go (None if it does not apply); the search
+    scores only what the edit changes (:meth:`Arrivals.trial`)."""
 
     def __init__(self, program: Program, pairs: list[tuple[str, str]]) -> None:
         self.program = program
@@ -170,6 +161,7 @@ class _Work:
         self.negations: dict[sympy.Expr, Temporary] = {}
         self.directs: dict[Temporary, sympy.Expr] = {}
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
+        self.forms: dict[sympy.Expr, Form] = {}
 
     def fresh(self) -> Temporary:
         self.counter += 1
@@ -190,74 +182,71 @@ class _Work:
                    for name, values in self.results.items()}
         return self.program._final(out, results)   # an optimised program, final as is
 
-    def arrivals(self, body: Sequence[Statement]) -> dict[str, float]:
-        """Per temporary: the latest a carried input reaches it (reference cycles), on
-        the statements as the lowering (with fma) emits them."""
-        ready: dict[str, float] = {}
+    def form(self, expr: sympy.Expr) -> Form:
+        """The arrival form of ``expr`` as the lowering (with fma) emits it."""
+        form = self.forms.get(expr)
+        if form is None:
+            form = self.forms[expr] = statement_form(self.lower(expr), self.carried_ports,
+                                                     REFERENCE_CYCLES)
+        return form
 
-        def arrival(tree: Tree) -> float:
-            if isinstance(tree, Var):
-                if tree.index is None:
-                    return ready.get(tree.name, -math.inf)
-                return 0.0 if tree.base in self.carried_ports else -math.inf
-            if isinstance(tree, Op):
-                start = max((arrival(a) for a in tree.args), default=-math.inf)
-                return start + operation_latency(tree.kind, REFERENCE_CYCLES)
-            return -math.inf
-
-        for st in body:
-            if isinstance(st, Assign):
-                ready[st.target.name] = arrival(self.lower(st.expr))
-        return ready
-
-    def score(self, body: Sequence[Statement]) -> tuple[float, float]:
-        """(longest chain to a carried output, their sum): smaller is better."""
-        ready = self.arrivals(body)
-        lowered_names = self._carried_leaf_names()
-        values = [ready.get(name, -math.inf) for name in lowered_names]
-        finite = [v for v in values if v > -math.inf]
-        return (max(finite, default=0.0), sum(finite))
+    def arrivals(self, body: Sequence[Statement]) -> Arrivals:
+        """Per temporary of ``body``: the latest a carried input reaches it (reference
+        cycles), and the score of the carried outputs: (longest chain, their sum)."""
+        return Arrivals(body, self.form, self._carried_leaf_names())
 
     def _carried_leaf_names(self) -> list[str]:
         return [leaf.name for leaf in self.leaves if isinstance(leaf, Temporary)]
 
     def greedy(self, body: list[Statement],
-               candidates: Callable[[list[Statement]], list[Callable]]) -> list[Statement]:
+               candidates: Callable[[list[Statement], Arrivals], list[Callable]]
+               ) -> list[Statement]:
         """Apply each candidate rewrite that lowers the score, until none does."""
-        best = self.score(body)
+        state = self.arrivals(body)
+        slots = _Slots(body)
         improved = True
         while improved:
             improved = False
-            for rewrite in candidates(body):
-                trial = rewrite(body)
-                if trial is None:
+            for rewrite in candidates(body, state):
+                edit = rewrite(slots, state)
+                if edit is None:
                     continue
-                score = self.score(trial)
-                if score < best:
-                    body, best, improved = trial, score, True
+                changed, placements = edit
+                trial = state.trial(changed)
+                if trial.score() < state.score():
+                    state.accept(trial)
+                    slots.place(placements)
+                    improved = True
+            body = slots.body()
         return body
 
     def prune(self, body: list[Statement]) -> list[Statement]:
         """Undo each direct sum whose undoing leaves the longest chain as it is."""
-        best = self.score(body)[0]
+        state = self.arrivals(body)
+        best = state.score()[0]
+        first = {}
+        for k, st in enumerate(body):
+            if isinstance(st, Assign):
+                first.setdefault(st.target, k)
         for k in reversed(range(len(body))):
             st = body[k]
             if not isinstance(st, Assign) or self.directs.get(st.target) != st.expr or \
                     st.target not in self.original:
                 continue
             original = self.original[st.target]
-            defined = {s.target for s in body[:k] if isinstance(s, Assign)}
-            if any(isinstance(s, Temporary) and s not in defined
+            if any(isinstance(s, Temporary) and first.get(s, k) >= k
                    for s in original.free_symbols):
                 continue
-            trial = body[:k] + [Assign(st.target, original)] + body[k + 1:]
-            if self.score(trial)[0] <= best:
-                body = trial
+            undone = Assign(st.target, original)
+            trial = state.trial([undone])
+            if trial.score()[0] <= best:
+                state.accept(trial)
+                body = body[:k] + [undone] + body[k + 1:]
         return body
 
     # -- the rewrites --------------------------------------------------------------------
 
-    def direct_candidates(self, body: list[Statement]) -> list[Callable]:
+    def direct_candidates(self, body: list[Statement], state: Arrivals) -> list[Callable]:
         """Direct sums of the affine temporaries, the latest first."""
         forms: dict = {}
         for st in body:
@@ -265,16 +254,15 @@ class _Work:
                 form = _affine(st.expr, forms)
                 if form is not None:
                     forms[st.target] = form
-        ready = self.arrivals(body)
+        ready = state.ready
         found = [(target, form) for target, form in forms.items()
                  if sum(1 for key in form if key is not _ONE) >= 2]
         found.sort(key=lambda tf: (-ready.get(tf[0].name, -math.inf),
                                    default_sort_key(tf[0])))
-        return [lambda b, t=target, f=form: self._direct(b, t, f) for target, form in found]
+        return [lambda slots, s, t=target, f=form: self._direct(slots, t, f)
+                for target, form in found]
 
-    def _direct(self, body: list[Statement], target: Temporary, form: dict):
-        k = next(i for i, st in enumerate(body)
-                 if isinstance(st, Assign) and st.target == target)
+    def _direct(self, slots: _Slots, target: Temporary, form: dict):
         const = form.get(_ONE, 0)
         groups: dict = {}
         for key in sorted((key for key in form if key is not _ONE), key=default_sort_key):
@@ -294,20 +282,22 @@ class _Work:
                 level = paired
             terms.append(coeff * level[0])
         expr = sympy.Add(const, *terms)
-        if expr == body[k].expr:
+        if expr == slots.statement(target).expr:
             return None
         self.directs[target] = expr
-        return body[:k] + new + [Assign(target, expr)] + body[k + 1:]
+        changed = new + [Assign(target, expr)]
+        return changed, [(target, changed)]
 
     def fuse(self, body: list[Statement]) -> list[Statement]:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
         uses = _uses(live_statements(body, self.results), self.results)
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
-        ready = self.arrivals(body)
+        ready = arrival_times(body, self.form)
         out: list[Statement] = []
+        done: set[sympy.Symbol] = set()
         for st in body:
             if not (isinstance(st, Assign) and st.expr.is_Add):
-                out.append(st)
+                _append(out, done, st)
                 continue
             terms = []
             for term in sympy.Add.make_args(st.expr):
@@ -325,22 +315,24 @@ class _Work:
                 args = sorted(sympy.Mul.make_args(factors),
                               key=lambda a: (ready.get(getattr(a, "name", ""), -math.inf),
                                              default_sort_key(a)))
-                negated = self._negation(args[0], out)
+                negated = self._negation(args[0], out, done)
                 terms.append(sympy.Mul(negated, *args[1:]))
             expr = sympy.Add(*terms)
-            out.append(st if expr == st.expr else Assign(st.target, expr))
+            _append(out, done, st if expr == st.expr else Assign(st.target, expr))
         return out if out != body else body
 
-    def _negation(self, value: sympy.Expr, out: list[Statement]) -> Temporary:
-        """A temporary holding ``-value`` (one per value), appended to ``out`` if new."""
+    def _negation(self, value: sympy.Expr, out: list[Statement],
+                  done: set[sympy.Symbol]) -> Temporary:
+        """A temporary holding ``-value`` (one per value), appended to ``out`` (whose
+        targets are ``done``) if new."""
         negated = self.negations.get(value)
         if negated is None:
             negated = self.negations[value] = self.fresh()
-        if not any(isinstance(s, Assign) and s.target == negated for s in out):
-            out.append(Assign(negated, -value))
+        if negated not in done:
+            _append(out, done, Assign(negated, -value))
         return negated
 
-    def late_candidates(self, body: list[Statement]) -> list[Callable]:
+    def late_candidates(self, body: list[Statement], state: Arrivals) -> list[Callable]:
         """For each product ``a * q`` in a sum, ``q`` a product or quotient: the early
         factors first, the late one (a reciprocal for a quotient) last."""
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
@@ -354,18 +346,17 @@ class _Work:
                 for factor in term.args:
                     inner = define.get(factor)
                     if isinstance(factor, Temporary) and inner is not None and inner.is_Mul:
-                        found.append(lambda b, s=st.target, t=term, f=factor:
-                                     self._late(b, s, t, f))
+                        found.append(lambda slots, s, t=st.target, m=term, f=factor:
+                                     self._late(slots, s, t, m, f))
         return found
 
-    def _late(self, body: list[Statement], target: Temporary, term: sympy.Expr,
+    def _late(self, slots: _Slots, state: Arrivals, target: Temporary, term: sympy.Expr,
               factor: Temporary):
-        k = next((i for i, st in enumerate(body)
-                  if isinstance(st, Assign) and st.target == target), None)
-        if k is None or term not in sympy.Add.make_args(body[k].expr):
+        current = slots.statement(target)
+        if current is None or term not in sympy.Add.make_args(current.expr):
             return None
-        inner = next(st.expr for st in body if isinstance(st, Assign) and st.target == factor)
-        ready = self.arrivals(body)
+        inner = slots.statement(factor).expr
+        ready = state.ready
 
         def when(a: sympy.Expr) -> float:
             base = a.base if a.is_Pow else a
@@ -382,21 +373,22 @@ class _Work:
             late = self.reciprocals.get(last.base)
             if late is None:
                 late = self.reciprocals[last.base] = self.fresh()
-            if not any(isinstance(s, Assign) and s.target == late for s in body):
+            if slots.statement(late) is None:
                 reciprocal = Assign(late, 1 / last.base)
         else:
             late = last
         early = [a for a in sympy.Mul.make_args(term) if a != factor]
         w = self.fresh()
         expr = sympy.Add(*[w * late if t == term else t
-                           for t in sympy.Add.make_args(body[k].expr)])
-        body = body[:k] + [Assign(w, sympy.Mul(coeff, *early, *args[:-1])),
-                           Assign(target, expr)] + body[k + 1:]
+                           for t in sympy.Add.make_args(current.expr)])
+        changed = [Assign(w, sympy.Mul(coeff, *early, *args[:-1])), Assign(target, expr)]
+        placements = [(target, changed)]
         if reciprocal is not None:
-            at = next((i + 1 for i, st in enumerate(body)
-                       if isinstance(st, Assign) and st.target == last.base), 0)
-            body = body[:at] + [reciprocal] + body[at:]
-        return body
+            before = slots.statement(last.base)
+            placements.append((last.base, [before, reciprocal]) if before is not None
+                              else (None, [reciprocal]))
+            changed = [reciprocal, *changed]
+        return changed, placements
 
     def share_reciprocals(self, body: list[Statement]) -> list[Statement]:
         """Every other division by a value whose reciprocal the step computes becomes a
@@ -405,7 +397,8 @@ class _Work:
         swap = {sympy.Pow(d, -1): r for d, r in self.reciprocals.items() if r in present}
         if not swap:
             return body
-        out = [st if not isinstance(st, Assign) or st.target in swap.values()
+        reciprocals = set(swap.values())
+        out = [st if not isinstance(st, Assign) or st.target in reciprocals
                else Assign(st.target, st.expr.xreplace(swap)) for st in body]
         return out if out != body else body
 
@@ -414,7 +407,7 @@ class _Work:
     def order(self, body: list[Statement]) -> list[Statement]:
         """Statements by when their operands are ready (ties: as they were); checks in
         their order, and what reads a checked value after its check."""
-        ready = self.arrivals(body)
+        ready = arrival_times(body, self.form)
         defined = {st.target: k for k, st in enumerate(body) if isinstance(st, Assign)}
         checks = [k for k, st in enumerate(body) if isinstance(st, Check)]
         checked: dict[sympy.Symbol, int] = {}
@@ -438,15 +431,69 @@ class _Work:
             value = ready.get(name, -math.inf) if name else -math.inf
             return (value if value > -math.inf else -1.0, k)
 
-        done: set[int] = set()
+        # the statement of least key among those whose predecessors are all placed
+        waiting = {k: len(before) for k, before in after.items()}
+        followers: dict[int, list[int]] = {}
+        for k, before in after.items():
+            for j in before:
+                followers.setdefault(j, []).append(k)
+        free = [key(k) for k, count in waiting.items() if count == 0]
+        heapq.heapify(free)
         out: list[Statement] = []
-        waiting = sorted(range(len(body)), key=key)
-        while waiting:
-            k = next(k for k in waiting if after[k] <= done)
-            waiting.remove(k)
-            done.add(k)
+        while free:
+            _, k = heapq.heappop(free)
             out.append(body[k])
+            for j in followers.get(k, ()):
+                waiting[j] -= 1
+                if waiting[j] == 0:
+                    heapq.heappush(free, key(j))
+        if len(out) != len(body):
+            raise ValueError("the step's statements depend on each other in a cycle")
         return out
+
+
+class _Slots:
+    """A step under edit: each statement of the step as given holds a slot, and an edit
+    puts statements in the place of one (so a temporary's slot never moves however many
+    are inserted before it); the step is the slots in order."""
+
+    def __init__(self, body: Sequence[Statement]) -> None:
+        self.slots = [[st] for st in body]
+        self.slot: dict[sympy.Symbol, int] = {}
+        for k, st in enumerate(body):
+            if isinstance(st, Assign):
+                self.slot.setdefault(st.target, k)
+
+    def statement(self, target: sympy.Symbol) -> Assign | None:
+        """The first statement that defines ``target`` (None if none does)."""
+        k = self.slot.get(target)
+        if k is None:
+            return None
+        return next(st for st in self.slots[k]
+                    if isinstance(st, Assign) and st.target == target)
+
+    def place(self, placements: Sequence[tuple[sympy.Symbol | None, list[Statement]]]
+              ) -> None:
+        """Each ``(target, statements)``: ``statements`` in the place of ``target``'s
+        first definition (``target`` None: before the whole step)."""
+        for target, statements in placements:
+            k = 0 if target is None else self.slot[target]
+            slot = self.slots[k]
+            at = 0 if target is None else next(
+                i for i, st in enumerate(slot) if isinstance(st, Assign) and st.target == target)
+            slot[at:at + (target is not None)] = statements
+            for st in statements:
+                if isinstance(st, Assign):
+                    self.slot.setdefault(st.target, k)
+
+    def body(self) -> list[Statement]:
+        return [st for slot in self.slots for st in slot]
+
+
+def _append(out: list[Statement], done: set[sympy.Symbol], st: Statement) -> None:
+    out.append(st)
+    if isinstance(st, Assign):
+        done.add(st.target)
 
 
 def _is_product(expr: sympy.Expr) -> bool:

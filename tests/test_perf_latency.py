@@ -221,14 +221,15 @@ def _evaluate(program, values: dict) -> dict:
 
 def test_a_large_step_gets_no_bound_search_but_a_note(monkeypatch, capsys):
     """Printing a bound never runs the schedule's search on a step past the size limit
-    (it grows with the square of the size); the note says so and how to apply it."""
+    (in flops: the search's time follows the work of its rewrites); the note says so and
+    how to apply it."""
     from derive.apps import latency
 
     unit = derive_unit(catalog.load("mpt3d_a"), "kf", {})
-    size = len(unit.programs["step"].body)
-    monkeypatch.setattr(latency, "MAX_BOUND_STATEMENTS", size - 1)
+    flops = count(unit.programs["step"], "c").flops
+    monkeypatch.setattr(latency, "MAX_BOUND_FLOPS", flops - 1)
     both = latency.schedule_bounds(unit)
     assert both.latency is None and both.default is not None
-    assert f"{size} statements" in both.note and "--latency-schedule" in both.note
+    assert f"{flops} flops" in both.note and "--latency-schedule" in both.note
     assert main(["burden", "mpt3d_a", "--filter", "kf"]) == 0
-    assert f"kf: latency schedule not computed for a step of {size}" in capsys.readouterr().out
+    assert f"kf: latency schedule not computed for a step of {flops}" in capsys.readouterr().out

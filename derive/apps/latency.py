@@ -22,7 +22,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
+from derive.arrivals import operation_latency
 from derive.emit.lookahead import run_pass
 from derive.flops import count
 from derive.lowering import (
@@ -36,7 +39,7 @@ from derive.lowering import (
     lower_program,
 )
 from derive.options import taken_by
-from derive.schedule import REFERENCE_CYCLES, operation_latency, scheduled_unit
+from derive.schedule import REFERENCE_CYCLES, scheduled_unit
 
 _NONE = -np.inf
 
@@ -57,7 +60,8 @@ class Bound:
 
 
 class _Graph:
-    """Longest paths from each carried input element to every node of the step."""
+    """Longest paths from each carried input element to every node of the step, held
+    sparsely: per node, only the carried inputs that reach it."""
 
     def __init__(self, lowered: LoweredProgram, latency: Mapping[str, float]):
         self.latency = latency
@@ -70,43 +74,44 @@ class _Graph:
         self.temps: dict[str, Tree] = {st.target: st.tree for st in lowered.body
                                        if isinstance(st, LoweredAssign)}
         self.leaves = [leaf for out, _ in self.pairs for leaf in results[out]]
-        self._memo: dict[int, np.ndarray] = {}
-        self._names: dict[str, np.ndarray] = {}
+        self._memo: dict[int, dict[int, float]] = {}
+        self._names: dict[str, dict[int, float]] = {}
 
-    def arrival(self, tree: Tree) -> np.ndarray:
-        """Per carried input: the longest latency from it to ``tree``'s value."""
+    def arrival(self, tree: Tree) -> dict[int, float]:
+        """Per carried input that reaches ``tree``: the longest latency to its value."""
         key = id(tree)
         if key in self._memo:
             return self._memo[key]
-        size = len(self.carried)
         if isinstance(tree, Const):
-            value = np.full(size, _NONE)
+            value: dict[int, float] = {}
         elif isinstance(tree, Var):
             value = self._var(tree.name)
         else:
-            value = np.full(size, _NONE)
+            step = operation_latency(tree.kind, self.latency)
+            joined: dict[int, float] = {}
             for arg in tree.args:
-                value = np.maximum(value, self.arrival(arg))
-            value = value + operation_latency(tree.kind, self.latency)
+                for source, at in self.arrival(arg).items():
+                    if at > joined.get(source, _NONE):
+                        joined[source] = at
+            value = {source: at + step for source, at in joined.items()}
         self._memo[key] = value
         return value
 
-    def _var(self, name: str) -> np.ndarray:
+    def _var(self, name: str) -> dict[int, float]:
         if name in self._names:
             return self._names[name]
-        size = len(self.carried)
         if name in self.temps:
             value = self.arrival(self.temps[name])
         else:
-            value = np.full(size, _NONE)
-            if name in self.index:
-                value[self.index[name]] = 0.0
+            value = {self.index[name]: 0.0} if name in self.index else {}
         self._names[name] = value
         return value
 
-    def matrix(self) -> np.ndarray:
-        """``A[i, j]``: longest latency from carried input i to carried output j."""
-        return np.stack([self.arrival(leaf) for leaf in self.leaves], axis=1)
+    def edges(self) -> dict[tuple[int, int], float]:
+        """``{(i, j): latency}``: the longest latency from carried input i to carried
+        output j, where i reaches j."""
+        return {(i, j): at for j, leaf in enumerate(self.leaves)
+                for i, at in self.arrival(leaf).items()}
 
     def path_kinds(self, source: int, tree: Tree) -> Counter:
         """Operation kinds on a longest path from carried input ``source`` to ``tree``."""
@@ -121,39 +126,88 @@ class _Graph:
                 return kinds
             if tree.kind != "cmp":
                 kinds[tree.kind] += 1
-            tree = max(tree.args, key=lambda a: self.arrival(a)[source])
+            tree = max(tree.args, key=lambda a: self.arrival(a).get(source, _NONE))
 
 
 def carried_bound(lowered: LoweredProgram, latency: Mapping[str, float]) -> Bound | None:
     """The maximum cycle mean of the step's feedback, or None without carried state
-    (a FIR window) or when no output depends on the carried inputs."""
+    (a FIR window) or when no output depends on the carried inputs.
+
+    A cycle lies within one strongly connected part of the feedback graph (carried
+    element i to j where i reaches j), so each part's max-plus powers are taken on its
+    own (their size, not the whole state's: a block-diagonal model's parts are its
+    blocks), the parts scanned together step count by step count as one matrix would
+    be (the first cycle of the highest mean, the fewest steps, the lowest element)."""
     graph = _Graph(lowered, latency)
     if not graph.carried:
         return None
-    A = graph.matrix()
-    size = len(A)
+    edges = graph.edges()
+    parts = _cyclic_parts(len(graph.carried), edges)
+    if not parts:
+        return None
+    longest = max(len(part) for part in parts)
+    powers = [_Powers(part, edges, longest) for part in parts]
     best, best_cycle = _NONE, None
-    power = A.copy()
-    via = [np.tile(np.arange(size), (size, 1))]   # via[k][i, j]: the node after i
-    for steps in range(1, size + 1):
-        diag = np.diag(power)
-        i = int(np.argmax(diag))
-        if diag[i] > _NONE and diag[i] / steps > best + 1e-15:
-            best, best_cycle = diag[i] / steps, (i, steps)
-        if steps == size:
-            break
-        total = power[:, :, None] + A[None, :, :]        # i -> k (steps), k -> j (one)
-        arg = np.argmax(total, axis=1)
-        power = np.take_along_axis(total, arg[:, None, :], axis=1)[:, 0, :]
-        via.append(arg)
+    for steps in range(1, longest + 1):
+        value, start, owner = max(((p.diagonal[steps - 1][k], -p.nodes[k], p)
+                                   for p in powers for k in [p.top[steps - 1]]),
+                                  key=lambda item: (item[0], item[1]))
+        if value > _NONE and value / steps > best + 1e-15:
+            best, best_cycle = value / steps, (owner, -start, steps)
     if best_cycle is None:
         return None
-    start, steps = best_cycle
-    nodes = _cycle_nodes(via, start, steps)
+    owner, start, steps = best_cycle
+    nodes = [owner.nodes[k] for k in
+             _cycle_nodes(owner.via, owner.nodes.index(start), steps)]
     kinds: Counter = Counter()
     for a, b in zip(nodes, nodes[1:] + nodes[:1], strict=True):
         kinds += graph.path_kinds(a, graph.leaves[b])
     return Bound(float(best), {k: v / steps for k, v in kinds.items()}, steps)
+
+
+def _cyclic_parts(size: int, edges: Mapping[tuple[int, int], float]) -> list[list[int]]:
+    """The strongly connected parts of the graph that hold a cycle, each its elements in
+    increasing order."""
+    if not edges:
+        return []
+    rows, cols = zip(*edges, strict=True)
+    graph = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(size, size))
+    _, labels = connected_components(graph, directed=True, connection="strong")
+    members: dict[int, list[int]] = {}
+    for node, label in enumerate(labels):
+        members.setdefault(int(label), []).append(node)
+    return [part for part in members.values()
+            if len(part) > 1 or (part[0], part[0]) in edges]
+
+
+class _Powers:
+    """The max-plus powers of one strongly connected part's matrix, 1 to ``steps``:
+    per power its diagonal, the element of its greatest diagonal entry (the first), and
+    the walks (``via[k][i, j]``: the node before j on the best k+1-edge walk from i)."""
+
+    def __init__(self, nodes: list[int], edges: Mapping[tuple[int, int], float],
+                 steps: int):
+        self.nodes = nodes
+        local = {node: k for k, node in enumerate(nodes)}
+        size = len(nodes)
+        A = np.full((size, size), _NONE)
+        for (i, j), at in edges.items():
+            if i in local and j in local:
+                A[local[i], local[j]] = at
+        power = A.copy()
+        self.via = [np.tile(np.arange(size), (size, 1))]
+        self.diagonal: list[np.ndarray] = []
+        self.top: list[int] = []
+        for k in range(1, steps + 1):
+            diag = np.diag(power)
+            self.diagonal.append(diag)
+            self.top.append(int(np.argmax(diag)))
+            if k == steps:
+                break
+            total = power[:, :, None] + A[None, :, :]        # i -> k (steps), k -> j (one)
+            arg = np.argmax(total, axis=1)
+            power = np.take_along_axis(total, arg[:, None, :], axis=1)[:, 0, :]
+            self.via.append(arg)
 
 
 def _cycle_nodes(via: list[np.ndarray], start: int, steps: int) -> list[int]:
@@ -181,10 +235,12 @@ def run_loop_bound(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Bou
     return Bound(bound.per_step / steps, bound.operations, bound.span, steps)
 
 
-#: Steps with more statements are not scheduled just to print a bound (``derive burden``,
-#: the bench): the schedule's search grows with the square of the step's size (about 6 s
-#: at 300 statements, twelve axes of mpt3d_b); ``--latency-schedule`` still applies it.
-MAX_BOUND_STATEMENTS = 400
+#: Steps of more flops (C, as counted) are not scheduled just to print a bound (``derive
+#: burden``, the bench), a note says so; ``--latency-schedule`` still applies it.  The
+#: schedule's search takes time in proportion to the work of its rewrites, about 1 to
+#: 1.5 ms of CPU per flop of the step (120 constant-velocity axes: 3,000 flops, 31,680
+#: statements, 4 s; a dense 16-state KF: 18,004 flops, 19 s).
+MAX_BOUND_FLOPS = 4000
 
 
 @dataclass(frozen=True)
@@ -207,11 +263,11 @@ def schedule_bounds(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Sc
     if default is None or unit.lookahead is not None or \
             "latency_schedule" not in taken_by(unit.filter):
         return ScheduleBounds(default, None, None)
-    size = len(unit.programs["step"].optimize().body)
-    if size > MAX_BOUND_STATEMENTS:
+    flops = count(unit.programs["step"], "c").flops
+    if flops > MAX_BOUND_FLOPS:
         return ScheduleBounds(default, None, None, f"latency schedule not computed for a step "
-                              f"of {size} statements (over {MAX_BOUND_STATEMENTS}); "
+                              f"of {flops} flops (over {MAX_BOUND_FLOPS}); "
                               "--latency-schedule applies it")
     scheduled = scheduled_unit(unit)
-    added = count(scheduled.programs["step"], "c").flops - count(unit.programs["step"], "c").flops
+    added = count(scheduled.programs["step"], "c").flops - flops
     return ScheduleBounds(default, run_loop_bound(scheduled, latency), added)

@@ -30,6 +30,7 @@ from . import (
     peers,
     python_floor,
     scaling,
+    schedule_scaling,
     startup,
 )
 from .bound import case_bound, case_schedule_bounds
@@ -77,6 +78,7 @@ class Settings:
     generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
     compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
     startup_repeats: int = 5          # each `derive` start-up call; 0: left out
+    schedule_axes: tuple[int, ...] = schedule_scaling.AXES   # both bounds of k CV axes
 
     @classmethod
     def quick(cls) -> Settings:
@@ -86,7 +88,8 @@ class Settings:
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
                    navigation_symforce=False,
-                   generation_scaling=False, compile_states=(3,), startup_repeats=1)
+                   generation_scaling=False, compile_states=(3,), startup_repeats=1,
+                   schedule_axes=(3,))
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,7 @@ class BenchResult:
     compile: list[compile_size.CompileRow] = field(default_factory=list)
     startup: list[startup.StartupRow] = field(default_factory=list)
     startup_load: tuple[float, float, float] | None = None   # load average before it
+    schedule: list[schedule_scaling.ScheduleRow] = field(default_factory=list)
 
     def row(self, case: str, implementation: str) -> Row | None:
         return next((r for r in self.rows if r.case == case and r.implementation ==
@@ -140,6 +144,7 @@ class BenchResult:
                 "generation": [asdict(r) for r in self.generation],
                 "compile": [asdict(r) for r in self.compile],
                 "startup": [asdict(r) for r in self.startup], "startup_load": self.startup_load,
+                "schedule": [asdict(r) for r in self.schedule],
                 "bars": [asdict(b) for b in self.bars()]}
 
     def _seconds(self, case: str, implementation: str) -> float | None:
@@ -291,6 +296,11 @@ class BenchResult:
                       "one process each, the model built through the Python API, then "
                       "render_unit (derive and render Python and C, nothing written)", ""]
             lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
+        if self.schedule:
+            lines += ["both bounds of large KFs (derive.apps.bench.schedule_scaling): k CV "
+                      "axes, carried chain per step in reference cycles; CPU seconds of the "
+                      "latency schedule's search and of both bounds (derive burden's)", ""]
+            lines += _columns(*schedule_scaling.schedule_table(self.schedule)) + [""]
         if self.compile:
             head, body, compile_bars = compile_size.compile_table(self.compile)
             lines += ["files that compile in seconds: a dense random KF generated (a child "
@@ -552,6 +562,7 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
             tick("start-up of the command line")
             result.startup_load = os.getloadavg()
             result.startup = startup.startup_rows(s.startup_repeats, Path(tmp))
+        result.schedule = schedule_scaling.schedule_rows(s.schedule_axes, tick=tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
