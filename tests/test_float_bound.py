@@ -59,8 +59,9 @@ def unit_diagonal_cond(M: np.ndarray) -> float:
 
 
 def at_scale(M: np.ndarray) -> float:
-    """The error measure's scale of a matrix: max(||M||_inf, 1)."""
-    return max(float(np.abs(M).sum(axis=1).max()), 1.0)
+    """The scale the error measure judges a covariance at: its own size, ||M||_inf
+    (derive.apps.verify.relative_error divides by it or by a floor below it)."""
+    return float(np.abs(M).sum(axis=1).max())
 
 
 def ins_gnss_trace(steps: int):
@@ -141,8 +142,9 @@ def test_a_kfs_kappa_is_cond_s_and_an_information_forms_includes_p():
     assert [name for name, _ in kf_terms] == ["cond S", "P(k/k-1) -> P(k/k)"]
     assert [name for name, _ in ikf_terms] == ["cond R", "P(k/k-1) -> P(k/k)",
                                                "cond P(k/k)^-1"]
-    # the information form's kappa is P's, orders above the KF's on this model
-    assert ikf >= max(information) > 100 * kf
+    # the information form's kappa is P's, over an order above the KF's on this model (the
+    # KF's own cancellation, P(k/k-1) over P(k/k) at P(k/k)'s own size, is ~3.8 here)
+    assert ikf >= max(information) > 10 * kf
     assert len(run_steps(model, kind("kf"), run)) == len(run.Ps)
 
 

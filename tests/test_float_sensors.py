@@ -157,8 +157,8 @@ def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
         d = 1.0 / np.sqrt(np.diag(S))
         return np.linalg.cond(S * np.outer(d, d))
 
-    def at_scale(P):
-        return max(np.abs(P).sum(axis=1).max(), 1.0)
+    def at_scale(P):   # the measure judges P at its own size
+        return np.abs(P).sum(axis=1).max()
 
     kappa = max(max([unit_diagonal(u.S) for u in step.updates], default=1.0)
                 * max([max(1.0, at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T))

@@ -42,7 +42,8 @@ MODEL = scaled_model()
 
 def scaled_error(a, b) -> float:
     """max |a - b| / max |b|: relative to the array's own scale (derive verify's
-    relative_error floors the scale at 1, which hides everything at P ~ 1e-160)."""
+    relative_error floored the scale at 1 when this was written, which hid everything
+    at P ~ 1e-160; its floor is now min(1, the typical step's size))."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
 

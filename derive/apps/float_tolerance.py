@@ -1,8 +1,9 @@
 """The tolerance a float32 filter is verified against, derived from float32's unit
 roundoff, the generated step and the conditioning of the model (not typed in).
 
-The error measure is derive.apps.verify's: per step, ``||gen_k - ref_k||_inf /
-max(||ref_k||_inf, 1)`` for x(k) and P(k), the largest over the run, against the float64
+The error measure is derive.apps.verify's (relative_error): per step, ``||gen_k - ref_k||_inf /
+max(||ref_k||_inf, floor)``, floor = min(1, the lower median of the non-zero step sizes), for
+x(k) and P(k), the largest over the run, against the float64
 NumPy reference on the same data. The bound is
 
     tol = c * u32 * L * G * kappa,      u32 = 2^-24 (FLOAT.unit_roundoff)
@@ -47,7 +48,8 @@ NumPy reference on the same data. The bound is
   - the update P(k/k-1) -> P(k/k) (``cancel``: the standard form's P(k/k-1) - K S K^T,
     whose roundings and the solve's error are relative to ||P(k/k-1)||; the information
     form's inverse of P(k/k-1), whose residual reaches P(k/k) as (I - K H) E (I - K H)^T):
-    max(||P(k/k-1)||_inf, 1) / max(||P(k/k)||_inf, 1), at least 1 (:func:`cancellation`);
+    ||P(k/k-1)||_inf / ||P(k/k)||_inf, at least 1 (:func:`cancellation`): the measure
+    judges P(k/k) at its own size, so a P(k/k) of 1e-9 cancelled from 1e4 loses 13 digits;
   - a sigma-point filter (whose options have ``alpha``) whose h has a node no rule of the
     difference form covers (derive.filters.difference: its spread there is computed as
     g(a') - g(a)) also has the cancellation of its spreads, of magnitude sqrt(H P H^T)
@@ -318,11 +320,16 @@ def scaled_condition(M: np.ndarray) -> float:
 
 def cancellation(before: np.ndarray, after: np.ndarray) -> float:
     """The update's subtraction P(k/k) = P(k/k-1) - K S K^T: its operands (K S K^T <=
-    P(k/k-1)) over its result, each at the error measure's scale max(||.||_inf, 1): the
-    factor by which the roundings of the operands, relative to them, grow relative to the
-    result; at least 1 (the roundings relative to the result itself)."""
-    return max(1.0, float(max(np.abs(before).sum(axis=1).max(), 1.0) /
-                          max(np.abs(after).sum(axis=1).max(), 1.0)))
+    P(k/k-1)) over its result, ||P(k/k-1)||_inf / ||P(k/k)||_inf: the factor by which the
+    roundings of the operands, relative to them, grow relative to the result, which the
+    error measure (derive.apps.verify.relative_error) judges at the result's own size (or
+    at a floor below it, never above 1); at least 1 (the roundings relative to the result
+    itself); infinite for a zero result of a non-zero P(k/k-1)."""
+    top = float(np.abs(before).sum(axis=1).max())
+    bottom = float(np.abs(after).sum(axis=1).max())
+    if bottom == 0.0:
+        return 1.0 if top == 0.0 else float("inf")
+    return max(1.0, top / bottom)
 
 
 def conditioned(entry: Conditioned, matrices: Sequence) -> float:

@@ -3,10 +3,13 @@
 For each filter the generated code is written to a scratch directory, the Python
 module imported and the C compiled with the strict flags through cffi, and both
 are run over ``steps`` simulated measurements. The error measure is normwise per
-step, ``max_k ||gen_k - ref_k||_inf / max(||ref_k||_inf, 1)`` for x(k) and for P(k)
-(relative, absolute near zero): a component computed from much larger ones (the
-acceleration of the CA model from positions of 1e6 m) is judged at the scale of the
-numbers it is computed from. The bar is 1e-12 for linear filters.
+step, ``max_k ||gen_k - ref_k||_inf / max(||ref_k||_inf, floor)`` for x(k) and for P(k)
+(:func:`relative_error`): a component computed from much larger ones (the acceleration
+of the CA model from positions of 1e6 m) is judged at the scale of the numbers it is
+computed from; floor = min(1, the lower median of the non-zero ||ref_k||_inf) keeps a
+step near zero from being divided by its own noise while an array of small numbers
+(P ~ 1e-20) is still judged at its own size (:func:`error_floor`). The bar is 1e-12 for
+linear filters.
 
 Nonlinear filters (EKF, UKF) run on :func:`nonlinear_scenario`: for a model whose inputs
 are one satellite position per measurement and whose state is [x, y, z, b], the GNSS
@@ -142,7 +145,28 @@ def jacobian_witness(model, points: int = WITNESS_POINTS, seed: int = 0
         return JacobianWitness(model.name, None, str(exc))
 
 
+def error_floor(step_sizes) -> float:
+    """The smallest scale a step's error is divided by: min(1, the lower median of the
+    non-zero step sizes ``||ref_k||_inf``), 0 when every step is zero.
+
+    A step whose reference is (near) zero is judged at the size of the array's typical
+    step, not divided by its own noise; an array of small numbers (P ~ 1e-20) is judged at
+    its own size, not at 1 (which made the measure absolute for it: a doubled P of 1e-20
+    passed 1e-12). The median, not the largest step, so a large start (P0 = 1 settling to
+    1e-20) does not set the scale of the steps after it; at most 1, so the measure is never
+    looser than it was with the floor 1 (absolute below 1, relative above)."""
+    sizes = np.sort(np.asarray(step_sizes, dtype=float).ravel())
+    sizes = sizes[sizes > 0]
+    if sizes.size == 0:
+        return 0.0
+    return float(min(sizes[(sizes.size - 1) // 2], 1.0))
+
+
 def relative_error(a, b) -> float:
+    """``max_k ||a_k - b_k||_inf / max(||b_k||_inf, floor)`` over the steps k (the first
+    axis), b the reference, floor = :func:`error_floor` of the step sizes ``||b_k||_inf``.
+    A step without difference counts 0 (also against an all-zero reference); a difference
+    against an all-zero reference is infinite; NaN anywhere gives NaN."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if a.shape != b.shape:
         raise VerificationError(f"shape {a.shape} differs from the reference's {b.shape}")
@@ -150,8 +174,11 @@ def relative_error(a, b) -> float:
         return 0.0
     steps = a.shape[0]
     diff = np.abs(a - b).reshape(steps, -1).max(axis=1)
-    scale = np.maximum(np.abs(b).reshape(steps, -1).max(axis=1), 1.0)
-    return float(np.max(diff / scale))
+    sizes = np.abs(b).reshape(steps, -1).max(axis=1)
+    scale = np.maximum(sizes, error_floor(sizes))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(diff == 0, 0.0, diff / scale)
+    return float(np.max(ratio))
 
 
 @dataclass(frozen=True)
@@ -462,6 +489,7 @@ def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("py
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
            "InputRun", "JacobianWitness", "NonlinearScenario", "SensorsCase", "Verification",
-           "conditioning_run", "jacobian_witness", "linear_run", "nonlinear_reference",
+           "conditioning_run", "error_floor", "jacobian_witness", "linear_run",
+           "nonlinear_reference",
            "nonlinear_scenario", "relative_error", "rounding_floor", "sensors_case",
            "verify_filter", "verify_modules"]
