@@ -90,8 +90,7 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
                 later, firsts = equal.setdefault(port, ([], []))
                 later.append(index)
                 firsts.append(first[(port, local)])
-        shared_positions = _shared_positions(parts[0], elements, scalars)
-        for j in shared_positions:
+        for j in _data_free(parts[0], elements, scalars)[2]:
             copies = sorted((part.body[j][0], part.body[j][1]) for part in parts)
             kept = copies[0][1]
             for position, st in copies[1:]:
@@ -153,12 +152,7 @@ def _shared_elements(parts: list[Part], next_of: dict[str, str],
                 and all(_next_local(part, port, local, next_of) ==
                         _next_local(first, port, local, next_of) for part in parts)}
     while True:
-        names = {element_name(port, first.canonical["inputs"][(port, local)])
-                 for port, local in elements}
-        temporaries = set(scalars)
-        for _, st in first.body:
-            if isinstance(st, LoweredAssign) and _reads_only(st.tree, names, temporaries):
-                temporaries.add(st.target)
+        names, temporaries, _ = _data_free(first, elements, scalars)
         kept = {(port, local) for port, local in elements
                 if _reads_only(results[next_of[port]][first.canonical["inputs"][(port, local)]],
                                names, temporaries)}
@@ -177,10 +171,11 @@ def _next_local(part: Part, port: str, local: int, next_of: dict[str, str]) -> i
                  if name == next_of[port] and g == index), None)
 
 
-def _shared_positions(first: Part, elements: set[tuple[str, int]], scalars: set[str]
-                      ) -> list[int]:
-    """The indices (in the block's body) of its statements and checks that read only
-    parameters, statements of the parameters and the shared carried ``elements``."""
+def _data_free(first: Part, elements: set[tuple[str, int]], scalars: set[str]
+               ) -> tuple[set[str], set[str], list[int]]:
+    """What of the block reads only parameters, statements of the parameters and the
+    carried ``elements``: those elements' names, its temporaries of that kind, and the
+    indices (in the block's body) of its statements and checks of that kind."""
     names = {element_name(port, first.canonical["inputs"][(port, local)])
              for port, local in elements}
     temporaries = set(scalars)
@@ -190,4 +185,4 @@ def _shared_positions(first: Part, elements: set[tuple[str, int]], scalars: set[
             positions.append(j)
             if isinstance(st, LoweredAssign):
                 temporaries.add(st.target)
-    return positions
+    return names, temporaries, positions
