@@ -249,6 +249,6 @@ def test_verify_help_states_the_bars_it_applies():
     out = subprocess.run([sys.executable, "-m", "derive", "verify", "--help"],
                          capture_output=True, text=True, env=_env(), timeout=60).stdout
     text = " ".join(out.split())
-    assert "1e-12 for linear filters" in text
+    assert "1e-12 for linear filters" in text and "c u64 L G kappa" in text
     assert "1e-10" in text and "rounding floor" in text and "CasADi" in text
     assert verify_app.LINEAR_TOLERANCE == 1e-12 and verify_app.NONLINEAR_TOLERANCE == 1e-10

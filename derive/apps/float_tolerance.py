@@ -82,12 +82,18 @@ NumPy reference on the same data. The bound is
 
 A bound at or above 1 says the model cannot be computed meaningfully in float32;
 :attr:`FloatTolerance.meaningful` says so and the verification reports it failed.
+
+The same bound at double's unit roundoff, u64 = 2^-53 (:func:`in_double`: the inputs need
+no rounding, so L has one rounding fewer), is what two correct double implementations can
+differ by on an ill-conditioned model: `derive verify` holds a linear double filter to
+1e-12, or to this bound where the model's conditioning puts it above 1e-12
+(derive.apps.verify).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -119,7 +125,7 @@ from ..lowering import (
     element_name,
     lower_program,
 )
-from ..precision import FLOAT
+from ..precision import DOUBLE, FLOAT
 from ..riccati import kf_steady
 
 #: The constant of the bound (see the module docstring).
@@ -149,13 +155,19 @@ class FloatTolerance:
 
     @property
     def meaningful(self) -> bool:
-        """False when the bound is 1 or more: float32 cannot carry the model."""
+        """False when the bound is 1 or more: the precision cannot carry the model."""
         return self.value < 1.0
 
+    @property
+    def precision_name(self) -> str:
+        """``float32`` or ``double``: the precision whose unit roundoff the bound uses."""
+        return "float32" if self.unit_roundoff == FLOAT.unit_roundoff else "double"
+
     def text(self) -> str:
-        """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06``, then what kappa is
-        made of (``; kappa: cond S 1 * P(k/k-1) -> P(k/k) 2.51``)."""
-        text = (f"c u32 L G kappa = {self.c:g} * 2^{int(np.log2(self.unit_roundoff))} * "
+        """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06`` (``u64`` and 2^-53 in
+        double), then what kappa is made of (``; kappa: cond S 1 * P(k/k-1) -> P(k/k) 2.51``)."""
+        u = "u32" if self.precision_name == "float32" else "u64"
+        text = (f"c {u} L G kappa = {self.c:g} * 2^{int(np.log2(self.unit_roundoff))} * "
                 f"{self.roundings} * {self.growth:.3g} * {self.condition:.3g} = "
                 f"{self.value:.2e}")
         if self.terms:
@@ -551,11 +563,17 @@ def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
                           condition=kappa, terms=terms)
 
 
+def in_double(bound: FloatTolerance) -> FloatTolerance:
+    """``bound`` (a float32 tolerance) at double's unit roundoff: the inputs are doubles
+    already, so one rounding fewer (the baked constants are still rounded once)."""
+    return replace(bound, unit_roundoff=DOUBLE.unit_roundoff, roundings=bound.roundings - 1)
+
+
 __all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceRun",
            "chained_depth", "output_depths",
            "SensorsConditioning", "cancellation", "condition", "condition_terms", "conditioned",
            "error_growth",
-           "float_tolerance", "growth_of", "lainiotis_matrices", "rounding_depth",
+           "float_tolerance", "growth_of", "in_double", "lainiotis_matrices", "rounding_depth",
            "run_growth", "run_roundings", "run_steps", "scaled_condition",
            "sensors_conditioning", "spread_cancellation", "step_condition", "step_programs",
            "step_terms", "term_name", "worst_step"]

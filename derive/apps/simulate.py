@@ -32,6 +32,31 @@ def _steps(steps: int) -> int:
     return int(steps)
 
 
+def _finite(truth: np.ndarray, measured: np.ndarray) -> None:
+    """Refuse a simulation whose truth or measurements leave the range of a double: the
+    first step where one does, and what grows (a filter verified on it would compare
+    infinities, and NumPy would only have warned)."""
+    steps = len(measured)
+    bad_truth = ~np.isfinite(truth).all(axis=1)
+    if bad_truth.any():
+        k = int(np.argmax(bad_truth))
+        grown = np.abs(truth[k - 1]) if k else np.zeros(truth.shape[1])
+        raise ModelError(
+            f"the simulated truth is not finite at step {k} of {steps} (the largest state "
+            f"before it is {float(grown.max()):.3g}): the model's process leaves the range "
+            f"of a double or is undefined there; simulate fewer steps (--steps) or give "
+            f"the model values under which it stays finite")
+    bad = ~np.isfinite(measured).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad)) + 1
+        raise ModelError(
+            f"the simulated measurement z({k}) of {steps} is not finite (the largest state "
+            f"is {float(np.abs(truth[k]).max()):.3g}): the measurement model overflows or "
+            f"is undefined there; "
+            f"simulate fewer steps (--steps) or give the model values under which it stays "
+            f"finite")
+
+
 # ---------------------------------------------------------------- linear models
 class LinearRun(NamedTuple):
     """xs: true states (steps+1, n) for k = 0..steps; zs: measurements (steps, m), k = 1..steps."""
@@ -60,9 +85,12 @@ def simulate_linear(F, G, H, Q, R, x0, steps: int, seed: int, B=None, D=None,
         Bu, Du = us @ np.asarray(B, dtype=float).T, us @ np.asarray(D, dtype=float).T
     xs = np.empty((steps + 1, F.shape[0]))
     xs[0] = x
-    for k in range(steps):
-        xs[k + 1] = F @ xs[k] + Bu[k] + G @ w[k]
-    return LinearRun(xs, xs[1:] @ H.T + Du + v)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # refused below, by step
+        for k in range(steps):
+            xs[k + 1] = F @ xs[k] + Bu[k] + G @ w[k]
+        zs = xs[1:] @ H.T + Du + v
+    _finite(xs, zs)
+    return LinearRun(xs, zs)
 
 
 # ---------------------------------------------------------------- SSPRED truths
@@ -262,27 +290,29 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
     us = rng.uniform(-1.0, 1.0, (steps, n_u))
     truth = np.empty((steps + 1, n))
     truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
-    if model.kind == "linear":
-        num = model.numeric(params)
-        w = rng.multivariate_normal(np.zeros(num.Q.shape[0]), num.Q, size=steps, method="eigh")
-        for k in range(steps):
-            truth[k + 1] = num.F @ truth[k] + num.B @ us[k] + num.G @ w[k]
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # refused below, by step
+        if model.kind == "linear":
+            num = model.numeric(params)
+            w = rng.multivariate_normal(np.zeros(num.Q.shape[0]), num.Q, size=steps, method="eigh")
+            for k in range(steps):
+                truth[k + 1] = num.F @ truth[k] + num.B @ us[k] + num.G @ w[k]
 
-        def h(x, u):
-            return num.H @ x + num.D @ u
-        R = num.R
-    else:
-        fns = model.numeric_functions(params)
-        w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
-        noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
-                                              method="eigh") if n_u else 0.0)
-        for k in range(steps):
-            step_u = noisy[k, [model.inputs.index(u) for u in model.f_inputs]]
-            truth[k + 1] = (fns["f"](truth[k], step_u) if model.f_inputs
-                            else fns["f"](truth[k])) + w[k]
-        h, R = fns["h"], fns["R"]
-    v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
-    stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v
+            def h(x, u):
+                return num.H @ x + num.D @ u
+            R = num.R
+        else:
+            fns = model.numeric_functions(params)
+            w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
+            noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
+                                                  method="eigh") if n_u else 0.0)
+            for k in range(steps):
+                step_u = noisy[k, [model.inputs.index(u) for u in model.f_inputs]]
+                truth[k + 1] = (fns["f"](truth[k], step_u) if model.f_inputs
+                                else fns["f"](truth[k])) + w[k]
+            h, R = fns["h"], fns["R"]
+        v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
+        stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v
+    _finite(truth, stacked)
     zs, Rs = {}, {}
     for i, group in enumerate(groups):
         rows = stacked[:, group.rows[0]:group.rows[1]].copy()
