@@ -4,9 +4,14 @@ start and unit-norm groups, written from the equations on plain arrays and calla
 Per step k (0-based rows): predict with u(k) and p(k) (skipped at k = 0 with
 ``update_first``), then for each sensor in order whose row k of z has no NaN:
 ``nu = z - h(x, u_s)``, ``S = H P H^T + R``, ``nis = nu^T S^-1 nu``; the update
-``K = P H^T S^-1``, ``x + K nu``, ``P - K S K^T`` is applied unless a gate is given and
-``nis`` exceeds it (or is NaN); then each unit-norm group of x is divided by its norm
-(after every update of a present row, applied or not, as the generated update does).
+``K = P H^T S^-1``, ``x + K nu`` and Joseph's ``(I - K H) P (I - K H)^T + K R K^T`` are
+applied unless a gate is given and ``nis`` exceeds it (or is NaN); then each unit-norm
+group of x is divided by its norm (after every update of a present row, applied or not,
+as the generated update does). Joseph's form keeps the reference accurate where an
+update cancels: with P(k/k-1) 1e13 times P(k/k), ``P - K S K^T`` lost 1e-3 of P (rounding
+of P(k/k-1)), Joseph's form 2e-16 (against 60-digit arithmetic), and the generated
+``P - K (H P)`` 4e-10; the reference judges the generated code, so it must not be the
+less accurate of the two.
 
 With a ``trace`` list, :func:`run` also records each step's :class:`StepTrace` (the state
 it predicted from, P(k/k-1), and each present sensor's H, S, gain K and the P it
@@ -81,7 +86,8 @@ def _update(x, P, z, h, H, R, gate=None):
     if gate is not None and not nis <= gate:
         return x, P, nis, S, K, False
     x = x + K @ nu
-    P = P - K @ S @ K.T
+    IKH = np.eye(len(x)) - K @ H
+    P = IKH @ P @ IKH.T + K @ R @ K.T
     return x, (P + P.T) / 2, nis, S, K, True
 
 
