@@ -14,6 +14,11 @@ of measurements at the option's probability, computed at generation; the update 
 applied only when ``nis <= threshold`` (a NaN NIS is not), by selects on the gain and the
 solved innovation (one comparison each, no flop). The program returns ``nis`` and
 ``applied`` (1 or 0).
+
+Sequential updates (option ``update="sequential"``, or ``Sensor.update``): a sensor whose R
+is constant and diagonal is fused one scalar measurement at a time
+(:func:`sequential_update`, what PX4's ekf2 does), equal in exact arithmetic to the batch
+update, NIS included; gating then selects between the updated and the prior x and P.
 """
 
 from __future__ import annotations
