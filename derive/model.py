@@ -141,16 +141,20 @@ filter option ``update``, which overrides it."""
 def sequential_problem(name: str, R: sympy.MatrixBase, R_argument: bool) -> str | None:
     """Why sensor ``name`` (its R, valued symbols substituted; ``R_argument``: R given per
     call) cannot be updated one scalar measurement at a time, or None when it can: the
-    scalar updates equal the batch update only when the measurement noises are
-    uncorrelated, so R must be diagonal and known when the code is generated."""
+    scalar updates equal the batch update only for uncorrelated measurement noises, so R
+    must be diagonal, or constant (then decorrelated by its LDL^T factors when the code is
+    generated: derive.filters.sensors.sequential_update)."""
     if R_argument:
-        return (f"sensor {name!r}: the sequential update needs a constant diagonal R, but "
+        return (f"sensor {name!r}: the sequential update needs R diagonal or constant, but "
                 "its R is given per call")
-    for i in range(R.rows):
-        for j in range(i + 1, R.cols):
-            if R[i, j] != 0:
-                return (f"sensor {name!r}: the sequential update needs a diagonal R, but "
-                        f"R[{i}, {j}] = {R[i, j]} is not zero")
+    if R.free_symbols:
+        for i in range(R.rows):
+            for j in range(i + 1, R.cols):
+                if R[i, j] != 0:
+                    return (f"sensor {name!r}: the sequential update needs R diagonal or "
+                            f"constant (to decorrelate it when the code is generated), but "
+                            f"R[{i}, {j}] = {R[i, j]} is not zero and R depends on "
+                            f"{', '.join(sorted(s.name for s in R.free_symbols))}")
     return None
 
 

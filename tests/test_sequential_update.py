@@ -34,7 +34,8 @@ def relative(got, expected) -> float:
 
 
 def two_sensor_model(rng, n: int, m1: int, m2: int) -> LinearModel:
-    """A random stable linear model with two sensors of diagonal R (short decimals)."""
+    """A random stable linear model with two sensors (short decimals): ``a`` with a
+    correlated constant R (decorrelated at generation), ``b`` with a diagonal R."""
     F = rng.normal(size=(n, n)) * (rng.random((n, n)) < 0.6) + np.eye(n)
     F *= 0.95 / max(1.0, np.max(np.abs(np.linalg.eigvals(F))))
     L = rng.normal(size=(n, n))
@@ -44,6 +45,9 @@ def two_sensor_model(rng, n: int, m1: int, m2: int) -> LinearModel:
         H = rng.normal(size=(m, n)) * (rng.random((m, n)) < 0.7)
         H[np.arange(m), rng.permutation(n)[:m]] = 1.0
         R = np.diag(np.round(rng.uniform(0.2, 2.0, m), 3))
+        if name == "a":
+            A = rng.normal(size=(m, m))
+            R = np.round(A @ A.T / m, 3) + R
         sensors.append(Sensor(name, [f"{name}{i}" for i in range(m)],
                               H=np.round(H, 3).tolist(), R=R.tolist()))
     return LinearModel("seq", [f"x{i}" for i in range(n)], F=np.round(F, 3).tolist(),
@@ -274,26 +278,52 @@ def correlated() -> LinearModel:
                                 Sensor("vel", ["c"], H=[[1, 1]], R=[[1]])])
 
 
-def test_a_non_diagonal_R_is_refused_naming_the_sensor_and_the_entry(capsys, tmp_path):
+def test_a_constant_correlated_R_is_decorrelated_by_its_ldl_factors():
+    # R = L D L^T (exact rationals): the update fuses L^-1 z with noise D; a variance not
+    # positive names the decorrelated measurement
+    generated = load_generated(correlated(), "kf", {**SEQUENTIAL, "gate": 0.99})
+    assert "(R = L D L^T not diagonal: L^-1 z fused, its noise D;" in \
+        "\n".join(generated.unit.facts)
+    rng = np.random.default_rng(5)
+    x, P, z = rng.normal(size=2), spd(rng, 2), rng.normal(size=2)
+    R = np.array([[1, 0.25], [0.25, 1]])
+    x_ref, P_ref, nis_ref, _ = batch.update(x, P, z, x, np.eye(2), R)
+    for module in (generated.python, generated.c):
+        x_new, P_new, nis, _ = module.update_pos(x, P.ravel(), z)
+        assert relative(x_new, x_ref) <= LINEAR_AGREEMENT
+        assert relative(np.asarray(P_new).reshape(2, 2), P_ref) <= LINEAR_AGREEMENT
+        assert nis[0] == pytest.approx(nis_ref, rel=1e-12)
+        with pytest.raises(NumericalError, match=r"measurement 0 \(a, decorrelated by R's "
+                                                 r"LDL\^T factor\) of the sequential"):
+            module.update_pos(x, -10 * P.ravel(), z)  # s_0 = R_00 - 10 P_00 < 0
+
+
+def test_a_correlated_R_that_is_not_constant_is_refused_naming_the_entry(capsys, tmp_path):
+    symbolic = LinearModel("c", ["x", "y"], F=np.eye(2).tolist(), Q=np.eye(2).tolist(),
+                           parameters=["r"],
+                           sensors=[Sensor("pos", ["a", "b"], H=np.eye(2).tolist(),
+                                           R=[["r", 0.25], [0.25, 1]]),
+                                    Sensor("vel", ["c"], H=[[1, 1]], R=[[1]])])
     with pytest.raises(OptionError, match=r"^option 'update' \(--update\) sequential: sensor "
-                                          r"'pos': the sequential update needs a diagonal R, "
-                                          r"but R\[0, 1\] = 1/4 is not zero$"):
-        derive_unit(correlated(), "kf", SEQUENTIAL)
-    assert derive_unit(correlated(), "kf")  # batch takes it
-    with pytest.raises(ModelError, match=r"sensor 'pos': the sequential update needs a "
-                                         r"diagonal R, but R\[0, 1\] = 1/4"):
+                                          r"'pos': the sequential update needs R diagonal or "
+                                          r"constant \(to decorrelate it when the code is "
+                                          r"generated\), but R\[0, 1\] = 1/4 is not zero and R "
+                                          r"depends on r$"):
+        derive_unit(symbolic, "kf", SEQUENTIAL)
+    assert derive_unit(symbolic, "kf")  # batch takes it
+    with pytest.raises(ModelError, match=r"sensor 'pos': the sequential update needs R "
+                                         r"diagonal or constant .* R\[0, 1\] = 1/4"):
         LinearModel("c", ["x", "y"], F=np.eye(2).tolist(), Q=np.eye(2).tolist(),
+                    parameters=["r"],
                     sensors=[Sensor("pos", ["a", "b"], H=np.eye(2).tolist(),
-                                    R=[[1, 0.25], [0.25, 1]], update="sequential")])
-    out = tmp_path / "out"
-    assert main(["generate", "ins_gnss", "--filter", "ekf", "--update", "sequential",
-                 "--lang", "c", "--out", str(out)]) == 0
+                                    R=[["r", 0.25], [0.25, 1]], update="sequential")])
     path = tmp_path / "bad.toml"
-    path.write_text(TOML.replace('R = [[4, 0], [0, 9]]', 'R = [[4, 1], [1, 9]]'))
+    path.write_text(TOML.replace('R = [[4, 0], [0, 9]]', 'R = [["r", 1], [1, 9]]').replace(
+        "dt = 0.1", 'dt = 0.1\nr = { description = "free" }'))
     assert main(["generate", str(path), "--filter", "kf", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "sensor 'gps': the sequential update needs a diagonal R, but " \
-                             "R[0, 1] = 1 is not zero" in err[0], err
+    assert len(err) == 1 and "sensor 'gps': the sequential update needs R diagonal or " \
+                             "constant" in err[0] and "R[0, 1] = 1 is not zero" in err[0], err
     assert not (tmp_path / "x").exists()
 
 
@@ -301,8 +331,8 @@ def test_an_R_given_per_call_is_refused():
     model = LinearModel("c", ["x"], F=[[1]], Q=[[1]],
                         sensors=[Sensor("pos", ["a"], H=[[1]], R="argument"),
                                  Sensor("vel", ["c"], H=[[1]], R=[[1]])])
-    with pytest.raises(OptionError, match=r"sensor 'pos': the sequential update needs a "
-                                          r"constant diagonal R, but its R is given per call"):
+    with pytest.raises(OptionError, match=r"sensor 'pos': the sequential update needs R "
+                                          r"diagonal or constant, but its R is given per call"):
         derive_unit(model, "kf", SEQUENTIAL)
 
 

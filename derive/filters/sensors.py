@@ -16,7 +16,7 @@ solved innovation (one comparison each, no flop). The program returns ``nis`` an
 ``applied`` (1 or 0).
 
 Sequential updates (option ``update="sequential"``, or ``Sensor.update``): a sensor whose R
-is constant and diagonal is fused one scalar measurement at a time
+is diagonal (or constant: decorrelated at generation) is fused one scalar measurement at a time
 (:func:`sequential_update`, what PX4's ekf2 does), equal in exact arithmetic to the batch
 update, NIS included; gating then selects between the updated and the prior x and P.
 """
@@ -105,8 +105,9 @@ def gate_thresholds(groups, options) -> dict[str, tuple[float, float] | None]:
 
 def update_forms(model, groups, options) -> dict[str, str]:
     """``{sensor: "batch" or "sequential"}``: the option ``update`` for every sensor when
-    given, else each sensor's own (``Sensor.update``); a sequential sensor whose R is not
-    constant and diagonal is refused (OptionError naming the sensor and the R entry)."""
+    given, else each sensor's own (``Sensor.update``); a sequential sensor whose R is given
+    per call, or not diagonal and not constant, is refused (OptionError naming the sensor
+    and the R entry)."""
     forms = {}
     for g in groups:
         form = options.get("update") or g.update
@@ -153,8 +154,10 @@ def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float |
 
 def sequential_update(prog: Program, x, P, H, R, innovation, threshold: float | None = None,
                       measurements: tuple[str, ...] = ()):
-    """The update with ``z``'s m measurements fused one scalar at a time (R diagonal), h
-    and H taken once at the prior x: for i = 1..m, ``c = P H_i^T``, ``s_i = H_i c +
+    """The update with ``z``'s m measurements fused one scalar at a time, h and H taken
+    once at the prior x (a constant non-diagonal R = L D L^T is decorrelated first, at
+    generation: H, nu and R become L^-1 H, L^-1 nu and D; L^-1 is exact rationals, and
+    the NIS is unchanged): for i = 1..m, ``c = P H_i^T``, ``s_i = H_i c +
     R_ii`` (checked positive), ``nu~_i = nu_i - H_i (x_cur - x)``, ``k = c / s_i``,
     ``x_cur += k nu~_i``, ``P -= k c^T`` (upper triangle). In exact arithmetic this is
     :func:`kalman_update`: the s_i are the LDL^T pivots of S and the nu~_i the entries of
@@ -163,6 +166,13 @@ def sequential_update(prog: Program, x, P, H, R, innovation, threshold: float | 
     exceeds it: one select per entry) and ``(nis, applied)``. ``innovation``: nu (m x 1),
     staged by the caller; ``measurements``: their names, for the status messages."""
     n, m = H.cols, H.rows
+    correlated = any(R[i, j] != 0 for i in range(m) for j in range(i + 1, m))
+    if correlated:  # R = L D L^T, constant: the measurements L^-1 z have noise D
+        L, D = sympy.Matrix(R).LDLdecomposition(hermitian=False)
+        whiten = L.inv()
+        H = staging.matmul(prog, whiten, H, hint="hw")
+        innovation = staging.matmul(prog, whiten, innovation, hint="nuw")
+        R = D
     # signs chosen so that every accumulation is a product added (one fma each): the
     # negated reciprocal -1/s_i, the negated gain -k, and back = x - x_cur
     back = sympy.zeros(n, 1)
@@ -173,6 +183,7 @@ def sequential_update(prog: Program, x, P, H, R, innovation, threshold: float | 
         c = staging.matmul(prog, current, row.T, hint="c")
         s = prog.let(sympy.Add(*[row[j] * c[j] for j in range(n)]) + R[i, i], "s")
         name = measurements[i] if i < len(measurements) else str(i)
+        name += ", decorrelated by R's LDL^T factor" if correlated else ""
         prog.require_positive(s, f"S is not positive definite: the variance s of measurement "
                                  f"{i} ({name}) of the sequential update is not positive")
         whitened = prog.let(innovation[i] + sympy.Add(*[row[j] * back[j] for j in range(n)]),
@@ -234,10 +245,13 @@ def sensor_facts(model, groups, thresholds, start: str,
                  + ")" for g in groups)]
     for g in groups:
         if forms and forms[g.name] == "sequential":
+            diagonal = all(g.R[i, j] == 0 for i in range(g.m) for j in range(i + 1, g.m))
+            noise = ("R diagonal" if diagonal else
+                     "R = L D L^T not diagonal: L^-1 z fused, its noise D")
             lines.append(f"update of {g.name}: sequential, one scalar update per measurement "
-                         f"in the order {', '.join(g.measurements)} (R diagonal; h and H at "
-                         "the prior x; nis = sum of the whitened innovations squared over "
-                         "their variances, the batch update's nu' S^-1 nu)")
+                         f"in the order {', '.join(g.measurements)} ({noise}; h and H at the "
+                         "prior x; nis = sum of the whitened innovations squared over their "
+                         "variances, the batch update's nu' S^-1 nu)")
         gate = thresholds[g.name]
         if gate is not None:
             lines.append(f"gate of {g.name}: update applied when nis <= {gate[1]!r} (the "
