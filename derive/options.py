@@ -42,7 +42,7 @@ START_CHOICES = ("predict", "update")
 """run's first step (option ``start``): predict-first (the papers'), or update-first."""
 UPDATE_FORMS = ("batch", "sequential")
 """How a sensor's update fuses its measurements (option ``update``): all at once through
-the LDL^T factorisation of S, or one scalar at a time (diagonal R)."""
+the LDL^T factorisation of S, or one scalar at a time (R diagonal or constant)."""
 C_PREFIX = r"(?:[A-Za-z][A-Za-z0-9_]*)?"
 """What ``--prefix`` may be: empty, or a letter then letters, digits and underscores (so
 PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x``)."""
@@ -135,8 +135,9 @@ class SharedOptions:
     update: str | None = option(
         None, flag="--update", kind=str, choices=UPDATE_FORMS, needs="sensors",
         help="how each sensor's update fuses its measurements: batch (one LDL^T solve of "
-             "S) or sequential (one scalar update per measurement; R must be diagonal); "
-             "default: as each sensor declares (batch unless its model says sequential)")
+             "S) or sequential (one scalar update per measurement; R diagonal, or constant: "
+             "decorrelated at generation); default: as each sensor declares (batch unless "
+             "its model says sequential)")
     prefix: str = option(
         "", flag="--prefix", kind=str, metavar="PREFIX", pattern=C_PREFIX,
         pattern_words="empty or a letter followed by letters, digits and underscores",
