@@ -24,6 +24,7 @@ from . import structure
 from .discretize import discretize
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
+from .options import UPDATE_FORMS
 from .symbols import (
     SymbolTable,
     as_matrix,
@@ -90,7 +91,9 @@ class Sensor:
     in parameters, or :data:`R_ARGUMENT`: given per call, an input of its update and a
     per-step array of run) and inputs (names among the model's ``inputs``; default: a
     nonlinear sensor's, those its h uses; a linear sensor's, all of them when D is given,
-    else none).
+    else none). ``update``: how its update fuses its measurements, ``"batch"`` (one LDL^T
+    solve of S) or ``"sequential"`` (one scalar update per measurement; R must be constant
+    and diagonal); the filter option ``update`` overrides it for every sensor.
 
     A model with sensors has one ``update_<name>`` per sensor beside ``predict``; its
     ``measurements``, ``h``/``H``, ``R`` and ``D`` are the sensors' stacked (R block
@@ -104,6 +107,7 @@ class Sensor:
     R: Matrix | None = None
     inputs: Sequence[str] | None = None
     D: Matrix | None = None
+    update: str = "batch"
 
 
 @dataclass(frozen=True)
@@ -122,10 +126,48 @@ class SensorGroup:
     H: sympy.ImmutableMatrix | None = None
     D: sympy.ImmutableMatrix | None = None
     R_argument: bool = False
+    update: str = "batch"
 
     @property
     def m(self) -> int:
         return len(self.measurements)
+
+
+SENSOR_UPDATES = UPDATE_FORMS
+"""How a sensor's update may fuse its measurements (``Sensor.update``): the choices of the
+filter option ``update``, which overrides it."""
+
+
+def sequential_problem(name: str, R: sympy.MatrixBase, R_argument: bool) -> str | None:
+    """Why sensor ``name`` (its R, valued symbols substituted; ``R_argument``: R given per
+    call) cannot be updated one scalar measurement at a time, or None when it can: the
+    scalar updates equal the batch update only for uncorrelated measurement noises, so R
+    must be diagonal, or constant (then decorrelated by its LDL^T factors when the code is
+    generated: derive.filters.sensors.sequential_update)."""
+    if R_argument:
+        return (f"sensor {name!r}: the sequential update needs R diagonal or constant, but "
+                "its R is given per call")
+    if R.free_symbols:
+        for i in range(R.rows):
+            for j in range(i + 1, R.cols):
+                if R[i, j] != 0:
+                    return (f"sensor {name!r}: the sequential update needs R diagonal or "
+                            f"constant (to decorrelate it when the code is generated), but "
+                            f"R[{i}, {j}] = {R[i, j]} is not zero and R depends on "
+                            f"{', '.join(sorted(s.name for s in R.free_symbols))}")
+    return None
+
+
+def _sensor_update(sensor: Sensor, R: sympy.MatrixBase) -> str:
+    """``sensor.update``, checked: one of SENSOR_UPDATES; sequential only where it holds."""
+    if sensor.update not in SENSOR_UPDATES:
+        raise ModelError(f"sensor {sensor.name!r}: update must be one of "
+                         f"{', '.join(SENSOR_UPDATES)}, got {sensor.update!r}")
+    if sensor.update == "sequential":
+        problem = sequential_problem(sensor.name, R, _R_given_per_call(sensor))
+        if problem:
+            raise ModelError(problem)
+    return sensor.update
 
 
 def _sensor_list(sensors, kind: str, given: Mapping[str, object]) -> tuple[Sensor, ...]:
@@ -580,6 +622,7 @@ class LinearModel(_Model):
                 sensor.name, tuple(sensor.measurements), (row, row + m_s),
                 tuple(self.inputs[i] for i in columns), sympy.ImmutableMatrix(R_s),
                 H=sympy.ImmutableMatrix(self.H[rows, :]), R_argument=_R_given_per_call(sensor),
+                update=_sensor_update(sensor, self.subs(R_s)),
                 D=sympy.ImmutableMatrix(self.D.extract(list(range(row, row + m_s)), columns)
                                         if columns else sympy.zeros(m_s, 0))))
             row += m_s
@@ -860,7 +903,8 @@ class NonlinearModel(_Model):
             groups.append(SensorGroup(
                 sensor.name, tuple(sensor.measurements), (row, row + m_s),
                 tuple(u for u in self.inputs if u.name in own), R_s, h=h_s,
-                R_argument=_R_given_per_call(sensor)))
+                R_argument=_R_given_per_call(sensor),
+                update=_sensor_update(sensor, self.subs(R_s))))
             row += m_s
         return tuple(groups)
 

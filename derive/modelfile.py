@@ -94,7 +94,14 @@ from derive.expressions import (
     exact_number,
     parse_expression,
 )
-from derive.model import P0_PATTERNS, R_ARGUMENT, LinearModel, NonlinearModel, Sensor
+from derive.model import (
+    P0_PATTERNS,
+    R_ARGUMENT,
+    SENSOR_UPDATES,
+    LinearModel,
+    NonlinearModel,
+    Sensor,
+)
 from derive.structure import largest_block_size
 from derive.symbols import check_identifier
 from derive.toml_limits import toml_shape_problem
@@ -136,8 +143,8 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "sensors": (),
 }
 _SENSOR_KEYS: Mapping[str, tuple[str, ...]] = {
-    "discrete": ("measurements", "H", "D", "R", "inputs"),
-    "nonlinear": ("measurements", "h", "R", "inputs"),
+    "discrete": ("measurements", "H", "D", "R", "inputs", "update"),
+    "nonlinear": ("measurements", "h", "R", "inputs", "update"),
 }
 _SENSOR_REQUIRED: Mapping[str, tuple[str, ...]] = {
     "discrete": ("measurements", "H", "R"),
@@ -614,7 +621,11 @@ class _File:
         for value in matrices.values():
             self.sensor_used |= {symbol.name for item in _flatten(value)
                                  for symbol in item.free_symbols}
-        return Sensor(name, table["measurements"], inputs=own, **matrices)
+        update = table.get("update", "batch")
+        if update not in SENSOR_UPDATES:
+            raise self.error(f"{where} update", f"must be one of {', '.join(SENSOR_UPDATES)}, "
+                                                f"got {_kind_name(update)} {update!r}")
+        return Sensor(name, table["measurements"], inputs=own, update=update, **matrices)
 
     def linear(self, body: dict[str, Any], kind: str, sensors: bool = False) -> dict[str, Any]:
         names = self.symbols

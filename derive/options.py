@@ -40,6 +40,9 @@ from .precision import NAMES as PRECISIONS
 PATTERNS = ("dense", "zero", "diagonal", "block")
 START_CHOICES = ("predict", "update")
 """run's first step (option ``start``): predict-first (the papers'), or update-first."""
+UPDATE_FORMS = ("batch", "sequential")
+"""How a sensor's update fuses its measurements (option ``update``): all at once through
+the LDL^T factorisation of S, or one scalar at a time (R diagonal or constant)."""
 C_PREFIX = r"(?:[A-Za-z][A-Za-z0-9_]*)?"
 """What ``--prefix`` may be: empty, or a letter then letters, digits and underscores (so
 PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x``)."""
@@ -129,6 +132,12 @@ class SharedOptions:
         help="run's first step: predict then update (predict, the default), or update x0 "
              "with the first measurement without a prediction (update: pykalman's "
              "convention)")
+    update: str | None = option(
+        None, flag="--update", kind=str, choices=UPDATE_FORMS, needs="sensors",
+        help="how each sensor's update fuses its measurements: batch (one LDL^T solve of "
+             "S) or sequential (one scalar update per measurement; R diagonal, or constant: "
+             "decorrelated at generation); default: as each sensor declares (batch unless "
+             "its model says sequential)")
     prefix: str = option(
         "", flag="--prefix", kind=str, metavar="PREFIX", pattern=C_PREFIX,
         pattern_words="empty or a letter followed by letters, digits and underscores",
@@ -473,6 +482,7 @@ def _default_anywhere(key: str):
 
 
 __all__ = ["DEFAULT_EPS", "FirOptions", "KalmanOptions", "PATTERNS", "PredictionOptions",
-           "SharedOptions", "Spec", "UnscentedOptions", "add_arguments", "all_specs", "check",
+           "SharedOptions", "Spec", "UPDATE_FORMS", "UnscentedOptions", "add_arguments",
+           "all_specs", "check",
            "families", "from_arguments", "option", "options_type", "per_filter",
            "regenerate_command", "taken_by", "takers", "use_filters", "validate"]

@@ -132,7 +132,7 @@ def test_a_single_sensor_model_is_gated_through_its_one_update():
 @pytest.mark.parametrize("key", ["missing", "joseph"])
 def test_missing_and_joseph_are_refused_with_sensors_in_one_line(key):
     with pytest.raises(OptionError, match=rf"option '{key}' is not taken with several sensors, "
-                                          r"gating or update-first"):
+                                          r"gating, sequential updates or update-first"):
         derive_unit(gnss_like(), "kf", {key: True})
 
 

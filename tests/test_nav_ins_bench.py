@@ -8,7 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from derive.apps.bench.navigation import FUNCTIONS, TIMED, run_navigation
+from derive.apps.bench.navigation import (
+    BATCH_FORM,
+    FUNCTIONS,
+    TIMED,
+    run_navigation,
+    sequential_updates,
+)
 from derive.apps.bench.run import Bar
 from derive.apps.ins import constants as c
 from derive.apps.ins import reference, symforce_ekf
@@ -97,7 +103,10 @@ def test_rows_agree_with_the_reference_and_ratios_are_per_generated_c(navigation
     for r in navigation.counts:
         assert r.derive.flops > 0 and r.symforce is None and r.ratio is None
     assert {(r.function, r.implementation) for r in navigation.times} == {
-        (f, i) for f in TIMED for i in ("generated C", "CasADi C", "FilterPy")}
+        (f, i) for f in TIMED for i in ("generated C", "CasADi C", "FilterPy")} | {
+        (f, BATCH_FORM) for f in sequential_updates()}
+    assert sequential_updates() == ("update_gnss",)  # the catalog fuses GNSS sequentially
+    assert any(n.startswith("update_gnss is sequential") for n in navigation.notes)
     for r in navigation.times:
         if r.timing is None:
             assert r.note.startswith("skipped: ")

@@ -117,7 +117,8 @@ def test_an_unknown_option_is_refused_with_a_close_match(tmp_path, capsys):
     with pytest.raises(OptionError, match=r"unknown option 'jospeh' \(did you mean "
                                           r"'joseph'\?\); options of kf: P0_pattern, "
                                           r"missing, run_tracks, gate, gate_sensors, start, "
-                                          r"prefix, precision, run, joseph, latency_schedule$"):
+                                          r"update, prefix, precision, run, joseph, "
+                                          r"latency_schedule$"):
         derive_unit(catalog.load("mpt3d_b"), "kf", {"jospeh": True})
     line = refused_line(capsys, ["generate", "mpt3d_b", "--filter", "kf", "--jospeh",
                                  "--out", str(tmp_path)])
@@ -221,7 +222,7 @@ def test_declarations_are_consistent_with_the_registry():
         for name in takers(key):
             assert key in options_type(name).specs(), (key, name)
     assert taken_by("kf") == ["P0_pattern", "missing", "run_tracks", "gate", "gate_sensors",
-                              "start", "prefix", "precision", "run", "joseph",
+                              "start", "update", "prefix", "precision", "run", "joseph",
                               "latency_schedule"]
     assert taken_by("fir") == ["prefix", "precision", "run", "eps", "order"]
     assert taken_by("pred") == ["prefix", "precision", "run", "horizon"]

@@ -40,7 +40,9 @@ from .sensors import (
     kalman_update,
     sensor_facts,
     sensor_groups,
+    sequential_update,
     unit_norm_fact,
+    update_forms,
     uses_sensor_run,
 )
 from .sensors import reference_run as sensors_reference
@@ -78,7 +80,8 @@ def ekf_predict_stage(model) -> Predict:
 
 
 def ekf_update_stage(model) -> Update:
-    """H at x(k/k-1) sharing h's work, S = H P H^T + R, K = P H^T S^-1 (LDL^T solve)."""
+    """H at x(k/k-1) sharing h's work, S = H P H^T + R, K = P H^T S^-1 (LDL^T solve); or,
+    for a sequential sensor, one scalar update per measurement (h and H at x(k/k-1))."""
     cache: dict[tuple, Linearisation] = {}
 
     def update(prog, mapping, meas, x, P, z):
@@ -88,6 +91,11 @@ def ekf_update_stage(model) -> Update:
         at_x = {**mapping, **state_mapping(model, x)}
         values, H = stage_linearisation(prog, cache[key], at_x, "h")
         R = meas.R.xreplace(mapping)
+        if meas.sequential:
+            innovation = staging.sub(prog, z, values)
+            x_new, P_new, gated = sequential_update(prog, x, P, H, R, innovation, meas.gate,
+                                                    meas.names)
+            return (x_new, P_new, innovation, None) + ((gated,) if gated else ())
         PHt = staging.matmul(prog, P, H.T)
         S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
                         symmetric_result=True)
@@ -111,14 +119,15 @@ def derive_unit(model, spec, options):
     if uses_sensor_run(model, options):
         groups = sensor_groups(model)
         thresholds = gate_thresholds(groups, options)
+        forms = update_forms(model, groups, options)
         sensors = {g.name: sensor_measurement(
-            model, g, None if thresholds[g.name] is None else thresholds[g.name][1])
-            for g in groups}
+            model, g, None if thresholds[g.name] is None else thresholds[g.name][1],
+            sequential=forms[g.name] == "sequential") for g in groups}
         programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                              ekf_update_stage(model), options, spec.title,
                                              sensors=sensors)
         facts = ([JACOBIAN_FACT, *facts]
-                 + sensor_facts(model, groups, thresholds, options.start)
+                 + sensor_facts(model, groups, thresholds, options.start, forms)
                  + unit_norm_fact(model))
         return make_sensor_unit(model, spec, programs, options, groups, thresholds,
                                 model.f_inputs, facts)

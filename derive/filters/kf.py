@@ -45,6 +45,8 @@ from .sensors import (
     program_name,
     sensor_facts,
     sensor_groups,
+    sequential_update,
+    update_forms,
     uses_sensor_run,
 )
 from .spec import INNOVATION, UPDATE, Conditioned, FilterSpec
@@ -145,11 +147,13 @@ def _time_varying_step(model, update, title: str, declared_name: str):
     return prog.optimize(), closed
 
 
-def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | None
-                    ) -> dict[str, Program]:
+def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | None,
+                    forms: dict[str, str] | None = None) -> dict[str, Program]:
     """``predict(x, P[, u][, p])`` (x(k+1/k) = F x + B u, P(k+1/k) = F P F^T + G Q G^T) and
     one ``update_<sensor>(x, P, z[, u][, p])`` per sensor (its H, R and D u), gated where
-    ``thresholds`` say; P's pattern is the closure of P0's declared pattern under all."""
+    ``thresholds`` say, sequential where ``forms`` say (default: batch); P's pattern is
+    the closure of P0's declared pattern under all."""
+    forms = forms or {g.name: "batch" for g in groups}
     n = model.n
     p_port = parameter_port(model)
 
@@ -201,9 +205,6 @@ def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | Non
                                  lambda i, j: given[min(i, j), max(i, j)])
             else:
                 R = sympy.Matrix(model.subs(group.R)).xreplace(binding)
-            PHt = staging.matmul(prog, P, H.T)
-            S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
-                            symmetric_result=True)
             z = prog.matrix("z")
 
             def innovation():
@@ -214,9 +215,15 @@ def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | Non
                                             staging.matmul(prog, D, prog.matrix("u")))
                 return staging.sub(prog, z, predicted)
 
-            gate = thresholds[group.name]
-            x_new, P_new, extra = kalman_update(prog, x, P, PHt, S, innovation,
-                                                None if gate is None else gate[1])
+            gate = None if thresholds[group.name] is None else thresholds[group.name][1]
+            if forms[group.name] == "sequential":
+                x_new, P_new, extra = sequential_update(prog, x, P, H, R, innovation(), gate,
+                                                        group.measurements)
+            else:
+                PHt = staging.matmul(prog, P, H.T)
+                S = staging.add(prog, staging.matmul(prog, H, PHt, symmetric_result=True), R,
+                                symmetric_result=True)
+                x_new, P_new, extra = kalman_update(prog, x, P, PHt, S, innovation, gate)
         return prog, x_new, P_new, extra
 
     specs = {"predict": None} | {program_name(g.name): g for g in groups}
@@ -245,13 +252,15 @@ def derive_sensor_unit(model, spec, options):
     """The KF of the run kind ``sensors`` (derive.filters.sensors)."""
     for key in ("joseph", "missing"):
         if options.get(key):
-            raise OptionError(f"option {key!r} is not taken with several sensors, gating or "
-                              "update-first (the run kind sensors: a row of NaN skips a "
-                              "sensor's update)")
+            raise OptionError(f"option {key!r} is not taken with several sensors, gating, "
+                              "sequential updates or update-first (the run kind sensors: a "
+                              "row of NaN skips a sensor's update)")
     groups = sensor_groups(model)
     thresholds = gate_thresholds(groups, options)
-    programs = sensor_programs(model, groups, thresholds, spec.title, options.P0_pattern)
-    facts = sensor_facts(model, groups, thresholds, options.start)
+    forms = update_forms(model, groups, options)
+    programs = sensor_programs(model, groups, thresholds, spec.title, options.P0_pattern,
+                               forms)
+    facts = sensor_facts(model, groups, thresholds, options.start, forms)
     return make_sensor_unit(model, spec, programs, options, groups, thresholds,
                             model.inputs, facts)
 

@@ -157,6 +157,7 @@ class Measurement:
     names: tuple[str, ...]
     gate: float | None = None  # the NIS threshold of a gated update (None: not gated)
     R_port: bool = False  # R is the update's input port R (R holds its stand-in symbols)
+    sequential: bool = False  # fused one scalar measurement at a time (R diagonal)
 
 
 def all_measurements(model) -> Measurement:
@@ -218,11 +219,12 @@ def R_stand_ins(m: int) -> sympy.Matrix:
                                                         real=True))
 
 
-def sensor_measurement(model, group, gate: float | None = None) -> Measurement:
+def sensor_measurement(model, group, gate: float | None = None,
+                       sequential: bool = False) -> Measurement:
     """A sensor's rows (derive.model.SensorGroup) as the Measurement its update uses."""
     R = (R_stand_ins(group.m) if group.R_argument else sympy.Matrix(model.subs(group.R)))
     return Measurement(sympy.Matrix(model.subs(group.h)), tuple(group.inputs), R,
-                       tuple(group.measurements), gate, group.R_argument)
+                       tuple(group.measurements), gate, group.R_argument, sequential)
 
 
 def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list[Port]]:

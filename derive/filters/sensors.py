@@ -14,6 +14,11 @@ of measurements at the option's probability, computed at generation; the update 
 applied only when ``nis <= threshold`` (a NaN NIS is not), by selects on the gain and the
 solved innovation (one comparison each, no flop). The program returns ``nis`` and
 ``applied`` (1 or 0).
+
+Sequential updates (option ``update="sequential"``, or ``Sensor.update``): a sensor whose R
+is diagonal (or constant: decorrelated at generation) is fused one scalar measurement at a time
+(:func:`sequential_update`, what PX4's ekf2 does), equal in exact arithmetic to the batch
+update, NIS included; gating then selects between the updated and the prior x and P.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import sympy
 from .. import staging
 from ..errors import OptionError
 from ..lowering import IfAtMost
-from ..model import SensorGroup
+from ..model import SensorGroup, sequential_problem
 from ..program import Program
 from ..reference import sensors as reference
 from ..symbols import jacobian
@@ -49,8 +54,11 @@ def sensor_groups(model) -> tuple[SensorGroup, ...]:
 
 def uses_sensor_run(model, options) -> bool:
     """Whether the unit is of the run kind ``sensors``: two or more sensors, a sensor whose
-    R is given per call, or gating or update-first asked for."""
+    R is given per call or updated sequentially, or gating, update-first or sequential
+    updates asked for."""
     return (len(model.sensors) >= 2 or any(g.R_argument for g in model.sensors)
+            or options.get("update") == "sequential"
+            or any(g.update == "sequential" for g in model.sensors)
             or options.get("gate") is not None
             or options.get("gate_sensors") is not None
             or options.get("start", "predict") != "predict")
@@ -95,6 +103,22 @@ def gate_thresholds(groups, options) -> dict[str, tuple[float, float] | None]:
     return out
 
 
+def update_forms(model, groups, options) -> dict[str, str]:
+    """``{sensor: "batch" or "sequential"}``: the option ``update`` for every sensor when
+    given, else each sensor's own (``Sensor.update``); a sequential sensor whose R is given
+    per call, or not diagonal and not constant, is refused (OptionError naming the sensor
+    and the R entry)."""
+    forms = {}
+    for g in groups:
+        form = options.get("update") or g.update
+        if form == "sequential":
+            problem = sequential_problem(g.name, model.subs(g.R), g.R_argument)
+            if problem:
+                raise OptionError(f"option 'update' (--update) sequential: {problem}")
+        forms[g.name] = form
+    return forms
+
+
 def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None):
     """``K = P H^T S^-1``, ``x + K nu``, ``P - K (P H^T)^T`` (upper triangle) through
     ``S = L D L^T`` without the back substitution: with ``Y = L^-1 (P H^T)^T`` and
@@ -128,6 +152,62 @@ def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float |
     return x_new, staging.sub(prog, P, ZtY, symmetric_result=True), (nis, applied)
 
 
+def sequential_update(prog: Program, x, P, H, R, innovation, threshold: float | None = None,
+                      measurements: tuple[str, ...] = ()):
+    """The update with ``z``'s m measurements fused one scalar at a time, h and H taken
+    once at the prior x (a constant non-diagonal R = L D L^T is decorrelated first, at
+    generation: H, nu and R become L^-1 H, L^-1 nu and D; L^-1 is exact rationals, and
+    the NIS is unchanged): for i = 1..m, ``c = P H_i^T``, ``s_i = H_i c +
+    R_ii`` (checked positive), ``nu~_i = nu_i - H_i (x_cur - x)``, ``k = c / s_i``,
+    ``x_cur += k nu~_i``, ``P -= k c^T`` (upper triangle). In exact arithmetic this is
+    :func:`kalman_update`: the s_i are the LDL^T pivots of S and the nu~_i the entries of
+    ``L^-1 nu``, so ``nis = sum nu~_i^2 / s_i = nu^T S^-1 nu``. Returns ``(x_new, P_new,
+    ())``, or with a ``threshold`` the gated update (x and P unchanged when ``nis``
+    exceeds it: one select per entry) and ``(nis, applied)``. ``innovation``: nu (m x 1),
+    staged by the caller; ``measurements``: their names, for the status messages."""
+    n, m = H.cols, H.rows
+    correlated = any(R[i, j] != 0 for i in range(m) for j in range(i + 1, m))
+    if correlated:  # R = L D L^T, constant: the measurements L^-1 z have noise D
+        L, D = sympy.Matrix(R).LDLdecomposition(hermitian=False)
+        whiten = L.inv()
+        H = staging.matmul(prog, whiten, H, hint="hw")
+        innovation = staging.matmul(prog, whiten, innovation, hint="nuw")
+        R = D
+    # signs chosen so that every accumulation is a product added (one fma each): the
+    # negated reciprocal -1/s_i, the negated gain -k, and back = x - x_cur
+    back = sympy.zeros(n, 1)
+    current = P
+    nis_terms = []
+    for i in range(m):
+        row = H[i, :]
+        c = staging.matmul(prog, current, row.T, hint="c")
+        s = prog.let(sympy.Add(*[row[j] * c[j] for j in range(n)]) + R[i, i], "s")
+        name = measurements[i] if i < len(measurements) else str(i)
+        name += ", decorrelated by R's LDL^T factor" if correlated else ""
+        prog.require_positive(s, f"S is not positive definite: the variance s of measurement "
+                                 f"{i} ({name}) of the sequential update is not positive")
+        whitened = prog.let(innovation[i] + sympy.Add(*[row[j] * back[j] for j in range(n)]),
+                            "nu")
+        negated = prog.let(-1 / s, "nsinv")  # -1/s_i
+        minus_gain = staging.scale(prog, c, negated, hint="k")
+        minus_weight = prog.let(whitened * negated, "w")  # -nu~_i / s_i
+        back = staging.let_matrix(prog, back + c * minus_weight, hint="dx")
+        current = staging.let_matrix(prog, current + minus_gain * c.T, symmetric_result=True)
+        if threshold is not None:
+            nis_terms.append(whitened * minus_weight)
+    x_new = staging.sub(prog, x, back)
+    if threshold is None:
+        return x_new, current, ()
+    nis = prog.let(-prog.let(sympy.Add(*nis_terms), "nnis"), "nis")
+    bound = sympy.Float(threshold, 17)
+    applied = prog.let(IfAtMost(nis, bound, sympy.Integer(1), sympy.Integer(0)), "applied")
+
+    def gated(new, old, symmetric):
+        return staging.let_matrix(prog, sympy.Matrix(new.rows, new.cols, lambda i, j: IfAtMost(
+            nis, bound, new[i, j], old[i, j])), symmetric_result=symmetric, hint="gated")
+    return gated(x_new, x, False), gated(current, P, True), (nis, applied)
+
+
 def renormalised(prog: Program, model, x):
     """``x`` with each of the model's unit-norm groups divided by its Euclidean norm
     (one square root and one division per group, then a product per state)."""
@@ -155,14 +235,23 @@ def unit_norm_fact(model) -> list[str]:
     return [UNIT_NORM_FACT.format(groups="; ".join("(" + ", ".join(g) + ")" for g in groups))]
 
 
-def sensor_facts(model, groups, thresholds, start: str) -> list[str]:
-    """Header lines: the sensors, their gates, the run's convention."""
+def sensor_facts(model, groups, thresholds, start: str,
+                 forms: dict[str, str] | None = None) -> list[str]:
+    """Header lines: the sensors, their update forms and gates, the run's convention."""
     lines = ["sensors (run: predict with u(k), then each sensor's update in this order "
              "when its row k has no NaN): " + "; ".join(
                  f"{g.name} ({', '.join(g.measurements)}"
                  + (f"; inputs {', '.join(u.name for u in g.inputs)}" if g.inputs else "")
                  + ")" for g in groups)]
     for g in groups:
+        if forms and forms[g.name] == "sequential":
+            diagonal = all(g.R[i, j] == 0 for i in range(g.m) for j in range(i + 1, g.m))
+            noise = ("R diagonal" if diagonal else
+                     "R = L D L^T not diagonal: L^-1 z fused, its noise D")
+            lines.append(f"update of {g.name}: sequential, one scalar update per measurement "
+                         f"in the order {', '.join(g.measurements)} ({noise}; h and H at the "
+                         "prior x; nis = sum of the whitened innovations squared over their "
+                         "variances, the batch update's nu' S^-1 nu)")
         gate = thresholds[g.name]
         if gate is not None:
             lines.append(f"gate of {g.name}: update applied when nis <= {gate[1]!r} (the "
@@ -280,5 +369,5 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
 
 __all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "gate_thresholds", "kalman_update",
            "program_name", "reference_functions", "reference_run", "renormalised",
-           "sensor_facts", "sensor_groups", "transition_function", "unit_norm_fact",
-           "uses_sensor_run"]
+           "sensor_facts", "sensor_groups", "sequential_update", "transition_function",
+           "unit_norm_fact", "update_forms", "uses_sensor_run"]

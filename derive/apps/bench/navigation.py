@@ -12,6 +12,11 @@
   same loop and FilterPy's ExtendedKalmanFilter doing the same step in Python
   (derive.apps.ins.filterpy_ekf). Each implementation's first call is checked against the
   NumPy reference (derive.apps.ins.reference).
+- The update form: a sensor the catalog model fuses one measurement at a time (``update =
+  "sequential"``, gnss) is also timed in its batch form (option ``update="batch"``, the
+  LDL^T solve of S) in the same run, its count in a note: what the sequential form gains.
+  SymForce's updates are batch (its symbolic inverse of S); both compute the same
+  function (inputs and outputs), so the flops rows compare the two generators' code.
 - What decides the per-call bars: the time each bar needs (the peer's fastest repeat over
   the bar's ratio: best case against best case, so that load on a shared machine, which
   inflates the medians, does not hide it) beside the floor of scalar code with the
@@ -32,7 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ... import catalog
 from ...build import STRICT_CFLAGS
+from ...filters.sensors import program_name
 from ...flops import OpCount
 from ...generation import generate_units
 from ...interface import read as read_interface
@@ -256,6 +263,29 @@ def _derive(workdir: Path, result: NavigationResult):
     return derive_counts, built
 
 
+BATCH_FORM = "generated C, batch form"
+"""The time row of a sequential sensor's update generated with option update="batch"."""
+
+
+def sequential_updates() -> tuple[str, ...]:
+    """The timed updates whose sensor the catalog model fuses sequentially."""
+    forms = {program_name(g.name): g.update for g in catalog.load(MODEL).sensors}
+    return tuple(name for name in TIMED if forms.get(name) == "sequential")
+
+
+def _batch_form(workdir: Path, names: tuple[str, ...]):
+    """The counts and loops of ``names`` generated in the batch form."""
+    paths, _ = generate_units(MODEL, ["ekf"], "c", workdir / "derive_batch",
+                              {"update": "batch", "prefix": "batch_"})
+    header = next(p for p in paths if p.suffix == ".h")
+    source = next(p for p in paths if p.suffix == ".c")
+    functions = {f.program: f for f in read_interface(header.read_text()).functions}
+    counts = {name: _header_count(header.read_text(), name) for name in names}
+    loops = [c_loop.derive_call(functions[name], f"batch_{name}") for name in names]
+    return counts, c_loop.build(workdir / "derive_batch_loops", [str(header)], [source],
+                                loops, [*STRICT_CFLAGS, *generated.CFLAGS])
+
+
 def _header_count(text: str, function: str) -> OpCount:
     line = re.search(rf"operations per call of {function} \(C99[^)]*\): ([^\n]*) \(flops",
                      text)
@@ -313,6 +343,13 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
         result.throughput = measure_throughput(generated.CFLAGS, repeats)
     except Exception as exc:  # no compiler or cffi failure: the floors are left out
         result.notes.append(f"scalar throughput not measured: {str(exc).splitlines()[0][:200]}")
+    sequential = sequential_updates()
+    if sequential:
+        tick("navigation: the batch form of " + ", ".join(sequential))
+        batch_counts, batch_loops = _batch_form(workdir, sequential)
+        result.notes += [f"{name} is sequential (one scalar update per measurement); its batch "
+                         f"form (update=batch): flops {batch_counts[name].flops}, instructions "
+                         f"{batch_counts[name].instructions}" for name in sequential]
     p = np.array([point.dt])
     for name in TIMED:
         expected = _expected(point, name)
@@ -321,6 +358,13 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
         base = measure(lambda run=run: run(calls), calls, repeats)
         result.times.append(TimeRow(name, "generated C", base, 1.0,
                                     _agreement(run(1), expected), "a C loop of calls"))
+        if name in sequential:
+            run = batch_loops.runner(f"batch_{name}", point.x, point.P, _arg(point, name), p)
+            t = measure(lambda run=run: run(calls), calls, repeats)
+            result.times.append(TimeRow(name, BATCH_FORM, t, t.median / base.median,
+                                        _agreement(run(1), expected),
+                                        "option update=batch (the LDL^T solve of S); the same "
+                                        "C loop"))
         if casadi_loops is None:
             result.times.append(TimeRow(name, "CasADi C", None, None, None, casadi_note))
         else:
