@@ -50,7 +50,7 @@ def test_lowering_rules(expr, tree):
 @pytest.mark.parametrize("expr, tree", [
     (a * b + c, Op("fma", (A, B, C))),
     (a - 2 * b * c, Op("fma", (Const(-2.0), mul(B, C), A))),
-    (a - b * c, Op("sub", (A, mul(B, C)))),
+    (a - b * c, Op("fnma", (B, C, A))),
     (a * b + c * d, Op("fma", (C, D, mul(A, B)))),
     (1 + a * b, Op("fma", (A, B, Const(1.0)))),
 ])
