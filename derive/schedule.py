@@ -14,8 +14,8 @@ emits it:
   each group joined by an fma), instead of through the chain of shared partial sums the
   optimiser built: S(k+1) comes from P(k/k) in two operations.
 * **fused updates**: a product used once, in a sum, moves into it, so the lowering fuses
-  it into an fma (``c - a*b`` becomes ``fma(-a, b, c)``; the ``-a`` is a ``neg``, off
-  the chain).
+  it into an fma (``c - a*b`` into the negative one, ``fnma(a, b, c)``: one instruction,
+  the latency of an fma).
 * **the late factor last**: in a fused product whose second factor is itself a product or
   a quotient (``a * (x / d)``, the gain in ``P - PH K``), the early factors are
   multiplied first and the late one, ``1/d`` (one division by ``d`` shared by every
@@ -158,7 +158,6 @@ class _Work:
         self.original = {st.target: st.expr for st in program.body if isinstance(st, Assign)}
         self.counter = 0
         self.reciprocals: dict[sympy.Expr, Temporary] = {}
-        self.negations: dict[sympy.Expr, Temporary] = {}
         self.directs: dict[Temporary, sympy.Expr] = {}
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
         self.forms: dict[sympy.Expr, Form] = {}
@@ -292,7 +291,6 @@ class _Work:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
         uses = _uses(live_statements(body, self.results), self.results)
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
-        ready = arrival_times(body, self.form)
         out: list[Statement] = []
         done: set[sympy.Symbol] = set()
         for st in body:
@@ -308,29 +306,10 @@ class _Work:
                     terms.append(term)
                     continue
                 p_coeff, factors = product.as_coeff_Mul()
-                coeff = coeff * p_coeff
-                if coeff != -1:
-                    terms.append(coeff * factors)
-                    continue
-                args = sorted(sympy.Mul.make_args(factors),
-                              key=lambda a: (ready.get(getattr(a, "name", ""), -math.inf),
-                                             default_sort_key(a)))
-                negated = self._negation(args[0], out, done)
-                terms.append(sympy.Mul(negated, *args[1:]))
+                terms.append(coeff * p_coeff * factors)
             expr = sympy.Add(*terms)
             _append(out, done, st if expr == st.expr else Assign(st.target, expr))
         return out if out != body else body
-
-    def _negation(self, value: sympy.Expr, out: list[Statement],
-                  done: set[sympy.Symbol]) -> Temporary:
-        """A temporary holding ``-value`` (one per value), appended to ``out`` (whose
-        targets are ``done``) if new."""
-        negated = self.negations.get(value)
-        if negated is None:
-            negated = self.negations[value] = self.fresh()
-        if negated not in done:
-            _append(out, done, Assign(negated, -value))
-        return negated
 
     def late_candidates(self, body: list[Statement], state: Arrivals) -> list[Callable]:
         """For each product ``a * q`` in a sum, ``q`` a product or quotient: the early

@@ -79,7 +79,7 @@ def _evaluate(tree, env):
     v = [_evaluate(t, env) for t in tree.args]
     return {"add": lambda: v[0] + v[1], "sub": lambda: v[0] - v[1], "mul": lambda: v[0] * v[1],
             "div": lambda: v[0] / v[1], "neg": lambda: -v[0], "sqrt": lambda: math.sqrt(v[0]),
-            "fma": lambda: v[0] * v[1] + v[2]}[tree.kind]()
+            "fma": lambda: v[0] * v[1] + v[2], "fnma": lambda: v[2] - v[0] * v[1]}[tree.kind]()
 
 
 _leaves = st.sampled_from([a, b, c, d, sympy.Integer(2), sympy.Rational(-3, 4),
