@@ -97,7 +97,7 @@ def test_the_macros_define_fnma_beside_fma_in_both_precisions():
         lines = c_printer.fma_macro_lines(precision(real))
         text = "\n".join(lines)
         assert "#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))" in text
-        assert "#define DERIVE_FNMA(a, b, c) DERIVE_FMA(-(a), (b), (c))" in text
+        assert "#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))" in text
         assert f"{precision(real).math('fma')}((a), (b), (c))" in text
 
 

@@ -144,7 +144,7 @@ def macro_lines(width: int) -> list[str]:
                     f"#if defined({FMA_PLAIN})",
                     f"#define {VECTOR_FNMA}(a, b, c) ((c) - (a) * (b))",
                     f"#elif defined({FMA_FUSED})",
-                    f"#define {VECTOR_FNMA}(a, b, c) {VECTOR_FMA}(-(a), (b), (c))",
+                    f"#define {VECTOR_FNMA}(a, b, c) {VECTOR_FMA}((a), -(b), (c))",
                     "#else",
                     f"#define {VECTOR_FNMA}(a, b, c) (({vtype}){{{negative}}})",
                     "#endif"] + pair_lines(width) + ["#endif"]

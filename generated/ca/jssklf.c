@@ -40,7 +40,7 @@
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
 #else
-#define DERIVE_FNMA(a, b, c) DERIVE_FMA(-(a), (b), (c))
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 

@@ -44,7 +44,7 @@
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
 #else
-#define DERIVE_FNMA(a, b, c) DERIVE_FMA(-(a), (b), (c))
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -114,7 +114,7 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
 #elif defined(DERIVE_FMA_FUSED)
-#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA(-(a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
 #else
 #define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
