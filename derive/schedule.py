@@ -24,7 +24,9 @@ emits it:
 
 Then the statements are ordered by when their operands are ready (independent blocks,
 such as the three axes of ``mpt3d_a``, interleave), checks keeping their order and
-every statement that reads a checked value staying after its check.
+every statement that reads a checked value staying after its check. The scheduled step is
+kept only when its carried chain is no longer than the default step's (some rewrites apply
+whole; the default, with the fused negative multiply-add, can be the shorter).
 
 Decisions use :data:`REFERENCE_CYCLES`, never a measurement, so generation stays
 deterministic.  The rewrites change rounding (a direct sum, a reciprocal), not the
@@ -92,7 +94,18 @@ def latency_schedule(program: Program,
     body, merged = _merge(live_statements(body, program.results))
     work.results = {name: tuple(v.xreplace(merged) for v in values)
                     for name, values in work.results.items()}
-    return work.build(work.order(body))
+    scheduled = work.build(work.order(body))
+    # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
+    # scheduled is kept only when its carried chain is no longer than the default's
+    if _chain(scheduled, pairs) > _chain(program, pairs):
+        return program
+    return scheduled
+
+
+def _chain(program: Program, pairs: list[tuple[str, str]]) -> float:
+    """The longest chain from a carried input to a carried output of ``program``, in
+    :data:`REFERENCE_CYCLES` as the lowering (with fma) emits it."""
+    return _Work(program, pairs).arrivals(list(program.body)).score()[0]
 
 
 def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:

@@ -19,11 +19,13 @@ import numpy as np
 import pytest
 import sympy
 
-from derive import catalog
+from derive import LinearModel, catalog
+from derive.apps.latency import carried_bound
 from derive.apps.verify import verify_modules
 from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS, build_c
 from derive.emit import c_printer
 from derive.emit.render import render_c
+from derive.filters import derive_unit
 from derive.flops import (
     count,
     count_c_function,
@@ -36,6 +38,7 @@ from derive.lowering import Const, Op, Var, lower, lower_program, tree_kinds
 from derive.pipeline import load_generated
 from derive.precision import precision
 from derive.program import Port, Program
+from derive.schedule import REFERENCE_CYCLES, latency_schedule
 
 ROOT = Path(__file__).resolve().parent.parent
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -377,3 +380,27 @@ def test_ins_gnss_compiles_strictly_in_both_precisions(tmp_path, flags):
                                source.name], cwd=source.parent, capture_output=True,
                               text=True, timeout=600)
         assert proc.returncode == 0, proc.stderr[:3000]
+
+
+# -- the latency schedule against the shorter default ---------------------------------------
+
+def test_the_latency_schedule_never_lengthens_the_default_chain():
+    """A random model (found by tests/test_perf_latency.py's search) whose default chain the
+    fused negative multiply-add shortened below what the latency schedule's rounds reach
+    (134 against 136 reference cycles): the schedule keeps the default step."""
+    model = LinearModel(
+        "rand", [f"x{i}" for i in range(5)], [f"y{i}" for i in range(3)],
+        [[0.677, 0, 0, 0, 0.549], [0.178, 0.409, 0, 0.836, 0],
+         [0, 0.201, 0.378, -0.017, 0.26], [-0.249, -0.196, 0.029, 0.909, 0.361],
+         [-0.015, 0.418, 0, -0.422, 0.773]],
+        [[0.429, 1, -0.601, 0, 1.125], [-0.784, -0.213, 0, 1, -0.364], [1, 0, 0, 0, 0.787]],
+        [[0.471, 0.344, -0.252, 0.06, -0.301], [0.344, 1.839, -0.481, -1.37, 0.536],
+         [-0.252, -0.481, 0.337, 0.231, 0.091], [0.06, -1.37, 0.231, 1.719, -0.577],
+         [-0.301, 0.536, 0.091, -0.577, 1.313]],
+        [[0.82, 0.289, -0.392], [0.289, 1.249, -0.008], [-0.392, -0.008, 1.18]])
+    default = derive_unit(model, "kf", {}).programs["step"]
+    scheduled = latency_schedule(default)
+
+    def chain(program):
+        return carried_bound(lower_program(program, use_fma=True), REFERENCE_CYCLES).per_step
+    assert chain(scheduled) <= chain(default)
