@@ -38,12 +38,14 @@ _NEVER = -math.inf
 def operation_latency(kind: str, latency: Mapping[str, float]) -> float:
     """The latency of one operation of ``kind`` (a kind of :mod:`derive.lowering`) in
     ``latency``: ``sub``, ``neg``, ``select`` and ``gate`` (a compare and a select) as
-    ``add``, a call as ``call``; a check (``cmp``) only branches, so it adds nothing to
-    the data path."""
+    ``add``, ``fnma`` (``c - a*b``, one fused instruction) as ``fma``, a call as ``call``;
+    a check (``cmp``) only branches, so it adds nothing to the data path."""
     if kind == "cmp":
         return 0.0
     if kind in latency:
         return float(latency[kind])
+    if kind == "fnma" and "fma" in latency:
+        return float(latency["fma"])
     if kind in ("sub", "neg", "select", "gate") and "add" in latency:
         return float(latency["add"])
     if kind.startswith("call:") and "call" in latency:

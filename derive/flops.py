@@ -11,7 +11,9 @@ that do not trust the lowering:
   its operators; must reproduce ``count(program, "c")``.
 
 ``flops`` = add + sub + mul + div + sqrt + 2 fma (negations and comparisons
-are reported, not counted as flops); ``instructions`` = every operation.  A
+are reported, not counted as flops); ``instructions`` = every operation.  ``fma`` counts
+both fused multiply-adds of the C lowering, ``a*b + c`` (``DERIVE_FMA``) and ``c - a*b``
+(``DERIVE_FNMA``, :data:`derive.lowering.FUSED_KINDS`): one instruction, two flops each.  A
 ``select`` (:class:`derive.lowering.IfPresent`, the missing-measurement test) is
 one comparison, ``z == z``, and is counted as ``cmp``.
 """
@@ -76,6 +78,8 @@ class OpCount:
 def _kind_field(kind: str) -> str:
     if kind in ("select", "gate"):
         return "cmp"
+    if kind == "fnma":
+        return "fma"
     return "calls" if kind.startswith("call:") else kind
 
 
@@ -311,11 +315,13 @@ def _tokens(text: str) -> list[tuple[str, str]]:
     return out
 
 
-def count_c_text(text: str, fma_name: str = "DERIVE_FMA") -> OpCount:
+def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
+                 fnma_name: str = "DERIVE_FNMA") -> OpCount:
     """Count the arithmetic in C statements by their operators.
 
     ``+ - * /`` binary; unary minus is ``neg`` unless it is the sign of a numeric
-    literal; ``fma_name(`` is an fma, ``sqrt(`` a sqrt, other ``name(`` calls
+    literal; ``fma_name(`` and ``fnma_name(`` are an fma each (the negative one is
+    ``c - a*b``, as :class:`OpCount` counts it), ``sqrt(`` a sqrt, other ``name(`` calls
     (except ``if``, ``return``, ``sizeof`` and ``for``/``while``) are calls;
     ``> < >= <= == !=`` are comparisons.
     """
@@ -326,7 +332,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA") -> OpCount:
     for k, (kind, tok) in enumerate(tokens):
         nxt = tokens[k + 1] if k + 1 < len(tokens) else (None, None)
         if kind == "name" and nxt[1] == "(":
-            if tok == fma_name:
+            if tok in (fma_name, fnma_name):
                 tally["fma"] += 1
             elif tok == "sqrt":
                 tally["sqrt"] += 1
@@ -399,4 +405,5 @@ def count_c_calls(source: str, text: str) -> OpCount:
     return total
 
 
-_C_WORDS = ("if", "return", "sizeof", "for", "while", "switch", "void", "sqrt", "DERIVE_FMA")
+_C_WORDS = ("if", "return", "sizeof", "for", "while", "switch", "void", "sqrt", "DERIVE_FMA",
+            "DERIVE_FNMA")

@@ -22,9 +22,13 @@ Rules (``e`` a sympy expression):
   ``x**(k/2)``: ``mul(x**((k-1)/2), sqrt(x))``;
 - with ``use_fma`` (C): in an ``Add`` each term whose tree is a product becomes
   ``fma(a, b, acc)`` on the chain of the other terms; a negative term ``-c*a``
-  uses the negative constant, ``-a*b`` stays a ``sub``; products whose operands
+  uses the negative constant (``fma(-c, a, acc)``), ``-a*b`` is the fused negative
+  multiply-add ``fnma(a, b, acc)`` (``acc - a*b``); products whose operands
   are deepest, or read the carried state (x, P, temporaries), go last so the
-  dependency chain from one step to the next stays short;
+  dependency chain from one step to the next stays short; a sum of products alone
+  starts at the first of them (``mul``; ``neg(mul)`` when it is negative and no positive
+  one is as early); before lowering, products and negations read once by a sum are
+  folded into it (:func:`derive.single_use.fold_single_use`), so the rule sees them;
 - the functions of :data:`FUNCTIONS` are calls ``call:NAME`` (C names);
 - :class:`IfPresent` ``(z, a, b)`` is ``select(z, a, b)``: ``a`` where the input
   element ``z`` is not NaN, else ``b``; it costs one comparison (``z == z``) and no
@@ -49,7 +53,9 @@ results and the counts do not change). A 600-term sum is otherwise a chain 600 d
 deeper than the printers' and passes' recursion allows, and C99 only promises 63
 nesting levels of parentheses in one expression.
 
-Operation kinds: ``add sub mul div sqrt fma neg cmp select gate`` and ``call:NAME``.
+Operation kinds: ``add sub mul div sqrt fma fnma neg cmp select gate`` and ``call:NAME``
+(``fma(a, b, c)`` is ``a*b + c``, ``fnma(a, b, c)`` is ``c - a*b``, each one rounding where
+the hardware fuses them).
 """
 
 from __future__ import annotations
@@ -63,12 +69,15 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import ModelError
+from derive.single_use import fold_single_use
 from derive.statements import POSITIVE, Assign, Check
 
 if TYPE_CHECKING:
     from derive.program import Port, Program
 
-KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "select", "gate")
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "fnma", "neg", "cmp", "select", "gate")
+#: The fused multiply-adds: one instruction and two flops each, counted as ``fma``.
+FUSED_KINDS = frozenset({"fma", "fnma"})
 
 #: The deepest tree a lowered program holds (C99's translation limits promise 63 nesting
 #: levels of parenthesised expressions; Python's default recursion limit is 1000 frames).
@@ -361,23 +370,31 @@ class _Lowerer:
         if not self.use_fma:
             return _signed_chain(terms)
         base: list[tuple[int, Tree]] = []
-        products: list[tuple[Tree, Tree]] = []
+        products: list[tuple[int, Tree, Tree]] = []
         for sign, tree in terms:
             if isinstance(tree, Op) and tree.kind == "mul":
                 left, right = tree.args
-                if sign > 0:
-                    products.append((left, right))
-                    continue
-                if isinstance(left, Const):
-                    products.append((Const(-left.value), right))
-                    continue
+                if sign < 0 and isinstance(left, Const):
+                    sign, left = 1, Const(-left.value)
+                products.append((sign, left, right))
+                continue
             base.append((sign, tree))
-        products.sort(key=lambda lr: (_late(lr[0], self.state_ports)
-                                      or _late(lr[1], self.state_ports),
-                                      max(depth(lr[0]), depth(lr[1]))))
-        acc = _signed_chain(base) if base else Op("mul", products.pop(0))
-        for left, right in products:
-            acc = Op("fma", (left, right, acc))
+
+        def key(product: tuple[int, Tree, Tree]) -> tuple[bool, int]:
+            _, left, right = product
+            return (_late(left, self.state_ports) or _late(right, self.state_ports),
+                    max(depth(left), depth(right)))
+        products.sort(key=key)
+        if base:
+            acc = _signed_chain(base)
+        else:
+            # start at the first product, or at a positive one as early (no negation)
+            start = next((k for k, p in enumerate(products)
+                          if p[0] > 0 and key(p) == key(products[0])), 0)
+            sign, left, right = products.pop(start)
+            acc = Op("mul", (left, right)) if sign > 0 else Op("neg", (Op("mul", (left, right)),))
+        for sign, left, right in products:
+            acc = Op("fma" if sign > 0 else "fnma", (left, right, acc))
         return acc
 
 
@@ -546,7 +563,9 @@ def lower_program(program: Program, *, use_fma: bool = False,
     status = first_status - 1
     pattern_status = first_status + sum(1 for st in program.body
                                         if isinstance(st, Check) and st.relation == POSITIVE)
-    for st in program.body:
+    statements = (fold_single_use(program.body, program.results) if use_fma
+                  else program.body)
+    for st in statements:
         if isinstance(st, Assign):
             body.append(LoweredAssign(st.target.name, cut(lowerer.lower(st.expr))))
             continue

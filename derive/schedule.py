@@ -14,8 +14,8 @@ emits it:
   each group joined by an fma), instead of through the chain of shared partial sums the
   optimiser built: S(k+1) comes from P(k/k) in two operations.
 * **fused updates**: a product used once, in a sum, moves into it, so the lowering fuses
-  it into an fma (``c - a*b`` becomes ``fma(-a, b, c)``; the ``-a`` is a ``neg``, off
-  the chain).
+  it into an fma (``c - a*b`` into the negative one, ``fnma(a, b, c)``: one instruction,
+  the latency of an fma).
 * **the late factor last**: in a fused product whose second factor is itself a product or
   a quotient (``a * (x / d)``, the gain in ``P - PH K``), the early factors are
   multiplied first and the late one, ``1/d`` (one division by ``d`` shared by every
@@ -24,7 +24,9 @@ emits it:
 
 Then the statements are ordered by when their operands are ready (independent blocks,
 such as the three axes of ``mpt3d_a``, interleave), checks keeping their order and
-every statement that reads a checked value staying after its check.
+every statement that reads a checked value staying after its check. The scheduled step is
+kept only when its carried chain is no longer than the default step's (some rewrites apply
+whole; the default, with the fused negative multiply-add, can be the shorter).
 
 Decisions use :data:`REFERENCE_CYCLES`, never a measurement, so generation stays
 deterministic.  The rewrites change rounding (a direct sum, a reciprocal), not the
@@ -92,7 +94,18 @@ def latency_schedule(program: Program,
     body, merged = _merge(live_statements(body, program.results))
     work.results = {name: tuple(v.xreplace(merged) for v in values)
                     for name, values in work.results.items()}
-    return work.build(work.order(body))
+    scheduled = work.build(work.order(body))
+    # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
+    # scheduled is kept only when its carried chain is no longer than the default's
+    if _chain(scheduled, pairs) > _chain(program, pairs):
+        return program
+    return scheduled
+
+
+def _chain(program: Program, pairs: list[tuple[str, str]]) -> float:
+    """The longest chain from a carried input to a carried output of ``program``, in
+    :data:`REFERENCE_CYCLES` as the lowering (with fma) emits it."""
+    return _Work(program, pairs).arrivals(list(program.body)).score()[0]
 
 
 def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
@@ -158,7 +171,6 @@ class _Work:
         self.original = {st.target: st.expr for st in program.body if isinstance(st, Assign)}
         self.counter = 0
         self.reciprocals: dict[sympy.Expr, Temporary] = {}
-        self.negations: dict[sympy.Expr, Temporary] = {}
         self.directs: dict[Temporary, sympy.Expr] = {}
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
         self.forms: dict[sympy.Expr, Form] = {}
@@ -292,7 +304,6 @@ class _Work:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
         uses = _uses(live_statements(body, self.results), self.results)
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
-        ready = arrival_times(body, self.form)
         out: list[Statement] = []
         done: set[sympy.Symbol] = set()
         for st in body:
@@ -308,29 +319,10 @@ class _Work:
                     terms.append(term)
                     continue
                 p_coeff, factors = product.as_coeff_Mul()
-                coeff = coeff * p_coeff
-                if coeff != -1:
-                    terms.append(coeff * factors)
-                    continue
-                args = sorted(sympy.Mul.make_args(factors),
-                              key=lambda a: (ready.get(getattr(a, "name", ""), -math.inf),
-                                             default_sort_key(a)))
-                negated = self._negation(args[0], out, done)
-                terms.append(sympy.Mul(negated, *args[1:]))
+                terms.append(coeff * p_coeff * factors)
             expr = sympy.Add(*terms)
             _append(out, done, st if expr == st.expr else Assign(st.target, expr))
         return out if out != body else body
-
-    def _negation(self, value: sympy.Expr, out: list[Statement],
-                  done: set[sympy.Symbol]) -> Temporary:
-        """A temporary holding ``-value`` (one per value), appended to ``out`` (whose
-        targets are ``done``) if new."""
-        negated = self.negations.get(value)
-        if negated is None:
-            negated = self.negations[value] = self.fresh()
-        if negated not in done:
-            _append(out, done, Assign(negated, -value))
-        return negated
 
     def late_candidates(self, body: list[Statement], state: Arrivals) -> list[Callable]:
         """For each product ``a * q`` in a sum, ``q`` a product or quotient: the early

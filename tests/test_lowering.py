@@ -50,7 +50,7 @@ def test_lowering_rules(expr, tree):
 @pytest.mark.parametrize("expr, tree", [
     (a * b + c, Op("fma", (A, B, C))),
     (a - 2 * b * c, Op("fma", (Const(-2.0), mul(B, C), A))),
-    (a - b * c, Op("sub", (A, mul(B, C)))),
+    (a - b * c, Op("fnma", (B, C, A))),
     (a * b + c * d, Op("fma", (C, D, mul(A, B)))),
     (1 + a * b, Op("fma", (A, B, Const(1.0)))),
 ])
@@ -79,7 +79,7 @@ def _evaluate(tree, env):
     v = [_evaluate(t, env) for t in tree.args]
     return {"add": lambda: v[0] + v[1], "sub": lambda: v[0] - v[1], "mul": lambda: v[0] * v[1],
             "div": lambda: v[0] / v[1], "neg": lambda: -v[0], "sqrt": lambda: math.sqrt(v[0]),
-            "fma": lambda: v[0] * v[1] + v[2]}[tree.kind]()
+            "fma": lambda: v[0] * v[1] + v[2], "fnma": lambda: v[2] - v[0] * v[1]}[tree.kind]()
 
 
 _leaves = st.sampled_from([a, b, c, d, sympy.Integer(2), sympy.Rational(-3, 4),

@@ -311,7 +311,8 @@ C_FLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-shar
 def c_library(programs, directory):
     """The programs printed by derive.emit.c_printer (with fma), compiled with the
     project's flags into a shared library."""
-    lines = ["#include <math.h>", "#define DERIVE_FMA(a, b, c) fma(a, b, c)"]
+    lines = ["#include <math.h>", "#define DERIVE_FMA(a, b, c) fma(a, b, c)",
+             "#define DERIVE_FNMA(a, b, c) fma(a, -(b), c)"]
     for program in programs.values():
         parts = function_parts(lower_program(program, use_fma=True), "ud")
         lines += [parts["signature"] + ";", parts["signature"] + " {"]

@@ -72,7 +72,7 @@ NO_VECTOR = "DERIVE_NO_BLOCK_VECTOR"
 #: elsewhere (32-bit Arm, Cortex-M) GCC would split the vectors into scalar code.
 TARGETS = "(defined(__SSE2__) || defined(__aarch64__))"
 #: The operations a vector statement spells (lane-wise IEEE: bitwise those of the scalar).
-VECTOR_KINDS = frozenset({"add", "sub", "mul", "div", "neg", "fma"})
+VECTOR_KINDS = frozenset({"add", "sub", "mul", "div", "neg", "fma", "fnma"})
 #: The most lanes (blocks) of one vector: 8 doubles, one AVX-512 register.
 MOST_LANES = 8
 #: The fewest: two blocks in a vector of two doubles measured 4 to 12 % slower than the
@@ -103,6 +103,8 @@ def vector_width(lanes: int) -> int:
 
 #: The vector fma: lane by lane exactly the file's DERIVE_FMA.
 VECTOR_FMA = "DERIVE_VFMA"
+#: The vector negative fma (``c - a*b``): lane by lane exactly the file's DERIVE_FNMA.
+VECTOR_FNMA = "DERIVE_VFNMA"
 #: Defined where Clang has its elementwise fma (Clang 14 and later).
 ELEMENTWISE_FMA = "DERIVE_ELEMENTWISE_FMA"
 #: x86's vector fma of each width (one rounding per lane, as fma()), and what it needs.
@@ -135,8 +137,16 @@ def macro_lines(width: int) -> list[str]:
                   f"#define {VECTOR_FMA}(a, b, c) {x86}((a), (b), (c))"]
     lines += [f"#elif defined({FMA_FUSED}) && defined({ELEMENTWISE_FMA})",
               f"#define {VECTOR_FMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))"]
+    negative = ", ".join(f"DERIVE_FNMA((a)[{b}], (b)[{b}], (c)[{b}])" for b in range(width))
     return lines + ["#else",
                     f"#define {VECTOR_FMA}(a, b, c) (({vtype}){{{lanes}}})",
+                    "#endif",
+                    f"#if defined({FMA_PLAIN})",
+                    f"#define {VECTOR_FNMA}(a, b, c) ((c) - (a) * (b))",
+                    f"#elif defined({FMA_FUSED})",
+                    f"#define {VECTOR_FNMA}(a, b, c) {VECTOR_FMA}((a), -(b), (c))",
+                    "#else",
+                    f"#define {VECTOR_FNMA}(a, b, c) (({vtype}){{{negative}}})",
                     "#endif"] + pair_lines(width) + ["#endif"]
 
 
@@ -319,7 +329,7 @@ def _commuted(tree: Tree) -> Tree:
     args = tuple(_commuted(a) for a in tree.args)
     if tree.kind in ("add", "mul"):
         args = tuple(sorted(args, key=repr))
-    elif tree.kind == "fma":
+    elif tree.kind in ("fma", "fnma"):
         args = tuple(sorted(args[:2], key=repr)) + args[2:]
     return Op(tree.kind, args)
 
@@ -413,10 +423,11 @@ class VectorStatements:
         if not any(vector for _, vector in args):  # parameters and constants alone
             text = self.scalar.expression(Op(tree.kind, tuple(Var(t) for t, _ in args)))
             return f"({text})", False
-        if tree.kind == "fma":
+        if tree.kind in ("fma", "fnma"):
             splat = [t if v else f"(({self.type}){{{', '.join([t] * self.width)}}})"
                      for t, v in args]
-            return self._new(f"{VECTOR_FMA}({', '.join(splat)})"), True
+            name = VECTOR_FMA if tree.kind == "fma" else VECTOR_FNMA
+            return self._new(f"{name}({', '.join(splat)})"), True
         if tree.kind == "neg":
             return self._new(f"-{args[0][0]}"), True
         (a, _), (b, _) = args

@@ -17,7 +17,7 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 47, sub 15, mul 82, div 4, sqrt 0, fma 78, neg 8, cmp 1, calls 0 (flops 304, instructions 235)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 41, sub 1, mul 62, div 4, sqrt 0, fma 98, neg 2, cmp 1, calls 0 (flops 304, instructions 209)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -35,6 +35,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -112,24 +119,15 @@ DERIVE_INLINE int ca_jklf_step_body(const double *restrict x, const double *rest
     const double t19 = t11*t17;
     const double t20 = t12*t17;
     const double t21 = z[0] - t0;
-    const double t22 = t18*t21;
-    const double t23 = t19*t21;
-    const double t24 = t20*t21;
-    const double t25 = t0 + t22;
-    const double t26 = t1 + t23;
-    const double t27 = x[2 * s] + t24;
-    const double t28 = t10*t18;
-    const double t29 = t11*t18;
-    const double t30 = t12*t18;
-    const double t31 = t11*t19;
-    const double t32 = t12*t19;
-    const double t33 = t12*t20;
-    const double t34 = t10 - t28;
-    const double t35 = t11 - t29;
-    const double t36 = t12 - t30;
-    const double t37 = t13 - t31;
-    const double t38 = t14 - t32;
-    const double t39 = t15 - t33;
+    const double t25 = DERIVE_FMA(t18, t21, t0);
+    const double t26 = DERIVE_FMA(t19, t21, t1);
+    const double t27 = DERIVE_FMA(t20, t21, x[2 * s]);
+    const double t34 = DERIVE_FNMA(t10, t18, t10);
+    const double t35 = DERIVE_FNMA(t11, t18, t11);
+    const double t36 = DERIVE_FNMA(t12, t18, t12);
+    const double t37 = DERIVE_FNMA(t11, t19, t13);
+    const double t38 = DERIVE_FNMA(t12, t19, t14);
+    const double t39 = DERIVE_FNMA(t12, t20, t15);
     const double t40 = 9.950248756218905*P[1 * s];
     const double t41 = 4.975124378109452*P[2 * s];
     const double t42 = DERIVE_FMA(9.950248756218905, P[0], t40 + t41);
@@ -146,21 +144,21 @@ DERIVE_INLINE int ca_jklf_step_body(const double *restrict x, const double *rest
     const double t53 = 1.0/t50;
     const double t54 = t46*t53;
     const double t55 = t48*t53;
-    const double t56 = t51 - t42*t54;
-    const double t57 = t47 - t44*t54;
+    const double t56 = DERIVE_FNMA(t42, t54, t51);
+    const double t57 = DERIVE_FNMA(t44, t54, t47);
     const double t58 = 1.0/t56;
-    const double t59 = t58*(t48 - t42*t55);
-    const double t60 = t52 - t44*t55 - t57*t59;
+    const double t59 = t58*DERIVE_FNMA(t42, t55, t48);
+    const double t60 = DERIVE_FNMA(t57, t59, DERIVE_FNMA(t44, t55, t52));
     const double t61 = 1.0/t60;
     const double t62 = DERIVE_FMA(t54, t59, -t55);
     const double t63 = t61*t62;
-    const double t64 = t58*(-t54 - t57*t63);
-    const double t65 = t53*(1.0 - t42*t64 - t44*t63);
+    const double t64 = t58*DERIVE_FNMA(t57, t63, -t54);
+    const double t65 = t53*DERIVE_FNMA(t44, t63, DERIVE_FNMA(t42, t64, 1.0));
     const double t66 = t59*t61;
     const double t67 = t58*DERIVE_FMA(t57, t66, 1.0);
-    const double t68 = t53*DERIVE_FMA(t44, t66, -(t42*t67));
+    const double t68 = t53*DERIVE_FNMA(t42, t67, t44*t66);
     const double t69 = t57*t58*t61;
-    const double t70 = t53*DERIVE_FMA(t42, t69, -(t44*t61));
+    const double t70 = t53*DERIVE_FNMA(t44, t61, t42*t69);
     const double t71 = DERIVE_FMA(0.9950248756218906, t65, DERIVE_FMA(0.9950248756218906, t64, 0.4975124378109453*t63));
     const double t72 = DERIVE_FMA(0.9950248756218906, t68, DERIVE_FMA(0.9950248756218906, t67, (-0.4975124378109453)*t66));
     const double t73 = DERIVE_FMA(0.9950248756218906, t70, DERIVE_FMA((-0.9950248756218906), t69, 0.4975124378109453*t61));
@@ -179,24 +177,21 @@ DERIVE_INLINE int ca_jklf_step_body(const double *restrict x, const double *rest
     const double t86 = x[0] + t83;
     const double t87 = x[1 * s] + t84;
     const double t88 = x[2 * s] + t85;
-    const double t89 = 0.004975124378109453*z[0];
-    const double t90 = 0.012437810945273632*z[0];
-    const double t91 = 0.01658374792703151*z[0];
     const double t92 = DERIVE_FMA(t73, t88, DERIVE_FMA(t72, t87, t71*t86));
     const double t93 = DERIVE_FMA(t76, t88, DERIVE_FMA(t75, t87, t74*t86));
-    const double t94 = DERIVE_FMA(t79, t88, DERIVE_FMA(t77, t86, -(t78*t87)));
-    const double t95 = t89 + t92;
-    const double t96 = t90 + t93;
-    const double t97 = t91 + t94;
+    const double t94 = DERIVE_FMA(t79, t88, DERIVE_FNMA(t78, t87, t77*t86));
+    const double t95 = DERIVE_FMA(0.004975124378109453, z[0], t92);
+    const double t96 = DERIVE_FMA(0.012437810945273632, z[0], t93);
+    const double t97 = DERIVE_FMA(0.01658374792703151, z[0], t94);
     const double t98 = DERIVE_FMA(P[2 * s], t73, DERIVE_FMA(P[1 * s], t72, P[0]*t71));
     const double t99 = DERIVE_FMA(P[5 * s], t73, DERIVE_FMA(P[4 * s], t72, P[1 * s]*t71));
     const double t100 = DERIVE_FMA(P[8 * s], t73, DERIVE_FMA(P[5 * s], t72, P[2 * s]*t71));
     const double t101 = DERIVE_FMA(P[2 * s], t76, DERIVE_FMA(P[1 * s], t75, P[0]*t74));
     const double t102 = DERIVE_FMA(P[5 * s], t76, DERIVE_FMA(P[4 * s], t75, P[1 * s]*t74));
     const double t103 = DERIVE_FMA(P[8 * s], t76, DERIVE_FMA(P[5 * s], t75, P[2 * s]*t74));
-    const double t104 = DERIVE_FMA(P[2 * s], t79, DERIVE_FMA(P[0], t77, -(P[1 * s]*t78)));
-    const double t105 = DERIVE_FMA(P[5 * s], t79, DERIVE_FMA(P[1 * s], t77, -(P[4 * s]*t78)));
-    const double t106 = DERIVE_FMA(P[8 * s], t79, DERIVE_FMA(P[2 * s], t77, -(P[5 * s]*t78)));
+    const double t104 = DERIVE_FMA(P[2 * s], t79, DERIVE_FNMA(P[1 * s], t78, P[0]*t77));
+    const double t105 = DERIVE_FMA(P[5 * s], t79, DERIVE_FNMA(P[4 * s], t78, P[1 * s]*t77));
+    const double t106 = DERIVE_FMA(P[8 * s], t79, DERIVE_FNMA(P[5 * s], t78, P[2 * s]*t77));
     const double t107 = DERIVE_FMA(0.9950248756218906, t99, DERIVE_FMA(0.9950248756218906, t98, 0.4975124378109453*t100));
     const double t108 = DERIVE_FMA(0.9875621890547264, t99, DERIVE_FMA((-0.012437810945273632), t98, 0.9937810945273632*t100));
     const double t109 = DERIVE_FMA((-0.01658374792703151), t99, DERIVE_FMA((-0.01658374792703151), t98, 0.9917081260364843*t100));

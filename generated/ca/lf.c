@@ -15,7 +15,7 @@
  *     void ca_lf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 8, mul 61, div 3, sqrt 0, fma 73, neg 8, cmp 0, calls 0 (flops 236, instructions 171)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 0, mul 50, div 3, sqrt 0, fma 84, neg 2, cmp 0, calls 0 (flops 236, instructions 154)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -33,6 +33,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -100,21 +107,21 @@ DERIVE_INLINE void ca_lf_step_body(const double *restrict x, const double *restr
     const double t13 = 1.0/t10;
     const double t14 = t13*t6;
     const double t15 = t13*t8;
-    const double t16 = t11 - t14*t2;
-    const double t17 = t7 - t14*t4;
+    const double t16 = DERIVE_FNMA(t14, t2, t11);
+    const double t17 = DERIVE_FNMA(t14, t4, t7);
     const double t18 = 1.0/t16;
-    const double t19 = t18*(t8 - t15*t2);
-    const double t20 = t12 - t15*t4 - t17*t19;
+    const double t19 = t18*DERIVE_FNMA(t15, t2, t8);
+    const double t20 = DERIVE_FNMA(t17, t19, DERIVE_FNMA(t15, t4, t12));
     const double t21 = 1.0/t20;
     const double t22 = DERIVE_FMA(t14, t19, -t15);
     const double t23 = t21*t22;
-    const double t24 = t18*(-t14 - t17*t23);
-    const double t25 = t13*(1.0 - t2*t24 - t23*t4);
+    const double t24 = t18*DERIVE_FNMA(t17, t23, -t14);
+    const double t25 = t13*DERIVE_FNMA(t23, t4, DERIVE_FNMA(t2, t24, 1.0));
     const double t26 = t19*t21;
     const double t27 = t18*DERIVE_FMA(t17, t26, 1.0);
-    const double t28 = t13*DERIVE_FMA(t26, t4, -(t2*t27));
+    const double t28 = t13*DERIVE_FNMA(t2, t27, t26*t4);
     const double t29 = t17*t18*t21;
-    const double t30 = t13*DERIVE_FMA(t2, t29, -(t21*t4));
+    const double t30 = t13*DERIVE_FNMA(t21, t4, t2*t29);
     const double t31 = DERIVE_FMA(0.9950248756218906, t25, DERIVE_FMA(0.9950248756218906, t24, 0.4975124378109453*t23));
     const double t32 = DERIVE_FMA(0.9950248756218906, t28, DERIVE_FMA(0.9950248756218906, t27, (-0.4975124378109453)*t26));
     const double t33 = DERIVE_FMA(0.9950248756218906, t30, DERIVE_FMA((-0.9950248756218906), t29, 0.4975124378109453*t21));
@@ -133,24 +140,21 @@ DERIVE_INLINE void ca_lf_step_body(const double *restrict x, const double *restr
     const double t46 = x[0] + t43;
     const double t47 = x[1 * s] + t44;
     const double t48 = x[2 * s] + t45;
-    const double t49 = 0.004975124378109453*z[0];
-    const double t50 = 0.012437810945273632*z[0];
-    const double t51 = 0.01658374792703151*z[0];
     const double t52 = DERIVE_FMA(t33, t48, DERIVE_FMA(t32, t47, t31*t46));
     const double t53 = DERIVE_FMA(t36, t48, DERIVE_FMA(t35, t47, t34*t46));
-    const double t54 = DERIVE_FMA(t39, t48, DERIVE_FMA(t37, t46, -(t38*t47)));
-    const double t55 = t49 + t52;
-    const double t56 = t50 + t53;
-    const double t57 = t51 + t54;
+    const double t54 = DERIVE_FMA(t39, t48, DERIVE_FNMA(t38, t47, t37*t46));
+    const double t55 = DERIVE_FMA(0.004975124378109453, z[0], t52);
+    const double t56 = DERIVE_FMA(0.012437810945273632, z[0], t53);
+    const double t57 = DERIVE_FMA(0.01658374792703151, z[0], t54);
     const double t58 = DERIVE_FMA(P[2 * s], t33, DERIVE_FMA(P[1 * s], t32, P[0]*t31));
     const double t59 = DERIVE_FMA(P[5 * s], t33, DERIVE_FMA(P[4 * s], t32, P[1 * s]*t31));
     const double t60 = DERIVE_FMA(P[8 * s], t33, DERIVE_FMA(P[5 * s], t32, P[2 * s]*t31));
     const double t61 = DERIVE_FMA(P[2 * s], t36, DERIVE_FMA(P[1 * s], t35, P[0]*t34));
     const double t62 = DERIVE_FMA(P[5 * s], t36, DERIVE_FMA(P[4 * s], t35, P[1 * s]*t34));
     const double t63 = DERIVE_FMA(P[8 * s], t36, DERIVE_FMA(P[5 * s], t35, P[2 * s]*t34));
-    const double t64 = DERIVE_FMA(P[2 * s], t39, DERIVE_FMA(P[0], t37, -(P[1 * s]*t38)));
-    const double t65 = DERIVE_FMA(P[5 * s], t39, DERIVE_FMA(P[1 * s], t37, -(P[4 * s]*t38)));
-    const double t66 = DERIVE_FMA(P[8 * s], t39, DERIVE_FMA(P[2 * s], t37, -(P[5 * s]*t38)));
+    const double t64 = DERIVE_FMA(P[2 * s], t39, DERIVE_FNMA(P[1 * s], t38, P[0]*t37));
+    const double t65 = DERIVE_FMA(P[5 * s], t39, DERIVE_FNMA(P[4 * s], t38, P[1 * s]*t37));
+    const double t66 = DERIVE_FMA(P[8 * s], t39, DERIVE_FNMA(P[5 * s], t38, P[2 * s]*t37));
     const double t67 = DERIVE_FMA(0.4975124378109453, t60, DERIVE_FMA(0.9950248756218906, t59, 0.9950248756218906*t58));
     const double t68 = DERIVE_FMA(0.9937810945273632, t60, DERIVE_FMA(0.9875621890547264, t59, (-0.012437810945273632)*t58));
     const double t69 = DERIVE_FMA(0.9917081260364843, t60, DERIVE_FMA((-0.01658374792703151), t59, (-0.01658374792703151)*t58));

@@ -20,8 +20,8 @@
  *     backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     backward 4: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 20, sub 7, mul 12, div 1, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 50, instructions 46)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 15, sub 31, mul 52, div 3, sqrt 0, fma 39, neg 0, cmp 3, calls 0 (flops 179, instructions 143)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 17, sub 1, mul 3, div 1, sqrt 0, fma 14, neg 0, cmp 1, calls 0 (flops 50, instructions 37)
+ * operations per call of backward (C99, fma through DERIVE_FMA): add 15, sub 9, mul 30, div 3, sqrt 0, fma 61, neg 0, cmp 3, calls 0 (flops 179, instructions 121)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
@@ -40,6 +40,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -84,24 +91,15 @@ DERIVE_INLINE int ca_rts_step_body(const double *restrict x, const double *restr
     const double t19 = t11*t17;
     const double t20 = t12*t17;
     const double t21 = z[0] - t0;
-    const double t22 = t18*t21;
-    const double t23 = t19*t21;
-    const double t24 = t20*t21;
-    const double t25 = t0 + t22;
-    const double t26 = t1 + t23;
-    const double t27 = x[2 * s] + t24;
-    const double t28 = t10*t18;
-    const double t29 = t11*t18;
-    const double t30 = t12*t18;
-    const double t31 = t11*t19;
-    const double t32 = t12*t19;
-    const double t33 = t12*t20;
-    const double t34 = t10 - t28;
-    const double t35 = t11 - t29;
-    const double t36 = t12 - t30;
-    const double t37 = t13 - t31;
-    const double t38 = t14 - t32;
-    const double t39 = t15 - t33;
+    const double t25 = DERIVE_FMA(t18, t21, t0);
+    const double t26 = DERIVE_FMA(t19, t21, t1);
+    const double t27 = DERIVE_FMA(t20, t21, x[2 * s]);
+    const double t34 = DERIVE_FNMA(t10, t18, t10);
+    const double t35 = DERIVE_FNMA(t11, t18, t11);
+    const double t36 = DERIVE_FNMA(t12, t18, t12);
+    const double t37 = DERIVE_FNMA(t11, t19, t13);
+    const double t38 = DERIVE_FNMA(t12, t19, t14);
+    const double t39 = DERIVE_FNMA(t12, t20, t15);
     x_new[0] = t25;
     x_new[1 * s] = t26;
     x_new[2 * s] = t27;
@@ -148,39 +146,33 @@ int ca_rts_backward(const double *restrict x, const double *restrict P, const do
     const double t6 = 1.0/P_pred[0];
     const double t7 = P_pred[1]*t6;
     const double t8 = P_pred[2]*t6;
-    const double t9 = P_pred[4] - P_pred[1]*t7;
+    const double t9 = DERIVE_FNMA(P_pred[1], t7, P_pred[4]);
     if (!(t9 > 0.0)) {
         return 3; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t10 = 1.0/t9;
-    const double t11 = P_pred[5] - P_pred[2]*t7;
+    const double t11 = DERIVE_FNMA(P_pred[2], t7, P_pred[5]);
     const double t12 = t10*t11;
-    const double t13 = P_pred[8] - P_pred[2]*t8 - t11*t12;
+    const double t13 = DERIVE_FNMA(t11, t12, DERIVE_FNMA(P_pred[2], t8, P_pred[8]));
     if (!(t13 > 0.0)) {
         return 4; /* P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t14 = 1.0/t13;
-    const double t15 = t3 - t0*t7;
-    const double t16 = P[2] - t0*t8 - t12*t15;
-    const double t17 = t4 - t1*t7;
-    const double t18 = P[5] - t1*t8 - t12*t17;
-    const double t19 = t5 - t2*t7;
-    const double t20 = P[8] - t12*t19 - t2*t8;
-    const double t21 = t0*t6;
-    const double t22 = t1*t6;
-    const double t23 = t2*t6;
-    const double t24 = t10*t15;
-    const double t25 = t10*t17;
-    const double t26 = t10*t19;
+    const double t15 = DERIVE_FNMA(t0, t7, t3);
+    const double t16 = DERIVE_FNMA(t12, t15, DERIVE_FNMA(t0, t8, P[2]));
+    const double t17 = DERIVE_FNMA(t1, t7, t4);
+    const double t18 = DERIVE_FNMA(t12, t17, DERIVE_FNMA(t1, t8, P[5]));
+    const double t19 = DERIVE_FNMA(t2, t7, t5);
+    const double t20 = DERIVE_FNMA(t2, t8, DERIVE_FNMA(t12, t19, P[8]));
     const double t27 = t14*t16;
     const double t28 = t14*t18;
     const double t29 = t14*t20;
-    const double t30 = t24 - t12*t27;
-    const double t31 = t21 - t27*t8 - t30*t7;
-    const double t32 = t25 - t12*t28;
-    const double t33 = t22 - t28*t8 - t32*t7;
-    const double t34 = t26 - t12*t29;
-    const double t35 = t23 - t29*t8 - t34*t7;
+    const double t30 = DERIVE_FNMA(t12, t27, t10*t15);
+    const double t31 = DERIVE_FNMA(t30, t7, DERIVE_FNMA(t27, t8, t0*t6));
+    const double t32 = DERIVE_FNMA(t12, t28, t10*t17);
+    const double t33 = DERIVE_FNMA(t32, t7, DERIVE_FNMA(t28, t8, t1*t6));
+    const double t34 = DERIVE_FNMA(t12, t29, t10*t19);
+    const double t35 = DERIVE_FNMA(t34, t7, DERIVE_FNMA(t29, t8, t2*t6));
     const double t36 = x_smooth_next[0] - x_pred[0];
     const double t37 = x_smooth_next[1] - x_pred[1];
     const double t38 = x_smooth_next[2] - x_pred[2];

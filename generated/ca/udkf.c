@@ -26,8 +26,8 @@
  *     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
  *     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
  *     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 9, mul 29, div 6, sqrt 0, fma 25, neg 2, cmp 8, calls 0 (flops 109, instructions 94)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 14, instructions 19)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 8, calls 0 (flops 109, instructions 88)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 0, mul 0, div 3, sqrt 0, fma 4, neg 0, cmp 5, calls 0 (flops 14, instructions 15)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 11, instructions 7)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -47,6 +47,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -95,11 +102,11 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
         status = 2; /* P(k+1/k) is not positive semidefinite: pivot 1 of the time update (MWGS) is negative */
     }
     const double t22 = ((t20 <= 0.0) ? 1.0 : t20);
-    const double t23 = DERIVE_FMA(t19, t8, DERIVE_FMA(t11, t17, DERIVE_FMA(t10, t16, DERIVE_FMA(D[1 * s], t0, -(t12*t18)))));
+    const double t23 = DERIVE_FMA(t19, t8, DERIVE_FNMA(t12, t18, DERIVE_FMA(t11, t17, DERIVE_FMA(t10, t16, D[1 * s]*t0))));
     const double t24 = t23/t22;
     const double t25 = t0 - t24;
-    const double t26 = t10 - t13*t24;
-    const double t27 = t11 - t14*t24;
+    const double t26 = DERIVE_FNMA(t13, t24, t10);
+    const double t27 = DERIVE_FNMA(t14, t24, t11);
     const double t28 = DERIVE_FMA(t15, t24, t12);
     const double t29 = DERIVE_FMA(t24, t9, -t8);
     const double t30 = D[1 * s]*t25;
@@ -132,7 +139,7 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t48 = t41*t47;
     const double t49 = t20*t48;
     const double t50 = t24*t42;
-    const double t51 = t24 - t35*t50;
+    const double t51 = DERIVE_FNMA(t35, t50, t24);
     const double t52 = t35 + t45;
     const double t53 = t40*t8;
     const double t54 = t46 + t53;
@@ -143,9 +150,9 @@ DERIVE_INLINE int ca_udkf_step_body(const double *restrict x, const double *rest
     const double t56 = t46*t55;
     const double t57 = t3*t56;
     const double t58 = t47*t8;
-    const double t59 = t8 - t52*t58;
+    const double t59 = DERIVE_FNMA(t52, t58, t8);
     const double t60 = t52 + t53;
-    const double t61 = t9 - t39*t58;
+    const double t61 = DERIVE_FNMA(t39, t58, t9);
     const double t62 = DERIVE_FMA(t40, t9, t39);
     const double t63 = z[0] - t37;
     const double t64 = t55*t63;
@@ -184,15 +191,15 @@ int ca_udkf_enter(const double *restrict x0, const double *restrict P0, double *
     const double t1 = ((P0[8] <= 0.0) ? 1.0 : P0[8]);
     const double t2 = P0[2]/t1;
     const double t3 = P0[5]/t1;
-    const double t4 = P0[4] - P0[5]*t3;
+    const double t4 = DERIVE_FNMA(P0[5], t3, P0[4]);
     const double t5 = 2.2250738585072014e-308 + t4;
     if (!(t5 > 0.0)) {
         return 8; /* P is not positive semidefinite: pivot 1 of its UD factorisation is negative */
     }
     const double t6 = ((t4 <= 0.0) ? 1.0 : t4);
-    const double t7 = P0[1] - P0[2]*t3;
+    const double t7 = DERIVE_FNMA(P0[2], t3, P0[1]);
     const double t8 = t7/t6;
-    const double t9 = P0[0] - P0[2]*t2 - t7*t8;
+    const double t9 = DERIVE_FNMA(t7, t8, DERIVE_FNMA(P0[2], t2, P0[0]));
     const double t10 = 2.2250738585072014e-308 + t9;
     if (!(t10 > 0.0)) {
         return 9; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */

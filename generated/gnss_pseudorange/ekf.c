@@ -23,9 +23,9 @@
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
  *     update1 5: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 66, mul 92, div 8, sqrt 4, fma 128, neg 0, cmp 4, calls 0 (flops 442, instructions 318)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 26, mul 52, div 8, sqrt 4, fma 168, neg 0, cmp 4, calls 0 (flops 442, instructions 278)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
- * operations per call of update1 (C99, fma through DERIVE_FMA): add 6, sub 14, mul 22, div 2, sqrt 1, fma 17, neg 0, cmp 1, calls 0 (flops 79, instructions 63)
+ * operations per call of update1 (C99, fma through DERIVE_FMA): add 2, sub 4, mul 8, div 2, sqrt 1, fma 31, neg 0, cmp 1, calls 0 (flops 79, instructions 49)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
@@ -44,6 +44,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -140,39 +147,39 @@ DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const
     const double t71 = t57*t70;
     const double t72 = t58*t70;
     const double t73 = t59*t70;
-    const double t74 = t67 - t57*t71;
+    const double t74 = DERIVE_FNMA(t57, t71, t67);
     if (!(t74 > 0.0) && !status) {
         status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t75 = 1.0/t74;
-    const double t76 = t61 - t58*t71;
+    const double t76 = DERIVE_FNMA(t58, t71, t61);
     const double t77 = t75*t76;
-    const double t78 = t62 - t59*t71;
+    const double t78 = DERIVE_FNMA(t59, t71, t62);
     const double t79 = t75*t78;
-    const double t80 = t68 - t58*t72 - t76*t77;
+    const double t80 = DERIVE_FNMA(t76, t77, DERIVE_FNMA(t58, t72, t68));
     if (!(t80 > 0.0) && !status) {
         status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t81 = 1.0/t80;
-    const double t82 = t64 - t59*t72 - t77*t78;
+    const double t82 = DERIVE_FNMA(t77, t78, DERIVE_FNMA(t59, t72, t64));
     const double t83 = t81*t82;
-    const double t84 = t69 - t59*t73 - t78*t79 - t82*t83;
+    const double t84 = DERIVE_FNMA(t82, t83, DERIVE_FNMA(t78, t79, DERIVE_FNMA(t59, t73, t69)));
     if (!(t84 > 0.0) && !status) {
         status = 4; /* S is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
     const double t85 = 1.0/t84;
-    const double t86 = t41 - t40*t71;
-    const double t87 = t42 - t40*t72 - t77*t86;
-    const double t88 = t43 - t40*t73 - t79*t86 - t83*t87;
-    const double t89 = t45 - t44*t71;
-    const double t90 = t46 - t44*t72 - t77*t89;
-    const double t91 = t47 - t44*t73 - t79*t89 - t83*t90;
-    const double t92 = t49 - t48*t71;
-    const double t93 = t50 - t48*t72 - t77*t92;
-    const double t94 = t51 - t48*t73 - t79*t92 - t83*t93;
-    const double t95 = t53 - t52*t71;
-    const double t96 = t54 - t52*t72 - t77*t95;
-    const double t97 = t55 - t52*t73 - t79*t95 - t83*t96;
+    const double t86 = DERIVE_FNMA(t40, t71, t41);
+    const double t87 = DERIVE_FNMA(t77, t86, DERIVE_FNMA(t40, t72, t42));
+    const double t88 = DERIVE_FNMA(t83, t87, DERIVE_FNMA(t79, t86, DERIVE_FNMA(t40, t73, t43)));
+    const double t89 = DERIVE_FNMA(t44, t71, t45);
+    const double t90 = DERIVE_FNMA(t77, t89, DERIVE_FNMA(t44, t72, t46));
+    const double t91 = DERIVE_FNMA(t83, t90, DERIVE_FNMA(t79, t89, DERIVE_FNMA(t44, t73, t47)));
+    const double t92 = DERIVE_FNMA(t48, t71, t49);
+    const double t93 = DERIVE_FNMA(t77, t92, DERIVE_FNMA(t48, t72, t50));
+    const double t94 = DERIVE_FNMA(t83, t93, DERIVE_FNMA(t79, t92, DERIVE_FNMA(t48, t73, t51)));
+    const double t95 = DERIVE_FNMA(t52, t71, t53);
+    const double t96 = DERIVE_FNMA(t77, t95, DERIVE_FNMA(t52, t72, t54));
+    const double t97 = DERIVE_FNMA(t83, t96, DERIVE_FNMA(t79, t95, DERIVE_FNMA(t52, t73, t55)));
     const double t98 = t40*t70;
     const double t99 = t44*t70;
     const double t100 = t48*t70;
@@ -193,9 +200,9 @@ DERIVE_INLINE int gnss_pseudorange_ekf_step_body(const double *restrict x, const
     const double t115 = z[1 * s] - t25;
     const double t116 = z[2 * s] - t26;
     const double t117 = z[3 * s] - t27;
-    const double t118 = t115 - t114*t71;
-    const double t119 = t116 - t114*t72 - t118*t77;
-    const double t120 = t117 - t114*t73 - t118*t79 - t119*t83;
+    const double t118 = DERIVE_FNMA(t114, t71, t115);
+    const double t119 = DERIVE_FNMA(t118, t77, DERIVE_FNMA(t114, t72, t116));
+    const double t120 = DERIVE_FNMA(t119, t83, DERIVE_FNMA(t118, t79, DERIVE_FNMA(t114, t73, t117)));
     const double t121 = DERIVE_FMA(t114, t98, DERIVE_FMA(t110, t120, DERIVE_FMA(t106, t119, t102*t118)));
     const double t122 = DERIVE_FMA(t114, t99, DERIVE_FMA(t111, t120, DERIVE_FMA(t107, t119, t103*t118)));
     const double t123 = DERIVE_FMA(t112, t120, DERIVE_FMA(t108, t119, DERIVE_FMA(t104, t118, t100*t114)));
@@ -306,34 +313,20 @@ int gnss_pseudorange_ekf_update1(const double *restrict x, const double *restric
     const double t18 = t11*t15;
     const double t19 = t12*t15;
     const double t20 = z[0] - t5;
-    const double t21 = t16*t20;
-    const double t22 = t17*t20;
-    const double t23 = t18*t20;
-    const double t24 = t19*t20;
-    const double t25 = x[0] + t21;
-    const double t26 = x[1] + t22;
-    const double t27 = x[2] + t23;
-    const double t28 = x[3] + t24;
-    const double t29 = t16*t9;
-    const double t30 = t10*t16;
-    const double t31 = t11*t16;
-    const double t32 = t12*t16;
-    const double t33 = t10*t17;
-    const double t34 = t11*t17;
-    const double t35 = t12*t17;
-    const double t36 = t11*t18;
-    const double t37 = t12*t18;
-    const double t38 = t12*t19;
-    const double t39 = P[0] - t29;
-    const double t40 = P[1] - t30;
-    const double t41 = P[2] - t31;
-    const double t42 = P[3] - t32;
-    const double t43 = P[5] - t33;
-    const double t44 = P[6] - t34;
-    const double t45 = P[7] - t35;
-    const double t46 = P[10] - t36;
-    const double t47 = P[11] - t37;
-    const double t48 = P[15] - t38;
+    const double t25 = DERIVE_FMA(t16, t20, x[0]);
+    const double t26 = DERIVE_FMA(t17, t20, x[1]);
+    const double t27 = DERIVE_FMA(t18, t20, x[2]);
+    const double t28 = DERIVE_FMA(t19, t20, x[3]);
+    const double t39 = DERIVE_FNMA(t16, t9, P[0]);
+    const double t40 = DERIVE_FNMA(t10, t16, P[1]);
+    const double t41 = DERIVE_FNMA(t11, t16, P[2]);
+    const double t42 = DERIVE_FNMA(t12, t16, P[3]);
+    const double t43 = DERIVE_FNMA(t10, t17, P[5]);
+    const double t44 = DERIVE_FNMA(t11, t17, P[6]);
+    const double t45 = DERIVE_FNMA(t12, t17, P[7]);
+    const double t46 = DERIVE_FNMA(t11, t18, P[10]);
+    const double t47 = DERIVE_FNMA(t12, t18, P[11]);
+    const double t48 = DERIVE_FNMA(t12, t19, P[15]);
     x_new[0] = t25;
     x_new[1] = t26;
     x_new[2] = t27;

@@ -31,9 +31,9 @@
  *     update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
  *     update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
  *     update1 13: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 128, sub 198, mul 252, div 31, sqrt 32, fma 150, neg 0, cmp 8, calls 0 (flops 941, instructions 799)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 104, sub 130, mul 160, div 31, sqrt 32, fma 242, neg 0, cmp 8, calls 0 (flops 941, instructions 707)
  * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
- * operations per call of update1 (C99, fma through DERIVE_FMA): add 34, sub 50, mul 74, div 10, sqrt 11, fma 15, neg 0, cmp 5, calls 0 (flops 209, instructions 199)
+ * operations per call of update1 (C99, fma through DERIVE_FMA): add 24, sub 30, mul 44, div 10, sqrt 11, fma 45, neg 0, cmp 5, calls 0 (flops 209, instructions 169)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
  * predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q
@@ -54,6 +54,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -85,22 +92,22 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t6 = P[1 * s]*t5;
     const double t7 = P[2 * s]*t5;
     const double t8 = P[3 * s]*t5;
-    const double t9 = t1 - t6*t6;
+    const double t9 = DERIVE_FNMA(t6, t6, t1);
     if (!(t9 > 0.0) && !status) {
         status = 2; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     }
     const double t10 = sqrt(t9);
     const double t11 = 1.0/t10;
-    const double t12 = t11*(P[6 * s] - t6*t7);
-    const double t13 = t11*(P[7 * s] - t6*t8);
-    const double t14 = t2 - t12*t12 - t7*t7;
+    const double t12 = t11*DERIVE_FNMA(t6, t7, P[6 * s]);
+    const double t13 = t11*DERIVE_FNMA(t6, t8, P[7 * s]);
+    const double t14 = DERIVE_FNMA(t7, t7, DERIVE_FNMA(t12, t12, t2));
     if (!(t14 > 0.0) && !status) {
         status = 3; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     }
     const double t15 = sqrt(t14);
     const double t16 = 1.0/t15;
-    const double t17 = t16*(P[11 * s] - t12*t13 - t7*t8);
-    const double t18 = t3 - t13*t13 - t17*t17 - t8*t8;
+    const double t17 = t16*DERIVE_FNMA(t7, t8, DERIVE_FNMA(t12, t13, P[11 * s]));
+    const double t18 = DERIVE_FNMA(t8, t8, DERIVE_FNMA(t17, t17, DERIVE_FNMA(t13, t13, t3)));
     if (!(t18 > 0.0) && !status) {
         status = 4; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     }
@@ -152,59 +159,39 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t64 = x[3 * s] + t53;
     const double t65 = x[3 * s] + t61;
     const double t66 = 2.0*t30;
-    const double t67 = t20*(t66 - t20);
     const double t68 = 2.0*t31;
-    const double t69 = t21*(t68 - t21);
     const double t70 = 2.0*t32;
-    const double t71 = t23*(t70 - t23);
-    const double t72 = t67 + t69 + t71;
+    const double t72 = DERIVE_FMA(t23, t70 - t23, DERIVE_FMA(t21, t68 - t21, t20*(t66 - t20)));
     const double t73 = t72/(t37 + sqrt(t36 - t72));
     const double t74 = t26 - t73;
     const double t75 = 2.0*t38;
-    const double t76 = t20*(t75 - t20);
     const double t77 = 2.0*t39;
-    const double t78 = t21*(t77 - t21);
     const double t79 = 2.0*t40;
-    const double t80 = t23*(t79 - t23);
-    const double t81 = t76 + t78 + t80;
+    const double t81 = DERIVE_FMA(t23, t79 - t23, DERIVE_FMA(t21, t77 - t21, t20*(t75 - t20)));
     const double t82 = t81/(t45 + sqrt(t44 - t81));
     const double t83 = t26 - t82;
     const double t84 = 2.0*t46;
-    const double t85 = t20*(t84 - t20);
     const double t86 = 2.0*t47;
-    const double t87 = t21*(t86 - t21);
     const double t88 = 2.0*t48;
-    const double t89 = t23*(t88 - t23);
-    const double t90 = t85 + t87 + t89;
+    const double t90 = DERIVE_FMA(t23, t88 - t23, DERIVE_FMA(t21, t86 - t21, t20*(t84 - t20)));
     const double t91 = t90/(t53 + sqrt(t52 - t90));
     const double t92 = t26 - t91;
     const double t93 = 2.0*t54;
-    const double t94 = t20*(t93 - t20);
     const double t95 = 2.0*t55;
-    const double t96 = t21*(t95 - t21);
     const double t97 = 2.0*t56;
-    const double t98 = t23*(t97 - t23);
-    const double t99 = t94 + t96 + t98;
+    const double t99 = DERIVE_FMA(t23, t97 - t23, DERIVE_FMA(t21, t95 - t21, t20*(t93 - t20)));
     const double t100 = t99/(t61 + sqrt(t60 - t99));
     const double t101 = t26 - t100;
-    const double t102 = t22*(t68 - t22);
-    const double t103 = t24*(t70 - t24);
-    const double t104 = t102 + t103;
+    const double t104 = DERIVE_FMA(t24, t70 - t24, t22*(t68 - t22));
     const double t105 = t104/(t37 + sqrt(t36 - t104));
     const double t106 = t27 - t105;
-    const double t107 = t22*(t77 - t22);
-    const double t108 = t24*(t79 - t24);
-    const double t109 = t107 + t108;
+    const double t109 = DERIVE_FMA(t24, t79 - t24, t22*(t77 - t22));
     const double t110 = t109/(t45 + sqrt(t44 - t109));
     const double t111 = t27 - t110;
-    const double t112 = t22*(t86 - t22);
-    const double t113 = t24*(t88 - t24);
-    const double t114 = t112 + t113;
+    const double t114 = DERIVE_FMA(t24, t88 - t24, t22*(t86 - t22));
     const double t115 = t114/(t53 + sqrt(t52 - t114));
     const double t116 = t27 - t115;
-    const double t117 = t22*(t95 - t22);
-    const double t118 = t24*(t97 - t24);
-    const double t119 = t117 + t118;
+    const double t119 = DERIVE_FMA(t24, t97 - t24, t22*(t95 - t22));
     const double t120 = t119/(t61 + sqrt(t60 - t119));
     const double t121 = t27 - t120;
     const double t122 = t25*(t70 - t25);
@@ -219,48 +206,28 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t131 = t25*(t97 - t25);
     const double t132 = t131/(t61 + sqrt(t60 - t131));
     const double t133 = t28 - t132;
-    const double t134 = t20*(t20 + t66);
-    const double t135 = t21*(t21 + t68);
-    const double t136 = t23*(t23 + t70);
-    const double t137 = t134 + t135 + t136;
+    const double t137 = DERIVE_FMA(t23, t23 + t70, DERIVE_FMA(t21, t21 + t68, t20*(t20 + t66)));
     const double t138 = t137/(t37 + sqrt(t137 + t36));
     const double t139 = t138 - t26;
-    const double t140 = t20*(t20 + t75);
-    const double t141 = t21*(t21 + t77);
-    const double t142 = t23*(t23 + t79);
-    const double t143 = t140 + t141 + t142;
+    const double t143 = DERIVE_FMA(t23, t23 + t79, DERIVE_FMA(t21, t21 + t77, t20*(t20 + t75)));
     const double t144 = t143/(t45 + sqrt(t143 + t44));
     const double t145 = t144 - t26;
-    const double t146 = t20*(t20 + t84);
-    const double t147 = t21*(t21 + t86);
-    const double t148 = t23*(t23 + t88);
-    const double t149 = t146 + t147 + t148;
+    const double t149 = DERIVE_FMA(t23, t23 + t88, DERIVE_FMA(t21, t21 + t86, t20*(t20 + t84)));
     const double t150 = t149/(t53 + sqrt(t149 + t52));
     const double t151 = t150 - t26;
-    const double t152 = t20*(t20 + t93);
-    const double t153 = t21*(t21 + t95);
-    const double t154 = t23*(t23 + t97);
-    const double t155 = t152 + t153 + t154;
+    const double t155 = DERIVE_FMA(t23, t23 + t97, DERIVE_FMA(t21, t21 + t95, t20*(t20 + t93)));
     const double t156 = t155/(t61 + sqrt(t155 + t60));
     const double t157 = t156 - t26;
-    const double t158 = t22*(t22 + t68);
-    const double t159 = t24*(t24 + t70);
-    const double t160 = t158 + t159;
+    const double t160 = DERIVE_FMA(t24, t24 + t70, t22*(t22 + t68));
     const double t161 = t160/(t37 + sqrt(t160 + t36));
     const double t162 = t161 - t27;
-    const double t163 = t22*(t22 + t77);
-    const double t164 = t24*(t24 + t79);
-    const double t165 = t163 + t164;
+    const double t165 = DERIVE_FMA(t24, t24 + t79, t22*(t22 + t77));
     const double t166 = t165/(t45 + sqrt(t165 + t44));
     const double t167 = t166 - t27;
-    const double t168 = t22*(t22 + t86);
-    const double t169 = t24*(t24 + t88);
-    const double t170 = t168 + t169;
+    const double t170 = DERIVE_FMA(t24, t24 + t88, t22*(t22 + t86));
     const double t171 = t170/(t53 + sqrt(t170 + t52));
     const double t172 = t171 - t27;
-    const double t173 = t22*(t22 + t95);
-    const double t174 = t24*(t24 + t97);
-    const double t175 = t173 + t174;
+    const double t175 = DERIVE_FMA(t24, t24 + t97, t22*(t22 + t95));
     const double t176 = t175/(t61 + sqrt(t175 + t60));
     const double t177 = t176 - t27;
     const double t178 = t25*(t25 + t70);
@@ -388,67 +355,55 @@ DERIVE_INLINE int gnss_pseudorange_ukf_step_body(const double *restrict x, const
     const double t297 = t233*t296;
     const double t298 = t235*t296;
     const double t299 = t237*t296;
-    const double t300 = t239 - t233*t297;
+    const double t300 = DERIVE_FNMA(t233, t297, t239);
     if (!(t300 > 0.0) && !status) {
         status = 6; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t301 = 1.0/t300;
-    const double t302 = t241 - t235*t297;
+    const double t302 = DERIVE_FNMA(t235, t297, t241);
     const double t303 = t301*t302;
-    const double t304 = t243 - t237*t297;
+    const double t304 = DERIVE_FNMA(t237, t297, t243);
     const double t305 = t301*t304;
-    const double t306 = t245 - t235*t298 - t302*t303;
+    const double t306 = DERIVE_FNMA(t302, t303, DERIVE_FNMA(t235, t298, t245));
     if (!(t306 > 0.0) && !status) {
         status = 7; /* Pvv is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t307 = 1.0/t306;
-    const double t308 = t247 - t237*t298 - t303*t304;
+    const double t308 = DERIVE_FNMA(t303, t304, DERIVE_FNMA(t237, t298, t247));
     const double t309 = t307*t308;
-    const double t310 = t249 - t237*t299 - t304*t305 - t308*t309;
+    const double t310 = DERIVE_FNMA(t308, t309, DERIVE_FNMA(t304, t305, DERIVE_FNMA(t237, t299, t249)));
     if (!(t310 > 0.0) && !status) {
         status = 8; /* Pvv is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
     const double t311 = 1.0/t310;
-    const double t312 = t281 - t280*t297;
-    const double t313 = t282 - t280*t298 - t303*t312;
-    const double t314 = t283 - t280*t299 - t305*t312 - t309*t313;
-    const double t315 = t285 - t284*t297;
-    const double t316 = t286 - t284*t298 - t303*t315;
-    const double t317 = t287 - t284*t299 - t305*t315 - t309*t316;
-    const double t318 = t289 - t288*t297;
-    const double t319 = t290 - t288*t298 - t303*t318;
-    const double t320 = t291 - t288*t299 - t305*t318 - t309*t319;
-    const double t321 = t293 - t292*t297;
-    const double t322 = t294 - t292*t298 - t303*t321;
-    const double t323 = t295 - t292*t299 - t305*t321 - t309*t322;
-    const double t324 = t280*t296;
-    const double t325 = t284*t296;
-    const double t326 = t288*t296;
-    const double t327 = t292*t296;
-    const double t328 = t301*t312;
-    const double t329 = t301*t315;
-    const double t330 = t301*t318;
-    const double t331 = t301*t321;
-    const double t332 = t307*t313;
-    const double t333 = t307*t316;
-    const double t334 = t307*t319;
-    const double t335 = t307*t322;
+    const double t312 = DERIVE_FNMA(t280, t297, t281);
+    const double t313 = DERIVE_FNMA(t303, t312, DERIVE_FNMA(t280, t298, t282));
+    const double t314 = DERIVE_FNMA(t309, t313, DERIVE_FNMA(t305, t312, DERIVE_FNMA(t280, t299, t283)));
+    const double t315 = DERIVE_FNMA(t284, t297, t285);
+    const double t316 = DERIVE_FNMA(t303, t315, DERIVE_FNMA(t284, t298, t286));
+    const double t317 = DERIVE_FNMA(t309, t316, DERIVE_FNMA(t305, t315, DERIVE_FNMA(t284, t299, t287)));
+    const double t318 = DERIVE_FNMA(t288, t297, t289);
+    const double t319 = DERIVE_FNMA(t303, t318, DERIVE_FNMA(t288, t298, t290));
+    const double t320 = DERIVE_FNMA(t309, t319, DERIVE_FNMA(t305, t318, DERIVE_FNMA(t288, t299, t291)));
+    const double t321 = DERIVE_FNMA(t292, t297, t293);
+    const double t322 = DERIVE_FNMA(t303, t321, DERIVE_FNMA(t292, t298, t294));
+    const double t323 = DERIVE_FNMA(t309, t322, DERIVE_FNMA(t305, t321, DERIVE_FNMA(t292, t299, t295)));
     const double t336 = t311*t314;
     const double t337 = t311*t317;
     const double t338 = t311*t320;
     const double t339 = t311*t323;
-    const double t340 = t332 - t309*t336;
-    const double t341 = t328 - t303*t340 - t305*t336;
-    const double t342 = t324 - t297*t341 - t298*t340 - t299*t336;
-    const double t343 = t333 - t309*t337;
-    const double t344 = t329 - t303*t343 - t305*t337;
-    const double t345 = t325 - t297*t344 - t298*t343 - t299*t337;
-    const double t346 = t334 - t309*t338;
-    const double t347 = t330 - t303*t346 - t305*t338;
-    const double t348 = t326 - t297*t347 - t298*t346 - t299*t338;
-    const double t349 = t335 - t309*t339;
-    const double t350 = t331 - t303*t349 - t305*t339;
-    const double t351 = t327 - t297*t350 - t298*t349 - t299*t339;
+    const double t340 = DERIVE_FNMA(t309, t336, t307*t313);
+    const double t341 = DERIVE_FNMA(t305, t336, DERIVE_FNMA(t303, t340, t301*t312));
+    const double t342 = DERIVE_FNMA(t299, t336, DERIVE_FNMA(t298, t340, DERIVE_FNMA(t297, t341, t280*t296)));
+    const double t343 = DERIVE_FNMA(t309, t337, t307*t316);
+    const double t344 = DERIVE_FNMA(t305, t337, DERIVE_FNMA(t303, t343, t301*t315));
+    const double t345 = DERIVE_FNMA(t299, t337, DERIVE_FNMA(t298, t343, DERIVE_FNMA(t297, t344, t284*t296)));
+    const double t346 = DERIVE_FNMA(t309, t338, t307*t319);
+    const double t347 = DERIVE_FNMA(t305, t338, DERIVE_FNMA(t303, t346, t301*t318));
+    const double t348 = DERIVE_FNMA(t299, t338, DERIVE_FNMA(t298, t346, DERIVE_FNMA(t297, t347, t288*t296)));
+    const double t349 = DERIVE_FNMA(t309, t339, t307*t322);
+    const double t350 = DERIVE_FNMA(t305, t339, DERIVE_FNMA(t303, t349, t301*t321));
+    const double t351 = DERIVE_FNMA(t299, t339, DERIVE_FNMA(t298, t349, DERIVE_FNMA(t297, t350, t292*t296)));
     const double t352 = z[0] - t62;
     const double t353 = z[1 * s] - t63;
     const double t354 = z[2 * s] - t64;
@@ -551,22 +506,22 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t2 = P[1]*t1;
     const double t3 = P[2]*t1;
     const double t4 = P[3]*t1;
-    const double t5 = P[5] - t2*t2;
+    const double t5 = DERIVE_FNMA(t2, t2, P[5]);
     if (!(t5 > 0.0)) {
         return 10; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     }
     const double t6 = sqrt(t5);
     const double t7 = 1.0/t6;
-    const double t8 = t7*(P[6] - t2*t3);
-    const double t9 = t7*(P[7] - t2*t4);
-    const double t10 = P[10] - t3*t3 - t8*t8;
+    const double t8 = t7*DERIVE_FNMA(t2, t3, P[6]);
+    const double t9 = t7*DERIVE_FNMA(t2, t4, P[7]);
+    const double t10 = DERIVE_FNMA(t8, t8, DERIVE_FNMA(t3, t3, P[10]));
     if (!(t10 > 0.0)) {
         return 11; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     }
     const double t11 = sqrt(t10);
     const double t12 = 1.0/t11;
-    const double t13 = t12*(P[11] - t3*t4 - t8*t9);
-    const double t14 = P[15] - t13*t13 - t4*t4 - t9*t9;
+    const double t13 = t12*DERIVE_FNMA(t8, t9, DERIVE_FNMA(t3, t4, P[11]));
+    const double t14 = DERIVE_FNMA(t9, t9, DERIVE_FNMA(t4, t4, DERIVE_FNMA(t13, t13, P[15])));
     if (!(t14 > 0.0)) {
         return 12; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     }
@@ -591,31 +546,21 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t33 = sqrt(t32);
     const double t34 = x[3] + t33;
     const double t35 = 2.0*t26;
-    const double t36 = t16*(t35 - t16);
     const double t37 = 2.0*t27;
-    const double t38 = t17*(t37 - t17);
     const double t39 = 2.0*t28;
-    const double t40 = t19*(t39 - t19);
-    const double t41 = t36 + t38 + t40;
+    const double t41 = DERIVE_FMA(t19, t39 - t19, DERIVE_FMA(t17, t37 - t17, t16*(t35 - t16)));
     const double t42 = t41/(t33 + sqrt(t32 - t41));
     const double t43 = t22 - t42;
-    const double t44 = t18*(t37 - t18);
-    const double t45 = t20*(t39 - t20);
-    const double t46 = t44 + t45;
+    const double t46 = DERIVE_FMA(t20, t39 - t20, t18*(t37 - t18));
     const double t47 = t46/(t33 + sqrt(t32 - t46));
     const double t48 = t23 - t47;
     const double t49 = t21*(t39 - t21);
     const double t50 = t49/(t33 + sqrt(t32 - t49));
     const double t51 = t24 - t50;
-    const double t52 = t16*(t16 + t35);
-    const double t53 = t17*(t17 + t37);
-    const double t54 = t19*(t19 + t39);
-    const double t55 = t52 + t53 + t54;
+    const double t55 = DERIVE_FMA(t19, t19 + t39, DERIVE_FMA(t17, t17 + t37, t16*(t16 + t35)));
     const double t56 = t55/(t33 + sqrt(t32 + t55));
     const double t57 = t56 - t22;
-    const double t58 = t18*(t18 + t37);
-    const double t59 = t20*(t20 + t39);
-    const double t60 = t58 + t59;
+    const double t60 = DERIVE_FMA(t20, t20 + t39, t18*(t18 + t37));
     const double t61 = t60/(t33 + sqrt(t32 + t60));
     const double t62 = t61 - t23;
     const double t63 = t21*(t21 + t39);
@@ -655,34 +600,20 @@ int gnss_pseudorange_ukf_update1(const double *restrict x, const double *restric
     const double t94 = t89*t90;
     const double t95 = z[0] - t34;
     const double t96 = t95 - t67;
-    const double t97 = t91*t96;
-    const double t98 = t92*t96;
-    const double t99 = t93*t96;
-    const double t100 = t94*t96;
-    const double t101 = x[0] + t97;
-    const double t102 = x[1] + t98;
-    const double t103 = x[2] + t99;
-    const double t104 = x[3] + t100;
-    const double t105 = t86*t91;
-    const double t106 = t87*t91;
-    const double t107 = t88*t91;
-    const double t108 = t89*t91;
-    const double t109 = t87*t92;
-    const double t110 = t88*t92;
-    const double t111 = t89*t92;
-    const double t112 = t88*t93;
-    const double t113 = t89*t93;
-    const double t114 = t89*t94;
-    const double t115 = P[0] - t105;
-    const double t116 = P[1] - t106;
-    const double t117 = P[2] - t107;
-    const double t118 = P[3] - t108;
-    const double t119 = P[5] - t109;
-    const double t120 = P[6] - t110;
-    const double t121 = P[7] - t111;
-    const double t122 = P[10] - t112;
-    const double t123 = P[11] - t113;
-    const double t124 = P[15] - t114;
+    const double t101 = DERIVE_FMA(t91, t96, x[0]);
+    const double t102 = DERIVE_FMA(t92, t96, x[1]);
+    const double t103 = DERIVE_FMA(t93, t96, x[2]);
+    const double t104 = DERIVE_FMA(t94, t96, x[3]);
+    const double t115 = DERIVE_FNMA(t86, t91, P[0]);
+    const double t116 = DERIVE_FNMA(t87, t91, P[1]);
+    const double t117 = DERIVE_FNMA(t88, t91, P[2]);
+    const double t118 = DERIVE_FNMA(t89, t91, P[3]);
+    const double t119 = DERIVE_FNMA(t87, t92, P[5]);
+    const double t120 = DERIVE_FNMA(t88, t92, P[6]);
+    const double t121 = DERIVE_FNMA(t89, t92, P[7]);
+    const double t122 = DERIVE_FNMA(t88, t93, P[10]);
+    const double t123 = DERIVE_FNMA(t89, t93, P[11]);
+    const double t124 = DERIVE_FNMA(t89, t94, P[15]);
     x_new[0] = t101;
     x_new[1] = t102;
     x_new[2] = t103;

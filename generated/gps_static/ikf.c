@@ -23,15 +23,33 @@
  *     step 5: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 6, sub 3, mul 3, div 6, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_ikf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_ikf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "ikf.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -96,6 +114,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -121,8 +146,7 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
     const double t3 = 1.0/t2;
     const double t4 = 10.0*t3;
     const double t5 = z[0] - x[0];
-    const double t6 = t4*t5;
-    const double t7 = x[0] + t6;
+    const double t7 = DERIVE_FMA(t4, t5, x[0]);
     const double t8 = 0.01 + P[4 * s];
     if (!(t8 > 0.0) && !status) {
         status = 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
@@ -135,8 +159,7 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
     const double t11 = 1.0/t10;
     const double t12 = 10.0*t11;
     const double t13 = z[1 * s] - x[1 * s];
-    const double t14 = t12*t13;
-    const double t15 = x[1 * s] + t14;
+    const double t15 = DERIVE_FMA(t12, t13, x[1 * s]);
     const double t16 = 0.01 + P[8 * s];
     if (!(t16 > 0.0) && !status) {
         status = 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
@@ -149,8 +172,7 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
     const double t19 = 1.0/t18;
     const double t20 = 10.0*t19;
     const double t21 = z[2 * s] - x[2 * s];
-    const double t22 = t20*t21;
-    const double t23 = x[2 * s] + t22;
+    const double t23 = DERIVE_FMA(t20, t21, x[2 * s]);
     x_new[0] = t7;
     x_new[1 * s] = t15;
     x_new[2 * s] = t23;
@@ -208,8 +230,7 @@ int gps_static_ikf_run(size_t steps, const double *z, const double *x0, const do
         const derive_v4 a3 = 1.0 / a2;
         const derive_v4 a4 = 10.0 * a3;
         const derive_v4 a5 = az0 - x_v1;
-        const derive_v4 a6 = a4 * a5;
-        const derive_v4 a7 = x_v1 + a6;
+        const derive_v4 a6 = DERIVE_VFMA(a4, a5, x_v1);
         if (!(a0[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -231,9 +252,9 @@ int gps_static_ikf_run(size_t steps, const double *z, const double *x0, const do
         if (step_status) {
             return step_status;
         }
-        xs[k * 3 + 0] = a7[0];
-        xs[k * 3 + 1] = a7[1];
-        xs[k * 3 + 2] = a7[2];
+        xs[k * 3 + 0] = a6[0];
+        xs[k * 3 + 1] = a6[1];
+        xs[k * 3 + 2] = a6[2];
         if (Ps) {
             Ps[k * 9 + 0] = a3[0];
             Ps[k * 9 + 1] = 0.0;
@@ -246,7 +267,7 @@ int gps_static_ikf_run(size_t steps, const double *z, const double *x0, const do
             Ps[k * 9 + 8] = a3[2];
         }
         P_v0 = a3;
-        x_v1 = a7;
+        x_v1 = a6;
     }
     return 0;
 #else

@@ -20,15 +20,33 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 6, mul 36, div 6, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 75, instructions 81)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 3, mul 18, div 6, sqrt 0, fma 18, neg 0, cmp 6, calls 0 (flops 75, instructions 63)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "jklf.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -93,6 +111,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -113,23 +138,15 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     }
     const double t2 = t0/t1;
     const double t3 = z[0] - x[0];
-    const double t4 = t2*t3;
-    const double t5 = x[0] + t4;
-    const double t6 = t0*t2;
-    const double t7 = t0 - t6;
-    const double t8 = 9.090909090909092*P[0];
-    const double t9 = 1.0 + t8;
+    const double t5 = DERIVE_FMA(t2, t3, x[0]);
+    const double t7 = DERIVE_FNMA(t0, t2, t0);
+    const double t9 = DERIVE_FMA(9.090909090909092, P[0], 1.0);
     const double t10 = 1.0/t9;
     const double t11 = 0.9090909090909091*t10;
     const double t12 = 9.090909090909092*z[0];
-    const double t13 = P[0]*t12;
-    const double t14 = x[0] + t13;
-    const double t15 = 0.09090909090909091*z[0];
-    const double t16 = t11*t14;
-    const double t17 = t15 + t16;
-    const double t18 = P[0]*t11;
-    const double t19 = 0.9090909090909091*t18;
-    const double t20 = 0.00909090909090909 + t19;
+    const double t14 = DERIVE_FMA(P[0], t12, x[0]);
+    const double t17 = DERIVE_FMA(t11, t14, 0.09090909090909091*z[0]);
+    const double t20 = DERIVE_FMA(0.9090909090909091, P[0]*t11, 0.00909090909090909);
     const double t21 = t17 + t5;
     const double t22 = 0.5*t21;
     const double t23 = t20 + t7;
@@ -141,23 +158,15 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     }
     const double t27 = t25/t26;
     const double t28 = z[1 * s] - x[1 * s];
-    const double t29 = t27*t28;
-    const double t30 = x[1 * s] + t29;
-    const double t31 = t25*t27;
-    const double t32 = t25 - t31;
-    const double t33 = 9.090909090909092*P[4 * s];
-    const double t34 = 1.0 + t33;
+    const double t30 = DERIVE_FMA(t27, t28, x[1 * s]);
+    const double t32 = DERIVE_FNMA(t25, t27, t25);
+    const double t34 = DERIVE_FMA(9.090909090909092, P[4 * s], 1.0);
     const double t35 = 1.0/t34;
     const double t36 = 0.9090909090909091*t35;
     const double t37 = 9.090909090909092*z[1 * s];
-    const double t38 = P[4 * s]*t37;
-    const double t39 = x[1 * s] + t38;
-    const double t40 = 0.09090909090909091*z[1 * s];
-    const double t41 = t36*t39;
-    const double t42 = t40 + t41;
-    const double t43 = P[4 * s]*t36;
-    const double t44 = 0.9090909090909091*t43;
-    const double t45 = 0.00909090909090909 + t44;
+    const double t39 = DERIVE_FMA(P[4 * s], t37, x[1 * s]);
+    const double t42 = DERIVE_FMA(t36, t39, 0.09090909090909091*z[1 * s]);
+    const double t45 = DERIVE_FMA(0.9090909090909091, P[4 * s]*t36, 0.00909090909090909);
     const double t46 = t42 + t30;
     const double t47 = 0.5*t46;
     const double t48 = t45 + t32;
@@ -169,23 +178,15 @@ DERIVE_INLINE int gps_static_jklf_step_body(const double *restrict x, const doub
     }
     const double t52 = t50/t51;
     const double t53 = z[2 * s] - x[2 * s];
-    const double t54 = t52*t53;
-    const double t55 = x[2 * s] + t54;
-    const double t56 = t50*t52;
-    const double t57 = t50 - t56;
-    const double t58 = 9.090909090909092*P[8 * s];
-    const double t59 = 1.0 + t58;
+    const double t55 = DERIVE_FMA(t52, t53, x[2 * s]);
+    const double t57 = DERIVE_FNMA(t50, t52, t50);
+    const double t59 = DERIVE_FMA(9.090909090909092, P[8 * s], 1.0);
     const double t60 = 1.0/t59;
     const double t61 = 0.9090909090909091*t60;
     const double t62 = 9.090909090909092*z[2 * s];
-    const double t63 = P[8 * s]*t62;
-    const double t64 = x[2 * s] + t63;
-    const double t65 = 0.09090909090909091*z[2 * s];
-    const double t66 = t61*t64;
-    const double t67 = t65 + t66;
-    const double t68 = P[8 * s]*t61;
-    const double t69 = 0.9090909090909091*t68;
-    const double t70 = 0.00909090909090909 + t69;
+    const double t64 = DERIVE_FMA(P[8 * s], t62, x[2 * s]);
+    const double t67 = DERIVE_FMA(t61, t64, 0.09090909090909091*z[2 * s]);
+    const double t70 = DERIVE_FMA(0.9090909090909091, P[8 * s]*t61, 0.00909090909090909);
     const double t71 = t67 + t55;
     const double t72 = 0.5*t71;
     const double t73 = t70 + t57;
@@ -245,27 +246,21 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
         const derive_v4 a1 = 0.1 + a0;
         const derive_v4 a2 = a0 / a1;
         const derive_v4 a3 = az0 - x_v1;
-        const derive_v4 a4 = a2 * a3;
-        const derive_v4 a5 = x_v1 + a4;
-        const derive_v4 a6 = a0 * a2;
-        const derive_v4 a7 = a0 - a6;
-        const derive_v4 a8 = 9.090909090909092 * P_v0;
-        const derive_v4 a9 = 1.0 + a8;
-        const derive_v4 a10 = 1.0 / a9;
-        const derive_v4 a11 = 0.9090909090909091 * a10;
-        const derive_v4 a12 = 9.090909090909092 * az0;
-        const derive_v4 a13 = P_v0 * a12;
-        const derive_v4 a14 = x_v1 + a13;
-        const derive_v4 a15 = 0.09090909090909091 * az0;
-        const derive_v4 a16 = a11 * a14;
-        const derive_v4 a17 = a15 + a16;
-        const derive_v4 a18 = P_v0 * a11;
-        const derive_v4 a19 = 0.9090909090909091 * a18;
-        const derive_v4 a20 = 0.00909090909090909 + a19;
-        const derive_v4 a21 = a17 + a5;
-        const derive_v4 a22 = 0.5 * a21;
-        const derive_v4 a23 = a20 + a7;
-        const derive_v4 a24 = 0.5 * a23;
+        const derive_v4 a4 = DERIVE_VFMA(a2, a3, x_v1);
+        const derive_v4 a5 = DERIVE_VFNMA(a0, a2, a0);
+        const derive_v4 a6 = DERIVE_VFMA(((derive_v4){9.090909090909092, 9.090909090909092, 9.090909090909092, 9.090909090909092}), P_v0, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
+        const derive_v4 a7 = 1.0 / a6;
+        const derive_v4 a8 = 0.9090909090909091 * a7;
+        const derive_v4 a9 = 9.090909090909092 * az0;
+        const derive_v4 a10 = DERIVE_VFMA(P_v0, a9, x_v1);
+        const derive_v4 a11 = 0.09090909090909091 * az0;
+        const derive_v4 a12 = DERIVE_VFMA(a8, a10, a11);
+        const derive_v4 a13 = P_v0 * a8;
+        const derive_v4 a14 = DERIVE_VFMA(((derive_v4){0.9090909090909091, 0.9090909090909091, 0.9090909090909091, 0.9090909090909091}), a13, ((derive_v4){0.00909090909090909, 0.00909090909090909, 0.00909090909090909, 0.00909090909090909}));
+        const derive_v4 a15 = a12 + a4;
+        const derive_v4 a16 = 0.5 * a15;
+        const derive_v4 a17 = a14 + a5;
+        const derive_v4 a18 = 0.5 * a17;
         if (!(a1[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -278,22 +273,22 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
         if (step_status) {
             return step_status;
         }
-        xs[k * 3 + 0] = a22[0];
-        xs[k * 3 + 1] = a22[1];
-        xs[k * 3 + 2] = a22[2];
+        xs[k * 3 + 0] = a16[0];
+        xs[k * 3 + 1] = a16[1];
+        xs[k * 3 + 2] = a16[2];
         if (Ps) {
-            Ps[k * 9 + 0] = a24[0];
+            Ps[k * 9 + 0] = a18[0];
             Ps[k * 9 + 1] = 0.0;
             Ps[k * 9 + 2] = 0.0;
             Ps[k * 9 + 3] = 0.0;
-            Ps[k * 9 + 4] = a24[1];
+            Ps[k * 9 + 4] = a18[1];
             Ps[k * 9 + 5] = 0.0;
             Ps[k * 9 + 6] = 0.0;
             Ps[k * 9 + 7] = 0.0;
-            Ps[k * 9 + 8] = a24[2];
+            Ps[k * 9 + 8] = a18[2];
         }
-        P_v0 = a24;
-        x_v1 = a22;
+        P_v0 = a18;
+        x_v1 = a16;
     }
     return 0;
 #else

@@ -20,15 +20,33 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_kf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "kf.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -93,6 +111,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -113,10 +138,8 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
     }
     const double t2 = t0/t1;
     const double t3 = z[0] - x[0];
-    const double t4 = t2*t3;
-    const double t5 = x[0] + t4;
-    const double t6 = t0*t2;
-    const double t7 = t0 - t6;
+    const double t5 = DERIVE_FMA(t2, t3, x[0]);
+    const double t7 = DERIVE_FNMA(t0, t2, t0);
     const double t8 = 0.01 + P[4 * s];
     const double t9 = 0.1 + t8;
     if (!(t9 > 0.0) && !status) {
@@ -124,10 +147,8 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
     }
     const double t10 = t8/t9;
     const double t11 = z[1 * s] - x[1 * s];
-    const double t12 = t10*t11;
-    const double t13 = x[1 * s] + t12;
-    const double t14 = t8*t10;
-    const double t15 = t8 - t14;
+    const double t13 = DERIVE_FMA(t10, t11, x[1 * s]);
+    const double t15 = DERIVE_FNMA(t8, t10, t8);
     const double t16 = 0.01 + P[8 * s];
     const double t17 = 0.1 + t16;
     if (!(t17 > 0.0) && !status) {
@@ -135,10 +156,8 @@ DERIVE_INLINE int gps_static_kf_step_body(const double *restrict x, const double
     }
     const double t18 = t16/t17;
     const double t19 = z[2 * s] - x[2 * s];
-    const double t20 = t18*t19;
-    const double t21 = x[2 * s] + t20;
-    const double t22 = t16*t18;
-    const double t23 = t16 - t22;
+    const double t21 = DERIVE_FMA(t18, t19, x[2 * s]);
+    const double t23 = DERIVE_FNMA(t16, t18, t16);
     x_new[0] = t5;
     x_new[1 * s] = t13;
     x_new[2 * s] = t21;
@@ -194,10 +213,8 @@ int gps_static_kf_run(size_t steps, const double *z, const double *x0, const dou
         const derive_v4 a1 = 0.1 + a0;
         const derive_v4 a2 = a0 / a1;
         const derive_v4 a3 = az0 - x_v1;
-        const derive_v4 a4 = a2 * a3;
-        const derive_v4 a5 = x_v1 + a4;
-        const derive_v4 a6 = a0 * a2;
-        const derive_v4 a7 = a0 - a6;
+        const derive_v4 a4 = DERIVE_VFMA(a2, a3, x_v1);
+        const derive_v4 a5 = DERIVE_VFNMA(a0, a2, a0);
         if (!(a1[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -210,22 +227,22 @@ int gps_static_kf_run(size_t steps, const double *z, const double *x0, const dou
         if (step_status) {
             return step_status;
         }
-        xs[k * 3 + 0] = a5[0];
-        xs[k * 3 + 1] = a5[1];
-        xs[k * 3 + 2] = a5[2];
+        xs[k * 3 + 0] = a4[0];
+        xs[k * 3 + 1] = a4[1];
+        xs[k * 3 + 2] = a4[2];
         if (Ps) {
-            Ps[k * 9 + 0] = a7[0];
+            Ps[k * 9 + 0] = a5[0];
             Ps[k * 9 + 1] = 0.0;
             Ps[k * 9 + 2] = 0.0;
             Ps[k * 9 + 3] = 0.0;
-            Ps[k * 9 + 4] = a7[1];
+            Ps[k * 9 + 4] = a5[1];
             Ps[k * 9 + 5] = 0.0;
             Ps[k * 9 + 6] = 0.0;
             Ps[k * 9 + 7] = 0.0;
-            Ps[k * 9 + 8] = a7[2];
+            Ps[k * 9 + 8] = a5[2];
         }
-        P_v0 = a7;
-        x_v1 = a5;
+        P_v0 = a5;
+        x_v1 = a4;
     }
     return 0;
 #else

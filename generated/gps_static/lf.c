@@ -17,15 +17,33 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 0, mul 24, div 3, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 39, instructions 42)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 12, div 3, sqrt 0, fma 12, neg 0, cmp 3, calls 0 (flops 39, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_lf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "lf.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -90,6 +108,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -102,45 +127,27 @@ __extension__ typedef long long derive_i4 __attribute__((vector_size(32)));
 
 DERIVE_INLINE void gps_static_lf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const size_t s)
 {
-    const double t0 = 9.090909090909092*P[0];
-    const double t1 = 1.0 + t0;
+    const double t1 = DERIVE_FMA(9.090909090909092, P[0], 1.0);
     const double t2 = 1.0/t1;
     const double t3 = 0.9090909090909091*t2;
     const double t4 = 9.090909090909092*z[0];
-    const double t5 = P[0]*t4;
-    const double t6 = x[0] + t5;
-    const double t7 = 0.09090909090909091*z[0];
-    const double t8 = t3*t6;
-    const double t9 = t7 + t8;
-    const double t10 = P[0]*t3;
-    const double t11 = 0.9090909090909091*t10;
-    const double t12 = 0.00909090909090909 + t11;
-    const double t13 = 9.090909090909092*P[4 * s];
-    const double t14 = 1.0 + t13;
+    const double t6 = DERIVE_FMA(P[0], t4, x[0]);
+    const double t9 = DERIVE_FMA(t3, t6, 0.09090909090909091*z[0]);
+    const double t12 = DERIVE_FMA(0.9090909090909091, P[0]*t3, 0.00909090909090909);
+    const double t14 = DERIVE_FMA(9.090909090909092, P[4 * s], 1.0);
     const double t15 = 1.0/t14;
     const double t16 = 0.9090909090909091*t15;
     const double t17 = 9.090909090909092*z[1 * s];
-    const double t18 = P[4 * s]*t17;
-    const double t19 = x[1 * s] + t18;
-    const double t20 = 0.09090909090909091*z[1 * s];
-    const double t21 = t16*t19;
-    const double t22 = t20 + t21;
-    const double t23 = P[4 * s]*t16;
-    const double t24 = 0.9090909090909091*t23;
-    const double t25 = 0.00909090909090909 + t24;
-    const double t26 = 9.090909090909092*P[8 * s];
-    const double t27 = 1.0 + t26;
+    const double t19 = DERIVE_FMA(P[4 * s], t17, x[1 * s]);
+    const double t22 = DERIVE_FMA(t16, t19, 0.09090909090909091*z[1 * s]);
+    const double t25 = DERIVE_FMA(0.9090909090909091, P[4 * s]*t16, 0.00909090909090909);
+    const double t27 = DERIVE_FMA(9.090909090909092, P[8 * s], 1.0);
     const double t28 = 1.0/t27;
     const double t29 = 0.9090909090909091*t28;
     const double t30 = 9.090909090909092*z[2 * s];
-    const double t31 = P[8 * s]*t30;
-    const double t32 = x[2 * s] + t31;
-    const double t33 = 0.09090909090909091*z[2 * s];
-    const double t34 = t29*t32;
-    const double t35 = t33 + t34;
-    const double t36 = P[8 * s]*t29;
-    const double t37 = 0.9090909090909091*t36;
-    const double t38 = 0.00909090909090909 + t37;
+    const double t32 = DERIVE_FMA(P[8 * s], t30, x[2 * s]);
+    const double t35 = DERIVE_FMA(t29, t32, 0.09090909090909091*z[2 * s]);
+    const double t38 = DERIVE_FMA(0.9090909090909091, P[8 * s]*t29, 0.00909090909090909);
     x_new[0] = t9;
     x_new[1 * s] = t22;
     x_new[2 * s] = t35;
@@ -191,35 +198,31 @@ int gps_static_lf_run(size_t steps, const double *z, const double *x0, const dou
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
         const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 a0 = 9.090909090909092 * P_v0;
-        const derive_v4 a1 = 1.0 + a0;
-        const derive_v4 a2 = 1.0 / a1;
-        const derive_v4 a3 = 0.9090909090909091 * a2;
-        const derive_v4 a4 = 9.090909090909092 * az0;
-        const derive_v4 a5 = P_v0 * a4;
-        const derive_v4 a6 = x_v1 + a5;
-        const derive_v4 a7 = 0.09090909090909091 * az0;
-        const derive_v4 a8 = a3 * a6;
-        const derive_v4 a9 = a7 + a8;
-        const derive_v4 a10 = P_v0 * a3;
-        const derive_v4 a11 = 0.9090909090909091 * a10;
-        const derive_v4 a12 = 0.00909090909090909 + a11;
-        xs[k * 3 + 0] = a9[0];
-        xs[k * 3 + 1] = a9[1];
-        xs[k * 3 + 2] = a9[2];
+        const derive_v4 a0 = DERIVE_VFMA(((derive_v4){9.090909090909092, 9.090909090909092, 9.090909090909092, 9.090909090909092}), P_v0, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
+        const derive_v4 a1 = 1.0 / a0;
+        const derive_v4 a2 = 0.9090909090909091 * a1;
+        const derive_v4 a3 = 9.090909090909092 * az0;
+        const derive_v4 a4 = DERIVE_VFMA(P_v0, a3, x_v1);
+        const derive_v4 a5 = 0.09090909090909091 * az0;
+        const derive_v4 a6 = DERIVE_VFMA(a2, a4, a5);
+        const derive_v4 a7 = P_v0 * a2;
+        const derive_v4 a8 = DERIVE_VFMA(((derive_v4){0.9090909090909091, 0.9090909090909091, 0.9090909090909091, 0.9090909090909091}), a7, ((derive_v4){0.00909090909090909, 0.00909090909090909, 0.00909090909090909, 0.00909090909090909}));
+        xs[k * 3 + 0] = a6[0];
+        xs[k * 3 + 1] = a6[1];
+        xs[k * 3 + 2] = a6[2];
         if (Ps) {
-            Ps[k * 9 + 0] = a12[0];
+            Ps[k * 9 + 0] = a8[0];
             Ps[k * 9 + 1] = 0.0;
             Ps[k * 9 + 2] = 0.0;
             Ps[k * 9 + 3] = 0.0;
-            Ps[k * 9 + 4] = a12[1];
+            Ps[k * 9 + 4] = a8[1];
             Ps[k * 9 + 5] = 0.0;
             Ps[k * 9 + 6] = 0.0;
             Ps[k * 9 + 7] = 0.0;
-            Ps[k * 9 + 8] = a12[2];
+            Ps[k * 9 + 8] = a8[2];
         }
-        P_v0 = a12;
-        x_v1 = a9;
+        P_v0 = a8;
+        x_v1 = a6;
     }
     return 0;
 #else

@@ -24,16 +24,34 @@
  *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 6, mul 6, div 3, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 24, instructions 30)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 6, sub 6, mul 9, div 3, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 24, instructions 36)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
+ * operations per call of backward (C99, fma through DERIVE_FMA): add 0, sub 6, mul 3, div 3, sqrt 0, fma 6, neg 0, cmp 12, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 24 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
  * derive-interface: {"functions":[["gps_static_rts_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false],["x_pred",[3],true,false,false],["P_pred",[3,3],true,false,false]]],["gps_static_rts_backward","backward",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["x_pred",[3],false,false,false],["P_pred",[3,3],false,false,false],["x_smooth_next",[3],false,false,false],["P_smooth_next",[3,3],false,false,false],["x_smooth",[3],true,false,false],["P_smooth",[3,3],true,false,false]]],["gps_static_rts_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,false,false],["work",["steps",24],true,false,false,true]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]],["backward",5,"P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["backward",6,"P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["backward",7,"P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["backward",8,"P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,1,1,2,2,2,5,5,5]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "rts.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -72,18 +90,12 @@ DERIVE_INLINE int gps_static_rts_step_body(const double *restrict x, const doubl
     const double t9 = z[0] - x[0];
     const double t10 = z[1 * s] - x[1 * s];
     const double t11 = z[2 * s] - x[2 * s];
-    const double t12 = t6*t9;
-    const double t13 = t10*t7;
-    const double t14 = t11*t8;
-    const double t15 = x[0] + t12;
-    const double t16 = x[1 * s] + t13;
-    const double t17 = x[2 * s] + t14;
-    const double t18 = t0*t6;
-    const double t19 = t1*t7;
-    const double t20 = t2*t8;
-    const double t21 = t0 - t18;
-    const double t22 = t1 - t19;
-    const double t23 = t2 - t20;
+    const double t15 = DERIVE_FMA(t6, t9, x[0]);
+    const double t16 = DERIVE_FMA(t10, t7, x[1 * s]);
+    const double t17 = DERIVE_FMA(t11, t8, x[2 * s]);
+    const double t21 = DERIVE_FNMA(t0, t6, t0);
+    const double t22 = DERIVE_FNMA(t1, t7, t1);
+    const double t23 = DERIVE_FNMA(t2, t8, t2);
     x_new[0] = t15;
     x_new[1 * s] = t16;
     x_new[2 * s] = t17;
@@ -169,24 +181,18 @@ int gps_static_rts_backward(const double *restrict x, const double *restrict P, 
     const double t3 = x_smooth_next[0] - x_pred[0];
     const double t4 = x_smooth_next[1] - x_pred[1];
     const double t5 = x_smooth_next[2] - x_pred[2];
-    const double t6 = t0*t3;
-    const double t7 = t1*t4;
-    const double t8 = t2*t5;
-    const double t9 = x[0] + t6;
-    const double t10 = x[1] + t7;
-    const double t11 = x[2] + t8;
+    const double t9 = DERIVE_FMA(t0, t3, x[0]);
+    const double t10 = DERIVE_FMA(t1, t4, x[1]);
+    const double t11 = DERIVE_FMA(t2, t5, x[2]);
     const double t12 = P_smooth_next[0] - P_pred[0];
     const double t13 = P_smooth_next[4] - P_pred[4];
     const double t14 = P_smooth_next[8] - P_pred[8];
     const double t15 = t0*t12;
     const double t16 = t1*t13;
     const double t17 = t14*t2;
-    const double t18 = t0*t15;
-    const double t19 = t1*t16;
-    const double t20 = t17*t2;
-    const double t21 = P[0] + t18;
-    const double t22 = P[4] + t19;
-    const double t23 = P[8] + t20;
+    const double t21 = DERIVE_FMA(t0, t15, P[0]);
+    const double t22 = DERIVE_FMA(t1, t16, P[4]);
+    const double t23 = DERIVE_FMA(t17, t2, P[8]);
     x_smooth[0] = t9;
     x_smooth[1] = t10;
     x_smooth[2] = t11;

@@ -19,7 +19,7 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 56, sub 10, mul 76, div 8, sqrt 0, fma 40, neg 6, cmp 6, calls 0 (flops 230, instructions 202)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 48, sub 2, mul 60, div 8, sqrt 0, fma 56, neg 0, cmp 6, calls 0 (flops 230, instructions 180)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * derive-interface: {"functions":[["gsm2d_a_jklf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_jklf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
@@ -36,6 +36,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -106,16 +113,11 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
-    const double t15 = t11*t14;
-    const double t16 = t12*t14;
-    const double t17 = t0 + t15;
-    const double t18 = x[1 * s] + t16;
-    const double t19 = t11*t7;
-    const double t20 = t11*t8;
-    const double t21 = t12*t8;
-    const double t22 = t4 - t19;
-    const double t23 = t5 - t20;
-    const double t24 = t6 - t21;
+    const double t17 = DERIVE_FMA(t11, t14, t0);
+    const double t18 = DERIVE_FMA(t12, t14, x[1 * s]);
+    const double t22 = DERIVE_FNMA(t11, t7, t4);
+    const double t23 = DERIVE_FNMA(t11, t8, t5);
+    const double t24 = DERIVE_FNMA(t12, t8, t6);
     const double t25 = 16.3265306122449*P[1 * s];
     const double t26 = DERIVE_FMA(8.16326530612245, P[0], t25);
     const double t27 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
@@ -125,7 +127,7 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t31 = 1.0 + t29;
     const double t32 = 1.0/t30;
     const double t33 = t28*t32;
-    const double t34 = t31 - t27*t33;
+    const double t34 = DERIVE_FNMA(t27, t33, t31);
     const double t35 = 1.0/t34;
     const double t36 = t33*t35;
     const double t37 = t32*DERIVE_FMA(t27, t36, 1.0);
@@ -140,16 +142,14 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t46 = DERIVE_FMA(P[5 * s], t44, P[1 * s]*t43);
     const double t47 = x[0] + t45;
     const double t48 = x[1 * s] + t46;
-    const double t49 = 0.061224489795918366*z[0];
-    const double t50 = 0.12244897959183673*z[0];
     const double t51 = DERIVE_FMA(t40, t48, t39*t47);
-    const double t52 = DERIVE_FMA(t42, t48, -(t41*t47));
-    const double t53 = t49 + t51;
-    const double t54 = t50 + t52;
+    const double t52 = DERIVE_FNMA(t41, t47, t42*t48);
+    const double t53 = DERIVE_FMA(0.061224489795918366, z[0], t51);
+    const double t54 = DERIVE_FMA(0.12244897959183673, z[0], t52);
     const double t55 = DERIVE_FMA(P[1 * s], t40, P[0]*t39);
     const double t56 = DERIVE_FMA(P[5 * s], t40, P[1 * s]*t39);
-    const double t57 = DERIVE_FMA(P[1 * s], t42, -(P[0]*t41));
-    const double t58 = DERIVE_FMA(P[5 * s], t42, -(P[1 * s]*t41));
+    const double t57 = DERIVE_FNMA(P[0], t41, P[1 * s]*t42);
+    const double t58 = DERIVE_FNMA(P[1 * s], t41, P[5 * s]*t42);
     const double t59 = DERIVE_FMA(0.8775510204081632, t56, 0.9387755102040817*t55);
     const double t60 = DERIVE_FMA(0.7551020408163265, t56, (-0.12244897959183673)*t55);
     const double t61 = DERIVE_FMA(0.7551020408163265, t58, (-0.12244897959183673)*t57);
@@ -184,16 +184,11 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t87 = t83/t85;
     const double t88 = x[3 * s] + t75;
     const double t89 = z[1 * s] - t88;
-    const double t90 = t86*t89;
-    const double t91 = t87*t89;
-    const double t92 = t75 + t90;
-    const double t93 = x[3 * s] + t91;
-    const double t94 = t86*t82;
-    const double t95 = t86*t83;
-    const double t96 = t87*t83;
-    const double t97 = t79 - t94;
-    const double t98 = t80 - t95;
-    const double t99 = t81 - t96;
+    const double t92 = DERIVE_FMA(t86, t89, t75);
+    const double t93 = DERIVE_FMA(t87, t89, x[3 * s]);
+    const double t97 = DERIVE_FNMA(t86, t82, t79);
+    const double t98 = DERIVE_FNMA(t86, t83, t80);
+    const double t99 = DERIVE_FNMA(t87, t83, t81);
     const double t100 = 16.3265306122449*P[11 * s];
     const double t101 = DERIVE_FMA(8.16326530612245, P[10 * s], t100);
     const double t102 = DERIVE_FMA(32.6530612244898, P[11 * s], 16.3265306122449*P[10 * s]);
@@ -203,7 +198,7 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t106 = 1.0 + t104;
     const double t107 = 1.0/t105;
     const double t108 = t103*t107;
-    const double t109 = t106 - t102*t108;
+    const double t109 = DERIVE_FNMA(t102, t108, t106);
     const double t110 = 1.0/t109;
     const double t111 = t108*t110;
     const double t112 = t107*DERIVE_FMA(t102, t111, 1.0);
@@ -218,16 +213,14 @@ DERIVE_INLINE int gsm2d_a_jklf_step_body(const double *restrict x, const double 
     const double t121 = DERIVE_FMA(P[15 * s], t119, P[11 * s]*t118);
     const double t122 = x[2 * s] + t120;
     const double t123 = x[3 * s] + t121;
-    const double t124 = 0.061224489795918366*z[1 * s];
-    const double t125 = 0.12244897959183673*z[1 * s];
     const double t126 = DERIVE_FMA(t115, t123, t114*t122);
-    const double t127 = DERIVE_FMA(t117, t123, -(t116*t122));
-    const double t128 = t124 + t126;
-    const double t129 = t125 + t127;
+    const double t127 = DERIVE_FNMA(t116, t122, t117*t123);
+    const double t128 = DERIVE_FMA(0.061224489795918366, z[1 * s], t126);
+    const double t129 = DERIVE_FMA(0.12244897959183673, z[1 * s], t127);
     const double t130 = DERIVE_FMA(P[11 * s], t115, P[10 * s]*t114);
     const double t131 = DERIVE_FMA(P[15 * s], t115, P[11 * s]*t114);
-    const double t132 = DERIVE_FMA(P[11 * s], t117, -(P[10 * s]*t116));
-    const double t133 = DERIVE_FMA(P[15 * s], t117, -(P[11 * s]*t116));
+    const double t132 = DERIVE_FNMA(P[10 * s], t116, P[11 * s]*t117);
+    const double t133 = DERIVE_FNMA(P[11 * s], t116, P[15 * s]*t117);
     const double t134 = DERIVE_FMA(0.8775510204081632, t131, 0.9387755102040817*t130);
     const double t135 = DERIVE_FMA(0.7551020408163265, t131, (-0.12244897959183673)*t130);
     const double t136 = DERIVE_FMA(0.7551020408163265, t133, (-0.12244897959183673)*t132);

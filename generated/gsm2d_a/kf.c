@@ -19,14 +19,32 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * derive-interface: {"functions":[["gsm2d_a_kf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_kf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "kf.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -95,16 +113,11 @@ DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *r
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
-    const double t15 = t11*t14;
-    const double t16 = t12*t14;
-    const double t17 = t0 + t15;
-    const double t18 = x[1 * s] + t16;
-    const double t19 = t11*t7;
-    const double t20 = t11*t8;
-    const double t21 = t12*t8;
-    const double t22 = t4 - t19;
-    const double t23 = t5 - t20;
-    const double t24 = t6 - t21;
+    const double t17 = DERIVE_FMA(t11, t14, t0);
+    const double t18 = DERIVE_FMA(t12, t14, x[1 * s]);
+    const double t22 = DERIVE_FNMA(t11, t7, t4);
+    const double t23 = DERIVE_FNMA(t11, t8, t5);
+    const double t24 = DERIVE_FNMA(t12, t8, t6);
     const double t25 = x[2 * s] + x[3 * s];
     const double t26 = P[10 * s] + P[11 * s];
     const double t27 = P[11 * s] + P[15 * s];
@@ -123,16 +136,11 @@ DERIVE_INLINE int gsm2d_a_kf_step_body(const double *restrict x, const double *r
     const double t37 = t33/t35;
     const double t38 = x[3 * s] + t25;
     const double t39 = z[1 * s] - t38;
-    const double t40 = t36*t39;
-    const double t41 = t37*t39;
-    const double t42 = t25 + t40;
-    const double t43 = x[3 * s] + t41;
-    const double t44 = t36*t32;
-    const double t45 = t36*t33;
-    const double t46 = t37*t33;
-    const double t47 = t29 - t44;
-    const double t48 = t30 - t45;
-    const double t49 = t31 - t46;
+    const double t42 = DERIVE_FMA(t36, t39, t25);
+    const double t43 = DERIVE_FMA(t37, t39, x[3 * s]);
+    const double t47 = DERIVE_FNMA(t36, t32, t29);
+    const double t48 = DERIVE_FNMA(t36, t33, t30);
+    const double t49 = DERIVE_FNMA(t37, t33, t31);
     x_new[0] = t17;
     x_new[1 * s] = t18;
     x_new[2 * s] = t42;

@@ -17,7 +17,7 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 18, sub 2, mul 56, div 4, sqrt 0, fma 40, neg 6, cmp 4, calls 0 (flops 160, instructions 130)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 0, mul 50, div 4, sqrt 0, fma 46, neg 0, cmp 4, calls 0 (flops 160, instructions 118)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * derive-interface: {"functions":[["gsm2d_a_lf_step","step",true,false,[["x",[4],false,false,false],["P",[4,4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false],["P_new",[4,4],true,false,false]]],["gsm2d_a_lf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]],["gsm2d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["P0",[4,4],false,false,false],["xs",["steps",4],true,false,false],["Ps",["steps",4,4],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,6,7]]]}
@@ -34,6 +34,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -94,7 +101,7 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     const double t6 = 1.0 + t4;
     const double t7 = 1.0/t5;
     const double t8 = t3*t7;
-    const double t9 = t6 - t2*t8;
+    const double t9 = DERIVE_FNMA(t2, t8, t6);
     const double t10 = 1.0/t9;
     const double t11 = t10*t8;
     const double t12 = t7*DERIVE_FMA(t11, t2, 1.0);
@@ -109,16 +116,14 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     const double t21 = DERIVE_FMA(P[5 * s], t19, P[1 * s]*t18);
     const double t22 = x[0] + t20;
     const double t23 = x[1 * s] + t21;
-    const double t24 = 0.061224489795918366*z[0];
-    const double t25 = 0.12244897959183673*z[0];
     const double t26 = DERIVE_FMA(t15, t23, t14*t22);
-    const double t27 = DERIVE_FMA(t17, t23, -(t16*t22));
-    const double t28 = t24 + t26;
-    const double t29 = t25 + t27;
+    const double t27 = DERIVE_FNMA(t16, t22, t17*t23);
+    const double t28 = DERIVE_FMA(0.061224489795918366, z[0], t26);
+    const double t29 = DERIVE_FMA(0.12244897959183673, z[0], t27);
     const double t30 = DERIVE_FMA(P[1 * s], t15, P[0]*t14);
     const double t31 = DERIVE_FMA(P[5 * s], t15, P[1 * s]*t14);
-    const double t32 = DERIVE_FMA(P[1 * s], t17, -(P[0]*t16));
-    const double t33 = DERIVE_FMA(P[5 * s], t17, -(P[1 * s]*t16));
+    const double t32 = DERIVE_FNMA(P[0], t16, P[1 * s]*t17);
+    const double t33 = DERIVE_FNMA(P[1 * s], t16, P[5 * s]*t17);
     const double t34 = DERIVE_FMA(0.8775510204081632, t31, 0.9387755102040817*t30);
     const double t35 = DERIVE_FMA(0.7551020408163265, t31, (-0.12244897959183673)*t30);
     const double t36 = DERIVE_FMA(0.7551020408163265, t33, (-0.12244897959183673)*t32);
@@ -134,7 +139,7 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     const double t46 = 1.0 + t44;
     const double t47 = 1.0/t45;
     const double t48 = t43*t47;
-    const double t49 = t46 - t42*t48;
+    const double t49 = DERIVE_FNMA(t42, t48, t46);
     const double t50 = 1.0/t49;
     const double t51 = t50*t48;
     const double t52 = t47*DERIVE_FMA(t51, t42, 1.0);
@@ -149,16 +154,14 @@ DERIVE_INLINE void gsm2d_a_lf_step_body(const double *restrict x, const double *
     const double t61 = DERIVE_FMA(P[15 * s], t59, P[11 * s]*t58);
     const double t62 = x[2 * s] + t60;
     const double t63 = x[3 * s] + t61;
-    const double t64 = 0.061224489795918366*z[1 * s];
-    const double t65 = 0.12244897959183673*z[1 * s];
     const double t66 = DERIVE_FMA(t55, t63, t54*t62);
-    const double t67 = DERIVE_FMA(t57, t63, -(t56*t62));
-    const double t68 = t64 + t66;
-    const double t69 = t65 + t67;
+    const double t67 = DERIVE_FNMA(t56, t62, t57*t63);
+    const double t68 = DERIVE_FMA(0.061224489795918366, z[1 * s], t66);
+    const double t69 = DERIVE_FMA(0.12244897959183673, z[1 * s], t67);
     const double t70 = DERIVE_FMA(P[11 * s], t55, P[10 * s]*t54);
     const double t71 = DERIVE_FMA(P[15 * s], t55, P[11 * s]*t54);
-    const double t72 = DERIVE_FMA(P[11 * s], t57, -(P[10 * s]*t56));
-    const double t73 = DERIVE_FMA(P[15 * s], t57, -(P[11 * s]*t56));
+    const double t72 = DERIVE_FNMA(P[10 * s], t56, P[11 * s]*t57);
+    const double t73 = DERIVE_FNMA(P[11 * s], t56, P[15 * s]*t57);
     const double t74 = DERIVE_FMA(0.8775510204081632, t71, 0.9387755102040817*t70);
     const double t75 = DERIVE_FMA(0.7551020408163265, t71, (-0.12244897959183673)*t70);
     const double t76 = DERIVE_FMA(0.7551020408163265, t73, (-0.12244897959183673)*t72);

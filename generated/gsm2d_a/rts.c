@@ -24,8 +24,8 @@
  *     backward 6: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     backward 7: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
  *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 8, mul 10, div 4, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 50, instructions 56)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 14, sub 20, mul 30, div 10, sqrt 0, fma 18, neg 0, cmp 16, calls 0 (flops 110, instructions 108)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
+ * operations per call of backward (C99, fma through DERIVE_FMA): add 14, sub 10, mul 20, div 10, sqrt 0, fma 28, neg 0, cmp 16, calls 0 (flops 110, instructions 98)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 40 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
@@ -43,6 +43,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -98,26 +105,16 @@ DERIVE_INLINE int gsm2d_a_rts_step_body(const double *restrict x, const double *
     const double t27 = x[3 * s] + t1;
     const double t28 = z[0] - t26;
     const double t29 = z[1 * s] - t27;
-    const double t30 = t22*t28;
-    const double t31 = t23*t28;
-    const double t32 = t24*t29;
-    const double t33 = t25*t29;
-    const double t34 = t0 + t30;
-    const double t35 = x[1 * s] + t31;
-    const double t36 = t1 + t32;
-    const double t37 = x[3 * s] + t33;
-    const double t38 = t14*t22;
-    const double t39 = t15*t22;
-    const double t40 = t15*t23;
-    const double t41 = t16*t24;
-    const double t42 = t17*t24;
-    const double t43 = t17*t25;
-    const double t44 = t8 - t38;
-    const double t45 = t9 - t39;
-    const double t46 = t10 - t40;
-    const double t47 = t11 - t41;
-    const double t48 = t12 - t42;
-    const double t49 = t13 - t43;
+    const double t34 = DERIVE_FMA(t22, t28, t0);
+    const double t35 = DERIVE_FMA(t23, t28, x[1 * s]);
+    const double t36 = DERIVE_FMA(t24, t29, t1);
+    const double t37 = DERIVE_FMA(t25, t29, x[3 * s]);
+    const double t44 = DERIVE_FNMA(t14, t22, t8);
+    const double t45 = DERIVE_FNMA(t15, t22, t9);
+    const double t46 = DERIVE_FNMA(t15, t23, t10);
+    const double t47 = DERIVE_FNMA(t16, t24, t11);
+    const double t48 = DERIVE_FNMA(t17, t24, t12);
+    const double t49 = DERIVE_FNMA(t17, t25, t13);
     x_new[0] = t34;
     x_new[1 * s] = t35;
     x_new[2 * s] = t36;
@@ -225,7 +222,7 @@ int gsm2d_a_rts_backward(const double *restrict x, const double *restrict P, con
     }
     const double t4 = 1.0/P_pred[0];
     const double t5 = P_pred[1]*t4;
-    const double t6 = P_pred[5] - P_pred[1]*t5;
+    const double t6 = DERIVE_FNMA(P_pred[1], t5, P_pred[5]);
     if (!(t6 > 0.0)) {
         return 5; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
@@ -234,14 +231,14 @@ int gsm2d_a_rts_backward(const double *restrict x, const double *restrict P, con
     }
     const double t7 = 1.0/P_pred[10];
     const double t8 = P_pred[11]*t7;
-    const double t9 = P_pred[15] - P_pred[11]*t8;
+    const double t9 = DERIVE_FNMA(P_pred[11], t8, P_pred[15]);
     if (!(t9 > 0.0)) {
         return 7; /* P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
-    const double t10 = P[1] - t0*t5;
-    const double t11 = P[5] - t1*t5;
-    const double t12 = P[11] - t2*t8;
-    const double t13 = P[15] - t3*t8;
+    const double t10 = DERIVE_FNMA(t0, t5, P[1]);
+    const double t11 = DERIVE_FNMA(t1, t5, P[5]);
+    const double t12 = DERIVE_FNMA(t2, t8, P[11]);
+    const double t13 = DERIVE_FNMA(t3, t8, P[15]);
     const double t14 = t0/P_pred[0];
     const double t15 = t1/P_pred[0];
     const double t16 = t10/t6;
@@ -250,10 +247,10 @@ int gsm2d_a_rts_backward(const double *restrict x, const double *restrict P, con
     const double t19 = t3/P_pred[10];
     const double t20 = t12/t9;
     const double t21 = t13/t9;
-    const double t22 = t14 - t16*t5;
-    const double t23 = t15 - t17*t5;
-    const double t24 = t18 - t20*t8;
-    const double t25 = t19 - t21*t8;
+    const double t22 = DERIVE_FNMA(t16, t5, t14);
+    const double t23 = DERIVE_FNMA(t17, t5, t15);
+    const double t24 = DERIVE_FNMA(t20, t8, t18);
+    const double t25 = DERIVE_FNMA(t21, t8, t19);
     const double t26 = x_smooth_next[0] - x_pred[0];
     const double t27 = x_smooth_next[1] - x_pred[1];
     const double t28 = x_smooth_next[2] - x_pred[2];

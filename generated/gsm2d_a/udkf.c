@@ -32,8 +32,8 @@
  *     enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
  *     enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
  *     store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 10, mul 20, div 6, sqrt 0, fma 14, neg 0, cmp 14, calls 0 (flops 78, instructions 78)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, calls 0 (flops 10, instructions 20)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 8, mul 18, div 6, sqrt 0, fma 16, neg 0, cmp 14, calls 0 (flops 78, instructions 76)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 2, sqrt 0, fma 2, neg 0, cmp 10, calls 0 (flops 10, instructions 18)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 6, instructions 8)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
@@ -52,6 +52,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -126,7 +133,7 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t34 = t28*t33;
     const double t35 = t13*t34;
     const double t36 = t26*t29;
-    const double t37 = t17 - t22*t36;
+    const double t37 = DERIVE_FNMA(t22, t36, t17);
     const double t38 = DERIVE_FMA(t17, t27, t22);
     const double t39 = z[0] - x[1 * s] - t24;
     const double t40 = t33*t39;
@@ -149,7 +156,7 @@ DERIVE_INLINE int gsm2d_a_udkf_step_body(const double *restrict x, const double 
     const double t51 = t45*t50;
     const double t52 = t2*t51;
     const double t53 = t43*t46;
-    const double t54 = t6 - t11*t53;
+    const double t54 = DERIVE_FNMA(t11, t53, t6);
     const double t55 = DERIVE_FMA(t44, t6, t11);
     const double t56 = z[1 * s] - x[3 * s] - t25;
     const double t57 = t50*t56;
@@ -219,7 +226,7 @@ int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     }
     const double t1 = ((P0[15] <= 0.0) ? 1.0 : P0[15]);
     const double t2 = P0[11]/t1;
-    const double t3 = P0[10] - P0[11]*t2;
+    const double t3 = DERIVE_FNMA(P0[11], t2, P0[10]);
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
         return 11; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
@@ -230,7 +237,7 @@ int gsm2d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     }
     const double t6 = ((P0[5] <= 0.0) ? 1.0 : P0[5]);
     const double t7 = P0[1]/t6;
-    const double t8 = P0[0] - P0[1]*t7;
+    const double t8 = DERIVE_FNMA(P0[1], t7, P0[0]);
     const double t9 = 2.2250738585072014e-308 + t8;
     if (!(t9 > 0.0)) {
         return 13; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */

@@ -17,7 +17,7 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 28, sub 5, mul 38, div 4, sqrt 0, fma 20, neg 3, cmp 1, calls 0 (flops 115, instructions 99)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 24, sub 1, mul 30, div 4, sqrt 0, fma 28, neg 0, cmp 1, calls 0 (flops 115, instructions 88)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * derive-interface: {"functions":[["gsm2d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
@@ -34,6 +34,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -104,16 +111,11 @@ DERIVE_INLINE int gsm2d_b_jklf_step_body(const double *restrict x, const double 
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
-    const double t15 = t11*t14;
-    const double t16 = t12*t14;
-    const double t17 = t0 + t15;
-    const double t18 = x[1 * s] + t16;
-    const double t19 = t11*t7;
-    const double t20 = t11*t8;
-    const double t21 = t12*t8;
-    const double t22 = t4 - t19;
-    const double t23 = t5 - t20;
-    const double t24 = t6 - t21;
+    const double t17 = DERIVE_FMA(t11, t14, t0);
+    const double t18 = DERIVE_FMA(t12, t14, x[1 * s]);
+    const double t22 = DERIVE_FNMA(t11, t7, t4);
+    const double t23 = DERIVE_FNMA(t11, t8, t5);
+    const double t24 = DERIVE_FNMA(t12, t8, t6);
     const double t25 = 16.3265306122449*P[1 * s];
     const double t26 = DERIVE_FMA(8.16326530612245, P[0], t25);
     const double t27 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
@@ -123,7 +125,7 @@ DERIVE_INLINE int gsm2d_b_jklf_step_body(const double *restrict x, const double 
     const double t31 = 1.0 + t29;
     const double t32 = 1.0/t30;
     const double t33 = t28*t32;
-    const double t34 = t31 - t27*t33;
+    const double t34 = DERIVE_FNMA(t27, t33, t31);
     const double t35 = 1.0/t34;
     const double t36 = t33*t35;
     const double t37 = t32*DERIVE_FMA(t27, t36, 1.0);
@@ -138,16 +140,14 @@ DERIVE_INLINE int gsm2d_b_jklf_step_body(const double *restrict x, const double 
     const double t46 = DERIVE_FMA(P[3 * s], t44, P[1 * s]*t43);
     const double t47 = x[0] + t45;
     const double t48 = x[1 * s] + t46;
-    const double t49 = 0.061224489795918366*z[0];
-    const double t50 = 0.12244897959183673*z[0];
     const double t51 = DERIVE_FMA(t40, t48, t39*t47);
-    const double t52 = DERIVE_FMA(t42, t48, -(t41*t47));
-    const double t53 = t49 + t51;
-    const double t54 = t50 + t52;
+    const double t52 = DERIVE_FNMA(t41, t47, t42*t48);
+    const double t53 = DERIVE_FMA(0.061224489795918366, z[0], t51);
+    const double t54 = DERIVE_FMA(0.12244897959183673, z[0], t52);
     const double t55 = DERIVE_FMA(P[1 * s], t40, P[0]*t39);
     const double t56 = DERIVE_FMA(P[3 * s], t40, P[1 * s]*t39);
-    const double t57 = DERIVE_FMA(P[1 * s], t42, -(P[0]*t41));
-    const double t58 = DERIVE_FMA(P[3 * s], t42, -(P[1 * s]*t41));
+    const double t57 = DERIVE_FNMA(P[0], t41, P[1 * s]*t42);
+    const double t58 = DERIVE_FNMA(P[1 * s], t41, P[3 * s]*t42);
     const double t59 = DERIVE_FMA(0.8775510204081632, t56, 0.9387755102040817*t55);
     const double t60 = DERIVE_FMA(0.7551020408163265, t56, (-0.12244897959183673)*t55);
     const double t61 = DERIVE_FMA(0.7551020408163265, t58, (-0.12244897959183673)*t57);

@@ -15,7 +15,7 @@
  *     void gsm2d_b_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: gsm2d_b_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 1, mul 28, div 2, sqrt 0, fma 20, neg 3, cmp 0, calls 0 (flops 80, instructions 63)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 7, sub 0, mul 25, div 2, sqrt 0, fma 23, neg 0, cmp 0, calls 0 (flops 80, instructions 57)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * derive-interface: {"functions":[["gsm2d_b_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
@@ -32,6 +32,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -92,7 +99,7 @@ DERIVE_INLINE void gsm2d_b_lf_step_body(const double *restrict x, const double *
     const double t6 = 1.0 + t4;
     const double t7 = 1.0/t5;
     const double t8 = t3*t7;
-    const double t9 = t6 - t2*t8;
+    const double t9 = DERIVE_FNMA(t2, t8, t6);
     const double t10 = 1.0/t9;
     const double t11 = t10*t8;
     const double t12 = t7*DERIVE_FMA(t11, t2, 1.0);
@@ -107,16 +114,14 @@ DERIVE_INLINE void gsm2d_b_lf_step_body(const double *restrict x, const double *
     const double t21 = DERIVE_FMA(P[3 * s], t19, P[1 * s]*t18);
     const double t22 = x[0] + t20;
     const double t23 = x[1 * s] + t21;
-    const double t24 = 0.061224489795918366*z[0];
-    const double t25 = 0.12244897959183673*z[0];
     const double t26 = DERIVE_FMA(t15, t23, t14*t22);
-    const double t27 = DERIVE_FMA(t17, t23, -(t16*t22));
-    const double t28 = t24 + t26;
-    const double t29 = t25 + t27;
+    const double t27 = DERIVE_FNMA(t16, t22, t17*t23);
+    const double t28 = DERIVE_FMA(0.061224489795918366, z[0], t26);
+    const double t29 = DERIVE_FMA(0.12244897959183673, z[0], t27);
     const double t30 = DERIVE_FMA(P[1 * s], t15, P[0]*t14);
     const double t31 = DERIVE_FMA(P[3 * s], t15, P[1 * s]*t14);
-    const double t32 = DERIVE_FMA(P[1 * s], t17, -(P[0]*t16));
-    const double t33 = DERIVE_FMA(P[3 * s], t17, -(P[1 * s]*t16));
+    const double t32 = DERIVE_FNMA(P[0], t16, P[1 * s]*t17);
+    const double t33 = DERIVE_FNMA(P[1 * s], t16, P[3 * s]*t17);
     const double t34 = DERIVE_FMA(0.8775510204081632, t31, 0.9387755102040817*t30);
     const double t35 = DERIVE_FMA(0.7551020408163265, t31, (-0.12244897959183673)*t30);
     const double t36 = DERIVE_FMA(0.7551020408163265, t33, (-0.12244897959183673)*t32);

@@ -20,7 +20,7 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 84, sub 15, mul 114, div 12, sqrt 0, fma 60, neg 9, cmp 15, calls 0 (flops 345, instructions 309)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 72, sub 3, mul 90, div 12, sqrt 0, fma 84, neg 0, cmp 15, calls 0 (flops 345, instructions 276)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
@@ -38,6 +38,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -104,6 +111,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -135,16 +149,11 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
-    const double t15 = t11*t14;
-    const double t16 = t12*t14;
-    const double t17 = t0 + t15;
-    const double t18 = x[1 * s] + t16;
-    const double t19 = t11*t7;
-    const double t20 = t11*t8;
-    const double t21 = t12*t8;
-    const double t22 = t4 - t19;
-    const double t23 = t5 - t20;
-    const double t24 = t6 - t21;
+    const double t17 = DERIVE_FMA(t11, t14, t0);
+    const double t18 = DERIVE_FMA(t12, t14, x[1 * s]);
+    const double t22 = DERIVE_FNMA(t11, t7, t4);
+    const double t23 = DERIVE_FNMA(t11, t8, t5);
+    const double t24 = DERIVE_FNMA(t12, t8, t6);
     const double t25 = 16.3265306122449*P[1 * s];
     const double t26 = DERIVE_FMA(8.16326530612245, P[0], t25);
     const double t27 = DERIVE_FMA(32.6530612244898, P[1 * s], 16.3265306122449*P[0]);
@@ -154,7 +163,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t31 = 1.0 + t29;
     const double t32 = 1.0/t30;
     const double t33 = t28*t32;
-    const double t34 = t31 - t27*t33;
+    const double t34 = DERIVE_FNMA(t27, t33, t31);
     const double t35 = 1.0/t34;
     const double t36 = t33*t35;
     const double t37 = t32*DERIVE_FMA(t27, t36, 1.0);
@@ -169,16 +178,14 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t46 = DERIVE_FMA(P[7 * s], t44, P[1 * s]*t43);
     const double t47 = x[0] + t45;
     const double t48 = x[1 * s] + t46;
-    const double t49 = 0.061224489795918366*z[0];
-    const double t50 = 0.12244897959183673*z[0];
     const double t51 = DERIVE_FMA(t40, t48, t39*t47);
-    const double t52 = DERIVE_FMA(t42, t48, -(t41*t47));
-    const double t53 = t49 + t51;
-    const double t54 = t50 + t52;
+    const double t52 = DERIVE_FNMA(t41, t47, t42*t48);
+    const double t53 = DERIVE_FMA(0.061224489795918366, z[0], t51);
+    const double t54 = DERIVE_FMA(0.12244897959183673, z[0], t52);
     const double t55 = DERIVE_FMA(P[1 * s], t40, P[0]*t39);
     const double t56 = DERIVE_FMA(P[7 * s], t40, P[1 * s]*t39);
-    const double t57 = DERIVE_FMA(P[1 * s], t42, -(P[0]*t41));
-    const double t58 = DERIVE_FMA(P[7 * s], t42, -(P[1 * s]*t41));
+    const double t57 = DERIVE_FNMA(P[0], t41, P[1 * s]*t42);
+    const double t58 = DERIVE_FNMA(P[1 * s], t41, P[7 * s]*t42);
     const double t59 = DERIVE_FMA(0.8775510204081632, t56, 0.9387755102040817*t55);
     const double t60 = DERIVE_FMA(0.7551020408163265, t56, (-0.12244897959183673)*t55);
     const double t61 = DERIVE_FMA(0.7551020408163265, t58, (-0.12244897959183673)*t57);
@@ -213,16 +220,11 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t87 = t83/t85;
     const double t88 = x[3 * s] + t75;
     const double t89 = z[1 * s] - t88;
-    const double t90 = t86*t89;
-    const double t91 = t87*t89;
-    const double t92 = t75 + t90;
-    const double t93 = x[3 * s] + t91;
-    const double t94 = t86*t82;
-    const double t95 = t86*t83;
-    const double t96 = t87*t83;
-    const double t97 = t79 - t94;
-    const double t98 = t80 - t95;
-    const double t99 = t81 - t96;
+    const double t92 = DERIVE_FMA(t86, t89, t75);
+    const double t93 = DERIVE_FMA(t87, t89, x[3 * s]);
+    const double t97 = DERIVE_FNMA(t86, t82, t79);
+    const double t98 = DERIVE_FNMA(t86, t83, t80);
+    const double t99 = DERIVE_FNMA(t87, t83, t81);
     const double t100 = 16.3265306122449*P[15 * s];
     const double t101 = DERIVE_FMA(8.16326530612245, P[14 * s], t100);
     const double t102 = DERIVE_FMA(32.6530612244898, P[15 * s], 16.3265306122449*P[14 * s]);
@@ -232,7 +234,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t106 = 1.0 + t104;
     const double t107 = 1.0/t105;
     const double t108 = t103*t107;
-    const double t109 = t106 - t102*t108;
+    const double t109 = DERIVE_FNMA(t102, t108, t106);
     const double t110 = 1.0/t109;
     const double t111 = t108*t110;
     const double t112 = t107*DERIVE_FMA(t102, t111, 1.0);
@@ -247,16 +249,14 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t121 = DERIVE_FMA(P[21 * s], t119, P[15 * s]*t118);
     const double t122 = x[2 * s] + t120;
     const double t123 = x[3 * s] + t121;
-    const double t124 = 0.061224489795918366*z[1 * s];
-    const double t125 = 0.12244897959183673*z[1 * s];
     const double t126 = DERIVE_FMA(t115, t123, t114*t122);
-    const double t127 = DERIVE_FMA(t117, t123, -(t116*t122));
-    const double t128 = t124 + t126;
-    const double t129 = t125 + t127;
+    const double t127 = DERIVE_FNMA(t116, t122, t117*t123);
+    const double t128 = DERIVE_FMA(0.061224489795918366, z[1 * s], t126);
+    const double t129 = DERIVE_FMA(0.12244897959183673, z[1 * s], t127);
     const double t130 = DERIVE_FMA(P[15 * s], t115, P[14 * s]*t114);
     const double t131 = DERIVE_FMA(P[21 * s], t115, P[15 * s]*t114);
-    const double t132 = DERIVE_FMA(P[15 * s], t117, -(P[14 * s]*t116));
-    const double t133 = DERIVE_FMA(P[21 * s], t117, -(P[15 * s]*t116));
+    const double t132 = DERIVE_FNMA(P[14 * s], t116, P[15 * s]*t117);
+    const double t133 = DERIVE_FNMA(P[15 * s], t116, P[21 * s]*t117);
     const double t134 = DERIVE_FMA(0.8775510204081632, t131, 0.9387755102040817*t130);
     const double t135 = DERIVE_FMA(0.7551020408163265, t131, (-0.12244897959183673)*t130);
     const double t136 = DERIVE_FMA(0.7551020408163265, t133, (-0.12244897959183673)*t132);
@@ -291,16 +291,11 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t162 = t158/t160;
     const double t163 = x[5 * s] + t150;
     const double t164 = z[2 * s] - t163;
-    const double t165 = t161*t164;
-    const double t166 = t162*t164;
-    const double t167 = t150 + t165;
-    const double t168 = x[5 * s] + t166;
-    const double t169 = t161*t157;
-    const double t170 = t161*t158;
-    const double t171 = t162*t158;
-    const double t172 = t154 - t169;
-    const double t173 = t155 - t170;
-    const double t174 = t156 - t171;
+    const double t167 = DERIVE_FMA(t161, t164, t150);
+    const double t168 = DERIVE_FMA(t162, t164, x[5 * s]);
+    const double t172 = DERIVE_FNMA(t161, t157, t154);
+    const double t173 = DERIVE_FNMA(t161, t158, t155);
+    const double t174 = DERIVE_FNMA(t162, t158, t156);
     const double t175 = 16.3265306122449*P[29 * s];
     const double t176 = DERIVE_FMA(8.16326530612245, P[28 * s], t175);
     const double t177 = DERIVE_FMA(32.6530612244898, P[29 * s], 16.3265306122449*P[28 * s]);
@@ -310,7 +305,7 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t181 = 1.0 + t179;
     const double t182 = 1.0/t180;
     const double t183 = t178*t182;
-    const double t184 = t181 - t177*t183;
+    const double t184 = DERIVE_FNMA(t177, t183, t181);
     const double t185 = 1.0/t184;
     const double t186 = t183*t185;
     const double t187 = t182*DERIVE_FMA(t177, t186, 1.0);
@@ -325,16 +320,14 @@ DERIVE_INLINE int mpt3d_a_jklf_step_body(const double *restrict x, const double 
     const double t196 = DERIVE_FMA(P[35 * s], t194, P[29 * s]*t193);
     const double t197 = x[4 * s] + t195;
     const double t198 = x[5 * s] + t196;
-    const double t199 = 0.061224489795918366*z[2 * s];
-    const double t200 = 0.12244897959183673*z[2 * s];
     const double t201 = DERIVE_FMA(t190, t198, t189*t197);
-    const double t202 = DERIVE_FMA(t192, t198, -(t191*t197));
-    const double t203 = t199 + t201;
-    const double t204 = t200 + t202;
+    const double t202 = DERIVE_FNMA(t191, t197, t192*t198);
+    const double t203 = DERIVE_FMA(0.061224489795918366, z[2 * s], t201);
+    const double t204 = DERIVE_FMA(0.12244897959183673, z[2 * s], t202);
     const double t205 = DERIVE_FMA(P[29 * s], t190, P[28 * s]*t189);
     const double t206 = DERIVE_FMA(P[35 * s], t190, P[29 * s]*t189);
-    const double t207 = DERIVE_FMA(P[29 * s], t192, -(P[28 * s]*t191));
-    const double t208 = DERIVE_FMA(P[35 * s], t192, -(P[29 * s]*t191));
+    const double t207 = DERIVE_FNMA(P[28 * s], t191, P[29 * s]*t192);
+    const double t208 = DERIVE_FNMA(P[29 * s], t191, P[35 * s]*t192);
     const double t209 = DERIVE_FMA(0.8775510204081632, t206, 0.9387755102040817*t205);
     const double t210 = DERIVE_FMA(0.7551020408163265, t206, (-0.12244897959183673)*t205);
     const double t211 = DERIVE_FMA(0.7551020408163265, t208, (-0.12244897959183673)*t207);
@@ -504,89 +497,78 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
         const derive_v4 a12 = a8 / a10;
         const derive_v4 a13 = x_v1 + a0;
         const derive_v4 a14 = az0 - a13;
-        const derive_v4 a15 = a11 * a14;
-        const derive_v4 a16 = a12 * a14;
-        const derive_v4 a17 = a0 + a15;
-        const derive_v4 a18 = x_v1 + a16;
-        const derive_v4 a19 = a11 * a7;
-        const derive_v4 a20 = a11 * a8;
-        const derive_v4 a21 = a12 * a8;
-        const derive_v4 a22 = a4 - a19;
-        const derive_v4 a23 = a5 - a20;
-        const derive_v4 a24 = a6 - a21;
-        const derive_v4 a25 = 16.3265306122449 * P_v3;
-        const derive_v4 a26 = DERIVE_VFMA(((derive_v4){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v2, a25);
-        const derive_v4 a27 = 16.3265306122449 * P_v2;
-        const derive_v4 a28 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v3, a27);
-        const derive_v4 a29 = 8.16326530612245 * P_v3;
-        const derive_v4 a30 = DERIVE_VFMA(((derive_v4){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v4, a29);
-        const derive_v4 a31 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v4, a25);
-        const derive_v4 a32 = 1.0 + a26;
-        const derive_v4 a33 = 1.0 + a31;
-        const derive_v4 a34 = 1.0 / a32;
-        const derive_v4 a35 = a30 * a34;
-        const derive_v4 a36 = a28 * a35;
-        const derive_v4 a37 = a33 - a36;
-        const derive_v4 a38 = 1.0 / a37;
-        const derive_v4 a39 = a35 * a38;
-        const derive_v4 a40 = DERIVE_VFMA(a28, a39, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
-        const derive_v4 a41 = a34 * a40;
-        const derive_v4 a42 = a28 * a34;
-        const derive_v4 a43 = a42 * a38;
-        const derive_v4 a44 = (-0.8775510204081632) * a39;
-        const derive_v4 a45 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a41, a44);
-        const derive_v4 a46 = 0.8775510204081632 * a38;
-        const derive_v4 a47 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a43, a46);
-        const derive_v4 a48 = 0.7551020408163265 * a39;
-        const derive_v4 a49 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a41, a48);
-        const derive_v4 a50 = 0.7551020408163265 * a38;
-        const derive_v4 a51 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a43, a50);
-        const derive_v4 a52 = 8.16326530612245 * az0;
-        const derive_v4 a53 = 16.3265306122449 * az0;
-        const derive_v4 a54 = P_v2 * a52;
-        const derive_v4 a55 = DERIVE_VFMA(P_v3, a53, a54);
-        const derive_v4 a56 = P_v3 * a52;
-        const derive_v4 a57 = DERIVE_VFMA(P_v4, a53, a56);
-        const derive_v4 a58 = x_v0 + a55;
-        const derive_v4 a59 = x_v1 + a57;
-        const derive_v4 a60 = 0.061224489795918366 * az0;
-        const derive_v4 a61 = 0.12244897959183673 * az0;
-        const derive_v4 a62 = a45 * a58;
-        const derive_v4 a63 = DERIVE_VFMA(a47, a59, a62);
-        const derive_v4 a64 = a49 * a58;
-        const derive_v4 a65 = -a64;
-        const derive_v4 a66 = DERIVE_VFMA(a51, a59, a65);
-        const derive_v4 a67 = a60 + a63;
-        const derive_v4 a68 = a61 + a66;
-        const derive_v4 a69 = P_v2 * a45;
-        const derive_v4 a70 = DERIVE_VFMA(P_v3, a47, a69);
-        const derive_v4 a71 = P_v3 * a45;
-        const derive_v4 a72 = DERIVE_VFMA(P_v4, a47, a71);
-        const derive_v4 a73 = P_v2 * a49;
-        const derive_v4 a74 = -a73;
-        const derive_v4 a75 = DERIVE_VFMA(P_v3, a51, a74);
-        const derive_v4 a76 = P_v3 * a49;
-        const derive_v4 a77 = -a76;
-        const derive_v4 a78 = DERIVE_VFMA(P_v4, a51, a77);
-        const derive_v4 a79 = 0.9387755102040817 * a70;
-        const derive_v4 a80 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a72, a79);
-        const derive_v4 a81 = (-0.12244897959183673) * a70;
-        const derive_v4 a82 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a72, a81);
-        const derive_v4 a83 = (-0.12244897959183673) * a75;
-        const derive_v4 a84 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a78, a83);
-        const derive_v4 a85 = 0.0020408163265306124 + a80;
-        const derive_v4 a86 = 0.004081632653061225 + a82;
-        const derive_v4 a87 = 0.00816326530612245 + a84;
-        const derive_v4 a88 = a17 + a67;
-        const derive_v4 a89 = a18 + a68;
-        const derive_v4 a90 = 0.5 * a88;
-        const derive_v4 a91 = 0.5 * a89;
-        const derive_v4 a92 = a22 + a85;
-        const derive_v4 a93 = a23 + a86;
-        const derive_v4 a94 = a24 + a87;
-        const derive_v4 a95 = 0.5 * a92;
-        const derive_v4 a96 = 0.5 * a93;
-        const derive_v4 a97 = 0.5 * a94;
+        const derive_v4 a15 = DERIVE_VFMA(a11, a14, a0);
+        const derive_v4 a16 = DERIVE_VFMA(a12, a14, x_v1);
+        const derive_v4 a17 = DERIVE_VFNMA(a11, a7, a4);
+        const derive_v4 a18 = DERIVE_VFNMA(a11, a8, a5);
+        const derive_v4 a19 = DERIVE_VFNMA(a12, a8, a6);
+        const derive_v4 a20 = 16.3265306122449 * P_v3;
+        const derive_v4 a21 = DERIVE_VFMA(((derive_v4){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v2, a20);
+        const derive_v4 a22 = 16.3265306122449 * P_v2;
+        const derive_v4 a23 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v3, a22);
+        const derive_v4 a24 = 8.16326530612245 * P_v3;
+        const derive_v4 a25 = DERIVE_VFMA(((derive_v4){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v4, a24);
+        const derive_v4 a26 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v4, a20);
+        const derive_v4 a27 = 1.0 + a21;
+        const derive_v4 a28 = 1.0 + a26;
+        const derive_v4 a29 = 1.0 / a27;
+        const derive_v4 a30 = a25 * a29;
+        const derive_v4 a31 = DERIVE_VFNMA(a23, a30, a28);
+        const derive_v4 a32 = 1.0 / a31;
+        const derive_v4 a33 = a30 * a32;
+        const derive_v4 a34 = DERIVE_VFMA(a23, a33, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
+        const derive_v4 a35 = a29 * a34;
+        const derive_v4 a36 = a23 * a29;
+        const derive_v4 a37 = a36 * a32;
+        const derive_v4 a38 = (-0.8775510204081632) * a33;
+        const derive_v4 a39 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a35, a38);
+        const derive_v4 a40 = 0.8775510204081632 * a32;
+        const derive_v4 a41 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a37, a40);
+        const derive_v4 a42 = 0.7551020408163265 * a33;
+        const derive_v4 a43 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a35, a42);
+        const derive_v4 a44 = 0.7551020408163265 * a32;
+        const derive_v4 a45 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a37, a44);
+        const derive_v4 a46 = 8.16326530612245 * az0;
+        const derive_v4 a47 = 16.3265306122449 * az0;
+        const derive_v4 a48 = P_v2 * a46;
+        const derive_v4 a49 = DERIVE_VFMA(P_v3, a47, a48);
+        const derive_v4 a50 = P_v3 * a46;
+        const derive_v4 a51 = DERIVE_VFMA(P_v4, a47, a50);
+        const derive_v4 a52 = x_v0 + a49;
+        const derive_v4 a53 = x_v1 + a51;
+        const derive_v4 a54 = a39 * a52;
+        const derive_v4 a55 = DERIVE_VFMA(a41, a53, a54);
+        const derive_v4 a56 = a45 * a53;
+        const derive_v4 a57 = DERIVE_VFNMA(a43, a52, a56);
+        const derive_v4 a58 = DERIVE_VFMA(((derive_v4){0.061224489795918366, 0.061224489795918366, 0.061224489795918366, 0.061224489795918366}), az0, a55);
+        const derive_v4 a59 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), az0, a57);
+        const derive_v4 a60 = P_v2 * a39;
+        const derive_v4 a61 = DERIVE_VFMA(P_v3, a41, a60);
+        const derive_v4 a62 = P_v3 * a39;
+        const derive_v4 a63 = DERIVE_VFMA(P_v4, a41, a62);
+        const derive_v4 a64 = P_v3 * a45;
+        const derive_v4 a65 = DERIVE_VFNMA(P_v2, a43, a64);
+        const derive_v4 a66 = P_v4 * a45;
+        const derive_v4 a67 = DERIVE_VFNMA(P_v3, a43, a66);
+        const derive_v4 a68 = 0.9387755102040817 * a61;
+        const derive_v4 a69 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a63, a68);
+        const derive_v4 a70 = (-0.12244897959183673) * a61;
+        const derive_v4 a71 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a63, a70);
+        const derive_v4 a72 = (-0.12244897959183673) * a65;
+        const derive_v4 a73 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a67, a72);
+        const derive_v4 a74 = 0.0020408163265306124 + a69;
+        const derive_v4 a75 = 0.004081632653061225 + a71;
+        const derive_v4 a76 = 0.00816326530612245 + a73;
+        const derive_v4 a77 = a15 + a58;
+        const derive_v4 a78 = a16 + a59;
+        const derive_v4 a79 = 0.5 * a77;
+        const derive_v4 a80 = 0.5 * a78;
+        const derive_v4 a81 = a17 + a74;
+        const derive_v4 a82 = a18 + a75;
+        const derive_v4 a83 = a19 + a76;
+        const derive_v4 a84 = 0.5 * a81;
+        const derive_v4 a85 = 0.5 * a82;
+        const derive_v4 a86 = 0.5 * a83;
         if (!(a10[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -599,53 +581,53 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
         if (step_status) {
             return step_status;
         }
-        { const derive_v4 lo = DERIVE_PAIRS_LO(a90, a91);
-          const derive_v4 hi = DERIVE_PAIRS_HI(a90, a91);
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a79, a80);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a79, a80);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
           __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {
-            Ps[k * 36 + 0] = a95[0];
-            Ps[k * 36 + 1] = a96[0];
+            Ps[k * 36 + 0] = a84[0];
+            Ps[k * 36 + 1] = a85[0];
             Ps[k * 36 + 2] = 0.0;
             Ps[k * 36 + 3] = 0.0;
             Ps[k * 36 + 4] = 0.0;
             Ps[k * 36 + 5] = 0.0;
-            Ps[k * 36 + 6] = a96[0];
-            Ps[k * 36 + 7] = a97[0];
+            Ps[k * 36 + 6] = a85[0];
+            Ps[k * 36 + 7] = a86[0];
             Ps[k * 36 + 8] = 0.0;
             Ps[k * 36 + 9] = 0.0;
             Ps[k * 36 + 10] = 0.0;
             Ps[k * 36 + 11] = 0.0;
             Ps[k * 36 + 12] = 0.0;
             Ps[k * 36 + 13] = 0.0;
-            Ps[k * 36 + 14] = a95[1];
-            Ps[k * 36 + 15] = a96[1];
+            Ps[k * 36 + 14] = a84[1];
+            Ps[k * 36 + 15] = a85[1];
             Ps[k * 36 + 16] = 0.0;
             Ps[k * 36 + 17] = 0.0;
             Ps[k * 36 + 18] = 0.0;
             Ps[k * 36 + 19] = 0.0;
-            Ps[k * 36 + 20] = a96[1];
-            Ps[k * 36 + 21] = a97[1];
+            Ps[k * 36 + 20] = a85[1];
+            Ps[k * 36 + 21] = a86[1];
             Ps[k * 36 + 22] = 0.0;
             Ps[k * 36 + 23] = 0.0;
             Ps[k * 36 + 24] = 0.0;
             Ps[k * 36 + 25] = 0.0;
             Ps[k * 36 + 26] = 0.0;
             Ps[k * 36 + 27] = 0.0;
-            Ps[k * 36 + 28] = a95[2];
-            Ps[k * 36 + 29] = a96[2];
+            Ps[k * 36 + 28] = a84[2];
+            Ps[k * 36 + 29] = a85[2];
             Ps[k * 36 + 30] = 0.0;
             Ps[k * 36 + 31] = 0.0;
             Ps[k * 36 + 32] = 0.0;
             Ps[k * 36 + 33] = 0.0;
-            Ps[k * 36 + 34] = a96[2];
-            Ps[k * 36 + 35] = a97[2];
+            Ps[k * 36 + 34] = a85[2];
+            Ps[k * 36 + 35] = a86[2];
         }
-        x_v0 = a90;
-        x_v1 = a91;
-        P_v2 = a95;
-        P_v3 = a96;
-        P_v4 = a97;
+        x_v0 = a79;
+        x_v1 = a80;
+        P_v2 = a84;
+        P_v3 = a85;
+        P_v4 = a86;
     }
     return 0;
 #else

@@ -20,15 +20,33 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
+#include <math.h>
 #include <stddef.h>
 
 #include "kf.h"
+
+#ifndef DERIVE_FMA
+#if defined(FP_FAST_FMA)
+#define DERIVE_FMA(a, b, c) fma((a), (b), (c))
+#define DERIVE_FMA_FUSED 1
+#else
+#define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
 
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -93,6 +111,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -124,16 +149,11 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
-    const double t15 = t11*t14;
-    const double t16 = t12*t14;
-    const double t17 = t0 + t15;
-    const double t18 = x[1 * s] + t16;
-    const double t19 = t11*t7;
-    const double t20 = t11*t8;
-    const double t21 = t12*t8;
-    const double t22 = t4 - t19;
-    const double t23 = t5 - t20;
-    const double t24 = t6 - t21;
+    const double t17 = DERIVE_FMA(t11, t14, t0);
+    const double t18 = DERIVE_FMA(t12, t14, x[1 * s]);
+    const double t22 = DERIVE_FNMA(t11, t7, t4);
+    const double t23 = DERIVE_FNMA(t11, t8, t5);
+    const double t24 = DERIVE_FNMA(t12, t8, t6);
     const double t25 = x[2 * s] + x[3 * s];
     const double t26 = P[14 * s] + P[15 * s];
     const double t27 = P[15 * s] + P[21 * s];
@@ -152,16 +172,11 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t37 = t33/t35;
     const double t38 = x[3 * s] + t25;
     const double t39 = z[1 * s] - t38;
-    const double t40 = t36*t39;
-    const double t41 = t37*t39;
-    const double t42 = t25 + t40;
-    const double t43 = x[3 * s] + t41;
-    const double t44 = t36*t32;
-    const double t45 = t36*t33;
-    const double t46 = t37*t33;
-    const double t47 = t29 - t44;
-    const double t48 = t30 - t45;
-    const double t49 = t31 - t46;
+    const double t42 = DERIVE_FMA(t36, t39, t25);
+    const double t43 = DERIVE_FMA(t37, t39, x[3 * s]);
+    const double t47 = DERIVE_FNMA(t36, t32, t29);
+    const double t48 = DERIVE_FNMA(t36, t33, t30);
+    const double t49 = DERIVE_FNMA(t37, t33, t31);
     const double t50 = x[4 * s] + x[5 * s];
     const double t51 = P[28 * s] + P[29 * s];
     const double t52 = P[29 * s] + P[35 * s];
@@ -180,16 +195,11 @@ DERIVE_INLINE int mpt3d_a_kf_step_body(const double *restrict x, const double *r
     const double t62 = t58/t60;
     const double t63 = x[5 * s] + t50;
     const double t64 = z[2 * s] - t63;
-    const double t65 = t61*t64;
-    const double t66 = t62*t64;
-    const double t67 = t50 + t65;
-    const double t68 = x[5 * s] + t66;
-    const double t69 = t61*t57;
-    const double t70 = t61*t58;
-    const double t71 = t62*t58;
-    const double t72 = t54 - t69;
-    const double t73 = t55 - t70;
-    const double t74 = t56 - t71;
+    const double t67 = DERIVE_FMA(t61, t64, t50);
+    const double t68 = DERIVE_FMA(t62, t64, x[5 * s]);
+    const double t72 = DERIVE_FNMA(t61, t57, t54);
+    const double t73 = DERIVE_FNMA(t61, t58, t55);
+    const double t74 = DERIVE_FNMA(t62, t58, t56);
     x_new[0] = t17;
     x_new[1 * s] = t18;
     x_new[2 * s] = t42;
@@ -343,16 +353,11 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         const derive_v4 a12 = a8 / a10;
         const derive_v4 a13 = x_v1 + a0;
         const derive_v4 a14 = az0 - a13;
-        const derive_v4 a15 = a11 * a14;
-        const derive_v4 a16 = a12 * a14;
-        const derive_v4 a17 = a0 + a15;
-        const derive_v4 a18 = x_v1 + a16;
-        const derive_v4 a19 = a11 * a7;
-        const derive_v4 a20 = a11 * a8;
-        const derive_v4 a21 = a12 * a8;
-        const derive_v4 a22 = a4 - a19;
-        const derive_v4 a23 = a5 - a20;
-        const derive_v4 a24 = a6 - a21;
+        const derive_v4 a15 = DERIVE_VFMA(a11, a14, a0);
+        const derive_v4 a16 = DERIVE_VFMA(a12, a14, x_v1);
+        const derive_v4 a17 = DERIVE_VFNMA(a11, a7, a4);
+        const derive_v4 a18 = DERIVE_VFNMA(a11, a8, a5);
+        const derive_v4 a19 = DERIVE_VFNMA(a12, a8, a6);
         if (!(a10[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -365,53 +370,53 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         if (step_status) {
             return step_status;
         }
-        { const derive_v4 lo = DERIVE_PAIRS_LO(a17, a18);
-          const derive_v4 hi = DERIVE_PAIRS_HI(a17, a18);
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a15, a16);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a15, a16);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
           __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {
-            Ps[k * 36 + 0] = a22[0];
-            Ps[k * 36 + 1] = a23[0];
+            Ps[k * 36 + 0] = a17[0];
+            Ps[k * 36 + 1] = a18[0];
             Ps[k * 36 + 2] = 0.0;
             Ps[k * 36 + 3] = 0.0;
             Ps[k * 36 + 4] = 0.0;
             Ps[k * 36 + 5] = 0.0;
-            Ps[k * 36 + 6] = a23[0];
-            Ps[k * 36 + 7] = a24[0];
+            Ps[k * 36 + 6] = a18[0];
+            Ps[k * 36 + 7] = a19[0];
             Ps[k * 36 + 8] = 0.0;
             Ps[k * 36 + 9] = 0.0;
             Ps[k * 36 + 10] = 0.0;
             Ps[k * 36 + 11] = 0.0;
             Ps[k * 36 + 12] = 0.0;
             Ps[k * 36 + 13] = 0.0;
-            Ps[k * 36 + 14] = a22[1];
-            Ps[k * 36 + 15] = a23[1];
+            Ps[k * 36 + 14] = a17[1];
+            Ps[k * 36 + 15] = a18[1];
             Ps[k * 36 + 16] = 0.0;
             Ps[k * 36 + 17] = 0.0;
             Ps[k * 36 + 18] = 0.0;
             Ps[k * 36 + 19] = 0.0;
-            Ps[k * 36 + 20] = a23[1];
-            Ps[k * 36 + 21] = a24[1];
+            Ps[k * 36 + 20] = a18[1];
+            Ps[k * 36 + 21] = a19[1];
             Ps[k * 36 + 22] = 0.0;
             Ps[k * 36 + 23] = 0.0;
             Ps[k * 36 + 24] = 0.0;
             Ps[k * 36 + 25] = 0.0;
             Ps[k * 36 + 26] = 0.0;
             Ps[k * 36 + 27] = 0.0;
-            Ps[k * 36 + 28] = a22[2];
-            Ps[k * 36 + 29] = a23[2];
+            Ps[k * 36 + 28] = a17[2];
+            Ps[k * 36 + 29] = a18[2];
             Ps[k * 36 + 30] = 0.0;
             Ps[k * 36 + 31] = 0.0;
             Ps[k * 36 + 32] = 0.0;
             Ps[k * 36 + 33] = 0.0;
-            Ps[k * 36 + 34] = a23[2];
-            Ps[k * 36 + 35] = a24[2];
+            Ps[k * 36 + 34] = a18[2];
+            Ps[k * 36 + 35] = a19[2];
         }
-        x_v0 = a17;
-        x_v1 = a18;
-        P_v2 = a22;
-        P_v3 = a23;
-        P_v4 = a24;
+        x_v0 = a15;
+        x_v1 = a16;
+        P_v2 = a17;
+        P_v3 = a18;
+        P_v4 = a19;
     }
     return 0;
 #else

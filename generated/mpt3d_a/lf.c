@@ -17,7 +17,7 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
  *     step 1: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 27, sub 3, mul 84, div 6, sqrt 0, fma 60, neg 9, cmp 12, calls 0 (flops 240, instructions 201)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 21, sub 0, mul 75, div 6, sqrt 0, fma 69, neg 0, cmp 12, calls 0 (flops 240, instructions 183)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
@@ -35,6 +35,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -101,6 +108,13 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #else
 #define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED)
+#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
+#else
+#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#endif
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -122,7 +136,7 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t6 = 1.0 + t4;
     const double t7 = 1.0/t5;
     const double t8 = t3*t7;
-    const double t9 = t6 - t2*t8;
+    const double t9 = DERIVE_FNMA(t2, t8, t6);
     const double t10 = 1.0/t9;
     const double t11 = t10*t8;
     const double t12 = t7*DERIVE_FMA(t11, t2, 1.0);
@@ -137,16 +151,14 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t21 = DERIVE_FMA(P[7 * s], t19, P[1 * s]*t18);
     const double t22 = x[0] + t20;
     const double t23 = x[1 * s] + t21;
-    const double t24 = 0.061224489795918366*z[0];
-    const double t25 = 0.12244897959183673*z[0];
     const double t26 = DERIVE_FMA(t15, t23, t14*t22);
-    const double t27 = DERIVE_FMA(t17, t23, -(t16*t22));
-    const double t28 = t24 + t26;
-    const double t29 = t25 + t27;
+    const double t27 = DERIVE_FNMA(t16, t22, t17*t23);
+    const double t28 = DERIVE_FMA(0.061224489795918366, z[0], t26);
+    const double t29 = DERIVE_FMA(0.12244897959183673, z[0], t27);
     const double t30 = DERIVE_FMA(P[1 * s], t15, P[0]*t14);
     const double t31 = DERIVE_FMA(P[7 * s], t15, P[1 * s]*t14);
-    const double t32 = DERIVE_FMA(P[1 * s], t17, -(P[0]*t16));
-    const double t33 = DERIVE_FMA(P[7 * s], t17, -(P[1 * s]*t16));
+    const double t32 = DERIVE_FNMA(P[0], t16, P[1 * s]*t17);
+    const double t33 = DERIVE_FNMA(P[1 * s], t16, P[7 * s]*t17);
     const double t34 = DERIVE_FMA(0.8775510204081632, t31, 0.9387755102040817*t30);
     const double t35 = DERIVE_FMA(0.7551020408163265, t31, (-0.12244897959183673)*t30);
     const double t36 = DERIVE_FMA(0.7551020408163265, t33, (-0.12244897959183673)*t32);
@@ -162,7 +174,7 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t46 = 1.0 + t44;
     const double t47 = 1.0/t45;
     const double t48 = t43*t47;
-    const double t49 = t46 - t42*t48;
+    const double t49 = DERIVE_FNMA(t42, t48, t46);
     const double t50 = 1.0/t49;
     const double t51 = t50*t48;
     const double t52 = t47*DERIVE_FMA(t51, t42, 1.0);
@@ -177,16 +189,14 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t61 = DERIVE_FMA(P[21 * s], t59, P[15 * s]*t58);
     const double t62 = x[2 * s] + t60;
     const double t63 = x[3 * s] + t61;
-    const double t64 = 0.061224489795918366*z[1 * s];
-    const double t65 = 0.12244897959183673*z[1 * s];
     const double t66 = DERIVE_FMA(t55, t63, t54*t62);
-    const double t67 = DERIVE_FMA(t57, t63, -(t56*t62));
-    const double t68 = t64 + t66;
-    const double t69 = t65 + t67;
+    const double t67 = DERIVE_FNMA(t56, t62, t57*t63);
+    const double t68 = DERIVE_FMA(0.061224489795918366, z[1 * s], t66);
+    const double t69 = DERIVE_FMA(0.12244897959183673, z[1 * s], t67);
     const double t70 = DERIVE_FMA(P[15 * s], t55, P[14 * s]*t54);
     const double t71 = DERIVE_FMA(P[21 * s], t55, P[15 * s]*t54);
-    const double t72 = DERIVE_FMA(P[15 * s], t57, -(P[14 * s]*t56));
-    const double t73 = DERIVE_FMA(P[21 * s], t57, -(P[15 * s]*t56));
+    const double t72 = DERIVE_FNMA(P[14 * s], t56, P[15 * s]*t57);
+    const double t73 = DERIVE_FNMA(P[15 * s], t56, P[21 * s]*t57);
     const double t74 = DERIVE_FMA(0.8775510204081632, t71, 0.9387755102040817*t70);
     const double t75 = DERIVE_FMA(0.7551020408163265, t71, (-0.12244897959183673)*t70);
     const double t76 = DERIVE_FMA(0.7551020408163265, t73, (-0.12244897959183673)*t72);
@@ -202,7 +212,7 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t86 = 1.0 + t84;
     const double t87 = 1.0/t85;
     const double t88 = t83*t87;
-    const double t89 = t86 - t82*t88;
+    const double t89 = DERIVE_FNMA(t82, t88, t86);
     const double t90 = 1.0/t89;
     const double t91 = t90*t88;
     const double t92 = t87*DERIVE_FMA(t91, t82, 1.0);
@@ -217,16 +227,14 @@ DERIVE_INLINE void mpt3d_a_lf_step_body(const double *restrict x, const double *
     const double t101 = DERIVE_FMA(P[35 * s], t99, P[29 * s]*t98);
     const double t102 = x[4 * s] + t100;
     const double t103 = x[5 * s] + t101;
-    const double t104 = 0.061224489795918366*z[2 * s];
-    const double t105 = 0.12244897959183673*z[2 * s];
     const double t106 = DERIVE_FMA(t95, t103, t94*t102);
-    const double t107 = DERIVE_FMA(t97, t103, -(t96*t102));
-    const double t108 = t104 + t106;
-    const double t109 = t105 + t107;
+    const double t107 = DERIVE_FNMA(t96, t102, t97*t103);
+    const double t108 = DERIVE_FMA(0.061224489795918366, z[2 * s], t106);
+    const double t109 = DERIVE_FMA(0.12244897959183673, z[2 * s], t107);
     const double t110 = DERIVE_FMA(P[29 * s], t95, P[28 * s]*t94);
     const double t111 = DERIVE_FMA(P[35 * s], t95, P[29 * s]*t94);
-    const double t112 = DERIVE_FMA(P[29 * s], t97, -(P[28 * s]*t96));
-    const double t113 = DERIVE_FMA(P[35 * s], t97, -(P[29 * s]*t96));
+    const double t112 = DERIVE_FNMA(P[28 * s], t96, P[29 * s]*t97);
+    const double t113 = DERIVE_FNMA(P[29 * s], t96, P[35 * s]*t97);
     const double t114 = DERIVE_FMA(0.8775510204081632, t111, 0.9387755102040817*t110);
     const double t115 = DERIVE_FMA(0.7551020408163265, t111, (-0.12244897959183673)*t110);
     const double t116 = DERIVE_FMA(0.7551020408163265, t113, (-0.12244897959183673)*t112);
@@ -381,105 +389,99 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
         const derive_v4 a8 = 1.0 + a6;
         const derive_v4 a9 = 1.0 / a7;
         const derive_v4 a10 = a5 * a9;
-        const derive_v4 a11 = a3 * a10;
-        const derive_v4 a12 = a8 - a11;
-        const derive_v4 a13 = 1.0 / a12;
-        const derive_v4 a14 = a13 * a10;
-        const derive_v4 a15 = DERIVE_VFMA(a14, a3, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
-        const derive_v4 a16 = a9 * a15;
-        const derive_v4 a17 = a13 * a3;
-        const derive_v4 a18 = a17 * a9;
-        const derive_v4 a19 = (-0.8775510204081632) * a14;
-        const derive_v4 a20 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a16, a19);
-        const derive_v4 a21 = 0.8775510204081632 * a13;
-        const derive_v4 a22 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a18, a21);
-        const derive_v4 a23 = 0.7551020408163265 * a14;
-        const derive_v4 a24 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a16, a23);
-        const derive_v4 a25 = 0.7551020408163265 * a13;
-        const derive_v4 a26 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a18, a25);
-        const derive_v4 a27 = 8.16326530612245 * az0;
-        const derive_v4 a28 = 16.3265306122449 * az0;
-        const derive_v4 a29 = P_v0 * a27;
-        const derive_v4 a30 = DERIVE_VFMA(P_v1, a28, a29);
-        const derive_v4 a31 = P_v1 * a27;
-        const derive_v4 a32 = DERIVE_VFMA(P_v2, a28, a31);
-        const derive_v4 a33 = x_v3 + a30;
-        const derive_v4 a34 = x_v4 + a32;
-        const derive_v4 a35 = 0.061224489795918366 * az0;
-        const derive_v4 a36 = 0.12244897959183673 * az0;
-        const derive_v4 a37 = a20 * a33;
-        const derive_v4 a38 = DERIVE_VFMA(a22, a34, a37);
-        const derive_v4 a39 = a24 * a33;
-        const derive_v4 a40 = -a39;
-        const derive_v4 a41 = DERIVE_VFMA(a26, a34, a40);
-        const derive_v4 a42 = a35 + a38;
-        const derive_v4 a43 = a36 + a41;
-        const derive_v4 a44 = P_v0 * a20;
-        const derive_v4 a45 = DERIVE_VFMA(P_v1, a22, a44);
-        const derive_v4 a46 = P_v1 * a20;
-        const derive_v4 a47 = DERIVE_VFMA(P_v2, a22, a46);
-        const derive_v4 a48 = P_v0 * a24;
-        const derive_v4 a49 = -a48;
-        const derive_v4 a50 = DERIVE_VFMA(P_v1, a26, a49);
-        const derive_v4 a51 = P_v1 * a24;
-        const derive_v4 a52 = -a51;
-        const derive_v4 a53 = DERIVE_VFMA(P_v2, a26, a52);
-        const derive_v4 a54 = 0.9387755102040817 * a45;
-        const derive_v4 a55 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a47, a54);
-        const derive_v4 a56 = (-0.12244897959183673) * a45;
-        const derive_v4 a57 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a47, a56);
-        const derive_v4 a58 = (-0.12244897959183673) * a50;
-        const derive_v4 a59 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a53, a58);
-        const derive_v4 a60 = 0.0020408163265306124 + a55;
-        const derive_v4 a61 = 0.004081632653061225 + a57;
-        const derive_v4 a62 = 0.00816326530612245 + a59;
-        { const derive_v4 lo = DERIVE_PAIRS_LO(a42, a43);
-          const derive_v4 hi = DERIVE_PAIRS_HI(a42, a43);
+        const derive_v4 a11 = DERIVE_VFNMA(a3, a10, a8);
+        const derive_v4 a12 = 1.0 / a11;
+        const derive_v4 a13 = a12 * a10;
+        const derive_v4 a14 = DERIVE_VFMA(a13, a3, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
+        const derive_v4 a15 = a9 * a14;
+        const derive_v4 a16 = a12 * a3;
+        const derive_v4 a17 = a16 * a9;
+        const derive_v4 a18 = (-0.8775510204081632) * a13;
+        const derive_v4 a19 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a15, a18);
+        const derive_v4 a20 = 0.8775510204081632 * a12;
+        const derive_v4 a21 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a17, a20);
+        const derive_v4 a22 = 0.7551020408163265 * a13;
+        const derive_v4 a23 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a15, a22);
+        const derive_v4 a24 = 0.7551020408163265 * a12;
+        const derive_v4 a25 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a17, a24);
+        const derive_v4 a26 = 8.16326530612245 * az0;
+        const derive_v4 a27 = 16.3265306122449 * az0;
+        const derive_v4 a28 = P_v0 * a26;
+        const derive_v4 a29 = DERIVE_VFMA(P_v1, a27, a28);
+        const derive_v4 a30 = P_v1 * a26;
+        const derive_v4 a31 = DERIVE_VFMA(P_v2, a27, a30);
+        const derive_v4 a32 = x_v3 + a29;
+        const derive_v4 a33 = x_v4 + a31;
+        const derive_v4 a34 = a19 * a32;
+        const derive_v4 a35 = DERIVE_VFMA(a21, a33, a34);
+        const derive_v4 a36 = a25 * a33;
+        const derive_v4 a37 = DERIVE_VFNMA(a23, a32, a36);
+        const derive_v4 a38 = DERIVE_VFMA(((derive_v4){0.061224489795918366, 0.061224489795918366, 0.061224489795918366, 0.061224489795918366}), az0, a35);
+        const derive_v4 a39 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), az0, a37);
+        const derive_v4 a40 = P_v0 * a19;
+        const derive_v4 a41 = DERIVE_VFMA(P_v1, a21, a40);
+        const derive_v4 a42 = P_v1 * a19;
+        const derive_v4 a43 = DERIVE_VFMA(P_v2, a21, a42);
+        const derive_v4 a44 = P_v1 * a25;
+        const derive_v4 a45 = DERIVE_VFNMA(P_v0, a23, a44);
+        const derive_v4 a46 = P_v2 * a25;
+        const derive_v4 a47 = DERIVE_VFNMA(P_v1, a23, a46);
+        const derive_v4 a48 = 0.9387755102040817 * a41;
+        const derive_v4 a49 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a43, a48);
+        const derive_v4 a50 = (-0.12244897959183673) * a41;
+        const derive_v4 a51 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a43, a50);
+        const derive_v4 a52 = (-0.12244897959183673) * a45;
+        const derive_v4 a53 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a47, a52);
+        const derive_v4 a54 = 0.0020408163265306124 + a49;
+        const derive_v4 a55 = 0.004081632653061225 + a51;
+        const derive_v4 a56 = 0.00816326530612245 + a53;
+        { const derive_v4 lo = DERIVE_PAIRS_LO(a38, a39);
+          const derive_v4 hi = DERIVE_PAIRS_HI(a38, a39);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
           __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {
-            Ps[k * 36 + 0] = a60[0];
-            Ps[k * 36 + 1] = a61[0];
+            Ps[k * 36 + 0] = a54[0];
+            Ps[k * 36 + 1] = a55[0];
             Ps[k * 36 + 2] = 0.0;
             Ps[k * 36 + 3] = 0.0;
             Ps[k * 36 + 4] = 0.0;
             Ps[k * 36 + 5] = 0.0;
-            Ps[k * 36 + 6] = a61[0];
-            Ps[k * 36 + 7] = a62[0];
+            Ps[k * 36 + 6] = a55[0];
+            Ps[k * 36 + 7] = a56[0];
             Ps[k * 36 + 8] = 0.0;
             Ps[k * 36 + 9] = 0.0;
             Ps[k * 36 + 10] = 0.0;
             Ps[k * 36 + 11] = 0.0;
             Ps[k * 36 + 12] = 0.0;
             Ps[k * 36 + 13] = 0.0;
-            Ps[k * 36 + 14] = a60[1];
-            Ps[k * 36 + 15] = a61[1];
+            Ps[k * 36 + 14] = a54[1];
+            Ps[k * 36 + 15] = a55[1];
             Ps[k * 36 + 16] = 0.0;
             Ps[k * 36 + 17] = 0.0;
             Ps[k * 36 + 18] = 0.0;
             Ps[k * 36 + 19] = 0.0;
-            Ps[k * 36 + 20] = a61[1];
-            Ps[k * 36 + 21] = a62[1];
+            Ps[k * 36 + 20] = a55[1];
+            Ps[k * 36 + 21] = a56[1];
             Ps[k * 36 + 22] = 0.0;
             Ps[k * 36 + 23] = 0.0;
             Ps[k * 36 + 24] = 0.0;
             Ps[k * 36 + 25] = 0.0;
             Ps[k * 36 + 26] = 0.0;
             Ps[k * 36 + 27] = 0.0;
-            Ps[k * 36 + 28] = a60[2];
-            Ps[k * 36 + 29] = a61[2];
+            Ps[k * 36 + 28] = a54[2];
+            Ps[k * 36 + 29] = a55[2];
             Ps[k * 36 + 30] = 0.0;
             Ps[k * 36 + 31] = 0.0;
             Ps[k * 36 + 32] = 0.0;
             Ps[k * 36 + 33] = 0.0;
-            Ps[k * 36 + 34] = a61[2];
-            Ps[k * 36 + 35] = a62[2];
+            Ps[k * 36 + 34] = a55[2];
+            Ps[k * 36 + 35] = a56[2];
         }
-        P_v0 = a60;
-        P_v1 = a61;
-        P_v2 = a62;
-        x_v3 = a42;
-        x_v4 = a43;
+        P_v0 = a54;
+        P_v1 = a55;
+        P_v2 = a56;
+        x_v3 = a38;
+        x_v4 = a39;
     }
     return 0;
 #else

@@ -27,8 +27,8 @@
  *     backward 9: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
  *     backward 10: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
  *     backward 11: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 42, sub 12, mul 15, div 6, sqrt 0, fma 0, neg 0, cmp 15, calls 0 (flops 75, instructions 90)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 21, sub 30, mul 45, div 15, sqrt 0, fma 27, neg 0, cmp 42, calls 0 (flops 165, instructions 180)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
+ * operations per call of backward (C99, fma through DERIVE_FMA): add 21, sub 15, mul 30, div 15, sqrt 0, fma 42, neg 0, cmp 42, calls 0 (flops 165, instructions 165)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 84 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
@@ -46,6 +46,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -119,36 +126,21 @@ DERIVE_INLINE int mpt3d_a_rts_step_body(const double *restrict x, const double *
     const double t42 = z[0] - t39;
     const double t43 = z[1 * s] - t40;
     const double t44 = z[2 * s] - t41;
-    const double t45 = t33*t42;
-    const double t46 = t34*t42;
-    const double t47 = t35*t43;
-    const double t48 = t36*t43;
-    const double t49 = t37*t44;
-    const double t50 = t38*t44;
-    const double t51 = t0 + t45;
-    const double t52 = x[1 * s] + t46;
-    const double t53 = t1 + t47;
-    const double t54 = x[3 * s] + t48;
-    const double t55 = t2 + t49;
-    const double t56 = x[5 * s] + t50;
-    const double t57 = t21*t33;
-    const double t58 = t22*t33;
-    const double t59 = t22*t34;
-    const double t60 = t23*t35;
-    const double t61 = t24*t35;
-    const double t62 = t24*t36;
-    const double t63 = t25*t37;
-    const double t64 = t26*t37;
-    const double t65 = t26*t38;
-    const double t66 = t12 - t57;
-    const double t67 = t13 - t58;
-    const double t68 = t14 - t59;
-    const double t69 = t15 - t60;
-    const double t70 = t16 - t61;
-    const double t71 = t17 - t62;
-    const double t72 = t18 - t63;
-    const double t73 = t19 - t64;
-    const double t74 = t20 - t65;
+    const double t51 = DERIVE_FMA(t33, t42, t0);
+    const double t52 = DERIVE_FMA(t34, t42, x[1 * s]);
+    const double t53 = DERIVE_FMA(t35, t43, t1);
+    const double t54 = DERIVE_FMA(t36, t43, x[3 * s]);
+    const double t55 = DERIVE_FMA(t37, t44, t2);
+    const double t56 = DERIVE_FMA(t38, t44, x[5 * s]);
+    const double t66 = DERIVE_FNMA(t21, t33, t12);
+    const double t67 = DERIVE_FNMA(t22, t33, t13);
+    const double t68 = DERIVE_FNMA(t22, t34, t14);
+    const double t69 = DERIVE_FNMA(t23, t35, t15);
+    const double t70 = DERIVE_FNMA(t24, t35, t16);
+    const double t71 = DERIVE_FNMA(t24, t36, t17);
+    const double t72 = DERIVE_FNMA(t25, t37, t18);
+    const double t73 = DERIVE_FNMA(t26, t37, t19);
+    const double t74 = DERIVE_FNMA(t26, t38, t20);
     x_new[0] = t51;
     x_new[1 * s] = t52;
     x_new[2 * s] = t53;
@@ -398,7 +390,7 @@ int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, con
     }
     const double t6 = 1.0/P_pred[0];
     const double t7 = P_pred[1]*t6;
-    const double t8 = P_pred[7] - P_pred[1]*t7;
+    const double t8 = DERIVE_FNMA(P_pred[1], t7, P_pred[7]);
     if (!(t8 > 0.0)) {
         return 6; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
@@ -407,7 +399,7 @@ int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, con
     }
     const double t9 = 1.0/P_pred[14];
     const double t10 = P_pred[15]*t9;
-    const double t11 = P_pred[21] - P_pred[15]*t10;
+    const double t11 = DERIVE_FNMA(P_pred[15], t10, P_pred[21]);
     if (!(t11 > 0.0)) {
         return 8; /* P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive */
     }
@@ -416,16 +408,16 @@ int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, con
     }
     const double t12 = 1.0/P_pred[28];
     const double t13 = P_pred[29]*t12;
-    const double t14 = P_pred[35] - P_pred[29]*t13;
+    const double t14 = DERIVE_FNMA(P_pred[29], t13, P_pred[35]);
     if (!(t14 > 0.0)) {
         return 10; /* P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive */
     }
-    const double t15 = P[1] - t0*t7;
-    const double t16 = P[7] - t1*t7;
-    const double t17 = P[15] - t10*t2;
-    const double t18 = P[21] - t10*t3;
-    const double t19 = P[29] - t13*t4;
-    const double t20 = P[35] - t13*t5;
+    const double t15 = DERIVE_FNMA(t0, t7, P[1]);
+    const double t16 = DERIVE_FNMA(t1, t7, P[7]);
+    const double t17 = DERIVE_FNMA(t10, t2, P[15]);
+    const double t18 = DERIVE_FNMA(t10, t3, P[21]);
+    const double t19 = DERIVE_FNMA(t13, t4, P[29]);
+    const double t20 = DERIVE_FNMA(t13, t5, P[35]);
     const double t21 = t0/P_pred[0];
     const double t22 = t1/P_pred[0];
     const double t23 = t15/t8;
@@ -438,12 +430,12 @@ int mpt3d_a_rts_backward(const double *restrict x, const double *restrict P, con
     const double t30 = t5/P_pred[28];
     const double t31 = t19/t14;
     const double t32 = t20/t14;
-    const double t33 = t21 - t23*t7;
-    const double t34 = t22 - t24*t7;
-    const double t35 = t25 - t10*t27;
-    const double t36 = t26 - t10*t28;
-    const double t37 = t29 - t13*t31;
-    const double t38 = t30 - t13*t32;
+    const double t33 = DERIVE_FNMA(t23, t7, t21);
+    const double t34 = DERIVE_FNMA(t24, t7, t22);
+    const double t35 = DERIVE_FNMA(t10, t27, t25);
+    const double t36 = DERIVE_FNMA(t10, t28, t26);
+    const double t37 = DERIVE_FNMA(t13, t31, t29);
+    const double t38 = DERIVE_FNMA(t13, t32, t30);
     const double t39 = x_smooth_next[0] - x_pred[0];
     const double t40 = x_smooth_next[1] - x_pred[1];
     const double t41 = x_smooth_next[2] - x_pred[2];

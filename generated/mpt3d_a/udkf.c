@@ -38,8 +38,8 @@
  *     enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
  *     enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
  *     store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 21, sub 15, mul 30, div 9, sqrt 0, fma 21, neg 0, cmp 27, calls 0 (flops 117, instructions 123)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, calls 0 (flops 15, instructions 36)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 21, sub 12, mul 27, div 9, sqrt 0, fma 24, neg 0, cmp 27, calls 0 (flops 117, instructions 120)
+ * operations per call of enter (C99, fma through DERIVE_FMA): add 6, sub 0, mul 0, div 3, sqrt 0, fma 3, neg 0, cmp 21, calls 0 (flops 15, instructions 33)
  * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 12, calls 0 (flops 9, instructions 18)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
@@ -58,6 +58,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -151,7 +158,7 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t47 = t41*t46;
     const double t48 = t25*t47;
     const double t49 = t39*t42;
-    const double t50 = t29 - t34*t49;
+    const double t50 = DERIVE_FNMA(t34, t49, t29);
     const double t51 = DERIVE_FMA(t29, t40, t34);
     const double t52 = z[0] - x[1 * s] - t36;
     const double t53 = t46*t52;
@@ -174,7 +181,7 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t64 = t58*t63;
     const double t65 = t14*t64;
     const double t66 = t56*t59;
-    const double t67 = t18 - t23*t66;
+    const double t67 = DERIVE_FNMA(t23, t66, t18);
     const double t68 = DERIVE_FMA(t18, t57, t23);
     const double t69 = z[1 * s] - x[3 * s] - t37;
     const double t70 = t63*t69;
@@ -197,7 +204,7 @@ DERIVE_INLINE int mpt3d_a_udkf_step_body(const double *restrict x, const double 
     const double t81 = t75*t80;
     const double t82 = t3*t81;
     const double t83 = t73*t76;
-    const double t84 = t7 - t12*t83;
+    const double t84 = DERIVE_FNMA(t12, t83, t7);
     const double t85 = DERIVE_FMA(t7, t74, t12);
     const double t86 = z[2 * s] - x[5 * s] - t38;
     const double t87 = t80*t86;
@@ -339,7 +346,7 @@ int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     }
     const double t1 = ((P0[35] <= 0.0) ? 1.0 : P0[35]);
     const double t2 = P0[29]/t1;
-    const double t3 = P0[28] - P0[29]*t2;
+    const double t3 = DERIVE_FNMA(P0[29], t2, P0[28]);
     const double t4 = 2.2250738585072014e-308 + t3;
     if (!(t4 > 0.0)) {
         return 15; /* P is not positive semidefinite: pivot 4 of its UD factorisation is negative */
@@ -350,7 +357,7 @@ int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     }
     const double t6 = ((P0[21] <= 0.0) ? 1.0 : P0[21]);
     const double t7 = P0[15]/t6;
-    const double t8 = P0[14] - P0[15]*t7;
+    const double t8 = DERIVE_FNMA(P0[15], t7, P0[14]);
     const double t9 = 2.2250738585072014e-308 + t8;
     if (!(t9 > 0.0)) {
         return 17; /* P is not positive semidefinite: pivot 2 of its UD factorisation is negative */
@@ -361,7 +368,7 @@ int mpt3d_a_udkf_enter(const double *restrict x0, const double *restrict P0, dou
     }
     const double t11 = ((P0[7] <= 0.0) ? 1.0 : P0[7]);
     const double t12 = P0[1]/t11;
-    const double t13 = P0[0] - P0[1]*t12;
+    const double t13 = DERIVE_FNMA(P0[1], t12, P0[0]);
     const double t14 = 2.2250738585072014e-308 + t13;
     if (!(t14 > 0.0)) {
         return 19; /* P is not positive semidefinite: pivot 0 of its UD factorisation is negative */

@@ -19,8 +19,8 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 14, sub 4, mul 5, div 2, sqrt 0, fma 0, neg 0, cmp 1, calls 0 (flops 25, instructions 26)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 7, sub 10, mul 15, div 5, sqrt 0, fma 9, neg 0, cmp 2, calls 0 (flops 55, instructions 48)
+ * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 25, instructions 21)
+ * operations per call of backward (C99, fma through DERIVE_FMA): add 7, sub 5, mul 10, div 5, sqrt 0, fma 14, neg 0, cmp 2, calls 0 (flops 55, instructions 43)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * work: steps * 12 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)
@@ -38,6 +38,13 @@
 #else
 #define DERIVE_FMA(a, b, c) ((a) * (b) + (c))
 #define DERIVE_FMA_PLAIN 1
+#endif
+#endif
+#ifndef DERIVE_FNMA
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
+#else
+#define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
 #endif
 #endif
 
@@ -75,16 +82,11 @@ DERIVE_INLINE int mpt3d_b_rts_step_body(const double *restrict x, const double *
     const double t12 = t8/t10;
     const double t13 = x[1 * s] + t0;
     const double t14 = z[0] - t13;
-    const double t15 = t11*t14;
-    const double t16 = t12*t14;
-    const double t17 = t0 + t15;
-    const double t18 = x[1 * s] + t16;
-    const double t19 = t11*t7;
-    const double t20 = t11*t8;
-    const double t21 = t12*t8;
-    const double t22 = t4 - t19;
-    const double t23 = t5 - t20;
-    const double t24 = t6 - t21;
+    const double t17 = DERIVE_FMA(t11, t14, t0);
+    const double t18 = DERIVE_FMA(t12, t14, x[1 * s]);
+    const double t22 = DERIVE_FNMA(t11, t7, t4);
+    const double t23 = DERIVE_FNMA(t11, t8, t5);
+    const double t24 = DERIVE_FNMA(t12, t8, t6);
     x_new[0] = t17;
     x_new[1 * s] = t18;
     P_new[0] = t22;
@@ -114,18 +116,18 @@ int mpt3d_b_rts_backward(const double *restrict x, const double *restrict P, con
     }
     const double t2 = 1.0/P_pred[0];
     const double t3 = P_pred[1]*t2;
-    const double t4 = P_pred[3] - P_pred[1]*t3;
+    const double t4 = DERIVE_FNMA(P_pred[1], t3, P_pred[3]);
     if (!(t4 > 0.0)) {
         return 3; /* P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
-    const double t5 = P[1] - t0*t3;
-    const double t6 = P[3] - t1*t3;
+    const double t5 = DERIVE_FNMA(t0, t3, P[1]);
+    const double t6 = DERIVE_FNMA(t1, t3, P[3]);
     const double t7 = t0/P_pred[0];
     const double t8 = t1/P_pred[0];
     const double t9 = t5/t4;
     const double t10 = t6/t4;
-    const double t11 = t7 - t3*t9;
-    const double t12 = t8 - t10*t3;
+    const double t11 = DERIVE_FNMA(t3, t9, t7);
+    const double t12 = DERIVE_FNMA(t10, t3, t8);
     const double t13 = x_smooth_next[0] - x_pred[0];
     const double t14 = x_smooth_next[1] - x_pred[1];
     const double t15 = DERIVE_FMA(t14, t9, t11*t13);
