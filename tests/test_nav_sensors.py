@@ -185,7 +185,7 @@ def test_counts_in_the_header_are_those_of_the_code(which, options):
         assert counter.snapshot() == static_py, name
         assert count_c_function(c_text, f"{unit.prefix}_{name}") == static_c, name
         assert f"operations per call of {name} (Python): {static_py.summary()}" in text
-        assert f"operations per call of {name} (C99, fma through DERIVE_FMA): " \
+        assert f"operations per call of {name} (C99, fma through DERIVE_FMA and DERIVE_FNMA): " \
                f"{static_c.summary()}" in c_text
 
 

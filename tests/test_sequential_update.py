@@ -197,7 +197,7 @@ def test_counts_in_the_header_are_those_of_the_code(options):
         scope[name](*[counter.wrap(v) for v in args])
         assert counter.snapshot() == static_py, name
         assert count_c_function(files["kf.c"], f"{unit.prefix}_{name}") == static_c, name
-        assert f"operations per call of {name} (C99, fma through DERIVE_FMA): " \
+        assert f"operations per call of {name} (C99, fma through DERIVE_FMA and DERIVE_FNMA): " \
                f"{static_c.summary()}" in files["kf.c"]
 
 

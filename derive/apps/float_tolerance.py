@@ -232,8 +232,8 @@ def step_programs(unit: Unit) -> tuple[str, ...]:
 
 def run_roundings(unit: Unit) -> int:
     """L: the roundings on the longest chain from run's inputs to a stored result, as the
-    C computes them (fma through DERIVE_FMA), plus :data:`EXTRA_ROUNDINGS`; through the
-    programs run calls on one step, chained (:func:`chained_depth`)."""
+    C computes them (fma through DERIVE_FMA and DERIVE_FNMA), plus :data:`EXTRA_ROUNDINGS`;
+    through the programs run calls on one step, chained (:func:`chained_depth`)."""
     state = tuple(port for port, _ in unit.carried)
 
     def depth(name: str) -> int:

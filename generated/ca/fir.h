@@ -13,7 +13,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void ca_fir_step(zw[43*1], x_new[3] out)
  *     void ca_fir_run(steps, z[steps*1], xs[steps*3] out)
- * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 126, neg 0, cmp 0, calls 0 (flops 255, instructions 129)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 126, neg 0, cmp 0, calls 0 (flops 255, instructions 129)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * N = 43
  * eps = 1e-06

@@ -22,7 +22,7 @@
  *     step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 6, calls 0 (flops 91, instructions 75)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 6, calls 0 (flops 91, instructions 75)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)

@@ -15,7 +15,7 @@
  *     void ca_lf_run_tracks(steps, tracks, z[steps*1], x0[3], P0[3*3], xs[steps*3] out, Ps[steps*3*3] out optional)
  *     many tracks: ca_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 15, sub 0, mul 50, div 3, sqrt 0, fma 84, neg 2, cmp 0, calls 0 (flops 236, instructions 154)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 0, mul 50, div 3, sqrt 0, fma 84, neg 2, cmp 0, calls 0 (flops 236, instructions 154)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)

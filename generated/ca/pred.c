@@ -13,14 +13,14 @@
  *     void ca_pred_init(x0[3], x_new[3] out)
  *     void ca_pred_step(x[3], z[1], x_new[3] out)
  *     void ca_pred_run(steps, z[steps*1], x0[3], xs[steps*3] out)
- * operations per call of init (C99, fma through DERIVE_FMA): add 2, sub 0, mul 0, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 4, instructions 3)
- * operations per call of step (C99, fma through DERIVE_FMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 0, calls 0 (flops 15, instructions 8)
+ * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 4, instructions 3)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 7, neg 0, cmp 0, calls 0 (flops 15, instructions 8)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A_N = [[-0.31193539150247196,  1.                 ,  0.5                ], [-0.6479337786543731 ,  1.                 ,  1.                 ], [-0.15999956409459484,  0.                 ,  1.                 ]]
  * B_N = [[1.311935391502472  ], [0.6479337786543731 ], [0.15999956409459484]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 0, calls 0 (flops 42, instructions 23)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 0, calls 0 (flops 42, instructions 23)
  * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>

@@ -14,12 +14,12 @@
  *     void ca_sslf_run(steps, z[steps*1], x0[3], xs[steps*3] out)
  *     void ca_sslf_run_tracks(steps, tracks, z[steps*1], x0[3], xs[steps*3] out)
  *     many tracks: ca_sslf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 21, instructions 12)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 21, instructions 12)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * A = [[ 0.25599860510460365,  0.2559986051046036 ,  0.12799930255230188], [-0.48793421455977837,  0.5120657854402214 ,  0.7560328927201108 ], [-0.1599995640945949 , -0.15999956409459484,  0.9200002179527026 ]]
  * B = [[0.7440013948953963 ], [0.4879342145597782 ], [0.15999956409459481]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 48, instructions 27)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 48, instructions 27)
  * derive-interface: {"functions":[["ca_sslf_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_sslf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_sslf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>

@@ -13,7 +13,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void cv_fir_step(zw[37*1], x_new[2] out)
  *     void cv_fir_run(steps, z[steps*1], xs[steps*2] out)
- * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 72, neg 0, cmp 0, calls 0 (flops 146, instructions 74)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 72, neg 0, cmp 0, calls 0 (flops 146, instructions 74)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * N = 37
  * eps = 1e-06

@@ -20,7 +20,7 @@
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     step 3: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 8, sub 1, mul 6, div 4, sqrt 0, fma 6, neg 0, cmp 4, calls 0 (flops 31, instructions 29)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 1, mul 6, div 4, sqrt 0, fma 6, neg 0, cmp 4, calls 0 (flops 31, instructions 29)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)

@@ -17,7 +17,7 @@
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 8, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 21, instructions 17)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 21, instructions 17)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)

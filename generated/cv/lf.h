@@ -15,7 +15,7 @@
  *     void cv_lf_run_tracks(steps, tracks, z[steps*1], x0[2], P0[2*2], xs[steps*2] out, Ps[steps*2*2] out optional)
  *     many tracks: cv_lf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
- * operations per call of step (C99, fma through DERIVE_FMA): add 7, sub 0, mul 21, div 2, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 72, instructions 51)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 21, div 2, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 72, instructions 51)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)

@@ -23,9 +23,9 @@
  *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 4: S is not positive definite: pivot 3 of its LDL^T factorisation is not positive
  *     update1 5: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 16, sub 26, mul 52, div 8, sqrt 4, fma 168, neg 0, cmp 4, calls 0 (flops 442, instructions 278)
- * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
- * operations per call of update1 (C99, fma through DERIVE_FMA): add 2, sub 4, mul 8, div 2, sqrt 1, fma 31, neg 0, cmp 1, calls 0 (flops 79, instructions 49)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 16, sub 26, mul 52, div 8, sqrt 4, fma 168, neg 0, cmp 4, calls 0 (flops 442, instructions 278)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
+ * operations per call of update1 (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 4, mul 8, div 2, sqrt 1, fma 31, neg 0, cmp 1, calls 0 (flops 79, instructions 49)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4

@@ -31,9 +31,9 @@
  *     update1 11: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
  *     update1 12: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
  *     update1 13: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 104, sub 130, mul 160, div 31, sqrt 32, fma 242, neg 0, cmp 8, calls 0 (flops 941, instructions 707)
- * operations per call of predict (C99, fma through DERIVE_FMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
- * operations per call of update1 (C99, fma through DERIVE_FMA): add 24, sub 30, mul 44, div 10, sqrt 11, fma 45, neg 0, cmp 5, calls 0 (flops 209, instructions 169)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 130, mul 160, div 31, sqrt 32, fma 242, neg 0, cmp 8, calls 0 (flops 941, instructions 707)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 4, instructions 4)
+ * operations per call of update1 (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 30, mul 44, div 10, sqrt 11, fma 45, neg 0, cmp 5, calls 0 (flops 209, instructions 169)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -1, n + lambda = 3; weights Wm0 = -1/3, Wc0 = -1/3, Wi = 1/6 (i = 1..8)
  * predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q

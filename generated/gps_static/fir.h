@@ -13,7 +13,7 @@
  * interface (flat row-major arrays; steps = number of steps):
  *     void gps_static_fir_step(zw[44*3], x_new[3] out)
  *     void gps_static_fir_run(steps, z[steps*3], xs[steps*3] out)
- * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 129, neg 0, cmp 0, calls 0 (flops 261, instructions 132)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 129, neg 0, cmp 0, calls 0 (flops 261, instructions 132)
  * N = 44
  * eps = 1e-06
  * derive-interface: {"functions":[["gps_static_fir_step","step",false,false,[["zw",[44,3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_fir_run","run",false,true,[["z",["steps",3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}

@@ -24,8 +24,8 @@
  *     backward 6: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  *     backward 7: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 0, sub 6, mul 3, div 3, sqrt 0, fma 6, neg 0, cmp 12, calls 0 (flops 24, instructions 30)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 0, div 3, sqrt 0, fma 6, neg 0, cmp 6, calls 0 (flops 24, instructions 24)
+ * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 6, mul 3, div 3, sqrt 0, fma 6, neg 0, cmp 12, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 24 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)

@@ -29,9 +29,9 @@
  *     enter 10: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
  *     enter 11: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  *     store 12: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 9, sub 3, mul 9, div 3, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 30, instructions 36)
- * operations per call of enter (C99, fma through DERIVE_FMA): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
- * operations per call of store (C99, fma through DERIVE_FMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 9, sub 3, mul 9, div 3, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 30, instructions 36)
+ * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 6, calls 0 (flops 3, instructions 9)
+ * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 0, instructions 3)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * UD pivots: each pivot d is checked as d + DBL_MIN (2^-1022) > 0 (a negative pivot is refused) and divides as d itself, or as 1 where d <= 0: a zero pivot (singular P, e.g. P0 = 0) gives a zero column of U, as the reference's, read only times D_j = 0

@@ -24,8 +24,8 @@
  *     backward 6: P(k+1/k) is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     backward 7: P(k+1/k) is not positive definite: pivot 3 of its LDL^T factorisation is not positive
  *     backward 8: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 14, sub 10, mul 20, div 10, sqrt 0, fma 28, neg 0, cmp 16, calls 0 (flops 110, instructions 98)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 2, mul 0, div 4, sqrt 0, fma 10, neg 0, cmp 6, calls 0 (flops 50, instructions 46)
+ * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 10, mul 20, div 10, sqrt 0, fma 28, neg 0, cmp 16, calls 0 (flops 110, instructions 98)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 40 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)

@@ -13,13 +13,13 @@
  *     void gsm2d_b_pred_init(x0[2], x_new[2] out)
  *     void gsm2d_b_pred_step(x[2], z[1], x_new[2] out)
  *     void gsm2d_b_pred_run(steps, z[steps*1], x0[2], xs[steps*2] out)
- * operations per call of init (C99, fma through DERIVE_FMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
- * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
+ * operations per call of init (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 0, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 1, instructions 1)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
  * A_N = [[ 0.4278063806273572 ,  0.42780638062735715], [-0.2068348086341748 ,  0.7931651913658252 ]]
  * B_N = [[0.5721936193726429], [0.2068348086341748]]
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
  * derive-interface: {"functions":[["gsm2d_b_pred_init","init",false,false,[["x0",[2],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_pred_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["gsm2d_b_pred_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>

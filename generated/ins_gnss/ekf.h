@@ -26,9 +26,9 @@
  *     update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA): add 64, sub 13, mul 111, div 0, sqrt 0, fma 1000, neg 18, cmp 0, calls 0 (flops 2188, instructions 1206)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA): add 11, sub 22, mul 123, div 7, sqrt 1, fma 899, neg 0, cmp 6, calls 0 (flops 1962, instructions 1069)
- * operations per call of update_baro (C99, fma through DERIVE_FMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 64, sub 13, mul 111, div 0, sqrt 0, fma 1000, neg 18, cmp 0, calls 0 (flops 2188, instructions 1206)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 22, mul 123, div 7, sqrt 1, fma 899, neg 0, cmp 6, calls 0 (flops 1962, instructions 1069)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: wx, wy, wz, ax, ay, az

@@ -27,8 +27,8 @@
  *     backward 9: P(k+1/k) is not positive definite: pivot 4 of its LDL^T factorisation is not positive
  *     backward 10: P(k+1/k) is not positive definite: pivot 5 of its LDL^T factorisation is not positive
  *     backward 11: P_smooth_next has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 21, sub 15, mul 30, div 15, sqrt 0, fma 42, neg 0, cmp 42, calls 0 (flops 165, instructions 165)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
+ * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 15, mul 30, div 15, sqrt 0, fma 42, neg 0, cmp 42, calls 0 (flops 165, instructions 165)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
  * work: steps * 84 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)

@@ -19,8 +19,8 @@
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     backward 2: P(k+1/k) is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     backward 3: P(k+1/k) is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 25, instructions 21)
- * operations per call of backward (C99, fma through DERIVE_FMA): add 7, sub 5, mul 10, div 5, sqrt 0, fma 14, neg 0, cmp 2, calls 0 (flops 55, instructions 43)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 12, sub 1, mul 0, div 2, sqrt 0, fma 5, neg 0, cmp 1, calls 0 (flops 25, instructions 21)
+ * operations per call of backward (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 5, mul 10, div 5, sqrt 0, fma 14, neg 0, cmp 2, calls 0 (flops 55, instructions 43)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * work: steps * 12 doubles, steps * (2 n + 2 n^2) (C: caller-provided, one row per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1); no allocation)

@@ -14,11 +14,11 @@
  *     void mpt3d_b_sskf_run(steps, z[steps*1], x0[2], xs[steps*2] out)
  *     void mpt3d_b_sskf_run_tracks(steps, tracks, z[steps*1], x0[2], xs[steps*2] out)
  *     many tracks: mpt3d_b_sskf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
- * operations per call of step (C99, fma through DERIVE_FMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 10, instructions 6)
  * A = [[ 0.634641189261532  ,  0.26928237852306397], [-0.2068348086341748 ,  0.5863303827316504 ]]
  * B = [[0.36535881073846804], [0.2068348086341748 ]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
- * operations per pass of run, two steps (C99, fma through DERIVE_FMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
+ * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
  * derive-interface: {"functions":[["mpt3d_b_sskf_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_sskf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["mpt3d_b_sskf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
