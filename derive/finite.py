@@ -95,6 +95,21 @@ def _problem(value: sympy.Expr) -> str | None:
     return None
 
 
+
+#: A number longer than this is shown in scientific notation in messages (1e400 in a model
+#: file is an integer of 401 digits).
+SHOWN_DIGITS = 30
+
+
+def _shown(entry) -> str:
+    """``entry`` as a message shows it: a number of more than :data:`SHOWN_DIGITS`
+    characters to six significant digits (``1.00000e+400``), anything else as sympy prints
+    it."""
+    text = str(entry)
+    if entry.is_number and len(text) > SHOWN_DIGITS:
+        return str(sympy.N(entry, 6))
+    return text
+
 def check_entries(matrices: Mapping[str, sympy.MatrixBase],
                   at: Mapping[sympy.Symbol, sympy.Expr]) -> None:
     """Refuse an entry whose symbols all have values in ``at`` but that is not a finite
@@ -125,5 +140,5 @@ def check_entries(matrices: Mapping[str, sympy.MatrixBase],
                         f"{where} = {entry}{at_text} needs an exact number of about "
                         f"{bits} bits, more than the limit of {MAX_EXACT_BITS}")
                 continue
-            raise NotFiniteError(f"{where} = {entry} is not a finite double{at_text}: "
-                                 f"it evaluates to {problem}")
+            raise NotFiniteError(f"{where} = {_shown(entry)} is not a finite double"
+                                 f"{at_text}: it evaluates to {problem}")

@@ -256,6 +256,14 @@ def test_entry_that_overflows_at_the_values_is_named():
     assert "F[0][1] = dt**2" in text and "dt = 1e+200" in text and "1e+400" in text
 
 
+def test_a_huge_number_is_shown_short():
+    """1e400 in a model file is an integer of 401 digits: the message shows six digits."""
+    with pytest.raises(NotFiniteError) as info:
+        axis(F=[[1, sympy.Integer(10) ** 400], [0, 1]])
+    text = str(info.value)
+    assert "F[0][1] = 1.00000e+400 is not a finite double" in text and len(text) < 200
+
+
 def test_entry_that_is_not_finite_or_not_real_at_the_values_is_named():
     c = sympy.Symbol("c", real=True)
     with pytest.raises(NotFiniteError, match=r"R\[0\]\[0\] = .*log.*c = 0.*inf"):
