@@ -39,6 +39,7 @@ import heapq
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from fractions import Fraction
 
 import sympy
 from sympy import default_sort_key
@@ -65,6 +66,7 @@ REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.
                     "call": 40.0}
 
 _ONE = sympy.S.One
+_UNIT = Fraction(1)
 _ROUNDS = 3
 
 
@@ -127,16 +129,29 @@ def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
     return out, names
 
 
+def _coefficient(number: sympy.Expr):
+    """A number of a form: a rational as a :class:`~fractions.Fraction` (plain Python
+    arithmetic, exact), any other number as it is."""
+    return Fraction(int(number.p), int(number.q)) if number.is_Rational else number
+
+
+def _number(coefficient) -> sympy.Expr:
+    """A form's number as sympy builds it (a Fraction as the Rational it is)."""
+    if isinstance(coefficient, Fraction):
+        return sympy.Rational(coefficient.numerator, coefficient.denominator)
+    return sympy.sympify(coefficient)
+
+
 def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
     """``{input element or 1: coefficient}`` of an affine ``expr`` (temporaries by their
-    ``forms``), None otherwise."""
+    ``forms``; coefficients as :func:`_coefficient`), None otherwise.  A form is never
+    changed once made (a temporary's is shared, not copied)."""
     if expr.is_number:
-        return {_ONE: expr}
+        return {_ONE: _coefficient(expr)}
     if isinstance(expr, InputElement):
-        return {expr: _ONE}
+        return {expr: _UNIT}
     if isinstance(expr, Temporary):
-        form = forms.get(expr)
-        return None if form is None else dict(form)
+        return forms.get(expr)
     if expr.is_Add:
         total: dict = {}
         for arg in expr.args:
@@ -151,8 +166,58 @@ def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
         if coeff == 1 or rest.is_Mul:
             return None
         form = _affine(rest, forms)
-        return None if form is None else {k: coeff * v for k, v in form.items()}
+        if form is None:
+            return None
+        factor = _coefficient(coeff)
+        return {k: factor * v for k, v in form.items()}
     return None
+
+
+def _late_key(key: sympy.Expr, carried_ports: set[str]) -> bool:
+    """An input element of a carried port (it arrives at 0; any other never does)."""
+    return isinstance(key, InputElement) and key.name.split("[")[0] in carried_ports
+
+
+class _Unbuilt:
+    """A direct sum that was not built (its bound showed it could not be kept): equal to
+    an expression only where the direct sum would have been, so :meth:`_Work.prune`
+    decides as if it had been built.  ``fresh``: it would have read new temporaries,
+    which no statement reads."""
+
+    def __init__(self, form: Mapping, fresh: bool) -> None:
+        self.form = form
+        self.fresh = fresh
+
+    def __eq__(self, expr: object) -> bool:
+        return not self.fresh and isinstance(expr, sympy.Basic) and \
+            _is_flat_direct_sum(expr, self.form) is True
+
+    def __ne__(self, expr: object) -> bool:
+        return not self.__eq__(expr)
+
+    __hash__ = None
+
+
+def _is_flat_direct_sum(expr: sympy.Expr, form: Mapping) -> bool | None:
+    """Whether ``expr`` is the direct sum of ``form`` when no two of its keys share a
+    coefficient (``const + c1*k1 + c2*k2 + ...``), read off its terms; None when a
+    coefficient is not rational (then only building it tells)."""
+    if not all(isinstance(v, Fraction) for v in form.values()):
+        return None
+    const = form.get(_ONE, 0)
+    terms = sympy.Add.make_args(expr)
+    if len(terms) != len(form) - (_ONE in form) + (const != 0):
+        return False
+    for term in terms:
+        if term.is_number:
+            if not term.is_Rational or _coefficient(term) != const or const == 0:
+                return False
+            continue
+        coeff, rest = term.as_coeff_Mul()
+        if not (coeff.is_Rational and isinstance(rest, InputElement)) or \
+                form.get(rest) != _coefficient(coeff):
+            return False
+    return True
 
 
 class _Work:
@@ -171,7 +236,8 @@ class _Work:
         self.original = {st.target: st.expr for st in program.body if isinstance(st, Assign)}
         self.counter = 0
         self.reciprocals: dict[sympy.Expr, Temporary] = {}
-        self.directs: dict[Temporary, sympy.Expr] = {}
+        self.directs: dict[Temporary, sympy.Expr | _Unbuilt] = {}
+        self.affine_memo: dict[Temporary, tuple] = {}
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
         self.forms: dict[sympy.Expr, Form] = {}
 
@@ -260,28 +326,94 @@ class _Work:
 
     def direct_candidates(self, body: list[Statement], state: Arrivals) -> list[Callable]:
         """Direct sums of the affine temporaries, the latest first."""
-        forms: dict = {}
-        for st in body:
-            if isinstance(st, Assign):
-                form = _affine(st.expr, forms)
-                if form is not None:
-                    forms[st.target] = form
+        forms = self._affine_forms(body)
         ready = state.ready
         found = [(target, form) for target, form in forms.items()
                  if sum(1 for key in form if key is not _ONE) >= 2]
         found.sort(key=lambda tf: (-ready.get(tf[0].name, -math.inf),
                                    default_sort_key(tf[0])))
-        return [lambda slots, s, t=target, f=form: self._direct(slots, t, f)
+        return [lambda slots, s, t=target, f=form: self._direct(slots, s, t, f)
                 for target, form in found]
 
-    def _direct(self, slots: _Slots, target: Temporary, form: dict):
-        const = form.get(_ONE, 0)
+    def _affine_forms(self, body: list[Statement]) -> dict:
+        """The affine form of each affine temporary of ``body``.  A statement whose
+        expression and whose operands' forms are those of an earlier call keeps its form
+        (the same object); a form computed again that equals the target's earlier one is
+        that one, so what reads it keeps its own too."""
+        forms: dict = {}
+        for st in body:
+            if not isinstance(st, Assign):
+                continue
+            seen = self.affine_memo.get(st.target)
+            if seen is not None and seen[0] is st.expr and \
+                    all(forms.get(t) is f for t, f in seen[1]):
+                form = seen[2]
+            else:
+                operands = seen[3] if seen is not None and seen[0] is st.expr else \
+                    tuple(s for s in st.expr.free_symbols if isinstance(s, Temporary))
+                form = _affine(st.expr, forms)
+                if seen is not None and form is not None and seen[2] == form:
+                    form = seen[2]
+                self.affine_memo[st.target] = (
+                    st.expr, tuple((t, forms.get(t)) for t in operands), form, operands)
+            if form is not None:
+                forms[st.target] = form
+        return forms
+
+    def _direct(self, slots: _Slots, state: Arrivals, target: Temporary, form: dict):
+        groups: dict = {}
+        for key in form:
+            if key is not _ONE:
+                groups.setdefault(form[key], []).append(key)
+        fresh = sum(len(keys) - 1 for keys in groups.values())
+        bound = self._direct_bound(groups, _ONE in form)
+        if state.trial_arrival(target.name, bound).score() < state.score():
+            return self._build_direct(slots, target, form)
+        # it cannot lower the score: not built, as if built and refused (its new
+        # temporaries' names spent: the names order sympy's terms, so later ones stay)
+        if fresh:
+            self.counter += fresh
+            self.directs[target] = _Unbuilt(form, True)
+            return None
+        built = _is_flat_direct_sum(slots.statement(target).expr, form)
+        if built is None:
+            return self._build_direct(slots, target, form)
+        if not built:
+            self.directs[target] = _Unbuilt(form, False)
+        return None
+
+    def _direct_bound(self, groups: Mapping, constant: bool) -> float:
+        """A lower bound of the arrival of a direct sum (its coefficient groups), however
+        sympy orders its terms: the lowering joins the groups (and the constant) in one
+        chain of adds and fmas; each group of two or more is a tree of adds, at least as
+        deep as a balanced one over its carried keys.  A chain of k terms arrives no
+        sooner than with the latest term last (the first two pass k - 1 operations, the
+        j-th k - j + 1)."""
+        add = REFERENCE_CYCLES["add"]
+        step = min(add, REFERENCE_CYCLES["fma"])
+        times = []
+        for keys in groups.values():
+            carried = sum(1 for key in keys if _late_key(key, self.carried_ports))
+            if not carried:
+                times.append(-math.inf)
+            elif len(keys) == 1:
+                times.append(0.0)
+            else:
+                times.append(add * max(1, math.ceil(math.log2(carried))))
+        if constant:
+            times.append(-math.inf)
+        times.sort()
+        k = len(times)
+        return max(t + step * (k - 1 if j == 0 else k - j) for j, t in enumerate(times))
+
+    def _build_direct(self, slots: _Slots, target: Temporary, form: dict):
+        const = _number(form.get(_ONE, 0))
         groups: dict = {}
         for key in sorted((key for key in form if key is not _ONE), key=default_sort_key):
             groups.setdefault(form[key], []).append(key)
         new: list[Statement] = []
         terms = []
-        for coeff in sorted(groups, key=default_sort_key):
+        for coeff in sorted(groups, key=lambda c: default_sort_key(_number(c))):
             level = groups[coeff]
             while len(level) > 1:
                 paired = []
@@ -292,7 +424,7 @@ class _Work:
                 if len(level) % 2:
                     paired.append(level[-1])
                 level = paired
-            terms.append(coeff * level[0])
+            terms.append(_number(coeff) * level[0])
         expr = sympy.Add(const, *terms)
         if expr == slots.statement(target).expr:
             return None
