@@ -83,6 +83,7 @@ def latency_schedule(program: Program,
         return program
     work = _Work(program, pairs)
     body = list(program.body)
+    default_chain = work.arrivals(body).score()[0]
     for _ in range(_ROUNDS):
         before = body
         body = work.fuse(body)
@@ -99,7 +100,7 @@ def latency_schedule(program: Program,
     scheduled = work.build(work.order(body))
     # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
     # scheduled is kept only when its carried chain is no longer than the default's
-    if _chain(scheduled, pairs) > _chain(program, pairs):
+    if _chain(scheduled, pairs) > default_chain:
         return program
     return scheduled
 
@@ -367,7 +368,9 @@ class _Work:
                 groups.setdefault(form[key], []).append(key)
         fresh = sum(len(keys) - 1 for keys in groups.values())
         bound = self._direct_bound(groups, _ONE in form)
-        if state.trial_arrival(target.name, bound).score() < state.score():
+        # no sooner than now: nothing downstream gets sooner (the trial would show it)
+        if bound < state.ready.get(target.name, -math.inf) and \
+                state.trial_arrival(target.name, bound).score() < state.score():
             return self._build_direct(slots, target, form)
         # it cannot lower the score: not built, as if built and refused (its new
         # temporaries' names spent: the names order sympy's terms, so later ones stay)
@@ -443,6 +446,7 @@ class _Work:
                 _append(out, done, st)
                 continue
             terms = []
+            fused = False
             for term in sympy.Add.make_args(st.expr):
                 coeff, rest = term.as_coeff_Mul()
                 product = define.get(rest)
@@ -452,6 +456,10 @@ class _Work:
                     continue
                 p_coeff, factors = product.as_coeff_Mul()
                 terms.append(coeff * p_coeff * factors)
+                fused = True
+            if not fused:       # its own terms: the sum as it is
+                _append(out, done, st)
+                continue
             expr = sympy.Add(*terms)
             _append(out, done, st if expr == st.expr else Assign(st.target, expr))
         return out if out != body else body
@@ -626,23 +634,22 @@ def _is_product(expr: sympy.Expr) -> bool:
 
 
 def _uses(body: Sequence[Statement], results: Mapping[str, tuple]) -> dict:
+    """How many times each temporary is read (each occurrence in an expression, each
+    output element)."""
     counts: dict = {}
     for st in body:
-        expr = st.expr if isinstance(st, Assign) else st.value
-        for s in expr.free_symbols:
-            if isinstance(s, Temporary):
-                counts[s] = counts.get(s, 0) + _occurrences(expr, s)
+        stack = [st.expr if isinstance(st, Assign) else st.value]
+        while stack:
+            node = stack.pop()
+            if isinstance(node, Temporary):
+                counts[node] = counts.get(node, 0) + 1
+            else:
+                stack.extend(node.args)
     for values in results.values():
         for v in values:
             if isinstance(v, Temporary):
                 counts[v] = counts.get(v, 0) + 1
     return counts
-
-
-def _occurrences(expr: sympy.Expr, symbol: sympy.Symbol) -> int:
-    if expr == symbol:
-        return 1
-    return sum(_occurrences(a, symbol) for a in expr.args)
 
 
 def scheduled_unit(unit: Unit) -> Unit:
