@@ -28,6 +28,22 @@ every statement that reads a checked value staying after its check. The schedule
 kept only when its carried chain is no longer than the default step's (some rewrites apply
 whole; the default, with the fused negative multiply-add, can be the shorter).
 
+The search is greedy: each round tries every candidate and keeps each rewrite that lowers
+the score (the latest carried output, then their sum), until none does.  A direct sum is
+built (sympy) and scored only when it could be kept.  Its arrival is bounded below from
+its affine form alone (:meth:`_Work._direct_bound`: the coefficient groups joined in one
+chain of adds and fmas, the latest last, each group of two or more a tree of adds at
+least as deep as a balanced one over its carried keys); when that bound is no sooner than
+the temporary's arrival now, or the step's score with the temporary at the bound
+(:meth:`Arrivals.trial_arrival`) is not lower, the direct sum is refused unbuilt.  The
+score is monotone in each arrival, so this refuses exactly what scoring the built sum
+would; the new temporaries' names it would have taken are spent all the same (names
+order sympy's terms, so every later rewrite is as before): the programs are bitwise
+those of building every candidate.  On a dense step a direct sum is a chain of hundreds
+of terms (distinct coefficients) that never wins, and the search spends its time on the
+affine forms (exact: integer numerators over a common denominator, each statement's
+kept across passes while it and its operands' forms stay the same) and on lowering.
+
 Decisions use :data:`REFERENCE_CYCLES`, never a measurement, so generation stays
 deterministic.  The rewrites change rounding (a direct sum, a reciprocal), not the
 mathematics; the added flops are what :func:`derive.flops.count` counts on the result.
@@ -66,7 +82,6 @@ REFERENCE_CYCLES = {"add": 4.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.
                     "call": 40.0}
 
 _ONE = sympy.S.One
-_UNIT = Fraction(1)
 _ROUNDS = 3
 
 
@@ -111,6 +126,18 @@ def _chain(program: Program, pairs: list[tuple[str, str]]) -> float:
     return _Work(program, pairs).arrivals(list(program.body)).score()[0]
 
 
+def one_step_chain(program: Program,
+                   carried: Sequence[tuple[str, str]] = CARRIED) -> float:
+    """The score of the search: the longest chain through one step (optimised) from a
+    carried input to a carried output, in :data:`REFERENCE_CYCLES` (0 when none
+    carries)."""
+    program = program.optimize()
+    inputs = {p.name for p in program.inputs}
+    pairs = [(port, out) for port, out in carried
+             if port in inputs and out in program.results]
+    return _chain(program, pairs) if pairs else 0.0
+
+
 def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
     """Each right-hand side computed once: a later temporary with the same expression as
     an earlier one reads the earlier one (the second item: ``{dropped: kept}``)."""
@@ -143,25 +170,90 @@ def _number(coefficient) -> sympy.Expr:
     return sympy.sympify(coefficient)
 
 
-def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
-    """``{input element or 1: coefficient}`` of an affine ``expr`` (temporaries by their
-    ``forms``; coefficients as :func:`_coefficient`), None otherwise.  A form is never
-    changed once made (a temporary's is shared, not copied)."""
+class _Affine(Mapping):
+    """An affine form: ``{input element or 1: coefficient}`` (the constant under key 1).
+
+    Held as integers over one denominator (``den``; ``nums`` the numerators, reduced to
+    lowest terms) so that the sums and products of forms are plain integer arithmetic;
+    read as a mapping, a coefficient is the :class:`~fractions.Fraction` it is.  When a
+    coefficient is not rational (``den`` None), ``nums`` holds the coefficients
+    themselves (sympy numbers and Fractions).  Never changed once made."""
+
+    __slots__ = ("den", "nums", "_groups")
+
+    def __init__(self, den: int | None, nums: dict) -> None:
+        self.den = den
+        self.nums = nums
+        self._groups: dict | None = None
+
+    @classmethod
+    def reduced(cls, den: int, nums: dict) -> _Affine:
+        common = math.gcd(den, *nums.values())
+        if common > 1:
+            return cls(den // common, {k: v // common for k, v in nums.items()})
+        return cls(den, nums)
+
+    def __getitem__(self, key):
+        value = self.nums[key]
+        return value if self.den is None else Fraction(value, self.den)
+
+    def __iter__(self):
+        return iter(self.nums)
+
+    def __len__(self) -> int:
+        return len(self.nums)
+
+    def __contains__(self, key) -> bool:
+        return key in self.nums
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, _Affine):
+            return self.den == other.den and self.nums == other.nums
+        return NotImplemented
+
+    __hash__ = None
+
+    def groups(self) -> dict:
+        """The keys (not the constant) by coefficient, each group in the form's order."""
+        if self._groups is None:
+            groups: dict = {}
+            for key, value in self.nums.items():
+                if key is not _ONE:
+                    groups.setdefault(value, []).append(key)
+            self._groups = groups
+        return self._groups
+
+
+def _affine(expr: sympy.Expr, forms: Mapping) -> _Affine | None:
+    """The :class:`_Affine` form of an affine ``expr`` (temporaries by their ``forms``),
+    None otherwise.  A temporary's form is shared, not copied."""
     if expr.is_number:
-        return {_ONE: _coefficient(expr)}
+        if expr.is_Rational:
+            return _Affine(int(expr.q), {_ONE: int(expr.p)})
+        return _Affine(None, {_ONE: expr})
     if isinstance(expr, InputElement):
-        return {expr: _UNIT}
+        return _Affine(1, {expr: 1})
     if isinstance(expr, Temporary):
         return forms.get(expr)
     if expr.is_Add:
-        total: dict = {}
+        parts = []
         for arg in expr.args:
             form = _affine(arg, forms)
             if form is None:
                 return None
-            for key, value in form.items():
-                total[key] = total.get(key, 0) + value
-        return {k: v for k, v in total.items() if v != 0}
+            parts.append(form)
+        total: dict = {}
+        if any(part.den is None for part in parts):
+            for part in parts:
+                for key, value in part.items():
+                    total[key] = total.get(key, 0) + value
+            return _Affine(None, {k: v for k, v in total.items() if v != 0})
+        den = math.lcm(*(part.den for part in parts))
+        for part in parts:
+            scale = den // part.den
+            for key, num in part.nums.items():
+                total[key] = total.get(key, 0) + num * scale
+        return _Affine.reduced(den, {k: v for k, v in total.items() if v})
     if expr.is_Mul:
         coeff, rest = expr.as_coeff_Mul()
         if coeff == 1 or rest.is_Mul:
@@ -169,8 +261,11 @@ def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
         form = _affine(rest, forms)
         if form is None:
             return None
-        factor = _coefficient(coeff)
-        return {k: factor * v for k, v in form.items()}
+        if form.den is None or not coeff.is_Rational:
+            factor = _coefficient(coeff)
+            return _Affine(None, {k: factor * v for k, v in form.items()})
+        p = int(coeff.p)
+        return _Affine.reduced(form.den * int(coeff.q), {k: v * p for k, v in form.nums.items()})
     return None
 
 
@@ -185,7 +280,7 @@ class _Unbuilt:
     decides as if it had been built.  ``fresh``: it would have read new temporaries,
     which no statement reads."""
 
-    def __init__(self, form: Mapping, fresh: bool) -> None:
+    def __init__(self, form: _Affine, fresh: bool) -> None:
         self.form = form
         self.fresh = fresh
 
@@ -199,11 +294,11 @@ class _Unbuilt:
     __hash__ = None
 
 
-def _is_flat_direct_sum(expr: sympy.Expr, form: Mapping) -> bool | None:
+def _is_flat_direct_sum(expr: sympy.Expr, form: _Affine) -> bool | None:
     """Whether ``expr`` is the direct sum of ``form`` when no two of its keys share a
     coefficient (``const + c1*k1 + c2*k2 + ...``), read off its terms; None when a
     coefficient is not rational (then only building it tells)."""
-    if not all(isinstance(v, Fraction) for v in form.values()):
+    if form.den is None:
         return None
     const = form.get(_ONE, 0)
     terms = sympy.Add.make_args(expr)
@@ -361,11 +456,8 @@ class _Work:
                 forms[st.target] = form
         return forms
 
-    def _direct(self, slots: _Slots, state: Arrivals, target: Temporary, form: dict):
-        groups: dict = {}
-        for key in form:
-            if key is not _ONE:
-                groups.setdefault(form[key], []).append(key)
+    def _direct(self, slots: _Slots, state: Arrivals, target: Temporary, form: _Affine):
+        groups = form.groups()
         fresh = sum(len(keys) - 1 for keys in groups.values())
         bound = self._direct_bound(groups, _ONE in form)
         # no sooner than now: nothing downstream gets sooner (the trial would show it)
@@ -409,7 +501,7 @@ class _Work:
         k = len(times)
         return max(t + step * (k - 1 if j == 0 else k - j) for j, t in enumerate(times))
 
-    def _build_direct(self, slots: _Slots, target: Temporary, form: dict):
+    def _build_direct(self, slots: _Slots, target: Temporary, form: _Affine):
         const = _number(form.get(_ONE, 0))
         groups: dict = {}
         for key in sorted((key for key in form if key is not _ONE), key=default_sort_key):
