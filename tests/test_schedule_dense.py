@@ -17,10 +17,21 @@ import pytest
 import sympy
 
 from derive import LinearModel, catalog
+from derive.apps.bench.compile_size import dense_model
+from derive.apps.bench.run import Settings, _columns
+from derive.apps.bench.schedule_scaling import dense_rows, schedule_table
 from derive.arrivals import Arrivals, operation_latency
 from derive.filters import derive_unit
+from derive.flops import count
 from derive.lowering import LoweredAssign, Op, Var, lower_program
-from derive.schedule import REFERENCE_CYCLES, _affine, _Slots, _Work, latency_schedule
+from derive.schedule import (
+    REFERENCE_CYCLES,
+    _affine,
+    _Slots,
+    _Work,
+    latency_schedule,
+    one_step_chain,
+)
 from derive.statements import Assign, InputElement, Temporary
 
 #: CPU seconds: a dense 20-state step took 38 s before the bound, about 5 s with it.
@@ -215,3 +226,20 @@ def test_a_trial_of_an_arrival_bounds_every_later_arrival_and_is_never_accepted(
             assert state.trial_arrival(name, now - 4).score() <= state.score()
     with pytest.raises(ValueError, match="never accepted"):
         state.accept(state.trial_arrival(name, 0.0))
+
+
+def test_the_bench_prints_the_search_on_dense_kfs():
+    """derive bench's dense rows: the search's CPU, the flops it adds (as counted) and
+    the chain through one step before and after (the bounds are not taken)."""
+    (row,) = dense_rows((6,))
+    unit = derive_unit(dense_model(6), "kf", {})
+    scheduled = latency_schedule(unit.programs["step"])
+    added = count(scheduled, "c").flops - count(unit.programs["step"], "c").flops
+    assert (row.axes, row.states, row.flops_added) == (None, 6, added)
+    assert row.default_cycles is None and row.latency_cycles is None
+    before, after = one_step_chain(unit.programs["step"]), one_step_chain(scheduled)
+    assert after <= before
+    assert row.note.endswith(f"one step's chain {before:g} -> {after:g} cycles")
+    line = _columns(*schedule_table([row]))[-1]
+    assert line.startswith("dense") and f"+{added}" in line
+    assert Settings().schedule_dense == (16, 24) and Settings.quick().schedule_dense == ()
