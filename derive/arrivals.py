@@ -173,8 +173,26 @@ class Arrivals:
             name = st.target.name
             forms[name] = form = self.form_of(st.expr)
             moved[name] = form.arrival(ready)
+        return self._propagate(forms, moved)
+
+    def trial_arrival(self, name: str, value: float) -> Trial:
+        """The arrivals after temporary ``name`` (of the step) arrives at ``value``, its
+        statement's form left as it is: a trial to score, never to accept.  The score is
+        monotone in ``value`` (arrivals are maxima of sums), so scoring a lower bound of
+        a rewrite's arrival bounds the rewrite's score from below."""
+        return self._propagate({}, {name: value}, scored_only=True)
+
+    def _propagate(self, forms: dict[str, Form], moved: dict[str, float],
+                   scored_only: bool = False) -> Trial:
+        """``moved`` (the arrivals of ``forms``' statements, or of the named ones) carried
+        to the statements downstream whose arrival moves."""
+
+        def ready(name: str) -> float:
+            value = moved.get(name)
+            return self.ready.get(name, _NEVER) if value is None else value
+
         queue: list[tuple[int, str]] = []
-        queued: set[str] = set(forms)
+        queued: set[str] = set(moved)
 
         def enqueue(name: str) -> None:
             for reader in self.readers.get(name, ()):
@@ -182,7 +200,7 @@ class Arrivals:
                     queued.add(reader)
                     heapq.heappush(queue, (self.height[reader], reader))
 
-        for name in forms:
+        for name in list(moved):
             if moved[name] != self.ready.get(name, _NEVER):
                 enqueue(name)
         while queue:
@@ -191,10 +209,12 @@ class Arrivals:
             if value != self.ready[name]:
                 moved[name] = value
                 enqueue(name)
-        return Trial(self, forms, moved)
+        return Trial(self, forms, moved, scored_only)
 
     def accept(self, trial: Trial) -> None:
         """Make ``trial`` (of this step, nothing accepted since) the step's state."""
+        if trial.scored_only:
+            raise ValueError("a trial of an arrival alone is scored, never accepted")
         for name, form in trial.forms.items():
             self._define(name, form)
         for name, value in trial.leaf_changes():
@@ -221,6 +241,7 @@ class Trial:
     arrivals: Arrivals
     forms: dict[str, Form]
     moved: dict[str, float]
+    scored_only: bool = False      # a bound (Arrivals.trial_arrival): not to accept
 
     def leaf_changes(self) -> list[tuple[str, float]]:
         leaves = self.arrivals.leaves

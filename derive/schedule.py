@@ -28,6 +28,22 @@ every statement that reads a checked value staying after its check. The schedule
 kept only when its carried chain is no longer than the default step's (some rewrites apply
 whole; the default, with the fused negative multiply-add, can be the shorter).
 
+The search is greedy: each round tries every candidate and keeps each rewrite that lowers
+the score (the latest carried output, then their sum), until none does.  A direct sum is
+built (sympy) and scored only when it could be kept.  Its arrival is bounded below from
+its affine form alone (:meth:`_Work._direct_bound`: the coefficient groups joined in one
+chain of adds and fmas, the latest last, each group of two or more a tree of adds at
+least as deep as a balanced one over its carried keys); when that bound is no sooner than
+the temporary's arrival now, or the step's score with the temporary at the bound
+(:meth:`Arrivals.trial_arrival`) is not lower, the direct sum is refused unbuilt.  The
+score is monotone in each arrival, so this refuses exactly what scoring the built sum
+would; the new temporaries' names it would have taken are spent all the same (names
+order sympy's terms, so every later rewrite is as before): the programs are bitwise
+those of building every candidate.  On a dense step a direct sum is a chain of hundreds
+of terms (distinct coefficients) that never wins, and the search spends its time on the
+affine forms (exact: integer numerators over a common denominator, each statement's
+kept across passes while it and its operands' forms stay the same) and on lowering.
+
 Decisions use :data:`REFERENCE_CYCLES`, never a measurement, so generation stays
 deterministic.  The rewrites change rounding (a direct sum, a reciprocal), not the
 mathematics; the added flops are what :func:`derive.flops.count` counts on the result.
@@ -39,6 +55,7 @@ import heapq
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from fractions import Fraction
 
 import sympy
 from sympy import default_sort_key
@@ -81,6 +98,7 @@ def latency_schedule(program: Program,
         return program
     work = _Work(program, pairs)
     body = list(program.body)
+    default_chain = work.arrivals(body).score()[0]
     for _ in range(_ROUNDS):
         before = body
         body = work.fuse(body)
@@ -97,7 +115,7 @@ def latency_schedule(program: Program,
     scheduled = work.build(work.order(body))
     # the rounds apply some rewrites whole (fusing, shared reciprocals): the step as
     # scheduled is kept only when its carried chain is no longer than the default's
-    if _chain(scheduled, pairs) > _chain(program, pairs):
+    if _chain(scheduled, pairs) > default_chain:
         return program
     return scheduled
 
@@ -106,6 +124,18 @@ def _chain(program: Program, pairs: list[tuple[str, str]]) -> float:
     """The longest chain from a carried input to a carried output of ``program``, in
     :data:`REFERENCE_CYCLES` as the lowering (with fma) emits it."""
     return _Work(program, pairs).arrivals(list(program.body)).score()[0]
+
+
+def one_step_chain(program: Program,
+                   carried: Sequence[tuple[str, str]] = CARRIED) -> float:
+    """The score of the search: the longest chain through one step (optimised) from a
+    carried input to a carried output, in :data:`REFERENCE_CYCLES` (0 when none
+    carries)."""
+    program = program.optimize()
+    inputs = {p.name for p in program.inputs}
+    pairs = [(port, out) for port, out in carried
+             if port in inputs and out in program.results]
+    return _chain(program, pairs) if pairs else 0.0
 
 
 def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
@@ -127,32 +157,163 @@ def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
     return out, names
 
 
-def _affine(expr: sympy.Expr, forms: Mapping) -> dict | None:
-    """``{input element or 1: coefficient}`` of an affine ``expr`` (temporaries by their
-    ``forms``), None otherwise."""
+def _coefficient(number: sympy.Expr):
+    """A number of a form: a rational as a :class:`~fractions.Fraction` (plain Python
+    arithmetic, exact), any other number as it is."""
+    return Fraction(int(number.p), int(number.q)) if number.is_Rational else number
+
+
+def _number(coefficient) -> sympy.Expr:
+    """A form's number as sympy builds it (a Fraction as the Rational it is)."""
+    if isinstance(coefficient, Fraction):
+        return sympy.Rational(coefficient.numerator, coefficient.denominator)
+    return sympy.sympify(coefficient)
+
+
+class _Affine(Mapping):
+    """An affine form: ``{input element or 1: coefficient}`` (the constant under key 1).
+
+    Held as integers over one denominator (``den``; ``nums`` the numerators, reduced to
+    lowest terms) so that the sums and products of forms are plain integer arithmetic;
+    read as a mapping, a coefficient is the :class:`~fractions.Fraction` it is.  When a
+    coefficient is not rational (``den`` None), ``nums`` holds the coefficients
+    themselves (sympy numbers and Fractions).  Never changed once made."""
+
+    __slots__ = ("den", "nums", "_groups")
+
+    def __init__(self, den: int | None, nums: dict) -> None:
+        self.den = den
+        self.nums = nums
+        self._groups: dict | None = None
+
+    @classmethod
+    def reduced(cls, den: int, nums: dict) -> _Affine:
+        common = math.gcd(den, *nums.values())
+        if common > 1:
+            return cls(den // common, {k: v // common for k, v in nums.items()})
+        return cls(den, nums)
+
+    def __getitem__(self, key):
+        value = self.nums[key]
+        return value if self.den is None else Fraction(value, self.den)
+
+    def __iter__(self):
+        return iter(self.nums)
+
+    def __len__(self) -> int:
+        return len(self.nums)
+
+    def __contains__(self, key) -> bool:
+        return key in self.nums
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, _Affine):
+            return self.den == other.den and self.nums == other.nums
+        return NotImplemented
+
+    __hash__ = None
+
+    def groups(self) -> dict:
+        """The keys (not the constant) by coefficient, each group in the form's order."""
+        if self._groups is None:
+            groups: dict = {}
+            for key, value in self.nums.items():
+                if key is not _ONE:
+                    groups.setdefault(value, []).append(key)
+            self._groups = groups
+        return self._groups
+
+
+def _affine(expr: sympy.Expr, forms: Mapping) -> _Affine | None:
+    """The :class:`_Affine` form of an affine ``expr`` (temporaries by their ``forms``),
+    None otherwise.  A temporary's form is shared, not copied."""
     if expr.is_number:
-        return {_ONE: expr}
+        if expr.is_Rational:
+            return _Affine(int(expr.q), {_ONE: int(expr.p)})
+        return _Affine(None, {_ONE: expr})
     if isinstance(expr, InputElement):
-        return {expr: _ONE}
+        return _Affine(1, {expr: 1})
     if isinstance(expr, Temporary):
-        form = forms.get(expr)
-        return None if form is None else dict(form)
+        return forms.get(expr)
     if expr.is_Add:
-        total: dict = {}
+        parts = []
         for arg in expr.args:
             form = _affine(arg, forms)
             if form is None:
                 return None
-            for key, value in form.items():
-                total[key] = total.get(key, 0) + value
-        return {k: v for k, v in total.items() if v != 0}
+            parts.append(form)
+        total: dict = {}
+        if any(part.den is None for part in parts):
+            for part in parts:
+                for key, value in part.items():
+                    total[key] = total.get(key, 0) + value
+            return _Affine(None, {k: v for k, v in total.items() if v != 0})
+        den = math.lcm(*(part.den for part in parts))
+        for part in parts:
+            scale = den // part.den
+            for key, num in part.nums.items():
+                total[key] = total.get(key, 0) + num * scale
+        return _Affine.reduced(den, {k: v for k, v in total.items() if v})
     if expr.is_Mul:
         coeff, rest = expr.as_coeff_Mul()
         if coeff == 1 or rest.is_Mul:
             return None
         form = _affine(rest, forms)
-        return None if form is None else {k: coeff * v for k, v in form.items()}
+        if form is None:
+            return None
+        if form.den is None or not coeff.is_Rational:
+            factor = _coefficient(coeff)
+            return _Affine(None, {k: factor * v for k, v in form.items()})
+        p = int(coeff.p)
+        return _Affine.reduced(form.den * int(coeff.q), {k: v * p for k, v in form.nums.items()})
     return None
+
+
+def _late_key(key: sympy.Expr, carried_ports: set[str]) -> bool:
+    """An input element of a carried port (it arrives at 0; any other never does)."""
+    return isinstance(key, InputElement) and key.name.split("[")[0] in carried_ports
+
+
+class _Unbuilt:
+    """A direct sum that was not built (its bound showed it could not be kept): equal to
+    an expression only where the direct sum would have been, so :meth:`_Work.prune`
+    decides as if it had been built.  ``fresh``: it would have read new temporaries,
+    which no statement reads."""
+
+    def __init__(self, form: _Affine, fresh: bool) -> None:
+        self.form = form
+        self.fresh = fresh
+
+    def __eq__(self, expr: object) -> bool:
+        return not self.fresh and isinstance(expr, sympy.Basic) and \
+            _is_flat_direct_sum(expr, self.form) is True
+
+    def __ne__(self, expr: object) -> bool:
+        return not self.__eq__(expr)
+
+    __hash__ = None
+
+
+def _is_flat_direct_sum(expr: sympy.Expr, form: _Affine) -> bool | None:
+    """Whether ``expr`` is the direct sum of ``form`` when no two of its keys share a
+    coefficient (``const + c1*k1 + c2*k2 + ...``), read off its terms; None when a
+    coefficient is not rational (then only building it tells)."""
+    if form.den is None:
+        return None
+    const = form.get(_ONE, 0)
+    terms = sympy.Add.make_args(expr)
+    if len(terms) != len(form) - (_ONE in form) + (const != 0):
+        return False
+    for term in terms:
+        if term.is_number:
+            if not term.is_Rational or _coefficient(term) != const or const == 0:
+                return False
+            continue
+        coeff, rest = term.as_coeff_Mul()
+        if not (coeff.is_Rational and isinstance(rest, InputElement)) or \
+                form.get(rest) != _coefficient(coeff):
+            return False
+    return True
 
 
 class _Work:
@@ -171,7 +332,8 @@ class _Work:
         self.original = {st.target: st.expr for st in program.body if isinstance(st, Assign)}
         self.counter = 0
         self.reciprocals: dict[sympy.Expr, Temporary] = {}
-        self.directs: dict[Temporary, sympy.Expr] = {}
+        self.directs: dict[Temporary, sympy.Expr | _Unbuilt] = {}
+        self.affine_memo: dict[Temporary, tuple] = {}
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
         self.forms: dict[sympy.Expr, Form] = {}
 
@@ -260,28 +422,93 @@ class _Work:
 
     def direct_candidates(self, body: list[Statement], state: Arrivals) -> list[Callable]:
         """Direct sums of the affine temporaries, the latest first."""
-        forms: dict = {}
-        for st in body:
-            if isinstance(st, Assign):
-                form = _affine(st.expr, forms)
-                if form is not None:
-                    forms[st.target] = form
+        forms = self._affine_forms(body)
         ready = state.ready
         found = [(target, form) for target, form in forms.items()
                  if sum(1 for key in form if key is not _ONE) >= 2]
         found.sort(key=lambda tf: (-ready.get(tf[0].name, -math.inf),
                                    default_sort_key(tf[0])))
-        return [lambda slots, s, t=target, f=form: self._direct(slots, t, f)
+        return [lambda slots, s, t=target, f=form: self._direct(slots, s, t, f)
                 for target, form in found]
 
-    def _direct(self, slots: _Slots, target: Temporary, form: dict):
-        const = form.get(_ONE, 0)
+    def _affine_forms(self, body: list[Statement]) -> dict:
+        """The affine form of each affine temporary of ``body``.  A statement whose
+        expression and whose operands' forms are those of an earlier call keeps its form
+        (the same object); a form computed again that equals the target's earlier one is
+        that one, so what reads it keeps its own too."""
+        forms: dict = {}
+        for st in body:
+            if not isinstance(st, Assign):
+                continue
+            seen = self.affine_memo.get(st.target)
+            if seen is not None and seen[0] is st.expr and \
+                    all(forms.get(t) is f for t, f in seen[1]):
+                form = seen[2]
+            else:
+                operands = seen[3] if seen is not None and seen[0] is st.expr else \
+                    tuple(s for s in st.expr.free_symbols if isinstance(s, Temporary))
+                form = _affine(st.expr, forms)
+                if seen is not None and form is not None and seen[2] == form:
+                    form = seen[2]
+                self.affine_memo[st.target] = (
+                    st.expr, tuple((t, forms.get(t)) for t in operands), form, operands)
+            if form is not None:
+                forms[st.target] = form
+        return forms
+
+    def _direct(self, slots: _Slots, state: Arrivals, target: Temporary, form: _Affine):
+        groups = form.groups()
+        fresh = sum(len(keys) - 1 for keys in groups.values())
+        bound = self._direct_bound(groups, _ONE in form)
+        # no sooner than now: nothing downstream gets sooner (the trial would show it)
+        if bound < state.ready.get(target.name, -math.inf) and \
+                state.trial_arrival(target.name, bound).score() < state.score():
+            return self._build_direct(slots, target, form)
+        # it cannot lower the score: not built, as if built and refused (its new
+        # temporaries' names spent: the names order sympy's terms, so later ones stay)
+        if fresh:
+            self.counter += fresh
+            self.directs[target] = _Unbuilt(form, True)
+            return None
+        built = _is_flat_direct_sum(slots.statement(target).expr, form)
+        if built is None:
+            return self._build_direct(slots, target, form)
+        if not built:
+            self.directs[target] = _Unbuilt(form, False)
+        return None
+
+    def _direct_bound(self, groups: Mapping, constant: bool) -> float:
+        """A lower bound of the arrival of a direct sum (its coefficient groups), however
+        sympy orders its terms: the lowering joins the groups (and the constant) in one
+        chain of adds and fmas; each group of two or more is a tree of adds, at least as
+        deep as a balanced one over its carried keys.  A chain of k terms arrives no
+        sooner than with the latest term last (the first two pass k - 1 operations, the
+        j-th k - j + 1)."""
+        add = REFERENCE_CYCLES["add"]
+        step = min(add, REFERENCE_CYCLES["fma"])
+        times = []
+        for keys in groups.values():
+            carried = sum(1 for key in keys if _late_key(key, self.carried_ports))
+            if not carried:
+                times.append(-math.inf)
+            elif len(keys) == 1:
+                times.append(0.0)
+            else:
+                times.append(add * max(1, math.ceil(math.log2(carried))))
+        if constant:
+            times.append(-math.inf)
+        times.sort()
+        k = len(times)
+        return max(t + step * (k - 1 if j == 0 else k - j) for j, t in enumerate(times))
+
+    def _build_direct(self, slots: _Slots, target: Temporary, form: _Affine):
+        const = _number(form.get(_ONE, 0))
         groups: dict = {}
         for key in sorted((key for key in form if key is not _ONE), key=default_sort_key):
             groups.setdefault(form[key], []).append(key)
         new: list[Statement] = []
         terms = []
-        for coeff in sorted(groups, key=default_sort_key):
+        for coeff in sorted(groups, key=lambda c: default_sort_key(_number(c))):
             level = groups[coeff]
             while len(level) > 1:
                 paired = []
@@ -292,7 +519,7 @@ class _Work:
                 if len(level) % 2:
                     paired.append(level[-1])
                 level = paired
-            terms.append(coeff * level[0])
+            terms.append(_number(coeff) * level[0])
         expr = sympy.Add(const, *terms)
         if expr == slots.statement(target).expr:
             return None
@@ -311,6 +538,7 @@ class _Work:
                 _append(out, done, st)
                 continue
             terms = []
+            fused = False
             for term in sympy.Add.make_args(st.expr):
                 coeff, rest = term.as_coeff_Mul()
                 product = define.get(rest)
@@ -320,6 +548,10 @@ class _Work:
                     continue
                 p_coeff, factors = product.as_coeff_Mul()
                 terms.append(coeff * p_coeff * factors)
+                fused = True
+            if not fused:       # its own terms: the sum as it is
+                _append(out, done, st)
+                continue
             expr = sympy.Add(*terms)
             _append(out, done, st if expr == st.expr else Assign(st.target, expr))
         return out if out != body else body
@@ -494,23 +726,22 @@ def _is_product(expr: sympy.Expr) -> bool:
 
 
 def _uses(body: Sequence[Statement], results: Mapping[str, tuple]) -> dict:
+    """How many times each temporary is read (each occurrence in an expression, each
+    output element)."""
     counts: dict = {}
     for st in body:
-        expr = st.expr if isinstance(st, Assign) else st.value
-        for s in expr.free_symbols:
-            if isinstance(s, Temporary):
-                counts[s] = counts.get(s, 0) + _occurrences(expr, s)
+        stack = [st.expr if isinstance(st, Assign) else st.value]
+        while stack:
+            node = stack.pop()
+            if isinstance(node, Temporary):
+                counts[node] = counts.get(node, 0) + 1
+            else:
+                stack.extend(node.args)
     for values in results.values():
         for v in values:
             if isinstance(v, Temporary):
                 counts[v] = counts.get(v, 0) + 1
     return counts
-
-
-def _occurrences(expr: sympy.Expr, symbol: sympy.Symbol) -> int:
-    if expr == symbol:
-        return 1
-    return sum(_occurrences(a, symbol) for a in expr.args)
 
 
 def scheduled_unit(unit: Unit) -> Unit:

@@ -79,6 +79,7 @@ class Settings:
     compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
     startup_repeats: int = 5          # each `derive` start-up call; 0: left out
     schedule_axes: tuple[int, ...] = schedule_scaling.AXES   # both bounds of k CV axes
+    schedule_dense: tuple[int, ...] = schedule_scaling.DENSE_STATES   # the search, dense KFs
 
     @classmethod
     def quick(cls) -> Settings:
@@ -89,7 +90,7 @@ class Settings:
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
                    navigation_symforce=False,
                    generation_scaling=False, compile_states=(3,), startup_repeats=1,
-                   schedule_axes=(3,))
+                   schedule_axes=(3,), schedule_dense=())
 
 
 @dataclass(frozen=True)
@@ -299,7 +300,8 @@ class BenchResult:
         if self.schedule:
             lines += ["both bounds of large KFs (derive.apps.bench.schedule_scaling): k CV "
                       "axes, carried chain per step in reference cycles; CPU seconds of the "
-                      "latency schedule's search and of both bounds (derive burden's)", ""]
+                      "latency schedule's search and of both bounds (derive burden's); "
+                      "dense random KFs: the search only", ""]
             lines += _columns(*schedule_scaling.schedule_table(self.schedule)) + [""]
         if self.compile:
             head, body, compile_bars = compile_size.compile_table(self.compile)
@@ -562,7 +564,8 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
             tick("start-up of the command line")
             result.startup_load = os.getloadavg()
             result.startup = startup.startup_rows(s.startup_repeats, Path(tmp))
-        result.schedule = schedule_scaling.schedule_rows(s.schedule_axes, tick=tick)
+        result.schedule = schedule_scaling.schedule_rows(s.schedule_axes, tick=tick) + \
+            schedule_scaling.dense_rows(s.schedule_dense, tick=tick)
         if s.catalog_generation:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")

@@ -1,7 +1,10 @@
 """Both bounds of large block-diagonal KFs: k constant-velocity axes (n = 2k), the
 default schedule's carried chain and the latency schedule's (derive.apps.latency), and
 the CPU time the latency schedule's search and the two bounds take (``time.process_time``:
-the machine may be shared)."""
+the machine may be shared).  Dense random KFs (every entry of F and H non-zero) add rows
+of the search alone: their carried bounds are not taken (max-plus over n + n² carried
+elements, one strongly connected part: seconds to minutes), their chain through one
+step is (the search's own score, in the note)."""
 
 from __future__ import annotations
 
@@ -13,17 +16,20 @@ from ... import catalog
 from ...flops import count
 from ...generation import derive_unit
 from ...model import LinearModel
-from ...schedule import REFERENCE_CYCLES, scheduled_unit
+from ...schedule import REFERENCE_CYCLES, one_step_chain, scheduled_unit
 from ..latency import schedule_bounds
+from .compile_size import dense_model
 
 AXES = (3, 12, 48, 120)
 """Constant-velocity axes per model: n = 6, 24, 96, 240."""
 AXIS_MODEL = "mpt3d_b"
+DENSE_STATES = (16, 24)
+"""Dense random KFs (derive.apps.bench.compile_size.dense_model: m = n/3)."""
 
 
 @dataclass(frozen=True)
 class ScheduleRow:
-    axes: int
+    axes: int | None              # None: a dense random KF
     states: int
     statements: int               # of the default step, optimised (checks included)
     flops: int                    # of the default step (C, fma = 2)
@@ -61,11 +67,34 @@ def schedule_rows(axes=AXES, latency: Mapping[str, float] = REFERENCE_CYCLES,
     return rows
 
 
+def dense_rows(states=DENSE_STATES, tick=lambda text: None) -> list[ScheduleRow]:
+    """The latency schedule's search on dense random KFs of ``states`` states: its CPU
+    time, the flops it adds and the chain through one step before and after."""
+    rows = []
+    for n in states:
+        tick(f"latency schedule of a dense {n}-state KF")
+        unit = derive_unit(dense_model(n), "kf", {})
+        step = unit.programs["step"]
+        cpu = time.process_time()
+        scheduled = scheduled_unit(unit).programs["step"]
+        search = time.process_time() - cpu
+        flops = count(step, "c").flops
+        before, after = one_step_chain(step, unit.carried), one_step_chain(scheduled,
+                                                                            unit.carried)
+        rows.append(ScheduleRow(
+            None, n, len(step.optimize().body), flops, search, 0.0, None, None,
+            count(scheduled, "c").flops - flops,
+            f"bounds not taken; one step's chain {before:g} -> {after:g} cycles"))
+    return rows
+
+
 def schedule_table(rows: list[ScheduleRow]) -> tuple[tuple, list[tuple]]:
     head = ("axes", "n", "statements", "flops", "search CPU", "both bounds CPU",
             "default", "latency schedule", "flops added", "note")
-    body = [(str(r.axes), str(r.states), str(r.statements), str(r.flops),
-             f"{r.search_seconds:.2f} s", f"{r.bounds_seconds:.2f} s",
+    body = [("dense" if r.axes is None else str(r.axes), str(r.states), str(r.statements),
+             str(r.flops),
+             f"{r.search_seconds:.2f} s",
+             "" if r.axes is None else f"{r.bounds_seconds:.2f} s",
              "" if r.default_cycles is None else f"{r.default_cycles:g}",
              "" if r.latency_cycles is None else f"{r.latency_cycles:g}",
              "" if r.flops_added is None else f"+{r.flops_added}", r.note) for r in rows]
