@@ -621,9 +621,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
-    # (a pass body not inlined is called by the scalar run alone)
-    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None and \
-        not c_loops.inlined(two) else []
+    # (a pass body is called by the scalar run alone where there is no run_tracks: the
+    # vector run names it, else Clang finds an unused static inline function)
+    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None else []
     # a predictor's run starts from init's x_init (as its scalar run)
     vector_start = [f"{real.c_type} x_init[{unit.n}];"] + (
         ["int status;"] if status and init_call else []) + init_call

@@ -128,6 +128,7 @@ void gps_static_pred_step(const double *restrict x, const double *restrict z, do
 void gps_static_pred_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if defined(DERIVE_BLOCK_VECTOR)
+    (void)gps_static_pred_pass_body;
     double x_init[3];
     gps_static_pred_init(x0, x_init);
     /* the identical blocks in the lanes of one vector (lane b: block b) */

@@ -146,6 +146,7 @@ void mpt3d_a_pred_step(const double *restrict x, const double *restrict z, doubl
 void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if defined(DERIVE_BLOCK_VECTOR)
+    (void)mpt3d_a_pred_pass_body;
     double x_init[6];
     mpt3d_a_pred_init(x0, x_init);
     /* the identical blocks in the lanes of one vector (lane b: block b) */
