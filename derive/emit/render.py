@@ -630,7 +630,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     vector_state = [dict(s, start="x_init") for s in state] if init_call else state
     vector_run, vector_macros, vector_header = block_lanes.vector_run(
         unit, loop_step, two, vector_state, optional_stores,
-        unused + called_elsewhere + (vector_start if init_call else []),
+        (vector_start if init_call else []) + unused + called_elsewhere,
         ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
         else ([], [], "")
     header_lines += [vector_header] if vector_header else []
