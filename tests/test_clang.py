@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_perf_block_lanes import CASES, FLAGS, SCALAR, STEPS, _data, _run
+from test_perf_block_lanes import CASES, FLAGS, SCALAR, _data, _run
 
 from derive import catalog
 from derive.apps.verify import verify_modules
@@ -177,16 +177,16 @@ def test_clangs_run_tracks_gives_each_track_its_run_bitwise(flags):
         if "run_tracks" not in generated.c.functions:
             continue   # the predictor's run alone
         z, x0, P0 = _data(model_name)
-        tracks = 67   # two blocks of 32 lanes (AVX-512 floats would be 64) and 3 more
+        tracks = 67   # two blocks of DERIVE_LANES (AVX-512: 32 doubles), 3 by run
         rng = np.random.default_rng(3)
         zs = z[None] * (1 + 0.01 * rng.standard_normal((tracks, 1, 1)))
         x0s = np.repeat(x0[None], tracks, axis=0) + rng.standard_normal((tracks, len(x0)))
         covariance = "P0" in {a.name for a in generated.c.functions["run"].arguments}
         if covariance:
             P0s = np.repeat(P0[None], tracks, axis=0)
-            got = list(generated.c.run_tracks(zs[:, :STEPS], x0s, P0s))
+            got = list(generated.c.run_tracks(zs, x0s, P0s))
         else:
-            got = [generated.c.run_tracks(zs[:, :STEPS], x0s)]
+            got = [generated.c.run_tracks(zs, x0s)]
         for t in range(tracks):
             want = _run(generated.c, covariance, zs[t], x0s[t], P0 if covariance else None)
             assert _bitwise([g[t] for g in got], want), (model_name, t)

@@ -129,7 +129,7 @@ def macro_lines(registers: int, element_bytes: int = 8) -> list[str]:
         f'#define {SIMD} _Pragma("omp simd")',
         "#elif defined(__clang__)",
         # a hint, as GCC's ivdep: Clang reports a loop it was asked to vectorise and could
-        # not (mpt3d_a's sskf: two bodies a lane) as a warning, an error under -Werror
+        # not (mpt3d_a's steady ones: two bodies a lane) as a warning, an error under -Werror
         '#pragma clang diagnostic ignored "-Wpass-failed"',
         f'#define {SIMD} _Pragma("clang loop vectorize(assume_safety)")',
         "#elif defined(__GNUC__)",
