@@ -9,7 +9,7 @@ benchmark, the GNSS applications, paper mode, the tests) goes through this one p
    model, so they are replaced together;
 3. each Python file is loaded as a fresh module (:func:`derive.build.load_python`) and
    the C files of one call are compiled into one cffi extension (:func:`derive.build.
-   build_c`, strict flags plus ``extra_cflags``).
+   build_c`, strict flags plus ``extra_cflags``, by ``compiler``: default CC, else gcc).
 
 Without a directory the files go to a temporary one, removed once loaded (the Python is
 executed and the C library cached, so nothing needs the files afterwards).
@@ -57,22 +57,26 @@ class Generated:
 
 
 def load_units(units: Sequence[Unit], lang: str = "all", directory: str | Path | None = None,
-               *, extra_cflags: Sequence[str] = ()) -> list[Generated]:
+               *, extra_cflags: Sequence[str] = (), compiler: str | None = None
+               ) -> list[Generated]:
     """Render, write and load ``units`` (see the module docstring); one
-    :class:`Generated` per unit, in order. The C of all units is one extension."""
+    :class:`Generated` per unit, in order. The C of all units is one extension, compiled
+    by ``compiler`` (build_c's: default CC, else gcc)."""
     check_lang(lang)
     files: dict[str, dict[str, str]] = {}
     for unit in units:
         files.setdefault(unit.model, {}).update(render_files(unit, LANGUAGES[lang]))
     if directory is not None:
-        return _write_and_load(units, files, Path(directory), extra_cflags, keep=True)
+        return _write_and_load(units, files, Path(directory), extra_cflags, compiler,
+                               keep=True)
     with tempfile.TemporaryDirectory(prefix="derive-") as scratch:
-        return _write_and_load(units, files, Path(scratch), extra_cflags, keep=False)
+        return _write_and_load(units, files, Path(scratch), extra_cflags, compiler,
+                               keep=False)
 
 
 def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]],
-                    directory: Path, extra_cflags: Sequence[str], keep: bool
-                    ) -> list[Generated]:
+                    directory: Path, extra_cflags: Sequence[str], compiler: str | None,
+                    keep: bool) -> list[Generated]:
     written: dict[tuple[str, str], Path] = {}
     for model, texts in files.items():
         for name, path in zip(sorted(texts), write_files(directory, model, texts)):
@@ -82,7 +86,8 @@ def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]
         return written.get((unit.model, unit.filter + suffix))
 
     c_files = [path(u, ".c") for u in units if path(u, ".c") is not None]
-    extension = build_c(c_files, extra_cflags=extra_cflags) if c_files else None
+    extension = build_c(c_files, extra_cflags=extra_cflags, compiler=compiler) \
+        if c_files else None
     loaded = []
     for unit in units:
         python = path(unit, ".py")
@@ -98,20 +103,23 @@ def _write_and_load(units: Sequence[Unit], files: Mapping[str, Mapping[str, str]
 def load_generated(model: ModelRef, filter: str, options: Mapping | SharedOptions | None = None,
                    lang: str = "all", directory: str | Path | None = None, *,
                    model_ref: str | None = None, out_label: str = "generated",
-                   extra_cflags: Sequence[str] = ()) -> Generated:
+                   extra_cflags: Sequence[str] = (), compiler: str | None = None
+                   ) -> Generated:
     """Generate filter ``filter`` of ``model`` (a model, a catalog name or a model file)
     and load it: ``.python`` the module, ``.c`` the compiled wrappers.
 
     ``options`` are validated as by :func:`derive.generate`; ``model_ref`` and
     ``out_label`` name the model and output directory in the files' regenerate command;
-    ``directory``: where ``MODEL/FILTER.*`` are written (default: a temporary one).
+    ``directory``: where ``MODEL/FILTER.*`` are written (default: a temporary one);
+    ``extra_cflags`` and ``compiler``: as :func:`derive.build.build_c` takes them.
     """
     check_lang(lang)
     if isinstance(model, str):
         model_ref = model_ref or model
         model = resolve_model(model)
     unit = command_unit(model, filter, options, model_ref, out_label)
-    return load_units([unit], lang, directory, extra_cflags=extra_cflags)[0]
+    return load_units([unit], lang, directory, extra_cflags=extra_cflags,
+                      compiler=compiler)[0]
 
 
 __all__ = ["LANGUAGES", "Generated", "load_generated", "load_units"]

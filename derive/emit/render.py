@@ -621,16 +621,16 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
-    # (a pass body not inlined is called by the scalar run alone)
-    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None and \
-        not c_loops.inlined(two) else []
+    # (a pass body is called by the scalar run alone where there is no run_tracks: the
+    # vector run names it, else Clang finds an unused static inline function)
+    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None else []
     # a predictor's run starts from init's x_init (as its scalar run)
     vector_start = [f"{real.c_type} x_init[{unit.n}];"] + (
         ["int status;"] if status and init_call else []) + init_call
     vector_state = [dict(s, start="x_init") for s in state] if init_call else state
     vector_run, vector_macros, vector_header = block_lanes.vector_run(
         unit, loop_step, two, vector_state, optional_stores,
-        unused + called_elsewhere + (vector_start if init_call else []),
+        (vector_start if init_call else []) + unused + called_elsewhere,
         ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
         else ([], [], "")
     header_lines += [vector_header] if vector_header else []

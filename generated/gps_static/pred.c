@@ -130,6 +130,7 @@ void gps_static_pred_run(size_t steps, const double *z, const double *x0, double
 #if defined(DERIVE_BLOCK_VECTOR)
     double x_init[3];
     gps_static_pred_init(x0, x_init);
+    (void)gps_static_pred_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */
     derive_v4 x_v0 = {x_init[0], x_init[1], x_init[2], x_init[0]};
     size_t k;

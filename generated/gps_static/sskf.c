@@ -82,7 +82,8 @@
 #if defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
-#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#pragma clang diagnostic ignored "-Wpass-failed"
+#define DERIVE_SIMD _Pragma("clang loop vectorize(assume_safety)")
 #elif defined(__GNUC__)
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
@@ -153,6 +154,7 @@ void gps_static_sskf_step(const double *restrict x, const double *restrict z, do
 void gps_static_sskf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if defined(DERIVE_BLOCK_VECTOR)
+    (void)gps_static_sskf_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */
     derive_v4 x_v0 = {x0[0], x0[1], x0[2], x0[0]};
     size_t k;

@@ -82,7 +82,8 @@
 #if defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
-#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#pragma clang diagnostic ignored "-Wpass-failed"
+#define DERIVE_SIMD _Pragma("clang loop vectorize(assume_safety)")
 #elif defined(__GNUC__)
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else

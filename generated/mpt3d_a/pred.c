@@ -148,6 +148,7 @@ void mpt3d_a_pred_run(size_t steps, const double *z, const double *x0, double *x
 #if defined(DERIVE_BLOCK_VECTOR)
     double x_init[6];
     mpt3d_a_pred_init(x0, x_init);
+    (void)mpt3d_a_pred_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */
     derive_v4 x_v0 = {x_init[0], x_init[2], x_init[4], x_init[0]};
     derive_v4 x_v1 = {x_init[1], x_init[3], x_init[5], x_init[1]};

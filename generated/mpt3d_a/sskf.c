@@ -82,7 +82,8 @@
 #if defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
-#define DERIVE_SIMD _Pragma("clang loop vectorize(enable)")
+#pragma clang diagnostic ignored "-Wpass-failed"
+#define DERIVE_SIMD _Pragma("clang loop vectorize(assume_safety)")
 #elif defined(__GNUC__)
 #define DERIVE_SIMD _Pragma("GCC ivdep")
 #else
@@ -165,6 +166,7 @@ void mpt3d_a_sskf_step(const double *restrict x, const double *restrict z, doubl
 void mpt3d_a_sskf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
 #if defined(DERIVE_BLOCK_VECTOR)
+    (void)mpt3d_a_sskf_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */
     derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
     derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
