@@ -64,6 +64,7 @@ from derive.arrivals import Arrivals, Form, arrival_times, statement_form
 from derive.emit.unit import Unit
 from derive.lowering import CARRIED, expression_lowerer
 from derive.program import Program
+from derive.single_use import is_product, read_counts
 from derive.statements import (
     Assign,
     Check,
@@ -529,7 +530,7 @@ class _Work:
 
     def fuse(self, body: list[Statement]) -> list[Statement]:
         """Move each product used once, in a sum, into that sum (an fma when lowered)."""
-        uses = _uses(live_statements(body, self.results), self.results)
+        uses = read_counts(live_statements(body, self.results), self.results)
         define = {st.target: st.expr for st in body if isinstance(st, Assign)}
         out: list[Statement] = []
         done: set[sympy.Symbol] = set()
@@ -543,7 +544,7 @@ class _Work:
                 coeff, rest = term.as_coeff_Mul()
                 product = define.get(rest)
                 if not (isinstance(rest, Temporary) and uses.get(rest) == 1 and
-                        product is not None and _is_product(product)):
+                        product is not None and is_product(product)):
                     terms.append(term)
                     continue
                 p_coeff, factors = product.as_coeff_Mul()
@@ -718,30 +719,6 @@ def _append(out: list[Statement], done: set[sympy.Symbol], st: Statement) -> Non
     out.append(st)
     if isinstance(st, Assign):
         done.add(st.target)
-
-
-def _is_product(expr: sympy.Expr) -> bool:
-    """A product with no division (the lowering fuses only those into an fma)."""
-    return expr.is_Mul and not any(a.is_Pow and a.exp.is_negative for a in expr.args)
-
-
-def _uses(body: Sequence[Statement], results: Mapping[str, tuple]) -> dict:
-    """How many times each temporary is read (each occurrence in an expression, each
-    output element)."""
-    counts: dict = {}
-    for st in body:
-        stack = [st.expr if isinstance(st, Assign) else st.value]
-        while stack:
-            node = stack.pop()
-            if isinstance(node, Temporary):
-                counts[node] = counts.get(node, 0) + 1
-            else:
-                stack.extend(node.args)
-    for values in results.values():
-        for v in values:
-            if isinstance(v, Temporary):
-                counts[v] = counts.get(v, 0) + 1
-    return counts
 
 
 def scheduled_unit(unit: Unit) -> Unit:

@@ -32,8 +32,10 @@ import sympy
 from derive.statements import Assign, Check, Statement, Temporary
 
 
-def _reads(body: Sequence[Statement], results: Mapping[str, tuple]) -> dict[Temporary, int]:
-    """How many times each temporary is read (every occurrence in an expression counts)."""
+def read_counts(body: Sequence[Statement], results: Mapping[str, tuple]
+                ) -> dict[Temporary, int]:
+    """How many times each temporary is read: every occurrence in a statement's expression
+    or check, and in the results (also derive.schedule's count of uses)."""
     counts: dict[Temporary, int] = {}
     stack: list[sympy.Basic] = [st.expr if isinstance(st, Assign) else st.value
                                 for st in body]
@@ -47,7 +49,7 @@ def _reads(body: Sequence[Statement], results: Mapping[str, tuple]) -> dict[Temp
     return counts
 
 
-def _is_product(expr: sympy.Expr) -> bool:
+def is_product(expr: sympy.Expr) -> bool:
     """A product without division (the fma rule fuses only those)."""
     return bool(expr.is_Mul) and not any(
         a.is_Pow and a.exp.is_number and a.exp.is_negative for a in expr.args)
@@ -76,10 +78,10 @@ def fold_single_use(body: Sequence[Statement],
     """``body`` with each product or negation read once, as a term of a sum, folded into
     that sum, and each negated symbol read only as terms of sums folded into each of them
     (see the module docstring); the other statements keep their order."""
-    reads = _reads(body, results)
+    reads = read_counts(body, results)
     term_reads = _term_reads(body)
     products = {st.target: st.expr for st in body
-                if isinstance(st, Assign) and _is_product(st.expr)
+                if isinstance(st, Assign) and is_product(st.expr)
                 and (reads.get(st.target) == 1
                      or (_is_negated_atom(st.expr)
                          and term_reads.get(st.target) == reads.get(st.target)))}
