@@ -26,6 +26,10 @@ from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 from derive.lowering import Op, Tree, lower_program
+from derive.rows import VECTOR_LANES, VECTOR_TYPES
+
+#: The C vector types of generated code and their lanes.
+_VECTOR_LANES = dict.fromkeys(VECTOR_TYPES.values(), VECTOR_LANES)
 
 if TYPE_CHECKING:
     from derive.lowering import LoweredProgram
@@ -64,6 +68,10 @@ class OpCount:
             return NotImplemented
         return OpCount(**{f.name: getattr(self, f.name) + getattr(other, f.name)
                           for f in fields(self)})
+
+    def scaled(self, times: int) -> OpCount:
+        """Every count times ``times`` (the lanes of a vector statement)."""
+        return OpCount(**{f.name: getattr(self, f.name) * times for f in fields(self)})
 
     def as_dict(self) -> dict[str, int]:
         """Counts by kind, in a fixed order."""
@@ -315,8 +323,15 @@ def _tokens(text: str) -> list[tuple[str, str]]:
     return out
 
 
+#: A chunk of vector rows in generated C (derive.emit.c_vector): the vector form, then the
+#: scalar lanes.
+_CHUNK = re.compile(r"^[ \t]*#if DERIVE_VECTOR[ \t]*\n(.*?)^[ \t]*#else[ \t]*\n(.*?)"
+                    r"^[ \t]*#endif[ \t]*$", re.M | re.S)
+_VECTOR_STATEMENT = re.compile(r"const (\w+) \w+ = (.*?);\s*$", re.S)
+
+
 def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
-                 fnma_name: str = "DERIVE_FNMA") -> OpCount:
+                 fnma_name: str = "DERIVE_FNMA", *, vector: bool = True) -> OpCount:
     """Count the arithmetic in C statements by their operators.
 
     ``+ - * /`` binary; unary minus is ``neg`` unless it is the sign of a numeric
@@ -324,7 +339,28 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
     ``c - a*b``, as :class:`OpCount` counts it), ``sqrt(`` a sqrt, other ``name(`` calls
     (except ``if``, ``return``, ``sizeof`` and ``for``/``while``) are calls;
     ``> < >= <= == !=`` are comparisons.
+
+    A chunk of vector rows (``#if DERIVE_VECTOR`` ... ``#else`` ... ``#endif``) counts as
+    its vector statement once per lane (``DERIVE_VFMA`` an fma), with ``vector``; as its
+    scalar lanes without.
     """
+    extra = OpCount()
+    if "DERIVE_VECTOR" in text:
+        def chunk(m: re.Match) -> str:
+            nonlocal extra
+            if not vector:
+                return m.group(2)
+            for line in m.group(1).split(";"):
+                found = _VECTOR_STATEMENT.match(line.strip() + ";")
+                if found is not None and found.group(1) in _VECTOR_LANES:
+                    ops = count_c_text(found.group(2), "DERIVE_VFMA", "DERIVE_VFNMA")
+                    extra = extra + ops.scaled(_VECTOR_LANES[found.group(1)])
+            return ""
+        text = _CHUNK.sub(chunk, text)
+    return extra + _count_tokens(text, fma_name, fnma_name)
+
+
+def _count_tokens(text: str, fma_name: str, fnma_name: str) -> OpCount:
     tokens = _tokens(text)
     tally = dict.fromkeys((f.name for f in fields(OpCount)), 0)
     prev: str | None = None
@@ -336,7 +372,8 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
                 tally["fma"] += 1
             elif tok == "sqrt":
                 tally["sqrt"] += 1
-            elif tok not in ("if", "return", "sizeof", "for", "while", "switch", "void"):
+            elif tok not in ("if", "return", "sizeof", "for", "while", "switch", "void",
+                             "__builtin_shufflevector"):
                 tally["calls"] += 1
         elif kind == "op" and not depth:
             unary = prev is None or prev in _UNARY_BEFORE

@@ -74,6 +74,7 @@ from derive.statements import POSITIVE, Assign, Check
 
 if TYPE_CHECKING:
     from derive.program import Port, Program
+    from derive.rows import LoweredChunk
 
 KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "fnma", "neg", "cmp", "select", "gate")
 #: The fused multiply-adds: one instruction and two flops each, counted as ``fma``.
@@ -477,6 +478,9 @@ class LoweredProgram:
     body: tuple[LoweredAssign | LoweredCheck, ...]
     results: tuple[tuple[str, tuple[Tree, ...]], ...]
     use_fma: bool
+    #: The vector chunks (derive.rows): each one's lanes are consecutive assignments of
+    #: the body, whose trees are the lanes of the chunk's form.
+    rows: tuple[LoweredChunk, ...] = ()
 
     @property
     def has_checks(self) -> bool:
@@ -519,7 +523,8 @@ class LoweredProgram:
         return replace(
             self, body=body,
             results=tuple((port(name), tuple(rename_tree(leaf, var) for leaf in leaves))
-                          for name, leaves in self.results))
+                          for name, leaves in self.results),
+            rows=tuple(chunk.renamed(temp, var) for chunk in self.rows))
 
     def temporaries(self) -> int:
         """One more than the largest temporary number ``tN`` assigned (0: none)."""
@@ -530,6 +535,20 @@ class LoweredProgram:
     def kinds(self) -> set[str]:
         """Every operation kind used."""
         return tree_kinds(*(s.tree for s in self.body))
+
+    def reads_below_diagonal(self, port: Port) -> bool:
+        """True when an element of the square input ``port`` below its diagonal is read (a
+        vector row of a symmetric P reads P whole: derive.filters.vector_rows)."""
+        n = port.shape[-1]
+        stack: list[Tree] = [s.tree for s in self.body]
+        while stack:
+            tree = stack.pop()
+            if isinstance(tree, Op):
+                stack.extend(tree.args)
+            elif (isinstance(tree, Var) and tree.index is not None and tree.base == port.name
+                  and tree.index // n > tree.index % n):
+                return True
+        return False
 
     def used_inputs(self) -> set[str]:
         """Names of the input ports read anywhere."""
@@ -563,9 +582,18 @@ def lower_program(program: Program, *, use_fma: bool = False,
     status = first_status - 1
     pattern_status = first_status + sum(1 for st in program.body
                                         if isinstance(st, Check) and st.relation == POSITIVE)
-    statements = (fold_single_use(program.body, program.results) if use_fma
+    lanes = {t: (chunk, lane) for chunk in program.rows for lane, t in enumerate(chunk.targets)}
+    statements = (fold_single_use(program.body, program.results, frozenset(lanes)) if use_fma
                   else program.body)
     for st in statements:
+        if isinstance(st, Assign) and st.target in lanes:
+            chunk, lane = lanes[st.target]
+            tree = chunk.form.tree(lane, use_fma)
+            if depth(tree) >= MAX_DEPTH:
+                raise LoweringError(f"lane {st.target} of a vector chunk is {depth(tree)} "
+                                    f"operations deep (at most {MAX_DEPTH - 1})")
+            body.append(LoweredAssign(st.target.name, tree))
+            continue
         if isinstance(st, Assign):
             body.append(LoweredAssign(st.target.name, cut(lowerer.lower(st.expr))))
             continue
@@ -578,7 +606,8 @@ def lower_program(program: Program, *, use_fma: bool = False,
     results = tuple((name, tuple(cut(lowerer.lower(v)) for v in values))
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
-                          tuple(body), results, use_fma)
+                          tuple(body), results, use_fma,
+                          tuple(chunk.lowered() for chunk in program.rows))
 
 
 def next_status(lowered: LoweredProgram, first_status: int) -> int:

@@ -60,6 +60,7 @@ from sympy import default_sort_key
 
 from derive.errors import MatrixPropertyError, ShapeError
 from derive.optimise import optimize_body
+from derive.rows import RowChunk, check_chunks
 from derive.statements import (
     NON_FINITE,
     ZERO,
@@ -166,6 +167,7 @@ class Program:
         if PARAMETER_PORT in [p.name for p in self.outputs]:
             raise ProgramError(f"program {name!r}: {PARAMETER_PORT!r} cannot be an output")
         self._elements: dict[str, list[InputElement]] = {}
+        self._lower: dict[tuple[str, int], InputElement] = {}  # below a symmetric diagonal
         self._owner: dict[sympy.Symbol, str] = {}
         for port in self.inputs:
             if port.symmetric:  # (j, i) reads (i, j), the upper triangle's element
@@ -186,6 +188,7 @@ class Program:
         self._counter = 0
         self._optimized = False
         self._order_names: dict[sympy.Symbol, sympy.Symbol] = {}
+        self._rows: tuple[RowChunk, ...] = ()
 
     # -- reading the program -------------------------------------------------------------
 
@@ -200,6 +203,13 @@ class Program:
         the symbol it copies, whose name orders the terms and factors it appears in when
         lowered (:mod:`derive.lowering`); empty: the symbols' own names."""
         return dict(self._order_names)
+
+    @property
+    def rows(self) -> tuple[RowChunk, ...]:
+        """The vector chunks of the body (:mod:`derive.rows`): each one's lanes are
+        consecutive assignments of the body, lowered by the chunk's form; empty for a
+        program of scalar statements only."""
+        return self._rows
 
     @property
     def results(self) -> dict[str, tuple[sympy.Expr, ...]]:
@@ -252,6 +262,20 @@ class Program:
         upper triangle's).
         """
         return self._elements[self._input(port).name][self._input(port).flat_index(i, j)]
+
+    def stored_element(self, port: str, i: int, j: int) -> InputElement:
+        """The element stored at ``(i, j)`` of a 2-D input port, for a symmetric port in
+        either triangle (``P[i*n + j]`` also below the diagonal, where :meth:`element`
+        gives the upper triangle's): how a vector row reads a row of P whole."""
+        p = self._input(port)
+        k = p.flat_index(i, j)
+        if not p.symmetric or i <= j:
+            return self._elements[p.name][k]
+        sym = self._lower.get((p.name, k))
+        if sym is None:
+            sym = self._lower[(p.name, k)] = InputElement(f"{p.name}[{k}]")
+            self._owner[sym] = p.name
+        return sym
 
     def matrix(self, port: str) -> sympy.Matrix:
         """The input port as a sympy Matrix of element symbols ((n,) ports: n x 1)."""
@@ -399,14 +423,16 @@ class Program:
 
     def assembled(self, body: Sequence[Statement], results: dict[str, Sequence[sympy.Expr]],
                   *, optimize: bool,
-                  order_names: Mapping[sympy.Symbol, sympy.Symbol] | None = None) -> Program:
+                  order_names: Mapping[sympy.Symbol, sympy.Symbol] | None = None,
+                  rows: Sequence[RowChunk] = ()) -> Program:
         """A final program with this one's ports and a ``body`` built elsewhere (renamed
         parts of other programs: :mod:`derive.filters.blockwise`), its temporaries named
         ``t0, t1, ...`` in order, each output port's atoms in ``results``; optimised as a
         whole when ``optimize``, else taken as it is, its :attr:`order_names`
         ``order_names`` (each renamed symbol -> the symbol of the part it copies).
         Optimising renames the temporaries, so an optimised program takes no
-        ``order_names``."""
+        ``order_names``; ``rows``: its vector chunks (:attr:`rows`), only without
+        optimising."""
         self._check_open()
         missing = [p.name for p in self.outputs if p.name not in results]
         if missing:
@@ -415,7 +441,11 @@ class Program:
         if not optimize:
             out = self._final(list(body), results)
             out._order_names = dict(order_names or {})
+            out._rows = _checked_rows(out._body, rows)
             return out
+        if rows:
+            raise ProgramError(f"program {self.name!r}: an optimised assembly rewrites its "
+                               "statements, so it cannot keep vector rows")
         if order_names:
             raise ProgramError(f"program {self.name!r}: an optimised assembly renumbers its "
                                "temporaries, so it cannot keep the order of its parts' names")
@@ -434,3 +464,21 @@ class Program:
         out._counter = len(out._defined)
         out._optimized = True
         return out
+
+
+def _checked_rows(body: Sequence[Statement], rows: Sequence[RowChunk]) -> tuple[RowChunk, ...]:
+    """``rows``, checked against ``body``: each chunk's lanes are consecutive assignments
+    whose expressions are the lanes of its form."""
+    rows = tuple(rows)
+    check_chunks(rows)
+    where = {st.target: k for k, st in enumerate(body) if isinstance(st, Assign)}
+    for chunk in rows:
+        at = [where.get(t) for t in chunk.targets]
+        if None in at or at != list(range(at[0], at[0] + len(at))):
+            raise ProgramError(f"the lanes {[str(t) for t in chunk.targets]} of a vector chunk "
+                               "are not consecutive assignments of the body")
+        for lane, k in enumerate(at):
+            if body[k].expr != chunk.form.expr(lane):
+                raise ProgramError(f"{chunk.targets[lane]} = {body[k].expr} is not lane {lane} "
+                                   "of its chunk's form")
+    return rows

@@ -74,10 +74,13 @@ def _is_negated_atom(expr: sympy.Expr) -> bool:
 
 
 def fold_single_use(body: Sequence[Statement],
-                    results: Mapping[str, tuple]) -> list[Statement]:
+                    results: Mapping[str, tuple],
+                    keep: frozenset[Temporary] = frozenset()) -> list[Statement]:
     """``body`` with each product or negation read once, as a term of a sum, folded into
     that sum, and each negated symbol read only as terms of sums folded into each of them
-    (see the module docstring); the other statements keep their order."""
+    (see the module docstring); the other statements keep their order. The statements
+    assigning ``keep`` (the lanes of vector rows, lowered by their own form) are not
+    rewritten, so nothing folds into them."""
     reads = read_counts(body, results)
     term_reads = _term_reads(body)
     products = {st.target: st.expr for st in body
@@ -90,7 +93,7 @@ def fold_single_use(body: Sequence[Statement],
     folded: set[Temporary] = set()
     out: list[Statement] = []
     for st in body:
-        if isinstance(st, Check) or not st.expr.is_Add:
+        if isinstance(st, Check) or not st.expr.is_Add or st.target in keep:
             out.append(st)
             continue
         expr = st.expr
