@@ -22,8 +22,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from derive.emit.c_vector import CLOSE, ELSE, ChunkPrinter, vector_macro_lines
 from derive.emit.python_printer import InfixPrinter
-from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram, Tree
+from derive.lowering import FUSED_KINDS, LoweredAssign, LoweredCheck, LoweredProgram, Tree
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 
@@ -72,6 +73,15 @@ def fma_macro_lines(precision: Precision = DOUBLE) -> list[str]:
 
 
 FMA_MACRO_LINES = fma_macro_lines()
+
+
+def macro_lines(lowered: list[LoweredProgram], precision: Precision = DOUBLE) -> list[str]:
+    """The ``.c`` file's macros for ``lowered``: :func:`fma_macro_lines` when a program
+    fuses, then :func:`~derive.emit.c_vector.vector_macro_lines` when one has vector rows."""
+    fused = any(lp.kinds() & FUSED_KINDS for lp in lowered)
+    rows = any(lp.rows for lp in lowered)
+    return ((fma_macro_lines(precision) if fused or rows else [])
+            + (vector_macro_lines(precision) if rows else []))
 
 
 class CPrinter(InfixPrinter):
@@ -216,8 +226,23 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
                        lambda v: v.name if v.index is None else element(v.base, v.index),
                        precision=precision)
     body: list[str] = []
-    for st in lowered.body:
-        if isinstance(st, LoweredAssign):
+    place = element or (lambda name, k: f"{name}[{k}]")
+    chunks = {chunk.targets[0]: chunk for chunk in lowered.rows}
+    vectors = ChunkPrinter(printer, precision, lowered) if chunks else None
+    statements = list(lowered.body)
+    at = 0
+    while at < len(statements):
+        st = statements[at]
+        at += 1
+        chunk = chunks.get(st.target) if isinstance(st, LoweredAssign) else None
+        if chunk is not None:
+            lanes = statements[at - 1:at - 1 + len(chunk.targets)]
+            at += len(chunk.targets) - 1
+            scalar = [f"const {precision.c_type} {lane.target} = "
+                      f"{printer.expression(lane.tree)};" for lane in lanes
+                      if lane.target in vectors.scalar_live]
+            body += vectors.lines(chunk, scalar, place)
+        elif isinstance(st, LoweredAssign):
             body.append(f"const {precision.c_type} {st.target} = "
                         f"{printer.expression(st.tree)};")
         elif st.is_pattern:
@@ -232,8 +257,8 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
             body += [f"if (!({value} > {precision.zero()})) {{",
                      f"    return {st.status}; /* {comment_text(st.message)} */",
                      "}"]
-    place = element or (lambda name, k: f"{name}[{k}]")
-    for name, leaves in lowered.results:
-        body += [f"{place(name, k)} = {printer.expression(leaf)};"
-                 for k, leaf in enumerate(leaves)]
-    return body
+    scalar = [f"{place(name, k)} = {printer.expression(leaf)};"
+              for name, leaves in lowered.results for k, leaf in enumerate(leaves)]
+    if vectors is None:
+        return body + scalar
+    return body + vectors.store_lines(place) + [ELSE] + scalar + [CLOSE]

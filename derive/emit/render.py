@@ -32,7 +32,7 @@ from derive.emit.python_loop import single_track_loop
 from derive.emit.sensors_run import c_run_body, python_loop
 from derive.emit.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.flops import count_lowered
-from derive.lowering import FUSED_KINDS, LoweredProgram, lower_programs
+from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
 from derive.version import __version__
@@ -189,9 +189,13 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
                      f"(steps, {np_})")
     for lp in lowered.values():
         sym = [p.name for p in lp.inputs + lp.outputs if p.symmetric]
+        whole = [p.name for p in lp.inputs if p.symmetric and lp.reads_below_diagonal(p)]
         if sym:
-            lines.append(f"symmetric in {lp.name}: {', '.join(sym)} (inputs: upper triangle "
-                         "read; outputs: written whole)")
+            lines.append(f"symmetric in {lp.name}: {', '.join(sym)} (inputs: "
+                         + (f"{', '.join(whole)} read whole, both triangles, so "
+                            f"{' and '.join(whole)} must be symmetric; "
+                            if whole else "upper triangle read; ")
+                         + "outputs: written whole)")
     lines += described.status_lines(_raises(lowered.values()))
     for lp in lowered.values():
         lines.append(f"operations per call of {lp.name} ({language}): "
@@ -362,8 +366,7 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
         + [run_signature + ";"],
         "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps) or any(s.gated for s in unit.sensors),
-        "fma_macro": (c_printer.fma_macro_lines(real)
-                      if any(lp.kinds() & FUSED_KINDS for lp in lps) else []),
+        "fma_macro": c_printer.macro_lines(lps, real),
         "functions": [c_printer.function_parts(lp, prefix, real) for lp in lps],
         "run_signature": run_signature,
         "run_body": c_run_body(unit, lowered, real),
@@ -646,8 +649,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps),
-        "fma_macro": (c_printer.fma_macro_lines(real)
-                      if any(lp.kinds() & FUSED_KINDS for lp in lps) else []),
+        "fma_macro": c_printer.macro_lines(lps, real),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
         + (tracks["macros"] if batch else []) + vector_macros,
@@ -767,8 +769,7 @@ def render_functions(name: str, programs, lang: str, *, command: str = "",
         "prototypes": [c_printer.prototype(lp, name, c_printer.restrict_macro()) + ";"
                        for lp in lps],
         "h_file": f"{name}.h", "math_h": c_printer.needs_math_h(lps),
-        "fma_macro": (c_printer.FMA_MACRO_LINES
-                      if any(lp.kinds() & FUSED_KINDS for lp in lps) else []),
+        "fma_macro": c_printer.macro_lines(lps),
         "functions": [c_printer.function_parts(lp, name) for lp in lps],
     }
     return {f"{name}.h": _render("c/header.jinja", context),

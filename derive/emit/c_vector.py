@@ -1,0 +1,289 @@
+"""Vector chunks (derive.rows) printed as C vector statements, with their scalar lanes as
+the fallback.
+
+A chunk is printed twice, chosen by the preprocessor::
+
+    #if DERIVE_VECTOR
+        const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}),
+                                            ((derive_vd){P[16], P[17], P[18], P[19]}), v_t41);
+        const double t57 = v_t57[0];
+        ...
+    #else
+        const double t57 = DERIVE_FMA(t3, P[16], t41);
+        ...
+    #endif
+
+``DERIVE_VECTOR`` is 1 under GCC and Clang (their vector extension, ``vector_size``), 0
+elsewhere, and a build may set it. An operand whose lanes are the lanes of an earlier
+chunk, in order, is that chunk's vector; any other one is built from its lanes (a
+compound literal: consecutive elements of an input are one load, a coefficient is a
+broadcast, lanes of other chunks are shuffles: the compiler's choice). The vector fused
+multiply-adds round as the scalar ones do, lane by lane (:func:`vector_macro_lines`), so
+the vector branch computes bitwise what the scalar branch computes, and the counts of
+the header, which are the scalar lanes', are the vector branch's, lane by lane
+(:func:`derive.flops.count_c_text` counts a vector statement once per lane).
+"""
+
+from __future__ import annotations
+
+from derive.lowering import Const, LoweredAssign, LoweredProgram, Tree, Var, tree_vars
+from derive.precision import DOUBLE, Precision
+from derive.rows import VECTOR_BYTES, VECTOR_LANES, VECTOR_TYPES, LoweredChunk
+
+SWITCH = "DERIVE_VECTOR"
+VFMA = "DERIVE_VFMA"
+VFNMA = "DERIVE_VFNMA"
+#: The lines that open, split and close the two forms of a chunk (the C text counter
+#: reads them: derive.flops).
+OPEN, ELSE, CLOSE = f"#if {SWITCH}", "#else", "#endif"
+
+
+def vector_macro_lines(precision: Precision = DOUBLE) -> list[str]:
+    """The ``.c`` file's vector type and fused multiply-adds (after the scalar fma macros,
+    :func:`derive.emit.c_printer.fma_macro_lines`).
+
+    ``DERIVE_VFMA(a, b, c)`` is ``a*b + c`` lane by lane, rounded as ``DERIVE_FMA``
+    rounds: the product and the sum in the plain build (``DERIVE_FMA_PLAIN``), the x86 FMA
+    instruction where ``DERIVE_FMA`` is the fused ``fma`` and the target has it
+    (``__FMA__``), else ``DERIVE_FMA`` of each lane (a build that defines DERIVE_FMA
+    itself, a fused target without x86 FMA: correct, and as fast as the compiler makes
+    it). ``DERIVE_VFNMA(a, b, c)`` is ``c - a*b`` likewise."""
+    kind = precision.name
+    vtype, lanes = VECTOR_TYPES[kind], VECTOR_LANES
+    intrinsic = "_mm256_fmadd_pd" if kind == "double" else "_mm_fmadd_ps"
+    element = 8 if kind == "double" else 4  # bytes: an element's alignment
+
+    def each(macro: str) -> str:
+        return (f"(({vtype}){{" + ", ".join(f"{macro}((a)[{k}], (b)[{k}], (c)[{k}])"
+                                            for k in range(lanes)) + "})")
+    return [f"#ifndef {SWITCH}",
+            "#if defined(__GNUC__) || defined(__clang__)",
+            f"#define {SWITCH} 1",
+            "#else",
+            f"#define {SWITCH} 0",
+            "#endif",
+            "#endif",
+            f"#if {SWITCH}",
+            f"typedef {precision.c_type} {vtype} "
+            f"__attribute__((vector_size({VECTOR_BYTES[kind]})));",
+            f"typedef {precision.c_type} {vtype}_unaligned "
+            f"__attribute__((vector_size({VECTOR_BYTES[kind]}), aligned({element}), "
+            "may_alias));",
+            "#if defined(DERIVE_FMA_PLAIN)",
+            f"#define {VFMA}(a, b, c) ((a) * (b) + (c))",
+            f"#define {VFNMA}(a, b, c) ((c) - (a) * (b))",
+            "#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) "
+            "&& (defined(__x86_64__) || defined(__i386__))",
+            "#include <immintrin.h>",
+            f"#define {VFMA}(a, b, c) (({vtype}){intrinsic}((a), (b), (c)))",
+            f"#define {VFNMA}(a, b, c) (({vtype}){intrinsic.replace('fmadd', 'fnmadd')}"
+            "((a), (b), (c)))",
+            "#else",
+            f"#define {VFMA}(a, b, c) {each('DERIVE_FMA')}",
+            f"#define {VFNMA}(a, b, c) {each('DERIVE_FNMA')}",
+            "#endif",
+            "#endif"]
+
+
+def _is_one(leaf: Tree) -> bool:
+    return isinstance(leaf, Const) and leaf.value == 1.0
+
+
+class ChunkPrinter:
+    """Prints the chunks of one lowered program: their vector expressions (computed when
+    made, in order, so that an operand that is an earlier chunk is its vector), and which
+    lanes each form needs as scalars (the lanes read one by one in the vector form; the
+    live lanes of the scalar form, since a lane nothing reads is left out of it)."""
+
+    def __init__(self, printer, precision: Precision, lowered: LoweredProgram) -> None:
+        self.printer = printer
+        self.precision = precision
+        self.vtype = VECTOR_TYPES[precision.name]
+        self.lanes = VECTOR_LANES
+        self.vectors: dict[tuple[str, ...], str] = {}
+        self.single: set[str] = set()  # lanes the vector form reads one by one
+        lanes = {t for chunk in lowered.rows for t in chunk.targets}
+        for chunk in lowered.rows:
+            if len(chunk.targets) != self.lanes:
+                raise ValueError(f"a chunk of {len(chunk.targets)} lanes, whose vectors "
+                                 f"hold {self.lanes}")
+        self.expressions = {chunk.targets[0]: self._vector_expression(chunk, lowered.use_fma)
+                            for chunk in lowered.rows}
+        self.stores: list[tuple[str, int, str | None]] = []  # (port, first, vector or None)
+        # a vector store goes right after the last chunk it reads (so no chunk of an output
+        # stays live to the end of the function), with the transpositions it needs; the
+        # others at the end. Items: ("line", text) or ("store", port, first, vector).
+        self.early: dict[str, list[tuple]] = {}
+        self.order = {t: k for k, chunk in enumerate(lowered.rows) for t in chunk.targets}
+        self.first_lane = {t: chunk.targets[0] for chunk in lowered.rows
+                           for t in chunk.targets}
+        symmetric = {p.name for p in lowered.outputs if p.symmetric}
+        roots: set[str] = set()
+        for port, leaves in lowered.results:
+            done = (self._symmetric_blocks(port, leaves) if port in symmetric else set())
+            for first in range(0, len(leaves), self.lanes):
+                if first in done:
+                    continue
+                run = leaves[first:first + self.lanes]
+                if len(run) == self.lanes and all(
+                        isinstance(v, Var) and v.name in lanes for v in run):
+                    self._after([v.name for v in run],
+                                [("store", port, first, self._operand(tuple(run)))])
+                    continue
+                for k, leaf in enumerate(run):
+                    self.stores.append((port, first + k, None))
+                    roots |= {v.name for v in tree_vars(leaf)}
+        self.results = {port: leaves for port, leaves in lowered.results}
+        self.scalar_live: set[str] = {v.name for _, leaves in lowered.results
+                                      for leaf in leaves for v in tree_vars(leaf)}
+        for st in reversed(lowered.body):
+            reads = {v.name for v in tree_vars(st.tree)}
+            if isinstance(st, LoweredAssign) and st.target in lanes:
+                if st.target in roots or st.target in self.scalar_live:
+                    self.scalar_live.add(st.target)
+                    self.scalar_live |= reads
+                continue
+            roots |= reads  # a scalar statement or a check reads its lanes in either form
+            self.scalar_live |= reads
+        self.scalar_live |= roots
+        self.vector_alias = (roots | self.single) & lanes
+
+    def _after(self, lanes: list[str], items: list[tuple]) -> None:
+        """``items`` go out right after the last chunk of ``lanes``."""
+        last = max(lanes, key=self.order.__getitem__)
+        self.early.setdefault(self.first_lane[last], []).extend(items)
+
+    def _chunk(self, leaves) -> str | None:
+        """The vector of the chunk whose lanes ``leaves`` are, in order; else None."""
+        names = tuple(leaf.name if isinstance(leaf, Var) else "" for leaf in leaves)
+        return self.vectors.get(names) if all(names) else None
+
+    def _transpose(self, rows: list[str]) -> list[str]:
+        """Lines and names of the columns of the 4 x 4 block whose rows are ``rows``
+        (vectors): eight shuffles."""
+        base = f"tr_{rows[0]}"
+        t = [f"{base}_{k}" for k in range(4)]
+        c = [f"{base}_c{k}" for k in range(4)]
+        pairs = [(t[0], rows[0], rows[1], "0, 4, 2, 6"), (t[1], rows[0], rows[1], "1, 5, 3, 7"),
+                 (t[2], rows[2], rows[3], "0, 4, 2, 6"), (t[3], rows[2], rows[3], "1, 5, 3, 7"),
+                 (c[0], t[0], t[2], "0, 1, 4, 5"), (c[1], t[1], t[3], "0, 1, 4, 5"),
+                 (c[2], t[0], t[2], "2, 3, 6, 7"), (c[3], t[1], t[3], "2, 3, 6, 7")]
+        self._lines = [f"const {self.vtype} {name} = __builtin_shufflevector({a}, {b}, {m});"
+                       for name, a, b, m in pairs]
+        return c
+
+    def _symmetric_blocks(self, port: str, leaves) -> set[int]:
+        """A symmetric output whose upper triangle is rows of chunks, written in 4 x 4
+        blocks: an upper block as its four chunks, the block below the diagonal as their
+        transposition, a diagonal block as its chunks with the lanes below the diagonal
+        taken from its transposition (the mirror, exactly: the same values). Returns the
+        first indices of the runs written so (the others are written as any output)."""
+        n = round(len(leaves) ** 0.5)
+        if self.lanes != 4 or n * n != len(leaves) or n % 4:
+            return set()
+        done: set[int] = set()
+        for bi in range(n // 4):
+            rows = range(4 * bi, 4 * bi + 4)
+            for bj in range(bi, n // 4):
+                chunks = []
+                for a in rows:
+                    lane0 = a * n + 4 * bj
+                    run = leaves[lane0:lane0 + 4]
+                    if bj == bi:  # the chunk that holds the row's lanes on and above
+                        r = a - 4 * bi  # the diagonal (the lanes before it are mirrored)
+                        owner = run[r] if isinstance(run[r], Var) else None
+                        where = self.first_lane.get(owner.name) if owner else None
+                        names = next((key for key, v in self.vectors.items()
+                                      if key[0] == where), None) if where else None
+                        ok = names is not None and all(
+                            isinstance(run[k], Var) and run[k].name == names[k]
+                            for k in range(r, 4))
+                        chunks.append(names if ok else None)
+                    else:
+                        vector = self._chunk(run)
+                        chunks.append(tuple(v.name for v in run) if vector else None)
+                if None in chunks:
+                    continue
+                vectors = [self.vectors[c] for c in chunks]
+                columns = self._transpose(vectors)
+                lines = [("line", line) for line in self._lines  # a diagonal block's row 0
+                         if bj > bi or not line.split(" = ")[0].endswith(columns[0])]
+                lanes = [name for c in chunks for name in c]
+                if bj == bi:
+                    for r, a in enumerate(rows):
+                        mask = ", ".join(str(4 + k if k < r else k) for k in range(4))
+                        vector = (vectors[r] if r == 0 else
+                                  f"__builtin_shufflevector({vectors[r]}, {columns[r]}, {mask})")
+                        lines.append(("store", port, a * n + 4 * bi, vector))
+                        done.add(a * n + 4 * bi)
+                else:
+                    for r, a in enumerate(rows):
+                        lines.append(("store", port, a * n + 4 * bj, vectors[r]))
+                        done.add(a * n + 4 * bj)
+                    for k in range(4):
+                        b = 4 * bj + k
+                        lines.append(("store", port, b * n + 4 * bi, columns[k]))
+                        done.add(b * n + 4 * bi)
+                self._after(lanes, lines)
+        return done
+
+    def _operand(self, leaves: tuple[Tree, ...]) -> str:
+        names = tuple(leaf.name if isinstance(leaf, Var) else "" for leaf in leaves)
+        held = self.vectors.get(names)
+        if held is not None and all(names):
+            return held
+        self.single.update(name for name in names if name)
+        lanes = ", ".join(self.printer.expression(leaf) for leaf in leaves)
+        return f"(({self.vtype}){{{lanes}}})"
+
+    def _broadcast(self, leaf: Tree) -> str:
+        return self._operand((leaf,) * self.lanes)
+
+    def _vector_expression(self, chunk: LoweredChunk, use_fma: bool) -> str:
+        """The chunk's lanes as one vector expression (the operations of
+        :meth:`derive.rows.LaneSum.tree`, lane by lane)."""
+        acc = None if chunk.base is None else self._operand(chunk.base)
+        for sign, coef, sources in chunk.terms:
+            source = self._operand(sources)
+            if _is_one(coef):
+                if acc is None:
+                    acc = source if sign > 0 else f"(-{source})"
+                else:
+                    acc = f"({acc} {'+' if sign > 0 else '-'} {source})"
+                continue
+            c = self._broadcast(coef)
+            if acc is None:
+                acc = f"({c} * {source})" if sign > 0 else f"(-({c} * {source}))"
+            elif use_fma:
+                acc = f"{VFMA if sign > 0 else VFNMA}({c}, {source}, {acc})"
+            else:
+                acc = f"({acc} {'+' if sign > 0 else '-'} ({c} * {source}))"
+        self.vectors[tuple(chunk.targets)] = f"v_{chunk.targets[0]}"
+        return acc
+
+    def store_lines(self, place) -> list[str]:
+        """The results the vector form writes at the end (after :data:`OPEN`; the caller
+        closes with the scalar stores): the entries that are not four lanes of chunks
+        (those went out with their chunks, :meth:`lines`). ``place(port, index)``: the C
+        text of an output element."""
+        return [OPEN] + [f"{place(port, first)} = "
+                         f"{self.printer.expression(self.results[port][first])};"
+                         for port, first, _ in self.stores]
+
+    def lines(self, chunk: LoweredChunk, scalar_lines: list[str], place) -> list[str]:
+        """The chunk in both forms: the vector statement, the lanes read one by one and
+        the vector stores of outputs it completes, else ``scalar_lines`` (its live lanes'
+        own statements). ``place(port, index)``: the C text of an output element."""
+        name = f"v_{chunk.targets[0]}"
+        real = self.precision.c_type
+        return ([OPEN, f"const {self.vtype} {name} = {self.expressions[chunk.targets[0]]};"]
+                + [f"const {real} {t} = {name}[{k}];" for k, t in enumerate(chunk.targets)
+                   if t in self.vector_alias]
+                + [item[1] if item[0] == "line" else
+                   f"*({self.vtype}_unaligned *)&{place(item[1], item[2])} = {item[3]};"
+                   for item in self.early.get(chunk.targets[0], ())]
+                + [ELSE] + scalar_lines + [CLOSE])
+
+
+__all__ = ["CLOSE", "ChunkPrinter", "ELSE", "OPEN", "SWITCH", "VFMA", "VFNMA",
+           "vector_macro_lines"]
