@@ -24,7 +24,7 @@ from . import structure
 from .discretize import discretize
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
-from .options import UPDATE_FORMS
+from .options import ROW_FORMS, UPDATE_FORMS
 from .symbols import (
     SymbolTable,
     as_matrix,
@@ -787,7 +787,7 @@ class NonlinearModel(_Model):
                  parameters: Names | None = None, Qu: Matrix | None = None,
                  sensors: Sequence[Sensor] | None = None,
                  unit_norm: Sequence[Sequence[str]] | None = None,
-                 examples: Values | None = None) -> None:
+                 examples: Values | None = None, rows: str = "scalar") -> None:
         sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
                                                            "h": h, "R": R})
                        if sensors is not None else ())
@@ -852,6 +852,10 @@ class NonlinearModel(_Model):
         self._initial(x0, P0, P0_pattern)
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
+        if rows not in ROW_FORMS:
+            raise ModelError(f"NonlinearModel {name!r}: rows must be one of "
+                             f"{', '.join(ROW_FORMS)}, got {rows!r}")
+        self.rows = rows
 
     # The Jacobians are derived when first asked for (the EKF derives its own, simplified
     # and shared with f and h; these serve the references, the UKF and derive show).

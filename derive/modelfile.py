@@ -97,6 +97,7 @@ from derive.expressions import (
 from derive.model import (
     P0_PATTERNS,
     R_ARGUMENT,
+    ROW_FORMS,
     SENSOR_UPDATES,
     LinearModel,
     NonlinearModel,
@@ -137,7 +138,7 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "parameters": (),
     "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
-    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm"),
+    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows"),
     "compose": ("blocks",),
     "initial": ("x0", "P0", "P0_pattern"),
     "sensors": (),
@@ -662,7 +663,16 @@ class _File:
                if "Qu" in body else {}),
             **({"unit_norm": self.unit_norm(body["unit_norm"], states)}
                if "unit_norm" in body else {}),
+            **({"rows": self.row_form(body)} if "rows" in body else {}),
         }
+
+    def row_form(self, body: dict[str, Any]) -> str:
+        """``rows = "scalar" | "vector"``: how the EKF derives its dense covariance work."""
+        form = self.string(body, "rows", "[nonlinear]")
+        if form not in ROW_FORMS:
+            raise self.error("[nonlinear] rows", f"{form!r} is not one of "
+                             f"{', '.join(ROW_FORMS)}{_suggest(form, ROW_FORMS)}")
+        return form
 
     def unit_norm(self, value: object, states: list[str]) -> list[list[str]]:
         """``unit_norm = [["q0", "q1", ...], ...]``: groups of state names."""
@@ -715,7 +725,7 @@ class _File:
         errors, parameters used only in [initial] are substituted there and not passed."""
         used: set[str] = set(self.sensor_used)
         for key, value in arguments.items():
-            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm") \
+            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows") \
                     or value is None:
                 continue
             for item in _flatten(value):

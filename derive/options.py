@@ -38,6 +38,10 @@ from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 from .precision import NAMES as PRECISIONS
 
 PATTERNS = ("dense", "zero", "diagonal", "block")
+ROW_FORMS = ("scalar", "vector")
+"""How a filter derives its dense covariance work (option ``rows``, ``NonlinearModel(rows=)``):
+entry by entry, or as vector rows (derive.filters.vector_rows)."""
+
 START_CHOICES = ("predict", "update")
 """run's first step (option ``start``): predict-first (the papers'), or update-first."""
 UPDATE_FORMS = ("batch", "sequential")
@@ -138,6 +142,13 @@ class SharedOptions:
              "S) or sequential (one scalar update per measurement; R diagonal, or constant: "
              "decorrelated at generation); default: as each sensor declares (batch unless "
              "its model says sequential)")
+    rows: str | None = option(
+        None, flag="--rows", kind=str, choices=ROW_FORMS, needs="vector_rows",
+        help="how the dense covariance work (F P F^T + Q, a sequential update's rank-m "
+             "pass) is derived: scalar (entry by entry) or vector (rows of four lanes, "
+             "printed in C as GCC/Clang vector statements with the scalar lanes as the "
+             "fallback; P read whole); default: as the model declares (scalar unless it "
+             "says vector)")
     prefix: str = option(
         "", flag="--prefix", kind=str, metavar="PREFIX", pattern=C_PREFIX,
         pattern_words="empty or a letter followed by letters, digits and underscores",

@@ -13,6 +13,7 @@ the UKF (:func:`derive.filters.nonlinear.nonlinear_programs`).
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 
 import sympy
 
@@ -48,20 +49,22 @@ from .sensors import (
 from .sensors import reference_run as sensors_reference
 from .spec import FilterSpec
 from .unit import make_sensor_unit, make_unit
+from .vector_rows import vector_predict, vector_update
 
 JACOBIAN_FACT = ("Jacobians: sympy, polynomial entries as derived, others simplified, "
                  "evaluated with f and h through shared subexpressions")
 
 
-def ekf_predict_stage(model) -> Predict:
-    """x(k/k-1) = f(x, u), P(k/k-1) = F P F^T + Q (F = I folds to P + Q); with inputs in
-    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k)."""
+def ekf_predict_parts(model):
+    """``parts(prog, mapping, x) -> (f, F, Q)``: f(x, u) and F = ∂f/∂x staged at x, and
+    the process noise Q, with inputs in f and noise Qu on them Q(x, u) = Fu Qu Fu^T + Q,
+    Fu = ∂f/∂u at x(k-1/k-1), u(k): the scalar work of the prediction."""
     lin = state_jacobian(model)
     n = model.n
     used = [model.inputs.index(u) for u in model.f_inputs]
     Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used)
 
-    def predict(prog, mapping, x, P):
+    def parts(prog, mapping, x):
         Q = sympy.Matrix(model.subs(model.Q)).xreplace(mapping)
         values, FFu = stage_linearisation(prog, lin, {**mapping, **state_mapping(model, x)},
                                           "f")
@@ -71,6 +74,18 @@ def ekf_predict_stage(model) -> Predict:
             FuQu = staging.matmul(prog, Fu, Qu.xreplace(mapping))
             Q = staging.add(prog, staging.matmul(prog, FuQu, Fu.T, symmetric_result=True), Q,
                             symmetric_result=True)
+        return values, F, Q
+
+    return parts
+
+
+def ekf_predict_stage(model) -> Predict:
+    """x(k/k-1) = f(x, u), P(k/k-1) = F P F^T + Q (F = I folds to P + Q); with inputs in
+    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k)."""
+    parts = ekf_predict_parts(model)
+
+    def predict(prog, mapping, x, P):
+        values, F, Q = parts(prog, mapping, x)
         FP = staging.matmul(prog, F, P)
         Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), Q,
                          symmetric_result=True)
@@ -79,18 +94,29 @@ def ekf_predict_stage(model) -> Predict:
     return predict
 
 
-def ekf_update_stage(model) -> Update:
-    """H at x(k/k-1) sharing h's work, S = H P H^T + R, K = P H^T S^-1 (LDL^T solve); or,
-    for a sequential sensor, one scalar update per measurement (h and H at x(k/k-1))."""
+def ekf_update_parts(model):
+    """``parts(prog, mapping, meas, x) -> (h, H, R)``: h and H = ∂h/∂x staged at x
+    (sharing h's work), and R: the scalar work of an update."""
     cache: dict[tuple, Linearisation] = {}
 
-    def update(prog, mapping, meas, x, P, z):
+    def parts(prog, mapping, meas, x):
         key = tuple(sympy.srepr(e) for e in meas.h)
         if key not in cache:
             cache[key] = linearise(meas.h, model.state_symbols)
         at_x = {**mapping, **state_mapping(model, x)}
         values, H = stage_linearisation(prog, cache[key], at_x, "h")
-        R = meas.R.xreplace(mapping)
+        return values, H, meas.R.xreplace(mapping)
+
+    return parts
+
+
+def ekf_update_stage(model) -> Update:
+    """H at x(k/k-1) sharing h's work, S = H P H^T + R, K = P H^T S^-1 (LDL^T solve); or,
+    for a sequential sensor, one scalar update per measurement (h and H at x(k/k-1))."""
+    parts = ekf_update_parts(model)
+
+    def update(prog, mapping, meas, x, P, z):
+        values, H, R = parts(prog, mapping, meas, x)
         if meas.sequential:
             innovation = staging.sub(prog, z, values)
             x_new, P_new, gated = sequential_update(prog, x, P, H, R, innovation, meas.gate,
@@ -125,7 +151,8 @@ def derive_unit(model, spec, options):
             sequential=forms[g.name] == "sequential") for g in groups}
         programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                              ekf_update_stage(model), options, spec.title,
-                                             sensors=sensors)
+                                             sensors=sensors,
+                                             **_vector_rows(model, options))
         facts = ([JACOBIAN_FACT, *facts]
                  + sensor_facts(model, groups, thresholds, options.start, forms)
                  + unit_norm_fact(model))
@@ -133,9 +160,19 @@ def derive_unit(model, spec, options):
                                 model.f_inputs, facts)
     programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                          ekf_update_stage(model), options,
-                                         spec.title)
+                                         spec.title, **_vector_rows(model, options))
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
     return _with_facts(unit, [JACOBIAN_FACT, *facts, *unit_norm_fact(model)])
+
+
+def _vector_rows(model, options) -> dict:
+    """The builders of the predict and the sequential updates of vector rows, when the
+    option ``rows`` (or the model, when the option is not given) asks for them
+    (derive.filters.vector_rows)."""
+    if (options.rows or model.rows) != "vector":
+        return {}
+    return {"vector_predict": partial(vector_predict, ekf_predict_parts(model)),
+            "vector_update": partial(vector_update, ekf_update_parts(model))}
 
 
 def _with_facts(unit, facts: list[str]):
@@ -161,7 +198,8 @@ def reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    covariance=True, inputs=True, sensors=True, extra_programs=("predict", "update1"),
+    covariance=True, inputs=True, sensors=True, vector_rows=True,
+    extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
     listing=100,
     about={"python": "Run the extended Kalman filter: h linearised at each prediction."

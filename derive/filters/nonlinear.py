@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import sympy
 
@@ -312,14 +313,18 @@ def _build(model, name: str, meas: Measurement | None, predict: Predict | None,
 
 
 def nonlinear_programs(model, predict: Predict, update: Update, options: SharedOptions,
-                       title: str, sensors: dict[str, Measurement] | None = None
+                       title: str, sensors: dict[str, Measurement] | None = None,
+                       vector_predict=None, vector_update=None
                        ) -> tuple[dict[str, Program], list[str]]:
     """``step``, ``predict`` and (when it exists) ``update1``, optimised; and header facts.
     With ``sensors`` (``{sensor name: its Measurement}``): ``predict`` and one
     ``update_<sensor>`` each (the run kind ``sensors``).
 
     P's pattern is the closure of P0's declared pattern (option ``P0_pattern``) under
-    every program, so entries outside it are never read.
+    every program, so entries outside it are never read. ``vector_predict(model, inputs,
+    outputs, doc, bind)`` and ``vector_update(model, meas, name, inputs, outputs, doc,
+    bind)``: build ``predict`` and the sequential sensor updates instead when P is dense
+    (vector rows: derive.filters.vector_rows).
     """
     if sensors is not None:  # the run kind sensors: predict and one update per sensor
         specs = {"predict": (None, predict, None)}
@@ -345,6 +350,18 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
     closed = start if dense else pat.closure(grow, start)
     programs = {}
     for name, (meas, pr, up) in specs.items():
+        if name == "predict" and vector_predict is not None and dense:
+            programs[name] = vector_predict(model, *_ports(model, name, None),
+                                            _DOCS["predict"].format(title=title, m=model.m),
+                                            partial(_predict_mapping, model))
+            continue
+        if (name.startswith("update_") and vector_update is not None and dense
+                and meas.sequential):
+            programs[name] = vector_update(model, meas, name, *_ports(model, name, meas),
+                                           f"The {title} update with the measurements of "
+                                           f"sensor {name[7:]!r}.",
+                                           partial(_update_mapping, model, meas))
+            continue
         prog, x, P, extra = _build(model, name, meas, pr, up, closed, title, declared)
         prog.set_output("x_new", list(x))
         prog.set_output("P_new", list(P))
@@ -371,6 +388,24 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
     else:
         facts.append(f"no update1 (sequential scalar updates): {why}")
     return programs, facts
+
+
+def _predict_mapping(model, prog: Program) -> dict:
+    """The model's parameters and the inputs f uses -> the predict program's elements (as
+    :func:`_build` binds them)."""
+    mapping = prog.bind("p", model.parameters) if model.parameters else {}
+    if model.f_inputs:
+        mapping.update(prog.bind("u", model.f_inputs))
+    return mapping
+
+
+def _update_mapping(model, meas: Measurement, prog: Program) -> dict:
+    """The model's parameters and the sensor's inputs -> the update program's elements (as
+    :func:`_build` binds them; a sequential update takes no R port)."""
+    mapping = prog.bind("p", model.parameters) if model.parameters else {}
+    if meas.inputs:
+        mapping.update(prog.bind("u", meas.inputs))
+    return mapping
 
 
 def step_inputs(model) -> tuple[str, ...]:

@@ -152,6 +152,19 @@ def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float |
     return x_new, staging.sub(prog, P, ZtY, symmetric_result=True), (nis, applied)
 
 
+def decorrelated(prog: Program, H, R, innovation):
+    """``(H, R, nu, correlated)``: a constant R that is not diagonal, R = L D L^T, gives the
+    measurements L^-1 z with noise D: H and nu become L^-1 H and L^-1 nu (staged; L^-1 in
+    exact rationals) and R becomes D; a diagonal R is returned as it is."""
+    m = H.rows
+    if not any(R[i, j] != 0 for i in range(m) for j in range(i + 1, m)):
+        return H, R, innovation, False
+    L, D = sympy.Matrix(R).LDLdecomposition(hermitian=False)
+    whiten = L.inv()
+    return (staging.matmul(prog, whiten, H, hint="hw"), D,
+            staging.matmul(prog, whiten, innovation, hint="nuw"), True)
+
+
 def sequential_update(prog: Program, x, P, H, R, innovation, threshold: float | None = None,
                       measurements: tuple[str, ...] = ()):
     """The update with ``z``'s m measurements fused one scalar at a time, h and H taken
@@ -166,13 +179,7 @@ def sequential_update(prog: Program, x, P, H, R, innovation, threshold: float | 
     exceeds it: one select per entry) and ``(nis, applied)``. ``innovation``: nu (m x 1),
     staged by the caller; ``measurements``: their names, for the status messages."""
     n, m = H.cols, H.rows
-    correlated = any(R[i, j] != 0 for i in range(m) for j in range(i + 1, m))
-    if correlated:  # R = L D L^T, constant: the measurements L^-1 z have noise D
-        L, D = sympy.Matrix(R).LDLdecomposition(hermitian=False)
-        whiten = L.inv()
-        H = staging.matmul(prog, whiten, H, hint="hw")
-        innovation = staging.matmul(prog, whiten, innovation, hint="nuw")
-        R = D
+    H, R, innovation, correlated = decorrelated(prog, H, R, innovation)
     # signs chosen so that every accumulation is a product added (one fma each): the
     # negated reciprocal -1/s_i, the negated gain -k, and back = x - x_cur
     back = sympy.zeros(n, 1)

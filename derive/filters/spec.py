@@ -83,6 +83,8 @@ class FilterSpec:
     with n as a whole (time-varying steps through derive.filters.blockwise unless P0's
     pattern is dense; steady maps from their non-zero constants): what bounds the model
     files it takes (derive.filters.blockwise.whole_states).
+    ``vector_rows``: takes the option ``rows`` (its dense covariance work as vector rows,
+    derive.filters.vector_rows).
     ``conditioning``: what its step factorises, solves with, inverts or cancels at run
     time (:class:`Conditioned` s; empty for a filter whose constants are all computed
     offline in double): the conditioning its float32 tolerance takes
@@ -112,6 +114,7 @@ class FilterSpec:
     inputs: bool = False
     sensors: bool = False
     blockwise: bool = False
+    vector_rows: bool = False
     conditioning: tuple[Conditioned, ...] = ()
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
