@@ -36,7 +36,16 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         if s.gated:
             lines += [f"nis_{s.name} = np.full((steps,) + track, np.nan)",
                       f"applied_{s.name} = np.zeros((steps,) + track)"]
-    lines += ["x = x0", f"P = P0.reshape(({nn},) + P0.shape[2:])", "for k in range(steps):"]
+    lines.append("x = x0")
+    if reads_whole(lowered):  # P0's upper triangle, mirrored: the programs read P whole
+        lines += [f"P0m = P0.reshape(({n}, {n}) + P0.shape[2:])",
+                  f"upper = np.triu(np.ones(({n}, {n}), dtype=bool))"
+                  ".reshape((n_, n_) + (1,) * (P0m.ndim - 2))".replace("n_", str(n)),
+                  f"P = np.where(upper, P0m, P0m.swapaxes(0, 1)).reshape(({nn},) + "
+                  "P0m.shape[2:])"]
+    else:
+        lines.append(f"P = P0.reshape(({nn},) + P0.shape[2:])")
+    lines.append("for k in range(steps):")
     u_predict = (f", {_columns(unit.predict_inputs, unit.n_inputs)}"
                  if unit.predict_inputs else "")
     predict = f"x, P = predict(x, P{u_predict}{p_arg})"
@@ -68,6 +77,13 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         if s.gated:
             outputs += [f"nis_{s.name}", f"applied_{s.name}"]
     return lines + [f"return {', '.join(outputs)}"]
+
+
+def reads_whole(lowered: dict[str, LoweredProgram]) -> bool:
+    """True when a program reads its symmetric P below the diagonal (vector rows): run then
+    mirrors P0's upper triangle, so that P0 is read as everywhere else (upper triangle)."""
+    return any(lp.reads_below_diagonal(port) for lp in lowered.values()
+               for port in lp.inputs if port.symmetric)
 
 
 def _call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
@@ -109,9 +125,14 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
     used_u = bool(unit.predict_inputs) or any(s.inputs for s in unit.sensors)
     if unit.n_inputs and not used_u:
         lines.append("(void)u;")
-    lines += [f"for (i = 0; i < {n}; ++i) {{", "    x[i] = x0[i];", "}",
-              f"for (i = 0; i < {nn}; ++i) {{", "    P[i] = P0[i];", "}",
-              "for (k = 0; k < steps; ++k) {"]
+    lines += [f"for (i = 0; i < {n}; ++i) {{", "    x[i] = x0[i];", "}"]
+    if reads_whole(lowered):  # P0's upper triangle, mirrored: the programs read P whole
+        lines += [f"for (i = 0; i < {nn}; ++i) {{",
+                  f"    P[i] = i / {n} <= i % {n} ? P0[i] : P0[(i % {n}) * {n} + i / {n}];",
+                  "}"]
+    else:
+        lines += [f"for (i = 0; i < {nn}; ++i) {{", "    P[i] = P0[i];", "}"]
+    lines.append("for (k = 0; k < steps; ++k) {")
     body = []
     if used_u:
         body.append(f"const {t} *uk = u + k * {unit.n_inputs};")
