@@ -15,8 +15,8 @@
  *     int ins_gnss_ekf_update_baro(x[16], P[16*16], z[1], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
- * symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
- * symmetric in update_gnss: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
+ * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     update_gnss 1: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
@@ -26,8 +26,8 @@
  *     update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 64, sub 13, mul 111, div 0, sqrt 0, fma 1000, neg 18, cmp 0, calls 0 (flops 2188, instructions 1206)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 22, mul 123, div 7, sqrt 1, fma 899, neg 0, cmp 6, calls 0 (flops 1962, instructions 1069)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 0, calls 0 (flops 2574, instructions 1442)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1349, neg 0, cmp 6, calls 0 (flops 2840, instructions 1497)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
@@ -58,6 +58,28 @@
 #define DERIVE_FNMA(a, b, c) ((c) - (a) * (b))
 #else
 #define DERIVE_FNMA(a, b, c) DERIVE_FMA((a), -(b), (c))
+#endif
+#endif
+#ifndef DERIVE_VECTOR
+#if defined(__GNUC__) || defined(__clang__)
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+typedef double derive_vd __attribute__((vector_size(32)));
+typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+#if defined(DERIVE_FMA_PLAIN)
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
+#include <immintrin.h>
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#else
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
 #endif
 
@@ -200,237 +222,649 @@ void ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, co
     const double t134 = DERIVE_FMA(t112, t96, DERIVE_FMA(t111, t93, t110*t95));
     const double t135 = 1e-10*p[0];
     const double t136 = 1e-08*p[0];
-    const double t137 = DERIVE_FMA(P[3], t36, DERIVE_FMA(P[2], t35, DERIVE_FMA(P[1], t34, DERIVE_FMA(P[12], t39, DERIVE_FMA(P[11], t38, DERIVE_FMA(P[10], t37, P[0]))))));
-    const double t138 = P[19]*t36;
-    const double t139 = DERIVE_FMA(P[28], t39, DERIVE_FMA(P[27], t38, DERIVE_FMA(P[26], t37, DERIVE_FMA(P[18], t35, DERIVE_FMA(P[17], t34, P[1] + t138)))));
-    const double t140 = P[18]*t34;
-    const double t141 = DERIVE_FMA(P[44], t39, DERIVE_FMA(P[43], t38, DERIVE_FMA(P[42], t37, DERIVE_FMA(P[35], t36, DERIVE_FMA(P[34], t35, P[2] + t140)))));
-    const double t142 = P[35]*t35;
-    const double t143 = DERIVE_FMA(P[60], t39, DERIVE_FMA(P[59], t38, DERIVE_FMA(P[58], t37, DERIVE_FMA(P[51], t36, DERIVE_FMA(P[19], t34, P[3] + t142)))));
-    const double t144 = DERIVE_FMA(P[76], t39, DERIVE_FMA(P[75], t38, DERIVE_FMA(P[74], t37, DERIVE_FMA(P[52], t36, DERIVE_FMA(P[36], t35, DERIVE_FMA(P[20], t34, P[4]))))));
-    const double t145 = DERIVE_FMA(P[92], t39, DERIVE_FMA(P[91], t38, DERIVE_FMA(P[90], t37, DERIVE_FMA(P[53], t36, DERIVE_FMA(P[37], t35, DERIVE_FMA(P[21], t34, P[5]))))));
-    const double t146 = DERIVE_FMA(P[54], t36, DERIVE_FMA(P[38], t35, DERIVE_FMA(P[22], t34, DERIVE_FMA(P[108], t39, DERIVE_FMA(P[107], t38, DERIVE_FMA(P[106], t37, P[6]))))));
-    const double t147 = DERIVE_FMA(P[55], t36, DERIVE_FMA(P[39], t35, DERIVE_FMA(P[23], t34, DERIVE_FMA(P[124], t39, DERIVE_FMA(P[123], t38, DERIVE_FMA(P[122], t37, P[7]))))));
-    const double t148 = DERIVE_FMA(P[56], t36, DERIVE_FMA(P[40], t35, DERIVE_FMA(P[24], t34, DERIVE_FMA(P[140], t39, DERIVE_FMA(P[139], t38, DERIVE_FMA(P[138], t37, P[8]))))));
-    const double t149 = DERIVE_FMA(P[57], t36, DERIVE_FMA(P[41], t35, DERIVE_FMA(P[25], t34, DERIVE_FMA(P[156], t39, DERIVE_FMA(P[155], t38, DERIVE_FMA(P[154], t37, P[9]))))));
-    const double t150 = P[171]*t38;
-    const double t151 = DERIVE_FMA(P[58], t36, DERIVE_FMA(P[42], t35, DERIVE_FMA(P[26], t34, DERIVE_FMA(P[172], t39, DERIVE_FMA(P[170], t37, P[10] + t150)))));
-    const double t152 = P[188]*t39;
-    const double t153 = DERIVE_FMA(P[59], t36, DERIVE_FMA(P[43], t35, DERIVE_FMA(P[27], t34, DERIVE_FMA(P[187], t38, DERIVE_FMA(P[171], t37, P[11] + t152)))));
-    const double t154 = P[172]*t37;
-    const double t155 = DERIVE_FMA(P[60], t36, DERIVE_FMA(P[44], t35, DERIVE_FMA(P[28], t34, DERIVE_FMA(P[204], t39, DERIVE_FMA(P[188], t38, P[12] + t154)))));
-    const double t156 = DERIVE_FMA(P[61], t36, DERIVE_FMA(P[45], t35, DERIVE_FMA(P[29], t34, DERIVE_FMA(P[205], t39, DERIVE_FMA(P[189], t38, DERIVE_FMA(P[173], t37, P[13]))))));
-    const double t157 = DERIVE_FMA(P[62], t36, DERIVE_FMA(P[46], t35, DERIVE_FMA(P[30], t34, DERIVE_FMA(P[206], t39, DERIVE_FMA(P[190], t38, DERIVE_FMA(P[174], t37, P[14]))))));
-    const double t158 = DERIVE_FMA(P[63], t36, DERIVE_FMA(P[47], t35, DERIVE_FMA(P[31], t34, DERIVE_FMA(P[207], t39, DERIVE_FMA(P[191], t38, DERIVE_FMA(P[175], t37, P[15]))))));
-    const double t159 = P[2]*t3;
-    const double t160 = DERIVE_FMA(P[3], t35, DERIVE_FMA(P[12], t41, DERIVE_FMA(P[11], t39, DERIVE_FMA(P[10], t44, DERIVE_FMA(P[0], t1, P[1] + t159)))));
-    const double t161 = DERIVE_FMA(P[28], t41, DERIVE_FMA(P[27], t39, DERIVE_FMA(P[26], t44, DERIVE_FMA(P[1], t1, DERIVE_FMA(P[19], t35, DERIVE_FMA(P[18], t3, P[17]))))));
-    const double t162 = DERIVE_FMA(P[44], t41, DERIVE_FMA(P[43], t39, DERIVE_FMA(P[42], t44, DERIVE_FMA(P[34], t3, DERIVE_FMA(P[2], t1, P[18] + t142)))));
-    const double t163 = P[3]*t1;
-    const double t164 = DERIVE_FMA(P[60], t41, DERIVE_FMA(P[59], t39, DERIVE_FMA(P[58], t44, DERIVE_FMA(P[51], t35, DERIVE_FMA(P[35], t3, P[19] + t163)))));
-    const double t165 = DERIVE_FMA(P[76], t41, DERIVE_FMA(P[75], t39, DERIVE_FMA(P[74], t44, DERIVE_FMA(P[52], t35, DERIVE_FMA(P[4], t1, DERIVE_FMA(P[36], t3, P[20]))))));
-    const double t166 = DERIVE_FMA(P[92], t41, DERIVE_FMA(P[91], t39, DERIVE_FMA(P[90], t44, DERIVE_FMA(P[5], t1, DERIVE_FMA(P[53], t35, DERIVE_FMA(P[37], t3, P[21]))))));
-    const double t167 = DERIVE_FMA(P[6], t1, DERIVE_FMA(P[54], t35, DERIVE_FMA(P[38], t3, DERIVE_FMA(P[108], t41, DERIVE_FMA(P[107], t39, DERIVE_FMA(P[106], t44, P[22]))))));
-    const double t168 = DERIVE_FMA(P[7], t1, DERIVE_FMA(P[55], t35, DERIVE_FMA(P[39], t3, DERIVE_FMA(P[124], t41, DERIVE_FMA(P[123], t39, DERIVE_FMA(P[122], t44, P[23]))))));
-    const double t169 = DERIVE_FMA(P[8], t1, DERIVE_FMA(P[56], t35, DERIVE_FMA(P[40], t3, DERIVE_FMA(P[140], t41, DERIVE_FMA(P[139], t39, DERIVE_FMA(P[138], t44, P[24]))))));
-    const double t170 = DERIVE_FMA(P[9], t1, DERIVE_FMA(P[57], t35, DERIVE_FMA(P[41], t3, DERIVE_FMA(P[156], t41, DERIVE_FMA(P[155], t39, DERIVE_FMA(P[154], t44, P[25]))))));
-    const double t171 = DERIVE_FMA(P[58], t35, DERIVE_FMA(P[42], t3, DERIVE_FMA(P[172], t41, DERIVE_FMA(P[171], t39, DERIVE_FMA(P[170], t44, DERIVE_FMA(P[10], t1, P[26]))))));
-    const double t172 = P[171]*t44;
-    const double t173 = DERIVE_FMA(P[59], t35, DERIVE_FMA(P[43], t3, DERIVE_FMA(P[188], t41, DERIVE_FMA(P[187], t39, DERIVE_FMA(P[11], t1, P[27] + t172)))));
-    const double t174 = P[172]*t44;
-    const double t175 = DERIVE_FMA(P[60], t35, DERIVE_FMA(P[44], t3, DERIVE_FMA(P[204], t41, DERIVE_FMA(P[12], t1, P[28] + t152 + t174))));
-    const double t176 = DERIVE_FMA(P[61], t35, DERIVE_FMA(P[45], t3, DERIVE_FMA(P[205], t41, DERIVE_FMA(P[189], t39, DERIVE_FMA(P[173], t44, DERIVE_FMA(P[13], t1, P[29]))))));
-    const double t177 = DERIVE_FMA(P[62], t35, DERIVE_FMA(P[46], t3, DERIVE_FMA(P[206], t41, DERIVE_FMA(P[190], t39, DERIVE_FMA(P[174], t44, DERIVE_FMA(P[14], t1, P[30]))))));
-    const double t178 = DERIVE_FMA(P[63], t35, DERIVE_FMA(P[47], t3, DERIVE_FMA(P[207], t41, DERIVE_FMA(P[191], t39, DERIVE_FMA(P[175], t44, DERIVE_FMA(P[15], t1, P[31]))))));
-    const double t179 = DERIVE_FMA(P[1], t36, DERIVE_FMA(P[12], t37, DERIVE_FMA(P[11], t44, DERIVE_FMA(P[10], t42, DERIVE_FMA(P[0], t2, P[2] + t163)))));
-    const double t180 = P[1]*t2;
-    const double t181 = DERIVE_FMA(P[28], t37, DERIVE_FMA(P[27], t44, DERIVE_FMA(P[26], t42, DERIVE_FMA(P[19], t1, DERIVE_FMA(P[17], t36, P[18] + t180)))));
-    const double t182 = DERIVE_FMA(P[44], t37, DERIVE_FMA(P[43], t44, DERIVE_FMA(P[42], t42, DERIVE_FMA(P[35], t1, DERIVE_FMA(P[2], t2, DERIVE_FMA(P[18], t36, P[34]))))));
-    const double t183 = DERIVE_FMA(P[60], t37, DERIVE_FMA(P[59], t44, DERIVE_FMA(P[58], t42, DERIVE_FMA(P[51], t1, DERIVE_FMA(P[3], t2, P[35] + t138)))));
-    const double t184 = DERIVE_FMA(P[76], t37, DERIVE_FMA(P[75], t44, DERIVE_FMA(P[74], t42, DERIVE_FMA(P[52], t1, DERIVE_FMA(P[4], t2, DERIVE_FMA(P[20], t36, P[36]))))));
-    const double t185 = DERIVE_FMA(P[92], t37, DERIVE_FMA(P[91], t44, DERIVE_FMA(P[90], t42, DERIVE_FMA(P[5], t2, DERIVE_FMA(P[53], t1, DERIVE_FMA(P[21], t36, P[37]))))));
-    const double t186 = DERIVE_FMA(P[6], t2, DERIVE_FMA(P[54], t1, DERIVE_FMA(P[22], t36, DERIVE_FMA(P[108], t37, DERIVE_FMA(P[107], t44, DERIVE_FMA(P[106], t42, P[38]))))));
-    const double t187 = DERIVE_FMA(P[7], t2, DERIVE_FMA(P[55], t1, DERIVE_FMA(P[23], t36, DERIVE_FMA(P[124], t37, DERIVE_FMA(P[123], t44, DERIVE_FMA(P[122], t42, P[39]))))));
-    const double t188 = DERIVE_FMA(P[8], t2, DERIVE_FMA(P[56], t1, DERIVE_FMA(P[24], t36, DERIVE_FMA(P[140], t37, DERIVE_FMA(P[139], t44, DERIVE_FMA(P[138], t42, P[40]))))));
-    const double t189 = DERIVE_FMA(P[9], t2, DERIVE_FMA(P[57], t1, DERIVE_FMA(P[25], t36, DERIVE_FMA(P[156], t37, DERIVE_FMA(P[155], t44, DERIVE_FMA(P[154], t42, P[41]))))));
-    const double t190 = DERIVE_FMA(P[58], t1, DERIVE_FMA(P[26], t36, DERIVE_FMA(P[170], t42, DERIVE_FMA(P[10], t2, P[42] + t154 + t172))));
-    const double t191 = DERIVE_FMA(P[59], t1, DERIVE_FMA(P[27], t36, DERIVE_FMA(P[188], t37, DERIVE_FMA(P[187], t44, DERIVE_FMA(P[171], t42, DERIVE_FMA(P[11], t2, P[43]))))));
-    const double t192 = P[188]*t44;
-    const double t193 = DERIVE_FMA(P[60], t1, DERIVE_FMA(P[28], t36, DERIVE_FMA(P[204], t37, DERIVE_FMA(P[172], t42, DERIVE_FMA(P[12], t2, P[44] + t192)))));
-    const double t194 = DERIVE_FMA(P[61], t1, DERIVE_FMA(P[29], t36, DERIVE_FMA(P[205], t37, DERIVE_FMA(P[189], t44, DERIVE_FMA(P[173], t42, DERIVE_FMA(P[13], t2, P[45]))))));
-    const double t195 = DERIVE_FMA(P[62], t1, DERIVE_FMA(P[30], t36, DERIVE_FMA(P[206], t37, DERIVE_FMA(P[190], t44, DERIVE_FMA(P[174], t42, DERIVE_FMA(P[14], t2, P[46]))))));
-    const double t196 = DERIVE_FMA(P[63], t1, DERIVE_FMA(P[31], t36, DERIVE_FMA(P[207], t37, DERIVE_FMA(P[191], t44, DERIVE_FMA(P[175], t42, DERIVE_FMA(P[15], t2, P[47]))))));
-    const double t197 = DERIVE_FMA(P[2], t34, DERIVE_FMA(P[12], t44, DERIVE_FMA(P[11], t40, DERIVE_FMA(P[10], t38, DERIVE_FMA(P[0], t3, P[3] + t180)))));
-    const double t198 = DERIVE_FMA(P[28], t44, DERIVE_FMA(P[27], t40, DERIVE_FMA(P[26], t38, DERIVE_FMA(P[1], t3, DERIVE_FMA(P[17], t2, P[19] + t140)))));
-    const double t199 = DERIVE_FMA(P[44], t44, DERIVE_FMA(P[43], t40, DERIVE_FMA(P[42], t38, DERIVE_FMA(P[34], t34, DERIVE_FMA(P[18], t2, P[35] + t159)))));
-    const double t200 = DERIVE_FMA(P[60], t44, DERIVE_FMA(P[59], t40, DERIVE_FMA(P[58], t38, DERIVE_FMA(P[3], t3, DERIVE_FMA(P[35], t34, DERIVE_FMA(P[19], t2, P[51]))))));
-    const double t201 = DERIVE_FMA(P[76], t44, DERIVE_FMA(P[75], t40, DERIVE_FMA(P[74], t38, DERIVE_FMA(P[4], t3, DERIVE_FMA(P[36], t34, DERIVE_FMA(P[20], t2, P[52]))))));
-    const double t202 = DERIVE_FMA(P[92], t44, DERIVE_FMA(P[91], t40, DERIVE_FMA(P[90], t38, DERIVE_FMA(P[5], t3, DERIVE_FMA(P[37], t34, DERIVE_FMA(P[21], t2, P[53]))))));
-    const double t203 = DERIVE_FMA(P[6], t3, DERIVE_FMA(P[38], t34, DERIVE_FMA(P[22], t2, DERIVE_FMA(P[108], t44, DERIVE_FMA(P[107], t40, DERIVE_FMA(P[106], t38, P[54]))))));
-    const double t204 = DERIVE_FMA(P[7], t3, DERIVE_FMA(P[39], t34, DERIVE_FMA(P[23], t2, DERIVE_FMA(P[124], t44, DERIVE_FMA(P[123], t40, DERIVE_FMA(P[122], t38, P[55]))))));
-    const double t205 = DERIVE_FMA(P[8], t3, DERIVE_FMA(P[40], t34, DERIVE_FMA(P[24], t2, DERIVE_FMA(P[140], t44, DERIVE_FMA(P[139], t40, DERIVE_FMA(P[138], t38, P[56]))))));
-    const double t206 = DERIVE_FMA(P[9], t3, DERIVE_FMA(P[41], t34, DERIVE_FMA(P[25], t2, DERIVE_FMA(P[156], t44, DERIVE_FMA(P[155], t40, DERIVE_FMA(P[154], t38, P[57]))))));
-    const double t207 = DERIVE_FMA(P[42], t34, DERIVE_FMA(P[26], t2, DERIVE_FMA(P[171], t40, DERIVE_FMA(P[170], t38, DERIVE_FMA(P[10], t3, P[58] + t174)))));
-    const double t208 = DERIVE_FMA(P[43], t34, DERIVE_FMA(P[27], t2, DERIVE_FMA(P[187], t40, DERIVE_FMA(P[11], t3, P[59] + t150 + t192))));
-    const double t209 = DERIVE_FMA(P[44], t34, DERIVE_FMA(P[28], t2, DERIVE_FMA(P[204], t44, DERIVE_FMA(P[188], t40, DERIVE_FMA(P[172], t38, DERIVE_FMA(P[12], t3, P[60]))))));
-    const double t210 = DERIVE_FMA(P[45], t34, DERIVE_FMA(P[29], t2, DERIVE_FMA(P[205], t44, DERIVE_FMA(P[189], t40, DERIVE_FMA(P[173], t38, DERIVE_FMA(P[13], t3, P[61]))))));
-    const double t211 = DERIVE_FMA(P[46], t34, DERIVE_FMA(P[30], t2, DERIVE_FMA(P[206], t44, DERIVE_FMA(P[190], t40, DERIVE_FMA(P[174], t38, DERIVE_FMA(P[14], t3, P[62]))))));
-    const double t212 = DERIVE_FMA(P[47], t34, DERIVE_FMA(P[31], t2, DERIVE_FMA(P[207], t44, DERIVE_FMA(P[191], t40, DERIVE_FMA(P[175], t38, DERIVE_FMA(P[15], t3, P[63]))))));
-    const double t213 = DERIVE_FMA(P[3], t73, DERIVE_FMA(P[2], t72, DERIVE_FMA(P[1], t71, DERIVE_FNMA(P[15], t76, DERIVE_FMA(P[14], t75, DERIVE_FMA(P[13], t74, DERIVE_FMA(P[0], t70, P[4])))))));
-    const double t214 = DERIVE_FNMA(P[31], t76, DERIVE_FMA(P[30], t75, DERIVE_FMA(P[29], t74, DERIVE_FMA(P[1], t70, DERIVE_FMA(P[19], t73, DERIVE_FMA(P[18], t72, DERIVE_FMA(P[17], t71, P[20])))))));
-    const double t215 = DERIVE_FNMA(P[47], t76, DERIVE_FMA(P[46], t75, DERIVE_FMA(P[45], t74, DERIVE_FMA(P[35], t73, DERIVE_FMA(P[34], t72, DERIVE_FMA(P[2], t70, DERIVE_FMA(P[18], t71, P[36])))))));
-    const double t216 = DERIVE_FNMA(P[63], t76, DERIVE_FMA(P[62], t75, DERIVE_FMA(P[61], t74, DERIVE_FMA(P[51], t73, DERIVE_FMA(P[3], t70, DERIVE_FMA(P[35], t72, DERIVE_FMA(P[19], t71, P[52])))))));
-    const double t217 = DERIVE_FNMA(P[79], t76, DERIVE_FMA(P[78], t75, DERIVE_FMA(P[77], t74, DERIVE_FMA(P[52], t73, DERIVE_FMA(P[4], t70, DERIVE_FMA(P[36], t72, DERIVE_FMA(P[20], t71, P[68])))))));
-    const double t218 = DERIVE_FNMA(P[95], t76, DERIVE_FMA(P[94], t75, DERIVE_FMA(P[93], t74, DERIVE_FMA(P[5], t70, DERIVE_FMA(P[53], t73, DERIVE_FMA(P[37], t72, DERIVE_FMA(P[21], t71, P[69])))))));
-    const double t219 = DERIVE_FMA(P[6], t70, DERIVE_FMA(P[54], t73, DERIVE_FMA(P[38], t72, DERIVE_FMA(P[22], t71, DERIVE_FNMA(P[111], t76, DERIVE_FMA(P[110], t75, DERIVE_FMA(P[109], t74, P[70])))))));
-    const double t220 = DERIVE_FMA(P[7], t70, DERIVE_FMA(P[55], t73, DERIVE_FMA(P[39], t72, DERIVE_FMA(P[23], t71, DERIVE_FNMA(P[127], t76, DERIVE_FMA(P[126], t75, DERIVE_FMA(P[125], t74, P[71])))))));
-    const double t221 = DERIVE_FMA(P[8], t70, DERIVE_FMA(P[56], t73, DERIVE_FMA(P[40], t72, DERIVE_FMA(P[24], t71, DERIVE_FNMA(P[143], t76, DERIVE_FMA(P[142], t75, DERIVE_FMA(P[141], t74, P[72])))))));
-    const double t222 = DERIVE_FMA(P[9], t70, DERIVE_FMA(P[57], t73, DERIVE_FMA(P[41], t72, DERIVE_FMA(P[25], t71, DERIVE_FNMA(P[159], t76, DERIVE_FMA(P[158], t75, DERIVE_FMA(P[157], t74, P[73])))))));
-    const double t223 = DERIVE_FMA(P[58], t73, DERIVE_FMA(P[42], t72, DERIVE_FMA(P[26], t71, DERIVE_FNMA(P[175], t76, DERIVE_FMA(P[174], t75, DERIVE_FMA(P[173], t74, DERIVE_FMA(P[10], t70, P[74])))))));
-    const double t224 = DERIVE_FMA(P[59], t73, DERIVE_FMA(P[43], t72, DERIVE_FMA(P[27], t71, DERIVE_FNMA(P[191], t76, DERIVE_FMA(P[190], t75, DERIVE_FMA(P[189], t74, DERIVE_FMA(P[11], t70, P[75])))))));
-    const double t225 = DERIVE_FMA(P[60], t73, DERIVE_FMA(P[44], t72, DERIVE_FMA(P[28], t71, DERIVE_FNMA(P[207], t76, DERIVE_FMA(P[206], t75, DERIVE_FMA(P[205], t74, DERIVE_FMA(P[12], t70, P[76])))))));
-    const double t226 = DERIVE_FMA(P[61], t73, DERIVE_FMA(P[45], t72, DERIVE_FMA(P[29], t71, DERIVE_FNMA(P[223], t76, DERIVE_FMA(P[222], t75, DERIVE_FMA(P[221], t74, DERIVE_FMA(P[13], t70, P[77])))))));
-    const double t227 = DERIVE_FMA(P[62], t73, DERIVE_FMA(P[46], t72, DERIVE_FMA(P[30], t71, DERIVE_FNMA(P[239], t76, DERIVE_FMA(P[238], t75, DERIVE_FMA(P[222], t74, DERIVE_FMA(P[14], t70, P[78])))))));
-    const double t228 = DERIVE_FMA(P[63], t73, DERIVE_FMA(P[47], t72, DERIVE_FMA(P[31], t71, DERIVE_FNMA(P[255], t76, DERIVE_FMA(P[239], t75, DERIVE_FMA(P[223], t74, DERIVE_FMA(P[15], t70, P[79])))))));
-    const double t229 = DERIVE_FMA(P[3], t82, DERIVE_FMA(P[2], t81, DERIVE_FMA(P[1], t80, DERIVE_FMA(P[15], t85, DERIVE_FMA(P[14], t84, DERIVE_FNMA(P[13], t83, DERIVE_FMA(P[0], t79, P[5])))))));
-    const double t230 = DERIVE_FMA(P[31], t85, DERIVE_FMA(P[30], t84, DERIVE_FNMA(P[29], t83, DERIVE_FMA(P[1], t79, DERIVE_FMA(P[19], t82, DERIVE_FMA(P[18], t81, DERIVE_FMA(P[17], t80, P[21])))))));
-    const double t231 = DERIVE_FMA(P[47], t85, DERIVE_FMA(P[46], t84, DERIVE_FNMA(P[45], t83, DERIVE_FMA(P[35], t82, DERIVE_FMA(P[34], t81, DERIVE_FMA(P[2], t79, DERIVE_FMA(P[18], t80, P[37])))))));
-    const double t232 = DERIVE_FMA(P[63], t85, DERIVE_FMA(P[62], t84, DERIVE_FNMA(P[61], t83, DERIVE_FMA(P[51], t82, DERIVE_FMA(P[3], t79, DERIVE_FMA(P[35], t81, DERIVE_FMA(P[19], t80, P[53])))))));
-    const double t233 = DERIVE_FMA(P[79], t85, DERIVE_FMA(P[78], t84, DERIVE_FNMA(P[77], t83, DERIVE_FMA(P[52], t82, DERIVE_FMA(P[4], t79, DERIVE_FMA(P[36], t81, DERIVE_FMA(P[20], t80, P[69])))))));
-    const double t234 = DERIVE_FMA(P[95], t85, DERIVE_FMA(P[94], t84, DERIVE_FNMA(P[93], t83, DERIVE_FMA(P[5], t79, DERIVE_FMA(P[53], t82, DERIVE_FMA(P[37], t81, DERIVE_FMA(P[21], t80, P[85])))))));
-    const double t235 = DERIVE_FMA(P[6], t79, DERIVE_FMA(P[54], t82, DERIVE_FMA(P[38], t81, DERIVE_FMA(P[22], t80, DERIVE_FMA(P[111], t85, DERIVE_FMA(P[110], t84, DERIVE_FNMA(P[109], t83, P[86])))))));
-    const double t236 = DERIVE_FMA(P[7], t79, DERIVE_FMA(P[55], t82, DERIVE_FMA(P[39], t81, DERIVE_FMA(P[23], t80, DERIVE_FMA(P[127], t85, DERIVE_FMA(P[126], t84, DERIVE_FNMA(P[125], t83, P[87])))))));
-    const double t237 = DERIVE_FMA(P[8], t79, DERIVE_FMA(P[56], t82, DERIVE_FMA(P[40], t81, DERIVE_FMA(P[24], t80, DERIVE_FMA(P[143], t85, DERIVE_FMA(P[142], t84, DERIVE_FNMA(P[141], t83, P[88])))))));
-    const double t238 = DERIVE_FMA(P[9], t79, DERIVE_FMA(P[57], t82, DERIVE_FMA(P[41], t81, DERIVE_FMA(P[25], t80, DERIVE_FMA(P[159], t85, DERIVE_FMA(P[158], t84, DERIVE_FNMA(P[157], t83, P[89])))))));
-    const double t239 = DERIVE_FMA(P[58], t82, DERIVE_FMA(P[42], t81, DERIVE_FMA(P[26], t80, DERIVE_FMA(P[175], t85, DERIVE_FMA(P[174], t84, DERIVE_FNMA(P[173], t83, DERIVE_FMA(P[10], t79, P[90])))))));
-    const double t240 = DERIVE_FMA(P[59], t82, DERIVE_FMA(P[43], t81, DERIVE_FMA(P[27], t80, DERIVE_FMA(P[191], t85, DERIVE_FMA(P[190], t84, DERIVE_FNMA(P[189], t83, DERIVE_FMA(P[11], t79, P[91])))))));
-    const double t241 = DERIVE_FMA(P[60], t82, DERIVE_FMA(P[44], t81, DERIVE_FMA(P[28], t80, DERIVE_FMA(P[207], t85, DERIVE_FMA(P[206], t84, DERIVE_FNMA(P[205], t83, DERIVE_FMA(P[12], t79, P[92])))))));
-    const double t242 = DERIVE_FMA(P[61], t82, DERIVE_FMA(P[45], t81, DERIVE_FMA(P[29], t80, DERIVE_FMA(P[223], t85, DERIVE_FMA(P[222], t84, DERIVE_FNMA(P[221], t83, DERIVE_FMA(P[13], t79, P[93])))))));
-    const double t243 = DERIVE_FMA(P[62], t82, DERIVE_FMA(P[46], t81, DERIVE_FMA(P[30], t80, DERIVE_FMA(P[239], t85, DERIVE_FMA(P[238], t84, DERIVE_FNMA(P[222], t83, DERIVE_FMA(P[14], t79, P[94])))))));
-    const double t244 = DERIVE_FMA(P[63], t82, DERIVE_FMA(P[47], t81, DERIVE_FMA(P[31], t80, DERIVE_FMA(P[255], t85, DERIVE_FMA(P[239], t84, DERIVE_FNMA(P[223], t83, DERIVE_FMA(P[15], t79, P[95])))))));
-    const double t245 = DERIVE_FMA(P[3], t91, DERIVE_FMA(P[2], t90, DERIVE_FMA(P[1], t89, DERIVE_FMA(P[15], t94, DERIVE_FNMA(P[14], t93, DERIVE_FMA(P[13], t92, DERIVE_FMA(P[0], t88, P[6])))))));
-    const double t246 = DERIVE_FMA(P[31], t94, DERIVE_FNMA(P[30], t93, DERIVE_FMA(P[29], t92, DERIVE_FMA(P[1], t88, DERIVE_FMA(P[19], t91, DERIVE_FMA(P[18], t90, DERIVE_FMA(P[17], t89, P[22])))))));
-    const double t247 = DERIVE_FMA(P[47], t94, DERIVE_FNMA(P[46], t93, DERIVE_FMA(P[45], t92, DERIVE_FMA(P[35], t91, DERIVE_FMA(P[34], t90, DERIVE_FMA(P[2], t88, DERIVE_FMA(P[18], t89, P[38])))))));
-    const double t248 = DERIVE_FMA(P[63], t94, DERIVE_FNMA(P[62], t93, DERIVE_FMA(P[61], t92, DERIVE_FMA(P[51], t91, DERIVE_FMA(P[3], t88, DERIVE_FMA(P[35], t90, DERIVE_FMA(P[19], t89, P[54])))))));
-    const double t249 = DERIVE_FMA(P[79], t94, DERIVE_FNMA(P[78], t93, DERIVE_FMA(P[77], t92, DERIVE_FMA(P[52], t91, DERIVE_FMA(P[4], t88, DERIVE_FMA(P[36], t90, DERIVE_FMA(P[20], t89, P[70])))))));
-    const double t250 = DERIVE_FMA(P[95], t94, DERIVE_FNMA(P[94], t93, DERIVE_FMA(P[93], t92, DERIVE_FMA(P[5], t88, DERIVE_FMA(P[53], t91, DERIVE_FMA(P[37], t90, DERIVE_FMA(P[21], t89, P[86])))))));
-    const double t251 = DERIVE_FMA(P[6], t88, DERIVE_FMA(P[54], t91, DERIVE_FMA(P[38], t90, DERIVE_FMA(P[22], t89, DERIVE_FMA(P[111], t94, DERIVE_FNMA(P[110], t93, DERIVE_FMA(P[109], t92, P[102])))))));
-    const double t252 = DERIVE_FMA(P[7], t88, DERIVE_FMA(P[55], t91, DERIVE_FMA(P[39], t90, DERIVE_FMA(P[23], t89, DERIVE_FMA(P[127], t94, DERIVE_FNMA(P[126], t93, DERIVE_FMA(P[125], t92, P[103])))))));
-    const double t253 = DERIVE_FMA(P[8], t88, DERIVE_FMA(P[56], t91, DERIVE_FMA(P[40], t90, DERIVE_FMA(P[24], t89, DERIVE_FMA(P[143], t94, DERIVE_FNMA(P[142], t93, DERIVE_FMA(P[141], t92, P[104])))))));
-    const double t254 = DERIVE_FMA(P[9], t88, DERIVE_FMA(P[57], t91, DERIVE_FMA(P[41], t90, DERIVE_FMA(P[25], t89, DERIVE_FMA(P[159], t94, DERIVE_FNMA(P[158], t93, DERIVE_FMA(P[157], t92, P[105])))))));
-    const double t255 = DERIVE_FMA(P[58], t91, DERIVE_FMA(P[42], t90, DERIVE_FMA(P[26], t89, DERIVE_FMA(P[175], t94, DERIVE_FNMA(P[174], t93, DERIVE_FMA(P[173], t92, DERIVE_FMA(P[10], t88, P[106])))))));
-    const double t256 = DERIVE_FMA(P[59], t91, DERIVE_FMA(P[43], t90, DERIVE_FMA(P[27], t89, DERIVE_FMA(P[191], t94, DERIVE_FNMA(P[190], t93, DERIVE_FMA(P[189], t92, DERIVE_FMA(P[11], t88, P[107])))))));
-    const double t257 = DERIVE_FMA(P[60], t91, DERIVE_FMA(P[44], t90, DERIVE_FMA(P[28], t89, DERIVE_FMA(P[207], t94, DERIVE_FNMA(P[206], t93, DERIVE_FMA(P[205], t92, DERIVE_FMA(P[12], t88, P[108])))))));
-    const double t258 = DERIVE_FMA(P[61], t91, DERIVE_FMA(P[45], t90, DERIVE_FMA(P[29], t89, DERIVE_FMA(P[223], t94, DERIVE_FNMA(P[222], t93, DERIVE_FMA(P[221], t92, DERIVE_FMA(P[13], t88, P[109])))))));
-    const double t259 = DERIVE_FMA(P[62], t91, DERIVE_FMA(P[46], t90, DERIVE_FMA(P[30], t89, DERIVE_FMA(P[239], t94, DERIVE_FNMA(P[238], t93, DERIVE_FMA(P[222], t92, DERIVE_FMA(P[14], t88, P[110])))))));
-    const double t260 = DERIVE_FMA(P[63], t91, DERIVE_FMA(P[47], t90, DERIVE_FMA(P[31], t89, DERIVE_FMA(P[255], t94, DERIVE_FNMA(P[239], t93, DERIVE_FMA(P[223], t92, DERIVE_FMA(P[15], t88, P[111])))))));
-    const double t261 = DERIVE_FMA(P[68], p[0], P[71]);
-    const double t263 = DERIVE_FMA(P[69], p[0], P[87]);
-    const double t265 = DERIVE_FMA(P[70], p[0], P[103]);
-    const double t266 = DERIVE_FMA(P[71], p[0], P[119]);
-    const double t267 = DERIVE_FMA(P[72], p[0], P[120]);
-    const double t268 = DERIVE_FMA(P[73], p[0], P[121]);
-    const double t269 = DERIVE_FMA(P[74], p[0], P[122]);
-    const double t270 = DERIVE_FMA(P[75], p[0], P[123]);
-    const double t271 = DERIVE_FMA(P[76], p[0], P[124]);
-    const double t272 = DERIVE_FMA(P[77], p[0], P[125]);
-    const double t273 = DERIVE_FMA(P[78], p[0], P[126]);
-    const double t274 = DERIVE_FMA(P[79], p[0], P[127]);
-    const double t275 = DERIVE_FMA(P[85], p[0], P[88]);
-    const double t277 = DERIVE_FMA(P[86], p[0], P[104]);
-    const double t278 = DERIVE_FMA(P[88], p[0], P[136]);
-    const double t279 = DERIVE_FMA(P[89], p[0], P[137]);
-    const double t280 = DERIVE_FMA(P[90], p[0], P[138]);
-    const double t281 = DERIVE_FMA(P[91], p[0], P[139]);
-    const double t282 = DERIVE_FMA(P[92], p[0], P[140]);
-    const double t283 = DERIVE_FMA(P[93], p[0], P[141]);
-    const double t284 = DERIVE_FMA(P[94], p[0], P[142]);
-    const double t285 = DERIVE_FMA(P[95], p[0], P[143]);
-    const double t286 = DERIVE_FMA(P[102], p[0], P[105]);
-    const double t287 = DERIVE_FMA(P[105], p[0], P[153]);
-    const double t288 = DERIVE_FMA(P[106], p[0], P[154]);
-    const double t289 = DERIVE_FMA(P[107], p[0], P[155]);
-    const double t290 = DERIVE_FMA(P[108], p[0], P[156]);
-    const double t291 = DERIVE_FMA(P[109], p[0], P[157]);
-    const double t292 = DERIVE_FMA(P[110], p[0], P[158]);
-    const double t293 = DERIVE_FMA(P[111], p[0], P[159]);
-    const double t294 = DERIVE_FMA(t155, t39, DERIVE_FMA(t153, t38, DERIVE_FMA(t151, t37, DERIVE_FMA(t143, t36, DERIVE_FMA(t141, t35, DERIVE_FMA(t139, t34, t137))))));
-    const double t295 = DERIVE_FMA(t155, t41, DERIVE_FMA(t153, t39, DERIVE_FMA(t151, t44, DERIVE_FMA(t143, t35, DERIVE_FMA(t141, t3, DERIVE_FMA(t1, t137, t139))))));
-    const double t296 = DERIVE_FMA(t155, t37, DERIVE_FMA(t153, t44, DERIVE_FMA(t151, t42, DERIVE_FMA(t139, t36, DERIVE_FMA(t137, t2, DERIVE_FMA(t1, t143, t141))))));
-    const double t297 = DERIVE_FMA(t155, t44, DERIVE_FMA(t153, t40, DERIVE_FMA(t151, t38, DERIVE_FMA(t141, t34, DERIVE_FMA(t139, t2, DERIVE_FMA(t137, t3, t143))))));
-    const double t298 = DERIVE_FNMA(t158, t76, DERIVE_FMA(t157, t75, DERIVE_FMA(t156, t74, DERIVE_FMA(t143, t73, DERIVE_FMA(t141, t72, DERIVE_FMA(t139, t71, DERIVE_FMA(t137, t70, t144)))))));
-    const double t299 = DERIVE_FMA(t158, t85, DERIVE_FMA(t157, t84, DERIVE_FNMA(t156, t83, DERIVE_FMA(t143, t82, DERIVE_FMA(t141, t81, DERIVE_FMA(t139, t80, DERIVE_FMA(t137, t79, t145)))))));
-    const double t300 = DERIVE_FMA(t158, t94, DERIVE_FNMA(t157, t93, DERIVE_FMA(t156, t92, DERIVE_FMA(t143, t91, DERIVE_FMA(t141, t90, DERIVE_FMA(t139, t89, DERIVE_FMA(t137, t88, t146)))))));
-    const double t301 = DERIVE_FMA(p[0], t144, t147);
-    const double t302 = DERIVE_FMA(p[0], t145, t148);
-    const double t303 = DERIVE_FMA(p[0], t146, t149);
-    const double t304 = DERIVE_FMA(t175, t41, DERIVE_FMA(t173, t39, DERIVE_FMA(t171, t44, DERIVE_FMA(t164, t35, DERIVE_FMA(t162, t3, DERIVE_FMA(t1, t160, t161))))));
-    const double t305 = DERIVE_FMA(t175, t37, DERIVE_FMA(t173, t44, DERIVE_FMA(t171, t42, DERIVE_FMA(t161, t36, DERIVE_FMA(t160, t2, DERIVE_FMA(t1, t164, t162))))));
-    const double t306 = DERIVE_FMA(t175, t44, DERIVE_FMA(t173, t40, DERIVE_FMA(t171, t38, DERIVE_FMA(t162, t34, DERIVE_FMA(t161, t2, DERIVE_FMA(t160, t3, t164))))));
-    const double t307 = DERIVE_FNMA(t178, t76, DERIVE_FMA(t177, t75, DERIVE_FMA(t176, t74, DERIVE_FMA(t164, t73, DERIVE_FMA(t162, t72, DERIVE_FMA(t161, t71, DERIVE_FMA(t160, t70, t165)))))));
-    const double t308 = DERIVE_FMA(t178, t85, DERIVE_FMA(t177, t84, DERIVE_FNMA(t176, t83, DERIVE_FMA(t164, t82, DERIVE_FMA(t162, t81, DERIVE_FMA(t161, t80, DERIVE_FMA(t160, t79, t166)))))));
-    const double t309 = DERIVE_FMA(t178, t94, DERIVE_FNMA(t177, t93, DERIVE_FMA(t176, t92, DERIVE_FMA(t164, t91, DERIVE_FMA(t162, t90, DERIVE_FMA(t161, t89, DERIVE_FMA(t160, t88, t167)))))));
-    const double t310 = DERIVE_FMA(p[0], t165, t168);
-    const double t311 = DERIVE_FMA(p[0], t166, t169);
-    const double t312 = DERIVE_FMA(p[0], t167, t170);
-    const double t313 = DERIVE_FMA(t193, t37, DERIVE_FMA(t191, t44, DERIVE_FMA(t190, t42, DERIVE_FMA(t181, t36, DERIVE_FMA(t179, t2, DERIVE_FMA(t1, t183, t182))))));
-    const double t314 = DERIVE_FMA(t193, t44, DERIVE_FMA(t191, t40, DERIVE_FMA(t190, t38, DERIVE_FMA(t182, t34, DERIVE_FMA(t181, t2, DERIVE_FMA(t179, t3, t183))))));
-    const double t315 = DERIVE_FNMA(t196, t76, DERIVE_FMA(t195, t75, DERIVE_FMA(t194, t74, DERIVE_FMA(t183, t73, DERIVE_FMA(t182, t72, DERIVE_FMA(t181, t71, DERIVE_FMA(t179, t70, t184)))))));
-    const double t316 = DERIVE_FMA(t196, t85, DERIVE_FMA(t195, t84, DERIVE_FNMA(t194, t83, DERIVE_FMA(t183, t82, DERIVE_FMA(t182, t81, DERIVE_FMA(t181, t80, DERIVE_FMA(t179, t79, t185)))))));
-    const double t317 = DERIVE_FMA(t196, t94, DERIVE_FNMA(t195, t93, DERIVE_FMA(t194, t92, DERIVE_FMA(t183, t91, DERIVE_FMA(t182, t90, DERIVE_FMA(t181, t89, DERIVE_FMA(t179, t88, t186)))))));
-    const double t318 = DERIVE_FMA(p[0], t184, t187);
-    const double t319 = DERIVE_FMA(p[0], t185, t188);
-    const double t320 = DERIVE_FMA(p[0], t186, t189);
-    const double t321 = DERIVE_FMA(t209, t44, DERIVE_FMA(t208, t40, DERIVE_FMA(t207, t38, DERIVE_FMA(t199, t34, DERIVE_FMA(t198, t2, DERIVE_FMA(t197, t3, t200))))));
-    const double t322 = DERIVE_FNMA(t212, t76, DERIVE_FMA(t211, t75, DERIVE_FMA(t210, t74, DERIVE_FMA(t200, t73, DERIVE_FMA(t199, t72, DERIVE_FMA(t198, t71, DERIVE_FMA(t197, t70, t201)))))));
-    const double t323 = DERIVE_FMA(t212, t85, DERIVE_FMA(t211, t84, DERIVE_FNMA(t210, t83, DERIVE_FMA(t200, t82, DERIVE_FMA(t199, t81, DERIVE_FMA(t198, t80, DERIVE_FMA(t197, t79, t202)))))));
-    const double t324 = DERIVE_FMA(t212, t94, DERIVE_FNMA(t211, t93, DERIVE_FMA(t210, t92, DERIVE_FMA(t200, t91, DERIVE_FMA(t199, t90, DERIVE_FMA(t198, t89, DERIVE_FMA(t197, t88, t203)))))));
-    const double t325 = DERIVE_FMA(p[0], t201, t204);
-    const double t326 = DERIVE_FMA(p[0], t202, t205);
-    const double t327 = DERIVE_FMA(p[0], t203, t206);
-    const double t328 = DERIVE_FNMA(t228, t76, DERIVE_FMA(t227, t75, DERIVE_FMA(t226, t74, DERIVE_FMA(t216, t73, DERIVE_FMA(t215, t72, DERIVE_FMA(t214, t71, DERIVE_FMA(t213, t70, t217)))))));
-    const double t329 = DERIVE_FMA(t228, t85, DERIVE_FMA(t227, t84, DERIVE_FNMA(t226, t83, DERIVE_FMA(t216, t82, DERIVE_FMA(t215, t81, DERIVE_FMA(t214, t80, DERIVE_FMA(t213, t79, t218)))))));
-    const double t330 = DERIVE_FMA(t228, t94, DERIVE_FNMA(t227, t93, DERIVE_FMA(t226, t92, DERIVE_FMA(t216, t91, DERIVE_FMA(t215, t90, DERIVE_FMA(t214, t89, DERIVE_FMA(t213, t88, t219)))))));
-    const double t331 = DERIVE_FMA(p[0], t217, t220);
-    const double t332 = DERIVE_FMA(p[0], t218, t221);
-    const double t333 = DERIVE_FMA(p[0], t219, t222);
-    const double t334 = DERIVE_FMA(t244, t85, DERIVE_FMA(t243, t84, DERIVE_FNMA(t242, t83, DERIVE_FMA(t232, t82, DERIVE_FMA(t231, t81, DERIVE_FMA(t230, t80, DERIVE_FMA(t229, t79, t234)))))));
-    const double t335 = DERIVE_FMA(t244, t94, DERIVE_FNMA(t243, t93, DERIVE_FMA(t242, t92, DERIVE_FMA(t232, t91, DERIVE_FMA(t231, t90, DERIVE_FMA(t230, t89, DERIVE_FMA(t229, t88, t235)))))));
-    const double t336 = DERIVE_FMA(p[0], t233, t236);
-    const double t337 = DERIVE_FMA(p[0], t234, t237);
-    const double t338 = DERIVE_FMA(p[0], t235, t238);
-    const double t339 = DERIVE_FMA(t260, t94, DERIVE_FNMA(t259, t93, DERIVE_FMA(t258, t92, DERIVE_FMA(t248, t91, DERIVE_FMA(t247, t90, DERIVE_FMA(t246, t89, DERIVE_FMA(t245, t88, t251)))))));
-    const double t340 = DERIVE_FMA(p[0], t249, t252);
-    const double t341 = DERIVE_FMA(p[0], t250, t253);
-    const double t342 = DERIVE_FMA(p[0], t251, t254);
-    const double t343 = DERIVE_FMA(p[0], t261, t266);
-    const double t344 = DERIVE_FMA(p[0], t263, t267);
-    const double t345 = DERIVE_FMA(p[0], t265, t268);
-    const double t346 = DERIVE_FMA(p[0], t275, t278);
-    const double t347 = DERIVE_FMA(p[0], t277, t279);
-    const double t348 = DERIVE_FMA(p[0], t286, t287);
-    const double t349 = t116 + t294;
-    const double t350 = t118 + t295;
-    const double t351 = t119 + t296;
-    const double t352 = t121 + t297;
-    const double t353 = t123 + t304;
-    const double t354 = t124 + t305;
-    const double t355 = t125 + t306;
-    const double t356 = t126 + t313;
-    const double t357 = t127 + t314;
-    const double t358 = t128 + t321;
-    const double t359 = t129 + t328;
-    const double t360 = t130 + t329;
-    const double t361 = t131 + t330;
-    const double t362 = t132 + t334;
-    const double t363 = t133 + t335;
-    const double t364 = t134 + t339;
-    const double t365 = P[170] + t135;
-    const double t366 = P[187] + t135;
-    const double t367 = P[204] + t135;
-    const double t368 = P[221] + t136;
-    const double t369 = P[238] + t136;
-    const double t370 = P[255] + t136;
+    const double t137 = -t76;
+    const double t138 = -t83;
+    const double t139 = -t93;
+    #if DERIVE_VECTOR
+    const derive_vd v_t140 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[192], P[193], P[194], P[195]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[176], P[177], P[178], P[179]}), DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[160], P[161], P[162], P[163]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[48], P[49], P[50], P[51]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[32], P[33], P[34], P[35]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[0], P[1], P[2], P[3]})))))));
+    const double t140 = v_t140[0];
+    const double t141 = v_t140[1];
+    const double t142 = v_t140[2];
+    const double t143 = v_t140[3];
+    #else
+    const double t140 = DERIVE_FMA(t39, P[192], DERIVE_FMA(t38, P[176], DERIVE_FMA(t37, P[160], DERIVE_FMA(t36, P[48], DERIVE_FMA(t35, P[32], DERIVE_FMA(t34, P[16], P[0]))))));
+    const double t141 = DERIVE_FMA(t39, P[193], DERIVE_FMA(t38, P[177], DERIVE_FMA(t37, P[161], DERIVE_FMA(t36, P[49], DERIVE_FMA(t35, P[33], DERIVE_FMA(t34, P[17], P[1]))))));
+    const double t142 = DERIVE_FMA(t39, P[194], DERIVE_FMA(t38, P[178], DERIVE_FMA(t37, P[162], DERIVE_FMA(t36, P[50], DERIVE_FMA(t35, P[34], DERIVE_FMA(t34, P[18], P[2]))))));
+    const double t143 = DERIVE_FMA(t39, P[195], DERIVE_FMA(t38, P[179], DERIVE_FMA(t37, P[163], DERIVE_FMA(t36, P[51], DERIVE_FMA(t35, P[35], DERIVE_FMA(t34, P[19], P[3]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t144 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[200], P[201], P[202], P[203]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[184], P[185], P[186], P[187]}), DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[168], P[169], P[170], P[171]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[56], P[57], P[58], P[59]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[40], P[41], P[42], P[43]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[8], P[9], P[10], P[11]})))))));
+    const double t146 = v_t144[2];
+    const double t147 = v_t144[3];
+    #else
+    const double t146 = DERIVE_FMA(t39, P[202], DERIVE_FMA(t38, P[186], DERIVE_FMA(t37, P[170], DERIVE_FMA(t36, P[58], DERIVE_FMA(t35, P[42], DERIVE_FMA(t34, P[26], P[10]))))));
+    const double t147 = DERIVE_FMA(t39, P[203], DERIVE_FMA(t38, P[187], DERIVE_FMA(t37, P[171], DERIVE_FMA(t36, P[59], DERIVE_FMA(t35, P[43], DERIVE_FMA(t34, P[27], P[11]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t148 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[204], P[205], P[206], P[207]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[188], P[189], P[190], P[191]}), DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[172], P[173], P[174], P[175]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[60], P[61], P[62], P[63]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[44], P[45], P[46], P[47]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[28], P[29], P[30], P[31]}), ((derive_vd){P[12], P[13], P[14], P[15]})))))));
+    const double t148 = v_t148[0];
+    #else
+    const double t148 = DERIVE_FMA(t39, P[204], DERIVE_FMA(t38, P[188], DERIVE_FMA(t37, P[172], DERIVE_FMA(t36, P[60], DERIVE_FMA(t35, P[44], DERIVE_FMA(t34, P[28], P[12]))))));
+    const double t149 = DERIVE_FMA(t39, P[205], DERIVE_FMA(t38, P[189], DERIVE_FMA(t37, P[173], DERIVE_FMA(t36, P[61], DERIVE_FMA(t35, P[45], DERIVE_FMA(t34, P[29], P[13]))))));
+    const double t150 = DERIVE_FMA(t39, P[206], DERIVE_FMA(t38, P[190], DERIVE_FMA(t37, P[174], DERIVE_FMA(t36, P[62], DERIVE_FMA(t35, P[46], DERIVE_FMA(t34, P[30], P[14]))))));
+    const double t151 = DERIVE_FMA(t39, P[207], DERIVE_FMA(t38, P[191], DERIVE_FMA(t37, P[175], DERIVE_FMA(t36, P[63], DERIVE_FMA(t35, P[47], DERIVE_FMA(t34, P[31], P[15]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t152 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[192], P[193], P[194], P[195]}), DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[176], P[177], P[178], P[179]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[160], P[161], P[162], P[163]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[48], P[49], P[50], P[51]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[32], P[33], P[34], P[35]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[16], P[17], P[18], P[19]})))))));
+    const double t152 = v_t152[0];
+    const double t153 = v_t152[1];
+    const double t154 = v_t152[2];
+    const double t155 = v_t152[3];
+    #else
+    const double t152 = DERIVE_FMA(t41, P[192], DERIVE_FMA(t39, P[176], DERIVE_FMA(t44, P[160], DERIVE_FMA(t35, P[48], DERIVE_FMA(t3, P[32], DERIVE_FMA(t1, P[0], P[16]))))));
+    const double t153 = DERIVE_FMA(t41, P[193], DERIVE_FMA(t39, P[177], DERIVE_FMA(t44, P[161], DERIVE_FMA(t35, P[49], DERIVE_FMA(t3, P[33], DERIVE_FMA(t1, P[1], P[17]))))));
+    const double t154 = DERIVE_FMA(t41, P[194], DERIVE_FMA(t39, P[178], DERIVE_FMA(t44, P[162], DERIVE_FMA(t35, P[50], DERIVE_FMA(t3, P[34], DERIVE_FMA(t1, P[2], P[18]))))));
+    const double t155 = DERIVE_FMA(t41, P[195], DERIVE_FMA(t39, P[179], DERIVE_FMA(t44, P[163], DERIVE_FMA(t35, P[51], DERIVE_FMA(t3, P[35], DERIVE_FMA(t1, P[3], P[19]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t156 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[200], P[201], P[202], P[203]}), DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[184], P[185], P[186], P[187]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[168], P[169], P[170], P[171]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[56], P[57], P[58], P[59]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[40], P[41], P[42], P[43]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[24], P[25], P[26], P[27]})))))));
+    const double t158 = v_t156[2];
+    const double t159 = v_t156[3];
+    #else
+    const double t158 = DERIVE_FMA(t41, P[202], DERIVE_FMA(t39, P[186], DERIVE_FMA(t44, P[170], DERIVE_FMA(t35, P[58], DERIVE_FMA(t3, P[42], DERIVE_FMA(t1, P[10], P[26]))))));
+    const double t159 = DERIVE_FMA(t41, P[203], DERIVE_FMA(t39, P[187], DERIVE_FMA(t44, P[171], DERIVE_FMA(t35, P[59], DERIVE_FMA(t3, P[43], DERIVE_FMA(t1, P[11], P[27]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t160 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[204], P[205], P[206], P[207]}), DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[188], P[189], P[190], P[191]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[172], P[173], P[174], P[175]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[60], P[61], P[62], P[63]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[44], P[45], P[46], P[47]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[28], P[29], P[30], P[31]})))))));
+    const double t160 = v_t160[0];
+    #else
+    const double t160 = DERIVE_FMA(t41, P[204], DERIVE_FMA(t39, P[188], DERIVE_FMA(t44, P[172], DERIVE_FMA(t35, P[60], DERIVE_FMA(t3, P[44], DERIVE_FMA(t1, P[12], P[28]))))));
+    const double t161 = DERIVE_FMA(t41, P[205], DERIVE_FMA(t39, P[189], DERIVE_FMA(t44, P[173], DERIVE_FMA(t35, P[61], DERIVE_FMA(t3, P[45], DERIVE_FMA(t1, P[13], P[29]))))));
+    const double t162 = DERIVE_FMA(t41, P[206], DERIVE_FMA(t39, P[190], DERIVE_FMA(t44, P[174], DERIVE_FMA(t35, P[62], DERIVE_FMA(t3, P[46], DERIVE_FMA(t1, P[14], P[30]))))));
+    const double t163 = DERIVE_FMA(t41, P[207], DERIVE_FMA(t39, P[191], DERIVE_FMA(t44, P[175], DERIVE_FMA(t35, P[63], DERIVE_FMA(t3, P[47], DERIVE_FMA(t1, P[15], P[31]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t164 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[192], P[193], P[194], P[195]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[176], P[177], P[178], P[179]}), DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[160], P[161], P[162], P[163]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[48], P[49], P[50], P[51]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[16], P[17], P[18], P[19]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[32], P[33], P[34], P[35]})))))));
+    const double t164 = v_t164[0];
+    const double t165 = v_t164[1];
+    const double t166 = v_t164[2];
+    const double t167 = v_t164[3];
+    #else
+    const double t164 = DERIVE_FMA(t37, P[192], DERIVE_FMA(t44, P[176], DERIVE_FMA(t42, P[160], DERIVE_FMA(t1, P[48], DERIVE_FMA(t36, P[16], DERIVE_FMA(t2, P[0], P[32]))))));
+    const double t165 = DERIVE_FMA(t37, P[193], DERIVE_FMA(t44, P[177], DERIVE_FMA(t42, P[161], DERIVE_FMA(t1, P[49], DERIVE_FMA(t36, P[17], DERIVE_FMA(t2, P[1], P[33]))))));
+    const double t166 = DERIVE_FMA(t37, P[194], DERIVE_FMA(t44, P[178], DERIVE_FMA(t42, P[162], DERIVE_FMA(t1, P[50], DERIVE_FMA(t36, P[18], DERIVE_FMA(t2, P[2], P[34]))))));
+    const double t167 = DERIVE_FMA(t37, P[195], DERIVE_FMA(t44, P[179], DERIVE_FMA(t42, P[163], DERIVE_FMA(t1, P[51], DERIVE_FMA(t36, P[19], DERIVE_FMA(t2, P[3], P[35]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t168 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[200], P[201], P[202], P[203]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[184], P[185], P[186], P[187]}), DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[168], P[169], P[170], P[171]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[56], P[57], P[58], P[59]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[24], P[25], P[26], P[27]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[40], P[41], P[42], P[43]})))))));
+    const double t170 = v_t168[2];
+    const double t171 = v_t168[3];
+    #else
+    const double t170 = DERIVE_FMA(t37, P[202], DERIVE_FMA(t44, P[186], DERIVE_FMA(t42, P[170], DERIVE_FMA(t1, P[58], DERIVE_FMA(t36, P[26], DERIVE_FMA(t2, P[10], P[42]))))));
+    const double t171 = DERIVE_FMA(t37, P[203], DERIVE_FMA(t44, P[187], DERIVE_FMA(t42, P[171], DERIVE_FMA(t1, P[59], DERIVE_FMA(t36, P[27], DERIVE_FMA(t2, P[11], P[43]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t172 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[204], P[205], P[206], P[207]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[188], P[189], P[190], P[191]}), DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[172], P[173], P[174], P[175]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[60], P[61], P[62], P[63]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[28], P[29], P[30], P[31]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[44], P[45], P[46], P[47]})))))));
+    const double t172 = v_t172[0];
+    #else
+    const double t172 = DERIVE_FMA(t37, P[204], DERIVE_FMA(t44, P[188], DERIVE_FMA(t42, P[172], DERIVE_FMA(t1, P[60], DERIVE_FMA(t36, P[28], DERIVE_FMA(t2, P[12], P[44]))))));
+    const double t173 = DERIVE_FMA(t37, P[205], DERIVE_FMA(t44, P[189], DERIVE_FMA(t42, P[173], DERIVE_FMA(t1, P[61], DERIVE_FMA(t36, P[29], DERIVE_FMA(t2, P[13], P[45]))))));
+    const double t174 = DERIVE_FMA(t37, P[206], DERIVE_FMA(t44, P[190], DERIVE_FMA(t42, P[174], DERIVE_FMA(t1, P[62], DERIVE_FMA(t36, P[30], DERIVE_FMA(t2, P[14], P[46]))))));
+    const double t175 = DERIVE_FMA(t37, P[207], DERIVE_FMA(t44, P[191], DERIVE_FMA(t42, P[175], DERIVE_FMA(t1, P[63], DERIVE_FMA(t36, P[31], DERIVE_FMA(t2, P[15], P[47]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t176 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[192], P[193], P[194], P[195]}), DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[176], P[177], P[178], P[179]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[160], P[161], P[162], P[163]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[32], P[33], P[34], P[35]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[16], P[17], P[18], P[19]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]})))))));
+    const double t176 = v_t176[0];
+    const double t177 = v_t176[1];
+    const double t178 = v_t176[2];
+    const double t179 = v_t176[3];
+    #else
+    const double t176 = DERIVE_FMA(t44, P[192], DERIVE_FMA(t40, P[176], DERIVE_FMA(t38, P[160], DERIVE_FMA(t34, P[32], DERIVE_FMA(t2, P[16], DERIVE_FMA(t3, P[0], P[48]))))));
+    const double t177 = DERIVE_FMA(t44, P[193], DERIVE_FMA(t40, P[177], DERIVE_FMA(t38, P[161], DERIVE_FMA(t34, P[33], DERIVE_FMA(t2, P[17], DERIVE_FMA(t3, P[1], P[49]))))));
+    const double t178 = DERIVE_FMA(t44, P[194], DERIVE_FMA(t40, P[178], DERIVE_FMA(t38, P[162], DERIVE_FMA(t34, P[34], DERIVE_FMA(t2, P[18], DERIVE_FMA(t3, P[2], P[50]))))));
+    const double t179 = DERIVE_FMA(t44, P[195], DERIVE_FMA(t40, P[179], DERIVE_FMA(t38, P[163], DERIVE_FMA(t34, P[35], DERIVE_FMA(t2, P[19], DERIVE_FMA(t3, P[3], P[51]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t180 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[200], P[201], P[202], P[203]}), DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[184], P[185], P[186], P[187]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[168], P[169], P[170], P[171]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[40], P[41], P[42], P[43]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[24], P[25], P[26], P[27]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]})))))));
+    const double t182 = v_t180[2];
+    const double t183 = v_t180[3];
+    *(derive_vd_unaligned *)&P_new[160] = ((derive_vd){t146, t158, t170, t182});
+    *(derive_vd_unaligned *)&P_new[176] = ((derive_vd){t147, t159, t171, t183});
+    #else
+    const double t182 = DERIVE_FMA(t44, P[202], DERIVE_FMA(t40, P[186], DERIVE_FMA(t38, P[170], DERIVE_FMA(t34, P[42], DERIVE_FMA(t2, P[26], DERIVE_FMA(t3, P[10], P[58]))))));
+    const double t183 = DERIVE_FMA(t44, P[203], DERIVE_FMA(t40, P[187], DERIVE_FMA(t38, P[171], DERIVE_FMA(t34, P[43], DERIVE_FMA(t2, P[27], DERIVE_FMA(t3, P[11], P[59]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t184 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[204], P[205], P[206], P[207]}), DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[188], P[189], P[190], P[191]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[172], P[173], P[174], P[175]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[44], P[45], P[46], P[47]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[28], P[29], P[30], P[31]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]})))))));
+    const double t184 = v_t184[0];
+    const derive_vd tr_v_t148_0 = __builtin_shufflevector(v_t148, v_t160, 0, 4, 2, 6);
+    const derive_vd tr_v_t148_1 = __builtin_shufflevector(v_t148, v_t160, 1, 5, 3, 7);
+    const derive_vd tr_v_t148_2 = __builtin_shufflevector(v_t172, v_t184, 0, 4, 2, 6);
+    const derive_vd tr_v_t148_3 = __builtin_shufflevector(v_t172, v_t184, 1, 5, 3, 7);
+    const derive_vd tr_v_t148_c0 = __builtin_shufflevector(tr_v_t148_0, tr_v_t148_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t148_c1 = __builtin_shufflevector(tr_v_t148_1, tr_v_t148_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t148_c2 = __builtin_shufflevector(tr_v_t148_0, tr_v_t148_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t148_c3 = __builtin_shufflevector(tr_v_t148_1, tr_v_t148_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t148;
+    *(derive_vd_unaligned *)&P_new[28] = v_t160;
+    *(derive_vd_unaligned *)&P_new[44] = v_t172;
+    *(derive_vd_unaligned *)&P_new[60] = v_t184;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t148_c0;
+    *(derive_vd_unaligned *)&P_new[208] = tr_v_t148_c1;
+    *(derive_vd_unaligned *)&P_new[224] = tr_v_t148_c2;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t148_c3;
+    #else
+    const double t184 = DERIVE_FMA(t44, P[204], DERIVE_FMA(t40, P[188], DERIVE_FMA(t38, P[172], DERIVE_FMA(t34, P[44], DERIVE_FMA(t2, P[28], DERIVE_FMA(t3, P[12], P[60]))))));
+    const double t185 = DERIVE_FMA(t44, P[205], DERIVE_FMA(t40, P[189], DERIVE_FMA(t38, P[173], DERIVE_FMA(t34, P[45], DERIVE_FMA(t2, P[29], DERIVE_FMA(t3, P[13], P[61]))))));
+    const double t186 = DERIVE_FMA(t44, P[206], DERIVE_FMA(t40, P[190], DERIVE_FMA(t38, P[174], DERIVE_FMA(t34, P[46], DERIVE_FMA(t2, P[30], DERIVE_FMA(t3, P[14], P[62]))))));
+    const double t187 = DERIVE_FMA(t44, P[207], DERIVE_FMA(t40, P[191], DERIVE_FMA(t38, P[175], DERIVE_FMA(t34, P[47], DERIVE_FMA(t2, P[31], DERIVE_FMA(t3, P[15], P[63]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t188 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[240], P[241], P[242], P[243]}), DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[224], P[225], P[226], P[227]}), DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[208], P[209], P[210], P[211]}), DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[48], P[49], P[50], P[51]}), DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[32], P[33], P[34], P[35]}), DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[16], P[17], P[18], P[19]}), DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[64], P[65], P[66], P[67]}))))))));
+    const double t188 = v_t188[0];
+    const double t189 = v_t188[1];
+    const double t190 = v_t188[2];
+    const double t191 = v_t188[3];
+    #else
+    const double t188 = DERIVE_FMA(t137, P[240], DERIVE_FMA(t75, P[224], DERIVE_FMA(t74, P[208], DERIVE_FMA(t73, P[48], DERIVE_FMA(t72, P[32], DERIVE_FMA(t71, P[16], DERIVE_FMA(t70, P[0], P[64])))))));
+    const double t189 = DERIVE_FMA(t137, P[241], DERIVE_FMA(t75, P[225], DERIVE_FMA(t74, P[209], DERIVE_FMA(t73, P[49], DERIVE_FMA(t72, P[33], DERIVE_FMA(t71, P[17], DERIVE_FMA(t70, P[1], P[65])))))));
+    const double t190 = DERIVE_FMA(t137, P[242], DERIVE_FMA(t75, P[226], DERIVE_FMA(t74, P[210], DERIVE_FMA(t73, P[50], DERIVE_FMA(t72, P[34], DERIVE_FMA(t71, P[18], DERIVE_FMA(t70, P[2], P[66])))))));
+    const double t191 = DERIVE_FMA(t137, P[243], DERIVE_FMA(t75, P[227], DERIVE_FMA(t74, P[211], DERIVE_FMA(t73, P[51], DERIVE_FMA(t72, P[35], DERIVE_FMA(t71, P[19], DERIVE_FMA(t70, P[3], P[67])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t192 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[244], P[245], P[246], P[247]}), DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[228], P[229], P[230], P[231]}), DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[212], P[213], P[214], P[215]}), DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[52], P[53], P[54], P[55]}), DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[36], P[37], P[38], P[39]}), DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[20], P[21], P[22], P[23]}), DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[68], P[69], P[70], P[71]}))))))));
+    const double t192 = v_t192[0];
+    const double t193 = v_t192[1];
+    const double t194 = v_t192[2];
+    const double t195 = v_t192[3];
+    #else
+    const double t192 = DERIVE_FMA(t137, P[244], DERIVE_FMA(t75, P[228], DERIVE_FMA(t74, P[212], DERIVE_FMA(t73, P[52], DERIVE_FMA(t72, P[36], DERIVE_FMA(t71, P[20], DERIVE_FMA(t70, P[4], P[68])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t196 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[248], P[249], P[250], P[251]}), DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[232], P[233], P[234], P[235]}), DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[216], P[217], P[218], P[219]}), DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[56], P[57], P[58], P[59]}), DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[40], P[41], P[42], P[43]}), DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[24], P[25], P[26], P[27]}), DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[72], P[73], P[74], P[75]}))))))));
+    const double t198 = v_t196[2];
+    const double t199 = v_t196[3];
+    #else
+    const double t198 = DERIVE_FMA(t137, P[250], DERIVE_FMA(t75, P[234], DERIVE_FMA(t74, P[218], DERIVE_FMA(t73, P[58], DERIVE_FMA(t72, P[42], DERIVE_FMA(t71, P[26], DERIVE_FMA(t70, P[10], P[74])))))));
+    const double t199 = DERIVE_FMA(t137, P[251], DERIVE_FMA(t75, P[235], DERIVE_FMA(t74, P[219], DERIVE_FMA(t73, P[59], DERIVE_FMA(t72, P[43], DERIVE_FMA(t71, P[27], DERIVE_FMA(t70, P[11], P[75])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t200 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[252], P[253], P[254], P[255]}), DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[236], P[237], P[238], P[239]}), DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[220], P[221], P[222], P[223]}), DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[60], P[61], P[62], P[63]}), DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[44], P[45], P[46], P[47]}), DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[28], P[29], P[30], P[31]}), DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[76], P[77], P[78], P[79]}))))))));
+    const double t200 = v_t200[0];
+    const double t201 = v_t200[1];
+    const double t202 = v_t200[2];
+    const double t203 = v_t200[3];
+    #else
+    const double t200 = DERIVE_FMA(t137, P[252], DERIVE_FMA(t75, P[236], DERIVE_FMA(t74, P[220], DERIVE_FMA(t73, P[60], DERIVE_FMA(t72, P[44], DERIVE_FMA(t71, P[28], DERIVE_FMA(t70, P[12], P[76])))))));
+    const double t201 = DERIVE_FMA(t137, P[253], DERIVE_FMA(t75, P[237], DERIVE_FMA(t74, P[221], DERIVE_FMA(t73, P[61], DERIVE_FMA(t72, P[45], DERIVE_FMA(t71, P[29], DERIVE_FMA(t70, P[13], P[77])))))));
+    const double t202 = DERIVE_FMA(t137, P[254], DERIVE_FMA(t75, P[238], DERIVE_FMA(t74, P[222], DERIVE_FMA(t73, P[62], DERIVE_FMA(t72, P[46], DERIVE_FMA(t71, P[30], DERIVE_FMA(t70, P[14], P[78])))))));
+    const double t203 = DERIVE_FMA(t137, P[255], DERIVE_FMA(t75, P[239], DERIVE_FMA(t74, P[223], DERIVE_FMA(t73, P[63], DERIVE_FMA(t72, P[47], DERIVE_FMA(t71, P[31], DERIVE_FMA(t70, P[15], P[79])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t204 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[240], P[241], P[242], P[243]}), DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[224], P[225], P[226], P[227]}), DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[208], P[209], P[210], P[211]}), DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[48], P[49], P[50], P[51]}), DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[32], P[33], P[34], P[35]}), DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[16], P[17], P[18], P[19]}), DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[80], P[81], P[82], P[83]}))))))));
+    const double t204 = v_t204[0];
+    const double t205 = v_t204[1];
+    const double t206 = v_t204[2];
+    const double t207 = v_t204[3];
+    #else
+    const double t204 = DERIVE_FMA(t85, P[240], DERIVE_FMA(t84, P[224], DERIVE_FMA(t138, P[208], DERIVE_FMA(t82, P[48], DERIVE_FMA(t81, P[32], DERIVE_FMA(t80, P[16], DERIVE_FMA(t79, P[0], P[80])))))));
+    const double t205 = DERIVE_FMA(t85, P[241], DERIVE_FMA(t84, P[225], DERIVE_FMA(t138, P[209], DERIVE_FMA(t82, P[49], DERIVE_FMA(t81, P[33], DERIVE_FMA(t80, P[17], DERIVE_FMA(t79, P[1], P[81])))))));
+    const double t206 = DERIVE_FMA(t85, P[242], DERIVE_FMA(t84, P[226], DERIVE_FMA(t138, P[210], DERIVE_FMA(t82, P[50], DERIVE_FMA(t81, P[34], DERIVE_FMA(t80, P[18], DERIVE_FMA(t79, P[2], P[82])))))));
+    const double t207 = DERIVE_FMA(t85, P[243], DERIVE_FMA(t84, P[227], DERIVE_FMA(t138, P[211], DERIVE_FMA(t82, P[51], DERIVE_FMA(t81, P[35], DERIVE_FMA(t80, P[19], DERIVE_FMA(t79, P[3], P[83])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t208 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[244], P[245], P[246], P[247]}), DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[228], P[229], P[230], P[231]}), DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[212], P[213], P[214], P[215]}), DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[52], P[53], P[54], P[55]}), DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[36], P[37], P[38], P[39]}), DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[20], P[21], P[22], P[23]}), DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[84], P[85], P[86], P[87]}))))))));
+    const double t208 = v_t208[0];
+    const double t209 = v_t208[1];
+    const double t210 = v_t208[2];
+    const double t211 = v_t208[3];
+    #else
+    const double t208 = DERIVE_FMA(t85, P[244], DERIVE_FMA(t84, P[228], DERIVE_FMA(t138, P[212], DERIVE_FMA(t82, P[52], DERIVE_FMA(t81, P[36], DERIVE_FMA(t80, P[20], DERIVE_FMA(t79, P[4], P[84])))))));
+    const double t209 = DERIVE_FMA(t85, P[245], DERIVE_FMA(t84, P[229], DERIVE_FMA(t138, P[213], DERIVE_FMA(t82, P[53], DERIVE_FMA(t81, P[37], DERIVE_FMA(t80, P[21], DERIVE_FMA(t79, P[5], P[85])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t212 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[248], P[249], P[250], P[251]}), DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[232], P[233], P[234], P[235]}), DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[216], P[217], P[218], P[219]}), DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[56], P[57], P[58], P[59]}), DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[40], P[41], P[42], P[43]}), DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[24], P[25], P[26], P[27]}), DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[88], P[89], P[90], P[91]}))))))));
+    const double t214 = v_t212[2];
+    const double t215 = v_t212[3];
+    #else
+    const double t214 = DERIVE_FMA(t85, P[250], DERIVE_FMA(t84, P[234], DERIVE_FMA(t138, P[218], DERIVE_FMA(t82, P[58], DERIVE_FMA(t81, P[42], DERIVE_FMA(t80, P[26], DERIVE_FMA(t79, P[10], P[90])))))));
+    const double t215 = DERIVE_FMA(t85, P[251], DERIVE_FMA(t84, P[235], DERIVE_FMA(t138, P[219], DERIVE_FMA(t82, P[59], DERIVE_FMA(t81, P[43], DERIVE_FMA(t80, P[27], DERIVE_FMA(t79, P[11], P[91])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[252], P[253], P[254], P[255]}), DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[236], P[237], P[238], P[239]}), DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[220], P[221], P[222], P[223]}), DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[60], P[61], P[62], P[63]}), DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[44], P[45], P[46], P[47]}), DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[28], P[29], P[30], P[31]}), DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[92], P[93], P[94], P[95]}))))))));
+    const double t216 = v_t216[0];
+    const double t217 = v_t216[1];
+    const double t218 = v_t216[2];
+    const double t219 = v_t216[3];
+    #else
+    const double t216 = DERIVE_FMA(t85, P[252], DERIVE_FMA(t84, P[236], DERIVE_FMA(t138, P[220], DERIVE_FMA(t82, P[60], DERIVE_FMA(t81, P[44], DERIVE_FMA(t80, P[28], DERIVE_FMA(t79, P[12], P[92])))))));
+    const double t217 = DERIVE_FMA(t85, P[253], DERIVE_FMA(t84, P[237], DERIVE_FMA(t138, P[221], DERIVE_FMA(t82, P[61], DERIVE_FMA(t81, P[45], DERIVE_FMA(t80, P[29], DERIVE_FMA(t79, P[13], P[93])))))));
+    const double t218 = DERIVE_FMA(t85, P[254], DERIVE_FMA(t84, P[238], DERIVE_FMA(t138, P[222], DERIVE_FMA(t82, P[62], DERIVE_FMA(t81, P[46], DERIVE_FMA(t80, P[30], DERIVE_FMA(t79, P[14], P[94])))))));
+    const double t219 = DERIVE_FMA(t85, P[255], DERIVE_FMA(t84, P[239], DERIVE_FMA(t138, P[223], DERIVE_FMA(t82, P[63], DERIVE_FMA(t81, P[47], DERIVE_FMA(t80, P[31], DERIVE_FMA(t79, P[15], P[95])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[240], P[241], P[242], P[243]}), DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[224], P[225], P[226], P[227]}), DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[208], P[209], P[210], P[211]}), DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[48], P[49], P[50], P[51]}), DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[32], P[33], P[34], P[35]}), DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[16], P[17], P[18], P[19]}), DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}))))))));
+    const double t220 = v_t220[0];
+    const double t221 = v_t220[1];
+    const double t222 = v_t220[2];
+    const double t223 = v_t220[3];
+    #else
+    const double t220 = DERIVE_FMA(t94, P[240], DERIVE_FMA(t139, P[224], DERIVE_FMA(t92, P[208], DERIVE_FMA(t91, P[48], DERIVE_FMA(t90, P[32], DERIVE_FMA(t89, P[16], DERIVE_FMA(t88, P[0], P[96])))))));
+    const double t221 = DERIVE_FMA(t94, P[241], DERIVE_FMA(t139, P[225], DERIVE_FMA(t92, P[209], DERIVE_FMA(t91, P[49], DERIVE_FMA(t90, P[33], DERIVE_FMA(t89, P[17], DERIVE_FMA(t88, P[1], P[97])))))));
+    const double t222 = DERIVE_FMA(t94, P[242], DERIVE_FMA(t139, P[226], DERIVE_FMA(t92, P[210], DERIVE_FMA(t91, P[50], DERIVE_FMA(t90, P[34], DERIVE_FMA(t89, P[18], DERIVE_FMA(t88, P[2], P[98])))))));
+    const double t223 = DERIVE_FMA(t94, P[243], DERIVE_FMA(t139, P[227], DERIVE_FMA(t92, P[211], DERIVE_FMA(t91, P[51], DERIVE_FMA(t90, P[35], DERIVE_FMA(t89, P[19], DERIVE_FMA(t88, P[3], P[99])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t224 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[244], P[245], P[246], P[247]}), DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[228], P[229], P[230], P[231]}), DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[212], P[213], P[214], P[215]}), DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[52], P[53], P[54], P[55]}), DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[36], P[37], P[38], P[39]}), DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[20], P[21], P[22], P[23]}), DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}))))))));
+    const double t224 = v_t224[0];
+    const double t225 = v_t224[1];
+    const double t226 = v_t224[2];
+    const double t227 = v_t224[3];
+    #else
+    const double t224 = DERIVE_FMA(t94, P[244], DERIVE_FMA(t139, P[228], DERIVE_FMA(t92, P[212], DERIVE_FMA(t91, P[52], DERIVE_FMA(t90, P[36], DERIVE_FMA(t89, P[20], DERIVE_FMA(t88, P[4], P[100])))))));
+    const double t225 = DERIVE_FMA(t94, P[245], DERIVE_FMA(t139, P[229], DERIVE_FMA(t92, P[213], DERIVE_FMA(t91, P[53], DERIVE_FMA(t90, P[37], DERIVE_FMA(t89, P[21], DERIVE_FMA(t88, P[5], P[101])))))));
+    const double t226 = DERIVE_FMA(t94, P[246], DERIVE_FMA(t139, P[230], DERIVE_FMA(t92, P[214], DERIVE_FMA(t91, P[54], DERIVE_FMA(t90, P[38], DERIVE_FMA(t89, P[22], DERIVE_FMA(t88, P[6], P[102])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t228 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[248], P[249], P[250], P[251]}), DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[232], P[233], P[234], P[235]}), DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[216], P[217], P[218], P[219]}), DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[56], P[57], P[58], P[59]}), DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[40], P[41], P[42], P[43]}), DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[24], P[25], P[26], P[27]}), DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}))))))));
+    const double t230 = v_t228[2];
+    const double t231 = v_t228[3];
+    #else
+    const double t230 = DERIVE_FMA(t94, P[250], DERIVE_FMA(t139, P[234], DERIVE_FMA(t92, P[218], DERIVE_FMA(t91, P[58], DERIVE_FMA(t90, P[42], DERIVE_FMA(t89, P[26], DERIVE_FMA(t88, P[10], P[106])))))));
+    const double t231 = DERIVE_FMA(t94, P[251], DERIVE_FMA(t139, P[235], DERIVE_FMA(t92, P[219], DERIVE_FMA(t91, P[59], DERIVE_FMA(t90, P[43], DERIVE_FMA(t89, P[27], DERIVE_FMA(t88, P[11], P[107])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t232 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[252], P[253], P[254], P[255]}), DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[236], P[237], P[238], P[239]}), DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[220], P[221], P[222], P[223]}), DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[60], P[61], P[62], P[63]}), DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[44], P[45], P[46], P[47]}), DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[28], P[29], P[30], P[31]}), DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}))))))));
+    const double t232 = v_t232[0];
+    const double t233 = v_t232[1];
+    const double t234 = v_t232[2];
+    const double t235 = v_t232[3];
+    #else
+    const double t232 = DERIVE_FMA(t94, P[252], DERIVE_FMA(t139, P[236], DERIVE_FMA(t92, P[220], DERIVE_FMA(t91, P[60], DERIVE_FMA(t90, P[44], DERIVE_FMA(t89, P[28], DERIVE_FMA(t88, P[12], P[108])))))));
+    const double t233 = DERIVE_FMA(t94, P[253], DERIVE_FMA(t139, P[237], DERIVE_FMA(t92, P[221], DERIVE_FMA(t91, P[61], DERIVE_FMA(t90, P[45], DERIVE_FMA(t89, P[29], DERIVE_FMA(t88, P[13], P[109])))))));
+    const double t234 = DERIVE_FMA(t94, P[254], DERIVE_FMA(t139, P[238], DERIVE_FMA(t92, P[222], DERIVE_FMA(t91, P[62], DERIVE_FMA(t90, P[46], DERIVE_FMA(t89, P[30], DERIVE_FMA(t88, P[14], P[110])))))));
+    const double t235 = DERIVE_FMA(t94, P[255], DERIVE_FMA(t139, P[239], DERIVE_FMA(t92, P[223], DERIVE_FMA(t91, P[63], DERIVE_FMA(t90, P[47], DERIVE_FMA(t89, P[31], DERIVE_FMA(t88, P[15], P[111])))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t236 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[64], P[65], P[66], P[67]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const double t236 = v_t236[0];
+    const double t237 = v_t236[1];
+    const double t238 = v_t236[2];
+    const double t239 = v_t236[3];
+    #else
+    const double t236 = DERIVE_FMA(p[0], P[64], P[112]);
+    const double t237 = DERIVE_FMA(p[0], P[65], P[113]);
+    const double t238 = DERIVE_FMA(p[0], P[66], P[114]);
+    const double t239 = DERIVE_FMA(p[0], P[67], P[115]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t240 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[68], P[69], P[70], P[71]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const double t240 = v_t240[0];
+    const double t241 = v_t240[1];
+    const double t242 = v_t240[2];
+    const double t243 = v_t240[3];
+    #else
+    const double t240 = DERIVE_FMA(p[0], P[68], P[116]);
+    const double t241 = DERIVE_FMA(p[0], P[69], P[117]);
+    const double t242 = DERIVE_FMA(p[0], P[70], P[118]);
+    const double t243 = DERIVE_FMA(p[0], P[71], P[119]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t244 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[72], P[73], P[74], P[75]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const double t246 = v_t244[2];
+    const double t247 = v_t244[3];
+    *(derive_vd_unaligned *)&P_new[164] = ((derive_vd){t198, t214, t230, t246});
+    *(derive_vd_unaligned *)&P_new[180] = ((derive_vd){t199, t215, t231, t247});
+    #else
+    const double t246 = DERIVE_FMA(p[0], P[74], P[122]);
+    const double t247 = DERIVE_FMA(p[0], P[75], P[123]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t248 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[76], P[77], P[78], P[79]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const double t248 = v_t248[0];
+    const double t249 = v_t248[1];
+    const double t250 = v_t248[2];
+    const double t251 = v_t248[3];
+    const derive_vd tr_v_t200_0 = __builtin_shufflevector(v_t200, v_t216, 0, 4, 2, 6);
+    const derive_vd tr_v_t200_1 = __builtin_shufflevector(v_t200, v_t216, 1, 5, 3, 7);
+    const derive_vd tr_v_t200_2 = __builtin_shufflevector(v_t232, v_t248, 0, 4, 2, 6);
+    const derive_vd tr_v_t200_3 = __builtin_shufflevector(v_t232, v_t248, 1, 5, 3, 7);
+    const derive_vd tr_v_t200_c0 = __builtin_shufflevector(tr_v_t200_0, tr_v_t200_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t200_c1 = __builtin_shufflevector(tr_v_t200_1, tr_v_t200_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t200_c2 = __builtin_shufflevector(tr_v_t200_0, tr_v_t200_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t200_c3 = __builtin_shufflevector(tr_v_t200_1, tr_v_t200_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[76] = v_t200;
+    *(derive_vd_unaligned *)&P_new[92] = v_t216;
+    *(derive_vd_unaligned *)&P_new[108] = v_t232;
+    *(derive_vd_unaligned *)&P_new[124] = v_t248;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t200_c0;
+    *(derive_vd_unaligned *)&P_new[212] = tr_v_t200_c1;
+    *(derive_vd_unaligned *)&P_new[228] = tr_v_t200_c2;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t200_c3;
+    #else
+    const double t248 = DERIVE_FMA(p[0], P[76], P[124]);
+    const double t249 = DERIVE_FMA(p[0], P[77], P[125]);
+    const double t250 = DERIVE_FMA(p[0], P[78], P[126]);
+    const double t251 = DERIVE_FMA(p[0], P[79], P[127]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t252 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[80], P[81], P[82], P[83]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const double t252 = v_t252[0];
+    const double t253 = v_t252[1];
+    const double t254 = v_t252[2];
+    const double t255 = v_t252[3];
+    #else
+    const double t252 = DERIVE_FMA(p[0], P[80], P[128]);
+    const double t253 = DERIVE_FMA(p[0], P[81], P[129]);
+    const double t254 = DERIVE_FMA(p[0], P[82], P[130]);
+    const double t255 = DERIVE_FMA(p[0], P[83], P[131]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t256 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[84], P[85], P[86], P[87]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const double t256 = v_t256[0];
+    const double t257 = v_t256[1];
+    const double t258 = v_t256[2];
+    const double t259 = v_t256[3];
+    #else
+    const double t256 = DERIVE_FMA(p[0], P[84], P[132]);
+    const double t257 = DERIVE_FMA(p[0], P[85], P[133]);
+    const double t258 = DERIVE_FMA(p[0], P[86], P[134]);
+    const double t259 = DERIVE_FMA(p[0], P[87], P[135]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t260 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[88], P[89], P[90], P[91]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const double t260 = v_t260[0];
+    const double t261 = v_t260[1];
+    const double t262 = v_t260[2];
+    const double t263 = v_t260[3];
+    #else
+    const double t260 = DERIVE_FMA(p[0], P[88], P[136]);
+    const double t262 = DERIVE_FMA(p[0], P[90], P[138]);
+    const double t263 = DERIVE_FMA(p[0], P[91], P[139]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[92], P[93], P[94], P[95]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const double t264 = v_t264[0];
+    const double t265 = v_t264[1];
+    const double t266 = v_t264[2];
+    const double t267 = v_t264[3];
+    *(derive_vd_unaligned *)&P_new[140] = v_t264;
+    #else
+    const double t264 = DERIVE_FMA(p[0], P[92], P[140]);
+    const double t265 = DERIVE_FMA(p[0], P[93], P[141]);
+    const double t266 = DERIVE_FMA(p[0], P[94], P[142]);
+    const double t267 = DERIVE_FMA(p[0], P[95], P[143]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const double t268 = v_t268[0];
+    const double t269 = v_t268[1];
+    const double t270 = v_t268[2];
+    const double t271 = v_t268[3];
+    #else
+    const double t268 = DERIVE_FMA(p[0], P[96], P[144]);
+    const double t269 = DERIVE_FMA(p[0], P[97], P[145]);
+    const double t270 = DERIVE_FMA(p[0], P[98], P[146]);
+    const double t271 = DERIVE_FMA(p[0], P[99], P[147]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t272 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const double t272 = v_t272[0];
+    const double t273 = v_t272[1];
+    const double t274 = v_t272[2];
+    const double t275 = v_t272[3];
+    #else
+    const double t272 = DERIVE_FMA(p[0], P[100], P[148]);
+    const double t273 = DERIVE_FMA(p[0], P[101], P[149]);
+    const double t274 = DERIVE_FMA(p[0], P[102], P[150]);
+    const double t275 = DERIVE_FMA(p[0], P[103], P[151]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t276 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const double t276 = v_t276[0];
+    const double t277 = v_t276[1];
+    const double t278 = v_t276[2];
+    const double t279 = v_t276[3];
+    #else
+    const double t276 = DERIVE_FMA(p[0], P[104], P[152]);
+    const double t277 = DERIVE_FMA(p[0], P[105], P[153]);
+    const double t278 = DERIVE_FMA(p[0], P[106], P[154]);
+    const double t279 = DERIVE_FMA(p[0], P[107], P[155]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t280 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const double t280 = v_t280[0];
+    const double t281 = v_t280[1];
+    const double t282 = v_t280[2];
+    const double t283 = v_t280[3];
+    *(derive_vd_unaligned *)&P_new[156] = v_t280;
+    #else
+    const double t280 = DERIVE_FMA(p[0], P[108], P[156]);
+    const double t281 = DERIVE_FMA(p[0], P[109], P[157]);
+    const double t282 = DERIVE_FMA(p[0], P[110], P[158]);
+    const double t283 = DERIVE_FMA(p[0], P[111], P[159]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t284 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t148, t160, t172, t184}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t147, t159, t171, t183}), DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t146, t158, t170, t182}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t143, t155, t167, t179}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t142, t154, t166, t178}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t141, t153, t165, t177}), (((derive_vd){t116, t118, t119, t121}) + ((derive_vd){t140, t152, t164, t176}))))))));
+    #else
+    const double t284 = DERIVE_FMA(t39, t148, DERIVE_FMA(t38, t147, DERIVE_FMA(t37, t146, DERIVE_FMA(t36, t143, DERIVE_FMA(t35, t142, DERIVE_FMA(t34, t141, t116 + t140))))));
+    const double t285 = DERIVE_FMA(t39, t160, DERIVE_FMA(t38, t159, DERIVE_FMA(t37, t158, DERIVE_FMA(t36, t155, DERIVE_FMA(t35, t154, DERIVE_FMA(t34, t153, t118 + t152))))));
+    const double t286 = DERIVE_FMA(t39, t172, DERIVE_FMA(t38, t171, DERIVE_FMA(t37, t170, DERIVE_FMA(t36, t167, DERIVE_FMA(t35, t166, DERIVE_FMA(t34, t165, t119 + t164))))));
+    const double t287 = DERIVE_FMA(t39, t184, DERIVE_FMA(t38, t183, DERIVE_FMA(t37, t182, DERIVE_FMA(t36, t179, DERIVE_FMA(t35, t178, DERIVE_FMA(t34, t177, t121 + t176))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t288 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t200, t216, t232, t248}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t199, t215, t231, t247}), DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t198, t214, t230, t246}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t191, t207, t223, t239}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t190, t206, t222, t238}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t189, t205, t221, t237}), ((derive_vd){t188, t204, t220, t236})))))));
+    #else
+    const double t288 = DERIVE_FMA(t39, t200, DERIVE_FMA(t38, t199, DERIVE_FMA(t37, t198, DERIVE_FMA(t36, t191, DERIVE_FMA(t35, t190, DERIVE_FMA(t34, t189, t188))))));
+    const double t289 = DERIVE_FMA(t39, t216, DERIVE_FMA(t38, t215, DERIVE_FMA(t37, t214, DERIVE_FMA(t36, t207, DERIVE_FMA(t35, t206, DERIVE_FMA(t34, t205, t204))))));
+    const double t290 = DERIVE_FMA(t39, t232, DERIVE_FMA(t38, t231, DERIVE_FMA(t37, t230, DERIVE_FMA(t36, t223, DERIVE_FMA(t35, t222, DERIVE_FMA(t34, t221, t220))))));
+    const double t291 = DERIVE_FMA(t39, t248, DERIVE_FMA(t38, t247, DERIVE_FMA(t37, t246, DERIVE_FMA(t36, t239, DERIVE_FMA(t35, t238, DERIVE_FMA(t34, t237, t236))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t292 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t264, t280, P[202], P[203]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t263, t279, P[186], P[187]}), DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t262, t278, P[170], P[171]}), DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t255, t271, P[58], P[59]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t254, t270, P[42], P[43]}), DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t253, t269, P[26], P[27]}), ((derive_vd){t252, t268, P[10], P[11]})))))));
+    const double t292 = v_t292[0];
+    const double t293 = v_t292[1];
+    *(derive_vd_unaligned *)&P_new[8] = ((derive_vd){t292, t293, t146, t147});
+    #else
+    const double t292 = DERIVE_FMA(t39, t264, DERIVE_FMA(t38, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t36, t255, DERIVE_FMA(t35, t254, DERIVE_FMA(t34, t253, t252))))));
+    const double t293 = DERIVE_FMA(t39, t280, DERIVE_FMA(t38, t279, DERIVE_FMA(t37, t278, DERIVE_FMA(t36, t271, DERIVE_FMA(t35, t270, DERIVE_FMA(t34, t269, t268))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t296 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t148, t160, t172, t184}), DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t147, t159, t171, t183}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t146, t158, t170, t182}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t143, t155, t167, t179}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t142, t154, t166, t178}), (DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t118, t123, t124, t125})) + ((derive_vd){t141, t153, t165, t177})))))));
+    #else
+    const double t297 = DERIVE_FMA(t41, t160, DERIVE_FMA(t39, t159, DERIVE_FMA(t44, t158, DERIVE_FMA(t35, t155, DERIVE_FMA(t3, t154, DERIVE_FMA(t1, t152, t123) + t153)))));
+    const double t298 = DERIVE_FMA(t41, t172, DERIVE_FMA(t39, t171, DERIVE_FMA(t44, t170, DERIVE_FMA(t35, t167, DERIVE_FMA(t3, t166, DERIVE_FMA(t1, t164, t124) + t165)))));
+    const double t299 = DERIVE_FMA(t41, t184, DERIVE_FMA(t39, t183, DERIVE_FMA(t44, t182, DERIVE_FMA(t35, t179, DERIVE_FMA(t3, t178, DERIVE_FMA(t1, t176, t125) + t177)))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t300 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t200, t216, t232, t248}), DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t199, t215, t231, t247}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t198, t214, t230, t246}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t191, t207, t223, t239}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t190, t206, t222, t238}), ((((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t188, t204, t220, t236})) + ((derive_vd){t189, t205, t221, t237})))))));
+    #else
+    const double t300 = DERIVE_FMA(t41, t200, DERIVE_FMA(t39, t199, DERIVE_FMA(t44, t198, DERIVE_FMA(t35, t191, DERIVE_FMA(t3, t190, t1*t188 + t189)))));
+    const double t301 = DERIVE_FMA(t41, t216, DERIVE_FMA(t39, t215, DERIVE_FMA(t44, t214, DERIVE_FMA(t35, t207, DERIVE_FMA(t3, t206, t1*t204 + t205)))));
+    const double t302 = DERIVE_FMA(t41, t232, DERIVE_FMA(t39, t231, DERIVE_FMA(t44, t230, DERIVE_FMA(t35, t223, DERIVE_FMA(t3, t222, t1*t220 + t221)))));
+    const double t303 = DERIVE_FMA(t41, t248, DERIVE_FMA(t39, t247, DERIVE_FMA(t44, t246, DERIVE_FMA(t35, t239, DERIVE_FMA(t3, t238, t1*t236 + t237)))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t304 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t264, t280, P[202], P[203]}), DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t263, t279, P[186], P[187]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t262, t278, P[170], P[171]}), DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t255, t271, P[58], P[59]}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t254, t270, P[42], P[43]}), ((((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t252, t268, P[10], P[11]})) + ((derive_vd){t253, t269, P[26], P[27]})))))));
+    const double t304 = v_t304[0];
+    const double t305 = v_t304[1];
+    *(derive_vd_unaligned *)&P_new[24] = ((derive_vd){t304, t305, t158, t159});
+    #else
+    const double t304 = DERIVE_FMA(t41, t264, DERIVE_FMA(t39, t263, DERIVE_FMA(t44, t262, DERIVE_FMA(t35, t255, DERIVE_FMA(t3, t254, t1*t252 + t253)))));
+    const double t305 = DERIVE_FMA(t41, t280, DERIVE_FMA(t39, t279, DERIVE_FMA(t44, t278, DERIVE_FMA(t35, t271, DERIVE_FMA(t3, t270, t1*t268 + t269)))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t308 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t148, t160, t172, t184}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t159, t171, t183}), DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t146, t158, t170, t182}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t143, t155, t167, t179}), (DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t141, t153, t165, t177}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t119, t124, t126, t127}))) + ((derive_vd){t142, t154, t166, t178}))))));
+    #else
+    const double t310 = DERIVE_FMA(t37, t172, DERIVE_FMA(t44, t171, DERIVE_FMA(t42, t170, DERIVE_FMA(t1, t167, DERIVE_FMA(t36, t165, DERIVE_FMA(t2, t164, t126)) + t166))));
+    const double t311 = DERIVE_FMA(t37, t184, DERIVE_FMA(t44, t183, DERIVE_FMA(t42, t182, DERIVE_FMA(t1, t179, DERIVE_FMA(t36, t177, DERIVE_FMA(t2, t176, t127)) + t178))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t312 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t200, t216, t232, t248}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t199, t215, t231, t247}), DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t198, t214, t230, t246}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t191, t207, t223, t239}), (DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t189, t205, t221, t237}), (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t188, t204, t220, t236}))) + ((derive_vd){t190, t206, t222, t238}))))));
+    #else
+    const double t312 = DERIVE_FMA(t37, t200, DERIVE_FMA(t44, t199, DERIVE_FMA(t42, t198, DERIVE_FMA(t1, t191, DERIVE_FMA(t36, t189, t2*t188) + t190))));
+    const double t313 = DERIVE_FMA(t37, t216, DERIVE_FMA(t44, t215, DERIVE_FMA(t42, t214, DERIVE_FMA(t1, t207, DERIVE_FMA(t36, t205, t2*t204) + t206))));
+    const double t314 = DERIVE_FMA(t37, t232, DERIVE_FMA(t44, t231, DERIVE_FMA(t42, t230, DERIVE_FMA(t1, t223, DERIVE_FMA(t36, t221, t2*t220) + t222))));
+    const double t315 = DERIVE_FMA(t37, t248, DERIVE_FMA(t44, t247, DERIVE_FMA(t42, t246, DERIVE_FMA(t1, t239, DERIVE_FMA(t36, t237, t2*t236) + t238))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t316 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t264, t280, P[202], P[203]}), DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t263, t279, P[186], P[187]}), DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t262, t278, P[170], P[171]}), DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t255, t271, P[58], P[59]}), (DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t253, t269, P[26], P[27]}), (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t252, t268, P[10], P[11]}))) + ((derive_vd){t254, t270, P[42], P[43]}))))));
+    const double t316 = v_t316[0];
+    const double t317 = v_t316[1];
+    *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t316, t317, t170, t171});
+    #else
+    const double t316 = DERIVE_FMA(t37, t264, DERIVE_FMA(t44, t263, DERIVE_FMA(t42, t262, DERIVE_FMA(t1, t255, DERIVE_FMA(t36, t253, t2*t252) + t254))));
+    const double t317 = DERIVE_FMA(t37, t280, DERIVE_FMA(t44, t279, DERIVE_FMA(t42, t278, DERIVE_FMA(t1, t271, DERIVE_FMA(t36, t269, t2*t268) + t270))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t320 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t160, t172, t184}), DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t147, t159, t171, t183}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t146, t158, t170, t182}), (DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t142, t154, t166, t178}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t141, t153, t165, t177}), DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t121, t125, t127, t128})))) + ((derive_vd){t143, t155, t167, t179})))));
+    const derive_vd tr_v_t284_0 = __builtin_shufflevector(v_t284, v_t296, 0, 4, 2, 6);
+    const derive_vd tr_v_t284_1 = __builtin_shufflevector(v_t284, v_t296, 1, 5, 3, 7);
+    const derive_vd tr_v_t284_2 = __builtin_shufflevector(v_t308, v_t320, 0, 4, 2, 6);
+    const derive_vd tr_v_t284_3 = __builtin_shufflevector(v_t308, v_t320, 1, 5, 3, 7);
+    const derive_vd tr_v_t284_c1 = __builtin_shufflevector(tr_v_t284_1, tr_v_t284_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t284_c2 = __builtin_shufflevector(tr_v_t284_0, tr_v_t284_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t284_c3 = __builtin_shufflevector(tr_v_t284_1, tr_v_t284_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[0] = v_t284;
+    *(derive_vd_unaligned *)&P_new[16] = __builtin_shufflevector(v_t296, tr_v_t284_c1, 4, 1, 2, 3);
+    *(derive_vd_unaligned *)&P_new[32] = __builtin_shufflevector(v_t308, tr_v_t284_c2, 4, 5, 2, 3);
+    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t320, tr_v_t284_c3, 4, 5, 6, 3);
+    #else
+    const double t323 = DERIVE_FMA(t44, t184, DERIVE_FMA(t40, t183, DERIVE_FMA(t38, t182, DERIVE_FMA(t34, t178, DERIVE_FMA(t2, t177, DERIVE_FMA(t3, t176, t128))) + t179)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t200, t216, t232, t248}), DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t199, t215, t231, t247}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t198, t214, t230, t246}), (DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t190, t206, t222, t238}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t189, t205, t221, t237}), (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t188, t204, t220, t236})))) + ((derive_vd){t191, t207, t223, t239})))));
+    const derive_vd tr_v_t288_0 = __builtin_shufflevector(v_t288, v_t300, 0, 4, 2, 6);
+    const derive_vd tr_v_t288_1 = __builtin_shufflevector(v_t288, v_t300, 1, 5, 3, 7);
+    const derive_vd tr_v_t288_2 = __builtin_shufflevector(v_t312, v_t324, 0, 4, 2, 6);
+    const derive_vd tr_v_t288_3 = __builtin_shufflevector(v_t312, v_t324, 1, 5, 3, 7);
+    const derive_vd tr_v_t288_c0 = __builtin_shufflevector(tr_v_t288_0, tr_v_t288_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t288_c1 = __builtin_shufflevector(tr_v_t288_1, tr_v_t288_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t288_c2 = __builtin_shufflevector(tr_v_t288_0, tr_v_t288_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t288_c3 = __builtin_shufflevector(tr_v_t288_1, tr_v_t288_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t288;
+    *(derive_vd_unaligned *)&P_new[20] = v_t300;
+    *(derive_vd_unaligned *)&P_new[36] = v_t312;
+    *(derive_vd_unaligned *)&P_new[52] = v_t324;
+    *(derive_vd_unaligned *)&P_new[64] = tr_v_t288_c0;
+    *(derive_vd_unaligned *)&P_new[80] = tr_v_t288_c1;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t288_c2;
+    *(derive_vd_unaligned *)&P_new[112] = tr_v_t288_c3;
+    #else
+    const double t324 = DERIVE_FMA(t44, t200, DERIVE_FMA(t40, t199, DERIVE_FMA(t38, t198, DERIVE_FMA(t34, t190, DERIVE_FMA(t2, t189, t3*t188)) + t191)));
+    const double t325 = DERIVE_FMA(t44, t216, DERIVE_FMA(t40, t215, DERIVE_FMA(t38, t214, DERIVE_FMA(t34, t206, DERIVE_FMA(t2, t205, t3*t204)) + t207)));
+    const double t326 = DERIVE_FMA(t44, t232, DERIVE_FMA(t40, t231, DERIVE_FMA(t38, t230, DERIVE_FMA(t34, t222, DERIVE_FMA(t2, t221, t3*t220)) + t223)));
+    const double t327 = DERIVE_FMA(t44, t248, DERIVE_FMA(t40, t247, DERIVE_FMA(t38, t246, DERIVE_FMA(t34, t238, DERIVE_FMA(t2, t237, t3*t236)) + t239)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t264, t280, P[202], P[203]}), DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t263, t279, P[186], P[187]}), DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t262, t278, P[170], P[171]}), (DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t254, t270, P[42], P[43]}), DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t253, t269, P[26], P[27]}), (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t252, t268, P[10], P[11]})))) + ((derive_vd){t255, t271, P[58], P[59]})))));
+    const double t328 = v_t328[0];
+    const double t329 = v_t328[1];
+    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t328, t329, t182, t183});
+    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t292, t304, t316, t328});
+    *(derive_vd_unaligned *)&P_new[144] = ((derive_vd){t293, t305, t317, t329});
+    #else
+    const double t328 = DERIVE_FMA(t44, t264, DERIVE_FMA(t40, t263, DERIVE_FMA(t38, t262, DERIVE_FMA(t34, t254, DERIVE_FMA(t2, t253, t3*t252)) + t255)));
+    const double t329 = DERIVE_FMA(t44, t280, DERIVE_FMA(t40, t279, DERIVE_FMA(t38, t278, DERIVE_FMA(t34, t270, DERIVE_FMA(t2, t269, t3*t268)) + t271)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t332 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t203, t219, t235, t251}), DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t202, t218, t234, t250}), DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t201, t217, t233, t249}), (DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t191, t207, t223, t239}), DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t190, t206, t222, t238}), DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t189, t205, t221, t237}), DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t129, t130, t131, 0.0}))))) + ((derive_vd){t192, t208, t224, t240})))));
+    #else
+    const double t332 = DERIVE_FMA(t137, t203, DERIVE_FMA(t75, t202, DERIVE_FMA(t74, t201, DERIVE_FMA(t73, t191, DERIVE_FMA(t72, t190, DERIVE_FMA(t71, t189, DERIVE_FMA(t70, t188, t129)))) + t192)));
+    const double t333 = DERIVE_FMA(t137, t219, DERIVE_FMA(t75, t218, DERIVE_FMA(t74, t217, DERIVE_FMA(t73, t207, DERIVE_FMA(t72, t206, DERIVE_FMA(t71, t205, DERIVE_FMA(t70, t204, t130)))) + t208)));
+    const double t334 = DERIVE_FMA(t137, t235, DERIVE_FMA(t75, t234, DERIVE_FMA(t74, t233, DERIVE_FMA(t73, t223, DERIVE_FMA(t72, t222, DERIVE_FMA(t71, t221, DERIVE_FMA(t70, t220, t131)))) + t224)));
+    const double t335 = DERIVE_FMA(t137, t251, DERIVE_FMA(t75, t250, DERIVE_FMA(t74, t249, DERIVE_FMA(t73, t239, DERIVE_FMA(t72, t238, DERIVE_FMA(t71, t237, DERIVE_FMA(t70, t236, 0.0)))) + t240)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t267, t283, P[250], P[251]}), DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t266, t282, P[234], P[235]}), DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t265, t281, P[218], P[219]}), (DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t255, t271, P[58], P[59]}), DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t254, t270, P[42], P[43]}), DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t253, t269, P[26], P[27]}), (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t252, t268, P[10], P[11]}))))) + ((derive_vd){t256, t272, P[74], P[75]})))));
+    const double t336 = v_t336[0];
+    const double t337 = v_t336[1];
+    *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t336, t337, t198, t199});
+    #else
+    const double t336 = DERIVE_FMA(t137, t267, DERIVE_FMA(t75, t266, DERIVE_FMA(t74, t265, DERIVE_FMA(t73, t255, DERIVE_FMA(t72, t254, DERIVE_FMA(t71, t253, t70*t252))) + t256)));
+    const double t337 = DERIVE_FMA(t137, t283, DERIVE_FMA(t75, t282, DERIVE_FMA(t74, t281, DERIVE_FMA(t73, t271, DERIVE_FMA(t72, t270, DERIVE_FMA(t71, t269, t70*t268))) + t272)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t340 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t203, t219, t235, t251}), DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t202, t218, t234, t250}), DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t201, t217, t233, t249}), (DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t191, t207, t223, t239}), DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t190, t206, t222, t238}), DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t189, t205, t221, t237}), DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t130, t132, t133, 0.0}))))) + ((derive_vd){t193, t209, t225, t241})))));
+    #else
+    const double t341 = DERIVE_FMA(t85, t219, DERIVE_FMA(t84, t218, DERIVE_FMA(t138, t217, DERIVE_FMA(t82, t207, DERIVE_FMA(t81, t206, DERIVE_FMA(t80, t205, DERIVE_FMA(t79, t204, t132)))) + t209)));
+    const double t342 = DERIVE_FMA(t85, t235, DERIVE_FMA(t84, t234, DERIVE_FMA(t138, t233, DERIVE_FMA(t82, t223, DERIVE_FMA(t81, t222, DERIVE_FMA(t80, t221, DERIVE_FMA(t79, t220, t133)))) + t225)));
+    const double t343 = DERIVE_FMA(t85, t251, DERIVE_FMA(t84, t250, DERIVE_FMA(t138, t249, DERIVE_FMA(t82, t239, DERIVE_FMA(t81, t238, DERIVE_FMA(t80, t237, DERIVE_FMA(t79, t236, 0.0)))) + t241)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t344 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t267, t283, P[250], P[251]}), DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t266, t282, P[234], P[235]}), DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t265, t281, P[218], P[219]}), (DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t255, t271, P[58], P[59]}), DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t254, t270, P[42], P[43]}), DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t253, t269, P[26], P[27]}), (((derive_vd){t79, t79, t79, t79}) * ((derive_vd){t252, t268, P[10], P[11]}))))) + ((derive_vd){t257, t273, P[90], P[91]})))));
+    const double t344 = v_t344[0];
+    const double t345 = v_t344[1];
+    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t344, t345, t214, t215});
+    #else
+    const double t344 = DERIVE_FMA(t85, t267, DERIVE_FMA(t84, t266, DERIVE_FMA(t138, t265, DERIVE_FMA(t82, t255, DERIVE_FMA(t81, t254, DERIVE_FMA(t80, t253, t79*t252))) + t257)));
+    const double t345 = DERIVE_FMA(t85, t283, DERIVE_FMA(t84, t282, DERIVE_FMA(t138, t281, DERIVE_FMA(t82, t271, DERIVE_FMA(t81, t270, DERIVE_FMA(t80, t269, t79*t268))) + t273)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t348 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t203, t219, t235, t251}), DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t202, t218, t234, t250}), DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t201, t217, t233, t249}), (DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t191, t207, t223, t239}), DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t190, t206, t222, t238}), DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t189, t205, t221, t237}), DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t131, t133, t134, 0.0}))))) + ((derive_vd){t194, t210, t226, t242})))));
+    #else
+    const double t350 = DERIVE_FMA(t94, t235, DERIVE_FMA(t139, t234, DERIVE_FMA(t92, t233, DERIVE_FMA(t91, t223, DERIVE_FMA(t90, t222, DERIVE_FMA(t89, t221, DERIVE_FMA(t88, t220, t134)))) + t226)));
+    const double t351 = DERIVE_FMA(t94, t251, DERIVE_FMA(t139, t250, DERIVE_FMA(t92, t249, DERIVE_FMA(t91, t239, DERIVE_FMA(t90, t238, DERIVE_FMA(t89, t237, DERIVE_FMA(t88, t236, 0.0)))) + t242)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t352 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t267, t283, P[250], P[251]}), DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t266, t282, P[234], P[235]}), DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t265, t281, P[218], P[219]}), (DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t255, t271, P[58], P[59]}), DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t254, t270, P[42], P[43]}), DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t253, t269, P[26], P[27]}), (((derive_vd){t88, t88, t88, t88}) * ((derive_vd){t252, t268, P[10], P[11]}))))) + ((derive_vd){t258, t274, P[106], P[107]})))));
+    const double t352 = v_t352[0];
+    const double t353 = v_t352[1];
+    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t352, t353, t230, t231});
+    #else
+    const double t352 = DERIVE_FMA(t94, t267, DERIVE_FMA(t139, t266, DERIVE_FMA(t92, t265, DERIVE_FMA(t91, t255, DERIVE_FMA(t90, t254, DERIVE_FMA(t89, t253, t88*t252))) + t258)));
+    const double t353 = DERIVE_FMA(t94, t283, DERIVE_FMA(t139, t282, DERIVE_FMA(t92, t281, DERIVE_FMA(t91, t271, DERIVE_FMA(t90, t270, DERIVE_FMA(t89, t269, t88*t268))) + t274)));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t356 = ((((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t192, t208, t224, t240})) + ((derive_vd){t195, t211, t227, t243}));
+    const derive_vd tr_v_t332_0 = __builtin_shufflevector(v_t332, v_t340, 0, 4, 2, 6);
+    const derive_vd tr_v_t332_1 = __builtin_shufflevector(v_t332, v_t340, 1, 5, 3, 7);
+    const derive_vd tr_v_t332_2 = __builtin_shufflevector(v_t348, v_t356, 0, 4, 2, 6);
+    const derive_vd tr_v_t332_3 = __builtin_shufflevector(v_t348, v_t356, 1, 5, 3, 7);
+    const derive_vd tr_v_t332_c1 = __builtin_shufflevector(tr_v_t332_1, tr_v_t332_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t332_c2 = __builtin_shufflevector(tr_v_t332_0, tr_v_t332_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t332_c3 = __builtin_shufflevector(tr_v_t332_1, tr_v_t332_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[68] = v_t332;
+    *(derive_vd_unaligned *)&P_new[84] = __builtin_shufflevector(v_t340, tr_v_t332_c1, 4, 1, 2, 3);
+    *(derive_vd_unaligned *)&P_new[100] = __builtin_shufflevector(v_t348, tr_v_t332_c2, 4, 5, 2, 3);
+    *(derive_vd_unaligned *)&P_new[116] = __builtin_shufflevector(v_t356, tr_v_t332_c3, 4, 5, 6, 3);
+    #else
+    const double t359 = p[0]*t240 + t243;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t360 = ((((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t256, t272, P[74], P[75]})) + ((derive_vd){t259, t275, P[122], P[123]}));
+    const double t360 = v_t360[0];
+    const double t361 = v_t360[1];
+    *(derive_vd_unaligned *)&P_new[120] = ((derive_vd){t360, t361, t246, t247});
+    *(derive_vd_unaligned *)&P_new[132] = ((derive_vd){t336, t344, t352, t360});
+    *(derive_vd_unaligned *)&P_new[148] = ((derive_vd){t337, t345, t353, t361});
+    #else
+    const double t360 = p[0]*t256 + t259;
+    const double t361 = p[0]*t272 + t275;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t364 = ((((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t257, t273, P[90], P[91]})) + ((derive_vd){t260, t276, P[138], P[139]}));
+    const double t364 = v_t364[0];
+    const double t365 = v_t364[1];
+    *(derive_vd_unaligned *)&P_new[136] = ((derive_vd){t364, t365, t262, t263});
+    #else
+    const double t364 = p[0]*t257 + t260;
+    const double t365 = p[0]*t273 + t276;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t368 = ((((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t258, t274, P[106], P[107]})) + ((derive_vd){t261, t277, P[154], P[155]}));
+    const double t369 = v_t368[1];
+    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t365, t369, t278, t279});
+    #else
+    const double t369 = p[0]*t274 + t277;
+    #endif
+    const double t372 = P[170] + t135;
+    const double t373 = P[187] + t135;
+    const double t374 = P[204] + t135;
+    const double t375 = P[221] + t136;
+    const double t376 = P[238] + t136;
+    const double t377 = P[255] + t136;
+    #if DERIVE_VECTOR
     x_new[0] = t60;
     x_new[1] = t61;
     x_new[2] = t62;
@@ -447,262 +881,328 @@ void ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, co
     x_new[13] = x[13];
     x_new[14] = x[14];
     x_new[15] = x[15];
-    P_new[0] = t349;
-    P_new[1] = t350;
-    P_new[2] = t351;
-    P_new[3] = t352;
-    P_new[4] = t298;
-    P_new[5] = t299;
-    P_new[6] = t300;
-    P_new[7] = t301;
-    P_new[8] = t302;
-    P_new[9] = t303;
-    P_new[10] = t151;
-    P_new[11] = t153;
-    P_new[12] = t155;
-    P_new[13] = t156;
-    P_new[14] = t157;
-    P_new[15] = t158;
-    P_new[16] = t350;
-    P_new[17] = t353;
-    P_new[18] = t354;
-    P_new[19] = t355;
-    P_new[20] = t307;
-    P_new[21] = t308;
-    P_new[22] = t309;
-    P_new[23] = t310;
-    P_new[24] = t311;
-    P_new[25] = t312;
-    P_new[26] = t171;
-    P_new[27] = t173;
-    P_new[28] = t175;
-    P_new[29] = t176;
-    P_new[30] = t177;
-    P_new[31] = t178;
-    P_new[32] = t351;
-    P_new[33] = t354;
-    P_new[34] = t356;
-    P_new[35] = t357;
-    P_new[36] = t315;
-    P_new[37] = t316;
-    P_new[38] = t317;
-    P_new[39] = t318;
-    P_new[40] = t319;
-    P_new[41] = t320;
-    P_new[42] = t190;
-    P_new[43] = t191;
-    P_new[44] = t193;
-    P_new[45] = t194;
-    P_new[46] = t195;
-    P_new[47] = t196;
-    P_new[48] = t352;
-    P_new[49] = t355;
-    P_new[50] = t357;
-    P_new[51] = t358;
-    P_new[52] = t322;
-    P_new[53] = t323;
-    P_new[54] = t324;
-    P_new[55] = t325;
-    P_new[56] = t326;
-    P_new[57] = t327;
-    P_new[58] = t207;
-    P_new[59] = t208;
-    P_new[60] = t209;
-    P_new[61] = t210;
-    P_new[62] = t211;
-    P_new[63] = t212;
-    P_new[64] = t298;
-    P_new[65] = t307;
-    P_new[66] = t315;
-    P_new[67] = t322;
-    P_new[68] = t359;
-    P_new[69] = t360;
-    P_new[70] = t361;
-    P_new[71] = t331;
-    P_new[72] = t332;
-    P_new[73] = t333;
-    P_new[74] = t223;
-    P_new[75] = t224;
-    P_new[76] = t225;
-    P_new[77] = t226;
-    P_new[78] = t227;
-    P_new[79] = t228;
-    P_new[80] = t299;
-    P_new[81] = t308;
-    P_new[82] = t316;
-    P_new[83] = t323;
-    P_new[84] = t360;
-    P_new[85] = t362;
-    P_new[86] = t363;
-    P_new[87] = t336;
-    P_new[88] = t337;
-    P_new[89] = t338;
-    P_new[90] = t239;
-    P_new[91] = t240;
-    P_new[92] = t241;
-    P_new[93] = t242;
-    P_new[94] = t243;
-    P_new[95] = t244;
-    P_new[96] = t300;
-    P_new[97] = t309;
-    P_new[98] = t317;
-    P_new[99] = t324;
-    P_new[100] = t361;
-    P_new[101] = t363;
-    P_new[102] = t364;
-    P_new[103] = t340;
-    P_new[104] = t341;
-    P_new[105] = t342;
-    P_new[106] = t255;
-    P_new[107] = t256;
-    P_new[108] = t257;
-    P_new[109] = t258;
-    P_new[110] = t259;
-    P_new[111] = t260;
-    P_new[112] = t301;
-    P_new[113] = t310;
-    P_new[114] = t318;
-    P_new[115] = t325;
-    P_new[116] = t331;
-    P_new[117] = t336;
-    P_new[118] = t340;
-    P_new[119] = t343;
-    P_new[120] = t344;
-    P_new[121] = t345;
-    P_new[122] = t269;
-    P_new[123] = t270;
-    P_new[124] = t271;
-    P_new[125] = t272;
-    P_new[126] = t273;
-    P_new[127] = t274;
-    P_new[128] = t302;
-    P_new[129] = t311;
-    P_new[130] = t319;
-    P_new[131] = t326;
-    P_new[132] = t332;
-    P_new[133] = t337;
-    P_new[134] = t341;
-    P_new[135] = t344;
-    P_new[136] = t346;
-    P_new[137] = t347;
-    P_new[138] = t280;
-    P_new[139] = t281;
-    P_new[140] = t282;
-    P_new[141] = t283;
-    P_new[142] = t284;
-    P_new[143] = t285;
-    P_new[144] = t303;
-    P_new[145] = t312;
-    P_new[146] = t320;
-    P_new[147] = t327;
-    P_new[148] = t333;
-    P_new[149] = t338;
-    P_new[150] = t342;
-    P_new[151] = t345;
-    P_new[152] = t347;
-    P_new[153] = t348;
-    P_new[154] = t288;
-    P_new[155] = t289;
-    P_new[156] = t290;
-    P_new[157] = t291;
-    P_new[158] = t292;
-    P_new[159] = t293;
-    P_new[160] = t151;
-    P_new[161] = t171;
-    P_new[162] = t190;
-    P_new[163] = t207;
-    P_new[164] = t223;
-    P_new[165] = t239;
-    P_new[166] = t255;
-    P_new[167] = t269;
-    P_new[168] = t280;
-    P_new[169] = t288;
-    P_new[170] = t365;
+    P_new[168] = t262;
+    P_new[169] = t278;
+    P_new[170] = t372;
     P_new[171] = P[171];
     P_new[172] = P[172];
     P_new[173] = P[173];
     P_new[174] = P[174];
     P_new[175] = P[175];
-    P_new[176] = t153;
-    P_new[177] = t173;
-    P_new[178] = t191;
-    P_new[179] = t208;
-    P_new[180] = t224;
-    P_new[181] = t240;
-    P_new[182] = t256;
-    P_new[183] = t270;
-    P_new[184] = t281;
-    P_new[185] = t289;
+    P_new[184] = t263;
+    P_new[185] = t279;
     P_new[186] = P[171];
-    P_new[187] = t366;
+    P_new[187] = t373;
     P_new[188] = P[188];
     P_new[189] = P[189];
     P_new[190] = P[190];
     P_new[191] = P[191];
-    P_new[192] = t155;
-    P_new[193] = t175;
-    P_new[194] = t193;
-    P_new[195] = t209;
-    P_new[196] = t225;
-    P_new[197] = t241;
-    P_new[198] = t257;
-    P_new[199] = t271;
-    P_new[200] = t282;
-    P_new[201] = t290;
+    P_new[200] = t264;
+    P_new[201] = t280;
     P_new[202] = P[172];
     P_new[203] = P[188];
-    P_new[204] = t367;
+    P_new[204] = t374;
     P_new[205] = P[205];
     P_new[206] = P[206];
     P_new[207] = P[207];
-    P_new[208] = t156;
-    P_new[209] = t176;
-    P_new[210] = t194;
-    P_new[211] = t210;
-    P_new[212] = t226;
-    P_new[213] = t242;
-    P_new[214] = t258;
-    P_new[215] = t272;
-    P_new[216] = t283;
-    P_new[217] = t291;
+    P_new[216] = t265;
+    P_new[217] = t281;
     P_new[218] = P[173];
     P_new[219] = P[189];
     P_new[220] = P[205];
-    P_new[221] = t368;
+    P_new[221] = t375;
     P_new[222] = P[222];
     P_new[223] = P[223];
-    P_new[224] = t157;
-    P_new[225] = t177;
-    P_new[226] = t195;
-    P_new[227] = t211;
-    P_new[228] = t227;
-    P_new[229] = t243;
-    P_new[230] = t259;
-    P_new[231] = t273;
-    P_new[232] = t284;
-    P_new[233] = t292;
+    P_new[232] = t266;
+    P_new[233] = t282;
     P_new[234] = P[174];
     P_new[235] = P[190];
     P_new[236] = P[206];
     P_new[237] = P[222];
-    P_new[238] = t369;
+    P_new[238] = t376;
     P_new[239] = P[239];
-    P_new[240] = t158;
-    P_new[241] = t178;
-    P_new[242] = t196;
-    P_new[243] = t212;
-    P_new[244] = t228;
-    P_new[245] = t244;
-    P_new[246] = t260;
-    P_new[247] = t274;
-    P_new[248] = t285;
-    P_new[249] = t293;
+    P_new[248] = t267;
+    P_new[249] = t283;
     P_new[250] = P[175];
     P_new[251] = P[191];
     P_new[252] = P[207];
     P_new[253] = P[223];
     P_new[254] = P[239];
-    P_new[255] = t370;
+    P_new[255] = t377;
+    #else
+    x_new[0] = t60;
+    x_new[1] = t61;
+    x_new[2] = t62;
+    x_new[3] = t63;
+    x_new[4] = t64;
+    x_new[5] = t65;
+    x_new[6] = t66;
+    x_new[7] = t67;
+    x_new[8] = t68;
+    x_new[9] = t69;
+    x_new[10] = x[10];
+    x_new[11] = x[11];
+    x_new[12] = x[12];
+    x_new[13] = x[13];
+    x_new[14] = x[14];
+    x_new[15] = x[15];
+    P_new[0] = t284;
+    P_new[1] = t285;
+    P_new[2] = t286;
+    P_new[3] = t287;
+    P_new[4] = t288;
+    P_new[5] = t289;
+    P_new[6] = t290;
+    P_new[7] = t291;
+    P_new[8] = t292;
+    P_new[9] = t293;
+    P_new[10] = t146;
+    P_new[11] = t147;
+    P_new[12] = t148;
+    P_new[13] = t149;
+    P_new[14] = t150;
+    P_new[15] = t151;
+    P_new[16] = t285;
+    P_new[17] = t297;
+    P_new[18] = t298;
+    P_new[19] = t299;
+    P_new[20] = t300;
+    P_new[21] = t301;
+    P_new[22] = t302;
+    P_new[23] = t303;
+    P_new[24] = t304;
+    P_new[25] = t305;
+    P_new[26] = t158;
+    P_new[27] = t159;
+    P_new[28] = t160;
+    P_new[29] = t161;
+    P_new[30] = t162;
+    P_new[31] = t163;
+    P_new[32] = t286;
+    P_new[33] = t298;
+    P_new[34] = t310;
+    P_new[35] = t311;
+    P_new[36] = t312;
+    P_new[37] = t313;
+    P_new[38] = t314;
+    P_new[39] = t315;
+    P_new[40] = t316;
+    P_new[41] = t317;
+    P_new[42] = t170;
+    P_new[43] = t171;
+    P_new[44] = t172;
+    P_new[45] = t173;
+    P_new[46] = t174;
+    P_new[47] = t175;
+    P_new[48] = t287;
+    P_new[49] = t299;
+    P_new[50] = t311;
+    P_new[51] = t323;
+    P_new[52] = t324;
+    P_new[53] = t325;
+    P_new[54] = t326;
+    P_new[55] = t327;
+    P_new[56] = t328;
+    P_new[57] = t329;
+    P_new[58] = t182;
+    P_new[59] = t183;
+    P_new[60] = t184;
+    P_new[61] = t185;
+    P_new[62] = t186;
+    P_new[63] = t187;
+    P_new[64] = t288;
+    P_new[65] = t300;
+    P_new[66] = t312;
+    P_new[67] = t324;
+    P_new[68] = t332;
+    P_new[69] = t333;
+    P_new[70] = t334;
+    P_new[71] = t335;
+    P_new[72] = t336;
+    P_new[73] = t337;
+    P_new[74] = t198;
+    P_new[75] = t199;
+    P_new[76] = t200;
+    P_new[77] = t201;
+    P_new[78] = t202;
+    P_new[79] = t203;
+    P_new[80] = t289;
+    P_new[81] = t301;
+    P_new[82] = t313;
+    P_new[83] = t325;
+    P_new[84] = t333;
+    P_new[85] = t341;
+    P_new[86] = t342;
+    P_new[87] = t343;
+    P_new[88] = t344;
+    P_new[89] = t345;
+    P_new[90] = t214;
+    P_new[91] = t215;
+    P_new[92] = t216;
+    P_new[93] = t217;
+    P_new[94] = t218;
+    P_new[95] = t219;
+    P_new[96] = t290;
+    P_new[97] = t302;
+    P_new[98] = t314;
+    P_new[99] = t326;
+    P_new[100] = t334;
+    P_new[101] = t342;
+    P_new[102] = t350;
+    P_new[103] = t351;
+    P_new[104] = t352;
+    P_new[105] = t353;
+    P_new[106] = t230;
+    P_new[107] = t231;
+    P_new[108] = t232;
+    P_new[109] = t233;
+    P_new[110] = t234;
+    P_new[111] = t235;
+    P_new[112] = t291;
+    P_new[113] = t303;
+    P_new[114] = t315;
+    P_new[115] = t327;
+    P_new[116] = t335;
+    P_new[117] = t343;
+    P_new[118] = t351;
+    P_new[119] = t359;
+    P_new[120] = t360;
+    P_new[121] = t361;
+    P_new[122] = t246;
+    P_new[123] = t247;
+    P_new[124] = t248;
+    P_new[125] = t249;
+    P_new[126] = t250;
+    P_new[127] = t251;
+    P_new[128] = t292;
+    P_new[129] = t304;
+    P_new[130] = t316;
+    P_new[131] = t328;
+    P_new[132] = t336;
+    P_new[133] = t344;
+    P_new[134] = t352;
+    P_new[135] = t360;
+    P_new[136] = t364;
+    P_new[137] = t365;
+    P_new[138] = t262;
+    P_new[139] = t263;
+    P_new[140] = t264;
+    P_new[141] = t265;
+    P_new[142] = t266;
+    P_new[143] = t267;
+    P_new[144] = t293;
+    P_new[145] = t305;
+    P_new[146] = t317;
+    P_new[147] = t329;
+    P_new[148] = t337;
+    P_new[149] = t345;
+    P_new[150] = t353;
+    P_new[151] = t361;
+    P_new[152] = t365;
+    P_new[153] = t369;
+    P_new[154] = t278;
+    P_new[155] = t279;
+    P_new[156] = t280;
+    P_new[157] = t281;
+    P_new[158] = t282;
+    P_new[159] = t283;
+    P_new[160] = t146;
+    P_new[161] = t158;
+    P_new[162] = t170;
+    P_new[163] = t182;
+    P_new[164] = t198;
+    P_new[165] = t214;
+    P_new[166] = t230;
+    P_new[167] = t246;
+    P_new[168] = t262;
+    P_new[169] = t278;
+    P_new[170] = t372;
+    P_new[171] = P[171];
+    P_new[172] = P[172];
+    P_new[173] = P[173];
+    P_new[174] = P[174];
+    P_new[175] = P[175];
+    P_new[176] = t147;
+    P_new[177] = t159;
+    P_new[178] = t171;
+    P_new[179] = t183;
+    P_new[180] = t199;
+    P_new[181] = t215;
+    P_new[182] = t231;
+    P_new[183] = t247;
+    P_new[184] = t263;
+    P_new[185] = t279;
+    P_new[186] = P[171];
+    P_new[187] = t373;
+    P_new[188] = P[188];
+    P_new[189] = P[189];
+    P_new[190] = P[190];
+    P_new[191] = P[191];
+    P_new[192] = t148;
+    P_new[193] = t160;
+    P_new[194] = t172;
+    P_new[195] = t184;
+    P_new[196] = t200;
+    P_new[197] = t216;
+    P_new[198] = t232;
+    P_new[199] = t248;
+    P_new[200] = t264;
+    P_new[201] = t280;
+    P_new[202] = P[172];
+    P_new[203] = P[188];
+    P_new[204] = t374;
+    P_new[205] = P[205];
+    P_new[206] = P[206];
+    P_new[207] = P[207];
+    P_new[208] = t149;
+    P_new[209] = t161;
+    P_new[210] = t173;
+    P_new[211] = t185;
+    P_new[212] = t201;
+    P_new[213] = t217;
+    P_new[214] = t233;
+    P_new[215] = t249;
+    P_new[216] = t265;
+    P_new[217] = t281;
+    P_new[218] = P[173];
+    P_new[219] = P[189];
+    P_new[220] = P[205];
+    P_new[221] = t375;
+    P_new[222] = P[222];
+    P_new[223] = P[223];
+    P_new[224] = t150;
+    P_new[225] = t162;
+    P_new[226] = t174;
+    P_new[227] = t186;
+    P_new[228] = t202;
+    P_new[229] = t218;
+    P_new[230] = t234;
+    P_new[231] = t250;
+    P_new[232] = t266;
+    P_new[233] = t282;
+    P_new[234] = P[174];
+    P_new[235] = P[190];
+    P_new[236] = P[206];
+    P_new[237] = P[222];
+    P_new[238] = t376;
+    P_new[239] = P[239];
+    P_new[240] = t151;
+    P_new[241] = t163;
+    P_new[242] = t175;
+    P_new[243] = t187;
+    P_new[244] = t203;
+    P_new[245] = t219;
+    P_new[246] = t235;
+    P_new[247] = t251;
+    P_new[248] = t267;
+    P_new[249] = t283;
+    P_new[250] = P[175];
+    P_new[251] = P[191];
+    P_new[252] = P[207];
+    P_new[253] = P[223];
+    P_new[254] = P[239];
+    P_new[255] = t377;
+    #endif
 }
 
 int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const double *restrict p)
@@ -715,1333 +1215,1304 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t4 = z[4] - x[5];
     const double t5 = z[5] - x[6];
     const double t6 = 2.25 + P[119];
+    const double t7 = 2.25 + P[136];
+    const double t8 = 9.0 + P[153];
+    const double t9 = 0.01 + P[68];
+    const double t10 = 0.01 + P[85];
+    const double t11 = 0.04 + P[102];
     if (!(t6 > 0.0)) {
         return 1; /* S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive */
     }
-    const double t7 = (-1.0)/t6;
-    const double t8 = P[7]*t7;
-    const double t9 = P[23]*t7;
-    const double t10 = P[39]*t7;
-    const double t11 = P[55]*t7;
-    const double t12 = P[71]*t7;
-    const double t13 = P[87]*t7;
-    const double t14 = P[103]*t7;
-    const double t15 = P[119]*t7;
-    const double t16 = P[120]*t7;
-    const double t17 = P[121]*t7;
-    const double t18 = P[122]*t7;
-    const double t19 = P[123]*t7;
-    const double t20 = P[124]*t7;
-    const double t21 = P[125]*t7;
-    const double t22 = P[126]*t7;
-    const double t23 = P[127]*t7;
-    const double t24 = t0*t7;
-    const double t33 = P[120]*t24;
-    const double t41 = DERIVE_FMA(P[7], t8, P[0]);
-    const double t42 = DERIVE_FMA(P[23], t8, P[1]);
-    const double t43 = DERIVE_FMA(P[39], t8, P[2]);
-    const double t44 = DERIVE_FMA(P[55], t8, P[3]);
-    const double t45 = DERIVE_FMA(P[71], t8, P[4]);
-    const double t46 = DERIVE_FMA(P[87], t8, P[5]);
-    const double t47 = DERIVE_FMA(P[103], t8, P[6]);
-    const double t48 = DERIVE_FMA(P[119], t8, P[7]);
-    const double t49 = DERIVE_FMA(P[120], t8, P[8]);
-    const double t50 = DERIVE_FMA(P[121], t8, P[9]);
-    const double t51 = DERIVE_FMA(P[122], t8, P[10]);
-    const double t52 = DERIVE_FMA(P[123], t8, P[11]);
-    const double t53 = DERIVE_FMA(P[124], t8, P[12]);
-    const double t54 = DERIVE_FMA(P[125], t8, P[13]);
-    const double t55 = DERIVE_FMA(P[126], t8, P[14]);
-    const double t56 = DERIVE_FMA(P[127], t8, P[15]);
-    const double t57 = DERIVE_FMA(P[23], t9, P[17]);
-    const double t58 = DERIVE_FMA(P[39], t9, P[18]);
-    const double t59 = DERIVE_FMA(P[55], t9, P[19]);
-    const double t60 = DERIVE_FMA(P[71], t9, P[20]);
-    const double t61 = DERIVE_FMA(P[87], t9, P[21]);
-    const double t62 = DERIVE_FMA(P[103], t9, P[22]);
-    const double t63 = DERIVE_FMA(P[119], t9, P[23]);
-    const double t64 = DERIVE_FMA(P[120], t9, P[24]);
-    const double t65 = DERIVE_FMA(P[121], t9, P[25]);
-    const double t66 = DERIVE_FMA(P[122], t9, P[26]);
-    const double t67 = DERIVE_FMA(P[123], t9, P[27]);
-    const double t68 = DERIVE_FMA(P[124], t9, P[28]);
-    const double t69 = DERIVE_FMA(P[125], t9, P[29]);
-    const double t70 = DERIVE_FMA(P[126], t9, P[30]);
-    const double t71 = DERIVE_FMA(P[127], t9, P[31]);
-    const double t72 = DERIVE_FMA(P[39], t10, P[34]);
-    const double t73 = DERIVE_FMA(P[55], t10, P[35]);
-    const double t74 = DERIVE_FMA(P[71], t10, P[36]);
-    const double t75 = DERIVE_FMA(P[87], t10, P[37]);
-    const double t76 = DERIVE_FMA(P[103], t10, P[38]);
-    const double t77 = DERIVE_FMA(P[119], t10, P[39]);
-    const double t78 = DERIVE_FMA(P[120], t10, P[40]);
-    const double t79 = DERIVE_FMA(P[121], t10, P[41]);
-    const double t80 = DERIVE_FMA(P[122], t10, P[42]);
-    const double t81 = DERIVE_FMA(P[123], t10, P[43]);
-    const double t82 = DERIVE_FMA(P[124], t10, P[44]);
-    const double t83 = DERIVE_FMA(P[125], t10, P[45]);
-    const double t84 = DERIVE_FMA(P[126], t10, P[46]);
-    const double t85 = DERIVE_FMA(P[127], t10, P[47]);
-    const double t86 = DERIVE_FMA(P[55], t11, P[51]);
-    const double t87 = DERIVE_FMA(P[71], t11, P[52]);
-    const double t88 = DERIVE_FMA(P[87], t11, P[53]);
-    const double t89 = DERIVE_FMA(P[103], t11, P[54]);
-    const double t90 = DERIVE_FMA(P[119], t11, P[55]);
-    const double t91 = DERIVE_FMA(P[120], t11, P[56]);
-    const double t92 = DERIVE_FMA(P[121], t11, P[57]);
-    const double t93 = DERIVE_FMA(P[122], t11, P[58]);
-    const double t94 = DERIVE_FMA(P[123], t11, P[59]);
-    const double t95 = DERIVE_FMA(P[124], t11, P[60]);
-    const double t96 = DERIVE_FMA(P[125], t11, P[61]);
-    const double t97 = DERIVE_FMA(P[126], t11, P[62]);
-    const double t98 = DERIVE_FMA(P[127], t11, P[63]);
-    const double t99 = DERIVE_FMA(P[71], t12, P[68]);
-    const double t100 = DERIVE_FMA(P[87], t12, P[69]);
-    const double t101 = DERIVE_FMA(P[103], t12, P[70]);
-    const double t102 = DERIVE_FMA(P[119], t12, P[71]);
-    const double t103 = DERIVE_FMA(P[120], t12, P[72]);
-    const double t104 = DERIVE_FMA(P[121], t12, P[73]);
-    const double t105 = DERIVE_FMA(P[122], t12, P[74]);
-    const double t106 = DERIVE_FMA(P[123], t12, P[75]);
-    const double t107 = DERIVE_FMA(P[124], t12, P[76]);
-    const double t108 = DERIVE_FMA(P[125], t12, P[77]);
-    const double t109 = DERIVE_FMA(P[126], t12, P[78]);
-    const double t110 = DERIVE_FMA(P[127], t12, P[79]);
-    const double t111 = DERIVE_FMA(P[87], t13, P[85]);
-    const double t112 = DERIVE_FMA(P[103], t13, P[86]);
-    const double t113 = DERIVE_FMA(P[119], t13, P[87]);
-    const double t114 = DERIVE_FMA(P[120], t13, P[88]);
-    const double t115 = DERIVE_FMA(P[121], t13, P[89]);
-    const double t116 = DERIVE_FMA(P[122], t13, P[90]);
-    const double t117 = DERIVE_FMA(P[123], t13, P[91]);
-    const double t118 = DERIVE_FMA(P[124], t13, P[92]);
-    const double t119 = DERIVE_FMA(P[125], t13, P[93]);
-    const double t120 = DERIVE_FMA(P[126], t13, P[94]);
-    const double t121 = DERIVE_FMA(P[127], t13, P[95]);
-    const double t122 = DERIVE_FMA(P[103], t14, P[102]);
-    const double t123 = DERIVE_FMA(P[119], t14, P[103]);
-    const double t124 = DERIVE_FMA(P[120], t14, P[104]);
-    const double t125 = DERIVE_FMA(P[121], t14, P[105]);
-    const double t126 = DERIVE_FMA(P[122], t14, P[106]);
-    const double t127 = DERIVE_FMA(P[123], t14, P[107]);
-    const double t128 = DERIVE_FMA(P[124], t14, P[108]);
-    const double t129 = DERIVE_FMA(P[125], t14, P[109]);
-    const double t130 = DERIVE_FMA(P[126], t14, P[110]);
-    const double t131 = DERIVE_FMA(P[127], t14, P[111]);
-    const double t132 = DERIVE_FMA(P[119], t15, P[119]);
-    const double t133 = DERIVE_FMA(P[120], t15, P[120]);
-    const double t134 = DERIVE_FMA(P[121], t15, P[121]);
-    const double t135 = DERIVE_FMA(P[122], t15, P[122]);
-    const double t136 = DERIVE_FMA(P[123], t15, P[123]);
-    const double t137 = DERIVE_FMA(P[124], t15, P[124]);
-    const double t138 = DERIVE_FMA(P[125], t15, P[125]);
-    const double t139 = DERIVE_FMA(P[126], t15, P[126]);
-    const double t140 = DERIVE_FMA(P[127], t15, P[127]);
-    const double t141 = DERIVE_FMA(P[120], t16, P[136]);
-    const double t142 = DERIVE_FMA(P[121], t16, P[137]);
-    const double t143 = DERIVE_FMA(P[122], t16, P[138]);
-    const double t144 = DERIVE_FMA(P[123], t16, P[139]);
-    const double t145 = DERIVE_FMA(P[124], t16, P[140]);
-    const double t146 = DERIVE_FMA(P[125], t16, P[141]);
-    const double t147 = DERIVE_FMA(P[126], t16, P[142]);
-    const double t148 = DERIVE_FMA(P[127], t16, P[143]);
-    const double t149 = DERIVE_FMA(P[121], t17, P[153]);
-    const double t150 = DERIVE_FMA(P[122], t17, P[154]);
-    const double t151 = DERIVE_FMA(P[123], t17, P[155]);
-    const double t152 = DERIVE_FMA(P[124], t17, P[156]);
-    const double t153 = DERIVE_FMA(P[125], t17, P[157]);
-    const double t154 = DERIVE_FMA(P[126], t17, P[158]);
-    const double t155 = DERIVE_FMA(P[127], t17, P[159]);
-    const double t156 = DERIVE_FMA(P[122], t18, P[170]);
-    const double t157 = DERIVE_FMA(P[123], t18, P[171]);
-    const double t158 = DERIVE_FMA(P[124], t18, P[172]);
-    const double t159 = DERIVE_FMA(P[125], t18, P[173]);
-    const double t160 = DERIVE_FMA(P[126], t18, P[174]);
-    const double t161 = DERIVE_FMA(P[127], t18, P[175]);
-    const double t162 = DERIVE_FMA(P[123], t19, P[187]);
-    const double t163 = DERIVE_FMA(P[124], t19, P[188]);
-    const double t164 = DERIVE_FMA(P[125], t19, P[189]);
-    const double t165 = DERIVE_FMA(P[126], t19, P[190]);
-    const double t166 = DERIVE_FMA(P[127], t19, P[191]);
-    const double t167 = DERIVE_FMA(P[124], t20, P[204]);
-    const double t168 = DERIVE_FMA(P[125], t20, P[205]);
-    const double t169 = DERIVE_FMA(P[126], t20, P[206]);
-    const double t170 = DERIVE_FMA(P[127], t20, P[207]);
-    const double t171 = DERIVE_FMA(P[125], t21, P[221]);
-    const double t172 = DERIVE_FMA(P[126], t21, P[222]);
-    const double t173 = DERIVE_FMA(P[127], t21, P[223]);
-    const double t174 = DERIVE_FMA(P[126], t22, P[238]);
-    const double t175 = DERIVE_FMA(P[127], t22, P[239]);
-    const double t176 = DERIVE_FMA(P[127], t23, P[255]);
-    const double t177 = 2.25 + t141;
-    if (!(t177 > 0.0)) {
+    const double t12 = (-1.0)/t6;
+    const double t13 = P[120]*t12;
+    const double t14 = P[121]*t12;
+    const double t15 = P[116]*t12;
+    const double t16 = P[117]*t12;
+    const double t17 = P[118]*t12;
+    const double t18 = DERIVE_FMA(P[120], t13, t7);
+    const double t19 = DERIVE_FMA(P[121], t13, P[137]);
+    const double t20 = DERIVE_FMA(P[116], t13, P[132]);
+    const double t21 = DERIVE_FMA(P[117], t13, P[133]);
+    const double t22 = DERIVE_FMA(P[118], t13, P[134]);
+    const double t23 = DERIVE_FMA(P[121], t14, t8);
+    const double t24 = DERIVE_FMA(P[116], t14, P[148]);
+    const double t25 = DERIVE_FMA(P[117], t14, P[149]);
+    const double t26 = DERIVE_FMA(P[118], t14, P[150]);
+    const double t27 = DERIVE_FMA(P[116], t15, t9);
+    const double t28 = DERIVE_FMA(P[117], t15, P[69]);
+    const double t29 = DERIVE_FMA(P[118], t15, P[70]);
+    const double t30 = DERIVE_FMA(P[117], t16, t10);
+    const double t31 = DERIVE_FMA(P[118], t16, P[86]);
+    const double t32 = DERIVE_FMA(P[118], t17, t11);
+    const double t33 = t0*t12;
+    if (!(t18 > 0.0)) {
         return 2; /* S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive */
     }
-    const double t178 = t1 + t33;
-    const double t179 = (-1.0)/t177;
-    const double t180 = t179*t49;
-    const double t181 = t179*t64;
-    const double t182 = t179*t78;
-    const double t183 = t179*t91;
-    const double t184 = t103*t179;
-    const double t185 = t114*t179;
-    const double t186 = t124*t179;
-    const double t187 = t133*t179;
-    const double t188 = t141*t179;
-    const double t189 = t142*t179;
-    const double t190 = t143*t179;
-    const double t191 = t144*t179;
-    const double t192 = t145*t179;
-    const double t193 = t146*t179;
-    const double t194 = t147*t179;
-    const double t195 = t148*t179;
-    const double t196 = t178*t179;
-    const double t197 = DERIVE_FMA(t196, t49, P[7]*t24);
-    const double t198 = DERIVE_FMA(t196, t64, P[23]*t24);
-    const double t199 = DERIVE_FMA(t196, t78, P[39]*t24);
-    const double t200 = DERIVE_FMA(t196, t91, P[55]*t24);
-    const double t201 = DERIVE_FMA(t103, t196, P[71]*t24);
-    const double t202 = DERIVE_FMA(t114, t196, P[87]*t24);
-    const double t203 = DERIVE_FMA(t124, t196, P[103]*t24);
-    const double t204 = DERIVE_FMA(t133, t196, P[119]*t24);
-    const double t205 = DERIVE_FMA(t141, t196, t33);
-    const double t206 = DERIVE_FMA(t142, t196, P[121]*t24);
-    const double t207 = DERIVE_FMA(t143, t196, P[122]*t24);
-    const double t208 = DERIVE_FMA(t144, t196, P[123]*t24);
-    const double t209 = DERIVE_FMA(t145, t196, P[124]*t24);
-    const double t210 = DERIVE_FMA(t146, t196, P[125]*t24);
-    const double t211 = DERIVE_FMA(t147, t196, P[126]*t24);
-    const double t212 = DERIVE_FMA(t148, t196, P[127]*t24);
-    const double t213 = DERIVE_FMA(t180, t49, t41);
-    const double t214 = DERIVE_FMA(t180, t64, t42);
-    const double t215 = DERIVE_FMA(t180, t78, t43);
-    const double t216 = DERIVE_FMA(t180, t91, t44);
-    const double t217 = DERIVE_FMA(t103, t180, t45);
-    const double t218 = DERIVE_FMA(t114, t180, t46);
-    const double t219 = DERIVE_FMA(t124, t180, t47);
-    const double t220 = DERIVE_FMA(t133, t180, t48);
-    const double t221 = DERIVE_FMA(t141, t180, t49);
-    const double t222 = DERIVE_FMA(t142, t180, t50);
-    const double t223 = DERIVE_FMA(t143, t180, t51);
-    const double t224 = DERIVE_FMA(t144, t180, t52);
-    const double t225 = DERIVE_FMA(t145, t180, t53);
-    const double t226 = DERIVE_FMA(t146, t180, t54);
-    const double t227 = DERIVE_FMA(t147, t180, t55);
-    const double t228 = DERIVE_FMA(t148, t180, t56);
-    const double t229 = DERIVE_FMA(t181, t64, t57);
-    const double t230 = DERIVE_FMA(t181, t78, t58);
-    const double t231 = DERIVE_FMA(t181, t91, t59);
-    const double t232 = DERIVE_FMA(t103, t181, t60);
-    const double t233 = DERIVE_FMA(t114, t181, t61);
-    const double t234 = DERIVE_FMA(t124, t181, t62);
-    const double t235 = DERIVE_FMA(t133, t181, t63);
-    const double t236 = DERIVE_FMA(t141, t181, t64);
-    const double t237 = DERIVE_FMA(t142, t181, t65);
-    const double t238 = DERIVE_FMA(t143, t181, t66);
-    const double t239 = DERIVE_FMA(t144, t181, t67);
-    const double t240 = DERIVE_FMA(t145, t181, t68);
-    const double t241 = DERIVE_FMA(t146, t181, t69);
-    const double t242 = DERIVE_FMA(t147, t181, t70);
-    const double t243 = DERIVE_FMA(t148, t181, t71);
-    const double t244 = DERIVE_FMA(t182, t78, t72);
-    const double t245 = DERIVE_FMA(t182, t91, t73);
-    const double t246 = DERIVE_FMA(t103, t182, t74);
-    const double t247 = DERIVE_FMA(t114, t182, t75);
-    const double t248 = DERIVE_FMA(t124, t182, t76);
-    const double t249 = DERIVE_FMA(t133, t182, t77);
-    const double t250 = DERIVE_FMA(t141, t182, t78);
-    const double t251 = DERIVE_FMA(t142, t182, t79);
-    const double t252 = DERIVE_FMA(t143, t182, t80);
-    const double t253 = DERIVE_FMA(t144, t182, t81);
-    const double t254 = DERIVE_FMA(t145, t182, t82);
-    const double t255 = DERIVE_FMA(t146, t182, t83);
-    const double t256 = DERIVE_FMA(t147, t182, t84);
-    const double t257 = DERIVE_FMA(t148, t182, t85);
-    const double t258 = DERIVE_FMA(t183, t91, t86);
-    const double t259 = DERIVE_FMA(t103, t183, t87);
-    const double t260 = DERIVE_FMA(t114, t183, t88);
-    const double t261 = DERIVE_FMA(t124, t183, t89);
-    const double t262 = DERIVE_FMA(t133, t183, t90);
-    const double t263 = DERIVE_FMA(t141, t183, t91);
-    const double t264 = DERIVE_FMA(t142, t183, t92);
-    const double t265 = DERIVE_FMA(t143, t183, t93);
-    const double t266 = DERIVE_FMA(t144, t183, t94);
-    const double t267 = DERIVE_FMA(t145, t183, t95);
-    const double t268 = DERIVE_FMA(t146, t183, t96);
-    const double t269 = DERIVE_FMA(t147, t183, t97);
-    const double t270 = DERIVE_FMA(t148, t183, t98);
-    const double t271 = DERIVE_FMA(t103, t184, t99);
-    const double t272 = DERIVE_FMA(t114, t184, t100);
-    const double t273 = DERIVE_FMA(t124, t184, t101);
-    const double t274 = DERIVE_FMA(t133, t184, t102);
-    const double t275 = DERIVE_FMA(t141, t184, t103);
-    const double t276 = DERIVE_FMA(t142, t184, t104);
-    const double t277 = DERIVE_FMA(t143, t184, t105);
-    const double t278 = DERIVE_FMA(t144, t184, t106);
-    const double t279 = DERIVE_FMA(t145, t184, t107);
-    const double t280 = DERIVE_FMA(t146, t184, t108);
-    const double t281 = DERIVE_FMA(t147, t184, t109);
-    const double t282 = DERIVE_FMA(t148, t184, t110);
-    const double t283 = DERIVE_FMA(t114, t185, t111);
-    const double t284 = DERIVE_FMA(t124, t185, t112);
-    const double t285 = DERIVE_FMA(t133, t185, t113);
-    const double t286 = DERIVE_FMA(t141, t185, t114);
-    const double t287 = DERIVE_FMA(t142, t185, t115);
-    const double t288 = DERIVE_FMA(t143, t185, t116);
-    const double t289 = DERIVE_FMA(t144, t185, t117);
-    const double t290 = DERIVE_FMA(t145, t185, t118);
-    const double t291 = DERIVE_FMA(t146, t185, t119);
-    const double t292 = DERIVE_FMA(t147, t185, t120);
-    const double t293 = DERIVE_FMA(t148, t185, t121);
-    const double t294 = DERIVE_FMA(t124, t186, t122);
-    const double t295 = DERIVE_FMA(t133, t186, t123);
-    const double t296 = DERIVE_FMA(t141, t186, t124);
-    const double t297 = DERIVE_FMA(t142, t186, t125);
-    const double t298 = DERIVE_FMA(t143, t186, t126);
-    const double t299 = DERIVE_FMA(t144, t186, t127);
-    const double t300 = DERIVE_FMA(t145, t186, t128);
-    const double t301 = DERIVE_FMA(t146, t186, t129);
-    const double t302 = DERIVE_FMA(t147, t186, t130);
-    const double t303 = DERIVE_FMA(t148, t186, t131);
-    const double t304 = DERIVE_FMA(t133, t187, t132);
-    const double t305 = DERIVE_FMA(t141, t187, t133);
-    const double t306 = DERIVE_FMA(t142, t187, t134);
-    const double t307 = DERIVE_FMA(t143, t187, t135);
-    const double t308 = DERIVE_FMA(t144, t187, t136);
-    const double t309 = DERIVE_FMA(t145, t187, t137);
-    const double t310 = DERIVE_FMA(t146, t187, t138);
-    const double t311 = DERIVE_FMA(t147, t187, t139);
-    const double t312 = DERIVE_FMA(t148, t187, t140);
-    const double t313 = DERIVE_FMA(t141, t188, t141);
-    const double t314 = DERIVE_FMA(t142, t188, t142);
-    const double t315 = DERIVE_FMA(t143, t188, t143);
-    const double t316 = DERIVE_FMA(t144, t188, t144);
-    const double t317 = DERIVE_FMA(t145, t188, t145);
-    const double t318 = DERIVE_FMA(t146, t188, t146);
-    const double t319 = DERIVE_FMA(t147, t188, t147);
-    const double t320 = DERIVE_FMA(t148, t188, t148);
-    const double t321 = DERIVE_FMA(t142, t189, t149);
-    const double t322 = DERIVE_FMA(t143, t189, t150);
-    const double t323 = DERIVE_FMA(t144, t189, t151);
-    const double t324 = DERIVE_FMA(t145, t189, t152);
-    const double t325 = DERIVE_FMA(t146, t189, t153);
-    const double t326 = DERIVE_FMA(t147, t189, t154);
-    const double t327 = DERIVE_FMA(t148, t189, t155);
-    const double t328 = DERIVE_FMA(t143, t190, t156);
-    const double t329 = DERIVE_FMA(t144, t190, t157);
-    const double t330 = DERIVE_FMA(t145, t190, t158);
-    const double t331 = DERIVE_FMA(t146, t190, t159);
-    const double t332 = DERIVE_FMA(t147, t190, t160);
-    const double t333 = DERIVE_FMA(t148, t190, t161);
-    const double t334 = DERIVE_FMA(t144, t191, t162);
-    const double t335 = DERIVE_FMA(t145, t191, t163);
-    const double t336 = DERIVE_FMA(t146, t191, t164);
-    const double t337 = DERIVE_FMA(t147, t191, t165);
-    const double t338 = DERIVE_FMA(t148, t191, t166);
-    const double t339 = DERIVE_FMA(t145, t192, t167);
-    const double t340 = DERIVE_FMA(t146, t192, t168);
-    const double t341 = DERIVE_FMA(t147, t192, t169);
-    const double t342 = DERIVE_FMA(t148, t192, t170);
-    const double t343 = DERIVE_FMA(t146, t193, t171);
-    const double t344 = DERIVE_FMA(t147, t193, t172);
-    const double t345 = DERIVE_FMA(t148, t193, t173);
-    const double t346 = DERIVE_FMA(t147, t194, t174);
-    const double t347 = DERIVE_FMA(t148, t194, t175);
-    const double t348 = DERIVE_FMA(t148, t195, t176);
-    const double t349 = 9.0 + t321;
-    if (!(t349 > 0.0)) {
+    const double t34 = (-1.0)/t18;
+    const double t35 = t19*t34;
+    const double t36 = t20*t34;
+    const double t37 = t21*t34;
+    const double t38 = t22*t34;
+    const double t39 = DERIVE_FMA(t19, t35, t23);
+    const double t40 = DERIVE_FMA(t20, t35, t24);
+    const double t41 = DERIVE_FMA(t21, t35, t25);
+    const double t42 = DERIVE_FMA(t22, t35, t26);
+    const double t43 = DERIVE_FMA(t20, t36, t27);
+    const double t44 = DERIVE_FMA(t21, t36, t28);
+    const double t45 = DERIVE_FMA(t22, t36, t29);
+    const double t46 = DERIVE_FMA(t21, t37, t30);
+    const double t47 = DERIVE_FMA(t22, t37, t31);
+    const double t48 = DERIVE_FMA(t22, t38, t32);
+    const double t49 = DERIVE_FMA(P[120], t33, t1);
+    const double t50 = t34*t49;
+    if (!(t39 > 0.0)) {
         return 3; /* S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive */
     }
-    const double t350 = t2 + t206;
-    const double t351 = (-1.0)/t349;
-    const double t352 = t222*t351;
-    const double t353 = t237*t351;
-    const double t354 = t251*t351;
-    const double t355 = t264*t351;
-    const double t356 = t276*t351;
-    const double t357 = t287*t351;
-    const double t358 = t297*t351;
-    const double t359 = t306*t351;
-    const double t360 = t314*t351;
-    const double t361 = t321*t351;
-    const double t362 = t322*t351;
-    const double t363 = t323*t351;
-    const double t364 = t324*t351;
-    const double t365 = t325*t351;
-    const double t366 = t326*t351;
-    const double t367 = t327*t351;
-    const double t368 = t350*t351;
-    const double t369 = DERIVE_FMA(t222, t368, t197);
-    const double t370 = DERIVE_FMA(t237, t368, t198);
-    const double t371 = DERIVE_FMA(t251, t368, t199);
-    const double t372 = DERIVE_FMA(t264, t368, t200);
-    const double t373 = DERIVE_FMA(t276, t368, t201);
-    const double t374 = DERIVE_FMA(t287, t368, t202);
-    const double t375 = DERIVE_FMA(t297, t368, t203);
-    const double t376 = DERIVE_FMA(t306, t368, t204);
-    const double t377 = DERIVE_FMA(t314, t368, t205);
-    const double t378 = DERIVE_FMA(t321, t368, t206);
-    const double t379 = DERIVE_FMA(t322, t368, t207);
-    const double t380 = DERIVE_FMA(t323, t368, t208);
-    const double t381 = DERIVE_FMA(t324, t368, t209);
-    const double t382 = DERIVE_FMA(t325, t368, t210);
-    const double t383 = DERIVE_FMA(t326, t368, t211);
-    const double t384 = DERIVE_FMA(t327, t368, t212);
-    const double t385 = DERIVE_FMA(t222, t352, t213);
-    const double t386 = DERIVE_FMA(t237, t352, t214);
-    const double t387 = DERIVE_FMA(t251, t352, t215);
-    const double t388 = DERIVE_FMA(t264, t352, t216);
-    const double t389 = DERIVE_FMA(t276, t352, t217);
-    const double t390 = DERIVE_FMA(t287, t352, t218);
-    const double t391 = DERIVE_FMA(t297, t352, t219);
-    const double t392 = DERIVE_FMA(t306, t352, t220);
-    const double t393 = DERIVE_FMA(t314, t352, t221);
-    const double t394 = DERIVE_FMA(t321, t352, t222);
-    const double t395 = DERIVE_FMA(t322, t352, t223);
-    const double t396 = DERIVE_FMA(t323, t352, t224);
-    const double t397 = DERIVE_FMA(t324, t352, t225);
-    const double t398 = DERIVE_FMA(t325, t352, t226);
-    const double t399 = DERIVE_FMA(t326, t352, t227);
-    const double t400 = DERIVE_FMA(t327, t352, t228);
-    const double t401 = DERIVE_FMA(t237, t353, t229);
-    const double t402 = DERIVE_FMA(t251, t353, t230);
-    const double t403 = DERIVE_FMA(t264, t353, t231);
-    const double t404 = DERIVE_FMA(t276, t353, t232);
-    const double t405 = DERIVE_FMA(t287, t353, t233);
-    const double t406 = DERIVE_FMA(t297, t353, t234);
-    const double t407 = DERIVE_FMA(t306, t353, t235);
-    const double t408 = DERIVE_FMA(t314, t353, t236);
-    const double t409 = DERIVE_FMA(t321, t353, t237);
-    const double t410 = DERIVE_FMA(t322, t353, t238);
-    const double t411 = DERIVE_FMA(t323, t353, t239);
-    const double t412 = DERIVE_FMA(t324, t353, t240);
-    const double t413 = DERIVE_FMA(t325, t353, t241);
-    const double t414 = DERIVE_FMA(t326, t353, t242);
-    const double t415 = DERIVE_FMA(t327, t353, t243);
-    const double t416 = DERIVE_FMA(t251, t354, t244);
-    const double t417 = DERIVE_FMA(t264, t354, t245);
-    const double t418 = DERIVE_FMA(t276, t354, t246);
-    const double t419 = DERIVE_FMA(t287, t354, t247);
-    const double t420 = DERIVE_FMA(t297, t354, t248);
-    const double t421 = DERIVE_FMA(t306, t354, t249);
-    const double t422 = DERIVE_FMA(t314, t354, t250);
-    const double t423 = DERIVE_FMA(t321, t354, t251);
-    const double t424 = DERIVE_FMA(t322, t354, t252);
-    const double t425 = DERIVE_FMA(t323, t354, t253);
-    const double t426 = DERIVE_FMA(t324, t354, t254);
-    const double t427 = DERIVE_FMA(t325, t354, t255);
-    const double t428 = DERIVE_FMA(t326, t354, t256);
-    const double t429 = DERIVE_FMA(t327, t354, t257);
-    const double t430 = DERIVE_FMA(t264, t355, t258);
-    const double t431 = DERIVE_FMA(t276, t355, t259);
-    const double t432 = DERIVE_FMA(t287, t355, t260);
-    const double t433 = DERIVE_FMA(t297, t355, t261);
-    const double t434 = DERIVE_FMA(t306, t355, t262);
-    const double t435 = DERIVE_FMA(t314, t355, t263);
-    const double t436 = DERIVE_FMA(t321, t355, t264);
-    const double t437 = DERIVE_FMA(t322, t355, t265);
-    const double t438 = DERIVE_FMA(t323, t355, t266);
-    const double t439 = DERIVE_FMA(t324, t355, t267);
-    const double t440 = DERIVE_FMA(t325, t355, t268);
-    const double t441 = DERIVE_FMA(t326, t355, t269);
-    const double t442 = DERIVE_FMA(t327, t355, t270);
-    const double t443 = DERIVE_FMA(t276, t356, t271);
-    const double t444 = DERIVE_FMA(t287, t356, t272);
-    const double t445 = DERIVE_FMA(t297, t356, t273);
-    const double t446 = DERIVE_FMA(t306, t356, t274);
-    const double t447 = DERIVE_FMA(t314, t356, t275);
-    const double t448 = DERIVE_FMA(t321, t356, t276);
-    const double t449 = DERIVE_FMA(t322, t356, t277);
-    const double t450 = DERIVE_FMA(t323, t356, t278);
-    const double t451 = DERIVE_FMA(t324, t356, t279);
-    const double t452 = DERIVE_FMA(t325, t356, t280);
-    const double t453 = DERIVE_FMA(t326, t356, t281);
-    const double t454 = DERIVE_FMA(t327, t356, t282);
-    const double t455 = DERIVE_FMA(t287, t357, t283);
-    const double t456 = DERIVE_FMA(t297, t357, t284);
-    const double t457 = DERIVE_FMA(t306, t357, t285);
-    const double t458 = DERIVE_FMA(t314, t357, t286);
-    const double t459 = DERIVE_FMA(t321, t357, t287);
-    const double t460 = DERIVE_FMA(t322, t357, t288);
-    const double t461 = DERIVE_FMA(t323, t357, t289);
-    const double t462 = DERIVE_FMA(t324, t357, t290);
-    const double t463 = DERIVE_FMA(t325, t357, t291);
-    const double t464 = DERIVE_FMA(t326, t357, t292);
-    const double t465 = DERIVE_FMA(t327, t357, t293);
-    const double t466 = DERIVE_FMA(t297, t358, t294);
-    const double t467 = DERIVE_FMA(t306, t358, t295);
-    const double t468 = DERIVE_FMA(t314, t358, t296);
-    const double t469 = DERIVE_FMA(t321, t358, t297);
-    const double t470 = DERIVE_FMA(t322, t358, t298);
-    const double t471 = DERIVE_FMA(t323, t358, t299);
-    const double t472 = DERIVE_FMA(t324, t358, t300);
-    const double t473 = DERIVE_FMA(t325, t358, t301);
-    const double t474 = DERIVE_FMA(t326, t358, t302);
-    const double t475 = DERIVE_FMA(t327, t358, t303);
-    const double t476 = DERIVE_FMA(t306, t359, t304);
-    const double t477 = DERIVE_FMA(t314, t359, t305);
-    const double t478 = DERIVE_FMA(t321, t359, t306);
-    const double t479 = DERIVE_FMA(t322, t359, t307);
-    const double t480 = DERIVE_FMA(t323, t359, t308);
-    const double t481 = DERIVE_FMA(t324, t359, t309);
-    const double t482 = DERIVE_FMA(t325, t359, t310);
-    const double t483 = DERIVE_FMA(t326, t359, t311);
-    const double t484 = DERIVE_FMA(t327, t359, t312);
-    const double t485 = DERIVE_FMA(t314, t360, t313);
-    const double t486 = DERIVE_FMA(t321, t360, t314);
-    const double t487 = DERIVE_FMA(t322, t360, t315);
-    const double t488 = DERIVE_FMA(t323, t360, t316);
-    const double t489 = DERIVE_FMA(t324, t360, t317);
-    const double t490 = DERIVE_FMA(t325, t360, t318);
-    const double t491 = DERIVE_FMA(t326, t360, t319);
-    const double t492 = DERIVE_FMA(t327, t360, t320);
-    const double t493 = DERIVE_FMA(t321, t361, t321);
-    const double t494 = DERIVE_FMA(t322, t361, t322);
-    const double t495 = DERIVE_FMA(t323, t361, t323);
-    const double t496 = DERIVE_FMA(t324, t361, t324);
-    const double t497 = DERIVE_FMA(t325, t361, t325);
-    const double t498 = DERIVE_FMA(t326, t361, t326);
-    const double t499 = DERIVE_FMA(t327, t361, t327);
-    const double t500 = DERIVE_FMA(t322, t362, t328);
-    const double t501 = DERIVE_FMA(t323, t362, t329);
-    const double t502 = DERIVE_FMA(t324, t362, t330);
-    const double t503 = DERIVE_FMA(t325, t362, t331);
-    const double t504 = DERIVE_FMA(t326, t362, t332);
-    const double t505 = DERIVE_FMA(t327, t362, t333);
-    const double t506 = DERIVE_FMA(t323, t363, t334);
-    const double t507 = DERIVE_FMA(t324, t363, t335);
-    const double t508 = DERIVE_FMA(t325, t363, t336);
-    const double t509 = DERIVE_FMA(t326, t363, t337);
-    const double t510 = DERIVE_FMA(t327, t363, t338);
-    const double t511 = DERIVE_FMA(t324, t364, t339);
-    const double t512 = DERIVE_FMA(t325, t364, t340);
-    const double t513 = DERIVE_FMA(t326, t364, t341);
-    const double t514 = DERIVE_FMA(t327, t364, t342);
-    const double t515 = DERIVE_FMA(t325, t365, t343);
-    const double t516 = DERIVE_FMA(t326, t365, t344);
-    const double t517 = DERIVE_FMA(t327, t365, t345);
-    const double t518 = DERIVE_FMA(t326, t366, t346);
-    const double t519 = DERIVE_FMA(t327, t366, t347);
-    const double t520 = DERIVE_FMA(t327, t367, t348);
-    const double t521 = 0.01 + t443;
-    if (!(t521 > 0.0)) {
+    const double t51 = (-1.0)/t39;
+    const double t52 = t40*t51;
+    const double t53 = t41*t51;
+    const double t54 = t42*t51;
+    const double t55 = DERIVE_FMA(t40, t52, t43);
+    const double t56 = DERIVE_FMA(t41, t52, t44);
+    const double t57 = DERIVE_FMA(t42, t52, t45);
+    const double t58 = DERIVE_FMA(t41, t53, t46);
+    const double t59 = DERIVE_FMA(t42, t53, t47);
+    const double t60 = DERIVE_FMA(t42, t54, t48);
+    const double t61 = DERIVE_FMA(t19, t50, DERIVE_FMA(P[121], t33, t2));
+    const double t62 = t51*t61;
+    if (!(t55 > 0.0)) {
         return 4; /* S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive */
     }
-    const double t522 = t3 + t373;
-    const double t523 = (-1.0)/t521;
-    const double t524 = t389*t523;
-    const double t525 = t404*t523;
-    const double t526 = t418*t523;
-    const double t527 = t431*t523;
-    const double t528 = t443*t523;
-    const double t529 = t444*t523;
-    const double t530 = t445*t523;
-    const double t531 = t446*t523;
-    const double t532 = t447*t523;
-    const double t533 = t448*t523;
-    const double t534 = t449*t523;
-    const double t535 = t450*t523;
-    const double t536 = t451*t523;
-    const double t537 = t452*t523;
-    const double t538 = t453*t523;
-    const double t539 = t454*t523;
-    const double t540 = t522*t523;
-    const double t541 = DERIVE_FMA(t389, t540, t369);
-    const double t542 = DERIVE_FMA(t404, t540, t370);
-    const double t543 = DERIVE_FMA(t418, t540, t371);
-    const double t544 = DERIVE_FMA(t431, t540, t372);
-    const double t545 = DERIVE_FMA(t443, t540, t373);
-    const double t546 = DERIVE_FMA(t444, t540, t374);
-    const double t547 = DERIVE_FMA(t445, t540, t375);
-    const double t548 = DERIVE_FMA(t446, t540, t376);
-    const double t549 = DERIVE_FMA(t447, t540, t377);
-    const double t550 = DERIVE_FMA(t448, t540, t378);
-    const double t551 = DERIVE_FMA(t449, t540, t379);
-    const double t552 = DERIVE_FMA(t450, t540, t380);
-    const double t553 = DERIVE_FMA(t451, t540, t381);
-    const double t554 = DERIVE_FMA(t452, t540, t382);
-    const double t555 = DERIVE_FMA(t453, t540, t383);
-    const double t556 = DERIVE_FMA(t454, t540, t384);
-    const double t557 = DERIVE_FMA(t389, t524, t385);
-    const double t558 = DERIVE_FMA(t404, t524, t386);
-    const double t559 = DERIVE_FMA(t418, t524, t387);
-    const double t560 = DERIVE_FMA(t431, t524, t388);
-    const double t561 = DERIVE_FMA(t443, t524, t389);
-    const double t562 = DERIVE_FMA(t444, t524, t390);
-    const double t563 = DERIVE_FMA(t445, t524, t391);
-    const double t564 = DERIVE_FMA(t446, t524, t392);
-    const double t565 = DERIVE_FMA(t447, t524, t393);
-    const double t566 = DERIVE_FMA(t448, t524, t394);
-    const double t567 = DERIVE_FMA(t449, t524, t395);
-    const double t568 = DERIVE_FMA(t450, t524, t396);
-    const double t569 = DERIVE_FMA(t451, t524, t397);
-    const double t570 = DERIVE_FMA(t452, t524, t398);
-    const double t571 = DERIVE_FMA(t453, t524, t399);
-    const double t572 = DERIVE_FMA(t454, t524, t400);
-    const double t573 = DERIVE_FMA(t404, t525, t401);
-    const double t574 = DERIVE_FMA(t418, t525, t402);
-    const double t575 = DERIVE_FMA(t431, t525, t403);
-    const double t576 = DERIVE_FMA(t443, t525, t404);
-    const double t577 = DERIVE_FMA(t444, t525, t405);
-    const double t578 = DERIVE_FMA(t445, t525, t406);
-    const double t579 = DERIVE_FMA(t446, t525, t407);
-    const double t580 = DERIVE_FMA(t447, t525, t408);
-    const double t581 = DERIVE_FMA(t448, t525, t409);
-    const double t582 = DERIVE_FMA(t449, t525, t410);
-    const double t583 = DERIVE_FMA(t450, t525, t411);
-    const double t584 = DERIVE_FMA(t451, t525, t412);
-    const double t585 = DERIVE_FMA(t452, t525, t413);
-    const double t586 = DERIVE_FMA(t453, t525, t414);
-    const double t587 = DERIVE_FMA(t454, t525, t415);
-    const double t588 = DERIVE_FMA(t418, t526, t416);
-    const double t589 = DERIVE_FMA(t431, t526, t417);
-    const double t590 = DERIVE_FMA(t443, t526, t418);
-    const double t591 = DERIVE_FMA(t444, t526, t419);
-    const double t592 = DERIVE_FMA(t445, t526, t420);
-    const double t593 = DERIVE_FMA(t446, t526, t421);
-    const double t594 = DERIVE_FMA(t447, t526, t422);
-    const double t595 = DERIVE_FMA(t448, t526, t423);
-    const double t596 = DERIVE_FMA(t449, t526, t424);
-    const double t597 = DERIVE_FMA(t450, t526, t425);
-    const double t598 = DERIVE_FMA(t451, t526, t426);
-    const double t599 = DERIVE_FMA(t452, t526, t427);
-    const double t600 = DERIVE_FMA(t453, t526, t428);
-    const double t601 = DERIVE_FMA(t454, t526, t429);
-    const double t602 = DERIVE_FMA(t431, t527, t430);
-    const double t603 = DERIVE_FMA(t443, t527, t431);
-    const double t604 = DERIVE_FMA(t444, t527, t432);
-    const double t605 = DERIVE_FMA(t445, t527, t433);
-    const double t606 = DERIVE_FMA(t446, t527, t434);
-    const double t607 = DERIVE_FMA(t447, t527, t435);
-    const double t608 = DERIVE_FMA(t448, t527, t436);
-    const double t609 = DERIVE_FMA(t449, t527, t437);
-    const double t610 = DERIVE_FMA(t450, t527, t438);
-    const double t611 = DERIVE_FMA(t451, t527, t439);
-    const double t612 = DERIVE_FMA(t452, t527, t440);
-    const double t613 = DERIVE_FMA(t453, t527, t441);
-    const double t614 = DERIVE_FMA(t454, t527, t442);
-    const double t615 = DERIVE_FMA(t443, t528, t443);
-    const double t616 = DERIVE_FMA(t444, t528, t444);
-    const double t617 = DERIVE_FMA(t445, t528, t445);
-    const double t618 = DERIVE_FMA(t446, t528, t446);
-    const double t619 = DERIVE_FMA(t447, t528, t447);
-    const double t620 = DERIVE_FMA(t448, t528, t448);
-    const double t621 = DERIVE_FMA(t449, t528, t449);
-    const double t622 = DERIVE_FMA(t450, t528, t450);
-    const double t623 = DERIVE_FMA(t451, t528, t451);
-    const double t624 = DERIVE_FMA(t452, t528, t452);
-    const double t625 = DERIVE_FMA(t453, t528, t453);
-    const double t626 = DERIVE_FMA(t454, t528, t454);
-    const double t627 = DERIVE_FMA(t444, t529, t455);
-    const double t628 = DERIVE_FMA(t445, t529, t456);
-    const double t629 = DERIVE_FMA(t446, t529, t457);
-    const double t630 = DERIVE_FMA(t447, t529, t458);
-    const double t631 = DERIVE_FMA(t448, t529, t459);
-    const double t632 = DERIVE_FMA(t449, t529, t460);
-    const double t633 = DERIVE_FMA(t450, t529, t461);
-    const double t634 = DERIVE_FMA(t451, t529, t462);
-    const double t635 = DERIVE_FMA(t452, t529, t463);
-    const double t636 = DERIVE_FMA(t453, t529, t464);
-    const double t637 = DERIVE_FMA(t454, t529, t465);
-    const double t638 = DERIVE_FMA(t445, t530, t466);
-    const double t639 = DERIVE_FMA(t446, t530, t467);
-    const double t640 = DERIVE_FMA(t447, t530, t468);
-    const double t641 = DERIVE_FMA(t448, t530, t469);
-    const double t642 = DERIVE_FMA(t449, t530, t470);
-    const double t643 = DERIVE_FMA(t450, t530, t471);
-    const double t644 = DERIVE_FMA(t451, t530, t472);
-    const double t645 = DERIVE_FMA(t452, t530, t473);
-    const double t646 = DERIVE_FMA(t453, t530, t474);
-    const double t647 = DERIVE_FMA(t454, t530, t475);
-    const double t648 = DERIVE_FMA(t446, t531, t476);
-    const double t649 = DERIVE_FMA(t447, t531, t477);
-    const double t650 = DERIVE_FMA(t448, t531, t478);
-    const double t651 = DERIVE_FMA(t449, t531, t479);
-    const double t652 = DERIVE_FMA(t450, t531, t480);
-    const double t653 = DERIVE_FMA(t451, t531, t481);
-    const double t654 = DERIVE_FMA(t452, t531, t482);
-    const double t655 = DERIVE_FMA(t453, t531, t483);
-    const double t656 = DERIVE_FMA(t454, t531, t484);
-    const double t657 = DERIVE_FMA(t447, t532, t485);
-    const double t658 = DERIVE_FMA(t448, t532, t486);
-    const double t659 = DERIVE_FMA(t449, t532, t487);
-    const double t660 = DERIVE_FMA(t450, t532, t488);
-    const double t661 = DERIVE_FMA(t451, t532, t489);
-    const double t662 = DERIVE_FMA(t452, t532, t490);
-    const double t663 = DERIVE_FMA(t453, t532, t491);
-    const double t664 = DERIVE_FMA(t454, t532, t492);
-    const double t665 = DERIVE_FMA(t448, t533, t493);
-    const double t666 = DERIVE_FMA(t449, t533, t494);
-    const double t667 = DERIVE_FMA(t450, t533, t495);
-    const double t668 = DERIVE_FMA(t451, t533, t496);
-    const double t669 = DERIVE_FMA(t452, t533, t497);
-    const double t670 = DERIVE_FMA(t453, t533, t498);
-    const double t671 = DERIVE_FMA(t454, t533, t499);
-    const double t672 = DERIVE_FMA(t449, t534, t500);
-    const double t673 = DERIVE_FMA(t450, t534, t501);
-    const double t674 = DERIVE_FMA(t451, t534, t502);
-    const double t675 = DERIVE_FMA(t452, t534, t503);
-    const double t676 = DERIVE_FMA(t453, t534, t504);
-    const double t677 = DERIVE_FMA(t454, t534, t505);
-    const double t678 = DERIVE_FMA(t450, t535, t506);
-    const double t679 = DERIVE_FMA(t451, t535, t507);
-    const double t680 = DERIVE_FMA(t452, t535, t508);
-    const double t681 = DERIVE_FMA(t453, t535, t509);
-    const double t682 = DERIVE_FMA(t454, t535, t510);
-    const double t683 = DERIVE_FMA(t451, t536, t511);
-    const double t684 = DERIVE_FMA(t452, t536, t512);
-    const double t685 = DERIVE_FMA(t453, t536, t513);
-    const double t686 = DERIVE_FMA(t454, t536, t514);
-    const double t687 = DERIVE_FMA(t452, t537, t515);
-    const double t688 = DERIVE_FMA(t453, t537, t516);
-    const double t689 = DERIVE_FMA(t454, t537, t517);
-    const double t690 = DERIVE_FMA(t453, t538, t518);
-    const double t691 = DERIVE_FMA(t454, t538, t519);
-    const double t692 = DERIVE_FMA(t454, t539, t520);
-    const double t693 = 0.01 + t627;
-    if (!(t693 > 0.0)) {
+    const double t63 = (-1.0)/t55;
+    const double t64 = t56*t63;
+    const double t65 = t57*t63;
+    const double t66 = DERIVE_FMA(t56, t64, t58);
+    const double t67 = DERIVE_FMA(t57, t64, t59);
+    const double t68 = DERIVE_FMA(t57, t65, t60);
+    const double t69 = DERIVE_FMA(t40, t62, DERIVE_FMA(t20, t50, DERIVE_FMA(P[116], t33, t3)));
+    const double t70 = t63*t69;
+    if (!(t66 > 0.0)) {
         return 5; /* S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive */
     }
-    const double t694 = t4 + t546;
-    const double t695 = (-1.0)/t693;
-    const double t696 = t562*t695;
-    const double t697 = t577*t695;
-    const double t698 = t591*t695;
-    const double t699 = t604*t695;
-    const double t700 = t616*t695;
-    const double t701 = t627*t695;
-    const double t702 = t628*t695;
-    const double t703 = t629*t695;
-    const double t704 = t630*t695;
-    const double t705 = t631*t695;
-    const double t706 = t632*t695;
-    const double t707 = t633*t695;
-    const double t708 = t634*t695;
-    const double t709 = t635*t695;
-    const double t710 = t636*t695;
-    const double t711 = t637*t695;
-    const double t712 = t694*t695;
-    const double t713 = DERIVE_FMA(t562, t712, t541);
-    const double t714 = DERIVE_FMA(t577, t712, t542);
-    const double t715 = DERIVE_FMA(t591, t712, t543);
-    const double t716 = DERIVE_FMA(t604, t712, t544);
-    const double t717 = DERIVE_FMA(t616, t712, t545);
-    const double t718 = DERIVE_FMA(t627, t712, t546);
-    const double t719 = DERIVE_FMA(t628, t712, t547);
-    const double t720 = DERIVE_FMA(t629, t712, t548);
-    const double t721 = DERIVE_FMA(t630, t712, t549);
-    const double t722 = DERIVE_FMA(t631, t712, t550);
-    const double t723 = DERIVE_FMA(t632, t712, t551);
-    const double t724 = DERIVE_FMA(t633, t712, t552);
-    const double t725 = DERIVE_FMA(t634, t712, t553);
-    const double t726 = DERIVE_FMA(t635, t712, t554);
-    const double t727 = DERIVE_FMA(t636, t712, t555);
-    const double t728 = DERIVE_FMA(t637, t712, t556);
-    const double t729 = DERIVE_FMA(t562, t696, t557);
-    const double t730 = DERIVE_FMA(t577, t696, t558);
-    const double t731 = DERIVE_FMA(t591, t696, t559);
-    const double t732 = DERIVE_FMA(t604, t696, t560);
-    const double t733 = DERIVE_FMA(t616, t696, t561);
-    const double t734 = DERIVE_FMA(t627, t696, t562);
-    const double t735 = DERIVE_FMA(t628, t696, t563);
-    const double t736 = DERIVE_FMA(t629, t696, t564);
-    const double t737 = DERIVE_FMA(t630, t696, t565);
-    const double t738 = DERIVE_FMA(t631, t696, t566);
-    const double t739 = DERIVE_FMA(t632, t696, t567);
-    const double t740 = DERIVE_FMA(t633, t696, t568);
-    const double t741 = DERIVE_FMA(t634, t696, t569);
-    const double t742 = DERIVE_FMA(t635, t696, t570);
-    const double t743 = DERIVE_FMA(t636, t696, t571);
-    const double t744 = DERIVE_FMA(t637, t696, t572);
-    const double t745 = DERIVE_FMA(t577, t697, t573);
-    const double t746 = DERIVE_FMA(t591, t697, t574);
-    const double t747 = DERIVE_FMA(t604, t697, t575);
-    const double t748 = DERIVE_FMA(t616, t697, t576);
-    const double t749 = DERIVE_FMA(t627, t697, t577);
-    const double t750 = DERIVE_FMA(t628, t697, t578);
-    const double t751 = DERIVE_FMA(t629, t697, t579);
-    const double t752 = DERIVE_FMA(t630, t697, t580);
-    const double t753 = DERIVE_FMA(t631, t697, t581);
-    const double t754 = DERIVE_FMA(t632, t697, t582);
-    const double t755 = DERIVE_FMA(t633, t697, t583);
-    const double t756 = DERIVE_FMA(t634, t697, t584);
-    const double t757 = DERIVE_FMA(t635, t697, t585);
-    const double t758 = DERIVE_FMA(t636, t697, t586);
-    const double t759 = DERIVE_FMA(t637, t697, t587);
-    const double t760 = DERIVE_FMA(t591, t698, t588);
-    const double t761 = DERIVE_FMA(t604, t698, t589);
-    const double t762 = DERIVE_FMA(t616, t698, t590);
-    const double t763 = DERIVE_FMA(t627, t698, t591);
-    const double t764 = DERIVE_FMA(t628, t698, t592);
-    const double t765 = DERIVE_FMA(t629, t698, t593);
-    const double t766 = DERIVE_FMA(t630, t698, t594);
-    const double t767 = DERIVE_FMA(t631, t698, t595);
-    const double t768 = DERIVE_FMA(t632, t698, t596);
-    const double t769 = DERIVE_FMA(t633, t698, t597);
-    const double t770 = DERIVE_FMA(t634, t698, t598);
-    const double t771 = DERIVE_FMA(t635, t698, t599);
-    const double t772 = DERIVE_FMA(t636, t698, t600);
-    const double t773 = DERIVE_FMA(t637, t698, t601);
-    const double t774 = DERIVE_FMA(t604, t699, t602);
-    const double t775 = DERIVE_FMA(t616, t699, t603);
-    const double t776 = DERIVE_FMA(t627, t699, t604);
-    const double t777 = DERIVE_FMA(t628, t699, t605);
-    const double t778 = DERIVE_FMA(t629, t699, t606);
-    const double t779 = DERIVE_FMA(t630, t699, t607);
-    const double t780 = DERIVE_FMA(t631, t699, t608);
-    const double t781 = DERIVE_FMA(t632, t699, t609);
-    const double t782 = DERIVE_FMA(t633, t699, t610);
-    const double t783 = DERIVE_FMA(t634, t699, t611);
-    const double t784 = DERIVE_FMA(t635, t699, t612);
-    const double t785 = DERIVE_FMA(t636, t699, t613);
-    const double t786 = DERIVE_FMA(t637, t699, t614);
-    const double t787 = DERIVE_FMA(t616, t700, t615);
-    const double t788 = DERIVE_FMA(t627, t700, t616);
-    const double t789 = DERIVE_FMA(t628, t700, t617);
-    const double t790 = DERIVE_FMA(t629, t700, t618);
-    const double t791 = DERIVE_FMA(t630, t700, t619);
-    const double t792 = DERIVE_FMA(t631, t700, t620);
-    const double t793 = DERIVE_FMA(t632, t700, t621);
-    const double t794 = DERIVE_FMA(t633, t700, t622);
-    const double t795 = DERIVE_FMA(t634, t700, t623);
-    const double t796 = DERIVE_FMA(t635, t700, t624);
-    const double t797 = DERIVE_FMA(t636, t700, t625);
-    const double t798 = DERIVE_FMA(t637, t700, t626);
-    const double t799 = DERIVE_FMA(t627, t701, t627);
-    const double t800 = DERIVE_FMA(t628, t701, t628);
-    const double t801 = DERIVE_FMA(t629, t701, t629);
-    const double t802 = DERIVE_FMA(t630, t701, t630);
-    const double t803 = DERIVE_FMA(t631, t701, t631);
-    const double t804 = DERIVE_FMA(t632, t701, t632);
-    const double t805 = DERIVE_FMA(t633, t701, t633);
-    const double t806 = DERIVE_FMA(t634, t701, t634);
-    const double t807 = DERIVE_FMA(t635, t701, t635);
-    const double t808 = DERIVE_FMA(t636, t701, t636);
-    const double t809 = DERIVE_FMA(t637, t701, t637);
-    const double t810 = DERIVE_FMA(t628, t702, t638);
-    const double t811 = DERIVE_FMA(t629, t702, t639);
-    const double t812 = DERIVE_FMA(t630, t702, t640);
-    const double t813 = DERIVE_FMA(t631, t702, t641);
-    const double t814 = DERIVE_FMA(t632, t702, t642);
-    const double t815 = DERIVE_FMA(t633, t702, t643);
-    const double t816 = DERIVE_FMA(t634, t702, t644);
-    const double t817 = DERIVE_FMA(t635, t702, t645);
-    const double t818 = DERIVE_FMA(t636, t702, t646);
-    const double t819 = DERIVE_FMA(t637, t702, t647);
-    const double t820 = DERIVE_FMA(t629, t703, t648);
-    const double t821 = DERIVE_FMA(t630, t703, t649);
-    const double t822 = DERIVE_FMA(t631, t703, t650);
-    const double t823 = DERIVE_FMA(t632, t703, t651);
-    const double t824 = DERIVE_FMA(t633, t703, t652);
-    const double t825 = DERIVE_FMA(t634, t703, t653);
-    const double t826 = DERIVE_FMA(t635, t703, t654);
-    const double t827 = DERIVE_FMA(t636, t703, t655);
-    const double t828 = DERIVE_FMA(t637, t703, t656);
-    const double t829 = DERIVE_FMA(t630, t704, t657);
-    const double t830 = DERIVE_FMA(t631, t704, t658);
-    const double t831 = DERIVE_FMA(t632, t704, t659);
-    const double t832 = DERIVE_FMA(t633, t704, t660);
-    const double t833 = DERIVE_FMA(t634, t704, t661);
-    const double t834 = DERIVE_FMA(t635, t704, t662);
-    const double t835 = DERIVE_FMA(t636, t704, t663);
-    const double t836 = DERIVE_FMA(t637, t704, t664);
-    const double t837 = DERIVE_FMA(t631, t705, t665);
-    const double t838 = DERIVE_FMA(t632, t705, t666);
-    const double t839 = DERIVE_FMA(t633, t705, t667);
-    const double t840 = DERIVE_FMA(t634, t705, t668);
-    const double t841 = DERIVE_FMA(t635, t705, t669);
-    const double t842 = DERIVE_FMA(t636, t705, t670);
-    const double t843 = DERIVE_FMA(t637, t705, t671);
-    const double t844 = DERIVE_FMA(t632, t706, t672);
-    const double t845 = DERIVE_FMA(t633, t706, t673);
-    const double t846 = DERIVE_FMA(t634, t706, t674);
-    const double t847 = DERIVE_FMA(t635, t706, t675);
-    const double t848 = DERIVE_FMA(t636, t706, t676);
-    const double t849 = DERIVE_FMA(t637, t706, t677);
-    const double t850 = DERIVE_FMA(t633, t707, t678);
-    const double t851 = DERIVE_FMA(t634, t707, t679);
-    const double t852 = DERIVE_FMA(t635, t707, t680);
-    const double t853 = DERIVE_FMA(t636, t707, t681);
-    const double t854 = DERIVE_FMA(t637, t707, t682);
-    const double t855 = DERIVE_FMA(t634, t708, t683);
-    const double t856 = DERIVE_FMA(t635, t708, t684);
-    const double t857 = DERIVE_FMA(t636, t708, t685);
-    const double t858 = DERIVE_FMA(t637, t708, t686);
-    const double t859 = DERIVE_FMA(t635, t709, t687);
-    const double t860 = DERIVE_FMA(t636, t709, t688);
-    const double t861 = DERIVE_FMA(t637, t709, t689);
-    const double t862 = DERIVE_FMA(t636, t710, t690);
-    const double t863 = DERIVE_FMA(t637, t710, t691);
-    const double t864 = DERIVE_FMA(t637, t711, t692);
-    const double t865 = 0.04 + t810;
-    if (!(t865 > 0.0)) {
+    const double t71 = (-1.0)/t66;
+    const double t72 = t67*t71;
+    const double t73 = DERIVE_FMA(t67, t72, t68);
+    const double t74 = DERIVE_FMA(t56, t70, DERIVE_FMA(t41, t62, DERIVE_FMA(t21, t50, DERIVE_FMA(P[117], t33, t4))));
+    const double t75 = t71*t74;
+    if (!(t73 > 0.0)) {
         return 6; /* S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive */
     }
-    const double t866 = t5 + t719;
-    const double t867 = (-1.0)/t865;
-    const double t868 = t735*t867;
-    const double t869 = t750*t867;
-    const double t870 = t764*t867;
-    const double t871 = t777*t867;
-    const double t872 = t789*t867;
-    const double t873 = t800*t867;
-    const double t874 = t810*t867;
-    const double t875 = t811*t867;
-    const double t876 = t812*t867;
-    const double t877 = t813*t867;
-    const double t878 = t814*t867;
-    const double t879 = t815*t867;
-    const double t880 = t816*t867;
-    const double t881 = t817*t867;
-    const double t882 = t818*t867;
-    const double t883 = t819*t867;
-    const double t884 = t866*t867;
-    const double t885 = DERIVE_FMA(t735, t884, t713);
-    const double t886 = DERIVE_FMA(t750, t884, t714);
-    const double t887 = DERIVE_FMA(t764, t884, t715);
-    const double t888 = DERIVE_FMA(t777, t884, t716);
-    const double t889 = DERIVE_FMA(t789, t884, t717);
-    const double t890 = DERIVE_FMA(t800, t884, t718);
-    const double t891 = DERIVE_FMA(t810, t884, t719);
-    const double t892 = DERIVE_FMA(t811, t884, t720);
-    const double t893 = DERIVE_FMA(t812, t884, t721);
-    const double t894 = DERIVE_FMA(t813, t884, t722);
-    const double t895 = DERIVE_FMA(t814, t884, t723);
-    const double t896 = DERIVE_FMA(t815, t884, t724);
-    const double t897 = DERIVE_FMA(t816, t884, t725);
-    const double t898 = DERIVE_FMA(t817, t884, t726);
-    const double t899 = DERIVE_FMA(t818, t884, t727);
-    const double t900 = DERIVE_FMA(t819, t884, t728);
-    const double t901 = DERIVE_FMA(t735, t868, t729);
-    const double t902 = DERIVE_FMA(t750, t868, t730);
-    const double t903 = DERIVE_FMA(t764, t868, t731);
-    const double t904 = DERIVE_FMA(t777, t868, t732);
-    const double t905 = DERIVE_FMA(t789, t868, t733);
-    const double t906 = DERIVE_FMA(t800, t868, t734);
-    const double t907 = DERIVE_FMA(t810, t868, t735);
-    const double t908 = DERIVE_FMA(t811, t868, t736);
-    const double t909 = DERIVE_FMA(t812, t868, t737);
-    const double t910 = DERIVE_FMA(t813, t868, t738);
-    const double t911 = DERIVE_FMA(t814, t868, t739);
-    const double t912 = DERIVE_FMA(t815, t868, t740);
-    const double t913 = DERIVE_FMA(t816, t868, t741);
-    const double t914 = DERIVE_FMA(t817, t868, t742);
-    const double t915 = DERIVE_FMA(t818, t868, t743);
-    const double t916 = DERIVE_FMA(t819, t868, t744);
-    const double t917 = DERIVE_FMA(t750, t869, t745);
-    const double t918 = DERIVE_FMA(t764, t869, t746);
-    const double t919 = DERIVE_FMA(t777, t869, t747);
-    const double t920 = DERIVE_FMA(t789, t869, t748);
-    const double t921 = DERIVE_FMA(t800, t869, t749);
-    const double t922 = DERIVE_FMA(t810, t869, t750);
-    const double t923 = DERIVE_FMA(t811, t869, t751);
-    const double t924 = DERIVE_FMA(t812, t869, t752);
-    const double t925 = DERIVE_FMA(t813, t869, t753);
-    const double t926 = DERIVE_FMA(t814, t869, t754);
-    const double t927 = DERIVE_FMA(t815, t869, t755);
-    const double t928 = DERIVE_FMA(t816, t869, t756);
-    const double t929 = DERIVE_FMA(t817, t869, t757);
-    const double t930 = DERIVE_FMA(t818, t869, t758);
-    const double t931 = DERIVE_FMA(t819, t869, t759);
-    const double t932 = DERIVE_FMA(t764, t870, t760);
-    const double t933 = DERIVE_FMA(t777, t870, t761);
-    const double t934 = DERIVE_FMA(t789, t870, t762);
-    const double t935 = DERIVE_FMA(t800, t870, t763);
-    const double t936 = DERIVE_FMA(t810, t870, t764);
-    const double t937 = DERIVE_FMA(t811, t870, t765);
-    const double t938 = DERIVE_FMA(t812, t870, t766);
-    const double t939 = DERIVE_FMA(t813, t870, t767);
-    const double t940 = DERIVE_FMA(t814, t870, t768);
-    const double t941 = DERIVE_FMA(t815, t870, t769);
-    const double t942 = DERIVE_FMA(t816, t870, t770);
-    const double t943 = DERIVE_FMA(t817, t870, t771);
-    const double t944 = DERIVE_FMA(t818, t870, t772);
-    const double t945 = DERIVE_FMA(t819, t870, t773);
-    const double t946 = DERIVE_FMA(t777, t871, t774);
-    const double t947 = DERIVE_FMA(t789, t871, t775);
-    const double t948 = DERIVE_FMA(t800, t871, t776);
-    const double t949 = DERIVE_FMA(t810, t871, t777);
-    const double t950 = DERIVE_FMA(t811, t871, t778);
-    const double t951 = DERIVE_FMA(t812, t871, t779);
-    const double t952 = DERIVE_FMA(t813, t871, t780);
-    const double t953 = DERIVE_FMA(t814, t871, t781);
-    const double t954 = DERIVE_FMA(t815, t871, t782);
-    const double t955 = DERIVE_FMA(t816, t871, t783);
-    const double t956 = DERIVE_FMA(t817, t871, t784);
-    const double t957 = DERIVE_FMA(t818, t871, t785);
-    const double t958 = DERIVE_FMA(t819, t871, t786);
-    const double t959 = DERIVE_FMA(t789, t872, t787);
-    const double t960 = DERIVE_FMA(t800, t872, t788);
-    const double t961 = DERIVE_FMA(t810, t872, t789);
-    const double t962 = DERIVE_FMA(t811, t872, t790);
-    const double t963 = DERIVE_FMA(t812, t872, t791);
-    const double t964 = DERIVE_FMA(t813, t872, t792);
-    const double t965 = DERIVE_FMA(t814, t872, t793);
-    const double t966 = DERIVE_FMA(t815, t872, t794);
-    const double t967 = DERIVE_FMA(t816, t872, t795);
-    const double t968 = DERIVE_FMA(t817, t872, t796);
-    const double t969 = DERIVE_FMA(t818, t872, t797);
-    const double t970 = DERIVE_FMA(t819, t872, t798);
-    const double t971 = DERIVE_FMA(t800, t873, t799);
-    const double t972 = DERIVE_FMA(t810, t873, t800);
-    const double t973 = DERIVE_FMA(t811, t873, t801);
-    const double t974 = DERIVE_FMA(t812, t873, t802);
-    const double t975 = DERIVE_FMA(t813, t873, t803);
-    const double t976 = DERIVE_FMA(t814, t873, t804);
-    const double t977 = DERIVE_FMA(t815, t873, t805);
-    const double t978 = DERIVE_FMA(t816, t873, t806);
-    const double t979 = DERIVE_FMA(t817, t873, t807);
-    const double t980 = DERIVE_FMA(t818, t873, t808);
-    const double t981 = DERIVE_FMA(t819, t873, t809);
-    const double t982 = DERIVE_FMA(t810, t874, t810);
-    const double t983 = DERIVE_FMA(t811, t874, t811);
-    const double t984 = DERIVE_FMA(t812, t874, t812);
-    const double t985 = DERIVE_FMA(t813, t874, t813);
-    const double t986 = DERIVE_FMA(t814, t874, t814);
-    const double t987 = DERIVE_FMA(t815, t874, t815);
-    const double t988 = DERIVE_FMA(t816, t874, t816);
-    const double t989 = DERIVE_FMA(t817, t874, t817);
-    const double t990 = DERIVE_FMA(t818, t874, t818);
-    const double t991 = DERIVE_FMA(t819, t874, t819);
-    const double t992 = DERIVE_FMA(t811, t875, t820);
-    const double t993 = DERIVE_FMA(t812, t875, t821);
-    const double t994 = DERIVE_FMA(t813, t875, t822);
-    const double t995 = DERIVE_FMA(t814, t875, t823);
-    const double t996 = DERIVE_FMA(t815, t875, t824);
-    const double t997 = DERIVE_FMA(t816, t875, t825);
-    const double t998 = DERIVE_FMA(t817, t875, t826);
-    const double t999 = DERIVE_FMA(t818, t875, t827);
-    const double t1000 = DERIVE_FMA(t819, t875, t828);
-    const double t1001 = DERIVE_FMA(t812, t876, t829);
-    const double t1002 = DERIVE_FMA(t813, t876, t830);
-    const double t1003 = DERIVE_FMA(t814, t876, t831);
-    const double t1004 = DERIVE_FMA(t815, t876, t832);
-    const double t1005 = DERIVE_FMA(t816, t876, t833);
-    const double t1006 = DERIVE_FMA(t817, t876, t834);
-    const double t1007 = DERIVE_FMA(t818, t876, t835);
-    const double t1008 = DERIVE_FMA(t819, t876, t836);
-    const double t1009 = DERIVE_FMA(t813, t877, t837);
-    const double t1010 = DERIVE_FMA(t814, t877, t838);
-    const double t1011 = DERIVE_FMA(t815, t877, t839);
-    const double t1012 = DERIVE_FMA(t816, t877, t840);
-    const double t1013 = DERIVE_FMA(t817, t877, t841);
-    const double t1014 = DERIVE_FMA(t818, t877, t842);
-    const double t1015 = DERIVE_FMA(t819, t877, t843);
-    const double t1016 = DERIVE_FMA(t814, t878, t844);
-    const double t1017 = DERIVE_FMA(t815, t878, t845);
-    const double t1018 = DERIVE_FMA(t816, t878, t846);
-    const double t1019 = DERIVE_FMA(t817, t878, t847);
-    const double t1020 = DERIVE_FMA(t818, t878, t848);
-    const double t1021 = DERIVE_FMA(t819, t878, t849);
-    const double t1022 = DERIVE_FMA(t815, t879, t850);
-    const double t1023 = DERIVE_FMA(t816, t879, t851);
-    const double t1024 = DERIVE_FMA(t817, t879, t852);
-    const double t1025 = DERIVE_FMA(t818, t879, t853);
-    const double t1026 = DERIVE_FMA(t819, t879, t854);
-    const double t1027 = DERIVE_FMA(t816, t880, t855);
-    const double t1028 = DERIVE_FMA(t817, t880, t856);
-    const double t1029 = DERIVE_FMA(t818, t880, t857);
-    const double t1030 = DERIVE_FMA(t819, t880, t858);
-    const double t1031 = DERIVE_FMA(t817, t881, t859);
-    const double t1032 = DERIVE_FMA(t818, t881, t860);
-    const double t1033 = DERIVE_FMA(t819, t881, t861);
-    const double t1034 = DERIVE_FMA(t818, t882, t862);
-    const double t1035 = DERIVE_FMA(t819, t882, t863);
-    const double t1036 = DERIVE_FMA(t819, t883, t864);
-    const double t1037 = x[0] - t885;
-    const double t1038 = x[1] - t886;
-    const double t1039 = x[2] - t887;
-    const double t1040 = x[3] - t888;
-    const double t1041 = x[4] - t889;
-    const double t1042 = x[5] - t890;
-    const double t1043 = x[6] - t891;
-    const double t1044 = x[7] - t892;
-    const double t1045 = x[8] - t893;
-    const double t1046 = x[9] - t894;
-    const double t1047 = x[10] - t895;
-    const double t1048 = x[11] - t896;
-    const double t1049 = x[12] - t897;
-    const double t1050 = x[13] - t898;
-    const double t1051 = x[14] - t899;
-    const double t1052 = x[15] - t900;
-    const double t1053 = DERIVE_FMA(t1040, t1040, DERIVE_FMA(t1039, t1039, DERIVE_FMA(t1038, t1038, t1037*t1037)));
-    const double t1054 = 1.0/sqrt(t1053);
-    const double t1055 = t1037*t1054;
-    const double t1056 = t1038*t1054;
-    const double t1057 = t1039*t1054;
-    const double t1058 = t1040*t1054;
-    x_new[0] = t1055;
-    x_new[1] = t1056;
-    x_new[2] = t1057;
-    x_new[3] = t1058;
-    x_new[4] = t1041;
-    x_new[5] = t1042;
-    x_new[6] = t1043;
-    x_new[7] = t1044;
-    x_new[8] = t1045;
-    x_new[9] = t1046;
-    x_new[10] = t1047;
-    x_new[11] = t1048;
-    x_new[12] = t1049;
-    x_new[13] = t1050;
-    x_new[14] = t1051;
-    x_new[15] = t1052;
-    P_new[0] = t901;
-    P_new[1] = t902;
-    P_new[2] = t903;
-    P_new[3] = t904;
-    P_new[4] = t905;
-    P_new[5] = t906;
-    P_new[6] = t907;
-    P_new[7] = t908;
-    P_new[8] = t909;
-    P_new[9] = t910;
-    P_new[10] = t911;
-    P_new[11] = t912;
-    P_new[12] = t913;
-    P_new[13] = t914;
-    P_new[14] = t915;
-    P_new[15] = t916;
-    P_new[16] = t902;
-    P_new[17] = t917;
-    P_new[18] = t918;
-    P_new[19] = t919;
-    P_new[20] = t920;
-    P_new[21] = t921;
-    P_new[22] = t922;
-    P_new[23] = t923;
-    P_new[24] = t924;
-    P_new[25] = t925;
-    P_new[26] = t926;
-    P_new[27] = t927;
-    P_new[28] = t928;
-    P_new[29] = t929;
-    P_new[30] = t930;
-    P_new[31] = t931;
-    P_new[32] = t903;
-    P_new[33] = t918;
-    P_new[34] = t932;
-    P_new[35] = t933;
-    P_new[36] = t934;
-    P_new[37] = t935;
-    P_new[38] = t936;
-    P_new[39] = t937;
-    P_new[40] = t938;
-    P_new[41] = t939;
-    P_new[42] = t940;
-    P_new[43] = t941;
-    P_new[44] = t942;
-    P_new[45] = t943;
-    P_new[46] = t944;
-    P_new[47] = t945;
-    P_new[48] = t904;
-    P_new[49] = t919;
-    P_new[50] = t933;
-    P_new[51] = t946;
-    P_new[52] = t947;
-    P_new[53] = t948;
-    P_new[54] = t949;
-    P_new[55] = t950;
-    P_new[56] = t951;
-    P_new[57] = t952;
-    P_new[58] = t953;
-    P_new[59] = t954;
-    P_new[60] = t955;
-    P_new[61] = t956;
-    P_new[62] = t957;
-    P_new[63] = t958;
-    P_new[64] = t905;
-    P_new[65] = t920;
-    P_new[66] = t934;
-    P_new[67] = t947;
-    P_new[68] = t959;
-    P_new[69] = t960;
-    P_new[70] = t961;
-    P_new[71] = t962;
-    P_new[72] = t963;
-    P_new[73] = t964;
-    P_new[74] = t965;
-    P_new[75] = t966;
-    P_new[76] = t967;
-    P_new[77] = t968;
-    P_new[78] = t969;
-    P_new[79] = t970;
-    P_new[80] = t906;
-    P_new[81] = t921;
-    P_new[82] = t935;
-    P_new[83] = t948;
-    P_new[84] = t960;
-    P_new[85] = t971;
-    P_new[86] = t972;
-    P_new[87] = t973;
-    P_new[88] = t974;
-    P_new[89] = t975;
-    P_new[90] = t976;
-    P_new[91] = t977;
-    P_new[92] = t978;
-    P_new[93] = t979;
-    P_new[94] = t980;
-    P_new[95] = t981;
-    P_new[96] = t907;
-    P_new[97] = t922;
-    P_new[98] = t936;
-    P_new[99] = t949;
-    P_new[100] = t961;
-    P_new[101] = t972;
-    P_new[102] = t982;
-    P_new[103] = t983;
-    P_new[104] = t984;
-    P_new[105] = t985;
-    P_new[106] = t986;
-    P_new[107] = t987;
-    P_new[108] = t988;
-    P_new[109] = t989;
-    P_new[110] = t990;
-    P_new[111] = t991;
-    P_new[112] = t908;
-    P_new[113] = t923;
-    P_new[114] = t937;
-    P_new[115] = t950;
-    P_new[116] = t962;
-    P_new[117] = t973;
-    P_new[118] = t983;
-    P_new[119] = t992;
-    P_new[120] = t993;
-    P_new[121] = t994;
-    P_new[122] = t995;
-    P_new[123] = t996;
-    P_new[124] = t997;
-    P_new[125] = t998;
-    P_new[126] = t999;
-    P_new[127] = t1000;
-    P_new[128] = t909;
-    P_new[129] = t924;
-    P_new[130] = t938;
-    P_new[131] = t951;
-    P_new[132] = t963;
-    P_new[133] = t974;
-    P_new[134] = t984;
-    P_new[135] = t993;
-    P_new[136] = t1001;
-    P_new[137] = t1002;
-    P_new[138] = t1003;
-    P_new[139] = t1004;
-    P_new[140] = t1005;
-    P_new[141] = t1006;
-    P_new[142] = t1007;
-    P_new[143] = t1008;
-    P_new[144] = t910;
-    P_new[145] = t925;
-    P_new[146] = t939;
-    P_new[147] = t952;
-    P_new[148] = t964;
-    P_new[149] = t975;
-    P_new[150] = t985;
-    P_new[151] = t994;
-    P_new[152] = t1002;
-    P_new[153] = t1009;
-    P_new[154] = t1010;
-    P_new[155] = t1011;
-    P_new[156] = t1012;
-    P_new[157] = t1013;
-    P_new[158] = t1014;
-    P_new[159] = t1015;
-    P_new[160] = t911;
-    P_new[161] = t926;
-    P_new[162] = t940;
-    P_new[163] = t953;
-    P_new[164] = t965;
-    P_new[165] = t976;
-    P_new[166] = t986;
-    P_new[167] = t995;
-    P_new[168] = t1003;
-    P_new[169] = t1010;
-    P_new[170] = t1016;
-    P_new[171] = t1017;
-    P_new[172] = t1018;
-    P_new[173] = t1019;
-    P_new[174] = t1020;
-    P_new[175] = t1021;
-    P_new[176] = t912;
-    P_new[177] = t927;
-    P_new[178] = t941;
-    P_new[179] = t954;
-    P_new[180] = t966;
-    P_new[181] = t977;
-    P_new[182] = t987;
-    P_new[183] = t996;
-    P_new[184] = t1004;
-    P_new[185] = t1011;
-    P_new[186] = t1017;
-    P_new[187] = t1022;
-    P_new[188] = t1023;
-    P_new[189] = t1024;
-    P_new[190] = t1025;
-    P_new[191] = t1026;
-    P_new[192] = t913;
-    P_new[193] = t928;
-    P_new[194] = t942;
-    P_new[195] = t955;
-    P_new[196] = t967;
-    P_new[197] = t978;
-    P_new[198] = t988;
-    P_new[199] = t997;
-    P_new[200] = t1005;
-    P_new[201] = t1012;
-    P_new[202] = t1018;
-    P_new[203] = t1023;
-    P_new[204] = t1027;
-    P_new[205] = t1028;
-    P_new[206] = t1029;
-    P_new[207] = t1030;
-    P_new[208] = t914;
-    P_new[209] = t929;
-    P_new[210] = t943;
-    P_new[211] = t956;
-    P_new[212] = t968;
-    P_new[213] = t979;
-    P_new[214] = t989;
-    P_new[215] = t998;
-    P_new[216] = t1006;
-    P_new[217] = t1013;
-    P_new[218] = t1019;
-    P_new[219] = t1024;
-    P_new[220] = t1028;
-    P_new[221] = t1031;
-    P_new[222] = t1032;
-    P_new[223] = t1033;
-    P_new[224] = t915;
-    P_new[225] = t930;
-    P_new[226] = t944;
-    P_new[227] = t957;
-    P_new[228] = t969;
-    P_new[229] = t980;
-    P_new[230] = t990;
-    P_new[231] = t999;
-    P_new[232] = t1007;
-    P_new[233] = t1014;
-    P_new[234] = t1020;
-    P_new[235] = t1025;
-    P_new[236] = t1029;
-    P_new[237] = t1032;
-    P_new[238] = t1034;
-    P_new[239] = t1035;
-    P_new[240] = t916;
-    P_new[241] = t931;
-    P_new[242] = t945;
-    P_new[243] = t958;
-    P_new[244] = t970;
-    P_new[245] = t981;
-    P_new[246] = t991;
-    P_new[247] = t1000;
-    P_new[248] = t1008;
-    P_new[249] = t1015;
-    P_new[250] = t1021;
-    P_new[251] = t1026;
-    P_new[252] = t1030;
-    P_new[253] = t1033;
-    P_new[254] = t1035;
-    P_new[255] = t1036;
+    const double t76 = (-1.0)/t73;
+    const double t77 = DERIVE_FMA(t67, t75, DERIVE_FMA(t57, t70, DERIVE_FMA(t42, t62, DERIVE_FMA(t22, t50, DERIVE_FMA(P[118], t33, t5)))));
+    const double t78 = t76*t77;
+    #if DERIVE_VECTOR
+    const derive_vd v_t79 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    #else
+    const double t79 = DERIVE_FMA(t13, P[112], P[128]);
+    const double t80 = DERIVE_FMA(t13, P[113], P[129]);
+    const double t81 = DERIVE_FMA(t13, P[114], P[130]);
+    const double t82 = DERIVE_FMA(t13, P[115], P[131]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    #else
+    const double t83 = DERIVE_FMA(t13, P[116], P[132]);
+    const double t84 = DERIVE_FMA(t13, P[117], P[133]);
+    const double t85 = DERIVE_FMA(t13, P[118], P[134]);
+    const double t86 = DERIVE_FMA(t13, P[119], P[135]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    #else
+    const double t87 = DERIVE_FMA(t13, P[120], P[136]);
+    const double t88 = DERIVE_FMA(t13, P[121], P[137]);
+    const double t89 = DERIVE_FMA(t13, P[122], P[138]);
+    const double t90 = DERIVE_FMA(t13, P[123], P[139]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t91 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    #else
+    const double t91 = DERIVE_FMA(t13, P[124], P[140]);
+    const double t92 = DERIVE_FMA(t13, P[125], P[141]);
+    const double t93 = DERIVE_FMA(t13, P[126], P[142]);
+    const double t94 = DERIVE_FMA(t13, P[127], P[143]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t95 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t79, DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[144], P[145], P[146], P[147]})));
+    #else
+    const double t95 = DERIVE_FMA(t35, t79, DERIVE_FMA(t14, P[112], P[144]));
+    const double t96 = DERIVE_FMA(t35, t80, DERIVE_FMA(t14, P[113], P[145]));
+    const double t97 = DERIVE_FMA(t35, t81, DERIVE_FMA(t14, P[114], P[146]));
+    const double t98 = DERIVE_FMA(t35, t82, DERIVE_FMA(t14, P[115], P[147]));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[148], P[149], P[150], P[151]})));
+    #else
+    const double t99 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[116], P[148]));
+    const double t100 = DERIVE_FMA(t35, t84, DERIVE_FMA(t14, P[117], P[149]));
+    const double t101 = DERIVE_FMA(t35, t85, DERIVE_FMA(t14, P[118], P[150]));
+    const double t102 = DERIVE_FMA(t35, t86, DERIVE_FMA(t14, P[119], P[151]));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]})));
+    #else
+    const double t103 = DERIVE_FMA(t35, t87, DERIVE_FMA(t14, P[120], P[152]));
+    const double t104 = DERIVE_FMA(t35, t88, DERIVE_FMA(t14, P[121], P[153]));
+    const double t105 = DERIVE_FMA(t35, t89, DERIVE_FMA(t14, P[122], P[154]));
+    const double t106 = DERIVE_FMA(t35, t90, DERIVE_FMA(t14, P[123], P[155]));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t91, DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]})));
+    #else
+    const double t107 = DERIVE_FMA(t35, t91, DERIVE_FMA(t14, P[124], P[156]));
+    const double t108 = DERIVE_FMA(t35, t92, DERIVE_FMA(t14, P[125], P[157]));
+    const double t109 = DERIVE_FMA(t35, t93, DERIVE_FMA(t14, P[126], P[158]));
+    const double t110 = DERIVE_FMA(t35, t94, DERIVE_FMA(t14, P[127], P[159]));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t95, DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t79, DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[64], P[65], P[66], P[67]}))));
+    #else
+    const double t111 = DERIVE_FMA(t52, t95, DERIVE_FMA(t36, t79, DERIVE_FMA(t15, P[112], P[64])));
+    const double t112 = DERIVE_FMA(t52, t96, DERIVE_FMA(t36, t80, DERIVE_FMA(t15, P[113], P[65])));
+    const double t113 = DERIVE_FMA(t52, t97, DERIVE_FMA(t36, t81, DERIVE_FMA(t15, P[114], P[66])));
+    const double t114 = DERIVE_FMA(t52, t98, DERIVE_FMA(t36, t82, DERIVE_FMA(t15, P[115], P[67])));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t99, DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}))));
+    #else
+    const double t115 = DERIVE_FMA(t52, t99, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[116], P[68])));
+    const double t116 = DERIVE_FMA(t52, t100, DERIVE_FMA(t36, t84, DERIVE_FMA(t15, P[117], P[69])));
+    const double t117 = DERIVE_FMA(t52, t101, DERIVE_FMA(t36, t85, DERIVE_FMA(t15, P[118], P[70])));
+    const double t118 = DERIVE_FMA(t52, t102, DERIVE_FMA(t36, t86, DERIVE_FMA(t15, P[119], P[71])));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t103, DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t87, DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}))));
+    #else
+    const double t119 = DERIVE_FMA(t52, t103, DERIVE_FMA(t36, t87, DERIVE_FMA(t15, P[120], P[72])));
+    const double t120 = DERIVE_FMA(t52, t104, DERIVE_FMA(t36, t88, DERIVE_FMA(t15, P[121], P[73])));
+    const double t121 = DERIVE_FMA(t52, t105, DERIVE_FMA(t36, t89, DERIVE_FMA(t15, P[122], P[74])));
+    const double t122 = DERIVE_FMA(t52, t106, DERIVE_FMA(t36, t90, DERIVE_FMA(t15, P[123], P[75])));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t91, DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}))));
+    #else
+    const double t123 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t91, DERIVE_FMA(t15, P[124], P[76])));
+    const double t124 = DERIVE_FMA(t52, t108, DERIVE_FMA(t36, t92, DERIVE_FMA(t15, P[125], P[77])));
+    const double t125 = DERIVE_FMA(t52, t109, DERIVE_FMA(t36, t93, DERIVE_FMA(t15, P[126], P[78])));
+    const double t126 = DERIVE_FMA(t52, t110, DERIVE_FMA(t36, t94, DERIVE_FMA(t15, P[127], P[79])));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t111, DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t95, DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t79, DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[80], P[81], P[82], P[83]})))));
+    #else
+    const double t127 = DERIVE_FMA(t64, t111, DERIVE_FMA(t53, t95, DERIVE_FMA(t37, t79, DERIVE_FMA(t16, P[112], P[80]))));
+    const double t128 = DERIVE_FMA(t64, t112, DERIVE_FMA(t53, t96, DERIVE_FMA(t37, t80, DERIVE_FMA(t16, P[113], P[81]))));
+    const double t129 = DERIVE_FMA(t64, t113, DERIVE_FMA(t53, t97, DERIVE_FMA(t37, t81, DERIVE_FMA(t16, P[114], P[82]))));
+    const double t130 = DERIVE_FMA(t64, t114, DERIVE_FMA(t53, t98, DERIVE_FMA(t37, t82, DERIVE_FMA(t16, P[115], P[83]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t115, DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t99, DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]})))));
+    #else
+    const double t131 = DERIVE_FMA(t64, t115, DERIVE_FMA(t53, t99, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[116], P[84]))));
+    const double t132 = DERIVE_FMA(t64, t116, DERIVE_FMA(t53, t100, DERIVE_FMA(t37, t84, DERIVE_FMA(t16, P[117], P[85]))));
+    const double t133 = DERIVE_FMA(t64, t117, DERIVE_FMA(t53, t101, DERIVE_FMA(t37, t85, DERIVE_FMA(t16, P[118], P[86]))));
+    const double t134 = DERIVE_FMA(t64, t118, DERIVE_FMA(t53, t102, DERIVE_FMA(t37, t86, DERIVE_FMA(t16, P[119], P[87]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t119, DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t103, DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t87, DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]})))));
+    #else
+    const double t135 = DERIVE_FMA(t64, t119, DERIVE_FMA(t53, t103, DERIVE_FMA(t37, t87, DERIVE_FMA(t16, P[120], P[88]))));
+    const double t136 = DERIVE_FMA(t64, t120, DERIVE_FMA(t53, t104, DERIVE_FMA(t37, t88, DERIVE_FMA(t16, P[121], P[89]))));
+    const double t137 = DERIVE_FMA(t64, t121, DERIVE_FMA(t53, t105, DERIVE_FMA(t37, t89, DERIVE_FMA(t16, P[122], P[90]))));
+    const double t138 = DERIVE_FMA(t64, t122, DERIVE_FMA(t53, t106, DERIVE_FMA(t37, t90, DERIVE_FMA(t16, P[123], P[91]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t123, DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t91, DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]})))));
+    #else
+    const double t139 = DERIVE_FMA(t64, t123, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t91, DERIVE_FMA(t16, P[124], P[92]))));
+    const double t140 = DERIVE_FMA(t64, t124, DERIVE_FMA(t53, t108, DERIVE_FMA(t37, t92, DERIVE_FMA(t16, P[125], P[93]))));
+    const double t141 = DERIVE_FMA(t64, t125, DERIVE_FMA(t53, t109, DERIVE_FMA(t37, t93, DERIVE_FMA(t16, P[126], P[94]))));
+    const double t142 = DERIVE_FMA(t64, t126, DERIVE_FMA(t53, t110, DERIVE_FMA(t37, t94, DERIVE_FMA(t16, P[127], P[95]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t127, DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t111, DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t95, DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t79, DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[96], P[97], P[98], P[99]}))))));
+    #else
+    const double t143 = DERIVE_FMA(t72, t127, DERIVE_FMA(t65, t111, DERIVE_FMA(t54, t95, DERIVE_FMA(t38, t79, DERIVE_FMA(t17, P[112], P[96])))));
+    const double t144 = DERIVE_FMA(t72, t128, DERIVE_FMA(t65, t112, DERIVE_FMA(t54, t96, DERIVE_FMA(t38, t80, DERIVE_FMA(t17, P[113], P[97])))));
+    const double t145 = DERIVE_FMA(t72, t129, DERIVE_FMA(t65, t113, DERIVE_FMA(t54, t97, DERIVE_FMA(t38, t81, DERIVE_FMA(t17, P[114], P[98])))));
+    const double t146 = DERIVE_FMA(t72, t130, DERIVE_FMA(t65, t114, DERIVE_FMA(t54, t98, DERIVE_FMA(t38, t82, DERIVE_FMA(t17, P[115], P[99])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t131, DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t115, DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t99, DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t83, DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]}))))));
+    #else
+    const double t147 = DERIVE_FMA(t72, t131, DERIVE_FMA(t65, t115, DERIVE_FMA(t54, t99, DERIVE_FMA(t38, t83, DERIVE_FMA(t17, P[116], P[100])))));
+    const double t148 = DERIVE_FMA(t72, t132, DERIVE_FMA(t65, t116, DERIVE_FMA(t54, t100, DERIVE_FMA(t38, t84, DERIVE_FMA(t17, P[117], P[101])))));
+    const double t149 = DERIVE_FMA(t72, t133, DERIVE_FMA(t65, t117, DERIVE_FMA(t54, t101, DERIVE_FMA(t38, t85, DERIVE_FMA(t17, P[118], P[102])))));
+    const double t150 = DERIVE_FMA(t72, t134, DERIVE_FMA(t65, t118, DERIVE_FMA(t54, t102, DERIVE_FMA(t38, t86, DERIVE_FMA(t17, P[119], P[103])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t135, DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t119, DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t103, DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t87, DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}))))));
+    #else
+    const double t151 = DERIVE_FMA(t72, t135, DERIVE_FMA(t65, t119, DERIVE_FMA(t54, t103, DERIVE_FMA(t38, t87, DERIVE_FMA(t17, P[120], P[104])))));
+    const double t152 = DERIVE_FMA(t72, t136, DERIVE_FMA(t65, t120, DERIVE_FMA(t54, t104, DERIVE_FMA(t38, t88, DERIVE_FMA(t17, P[121], P[105])))));
+    const double t153 = DERIVE_FMA(t72, t137, DERIVE_FMA(t65, t121, DERIVE_FMA(t54, t105, DERIVE_FMA(t38, t89, DERIVE_FMA(t17, P[122], P[106])))));
+    const double t154 = DERIVE_FMA(t72, t138, DERIVE_FMA(t65, t122, DERIVE_FMA(t54, t106, DERIVE_FMA(t38, t90, DERIVE_FMA(t17, P[123], P[107])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t139, DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t123, DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t107, DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t91, DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}))))));
+    #else
+    const double t155 = DERIVE_FMA(t72, t139, DERIVE_FMA(t65, t123, DERIVE_FMA(t54, t107, DERIVE_FMA(t38, t91, DERIVE_FMA(t17, P[124], P[108])))));
+    const double t156 = DERIVE_FMA(t72, t140, DERIVE_FMA(t65, t124, DERIVE_FMA(t54, t108, DERIVE_FMA(t38, t92, DERIVE_FMA(t17, P[125], P[109])))));
+    const double t157 = DERIVE_FMA(t72, t141, DERIVE_FMA(t65, t125, DERIVE_FMA(t54, t109, DERIVE_FMA(t38, t93, DERIVE_FMA(t17, P[126], P[110])))));
+    const double t158 = DERIVE_FMA(t72, t142, DERIVE_FMA(t65, t126, DERIVE_FMA(t54, t110, DERIVE_FMA(t38, t94, DERIVE_FMA(t17, P[127], P[111])))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t159 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const double t159 = v_t159[0];
+    const double t160 = v_t159[1];
+    const double t161 = v_t159[2];
+    const double t162 = v_t159[3];
+    #else
+    const double t159 = t12*P[112];
+    const double t160 = t12*P[113];
+    const double t161 = t12*P[114];
+    const double t162 = t12*P[115];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t163 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const double t163 = v_t163[0];
+    const double t164 = v_t163[1];
+    const double t165 = v_t163[2];
+    const double t166 = v_t163[3];
+    #else
+    const double t163 = t12*P[116];
+    const double t164 = t12*P[117];
+    const double t165 = t12*P[118];
+    const double t166 = t12*P[119];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t167 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const double t167 = v_t167[0];
+    const double t168 = v_t167[1];
+    const double t169 = v_t167[2];
+    const double t170 = v_t167[3];
+    #else
+    const double t167 = t12*P[120];
+    const double t168 = t12*P[121];
+    const double t169 = t12*P[122];
+    const double t170 = t12*P[123];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t171 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const double t171 = v_t171[0];
+    const double t172 = v_t171[1];
+    const double t173 = v_t171[2];
+    const double t174 = v_t171[3];
+    #else
+    const double t171 = t12*P[124];
+    const double t172 = t12*P[125];
+    const double t173 = t12*P[126];
+    const double t174 = t12*P[127];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t175 = (((derive_vd){t34, t34, t34, t34}) * v_t79);
+    const double t175 = v_t175[0];
+    const double t176 = v_t175[1];
+    const double t177 = v_t175[2];
+    const double t178 = v_t175[3];
+    #else
+    const double t175 = t34*t79;
+    const double t176 = t34*t80;
+    const double t177 = t34*t81;
+    const double t178 = t34*t82;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t179 = (((derive_vd){t34, t34, t34, t34}) * v_t83);
+    const double t179 = v_t179[0];
+    const double t180 = v_t179[1];
+    const double t181 = v_t179[2];
+    const double t182 = v_t179[3];
+    #else
+    const double t179 = t34*t83;
+    const double t180 = t34*t84;
+    const double t181 = t34*t85;
+    const double t182 = t34*t86;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t183 = (((derive_vd){t34, t34, t34, t34}) * v_t87);
+    const double t183 = v_t183[0];
+    const double t184 = v_t183[1];
+    const double t185 = v_t183[2];
+    const double t186 = v_t183[3];
+    #else
+    const double t183 = t34*t87;
+    const double t184 = t34*t88;
+    const double t185 = t34*t89;
+    const double t186 = t34*t90;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t187 = (((derive_vd){t34, t34, t34, t34}) * v_t91);
+    const double t187 = v_t187[0];
+    const double t188 = v_t187[1];
+    const double t189 = v_t187[2];
+    const double t190 = v_t187[3];
+    #else
+    const double t187 = t34*t91;
+    const double t188 = t34*t92;
+    const double t189 = t34*t93;
+    const double t190 = t34*t94;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t191 = (((derive_vd){t51, t51, t51, t51}) * v_t95);
+    const double t191 = v_t191[0];
+    const double t192 = v_t191[1];
+    const double t193 = v_t191[2];
+    const double t194 = v_t191[3];
+    #else
+    const double t191 = t51*t95;
+    const double t192 = t51*t96;
+    const double t193 = t51*t97;
+    const double t194 = t51*t98;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t195 = (((derive_vd){t51, t51, t51, t51}) * v_t99);
+    const double t195 = v_t195[0];
+    const double t196 = v_t195[1];
+    const double t197 = v_t195[2];
+    const double t198 = v_t195[3];
+    #else
+    const double t195 = t51*t99;
+    const double t196 = t51*t100;
+    const double t197 = t51*t101;
+    const double t198 = t51*t102;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t199 = (((derive_vd){t51, t51, t51, t51}) * v_t103);
+    const double t199 = v_t199[0];
+    const double t200 = v_t199[1];
+    const double t201 = v_t199[2];
+    const double t202 = v_t199[3];
+    #else
+    const double t199 = t51*t103;
+    const double t200 = t51*t104;
+    const double t201 = t51*t105;
+    const double t202 = t51*t106;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t203 = (((derive_vd){t51, t51, t51, t51}) * v_t107);
+    const double t203 = v_t203[0];
+    const double t204 = v_t203[1];
+    const double t205 = v_t203[2];
+    const double t206 = v_t203[3];
+    #else
+    const double t203 = t51*t107;
+    const double t204 = t51*t108;
+    const double t205 = t51*t109;
+    const double t206 = t51*t110;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t207 = (((derive_vd){t63, t63, t63, t63}) * v_t111);
+    const double t207 = v_t207[0];
+    const double t208 = v_t207[1];
+    const double t209 = v_t207[2];
+    const double t210 = v_t207[3];
+    #else
+    const double t207 = t63*t111;
+    const double t208 = t63*t112;
+    const double t209 = t63*t113;
+    const double t210 = t63*t114;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t211 = (((derive_vd){t63, t63, t63, t63}) * v_t115);
+    const double t211 = v_t211[0];
+    const double t212 = v_t211[1];
+    const double t213 = v_t211[2];
+    const double t214 = v_t211[3];
+    #else
+    const double t211 = t63*t115;
+    const double t212 = t63*t116;
+    const double t213 = t63*t117;
+    const double t214 = t63*t118;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t215 = (((derive_vd){t63, t63, t63, t63}) * v_t119);
+    const double t215 = v_t215[0];
+    const double t216 = v_t215[1];
+    const double t217 = v_t215[2];
+    const double t218 = v_t215[3];
+    #else
+    const double t215 = t63*t119;
+    const double t216 = t63*t120;
+    const double t217 = t63*t121;
+    const double t218 = t63*t122;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t219 = (((derive_vd){t63, t63, t63, t63}) * v_t123);
+    const double t219 = v_t219[0];
+    const double t220 = v_t219[1];
+    const double t221 = v_t219[2];
+    const double t222 = v_t219[3];
+    #else
+    const double t219 = t63*t123;
+    const double t220 = t63*t124;
+    const double t221 = t63*t125;
+    const double t222 = t63*t126;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t223 = (((derive_vd){t71, t71, t71, t71}) * v_t127);
+    const double t223 = v_t223[0];
+    const double t224 = v_t223[1];
+    const double t225 = v_t223[2];
+    const double t226 = v_t223[3];
+    #else
+    const double t223 = t71*t127;
+    const double t224 = t71*t128;
+    const double t225 = t71*t129;
+    const double t226 = t71*t130;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t227 = (((derive_vd){t71, t71, t71, t71}) * v_t131);
+    const double t227 = v_t227[0];
+    const double t228 = v_t227[1];
+    const double t229 = v_t227[2];
+    const double t230 = v_t227[3];
+    #else
+    const double t227 = t71*t131;
+    const double t228 = t71*t132;
+    const double t229 = t71*t133;
+    const double t230 = t71*t134;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t231 = (((derive_vd){t71, t71, t71, t71}) * v_t135);
+    const double t231 = v_t231[0];
+    const double t232 = v_t231[1];
+    const double t233 = v_t231[2];
+    const double t234 = v_t231[3];
+    #else
+    const double t231 = t71*t135;
+    const double t232 = t71*t136;
+    const double t233 = t71*t137;
+    const double t234 = t71*t138;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t235 = (((derive_vd){t71, t71, t71, t71}) * v_t139);
+    const double t235 = v_t235[0];
+    const double t236 = v_t235[1];
+    const double t237 = v_t235[2];
+    const double t238 = v_t235[3];
+    #else
+    const double t235 = t71*t139;
+    const double t236 = t71*t140;
+    const double t237 = t71*t141;
+    const double t238 = t71*t142;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t239 = (((derive_vd){t76, t76, t76, t76}) * v_t143);
+    const double t239 = v_t239[0];
+    const double t240 = v_t239[1];
+    const double t241 = v_t239[2];
+    const double t242 = v_t239[3];
+    #else
+    const double t239 = t76*t143;
+    const double t240 = t76*t144;
+    const double t241 = t76*t145;
+    const double t242 = t76*t146;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t243 = (((derive_vd){t76, t76, t76, t76}) * v_t147);
+    const double t243 = v_t243[0];
+    const double t244 = v_t243[1];
+    const double t245 = v_t243[2];
+    const double t246 = v_t243[3];
+    #else
+    const double t243 = t76*t147;
+    const double t244 = t76*t148;
+    const double t245 = t76*t149;
+    const double t246 = t76*t150;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t247 = (((derive_vd){t76, t76, t76, t76}) * v_t151);
+    const double t247 = v_t247[0];
+    const double t248 = v_t247[1];
+    const double t249 = v_t247[2];
+    const double t250 = v_t247[3];
+    #else
+    const double t247 = t76*t151;
+    const double t248 = t76*t152;
+    const double t249 = t76*t153;
+    const double t250 = t76*t154;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t251 = (((derive_vd){t76, t76, t76, t76}) * v_t155);
+    const double t251 = v_t251[0];
+    const double t252 = v_t251[1];
+    const double t253 = v_t251[2];
+    const double t254 = v_t251[3];
+    #else
+    const double t251 = t76*t155;
+    const double t252 = t76*t156;
+    const double t253 = t76*t157;
+    const double t254 = t76*t158;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t255 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t143, DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t127, DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t111, DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t95, DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t79, DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){x[0], x[1], x[2], x[3]})))))));
+    const double t255 = v_t255[0];
+    const double t256 = v_t255[1];
+    const double t257 = v_t255[2];
+    const double t258 = v_t255[3];
+    #else
+    const double t255 = DERIVE_FNMA(t78, t143, DERIVE_FNMA(t75, t127, DERIVE_FNMA(t70, t111, DERIVE_FNMA(t62, t95, DERIVE_FNMA(t50, t79, DERIVE_FNMA(t33, P[112], x[0]))))));
+    const double t256 = DERIVE_FNMA(t78, t144, DERIVE_FNMA(t75, t128, DERIVE_FNMA(t70, t112, DERIVE_FNMA(t62, t96, DERIVE_FNMA(t50, t80, DERIVE_FNMA(t33, P[113], x[1]))))));
+    const double t257 = DERIVE_FNMA(t78, t145, DERIVE_FNMA(t75, t129, DERIVE_FNMA(t70, t113, DERIVE_FNMA(t62, t97, DERIVE_FNMA(t50, t81, DERIVE_FNMA(t33, P[114], x[2]))))));
+    const double t258 = DERIVE_FNMA(t78, t146, DERIVE_FNMA(t75, t130, DERIVE_FNMA(t70, t114, DERIVE_FNMA(t62, t98, DERIVE_FNMA(t50, t82, DERIVE_FNMA(t33, P[115], x[3]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t259 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t147, DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t131, DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t115, DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t99, DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t83, DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){x[4], x[5], x[6], x[7]})))))));
+    *(derive_vd_unaligned *)&x_new[4] = v_t259;
+    #else
+    const double t259 = DERIVE_FNMA(t78, t147, DERIVE_FNMA(t75, t131, DERIVE_FNMA(t70, t115, DERIVE_FNMA(t62, t99, DERIVE_FNMA(t50, t83, DERIVE_FNMA(t33, P[116], x[4]))))));
+    const double t260 = DERIVE_FNMA(t78, t148, DERIVE_FNMA(t75, t132, DERIVE_FNMA(t70, t116, DERIVE_FNMA(t62, t100, DERIVE_FNMA(t50, t84, DERIVE_FNMA(t33, P[117], x[5]))))));
+    const double t261 = DERIVE_FNMA(t78, t149, DERIVE_FNMA(t75, t133, DERIVE_FNMA(t70, t117, DERIVE_FNMA(t62, t101, DERIVE_FNMA(t50, t85, DERIVE_FNMA(t33, P[118], x[6]))))));
+    const double t262 = DERIVE_FNMA(t78, t150, DERIVE_FNMA(t75, t134, DERIVE_FNMA(t70, t118, DERIVE_FNMA(t62, t102, DERIVE_FNMA(t50, t86, DERIVE_FNMA(t33, P[119], x[7]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t263 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t151, DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t135, DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t119, DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t103, DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t87, DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){x[8], x[9], x[10], x[11]})))))));
+    *(derive_vd_unaligned *)&x_new[8] = v_t263;
+    #else
+    const double t263 = DERIVE_FNMA(t78, t151, DERIVE_FNMA(t75, t135, DERIVE_FNMA(t70, t119, DERIVE_FNMA(t62, t103, DERIVE_FNMA(t50, t87, DERIVE_FNMA(t33, P[120], x[8]))))));
+    const double t264 = DERIVE_FNMA(t78, t152, DERIVE_FNMA(t75, t136, DERIVE_FNMA(t70, t120, DERIVE_FNMA(t62, t104, DERIVE_FNMA(t50, t88, DERIVE_FNMA(t33, P[121], x[9]))))));
+    const double t265 = DERIVE_FNMA(t78, t153, DERIVE_FNMA(t75, t137, DERIVE_FNMA(t70, t121, DERIVE_FNMA(t62, t105, DERIVE_FNMA(t50, t89, DERIVE_FNMA(t33, P[122], x[10]))))));
+    const double t266 = DERIVE_FNMA(t78, t154, DERIVE_FNMA(t75, t138, DERIVE_FNMA(t70, t122, DERIVE_FNMA(t62, t106, DERIVE_FNMA(t50, t90, DERIVE_FNMA(t33, P[123], x[11]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t267 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t155, DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t139, DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t123, DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t107, DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t91, DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){x[12], x[13], x[14], x[15]})))))));
+    *(derive_vd_unaligned *)&x_new[12] = v_t267;
+    #else
+    const double t267 = DERIVE_FNMA(t78, t155, DERIVE_FNMA(t75, t139, DERIVE_FNMA(t70, t123, DERIVE_FNMA(t62, t107, DERIVE_FNMA(t50, t91, DERIVE_FNMA(t33, P[124], x[12]))))));
+    const double t268 = DERIVE_FNMA(t78, t156, DERIVE_FNMA(t75, t140, DERIVE_FNMA(t70, t124, DERIVE_FNMA(t62, t108, DERIVE_FNMA(t50, t92, DERIVE_FNMA(t33, P[125], x[13]))))));
+    const double t269 = DERIVE_FNMA(t78, t157, DERIVE_FNMA(t75, t141, DERIVE_FNMA(t70, t125, DERIVE_FNMA(t62, t109, DERIVE_FNMA(t50, t93, DERIVE_FNMA(t33, P[126], x[14]))))));
+    const double t270 = DERIVE_FNMA(t78, t158, DERIVE_FNMA(t75, t142, DERIVE_FNMA(t70, t126, DERIVE_FNMA(t62, t110, DERIVE_FNMA(t50, t94, DERIVE_FNMA(t33, P[127], x[15]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t143, DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t127, DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t111, DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t95, DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t79, DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[0], P[1], P[2], P[3]})))))));
+    #else
+    const double t271 = DERIVE_FMA(t239, t143, DERIVE_FMA(t223, t127, DERIVE_FMA(t207, t111, DERIVE_FMA(t191, t95, DERIVE_FMA(t175, t79, DERIVE_FMA(t159, P[112], P[0]))))));
+    const double t272 = DERIVE_FMA(t239, t144, DERIVE_FMA(t223, t128, DERIVE_FMA(t207, t112, DERIVE_FMA(t191, t96, DERIVE_FMA(t175, t80, DERIVE_FMA(t159, P[113], P[1]))))));
+    const double t273 = DERIVE_FMA(t239, t145, DERIVE_FMA(t223, t129, DERIVE_FMA(t207, t113, DERIVE_FMA(t191, t97, DERIVE_FMA(t175, t81, DERIVE_FMA(t159, P[114], P[2]))))));
+    const double t274 = DERIVE_FMA(t239, t146, DERIVE_FMA(t223, t130, DERIVE_FMA(t207, t114, DERIVE_FMA(t191, t98, DERIVE_FMA(t175, t82, DERIVE_FMA(t159, P[115], P[3]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t147, DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t131, DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t115, DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t99, DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t83, DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[4], P[5], P[6], P[7]})))))));
+    #else
+    const double t275 = DERIVE_FMA(t239, t147, DERIVE_FMA(t223, t131, DERIVE_FMA(t207, t115, DERIVE_FMA(t191, t99, DERIVE_FMA(t175, t83, DERIVE_FMA(t159, P[116], P[4]))))));
+    const double t276 = DERIVE_FMA(t239, t148, DERIVE_FMA(t223, t132, DERIVE_FMA(t207, t116, DERIVE_FMA(t191, t100, DERIVE_FMA(t175, t84, DERIVE_FMA(t159, P[117], P[5]))))));
+    const double t277 = DERIVE_FMA(t239, t149, DERIVE_FMA(t223, t133, DERIVE_FMA(t207, t117, DERIVE_FMA(t191, t101, DERIVE_FMA(t175, t85, DERIVE_FMA(t159, P[118], P[6]))))));
+    const double t278 = DERIVE_FMA(t239, t150, DERIVE_FMA(t223, t134, DERIVE_FMA(t207, t118, DERIVE_FMA(t191, t102, DERIVE_FMA(t175, t86, DERIVE_FMA(t159, P[119], P[7]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t151, DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t135, DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t119, DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t103, DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t87, DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[8], P[9], P[10], P[11]})))))));
+    #else
+    const double t279 = DERIVE_FMA(t239, t151, DERIVE_FMA(t223, t135, DERIVE_FMA(t207, t119, DERIVE_FMA(t191, t103, DERIVE_FMA(t175, t87, DERIVE_FMA(t159, P[120], P[8]))))));
+    const double t280 = DERIVE_FMA(t239, t152, DERIVE_FMA(t223, t136, DERIVE_FMA(t207, t120, DERIVE_FMA(t191, t104, DERIVE_FMA(t175, t88, DERIVE_FMA(t159, P[121], P[9]))))));
+    const double t281 = DERIVE_FMA(t239, t153, DERIVE_FMA(t223, t137, DERIVE_FMA(t207, t121, DERIVE_FMA(t191, t105, DERIVE_FMA(t175, t89, DERIVE_FMA(t159, P[122], P[10]))))));
+    const double t282 = DERIVE_FMA(t239, t154, DERIVE_FMA(t223, t138, DERIVE_FMA(t207, t122, DERIVE_FMA(t191, t106, DERIVE_FMA(t175, t90, DERIVE_FMA(t159, P[123], P[11]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t155, DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t139, DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t123, DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t107, DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t91, DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[12], P[13], P[14], P[15]})))))));
+    #else
+    const double t283 = DERIVE_FMA(t239, t155, DERIVE_FMA(t223, t139, DERIVE_FMA(t207, t123, DERIVE_FMA(t191, t107, DERIVE_FMA(t175, t91, DERIVE_FMA(t159, P[124], P[12]))))));
+    const double t284 = DERIVE_FMA(t239, t156, DERIVE_FMA(t223, t140, DERIVE_FMA(t207, t124, DERIVE_FMA(t191, t108, DERIVE_FMA(t175, t92, DERIVE_FMA(t159, P[125], P[13]))))));
+    const double t285 = DERIVE_FMA(t239, t157, DERIVE_FMA(t223, t141, DERIVE_FMA(t207, t125, DERIVE_FMA(t191, t109, DERIVE_FMA(t175, t93, DERIVE_FMA(t159, P[126], P[14]))))));
+    const double t286 = DERIVE_FMA(t239, t158, DERIVE_FMA(t223, t142, DERIVE_FMA(t207, t126, DERIVE_FMA(t191, t110, DERIVE_FMA(t175, t94, DERIVE_FMA(t159, P[127], P[15]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t143, DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t127, DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t111, DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t95, DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t79, DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[16], P[17], P[18], P[19]})))))));
+    #else
+    const double t288 = DERIVE_FMA(t240, t144, DERIVE_FMA(t224, t128, DERIVE_FMA(t208, t112, DERIVE_FMA(t192, t96, DERIVE_FMA(t176, t80, DERIVE_FMA(t160, P[113], P[17]))))));
+    const double t289 = DERIVE_FMA(t240, t145, DERIVE_FMA(t224, t129, DERIVE_FMA(t208, t113, DERIVE_FMA(t192, t97, DERIVE_FMA(t176, t81, DERIVE_FMA(t160, P[114], P[18]))))));
+    const double t290 = DERIVE_FMA(t240, t146, DERIVE_FMA(t224, t130, DERIVE_FMA(t208, t114, DERIVE_FMA(t192, t98, DERIVE_FMA(t176, t82, DERIVE_FMA(t160, P[115], P[19]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t147, DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t131, DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t115, DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t99, DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t83, DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[20], P[21], P[22], P[23]})))))));
+    #else
+    const double t291 = DERIVE_FMA(t240, t147, DERIVE_FMA(t224, t131, DERIVE_FMA(t208, t115, DERIVE_FMA(t192, t99, DERIVE_FMA(t176, t83, DERIVE_FMA(t160, P[116], P[20]))))));
+    const double t292 = DERIVE_FMA(t240, t148, DERIVE_FMA(t224, t132, DERIVE_FMA(t208, t116, DERIVE_FMA(t192, t100, DERIVE_FMA(t176, t84, DERIVE_FMA(t160, P[117], P[21]))))));
+    const double t293 = DERIVE_FMA(t240, t149, DERIVE_FMA(t224, t133, DERIVE_FMA(t208, t117, DERIVE_FMA(t192, t101, DERIVE_FMA(t176, t85, DERIVE_FMA(t160, P[118], P[22]))))));
+    const double t294 = DERIVE_FMA(t240, t150, DERIVE_FMA(t224, t134, DERIVE_FMA(t208, t118, DERIVE_FMA(t192, t102, DERIVE_FMA(t176, t86, DERIVE_FMA(t160, P[119], P[23]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t151, DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t135, DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t119, DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t103, DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t87, DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[24], P[25], P[26], P[27]})))))));
+    #else
+    const double t295 = DERIVE_FMA(t240, t151, DERIVE_FMA(t224, t135, DERIVE_FMA(t208, t119, DERIVE_FMA(t192, t103, DERIVE_FMA(t176, t87, DERIVE_FMA(t160, P[120], P[24]))))));
+    const double t296 = DERIVE_FMA(t240, t152, DERIVE_FMA(t224, t136, DERIVE_FMA(t208, t120, DERIVE_FMA(t192, t104, DERIVE_FMA(t176, t88, DERIVE_FMA(t160, P[121], P[25]))))));
+    const double t297 = DERIVE_FMA(t240, t153, DERIVE_FMA(t224, t137, DERIVE_FMA(t208, t121, DERIVE_FMA(t192, t105, DERIVE_FMA(t176, t89, DERIVE_FMA(t160, P[122], P[26]))))));
+    const double t298 = DERIVE_FMA(t240, t154, DERIVE_FMA(t224, t138, DERIVE_FMA(t208, t122, DERIVE_FMA(t192, t106, DERIVE_FMA(t176, t90, DERIVE_FMA(t160, P[123], P[27]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t155, DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t139, DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t123, DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t107, DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t91, DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[28], P[29], P[30], P[31]})))))));
+    #else
+    const double t299 = DERIVE_FMA(t240, t155, DERIVE_FMA(t224, t139, DERIVE_FMA(t208, t123, DERIVE_FMA(t192, t107, DERIVE_FMA(t176, t91, DERIVE_FMA(t160, P[124], P[28]))))));
+    const double t300 = DERIVE_FMA(t240, t156, DERIVE_FMA(t224, t140, DERIVE_FMA(t208, t124, DERIVE_FMA(t192, t108, DERIVE_FMA(t176, t92, DERIVE_FMA(t160, P[125], P[29]))))));
+    const double t301 = DERIVE_FMA(t240, t157, DERIVE_FMA(t224, t141, DERIVE_FMA(t208, t125, DERIVE_FMA(t192, t109, DERIVE_FMA(t176, t93, DERIVE_FMA(t160, P[126], P[30]))))));
+    const double t302 = DERIVE_FMA(t240, t158, DERIVE_FMA(t224, t142, DERIVE_FMA(t208, t126, DERIVE_FMA(t192, t110, DERIVE_FMA(t176, t94, DERIVE_FMA(t160, P[127], P[31]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t143, DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t127, DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t111, DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t95, DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t79, DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[32], P[33], P[34], P[35]})))))));
+    #else
+    const double t305 = DERIVE_FMA(t241, t145, DERIVE_FMA(t225, t129, DERIVE_FMA(t209, t113, DERIVE_FMA(t193, t97, DERIVE_FMA(t177, t81, DERIVE_FMA(t161, P[114], P[34]))))));
+    const double t306 = DERIVE_FMA(t241, t146, DERIVE_FMA(t225, t130, DERIVE_FMA(t209, t114, DERIVE_FMA(t193, t98, DERIVE_FMA(t177, t82, DERIVE_FMA(t161, P[115], P[35]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t147, DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t131, DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t115, DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t99, DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t83, DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[36], P[37], P[38], P[39]})))))));
+    #else
+    const double t307 = DERIVE_FMA(t241, t147, DERIVE_FMA(t225, t131, DERIVE_FMA(t209, t115, DERIVE_FMA(t193, t99, DERIVE_FMA(t177, t83, DERIVE_FMA(t161, P[116], P[36]))))));
+    const double t308 = DERIVE_FMA(t241, t148, DERIVE_FMA(t225, t132, DERIVE_FMA(t209, t116, DERIVE_FMA(t193, t100, DERIVE_FMA(t177, t84, DERIVE_FMA(t161, P[117], P[37]))))));
+    const double t309 = DERIVE_FMA(t241, t149, DERIVE_FMA(t225, t133, DERIVE_FMA(t209, t117, DERIVE_FMA(t193, t101, DERIVE_FMA(t177, t85, DERIVE_FMA(t161, P[118], P[38]))))));
+    const double t310 = DERIVE_FMA(t241, t150, DERIVE_FMA(t225, t134, DERIVE_FMA(t209, t118, DERIVE_FMA(t193, t102, DERIVE_FMA(t177, t86, DERIVE_FMA(t161, P[119], P[39]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t151, DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t135, DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t119, DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t103, DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t87, DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[40], P[41], P[42], P[43]})))))));
+    #else
+    const double t311 = DERIVE_FMA(t241, t151, DERIVE_FMA(t225, t135, DERIVE_FMA(t209, t119, DERIVE_FMA(t193, t103, DERIVE_FMA(t177, t87, DERIVE_FMA(t161, P[120], P[40]))))));
+    const double t312 = DERIVE_FMA(t241, t152, DERIVE_FMA(t225, t136, DERIVE_FMA(t209, t120, DERIVE_FMA(t193, t104, DERIVE_FMA(t177, t88, DERIVE_FMA(t161, P[121], P[41]))))));
+    const double t313 = DERIVE_FMA(t241, t153, DERIVE_FMA(t225, t137, DERIVE_FMA(t209, t121, DERIVE_FMA(t193, t105, DERIVE_FMA(t177, t89, DERIVE_FMA(t161, P[122], P[42]))))));
+    const double t314 = DERIVE_FMA(t241, t154, DERIVE_FMA(t225, t138, DERIVE_FMA(t209, t122, DERIVE_FMA(t193, t106, DERIVE_FMA(t177, t90, DERIVE_FMA(t161, P[123], P[43]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t155, DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t139, DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t123, DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t107, DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t91, DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[44], P[45], P[46], P[47]})))))));
+    #else
+    const double t315 = DERIVE_FMA(t241, t155, DERIVE_FMA(t225, t139, DERIVE_FMA(t209, t123, DERIVE_FMA(t193, t107, DERIVE_FMA(t177, t91, DERIVE_FMA(t161, P[124], P[44]))))));
+    const double t316 = DERIVE_FMA(t241, t156, DERIVE_FMA(t225, t140, DERIVE_FMA(t209, t124, DERIVE_FMA(t193, t108, DERIVE_FMA(t177, t92, DERIVE_FMA(t161, P[125], P[45]))))));
+    const double t317 = DERIVE_FMA(t241, t157, DERIVE_FMA(t225, t141, DERIVE_FMA(t209, t125, DERIVE_FMA(t193, t109, DERIVE_FMA(t177, t93, DERIVE_FMA(t161, P[126], P[46]))))));
+    const double t318 = DERIVE_FMA(t241, t158, DERIVE_FMA(t225, t142, DERIVE_FMA(t209, t126, DERIVE_FMA(t193, t110, DERIVE_FMA(t177, t94, DERIVE_FMA(t161, P[127], P[47]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t143, DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t127, DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t111, DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t95, DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t79, DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[48], P[49], P[50], P[51]})))))));
+    const derive_vd tr_v_t271_0 = __builtin_shufflevector(v_t271, v_t287, 0, 4, 2, 6);
+    const derive_vd tr_v_t271_1 = __builtin_shufflevector(v_t271, v_t287, 1, 5, 3, 7);
+    const derive_vd tr_v_t271_2 = __builtin_shufflevector(v_t303, v_t319, 0, 4, 2, 6);
+    const derive_vd tr_v_t271_3 = __builtin_shufflevector(v_t303, v_t319, 1, 5, 3, 7);
+    const derive_vd tr_v_t271_c1 = __builtin_shufflevector(tr_v_t271_1, tr_v_t271_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t271_c2 = __builtin_shufflevector(tr_v_t271_0, tr_v_t271_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t271_c3 = __builtin_shufflevector(tr_v_t271_1, tr_v_t271_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[0] = v_t271;
+    *(derive_vd_unaligned *)&P_new[16] = __builtin_shufflevector(v_t287, tr_v_t271_c1, 4, 1, 2, 3);
+    *(derive_vd_unaligned *)&P_new[32] = __builtin_shufflevector(v_t303, tr_v_t271_c2, 4, 5, 2, 3);
+    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t319, tr_v_t271_c3, 4, 5, 6, 3);
+    #else
+    const double t322 = DERIVE_FMA(t242, t146, DERIVE_FMA(t226, t130, DERIVE_FMA(t210, t114, DERIVE_FMA(t194, t98, DERIVE_FMA(t178, t82, DERIVE_FMA(t162, P[115], P[51]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t147, DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t131, DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t115, DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t99, DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t83, DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[52], P[53], P[54], P[55]})))))));
+    const derive_vd tr_v_t275_0 = __builtin_shufflevector(v_t275, v_t291, 0, 4, 2, 6);
+    const derive_vd tr_v_t275_1 = __builtin_shufflevector(v_t275, v_t291, 1, 5, 3, 7);
+    const derive_vd tr_v_t275_2 = __builtin_shufflevector(v_t307, v_t323, 0, 4, 2, 6);
+    const derive_vd tr_v_t275_3 = __builtin_shufflevector(v_t307, v_t323, 1, 5, 3, 7);
+    const derive_vd tr_v_t275_c0 = __builtin_shufflevector(tr_v_t275_0, tr_v_t275_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t275_c1 = __builtin_shufflevector(tr_v_t275_1, tr_v_t275_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t275_c2 = __builtin_shufflevector(tr_v_t275_0, tr_v_t275_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t275_c3 = __builtin_shufflevector(tr_v_t275_1, tr_v_t275_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t275;
+    *(derive_vd_unaligned *)&P_new[20] = v_t291;
+    *(derive_vd_unaligned *)&P_new[36] = v_t307;
+    *(derive_vd_unaligned *)&P_new[52] = v_t323;
+    *(derive_vd_unaligned *)&P_new[64] = tr_v_t275_c0;
+    *(derive_vd_unaligned *)&P_new[80] = tr_v_t275_c1;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t275_c2;
+    *(derive_vd_unaligned *)&P_new[112] = tr_v_t275_c3;
+    #else
+    const double t323 = DERIVE_FMA(t242, t147, DERIVE_FMA(t226, t131, DERIVE_FMA(t210, t115, DERIVE_FMA(t194, t99, DERIVE_FMA(t178, t83, DERIVE_FMA(t162, P[116], P[52]))))));
+    const double t324 = DERIVE_FMA(t242, t148, DERIVE_FMA(t226, t132, DERIVE_FMA(t210, t116, DERIVE_FMA(t194, t100, DERIVE_FMA(t178, t84, DERIVE_FMA(t162, P[117], P[53]))))));
+    const double t325 = DERIVE_FMA(t242, t149, DERIVE_FMA(t226, t133, DERIVE_FMA(t210, t117, DERIVE_FMA(t194, t101, DERIVE_FMA(t178, t85, DERIVE_FMA(t162, P[118], P[54]))))));
+    const double t326 = DERIVE_FMA(t242, t150, DERIVE_FMA(t226, t134, DERIVE_FMA(t210, t118, DERIVE_FMA(t194, t102, DERIVE_FMA(t178, t86, DERIVE_FMA(t162, P[119], P[55]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t327 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t151, DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t135, DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t119, DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t103, DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t87, DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[56], P[57], P[58], P[59]})))))));
+    const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t295, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t295, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t311, v_t327, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_3 = __builtin_shufflevector(v_t311, v_t327, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_c0 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c1 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c2 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t279_c3 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t279;
+    *(derive_vd_unaligned *)&P_new[24] = v_t295;
+    *(derive_vd_unaligned *)&P_new[40] = v_t311;
+    *(derive_vd_unaligned *)&P_new[56] = v_t327;
+    *(derive_vd_unaligned *)&P_new[128] = tr_v_t279_c0;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t279_c1;
+    *(derive_vd_unaligned *)&P_new[160] = tr_v_t279_c2;
+    *(derive_vd_unaligned *)&P_new[176] = tr_v_t279_c3;
+    #else
+    const double t327 = DERIVE_FMA(t242, t151, DERIVE_FMA(t226, t135, DERIVE_FMA(t210, t119, DERIVE_FMA(t194, t103, DERIVE_FMA(t178, t87, DERIVE_FMA(t162, P[120], P[56]))))));
+    const double t328 = DERIVE_FMA(t242, t152, DERIVE_FMA(t226, t136, DERIVE_FMA(t210, t120, DERIVE_FMA(t194, t104, DERIVE_FMA(t178, t88, DERIVE_FMA(t162, P[121], P[57]))))));
+    const double t329 = DERIVE_FMA(t242, t153, DERIVE_FMA(t226, t137, DERIVE_FMA(t210, t121, DERIVE_FMA(t194, t105, DERIVE_FMA(t178, t89, DERIVE_FMA(t162, P[122], P[58]))))));
+    const double t330 = DERIVE_FMA(t242, t154, DERIVE_FMA(t226, t138, DERIVE_FMA(t210, t122, DERIVE_FMA(t194, t106, DERIVE_FMA(t178, t90, DERIVE_FMA(t162, P[123], P[59]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t155, DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t139, DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t123, DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t107, DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t91, DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[60], P[61], P[62], P[63]})))))));
+    const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t299, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t299, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t315, v_t331, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_3 = __builtin_shufflevector(v_t315, v_t331, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_c0 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c1 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c2 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t283_c3 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t283;
+    *(derive_vd_unaligned *)&P_new[28] = v_t299;
+    *(derive_vd_unaligned *)&P_new[44] = v_t315;
+    *(derive_vd_unaligned *)&P_new[60] = v_t331;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t283_c0;
+    *(derive_vd_unaligned *)&P_new[208] = tr_v_t283_c1;
+    *(derive_vd_unaligned *)&P_new[224] = tr_v_t283_c2;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t283_c3;
+    #else
+    const double t331 = DERIVE_FMA(t242, t155, DERIVE_FMA(t226, t139, DERIVE_FMA(t210, t123, DERIVE_FMA(t194, t107, DERIVE_FMA(t178, t91, DERIVE_FMA(t162, P[124], P[60]))))));
+    const double t332 = DERIVE_FMA(t242, t156, DERIVE_FMA(t226, t140, DERIVE_FMA(t210, t124, DERIVE_FMA(t194, t108, DERIVE_FMA(t178, t92, DERIVE_FMA(t162, P[125], P[61]))))));
+    const double t333 = DERIVE_FMA(t242, t157, DERIVE_FMA(t226, t141, DERIVE_FMA(t210, t125, DERIVE_FMA(t194, t109, DERIVE_FMA(t178, t93, DERIVE_FMA(t162, P[126], P[62]))))));
+    const double t334 = DERIVE_FMA(t242, t158, DERIVE_FMA(t226, t142, DERIVE_FMA(t210, t126, DERIVE_FMA(t194, t110, DERIVE_FMA(t178, t94, DERIVE_FMA(t162, P[127], P[63]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t147, DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t131, DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t115, DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t99, DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t83, DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]})))))));
+    #else
+    const double t335 = DERIVE_FMA(t243, t147, DERIVE_FMA(t227, t131, DERIVE_FMA(t211, t115, DERIVE_FMA(t195, t99, DERIVE_FMA(t179, t83, DERIVE_FMA(t163, P[116], P[68]))))));
+    const double t336 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, DERIVE_FMA(t211, t116, DERIVE_FMA(t195, t100, DERIVE_FMA(t179, t84, DERIVE_FMA(t163, P[117], P[69]))))));
+    const double t337 = DERIVE_FMA(t243, t149, DERIVE_FMA(t227, t133, DERIVE_FMA(t211, t117, DERIVE_FMA(t195, t101, DERIVE_FMA(t179, t85, DERIVE_FMA(t163, P[118], P[70]))))));
+    const double t338 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, DERIVE_FMA(t211, t118, DERIVE_FMA(t195, t102, DERIVE_FMA(t179, t86, DERIVE_FMA(t163, P[119], P[71]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t151, DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t135, DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t119, DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t103, DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t87, DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]})))))));
+    #else
+    const double t339 = DERIVE_FMA(t243, t151, DERIVE_FMA(t227, t135, DERIVE_FMA(t211, t119, DERIVE_FMA(t195, t103, DERIVE_FMA(t179, t87, DERIVE_FMA(t163, P[120], P[72]))))));
+    const double t340 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, DERIVE_FMA(t211, t120, DERIVE_FMA(t195, t104, DERIVE_FMA(t179, t88, DERIVE_FMA(t163, P[121], P[73]))))));
+    const double t341 = DERIVE_FMA(t243, t153, DERIVE_FMA(t227, t137, DERIVE_FMA(t211, t121, DERIVE_FMA(t195, t105, DERIVE_FMA(t179, t89, DERIVE_FMA(t163, P[122], P[74]))))));
+    const double t342 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, DERIVE_FMA(t211, t122, DERIVE_FMA(t195, t106, DERIVE_FMA(t179, t90, DERIVE_FMA(t163, P[123], P[75]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t155, DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t139, DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t123, DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t107, DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t91, DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]})))))));
+    #else
+    const double t343 = DERIVE_FMA(t243, t155, DERIVE_FMA(t227, t139, DERIVE_FMA(t211, t123, DERIVE_FMA(t195, t107, DERIVE_FMA(t179, t91, DERIVE_FMA(t163, P[124], P[76]))))));
+    const double t344 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, DERIVE_FMA(t211, t124, DERIVE_FMA(t195, t108, DERIVE_FMA(t179, t92, DERIVE_FMA(t163, P[125], P[77]))))));
+    const double t345 = DERIVE_FMA(t243, t157, DERIVE_FMA(t227, t141, DERIVE_FMA(t211, t125, DERIVE_FMA(t195, t109, DERIVE_FMA(t179, t93, DERIVE_FMA(t163, P[126], P[78]))))));
+    const double t346 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, DERIVE_FMA(t211, t126, DERIVE_FMA(t195, t110, DERIVE_FMA(t179, t94, DERIVE_FMA(t163, P[127], P[79]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t147, DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t131, DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t115, DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t99, DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t83, DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]})))))));
+    #else
+    const double t348 = DERIVE_FMA(t244, t148, DERIVE_FMA(t228, t132, DERIVE_FMA(t212, t116, DERIVE_FMA(t196, t100, DERIVE_FMA(t180, t84, DERIVE_FMA(t164, P[117], P[85]))))));
+    const double t349 = DERIVE_FMA(t244, t149, DERIVE_FMA(t228, t133, DERIVE_FMA(t212, t117, DERIVE_FMA(t196, t101, DERIVE_FMA(t180, t85, DERIVE_FMA(t164, P[118], P[86]))))));
+    const double t350 = DERIVE_FMA(t244, t150, DERIVE_FMA(t228, t134, DERIVE_FMA(t212, t118, DERIVE_FMA(t196, t102, DERIVE_FMA(t180, t86, DERIVE_FMA(t164, P[119], P[87]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t351 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t151, DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t135, DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t119, DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t103, DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t87, DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]})))))));
+    #else
+    const double t351 = DERIVE_FMA(t244, t151, DERIVE_FMA(t228, t135, DERIVE_FMA(t212, t119, DERIVE_FMA(t196, t103, DERIVE_FMA(t180, t87, DERIVE_FMA(t164, P[120], P[88]))))));
+    const double t352 = DERIVE_FMA(t244, t152, DERIVE_FMA(t228, t136, DERIVE_FMA(t212, t120, DERIVE_FMA(t196, t104, DERIVE_FMA(t180, t88, DERIVE_FMA(t164, P[121], P[89]))))));
+    const double t353 = DERIVE_FMA(t244, t153, DERIVE_FMA(t228, t137, DERIVE_FMA(t212, t121, DERIVE_FMA(t196, t105, DERIVE_FMA(t180, t89, DERIVE_FMA(t164, P[122], P[90]))))));
+    const double t354 = DERIVE_FMA(t244, t154, DERIVE_FMA(t228, t138, DERIVE_FMA(t212, t122, DERIVE_FMA(t196, t106, DERIVE_FMA(t180, t90, DERIVE_FMA(t164, P[123], P[91]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t155, DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t139, DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t123, DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t107, DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t91, DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]})))))));
+    #else
+    const double t355 = DERIVE_FMA(t244, t155, DERIVE_FMA(t228, t139, DERIVE_FMA(t212, t123, DERIVE_FMA(t196, t107, DERIVE_FMA(t180, t91, DERIVE_FMA(t164, P[124], P[92]))))));
+    const double t356 = DERIVE_FMA(t244, t156, DERIVE_FMA(t228, t140, DERIVE_FMA(t212, t124, DERIVE_FMA(t196, t108, DERIVE_FMA(t180, t92, DERIVE_FMA(t164, P[125], P[93]))))));
+    const double t357 = DERIVE_FMA(t244, t157, DERIVE_FMA(t228, t141, DERIVE_FMA(t212, t125, DERIVE_FMA(t196, t109, DERIVE_FMA(t180, t93, DERIVE_FMA(t164, P[126], P[94]))))));
+    const double t358 = DERIVE_FMA(t244, t158, DERIVE_FMA(t228, t142, DERIVE_FMA(t212, t126, DERIVE_FMA(t196, t110, DERIVE_FMA(t180, t94, DERIVE_FMA(t164, P[127], P[95]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t147, DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t131, DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t115, DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t99, DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t83, DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]})))))));
+    #else
+    const double t361 = DERIVE_FMA(t245, t149, DERIVE_FMA(t229, t133, DERIVE_FMA(t213, t117, DERIVE_FMA(t197, t101, DERIVE_FMA(t181, t85, DERIVE_FMA(t165, P[118], P[102]))))));
+    const double t362 = DERIVE_FMA(t245, t150, DERIVE_FMA(t229, t134, DERIVE_FMA(t213, t118, DERIVE_FMA(t197, t102, DERIVE_FMA(t181, t86, DERIVE_FMA(t165, P[119], P[103]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t151, DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t135, DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t119, DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t103, DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t87, DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]})))))));
+    #else
+    const double t363 = DERIVE_FMA(t245, t151, DERIVE_FMA(t229, t135, DERIVE_FMA(t213, t119, DERIVE_FMA(t197, t103, DERIVE_FMA(t181, t87, DERIVE_FMA(t165, P[120], P[104]))))));
+    const double t364 = DERIVE_FMA(t245, t152, DERIVE_FMA(t229, t136, DERIVE_FMA(t213, t120, DERIVE_FMA(t197, t104, DERIVE_FMA(t181, t88, DERIVE_FMA(t165, P[121], P[105]))))));
+    const double t365 = DERIVE_FMA(t245, t153, DERIVE_FMA(t229, t137, DERIVE_FMA(t213, t121, DERIVE_FMA(t197, t105, DERIVE_FMA(t181, t89, DERIVE_FMA(t165, P[122], P[106]))))));
+    const double t366 = DERIVE_FMA(t245, t154, DERIVE_FMA(t229, t138, DERIVE_FMA(t213, t122, DERIVE_FMA(t197, t106, DERIVE_FMA(t181, t90, DERIVE_FMA(t165, P[123], P[107]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t155, DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t139, DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t123, DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t107, DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t91, DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]})))))));
+    #else
+    const double t367 = DERIVE_FMA(t245, t155, DERIVE_FMA(t229, t139, DERIVE_FMA(t213, t123, DERIVE_FMA(t197, t107, DERIVE_FMA(t181, t91, DERIVE_FMA(t165, P[124], P[108]))))));
+    const double t368 = DERIVE_FMA(t245, t156, DERIVE_FMA(t229, t140, DERIVE_FMA(t213, t124, DERIVE_FMA(t197, t108, DERIVE_FMA(t181, t92, DERIVE_FMA(t165, P[125], P[109]))))));
+    const double t369 = DERIVE_FMA(t245, t157, DERIVE_FMA(t229, t141, DERIVE_FMA(t213, t125, DERIVE_FMA(t197, t109, DERIVE_FMA(t181, t93, DERIVE_FMA(t165, P[126], P[110]))))));
+    const double t370 = DERIVE_FMA(t245, t158, DERIVE_FMA(t229, t142, DERIVE_FMA(t213, t126, DERIVE_FMA(t197, t110, DERIVE_FMA(t181, t94, DERIVE_FMA(t165, P[127], P[111]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t147, DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t131, DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t115, DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t99, DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t83, DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[116], P[117], P[118], P[119]})))))));
+    const derive_vd tr_v_t335_0 = __builtin_shufflevector(v_t335, v_t347, 0, 4, 2, 6);
+    const derive_vd tr_v_t335_1 = __builtin_shufflevector(v_t335, v_t347, 1, 5, 3, 7);
+    const derive_vd tr_v_t335_2 = __builtin_shufflevector(v_t359, v_t371, 0, 4, 2, 6);
+    const derive_vd tr_v_t335_3 = __builtin_shufflevector(v_t359, v_t371, 1, 5, 3, 7);
+    const derive_vd tr_v_t335_c1 = __builtin_shufflevector(tr_v_t335_1, tr_v_t335_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t335_c2 = __builtin_shufflevector(tr_v_t335_0, tr_v_t335_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t335_c3 = __builtin_shufflevector(tr_v_t335_1, tr_v_t335_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[68] = v_t335;
+    *(derive_vd_unaligned *)&P_new[84] = __builtin_shufflevector(v_t347, tr_v_t335_c1, 4, 1, 2, 3);
+    *(derive_vd_unaligned *)&P_new[100] = __builtin_shufflevector(v_t359, tr_v_t335_c2, 4, 5, 2, 3);
+    *(derive_vd_unaligned *)&P_new[116] = __builtin_shufflevector(v_t371, tr_v_t335_c3, 4, 5, 6, 3);
+    #else
+    const double t374 = DERIVE_FMA(t246, t150, DERIVE_FMA(t230, t134, DERIVE_FMA(t214, t118, DERIVE_FMA(t198, t102, DERIVE_FMA(t182, t86, DERIVE_FMA(t166, P[119], P[119]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t151, DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t135, DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t119, DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t103, DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t87, DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[120], P[121], P[122], P[123]})))))));
+    const derive_vd tr_v_t339_0 = __builtin_shufflevector(v_t339, v_t351, 0, 4, 2, 6);
+    const derive_vd tr_v_t339_1 = __builtin_shufflevector(v_t339, v_t351, 1, 5, 3, 7);
+    const derive_vd tr_v_t339_2 = __builtin_shufflevector(v_t363, v_t375, 0, 4, 2, 6);
+    const derive_vd tr_v_t339_3 = __builtin_shufflevector(v_t363, v_t375, 1, 5, 3, 7);
+    const derive_vd tr_v_t339_c0 = __builtin_shufflevector(tr_v_t339_0, tr_v_t339_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t339_c1 = __builtin_shufflevector(tr_v_t339_1, tr_v_t339_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t339_c2 = __builtin_shufflevector(tr_v_t339_0, tr_v_t339_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t339_c3 = __builtin_shufflevector(tr_v_t339_1, tr_v_t339_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[72] = v_t339;
+    *(derive_vd_unaligned *)&P_new[88] = v_t351;
+    *(derive_vd_unaligned *)&P_new[104] = v_t363;
+    *(derive_vd_unaligned *)&P_new[120] = v_t375;
+    *(derive_vd_unaligned *)&P_new[132] = tr_v_t339_c0;
+    *(derive_vd_unaligned *)&P_new[148] = tr_v_t339_c1;
+    *(derive_vd_unaligned *)&P_new[164] = tr_v_t339_c2;
+    *(derive_vd_unaligned *)&P_new[180] = tr_v_t339_c3;
+    #else
+    const double t375 = DERIVE_FMA(t246, t151, DERIVE_FMA(t230, t135, DERIVE_FMA(t214, t119, DERIVE_FMA(t198, t103, DERIVE_FMA(t182, t87, DERIVE_FMA(t166, P[120], P[120]))))));
+    const double t376 = DERIVE_FMA(t246, t152, DERIVE_FMA(t230, t136, DERIVE_FMA(t214, t120, DERIVE_FMA(t198, t104, DERIVE_FMA(t182, t88, DERIVE_FMA(t166, P[121], P[121]))))));
+    const double t377 = DERIVE_FMA(t246, t153, DERIVE_FMA(t230, t137, DERIVE_FMA(t214, t121, DERIVE_FMA(t198, t105, DERIVE_FMA(t182, t89, DERIVE_FMA(t166, P[122], P[122]))))));
+    const double t378 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, DERIVE_FMA(t166, P[123], P[123]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t155, DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t139, DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t123, DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t107, DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t91, DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]})))))));
+    const derive_vd tr_v_t343_0 = __builtin_shufflevector(v_t343, v_t355, 0, 4, 2, 6);
+    const derive_vd tr_v_t343_1 = __builtin_shufflevector(v_t343, v_t355, 1, 5, 3, 7);
+    const derive_vd tr_v_t343_2 = __builtin_shufflevector(v_t367, v_t379, 0, 4, 2, 6);
+    const derive_vd tr_v_t343_3 = __builtin_shufflevector(v_t367, v_t379, 1, 5, 3, 7);
+    const derive_vd tr_v_t343_c0 = __builtin_shufflevector(tr_v_t343_0, tr_v_t343_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t343_c1 = __builtin_shufflevector(tr_v_t343_1, tr_v_t343_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t343_c2 = __builtin_shufflevector(tr_v_t343_0, tr_v_t343_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t343_c3 = __builtin_shufflevector(tr_v_t343_1, tr_v_t343_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[76] = v_t343;
+    *(derive_vd_unaligned *)&P_new[92] = v_t355;
+    *(derive_vd_unaligned *)&P_new[108] = v_t367;
+    *(derive_vd_unaligned *)&P_new[124] = v_t379;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t343_c0;
+    *(derive_vd_unaligned *)&P_new[212] = tr_v_t343_c1;
+    *(derive_vd_unaligned *)&P_new[228] = tr_v_t343_c2;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t343_c3;
+    #else
+    const double t379 = DERIVE_FMA(t246, t155, DERIVE_FMA(t230, t139, DERIVE_FMA(t214, t123, DERIVE_FMA(t198, t107, DERIVE_FMA(t182, t91, DERIVE_FMA(t166, P[124], P[124]))))));
+    const double t380 = DERIVE_FMA(t246, t156, DERIVE_FMA(t230, t140, DERIVE_FMA(t214, t124, DERIVE_FMA(t198, t108, DERIVE_FMA(t182, t92, DERIVE_FMA(t166, P[125], P[125]))))));
+    const double t381 = DERIVE_FMA(t246, t157, DERIVE_FMA(t230, t141, DERIVE_FMA(t214, t125, DERIVE_FMA(t198, t109, DERIVE_FMA(t182, t93, DERIVE_FMA(t166, P[126], P[126]))))));
+    const double t382 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, DERIVE_FMA(t166, P[127], P[127]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t151, DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t135, DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t119, DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t103, DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t87, DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]})))))));
+    #else
+    const double t383 = DERIVE_FMA(t247, t151, DERIVE_FMA(t231, t135, DERIVE_FMA(t215, t119, DERIVE_FMA(t199, t103, DERIVE_FMA(t183, t87, DERIVE_FMA(t167, P[120], P[136]))))));
+    const double t384 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, DERIVE_FMA(t183, t88, DERIVE_FMA(t167, P[121], P[137]))))));
+    const double t385 = DERIVE_FMA(t247, t153, DERIVE_FMA(t231, t137, DERIVE_FMA(t215, t121, DERIVE_FMA(t199, t105, DERIVE_FMA(t183, t89, DERIVE_FMA(t167, P[122], P[138]))))));
+    const double t386 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, DERIVE_FMA(t183, t90, DERIVE_FMA(t167, P[123], P[139]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t155, DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t139, DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t123, DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t107, DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t91, DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]})))))));
+    #else
+    const double t387 = DERIVE_FMA(t247, t155, DERIVE_FMA(t231, t139, DERIVE_FMA(t215, t123, DERIVE_FMA(t199, t107, DERIVE_FMA(t183, t91, DERIVE_FMA(t167, P[124], P[140]))))));
+    const double t388 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, DERIVE_FMA(t183, t92, DERIVE_FMA(t167, P[125], P[141]))))));
+    const double t389 = DERIVE_FMA(t247, t157, DERIVE_FMA(t231, t141, DERIVE_FMA(t215, t125, DERIVE_FMA(t199, t109, DERIVE_FMA(t183, t93, DERIVE_FMA(t167, P[126], P[142]))))));
+    const double t390 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, DERIVE_FMA(t183, t94, DERIVE_FMA(t167, P[127], P[143]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t151, DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t135, DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t119, DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t103, DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t87, DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]})))))));
+    #else
+    const double t392 = DERIVE_FMA(t248, t152, DERIVE_FMA(t232, t136, DERIVE_FMA(t216, t120, DERIVE_FMA(t200, t104, DERIVE_FMA(t184, t88, DERIVE_FMA(t168, P[121], P[153]))))));
+    const double t393 = DERIVE_FMA(t248, t153, DERIVE_FMA(t232, t137, DERIVE_FMA(t216, t121, DERIVE_FMA(t200, t105, DERIVE_FMA(t184, t89, DERIVE_FMA(t168, P[122], P[154]))))));
+    const double t394 = DERIVE_FMA(t248, t154, DERIVE_FMA(t232, t138, DERIVE_FMA(t216, t122, DERIVE_FMA(t200, t106, DERIVE_FMA(t184, t90, DERIVE_FMA(t168, P[123], P[155]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t155, DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t139, DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t123, DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t107, DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t91, DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]})))))));
+    #else
+    const double t395 = DERIVE_FMA(t248, t155, DERIVE_FMA(t232, t139, DERIVE_FMA(t216, t123, DERIVE_FMA(t200, t107, DERIVE_FMA(t184, t91, DERIVE_FMA(t168, P[124], P[156]))))));
+    const double t396 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, DERIVE_FMA(t200, t108, DERIVE_FMA(t184, t92, DERIVE_FMA(t168, P[125], P[157]))))));
+    const double t397 = DERIVE_FMA(t248, t157, DERIVE_FMA(t232, t141, DERIVE_FMA(t216, t125, DERIVE_FMA(t200, t109, DERIVE_FMA(t184, t93, DERIVE_FMA(t168, P[126], P[158]))))));
+    const double t398 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, DERIVE_FMA(t200, t110, DERIVE_FMA(t184, t94, DERIVE_FMA(t168, P[127], P[159]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t151, DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t135, DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t119, DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t103, DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t87, DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[168], P[169], P[170], P[171]})))))));
+    #else
+    const double t401 = DERIVE_FMA(t249, t153, DERIVE_FMA(t233, t137, DERIVE_FMA(t217, t121, DERIVE_FMA(t201, t105, DERIVE_FMA(t185, t89, DERIVE_FMA(t169, P[122], P[170]))))));
+    const double t402 = DERIVE_FMA(t249, t154, DERIVE_FMA(t233, t138, DERIVE_FMA(t217, t122, DERIVE_FMA(t201, t106, DERIVE_FMA(t185, t90, DERIVE_FMA(t169, P[123], P[171]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t155, DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t139, DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t123, DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t107, DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t91, DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[172], P[173], P[174], P[175]})))))));
+    #else
+    const double t403 = DERIVE_FMA(t249, t155, DERIVE_FMA(t233, t139, DERIVE_FMA(t217, t123, DERIVE_FMA(t201, t107, DERIVE_FMA(t185, t91, DERIVE_FMA(t169, P[124], P[172]))))));
+    const double t404 = DERIVE_FMA(t249, t156, DERIVE_FMA(t233, t140, DERIVE_FMA(t217, t124, DERIVE_FMA(t201, t108, DERIVE_FMA(t185, t92, DERIVE_FMA(t169, P[125], P[173]))))));
+    const double t405 = DERIVE_FMA(t249, t157, DERIVE_FMA(t233, t141, DERIVE_FMA(t217, t125, DERIVE_FMA(t201, t109, DERIVE_FMA(t185, t93, DERIVE_FMA(t169, P[126], P[174]))))));
+    const double t406 = DERIVE_FMA(t249, t158, DERIVE_FMA(t233, t142, DERIVE_FMA(t217, t126, DERIVE_FMA(t201, t110, DERIVE_FMA(t185, t94, DERIVE_FMA(t169, P[127], P[175]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t151, DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t135, DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t119, DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t103, DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t87, DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[184], P[185], P[186], P[187]})))))));
+    const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t391, 0, 4, 2, 6);
+    const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t391, 1, 5, 3, 7);
+    const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t399, v_t407, 0, 4, 2, 6);
+    const derive_vd tr_v_t383_3 = __builtin_shufflevector(v_t399, v_t407, 1, 5, 3, 7);
+    const derive_vd tr_v_t383_c1 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t383_c2 = __builtin_shufflevector(tr_v_t383_0, tr_v_t383_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t383_c3 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[136] = v_t383;
+    *(derive_vd_unaligned *)&P_new[152] = __builtin_shufflevector(v_t391, tr_v_t383_c1, 4, 1, 2, 3);
+    *(derive_vd_unaligned *)&P_new[168] = __builtin_shufflevector(v_t399, tr_v_t383_c2, 4, 5, 2, 3);
+    *(derive_vd_unaligned *)&P_new[184] = __builtin_shufflevector(v_t407, tr_v_t383_c3, 4, 5, 6, 3);
+    #else
+    const double t410 = DERIVE_FMA(t250, t154, DERIVE_FMA(t234, t138, DERIVE_FMA(t218, t122, DERIVE_FMA(t202, t106, DERIVE_FMA(t186, t90, DERIVE_FMA(t170, P[123], P[187]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t155, DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t139, DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t123, DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t107, DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t91, DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[188], P[189], P[190], P[191]})))))));
+    const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t395, 0, 4, 2, 6);
+    const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t395, 1, 5, 3, 7);
+    const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t403, v_t411, 0, 4, 2, 6);
+    const derive_vd tr_v_t387_3 = __builtin_shufflevector(v_t403, v_t411, 1, 5, 3, 7);
+    const derive_vd tr_v_t387_c0 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t387_c1 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t387_c2 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t387_c3 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[140] = v_t387;
+    *(derive_vd_unaligned *)&P_new[156] = v_t395;
+    *(derive_vd_unaligned *)&P_new[172] = v_t403;
+    *(derive_vd_unaligned *)&P_new[188] = v_t411;
+    *(derive_vd_unaligned *)&P_new[200] = tr_v_t387_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t387_c1;
+    *(derive_vd_unaligned *)&P_new[232] = tr_v_t387_c2;
+    *(derive_vd_unaligned *)&P_new[248] = tr_v_t387_c3;
+    #else
+    const double t411 = DERIVE_FMA(t250, t155, DERIVE_FMA(t234, t139, DERIVE_FMA(t218, t123, DERIVE_FMA(t202, t107, DERIVE_FMA(t186, t91, DERIVE_FMA(t170, P[124], P[188]))))));
+    const double t412 = DERIVE_FMA(t250, t156, DERIVE_FMA(t234, t140, DERIVE_FMA(t218, t124, DERIVE_FMA(t202, t108, DERIVE_FMA(t186, t92, DERIVE_FMA(t170, P[125], P[189]))))));
+    const double t413 = DERIVE_FMA(t250, t157, DERIVE_FMA(t234, t141, DERIVE_FMA(t218, t125, DERIVE_FMA(t202, t109, DERIVE_FMA(t186, t93, DERIVE_FMA(t170, P[126], P[190]))))));
+    const double t414 = DERIVE_FMA(t250, t158, DERIVE_FMA(t234, t142, DERIVE_FMA(t218, t126, DERIVE_FMA(t202, t110, DERIVE_FMA(t186, t94, DERIVE_FMA(t170, P[127], P[191]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t155, DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t139, DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t123, DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t107, DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), v_t91, DERIVE_VFMA(((derive_vd){t171, t171, t171, t171}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[204], P[205], P[206], P[207]})))))));
+    #else
+    const double t415 = DERIVE_FMA(t251, t155, DERIVE_FMA(t235, t139, DERIVE_FMA(t219, t123, DERIVE_FMA(t203, t107, DERIVE_FMA(t187, t91, DERIVE_FMA(t171, P[124], P[204]))))));
+    const double t416 = DERIVE_FMA(t251, t156, DERIVE_FMA(t235, t140, DERIVE_FMA(t219, t124, DERIVE_FMA(t203, t108, DERIVE_FMA(t187, t92, DERIVE_FMA(t171, P[125], P[205]))))));
+    const double t417 = DERIVE_FMA(t251, t157, DERIVE_FMA(t235, t141, DERIVE_FMA(t219, t125, DERIVE_FMA(t203, t109, DERIVE_FMA(t187, t93, DERIVE_FMA(t171, P[126], P[206]))))));
+    const double t418 = DERIVE_FMA(t251, t158, DERIVE_FMA(t235, t142, DERIVE_FMA(t219, t126, DERIVE_FMA(t203, t110, DERIVE_FMA(t187, t94, DERIVE_FMA(t171, P[127], P[207]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t155, DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t139, DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t123, DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t107, DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), v_t91, DERIVE_VFMA(((derive_vd){t172, t172, t172, t172}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[220], P[221], P[222], P[223]})))))));
+    #else
+    const double t420 = DERIVE_FMA(t252, t156, DERIVE_FMA(t236, t140, DERIVE_FMA(t220, t124, DERIVE_FMA(t204, t108, DERIVE_FMA(t188, t92, DERIVE_FMA(t172, P[125], P[221]))))));
+    const double t421 = DERIVE_FMA(t252, t157, DERIVE_FMA(t236, t141, DERIVE_FMA(t220, t125, DERIVE_FMA(t204, t109, DERIVE_FMA(t188, t93, DERIVE_FMA(t172, P[126], P[222]))))));
+    const double t422 = DERIVE_FMA(t252, t158, DERIVE_FMA(t236, t142, DERIVE_FMA(t220, t126, DERIVE_FMA(t204, t110, DERIVE_FMA(t188, t94, DERIVE_FMA(t172, P[127], P[223]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t155, DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t139, DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t123, DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t107, DERIVE_VFMA(((derive_vd){t189, t189, t189, t189}), v_t91, DERIVE_VFMA(((derive_vd){t173, t173, t173, t173}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[236], P[237], P[238], P[239]})))))));
+    #else
+    const double t425 = DERIVE_FMA(t253, t157, DERIVE_FMA(t237, t141, DERIVE_FMA(t221, t125, DERIVE_FMA(t205, t109, DERIVE_FMA(t189, t93, DERIVE_FMA(t173, P[126], P[238]))))));
+    const double t426 = DERIVE_FMA(t253, t158, DERIVE_FMA(t237, t142, DERIVE_FMA(t221, t126, DERIVE_FMA(t205, t110, DERIVE_FMA(t189, t94, DERIVE_FMA(t173, P[127], P[239]))))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t155, DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t139, DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t123, DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t107, DERIVE_VFMA(((derive_vd){t190, t190, t190, t190}), v_t91, DERIVE_VFMA(((derive_vd){t174, t174, t174, t174}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[252], P[253], P[254], P[255]})))))));
+    const derive_vd tr_v_t415_0 = __builtin_shufflevector(v_t415, v_t419, 0, 4, 2, 6);
+    const derive_vd tr_v_t415_1 = __builtin_shufflevector(v_t415, v_t419, 1, 5, 3, 7);
+    const derive_vd tr_v_t415_2 = __builtin_shufflevector(v_t423, v_t427, 0, 4, 2, 6);
+    const derive_vd tr_v_t415_3 = __builtin_shufflevector(v_t423, v_t427, 1, 5, 3, 7);
+    const derive_vd tr_v_t415_c1 = __builtin_shufflevector(tr_v_t415_1, tr_v_t415_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t415_c2 = __builtin_shufflevector(tr_v_t415_0, tr_v_t415_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t415_c3 = __builtin_shufflevector(tr_v_t415_1, tr_v_t415_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t415;
+    *(derive_vd_unaligned *)&P_new[220] = __builtin_shufflevector(v_t419, tr_v_t415_c1, 4, 1, 2, 3);
+    *(derive_vd_unaligned *)&P_new[236] = __builtin_shufflevector(v_t423, tr_v_t415_c2, 4, 5, 2, 3);
+    *(derive_vd_unaligned *)&P_new[252] = __builtin_shufflevector(v_t427, tr_v_t415_c3, 4, 5, 6, 3);
+    #else
+    const double t430 = DERIVE_FMA(t254, t158, DERIVE_FMA(t238, t142, DERIVE_FMA(t222, t126, DERIVE_FMA(t206, t110, DERIVE_FMA(t190, t94, DERIVE_FMA(t174, P[127], P[255]))))));
+    #endif
+    const double t431 = DERIVE_FMA(t258, t258, DERIVE_FMA(t257, t257, DERIVE_FMA(t256, t256, t255*t255)));
+    const double t432 = 1.0/sqrt(t431);
+    const double t433 = t255*t432;
+    const double t434 = t256*t432;
+    const double t435 = t257*t432;
+    const double t436 = t258*t432;
+    #if DERIVE_VECTOR
+    x_new[0] = t433;
+    x_new[1] = t434;
+    x_new[2] = t435;
+    x_new[3] = t436;
+    #else
+    x_new[0] = t433;
+    x_new[1] = t434;
+    x_new[2] = t435;
+    x_new[3] = t436;
+    x_new[4] = t259;
+    x_new[5] = t260;
+    x_new[6] = t261;
+    x_new[7] = t262;
+    x_new[8] = t263;
+    x_new[9] = t264;
+    x_new[10] = t265;
+    x_new[11] = t266;
+    x_new[12] = t267;
+    x_new[13] = t268;
+    x_new[14] = t269;
+    x_new[15] = t270;
+    P_new[0] = t271;
+    P_new[1] = t272;
+    P_new[2] = t273;
+    P_new[3] = t274;
+    P_new[4] = t275;
+    P_new[5] = t276;
+    P_new[6] = t277;
+    P_new[7] = t278;
+    P_new[8] = t279;
+    P_new[9] = t280;
+    P_new[10] = t281;
+    P_new[11] = t282;
+    P_new[12] = t283;
+    P_new[13] = t284;
+    P_new[14] = t285;
+    P_new[15] = t286;
+    P_new[16] = t272;
+    P_new[17] = t288;
+    P_new[18] = t289;
+    P_new[19] = t290;
+    P_new[20] = t291;
+    P_new[21] = t292;
+    P_new[22] = t293;
+    P_new[23] = t294;
+    P_new[24] = t295;
+    P_new[25] = t296;
+    P_new[26] = t297;
+    P_new[27] = t298;
+    P_new[28] = t299;
+    P_new[29] = t300;
+    P_new[30] = t301;
+    P_new[31] = t302;
+    P_new[32] = t273;
+    P_new[33] = t289;
+    P_new[34] = t305;
+    P_new[35] = t306;
+    P_new[36] = t307;
+    P_new[37] = t308;
+    P_new[38] = t309;
+    P_new[39] = t310;
+    P_new[40] = t311;
+    P_new[41] = t312;
+    P_new[42] = t313;
+    P_new[43] = t314;
+    P_new[44] = t315;
+    P_new[45] = t316;
+    P_new[46] = t317;
+    P_new[47] = t318;
+    P_new[48] = t274;
+    P_new[49] = t290;
+    P_new[50] = t306;
+    P_new[51] = t322;
+    P_new[52] = t323;
+    P_new[53] = t324;
+    P_new[54] = t325;
+    P_new[55] = t326;
+    P_new[56] = t327;
+    P_new[57] = t328;
+    P_new[58] = t329;
+    P_new[59] = t330;
+    P_new[60] = t331;
+    P_new[61] = t332;
+    P_new[62] = t333;
+    P_new[63] = t334;
+    P_new[64] = t275;
+    P_new[65] = t291;
+    P_new[66] = t307;
+    P_new[67] = t323;
+    P_new[68] = t335;
+    P_new[69] = t336;
+    P_new[70] = t337;
+    P_new[71] = t338;
+    P_new[72] = t339;
+    P_new[73] = t340;
+    P_new[74] = t341;
+    P_new[75] = t342;
+    P_new[76] = t343;
+    P_new[77] = t344;
+    P_new[78] = t345;
+    P_new[79] = t346;
+    P_new[80] = t276;
+    P_new[81] = t292;
+    P_new[82] = t308;
+    P_new[83] = t324;
+    P_new[84] = t336;
+    P_new[85] = t348;
+    P_new[86] = t349;
+    P_new[87] = t350;
+    P_new[88] = t351;
+    P_new[89] = t352;
+    P_new[90] = t353;
+    P_new[91] = t354;
+    P_new[92] = t355;
+    P_new[93] = t356;
+    P_new[94] = t357;
+    P_new[95] = t358;
+    P_new[96] = t277;
+    P_new[97] = t293;
+    P_new[98] = t309;
+    P_new[99] = t325;
+    P_new[100] = t337;
+    P_new[101] = t349;
+    P_new[102] = t361;
+    P_new[103] = t362;
+    P_new[104] = t363;
+    P_new[105] = t364;
+    P_new[106] = t365;
+    P_new[107] = t366;
+    P_new[108] = t367;
+    P_new[109] = t368;
+    P_new[110] = t369;
+    P_new[111] = t370;
+    P_new[112] = t278;
+    P_new[113] = t294;
+    P_new[114] = t310;
+    P_new[115] = t326;
+    P_new[116] = t338;
+    P_new[117] = t350;
+    P_new[118] = t362;
+    P_new[119] = t374;
+    P_new[120] = t375;
+    P_new[121] = t376;
+    P_new[122] = t377;
+    P_new[123] = t378;
+    P_new[124] = t379;
+    P_new[125] = t380;
+    P_new[126] = t381;
+    P_new[127] = t382;
+    P_new[128] = t279;
+    P_new[129] = t295;
+    P_new[130] = t311;
+    P_new[131] = t327;
+    P_new[132] = t339;
+    P_new[133] = t351;
+    P_new[134] = t363;
+    P_new[135] = t375;
+    P_new[136] = t383;
+    P_new[137] = t384;
+    P_new[138] = t385;
+    P_new[139] = t386;
+    P_new[140] = t387;
+    P_new[141] = t388;
+    P_new[142] = t389;
+    P_new[143] = t390;
+    P_new[144] = t280;
+    P_new[145] = t296;
+    P_new[146] = t312;
+    P_new[147] = t328;
+    P_new[148] = t340;
+    P_new[149] = t352;
+    P_new[150] = t364;
+    P_new[151] = t376;
+    P_new[152] = t384;
+    P_new[153] = t392;
+    P_new[154] = t393;
+    P_new[155] = t394;
+    P_new[156] = t395;
+    P_new[157] = t396;
+    P_new[158] = t397;
+    P_new[159] = t398;
+    P_new[160] = t281;
+    P_new[161] = t297;
+    P_new[162] = t313;
+    P_new[163] = t329;
+    P_new[164] = t341;
+    P_new[165] = t353;
+    P_new[166] = t365;
+    P_new[167] = t377;
+    P_new[168] = t385;
+    P_new[169] = t393;
+    P_new[170] = t401;
+    P_new[171] = t402;
+    P_new[172] = t403;
+    P_new[173] = t404;
+    P_new[174] = t405;
+    P_new[175] = t406;
+    P_new[176] = t282;
+    P_new[177] = t298;
+    P_new[178] = t314;
+    P_new[179] = t330;
+    P_new[180] = t342;
+    P_new[181] = t354;
+    P_new[182] = t366;
+    P_new[183] = t378;
+    P_new[184] = t386;
+    P_new[185] = t394;
+    P_new[186] = t402;
+    P_new[187] = t410;
+    P_new[188] = t411;
+    P_new[189] = t412;
+    P_new[190] = t413;
+    P_new[191] = t414;
+    P_new[192] = t283;
+    P_new[193] = t299;
+    P_new[194] = t315;
+    P_new[195] = t331;
+    P_new[196] = t343;
+    P_new[197] = t355;
+    P_new[198] = t367;
+    P_new[199] = t379;
+    P_new[200] = t387;
+    P_new[201] = t395;
+    P_new[202] = t403;
+    P_new[203] = t411;
+    P_new[204] = t415;
+    P_new[205] = t416;
+    P_new[206] = t417;
+    P_new[207] = t418;
+    P_new[208] = t284;
+    P_new[209] = t300;
+    P_new[210] = t316;
+    P_new[211] = t332;
+    P_new[212] = t344;
+    P_new[213] = t356;
+    P_new[214] = t368;
+    P_new[215] = t380;
+    P_new[216] = t388;
+    P_new[217] = t396;
+    P_new[218] = t404;
+    P_new[219] = t412;
+    P_new[220] = t416;
+    P_new[221] = t420;
+    P_new[222] = t421;
+    P_new[223] = t422;
+    P_new[224] = t285;
+    P_new[225] = t301;
+    P_new[226] = t317;
+    P_new[227] = t333;
+    P_new[228] = t345;
+    P_new[229] = t357;
+    P_new[230] = t369;
+    P_new[231] = t381;
+    P_new[232] = t389;
+    P_new[233] = t397;
+    P_new[234] = t405;
+    P_new[235] = t413;
+    P_new[236] = t417;
+    P_new[237] = t421;
+    P_new[238] = t425;
+    P_new[239] = t426;
+    P_new[240] = t286;
+    P_new[241] = t302;
+    P_new[242] = t318;
+    P_new[243] = t334;
+    P_new[244] = t346;
+    P_new[245] = t358;
+    P_new[246] = t370;
+    P_new[247] = t382;
+    P_new[248] = t390;
+    P_new[249] = t398;
+    P_new[250] = t406;
+    P_new[251] = t414;
+    P_new[252] = t418;
+    P_new[253] = t422;
+    P_new[254] = t426;
+    P_new[255] = t430;
+    #endif
     return 0;
 }
 
@@ -2517,7 +2988,7 @@ int ins_gnss_ekf_run(size_t steps, const double *u, const double *z_gnss, const 
         x[i] = x0[i];
     }
     for (i = 0; i < 256; ++i) {
-        P[i] = P0[i];
+        P[i] = i / 16 <= i % 16 ? P0[i] : P0[(i % 16) * 16 + i / 16];
     }
     for (k = 0; k < steps; ++k) {
         const double *uk = u + k * 6;

@@ -15,8 +15,8 @@
  *     int ins_gnss_ekf_update_baro(x[16], P[16*16], z[1], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
- * symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
- * symmetric in update_gnss: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
+ * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     update_gnss 1: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
@@ -26,8 +26,8 @@
  *     update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 64, sub 13, mul 111, div 0, sqrt 0, fma 1000, neg 18, cmp 0, calls 0 (flops 2188, instructions 1206)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 22, mul 123, div 7, sqrt 1, fma 899, neg 0, cmp 6, calls 0 (flops 1962, instructions 1069)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 0, calls 0 (flops 2574, instructions 1442)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1349, neg 0, cmp 6, calls 0 (flops 2840, instructions 1497)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
