@@ -79,12 +79,12 @@ def fold_single_use(body: Sequence[Statement],
     """``body`` with each product or negation read once, as a term of a sum, folded into
     that sum, and each negated symbol read only as terms of sums folded into each of them
     (see the module docstring); the other statements keep their order. The statements
-    assigning ``keep`` (the lanes of vector rows, lowered by their own form) are not
-    rewritten, so nothing folds into them."""
+    assigning ``keep`` (the lanes of vector rows, lowered by their own form) are neither
+    rewritten nor folded: a lane is computed in its chunk."""
     reads = read_counts(body, results)
     term_reads = _term_reads(body)
     products = {st.target: st.expr for st in body
-                if isinstance(st, Assign) and is_product(st.expr)
+                if isinstance(st, Assign) and st.target not in keep and is_product(st.expr)
                 and (reads.get(st.target) == 1
                      or (_is_negated_atom(st.expr)
                          and term_reads.get(st.target) == reads.get(st.target)))}

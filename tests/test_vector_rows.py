@@ -1,0 +1,273 @@
+"""Vector rows (option ``rows = "vector"``, ``NonlinearModel(rows=)``, a model file's
+``[nonlinear] rows``): the EKF predict and sequential updates derived as rows of four lanes,
+printed in C as GCC/Clang vector statements with their scalar lanes as the fallback.
+
+Checked: the vector form against the scalar form of the same model (random models with
+inputs in f, sparse and dense Jacobians, unit and dense rows of H, diagonal and correlated
+R, lengths that leave a shorter last chunk), against the NumPy reference over a run, the
+vector branch bitwise against its scalar lanes (plain, fused and -DDERIVE_VECTOR=0 builds),
+P_new exactly symmetric, P0 read by its upper triangle only, gating, the counts (header =
+Python's executed count = the C text's vector branch, lane by lane), and the refusals."""
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+import sympy
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from derive import NonlinearModel, Sensor
+from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS
+from derive.catalog import load as load_catalog
+from derive.cli import main
+from derive.errors import ModelError, ModelFileError, OptionError
+from derive.filters import derive_unit
+from derive.filters.sensors import reference_run
+from derive.flops import OpCounter, c_function_body, count, count_c_function, count_c_text
+from derive.generation import render_filter
+from derive.modelfile import loads_model
+from derive.pipeline import load_generated
+
+VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
+AGREEMENT = 1e-12
+"""The vector form against the scalar form (the same algebra, rounded in another order),
+relative to the largest entry: double, well-conditioned random models."""
+NATIVE = ("-O2", "-march=native")
+
+
+def relative(got, expected) -> float:
+    got, expected = np.asarray(got, float), np.asarray(expected, float)
+    return float(np.max(np.abs(got - expected)) / np.max(np.abs(expected)))
+
+
+def random_model(rng, n: int, m: int, correlated: bool, gate: bool = False) -> NonlinearModel:
+    """A random EKF model: f = F x + B u + a product of two states on row 0 (so F's entries
+    are partly temporaries), inputs with noise Qu; sensor ``a`` sequential with m linear
+    measurements (unit and dense rows of H; R diagonal, or correlated and constant), sensor
+    ``b`` a nonlinear scalar (batch)."""
+    x = sympy.symbols(f"x0:{n}", real=True)
+    u = sympy.symbols("u0:2", real=True)
+    F = np.round(rng.normal(size=(n, n)) * (rng.random((n, n)) < 0.45) * 0.3, 3) + np.eye(n)
+    B = np.round(rng.normal(size=(n, 2)) * (rng.random((n, 2)) < 0.5), 3)
+    f = [sum(sympy.Float(F[i, j], 3) * x[j] for j in range(n) if F[i, j])
+         + sum(sympy.Float(B[i, k], 3) * u[k] for k in range(2) if B[i, k]) for i in range(n)]
+    f[0] += sympy.Rational(1, 10) * x[0] * x[n - 1] + u[0] / 10  # f uses both inputs
+    f[1] += u[1] / 10
+    H = np.round(rng.normal(size=(m, n)) * (rng.random((m, n)) < 0.6), 3)
+    unit_rows = rng.random(m) < 0.5
+    for i, k in enumerate(rng.permutation(n)[:m]):
+        if unit_rows[i]:
+            H[i] = 0.0
+        H[i, k] = 1.0
+    R = np.diag(np.round(rng.uniform(0.2, 2.0, m), 3))
+    if correlated and m > 1:
+        A = np.round(rng.normal(size=(m, m)), 2)
+        R = R + np.round(A @ A.T / m, 3)
+    h = [sum(sympy.Float(H[i, j], 3) * x[j] for j in range(n) if H[i, j]) for i in range(m)]
+    L = rng.normal(size=(n, n))
+    Q = np.round(L @ L.T / n * 0.01 + 0.01 * np.eye(n), 4)
+    return NonlinearModel(
+        "vec", [s.name for s in x], f=f, Q=((Q + Q.T) / 2).tolist(), inputs=["u0", "u1"],
+        Qu=[[0.01, 0], [0, 0.02]],
+        sensors=[Sensor("a", [f"a{i}" for i in range(m)], h=h, R=R.tolist(),
+                        update="sequential"),
+                 Sensor("b", ["zb"], h=[x[0] ** 2 / 10 + x[n - 1]], R=[[0.5]])],
+        x0=np.zeros(n).tolist(), P0=np.eye(n).tolist())
+
+
+def spd(rng, n: int) -> np.ndarray:
+    A = rng.normal(size=(n, n))
+    return A @ A.T / n + 0.5 * np.eye(n)
+
+
+@settings(max_examples=10, deadline=None)
+@given(n=st.integers(3, 9), m=st.integers(1, 4), correlated=st.booleans(),
+       seed=st.integers(0, 2**32 - 1))
+def test_random_models_agree_with_the_scalar_form_and_the_reference(n, m, correlated, seed):
+    rng = np.random.default_rng(seed)
+    model = random_model(rng, n, min(m, n), correlated)
+    vector, scalar = (load_generated(model, "ekf", o) for o in (VECTOR, SCALAR))
+    x, P, us = 0.3 * rng.normal(size=n), spd(rng, n), rng.normal(size=2)
+    expected = scalar.python.predict(x, P.ravel(), us)
+    for module in (vector.python, vector.c):
+        got = module.predict(x, P.ravel(), us)
+        assert relative(got[0], expected[0]) <= AGREEMENT
+        assert relative(got[1], expected[1]) <= AGREEMENT
+    z = rng.normal(size=min(m, n))
+    expected = scalar.python.update_a(x, P.ravel(), z)
+    for module in (vector.python, vector.c):
+        got = module.update_a(x, P.ravel(), z)
+        assert relative(got[0], expected[0]) <= AGREEMENT
+        assert relative(got[1], expected[1]) <= AGREEMENT
+    steps = 30  # a run at two rates against the NumPy reference (batch updates)
+    za = rng.normal(size=(steps, min(m, n)))
+    za[np.arange(steps) % 2 == 1] = np.nan
+    zb = rng.normal(size=(steps, 1))
+    zb[np.arange(steps) % 3 != 0] = np.nan
+    u = rng.normal(size=(steps, 2))
+    ref = reference_run(model, {}, {"a": za, "b": zb}, u)
+    for module in (vector.python, vector.c):
+        xs, Ps = module.run(u, za, zb, np.zeros(n), np.eye(n))
+        assert relative(xs, ref.xs) <= 1e-10
+        assert relative(Ps, ref.Ps) <= 1e-10
+
+
+@pytest.mark.parametrize("cflags", [(), NATIVE], ids=["plain", "native"])
+def test_the_vector_branch_computes_its_scalar_lanes_bit_for_bit(cflags, tmp_path):
+    """The same file built with DERIVE_VECTOR 1 and 0: identical bits, P_new exactly
+    symmetric (the lower triangle written by transposition), on the catalog's INS/GNSS EKF
+    (which declares rows = vector) and a random model whose length leaves a shorter last
+    chunk."""
+    rng = np.random.default_rng(7)
+    dt = (np.array([0.01]),)
+    cases = [("ins_gnss", {}, 16, 6, "update_gnss", 6, dt),
+             (random_model(rng, 7, 3, correlated=True), VECTOR, 7, 2, "update_a", 3, ())]
+    for k, (model, options, n, nu, update, m, p) in enumerate(cases):
+        vector, lanes = (load_generated(model, "ekf", options, "c", tmp_path / f"{k}{label}",
+                                        extra_cflags=flags).c
+                         for label, flags in (("v", cflags),
+                                              ("s", (*cflags, "-DDERIVE_VECTOR=0"))))
+        for _ in range(5):
+            x = 0.1 * rng.normal(size=n)
+            x[:4] /= np.linalg.norm(x[:4])
+            P = spd(rng, n)
+            for function, args in (("predict", (x, P.ravel(), rng.normal(size=nu), *p)),
+                                   (update, (x, P.ravel(), rng.normal(size=m), *p))):
+                a = getattr(vector, function)(*args)
+                b = getattr(lanes, function)(*args)
+                for got, expected in zip(a, b):
+                    assert np.array_equal(np.asarray(got), np.asarray(expected)), function
+                P_new = np.asarray(a[1]).reshape(n, n)
+                assert np.array_equal(P_new, P_new.T), function
+
+
+def test_run_reads_the_upper_triangle_of_P0_only():
+    """The programs read P whole; run mirrors P0's upper triangle first, so a P0 whose
+    lower triangle holds anything filters as the symmetric one (Python and C)."""
+    rng = np.random.default_rng(3)
+    model = random_model(rng, 6, 2, correlated=False)
+    generated = load_generated(model, "ekf", VECTOR)
+    P0 = spd(rng, 6)
+    garbage = np.triu(P0) + np.tril(rng.normal(size=(6, 6)), -1)
+    steps = 12
+    u = rng.normal(size=(steps, 2))
+    za, zb = rng.normal(size=(steps, 2)), rng.normal(size=(steps, 1))
+    for module in (generated.python, generated.c):
+        xs, Ps = module.run(u, za, zb, np.zeros(6), P0)
+        xg, Pg = module.run(u, za, zb, np.zeros(6), garbage)
+        assert np.array_equal(xs, xg) and np.array_equal(Ps, Pg)
+
+
+def test_gated_vector_update_rejects_an_outlier_as_the_scalar_form_does():
+    rng = np.random.default_rng(11)
+    model = random_model(rng, 5, 3, correlated=True)
+    options = {"gate": 0.999}
+    vector = load_generated(model, "ekf", {**VECTOR, **options})
+    scalar = load_generated(model, "ekf", {**SCALAR, **options})
+    x, P = 0.1 * rng.normal(size=5), spd(rng, 5)
+    for z, applied in ((rng.normal(size=3) * 0.1, 1.0), (np.full(3, 1e3), 0.0)):
+        expected = scalar.python.update_a(x, P.ravel(), z)
+        for module in (vector.python, vector.c):
+            got = module.update_a(x, P.ravel(), z)
+            assert float(np.asarray(got[3])[0]) == applied
+            assert relative(got[2], expected[2]) <= AGREEMENT  # nis
+            assert relative(got[0], expected[0]) <= AGREEMENT
+            assert relative(got[1], expected[1]) <= AGREEMENT
+    got = vector.c.update_a(x, P.ravel(), np.full(3, 1e3))  # not applied: x, P as given
+    assert np.array_equal(np.asarray(got[0]), x) and np.array_equal(np.asarray(got[1]),
+                                                                     P.ravel())
+
+
+def test_counts_are_the_lanes_executed_and_the_c_text_lane_by_lane():
+    """Header = Python's executed count (every lane of a kept chunk) = the C text's vector
+    branch, a vector statement counted once per lane; the scalar branch leaves out the
+    lanes nothing reads, so it never counts more."""
+    rng = np.random.default_rng(5)
+    model = random_model(rng, 9, 3, correlated=False)
+    unit = derive_unit(model, "ekf", VECTOR)
+    files = render_filter(model, "ekf", "all", VECTOR)
+    scope: dict = {}
+    exec(compile(files["ekf.py"], "ekf.py", "exec"), scope)  # derive's own generated code
+    for name in ("predict", "update_a"):
+        program = unit.programs[name]
+        assert program.rows, name
+        static_py, static_c = count(program, "python"), count(program, "c")
+        counter = OpCounter()
+        args = [spd(rng, p.shape[0]).ravel() if p.symmetric else rng.uniform(0.5, 1.0, p.size)
+                for p in program.inputs]
+        scope[name](*[counter.wrap(v) for v in args])
+        assert counter.snapshot() == static_py, name
+        function = f"{unit.prefix}_{name}"
+        assert count_c_function(files["ekf.c"], function) == static_c, name
+        assert f"operations per call of {name} (C99, fma through DERIVE_FMA and " \
+               f"DERIVE_FNMA): {static_c.summary()}" in files["ekf.c"]
+        scalar = count_c_text(c_function_body(files["ekf.c"], function), vector=False)
+        assert scalar.flops <= static_c.flops and scalar.instructions <= static_c.instructions
+
+
+def test_catalog_ins_gnss_declares_vector_rows():
+    """The catalog model declares rows = vector (predict and the sequential GNSS update;
+    the batch baro update stays scalar); its header says P is read whole; the option
+    rows = scalar overrides the model."""
+    model = load_catalog("ins_gnss")
+    header = render_filter(model, "ekf", "c")["ekf.c"]
+    assert "symmetric in predict: P, P_new (inputs: P read whole, both triangles" in header
+    assert "#if DERIVE_VECTOR" in header
+    assert model.rows == "vector"
+    unit = derive_unit(model, "ekf")
+    assert unit.programs["predict"].rows and unit.programs["update_gnss"].rows
+    assert not unit.programs["update_baro"].rows  # batch: scalar as before
+    assert not derive_unit(model, "ekf", SCALAR).programs["predict"].rows
+
+
+@pytest.mark.skipif(shutil.which("clang") is None, reason="clang is not installed")
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_vector_code_compiles_strictly_under_gcc_and_clang(precision, tmp_path):
+    rng = np.random.default_rng(9)
+    model = random_model(rng, 6, 3, correlated=True)
+    files = render_filter(model, "ekf", "c", {**VECTOR, "precision": precision})
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    for cc in ("gcc", "clang"):
+        for extra in ((), ("-O3", "-march=native"), ("-DDERIVE_VECTOR=0",)):
+            cmd = [cc, *STRICT_CFLAGS, *CONVERSION_CFLAGS, *extra, "-c", str(tmp_path / "ekf.c"),
+                   "-o", str(tmp_path / "ekf.o")]
+            done = subprocess.run(cmd, capture_output=True, text=True)
+            assert done.returncode == 0, (cmd, done.stderr[:2000])
+
+
+def test_rows_are_refused_in_one_line_where_they_do_not_apply(capsys):
+    with pytest.raises(ModelError, match=r"rows must be one of scalar, vector, got 'rows'"):
+        NonlinearModel("m", ["x"], ["z"], f=["x"], Q=[[1]], h=["x"], R=[[1]], rows="rows")
+    text = BAD_FILE.replace("ROWS", '"diagonal"')
+    with pytest.raises(ModelFileError, match=r"\[nonlinear\] rows: 'diagonal' is not one of "
+                                             r"scalar, vector"):
+        loads_model(text)
+    with pytest.raises(OptionError, match=r"rows"):
+        derive_unit(load_catalog("ins_gnss"), "ukf", VECTOR)
+    assert main(["generate", "ins_gnss", "--filter", "ekf", "--rows", "diagonal",
+                 "--out", "/nonexistent"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--rows" in err[0] and "diagonal" in err[0]
+
+
+BAD_FILE = """
+[model]
+name = "m"
+states = ["x"]
+measurements = ["z"]
+
+[nonlinear]
+f = ["x"]
+h = ["x"]
+Q = [[1]]
+R = [[1]]
+rows = ROWS
+"""
+
+
+def test_a_model_file_declares_rows():
+    assert loads_model(BAD_FILE.replace("ROWS", '"vector"')).rows == "vector"
+    assert loads_model(BAD_FILE.replace("rows = ROWS", "")).rows == "scalar"
