@@ -13,8 +13,10 @@ A chunk is printed twice, chosen by the preprocessor::
         ...
     #endif
 
-``DERIVE_VECTOR`` is 1 under GCC and Clang (their vector extension, ``vector_size``), 0
-elsewhere, and a build may set it. An operand whose lanes are the lanes of an earlier
+``DERIVE_VECTOR`` is 1 under GCC and Clang (their vector extension, ``vector_size``) on a
+target with vector registers for the precision (x86 SSE2 or AArch64 for double; SSE or
+NEON for float), 0 elsewhere (a Cortex-M gets the scalar lanes, which leave out the lanes
+nothing reads), and a build may set it. An operand whose lanes are the lanes of an earlier
 chunk, in order, is that chunk's vector; any other one is built from its lanes (a
 compound literal: consecutive elements of an input are one load, a coefficient is a
 broadcast, lanes of other chunks are shuffles: the compiler's choice). The vector fused
@@ -56,8 +58,10 @@ def vector_macro_lines(precision: Precision = DOUBLE) -> list[str]:
     def each(macro: str) -> str:
         return (f"(({vtype}){{" + ", ".join(f"{macro}((a)[{k}], (b)[{k}], (c)[{k}])"
                                             for k in range(lanes)) + "})")
+    simd = ("defined(__SSE2__) || defined(__aarch64__)" if kind == "double" else
+            "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)")
     return [f"#ifndef {SWITCH}",
-            "#if defined(__GNUC__) || defined(__clang__)",
+            f"#if (defined(__GNUC__) || defined(__clang__)) && ({simd})",
             f"#define {SWITCH} 1",
             "#else",
             f"#define {SWITCH} 0",
