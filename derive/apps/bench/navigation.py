@@ -17,12 +17,16 @@
   LDL^T solve of S) in the same run, its count in a note: what the sequential form gains.
   SymForce's updates are batch (its symbolic inverse of S); both compute the same
   function (inputs and outputs), so the flops rows compare the two generators' code.
+- The row form: a function the catalog model derives as vector rows (``rows = "vector"``:
+  predict and the sequential GNSS update) is also timed entry by entry (option
+  ``rows="scalar"``) in the same run, its count in a note.
 - What decides the per-call bars: the time each bar needs (the peer's fastest repeat over
   the bar's ratio: best case against best case, so that load on a shared machine, which
   inflates the medians, does not hide it) beside the floor of scalar code with the
   function's operation count on this machine, from its scalar throughput measured in the
   same run (derive.apps.bench.throughput). A bar whose need is below that floor is out of
-  reach of scalar code with that count.
+  reach of scalar code with that count; vector rows are not scalar code, and the note says
+  so instead.
 
 The state, covariance and inputs of the timed calls are those of the seeded flight at its
 GNSS epoch 20 s in (the filter converged, P realistic).
@@ -40,7 +44,7 @@ import numpy as np
 from ... import catalog
 from ...build import STRICT_CFLAGS
 from ...filters.sensors import program_name
-from ...flops import OpCount
+from ...flops import OpCount, c_function_body
 from ...generation import generate_units
 from ...interface import read as read_interface
 from ..ins import c_loop, casadi_ekf, filterpy_ekf, flight, reference, symforce_ekf
@@ -92,6 +96,7 @@ class NavigationResult:
     times: list[TimeRow] = field(default_factory=list)
     throughput: Throughput | None = None   # this machine's scalar throughput, same run
     notes: list[str] = field(default_factory=list)
+    vector: frozenset[str] = frozenset()   # the functions generated as vector rows
 
     def time_row(self, function: str, implementation: str) -> TimeRow | None:
         return next((r for r in self.times if r.function == function
@@ -126,7 +131,8 @@ class NavigationResult:
             count = self.count(function)
             floor = ("n/a" if self.throughput is None or count is None
                      else self.throughput.floor_text(count))
-            out.append(f"{function}: generated C "
+            form = " (vector rows)" if function in self.vector else ""
+            out.append(f"{function}: generated C{form} "
                        + ("n/a" if base is None or base.timing is None
                           else f"{human(base.timing.low)} (fastest repeat)")
                        + f"; needs {', '.join(needs) or 'n/a'}; floor of scalar code with its "
@@ -183,7 +189,9 @@ class NavigationResult:
             return ""
         note = (f"needs <= {human(need)} per call ({peer}'s fastest repeat / {ratio:g}); floor "
                 f"of scalar code with its count here {human(floor)}")
-        if need < floor:
+        if function in self.vector:
+            note += " (vector rows: not scalar code, so that floor does not bound it)"
+        elif need < floor:
             note += " (the need is below the floor: out of reach of scalar code with this count)"
         return note
 
@@ -257,10 +265,30 @@ def _derive(workdir: Path, result: NavigationResult):
     source = next(p for p in paths if p.suffix == ".c")
     functions = {f.program: f for f in read_interface(header.read_text()).functions}
     derive_counts = {name: _header_count(header.read_text(), name) for name in FUNCTIONS}
+    result.vector = frozenset(
+        name for name in FUNCTIONS
+        if "#if DERIVE_VECTOR" in c_function_body(source.read_text(), functions[name].name))
     loops = [c_loop.derive_call(functions[name], f"derive_{name}") for name in TIMED]
     built = c_loop.build(workdir / "derive_loops", [str(header)], [source], loops,
                          [*STRICT_CFLAGS, *generated.CFLAGS])
     return derive_counts, built
+
+
+SCALAR_ROWS = "generated C, scalar rows"
+"""The time row of a function of vector rows generated with option rows="scalar"."""
+
+
+def _scalar_rows(workdir: Path, names: tuple[str, ...]):
+    """The counts and loops of ``names`` generated entry by entry (option rows=scalar)."""
+    paths, _ = generate_units(MODEL, ["ekf"], "c", workdir / "derive_scalar",
+                              {"rows": "scalar", "prefix": "scalar_"})
+    header = next(p for p in paths if p.suffix == ".h")
+    source = next(p for p in paths if p.suffix == ".c")
+    functions = {f.program: f for f in read_interface(header.read_text()).functions}
+    counts = {name: _header_count(header.read_text(), name) for name in names}
+    loops = [c_loop.derive_call(functions[name], f"scalar_{name}") for name in names]
+    return counts, c_loop.build(workdir / "derive_scalar_loops", [str(header)], [source],
+                                loops, [*STRICT_CFLAGS, *generated.CFLAGS])
 
 
 BATCH_FORM = "generated C, batch form"
@@ -350,6 +378,14 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
         result.notes += [f"{name} is sequential (one scalar update per measurement); its batch "
                          f"form (update=batch): flops {batch_counts[name].flops}, instructions "
                          f"{batch_counts[name].instructions}" for name in sequential]
+    vector = tuple(name for name in TIMED if name in result.vector)
+    if vector:
+        tick("navigation: the scalar rows of " + ", ".join(vector))
+        scalar_counts, scalar_loops = _scalar_rows(workdir, vector)
+        result.notes += [f"{name} is vector rows (rows=vector: flops {result.count(name).flops}, "
+                         f"instructions {result.count(name).instructions}); entry by entry "
+                         f"(rows=scalar): flops {scalar_counts[name].flops}, instructions "
+                         f"{scalar_counts[name].instructions}" for name in vector]
     p = np.array([point.dt])
     for name in TIMED:
         expected = _expected(point, name)
@@ -358,6 +394,12 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
         base = measure(lambda run=run: run(calls), calls, repeats)
         result.times.append(TimeRow(name, "generated C", base, 1.0,
                                     _agreement(run(1), expected), "a C loop of calls"))
+        if name in vector:
+            run = scalar_loops.runner(f"scalar_{name}", point.x, point.P, _arg(point, name), p)
+            t = measure(lambda run=run: run(calls), calls, repeats)
+            result.times.append(TimeRow(name, SCALAR_ROWS, t, t.median / base.median,
+                                        _agreement(run(1), expected),
+                                        "option rows=scalar (entry by entry); the same C loop"))
         if name in sequential:
             run = batch_loops.runner(f"batch_{name}", point.x, point.P, _arg(point, name), p)
             t = measure(lambda run=run: run(calls), calls, repeats)
