@@ -104,52 +104,55 @@ class ChunkPrinter:
         self.precision = precision
         self.vtype = VECTOR_TYPES[precision.name]
         self.lanes = VECTOR_LANES
-        self.vectors: dict[tuple[str, ...], str] = {}
-        self.single: set[str] = set()  # lanes the vector form reads one by one
-        lanes = {t for chunk in lowered.rows for t in chunk.targets}
         for chunk in lowered.rows:
             if len(chunk.targets) != self.lanes:
                 raise ValueError(f"a chunk of {len(chunk.targets)} lanes, whose vectors "
                                  f"hold {self.lanes}")
-        self.expressions = {chunk.targets[0]: self._vector_expression(chunk, lowered.use_fma)
-                            for chunk in lowered.rows}
-        self.stores: list[tuple[str, int, str | None]] = []  # (port, first, vector or None)
-        # a vector store goes right after the last chunk it reads (so no chunk of an output
-        # stays live to the end of the function), with the transpositions it needs; the
-        # others at the end. Items: ("line", text) or ("store", port, first, vector).
-        self.early: dict[str, list[tuple]] = {}
+        self.vectors: dict[tuple[str, ...], str] = {}  # a chunk's lanes -> its vector
+        self.single: set[str] = set()  # lanes the vector form reads one by one
         self.order = {t: k for k, chunk in enumerate(lowered.rows) for t in chunk.targets}
         self.first_lane = {t: chunk.targets[0] for chunk in lowered.rows
                            for t in chunk.targets}
+        self.chunk_lanes = {chunk.targets[0]: tuple(chunk.targets) for chunk in lowered.rows}
+        self.expressions = {chunk.targets[0]: self._vector_expression(chunk, lowered.use_fma)
+                            for chunk in lowered.rows}
+        self.results = dict(lowered.results)
+        # what goes out right after a chunk (the vector stores it completes, with the
+        # transpositions they need: no chunk of an output stays live to the end of the
+        # function): ("line", text) or ("store", port, first index, vector)
+        self.early: dict[str, list[tuple]] = {}
+        self.stores: list[tuple[str, int]] = []  # written at the end, entry by entry
         symmetric = {p.name for p in lowered.outputs if p.symmetric}
-        roots: set[str] = set()
         for port, leaves in lowered.results:
-            done = (self._symmetric_blocks(port, leaves) if port in symmetric else set())
+            done = self._symmetric_blocks(port, leaves) if port in symmetric else set()
             for first in range(0, len(leaves), self.lanes):
+                run = leaves[first:first + self.lanes]
                 if first in done:
                     continue
-                run = leaves[first:first + self.lanes]
-                if len(run) == self.lanes and all(
-                        isinstance(v, Var) and v.name in lanes for v in run):
+                if len(run) == self.lanes and all(isinstance(v, Var) and v.name in self.order
+                                                  for v in run):
                     self._after([v.name for v in run],
                                 [("store", port, first, self._operand(tuple(run)))])
-                    continue
-                for k, leaf in enumerate(run):
-                    self.stores.append((port, first + k, None))
-                    roots |= {v.name for v in tree_vars(leaf)}
-        self.results = {port: leaves for port, leaves in lowered.results}
-        self.scalar_live: set[str] = {v.name for _, leaves in lowered.results
-                                      for leaf in leaves for v in tree_vars(leaf)}
+                else:
+                    self.stores += [(port, first + k) for k in range(len(run))]
+        self._liveness(lowered)
+
+    def _liveness(self, lowered: LoweredProgram) -> None:
+        """:attr:`vector_alias`: the lanes the vector form reads one by one (scalar
+        statements, checks, entries written at the end, operands built from lanes);
+        :attr:`scalar_live`: what the scalar form computes (a lane only when read)."""
+        lanes = set(self.order)
+        roots = {v.name for port, k in self.stores for v in tree_vars(self.results[port][k])}
+        self.scalar_live = {v.name for leaves in self.results.values() for leaf in leaves
+                            for v in tree_vars(leaf)}
         for st in reversed(lowered.body):
             reads = {v.name for v in tree_vars(st.tree)}
             if isinstance(st, LoweredAssign) and st.target in lanes:
-                if st.target in roots or st.target in self.scalar_live:
-                    self.scalar_live.add(st.target)
+                if st.target in self.scalar_live:
                     self.scalar_live |= reads
                 continue
             roots |= reads  # a scalar statement or a check reads its lanes in either form
             self.scalar_live |= reads
-        self.scalar_live |= roots
         self.vector_alias = (roots | self.single) & lanes
 
     def _after(self, lanes: list[str], items: list[tuple]) -> None:
@@ -157,14 +160,9 @@ class ChunkPrinter:
         last = max(lanes, key=self.order.__getitem__)
         self.early.setdefault(self.first_lane[last], []).extend(items)
 
-    def _chunk(self, leaves) -> str | None:
-        """The vector of the chunk whose lanes ``leaves`` are, in order; else None."""
-        names = tuple(leaf.name if isinstance(leaf, Var) else "" for leaf in leaves)
-        return self.vectors.get(names) if all(names) else None
-
-    def _transpose(self, rows: list[str]) -> list[str]:
-        """Lines and names of the columns of the 4 x 4 block whose rows are ``rows``
-        (vectors): eight shuffles."""
+    def _transpose(self, rows: list[str]) -> tuple[list[str], list[tuple[str, str]]]:
+        """The columns of the 4 x 4 block whose rows are the vectors ``rows``, and the
+        eight shuffles that make them, as (name, line)."""
         base = f"tr_{rows[0]}"
         t = [f"{base}_{k}" for k in range(4)]
         c = [f"{base}_c{k}" for k in range(4)]
@@ -172,47 +170,43 @@ class ChunkPrinter:
                  (t[2], rows[2], rows[3], "0, 4, 2, 6"), (t[3], rows[2], rows[3], "1, 5, 3, 7"),
                  (c[0], t[0], t[2], "0, 1, 4, 5"), (c[1], t[1], t[3], "0, 1, 4, 5"),
                  (c[2], t[0], t[2], "2, 3, 6, 7"), (c[3], t[1], t[3], "2, 3, 6, 7")]
-        self._lines = [f"const {self.vtype} {name} = __builtin_shufflevector({a}, {b}, {m});"
-                       for name, a, b, m in pairs]
-        return c
+        return c, [(name, f"const {self.vtype} {name} = __builtin_shufflevector({a}, {b}, {m});")
+                   for name, a, b, m in pairs]
 
     def _symmetric_blocks(self, port: str, leaves) -> set[int]:
         """A symmetric output whose upper triangle is rows of chunks, written in 4 x 4
         blocks: an upper block as its four chunks, the block below the diagonal as their
         transposition, a diagonal block as its chunks with the lanes below the diagonal
-        taken from its transposition (the mirror, exactly: the same values). Returns the
-        first indices of the runs written so (the others are written as any output)."""
+        taken from its transposition (the mirror, exactly: the same values). A block is
+        written so only when the output's entries are those lanes, checked entry by entry.
+        Returns the first indices of the runs written so (the others: as any output)."""
         n = round(len(leaves) ** 0.5)
         if self.lanes != 4 or n * n != len(leaves) or n % 4:
             return set()
+
+        def name(i: int, j: int) -> str | None:
+            leaf = leaves[i * n + j]
+            return leaf.name if isinstance(leaf, Var) else None
+
         done: set[int] = set()
         for bi in range(n // 4):
             rows = range(4 * bi, 4 * bi + 4)
             for bj in range(bi, n // 4):
-                chunks = []
-                for a in rows:
-                    lane0 = a * n + 4 * bj
-                    run = leaves[lane0:lane0 + 4]
-                    if bj == bi:  # the chunk that holds the row's lanes on and above
-                        r = a - 4 * bi  # the diagonal (the lanes before it are mirrored)
-                        owner = run[r] if isinstance(run[r], Var) else None
-                        where = self.first_lane.get(owner.name) if owner else None
-                        names = next((key for key, v in self.vectors.items()
-                                      if key[0] == where), None) if where else None
-                        ok = names is not None and all(
-                            isinstance(run[k], Var) and run[k].name == names[k]
-                            for k in range(r, 4))
-                        chunks.append(names if ok else None)
-                    else:
-                        vector = self._chunk(run)
-                        chunks.append(tuple(v.name for v in run) if vector else None)
-                if None in chunks:
+                # the chunk of each row that holds its lanes in the block, on and above the
+                # diagonal (those before it, in a diagonal block, are the mirror)
+                chunks = [self.chunk_lanes.get(self.first_lane.get(name(a, 4 * bj + r), ""))
+                          if bj == bi else self.chunk_lanes.get(self.first_lane.get(
+                              name(a, 4 * bj), "")) for r, a in enumerate(rows)]
+                if None in chunks or not all(
+                        name(a, 4 * bj + k) == (chunks[r][k] if bj > bi or k >= r
+                                                else chunks[k][r])
+                        and (bj == bi or name(4 * bj + k, a) == chunks[r][k])
+                        for r, a in enumerate(rows) for k in range(4)):
                     continue
                 vectors = [self.vectors[c] for c in chunks]
-                columns = self._transpose(vectors)
-                lines = [("line", line) for line in self._lines  # a diagonal block's row 0
-                         if bj > bi or not line.split(" = ")[0].endswith(columns[0])]
-                lanes = [name for c in chunks for name in c]
+                columns, shuffles = self._transpose(vectors)
+                lines = [("line", line) for column, line in shuffles
+                         if bj > bi or column != columns[0]]  # a diagonal block's row 0: none
                 if bj == bi:
                     for r, a in enumerate(rows):
                         mask = ", ".join(str(4 + k if k < r else k) for k in range(4))
@@ -228,7 +222,7 @@ class ChunkPrinter:
                         b = 4 * bj + k
                         lines.append(("store", port, b * n + 4 * bi, columns[k]))
                         done.add(b * n + 4 * bi)
-                self._after(lanes, lines)
+                self._after([lane for c in chunks for lane in c], lines)
         return done
 
     def _operand(self, leaves: tuple[Tree, ...]) -> str:
@@ -270,9 +264,8 @@ class ChunkPrinter:
         closes with the scalar stores): the entries that are not four lanes of chunks
         (those went out with their chunks, :meth:`lines`). ``place(port, index)``: the C
         text of an output element."""
-        return [OPEN] + [f"{place(port, first)} = "
-                         f"{self.printer.expression(self.results[port][first])};"
-                         for port, first, _ in self.stores]
+        return [OPEN] + [f"{place(port, k)} = {self.printer.expression(self.results[port][k])};"
+                         for port, k in self.stores]
 
     def lines(self, chunk: LoweredChunk, scalar_lines: list[str], place) -> list[str]:
         """The chunk in both forms: the vector statement, the lanes read one by one and
