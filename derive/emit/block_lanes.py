@@ -46,7 +46,7 @@ the scalar run takes it. Not served, and why:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
 from derive.emit.unit import LOOKAHEAD_NEXT
@@ -371,7 +371,7 @@ def _canonical(body: list, results: list, shared: set[str]) -> dict:
             temps[st.target] = f"t{len(temps)}"
             statements.append(LoweredAssign(temps[st.target], tree))
         else:
-            statements.append(type(st)(renamed(st.tree), st.message, 0, st.relation))
+            statements.append(replace(st, tree=renamed(st.tree), status=0))
             checks.append(position)
             statuses.append(st.status)
     out_indices: dict[str, list[int]] = {}
@@ -459,11 +459,11 @@ class VectorStatements:
             if isinstance(st, LoweredAssign):
                 temps[st.target] = self.value(st.tree, names)
             else:
-                checked.append(self.value(st.tree.args[0], names))
+                checked.append((*self.value(st.tree.args[0], names), st.operator))
         for c, b in lanes.order:
-            text, vector = checked[c]
+            text, vector, operator = checked[c]
             value = f"{text}[{b}]" if vector else text
-            self.lines += [f"if (!({value} > 0.0) && !{status}) {{",
+            self.lines += [f"if (!({value} {operator} 0.0) && !{status}) {{",
                            f"    {status} = {lanes.statuses[c][b]};", "}"]
         outputs = {}
         for port, leaves in lanes.block.results:
