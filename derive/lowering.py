@@ -454,14 +454,15 @@ class LoweredCheck:
     """``tree`` is ``cmp(value, 0)``: fails unless value > 0 (``relation`` "positive"),
     value >= 0 ("nonnegative") or value == 0 ("zero"); ``status`` numbers the check.
     Every check but the zero checks has its own status, in order; the zero checks of a
-    program (its pattern) share the next one. ``domain``: a parameter's domain check
-    (derive.statements.Check), whose refused value generated Python names."""
+    program (its pattern) share the next one. ``parameter``: the name of the parameter
+    whose declared domain the check is (derive.statements.Check; empty for the others),
+    whose refused value generated Python names."""
 
     tree: Op
     message: str
     status: int
     relation: str = "positive"
-    domain: bool = False
+    parameter: str = ""
 
     @property
     def is_pattern(self) -> bool:
@@ -580,7 +581,7 @@ def lower_program(program: Program, *, use_fma: bool = False,
         tree = Op("cmp", (cut(lowerer.lower(st.value)), Const(0.0)))
         if st.relation != ZERO:
             status += 1
-            body.append(LoweredCheck(tree, st.message, status, st.relation, st.domain))
+            body.append(LoweredCheck(tree, st.message, status, st.relation, st.parameter))
         else:
             body.append(LoweredCheck(tree, st.message, pattern_status, ZERO))
     results = tuple((name, tuple(cut(lowerer.lower(v)) for v in values))

@@ -31,7 +31,6 @@ from derive.statements import (
     NONNEGATIVE,
     POSITIVE,
     Assign,
-    Check,
     Statement,
     Temporary,
     is_atom,

@@ -388,7 +388,8 @@ class Program:
             raise ProgramError(f"require_domain: unknown domain {domain!r}; domains: "
                                f"{', '.join(DOMAINS)}")
         relation = POSITIVE if domain == DOMAIN_POSITIVE else NONNEGATIVE
-        self._body.append(Check(element, domain_message(name, domain), relation, domain=True))
+        self._body.append(Check(element, domain_message(name, domain), relation,
+                                parameter=name))
 
     def require_zero(self, element: InputElement, message: str) -> None:
         """Runtime check that the input element ``element`` is exactly 0 (a NaN fails).

@@ -43,14 +43,15 @@ class Check:
     (NONNEGATIVE) or ``value == 0`` (ZERO: an input element outside a declared sparsity
     pattern); ``value`` is an atom. A NaN fails every relation. Fails with ``message``.
 
-    ``domain``: the check of a free parameter's declared domain (``value`` an element of
-    ``p``; derive.domains): generated Python names the value it refuses, and the check
-    is dropped with the dead code when nothing in the program reads that element."""
+    ``parameter``: for the check of a free parameter's declared domain (``value`` an
+    element of ``p``; derive.domains), the parameter's name: generated Python names the
+    value it refuses, and the check is dropped with the dead code when nothing else in
+    the program reads that element; empty for every other check."""
 
     value: sympy.Expr
     message: str
     relation: str = POSITIVE
-    domain: bool = False
+    parameter: str = ""
 
     @property
     def text(self) -> str:
@@ -88,8 +89,8 @@ def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> 
     out.reverse()
     read = {v for values in results.values() for v in values if isinstance(v, InputElement)}
     for st in out:
-        if not (isinstance(st, Check) and st.domain):
+        if not (isinstance(st, Check) and st.parameter):
             expr = st.expr if isinstance(st, Assign) else st.value
             read.update(s for s in expr.free_symbols if isinstance(s, InputElement))
-    return [st for st in out if not (isinstance(st, Check) and st.domain
+    return [st for st in out if not (isinstance(st, Check) and st.parameter
                                      and st.value not in read)]

@@ -183,7 +183,7 @@ def _loop_lines(lowered: LoweredProgram, step_inputs: tuple[str, ...],
                 body.append(f"{direct.get(st.target, st.target)} = {printer.expression(tree)}")
         else:
             value = printer.expression(_substitute(st.tree.args[0], inlined))
-            named = f' + f", got {{{value}!r}}"' if st.domain else ""  # a parameter's value
+            named = f' + f", got {{{value}!r}}"' if st.parameter else ""  # a parameter's value
             body += [f"if not {value} {st.operator} 0.0:",
                      f'    raise NumericalError(f"step {{len(rows) // {8 * width}}}: " '
                      f'+ {st.message!r}{named})']

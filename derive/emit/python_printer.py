@@ -222,9 +222,9 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
         needed.append("gate")
     if any(lp.pattern_checks for lp in lowered):
         needed.append("pattern")
-    if any(c for lp in lowered for c in lp.checks if not (c.is_pattern or c.domain)):
+    if any(c for lp in lowered for c in lp.checks if not (c.is_pattern or c.parameter)):
         needed.append("check")
-    if any(c.domain for lp in lowered for c in lp.checks):
+    if any(c.parameter for lp in lowered for c in lp.checks):
         needed.append("domain")
     return needed
 
@@ -233,7 +233,7 @@ def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
     return bool({"select", "gate"} & kinds) or any(
-        lp.pattern_checks or square_input_lines(lp) or any(c.domain for c in lp.checks)
+        lp.pattern_checks or square_input_lines(lp) or any(c.parameter for c in lp.checks)
         for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 
@@ -263,7 +263,7 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"{st.target} = {printer.expression(st.tree)}")
-        elif st.domain:
+        elif st.parameter:
             value = printer.expression(st.tree.args[0])
             body.append(f"_require_domain({value}, {st.operator!r}, {st.message!r})")
         elif not st.is_pattern:

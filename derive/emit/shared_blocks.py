@@ -37,7 +37,6 @@ from dataclasses import dataclass, replace
 from derive.emit.block_lanes import Part, independent_parts
 from derive.lowering import (
     LoweredAssign,
-    LoweredCheck,
     LoweredProgram,
     Tree,
     element_name,
