@@ -87,7 +87,7 @@ def check_value(symbol: sympy.Symbol, value, what: str) -> None:
     except (TypeError, ValueError):  # symbolic: not a number to check
         return
     if not holds(number, domain):
-        raise DomainError(f"{what}: {domain_message(symbol.name, domain)}, got {value}")
+        raise DomainError(f"{what}: {domain_message(symbol.name, domain)}, got {number!r}")
 
 
 __all__ = ["DOMAINS", "NONNEGATIVE", "POSITIVE", "check_row", "check_rows", "check_value",

@@ -69,7 +69,7 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
     groups: dict[object, list[Part]] = {}
     for part in found.parts:
         groups.setdefault(part.canonical["key"], []).append(part)
-    scalars = {st.target for st in found.shared}
+    scalars = {st.target for st in found.shared if isinstance(st, LoweredAssign)}
     next_of = dict(carried)
     results = {port: list(leaves) for port, leaves in program.results}
     rename: dict[str, str] = {}
