@@ -10,7 +10,7 @@
  * m: 7 (measurements)
  * parameters: p = [dt]
  * interface (flat row-major arrays; steps = number of steps):
- *     void ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
+ *     int ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_gnss(x[16], P[16*16], z[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_baro(x[16], P[16*16], z[1], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
@@ -19,14 +19,15 @@
  * symmetric in update_gnss: P, P_new (inputs: upper triangle read; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
- *     update_gnss 1: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
- *     update_gnss 2: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
- *     update_gnss 3: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
- *     update_gnss 4: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
- *     update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
- *     update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
- *     update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 64, sub 13, mul 111, div 0, sqrt 0, fma 1000, neg 18, cmp 0, calls 0 (flops 2188, instructions 1206)
+ *     predict 1: parameter dt must be nonnegative
+ *     update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
+ *     update_gnss 3: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
+ *     update_gnss 4: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
+ *     update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
+ *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
+ *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
+ *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 64, sub 13, mul 111, div 0, sqrt 0, fma 1000, neg 18, cmp 1, calls 0 (flops 2188, instructions 1207)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 11, sub 22, mul 123, div 7, sqrt 1, fma 899, neg 0, cmp 6, calls 0 (flops 1962, instructions 1069)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -37,7 +38,7 @@
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
- * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",false,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["update_gnss",1,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",2,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",7,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -61,8 +62,11 @@
 #endif
 #endif
 
-void ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, const double *restrict u, double *restrict x_new, double *restrict P_new, const double *restrict p)
+int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, const double *restrict u, double *restrict x_new, double *restrict P_new, const double *restrict p)
 {
+    if (!(p[0] >= 0.0)) {
+        return 1; /* parameter dt must be nonnegative */
+    }
     const double t0 = 0.5*p[0];
     const double t1 = t0*(u[0] - x[10]);
     const double t2 = t0*(u[1] - x[11]);
@@ -703,6 +707,7 @@ void ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, co
     P_new[253] = P[223];
     P_new[254] = P[239];
     P_new[255] = t370;
+    return 0;
 }
 
 int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const double *restrict p)
@@ -716,7 +721,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t5 = z[5] - x[6];
     const double t6 = 2.25 + P[119];
     if (!(t6 > 0.0)) {
-        return 1; /* S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive */
+        return 2; /* S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive */
     }
     const double t7 = (-1.0)/t6;
     const double t8 = P[7]*t7;
@@ -875,7 +880,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t176 = DERIVE_FMA(P[127], t23, P[255]);
     const double t177 = 2.25 + t141;
     if (!(t177 > 0.0)) {
-        return 2; /* S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive */
+        return 3; /* S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive */
     }
     const double t178 = t1 + t33;
     const double t179 = (-1.0)/t177;
@@ -1050,7 +1055,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t348 = DERIVE_FMA(t148, t195, t176);
     const double t349 = 9.0 + t321;
     if (!(t349 > 0.0)) {
-        return 3; /* S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive */
+        return 4; /* S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive */
     }
     const double t350 = t2 + t206;
     const double t351 = (-1.0)/t349;
@@ -1225,7 +1230,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t520 = DERIVE_FMA(t327, t367, t348);
     const double t521 = 0.01 + t443;
     if (!(t521 > 0.0)) {
-        return 4; /* S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive */
+        return 5; /* S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive */
     }
     const double t522 = t3 + t373;
     const double t523 = (-1.0)/t521;
@@ -1400,7 +1405,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t692 = DERIVE_FMA(t454, t539, t520);
     const double t693 = 0.01 + t627;
     if (!(t693 > 0.0)) {
-        return 5; /* S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive */
+        return 6; /* S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive */
     }
     const double t694 = t4 + t546;
     const double t695 = (-1.0)/t693;
@@ -1575,7 +1580,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t864 = DERIVE_FMA(t637, t711, t692);
     const double t865 = 0.04 + t810;
     if (!(t865 > 0.0)) {
-        return 6; /* S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive */
+        return 7; /* S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive */
     }
     const double t866 = t5 + t719;
     const double t867 = (-1.0)/t865;
@@ -2050,7 +2055,7 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     (void)p;
     const double t1 = 0.25 + P[153];
     if (!(t1 > 0.0)) {
-        return 7; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 8; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t2 = 1.0/t1;
     const double t3 = P[9]*t2;
@@ -2522,7 +2527,10 @@ int ins_gnss_ekf_run(size_t steps, const double *u, const double *z_gnss, const 
     for (k = 0; k < steps; ++k) {
         const double *uk = u + k * 6;
         const double *pk = p + k * p_stride;
-        ins_gnss_ekf_predict(x, P, uk, x_new, P_new, pk);
+        status = ins_gnss_ekf_predict(x, P, uk, x_new, P_new, pk);
+        if (status) {
+            return status;
+        }
         for (i = 0; i < 16; ++i) {
             x[i] = x_new[i];
         }
