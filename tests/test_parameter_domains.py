@@ -14,12 +14,13 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import sympy
 
-from derive import LinearModel, NonlinearModel, Sensor, reference
+from derive import LinearModel, NonlinearModel, Sensor, catalog, catalog_files, reference
 from derive.apps.verify import LINEAR_TOLERANCE, relative_error
 from derive.domains import check_rows, declared_domain, parameter_domains
 from derive.errors import DomainError, ModelError, ModelFileError, NumericalError
@@ -31,6 +32,7 @@ from derive.interface import read
 from derive.modelfile import load_model_file, loads_model
 from derive.pipeline import load_generated
 
+ROOT = Path(__file__).resolve().parents[1]
 GCC = shutil.which("gcc")
 needs_gcc = pytest.mark.skipif(GCC is None, reason="no C compiler")
 
@@ -384,3 +386,35 @@ def test_a_bad_domain_is_one_line_with_exit_status_2(tmp_path, spec, message):
     assert done.stderr.count("\n") == 1 and message in done.stderr
     assert "Traceback" not in done.stderr
     assert not out.exists()
+
+
+# -- the catalog ---------------------------------------------------------------------------
+
+def test_the_ins_gnss_ekf_checks_dt_in_predict_alone():
+    """ins_gnss declares dt nonnegative: its predict (the one program reading dt) checks it,
+    one comparison more than the same model without the declaration, arithmetic unchanged;
+    its reference refuses a negative row naming the step."""
+    text = catalog_files.read_text("ins_gnss")
+    declared = catalog.load("ins_gnss")
+    assert ', domain = "nonnegative"' in text
+    plain = loads_model(text.replace(', domain = "nonnegative"', ""))
+    assert parameter_domains(declared.parameters) == ((0, "dt", "nonnegative"),)
+    assert parameter_domains(plain.parameters) == ()
+    unit, before = derive_unit(declared, "ekf", {}), derive_unit(plain, "ekf", {})
+    for name, program in unit.programs.items():
+        extra = 1 if name == "predict" else 0
+        got, was = count(program, "c"), count(before.programs[name], "c")
+        assert (got.cmp, got.flops) == (was.cmp + extra, was.flops), name
+    header = (ROOT / "generated" / "ins_gnss" / "ekf.h").read_text()
+    assert "int ins_gnss_ekf_predict(" in header
+    assert "    predict 1: parameter dt must be nonnegative" in header
+    assert f"operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): " \
+           f"{count(unit.programs['predict'], 'c').summary()}" in header
+    steps, bad = 6, 3
+    dt = np.full((steps, 1), declared.examples["dt"])
+    dt[bad, 0] = -dt[bad, 0]
+    us = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, -9.80665], (steps, 1))
+    zs = {"gnss": np.full((steps, 6), np.nan), "baro": np.full((steps, 1), np.nan)}
+    with pytest.raises(DomainError, match=re.escape(
+            f"step {bad}: parameter dt must be nonnegative, got {float(dt[bad, 0])!r}")):
+        reference_run(declared, {}, zs, us, dt)
