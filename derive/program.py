@@ -3,7 +3,8 @@
 A :class:`Program` is one generated function with no loops and no branches
 except runtime checks.  It has input and output :class:`Port` s (flat,
 row-major arrays), a body of assignments ``tK = expr`` to temporaries, runtime
-checks ``expr > 0`` (and ``P[k] == 0`` for inputs outside a pattern) and, per
+checks ``expr > 0`` (and ``P[k] == 0`` for inputs outside a pattern, ``p[k] >= 0`` or
+``p[k] > 0`` for a parameter's declared domain, added by :meth:`Program.bind`) and, per
 output port, the list of atoms (temporaries, input elements, numbers) written to
 it.  Every expression is a sympy expression over *input elements* (symbols named
 as generated code reads them, ``x[0]``, ``P[3]``) and earlier temporaries.
