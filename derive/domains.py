@@ -6,17 +6,21 @@ file, ``domain = "nonnegative"`` in its ``[parameters.NAME]`` table, which makes
 symbol with that assumption. Generated code checks each declared parameter it reads
 (:meth:`derive.program.Program.bind`); the NumPy references and the models' numbers
 refuse the same values (:func:`check_row`, :func:`check_rows`) with the same message.
-Other assumptions (negative, nonzero, integer, ...) are not checked.
+Other assumptions (negative, nonzero, integer, ...) are not checked. The checks of
+numbers need no SymPy (derive.build and the references import this module).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy
 
 from derive.errors import DomainError
+
+if TYPE_CHECKING:  # read from symbols' assumptions; this module itself needs no SymPy
+    import sympy
 
 NONNEGATIVE, POSITIVE = "nonnegative", "positive"
 #: The domains a parameter may declare (a model file's ``domain`` key).
@@ -30,13 +34,6 @@ def declared_domain(symbol: sympy.Symbol) -> str | None:
     if symbol.is_nonnegative:
         return NONNEGATIVE
     return None
-
-
-def domain_symbol(name: str, domain: str | None) -> sympy.Symbol:
-    """The real symbol ``name`` with the assumption of ``domain`` (None: real only)."""
-    if domain is None:
-        return sympy.Symbol(name, real=True)
-    return sympy.Symbol(name, real=True, **{domain: True})
 
 
 def domain_message(name: str, domain: str) -> str:
@@ -91,5 +88,5 @@ def check_value(symbol: sympy.Symbol, value, what: str) -> None:
 
 
 __all__ = ["DOMAINS", "NONNEGATIVE", "POSITIVE", "check_row", "check_rows", "check_value",
-           "declared_domain", "domain_message", "domain_symbol", "holds",
+           "declared_domain", "domain_message", "holds",
            "parameter_domains"]

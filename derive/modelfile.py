@@ -86,7 +86,7 @@ from typing import Any
 import sympy
 
 from derive import catalog_files
-from derive.domains import DOMAINS, NONNEGATIVE, domain_symbol, holds
+from derive.domains import DOMAINS, NONNEGATIVE, holds
 from derive.errors import ModelError, ModelFileError
 from derive.expressions import (
     RESERVED_NAMES,
@@ -590,7 +590,9 @@ class _File:
                                                        f"got {value!r}")
             elif domain is None and name == time_step:  # [continuous] dt = "NAME", free
                 domain = NONNEGATIVE
-            self.symbols[name] = domain_symbol(name, domain)
+            # the domain is the symbol's assumption, as a model built in Python declares it
+            self.symbols[name] = sympy.Symbol(name, real=True, **({domain: True} if domain
+                                                                   else {}))
 
     def sensor_tables(self, kind: str) -> list[tuple[str, dict[str, Any]]]:
         """The ``[sensors.NAME]`` tables in file order (empty without [sensors]), each
