@@ -47,7 +47,9 @@ import numpy as np
 
 from derive import interface
 from derive.aligned import aligned_empty
+from derive.domains import check_row, check_rows
 from derive.errors import (
+    DomainError,
     DtypeError,
     ModelError,
     NumericalError,
@@ -234,10 +236,23 @@ def status_error(module: FilterModule, function: str, status: int, values: dict
     """The exception for a non-zero status of ``PREFIX_function`` called with the input
     arrays ``values`` (by argument name): PatternError naming the first entry of a square
     input (P, P0, U; any track) outside the pattern the header states, for a pattern status
-    of a program the function runs; NumericalError naming the failed check otherwise."""
+    of a program the function runs; DomainError (a NumericalError) naming the step (run),
+    the parameter and its value for a parameter's domain status; NumericalError naming the
+    failed check otherwise."""
     programs = (RUN_PROGRAMS if function in ("run", "run_tracks") else (function,))
     texts = module.statuses.get(status, [])
     where = f"{module.prefix}_{function} failed with status {status}"
+    # the statuses of a file are numbered apart: the number alone names the check
+    parameter = next((s.parameter for s in module.interface.statuses
+                      if s.number == status and s.parameter), ())
+    if parameter and values.get("p") is not None:  # a declared domain: name step and value
+        try:
+            if function in ("run", "run_tracks"):
+                check_rows([parameter], values["p"])
+            else:
+                check_row([parameter], values["p"])
+        except DomainError as exc:
+            return DomainError(f"{where}: {exc}")
     arguments = {a.name: a for a in module.functions.get(function,
                                                          module.functions.get("run")).arguments
                  if not a.output and len(a.dims) == 2 and a.dims[0] == a.dims[1]}
@@ -303,7 +318,7 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
         args += [buf(p), inputs["p"].size() if p.ndim == 2 else 0]
     status = fn(*args)
     if status:
-        raise status_error(module, "run_tracks", status, {"P0": P0})
+        raise status_error(module, "run_tracks", status, {"P0": P0, "p": p})
     return xs if P0 is None else (xs, Ps)
 
 

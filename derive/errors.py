@@ -82,3 +82,10 @@ class NumericalError(ArithmeticError):
 class NotFiniteError(MatrixPropertyError):
     """A matrix entry that is not a finite double at the given values (or whose exact value
     would be too large to compute)."""
+
+
+class DomainError(NumericalError, ModelError):
+    """A value of a free parameter outside the domain its symbol declares (a negative
+    ``dt`` declared nonnegative), refused by derive's NumPy references and models as the
+    generated code's check refuses it: a NumericalError like that check's, and a
+    ModelError, since the value is bad input."""

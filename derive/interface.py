@@ -120,12 +120,14 @@ class Function:
 class Status:
     """A non-zero status of a program's function: its number and the failed check;
     ``zero``: for the pattern status, the flat indices of the checked input (P, or run's
-    P0) that must be zero."""
+    P0) that must be zero; ``parameter``: for a parameter's domain check, ``(index in p,
+    name, domain)`` (derive.domains), from which derive.build names the step and value."""
 
     program: str
     number: int
     message: str
     zero: tuple[int, ...] = ()
+    parameter: tuple = ()
 
     def identifier(self) -> str:
         """The status's name in C's status enum, after the file's ``PREFIX_STATUS_``:
@@ -191,6 +193,7 @@ class Interface:
                                 + ([True] if a.scratch else []) for a in f.arguments]]
                               for f in self.functions],
                 "statuses": [[s.program, s.number, s.message, list(s.zero)]
+                             + ([list(s.parameter)] if s.parameter else [])
                              for s in self.statuses]}
         if self.element != DEFAULT_ELEMENT:
             data["element"] = self.element
@@ -213,8 +216,10 @@ def read(header: str) -> Interface:
                                                   bool(a[4]), scratch=len(a) > 5 and a[5])
                                          for a in args))
                 for name, program, status, steps, args in data["functions"])
-            statuses = tuple(Status(program, int(number), message, tuple(zero))
-                             for program, number, message, zero in data["statuses"])
+            statuses = tuple(Status(program, int(number), message, tuple(zero),
+                                    tuple(parameter[0]) if parameter else ())
+                             for program, number, message, zero, *parameter
+                             in data["statuses"])
             element = data.get("element", DEFAULT_ELEMENT)
         except (ValueError, KeyError, TypeError) as exc:
             raise InterfaceError(f"the header's interface line cannot be read: {exc}") \

@@ -70,7 +70,7 @@ from sympy import default_sort_key
 
 from derive.errors import ModelError
 from derive.single_use import fold_single_use
-from derive.statements import POSITIVE, Assign, Check
+from derive.statements import OPERATORS, ZERO, Assign, Check
 
 if TYPE_CHECKING:
     from derive.program import Port, Program
@@ -452,19 +452,28 @@ class LoweredAssign:
 
 @dataclass(frozen=True)
 class LoweredCheck:
-    """``tree`` is ``cmp(value, 0)``: fails unless value > 0 (``relation`` "positive") or
-    value == 0 ("zero"); ``status`` numbers the check.  Every positive check has its own
-    status, in order; the zero checks of a program (its pattern) share the next one."""
+    """``tree`` is ``cmp(value, 0)``: fails unless value > 0 (``relation`` "positive"),
+    value >= 0 ("nonnegative") or value == 0 ("zero"); ``status`` numbers the check.
+    Every check but the zero checks has its own status, in order; the zero checks of a
+    program (its pattern) share the next one. ``parameter``: the name of the parameter
+    whose declared domain the check is (derive.statements.Check; empty for the others),
+    whose refused value generated Python names."""
 
     tree: Op
     message: str
     status: int
     relation: str = "positive"
+    parameter: str = ""
 
     @property
     def is_pattern(self) -> bool:
         """True for a zero check: an input element outside a declared pattern."""
         return self.relation == "zero"
+
+    @property
+    def operator(self) -> str:
+        """How generated code compares the value with 0 (``>``, ``>=``, ``==``)."""
+        return OPERATORS[self.relation]
 
 
 @dataclass(frozen=True)
@@ -581,7 +590,7 @@ def lower_program(program: Program, *, use_fma: bool = False,
                             default=-1), body)
     status = first_status - 1
     pattern_status = first_status + sum(1 for st in program.body
-                                        if isinstance(st, Check) and st.relation == POSITIVE)
+                                        if isinstance(st, Check) and st.relation != ZERO)
     lanes = {t: (chunk, lane) for chunk in program.rows for lane, t in enumerate(chunk.targets)}
     statements = (fold_single_use(program.body, program.results, frozenset(lanes)) if use_fma
                   else program.body)
@@ -598,11 +607,11 @@ def lower_program(program: Program, *, use_fma: bool = False,
             body.append(LoweredAssign(st.target.name, cut(lowerer.lower(st.expr))))
             continue
         tree = Op("cmp", (cut(lowerer.lower(st.value)), Const(0.0)))
-        if st.relation == POSITIVE:
+        if st.relation != ZERO:
             status += 1
-            body.append(LoweredCheck(tree, st.message, status))
+            body.append(LoweredCheck(tree, st.message, status, st.relation, st.parameter))
         else:
-            body.append(LoweredCheck(tree, st.message, pattern_status, "zero"))
+            body.append(LoweredCheck(tree, st.message, pattern_status, ZERO))
     results = tuple((name, tuple(cut(lowerer.lower(v)) for v in values))
                     for name, values in program.results.items())
     return LoweredProgram(program.name, program.doc, program.inputs, program.outputs,

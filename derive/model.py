@@ -22,6 +22,7 @@ import sympy
 
 from . import structure
 from .discretize import discretize
+from .domains import check_value
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
 from .options import ROW_FORMS, UPDATE_FORMS
@@ -273,6 +274,7 @@ class _Model:
             if nm not in used_names:
                 raise SymbolError(f"value given for unknown symbol {nm!r}: it appears in no "
                                   f"matrix of model {self.name!r}")
+            check_value(table.by_name[nm], self.values[nm], f"model {self.name!r} values")
         for s in used:
             if s.name in self.measurements:
                 raise SymbolError(f"symbol {s.name!r} is a measurement name; measurements "
@@ -309,6 +311,7 @@ class _Model:
                 number = float("nan")
             if isinstance(value, (bool, str)) or not np.isfinite(number):
                 raise SymbolError(f"example of {nm!r} must be a finite number, got {value!r}")
+            check_value(self._by_name[nm], number, f"model {self.name!r} examples")
             self.examples[nm] = number
 
     def _ordered(self, free: list[sympy.Symbol], order, used_names: set[str]):
@@ -366,6 +369,8 @@ class _Model:
         missing = [p.name for p in self.parameters if p.name not in given]
         if missing:
             raise SymbolError(f"model {self.name!r} needs values for free parameters {missing}")
+        for k, v in given.items():  # a declared domain refuses a value as generated code does
+            check_value(self._by_name[k], v, f"model {self.name!r}")
         return {self._by_name[k]: v for k, v in given.items()}
 
     def _initial(self, x0, P0, P0_pattern) -> None:

@@ -86,6 +86,7 @@ from typing import Any
 import sympy
 
 from derive import catalog_files
+from derive.domains import DOMAINS, NONNEGATIVE, holds
 from derive.errors import ModelError, ModelFileError
 from derive.expressions import (
     RESERVED_NAMES,
@@ -158,8 +159,16 @@ _REQUIRED: Mapping[str, tuple[str, ...]] = {
     "nonlinear": ("f", "h", "Q", "R"),
     "compose": ("blocks",),
 }
-_PARAMETER_KEYS = ("value", "description", "example")
+_PARAMETER_KEYS = ("value", "description", "example", "domain")
 _BLOCK_KEYS = ("model", "suffix")
+
+
+def _continuous_time_step(doc: dict[str, Any]) -> str | None:
+    """The name a ``[continuous]`` table's dt is, when it is one name alone (``dt =
+    "dt"``): a free parameter named so is the time step, nonnegative unless declared."""
+    table = doc.get("continuous")
+    value = table.get("dt") if isinstance(table, dict) else None
+    return value.strip() if isinstance(value, str) and value.strip().isidentifier() else None
 
 
 class _Decimal:
@@ -541,15 +550,21 @@ class _File:
             if name in taken:
                 raise self.error(inputs_where, f"{name!r} is also {taken[name]}")
             taken[name] = "an input"
+        time_step = _continuous_time_step(self.doc)
         for name, spec in table.items():
             where = f"[parameters] {name}"
             self.identifier(name, where)
             if name in taken:
                 raise self.error(where, f"{name!r} is also {taken[name]}")
+            domain = None
             if isinstance(spec, dict):
                 self.check_keys(spec, _PARAMETER_KEYS, where)
                 self.string(spec, "description", where)
                 value = spec.get("value")
+                domain = spec.get("domain")
+                if domain is not None and (not isinstance(domain, str) or domain not in DOMAINS):
+                    raise self.error(f"{where} domain", f"must be one of {', '.join(DOMAINS)}, "
+                                                        f"got {_kind_name(domain)} {domain!r}")
                 if "example" in spec:
                     example = spec["example"]
                     if value is not None:
@@ -560,6 +575,9 @@ class _File:
                                                              f"{_kind_name(example)} "
                                                              f"{example!r}")
                     self.examples[name] = float(str(example))
+                    if domain is not None and not holds(self.examples[name], domain):
+                        raise self.error(f"{where} example", f"must be {domain} (its domain), "
+                                                             f"got {example!r}")
             else:
                 value = spec
             if value is not None:
@@ -568,7 +586,14 @@ class _File:
                     raise self.error(where, f"value must be a number, got {_kind_name(value)} "
                                             f"{value!r}")
                 self.values[name] = self.entry(value, where, {})
-            self.symbols[name] = sympy.Symbol(name, real=True)
+                if domain is not None and not holds(float(self.values[name]), domain):
+                    raise self.error(f"{where} value", f"must be {domain} (its domain), "
+                                                       f"got {value!r}")
+            elif domain is None and name == time_step:  # [continuous] dt = "NAME", free
+                domain = NONNEGATIVE
+            # the domain is the symbol's assumption, as a model built in Python declares it
+            self.symbols[name] = sympy.Symbol(name, real=True, **({domain: True} if domain
+                                                                   else {}))
 
     def sensor_tables(self, kind: str) -> list[tuple[str, dict[str, Any]]]:
         """The ``[sensors.NAME]`` tables in file order (empty without [sensors]), each

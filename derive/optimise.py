@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from bisect import bisect_left, insort
 from collections.abc import Sequence
+from dataclasses import replace
 from fractions import Fraction
 
 import sympy
@@ -27,9 +28,9 @@ from derive.flops import count_tree
 from derive.lowering import lower
 from derive.statements import (
     NON_FINITE,
+    NONNEGATIVE,
     POSITIVE,
     Assign,
-    Check,
     Statement,
     Temporary,
     is_atom,
@@ -96,12 +97,13 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
         else:
             value = st.value.xreplace(subst) if subst else st.value
             if value.is_number:
-                holds = value.is_positive if st.relation == POSITIVE else value.is_zero
+                holds = (value.is_positive if st.relation == POSITIVE else
+                         value.is_nonnegative if st.relation == NONNEGATIVE else value.is_zero)
                 if holds is not True:
                     raise MatrixPropertyError(f"{st.message} (the value is structurally {value})")
             elif (st.relation, value) not in checked:
                 checked.add((st.relation, value))
-                out.append(Check(value, st.message, st.relation))
+                out.append(replace(st, value=value))
     new_results = {name: tuple(v.xreplace(subst) for v in values)
                    for name, values in results.items()}
     return out, new_results
@@ -264,6 +266,6 @@ def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ..
         if isinstance(st, Assign):
             out.append(Assign(names[st.target], st.expr.xreplace(names)))
         else:
-            out.append(Check(st.value.xreplace(names), st.message, st.relation))
+            out.append(replace(st, value=st.value.xreplace(names)))
     return out, {name: tuple(v.xreplace(names) for v in values)
                  for name, values in results.items()}

@@ -3,7 +3,8 @@
 A :class:`Program` is one generated function with no loops and no branches
 except runtime checks.  It has input and output :class:`Port` s (flat,
 row-major arrays), a body of assignments ``tK = expr`` to temporaries, runtime
-checks ``expr > 0`` (and ``P[k] == 0`` for inputs outside a pattern) and, per
+checks ``expr > 0`` (and ``P[k] == 0`` for inputs outside a pattern, ``p[k] >= 0`` or
+``p[k] > 0`` for a parameter's declared domain, added by :meth:`Program.bind`) and, per
 output port, the list of atoms (temporaries, input elements, numbers) written to
 it.  Every expression is a sympy expression over *input elements* (symbols named
 as generated code reads them, ``x[0]``, ``P[3]``) and earlier temporaries.
@@ -58,11 +59,15 @@ from math import prod
 import sympy
 from sympy import default_sort_key
 
+from derive.domains import DOMAINS, declared_domain, domain_message
+from derive.domains import POSITIVE as DOMAIN_POSITIVE
 from derive.errors import MatrixPropertyError, ShapeError
 from derive.optimise import optimize_body
 from derive.rows import RowChunk, check_chunks
 from derive.statements import (
     NON_FINITE,
+    NONNEGATIVE,
+    POSITIVE,
     ZERO,
     Assign,
     Check,
@@ -284,13 +289,23 @@ class Program:
         return sympy.Matrix(rows, cols, self._elements[p.name])
 
     def bind(self, port: str, symbols: Sequence[sympy.Symbol]) -> dict[sympy.Symbol, InputElement]:
-        """Map model symbols, in order, to the elements of a 1-D input port (for xreplace)."""
+        """Map model symbols, in order, to the elements of a 1-D input port (for xreplace).
+
+        Bound to the parameter port ``p``, each symbol that declares a domain
+        (nonnegative or positive: :mod:`derive.domains`) gets its runtime check
+        (:meth:`require_domain`), kept where the program reads the symbol."""
         p = self._input(port)
         symbols = list(symbols)
         if len(p.shape) != 1 or p.size != len(symbols):
             raise ShapeError(f"bind: port {port!r} has shape {p.shape}, but {len(symbols)} "
                              f"symbols were given: {[str(s) for s in symbols]}")
-        return dict(zip(symbols, self._elements[p.name]))
+        binding = dict(zip(symbols, self._elements[p.name]))
+        if p.name == PARAMETER_PORT:  # the parameters' declared domains, checked first
+            for sym, element in binding.items():
+                domain = declared_domain(sym)
+                if domain is not None:
+                    self.require_domain(element, sym.name, domain)
+        return binding
 
     def _check_open(self) -> None:
         if self._optimized:
@@ -381,6 +396,25 @@ class Program:
                 raise MatrixPropertyError(f"{message} (the value is structurally {value})")
             return
         self._body.append(Check(value, message if isinstance(message, str) else str(message)))
+
+    def require_domain(self, element: InputElement, name: str, domain: str) -> None:
+        """Runtime check that the parameter element ``element`` (model symbol ``name``) lies
+        in ``domain`` (``"nonnegative"``: >= 0, ``"positive"``: > 0; a NaN fails).
+
+        Generated C returns a status (``parameter dt must be nonnegative``), generated
+        Python raises :class:`derive.errors.NumericalError` naming the value; one
+        comparison, counted as ``cmp``. Dropped when optimised if nothing else in the
+        program reads ``element``."""
+        self._check_open()
+        if self._owner.get(element) != PARAMETER_PORT:
+            raise ProgramError(f"require_domain: {element!r} is not an element of the "
+                               f"parameter port of program {self.name!r}")
+        if domain not in DOMAINS:
+            raise ProgramError(f"require_domain: unknown domain {domain!r}; domains: "
+                               f"{', '.join(DOMAINS)}")
+        relation = POSITIVE if domain == DOMAIN_POSITIVE else NONNEGATIVE
+        self._body.append(Check(element, domain_message(name, domain), relation,
+                                parameter=name))
 
     def require_zero(self, element: InputElement, message: str) -> None:
         """Runtime check that the input element ``element`` is exactly 0 (a NaN fails).

@@ -147,7 +147,7 @@ def _merge(body: Sequence[Statement]) -> tuple[list[Statement], dict]:
     out: list[Statement] = []
     for st in body:
         if isinstance(st, Check):
-            out.append(Check(st.value.xreplace(names), st.message, st.relation))
+            out.append(replace(st, value=st.value.xreplace(names)))
             continue
         expr = st.expr.xreplace(names)
         if expr in seen:
@@ -352,7 +352,7 @@ class _Work:
                 names[st.target] = Temporary(f"t{len(names)}")
         out: list[Statement] = [
             Assign(names[st.target], st.expr.xreplace(names)) if isinstance(st, Assign)
-            else Check(st.value.xreplace(names), st.message, st.relation) for st in body]
+            else replace(st, value=st.value.xreplace(names)) for st in body]
         results = {name: tuple(v.xreplace(names) for v in values)
                    for name, values in self.results.items()}
         return self.program._final(out, results)   # an optimised program, final as is

@@ -32,23 +32,31 @@ class Assign:
 
 
 #: The relations a runtime check can require of its value.
-POSITIVE, ZERO = "positive", "zero"
+POSITIVE, ZERO, NONNEGATIVE = "positive", "zero", "nonnegative"
+#: How generated code compares a checked value with 0, per relation.
+OPERATORS = {POSITIVE: ">", ZERO: "==", NONNEGATIVE: ">="}
 
 
 @dataclass(frozen=True)
 class Check:
-    """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot) or ``value == 0``
-    (ZERO: an input element outside a declared sparsity pattern); ``value`` is an atom.
-    A NaN fails both. Fails with ``message``."""
+    """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot), ``value >= 0``
+    (NONNEGATIVE) or ``value == 0`` (ZERO: an input element outside a declared sparsity
+    pattern); ``value`` is an atom. A NaN fails every relation. Fails with ``message``.
+
+    ``parameter``: for the check of a free parameter's declared domain (``value`` an
+    element of ``p``; derive.domains), the parameter's name: generated Python names the
+    value it refuses, and the check is dropped with the dead code when nothing else in
+    the program reads that element; empty for every other check."""
 
     value: sympy.Expr
     message: str
     relation: str = POSITIVE
+    parameter: str = ""
 
     @property
     def text(self) -> str:
-        """``value > 0`` or ``value == 0``."""
-        return f"{self.value} {'> 0' if self.relation == POSITIVE else '== 0'}"
+        """``value > 0``, ``value >= 0`` or ``value == 0``."""
+        return f"{self.value} {OPERATORS[self.relation]} 0"
 
 
 Statement = Assign | Check
@@ -65,7 +73,8 @@ NON_FINITE = (sympy.zoo, sympy.nan, sympy.oo, -sympy.oo)
 
 def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> list[Statement]:
     """``body`` without the assignments that reach neither a result nor a check (dead
-    code), in order."""
+    code), and without the domain checks of parameters that nothing else left reads, in
+    order."""
     live = {v for values in results.values() for v in values if isinstance(v, Temporary)}
     out: list[Statement] = []
     for st in reversed(body):
@@ -78,4 +87,10 @@ def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> 
         out.append(st)
         live.update(s for s in expr.free_symbols if isinstance(s, Temporary))
     out.reverse()
-    return out
+    read = {v for values in results.values() for v in values if isinstance(v, InputElement)}
+    for st in out:
+        if not (isinstance(st, Check) and st.parameter):
+            expr = st.expr if isinstance(st, Assign) else st.value
+            read.update(s for s in expr.free_symbols if isinstance(s, InputElement))
+    return [st for st in out if not (isinstance(st, Check) and st.parameter
+                                     and st.value not in read)]

@@ -12,6 +12,7 @@ import pytest
 
 from derive import catalog
 from derive.apps import paper
+from derive.domains import parameter_domains
 from derive.filters import available, derive_unit
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
@@ -100,6 +101,11 @@ def _inputs(model, program, unit, mode, rng):
             values.append(paper.parameter_values(model, unit.family, N=N))
         elif port.name == "u":  # satellite coordinates, far from the receiver
             values.append(rng.uniform(1e3, 2e3, port.size))
+        elif port.name == "p":
+            row = rng.uniform(-1.0, 1.0, port.size)
+            for index, _, _ in parameter_domains(model.parameters):  # in its declared domain
+                row[index] = abs(row[index])
+            values.append(row)
         else:
             values.append(rng.uniform(-1.0, 1.0, port.size))
     return values

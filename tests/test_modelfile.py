@@ -171,8 +171,10 @@ R = "sr2"
 dt = "dt"
 """
     model = loads_model(text)
-    assert model.F == sympy.Matrix([[1, dt], [0, 1]])
-    expected = sq2 * sympy.Matrix([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+    # the free time step of [continuous] is nonnegative by default (its declared domain)
+    step = sympy.Symbol("dt", real=True, nonnegative=True)
+    assert model.F == sympy.Matrix([[1, step], [0, 1]])
+    expected = sq2 * sympy.Matrix([[step**3 / 3, step**2 / 2], [step**2 / 2, step]])
     assert (model.Q - expected).applyfunc(sympy.simplify) == sympy.zeros(2, 2)
 
 

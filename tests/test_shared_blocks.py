@@ -135,7 +135,7 @@ def _cv_axes(axes: int, noise: tuple[int, ...] | None = None) -> LinearModel:
     """``axes`` constant-velocity axes, block diagonal, P0 pattern zero; dt, q and r free
     runtime parameters (the same elements of p in every block); axis a's process noise is
     ``noise[a]`` q (default: q on every axis, identical axes)."""
-    dt, q, r = sympy.symbols("dt q r", positive=True)
+    dt, q, r = sympy.symbols("dt q r", real=True)  # no declared domain: no domain checks
     F1 = sympy.Matrix([[1, dt], [0, 1]])
     G1 = sympy.Matrix([[dt**2 / 2], [dt]])
     states = [f"{name}{a}" for a in range(axes) for name in ("s", "v")]

@@ -46,7 +46,7 @@ the scalar run takes it. Not served, and why:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
 from derive.emit.unit import LOOKAHEAD_NEXT
@@ -162,7 +162,9 @@ class Lanes:
     ``order``: the checks of the scalar step in its order, as (check, lane).
     ``constants``: output elements no block writes -> their constant value.
     ``shared``: the statements of the parameters alone, which every block reads (a model
-    with free parameters computes them once for all blocks): scalars, before the blocks.
+    with free parameters computes them once for all blocks): scalars, before the blocks;
+    with the checks of the parameters alone (their declared domains) that come before
+    every block's check, once, first.
     """
 
     lanes: int
@@ -172,7 +174,12 @@ class Lanes:
     statuses: tuple[tuple[int, ...], ...]
     order: tuple[tuple[int, int], ...]
     constants: dict[tuple[str, int], float]
-    shared: tuple[LoweredAssign, ...] = ()
+    shared: tuple[LoweredAssign | LoweredCheck, ...] = ()
+
+    @property
+    def has_checks(self) -> bool:
+        """True when a failed check sets a status: the block's or a shared one."""
+        return bool(self.block.checks) or any(isinstance(s, LoweredCheck) for s in self.shared)
 
     def output_of(self, port: str, index: int) -> tuple[int, int] | None:
         """(local index, lane) of an output element, or None (a constant)."""
@@ -232,29 +239,34 @@ class Part:
 class Parts:
     """A step split into its independent blocks (:func:`independent_parts`), in the order
     of their first statement; ``shared``: the statements of the parameters alone (every
-    block may read them); ``constants``: output elements no block writes."""
+    block may read them) and the checks of the parameters alone before every block's
+    check (a declared domain); ``constants``: output elements no block writes."""
 
     parts: tuple[Part, ...]
-    shared: tuple[LoweredAssign, ...]
+    shared: tuple[LoweredAssign | LoweredCheck, ...]
     constants: dict[tuple[str, int], float]
 
 
 def independent_parts(program: LoweredProgram) -> Parts | None:
     """The step's independent blocks: its statements, checks and results joined by the
     temporaries and input elements they share (the parameters ``p`` and the statements of
-    them alone join nothing); None for a step with zero checks, a check that reads no
-    block, or a result that reads no block and is not a constant."""
+    them alone join nothing, nor do the checks of them alone before every block's check);
+    None for a step with zero checks, a later check that reads no block, or a result that
+    reads no block and is not a constant."""
     if program.pattern_checks:
         return None
     union = _Union()
     shared: set[str] = set()
-    shared_statements: list[LoweredAssign] = []
+    shared_statements: list[LoweredAssign | LoweredCheck] = []
     items = []
     for position, st in enumerate(program.body):
         names = [v.name for v in _vars(st.tree) if not _scalar(v, shared)]
         if isinstance(st, LoweredAssign) and not names:
             shared.add(st.target)
             shared_statements.append(st)
+            continue
+        if not names and not any(isinstance(item, LoweredCheck) for _, item in items):
+            shared_statements.append(st)  # a parameter's domain: checked once, first
             continue
         if isinstance(st, LoweredAssign):
             names.append(st.target)
@@ -371,7 +383,7 @@ def _canonical(body: list, results: list, shared: set[str]) -> dict:
             temps[st.target] = f"t{len(temps)}"
             statements.append(LoweredAssign(temps[st.target], tree))
         else:
-            statements.append(type(st)(renamed(st.tree), st.message, 0, st.relation))
+            statements.append(replace(st, tree=renamed(st.tree), status=0))
             checks.append(position)
             statuses.append(st.status)
     out_indices: dict[str, list[int]] = {}
@@ -449,6 +461,10 @@ class VectorStatements:
 
         scalar = CPrinter(lambda v: names(v)[0], precision=self.scalar.precision)
         for st in lanes.shared:  # of the parameters alone: once, as in the scalar step
+            if isinstance(st, LoweredCheck):  # before every block's check, as there
+                self.lines += [f"if (!({scalar.expression(st.tree.args[0])} {st.operator} "
+                               f"0.0) && !{status}) {{", f"    {status} = {st.status};", "}"]
+                continue
             name = f"{self.prefix}{st.target}"
             self.lines.append(f"const {self.scalar.precision.c_type} {name} = "
                               f"{scalar.expression(st.tree)};")
@@ -459,11 +475,11 @@ class VectorStatements:
             if isinstance(st, LoweredAssign):
                 temps[st.target] = self.value(st.tree, names)
             else:
-                checked.append(self.value(st.tree.args[0], names))
+                checked.append((*self.value(st.tree.args[0], names), st.operator))
         for c, b in lanes.order:
-            text, vector = checked[c]
+            text, vector, operator = checked[c]
             value = f"{text}[{b}]" if vector else text
-            self.lines += [f"if (!({value} > 0.0) && !{status}) {{",
+            self.lines += [f"if (!({value} {operator} 0.0) && !{status}) {{",
                            f"    {status} = {lanes.statuses[c][b]};", "}"]
         outputs = {}
         for port, leaves in lanes.block.results:
@@ -552,11 +568,11 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
                            f"{gather(tuple(f'{row}[{g}]' for g in table), width)};")
             gathered[(port, local_index)] = rows[(row, table)]
         writer = VectorStatements(width, prefix, real)
-        if lanes.block.checks:
+        if lanes.has_checks:
             out.append(f"int {status} = 0;")
         outputs = writer.block(lanes, lambda port, index: gathered[(port, index)], status)
         out += writer.lines
-        if lanes.block.checks:
+        if lanes.has_checks:
             out += [f"if ({status}) {{", f"    return {status};", "}"]
         return out, outputs
 

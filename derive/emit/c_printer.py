@@ -249,12 +249,12 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
             body += pattern_check_lines(st, precision=precision)
         elif status is not None:
             value = printer.expression(st.tree.args[0])
-            body += [f"if (!({value} > {precision.zero()}) && !{status}) {{",
+            body += [f"if (!({value} {st.operator} {precision.zero()}) && !{status}) {{",
                      f"    {status} = {st.status}; /* {comment_text(st.message)} */",
                      "}"]
         else:
             value = printer.expression(st.tree.args[0])
-            body += [f"if (!({value} > {precision.zero()})) {{",
+            body += [f"if (!({value} {st.operator} {precision.zero()})) {{",
                      f"    return {st.status}; /* {comment_text(st.message)} */",
                      "}"]
     scalar = [f"{place(name, k)} = {printer.expression(leaf)};"

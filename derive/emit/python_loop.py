@@ -183,9 +183,10 @@ def _loop_lines(lowered: LoweredProgram, step_inputs: tuple[str, ...],
                 body.append(f"{direct.get(st.target, st.target)} = {printer.expression(tree)}")
         else:
             value = printer.expression(_substitute(st.tree.args[0], inlined))
-            body += [f"if not {value} > 0.0:",
+            named = f' + f", got {{{value}!r}}"' if st.parameter else ""  # a parameter's value
+            body += [f"if not {value} {st.operator} 0.0:",
                      f'    raise NumericalError(f"step {{len(rows) // {8 * width}}}: " '
-                     f'+ {st.message!r})']
+                     f'+ {st.message!r}{named})']
     kept_now = [printer.expression(leaf) for leaf in _kept_leaves(carried, results, text)]
     body += _wrap(f"keep(pack({', '.join(kept_now)}))")
     # the rest of the state (a leaf that reads the old state is bound first, so no

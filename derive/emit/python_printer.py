@@ -93,6 +93,15 @@ HELPERS = {
               '        positive = positive.all()',
               '    if not positive:',
               '        raise NumericalError(message)'],
+    "domain": ['def _require_domain(value, operator, message):',
+               '    """Raise NumericalError naming the value unless value > 0 (operator ">") or',
+               '    value >= 0 (">="): a parameter\'s declared domain (every track of an array;',
+               '    a NaN fails)."""',
+               '    within = value > 0 if operator == ">" else value >= 0',
+               '    if hasattr(within, "all") and not within.all():',
+               '        value, within = np.ravel(value)[~np.ravel(within)][0], False',
+               '    if not within:',
+               '        raise NumericalError(f"{message}, got {float(value)!r}")'],
 }
 
 ERROR_IMPORT = ['try:',
@@ -213,16 +222,19 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
         needed.append("gate")
     if any(lp.pattern_checks for lp in lowered):
         needed.append("pattern")
-    if any(c for lp in lowered for c in lp.checks if not c.is_pattern):
+    if any(c for lp in lowered for c in lp.checks if not (c.is_pattern or c.parameter)):
         needed.append("check")
+    if any(c.parameter for lp in lowered for c in lp.checks):
+        needed.append("domain")
     return needed
 
 
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return bool({"select", "gate"} & kinds) or any(lp.pattern_checks or square_input_lines(lp)
-                                    for lp in lowered) or any(
+    return bool({"select", "gate"} & kinds) or any(
+        lp.pattern_checks or square_input_lines(lp) or any(c.parameter for c in lp.checks)
+        for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
 
 
@@ -251,6 +263,9 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
             body.append(f"{st.target} = {printer.expression(st.tree)}")
+        elif st.parameter:
+            value = printer.expression(st.tree.args[0])
+            body.append(f"_require_domain({value}, {st.operator!r}, {st.message!r})")
         elif not st.is_pattern:
             value = printer.expression(st.tree.args[0])
             body.append(f"_require_positive({value}, {st.message!r})")

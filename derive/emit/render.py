@@ -127,7 +127,11 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
         zero = ({pattern_checks[0].status: tuple(sorted(c.tree.args[0].index
                                                         for c in pattern_checks))}
                 if pattern_checks else {})
-        statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()))
+        # a domain check's relation is named as its domain ("positive", "nonnegative")
+        parameters = {c.status: (c.tree.args[0].index, c.parameter, c.relation)
+                      for c in lp.checks if c.parameter}
+        statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()),
+                                      parameters.get(number, ()))
                      for number in sorted(messages)]
     return interface.Interface(tuple(functions), tuple(statuses), tuple(python),
                                element=real.c_type)

@@ -32,12 +32,11 @@ full step (what a step computes); the run does less of it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from derive.emit.block_lanes import Part, independent_parts
 from derive.lowering import (
     LoweredAssign,
-    LoweredCheck,
     LoweredProgram,
     Tree,
     element_name,
@@ -70,7 +69,7 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
     groups: dict[object, list[Part]] = {}
     for part in found.parts:
         groups.setdefault(part.canonical["key"], []).append(part)
-    scalars = {st.target for st in found.shared}
+    scalars = {st.target for st in found.shared if isinstance(st, LoweredAssign)}
     next_of = dict(carried)
     results = {port: list(leaves) for port, leaves in program.results}
     rename: dict[str, str] = {}
@@ -116,7 +115,7 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
         if isinstance(st, LoweredAssign):
             body.append(LoweredAssign(st.target, renamed(st.tree)))
         else:
-            body.append(LoweredCheck(renamed(st.tree), st.message, st.status, st.relation))
+            body.append(replace(st, tree=renamed(st.tree)))
     shared = LoweredProgram(program.name, program.doc, program.inputs, program.outputs,
                             tuple(body),
                             tuple((port, tuple(renamed(leaf) for leaf in leaves))

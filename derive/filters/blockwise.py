@@ -39,9 +39,11 @@ Models with per-step inputs, a dense declared pattern, a single block, or blocks
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import sympy
 
+from ..domains import declared_domain
 from ..errors import SymbolError
 from ..program import Program
 from ..staging import PivotMessage
@@ -81,11 +83,13 @@ def whole_size(model, spec, P0_pattern: str | None = None) -> int:
 
 def block_key(block_model, declared: str):
     """What the derivation of a block depends on: its matrices with values substituted,
-    its free parameters renamed by position, and the declared pattern."""
+    its free parameters renamed by position with their declared domains (which its step
+    checks), and the declared pattern."""
     placeholders = {p: sympy.Symbol(f"_parameter{i}") for i, p in enumerate(block_model.parameters)}
     matrices = tuple(sympy.ImmutableMatrix(block_model.matrix(k)).xreplace(placeholders)
                      for k in ("F", "G", "H", "Q", "R"))
-    return declared, len(placeholders), matrices
+    domains = tuple(declared_domain(p) for p in block_model.parameters)
+    return declared, len(placeholders), matrices, domains
 
 
 def blockwise_step(model, declared: str, derive_block: DeriveBlock
@@ -129,7 +133,7 @@ def blockwise_step(model, declared: str, derive_block: DeriveBlock
             elif st.relation != ZERO:  # the block's zero checks are among the whole's
                 text = (st.message.renumbered(rows) if isinstance(st.message, PivotMessage)
                         else st.message)
-                body.append(Check(st.value.xreplace(names), text, st.relation))
+                body.append(replace(st, value=st.value.xreplace(names), message=text))
         results = program.results
         s = block.states
         for i, value in enumerate(results["x_new"]):

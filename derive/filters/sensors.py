@@ -29,6 +29,7 @@ import numpy as np
 import sympy
 
 from .. import staging
+from ..domains import parameter_domains
 from ..errors import OptionError
 from ..lowering import IfAtMost
 from ..model import SensorGroup, sequential_problem
@@ -371,7 +372,8 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
     num_P0 = np.array(model.P0.tolist(), dtype=float) if P0 is None else P0
     return reference.run(predict, sensors, num_x0, num_P0, zs, us, ps,
                          update_first=options.get("start", "predict") == "update",
-                         unit_norm=unit_norm, Rs=Rs, trace=trace)
+                         unit_norm=unit_norm, Rs=Rs, trace=trace,
+                         domains=parameter_domains(model.parameters))
 
 
 __all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "gate_thresholds", "kalman_update",

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from derive.domains import check_rows
+
 
 @dataclass(frozen=True)
 class SensorFunctions:
@@ -108,12 +110,16 @@ def renormalise(x, groups: Sequence[Sequence[int]]):
 
 def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict, us=None,
         ps=None, update_first: bool = False, unit_norm: Sequence[Sequence[int]] = (),
-        Rs: dict | None = None, trace: list | None = None) -> SensorsResult:
+        Rs: dict | None = None, trace: list | None = None,
+        domains: Sequence[tuple[int, str, str]] = ()) -> SensorsResult:
     """The multi-sensor filter over ``zs`` (``{sensor: (steps, m_s)}``, rows of NaN:
     absent); ``predict(x, P, u, p) -> (x, P)``; ``us`` (steps, n_u) and ``ps`` (steps, np)
     one row per step (None: empty rows); ``Rs``: ``{sensor: (steps, m_s, m_s)}`` for the
     sensors whose R is given per step; ``trace``: a list :class:`StepTrace` s are appended
-    to, one per step."""
+    to, one per step; ``domains``: the declared domains of p's entries, ``(index, name,
+    domain)`` (derive.domains.parameter_domains): a row outside them raises DomainError
+    (a NumericalError) naming its step, the parameter and the value, as generated code
+    refuses it."""
     steps = len(next(iter(zs.values())))
     x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
     n = x.shape[0]
@@ -122,6 +128,7 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
     xs, Ps = np.empty((steps, n)), np.empty((steps, n, n))
     nis = {s.name: np.full(steps, np.nan) for s in sensors}
     applied = {s.name: np.zeros(steps) for s in sensors}
+    check_rows(domains, ps)
     for k in range(steps):
         x_before, predicted, updates = x, None, []
         if k or not update_first:

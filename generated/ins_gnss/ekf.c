@@ -10,7 +10,7 @@
  * m: 7 (measurements)
  * parameters: p = [dt]
  * interface (flat row-major arrays; steps = number of steps):
- *     void ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
+ *     int ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_gnss(x[16], P[16*16], z[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_baro(x[16], P[16*16], z[1], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
@@ -19,14 +19,15 @@
  * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
- *     update_gnss 1: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
- *     update_gnss 2: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
- *     update_gnss 3: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
- *     update_gnss 4: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
- *     update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
- *     update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
- *     update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 0, calls 0 (flops 2574, instructions 1442)
+ *     predict 1: parameter dt must be nonnegative
+ *     update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
+ *     update_gnss 3: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
+ *     update_gnss 4: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
+ *     update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
+ *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
+ *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
+ *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 1, calls 0 (flops 2574, instructions 1443)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1349, neg 0, cmp 6, calls 0 (flops 2840, instructions 1497)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -37,7 +38,7 @@
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
- * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",false,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["update_gnss",1,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",2,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",7,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -83,8 +84,11 @@ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), m
 #endif
 #endif
 
-void ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, const double *restrict u, double *restrict x_new, double *restrict P_new, const double *restrict p)
+int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, const double *restrict u, double *restrict x_new, double *restrict P_new, const double *restrict p)
 {
+    if (!(p[0] >= 0.0)) {
+        return 1; /* parameter dt must be nonnegative */
+    }
     const double t0 = 0.5*p[0];
     const double t1 = t0*(u[0] - x[10]);
     const double t2 = t0*(u[1] - x[11]);
@@ -1203,6 +1207,7 @@ void ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, co
     P_new[254] = P[239];
     P_new[255] = t377;
     #endif
+    return 0;
 }
 
 int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const double *restrict p)
@@ -1221,7 +1226,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t10 = 0.01 + P[85];
     const double t11 = 0.04 + P[102];
     if (!(t6 > 0.0)) {
-        return 1; /* S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive */
+        return 2; /* S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive */
     }
     const double t12 = (-1.0)/t6;
     const double t13 = P[120]*t12;
@@ -1246,7 +1251,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t32 = DERIVE_FMA(P[118], t17, t11);
     const double t33 = t0*t12;
     if (!(t18 > 0.0)) {
-        return 2; /* S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive */
+        return 3; /* S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive */
     }
     const double t34 = (-1.0)/t18;
     const double t35 = t19*t34;
@@ -1266,7 +1271,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t49 = DERIVE_FMA(P[120], t33, t1);
     const double t50 = t34*t49;
     if (!(t39 > 0.0)) {
-        return 3; /* S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive */
+        return 4; /* S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive */
     }
     const double t51 = (-1.0)/t39;
     const double t52 = t40*t51;
@@ -1281,7 +1286,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t61 = DERIVE_FMA(t19, t50, DERIVE_FMA(P[121], t33, t2));
     const double t62 = t51*t61;
     if (!(t55 > 0.0)) {
-        return 4; /* S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive */
+        return 5; /* S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive */
     }
     const double t63 = (-1.0)/t55;
     const double t64 = t56*t63;
@@ -1292,7 +1297,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t69 = DERIVE_FMA(t40, t62, DERIVE_FMA(t20, t50, DERIVE_FMA(P[116], t33, t3)));
     const double t70 = t63*t69;
     if (!(t66 > 0.0)) {
-        return 5; /* S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive */
+        return 6; /* S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive */
     }
     const double t71 = (-1.0)/t66;
     const double t72 = t67*t71;
@@ -1300,7 +1305,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t74 = DERIVE_FMA(t56, t70, DERIVE_FMA(t41, t62, DERIVE_FMA(t21, t50, DERIVE_FMA(P[117], t33, t4))));
     const double t75 = t71*t74;
     if (!(t73 > 0.0)) {
-        return 6; /* S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive */
+        return 7; /* S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive */
     }
     const double t76 = (-1.0)/t73;
     const double t77 = DERIVE_FMA(t67, t75, DERIVE_FMA(t57, t70, DERIVE_FMA(t42, t62, DERIVE_FMA(t22, t50, DERIVE_FMA(P[118], t33, t5)))));
@@ -2521,7 +2526,7 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     (void)p;
     const double t1 = 0.25 + P[153];
     if (!(t1 > 0.0)) {
-        return 7; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 8; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t2 = 1.0/t1;
     const double t3 = P[9]*t2;
@@ -2993,7 +2998,10 @@ int ins_gnss_ekf_run(size_t steps, const double *u, const double *z_gnss, const 
     for (k = 0; k < steps; ++k) {
         const double *uk = u + k * 6;
         const double *pk = p + k * p_stride;
-        ins_gnss_ekf_predict(x, P, uk, x_new, P_new, pk);
+        status = ins_gnss_ekf_predict(x, P, uk, x_new, P_new, pk);
+        if (status) {
+            return status;
+        }
         for (i = 0; i < 16; ++i) {
             x[i] = x_new[i];
         }

@@ -10,7 +10,7 @@
  * m: 7 (measurements)
  * parameters: p = [dt]
  * interface (flat row-major arrays; steps = number of steps):
- *     void ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
+ *     int ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_gnss(x[16], P[16*16], z[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_baro(x[16], P[16*16], z[1], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
@@ -19,14 +19,15 @@
  * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
- *     update_gnss 1: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
- *     update_gnss 2: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
- *     update_gnss 3: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
- *     update_gnss 4: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
- *     update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
- *     update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
- *     update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 0, calls 0 (flops 2574, instructions 1442)
+ *     predict 1: parameter dt must be nonnegative
+ *     update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
+ *     update_gnss 3: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
+ *     update_gnss 4: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
+ *     update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
+ *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
+ *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
+ *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 1, calls 0 (flops 2574, instructions 1443)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1349, neg 0, cmp 6, calls 0 (flops 2840, instructions 1497)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -37,7 +38,7 @@
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
- * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",false,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["update_gnss",1,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",2,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",7,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #ifndef DERIVE_ins_gnss_ekf_H
 #define DERIVE_ins_gnss_ekf_H
@@ -70,20 +71,21 @@
 /* the statuses listed above, by name (the functions return them as int) */
 enum ins_gnss_ekf_status {
     ins_gnss_ekf_STATUS_OK = 0,
-    ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_1 = 1,
+    ins_gnss_ekf_STATUS_PREDICT_PARAMETER_DT_MUST_BE_NONNEGATIVE_1 = 1,
     ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_2 = 2,
     ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_3 = 3,
     ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_4 = 4,
     ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_5 = 5,
     ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_6 = 6,
-    ins_gnss_ekf_STATUS_UPDATE_BARO_S_NOT_POSITIVE_DEFINITE_7 = 7
+    ins_gnss_ekf_STATUS_UPDATE_GNSS_S_NOT_POSITIVE_DEFINITE_7 = 7,
+    ins_gnss_ekf_STATUS_UPDATE_BARO_S_NOT_POSITIVE_DEFINITE_8 = 8
 };
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-void ins_gnss_ekf_predict(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT u, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new, const double *DERIVE_RESTRICT p);
+int ins_gnss_ekf_predict(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT u, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new, const double *DERIVE_RESTRICT p);
 int ins_gnss_ekf_update_gnss(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new, const double *DERIVE_RESTRICT p);
 int ins_gnss_ekf_update_baro(const double *DERIVE_RESTRICT x, const double *DERIVE_RESTRICT P, const double *DERIVE_RESTRICT z, double *DERIVE_RESTRICT x_new, double *DERIVE_RESTRICT P_new, const double *DERIVE_RESTRICT p);
 int ins_gnss_ekf_run(size_t steps, const double *u, const double *z_gnss, const double *z_baro, const double *x0, const double *P0, double *xs, double *Ps, const double *p, size_t p_stride);

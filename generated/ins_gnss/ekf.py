@@ -19,14 +19,15 @@ symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must 
 symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
 symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
-    update_gnss 1: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
-    update_gnss 2: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
-    update_gnss 3: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
-    update_gnss 4: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
-    update_gnss 5: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
-    update_gnss 6: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
-    update_baro 7: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-operations per call of predict (Python): add 1243, sub 27, mul 1304, div 0, sqrt 0, fma 0, neg 20, cmp 0, calls 0 (flops 2574, instructions 2594)
+    predict 1: parameter dt must be nonnegative
+    update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
+    update_gnss 3: S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive
+    update_gnss 4: S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive
+    update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
+    update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
+    update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
+    update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+operations per call of predict (Python): add 1243, sub 27, mul 1304, div 0, sqrt 0, fma 0, neg 20, cmp 1, calls 0 (flops 2574, instructions 2595)
 operations per call of update_gnss (Python): add 1259, sub 102, mul 1471, div 7, sqrt 1, fma 0, neg 0, cmp 6, calls 0 (flops 2840, instructions 2846)
 operations per call of update_baro (Python): add 4, sub 153, mul 176, div 2, sqrt 1, fma 0, neg 1, cmp 1, calls 0 (flops 336, instructions 338)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -113,9 +114,11 @@ def predict(x, P, u, p):
     Returns:
         x_new [16]: x(k/k-1)
         P_new [16x16, symmetric]: its covariance, row-major
+    Raises NumericalError when a runtime check fails.
     """
     if len(P) == 16:  # a 2-D (16, 16) P: flattened, row-major
         P = np.reshape(P, (256,) + np.shape(P)[2:])
+    _require_positive(p[0], 'parameter dt must be nonnegative')
     t0 = 0.5*p[0]
     t1 = t0*(u[0] - x[10])
     t2 = t0*(u[1] - x[11])
