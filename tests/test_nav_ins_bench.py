@@ -10,6 +10,7 @@ import pytest
 
 from derive.apps.bench.navigation import (
     BATCH_FORM,
+    SCALAR_ROWS,
     FUNCTIONS,
     TIMED,
     run_navigation,
@@ -104,7 +105,10 @@ def test_rows_agree_with_the_reference_and_ratios_are_per_generated_c(navigation
         assert r.derive.flops > 0 and r.symforce is None and r.ratio is None
     assert {(r.function, r.implementation) for r in navigation.times} == {
         (f, i) for f in TIMED for i in ("generated C", "CasADi C", "FilterPy")} | {
-        (f, BATCH_FORM) for f in sequential_updates()}
+        (f, BATCH_FORM) for f in sequential_updates()} | {
+        (f, SCALAR_ROWS) for f in TIMED}  # the catalog derives both as vector rows
+    assert navigation.vector == frozenset(FUNCTIONS) - {"update_baro"}
+    assert any(n.startswith("predict is vector rows") for n in navigation.notes)
     assert sequential_updates() == ("update_gnss",)  # the catalog fuses GNSS sequentially
     assert any(n.startswith("update_gnss is sequential") for n in navigation.notes)
     for r in navigation.times:

@@ -43,17 +43,18 @@ def relative(got, expected) -> float:
 
 
 def random_model(rng, n: int, m: int, correlated: bool, gate: bool = False) -> NonlinearModel:
-    """A random EKF model: f = F x + B u + a product of two states on row 0 (so F's entries
-    are partly temporaries), inputs with noise Qu; sensor ``a`` sequential with m linear
+    """A random EKF model: f = F x + B u (F stable, spectral radius 0.9) + a product of two
+    states on row 0 (so F's entries are partly temporaries), inputs with noise Qu; sensor ``a`` sequential with m linear
     measurements (unit and dense rows of H; R diagonal, or correlated and constant), sensor
     ``b`` a nonlinear scalar (batch)."""
     x = sympy.symbols(f"x0:{n}", real=True)
     u = sympy.symbols("u0:2", real=True)
-    F = np.round(rng.normal(size=(n, n)) * (rng.random((n, n)) < 0.45) * 0.3, 3) + np.eye(n)
+    F = rng.normal(size=(n, n)) * (rng.random((n, n)) < 0.45) * 0.3 + np.eye(n)
+    F = np.round(F * 0.9 / max(1.0, np.max(np.abs(np.linalg.eigvals(F)))), 3)  # stable
     B = np.round(rng.normal(size=(n, 2)) * (rng.random((n, 2)) < 0.5), 3)
     f = [sum(sympy.Float(F[i, j], 3) * x[j] for j in range(n) if F[i, j])
          + sum(sympy.Float(B[i, k], 3) * u[k] for k in range(2) if B[i, k]) for i in range(n)]
-    f[0] += sympy.Rational(1, 10) * x[0] * x[n - 1] + u[0] / 10  # f uses both inputs
+    f[0] += x[0] * x[n - 1] / 100 + u[0] / 10  # f uses both inputs
     f[1] += u[1] / 10
     H = np.round(rng.normal(size=(m, n)) * (rng.random((m, n)) < 0.6), 3)
     unit_rows = rng.random(m) < 0.5

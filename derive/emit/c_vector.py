@@ -40,53 +40,72 @@ VFNMA = "DERIVE_VFNMA"
 OPEN, ELSE, CLOSE = f"#if {SWITCH}", "#else", "#endif"
 
 
-def vector_macro_lines(precision: Precision = DOUBLE) -> list[str]:
-    """The ``.c`` file's vector type and fused multiply-adds (after the scalar fma macros,
-    :func:`derive.emit.c_printer.fma_macro_lines`).
+def fused_kinds(lowered: list[LoweredProgram]) -> set[str]:
+    """The vector fused multiply-adds the chunks of ``lowered`` print: ``fma`` (a product
+    added to a chain) and ``fnma`` (subtracted), as :meth:`ChunkPrinter._vector_expression`
+    prints them."""
+    kinds: set[str] = set()
+    for lp in lowered:
+        if not lp.use_fma:
+            continue
+        for chunk in lp.rows:
+            started = chunk.base is not None
+            for sign, coef, _ in chunk.terms:
+                if started and not _is_one(coef):
+                    kinds.add("fma" if sign > 0 else "fnma")
+                started = True
+    return kinds
+
+
+def vector_macro_lines(precision: Precision = DOUBLE,
+                       kinds: frozenset[str] = frozenset({"fma", "fnma"})) -> list[str]:
+    """The ``.c`` file's vector type and the fused multiply-adds of ``kinds`` (after the
+    scalar fma macros, :func:`derive.emit.c_printer.fma_macro_lines`).
 
     ``DERIVE_VFMA(a, b, c)`` is ``a*b + c`` lane by lane, rounded as ``DERIVE_FMA``
     rounds: the product and the sum in the plain build (``DERIVE_FMA_PLAIN``), the x86 FMA
     instruction where ``DERIVE_FMA`` is the fused ``fma`` and the target has it
     (``__FMA__``), else ``DERIVE_FMA`` of each lane (a build that defines DERIVE_FMA
-    itself, a fused target without x86 FMA: correct, and as fast as the compiler makes
-    it). ``DERIVE_VFNMA(a, b, c)`` is ``c - a*b`` likewise."""
+    itself, a fused target without x86 FMA: correct, and as fast as the compiler makes it;
+    its operands are named vectors or compound literals, never a nested chain, which each
+    lane would copy again). ``DERIVE_VFNMA(a, b, c)`` is ``c - a*b`` likewise."""
     kind = precision.name
     vtype, lanes = VECTOR_TYPES[kind], VECTOR_LANES
     intrinsic = "_mm256_fmadd_pd" if kind == "double" else "_mm_fmadd_ps"
     element = 8 if kind == "double" else 4  # bytes: an element's alignment
-
-    def each(macro: str) -> str:
-        return (f"(({vtype}){{" + ", ".join(f"{macro}((a)[{k}], (b)[{k}], (c)[{k}])"
-                                            for k in range(lanes)) + "})")
+    macros = {"fma": (VFMA, "DERIVE_FMA", "((a) * (b) + (c))", intrinsic),
+              "fnma": (VFNMA, "DERIVE_FNMA", "((c) - (a) * (b))",
+                       intrinsic.replace("fmadd", "fnmadd"))}
+    used = [macros[k] for k in ("fma", "fnma") if k in kinds]
     simd = ("defined(__SSE2__) || defined(__aarch64__)" if kind == "double" else
             "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)")
-    return [f"#ifndef {SWITCH}",
-            f"#if (defined(__GNUC__) || defined(__clang__)) && ({simd})",
-            f"#define {SWITCH} 1",
-            "#else",
-            f"#define {SWITCH} 0",
-            "#endif",
-            "#endif",
-            f"#if {SWITCH}",
-            f"typedef {precision.c_type} {vtype} "
-            f"__attribute__((vector_size({VECTOR_BYTES[kind]})));",
-            f"typedef {precision.c_type} {vtype}_unaligned "
-            f"__attribute__((vector_size({VECTOR_BYTES[kind]}), aligned({element}), "
-            "may_alias));",
-            "#if defined(DERIVE_FMA_PLAIN)",
-            f"#define {VFMA}(a, b, c) ((a) * (b) + (c))",
-            f"#define {VFNMA}(a, b, c) ((c) - (a) * (b))",
-            "#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) "
-            "&& (defined(__x86_64__) || defined(__i386__))",
-            "#include <immintrin.h>",
-            f"#define {VFMA}(a, b, c) (({vtype}){intrinsic}((a), (b), (c)))",
-            f"#define {VFNMA}(a, b, c) (({vtype}){intrinsic.replace('fmadd', 'fnmadd')}"
-            "((a), (b), (c)))",
-            "#else",
-            f"#define {VFMA}(a, b, c) {each('DERIVE_FMA')}",
-            f"#define {VFNMA}(a, b, c) {each('DERIVE_FNMA')}",
-            "#endif",
-            "#endif"]
+    lines = [f"#ifndef {SWITCH}",
+             f"#if (defined(__GNUC__) || defined(__clang__)) && ({simd})",
+             f"#define {SWITCH} 1",
+             "#else",
+             f"#define {SWITCH} 0",
+             "#endif",
+             "#endif",
+             f"#if {SWITCH}",
+             f"typedef {precision.c_type} {vtype} "
+             f"__attribute__((vector_size({VECTOR_BYTES[kind]})));",
+             f"typedef {precision.c_type} {vtype}_unaligned "
+             f"__attribute__((vector_size({VECTOR_BYTES[kind]}), aligned({element}), "
+             "may_alias));"]
+    if used:
+        lines += ["#if defined(DERIVE_FMA_PLAIN)"]
+        lines += [f"#define {name}(a, b, c) {plain}" for name, _, plain, _ in used]
+        lines += ["#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) "
+                  "&& (defined(__x86_64__) || defined(__i386__))",
+                  "#include <immintrin.h>"]
+        lines += [f"#define {name}(a, b, c) (({vtype}){x86}((a), (b), (c)))"
+                  for name, _, _, x86 in used]
+        lines += ["#else"]
+        for name, scalar, _, _ in used:
+            each = ", ".join(f"{scalar}((a)[{k}], (b)[{k}], (c)[{k}])" for k in range(lanes))
+            lines += [f"#define {name}(a, b, c) (({vtype}){{{each}}})"]
+        lines += ["#endif"]
+    return lines + ["#endif"]
 
 
 def _is_one(leaf: Tree) -> bool:
@@ -237,27 +256,37 @@ class ChunkPrinter:
     def _broadcast(self, leaf: Tree) -> str:
         return self._operand((leaf,) * self.lanes)
 
-    def _vector_expression(self, chunk: LoweredChunk, use_fma: bool) -> str:
-        """The chunk's lanes as one vector expression (the operations of
-        :meth:`derive.rows.LaneSum.tree`, lane by lane)."""
+    def _vector_expression(self, chunk: LoweredChunk, use_fma: bool) -> list[str]:
+        """The chunk's lanes as vector statements (the operations of
+        :meth:`derive.rows.LaneSum.tree`, lane by lane): one statement per step of the
+        chain, each reading the previous step's vector, the last one the chunk's."""
+        name = f"v_{chunk.targets[0]}"
+        steps: list[str] = []
         acc = None if chunk.base is None else self._operand(chunk.base)
         for sign, coef, sources in chunk.terms:
             source = self._operand(sources)
             if _is_one(coef):
                 if acc is None:
-                    acc = source if sign > 0 else f"(-{source})"
+                    value = source if sign > 0 else f"(-{source})"
                 else:
-                    acc = f"({acc} {'+' if sign > 0 else '-'} {source})"
-                continue
-            c = self._broadcast(coef)
-            if acc is None:
-                acc = f"({c} * {source})" if sign > 0 else f"(-({c} * {source}))"
-            elif use_fma:
-                acc = f"{VFMA if sign > 0 else VFNMA}({c}, {source}, {acc})"
+                    value = f"({acc} {'+' if sign > 0 else '-'} {source})"
             else:
-                acc = f"({acc} {'+' if sign > 0 else '-'} ({c} * {source}))"
-        self.vectors[tuple(chunk.targets)] = f"v_{chunk.targets[0]}"
-        return acc
+                c = self._broadcast(coef)
+                if acc is None:
+                    value = f"({c} * {source})" if sign > 0 else f"(-({c} * {source}))"
+                elif use_fma:
+                    value = f"{VFMA if sign > 0 else VFNMA}({c}, {source}, {acc})"
+                else:
+                    value = f"({acc} {'+' if sign > 0 else '-'} ({c} * {source}))"
+            if acc is not None or value != source:  # a step that computes
+                acc = f"{name}_{len(steps)}"
+                steps.append((acc, value))
+            else:
+                acc = value
+        self.vectors[tuple(chunk.targets)] = name
+        last = steps.pop()[1] if steps else acc
+        return ([f"const {self.vtype} {step} = {value};" for step, value in steps]
+                + [f"const {self.vtype} {name} = {last};"])
 
     def store_lines(self, place) -> list[str]:
         """The results the vector form writes at the end (after :data:`OPEN`; the caller
@@ -273,7 +302,7 @@ class ChunkPrinter:
         own statements). ``place(port, index)``: the C text of an output element."""
         name = f"v_{chunk.targets[0]}"
         real = self.precision.c_type
-        return ([OPEN, f"const {self.vtype} {name} = {self.expressions[chunk.targets[0]]};"]
+        return ([OPEN, *self.expressions[chunk.targets[0]]]
                 + [f"const {real} {t} = {name}[{k}];" for k, t in enumerate(chunk.targets)
                    if t in self.vector_alias]
                 + [item[1] if item[0] == "line" else
@@ -282,5 +311,5 @@ class ChunkPrinter:
                 + [ELSE] + scalar_lines + [CLOSE])
 
 
-__all__ = ["CLOSE", "ChunkPrinter", "ELSE", "OPEN", "SWITCH", "VFMA", "VFNMA",
+__all__ = ["CLOSE", "ChunkPrinter", "ELSE", "OPEN", "SWITCH", "VFMA", "VFNMA", "fused_kinds",
            "vector_macro_lines"]
