@@ -278,16 +278,17 @@ SCALAR_ROWS = "generated C, scalar rows"
 """The time row of a function of vector rows generated with option rows="scalar"."""
 
 
-def _scalar_rows(workdir: Path, names: tuple[str, ...]):
-    """The counts and loops of ``names`` generated entry by entry (option rows=scalar)."""
-    paths, _ = generate_units(MODEL, ["ekf"], "c", workdir / "derive_scalar",
-                              {"rows": "scalar", "prefix": "scalar_"})
+def _variant(workdir: Path, names: tuple[str, ...], option: str, value: str):
+    """The counts and loops of ``names`` generated with ``option=value`` (the functions
+    prefixed with ``value``: scalar rows, the batch form), timed beside the catalog's."""
+    paths, _ = generate_units(MODEL, ["ekf"], "c", workdir / f"derive_{value}",
+                              {option: value, "prefix": f"{value}_"})
     header = next(p for p in paths if p.suffix == ".h")
     source = next(p for p in paths if p.suffix == ".c")
     functions = {f.program: f for f in read_interface(header.read_text()).functions}
     counts = {name: _header_count(header.read_text(), name) for name in names}
-    loops = [c_loop.derive_call(functions[name], f"scalar_{name}") for name in names]
-    return counts, c_loop.build(workdir / "derive_scalar_loops", [str(header)], [source],
+    loops = [c_loop.derive_call(functions[name], f"{value}_{name}") for name in names]
+    return counts, c_loop.build(workdir / f"derive_{value}_loops", [str(header)], [source],
                                 loops, [*STRICT_CFLAGS, *generated.CFLAGS])
 
 
@@ -299,19 +300,6 @@ def sequential_updates() -> tuple[str, ...]:
     """The timed updates whose sensor the catalog model fuses sequentially."""
     forms = {program_name(g.name): g.update for g in catalog.load(MODEL).sensors}
     return tuple(name for name in TIMED if forms.get(name) == "sequential")
-
-
-def _batch_form(workdir: Path, names: tuple[str, ...]):
-    """The counts and loops of ``names`` generated in the batch form."""
-    paths, _ = generate_units(MODEL, ["ekf"], "c", workdir / "derive_batch",
-                              {"update": "batch", "prefix": "batch_"})
-    header = next(p for p in paths if p.suffix == ".h")
-    source = next(p for p in paths if p.suffix == ".c")
-    functions = {f.program: f for f in read_interface(header.read_text()).functions}
-    counts = {name: _header_count(header.read_text(), name) for name in names}
-    loops = [c_loop.derive_call(functions[name], f"batch_{name}") for name in names]
-    return counts, c_loop.build(workdir / "derive_batch_loops", [str(header)], [source],
-                                loops, [*STRICT_CFLAGS, *generated.CFLAGS])
 
 
 def _header_count(text: str, function: str) -> OpCount:
@@ -374,14 +362,14 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
     sequential = sequential_updates()
     if sequential:
         tick("navigation: the batch form of " + ", ".join(sequential))
-        batch_counts, batch_loops = _batch_form(workdir, sequential)
+        batch_counts, batch_loops = _variant(workdir, sequential, "update", "batch")
         result.notes += [f"{name} is sequential (one scalar update per measurement); its batch "
                          f"form (update=batch): flops {batch_counts[name].flops}, instructions "
                          f"{batch_counts[name].instructions}" for name in sequential]
     vector = tuple(name for name in TIMED if name in result.vector)
     if vector:
         tick("navigation: the scalar rows of " + ", ".join(vector))
-        scalar_counts, scalar_loops = _scalar_rows(workdir, vector)
+        scalar_counts, scalar_loops = _variant(workdir, vector, "rows", "scalar")
         result.notes += [f"{name} is vector rows (rows=vector: flops {result.count(name).flops}, "
                          f"instructions {result.count(name).instructions}); entry by entry "
                          f"(rows=scalar): flops {scalar_counts[name].flops}, instructions "
