@@ -49,7 +49,7 @@ from .sensors import (
 from .sensors import reference_run as sensors_reference
 from .spec import FilterSpec
 from .unit import make_sensor_unit, make_unit
-from .vector_rows import vector_predict, vector_update
+from .vector_rows import rows_fact, vector_predict, vector_update
 
 JACOBIAN_FACT = ("Jacobians: sympy, polynomial entries as derived, others simplified, "
                  "evaluated with f and h through shared subexpressions")
@@ -155,14 +155,15 @@ def derive_unit(model, spec, options):
                                              **_vector_rows(model, options))
         facts = ([JACOBIAN_FACT, *facts]
                  + sensor_facts(model, groups, thresholds, options.start, forms)
-                 + unit_norm_fact(model))
+                 + unit_norm_fact(model) + rows_fact(programs))
         return make_sensor_unit(model, spec, programs, options, groups, thresholds,
                                 model.f_inputs, facts)
     programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                          ekf_update_stage(model), options,
                                          spec.title, **_vector_rows(model, options))
     unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
-    return _with_facts(unit, [JACOBIAN_FACT, *facts, *unit_norm_fact(model)])
+    return _with_facts(unit, [JACOBIAN_FACT, *facts, *unit_norm_fact(model),
+                              *rows_fact(programs)])
 
 
 def _vector_rows(model, options) -> dict:

@@ -1,4 +1,6 @@
-"""The EKF's dense covariance work as vector rows (option ``vector``; derive.rows).
+"""The EKF's dense covariance work as vector rows (option ``rows="vector"``, the model's
+``rows``; derive.rows), for a dense P (P0's pattern closes to dense; otherwise the scalar
+rows): :func:`vector_predict` and :func:`vector_update` (a sequential sensor's update).
 
 **Predict**, ``P(k/k-1) = F P F^T + Q``, with P read whole (both triangles: a row of P is
 consecutive in memory, so a chunk of it is one load):
@@ -200,6 +202,17 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
     return rows.finish({"x_new": x_new, "P_new": [e for row in P_new for e in row], **extra})
 
 
+def rows_fact(programs: dict[str, Program]) -> list[str]:
+    """The header line naming the programs of vector rows (none without)."""
+    names = [name for name, program in programs.items() if program.rows]
+    if not names:
+        return []
+    return ["vector rows (rows = vector): " + ", ".join(names) + " computed in chunks of "
+            f"{VECTOR_LANES} lanes, P read whole; C: GCC/Clang vector statements where "
+            "DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same "
+            "bits)"]
+
+
 def _renormalised(rows: RowBuilder, model, x: list[sympy.Expr]) -> list[sympy.Expr]:
     """``x`` with each unit-norm group divided by its norm (as
     derive.filters.sensors.renormalised)."""
@@ -213,4 +226,4 @@ def _renormalised(rows: RowBuilder, model, x: list[sympy.Expr]) -> list[sympy.Ex
     return out
 
 
-__all__ = ["vector_predict", "vector_update"]
+__all__ = ["rows_fact", "vector_predict", "vector_update"]

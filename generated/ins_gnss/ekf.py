@@ -38,6 +38,7 @@ sensors (run: predict with u(k), then each sensor's update in this order when it
 update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
 start: predict-first: every step predicts, then updates
 unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
+vector rows (rows = vector): predict, update_gnss computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
 """
 
 import numpy as np
