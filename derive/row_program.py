@@ -10,13 +10,15 @@ would reorder their lanes):
   scalar statements);
 - :meth:`RowBuilder.finish` keeps what the outputs and checks read: a scalar statement
   when it is read, a chunk when any of its lanes is (all its lanes are then computed, and
-  counted: a vector computes them all), the prologue's statements when they are read; then
-  names the temporaries ``t0, t1, ...`` in order.
+  counted: a vector computes them all), the prologue's statements when they are read, a
+  parameter's domain check when the parameter is read (as the optimiser does); then names
+  the temporaries ``t0, t1, ...`` in order.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import sympy
 
@@ -86,7 +88,7 @@ class RowBuilder:
 
     def finish(self, results: dict[str, Sequence[sympy.Expr]]) -> Program:
         """The program: live statements and chunks, temporaries renumbered."""
-        live = {a for values in results.values() for a in values if isinstance(a, Temporary)}
+        live = {a for values in results.values() for a in values if isinstance(a, sympy.Symbol)}
         kept: list[Statement | RowChunk] = []
         for item in reversed(self.items):
             if isinstance(item, RowChunk):
@@ -94,13 +96,15 @@ class RowBuilder:
                     continue
                 live.update(item.targets)
                 for lane in range(len(item.targets)):
-                    live.update(s for s in item.form.reads(lane) if isinstance(s, Temporary))
+                    live.update(item.form.reads(lane))
             elif isinstance(item, Assign):
                 if item.target not in live:
                     continue
-                live.update(s for s in item.expr.free_symbols if isinstance(s, Temporary))
+                live.update(item.expr.free_symbols)
+            elif item.parameter and item.value not in live:
+                continue  # a parameter's domain check, where nothing reads the parameter
             else:
-                live.update(s for s in item.value.free_symbols if isinstance(s, Temporary))
+                live.update(item.value.free_symbols)
             kept.append(item)
         kept.reverse()
         names: dict[sympy.Symbol, sympy.Symbol] = {}
@@ -118,7 +122,7 @@ class RowBuilder:
             elif isinstance(item, Assign):
                 body.append(Assign(names[item.target], item.expr.xreplace(names)))
             else:
-                body.append(Check(item.value.xreplace(names), item.message, item.relation))
+                body.append(replace(item, value=item.value.xreplace(names)))
         renamed = {name: tuple(sympy.sympify(v).xreplace(names) for v in values)
                    for name, values in results.items()}
         return self.shell.assembled(body, renamed, optimize=False, rows=chunks)

@@ -10,8 +10,8 @@ import pytest
 
 from derive.apps.bench.navigation import (
     BATCH_FORM,
-    SCALAR_ROWS,
     FUNCTIONS,
+    SCALAR_ROWS,
     TIMED,
     run_navigation,
     sequential_updates,

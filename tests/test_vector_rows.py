@@ -9,6 +9,7 @@ vector branch bitwise against its scalar lanes (plain, fused and -DDERIVE_VECTOR
 P_new exactly symmetric, P0 read by its upper triangle only, gating, the counts (header =
 Python's executed count = the C text's vector branch, lane by lane), and the refusals."""
 
+import re
 import shutil
 import subprocess
 
@@ -22,7 +23,7 @@ from derive import NonlinearModel, Sensor
 from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS
 from derive.catalog import load as load_catalog
 from derive.cli import main
-from derive.errors import ModelError, ModelFileError, OptionError
+from derive.errors import ModelError, ModelFileError, NumericalError, OptionError
 from derive.filters import derive_unit
 from derive.filters.sensors import reference_run
 from derive.flops import OpCounter, c_function_body, count, count_c_function, count_c_text
@@ -42,11 +43,11 @@ def relative(got, expected) -> float:
     return float(np.max(np.abs(got - expected)) / np.max(np.abs(expected)))
 
 
-def random_model(rng, n: int, m: int, correlated: bool, gate: bool = False) -> NonlinearModel:
+def random_model(rng, n: int, m: int, correlated: bool) -> NonlinearModel:
     """A random EKF model: f = F x + B u (F stable, spectral radius 0.9) + a product of two
-    states on row 0 (so F's entries are partly temporaries), inputs with noise Qu; sensor ``a`` sequential with m linear
-    measurements (unit and dense rows of H; R diagonal, or correlated and constant), sensor
-    ``b`` a nonlinear scalar (batch)."""
+    states on row 0 (so F's entries are partly temporaries), inputs with noise Qu; sensor
+    ``a`` sequential with m linear measurements (unit and dense rows of H; R diagonal, or
+    correlated and constant), sensor ``b`` a nonlinear scalar (batch)."""
     x = sympy.symbols(f"x0:{n}", real=True)
     u = sympy.symbols("u0:2", real=True)
     F = rng.normal(size=(n, n)) * (rng.random((n, n)) < 0.45) * 0.3 + np.eye(n)
@@ -272,3 +273,28 @@ rows = ROWS
 def test_a_model_file_declares_rows():
     assert loads_model(BAD_FILE.replace("ROWS", '"vector"')).rows == "vector"
     assert loads_model(BAD_FILE.replace("rows = ROWS", "")).rows == "scalar"
+
+
+def test_a_negative_dt_is_refused_by_the_vector_predict_naming_step_and_value():
+    """ins_gnss declares dt nonnegative: its predict of vector rows keeps the domain check
+    with its parameter (Python names the value; C run names the step and the value)."""
+    model = load_catalog("ins_gnss")
+    generated = load_generated(model, "ekf")
+    assert derive_unit(model, "ekf").programs["predict"].rows
+    x = np.zeros(16)
+    x[0] = 1.0
+    P = np.eye(16)
+    with pytest.raises(NumericalError, match=re.escape("parameter dt must be nonnegative, "
+                                                       "got -0.01")):
+        generated.python.predict(x, P.ravel(), np.zeros(6), np.array([-0.01]))
+    steps, bad = 6, 4
+    rows = np.full((steps, 1), 0.01)
+    rows[bad, 0] = -0.25
+    us = np.zeros((steps, 6))
+    gnss, baro = np.full((steps, 6), np.nan), np.full((steps, 1), np.nan)
+    text = f"step {bad}: parameter dt must be nonnegative, got -0.25"
+    for module in (generated.python, generated.c):
+        with pytest.raises(NumericalError, match=re.escape(text) if module is generated.c
+                           else r"parameter dt must be nonnegative, got -0\.25"):
+            module.run(us, gnss, baro, x, P, rows)
+

@@ -79,6 +79,17 @@ def _require_positive(value, message):
         raise NumericalError(message)
 
 
+def _require_domain(value, operator, message):
+    """Raise NumericalError naming the value unless value > 0 (operator ">") or
+    value >= 0 (">="): a parameter's declared domain (every track of an array;
+    a NaN fails)."""
+    within = value > 0 if operator == ">" else value >= 0
+    if hasattr(within, "all") and not within.all():
+        value, within = np.ravel(value)[~np.ravel(within)][0], False
+    if not within:
+        raise NumericalError(f"{message}, got {float(value)!r}")
+
+
 def _real(name, value):
     """value as a float64 array; DtypeError unless it holds real numbers that
     float64 holds exactly (not complex, bool, str or object; no wider float)."""
@@ -119,7 +130,7 @@ def predict(x, P, u, p):
     """
     if len(P) == 16:  # a 2-D (16, 16) P: flattened, row-major
         P = np.reshape(P, (256,) + np.shape(P)[2:])
-    _require_positive(p[0], 'parameter dt must be nonnegative')
+    _require_domain(p[0], '>=', 'parameter dt must be nonnegative')
     t0 = 0.5*p[0]
     t1 = t0*(u[0] - x[10])
     t2 = t0*(u[1] - x[11])
