@@ -4,7 +4,7 @@ the fallback.
 A chunk is printed twice, chosen by the preprocessor::
 
     #if DERIVE_VECTOR
-        const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}),
+        const derive_vd v_t57 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}),
                                             ((derive_vd){P[16], P[17], P[18], P[19]}), v_t41);
         const double t57 = v_t57[0];
         ...
@@ -33,8 +33,8 @@ from derive.precision import DOUBLE, Precision
 from derive.rows import VECTOR_BYTES, VECTOR_LANES, VECTOR_TYPES, LoweredChunk
 
 SWITCH = "DERIVE_VECTOR"
-VFMA = "DERIVE_VFMA"
-VFNMA = "DERIVE_VFNMA"
+VFMA = "DERIVE_ROWS_FMA"
+VFNMA = "DERIVE_ROWS_FNMA"
 #: The lines that open, split and close the two forms of a chunk (the C text counter
 #: reads them: derive.flops).
 OPEN, ELSE, CLOSE = f"#if {SWITCH}", "#else", "#endif"
@@ -62,13 +62,13 @@ def vector_macro_lines(precision: Precision = DOUBLE,
     """The ``.c`` file's vector type and the fused multiply-adds of ``kinds`` (after the
     scalar fma macros, :func:`derive.emit.c_printer.fma_macro_lines`).
 
-    ``DERIVE_VFMA(a, b, c)`` is ``a*b + c`` lane by lane, rounded as ``DERIVE_FMA``
+    ``DERIVE_ROWS_FMA(a, b, c)`` is ``a*b + c`` lane by lane, rounded as ``DERIVE_FMA``
     rounds: the product and the sum in the plain build (``DERIVE_FMA_PLAIN``), the x86 FMA
     instruction where ``DERIVE_FMA`` is the fused ``fma`` and the target has it
     (``__FMA__``), else ``DERIVE_FMA`` of each lane (a build that defines DERIVE_FMA
     itself, a fused target without x86 FMA: correct, and as fast as the compiler makes it;
     its operands are named vectors or compound literals, never a nested chain, which each
-    lane would copy again). ``DERIVE_VFNMA(a, b, c)`` is ``c - a*b`` likewise."""
+    lane would copy again). ``DERIVE_ROWS_FNMA(a, b, c)`` is ``c - a*b`` likewise."""
     kind = precision.name
     vtype, lanes = VECTOR_TYPES[kind], VECTOR_LANES
     intrinsic = "_mm256_fmadd_pd" if kind == "double" else "_mm_fmadd_ps"
