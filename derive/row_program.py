@@ -39,9 +39,7 @@ class RowBuilder:
         self.shell = shell
         self.lanes = lanes
         self.items: list[Statement | RowChunk] = list(prologue.body)
-        self.assigned: dict[Temporary, sympy.Expr] = {
-            st.target: st.expr for st in prologue.body if isinstance(st, Assign)}
-        self.counter = len(self.assigned)
+        self.counter = sum(isinstance(st, Assign) for st in prologue.body)
 
     def _temp(self) -> Temporary:
         name = Temporary(f"t{self.counter}_row")
@@ -55,7 +53,6 @@ class RowBuilder:
             return expr
         target = self._temp()
         self.items.append(Assign(target, expr))
-        self.assigned[target] = expr
         return target
 
     def check(self, value: sympy.Expr, message: str) -> None:
@@ -81,8 +78,6 @@ class RowBuilder:
             targets = tuple(self._temp() for _ in range(start, stop))
             chunk = RowChunk(targets, form)
             self.items.append(chunk)
-            for lane, target in enumerate(targets):
-                self.assigned[target] = form.expr(lane)
             out += targets
         return out
 
