@@ -116,17 +116,10 @@ from ..filters.spec import (
     Conditioned,
     FilterSpec,
 )
-from ..lowering import (
-    LoweredAssign,
-    LoweredProgram,
-    Op,
-    Tree,
-    Var,
-    element_name,
-    lower_program,
-)
+from ..lowering import LoweredAssign, LoweredProgram, lower_program
 from ..precision import DOUBLE, FLOAT
 from ..riccati import kf_steady
+from ..trees import Op, Tree, Var, element_name
 
 #: The constant of the bound (see the module docstring).
 C = 2.0

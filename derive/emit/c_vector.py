@@ -28,9 +28,10 @@ the header, which are the scalar lanes', are the vector branch's, lane by lane
 
 from __future__ import annotations
 
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Tree, Var, tree_vars
+from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.rows import VECTOR_BYTES, VECTOR_LANES, VECTOR_TYPES, LoweredChunk
+from derive.trees import Const, Tree, Var, tree_vars
 
 SWITCH = "DERIVE_VECTOR"
 VFMA = "DERIVE_ROWS_FMA"
