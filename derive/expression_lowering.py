@@ -301,7 +301,7 @@ class ExpressionLowerer:
 
 #: The state a time-varying filter carries from one step to the next: (input port, the
 #: output that becomes it in the next step), the default of lower_program's state ports.
-#: A unit declares its own (derive.emit.unit.Unit.carried).
+#: A unit declares its own (derive.runs.unit.Unit.carried).
 CARRIED = (("x", "x_new"), ("P", "P_new"))
 #: Input ports that carry the filter's state from one step to the next.
 STATE_PORTS = tuple(port for port, _ in CARRIED)

@@ -61,9 +61,9 @@ import sympy
 from sympy import default_sort_key
 
 from derive.arrivals import Arrivals, Form, arrival_times, statement_form
-from derive.emit.unit import Unit
 from derive.expression_lowering import CARRIED, expression_lowerer
 from derive.program import Program
+from derive.runs.unit import Unit
 from derive.single_use import is_product, read_counts
 from derive.statements import (
     Assign,

@@ -196,6 +196,21 @@ def test_program_core_reads_bottom_up(imports):
             assert PROGRAM_CORE.index(imp.target) < PROGRAM_CORE.index(imp.module), imp
 
 
+def test_derivation_imports_nothing_of_emit(imports):
+    """The derivation (derive/filters/) and the language-free description of a run
+    (derive/runs/) name no module of a language's rendering (derive/emit/)."""
+    assert [f"{imp.module}:{imp.line} imports {imp.target}" for imp in imports
+            if _within(imp.module, ("derive.filters", "derive.runs"))
+            and _within(imp.target, ("derive.emit",))] == []
+
+
+def test_model_imports_no_filter_option(imports):
+    """The model declares what it is; the filters' options (derive.options) are a layer above
+    it (the forms both name live in derive.forms)."""
+    assert [imp for imp in imports if imp.module == "derive.model"
+            and _within(imp.target, ("derive.options", "derive.filters", "derive.emit"))] == []
+
+
 def test_generator_does_not_import_the_package_api(imports):
     """derive/__init__.py imports generation and build: a generator module importing
     ``derive`` itself would close a circle through them."""

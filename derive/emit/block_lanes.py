@@ -49,10 +49,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
-from derive.emit.unit import LOOKAHEAD_NEXT
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import LOOKAHEAD_NEXT
 from derive.trees import Const, Op, Tree, Var, tree_kinds
 
 #: Defined where the vector run loops compile (GCC and Clang, unless the build defines
