@@ -18,7 +18,7 @@ import jinja2
 import numpy as np
 
 from derive import interface
-from derive.emit import block_lanes, c_loops, c_printer, python_printer
+from derive.emit import block_lanes, c_loops, c_printer, c_run, python_printer, python_run
 from derive.emit.c_loops import (
     body_functions,
     body_name,
@@ -29,11 +29,11 @@ from derive.emit.c_loops import (
     two_step_body,
 )
 from derive.emit.python_loop import single_track_loop
-from derive.emit.sensors_run import c_run_body, python_loop
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
+from derive.runs import kinds
 from derive.runs.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.version import __version__
 
@@ -331,17 +331,18 @@ def _python_context(unit: Unit, lowered: dict[str, LoweredProgram]) -> dict:
 
 
 def _render_python_sensors(unit: Unit) -> dict[str, str]:
-    """The Python file of a unit of the run kind ``sensors`` (derive.emit.sensors_run)."""
+    """The Python file of a unit of the run kind ``sensors`` (derive.runs.kinds.sensors)."""
     lowered = _lowered(unit, use_fma=False)
     context = {**_python_context(unit, lowered),
                "functions": [python_printer.function_parts(lp) for lp in lowered.values()],
                "run_checks": [],
-               "loop": python_loop(unit, lowered)}
+               "loop": python_run.run_lines(kinds.sensors(unit, lowered), lowered,
+                                            {a.c_name: a.py_name for a in run_arguments(unit)})}
     return {f"{unit.filter}.py": _render("python/sensors.jinja", context)}
 
 
 def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, str]:
-    """The C files of a unit of the run kind ``sensors`` (derive.emit.sensors_run)."""
+    """The C files of a unit of the run kind ``sensors`` (derive.runs.kinds.sensors)."""
     lowered = _lowered(unit, use_fma=use_fma)
     lps = list(lowered.values())
     header_lines = _header_lines(unit, "c", lowered)
@@ -373,7 +374,8 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
         "fma_macro": c_printer.macro_lines(lps, real),
         "functions": [c_printer.function_parts(lp, prefix, real) for lp in lps],
         "run_signature": run_signature,
-        "run_body": c_run_body(unit, lowered, real),
+        "run_body": c_run.run_lines(kinds.sensors(unit, lowered), lowered, prefix,
+                                    unit.n_inputs, real),
         "tracks_signature": "",
         "about": unit.about.get("c", "Run the filter over steps steps."),
     }

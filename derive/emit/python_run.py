@@ -1,0 +1,139 @@
+"""A :class:`~derive.runs.loops.Run` printed as the body of Python ``run`` (after its
+prologue and ``xs = np.empty(...)``): the loop works on every track at once, each array
+with the tracks as trailing axes; where only some tracks hold a measurement, the others
+keep their state by a mask (:func:`numpy.where`)."""
+
+from __future__ import annotations
+
+from derive.lowering import LoweredProgram
+from derive.program import PARAMETER_PORT
+from derive.runs.loops import (
+    AfterFirst,
+    Call,
+    Columns,
+    Node,
+    Present,
+    Record,
+    Row,
+    Run,
+    State,
+    Steps,
+    Store,
+)
+
+#: The name run's prologue gives p as one row per step (derive.emit.render).
+PARAMETER_ROWS = "p_rows"
+_FILL = {"nan": "np.nan", "zero": "0.0"}
+
+
+class _Printer:
+    def __init__(self, run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str]):
+        self.run, self.lowered, self.names = run, lowered, names
+        self.fill = {r.array: r.fill for r in run.records}
+
+    def source(self, source) -> str:
+        if isinstance(source, str):
+            return source
+        if isinstance(source, Columns):
+            name = self.names[source.array]
+            return (f"{name}[k]" if source.whole
+                    else f"{name}[k, [{', '.join(str(c) for c in source.columns)}]]")
+        if source.array == PARAMETER_PORT:
+            return f"{PARAMETER_ROWS}[{source.row}]"
+        name = self.names[source.array]
+        if source.side:  # a matrix a row: flat, as the program takes it
+            return f"{name}[{source.row}].reshape(({source.size},) + {name}.shape[3:])"
+        return f"{name}[{source.row}]"
+
+    def call(self, call: Call, outputs: str) -> str:
+        lp = self.lowered[call.program]
+        bound = dict(call.args)
+        args = ", ".join(self.source(bound.get(p.name, p.name)) for p in lp.inputs)
+        return f"{outputs} = {call.program}({args})"
+
+    def outputs(self, call: Call, carried: str) -> str:
+        """The names a call's outputs are assigned to: the carried state's ``carried``
+        (``x_up``, or ``x`` itself), the other ports by their names."""
+        states = {f"{s.name}_new": s.name for s in self.run.states}
+        return ", ".join(carried.format(states[p.name]) if p.name in states else p.name
+                         for p in self.lowered[call.program].outputs)
+
+    def nodes(self, nodes: tuple[Node, ...], indent: str) -> list[str]:
+        lines = []
+        for node in nodes:
+            if isinstance(node, Call):
+                lines.append(indent + self.call(node, self.outputs(node, "{}")))
+            elif isinstance(node, AfterFirst):
+                lines.append(f"{indent}if k:  # update-first: step 0 has no prediction")
+                lines += self.nodes(node.body, indent + "    ")
+            elif isinstance(node, Present):
+                lines += self.present(node, indent)
+            elif isinstance(node, Store):
+                lines += [f"{indent}for i in range({node.size}):",
+                          f"{indent}    {self.names[node.array]}[k, i] = {node.state}[i]"]
+            elif isinstance(node, Steps):
+                lines.append(f"{indent}for k in range(steps):")
+                lines += self.nodes(node.body, indent + "    ")
+            else:
+                raise TypeError(f"no Python for {node!r}")
+        return lines
+
+    def present(self, node: Present, indent: str) -> list[str]:
+        """The tracks with row k of the measurement: the call on all of them, its results
+        kept where the row is present (every track when all hold it)."""
+        inner = indent + "    "
+        z = self.source(Row(node.array, node.size))
+        lines = [f"{indent}present = ~np.isnan({z}).any(axis=0)", f"{indent}if np.any(present):"]
+        for sub in node.body:
+            if isinstance(sub, Call):
+                states = [s.name for s in self.run.states]
+                lines += [inner + self.call(sub, self.outputs(sub, "{}_up")),
+                          f"{inner}if np.all(present):",
+                          f"{inner}    {', '.join(states)} = "
+                          f"{', '.join(f'{s}_up' for s in states)}",
+                          f"{inner}else:  # tracks without this measurement keep "
+                          f"{' and '.join(states)}"]
+                lines += [f"{inner}    {s} = [np.where(present, a, b) for a, b in "
+                          f"zip({s}_up, {s})]" for s in states]
+            elif isinstance(sub, Record):
+                lines.append(f"{inner}{sub.array}[k] = np.where(present, {sub.value}[0], "
+                             f"{_FILL[self.fill[sub.array]]})")
+            else:
+                raise TypeError(f"no Python for {sub!r} where a measurement is present")
+        return lines
+
+    def start(self, state: State) -> list[str]:
+        n, size = state.side, state.size
+        if not n:
+            return [f"{state.name} = {state.start}"]
+        if not state.whole:
+            return [f"{state.name} = {state.start}.reshape(({size},) + {state.start}.shape[2:])"]
+        # the upper triangle, mirrored: the programs read the matrix whole
+        m = f"{state.start}m"
+        return [f"{m} = {state.start}.reshape(({n}, {n}) + {state.start}.shape[2:])",
+                f"upper = np.triu(np.ones(({n}, {n}), dtype=bool)).reshape(({n}, {n}) + "
+                f"(1,) * ({m}.ndim - 2))",
+                f"{state.name} = np.where(upper, {m}, {m}.swapaxes(0, 1)).reshape(({size},) "
+                f"+ {m}.shape[2:])"]
+
+
+def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str]) -> list[str]:
+    """The body of Python run after its prologue and ``xs = np.empty(...)``; ``names``:
+    run's arrays by their C names (run's Python argument names: ``us`` for ``u``)."""
+    printer = _Printer(run, lowered, names)
+    stores = [node for node in _walk_stores(run.loop.body)]
+    lines = [f"{s.array} = np.empty((steps, {s.size}) + track)" for s in stores
+             if s.array != "xs"]
+    lines += [f"{r.array} = np.full((steps,) + track, np.nan)" if r.fill == "nan"
+              else f"{r.array} = np.zeros((steps,) + track)" for r in run.records]
+    for state in run.states:
+        lines += printer.start(state)
+    lines += printer.nodes((run.loop,), "")
+    returned = [name if len(shape) < 2 else
+                f"{name}.reshape((steps, {', '.join(str(d) for d in shape)}) + track)"
+                for name, shape in run.returns]
+    return lines + [f"return {', '.join(returned)}"]
+
+
+def _walk_stores(nodes) -> list[Store]:
+    return [node for node in nodes if isinstance(node, Store)]
