@@ -12,16 +12,18 @@ import pytest
 
 import derive.filters as filters
 from derive import catalog
+from derive.emit.render import BUILT
 from derive.filters import FILTERS, MISSING_FILTERS, derive_unit
 from derive.filters.spec import FilterSpec
 from derive.options import taken_by
+from derive.runs import kinds
 from derive.runs.unit import LANGUAGES, RUN_KINDS
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATED = ROOT / "generated"
 EMIT = ROOT / "derive" / "emit"
 #: Templates that are no run loop: the shared layout and the plain-functions files.
-LAYOUT = {"base", "functions", "header", "steady_loop"}
+LAYOUT = {"base", "functions", "header", "steady_loop", "run"}
 
 
 def _family_modules():
@@ -53,10 +55,14 @@ def test_missing_filters_are_those_whose_spec_says_so():
         assert ("missing" in taken_by(name)) == spec.missing, name
 
 
-def test_one_template_per_run_kind_per_language():
+def test_every_run_kind_has_its_builder_or_its_template():
+    """A kind whose loop is built as data (derive.runs.kinds, one builder a kind) is printed
+    into the frame ``run.jinja``; the others still have one template per language."""
+    for name in BUILT:
+        assert callable(getattr(kinds, name)), name
     for lang in LANGUAGES:
         stems = {p.stem for p in (ROOT / "templates" / lang).glob("*.jinja")}
-        assert stems - LAYOUT == set(RUN_KINDS), lang
+        assert stems - LAYOUT == set(RUN_KINDS) - set(BUILT), lang
 
 
 def test_no_filter_name_in_emit():

@@ -10,8 +10,11 @@ from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 from derive.runs.loops import (
     AfterFirst,
+    AnySteps,
     Call,
+    Carried,
     Columns,
+    Copy,
     Node,
     Present,
     Record,
@@ -42,9 +45,64 @@ def _indent(lines: list[str], by: str = "    ") -> list[str]:
 
 class _Printer:
     def __init__(self, run: Run, lowered: dict[str, LoweredProgram], prefix: str,
-                 real: Precision):
+                 real: Precision, inputs: tuple[str, ...]):
         self.run, self.lowered, self.prefix, self.real = run, lowered, prefix, real
+        self.inputs = inputs  # run's arrays read one row per step
         self.row: dict[str, str] = {}  # run arrays whose row k a guard points at
+        self.k = "k"  # the row variable of the loop being printed
+
+    def row_of(self, row: str) -> str:
+        """A row's index in C: ``k``, ``(k + 1)``; in a loop down, ``j``."""
+        row = row.replace("k", self.k)
+        return row if row.isidentifier() else f"({row})"
+
+    def address(self, row: Row) -> str:
+        """Where a row starts in its array."""
+        stride = P_STRIDE if row.array == PARAMETER_PORT else (row.stride or row.size)
+        return (f"{row.array} + {self.row_of(row.row)} * {stride}"
+                + (f" + {row.offset}" if row.offset else ""))
+
+    def element(self, row: Row) -> str:
+        """Element i of a row."""
+        return (f"{row.array}[{self.row_of(row.row)} * {row.stride or row.size}"
+                + (f" + {row.offset}" if row.offset else "") + " + i]")
+
+    def pointers(self, call: Call) -> tuple[list[str], dict[str, str]]:
+        """A pointer per row a call reads or writes (named as its port; a row of a per-step
+        input as ``zk``), each the one before it plus its size where it follows it in the
+        same row; and the names the call is made with."""
+        t = self.real.c_type
+        lp = self.lowered[call.program]
+        bound = dict(call.args)
+        bound.update({port: row for port, row, _ in call.into})
+        lines, names, before = [], {}, None
+        for port in lp.inputs + lp.outputs:
+            source = bound.get(port.name)
+            if not isinstance(source, (Row, Carried)):
+                before = None
+                continue
+            row = source.row if isinstance(source, Carried) else source
+            name = (f"{row.array}k" if row.array in self.inputs or row.array == PARAMETER_PORT
+                    else port.name)
+            if (isinstance(source, Row) and before is not None and before[1].array == row.array
+                    and before[1].row == row.row
+                    and before[1].offset + before[1].size == row.offset):
+                where = f"{before[0]} + {before[1].size}"
+            else:
+                where = self.address(row)
+            if isinstance(source, Carried) and source.start:
+                where = f"{self.k} ? {where} : {source.start}"
+            const = "" if port in lp.outputs else "const "
+            lines.append(f"{const}{t} *restrict {name} = {where};")
+            names[port.name] = name
+            before = None if isinstance(source, Carried) else (name, row)
+        return lines, names
+
+    def note(self, note: str) -> list[str]:
+        """A comment: ``note``'s lines, the later ones under the first's text."""
+        lines = note.split("\n")
+        return [("/* " if i == 0 else "   ") + line + (" */" if i == len(lines) - 1 else "")
+                for i, line in enumerate(lines)]
 
     def subset(self, program: str) -> str:
         """The local array of the columns of u a program takes (named for the program: a
@@ -71,6 +129,9 @@ class _Printer:
 
     def call(self, call: Call) -> list[str]:
         lp = self.lowered[call.program]
+        if call.into:
+            lines, names = self.pointers(call)
+            return lines + call_lines(self.prefix, lp, names)
         lines = []
         names = {}
         for port, source in call.args:
@@ -100,12 +161,28 @@ class _Printer:
                          f"    {node.array}[k * {node.size} + i] = {node.state}[i];", "}"]
                 lines += ([f"if ({node.array}) {{"] + _indent(store) + ["}"]
                           if node.optional else store)
+            elif isinstance(node, Copy):
+                lines += [f"for (i = 0; i < {node.target.size}; ++i) {{",
+                          f"    {self.element(node.target)} = {self.element(node.source)};",
+                          "}"]
+            elif isinstance(node, AnySteps):
+                lines += self.note(node.note) + ["if (steps) {"] + _indent(
+                    self.nodes(node.body)) + ["}"]
             elif isinstance(node, Steps):
-                lines += ["for (k = 0; k < steps; ++k) {"] + _indent(
-                    self.step_rows() + self.nodes(node.body)) + ["}"]
+                lines += self.steps(node)
             else:
                 raise TypeError(f"no C for {node!r}")
         return lines
+
+    def steps(self, node: Steps) -> list[str]:
+        head = self.note(node.note) if node.note else []
+        if not node.down:
+            return head + ["for (k = 0; k < steps; ++k) {"] + _indent(
+                self.step_rows(node) + self.nodes(node.body)) + ["}"]
+        self.k = "j"
+        body = [f"const size_t j = k - {node.down};"] + self.nodes(node.body)
+        self.k = "k"
+        return head + [f"for (k = steps; k > {node.down - 1}; --k) {{"] + _indent(body) + ["}"]
 
     def present(self, node: Present) -> list[str]:
         t = self.real.c_type
@@ -120,25 +197,32 @@ class _Printer:
         return lines + ["    }", "}"]
 
     def uses(self, kind) -> list:
-        return [n for n in walk((self.run.loop,)) if isinstance(n, kind)]
+        return [n for n in walk(self.run.loops) if isinstance(n, kind)]
 
-    def step_rows(self) -> list[str]:
+    def step_rows(self, node: Steps) -> list[str]:
+        """The rows of u and p a loop's guarded calls read (a call that writes rows points
+        at those it reads itself)."""
         t = self.real.c_type
-        columns = [s for c in self.uses(Call) for _, s in c.args if isinstance(s, Columns)]
+        calls = [c for c in walk(node.body) if isinstance(c, Call) and not c.into]
+        columns = [s for c in calls for _, s in c.args if isinstance(s, Columns)]
         rows = [f"const {t} *uk = u + k * {columns[0].width};"] if columns else []
         if any(isinstance(s, Row) and s.array == PARAMETER_PORT
-               for c in self.uses(Call) for _, s in c.args):
+               for c in calls for _, s in c.args):
             rows.append(f"const {t} *{PARAMETER_PORT}k = {PARAMETER_PORT} + k * {P_STRIDE};")
         return rows
 
     def declarations(self, inputs: int) -> list[str]:
         t = self.real.c_type
-        lines = [f"{t} {s.name}[{s.size}];" for s in self.run.states]
-        lines += [f"{t} {s.name}_new[{s.size}];" for s in self.run.states]
+        carrying = self.carrying()
+        states = self.run.states if carrying else ()
+        lines = [f"{t} {s.name}[{s.size}];" for s in states]
+        lines += [f"{t} {s.name}_new[{s.size}];" for s in states]
         carried = {f"{s.name}_new" for s in self.run.states}
         outputs = {}
         subsets = {}
         for call in self.uses(Call):
+            if call.into:  # its outputs are rows of run's arrays
+                continue
             for port in self.lowered[call.program].outputs:
                 if port.name not in carried:
                     outputs.setdefault(port.name, port.size)
@@ -155,9 +239,14 @@ class _Printer:
             lines.append("(void)u;")
         return lines
 
+    def carrying(self) -> bool:
+        """True when a call carries the state in run's local arrays (else the loops point
+        at the rows that hold it)."""
+        return any(c.carry for c in self.uses(Call))
+
     def start(self) -> list[str]:
         lines = []
-        for s in self.run.states:
+        for s in self.run.states if self.carrying() else ():
             n = s.side
             value = (f"i / {n} <= i % {n} ? {s.start}[i] : {s.start}[(i % {n}) * {n} + i / {n}]"
                      if s.whole else f"{s.start}[i]")
@@ -166,10 +255,11 @@ class _Printer:
 
 
 def run_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str, inputs: int = 0,
-              real: Precision = DOUBLE) -> list[str]:
-    """The statements of C run (unindented); ``inputs``: the width of run's u (0: none)."""
-    printer = _Printer(run, lowered, prefix, real)
+              real: Precision = DOUBLE, rows: tuple[str, ...] = ()) -> list[str]:
+    """The statements of C run (unindented); ``inputs``: the width of run's u (0: none);
+    ``rows``: run's arrays read one row per step (a pointer at row k of one is ``zk``)."""
+    printer = _Printer(run, lowered, prefix, real, rows)
     printer.fill = {r.array: r.fill for r in run.records}
     status = any(lp.has_checks for lp in lowered.values())
-    return (printer.declarations(inputs) + printer.start() + printer.nodes((run.loop,))
+    return (printer.declarations(inputs) + printer.start() + printer.nodes(run.loops)
             + (["return 0;"] if status else []))

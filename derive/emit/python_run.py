@@ -5,12 +5,17 @@ keep their state by a mask (:func:`numpy.where`)."""
 
 from __future__ import annotations
 
+from math import prod
+
 from derive.lowering import LoweredProgram
 from derive.program import PARAMETER_PORT
 from derive.runs.loops import (
     AfterFirst,
+    AnySteps,
     Call,
+    Carried,
     Columns,
+    Copy,
     Node,
     Present,
     Record,
@@ -27,13 +32,21 @@ _FILL = {"nan": "np.nan", "zero": "0.0"}
 
 
 class _Printer:
-    def __init__(self, run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str]):
-        self.run, self.lowered, self.names = run, lowered, names
+    def __init__(self, run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str],
+                 functions: dict[str, str]):
+        self.run, self.lowered, self.names, self.functions = run, lowered, names, functions
         self.fill = {r.array: r.fill for r in run.records}
 
     def source(self, source) -> str:
         if isinstance(source, str):
             return source
+        if isinstance(source, Carried):
+            return source.name
+        work = self.run.work
+        if work is not None and source.array == work.array:  # a list of rows of outputs
+            index = [offset for offset in _offsets(work)].index(source.offset)
+            row = "-1" if source.row == "steps - 1" else source.row
+            return f"{work.array}[{row}][{index}]"
         if isinstance(source, Columns):
             name = self.names[source.array]
             return (f"{name}[k]" if source.whole
@@ -49,20 +62,47 @@ class _Printer:
         lp = self.lowered[call.program]
         bound = dict(call.args)
         args = ", ".join(self.source(bound.get(p.name, p.name)) for p in lp.inputs)
-        return f"{outputs} = {call.program}({args})"
+        return f"{outputs} = {self.functions.get(call.program, call.program)}({args})"
 
     def outputs(self, call: Call, carried: str) -> str:
-        """The names a call's outputs are assigned to: the carried state's ``carried``
-        (``x_up``, or ``x`` itself), the other ports by their names."""
-        states = {f"{s.name}_new": s.name for s in self.run.states}
-        return ", ".join(carried.format(states[p.name]) if p.name in states else p.name
+        """The names a call's outputs are assigned to: the state a row written becomes, the
+        carried state's ``carried`` (``x_up``, or ``x`` itself), the other ports by their
+        names."""
+        states = {f"{s.name}_new": s.name for s in self.run.states} if call.carry else {}
+        into = {port: name for port, _, name in call.into}
+        return ", ".join(into[p.name] if p.name in into else
+                         carried.format(states[p.name]) if p.name in states else p.name
                          for p in self.lowered[call.program].outputs)
+
+    def store(self, target: Row, name: str, indent: str) -> list[str]:
+        return [f"{indent}for i in range({target.size}):",
+                f"{indent}    {self.names.get(target.array, target.array)}[{target.row}, i] = "
+                f"{name}[i]"]
+
+    def written(self, call: Call, indent: str) -> list[str]:
+        """The rows a call writes: a work row keeps the outputs (appended), another row
+        stores its state."""
+        work = self.run.work.array if self.run.work is not None else None
+        kept = [name for _, row, name in call.into if row.array == work]
+        lines = [f"{indent}{work}.append(({', '.join(kept)}))"] if kept else []
+        for _, row, name in call.into:
+            if row.array != work:
+                lines += self.store(row, name, indent)
+        return lines
 
     def nodes(self, nodes: tuple[Node, ...], indent: str) -> list[str]:
         lines = []
         for node in nodes:
             if isinstance(node, Call):
                 lines.append(indent + self.call(node, self.outputs(node, "{}")))
+                lines += self.written(node, indent)
+            elif isinstance(node, AnySteps):
+                copies = [c for c in node.body if isinstance(c, Copy)]
+                lines += [f"{indent}if steps:  # {node.note}",
+                          f"{indent}    {', '.join(c.name for c in copies)} = "
+                          f"{', '.join(self.source(c.source) for c in copies)}"]
+                for c in copies:
+                    lines += self.store(c.target, c.name, indent + "    ")
             elif isinstance(node, AfterFirst):
                 lines.append(f"{indent}if k:  # update-first: step 0 has no prediction")
                 lines += self.nodes(node.body, indent + "    ")
@@ -72,7 +112,8 @@ class _Printer:
                 lines += [f"{indent}for i in range({node.size}):",
                           f"{indent}    {self.names[node.array]}[k, i] = {node.state}[i]"]
             elif isinstance(node, Steps):
-                lines.append(f"{indent}for k in range(steps):")
+                lines.append(f"{indent}for k in range(steps - {node.down}, -1, -1):"
+                             if node.down else f"{indent}for k in range(steps):")
                 lines += self.nodes(node.body, indent + "    ")
             else:
                 raise TypeError(f"no Python for {node!r}")
@@ -117,23 +158,32 @@ class _Printer:
                 f"+ {m}.shape[2:])"]
 
 
-def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str]) -> list[str]:
+def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str],
+              functions: dict[str, str] | None = None) -> list[str]:
     """The body of Python run after its prologue and ``xs = np.empty(...)``; ``names``:
-    run's arrays by their C names (run's Python argument names: ``us`` for ``u``)."""
-    printer = _Printer(run, lowered, names)
-    stores = [node for node in _walk_stores(run.loop.body)]
-    lines = [f"{s.array} = np.empty((steps, {s.size}) + track)" for s in stores
-             if s.array != "xs"]
+    run's arrays by their C names (run's Python argument names: ``us`` for ``u``);
+    ``functions``: the function a program's call calls, where not its own (the step
+    without its pattern check)."""
+    printer = _Printer(run, lowered, names, functions or {})
+    recorded = {r.array for r in run.records}
+    lines = [f"{name} = np.empty((steps, {prod(shape)}) + track)" for name, shape in run.returns
+             if name != "xs" and name not in recorded]
     lines += [f"{r.array} = np.full((steps,) + track, np.nan)" if r.fill == "nan"
               else f"{r.array} = np.zeros((steps,) + track)" for r in run.records]
     for state in run.states:
         lines += printer.start(state)
-    lines += printer.nodes((run.loop,), "")
+    if run.work is not None:
+        lines.append(f"{run.work.array} = []  # {run.work.note}")
+    lines += printer.nodes(run.loops, "")
     returned = [name if len(shape) < 2 else
                 f"{name}.reshape((steps, {', '.join(str(d) for d in shape)}) + track)"
                 for name, shape in run.returns]
     return lines + [f"return {', '.join(returned)}"]
 
 
-def _walk_stores(nodes) -> list[Store]:
-    return [node for node in nodes if isinstance(node, Store)]
+def _offsets(work) -> list[int]:
+    offsets, at = [], 0
+    for _, size in work.ports:
+        offsets.append(at)
+        at += size
+    return offsets

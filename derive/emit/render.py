@@ -215,6 +215,15 @@ def _raises(lowered) -> str:
     return "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
 
 
+#: The run kinds whose loops are built as data (derive.runs.kinds) and printed, in a
+#: template that holds the file's frame only.
+BUILT = ("sensors", "smoother")
+
+
+def _template(unit: Unit) -> str:
+    return "run" if unit.kind in BUILT else unit.kind
+
+
 def _render(template: str, context: dict) -> str:
     return environment().get_template(template).render(**context)
 
@@ -338,7 +347,7 @@ def _render_python_sensors(unit: Unit) -> dict[str, str]:
                "run_checks": [],
                "loop": python_run.run_lines(kinds.sensors(unit, lowered), lowered,
                                             {a.c_name: a.py_name for a in run_arguments(unit)})}
-    return {f"{unit.filter}.py": _render("python/sensors.jinja", context)}
+    return {f"{unit.filter}.py": _render("python/run.jinja", context)}
 
 
 def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, str]:
@@ -380,7 +389,7 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
         "about": unit.about.get("c", "Run the filter over steps steps."),
     }
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
-            f"{unit.filter}.c": _render("c/sensors.jinja", context)}
+            f"{unit.filter}.c": _render("c/run.jinja", context)}
 
 
 def render_python(unit: Unit) -> dict[str, str]:
@@ -399,13 +408,16 @@ def render_python(unit: Unit) -> dict[str, str]:
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,
         "p_start": f", {PARAMETER_START}" if unit.parameters else "",
-        "nn": unit.n * unit.n,
         "m": unit.m,
         "window": unit.window if unit.run.window else 0,
         "window_m": unit.window * unit.m if unit.run.window else 0,
         "padding": unit.window - 1 if unit.run.window else 0,
         "single": [],
     }
+    if unit.kind == "smoother":
+        context["loop"] = python_run.run_lines(
+            kinds.smoother(unit), lowered, {a.c_name: a.py_name for a in args},
+            {"step": context["loop_step"]})
     if not unit.run.window:
         ports = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {name: ports[name] for name in unit.step_inputs}
@@ -436,7 +448,7 @@ def render_python(unit: Unit) -> dict[str, str]:
                            for s in stored_outputs(unit))
             context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
                                                   rows, arrays, unit.carried, stored)
-    return {f"{unit.filter}.py": _render(f"python/{unit.kind}.jinja", context)}
+    return {f"{unit.filter}.py": _render(f"python/{_template(unit)}.jinja", context)}
 
 
 def _flat_start(unit: Unit) -> list[str]:
@@ -625,8 +637,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             parts["body"] = step_function_body(lp, loop_step, step_body, real)
         functions.append(parts)
     used = step_lp.used_inputs()
-    rows = {name: f"{name}k" for name in
-            unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())}
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
     # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
@@ -670,11 +680,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "optional_stores": optional_stores,
         "enter_call": _program_call(prefix, lowered["enter"], {})
         if "enter" in lowered else [],
-        # every program's C call with its ports' own names, for a kind's template whose
-        # run keeps them in local arrays of those names (a smoother's backward pass); the
-        # per-step inputs and p read their row (zk, pk), which the template points at
-        "calls": {name: _program_call(prefix, lp, rows) for name, lp in lowered.items()},
-        "p_stride": P_STRIDE if unit.parameters else "",
         "call_status_decl": ["int status;"] if any(
             lowered[name].has_checks for name in ("enter", "store") if name in lowered)
         else [],
@@ -685,20 +690,20 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "tracks": tracks,
         "tracks_signature": tracks_signature,
         "step_rows": step_rows,
-        # the per-step inputs' rows alone (zk), for a template that points pk itself
-        "input_rows": step_rows[:len(unit.step_inputs)],
         "unused": unused,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,
         "n": unit.n,
-        "nn": unit.n * unit.n,
         "m": unit.m,
         "window": unit.window if unit.run.window else 0,
         "window_m": unit.window * unit.m if unit.run.window else 0,
         "about": unit.about.get("c", "Run the filter over steps steps."),
     }
+    if unit.kind == "smoother":
+        context["run_body"] = c_run.run_lines(kinds.smoother(unit), lowered, prefix, real=real,
+                                              rows=unit.step_inputs)
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
-            f"{unit.filter}.c": _render(f"c/{unit.kind}.jinja", context)}
+            f"{unit.filter}.c": _render(f"c/{_template(unit)}.jinja", context)}
 
 
 def render_unit(unit: Unit, lang: str, *, use_fma: bool = True) -> dict[str, str]:

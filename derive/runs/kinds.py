@@ -9,8 +9,11 @@ from derive.lowering import LoweredProgram
 from derive.program import PARAMETER_PORT
 from derive.runs.loops import (
     AfterFirst,
+    AnySteps,
     Call,
+    Carried,
     Columns,
+    Copy,
     Output,
     Present,
     Record,
@@ -19,6 +22,7 @@ from derive.runs.loops import (
     State,
     Steps,
     Store,
+    Work,
 )
 from derive.runs.unit import Unit
 
@@ -66,4 +70,45 @@ def sensors(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     body += [Store("xs", "x", n), Store("Ps", "P", nn, optional=True)]
     returns = [("xs", (n,)), ("Ps", (n, n))] + [(r.array, ()) for r in records]
     return Run((State("x", n, "x0"), State("P", nn, "P0", whole=reads_whole(lowered), side=n)),
-               Steps(tuple(body)), tuple(records), tuple(returns))
+               (Steps(tuple(body)),), tuple(records), tuple(returns))
+
+
+def smoother(unit: Unit) -> Run:
+    """The run kind ``smoother`` (a fixed-interval smoother): forward, ``step`` on each row of z
+    from the filtered state of the row before (x0, P0 first), its outputs kept in row k of
+    the work array; the last row's filtered state is the smoothed one there; backward, from
+    row steps - 2 down to 0, ``backward`` on a row's filtered state, the next row's
+    prediction and the next smoothed state (p of the next row: its F predicted it)."""
+    n, nn = unit.n, unit.n * unit.n
+    step = unit.programs["step"]
+    array, held = unit.run.work[0]
+    work = Work(array, tuple((port, step.port(port).size) for port in held),
+                note="per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1)")
+    rows = tuple((name, Row(name, unit.step_input_size(name))) for name in unit.step_inputs)
+    p = _parameters(unit)
+    forward = Call("step", (("x", Carried("x", work.slot("x_new", "k - 1"), "x0")),
+                            ("P", Carried("P", work.slot("P_new", "k - 1"), "P0")))
+                   + rows + p,
+                   into=tuple((port, work.slot(port, "k"), port.replace("_new", ""))
+                              for port, _ in work.ports))
+    last = AnySteps((Copy(Row("xs", n, "steps - 1"), work.slot("x_new", "steps - 1"),
+                          "x_smooth"),
+                     Copy(Row("Ps", nn, "steps - 1"), work.slot("P_new", "steps - 1"),
+                          "P_smooth")), note="the last step: smoothed = filtered")
+    next_p = tuple((port, Row(source.array, source.size, "k + 1")) for port, source in p)
+    backward = Call("backward", (("x", work.slot("x_new", "k")), ("P", work.slot("P_new", "k")),
+                                 ("x_pred", work.slot("x_pred", "k + 1")),
+                                 ("P_pred", work.slot("P_pred", "k + 1")),
+                                 ("x_smooth_next", Carried("x_smooth", Row("xs", n, "k + 1"))),
+                                 ("P_smooth_next", Carried("P_smooth", Row("Ps", nn, "k + 1"))))
+                    + next_p,
+                    into=(("x_smooth", Row("xs", n), "x_smooth"),
+                          ("P_smooth", Row("Ps", nn), "P_smooth")))
+    loops = (Steps((forward,), note="forward: the Kalman filter; row k of work gets "
+                                    "x(k+1/k+1), P(k+1/k+1) and the\nprediction x(k+1/k), "
+                                    "P(k+1/k)"),
+             last,
+             Steps((backward,), down=2, note="backward, rows steps - 2 down to 0: row j of "
+                                              "xs, Ps from row j + 1"))
+    return Run((State("x", n, "x0"), State("P", nn, "P0", side=n)), loops,
+               returns=(("xs", (n,)), ("Ps", (n, n))), work=work)

@@ -2,13 +2,15 @@
 (:mod:`derive.emit.c_run`, :mod:`derive.emit.python_run`).
 
 A :class:`Run` starts its carried :class:`State` from run's arguments, then loops over
-the steps (:class:`Steps`); each step calls the unit's programs (:class:`Call`) with
-their ports bound to run's rows, the state or the columns of run's inputs, guards some
-of them (:class:`Present`: row k of a measurement holds no NaN; :class:`AfterFirst`:
-every step but the first) and stores rows of run's outputs (:class:`Store`,
-:class:`Record`). The nodes name programs and ports, never a language's spelling: a
-printer decides how an array is declared, how a call returns its outputs and how a
-missing row keeps the state (a branch in C, a mask over the tracks in Python).
+the steps (:class:`Steps`, up or down, one loop after another); each step calls the
+unit's programs (:class:`Call`) with their ports bound to run's rows (:class:`Row`), the
+state a loop carries (:class:`Carried`) or columns of run's inputs (:class:`Columns`),
+guards some of them (:class:`Present`: row k of a measurement holds no NaN;
+:class:`AfterFirst`: every step but the first) and stores rows of run's outputs
+(:class:`Store`, :class:`Copy`, :class:`Record`). The nodes name programs and ports,
+never a language's spelling: a printer decides how an array is declared, how a call
+returns its outputs and how a missing row keeps the state (a branch in C, a mask over
+the tracks in Python).
 """
 
 from __future__ import annotations
@@ -18,13 +20,27 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Row:
-    """Row ``row`` (``k``, the step) of the run array ``array``, ``size`` elements a row;
+    """Row ``row`` (``k``, the step; ``k + 1``, ``steps - 1``) of the run array ``array``:
+    ``size`` elements from ``offset`` in rows of ``stride`` elements (0: rows of ``size``);
     ``side``: a row is a square matrix of that side (read flat, row-major)."""
 
     array: str
     size: int
     row: str = "k"
     side: int = 0
+    offset: int = 0
+    stride: int = 0
+
+
+@dataclass(frozen=True)
+class Carried:
+    """The state ``name`` a loop carries from one step to the next, kept at ``row`` (the
+    previous step's row), and at the loop's first step run's argument ``start`` (none: the
+    loop starts from ``name`` as it stands)."""
+
+    name: str
+    row: Row
+    start: str = ""
 
 
 @dataclass(frozen=True)
@@ -42,8 +58,8 @@ class Columns:
 
 
 #: What a program's input port is bound to: a carried state's (or a local array's) name,
-#: a row of a run array, or columns of the inputs.
-Source = str | Row | Columns
+#: a row of a run array, the state a loop carries, or columns of the inputs.
+Source = str | Row | Carried | Columns
 
 
 @dataclass(frozen=True)
@@ -51,11 +67,22 @@ class Call:
     """A call of the unit's program ``program``, each input port read from its binding in
     ``args`` (a port not bound: the array of its own name). ``carry``: the carried state
     becomes the program's outputs of the same names with ``_new`` (x from x_new, P from
-    P_new)."""
+    P_new). ``into``: output ports written to rows of run's arrays, each (port, row, the
+    name of the state it becomes)."""
 
     program: str
     args: tuple[tuple[str, Source], ...] = ()
     carry: bool = False
+    into: tuple[tuple[str, Row, str], ...] = ()
+
+
+@dataclass(frozen=True)
+class Copy:
+    """Row ``target`` is row ``source``: the state ``name``."""
+
+    target: Row
+    source: Row
+    name: str
 
 
 @dataclass(frozen=True)
@@ -102,9 +129,43 @@ class Store:
 
 @dataclass(frozen=True)
 class Steps:
-    """The loop over the steps, k from 0."""
+    """The loop over the steps, k from 0 up (``down``: from ``steps - down`` down to 0);
+    ``note``: what the loop is, for a reader of the generated code."""
 
     body: tuple[Node, ...]
+    down: int = 0
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class AnySteps:
+    """``body`` when there is at least one step."""
+
+    body: tuple[Node, ...]
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Work:
+    """A scratch array of one row per step, holding the output ports ``ports`` (name,
+    size) in order (C: the caller's; Python: run's own); ``note``: what a row holds."""
+
+    array: str
+    ports: tuple[tuple[str, int], ...]
+    note: str = ""
+
+    @property
+    def row(self) -> int:
+        return sum(size for _, size in self.ports)
+
+    def slot(self, port: str, row: str) -> Row:
+        """Where row ``row`` holds ``port``."""
+        offset = 0
+        for name, size in self.ports:
+            if name == port:
+                return Row(self.array, size, row, offset=offset, stride=self.row)
+            offset += size
+        raise KeyError(port)
 
 
 @dataclass(frozen=True)
@@ -135,19 +196,20 @@ class Run:
     run's outputs in order, with the shape each is returned in (Python)."""
 
     states: tuple[State, ...]
-    loop: Steps
+    loops: tuple[Node, ...]
     records: tuple[Output, ...] = ()
     returns: tuple[tuple[str, tuple[int, ...]], ...] = ()
+    work: Work | None = None
 
 
-Node = Call | Record | Present | AfterFirst | Store | Steps
+Node = Call | Copy | Record | Present | AfterFirst | Store | Steps | AnySteps
 
 
 def walk(nodes: tuple[Node, ...]):
     """Every node of ``nodes``, depth first, the nodes inside a guard or a loop included."""
     for node in nodes:
         yield node
-        if isinstance(node, (Present, AfterFirst, Steps)):
+        if isinstance(node, (Present, AfterFirst, Steps, AnySteps)):
             yield from walk(node.body)
         if isinstance(node, Present):
             yield from walk(node.missing)
