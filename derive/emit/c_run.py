@@ -22,6 +22,7 @@ from derive.runs.loops import (
     Run,
     Steps,
     Store,
+    Window,
     walk,
 )
 
@@ -50,6 +51,9 @@ class _Printer:
         self.inputs = inputs  # run's arrays read one row per step
         self.row: dict[str, str] = {}  # run arrays whose row k a guard points at
         self.k = "k"  # the row variable of the loop being printed
+        # a call that writes rows is given the addresses of the rows it reads, p's too
+        self.addressed = any(c.into and not any(isinstance(s, Carried) for _, s in c.args)
+                             for c in walk(run.loops) if isinstance(c, Call))
 
     def row_of(self, row: str) -> str:
         """A row's index in C: ``k``, ``(k + 1)``; in a loop down, ``j``."""
@@ -114,11 +118,13 @@ class _Printer:
             return source
         if isinstance(source, Columns):
             return "uk" if source.whole else self.subset(program)
-        if source.array == PARAMETER_PORT:
+        if isinstance(source, Window):
+            return "zw"
+        if source.array == PARAMETER_PORT and source.row == "k" and not self.addressed:
             return f"{PARAMETER_PORT}k"
         if source.array in self.row:
             return self.row[source.array]
-        return f"{source.array} + {source.row} * {source.size}"
+        return self.address(source)
 
     def copies(self) -> list[str]:
         lines = []
@@ -129,16 +135,24 @@ class _Printer:
 
     def call(self, call: Call) -> list[str]:
         lp = self.lowered[call.program]
-        if call.into:
+        if any(isinstance(source, Carried) for _, source in call.args):
             lines, names = self.pointers(call)
             return lines + call_lines(self.prefix, lp, names)
         lines = []
+        for _, w in call.args:
+            if isinstance(w, Window):  # newest row first, zero before the first row
+                lines += [f"for (i = 0; i < {w.window}; ++i) {{",
+                          f"    for (j = 0; j < {w.size}; ++j) {{",
+                          f"        zw[i * {w.size} + j] = i <= k ? {w.array}[(k - i) * "
+                          f"{w.size} + j] : {self.real.zero()};",
+                          "    }", "}"]
         names = {}
         for port, source in call.args:
             if isinstance(source, Columns) and not source.whole:
                 lines += [f"{self.subset(call.program)}[{j}] = uk[{c}];"
                           for j, c in enumerate(source.columns)]
             names[port] = self.source(source, call.program)
+        names.update({port: self.address(row) for port, row, _ in call.into})
         lines += call_lines(self.prefix, lp, names)
         return lines + (self.copies() if call.carry else [])
 
@@ -203,7 +217,8 @@ class _Printer:
         """The rows of u and p a loop's guarded calls read (a call that writes rows points
         at those it reads itself)."""
         t = self.real.c_type
-        calls = [c for c in walk(node.body) if isinstance(c, Call) and not c.into]
+        calls = [c for c in walk(node.body) if isinstance(c, Call) and not self.addressed
+                 and not any(isinstance(s, Carried) for _, s in c.args)]
         columns = [s for c in calls for _, s in c.args if isinstance(s, Columns)]
         rows = [f"const {t} *uk = u + k * {columns[0].width};"] if columns else []
         if any(isinstance(s, Row) and s.array == PARAMETER_PORT
@@ -231,7 +246,9 @@ class _Printer:
                     subsets[self.subset(call.program)] = len(source.columns)
         lines += [f"{t} {name}[{size}];" for name, size in outputs.items()]
         lines += [f"{t} {name}[{size}];" for name, size in subsets.items()]
-        lines += ["size_t k;", "size_t i;"]
+        windows = {s for c in self.uses(Call) for _, s in c.args if isinstance(s, Window)}
+        lines += [f"{t} zw[{w.window * w.size}];" for w in windows]
+        lines += ["size_t k, i, j;"] if windows else ["size_t k;", "size_t i;"]
         if any(lp.has_checks for lp in self.lowered.values()):
             lines.append("int status;")
         if inputs and not any(isinstance(s, Columns) for c in self.uses(Call)

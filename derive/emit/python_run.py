@@ -24,6 +24,8 @@ from derive.runs.loops import (
     State,
     Steps,
     Store,
+    Window,
+    walk,
 )
 
 #: The name run's prologue gives p as one row per step (derive.emit.render).
@@ -42,6 +44,8 @@ class _Printer:
             return source
         if isinstance(source, Carried):
             return source.name
+        if isinstance(source, Window):
+            return "zw"
         work = self.run.work
         if work is not None and source.array == work.array:  # a list of rows of outputs
             index = [offset for offset in _offsets(work)].index(source.offset)
@@ -94,6 +98,11 @@ class _Printer:
         lines = []
         for node in nodes:
             if isinstance(node, Call):
+                for _, w in node.args:
+                    if isinstance(w, Window):
+                        z = self.names[w.array]
+                        lines.append(f"{indent}zw = padded[k:k + {w.window}][::-1].reshape(("
+                                     f"{w.window * w.size},) + {z}.shape[2:])")
                 lines.append(indent + self.call(node, self.outputs(node, "{}")))
                 lines += self.written(node, indent)
             elif isinstance(node, AnySteps):
@@ -174,11 +183,17 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str
         lines += printer.start(state)
     if run.work is not None:
         lines.append(f"{run.work.array} = []  # {run.work.note}")
+    for w in {s for n in walk(run.loops) if isinstance(n, Call) for _, s in n.args
+              if isinstance(s, Window)}:  # the rows before the first are zero
+        z = names[w.array]
+        lines.append(f"padded = np.concatenate([np.zeros(({w.window - 1}, {w.size}) + "
+                     f"{z}.shape[2:]), {z}])")
     lines += printer.nodes(run.loops, "")
     returned = [name if len(shape) < 2 else
                 f"{name}.reshape((steps, {', '.join(str(d) for d in shape)}) + track)"
                 for name, shape in run.returns]
-    return lines + [f"return {', '.join(returned)}"]
+    # (a run returning several arrays ends with a blank line: the file's layout)
+    return lines + [f"return {', '.join(returned)}"] + ([""] if len(returned) > 1 else [])
 
 
 def _offsets(work) -> list[int]:

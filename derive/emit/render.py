@@ -215,13 +215,10 @@ def _raises(lowered) -> str:
     return "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
 
 
-#: The run kinds whose loops are built as data (derive.runs.kinds) and printed, in a
-#: template that holds the file's frame only.
-BUILT = ("sensors", "smoother")
-
-
 def _template(unit: Unit) -> str:
-    return "run" if unit.kind in BUILT else unit.kind
+    """A kind whose loop is built as data (derive.runs.kinds) is printed into the frame
+    ``run.jinja``."""
+    return "run" if unit.kind in kinds.BUILDERS else unit.kind
 
 
 def _render(template: str, context: dict) -> str:
@@ -414,10 +411,10 @@ def render_python(unit: Unit) -> dict[str, str]:
         "padding": unit.window - 1 if unit.run.window else 0,
         "single": [],
     }
-    if unit.kind == "smoother":
+    if unit.kind in kinds.BUILDERS:
         context["loop"] = python_run.run_lines(
-            kinds.smoother(unit), lowered, {a.c_name: a.py_name for a in args},
-            {"step": context["loop_step"]})
+            kinds.BUILDERS[unit.kind](unit, lowered), lowered,
+            {a.c_name: a.py_name for a in args}, {"step": context["loop_step"]})
     if not unit.run.window:
         ports = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {name: ports[name] for name in unit.step_inputs}
@@ -699,9 +696,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "window_m": unit.window * unit.m if unit.run.window else 0,
         "about": unit.about.get("c", "Run the filter over steps steps."),
     }
-    if unit.kind == "smoother":
-        context["run_body"] = c_run.run_lines(kinds.smoother(unit), lowered, prefix, real=real,
-                                              rows=unit.step_inputs)
+    if unit.kind in kinds.BUILDERS:
+        context["run_body"] = c_run.run_lines(kinds.BUILDERS[unit.kind](unit, lowered), lowered,
+                                              prefix, real=real, rows=unit.step_inputs)
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
             f"{unit.filter}.c": _render(f"c/{_template(unit)}.jinja", context)}
 

@@ -22,6 +22,7 @@ from derive.runs.loops import (
     State,
     Steps,
     Store,
+    Window,
     Work,
 )
 from derive.runs.unit import Unit
@@ -73,7 +74,7 @@ def sensors(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
                (Steps(tuple(body)),), tuple(records), tuple(returns))
 
 
-def smoother(unit: Unit) -> Run:
+def smoother(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     """The run kind ``smoother`` (a fixed-interval smoother): forward, ``step`` on each row of z
     from the filtered state of the row before (x0, P0 first), its outputs kept in row k of
     the work array; the last row's filtered state is the smoothed one there; backward, from
@@ -112,3 +113,16 @@ def smoother(unit: Unit) -> Run:
                                               "xs, Ps from row j + 1"))
     return Run((State("x", n, "x0"), State("P", nn, "P0", side=n)), loops,
                returns=(("xs", (n,)), ("Ps", (n, n))), work=work)
+
+
+def windowed(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
+    """The run kind ``windowed``: per step k, ``step`` on the last N rows of z (newest
+    first, zero before the first), its x_new stored as row k of xs."""
+    n = unit.n
+    step = Call("step", (("zw", Window("z", unit.m, unit.window)),) + _parameters(unit),
+                into=(("x_new", Row("xs", n), "x"),))
+    return Run((), (Steps((step,)),), returns=(("xs", (n,)),))
+
+
+#: The builder of each run kind whose loop is built as data.
+BUILDERS = {"sensors": sensors, "smoother": smoother, "windowed": windowed}

@@ -57,9 +57,19 @@ class Columns:
         return list(self.columns) == list(range(self.width))
 
 
+@dataclass(frozen=True)
+class Window:
+    """The last ``window`` rows of the run array ``array`` up to row k (``size`` elements a
+    row), newest first, as one flat array; rows before the first are zero."""
+
+    array: str
+    size: int
+    window: int
+
+
 #: What a program's input port is bound to: a carried state's (or a local array's) name,
-#: a row of a run array, the state a loop carries, or columns of the inputs.
-Source = str | Row | Carried | Columns
+#: a row of a run array, the state a loop carries, columns of the inputs, or a window.
+Source = str | Row | Carried | Columns | Window
 
 
 @dataclass(frozen=True)
