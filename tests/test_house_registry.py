@@ -16,13 +16,13 @@ from derive.filters import FILTERS, MISSING_FILTERS, derive_unit
 from derive.filters.spec import FilterSpec
 from derive.options import taken_by
 from derive.runs import kinds
-from derive.runs.unit import LANGUAGES, RUN_KINDS
+from derive.runs.unit import RUN_KINDS
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATED = ROOT / "generated"
 EMIT = ROOT / "derive" / "emit"
 #: Templates that are no run loop: the shared layout and the plain-functions files.
-LAYOUT = {"base", "functions", "header", "steady_loop", "run"}
+LAYOUT = {"base", "functions", "header", "run"}
 
 
 def _family_modules():
@@ -54,13 +54,14 @@ def test_missing_filters_are_those_whose_spec_says_so():
         assert ("missing" in taken_by(name)) == spec.missing, name
 
 
-def test_every_run_kind_has_its_builder_or_its_template():
-    """A kind whose loop is built as data (derive.runs.kinds, one builder a kind) is printed
-    into the frame ``run.jinja``; the others still have one template per language."""
-    assert set(kinds.BUILDERS) <= set(RUN_KINDS)
-    for lang in LANGUAGES:
-        stems = {p.stem for p in (ROOT / "templates" / lang).glob("*.jinja")}
-        assert stems - LAYOUT == set(RUN_KINDS) - set(kinds.BUILDERS), lang
+def test_every_run_kind_has_its_builder_and_c_only_the_frame():
+    """Every kind's loop is built as data (derive.runs.kinds, one builder a kind) and
+    printed into the frame ``run.jinja``; Python's stepping kinds still have a template
+    each (their one-track fast path)."""
+    assert set(kinds.BUILDERS) == set(RUN_KINDS)
+    assert {p.stem for p in (ROOT / "templates" / "c").glob("*.jinja")} == LAYOUT
+    python = {p.stem for p in (ROOT / "templates" / "python").glob("*.jinja")}
+    assert python - LAYOUT == {k for k in RUN_KINDS if kinds.BUILDERS[k] is kinds.stepping}
 
 
 def test_no_filter_name_in_emit():

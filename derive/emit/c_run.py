@@ -280,3 +280,102 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str, inputs:
     status = any(lp.has_checks for lp in lowered.values())
     return (printer.declarations(inputs) + printer.start() + printer.nodes(run.loops)
             + (["return 0;"] if status else []))
+
+
+def _unrolled(target: str, source: str, size: int) -> list[str]:
+    return [f"{target.format(i)} = {source.format(i)};" for i in range(size)]
+
+
+def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
+                   bodies: dict[str, list[str]], checks: list[str] = (),
+                   real: Precision = DOUBLE) -> list[str]:
+    """The statements of C run for a run whose step is its body inline on run's local
+    arrays (derive.runs.kinds.stepping): the state in local arrays, the copies unrolled;
+    ``bodies``: the C of the body calls (``step``; ``pair``: a two-step pass's);
+    ``checks``: run's check of its start arguments, once before the loop."""
+    t = real.c_type
+    calls = [c for c in walk(run.loops) if isinstance(c, Call)]
+    step = next(c for c in calls if c.program == "step")
+    reads_p = PARAMETER_PORT in lowered["step"].used_inputs()
+    local = [row.array for c in calls + [run.enter] if c is not None
+             for _, row, _ in c.into if row.row == ""]
+    first = [name for name in local if name == "x_init"]
+    lines = [f"{t} {name}[{run.states[0].size}];" for name in first]
+    lines += [f"{t} {s.name}[{s.size}];" for s in run.states]
+    lines += [f"{t} {s.new}[{s.size}];" for s in run.states]
+    lines += [f"{t} {name}[{run.states[0].size}];" for name in local if name not in first]
+    lines.append("size_t k;")
+    if (run.enter is not None and lowered[run.enter.program].has_checks) or any(
+            isinstance(s, Store) and s.program and lowered[s.program].has_checks
+            for s in walk(run.loops)):
+        lines.append("int status;")
+    if any(p == PARAMETER_PORT for p, _ in step.args) and not reads_p:
+        lines += [f"(void){PARAMETER_PORT};", f"(void){P_STRIDE};"]
+    if checks:
+        lines += ["/* P0 must be zero outside P's pattern; the loop keeps P inside it */"]
+        lines += list(checks)
+    enter = run.enter
+    if enter is not None and enter.program == "enter":
+        lines += ["/* the carried state from run's arguments */"]
+        lines += call_lines(prefix, lowered["enter"], {})
+    elif enter is not None:  # init(x0) into x_init, the state's start
+        names = {port: (PARAMETER_PORT if isinstance(src, Row) else src)
+                 for port, src in enter.args}
+        names.update({port: row.array for port, row, _ in enter.into})
+        lines += call_lines(prefix, lowered[enter.program], names)
+        lines += _unrolled(f"{run.states[0].name}[{{}}]", "x_init[{}]", run.states[0].size)
+    else:
+        for s in run.states:
+            lines += _unrolled(f"{s.name}[{{}}]", f"{s.start}[{{}}]", s.size)
+    for loop in run.loops:
+        lines += _stepping_loop(loop, run, lowered, prefix, bodies, reads_p, real)
+    if any(lp.has_checks for lp in lowered.values()):
+        lines.append("return 0;")
+    return lines
+
+
+def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p: bool,
+                   real: Precision) -> list[str]:
+    t = real.c_type
+    head = [("/* " if i == 0 else "   ") + line + (" */" if i == len(loop.note.split("\n")) - 1
+                                                 else "")
+            for i, line in enumerate(loop.note.split("\n"))]
+    if loop.by == 2:
+        head.append("for (k = 0; k + 2 <= steps; k += 2) {")
+    elif loop.rest:
+        head.append("for (; k < steps; ++k) {")
+    else:
+        head.append("for (k = 0; k < steps; ++k) {")
+    rows = {}  # the rows the bodies read
+    for call in (c for c in loop.body if isinstance(c, Call)):
+        for port, source in call.args:
+            if isinstance(source, Row) and source.array != PARAMETER_PORT:
+                row = "k" if source.row == "k" else f"({source.row})"
+                rows[port] = (f"const {t} *restrict {port}k = {source.array} + {row} * "
+                              f"{source.size};")
+            elif isinstance(source, Row) and reads_p:
+                rows[port] = (f"const {t} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
+                              f"{P_STRIDE};")
+    body = list(rows.values()) + bodies["pair" if loop.by == 2 else "step"]
+    states = {s.name: s for s in run.states}
+    stored = {s.state: s for s in loop.body if isinstance(s, Store) and not s.optional
+              and s.state and s.row == ("k + 1" if loop.by == 2 else "k")}
+    for s in loop.body:
+        if isinstance(s, Store) and s.state and s.state not in states:  # a local (x_mid)
+            body += _unrolled(f"{s.array}[k * {s.size} + {{}}]", f"{s.state}[{{}}]", s.size)
+    row = "(k + 1)" if loop.by == 2 else "k"
+    for state in run.states:
+        store = stored.get(state.name)
+        target = (f"{store.array}[{row} * {state.size} + {{}}] = {state.name}[{{}}]" if store
+                  else f"{state.name}[{{}}]")
+        body += [f"{target.format(i, i)} = {state.new}[{i}];" for i in range(state.size)]
+    for s in loop.body:
+        if isinstance(s, Store) and s.optional:
+            if s.program:
+                lp = lowered[s.program]
+                inner = call_lines(prefix, lp, {lp.outputs[0].name: f"{s.array} + k * {s.size}"})
+            else:
+                out = states[s.state].new
+                inner = _unrolled(f"{s.array}[k * {s.size} + {{}}]", f"{out}[{{}}]", s.size)
+            body += [f"if ({s.array}) {{"] + _indent(inner) + ["}"]
+    return head + _indent(body) + ["}"]

@@ -34,7 +34,7 @@ from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
 from derive.runs import kinds
-from derive.runs.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
+from derive.runs.unit import LANGUAGES, Argument, Unit, run_arguments
 from derive.version import __version__
 
 
@@ -215,10 +215,12 @@ def _raises(lowered) -> str:
     return "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
 
 
-def _template(unit: Unit) -> str:
+def _template(unit: Unit, lang: str) -> str:
     """A kind whose loop is built as data (derive.runs.kinds) is printed into the frame
     ``run.jinja``."""
-    return "run" if unit.kind in kinds.BUILDERS else unit.kind
+    if lang == "python" and kinds.BUILDERS[unit.kind] is kinds.stepping:
+        return unit.kind
+    return "run"
 
 
 def _render(template: str, context: dict) -> str:
@@ -411,7 +413,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         "padding": unit.window - 1 if unit.run.window else 0,
         "single": [],
     }
-    if unit.kind in kinds.BUILDERS:
+    if kinds.BUILDERS[unit.kind] is not kinds.stepping:
         context["loop"] = python_run.run_lines(
             kinds.BUILDERS[unit.kind](unit, lowered), lowered,
             {a.c_name: a.py_name for a in args}, {"step": context["loop_step"]})
@@ -445,7 +447,7 @@ def render_python(unit: Unit) -> dict[str, str]:
                            for s in stored_outputs(unit))
             context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
                                                   rows, arrays, unit.carried, stored)
-    return {f"{unit.filter}.py": _render(f"python/{_template(unit)}.jinja", context)}
+    return {f"{unit.filter}.py": _render(f"python/{_template(unit, 'python')}.jinja", context)}
 
 
 def _flat_start(unit: Unit) -> list[str]:
@@ -556,10 +558,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         [""] + enum if enum else [])
     restrict = c_printer.restrict_macro(unit.symbol_prefix)
     step_lp = lowered["step"]
-    step_call = []
-    if unit.run.window:
-        p_row = f", {PARAMETER_PORT} + k * {P_STRIDE}" if unit.parameters else ""
-        step_call = _c_call(f"{prefix}_step", f"zw, xs + k * {unit.n}{p_row}", step_lp.has_checks)
     init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
                  if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
@@ -668,39 +666,27 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + (tracks["macros"] if batch else []) + vector_macros,
         "functions": functions,
         "real": real.c_type,
-        "zero": real.zero(),
         "run_signature": run_signature,
-        "status_decl": ["int status;"] if status else [],
         "run_tail": ["return 0;"] if status else [],
-        "step_call": step_call,
-        "carried": state,
-        "optional_stores": optional_stores,
-        "enter_call": _program_call(prefix, lowered["enter"], {})
-        if "enter" in lowered else [],
-        "call_status_decl": ["int status;"] if any(
-            lowered[name].has_checks for name in ("enter", "store") if name in lowered)
-        else [],
-        "init_call": init_call,
-        "fused": fused,
-        "lookahead": lookahead,
-        "znext": LOOKAHEAD_NEXT,
         "tracks": tracks,
         "tracks_signature": tracks_signature,
-        "step_rows": step_rows,
         "unused": unused,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,
-        "n": unit.n,
-        "m": unit.m,
-        "window": unit.window if unit.run.window else 0,
-        "window_m": unit.window * unit.m if unit.run.window else 0,
         "about": unit.about.get("c", "Run the filter over steps steps."),
     }
-    if unit.kind in kinds.BUILDERS:
-        context["run_body"] = c_run.run_lines(kinds.BUILDERS[unit.kind](unit, lowered), lowered,
-                                              prefix, real=real, rows=unit.step_inputs)
+    run = kinds.BUILDERS[unit.kind](unit, lowered)
+    if kinds.BUILDERS[unit.kind] is kinds.stepping:
+        if two is not None:
+            run = kinds.two_steps(run, unit)
+        context["run_body"] = c_run.stepping_lines(
+            run, lowered, prefix, {"step": fused, "pair": lookahead},
+            run_checks if not vector_run else [], real)
+    else:
+        context["run_body"] = c_run.run_lines(run, lowered, prefix, real=real,
+                                              rows=unit.step_inputs)
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
-            f"{unit.filter}.c": _render(f"c/{_template(unit)}.jinja", context)}
+            f"{unit.filter}.c": _render(f"c/{_template(unit, 'c')}.jinja", context)}
 
 
 def render_unit(unit: Unit, lang: str, *, use_fma: bool = True) -> dict[str, str]:

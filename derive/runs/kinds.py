@@ -4,6 +4,8 @@ language (the printers: :mod:`derive.emit.c_run`, :mod:`derive.emit.python_run`)
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
+from math import prod
 
 from derive.lowering import LoweredProgram
 from derive.program import PARAMETER_PORT
@@ -25,7 +27,7 @@ from derive.runs.loops import (
     Window,
     Work,
 )
-from derive.runs.unit import Unit
+from derive.runs.unit import LOOKAHEAD_NEXT, Unit
 
 
 def _parameters(unit: Unit) -> tuple:
@@ -124,5 +126,64 @@ def windowed(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     return Run((), (Steps((step,)),), returns=(("xs", (n,)),))
 
 
+def stepping(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
+    """The run kinds whose step carries a state (``timevarying``, ``steady``,
+    ``predictor``): the state starts from run's start arguments in order (from init(x0) for
+    a predictor; from the enter program where the unit has one), then per step k the step
+    body on the state and row k of each per-step input, and row k of each stored output
+    (where no carried port holds it, computed by the store program)."""
+    ports = {p.name: p for p in lowered["step"].inputs}
+    sizes = {"n": unit.n, "m": unit.m}
+    starts = list(unit.run.start) + [("", ())] * len(unit.carried)
+    states = tuple(State(port, ports[port].size, starts[i][0], out=out,
+                         side=sizes[starts[i][1][0]] if len(starts[i][1]) > 1 else 0)
+                   for i, (port, out) in enumerate(unit.carried))
+    p = _parameters(unit)
+    rows = tuple((name, Row(name, unit.step_input_size(name))) for name in unit.step_inputs)
+    body = [Call("step", rows + p, carry=True, body=True)]
+    by_output = {s.new: s for s in states}
+    returns = []
+    for array, out, dims, optional in unit.run.stores:
+        size = prod(sizes[d] for d in dims)
+        if out in by_output:
+            body.append(Store(array, by_output[out].name, size, optional))
+            returns.append((array, ports[by_output[out].name].shape))
+        else:  # from the carried state, by the store program
+            body.append(Store(array, "", size, optional, program="store"))
+            returns.append((array, lowered["store"].outputs[0].shape))
+    enter = None
+    if "init" in lowered:
+        first = ((PARAMETER_PORT, Row(PARAMETER_PORT, len(unit.parameters), "0")),) \
+            if unit.parameters else ()
+        enter = Call("init", (("x0", "x0"),) + first, into=(("x_new", Row("x_init", unit.n, ""),
+                                                             "x"),))
+    elif "enter" in lowered:
+        enter = Call("enter", tuple((name, Row(name, prod(sizes[d] for d in dims), "",
+                                               side=len(dims) > 1))
+                                    for name, dims in unit.run.start))
+    return Run(states, (Steps(tuple(body), note="the step body on local arrays: inlined, it "
+                                                "holds the state in registers"),),
+               returns=tuple(returns), enter=enter)
+
+
+def two_steps(run: Run, unit: Unit) -> Run:
+    """The pass of the two-step map over a stepping run (a unit with ``Unit.lookahead``):
+    two steps a pass, x(k+1) by the step into x_mid, x(k+2) from x(k) by the map, rows k
+    and k + 1 stored; an odd last step by the loop as it was."""
+    (loop,) = run.loops
+    n, m = unit.n, unit.m
+    step = next(c for c in loop.body if isinstance(c, Call))
+    pair = Steps((Call("step", step.args, into=(("x_new", Row("x_mid", n, ""), "x_mid"),),
+                       body=True),
+                  Call("pass", (("z", Row("z", m)), (LOOKAHEAD_NEXT, Row("z", m, "k + 1"))),
+                       carry=True, body=True),
+                  Store("xs", "x_mid", n), Store("xs", "x", n, row="k + 1")),
+                 by=2, note="two steps per pass: x(k+1) by the step, x(k+2) from x(k) by the "
+                            "two-step map;\nonly x(k+2) is carried, so the chain from pass to "
+                            "pass is one step deep")
+    return replace(run, loops=(pair, replace(loop, rest=True, note="an odd last step")))
+
+
 #: The builder of each run kind whose loop is built as data.
-BUILDERS = {"sensors": sensors, "smoother": smoother, "windowed": windowed}
+BUILDERS = {"sensors": sensors, "smoother": smoother, "windowed": windowed,
+            "timevarying": stepping, "steady": stepping, "predictor": stepping}

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Row:
-    """Row ``row`` (``k``, the step; ``k + 1``, ``steps - 1``) of the run array ``array``:
+    """Row ``row`` (``k``, the step; ``k + 1``, ``steps - 1``; ``""``: the whole argument,
+    as a flat array) of the run array ``array``:
     ``size`` elements from ``offset`` in rows of ``stride`` elements (0: rows of ``size``);
     ``side``: a row is a square matrix of that side (read flat, row-major)."""
 
@@ -77,13 +78,15 @@ class Call:
     """A call of the unit's program ``program``, each input port read from its binding in
     ``args`` (a port not bound: the array of its own name). ``carry``: the carried state
     becomes the program's outputs of the same names with ``_new`` (x from x_new, P from
-    P_new). ``into``: output ports written to rows of run's arrays, each (port, row, the
-    name of the state it becomes)."""
+    P_new; :attr:`State.out`). ``into``: output ports written to rows of run's arrays, or
+    (a row ``""``) to a local array, each (port, row, the name of the state it becomes)."""
 
     program: str
     args: tuple[tuple[str, Source], ...] = ()
     carry: bool = False
     into: tuple[tuple[str, Row, str], ...] = ()
+    #: the program's statements inline over run's local arrays (its body), not a call
+    body: bool = False
 
 
 @dataclass(frozen=True)
@@ -128,23 +131,30 @@ class AfterFirst:
 
 @dataclass(frozen=True)
 class Store:
-    """Row k of run's output ``array`` is the carried state ``state`` (``size`` elements);
-    ``optional``: the caller may leave the array out."""
+    """Row ``row`` of run's output ``array`` is the carried state ``state`` (``size``
+    elements), or with ``program`` that program's output from the carried state (P from
+    its factors); ``optional``: the caller may leave the array out."""
 
     array: str
     state: str
     size: int
     optional: bool = False
+    row: str = "k"
+    program: str = ""
 
 
 @dataclass(frozen=True)
 class Steps:
-    """The loop over the steps, k from 0 up (``down``: from ``steps - down`` down to 0);
-    ``note``: what the loop is, for a reader of the generated code."""
+    """The loop over the steps, k from 0 up (``down``: from ``steps - down`` down to 0),
+    ``by`` steps a pass (the last steps, fewer, are left to the next loop, which goes on
+    from where this one stopped: ``rest``); ``note``: what the loop is, for a reader of
+    the generated code."""
 
     body: tuple[Node, ...]
     down: int = 0
     note: str = ""
+    by: int = 1
+    rest: bool = False
 
 
 @dataclass(frozen=True)
@@ -180,15 +190,21 @@ class Work:
 
 @dataclass(frozen=True)
 class State:
-    """A carried array: ``size`` elements started from run's argument ``start``; ``whole``:
-    a symmetric matrix of side ``side`` read whole by the programs, started from the upper
-    triangle of ``start`` mirrored (run reads a symmetric argument's upper triangle)."""
+    """A carried array: ``size`` elements started from run's argument ``start`` (a matrix
+    of side ``side``); ``whole``: a symmetric matrix read whole by the programs, started
+    from the upper triangle of ``start`` mirrored (run reads a symmetric argument's upper
+    triangle); ``out``: the output port of the step that becomes it (``NAME_new``)."""
 
     name: str
     size: int
     start: str
     whole: bool = False
     side: int = 0
+    out: str = ""
+
+    @property
+    def new(self) -> str:
+        return self.out or f"{self.name}_new"
 
 
 @dataclass(frozen=True)
@@ -202,14 +218,17 @@ class Output:
 
 @dataclass(frozen=True)
 class Run:
-    """A whole run: its carried state, the outputs it records, the step loop; ``returns``:
-    run's outputs in order, with the shape each is returned in (Python)."""
+    """A whole run: its carried state, the outputs it records, the loops; ``returns``:
+    run's outputs in order, with the shape each is returned in (Python); ``work``: its
+    scratch rows."""
 
     states: tuple[State, ...]
     loops: tuple[Node, ...]
     records: tuple[Output, ...] = ()
     returns: tuple[tuple[str, tuple[int, ...]], ...] = ()
     work: Work | None = None
+    #: the call whose outputs start the carried state (an init or enter program), if any
+    enter: Call | None = None
 
 
 Node = Call | Copy | Record | Present | AfterFirst | Store | Steps | AnySteps
