@@ -57,7 +57,7 @@ def sensors(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     body = [AfterFirst((predict,)) if unit.update_first else predict]
     records = []
     for s in unit.sensors:
-        args = [("z", Row(f"z_{s.name}", s.m))]
+        args = [("z", Row(s.z_c, s.m))]
         if s.R_argument:
             args.append(("R", Row(f"R_{s.name}", s.m * s.m, side=s.m)))
         if s.inputs:
@@ -69,7 +69,7 @@ def sensors(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
             missing = (Record(f"nis_{s.name}", fill=True),
                        Record(f"applied_{s.name}", fill=True))
             records += [Output(f"nis_{s.name}", "nan"), Output(f"applied_{s.name}", "zero")]
-        body.append(Present(f"z_{s.name}", s.m, s.name, tuple(inner), missing))
+        body.append(Present(s.z_c, s.m, s.name, tuple(inner), missing))
     body += [Store("xs", "x", n), Store("Ps", "P", nn, optional=True)]
     returns = [("xs", (n,)), ("Ps", (n, n))] + [(r.array, ()) for r in records]
     return Run((State("x", n, "x0"), State("P", nn, "P0", whole=reads_whole(lowered), side=n)),
