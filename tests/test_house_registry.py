@@ -16,7 +16,7 @@ from derive.filters import FILTERS, MISSING_FILTERS, derive_unit
 from derive.filters.spec import FilterSpec
 from derive.options import taken_by
 from derive.runs import kinds
-from derive.runs.unit import RUN_KINDS
+from derive.runs.unit import LANGUAGES, RUN_KINDS
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATED = ROOT / "generated"
@@ -54,14 +54,13 @@ def test_missing_filters_are_those_whose_spec_says_so():
         assert ("missing" in taken_by(name)) == spec.missing, name
 
 
-def test_every_run_kind_has_its_builder_and_c_only_the_frame():
+def test_every_run_kind_has_its_builder_and_templates_only_the_frame():
     """Every kind's loop is built as data (derive.runs.kinds, one builder a kind) and
-    printed into the frame ``run.jinja``; Python's stepping kinds still have a template
-    each (their one-track fast path)."""
+    printed into the frame ``run.jinja`` of each language: no template per kind."""
     assert set(kinds.BUILDERS) == set(RUN_KINDS)
-    assert {p.stem for p in (ROOT / "templates" / "c").glob("*.jinja")} == LAYOUT
-    python = {p.stem for p in (ROOT / "templates" / "python").glob("*.jinja")}
-    assert python - LAYOUT == {k for k in RUN_KINDS if kinds.BUILDERS[k] is kinds.stepping}
+    for lang in LANGUAGES:
+        stems = {p.stem for p in (ROOT / "templates" / lang).glob("*.jinja")}
+        assert "run" in stems and stems <= LAYOUT, lang
 
 
 def test_no_filter_name_in_emit():

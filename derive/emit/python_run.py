@@ -28,8 +28,9 @@ from derive.runs.loops import (
     walk,
 )
 
-#: The name run's prologue gives p as one row per step (derive.emit.render).
-PARAMETER_ROWS = "p_rows"
+#: The names run's prologue gives p as one row per step, and its first row
+#: (derive.emit.render).
+PARAMETER_ROWS, PARAMETER_START = "p_rows", "p_start"
 _FILL = {"nan": "np.nan", "zero": "0.0"}
 
 
@@ -56,8 +57,10 @@ class _Printer:
             return (f"{name}[k]" if source.whole
                     else f"{name}[k, [{', '.join(str(c) for c in source.columns)}]]")
         if source.array == PARAMETER_PORT:
-            return f"{PARAMETER_ROWS}[{source.row}]"
-        name = self.names[source.array]
+            return PARAMETER_START if source.row == "0" else f"{PARAMETER_ROWS}[{source.row}]"
+        name = self.names.get(source.array, source.array)
+        if source.row == "":  # the argument itself, a matrix flat
+            return f"{name}.reshape(({source.size},) + {name}.shape[2:])" if source.side else name
         if source.side:  # a matrix a row: flat, as the program takes it
             return f"{name}[{source.row}].reshape(({source.size},) + {name}.shape[3:])"
         return f"{name}[{source.row}]"
@@ -117,6 +120,12 @@ class _Printer:
                 lines += self.nodes(node.body, indent + "    ")
             elif isinstance(node, Present):
                 lines += self.present(node, indent)
+            elif isinstance(node, Store) and node.program:  # from the carried state
+                value = f"{node.array}_k"
+                args = ", ".join(p.name for p in self.lowered[node.program].inputs)
+                lines += [f"{indent}{value} = {node.program}({args})",
+                          f"{indent}for i in range({node.size}):",
+                          f"{indent}    {self.names[node.array]}[k, i] = {value}[i]"]
             elif isinstance(node, Store):
                 lines += [f"{indent}for i in range({node.size}):",
                           f"{indent}    {self.names[node.array]}[k, i] = {node.state}[i]"]
@@ -168,19 +177,35 @@ class _Printer:
 
 
 def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str],
-              functions: dict[str, str] | None = None) -> list[str]:
-    """The body of Python run after its prologue and ``xs = np.empty(...)``; ``names``:
-    run's arrays by their C names (run's Python argument names: ``us`` for ``u``);
-    ``functions``: the function a program's call calls, where not its own (the step
-    without its pattern check)."""
+              functions: dict[str, str] | None = None, single: tuple[str, ...] = ()
+              ) -> list[str]:
+    """The body of Python run after its prologue (and ``xs = np.empty(...)`` unless
+    ``single``); ``names``: run's arrays by their C names (run's Python argument names:
+    ``us`` for ``u``); ``functions``: the function a program's call calls, where not its
+    own (the step without its pattern check); ``single``: the one-track branch
+    (derive.emit.python_loop), which returns before xs is allocated."""
     printer = _Printer(run, lowered, names, functions or {})
     recorded = {r.array for r in run.records}
-    lines = [f"{name} = np.empty((steps, {prod(shape)}) + track)" for name, shape in run.returns
-             if name != "xs" and name not in recorded]
+    lines = []
+    if single:
+        lines.append("if not track:  # one track: the step's statements inline, on Python "
+                     "floats")
+        if run.enter is not None and run.enter.program == "init":
+            lines.append("    " + printer.call(run.enter, "x_start").replace(
+                "x_start = ", "x_start = np.asarray(", 1) + ", dtype=float)")
+        lines += list(single)
+        lines.append(f"xs = np.empty((steps, {prod(run.returns[0][1])}) + track)")
+    lines += [f"{name} = np.empty((steps, {prod(shape)}) + track)" for name, shape in run.returns
+              if name != "xs" and name not in recorded]
     lines += [f"{r.array} = np.full((steps,) + track, np.nan)" if r.fill == "nan"
               else f"{r.array} = np.zeros((steps,) + track)" for r in run.records]
-    for state in run.states:
-        lines += printer.start(state)
+    if run.enter is not None:
+        lines.append(printer.call(run.enter, printer.outputs(run.enter, "{}")
+                                  if run.enter.into else
+                                  ", ".join(state.name for state in run.states)))
+    else:
+        for state in run.states:
+            lines += printer.start(state)
     if run.work is not None:
         lines.append(f"{run.work.array} = []  # {run.work.note}")
     for w in {s for n in walk(run.loops) if isinstance(n, Call) for _, s in n.args
@@ -192,8 +217,10 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str
     returned = [name if len(shape) < 2 else
                 f"{name}.reshape((steps, {', '.join(str(d) for d in shape)}) + track)"
                 for name, shape in run.returns]
-    # (a run returning several arrays ends with a blank line: the file's layout)
-    return lines + [f"return {', '.join(returned)}"] + ([""] if len(returned) > 1 else [])
+    # (a run of calls returning several arrays ends with a blank line: the file's layout)
+    blank = len(returned) > 1 and not any(isinstance(c, Call) and c.body
+                                          for c in walk(run.loops))
+    return lines + [f"return {', '.join(returned)}"] + ([""] if blank else [])
 
 
 def _offsets(work) -> list[int]:

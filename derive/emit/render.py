@@ -29,11 +29,13 @@ from derive.emit.c_loops import (
     two_step_body,
 )
 from derive.emit.python_loop import single_track_loop
+from derive.emit.python_run import PARAMETER_ROWS, PARAMETER_START
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
 from derive.runs import kinds
+from derive.runs.loops import Store, walk
 from derive.runs.unit import LANGUAGES, Argument, Unit, run_arguments
 from derive.version import __version__
 
@@ -78,10 +80,6 @@ def _lowered(unit: Unit, use_fma: bool) -> dict[str, LoweredProgram]:
     state = tuple(port for port, _ in unit.carried)
     return lower_programs([unit.programs[name] for name in _order(unit)], use_fma=use_fma,
                           state_ports=state)
-
-
-def _size(port) -> str:
-    return "*".join(str(d) for d in port.shape)
 
 
 def _dims(arg: Argument, sep: str) -> str:
@@ -215,14 +213,6 @@ def _raises(lowered) -> str:
     return "NumericalError" + (", or PatternError for P's pattern" if pattern else "")
 
 
-def _template(unit: Unit, lang: str) -> str:
-    """A kind whose loop is built as data (derive.runs.kinds) is printed into the frame
-    ``run.jinja``."""
-    if lang == "python" and kinds.BUILDERS[unit.kind] is kinds.stepping:
-        return unit.kind
-    return "run"
-
-
 def _render(template: str, context: dict) -> str:
     return environment().get_template(template).render(**context)
 
@@ -256,11 +246,6 @@ def _python_run_checks(step: LoweredProgram, unit: Unit) -> list[str]:
         return []
     flat = f"P0.reshape(({unit.n * unit.n},) + P0.shape[2:])"
     return python_printer.pattern_check_lines(step, {"P": flat})
-
-
-#: run's parameters as one row per step (a single row given is repeated), and the row the
-#: predictor's init uses.
-PARAMETER_ROWS, PARAMETER_START = "p_rows", "p_start"
 
 
 def _python_run_prologue(unit: Unit, inputs: list[Argument]) -> list[str]:
@@ -333,6 +318,7 @@ def _python_context(unit: Unit, lowered: dict[str, LoweredProgram]) -> dict:
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
                     for a in args if not a.scratch],
         "prologue": _python_run_prologue(unit, inputs),
+        "single": (),
         "n": unit.n,
         "about": unit.about.get("python", "Run the filter over a sequence of steps."),
     }
@@ -397,67 +383,32 @@ def render_python(unit: Unit) -> dict[str, str]:
         return _render_python_sensors(unit)
     lowered = _lowered(unit, use_fma=False)
     args = run_arguments(unit)
-    per_step = [f"{name}s[k]" for name in unit.step_inputs]
-    p_arg = f", {PARAMETER_ROWS}[k]" if unit.parameters else ""
+    step = IN_PATTERN_STEP if lowered["step"].pattern_checks else "step"
+    run = kinds.BUILDERS[unit.kind](unit, lowered)
+    single: tuple[str, ...] = ()
+    if (kinds.BUILDERS[unit.kind] is kinds.stepping and "enter" not in lowered
+            and "store" not in lowered):
+        # one track: the step's statements inline (derive.emit.python_loop), from the start
+        # arrays (a predictor's from init(x0), computed before the loop)
+        ports = {p.name: p for p in lowered["step"].inputs}
+        arrays = {a.c_name: a.py_name for a in args if not a.output}
+        arrays = {**{name: arrays[name] for name in unit.step_inputs},
+                  **{s.name: "x_start" if run.enter is not None else s.start
+                     for s in run.states}, PARAMETER_PORT: PARAMETER_ROWS}
+        rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
+        stored = tuple((s.state, ports[s.state].shape) for s in walk(run.loops)
+                       if isinstance(s, Store))
+        single = single_track_loop(lowered["step"].without_pattern_checks(), rows, arrays,
+                                   unit.carried, stored, indent="    ")
     context = {
         **_python_context(unit, lowered),
         "functions": [part for lp in lowered.values() for part in _python_functions(lp)],
         "run_checks": _python_run_checks(lowered["step"], unit),
-        "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
-        "step_args": ", ".join(per_step) + p_arg,
-        "p_arg": p_arg,
-        "p_start": f", {PARAMETER_START}" if unit.parameters else "",
-        "m": unit.m,
-        "window": unit.window if unit.run.window else 0,
-        "window_m": unit.window * unit.m if unit.run.window else 0,
-        "padding": unit.window - 1 if unit.run.window else 0,
-        "single": [],
+        "single": single,
+        "loop": python_run.run_lines(run, lowered, {a.c_name: a.py_name for a in args},
+                                     {"step": step}, single),
     }
-    if kinds.BUILDERS[unit.kind] is not kinds.stepping:
-        context["loop"] = python_run.run_lines(
-            kinds.BUILDERS[unit.kind](unit, lowered), lowered,
-            {a.c_name: a.py_name for a in args}, {"step": context["loop_step"]})
-    if not unit.run.window:
-        ports = {a.c_name: a.py_name for a in args if not a.output}
-        arrays = {name: ports[name] for name in unit.step_inputs}
-        # the carried state starts from run's start arrays (the run kind's, in order); a
-        # run with an init program starts from init(x0), computed before the loop
-        state = carried_state(unit, lowered["step"])
-        arrays.update({s["name"]: "x_start" if "init" in unit.programs else s["start"]
-                       for s in state}, **{PARAMETER_PORT: PARAMETER_ROWS})
-        rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
-        by_output = {s["out"]: s["name"] for s in state}
-        ports = {p.name: p for p in lowered["step"].inputs}
-        names = ", ".join(s["name"] for s in state)
-        context["carried"] = state
-        context["enter_line"] = (f"{names} = enter({', '.join(_flat_start(unit))})"
-                                 if "enter" in lowered else "")
-        stores = []
-        for s in stored_outputs(unit):
-            if s["out"] in by_output:
-                stores.append({**s, "value": by_output[s["out"]], "call": "",
-                               "shape": ports[by_output[s["out"]]].shape})
-            else:  # computed from the carried state by the store program
-                value = f"{s['array']}_k"
-                stores.append({**s, "value": value, "call": f"{value} = store({names})",
-                               "shape": lowered["store"].outputs[0].shape})
-        context["stores"] = stores
-        if "enter" not in lowered and "store" not in lowered:
-            stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
-                           for s in stored_outputs(unit))
-            context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
-                                                  rows, arrays, unit.carried, stored)
-    return {f"{unit.filter}.py": _render(f"python/{_template(unit, 'python')}.jinja", context)}
-
-
-def _flat_start(unit: Unit) -> list[str]:
-    """run's start arguments as enter takes them: a matrix (shaped (rows, cols) + track
-    by run's prologue) flattened row-major, so that a 1 x 1 P0 is not read as a track."""
-    sizes = {"n": unit.n, "m": unit.m}
-    return [name if len(dims) < 2 else
-            f"{name}.reshape(({int(np.prod([sizes[d] for d in dims]))},) + "
-            f"{name}.shape[{len(dims)}:])"
-            for name, dims in unit.run.start]
+    return {f"{unit.filter}.py": _render("python/run.jinja", context)}
 
 
 #: C run's last argument with free parameters: 0 when p is one row for every step, NP
@@ -686,7 +637,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         context["run_body"] = c_run.run_lines(run, lowered, prefix, real=real,
                                               rows=unit.step_inputs)
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
-            f"{unit.filter}.c": _render(f"c/{_template(unit, 'c')}.jinja", context)}
+            f"{unit.filter}.c": _render("c/run.jinja", context)}
 
 
 def render_unit(unit: Unit, lang: str, *, use_fma: bool = True) -> dict[str, str]:
