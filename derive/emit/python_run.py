@@ -217,10 +217,7 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str
     returned = [name if len(shape) < 2 else
                 f"{name}.reshape((steps, {', '.join(str(d) for d in shape)}) + track)"
                 for name, shape in run.returns]
-    # (a run of calls returning several arrays ends with a blank line: the file's layout)
-    blank = len(returned) > 1 and not any(isinstance(c, Call) and c.body
-                                          for c in walk(run.loops))
-    return lines + [f"return {', '.join(returned)}"] + ([""] if blank else [])
+    return lines + [f"return {', '.join(returned)}"]
 
 
 def _offsets(work) -> list[int]:
