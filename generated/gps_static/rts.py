@@ -277,4 +277,3 @@ def run(zs, x0, P0):
         for i in range(9):
             Ps[k, i] = P_smooth[i]
     return xs, Ps.reshape((steps, 3, 3) + track)
-

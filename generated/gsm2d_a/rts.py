@@ -343,4 +343,3 @@ def run(zs, x0, P0):
         for i in range(16):
             Ps[k, i] = P_smooth[i]
     return xs, Ps.reshape((steps, 4, 4) + track)
-

@@ -238,4 +238,3 @@ def run(zs, x0, P0):
         for i in range(4):
             Ps[k, i] = P_smooth[i]
     return xs, Ps.reshape((steps, 2, 2) + track)
-

@@ -1463,4 +1463,3 @@ def run(z_gnss, z_baro, us, x0, P0, p):
         for i in range(256):
             Ps[k, i] = P[i]
     return xs, Ps.reshape((steps, 16, 16) + track)
-

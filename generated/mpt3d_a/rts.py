@@ -418,4 +418,3 @@ def run(zs, x0, P0):
         for i in range(36):
             Ps[k, i] = P_smooth[i]
     return xs, Ps.reshape((steps, 6, 6) + track)
-
