@@ -493,3 +493,114 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
             "store": stores("k", {"x_new": mid}) + stores("k + 1", news),
         }
     return parts
+
+
+def tracks_lines(signature: str, tracks: dict, unused: list[str], checks: list[str],
+                 tail: list[str], real: Precision = DOUBLE) -> list[str]:
+    """``run_tracks`` whole (its comment, signature and body) from :func:`tracks_parts`:
+    blocks of ``tracks["lanes"]`` tracks (element i of lane j at ``[i * LANES + j]``),
+    the step body over the lanes in one loop, the last tracks by run; ``checks``: every
+    track's check of its start arguments, before any step."""
+    t, n = real.c_type, tracks["lanes"]
+    lines = ["", "/* Run many independent tracks: each array holds one run's array per track, "
+             "one track after",
+             " * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may "
+             "be NULL)."]
+    if n:
+        lines += [f" * Tracks go in blocks of {n} (a few vector registers wide), copied into",
+                  f" * block arrays here, element i of lane j at [i * {n} + j]: the step body "
+                  "runs",
+                  " * over the lanes in one loop the compiler vectorises, each lane the "
+                  "operations of its own",
+                  " * run in the same order; the last tracks, fewer than a block, by run "
+                  "itself."]
+    else:
+        lines.append(" * The step body is too large to inline: run on each track.")
+    lines += [" * A non-zero status stops the whole run. */", signature, "{"]
+    body = ["size_t t = 0;"] + (["size_t k, i, j;"] if n else []) + list(unused)
+    if checks:
+        body += ["/* every track's P0 must be zero outside P's pattern; checked before any "
+                 "step */", "for (t = 0; t < tracks; ++t) {"]
+        body += ["    " + line for line in checks] + ["}", "t = 0;"]
+    if n:
+        body += _blocks(tracks, t)
+        body.append("/* the last tracks, fewer than a block: run on each */")
+    body += ["for (; t < tracks; ++t) {"] + ["    " + line for line in tracks["run_call"]]
+    body += ["}"] + list(tail)
+    return lines + ["    " + line for line in body] + ["}"]
+
+
+def _blocks(tracks: dict, t: str) -> list[str]:
+    """The loop over the blocks of run_tracks (its tracks' state loaded, the steps, the
+    state swapped between its two arrays)."""
+    n, line, ahead = tracks["lanes"], tracks["line"], tracks["ahead_bytes"]
+    macro = tracks["prefetch_macro"]
+    out = ["/* a block's tracks are contiguous in each array: while one block runs, the "
+           "next one's",
+           f" * cache lines are prefetched, a share each step, when they fit {ahead};",
+           f" * else (and for the first block) each lane's rows {tracks['ahead']} steps on */",
+           f"const int next_fits = steps * {n} * sizeof({t}) * ({tracks['track_step']}) <= "
+           f"{ahead};"]
+    out += [f"const size_t {a['lines']} = ({n} * steps * {a['size']} * sizeof({t}) + {line} "
+            f"- 1) / {line};" for a in tracks["streamed"]]
+    block = [f"const int prefetch_next = next_fits && t + 2 * {n} <= tracks;",
+             "const int prefetch_rows = !next_fits || t == 0;"]
+    for a in tracks["pairs"]:
+        block += [f"{t} {a['pair']}[2][{a['size']} * {n}];", f"{t} *{a['array']} = {a['pair']}[0];",
+                  f"{t} *{a['source']} = {a['pair']}[1];"]
+    block += [f"{t} {array};" for array in tracks["arrays"]]
+    if tracks["status"]:
+        block.append(f"int status_b[{n}];")
+    block.append(f"for (j = 0; j < {n}; ++j) {{")
+    for a in tracks["load"]:
+        block += [f"    for (i = 0; i < {a['size']}; ++i) {{",
+                  f"        {a['array']}[i * {n} + j] = {a['source']}[(t + j) * {a['size']} + i];",
+                  "    }"]
+    block.append("}")
+    parts = ([tracks["pass"]] if tracks["pass"] else []) + [tracks]
+    for part in parts:
+        if part is tracks["pass"]:
+            head = "for (k = 0; k + 2 <= steps; k += 2) {"
+        elif tracks["pass"]:
+            head = "for (; k < steps; ++k) {"
+        else:
+            head = "for (k = 0; k < steps; ++k) {"
+        step = [tracks["p_row"]] if tracks["p_row"] else []
+        step.append("if (prefetch_next) {")
+        for a in tracks["streamed"]:
+            fetch = [f"for (i = {a['lines']} * k / steps; i < {a['lines']} * ({part['next_row']})"
+                     f" / steps; ++i) {{",
+                     f"    {macro}((const char *)({a['array']} + (t + {n}) * steps * "
+                     f"{a['size']}) + {line} * i, {a['write']});", "}"]
+            step += (["    " + f"if ({a['array']}) {{"] + ["        " + x for x in fetch]
+                     + ["    }"] if a["optional"] else ["    " + x for x in fetch])
+        step += ["}", f"if (prefetch_rows && k + {tracks['ahead']} < steps) {{",
+                 f"    for (j = 0; j < {n}; ++j) {{"]
+        step += [f"        {macro}(&{a['array']}[((t + j) * steps + {a['row']}) * {a['size']}], "
+                 f"{a['write']});" for a in part["prefetch"]]
+        step += ["    }", "}", f"for (j = 0; j < {n}; ++j) {{"]
+        for a in part["gather"]:
+            step += [f"    for (i = 0; i < {a['size']}; ++i) {{",
+                     f"        {a['array']}[i * {n} + j] = {a['source']}[((t + j) * steps + "
+                     f"{a['row']}) * {a['size']} + i];", "    }"]
+        step += ["}", tracks["simd"], f"for (j = 0; j < {n}; ++j) {{"]
+        step += ["    " + x for x in part["lane"]] + ["}"]
+        if tracks["status"]:
+            step += ["{", "    int failed = 0;", f"    for (j = 0; j < {n}; ++j) {{",
+                     "        failed |= status_b[j];", "    }", "    if (failed) {",
+                     f"        for (j = 0; j < {n}; ++j) {{", "            if (status_b[j]) {",
+                     "                return status_b[j];", "            }", "        }", "    }",
+                     "}"]
+        step.append(f"for (j = 0; j < {n}; ++j) {{")
+        for a in part["store"]:
+            store = [f"for (i = 0; i < {a['size']}; ++i) {{",
+                     f"    {a['array']}[((t + j) * steps + {a['row']}) * {a['size']} + i] = "
+                     f"{a['source']}[i * {n} + j];", "}"]
+            step += (["    " + f"if ({a['array']}) {{"] + ["        " + x for x in store]
+                     + ["    }"] if a["optional"] else ["    " + x for x in store])
+        step.append("}")
+        for a in tracks["pairs"]:
+            step += ["{", f"    {t} *const swap = {a['array']};",
+                     f"    {a['array']} = {a['source']};", f"    {a['source']} = swap;", "}"]
+        block += [head] + ["    " + x for x in step] + ["}"]
+    return out + [f"for (; t + {n} <= tracks; t += {n}) {{"] + ["    " + x for x in block] + ["}"]

@@ -619,8 +619,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "real": real.c_type,
         "run_signature": run_signature,
         "run_tail": ["return 0;"] if status else [],
-        "tracks": tracks,
-        "tracks_signature": tracks_signature,
+        "tracks_lines": c_loops.tracks_lines(tracks_signature, tracks, unused, tracks_checks,
+                                             ["return 0;"] if status else [], real)
+        if batch else [],
         "unused": unused,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,
