@@ -315,7 +315,7 @@ def generated_run(module, name: str, zs, model, lang: str,
                                      for name, _ in RUN_KINDS[spec.run_kind].start)))
     if not isinstance(out, tuple):
         return np.asarray(out, dtype=float), None
-    xs, Ps = out
+    xs, Ps = out[:2]  # the filtered estimates first (then a run kind's further outputs)
     return (np.asarray(xs, dtype=float),
             np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n, model.n))
 

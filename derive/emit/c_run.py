@@ -304,6 +304,10 @@ def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
     lines += [f"{t} {s.name}[{s.size}];" for s in run.states]
     lines += [f"{t} {s.new}[{s.size}];" for s in run.states]
     lines += [f"{t} {name}[{run.states[0].size}];" for name in local if name not in first]
+    states = {state.name for state in run.states}
+    lines += [f"{t} {s.state}[{s.size}];" for s in walk(run.loops)  # other outputs stored
+              if isinstance(s, Store) and s.state and s.state not in states
+              and s.state not in local]
     lines.append("size_t k;")
     if (run.enter is not None and lowered[run.enter.program].has_checks) or any(
             isinstance(s, Store) and s.program and lowered[s.program].has_checks
@@ -361,7 +365,8 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
     stored = {s.state: s for s in loop.body if isinstance(s, Store) and not s.optional
               and s.state and s.row == ("k + 1" if loop.by == 2 else "k")}
     for s in loop.body:
-        if isinstance(s, Store) and s.state and s.state not in states:  # a local (x_mid)
+        if (isinstance(s, Store) and s.state and s.state not in states
+                and not s.optional):  # a local array (x_mid, an output no state holds)
             body += _unrolled(f"{s.array}[k * {s.size} + {{}}]", f"{s.state}[{{}}]", s.size)
     row = "(k + 1)" if loop.by == 2 else "k"
     for state in run.states:
@@ -375,7 +380,7 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
                 lp = lowered[s.program]
                 inner = call_lines(prefix, lp, {lp.outputs[0].name: f"{s.array} + k * {s.size}"})
             else:
-                out = states[s.state].new
+                out = states[s.state].new if s.state in states else s.state
                 inner = _unrolled(f"{s.array}[k * {s.size} + {{}}]", f"{out}[{{}}]", s.size)
             body += [f"if ({s.array}) {{"] + _indent(inner) + ["}"]
     return head + _indent(body) + ["}"]

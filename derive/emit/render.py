@@ -386,18 +386,18 @@ def render_python(unit: Unit) -> dict[str, str]:
     step = IN_PATTERN_STEP if lowered["step"].pattern_checks else "step"
     run = kinds.BUILDERS[unit.kind](unit, lowered)
     single: tuple[str, ...] = ()
+    stores = [s for s in walk(run.loops) if isinstance(s, Store)]
+    ports = {p.name: p for p in lowered["step"].inputs}  # a store of the carried state only
     if (kinds.BUILDERS[unit.kind] is kinds.stepping and "enter" not in lowered
-            and "store" not in lowered):
+            and "store" not in lowered and all(s.state in ports for s in stores)):
         # one track: the step's statements inline (derive.emit.python_loop), from the start
         # arrays (a predictor's from init(x0), computed before the loop)
-        ports = {p.name: p for p in lowered["step"].inputs}
         arrays = {a.c_name: a.py_name for a in args if not a.output}
         arrays = {**{name: arrays[name] for name in unit.step_inputs},
                   **{s.name: "x_start" if run.enter is not None else s.start
                      for s in run.states}, PARAMETER_PORT: PARAMETER_ROWS}
         rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
-        stored = tuple((s.state, ports[s.state].shape) for s in walk(run.loops)
-                       if isinstance(s, Store))
+        stored = tuple((s.state, ports[s.state].shape) for s in stores)
         single = single_track_loop(lowered["step"].without_pattern_checks(), rows, arrays,
                                    unit.carried, stored, indent="    ")
     context = {
@@ -529,7 +529,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     for s in optional_stores:  # computed by the store program, written into run's row k
         s["call"] = (_program_call(prefix, lowered["store"],
                                    {s["out"]: f"{s['array']} + k * {s['size']}"})
-                     if s["out"] not in carried_out else [])
+                     if s["out"] not in carried_out and "store" in lowered else [])
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""

@@ -57,6 +57,7 @@ from .. import staging
 from ..errors import FilterError
 from ..options import SharedOptions
 from ..program import Port, Program
+from ..reference.linear import kf as reference_kf
 from ..reference.smoother import rts as reference_rts
 from . import pattern as pat
 from .common import (
@@ -85,14 +86,16 @@ PRIOR_NAME = "P(k+1/k)"
 """How the pivot checks of the backward solve name the matrix they factorise."""
 
 
-def _forward_build(model, pattern, declared: str, missing: bool):
-    """The forward program with P masked to ``pattern``; returns it with its four results."""
+def _forward_build(model, pattern, declared: str, missing: bool,
+                   doc: str = f"one forward (Kalman filter) step of the {TITLE}"):
+    """The forward program with P masked to ``pattern``; returns it with its four
+    results."""
     inputs, outputs = time_varying_ports(model)
     n = model.n
     outputs = outputs + [Port("x_pred", (n,), doc="x(k+1/k)"),
                          Port("P_pred", (n, n), symmetric=True, doc="P(k+1/k), row-major")]
     prog = Program("step", inputs, outputs,
-                   doc=f"one forward (Kalman filter) step of the {TITLE}")
+                   doc=doc)
     mats = bound_matrices(model, prog)
     x, z = prog.matrix("x"), prog.matrix("z")
     P = masked_covariance(prog, pattern, declared)
@@ -143,26 +146,31 @@ def _backward_build(model, filtered, predicted, smoothed, declared: str):
     return prog, (x_smooth, P_smooth)
 
 
+def _forward(model, options: SharedOptions, *doc: str):
+    """The forward program, its outputs set, P(k/k)'s pattern (the closure of P0's under
+    the step) and P(k+1/k)'s."""
+    declared = options.P0_pattern or model.P0_pattern
+    missing = options.missing
+    filtered = pat.closure(
+        lambda p: pat.of_matrix(_forward_build(model, p, declared, missing, *doc)[1][1]),
+        pat.declared(model, declared))
+    forward, values = _forward_build(model, filtered, declared, missing, *doc)
+    for name, value in zip(("x_new", "P_new", "x_pred", "P_pred"), values):
+        forward.set_output(name, list(value))
+    return forward, filtered, pat.of_matrix(values[3])
+
+
 def rts_programs(model, options: SharedOptions) -> dict[str, Program]:
     """``{"step": forward, "backward": ...}``, optimised, for the linear ``model``."""
     if model.kind != "linear":
         raise FilterError(f"filter 'rts' needs a linear model; {model.name!r} is {model.kind}")
     declared = options.P0_pattern or model.P0_pattern
-    missing = options.missing
-
-    filtered = pat.closure(
-        lambda p: pat.of_matrix(_forward_build(model, p, declared, missing)[1][1]),
-        pat.declared(model, declared))
-    forward, (x_new, P_new, x_pred, P_pred) = _forward_build(model, filtered, declared, missing)
-    predicted = pat.of_matrix(P_pred)
+    forward, filtered, predicted = _forward(model, options)
     smoothed = pat.closure(
         lambda p: pat.of_matrix(_backward_build(model, filtered, predicted, p, declared)[1][1]),
         filtered)
     backward, (x_smooth, P_smooth) = _backward_build(model, filtered, predicted, smoothed,
                                                      declared)
-    for name, value in (("x_new", x_new), ("P_new", P_new), ("x_pred", x_pred),
-                        ("P_pred", P_pred)):
-        forward.set_output(name, list(value))
     backward.set_output("x_smooth", list(x_smooth))
     backward.set_output("P_smooth", list(P_smooth))
     return {"step": forward.optimize(), "backward": backward.optimize()}
@@ -189,7 +197,32 @@ def reference(model, zs, options):
     return reference_rts(num, zs, num.x0, num.P0, skip_nan=options.missing)
 
 
+def derive_predictions(model, spec, options: SharedOptions):
+    """The unit of the Kalman filter with its one-step predictions: the forward ``step``
+    alone, run by the kind ``filter_predict`` (it stores x_new, P_new and x_pred, P_pred)."""
+    forward = _forward(model, options, f"one step of the {spec.title}")[0]
+    unit = make_unit(model, spec, {"step": forward.optimize()}, options)
+    return with_fact(unit, MISSING_FACT) if options.missing else unit
+
+
+def reference_predictions(model, zs, options):
+    """derive.reference.linear.kf from the model's x0 and P0: (xs, Ps), the filtered
+    estimates (the predictions: derive.reference.linear.predictions)."""
+    num = model.numeric()
+    return reference_kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs,
+                        skip_nan=options.missing)
+
+
 SPECS = (FilterSpec(
+    "kfp", "predicting Kalman filter", MODEL_KIND, "filter_predict",
+    derive_predictions, reference_predictions, options=OPTIONS, covariance=True, missing=True,
+    listing=96, conditioning=KF_CONDITIONING,
+    about={"python": "Run the predicting Kalman filter; returns the filtered (xs, Ps) and "
+                     "the one-step prediction each step made, x(k/k-1) and P(k/k-1) "
+                     "(x_preds, P_preds).",
+           "c": "Run the predicting Kalman filter over steps steps: x(k/k), "
+                "P(k/k) into xs, Ps and x(k/k-1), P(k/k-1) into x_preds, P_preds (Ps and "
+                "P_preds may be NULL)."}), FilterSpec(
     NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
     covariance=True, missing=True, listing=95,
     # the forward KF's S; the backward gain's LDL^T solve with P(k+1/k)

@@ -64,6 +64,16 @@ def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None
     return xs, Ps
 
 
+def predictions(F, G, Q, x0, P0, xs, Ps):
+    """The one-step predictions of a Kalman filter run whose filtered estimates are (xs,
+    Ps): row k is x(k+1/k) = F x(k/k), P(k+1/k) = F P(k/k) F^T + G Q G^T from row k - 1
+    (x0, P0 for row 0), as the step that made row k of xs predicted it."""
+    F, G, Q = (np.asarray(a, dtype=float) for a in (F, G, Q))
+    before = np.concatenate([np.asarray(x0, dtype=float)[None], xs[:-1]])
+    P_before = np.concatenate([np.asarray(P0, dtype=float)[None], Ps[:-1]])
+    return before @ F.T, F @ P_before @ F.T + G @ Q @ G.T
+
+
 def lf(F, G, H, Q, R, x0, P0, zs):
     """Lainiotis filter (the papers' constants and per-step equations). Returns (xs, Ps)."""
     F, G, H, Q, R, x, P, Z = _setup(F, G, H, Q, R, x0, P0, zs)

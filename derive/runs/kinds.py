@@ -128,10 +128,11 @@ def windowed(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
 
 def stepping(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     """The run kinds whose step carries a state (``timevarying``, ``steady``,
-    ``predictor``): the state starts from run's start arguments in order (from init(x0) for
-    a predictor; from the enter program where the unit has one), then per step k the step
-    body on the state and row k of each per-step input, and row k of each stored output
-    (where no carried port holds it, computed by the store program)."""
+    ``predictor``, ``filter_predict``): the state starts from run's start arguments in
+    order (from init(x0) for a predictor; from the enter program where the unit has one),
+    then per step k the step body on the state and row k of each per-step input, and row
+    k of each stored output (where no carried port holds it: by the store program, or
+    the step's own output, e.g. its prediction)."""
     ports = {p.name: p for p in lowered["step"].inputs}
     sizes = {"n": unit.n, "m": unit.m}
     starts = list(unit.run.start) + [("", ())] * len(unit.carried)
@@ -148,9 +149,12 @@ def stepping(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
         if out in by_output:
             body.append(Store(array, by_output[out].name, size, optional))
             returns.append((array, ports[by_output[out].name].shape))
-        else:  # from the carried state, by the store program
+        elif "store" in lowered:  # from the carried state, by the store program
             body.append(Store(array, "", size, optional, program="store"))
             returns.append((array, lowered["store"].outputs[0].shape))
+        else:  # an output of the step that no carried port holds (a prediction)
+            body.append(Store(array, out, size, optional))
+            returns.append((array, unit.programs["step"].port(out).shape))
     enter = None
     if "init" in lowered:
         first = ((PARAMETER_PORT, Row(PARAMETER_PORT, len(unit.parameters), "0")),) \
@@ -186,4 +190,5 @@ def two_steps(run: Run, unit: Unit) -> Run:
 
 #: The builder of each run kind whose loop is built as data.
 BUILDERS = {"sensors": sensors, "smoother": smoother, "windowed": windowed,
-            "timevarying": stepping, "steady": stepping, "predictor": stepping}
+            "timevarying": stepping, "steady": stepping, "predictor": stepping,
+            "filter_predict": stepping}
