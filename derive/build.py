@@ -366,7 +366,7 @@ _LOADED: dict[str, object] = {}
 _LOADED_PYTHON = itertools.count()
 
 
-def _compiler(compiler: str | None = None) -> str:
+def compiler_command(compiler: str | None = None) -> str:
     """The C compiler command: ``compiler`` when given (build_c's argument), else the CC
     environment variable, else gcc; CompilerNotFoundError when it is not on PATH."""
     cc = compiler if compiler is not None else os.environ.get("CC", "gcc")
@@ -520,7 +520,7 @@ def build_c(path_or_paths: str | os.PathLike | Sequence[str | os.PathLike], *,
     if len({prefix for prefix, *_ in sources}) != len(sources):
         raise BuildError(f"two files define the same filter: {[s[0] for s in sources]}")
     flags = list(STRICT_CFLAGS) + [str(f) for f in extra_cflags]
-    cc = _compiler(compiler)
+    cc = compiler_command(compiler)
     digest = hashlib.sha256()
     for part in [cc, sys.version, cffi.__version__, *flags] + [
             x for s in sources for x in s]:

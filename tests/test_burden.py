@@ -82,15 +82,15 @@ def test_chains_are_the_run_loops_carried_bound(capsys):
     """The chain section: each filter's C run loop (the two-step pass for a steady-state
     filter) through derive.apps.latency, in the reference cycles."""
     from derive.apps.latency import REFERENCE_CYCLES, carried_bound
-    from derive.emit.lookahead import run_pass
     from derive.lowering import lower_program
+    from derive.runs.kinds import carried_pass
 
     data = _json(capsys, "mpt3d_b", "--filter", "kf", "--filter", "sskf", "--filter", "fir")
     assert data["chain_unit"] == "cycles"
     chains = {c["filter"]: c for c in data["chains"]}
     model = catalog.load("mpt3d_b")
     for name in ("kf", "sskf"):
-        program, steps = run_pass(derive_unit(model, name, {}))
+        program, steps = carried_pass(derive_unit(model, name, {}))
         bound = carried_bound(lower_program(program, use_fma=True), REFERENCE_CYCLES)
         assert chains[name]["per_step"] == bound.per_step / steps
         assert chains[name]["operations_per_pass"] == dict(bound.operations)

@@ -1,6 +1,6 @@
-"""derive.emit.lookahead: the steady-state C run takes two steps per pass through the
-exact two-step map; it must agree with stepping, keep the odd step and the first step of
-each pass exact, and not drift over long runs."""
+"""The two-step map (derive.runs.kinds.two_steps): the steady-state C run takes two steps
+per pass through the exact two-step map; it must agree with stepping, keep the odd step and
+the first step of each pass exact, and not drift over long runs."""
 
 import re
 from dataclasses import replace
@@ -16,12 +16,12 @@ from hypothesis import strategies as st
 from derive import catalog
 from derive.apps.simulate import simulate_linear
 from derive.apps.verify import relative_error
-from derive.emit.lookahead import ZNEXT
 from derive.filters.steady import baked, steady_gains
 from derive.generation import derive_unit, render_filter
 from derive.pipeline import load_generated
 from derive.program import ProgramError
 from derive.reference import steady as reference
+from derive.runs.unit import LOOKAHEAD_NEXT as ZNEXT
 
 
 def _two_step(model, name="sskf"):

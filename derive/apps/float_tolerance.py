@@ -98,7 +98,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..emit.c_loops import two_step
 from ..errors import ModelError
 from ..filters import kind
 from ..filters.difference import difference_form
@@ -118,6 +117,7 @@ from ..filters.spec import (
 from ..lowering import LoweredAssign, LoweredProgram, lower_program
 from ..precision import DOUBLE, FLOAT
 from ..riccati import kf_steady
+from ..runs import kinds
 from ..runs.unit import Unit
 from ..trees import Op, Tree, Var, element_name
 
@@ -233,7 +233,7 @@ def run_roundings(unit: Unit) -> int:
         return rounding_depth(lower_program(unit.programs[name], use_fma=True,
                                             state_ports=state))
 
-    two = two_step(unit, use_fma=True)
+    two = kinds.two_step_map(unit, use_fma=True)
     step = max(chained_depth(unit, step_programs(unit)),
                rounding_depth(two) if two is not None else 0)
     return step + sum(depth(name) for name in RUN_PROGRAMS if name in unit.programs) + \

@@ -26,11 +26,11 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from derive.arrivals import operation_latency
-from derive.emit.lookahead import run_pass
 from derive.expression_lowering import CARRIED
 from derive.flops import count
 from derive.lowering import LoweredAssign, LoweredProgram, lower_program
 from derive.options import taken_by
+from derive.runs.kinds import carried_pass
 from derive.schedule import REFERENCE_CYCLES, scheduled_unit
 from derive.trees import Const, Op, Tree, Var
 
@@ -217,11 +217,11 @@ def _cycle_nodes(via: list[np.ndarray], start: int, steps: int) -> list[int]:
 
 def run_loop_bound(unit, latency: Mapping[str, float] = REFERENCE_CYCLES) -> Bound | None:
     """The bound of ``unit``'s generated C run loop as emitted: its pass (the step, or a
-    steady-state two-step pass, :func:`derive.emit.lookahead.run_pass`), per step; None
+    steady-state two-step pass, :func:`derive.runs.kinds.carried_pass`), per step; None
     for a run that calls its functions (the run kind sensors: no step program)."""
     if "step" not in unit.programs:
         return None
-    program, steps = run_pass(unit)
+    program, steps = carried_pass(unit)
     bound = carried_bound(lower_program(program, use_fma=True), latency)
     if bound is None:
         return None

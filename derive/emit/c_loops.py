@@ -14,7 +14,7 @@ A small body is inlined into each caller (:data:`INLINE_STATEMENTS`; always_inli
 GCC and Clang take it), so run keeps the state in registers and the lane loop is
 vectorised; a large one stays one function that every caller calls, so the file
 compiles it once.  A unit with a two-step map (``Unit.lookahead``) has a second body for
-the map (:func:`two_step`); its run takes two steps per pass, and so do the lanes.
+the map (derive.runs.kinds.two_step_map); its run takes two steps per pass, and so do the lanes.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from dataclasses import replace
 
 from derive.emit import c_printer
 from derive.emit.c_vector import SWITCH
-from derive.lowering import LoweredAssign, LoweredProgram, lower_program
+from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 from derive.runs.unit import LOOKAHEAD_NEXT, Unit
@@ -350,14 +350,6 @@ def fused_body(unit: Unit, body: LoweredProgram, prefix: str) -> list[str]:
     """run's step: the body over run's local arrays (the state, the step's outputs: held
     in registers once the body is inlined), reading the per-step inputs at row k."""
     return checked_call(body, body_name(prefix), _row_names(unit, body), "step_status")
-
-
-def two_step(unit: Unit, use_fma: bool) -> LoweredProgram | None:
-    """The lowered two-step map of the unit's run loop, or None (no lookahead)."""
-    if unit.lookahead is None:
-        return None
-    return lower_program(unit.lookahead, use_fma=use_fma,
-                         state_ports=tuple(port for port, _ in unit.carried))
 
 
 def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,

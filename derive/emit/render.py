@@ -25,7 +25,6 @@ from derive.emit.c_loops import (
     fused_body,
     step_function_body,
     tracks_parts,
-    two_step,
     two_step_body,
 )
 from derive.emit.python_loop import single_track_loop
@@ -481,7 +480,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     lowered = _lowered(unit, use_fma=use_fma)
     lps = list(lowered.values())
     header_lines = _header_lines(unit, "c", lowered)
-    two = two_step(unit, use_fma)
+    two = kinds.two_step_map(unit, use_fma)
     if two is not None:
         header_lines += [
             "run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) "

@@ -92,7 +92,7 @@ def affine_program(n: int, m: int, A, B, doc: str, out_doc: str, in_doc: str) ->
 def two_step_program(n: int, m: int, A, B) -> Program:
     """The two-step map of ``x_new = A x + B z``: x(k+2) = A^2 x(k) + A B z(k) + B z(k+1)
     from ports ``x``, ``z`` (row k) and the next row, with the products of the exact
-    baked doubles taken exactly (rounded once when printed); derive.emit.lookahead."""
+    baked doubles taken exactly (rounded once when printed); derive.runs.kinds.two_steps."""
     A, B = sparse_exact(A), sparse_exact(B)
     prog = Program("step2", [Port("x", (n,), doc="x(k)"), Port("z", (m,), doc="z(k)"),
                              Port(LOOKAHEAD_NEXT, (m,), doc="z(k+1)")],

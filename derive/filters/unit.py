@@ -47,7 +47,7 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
               lookahead=None, carried: tuple[tuple[str, str], ...] | None = None) -> Unit:
     """The Unit for ``model`` and the filter of ``spec`` with its validated ``options``;
     ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N;
-    ``lookahead``: the two-step map of an affine step (derive.emit.lookahead);
+    ``lookahead``: the two-step map of an affine step (derive.runs.kinds.two_steps);
     ``carried``: the unit's own carried (input port, output port) pairs (default: the run
     kind's), entered by an ``enter`` program and stored by a ``store`` program.
 

@@ -7,8 +7,8 @@ from collections.abc import Mapping
 from dataclasses import replace
 from math import prod
 
-from derive.lowering import LoweredProgram
-from derive.program import PARAMETER_PORT
+from derive.lowering import LoweredProgram, lower_program
+from derive.program import PARAMETER_PORT, Program
 from derive.runs.loops import (
     AfterFirst,
     AnySteps,
@@ -186,6 +186,22 @@ def two_steps(run: Run, unit: Unit) -> Run:
                             "two-step map;\nonly x(k+2) is carried, so the chain from pass to "
                             "pass is one step deep")
     return replace(run, loops=(pair, replace(loop, rest=True, note="an odd last step")))
+
+
+def two_step_map(unit: Unit, use_fma: bool) -> LoweredProgram | None:
+    """The lowered two-step map of the unit's run loop, or None (no lookahead)."""
+    if unit.lookahead is None:
+        return None
+    return lower_program(unit.lookahead, use_fma=use_fma,
+                         state_ports=tuple(port for port, _ in unit.carried))
+
+
+def carried_pass(unit: Unit) -> tuple[Program, int]:
+    """(program, steps) of the carried chain of one pass of the C run loop of ``unit``: its
+    two-step map (x(k+1) beside it is not carried), else the step itself."""
+    if unit.lookahead is not None:
+        return unit.lookahead, 2
+    return unit.programs["step"], 1
 
 
 #: The builder of each run kind whose loop is built as data.

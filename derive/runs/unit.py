@@ -40,7 +40,7 @@ class RunKind:
     dims after ``steps``, optional in C).  ``window``: the step reads the last
     ``window`` rows of z (port ``zw``) instead of one row.  ``batch``: C may have
     ``run_tracks``.  ``lookahead``: C run takes two steps per pass when the step is affine
-    and has no free parameters (derive.emit.lookahead).  ``extra_programs``: programs a
+    and has no free parameters (derive.runs.kinds.two_steps).  ``extra_programs``: programs a
     unit of this kind may add.  ``work``: C run's caller-provided scratch arrays, after
     the stored ones: (name, the ports of the unit's programs one row of it holds per
     step, in order), e.g. a smoother's forward pass; Python run allocates its own.  The

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from ... import catalog
-from ...generation import derive_unit
+from ...filters import derive_unit
 from ..latency import ScheduleBounds, run_loop_bound, schedule_bounds
 from .cases import Case
 

@@ -7,7 +7,7 @@ import hashlib
 from collections.abc import Sequence
 from pathlib import Path
 
-from ...build import _compiler, cache_dir, cached_extension, load_module_file
+from ...build import cache_dir, cached_extension, compiler_command, load_module_file
 
 
 def compiled_kernels(label: str, source: str, declarations: str, flags: Sequence[str]):
@@ -15,7 +15,7 @@ def compiled_kernels(label: str, source: str, declarations: str, flags: Sequence
     with ``flags``; cached under ``label`` and a hash of the compiler, source and flags."""
     import cffi  # C builds load cffi only when something is compiled
 
-    key = hashlib.sha256("\0".join([_compiler(), source, *flags]).encode()).hexdigest()[:16]
+    key = hashlib.sha256("\0".join([compiler_command(), source, *flags]).encode()).hexdigest()[:16]
     name = f"_derive_{label}_{key}"
 
     def build(work: Path) -> None:

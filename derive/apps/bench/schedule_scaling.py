@@ -13,8 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ... import catalog
+from ...filters import derive_unit
 from ...flops import count
-from ...generation import derive_unit
 from ...model import LinearModel
 from ...schedule import REFERENCE_CYCLES, one_step_chain, scheduled_unit
 from ..latency import schedule_bounds

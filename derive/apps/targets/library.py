@@ -11,7 +11,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from ...emit.library import render_build_files, render_test_program, test_program_name
-from ...emit.render import render_c
+from ...emit.render import render_unit
 from ...emit.write import write_files
 from ...errors import FilterError, NameError_
 from ...filters import available, kind
@@ -77,7 +77,7 @@ def render_library(model, filters: Iterable[str] | None = None, out: str | Path 
         unit = command_unit(model, name, typed[name], ref, str(out))
         unit = dataclasses.replace(unit, command=unit.command.replace(
             " --lang all", " --layout library", 1))
-        texts = render_c(unit)
+        texts = render_unit(unit, "c")
         files.update(texts)
         data[name] = verification_data(model, name, typed[name], steps, unit=unit)
         if refuse_uncarried and not data[name].meaningful:

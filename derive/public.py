@@ -1,0 +1,57 @@
+"""What the generator offers the applications of ``derive/apps/`` (verify, reports,
+bench, GNSS, INS, targets): the modules they may import and, of each, the names. The
+applications import nothing else of the generator (``tests/test_house_apps_api.py``);
+a module given with no names is imported whole, for its public names.
+
+Not offered: the command line (``derive.cli``: an application calls the functions a
+command calls), a language's renderer of one unit (``render_unit`` and ``render_files``
+are the entry points), and every name that starts with an underscore."""
+
+APPLICATIONS: dict[str, tuple[str, ...]] = {
+    "derive.arrivals": ("operation_latency",),
+    "derive.batch": (),
+    "derive.build": ("BuildEnvironmentError", "BuildError", "FilterModule", "STRICT_CFLAGS",
+                     "cache_dir", "cached_extension", "compiler_command", "load_module_file"),
+    "derive.catalog": (),
+    "derive.commands": (),
+    "derive.emit.library": ("render_build_files", "render_test_program", "test_program_name"),
+    "derive.emit.render": ("render_files", "render_unit"),
+    "derive.emit.write": ("write_files",),
+    "derive.errors": ("FilterError", "ModelError", "NameError_", "NumericalError",
+                      "OptionError", "ShapeError", "SteadyStateError", "SymbolError",
+                      "VerificationError"),
+    "derive.expression_lowering": ("CARRIED",),
+    "derive.filters": ("available", "derive_unit", "kind"),
+    "derive.filters.difference": ("difference_form",),
+    "derive.filters.fir": ("order",),
+    "derive.filters.kf": ("prior",),
+    "derive.filters.nonlinear": (),
+    "derive.filters.sensors": ("program_name", "reference_run", "sensor_groups",
+                               "transition_function", "uses_sensor_run"),
+    "derive.filters.spec": ("Conditioned", "FilterSpec", "INNOVATION", "LAINIOTIS",
+                            "NEXT_PRIOR", "NOISE", "NOMINAL", "POSTERIOR", "PRIOR", "UPDATE"),
+    "derive.flops": ("c_function_body", "count", "count_c_function",
+                     "count_c_text"),
+    "derive.generation": ("check_lang", "command_unit", "generate", "generate_units",
+                          "render_unit", "resolve_model"),
+    "derive.horizon": (),
+    "derive.interface": ("Function", "read"),
+    "derive.lowering": ("LoweredAssign", "LoweredProgram", "lower_program"),
+    "derive.model": ("LinearModel", "NonlinearModel"),
+    "derive.options": ("DEFAULT_EPS", "FirOptions", "per_filter", "taken_by", "validate"),
+    "derive.pipeline": ("Generated", "LANGUAGES", "load_generated", "load_units"),
+    "derive.precision": ("DOUBLE", "FLOAT"),
+    "derive.program": ("Port", "Program"),
+    "derive.reference": (),
+    "derive.reference.nonlinear": ("sigma_points", "sigma_weights"),
+    "derive.riccati": ("kf_steady",),
+    "derive.runs.kinds": ("carried_pass",),
+    "derive.runs.unit": ("RUN_KINDS", "Unit"),
+    "derive.schedule": ("REFERENCE_CYCLES", "one_step_chain", "scheduled_unit"),
+    "derive.staging": (),
+    "derive.statements": ("Assign",),
+    "derive.structure": ("find_blocks",),
+    "derive.system_checks": ("psd_sqrt", "system_arrays"),
+    "derive.trees": ("Const", "Op", "OpCount", "Tree", "Var", "element_name"),
+    "derive.version": ("__version__",),
+}
