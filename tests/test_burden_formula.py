@@ -19,7 +19,7 @@ from derive.cli import main
 from derive.filters import derive_unit
 from derive.flops import OpCount, count
 
-QUICK = ((5, 5), (7, 3))   # the paper-mode check sizes run_audit(quick=True) counts
+CHECKS = bf.CHECKS[("n", "m")][:2]   # paper-mode sizes test_audit.py's audit counted
 
 
 def _synthetic(rule, variables=("n", "m")):
@@ -66,7 +66,7 @@ def test_a_count_no_polynomial_fits_names_the_sizes_where_the_fit_fails():
 @pytest.fixture(scope="module")
 def kf_paper():
     fam = bf.family("kf", "paper")
-    return bf.derive_formula(fam, check=QUICK, series=("flops",))
+    return bf.derive_formula(fam, check=CHECKS, series=("flops",))
 
 
 def test_a_wrong_coefficient_is_flagged_with_its_term(kf_paper, capsys):
@@ -77,8 +77,8 @@ def test_a_wrong_coefficient_is_flagged_with_its_term(kf_paper, capsys):
     sizes, claimed, counted = check.first
     assert sizes == (1, 1) and claimed - counted == 1
     assert counted == bf.paper_count("kf", (1, 1)).flops
-    argv = ["audit", "--formula", text, "--filter", "kf", "--paper", "--check", "5,5",
-            "--check", "7,3"]
+    argv = ["audit", "--formula", text, "--filter", "kf", "--paper"] + [
+        arg for sizes in CHECKS for arg in ("--check", ",".join(map(str, sizes)))]
     assert main(argv) == 1
     out = capsys.readouterr().out
     assert "differs in 1 term(s): n*m**2: formula 4, derived 3" in out
@@ -133,7 +133,7 @@ def test_bad_requests_get_one_line_and_exit_2(argv, words, capsys):
 
 def test_burden_formula_of_paper_mode_by_kind(capsys):
     assert main(["burden", "--formula", "--paper", "--filter", "sskf", "--json",
-                 "--check", "5,5", "--check", "7,3"]) == 0
+                 "--check", "5,5", "--check", "6,3"]) == 0
     (data,) = json.loads(capsys.readouterr().out)
     series = data["series"]
     fam = bf.family("sskf", "paper")

@@ -400,7 +400,7 @@ FORMULA_FILTERS = ("kf", "lf", "jklf", "sskf", "sslf", "jssklf", "pred", "fir")
 @cache
 def derived_flops(name: str, quick: bool = False) -> burden_formula.DerivedFormula:
     """The flops formula of paper-mode ``name``, derived (check sizes up to n = 12, m = 6;
-    ``quick``: up to n = 7)."""
+    ``quick``: n = 6, m = 3 only)."""
     fam = burden_formula.family(name, "paper")
     checks = (burden_formula.QUICK_CHECKS if quick else burden_formula.CHECKS)[fam.variables]
     return burden_formula.derive_formula(fam, check=checks, series=("flops",))
@@ -439,7 +439,7 @@ def formula_rows(quick: bool = False) -> list[FormulaRow]:
 @cache
 def run_audit(quick: bool = False) -> Audit:
     """The whole audit (cached: it derives every filter it counts); ``quick``: the derived
-    formulas checked on sizes up to n = 7 rather than n = 12."""
+    formulas checked at n = 6, m = 3 only, rather than at sizes up to n = 12, m = 6."""
     table = rows()
     return Audit(tuple(table), tuple(speedups(table)), tuple(fir_rows()), tuple(notes(table)),
                  tuple(formula_rows(quick)))

@@ -29,7 +29,8 @@ def add_fit_arguments(parser) -> None:
     parser.add_argument("--check", action="append", metavar="SIZES",
                         help="repeatable: a size the fit must reproduce, not used to fit it, "
                              "as comma-separated integers in the family's variables (n,m; "
-                             "N,n,m for the FIR; k for blocks); default: 5,5 7,3 12,6")
+                             "N,n,m for the FIR; k for blocks); default: 5,5 6,3 12,6 (FIR: "
+                             "7,3,2 4,6,3 9,2,5; blocks: 8 11)")
     parser.add_argument("--from", dest="minimum", type=int, default=1, metavar="S",
                         help="fit on sizes >= S only (default 1)")
     parser.add_argument("--seed", type=int, default=0,
