@@ -223,10 +223,10 @@ def _parts(name: str) -> list[tuple[str, str, object]]:
     return [(name.upper(), name.upper(), formulas.claim(name))]
 
 
-def _as_formulas(name: str, once: tuple[int, ...]) -> str:
+def _as_formulas(name: str, once: tuple[int, ...], quick: bool) -> str:
     """The explanation as polynomials in the number of axes k: the printed number's
     formula (the parts ``once`` counted once) less the derived one, k times paper mode's."""
-    derived = derived_flops(name).flops
+    derived = derived_flops(name, quick).flops
     if derived is None:
         return ""
     k = formulas.VARIABLES["k"]
@@ -240,10 +240,11 @@ def _as_formulas(name: str, once: tuple[int, ...]) -> str:
             f"paper-mode code k*({derived}): they differ by {difference}")
 
 
-def explain(name: str, printed: int, n: int, m: int, axes: int) -> str:
+def explain(name: str, printed: int, n: int, m: int, axes: int, quick: bool = False) -> str:
     """Why a printed number differs from the formula: which parts of the printed formula
     (a join's KF, LF and join term; or the whole), counted for one axis instead of
-    ``axes``, give the printed number (each such explanation is tested)."""
+    ``axes``, give the printed number (each such explanation is tested); and the same as
+    polynomials against the derived formula (``quick``: derived_flops(name, quick))."""
     formula = _formula(name, n, m, axes)
     parts = [(label, formulas.value(expr, n=n, m=m)) for label, _, expr in _parts(name)]
     whole = " + ".join(str(v) for _, v in parts)
@@ -259,12 +260,12 @@ def explain(name: str, printed: int, n: int, m: int, axes: int) -> str:
             labels = " and ".join(parts[i][0] for i in once)
             return (f"{labels} is counted for one axis, not {axes}: printed {printed} = "
                     f"{axes}*({' + '.join(map(str, rest))}) + {single}; the formula gives "
-                    f"{axes}*({whole}) = {formula}" + _as_formulas(name, once))
+                    f"{axes}*({whole}) = {formula}" + _as_formulas(name, once, quick))
     return f"printed {printed} differs from the formula's {formula} by {printed - formula}; " \
            "no known explanation"
 
 
-def rows() -> list[Row]:
+def rows(quick: bool = False) -> list[Row]:
     out = []
     for s in SYSTEMS:
         model = _model(s.model)
@@ -276,7 +277,7 @@ def rows() -> list[Row]:
             formula = _formula(name, n, m, s.axes)
             flag = None
             if printed is not None and printed != formula:
-                flag = explain(name, printed, n, m, s.axes)
+                flag = explain(name, printed, n, m, s.axes, quick)
             out.append(Row(s.paper, s.label, s.model, s.axes, n, m, label, name, printed,
                            citation, formula, s.axes * paper_count(name, n, m).flops,
                            s.axes * specialised_count(s.model, name).flops, flag))
@@ -440,7 +441,7 @@ def formula_rows(quick: bool = False) -> list[FormulaRow]:
 def run_audit(quick: bool = False) -> Audit:
     """The whole audit (cached: it derives every filter it counts); ``quick``: the derived
     formulas checked at n = 6, m = 3 only, rather than at sizes up to n = 12, m = 6."""
-    table = rows()
+    table = rows(quick)
     return Audit(tuple(table), tuple(speedups(table)), tuple(fir_rows()), tuple(notes(table)),
                  tuple(formula_rows(quick)))
 
