@@ -85,6 +85,8 @@ def test_a_wrong_coefficient_is_flagged_with_its_term(kf_paper, capsys):
     assert "smallest sizes where they differ: n = 1, m = 1" in out
     assert main(argv[:2] + [formulas.PRINTED["kf"]] + argv[3:]) == 0
     assert "equal: the formula is the derived polynomial" in capsys.readouterr().out
+    api = bf.check_formula(text, "kf", "paper", check=CHECKS)
+    assert api.terms == check.terms and api.first == check.first
 
 
 HOSTILE = [

@@ -512,7 +512,9 @@ def text(audit: Audit) -> str:
         if f.first is not None:
             lines.append(f"    first differs at {f.first['sizes']}: formula {f.first['formula']}"
                          f", count {f.first['count']}")
+        lines.append("    checked at " + " ".join(f"({', '.join(map(str, c))})"
+                                                  for c in f.check_sizes))
     if audit.formulas:
-        lines.append(f"  method: {audit.formulas[0].method.split('. Fit sizes')[0]}")
+        lines.append(f"  method: {audit.formulas[0].method}")
     lines += ["", "Notes:"] + [f"  - {note}" for note in audit.notes]
     return "\n".join(lines) + "\n"

@@ -378,16 +378,25 @@ class DerivedFormula:
 
     @property
     def method(self) -> str:
-        vars_ = ", ".join(self.variables)
-        fit_list = " ".join(f"({', '.join(map(str, s))})" for s in self.fit_sizes)
-        check_list = " ".join(f"({', '.join(map(str, s))})" for s in self.check_sizes)
         return (f"exact interpolation over the integers: a series' counts at the smallest "
-                f"sizes >= lo that determine a polynomial of total degree <= d in {vars_} give "
-                "its coefficients by an exact rational solve; the polynomial is kept when it "
-                f"equals the counts at every check size >= lo, none used in a fit "
-                f"({check_list}); d starts at {self.degree}, lo at {self.minimum}; a failed "
-                f"check raises lo up to {self.minimum + RAISE}, then d up to "
-                f"{self.max_degree}. Fit sizes counted ({vars_}): {fit_list}")
+                f"sizes >= lo that determine a polynomial of total degree <= d in "
+                f"{', '.join(self.variables)} give its coefficients by an exact rational "
+                "solve; the polynomial is kept when it equals the counts at every check size "
+                f">= lo, none used in a fit; d starts at {self.degree}, lo at {self.minimum}; "
+                f"a failed check raises lo up to {self.minimum + RAISE}, then d up to "
+                f"{self.max_degree}")
+
+    @property
+    def checked(self) -> str:
+        """The check sizes, as text."""
+        sizes = " ".join(f"({', '.join(map(str, s))})" for s in self.check_sizes)
+        return f"check sizes ({', '.join(self.variables)}): {sizes}"
+
+    @property
+    def fitted(self) -> str:
+        """The sizes counted for the fits, as text."""
+        sizes = " ".join(f"({', '.join(map(str, s))})" for s in self.fit_sizes)
+        return f"fit sizes counted ({', '.join(self.variables)}): {sizes}"
 
 
 def _sizes_arg(family: Family, sizes, what: str) -> tuple[Sizes, ...]:
@@ -494,7 +503,7 @@ class FormulaCheck:
         if diff is None or not diff.terms:
             return None
         side = diff.degree + 1  # a non-zero polynomial of this degree is non-zero on the box
-        minimum = self.derived.minimum
+        minimum = self.derived.fits[self.series].minimum   # where the derived one holds
         box = sorted(itertools.product(range(minimum, minimum + side + 1),
                                        repeat=len(diff.variables)), key=lambda s: (sum(s), s))
         sizes = next(s for s in box if diff(s))
@@ -519,16 +528,31 @@ def audit_formula(text: str, fam: Family, series: str = "flops", derived=None,
     return FormulaCheck(text, claim, derived, series)
 
 
+def check_formula(text: str, name: str, mode: str = "paper", block=None,
+                  options: dict | None = None, seed: int = 0, series: str = "flops",
+                  **fit) -> FormulaCheck:
+    """The Python API of `derive audit --formula`: ``text`` against the formula derived for
+    filter ``name`` in family ``mode`` (paper, dense, blocks; see :func:`family`), for
+    ``series`` (flops, or LANG.KIND), fit with ``fit``'s arguments to derive_formula. The
+    text is parsed before anything is counted."""
+    fam = family(name, mode, block, options, seed)
+    parse_claim(text, fam)
+    return audit_formula(text, fam, series, **fit)
+
+
 def verdict(check: FormulaCheck) -> str:
     """One line: equal, or the terms that differ."""
     if check.polynomial is None:
         return ("the counts obey no polynomial of total degree <= "
                 f"{check.derived.max_degree}: nothing to compare symbolically")
+    fit = check.derived.fits[check.series]
+    where = (f" (the counts obey it for {', '.join(check.derived.variables)} >= {fit.minimum})"
+             if fit.minimum > 1 else "")
     if check.equal:
-        return "equal: the formula is the derived polynomial, term by term"
+        return "equal: the formula is the derived polynomial, term by term" + where
     terms = "; ".join(f"{mono}: formula {a}, derived {b}"
                       for mono, a, b in check.terms)
-    return f"differs in {len(check.terms)} term(s): {terms}"
+    return f"differs in {len(check.terms)} term(s): {terms}{where}"
 
 
 @dataclass(frozen=True)
@@ -584,7 +608,8 @@ def series_title(name: str) -> str:
 
 def formula_lines(derived: DerivedFormula) -> list[str]:
     """The derived formula of every series, the method, and each failure."""
-    lines = [derived.family.description, f"method: {derived.method}"]
+    lines = [derived.family.description, f"method: {derived.method}",
+             f"{derived.checked}; {derived.fitted}"]
     for name, fit in derived.fits.items():
         if name != "flops" and fit.polynomial is not None and not fit.polynomial.terms:
             continue
@@ -625,6 +650,7 @@ def check_lines(check: FormulaCheck) -> list[str]:
              f"derived ({check.derived.family.description}):",
              f"  {check.polynomial if check.polynomial is not None else 'none'}",
              f"  method: {check.derived.method}",
+             f"  {check.derived.checked}; {check.derived.fitted}",
              f"verdict: {verdict(check)}"]
     if check.difference is not None and check.difference.terms:
         sizes, claimed, counted = check.first

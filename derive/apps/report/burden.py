@@ -74,7 +74,7 @@ def formula_table(audit) -> Table:
                      f.derived if f.derived is not None else "none fits",
                      "equal" if f.equal else f.verdict))
         if f.join is not None:
-            body.append((f"{f.filter.upper()} join", "", f.join, f.join,
+            body.append((f"{f.filter.upper()} join", "the join", f.join, f.join,
                          f.derived_join or "–",
                          "equal" if f.derived_join == f.join else "differs"))
     return Table(("filter", "printed in", "printed formula", "as a polynomial",
@@ -131,8 +131,8 @@ def section(ctx) -> Section:
     if audit.formulas:
         s.add(Text("Each formula the papers print is parsed as a polynomial in n and m (N: "
                    "the FIR's order) and set beside the polynomial derive derives from the "
-                   "counts of its paper-mode code: " + audit.formulas[0].method.split(
-                       ". Fit sizes")[0] + "."), formula_table(audit))
+                   "counts of its paper-mode code: " + audit.formulas[0].method + "."),
+              formula_table(audit))
     s.add(Table(("paper", "speedup", "printed", "from printed", "from formulas",
                  "from paper mode", "from specialised", "verdict"),
                 tuple((sp.paper, sp.what, sp.printed,
