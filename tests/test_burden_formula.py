@@ -126,6 +126,10 @@ def test_hostile_formulas_get_one_line_and_exit_2(formula, words, capsys):
     (["burden", "--formula", "--filter", "kf", "--paper", "--degree", "9", "--max-degree",
       "4"], "degree bounds"),
     (["burden"], "needs MODEL"),
+    (["burden", "cv", "--check", "5,5"], "--check applies to --formula only"),
+    (["audit", "--degree", "4"], "--degree applies to --formula EXPR only"),
+    (["burden", "--formula", "--filter", "kf", "--paper", "--measure"], "--measure"),
+    (["burden", "--formula", "--filter", "kf", "--paper", "--check", "17,1"], "from 1 to 16"),
 ])
 def test_bad_requests_get_one_line_and_exit_2(argv, words, capsys):
     assert main(argv) == 2

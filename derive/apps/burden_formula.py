@@ -61,8 +61,10 @@ CHECKS = {("n", "m"): ((5, 5), (6, 3), (12, 6)),
 QUICK_CHECKS = {("n", "m"): ((6, 3),), ("N", "n", "m"): ((7, 3, 2),), ("k",): ((8,),)}
 #: Significant digits of the entries of a dense random model.
 DIGITS = 6
-#: Largest size a family is counted at (a dense 40 x 40 paper-mode KF takes minutes).
-MAX_SIZE = 40
+#: Largest size a family is counted at (paper mode's JKLF at n = m = 16 takes seconds).
+MAX_SIZE = 16
+#: Highest degree bound a fit may try (3 variables at degree 6: 84 sizes to count).
+MAX_FIT_DEGREE = 6
 
 
 Sizes = tuple[int, ...]
@@ -422,9 +424,9 @@ def derive_formula(fam: Family, degree: int = DEGREE, max_degree: int = MAX_DEGR
     product of one term that fuses nothing, obeys a polynomial from lo on); each fit
     checked at ``check`` (default CHECKS), where it must equal every count."""
     if not (isinstance(degree, int) and isinstance(max_degree, int)
-            and 0 <= degree <= max_degree <= formulas.MAX_DEGREE):
+            and 0 <= degree <= max_degree <= MAX_FIT_DEGREE):
         raise ModelError(f"degree bounds must satisfy 0 <= degree <= max degree <= "
-                         f"{formulas.MAX_DEGREE}; got {degree}, {max_degree}")
+                         f"{MAX_FIT_DEGREE}; got {degree}, {max_degree}")
     if not (isinstance(minimum, int) and 1 <= minimum <= MAX_SIZE // 2):
         raise ModelError(f"the smallest fit size must be an integer from 1 to "
                          f"{MAX_SIZE // 2}; got {minimum!r}")

@@ -2,7 +2,7 @@
 `derive audit --formula EXPR --filter F [--paper] [--model MODEL]`: any burden formula against
 the one derived from derive's generated code."""
 
-from .burden import add_fit_arguments
+from .burden import add_fit_arguments, refuse_fit_arguments
 
 NAME = "audit"
 ORDER = 55
@@ -83,9 +83,11 @@ def run(args) -> int:
     if args.formula is not None:
         return run_formula(args)
     given = [flag for flag, on in (("--filter", args.filter_name), ("--paper", args.paper),
-                                   ("--model", args.model), ("--family", args.family)) if on]
+                                   ("--model", args.model), ("--kind", args.kind != "flops"))
+             if on]
     if given:
         raise ModelError(f"{given[0]} applies to --formula EXPR only")
+    refuse_fit_arguments(args, "--formula EXPR")
 
     from ..apps.audit import as_json, run_audit, text
 

@@ -25,7 +25,8 @@ def add_fit_arguments(parser) -> None:
     parser.add_argument("--degree", type=int, default=3, metavar="D",
                         help="first bound on the total degree of the fit (default 3)")
     parser.add_argument("--max-degree", type=int, default=5, metavar="D",
-                        help="highest bound tried while a check size disagrees (default 5)")
+                        help="highest bound tried while a check size disagrees (default 5, "
+                             "at most 6)")
     parser.add_argument("--check", action="append", metavar="SIZES",
                         help="repeatable: a size the fit must reproduce, not used to fit it, "
                              "as comma-separated integers in the family's variables (n,m; "
@@ -77,6 +78,18 @@ def formula_family(args, name: str, model):
                          "--order or --eps")
     per_filter([name], options, named=True)  # refuses an option the filter does not take
     return burden_formula.family(name, family, model, options, args.seed)
+
+
+def refuse_fit_arguments(args, applies: str) -> None:
+    """A fit's arguments given without --formula: refused, not ignored."""
+    from ..errors import ModelError
+
+    given = [flag for flag, on in (
+        ("--family", args.family is not None), ("--degree", args.degree != 3),
+        ("--max-degree", args.max_degree != 5), ("--check", bool(args.check)),
+        ("--from", args.minimum != 1), ("--seed", args.seed != 0)) if on]
+    if given:
+        raise ModelError(f"{given[0]} applies to {applies} only")
 
 
 def derive_args(args) -> dict:
@@ -235,6 +248,9 @@ def run_formula(args) -> int:
     if not args.filters:
         raise ModelError("--formula needs --filter F (repeatable): the filter whose formula "
                          "is derived")
+    if args.measure:
+        raise ModelError("--measure applies to the chains of derive burden MODEL, not to "
+                         "--formula")
     model = load_model(args.model) if args.model is not None else None
     derived = [burden_formula.derive_formula(formula_family(args, name, model),
                                              **derive_args(args)) for name in args.filters]
@@ -254,6 +270,7 @@ def run(args) -> int:
 
     if args.formula:
         return run_formula(args)
+    refuse_fit_arguments(args, "--formula")
     if args.model is None:
         raise ModelError("derive burden needs MODEL (a catalog name or model-file path), or "
                          "--formula")
