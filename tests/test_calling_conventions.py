@@ -63,3 +63,21 @@ def test_a_per_step_array_of_the_wrong_shape_is_refused_naming_it(starts, start)
             module.run(zs, us[:-1], x0, P0, ps)
         with pytest.raises(TypeError, match="zss"):
             module.run(zss=zs, us=us, x0=x0, P0=P0, p=ps)
+
+
+def test_step_and_the_sensor_functions_return_P_as_run_does(starts):
+    """step (and predict, update_all) return P as an (n, n) array, as run returns
+    (steps, n, n): the Python and the C wrapper alike, equal to run's first row."""
+    _, generated = starts
+    zs, us, x0, P0, ps = _data(1)
+    for module in (generated["predict"].python, generated["predict"].c):
+        x, P = module.step(x0, P0, zs[0], us[0], ps[0])
+        xs, Ps = module.run(zs, us, x0, P0, ps)
+        assert np.shape(P) == (2, 2) and Ps.shape == (1, 2, 2)
+        np.testing.assert_array_equal(np.asarray(P), Ps[0])
+        np.testing.assert_array_equal(np.asarray(x), xs[0])
+    for module in (generated["update"].python, generated["update"].c):
+        x, P = module.predict(x0, P0, us[0], ps[0])
+        assert np.shape(P) == (2, 2)
+        x, P = module.update_all(x, P, zs[0], us[0], ps[0])
+        assert np.shape(P) == (2, 2)

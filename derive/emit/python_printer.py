@@ -65,6 +65,12 @@ HELPERS = {
                 '            value = float(value[value != 0][0])',
                 '            entry = f"{name}[{k // n}][{k % n}]"',
                 '            raise PatternError(f"{entry} = {value!r}: {message}")'],
+    "matrix": ['def _matrix(flat, shape):',
+               '    """A flat row-major result as an array of shape (then any track axes)."""',
+               '    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast',
+               '        flat = np.broadcast_arrays(*flat)',
+               '    array = np.array(flat)',
+               '    return array.reshape(shape + array.shape[1:])'],
     "shape": ['def _require_shape(name, array, shape, text):',
               '    """Raise ShapeError unless the leading axes are shape (then tracks)."""',
               '    if array.shape[:len(shape)] != shape:',
@@ -320,16 +326,46 @@ def _shape_text(port) -> str:
     return f"{text}, symmetric" if port.symmetric else text
 
 
-def port_doc_lines(lowered: LoweredProgram) -> list[str]:
-    """Docstring lines: purpose, then one line per port (flat, row-major)."""
+def matrix_outputs(lowered: LoweredProgram) -> list:
+    """The outputs with two axes (P, U): the public Python function returns them as
+    arrays of that shape."""
+    return [p for p in lowered.outputs if len(p.shape) == 2]
+
+
+def flat_name(lowered: LoweredProgram) -> str:
+    """The name of the function run's loop calls: ``_NAME``, returning the matrices flat,
+    for a program with :func:`matrix_outputs` (``NAME`` itself returns them shaped);
+    ``NAME`` otherwise."""
+    return f"_{lowered.name}" if matrix_outputs(lowered) else lowered.name
+
+
+def shaped_return_lines(lowered: LoweredProgram, call: str) -> list[str]:
+    """``outputs = call`` and the return of the outputs, each matrix as an array of its
+    shape (then any track axes) by ``_matrix``."""
+    names = [p.name for p in lowered.outputs]
+    shaped = [f"_matrix({p.name}, {p.shape!r})" if len(p.shape) == 2 else p.name
+              for p in lowered.outputs]
+    return [f"{', '.join(names)} = {call}",
+            f"return {', '.join(shaped)}"]
+
+
+def port_doc_lines(lowered: LoweredProgram, shaped: bool = False) -> list[str]:
+    """Docstring lines: purpose, then one line per port (flat, row-major; ``shaped``: the
+    outputs with two axes returned as arrays of that shape)."""
     square = " or 2-D (n, n) matrices" if square_input_lines(lowered) else ""
     lines = [doc_text(lowered.doc or f"The generated function {lowered.name}."), "",
              f"Arguments (flat, row-major sequences{square}; elements may be NumPy arrays):"]
     lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
               for p in lowered.inputs]
     lines.append("Returns:")
-    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
-              for p in lowered.outputs]
+    for p in lowered.outputs:
+        if shaped and len(p.shape) == 2:
+            text = (f"{p.shape} array" + (", symmetric" if p.symmetric else "")
+                    + ", then any track axes")
+            doc = p.doc.replace(", row-major", "")
+        else:
+            text, doc = _shape_text(p), p.doc
+        lines.append(doc_text(f"    {p.name} [{text}]: {doc}".rstrip(": ")))
     if any(not c.is_pattern for c in lowered.checks):
         lines.append("Raises NumericalError when a runtime check fails.")
     for port, indices in pattern_indices(lowered).items():
