@@ -15,6 +15,7 @@ import numpy as np
 
 from derive.errors import NumericalError, PatternError
 from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from derive.program import PARAMETER_PORT
 
 #: Precedence: higher binds tighter.
 _PREC = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3}
@@ -264,7 +265,7 @@ def _list_lines(name: str, items: list[str], width: int = 92) -> list[str]:
 def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) -> dict:
     """Precomputed strings of one function: ``signature``, ``doc`` lines, ``body`` lines."""
     printer = PythonPrinter()
-    params = ", ".join(p.name for p in lowered.inputs)
+    params = signature_parameters(lowered)
     body: list[str] = square_input_lines(lowered) + pattern_check_lines(lowered)
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
@@ -284,15 +285,35 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
 
 
+def unread_parameters(lowered: LoweredProgram) -> bool:
+    """True when the program takes ``p`` (last) but reads none of it (an EKF predict of a
+    model whose parameters are in h alone): Python may then be called without it."""
+    return (bool(lowered.inputs) and lowered.inputs[-1].name == PARAMETER_PORT
+            and PARAMETER_PORT not in lowered.used_inputs())
+
+
+def signature_parameters(lowered: LoweredProgram) -> str:
+    """The parameters of the printed ``def``: the input ports, ``p=None`` when unread."""
+    names = [p.name for p in lowered.inputs]
+    if unread_parameters(lowered):
+        names[-1] += "=None"
+    return ", ".join(names)
+
+
 def square_input_lines(lowered: LoweredProgram) -> list[str]:
     """Lines that accept a 2-D (n, n) matrix (then any track axes) for each flat n*n input
-    port with n > 1 (P): it is flattened row-major; a flat one is used as it is."""
+    port (P, R): it is flattened row-major; a flat one is used as it is (n = 1: a 2-D one
+    is one whose second axis has length 1, [[r]], as [r] of one track is)."""
     lines = []
     for port in lowered.inputs:
         if len(port.shape) == 2 and port.shape[0] == port.shape[1] > 1:
             n, name = port.shape[0], port.name
             lines += [f"if len({name}) == {n}:  # a 2-D ({n}, {n}) {name}: flattened, row-major",
                       f"    {name} = np.reshape({name}, ({n * n},) + np.shape({name})[2:])"]
+        elif port.shape == (1, 1):
+            name = port.name
+            lines += [f"if np.shape({name})[1:2] == (1,):  # a 2-D (1, 1) {name}: flattened",
+                      f"    {name} = np.reshape({name}, (1,) + np.shape({name})[2:])"]
     return lines
 
 
@@ -355,7 +376,10 @@ def port_doc_lines(lowered: LoweredProgram, shaped: bool = False) -> list[str]:
     square = " or 2-D (n, n) matrices" if square_input_lines(lowered) else ""
     lines = [doc_text(lowered.doc or f"The generated function {lowered.name}."), "",
              f"Arguments (flat, row-major sequences{square}; elements may be NumPy arrays):"]
-    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
+    unread = unread_parameters(lowered)
+    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": ")
+                       + (" (not read here: may be left out)"
+                          if unread and p.name == PARAMETER_PORT else ""))
               for p in lowered.inputs]
     lines.append("Returns:")
     for p in lowered.outputs:
