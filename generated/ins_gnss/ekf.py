@@ -552,14 +552,14 @@ def _predict(x, P, u, p):
     return x_new, P_new
 
 
-def update_gnss(x, P, z, p):
+def update_gnss(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'gnss'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [16]: x before the update (x(k/k-1))
         P [16x16, symmetric]: its covariance, row-major, symmetric
         z [6]: gpn, gpe, gpd, gvn, gve, gvd
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [16]: x after the update
         P_new [(16, 16) array, symmetric, then any track axes]: its covariance
@@ -1045,14 +1045,14 @@ def _update_gnss(x, P, z, p):
     return x_new, P_new
 
 
-def update_baro(x, P, z, p):
+def update_baro(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'baro'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [16]: x before the update (x(k/k-1))
         P [16x16, symmetric]: its covariance, row-major, symmetric
         z [1]: alt
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [16]: x after the update
         P_new [(16, 16) array, symmetric, then any track axes]: its covariance
