@@ -49,7 +49,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..emit.unit import RUN_KINDS, Unit
 from ..errors import ModelError, VerificationError
 from ..filters import kind
 from ..filters.sensors import reference_run as sensors_reference
@@ -58,6 +57,7 @@ from ..generation import command_unit
 from ..options import validate
 from ..pipeline import load_generated
 from ..precision import DOUBLE
+from ..runs.unit import RUN_KINDS, Unit
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
 from .float_tolerance import (
     FloatTolerance,

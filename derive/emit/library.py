@@ -23,9 +23,9 @@ import numpy as np
 
 from derive import interface
 from derive.emit.render import derive_version, environment
-from derive.emit.unit import Unit
 from derive.errors import FilterError
 from derive.precision import DOUBLE, Precision, precision
+from derive.runs.unit import Unit
 
 _PER_LINE = 4
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from derive.emit import c_printer
 from derive.emit.python_printer import flat_name
-from derive.emit.unit import Unit
 from derive.lowering import LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import Unit
 
 PARAMETER_ROWS = "p_rows"
 """The name run's prologue gives p as one row per step (derive.emit.render)."""

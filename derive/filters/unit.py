@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..discretize import METHODS
-from ..emit.unit import SensorSlot, Unit
 from ..options import SharedOptions
 from ..program import ZERO, Check
+from ..runs.unit import SensorSlot, Unit
 from .common import pattern_text
 from .spec import FilterSpec
 
