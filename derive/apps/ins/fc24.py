@@ -269,3 +269,26 @@ def run(fl: Flight, x0: np.ndarray | None = None, P0: np.ndarray | None = None) 
                 x, P = update(x, P, z, name)[:2]
         xs[k], Ps[k] = x, P
     return Run(xs, Ps)
+
+
+def operating_point(seconds: float = 25.0, seed: int = 0):
+    """The reference's state ``seconds`` into the seeded flight (the airspeed fused for 5 s)
+    and what each function is called with there: (x, P, {function: u or z}, dt); each
+    sensor's z is its next measurement."""
+    fl = simulate(seed=seed, duration=seconds + 1.0)
+    step = int(round(seconds / c.IMU_DT))
+    short = Flight(fl.t[:step + 1], fl.states[:step + 1], fl.imu[:step], fl.dt[:step],
+                   {name: rows[:step] for name, rows in fl.measured.items()})
+    ran = run(short)
+    args = {"predict": fl.imu[step]}
+    for name in SENSORS:
+        later = fl.rows(name)
+        args[f"update_{name}"] = fl.measured[name][later[later >= step][0]]
+    return ran.xs[-1], ran.Ps[-1], args, float(fl.dt[step])
+
+
+def expected(x: np.ndarray, P: np.ndarray, function: str, arg: np.ndarray, dt: float):
+    """(x, P) of the reference's ``function`` (predict or update_<sensor>)."""
+    if function == "predict":
+        return predict(x, P, arg, dt)
+    return update(x, P, arg, function.removeprefix("update_"))[:2]
