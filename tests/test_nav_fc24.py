@@ -97,7 +97,7 @@ def test_generated_python_equals_the_reference_with_every_sensor():
     x0[fc24.W_ROWS] = [2.0, -1.0]
     assert all(len(short.rows(name)) > 0 for name in fc24.SENSORS)
     module = load_python(GENERATED)
-    xs, Ps = module.run(short.imu, *(short.measured[name] for name in fc24.SENSORS), x0,
+    xs, Ps = module.run(*(short.measured[name] for name in fc24.SENSORS), short.imu, x0,
                         fc24.p0(), short.dt[:, None])
     xs = np.asarray(xs).reshape(short.steps, fc24.N_STATES)
     Ps = np.asarray(Ps).reshape(short.steps, fc24.N_STATES, fc24.N_STATES)

@@ -15,10 +15,10 @@ import pytest
 
 from derive.apps.bench import symforce_peer as sp
 from derive.apps.ins import symforce_ekf
-from derive.flops import OpCount
 from derive.generation import generate_units
 from derive.interface import read as read_interface
 from derive.model import NonlinearModel, Sensor
+from derive.trees import OpCount
 
 needs_gpp = pytest.mark.skipif(shutil.which("g++") is None, reason="g++ is not installed")
 

@@ -50,8 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...flops import OpCount
 from ...generation import generate_units
+from ...trees import OpCount
 from ..targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
 from .timing import human
 

@@ -30,7 +30,8 @@ import sympy
 
 from derive import catalog
 from derive.filters.sensors import program_name
-from derive.flops import OpCount, c_function_body, count_c_text
+from derive.flops import c_function_body, count_c_text
+from derive.trees import OpCount
 
 MODEL = "ins_gnss"
 
