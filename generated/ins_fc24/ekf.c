@@ -15,7 +15,7 @@
  *     int ins_fc24_ekf_update_baro(x[24], P[24*24], z[1], x_new[24] out, P_new[24*24] out, p[1])
  *     int ins_fc24_ekf_update_mag(x[24], P[24*24], z[3], x_new[24] out, P_new[24*24] out, p[1])
  *     int ins_fc24_ekf_update_airspeed(x[24], P[24*24], z[1], x_new[24] out, P_new[24*24] out, p[1])
- *     int ins_fc24_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], z_mag[steps*3], z_airspeed[steps*1], x0[24], P0[24*24], xs[steps*24] out, Ps[steps*24*24] out optional, p[1] rows p_stride)
+ *     int ins_fc24_ekf_run(steps, z_gnss[steps*6], z_baro[steps*1], z_mag[steps*3], z_airspeed[steps*1], u[steps*6], x0[24], P0[24*24], xs[steps*24] out, Ps[steps*24*24] out optional, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
  * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
@@ -50,7 +50,7 @@
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
  * vector rows (rows = vector): predict, update_gnss, update_mag computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
- * derive-interface: {"functions":[["ins_fc24_ekf_predict","predict",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["u",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_gnss","update_gnss",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_baro","update_baro",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_mag","update_mag",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[3],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_airspeed","update_airspeed",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["z_mag",["steps",3],false,false,false],["z_airspeed",["steps",1],false,false,false],["x0",[24],false,false,false],["P0",[24,24],false,false,false],["xs",["steps",24],true,false,false],["Ps",["steps",24,24],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["update_mag",9,"S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive",[]],["update_mag",10,"S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive",[]],["update_mag",11,"S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive",[]],["update_airspeed",12,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ins_fc24_ekf_predict","predict",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["u",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_gnss","update_gnss",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_baro","update_baro",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_mag","update_mag",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[3],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_airspeed","update_airspeed",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["z_mag",["steps",3],false,false,false],["z_airspeed",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[24],false,false,false],["P0",[24,24],false,false,false],["xs",["steps",24],true,false,false],["Ps",["steps",24,24],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["update_mag",9,"S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive",[]],["update_mag",10,"S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive",[]],["update_mag",11,"S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive",[]],["update_airspeed",12,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -81,18 +81,26 @@
 #endif
 #endif
 #if DERIVE_VECTOR
-typedef double derive_vd __attribute__((vector_size(32)));
-typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
 #if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_ROWS_FMA(a, b, c) ((a) * (b) + (c))
-#define DERIVE_ROWS_FNMA(a, b, c) ((c) - (a) * (b))
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
 #elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_ROWS_FMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
-#define DERIVE_ROWS_FNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_ROWS_FMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
-#define DERIVE_ROWS_FNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
 #endif
 
@@ -248,12 +256,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t145 = -t89;
     const double t146 = -t90;
     #if DERIVE_VECTOR
-    const derive_vd v_t147_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t147_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t147_0);
-    const derive_vd v_t147_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t147_1);
-    const derive_vd v_t147_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t147_2);
-    const derive_vd v_t147_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t147_3);
-    const derive_vd v_t147 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t147_4);
+    const derive_vd v_t147_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t147_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t147_0);
+    const derive_vd v_t147_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t147_1);
+    const derive_vd v_t147_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t147_2);
+    const derive_vd v_t147_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t147_3);
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t147_4);
     const double t147 = v_t147[0];
     const double t148 = v_t147[1];
     const double t149 = v_t147[2];
@@ -265,12 +273,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t150 = DERIVE_FMA(t37, P[291], DERIVE_FMA(t36, P[267], DERIVE_FMA(t35, P[243], DERIVE_FMA(t34, P[75], DERIVE_FMA(t33, P[51], DERIVE_FMA(t32, P[27], P[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t151_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[32], P[33], P[34], P[35]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t151_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t151_0);
-    const derive_vd v_t151_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t151_1);
-    const derive_vd v_t151_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t151_2);
-    const derive_vd v_t151_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t151_3);
-    const derive_vd v_t151 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t151_4);
+    const derive_vd v_t151_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[32], P[33], P[34], P[35]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t151_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t151_0);
+    const derive_vd v_t151_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t151_1);
+    const derive_vd v_t151_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t151_2);
+    const derive_vd v_t151_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t151_3);
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t151_4);
     const double t153 = v_t151[2];
     const double t154 = v_t151[3];
     #else
@@ -278,12 +286,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t154 = DERIVE_FMA(t37, P[299], DERIVE_FMA(t36, P[275], DERIVE_FMA(t35, P[251], DERIVE_FMA(t34, P[83], DERIVE_FMA(t33, P[59], DERIVE_FMA(t32, P[35], P[11]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t155_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[36], P[37], P[38], P[39]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t155_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t155_0);
-    const derive_vd v_t155_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t155_1);
-    const derive_vd v_t155_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t155_2);
-    const derive_vd v_t155_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t155_3);
-    const derive_vd v_t155 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t155_4);
+    const derive_vd v_t155_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[36], P[37], P[38], P[39]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t155_0);
+    const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t155_1);
+    const derive_vd v_t155_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t155_2);
+    const derive_vd v_t155_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t155_3);
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t155_4);
     const double t155 = v_t155[0];
     #else
     const double t155 = DERIVE_FMA(t37, P[300], DERIVE_FMA(t36, P[276], DERIVE_FMA(t35, P[252], DERIVE_FMA(t34, P[84], DERIVE_FMA(t33, P[60], DERIVE_FMA(t32, P[36], P[12]))))));
@@ -292,12 +300,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t158 = DERIVE_FMA(t37, P[303], DERIVE_FMA(t36, P[279], DERIVE_FMA(t35, P[255], DERIVE_FMA(t34, P[87], DERIVE_FMA(t33, P[63], DERIVE_FMA(t32, P[39], P[15]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t159_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[40], P[41], P[42], P[43]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t159_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t159_0);
-    const derive_vd v_t159_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t159_1);
-    const derive_vd v_t159_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t159_2);
-    const derive_vd v_t159_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t159_3);
-    const derive_vd v_t159 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t159_4);
+    const derive_vd v_t159_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[40], P[41], P[42], P[43]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t159_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t159_0);
+    const derive_vd v_t159_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t159_1);
+    const derive_vd v_t159_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t159_2);
+    const derive_vd v_t159_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t159_3);
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t159_4);
     #else
     const double t159 = DERIVE_FMA(t37, P[304], DERIVE_FMA(t36, P[280], DERIVE_FMA(t35, P[256], DERIVE_FMA(t34, P[88], DERIVE_FMA(t33, P[64], DERIVE_FMA(t32, P[40], P[16]))))));
     const double t160 = DERIVE_FMA(t37, P[305], DERIVE_FMA(t36, P[281], DERIVE_FMA(t35, P[257], DERIVE_FMA(t34, P[89], DERIVE_FMA(t33, P[65], DERIVE_FMA(t32, P[41], P[17]))))));
@@ -305,12 +313,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t162 = DERIVE_FMA(t37, P[307], DERIVE_FMA(t36, P[283], DERIVE_FMA(t35, P[259], DERIVE_FMA(t34, P[91], DERIVE_FMA(t33, P[67], DERIVE_FMA(t32, P[43], P[19]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t163_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[44], P[45], P[46], P[47]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t163_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t163_0);
-    const derive_vd v_t163_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t163_1);
-    const derive_vd v_t163_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t163_2);
-    const derive_vd v_t163_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t163_3);
-    const derive_vd v_t163 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t163_4);
+    const derive_vd v_t163_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[44], P[45], P[46], P[47]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t163_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t163_0);
+    const derive_vd v_t163_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t163_1);
+    const derive_vd v_t163_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t163_2);
+    const derive_vd v_t163_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t163_3);
+    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t163_4);
     #else
     const double t163 = DERIVE_FMA(t37, P[308], DERIVE_FMA(t36, P[284], DERIVE_FMA(t35, P[260], DERIVE_FMA(t34, P[92], DERIVE_FMA(t33, P[68], DERIVE_FMA(t32, P[44], P[20]))))));
     const double t164 = DERIVE_FMA(t37, P[309], DERIVE_FMA(t36, P[285], DERIVE_FMA(t35, P[261], DERIVE_FMA(t34, P[93], DERIVE_FMA(t33, P[69], DERIVE_FMA(t32, P[45], P[21]))))));
@@ -318,12 +326,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t166 = DERIVE_FMA(t37, P[311], DERIVE_FMA(t36, P[287], DERIVE_FMA(t35, P[263], DERIVE_FMA(t34, P[95], DERIVE_FMA(t33, P[71], DERIVE_FMA(t32, P[47], P[23]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t167_0 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t167_1 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t167_0);
-    const derive_vd v_t167_2 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t167_1);
-    const derive_vd v_t167_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t167_2);
-    const derive_vd v_t167_4 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t167_3);
-    const derive_vd v_t167 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t167_4);
+    const derive_vd v_t167_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t167_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t167_0);
+    const derive_vd v_t167_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t167_1);
+    const derive_vd v_t167_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t167_2);
+    const derive_vd v_t167_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t167_3);
+    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t167_4);
     const double t167 = v_t167[0];
     const double t168 = v_t167[1];
     const double t169 = v_t167[2];
@@ -335,12 +343,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t170 = DERIVE_FMA(t133, P[291], DERIVE_FMA(t37, P[267], DERIVE_FMA(t43, P[243], DERIVE_FMA(t33, P[75], DERIVE_FMA(t42, P[51], DERIVE_FMA(t41, P[3], P[27]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t171_0 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t171_1 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t171_0);
-    const derive_vd v_t171_2 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t171_1);
-    const derive_vd v_t171_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t171_2);
-    const derive_vd v_t171_4 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t171_3);
-    const derive_vd v_t171 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t171_4);
+    const derive_vd v_t171_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t171_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t171_0);
+    const derive_vd v_t171_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t171_1);
+    const derive_vd v_t171_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t171_2);
+    const derive_vd v_t171_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t171_3);
+    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t171_4);
     const double t173 = v_t171[2];
     const double t174 = v_t171[3];
     #else
@@ -348,12 +356,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t174 = DERIVE_FMA(t133, P[299], DERIVE_FMA(t37, P[275], DERIVE_FMA(t43, P[251], DERIVE_FMA(t33, P[83], DERIVE_FMA(t42, P[59], DERIVE_FMA(t41, P[11], P[35]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t175_0 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t175_1 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t175_0);
-    const derive_vd v_t175_2 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t175_1);
-    const derive_vd v_t175_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t175_2);
-    const derive_vd v_t175_4 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t175_3);
-    const derive_vd v_t175 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t175_4);
+    const derive_vd v_t175_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t175_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t175_0);
+    const derive_vd v_t175_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t175_1);
+    const derive_vd v_t175_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t175_2);
+    const derive_vd v_t175_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t175_3);
+    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t175_4);
     const double t175 = v_t175[0];
     #else
     const double t175 = DERIVE_FMA(t133, P[300], DERIVE_FMA(t37, P[276], DERIVE_FMA(t43, P[252], DERIVE_FMA(t33, P[84], DERIVE_FMA(t42, P[60], DERIVE_FMA(t41, P[12], P[36]))))));
@@ -362,12 +370,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t178 = DERIVE_FMA(t133, P[303], DERIVE_FMA(t37, P[279], DERIVE_FMA(t43, P[255], DERIVE_FMA(t33, P[87], DERIVE_FMA(t42, P[63], DERIVE_FMA(t41, P[15], P[39]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t179_0 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t179_1 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t179_0);
-    const derive_vd v_t179_2 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t179_1);
-    const derive_vd v_t179_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t179_2);
-    const derive_vd v_t179_4 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t179_3);
-    const derive_vd v_t179 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t179_4);
+    const derive_vd v_t179_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t179_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t179_0);
+    const derive_vd v_t179_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t179_1);
+    const derive_vd v_t179_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t179_2);
+    const derive_vd v_t179_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t179_3);
+    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t179_4);
     #else
     const double t179 = DERIVE_FMA(t133, P[304], DERIVE_FMA(t37, P[280], DERIVE_FMA(t43, P[256], DERIVE_FMA(t33, P[88], DERIVE_FMA(t42, P[64], DERIVE_FMA(t41, P[16], P[40]))))));
     const double t180 = DERIVE_FMA(t133, P[305], DERIVE_FMA(t37, P[281], DERIVE_FMA(t43, P[257], DERIVE_FMA(t33, P[89], DERIVE_FMA(t42, P[65], DERIVE_FMA(t41, P[17], P[41]))))));
@@ -375,12 +383,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t182 = DERIVE_FMA(t133, P[307], DERIVE_FMA(t37, P[283], DERIVE_FMA(t43, P[259], DERIVE_FMA(t33, P[91], DERIVE_FMA(t42, P[67], DERIVE_FMA(t41, P[19], P[43]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t183_0 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t183_1 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t183_0);
-    const derive_vd v_t183_2 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t183_1);
-    const derive_vd v_t183_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t183_2);
-    const derive_vd v_t183_4 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t183_3);
-    const derive_vd v_t183 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t183_4);
+    const derive_vd v_t183_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t183_1 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t183_0);
+    const derive_vd v_t183_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t183_1);
+    const derive_vd v_t183_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t183_2);
+    const derive_vd v_t183_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t183_3);
+    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t183_4);
     #else
     const double t183 = DERIVE_FMA(t133, P[308], DERIVE_FMA(t37, P[284], DERIVE_FMA(t43, P[260], DERIVE_FMA(t33, P[92], DERIVE_FMA(t42, P[68], DERIVE_FMA(t41, P[20], P[44]))))));
     const double t184 = DERIVE_FMA(t133, P[309], DERIVE_FMA(t37, P[285], DERIVE_FMA(t43, P[261], DERIVE_FMA(t33, P[93], DERIVE_FMA(t42, P[69], DERIVE_FMA(t41, P[21], P[45]))))));
@@ -388,12 +396,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t186 = DERIVE_FMA(t133, P[311], DERIVE_FMA(t37, P[287], DERIVE_FMA(t43, P[263], DERIVE_FMA(t33, P[95], DERIVE_FMA(t42, P[71], DERIVE_FMA(t41, P[23], P[47]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t187_0 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t187_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t187_0);
-    const derive_vd v_t187_2 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t187_1);
-    const derive_vd v_t187_3 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t187_2);
-    const derive_vd v_t187_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t187_3);
-    const derive_vd v_t187 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t187_4);
+    const derive_vd v_t187_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
+    const derive_vd v_t187_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t187_0);
+    const derive_vd v_t187_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t187_1);
+    const derive_vd v_t187_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t187_2);
+    const derive_vd v_t187_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t187_3);
+    const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t187_4);
     const double t187 = v_t187[0];
     const double t188 = v_t187[1];
     const double t189 = v_t187[2];
@@ -405,12 +413,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t190 = DERIVE_FMA(t35, P[291], DERIVE_FMA(t43, P[267], DERIVE_FMA(t134, P[243], DERIVE_FMA(t41, P[75], DERIVE_FMA(t34, P[27], DERIVE_FMA(t44, P[3], P[51]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t191_0 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t191_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t191_0);
-    const derive_vd v_t191_2 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t191_1);
-    const derive_vd v_t191_3 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t191_2);
-    const derive_vd v_t191_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t191_3);
-    const derive_vd v_t191 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t191_4);
+    const derive_vd v_t191_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t191_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t191_0);
+    const derive_vd v_t191_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t191_1);
+    const derive_vd v_t191_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t191_2);
+    const derive_vd v_t191_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t191_3);
+    const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t191_4);
     const double t193 = v_t191[2];
     const double t194 = v_t191[3];
     #else
@@ -418,12 +426,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t194 = DERIVE_FMA(t35, P[299], DERIVE_FMA(t43, P[275], DERIVE_FMA(t134, P[251], DERIVE_FMA(t41, P[83], DERIVE_FMA(t34, P[35], DERIVE_FMA(t44, P[11], P[59]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t195_0 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t195_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t195_0);
-    const derive_vd v_t195_2 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t195_1);
-    const derive_vd v_t195_3 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t195_2);
-    const derive_vd v_t195_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t195_3);
-    const derive_vd v_t195 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t195_4);
+    const derive_vd v_t195_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t195_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t195_0);
+    const derive_vd v_t195_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t195_1);
+    const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t195_2);
+    const derive_vd v_t195_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t195_3);
+    const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t195_4);
     const double t195 = v_t195[0];
     #else
     const double t195 = DERIVE_FMA(t35, P[300], DERIVE_FMA(t43, P[276], DERIVE_FMA(t134, P[252], DERIVE_FMA(t41, P[84], DERIVE_FMA(t34, P[36], DERIVE_FMA(t44, P[12], P[60]))))));
@@ -432,12 +440,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t198 = DERIVE_FMA(t35, P[303], DERIVE_FMA(t43, P[279], DERIVE_FMA(t134, P[255], DERIVE_FMA(t41, P[87], DERIVE_FMA(t34, P[39], DERIVE_FMA(t44, P[15], P[63]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t199_0 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t199_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t199_0);
-    const derive_vd v_t199_2 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t199_1);
-    const derive_vd v_t199_3 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t199_2);
-    const derive_vd v_t199_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t199_3);
-    const derive_vd v_t199 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t199_4);
+    const derive_vd v_t199_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t199_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t199_0);
+    const derive_vd v_t199_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t199_1);
+    const derive_vd v_t199_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t199_2);
+    const derive_vd v_t199_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t199_3);
+    const derive_vd v_t199 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t199_4);
     #else
     const double t199 = DERIVE_FMA(t35, P[304], DERIVE_FMA(t43, P[280], DERIVE_FMA(t134, P[256], DERIVE_FMA(t41, P[88], DERIVE_FMA(t34, P[40], DERIVE_FMA(t44, P[16], P[64]))))));
     const double t200 = DERIVE_FMA(t35, P[305], DERIVE_FMA(t43, P[281], DERIVE_FMA(t134, P[257], DERIVE_FMA(t41, P[89], DERIVE_FMA(t34, P[41], DERIVE_FMA(t44, P[17], P[65]))))));
@@ -445,12 +453,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t202 = DERIVE_FMA(t35, P[307], DERIVE_FMA(t43, P[283], DERIVE_FMA(t134, P[259], DERIVE_FMA(t41, P[91], DERIVE_FMA(t34, P[43], DERIVE_FMA(t44, P[19], P[67]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t203_0 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t203_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t203_0);
-    const derive_vd v_t203_2 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t203_1);
-    const derive_vd v_t203_3 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t203_2);
-    const derive_vd v_t203_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t203_3);
-    const derive_vd v_t203 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t203_4);
+    const derive_vd v_t203_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t203_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t203_0);
+    const derive_vd v_t203_2 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t203_1);
+    const derive_vd v_t203_3 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t203_2);
+    const derive_vd v_t203_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t203_3);
+    const derive_vd v_t203 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t203_4);
     #else
     const double t203 = DERIVE_FMA(t35, P[308], DERIVE_FMA(t43, P[284], DERIVE_FMA(t134, P[260], DERIVE_FMA(t41, P[92], DERIVE_FMA(t34, P[44], DERIVE_FMA(t44, P[20], P[68]))))));
     const double t204 = DERIVE_FMA(t35, P[309], DERIVE_FMA(t43, P[285], DERIVE_FMA(t134, P[261], DERIVE_FMA(t41, P[93], DERIVE_FMA(t34, P[45], DERIVE_FMA(t44, P[21], P[69]))))));
@@ -458,12 +466,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t206 = DERIVE_FMA(t35, P[311], DERIVE_FMA(t43, P[287], DERIVE_FMA(t134, P[263], DERIVE_FMA(t41, P[95], DERIVE_FMA(t34, P[47], DERIVE_FMA(t44, P[23], P[71]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t207_0 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t207_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t207_0);
-    const derive_vd v_t207_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t207_1);
-    const derive_vd v_t207_3 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t207_2);
-    const derive_vd v_t207_4 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t207_3);
-    const derive_vd v_t207 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t207_4);
+    const derive_vd v_t207_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t207_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t207_0);
+    const derive_vd v_t207_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t207_1);
+    const derive_vd v_t207_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t207_2);
+    const derive_vd v_t207_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[264], P[265], P[266], P[267]}), v_t207_3);
+    const derive_vd v_t207 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[288], P[289], P[290], P[291]}), v_t207_4);
     const double t207 = v_t207[0];
     const double t208 = v_t207[1];
     const double t209 = v_t207[2];
@@ -475,12 +483,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t210 = DERIVE_FMA(t43, P[291], DERIVE_FMA(t135, P[267], DERIVE_FMA(t36, P[243], DERIVE_FMA(t32, P[51], DERIVE_FMA(t44, P[27], DERIVE_FMA(t42, P[3], P[75]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t211_0 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t211_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t211_0);
-    const derive_vd v_t211_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t211_1);
-    const derive_vd v_t211_3 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t211_2);
-    const derive_vd v_t211_4 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t211_3);
-    const derive_vd v_t211 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t211_4);
+    const derive_vd v_t211_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t211_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t211_0);
+    const derive_vd v_t211_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t211_1);
+    const derive_vd v_t211_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t211_2);
+    const derive_vd v_t211_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[272], P[273], P[274], P[275]}), v_t211_3);
+    const derive_vd v_t211 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[296], P[297], P[298], P[299]}), v_t211_4);
     const double t213 = v_t211[2];
     const double t214 = v_t211[3];
     *(derive_vd_unaligned *)&P_new[240] = ((derive_vd){t153, t173, t193, t213});
@@ -490,12 +498,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t214 = DERIVE_FMA(t43, P[299], DERIVE_FMA(t135, P[275], DERIVE_FMA(t36, P[251], DERIVE_FMA(t32, P[59], DERIVE_FMA(t44, P[35], DERIVE_FMA(t42, P[11], P[83]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t215_0 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t215_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t215_0);
-    const derive_vd v_t215_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t215_1);
-    const derive_vd v_t215_3 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t215_2);
-    const derive_vd v_t215_4 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t215_3);
-    const derive_vd v_t215 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t215_4);
+    const derive_vd v_t215_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t215_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t215_0);
+    const derive_vd v_t215_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t215_1);
+    const derive_vd v_t215_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t215_2);
+    const derive_vd v_t215_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[276], P[277], P[278], P[279]}), v_t215_3);
+    const derive_vd v_t215 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[300], P[301], P[302], P[303]}), v_t215_4);
     const double t215 = v_t215[0];
     const derive_vd tr_v_t155_0 = __builtin_shufflevector(v_t155, v_t175, 0, 4, 2, 6);
     const derive_vd tr_v_t155_1 = __builtin_shufflevector(v_t155, v_t175, 1, 5, 3, 7);
@@ -520,12 +528,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t218 = DERIVE_FMA(t43, P[303], DERIVE_FMA(t135, P[279], DERIVE_FMA(t36, P[255], DERIVE_FMA(t32, P[63], DERIVE_FMA(t44, P[39], DERIVE_FMA(t42, P[15], P[87]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t219_0 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t219_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t219_0);
-    const derive_vd v_t219_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t219_1);
-    const derive_vd v_t219_3 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t219_2);
-    const derive_vd v_t219_4 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t219_3);
-    const derive_vd v_t219 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t219_4);
+    const derive_vd v_t219_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t219_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t219_0);
+    const derive_vd v_t219_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t219_1);
+    const derive_vd v_t219_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[256], P[257], P[258], P[259]}), v_t219_2);
+    const derive_vd v_t219_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[280], P[281], P[282], P[283]}), v_t219_3);
+    const derive_vd v_t219 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[304], P[305], P[306], P[307]}), v_t219_4);
     const derive_vd tr_v_t159_0 = __builtin_shufflevector(v_t159, v_t179, 0, 4, 2, 6);
     const derive_vd tr_v_t159_1 = __builtin_shufflevector(v_t159, v_t179, 1, 5, 3, 7);
     const derive_vd tr_v_t159_2 = __builtin_shufflevector(v_t199, v_t219, 0, 4, 2, 6);
@@ -549,12 +557,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t222 = DERIVE_FMA(t43, P[307], DERIVE_FMA(t135, P[283], DERIVE_FMA(t36, P[259], DERIVE_FMA(t32, P[67], DERIVE_FMA(t44, P[43], DERIVE_FMA(t42, P[19], P[91]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t223_0 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t223_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t223_0);
-    const derive_vd v_t223_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t223_1);
-    const derive_vd v_t223_3 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t223_2);
-    const derive_vd v_t223_4 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t223_3);
-    const derive_vd v_t223 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t223_4);
+    const derive_vd v_t223_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t223_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t223_0);
+    const derive_vd v_t223_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t223_1);
+    const derive_vd v_t223_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[260], P[261], P[262], P[263]}), v_t223_2);
+    const derive_vd v_t223_4 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){P[284], P[285], P[286], P[287]}), v_t223_3);
+    const derive_vd v_t223 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[308], P[309], P[310], P[311]}), v_t223_4);
     const derive_vd tr_v_t163_0 = __builtin_shufflevector(v_t163, v_t183, 0, 4, 2, 6);
     const derive_vd tr_v_t163_1 = __builtin_shufflevector(v_t163, v_t183, 1, 5, 3, 7);
     const derive_vd tr_v_t163_2 = __builtin_shufflevector(v_t203, v_t223, 0, 4, 2, 6);
@@ -578,13 +586,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t226 = DERIVE_FMA(t43, P[311], DERIVE_FMA(t135, P[287], DERIVE_FMA(t36, P[263], DERIVE_FMA(t32, P[71], DERIVE_FMA(t44, P[47], DERIVE_FMA(t42, P[23], P[95]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t227_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
-    const derive_vd v_t227_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t227_0);
-    const derive_vd v_t227_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t227_1);
-    const derive_vd v_t227_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t227_2);
-    const derive_vd v_t227_4 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t227_3);
-    const derive_vd v_t227_5 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t227_4);
-    const derive_vd v_t227 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t227_5);
+    const derive_vd v_t227_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t227_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t227_0);
+    const derive_vd v_t227_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t227_1);
+    const derive_vd v_t227_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t227_2);
+    const derive_vd v_t227_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t227_3);
+    const derive_vd v_t227_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t227_4);
+    const derive_vd v_t227 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t227_5);
     const double t227 = v_t227[0];
     const double t228 = v_t227[1];
     const double t229 = v_t227[2];
@@ -596,13 +604,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t230 = DERIVE_FMA(t138, P[363], DERIVE_FMA(t137, P[339], DERIVE_FMA(t136, P[315], DERIVE_FMA(t73, P[75], DERIVE_FMA(t72, P[51], DERIVE_FMA(t71, P[27], DERIVE_FMA(t70, P[3], P[99])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t231_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t231_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t231_0);
-    const derive_vd v_t231_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t231_1);
-    const derive_vd v_t231_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t231_2);
-    const derive_vd v_t231_4 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t231_3);
-    const derive_vd v_t231_5 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t231_4);
-    const derive_vd v_t231 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t231_5);
+    const derive_vd v_t231_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t231_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t231_0);
+    const derive_vd v_t231_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t231_1);
+    const derive_vd v_t231_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t231_2);
+    const derive_vd v_t231_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t231_3);
+    const derive_vd v_t231_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t231_4);
+    const derive_vd v_t231 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t231_5);
     const double t231 = v_t231[0];
     const double t232 = v_t231[1];
     const double t233 = v_t231[2];
@@ -611,13 +619,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t231 = DERIVE_FMA(t138, P[364], DERIVE_FMA(t137, P[340], DERIVE_FMA(t136, P[316], DERIVE_FMA(t73, P[76], DERIVE_FMA(t72, P[52], DERIVE_FMA(t71, P[28], DERIVE_FMA(t70, P[4], P[100])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t235_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t235_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t235_0);
-    const derive_vd v_t235_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t235_1);
-    const derive_vd v_t235_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t235_2);
-    const derive_vd v_t235_4 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t235_3);
-    const derive_vd v_t235_5 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t235_4);
-    const derive_vd v_t235 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t235_5);
+    const derive_vd v_t235_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t235_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t235_0);
+    const derive_vd v_t235_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t235_1);
+    const derive_vd v_t235_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t235_2);
+    const derive_vd v_t235_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t235_3);
+    const derive_vd v_t235_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t235_4);
+    const derive_vd v_t235 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t235_5);
     const double t237 = v_t235[2];
     const double t238 = v_t235[3];
     #else
@@ -625,13 +633,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t238 = DERIVE_FMA(t138, P[371], DERIVE_FMA(t137, P[347], DERIVE_FMA(t136, P[323], DERIVE_FMA(t73, P[83], DERIVE_FMA(t72, P[59], DERIVE_FMA(t71, P[35], DERIVE_FMA(t70, P[11], P[107])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t239_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t239_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t239_0);
-    const derive_vd v_t239_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t239_1);
-    const derive_vd v_t239_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t239_2);
-    const derive_vd v_t239_4 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t239_3);
-    const derive_vd v_t239_5 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t239_4);
-    const derive_vd v_t239 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t239_5);
+    const derive_vd v_t239_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t239_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t239_0);
+    const derive_vd v_t239_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t239_1);
+    const derive_vd v_t239_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t239_2);
+    const derive_vd v_t239_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t239_3);
+    const derive_vd v_t239_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t239_4);
+    const derive_vd v_t239 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t239_5);
     const double t239 = v_t239[0];
     const double t240 = v_t239[1];
     const double t241 = v_t239[2];
@@ -643,13 +651,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t242 = DERIVE_FMA(t138, P[375], DERIVE_FMA(t137, P[351], DERIVE_FMA(t136, P[327], DERIVE_FMA(t73, P[87], DERIVE_FMA(t72, P[63], DERIVE_FMA(t71, P[39], DERIVE_FMA(t70, P[15], P[111])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t243_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t243_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t243_0);
-    const derive_vd v_t243_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t243_1);
-    const derive_vd v_t243_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t243_2);
-    const derive_vd v_t243_4 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t243_3);
-    const derive_vd v_t243_5 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t243_4);
-    const derive_vd v_t243 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t243_5);
+    const derive_vd v_t243_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t243_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t243_0);
+    const derive_vd v_t243_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t243_1);
+    const derive_vd v_t243_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t243_2);
+    const derive_vd v_t243_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t243_3);
+    const derive_vd v_t243_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t243_4);
+    const derive_vd v_t243 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t243_5);
     #else
     const double t243 = DERIVE_FMA(t138, P[376], DERIVE_FMA(t137, P[352], DERIVE_FMA(t136, P[328], DERIVE_FMA(t73, P[88], DERIVE_FMA(t72, P[64], DERIVE_FMA(t71, P[40], DERIVE_FMA(t70, P[16], P[112])))))));
     const double t244 = DERIVE_FMA(t138, P[377], DERIVE_FMA(t137, P[353], DERIVE_FMA(t136, P[329], DERIVE_FMA(t73, P[89], DERIVE_FMA(t72, P[65], DERIVE_FMA(t71, P[41], DERIVE_FMA(t70, P[17], P[113])))))));
@@ -657,13 +665,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t246 = DERIVE_FMA(t138, P[379], DERIVE_FMA(t137, P[355], DERIVE_FMA(t136, P[331], DERIVE_FMA(t73, P[91], DERIVE_FMA(t72, P[67], DERIVE_FMA(t71, P[43], DERIVE_FMA(t70, P[19], P[115])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t247_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t247_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t247_0);
-    const derive_vd v_t247_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t247_1);
-    const derive_vd v_t247_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t247_2);
-    const derive_vd v_t247_4 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t247_3);
-    const derive_vd v_t247_5 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t247_4);
-    const derive_vd v_t247 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t247_5);
+    const derive_vd v_t247_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t247_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t247_0);
+    const derive_vd v_t247_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t247_1);
+    const derive_vd v_t247_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t247_2);
+    const derive_vd v_t247_4 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t247_3);
+    const derive_vd v_t247_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t247_4);
+    const derive_vd v_t247 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t247_5);
     #else
     const double t247 = DERIVE_FMA(t138, P[380], DERIVE_FMA(t137, P[356], DERIVE_FMA(t136, P[332], DERIVE_FMA(t73, P[92], DERIVE_FMA(t72, P[68], DERIVE_FMA(t71, P[44], DERIVE_FMA(t70, P[20], P[116])))))));
     const double t248 = DERIVE_FMA(t138, P[381], DERIVE_FMA(t137, P[357], DERIVE_FMA(t136, P[333], DERIVE_FMA(t73, P[93], DERIVE_FMA(t72, P[69], DERIVE_FMA(t71, P[45], DERIVE_FMA(t70, P[21], P[117])))))));
@@ -671,13 +679,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t250 = DERIVE_FMA(t138, P[383], DERIVE_FMA(t137, P[359], DERIVE_FMA(t136, P[335], DERIVE_FMA(t73, P[95], DERIVE_FMA(t72, P[71], DERIVE_FMA(t71, P[47], DERIVE_FMA(t70, P[23], P[119])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t251_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const derive_vd v_t251_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t251_0);
-    const derive_vd v_t251_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t251_1);
-    const derive_vd v_t251_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t251_2);
-    const derive_vd v_t251_4 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t251_3);
-    const derive_vd v_t251_5 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t251_4);
-    const derive_vd v_t251 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t251_5);
+    const derive_vd v_t251_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t251_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t251_0);
+    const derive_vd v_t251_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t251_1);
+    const derive_vd v_t251_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t251_2);
+    const derive_vd v_t251_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t251_3);
+    const derive_vd v_t251_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t251_4);
+    const derive_vd v_t251 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t251_5);
     const double t251 = v_t251[0];
     const double t252 = v_t251[1];
     const double t253 = v_t251[2];
@@ -689,13 +697,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t254 = DERIVE_FMA(t142, P[363], DERIVE_FMA(t141, P[339], DERIVE_FMA(t140, P[315], DERIVE_FMA(t80, P[75], DERIVE_FMA(t79, P[51], DERIVE_FMA(t139, P[27], DERIVE_FMA(t77, P[3], P[123])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t255_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t255_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t255_0);
-    const derive_vd v_t255_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t255_1);
-    const derive_vd v_t255_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t255_2);
-    const derive_vd v_t255_4 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t255_3);
-    const derive_vd v_t255_5 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t255_4);
-    const derive_vd v_t255 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t255_5);
+    const derive_vd v_t255_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t255_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t255_0);
+    const derive_vd v_t255_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t255_1);
+    const derive_vd v_t255_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t255_2);
+    const derive_vd v_t255_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t255_3);
+    const derive_vd v_t255_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t255_4);
+    const derive_vd v_t255 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t255_5);
     const double t255 = v_t255[0];
     const double t256 = v_t255[1];
     const double t257 = v_t255[2];
@@ -705,13 +713,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t256 = DERIVE_FMA(t142, P[365], DERIVE_FMA(t141, P[341], DERIVE_FMA(t140, P[317], DERIVE_FMA(t80, P[77], DERIVE_FMA(t79, P[53], DERIVE_FMA(t139, P[29], DERIVE_FMA(t77, P[5], P[125])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t259_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t259_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t259_0);
-    const derive_vd v_t259_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t259_1);
-    const derive_vd v_t259_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t259_2);
-    const derive_vd v_t259_4 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t259_3);
-    const derive_vd v_t259_5 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t259_4);
-    const derive_vd v_t259 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t259_5);
+    const derive_vd v_t259_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t259_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t259_0);
+    const derive_vd v_t259_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t259_1);
+    const derive_vd v_t259_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t259_2);
+    const derive_vd v_t259_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t259_3);
+    const derive_vd v_t259_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t259_4);
+    const derive_vd v_t259 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t259_5);
     const double t261 = v_t259[2];
     const double t262 = v_t259[3];
     #else
@@ -719,13 +727,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t262 = DERIVE_FMA(t142, P[371], DERIVE_FMA(t141, P[347], DERIVE_FMA(t140, P[323], DERIVE_FMA(t80, P[83], DERIVE_FMA(t79, P[59], DERIVE_FMA(t139, P[35], DERIVE_FMA(t77, P[11], P[131])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t263_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t263_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t263_0);
-    const derive_vd v_t263_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t263_1);
-    const derive_vd v_t263_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t263_2);
-    const derive_vd v_t263_4 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t263_3);
-    const derive_vd v_t263_5 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t263_4);
-    const derive_vd v_t263 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t263_5);
+    const derive_vd v_t263_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t263_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t263_0);
+    const derive_vd v_t263_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t263_1);
+    const derive_vd v_t263_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t263_2);
+    const derive_vd v_t263_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t263_3);
+    const derive_vd v_t263_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t263_4);
+    const derive_vd v_t263 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t263_5);
     const double t263 = v_t263[0];
     const double t264 = v_t263[1];
     const double t265 = v_t263[2];
@@ -737,13 +745,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t266 = DERIVE_FMA(t142, P[375], DERIVE_FMA(t141, P[351], DERIVE_FMA(t140, P[327], DERIVE_FMA(t80, P[87], DERIVE_FMA(t79, P[63], DERIVE_FMA(t139, P[39], DERIVE_FMA(t77, P[15], P[135])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t267_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t267_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t267_0);
-    const derive_vd v_t267_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t267_1);
-    const derive_vd v_t267_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t267_2);
-    const derive_vd v_t267_4 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t267_3);
-    const derive_vd v_t267_5 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t267_4);
-    const derive_vd v_t267 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t267_5);
+    const derive_vd v_t267_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t267_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t267_0);
+    const derive_vd v_t267_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t267_1);
+    const derive_vd v_t267_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t267_2);
+    const derive_vd v_t267_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t267_3);
+    const derive_vd v_t267_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t267_4);
+    const derive_vd v_t267 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t267_5);
     #else
     const double t267 = DERIVE_FMA(t142, P[376], DERIVE_FMA(t141, P[352], DERIVE_FMA(t140, P[328], DERIVE_FMA(t80, P[88], DERIVE_FMA(t79, P[64], DERIVE_FMA(t139, P[40], DERIVE_FMA(t77, P[16], P[136])))))));
     const double t268 = DERIVE_FMA(t142, P[377], DERIVE_FMA(t141, P[353], DERIVE_FMA(t140, P[329], DERIVE_FMA(t80, P[89], DERIVE_FMA(t79, P[65], DERIVE_FMA(t139, P[41], DERIVE_FMA(t77, P[17], P[137])))))));
@@ -751,13 +759,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t270 = DERIVE_FMA(t142, P[379], DERIVE_FMA(t141, P[355], DERIVE_FMA(t140, P[331], DERIVE_FMA(t80, P[91], DERIVE_FMA(t79, P[67], DERIVE_FMA(t139, P[43], DERIVE_FMA(t77, P[19], P[139])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t271_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t271_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t271_0);
-    const derive_vd v_t271_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t271_1);
-    const derive_vd v_t271_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t271_2);
-    const derive_vd v_t271_4 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t271_3);
-    const derive_vd v_t271_5 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t271_4);
-    const derive_vd v_t271 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t271_5);
+    const derive_vd v_t271_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t271_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t271_0);
+    const derive_vd v_t271_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t271_1);
+    const derive_vd v_t271_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t271_2);
+    const derive_vd v_t271_4 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t271_3);
+    const derive_vd v_t271_5 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t271_4);
+    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t271_5);
     #else
     const double t271 = DERIVE_FMA(t142, P[380], DERIVE_FMA(t141, P[356], DERIVE_FMA(t140, P[332], DERIVE_FMA(t80, P[92], DERIVE_FMA(t79, P[68], DERIVE_FMA(t139, P[44], DERIVE_FMA(t77, P[20], P[140])))))));
     const double t272 = DERIVE_FMA(t142, P[381], DERIVE_FMA(t141, P[357], DERIVE_FMA(t140, P[333], DERIVE_FMA(t80, P[93], DERIVE_FMA(t79, P[69], DERIVE_FMA(t139, P[45], DERIVE_FMA(t77, P[21], P[141])))))));
@@ -765,13 +773,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t274 = DERIVE_FMA(t142, P[383], DERIVE_FMA(t141, P[359], DERIVE_FMA(t140, P[335], DERIVE_FMA(t80, P[95], DERIVE_FMA(t79, P[71], DERIVE_FMA(t139, P[47], DERIVE_FMA(t77, P[23], P[143])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t275_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
-    const derive_vd v_t275_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t275_0);
-    const derive_vd v_t275_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t275_1);
-    const derive_vd v_t275_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t275_2);
-    const derive_vd v_t275_4 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t275_3);
-    const derive_vd v_t275_5 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t275_4);
-    const derive_vd v_t275 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t275_5);
+    const derive_vd v_t275_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const derive_vd v_t275_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t275_0);
+    const derive_vd v_t275_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t275_1);
+    const derive_vd v_t275_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t275_2);
+    const derive_vd v_t275_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[312], P[313], P[314], P[315]}), v_t275_3);
+    const derive_vd v_t275_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[336], P[337], P[338], P[339]}), v_t275_4);
+    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[360], P[361], P[362], P[363]}), v_t275_5);
     const double t275 = v_t275[0];
     const double t276 = v_t275[1];
     const double t277 = v_t275[2];
@@ -783,13 +791,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t278 = DERIVE_FMA(t146, P[363], DERIVE_FMA(t145, P[339], DERIVE_FMA(t144, P[315], DERIVE_FMA(t87, P[75], DERIVE_FMA(t143, P[51], DERIVE_FMA(t85, P[27], DERIVE_FMA(t84, P[3], P[147])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t279_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t279_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t279_0);
-    const derive_vd v_t279_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t279_1);
-    const derive_vd v_t279_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t279_2);
-    const derive_vd v_t279_4 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t279_3);
-    const derive_vd v_t279_5 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t279_4);
-    const derive_vd v_t279 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t279_5);
+    const derive_vd v_t279_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t279_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t279_0);
+    const derive_vd v_t279_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t279_1);
+    const derive_vd v_t279_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t279_2);
+    const derive_vd v_t279_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[316], P[317], P[318], P[319]}), v_t279_3);
+    const derive_vd v_t279_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t279_4);
+    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t279_5);
     const double t279 = v_t279[0];
     const double t280 = v_t279[1];
     const double t281 = v_t279[2];
@@ -800,13 +808,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t281 = DERIVE_FMA(t146, P[366], DERIVE_FMA(t145, P[342], DERIVE_FMA(t144, P[318], DERIVE_FMA(t87, P[78], DERIVE_FMA(t143, P[54], DERIVE_FMA(t85, P[30], DERIVE_FMA(t84, P[6], P[150])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t283_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t283_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t283_0);
-    const derive_vd v_t283_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t283_1);
-    const derive_vd v_t283_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t283_2);
-    const derive_vd v_t283_4 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t283_3);
-    const derive_vd v_t283_5 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t283_4);
-    const derive_vd v_t283 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t283_5);
+    const derive_vd v_t283_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t283_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t283_0);
+    const derive_vd v_t283_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t283_1);
+    const derive_vd v_t283_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t283_2);
+    const derive_vd v_t283_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[320], P[321], P[322], P[323]}), v_t283_3);
+    const derive_vd v_t283_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[344], P[345], P[346], P[347]}), v_t283_4);
+    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[368], P[369], P[370], P[371]}), v_t283_5);
     const double t285 = v_t283[2];
     const double t286 = v_t283[3];
     #else
@@ -814,13 +822,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t286 = DERIVE_FMA(t146, P[371], DERIVE_FMA(t145, P[347], DERIVE_FMA(t144, P[323], DERIVE_FMA(t87, P[83], DERIVE_FMA(t143, P[59], DERIVE_FMA(t85, P[35], DERIVE_FMA(t84, P[11], P[155])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t287_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t287_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t287_0);
-    const derive_vd v_t287_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t287_1);
-    const derive_vd v_t287_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t287_2);
-    const derive_vd v_t287_4 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t287_3);
-    const derive_vd v_t287_5 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t287_4);
-    const derive_vd v_t287 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t287_5);
+    const derive_vd v_t287_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t287_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t287_0);
+    const derive_vd v_t287_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t287_1);
+    const derive_vd v_t287_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t287_2);
+    const derive_vd v_t287_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[324], P[325], P[326], P[327]}), v_t287_3);
+    const derive_vd v_t287_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[348], P[349], P[350], P[351]}), v_t287_4);
+    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[372], P[373], P[374], P[375]}), v_t287_5);
     const double t287 = v_t287[0];
     const double t288 = v_t287[1];
     const double t289 = v_t287[2];
@@ -832,13 +840,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t290 = DERIVE_FMA(t146, P[375], DERIVE_FMA(t145, P[351], DERIVE_FMA(t144, P[327], DERIVE_FMA(t87, P[87], DERIVE_FMA(t143, P[63], DERIVE_FMA(t85, P[39], DERIVE_FMA(t84, P[15], P[159])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t291_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t291_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t291_0);
-    const derive_vd v_t291_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t291_1);
-    const derive_vd v_t291_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t291_2);
-    const derive_vd v_t291_4 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t291_3);
-    const derive_vd v_t291_5 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t291_4);
-    const derive_vd v_t291 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t291_5);
+    const derive_vd v_t291_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t291_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t291_0);
+    const derive_vd v_t291_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t291_1);
+    const derive_vd v_t291_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t291_2);
+    const derive_vd v_t291_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[328], P[329], P[330], P[331]}), v_t291_3);
+    const derive_vd v_t291_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[352], P[353], P[354], P[355]}), v_t291_4);
+    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[376], P[377], P[378], P[379]}), v_t291_5);
     #else
     const double t291 = DERIVE_FMA(t146, P[376], DERIVE_FMA(t145, P[352], DERIVE_FMA(t144, P[328], DERIVE_FMA(t87, P[88], DERIVE_FMA(t143, P[64], DERIVE_FMA(t85, P[40], DERIVE_FMA(t84, P[16], P[160])))))));
     const double t292 = DERIVE_FMA(t146, P[377], DERIVE_FMA(t145, P[353], DERIVE_FMA(t144, P[329], DERIVE_FMA(t87, P[89], DERIVE_FMA(t143, P[65], DERIVE_FMA(t85, P[41], DERIVE_FMA(t84, P[17], P[161])))))));
@@ -846,13 +854,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t294 = DERIVE_FMA(t146, P[379], DERIVE_FMA(t145, P[355], DERIVE_FMA(t144, P[331], DERIVE_FMA(t87, P[91], DERIVE_FMA(t143, P[67], DERIVE_FMA(t85, P[43], DERIVE_FMA(t84, P[19], P[163])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t295_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t295_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t295_0);
-    const derive_vd v_t295_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t295_1);
-    const derive_vd v_t295_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t295_2);
-    const derive_vd v_t295_4 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t295_3);
-    const derive_vd v_t295_5 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t295_4);
-    const derive_vd v_t295 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t295_5);
+    const derive_vd v_t295_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t295_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t295_0);
+    const derive_vd v_t295_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t295_1);
+    const derive_vd v_t295_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t295_2);
+    const derive_vd v_t295_4 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){P[332], P[333], P[334], P[335]}), v_t295_3);
+    const derive_vd v_t295_5 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){P[356], P[357], P[358], P[359]}), v_t295_4);
+    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){P[380], P[381], P[382], P[383]}), v_t295_5);
     #else
     const double t295 = DERIVE_FMA(t146, P[380], DERIVE_FMA(t145, P[356], DERIVE_FMA(t144, P[332], DERIVE_FMA(t87, P[92], DERIVE_FMA(t143, P[68], DERIVE_FMA(t85, P[44], DERIVE_FMA(t84, P[20], P[164])))))));
     const double t296 = DERIVE_FMA(t146, P[381], DERIVE_FMA(t145, P[357], DERIVE_FMA(t144, P[333], DERIVE_FMA(t87, P[93], DERIVE_FMA(t143, P[69], DERIVE_FMA(t85, P[45], DERIVE_FMA(t84, P[21], P[165])))))));
@@ -860,7 +868,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t298 = DERIVE_FMA(t146, P[383], DERIVE_FMA(t145, P[359], DERIVE_FMA(t144, P[335], DERIVE_FMA(t87, P[95], DERIVE_FMA(t143, P[71], DERIVE_FMA(t85, P[47], DERIVE_FMA(t84, P[23], P[167])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t299 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
     const double t299 = v_t299[0];
     const double t300 = v_t299[1];
     const double t301 = v_t299[2];
@@ -872,7 +880,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t302 = DERIVE_FMA(p[0], P[99], P[171]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t303 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
     const double t303 = v_t303[0];
     const double t304 = v_t303[1];
     const double t305 = v_t303[2];
@@ -884,7 +892,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t306 = DERIVE_FMA(p[0], P[103], P[175]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t307 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
     const double t309 = v_t307[2];
     const double t310 = v_t307[3];
     *(derive_vd_unaligned *)&P_new[244] = ((derive_vd){t237, t261, t285, t309});
@@ -894,7 +902,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t310 = DERIVE_FMA(p[0], P[107], P[179]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t311 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
     const double t311 = v_t311[0];
     const double t312 = v_t311[1];
     const double t313 = v_t311[2];
@@ -922,7 +930,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t314 = DERIVE_FMA(p[0], P[111], P[183]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t315 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
     const derive_vd tr_v_t243_0 = __builtin_shufflevector(v_t243, v_t267, 0, 4, 2, 6);
     const derive_vd tr_v_t243_1 = __builtin_shufflevector(v_t243, v_t267, 1, 5, 3, 7);
     const derive_vd tr_v_t243_2 = __builtin_shufflevector(v_t291, v_t315, 0, 4, 2, 6);
@@ -946,7 +954,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t318 = DERIVE_FMA(p[0], P[115], P[187]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t319 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
     const derive_vd tr_v_t247_0 = __builtin_shufflevector(v_t247, v_t271, 0, 4, 2, 6);
     const derive_vd tr_v_t247_1 = __builtin_shufflevector(v_t247, v_t271, 1, 5, 3, 7);
     const derive_vd tr_v_t247_2 = __builtin_shufflevector(v_t295, v_t319, 0, 4, 2, 6);
@@ -970,7 +978,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t322 = DERIVE_FMA(p[0], P[119], P[191]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t323 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
+    const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
     const double t323 = v_t323[0];
     const double t324 = v_t323[1];
     const double t325 = v_t323[2];
@@ -982,7 +990,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t326 = DERIVE_FMA(p[0], P[123], P[195]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t327 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
+    const derive_vd v_t327 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
     const double t327 = v_t327[0];
     const double t328 = v_t327[1];
     const double t329 = v_t327[2];
@@ -994,7 +1002,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t330 = DERIVE_FMA(p[0], P[127], P[199]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t331 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[128], P[129], P[130], P[131]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[128], P[129], P[130], P[131]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
     const double t331 = v_t331[0];
     const double t332 = v_t331[1];
     const double t333 = v_t331[2];
@@ -1005,7 +1013,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t334 = DERIVE_FMA(p[0], P[131], P[203]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t335 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[132], P[133], P[134], P[135]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[132], P[133], P[134], P[135]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
     const double t335 = v_t335[0];
     const double t336 = v_t335[1];
     const double t337 = v_t335[2];
@@ -1018,7 +1026,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t338 = DERIVE_FMA(p[0], P[135], P[207]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t339 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[136], P[137], P[138], P[139]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[136], P[137], P[138], P[139]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
     const double t339 = v_t339[0];
     const double t340 = v_t339[1];
     const double t341 = v_t339[2];
@@ -1031,7 +1039,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t342 = DERIVE_FMA(p[0], P[139], P[211]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t343 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[140], P[141], P[142], P[143]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[140], P[141], P[142], P[143]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
     const double t343 = v_t343[0];
     const double t344 = v_t343[1];
     const double t345 = v_t343[2];
@@ -1044,7 +1052,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t346 = DERIVE_FMA(p[0], P[143], P[215]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t347 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
+    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
     const double t347 = v_t347[0];
     const double t348 = v_t347[1];
     const double t349 = v_t347[2];
@@ -1056,7 +1064,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t350 = DERIVE_FMA(p[0], P[147], P[219]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t351 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
+    const derive_vd v_t351 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
     const double t351 = v_t351[0];
     const double t352 = v_t351[1];
     const double t353 = v_t351[2];
@@ -1068,7 +1076,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t354 = DERIVE_FMA(p[0], P[151], P[223]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t355 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
     const double t355 = v_t355[0];
     const double t356 = v_t355[1];
     const double t357 = v_t355[2];
@@ -1080,7 +1088,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t358 = DERIVE_FMA(p[0], P[155], P[227]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t359 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
     const double t359 = v_t359[0];
     const double t360 = v_t359[1];
     const double t361 = v_t359[2];
@@ -1093,7 +1101,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t362 = DERIVE_FMA(p[0], P[159], P[231]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t363 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[160], P[161], P[162], P[163]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[160], P[161], P[162], P[163]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
     const double t363 = v_t363[0];
     const double t364 = v_t363[1];
     const double t365 = v_t363[2];
@@ -1106,7 +1114,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t366 = DERIVE_FMA(p[0], P[163], P[235]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t367 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[164], P[165], P[166], P[167]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[164], P[165], P[166], P[167]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
     const double t367 = v_t367[0];
     const double t368 = v_t367[1];
     const double t369 = v_t367[2];
@@ -1120,12 +1128,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = (((derive_vd){t111, t113, t114, t116}) + ((derive_vd){t147, t167, t187, t207}));
-    const derive_vd v_t371_1 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t148, t168, t188, t208}), v_t371_0);
-    const derive_vd v_t371_2 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t149, t169, t189, t209}), v_t371_1);
-    const derive_vd v_t371_3 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t150, t170, t190, t210}), v_t371_2);
-    const derive_vd v_t371_4 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t153, t173, t193, t213}), v_t371_3);
-    const derive_vd v_t371_5 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t154, t174, t194, t214}), v_t371_4);
-    const derive_vd v_t371 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t155, t175, t195, t215}), v_t371_5);
+    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t148, t168, t188, t208}), v_t371_0);
+    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t149, t169, t189, t209}), v_t371_1);
+    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t150, t170, t190, t210}), v_t371_2);
+    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t153, t173, t193, t213}), v_t371_3);
+    const derive_vd v_t371_5 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t154, t174, t194, t214}), v_t371_4);
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t155, t175, t195, t215}), v_t371_5);
     #else
     const double t371 = DERIVE_FMA(t37, t155, DERIVE_FMA(t36, t154, DERIVE_FMA(t35, t153, DERIVE_FMA(t34, t150, DERIVE_FMA(t33, t149, DERIVE_FMA(t32, t148, t111 + t147))))));
     const double t372 = DERIVE_FMA(t37, t175, DERIVE_FMA(t36, t174, DERIVE_FMA(t35, t173, DERIVE_FMA(t34, t170, DERIVE_FMA(t33, t169, DERIVE_FMA(t32, t168, t113 + t167))))));
@@ -1133,12 +1141,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t374 = DERIVE_FMA(t37, t215, DERIVE_FMA(t36, t214, DERIVE_FMA(t35, t213, DERIVE_FMA(t34, t210, DERIVE_FMA(t33, t209, DERIVE_FMA(t32, t208, t116 + t207))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t375_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t228, t252, t276, t300}), ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t375_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t229, t253, t277, t301}), v_t375_0);
-    const derive_vd v_t375_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t230, t254, t278, t302}), v_t375_1);
-    const derive_vd v_t375_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t237, t261, t285, t309}), v_t375_2);
-    const derive_vd v_t375_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t238, t262, t286, t310}), v_t375_3);
-    const derive_vd v_t375 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t239, t263, t287, t311}), v_t375_4);
+    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t228, t252, t276, t300}), ((derive_vd){t227, t251, t275, t299}));
+    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t229, t253, t277, t301}), v_t375_0);
+    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t230, t254, t278, t302}), v_t375_1);
+    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t237, t261, t285, t309}), v_t375_2);
+    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t238, t262, t286, t310}), v_t375_3);
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t239, t263, t287, t311}), v_t375_4);
     #else
     const double t375 = DERIVE_FMA(t37, t239, DERIVE_FMA(t36, t238, DERIVE_FMA(t35, t237, DERIVE_FMA(t34, t230, DERIVE_FMA(t33, t229, DERIVE_FMA(t32, t228, t227))))));
     const double t376 = DERIVE_FMA(t37, t263, DERIVE_FMA(t36, t262, DERIVE_FMA(t35, t261, DERIVE_FMA(t34, t254, DERIVE_FMA(t33, t253, DERIVE_FMA(t32, t252, t251))))));
@@ -1146,12 +1154,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t378 = DERIVE_FMA(t37, t311, DERIVE_FMA(t36, t310, DERIVE_FMA(t35, t309, DERIVE_FMA(t34, t302, DERIVE_FMA(t33, t301, DERIVE_FMA(t32, t300, t299))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t379_0 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t324, t348, P[34], P[35]}), ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t379_1 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t325, t349, P[58], P[59]}), v_t379_0);
-    const derive_vd v_t379_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t326, t350, P[82], P[83]}), v_t379_1);
-    const derive_vd v_t379_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t333, t357, P[250], P[251]}), v_t379_2);
-    const derive_vd v_t379_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t334, t358, P[274], P[275]}), v_t379_3);
-    const derive_vd v_t379 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t335, t359, P[298], P[299]}), v_t379_4);
+    const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t324, t348, P[34], P[35]}), ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t379_1 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t325, t349, P[58], P[59]}), v_t379_0);
+    const derive_vd v_t379_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t326, t350, P[82], P[83]}), v_t379_1);
+    const derive_vd v_t379_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t333, t357, P[250], P[251]}), v_t379_2);
+    const derive_vd v_t379_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t334, t358, P[274], P[275]}), v_t379_3);
+    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t335, t359, P[298], P[299]}), v_t379_4);
     const double t379 = v_t379[0];
     const double t380 = v_t379[1];
     *(derive_vd_unaligned *)&P_new[8] = ((derive_vd){t379, t380, t153, t154});
@@ -1160,13 +1168,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t380 = DERIVE_FMA(t37, t359, DERIVE_FMA(t36, t358, DERIVE_FMA(t35, t357, DERIVE_FMA(t34, t350, DERIVE_FMA(t33, t349, DERIVE_FMA(t32, t348, t347))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t383_0 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t113, t118, t119, t120}));
+    const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t113, t118, t119, t120}));
     const derive_vd v_t383_1 = (v_t383_0 + ((derive_vd){t148, t168, t188, t208}));
-    const derive_vd v_t383_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t149, t169, t189, t209}), v_t383_1);
-    const derive_vd v_t383_3 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t150, t170, t190, t210}), v_t383_2);
-    const derive_vd v_t383_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t153, t173, t193, t213}), v_t383_3);
-    const derive_vd v_t383_5 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t154, t174, t194, t214}), v_t383_4);
-    const derive_vd v_t383 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t155, t175, t195, t215}), v_t383_5);
+    const derive_vd v_t383_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t149, t169, t189, t209}), v_t383_1);
+    const derive_vd v_t383_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t150, t170, t190, t210}), v_t383_2);
+    const derive_vd v_t383_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t153, t173, t193, t213}), v_t383_3);
+    const derive_vd v_t383_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t154, t174, t194, t214}), v_t383_4);
+    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t155, t175, t195, t215}), v_t383_5);
     #else
     const double t384 = DERIVE_FMA(t133, t175, DERIVE_FMA(t37, t174, DERIVE_FMA(t43, t173, DERIVE_FMA(t33, t170, DERIVE_FMA(t42, t169, DERIVE_FMA(t41, t167, t118) + t168)))));
     const double t385 = DERIVE_FMA(t133, t195, DERIVE_FMA(t37, t194, DERIVE_FMA(t43, t193, DERIVE_FMA(t33, t190, DERIVE_FMA(t42, t189, DERIVE_FMA(t41, t187, t119) + t188)))));
@@ -1175,11 +1183,11 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #if DERIVE_VECTOR
     const derive_vd v_t387_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t227, t251, t275, t299}));
     const derive_vd v_t387_1 = (v_t387_0 + ((derive_vd){t228, t252, t276, t300}));
-    const derive_vd v_t387_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t229, t253, t277, t301}), v_t387_1);
-    const derive_vd v_t387_3 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t230, t254, t278, t302}), v_t387_2);
-    const derive_vd v_t387_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t237, t261, t285, t309}), v_t387_3);
-    const derive_vd v_t387_5 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t238, t262, t286, t310}), v_t387_4);
-    const derive_vd v_t387 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t239, t263, t287, t311}), v_t387_5);
+    const derive_vd v_t387_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t229, t253, t277, t301}), v_t387_1);
+    const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t230, t254, t278, t302}), v_t387_2);
+    const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t237, t261, t285, t309}), v_t387_3);
+    const derive_vd v_t387_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t238, t262, t286, t310}), v_t387_4);
+    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t239, t263, t287, t311}), v_t387_5);
     #else
     const double t387 = DERIVE_FMA(t133, t239, DERIVE_FMA(t37, t238, DERIVE_FMA(t43, t237, DERIVE_FMA(t33, t230, DERIVE_FMA(t42, t229, t41*t227 + t228)))));
     const double t388 = DERIVE_FMA(t133, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t43, t261, DERIVE_FMA(t33, t254, DERIVE_FMA(t42, t253, t41*t251 + t252)))));
@@ -1189,11 +1197,11 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #if DERIVE_VECTOR
     const derive_vd v_t391_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t323, t347, P[10], P[11]}));
     const derive_vd v_t391_1 = (v_t391_0 + ((derive_vd){t324, t348, P[34], P[35]}));
-    const derive_vd v_t391_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t325, t349, P[58], P[59]}), v_t391_1);
-    const derive_vd v_t391_3 = DERIVE_ROWS_FMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t326, t350, P[82], P[83]}), v_t391_2);
-    const derive_vd v_t391_4 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t333, t357, P[250], P[251]}), v_t391_3);
-    const derive_vd v_t391_5 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t334, t358, P[274], P[275]}), v_t391_4);
-    const derive_vd v_t391 = DERIVE_ROWS_FMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t335, t359, P[298], P[299]}), v_t391_5);
+    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t325, t349, P[58], P[59]}), v_t391_1);
+    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t326, t350, P[82], P[83]}), v_t391_2);
+    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t333, t357, P[250], P[251]}), v_t391_3);
+    const derive_vd v_t391_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t334, t358, P[274], P[275]}), v_t391_4);
+    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t335, t359, P[298], P[299]}), v_t391_5);
     const double t391 = v_t391[0];
     const double t392 = v_t391[1];
     *(derive_vd_unaligned *)&P_new[32] = ((derive_vd){t391, t392, t173, t174});
@@ -1202,25 +1210,25 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t392 = DERIVE_FMA(t133, t359, DERIVE_FMA(t37, t358, DERIVE_FMA(t43, t357, DERIVE_FMA(t33, t350, DERIVE_FMA(t42, t349, t41*t347 + t348)))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t395_0 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t114, t119, t121, t122}));
-    const derive_vd v_t395_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t148, t168, t188, t208}), v_t395_0);
+    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t114, t119, t121, t122}));
+    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t148, t168, t188, t208}), v_t395_0);
     const derive_vd v_t395_2 = (v_t395_1 + ((derive_vd){t149, t169, t189, t209}));
-    const derive_vd v_t395_3 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t150, t170, t190, t210}), v_t395_2);
-    const derive_vd v_t395_4 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t153, t173, t193, t213}), v_t395_3);
-    const derive_vd v_t395_5 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t154, t174, t194, t214}), v_t395_4);
-    const derive_vd v_t395 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t155, t175, t195, t215}), v_t395_5);
+    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t150, t170, t190, t210}), v_t395_2);
+    const derive_vd v_t395_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t153, t173, t193, t213}), v_t395_3);
+    const derive_vd v_t395_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t154, t174, t194, t214}), v_t395_4);
+    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t155, t175, t195, t215}), v_t395_5);
     #else
     const double t397 = DERIVE_FMA(t35, t195, DERIVE_FMA(t43, t194, DERIVE_FMA(t134, t193, DERIVE_FMA(t41, t190, DERIVE_FMA(t34, t188, DERIVE_FMA(t44, t187, t121)) + t189))));
     const double t398 = DERIVE_FMA(t35, t215, DERIVE_FMA(t43, t214, DERIVE_FMA(t134, t213, DERIVE_FMA(t41, t210, DERIVE_FMA(t34, t208, DERIVE_FMA(t44, t207, t122)) + t209))));
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t399_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t399_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t228, t252, t276, t300}), v_t399_0);
+    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t228, t252, t276, t300}), v_t399_0);
     const derive_vd v_t399_2 = (v_t399_1 + ((derive_vd){t229, t253, t277, t301}));
-    const derive_vd v_t399_3 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t230, t254, t278, t302}), v_t399_2);
-    const derive_vd v_t399_4 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t237, t261, t285, t309}), v_t399_3);
-    const derive_vd v_t399_5 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t238, t262, t286, t310}), v_t399_4);
-    const derive_vd v_t399 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t239, t263, t287, t311}), v_t399_5);
+    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t230, t254, t278, t302}), v_t399_2);
+    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t237, t261, t285, t309}), v_t399_3);
+    const derive_vd v_t399_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t238, t262, t286, t310}), v_t399_4);
+    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t239, t263, t287, t311}), v_t399_5);
     #else
     const double t399 = DERIVE_FMA(t35, t239, DERIVE_FMA(t43, t238, DERIVE_FMA(t134, t237, DERIVE_FMA(t41, t230, DERIVE_FMA(t34, t228, t44*t227) + t229))));
     const double t400 = DERIVE_FMA(t35, t263, DERIVE_FMA(t43, t262, DERIVE_FMA(t134, t261, DERIVE_FMA(t41, t254, DERIVE_FMA(t34, t252, t44*t251) + t253))));
@@ -1229,12 +1237,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t403_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t403_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t324, t348, P[34], P[35]}), v_t403_0);
+    const derive_vd v_t403_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t324, t348, P[34], P[35]}), v_t403_0);
     const derive_vd v_t403_2 = (v_t403_1 + ((derive_vd){t325, t349, P[58], P[59]}));
-    const derive_vd v_t403_3 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t326, t350, P[82], P[83]}), v_t403_2);
-    const derive_vd v_t403_4 = DERIVE_ROWS_FMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t333, t357, P[250], P[251]}), v_t403_3);
-    const derive_vd v_t403_5 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t334, t358, P[274], P[275]}), v_t403_4);
-    const derive_vd v_t403 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t335, t359, P[298], P[299]}), v_t403_5);
+    const derive_vd v_t403_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t326, t350, P[82], P[83]}), v_t403_2);
+    const derive_vd v_t403_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t333, t357, P[250], P[251]}), v_t403_3);
+    const derive_vd v_t403_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t334, t358, P[274], P[275]}), v_t403_4);
+    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t335, t359, P[298], P[299]}), v_t403_5);
     const double t403 = v_t403[0];
     const double t404 = v_t403[1];
     *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t403, t404, t193, t194});
@@ -1243,13 +1251,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t404 = DERIVE_FMA(t35, t359, DERIVE_FMA(t43, t358, DERIVE_FMA(t134, t357, DERIVE_FMA(t41, t350, DERIVE_FMA(t34, t348, t44*t347) + t349))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t407_0 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t116, t120, t122, t123}));
-    const derive_vd v_t407_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t168, t188, t208}), v_t407_0);
-    const derive_vd v_t407_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t149, t169, t189, t209}), v_t407_1);
+    const derive_vd v_t407_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t116, t120, t122, t123}));
+    const derive_vd v_t407_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t168, t188, t208}), v_t407_0);
+    const derive_vd v_t407_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t149, t169, t189, t209}), v_t407_1);
     const derive_vd v_t407_3 = (v_t407_2 + ((derive_vd){t150, t170, t190, t210}));
-    const derive_vd v_t407_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t153, t173, t193, t213}), v_t407_3);
-    const derive_vd v_t407_5 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t154, t174, t194, t214}), v_t407_4);
-    const derive_vd v_t407 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t155, t175, t195, t215}), v_t407_5);
+    const derive_vd v_t407_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t153, t173, t193, t213}), v_t407_3);
+    const derive_vd v_t407_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t154, t174, t194, t214}), v_t407_4);
+    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t155, t175, t195, t215}), v_t407_5);
     const derive_vd tr_v_t371_0 = __builtin_shufflevector(v_t371, v_t383, 0, 4, 2, 6);
     const derive_vd tr_v_t371_1 = __builtin_shufflevector(v_t371, v_t383, 1, 5, 3, 7);
     const derive_vd tr_v_t371_2 = __builtin_shufflevector(v_t395, v_t407, 0, 4, 2, 6);
@@ -1266,12 +1274,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t411_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t411_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t228, t252, t276, t300}), v_t411_0);
-    const derive_vd v_t411_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t229, t253, t277, t301}), v_t411_1);
+    const derive_vd v_t411_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t228, t252, t276, t300}), v_t411_0);
+    const derive_vd v_t411_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t229, t253, t277, t301}), v_t411_1);
     const derive_vd v_t411_3 = (v_t411_2 + ((derive_vd){t230, t254, t278, t302}));
-    const derive_vd v_t411_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t237, t261, t285, t309}), v_t411_3);
-    const derive_vd v_t411_5 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t238, t262, t286, t310}), v_t411_4);
-    const derive_vd v_t411 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t239, t263, t287, t311}), v_t411_5);
+    const derive_vd v_t411_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t237, t261, t285, t309}), v_t411_3);
+    const derive_vd v_t411_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t238, t262, t286, t310}), v_t411_4);
+    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t239, t263, t287, t311}), v_t411_5);
     const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t387, 0, 4, 2, 6);
     const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t387, 1, 5, 3, 7);
     const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t399, v_t411, 0, 4, 2, 6);
@@ -1296,12 +1304,12 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t415_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t415_1 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t324, t348, P[34], P[35]}), v_t415_0);
-    const derive_vd v_t415_2 = DERIVE_ROWS_FMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t325, t349, P[58], P[59]}), v_t415_1);
+    const derive_vd v_t415_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t324, t348, P[34], P[35]}), v_t415_0);
+    const derive_vd v_t415_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t325, t349, P[58], P[59]}), v_t415_1);
     const derive_vd v_t415_3 = (v_t415_2 + ((derive_vd){t326, t350, P[82], P[83]}));
-    const derive_vd v_t415_4 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t333, t357, P[250], P[251]}), v_t415_3);
-    const derive_vd v_t415_5 = DERIVE_ROWS_FMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t334, t358, P[274], P[275]}), v_t415_4);
-    const derive_vd v_t415 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t335, t359, P[298], P[299]}), v_t415_5);
+    const derive_vd v_t415_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t333, t357, P[250], P[251]}), v_t415_3);
+    const derive_vd v_t415_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t334, t358, P[274], P[275]}), v_t415_4);
+    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t335, t359, P[298], P[299]}), v_t415_5);
     const double t415 = v_t415[0];
     const double t416 = v_t415[1];
     *(derive_vd_unaligned *)&P_new[80] = ((derive_vd){t415, t416, t213, t214});
@@ -1312,14 +1320,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t416 = DERIVE_FMA(t43, t359, DERIVE_FMA(t135, t358, DERIVE_FMA(t36, t357, DERIVE_FMA(t32, t349, DERIVE_FMA(t44, t348, t42*t347)) + t350)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t419_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t124, t125, t126, 0.0}));
-    const derive_vd v_t419_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t228, t252, t276, t300}), v_t419_0);
-    const derive_vd v_t419_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t229, t253, t277, t301}), v_t419_1);
-    const derive_vd v_t419_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t230, t254, t278, t302}), v_t419_2);
+    const derive_vd v_t419_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t124, t125, t126, 0.0}));
+    const derive_vd v_t419_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t228, t252, t276, t300}), v_t419_0);
+    const derive_vd v_t419_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t229, t253, t277, t301}), v_t419_1);
+    const derive_vd v_t419_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t230, t254, t278, t302}), v_t419_2);
     const derive_vd v_t419_4 = (v_t419_3 + ((derive_vd){t231, t255, t279, t303}));
-    const derive_vd v_t419_5 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t240, t264, t288, t312}), v_t419_4);
-    const derive_vd v_t419_6 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t241, t265, t289, t313}), v_t419_5);
-    const derive_vd v_t419 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t242, t266, t290, t314}), v_t419_6);
+    const derive_vd v_t419_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t240, t264, t288, t312}), v_t419_4);
+    const derive_vd v_t419_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t241, t265, t289, t313}), v_t419_5);
+    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t242, t266, t290, t314}), v_t419_6);
     #else
     const double t419 = DERIVE_FMA(t138, t242, DERIVE_FMA(t137, t241, DERIVE_FMA(t136, t240, DERIVE_FMA(t73, t230, DERIVE_FMA(t72, t229, DERIVE_FMA(t71, t228, DERIVE_FMA(t70, t227, t124)))) + t231)));
     const double t420 = DERIVE_FMA(t138, t266, DERIVE_FMA(t137, t265, DERIVE_FMA(t136, t264, DERIVE_FMA(t73, t254, DERIVE_FMA(t72, t253, DERIVE_FMA(t71, t252, DERIVE_FMA(t70, t251, t125)))) + t255)));
@@ -1328,13 +1336,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t423_0 = (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t423_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t324, t348, P[34], P[35]}), v_t423_0);
-    const derive_vd v_t423_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t325, t349, P[58], P[59]}), v_t423_1);
-    const derive_vd v_t423_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t326, t350, P[82], P[83]}), v_t423_2);
+    const derive_vd v_t423_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t324, t348, P[34], P[35]}), v_t423_0);
+    const derive_vd v_t423_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t325, t349, P[58], P[59]}), v_t423_1);
+    const derive_vd v_t423_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t326, t350, P[82], P[83]}), v_t423_2);
     const derive_vd v_t423_4 = (v_t423_3 + ((derive_vd){t327, t351, P[106], P[107]}));
-    const derive_vd v_t423_5 = DERIVE_ROWS_FMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t336, t360, P[322], P[323]}), v_t423_4);
-    const derive_vd v_t423_6 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t337, t361, P[346], P[347]}), v_t423_5);
-    const derive_vd v_t423 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t338, t362, P[370], P[371]}), v_t423_6);
+    const derive_vd v_t423_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t336, t360, P[322], P[323]}), v_t423_4);
+    const derive_vd v_t423_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t337, t361, P[346], P[347]}), v_t423_5);
+    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t338, t362, P[370], P[371]}), v_t423_6);
     const double t423 = v_t423[0];
     const double t424 = v_t423[1];
     *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t423, t424, t237, t238});
@@ -1343,14 +1351,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t424 = DERIVE_FMA(t138, t362, DERIVE_FMA(t137, t361, DERIVE_FMA(t136, t360, DERIVE_FMA(t73, t350, DERIVE_FMA(t72, t349, DERIVE_FMA(t71, t348, t70*t347))) + t351)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t427_0 = DERIVE_ROWS_FMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t125, t127, t128, 0.0}));
-    const derive_vd v_t427_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t228, t252, t276, t300}), v_t427_0);
-    const derive_vd v_t427_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t229, t253, t277, t301}), v_t427_1);
-    const derive_vd v_t427_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t230, t254, t278, t302}), v_t427_2);
+    const derive_vd v_t427_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t125, t127, t128, 0.0}));
+    const derive_vd v_t427_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t228, t252, t276, t300}), v_t427_0);
+    const derive_vd v_t427_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t229, t253, t277, t301}), v_t427_1);
+    const derive_vd v_t427_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t230, t254, t278, t302}), v_t427_2);
     const derive_vd v_t427_4 = (v_t427_3 + ((derive_vd){t232, t256, t280, t304}));
-    const derive_vd v_t427_5 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t240, t264, t288, t312}), v_t427_4);
-    const derive_vd v_t427_6 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t241, t265, t289, t313}), v_t427_5);
-    const derive_vd v_t427 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t242, t266, t290, t314}), v_t427_6);
+    const derive_vd v_t427_5 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t240, t264, t288, t312}), v_t427_4);
+    const derive_vd v_t427_6 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t241, t265, t289, t313}), v_t427_5);
+    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t242, t266, t290, t314}), v_t427_6);
     #else
     const double t428 = DERIVE_FMA(t142, t266, DERIVE_FMA(t141, t265, DERIVE_FMA(t140, t264, DERIVE_FMA(t80, t254, DERIVE_FMA(t79, t253, DERIVE_FMA(t139, t252, DERIVE_FMA(t77, t251, t127)))) + t256)));
     const double t429 = DERIVE_FMA(t142, t290, DERIVE_FMA(t141, t289, DERIVE_FMA(t140, t288, DERIVE_FMA(t80, t278, DERIVE_FMA(t79, t277, DERIVE_FMA(t139, t276, DERIVE_FMA(t77, t275, t128)))) + t280)));
@@ -1358,13 +1366,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t431_0 = (((derive_vd){t77, t77, t77, t77}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t431_1 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t324, t348, P[34], P[35]}), v_t431_0);
-    const derive_vd v_t431_2 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t325, t349, P[58], P[59]}), v_t431_1);
-    const derive_vd v_t431_3 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t326, t350, P[82], P[83]}), v_t431_2);
+    const derive_vd v_t431_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t324, t348, P[34], P[35]}), v_t431_0);
+    const derive_vd v_t431_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t325, t349, P[58], P[59]}), v_t431_1);
+    const derive_vd v_t431_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t326, t350, P[82], P[83]}), v_t431_2);
     const derive_vd v_t431_4 = (v_t431_3 + ((derive_vd){t328, t352, P[130], P[131]}));
-    const derive_vd v_t431_5 = DERIVE_ROWS_FMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t336, t360, P[322], P[323]}), v_t431_4);
-    const derive_vd v_t431_6 = DERIVE_ROWS_FMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t337, t361, P[346], P[347]}), v_t431_5);
-    const derive_vd v_t431 = DERIVE_ROWS_FMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t338, t362, P[370], P[371]}), v_t431_6);
+    const derive_vd v_t431_5 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t336, t360, P[322], P[323]}), v_t431_4);
+    const derive_vd v_t431_6 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t337, t361, P[346], P[347]}), v_t431_5);
+    const derive_vd v_t431 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t338, t362, P[370], P[371]}), v_t431_6);
     const double t431 = v_t431[0];
     const double t432 = v_t431[1];
     *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t431, t432, t261, t262});
@@ -1373,27 +1381,27 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t432 = DERIVE_FMA(t142, t362, DERIVE_FMA(t141, t361, DERIVE_FMA(t140, t360, DERIVE_FMA(t80, t350, DERIVE_FMA(t79, t349, DERIVE_FMA(t139, t348, t77*t347))) + t352)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t435_0 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t126, t128, t129, 0.0}));
-    const derive_vd v_t435_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t228, t252, t276, t300}), v_t435_0);
-    const derive_vd v_t435_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t229, t253, t277, t301}), v_t435_1);
-    const derive_vd v_t435_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t230, t254, t278, t302}), v_t435_2);
+    const derive_vd v_t435_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t126, t128, t129, 0.0}));
+    const derive_vd v_t435_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t228, t252, t276, t300}), v_t435_0);
+    const derive_vd v_t435_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t229, t253, t277, t301}), v_t435_1);
+    const derive_vd v_t435_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t230, t254, t278, t302}), v_t435_2);
     const derive_vd v_t435_4 = (v_t435_3 + ((derive_vd){t233, t257, t281, t305}));
-    const derive_vd v_t435_5 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t240, t264, t288, t312}), v_t435_4);
-    const derive_vd v_t435_6 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t241, t265, t289, t313}), v_t435_5);
-    const derive_vd v_t435 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t242, t266, t290, t314}), v_t435_6);
+    const derive_vd v_t435_5 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t240, t264, t288, t312}), v_t435_4);
+    const derive_vd v_t435_6 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t241, t265, t289, t313}), v_t435_5);
+    const derive_vd v_t435 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t242, t266, t290, t314}), v_t435_6);
     #else
     const double t437 = DERIVE_FMA(t146, t290, DERIVE_FMA(t145, t289, DERIVE_FMA(t144, t288, DERIVE_FMA(t87, t278, DERIVE_FMA(t143, t277, DERIVE_FMA(t85, t276, DERIVE_FMA(t84, t275, t129)))) + t281)));
     const double t438 = DERIVE_FMA(t146, t314, DERIVE_FMA(t145, t313, DERIVE_FMA(t144, t312, DERIVE_FMA(t87, t302, DERIVE_FMA(t143, t301, DERIVE_FMA(t85, t300, DERIVE_FMA(t84, t299, 0.0)))) + t305)));
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t439_0 = (((derive_vd){t84, t84, t84, t84}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t439_1 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t324, t348, P[34], P[35]}), v_t439_0);
-    const derive_vd v_t439_2 = DERIVE_ROWS_FMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t325, t349, P[58], P[59]}), v_t439_1);
-    const derive_vd v_t439_3 = DERIVE_ROWS_FMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t326, t350, P[82], P[83]}), v_t439_2);
+    const derive_vd v_t439_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t324, t348, P[34], P[35]}), v_t439_0);
+    const derive_vd v_t439_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t325, t349, P[58], P[59]}), v_t439_1);
+    const derive_vd v_t439_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t326, t350, P[82], P[83]}), v_t439_2);
     const derive_vd v_t439_4 = (v_t439_3 + ((derive_vd){t329, t353, P[154], P[155]}));
-    const derive_vd v_t439_5 = DERIVE_ROWS_FMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t336, t360, P[322], P[323]}), v_t439_4);
-    const derive_vd v_t439_6 = DERIVE_ROWS_FMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t337, t361, P[346], P[347]}), v_t439_5);
-    const derive_vd v_t439 = DERIVE_ROWS_FMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t338, t362, P[370], P[371]}), v_t439_6);
+    const derive_vd v_t439_5 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t336, t360, P[322], P[323]}), v_t439_4);
+    const derive_vd v_t439_6 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t337, t361, P[346], P[347]}), v_t439_5);
+    const derive_vd v_t439 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t338, t362, P[370], P[371]}), v_t439_6);
     const double t439 = v_t439[0];
     const double t440 = v_t439[1];
     *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t439, t440, t285, t286});
@@ -2417,7 +2425,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t77 = DERIVE_FMA(t67, t75, DERIVE_FMA(t57, t70, DERIVE_FMA(t42, t62, DERIVE_FMA(t22, t50, DERIVE_FMA(P[174], t33, t5)))));
     const double t78 = t76*t77;
     #if DERIVE_VECTOR
-    const derive_vd v_t79 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
+    const derive_vd v_t79 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
     #else
     const double t79 = DERIVE_FMA(t13, P[168], P[192]);
     const double t80 = DERIVE_FMA(t13, P[169], P[193]);
@@ -2425,7 +2433,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t82 = DERIVE_FMA(t13, P[171], P[195]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t83 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
+    const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
     #else
     const double t83 = DERIVE_FMA(t13, P[172], P[196]);
     const double t84 = DERIVE_FMA(t13, P[173], P[197]);
@@ -2433,7 +2441,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t86 = DERIVE_FMA(t13, P[175], P[199]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t87 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
     #else
     const double t87 = DERIVE_FMA(t13, P[176], P[200]);
     const double t88 = DERIVE_FMA(t13, P[177], P[201]);
@@ -2441,7 +2449,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t90 = DERIVE_FMA(t13, P[179], P[203]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t91 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t91 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
     #else
     const double t91 = DERIVE_FMA(t13, P[180], P[204]);
     const double t92 = DERIVE_FMA(t13, P[181], P[205]);
@@ -2449,7 +2457,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t94 = DERIVE_FMA(t13, P[183], P[207]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t95 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const derive_vd v_t95 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
     #else
     const double t95 = DERIVE_FMA(t13, P[184], P[208]);
     const double t96 = DERIVE_FMA(t13, P[185], P[209]);
@@ -2457,7 +2465,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t98 = DERIVE_FMA(t13, P[187], P[211]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t99 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
     #else
     const double t99 = DERIVE_FMA(t13, P[188], P[212]);
     const double t100 = DERIVE_FMA(t13, P[189], P[213]);
@@ -2465,8 +2473,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t102 = DERIVE_FMA(t13, P[191], P[215]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t103_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
-    const derive_vd v_t103 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t79, v_t103_0);
+    const derive_vd v_t103_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
+    const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t79, v_t103_0);
     #else
     const double t103 = DERIVE_FMA(t35, t79, DERIVE_FMA(t14, P[168], P[216]));
     const double t104 = DERIVE_FMA(t35, t80, DERIVE_FMA(t14, P[169], P[217]));
@@ -2474,8 +2482,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t106 = DERIVE_FMA(t35, t82, DERIVE_FMA(t14, P[171], P[219]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t107_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
-    const derive_vd v_t107 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t107_0);
+    const derive_vd v_t107_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
+    const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t107_0);
     #else
     const double t107 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[172], P[220]));
     const double t108 = DERIVE_FMA(t35, t84, DERIVE_FMA(t14, P[173], P[221]));
@@ -2483,8 +2491,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t110 = DERIVE_FMA(t35, t86, DERIVE_FMA(t14, P[175], P[223]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t111_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
-    const derive_vd v_t111 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t111_0);
+    const derive_vd v_t111_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t111_0);
     #else
     const double t111 = DERIVE_FMA(t35, t87, DERIVE_FMA(t14, P[176], P[224]));
     const double t112 = DERIVE_FMA(t35, t88, DERIVE_FMA(t14, P[177], P[225]));
@@ -2492,8 +2500,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t114 = DERIVE_FMA(t35, t90, DERIVE_FMA(t14, P[179], P[227]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t115_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t115 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t91, v_t115_0);
+    const derive_vd v_t115_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t91, v_t115_0);
     #else
     const double t115 = DERIVE_FMA(t35, t91, DERIVE_FMA(t14, P[180], P[228]));
     const double t116 = DERIVE_FMA(t35, t92, DERIVE_FMA(t14, P[181], P[229]));
@@ -2501,8 +2509,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t118 = DERIVE_FMA(t35, t94, DERIVE_FMA(t14, P[183], P[231]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t119_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t119 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t95, v_t119_0);
+    const derive_vd v_t119_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t95, v_t119_0);
     #else
     const double t119 = DERIVE_FMA(t35, t95, DERIVE_FMA(t14, P[184], P[232]));
     const double t120 = DERIVE_FMA(t35, t96, DERIVE_FMA(t14, P[185], P[233]));
@@ -2510,8 +2518,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t122 = DERIVE_FMA(t35, t98, DERIVE_FMA(t14, P[187], P[235]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t123_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t123 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t99, v_t123_0);
+    const derive_vd v_t123_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t99, v_t123_0);
     #else
     const double t123 = DERIVE_FMA(t35, t99, DERIVE_FMA(t14, P[188], P[236]));
     const double t124 = DERIVE_FMA(t35, t100, DERIVE_FMA(t14, P[189], P[237]));
@@ -2519,9 +2527,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t126 = DERIVE_FMA(t35, t102, DERIVE_FMA(t14, P[191], P[239]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t127_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
-    const derive_vd v_t127_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t79, v_t127_0);
-    const derive_vd v_t127 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t103, v_t127_1);
+    const derive_vd v_t127_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t127_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t79, v_t127_0);
+    const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t103, v_t127_1);
     #else
     const double t127 = DERIVE_FMA(t52, t103, DERIVE_FMA(t36, t79, DERIVE_FMA(t15, P[168], P[96])));
     const double t128 = DERIVE_FMA(t52, t104, DERIVE_FMA(t36, t80, DERIVE_FMA(t15, P[169], P[97])));
@@ -2529,9 +2537,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t130 = DERIVE_FMA(t52, t106, DERIVE_FMA(t36, t82, DERIVE_FMA(t15, P[171], P[99])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t131_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t131_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t131_0);
-    const derive_vd v_t131 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t131_1);
+    const derive_vd v_t131_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t131_0);
+    const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t131_1);
     #else
     const double t131 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[172], P[100])));
     const double t132 = DERIVE_FMA(t52, t108, DERIVE_FMA(t36, t84, DERIVE_FMA(t15, P[173], P[101])));
@@ -2539,9 +2547,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t134 = DERIVE_FMA(t52, t110, DERIVE_FMA(t36, t86, DERIVE_FMA(t15, P[175], P[103])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t135_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t135_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t87, v_t135_0);
-    const derive_vd v_t135 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t111, v_t135_1);
+    const derive_vd v_t135_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t135_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t87, v_t135_0);
+    const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t111, v_t135_1);
     #else
     const double t135 = DERIVE_FMA(t52, t111, DERIVE_FMA(t36, t87, DERIVE_FMA(t15, P[176], P[104])));
     const double t136 = DERIVE_FMA(t52, t112, DERIVE_FMA(t36, t88, DERIVE_FMA(t15, P[177], P[105])));
@@ -2549,9 +2557,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t138 = DERIVE_FMA(t52, t114, DERIVE_FMA(t36, t90, DERIVE_FMA(t15, P[179], P[107])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t139_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t139_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t91, v_t139_0);
-    const derive_vd v_t139 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t115, v_t139_1);
+    const derive_vd v_t139_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t139_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t91, v_t139_0);
+    const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t115, v_t139_1);
     #else
     const double t139 = DERIVE_FMA(t52, t115, DERIVE_FMA(t36, t91, DERIVE_FMA(t15, P[180], P[108])));
     const double t140 = DERIVE_FMA(t52, t116, DERIVE_FMA(t36, t92, DERIVE_FMA(t15, P[181], P[109])));
@@ -2559,9 +2567,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t142 = DERIVE_FMA(t52, t118, DERIVE_FMA(t36, t94, DERIVE_FMA(t15, P[183], P[111])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t143_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t143_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t95, v_t143_0);
-    const derive_vd v_t143 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t119, v_t143_1);
+    const derive_vd v_t143_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t143_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t95, v_t143_0);
+    const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t119, v_t143_1);
     #else
     const double t143 = DERIVE_FMA(t52, t119, DERIVE_FMA(t36, t95, DERIVE_FMA(t15, P[184], P[112])));
     const double t144 = DERIVE_FMA(t52, t120, DERIVE_FMA(t36, t96, DERIVE_FMA(t15, P[185], P[113])));
@@ -2569,9 +2577,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t146 = DERIVE_FMA(t52, t122, DERIVE_FMA(t36, t98, DERIVE_FMA(t15, P[187], P[115])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t147_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t147_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t99, v_t147_0);
-    const derive_vd v_t147 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t123, v_t147_1);
+    const derive_vd v_t147_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t147_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t99, v_t147_0);
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t123, v_t147_1);
     #else
     const double t147 = DERIVE_FMA(t52, t123, DERIVE_FMA(t36, t99, DERIVE_FMA(t15, P[188], P[116])));
     const double t148 = DERIVE_FMA(t52, t124, DERIVE_FMA(t36, t100, DERIVE_FMA(t15, P[189], P[117])));
@@ -2579,10 +2587,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t150 = DERIVE_FMA(t52, t126, DERIVE_FMA(t36, t102, DERIVE_FMA(t15, P[191], P[119])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t151_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const derive_vd v_t151_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t79, v_t151_0);
-    const derive_vd v_t151_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t103, v_t151_1);
-    const derive_vd v_t151 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t127, v_t151_2);
+    const derive_vd v_t151_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t151_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t79, v_t151_0);
+    const derive_vd v_t151_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t103, v_t151_1);
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t127, v_t151_2);
     #else
     const double t151 = DERIVE_FMA(t64, t127, DERIVE_FMA(t53, t103, DERIVE_FMA(t37, t79, DERIVE_FMA(t16, P[168], P[120]))));
     const double t152 = DERIVE_FMA(t64, t128, DERIVE_FMA(t53, t104, DERIVE_FMA(t37, t80, DERIVE_FMA(t16, P[169], P[121]))));
@@ -2590,10 +2598,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t154 = DERIVE_FMA(t64, t130, DERIVE_FMA(t53, t106, DERIVE_FMA(t37, t82, DERIVE_FMA(t16, P[171], P[123]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t155_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t155_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t155_0);
-    const derive_vd v_t155_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t155_1);
-    const derive_vd v_t155 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t131, v_t155_2);
+    const derive_vd v_t155_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t155_0);
+    const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t155_1);
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t131, v_t155_2);
     #else
     const double t155 = DERIVE_FMA(t64, t131, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[172], P[124]))));
     const double t156 = DERIVE_FMA(t64, t132, DERIVE_FMA(t53, t108, DERIVE_FMA(t37, t84, DERIVE_FMA(t16, P[173], P[125]))));
@@ -2601,10 +2609,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t158 = DERIVE_FMA(t64, t134, DERIVE_FMA(t53, t110, DERIVE_FMA(t37, t86, DERIVE_FMA(t16, P[175], P[127]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t159_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t159_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t87, v_t159_0);
-    const derive_vd v_t159_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t111, v_t159_1);
-    const derive_vd v_t159 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t135, v_t159_2);
+    const derive_vd v_t159_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t159_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t87, v_t159_0);
+    const derive_vd v_t159_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t111, v_t159_1);
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t135, v_t159_2);
     #else
     const double t159 = DERIVE_FMA(t64, t135, DERIVE_FMA(t53, t111, DERIVE_FMA(t37, t87, DERIVE_FMA(t16, P[176], P[128]))));
     const double t160 = DERIVE_FMA(t64, t136, DERIVE_FMA(t53, t112, DERIVE_FMA(t37, t88, DERIVE_FMA(t16, P[177], P[129]))));
@@ -2612,10 +2620,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t162 = DERIVE_FMA(t64, t138, DERIVE_FMA(t53, t114, DERIVE_FMA(t37, t90, DERIVE_FMA(t16, P[179], P[131]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t163_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t163_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t91, v_t163_0);
-    const derive_vd v_t163_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t115, v_t163_1);
-    const derive_vd v_t163 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t139, v_t163_2);
+    const derive_vd v_t163_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t163_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t91, v_t163_0);
+    const derive_vd v_t163_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t115, v_t163_1);
+    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t139, v_t163_2);
     #else
     const double t163 = DERIVE_FMA(t64, t139, DERIVE_FMA(t53, t115, DERIVE_FMA(t37, t91, DERIVE_FMA(t16, P[180], P[132]))));
     const double t164 = DERIVE_FMA(t64, t140, DERIVE_FMA(t53, t116, DERIVE_FMA(t37, t92, DERIVE_FMA(t16, P[181], P[133]))));
@@ -2623,10 +2631,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t166 = DERIVE_FMA(t64, t142, DERIVE_FMA(t53, t118, DERIVE_FMA(t37, t94, DERIVE_FMA(t16, P[183], P[135]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t167_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t167_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t95, v_t167_0);
-    const derive_vd v_t167_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t119, v_t167_1);
-    const derive_vd v_t167 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t143, v_t167_2);
+    const derive_vd v_t167_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t167_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t95, v_t167_0);
+    const derive_vd v_t167_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t119, v_t167_1);
+    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t143, v_t167_2);
     #else
     const double t167 = DERIVE_FMA(t64, t143, DERIVE_FMA(t53, t119, DERIVE_FMA(t37, t95, DERIVE_FMA(t16, P[184], P[136]))));
     const double t168 = DERIVE_FMA(t64, t144, DERIVE_FMA(t53, t120, DERIVE_FMA(t37, t96, DERIVE_FMA(t16, P[185], P[137]))));
@@ -2634,10 +2642,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t170 = DERIVE_FMA(t64, t146, DERIVE_FMA(t53, t122, DERIVE_FMA(t37, t98, DERIVE_FMA(t16, P[187], P[139]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t171_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t171_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t99, v_t171_0);
-    const derive_vd v_t171_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t123, v_t171_1);
-    const derive_vd v_t171 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t147, v_t171_2);
+    const derive_vd v_t171_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t171_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t99, v_t171_0);
+    const derive_vd v_t171_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t123, v_t171_1);
+    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t147, v_t171_2);
     #else
     const double t171 = DERIVE_FMA(t64, t147, DERIVE_FMA(t53, t123, DERIVE_FMA(t37, t99, DERIVE_FMA(t16, P[188], P[140]))));
     const double t172 = DERIVE_FMA(t64, t148, DERIVE_FMA(t53, t124, DERIVE_FMA(t37, t100, DERIVE_FMA(t16, P[189], P[141]))));
@@ -2645,11 +2653,11 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t174 = DERIVE_FMA(t64, t150, DERIVE_FMA(t53, t126, DERIVE_FMA(t37, t102, DERIVE_FMA(t16, P[191], P[143]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t175_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
-    const derive_vd v_t175_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t79, v_t175_0);
-    const derive_vd v_t175_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t103, v_t175_1);
-    const derive_vd v_t175_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t127, v_t175_2);
-    const derive_vd v_t175 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t151, v_t175_3);
+    const derive_vd v_t175_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const derive_vd v_t175_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t79, v_t175_0);
+    const derive_vd v_t175_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t103, v_t175_1);
+    const derive_vd v_t175_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t127, v_t175_2);
+    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t151, v_t175_3);
     #else
     const double t175 = DERIVE_FMA(t72, t151, DERIVE_FMA(t65, t127, DERIVE_FMA(t54, t103, DERIVE_FMA(t38, t79, DERIVE_FMA(t17, P[168], P[144])))));
     const double t176 = DERIVE_FMA(t72, t152, DERIVE_FMA(t65, t128, DERIVE_FMA(t54, t104, DERIVE_FMA(t38, t80, DERIVE_FMA(t17, P[169], P[145])))));
@@ -2657,11 +2665,11 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t178 = DERIVE_FMA(t72, t154, DERIVE_FMA(t65, t130, DERIVE_FMA(t54, t106, DERIVE_FMA(t38, t82, DERIVE_FMA(t17, P[171], P[147])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t179_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t179_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t83, v_t179_0);
-    const derive_vd v_t179_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t107, v_t179_1);
-    const derive_vd v_t179_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t131, v_t179_2);
-    const derive_vd v_t179 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t155, v_t179_3);
+    const derive_vd v_t179_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t179_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t83, v_t179_0);
+    const derive_vd v_t179_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t107, v_t179_1);
+    const derive_vd v_t179_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t131, v_t179_2);
+    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t155, v_t179_3);
     #else
     const double t179 = DERIVE_FMA(t72, t155, DERIVE_FMA(t65, t131, DERIVE_FMA(t54, t107, DERIVE_FMA(t38, t83, DERIVE_FMA(t17, P[172], P[148])))));
     const double t180 = DERIVE_FMA(t72, t156, DERIVE_FMA(t65, t132, DERIVE_FMA(t54, t108, DERIVE_FMA(t38, t84, DERIVE_FMA(t17, P[173], P[149])))));
@@ -2669,11 +2677,11 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t182 = DERIVE_FMA(t72, t158, DERIVE_FMA(t65, t134, DERIVE_FMA(t54, t110, DERIVE_FMA(t38, t86, DERIVE_FMA(t17, P[175], P[151])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t183_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t183_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t87, v_t183_0);
-    const derive_vd v_t183_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t111, v_t183_1);
-    const derive_vd v_t183_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t135, v_t183_2);
-    const derive_vd v_t183 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t159, v_t183_3);
+    const derive_vd v_t183_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t183_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t87, v_t183_0);
+    const derive_vd v_t183_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t111, v_t183_1);
+    const derive_vd v_t183_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t135, v_t183_2);
+    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t159, v_t183_3);
     #else
     const double t183 = DERIVE_FMA(t72, t159, DERIVE_FMA(t65, t135, DERIVE_FMA(t54, t111, DERIVE_FMA(t38, t87, DERIVE_FMA(t17, P[176], P[152])))));
     const double t184 = DERIVE_FMA(t72, t160, DERIVE_FMA(t65, t136, DERIVE_FMA(t54, t112, DERIVE_FMA(t38, t88, DERIVE_FMA(t17, P[177], P[153])))));
@@ -2681,11 +2689,11 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t186 = DERIVE_FMA(t72, t162, DERIVE_FMA(t65, t138, DERIVE_FMA(t54, t114, DERIVE_FMA(t38, t90, DERIVE_FMA(t17, P[179], P[155])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t187_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t187_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t91, v_t187_0);
-    const derive_vd v_t187_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t115, v_t187_1);
-    const derive_vd v_t187_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t139, v_t187_2);
-    const derive_vd v_t187 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t163, v_t187_3);
+    const derive_vd v_t187_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t187_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t91, v_t187_0);
+    const derive_vd v_t187_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t115, v_t187_1);
+    const derive_vd v_t187_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t139, v_t187_2);
+    const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t163, v_t187_3);
     #else
     const double t187 = DERIVE_FMA(t72, t163, DERIVE_FMA(t65, t139, DERIVE_FMA(t54, t115, DERIVE_FMA(t38, t91, DERIVE_FMA(t17, P[180], P[156])))));
     const double t188 = DERIVE_FMA(t72, t164, DERIVE_FMA(t65, t140, DERIVE_FMA(t54, t116, DERIVE_FMA(t38, t92, DERIVE_FMA(t17, P[181], P[157])))));
@@ -2693,11 +2701,11 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t190 = DERIVE_FMA(t72, t166, DERIVE_FMA(t65, t142, DERIVE_FMA(t54, t118, DERIVE_FMA(t38, t94, DERIVE_FMA(t17, P[183], P[159])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t191_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t191_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t95, v_t191_0);
-    const derive_vd v_t191_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t119, v_t191_1);
-    const derive_vd v_t191_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t143, v_t191_2);
-    const derive_vd v_t191 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t167, v_t191_3);
+    const derive_vd v_t191_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t191_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t95, v_t191_0);
+    const derive_vd v_t191_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t119, v_t191_1);
+    const derive_vd v_t191_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t143, v_t191_2);
+    const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t167, v_t191_3);
     #else
     const double t191 = DERIVE_FMA(t72, t167, DERIVE_FMA(t65, t143, DERIVE_FMA(t54, t119, DERIVE_FMA(t38, t95, DERIVE_FMA(t17, P[184], P[160])))));
     const double t192 = DERIVE_FMA(t72, t168, DERIVE_FMA(t65, t144, DERIVE_FMA(t54, t120, DERIVE_FMA(t38, t96, DERIVE_FMA(t17, P[185], P[161])))));
@@ -2705,11 +2713,11 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t194 = DERIVE_FMA(t72, t170, DERIVE_FMA(t65, t146, DERIVE_FMA(t54, t122, DERIVE_FMA(t38, t98, DERIVE_FMA(t17, P[187], P[163])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t195_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t195_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t99, v_t195_0);
-    const derive_vd v_t195_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t123, v_t195_1);
-    const derive_vd v_t195_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t147, v_t195_2);
-    const derive_vd v_t195 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t171, v_t195_3);
+    const derive_vd v_t195_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t195_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t99, v_t195_0);
+    const derive_vd v_t195_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t123, v_t195_1);
+    const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t147, v_t195_2);
+    const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t171, v_t195_3);
     #else
     const double t195 = DERIVE_FMA(t72, t171, DERIVE_FMA(t65, t147, DERIVE_FMA(t54, t123, DERIVE_FMA(t38, t99, DERIVE_FMA(t17, P[188], P[164])))));
     const double t196 = DERIVE_FMA(t72, t172, DERIVE_FMA(t65, t148, DERIVE_FMA(t54, t124, DERIVE_FMA(t38, t100, DERIVE_FMA(t17, P[189], P[165])))));
@@ -3149,12 +3157,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t342 = t76*t198;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t343_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
-    const derive_vd v_t343_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t79, v_t343_0);
-    const derive_vd v_t343_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t103, v_t343_1);
-    const derive_vd v_t343_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t127, v_t343_2);
-    const derive_vd v_t343_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t151, v_t343_3);
-    const derive_vd v_t343 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t175, v_t343_4);
+    const derive_vd v_t343_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
+    const derive_vd v_t343_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t79, v_t343_0);
+    const derive_vd v_t343_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t103, v_t343_1);
+    const derive_vd v_t343_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t127, v_t343_2);
+    const derive_vd v_t343_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t151, v_t343_3);
+    const derive_vd v_t343 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t175, v_t343_4);
     const double t343 = v_t343[0];
     const double t344 = v_t343[1];
     const double t345 = v_t343[2];
@@ -3166,12 +3174,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t346 = DERIVE_FNMA(t78, t178, DERIVE_FNMA(t75, t154, DERIVE_FNMA(t70, t130, DERIVE_FNMA(t62, t106, DERIVE_FNMA(t50, t82, DERIVE_FNMA(t33, P[171], x[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t347_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
-    const derive_vd v_t347_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t83, v_t347_0);
-    const derive_vd v_t347_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t107, v_t347_1);
-    const derive_vd v_t347_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t131, v_t347_2);
-    const derive_vd v_t347_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t155, v_t347_3);
-    const derive_vd v_t347 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t179, v_t347_4);
+    const derive_vd v_t347_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
+    const derive_vd v_t347_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t83, v_t347_0);
+    const derive_vd v_t347_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t107, v_t347_1);
+    const derive_vd v_t347_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t131, v_t347_2);
+    const derive_vd v_t347_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t155, v_t347_3);
+    const derive_vd v_t347 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t179, v_t347_4);
     *(derive_vd_unaligned *)&x_new[4] = v_t347;
     #else
     const double t347 = DERIVE_FNMA(t78, t179, DERIVE_FNMA(t75, t155, DERIVE_FNMA(t70, t131, DERIVE_FNMA(t62, t107, DERIVE_FNMA(t50, t83, DERIVE_FNMA(t33, P[172], x[4]))))));
@@ -3180,12 +3188,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t350 = DERIVE_FNMA(t78, t182, DERIVE_FNMA(t75, t158, DERIVE_FNMA(t70, t134, DERIVE_FNMA(t62, t110, DERIVE_FNMA(t50, t86, DERIVE_FNMA(t33, P[175], x[7]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t351_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
-    const derive_vd v_t351_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t87, v_t351_0);
-    const derive_vd v_t351_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t111, v_t351_1);
-    const derive_vd v_t351_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t135, v_t351_2);
-    const derive_vd v_t351_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t159, v_t351_3);
-    const derive_vd v_t351 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t183, v_t351_4);
+    const derive_vd v_t351_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
+    const derive_vd v_t351_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t87, v_t351_0);
+    const derive_vd v_t351_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t111, v_t351_1);
+    const derive_vd v_t351_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t135, v_t351_2);
+    const derive_vd v_t351_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t159, v_t351_3);
+    const derive_vd v_t351 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t183, v_t351_4);
     *(derive_vd_unaligned *)&x_new[8] = v_t351;
     #else
     const double t351 = DERIVE_FNMA(t78, t183, DERIVE_FNMA(t75, t159, DERIVE_FNMA(t70, t135, DERIVE_FNMA(t62, t111, DERIVE_FNMA(t50, t87, DERIVE_FNMA(t33, P[176], x[8]))))));
@@ -3194,12 +3202,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t354 = DERIVE_FNMA(t78, t186, DERIVE_FNMA(t75, t162, DERIVE_FNMA(t70, t138, DERIVE_FNMA(t62, t114, DERIVE_FNMA(t50, t90, DERIVE_FNMA(t33, P[179], x[11]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t355_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
-    const derive_vd v_t355_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t91, v_t355_0);
-    const derive_vd v_t355_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t115, v_t355_1);
-    const derive_vd v_t355_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t139, v_t355_2);
-    const derive_vd v_t355_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t163, v_t355_3);
-    const derive_vd v_t355 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t187, v_t355_4);
+    const derive_vd v_t355_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
+    const derive_vd v_t355_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t91, v_t355_0);
+    const derive_vd v_t355_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t115, v_t355_1);
+    const derive_vd v_t355_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t139, v_t355_2);
+    const derive_vd v_t355_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t163, v_t355_3);
+    const derive_vd v_t355 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t187, v_t355_4);
     *(derive_vd_unaligned *)&x_new[12] = v_t355;
     #else
     const double t355 = DERIVE_FNMA(t78, t187, DERIVE_FNMA(t75, t163, DERIVE_FNMA(t70, t139, DERIVE_FNMA(t62, t115, DERIVE_FNMA(t50, t91, DERIVE_FNMA(t33, P[180], x[12]))))));
@@ -3208,12 +3216,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t358 = DERIVE_FNMA(t78, t190, DERIVE_FNMA(t75, t166, DERIVE_FNMA(t70, t142, DERIVE_FNMA(t62, t118, DERIVE_FNMA(t50, t94, DERIVE_FNMA(t33, P[183], x[15]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t359_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){x[16], x[17], x[18], x[19]}));
-    const derive_vd v_t359_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t95, v_t359_0);
-    const derive_vd v_t359_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t119, v_t359_1);
-    const derive_vd v_t359_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t143, v_t359_2);
-    const derive_vd v_t359_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t167, v_t359_3);
-    const derive_vd v_t359 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t191, v_t359_4);
+    const derive_vd v_t359_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){x[16], x[17], x[18], x[19]}));
+    const derive_vd v_t359_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t95, v_t359_0);
+    const derive_vd v_t359_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t119, v_t359_1);
+    const derive_vd v_t359_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t143, v_t359_2);
+    const derive_vd v_t359_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t167, v_t359_3);
+    const derive_vd v_t359 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t191, v_t359_4);
     *(derive_vd_unaligned *)&x_new[16] = v_t359;
     #else
     const double t359 = DERIVE_FNMA(t78, t191, DERIVE_FNMA(t75, t167, DERIVE_FNMA(t70, t143, DERIVE_FNMA(t62, t119, DERIVE_FNMA(t50, t95, DERIVE_FNMA(t33, P[184], x[16]))))));
@@ -3222,12 +3230,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t362 = DERIVE_FNMA(t78, t194, DERIVE_FNMA(t75, t170, DERIVE_FNMA(t70, t146, DERIVE_FNMA(t62, t122, DERIVE_FNMA(t50, t98, DERIVE_FNMA(t33, P[187], x[19]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t363_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){x[20], x[21], x[22], x[23]}));
-    const derive_vd v_t363_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t99, v_t363_0);
-    const derive_vd v_t363_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t123, v_t363_1);
-    const derive_vd v_t363_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t147, v_t363_2);
-    const derive_vd v_t363_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t171, v_t363_3);
-    const derive_vd v_t363 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t195, v_t363_4);
+    const derive_vd v_t363_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){x[20], x[21], x[22], x[23]}));
+    const derive_vd v_t363_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t99, v_t363_0);
+    const derive_vd v_t363_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t123, v_t363_1);
+    const derive_vd v_t363_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t147, v_t363_2);
+    const derive_vd v_t363_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t171, v_t363_3);
+    const derive_vd v_t363 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t195, v_t363_4);
     *(derive_vd_unaligned *)&x_new[20] = v_t363;
     #else
     const double t363 = DERIVE_FNMA(t78, t195, DERIVE_FNMA(t75, t171, DERIVE_FNMA(t70, t147, DERIVE_FNMA(t62, t123, DERIVE_FNMA(t50, t99, DERIVE_FNMA(t33, P[188], x[20]))))));
@@ -3236,12 +3244,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t366 = DERIVE_FNMA(t78, t198, DERIVE_FNMA(t75, t174, DERIVE_FNMA(t70, t150, DERIVE_FNMA(t62, t126, DERIVE_FNMA(t50, t102, DERIVE_FNMA(t33, P[191], x[23]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t367_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t367_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t79, v_t367_0);
-    const derive_vd v_t367_2 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t103, v_t367_1);
-    const derive_vd v_t367_3 = DERIVE_ROWS_FMA(((derive_vd){t271, t271, t271, t271}), v_t127, v_t367_2);
-    const derive_vd v_t367_4 = DERIVE_ROWS_FMA(((derive_vd){t295, t295, t295, t295}), v_t151, v_t367_3);
-    const derive_vd v_t367 = DERIVE_ROWS_FMA(((derive_vd){t319, t319, t319, t319}), v_t175, v_t367_4);
+    const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t367_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t79, v_t367_0);
+    const derive_vd v_t367_2 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t103, v_t367_1);
+    const derive_vd v_t367_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t127, v_t367_2);
+    const derive_vd v_t367_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t151, v_t367_3);
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t175, v_t367_4);
     #else
     const double t367 = DERIVE_FMA(t319, t175, DERIVE_FMA(t295, t151, DERIVE_FMA(t271, t127, DERIVE_FMA(t247, t103, DERIVE_FMA(t223, t79, DERIVE_FMA(t199, P[168], P[0]))))));
     const double t368 = DERIVE_FMA(t319, t176, DERIVE_FMA(t295, t152, DERIVE_FMA(t271, t128, DERIVE_FMA(t247, t104, DERIVE_FMA(t223, t80, DERIVE_FMA(t199, P[169], P[1]))))));
@@ -3249,12 +3257,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t370 = DERIVE_FMA(t319, t178, DERIVE_FMA(t295, t154, DERIVE_FMA(t271, t130, DERIVE_FMA(t247, t106, DERIVE_FMA(t223, t82, DERIVE_FMA(t199, P[171], P[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t371_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
-    const derive_vd v_t371_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t83, v_t371_0);
-    const derive_vd v_t371_2 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t107, v_t371_1);
-    const derive_vd v_t371_3 = DERIVE_ROWS_FMA(((derive_vd){t271, t271, t271, t271}), v_t131, v_t371_2);
-    const derive_vd v_t371_4 = DERIVE_ROWS_FMA(((derive_vd){t295, t295, t295, t295}), v_t155, v_t371_3);
-    const derive_vd v_t371 = DERIVE_ROWS_FMA(((derive_vd){t319, t319, t319, t319}), v_t179, v_t371_4);
+    const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
+    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t83, v_t371_0);
+    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t107, v_t371_1);
+    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t131, v_t371_2);
+    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t155, v_t371_3);
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t179, v_t371_4);
     #else
     const double t371 = DERIVE_FMA(t319, t179, DERIVE_FMA(t295, t155, DERIVE_FMA(t271, t131, DERIVE_FMA(t247, t107, DERIVE_FMA(t223, t83, DERIVE_FMA(t199, P[172], P[4]))))));
     const double t372 = DERIVE_FMA(t319, t180, DERIVE_FMA(t295, t156, DERIVE_FMA(t271, t132, DERIVE_FMA(t247, t108, DERIVE_FMA(t223, t84, DERIVE_FMA(t199, P[173], P[5]))))));
@@ -3262,12 +3270,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t374 = DERIVE_FMA(t319, t182, DERIVE_FMA(t295, t158, DERIVE_FMA(t271, t134, DERIVE_FMA(t247, t110, DERIVE_FMA(t223, t86, DERIVE_FMA(t199, P[175], P[7]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t375_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t375_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t87, v_t375_0);
-    const derive_vd v_t375_2 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t111, v_t375_1);
-    const derive_vd v_t375_3 = DERIVE_ROWS_FMA(((derive_vd){t271, t271, t271, t271}), v_t135, v_t375_2);
-    const derive_vd v_t375_4 = DERIVE_ROWS_FMA(((derive_vd){t295, t295, t295, t295}), v_t159, v_t375_3);
-    const derive_vd v_t375 = DERIVE_ROWS_FMA(((derive_vd){t319, t319, t319, t319}), v_t183, v_t375_4);
+    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t87, v_t375_0);
+    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t111, v_t375_1);
+    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t135, v_t375_2);
+    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t159, v_t375_3);
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t183, v_t375_4);
     #else
     const double t375 = DERIVE_FMA(t319, t183, DERIVE_FMA(t295, t159, DERIVE_FMA(t271, t135, DERIVE_FMA(t247, t111, DERIVE_FMA(t223, t87, DERIVE_FMA(t199, P[176], P[8]))))));
     const double t376 = DERIVE_FMA(t319, t184, DERIVE_FMA(t295, t160, DERIVE_FMA(t271, t136, DERIVE_FMA(t247, t112, DERIVE_FMA(t223, t88, DERIVE_FMA(t199, P[177], P[9]))))));
@@ -3275,12 +3283,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t378 = DERIVE_FMA(t319, t186, DERIVE_FMA(t295, t162, DERIVE_FMA(t271, t138, DERIVE_FMA(t247, t114, DERIVE_FMA(t223, t90, DERIVE_FMA(t199, P[179], P[11]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t379_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t379_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t91, v_t379_0);
-    const derive_vd v_t379_2 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t115, v_t379_1);
-    const derive_vd v_t379_3 = DERIVE_ROWS_FMA(((derive_vd){t271, t271, t271, t271}), v_t139, v_t379_2);
-    const derive_vd v_t379_4 = DERIVE_ROWS_FMA(((derive_vd){t295, t295, t295, t295}), v_t163, v_t379_3);
-    const derive_vd v_t379 = DERIVE_ROWS_FMA(((derive_vd){t319, t319, t319, t319}), v_t187, v_t379_4);
+    const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t379_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t91, v_t379_0);
+    const derive_vd v_t379_2 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t115, v_t379_1);
+    const derive_vd v_t379_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t139, v_t379_2);
+    const derive_vd v_t379_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t163, v_t379_3);
+    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t187, v_t379_4);
     #else
     const double t379 = DERIVE_FMA(t319, t187, DERIVE_FMA(t295, t163, DERIVE_FMA(t271, t139, DERIVE_FMA(t247, t115, DERIVE_FMA(t223, t91, DERIVE_FMA(t199, P[180], P[12]))))));
     const double t380 = DERIVE_FMA(t319, t188, DERIVE_FMA(t295, t164, DERIVE_FMA(t271, t140, DERIVE_FMA(t247, t116, DERIVE_FMA(t223, t92, DERIVE_FMA(t199, P[181], P[13]))))));
@@ -3288,12 +3296,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t382 = DERIVE_FMA(t319, t190, DERIVE_FMA(t295, t166, DERIVE_FMA(t271, t142, DERIVE_FMA(t247, t118, DERIVE_FMA(t223, t94, DERIVE_FMA(t199, P[183], P[15]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t383_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t383_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t95, v_t383_0);
-    const derive_vd v_t383_2 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t119, v_t383_1);
-    const derive_vd v_t383_3 = DERIVE_ROWS_FMA(((derive_vd){t271, t271, t271, t271}), v_t143, v_t383_2);
-    const derive_vd v_t383_4 = DERIVE_ROWS_FMA(((derive_vd){t295, t295, t295, t295}), v_t167, v_t383_3);
-    const derive_vd v_t383 = DERIVE_ROWS_FMA(((derive_vd){t319, t319, t319, t319}), v_t191, v_t383_4);
+    const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t383_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t95, v_t383_0);
+    const derive_vd v_t383_2 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t119, v_t383_1);
+    const derive_vd v_t383_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t143, v_t383_2);
+    const derive_vd v_t383_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t167, v_t383_3);
+    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t191, v_t383_4);
     #else
     const double t383 = DERIVE_FMA(t319, t191, DERIVE_FMA(t295, t167, DERIVE_FMA(t271, t143, DERIVE_FMA(t247, t119, DERIVE_FMA(t223, t95, DERIVE_FMA(t199, P[184], P[16]))))));
     const double t384 = DERIVE_FMA(t319, t192, DERIVE_FMA(t295, t168, DERIVE_FMA(t271, t144, DERIVE_FMA(t247, t120, DERIVE_FMA(t223, t96, DERIVE_FMA(t199, P[185], P[17]))))));
@@ -3301,12 +3309,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t386 = DERIVE_FMA(t319, t194, DERIVE_FMA(t295, t170, DERIVE_FMA(t271, t146, DERIVE_FMA(t247, t122, DERIVE_FMA(t223, t98, DERIVE_FMA(t199, P[187], P[19]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t387_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t387_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t99, v_t387_0);
-    const derive_vd v_t387_2 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t123, v_t387_1);
-    const derive_vd v_t387_3 = DERIVE_ROWS_FMA(((derive_vd){t271, t271, t271, t271}), v_t147, v_t387_2);
-    const derive_vd v_t387_4 = DERIVE_ROWS_FMA(((derive_vd){t295, t295, t295, t295}), v_t171, v_t387_3);
-    const derive_vd v_t387 = DERIVE_ROWS_FMA(((derive_vd){t319, t319, t319, t319}), v_t195, v_t387_4);
+    const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t387_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t99, v_t387_0);
+    const derive_vd v_t387_2 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t123, v_t387_1);
+    const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t147, v_t387_2);
+    const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t171, v_t387_3);
+    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t195, v_t387_4);
     #else
     const double t387 = DERIVE_FMA(t319, t195, DERIVE_FMA(t295, t171, DERIVE_FMA(t271, t147, DERIVE_FMA(t247, t123, DERIVE_FMA(t223, t99, DERIVE_FMA(t199, P[188], P[20]))))));
     const double t388 = DERIVE_FMA(t319, t196, DERIVE_FMA(t295, t172, DERIVE_FMA(t271, t148, DERIVE_FMA(t247, t124, DERIVE_FMA(t223, t100, DERIVE_FMA(t199, P[189], P[21]))))));
@@ -3314,24 +3322,24 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t390 = DERIVE_FMA(t319, t198, DERIVE_FMA(t295, t174, DERIVE_FMA(t271, t150, DERIVE_FMA(t247, t126, DERIVE_FMA(t223, t102, DERIVE_FMA(t199, P[191], P[23]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t391_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t391_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t79, v_t391_0);
-    const derive_vd v_t391_2 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t103, v_t391_1);
-    const derive_vd v_t391_3 = DERIVE_ROWS_FMA(((derive_vd){t272, t272, t272, t272}), v_t127, v_t391_2);
-    const derive_vd v_t391_4 = DERIVE_ROWS_FMA(((derive_vd){t296, t296, t296, t296}), v_t151, v_t391_3);
-    const derive_vd v_t391 = DERIVE_ROWS_FMA(((derive_vd){t320, t320, t320, t320}), v_t175, v_t391_4);
+    const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t391_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t79, v_t391_0);
+    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t103, v_t391_1);
+    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t127, v_t391_2);
+    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t151, v_t391_3);
+    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t175, v_t391_4);
     #else
     const double t392 = DERIVE_FMA(t320, t176, DERIVE_FMA(t296, t152, DERIVE_FMA(t272, t128, DERIVE_FMA(t248, t104, DERIVE_FMA(t224, t80, DERIVE_FMA(t200, P[169], P[25]))))));
     const double t393 = DERIVE_FMA(t320, t177, DERIVE_FMA(t296, t153, DERIVE_FMA(t272, t129, DERIVE_FMA(t248, t105, DERIVE_FMA(t224, t81, DERIVE_FMA(t200, P[170], P[26]))))));
     const double t394 = DERIVE_FMA(t320, t178, DERIVE_FMA(t296, t154, DERIVE_FMA(t272, t130, DERIVE_FMA(t248, t106, DERIVE_FMA(t224, t82, DERIVE_FMA(t200, P[171], P[27]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t395_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t395_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t83, v_t395_0);
-    const derive_vd v_t395_2 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t107, v_t395_1);
-    const derive_vd v_t395_3 = DERIVE_ROWS_FMA(((derive_vd){t272, t272, t272, t272}), v_t131, v_t395_2);
-    const derive_vd v_t395_4 = DERIVE_ROWS_FMA(((derive_vd){t296, t296, t296, t296}), v_t155, v_t395_3);
-    const derive_vd v_t395 = DERIVE_ROWS_FMA(((derive_vd){t320, t320, t320, t320}), v_t179, v_t395_4);
+    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t83, v_t395_0);
+    const derive_vd v_t395_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t107, v_t395_1);
+    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t131, v_t395_2);
+    const derive_vd v_t395_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t155, v_t395_3);
+    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t179, v_t395_4);
     #else
     const double t395 = DERIVE_FMA(t320, t179, DERIVE_FMA(t296, t155, DERIVE_FMA(t272, t131, DERIVE_FMA(t248, t107, DERIVE_FMA(t224, t83, DERIVE_FMA(t200, P[172], P[28]))))));
     const double t396 = DERIVE_FMA(t320, t180, DERIVE_FMA(t296, t156, DERIVE_FMA(t272, t132, DERIVE_FMA(t248, t108, DERIVE_FMA(t224, t84, DERIVE_FMA(t200, P[173], P[29]))))));
@@ -3339,12 +3347,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t398 = DERIVE_FMA(t320, t182, DERIVE_FMA(t296, t158, DERIVE_FMA(t272, t134, DERIVE_FMA(t248, t110, DERIVE_FMA(t224, t86, DERIVE_FMA(t200, P[175], P[31]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t399_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t399_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t87, v_t399_0);
-    const derive_vd v_t399_2 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t111, v_t399_1);
-    const derive_vd v_t399_3 = DERIVE_ROWS_FMA(((derive_vd){t272, t272, t272, t272}), v_t135, v_t399_2);
-    const derive_vd v_t399_4 = DERIVE_ROWS_FMA(((derive_vd){t296, t296, t296, t296}), v_t159, v_t399_3);
-    const derive_vd v_t399 = DERIVE_ROWS_FMA(((derive_vd){t320, t320, t320, t320}), v_t183, v_t399_4);
+    const derive_vd v_t399_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t87, v_t399_0);
+    const derive_vd v_t399_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t111, v_t399_1);
+    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t135, v_t399_2);
+    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t159, v_t399_3);
+    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t183, v_t399_4);
     #else
     const double t399 = DERIVE_FMA(t320, t183, DERIVE_FMA(t296, t159, DERIVE_FMA(t272, t135, DERIVE_FMA(t248, t111, DERIVE_FMA(t224, t87, DERIVE_FMA(t200, P[176], P[32]))))));
     const double t400 = DERIVE_FMA(t320, t184, DERIVE_FMA(t296, t160, DERIVE_FMA(t272, t136, DERIVE_FMA(t248, t112, DERIVE_FMA(t224, t88, DERIVE_FMA(t200, P[177], P[33]))))));
@@ -3352,12 +3360,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t402 = DERIVE_FMA(t320, t186, DERIVE_FMA(t296, t162, DERIVE_FMA(t272, t138, DERIVE_FMA(t248, t114, DERIVE_FMA(t224, t90, DERIVE_FMA(t200, P[179], P[35]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t403_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t403_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t91, v_t403_0);
-    const derive_vd v_t403_2 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t115, v_t403_1);
-    const derive_vd v_t403_3 = DERIVE_ROWS_FMA(((derive_vd){t272, t272, t272, t272}), v_t139, v_t403_2);
-    const derive_vd v_t403_4 = DERIVE_ROWS_FMA(((derive_vd){t296, t296, t296, t296}), v_t163, v_t403_3);
-    const derive_vd v_t403 = DERIVE_ROWS_FMA(((derive_vd){t320, t320, t320, t320}), v_t187, v_t403_4);
+    const derive_vd v_t403_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t403_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t91, v_t403_0);
+    const derive_vd v_t403_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t115, v_t403_1);
+    const derive_vd v_t403_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t139, v_t403_2);
+    const derive_vd v_t403_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t163, v_t403_3);
+    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t187, v_t403_4);
     #else
     const double t403 = DERIVE_FMA(t320, t187, DERIVE_FMA(t296, t163, DERIVE_FMA(t272, t139, DERIVE_FMA(t248, t115, DERIVE_FMA(t224, t91, DERIVE_FMA(t200, P[180], P[36]))))));
     const double t404 = DERIVE_FMA(t320, t188, DERIVE_FMA(t296, t164, DERIVE_FMA(t272, t140, DERIVE_FMA(t248, t116, DERIVE_FMA(t224, t92, DERIVE_FMA(t200, P[181], P[37]))))));
@@ -3365,12 +3373,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t406 = DERIVE_FMA(t320, t190, DERIVE_FMA(t296, t166, DERIVE_FMA(t272, t142, DERIVE_FMA(t248, t118, DERIVE_FMA(t224, t94, DERIVE_FMA(t200, P[183], P[39]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t407_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t407_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t95, v_t407_0);
-    const derive_vd v_t407_2 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t119, v_t407_1);
-    const derive_vd v_t407_3 = DERIVE_ROWS_FMA(((derive_vd){t272, t272, t272, t272}), v_t143, v_t407_2);
-    const derive_vd v_t407_4 = DERIVE_ROWS_FMA(((derive_vd){t296, t296, t296, t296}), v_t167, v_t407_3);
-    const derive_vd v_t407 = DERIVE_ROWS_FMA(((derive_vd){t320, t320, t320, t320}), v_t191, v_t407_4);
+    const derive_vd v_t407_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t407_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t95, v_t407_0);
+    const derive_vd v_t407_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t119, v_t407_1);
+    const derive_vd v_t407_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t143, v_t407_2);
+    const derive_vd v_t407_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t167, v_t407_3);
+    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t191, v_t407_4);
     #else
     const double t407 = DERIVE_FMA(t320, t191, DERIVE_FMA(t296, t167, DERIVE_FMA(t272, t143, DERIVE_FMA(t248, t119, DERIVE_FMA(t224, t95, DERIVE_FMA(t200, P[184], P[40]))))));
     const double t408 = DERIVE_FMA(t320, t192, DERIVE_FMA(t296, t168, DERIVE_FMA(t272, t144, DERIVE_FMA(t248, t120, DERIVE_FMA(t224, t96, DERIVE_FMA(t200, P[185], P[41]))))));
@@ -3378,12 +3386,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t410 = DERIVE_FMA(t320, t194, DERIVE_FMA(t296, t170, DERIVE_FMA(t272, t146, DERIVE_FMA(t248, t122, DERIVE_FMA(t224, t98, DERIVE_FMA(t200, P[187], P[43]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t411_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t411_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t99, v_t411_0);
-    const derive_vd v_t411_2 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t123, v_t411_1);
-    const derive_vd v_t411_3 = DERIVE_ROWS_FMA(((derive_vd){t272, t272, t272, t272}), v_t147, v_t411_2);
-    const derive_vd v_t411_4 = DERIVE_ROWS_FMA(((derive_vd){t296, t296, t296, t296}), v_t171, v_t411_3);
-    const derive_vd v_t411 = DERIVE_ROWS_FMA(((derive_vd){t320, t320, t320, t320}), v_t195, v_t411_4);
+    const derive_vd v_t411_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t411_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t99, v_t411_0);
+    const derive_vd v_t411_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t123, v_t411_1);
+    const derive_vd v_t411_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t147, v_t411_2);
+    const derive_vd v_t411_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t171, v_t411_3);
+    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t195, v_t411_4);
     #else
     const double t411 = DERIVE_FMA(t320, t195, DERIVE_FMA(t296, t171, DERIVE_FMA(t272, t147, DERIVE_FMA(t248, t123, DERIVE_FMA(t224, t99, DERIVE_FMA(t200, P[188], P[44]))))));
     const double t412 = DERIVE_FMA(t320, t196, DERIVE_FMA(t296, t172, DERIVE_FMA(t272, t148, DERIVE_FMA(t248, t124, DERIVE_FMA(t224, t100, DERIVE_FMA(t200, P[189], P[45]))))));
@@ -3391,23 +3399,23 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t414 = DERIVE_FMA(t320, t198, DERIVE_FMA(t296, t174, DERIVE_FMA(t272, t150, DERIVE_FMA(t248, t126, DERIVE_FMA(t224, t102, DERIVE_FMA(t200, P[191], P[47]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t415_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t415_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t79, v_t415_0);
-    const derive_vd v_t415_2 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t103, v_t415_1);
-    const derive_vd v_t415_3 = DERIVE_ROWS_FMA(((derive_vd){t273, t273, t273, t273}), v_t127, v_t415_2);
-    const derive_vd v_t415_4 = DERIVE_ROWS_FMA(((derive_vd){t297, t297, t297, t297}), v_t151, v_t415_3);
-    const derive_vd v_t415 = DERIVE_ROWS_FMA(((derive_vd){t321, t321, t321, t321}), v_t175, v_t415_4);
+    const derive_vd v_t415_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
+    const derive_vd v_t415_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t79, v_t415_0);
+    const derive_vd v_t415_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t103, v_t415_1);
+    const derive_vd v_t415_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t127, v_t415_2);
+    const derive_vd v_t415_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t151, v_t415_3);
+    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t175, v_t415_4);
     #else
     const double t417 = DERIVE_FMA(t321, t177, DERIVE_FMA(t297, t153, DERIVE_FMA(t273, t129, DERIVE_FMA(t249, t105, DERIVE_FMA(t225, t81, DERIVE_FMA(t201, P[170], P[50]))))));
     const double t418 = DERIVE_FMA(t321, t178, DERIVE_FMA(t297, t154, DERIVE_FMA(t273, t130, DERIVE_FMA(t249, t106, DERIVE_FMA(t225, t82, DERIVE_FMA(t201, P[171], P[51]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t419_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd v_t419_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t83, v_t419_0);
-    const derive_vd v_t419_2 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t107, v_t419_1);
-    const derive_vd v_t419_3 = DERIVE_ROWS_FMA(((derive_vd){t273, t273, t273, t273}), v_t131, v_t419_2);
-    const derive_vd v_t419_4 = DERIVE_ROWS_FMA(((derive_vd){t297, t297, t297, t297}), v_t155, v_t419_3);
-    const derive_vd v_t419 = DERIVE_ROWS_FMA(((derive_vd){t321, t321, t321, t321}), v_t179, v_t419_4);
+    const derive_vd v_t419_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd v_t419_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t83, v_t419_0);
+    const derive_vd v_t419_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t107, v_t419_1);
+    const derive_vd v_t419_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t131, v_t419_2);
+    const derive_vd v_t419_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t155, v_t419_3);
+    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t179, v_t419_4);
     #else
     const double t419 = DERIVE_FMA(t321, t179, DERIVE_FMA(t297, t155, DERIVE_FMA(t273, t131, DERIVE_FMA(t249, t107, DERIVE_FMA(t225, t83, DERIVE_FMA(t201, P[172], P[52]))))));
     const double t420 = DERIVE_FMA(t321, t180, DERIVE_FMA(t297, t156, DERIVE_FMA(t273, t132, DERIVE_FMA(t249, t108, DERIVE_FMA(t225, t84, DERIVE_FMA(t201, P[173], P[53]))))));
@@ -3415,12 +3423,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t422 = DERIVE_FMA(t321, t182, DERIVE_FMA(t297, t158, DERIVE_FMA(t273, t134, DERIVE_FMA(t249, t110, DERIVE_FMA(t225, t86, DERIVE_FMA(t201, P[175], P[55]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t423_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t423_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t87, v_t423_0);
-    const derive_vd v_t423_2 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t111, v_t423_1);
-    const derive_vd v_t423_3 = DERIVE_ROWS_FMA(((derive_vd){t273, t273, t273, t273}), v_t135, v_t423_2);
-    const derive_vd v_t423_4 = DERIVE_ROWS_FMA(((derive_vd){t297, t297, t297, t297}), v_t159, v_t423_3);
-    const derive_vd v_t423 = DERIVE_ROWS_FMA(((derive_vd){t321, t321, t321, t321}), v_t183, v_t423_4);
+    const derive_vd v_t423_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t423_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t87, v_t423_0);
+    const derive_vd v_t423_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t111, v_t423_1);
+    const derive_vd v_t423_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t135, v_t423_2);
+    const derive_vd v_t423_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t159, v_t423_3);
+    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t183, v_t423_4);
     #else
     const double t423 = DERIVE_FMA(t321, t183, DERIVE_FMA(t297, t159, DERIVE_FMA(t273, t135, DERIVE_FMA(t249, t111, DERIVE_FMA(t225, t87, DERIVE_FMA(t201, P[176], P[56]))))));
     const double t424 = DERIVE_FMA(t321, t184, DERIVE_FMA(t297, t160, DERIVE_FMA(t273, t136, DERIVE_FMA(t249, t112, DERIVE_FMA(t225, t88, DERIVE_FMA(t201, P[177], P[57]))))));
@@ -3428,12 +3436,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t426 = DERIVE_FMA(t321, t186, DERIVE_FMA(t297, t162, DERIVE_FMA(t273, t138, DERIVE_FMA(t249, t114, DERIVE_FMA(t225, t90, DERIVE_FMA(t201, P[179], P[59]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t427_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t427_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t91, v_t427_0);
-    const derive_vd v_t427_2 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t115, v_t427_1);
-    const derive_vd v_t427_3 = DERIVE_ROWS_FMA(((derive_vd){t273, t273, t273, t273}), v_t139, v_t427_2);
-    const derive_vd v_t427_4 = DERIVE_ROWS_FMA(((derive_vd){t297, t297, t297, t297}), v_t163, v_t427_3);
-    const derive_vd v_t427 = DERIVE_ROWS_FMA(((derive_vd){t321, t321, t321, t321}), v_t187, v_t427_4);
+    const derive_vd v_t427_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t427_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t91, v_t427_0);
+    const derive_vd v_t427_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t115, v_t427_1);
+    const derive_vd v_t427_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t139, v_t427_2);
+    const derive_vd v_t427_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t163, v_t427_3);
+    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t187, v_t427_4);
     #else
     const double t427 = DERIVE_FMA(t321, t187, DERIVE_FMA(t297, t163, DERIVE_FMA(t273, t139, DERIVE_FMA(t249, t115, DERIVE_FMA(t225, t91, DERIVE_FMA(t201, P[180], P[60]))))));
     const double t428 = DERIVE_FMA(t321, t188, DERIVE_FMA(t297, t164, DERIVE_FMA(t273, t140, DERIVE_FMA(t249, t116, DERIVE_FMA(t225, t92, DERIVE_FMA(t201, P[181], P[61]))))));
@@ -3441,12 +3449,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t430 = DERIVE_FMA(t321, t190, DERIVE_FMA(t297, t166, DERIVE_FMA(t273, t142, DERIVE_FMA(t249, t118, DERIVE_FMA(t225, t94, DERIVE_FMA(t201, P[183], P[63]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t431_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t431_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t95, v_t431_0);
-    const derive_vd v_t431_2 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t119, v_t431_1);
-    const derive_vd v_t431_3 = DERIVE_ROWS_FMA(((derive_vd){t273, t273, t273, t273}), v_t143, v_t431_2);
-    const derive_vd v_t431_4 = DERIVE_ROWS_FMA(((derive_vd){t297, t297, t297, t297}), v_t167, v_t431_3);
-    const derive_vd v_t431 = DERIVE_ROWS_FMA(((derive_vd){t321, t321, t321, t321}), v_t191, v_t431_4);
+    const derive_vd v_t431_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t431_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t95, v_t431_0);
+    const derive_vd v_t431_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t119, v_t431_1);
+    const derive_vd v_t431_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t143, v_t431_2);
+    const derive_vd v_t431_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t167, v_t431_3);
+    const derive_vd v_t431 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t191, v_t431_4);
     #else
     const double t431 = DERIVE_FMA(t321, t191, DERIVE_FMA(t297, t167, DERIVE_FMA(t273, t143, DERIVE_FMA(t249, t119, DERIVE_FMA(t225, t95, DERIVE_FMA(t201, P[184], P[64]))))));
     const double t432 = DERIVE_FMA(t321, t192, DERIVE_FMA(t297, t168, DERIVE_FMA(t273, t144, DERIVE_FMA(t249, t120, DERIVE_FMA(t225, t96, DERIVE_FMA(t201, P[185], P[65]))))));
@@ -3454,12 +3462,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t434 = DERIVE_FMA(t321, t194, DERIVE_FMA(t297, t170, DERIVE_FMA(t273, t146, DERIVE_FMA(t249, t122, DERIVE_FMA(t225, t98, DERIVE_FMA(t201, P[187], P[67]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t435_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t435_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t99, v_t435_0);
-    const derive_vd v_t435_2 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t123, v_t435_1);
-    const derive_vd v_t435_3 = DERIVE_ROWS_FMA(((derive_vd){t273, t273, t273, t273}), v_t147, v_t435_2);
-    const derive_vd v_t435_4 = DERIVE_ROWS_FMA(((derive_vd){t297, t297, t297, t297}), v_t171, v_t435_3);
-    const derive_vd v_t435 = DERIVE_ROWS_FMA(((derive_vd){t321, t321, t321, t321}), v_t195, v_t435_4);
+    const derive_vd v_t435_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t435_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t99, v_t435_0);
+    const derive_vd v_t435_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t123, v_t435_1);
+    const derive_vd v_t435_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t147, v_t435_2);
+    const derive_vd v_t435_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t171, v_t435_3);
+    const derive_vd v_t435 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t195, v_t435_4);
     #else
     const double t435 = DERIVE_FMA(t321, t195, DERIVE_FMA(t297, t171, DERIVE_FMA(t273, t147, DERIVE_FMA(t249, t123, DERIVE_FMA(t225, t99, DERIVE_FMA(t201, P[188], P[68]))))));
     const double t436 = DERIVE_FMA(t321, t196, DERIVE_FMA(t297, t172, DERIVE_FMA(t273, t148, DERIVE_FMA(t249, t124, DERIVE_FMA(t225, t100, DERIVE_FMA(t201, P[189], P[69]))))));
@@ -3467,12 +3475,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t438 = DERIVE_FMA(t321, t198, DERIVE_FMA(t297, t174, DERIVE_FMA(t273, t150, DERIVE_FMA(t249, t126, DERIVE_FMA(t225, t102, DERIVE_FMA(t201, P[191], P[71]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t439_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t439_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t79, v_t439_0);
-    const derive_vd v_t439_2 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t103, v_t439_1);
-    const derive_vd v_t439_3 = DERIVE_ROWS_FMA(((derive_vd){t274, t274, t274, t274}), v_t127, v_t439_2);
-    const derive_vd v_t439_4 = DERIVE_ROWS_FMA(((derive_vd){t298, t298, t298, t298}), v_t151, v_t439_3);
-    const derive_vd v_t439 = DERIVE_ROWS_FMA(((derive_vd){t322, t322, t322, t322}), v_t175, v_t439_4);
+    const derive_vd v_t439_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t439_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t79, v_t439_0);
+    const derive_vd v_t439_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t103, v_t439_1);
+    const derive_vd v_t439_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t127, v_t439_2);
+    const derive_vd v_t439_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t151, v_t439_3);
+    const derive_vd v_t439 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t175, v_t439_4);
     const derive_vd tr_v_t367_0 = __builtin_shufflevector(v_t367, v_t391, 0, 4, 2, 6);
     const derive_vd tr_v_t367_1 = __builtin_shufflevector(v_t367, v_t391, 1, 5, 3, 7);
     const derive_vd tr_v_t367_2 = __builtin_shufflevector(v_t415, v_t439, 0, 4, 2, 6);
@@ -3488,12 +3496,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t442 = DERIVE_FMA(t322, t178, DERIVE_FMA(t298, t154, DERIVE_FMA(t274, t130, DERIVE_FMA(t250, t106, DERIVE_FMA(t226, t82, DERIVE_FMA(t202, P[171], P[75]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t443_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t443_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t83, v_t443_0);
-    const derive_vd v_t443_2 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t107, v_t443_1);
-    const derive_vd v_t443_3 = DERIVE_ROWS_FMA(((derive_vd){t274, t274, t274, t274}), v_t131, v_t443_2);
-    const derive_vd v_t443_4 = DERIVE_ROWS_FMA(((derive_vd){t298, t298, t298, t298}), v_t155, v_t443_3);
-    const derive_vd v_t443 = DERIVE_ROWS_FMA(((derive_vd){t322, t322, t322, t322}), v_t179, v_t443_4);
+    const derive_vd v_t443_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t443_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t83, v_t443_0);
+    const derive_vd v_t443_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t107, v_t443_1);
+    const derive_vd v_t443_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t131, v_t443_2);
+    const derive_vd v_t443_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t155, v_t443_3);
+    const derive_vd v_t443 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t179, v_t443_4);
     const derive_vd tr_v_t371_0 = __builtin_shufflevector(v_t371, v_t395, 0, 4, 2, 6);
     const derive_vd tr_v_t371_1 = __builtin_shufflevector(v_t371, v_t395, 1, 5, 3, 7);
     const derive_vd tr_v_t371_2 = __builtin_shufflevector(v_t419, v_t443, 0, 4, 2, 6);
@@ -3517,12 +3525,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t446 = DERIVE_FMA(t322, t182, DERIVE_FMA(t298, t158, DERIVE_FMA(t274, t134, DERIVE_FMA(t250, t110, DERIVE_FMA(t226, t86, DERIVE_FMA(t202, P[175], P[79]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t447_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t447_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t87, v_t447_0);
-    const derive_vd v_t447_2 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t111, v_t447_1);
-    const derive_vd v_t447_3 = DERIVE_ROWS_FMA(((derive_vd){t274, t274, t274, t274}), v_t135, v_t447_2);
-    const derive_vd v_t447_4 = DERIVE_ROWS_FMA(((derive_vd){t298, t298, t298, t298}), v_t159, v_t447_3);
-    const derive_vd v_t447 = DERIVE_ROWS_FMA(((derive_vd){t322, t322, t322, t322}), v_t183, v_t447_4);
+    const derive_vd v_t447_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t447_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t87, v_t447_0);
+    const derive_vd v_t447_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t111, v_t447_1);
+    const derive_vd v_t447_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t135, v_t447_2);
+    const derive_vd v_t447_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t159, v_t447_3);
+    const derive_vd v_t447 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t183, v_t447_4);
     const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t399, 0, 4, 2, 6);
     const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t399, 1, 5, 3, 7);
     const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t423, v_t447, 0, 4, 2, 6);
@@ -3546,12 +3554,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t450 = DERIVE_FMA(t322, t186, DERIVE_FMA(t298, t162, DERIVE_FMA(t274, t138, DERIVE_FMA(t250, t114, DERIVE_FMA(t226, t90, DERIVE_FMA(t202, P[179], P[83]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t451_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t451_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t91, v_t451_0);
-    const derive_vd v_t451_2 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t115, v_t451_1);
-    const derive_vd v_t451_3 = DERIVE_ROWS_FMA(((derive_vd){t274, t274, t274, t274}), v_t139, v_t451_2);
-    const derive_vd v_t451_4 = DERIVE_ROWS_FMA(((derive_vd){t298, t298, t298, t298}), v_t163, v_t451_3);
-    const derive_vd v_t451 = DERIVE_ROWS_FMA(((derive_vd){t322, t322, t322, t322}), v_t187, v_t451_4);
+    const derive_vd v_t451_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t451_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t91, v_t451_0);
+    const derive_vd v_t451_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t115, v_t451_1);
+    const derive_vd v_t451_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t139, v_t451_2);
+    const derive_vd v_t451_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t163, v_t451_3);
+    const derive_vd v_t451 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t187, v_t451_4);
     const derive_vd tr_v_t379_0 = __builtin_shufflevector(v_t379, v_t403, 0, 4, 2, 6);
     const derive_vd tr_v_t379_1 = __builtin_shufflevector(v_t379, v_t403, 1, 5, 3, 7);
     const derive_vd tr_v_t379_2 = __builtin_shufflevector(v_t427, v_t451, 0, 4, 2, 6);
@@ -3575,12 +3583,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t454 = DERIVE_FMA(t322, t190, DERIVE_FMA(t298, t166, DERIVE_FMA(t274, t142, DERIVE_FMA(t250, t118, DERIVE_FMA(t226, t94, DERIVE_FMA(t202, P[183], P[87]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t455_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t455_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t95, v_t455_0);
-    const derive_vd v_t455_2 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t119, v_t455_1);
-    const derive_vd v_t455_3 = DERIVE_ROWS_FMA(((derive_vd){t274, t274, t274, t274}), v_t143, v_t455_2);
-    const derive_vd v_t455_4 = DERIVE_ROWS_FMA(((derive_vd){t298, t298, t298, t298}), v_t167, v_t455_3);
-    const derive_vd v_t455 = DERIVE_ROWS_FMA(((derive_vd){t322, t322, t322, t322}), v_t191, v_t455_4);
+    const derive_vd v_t455_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t455_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t95, v_t455_0);
+    const derive_vd v_t455_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t119, v_t455_1);
+    const derive_vd v_t455_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t143, v_t455_2);
+    const derive_vd v_t455_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t167, v_t455_3);
+    const derive_vd v_t455 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t191, v_t455_4);
     const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t407, 0, 4, 2, 6);
     const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t407, 1, 5, 3, 7);
     const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t431, v_t455, 0, 4, 2, 6);
@@ -3604,12 +3612,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t458 = DERIVE_FMA(t322, t194, DERIVE_FMA(t298, t170, DERIVE_FMA(t274, t146, DERIVE_FMA(t250, t122, DERIVE_FMA(t226, t98, DERIVE_FMA(t202, P[187], P[91]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t459_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t459_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t99, v_t459_0);
-    const derive_vd v_t459_2 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t123, v_t459_1);
-    const derive_vd v_t459_3 = DERIVE_ROWS_FMA(((derive_vd){t274, t274, t274, t274}), v_t147, v_t459_2);
-    const derive_vd v_t459_4 = DERIVE_ROWS_FMA(((derive_vd){t298, t298, t298, t298}), v_t171, v_t459_3);
-    const derive_vd v_t459 = DERIVE_ROWS_FMA(((derive_vd){t322, t322, t322, t322}), v_t195, v_t459_4);
+    const derive_vd v_t459_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t459_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t99, v_t459_0);
+    const derive_vd v_t459_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t123, v_t459_1);
+    const derive_vd v_t459_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t147, v_t459_2);
+    const derive_vd v_t459_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t171, v_t459_3);
+    const derive_vd v_t459 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t195, v_t459_4);
     const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t411, 0, 4, 2, 6);
     const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t411, 1, 5, 3, 7);
     const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t435, v_t459, 0, 4, 2, 6);
@@ -3633,12 +3641,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t462 = DERIVE_FMA(t322, t198, DERIVE_FMA(t298, t174, DERIVE_FMA(t274, t150, DERIVE_FMA(t250, t126, DERIVE_FMA(t226, t102, DERIVE_FMA(t202, P[191], P[95]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t463_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t463_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t83, v_t463_0);
-    const derive_vd v_t463_2 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t107, v_t463_1);
-    const derive_vd v_t463_3 = DERIVE_ROWS_FMA(((derive_vd){t275, t275, t275, t275}), v_t131, v_t463_2);
-    const derive_vd v_t463_4 = DERIVE_ROWS_FMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t463_3);
-    const derive_vd v_t463 = DERIVE_ROWS_FMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t463_4);
+    const derive_vd v_t463_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t463_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t83, v_t463_0);
+    const derive_vd v_t463_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t107, v_t463_1);
+    const derive_vd v_t463_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t131, v_t463_2);
+    const derive_vd v_t463_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t463_3);
+    const derive_vd v_t463 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t463_4);
     #else
     const double t463 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, DERIVE_FMA(t275, t131, DERIVE_FMA(t251, t107, DERIVE_FMA(t227, t83, DERIVE_FMA(t203, P[172], P[100]))))));
     const double t464 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, DERIVE_FMA(t275, t132, DERIVE_FMA(t251, t108, DERIVE_FMA(t227, t84, DERIVE_FMA(t203, P[173], P[101]))))));
@@ -3646,12 +3654,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t466 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, DERIVE_FMA(t275, t134, DERIVE_FMA(t251, t110, DERIVE_FMA(t227, t86, DERIVE_FMA(t203, P[175], P[103]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t467_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t467_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t87, v_t467_0);
-    const derive_vd v_t467_2 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t111, v_t467_1);
-    const derive_vd v_t467_3 = DERIVE_ROWS_FMA(((derive_vd){t275, t275, t275, t275}), v_t135, v_t467_2);
-    const derive_vd v_t467_4 = DERIVE_ROWS_FMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t467_3);
-    const derive_vd v_t467 = DERIVE_ROWS_FMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t467_4);
+    const derive_vd v_t467_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t467_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t87, v_t467_0);
+    const derive_vd v_t467_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t111, v_t467_1);
+    const derive_vd v_t467_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t135, v_t467_2);
+    const derive_vd v_t467_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t467_3);
+    const derive_vd v_t467 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t467_4);
     #else
     const double t467 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, DERIVE_FMA(t275, t135, DERIVE_FMA(t251, t111, DERIVE_FMA(t227, t87, DERIVE_FMA(t203, P[176], P[104]))))));
     const double t468 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, DERIVE_FMA(t275, t136, DERIVE_FMA(t251, t112, DERIVE_FMA(t227, t88, DERIVE_FMA(t203, P[177], P[105]))))));
@@ -3659,12 +3667,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t470 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, DERIVE_FMA(t275, t138, DERIVE_FMA(t251, t114, DERIVE_FMA(t227, t90, DERIVE_FMA(t203, P[179], P[107]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t471_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t471_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t91, v_t471_0);
-    const derive_vd v_t471_2 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t115, v_t471_1);
-    const derive_vd v_t471_3 = DERIVE_ROWS_FMA(((derive_vd){t275, t275, t275, t275}), v_t139, v_t471_2);
-    const derive_vd v_t471_4 = DERIVE_ROWS_FMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t471_3);
-    const derive_vd v_t471 = DERIVE_ROWS_FMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t471_4);
+    const derive_vd v_t471_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t471_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t91, v_t471_0);
+    const derive_vd v_t471_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t115, v_t471_1);
+    const derive_vd v_t471_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t139, v_t471_2);
+    const derive_vd v_t471_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t471_3);
+    const derive_vd v_t471 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t471_4);
     #else
     const double t471 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, DERIVE_FMA(t275, t139, DERIVE_FMA(t251, t115, DERIVE_FMA(t227, t91, DERIVE_FMA(t203, P[180], P[108]))))));
     const double t472 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, DERIVE_FMA(t275, t140, DERIVE_FMA(t251, t116, DERIVE_FMA(t227, t92, DERIVE_FMA(t203, P[181], P[109]))))));
@@ -3672,12 +3680,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t474 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, DERIVE_FMA(t275, t142, DERIVE_FMA(t251, t118, DERIVE_FMA(t227, t94, DERIVE_FMA(t203, P[183], P[111]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t475_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t475_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t95, v_t475_0);
-    const derive_vd v_t475_2 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t119, v_t475_1);
-    const derive_vd v_t475_3 = DERIVE_ROWS_FMA(((derive_vd){t275, t275, t275, t275}), v_t143, v_t475_2);
-    const derive_vd v_t475_4 = DERIVE_ROWS_FMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t475_3);
-    const derive_vd v_t475 = DERIVE_ROWS_FMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t475_4);
+    const derive_vd v_t475_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t475_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t95, v_t475_0);
+    const derive_vd v_t475_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t119, v_t475_1);
+    const derive_vd v_t475_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t143, v_t475_2);
+    const derive_vd v_t475_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t475_3);
+    const derive_vd v_t475 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t475_4);
     #else
     const double t475 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, DERIVE_FMA(t275, t143, DERIVE_FMA(t251, t119, DERIVE_FMA(t227, t95, DERIVE_FMA(t203, P[184], P[112]))))));
     const double t476 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, DERIVE_FMA(t275, t144, DERIVE_FMA(t251, t120, DERIVE_FMA(t227, t96, DERIVE_FMA(t203, P[185], P[113]))))));
@@ -3685,12 +3693,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t478 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, DERIVE_FMA(t275, t146, DERIVE_FMA(t251, t122, DERIVE_FMA(t227, t98, DERIVE_FMA(t203, P[187], P[115]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t479_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t479_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t99, v_t479_0);
-    const derive_vd v_t479_2 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t123, v_t479_1);
-    const derive_vd v_t479_3 = DERIVE_ROWS_FMA(((derive_vd){t275, t275, t275, t275}), v_t147, v_t479_2);
-    const derive_vd v_t479_4 = DERIVE_ROWS_FMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t479_3);
-    const derive_vd v_t479 = DERIVE_ROWS_FMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t479_4);
+    const derive_vd v_t479_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t479_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t99, v_t479_0);
+    const derive_vd v_t479_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t123, v_t479_1);
+    const derive_vd v_t479_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t147, v_t479_2);
+    const derive_vd v_t479_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t479_3);
+    const derive_vd v_t479 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t479_4);
     #else
     const double t479 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, DERIVE_FMA(t275, t147, DERIVE_FMA(t251, t123, DERIVE_FMA(t227, t99, DERIVE_FMA(t203, P[188], P[116]))))));
     const double t480 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, DERIVE_FMA(t275, t148, DERIVE_FMA(t251, t124, DERIVE_FMA(t227, t100, DERIVE_FMA(t203, P[189], P[117]))))));
@@ -3698,24 +3706,24 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t482 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, DERIVE_FMA(t275, t150, DERIVE_FMA(t251, t126, DERIVE_FMA(t227, t102, DERIVE_FMA(t203, P[191], P[119]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t483_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t483_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t83, v_t483_0);
-    const derive_vd v_t483_2 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t107, v_t483_1);
-    const derive_vd v_t483_3 = DERIVE_ROWS_FMA(((derive_vd){t276, t276, t276, t276}), v_t131, v_t483_2);
-    const derive_vd v_t483_4 = DERIVE_ROWS_FMA(((derive_vd){t300, t300, t300, t300}), v_t155, v_t483_3);
-    const derive_vd v_t483 = DERIVE_ROWS_FMA(((derive_vd){t324, t324, t324, t324}), v_t179, v_t483_4);
+    const derive_vd v_t483_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t483_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t83, v_t483_0);
+    const derive_vd v_t483_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t107, v_t483_1);
+    const derive_vd v_t483_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t131, v_t483_2);
+    const derive_vd v_t483_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t155, v_t483_3);
+    const derive_vd v_t483 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t179, v_t483_4);
     #else
     const double t484 = DERIVE_FMA(t324, t180, DERIVE_FMA(t300, t156, DERIVE_FMA(t276, t132, DERIVE_FMA(t252, t108, DERIVE_FMA(t228, t84, DERIVE_FMA(t204, P[173], P[125]))))));
     const double t485 = DERIVE_FMA(t324, t181, DERIVE_FMA(t300, t157, DERIVE_FMA(t276, t133, DERIVE_FMA(t252, t109, DERIVE_FMA(t228, t85, DERIVE_FMA(t204, P[174], P[126]))))));
     const double t486 = DERIVE_FMA(t324, t182, DERIVE_FMA(t300, t158, DERIVE_FMA(t276, t134, DERIVE_FMA(t252, t110, DERIVE_FMA(t228, t86, DERIVE_FMA(t204, P[175], P[127]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t487_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t487_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t87, v_t487_0);
-    const derive_vd v_t487_2 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t111, v_t487_1);
-    const derive_vd v_t487_3 = DERIVE_ROWS_FMA(((derive_vd){t276, t276, t276, t276}), v_t135, v_t487_2);
-    const derive_vd v_t487_4 = DERIVE_ROWS_FMA(((derive_vd){t300, t300, t300, t300}), v_t159, v_t487_3);
-    const derive_vd v_t487 = DERIVE_ROWS_FMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t487_4);
+    const derive_vd v_t487_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t487_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t87, v_t487_0);
+    const derive_vd v_t487_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t111, v_t487_1);
+    const derive_vd v_t487_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t135, v_t487_2);
+    const derive_vd v_t487_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t159, v_t487_3);
+    const derive_vd v_t487 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t487_4);
     #else
     const double t487 = DERIVE_FMA(t324, t183, DERIVE_FMA(t300, t159, DERIVE_FMA(t276, t135, DERIVE_FMA(t252, t111, DERIVE_FMA(t228, t87, DERIVE_FMA(t204, P[176], P[128]))))));
     const double t488 = DERIVE_FMA(t324, t184, DERIVE_FMA(t300, t160, DERIVE_FMA(t276, t136, DERIVE_FMA(t252, t112, DERIVE_FMA(t228, t88, DERIVE_FMA(t204, P[177], P[129]))))));
@@ -3723,12 +3731,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t490 = DERIVE_FMA(t324, t186, DERIVE_FMA(t300, t162, DERIVE_FMA(t276, t138, DERIVE_FMA(t252, t114, DERIVE_FMA(t228, t90, DERIVE_FMA(t204, P[179], P[131]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t491_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t491_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t91, v_t491_0);
-    const derive_vd v_t491_2 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t115, v_t491_1);
-    const derive_vd v_t491_3 = DERIVE_ROWS_FMA(((derive_vd){t276, t276, t276, t276}), v_t139, v_t491_2);
-    const derive_vd v_t491_4 = DERIVE_ROWS_FMA(((derive_vd){t300, t300, t300, t300}), v_t163, v_t491_3);
-    const derive_vd v_t491 = DERIVE_ROWS_FMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t491_4);
+    const derive_vd v_t491_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t491_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t91, v_t491_0);
+    const derive_vd v_t491_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t115, v_t491_1);
+    const derive_vd v_t491_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t139, v_t491_2);
+    const derive_vd v_t491_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t163, v_t491_3);
+    const derive_vd v_t491 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t491_4);
     #else
     const double t491 = DERIVE_FMA(t324, t187, DERIVE_FMA(t300, t163, DERIVE_FMA(t276, t139, DERIVE_FMA(t252, t115, DERIVE_FMA(t228, t91, DERIVE_FMA(t204, P[180], P[132]))))));
     const double t492 = DERIVE_FMA(t324, t188, DERIVE_FMA(t300, t164, DERIVE_FMA(t276, t140, DERIVE_FMA(t252, t116, DERIVE_FMA(t228, t92, DERIVE_FMA(t204, P[181], P[133]))))));
@@ -3736,12 +3744,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t494 = DERIVE_FMA(t324, t190, DERIVE_FMA(t300, t166, DERIVE_FMA(t276, t142, DERIVE_FMA(t252, t118, DERIVE_FMA(t228, t94, DERIVE_FMA(t204, P[183], P[135]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t495_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t495_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t95, v_t495_0);
-    const derive_vd v_t495_2 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t119, v_t495_1);
-    const derive_vd v_t495_3 = DERIVE_ROWS_FMA(((derive_vd){t276, t276, t276, t276}), v_t143, v_t495_2);
-    const derive_vd v_t495_4 = DERIVE_ROWS_FMA(((derive_vd){t300, t300, t300, t300}), v_t167, v_t495_3);
-    const derive_vd v_t495 = DERIVE_ROWS_FMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t495_4);
+    const derive_vd v_t495_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t495_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t95, v_t495_0);
+    const derive_vd v_t495_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t119, v_t495_1);
+    const derive_vd v_t495_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t143, v_t495_2);
+    const derive_vd v_t495_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t167, v_t495_3);
+    const derive_vd v_t495 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t495_4);
     #else
     const double t495 = DERIVE_FMA(t324, t191, DERIVE_FMA(t300, t167, DERIVE_FMA(t276, t143, DERIVE_FMA(t252, t119, DERIVE_FMA(t228, t95, DERIVE_FMA(t204, P[184], P[136]))))));
     const double t496 = DERIVE_FMA(t324, t192, DERIVE_FMA(t300, t168, DERIVE_FMA(t276, t144, DERIVE_FMA(t252, t120, DERIVE_FMA(t228, t96, DERIVE_FMA(t204, P[185], P[137]))))));
@@ -3749,12 +3757,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t498 = DERIVE_FMA(t324, t194, DERIVE_FMA(t300, t170, DERIVE_FMA(t276, t146, DERIVE_FMA(t252, t122, DERIVE_FMA(t228, t98, DERIVE_FMA(t204, P[187], P[139]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t499_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t499_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t99, v_t499_0);
-    const derive_vd v_t499_2 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t123, v_t499_1);
-    const derive_vd v_t499_3 = DERIVE_ROWS_FMA(((derive_vd){t276, t276, t276, t276}), v_t147, v_t499_2);
-    const derive_vd v_t499_4 = DERIVE_ROWS_FMA(((derive_vd){t300, t300, t300, t300}), v_t171, v_t499_3);
-    const derive_vd v_t499 = DERIVE_ROWS_FMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t499_4);
+    const derive_vd v_t499_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t499_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t99, v_t499_0);
+    const derive_vd v_t499_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t123, v_t499_1);
+    const derive_vd v_t499_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t147, v_t499_2);
+    const derive_vd v_t499_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t171, v_t499_3);
+    const derive_vd v_t499 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t499_4);
     #else
     const double t499 = DERIVE_FMA(t324, t195, DERIVE_FMA(t300, t171, DERIVE_FMA(t276, t147, DERIVE_FMA(t252, t123, DERIVE_FMA(t228, t99, DERIVE_FMA(t204, P[188], P[140]))))));
     const double t500 = DERIVE_FMA(t324, t196, DERIVE_FMA(t300, t172, DERIVE_FMA(t276, t148, DERIVE_FMA(t252, t124, DERIVE_FMA(t228, t100, DERIVE_FMA(t204, P[189], P[141]))))));
@@ -3762,23 +3770,23 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t502 = DERIVE_FMA(t324, t198, DERIVE_FMA(t300, t174, DERIVE_FMA(t276, t150, DERIVE_FMA(t252, t126, DERIVE_FMA(t228, t102, DERIVE_FMA(t204, P[191], P[143]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t503_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t503_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t83, v_t503_0);
-    const derive_vd v_t503_2 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t107, v_t503_1);
-    const derive_vd v_t503_3 = DERIVE_ROWS_FMA(((derive_vd){t277, t277, t277, t277}), v_t131, v_t503_2);
-    const derive_vd v_t503_4 = DERIVE_ROWS_FMA(((derive_vd){t301, t301, t301, t301}), v_t155, v_t503_3);
-    const derive_vd v_t503 = DERIVE_ROWS_FMA(((derive_vd){t325, t325, t325, t325}), v_t179, v_t503_4);
+    const derive_vd v_t503_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t503_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t83, v_t503_0);
+    const derive_vd v_t503_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t107, v_t503_1);
+    const derive_vd v_t503_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t131, v_t503_2);
+    const derive_vd v_t503_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t155, v_t503_3);
+    const derive_vd v_t503 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t179, v_t503_4);
     #else
     const double t505 = DERIVE_FMA(t325, t181, DERIVE_FMA(t301, t157, DERIVE_FMA(t277, t133, DERIVE_FMA(t253, t109, DERIVE_FMA(t229, t85, DERIVE_FMA(t205, P[174], P[150]))))));
     const double t506 = DERIVE_FMA(t325, t182, DERIVE_FMA(t301, t158, DERIVE_FMA(t277, t134, DERIVE_FMA(t253, t110, DERIVE_FMA(t229, t86, DERIVE_FMA(t205, P[175], P[151]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t507_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t507_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t87, v_t507_0);
-    const derive_vd v_t507_2 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t111, v_t507_1);
-    const derive_vd v_t507_3 = DERIVE_ROWS_FMA(((derive_vd){t277, t277, t277, t277}), v_t135, v_t507_2);
-    const derive_vd v_t507_4 = DERIVE_ROWS_FMA(((derive_vd){t301, t301, t301, t301}), v_t159, v_t507_3);
-    const derive_vd v_t507 = DERIVE_ROWS_FMA(((derive_vd){t325, t325, t325, t325}), v_t183, v_t507_4);
+    const derive_vd v_t507_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t507_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t87, v_t507_0);
+    const derive_vd v_t507_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t111, v_t507_1);
+    const derive_vd v_t507_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t135, v_t507_2);
+    const derive_vd v_t507_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t159, v_t507_3);
+    const derive_vd v_t507 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t183, v_t507_4);
     #else
     const double t507 = DERIVE_FMA(t325, t183, DERIVE_FMA(t301, t159, DERIVE_FMA(t277, t135, DERIVE_FMA(t253, t111, DERIVE_FMA(t229, t87, DERIVE_FMA(t205, P[176], P[152]))))));
     const double t508 = DERIVE_FMA(t325, t184, DERIVE_FMA(t301, t160, DERIVE_FMA(t277, t136, DERIVE_FMA(t253, t112, DERIVE_FMA(t229, t88, DERIVE_FMA(t205, P[177], P[153]))))));
@@ -3786,12 +3794,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t510 = DERIVE_FMA(t325, t186, DERIVE_FMA(t301, t162, DERIVE_FMA(t277, t138, DERIVE_FMA(t253, t114, DERIVE_FMA(t229, t90, DERIVE_FMA(t205, P[179], P[155]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t511_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t511_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t91, v_t511_0);
-    const derive_vd v_t511_2 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t115, v_t511_1);
-    const derive_vd v_t511_3 = DERIVE_ROWS_FMA(((derive_vd){t277, t277, t277, t277}), v_t139, v_t511_2);
-    const derive_vd v_t511_4 = DERIVE_ROWS_FMA(((derive_vd){t301, t301, t301, t301}), v_t163, v_t511_3);
-    const derive_vd v_t511 = DERIVE_ROWS_FMA(((derive_vd){t325, t325, t325, t325}), v_t187, v_t511_4);
+    const derive_vd v_t511_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t511_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t91, v_t511_0);
+    const derive_vd v_t511_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t115, v_t511_1);
+    const derive_vd v_t511_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t139, v_t511_2);
+    const derive_vd v_t511_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t163, v_t511_3);
+    const derive_vd v_t511 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t187, v_t511_4);
     #else
     const double t511 = DERIVE_FMA(t325, t187, DERIVE_FMA(t301, t163, DERIVE_FMA(t277, t139, DERIVE_FMA(t253, t115, DERIVE_FMA(t229, t91, DERIVE_FMA(t205, P[180], P[156]))))));
     const double t512 = DERIVE_FMA(t325, t188, DERIVE_FMA(t301, t164, DERIVE_FMA(t277, t140, DERIVE_FMA(t253, t116, DERIVE_FMA(t229, t92, DERIVE_FMA(t205, P[181], P[157]))))));
@@ -3799,12 +3807,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t514 = DERIVE_FMA(t325, t190, DERIVE_FMA(t301, t166, DERIVE_FMA(t277, t142, DERIVE_FMA(t253, t118, DERIVE_FMA(t229, t94, DERIVE_FMA(t205, P[183], P[159]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t515_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t515_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t95, v_t515_0);
-    const derive_vd v_t515_2 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t119, v_t515_1);
-    const derive_vd v_t515_3 = DERIVE_ROWS_FMA(((derive_vd){t277, t277, t277, t277}), v_t143, v_t515_2);
-    const derive_vd v_t515_4 = DERIVE_ROWS_FMA(((derive_vd){t301, t301, t301, t301}), v_t167, v_t515_3);
-    const derive_vd v_t515 = DERIVE_ROWS_FMA(((derive_vd){t325, t325, t325, t325}), v_t191, v_t515_4);
+    const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t515_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t95, v_t515_0);
+    const derive_vd v_t515_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t119, v_t515_1);
+    const derive_vd v_t515_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t143, v_t515_2);
+    const derive_vd v_t515_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t167, v_t515_3);
+    const derive_vd v_t515 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t191, v_t515_4);
     #else
     const double t515 = DERIVE_FMA(t325, t191, DERIVE_FMA(t301, t167, DERIVE_FMA(t277, t143, DERIVE_FMA(t253, t119, DERIVE_FMA(t229, t95, DERIVE_FMA(t205, P[184], P[160]))))));
     const double t516 = DERIVE_FMA(t325, t192, DERIVE_FMA(t301, t168, DERIVE_FMA(t277, t144, DERIVE_FMA(t253, t120, DERIVE_FMA(t229, t96, DERIVE_FMA(t205, P[185], P[161]))))));
@@ -3812,12 +3820,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t518 = DERIVE_FMA(t325, t194, DERIVE_FMA(t301, t170, DERIVE_FMA(t277, t146, DERIVE_FMA(t253, t122, DERIVE_FMA(t229, t98, DERIVE_FMA(t205, P[187], P[163]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t519_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t519_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t99, v_t519_0);
-    const derive_vd v_t519_2 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t123, v_t519_1);
-    const derive_vd v_t519_3 = DERIVE_ROWS_FMA(((derive_vd){t277, t277, t277, t277}), v_t147, v_t519_2);
-    const derive_vd v_t519_4 = DERIVE_ROWS_FMA(((derive_vd){t301, t301, t301, t301}), v_t171, v_t519_3);
-    const derive_vd v_t519 = DERIVE_ROWS_FMA(((derive_vd){t325, t325, t325, t325}), v_t195, v_t519_4);
+    const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t519_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t99, v_t519_0);
+    const derive_vd v_t519_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t123, v_t519_1);
+    const derive_vd v_t519_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t147, v_t519_2);
+    const derive_vd v_t519_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t171, v_t519_3);
+    const derive_vd v_t519 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t195, v_t519_4);
     #else
     const double t519 = DERIVE_FMA(t325, t195, DERIVE_FMA(t301, t171, DERIVE_FMA(t277, t147, DERIVE_FMA(t253, t123, DERIVE_FMA(t229, t99, DERIVE_FMA(t205, P[188], P[164]))))));
     const double t520 = DERIVE_FMA(t325, t196, DERIVE_FMA(t301, t172, DERIVE_FMA(t277, t148, DERIVE_FMA(t253, t124, DERIVE_FMA(t229, t100, DERIVE_FMA(t205, P[189], P[165]))))));
@@ -3825,12 +3833,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t522 = DERIVE_FMA(t325, t198, DERIVE_FMA(t301, t174, DERIVE_FMA(t277, t150, DERIVE_FMA(t253, t126, DERIVE_FMA(t229, t102, DERIVE_FMA(t205, P[191], P[167]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t523_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const derive_vd v_t523_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t83, v_t523_0);
-    const derive_vd v_t523_2 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t107, v_t523_1);
-    const derive_vd v_t523_3 = DERIVE_ROWS_FMA(((derive_vd){t278, t278, t278, t278}), v_t131, v_t523_2);
-    const derive_vd v_t523_4 = DERIVE_ROWS_FMA(((derive_vd){t302, t302, t302, t302}), v_t155, v_t523_3);
-    const derive_vd v_t523 = DERIVE_ROWS_FMA(((derive_vd){t326, t326, t326, t326}), v_t179, v_t523_4);
+    const derive_vd v_t523_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
+    const derive_vd v_t523_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t83, v_t523_0);
+    const derive_vd v_t523_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t107, v_t523_1);
+    const derive_vd v_t523_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t131, v_t523_2);
+    const derive_vd v_t523_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t155, v_t523_3);
+    const derive_vd v_t523 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t179, v_t523_4);
     const derive_vd tr_v_t463_0 = __builtin_shufflevector(v_t463, v_t483, 0, 4, 2, 6);
     const derive_vd tr_v_t463_1 = __builtin_shufflevector(v_t463, v_t483, 1, 5, 3, 7);
     const derive_vd tr_v_t463_2 = __builtin_shufflevector(v_t503, v_t523, 0, 4, 2, 6);
@@ -3846,12 +3854,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t526 = DERIVE_FMA(t326, t182, DERIVE_FMA(t302, t158, DERIVE_FMA(t278, t134, DERIVE_FMA(t254, t110, DERIVE_FMA(t230, t86, DERIVE_FMA(t206, P[175], P[175]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t527_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const derive_vd v_t527_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t87, v_t527_0);
-    const derive_vd v_t527_2 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t111, v_t527_1);
-    const derive_vd v_t527_3 = DERIVE_ROWS_FMA(((derive_vd){t278, t278, t278, t278}), v_t135, v_t527_2);
-    const derive_vd v_t527_4 = DERIVE_ROWS_FMA(((derive_vd){t302, t302, t302, t302}), v_t159, v_t527_3);
-    const derive_vd v_t527 = DERIVE_ROWS_FMA(((derive_vd){t326, t326, t326, t326}), v_t183, v_t527_4);
+    const derive_vd v_t527_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t527_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t87, v_t527_0);
+    const derive_vd v_t527_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t111, v_t527_1);
+    const derive_vd v_t527_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t135, v_t527_2);
+    const derive_vd v_t527_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t159, v_t527_3);
+    const derive_vd v_t527 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t183, v_t527_4);
     const derive_vd tr_v_t467_0 = __builtin_shufflevector(v_t467, v_t487, 0, 4, 2, 6);
     const derive_vd tr_v_t467_1 = __builtin_shufflevector(v_t467, v_t487, 1, 5, 3, 7);
     const derive_vd tr_v_t467_2 = __builtin_shufflevector(v_t507, v_t527, 0, 4, 2, 6);
@@ -3875,12 +3883,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t530 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, DERIVE_FMA(t206, P[179], P[179]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t531_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const derive_vd v_t531_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t91, v_t531_0);
-    const derive_vd v_t531_2 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t115, v_t531_1);
-    const derive_vd v_t531_3 = DERIVE_ROWS_FMA(((derive_vd){t278, t278, t278, t278}), v_t139, v_t531_2);
-    const derive_vd v_t531_4 = DERIVE_ROWS_FMA(((derive_vd){t302, t302, t302, t302}), v_t163, v_t531_3);
-    const derive_vd v_t531 = DERIVE_ROWS_FMA(((derive_vd){t326, t326, t326, t326}), v_t187, v_t531_4);
+    const derive_vd v_t531_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t91, v_t531_0);
+    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t115, v_t531_1);
+    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t139, v_t531_2);
+    const derive_vd v_t531_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t163, v_t531_3);
+    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t187, v_t531_4);
     const derive_vd tr_v_t471_0 = __builtin_shufflevector(v_t471, v_t491, 0, 4, 2, 6);
     const derive_vd tr_v_t471_1 = __builtin_shufflevector(v_t471, v_t491, 1, 5, 3, 7);
     const derive_vd tr_v_t471_2 = __builtin_shufflevector(v_t511, v_t531, 0, 4, 2, 6);
@@ -3904,12 +3912,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t534 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, DERIVE_FMA(t206, P[183], P[183]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t535_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd v_t535_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t95, v_t535_0);
-    const derive_vd v_t535_2 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t119, v_t535_1);
-    const derive_vd v_t535_3 = DERIVE_ROWS_FMA(((derive_vd){t278, t278, t278, t278}), v_t143, v_t535_2);
-    const derive_vd v_t535_4 = DERIVE_ROWS_FMA(((derive_vd){t302, t302, t302, t302}), v_t167, v_t535_3);
-    const derive_vd v_t535 = DERIVE_ROWS_FMA(((derive_vd){t326, t326, t326, t326}), v_t191, v_t535_4);
+    const derive_vd v_t535_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t95, v_t535_0);
+    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t119, v_t535_1);
+    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t143, v_t535_2);
+    const derive_vd v_t535_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t167, v_t535_3);
+    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t191, v_t535_4);
     const derive_vd tr_v_t475_0 = __builtin_shufflevector(v_t475, v_t495, 0, 4, 2, 6);
     const derive_vd tr_v_t475_1 = __builtin_shufflevector(v_t475, v_t495, 1, 5, 3, 7);
     const derive_vd tr_v_t475_2 = __builtin_shufflevector(v_t515, v_t535, 0, 4, 2, 6);
@@ -3933,12 +3941,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t538 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, DERIVE_FMA(t206, P[187], P[187]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t539_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd v_t539_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t99, v_t539_0);
-    const derive_vd v_t539_2 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t123, v_t539_1);
-    const derive_vd v_t539_3 = DERIVE_ROWS_FMA(((derive_vd){t278, t278, t278, t278}), v_t147, v_t539_2);
-    const derive_vd v_t539_4 = DERIVE_ROWS_FMA(((derive_vd){t302, t302, t302, t302}), v_t171, v_t539_3);
-    const derive_vd v_t539 = DERIVE_ROWS_FMA(((derive_vd){t326, t326, t326, t326}), v_t195, v_t539_4);
+    const derive_vd v_t539_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t99, v_t539_0);
+    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t123, v_t539_1);
+    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t147, v_t539_2);
+    const derive_vd v_t539_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t171, v_t539_3);
+    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t195, v_t539_4);
     const derive_vd tr_v_t479_0 = __builtin_shufflevector(v_t479, v_t499, 0, 4, 2, 6);
     const derive_vd tr_v_t479_1 = __builtin_shufflevector(v_t479, v_t499, 1, 5, 3, 7);
     const derive_vd tr_v_t479_2 = __builtin_shufflevector(v_t519, v_t539, 0, 4, 2, 6);
@@ -3962,12 +3970,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t542 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, DERIVE_FMA(t206, P[191], P[191]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t543_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const derive_vd v_t543_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t87, v_t543_0);
-    const derive_vd v_t543_2 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t543_1);
-    const derive_vd v_t543_3 = DERIVE_ROWS_FMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t543_2);
-    const derive_vd v_t543_4 = DERIVE_ROWS_FMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t543_3);
-    const derive_vd v_t543 = DERIVE_ROWS_FMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t543_4);
+    const derive_vd v_t543_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t87, v_t543_0);
+    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t543_1);
+    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t543_2);
+    const derive_vd v_t543_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t543_3);
+    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t543_4);
     #else
     const double t543 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, DERIVE_FMA(t231, t87, DERIVE_FMA(t207, P[176], P[200]))))));
     const double t544 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, DERIVE_FMA(t231, t88, DERIVE_FMA(t207, P[177], P[201]))))));
@@ -3975,12 +3983,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t546 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, DERIVE_FMA(t231, t90, DERIVE_FMA(t207, P[179], P[203]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t547_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t547_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t91, v_t547_0);
-    const derive_vd v_t547_2 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t547_1);
-    const derive_vd v_t547_3 = DERIVE_ROWS_FMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t547_2);
-    const derive_vd v_t547_4 = DERIVE_ROWS_FMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t547_3);
-    const derive_vd v_t547 = DERIVE_ROWS_FMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t547_4);
+    const derive_vd v_t547_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t547_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t91, v_t547_0);
+    const derive_vd v_t547_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t547_1);
+    const derive_vd v_t547_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t547_2);
+    const derive_vd v_t547_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t547_3);
+    const derive_vd v_t547 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t547_4);
     #else
     const double t547 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, DERIVE_FMA(t231, t91, DERIVE_FMA(t207, P[180], P[204]))))));
     const double t548 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, DERIVE_FMA(t231, t92, DERIVE_FMA(t207, P[181], P[205]))))));
@@ -3988,12 +3996,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t550 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, DERIVE_FMA(t231, t94, DERIVE_FMA(t207, P[183], P[207]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t551_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const derive_vd v_t551_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t95, v_t551_0);
-    const derive_vd v_t551_2 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t551_1);
-    const derive_vd v_t551_3 = DERIVE_ROWS_FMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t551_2);
-    const derive_vd v_t551_4 = DERIVE_ROWS_FMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t551_3);
-    const derive_vd v_t551 = DERIVE_ROWS_FMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t551_4);
+    const derive_vd v_t551_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const derive_vd v_t551_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t95, v_t551_0);
+    const derive_vd v_t551_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t551_1);
+    const derive_vd v_t551_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t551_2);
+    const derive_vd v_t551_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t551_3);
+    const derive_vd v_t551 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t551_4);
     #else
     const double t551 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, DERIVE_FMA(t231, t95, DERIVE_FMA(t207, P[184], P[208]))))));
     const double t552 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, DERIVE_FMA(t231, t96, DERIVE_FMA(t207, P[185], P[209]))))));
@@ -4001,12 +4009,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t554 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, DERIVE_FMA(t231, t98, DERIVE_FMA(t207, P[187], P[211]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t555_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const derive_vd v_t555_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t99, v_t555_0);
-    const derive_vd v_t555_2 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t555_1);
-    const derive_vd v_t555_3 = DERIVE_ROWS_FMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t555_2);
-    const derive_vd v_t555_4 = DERIVE_ROWS_FMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t555_3);
-    const derive_vd v_t555 = DERIVE_ROWS_FMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t555_4);
+    const derive_vd v_t555_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const derive_vd v_t555_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t99, v_t555_0);
+    const derive_vd v_t555_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t555_1);
+    const derive_vd v_t555_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t555_2);
+    const derive_vd v_t555_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t555_3);
+    const derive_vd v_t555 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t555_4);
     #else
     const double t555 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, DERIVE_FMA(t231, t99, DERIVE_FMA(t207, P[188], P[212]))))));
     const double t556 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, DERIVE_FMA(t231, t100, DERIVE_FMA(t207, P[189], P[213]))))));
@@ -4014,24 +4022,24 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t558 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, DERIVE_FMA(t231, t102, DERIVE_FMA(t207, P[191], P[215]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t559_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
-    const derive_vd v_t559_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t87, v_t559_0);
-    const derive_vd v_t559_2 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t111, v_t559_1);
-    const derive_vd v_t559_3 = DERIVE_ROWS_FMA(((derive_vd){t280, t280, t280, t280}), v_t135, v_t559_2);
-    const derive_vd v_t559_4 = DERIVE_ROWS_FMA(((derive_vd){t304, t304, t304, t304}), v_t159, v_t559_3);
-    const derive_vd v_t559 = DERIVE_ROWS_FMA(((derive_vd){t328, t328, t328, t328}), v_t183, v_t559_4);
+    const derive_vd v_t559_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const derive_vd v_t559_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t87, v_t559_0);
+    const derive_vd v_t559_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t111, v_t559_1);
+    const derive_vd v_t559_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t135, v_t559_2);
+    const derive_vd v_t559_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t159, v_t559_3);
+    const derive_vd v_t559 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t183, v_t559_4);
     #else
     const double t560 = DERIVE_FMA(t328, t184, DERIVE_FMA(t304, t160, DERIVE_FMA(t280, t136, DERIVE_FMA(t256, t112, DERIVE_FMA(t232, t88, DERIVE_FMA(t208, P[177], P[225]))))));
     const double t561 = DERIVE_FMA(t328, t185, DERIVE_FMA(t304, t161, DERIVE_FMA(t280, t137, DERIVE_FMA(t256, t113, DERIVE_FMA(t232, t89, DERIVE_FMA(t208, P[178], P[226]))))));
     const double t562 = DERIVE_FMA(t328, t186, DERIVE_FMA(t304, t162, DERIVE_FMA(t280, t138, DERIVE_FMA(t256, t114, DERIVE_FMA(t232, t90, DERIVE_FMA(t208, P[179], P[227]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t563_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t563_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t91, v_t563_0);
-    const derive_vd v_t563_2 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t115, v_t563_1);
-    const derive_vd v_t563_3 = DERIVE_ROWS_FMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t563_2);
-    const derive_vd v_t563_4 = DERIVE_ROWS_FMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t563_3);
-    const derive_vd v_t563 = DERIVE_ROWS_FMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t563_4);
+    const derive_vd v_t563_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const derive_vd v_t563_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t91, v_t563_0);
+    const derive_vd v_t563_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t115, v_t563_1);
+    const derive_vd v_t563_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t563_2);
+    const derive_vd v_t563_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t563_3);
+    const derive_vd v_t563 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t563_4);
     #else
     const double t563 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, DERIVE_FMA(t256, t115, DERIVE_FMA(t232, t91, DERIVE_FMA(t208, P[180], P[228]))))));
     const double t564 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, DERIVE_FMA(t256, t116, DERIVE_FMA(t232, t92, DERIVE_FMA(t208, P[181], P[229]))))));
@@ -4039,12 +4047,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t566 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, DERIVE_FMA(t256, t118, DERIVE_FMA(t232, t94, DERIVE_FMA(t208, P[183], P[231]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t567_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t567_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t95, v_t567_0);
-    const derive_vd v_t567_2 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t119, v_t567_1);
-    const derive_vd v_t567_3 = DERIVE_ROWS_FMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t567_2);
-    const derive_vd v_t567_4 = DERIVE_ROWS_FMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t567_3);
-    const derive_vd v_t567 = DERIVE_ROWS_FMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t567_4);
+    const derive_vd v_t567_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const derive_vd v_t567_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t95, v_t567_0);
+    const derive_vd v_t567_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t119, v_t567_1);
+    const derive_vd v_t567_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t567_2);
+    const derive_vd v_t567_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t567_3);
+    const derive_vd v_t567 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t567_4);
     #else
     const double t567 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, DERIVE_FMA(t256, t119, DERIVE_FMA(t232, t95, DERIVE_FMA(t208, P[184], P[232]))))));
     const double t568 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, DERIVE_FMA(t256, t120, DERIVE_FMA(t232, t96, DERIVE_FMA(t208, P[185], P[233]))))));
@@ -4052,12 +4060,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t570 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, DERIVE_FMA(t256, t122, DERIVE_FMA(t232, t98, DERIVE_FMA(t208, P[187], P[235]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t571_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t571_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t99, v_t571_0);
-    const derive_vd v_t571_2 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t123, v_t571_1);
-    const derive_vd v_t571_3 = DERIVE_ROWS_FMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t571_2);
-    const derive_vd v_t571_4 = DERIVE_ROWS_FMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t571_3);
-    const derive_vd v_t571 = DERIVE_ROWS_FMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t571_4);
+    const derive_vd v_t571_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t571_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t99, v_t571_0);
+    const derive_vd v_t571_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t123, v_t571_1);
+    const derive_vd v_t571_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t571_2);
+    const derive_vd v_t571_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t571_3);
+    const derive_vd v_t571 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t571_4);
     #else
     const double t571 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, DERIVE_FMA(t256, t123, DERIVE_FMA(t232, t99, DERIVE_FMA(t208, P[188], P[236]))))));
     const double t572 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, DERIVE_FMA(t256, t124, DERIVE_FMA(t232, t100, DERIVE_FMA(t208, P[189], P[237]))))));
@@ -4065,23 +4073,23 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t574 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, DERIVE_FMA(t256, t126, DERIVE_FMA(t232, t102, DERIVE_FMA(t208, P[191], P[239]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t575_0 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[248], P[249], P[250], P[251]}));
-    const derive_vd v_t575_1 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t87, v_t575_0);
-    const derive_vd v_t575_2 = DERIVE_ROWS_FMA(((derive_vd){t257, t257, t257, t257}), v_t111, v_t575_1);
-    const derive_vd v_t575_3 = DERIVE_ROWS_FMA(((derive_vd){t281, t281, t281, t281}), v_t135, v_t575_2);
-    const derive_vd v_t575_4 = DERIVE_ROWS_FMA(((derive_vd){t305, t305, t305, t305}), v_t159, v_t575_3);
-    const derive_vd v_t575 = DERIVE_ROWS_FMA(((derive_vd){t329, t329, t329, t329}), v_t183, v_t575_4);
+    const derive_vd v_t575_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[248], P[249], P[250], P[251]}));
+    const derive_vd v_t575_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t87, v_t575_0);
+    const derive_vd v_t575_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t111, v_t575_1);
+    const derive_vd v_t575_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t135, v_t575_2);
+    const derive_vd v_t575_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t159, v_t575_3);
+    const derive_vd v_t575 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t183, v_t575_4);
     #else
     const double t577 = DERIVE_FMA(t329, t185, DERIVE_FMA(t305, t161, DERIVE_FMA(t281, t137, DERIVE_FMA(t257, t113, DERIVE_FMA(t233, t89, DERIVE_FMA(t209, P[178], P[250]))))));
     const double t578 = DERIVE_FMA(t329, t186, DERIVE_FMA(t305, t162, DERIVE_FMA(t281, t138, DERIVE_FMA(t257, t114, DERIVE_FMA(t233, t90, DERIVE_FMA(t209, P[179], P[251]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t579_0 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
-    const derive_vd v_t579_1 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t91, v_t579_0);
-    const derive_vd v_t579_2 = DERIVE_ROWS_FMA(((derive_vd){t257, t257, t257, t257}), v_t115, v_t579_1);
-    const derive_vd v_t579_3 = DERIVE_ROWS_FMA(((derive_vd){t281, t281, t281, t281}), v_t139, v_t579_2);
-    const derive_vd v_t579_4 = DERIVE_ROWS_FMA(((derive_vd){t305, t305, t305, t305}), v_t163, v_t579_3);
-    const derive_vd v_t579 = DERIVE_ROWS_FMA(((derive_vd){t329, t329, t329, t329}), v_t187, v_t579_4);
+    const derive_vd v_t579_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
+    const derive_vd v_t579_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t91, v_t579_0);
+    const derive_vd v_t579_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t115, v_t579_1);
+    const derive_vd v_t579_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t139, v_t579_2);
+    const derive_vd v_t579_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t163, v_t579_3);
+    const derive_vd v_t579 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t187, v_t579_4);
     #else
     const double t579 = DERIVE_FMA(t329, t187, DERIVE_FMA(t305, t163, DERIVE_FMA(t281, t139, DERIVE_FMA(t257, t115, DERIVE_FMA(t233, t91, DERIVE_FMA(t209, P[180], P[252]))))));
     const double t580 = DERIVE_FMA(t329, t188, DERIVE_FMA(t305, t164, DERIVE_FMA(t281, t140, DERIVE_FMA(t257, t116, DERIVE_FMA(t233, t92, DERIVE_FMA(t209, P[181], P[253]))))));
@@ -4089,12 +4097,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t582 = DERIVE_FMA(t329, t190, DERIVE_FMA(t305, t166, DERIVE_FMA(t281, t142, DERIVE_FMA(t257, t118, DERIVE_FMA(t233, t94, DERIVE_FMA(t209, P[183], P[255]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t583_0 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
-    const derive_vd v_t583_1 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t95, v_t583_0);
-    const derive_vd v_t583_2 = DERIVE_ROWS_FMA(((derive_vd){t257, t257, t257, t257}), v_t119, v_t583_1);
-    const derive_vd v_t583_3 = DERIVE_ROWS_FMA(((derive_vd){t281, t281, t281, t281}), v_t143, v_t583_2);
-    const derive_vd v_t583_4 = DERIVE_ROWS_FMA(((derive_vd){t305, t305, t305, t305}), v_t167, v_t583_3);
-    const derive_vd v_t583 = DERIVE_ROWS_FMA(((derive_vd){t329, t329, t329, t329}), v_t191, v_t583_4);
+    const derive_vd v_t583_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
+    const derive_vd v_t583_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t95, v_t583_0);
+    const derive_vd v_t583_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t119, v_t583_1);
+    const derive_vd v_t583_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t143, v_t583_2);
+    const derive_vd v_t583_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t167, v_t583_3);
+    const derive_vd v_t583 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t191, v_t583_4);
     #else
     const double t583 = DERIVE_FMA(t329, t191, DERIVE_FMA(t305, t167, DERIVE_FMA(t281, t143, DERIVE_FMA(t257, t119, DERIVE_FMA(t233, t95, DERIVE_FMA(t209, P[184], P[256]))))));
     const double t584 = DERIVE_FMA(t329, t192, DERIVE_FMA(t305, t168, DERIVE_FMA(t281, t144, DERIVE_FMA(t257, t120, DERIVE_FMA(t233, t96, DERIVE_FMA(t209, P[185], P[257]))))));
@@ -4102,12 +4110,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t586 = DERIVE_FMA(t329, t194, DERIVE_FMA(t305, t170, DERIVE_FMA(t281, t146, DERIVE_FMA(t257, t122, DERIVE_FMA(t233, t98, DERIVE_FMA(t209, P[187], P[259]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t587_0 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
-    const derive_vd v_t587_1 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t99, v_t587_0);
-    const derive_vd v_t587_2 = DERIVE_ROWS_FMA(((derive_vd){t257, t257, t257, t257}), v_t123, v_t587_1);
-    const derive_vd v_t587_3 = DERIVE_ROWS_FMA(((derive_vd){t281, t281, t281, t281}), v_t147, v_t587_2);
-    const derive_vd v_t587_4 = DERIVE_ROWS_FMA(((derive_vd){t305, t305, t305, t305}), v_t171, v_t587_3);
-    const derive_vd v_t587 = DERIVE_ROWS_FMA(((derive_vd){t329, t329, t329, t329}), v_t195, v_t587_4);
+    const derive_vd v_t587_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
+    const derive_vd v_t587_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t99, v_t587_0);
+    const derive_vd v_t587_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t123, v_t587_1);
+    const derive_vd v_t587_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t147, v_t587_2);
+    const derive_vd v_t587_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t171, v_t587_3);
+    const derive_vd v_t587 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t195, v_t587_4);
     #else
     const double t587 = DERIVE_FMA(t329, t195, DERIVE_FMA(t305, t171, DERIVE_FMA(t281, t147, DERIVE_FMA(t257, t123, DERIVE_FMA(t233, t99, DERIVE_FMA(t209, P[188], P[260]))))));
     const double t588 = DERIVE_FMA(t329, t196, DERIVE_FMA(t305, t172, DERIVE_FMA(t281, t148, DERIVE_FMA(t257, t124, DERIVE_FMA(t233, t100, DERIVE_FMA(t209, P[189], P[261]))))));
@@ -4115,12 +4123,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t590 = DERIVE_FMA(t329, t198, DERIVE_FMA(t305, t174, DERIVE_FMA(t281, t150, DERIVE_FMA(t257, t126, DERIVE_FMA(t233, t102, DERIVE_FMA(t209, P[191], P[263]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t591_0 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[272], P[273], P[274], P[275]}));
-    const derive_vd v_t591_1 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t87, v_t591_0);
-    const derive_vd v_t591_2 = DERIVE_ROWS_FMA(((derive_vd){t258, t258, t258, t258}), v_t111, v_t591_1);
-    const derive_vd v_t591_3 = DERIVE_ROWS_FMA(((derive_vd){t282, t282, t282, t282}), v_t135, v_t591_2);
-    const derive_vd v_t591_4 = DERIVE_ROWS_FMA(((derive_vd){t306, t306, t306, t306}), v_t159, v_t591_3);
-    const derive_vd v_t591 = DERIVE_ROWS_FMA(((derive_vd){t330, t330, t330, t330}), v_t183, v_t591_4);
+    const derive_vd v_t591_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[272], P[273], P[274], P[275]}));
+    const derive_vd v_t591_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t87, v_t591_0);
+    const derive_vd v_t591_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t111, v_t591_1);
+    const derive_vd v_t591_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t135, v_t591_2);
+    const derive_vd v_t591_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t159, v_t591_3);
+    const derive_vd v_t591 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t183, v_t591_4);
     const derive_vd tr_v_t543_0 = __builtin_shufflevector(v_t543, v_t559, 0, 4, 2, 6);
     const derive_vd tr_v_t543_1 = __builtin_shufflevector(v_t543, v_t559, 1, 5, 3, 7);
     const derive_vd tr_v_t543_2 = __builtin_shufflevector(v_t575, v_t591, 0, 4, 2, 6);
@@ -4136,12 +4144,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t594 = DERIVE_FMA(t330, t186, DERIVE_FMA(t306, t162, DERIVE_FMA(t282, t138, DERIVE_FMA(t258, t114, DERIVE_FMA(t234, t90, DERIVE_FMA(t210, P[179], P[275]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t595_0 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[276], P[277], P[278], P[279]}));
-    const derive_vd v_t595_1 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t91, v_t595_0);
-    const derive_vd v_t595_2 = DERIVE_ROWS_FMA(((derive_vd){t258, t258, t258, t258}), v_t115, v_t595_1);
-    const derive_vd v_t595_3 = DERIVE_ROWS_FMA(((derive_vd){t282, t282, t282, t282}), v_t139, v_t595_2);
-    const derive_vd v_t595_4 = DERIVE_ROWS_FMA(((derive_vd){t306, t306, t306, t306}), v_t163, v_t595_3);
-    const derive_vd v_t595 = DERIVE_ROWS_FMA(((derive_vd){t330, t330, t330, t330}), v_t187, v_t595_4);
+    const derive_vd v_t595_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd v_t595_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t91, v_t595_0);
+    const derive_vd v_t595_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t115, v_t595_1);
+    const derive_vd v_t595_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t139, v_t595_2);
+    const derive_vd v_t595_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t163, v_t595_3);
+    const derive_vd v_t595 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t187, v_t595_4);
     const derive_vd tr_v_t547_0 = __builtin_shufflevector(v_t547, v_t563, 0, 4, 2, 6);
     const derive_vd tr_v_t547_1 = __builtin_shufflevector(v_t547, v_t563, 1, 5, 3, 7);
     const derive_vd tr_v_t547_2 = __builtin_shufflevector(v_t579, v_t595, 0, 4, 2, 6);
@@ -4165,12 +4173,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t598 = DERIVE_FMA(t330, t190, DERIVE_FMA(t306, t166, DERIVE_FMA(t282, t142, DERIVE_FMA(t258, t118, DERIVE_FMA(t234, t94, DERIVE_FMA(t210, P[183], P[279]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t599_0 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
-    const derive_vd v_t599_1 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t95, v_t599_0);
-    const derive_vd v_t599_2 = DERIVE_ROWS_FMA(((derive_vd){t258, t258, t258, t258}), v_t119, v_t599_1);
-    const derive_vd v_t599_3 = DERIVE_ROWS_FMA(((derive_vd){t282, t282, t282, t282}), v_t143, v_t599_2);
-    const derive_vd v_t599_4 = DERIVE_ROWS_FMA(((derive_vd){t306, t306, t306, t306}), v_t167, v_t599_3);
-    const derive_vd v_t599 = DERIVE_ROWS_FMA(((derive_vd){t330, t330, t330, t330}), v_t191, v_t599_4);
+    const derive_vd v_t599_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd v_t599_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t95, v_t599_0);
+    const derive_vd v_t599_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t119, v_t599_1);
+    const derive_vd v_t599_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t143, v_t599_2);
+    const derive_vd v_t599_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t167, v_t599_3);
+    const derive_vd v_t599 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t191, v_t599_4);
     const derive_vd tr_v_t551_0 = __builtin_shufflevector(v_t551, v_t567, 0, 4, 2, 6);
     const derive_vd tr_v_t551_1 = __builtin_shufflevector(v_t551, v_t567, 1, 5, 3, 7);
     const derive_vd tr_v_t551_2 = __builtin_shufflevector(v_t583, v_t599, 0, 4, 2, 6);
@@ -4194,12 +4202,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t602 = DERIVE_FMA(t330, t194, DERIVE_FMA(t306, t170, DERIVE_FMA(t282, t146, DERIVE_FMA(t258, t122, DERIVE_FMA(t234, t98, DERIVE_FMA(t210, P[187], P[283]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t603_0 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
-    const derive_vd v_t603_1 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t99, v_t603_0);
-    const derive_vd v_t603_2 = DERIVE_ROWS_FMA(((derive_vd){t258, t258, t258, t258}), v_t123, v_t603_1);
-    const derive_vd v_t603_3 = DERIVE_ROWS_FMA(((derive_vd){t282, t282, t282, t282}), v_t147, v_t603_2);
-    const derive_vd v_t603_4 = DERIVE_ROWS_FMA(((derive_vd){t306, t306, t306, t306}), v_t171, v_t603_3);
-    const derive_vd v_t603 = DERIVE_ROWS_FMA(((derive_vd){t330, t330, t330, t330}), v_t195, v_t603_4);
+    const derive_vd v_t603_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd v_t603_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t99, v_t603_0);
+    const derive_vd v_t603_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t123, v_t603_1);
+    const derive_vd v_t603_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t147, v_t603_2);
+    const derive_vd v_t603_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t171, v_t603_3);
+    const derive_vd v_t603 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t195, v_t603_4);
     const derive_vd tr_v_t555_0 = __builtin_shufflevector(v_t555, v_t571, 0, 4, 2, 6);
     const derive_vd tr_v_t555_1 = __builtin_shufflevector(v_t555, v_t571, 1, 5, 3, 7);
     const derive_vd tr_v_t555_2 = __builtin_shufflevector(v_t587, v_t603, 0, 4, 2, 6);
@@ -4223,12 +4231,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t606 = DERIVE_FMA(t330, t198, DERIVE_FMA(t306, t174, DERIVE_FMA(t282, t150, DERIVE_FMA(t258, t126, DERIVE_FMA(t234, t102, DERIVE_FMA(t210, P[191], P[287]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t607_0 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
-    const derive_vd v_t607_1 = DERIVE_ROWS_FMA(((derive_vd){t235, t235, t235, t235}), v_t91, v_t607_0);
-    const derive_vd v_t607_2 = DERIVE_ROWS_FMA(((derive_vd){t259, t259, t259, t259}), v_t115, v_t607_1);
-    const derive_vd v_t607_3 = DERIVE_ROWS_FMA(((derive_vd){t283, t283, t283, t283}), v_t139, v_t607_2);
-    const derive_vd v_t607_4 = DERIVE_ROWS_FMA(((derive_vd){t307, t307, t307, t307}), v_t163, v_t607_3);
-    const derive_vd v_t607 = DERIVE_ROWS_FMA(((derive_vd){t331, t331, t331, t331}), v_t187, v_t607_4);
+    const derive_vd v_t607_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const derive_vd v_t607_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t91, v_t607_0);
+    const derive_vd v_t607_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t115, v_t607_1);
+    const derive_vd v_t607_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t139, v_t607_2);
+    const derive_vd v_t607_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t163, v_t607_3);
+    const derive_vd v_t607 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t187, v_t607_4);
     #else
     const double t607 = DERIVE_FMA(t331, t187, DERIVE_FMA(t307, t163, DERIVE_FMA(t283, t139, DERIVE_FMA(t259, t115, DERIVE_FMA(t235, t91, DERIVE_FMA(t211, P[180], P[300]))))));
     const double t608 = DERIVE_FMA(t331, t188, DERIVE_FMA(t307, t164, DERIVE_FMA(t283, t140, DERIVE_FMA(t259, t116, DERIVE_FMA(t235, t92, DERIVE_FMA(t211, P[181], P[301]))))));
@@ -4236,12 +4244,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t610 = DERIVE_FMA(t331, t190, DERIVE_FMA(t307, t166, DERIVE_FMA(t283, t142, DERIVE_FMA(t259, t118, DERIVE_FMA(t235, t94, DERIVE_FMA(t211, P[183], P[303]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t611_0 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
-    const derive_vd v_t611_1 = DERIVE_ROWS_FMA(((derive_vd){t235, t235, t235, t235}), v_t95, v_t611_0);
-    const derive_vd v_t611_2 = DERIVE_ROWS_FMA(((derive_vd){t259, t259, t259, t259}), v_t119, v_t611_1);
-    const derive_vd v_t611_3 = DERIVE_ROWS_FMA(((derive_vd){t283, t283, t283, t283}), v_t143, v_t611_2);
-    const derive_vd v_t611_4 = DERIVE_ROWS_FMA(((derive_vd){t307, t307, t307, t307}), v_t167, v_t611_3);
-    const derive_vd v_t611 = DERIVE_ROWS_FMA(((derive_vd){t331, t331, t331, t331}), v_t191, v_t611_4);
+    const derive_vd v_t611_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
+    const derive_vd v_t611_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t95, v_t611_0);
+    const derive_vd v_t611_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t119, v_t611_1);
+    const derive_vd v_t611_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t143, v_t611_2);
+    const derive_vd v_t611_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t167, v_t611_3);
+    const derive_vd v_t611 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t191, v_t611_4);
     #else
     const double t611 = DERIVE_FMA(t331, t191, DERIVE_FMA(t307, t167, DERIVE_FMA(t283, t143, DERIVE_FMA(t259, t119, DERIVE_FMA(t235, t95, DERIVE_FMA(t211, P[184], P[304]))))));
     const double t612 = DERIVE_FMA(t331, t192, DERIVE_FMA(t307, t168, DERIVE_FMA(t283, t144, DERIVE_FMA(t259, t120, DERIVE_FMA(t235, t96, DERIVE_FMA(t211, P[185], P[305]))))));
@@ -4249,12 +4257,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t614 = DERIVE_FMA(t331, t194, DERIVE_FMA(t307, t170, DERIVE_FMA(t283, t146, DERIVE_FMA(t259, t122, DERIVE_FMA(t235, t98, DERIVE_FMA(t211, P[187], P[307]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t615_0 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
-    const derive_vd v_t615_1 = DERIVE_ROWS_FMA(((derive_vd){t235, t235, t235, t235}), v_t99, v_t615_0);
-    const derive_vd v_t615_2 = DERIVE_ROWS_FMA(((derive_vd){t259, t259, t259, t259}), v_t123, v_t615_1);
-    const derive_vd v_t615_3 = DERIVE_ROWS_FMA(((derive_vd){t283, t283, t283, t283}), v_t147, v_t615_2);
-    const derive_vd v_t615_4 = DERIVE_ROWS_FMA(((derive_vd){t307, t307, t307, t307}), v_t171, v_t615_3);
-    const derive_vd v_t615 = DERIVE_ROWS_FMA(((derive_vd){t331, t331, t331, t331}), v_t195, v_t615_4);
+    const derive_vd v_t615_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
+    const derive_vd v_t615_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t99, v_t615_0);
+    const derive_vd v_t615_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t123, v_t615_1);
+    const derive_vd v_t615_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t147, v_t615_2);
+    const derive_vd v_t615_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t171, v_t615_3);
+    const derive_vd v_t615 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t195, v_t615_4);
     #else
     const double t615 = DERIVE_FMA(t331, t195, DERIVE_FMA(t307, t171, DERIVE_FMA(t283, t147, DERIVE_FMA(t259, t123, DERIVE_FMA(t235, t99, DERIVE_FMA(t211, P[188], P[308]))))));
     const double t616 = DERIVE_FMA(t331, t196, DERIVE_FMA(t307, t172, DERIVE_FMA(t283, t148, DERIVE_FMA(t259, t124, DERIVE_FMA(t235, t100, DERIVE_FMA(t211, P[189], P[309]))))));
@@ -4262,24 +4270,24 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t618 = DERIVE_FMA(t331, t198, DERIVE_FMA(t307, t174, DERIVE_FMA(t283, t150, DERIVE_FMA(t259, t126, DERIVE_FMA(t235, t102, DERIVE_FMA(t211, P[191], P[311]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t619_0 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[324], P[325], P[326], P[327]}));
-    const derive_vd v_t619_1 = DERIVE_ROWS_FMA(((derive_vd){t236, t236, t236, t236}), v_t91, v_t619_0);
-    const derive_vd v_t619_2 = DERIVE_ROWS_FMA(((derive_vd){t260, t260, t260, t260}), v_t115, v_t619_1);
-    const derive_vd v_t619_3 = DERIVE_ROWS_FMA(((derive_vd){t284, t284, t284, t284}), v_t139, v_t619_2);
-    const derive_vd v_t619_4 = DERIVE_ROWS_FMA(((derive_vd){t308, t308, t308, t308}), v_t163, v_t619_3);
-    const derive_vd v_t619 = DERIVE_ROWS_FMA(((derive_vd){t332, t332, t332, t332}), v_t187, v_t619_4);
+    const derive_vd v_t619_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[324], P[325], P[326], P[327]}));
+    const derive_vd v_t619_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t91, v_t619_0);
+    const derive_vd v_t619_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t115, v_t619_1);
+    const derive_vd v_t619_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t139, v_t619_2);
+    const derive_vd v_t619_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t163, v_t619_3);
+    const derive_vd v_t619 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t187, v_t619_4);
     #else
     const double t620 = DERIVE_FMA(t332, t188, DERIVE_FMA(t308, t164, DERIVE_FMA(t284, t140, DERIVE_FMA(t260, t116, DERIVE_FMA(t236, t92, DERIVE_FMA(t212, P[181], P[325]))))));
     const double t621 = DERIVE_FMA(t332, t189, DERIVE_FMA(t308, t165, DERIVE_FMA(t284, t141, DERIVE_FMA(t260, t117, DERIVE_FMA(t236, t93, DERIVE_FMA(t212, P[182], P[326]))))));
     const double t622 = DERIVE_FMA(t332, t190, DERIVE_FMA(t308, t166, DERIVE_FMA(t284, t142, DERIVE_FMA(t260, t118, DERIVE_FMA(t236, t94, DERIVE_FMA(t212, P[183], P[327]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t623_0 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[328], P[329], P[330], P[331]}));
-    const derive_vd v_t623_1 = DERIVE_ROWS_FMA(((derive_vd){t236, t236, t236, t236}), v_t95, v_t623_0);
-    const derive_vd v_t623_2 = DERIVE_ROWS_FMA(((derive_vd){t260, t260, t260, t260}), v_t119, v_t623_1);
-    const derive_vd v_t623_3 = DERIVE_ROWS_FMA(((derive_vd){t284, t284, t284, t284}), v_t143, v_t623_2);
-    const derive_vd v_t623_4 = DERIVE_ROWS_FMA(((derive_vd){t308, t308, t308, t308}), v_t167, v_t623_3);
-    const derive_vd v_t623 = DERIVE_ROWS_FMA(((derive_vd){t332, t332, t332, t332}), v_t191, v_t623_4);
+    const derive_vd v_t623_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[328], P[329], P[330], P[331]}));
+    const derive_vd v_t623_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t95, v_t623_0);
+    const derive_vd v_t623_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t119, v_t623_1);
+    const derive_vd v_t623_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t143, v_t623_2);
+    const derive_vd v_t623_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t167, v_t623_3);
+    const derive_vd v_t623 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t191, v_t623_4);
     #else
     const double t623 = DERIVE_FMA(t332, t191, DERIVE_FMA(t308, t167, DERIVE_FMA(t284, t143, DERIVE_FMA(t260, t119, DERIVE_FMA(t236, t95, DERIVE_FMA(t212, P[184], P[328]))))));
     const double t624 = DERIVE_FMA(t332, t192, DERIVE_FMA(t308, t168, DERIVE_FMA(t284, t144, DERIVE_FMA(t260, t120, DERIVE_FMA(t236, t96, DERIVE_FMA(t212, P[185], P[329]))))));
@@ -4287,12 +4295,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t626 = DERIVE_FMA(t332, t194, DERIVE_FMA(t308, t170, DERIVE_FMA(t284, t146, DERIVE_FMA(t260, t122, DERIVE_FMA(t236, t98, DERIVE_FMA(t212, P[187], P[331]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t627_0 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
-    const derive_vd v_t627_1 = DERIVE_ROWS_FMA(((derive_vd){t236, t236, t236, t236}), v_t99, v_t627_0);
-    const derive_vd v_t627_2 = DERIVE_ROWS_FMA(((derive_vd){t260, t260, t260, t260}), v_t123, v_t627_1);
-    const derive_vd v_t627_3 = DERIVE_ROWS_FMA(((derive_vd){t284, t284, t284, t284}), v_t147, v_t627_2);
-    const derive_vd v_t627_4 = DERIVE_ROWS_FMA(((derive_vd){t308, t308, t308, t308}), v_t171, v_t627_3);
-    const derive_vd v_t627 = DERIVE_ROWS_FMA(((derive_vd){t332, t332, t332, t332}), v_t195, v_t627_4);
+    const derive_vd v_t627_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
+    const derive_vd v_t627_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t99, v_t627_0);
+    const derive_vd v_t627_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t123, v_t627_1);
+    const derive_vd v_t627_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t147, v_t627_2);
+    const derive_vd v_t627_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t171, v_t627_3);
+    const derive_vd v_t627 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t195, v_t627_4);
     #else
     const double t627 = DERIVE_FMA(t332, t195, DERIVE_FMA(t308, t171, DERIVE_FMA(t284, t147, DERIVE_FMA(t260, t123, DERIVE_FMA(t236, t99, DERIVE_FMA(t212, P[188], P[332]))))));
     const double t628 = DERIVE_FMA(t332, t196, DERIVE_FMA(t308, t172, DERIVE_FMA(t284, t148, DERIVE_FMA(t260, t124, DERIVE_FMA(t236, t100, DERIVE_FMA(t212, P[189], P[333]))))));
@@ -4300,23 +4308,23 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t630 = DERIVE_FMA(t332, t198, DERIVE_FMA(t308, t174, DERIVE_FMA(t284, t150, DERIVE_FMA(t260, t126, DERIVE_FMA(t236, t102, DERIVE_FMA(t212, P[191], P[335]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t631_0 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[348], P[349], P[350], P[351]}));
-    const derive_vd v_t631_1 = DERIVE_ROWS_FMA(((derive_vd){t237, t237, t237, t237}), v_t91, v_t631_0);
-    const derive_vd v_t631_2 = DERIVE_ROWS_FMA(((derive_vd){t261, t261, t261, t261}), v_t115, v_t631_1);
-    const derive_vd v_t631_3 = DERIVE_ROWS_FMA(((derive_vd){t285, t285, t285, t285}), v_t139, v_t631_2);
-    const derive_vd v_t631_4 = DERIVE_ROWS_FMA(((derive_vd){t309, t309, t309, t309}), v_t163, v_t631_3);
-    const derive_vd v_t631 = DERIVE_ROWS_FMA(((derive_vd){t333, t333, t333, t333}), v_t187, v_t631_4);
+    const derive_vd v_t631_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[348], P[349], P[350], P[351]}));
+    const derive_vd v_t631_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t91, v_t631_0);
+    const derive_vd v_t631_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t115, v_t631_1);
+    const derive_vd v_t631_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t139, v_t631_2);
+    const derive_vd v_t631_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t163, v_t631_3);
+    const derive_vd v_t631 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t187, v_t631_4);
     #else
     const double t633 = DERIVE_FMA(t333, t189, DERIVE_FMA(t309, t165, DERIVE_FMA(t285, t141, DERIVE_FMA(t261, t117, DERIVE_FMA(t237, t93, DERIVE_FMA(t213, P[182], P[350]))))));
     const double t634 = DERIVE_FMA(t333, t190, DERIVE_FMA(t309, t166, DERIVE_FMA(t285, t142, DERIVE_FMA(t261, t118, DERIVE_FMA(t237, t94, DERIVE_FMA(t213, P[183], P[351]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t635_0 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[352], P[353], P[354], P[355]}));
-    const derive_vd v_t635_1 = DERIVE_ROWS_FMA(((derive_vd){t237, t237, t237, t237}), v_t95, v_t635_0);
-    const derive_vd v_t635_2 = DERIVE_ROWS_FMA(((derive_vd){t261, t261, t261, t261}), v_t119, v_t635_1);
-    const derive_vd v_t635_3 = DERIVE_ROWS_FMA(((derive_vd){t285, t285, t285, t285}), v_t143, v_t635_2);
-    const derive_vd v_t635_4 = DERIVE_ROWS_FMA(((derive_vd){t309, t309, t309, t309}), v_t167, v_t635_3);
-    const derive_vd v_t635 = DERIVE_ROWS_FMA(((derive_vd){t333, t333, t333, t333}), v_t191, v_t635_4);
+    const derive_vd v_t635_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[352], P[353], P[354], P[355]}));
+    const derive_vd v_t635_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t95, v_t635_0);
+    const derive_vd v_t635_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t119, v_t635_1);
+    const derive_vd v_t635_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t143, v_t635_2);
+    const derive_vd v_t635_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t167, v_t635_3);
+    const derive_vd v_t635 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t191, v_t635_4);
     #else
     const double t635 = DERIVE_FMA(t333, t191, DERIVE_FMA(t309, t167, DERIVE_FMA(t285, t143, DERIVE_FMA(t261, t119, DERIVE_FMA(t237, t95, DERIVE_FMA(t213, P[184], P[352]))))));
     const double t636 = DERIVE_FMA(t333, t192, DERIVE_FMA(t309, t168, DERIVE_FMA(t285, t144, DERIVE_FMA(t261, t120, DERIVE_FMA(t237, t96, DERIVE_FMA(t213, P[185], P[353]))))));
@@ -4324,12 +4332,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t638 = DERIVE_FMA(t333, t194, DERIVE_FMA(t309, t170, DERIVE_FMA(t285, t146, DERIVE_FMA(t261, t122, DERIVE_FMA(t237, t98, DERIVE_FMA(t213, P[187], P[355]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t639_0 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
-    const derive_vd v_t639_1 = DERIVE_ROWS_FMA(((derive_vd){t237, t237, t237, t237}), v_t99, v_t639_0);
-    const derive_vd v_t639_2 = DERIVE_ROWS_FMA(((derive_vd){t261, t261, t261, t261}), v_t123, v_t639_1);
-    const derive_vd v_t639_3 = DERIVE_ROWS_FMA(((derive_vd){t285, t285, t285, t285}), v_t147, v_t639_2);
-    const derive_vd v_t639_4 = DERIVE_ROWS_FMA(((derive_vd){t309, t309, t309, t309}), v_t171, v_t639_3);
-    const derive_vd v_t639 = DERIVE_ROWS_FMA(((derive_vd){t333, t333, t333, t333}), v_t195, v_t639_4);
+    const derive_vd v_t639_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
+    const derive_vd v_t639_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t99, v_t639_0);
+    const derive_vd v_t639_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t123, v_t639_1);
+    const derive_vd v_t639_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t147, v_t639_2);
+    const derive_vd v_t639_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t171, v_t639_3);
+    const derive_vd v_t639 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t195, v_t639_4);
     #else
     const double t639 = DERIVE_FMA(t333, t195, DERIVE_FMA(t309, t171, DERIVE_FMA(t285, t147, DERIVE_FMA(t261, t123, DERIVE_FMA(t237, t99, DERIVE_FMA(t213, P[188], P[356]))))));
     const double t640 = DERIVE_FMA(t333, t196, DERIVE_FMA(t309, t172, DERIVE_FMA(t285, t148, DERIVE_FMA(t261, t124, DERIVE_FMA(t237, t100, DERIVE_FMA(t213, P[189], P[357]))))));
@@ -4337,12 +4345,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t642 = DERIVE_FMA(t333, t198, DERIVE_FMA(t309, t174, DERIVE_FMA(t285, t150, DERIVE_FMA(t261, t126, DERIVE_FMA(t237, t102, DERIVE_FMA(t213, P[191], P[359]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t643_0 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[372], P[373], P[374], P[375]}));
-    const derive_vd v_t643_1 = DERIVE_ROWS_FMA(((derive_vd){t238, t238, t238, t238}), v_t91, v_t643_0);
-    const derive_vd v_t643_2 = DERIVE_ROWS_FMA(((derive_vd){t262, t262, t262, t262}), v_t115, v_t643_1);
-    const derive_vd v_t643_3 = DERIVE_ROWS_FMA(((derive_vd){t286, t286, t286, t286}), v_t139, v_t643_2);
-    const derive_vd v_t643_4 = DERIVE_ROWS_FMA(((derive_vd){t310, t310, t310, t310}), v_t163, v_t643_3);
-    const derive_vd v_t643 = DERIVE_ROWS_FMA(((derive_vd){t334, t334, t334, t334}), v_t187, v_t643_4);
+    const derive_vd v_t643_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[372], P[373], P[374], P[375]}));
+    const derive_vd v_t643_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t91, v_t643_0);
+    const derive_vd v_t643_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t115, v_t643_1);
+    const derive_vd v_t643_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t139, v_t643_2);
+    const derive_vd v_t643_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t163, v_t643_3);
+    const derive_vd v_t643 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t187, v_t643_4);
     const derive_vd tr_v_t607_0 = __builtin_shufflevector(v_t607, v_t619, 0, 4, 2, 6);
     const derive_vd tr_v_t607_1 = __builtin_shufflevector(v_t607, v_t619, 1, 5, 3, 7);
     const derive_vd tr_v_t607_2 = __builtin_shufflevector(v_t631, v_t643, 0, 4, 2, 6);
@@ -4358,12 +4366,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t646 = DERIVE_FMA(t334, t190, DERIVE_FMA(t310, t166, DERIVE_FMA(t286, t142, DERIVE_FMA(t262, t118, DERIVE_FMA(t238, t94, DERIVE_FMA(t214, P[183], P[375]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t647_0 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[376], P[377], P[378], P[379]}));
-    const derive_vd v_t647_1 = DERIVE_ROWS_FMA(((derive_vd){t238, t238, t238, t238}), v_t95, v_t647_0);
-    const derive_vd v_t647_2 = DERIVE_ROWS_FMA(((derive_vd){t262, t262, t262, t262}), v_t119, v_t647_1);
-    const derive_vd v_t647_3 = DERIVE_ROWS_FMA(((derive_vd){t286, t286, t286, t286}), v_t143, v_t647_2);
-    const derive_vd v_t647_4 = DERIVE_ROWS_FMA(((derive_vd){t310, t310, t310, t310}), v_t167, v_t647_3);
-    const derive_vd v_t647 = DERIVE_ROWS_FMA(((derive_vd){t334, t334, t334, t334}), v_t191, v_t647_4);
+    const derive_vd v_t647_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd v_t647_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t95, v_t647_0);
+    const derive_vd v_t647_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t119, v_t647_1);
+    const derive_vd v_t647_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t143, v_t647_2);
+    const derive_vd v_t647_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t167, v_t647_3);
+    const derive_vd v_t647 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t191, v_t647_4);
     const derive_vd tr_v_t611_0 = __builtin_shufflevector(v_t611, v_t623, 0, 4, 2, 6);
     const derive_vd tr_v_t611_1 = __builtin_shufflevector(v_t611, v_t623, 1, 5, 3, 7);
     const derive_vd tr_v_t611_2 = __builtin_shufflevector(v_t635, v_t647, 0, 4, 2, 6);
@@ -4387,12 +4395,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t650 = DERIVE_FMA(t334, t194, DERIVE_FMA(t310, t170, DERIVE_FMA(t286, t146, DERIVE_FMA(t262, t122, DERIVE_FMA(t238, t98, DERIVE_FMA(t214, P[187], P[379]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t651_0 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
-    const derive_vd v_t651_1 = DERIVE_ROWS_FMA(((derive_vd){t238, t238, t238, t238}), v_t99, v_t651_0);
-    const derive_vd v_t651_2 = DERIVE_ROWS_FMA(((derive_vd){t262, t262, t262, t262}), v_t123, v_t651_1);
-    const derive_vd v_t651_3 = DERIVE_ROWS_FMA(((derive_vd){t286, t286, t286, t286}), v_t147, v_t651_2);
-    const derive_vd v_t651_4 = DERIVE_ROWS_FMA(((derive_vd){t310, t310, t310, t310}), v_t171, v_t651_3);
-    const derive_vd v_t651 = DERIVE_ROWS_FMA(((derive_vd){t334, t334, t334, t334}), v_t195, v_t651_4);
+    const derive_vd v_t651_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd v_t651_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t99, v_t651_0);
+    const derive_vd v_t651_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t123, v_t651_1);
+    const derive_vd v_t651_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t147, v_t651_2);
+    const derive_vd v_t651_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t171, v_t651_3);
+    const derive_vd v_t651 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t195, v_t651_4);
     const derive_vd tr_v_t615_0 = __builtin_shufflevector(v_t615, v_t627, 0, 4, 2, 6);
     const derive_vd tr_v_t615_1 = __builtin_shufflevector(v_t615, v_t627, 1, 5, 3, 7);
     const derive_vd tr_v_t615_2 = __builtin_shufflevector(v_t639, v_t651, 0, 4, 2, 6);
@@ -4416,12 +4424,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t654 = DERIVE_FMA(t334, t198, DERIVE_FMA(t310, t174, DERIVE_FMA(t286, t150, DERIVE_FMA(t262, t126, DERIVE_FMA(t238, t102, DERIVE_FMA(t214, P[191], P[383]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t655_0 = DERIVE_ROWS_FMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
-    const derive_vd v_t655_1 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t95, v_t655_0);
-    const derive_vd v_t655_2 = DERIVE_ROWS_FMA(((derive_vd){t263, t263, t263, t263}), v_t119, v_t655_1);
-    const derive_vd v_t655_3 = DERIVE_ROWS_FMA(((derive_vd){t287, t287, t287, t287}), v_t143, v_t655_2);
-    const derive_vd v_t655_4 = DERIVE_ROWS_FMA(((derive_vd){t311, t311, t311, t311}), v_t167, v_t655_3);
-    const derive_vd v_t655 = DERIVE_ROWS_FMA(((derive_vd){t335, t335, t335, t335}), v_t191, v_t655_4);
+    const derive_vd v_t655_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const derive_vd v_t655_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t95, v_t655_0);
+    const derive_vd v_t655_2 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t119, v_t655_1);
+    const derive_vd v_t655_3 = DERIVE_VFMA(((derive_vd){t287, t287, t287, t287}), v_t143, v_t655_2);
+    const derive_vd v_t655_4 = DERIVE_VFMA(((derive_vd){t311, t311, t311, t311}), v_t167, v_t655_3);
+    const derive_vd v_t655 = DERIVE_VFMA(((derive_vd){t335, t335, t335, t335}), v_t191, v_t655_4);
     #else
     const double t655 = DERIVE_FMA(t335, t191, DERIVE_FMA(t311, t167, DERIVE_FMA(t287, t143, DERIVE_FMA(t263, t119, DERIVE_FMA(t239, t95, DERIVE_FMA(t215, P[184], P[400]))))));
     const double t656 = DERIVE_FMA(t335, t192, DERIVE_FMA(t311, t168, DERIVE_FMA(t287, t144, DERIVE_FMA(t263, t120, DERIVE_FMA(t239, t96, DERIVE_FMA(t215, P[185], P[401]))))));
@@ -4429,12 +4437,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t658 = DERIVE_FMA(t335, t194, DERIVE_FMA(t311, t170, DERIVE_FMA(t287, t146, DERIVE_FMA(t263, t122, DERIVE_FMA(t239, t98, DERIVE_FMA(t215, P[187], P[403]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t659_0 = DERIVE_ROWS_FMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
-    const derive_vd v_t659_1 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t99, v_t659_0);
-    const derive_vd v_t659_2 = DERIVE_ROWS_FMA(((derive_vd){t263, t263, t263, t263}), v_t123, v_t659_1);
-    const derive_vd v_t659_3 = DERIVE_ROWS_FMA(((derive_vd){t287, t287, t287, t287}), v_t147, v_t659_2);
-    const derive_vd v_t659_4 = DERIVE_ROWS_FMA(((derive_vd){t311, t311, t311, t311}), v_t171, v_t659_3);
-    const derive_vd v_t659 = DERIVE_ROWS_FMA(((derive_vd){t335, t335, t335, t335}), v_t195, v_t659_4);
+    const derive_vd v_t659_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
+    const derive_vd v_t659_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t99, v_t659_0);
+    const derive_vd v_t659_2 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t123, v_t659_1);
+    const derive_vd v_t659_3 = DERIVE_VFMA(((derive_vd){t287, t287, t287, t287}), v_t147, v_t659_2);
+    const derive_vd v_t659_4 = DERIVE_VFMA(((derive_vd){t311, t311, t311, t311}), v_t171, v_t659_3);
+    const derive_vd v_t659 = DERIVE_VFMA(((derive_vd){t335, t335, t335, t335}), v_t195, v_t659_4);
     #else
     const double t659 = DERIVE_FMA(t335, t195, DERIVE_FMA(t311, t171, DERIVE_FMA(t287, t147, DERIVE_FMA(t263, t123, DERIVE_FMA(t239, t99, DERIVE_FMA(t215, P[188], P[404]))))));
     const double t660 = DERIVE_FMA(t335, t196, DERIVE_FMA(t311, t172, DERIVE_FMA(t287, t148, DERIVE_FMA(t263, t124, DERIVE_FMA(t239, t100, DERIVE_FMA(t215, P[189], P[405]))))));
@@ -4442,24 +4450,24 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t662 = DERIVE_FMA(t335, t198, DERIVE_FMA(t311, t174, DERIVE_FMA(t287, t150, DERIVE_FMA(t263, t126, DERIVE_FMA(t239, t102, DERIVE_FMA(t215, P[191], P[407]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t663_0 = DERIVE_ROWS_FMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[424], P[425], P[426], P[427]}));
-    const derive_vd v_t663_1 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t95, v_t663_0);
-    const derive_vd v_t663_2 = DERIVE_ROWS_FMA(((derive_vd){t264, t264, t264, t264}), v_t119, v_t663_1);
-    const derive_vd v_t663_3 = DERIVE_ROWS_FMA(((derive_vd){t288, t288, t288, t288}), v_t143, v_t663_2);
-    const derive_vd v_t663_4 = DERIVE_ROWS_FMA(((derive_vd){t312, t312, t312, t312}), v_t167, v_t663_3);
-    const derive_vd v_t663 = DERIVE_ROWS_FMA(((derive_vd){t336, t336, t336, t336}), v_t191, v_t663_4);
+    const derive_vd v_t663_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[424], P[425], P[426], P[427]}));
+    const derive_vd v_t663_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t95, v_t663_0);
+    const derive_vd v_t663_2 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t119, v_t663_1);
+    const derive_vd v_t663_3 = DERIVE_VFMA(((derive_vd){t288, t288, t288, t288}), v_t143, v_t663_2);
+    const derive_vd v_t663_4 = DERIVE_VFMA(((derive_vd){t312, t312, t312, t312}), v_t167, v_t663_3);
+    const derive_vd v_t663 = DERIVE_VFMA(((derive_vd){t336, t336, t336, t336}), v_t191, v_t663_4);
     #else
     const double t664 = DERIVE_FMA(t336, t192, DERIVE_FMA(t312, t168, DERIVE_FMA(t288, t144, DERIVE_FMA(t264, t120, DERIVE_FMA(t240, t96, DERIVE_FMA(t216, P[185], P[425]))))));
     const double t665 = DERIVE_FMA(t336, t193, DERIVE_FMA(t312, t169, DERIVE_FMA(t288, t145, DERIVE_FMA(t264, t121, DERIVE_FMA(t240, t97, DERIVE_FMA(t216, P[186], P[426]))))));
     const double t666 = DERIVE_FMA(t336, t194, DERIVE_FMA(t312, t170, DERIVE_FMA(t288, t146, DERIVE_FMA(t264, t122, DERIVE_FMA(t240, t98, DERIVE_FMA(t216, P[187], P[427]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t667_0 = DERIVE_ROWS_FMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[428], P[429], P[430], P[431]}));
-    const derive_vd v_t667_1 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t99, v_t667_0);
-    const derive_vd v_t667_2 = DERIVE_ROWS_FMA(((derive_vd){t264, t264, t264, t264}), v_t123, v_t667_1);
-    const derive_vd v_t667_3 = DERIVE_ROWS_FMA(((derive_vd){t288, t288, t288, t288}), v_t147, v_t667_2);
-    const derive_vd v_t667_4 = DERIVE_ROWS_FMA(((derive_vd){t312, t312, t312, t312}), v_t171, v_t667_3);
-    const derive_vd v_t667 = DERIVE_ROWS_FMA(((derive_vd){t336, t336, t336, t336}), v_t195, v_t667_4);
+    const derive_vd v_t667_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[428], P[429], P[430], P[431]}));
+    const derive_vd v_t667_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t99, v_t667_0);
+    const derive_vd v_t667_2 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t123, v_t667_1);
+    const derive_vd v_t667_3 = DERIVE_VFMA(((derive_vd){t288, t288, t288, t288}), v_t147, v_t667_2);
+    const derive_vd v_t667_4 = DERIVE_VFMA(((derive_vd){t312, t312, t312, t312}), v_t171, v_t667_3);
+    const derive_vd v_t667 = DERIVE_VFMA(((derive_vd){t336, t336, t336, t336}), v_t195, v_t667_4);
     #else
     const double t667 = DERIVE_FMA(t336, t195, DERIVE_FMA(t312, t171, DERIVE_FMA(t288, t147, DERIVE_FMA(t264, t123, DERIVE_FMA(t240, t99, DERIVE_FMA(t216, P[188], P[428]))))));
     const double t668 = DERIVE_FMA(t336, t196, DERIVE_FMA(t312, t172, DERIVE_FMA(t288, t148, DERIVE_FMA(t264, t124, DERIVE_FMA(t240, t100, DERIVE_FMA(t216, P[189], P[429]))))));
@@ -4467,23 +4475,23 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t670 = DERIVE_FMA(t336, t198, DERIVE_FMA(t312, t174, DERIVE_FMA(t288, t150, DERIVE_FMA(t264, t126, DERIVE_FMA(t240, t102, DERIVE_FMA(t216, P[191], P[431]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t671_0 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[448], P[449], P[450], P[451]}));
-    const derive_vd v_t671_1 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t95, v_t671_0);
-    const derive_vd v_t671_2 = DERIVE_ROWS_FMA(((derive_vd){t265, t265, t265, t265}), v_t119, v_t671_1);
-    const derive_vd v_t671_3 = DERIVE_ROWS_FMA(((derive_vd){t289, t289, t289, t289}), v_t143, v_t671_2);
-    const derive_vd v_t671_4 = DERIVE_ROWS_FMA(((derive_vd){t313, t313, t313, t313}), v_t167, v_t671_3);
-    const derive_vd v_t671 = DERIVE_ROWS_FMA(((derive_vd){t337, t337, t337, t337}), v_t191, v_t671_4);
+    const derive_vd v_t671_0 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[448], P[449], P[450], P[451]}));
+    const derive_vd v_t671_1 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t95, v_t671_0);
+    const derive_vd v_t671_2 = DERIVE_VFMA(((derive_vd){t265, t265, t265, t265}), v_t119, v_t671_1);
+    const derive_vd v_t671_3 = DERIVE_VFMA(((derive_vd){t289, t289, t289, t289}), v_t143, v_t671_2);
+    const derive_vd v_t671_4 = DERIVE_VFMA(((derive_vd){t313, t313, t313, t313}), v_t167, v_t671_3);
+    const derive_vd v_t671 = DERIVE_VFMA(((derive_vd){t337, t337, t337, t337}), v_t191, v_t671_4);
     #else
     const double t673 = DERIVE_FMA(t337, t193, DERIVE_FMA(t313, t169, DERIVE_FMA(t289, t145, DERIVE_FMA(t265, t121, DERIVE_FMA(t241, t97, DERIVE_FMA(t217, P[186], P[450]))))));
     const double t674 = DERIVE_FMA(t337, t194, DERIVE_FMA(t313, t170, DERIVE_FMA(t289, t146, DERIVE_FMA(t265, t122, DERIVE_FMA(t241, t98, DERIVE_FMA(t217, P[187], P[451]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t675_0 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[452], P[453], P[454], P[455]}));
-    const derive_vd v_t675_1 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t99, v_t675_0);
-    const derive_vd v_t675_2 = DERIVE_ROWS_FMA(((derive_vd){t265, t265, t265, t265}), v_t123, v_t675_1);
-    const derive_vd v_t675_3 = DERIVE_ROWS_FMA(((derive_vd){t289, t289, t289, t289}), v_t147, v_t675_2);
-    const derive_vd v_t675_4 = DERIVE_ROWS_FMA(((derive_vd){t313, t313, t313, t313}), v_t171, v_t675_3);
-    const derive_vd v_t675 = DERIVE_ROWS_FMA(((derive_vd){t337, t337, t337, t337}), v_t195, v_t675_4);
+    const derive_vd v_t675_0 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[452], P[453], P[454], P[455]}));
+    const derive_vd v_t675_1 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t99, v_t675_0);
+    const derive_vd v_t675_2 = DERIVE_VFMA(((derive_vd){t265, t265, t265, t265}), v_t123, v_t675_1);
+    const derive_vd v_t675_3 = DERIVE_VFMA(((derive_vd){t289, t289, t289, t289}), v_t147, v_t675_2);
+    const derive_vd v_t675_4 = DERIVE_VFMA(((derive_vd){t313, t313, t313, t313}), v_t171, v_t675_3);
+    const derive_vd v_t675 = DERIVE_VFMA(((derive_vd){t337, t337, t337, t337}), v_t195, v_t675_4);
     #else
     const double t675 = DERIVE_FMA(t337, t195, DERIVE_FMA(t313, t171, DERIVE_FMA(t289, t147, DERIVE_FMA(t265, t123, DERIVE_FMA(t241, t99, DERIVE_FMA(t217, P[188], P[452]))))));
     const double t676 = DERIVE_FMA(t337, t196, DERIVE_FMA(t313, t172, DERIVE_FMA(t289, t148, DERIVE_FMA(t265, t124, DERIVE_FMA(t241, t100, DERIVE_FMA(t217, P[189], P[453]))))));
@@ -4491,12 +4499,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t678 = DERIVE_FMA(t337, t198, DERIVE_FMA(t313, t174, DERIVE_FMA(t289, t150, DERIVE_FMA(t265, t126, DERIVE_FMA(t241, t102, DERIVE_FMA(t217, P[191], P[455]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t679_0 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[472], P[473], P[474], P[475]}));
-    const derive_vd v_t679_1 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t95, v_t679_0);
-    const derive_vd v_t679_2 = DERIVE_ROWS_FMA(((derive_vd){t266, t266, t266, t266}), v_t119, v_t679_1);
-    const derive_vd v_t679_3 = DERIVE_ROWS_FMA(((derive_vd){t290, t290, t290, t290}), v_t143, v_t679_2);
-    const derive_vd v_t679_4 = DERIVE_ROWS_FMA(((derive_vd){t314, t314, t314, t314}), v_t167, v_t679_3);
-    const derive_vd v_t679 = DERIVE_ROWS_FMA(((derive_vd){t338, t338, t338, t338}), v_t191, v_t679_4);
+    const derive_vd v_t679_0 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[472], P[473], P[474], P[475]}));
+    const derive_vd v_t679_1 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t95, v_t679_0);
+    const derive_vd v_t679_2 = DERIVE_VFMA(((derive_vd){t266, t266, t266, t266}), v_t119, v_t679_1);
+    const derive_vd v_t679_3 = DERIVE_VFMA(((derive_vd){t290, t290, t290, t290}), v_t143, v_t679_2);
+    const derive_vd v_t679_4 = DERIVE_VFMA(((derive_vd){t314, t314, t314, t314}), v_t167, v_t679_3);
+    const derive_vd v_t679 = DERIVE_VFMA(((derive_vd){t338, t338, t338, t338}), v_t191, v_t679_4);
     const derive_vd tr_v_t655_0 = __builtin_shufflevector(v_t655, v_t663, 0, 4, 2, 6);
     const derive_vd tr_v_t655_1 = __builtin_shufflevector(v_t655, v_t663, 1, 5, 3, 7);
     const derive_vd tr_v_t655_2 = __builtin_shufflevector(v_t671, v_t679, 0, 4, 2, 6);
@@ -4512,12 +4520,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t682 = DERIVE_FMA(t338, t194, DERIVE_FMA(t314, t170, DERIVE_FMA(t290, t146, DERIVE_FMA(t266, t122, DERIVE_FMA(t242, t98, DERIVE_FMA(t218, P[187], P[475]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t683_0 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[476], P[477], P[478], P[479]}));
-    const derive_vd v_t683_1 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t99, v_t683_0);
-    const derive_vd v_t683_2 = DERIVE_ROWS_FMA(((derive_vd){t266, t266, t266, t266}), v_t123, v_t683_1);
-    const derive_vd v_t683_3 = DERIVE_ROWS_FMA(((derive_vd){t290, t290, t290, t290}), v_t147, v_t683_2);
-    const derive_vd v_t683_4 = DERIVE_ROWS_FMA(((derive_vd){t314, t314, t314, t314}), v_t171, v_t683_3);
-    const derive_vd v_t683 = DERIVE_ROWS_FMA(((derive_vd){t338, t338, t338, t338}), v_t195, v_t683_4);
+    const derive_vd v_t683_0 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd v_t683_1 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t99, v_t683_0);
+    const derive_vd v_t683_2 = DERIVE_VFMA(((derive_vd){t266, t266, t266, t266}), v_t123, v_t683_1);
+    const derive_vd v_t683_3 = DERIVE_VFMA(((derive_vd){t290, t290, t290, t290}), v_t147, v_t683_2);
+    const derive_vd v_t683_4 = DERIVE_VFMA(((derive_vd){t314, t314, t314, t314}), v_t171, v_t683_3);
+    const derive_vd v_t683 = DERIVE_VFMA(((derive_vd){t338, t338, t338, t338}), v_t195, v_t683_4);
     const derive_vd tr_v_t659_0 = __builtin_shufflevector(v_t659, v_t667, 0, 4, 2, 6);
     const derive_vd tr_v_t659_1 = __builtin_shufflevector(v_t659, v_t667, 1, 5, 3, 7);
     const derive_vd tr_v_t659_2 = __builtin_shufflevector(v_t675, v_t683, 0, 4, 2, 6);
@@ -4541,12 +4549,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t686 = DERIVE_FMA(t338, t198, DERIVE_FMA(t314, t174, DERIVE_FMA(t290, t150, DERIVE_FMA(t266, t126, DERIVE_FMA(t242, t102, DERIVE_FMA(t218, P[191], P[479]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t687_0 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
-    const derive_vd v_t687_1 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t99, v_t687_0);
-    const derive_vd v_t687_2 = DERIVE_ROWS_FMA(((derive_vd){t267, t267, t267, t267}), v_t123, v_t687_1);
-    const derive_vd v_t687_3 = DERIVE_ROWS_FMA(((derive_vd){t291, t291, t291, t291}), v_t147, v_t687_2);
-    const derive_vd v_t687_4 = DERIVE_ROWS_FMA(((derive_vd){t315, t315, t315, t315}), v_t171, v_t687_3);
-    const derive_vd v_t687 = DERIVE_ROWS_FMA(((derive_vd){t339, t339, t339, t339}), v_t195, v_t687_4);
+    const derive_vd v_t687_0 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const derive_vd v_t687_1 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t99, v_t687_0);
+    const derive_vd v_t687_2 = DERIVE_VFMA(((derive_vd){t267, t267, t267, t267}), v_t123, v_t687_1);
+    const derive_vd v_t687_3 = DERIVE_VFMA(((derive_vd){t291, t291, t291, t291}), v_t147, v_t687_2);
+    const derive_vd v_t687_4 = DERIVE_VFMA(((derive_vd){t315, t315, t315, t315}), v_t171, v_t687_3);
+    const derive_vd v_t687 = DERIVE_VFMA(((derive_vd){t339, t339, t339, t339}), v_t195, v_t687_4);
     #else
     const double t687 = DERIVE_FMA(t339, t195, DERIVE_FMA(t315, t171, DERIVE_FMA(t291, t147, DERIVE_FMA(t267, t123, DERIVE_FMA(t243, t99, DERIVE_FMA(t219, P[188], P[500]))))));
     const double t688 = DERIVE_FMA(t339, t196, DERIVE_FMA(t315, t172, DERIVE_FMA(t291, t148, DERIVE_FMA(t267, t124, DERIVE_FMA(t243, t100, DERIVE_FMA(t219, P[189], P[501]))))));
@@ -4554,35 +4562,35 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t690 = DERIVE_FMA(t339, t198, DERIVE_FMA(t315, t174, DERIVE_FMA(t291, t150, DERIVE_FMA(t267, t126, DERIVE_FMA(t243, t102, DERIVE_FMA(t219, P[191], P[503]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t691_0 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[524], P[525], P[526], P[527]}));
-    const derive_vd v_t691_1 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t99, v_t691_0);
-    const derive_vd v_t691_2 = DERIVE_ROWS_FMA(((derive_vd){t268, t268, t268, t268}), v_t123, v_t691_1);
-    const derive_vd v_t691_3 = DERIVE_ROWS_FMA(((derive_vd){t292, t292, t292, t292}), v_t147, v_t691_2);
-    const derive_vd v_t691_4 = DERIVE_ROWS_FMA(((derive_vd){t316, t316, t316, t316}), v_t171, v_t691_3);
-    const derive_vd v_t691 = DERIVE_ROWS_FMA(((derive_vd){t340, t340, t340, t340}), v_t195, v_t691_4);
+    const derive_vd v_t691_0 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[524], P[525], P[526], P[527]}));
+    const derive_vd v_t691_1 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t99, v_t691_0);
+    const derive_vd v_t691_2 = DERIVE_VFMA(((derive_vd){t268, t268, t268, t268}), v_t123, v_t691_1);
+    const derive_vd v_t691_3 = DERIVE_VFMA(((derive_vd){t292, t292, t292, t292}), v_t147, v_t691_2);
+    const derive_vd v_t691_4 = DERIVE_VFMA(((derive_vd){t316, t316, t316, t316}), v_t171, v_t691_3);
+    const derive_vd v_t691 = DERIVE_VFMA(((derive_vd){t340, t340, t340, t340}), v_t195, v_t691_4);
     #else
     const double t692 = DERIVE_FMA(t340, t196, DERIVE_FMA(t316, t172, DERIVE_FMA(t292, t148, DERIVE_FMA(t268, t124, DERIVE_FMA(t244, t100, DERIVE_FMA(t220, P[189], P[525]))))));
     const double t693 = DERIVE_FMA(t340, t197, DERIVE_FMA(t316, t173, DERIVE_FMA(t292, t149, DERIVE_FMA(t268, t125, DERIVE_FMA(t244, t101, DERIVE_FMA(t220, P[190], P[526]))))));
     const double t694 = DERIVE_FMA(t340, t198, DERIVE_FMA(t316, t174, DERIVE_FMA(t292, t150, DERIVE_FMA(t268, t126, DERIVE_FMA(t244, t102, DERIVE_FMA(t220, P[191], P[527]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t695_0 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[548], P[549], P[550], P[551]}));
-    const derive_vd v_t695_1 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t99, v_t695_0);
-    const derive_vd v_t695_2 = DERIVE_ROWS_FMA(((derive_vd){t269, t269, t269, t269}), v_t123, v_t695_1);
-    const derive_vd v_t695_3 = DERIVE_ROWS_FMA(((derive_vd){t293, t293, t293, t293}), v_t147, v_t695_2);
-    const derive_vd v_t695_4 = DERIVE_ROWS_FMA(((derive_vd){t317, t317, t317, t317}), v_t171, v_t695_3);
-    const derive_vd v_t695 = DERIVE_ROWS_FMA(((derive_vd){t341, t341, t341, t341}), v_t195, v_t695_4);
+    const derive_vd v_t695_0 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[548], P[549], P[550], P[551]}));
+    const derive_vd v_t695_1 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t99, v_t695_0);
+    const derive_vd v_t695_2 = DERIVE_VFMA(((derive_vd){t269, t269, t269, t269}), v_t123, v_t695_1);
+    const derive_vd v_t695_3 = DERIVE_VFMA(((derive_vd){t293, t293, t293, t293}), v_t147, v_t695_2);
+    const derive_vd v_t695_4 = DERIVE_VFMA(((derive_vd){t317, t317, t317, t317}), v_t171, v_t695_3);
+    const derive_vd v_t695 = DERIVE_VFMA(((derive_vd){t341, t341, t341, t341}), v_t195, v_t695_4);
     #else
     const double t697 = DERIVE_FMA(t341, t197, DERIVE_FMA(t317, t173, DERIVE_FMA(t293, t149, DERIVE_FMA(t269, t125, DERIVE_FMA(t245, t101, DERIVE_FMA(t221, P[190], P[550]))))));
     const double t698 = DERIVE_FMA(t341, t198, DERIVE_FMA(t317, t174, DERIVE_FMA(t293, t150, DERIVE_FMA(t269, t126, DERIVE_FMA(t245, t102, DERIVE_FMA(t221, P[191], P[551]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t699_0 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[572], P[573], P[574], P[575]}));
-    const derive_vd v_t699_1 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t99, v_t699_0);
-    const derive_vd v_t699_2 = DERIVE_ROWS_FMA(((derive_vd){t270, t270, t270, t270}), v_t123, v_t699_1);
-    const derive_vd v_t699_3 = DERIVE_ROWS_FMA(((derive_vd){t294, t294, t294, t294}), v_t147, v_t699_2);
-    const derive_vd v_t699_4 = DERIVE_ROWS_FMA(((derive_vd){t318, t318, t318, t318}), v_t171, v_t699_3);
-    const derive_vd v_t699 = DERIVE_ROWS_FMA(((derive_vd){t342, t342, t342, t342}), v_t195, v_t699_4);
+    const derive_vd v_t699_0 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[572], P[573], P[574], P[575]}));
+    const derive_vd v_t699_1 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t99, v_t699_0);
+    const derive_vd v_t699_2 = DERIVE_VFMA(((derive_vd){t270, t270, t270, t270}), v_t123, v_t699_1);
+    const derive_vd v_t699_3 = DERIVE_VFMA(((derive_vd){t294, t294, t294, t294}), v_t147, v_t699_2);
+    const derive_vd v_t699_4 = DERIVE_VFMA(((derive_vd){t318, t318, t318, t318}), v_t171, v_t699_3);
+    const derive_vd v_t699 = DERIVE_VFMA(((derive_vd){t342, t342, t342, t342}), v_t195, v_t699_4);
     const derive_vd tr_v_t687_0 = __builtin_shufflevector(v_t687, v_t691, 0, 4, 2, 6);
     const derive_vd tr_v_t687_1 = __builtin_shufflevector(v_t687, v_t691, 1, 5, 3, 7);
     const derive_vd tr_v_t687_2 = __builtin_shufflevector(v_t695, v_t699, 0, 4, 2, 6);
@@ -6235,12 +6243,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t51 = -t45;
     #if DERIVE_VECTOR
     const derive_vd v_t52_0 = (((derive_vd){t36, t36, t36, t36}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t52_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t52_0);
-    const derive_vd v_t52_2 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t52_1);
-    const derive_vd v_t52_3 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t52_2);
-    const derive_vd v_t52_4 = DERIVE_ROWS_FMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[384], P[385], P[386], P[387]}), v_t52_3);
-    const derive_vd v_t52_5 = DERIVE_ROWS_FMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[408], P[409], P[410], P[411]}), v_t52_4);
-    const derive_vd v_t52_6 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[432], P[433], P[434], P[435]}), v_t52_5);
+    const derive_vd v_t52_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t52_0);
+    const derive_vd v_t52_2 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t52_1);
+    const derive_vd v_t52_3 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t52_2);
+    const derive_vd v_t52_4 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[384], P[385], P[386], P[387]}), v_t52_3);
+    const derive_vd v_t52_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[408], P[409], P[410], P[411]}), v_t52_4);
+    const derive_vd v_t52_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[432], P[433], P[434], P[435]}), v_t52_5);
     const derive_vd v_t52 = (v_t52_6 + ((derive_vd){P[456], P[457], P[458], P[459]}));
     const double t52 = v_t52[0];
     const double t53 = v_t52[1];
@@ -6254,12 +6262,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t56_0 = (((derive_vd){t36, t36, t36, t36}) * ((derive_vd){P[4], P[5], P[6], P[7]}));
-    const derive_vd v_t56_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t56_0);
-    const derive_vd v_t56_2 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t56_1);
-    const derive_vd v_t56_3 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t56_2);
-    const derive_vd v_t56_4 = DERIVE_ROWS_FMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[388], P[389], P[390], P[391]}), v_t56_3);
-    const derive_vd v_t56_5 = DERIVE_ROWS_FMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t56_4);
-    const derive_vd v_t56_6 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t56_5);
+    const derive_vd v_t56_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t56_0);
+    const derive_vd v_t56_2 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t56_1);
+    const derive_vd v_t56_3 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t56_2);
+    const derive_vd v_t56_4 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[388], P[389], P[390], P[391]}), v_t56_3);
+    const derive_vd v_t56_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t56_4);
+    const derive_vd v_t56_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t56_5);
     const derive_vd v_t56 = (v_t56_6 + ((derive_vd){P[460], P[461], P[462], P[463]}));
     #else
     const double t56 = DERIVE_FMA(t2, P[436], DERIVE_FMA(t5, P[412], DERIVE_FMA(t9, P[388], DERIVE_FMA(t39, P[76], DERIVE_FMA(t38, P[52], DERIVE_FMA(t37, P[28], t36*P[4])))))) + P[460];
@@ -6269,12 +6277,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t60_0 = (((derive_vd){t36, t36, t36, t36}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t60_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t60_0);
-    const derive_vd v_t60_2 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t60_1);
-    const derive_vd v_t60_3 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t60_2);
-    const derive_vd v_t60_4 = DERIVE_ROWS_FMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[392], P[393], P[394], P[395]}), v_t60_3);
-    const derive_vd v_t60_5 = DERIVE_ROWS_FMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t60_4);
-    const derive_vd v_t60_6 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t60_5);
+    const derive_vd v_t60_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t60_0);
+    const derive_vd v_t60_2 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t60_1);
+    const derive_vd v_t60_3 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t60_2);
+    const derive_vd v_t60_4 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[392], P[393], P[394], P[395]}), v_t60_3);
+    const derive_vd v_t60_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t60_4);
+    const derive_vd v_t60_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t60_5);
     const derive_vd v_t60 = (v_t60_6 + ((derive_vd){P[464], P[465], P[466], P[467]}));
     #else
     const double t60 = DERIVE_FMA(t2, P[440], DERIVE_FMA(t5, P[416], DERIVE_FMA(t9, P[392], DERIVE_FMA(t39, P[80], DERIVE_FMA(t38, P[56], DERIVE_FMA(t37, P[32], t36*P[8])))))) + P[464];
@@ -6284,12 +6292,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t64_0 = (((derive_vd){t36, t36, t36, t36}) * ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t64_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t64_0);
-    const derive_vd v_t64_2 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t64_1);
-    const derive_vd v_t64_3 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t64_2);
-    const derive_vd v_t64_4 = DERIVE_ROWS_FMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[396], P[397], P[398], P[399]}), v_t64_3);
-    const derive_vd v_t64_5 = DERIVE_ROWS_FMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t64_4);
-    const derive_vd v_t64_6 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t64_5);
+    const derive_vd v_t64_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t64_0);
+    const derive_vd v_t64_2 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t64_1);
+    const derive_vd v_t64_3 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t64_2);
+    const derive_vd v_t64_4 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[396], P[397], P[398], P[399]}), v_t64_3);
+    const derive_vd v_t64_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t64_4);
+    const derive_vd v_t64_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t64_5);
     const derive_vd v_t64 = (v_t64_6 + ((derive_vd){P[468], P[469], P[470], P[471]}));
     #else
     const double t64 = DERIVE_FMA(t2, P[444], DERIVE_FMA(t5, P[420], DERIVE_FMA(t9, P[396], DERIVE_FMA(t39, P[84], DERIVE_FMA(t38, P[60], DERIVE_FMA(t37, P[36], t36*P[12])))))) + P[468];
@@ -6299,12 +6307,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t68_0 = (((derive_vd){t36, t36, t36, t36}) * ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t68_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t68_0);
-    const derive_vd v_t68_2 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t68_1);
-    const derive_vd v_t68_3 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t68_2);
-    const derive_vd v_t68_4 = DERIVE_ROWS_FMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[400], P[401], P[402], P[403]}), v_t68_3);
-    const derive_vd v_t68_5 = DERIVE_ROWS_FMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[424], P[425], P[426], P[427]}), v_t68_4);
-    const derive_vd v_t68_6 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[448], P[449], P[450], P[451]}), v_t68_5);
+    const derive_vd v_t68_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t68_0);
+    const derive_vd v_t68_2 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t68_1);
+    const derive_vd v_t68_3 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t68_2);
+    const derive_vd v_t68_4 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[400], P[401], P[402], P[403]}), v_t68_3);
+    const derive_vd v_t68_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[424], P[425], P[426], P[427]}), v_t68_4);
+    const derive_vd v_t68_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[448], P[449], P[450], P[451]}), v_t68_5);
     const derive_vd v_t68 = (v_t68_6 + ((derive_vd){P[472], P[473], P[474], P[475]}));
     const double t68 = v_t68[0];
     const double t69 = v_t68[1];
@@ -6318,12 +6326,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t72_0 = (((derive_vd){t36, t36, t36, t36}) * ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t72_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t72_0);
-    const derive_vd v_t72_2 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t72_1);
-    const derive_vd v_t72_3 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t72_2);
-    const derive_vd v_t72_4 = DERIVE_ROWS_FMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[404], P[405], P[406], P[407]}), v_t72_3);
-    const derive_vd v_t72_5 = DERIVE_ROWS_FMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[428], P[429], P[430], P[431]}), v_t72_4);
-    const derive_vd v_t72_6 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[452], P[453], P[454], P[455]}), v_t72_5);
+    const derive_vd v_t72_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t72_0);
+    const derive_vd v_t72_2 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t72_1);
+    const derive_vd v_t72_3 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t72_2);
+    const derive_vd v_t72_4 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[404], P[405], P[406], P[407]}), v_t72_3);
+    const derive_vd v_t72_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[428], P[429], P[430], P[431]}), v_t72_4);
+    const derive_vd v_t72_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[452], P[453], P[454], P[455]}), v_t72_5);
     const derive_vd v_t72 = (v_t72_6 + ((derive_vd){P[476], P[477], P[478], P[479]}));
     const double t72 = v_t72[0];
     const double t73 = v_t72[1];
@@ -6335,12 +6343,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t76_0 = (((derive_vd){t40, t40, t40, t40}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t76_1 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t76_0);
-    const derive_vd v_t76_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t76_1);
-    const derive_vd v_t76_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t76_2);
-    const derive_vd v_t76_4 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[384], P[385], P[386], P[387]}), v_t76_3);
-    const derive_vd v_t76_5 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[408], P[409], P[410], P[411]}), v_t76_4);
-    const derive_vd v_t76_6 = DERIVE_ROWS_FMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[432], P[433], P[434], P[435]}), v_t76_5);
+    const derive_vd v_t76_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t76_0);
+    const derive_vd v_t76_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t76_1);
+    const derive_vd v_t76_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t76_2);
+    const derive_vd v_t76_4 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[384], P[385], P[386], P[387]}), v_t76_3);
+    const derive_vd v_t76_5 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[408], P[409], P[410], P[411]}), v_t76_4);
+    const derive_vd v_t76_6 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[432], P[433], P[434], P[435]}), v_t76_5);
     const derive_vd v_t76 = (v_t76_6 + ((derive_vd){P[480], P[481], P[482], P[483]}));
     const double t76 = v_t76[0];
     const double t77 = v_t76[1];
@@ -6354,12 +6362,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t80_0 = (((derive_vd){t40, t40, t40, t40}) * ((derive_vd){P[4], P[5], P[6], P[7]}));
-    const derive_vd v_t80_1 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t80_0);
-    const derive_vd v_t80_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t80_1);
-    const derive_vd v_t80_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t80_2);
-    const derive_vd v_t80_4 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[388], P[389], P[390], P[391]}), v_t80_3);
-    const derive_vd v_t80_5 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t80_4);
-    const derive_vd v_t80_6 = DERIVE_ROWS_FMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t80_5);
+    const derive_vd v_t80_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t80_0);
+    const derive_vd v_t80_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t80_1);
+    const derive_vd v_t80_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t80_2);
+    const derive_vd v_t80_4 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[388], P[389], P[390], P[391]}), v_t80_3);
+    const derive_vd v_t80_5 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t80_4);
+    const derive_vd v_t80_6 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t80_5);
     const derive_vd v_t80 = (v_t80_6 + ((derive_vd){P[484], P[485], P[486], P[487]}));
     #else
     const double t80 = DERIVE_FMA(t12, P[436], DERIVE_FMA(t15, P[412], DERIVE_FMA(t13, P[388], DERIVE_FMA(t43, P[76], DERIVE_FMA(t42, P[52], DERIVE_FMA(t41, P[28], t40*P[4])))))) + P[484];
@@ -6369,12 +6377,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t84_0 = (((derive_vd){t40, t40, t40, t40}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t84_1 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t84_0);
-    const derive_vd v_t84_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t84_1);
-    const derive_vd v_t84_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t84_2);
-    const derive_vd v_t84_4 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[392], P[393], P[394], P[395]}), v_t84_3);
-    const derive_vd v_t84_5 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t84_4);
-    const derive_vd v_t84_6 = DERIVE_ROWS_FMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t84_5);
+    const derive_vd v_t84_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t84_0);
+    const derive_vd v_t84_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t84_1);
+    const derive_vd v_t84_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t84_2);
+    const derive_vd v_t84_4 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[392], P[393], P[394], P[395]}), v_t84_3);
+    const derive_vd v_t84_5 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t84_4);
+    const derive_vd v_t84_6 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t84_5);
     const derive_vd v_t84 = (v_t84_6 + ((derive_vd){P[488], P[489], P[490], P[491]}));
     #else
     const double t84 = DERIVE_FMA(t12, P[440], DERIVE_FMA(t15, P[416], DERIVE_FMA(t13, P[392], DERIVE_FMA(t43, P[80], DERIVE_FMA(t42, P[56], DERIVE_FMA(t41, P[32], t40*P[8])))))) + P[488];
@@ -6384,12 +6392,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t88_0 = (((derive_vd){t40, t40, t40, t40}) * ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t88_1 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t88_0);
-    const derive_vd v_t88_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t88_1);
-    const derive_vd v_t88_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t88_2);
-    const derive_vd v_t88_4 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[396], P[397], P[398], P[399]}), v_t88_3);
-    const derive_vd v_t88_5 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t88_4);
-    const derive_vd v_t88_6 = DERIVE_ROWS_FMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t88_5);
+    const derive_vd v_t88_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t88_0);
+    const derive_vd v_t88_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t88_1);
+    const derive_vd v_t88_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t88_2);
+    const derive_vd v_t88_4 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[396], P[397], P[398], P[399]}), v_t88_3);
+    const derive_vd v_t88_5 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t88_4);
+    const derive_vd v_t88_6 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t88_5);
     const derive_vd v_t88 = (v_t88_6 + ((derive_vd){P[492], P[493], P[494], P[495]}));
     #else
     const double t88 = DERIVE_FMA(t12, P[444], DERIVE_FMA(t15, P[420], DERIVE_FMA(t13, P[396], DERIVE_FMA(t43, P[84], DERIVE_FMA(t42, P[60], DERIVE_FMA(t41, P[36], t40*P[12])))))) + P[492];
@@ -6399,12 +6407,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t92_0 = (((derive_vd){t40, t40, t40, t40}) * ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t92_1 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t92_0);
-    const derive_vd v_t92_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t92_1);
-    const derive_vd v_t92_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t92_2);
-    const derive_vd v_t92_4 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[400], P[401], P[402], P[403]}), v_t92_3);
-    const derive_vd v_t92_5 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[424], P[425], P[426], P[427]}), v_t92_4);
-    const derive_vd v_t92_6 = DERIVE_ROWS_FMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[448], P[449], P[450], P[451]}), v_t92_5);
+    const derive_vd v_t92_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t92_0);
+    const derive_vd v_t92_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t92_1);
+    const derive_vd v_t92_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t92_2);
+    const derive_vd v_t92_4 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[400], P[401], P[402], P[403]}), v_t92_3);
+    const derive_vd v_t92_5 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[424], P[425], P[426], P[427]}), v_t92_4);
+    const derive_vd v_t92_6 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[448], P[449], P[450], P[451]}), v_t92_5);
     const derive_vd v_t92 = (v_t92_6 + ((derive_vd){P[496], P[497], P[498], P[499]}));
     const double t92 = v_t92[0];
     const double t93 = v_t92[1];
@@ -6417,12 +6425,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t96_0 = (((derive_vd){t40, t40, t40, t40}) * ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t96_1 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t96_0);
-    const derive_vd v_t96_2 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t96_1);
-    const derive_vd v_t96_3 = DERIVE_ROWS_FMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t96_2);
-    const derive_vd v_t96_4 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[404], P[405], P[406], P[407]}), v_t96_3);
-    const derive_vd v_t96_5 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[428], P[429], P[430], P[431]}), v_t96_4);
-    const derive_vd v_t96_6 = DERIVE_ROWS_FMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[452], P[453], P[454], P[455]}), v_t96_5);
+    const derive_vd v_t96_1 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t96_0);
+    const derive_vd v_t96_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t96_1);
+    const derive_vd v_t96_3 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t96_2);
+    const derive_vd v_t96_4 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[404], P[405], P[406], P[407]}), v_t96_3);
+    const derive_vd v_t96_5 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[428], P[429], P[430], P[431]}), v_t96_4);
+    const derive_vd v_t96_6 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[452], P[453], P[454], P[455]}), v_t96_5);
     const derive_vd v_t96 = (v_t96_6 + ((derive_vd){P[500], P[501], P[502], P[503]}));
     const double t96 = v_t96[0];
     const double t97 = v_t96[1];
@@ -6434,12 +6442,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t100_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t100_1 = DERIVE_ROWS_FMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t100_0);
-    const derive_vd v_t100_2 = DERIVE_ROWS_FMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t100_1);
-    const derive_vd v_t100_3 = DERIVE_ROWS_FMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t100_2);
-    const derive_vd v_t100_4 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[384], P[385], P[386], P[387]}), v_t100_3);
-    const derive_vd v_t100_5 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[408], P[409], P[410], P[411]}), v_t100_4);
-    const derive_vd v_t100_6 = DERIVE_ROWS_FMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[432], P[433], P[434], P[435]}), v_t100_5);
+    const derive_vd v_t100_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t100_0);
+    const derive_vd v_t100_2 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t100_1);
+    const derive_vd v_t100_3 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[72], P[73], P[74], P[75]}), v_t100_2);
+    const derive_vd v_t100_4 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[384], P[385], P[386], P[387]}), v_t100_3);
+    const derive_vd v_t100_5 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[408], P[409], P[410], P[411]}), v_t100_4);
+    const derive_vd v_t100_6 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[432], P[433], P[434], P[435]}), v_t100_5);
     const derive_vd v_t100 = (v_t100_6 + ((derive_vd){P[504], P[505], P[506], P[507]}));
     const double t100 = v_t100[0];
     const double t101 = v_t100[1];
@@ -6453,12 +6461,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t104_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){P[4], P[5], P[6], P[7]}));
-    const derive_vd v_t104_1 = DERIVE_ROWS_FMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t104_0);
-    const derive_vd v_t104_2 = DERIVE_ROWS_FMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t104_1);
-    const derive_vd v_t104_3 = DERIVE_ROWS_FMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t104_2);
-    const derive_vd v_t104_4 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[388], P[389], P[390], P[391]}), v_t104_3);
-    const derive_vd v_t104_5 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t104_4);
-    const derive_vd v_t104_6 = DERIVE_ROWS_FMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t104_5);
+    const derive_vd v_t104_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t104_0);
+    const derive_vd v_t104_2 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t104_1);
+    const derive_vd v_t104_3 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[76], P[77], P[78], P[79]}), v_t104_2);
+    const derive_vd v_t104_4 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[388], P[389], P[390], P[391]}), v_t104_3);
+    const derive_vd v_t104_5 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t104_4);
+    const derive_vd v_t104_6 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t104_5);
     const derive_vd v_t104 = (v_t104_6 + ((derive_vd){P[508], P[509], P[510], P[511]}));
     #else
     const double t104 = DERIVE_FMA(t18, P[436], DERIVE_FMA(t16, P[412], DERIVE_FMA(t17, P[388], DERIVE_FMA(t47, P[76], DERIVE_FMA(t46, P[52], DERIVE_FMA(t51, P[28], t44*P[4])))))) + P[508];
@@ -6468,12 +6476,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t108_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t108_1 = DERIVE_ROWS_FMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t108_0);
-    const derive_vd v_t108_2 = DERIVE_ROWS_FMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t108_1);
-    const derive_vd v_t108_3 = DERIVE_ROWS_FMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t108_2);
-    const derive_vd v_t108_4 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[392], P[393], P[394], P[395]}), v_t108_3);
-    const derive_vd v_t108_5 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t108_4);
-    const derive_vd v_t108_6 = DERIVE_ROWS_FMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t108_5);
+    const derive_vd v_t108_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t108_0);
+    const derive_vd v_t108_2 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t108_1);
+    const derive_vd v_t108_3 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[80], P[81], P[82], P[83]}), v_t108_2);
+    const derive_vd v_t108_4 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[392], P[393], P[394], P[395]}), v_t108_3);
+    const derive_vd v_t108_5 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t108_4);
+    const derive_vd v_t108_6 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t108_5);
     const derive_vd v_t108 = (v_t108_6 + ((derive_vd){P[512], P[513], P[514], P[515]}));
     #else
     const double t108 = DERIVE_FMA(t18, P[440], DERIVE_FMA(t16, P[416], DERIVE_FMA(t17, P[392], DERIVE_FMA(t47, P[80], DERIVE_FMA(t46, P[56], DERIVE_FMA(t51, P[32], t44*P[8])))))) + P[512];
@@ -6483,12 +6491,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t112_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t112_1 = DERIVE_ROWS_FMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t112_0);
-    const derive_vd v_t112_2 = DERIVE_ROWS_FMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t112_1);
-    const derive_vd v_t112_3 = DERIVE_ROWS_FMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t112_2);
-    const derive_vd v_t112_4 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[396], P[397], P[398], P[399]}), v_t112_3);
-    const derive_vd v_t112_5 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t112_4);
-    const derive_vd v_t112_6 = DERIVE_ROWS_FMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t112_5);
+    const derive_vd v_t112_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t112_0);
+    const derive_vd v_t112_2 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t112_1);
+    const derive_vd v_t112_3 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[84], P[85], P[86], P[87]}), v_t112_2);
+    const derive_vd v_t112_4 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[396], P[397], P[398], P[399]}), v_t112_3);
+    const derive_vd v_t112_5 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t112_4);
+    const derive_vd v_t112_6 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t112_5);
     const derive_vd v_t112 = (v_t112_6 + ((derive_vd){P[516], P[517], P[518], P[519]}));
     #else
     const double t112 = DERIVE_FMA(t18, P[444], DERIVE_FMA(t16, P[420], DERIVE_FMA(t17, P[396], DERIVE_FMA(t47, P[84], DERIVE_FMA(t46, P[60], DERIVE_FMA(t51, P[36], t44*P[12])))))) + P[516];
@@ -6498,12 +6506,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t116_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t116_1 = DERIVE_ROWS_FMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t116_0);
-    const derive_vd v_t116_2 = DERIVE_ROWS_FMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t116_1);
-    const derive_vd v_t116_3 = DERIVE_ROWS_FMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t116_2);
-    const derive_vd v_t116_4 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[400], P[401], P[402], P[403]}), v_t116_3);
-    const derive_vd v_t116_5 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[424], P[425], P[426], P[427]}), v_t116_4);
-    const derive_vd v_t116_6 = DERIVE_ROWS_FMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[448], P[449], P[450], P[451]}), v_t116_5);
+    const derive_vd v_t116_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t116_0);
+    const derive_vd v_t116_2 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[64], P[65], P[66], P[67]}), v_t116_1);
+    const derive_vd v_t116_3 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[88], P[89], P[90], P[91]}), v_t116_2);
+    const derive_vd v_t116_4 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[400], P[401], P[402], P[403]}), v_t116_3);
+    const derive_vd v_t116_5 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[424], P[425], P[426], P[427]}), v_t116_4);
+    const derive_vd v_t116_6 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[448], P[449], P[450], P[451]}), v_t116_5);
     const derive_vd v_t116 = (v_t116_6 + ((derive_vd){P[520], P[521], P[522], P[523]}));
     const double t116 = v_t116[0];
     const double t117 = v_t116[1];
@@ -6516,12 +6524,12 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t120_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t120_1 = DERIVE_ROWS_FMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t120_0);
-    const derive_vd v_t120_2 = DERIVE_ROWS_FMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t120_1);
-    const derive_vd v_t120_3 = DERIVE_ROWS_FMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t120_2);
-    const derive_vd v_t120_4 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[404], P[405], P[406], P[407]}), v_t120_3);
-    const derive_vd v_t120_5 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[428], P[429], P[430], P[431]}), v_t120_4);
-    const derive_vd v_t120_6 = DERIVE_ROWS_FMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[452], P[453], P[454], P[455]}), v_t120_5);
+    const derive_vd v_t120_1 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t120_0);
+    const derive_vd v_t120_2 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), ((derive_vd){P[68], P[69], P[70], P[71]}), v_t120_1);
+    const derive_vd v_t120_3 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), ((derive_vd){P[92], P[93], P[94], P[95]}), v_t120_2);
+    const derive_vd v_t120_4 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[404], P[405], P[406], P[407]}), v_t120_3);
+    const derive_vd v_t120_5 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[428], P[429], P[430], P[431]}), v_t120_4);
+    const derive_vd v_t120_6 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[452], P[453], P[454], P[455]}), v_t120_5);
     const derive_vd v_t120 = (v_t120_6 + ((derive_vd){P[524], P[525], P[526], P[527]}));
     const double t121 = v_t120[1];
     #else
@@ -6561,7 +6569,7 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t143 = DERIVE_FMA(t134, t141, DERIVE_FMA(t126, t136, t50));
     const double t144 = t142*t143;
     #if DERIVE_VECTOR
-    const derive_vd v_t145 = DERIVE_ROWS_FMA(((derive_vd){t131, t131, t131, t131}), v_t52, v_t76);
+    const derive_vd v_t145 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t52, v_t76);
     #else
     const double t145 = DERIVE_FMA(t131, t52, t76);
     const double t146 = DERIVE_FMA(t131, t53, t77);
@@ -6569,7 +6577,7 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t148 = DERIVE_FMA(t131, t55, t79);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t149 = DERIVE_ROWS_FMA(((derive_vd){t131, t131, t131, t131}), v_t56, v_t80);
+    const derive_vd v_t149 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t56, v_t80);
     #else
     const double t149 = DERIVE_FMA(t131, t56, t80);
     const double t150 = DERIVE_FMA(t131, t57, t81);
@@ -6577,7 +6585,7 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t152 = DERIVE_FMA(t131, t59, t83);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t153 = DERIVE_ROWS_FMA(((derive_vd){t131, t131, t131, t131}), v_t60, v_t84);
+    const derive_vd v_t153 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t60, v_t84);
     #else
     const double t153 = DERIVE_FMA(t131, t60, t84);
     const double t154 = DERIVE_FMA(t131, t61, t85);
@@ -6585,7 +6593,7 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t156 = DERIVE_FMA(t131, t63, t87);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t157 = DERIVE_ROWS_FMA(((derive_vd){t131, t131, t131, t131}), v_t64, v_t88);
+    const derive_vd v_t157 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t64, v_t88);
     #else
     const double t157 = DERIVE_FMA(t131, t64, t88);
     const double t158 = DERIVE_FMA(t131, t65, t89);
@@ -6593,7 +6601,7 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t160 = DERIVE_FMA(t131, t67, t91);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t161 = DERIVE_ROWS_FMA(((derive_vd){t131, t131, t131, t131}), v_t68, v_t92);
+    const derive_vd v_t161 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t68, v_t92);
     #else
     const double t161 = DERIVE_FMA(t131, t68, t92);
     const double t162 = DERIVE_FMA(t131, t69, t93);
@@ -6601,7 +6609,7 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t164 = DERIVE_FMA(t131, t71, t95);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t165 = DERIVE_ROWS_FMA(((derive_vd){t131, t131, t131, t131}), v_t72, v_t96);
+    const derive_vd v_t165 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t72, v_t96);
     #else
     const double t165 = DERIVE_FMA(t131, t72, t96);
     const double t166 = DERIVE_FMA(t131, t73, t97);
@@ -6609,8 +6617,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t168 = DERIVE_FMA(t131, t75, t99);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t169_0 = DERIVE_ROWS_FMA(((derive_vd){t132, t132, t132, t132}), v_t52, v_t100);
-    const derive_vd v_t169 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), v_t145, v_t169_0);
+    const derive_vd v_t169_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t52, v_t100);
+    const derive_vd v_t169 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t145, v_t169_0);
     #else
     const double t169 = DERIVE_FMA(t138, t145, DERIVE_FMA(t132, t52, t100));
     const double t170 = DERIVE_FMA(t138, t146, DERIVE_FMA(t132, t53, t101));
@@ -6618,8 +6626,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t172 = DERIVE_FMA(t138, t148, DERIVE_FMA(t132, t55, t103));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t173_0 = DERIVE_ROWS_FMA(((derive_vd){t132, t132, t132, t132}), v_t56, v_t104);
-    const derive_vd v_t173 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), v_t149, v_t173_0);
+    const derive_vd v_t173_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t56, v_t104);
+    const derive_vd v_t173 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t149, v_t173_0);
     #else
     const double t173 = DERIVE_FMA(t138, t149, DERIVE_FMA(t132, t56, t104));
     const double t174 = DERIVE_FMA(t138, t150, DERIVE_FMA(t132, t57, t105));
@@ -6627,8 +6635,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t176 = DERIVE_FMA(t138, t152, DERIVE_FMA(t132, t59, t107));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t177_0 = DERIVE_ROWS_FMA(((derive_vd){t132, t132, t132, t132}), v_t60, v_t108);
-    const derive_vd v_t177 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), v_t153, v_t177_0);
+    const derive_vd v_t177_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t60, v_t108);
+    const derive_vd v_t177 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t153, v_t177_0);
     #else
     const double t177 = DERIVE_FMA(t138, t153, DERIVE_FMA(t132, t60, t108));
     const double t178 = DERIVE_FMA(t138, t154, DERIVE_FMA(t132, t61, t109));
@@ -6636,8 +6644,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t180 = DERIVE_FMA(t138, t156, DERIVE_FMA(t132, t63, t111));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t181_0 = DERIVE_ROWS_FMA(((derive_vd){t132, t132, t132, t132}), v_t64, v_t112);
-    const derive_vd v_t181 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), v_t157, v_t181_0);
+    const derive_vd v_t181_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t64, v_t112);
+    const derive_vd v_t181 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t157, v_t181_0);
     #else
     const double t181 = DERIVE_FMA(t138, t157, DERIVE_FMA(t132, t64, t112));
     const double t182 = DERIVE_FMA(t138, t158, DERIVE_FMA(t132, t65, t113));
@@ -6645,8 +6653,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t184 = DERIVE_FMA(t138, t160, DERIVE_FMA(t132, t67, t115));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t185_0 = DERIVE_ROWS_FMA(((derive_vd){t132, t132, t132, t132}), v_t68, v_t116);
-    const derive_vd v_t185 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), v_t161, v_t185_0);
+    const derive_vd v_t185_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t68, v_t116);
+    const derive_vd v_t185 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t161, v_t185_0);
     #else
     const double t185 = DERIVE_FMA(t138, t161, DERIVE_FMA(t132, t68, t116));
     const double t186 = DERIVE_FMA(t138, t162, DERIVE_FMA(t132, t69, t117));
@@ -6654,8 +6662,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t188 = DERIVE_FMA(t138, t164, DERIVE_FMA(t132, t71, t119));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t189_0 = DERIVE_ROWS_FMA(((derive_vd){t132, t132, t132, t132}), v_t72, v_t120);
-    const derive_vd v_t189 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), v_t165, v_t189_0);
+    const derive_vd v_t189_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t72, v_t120);
+    const derive_vd v_t189 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t165, v_t189_0);
     #else
     const double t189 = DERIVE_FMA(t138, t165, DERIVE_FMA(t132, t72, t120));
     const double t190 = DERIVE_FMA(t138, t166, DERIVE_FMA(t132, t73, t121));
@@ -6879,9 +6887,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t264 = t142*t192;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t265_0 = DERIVE_ROWS_FNMA(((derive_vd){t136, t136, t136, t136}), v_t52, ((derive_vd){x[0], x[1], x[2], x[3]}));
-    const derive_vd v_t265_1 = DERIVE_ROWS_FNMA(((derive_vd){t141, t141, t141, t141}), v_t145, v_t265_0);
-    const derive_vd v_t265 = DERIVE_ROWS_FNMA(((derive_vd){t144, t144, t144, t144}), v_t169, v_t265_1);
+    const derive_vd v_t265_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t52, ((derive_vd){x[0], x[1], x[2], x[3]}));
+    const derive_vd v_t265_1 = DERIVE_VFNMA(((derive_vd){t141, t141, t141, t141}), v_t145, v_t265_0);
+    const derive_vd v_t265 = DERIVE_VFNMA(((derive_vd){t144, t144, t144, t144}), v_t169, v_t265_1);
     const double t265 = v_t265[0];
     const double t266 = v_t265[1];
     const double t267 = v_t265[2];
@@ -6893,9 +6901,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t268 = DERIVE_FNMA(t144, t172, DERIVE_FNMA(t141, t148, DERIVE_FNMA(t136, t55, x[3])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t269_0 = DERIVE_ROWS_FNMA(((derive_vd){t136, t136, t136, t136}), v_t56, ((derive_vd){x[4], x[5], x[6], x[7]}));
-    const derive_vd v_t269_1 = DERIVE_ROWS_FNMA(((derive_vd){t141, t141, t141, t141}), v_t149, v_t269_0);
-    const derive_vd v_t269 = DERIVE_ROWS_FNMA(((derive_vd){t144, t144, t144, t144}), v_t173, v_t269_1);
+    const derive_vd v_t269_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t56, ((derive_vd){x[4], x[5], x[6], x[7]}));
+    const derive_vd v_t269_1 = DERIVE_VFNMA(((derive_vd){t141, t141, t141, t141}), v_t149, v_t269_0);
+    const derive_vd v_t269 = DERIVE_VFNMA(((derive_vd){t144, t144, t144, t144}), v_t173, v_t269_1);
     *(derive_vd_unaligned *)&x_new[4] = v_t269;
     #else
     const double t269 = DERIVE_FNMA(t144, t173, DERIVE_FNMA(t141, t149, DERIVE_FNMA(t136, t56, x[4])));
@@ -6904,9 +6912,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t272 = DERIVE_FNMA(t144, t176, DERIVE_FNMA(t141, t152, DERIVE_FNMA(t136, t59, x[7])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t273_0 = DERIVE_ROWS_FNMA(((derive_vd){t136, t136, t136, t136}), v_t60, ((derive_vd){x[8], x[9], x[10], x[11]}));
-    const derive_vd v_t273_1 = DERIVE_ROWS_FNMA(((derive_vd){t141, t141, t141, t141}), v_t153, v_t273_0);
-    const derive_vd v_t273 = DERIVE_ROWS_FNMA(((derive_vd){t144, t144, t144, t144}), v_t177, v_t273_1);
+    const derive_vd v_t273_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t60, ((derive_vd){x[8], x[9], x[10], x[11]}));
+    const derive_vd v_t273_1 = DERIVE_VFNMA(((derive_vd){t141, t141, t141, t141}), v_t153, v_t273_0);
+    const derive_vd v_t273 = DERIVE_VFNMA(((derive_vd){t144, t144, t144, t144}), v_t177, v_t273_1);
     *(derive_vd_unaligned *)&x_new[8] = v_t273;
     #else
     const double t273 = DERIVE_FNMA(t144, t177, DERIVE_FNMA(t141, t153, DERIVE_FNMA(t136, t60, x[8])));
@@ -6915,9 +6923,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t276 = DERIVE_FNMA(t144, t180, DERIVE_FNMA(t141, t156, DERIVE_FNMA(t136, t63, x[11])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t277_0 = DERIVE_ROWS_FNMA(((derive_vd){t136, t136, t136, t136}), v_t64, ((derive_vd){x[12], x[13], x[14], x[15]}));
-    const derive_vd v_t277_1 = DERIVE_ROWS_FNMA(((derive_vd){t141, t141, t141, t141}), v_t157, v_t277_0);
-    const derive_vd v_t277 = DERIVE_ROWS_FNMA(((derive_vd){t144, t144, t144, t144}), v_t181, v_t277_1);
+    const derive_vd v_t277_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t64, ((derive_vd){x[12], x[13], x[14], x[15]}));
+    const derive_vd v_t277_1 = DERIVE_VFNMA(((derive_vd){t141, t141, t141, t141}), v_t157, v_t277_0);
+    const derive_vd v_t277 = DERIVE_VFNMA(((derive_vd){t144, t144, t144, t144}), v_t181, v_t277_1);
     *(derive_vd_unaligned *)&x_new[12] = v_t277;
     #else
     const double t277 = DERIVE_FNMA(t144, t181, DERIVE_FNMA(t141, t157, DERIVE_FNMA(t136, t64, x[12])));
@@ -6926,9 +6934,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t280 = DERIVE_FNMA(t144, t184, DERIVE_FNMA(t141, t160, DERIVE_FNMA(t136, t67, x[15])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t281_0 = DERIVE_ROWS_FNMA(((derive_vd){t136, t136, t136, t136}), v_t68, ((derive_vd){x[16], x[17], x[18], x[19]}));
-    const derive_vd v_t281_1 = DERIVE_ROWS_FNMA(((derive_vd){t141, t141, t141, t141}), v_t161, v_t281_0);
-    const derive_vd v_t281 = DERIVE_ROWS_FNMA(((derive_vd){t144, t144, t144, t144}), v_t185, v_t281_1);
+    const derive_vd v_t281_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t68, ((derive_vd){x[16], x[17], x[18], x[19]}));
+    const derive_vd v_t281_1 = DERIVE_VFNMA(((derive_vd){t141, t141, t141, t141}), v_t161, v_t281_0);
+    const derive_vd v_t281 = DERIVE_VFNMA(((derive_vd){t144, t144, t144, t144}), v_t185, v_t281_1);
     *(derive_vd_unaligned *)&x_new[16] = v_t281;
     #else
     const double t281 = DERIVE_FNMA(t144, t185, DERIVE_FNMA(t141, t161, DERIVE_FNMA(t136, t68, x[16])));
@@ -6937,9 +6945,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t284 = DERIVE_FNMA(t144, t188, DERIVE_FNMA(t141, t164, DERIVE_FNMA(t136, t71, x[19])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t285_0 = DERIVE_ROWS_FNMA(((derive_vd){t136, t136, t136, t136}), v_t72, ((derive_vd){x[20], x[21], x[22], x[23]}));
-    const derive_vd v_t285_1 = DERIVE_ROWS_FNMA(((derive_vd){t141, t141, t141, t141}), v_t165, v_t285_0);
-    const derive_vd v_t285 = DERIVE_ROWS_FNMA(((derive_vd){t144, t144, t144, t144}), v_t189, v_t285_1);
+    const derive_vd v_t285_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t72, ((derive_vd){x[20], x[21], x[22], x[23]}));
+    const derive_vd v_t285_1 = DERIVE_VFNMA(((derive_vd){t141, t141, t141, t141}), v_t165, v_t285_0);
+    const derive_vd v_t285 = DERIVE_VFNMA(((derive_vd){t144, t144, t144, t144}), v_t189, v_t285_1);
     *(derive_vd_unaligned *)&x_new[20] = v_t285;
     #else
     const double t285 = DERIVE_FNMA(t144, t189, DERIVE_FNMA(t141, t165, DERIVE_FNMA(t136, t72, x[20])));
@@ -6948,9 +6956,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t288 = DERIVE_FNMA(t144, t192, DERIVE_FNMA(t141, t168, DERIVE_FNMA(t136, t75, x[23])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t289_0 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t52, ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t289_1 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t145, v_t289_0);
-    const derive_vd v_t289 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t169, v_t289_1);
+    const derive_vd v_t289_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t52, ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t289_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t145, v_t289_0);
+    const derive_vd v_t289 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t169, v_t289_1);
     #else
     const double t289 = DERIVE_FMA(t241, t169, DERIVE_FMA(t217, t145, DERIVE_FMA(t193, t52, P[0])));
     const double t290 = DERIVE_FMA(t241, t170, DERIVE_FMA(t217, t146, DERIVE_FMA(t193, t53, P[1])));
@@ -6958,9 +6966,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t292 = DERIVE_FMA(t241, t172, DERIVE_FMA(t217, t148, DERIVE_FMA(t193, t55, P[3])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t293_0 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t56, ((derive_vd){P[4], P[5], P[6], P[7]}));
-    const derive_vd v_t293_1 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t149, v_t293_0);
-    const derive_vd v_t293 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t173, v_t293_1);
+    const derive_vd v_t293_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t56, ((derive_vd){P[4], P[5], P[6], P[7]}));
+    const derive_vd v_t293_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t149, v_t293_0);
+    const derive_vd v_t293 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t173, v_t293_1);
     #else
     const double t293 = DERIVE_FMA(t241, t173, DERIVE_FMA(t217, t149, DERIVE_FMA(t193, t56, P[4])));
     const double t294 = DERIVE_FMA(t241, t174, DERIVE_FMA(t217, t150, DERIVE_FMA(t193, t57, P[5])));
@@ -6968,9 +6976,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t296 = DERIVE_FMA(t241, t176, DERIVE_FMA(t217, t152, DERIVE_FMA(t193, t59, P[7])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t297_0 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t60, ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t297_1 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t153, v_t297_0);
-    const derive_vd v_t297 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t177, v_t297_1);
+    const derive_vd v_t297_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t60, ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t297_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t153, v_t297_0);
+    const derive_vd v_t297 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t177, v_t297_1);
     #else
     const double t297 = DERIVE_FMA(t241, t177, DERIVE_FMA(t217, t153, DERIVE_FMA(t193, t60, P[8])));
     const double t298 = DERIVE_FMA(t241, t178, DERIVE_FMA(t217, t154, DERIVE_FMA(t193, t61, P[9])));
@@ -6978,9 +6986,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t300 = DERIVE_FMA(t241, t180, DERIVE_FMA(t217, t156, DERIVE_FMA(t193, t63, P[11])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t301_0 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t64, ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t301_1 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t157, v_t301_0);
-    const derive_vd v_t301 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t181, v_t301_1);
+    const derive_vd v_t301_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t64, ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t301_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t157, v_t301_0);
+    const derive_vd v_t301 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t181, v_t301_1);
     #else
     const double t301 = DERIVE_FMA(t241, t181, DERIVE_FMA(t217, t157, DERIVE_FMA(t193, t64, P[12])));
     const double t302 = DERIVE_FMA(t241, t182, DERIVE_FMA(t217, t158, DERIVE_FMA(t193, t65, P[13])));
@@ -6988,9 +6996,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t304 = DERIVE_FMA(t241, t184, DERIVE_FMA(t217, t160, DERIVE_FMA(t193, t67, P[15])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t305_0 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t68, ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t305_1 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t161, v_t305_0);
-    const derive_vd v_t305 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t185, v_t305_1);
+    const derive_vd v_t305_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t68, ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t305_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t161, v_t305_0);
+    const derive_vd v_t305 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t185, v_t305_1);
     #else
     const double t305 = DERIVE_FMA(t241, t185, DERIVE_FMA(t217, t161, DERIVE_FMA(t193, t68, P[16])));
     const double t306 = DERIVE_FMA(t241, t186, DERIVE_FMA(t217, t162, DERIVE_FMA(t193, t69, P[17])));
@@ -6998,9 +7006,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t308 = DERIVE_FMA(t241, t188, DERIVE_FMA(t217, t164, DERIVE_FMA(t193, t71, P[19])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t309_0 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t72, ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t309_1 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t165, v_t309_0);
-    const derive_vd v_t309 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t189, v_t309_1);
+    const derive_vd v_t309_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t72, ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t309_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t165, v_t309_0);
+    const derive_vd v_t309 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t189, v_t309_1);
     #else
     const double t309 = DERIVE_FMA(t241, t189, DERIVE_FMA(t217, t165, DERIVE_FMA(t193, t72, P[20])));
     const double t310 = DERIVE_FMA(t241, t190, DERIVE_FMA(t217, t166, DERIVE_FMA(t193, t73, P[21])));
@@ -7008,18 +7016,18 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t312 = DERIVE_FMA(t241, t192, DERIVE_FMA(t217, t168, DERIVE_FMA(t193, t75, P[23])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t313_0 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t52, ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t313_1 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t145, v_t313_0);
-    const derive_vd v_t313 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t169, v_t313_1);
+    const derive_vd v_t313_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t52, ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t313_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t145, v_t313_0);
+    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t169, v_t313_1);
     #else
     const double t314 = DERIVE_FMA(t242, t170, DERIVE_FMA(t218, t146, DERIVE_FMA(t194, t53, P[25])));
     const double t315 = DERIVE_FMA(t242, t171, DERIVE_FMA(t218, t147, DERIVE_FMA(t194, t54, P[26])));
     const double t316 = DERIVE_FMA(t242, t172, DERIVE_FMA(t218, t148, DERIVE_FMA(t194, t55, P[27])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t317_0 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t56, ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t317_1 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t149, v_t317_0);
-    const derive_vd v_t317 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t173, v_t317_1);
+    const derive_vd v_t317_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t56, ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t317_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t149, v_t317_0);
+    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t173, v_t317_1);
     #else
     const double t317 = DERIVE_FMA(t242, t173, DERIVE_FMA(t218, t149, DERIVE_FMA(t194, t56, P[28])));
     const double t318 = DERIVE_FMA(t242, t174, DERIVE_FMA(t218, t150, DERIVE_FMA(t194, t57, P[29])));
@@ -7027,9 +7035,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t320 = DERIVE_FMA(t242, t176, DERIVE_FMA(t218, t152, DERIVE_FMA(t194, t59, P[31])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t321_0 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t60, ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t321_1 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t153, v_t321_0);
-    const derive_vd v_t321 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t177, v_t321_1);
+    const derive_vd v_t321_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t60, ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t321_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t153, v_t321_0);
+    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t177, v_t321_1);
     #else
     const double t321 = DERIVE_FMA(t242, t177, DERIVE_FMA(t218, t153, DERIVE_FMA(t194, t60, P[32])));
     const double t322 = DERIVE_FMA(t242, t178, DERIVE_FMA(t218, t154, DERIVE_FMA(t194, t61, P[33])));
@@ -7037,9 +7045,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t324 = DERIVE_FMA(t242, t180, DERIVE_FMA(t218, t156, DERIVE_FMA(t194, t63, P[35])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t325_0 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t64, ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t325_1 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t157, v_t325_0);
-    const derive_vd v_t325 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t181, v_t325_1);
+    const derive_vd v_t325_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t64, ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t325_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t157, v_t325_0);
+    const derive_vd v_t325 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t181, v_t325_1);
     #else
     const double t325 = DERIVE_FMA(t242, t181, DERIVE_FMA(t218, t157, DERIVE_FMA(t194, t64, P[36])));
     const double t326 = DERIVE_FMA(t242, t182, DERIVE_FMA(t218, t158, DERIVE_FMA(t194, t65, P[37])));
@@ -7047,9 +7055,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t328 = DERIVE_FMA(t242, t184, DERIVE_FMA(t218, t160, DERIVE_FMA(t194, t67, P[39])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t329_0 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t68, ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t329_1 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t161, v_t329_0);
-    const derive_vd v_t329 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t185, v_t329_1);
+    const derive_vd v_t329_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t68, ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t329_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t161, v_t329_0);
+    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t185, v_t329_1);
     #else
     const double t329 = DERIVE_FMA(t242, t185, DERIVE_FMA(t218, t161, DERIVE_FMA(t194, t68, P[40])));
     const double t330 = DERIVE_FMA(t242, t186, DERIVE_FMA(t218, t162, DERIVE_FMA(t194, t69, P[41])));
@@ -7057,9 +7065,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t332 = DERIVE_FMA(t242, t188, DERIVE_FMA(t218, t164, DERIVE_FMA(t194, t71, P[43])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t333_0 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t72, ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t333_1 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t165, v_t333_0);
-    const derive_vd v_t333 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t189, v_t333_1);
+    const derive_vd v_t333_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t72, ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t333_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t165, v_t333_0);
+    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t189, v_t333_1);
     #else
     const double t333 = DERIVE_FMA(t242, t189, DERIVE_FMA(t218, t165, DERIVE_FMA(t194, t72, P[44])));
     const double t334 = DERIVE_FMA(t242, t190, DERIVE_FMA(t218, t166, DERIVE_FMA(t194, t73, P[45])));
@@ -7067,17 +7075,17 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t336 = DERIVE_FMA(t242, t192, DERIVE_FMA(t218, t168, DERIVE_FMA(t194, t75, P[47])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t337_0 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t52, ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t337_1 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t145, v_t337_0);
-    const derive_vd v_t337 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t169, v_t337_1);
+    const derive_vd v_t337_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t52, ((derive_vd){P[48], P[49], P[50], P[51]}));
+    const derive_vd v_t337_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t145, v_t337_0);
+    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t169, v_t337_1);
     #else
     const double t339 = DERIVE_FMA(t243, t171, DERIVE_FMA(t219, t147, DERIVE_FMA(t195, t54, P[50])));
     const double t340 = DERIVE_FMA(t243, t172, DERIVE_FMA(t219, t148, DERIVE_FMA(t195, t55, P[51])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t341_0 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t56, ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd v_t341_1 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t149, v_t341_0);
-    const derive_vd v_t341 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t173, v_t341_1);
+    const derive_vd v_t341_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t56, ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd v_t341_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t149, v_t341_0);
+    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t173, v_t341_1);
     #else
     const double t341 = DERIVE_FMA(t243, t173, DERIVE_FMA(t219, t149, DERIVE_FMA(t195, t56, P[52])));
     const double t342 = DERIVE_FMA(t243, t174, DERIVE_FMA(t219, t150, DERIVE_FMA(t195, t57, P[53])));
@@ -7085,9 +7093,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t344 = DERIVE_FMA(t243, t176, DERIVE_FMA(t219, t152, DERIVE_FMA(t195, t59, P[55])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t345_0 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t60, ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t345_1 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t153, v_t345_0);
-    const derive_vd v_t345 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t177, v_t345_1);
+    const derive_vd v_t345_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t60, ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t345_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t153, v_t345_0);
+    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t177, v_t345_1);
     #else
     const double t345 = DERIVE_FMA(t243, t177, DERIVE_FMA(t219, t153, DERIVE_FMA(t195, t60, P[56])));
     const double t346 = DERIVE_FMA(t243, t178, DERIVE_FMA(t219, t154, DERIVE_FMA(t195, t61, P[57])));
@@ -7095,9 +7103,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t348 = DERIVE_FMA(t243, t180, DERIVE_FMA(t219, t156, DERIVE_FMA(t195, t63, P[59])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t349_0 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t64, ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t349_1 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t157, v_t349_0);
-    const derive_vd v_t349 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t181, v_t349_1);
+    const derive_vd v_t349_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t64, ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t349_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t157, v_t349_0);
+    const derive_vd v_t349 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t181, v_t349_1);
     #else
     const double t349 = DERIVE_FMA(t243, t181, DERIVE_FMA(t219, t157, DERIVE_FMA(t195, t64, P[60])));
     const double t350 = DERIVE_FMA(t243, t182, DERIVE_FMA(t219, t158, DERIVE_FMA(t195, t65, P[61])));
@@ -7105,9 +7113,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t352 = DERIVE_FMA(t243, t184, DERIVE_FMA(t219, t160, DERIVE_FMA(t195, t67, P[63])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t353_0 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t68, ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t353_1 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t161, v_t353_0);
-    const derive_vd v_t353 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t185, v_t353_1);
+    const derive_vd v_t353_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t68, ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t353_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t161, v_t353_0);
+    const derive_vd v_t353 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t185, v_t353_1);
     #else
     const double t353 = DERIVE_FMA(t243, t185, DERIVE_FMA(t219, t161, DERIVE_FMA(t195, t68, P[64])));
     const double t354 = DERIVE_FMA(t243, t186, DERIVE_FMA(t219, t162, DERIVE_FMA(t195, t69, P[65])));
@@ -7115,9 +7123,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t356 = DERIVE_FMA(t243, t188, DERIVE_FMA(t219, t164, DERIVE_FMA(t195, t71, P[67])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t357_0 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t72, ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t357_1 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t165, v_t357_0);
-    const derive_vd v_t357 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t189, v_t357_1);
+    const derive_vd v_t357_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t72, ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t357_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t165, v_t357_0);
+    const derive_vd v_t357 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t189, v_t357_1);
     #else
     const double t357 = DERIVE_FMA(t243, t189, DERIVE_FMA(t219, t165, DERIVE_FMA(t195, t72, P[68])));
     const double t358 = DERIVE_FMA(t243, t190, DERIVE_FMA(t219, t166, DERIVE_FMA(t195, t73, P[69])));
@@ -7125,9 +7133,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t360 = DERIVE_FMA(t243, t192, DERIVE_FMA(t219, t168, DERIVE_FMA(t195, t75, P[71])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t361_0 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t52, ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t361_1 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t145, v_t361_0);
-    const derive_vd v_t361 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t169, v_t361_1);
+    const derive_vd v_t361_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t52, ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t361_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t145, v_t361_0);
+    const derive_vd v_t361 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t169, v_t361_1);
     const derive_vd tr_v_t289_0 = __builtin_shufflevector(v_t289, v_t313, 0, 4, 2, 6);
     const derive_vd tr_v_t289_1 = __builtin_shufflevector(v_t289, v_t313, 1, 5, 3, 7);
     const derive_vd tr_v_t289_2 = __builtin_shufflevector(v_t337, v_t361, 0, 4, 2, 6);
@@ -7143,9 +7151,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t364 = DERIVE_FMA(t244, t172, DERIVE_FMA(t220, t148, DERIVE_FMA(t196, t55, P[75])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t365_0 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t56, ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t365_1 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t149, v_t365_0);
-    const derive_vd v_t365 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t173, v_t365_1);
+    const derive_vd v_t365_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t56, ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t365_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t149, v_t365_0);
+    const derive_vd v_t365 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t173, v_t365_1);
     const derive_vd tr_v_t293_0 = __builtin_shufflevector(v_t293, v_t317, 0, 4, 2, 6);
     const derive_vd tr_v_t293_1 = __builtin_shufflevector(v_t293, v_t317, 1, 5, 3, 7);
     const derive_vd tr_v_t293_2 = __builtin_shufflevector(v_t341, v_t365, 0, 4, 2, 6);
@@ -7169,9 +7177,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t368 = DERIVE_FMA(t244, t176, DERIVE_FMA(t220, t152, DERIVE_FMA(t196, t59, P[79])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t369_0 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t60, ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t369_1 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t153, v_t369_0);
-    const derive_vd v_t369 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t177, v_t369_1);
+    const derive_vd v_t369_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t60, ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t369_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t153, v_t369_0);
+    const derive_vd v_t369 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t177, v_t369_1);
     const derive_vd tr_v_t297_0 = __builtin_shufflevector(v_t297, v_t321, 0, 4, 2, 6);
     const derive_vd tr_v_t297_1 = __builtin_shufflevector(v_t297, v_t321, 1, 5, 3, 7);
     const derive_vd tr_v_t297_2 = __builtin_shufflevector(v_t345, v_t369, 0, 4, 2, 6);
@@ -7195,9 +7203,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t372 = DERIVE_FMA(t244, t180, DERIVE_FMA(t220, t156, DERIVE_FMA(t196, t63, P[83])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t373_0 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t64, ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t373_1 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t157, v_t373_0);
-    const derive_vd v_t373 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t181, v_t373_1);
+    const derive_vd v_t373_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t64, ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t373_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t157, v_t373_0);
+    const derive_vd v_t373 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t181, v_t373_1);
     const derive_vd tr_v_t301_0 = __builtin_shufflevector(v_t301, v_t325, 0, 4, 2, 6);
     const derive_vd tr_v_t301_1 = __builtin_shufflevector(v_t301, v_t325, 1, 5, 3, 7);
     const derive_vd tr_v_t301_2 = __builtin_shufflevector(v_t349, v_t373, 0, 4, 2, 6);
@@ -7221,9 +7229,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t376 = DERIVE_FMA(t244, t184, DERIVE_FMA(t220, t160, DERIVE_FMA(t196, t67, P[87])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t377_0 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t68, ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t377_1 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t161, v_t377_0);
-    const derive_vd v_t377 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t185, v_t377_1);
+    const derive_vd v_t377_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t68, ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t377_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t161, v_t377_0);
+    const derive_vd v_t377 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t185, v_t377_1);
     const derive_vd tr_v_t305_0 = __builtin_shufflevector(v_t305, v_t329, 0, 4, 2, 6);
     const derive_vd tr_v_t305_1 = __builtin_shufflevector(v_t305, v_t329, 1, 5, 3, 7);
     const derive_vd tr_v_t305_2 = __builtin_shufflevector(v_t353, v_t377, 0, 4, 2, 6);
@@ -7247,9 +7255,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t380 = DERIVE_FMA(t244, t188, DERIVE_FMA(t220, t164, DERIVE_FMA(t196, t71, P[91])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t381_0 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t72, ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t381_1 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t165, v_t381_0);
-    const derive_vd v_t381 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t189, v_t381_1);
+    const derive_vd v_t381_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t72, ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t381_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t165, v_t381_0);
+    const derive_vd v_t381 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t189, v_t381_1);
     const derive_vd tr_v_t309_0 = __builtin_shufflevector(v_t309, v_t333, 0, 4, 2, 6);
     const derive_vd tr_v_t309_1 = __builtin_shufflevector(v_t309, v_t333, 1, 5, 3, 7);
     const derive_vd tr_v_t309_2 = __builtin_shufflevector(v_t357, v_t381, 0, 4, 2, 6);
@@ -7273,9 +7281,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t384 = DERIVE_FMA(t244, t192, DERIVE_FMA(t220, t168, DERIVE_FMA(t196, t75, P[95])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t385_0 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t56, ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t385_1 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), v_t149, v_t385_0);
-    const derive_vd v_t385 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t173, v_t385_1);
+    const derive_vd v_t385_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t56, ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t385_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t149, v_t385_0);
+    const derive_vd v_t385 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t173, v_t385_1);
     #else
     const double t385 = DERIVE_FMA(t245, t173, DERIVE_FMA(t221, t149, DERIVE_FMA(t197, t56, P[100])));
     const double t386 = DERIVE_FMA(t245, t174, DERIVE_FMA(t221, t150, DERIVE_FMA(t197, t57, P[101])));
@@ -7283,9 +7291,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t388 = DERIVE_FMA(t245, t176, DERIVE_FMA(t221, t152, DERIVE_FMA(t197, t59, P[103])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t389_0 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t60, ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t389_1 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), v_t153, v_t389_0);
-    const derive_vd v_t389 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t177, v_t389_1);
+    const derive_vd v_t389_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t60, ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t389_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t153, v_t389_0);
+    const derive_vd v_t389 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t177, v_t389_1);
     #else
     const double t389 = DERIVE_FMA(t245, t177, DERIVE_FMA(t221, t153, DERIVE_FMA(t197, t60, P[104])));
     const double t390 = DERIVE_FMA(t245, t178, DERIVE_FMA(t221, t154, DERIVE_FMA(t197, t61, P[105])));
@@ -7293,9 +7301,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t392 = DERIVE_FMA(t245, t180, DERIVE_FMA(t221, t156, DERIVE_FMA(t197, t63, P[107])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t393_0 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t64, ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t393_1 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), v_t157, v_t393_0);
-    const derive_vd v_t393 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t181, v_t393_1);
+    const derive_vd v_t393_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t64, ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t393_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t157, v_t393_0);
+    const derive_vd v_t393 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t181, v_t393_1);
     #else
     const double t393 = DERIVE_FMA(t245, t181, DERIVE_FMA(t221, t157, DERIVE_FMA(t197, t64, P[108])));
     const double t394 = DERIVE_FMA(t245, t182, DERIVE_FMA(t221, t158, DERIVE_FMA(t197, t65, P[109])));
@@ -7303,9 +7311,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t396 = DERIVE_FMA(t245, t184, DERIVE_FMA(t221, t160, DERIVE_FMA(t197, t67, P[111])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t397_0 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t68, ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t397_1 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), v_t161, v_t397_0);
-    const derive_vd v_t397 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t185, v_t397_1);
+    const derive_vd v_t397_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t68, ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t397_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t161, v_t397_0);
+    const derive_vd v_t397 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t185, v_t397_1);
     #else
     const double t397 = DERIVE_FMA(t245, t185, DERIVE_FMA(t221, t161, DERIVE_FMA(t197, t68, P[112])));
     const double t398 = DERIVE_FMA(t245, t186, DERIVE_FMA(t221, t162, DERIVE_FMA(t197, t69, P[113])));
@@ -7313,9 +7321,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t400 = DERIVE_FMA(t245, t188, DERIVE_FMA(t221, t164, DERIVE_FMA(t197, t71, P[115])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t401_0 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t72, ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t401_1 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), v_t165, v_t401_0);
-    const derive_vd v_t401 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t189, v_t401_1);
+    const derive_vd v_t401_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t72, ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t401_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t165, v_t401_0);
+    const derive_vd v_t401 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t189, v_t401_1);
     #else
     const double t401 = DERIVE_FMA(t245, t189, DERIVE_FMA(t221, t165, DERIVE_FMA(t197, t72, P[116])));
     const double t402 = DERIVE_FMA(t245, t190, DERIVE_FMA(t221, t166, DERIVE_FMA(t197, t73, P[117])));
@@ -7323,18 +7331,18 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t404 = DERIVE_FMA(t245, t192, DERIVE_FMA(t221, t168, DERIVE_FMA(t197, t75, P[119])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t405_0 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t56, ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t405_1 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), v_t149, v_t405_0);
-    const derive_vd v_t405 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t173, v_t405_1);
+    const derive_vd v_t405_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t56, ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t405_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t149, v_t405_0);
+    const derive_vd v_t405 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t173, v_t405_1);
     #else
     const double t406 = DERIVE_FMA(t246, t174, DERIVE_FMA(t222, t150, DERIVE_FMA(t198, t57, P[125])));
     const double t407 = DERIVE_FMA(t246, t175, DERIVE_FMA(t222, t151, DERIVE_FMA(t198, t58, P[126])));
     const double t408 = DERIVE_FMA(t246, t176, DERIVE_FMA(t222, t152, DERIVE_FMA(t198, t59, P[127])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t409_0 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t60, ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t409_1 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), v_t153, v_t409_0);
-    const derive_vd v_t409 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t177, v_t409_1);
+    const derive_vd v_t409_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t60, ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t409_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t153, v_t409_0);
+    const derive_vd v_t409 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t177, v_t409_1);
     #else
     const double t409 = DERIVE_FMA(t246, t177, DERIVE_FMA(t222, t153, DERIVE_FMA(t198, t60, P[128])));
     const double t410 = DERIVE_FMA(t246, t178, DERIVE_FMA(t222, t154, DERIVE_FMA(t198, t61, P[129])));
@@ -7342,9 +7350,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t412 = DERIVE_FMA(t246, t180, DERIVE_FMA(t222, t156, DERIVE_FMA(t198, t63, P[131])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t413_0 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t64, ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t413_1 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), v_t157, v_t413_0);
-    const derive_vd v_t413 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t181, v_t413_1);
+    const derive_vd v_t413_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t64, ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t413_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t157, v_t413_0);
+    const derive_vd v_t413 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t181, v_t413_1);
     #else
     const double t413 = DERIVE_FMA(t246, t181, DERIVE_FMA(t222, t157, DERIVE_FMA(t198, t64, P[132])));
     const double t414 = DERIVE_FMA(t246, t182, DERIVE_FMA(t222, t158, DERIVE_FMA(t198, t65, P[133])));
@@ -7352,9 +7360,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t416 = DERIVE_FMA(t246, t184, DERIVE_FMA(t222, t160, DERIVE_FMA(t198, t67, P[135])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t417_0 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t68, ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t417_1 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), v_t161, v_t417_0);
-    const derive_vd v_t417 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t185, v_t417_1);
+    const derive_vd v_t417_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t68, ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t417_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t161, v_t417_0);
+    const derive_vd v_t417 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t185, v_t417_1);
     #else
     const double t417 = DERIVE_FMA(t246, t185, DERIVE_FMA(t222, t161, DERIVE_FMA(t198, t68, P[136])));
     const double t418 = DERIVE_FMA(t246, t186, DERIVE_FMA(t222, t162, DERIVE_FMA(t198, t69, P[137])));
@@ -7362,9 +7370,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t420 = DERIVE_FMA(t246, t188, DERIVE_FMA(t222, t164, DERIVE_FMA(t198, t71, P[139])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t421_0 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t72, ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t421_1 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), v_t165, v_t421_0);
-    const derive_vd v_t421 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t189, v_t421_1);
+    const derive_vd v_t421_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t72, ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t421_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t165, v_t421_0);
+    const derive_vd v_t421 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t189, v_t421_1);
     #else
     const double t421 = DERIVE_FMA(t246, t189, DERIVE_FMA(t222, t165, DERIVE_FMA(t198, t72, P[140])));
     const double t422 = DERIVE_FMA(t246, t190, DERIVE_FMA(t222, t166, DERIVE_FMA(t198, t73, P[141])));
@@ -7372,17 +7380,17 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t424 = DERIVE_FMA(t246, t192, DERIVE_FMA(t222, t168, DERIVE_FMA(t198, t75, P[143])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t425_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t56, ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t425_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t149, v_t425_0);
-    const derive_vd v_t425 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t173, v_t425_1);
+    const derive_vd v_t425_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t56, ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t425_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t149, v_t425_0);
+    const derive_vd v_t425 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t173, v_t425_1);
     #else
     const double t427 = DERIVE_FMA(t247, t175, DERIVE_FMA(t223, t151, DERIVE_FMA(t199, t58, P[150])));
     const double t428 = DERIVE_FMA(t247, t176, DERIVE_FMA(t223, t152, DERIVE_FMA(t199, t59, P[151])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t429_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t60, ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t429_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t153, v_t429_0);
-    const derive_vd v_t429 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t177, v_t429_1);
+    const derive_vd v_t429_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t60, ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t429_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t153, v_t429_0);
+    const derive_vd v_t429 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t177, v_t429_1);
     #else
     const double t429 = DERIVE_FMA(t247, t177, DERIVE_FMA(t223, t153, DERIVE_FMA(t199, t60, P[152])));
     const double t430 = DERIVE_FMA(t247, t178, DERIVE_FMA(t223, t154, DERIVE_FMA(t199, t61, P[153])));
@@ -7390,9 +7398,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t432 = DERIVE_FMA(t247, t180, DERIVE_FMA(t223, t156, DERIVE_FMA(t199, t63, P[155])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t433_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t64, ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t433_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t157, v_t433_0);
-    const derive_vd v_t433 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t181, v_t433_1);
+    const derive_vd v_t433_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t64, ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t433_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t157, v_t433_0);
+    const derive_vd v_t433 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t181, v_t433_1);
     #else
     const double t433 = DERIVE_FMA(t247, t181, DERIVE_FMA(t223, t157, DERIVE_FMA(t199, t64, P[156])));
     const double t434 = DERIVE_FMA(t247, t182, DERIVE_FMA(t223, t158, DERIVE_FMA(t199, t65, P[157])));
@@ -7400,9 +7408,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t436 = DERIVE_FMA(t247, t184, DERIVE_FMA(t223, t160, DERIVE_FMA(t199, t67, P[159])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t437_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t68, ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t437_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t161, v_t437_0);
-    const derive_vd v_t437 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t185, v_t437_1);
+    const derive_vd v_t437_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t68, ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t437_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t161, v_t437_0);
+    const derive_vd v_t437 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t185, v_t437_1);
     #else
     const double t437 = DERIVE_FMA(t247, t185, DERIVE_FMA(t223, t161, DERIVE_FMA(t199, t68, P[160])));
     const double t438 = DERIVE_FMA(t247, t186, DERIVE_FMA(t223, t162, DERIVE_FMA(t199, t69, P[161])));
@@ -7410,9 +7418,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t440 = DERIVE_FMA(t247, t188, DERIVE_FMA(t223, t164, DERIVE_FMA(t199, t71, P[163])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t441_0 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t72, ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t441_1 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t165, v_t441_0);
-    const derive_vd v_t441 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t189, v_t441_1);
+    const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t72, ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t441_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t165, v_t441_0);
+    const derive_vd v_t441 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t189, v_t441_1);
     #else
     const double t441 = DERIVE_FMA(t247, t189, DERIVE_FMA(t223, t165, DERIVE_FMA(t199, t72, P[164])));
     const double t442 = DERIVE_FMA(t247, t190, DERIVE_FMA(t223, t166, DERIVE_FMA(t199, t73, P[165])));
@@ -7420,9 +7428,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t444 = DERIVE_FMA(t247, t192, DERIVE_FMA(t223, t168, DERIVE_FMA(t199, t75, P[167])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t445_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t56, ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const derive_vd v_t445_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t149, v_t445_0);
-    const derive_vd v_t445 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t173, v_t445_1);
+    const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t56, ((derive_vd){P[172], P[173], P[174], P[175]}));
+    const derive_vd v_t445_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t149, v_t445_0);
+    const derive_vd v_t445 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t173, v_t445_1);
     const derive_vd tr_v_t385_0 = __builtin_shufflevector(v_t385, v_t405, 0, 4, 2, 6);
     const derive_vd tr_v_t385_1 = __builtin_shufflevector(v_t385, v_t405, 1, 5, 3, 7);
     const derive_vd tr_v_t385_2 = __builtin_shufflevector(v_t425, v_t445, 0, 4, 2, 6);
@@ -7438,9 +7446,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t448 = DERIVE_FMA(t248, t176, DERIVE_FMA(t224, t152, DERIVE_FMA(t200, t59, P[175])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t449_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t60, ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const derive_vd v_t449_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t153, v_t449_0);
-    const derive_vd v_t449 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t177, v_t449_1);
+    const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t60, ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t449_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t153, v_t449_0);
+    const derive_vd v_t449 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t177, v_t449_1);
     const derive_vd tr_v_t389_0 = __builtin_shufflevector(v_t389, v_t409, 0, 4, 2, 6);
     const derive_vd tr_v_t389_1 = __builtin_shufflevector(v_t389, v_t409, 1, 5, 3, 7);
     const derive_vd tr_v_t389_2 = __builtin_shufflevector(v_t429, v_t449, 0, 4, 2, 6);
@@ -7464,9 +7472,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t452 = DERIVE_FMA(t248, t180, DERIVE_FMA(t224, t156, DERIVE_FMA(t200, t63, P[179])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t453_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t64, ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const derive_vd v_t453_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t157, v_t453_0);
-    const derive_vd v_t453 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t181, v_t453_1);
+    const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t64, ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t453_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t157, v_t453_0);
+    const derive_vd v_t453 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t181, v_t453_1);
     const derive_vd tr_v_t393_0 = __builtin_shufflevector(v_t393, v_t413, 0, 4, 2, 6);
     const derive_vd tr_v_t393_1 = __builtin_shufflevector(v_t393, v_t413, 1, 5, 3, 7);
     const derive_vd tr_v_t393_2 = __builtin_shufflevector(v_t433, v_t453, 0, 4, 2, 6);
@@ -7490,9 +7498,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t456 = DERIVE_FMA(t248, t184, DERIVE_FMA(t224, t160, DERIVE_FMA(t200, t67, P[183])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t457_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t68, ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd v_t457_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t161, v_t457_0);
-    const derive_vd v_t457 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t185, v_t457_1);
+    const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t68, ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t161, v_t457_0);
+    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t185, v_t457_1);
     const derive_vd tr_v_t397_0 = __builtin_shufflevector(v_t397, v_t417, 0, 4, 2, 6);
     const derive_vd tr_v_t397_1 = __builtin_shufflevector(v_t397, v_t417, 1, 5, 3, 7);
     const derive_vd tr_v_t397_2 = __builtin_shufflevector(v_t437, v_t457, 0, 4, 2, 6);
@@ -7516,9 +7524,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t460 = DERIVE_FMA(t248, t188, DERIVE_FMA(t224, t164, DERIVE_FMA(t200, t71, P[187])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t461_0 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t72, ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd v_t461_1 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t165, v_t461_0);
-    const derive_vd v_t461 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t189, v_t461_1);
+    const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t72, ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t165, v_t461_0);
+    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t189, v_t461_1);
     const derive_vd tr_v_t401_0 = __builtin_shufflevector(v_t401, v_t421, 0, 4, 2, 6);
     const derive_vd tr_v_t401_1 = __builtin_shufflevector(v_t401, v_t421, 1, 5, 3, 7);
     const derive_vd tr_v_t401_2 = __builtin_shufflevector(v_t441, v_t461, 0, 4, 2, 6);
@@ -7542,9 +7550,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t464 = DERIVE_FMA(t248, t192, DERIVE_FMA(t224, t168, DERIVE_FMA(t200, t75, P[191])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t465_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), v_t60, ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const derive_vd v_t465_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t153, v_t465_0);
-    const derive_vd v_t465 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t177, v_t465_1);
+    const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t60, ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t153, v_t465_0);
+    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t177, v_t465_1);
     #else
     const double t465 = DERIVE_FMA(t249, t177, DERIVE_FMA(t225, t153, DERIVE_FMA(t201, t60, P[200])));
     const double t466 = DERIVE_FMA(t249, t178, DERIVE_FMA(t225, t154, DERIVE_FMA(t201, t61, P[201])));
@@ -7552,9 +7560,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t468 = DERIVE_FMA(t249, t180, DERIVE_FMA(t225, t156, DERIVE_FMA(t201, t63, P[203])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t469_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), v_t64, ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t469_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t157, v_t469_0);
-    const derive_vd v_t469 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t181, v_t469_1);
+    const derive_vd v_t469_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t64, ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t157, v_t469_0);
+    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t181, v_t469_1);
     #else
     const double t469 = DERIVE_FMA(t249, t181, DERIVE_FMA(t225, t157, DERIVE_FMA(t201, t64, P[204])));
     const double t470 = DERIVE_FMA(t249, t182, DERIVE_FMA(t225, t158, DERIVE_FMA(t201, t65, P[205])));
@@ -7562,9 +7570,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t472 = DERIVE_FMA(t249, t184, DERIVE_FMA(t225, t160, DERIVE_FMA(t201, t67, P[207])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t473_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), v_t68, ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const derive_vd v_t473_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t161, v_t473_0);
-    const derive_vd v_t473 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t185, v_t473_1);
+    const derive_vd v_t473_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t68, ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t161, v_t473_0);
+    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t185, v_t473_1);
     #else
     const double t473 = DERIVE_FMA(t249, t185, DERIVE_FMA(t225, t161, DERIVE_FMA(t201, t68, P[208])));
     const double t474 = DERIVE_FMA(t249, t186, DERIVE_FMA(t225, t162, DERIVE_FMA(t201, t69, P[209])));
@@ -7572,9 +7580,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t476 = DERIVE_FMA(t249, t188, DERIVE_FMA(t225, t164, DERIVE_FMA(t201, t71, P[211])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t477_0 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), v_t72, ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const derive_vd v_t477_1 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t165, v_t477_0);
-    const derive_vd v_t477 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t189, v_t477_1);
+    const derive_vd v_t477_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t72, ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const derive_vd v_t477_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t165, v_t477_0);
+    const derive_vd v_t477 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t189, v_t477_1);
     #else
     const double t477 = DERIVE_FMA(t249, t189, DERIVE_FMA(t225, t165, DERIVE_FMA(t201, t72, P[212])));
     const double t478 = DERIVE_FMA(t249, t190, DERIVE_FMA(t225, t166, DERIVE_FMA(t201, t73, P[213])));
@@ -7582,18 +7590,18 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t480 = DERIVE_FMA(t249, t192, DERIVE_FMA(t225, t168, DERIVE_FMA(t201, t75, P[215])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t481_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), v_t60, ((derive_vd){P[224], P[225], P[226], P[227]}));
-    const derive_vd v_t481_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t153, v_t481_0);
-    const derive_vd v_t481 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t177, v_t481_1);
+    const derive_vd v_t481_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t60, ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const derive_vd v_t481_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t153, v_t481_0);
+    const derive_vd v_t481 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t177, v_t481_1);
     #else
     const double t482 = DERIVE_FMA(t250, t178, DERIVE_FMA(t226, t154, DERIVE_FMA(t202, t61, P[225])));
     const double t483 = DERIVE_FMA(t250, t179, DERIVE_FMA(t226, t155, DERIVE_FMA(t202, t62, P[226])));
     const double t484 = DERIVE_FMA(t250, t180, DERIVE_FMA(t226, t156, DERIVE_FMA(t202, t63, P[227])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t485_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), v_t64, ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t485_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t157, v_t485_0);
-    const derive_vd v_t485 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t181, v_t485_1);
+    const derive_vd v_t485_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t64, ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const derive_vd v_t485_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t157, v_t485_0);
+    const derive_vd v_t485 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t181, v_t485_1);
     #else
     const double t485 = DERIVE_FMA(t250, t181, DERIVE_FMA(t226, t157, DERIVE_FMA(t202, t64, P[228])));
     const double t486 = DERIVE_FMA(t250, t182, DERIVE_FMA(t226, t158, DERIVE_FMA(t202, t65, P[229])));
@@ -7601,9 +7609,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t488 = DERIVE_FMA(t250, t184, DERIVE_FMA(t226, t160, DERIVE_FMA(t202, t67, P[231])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t489_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), v_t68, ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t489_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t161, v_t489_0);
-    const derive_vd v_t489 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t185, v_t489_1);
+    const derive_vd v_t489_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t68, ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const derive_vd v_t489_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t161, v_t489_0);
+    const derive_vd v_t489 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t185, v_t489_1);
     #else
     const double t489 = DERIVE_FMA(t250, t185, DERIVE_FMA(t226, t161, DERIVE_FMA(t202, t68, P[232])));
     const double t490 = DERIVE_FMA(t250, t186, DERIVE_FMA(t226, t162, DERIVE_FMA(t202, t69, P[233])));
@@ -7611,9 +7619,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t492 = DERIVE_FMA(t250, t188, DERIVE_FMA(t226, t164, DERIVE_FMA(t202, t71, P[235])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t493_0 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), v_t72, ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t493_1 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t165, v_t493_0);
-    const derive_vd v_t493 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t189, v_t493_1);
+    const derive_vd v_t493_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t72, ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t493_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t165, v_t493_0);
+    const derive_vd v_t493 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t189, v_t493_1);
     #else
     const double t493 = DERIVE_FMA(t250, t189, DERIVE_FMA(t226, t165, DERIVE_FMA(t202, t72, P[236])));
     const double t494 = DERIVE_FMA(t250, t190, DERIVE_FMA(t226, t166, DERIVE_FMA(t202, t73, P[237])));
@@ -7621,17 +7629,17 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t496 = DERIVE_FMA(t250, t192, DERIVE_FMA(t226, t168, DERIVE_FMA(t202, t75, P[239])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t497_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), v_t60, ((derive_vd){P[248], P[249], P[250], P[251]}));
-    const derive_vd v_t497_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t153, v_t497_0);
-    const derive_vd v_t497 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t177, v_t497_1);
+    const derive_vd v_t497_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t60, ((derive_vd){P[248], P[249], P[250], P[251]}));
+    const derive_vd v_t497_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t153, v_t497_0);
+    const derive_vd v_t497 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t177, v_t497_1);
     #else
     const double t499 = DERIVE_FMA(t251, t179, DERIVE_FMA(t227, t155, DERIVE_FMA(t203, t62, P[250])));
     const double t500 = DERIVE_FMA(t251, t180, DERIVE_FMA(t227, t156, DERIVE_FMA(t203, t63, P[251])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t501_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), v_t64, ((derive_vd){P[252], P[253], P[254], P[255]}));
-    const derive_vd v_t501_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t157, v_t501_0);
-    const derive_vd v_t501 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t181, v_t501_1);
+    const derive_vd v_t501_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t64, ((derive_vd){P[252], P[253], P[254], P[255]}));
+    const derive_vd v_t501_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t157, v_t501_0);
+    const derive_vd v_t501 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t181, v_t501_1);
     #else
     const double t501 = DERIVE_FMA(t251, t181, DERIVE_FMA(t227, t157, DERIVE_FMA(t203, t64, P[252])));
     const double t502 = DERIVE_FMA(t251, t182, DERIVE_FMA(t227, t158, DERIVE_FMA(t203, t65, P[253])));
@@ -7639,9 +7647,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t504 = DERIVE_FMA(t251, t184, DERIVE_FMA(t227, t160, DERIVE_FMA(t203, t67, P[255])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t505_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), v_t68, ((derive_vd){P[256], P[257], P[258], P[259]}));
-    const derive_vd v_t505_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t161, v_t505_0);
-    const derive_vd v_t505 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t185, v_t505_1);
+    const derive_vd v_t505_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t68, ((derive_vd){P[256], P[257], P[258], P[259]}));
+    const derive_vd v_t505_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t161, v_t505_0);
+    const derive_vd v_t505 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t185, v_t505_1);
     #else
     const double t505 = DERIVE_FMA(t251, t185, DERIVE_FMA(t227, t161, DERIVE_FMA(t203, t68, P[256])));
     const double t506 = DERIVE_FMA(t251, t186, DERIVE_FMA(t227, t162, DERIVE_FMA(t203, t69, P[257])));
@@ -7649,9 +7657,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t508 = DERIVE_FMA(t251, t188, DERIVE_FMA(t227, t164, DERIVE_FMA(t203, t71, P[259])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t509_0 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), v_t72, ((derive_vd){P[260], P[261], P[262], P[263]}));
-    const derive_vd v_t509_1 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t165, v_t509_0);
-    const derive_vd v_t509 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t189, v_t509_1);
+    const derive_vd v_t509_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t72, ((derive_vd){P[260], P[261], P[262], P[263]}));
+    const derive_vd v_t509_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t165, v_t509_0);
+    const derive_vd v_t509 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t189, v_t509_1);
     #else
     const double t509 = DERIVE_FMA(t251, t189, DERIVE_FMA(t227, t165, DERIVE_FMA(t203, t72, P[260])));
     const double t510 = DERIVE_FMA(t251, t190, DERIVE_FMA(t227, t166, DERIVE_FMA(t203, t73, P[261])));
@@ -7659,9 +7667,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t512 = DERIVE_FMA(t251, t192, DERIVE_FMA(t227, t168, DERIVE_FMA(t203, t75, P[263])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t513_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), v_t60, ((derive_vd){P[272], P[273], P[274], P[275]}));
-    const derive_vd v_t513_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t153, v_t513_0);
-    const derive_vd v_t513 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t177, v_t513_1);
+    const derive_vd v_t513_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t60, ((derive_vd){P[272], P[273], P[274], P[275]}));
+    const derive_vd v_t513_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t153, v_t513_0);
+    const derive_vd v_t513 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t177, v_t513_1);
     const derive_vd tr_v_t465_0 = __builtin_shufflevector(v_t465, v_t481, 0, 4, 2, 6);
     const derive_vd tr_v_t465_1 = __builtin_shufflevector(v_t465, v_t481, 1, 5, 3, 7);
     const derive_vd tr_v_t465_2 = __builtin_shufflevector(v_t497, v_t513, 0, 4, 2, 6);
@@ -7677,9 +7685,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t516 = DERIVE_FMA(t252, t180, DERIVE_FMA(t228, t156, DERIVE_FMA(t204, t63, P[275])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t517_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), v_t64, ((derive_vd){P[276], P[277], P[278], P[279]}));
-    const derive_vd v_t517_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t157, v_t517_0);
-    const derive_vd v_t517 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t181, v_t517_1);
+    const derive_vd v_t517_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t64, ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd v_t517_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t157, v_t517_0);
+    const derive_vd v_t517 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t181, v_t517_1);
     const derive_vd tr_v_t469_0 = __builtin_shufflevector(v_t469, v_t485, 0, 4, 2, 6);
     const derive_vd tr_v_t469_1 = __builtin_shufflevector(v_t469, v_t485, 1, 5, 3, 7);
     const derive_vd tr_v_t469_2 = __builtin_shufflevector(v_t501, v_t517, 0, 4, 2, 6);
@@ -7703,9 +7711,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t520 = DERIVE_FMA(t252, t184, DERIVE_FMA(t228, t160, DERIVE_FMA(t204, t67, P[279])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t521_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), v_t68, ((derive_vd){P[280], P[281], P[282], P[283]}));
-    const derive_vd v_t521_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t161, v_t521_0);
-    const derive_vd v_t521 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t185, v_t521_1);
+    const derive_vd v_t521_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t68, ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd v_t521_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t161, v_t521_0);
+    const derive_vd v_t521 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t185, v_t521_1);
     const derive_vd tr_v_t473_0 = __builtin_shufflevector(v_t473, v_t489, 0, 4, 2, 6);
     const derive_vd tr_v_t473_1 = __builtin_shufflevector(v_t473, v_t489, 1, 5, 3, 7);
     const derive_vd tr_v_t473_2 = __builtin_shufflevector(v_t505, v_t521, 0, 4, 2, 6);
@@ -7729,9 +7737,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t524 = DERIVE_FMA(t252, t188, DERIVE_FMA(t228, t164, DERIVE_FMA(t204, t71, P[283])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t525_0 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), v_t72, ((derive_vd){P[284], P[285], P[286], P[287]}));
-    const derive_vd v_t525_1 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t165, v_t525_0);
-    const derive_vd v_t525 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t189, v_t525_1);
+    const derive_vd v_t525_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t72, ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd v_t525_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t165, v_t525_0);
+    const derive_vd v_t525 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t189, v_t525_1);
     const derive_vd tr_v_t477_0 = __builtin_shufflevector(v_t477, v_t493, 0, 4, 2, 6);
     const derive_vd tr_v_t477_1 = __builtin_shufflevector(v_t477, v_t493, 1, 5, 3, 7);
     const derive_vd tr_v_t477_2 = __builtin_shufflevector(v_t509, v_t525, 0, 4, 2, 6);
@@ -7755,9 +7763,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t528 = DERIVE_FMA(t252, t192, DERIVE_FMA(t228, t168, DERIVE_FMA(t204, t75, P[287])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t529_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), v_t64, ((derive_vd){P[300], P[301], P[302], P[303]}));
-    const derive_vd v_t529_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t157, v_t529_0);
-    const derive_vd v_t529 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t181, v_t529_1);
+    const derive_vd v_t529_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t64, ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const derive_vd v_t529_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t157, v_t529_0);
+    const derive_vd v_t529 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t181, v_t529_1);
     #else
     const double t529 = DERIVE_FMA(t253, t181, DERIVE_FMA(t229, t157, DERIVE_FMA(t205, t64, P[300])));
     const double t530 = DERIVE_FMA(t253, t182, DERIVE_FMA(t229, t158, DERIVE_FMA(t205, t65, P[301])));
@@ -7765,9 +7773,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t532 = DERIVE_FMA(t253, t184, DERIVE_FMA(t229, t160, DERIVE_FMA(t205, t67, P[303])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t533_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), v_t68, ((derive_vd){P[304], P[305], P[306], P[307]}));
-    const derive_vd v_t533_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t161, v_t533_0);
-    const derive_vd v_t533 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t185, v_t533_1);
+    const derive_vd v_t533_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t68, ((derive_vd){P[304], P[305], P[306], P[307]}));
+    const derive_vd v_t533_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t161, v_t533_0);
+    const derive_vd v_t533 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t185, v_t533_1);
     #else
     const double t533 = DERIVE_FMA(t253, t185, DERIVE_FMA(t229, t161, DERIVE_FMA(t205, t68, P[304])));
     const double t534 = DERIVE_FMA(t253, t186, DERIVE_FMA(t229, t162, DERIVE_FMA(t205, t69, P[305])));
@@ -7775,9 +7783,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t536 = DERIVE_FMA(t253, t188, DERIVE_FMA(t229, t164, DERIVE_FMA(t205, t71, P[307])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t537_0 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), v_t72, ((derive_vd){P[308], P[309], P[310], P[311]}));
-    const derive_vd v_t537_1 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t165, v_t537_0);
-    const derive_vd v_t537 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t189, v_t537_1);
+    const derive_vd v_t537_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t72, ((derive_vd){P[308], P[309], P[310], P[311]}));
+    const derive_vd v_t537_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t165, v_t537_0);
+    const derive_vd v_t537 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t189, v_t537_1);
     #else
     const double t537 = DERIVE_FMA(t253, t189, DERIVE_FMA(t229, t165, DERIVE_FMA(t205, t72, P[308])));
     const double t538 = DERIVE_FMA(t253, t190, DERIVE_FMA(t229, t166, DERIVE_FMA(t205, t73, P[309])));
@@ -7785,18 +7793,18 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t540 = DERIVE_FMA(t253, t192, DERIVE_FMA(t229, t168, DERIVE_FMA(t205, t75, P[311])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t541_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), v_t64, ((derive_vd){P[324], P[325], P[326], P[327]}));
-    const derive_vd v_t541_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t157, v_t541_0);
-    const derive_vd v_t541 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t181, v_t541_1);
+    const derive_vd v_t541_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t64, ((derive_vd){P[324], P[325], P[326], P[327]}));
+    const derive_vd v_t541_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t157, v_t541_0);
+    const derive_vd v_t541 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t181, v_t541_1);
     #else
     const double t542 = DERIVE_FMA(t254, t182, DERIVE_FMA(t230, t158, DERIVE_FMA(t206, t65, P[325])));
     const double t543 = DERIVE_FMA(t254, t183, DERIVE_FMA(t230, t159, DERIVE_FMA(t206, t66, P[326])));
     const double t544 = DERIVE_FMA(t254, t184, DERIVE_FMA(t230, t160, DERIVE_FMA(t206, t67, P[327])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t545_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), v_t68, ((derive_vd){P[328], P[329], P[330], P[331]}));
-    const derive_vd v_t545_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t161, v_t545_0);
-    const derive_vd v_t545 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t185, v_t545_1);
+    const derive_vd v_t545_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t68, ((derive_vd){P[328], P[329], P[330], P[331]}));
+    const derive_vd v_t545_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t161, v_t545_0);
+    const derive_vd v_t545 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t185, v_t545_1);
     #else
     const double t545 = DERIVE_FMA(t254, t185, DERIVE_FMA(t230, t161, DERIVE_FMA(t206, t68, P[328])));
     const double t546 = DERIVE_FMA(t254, t186, DERIVE_FMA(t230, t162, DERIVE_FMA(t206, t69, P[329])));
@@ -7804,9 +7812,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t548 = DERIVE_FMA(t254, t188, DERIVE_FMA(t230, t164, DERIVE_FMA(t206, t71, P[331])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t549_0 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), v_t72, ((derive_vd){P[332], P[333], P[334], P[335]}));
-    const derive_vd v_t549_1 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t165, v_t549_0);
-    const derive_vd v_t549 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t189, v_t549_1);
+    const derive_vd v_t549_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t72, ((derive_vd){P[332], P[333], P[334], P[335]}));
+    const derive_vd v_t549_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t165, v_t549_0);
+    const derive_vd v_t549 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t189, v_t549_1);
     #else
     const double t549 = DERIVE_FMA(t254, t189, DERIVE_FMA(t230, t165, DERIVE_FMA(t206, t72, P[332])));
     const double t550 = DERIVE_FMA(t254, t190, DERIVE_FMA(t230, t166, DERIVE_FMA(t206, t73, P[333])));
@@ -7814,17 +7822,17 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t552 = DERIVE_FMA(t254, t192, DERIVE_FMA(t230, t168, DERIVE_FMA(t206, t75, P[335])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t553_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t64, ((derive_vd){P[348], P[349], P[350], P[351]}));
-    const derive_vd v_t553_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t157, v_t553_0);
-    const derive_vd v_t553 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t181, v_t553_1);
+    const derive_vd v_t553_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t64, ((derive_vd){P[348], P[349], P[350], P[351]}));
+    const derive_vd v_t553_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t157, v_t553_0);
+    const derive_vd v_t553 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t181, v_t553_1);
     #else
     const double t555 = DERIVE_FMA(t255, t183, DERIVE_FMA(t231, t159, DERIVE_FMA(t207, t66, P[350])));
     const double t556 = DERIVE_FMA(t255, t184, DERIVE_FMA(t231, t160, DERIVE_FMA(t207, t67, P[351])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t557_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t68, ((derive_vd){P[352], P[353], P[354], P[355]}));
-    const derive_vd v_t557_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t161, v_t557_0);
-    const derive_vd v_t557 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t185, v_t557_1);
+    const derive_vd v_t557_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t68, ((derive_vd){P[352], P[353], P[354], P[355]}));
+    const derive_vd v_t557_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t161, v_t557_0);
+    const derive_vd v_t557 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t185, v_t557_1);
     #else
     const double t557 = DERIVE_FMA(t255, t185, DERIVE_FMA(t231, t161, DERIVE_FMA(t207, t68, P[352])));
     const double t558 = DERIVE_FMA(t255, t186, DERIVE_FMA(t231, t162, DERIVE_FMA(t207, t69, P[353])));
@@ -7832,9 +7840,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t560 = DERIVE_FMA(t255, t188, DERIVE_FMA(t231, t164, DERIVE_FMA(t207, t71, P[355])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t561_0 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t72, ((derive_vd){P[356], P[357], P[358], P[359]}));
-    const derive_vd v_t561_1 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t165, v_t561_0);
-    const derive_vd v_t561 = DERIVE_ROWS_FMA(((derive_vd){t255, t255, t255, t255}), v_t189, v_t561_1);
+    const derive_vd v_t561_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t72, ((derive_vd){P[356], P[357], P[358], P[359]}));
+    const derive_vd v_t561_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t165, v_t561_0);
+    const derive_vd v_t561 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t189, v_t561_1);
     #else
     const double t561 = DERIVE_FMA(t255, t189, DERIVE_FMA(t231, t165, DERIVE_FMA(t207, t72, P[356])));
     const double t562 = DERIVE_FMA(t255, t190, DERIVE_FMA(t231, t166, DERIVE_FMA(t207, t73, P[357])));
@@ -7842,9 +7850,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t564 = DERIVE_FMA(t255, t192, DERIVE_FMA(t231, t168, DERIVE_FMA(t207, t75, P[359])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t565_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t64, ((derive_vd){P[372], P[373], P[374], P[375]}));
-    const derive_vd v_t565_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t157, v_t565_0);
-    const derive_vd v_t565 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t181, v_t565_1);
+    const derive_vd v_t565_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t64, ((derive_vd){P[372], P[373], P[374], P[375]}));
+    const derive_vd v_t565_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t157, v_t565_0);
+    const derive_vd v_t565 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t181, v_t565_1);
     const derive_vd tr_v_t529_0 = __builtin_shufflevector(v_t529, v_t541, 0, 4, 2, 6);
     const derive_vd tr_v_t529_1 = __builtin_shufflevector(v_t529, v_t541, 1, 5, 3, 7);
     const derive_vd tr_v_t529_2 = __builtin_shufflevector(v_t553, v_t565, 0, 4, 2, 6);
@@ -7860,9 +7868,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t568 = DERIVE_FMA(t256, t184, DERIVE_FMA(t232, t160, DERIVE_FMA(t208, t67, P[375])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t569_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t68, ((derive_vd){P[376], P[377], P[378], P[379]}));
-    const derive_vd v_t569_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t161, v_t569_0);
-    const derive_vd v_t569 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t185, v_t569_1);
+    const derive_vd v_t569_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t68, ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd v_t569_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t161, v_t569_0);
+    const derive_vd v_t569 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t185, v_t569_1);
     const derive_vd tr_v_t533_0 = __builtin_shufflevector(v_t533, v_t545, 0, 4, 2, 6);
     const derive_vd tr_v_t533_1 = __builtin_shufflevector(v_t533, v_t545, 1, 5, 3, 7);
     const derive_vd tr_v_t533_2 = __builtin_shufflevector(v_t557, v_t569, 0, 4, 2, 6);
@@ -7886,9 +7894,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t572 = DERIVE_FMA(t256, t188, DERIVE_FMA(t232, t164, DERIVE_FMA(t208, t71, P[379])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t573_0 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t72, ((derive_vd){P[380], P[381], P[382], P[383]}));
-    const derive_vd v_t573_1 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t165, v_t573_0);
-    const derive_vd v_t573 = DERIVE_ROWS_FMA(((derive_vd){t256, t256, t256, t256}), v_t189, v_t573_1);
+    const derive_vd v_t573_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t72, ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd v_t573_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t165, v_t573_0);
+    const derive_vd v_t573 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t189, v_t573_1);
     const derive_vd tr_v_t537_0 = __builtin_shufflevector(v_t537, v_t549, 0, 4, 2, 6);
     const derive_vd tr_v_t537_1 = __builtin_shufflevector(v_t537, v_t549, 1, 5, 3, 7);
     const derive_vd tr_v_t537_2 = __builtin_shufflevector(v_t561, v_t573, 0, 4, 2, 6);
@@ -7912,9 +7920,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t576 = DERIVE_FMA(t256, t192, DERIVE_FMA(t232, t168, DERIVE_FMA(t208, t75, P[383])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t577_0 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), v_t68, ((derive_vd){P[400], P[401], P[402], P[403]}));
-    const derive_vd v_t577_1 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t161, v_t577_0);
-    const derive_vd v_t577 = DERIVE_ROWS_FMA(((derive_vd){t257, t257, t257, t257}), v_t185, v_t577_1);
+    const derive_vd v_t577_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t68, ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const derive_vd v_t577_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t161, v_t577_0);
+    const derive_vd v_t577 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t185, v_t577_1);
     #else
     const double t577 = DERIVE_FMA(t257, t185, DERIVE_FMA(t233, t161, DERIVE_FMA(t209, t68, P[400])));
     const double t578 = DERIVE_FMA(t257, t186, DERIVE_FMA(t233, t162, DERIVE_FMA(t209, t69, P[401])));
@@ -7922,9 +7930,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t580 = DERIVE_FMA(t257, t188, DERIVE_FMA(t233, t164, DERIVE_FMA(t209, t71, P[403])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t581_0 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), v_t72, ((derive_vd){P[404], P[405], P[406], P[407]}));
-    const derive_vd v_t581_1 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t165, v_t581_0);
-    const derive_vd v_t581 = DERIVE_ROWS_FMA(((derive_vd){t257, t257, t257, t257}), v_t189, v_t581_1);
+    const derive_vd v_t581_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t72, ((derive_vd){P[404], P[405], P[406], P[407]}));
+    const derive_vd v_t581_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t165, v_t581_0);
+    const derive_vd v_t581 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t189, v_t581_1);
     #else
     const double t581 = DERIVE_FMA(t257, t189, DERIVE_FMA(t233, t165, DERIVE_FMA(t209, t72, P[404])));
     const double t582 = DERIVE_FMA(t257, t190, DERIVE_FMA(t233, t166, DERIVE_FMA(t209, t73, P[405])));
@@ -7932,18 +7940,18 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t584 = DERIVE_FMA(t257, t192, DERIVE_FMA(t233, t168, DERIVE_FMA(t209, t75, P[407])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t585_0 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), v_t68, ((derive_vd){P[424], P[425], P[426], P[427]}));
-    const derive_vd v_t585_1 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t161, v_t585_0);
-    const derive_vd v_t585 = DERIVE_ROWS_FMA(((derive_vd){t258, t258, t258, t258}), v_t185, v_t585_1);
+    const derive_vd v_t585_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t68, ((derive_vd){P[424], P[425], P[426], P[427]}));
+    const derive_vd v_t585_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t161, v_t585_0);
+    const derive_vd v_t585 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t185, v_t585_1);
     #else
     const double t586 = DERIVE_FMA(t258, t186, DERIVE_FMA(t234, t162, DERIVE_FMA(t210, t69, P[425])));
     const double t587 = DERIVE_FMA(t258, t187, DERIVE_FMA(t234, t163, DERIVE_FMA(t210, t70, P[426])));
     const double t588 = DERIVE_FMA(t258, t188, DERIVE_FMA(t234, t164, DERIVE_FMA(t210, t71, P[427])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t589_0 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), v_t72, ((derive_vd){P[428], P[429], P[430], P[431]}));
-    const derive_vd v_t589_1 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t165, v_t589_0);
-    const derive_vd v_t589 = DERIVE_ROWS_FMA(((derive_vd){t258, t258, t258, t258}), v_t189, v_t589_1);
+    const derive_vd v_t589_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t72, ((derive_vd){P[428], P[429], P[430], P[431]}));
+    const derive_vd v_t589_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t165, v_t589_0);
+    const derive_vd v_t589 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t189, v_t589_1);
     #else
     const double t589 = DERIVE_FMA(t258, t189, DERIVE_FMA(t234, t165, DERIVE_FMA(t210, t72, P[428])));
     const double t590 = DERIVE_FMA(t258, t190, DERIVE_FMA(t234, t166, DERIVE_FMA(t210, t73, P[429])));
@@ -7951,17 +7959,17 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t592 = DERIVE_FMA(t258, t192, DERIVE_FMA(t234, t168, DERIVE_FMA(t210, t75, P[431])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t593_0 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), v_t68, ((derive_vd){P[448], P[449], P[450], P[451]}));
-    const derive_vd v_t593_1 = DERIVE_ROWS_FMA(((derive_vd){t235, t235, t235, t235}), v_t161, v_t593_0);
-    const derive_vd v_t593 = DERIVE_ROWS_FMA(((derive_vd){t259, t259, t259, t259}), v_t185, v_t593_1);
+    const derive_vd v_t593_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t68, ((derive_vd){P[448], P[449], P[450], P[451]}));
+    const derive_vd v_t593_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t161, v_t593_0);
+    const derive_vd v_t593 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t185, v_t593_1);
     #else
     const double t595 = DERIVE_FMA(t259, t187, DERIVE_FMA(t235, t163, DERIVE_FMA(t211, t70, P[450])));
     const double t596 = DERIVE_FMA(t259, t188, DERIVE_FMA(t235, t164, DERIVE_FMA(t211, t71, P[451])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t597_0 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), v_t72, ((derive_vd){P[452], P[453], P[454], P[455]}));
-    const derive_vd v_t597_1 = DERIVE_ROWS_FMA(((derive_vd){t235, t235, t235, t235}), v_t165, v_t597_0);
-    const derive_vd v_t597 = DERIVE_ROWS_FMA(((derive_vd){t259, t259, t259, t259}), v_t189, v_t597_1);
+    const derive_vd v_t597_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t72, ((derive_vd){P[452], P[453], P[454], P[455]}));
+    const derive_vd v_t597_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t165, v_t597_0);
+    const derive_vd v_t597 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t189, v_t597_1);
     #else
     const double t597 = DERIVE_FMA(t259, t189, DERIVE_FMA(t235, t165, DERIVE_FMA(t211, t72, P[452])));
     const double t598 = DERIVE_FMA(t259, t190, DERIVE_FMA(t235, t166, DERIVE_FMA(t211, t73, P[453])));
@@ -7969,9 +7977,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t600 = DERIVE_FMA(t259, t192, DERIVE_FMA(t235, t168, DERIVE_FMA(t211, t75, P[455])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t601_0 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), v_t68, ((derive_vd){P[472], P[473], P[474], P[475]}));
-    const derive_vd v_t601_1 = DERIVE_ROWS_FMA(((derive_vd){t236, t236, t236, t236}), v_t161, v_t601_0);
-    const derive_vd v_t601 = DERIVE_ROWS_FMA(((derive_vd){t260, t260, t260, t260}), v_t185, v_t601_1);
+    const derive_vd v_t601_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t68, ((derive_vd){P[472], P[473], P[474], P[475]}));
+    const derive_vd v_t601_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t161, v_t601_0);
+    const derive_vd v_t601 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t185, v_t601_1);
     const derive_vd tr_v_t577_0 = __builtin_shufflevector(v_t577, v_t585, 0, 4, 2, 6);
     const derive_vd tr_v_t577_1 = __builtin_shufflevector(v_t577, v_t585, 1, 5, 3, 7);
     const derive_vd tr_v_t577_2 = __builtin_shufflevector(v_t593, v_t601, 0, 4, 2, 6);
@@ -7987,9 +7995,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t604 = DERIVE_FMA(t260, t188, DERIVE_FMA(t236, t164, DERIVE_FMA(t212, t71, P[475])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t605_0 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), v_t72, ((derive_vd){P[476], P[477], P[478], P[479]}));
-    const derive_vd v_t605_1 = DERIVE_ROWS_FMA(((derive_vd){t236, t236, t236, t236}), v_t165, v_t605_0);
-    const derive_vd v_t605 = DERIVE_ROWS_FMA(((derive_vd){t260, t260, t260, t260}), v_t189, v_t605_1);
+    const derive_vd v_t605_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t72, ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd v_t605_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t165, v_t605_0);
+    const derive_vd v_t605 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t189, v_t605_1);
     const derive_vd tr_v_t581_0 = __builtin_shufflevector(v_t581, v_t589, 0, 4, 2, 6);
     const derive_vd tr_v_t581_1 = __builtin_shufflevector(v_t581, v_t589, 1, 5, 3, 7);
     const derive_vd tr_v_t581_2 = __builtin_shufflevector(v_t597, v_t605, 0, 4, 2, 6);
@@ -8013,9 +8021,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t608 = DERIVE_FMA(t260, t192, DERIVE_FMA(t236, t168, DERIVE_FMA(t212, t75, P[479])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t609_0 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), v_t72, ((derive_vd){P[500], P[501], P[502], P[503]}));
-    const derive_vd v_t609_1 = DERIVE_ROWS_FMA(((derive_vd){t237, t237, t237, t237}), v_t165, v_t609_0);
-    const derive_vd v_t609 = DERIVE_ROWS_FMA(((derive_vd){t261, t261, t261, t261}), v_t189, v_t609_1);
+    const derive_vd v_t609_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t72, ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const derive_vd v_t609_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t165, v_t609_0);
+    const derive_vd v_t609 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t189, v_t609_1);
     #else
     const double t609 = DERIVE_FMA(t261, t189, DERIVE_FMA(t237, t165, DERIVE_FMA(t213, t72, P[500])));
     const double t610 = DERIVE_FMA(t261, t190, DERIVE_FMA(t237, t166, DERIVE_FMA(t213, t73, P[501])));
@@ -8023,26 +8031,26 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t612 = DERIVE_FMA(t261, t192, DERIVE_FMA(t237, t168, DERIVE_FMA(t213, t75, P[503])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t613_0 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), v_t72, ((derive_vd){P[524], P[525], P[526], P[527]}));
-    const derive_vd v_t613_1 = DERIVE_ROWS_FMA(((derive_vd){t238, t238, t238, t238}), v_t165, v_t613_0);
-    const derive_vd v_t613 = DERIVE_ROWS_FMA(((derive_vd){t262, t262, t262, t262}), v_t189, v_t613_1);
+    const derive_vd v_t613_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t72, ((derive_vd){P[524], P[525], P[526], P[527]}));
+    const derive_vd v_t613_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t165, v_t613_0);
+    const derive_vd v_t613 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t189, v_t613_1);
     #else
     const double t614 = DERIVE_FMA(t262, t190, DERIVE_FMA(t238, t166, DERIVE_FMA(t214, t73, P[525])));
     const double t615 = DERIVE_FMA(t262, t191, DERIVE_FMA(t238, t167, DERIVE_FMA(t214, t74, P[526])));
     const double t616 = DERIVE_FMA(t262, t192, DERIVE_FMA(t238, t168, DERIVE_FMA(t214, t75, P[527])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t617_0 = DERIVE_ROWS_FMA(((derive_vd){t215, t215, t215, t215}), v_t72, ((derive_vd){P[548], P[549], P[550], P[551]}));
-    const derive_vd v_t617_1 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t165, v_t617_0);
-    const derive_vd v_t617 = DERIVE_ROWS_FMA(((derive_vd){t263, t263, t263, t263}), v_t189, v_t617_1);
+    const derive_vd v_t617_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t72, ((derive_vd){P[548], P[549], P[550], P[551]}));
+    const derive_vd v_t617_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t165, v_t617_0);
+    const derive_vd v_t617 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t189, v_t617_1);
     #else
     const double t619 = DERIVE_FMA(t263, t191, DERIVE_FMA(t239, t167, DERIVE_FMA(t215, t74, P[550])));
     const double t620 = DERIVE_FMA(t263, t192, DERIVE_FMA(t239, t168, DERIVE_FMA(t215, t75, P[551])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t621_0 = DERIVE_ROWS_FMA(((derive_vd){t216, t216, t216, t216}), v_t72, ((derive_vd){P[572], P[573], P[574], P[575]}));
-    const derive_vd v_t621_1 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t165, v_t621_0);
-    const derive_vd v_t621 = DERIVE_ROWS_FMA(((derive_vd){t264, t264, t264, t264}), v_t189, v_t621_1);
+    const derive_vd v_t621_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t72, ((derive_vd){P[572], P[573], P[574], P[575]}));
+    const derive_vd v_t621_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t165, v_t621_0);
+    const derive_vd v_t621 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t189, v_t621_1);
     const derive_vd tr_v_t609_0 = __builtin_shufflevector(v_t609, v_t613, 0, 4, 2, 6);
     const derive_vd tr_v_t609_1 = __builtin_shufflevector(v_t609, v_t613, 1, 5, 3, 7);
     const derive_vd tr_v_t609_2 = __builtin_shufflevector(v_t617, v_t621, 0, 4, 2, 6);
@@ -9674,7 +9682,7 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
 }
 
 /* Run the extended Kalman filter over steps steps (predict, then each sensor's update where its row is not NaN); Ps, nis_* and applied_* may be NULL. */
-int ins_fc24_ekf_run(size_t steps, const double *u, const double *z_gnss, const double *z_baro, const double *z_mag, const double *z_airspeed, const double *x0, const double *P0, double *xs, double *Ps, const double *p, size_t p_stride)
+int ins_fc24_ekf_run(size_t steps, const double *z_gnss, const double *z_baro, const double *z_mag, const double *z_airspeed, const double *u, const double *x0, const double *P0, double *xs, double *Ps, const double *p, size_t p_stride)
 {
     double x[24];
     double P[576];

@@ -15,7 +15,7 @@ interface (flat row-major arrays; steps = number of steps):
     update_baro(x[24], P[24*24], z[1], p[1]) -> (x_new[24], P_new[24*24])
     update_mag(x[24], P[24*24], z[3], p[1]) -> (x_new[24], P_new[24*24])
     update_airspeed(x[24], P[24*24], z[1], p[1]) -> (x_new[24], P_new[24*24])
-    run(us[steps, 6], z_gnss[steps, 6], z_baro[steps, 1], z_mag[steps, 3], z_airspeed[steps, 1], x0[24], P0[24, 24], p[1] or p[steps, 1]) -> (xs[steps, 24], Ps[steps, 24, 24])
+    run(z_gnss[steps, 6], z_baro[steps, 1], z_mag[steps, 3], z_airspeed[steps, 1], us[steps, 6], x0[24], P0[24, 24], p[1] or p[steps, 1]) -> (xs[steps, 24], Ps[steps, 24, 24])
 run's p: one row (1,) for every step or one row per step (steps, 1)
 symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
 symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
@@ -3682,40 +3682,40 @@ def update_airspeed(x, P, z, p):
     return x_new, P_new
 
 
-def run(us, z_gnss, z_baro, z_mag, z_airspeed, x0, P0, p):
+def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
     """Run the extended Kalman filter over the steps: predict with u(k), then each sensor's update in declaration order where its row is not NaN.
 
     Arrays may carry trailing track axes (many tracks at once); every array is
     float64.
-    us [steps, 6]: u(k) per step, one row each (predict's and the updates')
     z_gnss [steps, 6]: sensor gnss per step, one row each; a row with a NaN: no measurement of this sensor at that step
     z_baro [steps, 1]: sensor baro per step, one row each; a row with a NaN: no measurement of this sensor at that step
     z_mag [steps, 3]: sensor mag per step, one row each; a row with a NaN: no measurement of this sensor at that step
     z_airspeed [steps, 1]: sensor airspeed per step, one row each; a row with a NaN: no measurement of this sensor at that step
+    us [steps, 6]: u(k) per step, one row each (predict's and the updates')
     x0 [24]: initial state estimate
     P0 [24, 24]: initial covariance (symmetric)
     xs [steps, 24]: estimate after each step
     Ps [steps, 24, 24]: covariance after each step (C: may be NULL)
     p [1]: free parameters: dt
     """
-    us = _real('us', us)
     z_gnss = _real('z_gnss', z_gnss)
     z_baro = _real('z_baro', z_baro)
     z_mag = _real('z_mag', z_mag)
     z_airspeed = _real('z_airspeed', z_airspeed)
+    us = _real('us', us)
     x0 = _real('x0', x0)
     P0 = _real('P0', P0)
     p = _real('p', p)
-    _require_shape('us', us, us.shape[:1] + (6,), '(steps, 6)')
-    steps = us.shape[0]
-    _require_shape('z_gnss', z_gnss, (steps,) + (6,), f'(steps, 6), steps = {steps} as us has')
+    _require_shape('z_gnss', z_gnss, z_gnss.shape[:1] + (6,), '(steps, 6)')
+    steps = z_gnss.shape[0]
     if z_baro.ndim == 1:  # one value per step
         z_baro = z_baro[:, np.newaxis]
-    _require_shape('z_baro', z_baro, (steps,) + (1,), f'(steps, 1), steps = {steps} as us has')
-    _require_shape('z_mag', z_mag, (steps,) + (3,), f'(steps, 3), steps = {steps} as us has')
+    _require_shape('z_baro', z_baro, (steps,) + (1,), f'(steps, 1), steps = {steps} as z_gnss has')
+    _require_shape('z_mag', z_mag, (steps,) + (3,), f'(steps, 3), steps = {steps} as z_gnss has')
     if z_airspeed.ndim == 1:  # one value per step
         z_airspeed = z_airspeed[:, np.newaxis]
-    _require_shape('z_airspeed', z_airspeed, (steps,) + (1,), f'(steps, 1), steps = {steps} as us has')
+    _require_shape('z_airspeed', z_airspeed, (steps,) + (1,), f'(steps, 1), steps = {steps} as z_gnss has')
+    _require_shape('us', us, (steps,) + (6,), f'(steps, 6), steps = {steps} as z_gnss has')
     _require_shape('x0', x0, (24,), '(24,)')
     if P0.shape[:1] == (576,):  # flat, row-major
         P0 = P0.reshape((24, 24) + P0.shape[1:])
@@ -3726,9 +3726,9 @@ def run(us, z_gnss, z_baro, z_mag, z_airspeed, x0, P0, p):
         _require_shape('p', p, (1,), '(1,) or (steps, 1)')
         p_rows = np.broadcast_to(p, (steps,) + p.shape)
     else:  # one row per step
-        _require_shape('p', p, (steps,) + (1,), f'(1,) or (steps, 1), steps = {steps} as us has')
+        _require_shape('p', p, (steps,) + (1,), f'(1,) or (steps, 1), steps = {steps} as z_gnss has')
         p_rows = p
-    tracks = (us.shape[2:], z_gnss.shape[2:], z_baro.shape[2:], z_mag.shape[2:], z_airspeed.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
+    tracks = (z_gnss.shape[2:], z_baro.shape[2:], z_mag.shape[2:], z_airspeed.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 24) + track)
     Ps = np.empty((steps, 576) + track)
