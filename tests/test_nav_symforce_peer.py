@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from derive.apps.bench import symforce_peer as sp
+from derive.apps.bench.run import Bar
 from derive.apps.ins import symforce_ekf
 from derive.generation import generate_units
 from derive.interface import read as read_interface
@@ -168,3 +169,30 @@ void Demo(const Eigen::Matrix<Scalar, 2, 1>& x, Eigen::Matrix<Scalar, 2, 1>* con
     half = 0.25
     assert parsed["out"][("m", "demo", "symforce")][1] == pytest.approx(
         [-(8.0 - half) + 2.5, 1.0 / np.sqrt(half * half + 1.0)], rel=1e-15)
+
+
+def test_bars_are_printed_with_both_figures_and_the_vector_count_decides_flops():
+    r = sp.FunctionResult("m", "predict", header=OpCount(mul=10, fma=45),   # 100 flops
+                          counted={"derive": OpCount(mul=10, fma=40),      # 90 (fallback)
+                                   "symforce": OpCount(add=50, mul=70)})   # 120
+    for name, _, _ in sp.BUILDS:
+        r.times[name] = (1e-7, 2e-7)
+    r.times["float -O2"] = (1.2e-7, 2e-7)
+    r.x86_bytes[sp.SIZE_BUILD] = (900, 1000)
+    r.m4f_bytes = {"-Os": (1100, 1000), "-O2": (1, 2)}
+    result = sp.PeerResult(functions=[r], derive_seconds={"ins_fc24": (2.5, 2.0)})
+    bars = {b.claim: b for b in result.bars(Bar)}
+    flops = bars["m predict: flops over SymForce's (one counter)"]
+    assert flops.value == pytest.approx(100 / 120) and flops.met
+    assert "scalar fallback, counted, 90" in flops.note
+    double = bars["m predict: time per call over SymForce's, double -O2"]
+    assert double.value == pytest.approx(0.5) and double.met and double.bar == 0.8
+    single = bars["m predict: time per call over SymForce's, float -O2"]
+    assert single.value == pytest.approx(0.6) and not single.met and single.bar == 0.5
+    assert bars["m predict: x86-64 code, double -O2 over SymForce's"].met
+    m4f = bars["m predict: Cortex-M4F .text, float -Os over SymForce's"]
+    assert not m4f.met and m4f.text().startswith(
+        "bar: m predict: Cortex-M4F .text, float -Os over SymForce's: 1.10x (<= 1x: NOT met)")
+    generation = bars["generating ins_fc24's EKF (C)"]
+    assert generation.met and generation.kind == "time"
+    assert any("no: counted 90, header 100" in line for line in result.lines())

@@ -51,7 +51,7 @@ from ..ins import c_loop, casadi_ekf, fc24, filterpy_ekf, flight, reference, sym
 from . import casadi_c, generated, symforce_peer
 from .cases import Skip
 from .throughput import Throughput, measure_throughput
-from .timing import Timing, human, measure, timing_cells
+from .timing import Timing, columns, human, measure, timing_cells
 
 MODEL = "ins_gnss"
 FUNCTIONS = ("predict", "update_gnss", "update_baro")
@@ -153,13 +153,13 @@ class NavigationResult:
                  "n/a" if r.symforce is None else str(r.symforce.flops),
                  "n/a" if r.symforce_total is None else str(r.symforce_total),
                  "" if r.ratio is None else f"{r.ratio:.2f}") for r in self.counts]
-        out += _columns(head, body) + [""]
+        out += columns(head, body) + [""]
         head = ("function", "implementation", "per call", "min-max", "ratio", "agrees", "note")
         body = []
         for r in self.times:
             body.append((r.function, r.implementation,
                          *timing_cells(r.timing, r.ratio, r.agreement), r.note))
-        out += _columns(head, body)
+        out += columns(head, body)
         out += [""] + self.decisive_lines()
         out += [f"note: {n}" for n in self.notes]
         if self.peer is not None:
@@ -215,13 +215,6 @@ class NavigationResult:
                 "floors": {f: self.floor_seconds(f) for f in TIMED},
                 "notes": self.notes,
                 "peer": None if self.peer is None else self.peer.as_json()}
-
-
-def _columns(head, body) -> list[str]:
-    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
-        [fmt.format(*r).rstrip() for r in body]
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from . import (
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
-from .timing import Timing, human, measure, timing_cells
+from .timing import Timing, columns, human, measure, timing_cells
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     # (name, prepare(case, data, workdir), loop in C: long runs)
@@ -378,10 +378,7 @@ def _bound_note(row: Row | None) -> str:
 
 
 def _columns(head, body) -> list[str]:
-    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
-        [fmt.format(*r).rstrip() for r in body]
+    return columns(head, body)
 
 
 def machine_info() -> dict:

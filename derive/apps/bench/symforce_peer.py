@@ -40,6 +40,7 @@ The bars (issue 25): flops ≤ 0.9x SymForce's; time ≤ 0.8x SymForce's in doub
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import shutil
@@ -50,10 +51,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ...build import cache_dir
 from ...generation import generate_units
 from ...trees import OpCount
 from ..targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
-from .timing import human
+from .timing import columns, human
 
 MODELS = ("ins_gnss", "ins_fc24")
 FLOPS_BAR = 0.9
@@ -347,7 +349,7 @@ class PeerResult:
             a = r.agreement.get(SIZE_BUILD)
             row.append("n/a" if a is None else f"{a[0]:.1e}, {a[1]:.1e}, {a[2]:.1e}")
             body.append(row)
-        out += _columns(head, body)
+        out += columns(head, body)
         floats = [f"{r.label} {name}: {a[0]:.1e}, {a[1]:.1e}, {a[2]:.1e}"
                   for r in self.functions for name, a in r.agreement.items()
                   if name != SIZE_BUILD]
@@ -399,13 +401,6 @@ class PeerResult:
                 "derive_seconds": self.derive_seconds, "notes": self.notes}
 
 
-def _columns(head, body) -> list[str]:
-    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
-        [fmt.format(*r).rstrip() for r in body]
-
-
 def compiler_version() -> str:
     try:
         first = subprocess.run(["gcc", "--version"], capture_output=True, text=True,
@@ -413,6 +408,35 @@ def compiler_version() -> str:
     except (OSError, IndexError, subprocess.SubprocessError):
         return "gcc"
     return first
+
+
+def _compile(command: list[str]) -> str:
+    """Run a compile command (``... -c SOURCE -o OBJECT``) through a cache of objects in
+    derive.build.cache_dir(): keyed by the command (paths by their names) and the bytes of
+    the source and of every header beside it and in its -I directories (``*.h``, and
+    files without a suffix: ``Eigen/Core``), so a second bench run compiles
+    only what changed (the bench times the code, not the compiler)."""
+    obj = Path(command[command.index("-o") + 1])
+    source = Path(command[command.index("-c") + 1])
+    folders = {source.parent, *(Path(command[i + 1]) for i, a in enumerate(command)
+                                if a == "-I")}
+    headers = sorted({p for f in folders for p in f.rglob("*")
+                      if p.is_file() and p.suffix in (".h", "")})
+    digest = hashlib.sha256()
+    for part in command:
+        digest.update((Path(part).name if "/" in part else part).encode() + b"\0")
+    for path in [source, *headers]:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    cached = cache_dir() / "bench-peer" / f"{digest.hexdigest()}.o"
+    if cached.is_file():
+        shutil.copyfile(cached, obj)
+        return ""
+    out = _run(command)
+    cached.parent.mkdir(mode=0o700, exist_ok=True)
+    partial = cached.with_suffix(f".{os.getpid()}.tmp")
+    shutil.copyfile(obj, partial)
+    os.replace(partial, cached)
+    return out
 
 
 def _run(command: list[str], cwd: Path | None = None, timeout: float = 900) -> str:
@@ -657,7 +681,7 @@ def _build(models: list[_Model], wrappers, folder: Path, precision: str, flags: 
                  "-I", str(folder), "-I", str(wrappers[0][2].parent), "-c", str(main), "-o",
                  str(main_obj)])
     with _pool() as pool:
-        list(pool.map(_run, jobs))
+        list(pool.map(_compile, jobs))
     program = folder / "bench"
     _run(["g++", *(("-O0",) if counting else flags), str(main_obj),
           *map(str, derive_objects.values()), *map(str, peer_objects.values()), "-lm", "-o",
@@ -686,7 +710,7 @@ def _m4f_sizes(models: list[_Model], wrappers, folder: Path) -> dict:
                          *CORTEX_M4_FLAGS, level, "-DREAL=float", "-I", str(wrapper.parent),
                          "-c", str(wrapper), "-o", str(obj)])
     with _pool() as pool:
-        list(pool.map(_run, jobs))
+        list(pool.map(_compile, jobs))
     out: dict = {}
     for level in SIZE_LEVELS:
         for m in models:
