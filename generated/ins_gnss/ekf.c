@@ -63,7 +63,7 @@
 #endif
 #endif
 #ifndef DERIVE_VECTOR
-#if (defined(__GNUC__) || defined(__clang__)) && (defined(__SSE2__) || defined(__aarch64__))
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
 #define DERIVE_VECTOR 1
 #else
 #define DERIVE_VECTOR 0
