@@ -14,7 +14,6 @@ from pathlib import Path
 
 from . import catalog
 from .emit.render import render_c, render_python
-from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError, ModelFileError
 from .filters import available, derive_unit, kind
@@ -23,6 +22,7 @@ from .filters.sensors import uses_sensor_run
 from .model import ModelRef
 from .modelfile import MAX_BLOCK_SIZE, load_model_file
 from .options import SharedOptions, per_filter, regenerate_command, validate
+from .runs.unit import Unit
 
 LANGS = ("python", "c", "all")
 

@@ -29,8 +29,9 @@ from dataclasses import dataclass
 
 import sympy
 
-from derive.lowering import Const, Op, Tree, Var, constant_value
+from derive.expression_lowering import constant_value
 from derive.statements import Temporary
+from derive.trees import Const, Op, Tree, Var
 
 #: Lanes of one vector chunk: a program's rows are the same in every precision; the C type
 #: that holds them per precision (four doubles: one AVX register, two NEON or SSE2
@@ -125,8 +126,8 @@ class RowChunk:
 
 @dataclass(frozen=True)
 class LoweredChunk:
-    """A :class:`RowChunk` with names and leaves (:class:`~derive.lowering.Var`,
-    :class:`~derive.lowering.Const`) instead of symbols: what the C printer prints as one
+    """A :class:`RowChunk` with names and leaves (:class:`~derive.trees.Var`,
+    :class:`~derive.trees.Const`) instead of symbols: what the C printer prints as one
     vector statement (:mod:`derive.emit.c_vector`)."""
 
     targets: tuple[str, ...]

@@ -18,9 +18,10 @@ from derive.emit.render import _lowered
 from derive.filters import available
 from derive.flops import count_lowered
 from derive.generation import command_unit
-from derive.lowering import lower_program, rename_tree
+from derive.lowering import lower_program
 from derive.program import Port, Program
 from derive.statements import Assign, Temporary
+from derive.trees import rename_tree
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 #: The time-varying filters derived block by block.

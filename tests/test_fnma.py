@@ -25,20 +25,16 @@ from derive.apps.verify import verify_modules
 from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS, build_c
 from derive.emit import c_printer
 from derive.emit.render import render_c
+from derive.expression_lowering import lower
 from derive.filters import derive_unit
-from derive.flops import (
-    count,
-    count_c_function,
-    count_c_text,
-    count_lowered,
-    count_tree,
-)
+from derive.flops import count, count_c_function, count_c_text, count_lowered
 from derive.generation import command_unit, generate
-from derive.lowering import Const, Op, Var, lower, lower_program, tree_kinds
+from derive.lowering import lower_program
 from derive.pipeline import load_generated
 from derive.precision import precision
 from derive.program import Port, Program
 from derive.schedule import REFERENCE_CYCLES, latency_schedule
+from derive.trees import Const, Op, Var, count_tree, tree_kinds
 
 ROOT = Path(__file__).resolve().parent.parent
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")

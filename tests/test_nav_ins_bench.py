@@ -19,7 +19,7 @@ from derive.apps.bench.navigation import (
 from derive.apps.bench.run import Bar
 from derive.apps.ins import constants as c
 from derive.apps.ins import reference, symforce_ekf
-from derive.flops import OpCount
+from derive.trees import OpCount
 
 
 def _point(seed=2):

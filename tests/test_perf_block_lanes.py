@@ -22,8 +22,9 @@ from derive.emit.render import _lowered
 from derive.errors import NumericalError
 from derive.flops import count_lowered
 from derive.generation import command_unit, render_filter
-from derive.lowering import Const, LoweredAssign, Op
+from derive.lowering import LoweredAssign
 from derive.pipeline import load_generated
+from derive.trees import Const, Op
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 

@@ -52,20 +52,11 @@ from dataclasses import dataclass, replace
 
 from derive.emit.c_printer import CPrinter
 from derive.emit.c_vector import SWITCH, VFMA, VFNMA, vector_macro_lines, vector_type
-from derive.emit.unit import LOOKAHEAD_NEXT
-from derive.lowering import (
-    FUSED_KINDS,
-    Const,
-    LoweredAssign,
-    LoweredCheck,
-    LoweredProgram,
-    Op,
-    Tree,
-    Var,
-    tree_kinds,
-)
+from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import LOOKAHEAD_NEXT
+from derive.trees import FUSED_KINDS, Const, Op, Tree, Var, tree_kinds
 
 #: The operations a vector statement spells (lane-wise IEEE: bitwise those of the scalar).
 VECTOR_KINDS = frozenset({"add", "sub", "mul", "div", "neg", "fma", "fnma"})

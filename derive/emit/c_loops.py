@@ -23,10 +23,11 @@ from dataclasses import replace
 
 from derive.emit import c_printer
 from derive.emit.c_vector import SWITCH
-from derive.emit.unit import LOOKAHEAD_NEXT, Unit
-from derive.lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from derive.lowering import LoweredAssign, LoweredProgram, lower_program
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import LOOKAHEAD_NEXT, Unit
+from derive.trees import Op, Tree, Var
 
 #: The step body's stride argument: element i of a port is at [i * STRIDE].
 STRIDE = "s"

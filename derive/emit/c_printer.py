@@ -24,9 +24,10 @@ from collections.abc import Callable
 
 from derive.emit.c_vector import CLOSE, ELSE, ChunkPrinter, vector_macro_lines
 from derive.emit.python_printer import InfixPrinter
-from derive.lowering import FUSED_KINDS, LoweredAssign, LoweredCheck, LoweredProgram, Tree
+from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.trees import FUSED_KINDS, Tree
 
 FMA_NAME = "DERIVE_FMA"
 #: Defined where the file's own DERIVE_FMA is the hardware fma (one rounding), and where it

@@ -32,9 +32,10 @@ statement once per lane).
 
 from __future__ import annotations
 
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Tree, Var, tree_vars
+from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.rows import VECTOR_LANES, VECTOR_TYPES, LoweredChunk
+from derive.trees import Const, Tree, Var, tree_vars
 
 #: The one switch of every vector form in C (chunks of vector rows, block lanes, the hint
 #: on track lanes' loop): 1 under GCC and Clang on a target with vector registers for the

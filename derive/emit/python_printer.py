@@ -14,7 +14,8 @@ from collections.abc import Callable
 import numpy as np
 
 from derive.errors import NumericalError, PatternError
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from derive.lowering import LoweredAssign, LoweredProgram, lower_program
+from derive.trees import Const, Op, Tree, Var
 
 #: Precedence: higher binds tighter.
 _PREC = {"add": 1, "sub": 1, "mul": 2, "div": 2, "neg": 3}

@@ -1,4 +1,4 @@
-"""Render a :class:`~derive.emit.unit.Unit` to Python or C99 source with Jinja2.
+"""Render a :class:`~derive.runs.unit.Unit` to Python or C99 source with Jinja2.
 
 The templates (``templates/python/*.jinja``, ``templates/c/*.jinja``, package
 ``derive.templates``) only lay out strings computed here: header lines,
@@ -30,11 +30,11 @@ from derive.emit.c_loops import (
 )
 from derive.emit.python_loop import single_track_loop
 from derive.emit.sensors_run import c_run_body, python_loop
-from derive.emit.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
 from derive.version import __version__
 
 

@@ -2,7 +2,7 @@
 
 Each family is one module, ``derive/filters/<family>.py``, holding ``SPECS`` (a tuple of
 :class:`~derive.filters.spec.FilterSpec`, one per filter it derives) beside its
-derivation ``derive_unit(model, spec, options) -> derive.emit.unit.Unit`` and its
+derivation ``derive_unit(model, spec, options) -> derive.runs.unit.Unit`` and its
 reference adapter; ``options`` are the filter's typed options (derive.options), validated
 before the derivation starts.  The registry finds the family modules by their ``SPECS``:
 adding a family adds a module here and nothing else.

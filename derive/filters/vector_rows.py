@@ -23,7 +23,7 @@ from __future__ import annotations
 import sympy
 
 from .. import staging
-from ..lowering import IfAtMost
+from ..expression_lowering import IfAtMost
 from ..program import Port, Program
 from ..row_program import RowBuilder
 from ..rows import VECTOR_LANES

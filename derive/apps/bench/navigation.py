@@ -44,9 +44,10 @@ import numpy as np
 from ... import catalog
 from ...build import STRICT_CFLAGS
 from ...filters.sensors import program_name
-from ...flops import OpCount, c_function_body
+from ...flops import c_function_body
 from ...generation import generate_units
 from ...interface import read as read_interface
+from ...trees import OpCount
 from ..ins import c_loop, casadi_ekf, filterpy_ekf, flight, reference, symforce_ekf
 from . import casadi_c, generated
 from .cases import Skip

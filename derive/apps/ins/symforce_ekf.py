@@ -25,7 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from derive.apps.ins import constants as c
-from derive.flops import OpCount, c_function_body, count_c_text
+from derive.flops import c_function_body, count_c_text
+from derive.trees import OpCount
 
 N = 16
 GNSS_ROWS = (7, 8, 9, 4, 5, 6)
