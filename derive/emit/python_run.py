@@ -123,7 +123,8 @@ class _Printer:
             elif isinstance(node, Store) and node.program:  # from the carried state
                 value = f"{node.array}_k"
                 args = ", ".join(p.name for p in self.lowered[node.program].inputs)
-                lines += [f"{indent}{value} = {node.program}({args})",
+                lines += [f"{indent}{value} = "
+                          f"{self.functions.get(node.program, node.program)}({args})",
                           f"{indent}for i in range({node.size}):",
                           f"{indent}    {self.names[node.array]}[k, i] = {value}[i]"]
             elif isinstance(node, Store):
