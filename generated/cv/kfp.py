@@ -9,8 +9,8 @@ family: kfp
 n: 2 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2*2], x_pred[2], P_pred[2*2])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2, 2], x_pred[2], P_pred[2, 2])
     run(zs[steps, 1], x0[2], P0[2, 2]) -> (xs[steps, 2], Ps[steps, 2, 2], x_preds[steps, 2], P_preds[steps, 2, 2])
 symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
@@ -79,6 +79,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one step of the predicting Kalman filter
 
@@ -88,10 +96,17 @@ def step(x, P, z):
         z [1]: z(k+1)
     Returns:
         x_new [2]: x(k+1/k+1)
-        P_new [2x2, symmetric]: P(k+1/k+1), row-major
+        P_new [(2, 2) array, symmetric, then any track axes]: P(k+1/k+1)
         x_pred [2]: x(k+1/k)
-        P_pred [2x2, symmetric]: P(k+1/k), row-major
+        P_pred [(2, 2) array, symmetric, then any track axes]: P(k+1/k)
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new, x_pred, P_pred = _step(x, P, z)
+    return x_new, _matrix(P_new, (2, 2)), x_pred, _matrix(P_pred, (2, 2))
+
+
+def _step(x, P, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 2:  # a 2-D (2, 2) P: flattened, row-major
         P = np.reshape(P, (4,) + np.shape(P)[2:])
@@ -157,7 +172,7 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P, x_pred, P_pred = step(x, P, zs[k])
+        x, P, x_pred, P_pred = _step(x, P, zs[k])
         for i in range(2):
             xs[k, i] = x[i]
         for i in range(4):

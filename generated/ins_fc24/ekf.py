@@ -3731,4 +3731,3 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
         for i in range(576):
             Ps[k, i] = P[i]
     return xs, Ps.reshape((steps, 24, 24) + track)
-
