@@ -75,10 +75,6 @@ class OpCounter:
         """The counts so far."""
         return OpCount(**self.tally)
 
-    def reset(self) -> None:
-        for key in self.tally:
-            self.tally[key] = 0
-
     def wrap(self, values) -> list[CountingFloat]:
         """CountingFloats for a flat sequence of numbers."""
         return [CountingFloat(float(v), self) for v in values]

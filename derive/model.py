@@ -656,10 +656,6 @@ class LinearModel(_Model):
             setattr(self, nm, mat)
 
     @property
-    def noise_dim(self) -> int:
-        return self.G.cols
-
-    @property
     def n_inputs(self) -> int:
         """n_u, the number of per-step inputs (0 without inputs)."""
         return len(self.inputs)

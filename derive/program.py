@@ -222,11 +222,6 @@ class Program:
         return {p.name: self._results[p.name] for p in self.outputs if p.name in self._results}
 
     @property
-    def is_optimized(self) -> bool:
-        """True for the result of :meth:`optimize` (which is final)."""
-        return self._optimized
-
-    @property
     def has_checks(self) -> bool:
         """True when the body holds runtime checks (C returns a status)."""
         return any(isinstance(s, Check) for s in self._body)

@@ -2,7 +2,7 @@
 it starts from init's x_init as the scalar run, takes the two-step pass, and is bitwise
 the scalar C99 run (-D DERIVE_VECTOR=0) under every build setting; both branches
 compile with the strict flags. The smoother and the UDKF keep the scalar run (reasons in
-block_lanes.RUN_KINDS and docs/performance.md)."""
+block_lanes.LANE_KINDS and docs/performance.md)."""
 
 from __future__ import annotations
 

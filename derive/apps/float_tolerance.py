@@ -363,17 +363,13 @@ def step_terms(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]
                  for entry in conditioning)
 
 
-def step_condition(conditioning: Sequence[Conditioned], step: Mapping[str, Sequence]) -> float:
-    """kappa of one step: the product of its entries' conditioning (each multiplies the
-    relative error the previous ones leave: a solve's error relative to P(k/k-1) is
-    amplified by the update's cancellation relative to P(k/k))."""
-    return float(np.prod([value for _, value in step_terms(conditioning, step)]))
-
-
 def worst_step(conditioning: Sequence[Conditioned], steps: Sequence[Mapping[str, Sequence]]
                ) -> tuple[float, tuple[tuple[str, float], ...]]:
-    """(kappa, its terms): the largest :func:`step_condition` over ``steps`` and the terms
-    of that step; (1, ()) for a filter that declares nothing."""
+    """(kappa, its terms): the largest kappa of a step over ``steps`` and the terms of that
+    step; (1, ()) for a filter that declares nothing. A step's kappa is the product of its
+    entries' conditioning (each multiplies the relative error the previous ones leave: a
+    solve's error relative to P(k/k-1) is amplified by the update's cancellation relative
+    to P(k/k))."""
     if not conditioning:
         return 1.0, ()
     kappa, terms = 1.0, step_terms(conditioning, steps[0]) if steps else ()
@@ -568,5 +564,5 @@ __all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceR
            "error_growth",
            "float_tolerance", "growth_of", "in_double", "lainiotis_matrices", "rounding_depth",
            "run_growth", "run_roundings", "run_steps", "scaled_condition",
-           "sensors_conditioning", "spread_cancellation", "step_condition", "step_programs",
+           "sensors_conditioning", "spread_cancellation", "step_programs",
            "step_terms", "term_name", "worst_step"]

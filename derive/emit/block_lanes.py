@@ -26,7 +26,7 @@ in the file's one vector dialect (derive.emit.c_vector: its switch, its vector t
 step that has vector rows of its own (derive.rows) is not also carried in lanes.
 Counts are unchanged: the header counts the scalar operations of every block.
 
-The runs it serves (:data:`RUN_KINDS`): the time-varying filters, the steady-state ones
+The runs it serves (:data:`LANE_KINDS`): the time-varying filters, the steady-state ones
 and the predictor (whose run starts from init's ``x_init``); with the two-step pass where
 the scalar run takes it. Not served, and why:
 
@@ -72,7 +72,7 @@ _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
 #: The run kinds whose C run may carry identical blocks in lanes: one carried state
 #: from step to step, one row of z a step (two a pass with the two-step map); the others
 #: and why: the module docstring.
-RUN_KINDS = ("timevarying", "steady", "predictor")
+LANE_KINDS = ("timevarying", "steady", "predictor")
 
 
 def vector_width(lanes: int) -> int:
@@ -637,7 +637,7 @@ def vector_run(unit, step: LoweredProgram, two: LoweredProgram | None, state: li
     or nothing (``[], [], ""``) for a run loop the scalar C99 run alone serves: a run kind
     other than ``timevarying``, ``steady`` and ``predictor`` (its prologue calls init and
     ``state`` starts from init's result), or a step that is not identical blocks."""
-    if unit.kind not in RUN_KINDS or unit.run.window or step.rows:
+    if unit.kind not in LANE_KINDS or unit.run.window or step.rows:
         return [], [], ""
     step_lanes = split(step)
     two_lanes = split(two) if two is not None else None

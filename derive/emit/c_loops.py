@@ -101,7 +101,7 @@ def lanes(registers: int, element_bytes: int = 8) -> dict[str | None, int]:
     return {macro: registers * size // element_bytes for macro, size in REGISTER_BYTES}
 
 
-def macro_lines(registers: int, element_bytes: int = 8) -> list[str]:
+def tracks_macro_lines(registers: int, element_bytes: int = 8) -> list[str]:
     """The .c file's definitions of :data:`LANES`, the prefetch macros and :data:`SIMD`
     (each unless defined)."""
     lane_lines = []
@@ -219,7 +219,7 @@ def body_function(body: LoweredProgram, name: str, real: Precision = DOUBLE) -> 
 #: statements 26.9 s and 482 MB, 13.5 s and 359 MB, 16.3 s and 382 MB).
 PART_STATEMENTS = 200
 #: The local array of a parted body that carries temporaries from part to part.
-CARRIED = "w"
+PART_CARRY = "w"
 
 
 def _temporaries(tree: Tree, found: set[str]) -> set[str]:
@@ -263,24 +263,24 @@ def parted_functions(body: LoweredProgram, name: str, real: Precision = DOUBLE) 
         last = k == len(chunks) - 1
         part = replace(body, body=tuple(chunk), results=body.results if last else ())
         here = used_in[k]
-        part = part.renamed({}, lambda t, here=here: f"{CARRIED}[{slot[t]}]" if t in here
+        part = part.renamed({}, lambda t, here=here: f"{PART_CARRY}[{slot[t]}]" if t in here
                             else t)
         lines = [f"(void){p};" for p in c_printer.argument_order(body)
                  if p not in part.used_inputs()
                  and not (last and p in {o.name for o in body.outputs})]
         lines += c_printer.statements(part, real, None, STATUS if status else None)
-        lines += [f"{CARRIED}[{slot[s.target]}] = {s.target};" for s in chunk
+        lines += [f"{PART_CARRY}[{slot[s.target]}] = {s.target};" for s in chunk
                   if isinstance(s, LoweredAssign) and s.target in slot]
         part_name = f"{name}_part{k}"
         signature = (f"static {'int' if status else 'void'} {part_name}("
-                     f"{', '.join(params + [f'{real.c_type} *restrict {CARRIED}'])}"
+                     f"{', '.join(params + [f'{real.c_type} *restrict {PART_CARRY}'])}"
                      + (f", int {STATUS})" if status else ")"))
         if status:
             lines.append(f"return {STATUS};")
         functions.append({"signature": signature, "body": lines})
-        call = f"{part_name}({args}, {CARRIED}" + (f", {STATUS})" if status else ")")
+        call = f"{part_name}({args}, {PART_CARRY}" + (f", {STATUS})" if status else ")")
         calls.append(f"{STATUS} = {call};" if status else f"{call};")
-    head = [f"{real.c_type} {CARRIED}[{max(1, len(crossing))}];"]
+    head = [f"{real.c_type} {PART_CARRY}[{max(1, len(crossing))}];"]
     if status:
         head.append(f"int {STATUS} = 0;")
     body_lines = head + calls + ([f"return {STATUS};"] if status else [])
@@ -446,7 +446,7 @@ def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
     news = {s["out"]: _block(s["out"]) for s in state}
     parts = {
         "lanes": lanes, "simd": SIMD, "arrays": arrays, "load": load,
-        "macros": macro_lines(interleave(per_lane, real.bits // 8), real.bits // 8),
+        "macros": tracks_macro_lines(interleave(per_lane, real.bits // 8), real.bits // 8),
         "pairs": pairs, "streamed": streamed, "track_step": track_step,
         "ahead_bytes": AHEAD_BYTES, "line": LINE, "next_row": "k + 1",
         "status": status,
