@@ -55,6 +55,7 @@ def _units():
                           programs={"step": step}, parameters=("dt", "q", "r")))
     units.append(steady_unit("sslf"))
     units.append(derive_unit(catalog.load("cv"), "rts"))  # the smoother's run kind
+    units.append(derive_unit(catalog.load("cv"), "kfp"))  # filtered and predicted
     units.append(derive_unit(catalog.load("mpt3d_b"), "udkf", {"missing": True}))
     two_sensors = LinearModel(  # the sensors run kind: inputs, two sensors, a gate
         "cart", ["p", "v"], F=[[1, "dt"], [0, 1]], Q=[[1, 0], [0, 1]], inputs=["a", "o"],
