@@ -66,6 +66,7 @@ from derive.trees import Const, Op, Tree, Var, depth
 FUNCTIONS = {
     sympy.sin: "sin", sympy.cos: "cos", sympy.tan: "tan", sympy.exp: "exp", sympy.log: "log",
     sympy.atan: "atan", sympy.atan2: "atan2", sympy.Abs: "fabs",
+    sympy.ceiling: "ceil",  # an angle wrapped to (-pi, pi] (derive.manifolds.wrap)
 }
 
 

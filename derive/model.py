@@ -26,6 +26,7 @@ from .domains import check_value
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
 from .forms import ROW_FORMS, UPDATE_FORMS
+from .manifolds import QUATERNION, TangentLayout, parse_manifolds
 from .symbols import (
     SymbolTable,
     as_matrix,
@@ -346,6 +347,17 @@ class _Model:
     def n(self) -> int:
         return len(self.states)
 
+    #: The tangent coordinates' names (a model without manifold states: its states).
+    @property
+    def tangent(self) -> tuple[str, ...]:
+        layout = getattr(self, "layout", None)
+        return self.states if layout is None else layout.tangent
+
+    @property
+    def n_tangent(self) -> int:
+        """The covariance's dimension: n, or fewer with quaternion states."""
+        return len(self.tangent)
+
     @property
     def m(self) -> int:
         return len(self.measurements)
@@ -374,14 +386,15 @@ class _Model:
         return {self._by_name[k]: v for k, v in given.items()}
 
     def _initial(self, x0, P0, P0_pattern) -> None:
-        n = self.n
+        n, nt = self.n, self.n_tangent
         table = SymbolTable()
         self.x0 = (sympy.ImmutableMatrix.zeros(n, 1) if x0 is None
                    else as_matrix(x0, "x0", table, vector=True))
         check_shape(self.x0, "x0", (n, 1), "one entry per state")
-        self.P0 = (sympy.ImmutableMatrix.zeros(n, n) if P0 is None
+        self.P0 = (sympy.ImmutableMatrix.zeros(nt, nt) if P0 is None
                    else as_matrix(P0, "P0", table))
-        check_shape(self.P0, "P0", (n, n), "states x states")
+        check_shape(self.P0, "P0", (nt, nt), "states x states" if nt == n else
+                    "tangent x tangent coordinates " + ", ".join(self.tangent))
         for mat, nm in ((self.x0, "x0"), (self.P0, "P0")):
             if mat.free_symbols:
                 raise SymbolError(f"{nm} must be numeric, has symbols "
@@ -399,11 +412,12 @@ class _Model:
         """Refuse a P0 with a nonzero entry outside its declared pattern."""
         if self.P0_pattern == "dense" or not any(self.P0):
             return
+        nt = self.n_tangent
         if self.P0_pattern != "block" or any(
-                self.P0[i, j] != 0 for i in range(self.n) for j in range(self.n) if i != j):
+                self.P0[i, j] != 0 for i in range(nt) for j in range(nt) if i != j):
             mask = self.pattern_mask()
-            for i in range(self.n):
-                for j in range(self.n):
+            for i in range(nt):
+                for j in range(nt):
                     if self.P0[i, j] != 0 and not mask[i][j]:
                         raise MatrixPropertyError(
                             f"P0[{i}][{j}] = {decimal(self.P0[i, j])} is outside the declared "
@@ -411,7 +425,7 @@ class _Model:
 
     def pattern_mask(self, name: str | None = None) -> tuple[tuple[bool, ...], ...]:
         """The entries a P0 pattern (``name``, default the model's) allows, as booleans."""
-        n = self.n
+        n = self.n_tangent
         name = name or self.P0_pattern
         if name == "dense":
             return tuple(tuple(True for _ in range(n)) for _ in range(n))
@@ -792,7 +806,8 @@ class NonlinearModel(_Model):
                  parameters: Names | None = None, Qu: Matrix | None = None,
                  sensors: Sequence[Sensor] | None = None,
                  unit_norm: Sequence[Sequence[str]] | None = None,
-                 examples: Values | None = None, rows: str = "scalar") -> None:
+                 examples: Values | None = None, rows: str = "scalar",
+                 manifolds: Sequence[Mapping] | None = None) -> None:
         sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
                                                            "h": h, "R": R})
                        if sensors is not None else ())
@@ -802,7 +817,11 @@ class NonlinearModel(_Model):
             if value is None and not (sensor_list and key in ("h", "R")):
                 raise ModelError(f"NonlinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
-        n, m = self.n, self.m
+        #: the manifold components (derive.manifolds) and where their tangent coordinates
+        #: are; P, Q and P0 are n_tangent x n_tangent
+        self.manifolds = parse_manifolds(manifolds, self.states)
+        self.layout = TangentLayout.of(self.states, self.manifolds) if self.manifolds else None
+        n, m, nt = self.n, self.m, self.n_tangent
         input_names = check_names(inputs, "inputs") if inputs else ()
         reserved = set(self.states) | set(input_names)
         if len(reserved) != n + len(input_names):
@@ -816,7 +835,8 @@ class NonlinearModel(_Model):
         self.h = as_matrix(h, "h", table, vector=True)
         check_shape(self.h, "h", (m, 1), "one expression per measurement")
         self.Q = as_matrix(Q, "Q", table)
-        check_shape(self.Q, "Q", (n, n), "states x states")
+        check_shape(self.Q, "Q", (nt, nt), "states x states" if nt == n else
+                    "tangent x tangent coordinates " + ", ".join(self.tangent))
         self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
         n_u = len(input_names)
@@ -857,10 +877,29 @@ class NonlinearModel(_Model):
         self._initial(x0, P0, P0_pattern)
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
+        self._check_manifold_states()
         if rows not in ROW_FORMS:
             raise ModelError(f"NonlinearModel {name!r}: rows must be one of "
                              f"{', '.join(ROW_FORMS)}, got {rows!r}")
         self.rows = rows
+
+    def _check_manifold_states(self) -> None:
+        """A quaternion's states are in no unit-norm group (its injection keeps the norm)
+        and start at unit norm in x0."""
+        grouped = {s for group in self.unit_norm for s in group}
+        for m in self.manifolds:
+            both = [s for s in m.states if s in grouped]
+            if both:
+                raise SymbolError(f"state {both[0]!r} is in a manifold component ({m.kind}) "
+                                  "and in unit_norm: a quaternion keeps its norm by its "
+                                  "injection; leave it out of unit_norm")
+            if m.kind != QUATERNION:
+                continue
+            q = [float(self.x0[self.states.index(s), 0]) for s in m.states]
+            norm = float(np.sqrt(sum(v * v for v in q)))
+            if abs(norm - 1.0) > 1e-12:
+                raise MatrixPropertyError(f"x0 of quaternion ({', '.join(m.states)}) must have "
+                                          f"unit norm, got {norm!r}")
 
     # The Jacobians are derived when first asked for (the EKF derives its own, simplified
     # and shared with f and h; these serve the references, the UKF and derive show).

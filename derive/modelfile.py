@@ -139,7 +139,7 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "parameters": (),
     "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
-    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows"),
+    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows", "manifolds"),
     "compose": ("blocks",),
     "initial": ("x0", "P0", "P0_pattern"),
     "sensors": (),
@@ -689,6 +689,8 @@ class _File:
             **({"unit_norm": self.unit_norm(body["unit_norm"], states)}
                if "unit_norm" in body else {}),
             **({"rows": self.row_form(body)} if "rows" in body else {}),
+            # checked by derive.manifolds.parse_manifolds, which names the component
+            **({"manifolds": body["manifolds"]} if "manifolds" in body else {}),
         }
 
     def row_form(self, body: dict[str, Any]) -> str:
@@ -750,7 +752,8 @@ class _File:
         errors, parameters used only in [initial] are substituted there and not passed."""
         used: set[str] = set(self.sensor_used)
         for key, value in arguments.items():
-            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows") \
+            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows",
+                       "manifolds") \
                     or value is None:
                 continue
             for item in _flatten(value):

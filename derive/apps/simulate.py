@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from derive.errors import ModelError, ShapeError
+from derive.manifolds import boxplus_numeric
 from derive.system_checks import psd_sqrt, system_arrays
 
 # WGS-84 ellipsoid
@@ -284,12 +285,16 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
     value (``params``: values of the free parameters, name -> number)."""
     steps = _steps(steps)
     rng = np.random.default_rng(seed)
-    n, n_u = model.n, len(model.inputs)
+    n, nt, n_u = model.n, model.n_tangent, len(model.inputs)
     x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
     P0 = np.asarray(model.P0.tolist(), dtype=float)
     us = rng.uniform(-1.0, 1.0, (steps, n_u))
     truth = np.empty((steps + 1, n))
-    truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
+    layout = getattr(model, "layout", None)
+
+    def moved(x, w):  # manifold states: x ⊞ w, w in the tangent space (derive.manifolds)
+        return x + w if layout is None else boxplus_numeric(layout, x, w)
+    truth[0] = moved(x0, rng.multivariate_normal(np.zeros(nt), P0, method="eigh"))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # refused below, by step
         if model.kind == "linear":
             num = model.numeric(params)
@@ -302,13 +307,13 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
             R = num.R
         else:
             fns = model.numeric_functions(params)
-            w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
+            w = rng.multivariate_normal(np.zeros(nt), fns["Q"], size=steps, method="eigh")
             noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
                                                   method="eigh") if n_u else 0.0)
             for k in range(steps):
                 step_u = noisy[k, [model.inputs.index(u) for u in model.f_inputs]]
-                truth[k + 1] = (fns["f"](truth[k], step_u) if model.f_inputs
-                                else fns["f"](truth[k])) + w[k]
+                truth[k + 1] = moved(fns["f"](truth[k], step_u) if model.f_inputs
+                                     else fns["f"](truth[k]), w[k])
             h, R = fns["h"], fns["R"]
         v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
         stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v

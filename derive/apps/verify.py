@@ -306,7 +306,7 @@ def generated_run(module, name: str, zs, model, lang: str,
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
         xs, Ps = module.run(*given(*args, scenario.x0, scenario.P0))
         return (np.asarray(xs, dtype=float),
-                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n, model.n))
+                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n_tangent, model.n_tangent))
     num = model.numeric()
     # run's arguments after the measurements (and inputs): what its run kind starts from
     start = {"x0": num.x0, "P0": num.P0}
@@ -317,7 +317,7 @@ def generated_run(module, name: str, zs, model, lang: str,
         return np.asarray(out, dtype=float), None
     xs, Ps = out
     return (np.asarray(xs, dtype=float),
-            np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n, model.n))
+            np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n_tangent, model.n_tangent))
 
 
 class InputRun(NamedTuple):
@@ -393,7 +393,8 @@ def sensors_case(model, name: str, steps: int, seed: int, options, unit: Unit | 
     ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
           if model.parameters else None)
     trace: list = []
-    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
+    reference_of = kind(name).sensors_reference or sensors_reference
+    ref = reference_of(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
                             trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     bound = None
@@ -419,7 +420,7 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
         dtype = getattr(module, "dtype", np.float64)
         result = module.run(*[np.asarray(a, dtype=dtype) for a in case.arguments().values()])
         xs = np.asarray(result[0], dtype=float)
-        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
+        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n_tangent, model.n_tangent)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
         if lang == "c" and case.bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, case.bound.value,

@@ -24,7 +24,7 @@ _ATOM = 4
 
 #: lowering call name -> Python spelling (NumPy ufuncs call methods of objects).
 PY_CALLS = {"sin": "np.sin", "cos": "np.cos", "tan": "np.tan", "exp": "np.exp", "log": "np.log",
-            "atan": "np.arctan", "atan2": "np.arctan2", "fabs": "abs"}
+            "atan": "np.arctan", "atan2": "np.arctan2", "fabs": "abs", "ceil": "np.ceil"}
 
 HELPERS = {
     "sqrt": ['def _sqrt(v):',

@@ -229,10 +229,11 @@ def sensor_measurement(model, group, gate: float | None = None,
 
 
 def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list[Port]]:
-    """``update_<sensor>(x, P, z[, u][, p]) -> (x_new, P_new[, nis, applied])``."""
-    n = model.n
+    """``update_<sensor>(x, P, z[, u][, p]) -> (x_new, P_new[, nis, applied])``; P is
+    n_tangent x n_tangent (n, or fewer with quaternion states)."""
+    n, nt = model.n, model.n_tangent
     inputs = [Port("x", (n,), doc="x before the update (x(k/k-1))"),
-              Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric"),
+              Port("P", (nt, nt), symmetric=True, doc="its covariance, row-major, symmetric"),
               Port("z", (len(meas.names),), doc=", ".join(meas.names))]
     if meas.R_port:
         inputs.append(Port("R", (len(meas.names),) * 2, symmetric=True,
@@ -241,7 +242,7 @@ def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list
         inputs.append(Port("u", (len(meas.inputs),),
                            doc="its inputs " + ", ".join(s.name for s in meas.inputs)))
     outputs = [Port("x_new", (n,), doc="x after the update"),
-               Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
+               Port("P_new", (nt, nt), symmetric=True, doc="its covariance, row-major")]
     if meas.gate is not None:
         outputs += [Port("nis", (1,), doc="normalised innovation squared nu' S^-1 nu"),
                     Port("applied", (1,), doc="1 when the update was applied (nis within "
@@ -252,12 +253,12 @@ def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list
 def _ports(model, name: str, meas: Measurement | None) -> tuple[list[Port], list[Port]]:
     if name.startswith("update_"):
         return _sensor_ports(model, name, meas)
-    n = model.n
+    n, nt = model.n, model.n_tangent
     inputs = [Port("x", (n,), doc="x(k-1/k-1)" if name != "update1" else "x before the update"),
-              Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric")]
+              Port("P", (nt, nt), symmetric=True, doc="its covariance, row-major, symmetric")]
     outputs = [Port("x_new", (n,), doc="x(k/k)" if name == "step" else
                     "x(k/k-1)" if name == "predict" else "x after this measurement"),
-               Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
+               Port("P_new", (nt, nt), symmetric=True, doc="its covariance, row-major")]
     if meas is not None and name == "update1":
         inputs.append(Port("z", (1,),
                            doc=f"one measurement, any of {', '.join(model.measurements)}"))
