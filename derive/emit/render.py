@@ -41,6 +41,7 @@ from derive.runs.unit import (
     Unit,
     run_arguments,
 )
+from derive.runs.unit import sizes as run_sizes
 from derive.runs.unit import space as array_space
 from derive.version import __version__
 
@@ -461,7 +462,7 @@ def render_python(unit: Unit) -> dict[str, str]:
 def _flat_start(unit: Unit) -> list[str]:
     """run's start arguments as enter takes them: a matrix (shaped (rows, cols) + track
     by run's prologue) flattened row-major, so that a 1 x 1 P0 is not read as a track."""
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
     return [name if len(dims) < 2 else
             f"{name}.reshape(({int(np.prod([sizes[d] for d in dims]))},) + "
             f"{name}.shape[{len(dims)}:])"
@@ -505,7 +506,7 @@ def _c_call(function: str, args: str, status: bool) -> list[str]:
 def stored_outputs(unit: Unit) -> list[dict]:
     """run's per-step outputs: array name, the step's output port it stores, elements per
     step, optional (C: may be NULL)."""
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
     return [{"array": array, "out": out, "optional": optional,
              "size": int(np.prod([sizes[d] for d in dims]))}
             for array, out, dims, optional in unit.run.stores]
@@ -613,7 +614,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                          f" + k * {P_STRIDE};")
     batch = unit.batch
     run_args = {a.c_name: a for a in args}
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
 
     def track_array(name: str) -> str:
         """Track t's part of a run_tracks argument (optional ones may be NULL)."""

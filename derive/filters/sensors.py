@@ -28,7 +28,7 @@ import re
 import numpy as np
 import sympy
 
-from .. import staging
+from .. import manifolds, staging
 from ..domains import parameter_domains
 from ..errors import OptionError
 from ..expression_lowering import IfAtMost
@@ -300,13 +300,24 @@ def numeric_matrix(model, matrix, arguments):
 
 def transition_function(model):
     """``F(x, u, p)``: the model's transition matrix (linear: F(p)) or the Jacobian of f
-    with respect to x (nonlinear) at numbers, (n, n), u all of the model's inputs."""
+    with respect to x (nonlinear) at numbers, (n, n), u all of the model's inputs; for a
+    model with manifold states the error map over the tangent space, M(f(x, u)) ∂f/∂x
+    N(x) (n_tangent x n_tangent, derive.manifolds)."""
     params = list(model.parameters)
     if model.kind == "linear":
         F = numeric_matrix(model, model.F, [params])
         return lambda x, u, p: F(p)
-    return numeric_matrix(model, model.F_jacobian,
-                    [list(model.state_symbols), list(model.inputs), params])
+    X, U = list(model.state_symbols), list(model.inputs)
+    J = numeric_matrix(model, model.F_jacobian, [X, U, params])
+    layout = getattr(model, "layout", None)
+    if layout is None:
+        return J
+    f = numeric_matrix(model, model.f, [X, U, params])
+
+    def tangent(x, u, p):
+        return (manifolds.lift_numeric(layout, f(x, u, p).ravel()) @ J(x, u, p)
+                @ manifolds.retraction_numeric(layout, x))
+    return tangent
 
 
 def reference_functions(model, thresholds):
