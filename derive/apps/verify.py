@@ -305,8 +305,9 @@ def generated_run(module, name: str, zs, model, lang: str,
     if spec.model_kind == "nonlinear":
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
         xs, Ps = module.run(*given(*args, scenario.x0, scenario.P0))
+        nt = model.n_tangent
         return (np.asarray(xs, dtype=float),
-                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n_tangent, model.n_tangent))
+                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), nt, nt))
     num = model.numeric()
     # run's arguments after the measurements (and inputs): what its run kind starts from
     start = {"x0": num.x0, "P0": num.P0}

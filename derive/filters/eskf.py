@@ -88,27 +88,22 @@ def _quaternion_symbols(model) -> list[tuple[sympy.Symbol, ...]]:
 
 def _reduced(expr: sympy.Expr, quaternions) -> sympy.Expr:
     """``expr`` reduced modulo the unit-norm relation of each quaternion it is polynomial
-    in (numerator and denominator apart), when that has fewer operations."""
-    if expr.is_number:
-        return expr
-    best, best_ops = expr, sympy.count_ops(expr)
+    in (the remainder of its division by q0² + q1² + q2² + q3² - 1), when that has fewer
+    operations; an entry not polynomial in a quaternion is kept as it is."""
     candidate = expr
     for q in quaternions:
         if not set(q) & candidate.free_symbols:
             continue
-        relation = sum(s ** 2 for s in q) - 1
-        num, den = sympy.fraction(sympy.together(candidate))
-        parts = []
-        for part in (num, den):
-            if not part.free_symbols & set(q):
-                parts.append(part)
-                continue
-            if not part.is_polynomial(*q):
-                return best
-            parts.append(sympy.reduced(sympy.expand(part), [relation], *q)[1])
-        candidate = sympy.factor_terms(parts[0]) / sympy.factor_terms(parts[1])
-    ops = sympy.count_ops(candidate)
-    return candidate if ops < best_ops else best
+        if not candidate.is_polynomial(*q):
+            return expr
+        # over every symbol as a generator (rational coefficients: fast), q0 first, so
+        # the remainder replaces q0² by 1 - q1² - q2² - q3²
+        gens = list(q) + sorted(candidate.free_symbols - set(q), key=sympy.default_sort_key)
+        relation = sympy.Poly(sum(s ** 2 for s in q) - 1, *gens)
+        candidate = sympy.Poly(candidate, *gens).rem(relation).as_expr()
+    if candidate is expr:
+        return expr
+    return candidate if sympy.count_ops(candidate) < sympy.count_ops(expr) else expr
 
 
 # -- the error-state Jacobians ---------------------------------------------------------------
@@ -127,11 +122,10 @@ def error_dynamics(model) -> Linearisation:
     Fx = A * J[:, :len(X)] * N
     Fu = A * J[:, len(X):]
     whole = Fx.row_join(Fu)
-    norms = {}
-    for t, (norm2, _) in scale.items():
-        norms[t] = _reduced(sympy.expand(norm2), quaternions)
-    jac = sympy.Matrix(whole.rows, whole.cols, lambda i, j: _reduced(
-        whole[i, j] / norms[i] if i in norms else whole[i, j], quaternions))
+    # a quaternion's rows of M carry 2/|y|²: numerators and |y|² reduced apart
+    norms = {t: _reduced(norm2, quaternions) for t, (norm2, _) in scale.items()}
+    jac = sympy.Matrix(whole.rows, whole.cols, lambda i, j: _reduced(whole[i, j], quaternions)
+                       / norms.get(i, 1))
     return _shared(f, jac)
 
 
@@ -171,8 +165,9 @@ def reset_jacobian(layout: mf.TangentLayout, delta: list[sympy.Expr]) -> sympy.M
                    [sum(mf.right(star)[r][c] * pe[c] for c in range(4)) for r in range(4)])
         norm = sympy.sqrt(sum(v ** 2 for v in p)) * sympy.sqrt(sum(v ** 2 for v in pe))
         error = [2 * product[r] / norm for r in (1, 2, 3)]
-        block = sympy.Matrix(3, 3, lambda r, c: sympy.simplify(
-            sympy.diff(error[r], e[c]).subs({ei: 0 for ei in e})))
+        at_zero = {ei: 0 for ei in e}
+        block = sympy.Matrix(3, 3, [sympy.simplify(sympy.diff(error[r], e[c]).subs(at_zero))
+                                    for r in range(3) for c in range(3)])
         block = block.xreplace({di: delta[t] for di, t in zip(d, tangent)})
         for r, tr in enumerate(tangent):
             for c, tc in enumerate(tangent):

@@ -58,7 +58,8 @@ def uses_sensor_run(model, options) -> bool:
     R is given per call or updated sequentially, manifold states (the error-state EKF's
     unit is always of this kind), or gating, update-first or sequential updates asked
     for."""
-    return (len(model.sensors) >= 2 or bool(getattr(model, "manifolds", ())) or any(g.R_argument for g in model.sensors)
+    return (len(model.sensors) >= 2 or bool(getattr(model, "manifolds", ()))
+            or any(g.R_argument for g in model.sensors)
             or options.get("update") == "sequential"
             or any(g.update == "sequential" for g in model.sensors)
             or options.get("gate") is not None
