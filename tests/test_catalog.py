@@ -22,6 +22,7 @@ TABLE = {
     "ca": (LinearModel, 3, 1),
     "gps_static": (LinearModel, 3, 3),
     "gnss_pseudorange": (NonlinearModel, 4, 4),
+    "ins_eskf": (NonlinearModel, 16, 7),
     "ins_gnss": (NonlinearModel, 16, 7),
 }
 
