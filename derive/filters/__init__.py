@@ -74,7 +74,9 @@ def _sensors_refusal(model, spec: FilterSpec) -> str | None:
     unit-norm groups."""
     if spec.sensors:
         return None
-    takers = ", ".join(name for name, s in FILTERS.items() if s.sensors)
+    manifolds = bool(getattr(model, "manifolds", ()))  # the takers that take this model
+    takers = ", ".join(name for name, s in FILTERS.items()
+                       if s.sensors and s.manifolds == manifolds)
     if any(g.R_argument for g in getattr(model, "sensors", ())):
         return (f"filter {spec.name!r} takes no R given per call; model {model.name!r} "
                 f"declares sensor R = 'argument' (the filters that do: {takers})")
