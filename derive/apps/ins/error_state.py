@@ -32,8 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from derive.apps.ins import compare
 from derive.apps.ins import constants as c
+from derive.apps.ins import flight as flight_module
 from derive.apps.ins.quaternion import conjugate, multiply, rotation_matrix
+from derive.apps.ins.run import generated_run as total_state_run
 
 N_ERRORS = 15
 DTH, DV, DP, DBG, DBA = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15))
@@ -182,5 +185,40 @@ def inside_steps(errors: np.ndarray, sigmas: np.ndarray) -> dict[str, np.ndarray
             for name, rows in QUANTITIES}
 
 
-__all__ = ["N_ERRORS", "QUANTITIES", "Run", "body_attitude_error", "error_state",
-           "generated_run", "inject", "inside_steps", "p0", "predict", "run", "update"]
+INSIDE_BAR = 0.99
+"""Fraction of steps, pooled over the seeds, at which each quantity's error must be inside
+the filter's own 3σ on all three axes."""
+
+
+def total_state_inside(flight, xs: np.ndarray, Ps: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`inside_steps` of the total-state EKF (ins_gnss: its NED attitude error and
+    the attitude σ from its quaternion block, derive.apps.ins.compare)."""
+    err = compare.errors(flight, xs, Ps)
+    pairs = {"attitude": (err.attitude, err.attitude_sigma),
+             "velocity": (err.velocity, err.velocity_sigma),
+             "position": (err.position, err.position_sigma)}
+    return {name: np.all(np.abs(e) <= 3.0 * s, axis=1) for name, (e, s) in pairs.items()}
+
+
+def pooled_inside(eskf, ekf, seeds, duration: float = c.DURATION
+                  ) -> dict[str, dict[str, float]]:
+    """``{"eskf": {quantity: fraction}, "ekf": {...}}``: the fraction of steps inside 3σ
+    (:func:`inside_steps`) pooled over the flights of ``seeds`` (``duration`` s each), for
+    the generated error-state EKF (ins_eskf) and the generated total-state EKF (ins_gnss)
+    on the same flights."""
+    pooled: dict[str, dict[str, list]] = {"eskf": {}, "ekf": {}}
+    for seed in seeds:
+        fl = flight_module.simulate(seed, duration)
+        xs, Ps = generated_run(eskf, fl)
+        for name, rows in inside_steps(error_state(fl, xs),
+                                       np.sqrt(np.diagonal(Ps, axis1=1, axis2=2))).items():
+            pooled["eskf"].setdefault(name, []).append(rows)
+        for name, rows in total_state_inside(fl, *total_state_run(ekf, fl)).items():
+            pooled["ekf"].setdefault(name, []).append(rows)
+    return {f: {name: float(np.concatenate(rows).mean()) for name, rows in d.items()}
+            for f, d in pooled.items()}
+
+
+__all__ = ["INSIDE_BAR", "N_ERRORS", "QUANTITIES", "Run", "body_attitude_error",
+           "error_state", "generated_run", "inject", "inside_steps", "p0", "pooled_inside",
+           "predict", "run", "total_state_inside", "update"]
