@@ -96,11 +96,10 @@ def _reduced(expr: sympy.Expr, quaternions) -> sympy.Expr:
             continue
         if not candidate.is_polynomial(*q):
             return expr
-        # over every symbol as a generator (rational coefficients: fast), q0 first, so
-        # the remainder replaces q0² by 1 - q1² - q2² - q3²
-        gens = list(q) + sorted(candidate.free_symbols - set(q), key=sympy.default_sort_key)
-        relation = sympy.Poly(sum(s ** 2 for s in q) - 1, *gens)
-        candidate = sympy.Poly(candidate, *gens).rem(relation).as_expr()
+        # over q (q0 first: the remainder replaces q0² by 1 - q1² - q2² - q3²), the other
+        # symbols in the coefficients, which stay grouped by q's monomials
+        relation = sympy.Poly(sum(s ** 2 for s in q) - 1, *q)
+        candidate = sympy.Poly(candidate, *q).rem(relation).as_expr()
     if candidate is expr:
         return expr
     return candidate if sympy.count_ops(candidate) < sympy.count_ops(expr) else expr
