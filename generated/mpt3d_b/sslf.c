@@ -78,7 +78,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"
