@@ -10,10 +10,10 @@ n: 16 (states)
 n_tangent: 15 (P is 15 x 15 over the tangent space; arrays marked storage hold n numbers per state vector, tangent nt x nt)
 m: 7 (measurements)
 parameters: p = [dt]
-interface (flat row-major arrays; steps = number of steps):
-    predict(x[16] storage, P[15*15] tangent, u[6], p[1]) -> (x_new[16] storage, P_new[15*15] tangent)
-    update_gnss(x[16] storage, P[15*15] tangent, z[6], p[1]) -> (x_new[16] storage, P_new[15*15] tangent)
-    update_baro(x[16] storage, P[15*15] tangent, z[1], p[1]) -> (x_new[16] storage, P_new[15*15] tangent)
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    predict(x[16] storage, P[15*15] tangent, u[6], p[1]) -> (x_new[16] storage, P_new[15, 15] tangent)
+    update_gnss(x[16] storage, P[15*15] tangent, z[6], p[1]) -> (x_new[16] storage, P_new[15, 15] tangent)
+    update_baro(x[16] storage, P[15*15] tangent, z[1], p[1]) -> (x_new[16] storage, P_new[15, 15] tangent)
     run(z_gnss[steps, 6], z_baro[steps, 1], us[steps, 6], x0[16] storage, P0[15, 15] tangent, p[1] or p[steps, 1]) -> (xs[steps, 16] storage, Ps[steps, 15, 15] tangent)
 run's p: one row (1,) for every step or one row per step (steps, 1)
 symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
@@ -118,6 +118,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def predict(x, P, u, p):
     """Predict only: x(k/k-1) and P(k/k-1) of the error-state extended Kalman filter.
 
@@ -128,8 +136,15 @@ def predict(x, P, u, p):
         p [1]: free parameters: dt
     Returns:
         x_new [16]: x(k/k-1)
-        P_new [15x15, symmetric]: its covariance, row-major
+        P_new [(15, 15) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _predict(x, P, u, p)
+    return x_new, _matrix(P_new, (15, 15))
+
+
+def _predict(x, P, u, p):
+    """predict with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 15:  # a 2-D (15, 15) P: flattened, row-major
         P = np.reshape(P, (225,) + np.shape(P)[2:])
@@ -535,18 +550,25 @@ def predict(x, P, u, p):
     return x_new, P_new
 
 
-def update_gnss(x, P, z, p):
+def update_gnss(x, P, z, p=None):
     """The error-state extended Kalman filter update with the measurements of sensor 'gnss'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [16]: x before the update (x(k/k-1))
         P [15x15, symmetric]: its covariance, row-major, symmetric
         z [6]: gpn, gpe, gpd, gvn, gve, gvd
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [16]: x after the update
-        P_new [15x15, symmetric]: its covariance, row-major
+        P_new [(15, 15) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_gnss(x, P, z, p)
+    return x_new, _matrix(P_new, (15, 15))
+
+
+def _update_gnss(x, P, z, p):
+    """update_gnss with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 15:  # a 2-D (15, 15) P: flattened, row-major
         P = np.reshape(P, (225,) + np.shape(P)[2:])
@@ -1536,18 +1558,25 @@ def update_gnss(x, P, z, p):
     return x_new, P_new
 
 
-def update_baro(x, P, z, p):
+def update_baro(x, P, z, p=None):
     """The error-state extended Kalman filter update with the measurements of sensor 'baro'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [16]: x before the update (x(k/k-1))
         P [15x15, symmetric]: its covariance, row-major, symmetric
         z [1]: alt
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [16]: x after the update
-        P_new [15x15, symmetric]: its covariance, row-major
+        P_new [(15, 15) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_baro(x, P, z, p)
+    return x_new, _matrix(P_new, (15, 15))
+
+
+def _update_baro(x, P, z, p):
+    """update_baro with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 15:  # a 2-D (15, 15) P: flattened, row-major
         P = np.reshape(P, (225,) + np.shape(P)[2:])
@@ -1922,10 +1951,10 @@ def run(z_gnss, z_baro, us, x0, P0, p):
     x = x0
     P = P0.reshape((225,) + P0.shape[2:])
     for k in range(steps):
-        x, P = predict(x, P, us[k], p_rows[k])
+        x, P = _predict(x, P, us[k], p_rows[k])
         present = ~np.isnan(z_gnss[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_gnss(x, P, z_gnss[k], p_rows[k])
+            x_up, P_up = _update_gnss(x, P, z_gnss[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
@@ -1933,7 +1962,7 @@ def run(z_gnss, z_baro, us, x0, P0, p):
                 P = [np.where(present, a, b) for a, b in zip(P_up, P)]
         present = ~np.isnan(z_baro[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_baro(x, P, z_baro[k], p_rows[k])
+            x_up, P_up = _update_baro(x, P, z_baro[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
