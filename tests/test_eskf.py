@@ -188,3 +188,24 @@ def test_interface_says_which_arrays_are_storage_and_which_tangent():
     assert spaces["Ps"] == ("tangent", ("steps", 15, 15))
     assert spaces["z_gnss"][0] == ""
     assert "P0[15*15] tangent" in (GENERATED / "eskf.h").read_text()
+
+
+def test_symforce_rot3_predict_is_the_function_eskf_computes():
+    """The flops peer of ins_fc24_eskf's predict (SymForce's Rot3 tangent-space Jacobians of
+    the model's f, derive.apps.ins.symforce_eskf) computes what derive's generated predict
+    does, at a random unit quaternion and a random covariance (its count is the report's)."""
+    pytest.importorskip("symforce")
+    from derive.apps.ins.symforce_eskf import numeric_predict
+
+    peer = numeric_predict("ins_fc24_eskf")
+    module = load_python(GENERATED.parent / "ins_fc24_eskf" / "eskf.py")
+    rng = np.random.default_rng(11)
+    q = rng.standard_normal(4)
+    x = np.concatenate([q / np.linalg.norm(q), rng.normal(0, 0.1, 20)])
+    A = rng.standard_normal((23, 23))
+    P = A @ A.T
+    u = np.concatenate([rng.normal(0, 0.01, 3), [0.0, 0.0, -0.098] + rng.normal(0, 0.01, 3)])
+    x_peer, P_peer = peer(x, P, u, 0.01)
+    x_new, P_new = (np.asarray(v, dtype=float) for v in module.predict(x, P, u, [0.01]))
+    assert np.abs(x_peer - x_new).max() <= 1e-15 * np.abs(x_new).max() * 8
+    assert np.abs(P_peer - P_new.reshape(23, 23)).max() <= 1e-14 * np.abs(P_new).max()

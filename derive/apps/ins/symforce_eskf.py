@@ -19,6 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import sympy
 
 from derive import catalog
@@ -108,10 +109,53 @@ def generate(model_name: str) -> SymforceFunction:
     return SymforceFunction("predict", seconds, total_ops(source), count_cpp(source), source)
 
 
+def numeric_predict(model_name: str):
+    """SymForce's predict of the catalog model as a NumPy function ``(x, P, u, dt) ->
+    (x_new, P_new)`` over derive's layout (x the n stored states in the model's order, P
+    over the tangent space): its symbolic outputs through ``symengine.Lambdify`` (no code
+    generation), to check that it is the function derive's predict computes."""
+    import symengine
+    import symforce
+
+    symforce.set_log_level("error")
+    import symforce.symbolic as sf
+
+    model = catalog.load(model_name)
+    function, _ = predict_function(sf, model)
+    nt, n_rest = model.n_tangent, model.n - 4
+    R = sf.Rot3.symbolic("R")
+    rest = sf.Matrix(n_rest, 1).symbolic("r")
+    P = sf.Matrix(nt, nt).symbolic("P")
+    u = sf.Matrix(len(model.f_inputs), 1).symbolic("u")
+    dt = sf.Symbol("dt")
+    R_new, rest_new, P_new = function(R, rest, P, u, dt)
+    (quaternion,) = [m for m in model.manifolds if m.kind == QUATERNION]
+    q_rows = [model.states.index(s) for s in quaternion.states]
+    rest_rows = [i for i in range(model.n) if i not in q_rows]
+    upper = np.triu_indices(nt)
+    lam = symengine.Lambdify(
+        [R.q.w, R.q.x, R.q.y, R.q.z, *rest, *(P[int(i), int(j)] for i, j in zip(*upper)), *u,
+         dt],
+        [R_new.q.w, R_new.q.x, R_new.q.y, R_new.q.z, *rest_new,
+         *(P_new[i, j] for i in range(nt) for j in range(nt))], cse=True)
+
+    def predict(x, P_value, u_value, dt_value):
+        x = np.asarray(x, dtype=float)
+        out = np.asarray(lam(np.concatenate([x[q_rows], x[rest_rows],
+                                             np.asarray(P_value, float)[upper],
+                                             np.asarray(u_value, float), [dt_value]])),
+                         dtype=float).ravel()
+        x_new = np.empty(model.n)
+        x_new[q_rows], x_new[rest_rows] = out[:4], out[4:model.n]
+        return x_new, out[model.n:].reshape(nt, nt)
+
+    return predict
+
+
 def derive_count(c_source: str, prefix: str) -> OpCount:
     """derive's predict, ``PREFIX_predict`` in its generated C, counted by the same C rules
     as SymForce's C++ (its fma macros an fma each)."""
     return count_c_text(c_function_body(c_source, f"{prefix}_predict"))
 
 
-__all__ = ["FLOPS_BAR", "derive_count", "generate", "predict_function"]
+__all__ = ["FLOPS_BAR", "derive_count", "generate", "numeric_predict", "predict_function"]

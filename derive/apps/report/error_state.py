@@ -10,13 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..ins import constants as c
-from ..ins import error_state, flight
+from ..ins import error_state, flight, symforce_eskf
 from .document import DIFFERS, MATCHED, Section, Table, Text, sci
 
 MODEL = "ins_eskf"
 SEEDS = 10
 QUICK_SEEDS, QUICK_DURATION = 1, 30.0  # a quick run: one 30 s flight
 AGREEMENT = 1e-10
+PEER_MODELS = ("ins_eskf", "ins_fc24_eskf")
 
 
 def section(ctx) -> Section:
@@ -60,4 +61,24 @@ def section(ctx) -> Section:
               ", ".join(f"{name} {v:.2%}" for name, v in pooled["eskf"].items())
               + " (ins_gnss: " + ", ".join(f"{name} {v:.2%}"
                                            for name, v in pooled["ekf"].items()) + ")")
+    if ctx.quick:  # SymForce's code generation takes seconds per model
+        s.add(Text("Quick run: the flops of the predict against SymForce's are left out."))
+        return s
+    rows, ratios = [], {}
+    for model in PEER_MODELS:
+        peer = symforce_eskf.generate(model)
+        c_text = (ctx.generated / model / "eskf.c").read_text(encoding="utf-8")
+        ours = symforce_eskf.derive_count(c_text, f"{model}_eskf").flops
+        ratios[model] = ours / peer.count.flops
+        rows.append((model, str(ours), str(peer.count.flops), f"{ratios[model]:.2f}",
+                     f"{peer.seconds:.1f} s"))
+    s.add(Table(("model", "derive eskf predict flops", "SymForce (Rot3 tangent Jacobians)",
+                 "ratio", "SymForce's generation"), tuple(rows),
+                "The error-state predict, x and P, both counted by derive's C rules "
+                "(derive.apps.ins.symforce_eskf)"))
+    worst = max(ratios, key=ratios.get)
+    s.outcome(f"error-state predict flops ≤ {symforce_eskf.FLOPS_BAR:g}x SymForce's (Rot3 "
+              "tangent-space Jacobians, one counter)",
+              MATCHED if ratios[worst] <= symforce_eskf.FLOPS_BAR else DIFFERS,
+              ", ".join(f"{m} {r:.2f}x" for m, r in ratios.items()))
     return s
