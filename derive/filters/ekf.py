@@ -55,12 +55,14 @@ JACOBIAN_FACT = ("Jacobians: sympy, polynomial entries as derived, others simpli
                  "evaluated with f and h through shared subexpressions")
 
 
-def ekf_predict_parts(model):
+def ekf_predict_parts(model, lin: Linearisation | None = None):
     """``parts(prog, mapping, x) -> (f, F, Q)``: f(x, u) and F = ∂f/∂x staged at x, and
     the process noise Q, with inputs in f and noise Qu on them Q(x, u) = Fu Qu Fu^T + Q,
-    Fu = ∂f/∂u at x(k-1/k-1), u(k): the scalar work of the prediction."""
-    lin = state_jacobian(model)
-    n = model.n
+    Fu = ∂f/∂u at x(k-1/k-1), u(k): the scalar work of the prediction. ``lin``: f and
+    [F | Fu] (default :func:`state_jacobian`'s; the error-state EKF gives its own, over
+    the tangent space: F is as wide as it is tall)."""
+    lin = state_jacobian(model) if lin is None else lin
+    n = lin.jacobian.rows
     used = [model.inputs.index(u) for u in model.f_inputs]
     Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used)
 
@@ -79,10 +81,11 @@ def ekf_predict_parts(model):
     return parts
 
 
-def ekf_predict_stage(model) -> Predict:
+def ekf_predict_stage(model, parts=None) -> Predict:
     """x(k/k-1) = f(x, u), P(k/k-1) = F P F^T + Q (F = I folds to P + Q); with inputs in
-    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k)."""
-    parts = ekf_predict_parts(model)
+    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k).
+    ``parts``: :func:`ekf_predict_parts` (default: of the model's f and its Jacobians)."""
+    parts = ekf_predict_parts(model) if parts is None else parts
 
     def predict(prog, mapping, x, P):
         values, F, Q = parts(prog, mapping, x)
@@ -207,4 +210,5 @@ SPECS = (FilterSpec(
                      + NOTE_PY,
            "c": "Run the extended Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
 
-__all__ = ["SPECS", "derive_unit", "ekf_predict_stage", "ekf_update_stage"]
+__all__ = ["SPECS", "derive_unit", "ekf_predict_parts", "ekf_predict_stage",
+           "ekf_update_stage"]

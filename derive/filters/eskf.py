@@ -42,8 +42,10 @@ from .. import staging
 from ..domains import parameter_domains
 from ..options import SharedOptions, option
 from ..reference import eskf as eskf_reference
+from ..reference import sensors as sensors_reference
 from ..reference.sensors import SensorFunctions
 from ..symbols import jacobian
+from .ekf import ekf_predict_parts, ekf_predict_stage
 from .kf import CONDITIONING
 from .nonlinear import (
     Linearisation,
@@ -178,25 +180,12 @@ def reset_jacobian(layout: mf.TangentLayout, delta: list[sympy.Expr]) -> sympy.M
 
 
 def eskf_predict_stage(model):
-    """x(k/k-1) = π(f(x, u)), P(k/k-1) = Fδ P Fδ^T + Fuδ Qu Fuδ^T + Q."""
-    lin = error_dynamics(model)
-    nt = model.n_tangent
-    used = [model.inputs.index(u) for u in model.f_inputs]
-    Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used)
+    """x(k/k-1) = π(f(x, u)), P(k/k-1) = Fδ P Fδ^T + Fuδ Qu Fuδ^T + Q: the EKF's prediction
+    with the error-state Jacobians, its x projected onto the manifold."""
+    covariance = ekf_predict_stage(model, ekf_predict_parts(model, error_dynamics(model)))
 
     def predict(prog, mapping, x, P):
-        Q = sympy.Matrix(model.subs(model.Q)).xreplace(mapping)
-        values, FFu = stage_linearisation(prog, lin, {**mapping, **state_mapping(model, x)},
-                                          "f")
-        F = FFu[:, :nt]
-        if any(e != 0 for e in Qu):
-            Fu = FFu[:, nt:]
-            FuQu = staging.matmul(prog, Fu, Qu.xreplace(mapping))
-            Q = staging.add(prog, staging.matmul(prog, FuQu, Fu.T, symmetric_result=True), Q,
-                            symmetric_result=True)
-        FP = staging.matmul(prog, F, P)
-        Pp = staging.add(prog, staging.matmul(prog, FP, F.T, symmetric_result=True), Q,
-                         symmetric_result=True)
+        values, Pp = covariance(prog, mapping, x, P)
         return _projected(prog, model.layout, values), Pp
 
     return predict
@@ -314,10 +303,12 @@ def derive_unit(model, spec, options):
 
 def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, Rs=None,
                   trace: list | None = None):
-    """derive.reference.eskf for ``model`` at numbers (p as an argument, one row per step),
-    from x0 and P0 (default: the model's): the model's sympy Jacobians ∂f/∂x, ∂f/∂u, ∂h/∂x
-    at numbers, taken into the tangent space by derive.manifolds' numeric N and M;
-    injection by its numeric ⊞; the reset (option ``reset``) by Solà's G."""
+    """The error-state reference (derive.reference.sensors.run with an injection and a
+    reset) for ``model`` at numbers (p as an argument, one row per step; ``Rs``: the
+    per-step R of the sensors whose R is given per call), from x0 and P0 (default: the
+    model's): the model's sympy Jacobians ∂f/∂x, ∂f/∂u, ∂h/∂x at numbers, taken into the
+    tangent space by derive.manifolds' numeric N and M; injection by its numeric ⊞; the
+    reset (option ``reset``) by Solà's G (derive.reference.eskf)."""
     layout = model.layout
     params = list(model.parameters)
     X, U = list(model.state_symbols), list(model.inputs)
@@ -345,7 +336,7 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
         sensors.append(SensorFunctions(
             g.name, lambda x, u, p, h=h: h(x, u, p).ravel(),
             lambda x, u, p, H=H: H(x, u, p) @ mf.retraction_numeric(layout, x),
-            numeric_matrix(model, g.R, [params]),
+            None if g.R_argument else numeric_matrix(model, g.R, [params]),
             tuple(names.index(u.name) for u in g.inputs),
             None if thresholds[g.name] is None else thresholds[g.name][1]))
 
@@ -357,13 +348,15 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
                     dx[list(tangent)], local=m.error == mf.LOCAL)
         return G
 
-    return eskf_reference.run(
-        predict, sensors, lambda x, dx: mf.boxplus_numeric(layout, x, dx),
+    return sensors_reference.run(
+        predict, sensors,
         np.array(model.x0.tolist(), dtype=float).ravel() if x0 is None else x0,
         np.array(model.P0.tolist(), dtype=float) if P0 is None else P0, zs, us, ps,
-        reset=reset if options.get("reset", False) else None,
+        update_first=options.get("start", "predict") == "update",
         unit_norm=[[model.states.index(s) for s in group] for group in model.unit_norm],
-        trace=trace, domains=parameter_domains(model.parameters))
+        Rs=Rs, trace=trace, domains=parameter_domains(model.parameters),
+        inject=lambda x, dx: mf.boxplus_numeric(layout, x, dx),
+        reset=reset if options.get("reset", False) else None)
 
 
 def reference(model, data, options):
