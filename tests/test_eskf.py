@@ -19,8 +19,8 @@ from derive.apps.verify import relative_error, sensors_case
 from derive.build import load_python
 from derive.catalog import load as load_catalog
 from derive.cli import main
-from derive.errors import ModelError
-from derive.filters import FILTERS, why_not
+from derive.errors import FilterError, ModelError
+from derive.filters import FILTERS, derive_unit, why_not
 from derive.filters.eskf import reset_jacobian
 from derive.model import NonlinearModel
 from derive.options import validate
@@ -94,6 +94,9 @@ def test_every_other_filter_refuses_a_manifold_model_and_eskf_a_plain_one():
             reason = why_not(model, name)
             assert reason is not None and "does not handle manifold states" in reason, name
     assert "declares none" in why_not(load_catalog("ins_gnss"), "eskf")
+    with pytest.raises(FilterError, match="derives scalar rows only; model 'ah' declares "
+                                          "rows = 'vector'"):
+        derive_unit(attitude_and_heading(rows="vector"), "eskf")
 
 
 @pytest.mark.parametrize("error", ["local", "global"])

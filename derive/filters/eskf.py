@@ -40,6 +40,7 @@ import sympy
 from .. import manifolds as mf
 from .. import staging
 from ..domains import parameter_domains
+from ..errors import FilterError
 from ..options import SharedOptions, option
 from ..reference import eskf as eskf_reference
 from ..reference import sensors as sensors_reference
@@ -282,6 +283,9 @@ def error_fact(model) -> list[str]:
 def derive_unit(model, spec, options):
     """The error-state EKF unit: predict and update_<sensor> (run kind sensors)."""
     check_nonlinear(model, spec.name)
+    if model.rows != "scalar":  # refused rather than derived otherwise than declared
+        raise FilterError(f"filter {spec.name!r} derives scalar rows only; model "
+                          f"{model.name!r} declares rows = {model.rows!r}")
     groups = sensor_groups(model)
     thresholds = gate_thresholds(groups, options)
     forms = update_forms(model, groups, options)
