@@ -112,9 +112,8 @@ def generate(model_name: str) -> SymforceFunction:
 def numeric_predict(model_name: str):
     """SymForce's predict of the catalog model as a NumPy function ``(x, P, u, dt) ->
     (x_new, P_new)`` over derive's layout (x the n stored states in the model's order, P
-    over the tangent space): its symbolic outputs through ``symengine.Lambdify`` (no code
+    over the tangent space): its symbolic outputs through its backend's ``Lambdify`` (no code
     generation), to check that it is the function derive's predict computes."""
-    import symengine
     import symforce
 
     symforce.set_log_level("error")
@@ -133,7 +132,7 @@ def numeric_predict(model_name: str):
     q_rows = [model.states.index(s) for s in quaternion.states]
     rest_rows = [i for i in range(model.n) if i not in q_rows]
     upper = np.triu_indices(nt)
-    lam = symengine.Lambdify(
+    lam = sf.sympy.Lambdify(  # SymForce's symbolic backend (symengine)
         [R.q.w, R.q.x, R.q.y, R.q.z, *rest, *(P[int(i), int(j)] for i, j in zip(*upper)), *u,
          dt],
         [R_new.q.w, R_new.q.x, R_new.q.y, R_new.q.z, *rest_new,
