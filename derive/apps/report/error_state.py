@@ -56,7 +56,8 @@ def section(ctx) -> Section:
               f"largest relative difference {worst:.1e} (bar {AGREEMENT:g})")
     least = min(pooled["eskf"].values())
     s.outcome(f"ins_eskf: attitude, velocity and position inside 3σ at ≥ "
-              f"{error_state.INSIDE_BAR:.0%} of steps over {len(seeds)} seeds",
+              f"{error_state.INSIDE_BAR:.0%} of steps over {len(seeds)} "
+              + ("seed" if len(seeds) == 1 else "seeds"),
               MATCHED if least >= error_state.INSIDE_BAR else DIFFERS,
               ", ".join(f"{name} {v:.2%}" for name, v in pooled["eskf"].items())
               + " (ins_gnss: " + ", ".join(f"{name} {v:.2%}"
