@@ -32,6 +32,7 @@ from .. import staging
 from ..domains import parameter_domains
 from ..errors import OptionError
 from ..expression_lowering import IfAtMost
+from ..guards import numpy_selects
 from ..model import SensorGroup, sequential_problem
 from ..program import Program
 from ..reference import sensors as reference
@@ -287,8 +288,8 @@ SENSOR_PROGRAM = re.compile(r"^update_[A-Za-z][A-Za-z0-9_]*$")
 def _numeric(model, matrix, arguments):
     """``matrix`` (valued symbols substituted) as a NumPy function of ``arguments`` (lists
     of symbols, one list per argument), returning a 2-D array of its shape."""
-    lam = sympy.lambdify(arguments, sympy.Matrix(model.subs(matrix)), modules="numpy",
-                         cse=True)
+    lam = sympy.lambdify(arguments, sympy.Matrix(model.subs(matrix)),
+                         modules=[numpy_selects(), "numpy"], cse=True)
     shape = matrix.shape
 
     def call(*values):
