@@ -279,7 +279,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
     ``> < >= <= == !=`` are comparisons, ``?`` a select.
 
     A chunk of vector rows (``#if DERIVE_VECTOR`` ... ``#else`` ... ``#endif``) counts as
-    its vector statement once per lane (``DERIVE_ROWS_FMA`` an fma), with ``vector``; as its
+    its vector statement once per lane (``DERIVE_VFMA`` an fma), with ``vector``; as its
     scalar lanes without.
     """
     extra = OpCount()
@@ -291,7 +291,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
             for line in m.group(1).split(";"):
                 found = _VECTOR_STATEMENT.match(line.strip() + ";")
                 if found is not None and found.group(1) in _VECTOR_LANES:
-                    ops = count_c_text(found.group(2), "DERIVE_ROWS_FMA", "DERIVE_ROWS_FNMA")
+                    ops = count_c_text(found.group(2), "DERIVE_VFMA", "DERIVE_VFNMA")
                     extra = extra + ops.scaled(_VECTOR_LANES[found.group(1)])
             return ""
         text = _CHUNK.sub(chunk, text)

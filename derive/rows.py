@@ -38,7 +38,6 @@ from derive.trees import Const, Op, Tree, Var
 #: registers; four floats: one SSE or NEON register).
 VECTOR_LANES = 4
 VECTOR_TYPES = {"double": "derive_vd", "float": "derive_vf"}
-VECTOR_BYTES = {"double": 32, "float": 16}
 
 
 def _leaf(atom: sympy.Expr) -> Tree:
@@ -160,5 +159,5 @@ def check_chunks(chunks: Sequence[RowChunk]) -> None:
                              f"{chunk.form.lanes} lanes")
 
 
-__all__ = ["LaneSum", "LoweredChunk", "RowChunk", "VECTOR_BYTES", "VECTOR_LANES", "VECTOR_TYPES",
+__all__ = ["LaneSum", "LoweredChunk", "RowChunk", "VECTOR_LANES", "VECTOR_TYPES",
            "check_chunks", "chunk_bounds"]

@@ -250,10 +250,10 @@ def test_fused_operations_executed_are_the_header_counts(tmp_path, model, filter
         name, status, fmas, fnmas = line.split()
         assert status == "0", line
         assert int(fmas) + int(fnmas) == int(re.search(r"fma (\d+)", counts[name]).group(1))
-        # the text's fmas with DERIVE_FMA and DERIVE_ROWS_FMA renamed (calls then): its
-        # DERIVE_FNMAs and DERIVE_ROWS_FNMAs (once per lane) alone, through the functions it
+        # the text's fmas with DERIVE_FMA and DERIVE_VFMA renamed (calls then): its
+        # DERIVE_FNMAs and DERIVE_VFNMAs (once per lane) alone, through the functions it
         # calls (a step's body)
-        renamed = c_text.replace("DERIVE_FMA(", "other_fma(").replace("DERIVE_ROWS_FMA(",
+        renamed = c_text.replace("DERIVE_FMA(", "other_fma(").replace("DERIVE_VFMA(",
                                                                       "other_vfma(")
         negative = count_c_function(renamed, f"{prefix}_{name}")
         assert int(fnmas) == negative.fma

@@ -111,7 +111,7 @@ def test_random_models_agree_with_the_scalar_form_and_the_reference(n, m, correl
     u = rng.normal(size=(steps, 2))
     ref = reference_run(model, {}, {"a": za, "b": zb}, u)
     for module in (vector.python, vector.c):
-        xs, Ps = module.run(u, za, zb, np.zeros(n), np.eye(n))
+        xs, Ps = module.run(za, zb, u, np.zeros(n), np.eye(n))
         assert relative(xs, ref.xs) <= 1e-10
         assert relative(Ps, ref.Ps) <= 1e-10
 
@@ -157,8 +157,8 @@ def test_run_reads_the_upper_triangle_of_P0_only():
     u = rng.normal(size=(steps, 2))
     za, zb = rng.normal(size=(steps, 2)), rng.normal(size=(steps, 1))
     for module in (generated.python, generated.c):
-        xs, Ps = module.run(u, za, zb, np.zeros(6), P0)
-        xg, Pg = module.run(u, za, zb, np.zeros(6), garbage)
+        xs, Ps = module.run(za, zb, u, np.zeros(6), P0)
+        xg, Pg = module.run(za, zb, u, np.zeros(6), garbage)
         assert np.array_equal(xs, xg) and np.array_equal(Ps, Pg)
 
 
@@ -296,5 +296,5 @@ def test_a_negative_dt_is_refused_by_the_vector_predict_naming_step_and_value():
     for module in (generated.python, generated.c):
         with pytest.raises(NumericalError, match=re.escape(text) if module is generated.c
                            else r"parameter dt must be nonnegative, got -0\.25"):
-            module.run(us, gnss, baro, x, P, rows)
+            module.run(gnss, baro, us, x, P, rows)
 

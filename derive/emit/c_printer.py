@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from derive.emit.c_vector import CLOSE, ELSE, ChunkPrinter, fused_kinds, vector_macro_lines
+from derive.emit.c_vector import CLOSE, ELSE, ChunkPrinter, vector_macro_lines
 from derive.emit.python_printer import InfixPrinter
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
@@ -84,7 +84,7 @@ def macro_lines(lowered: list[LoweredProgram], precision: Precision = DOUBLE) ->
     fused = any(lp.kinds() & FUSED_KINDS for lp in lowered)
     rows = any(lp.rows for lp in lowered)
     return ((fma_macro_lines(precision) if fused else [])
-            + (vector_macro_lines(precision, frozenset(fused_kinds(lowered))) if rows else []))
+            + (vector_macro_lines(precision, fused=fused) if rows else []))
 
 
 class CPrinter(InfixPrinter):

@@ -71,7 +71,7 @@ def render_test_program(unit: Unit, header: str, data) -> str:
     run = runs[0]
     steps = int(data.steps)
     inputs, outputs, references, comparisons, args, strides = [], [], [], [], [], []
-    sensor_rows = {f"z_{s.name}" for s in unit.sensors}  # a NaN row: no measurement
+    sensor_rows = {s.z_c for s in unit.sensors}  # a NaN row: no measurement
     compared = []
     for arg in run.arguments:
         if arg.output:

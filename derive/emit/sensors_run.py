@@ -54,7 +54,7 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     else:
         lines.append(f"    {predict}")
     for s in unit.sensors:
-        z = f"z_{s.name}[k]"
+        z = f"{s.z_py}[k]"
         u = f", {_columns(s.inputs, unit.n_inputs)}" if s.inputs else ""
         if s.R_argument:  # R before u, as the update takes them
             u = f", R_{s.name}[k].reshape(({s.m * s.m},) + R_{s.name}.shape[3:])" + u
@@ -161,7 +161,7 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
             inner += [f"if (nis_{s.name}) {{", f"    nis_{s.name}[k] = nis[0];", "}",
                       f"if (applied_{s.name}) {{", f"    applied_{s.name}[k] = applied[0];",
                       "}"]
-        body += ["{", f"    const {t} *zk = z_{s.name} + k * {s.m};",
+        body += ["{", f"    const {t} *zk = {s.z_c} + k * {s.m};",
                  f"    if ({test}) {{ /* a NaN: no {s.name} measurement at step k */"]
         body += ["        " + line for line in inner]
         if s.gated:

@@ -13,7 +13,7 @@
  *     int ins_gnss_ekf_predict(x[16], P[16*16], u[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_gnss(x[16], P[16*16], z[6], x_new[16] out, P_new[16*16] out, p[1])
  *     int ins_gnss_ekf_update_baro(x[16], P[16*16], z[1], x_new[16] out, P_new[16*16] out, p[1])
- *     int ins_gnss_ekf_run(steps, u[steps*6], z_gnss[steps*6], z_baro[steps*1], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
+ *     int ins_gnss_ekf_run(steps, z_gnss[steps*6], z_baro[steps*1], u[steps*6], x0[16], P0[16*16], xs[steps*16] out, Ps[steps*16*16] out optional, p[1] rows p_stride)
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
  * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
@@ -39,7 +39,7 @@
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
  * vector rows (rows = vector): predict, update_gnss computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
- * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["u",["steps",6],false,false,false],["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -70,18 +70,26 @@
 #endif
 #endif
 #if DERIVE_VECTOR
-typedef double derive_vd __attribute__((vector_size(32)));
-typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+#if defined(__clang__) && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_fma)
+#define DERIVE_ELEMENTWISE_FMA 1
+#endif
+#endif
 #if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_ROWS_FMA(a, b, c) ((a) * (b) + (c))
-#define DERIVE_ROWS_FNMA(a, b, c) ((c) - (a) * (b))
+#define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
 #elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_ROWS_FMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
-#define DERIVE_ROWS_FNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
+#elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
+#define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_ROWS_FMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
-#define DERIVE_ROWS_FNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
 #endif
 
@@ -231,12 +239,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t138 = -t83;
     const double t139 = -t93;
     #if DERIVE_VECTOR
-    const derive_vd v_t140_0 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t140_1 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t140_0);
-    const derive_vd v_t140_2 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t140_1);
-    const derive_vd v_t140_3 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t140_2);
-    const derive_vd v_t140_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t140_3);
-    const derive_vd v_t140 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t140_4);
+    const derive_vd v_t140_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t140_1 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t140_0);
+    const derive_vd v_t140_2 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t140_1);
+    const derive_vd v_t140_3 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t140_2);
+    const derive_vd v_t140_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t140_3);
+    const derive_vd v_t140 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t140_4);
     const double t140 = v_t140[0];
     const double t141 = v_t140[1];
     const double t142 = v_t140[2];
@@ -248,12 +256,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t143 = DERIVE_FMA(t39, P[195], DERIVE_FMA(t38, P[179], DERIVE_FMA(t37, P[163], DERIVE_FMA(t36, P[51], DERIVE_FMA(t35, P[35], DERIVE_FMA(t34, P[19], P[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t144_0 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t144_1 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t144_0);
-    const derive_vd v_t144_2 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t144_1);
-    const derive_vd v_t144_3 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t144_2);
-    const derive_vd v_t144_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t144_3);
-    const derive_vd v_t144 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t144_4);
+    const derive_vd v_t144_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[24], P[25], P[26], P[27]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t144_1 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t144_0);
+    const derive_vd v_t144_2 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t144_1);
+    const derive_vd v_t144_3 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t144_2);
+    const derive_vd v_t144_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t144_3);
+    const derive_vd v_t144 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t144_4);
     const double t146 = v_t144[2];
     const double t147 = v_t144[3];
     #else
@@ -261,12 +269,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t147 = DERIVE_FMA(t39, P[203], DERIVE_FMA(t38, P[187], DERIVE_FMA(t37, P[171], DERIVE_FMA(t36, P[59], DERIVE_FMA(t35, P[43], DERIVE_FMA(t34, P[27], P[11]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t148_0 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[28], P[29], P[30], P[31]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t148_1 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t148_0);
-    const derive_vd v_t148_2 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t148_1);
-    const derive_vd v_t148_3 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t148_2);
-    const derive_vd v_t148_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t148_3);
-    const derive_vd v_t148 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t148_4);
+    const derive_vd v_t148_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[28], P[29], P[30], P[31]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t148_1 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t148_0);
+    const derive_vd v_t148_2 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t148_1);
+    const derive_vd v_t148_3 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t148_2);
+    const derive_vd v_t148_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t148_3);
+    const derive_vd v_t148 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t148_4);
     const double t148 = v_t148[0];
     #else
     const double t148 = DERIVE_FMA(t39, P[204], DERIVE_FMA(t38, P[188], DERIVE_FMA(t37, P[172], DERIVE_FMA(t36, P[60], DERIVE_FMA(t35, P[44], DERIVE_FMA(t34, P[28], P[12]))))));
@@ -275,12 +283,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t151 = DERIVE_FMA(t39, P[207], DERIVE_FMA(t38, P[191], DERIVE_FMA(t37, P[175], DERIVE_FMA(t36, P[63], DERIVE_FMA(t35, P[47], DERIVE_FMA(t34, P[31], P[15]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t152_0 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t152_1 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t152_0);
-    const derive_vd v_t152_2 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t152_1);
-    const derive_vd v_t152_3 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t152_2);
-    const derive_vd v_t152_4 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t152_3);
-    const derive_vd v_t152 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t152_4);
+    const derive_vd v_t152_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t152_1 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t152_0);
+    const derive_vd v_t152_2 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t152_1);
+    const derive_vd v_t152_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t152_2);
+    const derive_vd v_t152_4 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t152_3);
+    const derive_vd v_t152 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t152_4);
     const double t152 = v_t152[0];
     const double t153 = v_t152[1];
     const double t154 = v_t152[2];
@@ -292,12 +300,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t155 = DERIVE_FMA(t41, P[195], DERIVE_FMA(t39, P[179], DERIVE_FMA(t44, P[163], DERIVE_FMA(t35, P[51], DERIVE_FMA(t3, P[35], DERIVE_FMA(t1, P[3], P[19]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t156_0 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t156_1 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t156_0);
-    const derive_vd v_t156_2 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t156_1);
-    const derive_vd v_t156_3 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t156_2);
-    const derive_vd v_t156_4 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t156_3);
-    const derive_vd v_t156 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t156_4);
+    const derive_vd v_t156_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t156_1 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t156_0);
+    const derive_vd v_t156_2 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t156_1);
+    const derive_vd v_t156_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t156_2);
+    const derive_vd v_t156_4 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t156_3);
+    const derive_vd v_t156 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t156_4);
     const double t158 = v_t156[2];
     const double t159 = v_t156[3];
     #else
@@ -305,12 +313,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t159 = DERIVE_FMA(t41, P[203], DERIVE_FMA(t39, P[187], DERIVE_FMA(t44, P[171], DERIVE_FMA(t35, P[59], DERIVE_FMA(t3, P[43], DERIVE_FMA(t1, P[11], P[27]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t160_0 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t160_1 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t160_0);
-    const derive_vd v_t160_2 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t160_1);
-    const derive_vd v_t160_3 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t160_2);
-    const derive_vd v_t160_4 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t160_3);
-    const derive_vd v_t160 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t160_4);
+    const derive_vd v_t160_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t160_1 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t160_0);
+    const derive_vd v_t160_2 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t160_1);
+    const derive_vd v_t160_3 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t160_2);
+    const derive_vd v_t160_4 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t160_3);
+    const derive_vd v_t160 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t160_4);
     const double t160 = v_t160[0];
     #else
     const double t160 = DERIVE_FMA(t41, P[204], DERIVE_FMA(t39, P[188], DERIVE_FMA(t44, P[172], DERIVE_FMA(t35, P[60], DERIVE_FMA(t3, P[44], DERIVE_FMA(t1, P[12], P[28]))))));
@@ -319,12 +327,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t163 = DERIVE_FMA(t41, P[207], DERIVE_FMA(t39, P[191], DERIVE_FMA(t44, P[175], DERIVE_FMA(t35, P[63], DERIVE_FMA(t3, P[47], DERIVE_FMA(t1, P[15], P[31]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t164_0 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t164_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t164_0);
-    const derive_vd v_t164_2 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t164_1);
-    const derive_vd v_t164_3 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t164_2);
-    const derive_vd v_t164_4 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t164_3);
-    const derive_vd v_t164 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t164_4);
+    const derive_vd v_t164_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t164_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t164_0);
+    const derive_vd v_t164_2 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t164_1);
+    const derive_vd v_t164_3 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t164_2);
+    const derive_vd v_t164_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t164_3);
+    const derive_vd v_t164 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t164_4);
     const double t164 = v_t164[0];
     const double t165 = v_t164[1];
     const double t166 = v_t164[2];
@@ -336,12 +344,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t167 = DERIVE_FMA(t37, P[195], DERIVE_FMA(t44, P[179], DERIVE_FMA(t42, P[163], DERIVE_FMA(t1, P[51], DERIVE_FMA(t36, P[19], DERIVE_FMA(t2, P[3], P[35]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t168_0 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t168_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t168_0);
-    const derive_vd v_t168_2 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t168_1);
-    const derive_vd v_t168_3 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t168_2);
-    const derive_vd v_t168_4 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t168_3);
-    const derive_vd v_t168 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t168_4);
+    const derive_vd v_t168_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t168_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t168_0);
+    const derive_vd v_t168_2 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t168_1);
+    const derive_vd v_t168_3 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t168_2);
+    const derive_vd v_t168_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t168_3);
+    const derive_vd v_t168 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t168_4);
     const double t170 = v_t168[2];
     const double t171 = v_t168[3];
     #else
@@ -349,12 +357,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t171 = DERIVE_FMA(t37, P[203], DERIVE_FMA(t44, P[187], DERIVE_FMA(t42, P[171], DERIVE_FMA(t1, P[59], DERIVE_FMA(t36, P[27], DERIVE_FMA(t2, P[11], P[43]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t172_0 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t172_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t172_0);
-    const derive_vd v_t172_2 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t172_1);
-    const derive_vd v_t172_3 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t172_2);
-    const derive_vd v_t172_4 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t172_3);
-    const derive_vd v_t172 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t172_4);
+    const derive_vd v_t172_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t172_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t172_0);
+    const derive_vd v_t172_2 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t172_1);
+    const derive_vd v_t172_3 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t172_2);
+    const derive_vd v_t172_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t172_3);
+    const derive_vd v_t172 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t172_4);
     const double t172 = v_t172[0];
     #else
     const double t172 = DERIVE_FMA(t37, P[204], DERIVE_FMA(t44, P[188], DERIVE_FMA(t42, P[172], DERIVE_FMA(t1, P[60], DERIVE_FMA(t36, P[28], DERIVE_FMA(t2, P[12], P[44]))))));
@@ -363,12 +371,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t175 = DERIVE_FMA(t37, P[207], DERIVE_FMA(t44, P[191], DERIVE_FMA(t42, P[175], DERIVE_FMA(t1, P[63], DERIVE_FMA(t36, P[31], DERIVE_FMA(t2, P[15], P[47]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t176_0 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t176_1 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t176_0);
-    const derive_vd v_t176_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t176_1);
-    const derive_vd v_t176_3 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t176_2);
-    const derive_vd v_t176_4 = DERIVE_ROWS_FMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t176_3);
-    const derive_vd v_t176 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t176_4);
+    const derive_vd v_t176_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
+    const derive_vd v_t176_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t176_0);
+    const derive_vd v_t176_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t176_1);
+    const derive_vd v_t176_3 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t176_2);
+    const derive_vd v_t176_4 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[176], P[177], P[178], P[179]}), v_t176_3);
+    const derive_vd v_t176 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[192], P[193], P[194], P[195]}), v_t176_4);
     const double t176 = v_t176[0];
     const double t177 = v_t176[1];
     const double t178 = v_t176[2];
@@ -380,12 +388,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t179 = DERIVE_FMA(t44, P[195], DERIVE_FMA(t40, P[179], DERIVE_FMA(t38, P[163], DERIVE_FMA(t34, P[35], DERIVE_FMA(t2, P[19], DERIVE_FMA(t3, P[3], P[51]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t180_0 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t180_1 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t180_0);
-    const derive_vd v_t180_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t180_1);
-    const derive_vd v_t180_3 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t180_2);
-    const derive_vd v_t180_4 = DERIVE_ROWS_FMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t180_3);
-    const derive_vd v_t180 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t180_4);
+    const derive_vd v_t180_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t180_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t180_0);
+    const derive_vd v_t180_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t180_1);
+    const derive_vd v_t180_3 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[168], P[169], P[170], P[171]}), v_t180_2);
+    const derive_vd v_t180_4 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[184], P[185], P[186], P[187]}), v_t180_3);
+    const derive_vd v_t180 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[200], P[201], P[202], P[203]}), v_t180_4);
     const double t182 = v_t180[2];
     const double t183 = v_t180[3];
     *(derive_vd_unaligned *)&P_new[160] = ((derive_vd){t146, t158, t170, t182});
@@ -395,12 +403,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t183 = DERIVE_FMA(t44, P[203], DERIVE_FMA(t40, P[187], DERIVE_FMA(t38, P[171], DERIVE_FMA(t34, P[43], DERIVE_FMA(t2, P[27], DERIVE_FMA(t3, P[11], P[59]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t184_0 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t184_1 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t184_0);
-    const derive_vd v_t184_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t184_1);
-    const derive_vd v_t184_3 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t184_2);
-    const derive_vd v_t184_4 = DERIVE_ROWS_FMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t184_3);
-    const derive_vd v_t184 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t184_4);
+    const derive_vd v_t184_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t184_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t184_0);
+    const derive_vd v_t184_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t184_1);
+    const derive_vd v_t184_3 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){P[172], P[173], P[174], P[175]}), v_t184_2);
+    const derive_vd v_t184_4 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){P[188], P[189], P[190], P[191]}), v_t184_3);
+    const derive_vd v_t184 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[204], P[205], P[206], P[207]}), v_t184_4);
     const double t184 = v_t184[0];
     const derive_vd tr_v_t148_0 = __builtin_shufflevector(v_t148, v_t160, 0, 4, 2, 6);
     const derive_vd tr_v_t148_1 = __builtin_shufflevector(v_t148, v_t160, 1, 5, 3, 7);
@@ -425,13 +433,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t187 = DERIVE_FMA(t44, P[207], DERIVE_FMA(t40, P[191], DERIVE_FMA(t38, P[175], DERIVE_FMA(t34, P[47], DERIVE_FMA(t2, P[31], DERIVE_FMA(t3, P[15], P[63]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t188_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t188_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t188_0);
-    const derive_vd v_t188_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t188_1);
-    const derive_vd v_t188_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t188_2);
-    const derive_vd v_t188_4 = DERIVE_ROWS_FMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[208], P[209], P[210], P[211]}), v_t188_3);
-    const derive_vd v_t188_5 = DERIVE_ROWS_FMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[224], P[225], P[226], P[227]}), v_t188_4);
-    const derive_vd v_t188 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t188_5);
+    const derive_vd v_t188_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t188_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t188_0);
+    const derive_vd v_t188_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t188_1);
+    const derive_vd v_t188_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t188_2);
+    const derive_vd v_t188_4 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[208], P[209], P[210], P[211]}), v_t188_3);
+    const derive_vd v_t188_5 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[224], P[225], P[226], P[227]}), v_t188_4);
+    const derive_vd v_t188 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t188_5);
     const double t188 = v_t188[0];
     const double t189 = v_t188[1];
     const double t190 = v_t188[2];
@@ -443,13 +451,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t191 = DERIVE_FMA(t137, P[243], DERIVE_FMA(t75, P[227], DERIVE_FMA(t74, P[211], DERIVE_FMA(t73, P[51], DERIVE_FMA(t72, P[35], DERIVE_FMA(t71, P[19], DERIVE_FMA(t70, P[3], P[67])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t192_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t192_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[20], P[21], P[22], P[23]}), v_t192_0);
-    const derive_vd v_t192_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t192_1);
-    const derive_vd v_t192_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t192_2);
-    const derive_vd v_t192_4 = DERIVE_ROWS_FMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[212], P[213], P[214], P[215]}), v_t192_3);
-    const derive_vd v_t192_5 = DERIVE_ROWS_FMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t192_4);
-    const derive_vd v_t192 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t192_5);
+    const derive_vd v_t192_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t192_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[20], P[21], P[22], P[23]}), v_t192_0);
+    const derive_vd v_t192_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t192_1);
+    const derive_vd v_t192_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t192_2);
+    const derive_vd v_t192_4 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[212], P[213], P[214], P[215]}), v_t192_3);
+    const derive_vd v_t192_5 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t192_4);
+    const derive_vd v_t192 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t192_5);
     const double t192 = v_t192[0];
     const double t193 = v_t192[1];
     const double t194 = v_t192[2];
@@ -458,13 +466,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t192 = DERIVE_FMA(t137, P[244], DERIVE_FMA(t75, P[228], DERIVE_FMA(t74, P[212], DERIVE_FMA(t73, P[52], DERIVE_FMA(t72, P[36], DERIVE_FMA(t71, P[20], DERIVE_FMA(t70, P[4], P[68])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t196_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t196_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t196_0);
-    const derive_vd v_t196_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t196_1);
-    const derive_vd v_t196_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t196_2);
-    const derive_vd v_t196_4 = DERIVE_ROWS_FMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[216], P[217], P[218], P[219]}), v_t196_3);
-    const derive_vd v_t196_5 = DERIVE_ROWS_FMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[232], P[233], P[234], P[235]}), v_t196_4);
-    const derive_vd v_t196 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t196_5);
+    const derive_vd v_t196_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t196_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t196_0);
+    const derive_vd v_t196_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t196_1);
+    const derive_vd v_t196_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t196_2);
+    const derive_vd v_t196_4 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[216], P[217], P[218], P[219]}), v_t196_3);
+    const derive_vd v_t196_5 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[232], P[233], P[234], P[235]}), v_t196_4);
+    const derive_vd v_t196 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t196_5);
     const double t198 = v_t196[2];
     const double t199 = v_t196[3];
     #else
@@ -472,13 +480,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t199 = DERIVE_FMA(t137, P[251], DERIVE_FMA(t75, P[235], DERIVE_FMA(t74, P[219], DERIVE_FMA(t73, P[59], DERIVE_FMA(t72, P[43], DERIVE_FMA(t71, P[27], DERIVE_FMA(t70, P[11], P[75])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t200_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t200_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t200_0);
-    const derive_vd v_t200_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t200_1);
-    const derive_vd v_t200_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t200_2);
-    const derive_vd v_t200_4 = DERIVE_ROWS_FMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[220], P[221], P[222], P[223]}), v_t200_3);
-    const derive_vd v_t200_5 = DERIVE_ROWS_FMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[236], P[237], P[238], P[239]}), v_t200_4);
-    const derive_vd v_t200 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t200_5);
+    const derive_vd v_t200_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t200_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t200_0);
+    const derive_vd v_t200_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t200_1);
+    const derive_vd v_t200_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t200_2);
+    const derive_vd v_t200_4 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){P[220], P[221], P[222], P[223]}), v_t200_3);
+    const derive_vd v_t200_5 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[236], P[237], P[238], P[239]}), v_t200_4);
+    const derive_vd v_t200 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t200_5);
     const double t200 = v_t200[0];
     const double t201 = v_t200[1];
     const double t202 = v_t200[2];
@@ -490,13 +498,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t203 = DERIVE_FMA(t137, P[255], DERIVE_FMA(t75, P[239], DERIVE_FMA(t74, P[223], DERIVE_FMA(t73, P[63], DERIVE_FMA(t72, P[47], DERIVE_FMA(t71, P[31], DERIVE_FMA(t70, P[15], P[79])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t204_0 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t204_1 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t204_0);
-    const derive_vd v_t204_2 = DERIVE_ROWS_FMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t204_1);
-    const derive_vd v_t204_3 = DERIVE_ROWS_FMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t204_2);
-    const derive_vd v_t204_4 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[208], P[209], P[210], P[211]}), v_t204_3);
-    const derive_vd v_t204_5 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[224], P[225], P[226], P[227]}), v_t204_4);
-    const derive_vd v_t204 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t204_5);
+    const derive_vd v_t204_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t204_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t204_0);
+    const derive_vd v_t204_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t204_1);
+    const derive_vd v_t204_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t204_2);
+    const derive_vd v_t204_4 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[208], P[209], P[210], P[211]}), v_t204_3);
+    const derive_vd v_t204_5 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[224], P[225], P[226], P[227]}), v_t204_4);
+    const derive_vd v_t204 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t204_5);
     const double t204 = v_t204[0];
     const double t205 = v_t204[1];
     const double t206 = v_t204[2];
@@ -508,13 +516,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t207 = DERIVE_FMA(t85, P[243], DERIVE_FMA(t84, P[227], DERIVE_FMA(t138, P[211], DERIVE_FMA(t82, P[51], DERIVE_FMA(t81, P[35], DERIVE_FMA(t80, P[19], DERIVE_FMA(t79, P[3], P[83])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t208_0 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t208_1 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[20], P[21], P[22], P[23]}), v_t208_0);
-    const derive_vd v_t208_2 = DERIVE_ROWS_FMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t208_1);
-    const derive_vd v_t208_3 = DERIVE_ROWS_FMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t208_2);
-    const derive_vd v_t208_4 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[212], P[213], P[214], P[215]}), v_t208_3);
-    const derive_vd v_t208_5 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t208_4);
-    const derive_vd v_t208 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t208_5);
+    const derive_vd v_t208_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t208_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[20], P[21], P[22], P[23]}), v_t208_0);
+    const derive_vd v_t208_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t208_1);
+    const derive_vd v_t208_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t208_2);
+    const derive_vd v_t208_4 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[212], P[213], P[214], P[215]}), v_t208_3);
+    const derive_vd v_t208_5 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t208_4);
+    const derive_vd v_t208 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t208_5);
     const double t208 = v_t208[0];
     const double t209 = v_t208[1];
     const double t210 = v_t208[2];
@@ -524,13 +532,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t209 = DERIVE_FMA(t85, P[245], DERIVE_FMA(t84, P[229], DERIVE_FMA(t138, P[213], DERIVE_FMA(t82, P[53], DERIVE_FMA(t81, P[37], DERIVE_FMA(t80, P[21], DERIVE_FMA(t79, P[5], P[85])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t212_0 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t212_1 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t212_0);
-    const derive_vd v_t212_2 = DERIVE_ROWS_FMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t212_1);
-    const derive_vd v_t212_3 = DERIVE_ROWS_FMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t212_2);
-    const derive_vd v_t212_4 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[216], P[217], P[218], P[219]}), v_t212_3);
-    const derive_vd v_t212_5 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[232], P[233], P[234], P[235]}), v_t212_4);
-    const derive_vd v_t212 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t212_5);
+    const derive_vd v_t212_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t212_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t212_0);
+    const derive_vd v_t212_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t212_1);
+    const derive_vd v_t212_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t212_2);
+    const derive_vd v_t212_4 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[216], P[217], P[218], P[219]}), v_t212_3);
+    const derive_vd v_t212_5 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[232], P[233], P[234], P[235]}), v_t212_4);
+    const derive_vd v_t212 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t212_5);
     const double t214 = v_t212[2];
     const double t215 = v_t212[3];
     #else
@@ -538,13 +546,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t215 = DERIVE_FMA(t85, P[251], DERIVE_FMA(t84, P[235], DERIVE_FMA(t138, P[219], DERIVE_FMA(t82, P[59], DERIVE_FMA(t81, P[43], DERIVE_FMA(t80, P[27], DERIVE_FMA(t79, P[11], P[91])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t216_0 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t216_1 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t216_0);
-    const derive_vd v_t216_2 = DERIVE_ROWS_FMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t216_1);
-    const derive_vd v_t216_3 = DERIVE_ROWS_FMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t216_2);
-    const derive_vd v_t216_4 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[220], P[221], P[222], P[223]}), v_t216_3);
-    const derive_vd v_t216_5 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[236], P[237], P[238], P[239]}), v_t216_4);
-    const derive_vd v_t216 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t216_5);
+    const derive_vd v_t216_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t216_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t216_0);
+    const derive_vd v_t216_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t216_1);
+    const derive_vd v_t216_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t216_2);
+    const derive_vd v_t216_4 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[220], P[221], P[222], P[223]}), v_t216_3);
+    const derive_vd v_t216_5 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[236], P[237], P[238], P[239]}), v_t216_4);
+    const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t216_5);
     const double t216 = v_t216[0];
     const double t217 = v_t216[1];
     const double t218 = v_t216[2];
@@ -556,13 +564,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t219 = DERIVE_FMA(t85, P[255], DERIVE_FMA(t84, P[239], DERIVE_FMA(t138, P[223], DERIVE_FMA(t82, P[63], DERIVE_FMA(t81, P[47], DERIVE_FMA(t80, P[31], DERIVE_FMA(t79, P[15], P[95])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t220_0 = DERIVE_ROWS_FMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
-    const derive_vd v_t220_1 = DERIVE_ROWS_FMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t220_0);
-    const derive_vd v_t220_2 = DERIVE_ROWS_FMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t220_1);
-    const derive_vd v_t220_3 = DERIVE_ROWS_FMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t220_2);
-    const derive_vd v_t220_4 = DERIVE_ROWS_FMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[208], P[209], P[210], P[211]}), v_t220_3);
-    const derive_vd v_t220_5 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[224], P[225], P[226], P[227]}), v_t220_4);
-    const derive_vd v_t220 = DERIVE_ROWS_FMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t220_5);
+    const derive_vd v_t220_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t220_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[16], P[17], P[18], P[19]}), v_t220_0);
+    const derive_vd v_t220_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[32], P[33], P[34], P[35]}), v_t220_1);
+    const derive_vd v_t220_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[48], P[49], P[50], P[51]}), v_t220_2);
+    const derive_vd v_t220_4 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[208], P[209], P[210], P[211]}), v_t220_3);
+    const derive_vd v_t220_5 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[224], P[225], P[226], P[227]}), v_t220_4);
+    const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[240], P[241], P[242], P[243]}), v_t220_5);
     const double t220 = v_t220[0];
     const double t221 = v_t220[1];
     const double t222 = v_t220[2];
@@ -574,13 +582,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t223 = DERIVE_FMA(t94, P[243], DERIVE_FMA(t139, P[227], DERIVE_FMA(t92, P[211], DERIVE_FMA(t91, P[51], DERIVE_FMA(t90, P[35], DERIVE_FMA(t89, P[19], DERIVE_FMA(t88, P[3], P[99])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t224_0 = DERIVE_ROWS_FMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t224_1 = DERIVE_ROWS_FMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[20], P[21], P[22], P[23]}), v_t224_0);
-    const derive_vd v_t224_2 = DERIVE_ROWS_FMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t224_1);
-    const derive_vd v_t224_3 = DERIVE_ROWS_FMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t224_2);
-    const derive_vd v_t224_4 = DERIVE_ROWS_FMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[212], P[213], P[214], P[215]}), v_t224_3);
-    const derive_vd v_t224_5 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t224_4);
-    const derive_vd v_t224 = DERIVE_ROWS_FMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t224_5);
+    const derive_vd v_t224_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[4], P[5], P[6], P[7]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t224_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[20], P[21], P[22], P[23]}), v_t224_0);
+    const derive_vd v_t224_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[36], P[37], P[38], P[39]}), v_t224_1);
+    const derive_vd v_t224_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[52], P[53], P[54], P[55]}), v_t224_2);
+    const derive_vd v_t224_4 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[212], P[213], P[214], P[215]}), v_t224_3);
+    const derive_vd v_t224_5 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t224_4);
+    const derive_vd v_t224 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t224_5);
     const double t224 = v_t224[0];
     const double t225 = v_t224[1];
     const double t226 = v_t224[2];
@@ -591,13 +599,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t226 = DERIVE_FMA(t94, P[246], DERIVE_FMA(t139, P[230], DERIVE_FMA(t92, P[214], DERIVE_FMA(t91, P[54], DERIVE_FMA(t90, P[38], DERIVE_FMA(t89, P[22], DERIVE_FMA(t88, P[6], P[102])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t228_0 = DERIVE_ROWS_FMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t228_1 = DERIVE_ROWS_FMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t228_0);
-    const derive_vd v_t228_2 = DERIVE_ROWS_FMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t228_1);
-    const derive_vd v_t228_3 = DERIVE_ROWS_FMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t228_2);
-    const derive_vd v_t228_4 = DERIVE_ROWS_FMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[216], P[217], P[218], P[219]}), v_t228_3);
-    const derive_vd v_t228_5 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[232], P[233], P[234], P[235]}), v_t228_4);
-    const derive_vd v_t228 = DERIVE_ROWS_FMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t228_5);
+    const derive_vd v_t228_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[8], P[9], P[10], P[11]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t228_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[24], P[25], P[26], P[27]}), v_t228_0);
+    const derive_vd v_t228_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[40], P[41], P[42], P[43]}), v_t228_1);
+    const derive_vd v_t228_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[56], P[57], P[58], P[59]}), v_t228_2);
+    const derive_vd v_t228_4 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[216], P[217], P[218], P[219]}), v_t228_3);
+    const derive_vd v_t228_5 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[232], P[233], P[234], P[235]}), v_t228_4);
+    const derive_vd v_t228 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[248], P[249], P[250], P[251]}), v_t228_5);
     const double t230 = v_t228[2];
     const double t231 = v_t228[3];
     #else
@@ -605,13 +613,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t231 = DERIVE_FMA(t94, P[251], DERIVE_FMA(t139, P[235], DERIVE_FMA(t92, P[219], DERIVE_FMA(t91, P[59], DERIVE_FMA(t90, P[43], DERIVE_FMA(t89, P[27], DERIVE_FMA(t88, P[11], P[107])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t232_0 = DERIVE_ROWS_FMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t232_1 = DERIVE_ROWS_FMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t232_0);
-    const derive_vd v_t232_2 = DERIVE_ROWS_FMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t232_1);
-    const derive_vd v_t232_3 = DERIVE_ROWS_FMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t232_2);
-    const derive_vd v_t232_4 = DERIVE_ROWS_FMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[220], P[221], P[222], P[223]}), v_t232_3);
-    const derive_vd v_t232_5 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[236], P[237], P[238], P[239]}), v_t232_4);
-    const derive_vd v_t232 = DERIVE_ROWS_FMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t232_5);
+    const derive_vd v_t232_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t232_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){P[28], P[29], P[30], P[31]}), v_t232_0);
+    const derive_vd v_t232_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){P[44], P[45], P[46], P[47]}), v_t232_1);
+    const derive_vd v_t232_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){P[60], P[61], P[62], P[63]}), v_t232_2);
+    const derive_vd v_t232_4 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){P[220], P[221], P[222], P[223]}), v_t232_3);
+    const derive_vd v_t232_5 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){P[236], P[237], P[238], P[239]}), v_t232_4);
+    const derive_vd v_t232 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){P[252], P[253], P[254], P[255]}), v_t232_5);
     const double t232 = v_t232[0];
     const double t233 = v_t232[1];
     const double t234 = v_t232[2];
@@ -623,7 +631,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t235 = DERIVE_FMA(t94, P[255], DERIVE_FMA(t139, P[239], DERIVE_FMA(t92, P[223], DERIVE_FMA(t91, P[63], DERIVE_FMA(t90, P[47], DERIVE_FMA(t89, P[31], DERIVE_FMA(t88, P[15], P[111])))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t236 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[64], P[65], P[66], P[67]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t236 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[64], P[65], P[66], P[67]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
     const double t236 = v_t236[0];
     const double t237 = v_t236[1];
     const double t238 = v_t236[2];
@@ -635,7 +643,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t239 = DERIVE_FMA(p[0], P[67], P[115]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t240 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[68], P[69], P[70], P[71]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t240 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[68], P[69], P[70], P[71]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
     const double t240 = v_t240[0];
     const double t241 = v_t240[1];
     const double t242 = v_t240[2];
@@ -647,7 +655,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t243 = DERIVE_FMA(p[0], P[71], P[119]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t244 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[72], P[73], P[74], P[75]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t244 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[72], P[73], P[74], P[75]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
     const double t246 = v_t244[2];
     const double t247 = v_t244[3];
     *(derive_vd_unaligned *)&P_new[164] = ((derive_vd){t198, t214, t230, t246});
@@ -657,7 +665,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t247 = DERIVE_FMA(p[0], P[75], P[123]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t248 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[76], P[77], P[78], P[79]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t248 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[76], P[77], P[78], P[79]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
     const double t248 = v_t248[0];
     const double t249 = v_t248[1];
     const double t250 = v_t248[2];
@@ -685,7 +693,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t251 = DERIVE_FMA(p[0], P[79], P[127]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t252 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[80], P[81], P[82], P[83]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t252 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[80], P[81], P[82], P[83]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
     const double t252 = v_t252[0];
     const double t253 = v_t252[1];
     const double t254 = v_t252[2];
@@ -697,7 +705,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t255 = DERIVE_FMA(p[0], P[83], P[131]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t256 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[84], P[85], P[86], P[87]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t256 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[84], P[85], P[86], P[87]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
     const double t256 = v_t256[0];
     const double t257 = v_t256[1];
     const double t258 = v_t256[2];
@@ -709,7 +717,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t259 = DERIVE_FMA(p[0], P[87], P[135]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t260 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[88], P[89], P[90], P[91]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t260 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[88], P[89], P[90], P[91]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
     const double t260 = v_t260[0];
     const double t261 = v_t260[1];
     const double t262 = v_t260[2];
@@ -720,7 +728,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t263 = DERIVE_FMA(p[0], P[91], P[139]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t264 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[92], P[93], P[94], P[95]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[92], P[93], P[94], P[95]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
     const double t264 = v_t264[0];
     const double t265 = v_t264[1];
     const double t266 = v_t264[2];
@@ -733,7 +741,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t267 = DERIVE_FMA(p[0], P[95], P[143]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t268 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
     const double t268 = v_t268[0];
     const double t269 = v_t268[1];
     const double t270 = v_t268[2];
@@ -745,7 +753,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t271 = DERIVE_FMA(p[0], P[99], P[147]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t272 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t272 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[100], P[101], P[102], P[103]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
     const double t272 = v_t272[0];
     const double t273 = v_t272[1];
     const double t274 = v_t272[2];
@@ -757,7 +765,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t275 = DERIVE_FMA(p[0], P[103], P[151]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t276 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t276 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[104], P[105], P[106], P[107]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
     const double t276 = v_t276[0];
     const double t277 = v_t276[1];
     const double t278 = v_t276[2];
@@ -769,7 +777,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t279 = DERIVE_FMA(p[0], P[107], P[155]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t280 = DERIVE_ROWS_FMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t280 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
     const double t280 = v_t280[0];
     const double t281 = v_t280[1];
     const double t282 = v_t280[2];
@@ -783,12 +791,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t284_0 = (((derive_vd){t116, t118, t119, t121}) + ((derive_vd){t140, t152, t164, t176}));
-    const derive_vd v_t284_1 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t141, t153, t165, t177}), v_t284_0);
-    const derive_vd v_t284_2 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t142, t154, t166, t178}), v_t284_1);
-    const derive_vd v_t284_3 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t143, t155, t167, t179}), v_t284_2);
-    const derive_vd v_t284_4 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t146, t158, t170, t182}), v_t284_3);
-    const derive_vd v_t284_5 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t147, t159, t171, t183}), v_t284_4);
-    const derive_vd v_t284 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t148, t160, t172, t184}), v_t284_5);
+    const derive_vd v_t284_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t141, t153, t165, t177}), v_t284_0);
+    const derive_vd v_t284_2 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t142, t154, t166, t178}), v_t284_1);
+    const derive_vd v_t284_3 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t143, t155, t167, t179}), v_t284_2);
+    const derive_vd v_t284_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t146, t158, t170, t182}), v_t284_3);
+    const derive_vd v_t284_5 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t147, t159, t171, t183}), v_t284_4);
+    const derive_vd v_t284 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t148, t160, t172, t184}), v_t284_5);
     #else
     const double t284 = DERIVE_FMA(t39, t148, DERIVE_FMA(t38, t147, DERIVE_FMA(t37, t146, DERIVE_FMA(t36, t143, DERIVE_FMA(t35, t142, DERIVE_FMA(t34, t141, t116 + t140))))));
     const double t285 = DERIVE_FMA(t39, t160, DERIVE_FMA(t38, t159, DERIVE_FMA(t37, t158, DERIVE_FMA(t36, t155, DERIVE_FMA(t35, t154, DERIVE_FMA(t34, t153, t118 + t152))))));
@@ -796,12 +804,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t287 = DERIVE_FMA(t39, t184, DERIVE_FMA(t38, t183, DERIVE_FMA(t37, t182, DERIVE_FMA(t36, t179, DERIVE_FMA(t35, t178, DERIVE_FMA(t34, t177, t121 + t176))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t288_0 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t189, t205, t221, t237}), ((derive_vd){t188, t204, t220, t236}));
-    const derive_vd v_t288_1 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t190, t206, t222, t238}), v_t288_0);
-    const derive_vd v_t288_2 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t191, t207, t223, t239}), v_t288_1);
-    const derive_vd v_t288_3 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t198, t214, t230, t246}), v_t288_2);
-    const derive_vd v_t288_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t199, t215, t231, t247}), v_t288_3);
-    const derive_vd v_t288 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t200, t216, t232, t248}), v_t288_4);
+    const derive_vd v_t288_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t189, t205, t221, t237}), ((derive_vd){t188, t204, t220, t236}));
+    const derive_vd v_t288_1 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t190, t206, t222, t238}), v_t288_0);
+    const derive_vd v_t288_2 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t191, t207, t223, t239}), v_t288_1);
+    const derive_vd v_t288_3 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t198, t214, t230, t246}), v_t288_2);
+    const derive_vd v_t288_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t199, t215, t231, t247}), v_t288_3);
+    const derive_vd v_t288 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t200, t216, t232, t248}), v_t288_4);
     #else
     const double t288 = DERIVE_FMA(t39, t200, DERIVE_FMA(t38, t199, DERIVE_FMA(t37, t198, DERIVE_FMA(t36, t191, DERIVE_FMA(t35, t190, DERIVE_FMA(t34, t189, t188))))));
     const double t289 = DERIVE_FMA(t39, t216, DERIVE_FMA(t38, t215, DERIVE_FMA(t37, t214, DERIVE_FMA(t36, t207, DERIVE_FMA(t35, t206, DERIVE_FMA(t34, t205, t204))))));
@@ -809,12 +817,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t291 = DERIVE_FMA(t39, t248, DERIVE_FMA(t38, t247, DERIVE_FMA(t37, t246, DERIVE_FMA(t36, t239, DERIVE_FMA(t35, t238, DERIVE_FMA(t34, t237, t236))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t292_0 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t253, t269, P[26], P[27]}), ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t292_1 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t254, t270, P[42], P[43]}), v_t292_0);
-    const derive_vd v_t292_2 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t255, t271, P[58], P[59]}), v_t292_1);
-    const derive_vd v_t292_3 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t262, t278, P[170], P[171]}), v_t292_2);
-    const derive_vd v_t292_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t263, t279, P[186], P[187]}), v_t292_3);
-    const derive_vd v_t292 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t264, t280, P[202], P[203]}), v_t292_4);
+    const derive_vd v_t292_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t253, t269, P[26], P[27]}), ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t292_1 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t254, t270, P[42], P[43]}), v_t292_0);
+    const derive_vd v_t292_2 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t255, t271, P[58], P[59]}), v_t292_1);
+    const derive_vd v_t292_3 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t262, t278, P[170], P[171]}), v_t292_2);
+    const derive_vd v_t292_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t263, t279, P[186], P[187]}), v_t292_3);
+    const derive_vd v_t292 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t264, t280, P[202], P[203]}), v_t292_4);
     const double t292 = v_t292[0];
     const double t293 = v_t292[1];
     *(derive_vd_unaligned *)&P_new[8] = ((derive_vd){t292, t293, t146, t147});
@@ -823,13 +831,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t293 = DERIVE_FMA(t39, t280, DERIVE_FMA(t38, t279, DERIVE_FMA(t37, t278, DERIVE_FMA(t36, t271, DERIVE_FMA(t35, t270, DERIVE_FMA(t34, t269, t268))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t296_0 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t118, t123, t124, t125}));
+    const derive_vd v_t296_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t118, t123, t124, t125}));
     const derive_vd v_t296_1 = (v_t296_0 + ((derive_vd){t141, t153, t165, t177}));
-    const derive_vd v_t296_2 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t142, t154, t166, t178}), v_t296_1);
-    const derive_vd v_t296_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t143, t155, t167, t179}), v_t296_2);
-    const derive_vd v_t296_4 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t146, t158, t170, t182}), v_t296_3);
-    const derive_vd v_t296_5 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t147, t159, t171, t183}), v_t296_4);
-    const derive_vd v_t296 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t148, t160, t172, t184}), v_t296_5);
+    const derive_vd v_t296_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t142, t154, t166, t178}), v_t296_1);
+    const derive_vd v_t296_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t143, t155, t167, t179}), v_t296_2);
+    const derive_vd v_t296_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t146, t158, t170, t182}), v_t296_3);
+    const derive_vd v_t296_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t147, t159, t171, t183}), v_t296_4);
+    const derive_vd v_t296 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t148, t160, t172, t184}), v_t296_5);
     #else
     const double t297 = DERIVE_FMA(t41, t160, DERIVE_FMA(t39, t159, DERIVE_FMA(t44, t158, DERIVE_FMA(t35, t155, DERIVE_FMA(t3, t154, DERIVE_FMA(t1, t152, t123) + t153)))));
     const double t298 = DERIVE_FMA(t41, t172, DERIVE_FMA(t39, t171, DERIVE_FMA(t44, t170, DERIVE_FMA(t35, t167, DERIVE_FMA(t3, t166, DERIVE_FMA(t1, t164, t124) + t165)))));
@@ -838,11 +846,11 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #if DERIVE_VECTOR
     const derive_vd v_t300_0 = (((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t188, t204, t220, t236}));
     const derive_vd v_t300_1 = (v_t300_0 + ((derive_vd){t189, t205, t221, t237}));
-    const derive_vd v_t300_2 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t190, t206, t222, t238}), v_t300_1);
-    const derive_vd v_t300_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t191, t207, t223, t239}), v_t300_2);
-    const derive_vd v_t300_4 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t198, t214, t230, t246}), v_t300_3);
-    const derive_vd v_t300_5 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t199, t215, t231, t247}), v_t300_4);
-    const derive_vd v_t300 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t200, t216, t232, t248}), v_t300_5);
+    const derive_vd v_t300_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t190, t206, t222, t238}), v_t300_1);
+    const derive_vd v_t300_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t191, t207, t223, t239}), v_t300_2);
+    const derive_vd v_t300_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t198, t214, t230, t246}), v_t300_3);
+    const derive_vd v_t300_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t199, t215, t231, t247}), v_t300_4);
+    const derive_vd v_t300 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t200, t216, t232, t248}), v_t300_5);
     #else
     const double t300 = DERIVE_FMA(t41, t200, DERIVE_FMA(t39, t199, DERIVE_FMA(t44, t198, DERIVE_FMA(t35, t191, DERIVE_FMA(t3, t190, t1*t188 + t189)))));
     const double t301 = DERIVE_FMA(t41, t216, DERIVE_FMA(t39, t215, DERIVE_FMA(t44, t214, DERIVE_FMA(t35, t207, DERIVE_FMA(t3, t206, t1*t204 + t205)))));
@@ -852,11 +860,11 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #if DERIVE_VECTOR
     const derive_vd v_t304_0 = (((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t252, t268, P[10], P[11]}));
     const derive_vd v_t304_1 = (v_t304_0 + ((derive_vd){t253, t269, P[26], P[27]}));
-    const derive_vd v_t304_2 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t254, t270, P[42], P[43]}), v_t304_1);
-    const derive_vd v_t304_3 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t255, t271, P[58], P[59]}), v_t304_2);
-    const derive_vd v_t304_4 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t262, t278, P[170], P[171]}), v_t304_3);
-    const derive_vd v_t304_5 = DERIVE_ROWS_FMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t263, t279, P[186], P[187]}), v_t304_4);
-    const derive_vd v_t304 = DERIVE_ROWS_FMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t264, t280, P[202], P[203]}), v_t304_5);
+    const derive_vd v_t304_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t254, t270, P[42], P[43]}), v_t304_1);
+    const derive_vd v_t304_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t255, t271, P[58], P[59]}), v_t304_2);
+    const derive_vd v_t304_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t262, t278, P[170], P[171]}), v_t304_3);
+    const derive_vd v_t304_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t263, t279, P[186], P[187]}), v_t304_4);
+    const derive_vd v_t304 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t264, t280, P[202], P[203]}), v_t304_5);
     const double t304 = v_t304[0];
     const double t305 = v_t304[1];
     *(derive_vd_unaligned *)&P_new[24] = ((derive_vd){t304, t305, t158, t159});
@@ -865,25 +873,25 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t305 = DERIVE_FMA(t41, t280, DERIVE_FMA(t39, t279, DERIVE_FMA(t44, t278, DERIVE_FMA(t35, t271, DERIVE_FMA(t3, t270, t1*t268 + t269)))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t308_0 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t119, t124, t126, t127}));
-    const derive_vd v_t308_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t141, t153, t165, t177}), v_t308_0);
+    const derive_vd v_t308_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t119, t124, t126, t127}));
+    const derive_vd v_t308_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t141, t153, t165, t177}), v_t308_0);
     const derive_vd v_t308_2 = (v_t308_1 + ((derive_vd){t142, t154, t166, t178}));
-    const derive_vd v_t308_3 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t143, t155, t167, t179}), v_t308_2);
-    const derive_vd v_t308_4 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t146, t158, t170, t182}), v_t308_3);
-    const derive_vd v_t308_5 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t159, t171, t183}), v_t308_4);
-    const derive_vd v_t308 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t148, t160, t172, t184}), v_t308_5);
+    const derive_vd v_t308_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t143, t155, t167, t179}), v_t308_2);
+    const derive_vd v_t308_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t146, t158, t170, t182}), v_t308_3);
+    const derive_vd v_t308_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t159, t171, t183}), v_t308_4);
+    const derive_vd v_t308 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t148, t160, t172, t184}), v_t308_5);
     #else
     const double t310 = DERIVE_FMA(t37, t172, DERIVE_FMA(t44, t171, DERIVE_FMA(t42, t170, DERIVE_FMA(t1, t167, DERIVE_FMA(t36, t165, DERIVE_FMA(t2, t164, t126)) + t166))));
     const double t311 = DERIVE_FMA(t37, t184, DERIVE_FMA(t44, t183, DERIVE_FMA(t42, t182, DERIVE_FMA(t1, t179, DERIVE_FMA(t36, t177, DERIVE_FMA(t2, t176, t127)) + t178))));
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t312_0 = (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t188, t204, t220, t236}));
-    const derive_vd v_t312_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t189, t205, t221, t237}), v_t312_0);
+    const derive_vd v_t312_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t189, t205, t221, t237}), v_t312_0);
     const derive_vd v_t312_2 = (v_t312_1 + ((derive_vd){t190, t206, t222, t238}));
-    const derive_vd v_t312_3 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t191, t207, t223, t239}), v_t312_2);
-    const derive_vd v_t312_4 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t198, t214, t230, t246}), v_t312_3);
-    const derive_vd v_t312_5 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t199, t215, t231, t247}), v_t312_4);
-    const derive_vd v_t312 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t200, t216, t232, t248}), v_t312_5);
+    const derive_vd v_t312_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t191, t207, t223, t239}), v_t312_2);
+    const derive_vd v_t312_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t198, t214, t230, t246}), v_t312_3);
+    const derive_vd v_t312_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t199, t215, t231, t247}), v_t312_4);
+    const derive_vd v_t312 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t200, t216, t232, t248}), v_t312_5);
     #else
     const double t312 = DERIVE_FMA(t37, t200, DERIVE_FMA(t44, t199, DERIVE_FMA(t42, t198, DERIVE_FMA(t1, t191, DERIVE_FMA(t36, t189, t2*t188) + t190))));
     const double t313 = DERIVE_FMA(t37, t216, DERIVE_FMA(t44, t215, DERIVE_FMA(t42, t214, DERIVE_FMA(t1, t207, DERIVE_FMA(t36, t205, t2*t204) + t206))));
@@ -892,12 +900,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t316_0 = (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t316_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t253, t269, P[26], P[27]}), v_t316_0);
+    const derive_vd v_t316_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t253, t269, P[26], P[27]}), v_t316_0);
     const derive_vd v_t316_2 = (v_t316_1 + ((derive_vd){t254, t270, P[42], P[43]}));
-    const derive_vd v_t316_3 = DERIVE_ROWS_FMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t255, t271, P[58], P[59]}), v_t316_2);
-    const derive_vd v_t316_4 = DERIVE_ROWS_FMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t262, t278, P[170], P[171]}), v_t316_3);
-    const derive_vd v_t316_5 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t263, t279, P[186], P[187]}), v_t316_4);
-    const derive_vd v_t316 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t264, t280, P[202], P[203]}), v_t316_5);
+    const derive_vd v_t316_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t255, t271, P[58], P[59]}), v_t316_2);
+    const derive_vd v_t316_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t262, t278, P[170], P[171]}), v_t316_3);
+    const derive_vd v_t316_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t263, t279, P[186], P[187]}), v_t316_4);
+    const derive_vd v_t316 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t264, t280, P[202], P[203]}), v_t316_5);
     const double t316 = v_t316[0];
     const double t317 = v_t316[1];
     *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t316, t317, t170, t171});
@@ -906,13 +914,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t317 = DERIVE_FMA(t37, t280, DERIVE_FMA(t44, t279, DERIVE_FMA(t42, t278, DERIVE_FMA(t1, t271, DERIVE_FMA(t36, t269, t2*t268) + t270))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t320_0 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t121, t125, t127, t128}));
-    const derive_vd v_t320_1 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t141, t153, t165, t177}), v_t320_0);
-    const derive_vd v_t320_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t142, t154, t166, t178}), v_t320_1);
+    const derive_vd v_t320_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t121, t125, t127, t128}));
+    const derive_vd v_t320_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t141, t153, t165, t177}), v_t320_0);
+    const derive_vd v_t320_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t142, t154, t166, t178}), v_t320_1);
     const derive_vd v_t320_3 = (v_t320_2 + ((derive_vd){t143, t155, t167, t179}));
-    const derive_vd v_t320_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t146, t158, t170, t182}), v_t320_3);
-    const derive_vd v_t320_5 = DERIVE_ROWS_FMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t147, t159, t171, t183}), v_t320_4);
-    const derive_vd v_t320 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t160, t172, t184}), v_t320_5);
+    const derive_vd v_t320_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t146, t158, t170, t182}), v_t320_3);
+    const derive_vd v_t320_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t147, t159, t171, t183}), v_t320_4);
+    const derive_vd v_t320 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t160, t172, t184}), v_t320_5);
     const derive_vd tr_v_t284_0 = __builtin_shufflevector(v_t284, v_t296, 0, 4, 2, 6);
     const derive_vd tr_v_t284_1 = __builtin_shufflevector(v_t284, v_t296, 1, 5, 3, 7);
     const derive_vd tr_v_t284_2 = __builtin_shufflevector(v_t308, v_t320, 0, 4, 2, 6);
@@ -929,12 +937,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t324_0 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t188, t204, t220, t236}));
-    const derive_vd v_t324_1 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t189, t205, t221, t237}), v_t324_0);
-    const derive_vd v_t324_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t190, t206, t222, t238}), v_t324_1);
+    const derive_vd v_t324_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t189, t205, t221, t237}), v_t324_0);
+    const derive_vd v_t324_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t190, t206, t222, t238}), v_t324_1);
     const derive_vd v_t324_3 = (v_t324_2 + ((derive_vd){t191, t207, t223, t239}));
-    const derive_vd v_t324_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t198, t214, t230, t246}), v_t324_3);
-    const derive_vd v_t324_5 = DERIVE_ROWS_FMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t199, t215, t231, t247}), v_t324_4);
-    const derive_vd v_t324 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t200, t216, t232, t248}), v_t324_5);
+    const derive_vd v_t324_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t198, t214, t230, t246}), v_t324_3);
+    const derive_vd v_t324_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t199, t215, t231, t247}), v_t324_4);
+    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t200, t216, t232, t248}), v_t324_5);
     const derive_vd tr_v_t288_0 = __builtin_shufflevector(v_t288, v_t300, 0, 4, 2, 6);
     const derive_vd tr_v_t288_1 = __builtin_shufflevector(v_t288, v_t300, 1, 5, 3, 7);
     const derive_vd tr_v_t288_2 = __builtin_shufflevector(v_t312, v_t324, 0, 4, 2, 6);
@@ -959,12 +967,12 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t328_0 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t328_1 = DERIVE_ROWS_FMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t253, t269, P[26], P[27]}), v_t328_0);
-    const derive_vd v_t328_2 = DERIVE_ROWS_FMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t254, t270, P[42], P[43]}), v_t328_1);
+    const derive_vd v_t328_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t253, t269, P[26], P[27]}), v_t328_0);
+    const derive_vd v_t328_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t254, t270, P[42], P[43]}), v_t328_1);
     const derive_vd v_t328_3 = (v_t328_2 + ((derive_vd){t255, t271, P[58], P[59]}));
-    const derive_vd v_t328_4 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t262, t278, P[170], P[171]}), v_t328_3);
-    const derive_vd v_t328_5 = DERIVE_ROWS_FMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t263, t279, P[186], P[187]}), v_t328_4);
-    const derive_vd v_t328 = DERIVE_ROWS_FMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t264, t280, P[202], P[203]}), v_t328_5);
+    const derive_vd v_t328_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t262, t278, P[170], P[171]}), v_t328_3);
+    const derive_vd v_t328_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t263, t279, P[186], P[187]}), v_t328_4);
+    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t264, t280, P[202], P[203]}), v_t328_5);
     const double t328 = v_t328[0];
     const double t329 = v_t328[1];
     *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t328, t329, t182, t183});
@@ -975,14 +983,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t329 = DERIVE_FMA(t44, t280, DERIVE_FMA(t40, t279, DERIVE_FMA(t38, t278, DERIVE_FMA(t34, t270, DERIVE_FMA(t2, t269, t3*t268)) + t271)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t332_0 = DERIVE_ROWS_FMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t129, t130, t131, 0.0}));
-    const derive_vd v_t332_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t189, t205, t221, t237}), v_t332_0);
-    const derive_vd v_t332_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t190, t206, t222, t238}), v_t332_1);
-    const derive_vd v_t332_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t191, t207, t223, t239}), v_t332_2);
+    const derive_vd v_t332_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t129, t130, t131, 0.0}));
+    const derive_vd v_t332_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t189, t205, t221, t237}), v_t332_0);
+    const derive_vd v_t332_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t190, t206, t222, t238}), v_t332_1);
+    const derive_vd v_t332_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t191, t207, t223, t239}), v_t332_2);
     const derive_vd v_t332_4 = (v_t332_3 + ((derive_vd){t192, t208, t224, t240}));
-    const derive_vd v_t332_5 = DERIVE_ROWS_FMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t201, t217, t233, t249}), v_t332_4);
-    const derive_vd v_t332_6 = DERIVE_ROWS_FMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t202, t218, t234, t250}), v_t332_5);
-    const derive_vd v_t332 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t203, t219, t235, t251}), v_t332_6);
+    const derive_vd v_t332_5 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t201, t217, t233, t249}), v_t332_4);
+    const derive_vd v_t332_6 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t202, t218, t234, t250}), v_t332_5);
+    const derive_vd v_t332 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t203, t219, t235, t251}), v_t332_6);
     #else
     const double t332 = DERIVE_FMA(t137, t203, DERIVE_FMA(t75, t202, DERIVE_FMA(t74, t201, DERIVE_FMA(t73, t191, DERIVE_FMA(t72, t190, DERIVE_FMA(t71, t189, DERIVE_FMA(t70, t188, t129)))) + t192)));
     const double t333 = DERIVE_FMA(t137, t219, DERIVE_FMA(t75, t218, DERIVE_FMA(t74, t217, DERIVE_FMA(t73, t207, DERIVE_FMA(t72, t206, DERIVE_FMA(t71, t205, DERIVE_FMA(t70, t204, t130)))) + t208)));
@@ -991,13 +999,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t336_0 = (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t336_1 = DERIVE_ROWS_FMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t253, t269, P[26], P[27]}), v_t336_0);
-    const derive_vd v_t336_2 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t254, t270, P[42], P[43]}), v_t336_1);
-    const derive_vd v_t336_3 = DERIVE_ROWS_FMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t255, t271, P[58], P[59]}), v_t336_2);
+    const derive_vd v_t336_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t253, t269, P[26], P[27]}), v_t336_0);
+    const derive_vd v_t336_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t254, t270, P[42], P[43]}), v_t336_1);
+    const derive_vd v_t336_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t255, t271, P[58], P[59]}), v_t336_2);
     const derive_vd v_t336_4 = (v_t336_3 + ((derive_vd){t256, t272, P[74], P[75]}));
-    const derive_vd v_t336_5 = DERIVE_ROWS_FMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t265, t281, P[218], P[219]}), v_t336_4);
-    const derive_vd v_t336_6 = DERIVE_ROWS_FMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t266, t282, P[234], P[235]}), v_t336_5);
-    const derive_vd v_t336 = DERIVE_ROWS_FMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t267, t283, P[250], P[251]}), v_t336_6);
+    const derive_vd v_t336_5 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t265, t281, P[218], P[219]}), v_t336_4);
+    const derive_vd v_t336_6 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t266, t282, P[234], P[235]}), v_t336_5);
+    const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t267, t283, P[250], P[251]}), v_t336_6);
     const double t336 = v_t336[0];
     const double t337 = v_t336[1];
     *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t336, t337, t198, t199});
@@ -1006,14 +1014,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t337 = DERIVE_FMA(t137, t283, DERIVE_FMA(t75, t282, DERIVE_FMA(t74, t281, DERIVE_FMA(t73, t271, DERIVE_FMA(t72, t270, DERIVE_FMA(t71, t269, t70*t268))) + t272)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t340_0 = DERIVE_ROWS_FMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t130, t132, t133, 0.0}));
-    const derive_vd v_t340_1 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t189, t205, t221, t237}), v_t340_0);
-    const derive_vd v_t340_2 = DERIVE_ROWS_FMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t190, t206, t222, t238}), v_t340_1);
-    const derive_vd v_t340_3 = DERIVE_ROWS_FMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t191, t207, t223, t239}), v_t340_2);
+    const derive_vd v_t340_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t130, t132, t133, 0.0}));
+    const derive_vd v_t340_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t189, t205, t221, t237}), v_t340_0);
+    const derive_vd v_t340_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t190, t206, t222, t238}), v_t340_1);
+    const derive_vd v_t340_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t191, t207, t223, t239}), v_t340_2);
     const derive_vd v_t340_4 = (v_t340_3 + ((derive_vd){t193, t209, t225, t241}));
-    const derive_vd v_t340_5 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t201, t217, t233, t249}), v_t340_4);
-    const derive_vd v_t340_6 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t202, t218, t234, t250}), v_t340_5);
-    const derive_vd v_t340 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t203, t219, t235, t251}), v_t340_6);
+    const derive_vd v_t340_5 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t201, t217, t233, t249}), v_t340_4);
+    const derive_vd v_t340_6 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t202, t218, t234, t250}), v_t340_5);
+    const derive_vd v_t340 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t203, t219, t235, t251}), v_t340_6);
     #else
     const double t341 = DERIVE_FMA(t85, t219, DERIVE_FMA(t84, t218, DERIVE_FMA(t138, t217, DERIVE_FMA(t82, t207, DERIVE_FMA(t81, t206, DERIVE_FMA(t80, t205, DERIVE_FMA(t79, t204, t132)))) + t209)));
     const double t342 = DERIVE_FMA(t85, t235, DERIVE_FMA(t84, t234, DERIVE_FMA(t138, t233, DERIVE_FMA(t82, t223, DERIVE_FMA(t81, t222, DERIVE_FMA(t80, t221, DERIVE_FMA(t79, t220, t133)))) + t225)));
@@ -1021,13 +1029,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t344_0 = (((derive_vd){t79, t79, t79, t79}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t344_1 = DERIVE_ROWS_FMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t253, t269, P[26], P[27]}), v_t344_0);
-    const derive_vd v_t344_2 = DERIVE_ROWS_FMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t254, t270, P[42], P[43]}), v_t344_1);
-    const derive_vd v_t344_3 = DERIVE_ROWS_FMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t255, t271, P[58], P[59]}), v_t344_2);
+    const derive_vd v_t344_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t253, t269, P[26], P[27]}), v_t344_0);
+    const derive_vd v_t344_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t254, t270, P[42], P[43]}), v_t344_1);
+    const derive_vd v_t344_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t255, t271, P[58], P[59]}), v_t344_2);
     const derive_vd v_t344_4 = (v_t344_3 + ((derive_vd){t257, t273, P[90], P[91]}));
-    const derive_vd v_t344_5 = DERIVE_ROWS_FMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t265, t281, P[218], P[219]}), v_t344_4);
-    const derive_vd v_t344_6 = DERIVE_ROWS_FMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t266, t282, P[234], P[235]}), v_t344_5);
-    const derive_vd v_t344 = DERIVE_ROWS_FMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t267, t283, P[250], P[251]}), v_t344_6);
+    const derive_vd v_t344_5 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t265, t281, P[218], P[219]}), v_t344_4);
+    const derive_vd v_t344_6 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t266, t282, P[234], P[235]}), v_t344_5);
+    const derive_vd v_t344 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t267, t283, P[250], P[251]}), v_t344_6);
     const double t344 = v_t344[0];
     const double t345 = v_t344[1];
     *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t344, t345, t214, t215});
@@ -1036,27 +1044,27 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t345 = DERIVE_FMA(t85, t283, DERIVE_FMA(t84, t282, DERIVE_FMA(t138, t281, DERIVE_FMA(t82, t271, DERIVE_FMA(t81, t270, DERIVE_FMA(t80, t269, t79*t268))) + t273)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t348_0 = DERIVE_ROWS_FMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t131, t133, t134, 0.0}));
-    const derive_vd v_t348_1 = DERIVE_ROWS_FMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t189, t205, t221, t237}), v_t348_0);
-    const derive_vd v_t348_2 = DERIVE_ROWS_FMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t190, t206, t222, t238}), v_t348_1);
-    const derive_vd v_t348_3 = DERIVE_ROWS_FMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t191, t207, t223, t239}), v_t348_2);
+    const derive_vd v_t348_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t131, t133, t134, 0.0}));
+    const derive_vd v_t348_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t189, t205, t221, t237}), v_t348_0);
+    const derive_vd v_t348_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t190, t206, t222, t238}), v_t348_1);
+    const derive_vd v_t348_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t191, t207, t223, t239}), v_t348_2);
     const derive_vd v_t348_4 = (v_t348_3 + ((derive_vd){t194, t210, t226, t242}));
-    const derive_vd v_t348_5 = DERIVE_ROWS_FMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t201, t217, t233, t249}), v_t348_4);
-    const derive_vd v_t348_6 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t202, t218, t234, t250}), v_t348_5);
-    const derive_vd v_t348 = DERIVE_ROWS_FMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t203, t219, t235, t251}), v_t348_6);
+    const derive_vd v_t348_5 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t201, t217, t233, t249}), v_t348_4);
+    const derive_vd v_t348_6 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t202, t218, t234, t250}), v_t348_5);
+    const derive_vd v_t348 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t203, t219, t235, t251}), v_t348_6);
     #else
     const double t350 = DERIVE_FMA(t94, t235, DERIVE_FMA(t139, t234, DERIVE_FMA(t92, t233, DERIVE_FMA(t91, t223, DERIVE_FMA(t90, t222, DERIVE_FMA(t89, t221, DERIVE_FMA(t88, t220, t134)))) + t226)));
     const double t351 = DERIVE_FMA(t94, t251, DERIVE_FMA(t139, t250, DERIVE_FMA(t92, t249, DERIVE_FMA(t91, t239, DERIVE_FMA(t90, t238, DERIVE_FMA(t89, t237, DERIVE_FMA(t88, t236, 0.0)))) + t242)));
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t352_0 = (((derive_vd){t88, t88, t88, t88}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t352_1 = DERIVE_ROWS_FMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t253, t269, P[26], P[27]}), v_t352_0);
-    const derive_vd v_t352_2 = DERIVE_ROWS_FMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t254, t270, P[42], P[43]}), v_t352_1);
-    const derive_vd v_t352_3 = DERIVE_ROWS_FMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t255, t271, P[58], P[59]}), v_t352_2);
+    const derive_vd v_t352_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t253, t269, P[26], P[27]}), v_t352_0);
+    const derive_vd v_t352_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t254, t270, P[42], P[43]}), v_t352_1);
+    const derive_vd v_t352_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t255, t271, P[58], P[59]}), v_t352_2);
     const derive_vd v_t352_4 = (v_t352_3 + ((derive_vd){t258, t274, P[106], P[107]}));
-    const derive_vd v_t352_5 = DERIVE_ROWS_FMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t265, t281, P[218], P[219]}), v_t352_4);
-    const derive_vd v_t352_6 = DERIVE_ROWS_FMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t266, t282, P[234], P[235]}), v_t352_5);
-    const derive_vd v_t352 = DERIVE_ROWS_FMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t267, t283, P[250], P[251]}), v_t352_6);
+    const derive_vd v_t352_5 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t265, t281, P[218], P[219]}), v_t352_4);
+    const derive_vd v_t352_6 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t266, t282, P[234], P[235]}), v_t352_5);
+    const derive_vd v_t352 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t267, t283, P[250], P[251]}), v_t352_6);
     const double t352 = v_t352[0];
     const double t353 = v_t352[1];
     *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t352, t353, t230, t231});
@@ -1560,7 +1568,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t77 = DERIVE_FMA(t67, t75, DERIVE_FMA(t57, t70, DERIVE_FMA(t42, t62, DERIVE_FMA(t22, t50, DERIVE_FMA(P[118], t33, t5)))));
     const double t78 = t76*t77;
     #if DERIVE_VECTOR
-    const derive_vd v_t79 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t79 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
     #else
     const double t79 = DERIVE_FMA(t13, P[112], P[128]);
     const double t80 = DERIVE_FMA(t13, P[113], P[129]);
@@ -1568,7 +1576,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t82 = DERIVE_FMA(t13, P[115], P[131]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t83 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
     #else
     const double t83 = DERIVE_FMA(t13, P[116], P[132]);
     const double t84 = DERIVE_FMA(t13, P[117], P[133]);
@@ -1576,7 +1584,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t86 = DERIVE_FMA(t13, P[119], P[135]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t87 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
     #else
     const double t87 = DERIVE_FMA(t13, P[120], P[136]);
     const double t88 = DERIVE_FMA(t13, P[121], P[137]);
@@ -1584,7 +1592,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t90 = DERIVE_FMA(t13, P[123], P[139]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t91 = DERIVE_ROWS_FMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t91 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
     #else
     const double t91 = DERIVE_FMA(t13, P[124], P[140]);
     const double t92 = DERIVE_FMA(t13, P[125], P[141]);
@@ -1592,8 +1600,8 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t94 = DERIVE_FMA(t13, P[127], P[143]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t95_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
-    const derive_vd v_t95 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t79, v_t95_0);
+    const derive_vd v_t95_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const derive_vd v_t95 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t79, v_t95_0);
     #else
     const double t95 = DERIVE_FMA(t35, t79, DERIVE_FMA(t14, P[112], P[144]));
     const double t96 = DERIVE_FMA(t35, t80, DERIVE_FMA(t14, P[113], P[145]));
@@ -1601,8 +1609,8 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t98 = DERIVE_FMA(t35, t82, DERIVE_FMA(t14, P[115], P[147]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t99_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t99 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t99_0);
+    const derive_vd v_t99_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t99_0);
     #else
     const double t99 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[116], P[148]));
     const double t100 = DERIVE_FMA(t35, t84, DERIVE_FMA(t14, P[117], P[149]));
@@ -1610,8 +1618,8 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t102 = DERIVE_FMA(t35, t86, DERIVE_FMA(t14, P[119], P[151]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t103_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t103 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t103_0);
+    const derive_vd v_t103_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t103_0);
     #else
     const double t103 = DERIVE_FMA(t35, t87, DERIVE_FMA(t14, P[120], P[152]));
     const double t104 = DERIVE_FMA(t35, t88, DERIVE_FMA(t14, P[121], P[153]));
@@ -1619,8 +1627,8 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t106 = DERIVE_FMA(t35, t90, DERIVE_FMA(t14, P[123], P[155]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t107_0 = DERIVE_ROWS_FMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t107 = DERIVE_ROWS_FMA(((derive_vd){t35, t35, t35, t35}), v_t91, v_t107_0);
+    const derive_vd v_t107_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t91, v_t107_0);
     #else
     const double t107 = DERIVE_FMA(t35, t91, DERIVE_FMA(t14, P[124], P[156]));
     const double t108 = DERIVE_FMA(t35, t92, DERIVE_FMA(t14, P[125], P[157]));
@@ -1628,9 +1636,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t110 = DERIVE_FMA(t35, t94, DERIVE_FMA(t14, P[127], P[159]));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t111_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t111_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t79, v_t111_0);
-    const derive_vd v_t111 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t95, v_t111_1);
+    const derive_vd v_t111_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t111_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t79, v_t111_0);
+    const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t95, v_t111_1);
     #else
     const double t111 = DERIVE_FMA(t52, t95, DERIVE_FMA(t36, t79, DERIVE_FMA(t15, P[112], P[64])));
     const double t112 = DERIVE_FMA(t52, t96, DERIVE_FMA(t36, t80, DERIVE_FMA(t15, P[113], P[65])));
@@ -1638,9 +1646,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t114 = DERIVE_FMA(t52, t98, DERIVE_FMA(t36, t82, DERIVE_FMA(t15, P[115], P[67])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t115_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t115_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t115_0);
-    const derive_vd v_t115 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t99, v_t115_1);
+    const derive_vd v_t115_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t115_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t115_0);
+    const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t99, v_t115_1);
     #else
     const double t115 = DERIVE_FMA(t52, t99, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[116], P[68])));
     const double t116 = DERIVE_FMA(t52, t100, DERIVE_FMA(t36, t84, DERIVE_FMA(t15, P[117], P[69])));
@@ -1648,9 +1656,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t118 = DERIVE_FMA(t52, t102, DERIVE_FMA(t36, t86, DERIVE_FMA(t15, P[119], P[71])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t119_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t119_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t87, v_t119_0);
-    const derive_vd v_t119 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t103, v_t119_1);
+    const derive_vd v_t119_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t119_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t87, v_t119_0);
+    const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t103, v_t119_1);
     #else
     const double t119 = DERIVE_FMA(t52, t103, DERIVE_FMA(t36, t87, DERIVE_FMA(t15, P[120], P[72])));
     const double t120 = DERIVE_FMA(t52, t104, DERIVE_FMA(t36, t88, DERIVE_FMA(t15, P[121], P[73])));
@@ -1658,9 +1666,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t122 = DERIVE_FMA(t52, t106, DERIVE_FMA(t36, t90, DERIVE_FMA(t15, P[123], P[75])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t123_0 = DERIVE_ROWS_FMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t123_1 = DERIVE_ROWS_FMA(((derive_vd){t36, t36, t36, t36}), v_t91, v_t123_0);
-    const derive_vd v_t123 = DERIVE_ROWS_FMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t123_1);
+    const derive_vd v_t123_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t123_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t91, v_t123_0);
+    const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t123_1);
     #else
     const double t123 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t91, DERIVE_FMA(t15, P[124], P[76])));
     const double t124 = DERIVE_FMA(t52, t108, DERIVE_FMA(t36, t92, DERIVE_FMA(t15, P[125], P[77])));
@@ -1668,10 +1676,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t126 = DERIVE_FMA(t52, t110, DERIVE_FMA(t36, t94, DERIVE_FMA(t15, P[127], P[79])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t127_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t127_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t79, v_t127_0);
-    const derive_vd v_t127_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t95, v_t127_1);
-    const derive_vd v_t127 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t111, v_t127_2);
+    const derive_vd v_t127_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t127_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t79, v_t127_0);
+    const derive_vd v_t127_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t95, v_t127_1);
+    const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t111, v_t127_2);
     #else
     const double t127 = DERIVE_FMA(t64, t111, DERIVE_FMA(t53, t95, DERIVE_FMA(t37, t79, DERIVE_FMA(t16, P[112], P[80]))));
     const double t128 = DERIVE_FMA(t64, t112, DERIVE_FMA(t53, t96, DERIVE_FMA(t37, t80, DERIVE_FMA(t16, P[113], P[81]))));
@@ -1679,10 +1687,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t130 = DERIVE_FMA(t64, t114, DERIVE_FMA(t53, t98, DERIVE_FMA(t37, t82, DERIVE_FMA(t16, P[115], P[83]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t131_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t131_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t131_0);
-    const derive_vd v_t131_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t99, v_t131_1);
-    const derive_vd v_t131 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t115, v_t131_2);
+    const derive_vd v_t131_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t131_0);
+    const derive_vd v_t131_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t99, v_t131_1);
+    const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t115, v_t131_2);
     #else
     const double t131 = DERIVE_FMA(t64, t115, DERIVE_FMA(t53, t99, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[116], P[84]))));
     const double t132 = DERIVE_FMA(t64, t116, DERIVE_FMA(t53, t100, DERIVE_FMA(t37, t84, DERIVE_FMA(t16, P[117], P[85]))));
@@ -1690,10 +1698,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t134 = DERIVE_FMA(t64, t118, DERIVE_FMA(t53, t102, DERIVE_FMA(t37, t86, DERIVE_FMA(t16, P[119], P[87]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t135_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t135_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t87, v_t135_0);
-    const derive_vd v_t135_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t103, v_t135_1);
-    const derive_vd v_t135 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t119, v_t135_2);
+    const derive_vd v_t135_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t135_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t87, v_t135_0);
+    const derive_vd v_t135_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t103, v_t135_1);
+    const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t119, v_t135_2);
     #else
     const double t135 = DERIVE_FMA(t64, t119, DERIVE_FMA(t53, t103, DERIVE_FMA(t37, t87, DERIVE_FMA(t16, P[120], P[88]))));
     const double t136 = DERIVE_FMA(t64, t120, DERIVE_FMA(t53, t104, DERIVE_FMA(t37, t88, DERIVE_FMA(t16, P[121], P[89]))));
@@ -1701,10 +1709,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t138 = DERIVE_FMA(t64, t122, DERIVE_FMA(t53, t106, DERIVE_FMA(t37, t90, DERIVE_FMA(t16, P[123], P[91]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t139_0 = DERIVE_ROWS_FMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t139_1 = DERIVE_ROWS_FMA(((derive_vd){t37, t37, t37, t37}), v_t91, v_t139_0);
-    const derive_vd v_t139_2 = DERIVE_ROWS_FMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t139_1);
-    const derive_vd v_t139 = DERIVE_ROWS_FMA(((derive_vd){t64, t64, t64, t64}), v_t123, v_t139_2);
+    const derive_vd v_t139_0 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t139_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t91, v_t139_0);
+    const derive_vd v_t139_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t139_1);
+    const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t123, v_t139_2);
     #else
     const double t139 = DERIVE_FMA(t64, t123, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t91, DERIVE_FMA(t16, P[124], P[92]))));
     const double t140 = DERIVE_FMA(t64, t124, DERIVE_FMA(t53, t108, DERIVE_FMA(t37, t92, DERIVE_FMA(t16, P[125], P[93]))));
@@ -1712,11 +1720,11 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t142 = DERIVE_FMA(t64, t126, DERIVE_FMA(t53, t110, DERIVE_FMA(t37, t94, DERIVE_FMA(t16, P[127], P[95]))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t143_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
-    const derive_vd v_t143_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t79, v_t143_0);
-    const derive_vd v_t143_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t95, v_t143_1);
-    const derive_vd v_t143_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t111, v_t143_2);
-    const derive_vd v_t143 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t127, v_t143_3);
+    const derive_vd v_t143_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t143_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t79, v_t143_0);
+    const derive_vd v_t143_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t95, v_t143_1);
+    const derive_vd v_t143_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t111, v_t143_2);
+    const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t127, v_t143_3);
     #else
     const double t143 = DERIVE_FMA(t72, t127, DERIVE_FMA(t65, t111, DERIVE_FMA(t54, t95, DERIVE_FMA(t38, t79, DERIVE_FMA(t17, P[112], P[96])))));
     const double t144 = DERIVE_FMA(t72, t128, DERIVE_FMA(t65, t112, DERIVE_FMA(t54, t96, DERIVE_FMA(t38, t80, DERIVE_FMA(t17, P[113], P[97])))));
@@ -1724,11 +1732,11 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t146 = DERIVE_FMA(t72, t130, DERIVE_FMA(t65, t114, DERIVE_FMA(t54, t98, DERIVE_FMA(t38, t82, DERIVE_FMA(t17, P[115], P[99])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t147_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t147_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t83, v_t147_0);
-    const derive_vd v_t147_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t99, v_t147_1);
-    const derive_vd v_t147_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t115, v_t147_2);
-    const derive_vd v_t147 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t131, v_t147_3);
+    const derive_vd v_t147_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t147_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t83, v_t147_0);
+    const derive_vd v_t147_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t99, v_t147_1);
+    const derive_vd v_t147_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t115, v_t147_2);
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t131, v_t147_3);
     #else
     const double t147 = DERIVE_FMA(t72, t131, DERIVE_FMA(t65, t115, DERIVE_FMA(t54, t99, DERIVE_FMA(t38, t83, DERIVE_FMA(t17, P[116], P[100])))));
     const double t148 = DERIVE_FMA(t72, t132, DERIVE_FMA(t65, t116, DERIVE_FMA(t54, t100, DERIVE_FMA(t38, t84, DERIVE_FMA(t17, P[117], P[101])))));
@@ -1736,11 +1744,11 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t150 = DERIVE_FMA(t72, t134, DERIVE_FMA(t65, t118, DERIVE_FMA(t54, t102, DERIVE_FMA(t38, t86, DERIVE_FMA(t17, P[119], P[103])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t151_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t151_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t87, v_t151_0);
-    const derive_vd v_t151_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t103, v_t151_1);
-    const derive_vd v_t151_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t119, v_t151_2);
-    const derive_vd v_t151 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t135, v_t151_3);
+    const derive_vd v_t151_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t151_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t87, v_t151_0);
+    const derive_vd v_t151_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t103, v_t151_1);
+    const derive_vd v_t151_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t119, v_t151_2);
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t135, v_t151_3);
     #else
     const double t151 = DERIVE_FMA(t72, t135, DERIVE_FMA(t65, t119, DERIVE_FMA(t54, t103, DERIVE_FMA(t38, t87, DERIVE_FMA(t17, P[120], P[104])))));
     const double t152 = DERIVE_FMA(t72, t136, DERIVE_FMA(t65, t120, DERIVE_FMA(t54, t104, DERIVE_FMA(t38, t88, DERIVE_FMA(t17, P[121], P[105])))));
@@ -1748,11 +1756,11 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t154 = DERIVE_FMA(t72, t138, DERIVE_FMA(t65, t122, DERIVE_FMA(t54, t106, DERIVE_FMA(t38, t90, DERIVE_FMA(t17, P[123], P[107])))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t155_0 = DERIVE_ROWS_FMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t155_1 = DERIVE_ROWS_FMA(((derive_vd){t38, t38, t38, t38}), v_t91, v_t155_0);
-    const derive_vd v_t155_2 = DERIVE_ROWS_FMA(((derive_vd){t54, t54, t54, t54}), v_t107, v_t155_1);
-    const derive_vd v_t155_3 = DERIVE_ROWS_FMA(((derive_vd){t65, t65, t65, t65}), v_t123, v_t155_2);
-    const derive_vd v_t155 = DERIVE_ROWS_FMA(((derive_vd){t72, t72, t72, t72}), v_t139, v_t155_3);
+    const derive_vd v_t155_0 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t91, v_t155_0);
+    const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t107, v_t155_1);
+    const derive_vd v_t155_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t123, v_t155_2);
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t139, v_t155_3);
     #else
     const double t155 = DERIVE_FMA(t72, t139, DERIVE_FMA(t65, t123, DERIVE_FMA(t54, t107, DERIVE_FMA(t38, t91, DERIVE_FMA(t17, P[124], P[108])))));
     const double t156 = DERIVE_FMA(t72, t140, DERIVE_FMA(t65, t124, DERIVE_FMA(t54, t108, DERIVE_FMA(t38, t92, DERIVE_FMA(t17, P[125], P[109])))));
@@ -2048,12 +2056,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t254 = t76*t158;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t255_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
-    const derive_vd v_t255_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t79, v_t255_0);
-    const derive_vd v_t255_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t95, v_t255_1);
-    const derive_vd v_t255_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t111, v_t255_2);
-    const derive_vd v_t255_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t127, v_t255_3);
-    const derive_vd v_t255 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t143, v_t255_4);
+    const derive_vd v_t255_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
+    const derive_vd v_t255_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t79, v_t255_0);
+    const derive_vd v_t255_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t95, v_t255_1);
+    const derive_vd v_t255_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t111, v_t255_2);
+    const derive_vd v_t255_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t127, v_t255_3);
+    const derive_vd v_t255 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t143, v_t255_4);
     const double t255 = v_t255[0];
     const double t256 = v_t255[1];
     const double t257 = v_t255[2];
@@ -2065,12 +2073,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t258 = DERIVE_FNMA(t78, t146, DERIVE_FNMA(t75, t130, DERIVE_FNMA(t70, t114, DERIVE_FNMA(t62, t98, DERIVE_FNMA(t50, t82, DERIVE_FNMA(t33, P[115], x[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t259_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
-    const derive_vd v_t259_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t83, v_t259_0);
-    const derive_vd v_t259_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t99, v_t259_1);
-    const derive_vd v_t259_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t115, v_t259_2);
-    const derive_vd v_t259_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t131, v_t259_3);
-    const derive_vd v_t259 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t147, v_t259_4);
+    const derive_vd v_t259_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
+    const derive_vd v_t259_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t83, v_t259_0);
+    const derive_vd v_t259_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t99, v_t259_1);
+    const derive_vd v_t259_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t115, v_t259_2);
+    const derive_vd v_t259_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t131, v_t259_3);
+    const derive_vd v_t259 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t147, v_t259_4);
     *(derive_vd_unaligned *)&x_new[4] = v_t259;
     #else
     const double t259 = DERIVE_FNMA(t78, t147, DERIVE_FNMA(t75, t131, DERIVE_FNMA(t70, t115, DERIVE_FNMA(t62, t99, DERIVE_FNMA(t50, t83, DERIVE_FNMA(t33, P[116], x[4]))))));
@@ -2079,12 +2087,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t262 = DERIVE_FNMA(t78, t150, DERIVE_FNMA(t75, t134, DERIVE_FNMA(t70, t118, DERIVE_FNMA(t62, t102, DERIVE_FNMA(t50, t86, DERIVE_FNMA(t33, P[119], x[7]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t263_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
-    const derive_vd v_t263_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t87, v_t263_0);
-    const derive_vd v_t263_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t103, v_t263_1);
-    const derive_vd v_t263_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t119, v_t263_2);
-    const derive_vd v_t263_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t135, v_t263_3);
-    const derive_vd v_t263 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t151, v_t263_4);
+    const derive_vd v_t263_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
+    const derive_vd v_t263_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t87, v_t263_0);
+    const derive_vd v_t263_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t103, v_t263_1);
+    const derive_vd v_t263_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t119, v_t263_2);
+    const derive_vd v_t263_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t135, v_t263_3);
+    const derive_vd v_t263 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t151, v_t263_4);
     *(derive_vd_unaligned *)&x_new[8] = v_t263;
     #else
     const double t263 = DERIVE_FNMA(t78, t151, DERIVE_FNMA(t75, t135, DERIVE_FNMA(t70, t119, DERIVE_FNMA(t62, t103, DERIVE_FNMA(t50, t87, DERIVE_FNMA(t33, P[120], x[8]))))));
@@ -2093,12 +2101,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t266 = DERIVE_FNMA(t78, t154, DERIVE_FNMA(t75, t138, DERIVE_FNMA(t70, t122, DERIVE_FNMA(t62, t106, DERIVE_FNMA(t50, t90, DERIVE_FNMA(t33, P[123], x[11]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t267_0 = DERIVE_ROWS_FNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
-    const derive_vd v_t267_1 = DERIVE_ROWS_FNMA(((derive_vd){t50, t50, t50, t50}), v_t91, v_t267_0);
-    const derive_vd v_t267_2 = DERIVE_ROWS_FNMA(((derive_vd){t62, t62, t62, t62}), v_t107, v_t267_1);
-    const derive_vd v_t267_3 = DERIVE_ROWS_FNMA(((derive_vd){t70, t70, t70, t70}), v_t123, v_t267_2);
-    const derive_vd v_t267_4 = DERIVE_ROWS_FNMA(((derive_vd){t75, t75, t75, t75}), v_t139, v_t267_3);
-    const derive_vd v_t267 = DERIVE_ROWS_FNMA(((derive_vd){t78, t78, t78, t78}), v_t155, v_t267_4);
+    const derive_vd v_t267_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
+    const derive_vd v_t267_1 = DERIVE_VFNMA(((derive_vd){t50, t50, t50, t50}), v_t91, v_t267_0);
+    const derive_vd v_t267_2 = DERIVE_VFNMA(((derive_vd){t62, t62, t62, t62}), v_t107, v_t267_1);
+    const derive_vd v_t267_3 = DERIVE_VFNMA(((derive_vd){t70, t70, t70, t70}), v_t123, v_t267_2);
+    const derive_vd v_t267_4 = DERIVE_VFNMA(((derive_vd){t75, t75, t75, t75}), v_t139, v_t267_3);
+    const derive_vd v_t267 = DERIVE_VFNMA(((derive_vd){t78, t78, t78, t78}), v_t155, v_t267_4);
     *(derive_vd_unaligned *)&x_new[12] = v_t267;
     #else
     const double t267 = DERIVE_FNMA(t78, t155, DERIVE_FNMA(t75, t139, DERIVE_FNMA(t70, t123, DERIVE_FNMA(t62, t107, DERIVE_FNMA(t50, t91, DERIVE_FNMA(t33, P[124], x[12]))))));
@@ -2107,12 +2115,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t270 = DERIVE_FNMA(t78, t158, DERIVE_FNMA(t75, t142, DERIVE_FNMA(t70, t126, DERIVE_FNMA(t62, t110, DERIVE_FNMA(t50, t94, DERIVE_FNMA(t33, P[127], x[15]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t271_0 = DERIVE_ROWS_FMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const derive_vd v_t271_1 = DERIVE_ROWS_FMA(((derive_vd){t175, t175, t175, t175}), v_t79, v_t271_0);
-    const derive_vd v_t271_2 = DERIVE_ROWS_FMA(((derive_vd){t191, t191, t191, t191}), v_t95, v_t271_1);
-    const derive_vd v_t271_3 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t111, v_t271_2);
-    const derive_vd v_t271_4 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t127, v_t271_3);
-    const derive_vd v_t271 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t143, v_t271_4);
+    const derive_vd v_t271_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const derive_vd v_t271_1 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t79, v_t271_0);
+    const derive_vd v_t271_2 = DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t95, v_t271_1);
+    const derive_vd v_t271_3 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t111, v_t271_2);
+    const derive_vd v_t271_4 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t127, v_t271_3);
+    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t143, v_t271_4);
     #else
     const double t271 = DERIVE_FMA(t239, t143, DERIVE_FMA(t223, t127, DERIVE_FMA(t207, t111, DERIVE_FMA(t191, t95, DERIVE_FMA(t175, t79, DERIVE_FMA(t159, P[112], P[0]))))));
     const double t272 = DERIVE_FMA(t239, t144, DERIVE_FMA(t223, t128, DERIVE_FMA(t207, t112, DERIVE_FMA(t191, t96, DERIVE_FMA(t175, t80, DERIVE_FMA(t159, P[113], P[1]))))));
@@ -2120,12 +2128,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t274 = DERIVE_FMA(t239, t146, DERIVE_FMA(t223, t130, DERIVE_FMA(t207, t114, DERIVE_FMA(t191, t98, DERIVE_FMA(t175, t82, DERIVE_FMA(t159, P[115], P[3]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t275_0 = DERIVE_ROWS_FMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
-    const derive_vd v_t275_1 = DERIVE_ROWS_FMA(((derive_vd){t175, t175, t175, t175}), v_t83, v_t275_0);
-    const derive_vd v_t275_2 = DERIVE_ROWS_FMA(((derive_vd){t191, t191, t191, t191}), v_t99, v_t275_1);
-    const derive_vd v_t275_3 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t115, v_t275_2);
-    const derive_vd v_t275_4 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t131, v_t275_3);
-    const derive_vd v_t275 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t147, v_t275_4);
+    const derive_vd v_t275_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
+    const derive_vd v_t275_1 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t83, v_t275_0);
+    const derive_vd v_t275_2 = DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t99, v_t275_1);
+    const derive_vd v_t275_3 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t115, v_t275_2);
+    const derive_vd v_t275_4 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t131, v_t275_3);
+    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t147, v_t275_4);
     #else
     const double t275 = DERIVE_FMA(t239, t147, DERIVE_FMA(t223, t131, DERIVE_FMA(t207, t115, DERIVE_FMA(t191, t99, DERIVE_FMA(t175, t83, DERIVE_FMA(t159, P[116], P[4]))))));
     const double t276 = DERIVE_FMA(t239, t148, DERIVE_FMA(t223, t132, DERIVE_FMA(t207, t116, DERIVE_FMA(t191, t100, DERIVE_FMA(t175, t84, DERIVE_FMA(t159, P[117], P[5]))))));
@@ -2133,12 +2141,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t278 = DERIVE_FMA(t239, t150, DERIVE_FMA(t223, t134, DERIVE_FMA(t207, t118, DERIVE_FMA(t191, t102, DERIVE_FMA(t175, t86, DERIVE_FMA(t159, P[119], P[7]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t279_0 = DERIVE_ROWS_FMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
-    const derive_vd v_t279_1 = DERIVE_ROWS_FMA(((derive_vd){t175, t175, t175, t175}), v_t87, v_t279_0);
-    const derive_vd v_t279_2 = DERIVE_ROWS_FMA(((derive_vd){t191, t191, t191, t191}), v_t103, v_t279_1);
-    const derive_vd v_t279_3 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t119, v_t279_2);
-    const derive_vd v_t279_4 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t135, v_t279_3);
-    const derive_vd v_t279 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t151, v_t279_4);
+    const derive_vd v_t279_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t279_1 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t87, v_t279_0);
+    const derive_vd v_t279_2 = DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t103, v_t279_1);
+    const derive_vd v_t279_3 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t119, v_t279_2);
+    const derive_vd v_t279_4 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t135, v_t279_3);
+    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t151, v_t279_4);
     #else
     const double t279 = DERIVE_FMA(t239, t151, DERIVE_FMA(t223, t135, DERIVE_FMA(t207, t119, DERIVE_FMA(t191, t103, DERIVE_FMA(t175, t87, DERIVE_FMA(t159, P[120], P[8]))))));
     const double t280 = DERIVE_FMA(t239, t152, DERIVE_FMA(t223, t136, DERIVE_FMA(t207, t120, DERIVE_FMA(t191, t104, DERIVE_FMA(t175, t88, DERIVE_FMA(t159, P[121], P[9]))))));
@@ -2146,12 +2154,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t282 = DERIVE_FMA(t239, t154, DERIVE_FMA(t223, t138, DERIVE_FMA(t207, t122, DERIVE_FMA(t191, t106, DERIVE_FMA(t175, t90, DERIVE_FMA(t159, P[123], P[11]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t283_0 = DERIVE_ROWS_FMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
-    const derive_vd v_t283_1 = DERIVE_ROWS_FMA(((derive_vd){t175, t175, t175, t175}), v_t91, v_t283_0);
-    const derive_vd v_t283_2 = DERIVE_ROWS_FMA(((derive_vd){t191, t191, t191, t191}), v_t107, v_t283_1);
-    const derive_vd v_t283_3 = DERIVE_ROWS_FMA(((derive_vd){t207, t207, t207, t207}), v_t123, v_t283_2);
-    const derive_vd v_t283_4 = DERIVE_ROWS_FMA(((derive_vd){t223, t223, t223, t223}), v_t139, v_t283_3);
-    const derive_vd v_t283 = DERIVE_ROWS_FMA(((derive_vd){t239, t239, t239, t239}), v_t155, v_t283_4);
+    const derive_vd v_t283_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t283_1 = DERIVE_VFMA(((derive_vd){t175, t175, t175, t175}), v_t91, v_t283_0);
+    const derive_vd v_t283_2 = DERIVE_VFMA(((derive_vd){t191, t191, t191, t191}), v_t107, v_t283_1);
+    const derive_vd v_t283_3 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t123, v_t283_2);
+    const derive_vd v_t283_4 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t139, v_t283_3);
+    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t155, v_t283_4);
     #else
     const double t283 = DERIVE_FMA(t239, t155, DERIVE_FMA(t223, t139, DERIVE_FMA(t207, t123, DERIVE_FMA(t191, t107, DERIVE_FMA(t175, t91, DERIVE_FMA(t159, P[124], P[12]))))));
     const double t284 = DERIVE_FMA(t239, t156, DERIVE_FMA(t223, t140, DERIVE_FMA(t207, t124, DERIVE_FMA(t191, t108, DERIVE_FMA(t175, t92, DERIVE_FMA(t159, P[125], P[13]))))));
@@ -2159,24 +2167,24 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t286 = DERIVE_FMA(t239, t158, DERIVE_FMA(t223, t142, DERIVE_FMA(t207, t126, DERIVE_FMA(t191, t110, DERIVE_FMA(t175, t94, DERIVE_FMA(t159, P[127], P[15]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t287_0 = DERIVE_ROWS_FMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t287_1 = DERIVE_ROWS_FMA(((derive_vd){t176, t176, t176, t176}), v_t79, v_t287_0);
-    const derive_vd v_t287_2 = DERIVE_ROWS_FMA(((derive_vd){t192, t192, t192, t192}), v_t95, v_t287_1);
-    const derive_vd v_t287_3 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t111, v_t287_2);
-    const derive_vd v_t287_4 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t127, v_t287_3);
-    const derive_vd v_t287 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t143, v_t287_4);
+    const derive_vd v_t287_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    const derive_vd v_t287_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t79, v_t287_0);
+    const derive_vd v_t287_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t95, v_t287_1);
+    const derive_vd v_t287_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t111, v_t287_2);
+    const derive_vd v_t287_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t127, v_t287_3);
+    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t143, v_t287_4);
     #else
     const double t288 = DERIVE_FMA(t240, t144, DERIVE_FMA(t224, t128, DERIVE_FMA(t208, t112, DERIVE_FMA(t192, t96, DERIVE_FMA(t176, t80, DERIVE_FMA(t160, P[113], P[17]))))));
     const double t289 = DERIVE_FMA(t240, t145, DERIVE_FMA(t224, t129, DERIVE_FMA(t208, t113, DERIVE_FMA(t192, t97, DERIVE_FMA(t176, t81, DERIVE_FMA(t160, P[114], P[18]))))));
     const double t290 = DERIVE_FMA(t240, t146, DERIVE_FMA(t224, t130, DERIVE_FMA(t208, t114, DERIVE_FMA(t192, t98, DERIVE_FMA(t176, t82, DERIVE_FMA(t160, P[115], P[19]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t291_0 = DERIVE_ROWS_FMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t291_1 = DERIVE_ROWS_FMA(((derive_vd){t176, t176, t176, t176}), v_t83, v_t291_0);
-    const derive_vd v_t291_2 = DERIVE_ROWS_FMA(((derive_vd){t192, t192, t192, t192}), v_t99, v_t291_1);
-    const derive_vd v_t291_3 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t115, v_t291_2);
-    const derive_vd v_t291_4 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t131, v_t291_3);
-    const derive_vd v_t291 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t147, v_t291_4);
+    const derive_vd v_t291_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t291_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t83, v_t291_0);
+    const derive_vd v_t291_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t99, v_t291_1);
+    const derive_vd v_t291_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t115, v_t291_2);
+    const derive_vd v_t291_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t131, v_t291_3);
+    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t147, v_t291_4);
     #else
     const double t291 = DERIVE_FMA(t240, t147, DERIVE_FMA(t224, t131, DERIVE_FMA(t208, t115, DERIVE_FMA(t192, t99, DERIVE_FMA(t176, t83, DERIVE_FMA(t160, P[116], P[20]))))));
     const double t292 = DERIVE_FMA(t240, t148, DERIVE_FMA(t224, t132, DERIVE_FMA(t208, t116, DERIVE_FMA(t192, t100, DERIVE_FMA(t176, t84, DERIVE_FMA(t160, P[117], P[21]))))));
@@ -2184,12 +2192,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t294 = DERIVE_FMA(t240, t150, DERIVE_FMA(t224, t134, DERIVE_FMA(t208, t118, DERIVE_FMA(t192, t102, DERIVE_FMA(t176, t86, DERIVE_FMA(t160, P[119], P[23]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t295_0 = DERIVE_ROWS_FMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t295_1 = DERIVE_ROWS_FMA(((derive_vd){t176, t176, t176, t176}), v_t87, v_t295_0);
-    const derive_vd v_t295_2 = DERIVE_ROWS_FMA(((derive_vd){t192, t192, t192, t192}), v_t103, v_t295_1);
-    const derive_vd v_t295_3 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t119, v_t295_2);
-    const derive_vd v_t295_4 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t135, v_t295_3);
-    const derive_vd v_t295 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t151, v_t295_4);
+    const derive_vd v_t295_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t295_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t87, v_t295_0);
+    const derive_vd v_t295_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t103, v_t295_1);
+    const derive_vd v_t295_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t119, v_t295_2);
+    const derive_vd v_t295_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t135, v_t295_3);
+    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t151, v_t295_4);
     #else
     const double t295 = DERIVE_FMA(t240, t151, DERIVE_FMA(t224, t135, DERIVE_FMA(t208, t119, DERIVE_FMA(t192, t103, DERIVE_FMA(t176, t87, DERIVE_FMA(t160, P[120], P[24]))))));
     const double t296 = DERIVE_FMA(t240, t152, DERIVE_FMA(t224, t136, DERIVE_FMA(t208, t120, DERIVE_FMA(t192, t104, DERIVE_FMA(t176, t88, DERIVE_FMA(t160, P[121], P[25]))))));
@@ -2197,12 +2205,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t298 = DERIVE_FMA(t240, t154, DERIVE_FMA(t224, t138, DERIVE_FMA(t208, t122, DERIVE_FMA(t192, t106, DERIVE_FMA(t176, t90, DERIVE_FMA(t160, P[123], P[27]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t299_0 = DERIVE_ROWS_FMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t299_1 = DERIVE_ROWS_FMA(((derive_vd){t176, t176, t176, t176}), v_t91, v_t299_0);
-    const derive_vd v_t299_2 = DERIVE_ROWS_FMA(((derive_vd){t192, t192, t192, t192}), v_t107, v_t299_1);
-    const derive_vd v_t299_3 = DERIVE_ROWS_FMA(((derive_vd){t208, t208, t208, t208}), v_t123, v_t299_2);
-    const derive_vd v_t299_4 = DERIVE_ROWS_FMA(((derive_vd){t224, t224, t224, t224}), v_t139, v_t299_3);
-    const derive_vd v_t299 = DERIVE_ROWS_FMA(((derive_vd){t240, t240, t240, t240}), v_t155, v_t299_4);
+    const derive_vd v_t299_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t299_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t91, v_t299_0);
+    const derive_vd v_t299_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t107, v_t299_1);
+    const derive_vd v_t299_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t123, v_t299_2);
+    const derive_vd v_t299_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t139, v_t299_3);
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t155, v_t299_4);
     #else
     const double t299 = DERIVE_FMA(t240, t155, DERIVE_FMA(t224, t139, DERIVE_FMA(t208, t123, DERIVE_FMA(t192, t107, DERIVE_FMA(t176, t91, DERIVE_FMA(t160, P[124], P[28]))))));
     const double t300 = DERIVE_FMA(t240, t156, DERIVE_FMA(t224, t140, DERIVE_FMA(t208, t124, DERIVE_FMA(t192, t108, DERIVE_FMA(t176, t92, DERIVE_FMA(t160, P[125], P[29]))))));
@@ -2210,23 +2218,23 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t302 = DERIVE_FMA(t240, t158, DERIVE_FMA(t224, t142, DERIVE_FMA(t208, t126, DERIVE_FMA(t192, t110, DERIVE_FMA(t176, t94, DERIVE_FMA(t160, P[127], P[31]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t303_0 = DERIVE_ROWS_FMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t303_1 = DERIVE_ROWS_FMA(((derive_vd){t177, t177, t177, t177}), v_t79, v_t303_0);
-    const derive_vd v_t303_2 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t95, v_t303_1);
-    const derive_vd v_t303_3 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), v_t111, v_t303_2);
-    const derive_vd v_t303_4 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t127, v_t303_3);
-    const derive_vd v_t303 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t143, v_t303_4);
+    const derive_vd v_t303_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t303_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t79, v_t303_0);
+    const derive_vd v_t303_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t95, v_t303_1);
+    const derive_vd v_t303_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t111, v_t303_2);
+    const derive_vd v_t303_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t127, v_t303_3);
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t143, v_t303_4);
     #else
     const double t305 = DERIVE_FMA(t241, t145, DERIVE_FMA(t225, t129, DERIVE_FMA(t209, t113, DERIVE_FMA(t193, t97, DERIVE_FMA(t177, t81, DERIVE_FMA(t161, P[114], P[34]))))));
     const double t306 = DERIVE_FMA(t241, t146, DERIVE_FMA(t225, t130, DERIVE_FMA(t209, t114, DERIVE_FMA(t193, t98, DERIVE_FMA(t177, t82, DERIVE_FMA(t161, P[115], P[35]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t307_0 = DERIVE_ROWS_FMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t307_1 = DERIVE_ROWS_FMA(((derive_vd){t177, t177, t177, t177}), v_t83, v_t307_0);
-    const derive_vd v_t307_2 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t99, v_t307_1);
-    const derive_vd v_t307_3 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), v_t115, v_t307_2);
-    const derive_vd v_t307_4 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t131, v_t307_3);
-    const derive_vd v_t307 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t147, v_t307_4);
+    const derive_vd v_t307_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t307_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t83, v_t307_0);
+    const derive_vd v_t307_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t99, v_t307_1);
+    const derive_vd v_t307_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t115, v_t307_2);
+    const derive_vd v_t307_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t131, v_t307_3);
+    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t147, v_t307_4);
     #else
     const double t307 = DERIVE_FMA(t241, t147, DERIVE_FMA(t225, t131, DERIVE_FMA(t209, t115, DERIVE_FMA(t193, t99, DERIVE_FMA(t177, t83, DERIVE_FMA(t161, P[116], P[36]))))));
     const double t308 = DERIVE_FMA(t241, t148, DERIVE_FMA(t225, t132, DERIVE_FMA(t209, t116, DERIVE_FMA(t193, t100, DERIVE_FMA(t177, t84, DERIVE_FMA(t161, P[117], P[37]))))));
@@ -2234,12 +2242,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t310 = DERIVE_FMA(t241, t150, DERIVE_FMA(t225, t134, DERIVE_FMA(t209, t118, DERIVE_FMA(t193, t102, DERIVE_FMA(t177, t86, DERIVE_FMA(t161, P[119], P[39]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t311_0 = DERIVE_ROWS_FMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t311_1 = DERIVE_ROWS_FMA(((derive_vd){t177, t177, t177, t177}), v_t87, v_t311_0);
-    const derive_vd v_t311_2 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t103, v_t311_1);
-    const derive_vd v_t311_3 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), v_t119, v_t311_2);
-    const derive_vd v_t311_4 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t135, v_t311_3);
-    const derive_vd v_t311 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t151, v_t311_4);
+    const derive_vd v_t311_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t311_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t87, v_t311_0);
+    const derive_vd v_t311_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t103, v_t311_1);
+    const derive_vd v_t311_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t119, v_t311_2);
+    const derive_vd v_t311_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t135, v_t311_3);
+    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t151, v_t311_4);
     #else
     const double t311 = DERIVE_FMA(t241, t151, DERIVE_FMA(t225, t135, DERIVE_FMA(t209, t119, DERIVE_FMA(t193, t103, DERIVE_FMA(t177, t87, DERIVE_FMA(t161, P[120], P[40]))))));
     const double t312 = DERIVE_FMA(t241, t152, DERIVE_FMA(t225, t136, DERIVE_FMA(t209, t120, DERIVE_FMA(t193, t104, DERIVE_FMA(t177, t88, DERIVE_FMA(t161, P[121], P[41]))))));
@@ -2247,12 +2255,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t314 = DERIVE_FMA(t241, t154, DERIVE_FMA(t225, t138, DERIVE_FMA(t209, t122, DERIVE_FMA(t193, t106, DERIVE_FMA(t177, t90, DERIVE_FMA(t161, P[123], P[43]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t315_0 = DERIVE_ROWS_FMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t315_1 = DERIVE_ROWS_FMA(((derive_vd){t177, t177, t177, t177}), v_t91, v_t315_0);
-    const derive_vd v_t315_2 = DERIVE_ROWS_FMA(((derive_vd){t193, t193, t193, t193}), v_t107, v_t315_1);
-    const derive_vd v_t315_3 = DERIVE_ROWS_FMA(((derive_vd){t209, t209, t209, t209}), v_t123, v_t315_2);
-    const derive_vd v_t315_4 = DERIVE_ROWS_FMA(((derive_vd){t225, t225, t225, t225}), v_t139, v_t315_3);
-    const derive_vd v_t315 = DERIVE_ROWS_FMA(((derive_vd){t241, t241, t241, t241}), v_t155, v_t315_4);
+    const derive_vd v_t315_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t315_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t91, v_t315_0);
+    const derive_vd v_t315_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t107, v_t315_1);
+    const derive_vd v_t315_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t123, v_t315_2);
+    const derive_vd v_t315_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t139, v_t315_3);
+    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t155, v_t315_4);
     #else
     const double t315 = DERIVE_FMA(t241, t155, DERIVE_FMA(t225, t139, DERIVE_FMA(t209, t123, DERIVE_FMA(t193, t107, DERIVE_FMA(t177, t91, DERIVE_FMA(t161, P[124], P[44]))))));
     const double t316 = DERIVE_FMA(t241, t156, DERIVE_FMA(t225, t140, DERIVE_FMA(t209, t124, DERIVE_FMA(t193, t108, DERIVE_FMA(t177, t92, DERIVE_FMA(t161, P[125], P[45]))))));
@@ -2260,12 +2268,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t318 = DERIVE_FMA(t241, t158, DERIVE_FMA(t225, t142, DERIVE_FMA(t209, t126, DERIVE_FMA(t193, t110, DERIVE_FMA(t177, t94, DERIVE_FMA(t161, P[127], P[47]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t319_0 = DERIVE_ROWS_FMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t319_1 = DERIVE_ROWS_FMA(((derive_vd){t178, t178, t178, t178}), v_t79, v_t319_0);
-    const derive_vd v_t319_2 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t95, v_t319_1);
-    const derive_vd v_t319_3 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), v_t111, v_t319_2);
-    const derive_vd v_t319_4 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t127, v_t319_3);
-    const derive_vd v_t319 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t143, v_t319_4);
+    const derive_vd v_t319_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
+    const derive_vd v_t319_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t79, v_t319_0);
+    const derive_vd v_t319_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t95, v_t319_1);
+    const derive_vd v_t319_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t111, v_t319_2);
+    const derive_vd v_t319_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t127, v_t319_3);
+    const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t143, v_t319_4);
     const derive_vd tr_v_t271_0 = __builtin_shufflevector(v_t271, v_t287, 0, 4, 2, 6);
     const derive_vd tr_v_t271_1 = __builtin_shufflevector(v_t271, v_t287, 1, 5, 3, 7);
     const derive_vd tr_v_t271_2 = __builtin_shufflevector(v_t303, v_t319, 0, 4, 2, 6);
@@ -2281,12 +2289,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t322 = DERIVE_FMA(t242, t146, DERIVE_FMA(t226, t130, DERIVE_FMA(t210, t114, DERIVE_FMA(t194, t98, DERIVE_FMA(t178, t82, DERIVE_FMA(t162, P[115], P[51]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t323_0 = DERIVE_ROWS_FMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd v_t323_1 = DERIVE_ROWS_FMA(((derive_vd){t178, t178, t178, t178}), v_t83, v_t323_0);
-    const derive_vd v_t323_2 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t99, v_t323_1);
-    const derive_vd v_t323_3 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), v_t115, v_t323_2);
-    const derive_vd v_t323_4 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t131, v_t323_3);
-    const derive_vd v_t323 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t147, v_t323_4);
+    const derive_vd v_t323_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd v_t323_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t83, v_t323_0);
+    const derive_vd v_t323_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t99, v_t323_1);
+    const derive_vd v_t323_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t115, v_t323_2);
+    const derive_vd v_t323_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t131, v_t323_3);
+    const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t147, v_t323_4);
     const derive_vd tr_v_t275_0 = __builtin_shufflevector(v_t275, v_t291, 0, 4, 2, 6);
     const derive_vd tr_v_t275_1 = __builtin_shufflevector(v_t275, v_t291, 1, 5, 3, 7);
     const derive_vd tr_v_t275_2 = __builtin_shufflevector(v_t307, v_t323, 0, 4, 2, 6);
@@ -2310,12 +2318,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t326 = DERIVE_FMA(t242, t150, DERIVE_FMA(t226, t134, DERIVE_FMA(t210, t118, DERIVE_FMA(t194, t102, DERIVE_FMA(t178, t86, DERIVE_FMA(t162, P[119], P[55]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t327_0 = DERIVE_ROWS_FMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t327_1 = DERIVE_ROWS_FMA(((derive_vd){t178, t178, t178, t178}), v_t87, v_t327_0);
-    const derive_vd v_t327_2 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t103, v_t327_1);
-    const derive_vd v_t327_3 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), v_t119, v_t327_2);
-    const derive_vd v_t327_4 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t135, v_t327_3);
-    const derive_vd v_t327 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t151, v_t327_4);
+    const derive_vd v_t327_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t327_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t87, v_t327_0);
+    const derive_vd v_t327_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t103, v_t327_1);
+    const derive_vd v_t327_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t119, v_t327_2);
+    const derive_vd v_t327_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t135, v_t327_3);
+    const derive_vd v_t327 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t151, v_t327_4);
     const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t295, 0, 4, 2, 6);
     const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t295, 1, 5, 3, 7);
     const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t311, v_t327, 0, 4, 2, 6);
@@ -2339,12 +2347,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t330 = DERIVE_FMA(t242, t154, DERIVE_FMA(t226, t138, DERIVE_FMA(t210, t122, DERIVE_FMA(t194, t106, DERIVE_FMA(t178, t90, DERIVE_FMA(t162, P[123], P[59]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t331_0 = DERIVE_ROWS_FMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t331_1 = DERIVE_ROWS_FMA(((derive_vd){t178, t178, t178, t178}), v_t91, v_t331_0);
-    const derive_vd v_t331_2 = DERIVE_ROWS_FMA(((derive_vd){t194, t194, t194, t194}), v_t107, v_t331_1);
-    const derive_vd v_t331_3 = DERIVE_ROWS_FMA(((derive_vd){t210, t210, t210, t210}), v_t123, v_t331_2);
-    const derive_vd v_t331_4 = DERIVE_ROWS_FMA(((derive_vd){t226, t226, t226, t226}), v_t139, v_t331_3);
-    const derive_vd v_t331 = DERIVE_ROWS_FMA(((derive_vd){t242, t242, t242, t242}), v_t155, v_t331_4);
+    const derive_vd v_t331_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t331_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t91, v_t331_0);
+    const derive_vd v_t331_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t107, v_t331_1);
+    const derive_vd v_t331_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t123, v_t331_2);
+    const derive_vd v_t331_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t139, v_t331_3);
+    const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t155, v_t331_4);
     const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t299, 0, 4, 2, 6);
     const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t299, 1, 5, 3, 7);
     const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t315, v_t331, 0, 4, 2, 6);
@@ -2368,12 +2376,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t334 = DERIVE_FMA(t242, t158, DERIVE_FMA(t226, t142, DERIVE_FMA(t210, t126, DERIVE_FMA(t194, t110, DERIVE_FMA(t178, t94, DERIVE_FMA(t162, P[127], P[63]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t335_0 = DERIVE_ROWS_FMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t335_1 = DERIVE_ROWS_FMA(((derive_vd){t179, t179, t179, t179}), v_t83, v_t335_0);
-    const derive_vd v_t335_2 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t99, v_t335_1);
-    const derive_vd v_t335_3 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), v_t115, v_t335_2);
-    const derive_vd v_t335_4 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t131, v_t335_3);
-    const derive_vd v_t335 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t147, v_t335_4);
+    const derive_vd v_t335_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t335_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t83, v_t335_0);
+    const derive_vd v_t335_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t99, v_t335_1);
+    const derive_vd v_t335_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t115, v_t335_2);
+    const derive_vd v_t335_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t131, v_t335_3);
+    const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t147, v_t335_4);
     #else
     const double t335 = DERIVE_FMA(t243, t147, DERIVE_FMA(t227, t131, DERIVE_FMA(t211, t115, DERIVE_FMA(t195, t99, DERIVE_FMA(t179, t83, DERIVE_FMA(t163, P[116], P[68]))))));
     const double t336 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, DERIVE_FMA(t211, t116, DERIVE_FMA(t195, t100, DERIVE_FMA(t179, t84, DERIVE_FMA(t163, P[117], P[69]))))));
@@ -2381,12 +2389,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t338 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, DERIVE_FMA(t211, t118, DERIVE_FMA(t195, t102, DERIVE_FMA(t179, t86, DERIVE_FMA(t163, P[119], P[71]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t339_0 = DERIVE_ROWS_FMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t339_1 = DERIVE_ROWS_FMA(((derive_vd){t179, t179, t179, t179}), v_t87, v_t339_0);
-    const derive_vd v_t339_2 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t103, v_t339_1);
-    const derive_vd v_t339_3 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), v_t119, v_t339_2);
-    const derive_vd v_t339_4 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t135, v_t339_3);
-    const derive_vd v_t339 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t151, v_t339_4);
+    const derive_vd v_t339_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t339_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t87, v_t339_0);
+    const derive_vd v_t339_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t103, v_t339_1);
+    const derive_vd v_t339_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t119, v_t339_2);
+    const derive_vd v_t339_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t135, v_t339_3);
+    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t151, v_t339_4);
     #else
     const double t339 = DERIVE_FMA(t243, t151, DERIVE_FMA(t227, t135, DERIVE_FMA(t211, t119, DERIVE_FMA(t195, t103, DERIVE_FMA(t179, t87, DERIVE_FMA(t163, P[120], P[72]))))));
     const double t340 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, DERIVE_FMA(t211, t120, DERIVE_FMA(t195, t104, DERIVE_FMA(t179, t88, DERIVE_FMA(t163, P[121], P[73]))))));
@@ -2394,12 +2402,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t342 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, DERIVE_FMA(t211, t122, DERIVE_FMA(t195, t106, DERIVE_FMA(t179, t90, DERIVE_FMA(t163, P[123], P[75]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t343_0 = DERIVE_ROWS_FMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t343_1 = DERIVE_ROWS_FMA(((derive_vd){t179, t179, t179, t179}), v_t91, v_t343_0);
-    const derive_vd v_t343_2 = DERIVE_ROWS_FMA(((derive_vd){t195, t195, t195, t195}), v_t107, v_t343_1);
-    const derive_vd v_t343_3 = DERIVE_ROWS_FMA(((derive_vd){t211, t211, t211, t211}), v_t123, v_t343_2);
-    const derive_vd v_t343_4 = DERIVE_ROWS_FMA(((derive_vd){t227, t227, t227, t227}), v_t139, v_t343_3);
-    const derive_vd v_t343 = DERIVE_ROWS_FMA(((derive_vd){t243, t243, t243, t243}), v_t155, v_t343_4);
+    const derive_vd v_t343_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t343_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t91, v_t343_0);
+    const derive_vd v_t343_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t107, v_t343_1);
+    const derive_vd v_t343_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t123, v_t343_2);
+    const derive_vd v_t343_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t139, v_t343_3);
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t155, v_t343_4);
     #else
     const double t343 = DERIVE_FMA(t243, t155, DERIVE_FMA(t227, t139, DERIVE_FMA(t211, t123, DERIVE_FMA(t195, t107, DERIVE_FMA(t179, t91, DERIVE_FMA(t163, P[124], P[76]))))));
     const double t344 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, DERIVE_FMA(t211, t124, DERIVE_FMA(t195, t108, DERIVE_FMA(t179, t92, DERIVE_FMA(t163, P[125], P[77]))))));
@@ -2407,24 +2415,24 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t346 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, DERIVE_FMA(t211, t126, DERIVE_FMA(t195, t110, DERIVE_FMA(t179, t94, DERIVE_FMA(t163, P[127], P[79]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t347_0 = DERIVE_ROWS_FMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t347_1 = DERIVE_ROWS_FMA(((derive_vd){t180, t180, t180, t180}), v_t83, v_t347_0);
-    const derive_vd v_t347_2 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t99, v_t347_1);
-    const derive_vd v_t347_3 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), v_t115, v_t347_2);
-    const derive_vd v_t347_4 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t131, v_t347_3);
-    const derive_vd v_t347 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t147, v_t347_4);
+    const derive_vd v_t347_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t347_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t83, v_t347_0);
+    const derive_vd v_t347_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t99, v_t347_1);
+    const derive_vd v_t347_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t115, v_t347_2);
+    const derive_vd v_t347_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t131, v_t347_3);
+    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t147, v_t347_4);
     #else
     const double t348 = DERIVE_FMA(t244, t148, DERIVE_FMA(t228, t132, DERIVE_FMA(t212, t116, DERIVE_FMA(t196, t100, DERIVE_FMA(t180, t84, DERIVE_FMA(t164, P[117], P[85]))))));
     const double t349 = DERIVE_FMA(t244, t149, DERIVE_FMA(t228, t133, DERIVE_FMA(t212, t117, DERIVE_FMA(t196, t101, DERIVE_FMA(t180, t85, DERIVE_FMA(t164, P[118], P[86]))))));
     const double t350 = DERIVE_FMA(t244, t150, DERIVE_FMA(t228, t134, DERIVE_FMA(t212, t118, DERIVE_FMA(t196, t102, DERIVE_FMA(t180, t86, DERIVE_FMA(t164, P[119], P[87]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t351_0 = DERIVE_ROWS_FMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t351_1 = DERIVE_ROWS_FMA(((derive_vd){t180, t180, t180, t180}), v_t87, v_t351_0);
-    const derive_vd v_t351_2 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t103, v_t351_1);
-    const derive_vd v_t351_3 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), v_t119, v_t351_2);
-    const derive_vd v_t351_4 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t135, v_t351_3);
-    const derive_vd v_t351 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t151, v_t351_4);
+    const derive_vd v_t351_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t351_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t87, v_t351_0);
+    const derive_vd v_t351_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t103, v_t351_1);
+    const derive_vd v_t351_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t119, v_t351_2);
+    const derive_vd v_t351_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t135, v_t351_3);
+    const derive_vd v_t351 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t151, v_t351_4);
     #else
     const double t351 = DERIVE_FMA(t244, t151, DERIVE_FMA(t228, t135, DERIVE_FMA(t212, t119, DERIVE_FMA(t196, t103, DERIVE_FMA(t180, t87, DERIVE_FMA(t164, P[120], P[88]))))));
     const double t352 = DERIVE_FMA(t244, t152, DERIVE_FMA(t228, t136, DERIVE_FMA(t212, t120, DERIVE_FMA(t196, t104, DERIVE_FMA(t180, t88, DERIVE_FMA(t164, P[121], P[89]))))));
@@ -2432,12 +2440,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t354 = DERIVE_FMA(t244, t154, DERIVE_FMA(t228, t138, DERIVE_FMA(t212, t122, DERIVE_FMA(t196, t106, DERIVE_FMA(t180, t90, DERIVE_FMA(t164, P[123], P[91]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t355_0 = DERIVE_ROWS_FMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t355_1 = DERIVE_ROWS_FMA(((derive_vd){t180, t180, t180, t180}), v_t91, v_t355_0);
-    const derive_vd v_t355_2 = DERIVE_ROWS_FMA(((derive_vd){t196, t196, t196, t196}), v_t107, v_t355_1);
-    const derive_vd v_t355_3 = DERIVE_ROWS_FMA(((derive_vd){t212, t212, t212, t212}), v_t123, v_t355_2);
-    const derive_vd v_t355_4 = DERIVE_ROWS_FMA(((derive_vd){t228, t228, t228, t228}), v_t139, v_t355_3);
-    const derive_vd v_t355 = DERIVE_ROWS_FMA(((derive_vd){t244, t244, t244, t244}), v_t155, v_t355_4);
+    const derive_vd v_t355_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t355_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t91, v_t355_0);
+    const derive_vd v_t355_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t107, v_t355_1);
+    const derive_vd v_t355_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t123, v_t355_2);
+    const derive_vd v_t355_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t139, v_t355_3);
+    const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t155, v_t355_4);
     #else
     const double t355 = DERIVE_FMA(t244, t155, DERIVE_FMA(t228, t139, DERIVE_FMA(t212, t123, DERIVE_FMA(t196, t107, DERIVE_FMA(t180, t91, DERIVE_FMA(t164, P[124], P[92]))))));
     const double t356 = DERIVE_FMA(t244, t156, DERIVE_FMA(t228, t140, DERIVE_FMA(t212, t124, DERIVE_FMA(t196, t108, DERIVE_FMA(t180, t92, DERIVE_FMA(t164, P[125], P[93]))))));
@@ -2445,23 +2453,23 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t358 = DERIVE_FMA(t244, t158, DERIVE_FMA(t228, t142, DERIVE_FMA(t212, t126, DERIVE_FMA(t196, t110, DERIVE_FMA(t180, t94, DERIVE_FMA(t164, P[127], P[95]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t359_0 = DERIVE_ROWS_FMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t359_1 = DERIVE_ROWS_FMA(((derive_vd){t181, t181, t181, t181}), v_t83, v_t359_0);
-    const derive_vd v_t359_2 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t99, v_t359_1);
-    const derive_vd v_t359_3 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), v_t115, v_t359_2);
-    const derive_vd v_t359_4 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t131, v_t359_3);
-    const derive_vd v_t359 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t147, v_t359_4);
+    const derive_vd v_t359_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t359_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t83, v_t359_0);
+    const derive_vd v_t359_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t99, v_t359_1);
+    const derive_vd v_t359_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t115, v_t359_2);
+    const derive_vd v_t359_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t131, v_t359_3);
+    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t147, v_t359_4);
     #else
     const double t361 = DERIVE_FMA(t245, t149, DERIVE_FMA(t229, t133, DERIVE_FMA(t213, t117, DERIVE_FMA(t197, t101, DERIVE_FMA(t181, t85, DERIVE_FMA(t165, P[118], P[102]))))));
     const double t362 = DERIVE_FMA(t245, t150, DERIVE_FMA(t229, t134, DERIVE_FMA(t213, t118, DERIVE_FMA(t197, t102, DERIVE_FMA(t181, t86, DERIVE_FMA(t165, P[119], P[103]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t363_0 = DERIVE_ROWS_FMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t363_1 = DERIVE_ROWS_FMA(((derive_vd){t181, t181, t181, t181}), v_t87, v_t363_0);
-    const derive_vd v_t363_2 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t103, v_t363_1);
-    const derive_vd v_t363_3 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), v_t119, v_t363_2);
-    const derive_vd v_t363_4 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t135, v_t363_3);
-    const derive_vd v_t363 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t151, v_t363_4);
+    const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t363_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t87, v_t363_0);
+    const derive_vd v_t363_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t103, v_t363_1);
+    const derive_vd v_t363_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t119, v_t363_2);
+    const derive_vd v_t363_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t135, v_t363_3);
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t151, v_t363_4);
     #else
     const double t363 = DERIVE_FMA(t245, t151, DERIVE_FMA(t229, t135, DERIVE_FMA(t213, t119, DERIVE_FMA(t197, t103, DERIVE_FMA(t181, t87, DERIVE_FMA(t165, P[120], P[104]))))));
     const double t364 = DERIVE_FMA(t245, t152, DERIVE_FMA(t229, t136, DERIVE_FMA(t213, t120, DERIVE_FMA(t197, t104, DERIVE_FMA(t181, t88, DERIVE_FMA(t165, P[121], P[105]))))));
@@ -2469,12 +2477,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t366 = DERIVE_FMA(t245, t154, DERIVE_FMA(t229, t138, DERIVE_FMA(t213, t122, DERIVE_FMA(t197, t106, DERIVE_FMA(t181, t90, DERIVE_FMA(t165, P[123], P[107]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t367_0 = DERIVE_ROWS_FMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t367_1 = DERIVE_ROWS_FMA(((derive_vd){t181, t181, t181, t181}), v_t91, v_t367_0);
-    const derive_vd v_t367_2 = DERIVE_ROWS_FMA(((derive_vd){t197, t197, t197, t197}), v_t107, v_t367_1);
-    const derive_vd v_t367_3 = DERIVE_ROWS_FMA(((derive_vd){t213, t213, t213, t213}), v_t123, v_t367_2);
-    const derive_vd v_t367_4 = DERIVE_ROWS_FMA(((derive_vd){t229, t229, t229, t229}), v_t139, v_t367_3);
-    const derive_vd v_t367 = DERIVE_ROWS_FMA(((derive_vd){t245, t245, t245, t245}), v_t155, v_t367_4);
+    const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t367_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t91, v_t367_0);
+    const derive_vd v_t367_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t107, v_t367_1);
+    const derive_vd v_t367_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t123, v_t367_2);
+    const derive_vd v_t367_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t139, v_t367_3);
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t155, v_t367_4);
     #else
     const double t367 = DERIVE_FMA(t245, t155, DERIVE_FMA(t229, t139, DERIVE_FMA(t213, t123, DERIVE_FMA(t197, t107, DERIVE_FMA(t181, t91, DERIVE_FMA(t165, P[124], P[108]))))));
     const double t368 = DERIVE_FMA(t245, t156, DERIVE_FMA(t229, t140, DERIVE_FMA(t213, t124, DERIVE_FMA(t197, t108, DERIVE_FMA(t181, t92, DERIVE_FMA(t165, P[125], P[109]))))));
@@ -2482,12 +2490,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t370 = DERIVE_FMA(t245, t158, DERIVE_FMA(t229, t142, DERIVE_FMA(t213, t126, DERIVE_FMA(t197, t110, DERIVE_FMA(t181, t94, DERIVE_FMA(t165, P[127], P[111]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t371_0 = DERIVE_ROWS_FMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t371_1 = DERIVE_ROWS_FMA(((derive_vd){t182, t182, t182, t182}), v_t83, v_t371_0);
-    const derive_vd v_t371_2 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t99, v_t371_1);
-    const derive_vd v_t371_3 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), v_t115, v_t371_2);
-    const derive_vd v_t371_4 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t131, v_t371_3);
-    const derive_vd v_t371 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t147, v_t371_4);
+    const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t83, v_t371_0);
+    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t99, v_t371_1);
+    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t115, v_t371_2);
+    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t131, v_t371_3);
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t147, v_t371_4);
     const derive_vd tr_v_t335_0 = __builtin_shufflevector(v_t335, v_t347, 0, 4, 2, 6);
     const derive_vd tr_v_t335_1 = __builtin_shufflevector(v_t335, v_t347, 1, 5, 3, 7);
     const derive_vd tr_v_t335_2 = __builtin_shufflevector(v_t359, v_t371, 0, 4, 2, 6);
@@ -2503,12 +2511,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t374 = DERIVE_FMA(t246, t150, DERIVE_FMA(t230, t134, DERIVE_FMA(t214, t118, DERIVE_FMA(t198, t102, DERIVE_FMA(t182, t86, DERIVE_FMA(t166, P[119], P[119]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t375_0 = DERIVE_ROWS_FMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const derive_vd v_t375_1 = DERIVE_ROWS_FMA(((derive_vd){t182, t182, t182, t182}), v_t87, v_t375_0);
-    const derive_vd v_t375_2 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t103, v_t375_1);
-    const derive_vd v_t375_3 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), v_t119, v_t375_2);
-    const derive_vd v_t375_4 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t135, v_t375_3);
-    const derive_vd v_t375 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t151, v_t375_4);
+    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t87, v_t375_0);
+    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t103, v_t375_1);
+    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t119, v_t375_2);
+    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t135, v_t375_3);
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t151, v_t375_4);
     const derive_vd tr_v_t339_0 = __builtin_shufflevector(v_t339, v_t351, 0, 4, 2, 6);
     const derive_vd tr_v_t339_1 = __builtin_shufflevector(v_t339, v_t351, 1, 5, 3, 7);
     const derive_vd tr_v_t339_2 = __builtin_shufflevector(v_t363, v_t375, 0, 4, 2, 6);
@@ -2532,12 +2540,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t378 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, DERIVE_FMA(t166, P[123], P[123]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t379_0 = DERIVE_ROWS_FMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t379_1 = DERIVE_ROWS_FMA(((derive_vd){t182, t182, t182, t182}), v_t91, v_t379_0);
-    const derive_vd v_t379_2 = DERIVE_ROWS_FMA(((derive_vd){t198, t198, t198, t198}), v_t107, v_t379_1);
-    const derive_vd v_t379_3 = DERIVE_ROWS_FMA(((derive_vd){t214, t214, t214, t214}), v_t123, v_t379_2);
-    const derive_vd v_t379_4 = DERIVE_ROWS_FMA(((derive_vd){t230, t230, t230, t230}), v_t139, v_t379_3);
-    const derive_vd v_t379 = DERIVE_ROWS_FMA(((derive_vd){t246, t246, t246, t246}), v_t155, v_t379_4);
+    const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t379_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t91, v_t379_0);
+    const derive_vd v_t379_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t107, v_t379_1);
+    const derive_vd v_t379_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t123, v_t379_2);
+    const derive_vd v_t379_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t139, v_t379_3);
+    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t155, v_t379_4);
     const derive_vd tr_v_t343_0 = __builtin_shufflevector(v_t343, v_t355, 0, 4, 2, 6);
     const derive_vd tr_v_t343_1 = __builtin_shufflevector(v_t343, v_t355, 1, 5, 3, 7);
     const derive_vd tr_v_t343_2 = __builtin_shufflevector(v_t367, v_t379, 0, 4, 2, 6);
@@ -2561,12 +2569,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t382 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, DERIVE_FMA(t166, P[127], P[127]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t383_0 = DERIVE_ROWS_FMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t383_1 = DERIVE_ROWS_FMA(((derive_vd){t183, t183, t183, t183}), v_t87, v_t383_0);
-    const derive_vd v_t383_2 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t103, v_t383_1);
-    const derive_vd v_t383_3 = DERIVE_ROWS_FMA(((derive_vd){t215, t215, t215, t215}), v_t119, v_t383_2);
-    const derive_vd v_t383_4 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t135, v_t383_3);
-    const derive_vd v_t383 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t151, v_t383_4);
+    const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t383_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t87, v_t383_0);
+    const derive_vd v_t383_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t103, v_t383_1);
+    const derive_vd v_t383_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t119, v_t383_2);
+    const derive_vd v_t383_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t135, v_t383_3);
+    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t151, v_t383_4);
     #else
     const double t383 = DERIVE_FMA(t247, t151, DERIVE_FMA(t231, t135, DERIVE_FMA(t215, t119, DERIVE_FMA(t199, t103, DERIVE_FMA(t183, t87, DERIVE_FMA(t167, P[120], P[136]))))));
     const double t384 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, DERIVE_FMA(t183, t88, DERIVE_FMA(t167, P[121], P[137]))))));
@@ -2574,12 +2582,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t386 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, DERIVE_FMA(t183, t90, DERIVE_FMA(t167, P[123], P[139]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t387_0 = DERIVE_ROWS_FMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t387_1 = DERIVE_ROWS_FMA(((derive_vd){t183, t183, t183, t183}), v_t91, v_t387_0);
-    const derive_vd v_t387_2 = DERIVE_ROWS_FMA(((derive_vd){t199, t199, t199, t199}), v_t107, v_t387_1);
-    const derive_vd v_t387_3 = DERIVE_ROWS_FMA(((derive_vd){t215, t215, t215, t215}), v_t123, v_t387_2);
-    const derive_vd v_t387_4 = DERIVE_ROWS_FMA(((derive_vd){t231, t231, t231, t231}), v_t139, v_t387_3);
-    const derive_vd v_t387 = DERIVE_ROWS_FMA(((derive_vd){t247, t247, t247, t247}), v_t155, v_t387_4);
+    const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t387_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t91, v_t387_0);
+    const derive_vd v_t387_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t107, v_t387_1);
+    const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t123, v_t387_2);
+    const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t139, v_t387_3);
+    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t155, v_t387_4);
     #else
     const double t387 = DERIVE_FMA(t247, t155, DERIVE_FMA(t231, t139, DERIVE_FMA(t215, t123, DERIVE_FMA(t199, t107, DERIVE_FMA(t183, t91, DERIVE_FMA(t167, P[124], P[140]))))));
     const double t388 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, DERIVE_FMA(t183, t92, DERIVE_FMA(t167, P[125], P[141]))))));
@@ -2587,24 +2595,24 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t390 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, DERIVE_FMA(t183, t94, DERIVE_FMA(t167, P[127], P[143]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t391_0 = DERIVE_ROWS_FMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t391_1 = DERIVE_ROWS_FMA(((derive_vd){t184, t184, t184, t184}), v_t87, v_t391_0);
-    const derive_vd v_t391_2 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t103, v_t391_1);
-    const derive_vd v_t391_3 = DERIVE_ROWS_FMA(((derive_vd){t216, t216, t216, t216}), v_t119, v_t391_2);
-    const derive_vd v_t391_4 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t135, v_t391_3);
-    const derive_vd v_t391 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t151, v_t391_4);
+    const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t391_1 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t87, v_t391_0);
+    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t103, v_t391_1);
+    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t119, v_t391_2);
+    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t135, v_t391_3);
+    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t151, v_t391_4);
     #else
     const double t392 = DERIVE_FMA(t248, t152, DERIVE_FMA(t232, t136, DERIVE_FMA(t216, t120, DERIVE_FMA(t200, t104, DERIVE_FMA(t184, t88, DERIVE_FMA(t168, P[121], P[153]))))));
     const double t393 = DERIVE_FMA(t248, t153, DERIVE_FMA(t232, t137, DERIVE_FMA(t216, t121, DERIVE_FMA(t200, t105, DERIVE_FMA(t184, t89, DERIVE_FMA(t168, P[122], P[154]))))));
     const double t394 = DERIVE_FMA(t248, t154, DERIVE_FMA(t232, t138, DERIVE_FMA(t216, t122, DERIVE_FMA(t200, t106, DERIVE_FMA(t184, t90, DERIVE_FMA(t168, P[123], P[155]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t395_0 = DERIVE_ROWS_FMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t395_1 = DERIVE_ROWS_FMA(((derive_vd){t184, t184, t184, t184}), v_t91, v_t395_0);
-    const derive_vd v_t395_2 = DERIVE_ROWS_FMA(((derive_vd){t200, t200, t200, t200}), v_t107, v_t395_1);
-    const derive_vd v_t395_3 = DERIVE_ROWS_FMA(((derive_vd){t216, t216, t216, t216}), v_t123, v_t395_2);
-    const derive_vd v_t395_4 = DERIVE_ROWS_FMA(((derive_vd){t232, t232, t232, t232}), v_t139, v_t395_3);
-    const derive_vd v_t395 = DERIVE_ROWS_FMA(((derive_vd){t248, t248, t248, t248}), v_t155, v_t395_4);
+    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t91, v_t395_0);
+    const derive_vd v_t395_2 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t107, v_t395_1);
+    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t123, v_t395_2);
+    const derive_vd v_t395_4 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t139, v_t395_3);
+    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t155, v_t395_4);
     #else
     const double t395 = DERIVE_FMA(t248, t155, DERIVE_FMA(t232, t139, DERIVE_FMA(t216, t123, DERIVE_FMA(t200, t107, DERIVE_FMA(t184, t91, DERIVE_FMA(t168, P[124], P[156]))))));
     const double t396 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, DERIVE_FMA(t200, t108, DERIVE_FMA(t184, t92, DERIVE_FMA(t168, P[125], P[157]))))));
@@ -2612,23 +2620,23 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t398 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, DERIVE_FMA(t200, t110, DERIVE_FMA(t184, t94, DERIVE_FMA(t168, P[127], P[159]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t399_0 = DERIVE_ROWS_FMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
-    const derive_vd v_t399_1 = DERIVE_ROWS_FMA(((derive_vd){t185, t185, t185, t185}), v_t87, v_t399_0);
-    const derive_vd v_t399_2 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), v_t103, v_t399_1);
-    const derive_vd v_t399_3 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t119, v_t399_2);
-    const derive_vd v_t399_4 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t135, v_t399_3);
-    const derive_vd v_t399 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t151, v_t399_4);
+    const derive_vd v_t399_0 = DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
+    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t87, v_t399_0);
+    const derive_vd v_t399_2 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t103, v_t399_1);
+    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t119, v_t399_2);
+    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t135, v_t399_3);
+    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t151, v_t399_4);
     #else
     const double t401 = DERIVE_FMA(t249, t153, DERIVE_FMA(t233, t137, DERIVE_FMA(t217, t121, DERIVE_FMA(t201, t105, DERIVE_FMA(t185, t89, DERIVE_FMA(t169, P[122], P[170]))))));
     const double t402 = DERIVE_FMA(t249, t154, DERIVE_FMA(t233, t138, DERIVE_FMA(t217, t122, DERIVE_FMA(t201, t106, DERIVE_FMA(t185, t90, DERIVE_FMA(t169, P[123], P[171]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t403_0 = DERIVE_ROWS_FMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const derive_vd v_t403_1 = DERIVE_ROWS_FMA(((derive_vd){t185, t185, t185, t185}), v_t91, v_t403_0);
-    const derive_vd v_t403_2 = DERIVE_ROWS_FMA(((derive_vd){t201, t201, t201, t201}), v_t107, v_t403_1);
-    const derive_vd v_t403_3 = DERIVE_ROWS_FMA(((derive_vd){t217, t217, t217, t217}), v_t123, v_t403_2);
-    const derive_vd v_t403_4 = DERIVE_ROWS_FMA(((derive_vd){t233, t233, t233, t233}), v_t139, v_t403_3);
-    const derive_vd v_t403 = DERIVE_ROWS_FMA(((derive_vd){t249, t249, t249, t249}), v_t155, v_t403_4);
+    const derive_vd v_t403_0 = DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
+    const derive_vd v_t403_1 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t91, v_t403_0);
+    const derive_vd v_t403_2 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t107, v_t403_1);
+    const derive_vd v_t403_3 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t123, v_t403_2);
+    const derive_vd v_t403_4 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t139, v_t403_3);
+    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t155, v_t403_4);
     #else
     const double t403 = DERIVE_FMA(t249, t155, DERIVE_FMA(t233, t139, DERIVE_FMA(t217, t123, DERIVE_FMA(t201, t107, DERIVE_FMA(t185, t91, DERIVE_FMA(t169, P[124], P[172]))))));
     const double t404 = DERIVE_FMA(t249, t156, DERIVE_FMA(t233, t140, DERIVE_FMA(t217, t124, DERIVE_FMA(t201, t108, DERIVE_FMA(t185, t92, DERIVE_FMA(t169, P[125], P[173]))))));
@@ -2636,12 +2644,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t406 = DERIVE_FMA(t249, t158, DERIVE_FMA(t233, t142, DERIVE_FMA(t217, t126, DERIVE_FMA(t201, t110, DERIVE_FMA(t185, t94, DERIVE_FMA(t169, P[127], P[175]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t407_0 = DERIVE_ROWS_FMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd v_t407_1 = DERIVE_ROWS_FMA(((derive_vd){t186, t186, t186, t186}), v_t87, v_t407_0);
-    const derive_vd v_t407_2 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), v_t103, v_t407_1);
-    const derive_vd v_t407_3 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t119, v_t407_2);
-    const derive_vd v_t407_4 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t135, v_t407_3);
-    const derive_vd v_t407 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t151, v_t407_4);
+    const derive_vd v_t407_0 = DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t407_1 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t87, v_t407_0);
+    const derive_vd v_t407_2 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t103, v_t407_1);
+    const derive_vd v_t407_3 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t119, v_t407_2);
+    const derive_vd v_t407_4 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t135, v_t407_3);
+    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t151, v_t407_4);
     const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t391, 0, 4, 2, 6);
     const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t391, 1, 5, 3, 7);
     const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t399, v_t407, 0, 4, 2, 6);
@@ -2657,12 +2665,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t410 = DERIVE_FMA(t250, t154, DERIVE_FMA(t234, t138, DERIVE_FMA(t218, t122, DERIVE_FMA(t202, t106, DERIVE_FMA(t186, t90, DERIVE_FMA(t170, P[123], P[187]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t411_0 = DERIVE_ROWS_FMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd v_t411_1 = DERIVE_ROWS_FMA(((derive_vd){t186, t186, t186, t186}), v_t91, v_t411_0);
-    const derive_vd v_t411_2 = DERIVE_ROWS_FMA(((derive_vd){t202, t202, t202, t202}), v_t107, v_t411_1);
-    const derive_vd v_t411_3 = DERIVE_ROWS_FMA(((derive_vd){t218, t218, t218, t218}), v_t123, v_t411_2);
-    const derive_vd v_t411_4 = DERIVE_ROWS_FMA(((derive_vd){t234, t234, t234, t234}), v_t139, v_t411_3);
-    const derive_vd v_t411 = DERIVE_ROWS_FMA(((derive_vd){t250, t250, t250, t250}), v_t155, v_t411_4);
+    const derive_vd v_t411_0 = DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t411_1 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t91, v_t411_0);
+    const derive_vd v_t411_2 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t107, v_t411_1);
+    const derive_vd v_t411_3 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t123, v_t411_2);
+    const derive_vd v_t411_4 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t139, v_t411_3);
+    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t155, v_t411_4);
     const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t395, 0, 4, 2, 6);
     const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t395, 1, 5, 3, 7);
     const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t403, v_t411, 0, 4, 2, 6);
@@ -2686,12 +2694,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t414 = DERIVE_FMA(t250, t158, DERIVE_FMA(t234, t142, DERIVE_FMA(t218, t126, DERIVE_FMA(t202, t110, DERIVE_FMA(t186, t94, DERIVE_FMA(t170, P[127], P[191]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t415_0 = DERIVE_ROWS_FMA(((derive_vd){t171, t171, t171, t171}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t415_1 = DERIVE_ROWS_FMA(((derive_vd){t187, t187, t187, t187}), v_t91, v_t415_0);
-    const derive_vd v_t415_2 = DERIVE_ROWS_FMA(((derive_vd){t203, t203, t203, t203}), v_t107, v_t415_1);
-    const derive_vd v_t415_3 = DERIVE_ROWS_FMA(((derive_vd){t219, t219, t219, t219}), v_t123, v_t415_2);
-    const derive_vd v_t415_4 = DERIVE_ROWS_FMA(((derive_vd){t235, t235, t235, t235}), v_t139, v_t415_3);
-    const derive_vd v_t415 = DERIVE_ROWS_FMA(((derive_vd){t251, t251, t251, t251}), v_t155, v_t415_4);
+    const derive_vd v_t415_0 = DERIVE_VFMA(((derive_vd){t171, t171, t171, t171}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t415_1 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), v_t91, v_t415_0);
+    const derive_vd v_t415_2 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t107, v_t415_1);
+    const derive_vd v_t415_3 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t123, v_t415_2);
+    const derive_vd v_t415_4 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t139, v_t415_3);
+    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t155, v_t415_4);
     #else
     const double t415 = DERIVE_FMA(t251, t155, DERIVE_FMA(t235, t139, DERIVE_FMA(t219, t123, DERIVE_FMA(t203, t107, DERIVE_FMA(t187, t91, DERIVE_FMA(t171, P[124], P[204]))))));
     const double t416 = DERIVE_FMA(t251, t156, DERIVE_FMA(t235, t140, DERIVE_FMA(t219, t124, DERIVE_FMA(t203, t108, DERIVE_FMA(t187, t92, DERIVE_FMA(t171, P[125], P[205]))))));
@@ -2699,35 +2707,35 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t418 = DERIVE_FMA(t251, t158, DERIVE_FMA(t235, t142, DERIVE_FMA(t219, t126, DERIVE_FMA(t203, t110, DERIVE_FMA(t187, t94, DERIVE_FMA(t171, P[127], P[207]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t419_0 = DERIVE_ROWS_FMA(((derive_vd){t172, t172, t172, t172}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
-    const derive_vd v_t419_1 = DERIVE_ROWS_FMA(((derive_vd){t188, t188, t188, t188}), v_t91, v_t419_0);
-    const derive_vd v_t419_2 = DERIVE_ROWS_FMA(((derive_vd){t204, t204, t204, t204}), v_t107, v_t419_1);
-    const derive_vd v_t419_3 = DERIVE_ROWS_FMA(((derive_vd){t220, t220, t220, t220}), v_t123, v_t419_2);
-    const derive_vd v_t419_4 = DERIVE_ROWS_FMA(((derive_vd){t236, t236, t236, t236}), v_t139, v_t419_3);
-    const derive_vd v_t419 = DERIVE_ROWS_FMA(((derive_vd){t252, t252, t252, t252}), v_t155, v_t419_4);
+    const derive_vd v_t419_0 = DERIVE_VFMA(((derive_vd){t172, t172, t172, t172}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
+    const derive_vd v_t419_1 = DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), v_t91, v_t419_0);
+    const derive_vd v_t419_2 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t107, v_t419_1);
+    const derive_vd v_t419_3 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t123, v_t419_2);
+    const derive_vd v_t419_4 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t139, v_t419_3);
+    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t155, v_t419_4);
     #else
     const double t420 = DERIVE_FMA(t252, t156, DERIVE_FMA(t236, t140, DERIVE_FMA(t220, t124, DERIVE_FMA(t204, t108, DERIVE_FMA(t188, t92, DERIVE_FMA(t172, P[125], P[221]))))));
     const double t421 = DERIVE_FMA(t252, t157, DERIVE_FMA(t236, t141, DERIVE_FMA(t220, t125, DERIVE_FMA(t204, t109, DERIVE_FMA(t188, t93, DERIVE_FMA(t172, P[126], P[222]))))));
     const double t422 = DERIVE_FMA(t252, t158, DERIVE_FMA(t236, t142, DERIVE_FMA(t220, t126, DERIVE_FMA(t204, t110, DERIVE_FMA(t188, t94, DERIVE_FMA(t172, P[127], P[223]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t423_0 = DERIVE_ROWS_FMA(((derive_vd){t173, t173, t173, t173}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t423_1 = DERIVE_ROWS_FMA(((derive_vd){t189, t189, t189, t189}), v_t91, v_t423_0);
-    const derive_vd v_t423_2 = DERIVE_ROWS_FMA(((derive_vd){t205, t205, t205, t205}), v_t107, v_t423_1);
-    const derive_vd v_t423_3 = DERIVE_ROWS_FMA(((derive_vd){t221, t221, t221, t221}), v_t123, v_t423_2);
-    const derive_vd v_t423_4 = DERIVE_ROWS_FMA(((derive_vd){t237, t237, t237, t237}), v_t139, v_t423_3);
-    const derive_vd v_t423 = DERIVE_ROWS_FMA(((derive_vd){t253, t253, t253, t253}), v_t155, v_t423_4);
+    const derive_vd v_t423_0 = DERIVE_VFMA(((derive_vd){t173, t173, t173, t173}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t423_1 = DERIVE_VFMA(((derive_vd){t189, t189, t189, t189}), v_t91, v_t423_0);
+    const derive_vd v_t423_2 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t107, v_t423_1);
+    const derive_vd v_t423_3 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t123, v_t423_2);
+    const derive_vd v_t423_4 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t139, v_t423_3);
+    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t155, v_t423_4);
     #else
     const double t425 = DERIVE_FMA(t253, t157, DERIVE_FMA(t237, t141, DERIVE_FMA(t221, t125, DERIVE_FMA(t205, t109, DERIVE_FMA(t189, t93, DERIVE_FMA(t173, P[126], P[238]))))));
     const double t426 = DERIVE_FMA(t253, t158, DERIVE_FMA(t237, t142, DERIVE_FMA(t221, t126, DERIVE_FMA(t205, t110, DERIVE_FMA(t189, t94, DERIVE_FMA(t173, P[127], P[239]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t427_0 = DERIVE_ROWS_FMA(((derive_vd){t174, t174, t174, t174}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
-    const derive_vd v_t427_1 = DERIVE_ROWS_FMA(((derive_vd){t190, t190, t190, t190}), v_t91, v_t427_0);
-    const derive_vd v_t427_2 = DERIVE_ROWS_FMA(((derive_vd){t206, t206, t206, t206}), v_t107, v_t427_1);
-    const derive_vd v_t427_3 = DERIVE_ROWS_FMA(((derive_vd){t222, t222, t222, t222}), v_t123, v_t427_2);
-    const derive_vd v_t427_4 = DERIVE_ROWS_FMA(((derive_vd){t238, t238, t238, t238}), v_t139, v_t427_3);
-    const derive_vd v_t427 = DERIVE_ROWS_FMA(((derive_vd){t254, t254, t254, t254}), v_t155, v_t427_4);
+    const derive_vd v_t427_0 = DERIVE_VFMA(((derive_vd){t174, t174, t174, t174}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
+    const derive_vd v_t427_1 = DERIVE_VFMA(((derive_vd){t190, t190, t190, t190}), v_t91, v_t427_0);
+    const derive_vd v_t427_2 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t107, v_t427_1);
+    const derive_vd v_t427_3 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t123, v_t427_2);
+    const derive_vd v_t427_4 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t139, v_t427_3);
+    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t155, v_t427_4);
     const derive_vd tr_v_t415_0 = __builtin_shufflevector(v_t415, v_t419, 0, 4, 2, 6);
     const derive_vd tr_v_t415_1 = __builtin_shufflevector(v_t415, v_t419, 1, 5, 3, 7);
     const derive_vd tr_v_t415_2 = __builtin_shufflevector(v_t423, v_t427, 0, 4, 2, 6);
@@ -3489,7 +3497,7 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
 }
 
 /* Run the extended Kalman filter over steps steps (predict, then each sensor's update where its row is not NaN); Ps, nis_* and applied_* may be NULL. */
-int ins_gnss_ekf_run(size_t steps, const double *u, const double *z_gnss, const double *z_baro, const double *x0, const double *P0, double *xs, double *Ps, const double *p, size_t p_stride)
+int ins_gnss_ekf_run(size_t steps, const double *z_gnss, const double *z_baro, const double *u, const double *x0, const double *P0, double *xs, double *Ps, const double *p, size_t p_stride)
 {
     double x[16];
     double P[256];

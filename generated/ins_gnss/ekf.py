@@ -13,7 +13,7 @@ interface (flat row-major arrays; steps = number of steps):
     predict(x[16], P[16*16], u[6], p[1]) -> (x_new[16], P_new[16*16])
     update_gnss(x[16], P[16*16], z[6], p[1]) -> (x_new[16], P_new[16*16])
     update_baro(x[16], P[16*16], z[1], p[1]) -> (x_new[16], P_new[16*16])
-    run(us[steps, 6], z_gnss[steps, 6], z_baro[steps, 1], x0[16], P0[16, 16], p[1] or p[steps, 1]) -> (xs[steps, 16], Ps[steps, 16, 16])
+    run(z_gnss[steps, 6], z_baro[steps, 1], us[steps, 6], x0[16], P0[16, 16], p[1] or p[steps, 1]) -> (xs[steps, 16], Ps[steps, 16, 16])
 run's p: one row (1,) for every step or one row per step (steps, 1)
 symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
 symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
@@ -1394,32 +1394,32 @@ def update_baro(x, P, z, p):
     return x_new, P_new
 
 
-def run(us, z_gnss, z_baro, x0, P0, p):
+def run(z_gnss, z_baro, us, x0, P0, p):
     """Run the extended Kalman filter over the steps: predict with u(k), then each sensor's update in declaration order where its row is not NaN.
 
     Arrays may carry trailing track axes (many tracks at once); every array is
     float64.
-    us [steps, 6]: u(k) per step, one row each (predict's and the updates')
     z_gnss [steps, 6]: sensor gnss per step, one row each; a row with a NaN: no measurement of this sensor at that step
     z_baro [steps, 1]: sensor baro per step, one row each; a row with a NaN: no measurement of this sensor at that step
+    us [steps, 6]: u(k) per step, one row each (predict's and the updates')
     x0 [16]: initial state estimate
     P0 [16, 16]: initial covariance (symmetric)
     xs [steps, 16]: estimate after each step
     Ps [steps, 16, 16]: covariance after each step (C: may be NULL)
     p [1]: free parameters: dt
     """
-    us = _real('us', us)
     z_gnss = _real('z_gnss', z_gnss)
     z_baro = _real('z_baro', z_baro)
+    us = _real('us', us)
     x0 = _real('x0', x0)
     P0 = _real('P0', P0)
     p = _real('p', p)
-    _require_shape('us', us, us.shape[:1] + (6,), '(steps, 6)')
-    steps = us.shape[0]
-    _require_shape('z_gnss', z_gnss, (steps,) + (6,), f'(steps, 6), steps = {steps} as us has')
+    _require_shape('z_gnss', z_gnss, z_gnss.shape[:1] + (6,), '(steps, 6)')
+    steps = z_gnss.shape[0]
     if z_baro.ndim == 1:  # one value per step
         z_baro = z_baro[:, np.newaxis]
-    _require_shape('z_baro', z_baro, (steps,) + (1,), f'(steps, 1), steps = {steps} as us has')
+    _require_shape('z_baro', z_baro, (steps,) + (1,), f'(steps, 1), steps = {steps} as z_gnss has')
+    _require_shape('us', us, (steps,) + (6,), f'(steps, 6), steps = {steps} as z_gnss has')
     _require_shape('x0', x0, (16,), '(16,)')
     if P0.shape[:1] == (256,):  # flat, row-major
         P0 = P0.reshape((16, 16) + P0.shape[1:])
@@ -1430,9 +1430,9 @@ def run(us, z_gnss, z_baro, x0, P0, p):
         _require_shape('p', p, (1,), '(1,) or (steps, 1)')
         p_rows = np.broadcast_to(p, (steps,) + p.shape)
     else:  # one row per step
-        _require_shape('p', p, (steps,) + (1,), f'(1,) or (steps, 1), steps = {steps} as us has')
+        _require_shape('p', p, (steps,) + (1,), f'(1,) or (steps, 1), steps = {steps} as z_gnss has')
         p_rows = p
-    tracks = (us.shape[2:], z_gnss.shape[2:], z_baro.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
+    tracks = (z_gnss.shape[2:], z_baro.shape[2:], us.shape[2:], x0.shape[1:], P0.shape[2:], p_rows.shape[2:])
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 16) + track)
     Ps = np.empty((steps, 256) + track)
