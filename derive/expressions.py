@@ -19,9 +19,9 @@ Allowed:
   derive.guards).
 
 Everything else (attribute access, subscripts, strings, f-strings, lambdas, comprehensions,
-comparisons outside a Piecewise condition, boolean operators, conditional expressions, ``:=``, keyword or starred
-arguments, ...) raises `ExpressionError` naming the construct and its line and column, as
-do names starting with an underscore and non-ASCII text.
+comparisons outside a Piecewise condition, boolean operators, conditional expressions,
+``:=``, keyword or starred arguments, ...) raises `ExpressionError` naming the construct
+and its line and column, as do names starting with an underscore and non-ASCII text.
 
 Resource limits, checked before the sympy object they would guard is built: the text
 length, the node count and nesting depth of the tree, the size of exponents (an exponent

@@ -949,17 +949,18 @@ class NonlinearModel(_Model):
         (:attr:`state_noise`) is a callable ``(x, u)`` too.
         """
         extra = self.parameter_values(params)
-        if not self.state_noise:
-            self._check_finite({"Q": self.Q, "R": self.R}, extra)
-        self._check_finite({"Qu": self.Qu}, extra)
+        moving = set(self.state_symbols) | set(self.inputs)
+        constant = {name: mat for name, mat in (("Q", self.Q), ("R", self.R), ("Qu", self.Qu))
+                    if not mat.free_symbols & moving}
+        self._check_finite(constant, extra)
         X = sympy.Matrix(self.state_symbols)
         U = sympy.Matrix(self.inputs) if self.inputs else sympy.Matrix.zeros(0, 1)
 
-        def fn(mat, with_u):
+        def fn(mat, with_u, matrix=False):
             e = self.subs(mat).xreplace(extra)
             args = [list(X), list(U)] if with_u else [list(X)]
             lam = sympy.lambdify(args, e, modules=[numpy_selects(), "numpy"], cse=True)
-            shape = (mat.rows,) if mat.cols == 1 else mat.shape
+            shape = (mat.rows,) if mat.cols == 1 and not matrix else mat.shape
 
             def call(x, u=()):
                 vals = [list(np.asarray(x, float).ravel())]
@@ -975,8 +976,8 @@ class NonlinearModel(_Model):
         return {"f": fn(self.f, in_f), "F": fn(self.F_jacobian, in_f),
                 "Fu": fn(self.Fu_jacobian, in_f),
                 "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
-                "Q": fn(self.Q, True) if self.state_noise else num(self.Q),
-                "R": fn(self.R, True) if self.state_noise else num(self.R),
+                "Q": num(self.Q) if "Q" in constant else fn(self.Q, True, True),
+                "R": num(self.R) if "R" in constant else fn(self.R, True, True),
                 "Qu": num(self.Qu)}
 
 
