@@ -42,7 +42,7 @@
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
  * angle measurements bearing: innovations (and sigma-point spreads) wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)); their mean is h(x) plus the weighted mean of the wrapped deviations from it (the sigma point X_0 = x), the spreads those deviations minus that mean
- * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["predict",13,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["predict",13,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -428,7 +428,7 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t294 = w[9] + t271;
     const double t295 = w[14] + t273;
     const double t296 = DERIVE_FMA(t292, t292, DERIVE_FMA(t290, t290, DERIVE_FMA(t288, t288, DERIVE_FMA(t286, t286, DERIVE_FMA(t284, t284, DERIVE_FMA(t282, t282, DERIVE_FMA(t280, t280, DERIVE_FMA(t278, t278, DERIVE_FMA(t276, t276, t274*t274)))))))));
-    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.5));
+    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.1));
     const double t298 = DERIVE_FMA(t292, t293, DERIVE_FMA(t290, t291, DERIVE_FMA(t288, t289, DERIVE_FMA(t286, t287, DERIVE_FMA(t284, t285, DERIVE_FMA(t282, t283, DERIVE_FMA(t280, t281, DERIVE_FMA(t278, t279, DERIVE_FMA(t276, t277, t274*t275)))))))));
     const double t299 = DERIVE_FMA((-0.6666666666666666), t271*t273, 0.16666666666666666*t298);
     const double t300 = DERIVE_FNMA(t288, w[18], DERIVE_FNMA(t286, w[17], DERIVE_FNMA(t284, w[16], DERIVE_FMA(t278, w[18], DERIVE_FMA(t276, w[17], t274*w[16])))));
@@ -440,7 +440,7 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t306 = DERIVE_FNMA(t290, w[22], DERIVE_FNMA(t288, w[21], DERIVE_FNMA(t286, w[20], DERIVE_FNMA(t284, w[19], DERIVE_FMA(t280, w[22], DERIVE_FMA(t278, w[21], DERIVE_FMA(t276, w[20], DERIVE_FMA(t274, w[19], t302 + t303))))))));
     const double t307 = 0.16666666666666666*t306;
     const double t308 = DERIVE_FMA(t293, t293, DERIVE_FMA(t291, t291, DERIVE_FMA(t289, t289, DERIVE_FMA(t287, t287, DERIVE_FMA(t285, t285, DERIVE_FMA(t283, t283, DERIVE_FMA(t281, t281, DERIVE_FMA(t279, t279, DERIVE_FMA(t277, t277, t275*t275)))))))));
-    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.5));
+    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.1));
     const double t310 = DERIVE_FNMA(t289, w[18], DERIVE_FNMA(t287, w[17], DERIVE_FNMA(t285, w[16], DERIVE_FMA(t279, w[18], DERIVE_FMA(t277, w[17], t275*w[16])))));
     const double t311 = 0.16666666666666666*t310;
     const double t312 = -(t293*w[23]);
@@ -450,18 +450,18 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t316 = DERIVE_FNMA(t291, w[22], DERIVE_FNMA(t289, w[21], DERIVE_FNMA(t287, w[20], DERIVE_FNMA(t285, w[19], DERIVE_FMA(t281, w[22], DERIVE_FMA(t279, w[21], DERIVE_FMA(t277, w[20], DERIVE_FMA(t275, w[19], t312 + t313))))))));
     const double t317 = 0.16666666666666666*t316;
     const double t318 = DERIVE_FMA(2.0, w[18]*w[18], DERIVE_FMA(2.0, w[17]*w[17], 2.0*(w[16]*w[16])));
-    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.1);
+    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.01);
     const double t320 = DERIVE_FMA(2.0, w[17]*w[27], DERIVE_FMA(2.0, w[16]*w[24], 2.0*(w[31]*w[18])));
     const double t321 = 0.16666666666666666*t320;
     const double t322 = DERIVE_FMA(2.0, w[18]*w[21], DERIVE_FMA(2.0, w[17]*w[20], 2.0*(w[16]*w[19])));
     const double t323 = 0.16666666666666666*t322;
     const double t324 = 2.0*(w[23]*w[23]);
     const double t325 = DERIVE_FMA(2.0, w[27]*w[27], DERIVE_FMA(2.0, w[24]*w[24], DERIVE_FMA(2.0, w[36]*w[36], DERIVE_FMA(2.0, w[31]*w[31], t324))));
-    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 0.0001);
+    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 1e-06);
     const double t327 = DERIVE_FMA(2.0, w[20]*w[27], DERIVE_FMA(2.0, w[19]*w[24], DERIVE_FMA(2.0, w[36]*w[22], DERIVE_FMA(2.0, w[31]*w[21], t324))));
     const double t328 = 0.16666666666666666*t327;
     const double t329 = DERIVE_FMA(2.0, w[22]*w[22], DERIVE_FMA(2.0, w[21]*w[21], DERIVE_FMA(2.0, w[20]*w[20], DERIVE_FMA(2.0, w[19]*w[19], t324))));
-    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-05);
+    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-08);
     if (!(t297 > 0.0) && !status) {
         status = 6; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     }
@@ -1031,7 +1031,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t294 = t12 + t271;
     const double t295 = t20 + t273;
     const double t296 = DERIVE_FMA(t292, t292, DERIVE_FMA(t290, t290, DERIVE_FMA(t288, t288, DERIVE_FMA(t286, t286, DERIVE_FMA(t284, t284, DERIVE_FMA(t282, t282, DERIVE_FMA(t280, t280, DERIVE_FMA(t278, t278, DERIVE_FMA(t276, t276, t274*t274)))))))));
-    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.5));
+    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.1));
     const double t298 = DERIVE_FMA(t292, t293, DERIVE_FMA(t290, t291, DERIVE_FMA(t288, t289, DERIVE_FMA(t286, t287, DERIVE_FMA(t284, t285, DERIVE_FMA(t282, t283, DERIVE_FMA(t280, t281, DERIVE_FMA(t278, t279, DERIVE_FMA(t276, t277, t274*t275)))))))));
     const double t299 = DERIVE_FMA((-0.6666666666666666), t271*t273, 0.16666666666666666*t298);
     const double t300 = DERIVE_FNMA(t288, t49, DERIVE_FNMA(t286, t48, DERIVE_FNMA(t284, t47, DERIVE_FMA(t278, t49, DERIVE_FMA(t276, t48, t274*t47)))));
@@ -1043,7 +1043,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t306 = DERIVE_FNMA(t290, t57, DERIVE_FNMA(t288, t56, DERIVE_FNMA(t286, t55, DERIVE_FNMA(t284, t54, DERIVE_FMA(t280, t57, DERIVE_FMA(t278, t56, DERIVE_FMA(t276, t55, DERIVE_FMA(t274, t54, t302 + t303))))))));
     const double t307 = 0.16666666666666666*t306;
     const double t308 = DERIVE_FMA(t293, t293, DERIVE_FMA(t291, t291, DERIVE_FMA(t289, t289, DERIVE_FMA(t287, t287, DERIVE_FMA(t285, t285, DERIVE_FMA(t283, t283, DERIVE_FMA(t281, t281, DERIVE_FMA(t279, t279, DERIVE_FMA(t277, t277, t275*t275)))))))));
-    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.5));
+    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.1));
     const double t310 = DERIVE_FNMA(t289, t49, DERIVE_FNMA(t287, t48, DERIVE_FNMA(t285, t47, DERIVE_FMA(t279, t49, DERIVE_FMA(t277, t48, t275*t47)))));
     const double t311 = 0.16666666666666666*t310;
     const double t312 = -(t293*t58);
@@ -1053,18 +1053,18 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t316 = DERIVE_FNMA(t291, t57, DERIVE_FNMA(t289, t56, DERIVE_FNMA(t287, t55, DERIVE_FNMA(t285, t54, DERIVE_FMA(t281, t57, DERIVE_FMA(t279, t56, DERIVE_FMA(t277, t55, DERIVE_FMA(t275, t54, t312 + t313))))))));
     const double t317 = 0.16666666666666666*t316;
     const double t318 = DERIVE_FMA(2.0, t49*t49, DERIVE_FMA(2.0, t48*t48, 2.0*(t47*t47)));
-    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.1);
+    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.01);
     const double t320 = DERIVE_FMA(2.0, t48*t92, DERIVE_FMA(2.0, t47*t65, 2.0*(t117*t49)));
     const double t321 = 0.16666666666666666*t320;
     const double t322 = DERIVE_FMA(2.0, t49*t56, DERIVE_FMA(2.0, t48*t55, 2.0*(t47*t54)));
     const double t323 = 0.16666666666666666*t322;
     const double t324 = 2.0*(t58*t58);
     const double t325 = DERIVE_FMA(2.0, t92*t92, DERIVE_FMA(2.0, t65*t65, DERIVE_FMA(2.0, t140*t140, DERIVE_FMA(2.0, t117*t117, t324))));
-    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 0.0001);
+    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 1e-06);
     const double t327 = DERIVE_FMA(2.0, t55*t92, DERIVE_FMA(2.0, t54*t65, DERIVE_FMA(2.0, t140*t57, DERIVE_FMA(2.0, t117*t56, t324))));
     const double t328 = 0.16666666666666666*t327;
     const double t329 = DERIVE_FMA(2.0, t57*t57, DERIVE_FMA(2.0, t56*t56, DERIVE_FMA(2.0, t55*t55, DERIVE_FMA(2.0, t54*t54, t324))));
-    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-05);
+    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-08);
     x_new[0] = t294;
     x_new[1] = t295;
     x_new[2] = x[2];
