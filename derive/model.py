@@ -779,6 +779,12 @@ class NonlinearModel(_Model):
     over ``inputs`` in order) is the covariance of the noise on u: the prediction adds
     ``Fu Qu Fu^T`` to Q with ``Fu = ∂f/∂u`` at x(k-1/k-1), u(k) (the IMU convention);
     inputs f does not use have zero columns in Fu.
+
+    f, h, Q and R may hold guards (``sign``, ``Max``, ``Min``, ``Piecewise``): they are
+    rewritten as selects (derive.guards), refused naming the entry when they cannot be.
+    Q and R may depend on the states and inputs (the filters say where they evaluate
+    them). ``angles``: the measurements that are angles (their innovations are wrapped to
+    (-pi, pi]); each one's h must be an angle (:func:`is_angle`).
     """
 
     kind = "nonlinear"

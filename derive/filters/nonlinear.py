@@ -178,7 +178,7 @@ def wrap_angle(y: sympy.Expr) -> sympy.Expr:
 
 
 #: The header's line on wrapped innovations.
-WRAP_FACT = ("angle measurements {names}: innovations (and sigma-point spreads) wrapped to "
+WRAP_FACT = ("angle measurements {names}: innovations wrapped to "
              "(-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))")
 
 

@@ -298,9 +298,9 @@ def derive_unit(model, spec, options):
     predict = ("predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q"
                if affine else "predict: sigma points of (x, P) through f")
     noise = noise_fact(model, "x(k-1/k-1), u(k)", "x(k/k-1) (the mean), u(k)")
-    angles = [line + "; their mean is h(x) plus the weighted mean of the wrapped deviations "
-              "from it (the sigma point X_0 = x), the spreads those deviations minus that "
-              "mean" for line in angle_facts(model)]
+    angles = [line + ", and so are the sigma points' deviations from h(x) (the point "
+              "X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the "
+              "spreads the deviations minus that mean" for line in angle_facts(model)]
     return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict,
                                                     spreads_fact(model, affine), *facts,
                                                     *angles, *noise),
