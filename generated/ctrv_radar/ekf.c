@@ -24,7 +24,7 @@
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
- * angle measurements bearing: innovations (and sigma-point spreads) wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
+ * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
  * derive-interface: {"functions":[["ctrv_radar_ekf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_predict","predict",false,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
@@ -107,11 +107,11 @@ DERIVE_INLINE int ctrv_radar_ekf_step_body(const double *restrict x, const doubl
     const double t39 = DERIVE_FMA(t23, t32, DERIVE_FMA(t22, t31, DERIVE_FMA(t21, t30, t29)));
     const double t40 = t31 + t32;
     const double t41 = t34 + t35;
-    const double t42 = 0.1 + t36;
-    const double t43 = 0.1 + t39;
-    const double t44 = 0.01 + P[12 * s];
-    const double t45 = 1e-06 + t41;
-    const double t46 = 1e-08 + P[24 * s];
+    const double t42 = 0.5 + t36;
+    const double t43 = 0.5 + t39;
+    const double t44 = 0.05 + P[12 * s];
+    const double t45 = 0.001 + t41;
+    const double t46 = 1e-06 + P[24 * s];
     const double t47 = DERIVE_FMA(t17, t17, t16*t16);
     const double t48 = sqrt(t47);
     const double t49 = 1.0/t48;
@@ -287,11 +287,11 @@ void ctrv_radar_ekf_predict(const double *restrict x, const double *restrict P, 
     const double t39 = DERIVE_FMA(t23, t32, DERIVE_FMA(t22, t31, DERIVE_FMA(t21, t30, t29)));
     const double t40 = t31 + t32;
     const double t41 = t34 + t35;
-    const double t42 = 0.1 + t36;
-    const double t43 = 0.1 + t39;
-    const double t44 = 0.01 + P[12];
-    const double t45 = 1e-06 + t41;
-    const double t46 = 1e-08 + P[24];
+    const double t42 = 0.5 + t36;
+    const double t43 = 0.5 + t39;
+    const double t44 = 0.05 + P[12];
+    const double t45 = 0.001 + t41;
+    const double t46 = 1e-06 + P[24];
     x_new[0] = t16;
     x_new[1] = t17;
     x_new[2] = x[2];

@@ -24,7 +24,7 @@
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
- * angle measurements bearing: innovations (and sigma-point spreads) wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
+ * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
  * derive-interface: {"functions":[["ctrv_radar_ekf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_predict","predict",false,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ekf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
  */
 #ifndef DERIVE_ctrv_radar_ekf_H

@@ -24,7 +24,7 @@ P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
 per-step input u: none
 no update1 (sequential scalar updates): the diagonal of R is not constant
-angle measurements bearing: innovations (and sigma-point spreads) wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
+angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))
 """
 
 import struct
@@ -161,11 +161,11 @@ def step(x, P, z):
     t39 = t29 + t21*t30 + t22*t31 + t23*t32
     t40 = t31 + t32
     t41 = t34 + t35
-    t42 = 0.1 + t36
-    t43 = 0.1 + t39
-    t44 = 0.01 + P[12]
-    t45 = 1e-06 + t41
-    t46 = 1e-08 + P[24]
+    t42 = 0.5 + t36
+    t43 = 0.5 + t39
+    t44 = 0.05 + P[12]
+    t45 = 0.001 + t41
+    t46 = 1e-06 + P[24]
     t47 = t16*t16 + t17*t17
     t48 = _sqrt(t47)
     t49 = 1.0/t48
@@ -317,11 +317,11 @@ def predict(x, P):
     t39 = t29 + t21*t30 + t22*t31 + t23*t32
     t40 = t31 + t32
     t41 = t34 + t35
-    t42 = 0.1 + t36
-    t43 = 0.1 + t39
-    t44 = 0.01 + P[12]
-    t45 = 1e-06 + t41
-    t46 = 1e-08 + P[24]
+    t42 = 0.5 + t36
+    t43 = 0.5 + t39
+    t44 = 0.05 + P[12]
+    t45 = 0.001 + t41
+    t46 = 1e-06 + P[24]
     x_new = [t16, t17, x[2], t3, x[4]]
     P_new = [
         t42, t37, t26, t38, t28, t37, t43, t30, t40, t32, t26, t30, t44, t33, P[14], t38, t40,
@@ -398,11 +398,11 @@ def run(zs, x0, P0):
             t37 = P_1 + P_7*t18 + P_8*t19 + P_9*t20 + t21*t26 + t22*t27 + t23*t28
             t38 = t27 + t28
             t40 = t31 + t32
-            t42 = 0.1 + (P_0 + P_2*t18 + P_3*t19 + P_4*t20 + t18*t26 + t19*t27 + t20*t28)
-            t43 = 0.1 + (P_6 + P_7*t21 + P_8*t22 + P_9*t23 + t21*t30 + t22*t31 + t23*t32)
-            t44 = 0.01 + P_12
-            t45 = 1e-06 + (P_18 + P_19 + t35)
-            t46 = 1e-08 + P_24
+            t42 = 0.5 + (P_0 + P_2*t18 + P_3*t19 + P_4*t20 + t18*t26 + t19*t27 + t20*t28)
+            t43 = 0.5 + (P_6 + P_7*t21 + P_8*t22 + P_9*t23 + t21*t30 + t22*t31 + t23*t32)
+            t44 = 0.05 + P_12
+            t45 = 0.001 + (P_18 + P_19 + t35)
+            t46 = 1e-06 + P_24
             t47 = t16*t16 + t17*t17
             t48 = _sqrt(t47)
             t49 = 1.0/t48

@@ -33,15 +33,15 @@
  *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
  *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
  *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 155, sub 128, mul 302, div 25, sqrt 14, fma 262, neg 15, cmp 34, select 22, calls 97 (flops 1148, instructions 957)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 156, sub 128, mul 308, div 25, sqrt 14, fma 268, neg 15, cmp 34, select 22, calls 99 (flops 1167, instructions 970)
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 129, sub 82, mul 208, div 15, sqrt 5, fma 179, neg 14, cmp 27, select 22, calls 87 (flops 797, instructions 681)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
  * predict: sigma points of (x, P) through f
- * spreads: f and h in difference form, f/h(x + d_i) - f/h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed; no rule for f: (px + v*(-sin(psi) + sin(omega + psi))/omega if Abs(omega) > 1/10000 else px + v*cos(psi)), f: Abs(omega), f: (py + v*(cos(psi) - cos(omega + psi))/omega if Abs(omega) > 1/10000 else py + v*sin(psi)), h: atan2(py, px), whose differences are g(a + D[a]) - g(a) (they cancel)
+ * spreads: f and h in difference form, f/h(x + d_i) - f/h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed; no rule for f: (px + v*(-sin(psi) + sin(omega + psi))/omega if Abs(omega) > 1/10000 else px + v*cos(psi)), f: Abs(omega), f: (py + v*(cos(psi) - cos(omega + psi))/omega if Abs(omega) > 1/10000 else py + v*sin(psi)), whose differences are g(a + D[a]) - g(a) (they cancel)
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
- * angle measurements bearing: innovations (and sigma-point spreads) wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)); their mean is h(x) plus the weighted mean of the wrapped deviations from it (the sigma point X_0 = x), the spreads those deviations minus that mean
+ * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)), and so are the sigma points' deviations from h(x) (the point X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the spreads the deviations minus that mean
  * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["predict",13,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]]}
  */
 #include <math.h>
@@ -428,7 +428,7 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t294 = w[9] + t271;
     const double t295 = w[14] + t273;
     const double t296 = DERIVE_FMA(t292, t292, DERIVE_FMA(t290, t290, DERIVE_FMA(t288, t288, DERIVE_FMA(t286, t286, DERIVE_FMA(t284, t284, DERIVE_FMA(t282, t282, DERIVE_FMA(t280, t280, DERIVE_FMA(t278, t278, DERIVE_FMA(t276, t276, t274*t274)))))))));
-    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.1));
+    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.5));
     const double t298 = DERIVE_FMA(t292, t293, DERIVE_FMA(t290, t291, DERIVE_FMA(t288, t289, DERIVE_FMA(t286, t287, DERIVE_FMA(t284, t285, DERIVE_FMA(t282, t283, DERIVE_FMA(t280, t281, DERIVE_FMA(t278, t279, DERIVE_FMA(t276, t277, t274*t275)))))))));
     const double t299 = DERIVE_FMA((-0.6666666666666666), t271*t273, 0.16666666666666666*t298);
     const double t300 = DERIVE_FNMA(t288, w[18], DERIVE_FNMA(t286, w[17], DERIVE_FNMA(t284, w[16], DERIVE_FMA(t278, w[18], DERIVE_FMA(t276, w[17], t274*w[16])))));
@@ -440,7 +440,7 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t306 = DERIVE_FNMA(t290, w[22], DERIVE_FNMA(t288, w[21], DERIVE_FNMA(t286, w[20], DERIVE_FNMA(t284, w[19], DERIVE_FMA(t280, w[22], DERIVE_FMA(t278, w[21], DERIVE_FMA(t276, w[20], DERIVE_FMA(t274, w[19], t302 + t303))))))));
     const double t307 = 0.16666666666666666*t306;
     const double t308 = DERIVE_FMA(t293, t293, DERIVE_FMA(t291, t291, DERIVE_FMA(t289, t289, DERIVE_FMA(t287, t287, DERIVE_FMA(t285, t285, DERIVE_FMA(t283, t283, DERIVE_FMA(t281, t281, DERIVE_FMA(t279, t279, DERIVE_FMA(t277, t277, t275*t275)))))))));
-    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.1));
+    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.5));
     const double t310 = DERIVE_FNMA(t289, w[18], DERIVE_FNMA(t287, w[17], DERIVE_FNMA(t285, w[16], DERIVE_FMA(t279, w[18], DERIVE_FMA(t277, w[17], t275*w[16])))));
     const double t311 = 0.16666666666666666*t310;
     const double t312 = -(t293*w[23]);
@@ -450,18 +450,18 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t316 = DERIVE_FNMA(t291, w[22], DERIVE_FNMA(t289, w[21], DERIVE_FNMA(t287, w[20], DERIVE_FNMA(t285, w[19], DERIVE_FMA(t281, w[22], DERIVE_FMA(t279, w[21], DERIVE_FMA(t277, w[20], DERIVE_FMA(t275, w[19], t312 + t313))))))));
     const double t317 = 0.16666666666666666*t316;
     const double t318 = DERIVE_FMA(2.0, w[18]*w[18], DERIVE_FMA(2.0, w[17]*w[17], 2.0*(w[16]*w[16])));
-    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.01);
+    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.05);
     const double t320 = DERIVE_FMA(2.0, w[17]*w[27], DERIVE_FMA(2.0, w[16]*w[24], 2.0*(w[31]*w[18])));
     const double t321 = 0.16666666666666666*t320;
     const double t322 = DERIVE_FMA(2.0, w[18]*w[21], DERIVE_FMA(2.0, w[17]*w[20], 2.0*(w[16]*w[19])));
     const double t323 = 0.16666666666666666*t322;
     const double t324 = 2.0*(w[23]*w[23]);
     const double t325 = DERIVE_FMA(2.0, w[27]*w[27], DERIVE_FMA(2.0, w[24]*w[24], DERIVE_FMA(2.0, w[36]*w[36], DERIVE_FMA(2.0, w[31]*w[31], t324))));
-    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 1e-06);
+    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 0.001);
     const double t327 = DERIVE_FMA(2.0, w[20]*w[27], DERIVE_FMA(2.0, w[19]*w[24], DERIVE_FMA(2.0, w[36]*w[22], DERIVE_FMA(2.0, w[31]*w[21], t324))));
     const double t328 = 0.16666666666666666*t327;
     const double t329 = DERIVE_FMA(2.0, w[22]*w[22], DERIVE_FMA(2.0, w[21]*w[21], DERIVE_FMA(2.0, w[20]*w[20], DERIVE_FMA(2.0, w[19]*w[19], t324))));
-    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-08);
+    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-06);
     if (!(t297 > 0.0) && !status) {
         status = 6; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     }
@@ -517,45 +517,45 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     const double t369 = 2.0*t295;
     const double t371 = DERIVE_FMA(t354, t354 + t369, t353*(t353 + t367));
     const double t372 = t371/(t365 + sqrt(t364 + t371));
-    const double t373 = atan2(t295 + t354, t294 + t353) - t366;
-    const double t374 = t355*(t355 + t369);
-    const double t375 = t374/(t365 + sqrt(t364 + t374));
-    const double t376 = atan2(t295 + t355, t294) - t366;
-    const double t379 = DERIVE_FMA(t354, t369 - t354, t353*(t367 - t353));
-    const double t380 = t379/(t365 + sqrt(t364 - t379));
-    const double t381 = atan2(t295 - t354, t294 - t353) - t366;
-    const double t382 = t355*(t369 - t355);
-    const double t383 = t382/(t365 + sqrt(t364 - t382));
-    const double t384 = atan2(t295 - t355, t294) - t366;
-    const double t385 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t373 - 3.141592653589793)), t373);
-    const double t386 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t376 - 3.141592653589793)), t376);
-    const double t387 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t381 - 3.141592653589793)), t381);
-    const double t388 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t384 - 3.141592653589793)), t384);
-    const double t389 = t372 + t375 - t380 - t383;
-    const double t390 = 0.16666666666666666*t389;
-    const double t391 = t385 + t386 + t387 + t388;
-    const double t392 = 0.16666666666666666*t391;
-    const double t393 = t372 - t390;
-    const double t394 = t385 - t392;
-    const double t395 = t375 - t390;
-    const double t396 = t386 - t392;
-    const double t397 = -t392;
-    const double t398 = t380 + t390;
-    const double t399 = t387 - t392;
-    const double t400 = t383 + t390;
-    const double t401 = t388 - t392;
-    const double t402 = t390*t390;
-    const double t403 = DERIVE_FMA(6.0, t402, DERIVE_FMA(t400, t400, DERIVE_FMA(t398, t398, DERIVE_FMA(t395, t395, t393*t393))));
-    const double t404 = DERIVE_FMA(0.16666666666666666, t403, DERIVE_FMA((-0.6666666666666666), t402, 25.0));
-    const double t405 = DERIVE_FMA((-6.0), t390*t397, DERIVE_FNMA(t400, t401, DERIVE_FNMA(t398, t399, DERIVE_FMA(t395, t396, t393*t394))));
-    const double t406 = DERIVE_FMA((-0.6666666666666666), t390*t392, 0.16666666666666666*t405);
-    const double t407 = DERIVE_FMA(6.0, t397*t397, DERIVE_FMA(t401, t401, DERIVE_FMA(t399, t399, DERIVE_FMA(t396, t396, t394*t394))));
-    const double t408 = DERIVE_FMA((-0.6666666666666666), t392*t392, DERIVE_FMA(0.16666666666666666, t407, 0.0001));
-    const double t409 = t372 + t380;
-    const double t410 = t385 - t387;
-    const double t411 = t375 + t383;
-    const double t412 = t386 - t388;
-    const double t413 = t353*t409;
+    const double t373 = t294*t354;
+    const double t374 = t295*t353;
+    const double t375 = atan2(t373 - t374, DERIVE_FMA(t295, t295 + t354, t294*(t294 + t353)));
+    const double t376 = t355*(t355 + t369);
+    const double t377 = t376/(t365 + sqrt(t364 + t376));
+    const double t378 = t294*t355;
+    const double t379 = atan2(t378, DERIVE_FMA(t295, t295 + t355, t362));
+    const double t380 = atan2(0.0, t362 + t363);
+    const double t383 = DERIVE_FMA(t354, t369 - t354, t353*(t367 - t353));
+    const double t384 = t383/(t365 + sqrt(t364 - t383));
+    const double t385 = atan2(t374 - t373, DERIVE_FMA(t295, t295 - t354, t294*(t294 - t353)));
+    const double t386 = t355*(t369 - t355);
+    const double t387 = t386/(t365 + sqrt(t364 - t386));
+    const double t388 = atan2(-t378, DERIVE_FMA(t295, t295 - t355, t362));
+    const double t389 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t375 - 3.141592653589793)), t375);
+    const double t390 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t379 - 3.141592653589793)), t379);
+    const double t391 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t380 - 3.141592653589793)), t380);
+    const double t392 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t385 - 3.141592653589793)), t385);
+    const double t393 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t388 - 3.141592653589793)), t388);
+    const double t394 = t372 + t377 - t384 - t387;
+    const double t395 = 0.16666666666666666*t394;
+    const double t396 = DERIVE_FMA(6.0, t391, t389 + t390 + t392 + t393);
+    const double t397 = 0.16666666666666666*t396;
+    const double t398 = t372 - t395;
+    const double t399 = t389 - t397;
+    const double t400 = t377 - t395;
+    const double t401 = t390 - t397;
+    const double t402 = t391 - t397;
+    const double t403 = t384 + t395;
+    const double t404 = t392 - t397;
+    const double t405 = t387 + t395;
+    const double t406 = t393 - t397;
+    const double t407 = t395*t395;
+    const double t408 = DERIVE_FMA(6.0, t407, DERIVE_FMA(t405, t405, DERIVE_FMA(t403, t403, DERIVE_FMA(t400, t400, t398*t398))));
+    const double t409 = DERIVE_FMA(0.16666666666666666, t408, DERIVE_FMA((-0.6666666666666666), t407, 25.0));
+    const double t410 = DERIVE_FMA((-6.0), t395*t402, DERIVE_FNMA(t405, t406, DERIVE_FNMA(t403, t404, DERIVE_FMA(t400, t401, t398*t399))));
+    const double t411 = DERIVE_FMA((-0.6666666666666666), t395*t397, 0.16666666666666666*t410);
+    const double t412 = DERIVE_FMA(6.0, t402*t402, DERIVE_FMA(t406, t406, DERIVE_FMA(t404, t404, DERIVE_FMA(t401, t401, t399*t399))));
+    const double t413 = DERIVE_FMA((-0.6666666666666666), t397*t397, DERIVE_FMA(0.16666666666666666, t412, 0.0001));
     w[50] = t294;
     w[51] = t295;
     w[52] = t297;
@@ -584,147 +584,155 @@ static int ctrv_radar_ukf_step_body_part1(const double *restrict x, const double
     w[75] = t361;
     w[76] = t365;
     w[77] = t366;
-    w[78] = t390;
-    w[79] = t392;
-    w[80] = t404;
-    w[81] = t406;
-    w[82] = t408;
-    w[83] = t409;
-    w[84] = t410;
-    w[85] = t411;
-    w[86] = t412;
-    w[87] = t413;
+    w[78] = t372;
+    w[79] = t377;
+    w[80] = t384;
+    w[81] = t387;
+    w[82] = t389;
+    w[83] = t390;
+    w[84] = t392;
+    w[85] = t393;
+    w[86] = t395;
+    w[87] = t397;
+    w[88] = t409;
+    w[89] = t411;
+    w[90] = t413;
     return status;
 }
 
 static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, double *restrict w, int status)
 {
     (void)P;
-    const double t414 = w[67]*w[84];
-    const double t415 = DERIVE_FMA(w[69], w[85], w[68]*w[83]);
-    const double t416 = DERIVE_FMA(w[69], w[86], w[68]*w[84]);
-    const double t417 = DERIVE_FMA(w[71], w[85], w[70]*w[83]);
-    const double t418 = DERIVE_FMA(w[71], w[86], w[70]*w[84]);
-    const double t419 = DERIVE_FMA(w[73], w[85], w[72]*w[83]);
-    const double t420 = DERIVE_FMA(w[73], w[86], w[72]*w[84]);
-    const double t421 = DERIVE_FMA(w[75], w[85], w[74]*w[83]);
-    const double t422 = DERIVE_FMA(w[75], w[86], w[74]*w[84]);
-    const double t423 = 0.16666666666666666*w[87];
-    const double t424 = 0.16666666666666666*t414;
-    const double t425 = 0.16666666666666666*t415;
-    const double t426 = 0.16666666666666666*t416;
-    const double t427 = 0.16666666666666666*t417;
+    const double t414 = w[78] + w[80];
+    const double t415 = w[82] - w[84];
+    const double t416 = w[79] + w[81];
+    const double t417 = w[83] - w[85];
+    const double t418 = w[67]*t414;
+    const double t419 = w[67]*t415;
+    const double t420 = DERIVE_FMA(w[69], t416, w[68]*t414);
+    const double t421 = DERIVE_FMA(w[69], t417, w[68]*t415);
+    const double t422 = DERIVE_FMA(w[71], t416, w[70]*t414);
+    const double t423 = DERIVE_FMA(w[71], t417, w[70]*t415);
+    const double t424 = DERIVE_FMA(w[73], t416, w[72]*t414);
+    const double t425 = DERIVE_FMA(w[73], t417, w[72]*t415);
+    const double t426 = DERIVE_FMA(w[75], t416, w[74]*t414);
+    const double t427 = DERIVE_FMA(w[75], t417, w[74]*t415);
     const double t428 = 0.16666666666666666*t418;
     const double t429 = 0.16666666666666666*t419;
     const double t430 = 0.16666666666666666*t420;
     const double t431 = 0.16666666666666666*t421;
     const double t432 = 0.16666666666666666*t422;
-    if (!(w[80] > 0.0) && !status) {
+    const double t433 = 0.16666666666666666*t423;
+    const double t434 = 0.16666666666666666*t424;
+    const double t435 = 0.16666666666666666*t425;
+    const double t436 = 0.16666666666666666*t426;
+    const double t437 = 0.16666666666666666*t427;
+    if (!(w[88] > 0.0) && !status) {
         status = 11; /* Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
-    const double t433 = 1.0/w[80];
-    const double t434 = w[81]*t433;
-    const double t435 = DERIVE_FNMA(w[81], t434, w[82]);
-    if (!(t435 > 0.0) && !status) {
+    const double t438 = 1.0/w[88];
+    const double t439 = w[89]*t438;
+    const double t440 = DERIVE_FNMA(w[89], t439, w[90]);
+    if (!(t440 > 0.0) && !status) {
         status = 12; /* Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
-    const double t436 = 1.0/t435;
-    const double t437 = DERIVE_FNMA(t423, t434, t424);
-    const double t438 = DERIVE_FNMA(t425, t434, t426);
-    const double t439 = DERIVE_FNMA(t427, t434, t428);
-    const double t440 = DERIVE_FNMA(t429, t434, t430);
-    const double t441 = DERIVE_FNMA(t431, t434, t432);
-    const double t447 = t436*t437;
-    const double t448 = t436*t438;
-    const double t449 = t436*t439;
-    const double t450 = t436*t440;
-    const double t451 = t436*t441;
-    const double t452 = DERIVE_FNMA(t434, t447, t423*t433);
-    const double t453 = DERIVE_FNMA(t434, t448, t425*t433);
-    const double t454 = DERIVE_FNMA(t434, t449, t427*t433);
-    const double t455 = DERIVE_FNMA(t434, t450, t429*t433);
-    const double t456 = DERIVE_FNMA(t434, t451, t431*t433);
-    const double t457 = z[0] - w[76];
-    const double t458 = z[1] - w[77];
-    const double t459 = t457 - w[78];
-    const double t460 = t458 - w[79];
-    const double t461 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t460 - 3.141592653589793)), t460);
-    const double t462 = DERIVE_FMA(t452, t459, t447*t461);
-    const double t463 = DERIVE_FMA(t453, t459, t448*t461);
-    const double t464 = DERIVE_FMA(t454, t459, t449*t461);
-    const double t465 = DERIVE_FMA(t455, t459, t450*t461);
-    const double t466 = DERIVE_FMA(t456, t459, t451*t461);
-    const double t467 = w[50] + t462;
-    const double t468 = w[51] + t463;
-    const double t469 = x[2] + t464;
-    const double t470 = w[3] + t465;
-    const double t471 = x[4] + t466;
-    const double t472 = DERIVE_FMA(t424, t447, t423*t452);
-    const double t473 = DERIVE_FMA(t426, t447, t425*t452);
-    const double t474 = DERIVE_FMA(t428, t447, t427*t452);
-    const double t475 = DERIVE_FMA(t430, t447, t429*t452);
-    const double t476 = DERIVE_FMA(t432, t447, t431*t452);
-    const double t477 = DERIVE_FMA(t426, t448, t425*t453);
-    const double t478 = DERIVE_FMA(t428, t448, t427*t453);
-    const double t479 = DERIVE_FMA(t430, t448, t429*t453);
-    const double t480 = DERIVE_FMA(t432, t448, t431*t453);
-    const double t481 = DERIVE_FMA(t428, t449, t427*t454);
-    const double t482 = DERIVE_FMA(t430, t449, t429*t454);
-    const double t483 = DERIVE_FMA(t432, t449, t431*t454);
-    const double t484 = DERIVE_FMA(t430, t450, t429*t455);
-    const double t485 = DERIVE_FMA(t432, t450, t431*t455);
-    const double t486 = DERIVE_FMA(t432, t451, t431*t456);
-    const double t487 = w[52] - t472;
-    const double t488 = w[53] - t473;
-    const double t489 = w[54] - t474;
-    const double t490 = w[55] - t475;
-    const double t491 = w[56] - t476;
-    const double t492 = w[57] - t477;
-    const double t493 = w[58] - t478;
-    const double t494 = w[59] - t479;
-    const double t495 = w[60] - t480;
-    const double t496 = w[61] - t481;
-    const double t497 = w[62] - t482;
-    const double t498 = w[63] - t483;
-    const double t499 = w[64] - t484;
-    const double t500 = w[65] - t485;
-    const double t501 = w[66] - t486;
-    x_new[0] = t467;
-    x_new[1] = t468;
-    x_new[2] = t469;
-    x_new[3] = t470;
-    x_new[4] = t471;
-    P_new[0] = t487;
-    P_new[1] = t488;
-    P_new[2] = t489;
-    P_new[3] = t490;
-    P_new[4] = t491;
-    P_new[5] = t488;
-    P_new[6] = t492;
-    P_new[7] = t493;
-    P_new[8] = t494;
-    P_new[9] = t495;
-    P_new[10] = t489;
-    P_new[11] = t493;
-    P_new[12] = t496;
-    P_new[13] = t497;
-    P_new[14] = t498;
-    P_new[15] = t490;
-    P_new[16] = t494;
-    P_new[17] = t497;
-    P_new[18] = t499;
-    P_new[19] = t500;
-    P_new[20] = t491;
-    P_new[21] = t495;
-    P_new[22] = t498;
-    P_new[23] = t500;
-    P_new[24] = t501;
+    const double t441 = 1.0/t440;
+    const double t442 = DERIVE_FNMA(t428, t439, t429);
+    const double t443 = DERIVE_FNMA(t430, t439, t431);
+    const double t444 = DERIVE_FNMA(t432, t439, t433);
+    const double t445 = DERIVE_FNMA(t434, t439, t435);
+    const double t446 = DERIVE_FNMA(t436, t439, t437);
+    const double t452 = t441*t442;
+    const double t453 = t441*t443;
+    const double t454 = t441*t444;
+    const double t455 = t441*t445;
+    const double t456 = t441*t446;
+    const double t457 = DERIVE_FNMA(t439, t452, t428*t438);
+    const double t458 = DERIVE_FNMA(t439, t453, t430*t438);
+    const double t459 = DERIVE_FNMA(t439, t454, t432*t438);
+    const double t460 = DERIVE_FNMA(t439, t455, t434*t438);
+    const double t461 = DERIVE_FNMA(t439, t456, t436*t438);
+    const double t462 = z[0] - w[76];
+    const double t463 = z[1] - w[77];
+    const double t464 = t462 - w[86];
+    const double t465 = t463 - w[87];
+    const double t466 = DERIVE_FMA((-6.283185307179586), ceil(0.15915494309189535*(t465 - 3.141592653589793)), t465);
+    const double t467 = DERIVE_FMA(t457, t464, t452*t466);
+    const double t468 = DERIVE_FMA(t458, t464, t453*t466);
+    const double t469 = DERIVE_FMA(t459, t464, t454*t466);
+    const double t470 = DERIVE_FMA(t460, t464, t455*t466);
+    const double t471 = DERIVE_FMA(t461, t464, t456*t466);
+    const double t472 = w[50] + t467;
+    const double t473 = w[51] + t468;
+    const double t474 = x[2] + t469;
+    const double t475 = w[3] + t470;
+    const double t476 = x[4] + t471;
+    const double t477 = DERIVE_FMA(t429, t452, t428*t457);
+    const double t478 = DERIVE_FMA(t431, t452, t430*t457);
+    const double t479 = DERIVE_FMA(t433, t452, t432*t457);
+    const double t480 = DERIVE_FMA(t435, t452, t434*t457);
+    const double t481 = DERIVE_FMA(t437, t452, t436*t457);
+    const double t482 = DERIVE_FMA(t431, t453, t430*t458);
+    const double t483 = DERIVE_FMA(t433, t453, t432*t458);
+    const double t484 = DERIVE_FMA(t435, t453, t434*t458);
+    const double t485 = DERIVE_FMA(t437, t453, t436*t458);
+    const double t486 = DERIVE_FMA(t433, t454, t432*t459);
+    const double t487 = DERIVE_FMA(t435, t454, t434*t459);
+    const double t488 = DERIVE_FMA(t437, t454, t436*t459);
+    const double t489 = DERIVE_FMA(t435, t455, t434*t460);
+    const double t490 = DERIVE_FMA(t437, t455, t436*t460);
+    const double t491 = DERIVE_FMA(t437, t456, t436*t461);
+    const double t492 = w[52] - t477;
+    const double t493 = w[53] - t478;
+    const double t494 = w[54] - t479;
+    const double t495 = w[55] - t480;
+    const double t496 = w[56] - t481;
+    const double t497 = w[57] - t482;
+    const double t498 = w[58] - t483;
+    const double t499 = w[59] - t484;
+    const double t500 = w[60] - t485;
+    const double t501 = w[61] - t486;
+    const double t502 = w[62] - t487;
+    const double t503 = w[63] - t488;
+    const double t504 = w[64] - t489;
+    const double t505 = w[65] - t490;
+    const double t506 = w[66] - t491;
+    x_new[0] = t472;
+    x_new[1] = t473;
+    x_new[2] = t474;
+    x_new[3] = t475;
+    x_new[4] = t476;
+    P_new[0] = t492;
+    P_new[1] = t493;
+    P_new[2] = t494;
+    P_new[3] = t495;
+    P_new[4] = t496;
+    P_new[5] = t493;
+    P_new[6] = t497;
+    P_new[7] = t498;
+    P_new[8] = t499;
+    P_new[9] = t500;
+    P_new[10] = t494;
+    P_new[11] = t498;
+    P_new[12] = t501;
+    P_new[13] = t502;
+    P_new[14] = t503;
+    P_new[15] = t495;
+    P_new[16] = t499;
+    P_new[17] = t502;
+    P_new[18] = t504;
+    P_new[19] = t505;
+    P_new[20] = t496;
+    P_new[21] = t500;
+    P_new[22] = t503;
+    P_new[23] = t505;
+    P_new[24] = t506;
     return status;
 }
 
 static int ctrv_radar_ukf_step_body(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new)
 {
-    double w[88];
+    double w[91];
     int status = 0;
     status = ctrv_radar_ukf_step_body_part0(x, P, z, x_new, P_new, w, status);
     status = ctrv_radar_ukf_step_body_part1(x, P, z, x_new, P_new, w, status);
@@ -1031,7 +1039,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t294 = t12 + t271;
     const double t295 = t20 + t273;
     const double t296 = DERIVE_FMA(t292, t292, DERIVE_FMA(t290, t290, DERIVE_FMA(t288, t288, DERIVE_FMA(t286, t286, DERIVE_FMA(t284, t284, DERIVE_FMA(t282, t282, DERIVE_FMA(t280, t280, DERIVE_FMA(t278, t278, DERIVE_FMA(t276, t276, t274*t274)))))))));
-    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.1));
+    const double t297 = DERIVE_FMA((-0.6666666666666666), t271*t271, DERIVE_FMA(0.16666666666666666, t296, 0.5));
     const double t298 = DERIVE_FMA(t292, t293, DERIVE_FMA(t290, t291, DERIVE_FMA(t288, t289, DERIVE_FMA(t286, t287, DERIVE_FMA(t284, t285, DERIVE_FMA(t282, t283, DERIVE_FMA(t280, t281, DERIVE_FMA(t278, t279, DERIVE_FMA(t276, t277, t274*t275)))))))));
     const double t299 = DERIVE_FMA((-0.6666666666666666), t271*t273, 0.16666666666666666*t298);
     const double t300 = DERIVE_FNMA(t288, t49, DERIVE_FNMA(t286, t48, DERIVE_FNMA(t284, t47, DERIVE_FMA(t278, t49, DERIVE_FMA(t276, t48, t274*t47)))));
@@ -1043,7 +1051,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t306 = DERIVE_FNMA(t290, t57, DERIVE_FNMA(t288, t56, DERIVE_FNMA(t286, t55, DERIVE_FNMA(t284, t54, DERIVE_FMA(t280, t57, DERIVE_FMA(t278, t56, DERIVE_FMA(t276, t55, DERIVE_FMA(t274, t54, t302 + t303))))))));
     const double t307 = 0.16666666666666666*t306;
     const double t308 = DERIVE_FMA(t293, t293, DERIVE_FMA(t291, t291, DERIVE_FMA(t289, t289, DERIVE_FMA(t287, t287, DERIVE_FMA(t285, t285, DERIVE_FMA(t283, t283, DERIVE_FMA(t281, t281, DERIVE_FMA(t279, t279, DERIVE_FMA(t277, t277, t275*t275)))))))));
-    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.1));
+    const double t309 = DERIVE_FMA((-0.6666666666666666), t273*t273, DERIVE_FMA(0.16666666666666666, t308, 0.5));
     const double t310 = DERIVE_FNMA(t289, t49, DERIVE_FNMA(t287, t48, DERIVE_FNMA(t285, t47, DERIVE_FMA(t279, t49, DERIVE_FMA(t277, t48, t275*t47)))));
     const double t311 = 0.16666666666666666*t310;
     const double t312 = -(t293*t58);
@@ -1053,18 +1061,18 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t316 = DERIVE_FNMA(t291, t57, DERIVE_FNMA(t289, t56, DERIVE_FNMA(t287, t55, DERIVE_FNMA(t285, t54, DERIVE_FMA(t281, t57, DERIVE_FMA(t279, t56, DERIVE_FMA(t277, t55, DERIVE_FMA(t275, t54, t312 + t313))))))));
     const double t317 = 0.16666666666666666*t316;
     const double t318 = DERIVE_FMA(2.0, t49*t49, DERIVE_FMA(2.0, t48*t48, 2.0*(t47*t47)));
-    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.01);
+    const double t319 = DERIVE_FMA(0.16666666666666666, t318, 0.05);
     const double t320 = DERIVE_FMA(2.0, t48*t92, DERIVE_FMA(2.0, t47*t65, 2.0*(t117*t49)));
     const double t321 = 0.16666666666666666*t320;
     const double t322 = DERIVE_FMA(2.0, t49*t56, DERIVE_FMA(2.0, t48*t55, 2.0*(t47*t54)));
     const double t323 = 0.16666666666666666*t322;
     const double t324 = 2.0*(t58*t58);
     const double t325 = DERIVE_FMA(2.0, t92*t92, DERIVE_FMA(2.0, t65*t65, DERIVE_FMA(2.0, t140*t140, DERIVE_FMA(2.0, t117*t117, t324))));
-    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 1e-06);
+    const double t326 = DERIVE_FMA(0.16666666666666666, t325, 0.001);
     const double t327 = DERIVE_FMA(2.0, t55*t92, DERIVE_FMA(2.0, t54*t65, DERIVE_FMA(2.0, t140*t57, DERIVE_FMA(2.0, t117*t56, t324))));
     const double t328 = 0.16666666666666666*t327;
     const double t329 = DERIVE_FMA(2.0, t57*t57, DERIVE_FMA(2.0, t56*t56, DERIVE_FMA(2.0, t55*t55, DERIVE_FMA(2.0, t54*t54, t324))));
-    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-08);
+    const double t330 = DERIVE_FMA(0.16666666666666666, t329, 1e-06);
     x_new[0] = t294;
     x_new[1] = t295;
     x_new[2] = x[2];
