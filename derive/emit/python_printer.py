@@ -28,6 +28,22 @@ PY_CALLS = {"sin": "np.sin", "cos": "np.cos", "tan": "np.tan", "exp": "np.exp", 
             "atan": "np.arctan", "atan2": "np.arctan2", "fabs": "abs",
             "ceil": "np.ceil"}
 
+def _guard_helper(name: str, relation: str) -> list[str]:
+    """The lines of a guard's select helper ``name(left, right, a, b)``: a where ``left
+    relation right``, else b."""
+    return [f'def {name}(left, right, a, b):',
+            f'    """a where left {relation} right, else b (also for a NaN); per track for',
+            '    arrays. With a CountingFloat the select is counted, and a constant result',
+            '    onwards."""',
+            f'    holds = left {relation} right',
+            '    if isinstance(holds, np.ndarray):',
+            '        return np.where(holds, a, b)',
+            '    value = a if holds else b',
+            '    counted = (getattr(left, "derive_selected", None)',
+            '               or getattr(right, "derive_selected", None))',
+            '    return value if counted is None else counted(value)']
+
+
 HELPERS = {
     "sqrt": ['def _sqrt(v):',
              '    """Square root of a float, a NumPy array or a CountingFloat."""',
@@ -50,26 +66,8 @@ HELPERS = {
              '    value = a if within else b',
              '    counted = getattr(v, "derive_selected", None)',
              '    return value if counted is None else counted(value)'],
-    "if_gt": ['def _if_greater(left, right, a, b):',
-              '    """a where left > right, else b (also for a NaN); per track for arrays.',
-              '    With a CountingFloat the select is counted, and a constant result onwards."""',
-              '    holds = left > right',
-              '    if isinstance(holds, np.ndarray):',
-              '        return np.where(holds, a, b)',
-              '    value = a if holds else b',
-              '    counted = (getattr(left, "derive_selected", None)',
-              '               or getattr(right, "derive_selected", None))',
-              '    return value if counted is None else counted(value)'],
-    "if_ge": ['def _if_at_least(left, right, a, b):',
-              '    """a where left >= right, else b (also for a NaN); per track for arrays.',
-              '    With a CountingFloat the select is counted, and a constant result onwards."""',
-              '    holds = left >= right',
-              '    if isinstance(holds, np.ndarray):',
-              '        return np.where(holds, a, b)',
-              '    value = a if holds else b',
-              '    counted = (getattr(left, "derive_selected", None)',
-              '               or getattr(right, "derive_selected", None))',
-              '    return value if counted is None else counted(value)'],
+    "if_gt": _guard_helper("_if_greater", ">"),
+    "if_ge": _guard_helper("_if_at_least", ">="),
     "pattern": ['def _require_zero(values, indices, n, name, message):',
                 '    """Raise PatternError unless values[k] == 0 for every k in indices (every',
                 '    track of an array): entries outside the pattern of the n x n matrix."""',

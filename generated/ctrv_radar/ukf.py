@@ -77,8 +77,9 @@ def _sqrt(v):
 
 
 def _if_greater(left, right, a, b):
-    """a where left > right, else b (also for a NaN); per track for arrays.
-    With a CountingFloat the select is counted, and a constant result onwards."""
+    """a where left > right, else b (also for a NaN); per track for
+    arrays. With a CountingFloat the select is counted, and a constant result
+    onwards."""
     holds = left > right
     if isinstance(holds, np.ndarray):
         return np.where(holds, a, b)
