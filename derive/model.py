@@ -868,6 +868,10 @@ class NonlinearModel(_Model):
         if input_names:
             _check_definite(self.subs(self.Qu), "Qu", strict=False)
         self._initial(x0, P0, P0_pattern)
+        if sensor_list and self.state_noise:
+            raise ModelError(f"NonlinearModel {name!r}: with sensors, Q and R may not "
+                             "depend on the state or the inputs (only a model without "
+                             "sensors evaluates them at the estimate)")
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
         if rows not in ROW_FORMS:

@@ -36,7 +36,7 @@ from derive.filters.nonlinear import wrap_angle
 from derive.flops import OpCounter, count, count_c_function, count_c_text
 from derive.generation import render_filter
 from derive.guards import IfAtLeast, IfGreater, selects
-from derive.model import NonlinearModel
+from derive.model import NonlinearModel, Sensor
 from derive.modelfile import load_model_file, loads_model
 from derive.pipeline import load_generated
 from derive.symbols import jacobian
@@ -163,6 +163,22 @@ def test_ctrv_radar_ekf_is_within_1_5x_the_textbook_ekf_through_pi():
     assert errors["crossings"] >= 2  # the bearing passes through ±π in the flights
     assert errors["derive"] <= 1.5 * errors["textbook"]
     assert errors["derive_unwrapped"] > 1.5 * errors["textbook"]  # the bar means something
+
+
+def test_an_angle_of_a_sensor_is_wrapped_by_its_update_and_its_reference(tmp_path):
+    """A sensor model (the run kind sensors) through bearing ±π: the target crosses the
+    negative x axis in the first steps; Python and C against the sensors reference."""
+    model = NonlinearModel(
+        "cv_radar", ["px", "py", "vx", "vy"], f=["px + vx", "py + vy", "vx", "vy"],
+        Q=[[0.1, 0, 0, 0], [0, 0.1, 0, 0], [0, 0, 0.01, 0], [0, 0, 0, 0.01]],
+        sensors=[Sensor("radar", ["range", "bearing"],
+                        h=["sqrt(px**2 + py**2)", "atan2(py, px)"], R=[[25, 0], [0, 1e-4]])],
+        angles=["bearing"], x0=[-700, 5, 0, -10], P0=np.diag([100.0, 100.0, 4.0, 4.0]))
+    results = verify_filter(model, "ekf", steps=100, workdir=tmp_path)
+    assert results and all(r.passed for r in results), [r.line() for r in results]
+    with pytest.raises(ModelError, match="with sensors, Q and R may not depend on the state"):
+        NonlinearModel("moving", ["p"], f=["p"], Q=[["0.1*p**2"]],
+                       sensors=[Sensor("s", ["z"], h=["p"], R=[[1]])])
 
 
 def test_angle_declarations_are_checked():

@@ -165,6 +165,11 @@ def derive_unit(model, spec, options):
     sensors, derive.filters.sensors)."""
     check_nonlinear(model, spec.name)
     iterations = options.iterations
+    if uses_sensor_run(model, options) or model.unit_norm:
+        if model.state_noise:
+            raise OptionError(f"model {model.name!r}: a Q or R that depends on the state or "
+                              "the inputs is evaluated by the plain EKF run only, not with "
+                              "gating, update-first or unit-norm renormalisation")
     if uses_sensor_run(model, options):
         groups = sensor_groups(model)
         thresholds = gate_thresholds(groups, options)

@@ -355,7 +355,8 @@ def reference_functions(model, thresholds):
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, h=h: h(x, u, p).ravel(), H, R,
                 tuple(names.index(u.name) for u in g.inputs),
-                None if thresholds[g.name] is None else thresholds[g.name][1]))
+                None if thresholds[g.name] is None else thresholds[g.name][1],
+                model.angle_rows(g.measurements)))
     unit_norm = [[model.states.index(s) for s in group]
                  for group in getattr(model, "unit_norm", ())]
     return predict, sensors, unit_norm
