@@ -24,6 +24,7 @@ TABLE = {
     "gnss_pseudorange": (NonlinearModel, 4, 4),
     "ins_gnss": (NonlinearModel, 16, 7),
     "ctrv_radar": (NonlinearModel, 5, 2),
+    "ins_fc24": (NonlinearModel, 24, 11),
 }
 
 

@@ -178,8 +178,7 @@ def test_gated_vector_update_rejects_an_outlier_as_the_scalar_form_does():
             assert relative(got[0], expected[0]) <= AGREEMENT
             assert relative(got[1], expected[1]) <= AGREEMENT
     got = vector.c.update_a(x, P.ravel(), np.full(3, 1e3))  # not applied: x, P as given
-    assert np.array_equal(np.asarray(got[0]), x) and np.array_equal(np.asarray(got[1]),
-                                                                     P.ravel())
+    assert np.array_equal(np.asarray(got[0]), x) and np.array_equal(np.asarray(got[1]), P)
 
 
 def test_counts_are_the_lanes_executed_and_the_c_text_lane_by_lane():

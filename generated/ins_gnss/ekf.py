@@ -9,10 +9,10 @@ family: ekf
 n: 16 (states)
 m: 7 (measurements)
 parameters: p = [dt]
-interface (flat row-major arrays; steps = number of steps):
-    predict(x[16], P[16*16], u[6], p[1]) -> (x_new[16], P_new[16*16])
-    update_gnss(x[16], P[16*16], z[6], p[1]) -> (x_new[16], P_new[16*16])
-    update_baro(x[16], P[16*16], z[1], p[1]) -> (x_new[16], P_new[16*16])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    predict(x[16], P[16*16], u[6], p[1]) -> (x_new[16], P_new[16, 16])
+    update_gnss(x[16], P[16*16], z[6], p[1]) -> (x_new[16], P_new[16, 16])
+    update_baro(x[16], P[16*16], z[1], p[1]) -> (x_new[16], P_new[16, 16])
     run(z_gnss[steps, 6], z_baro[steps, 1], us[steps, 6], x0[16], P0[16, 16], p[1] or p[steps, 1]) -> (xs[steps, 16], Ps[steps, 16, 16])
 run's p: one row (1,) for every step or one row per step (steps, 1)
 symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
@@ -115,6 +115,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def predict(x, P, u, p):
     """Predict only: x(k/k-1) and P(k/k-1) of the extended Kalman filter.
 
@@ -125,8 +133,15 @@ def predict(x, P, u, p):
         p [1]: free parameters: dt
     Returns:
         x_new [16]: x(k/k-1)
-        P_new [16x16, symmetric]: its covariance, row-major
+        P_new [(16, 16) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _predict(x, P, u, p)
+    return x_new, _matrix(P_new, (16, 16))
+
+
+def _predict(x, P, u, p):
+    """predict with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 16:  # a 2-D (16, 16) P: flattened, row-major
         P = np.reshape(P, (256,) + np.shape(P)[2:])
@@ -537,18 +552,25 @@ def predict(x, P, u, p):
     return x_new, P_new
 
 
-def update_gnss(x, P, z, p):
+def update_gnss(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'gnss'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [16]: x before the update (x(k/k-1))
         P [16x16, symmetric]: its covariance, row-major, symmetric
         z [6]: gpn, gpe, gpd, gvn, gve, gvd
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [16]: x after the update
-        P_new [16x16, symmetric]: its covariance, row-major
+        P_new [(16, 16) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_gnss(x, P, z, p)
+    return x_new, _matrix(P_new, (16, 16))
+
+
+def _update_gnss(x, P, z, p):
+    """update_gnss with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 16:  # a 2-D (16, 16) P: flattened, row-major
         P = np.reshape(P, (256,) + np.shape(P)[2:])
@@ -1023,18 +1045,25 @@ def update_gnss(x, P, z, p):
     return x_new, P_new
 
 
-def update_baro(x, P, z, p):
+def update_baro(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'baro'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [16]: x before the update (x(k/k-1))
         P [16x16, symmetric]: its covariance, row-major, symmetric
         z [1]: alt
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [16]: x after the update
-        P_new [16x16, symmetric]: its covariance, row-major
+        P_new [(16, 16) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_baro(x, P, z, p)
+    return x_new, _matrix(P_new, (16, 16))
+
+
+def _update_baro(x, P, z, p):
+    """update_baro with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 16:  # a 2-D (16, 16) P: flattened, row-major
         P = np.reshape(P, (256,) + np.shape(P)[2:])
@@ -1441,10 +1470,10 @@ def run(z_gnss, z_baro, us, x0, P0, p):
     upper = np.triu(np.ones((16, 16), dtype=bool)).reshape((16, 16) + (1,) * (P0m.ndim - 2))
     P = np.where(upper, P0m, P0m.swapaxes(0, 1)).reshape((256,) + P0m.shape[2:])
     for k in range(steps):
-        x, P = predict(x, P, us[k], p_rows[k])
+        x, P = _predict(x, P, us[k], p_rows[k])
         present = ~np.isnan(z_gnss[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_gnss(x, P, z_gnss[k], p_rows[k])
+            x_up, P_up = _update_gnss(x, P, z_gnss[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
@@ -1452,7 +1481,7 @@ def run(z_gnss, z_baro, us, x0, P0, p):
                 P = [np.where(present, a, b) for a, b in zip(P_up, P)]
         present = ~np.isnan(z_baro[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_baro(x, P, z_baro[k], p_rows[k])
+            x_up, P_up = _update_baro(x, P, z_baro[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
