@@ -9,9 +9,9 @@ family: ekf
 n: 5 (states)
 m: 2 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[5], P[5*5], z[2]) -> (x_new[5], P_new[5*5])
-    predict(x[5], P[5*5]) -> (x_new[5], P_new[5*5])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[5], P[5*5], z[2]) -> (x_new[5], P_new[5, 5])
+    predict(x[5], P[5*5]) -> (x_new[5], P_new[5, 5])
     run(zs[steps, 2], x0[5], P0[5, 5]) -> (xs[steps, 5], Ps[steps, 5, 5])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
@@ -106,6 +106,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """One step of the extended Kalman filter: predict, then update with all 2 measurements.
 
@@ -115,8 +123,15 @@ def step(x, P, z):
         z [2]: range, bearing
     Returns:
         x_new [5]: x(k/k)
-        P_new [5x5, symmetric]: its covariance, row-major
+        P_new [(5, 5) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _step(x, P, z)
+    return x_new, _matrix(P_new, (5, 5))
+
+
+def _step(x, P, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 5:  # a 2-D (5, 5) P: flattened, row-major
         P = np.reshape(P, (25,) + np.shape(P)[2:])
@@ -272,7 +287,14 @@ def predict(x, P):
         P [5x5, symmetric]: its covariance, row-major, symmetric
     Returns:
         x_new [5]: x(k/k-1)
-        P_new [5x5, symmetric]: its covariance, row-major
+        P_new [(5, 5) array, symmetric, then any track axes]: its covariance
+    """
+    x_new, P_new = _predict(x, P)
+    return x_new, _matrix(P_new, (5, 5))
+
+
+def _predict(x, P):
+    """predict with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 5:  # a 2-D (5, 5) P: flattened, row-major
         P = np.reshape(P, (25,) + np.shape(P)[2:])
@@ -482,7 +504,7 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((25,) + P0.shape[2:])
     for k in range(steps):
-        x, P = step(x, P, zs[k])
+        x, P = _step(x, P, zs[k])
         for i in range(5):
             xs[k, i] = x[i]
         for i in range(25):

@@ -9,12 +9,12 @@ family: ekf
 n: 24 (states)
 m: 11 (measurements)
 parameters: p = [dt]
-interface (flat row-major arrays; steps = number of steps):
-    predict(x[24], P[24*24], u[6], p[1]) -> (x_new[24], P_new[24*24])
-    update_gnss(x[24], P[24*24], z[6], p[1]) -> (x_new[24], P_new[24*24])
-    update_baro(x[24], P[24*24], z[1], p[1]) -> (x_new[24], P_new[24*24])
-    update_mag(x[24], P[24*24], z[3], p[1]) -> (x_new[24], P_new[24*24])
-    update_airspeed(x[24], P[24*24], z[1], p[1]) -> (x_new[24], P_new[24*24])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    predict(x[24], P[24*24], u[6], p[1]) -> (x_new[24], P_new[24, 24])
+    update_gnss(x[24], P[24*24], z[6], p[1]) -> (x_new[24], P_new[24, 24])
+    update_baro(x[24], P[24*24], z[1], p[1]) -> (x_new[24], P_new[24, 24])
+    update_mag(x[24], P[24*24], z[3], p[1]) -> (x_new[24], P_new[24, 24])
+    update_airspeed(x[24], P[24*24], z[1], p[1]) -> (x_new[24], P_new[24, 24])
     run(z_gnss[steps, 6], z_baro[steps, 1], z_mag[steps, 3], z_airspeed[steps, 1], us[steps, 6], x0[24], P0[24, 24], p[1] or p[steps, 1]) -> (xs[steps, 24], Ps[steps, 24, 24])
 run's p: one row (1,) for every step or one row per step (steps, 1)
 symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
@@ -126,6 +126,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def predict(x, P, u, p):
     """Predict only: x(k/k-1) and P(k/k-1) of the extended Kalman filter.
 
@@ -136,8 +144,15 @@ def predict(x, P, u, p):
         p [1]: free parameters: dt
     Returns:
         x_new [24]: x(k/k-1)
-        P_new [24x24, symmetric]: its covariance, row-major
+        P_new [(24, 24) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _predict(x, P, u, p)
+    return x_new, _matrix(P_new, (24, 24))
+
+
+def _predict(x, P, u, p):
+    """predict with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 24:  # a 2-D (24, 24) P: flattened, row-major
         P = np.reshape(P, (576,) + np.shape(P)[2:])
@@ -670,18 +685,25 @@ def predict(x, P, u, p):
     return x_new, P_new
 
 
-def update_gnss(x, P, z, p):
+def update_gnss(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'gnss'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [24]: x before the update (x(k/k-1))
         P [24x24, symmetric]: its covariance, row-major, symmetric
         z [6]: gpn, gpe, gpd, gvn, gve, gvd
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [24]: x after the update
-        P_new [24x24, symmetric]: its covariance, row-major
+        P_new [(24, 24) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_gnss(x, P, z, p)
+    return x_new, _matrix(P_new, (24, 24))
+
+
+def _update_gnss(x, P, z, p):
+    """update_gnss with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 24:  # a 2-D (24, 24) P: flattened, row-major
         P = np.reshape(P, (576,) + np.shape(P)[2:])
@@ -1451,18 +1473,25 @@ def update_gnss(x, P, z, p):
     return x_new, P_new
 
 
-def update_baro(x, P, z, p):
+def update_baro(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'baro'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [24]: x before the update (x(k/k-1))
         P [24x24, symmetric]: its covariance, row-major, symmetric
         z [1]: alt
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [24]: x after the update
-        P_new [24x24, symmetric]: its covariance, row-major
+        P_new [(24, 24) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_baro(x, P, z, p)
+    return x_new, _matrix(P_new, (24, 24))
+
+
+def _update_baro(x, P, z, p):
+    """update_baro with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 24:  # a 2-D (24, 24) P: flattened, row-major
         P = np.reshape(P, (576,) + np.shape(P)[2:])
@@ -2200,18 +2229,25 @@ def update_baro(x, P, z, p):
     return x_new, P_new
 
 
-def update_mag(x, P, z, p):
+def update_mag(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'mag'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [24]: x before the update (x(k/k-1))
         P [24x24, symmetric]: its covariance, row-major, symmetric
         z [3]: magx, magy, magz
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [24]: x after the update
-        P_new [24x24, symmetric]: its covariance, row-major
+        P_new [(24, 24) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_mag(x, P, z, p)
+    return x_new, _matrix(P_new, (24, 24))
+
+
+def _update_mag(x, P, z, p):
+    """update_mag with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 24:  # a 2-D (24, 24) P: flattened, row-major
         P = np.reshape(P, (576,) + np.shape(P)[2:])
@@ -2900,18 +2936,25 @@ def update_mag(x, P, z, p):
     return x_new, P_new
 
 
-def update_airspeed(x, P, z, p):
+def update_airspeed(x, P, z, p=None):
     """The extended Kalman filter update with the measurements of sensor 'airspeed'.
 
     Arguments (flat, row-major sequences or 2-D (n, n) matrices; elements may be NumPy arrays):
         x [24]: x before the update (x(k/k-1))
         P [24x24, symmetric]: its covariance, row-major, symmetric
         z [1]: tas
-        p [1]: free parameters: dt
+        p [1]: free parameters: dt (not read here: may be left out)
     Returns:
         x_new [24]: x after the update
-        P_new [24x24, symmetric]: its covariance, row-major
+        P_new [(24, 24) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _update_airspeed(x, P, z, p)
+    return x_new, _matrix(P_new, (24, 24))
+
+
+def _update_airspeed(x, P, z, p):
+    """update_airspeed with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 24:  # a 2-D (24, 24) P: flattened, row-major
         P = np.reshape(P, (576,) + np.shape(P)[2:])
@@ -3737,10 +3780,10 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
     upper = np.triu(np.ones((24, 24), dtype=bool)).reshape((24, 24) + (1,) * (P0m.ndim - 2))
     P = np.where(upper, P0m, P0m.swapaxes(0, 1)).reshape((576,) + P0m.shape[2:])
     for k in range(steps):
-        x, P = predict(x, P, us[k], p_rows[k])
+        x, P = _predict(x, P, us[k], p_rows[k])
         present = ~np.isnan(z_gnss[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_gnss(x, P, z_gnss[k], p_rows[k])
+            x_up, P_up = _update_gnss(x, P, z_gnss[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
@@ -3748,7 +3791,7 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
                 P = [np.where(present, a, b) for a, b in zip(P_up, P)]
         present = ~np.isnan(z_baro[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_baro(x, P, z_baro[k], p_rows[k])
+            x_up, P_up = _update_baro(x, P, z_baro[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
@@ -3756,7 +3799,7 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
                 P = [np.where(present, a, b) for a, b in zip(P_up, P)]
         present = ~np.isnan(z_mag[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_mag(x, P, z_mag[k], p_rows[k])
+            x_up, P_up = _update_mag(x, P, z_mag[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
@@ -3764,7 +3807,7 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
                 P = [np.where(present, a, b) for a, b in zip(P_up, P)]
         present = ~np.isnan(z_airspeed[k]).any(axis=0)
         if np.any(present):
-            x_up, P_up = update_airspeed(x, P, z_airspeed[k], p_rows[k])
+            x_up, P_up = _update_airspeed(x, P, z_airspeed[k], p_rows[k])
             if np.all(present):
                 x, P = x_up, P_up
             else:  # tracks without this measurement keep x and P
