@@ -25,6 +25,8 @@ def run(args) -> int:
         print(textwrap.fill(f"source: {model.source}", 88))
     print(f"states: {', '.join(model.states)}")
     print(f"measurements: {', '.join(model.measurements)}")
+    if getattr(model, "angles", ()):
+        print(f"angles (innovations wrapped to (-pi, pi]): {', '.join(model.angles)}")
     print("values: " + (", ".join(f"{k} = {v}" for k, v in model.values.items()) or "none"))
     print("free parameters (p order): " + (", ".join(p.name for p in model.parameters)
                                            or "none"))
