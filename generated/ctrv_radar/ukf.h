@@ -33,12 +33,12 @@
  *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
  *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
  *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 156, sub 128, mul 308, div 25, sqrt 14, fma 268, neg 15, cmp 34, select 22, calls 99 (flops 1167, instructions 970)
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 129, sub 82, mul 208, div 15, sqrt 5, fma 179, neg 14, cmp 27, select 22, calls 87 (flops 797, instructions 681)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 171, sub 144, mul 308, div 25, sqrt 14, fma 268, neg 14, cmp 45, select 33, calls 99 (flops 1198, instructions 1022)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 144, sub 98, mul 208, div 15, sqrt 5, fma 179, neg 13, cmp 38, select 33, calls 87 (flops 828, instructions 733)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
  * predict: sigma points of (x, P) through f
- * spreads: f and h in difference form, f/h(x + d_i) - f/h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed; no rule for f: (px + v*(-sin(psi) + sin(omega + psi))/omega if Abs(omega) > 1/10000 else px + v*cos(psi)), f: Abs(omega), f: (py + v*(cos(psi) - cos(omega + psi))/omega if Abs(omega) > 1/10000 else py + v*sin(psi)), whose differences are g(a + D[a]) - g(a) (they cancel)
+ * spreads: f and h in difference form, f/h(x + d_i) - f/h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed; no rule for f: (px + v*(-sin(psi) + sin(omega + psi))/(omega + (0 if Abs(omega) > 1/10000 else 1/1000)) if Abs(omega) > 1/10000 else px + v*cos(psi)), f: Abs(omega), f: (0 if Abs(omega) > 1/10000 else 1/1000), f: (py + v*(cos(psi) - cos(omega + psi))/(omega + (0 if Abs(omega) > 1/10000 else 1/1000)) if Abs(omega) > 1/10000 else py + v*sin(psi)), whose differences are g(a + D[a]) - g(a) (they cancel)
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
  * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)), and so are the sigma points' deviations from h(x) (the point X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the spreads the deviations minus that mean
