@@ -26,6 +26,7 @@ from .domains import check_value
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
 from .forms import ROW_FORMS, UPDATE_FORMS
+from .guards import numpy_selects, selects
 from .manifolds import QUATERNION, TangentLayout, parse_manifolds
 from .symbols import (
     SymbolTable,
@@ -792,6 +793,12 @@ class NonlinearModel(_Model):
     over ``inputs`` in order) is the covariance of the noise on u: the prediction adds
     ``Fu Qu Fu^T`` to Q with ``Fu = ∂f/∂u`` at x(k-1/k-1), u(k) (the IMU convention);
     inputs f does not use have zero columns in Fu.
+
+    f, h, Q and R may hold guards (``sign``, ``Max``, ``Min``, ``Piecewise``): they are
+    rewritten as selects (derive.guards), refused naming the entry when they cannot be.
+    Q and R may depend on the states and inputs (the filters say where they evaluate
+    them). ``angles``: the measurements that are angles (their innovations are wrapped to
+    (-pi, pi]); each one's h must be an angle (:func:`is_angle`).
     """
 
     kind = "nonlinear"
@@ -807,7 +814,8 @@ class NonlinearModel(_Model):
                  sensors: Sequence[Sensor] | None = None,
                  unit_norm: Sequence[Sequence[str]] | None = None,
                  examples: Values | None = None, rows: str = "scalar",
-                 manifolds: Sequence[Mapping] | None = None) -> None:
+                 manifolds: Sequence[Mapping] | None = None,
+                 angles: Sequence[str] | None = None) -> None:
         sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
                                                            "h": h, "R": R})
                        if sensors is not None else ())
@@ -850,18 +858,23 @@ class NonlinearModel(_Model):
             check_shape(self.Qu, "Qu", (n_u, n_u), "inputs x inputs")
         self.f, self.h, self.Q, self.R, self.Qu = (
             table.finish(mat) for mat in (self.f, self.h, self.Q, self.R, self.Qu))
+        self.f = _guarded(self.f, "f", self.states)
+        self.h = _guarded(self.h, "h", self.measurements)
+        self.Q, self.R = _guarded(self.Q, "Q"), _guarded(self.R, "R")
         # the state and input symbols are the ones written in f and h
         self.state_symbols = tuple(table.by_name.get(s) or symbol(s) for s in self.states)
         self.inputs = tuple(table.by_name.get(u) or symbol(u) for u in input_names)
         used = set()
         for mat in (self.f, self.h, self.Q, self.R, self.Qu):
             used |= mat.free_symbols
-        for mat, nm in ((self.Q, "Q"), (self.R, "R"), (self.Qu, "Qu")):
-            bad = {s.name for s in mat.free_symbols} & reserved
-            if bad:
-                raise SymbolError(f"matrix {nm} depends on state or input {sorted(bad)[0]!r}")
-        #: the inputs f uses, in ``inputs`` order (predict's u)
-        self.f_inputs = tuple(u for u in self.inputs if u in self.f.free_symbols)
+        # Q and R may depend on the state and the inputs (evaluated where the filters say:
+        # derive.filters.ekf, ukf); the noise Qu on the inputs may not
+        bad = {s.name for s in self.Qu.free_symbols} & reserved
+        if bad:
+            raise SymbolError(f"matrix Qu depends on state or input {sorted(bad)[0]!r}")
+        #: the inputs f (or Q) uses, in ``inputs`` order (predict's u)
+        self.f_inputs = tuple(u for u in self.inputs
+                              if u in self.f.free_symbols | self.Q.free_symbols)
         params = {s for s in used if s.name not in reserved}
         self._init_values(values, table, params, reserved, parameters)
         self._init_examples(examples)
@@ -875,6 +888,10 @@ class NonlinearModel(_Model):
         if input_names:
             _check_definite(self.subs(self.Qu), "Qu", strict=False)
         self._initial(x0, P0, P0_pattern)
+        if sensor_list and self.state_noise:
+            raise ModelError(f"NonlinearModel {name!r}: with sensors, Q and R may not "
+                             "depend on the state or the inputs (only a model without "
+                             "sensors evaluates them at the estimate)")
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
         self._check_manifold_states()
@@ -882,6 +899,21 @@ class NonlinearModel(_Model):
             raise ModelError(f"NonlinearModel {name!r}: rows must be one of "
                              f"{', '.join(ROW_FORMS)}, got {rows!r}")
         self.rows = rows
+        #: the measurements declared angles: their innovations are wrapped to (-pi, pi]
+        self.angles = _angle_measurements(angles, self.measurements, self.h,
+                                          self.state_symbols)
+
+    @property
+    def state_noise(self) -> bool:
+        """Whether Q or R depends on the state or the inputs (evaluated at the filter's
+        estimate: derive.filters.ekf, ukf)."""
+        moving = set(self.state_symbols) | set(self.inputs)
+        return bool((self.Q.free_symbols | self.R.free_symbols) & moving)
+
+    def angle_rows(self, names: Sequence[str] | None = None) -> tuple[bool, ...]:
+        """For each measurement of ``names`` (default: all), whether it is an angle."""
+        return tuple(z in self.angles for z in (self.measurements if names is None
+                                                 else names))
 
     def _check_manifold_states(self) -> None:
         """A quaternion's states are in no unit-norm group (its injection keeps the norm)
@@ -962,18 +994,22 @@ class NonlinearModel(_Model):
 
         ``f``, ``F`` (∂f/∂x) and ``Fu`` (∂f/∂u, n x n_u) take ``(x, u)`` when f uses
         inputs (``f_inputs``), else ``(x)``. Vectors come back flat (shape (n,) or (m,)),
-        Jacobians as 2-D arrays.
+        Jacobians as 2-D arrays. A Q or R that depends on the state or the inputs
+        (:attr:`state_noise`) is a callable ``(x, u)`` too.
         """
         extra = self.parameter_values(params)
-        self._check_finite({"Q": self.Q, "R": self.R, "Qu": self.Qu}, extra)
+        moving = set(self.state_symbols) | set(self.inputs)
+        constant = {name: mat for name, mat in (("Q", self.Q), ("R", self.R), ("Qu", self.Qu))
+                    if not mat.free_symbols & moving}
+        self._check_finite(constant, extra)
         X = sympy.Matrix(self.state_symbols)
         U = sympy.Matrix(self.inputs) if self.inputs else sympy.Matrix.zeros(0, 1)
 
-        def fn(mat, with_u):
+        def fn(mat, with_u, matrix=False):
             e = self.subs(mat).xreplace(extra)
             args = [list(X), list(U)] if with_u else [list(X)]
-            lam = sympy.lambdify(args, e, modules="numpy", cse=True)
-            shape = (mat.rows,) if mat.cols == 1 else mat.shape
+            lam = sympy.lambdify(args, e, modules=[numpy_selects(), "numpy"], cse=True)
+            shape = (mat.rows,) if mat.cols == 1 and not matrix else mat.shape
 
             def call(x, u=()):
                 vals = [list(np.asarray(x, float).ravel())]
@@ -989,7 +1025,57 @@ class NonlinearModel(_Model):
         return {"f": fn(self.f, in_f), "F": fn(self.F_jacobian, in_f),
                 "Fu": fn(self.Fu_jacobian, in_f),
                 "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
-                "Q": num(self.Q), "R": num(self.R), "Qu": num(self.Qu)}
+                "Q": num(self.Q) if "Q" in constant else fn(self.Q, True, True),
+                "R": num(self.R) if "R" in constant else fn(self.R, True, True),
+                "Qu": num(self.Qu)}
+
+
+def _guarded(mat: sympy.ImmutableMatrix, name: str, labels: Sequence[str] | None = None
+             ) -> sympy.ImmutableMatrix:
+    """``mat`` with its guards (sign, Max, Min, Piecewise) as selects (derive.guards); a
+    guard that cannot be one is refused naming the entry (``h[bearing]``, ``R[0][1]``)."""
+    def where(i: int, j: int) -> str:
+        return f"{name}[{labels[i]}]" if labels is not None else f"{name}[{i}][{j}]"
+    return sympy.ImmutableMatrix(mat.rows, mat.cols, lambda i, j: selects(mat[i, j],
+                                                                          where(i, j)))
+
+
+#: The functions whose value is an angle.
+ANGLE_FUNCTIONS = (sympy.atan2, sympy.atan, sympy.asin, sympy.acos)
+
+
+def is_angle(expr: sympy.Expr, states: Sequence[sympy.Symbol]) -> bool:
+    """Whether ``expr`` is an angle: atan2, atan, asin or acos of anything, a state (a
+    heading), or a sum of angles and terms free of the state (an offset, a parameter)."""
+    if expr.func in ANGLE_FUNCTIONS or expr in states:
+        return True
+    if expr.is_Add:
+        moving = [t for t in expr.args if t.free_symbols & set(states)]
+        return bool(moving) and all(
+            is_angle(t, states) or (t.could_extract_minus_sign() and is_angle(-t, states))
+            for t in moving)
+    return False
+
+
+def _angle_measurements(angles, measurements: Sequence[str], h: sympy.MatrixBase,
+                        states: Sequence[sympy.Symbol]) -> tuple[str, ...]:
+    """The measurements declared angles, each a measurement whose h is an angle
+    (:func:`is_angle`); anything else is refused naming it."""
+    if angles is None:
+        return ()
+    if isinstance(angles, str):
+        raise ModelError(f"angles must be a list of measurement names, got the string "
+                         f"{angles!r}")
+    names = check_names(angles, "angles")
+    for z in names:
+        if z not in measurements:
+            raise SymbolError(f"angles names {z!r}, which is not a measurement")
+        row = h[list(measurements).index(z), 0]
+        if not is_angle(row, states):
+            raise ModelError(f"measurement {z!r} is declared an angle but h[{z}] = {row} is "
+                             "not one (an angle is atan2, atan, asin or acos of anything, a "
+                             "state, or a sum of angles and terms free of the state)")
+    return tuple(names)
 
 
 def _unit_norm_groups(groups, states: Sequence[str]) -> tuple[tuple[str, ...], ...]:

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from derive.errors import ModelError, ShapeError
+from derive.errors import ModelError, ShapeError, VerificationError
 from derive.manifolds import boxplus_numeric
 from derive.system_checks import psd_sqrt, system_arrays
 
@@ -317,6 +317,9 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
             R = num.R
         else:
             fns = model.numeric_functions(params)
+            if model.state_noise:
+                raise VerificationError(f"no sensor simulation for model {model.name!r}: its "
+                                        "Q or R depends on the state or the inputs")
             w = rng.multivariate_normal(np.zeros(nt), fns["Q"], size=steps, method="eigh")
             noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
                                                   method="eigh") if n_u else 0.0)

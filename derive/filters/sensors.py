@@ -32,6 +32,7 @@ from .. import manifolds, staging
 from ..domains import parameter_domains
 from ..errors import OptionError
 from ..expression_lowering import IfAtMost
+from ..guards import numpy_selects
 from ..model import SensorGroup, sequential_problem
 from ..program import Program
 from ..reference import sensors as reference
@@ -289,8 +290,8 @@ SENSOR_PROGRAM = re.compile(r"^update_[A-Za-z][A-Za-z0-9_]*$")
 def numeric_matrix(model, matrix, arguments):
     """``matrix`` (valued symbols substituted) as a NumPy function of ``arguments`` (lists
     of symbols, one list per argument), returning a 2-D array of its shape."""
-    lam = sympy.lambdify(arguments, sympy.Matrix(model.subs(matrix)), modules="numpy",
-                         cse=True)
+    lam = sympy.lambdify(arguments, sympy.Matrix(model.subs(matrix)),
+                         modules=[numpy_selects(), "numpy"], cse=True)
     shape = matrix.shape
 
     def call(*values):
@@ -367,7 +368,8 @@ def reference_functions(model, thresholds):
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, h=h: h(x, u, p).ravel(), H, R,
                 tuple(names.index(u.name) for u in g.inputs),
-                None if thresholds[g.name] is None else thresholds[g.name][1]))
+                None if thresholds[g.name] is None else thresholds[g.name][1],
+                model.angle_rows(g.measurements)))
     unit_norm = [[model.states.index(s) for s in group]
                  for group in getattr(model, "unit_norm", ())]
     return predict, sensors, unit_norm

@@ -33,7 +33,8 @@ from derive.domains import check_rows
 class SensorFunctions:
     """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(p)`` (m, m),
     or None when R is given per step (run's ``Rs``); ``columns``: the columns of u(k) it
-    takes; ``gate``: the NIS threshold or None."""
+    takes; ``gate``: the NIS threshold or None; ``angles``: per measurement, whether it is
+    an angle (its innovation wrapped to (-pi, pi])."""
 
     name: str
     h: Callable
@@ -41,6 +42,7 @@ class SensorFunctions:
     R: Callable | None
     columns: tuple[int, ...] = ()
     gate: float | None = None
+    angles: tuple[bool, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -79,10 +81,14 @@ class StepTrace:
     updates: tuple[UpdateTrace, ...]
 
 
-def _update(x, P, z, h, H, R, gate=None, inject=None, reset=None):
+def _update(x, P, z, h, H, R, gate=None, inject=None, reset=None, angles=()):
     """One update with all of z: (x, P, nis, S, K, applied); ``inject(x, dx)``: x ⊞ dx
-    (default x + dx), ``reset(dx)``: G applied as G P G^T after it (default none)."""
+    (default x + dx), ``reset(dx)``: G applied as G P G^T after it (default none); the
+    innovations of the measurements flagged in ``angles`` wrapped to (-pi, pi]."""
     nu = z - h
+    if any(angles):
+        flags = np.asarray(angles, dtype=bool)
+        nu[flags] = np.pi - np.mod(np.pi - nu[flags], 2 * np.pi)
     S = H @ P @ H.T + R
     nis = float(nu @ np.linalg.solve(S, nu))
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
@@ -152,7 +158,8 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
             x, P, nis[s.name][k], S, K, done = _update(
                 x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(), H,
                 np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
-                           dtype=float).reshape(len(z), len(z)), s.gate, inject, reset)
+                           dtype=float).reshape(len(z), len(z)), s.gate, inject, reset,
+                 s.angles)
             applied[s.name][k] = float(done)
             updates.append(UpdateTrace(s.name, H, S, K, done, P_before))
             x = renormalise(x, unit_norm)  # after every update call, applied or not
