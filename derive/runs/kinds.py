@@ -28,6 +28,7 @@ from derive.runs.loops import (
     Work,
 )
 from derive.runs.unit import LOOKAHEAD_NEXT, Unit
+from derive.runs.unit import sizes as run_sizes
 
 
 def _parameters(unit: Unit) -> tuple:
@@ -49,7 +50,8 @@ def sensors(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     row k holds no NaN; x and P stored after the step and, for a gated sensor, its NIS
     (NaN where absent) and whether the update applied (1, else 0). The loop calls the
     unit's own functions, whose counts the header states; it adds no arithmetic."""
-    n, nn = unit.n, unit.n * unit.n
+    n, nt = unit.n, unit.nt  # x: n, P: nt x nt (the tangent space's, with manifold states)
+    nn = nt * nt
     p = _parameters(unit)
     u = ((("u", Columns("u", unit.predict_inputs, unit.n_inputs)),)
          if unit.predict_inputs else ())
@@ -71,8 +73,8 @@ def sensors(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
             records += [Output(f"nis_{s.name}", "nan"), Output(f"applied_{s.name}", "zero")]
         body.append(Present(s.z_c, s.m, s.name, tuple(inner), missing))
     body += [Store("xs", "x", n), Store("Ps", "P", nn, optional=True)]
-    returns = [("xs", (n,)), ("Ps", (n, n))] + [(r.array, ()) for r in records]
-    return Run((State("x", n, "x0"), State("P", nn, "P0", whole=reads_whole(lowered), side=n)),
+    returns = [("xs", (n,)), ("Ps", (nt, nt))] + [(r.array, ()) for r in records]
+    return Run((State("x", n, "x0"), State("P", nn, "P0", whole=reads_whole(lowered), side=nt)),
                (Steps(tuple(body)),), tuple(records), tuple(returns))
 
 
@@ -134,7 +136,7 @@ def stepping(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     k of each stored output (where no carried port holds it: by the store program, or
     the step's own output, e.g. its prediction)."""
     ports = {p.name: p for p in lowered["step"].inputs}
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
     starts = list(unit.run.start) + [("", ())] * len(unit.carried)
     states = tuple(State(port, ports[port].size, starts[i][0], out=out,
                          side=sizes[starts[i][1][0]] if len(starts[i][1]) > 1 else 0)
