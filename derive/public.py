@@ -1,7 +1,7 @@
 """What the generator offers the applications of ``derive/apps/`` (verify, reports,
 bench, GNSS, INS, targets): the modules they may import and, of each, the names. The
 applications import nothing else of the generator (``tests/test_house_apps_api.py``);
-a module given with no names is imported whole, for its public names.
+a module is imported whole (``from derive import catalog``) or for the names given.
 
 Not offered: the command line (``derive.cli``: an application calls the functions a
 command calls), a language's renderer of one unit (``render_unit`` and ``render_files``
@@ -12,7 +12,7 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
     "derive.batch": (),
     "derive.build": ("BuildEnvironmentError", "BuildError", "FilterModule", "STRICT_CFLAGS",
                      "cache_dir", "cached_extension", "compiler_command", "load_module_file"),
-    "derive.catalog": (),
+    "derive.catalog": ("read_text",),
     "derive.commands": (),
     "derive.emit.library": ("render_build_files", "render_test_program", "test_program_name"),
     "derive.emit.render": ("render_files", "render_unit"),
@@ -33,12 +33,15 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
                             "NEXT_PRIOR", "NOISE", "NOMINAL", "POSTERIOR", "PRIOR", "UPDATE"),
     "derive.flops": ("c_function_body", "count", "count_c_function",
                      "count_c_text"),
+    "derive.guards": ("SELECTS", "IfGreater", "numpy_selects"),
     "derive.generation": ("check_lang", "command_unit", "generate", "generate_units",
                           "render_unit", "resolve_model"),
     "derive.horizon": (),
     "derive.interface": ("Function", "read"),
     "derive.lowering": ("LoweredAssign", "LoweredProgram", "lower_program"),
+    "derive.manifolds": ("QUATERNION", "boxplus_numeric"),
     "derive.model": ("LinearModel", "NonlinearModel"),
+    "derive.modelfile": ("loads_model",),
     "derive.options": ("DEFAULT_EPS", "FirOptions", "per_filter", "taken_by", "validate"),
     "derive.pipeline": ("Generated", "LANGUAGES", "load_generated", "load_units"),
     "derive.precision": ("DOUBLE", "FLOAT"),
