@@ -1973,4 +1973,3 @@ def run(z_gnss, z_baro, us, x0, P0, p):
         for i in range(225):
             Ps[k, i] = P[i]
     return xs, Ps.reshape((steps, 15, 15) + track)
-

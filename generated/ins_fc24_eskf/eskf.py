@@ -5454,4 +5454,3 @@ def run(z_gnss, z_baro, z_mag, z_airspeed, us, x0, P0, p):
         for i in range(529):
             Ps[k, i] = P[i]
     return xs, Ps.reshape((steps, 23, 23) + track)
-
