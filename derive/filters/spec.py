@@ -71,6 +71,8 @@ class FilterSpec:
     ``covariance``: it carries P, so P0's declared pattern shapes its code (takes the
     option ``P0_pattern``).
     ``missing``: takes the option ``missing`` (NaN-marked absent measurements).
+    ``loglik``: takes the option ``loglik`` (run stores each step's log-likelihood of the
+    innovation).
     ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
     option ``run_tracks``).
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
@@ -110,6 +112,7 @@ class FilterSpec:
     steady: bool = False
     covariance: bool = False
     missing: bool = False
+    loglik: bool = False
     batch: bool = False
     inputs: bool = False
     sensors: bool = False

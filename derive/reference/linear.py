@@ -37,8 +37,13 @@ def _input_terms(B, D, us, n: int, m: int, steps: int):
     return U @ B.T, U @ D.T
 
 
-def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None):
+def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None,
+       lls: np.ndarray | None = None):
     """Kalman filter. Returns (xs (steps, n), Ps (steps, n, n)).
+
+    ``lls`` (steps,): filled with each step's log-likelihood of the innovation,
+    log N(nu; 0, S) = -1/2 (m log 2 pi + log det S + nu' S^-1 nu) over the m present
+    measurements (0 at a step with none).
 
     skip_nan=True: a NaN in z(k) marks that component as absent; the update uses only the
     present rows of H and R (all absent: prediction only). skip_nan=False refuses NaN.
@@ -56,12 +61,25 @@ def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None
         if present.any():
             Hk, Rk = H[present], R[np.ix_(present, present)]
             PHt = P @ Hk.T
-            K = np.linalg.solve((Hk @ PHt + Rk).T, PHt.T).T   # P Hᵀ [H P Hᵀ + R]⁻¹
+            S = Hk @ PHt + Rk
+            K = np.linalg.solve(S.T, PHt.T).T   # P Hᵀ [H P Hᵀ + R]⁻¹
+            if lls is not None:
+                lls[k] = gaussian_loglik((z - Du[k])[present] - Hk @ x, S)
             IKH = np.eye(n) - K @ Hk
             x = IKH @ x + K @ (z - Du[k])[present]
             P = IKH @ P
+        elif lls is not None:
+            lls[k] = 0.0
         xs[k], Ps[k] = x, P
     return xs, Ps
+
+
+def gaussian_loglik(nu: np.ndarray, S: np.ndarray) -> float:
+    """log N(nu; 0, S) = -1/2 (m log 2 pi + log det S + nu' S^-1 nu), S positive definite."""
+    sign, logdet = np.linalg.slogdet(S)
+    if sign <= 0:
+        raise NumericalError("innovation covariance S is not positive definite")
+    return -0.5 * (len(nu) * np.log(2 * np.pi) + logdet + nu @ np.linalg.solve(S, nu))
 
 
 def lf(F, G, H, Q, R, x0, P0, zs):
