@@ -19,6 +19,7 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
+from ..errors import OptionError
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -115,8 +116,10 @@ def ekf_update_stage(model) -> Update:
     for a sequential sensor, one scalar update per measurement (h and H at x(k/k-1))."""
     parts = ekf_update_parts(model)
 
-    def update(prog, mapping, meas, x, P, z):
+    def update(prog, mapping, meas, x, P, z, loglik=False):
         values, H, R = parts(prog, mapping, meas, x)
+        if meas.sequential and loglik:
+            raise OptionError("option 'loglik' is not taken with sequential updates")
         if meas.sequential:
             innovation = staging.sub(prog, z, values)
             x_new, P_new, gated = sequential_update(prog, x, P, H, R, innovation, meas.gate,
@@ -131,8 +134,9 @@ def ekf_update_stage(model) -> Update:
             staged.append(staging.sub(prog, z, values))
             return staged[0]
 
-        x_new, P_new, gated = kalman_update(prog, x, P, PHt, S, innovation, meas.gate)
-        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ())
+        x_new, P_new, gated, *ll = kalman_update(prog, x, P, PHt, S, innovation, meas.gate,
+                                                 loglik)
+        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ()) + tuple(ll)
 
     return update
 
@@ -142,6 +146,9 @@ def derive_unit(model, spec, options):
     several sensors, gating or update-first: predict and update_<sensor> (the run kind
     sensors, derive.filters.sensors)."""
     check_nonlinear(model, spec.name)
+    if uses_sensor_run(model, options) and options.loglik:
+        raise OptionError("option 'loglik' is not taken with several sensors, gating or "
+                          "update-first (the run kind sensors)")
     if uses_sensor_run(model, options):
         groups = sensor_groups(model)
         thresholds = gate_thresholds(groups, options)
@@ -199,7 +206,7 @@ def reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    covariance=True, inputs=True, sensors=True, vector_rows=True,
+    covariance=True, inputs=True, sensors=True, vector_rows=True, loglik=True,
     extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
     listing=100,

@@ -11,6 +11,7 @@ import numpy as np
 
 from derive.errors import NumericalError
 from derive.reference._inputs import measurement_series, square, state_vector
+from derive.reference.likelihood import gaussian_loglik
 from derive.riccati import lf_constants
 from derive.system_checks import system_arrays
 
@@ -72,14 +73,6 @@ def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None
             lls[k] = 0.0
         xs[k], Ps[k] = x, P
     return xs, Ps
-
-
-def gaussian_loglik(nu: np.ndarray, S: np.ndarray) -> float:
-    """log N(nu; 0, S) = -1/2 (m log 2 pi + log det S + nu' S^-1 nu), S positive definite."""
-    sign, logdet = np.linalg.slogdet(S)
-    if sign <= 0:
-        raise NumericalError("innovation covariance S is not positive definite")
-    return -0.5 * (len(nu) * np.log(2 * np.pi) + logdet + nu @ np.linalg.solve(S, nu))
 
 
 def lf(F, G, H, Q, R, x0, P0, zs):
