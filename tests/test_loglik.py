@@ -54,10 +54,11 @@ def axes():
             load_generated(model, "kf", {"missing": True, "loglik": True}))
 
 
-def test_kf_loglik_equals_the_reference_with_missing_measurements(axes):
+def test_kf_and_udkf_loglik_equal_the_reference_with_missing_measurements(axes):
     model, num, zs, P0, lls, generated = axes
     assert np.isnan(zs[7]).all() and lls[7] == 0.0  # the reference: a step with nothing
-    for module in (generated.python, generated.c):
+    ud = load_generated(model, "udkf", {"missing": True, "loglik": True}, "python").python
+    for module in (generated.python, generated.c, ud):
         xs, Ps, ll = module.run(zs, num.x0, P0)
         assert np.shape(ll) == (STEPS,)
         assert relative_error(ll, lls) <= LINEAR_TOLERANCE
@@ -67,13 +68,15 @@ def test_kf_loglik_equals_the_reference_with_missing_measurements(axes):
 
 def test_each_step_is_the_log_density_of_its_own_innovation():
     """Correlated R, rows missing: each step's ll is log N(nu; 0, S) of the prediction the
-    generated run made, to 1e-12.  (Run against run, ll differs by what x does: nu = z - H x
+    generated run made, to 1e-12 (the UD filter's from its scalar updates of the
+    decorrelated measurements).  (Run against run, ll differs by what x does: nu = z - H x
     cancels, so x's absolute rounding error, growing with |x|, reaches ll unscaled; this
     model's position grows to ~1e4 and its run-to-run ll differs by ~2e-12.)"""
     model = correlated()
     num, zs, P0, _ = scenario(model)
     generated = load_generated(model, "kf", {"missing": True, "loglik": True})
-    for module in (generated.python, generated.c):
+    ud = load_generated(model, "udkf", {"missing": True, "loglik": True}, "python").python
+    for module in (generated.python, generated.c, ud):
         xs, Ps, ll = module.run(zs, num.x0, P0)
         Ps = np.reshape(Ps, (STEPS, model.n, model.n))
         for k in range(1, STEPS):
@@ -141,23 +144,25 @@ def test_ekf_loglik_equals_the_reference_innovations_loglik():
 
 
 @pytest.mark.parametrize("name, filter_name, options", [
-    ("corr", "kf", {"missing": True, "loglik": True}), ("gps_static", "kf", {"loglik": True})])
+    ("corr", "kf", {"missing": True, "loglik": True}), ("gps_static", "kf", {"loglik": True}),
+    ("mpt3d_a", "udkf", {"missing": True, "loglik": True})])
 def test_the_loglik_step_counts_agree(name, filter_name, options):
     """Header = Python executed (CountingFloat, np.log a call) = C text, log counted."""
     model = correlated() if name == "corr" else catalog.load(name)
     unit = derive_unit(model, filter_name, options)
     files = render_filter(model, filter_name, "all", options)
     scope: dict = {}
-    exec(compile(files["kf.py"], "kf.py", "exec"), scope)  # derive's own generated code
+    py = files[f"{filter_name}.py"]
+    exec(compile(py, "generated.py", "exec"), scope)  # derive's own generated code
     program = unit.programs["step"]
     static_py, static_c = count(program, "python"), count(program, "c")
     counter = OpCounter()
     scope["step"](*[counter.wrap(v) for v in _inputs(model, program, unit, "",
                                                       np.random.default_rng(2))])
     assert counter.snapshot() == static_py
-    assert count_c_function(files["kf.c"], f"{unit.prefix}_step") == static_c
+    assert count_c_function(files[f"{filter_name}.c"], f"{unit.prefix}_step") == static_c
     assert static_c.calls == model.m  # one log per pivot
-    assert f"operations per call of step (Python): {static_py.summary()}" in files["kf.py"]
+    assert f"operations per call of step (Python): {static_py.summary()}" in py
 
 
 def test_loglik_is_refused_where_it_is_not_computed(tmp_path, capsys):

@@ -161,20 +161,18 @@ def loglik_port() -> Port:
 
 
 def gaussian_loglik(prog: Program, pivots, whitened, z: sympy.Matrix | None = None):
-    """``-1/2 (m log 2 pi + sum_i log d_i + sum_i w_i^2 / d_i)``: the Gaussian log-density of
-    an innovation nu with ``S = L D L^T`` (``pivots``: derive.staging.Pivots) and
-    ``whitened = L^-1 nu``.  ``z``: with missing measurements, the step's z; an absent
-    measurement i has the masked pivot 1 and w_i = 0 (:func:`mask_symmetric`), so it adds
-    nothing but its log 2 pi, which is selected away (m = the measurements present)."""
+    """``-1/2 sum_i (log 2 pi + log d_i + w_i^2 / d_i)``: the Gaussian log-density of an
+    innovation nu with ``S = L D L^T`` (``pivots``: derive.staging.Pivots, d_i and 1/d_i)
+    and ``whitened = L^-1 nu`` (w_i); or of sequential scalar updates, d_i their innovation
+    variances and w_i their innovations.  ``z``: with missing measurements, the step's z:
+    term i is selected where z[i] is present, else 0 (m = the measurements present)."""
     terms = []
     for i, (d, dinv) in enumerate(zip(pivots.D, pivots.Dinv)):
         w = whitened[i]
-        terms += [sympy.log(d), w * w * dinv]
-        terms.append(LOG_2PI if z is None else IfPresent(z[i], LOG_2PI, 0))
+        term = sympy.log(d) + w * w * dinv + LOG_2PI
+        terms.append(term if z is None else IfPresent(z[i], prog.let(term, "llt"), 0))
     total = prog.let(sympy.Add(*terms), "lls")
     return prog.let(sympy.Rational(-1, 2) * total, "ll")
-
-
 
 LOGLIK_STORE = ("lls", "ll", (), True)
 """run's optional per-step output of the log-likelihood (derive.runs.unit.Unit.extra_stores)."""
