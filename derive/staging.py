@@ -232,19 +232,23 @@ def ldl_forward_pivots(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     L, D, Dinv = _ldl(prog, S, name, axis)
     Y = forward_substitute(prog, L, B)
     Z = sympy.zeros(m, B.cols)
+    live = []
     for i in range(m):
         direct = sum(1 for c in range(B.cols) if Y[i, c] != 0) <= DIRECT_DIVISIONS
         for c in range(B.cols):
             Z[i, c] = _stage(prog, Y[i, c] / D[i] if direct else Y[i, c] * Dinv[i])
-    return L, Pivots(tuple(D), tuple(Dinv)), Y, Z
+        live.append(not direct or any(L[k, i] != 0 for k in range(i + 1, m)))
+    return L, Pivots(tuple(D), tuple(r if used else None for r, used in zip(Dinv, live))), Y, Z
 
 
 @dataclass(frozen=True)
 class Pivots:
-    """The pivots ``D`` of an LDL^T factorisation and their reciprocals ``Dinv``."""
+    """The pivots ``D`` of an LDL^T factorisation and their reciprocals ``Dinv``, None
+    where the factorisation's statements do not use one (a caller then divides by the
+    pivot rather than form its reciprocal for one product)."""
 
     D: tuple[sympy.Expr, ...]
-    Dinv: tuple[sympy.Expr, ...]
+    Dinv: tuple[sympy.Expr | None, ...]
 
 
 def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,

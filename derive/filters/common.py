@@ -162,14 +162,15 @@ def loglik_port() -> Port:
 
 def gaussian_loglik(prog: Program, pivots, whitened, z: sympy.Matrix | None = None):
     """``-1/2 sum_i (log 2 pi + log d_i + w_i^2 / d_i)``: the Gaussian log-density of an
-    innovation nu with ``S = L D L^T`` (``pivots``: derive.staging.Pivots, d_i and 1/d_i)
+    innovation nu with ``S = L D L^T`` (``pivots``: derive.staging.Pivots, d_i and 1/d_i
+    where the step has it, else a division)
     and ``whitened = L^-1 nu`` (w_i); or of sequential scalar updates, d_i their innovation
     variances and w_i their innovations.  ``z``: with missing measurements, the step's z:
     term i is selected where z[i] is present, else 0 (m = the measurements present)."""
     terms = []
     for i, (d, dinv) in enumerate(zip(pivots.D, pivots.Dinv)):
         w = whitened[i]
-        term = sympy.log(d) + w * w * dinv + LOG_2PI
+        term = sympy.log(d) + (w * w / d if dinv is None else w * w * dinv) + LOG_2PI
         terms.append(term if z is None else IfPresent(z[i], prog.let(term, "llt"), 0))
     total = prog.let(sympy.Add(*terms), "lls")
     return prog.let(sympy.Rational(-1, 2) * total, "ll")
