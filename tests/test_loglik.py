@@ -23,6 +23,7 @@ from derive.apps.verify import (
     NONLINEAR_TOLERANCE,
     nonlinear_scenario,
     relative_error,
+    verify_modules,
 )
 from derive.cli import main
 from derive.filters import derive_unit
@@ -170,3 +171,21 @@ def test_loglik_is_refused_where_it_is_not_computed(tmp_path, capsys):
                  str(tmp_path)]) == 2
     assert "loglik" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_derive_verify_checks_lls_against_the_reference_scaled(axes):
+    """verify_modules compares run's lls with the family's reference, each step's error
+    relative to loglik_scale (its terms' size and the cancellation in nu); an lls off by
+    1e-9 fails."""
+    model, num, zs, P0, lls, generated = axes
+
+    class Off:  # run's lls moved by 1e-9, its xs and Ps untouched
+        def run(self, *args):
+            xs, Ps, ll = generated.python.run(*args)
+            return xs, Ps, ll + 1e-9
+
+    options = {"missing": True, "loglik": True}
+    good = verify_modules(model, "kf", {"python": generated.python}, 200, 7, options)
+    bad = verify_modules(model, "kf", {"python": Off()}, 200, 7, options)
+    assert good[0].passed and good[0].error <= LINEAR_TOLERANCE
+    assert not bad[0].passed and bad[0].error > 1e-11

@@ -291,11 +291,12 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
 
 
 def generated_run(module, name: str, zs, model, lang: str,
-                  scenario: NonlinearScenario | None = None):
+                  scenario: NonlinearScenario | None = None, with_lls: bool = False):
     """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
     (nonlinear filters: the scenario's zs, us, x0 and P0); every input is given in the
     module's dtype (a float32 kernel's: each value rounded once to float), the outputs are
-    returned as float64."""
+    returned as float64: (xs, Ps or None), and with ``with_lls`` (a filter generated with
+    the option loglik) the per-step log-likelihoods third."""
     dtype = getattr(module, "dtype", np.float64)
 
     def given(*arrays):
@@ -304,20 +305,21 @@ def generated_run(module, name: str, zs, model, lang: str,
     spec = kind(name)
     if spec.model_kind == "nonlinear":
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
-        xs, Ps = module.run(*given(*args, scenario.x0, scenario.P0))
-        return (np.asarray(xs, dtype=float),
-                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n, model.n))
-    num = model.numeric()
-    # run's arguments after the measurements (and inputs): what its run kind starts from
-    start = {"x0": num.x0, "P0": num.P0}
-    data = [zs.zs, zs.us] if model.inputs else [zs]
-    out = module.run(*given(*data, *(start[name]
-                                     for name, _ in RUN_KINDS[spec.run_kind].start)))
+        out = module.run(*given(*args, scenario.x0, scenario.P0))
+        steps = len(scenario.zs)
+    else:
+        num = model.numeric()
+        # run's arguments after the measurements (and inputs): what its run kind starts from
+        start = {"x0": num.x0, "P0": num.P0}
+        data = [zs.zs, zs.us] if model.inputs else [zs]
+        out = module.run(*given(*data, *(start[name]
+                                         for name, _ in RUN_KINDS[spec.run_kind].start)))
+        steps = len(data[0])
     if not isinstance(out, tuple):
         return np.asarray(out, dtype=float), None
-    xs, Ps = out
-    return (np.asarray(xs, dtype=float),
-            np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n, model.n))
+    xs, Ps = (np.asarray(out[0], dtype=float),
+              np.asarray(out[1], dtype=float).reshape(steps, model.n, model.n))
+    return (xs, Ps, np.asarray(out[2], dtype=float)) if with_lls else (xs, Ps)
 
 
 class InputRun(NamedTuple):
@@ -473,6 +475,9 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         zs = linear_run(model, steps, seed)
         tolerance = LINEAR_TOLERANCE
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
+    # the option loglik: run's lls against the family's reference of the log-likelihood
+    lls_ref = (kind(name).loglik(model, zs if scenario is None else (
+        scenario, model.numeric_functions()), opts) if opts.get("loglik") else None)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
@@ -489,10 +494,16 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
 
     out: list[Verification] = []
     for lang, module in modules.items():
-        xs, Ps = generated_run(module, name, zs, model, lang, scenario)
+        xs, Ps, *lls = generated_run(module, name, zs, model, lang, scenario,
+                                     lls_ref is not None)
         err = relative_error(xs, xs_ref)
         if Ps_ref is not None and Ps is not None:
             err = max(err, relative_error(Ps, Ps_ref))
+        if lls:  # each step's error relative to its scale (loglik_scale)
+            ll_ref, scales = lls_ref
+            with np.errstate(divide="ignore", invalid="ignore"):
+                diff = np.abs(lls[0] - ll_ref)
+                err = max(err, float(np.max(np.where(diff == 0, 0.0, diff / scales))))
         if lang == "c" and bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
         elif scenario is None and not within_tolerance(err, tolerance, None):

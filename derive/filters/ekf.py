@@ -19,7 +19,8 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
-from ..errors import OptionError
+from ..errors import OptionError, VerificationError
+from ..reference.likelihood import innovations_loglik
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -195,18 +196,34 @@ def reference(model, data, options):
         res = sensors_reference(model, options, {IMPLICIT_SENSOR: scenario.zs}, scenario.us,
                                 None, scenario.x0, scenario.P0)
         return res.xs, res.Ps
+    res = _reference_result(model, scenario, fns)
+    return res.xs, res.Ps
+
+
+def _reference_result(model, scenario, fns):
+    """derive.reference.ekf's NonlinearResult on the scenario; an identity f as None."""
     identity = list(model.subs(model.f)) == list(model.state_symbols)
     f, F = (None, None) if identity else (fns["f"], fns["F"])
     process = {"Fu_jac": fns["Fu"], "Qu": fns["Qu"]} if model.f_inputs else {}
-    res = numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
-                              scenario.P0, scenario.zs, inputs=list(scenario.us),
-                              skip_nan=False, **process)
-    return res.xs, res.Ps
+    return numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
+                               scenario.P0, scenario.zs, inputs=list(scenario.us),
+                               skip_nan=False, **process)
+
+
+def loglik_reference(model, data, options):
+    """(each step's log-likelihood of the reference EKF's recorded innovations, its scale),
+    ``data`` as :func:`reference` takes it (a model whose x is renormalised has none)."""
+    scenario, fns = data
+    if model.unit_norm:
+        raise VerificationError(f"no reference log-likelihood for {model.name!r}, whose "
+                                "state is renormalised after every update")
+    res = _reference_result(model, scenario, fns)
+    return innovations_loglik(res.innovations, res.innovation_covariances, scenario.zs)
 
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    covariance=True, inputs=True, sensors=True, vector_rows=True, loglik=True,
+    covariance=True, inputs=True, sensors=True, vector_rows=True, loglik=loglik_reference,
     extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
     listing=100,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import sympy
 
 from .. import reference as numpy_reference
@@ -307,6 +308,18 @@ def reference(model, zs, options):
     return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
+def loglik_reference(model, zs, options):
+    """(each step's log-likelihood of the innovation, its scale), from derive.reference.kf
+    (``zs`` as :func:`reference` takes it; a NaN measurement absent)."""
+    num = model.numeric()
+    inputs = ({"B": num.B, "D": num.D, "us": zs.us} if model.inputs else {})
+    data = zs.zs if model.inputs else zs
+    lls, scales = np.empty(len(data)), np.empty(len(data))
+    numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, data, lls=lls,
+                       ll_scales=scales, **inputs)
+    return lls, scales
+
+
 INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z): "
                "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
 
@@ -317,7 +330,8 @@ P), and the update's subtraction P(k/k-1) - K S K^T."""
 
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
-    options=KalmanOptions, covariance=True, missing=True, loglik=True, batch=True,
+    options=KalmanOptions, covariance=True, missing=True, loglik=loglik_reference,
+    batch=True,
     inputs=True,
     sensors=True, blockwise=True, conditioning=CONDITIONING, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "

@@ -66,6 +66,7 @@ from .common import (
     pattern_text,
     with_fact,
 )
+from .kf import loglik_reference
 from .spec import INNOVATION, Conditioned, FilterSpec
 from .unit import make_unit
 
@@ -498,7 +499,8 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "udkf", TITLE, MODEL_KIND, "timevarying", derive_unit, reference,
-    options=OPTIONS, covariance=True, missing=True, loglik=True,
+    options=OPTIONS, covariance=True, missing=True,
+    loglik=loglik_reference,  # the KF's: the same likelihood
     extra_programs=("enter", "store"),
     # Bierman's scalar updates divide by the innovation variances (S's LDL^T pivots);
     # P is only ever factored (enter: its U D U^T, backward stable as LDL^T) and carried as
