@@ -99,6 +99,12 @@ def test_the_c_run_takes_lls_null_and_the_estimates_do_not_change(axes):
     alone = generated.c.call("run", zs, num.x0, P0, with_covariance=False)  # Ps, lls NULL
     np.testing.assert_array_equal(alone, xs)
     assert "run_tracks" not in generated.c.functions  # its lanes store the carried state
+    # Python's tracks axis: each track's lls as its own run's
+    both = np.stack([zs, zs[::-1]], axis=-1)
+    _, _, ll2 = generated.python.run(both, np.stack([num.x0] * 2, -1),
+                                     np.stack([P0] * 2, -1))
+    np.testing.assert_array_equal(ll2[:, 0], generated.python.run(zs, num.x0, P0)[2])
+    np.testing.assert_array_equal(ll2[:, 1], generated.python.run(zs[::-1], num.x0, P0)[2])
     plain = load_generated(model, "kf", {"missing": True}, "python").python
     xp, Pp = plain.run(zs, num.x0, P0)
     np.testing.assert_array_equal(generated.python.run(zs, num.x0, P0)[0], xp)
