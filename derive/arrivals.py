@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import sympy
 
-from derive.lowering import Op, Tree, Var
 from derive.statements import Assign, Statement
+from derive.trees import Op, Tree, Var
 
 _NEVER = -math.inf
 

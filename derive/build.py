@@ -14,8 +14,8 @@ half-written library, and a library is loaded only if the user owns it.
 The wrappers read the interface the generated header states in its machine-readable
 line (derive.interface; the prose ``int PREFIX_step(x[2], P[2*2], z[1], x_new[2] out,
 ...)`` is rendered from the same description): ``step`` takes
-the inputs in C order (``p`` as keyword) and returns the outputs flat, like the
-generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
+the inputs in C order or by name (``p`` as keyword) and returns x flat and each matrix
+(n, n), like the generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
 ``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`, or
 :class:`derive.errors.PatternError` naming the entry for the pattern status.
 
@@ -176,26 +176,37 @@ class FilterModule:
                              + f", got {array.shape}")
         return array
 
-    def call(self, name: str, *args, p=None, with_covariance: bool = True):
-        """Call ``PREFIX_name`` with NumPy inputs in C order; returns the outputs."""
+    def call(self, name: str, *args, with_covariance: bool = True, **named):
+        """Call ``PREFIX_name`` with NumPy inputs in C order, or by name (the C name or the
+        generated Python's: ``z`` or ``zs``, ``u`` or ``us``, ``p``); returns the outputs."""
         fn = self.functions[name]
         inputs = [a for a in fn.arguments if not a.output]
-        given = list(args)
-        if inputs and inputs[-1].name == "p":
-            if p is None and len(given) == len(inputs):
-                p = given.pop()
-            if p is None:
-                raise TypeError(f"{self.prefix}_{name} needs the parameters p")
-            given.append(p)
-        if len(given) != len(inputs):
-            raise TypeError(f"{self.prefix}_{name} takes {[a.name for a in inputs]}, "
-                            f"got {len(given)} arrays")
+        where = f"{self.prefix}_{name}"
+        if len(args) > len(inputs):
+            raise TypeError(f"{where} takes {[a.name for a in inputs]}, got {len(args)} "
+                            "arrays")
+        values = dict(zip((a.name for a in inputs), args))
+        aliases = {alias: a.name for a in inputs for alias in (a.name, a.py_name) if alias}
+        for key, value in named.items():
+            if key == "p" and value is None:  # no parameters given (or none taken)
+                continue
+            if key not in aliases:
+                raise TypeError(f"{where} got an unexpected argument {key!r}; it takes "
+                                f"{', '.join(a.py_name or a.name for a in inputs)}")
+            if aliases[key] in values:
+                raise TypeError(f"{where} got {key!r} twice")
+            values[aliases[key]] = value
+        absent = [a.name for a in inputs if a.name not in values]
+        if absent == ["p"]:
+            raise TypeError(f"{where} needs the parameters p")
+        if absent:
+            raise TypeError(f"{where} takes {[a.name for a in inputs]}, missing {absent}")
+        given = [values[a.name] for a in inputs]
         steps = 0
         if fn.has_steps:
             first = next(a for a in inputs if a.per_step)
             shape = np.shape(given[inputs.index(first)])
             steps = shape[0] if shape else 0
-        values = dict(zip((a.name for a in inputs), given))
         c_args, keep, outputs, strides = [], [], [], []
         for arg in fn.arguments:
             if arg.output:
@@ -221,8 +232,8 @@ class FilterModule:
         if fn.has_steps:
             shaped = [out.reshape(tuple(steps if d == "steps" else d for d in arg.dims))
                       for arg, out in outputs]
-        else:
-            shaped = [out for _, out in outputs]
+        else:  # P and U as (n, n) arrays, as run returns (steps, n, n)
+            shaped = [out.reshape(tuple(int(d) for d in arg.dims)) for arg, out in outputs]
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
 
 

@@ -13,8 +13,8 @@ that do not trust the lowering:
 ``flops`` = add + sub + mul + div + sqrt + 2 fma (negations and comparisons
 are reported, not counted as flops); ``instructions`` = every operation.  ``fma`` counts
 both fused multiply-adds of the C lowering, ``a*b + c`` (``DERIVE_FMA``) and ``c - a*b``
-(``DERIVE_FNMA``, :data:`derive.lowering.FUSED_KINDS`): one instruction, two flops each.  A
-``select`` (:class:`derive.lowering.IfPresent`, the missing-measurement test) is
+(``DERIVE_FNMA``, :data:`derive.trees.FUSED_KINDS`): one instruction, two flops each.  A
+``select`` (:class:`derive.expression_lowering.IfPresent`, the missing-measurement test) is
 one comparison, ``z == z``, and is counted as ``cmp``.
 """
 
@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 from typing import TYPE_CHECKING
 
-from derive.lowering import Op, Tree, lower_program
+from derive.lowering import lower_program
 from derive.rows import VECTOR_LANES, VECTOR_TYPES
+from derive.trees import OpCount, count_trees
 
 #: The C vector types of generated code and their lanes.
 _VECTOR_LANES = dict.fromkeys(VECTOR_TYPES.values(), VECTOR_LANES)
@@ -38,85 +39,10 @@ if TYPE_CHECKING:
 LANGUAGES = ("python", "c")
 
 
-@dataclass(frozen=True)
-class OpCount:
-    """Operations by kind; ``calls`` counts math.h function calls other than sqrt."""
-
-    add: int = 0
-    sub: int = 0
-    mul: int = 0
-    div: int = 0
-    sqrt: int = 0
-    fma: int = 0
-    neg: int = 0
-    cmp: int = 0
-    calls: int = 0
-
-    @property
-    def flops(self) -> int:
-        """Floating-point operations as the papers count them (an fma is two)."""
-        return self.add + self.sub + self.mul + self.div + self.sqrt + 2 * self.fma
-
-    @property
-    def instructions(self) -> int:
-        """Every operation, an fma, a negation and a comparison one each (calls excluded)."""
-        return (self.add + self.sub + self.mul + self.div + self.sqrt + self.fma + self.neg
-                + self.cmp)
-
-    def __add__(self, other: OpCount) -> OpCount:
-        if not isinstance(other, OpCount):
-            return NotImplemented
-        return OpCount(**{f.name: getattr(self, f.name) + getattr(other, f.name)
-                          for f in fields(self)})
-
-    def scaled(self, times: int) -> OpCount:
-        """Every count times ``times`` (the lanes of a vector statement)."""
-        return OpCount(**{f.name: getattr(self, f.name) * times for f in fields(self)})
-
-    def as_dict(self) -> dict[str, int]:
-        """Counts by kind, in a fixed order."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-    def summary(self) -> str:
-        """One line: every kind, then flops and instructions."""
-        kinds = ", ".join(f"{k} {v}" for k, v in self.as_dict().items())
-        return f"{kinds} (flops {self.flops}, instructions {self.instructions})"
-
-
-def _kind_field(kind: str) -> str:
-    if kind in ("select", "gate"):
-        return "cmp"
-    if kind == "fnma":
-        return "fma"
-    return "calls" if kind.startswith("call:") else kind
-
-
-def _tally_tree(tree: Tree, tally: dict[str, int]) -> None:
-    stack = [tree]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, Op):
-            key = _kind_field(node.kind)
-            tally[key] = tally.get(key, 0) + 1
-            stack.extend(node.args)
-
-
-def count_tree(tree: Tree) -> OpCount:
-    """Operations in one lowered tree."""
-    tally: dict[str, int] = {}
-    _tally_tree(tree, tally)
-    return OpCount(**tally)
-
-
 def count_lowered(lowered: LoweredProgram) -> OpCount:
     """Operations of a lowered program (the results are atoms and cost nothing)."""
-    tally: dict[str, int] = {}
-    for statement in lowered.body:
-        _tally_tree(statement.tree, tally)
-    for _, leaves in lowered.results:
-        for leaf in leaves:
-            _tally_tree(leaf, tally)
-    return OpCount(**tally)
+    return count_trees([*(statement.tree for statement in lowered.body),
+                        *(leaf for _, leaves in lowered.results for leaf in leaves)])
 
 
 def count(program: Program, lang: str = "python", *, use_fma: bool | None = None) -> OpCount:
@@ -341,7 +267,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
     ``> < >= <= == !=`` are comparisons.
 
     A chunk of vector rows (``#if DERIVE_VECTOR`` ... ``#else`` ... ``#endif``) counts as
-    its vector statement once per lane (``DERIVE_ROWS_FMA`` an fma), with ``vector``; as its
+    its vector statement once per lane (``DERIVE_VFMA`` an fma), with ``vector``; as its
     scalar lanes without.
     """
     extra = OpCount()
@@ -353,7 +279,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
             for line in m.group(1).split(";"):
                 found = _VECTOR_STATEMENT.match(line.strip() + ";")
                 if found is not None and found.group(1) in _VECTOR_LANES:
-                    ops = count_c_text(found.group(2), "DERIVE_ROWS_FMA", "DERIVE_ROWS_FNMA")
+                    ops = count_c_text(found.group(2), "DERIVE_VFMA", "DERIVE_VFNMA")
                     extra = extra + ops.scaled(_VECTOR_LANES[found.group(1)])
             return ""
         text = _CHUNK.sub(chunk, text)

@@ -14,7 +14,6 @@ from pathlib import Path
 
 from . import catalog
 from .emit.render import render_c, render_python
-from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError, ModelFileError
 from .filters import available, derive_unit, kind
@@ -23,6 +22,7 @@ from .filters.sensors import uses_sensor_run
 from .model import ModelRef
 from .modelfile import MAX_BLOCK_SIZE, load_model_file
 from .options import SharedOptions, per_filter, regenerate_command, validate
+from .runs.unit import Unit
 
 LANGS = ("python", "c", "all")
 
@@ -112,6 +112,8 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     ref = model if isinstance(model, str) else None
     model = resolve_model(model)
     check_lang(lang)
+    if isinstance(filters, str):  # one name, not its characters
+        filters = [filters]
     names = list(filters) if filters is not None else available(model)
     for name in names:
         kind(name)
@@ -132,6 +134,9 @@ def generate(model: ModelRef, filters: Iterable[str] | None = None, lang: str = 
              out: str | Path = "generated", options: Mapping | None = None,
              per_filter_options: Mapping[str, Mapping] | None = None) -> list[Path]:
     """Generate ``filters`` (default: all that apply) for ``model``; return the written paths.
+
+    ``filters``: names (``["kf", "rts"]``) or one name (``"kf"``); an unknown name is
+    refused with the closest filter's name (case aside: ``"KF"``: did you mean 'kf'?).
 
     ``model`` is a model object, a catalog name or a model-file path. ``options`` apply
     to the call: each filter is given those it takes (``P0_pattern``, ``missing``,

@@ -42,7 +42,9 @@ class InterfaceError(ValueError):
 class Argument:
     """One array argument; ``dims`` may start with ``"steps"``; ``rows``: one row for every
     step or one row per step, told by the stride argument (C) that follows; ``scratch``:
-    C run's caller-provided work array (written, not a result; Python has none)."""
+    C run's caller-provided work array (written, not a result; Python has none);
+    ``py_name``: the name of the generated Python's argument where it differs (run's
+    ``zs`` for C's ``z``), which derive.build's wrappers also take as a keyword."""
 
     name: str
     dims: tuple[int | str, ...]
@@ -102,9 +104,10 @@ class Function:
     def python_line(self) -> str:
         ins = [a for a in self.arguments if not a.output]
         outs = [a for a in self.arguments if a.output]
-        if not self.has_steps:
+        if not self.has_steps:  # a matrix is taken flat or 2-D, returned 2-D (n, n)
             def text(a):
-                return f"{a.name}[{'*'.join(str(d) for d in a.dims)}]"
+                joint = ", " if a.output and len(a.dims) == 2 else "*"
+                return f"{a.name}[{joint.join(str(d) for d in a.dims)}]"
             return (f"    {self.program}({', '.join(text(a) for a in ins)}) -> "
                     f"({', '.join(text(a) for a in outs)})")
 
@@ -190,7 +193,9 @@ class Interface:
         """The machine-readable header line: :data:`MARKER` and the JSON of the C side."""
         data = {"functions": [[f.name, f.program, f.returns_status, f.has_steps,
                                [[a.name, list(a.dims), a.output, a.optional, a.rows]
-                                + ([True] if a.scratch else []) for a in f.arguments]]
+                                + ([a.scratch, a.py_name] if a.py_name not in ("", a.name)
+                                   else [True] if a.scratch else [])
+                                for a in f.arguments]]
                               for f in self.functions],
                 "statuses": [[s.program, s.number, s.message, list(s.zero)]
                              + ([list(s.parameter)] if s.parameter else [])
@@ -213,7 +218,8 @@ def read(header: str) -> Interface:
                 Function(name=name, program=program, returns_status=bool(status),
                          has_steps=bool(steps),
                          arguments=tuple(Argument(a[0], tuple(a[1]), bool(a[2]), bool(a[3]),
-                                                  bool(a[4]), scratch=len(a) > 5 and a[5])
+                                                  bool(a[4]), scratch=len(a) > 5 and a[5],
+                                                  py_name=a[6] if len(a) > 6 else "")
                                          for a in args))
                 for name, program, status, steps, args in data["functions"])
             statuses = tuple(Status(program, int(number), message, tuple(zero),

@@ -25,7 +25,7 @@ from .discretize import discretize
 from .domains import check_value
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
-from .options import ROW_FORMS, UPDATE_FORMS
+from .forms import ROW_FORMS, UPDATE_FORMS
 from .symbols import (
     SymbolTable,
     as_matrix,

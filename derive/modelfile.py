@@ -95,10 +95,10 @@ from derive.expressions import (
     exact_number,
     parse_expression,
 )
+from derive.forms import ROW_FORMS
 from derive.model import (
     P0_PATTERNS,
     R_ARGUMENT,
-    ROW_FORMS,
     SENSOR_UPDATES,
     LinearModel,
     NonlinearModel,

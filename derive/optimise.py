@@ -4,13 +4,15 @@ Passes, in order: constant folding and copy propagation with merging of
 identical right-hand sides (:func:`_forward`); staging of integer powers
 (:func:`_stage_powers`); sharing of common subexpressions across the whole body,
 each kept only when it lowers the operation count of the lowered Python form
-(:func:`_share`, priced by :class:`_CostCache` through :mod:`derive.lowering` and
-:mod:`derive.flops`); dead-code elimination (:func:`_dead_code`); renumbering
+(:func:`_share`, priced by :class:`_CostCache` through :mod:`derive.expression_lowering`
+and :mod:`derive.trees`); dead-code elimination (:func:`_dead_code`); renumbering
 ``t0, t1, ...`` in order (:func:`_renumber`).  Deterministic.
 
-The layers of the program core, bottom-up: :mod:`derive.statements` (what a body
-holds), :mod:`derive.flops` (counts) on :mod:`derive.lowering` (trees), this
-module, :mod:`derive.program` (building, and ``optimize`` as the entry point).
+The layers of the program core, bottom-up: :mod:`derive.statements` (what a body holds),
+:mod:`derive.trees` (operation trees and their counts), :mod:`derive.expression_lowering`,
+:mod:`derive.rows` (vector chunks), this module, :mod:`derive.program` (building, and
+``optimize`` as the entry point), :mod:`derive.lowering` (whole programs lowered) and
+:mod:`derive.flops` (counts of programs and of printed code).
 """
 
 from __future__ import annotations
@@ -24,8 +26,7 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import MatrixPropertyError
-from derive.flops import count_tree
-from derive.lowering import lower
+from derive.expression_lowering import lower
 from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
@@ -37,6 +38,7 @@ from derive.statements import (
     live_statements,
     substitute,
 )
+from derive.trees import count_tree
 
 Cost = tuple[int, int]  # (flops, instructions) of the lowered Python form
 

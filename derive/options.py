@@ -34,19 +34,14 @@ from numbers import Integral, Real
 import numpy as np
 
 from .errors import OptionError
+from .forms import ROW_FORMS, UPDATE_FORMS
 from .horizon import MAX_FIR_TAPS, MAX_FIR_WINDOW, MAX_HORIZON
 from .precision import NAMES as PRECISIONS
 
 PATTERNS = ("dense", "zero", "diagonal", "block")
-ROW_FORMS = ("scalar", "vector")
-"""How a filter derives its dense covariance work (option ``rows``, ``NonlinearModel(rows=)``):
-entry by entry, or as vector rows (derive.filters.vector_rows)."""
 
 START_CHOICES = ("predict", "update")
 """run's first step (option ``start``): predict-first (the papers'), or update-first."""
-UPDATE_FORMS = ("batch", "sequential")
-"""How a sensor's update fuses its measurements (option ``update``): all at once through
-the LDL^T factorisation of S, or one scalar at a time (R diagonal or constant)."""
 C_PREFIX = r"(?:[A-Za-z][A-Za-z0-9_]*)?"
 """What ``--prefix`` may be: empty, or a letter then letters, digits and underscores (so
 PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x``)."""
@@ -493,7 +488,7 @@ def _default_anywhere(key: str):
 
 
 __all__ = ["DEFAULT_EPS", "FirOptions", "KalmanOptions", "PATTERNS", "PredictionOptions",
-           "SharedOptions", "Spec", "UPDATE_FORMS", "UnscentedOptions", "add_arguments",
+           "SharedOptions", "Spec", "UnscentedOptions", "add_arguments",
            "all_specs", "check",
            "families", "from_arguments", "option", "options_type", "per_filter",
            "regenerate_command", "taken_by", "takers", "use_filters", "validate"]

@@ -25,12 +25,12 @@ from types import MappingProxyType, ModuleType
 
 from .build import FilterModule, build_c, load_python
 from .emit.render import render_files
-from .emit.unit import Unit
 from .emit.write import write_files
 from .errors import FilterError
 from .generation import check_lang, command_unit, resolve_model
 from .model import ModelRef
 from .options import SharedOptions
+from .runs.unit import Unit
 
 #: The languages of each ``lang`` argument.
 LANGUAGES = {"python": ("python",), "c": ("c",), "all": ("python", "c")}

@@ -29,15 +29,15 @@ from dataclasses import dataclass
 
 import sympy
 
-from derive.lowering import Const, Op, Tree, Var, constant_value
+from derive.expression_lowering import constant_value
 from derive.statements import Temporary
+from derive.trees import Const, Op, Tree, Var
 
 #: Lanes of one vector chunk: a program's rows are the same in every precision; the C type
 #: that holds them per precision (four doubles: one AVX register, two NEON or SSE2
 #: registers; four floats: one SSE or NEON register).
 VECTOR_LANES = 4
 VECTOR_TYPES = {"double": "derive_vd", "float": "derive_vf"}
-VECTOR_BYTES = {"double": 32, "float": 16}
 
 
 def _leaf(atom: sympy.Expr) -> Tree:
@@ -126,8 +126,8 @@ class RowChunk:
 
 @dataclass(frozen=True)
 class LoweredChunk:
-    """A :class:`RowChunk` with names and leaves (:class:`~derive.lowering.Var`,
-    :class:`~derive.lowering.Const`) instead of symbols: what the C printer prints as one
+    """A :class:`RowChunk` with names and leaves (:class:`~derive.trees.Var`,
+    :class:`~derive.trees.Const`) instead of symbols: what the C printer prints as one
     vector statement (:mod:`derive.emit.c_vector`)."""
 
     targets: tuple[str, ...]
@@ -159,5 +159,5 @@ def check_chunks(chunks: Sequence[RowChunk]) -> None:
                              f"{chunk.form.lanes} lanes")
 
 
-__all__ = ["LaneSum", "LoweredChunk", "RowChunk", "VECTOR_BYTES", "VECTOR_LANES", "VECTOR_TYPES",
+__all__ = ["LaneSum", "LoweredChunk", "RowChunk", "VECTOR_LANES", "VECTOR_TYPES",
            "check_chunks", "chunk_bounds"]

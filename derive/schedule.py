@@ -65,9 +65,9 @@ import sympy
 from sympy import default_sort_key
 
 from derive.arrivals import Arrivals, Form, arrival_times, statement_form
-from derive.emit.unit import Unit
-from derive.lowering import CARRIED, expression_lowerer
+from derive.expression_lowering import CARRIED, expression_lowerer
 from derive.program import Program
+from derive.runs.unit import Unit
 from derive.single_use import is_product, read_counts
 from derive.statements import (
     Assign,
@@ -94,7 +94,7 @@ def latency_schedule(program: Program,
                      carried: Sequence[tuple[str, str]] = CARRIED) -> Program:
     """``program`` (a step; optimised first) rewritten for a short carried chain; the
     same program when it carries nothing (``carried``: (input port, output port) pairs,
-    as :data:`derive.lowering.CARRIED`)."""
+    as :data:`derive.expression_lowering.CARRIED`)."""
     program = program.optimize()
     inputs = {p.name for p in program.inputs}
     pairs = [(port, out) for port, out in carried

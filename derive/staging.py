@@ -23,7 +23,7 @@ from collections.abc import Callable, Sequence
 import sympy
 
 from derive.errors import MatrixPropertyError, ShapeError
-from derive.lowering import negative_number
+from derive.expression_lowering import negative_number
 from derive.program import Program
 
 

@@ -7,10 +7,10 @@ import numpy as np
 import sympy
 
 from derive import staging
-from derive.emit.unit import Unit
 from derive.filters import kind as filter_spec
 from derive.filters.kf import prior
 from derive.program import Port, Program
+from derive.runs.unit import Unit
 
 # real, no declared domain: the backend tests count and check the filter alone
 dt, q, r = sympy.symbols("dt q r", real=True)

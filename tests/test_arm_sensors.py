@@ -76,7 +76,7 @@ def test_sensors_data_hold_nan_rows_and_p_rows_of_the_example():
     p one row per step at the example; the reference and tolerance are verify's."""
     model = resolve_model("ins_gnss")
     data = verification_data(model, "ekf", {"precision": "double"}, steps=STEPS)
-    assert list(data.inputs) == ["u", "z_gnss", "z_baro", "x0", "P0", "p"]
+    assert list(data.inputs) == ["z_gnss", "z_baro", "u", "x0", "P0", "p"]
     for group, period in zip(sensor_groups(model), SENSOR_PERIODS):
         rows = data.inputs[f"z_{group.name}"]
         assert rows.shape == (STEPS, group.m)

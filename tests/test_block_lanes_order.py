@@ -13,14 +13,15 @@ import sympy
 from test_perf_block_lanes import FLAGS, _data, _pair, _run
 
 from derive import LinearModel, catalog
-from derive.emit import block_lanes
+from derive.emit import block_lanes, c_vector
 from derive.emit.render import _lowered
 from derive.filters import available
 from derive.flops import count_lowered
 from derive.generation import command_unit
-from derive.lowering import lower_program, rename_tree
+from derive.lowering import lower_program
 from derive.program import Port, Program
 from derive.statements import Assign, Temporary
+from derive.trees import rename_tree
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 #: The time-varying filters derived block by block.
@@ -93,10 +94,10 @@ def test_an_optimised_assembly_takes_no_order_names():
 
 
 @needs_gcc
-@pytest.mark.parametrize("flags", ["strict", "native"])
+@pytest.mark.parametrize("flags", ["plain", "native"])
 def test_the_lf_vector_run_of_three_axes_is_bitwise_the_scalar_run(tmp_path, flags):
     vector, scalar = _pair(tmp_path, "mpt3d_a", "lf", FLAGS[flags])
-    assert f"#define {block_lanes.VECTOR} 1" in (
+    assert f"#define {c_vector.SWITCH} 1" in (
         tmp_path / "vector" / "mpt3d_a" / "lf.c").read_text()
     z, x0, P0 = _data("mpt3d_a")
     got = _run(vector.c, True, z, x0, P0)

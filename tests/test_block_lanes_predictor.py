@@ -1,6 +1,6 @@
 """The predictor's C run carries identical blocks in vector lanes too (derive.emit.block_lanes):
 it starts from init's x_init as the scalar run, takes the two-step pass, and is bitwise
-the scalar C99 run (-D DERIVE_NO_BLOCK_VECTOR) under every build setting; both branches
+the scalar C99 run (-D DERIVE_VECTOR=0) under every build setting; both branches
 compile with the strict flags. The smoother and the UDKF keep the scalar run (reasons in
 block_lanes.RUN_KINDS and docs/performance.md)."""
 
@@ -14,7 +14,7 @@ import pytest
 from test_perf_block_lanes import FLAGS, SCALAR, _data, _pair
 
 from derive import catalog
-from derive.emit import block_lanes
+from derive.emit import c_vector
 from derive.generation import render_filter
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -24,8 +24,8 @@ MODELS = ("mpt3d_a", "gps_static")
 @pytest.mark.parametrize("model_name", MODELS)
 def test_the_predictor_run_starts_its_lanes_from_init(model_name):
     c = render_filter(catalog.load(model_name), "pred", "c")["pred.c"]
-    assert f"#define {block_lanes.VECTOR} 1" in c
-    vector = c[c.index("#if defined(DERIVE_BLOCK_VECTOR)\n    double x_init"):]
+    assert f"#define {c_vector.SWITCH} 1" in c
+    vector = c[c.index("#if DERIVE_VECTOR\n    double x_init"):]
     vector = vector[:vector.index("#else")]
     assert f"{model_name}_pred_init(x0, x_init);" in vector
     assert "x_init[0]" in vector.split("for (k = 0;")[0]
@@ -58,4 +58,4 @@ def test_both_predictor_branches_compile_with_the_strict_flags(tmp_path, model_n
 @pytest.mark.parametrize("filter_name", ["rts", "udkf"])
 def test_the_smoother_and_the_udkf_keep_the_scalar_run(filter_name):
     c = render_filter(catalog.load("mpt3d_a"), filter_name, "c")[f"{filter_name}.c"]
-    assert block_lanes.VECTOR not in c
+    assert c_vector.OPEN not in c

@@ -151,7 +151,7 @@ def gcc_lane_runs():
 
 @pytest.mark.parametrize("flags", list(CLANG_FLAGS))
 def test_clangs_vector_runs_are_bitwise_its_scalar_runs_and_gccs(flags, gcc_lane_runs):
-    """The vector run (DERIVE_BLOCK_VECTOR: Clang's vector types, shuffles and fma) gives
+    """The vector run (DERIVE_VECTOR: Clang's vector types, shuffles and fma) gives
     the bits of the scalar C99 run, as under GCC (tests/test_perf_block_lanes.py); and
     where the build does not define DERIVE_FMA itself, the bits of GCC's scalar run whose
     DERIVE_FMA is the same operation: no operation Clang fused or reordered."""
@@ -167,7 +167,7 @@ def test_clangs_vector_runs_are_bitwise_its_scalar_runs_and_gccs(flags, gcc_lane
     assert own_fma or GCC is None or fused in gcc_lane_runs
 
 
-@pytest.mark.parametrize("flags", ["strict", "native"])
+@pytest.mark.parametrize("flags", ["plain", "native"])
 def test_clangs_run_tracks_gives_each_track_its_run_bitwise(flags):
     """run_tracks' lane loop (``clang loop vectorize(assume_safety)``: no lane depends on
     another) gives each track the bits of run on that track, the last tracks fewer than a

@@ -11,10 +11,12 @@ import sympy
 from derive import NonlinearModel
 from derive.apps.verify import verify_filter
 from derive.emit.python_printer import python_function
+from derive.expression_lowering import lower
 from derive.flops import count_lowered
 from derive.generation import command_unit
-from derive.lowering import MAX_DEPTH, LoweredAssign, Op, lower, lower_program
+from derive.lowering import MAX_DEPTH, LoweredAssign, lower_program
 from derive.program import Port, Program
+from derive.trees import Op
 
 TERMS = 3000
 OPERATIONS = {"add": operator.add, "sub": operator.sub, "mul": operator.mul,

@@ -25,7 +25,6 @@ from derive.apps.verify import (
     verify_filter,
 )
 from derive.emit.render import render_files, render_unit
-from derive.emit.unit import Unit
 from derive.errors import FilterError, NumericalError
 from derive.filters import derive_unit
 from derive.filters.nonlinear import scalar_measurement
@@ -35,6 +34,7 @@ from derive.pipeline import load_units
 from derive.program import ProgramError
 from derive.reference.nonlinear import sigma_points as reference_sigma_points
 from derive.reference.nonlinear import sigma_weights
+from derive.runs.unit import Unit
 
 GNSS = catalog.load("gnss_pseudorange")
 STEPS = 500

@@ -21,9 +21,9 @@ from derive.cli import main
 from derive.emit import c_printer
 from derive.errors import DtypeError, OptionError
 from derive.generation import generate, render_filter, resolve_model
-from derive.lowering import Const
 from derive.pipeline import load_generated
 from derive.precision import DOUBLE, FLOAT, PrecisionError
+from derive.trees import Const
 
 ROOT = Path(__file__).resolve().parent.parent
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")

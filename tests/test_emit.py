@@ -35,12 +35,12 @@ from _backend_kf import (
 from derive import LinearModel, Sensor, catalog
 from derive.build import load_python
 from derive.emit.render import derive_version, environment, render_files
-from derive.emit.unit import RUN_KINDS, Unit
 from derive.emit.write import write_files
 from derive.errors import OutputPathError
 from derive.filters import FILTERS, derive_unit
 from derive.flops import count
 from derive.program import Port, Program, ProgramError
+from derive.runs.unit import RUN_KINDS, Unit
 
 ROOT = Path(__file__).resolve().parents[1]
 RUFF = shutil.which("ruff")

@@ -116,9 +116,9 @@ def test_float32_sensors_c_agrees_with_the_float64_reference_within_its_bound(
     options = GATED if gated else FLOAT_OPTIONS
     trace: list = []
     ref = reference_run(model, options, zs, us, dt, x0, P0, trace=trace)
-    f32 = [np.asarray(a, dtype=np.float32) for a in (us, *zs.values(), x0, P0)]
+    f32 = [np.asarray(a, dtype=np.float32) for a in (*zs.values(), us, x0, P0)]
     with pytest.raises(DtypeError, match="is a float64 array, but this kernel is float32"):
-        module.run(us, *zs.values(), x0, P0, p=dt)  # double arrays: refused, not rounded
+        module.run(*zs.values(), us, x0, P0, p=dt)  # double arrays: refused, not rounded
     out = module.run(*f32, p=np.asarray(dt, dtype=np.float32))
     xs, Ps = np.asarray(out[0], dtype=float), np.asarray(out[1], dtype=float)
     error = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))

@@ -12,15 +12,9 @@ from derive.build import load_python
 from derive.emit.python_printer import python_function
 from derive.emit.render import render_functions, render_unit
 from derive.emit.write import write_files
-from derive.flops import (
-    CountingFloat,
-    OpCount,
-    OpCounter,
-    count,
-    count_c_function,
-    count_c_text,
-)
+from derive.flops import CountingFloat, OpCounter, count, count_c_function, count_c_text
 from derive.program import Port, Program
+from derive.trees import OpCount
 
 
 def test_opcount_totals():

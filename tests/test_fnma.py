@@ -25,20 +25,16 @@ from derive.apps.verify import verify_modules
 from derive.build import CONVERSION_CFLAGS, STRICT_CFLAGS, build_c
 from derive.emit import c_printer
 from derive.emit.render import render_c
+from derive.expression_lowering import lower
 from derive.filters import derive_unit
-from derive.flops import (
-    count,
-    count_c_function,
-    count_c_text,
-    count_lowered,
-    count_tree,
-)
+from derive.flops import count, count_c_function, count_c_text, count_lowered
 from derive.generation import command_unit, generate
-from derive.lowering import Const, Op, Var, lower, lower_program, tree_kinds
+from derive.lowering import lower_program
 from derive.pipeline import load_generated
 from derive.precision import precision
 from derive.program import Port, Program
 from derive.schedule import REFERENCE_CYCLES, latency_schedule
+from derive.trees import Const, Op, Var, count_tree, tree_kinds
 
 ROOT = Path(__file__).resolve().parent.parent
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -254,10 +250,10 @@ def test_fused_operations_executed_are_the_header_counts(tmp_path, model, filter
         name, status, fmas, fnmas = line.split()
         assert status == "0", line
         assert int(fmas) + int(fnmas) == int(re.search(r"fma (\d+)", counts[name]).group(1))
-        # the text's fmas with DERIVE_FMA and DERIVE_ROWS_FMA renamed (calls then): its
-        # DERIVE_FNMAs and DERIVE_ROWS_FNMAs (once per lane) alone, through the functions it
+        # the text's fmas with DERIVE_FMA and DERIVE_VFMA renamed (calls then): its
+        # DERIVE_FNMAs and DERIVE_VFNMAs (once per lane) alone, through the functions it
         # calls (a step's body)
-        renamed = c_text.replace("DERIVE_FMA(", "other_fma(").replace("DERIVE_ROWS_FMA(",
+        renamed = c_text.replace("DERIVE_FMA(", "other_fma(").replace("DERIVE_VFMA(",
                                                                       "other_vfma(")
         negative = count_c_function(renamed, f"{prefix}_{name}")
         assert int(fnmas) == negative.fma

@@ -12,15 +12,15 @@ import pytest
 import sympy
 from _backend_kf import cv_axes, dt, kf_unit, q, r, reference_kf, unit_fields
 
-import derive.emit.unit as unit_module
+import derive.runs.unit as unit_module
 from derive import interface
 from derive.build import build_c, load_python
 from derive.emit.render import describe, render_files
-from derive.emit.unit import Unit, run_arguments
 from derive.emit.write import write_files
 from derive.filters.kf import prior
 from derive.lowering import lower_program
 from derive.program import Port, Program, ProgramError
+from derive.runs.unit import Unit, run_arguments
 
 VALUES = {dt: 1, q: sympy.Rational(1, 100), r: sympy.Rational(1, 10)}
 

@@ -15,8 +15,9 @@ from derive.emit.c_printer import CPrinter
 from derive.emit.python_printer import PythonPrinter
 from derive.filters.steady import steady_gains, two_step_program
 from derive.generation import derive_unit
-from derive.lowering import Var, lower_program, tree_vars
+from derive.lowering import lower_program
 from derive.program import Port, Program
+from derive.trees import Var, tree_vars
 
 EMIT = Path(__file__).resolve().parents[1] / "derive" / "emit"
 #: emit modules that may use ``re``: identifiers of units (unit.py) and names of leftover

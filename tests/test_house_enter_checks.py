@@ -13,12 +13,12 @@ from test_house_carried import _matrices
 
 from derive.build import build_c, load_python
 from derive.emit.render import render_files
-from derive.emit.unit import Unit
 from derive.emit.write import write_files
 from derive.errors import PatternError
 from derive.filters.kf import prior
 from derive.filters.unit import accepted_P0
 from derive.program import Port, Program
+from derive.runs.unit import Unit
 
 MESSAGE = "P has a non-zero entry outside the pattern of this toy"
 

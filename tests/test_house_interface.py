@@ -9,9 +9,9 @@ from _backend_kf import kf_unit
 from derive import catalog, interface
 from derive.build import BuildError, parse_interface
 from derive.emit.render import describe, render_files
-from derive.emit.unit import run_arguments
 from derive.generation import derive_unit
 from derive.lowering import lower_program
+from derive.runs.unit import run_arguments
 
 
 def _header(unit) -> str:

@@ -12,10 +12,10 @@ import pytest
 
 import derive.filters as filters
 from derive import catalog
-from derive.emit.unit import LANGUAGES, RUN_KINDS
 from derive.filters import FILTERS, MISSING_FILTERS, derive_unit
 from derive.filters.spec import FilterSpec
 from derive.options import taken_by
+from derive.runs.unit import LANGUAGES, RUN_KINDS
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATED = ROOT / "generated"

@@ -6,8 +6,9 @@ import pytest
 from derive import catalog
 from derive.apps.latency import carried_bound
 from derive.generation import derive_unit
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Op, Var, lower_program
+from derive.lowering import LoweredAssign, LoweredProgram, lower_program
 from derive.program import Port
+from derive.trees import Const, Op, Var
 
 LAT = {"add": 1.0, "mul": 4.0, "fma": 4.0, "div": 14.0, "sqrt": 18.0}
 

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from derive.emit import c_printer, python_printer
-from derive.flops import count_tree
-from derive.lowering import Const, LoweringError, Op, Var, lower
+from derive.expression_lowering import LoweringError, lower
+from derive.trees import Const, Op, Var, count_tree
 
 a, b, c, d, x = sympy.symbols("a b c d x")
 A, B, C, D, X = (Var(s) for s in "abcdx")

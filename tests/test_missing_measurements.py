@@ -16,12 +16,13 @@ from derive.apps.verify import LINEAR_TOLERANCE, relative_error
 from derive.emit.python_printer import HELPERS, python_function
 from derive.emit.render import render_unit
 from derive.emit.write import write_files
+from derive.expression_lowering import IfPresent, LoweringError, lower
 from derive.filters import available, derive_unit
-from derive.flops import CountingFloat, OpCount, OpCounter, count, count_c_function
+from derive.flops import CountingFloat, OpCounter, count, count_c_function
 from derive.generation import render_filter
-from derive.lowering import IfPresent, LoweringError, Op, Var, lower
 from derive.pipeline import load_generated
 from derive.program import InputElement
+from derive.trees import Op, OpCount, Var
 
 r = sympy.Symbol("r")
 
@@ -192,7 +193,7 @@ def test_if_present_folds_and_lowers_to_one_comparison():
 
 
 def count_select(expr):
-    from derive.flops import count_tree
+    from derive.trees import count_tree
 
     return count_tree(lower(expr))
 

@@ -17,7 +17,7 @@ from derive.apps.bench.navigation import PEER_BARS, TIMED, CountRow, NavigationR
 from derive.apps.bench.run import Bar
 from derive.apps.bench.throughput import CHAINS, Throughput
 from derive.apps.bench.timing import Timing
-from derive.flops import OpCount
+from derive.trees import OpCount
 
 
 def _fma(a: float, b: float, c: float) -> float:

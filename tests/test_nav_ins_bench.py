@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from derive import catalog
 from derive.apps.bench.navigation import (
     BATCH_FORM,
     FUNCTIONS,
@@ -19,7 +20,7 @@ from derive.apps.bench.navigation import (
 from derive.apps.bench.run import Bar
 from derive.apps.ins import constants as c
 from derive.apps.ins import reference, symforce_ekf
-from derive.flops import OpCount
+from derive.trees import OpCount
 
 
 def _point(seed=2):
@@ -46,7 +47,7 @@ def _evaluate(sf, function, values):
 
 def test_symforce_functions_compute_the_reference_numbers():
     sf = pytest.importorskip("symforce.symbolic")
-    functions = symforce_ekf._functions(sf)
+    functions = symforce_ekf.model_functions(sf, catalog.load("ins_gnss"))
     x, P, u, z = _point()
     column = x.reshape(-1, 1)
     upper = np.triu(P)  # the functions read the upper triangle only

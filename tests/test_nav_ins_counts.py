@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import sympy
 
-from derive.flops import count_c_text, count_tree
-from derive.lowering import Const, Op, lower
+from derive.expression_lowering import lower
+from derive.flops import count_c_text
+from derive.trees import Const, Op, count_tree
 
 
 def test_negative_constant_beside_fma_products_is_not_a_negation():

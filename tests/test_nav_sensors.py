@@ -105,7 +105,7 @@ def test_linear_run_with_rates_and_per_step_dt_matches_the_reference(linear_filt
     x0, P0 = np.zeros(2), np.eye(2)
     ref = reference_run(model, {}, zs, us, dt, x0, P0)
     for module in (generated.python, generated.c):
-        xs, Ps = module.run(us, zs["gps"], zs["speed"], x0, P0, p=dt)
+        xs, Ps = module.run(zs["gps"], zs["speed"], us, x0, P0, p=dt)
         assert relative(xs, ref.xs) <= 1e-12
         assert relative(Ps, ref.Ps) <= 1e-12
 
@@ -117,7 +117,7 @@ def test_a_run_is_the_functions_called_step_by_step(linear_filter):
     steps = 30
     us, dt = rng.uniform(-1, 1, (steps, 2)), rng.uniform(0.01, 0.1, (steps, 1))
     zg, zv = rates(steps, rng, 1, 3), rates(steps, rng, 1, 2)
-    xs, Ps = py.run(us, zg, zv, np.zeros(2), np.eye(2), dt)
+    xs, Ps = py.run(zg, zv, us, np.zeros(2), np.eye(2), dt)
     x, P = np.zeros(2), np.eye(2).ravel()
     for k in range(steps):
         x, P = py.predict(x, P, us[k], dt[k])
@@ -126,7 +126,7 @@ def test_a_run_is_the_functions_called_step_by_step(linear_filter):
         if not np.isnan(zv[k]).any():
             x, P = py.update_speed(x, P, zv[k], dt[k])
         assert np.array_equal(xs[k], np.asarray(x, float))
-        assert np.array_equal(Ps[k].ravel(), np.asarray(P, float))
+        assert np.array_equal(Ps[k], np.asarray(P, float))
 
 
 def test_ekf_with_unit_norm_and_per_step_dt_matches_the_reference_over_a_long_run(ekf_filter):
@@ -142,7 +142,7 @@ def test_ekf_with_unit_norm_and_per_step_dt_matches_the_reference_over_a_long_ru
     x0, P0 = np.array([1.0, 0.0, 0.0]), np.diag([0.01, 0.01, 1e-4])
     ref = reference_run(model, {}, {"mag": zm, "bias": zb}, us, dt, x0, P0)
     for module in (generated.python, generated.c):
-        xs, Ps = module.run(us, zm, zb, x0, P0, p=dt)
+        xs, Ps = module.run(zm, zb, us, x0, P0, p=dt)
         assert relative(xs, ref.xs) <= 1e-9
         assert relative(Ps, ref.Ps) <= 1e-9
     updated = ~np.isnan(zm[:, 0])
@@ -207,7 +207,7 @@ def test_the_c_header_describes_run_for_derive_build(linear_filter):
     _, generated = linear_filter
     run = generated.c.functions["run"]
     assert [a.name for a in run.arguments] == [
-        "u", "z_gps", "z_speed", "x0", "P0", "xs", "Ps", "p"]
+        "z_gps", "z_speed", "u", "x0", "P0", "xs", "Ps", "p"]
     assert [a.name for a in run.arguments if a.optional] == ["Ps"]
     assert sorted(generated.c.functions) == ["predict", "run", "update_gps", "update_speed"]
 
@@ -283,7 +283,7 @@ def test_R_given_per_call_is_an_input_of_the_update_and_a_per_step_array_of_run(
     x0, P0 = np.zeros(2), np.eye(2)
     ref = reference_run(model, {}, zs, us, None, x0, P0, Rs)
     for module in (generated.python, generated.c):
-        xs, Ps = module.run(us, zs["gps"], Rs["gps"], zs["speed"], x0, P0)
+        xs, Ps = module.run(zs["gps"], Rs["gps"], zs["speed"], us, x0, P0)
         assert relative(xs, ref.xs) <= 1e-12 and relative(Ps, ref.Ps) <= 1e-12
     path = tmp_path / "cart2r.toml"
     path.write_text(text)

@@ -16,8 +16,9 @@ from derive.filters import nonlinear
 from derive.filters.sensors import kalman_update
 from derive.flops import count
 from derive.generation import command_unit
-from derive.lowering import Const, Op, Var, lower_program
+from derive.lowering import lower_program
 from derive.program import Port, Program
+from derive.trees import Const, Op, Var
 
 
 def _model():

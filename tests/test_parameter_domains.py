@@ -229,10 +229,10 @@ def test_only_the_programs_that_read_the_parameter_check_it(tmp_path):
     # Python's run of several sensors raises predict's error (no step, as for its other
     # checks); derive.build names the step of C's status from the rows of p
     with pytest.raises(NumericalError, match=re.escape(text.split(": ", 1)[1])):
-        generated.python.run(us, zm, zb, x0, P0, p=dt)
+        generated.python.run(zm, zb, us, x0, P0, p=dt)
     if GCC:
         with pytest.raises(NumericalError, match=re.escape(text)):
-            generated.c.run(us, zm, zb, x0, P0, p=dt)
+            generated.c.run(zm, zb, us, x0, P0, p=dt)
     # the reference refuses the same row with the same message
     with pytest.raises(DomainError, match=re.escape(text)):
         reference_run(model, {}, {"mag": zm, "bias": zb}, us, dt, x0, P0)

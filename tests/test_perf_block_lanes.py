@@ -1,5 +1,5 @@
 """The C run carrying a step's identical blocks in the lanes of one vector
-(derive.emit.block_lanes): the same bits as the scalar C99 run (-D DERIVE_NO_BLOCK_VECTOR)
+(derive.emit.block_lanes): the same bits as the scalar C99 run (-D DERIVE_VECTOR=0)
 under every build setting, the same status when a check fails, both branches compiled by
 the strict flags, and the header's counts those of the scalar operations. No speed is
 asserted (derive bench prints it)."""
@@ -17,21 +17,23 @@ import sympy
 from conftest import AXIS_VALUES, LinearModel, dt, sq2, sr2
 
 from derive import catalog
-from derive.emit import block_lanes
+from derive.emit import block_lanes, c_vector
 from derive.emit.render import _lowered
 from derive.errors import NumericalError
 from derive.flops import count_lowered
 from derive.generation import command_unit, render_filter
-from derive.lowering import Const, LoweredAssign, Op
+from derive.lowering import LoweredAssign
 from derive.pipeline import load_generated
+from derive.trees import Const, Op
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
-SCALAR = ("-DDERIVE_NO_BLOCK_VECTOR",)
-#: Build settings: the strict flags alone (no hardware fma: a product and a sum), the
-#: native target (the hardware's vector fma), contraction asked for on the command line,
-#: GNU C, and a DERIVE_FMA of the build's own (the vector fma lane by lane).
-FLAGS = {"strict": (), "native": ("-O3", "-march=native"),
+SCALAR = ("-DDERIVE_VECTOR=0",)
+#: Build settings: the strict flags with AVX (vector registers that hold four doubles, so
+#: the vector run compiles; no hardware fma: a product and a sum), the native target (the
+#: hardware's vector fma), contraction asked for on the command line, GNU C, and a
+#: DERIVE_FMA of the build's own (the vector fma lane by lane).
+FLAGS = {"plain": ("-mavx",), "native": ("-O3", "-march=native"),
          "contract": ("-O3", "-march=native", "-ffp-contract=fast"),
          "gnu": ("-O3", "-march=native", "-std=gnu99"),
          "own_fma": ("-O2", "-march=native", "-DDERIVE_FMA(a,b,c)=fma((a),(b),(c))")}
@@ -73,8 +75,8 @@ def _pair(tmp_path, model_name, filter_name, flags=()):
 @pytest.mark.parametrize("model_name, filter_name", CASES)
 def test_the_run_of_identical_blocks_is_emitted_in_vector_lanes(model_name, filter_name):
     c = render_filter(catalog.load(model_name), filter_name, "c")[f"{filter_name}.c"]
-    assert f"#define {block_lanes.VECTOR} 1" in c
-    assert re.search(r"#if defined\(DERIVE_BLOCK_VECTOR\)\n.*?#else\n.*?#endif\n}", c,
+    assert f"#define {c_vector.SWITCH} 1" in c
+    assert re.search(r"\n#if DERIVE_VECTOR\n.*?#else\n.*?#endif\n}", c,
                      flags=re.S)
 
 
@@ -83,7 +85,7 @@ def test_the_run_of_identical_blocks_is_emitted_in_vector_lanes(model_name, filt
 @pytest.mark.parametrize("model_name, filter_name", CASES)
 def test_the_vector_run_is_bitwise_the_scalar_run(tmp_path, model_name, filter_name, flags):
     vector, scalar = _pair(tmp_path, model_name, filter_name, FLAGS[flags])
-    assert f"#define {block_lanes.VECTOR} 1" in (
+    assert f"#define {c_vector.SWITCH} 1" in (
         tmp_path / "vector" / model_name / f"{filter_name}.c").read_text()
     covariance = "P0" in {a.name for a in vector.c.functions["run"].arguments}
     z, x0, P0 = _data(model_name)
@@ -173,7 +175,7 @@ def test_blocks_that_differ_in_one_constant_are_not_put_in_lanes():
 def test_fewer_than_three_blocks_keep_the_scalar_run(model_name, filter_name):
     assert _split(model_name, filter_name)[1] is None
     c = render_filter(catalog.load(model_name), filter_name, "c")[f"{filter_name}.c"]
-    assert block_lanes.VECTOR not in c
+    assert c_vector.OPEN not in c
 
 
 def _three_axes_with_parameters():
@@ -192,7 +194,7 @@ def _three_axes_with_parameters():
 
 
 @needs_gcc
-@pytest.mark.parametrize("flags", ["strict", "native"])
+@pytest.mark.parametrize("flags", ["plain", "native"])
 def test_blocks_sharing_statements_of_the_parameters_are_bitwise_the_scalar_run(tmp_path,
                                                                                 flags):
     model = _three_axes_with_parameters()

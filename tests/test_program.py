@@ -14,9 +14,10 @@ from hypothesis import strategies as st
 from derive import staging
 from derive.emit.python_printer import python_function
 from derive.errors import MatrixPropertyError, NumericalError, ShapeError
-from derive.flops import count, count_tree
-from derive.lowering import lower
+from derive.expression_lowering import lower
+from derive.flops import count
 from derive.program import Assign, Check, Port, Program, ProgramError, Temporary
+from derive.trees import count_tree
 
 ROOT = Path(__file__).resolve().parents[1]
 

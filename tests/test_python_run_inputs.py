@@ -48,16 +48,17 @@ def test_integers_and_float32_it_holds_exactly_are_taken(kf):
 
 
 def test_a_step_count_that_differs_names_where_steps_came_from():
-    """ins_gnss's run takes us, z_gnss, z_baro and p rows per step: steps are us's rows."""
+    """ins_gnss's run takes z_gnss, z_baro, us and p rows per step: steps are z_gnss's
+    rows."""
     module = load_python(Path(__file__).parents[1] / "generated" / "ins_gnss" / "ekf.py")
-    rows = {"us": np.zeros((100, 6)), "z_gnss": np.zeros((100, 6)), "z_baro": np.zeros(100)}
+    rows = {"z_gnss": np.zeros((100, 6)), "z_baro": np.zeros(100), "us": np.zeros((100, 6))}
     start = (np.zeros(16), np.eye(16))
-    with pytest.raises(ShapeError, match=r"^run: z_gnss must have shape \(steps, 6\), "
-                                         r"steps = 99 as us has, then any track axes; "
-                                         r"got \(100, 6\)$"):
-        module.run(rows["us"][:99], rows["z_gnss"], rows["z_baro"], *start, [0.01])
+    with pytest.raises(ShapeError, match=r"^run: us must have shape \(steps, 6\), "
+                                         r"steps = 100 as z_gnss has, then any track axes; "
+                                         r"got \(99, 6\)$"):
+        module.run(rows["z_gnss"], rows["z_baro"], rows["us"][:99], *start, [0.01])
     with pytest.raises(ShapeError, match=r"^run: p must have shape \(1,\) or \(steps, 1\), "
-                                         r"steps = 100 as us has"):
+                                         r"steps = 100 as z_gnss has"):
         module.run(*rows.values(), *start, np.full((99, 1), 0.01))
 
 
@@ -69,7 +70,7 @@ def test_one_parameter_may_be_given_as_a_number():
     us = rng.normal(scale=0.01, size=(20, 6)) + [0, 0, 0, 0, 0, -9.80665]
     nan = np.full((20, 6), np.nan)
     start = (np.r_[1.0, np.zeros(15)], np.eye(16) * 0.01)
-    as_row = module.run(us, nan, np.full(20, np.nan), *start, [0.01])
-    as_number = module.run(us, nan, np.full(20, np.nan), *start, 0.01)
+    as_row = module.run(nan, np.full(20, np.nan), us, *start, [0.01])
+    as_number = module.run(nan, np.full(20, np.nan), us, *start, 0.01)
     for a, b in zip(as_row, as_number, strict=True):
         np.testing.assert_array_equal(a, b)

@@ -130,7 +130,7 @@ def test_a_sensor_named_predict_with_its_own_inputs_compiles_and_matches():
     x0, P0 = np.zeros(2), np.eye(2)
     ref = reference_run(model, {}, zs, us, None, x0, P0)
     for module in (generated.python, generated.c):
-        xs, Ps = module.run(us, zs["predict"], zs["speed"], x0, P0)
+        xs, Ps = module.run(zs["predict"], zs["speed"], us, x0, P0)
         assert np.max(np.abs(xs - ref.xs)) <= 1e-12 * np.max(np.abs(ref.xs))
         assert np.max(np.abs(Ps - ref.Ps)) <= 1e-12 * np.max(np.abs(ref.Ps))
 

@@ -21,11 +21,11 @@ from test_rts import (
 
 from derive import LinearModel, catalog
 from derive.apps.verify import relative_error
-from derive.emit.unit import RUN_KINDS, run_arguments
 from derive.errors import NumericalError, PatternError
 from derive.filters import FILTERS, available, derive_unit
 from derive.pipeline import load_generated
 from derive.reference.smoother import rts
+from derive.runs.unit import RUN_KINDS, run_arguments
 
 LINEAR = [name for name in catalog.names() if catalog.load(name).kind == "linear"]
 GENERATED_TOLERANCE = 1e-12

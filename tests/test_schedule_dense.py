@@ -23,7 +23,7 @@ from derive.apps.bench.schedule_scaling import dense_rows, schedule_table
 from derive.arrivals import Arrivals, Form, operation_latency
 from derive.filters import derive_unit
 from derive.flops import count
-from derive.lowering import LoweredAssign, Op, Var, lower_program
+from derive.lowering import LoweredAssign, lower_program
 from derive.schedule import (
     REFERENCE_CYCLES,
     _affine,
@@ -33,6 +33,7 @@ from derive.schedule import (
     one_step_chain,
 )
 from derive.statements import Assign, InputElement, Temporary
+from derive.trees import Op, Var
 
 #: CPU seconds: a dense 20-state step took 38 s before the bound, about 5 s with it.
 HANG_GUARD_CPU = 60

@@ -16,9 +16,9 @@ from derive import LinearModel, catalog
 from derive import schedule as schedule_module
 from derive.apps.latency import run_loop_bound, schedule_bounds
 from derive.arrivals import Arrivals, statement_form
+from derive.expression_lowering import expression_lowerer
 from derive.filters import derive_unit
 from derive.flops import count
-from derive.lowering import expression_lowerer
 from derive.schedule import REFERENCE_CYCLES
 from derive.statements import Assign, Check, InputElement, Temporary
 

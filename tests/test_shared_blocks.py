@@ -19,11 +19,12 @@ from derive.emit.shared_blocks import shared_step
 from derive.errors import NumericalError
 from derive.flops import count_lowered
 from derive.generation import command_unit, render_filter
-from derive.lowering import LoweredAssign, lower_program, tree_vars
+from derive.lowering import LoweredAssign, lower_program
 from derive.model import LinearModel
 from derive.pipeline import load_generated
 from derive.reference import linear as reference
 from derive.structure import find_blocks
+from derive.trees import tree_vars
 
 CATALOG = [("mpt3d_a", "kf"), ("mpt3d_a", "lf"), ("mpt3d_a", "jklf"), ("gsm2d_a", "kf"),
            ("gps_static", "ikf"), ("gps_static", "kf")]

@@ -99,7 +99,6 @@ from typing import NamedTuple
 import numpy as np
 
 from ..emit.c_loops import two_step
-from ..emit.unit import Unit
 from ..errors import ModelError
 from ..filters import kind
 from ..filters.difference import difference_form
@@ -116,17 +115,11 @@ from ..filters.spec import (
     Conditioned,
     FilterSpec,
 )
-from ..lowering import (
-    LoweredAssign,
-    LoweredProgram,
-    Op,
-    Tree,
-    Var,
-    element_name,
-    lower_program,
-)
+from ..lowering import LoweredAssign, LoweredProgram, lower_program
 from ..precision import DOUBLE, FLOAT
 from ..riccati import kf_steady
+from ..runs.unit import Unit
+from ..trees import Op, Tree, Var, element_name
 
 #: The constant of the bound (see the module docstring).
 C = 2.0

@@ -27,19 +27,12 @@ from scipy.sparse.csgraph import connected_components
 
 from derive.arrivals import operation_latency
 from derive.emit.lookahead import run_pass
+from derive.expression_lowering import CARRIED
 from derive.flops import count
-from derive.lowering import (
-    CARRIED,
-    Const,
-    LoweredAssign,
-    LoweredProgram,
-    Op,
-    Tree,
-    Var,
-    lower_program,
-)
+from derive.lowering import LoweredAssign, LoweredProgram, lower_program
 from derive.options import taken_by
 from derive.schedule import REFERENCE_CYCLES, scheduled_unit
+from derive.trees import Const, Op, Tree, Var
 
 _NONE = -np.inf
 

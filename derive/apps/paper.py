@@ -33,7 +33,6 @@ import sympy
 
 from .. import horizon, riccati, staging
 from ..emit.render import render_files
-from ..emit.unit import Unit
 from ..emit.write import write_files
 from ..errors import FilterError, ModelError
 from ..filters import kind as filter_spec
@@ -42,6 +41,7 @@ from ..generation import check_lang, resolve_model
 from ..options import DEFAULT_EPS
 from ..pipeline import LANGUAGES, Generated, load_units
 from ..program import Port, Program
+from ..runs.unit import Unit
 
 #: The filters paper mode generates (derive's names).
 PAPER_FILTERS = ("kf", "lf", "jklf", "sskf", "sslf", "jssklf", "pred", "fir")

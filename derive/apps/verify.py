@@ -49,7 +49,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..emit.unit import RUN_KINDS, Unit
 from ..errors import ModelError, VerificationError
 from ..filters import kind
 from ..filters.sensors import reference_run as sensors_reference
@@ -58,6 +57,7 @@ from ..generation import command_unit
 from ..options import validate
 from ..pipeline import load_generated
 from ..precision import DOUBLE
+from ..runs.unit import RUN_KINDS, Unit
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
 from .float_tolerance import (
     FloatTolerance,
@@ -347,7 +347,8 @@ class SensorsCase:
     (one row per step of the free parameters' examples; None without parameters), the
     reference (derive.reference.sensors), the bar (1e-12 linear, 1e-10 nonlinear) and, for
     float32 C, its bound (derive.apps.float_tolerance); ``trace``: the reference run's
-    trace, which the bounds read the model's conditioning from."""
+    trace, which the bounds read the model's conditioning from; ``implicit``: the model
+    declares no sensor (its one sensor's run array is ``z``)."""
 
     groups: tuple
     run: object
@@ -356,19 +357,23 @@ class SensorsCase:
     tolerance: float
     bound: FloatTolerance | None
     trace: tuple = ()
+    implicit: bool = False
 
     def conditioning(self, model):
         """The conditioning of ``model``'s reference run (derive.apps.float_tolerance)."""
         return sensors_conditioning(model, list(self.trace))
 
     def arguments(self) -> dict[str, np.ndarray]:
-        """run's arguments by their C names, in run's order: u, z_<sensor> (and R_<sensor>
-        where R is given per call), x0, P0, p."""
-        args = {"u": self.run.us} if self.run.us.shape[1] else {}
+        """run's arguments by their C names, in run's order: z_<sensor> (and R_<sensor>
+        where R is given per call; ``z`` for the implicit sensor of a model that declares
+        none), u, x0, P0, p."""
+        args = {}
         for g in self.groups:
-            args[f"z_{g.name}"] = self.run.zs[g.name]
+            args["z" if self.implicit else f"z_{g.name}"] = self.run.zs[g.name]
             if g.R_argument:
                 args[f"R_{g.name}"] = self.run.Rs[g.name]
+        if self.run.us.shape[1]:
+            args["u"] = self.run.us
         args.update(x0=self.run.x0, P0=self.run.P0)
         if self.ps is not None:
             args["p"] = self.ps
@@ -400,7 +405,8 @@ def sensors_case(model, name: str, steps: int, seed: int, options, unit: Unit | 
     if options.precision != DOUBLE.name and float_c:
         unit = unit if unit is not None else command_unit(model, name, options)
         bound = float_tolerance(model, unit, steps, sensors_conditioning(model, trace))
-    return SensorsCase(groups, run, ps, ref, tolerance, bound, tuple(trace))
+    return SensorsCase(groups, run, ps, ref, tolerance, bound, tuple(trace),
+                       implicit=not model.sensors)
 
 
 def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,

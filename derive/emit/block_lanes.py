@@ -19,9 +19,11 @@ fma where the target has one), so the results are bitwise those of the scalar ru
 failed check sets the status of the first failing check in the scalar step's order.
 Lanes beyond k (the vector's width is a power of two) repeat lane 0's values.
 
-The vector run is compiled where ``DERIVE_BLOCK_VECTOR`` is defined (GCC and Clang on a
-target with vectors of doubles, unless the build defines ``DERIVE_NO_BLOCK_VECTOR``);
-otherwise the scalar C99 run.
+The vector run is compiled where ``DERIVE_VECTOR`` is 1 (GCC and Clang on a target whose
+vector registers hold the vector, AVX for four doubles, unless the build sets it to 0),
+in the file's one vector dialect (derive.emit.c_vector: its switch, its vector type
+``derive_vd`` of the run's width, its ``DERIVE_VFMA``); otherwise the scalar C99 run. A
+step that has vector rows of its own (derive.rows) is not also carried in lanes.
 Counts are unchanged: the header counts the scalar operations of every block.
 
 The runs it serves (:data:`RUN_KINDS`): the time-varying filters, the steady-state ones
@@ -48,29 +50,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from derive.emit.c_printer import FMA_FUSED, FMA_PLAIN, CPrinter
-from derive.emit.unit import LOOKAHEAD_NEXT
-from derive.lowering import (
-    Const,
-    LoweredAssign,
-    LoweredCheck,
-    LoweredProgram,
-    Op,
-    Tree,
-    Var,
-    tree_kinds,
-)
+from derive.emit.c_printer import CPrinter
+from derive.emit.c_vector import SWITCH, VFMA, VFNMA, vector_macro_lines, vector_type
+from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import LOOKAHEAD_NEXT
+from derive.trees import FUSED_KINDS, Const, Op, Tree, Var, tree_kinds
 
-#: Defined where the vector run loops compile (GCC and Clang, unless the build defines
-#: :data:`NO_VECTOR`).
-VECTOR = "DERIVE_BLOCK_VECTOR"
-#: A build that defines this compiles the scalar C99 run loops.
-NO_VECTOR = "DERIVE_NO_BLOCK_VECTOR"
-#: The targets with vector registers of doubles (x86-64's SSE2 and up, AArch64's NEON):
-#: elsewhere (32-bit Arm, Cortex-M) GCC would split the vectors into scalar code.
-TARGETS = "(defined(__SSE2__) || defined(__aarch64__))"
 #: The operations a vector statement spells (lane-wise IEEE: bitwise those of the scalar).
 VECTOR_KINDS = frozenset({"add", "sub", "mul", "div", "neg", "fma", "fnma"})
 #: The most lanes (blocks) of one vector: 8 doubles, one AVX-512 register.
@@ -88,11 +75,6 @@ _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
 RUN_KINDS = ("timevarying", "steady", "predictor")
 
 
-def vector_type(width: int) -> str:
-    """The C name of a vector of ``width`` doubles."""
-    return f"derive_v{width}"
-
-
 def vector_width(lanes: int) -> int:
     """The vector's width for ``lanes`` blocks: the next power of two."""
     width = 1
@@ -101,53 +83,13 @@ def vector_width(lanes: int) -> int:
     return width
 
 
-#: The vector fma: lane by lane exactly the file's DERIVE_FMA.
-VECTOR_FMA = "DERIVE_VFMA"
-#: The vector negative fma (``c - a*b``): lane by lane exactly the file's DERIVE_FNMA.
-VECTOR_FNMA = "DERIVE_VFNMA"
-#: Defined where Clang has its elementwise fma (Clang 14 and later).
-ELEMENTWISE_FMA = "DERIVE_ELEMENTWISE_FMA"
-#: x86's vector fma of each width (one rounding per lane, as fma()), and what it needs.
-_X86_FMA = {2: ("_mm_fmadd_pd", "__FMA__"), 4: ("_mm256_fmadd_pd", "__FMA__"),
-            8: ("_mm512_fmadd_pd", "__AVX512F__")}
-
-
-def macro_lines(width: int) -> list[str]:
-    """The .c file's definitions of :data:`VECTOR`, the vector type of ``width`` and
-    :data:`VECTOR_FMA`: a product and a sum where DERIVE_FMA is (contraction is off), the
-    hardware's vector fma where DERIVE_FMA is fma() (x86's intrinsic, else Clang's
-    elementwise builtin), else DERIVE_FMA lane by lane (a DERIVE_FMA the build defines, or
-    no vector fma known)."""
-    vtype = vector_type(width)
-    lanes = ", ".join(f"DERIVE_FMA((a)[{b}], (b)[{b}], (c)[{b}])" for b in range(width))
-    x86, needs = _X86_FMA.get(width, ("", ""))
-    lines = [f"#if defined(__GNUC__) && {TARGETS} && !defined({NO_VECTOR})",
-             f"#define {VECTOR} 1",
-             f"__extension__ typedef double {vtype} __attribute__((vector_size({8 * width})));",
-             "#if defined(__clang__) && defined(__has_builtin)",
-             "#if __has_builtin(__builtin_elementwise_fma)",
-             f"#define {ELEMENTWISE_FMA} 1",
-             "#endif",
-             "#endif",
-             f"#if defined({FMA_PLAIN})",
-             f"#define {VECTOR_FMA}(a, b, c) ((a) * (b) + (c))"]
-    if x86:
-        lines += [f"#elif defined({FMA_FUSED}) && defined({needs})",
-                  "#include <immintrin.h>",
-                  f"#define {VECTOR_FMA}(a, b, c) {x86}((a), (b), (c))"]
-    lines += [f"#elif defined({FMA_FUSED}) && defined({ELEMENTWISE_FMA})",
-              f"#define {VECTOR_FMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))"]
-    negative = ", ".join(f"DERIVE_FNMA((a)[{b}], (b)[{b}], (c)[{b}])" for b in range(width))
-    return lines + ["#else",
-                    f"#define {VECTOR_FMA}(a, b, c) (({vtype}){{{lanes}}})",
-                    "#endif",
-                    f"#if defined({FMA_PLAIN})",
-                    f"#define {VECTOR_FNMA}(a, b, c) ((c) - (a) * (b))",
-                    f"#elif defined({FMA_FUSED})",
-                    f"#define {VECTOR_FNMA}(a, b, c) {VECTOR_FMA}((a), -(b), (c))",
-                    "#else",
-                    f"#define {VECTOR_FNMA}(a, b, c) (({vtype}){{{negative}}})",
-                    "#endif"] + pair_lines(width) + ["#endif"]
+def macro_lines(width: int, fused: bool = True) -> list[str]:
+    """The .c file's vector dialect for a vector of ``width`` doubles
+    (:func:`derive.emit.c_vector.vector_macro_lines`: the switch, the type, the fused
+    multiply-adds where the step fuses) and the interleaving shuffles of the run's stores
+    (:data:`PAIRS`)."""
+    return (vector_macro_lines(DOUBLE, width, fused) + [f"#if {SWITCH}"] + pair_lines(width)
+            + ["#endif"])
 
 
 @dataclass(frozen=True)
@@ -413,7 +355,7 @@ class VectorStatements:
 
     def __init__(self, width: int, prefix: str, real: Precision = DOUBLE) -> None:
         self.width = width
-        self.type = vector_type(width)
+        self.type = vector_type(DOUBLE)
         self.prefix = prefix
         self.lines: list[str] = []
         self.count = 0
@@ -438,7 +380,7 @@ class VectorStatements:
         if tree.kind in ("fma", "fnma"):
             splat = [t if v else f"(({self.type}){{{', '.join([t] * self.width)}}})"
                      for t, v in args]
-            name = VECTOR_FMA if tree.kind == "fma" else VECTOR_FNMA
+            name = VFMA if tree.kind == "fma" else VFNMA
             return self._new(f"{name}({', '.join(splat)})"), True
         if tree.kind == "neg":
             return self._new(f"-{args[0][0]}"), True
@@ -517,7 +459,7 @@ def run_lines(unit, state: list[dict], optional_stores: list[dict], step: Lanes,
     if two is not None and two.lanes != step.lanes:
         return None
     width = vector_width(step.lanes)
-    vtype = vector_type(width)
+    vtype = vector_type(DOUBLE)
     ins = {s["name"]: s for s in state}
     producers = [step] + ([two] if two is not None else [])
     carried: dict[tuple[str, tuple[int, ...]], str] = {}
@@ -678,9 +620,11 @@ def pair_lines(width: int) -> list[str]:
 def header_line(lanes: Lanes) -> str:
     """The header's statement of how the vector run issues the counted operations."""
     width = vector_width(lanes.lanes)
+    target = {2: "SSE2", 4: "AVX", 8: "AVX-512"}[width]
     return (f"run: the {lanes.lanes} identical blocks of the step in the lanes of one vector "
-            f"of {width} doubles where {VECTOR} is defined (GCC, Clang on x86-64, AArch64; "
-            f"a build defining {NO_VECTOR} runs the scalar C99 loop): each lane executes "
+            f"of {width} doubles where {SWITCH} is 1 (GCC, Clang where a vector register "
+            f"holds them: x86-64 with {target}; "
+            f"a build setting it to 0 runs the scalar C99 loop): each lane executes "
             "its block's operations of the counts above in the same order, one block's "
             "count of vector instructions issuing them each step; bitwise the scalar run's "
             "results")
@@ -693,7 +637,7 @@ def vector_run(unit, step: LoweredProgram, two: LoweredProgram | None, state: li
     or nothing (``[], [], ""``) for a run loop the scalar C99 run alone serves: a run kind
     other than ``timevarying``, ``steady`` and ``predictor`` (its prologue calls init and
     ``state`` starts from init's result), or a step that is not identical blocks."""
-    if unit.kind not in RUN_KINDS or unit.run.window:
+    if unit.kind not in RUN_KINDS or unit.run.window or step.rows:
         return [], [], ""
     step_lanes = split(step)
     two_lanes = split(two) if two is not None else None
@@ -703,4 +647,5 @@ def vector_run(unit, step: LoweredProgram, two: LoweredProgram | None, state: li
                       real)
     if lines is None:
         return [], [], ""
-    return lines, macro_lines(vector_width(step_lanes.lanes)), header_line(step_lanes)
+    fused = any(lp.kinds() & FUSED_KINDS for lp in (step, two) if lp is not None)
+    return lines, macro_lines(vector_width(step_lanes.lanes), fused), header_line(step_lanes)

@@ -22,10 +22,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 from derive.emit import c_printer
-from derive.emit.unit import LOOKAHEAD_NEXT, Unit
-from derive.lowering import LoweredAssign, LoweredProgram, Op, Tree, Var, lower_program
+from derive.emit.c_vector import SWITCH
+from derive.lowering import LoweredAssign, LoweredProgram, lower_program
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import LOOKAHEAD_NEXT, Unit
+from derive.trees import Op, Tree, Var
 
 #: The step body's stride argument: element i of a port is at [i * STRIDE].
 STRIDE = "s"
@@ -63,10 +65,11 @@ LINE = "DERIVE_LINE"
 #: ``GCC ivdep`` / Clang's ``loop vectorize(assume_safety)`` else (no lane depends on
 #: another: ivdep's meaning; GCC vectorises it at -O3, or at -O2 with -ftree-vectorize,
 #: Clang at -O2); a build may define it, e.g. ``-D'DERIVE_SIMD=_Pragma("omp simd")'`` with
-#: ``-fopenmp-simd``. Both compilers take it as a hint: GCC never reports a loop it did not
-#: vectorise, and the file tells Clang not to either (``-Wpass-failed``: Clang 14 does not
-#: vectorise the lanes of mpt3d_a's steady filters, whose loop calls the step and the
-#: two-step bodies, and would fail a -Werror build of correct code).
+#: ``-fopenmp-simd``; a build that sets the file's vector switch ``DERIVE_VECTOR`` to 0 gets
+#: no hint (derive.emit.c_vector). Both compilers take it as a hint: GCC never reports a
+#: loop it did not vectorise, and the file tells Clang not to either (``-Wpass-failed``:
+#: Clang 14 does not vectorise the lanes of mpt3d_a's steady filters, whose loop calls the
+#: step and the two-step bodies, and would fail a -Werror build of correct code).
 SIMD = "DERIVE_SIMD"
 #: How a step body small enough to inline is declared.
 INLINE = "DERIVE_INLINE"
@@ -125,7 +128,10 @@ def macro_lines(registers: int, element_bytes: int = 8) -> list[str]:
         "#endif",
         "#endif",
         f"#ifndef {SIMD}",
-        "#if defined(_OPENMP)",
+        # the file's one vector switch (derive.emit.c_vector) set to 0 by the build: no hint
+        f"#if defined({SWITCH}) && !{SWITCH}",
+        f"#define {SIMD}",
+        "#elif defined(_OPENMP)",
         f'#define {SIMD} _Pragma("omp simd")',
         "#elif defined(__clang__)",
         # a hint, as GCC's ivdep: Clang reports a loop it was asked to vectorise and could

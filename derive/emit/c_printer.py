@@ -22,11 +22,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from derive.emit.c_vector import CLOSE, ELSE, ChunkPrinter, fused_kinds, vector_macro_lines
+from derive.emit.c_vector import CLOSE, ELSE, ChunkPrinter, vector_macro_lines
 from derive.emit.python_printer import InfixPrinter
-from derive.lowering import FUSED_KINDS, LoweredAssign, LoweredCheck, LoweredProgram, Tree
+from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.trees import FUSED_KINDS, Tree
 
 FMA_NAME = "DERIVE_FMA"
 #: Defined where the file's own DERIVE_FMA is the hardware fma (one rounding), and where it
@@ -81,7 +82,7 @@ def macro_lines(lowered: list[LoweredProgram], precision: Precision = DOUBLE) ->
     fused = any(lp.kinds() & FUSED_KINDS for lp in lowered)
     rows = any(lp.rows for lp in lowered)
     return ((fma_macro_lines(precision) if fused else [])
-            + (vector_macro_lines(precision, frozenset(fused_kinds(lowered))) if rows else []))
+            + (vector_macro_lines(precision, fused=fused) if rows else []))
 
 
 class CPrinter(InfixPrinter):
@@ -261,4 +262,9 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
               for name, leaves in lowered.results for k, leaf in enumerate(leaves)]
     if vectors is None:
         return body + scalar
-    return body + vectors.store_lines(place) + [ELSE] + scalar + [CLOSE]
+    # a scalar statement only chunks' vectors read (their lanes, in the scalar form, are
+    # left out where nothing reads them) is unused in the scalar form
+    only_vector = [f"(void){st.target};" for st in lowered.body
+                   if isinstance(st, LoweredAssign) and st.target not in vectors.order
+                   and st.target not in vectors.scalar_live]
+    return body + vectors.store_lines(place) + [ELSE] + only_vector + scalar + [CLOSE]

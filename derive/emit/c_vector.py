@@ -4,8 +4,8 @@ the fallback.
 A chunk is printed twice, chosen by the preprocessor::
 
     #if DERIVE_VECTOR
-        const derive_vd v_t57 = DERIVE_ROWS_FMA(((derive_vd){t3, t3, t3, t3}),
-                                            ((derive_vd){P[16], P[17], P[18], P[19]}), v_t41);
+        const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}),
+                                        ((derive_vd){P[16], P[17], P[18], P[19]}), v_t41);
         const double t57 = v_t57[0];
         ...
     #else
@@ -14,98 +14,141 @@ A chunk is printed twice, chosen by the preprocessor::
     #endif
 
 ``DERIVE_VECTOR`` is 1 under GCC and Clang (their vector extension, ``vector_size``) on a
-target with vector registers for the precision (x86 SSE2 or AArch64 for double; SSE or
-NEON for float), 0 elsewhere (a Cortex-M gets the scalar lanes, which leave out the lanes
-nothing reads), and a build may set it. An operand whose lanes are the lanes of an earlier
-chunk, in order, is that chunk's vector; any other one is built from its lanes (a
-compound literal: consecutive elements of an input are one load, a coefficient is a
-broadcast, lanes of other chunks are shuffles: the compiler's choice). The vector fused
-multiply-adds round as the scalar ones do, lane by lane (:func:`vector_macro_lines`), so
-the vector branch computes bitwise what the scalar branch computes, and the counts of
-the header, which are the scalar lanes', are the vector branch's, lane by lane
-(:func:`derive.flops.count_c_text` counts a vector statement once per lane).
+target whose vector registers hold the vector (four doubles: x86 AVX; four floats: SSE or
+NEON), 0 elsewhere (a Cortex-M, or x86-64 at its SSE2 baseline for doubles, gets the
+scalar lanes, which leave out the lanes nothing reads), and a build may set it. It is the
+one switch of C's one vector dialect (:func:`vector_macro_lines`): the block lanes of a
+run (derive.emit.block_lanes) use the same switch, vector type and fused multiply-adds,
+and the track lanes' vectorisation hint (derive.emit.c_loops) follows the switch. An
+operand whose lanes are the lanes of an earlier chunk, in order, is that chunk's vector;
+any other one is built from its lanes (a compound literal: consecutive elements of an
+input are one load, a coefficient is a broadcast, lanes of other chunks are shuffles: the
+compiler's choice). The vector fused multiply-adds round as the scalar ones do, lane by
+lane (:func:`vector_macro_lines`), so the vector branch computes bitwise what the scalar
+branch computes, and the counts of the header, which are the scalar lanes', are the
+vector branch's, lane by lane (:func:`derive.flops.count_c_text` counts a vector
+statement once per lane).
 """
 
 from __future__ import annotations
 
-from derive.lowering import Const, LoweredAssign, LoweredProgram, Tree, Var, tree_vars
+from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
-from derive.rows import VECTOR_BYTES, VECTOR_LANES, VECTOR_TYPES, LoweredChunk
+from derive.rows import VECTOR_LANES, VECTOR_TYPES, LoweredChunk
+from derive.trees import Const, Tree, Var, tree_vars
 
+#: The one switch of every vector form in C (chunks of vector rows, block lanes, the hint
+#: on track lanes' loop): 1 under GCC and Clang on a target with vector registers for the
+#: file's precision, 0 elsewhere; a build may set it (``-DDERIVE_VECTOR=0``: scalar C99).
 SWITCH = "DERIVE_VECTOR"
-VFMA = "DERIVE_ROWS_FMA"
-VFNMA = "DERIVE_ROWS_FNMA"
+#: The vector fused multiply-adds, ``a*b + c`` and ``c - a*b`` lane by lane, each lane
+#: rounded as the file's DERIVE_FMA and DERIVE_FNMA round it.
+VFMA = "DERIVE_VFMA"
+VFNMA = "DERIVE_VFNMA"
+#: Defined where Clang has its elementwise fma (Clang 14 and later).
+ELEMENTWISE_FMA = "DERIVE_ELEMENTWISE_FMA"
 #: The lines that open, split and close the two forms of a chunk (the C text counter
 #: reads them: derive.flops).
 OPEN, ELSE, CLOSE = f"#if {SWITCH}", "#else", "#endif"
+#: x86's fused multiply-add of a vector of (precision, lanes) and the macro it needs.
+_X86_FMA = {("double", 2): ("_mm_fmadd_pd", "__FMA__"),
+            ("double", 4): ("_mm256_fmadd_pd", "__FMA__"),
+            ("double", 8): ("_mm512_fmadd_pd", "__AVX512F__"),
+            ("float", 4): ("_mm_fmadd_ps", "__FMA__"),
+            ("float", 8): ("_mm256_fmadd_ps", "__FMA__"),
+            ("float", 16): ("_mm512_fmadd_ps", "__AVX512F__")}
+#: The targets whose vector registers hold a vector of so many bytes, by the precision of
+#: its elements: x86's SSE (SSE2 for doubles), AVX and AVX-512; 16 bytes on AArch64 and
+#: on 32-bit Arm with NEON (floats). Elsewhere (a Cortex-M, or a vector wider than the
+#: registers) GCC would split each vector operation into narrower ones and the vectors'
+#: registers would not fit: at -O2 on x86-64 without AVX (SSE2, two doubles a register),
+#: a vector of four doubles measured slower than the scalar lanes, the INS/GNSS EKF's
+#: predict 780 ns against 432 ns, mpt3d_a's KF run 18.4 ns against 12.4 ns a step, its SSKF
+#: 13.2 against 3.5 ns; with -mavx 136 against 409, 11.1 against 11.8 and 2.0 against
+#: 2.4 ns (Intel Xeon, docs/performance.md).
+_TARGETS = {("double", 16): "defined(__SSE2__) || defined(__aarch64__)",
+            ("float", 16): "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)",
+            ("double", 32): "defined(__AVX__)", ("float", 32): "defined(__AVX__)",
+            ("double", 64): "defined(__AVX512F__)", ("float", 64): "defined(__AVX512F__)"}
 
 
-def fused_kinds(lowered: list[LoweredProgram]) -> set[str]:
-    """The vector fused multiply-adds the chunks of ``lowered`` print: ``fma`` (a product
-    added to a chain) and ``fnma`` (subtracted), as :meth:`ChunkPrinter._vector_expression`
-    prints them."""
-    kinds: set[str] = set()
-    for lp in lowered:
-        if not lp.use_fma:
-            continue
-        for chunk in lp.rows:
-            started = chunk.base is not None
-            for sign, coef, _ in chunk.terms:
-                if started and not _is_one(coef):
-                    kinds.add("fma" if sign > 0 else "fnma")
-                started = True
-    return kinds
+def vector_type(precision: Precision = DOUBLE) -> str:
+    """The C name of the file's vector of ``precision`` (one per precision; its width is
+    the file's, :func:`vector_macro_lines`)."""
+    return VECTOR_TYPES[precision.name]
 
 
-def vector_macro_lines(precision: Precision = DOUBLE,
-                       kinds: frozenset[str] = frozenset({"fma", "fnma"})) -> list[str]:
-    """The ``.c`` file's vector type and the fused multiply-adds of ``kinds`` (after the
-    scalar fma macros, :func:`derive.emit.c_printer.fma_macro_lines`).
+def switch_lines(precision: Precision = DOUBLE, lanes: int = VECTOR_LANES) -> list[str]:
+    """The definition of :data:`SWITCH` unless the build gave it: 1 where a vector register
+    of the target holds the file's vector of ``lanes`` elements of ``precision``."""
+    size = precision.bits // 8 * lanes
+    targets = _TARGETS.get((precision.name, size))
+    if targets is None:
+        raise ValueError(f"no target holds a vector of {lanes} elements of {precision.name}")
+    return [f"#ifndef {SWITCH}",
+            f"#if (defined(__GNUC__) || defined(__clang__)) && ({targets})",
+            f"#define {SWITCH} 1",
+            "#else",
+            f"#define {SWITCH} 0",
+            "#endif",
+            "#endif"]
 
-    ``DERIVE_ROWS_FMA(a, b, c)`` is ``a*b + c`` lane by lane, rounded as ``DERIVE_FMA``
-    rounds: the product and the sum in the plain build (``DERIVE_FMA_PLAIN``), the x86 FMA
-    instruction where ``DERIVE_FMA`` is the fused ``fma`` and the target has it
-    (``__FMA__``), else ``DERIVE_FMA`` of each lane (a build that defines DERIVE_FMA
-    itself, a fused target without x86 FMA: correct, and as fast as the compiler makes it;
-    its operands are named vectors or compound literals, never a nested chain, which each
-    lane would copy again). ``DERIVE_ROWS_FNMA(a, b, c)`` is ``c - a*b`` likewise."""
-    kind = precision.name
-    vtype, lanes = VECTOR_TYPES[kind], VECTOR_LANES
-    intrinsic = "_mm256_fmadd_pd" if kind == "double" else "_mm_fmadd_ps"
-    element = 8 if kind == "double" else 4  # bytes: an element's alignment
-    macros = {"fma": (VFMA, "DERIVE_FMA", "((a) * (b) + (c))", intrinsic),
-              "fnma": (VFNMA, "DERIVE_FNMA", "((c) - (a) * (b))",
-                       intrinsic.replace("fmadd", "fnmadd"))}
-    used = [macros[k] for k in ("fma", "fnma") if k in kinds]
-    simd = ("defined(__SSE2__) || defined(__aarch64__)" if kind == "double" else
-            "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)")
-    lines = [f"#ifndef {SWITCH}",
-             f"#if (defined(__GNUC__) || defined(__clang__)) && ({simd})",
-             f"#define {SWITCH} 1",
-             "#else",
-             f"#define {SWITCH} 0",
-             "#endif",
-             "#endif",
-             f"#if {SWITCH}",
-             f"typedef {precision.c_type} {vtype} "
-             f"__attribute__((vector_size({VECTOR_BYTES[kind]})));",
-             f"typedef {precision.c_type} {vtype}_unaligned "
-             f"__attribute__((vector_size({VECTOR_BYTES[kind]}), aligned({element}), "
-             "may_alias));"]
-    if used:
-        lines += ["#if defined(DERIVE_FMA_PLAIN)"]
-        lines += [f"#define {name}(a, b, c) {plain}" for name, _, plain, _ in used]
-        lines += ["#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) "
+
+def vector_macro_lines(precision: Precision = DOUBLE, lanes: int = VECTOR_LANES,
+                       fused: bool = True) -> list[str]:
+    """The ``.c`` file's vector dialect (after the scalar fma macros,
+    :func:`derive.emit.c_printer.fma_macro_lines`): :data:`SWITCH`, the vector type of
+    ``lanes`` elements of ``precision`` (:func:`vector_type`, and its ``_unaligned``
+    twin for stores at an element's alignment) and, where the file fuses (``fused``: it
+    defines DERIVE_FMA), the fused multiply-adds.
+
+    ``DERIVE_VFMA(a, b, c)`` is ``a*b + c`` lane by lane, rounded as ``DERIVE_FMA`` rounds:
+    the product and the sum in the plain build (``DERIVE_FMA_PLAIN``), the x86 FMA
+    instruction where ``DERIVE_FMA`` is the fused ``fma`` and the target has it, Clang's
+    elementwise fma where it is fused elsewhere, else ``DERIVE_FMA`` of each lane (a build
+    that defines DERIVE_FMA itself: correct, and as fast as the compiler makes it; its
+    operands are named vectors or compound literals, never a nested chain, which each lane
+    would copy again). ``DERIVE_VFNMA(a, b, c)`` is ``c - a*b`` likewise (x86's negative
+    multiply-add, one rounding, as ``DERIVE_FNMA``'s ``fma(a, -b, c)``)."""
+    vtype = vector_type(precision)
+    element = precision.bits // 8
+    x86, needs = _X86_FMA.get((precision.name, lanes), ("", ""))
+
+    def each(scalar: str) -> str:
+        return ", ".join(f"{scalar}((a)[{k}], (b)[{k}], (c)[{k}])" for k in range(lanes))
+
+    types = switch_lines(precision, lanes) + [
+        f"#if {SWITCH}",
+        f"__extension__ typedef {precision.c_type} {vtype} "
+        f"__attribute__((vector_size({element * lanes})));",
+        f"__extension__ typedef {precision.c_type} {vtype}_unaligned "
+        f"__attribute__((vector_size({element * lanes}), aligned({element}), may_alias));"]
+    if not fused:
+        return types + ["#endif"]
+    lines = types + [
+        "#if defined(__clang__) && defined(__has_builtin)",
+        "#if __has_builtin(__builtin_elementwise_fma)",
+        f"#define {ELEMENTWISE_FMA} 1",
+        "#endif",
+        "#endif",
+        "#if defined(DERIVE_FMA_PLAIN)",
+        f"#define {VFMA}(a, b, c) ((a) * (b) + (c))",
+        f"#define {VFNMA}(a, b, c) ((c) - (a) * (b))"]
+    if x86:
+        lines += [f"#elif defined(DERIVE_FMA_FUSED) && defined({needs}) "
                   "&& (defined(__x86_64__) || defined(__i386__))",
-                  "#include <immintrin.h>"]
-        lines += [f"#define {name}(a, b, c) (({vtype}){x86}((a), (b), (c)))"
-                  for name, _, _, x86 in used]
-        lines += ["#else"]
-        for name, scalar, _, _ in used:
-            each = ", ".join(f"{scalar}((a)[{k}], (b)[{k}], (c)[{k}])" for k in range(lanes))
-            lines += [f"#define {name}(a, b, c) (({vtype}){{{each}}})"]
-        lines += ["#endif"]
-    return lines + ["#endif"]
+                  "#include <immintrin.h>",
+                  f"#define {VFMA}(a, b, c) (({vtype}){x86}((a), (b), (c)))",
+                  f"#define {VFNMA}(a, b, c) (({vtype}){x86.replace('fmadd', 'fnmadd')}"
+                  "((a), (b), (c)))"]
+    return lines + [f"#elif defined(DERIVE_FMA_FUSED) && defined({ELEMENTWISE_FMA})",
+                    f"#define {VFMA}(a, b, c) __builtin_elementwise_fma((a), (b), (c))",
+                    f"#define {VFNMA}(a, b, c) __builtin_elementwise_fma((a), -(b), (c))",
+                    "#else",
+                    f"#define {VFMA}(a, b, c) (({vtype}){{{each('DERIVE_FMA')}}})",
+                    f"#define {VFNMA}(a, b, c) (({vtype}){{{each('DERIVE_FNMA')}}})",
+                    "#endif",
+                    "#endif"]
 
 
 def _is_one(leaf: Tree) -> bool:
@@ -311,5 +354,5 @@ class ChunkPrinter:
                 + [ELSE] + scalar_lines + [CLOSE])
 
 
-__all__ = ["CLOSE", "ChunkPrinter", "ELSE", "OPEN", "SWITCH", "VFMA", "VFNMA", "fused_kinds",
-           "vector_macro_lines"]
+__all__ = ["CLOSE", "ChunkPrinter", "ELEMENTWISE_FMA", "ELSE", "OPEN", "SWITCH", "VFMA", "VFNMA",
+           "switch_lines", "vector_macro_lines", "vector_type"]

@@ -23,9 +23,9 @@ import numpy as np
 
 from derive import interface
 from derive.emit.render import derive_version, environment
-from derive.emit.unit import Unit
 from derive.errors import FilterError
 from derive.precision import DOUBLE, Precision, precision
+from derive.runs.unit import Unit
 
 _PER_LINE = 4
 
@@ -71,7 +71,7 @@ def render_test_program(unit: Unit, header: str, data) -> str:
     run = runs[0]
     steps = int(data.steps)
     inputs, outputs, references, comparisons, args, strides = [], [], [], [], [], []
-    sensor_rows = {f"z_{s.name}" for s in unit.sensors}  # a NaN row: no measurement
+    sensor_rows = {s.z_c for s in unit.sensors}  # a NaN row: no measurement
     compared = []
     for arg in run.arguments:
         if arg.output:

@@ -20,8 +20,8 @@ step's expressions.
 
 from __future__ import annotations
 
-from derive.emit.unit import LOOKAHEAD_NEXT, Unit
 from derive.program import Program
+from derive.runs.unit import LOOKAHEAD_NEXT, Unit
 
 #: The port of the second measurement row (z is row k, ZNEXT row k + 1).
 ZNEXT = LOOKAHEAD_NEXT

@@ -22,8 +22,9 @@ from __future__ import annotations
 
 from derive.emit.python_printer import PythonPrinter
 from derive.emit.shared_blocks import shared_step
-from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredProgram, Op, Var, tree_vars
+from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredProgram
 from derive.program import PARAMETER_PORT
+from derive.trees import Op, Var, tree_vars
 
 
 def local_name(port: str, index: int | str) -> str:

@@ -11,10 +11,11 @@ states; it adds no arithmetic.
 from __future__ import annotations
 
 from derive.emit import c_printer
-from derive.emit.unit import Unit
+from derive.emit.python_printer import flat_name
 from derive.lowering import LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
+from derive.runs.unit import Unit
 
 PARAMETER_ROWS = "p_rows"
 """The name run's prologue gives p as one row per step (derive.emit.render)."""
@@ -48,20 +49,21 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     lines.append("for k in range(steps):")
     u_predict = (f", {_columns(unit.predict_inputs, unit.n_inputs)}"
                  if unit.predict_inputs else "")
-    predict = f"x, P = predict(x, P{u_predict}{p_arg})"
+    calls = {name: flat_name(lp) for name, lp in lowered.items()}
+    predict = f"x, P = {calls['predict']}(x, P{u_predict}{p_arg})"
     if unit.update_first:
         lines += ["    if k:  # update-first: step 0 has no prediction", f"        {predict}"]
     else:
         lines.append(f"    {predict}")
     for s in unit.sensors:
-        z = f"z_{s.name}[k]"
+        z = f"{s.z_py}[k]"
         u = f", {_columns(s.inputs, unit.n_inputs)}" if s.inputs else ""
         if s.R_argument:  # R before u, as the update takes them
             u = f", R_{s.name}[k].reshape(({s.m * s.m},) + R_{s.name}.shape[3:])" + u
         outs = "x_up, P_up" + (", nis, applied" if s.gated else "")
         lines += [f"    present = ~np.isnan({z}).any(axis=0)",
                   "    if np.any(present):",
-                  f"        {outs} = update_{s.name}(x, P, {z}{u}{p_arg})",
+                  f"        {outs} = {calls['update_' + s.name]}(x, P, {z}{u}{p_arg})",
                   "        if np.all(present):",
                   "            x, P = x_up, P_up",
                   "        else:  # tracks without this measurement keep x and P",
@@ -161,7 +163,7 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
             inner += [f"if (nis_{s.name}) {{", f"    nis_{s.name}[k] = nis[0];", "}",
                       f"if (applied_{s.name}) {{", f"    applied_{s.name}[k] = applied[0];",
                       "}"]
-        body += ["{", f"    const {t} *zk = z_{s.name} + k * {s.m};",
+        body += ["{", f"    const {t} *zk = {s.z_c} + k * {s.m};",
                  f"    if ({test}) {{ /* a NaN: no {s.name} measurement at step k */"]
         body += ["        " + line for line in inner]
         if s.gated:

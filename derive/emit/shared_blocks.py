@@ -35,15 +35,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from derive.emit.block_lanes import Part, independent_parts
-from derive.lowering import (
-    LoweredAssign,
-    LoweredProgram,
-    Tree,
-    element_name,
-    rename_tree,
-    tree_vars,
-)
+from derive.lowering import LoweredAssign, LoweredProgram
 from derive.program import PARAMETER_PORT
+from derive.trees import Tree, element_name, rename_tree, tree_vars
 
 
 @dataclass(frozen=True)

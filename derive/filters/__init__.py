@@ -2,7 +2,7 @@
 
 Each family is one module, ``derive/filters/<family>.py``, holding ``SPECS`` (a tuple of
 :class:`~derive.filters.spec.FilterSpec`, one per filter it derives) beside its
-derivation ``derive_unit(model, spec, options) -> derive.emit.unit.Unit`` and its
+derivation ``derive_unit(model, spec, options) -> derive.runs.unit.Unit`` and its
 reference adapter; ``options`` are the filter's typed options (derive.options), validated
 before the derivation starts.  The registry finds the family modules by their ``SPECS``:
 adding a family adds a module here and nothing else.
@@ -105,8 +105,10 @@ def kind(name: str) -> FilterSpec:
     """The spec of filter ``name`` (FilterError naming a close match when unknown)."""
     try:
         return FILTERS[name]
-    except KeyError:
-        close = difflib.get_close_matches(name, list(FILTERS), n=1)
+    except (KeyError, TypeError):  # TypeError: not a hashable name
+        text = name.lower() if isinstance(name, str) else ""
+        close = ([text] if text in FILTERS
+                 else difflib.get_close_matches(text, list(FILTERS), n=1))
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise FilterError(f"unknown filter {name!r}{hint}; filters: {', '.join(FILTERS)}") \
             from None

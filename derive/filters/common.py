@@ -9,7 +9,7 @@ import sympy
 
 from .. import staging
 from ..errors import PATTERN_MESSAGE_START
-from ..lowering import IfPresent
+from ..expression_lowering import IfPresent
 from ..program import Port, Program
 
 
@@ -102,7 +102,7 @@ def masked_covariance(prog: Program, pattern, declared: str) -> sympy.Matrix:
 #   U' = U (an n x m matrix such as P H^T) with column i zeroed for i in a;
 #   K  = U' S'^-1 then has zero columns for i in a and the present columns of the
 #        reduced update; the masked innovation (0 for i in a) keeps NaN out of x.
-# Every mask is a select (derive.lowering.IfPresent): one comparison z[i] == z[i] and no
+# Every mask is a select (derive.expression_lowering.IfPresent): one comparison z[i] == z[i] and no
 # flop.  Structurally zero entries stay zero, so block-diagonal S costs no selects.
 
 

@@ -18,7 +18,7 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
-from ..lowering import IfPresent
+from ..expression_lowering import IfPresent
 from .common import (
     MISSING_FACT,
     mask_columns,

@@ -26,7 +26,7 @@ Indexing (derive.reference.smoother): x(0/0) = x0, P(0/0) = P0, z(k) = z[k-1] fo
 k = 1..N, and the run returns xs[k-1] = x(k/N), Ps[k-1] = P(k/N), k = 1..N.
 
 The run ``MODEL_rts_run(steps, z, x0, P0, xs, Ps, work)`` (the run kind "smoother",
-derive.emit.unit.RUN_KINDS, templates/<language>/smoother.jinja).  Generated C marks the
+derive.runs.unit.RUN_KINDS, templates/<language>/smoother.jinja).  Generated C marks the
 ports ``restrict``; every call below reads and writes disjoint rows, so nothing is copied.
 
 work (doubles, caller-provided in C; Python allocates its own): one row per step k = 1..N,

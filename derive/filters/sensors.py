@@ -31,7 +31,7 @@ import sympy
 from .. import staging
 from ..domains import parameter_domains
 from ..errors import OptionError
-from ..lowering import IfAtMost
+from ..expression_lowering import IfAtMost
 from ..model import SensorGroup, sequential_problem
 from ..program import Program
 from ..reference import sensors as reference

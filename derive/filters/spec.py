@@ -12,8 +12,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from ..emit.unit import LANGUAGES
 from ..options import SharedOptions
+from ..runs.unit import LANGUAGES
 
 #: What a filter's step factorises, solves with, inverts or cancels (its
 #: :attr:`FilterSpec.conditioning`); derive.apps.float_tolerance reads each one's
@@ -131,7 +131,7 @@ class FilterSpec:
         return self.about.get(lang, f"Run the {self.title}.")
 
     def unit_fields(self, window: int | None = None, run_tracks: bool = True) -> dict:
-        """The fields of a :class:`~derive.emit.unit.Unit` this spec decides: family,
+        """The fields of a :class:`~derive.runs.unit.Unit` this spec decides: family,
         title, run kind, run descriptions, batch function, extra programs."""
         return {"family": self.name, "title": self.title, "run_kind": self.run_kind,
                 "about": {lang: self.run_about(lang).format(window=window)

@@ -17,8 +17,8 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import riccati
-from ..emit.unit import LOOKAHEAD_NEXT
 from ..program import Port, Program
+from ..runs.unit import LOOKAHEAD_NEXT
 from .spec import FilterSpec
 from .unit import make_unit
 

@@ -46,7 +46,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
-from ..lowering import IfAtMost, IfPresent
+from ..expression_lowering import IfAtMost, IfPresent
 from ..options import SharedOptions
 from ..precision import DOUBLE, precision
 from ..program import Port, Program

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..discretize import METHODS
-from ..emit.unit import SensorSlot, Unit
 from ..options import SharedOptions
 from ..program import ZERO, Check
+from ..runs.unit import SensorSlot, Unit
 from .common import pattern_text
 from .spec import FilterSpec
 
@@ -99,7 +99,8 @@ def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOpt
     (derive.model.SensorGroup), gated where ``thresholds`` has a gate."""
     names = [u.name for u in model.inputs]
     slots = tuple(SensorSlot(g.name, g.m, tuple(names.index(u.name) for u in g.inputs),
-                             thresholds[g.name] is not None, g.R_argument) for g in groups)
+                             thresholds[g.name] is not None, g.R_argument,
+                             implicit=not model.sensors) for g in groups)
     header = []
     if model.kind == "linear":
         header.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")

@@ -17,7 +17,7 @@
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * N = 43
  * eps = 1e-06
- * derive-interface: {"functions":[["ca_fir_step","step",false,false,[["zw",[43,1],false,false,false],["x_new",[3],true,false,false]]],["ca_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["ca_fir_step","step",false,false,[["zw",[43,1],false,false,false],["x_new",[3],true,false,false]]],["ca_fir_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_ca_fir_H
 #define DERIVE_ca_fir_H

@@ -20,7 +20,7 @@
  * B = [[0.7440013948953963 ], [0.48793421455977826], [0.15999956409459481]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 21, neg 0, cmp 0, calls 0 (flops 48, instructions 27)
- * derive-interface: {"functions":[["ca_jssklf_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_jssklf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["ca_jssklf_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_jssklf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["ca_jssklf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_ca_jssklf_H
 #define DERIVE_ca_jssklf_H

@@ -21,7 +21,7 @@
  * N = 1
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 0, mul 3, div 0, sqrt 0, fma 19, neg 0, cmp 0, calls 0 (flops 42, instructions 23)
- * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["ca_pred_init","init",false,false,[["x0",[3],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_step","step",false,false,[["x",[3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false]]],["ca_pred_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>

@@ -17,7 +17,7 @@
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
  * N = 37
  * eps = 1e-06
- * derive-interface: {"functions":[["cv_fir_step","step",false,false,[["zw",[37,1],false,false,false],["x_new",[2],true,false,false]]],["cv_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["cv_fir_step","step",false,false,[["zw",[37,1],false,false,false],["x_new",[2],true,false,false]]],["cv_fir_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>

@@ -16,7 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 129, neg 0, cmp 0, calls 0 (flops 261, instructions 132)
  * N = 44
  * eps = 1e-06
- * derive-interface: {"functions":[["gps_static_fir_step","step",false,false,[["zw",[44,3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_fir_run","run",false,true,[["z",["steps",3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gps_static_fir_step","step",false,false,[["zw",[44,3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_fir_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_gps_static_fir_H
 #define DERIVE_gps_static_fir_H

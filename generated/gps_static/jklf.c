@@ -23,8 +23,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 12, sub 3, mul 18, div 6, sqrt 0, fma 18, neg 0, cmp 6, calls 0 (flops 75, instructions 63)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["gps_static_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * derive-interface: {"functions":[["gps_static_jklf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_jklf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -83,7 +83,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"
@@ -94,9 +96,16 @@
 #define DERIVE_SIMD
 #endif
 #endif
-#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
 #if defined(__clang__) && defined(__has_builtin)
 #if __has_builtin(__builtin_elementwise_fma)
 #define DERIVE_ELEMENTWISE_FMA 1
@@ -104,21 +113,20 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
 #elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
 #define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
-#elif defined(DERIVE_FMA_FUSED)
-#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
-#else
-#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if DERIVE_VECTOR
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -234,34 +242,34 @@ int gps_static_jklf_run(size_t steps, const double *z, const double *x0, const d
     if (!(P0[5] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-#if defined(DERIVE_BLOCK_VECTOR)
+#if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v4 P_v0 = {P0[0], P0[4], P0[8], P0[0]};
-    derive_v4 x_v1 = {x0[0], x0[1], x0[2], x0[0]};
+    derive_vd P_v0 = {P0[0], P0[4], P0[8], P0[0]};
+    derive_vd x_v1 = {x0[0], x0[1], x0[2], x0[0]};
     size_t k;
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
         int step_status = 0;
-        const derive_v4 a0 = 0.01 + P_v0;
-        const derive_v4 a1 = 0.1 + a0;
-        const derive_v4 a2 = a0 / a1;
-        const derive_v4 a3 = az0 - x_v1;
-        const derive_v4 a4 = DERIVE_VFMA(a2, a3, x_v1);
-        const derive_v4 a5 = DERIVE_VFNMA(a0, a2, a0);
-        const derive_v4 a6 = DERIVE_VFMA(((derive_v4){9.090909090909092, 9.090909090909092, 9.090909090909092, 9.090909090909092}), P_v0, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
-        const derive_v4 a7 = 1.0 / a6;
-        const derive_v4 a8 = 0.9090909090909091 * a7;
-        const derive_v4 a9 = 9.090909090909092 * az0;
-        const derive_v4 a10 = DERIVE_VFMA(P_v0, a9, x_v1);
-        const derive_v4 a11 = 0.09090909090909091 * az0;
-        const derive_v4 a12 = DERIVE_VFMA(a8, a10, a11);
-        const derive_v4 a13 = P_v0 * a8;
-        const derive_v4 a14 = DERIVE_VFMA(((derive_v4){0.9090909090909091, 0.9090909090909091, 0.9090909090909091, 0.9090909090909091}), a13, ((derive_v4){0.00909090909090909, 0.00909090909090909, 0.00909090909090909, 0.00909090909090909}));
-        const derive_v4 a15 = a12 + a4;
-        const derive_v4 a16 = 0.5 * a15;
-        const derive_v4 a17 = a14 + a5;
-        const derive_v4 a18 = 0.5 * a17;
+        const derive_vd a0 = 0.01 + P_v0;
+        const derive_vd a1 = 0.1 + a0;
+        const derive_vd a2 = a0 / a1;
+        const derive_vd a3 = az0 - x_v1;
+        const derive_vd a4 = DERIVE_VFMA(a2, a3, x_v1);
+        const derive_vd a5 = DERIVE_VFNMA(a0, a2, a0);
+        const derive_vd a6 = DERIVE_VFMA(((derive_vd){9.090909090909092, 9.090909090909092, 9.090909090909092, 9.090909090909092}), P_v0, ((derive_vd){1.0, 1.0, 1.0, 1.0}));
+        const derive_vd a7 = 1.0 / a6;
+        const derive_vd a8 = 0.9090909090909091 * a7;
+        const derive_vd a9 = 9.090909090909092 * az0;
+        const derive_vd a10 = DERIVE_VFMA(P_v0, a9, x_v1);
+        const derive_vd a11 = 0.09090909090909091 * az0;
+        const derive_vd a12 = DERIVE_VFMA(a8, a10, a11);
+        const derive_vd a13 = P_v0 * a8;
+        const derive_vd a14 = DERIVE_VFMA(((derive_vd){0.9090909090909091, 0.9090909090909091, 0.9090909090909091, 0.9090909090909091}), a13, ((derive_vd){0.00909090909090909, 0.00909090909090909, 0.00909090909090909, 0.00909090909090909}));
+        const derive_vd a15 = a12 + a4;
+        const derive_vd a16 = 0.5 * a15;
+        const derive_vd a17 = a14 + a5;
+        const derive_vd a18 = 0.5 * a17;
         if (!(a1[0] > 0.0) && !step_status) {
             step_status = 1;
         }

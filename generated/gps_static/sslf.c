@@ -19,8 +19,8 @@
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["gps_static_sslf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_sslf_run","run",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_sslf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * derive-interface: {"functions":[["gps_static_sslf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_sslf_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_sslf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -79,7 +79,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"
@@ -90,9 +92,16 @@
 #define DERIVE_SIMD
 #endif
 #endif
-#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
 #if defined(__clang__) && defined(__has_builtin)
 #if __has_builtin(__builtin_elementwise_fma)
 #define DERIVE_ELEMENTWISE_FMA 1
@@ -100,21 +109,20 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
 #elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
 #define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
-#elif defined(DERIVE_FMA_FUSED)
-#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
-#else
-#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if DERIVE_VECTOR
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -153,21 +161,21 @@ void gps_static_sslf_step(const double *restrict x, const double *restrict z, do
 /* Run the steady-state Lainiotis filter over steps steps. */
 void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double *xs)
 {
-#if defined(DERIVE_BLOCK_VECTOR)
+#if DERIVE_VECTOR
     (void)gps_static_sslf_pass_body;
     /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v4 x_v0 = {x0[0], x0[1], x0[2], x0[0]};
+    derive_vd x_v0 = {x0[0], x0[1], x0[2], x0[0]};
     size_t k;
     for (k = 0; k + 2 <= steps; k += 2) {
         const double *restrict zk = z + k * 3;
         const double *restrict znk = z + (k + 1) * 3;
-        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 a0 = 0.2701562118716424 * az0;
-        const derive_v4 a1 = DERIVE_VFMA(((derive_v4){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
-        const derive_v4 bzn0 = {znk[0], znk[1], znk[2], znk[0]};
-        const derive_v4 b0 = 0.19717183305880664 * az0;
-        const derive_v4 b1 = DERIVE_VFMA(((derive_v4){0.2701562118716424, 0.2701562118716424, 0.2701562118716424, 0.2701562118716424}), bzn0, b0);
-        const derive_v4 b2 = DERIVE_VFMA(((derive_v4){0.5326719550695508, 0.5326719550695508, 0.5326719550695508, 0.5326719550695508}), x_v0, b1);
+        const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_vd a0 = 0.2701562118716424 * az0;
+        const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
+        const derive_vd bzn0 = {znk[0], znk[1], znk[2], znk[0]};
+        const derive_vd b0 = 0.19717183305880664 * az0;
+        const derive_vd b1 = DERIVE_VFMA(((derive_vd){0.2701562118716424, 0.2701562118716424, 0.2701562118716424, 0.2701562118716424}), bzn0, b0);
+        const derive_vd b2 = DERIVE_VFMA(((derive_vd){0.5326719550695508, 0.5326719550695508, 0.5326719550695508, 0.5326719550695508}), x_v0, b1);
         xs[k * 3 + 0] = a1[0];
         xs[k * 3 + 1] = a1[1];
         xs[k * 3 + 2] = a1[2];
@@ -178,9 +186,9 @@ void gps_static_sslf_run(size_t steps, const double *z, const double *x0, double
     }
     for (; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 a0 = 0.2701562118716424 * az0;
-        const derive_v4 a1 = DERIVE_VFMA(((derive_v4){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
+        const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_vd a0 = 0.2701562118716424 * az0;
+        const derive_vd a1 = DERIVE_VFMA(((derive_vd){0.7298437881283575, 0.7298437881283575, 0.7298437881283575, 0.7298437881283575}), x_v0, a0);
         xs[k * 3 + 0] = a1[0];
         xs[k * 3 + 1] = a1[1];
         xs[k * 3 + 2] = a1[2];

@@ -16,7 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 128, neg 0, cmp 0, calls 0 (flops 260, instructions 132)
  * N = 33
  * eps = 1e-06
- * derive-interface: {"functions":[["gsm2d_a_fir_step","step",false,false,[["zw",[33,2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_fir_run","run",false,true,[["z",["steps",2],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gsm2d_a_fir_step","step",false,false,[["zw",[33,2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_fir_run","run",false,true,[["z",["steps",2],false,false,false,false,"zs"],["xs",["steps",4],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>

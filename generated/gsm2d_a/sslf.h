@@ -19,7 +19,7 @@
  * B = [[0.36535881073846804, 0.                 ], [0.20683480863417475, 0.                 ], [0.                 , 0.36535881073846804], [0.                 , 0.20683480863417475]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 8, div 0, sqrt 0, fma 20, neg 0, cmp 0, calls 0 (flops 48, instructions 28)
- * derive-interface: {"functions":[["gsm2d_a_sslf_step","step",false,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_sslf_run","run",false,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_sslf_run_tracks","run_tracks",false,true,[["z",["steps",2],false,false,false],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gsm2d_a_sslf_step","step",false,false,[["x",[4],false,false,false],["z",[2],false,false,false],["x_new",[4],true,false,false]]],["gsm2d_a_sslf_run","run",false,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]],["gsm2d_a_sslf_run_tracks","run_tracks",false,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[4],false,false,false],["xs",["steps",4],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_gsm2d_a_sslf_H
 #define DERIVE_gsm2d_a_sslf_H

@@ -20,7 +20,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 24, sub 1, mul 30, div 4, sqrt 0, fma 28, neg 0, cmp 1, calls 0 (flops 115, instructions 88)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["gsm2d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["gsm2d_b_jklf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_jklf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_jklf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -79,7 +79,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"

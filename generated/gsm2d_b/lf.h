@@ -18,7 +18,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 0, mul 25, div 2, sqrt 0, fma 23, neg 0, cmp 0, calls 0 (flops 80, instructions 57)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
- * derive-interface: {"functions":[["gsm2d_b_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_lf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["gsm2d_b_lf_step","step",false,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["gsm2d_b_lf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["gsm2d_b_lf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_gsm2d_b_lf_H
 #define DERIVE_gsm2d_b_lf_H

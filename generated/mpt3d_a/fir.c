@@ -16,7 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 192, neg 0, cmp 0, calls 0 (flops 390, instructions 198)
  * N = 33
  * eps = 1e-06
- * derive-interface: {"functions":[["mpt3d_a_fir_step","step",false,false,[["zw",[33,3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_fir_run","run",false,true,[["z",["steps",3],false,false,false],["xs",["steps",6],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_a_fir_step","step",false,false,[["zw",[33,3],false,false,false],["x_new",[6],true,false,false]]],["mpt3d_a_fir_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["xs",["steps",6],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
 #include <stddef.h>

@@ -23,8 +23,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 72, sub 3, mul 90, div 12, sqrt 0, fma 84, neg 0, cmp 15, calls 0 (flops 345, instructions 276)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_jklf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_jklf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * derive-interface: {"functions":[["mpt3d_a_jklf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_jklf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_jklf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -83,7 +83,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"
@@ -94,9 +96,16 @@
 #define DERIVE_SIMD
 #endif
 #endif
-#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
 #if defined(__clang__) && defined(__has_builtin)
 #if __has_builtin(__builtin_elementwise_fma)
 #define DERIVE_ELEMENTWISE_FMA 1
@@ -104,21 +113,20 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
 #elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
 #define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
-#elif defined(DERIVE_FMA_FUSED)
-#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
-#else
-#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if DERIVE_VECTOR
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -471,105 +479,105 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
     if (!(P0[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-#if defined(DERIVE_BLOCK_VECTOR)
+#if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
-    derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
-    derive_v4 P_v2 = {P0[0], P0[14], P0[28], P0[0]};
-    derive_v4 P_v3 = {P0[1], P0[15], P0[29], P0[1]};
-    derive_v4 P_v4 = {P0[7], P0[21], P0[35], P0[7]};
+    derive_vd x_v0 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_vd x_v1 = {x0[1], x0[3], x0[5], x0[1]};
+    derive_vd P_v2 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_vd P_v3 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_vd P_v4 = {P0[7], P0[21], P0[35], P0[7]};
     size_t k;
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
         int step_status = 0;
-        const derive_v4 a0 = x_v0 + x_v1;
-        const derive_v4 a1 = P_v2 + P_v3;
-        const derive_v4 a2 = P_v3 + P_v4;
-        const derive_v4 a3 = a1 + a2;
-        const derive_v4 a4 = 0.0025 + a3;
-        const derive_v4 a5 = 0.005 + a2;
-        const derive_v4 a6 = 0.01 + P_v4;
-        const derive_v4 a7 = a4 + a5;
-        const derive_v4 a8 = a5 + a6;
-        const derive_v4 a9 = a7 + a8;
-        const derive_v4 a10 = 0.1 + a9;
-        const derive_v4 a11 = a7 / a10;
-        const derive_v4 a12 = a8 / a10;
-        const derive_v4 a13 = x_v1 + a0;
-        const derive_v4 a14 = az0 - a13;
-        const derive_v4 a15 = DERIVE_VFMA(a11, a14, a0);
-        const derive_v4 a16 = DERIVE_VFMA(a12, a14, x_v1);
-        const derive_v4 a17 = DERIVE_VFNMA(a11, a7, a4);
-        const derive_v4 a18 = DERIVE_VFNMA(a11, a8, a5);
-        const derive_v4 a19 = DERIVE_VFNMA(a12, a8, a6);
-        const derive_v4 a20 = 16.3265306122449 * P_v3;
-        const derive_v4 a21 = DERIVE_VFMA(((derive_v4){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v2, a20);
-        const derive_v4 a22 = 16.3265306122449 * P_v2;
-        const derive_v4 a23 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v3, a22);
-        const derive_v4 a24 = 8.16326530612245 * P_v3;
-        const derive_v4 a25 = DERIVE_VFMA(((derive_v4){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v4, a24);
-        const derive_v4 a26 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v4, a20);
-        const derive_v4 a27 = 1.0 + a21;
-        const derive_v4 a28 = 1.0 + a26;
-        const derive_v4 a29 = 1.0 / a27;
-        const derive_v4 a30 = a25 * a29;
-        const derive_v4 a31 = DERIVE_VFNMA(a23, a30, a28);
-        const derive_v4 a32 = 1.0 / a31;
-        const derive_v4 a33 = a30 * a32;
-        const derive_v4 a34 = DERIVE_VFMA(a23, a33, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
-        const derive_v4 a35 = a29 * a34;
-        const derive_v4 a36 = a23 * a29;
-        const derive_v4 a37 = a36 * a32;
-        const derive_v4 a38 = (-0.8775510204081632) * a33;
-        const derive_v4 a39 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a35, a38);
-        const derive_v4 a40 = 0.8775510204081632 * a32;
-        const derive_v4 a41 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a37, a40);
-        const derive_v4 a42 = 0.7551020408163265 * a33;
-        const derive_v4 a43 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a35, a42);
-        const derive_v4 a44 = 0.7551020408163265 * a32;
-        const derive_v4 a45 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a37, a44);
-        const derive_v4 a46 = 8.16326530612245 * az0;
-        const derive_v4 a47 = 16.3265306122449 * az0;
-        const derive_v4 a48 = P_v2 * a46;
-        const derive_v4 a49 = DERIVE_VFMA(P_v3, a47, a48);
-        const derive_v4 a50 = P_v3 * a46;
-        const derive_v4 a51 = DERIVE_VFMA(P_v4, a47, a50);
-        const derive_v4 a52 = x_v0 + a49;
-        const derive_v4 a53 = x_v1 + a51;
-        const derive_v4 a54 = a39 * a52;
-        const derive_v4 a55 = DERIVE_VFMA(a41, a53, a54);
-        const derive_v4 a56 = a45 * a53;
-        const derive_v4 a57 = DERIVE_VFNMA(a43, a52, a56);
-        const derive_v4 a58 = DERIVE_VFMA(((derive_v4){0.061224489795918366, 0.061224489795918366, 0.061224489795918366, 0.061224489795918366}), az0, a55);
-        const derive_v4 a59 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), az0, a57);
-        const derive_v4 a60 = P_v2 * a39;
-        const derive_v4 a61 = DERIVE_VFMA(P_v3, a41, a60);
-        const derive_v4 a62 = P_v3 * a39;
-        const derive_v4 a63 = DERIVE_VFMA(P_v4, a41, a62);
-        const derive_v4 a64 = P_v3 * a45;
-        const derive_v4 a65 = DERIVE_VFNMA(P_v2, a43, a64);
-        const derive_v4 a66 = P_v4 * a45;
-        const derive_v4 a67 = DERIVE_VFNMA(P_v3, a43, a66);
-        const derive_v4 a68 = 0.9387755102040817 * a61;
-        const derive_v4 a69 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a63, a68);
-        const derive_v4 a70 = (-0.12244897959183673) * a61;
-        const derive_v4 a71 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a63, a70);
-        const derive_v4 a72 = (-0.12244897959183673) * a65;
-        const derive_v4 a73 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a67, a72);
-        const derive_v4 a74 = 0.0020408163265306124 + a69;
-        const derive_v4 a75 = 0.004081632653061225 + a71;
-        const derive_v4 a76 = 0.00816326530612245 + a73;
-        const derive_v4 a77 = a15 + a58;
-        const derive_v4 a78 = a16 + a59;
-        const derive_v4 a79 = 0.5 * a77;
-        const derive_v4 a80 = 0.5 * a78;
-        const derive_v4 a81 = a17 + a74;
-        const derive_v4 a82 = a18 + a75;
-        const derive_v4 a83 = a19 + a76;
-        const derive_v4 a84 = 0.5 * a81;
-        const derive_v4 a85 = 0.5 * a82;
-        const derive_v4 a86 = 0.5 * a83;
+        const derive_vd a0 = x_v0 + x_v1;
+        const derive_vd a1 = P_v2 + P_v3;
+        const derive_vd a2 = P_v3 + P_v4;
+        const derive_vd a3 = a1 + a2;
+        const derive_vd a4 = 0.0025 + a3;
+        const derive_vd a5 = 0.005 + a2;
+        const derive_vd a6 = 0.01 + P_v4;
+        const derive_vd a7 = a4 + a5;
+        const derive_vd a8 = a5 + a6;
+        const derive_vd a9 = a7 + a8;
+        const derive_vd a10 = 0.1 + a9;
+        const derive_vd a11 = a7 / a10;
+        const derive_vd a12 = a8 / a10;
+        const derive_vd a13 = x_v1 + a0;
+        const derive_vd a14 = az0 - a13;
+        const derive_vd a15 = DERIVE_VFMA(a11, a14, a0);
+        const derive_vd a16 = DERIVE_VFMA(a12, a14, x_v1);
+        const derive_vd a17 = DERIVE_VFNMA(a11, a7, a4);
+        const derive_vd a18 = DERIVE_VFNMA(a11, a8, a5);
+        const derive_vd a19 = DERIVE_VFNMA(a12, a8, a6);
+        const derive_vd a20 = 16.3265306122449 * P_v3;
+        const derive_vd a21 = DERIVE_VFMA(((derive_vd){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v2, a20);
+        const derive_vd a22 = 16.3265306122449 * P_v2;
+        const derive_vd a23 = DERIVE_VFMA(((derive_vd){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v3, a22);
+        const derive_vd a24 = 8.16326530612245 * P_v3;
+        const derive_vd a25 = DERIVE_VFMA(((derive_vd){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v4, a24);
+        const derive_vd a26 = DERIVE_VFMA(((derive_vd){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v4, a20);
+        const derive_vd a27 = 1.0 + a21;
+        const derive_vd a28 = 1.0 + a26;
+        const derive_vd a29 = 1.0 / a27;
+        const derive_vd a30 = a25 * a29;
+        const derive_vd a31 = DERIVE_VFNMA(a23, a30, a28);
+        const derive_vd a32 = 1.0 / a31;
+        const derive_vd a33 = a30 * a32;
+        const derive_vd a34 = DERIVE_VFMA(a23, a33, ((derive_vd){1.0, 1.0, 1.0, 1.0}));
+        const derive_vd a35 = a29 * a34;
+        const derive_vd a36 = a23 * a29;
+        const derive_vd a37 = a36 * a32;
+        const derive_vd a38 = (-0.8775510204081632) * a33;
+        const derive_vd a39 = DERIVE_VFMA(((derive_vd){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a35, a38);
+        const derive_vd a40 = 0.8775510204081632 * a32;
+        const derive_vd a41 = DERIVE_VFMA(((derive_vd){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a37, a40);
+        const derive_vd a42 = 0.7551020408163265 * a33;
+        const derive_vd a43 = DERIVE_VFMA(((derive_vd){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a35, a42);
+        const derive_vd a44 = 0.7551020408163265 * a32;
+        const derive_vd a45 = DERIVE_VFMA(((derive_vd){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a37, a44);
+        const derive_vd a46 = 8.16326530612245 * az0;
+        const derive_vd a47 = 16.3265306122449 * az0;
+        const derive_vd a48 = P_v2 * a46;
+        const derive_vd a49 = DERIVE_VFMA(P_v3, a47, a48);
+        const derive_vd a50 = P_v3 * a46;
+        const derive_vd a51 = DERIVE_VFMA(P_v4, a47, a50);
+        const derive_vd a52 = x_v0 + a49;
+        const derive_vd a53 = x_v1 + a51;
+        const derive_vd a54 = a39 * a52;
+        const derive_vd a55 = DERIVE_VFMA(a41, a53, a54);
+        const derive_vd a56 = a45 * a53;
+        const derive_vd a57 = DERIVE_VFNMA(a43, a52, a56);
+        const derive_vd a58 = DERIVE_VFMA(((derive_vd){0.061224489795918366, 0.061224489795918366, 0.061224489795918366, 0.061224489795918366}), az0, a55);
+        const derive_vd a59 = DERIVE_VFMA(((derive_vd){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), az0, a57);
+        const derive_vd a60 = P_v2 * a39;
+        const derive_vd a61 = DERIVE_VFMA(P_v3, a41, a60);
+        const derive_vd a62 = P_v3 * a39;
+        const derive_vd a63 = DERIVE_VFMA(P_v4, a41, a62);
+        const derive_vd a64 = P_v3 * a45;
+        const derive_vd a65 = DERIVE_VFNMA(P_v2, a43, a64);
+        const derive_vd a66 = P_v4 * a45;
+        const derive_vd a67 = DERIVE_VFNMA(P_v3, a43, a66);
+        const derive_vd a68 = 0.9387755102040817 * a61;
+        const derive_vd a69 = DERIVE_VFMA(((derive_vd){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a63, a68);
+        const derive_vd a70 = (-0.12244897959183673) * a61;
+        const derive_vd a71 = DERIVE_VFMA(((derive_vd){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a63, a70);
+        const derive_vd a72 = (-0.12244897959183673) * a65;
+        const derive_vd a73 = DERIVE_VFMA(((derive_vd){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a67, a72);
+        const derive_vd a74 = 0.0020408163265306124 + a69;
+        const derive_vd a75 = 0.004081632653061225 + a71;
+        const derive_vd a76 = 0.00816326530612245 + a73;
+        const derive_vd a77 = a15 + a58;
+        const derive_vd a78 = a16 + a59;
+        const derive_vd a79 = 0.5 * a77;
+        const derive_vd a80 = 0.5 * a78;
+        const derive_vd a81 = a17 + a74;
+        const derive_vd a82 = a18 + a75;
+        const derive_vd a83 = a19 + a76;
+        const derive_vd a84 = 0.5 * a81;
+        const derive_vd a85 = 0.5 * a82;
+        const derive_vd a86 = 0.5 * a83;
         if (!(a10[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -582,8 +590,8 @@ int mpt3d_a_jklf_run(size_t steps, const double *z, const double *x0, const doub
         if (step_status) {
             return step_status;
         }
-        { const derive_v4 lo = DERIVE_PAIRS_LO(a79, a80);
-          const derive_v4 hi = DERIVE_PAIRS_HI(a79, a80);
+        { const derive_vd lo = DERIVE_PAIRS_LO(a79, a80);
+          const derive_vd hi = DERIVE_PAIRS_HI(a79, a80);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
           __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {

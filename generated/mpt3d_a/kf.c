@@ -23,8 +23,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 36, sub 3, mul 0, div 6, sqrt 0, fma 15, neg 0, cmp 15, calls 0 (flops 75, instructions 75)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * derive-interface: {"functions":[["mpt3d_a_kf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_kf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_kf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -83,7 +83,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"
@@ -94,9 +96,16 @@
 #define DERIVE_SIMD
 #endif
 #endif
-#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
 #if defined(__clang__) && defined(__has_builtin)
 #if __has_builtin(__builtin_elementwise_fma)
 #define DERIVE_ELEMENTWISE_FMA 1
@@ -104,21 +113,20 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
 #elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
 #define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
-#elif defined(DERIVE_FMA_FUSED)
-#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
-#else
-#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if DERIVE_VECTOR
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -327,38 +335,38 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
     if (!(P0[23] == 0.0)) {
         return 4; /* outside P's pattern */
     }
-#if defined(DERIVE_BLOCK_VECTOR)
+#if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v4 x_v0 = {x0[0], x0[2], x0[4], x0[0]};
-    derive_v4 x_v1 = {x0[1], x0[3], x0[5], x0[1]};
-    derive_v4 P_v2 = {P0[0], P0[14], P0[28], P0[0]};
-    derive_v4 P_v3 = {P0[1], P0[15], P0[29], P0[1]};
-    derive_v4 P_v4 = {P0[7], P0[21], P0[35], P0[7]};
+    derive_vd x_v0 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_vd x_v1 = {x0[1], x0[3], x0[5], x0[1]};
+    derive_vd P_v2 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_vd P_v3 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_vd P_v4 = {P0[7], P0[21], P0[35], P0[7]};
     size_t k;
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
         int step_status = 0;
-        const derive_v4 a0 = x_v0 + x_v1;
-        const derive_v4 a1 = P_v2 + P_v3;
-        const derive_v4 a2 = P_v3 + P_v4;
-        const derive_v4 a3 = a1 + a2;
-        const derive_v4 a4 = 0.0025 + a3;
-        const derive_v4 a5 = 0.005 + a2;
-        const derive_v4 a6 = 0.01 + P_v4;
-        const derive_v4 a7 = a4 + a5;
-        const derive_v4 a8 = a5 + a6;
-        const derive_v4 a9 = a7 + a8;
-        const derive_v4 a10 = 0.1 + a9;
-        const derive_v4 a11 = a7 / a10;
-        const derive_v4 a12 = a8 / a10;
-        const derive_v4 a13 = x_v1 + a0;
-        const derive_v4 a14 = az0 - a13;
-        const derive_v4 a15 = DERIVE_VFMA(a11, a14, a0);
-        const derive_v4 a16 = DERIVE_VFMA(a12, a14, x_v1);
-        const derive_v4 a17 = DERIVE_VFNMA(a11, a7, a4);
-        const derive_v4 a18 = DERIVE_VFNMA(a11, a8, a5);
-        const derive_v4 a19 = DERIVE_VFNMA(a12, a8, a6);
+        const derive_vd a0 = x_v0 + x_v1;
+        const derive_vd a1 = P_v2 + P_v3;
+        const derive_vd a2 = P_v3 + P_v4;
+        const derive_vd a3 = a1 + a2;
+        const derive_vd a4 = 0.0025 + a3;
+        const derive_vd a5 = 0.005 + a2;
+        const derive_vd a6 = 0.01 + P_v4;
+        const derive_vd a7 = a4 + a5;
+        const derive_vd a8 = a5 + a6;
+        const derive_vd a9 = a7 + a8;
+        const derive_vd a10 = 0.1 + a9;
+        const derive_vd a11 = a7 / a10;
+        const derive_vd a12 = a8 / a10;
+        const derive_vd a13 = x_v1 + a0;
+        const derive_vd a14 = az0 - a13;
+        const derive_vd a15 = DERIVE_VFMA(a11, a14, a0);
+        const derive_vd a16 = DERIVE_VFMA(a12, a14, x_v1);
+        const derive_vd a17 = DERIVE_VFNMA(a11, a7, a4);
+        const derive_vd a18 = DERIVE_VFNMA(a11, a8, a5);
+        const derive_vd a19 = DERIVE_VFNMA(a12, a8, a6);
         if (!(a10[0] > 0.0) && !step_status) {
             step_status = 1;
         }
@@ -371,8 +379,8 @@ int mpt3d_a_kf_run(size_t steps, const double *z, const double *x0, const double
         if (step_status) {
             return step_status;
         }
-        { const derive_v4 lo = DERIVE_PAIRS_LO(a15, a16);
-          const derive_v4 hi = DERIVE_PAIRS_HI(a15, a16);
+        { const derive_vd lo = DERIVE_PAIRS_LO(a15, a16);
+          const derive_vd hi = DERIVE_PAIRS_HI(a15, a16);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
           __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {

@@ -20,8 +20,8 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 0, mul 75, div 6, sqrt 0, fma 69, neg 0, cmp 12, calls 0 (flops 240, instructions 183)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_BLOCK_VECTOR is defined (GCC, Clang on x86-64, AArch64; a build defining DERIVE_NO_BLOCK_VECTOR runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * derive-interface: {"functions":[["mpt3d_a_lf_step","step",true,false,[["x",[6],false,false,false],["P",[6,6],false,false,false],["z",[3],false,false,false],["x_new",[6],true,false,false],["P_new",[6,6],true,false,false]]],["mpt3d_a_lf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]],["mpt3d_a_lf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[6],false,false,false],["P0",[6,6],false,false,false],["xs",["steps",6],true,false,false],["Ps",["steps",6,6],true,true,false]]]],"statuses":[["step",1,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0",[2,3,4,5,8,9,10,11,16,17,22,23]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -80,7 +80,9 @@
 #endif
 #endif
 #ifndef DERIVE_SIMD
-#if defined(_OPENMP)
+#if defined(DERIVE_VECTOR) && !DERIVE_VECTOR
+#define DERIVE_SIMD
+#elif defined(_OPENMP)
 #define DERIVE_SIMD _Pragma("omp simd")
 #elif defined(__clang__)
 #pragma clang diagnostic ignored "-Wpass-failed"
@@ -91,9 +93,16 @@
 #define DERIVE_SIMD
 #endif
 #endif
-#if defined(__GNUC__) && (defined(__SSE2__) || defined(__aarch64__)) && !defined(DERIVE_NO_BLOCK_VECTOR)
-#define DERIVE_BLOCK_VECTOR 1
-__extension__ typedef double derive_v4 __attribute__((vector_size(32)));
+#ifndef DERIVE_VECTOR
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
+#define DERIVE_VECTOR 1
+#else
+#define DERIVE_VECTOR 0
+#endif
+#endif
+#if DERIVE_VECTOR
+__extension__ typedef double derive_vd __attribute__((vector_size(32)));
+__extension__ typedef double derive_vd_unaligned __attribute__((vector_size(32), aligned(8), may_alias));
 #if defined(__clang__) && defined(__has_builtin)
 #if __has_builtin(__builtin_elementwise_fma)
 #define DERIVE_ELEMENTWISE_FMA 1
@@ -101,21 +110,20 @@ __extension__ typedef double derive_v4 __attribute__((vector_size(32)));
 #endif
 #if defined(DERIVE_FMA_PLAIN)
 #define DERIVE_VFMA(a, b, c) ((a) * (b) + (c))
-#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__)
+#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
+#elif defined(DERIVE_FMA_FUSED) && defined(__FMA__) && (defined(__x86_64__) || defined(__i386__))
 #include <immintrin.h>
-#define DERIVE_VFMA(a, b, c) _mm256_fmadd_pd((a), (b), (c))
+#define DERIVE_VFMA(a, b, c) ((derive_vd)_mm256_fmadd_pd((a), (b), (c)))
+#define DERIVE_VFNMA(a, b, c) ((derive_vd)_mm256_fnmadd_pd((a), (b), (c)))
 #elif defined(DERIVE_FMA_FUSED) && defined(DERIVE_ELEMENTWISE_FMA)
 #define DERIVE_VFMA(a, b, c) __builtin_elementwise_fma((a), (b), (c))
+#define DERIVE_VFNMA(a, b, c) __builtin_elementwise_fma((a), -(b), (c))
 #else
-#define DERIVE_VFMA(a, b, c) ((derive_v4){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFMA(a, b, c) ((derive_vd){DERIVE_FMA((a)[0], (b)[0], (c)[0]), DERIVE_FMA((a)[1], (b)[1], (c)[1]), DERIVE_FMA((a)[2], (b)[2], (c)[2]), DERIVE_FMA((a)[3], (b)[3], (c)[3])})
+#define DERIVE_VFNMA(a, b, c) ((derive_vd){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
-#if defined(DERIVE_FMA_PLAIN)
-#define DERIVE_VFNMA(a, b, c) ((c) - (a) * (b))
-#elif defined(DERIVE_FMA_FUSED)
-#define DERIVE_VFNMA(a, b, c) DERIVE_VFMA((a), -(b), (c))
-#else
-#define DERIVE_VFNMA(a, b, c) ((derive_v4){DERIVE_FNMA((a)[0], (b)[0], (c)[0]), DERIVE_FNMA((a)[1], (b)[1], (c)[1]), DERIVE_FNMA((a)[2], (b)[2], (c)[2]), DERIVE_FNMA((a)[3], (b)[3], (c)[3])})
 #endif
+#if DERIVE_VECTOR
 #if defined(__clang__)
 #define DERIVE_PAIRS_LO(a, b) __builtin_shufflevector((a), (b), 0, 4, 1, 5)
 #define DERIVE_PAIRS_HI(a, b) __builtin_shufflevector((a), (b), 2, 6, 3, 7)
@@ -368,76 +376,76 @@ int mpt3d_a_lf_run(size_t steps, const double *z, const double *x0, const double
     if (!(P0[23] == 0.0)) {
         return 1; /* outside P's pattern */
     }
-#if defined(DERIVE_BLOCK_VECTOR)
+#if DERIVE_VECTOR
     /* the identical blocks in the lanes of one vector (lane b: block b) */
-    derive_v4 P_v0 = {P0[0], P0[14], P0[28], P0[0]};
-    derive_v4 P_v1 = {P0[1], P0[15], P0[29], P0[1]};
-    derive_v4 P_v2 = {P0[7], P0[21], P0[35], P0[7]};
-    derive_v4 x_v3 = {x0[0], x0[2], x0[4], x0[0]};
-    derive_v4 x_v4 = {x0[1], x0[3], x0[5], x0[1]};
+    derive_vd P_v0 = {P0[0], P0[14], P0[28], P0[0]};
+    derive_vd P_v1 = {P0[1], P0[15], P0[29], P0[1]};
+    derive_vd P_v2 = {P0[7], P0[21], P0[35], P0[7]};
+    derive_vd x_v3 = {x0[0], x0[2], x0[4], x0[0]};
+    derive_vd x_v4 = {x0[1], x0[3], x0[5], x0[1]};
     size_t k;
     for (k = 0; k < steps; ++k) {
         const double *restrict zk = z + k * 3;
-        const derive_v4 az0 = {zk[0], zk[1], zk[2], zk[0]};
-        const derive_v4 a0 = 16.3265306122449 * P_v1;
-        const derive_v4 a1 = DERIVE_VFMA(((derive_v4){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v0, a0);
-        const derive_v4 a2 = 16.3265306122449 * P_v0;
-        const derive_v4 a3 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v1, a2);
-        const derive_v4 a4 = 8.16326530612245 * P_v1;
-        const derive_v4 a5 = DERIVE_VFMA(((derive_v4){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v2, a4);
-        const derive_v4 a6 = DERIVE_VFMA(((derive_v4){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v2, a0);
-        const derive_v4 a7 = 1.0 + a1;
-        const derive_v4 a8 = 1.0 + a6;
-        const derive_v4 a9 = 1.0 / a7;
-        const derive_v4 a10 = a5 * a9;
-        const derive_v4 a11 = DERIVE_VFNMA(a3, a10, a8);
-        const derive_v4 a12 = 1.0 / a11;
-        const derive_v4 a13 = a12 * a10;
-        const derive_v4 a14 = DERIVE_VFMA(a13, a3, ((derive_v4){1.0, 1.0, 1.0, 1.0}));
-        const derive_v4 a15 = a9 * a14;
-        const derive_v4 a16 = a12 * a3;
-        const derive_v4 a17 = a16 * a9;
-        const derive_v4 a18 = (-0.8775510204081632) * a13;
-        const derive_v4 a19 = DERIVE_VFMA(((derive_v4){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a15, a18);
-        const derive_v4 a20 = 0.8775510204081632 * a12;
-        const derive_v4 a21 = DERIVE_VFMA(((derive_v4){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a17, a20);
-        const derive_v4 a22 = 0.7551020408163265 * a13;
-        const derive_v4 a23 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a15, a22);
-        const derive_v4 a24 = 0.7551020408163265 * a12;
-        const derive_v4 a25 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a17, a24);
-        const derive_v4 a26 = 8.16326530612245 * az0;
-        const derive_v4 a27 = 16.3265306122449 * az0;
-        const derive_v4 a28 = P_v0 * a26;
-        const derive_v4 a29 = DERIVE_VFMA(P_v1, a27, a28);
-        const derive_v4 a30 = P_v1 * a26;
-        const derive_v4 a31 = DERIVE_VFMA(P_v2, a27, a30);
-        const derive_v4 a32 = x_v3 + a29;
-        const derive_v4 a33 = x_v4 + a31;
-        const derive_v4 a34 = a19 * a32;
-        const derive_v4 a35 = DERIVE_VFMA(a21, a33, a34);
-        const derive_v4 a36 = a25 * a33;
-        const derive_v4 a37 = DERIVE_VFNMA(a23, a32, a36);
-        const derive_v4 a38 = DERIVE_VFMA(((derive_v4){0.061224489795918366, 0.061224489795918366, 0.061224489795918366, 0.061224489795918366}), az0, a35);
-        const derive_v4 a39 = DERIVE_VFMA(((derive_v4){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), az0, a37);
-        const derive_v4 a40 = P_v0 * a19;
-        const derive_v4 a41 = DERIVE_VFMA(P_v1, a21, a40);
-        const derive_v4 a42 = P_v1 * a19;
-        const derive_v4 a43 = DERIVE_VFMA(P_v2, a21, a42);
-        const derive_v4 a44 = P_v1 * a25;
-        const derive_v4 a45 = DERIVE_VFNMA(P_v0, a23, a44);
-        const derive_v4 a46 = P_v2 * a25;
-        const derive_v4 a47 = DERIVE_VFNMA(P_v1, a23, a46);
-        const derive_v4 a48 = 0.9387755102040817 * a41;
-        const derive_v4 a49 = DERIVE_VFMA(((derive_v4){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a43, a48);
-        const derive_v4 a50 = (-0.12244897959183673) * a41;
-        const derive_v4 a51 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a43, a50);
-        const derive_v4 a52 = (-0.12244897959183673) * a45;
-        const derive_v4 a53 = DERIVE_VFMA(((derive_v4){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a47, a52);
-        const derive_v4 a54 = 0.0020408163265306124 + a49;
-        const derive_v4 a55 = 0.004081632653061225 + a51;
-        const derive_v4 a56 = 0.00816326530612245 + a53;
-        { const derive_v4 lo = DERIVE_PAIRS_LO(a38, a39);
-          const derive_v4 hi = DERIVE_PAIRS_HI(a38, a39);
+        const derive_vd az0 = {zk[0], zk[1], zk[2], zk[0]};
+        const derive_vd a0 = 16.3265306122449 * P_v1;
+        const derive_vd a1 = DERIVE_VFMA(((derive_vd){8.16326530612245, 8.16326530612245, 8.16326530612245, 8.16326530612245}), P_v0, a0);
+        const derive_vd a2 = 16.3265306122449 * P_v0;
+        const derive_vd a3 = DERIVE_VFMA(((derive_vd){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v1, a2);
+        const derive_vd a4 = 8.16326530612245 * P_v1;
+        const derive_vd a5 = DERIVE_VFMA(((derive_vd){16.3265306122449, 16.3265306122449, 16.3265306122449, 16.3265306122449}), P_v2, a4);
+        const derive_vd a6 = DERIVE_VFMA(((derive_vd){32.6530612244898, 32.6530612244898, 32.6530612244898, 32.6530612244898}), P_v2, a0);
+        const derive_vd a7 = 1.0 + a1;
+        const derive_vd a8 = 1.0 + a6;
+        const derive_vd a9 = 1.0 / a7;
+        const derive_vd a10 = a5 * a9;
+        const derive_vd a11 = DERIVE_VFNMA(a3, a10, a8);
+        const derive_vd a12 = 1.0 / a11;
+        const derive_vd a13 = a12 * a10;
+        const derive_vd a14 = DERIVE_VFMA(a13, a3, ((derive_vd){1.0, 1.0, 1.0, 1.0}));
+        const derive_vd a15 = a9 * a14;
+        const derive_vd a16 = a12 * a3;
+        const derive_vd a17 = a16 * a9;
+        const derive_vd a18 = (-0.8775510204081632) * a13;
+        const derive_vd a19 = DERIVE_VFMA(((derive_vd){0.9387755102040817, 0.9387755102040817, 0.9387755102040817, 0.9387755102040817}), a15, a18);
+        const derive_vd a20 = 0.8775510204081632 * a12;
+        const derive_vd a21 = DERIVE_VFMA(((derive_vd){(-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817), (-0.9387755102040817)}), a17, a20);
+        const derive_vd a22 = 0.7551020408163265 * a13;
+        const derive_vd a23 = DERIVE_VFMA(((derive_vd){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a15, a22);
+        const derive_vd a24 = 0.7551020408163265 * a12;
+        const derive_vd a25 = DERIVE_VFMA(((derive_vd){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), a17, a24);
+        const derive_vd a26 = 8.16326530612245 * az0;
+        const derive_vd a27 = 16.3265306122449 * az0;
+        const derive_vd a28 = P_v0 * a26;
+        const derive_vd a29 = DERIVE_VFMA(P_v1, a27, a28);
+        const derive_vd a30 = P_v1 * a26;
+        const derive_vd a31 = DERIVE_VFMA(P_v2, a27, a30);
+        const derive_vd a32 = x_v3 + a29;
+        const derive_vd a33 = x_v4 + a31;
+        const derive_vd a34 = a19 * a32;
+        const derive_vd a35 = DERIVE_VFMA(a21, a33, a34);
+        const derive_vd a36 = a25 * a33;
+        const derive_vd a37 = DERIVE_VFNMA(a23, a32, a36);
+        const derive_vd a38 = DERIVE_VFMA(((derive_vd){0.061224489795918366, 0.061224489795918366, 0.061224489795918366, 0.061224489795918366}), az0, a35);
+        const derive_vd a39 = DERIVE_VFMA(((derive_vd){0.12244897959183673, 0.12244897959183673, 0.12244897959183673, 0.12244897959183673}), az0, a37);
+        const derive_vd a40 = P_v0 * a19;
+        const derive_vd a41 = DERIVE_VFMA(P_v1, a21, a40);
+        const derive_vd a42 = P_v1 * a19;
+        const derive_vd a43 = DERIVE_VFMA(P_v2, a21, a42);
+        const derive_vd a44 = P_v1 * a25;
+        const derive_vd a45 = DERIVE_VFNMA(P_v0, a23, a44);
+        const derive_vd a46 = P_v2 * a25;
+        const derive_vd a47 = DERIVE_VFNMA(P_v1, a23, a46);
+        const derive_vd a48 = 0.9387755102040817 * a41;
+        const derive_vd a49 = DERIVE_VFMA(((derive_vd){0.8775510204081632, 0.8775510204081632, 0.8775510204081632, 0.8775510204081632}), a43, a48);
+        const derive_vd a50 = (-0.12244897959183673) * a41;
+        const derive_vd a51 = DERIVE_VFMA(((derive_vd){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a43, a50);
+        const derive_vd a52 = (-0.12244897959183673) * a45;
+        const derive_vd a53 = DERIVE_VFMA(((derive_vd){0.7551020408163265, 0.7551020408163265, 0.7551020408163265, 0.7551020408163265}), a47, a52);
+        const derive_vd a54 = 0.0020408163265306124 + a49;
+        const derive_vd a55 = 0.004081632653061225 + a51;
+        const derive_vd a56 = 0.00816326530612245 + a53;
+        { const derive_vd lo = DERIVE_PAIRS_LO(a38, a39);
+          const derive_vd hi = DERIVE_PAIRS_HI(a38, a39);
           __builtin_memcpy(&xs[k * 6], &lo, sizeof lo);
           __builtin_memcpy(&xs[k * 6 + 4], &hi, 2 * sizeof hi[0]); }
         if (Ps) {

@@ -16,7 +16,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 64, neg 0, cmp 0, calls 0 (flops 130, instructions 66)
  * N = 33
  * eps = 1e-06
- * derive-interface: {"functions":[["mpt3d_b_fir_step","step",false,false,[["zw",[33,1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_fir_run","run",false,true,[["z",["steps",1],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_b_fir_step","step",false,false,[["zw",[33,1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_fir_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_mpt3d_b_fir_H
 #define DERIVE_mpt3d_b_fir_H

@@ -19,7 +19,7 @@
  * B = [[0.36535881073846804], [0.2068348086341748 ]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 4, div 0, sqrt 0, fma 10, neg 0, cmp 0, calls 0 (flops 24, instructions 14)
- * derive-interface: {"functions":[["mpt3d_b_sskf_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_sskf_run","run",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["mpt3d_b_sskf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
+ * derive-interface: {"functions":[["mpt3d_b_sskf_step","step",false,false,[["x",[2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false]]],["mpt3d_b_sskf_run","run",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]],["mpt3d_b_sskf_run_tracks","run_tracks",false,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["xs",["steps",2],true,false,false]]]],"statuses":[]}
  */
 #ifndef DERIVE_mpt3d_b_sskf_H
 #define DERIVE_mpt3d_b_sskf_H

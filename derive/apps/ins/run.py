@@ -3,7 +3,7 @@ flight (per-sensor arrays with NaN rows, dt as a per-step parameter row), or the
 ``predict`` and ``update_<sensor>`` called step by step to see each update's innovation.
 
 Both accept a generated Python module (functions return arrays) or a compiled C module
-(derive.build.FilterModule: the same names, flat outputs).
+(derive.build.FilterModule: the same names, P returned (16, 16)).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def generated_run(module, flight, x0=None, P0=None) -> tuple[np.ndarray, np.ndar
     x0 = X0 if x0 is None else x0
     P0 = p0() if P0 is None else P0
     p_rows = flight.dt[:, None]
-    xs, Ps = module.run(flight.imu, flight.gnss, flight.baro, x0, P0, p_rows)
+    xs, Ps = module.run(flight.gnss, flight.baro, flight.imu, x0, P0, p_rows)
     steps = flight.steps
     return np.asarray(xs).reshape(steps, 16), np.asarray(Ps).reshape(steps, 16, 16)
 

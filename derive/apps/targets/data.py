@@ -17,13 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...emit.unit import Unit
 from ...errors import SymbolError
 from ...filters import kind
 from ...filters.sensors import uses_sensor_run
 from ...generation import command_unit
 from ...options import validate
 from ...precision import DOUBLE
+from ...runs.unit import Unit
 from ..float_tolerance import FloatTolerance, float_tolerance
 from ..verify import (
     FLOOR_MARGIN,

@@ -12,12 +12,12 @@ from pathlib import Path
 
 from ...emit.library import render_build_files, render_test_program, test_program_name
 from ...emit.render import render_c
-from ...emit.unit import Unit
 from ...emit.write import write_files
 from ...errors import FilterError, NameError_
 from ...filters import available, kind
 from ...generation import command_unit, resolve_model
 from ...options import per_filter
+from ...runs.unit import Unit
 from .data import TEST_STEPS, require_examples, verification_data
 
 

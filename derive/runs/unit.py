@@ -121,13 +121,26 @@ class SensorSlot:
     """One sensor of a unit of the run kind ``sensors``: its name, its measurement count,
     the columns of run's u (the model's inputs) its update takes, and whether its update
     is gated (returns nis and applied); ``R_argument``: its update takes R per call (run:
-    one R per step, ``R_<sensor>``)."""
+    one R per step, ``R_<sensor>``); ``implicit``: the one sensor of a model that declares
+    none (all its measurements), whose run array is ``z`` (Python ``zs``) as in every other
+    run kind, so that the start does not change how run is called."""
 
     name: str
     m: int
     inputs: tuple[int, ...] = ()
     gated: bool = False
     R_argument: bool = False
+    implicit: bool = False
+
+    @property
+    def z_c(self) -> str:
+        """The C name of run's array of this sensor's measurements."""
+        return "z" if self.implicit else f"z_{self.name}"
+
+    @property
+    def z_py(self) -> str:
+        """The Python name of run's array of this sensor's measurements."""
+        return "zs" if self.implicit else f"z_{self.name}"
 
 
 @dataclass(frozen=True)
@@ -387,22 +400,23 @@ def _validate(unit: Unit) -> None:
 
 
 def sensor_run_arguments(unit: Unit) -> list[Argument]:
-    """run's arguments for the run kind ``sensors``: u (when the model has inputs), one
-    z_<sensor> per sensor, x0, P0, then xs, Ps and, per gated sensor, nis_<sensor> and
+    """run's arguments for the run kind ``sensors``: one z_<sensor> per sensor (``z`` for
+    a model's implicit sensor), then u (when the model has inputs), as every run kind takes
+    z before u; then x0, P0, xs, Ps and, per gated sensor, nis_<sensor> and
     applied_<sensor> (optional), then p."""
     n = unit.n
     args = []
-    if unit.n_inputs:
-        args.append(Argument("u", "us", ("steps", unit.n_inputs),
-                             doc="u(k) per step, one row each (predict's and the updates')"))
     for s in unit.sensors:
-        args.append(Argument(f"z_{s.name}", f"z_{s.name}", ("steps", s.m),
+        args.append(Argument(s.z_c, s.z_py, ("steps", s.m),
                              doc=f"sensor {s.name} per step, one row each; a row with a NaN: "
                                  "no measurement of this sensor at that step"))
         if s.R_argument:
             args.append(Argument(f"R_{s.name}", f"R_{s.name}", ("steps", s.m, s.m),
                                  doc=f"R of sensor {s.name} per step (symmetric; read where "
                                      "its row of z is present)"))
+    if unit.n_inputs:
+        args.append(Argument("u", "us", ("steps", unit.n_inputs),
+                             doc="u(k) per step, one row each (predict's and the updates')"))
     args += [Argument("x0", "x0", (n,), doc="initial state estimate"),
              Argument("P0", "P0", (n, n), doc="initial covariance (symmetric)"),
              Argument("xs", "xs", ("steps", n), output=True, doc="estimate after each step"),
