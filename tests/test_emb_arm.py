@@ -15,6 +15,7 @@ from derive.apps.targets.arm import read_states, run_under_qemu, sizes
 from derive.apps.targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS, TARGETS
 from derive.apps.verify import LINEAR_TOLERANCE, verify_filter
 from derive.cli import main
+from derive.errors import NumericalError
 
 M4, LINUX = TARGETS["cortex-m4"], TARGETS["arm-linux"]
 needs_m4 = pytest.mark.skipif(bool(M4.missing()),
@@ -153,3 +154,33 @@ def test_float32_runs_under_qemu_arm_within_derive_verifys_float32_tolerance():
         assert r.passed and r.error <= r.tolerance, r.line()
         # float32, not double, was run: its error is far above double's rounding
         assert r.error > 1e3 * LINEAR_TOLERANCE
+
+
+@needs_qemu
+def test_a_filter_failing_its_own_check_under_qemu_is_a_failed_verification(tmp_path):
+    """P0 = -I: the C run returns its status (S not positive definite) on ARM as on the
+    host; that is the model's failure, named with its check, not a bug (exit 70)."""
+    model = tmp_path / "negative.toml"
+    model.write_text(NEGATIVE_P0, encoding="utf-8")
+    with pytest.raises(NumericalError, match="negative kf under qemu-arm: negative_kf_run "
+                                             "returned status 1: .*S is not positive definite"):
+        run_under_qemu(str(model), ["kf"], steps=5)
+
+
+NEGATIVE_P0 = """\
+[model]
+name = "negative"
+states = ["s", "v"]
+measurements = ["z"]
+
+[discrete]
+F = [[1, 1], [0, 1]]
+H = [[1, 0]]
+Q = [[0.01, 0], [0, 0.01]]
+R = [[0.1]]
+
+[initial]
+x0 = [0, 0]
+P0 = [[-1, 0], [0, -1]]
+P0_pattern = "dense"
+"""
