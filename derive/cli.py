@@ -51,6 +51,11 @@ def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
     flags = sorted({s for p in parsers for a in p._actions for s in a.option_strings})
     hints = []
     for flag in unknown:
+        owners = [p.prog for p in parsers[1:]
+                  if any(flag in a.option_strings for a in p._actions)]
+        if owners:   # spelt right, given to a command that does not take it
+            hints.append(f"{flag} is an option of {', '.join(owners)} only")
+            continue
         close = difflib.get_close_matches(flag, flags, n=1)
         if close:
             hints.append(f"{flag}: did you mean {close[0]}?")
