@@ -402,6 +402,7 @@ class _Model:
                                   f"{sorted(s.name for s in mat.free_symbols)}")
         check_entries({"x0": self.x0, "P0": self.P0}, {})
         self.P0 = _symmetric(self.P0, "P0")
+        _check_definite(self.P0, "P0", strict=False)   # a covariance: no filter runs from -I
         if P0_pattern is None:
             P0_pattern = "dense"
         if P0_pattern not in P0_PATTERNS:

@@ -28,7 +28,7 @@ import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from numbers import Integral, Real
 
@@ -323,7 +323,7 @@ def per_filter(names: Iterable[str], options: Mapping | None = None,
     specs = all_specs()
     for key, value in common.items():
         if key not in specs:
-            raise OptionError(_unknown(key, list(specs), "options"))
+            raise OptionError(_unknown(key, list(specs), "options", names))
         check(key, value)
         if named and names and not any(n in takers(key) for n in names):
             raise OptionError(f"option {key!r} is taken by {', '.join(takers(key))}; "
@@ -461,17 +461,24 @@ def _wrong_type(key: str, spec: Spec, value) -> str:
             f"{type(value).__name__} {shown}")
 
 
-def _unknown(key, known: list[str], what: str) -> str:
-    hint = _close(key, known)
+def _unknown(key, known: list[str], what: str, filters: Sequence[str] = ()) -> str:
+    hint = _close(key, known, filters)
     return (f"unknown option {key!r}{hint}; {what}: {', '.join(known) or 'none'}")
 
 
-def _close(key, known: list[str]) -> str:
+def _close(key, known: list[str], filters: Sequence[str] = ()) -> str:
+    """`` (did you mean 'order'?)``: the option ``key`` was formerly called, one that
+    ``filters`` (the call's) take first (``N`` was FIR's order and the predictor's
+    horizon), else the closest spelling."""
     if not isinstance(key, str):
         return ""
-    formerly = {old: new for new in known for old in all_specs()[new].formerly}
-    if key in formerly:
-        return f" (did you mean {formerly[key]!r}?)"
+    formerly = [new for new in known if key in all_specs()[new].formerly]
+    if formerly:
+        mine = [new for new in formerly if any(f in takers(new) for f in filters)]
+        if len(mine) == 1 or (len(formerly) == 1 and not mine):
+            return f" (did you mean {(mine or formerly)[0]!r}?)"
+        return " (did you mean " + " or ".join(
+            f"{new!r} ({', '.join(takers(new))})" for new in mine or formerly) + "?)"
     close = difflib.get_close_matches(key, known, n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
 

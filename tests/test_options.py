@@ -406,3 +406,25 @@ def test_the_regenerate_command_gives_back_the_language():
         command = next(line for line in files[file].splitlines() if "derive generate" in line)
         args = parser.parse_args(command[command.index("derive generate") + 7:].split())
         assert args.lang == lang, (lang, command)
+
+
+@pytest.mark.parametrize("filters, hint", [
+    (["fir"], "(did you mean 'order'?)"), (["pred"], "(did you mean 'horizon'?)"),
+    (["fir", "pred"], "(did you mean 'order' (fir) or 'horizon' (pred)?)")])
+def test_n_names_the_option_of_the_filters_called(tmp_path, filters, hint):
+    """``N`` was the FIR's order and the predictor's horizon: the hint is the one the
+    call's filters take (it was 'horizon' for the FIR, by spelling alone)."""
+    from derive import generate
+
+    with pytest.raises(OptionError) as info:
+        generate("mpt3d_b", filters, out=tmp_path, options={"N": 10})
+    assert f"unknown option 'N' {hint};" in str(info.value)
+
+
+def test_a_flag_of_another_command_is_named_as_such(capsys):
+    """``derive size --layout library``: --layout is spelt right, for another command (it
+    said "did you mean --layout?")."""
+    assert main(["size", "mpt3d_b", "--layout", "library"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("derive: error: unrecognized arguments: --layout library (--layout is an "
+                   "option of derive generate only)\n")
