@@ -345,8 +345,13 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
     result = NavigationResult()
     if peer_calls:
         tick("navigation: the SymForce peer's operating points")
-        result.peer = symforce_peer.run_peer(peer_points(), workdir / "peer", peer_calls,
-                                             repeats, tick)
+        try:
+            result.peer = symforce_peer.run_peer(peer_points(), workdir / "peer", peer_calls,
+                                                 repeats, tick)
+        except ImportError as exc:
+            result.notes.append(f"SymForce peer skipped: {exc.name} is not installed")
+        except (OSError, RuntimeError) as exc:  # no g++, or a compile failed
+            result.notes.append(f"SymForce peer skipped: {str(exc).splitlines()[0][:300]}")
     tick("navigation: the flight's operating point")
     point = operating_point()
     tick("navigation: derive generates ins_gnss")

@@ -814,8 +814,9 @@ def run_peer(points: dict[str, tuple[Point, dict]], workdir: Path, calls: int, r
     try:
         for key, levels in _m4f_sizes(models, wrappers, workdir / "m4f").items():
             by_key[key].m4f_bytes = levels
-    except FileNotFoundError as exc:
-        result.notes.append(f"Cortex-M4F sizes not measured: {exc}")
+    except (FileNotFoundError, RuntimeError) as exc:  # no cross C++ or its headers
+        result.notes.append(f"Cortex-M4F sizes not measured: {str(exc).splitlines()[0]} "
+                            "(Debian: gcc-arm-none-eabi libstdc++-arm-none-eabi-dev)")
     return result
 
 
