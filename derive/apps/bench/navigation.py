@@ -338,16 +338,17 @@ def peer_points() -> dict:
 
 def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
                    symforce: bool = True, tick=lambda text: None,
-                   peer_calls: int = 0) -> NavigationResult:
+                   peer_calls: int = 0, peer_repeats: int = 1) -> NavigationResult:
     """Measure everything above; ``calls`` per C timing, ``python_calls`` per FilterPy
     timing; with ``peer_calls``, SymForce's C++ timed beside derive's C
-    (derive.apps.bench.symforce_peer), that many calls per timing."""
+    (derive.apps.bench.symforce_peer), that many calls per timing, ``peer_repeats``
+    repeats."""
     result = NavigationResult()
     if peer_calls:
         tick("navigation: the SymForce peer's operating points")
         try:
             result.peer = symforce_peer.run_peer(peer_points(), workdir / "peer", peer_calls,
-                                                 repeats, tick)
+                                                 peer_repeats, tick)
         except ImportError as exc:
             result.notes.append(f"SymForce peer skipped: {exc.name} is not installed")
         except (OSError, RuntimeError) as exc:  # no g++, or a compile failed

@@ -13,8 +13,10 @@ each other and the NumPy references, timed in one process.
   C functions and one extern "C" wrapper per SymForce function, each in its own translation
   unit: the wrapper reinterprets the arrays as the matrices, no copy), interleaved: each
   repeat times ``calls`` calls of derive's function, then of SymForce's, for each function
-  in turn; per call the minimum over the repeats (steady clock). Inputs are the same every
-  call (the operating point of the model's flight).
+  in turn; per call the minimum over the repeats of this thread's CPU time
+  (``CLOCK_THREAD_CPUTIME_ID``: on a shared machine the time others run is not counted,
+  and short windows of calls, many repeats, let the minimum find one undisturbed). Inputs
+  are the same every call (the operating point of the model's flight).
 - Agreement: in each build, the outputs (x_new and P_new) of both on the operating point,
   against each other and against the model's NumPy reference (derive.apps.ins.reference,
   derive.apps.ins.fc24), by the measure of navigation._agreement.
@@ -169,7 +171,7 @@ extern "C" int sf_{model}_{function}(const real* x, const real* P, const real* a
 """
 
 _MAIN = """\
-#include <chrono>
+#include <ctime>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -192,10 +194,15 @@ static void load(int f) {{
   for (int i = 0; i < FNS[f].m; ++i) ARG[i] = (real)DATA_ARG[f][i];
   PAR[0] = (real)DATA_DT[f];
 }}
+static double now() {{
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}}
 static double seconds(Call call, long calls) {{
-  auto start = std::chrono::steady_clock::now();
+  double start = now();
   for (long k = 0; k < calls; ++k) call(X, P, ARG, X_NEW, P_NEW, PAR);
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return now() - start;
 }}
 static void print_out(int f, const char* impl, int status, bool column_major) {{
   int n = FNS[f].n;
@@ -314,7 +321,8 @@ class PeerResult:
         out = [f"SymForce's C++ as a timed peer (derive.apps.bench.symforce_peer): the same "
                f"functions from the same equations, both compiled by {compiler_version()}, "
                f"called through non-inline calls in one process, interleaved; per call the "
-               f"minimum of {self.repeats} repeats of {self.calls:,} calls; flops from one "
+               f"minimum of {self.repeats} repeats of {self.calls:,} calls (thread CPU time); "
+               "flops from one "
                "counting scalar type; code: bytes of the function's symbols (nm); L1i: "
                f"cachegrind's misses per call ({SIZE_BUILD})", ""]
         gen = ", ".join(f"{m} derive {w:.2f} s (CPU {c:.2f} s), SymForce "
