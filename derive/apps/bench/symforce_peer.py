@@ -47,15 +47,18 @@ import os
 import re
 import shutil
 import subprocess
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ... import catalog
 from ...build import cache_dir
 from ...generation import generate_units
 from ...trees import OpCount
+from ..ins import symforce_ekf
 from ..targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
 from .timing import columns, human
 
@@ -556,8 +559,6 @@ class _Model:
 
 
 def _derive_sources(model: str, workdir: Path, result: PeerResult):
-    import time
-
     paths = {}
     for precision in ("double", "float"):
         start, cpu = time.perf_counter(), time.process_time()
@@ -573,9 +574,6 @@ def _derive_sources(model: str, workdir: Path, result: PeerResult):
 
 def _prepare(model_name: str, point: Point, expected, workdir: Path, result: PeerResult
              ) -> _Model:
-    from ... import catalog
-    from ..ins import symforce_ekf
-
     model = catalog.load(model_name)
     functions = symforce_ekf.function_names(model)
     sources, headers = _derive_sources(model_name, workdir / model_name, result)
