@@ -358,7 +358,10 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
     tick("navigation: derive generates ins_gnss")
     derive_counts, derive_loops = _derive(workdir, result)
     symforce_functions = {}
-    if symforce:
+    if symforce and result.peer is not None:  # the peer generated them: its time is theirs
+        symforce_functions = result.peer.symforce[MODEL]
+        result.symforce_seconds = result.peer.symforce_seconds[MODEL]
+    elif symforce:
         tick("navigation: SymForce codegen")
         try:
             symforce_functions = symforce_ekf.generate(FUNCTIONS)

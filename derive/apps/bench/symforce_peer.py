@@ -319,6 +319,7 @@ class PeerResult:
     notes: list[str] = field(default_factory=list)
     calls: int = 0
     repeats: int = 0
+    symforce: dict = field(default_factory=dict)   # model -> {function: SymforceFunction}
 
     def lines(self) -> list[str]:
         out = [f"SymForce's C++ as a timed peer (derive.apps.bench.symforce_peer): the same "
@@ -579,6 +580,7 @@ def _prepare(model_name: str, point: Point, expected, workdir: Path, result: Pee
     sources, headers = _derive_sources(model_name, workdir / model_name, result)
     symforce = symforce_ekf.generate(functions, model_name)
     result.symforce_seconds[model_name] = sum(f.seconds for f in symforce.values())
+    result.symforce[model_name] = symforce
     sizes = {name: len(point.args[name]) for name in functions}
     return _Model(model_name, model.n, functions, sizes, f"{model_name}_ekf", sources,
                   headers, symforce, point, expected)
