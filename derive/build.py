@@ -14,8 +14,8 @@ half-written library, and a library is loaded only if the user owns it.
 The wrappers read the interface the generated header states in its machine-readable
 line (derive.interface; the prose ``int PREFIX_step(x[2], P[2*2], z[1], x_new[2] out,
 ...)`` is rendered from the same description): ``step`` takes
-the inputs in C order (``p`` as keyword) and returns the outputs flat, like the
-generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
+the inputs in C order or by name (``p`` as keyword) and returns x flat and each matrix
+(n, n), like the generated Python; ``run`` returns arrays shaped ``(steps, n)`` and
 ``(steps, n, n)``.  A non-zero status raises :class:`derive.errors.NumericalError`, or
 :class:`derive.errors.PatternError` naming the entry for the pattern status.
 
@@ -232,8 +232,8 @@ class FilterModule:
         if fn.has_steps:
             shaped = [out.reshape(tuple(steps if d == "steps" else d for d in arg.dims))
                       for arg, out in outputs]
-        else:
-            shaped = [out for _, out in outputs]
+        else:  # P and U as (n, n) arrays, as run returns (steps, n, n)
+            shaped = [out.reshape(tuple(int(d) for d in arg.dims)) for arg, out in outputs]
         return shaped[0] if len(shaped) == 1 else tuple(shaped)
 
 

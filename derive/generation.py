@@ -112,6 +112,8 @@ def generate_units(model, filters: Iterable[str] | None = None, lang: str = "all
     ref = model if isinstance(model, str) else None
     model = resolve_model(model)
     check_lang(lang)
+    if isinstance(filters, str):  # one name, not its characters
+        filters = [filters]
     names = list(filters) if filters is not None else available(model)
     for name in names:
         kind(name)
@@ -132,6 +134,9 @@ def generate(model: ModelRef, filters: Iterable[str] | None = None, lang: str = 
              out: str | Path = "generated", options: Mapping | None = None,
              per_filter_options: Mapping[str, Mapping] | None = None) -> list[Path]:
     """Generate ``filters`` (default: all that apply) for ``model``; return the written paths.
+
+    ``filters``: names (``["kf", "rts"]``) or one name (``"kf"``); an unknown name is
+    refused with the closest filter's name (case aside: ``"KF"``: did you mean 'kf'?).
 
     ``model`` is a model object, a catalog name or a model-file path. ``options`` apply
     to the call: each filter is given those it takes (``P0_pattern``, ``missing``,

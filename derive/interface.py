@@ -104,9 +104,10 @@ class Function:
     def python_line(self) -> str:
         ins = [a for a in self.arguments if not a.output]
         outs = [a for a in self.arguments if a.output]
-        if not self.has_steps:
+        if not self.has_steps:  # a matrix is taken flat or 2-D, returned 2-D (n, n)
             def text(a):
-                return f"{a.name}[{'*'.join(str(d) for d in a.dims)}]"
+                joint = ", " if a.output and len(a.dims) == 2 else "*"
+                return f"{a.name}[{joint.join(str(d) for d in a.dims)}]"
             return (f"    {self.program}({', '.join(text(a) for a in ins)}) -> "
                     f"({', '.join(text(a) for a in outs)})")
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import sympy
 
-from derive import LinearModel
+from derive import LinearModel, NonlinearModel, Sensor
 from derive.errors import ShapeError
 from derive.filters.sensors import reference_run
 from derive.pipeline import load_generated
@@ -63,3 +63,50 @@ def test_a_per_step_array_of_the_wrong_shape_is_refused_naming_it(starts, start)
             module.run(zs, us[:-1], x0, P0, ps)
         with pytest.raises(TypeError, match="zss"):
             module.run(zss=zs, us=us, x0=x0, P0=P0, p=ps)
+
+
+def test_step_and_the_sensor_functions_return_P_as_run_does(starts):
+    """step (and predict, update_all) return P as an (n, n) array, as run returns
+    (steps, n, n): the Python and the C wrapper alike, equal to run's first row."""
+    _, generated = starts
+    zs, us, x0, P0, ps = _data(1)
+    for module in (generated["predict"].python, generated["predict"].c):
+        x, P = module.step(x0, P0, zs[0], us[0], ps[0])
+        xs, Ps = module.run(zs, us, x0, P0, ps)
+        assert np.shape(P) == (2, 2) and Ps.shape == (1, 2, 2)
+        np.testing.assert_array_equal(np.asarray(P), Ps[0])
+        np.testing.assert_array_equal(np.asarray(x), xs[0])
+    for module in (generated["update"].python, generated["update"].c):
+        x, P = module.predict(x0, P0, us[0], ps[0])
+        assert np.shape(P) == (2, 2)
+        x, P = module.update_all(x, P, zs[0], us[0], ps[0])
+        assert np.shape(P) == (2, 2)
+
+
+def test_a_one_measurement_R_given_per_call_may_be_a_1x1_matrix():
+    """R of a one-measurement update given per call: [[r]] (as C's wrapper takes it), [r]
+    or r's flat row, the same update."""
+    model = LinearModel("one", ["s", "v"], F=[[1, 1], [0, 1]], Q=[[0.1, 0], [0, 0.1]],
+                        sensors=[Sensor("gps", ["zs"], H=[[1, 0]], R="argument")])
+    python = load_generated(model, "kf", lang="python").python
+    x, P = np.array([0.3, -0.1]), np.array([[2.0, 0.5], [0.5, 1.0]])
+    flat = python.update_gps(x, P, [1.2], [0.4])
+    for R in ([[0.4]], np.array([[0.4]])):
+        got = python.update_gps(x, P, [1.2], R)
+        np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(flat[0]))
+        np.testing.assert_array_equal(got[1], flat[1])
+
+
+def test_the_ekf_predict_needs_no_p_it_does_not_read():
+    """A free parameter in h alone: the EKF's predict does not read p, so p may be left
+    out (Python); update1, which reads it, still takes it."""
+    a, w, g = sympy.symbols("a w g", real=True)
+    model = NonlinearModel("pend", ["a", "w"], ["z"], f=[a + w / 10, w - sympy.sin(a) / 10],
+                           h=[g * sympy.sin(a)], Q=[[1e-4, 0], [0, 1e-4]], R=[[0.01]],
+                           parameters=["g"])
+    python = load_generated(model, "ekf", lang="python").python
+    x, P = [0.3, 0.1], np.eye(2)
+    without = python.predict(x, P)
+    np.testing.assert_array_equal(without[1], python.predict(x, P, [2.0])[1])
+    with pytest.raises(TypeError):
+        python.update1(x, P, [0.2])

@@ -36,7 +36,14 @@ def test_generate_one_language(tmp_path):
 def test_unknown_filter_is_named(tmp_path):
     with pytest.raises(FilterError, match="'kff'.*did you mean 'kf'"):
         generate("cv", ["kff"], "all", tmp_path)
+    with pytest.raises(FilterError, match=r"^unknown filter 'KF' \(did you mean 'kf'\?\)"):
+        generate("cv", ["KF"], "all", tmp_path)
     assert not any(tmp_path.iterdir())
+
+
+def test_one_filter_may_be_named_as_a_string(tmp_path):
+    paths = generate("cv", "sskf", "python", tmp_path)
+    assert [p.name for p in paths] == ["sskf.py"]
 
 
 def test_steady_state_with_a_free_symbol_is_refused(tmp_path):

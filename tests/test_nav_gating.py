@@ -99,7 +99,7 @@ def test_update_function_returns_nis_and_applied(gated):
         assert applied[0] == float(expected <= chi2.ppf(0.999, 2))
         if not applied[0]:
             assert np.array_equal(np.asarray(x_new, float), x)
-            assert np.array_equal(np.asarray(P_new, float), P.ravel())
+            assert np.array_equal(np.asarray(P_new, float), P)
 
 
 def test_an_unknown_sensor_in_gate_sensors_is_one_line(capsys):

@@ -126,7 +126,7 @@ def test_a_run_is_the_functions_called_step_by_step(linear_filter):
         if not np.isnan(zv[k]).any():
             x, P = py.update_speed(x, P, zv[k], dt[k])
         assert np.array_equal(xs[k], np.asarray(x, float))
-        assert np.array_equal(Ps[k].ravel(), np.asarray(P, float))
+        assert np.array_equal(Ps[k], np.asarray(P, float))
 
 
 def test_ekf_with_unit_norm_and_per_step_dt_matches_the_reference_over_a_long_run(ekf_filter):

@@ -15,6 +15,7 @@ import numpy as np
 
 from derive.errors import NumericalError, PatternError
 from derive.lowering import LoweredAssign, LoweredProgram, lower_program
+from derive.program import PARAMETER_PORT
 from derive.trees import Const, Op, Tree, Var
 
 #: Precedence: higher binds tighter.
@@ -66,6 +67,12 @@ HELPERS = {
                 '            value = float(value[value != 0][0])',
                 '            entry = f"{name}[{k // n}][{k % n}]"',
                 '            raise PatternError(f"{entry} = {value!r}: {message}")'],
+    "matrix": ['def _matrix(flat, shape):',
+               '    """A flat row-major result as an array of shape (then any track axes)."""',
+               '    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast',
+               '        flat = np.broadcast_arrays(*flat)',
+               '    array = np.array(flat)',
+               '    return array.reshape(shape + array.shape[1:])'],
     "shape": ['def _require_shape(name, array, shape, text):',
               '    """Raise ShapeError unless the leading axes are shape (then tracks)."""',
               '    if array.shape[:len(shape)] != shape:',
@@ -259,7 +266,7 @@ def _list_lines(name: str, items: list[str], width: int = 92) -> list[str]:
 def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) -> dict:
     """Precomputed strings of one function: ``signature``, ``doc`` lines, ``body`` lines."""
     printer = PythonPrinter()
-    params = ", ".join(p.name for p in lowered.inputs)
+    params = signature_parameters(lowered)
     body: list[str] = square_input_lines(lowered) + pattern_check_lines(lowered)
     for st in lowered.body:
         if isinstance(st, LoweredAssign):
@@ -279,15 +286,35 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
     return {"signature": f"def {lowered.name}({params}):", "doc": doc_lines, "body": body}
 
 
+def unread_parameters(lowered: LoweredProgram) -> bool:
+    """True when the program takes ``p`` (last) but reads none of it (an EKF predict of a
+    model whose parameters are in h alone): Python may then be called without it."""
+    return (bool(lowered.inputs) and lowered.inputs[-1].name == PARAMETER_PORT
+            and PARAMETER_PORT not in lowered.used_inputs())
+
+
+def signature_parameters(lowered: LoweredProgram) -> str:
+    """The parameters of the printed ``def``: the input ports, ``p=None`` when unread."""
+    names = [p.name for p in lowered.inputs]
+    if unread_parameters(lowered):
+        names[-1] += "=None"
+    return ", ".join(names)
+
+
 def square_input_lines(lowered: LoweredProgram) -> list[str]:
     """Lines that accept a 2-D (n, n) matrix (then any track axes) for each flat n*n input
-    port with n > 1 (P): it is flattened row-major; a flat one is used as it is."""
+    port (P, R): it is flattened row-major; a flat one is used as it is (n = 1: a 2-D one
+    is one whose second axis has length 1, [[r]], as [r] of one track is)."""
     lines = []
     for port in lowered.inputs:
         if len(port.shape) == 2 and port.shape[0] == port.shape[1] > 1:
             n, name = port.shape[0], port.name
             lines += [f"if len({name}) == {n}:  # a 2-D ({n}, {n}) {name}: flattened, row-major",
                       f"    {name} = np.reshape({name}, ({n * n},) + np.shape({name})[2:])"]
+        elif port.shape == (1, 1):
+            name = port.name
+            lines += [f"if np.shape({name})[1:2] == (1,):  # a 2-D (1, 1) {name}: flattened",
+                      f"    {name} = np.reshape({name}, (1,) + np.shape({name})[2:])"]
     return lines
 
 
@@ -321,16 +348,49 @@ def _shape_text(port) -> str:
     return f"{text}, symmetric" if port.symmetric else text
 
 
-def port_doc_lines(lowered: LoweredProgram) -> list[str]:
-    """Docstring lines: purpose, then one line per port (flat, row-major)."""
+def matrix_outputs(lowered: LoweredProgram) -> list:
+    """The outputs with two axes (P, U): the public Python function returns them as
+    arrays of that shape."""
+    return [p for p in lowered.outputs if len(p.shape) == 2]
+
+
+def flat_name(lowered: LoweredProgram) -> str:
+    """The name of the function run's loop calls: ``_NAME``, returning the matrices flat,
+    for a program with :func:`matrix_outputs` (``NAME`` itself returns them shaped);
+    ``NAME`` otherwise."""
+    return f"_{lowered.name}" if matrix_outputs(lowered) else lowered.name
+
+
+def shaped_return_lines(lowered: LoweredProgram, call: str) -> list[str]:
+    """``outputs = call`` and the return of the outputs, each matrix as an array of its
+    shape (then any track axes) by ``_matrix``."""
+    names = [p.name for p in lowered.outputs]
+    shaped = [f"_matrix({p.name}, {p.shape!r})" if len(p.shape) == 2 else p.name
+              for p in lowered.outputs]
+    return [f"{', '.join(names)} = {call}",
+            f"return {', '.join(shaped)}"]
+
+
+def port_doc_lines(lowered: LoweredProgram, shaped: bool = False) -> list[str]:
+    """Docstring lines: purpose, then one line per port (flat, row-major; ``shaped``: the
+    outputs with two axes returned as arrays of that shape)."""
     square = " or 2-D (n, n) matrices" if square_input_lines(lowered) else ""
     lines = [doc_text(lowered.doc or f"The generated function {lowered.name}."), "",
              f"Arguments (flat, row-major sequences{square}; elements may be NumPy arrays):"]
-    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
+    unread = unread_parameters(lowered)
+    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": ")
+                       + (" (not read here: may be left out)"
+                          if unread and p.name == PARAMETER_PORT else ""))
               for p in lowered.inputs]
     lines.append("Returns:")
-    lines += [doc_text(f"    {p.name} [{_shape_text(p)}]: {p.doc}".rstrip(": "))
-              for p in lowered.outputs]
+    for p in lowered.outputs:
+        if shaped and len(p.shape) == 2:
+            text = (f"{p.shape} array" + (", symmetric" if p.symmetric else "")
+                    + ", then any track axes")
+            doc = p.doc.replace(", row-major", "")
+        else:
+            text, doc = _shape_text(p), p.doc
+        lines.append(doc_text(f"    {p.name} [{text}]: {doc}".rstrip(": ")))
     if any(not c.is_pattern for c in lowered.checks):
         lines.append("Raises NumericalError when a runtime check fails.")
     for port, indices in pattern_indices(lowered).items():

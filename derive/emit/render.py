@@ -176,7 +176,9 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
                                else "none")] + precision_line(unit, lang)
     if unit.run.window:
         lines.append(f"window: {unit.window} (last measurements, newest first)")
-    lines.append("interface (flat row-major arrays; steps = number of steps):")
+    lines.append("interface (flat row-major arrays; steps = number of steps):" if lang == "c"
+                 else "interface (matrices taken flat, row-major, or (n, n), returned (n, n); "
+                      "steps = number of steps):")
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
                          c_run=unit.run_function, tracks=unit.batch)
     lines += described.c_lines() if lang == "c" else described.python_lines()
@@ -225,19 +227,31 @@ IN_PATTERN_STEP = "_step_in_pattern"
 
 
 def _python_functions(lp: LoweredProgram) -> list[dict]:
-    """The Python function(s) of one program.  A ``step`` with a pattern check is printed
-    as the check, then a call of :data:`IN_PATTERN_STEP`, which holds the rest."""
-    if lp.name != "step" or not lp.pattern_checks:
+    """The Python function(s) of one program.  One returning a matrix (P) is printed as
+    the function run's loop calls, :func:`python_printer.flat_name`, returning it flat,
+    and the public function, which calls it and returns the matrix as an (n, n) array
+    (as run returns (steps, n, n)).  A ``step`` with a pattern check is printed as the
+    check, then a call of :data:`IN_PATTERN_STEP`, which holds the rest (and which run's
+    loop calls)."""
+    pattern = lp.name == "step" and bool(lp.pattern_checks)
+    if not pattern and not python_printer.matrix_outputs(lp):
         return [python_printer.function_parts(lp)]
-    inner = lp.without_pattern_checks()
     params = ", ".join(p.name for p in lp.inputs)
-    outer = python_printer.function_parts(lp)
-    outer["body"] = (python_printer.square_input_lines(lp) + python_printer.pattern_check_lines(lp)
-                     + [f"return {IN_PATTERN_STEP}({params})"])
-    body = python_printer.function_parts(inner)
-    body["body"] = body["body"][len(python_printer.square_input_lines(lp)):]
-    body["signature"] = f"def {IN_PATTERN_STEP}({params}):"
-    body["doc"] = ["step without the check of P's pattern (run checks P0 once instead)."]
+    outer = python_printer.function_parts(lp, python_printer.port_doc_lines(lp, shaped=True))
+    if pattern:
+        inner_name = IN_PATTERN_STEP
+        body = python_printer.function_parts(lp.without_pattern_checks())
+        body["body"] = body["body"][len(python_printer.square_input_lines(lp)):]
+        body["doc"] = ["step without the check of P's pattern (run checks P0 once instead)."]
+        checks = (python_printer.square_input_lines(lp)
+                  + python_printer.pattern_check_lines(lp))
+    else:
+        inner_name = python_printer.flat_name(lp)
+        body = python_printer.function_parts(lp)
+        body["doc"] = [f"{lp.name} with its matrices flat, row-major (as run calls it)."]
+        checks = []
+    body["signature"] = f"def {inner_name}({params}):"
+    outer["body"] = checks + python_printer.shaped_return_lines(lp, f"{inner_name}({params})")
     return [outer, body]
 
 
@@ -320,7 +334,8 @@ def _python_context(unit: Unit, lowered: dict[str, LoweredProgram]) -> dict:
         "numpy": True,
         "error_imports": python_printer.error_imports(lps, run=True),
         "helpers": ["\n".join(python_printer.HELPERS[h])
-                    for h in python_printer.helpers_needed(lps) + ["real", "shape"]],
+                    for h in python_printer.helpers_needed(lps) + ["real", "shape"]
+                    + (["matrix"] if any(map(python_printer.matrix_outputs, lps)) else [])],
         "run_signature": f"def run({', '.join(a.py_name for a in inputs)}):",
         "run_doc": [python_printer.doc_text(f"{a.py_name} [{_dims(a, ', ')}]: {a.doc}")
                     for a in args if not a.scratch],
@@ -334,7 +349,7 @@ def _render_python_sensors(unit: Unit) -> dict[str, str]:
     """The Python file of a unit of the run kind ``sensors`` (derive.emit.sensors_run)."""
     lowered = _lowered(unit, use_fma=False)
     context = {**_python_context(unit, lowered),
-               "functions": [python_printer.function_parts(lp) for lp in lowered.values()],
+               "functions": [part for lp in lowered.values() for part in _python_functions(lp)],
                "run_checks": [],
                "loop": python_loop(unit, lowered)}
     return {f"{unit.filter}.py": _render("python/sensors.jinja", context)}
@@ -393,7 +408,10 @@ def render_python(unit: Unit) -> dict[str, str]:
         **_python_context(unit, lowered),
         "functions": [part for lp in lowered.values() for part in _python_functions(lp)],
         "run_checks": _python_run_checks(lowered["step"], unit),
-        "loop_step": IN_PATTERN_STEP if lowered["step"].pattern_checks else "step",
+        "loop_step": (IN_PATTERN_STEP if lowered["step"].pattern_checks
+                      else python_printer.flat_name(lowered["step"])),
+        "backward": (python_printer.flat_name(lowered["backward"]) if "backward" in lowered
+                     else ""),
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,
         "p_start": f", {PARAMETER_START}" if unit.parameters else "",
@@ -417,7 +435,8 @@ def render_python(unit: Unit) -> dict[str, str]:
         ports = {p.name: p for p in lowered["step"].inputs}
         names = ", ".join(s["name"] for s in state)
         context["carried"] = state
-        context["enter_line"] = (f"{names} = enter({', '.join(_flat_start(unit))})"
+        enter = python_printer.flat_name(lowered["enter"]) if "enter" in lowered else ""
+        context["enter_line"] = (f"{names} = {enter}({', '.join(_flat_start(unit))})"
                                  if "enter" in lowered else "")
         stores = []
         for s in stored_outputs(unit):
@@ -426,7 +445,8 @@ def render_python(unit: Unit) -> dict[str, str]:
                                "shape": ports[by_output[s["out"]]].shape})
             else:  # computed from the carried state by the store program
                 value = f"{s['array']}_k"
-                stores.append({**s, "value": value, "call": f"{value} = store({names})",
+                store = python_printer.flat_name(lowered["store"])
+                stores.append({**s, "value": value, "call": f"{value} = {store}({names})",
                                "shape": lowered["store"].outputs[0].shape})
         context["stores"] = stores
         if "enter" not in lowered and "store" not in lowered:

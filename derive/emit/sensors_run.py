@@ -11,6 +11,7 @@ states; it adds no arithmetic.
 from __future__ import annotations
 
 from derive.emit import c_printer
+from derive.emit.python_printer import flat_name
 from derive.lowering import LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
@@ -48,7 +49,8 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     lines.append("for k in range(steps):")
     u_predict = (f", {_columns(unit.predict_inputs, unit.n_inputs)}"
                  if unit.predict_inputs else "")
-    predict = f"x, P = predict(x, P{u_predict}{p_arg})"
+    calls = {name: flat_name(lp) for name, lp in lowered.items()}
+    predict = f"x, P = {calls['predict']}(x, P{u_predict}{p_arg})"
     if unit.update_first:
         lines += ["    if k:  # update-first: step 0 has no prediction", f"        {predict}"]
     else:
@@ -61,7 +63,7 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
         outs = "x_up, P_up" + (", nis, applied" if s.gated else "")
         lines += [f"    present = ~np.isnan({z}).any(axis=0)",
                   "    if np.any(present):",
-                  f"        {outs} = update_{s.name}(x, P, {z}{u}{p_arg})",
+                  f"        {outs} = {calls['update_' + s.name]}(x, P, {z}{u}{p_arg})",
                   "        if np.all(present):",
                   "            x, P = x_up, P_up",
                   "        else:  # tracks without this measurement keep x and P",

@@ -105,8 +105,10 @@ def kind(name: str) -> FilterSpec:
     """The spec of filter ``name`` (FilterError naming a close match when unknown)."""
     try:
         return FILTERS[name]
-    except KeyError:
-        close = difflib.get_close_matches(name, list(FILTERS), n=1)
+    except (KeyError, TypeError):  # TypeError: not a hashable name
+        text = name.lower() if isinstance(name, str) else ""
+        close = ([text] if text in FILTERS
+                 else difflib.get_close_matches(text, list(FILTERS), n=1))
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise FilterError(f"unknown filter {name!r}{hint}; filters: {', '.join(FILTERS)}") \
             from None

@@ -9,8 +9,8 @@ family: lf
 n: 3 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[3], P[3*3], z[1]) -> (x_new[3], P_new[3*3])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[3], P[3*3], z[1]) -> (x_new[3], P_new[3, 3])
     run(zs[steps, 1], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 operations per call of step (Python): add 66, sub 33, mul 134, div 3, sqrt 0, fma 0, neg 1, cmp 0, calls 0 (flops 236, instructions 237)
@@ -64,6 +64,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one step of the Lainiotis filter
 
@@ -73,7 +81,14 @@ def step(x, P, z):
         z [1]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k+1)
-        P_new [3x3, symmetric]: P(k+1/k+1), row-major
+        P_new [(3, 3) array, symmetric, then any track axes]: P(k+1/k+1)
+    """
+    x_new, P_new = _step(x, P, z)
+    return x_new, _matrix(P_new, (3, 3))
+
+
+def _step(x, P, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
         P = np.reshape(P, (9,) + np.shape(P)[2:])
@@ -258,7 +273,7 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((9,) + P0.shape[2:])
     for k in range(steps):
-        x, P = step(x, P, zs[k])
+        x, P = _step(x, P, zs[k])
         for i in range(3):
             xs[k, i] = x[i]
         for i in range(9):

@@ -9,7 +9,7 @@ family: pred
 n: 3 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     init(x0[3]) -> (x_new[3])
     step(x[3], z[1]) -> (x_new[3])
     run(zs[steps, 1], x0[3]) -> (xs[steps, 3])

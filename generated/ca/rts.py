@@ -9,9 +9,9 @@ family: rts
 n: 3 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[3], P[3*3], z[1]) -> (x_new[3], P_new[3*3], x_pred[3], P_pred[3*3])
-    backward(x[3], P[3*3], x_pred[3], P_pred[3*3], x_smooth_next[3], P_smooth_next[3*3]) -> (x_smooth[3], P_smooth[3*3])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[3], P[3*3], z[1]) -> (x_new[3], P_new[3, 3], x_pred[3], P_pred[3, 3])
+    backward(x[3], P[3*3], x_pred[3], P_pred[3*3], x_smooth_next[3], P_smooth_next[3*3]) -> (x_smooth[3], P_smooth[3, 3])
     run(zs[steps, 1], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
 symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
@@ -86,6 +86,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one forward (Kalman filter) step of the Rauch-Tung-Striebel smoother
 
@@ -95,10 +103,17 @@ def step(x, P, z):
         z [1]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k+1)
-        P_new [3x3, symmetric]: P(k+1/k+1), row-major
+        P_new [(3, 3) array, symmetric, then any track axes]: P(k+1/k+1)
         x_pred [3]: x(k+1/k)
-        P_pred [3x3, symmetric]: P(k+1/k), row-major
+        P_pred [(3, 3) array, symmetric, then any track axes]: P(k+1/k)
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new, x_pred, P_pred = _step(x, P, z)
+    return x_new, _matrix(P_new, (3, 3)), x_pred, _matrix(P_pred, (3, 3))
+
+
+def _step(x, P, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
         P = np.reshape(P, (9,) + np.shape(P)[2:])
@@ -162,8 +177,15 @@ def backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next):
         P_smooth_next [3x3, symmetric]: P(k+1/N), row-major, symmetric
     Returns:
         x_smooth [3]: x(k/N)
-        P_smooth [3x3, symmetric]: P(k/N), row-major
+        P_smooth [(3, 3) array, symmetric, then any track axes]: P(k/N)
     Raises NumericalError when a runtime check fails.
+    """
+    x_smooth, P_smooth = _backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next)
+    return x_smooth, _matrix(P_smooth, (3, 3))
+
+
+def _backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next):
+    """backward with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
         P = np.reshape(P, (9,) + np.shape(P)[2:])
@@ -281,7 +303,7 @@ def run(zs, x0, P0):
     P = P0.reshape((9,) + P0.shape[2:])
     work = []  # per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1)
     for k in range(steps):
-        x, P, x_pred, P_pred = step(x, P, zs[k])
+        x, P, x_pred, P_pred = _step(x, P, zs[k])
         work.append((x, P, x_pred, P_pred))
     if steps:  # the last step: smoothed = filtered
         x_smooth, P_smooth = work[-1][0], work[-1][1]
@@ -290,7 +312,7 @@ def run(zs, x0, P0):
         for i in range(9):
             Ps[steps - 1, i] = P_smooth[i]
     for k in range(steps - 2, -1, -1):
-        x_smooth, P_smooth = backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
+        x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
         for i in range(3):
             xs[k, i] = x_smooth[i]
         for i in range(9):

@@ -9,8 +9,8 @@ family: ikf
 n: 2 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2*2])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2, 2])
     run(zs[steps, 1], x0[2], P0[2, 2]) -> (xs[steps, 2], Ps[steps, 2, 2])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
@@ -85,6 +85,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one step of the information-form Kalman filter
 
@@ -94,8 +102,15 @@ def step(x, P, z):
         z [1]: z(k+1)
     Returns:
         x_new [2]: x(k+1/k+1)
-        P_new [2x2, symmetric]: P(k+1/k+1), row-major
+        P_new [(2, 2) array, symmetric, then any track axes]: P(k+1/k+1)
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _step(x, P, z)
+    return x_new, _matrix(P_new, (2, 2))
+
+
+def _step(x, P, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 2:  # a 2-D (2, 2) P: flattened, row-major
         P = np.reshape(P, (4,) + np.shape(P)[2:])
@@ -202,7 +217,7 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((4,) + P0.shape[2:])
     for k in range(steps):
-        x, P = step(x, P, zs[k])
+        x, P = _step(x, P, zs[k])
         for i in range(2):
             xs[k, i] = x[i]
         for i in range(4):

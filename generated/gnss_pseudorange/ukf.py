@@ -9,10 +9,10 @@ family: ukf
 n: 4 (states)
 m: 4 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[4], P[4*4], z[4], u[12]) -> (x_new[4], P_new[4*4])
-    predict(x[4], P[4*4]) -> (x_new[4], P_new[4*4])
-    update1(x[4], P[4*4], z[1], u[3]) -> (x_new[4], P_new[4*4], innovation[1], variance[1])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[4], P[4*4], z[4], u[12]) -> (x_new[4], P_new[4, 4])
+    predict(x[4], P[4*4]) -> (x_new[4], P_new[4, 4])
+    update1(x[4], P[4*4], z[1], u[3]) -> (x_new[4], P_new[4, 4], innovation[1], variance[1])
     run(zs[steps, 4], us[steps, 12], x0[4], P0[4, 4]) -> (xs[steps, 4], Ps[steps, 4, 4])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written whole)
@@ -108,6 +108,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z, u):
     """One step of the unscented Kalman filter: predict, then update with all 4 measurements.
 
@@ -118,8 +126,15 @@ def step(x, P, z, u):
         u [12]: inputs xs1, ys1, zs1, xs2, ys2, zs2, xs3, ys3, zs3, xs4, ys4, zs4
     Returns:
         x_new [4]: x(k/k)
-        P_new [4x4, symmetric]: its covariance, row-major
+        P_new [(4, 4) array, symmetric, then any track axes]: its covariance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new = _step(x, P, z, u)
+    return x_new, _matrix(P_new, (4, 4))
+
+
+def _step(x, P, z, u):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
         P = np.reshape(P, (16,) + np.shape(P)[2:])
@@ -535,7 +550,14 @@ def predict(x, P):
         P [4x4, symmetric]: its covariance, row-major, symmetric
     Returns:
         x_new [4]: x(k/k-1)
-        P_new [4x4, symmetric]: its covariance, row-major
+        P_new [(4, 4) array, symmetric, then any track axes]: its covariance
+    """
+    x_new, P_new = _predict(x, P)
+    return x_new, _matrix(P_new, (4, 4))
+
+
+def _predict(x, P):
+    """predict with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
         P = np.reshape(P, (16,) + np.shape(P)[2:])
@@ -561,10 +583,17 @@ def update1(x, P, z, u):
         u [3]: its inputs (for D1: xs1, ys1, zs1)
     Returns:
         x_new [4]: x after this measurement
-        P_new [4x4, symmetric]: its covariance, row-major
+        P_new [(4, 4) array, symmetric, then any track axes]: its covariance
         innovation [1]: z - its prediction
         variance [1]: the innovation's variance
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new, innovation, variance = _update1(x, P, z, u)
+    return x_new, _matrix(P_new, (4, 4)), innovation, variance
+
+
+def _update1(x, P, z, u):
+    """update1 with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
         P = np.reshape(P, (16,) + np.shape(P)[2:])
@@ -1016,7 +1045,7 @@ def run(zs, us, x0, P0):
     x = x0
     P = P0.reshape((16,) + P0.shape[2:])
     for k in range(steps):
-        x, P = step(x, P, zs[k], us[k])
+        x, P = _step(x, P, zs[k], us[k])
         for i in range(4):
             xs[k, i] = x[i]
         for i in range(16):

@@ -10,7 +10,7 @@ n: 3 (states)
 m: 3 (measurements)
 parameters: none
 window: 44 (last measurements, newest first)
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(zw[44*3]) -> (x_new[3])
     run(zs[steps, 3]) -> (xs[steps, 3])
 operations per call of step (Python): add 129, sub 0, mul 132, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 261, instructions 261)

@@ -9,8 +9,8 @@ family: jklf
 n: 3 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[3], P[3*3], z[3]) -> (x_new[3], P_new[3*3])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[3], P[3*3], z[3]) -> (x_new[3], P_new[3, 3])
     run(zs[steps, 3], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -111,6 +111,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one step of the joint Kalman-Lainiotis filter
 
@@ -120,14 +128,15 @@ def step(x, P, z):
         z [3]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k+1)
-        P_new [3x3, symmetric]: P(k+1/k+1), row-major
+        P_new [(3, 3) array, symmetric, then any track axes]: P(k+1/k+1)
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 3 entries).
     """
     if len(P) == 3:  # a 2-D (3, 3) P: flattened, row-major
         P = np.reshape(P, (9,) + np.shape(P)[2:])
     _require_zero(P, (1, 2, 5), 3, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
-    return _step_in_pattern(x, P, z)
+    x_new, P_new = _step_in_pattern(x, P, z)
+    return x_new, _matrix(P_new, (3, 3))
 
 
 def _step_in_pattern(x, P, z):

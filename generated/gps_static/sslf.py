@@ -9,7 +9,7 @@ family: sslf
 n: 3 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[3], z[3]) -> (x_new[3])
     run(zs[steps, 3], x0[3]) -> (xs[steps, 3])
 operations per call of step (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 9, instructions 9)

@@ -9,10 +9,10 @@ family: udkf
 n: 3 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[3], U[3*3], D[3], z[3]) -> (x_new[3], U_new[3*3], D_new[3])
-    enter(x0[3], P0[3*3]) -> (x[3], U[3*3], D[3])
-    store(x[3], U[3*3], D[3]) -> (P_new[3*3])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[3], U[3*3], D[3], z[3]) -> (x_new[3], U_new[3, 3], D_new[3])
+    enter(x0[3], P0[3*3]) -> (x[3], U[3, 3], D[3])
+    store(x[3], U[3*3], D[3]) -> (P_new[3, 3])
     run(zs[steps, 3], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in enter: P0 (inputs: upper triangle read; outputs: written whole)
 symmetric in store: P_new (inputs: upper triangle read; outputs: written whole)
@@ -122,6 +122,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, U, D, z):
     """one step of the UD (Bierman-Thornton) Kalman filter
 
@@ -132,7 +140,7 @@ def step(x, U, D, z):
         z [3]: z(k+1)
     Returns:
         x_new [3]: x(k+1/k+1)
-        U_new [3x3]: U(k+1/k+1), as U
+        U_new [(3, 3) array, then any track axes]: U(k+1/k+1), as U
         D_new [3]: D(k+1/k+1)
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless U is 0 outside its pattern (upper triangle, 3 entries).
@@ -140,7 +148,8 @@ def step(x, U, D, z):
     if len(U) == 3:  # a 2-D (3, 3) U: flattened, row-major
         U = np.reshape(U, (9,) + np.shape(U)[2:])
     _require_zero(U, (1, 2, 5), 3, 'U', "U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the UD filter; strictly upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
-    return _step_in_pattern(x, U, D, z)
+    x_new, U_new, D_new = _step_in_pattern(x, U, D, z)
+    return x_new, _matrix(U_new, (3, 3)), D_new
 
 
 def _step_in_pattern(x, U, D, z):
@@ -193,10 +202,17 @@ def enter(x0, P0):
         P0 [3x3, symmetric]: initial covariance, row-major, symmetric
     Returns:
         x [3]: x0
-        U [3x3]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
+        U [(3, 3) array, then any track axes]: U, unit upper triangular (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [3]: D, the diagonal of P = U D U^T
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P0 is 0 outside its pattern (upper triangle, 3 entries).
+    """
+    x, U, D = _enter(x0, P0)
+    return x, _matrix(U, (3, 3)), D
+
+
+def _enter(x0, P0):
+    """enter with its matrices flat, row-major (as run calls it).
     """
     if len(P0) == 3:  # a 2-D (3, 3) P0: flattened, row-major
         P0 = np.reshape(P0, (9,) + np.shape(P0)[2:])
@@ -221,8 +237,15 @@ def store(x, U, D):
         U [3x3]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [3]: D, the diagonal of P = U D U^T
     Returns:
-        P_new [3x3, symmetric]: P = U D U^T, row-major
+        P_new [(3, 3) array, symmetric, then any track axes]: P = U D U^T
     Raises PatternError unless U is 0 outside its pattern (upper triangle, 3 entries).
+    """
+    P_new = _store(x, U, D)
+    return _matrix(P_new, (3, 3))
+
+
+def _store(x, U, D):
+    """store with its matrices flat, row-major (as run calls it).
     """
     if len(U) == 3:  # a 2-D (3, 3) U: flattened, row-major
         U = np.reshape(U, (9,) + np.shape(U)[2:])
@@ -255,12 +278,12 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 3) + track)
     Ps = np.empty((steps, 9) + track)
-    x, U, D = enter(x0, P0.reshape((9,) + P0.shape[2:]))
+    x, U, D = _enter(x0, P0.reshape((9,) + P0.shape[2:]))
     for k in range(steps):
         x, U, D = _step_in_pattern(x, U, D, zs[k])
         for i in range(3):
             xs[k, i] = x[i]
-        Ps_k = store(x, U, D)
+        Ps_k = _store(x, U, D)
         for i in range(9):
             Ps[k, i] = Ps_k[i]
     return xs, Ps.reshape((steps, 3, 3) + track)

@@ -10,7 +10,7 @@ n: 4 (states)
 m: 2 (measurements)
 parameters: none
 window: 33 (last measurements, newest first)
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(zw[33*2]) -> (x_new[4])
     run(zs[steps, 2]) -> (xs[steps, 4])
 operations per call of step (Python): add 60, sub 68, mul 132, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 260, instructions 260)

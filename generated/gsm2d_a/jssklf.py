@@ -9,7 +9,7 @@ family: jssklf
 n: 4 (states)
 m: 2 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[4], z[2]) -> (x_new[4])
     run(zs[steps, 2], x0[4]) -> (xs[steps, 4])
 operations per call of step (Python): add 6, sub 2, mul 12, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 20, instructions 20)

@@ -9,8 +9,8 @@ family: lf
 n: 4 (states)
 m: 2 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[4], P[4*4], z[2]) -> (x_new[4], P_new[4*4])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[4], P[4*4], z[2]) -> (x_new[4], P_new[4, 4])
     run(zs[steps, 2], x0[4], P0[4, 4]) -> (xs[steps, 4], Ps[steps, 4, 4])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
@@ -92,6 +92,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one step of the Lainiotis filter
 
@@ -101,13 +109,14 @@ def step(x, P, z):
         z [2]: z(k+1)
     Returns:
         x_new [4]: x(k+1/k+1)
-        P_new [4x4, symmetric]: P(k+1/k+1), row-major
+        P_new [(4, 4) array, symmetric, then any track axes]: P(k+1/k+1)
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 4 entries).
     """
     if len(P) == 4:  # a 2-D (4, 4) P: flattened, row-major
         P = np.reshape(P, (16,) + np.shape(P)[2:])
     _require_zero(P, (2, 3, 6, 7), 4, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
-    return _step_in_pattern(x, P, z)
+    x_new, P_new = _step_in_pattern(x, P, z)
+    return x_new, _matrix(P_new, (4, 4))
 
 
 def _step_in_pattern(x, P, z):

@@ -9,7 +9,7 @@ family: pred
 n: 4 (states)
 m: 2 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     init(x0[4]) -> (x_new[4])
     step(x[4], z[2]) -> (x_new[4])
     run(zs[steps, 2], x0[4]) -> (xs[steps, 4])

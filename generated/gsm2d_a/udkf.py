@@ -9,10 +9,10 @@ family: udkf
 n: 4 (states)
 m: 2 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[4], U[4*4], D[4], z[2]) -> (x_new[4], U_new[4*4], D_new[4])
-    enter(x0[4], P0[4*4]) -> (x[4], U[4*4], D[4])
-    store(x[4], U[4*4], D[4]) -> (P_new[4*4])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[4], U[4*4], D[4], z[2]) -> (x_new[4], U_new[4, 4], D_new[4])
+    enter(x0[4], P0[4*4]) -> (x[4], U[4, 4], D[4])
+    store(x[4], U[4*4], D[4]) -> (P_new[4, 4])
     run(zs[steps, 2], x0[4], P0[4, 4]) -> (xs[steps, 4], Ps[steps, 4, 4])
 symmetric in enter: P0 (inputs: upper triangle read; outputs: written whole)
 symmetric in store: P_new (inputs: upper triangle read; outputs: written whole)
@@ -136,6 +136,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, U, D, z):
     """one step of the UD (Bierman-Thornton) Kalman filter
 
@@ -146,7 +154,7 @@ def step(x, U, D, z):
         z [2]: z(k+1)
     Returns:
         x_new [4]: x(k+1/k+1)
-        U_new [4x4]: U(k+1/k+1), as U
+        U_new [(4, 4) array, then any track axes]: U(k+1/k+1), as U
         D_new [4]: D(k+1/k+1)
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless U is 0 outside its pattern (upper triangle, 4 entries).
@@ -154,7 +162,8 @@ def step(x, U, D, z):
     if len(U) == 4:  # a 2-D (4, 4) U: flattened, row-major
         U = np.reshape(U, (16,) + np.shape(U)[2:])
     _require_zero(U, (2, 3, 6, 7), 4, 'U', "U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0")
-    return _step_in_pattern(x, U, D, z)
+    x_new, U_new, D_new = _step_in_pattern(x, U, D, z)
+    return x_new, _matrix(U_new, (4, 4)), D_new
 
 
 def _step_in_pattern(x, U, D, z):
@@ -242,10 +251,17 @@ def enter(x0, P0):
         P0 [4x4, symmetric]: initial covariance, row-major, symmetric
     Returns:
         x [4]: x0
-        U [4x4]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
+        U [(4, 4) array, then any track axes]: U, unit upper triangular (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [4]: D, the diagonal of P = U D U^T
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P0 is 0 outside its pattern (upper triangle, 4 entries).
+    """
+    x, U, D = _enter(x0, P0)
+    return x, _matrix(U, (4, 4)), D
+
+
+def _enter(x0, P0):
+    """enter with its matrices flat, row-major (as run calls it).
     """
     if len(P0) == 4:  # a 2-D (4, 4) P0: flattened, row-major
         P0 = np.reshape(P0, (16,) + np.shape(P0)[2:])
@@ -278,8 +294,15 @@ def store(x, U, D):
         U [4x4]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [4]: D, the diagonal of P = U D U^T
     Returns:
-        P_new [4x4, symmetric]: P = U D U^T, row-major
+        P_new [(4, 4) array, symmetric, then any track axes]: P = U D U^T
     Raises PatternError unless U is 0 outside its pattern (upper triangle, 4 entries).
+    """
+    P_new = _store(x, U, D)
+    return _matrix(P_new, (4, 4))
+
+
+def _store(x, U, D):
+    """store with its matrices flat, row-major (as run calls it).
     """
     if len(U) == 4:  # a 2-D (4, 4) U: flattened, row-major
         U = np.reshape(U, (16,) + np.shape(U)[2:])
@@ -316,12 +339,12 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 4) + track)
     Ps = np.empty((steps, 16) + track)
-    x, U, D = enter(x0, P0.reshape((16,) + P0.shape[2:]))
+    x, U, D = _enter(x0, P0.reshape((16,) + P0.shape[2:]))
     for k in range(steps):
         x, U, D = _step_in_pattern(x, U, D, zs[k])
         for i in range(4):
             xs[k, i] = x[i]
-        Ps_k = store(x, U, D)
+        Ps_k = _store(x, U, D)
         for i in range(16):
             Ps[k, i] = Ps_k[i]
     return xs, Ps.reshape((steps, 4, 4) + track)

@@ -9,7 +9,7 @@ family: pred
 n: 2 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     init(x0[2]) -> (x_new[2])
     step(x[2], z[1]) -> (x_new[2])
     run(zs[steps, 1], x0[2]) -> (xs[steps, 2])

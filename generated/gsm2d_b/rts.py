@@ -9,9 +9,9 @@ family: rts
 n: 2 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2*2], x_pred[2], P_pred[2*2])
-    backward(x[2], P[2*2], x_pred[2], P_pred[2*2], x_smooth_next[2], P_smooth_next[2*2]) -> (x_smooth[2], P_smooth[2*2])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[2], P[2*2], z[1]) -> (x_new[2], P_new[2, 2], x_pred[2], P_pred[2, 2])
+    backward(x[2], P[2*2], x_pred[2], P_pred[2*2], x_smooth_next[2], P_smooth_next[2*2]) -> (x_smooth[2], P_smooth[2, 2])
     run(zs[steps, 1], x0[2], P0[2, 2]) -> (xs[steps, 2], Ps[steps, 2, 2])
 symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
 symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
@@ -84,6 +84,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one forward (Kalman filter) step of the Rauch-Tung-Striebel smoother
 
@@ -93,10 +101,17 @@ def step(x, P, z):
         z [1]: z(k+1)
     Returns:
         x_new [2]: x(k+1/k+1)
-        P_new [2x2, symmetric]: P(k+1/k+1), row-major
+        P_new [(2, 2) array, symmetric, then any track axes]: P(k+1/k+1)
         x_pred [2]: x(k+1/k)
-        P_pred [2x2, symmetric]: P(k+1/k), row-major
+        P_pred [(2, 2) array, symmetric, then any track axes]: P(k+1/k)
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, P_new, x_pred, P_pred = _step(x, P, z)
+    return x_new, _matrix(P_new, (2, 2)), x_pred, _matrix(P_pred, (2, 2))
+
+
+def _step(x, P, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 2:  # a 2-D (2, 2) P: flattened, row-major
         P = np.reshape(P, (4,) + np.shape(P)[2:])
@@ -145,8 +160,15 @@ def backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next):
         P_smooth_next [2x2, symmetric]: P(k+1/N), row-major, symmetric
     Returns:
         x_smooth [2]: x(k/N)
-        P_smooth [2x2, symmetric]: P(k/N), row-major
+        P_smooth [(2, 2) array, symmetric, then any track axes]: P(k/N)
     Raises NumericalError when a runtime check fails.
+    """
+    x_smooth, P_smooth = _backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next)
+    return x_smooth, _matrix(P_smooth, (2, 2))
+
+
+def _backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next):
+    """backward with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 2:  # a 2-D (2, 2) P: flattened, row-major
         P = np.reshape(P, (4,) + np.shape(P)[2:])
@@ -223,7 +245,7 @@ def run(zs, x0, P0):
     P = P0.reshape((4,) + P0.shape[2:])
     work = []  # per step: x(k/k), P(k/k), x(k/k-1), P(k/k-1)
     for k in range(steps):
-        x, P, x_pred, P_pred = step(x, P, zs[k])
+        x, P, x_pred, P_pred = _step(x, P, zs[k])
         work.append((x, P, x_pred, P_pred))
     if steps:  # the last step: smoothed = filtered
         x_smooth, P_smooth = work[-1][0], work[-1][1]
@@ -232,7 +254,7 @@ def run(zs, x0, P0):
         for i in range(4):
             Ps[steps - 1, i] = P_smooth[i]
     for k in range(steps - 2, -1, -1):
-        x_smooth, P_smooth = backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
+        x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
         for i in range(2):
             xs[k, i] = x_smooth[i]
         for i in range(4):

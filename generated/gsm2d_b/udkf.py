@@ -9,10 +9,10 @@ family: udkf
 n: 2 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[2], U[2*2], D[2], z[1]) -> (x_new[2], U_new[2*2], D_new[2])
-    enter(x0[2], P0[2*2]) -> (x[2], U[2*2], D[2])
-    store(x[2], U[2*2], D[2]) -> (P_new[2*2])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[2], U[2*2], D[2], z[1]) -> (x_new[2], U_new[2, 2], D_new[2])
+    enter(x0[2], P0[2*2]) -> (x[2], U[2, 2], D[2])
+    store(x[2], U[2*2], D[2]) -> (P_new[2, 2])
     run(zs[steps, 1], x0[2], P0[2, 2]) -> (xs[steps, 2], Ps[steps, 2, 2])
 symmetric in enter: P0 (inputs: upper triangle read; outputs: written whole)
 symmetric in store: P_new (inputs: upper triangle read; outputs: written whole)
@@ -100,6 +100,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, U, D, z):
     """one step of the UD (Bierman-Thornton) Kalman filter
 
@@ -110,9 +118,16 @@ def step(x, U, D, z):
         z [1]: z(k+1)
     Returns:
         x_new [2]: x(k+1/k+1)
-        U_new [2x2]: U(k+1/k+1), as U
+        U_new [(2, 2) array, then any track axes]: U(k+1/k+1), as U
         D_new [2]: D(k+1/k+1)
     Raises NumericalError when a runtime check fails.
+    """
+    x_new, U_new, D_new = _step(x, U, D, z)
+    return x_new, _matrix(U_new, (2, 2)), D_new
+
+
+def _step(x, U, D, z):
+    """step with its matrices flat, row-major (as run calls it).
     """
     if len(U) == 2:  # a 2-D (2, 2) U: flattened, row-major
         U = np.reshape(U, (4,) + np.shape(U)[2:])
@@ -164,9 +179,16 @@ def enter(x0, P0):
         P0 [2x2, symmetric]: initial covariance, row-major, symmetric
     Returns:
         x [2]: x0
-        U [2x2]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
+        U [(2, 2) array, then any track axes]: U, unit upper triangular (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [2]: D, the diagonal of P = U D U^T
     Raises NumericalError when a runtime check fails.
+    """
+    x, U, D = _enter(x0, P0)
+    return x, _matrix(U, (2, 2)), D
+
+
+def _enter(x0, P0):
+    """enter with its matrices flat, row-major (as run calls it).
     """
     if len(P0) == 2:  # a 2-D (2, 2) P0: flattened, row-major
         P0 = np.reshape(P0, (4,) + np.shape(P0)[2:])
@@ -191,7 +213,14 @@ def store(x, U, D):
         U [2x2]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [2]: D, the diagonal of P = U D U^T
     Returns:
-        P_new [2x2, symmetric]: P = U D U^T, row-major
+        P_new [(2, 2) array, symmetric, then any track axes]: P = U D U^T
+    """
+    P_new = _store(x, U, D)
+    return _matrix(P_new, (2, 2))
+
+
+def _store(x, U, D):
+    """store with its matrices flat, row-major (as run calls it).
     """
     if len(U) == 2:  # a 2-D (2, 2) U: flattened, row-major
         U = np.reshape(U, (4,) + np.shape(U)[2:])
@@ -227,12 +256,12 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 2) + track)
     Ps = np.empty((steps, 4) + track)
-    x, U, D = enter(x0, P0.reshape((4,) + P0.shape[2:]))
+    x, U, D = _enter(x0, P0.reshape((4,) + P0.shape[2:]))
     for k in range(steps):
-        x, U, D = step(x, U, D, zs[k])
+        x, U, D = _step(x, U, D, zs[k])
         for i in range(2):
             xs[k, i] = x[i]
-        Ps_k = store(x, U, D)
+        Ps_k = _store(x, U, D)
         for i in range(4):
             Ps[k, i] = Ps_k[i]
     return xs, Ps.reshape((steps, 2, 2) + track)

@@ -35,10 +35,10 @@
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 108, sub 8, mul 155, div 0, sqrt 0, fma 1549, neg 29, cmp 1, calls 0 (flops 3369, instructions 1850)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2573, neg 0, cmp 6, calls 0 (flops 5336, instructions 2769)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 89, sub 8, mul 147, div 0, sqrt 0, fma 1494, neg 29, cmp 1, calls 0 (flops 3232, instructions 1768)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 29, div 2, sqrt 1, fma 327, neg 0, cmp 1, calls 0 (flops 688, instructions 362)
- * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1662, neg 9, cmp 3, calls 0 (flops 3604, instructions 1954)
+ * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
  * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 3, mul 56, div 3, sqrt 2, fma 429, neg 2, cmp 1, calls 0 (flops 923, instructions 497)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
@@ -74,7 +74,7 @@
 #endif
 #endif
 #ifndef DERIVE_VECTOR
-#if (defined(__GNUC__) || defined(__clang__)) && (defined(__SSE2__) || defined(__aarch64__))
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
 #define DERIVE_VECTOR 1
 #else
 #define DERIVE_VECTOR 0
@@ -612,9 +612,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const derive_vd v_t231_5 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[340], P[341], P[342], P[343]}), v_t231_4);
     const derive_vd v_t231 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t231_5);
     const double t231 = v_t231[0];
-    const double t232 = v_t231[1];
-    const double t233 = v_t231[2];
-    const double t234 = v_t231[3];
     #else
     const double t231 = DERIVE_FMA(t138, P[364], DERIVE_FMA(t137, P[340], DERIVE_FMA(t136, P[316], DERIVE_FMA(t73, P[76], DERIVE_FMA(t72, P[52], DERIVE_FMA(t71, P[28], DERIVE_FMA(t70, P[4], P[100])))))));
     #endif
@@ -706,8 +703,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const derive_vd v_t255 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){P[364], P[365], P[366], P[367]}), v_t255_5);
     const double t255 = v_t255[0];
     const double t256 = v_t255[1];
-    const double t257 = v_t255[2];
-    const double t258 = v_t255[3];
     #else
     const double t255 = DERIVE_FMA(t142, P[364], DERIVE_FMA(t141, P[340], DERIVE_FMA(t140, P[316], DERIVE_FMA(t80, P[76], DERIVE_FMA(t79, P[52], DERIVE_FMA(t139, P[28], DERIVE_FMA(t77, P[4], P[124])))))));
     const double t256 = DERIVE_FMA(t142, P[365], DERIVE_FMA(t141, P[341], DERIVE_FMA(t140, P[317], DERIVE_FMA(t80, P[77], DERIVE_FMA(t79, P[53], DERIVE_FMA(t139, P[29], DERIVE_FMA(t77, P[5], P[125])))))));
@@ -801,7 +796,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t279 = v_t279[0];
     const double t280 = v_t279[1];
     const double t281 = v_t279[2];
-    const double t282 = v_t279[3];
     #else
     const double t279 = DERIVE_FMA(t146, P[364], DERIVE_FMA(t145, P[340], DERIVE_FMA(t144, P[316], DERIVE_FMA(t87, P[76], DERIVE_FMA(t143, P[52], DERIVE_FMA(t85, P[28], DERIVE_FMA(t84, P[4], P[148])))))));
     const double t280 = DERIVE_FMA(t146, P[365], DERIVE_FMA(t145, P[341], DERIVE_FMA(t144, P[317], DERIVE_FMA(t87, P[77], DERIVE_FMA(t143, P[53], DERIVE_FMA(t85, P[29], DERIVE_FMA(t84, P[5], P[149])))))));
@@ -1004,7 +998,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #if DERIVE_VECTOR
     const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[128], P[129], P[130], P[131]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
     const double t331 = v_t331[0];
-    const double t332 = v_t331[1];
     const double t333 = v_t331[2];
     const double t334 = v_t331[3];
     #else
@@ -1134,6 +1127,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t153, t173, t193, t213}), v_t371_3);
     const derive_vd v_t371_5 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t154, t174, t194, t214}), v_t371_4);
     const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t155, t175, t195, t215}), v_t371_5);
+    const double t372 = v_t371[1];
+    const double t373 = v_t371[2];
+    const double t374 = v_t371[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t371;
     #else
     const double t371 = DERIVE_FMA(t37, t155, DERIVE_FMA(t36, t154, DERIVE_FMA(t35, t153, DERIVE_FMA(t34, t150, DERIVE_FMA(t33, t149, DERIVE_FMA(t32, t148, t111 + t147))))));
     const double t372 = DERIVE_FMA(t37, t175, DERIVE_FMA(t36, t174, DERIVE_FMA(t35, t173, DERIVE_FMA(t34, t170, DERIVE_FMA(t33, t169, DERIVE_FMA(t32, t168, t113 + t167))))));
@@ -1167,309 +1164,227 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t379 = DERIVE_FMA(t37, t335, DERIVE_FMA(t36, t334, DERIVE_FMA(t35, t333, DERIVE_FMA(t34, t326, DERIVE_FMA(t33, t325, DERIVE_FMA(t32, t324, t323))))));
     const double t380 = DERIVE_FMA(t37, t359, DERIVE_FMA(t36, t358, DERIVE_FMA(t35, t357, DERIVE_FMA(t34, t350, DERIVE_FMA(t33, t349, DERIVE_FMA(t32, t348, t347))))));
     #endif
+    const double t383 = DERIVE_FMA(t174, t37, DERIVE_FMA(t173, t43, DERIVE_FMA(t170, t33, DERIVE_FMA(t169, t42, DERIVE_FMA(t167, t41, DERIVE_FMA(t133, t175, t118 + t168))))));
+    const double t384 = DERIVE_FMA(t194, t37, DERIVE_FMA(t193, t43, DERIVE_FMA(t190, t33, DERIVE_FMA(t189, t42, DERIVE_FMA(t187, t41, DERIVE_FMA(t133, t195, t119 + t188))))));
+    const double t385 = DERIVE_FMA(t214, t37, DERIVE_FMA(t213, t43, DERIVE_FMA(t210, t33, DERIVE_FMA(t209, t42, DERIVE_FMA(t207, t41, DERIVE_FMA(t133, t215, t120 + t208))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t113, t118, t119, t120}));
-    const derive_vd v_t383_1 = (v_t383_0 + ((derive_vd){t148, t168, t188, t208}));
-    const derive_vd v_t383_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t149, t169, t189, t209}), v_t383_1);
-    const derive_vd v_t383_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t150, t170, t190, t210}), v_t383_2);
-    const derive_vd v_t383_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t153, t173, t193, t213}), v_t383_3);
-    const derive_vd v_t383_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t154, t174, t194, t214}), v_t383_4);
-    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t155, t175, t195, t215}), v_t383_5);
+    const derive_vd v_t386_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t227, t251, t275, t299}));
+    const derive_vd v_t386_1 = (v_t386_0 + ((derive_vd){t228, t252, t276, t300}));
+    const derive_vd v_t386_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t229, t253, t277, t301}), v_t386_1);
+    const derive_vd v_t386_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t230, t254, t278, t302}), v_t386_2);
+    const derive_vd v_t386_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t237, t261, t285, t309}), v_t386_3);
+    const derive_vd v_t386_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t238, t262, t286, t310}), v_t386_4);
+    const derive_vd v_t386 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t239, t263, t287, t311}), v_t386_5);
     #else
-    const double t384 = DERIVE_FMA(t133, t175, DERIVE_FMA(t37, t174, DERIVE_FMA(t43, t173, DERIVE_FMA(t33, t170, DERIVE_FMA(t42, t169, DERIVE_FMA(t41, t167, t118) + t168)))));
-    const double t385 = DERIVE_FMA(t133, t195, DERIVE_FMA(t37, t194, DERIVE_FMA(t43, t193, DERIVE_FMA(t33, t190, DERIVE_FMA(t42, t189, DERIVE_FMA(t41, t187, t119) + t188)))));
-    const double t386 = DERIVE_FMA(t133, t215, DERIVE_FMA(t37, t214, DERIVE_FMA(t43, t213, DERIVE_FMA(t33, t210, DERIVE_FMA(t42, t209, DERIVE_FMA(t41, t207, t120) + t208)))));
+    const double t386 = DERIVE_FMA(t133, t239, DERIVE_FMA(t37, t238, DERIVE_FMA(t43, t237, DERIVE_FMA(t33, t230, DERIVE_FMA(t42, t229, t41*t227 + t228)))));
+    const double t387 = DERIVE_FMA(t133, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t43, t261, DERIVE_FMA(t33, t254, DERIVE_FMA(t42, t253, t41*t251 + t252)))));
+    const double t388 = DERIVE_FMA(t133, t287, DERIVE_FMA(t37, t286, DERIVE_FMA(t43, t285, DERIVE_FMA(t33, t278, DERIVE_FMA(t42, t277, t41*t275 + t276)))));
+    const double t389 = DERIVE_FMA(t133, t311, DERIVE_FMA(t37, t310, DERIVE_FMA(t43, t309, DERIVE_FMA(t33, t302, DERIVE_FMA(t42, t301, t41*t299 + t300)))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t387_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t387_1 = (v_t387_0 + ((derive_vd){t228, t252, t276, t300}));
-    const derive_vd v_t387_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t229, t253, t277, t301}), v_t387_1);
-    const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t230, t254, t278, t302}), v_t387_2);
-    const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t237, t261, t285, t309}), v_t387_3);
-    const derive_vd v_t387_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t238, t262, t286, t310}), v_t387_4);
-    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t239, t263, t287, t311}), v_t387_5);
+    const derive_vd v_t390_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t390_1 = (v_t390_0 + ((derive_vd){t324, t348, P[34], P[35]}));
+    const derive_vd v_t390_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t325, t349, P[58], P[59]}), v_t390_1);
+    const derive_vd v_t390_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t326, t350, P[82], P[83]}), v_t390_2);
+    const derive_vd v_t390_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t333, t357, P[250], P[251]}), v_t390_3);
+    const derive_vd v_t390_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t334, t358, P[274], P[275]}), v_t390_4);
+    const derive_vd v_t390 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t335, t359, P[298], P[299]}), v_t390_5);
+    const double t390 = v_t390[0];
+    const double t391 = v_t390[1];
+    *(derive_vd_unaligned *)&P_new[32] = ((derive_vd){t390, t391, t173, t174});
     #else
-    const double t387 = DERIVE_FMA(t133, t239, DERIVE_FMA(t37, t238, DERIVE_FMA(t43, t237, DERIVE_FMA(t33, t230, DERIVE_FMA(t42, t229, t41*t227 + t228)))));
-    const double t388 = DERIVE_FMA(t133, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t43, t261, DERIVE_FMA(t33, t254, DERIVE_FMA(t42, t253, t41*t251 + t252)))));
-    const double t389 = DERIVE_FMA(t133, t287, DERIVE_FMA(t37, t286, DERIVE_FMA(t43, t285, DERIVE_FMA(t33, t278, DERIVE_FMA(t42, t277, t41*t275 + t276)))));
-    const double t390 = DERIVE_FMA(t133, t311, DERIVE_FMA(t37, t310, DERIVE_FMA(t43, t309, DERIVE_FMA(t33, t302, DERIVE_FMA(t42, t301, t41*t299 + t300)))));
+    const double t390 = DERIVE_FMA(t133, t335, DERIVE_FMA(t37, t334, DERIVE_FMA(t43, t333, DERIVE_FMA(t33, t326, DERIVE_FMA(t42, t325, t41*t323 + t324)))));
+    const double t391 = DERIVE_FMA(t133, t359, DERIVE_FMA(t37, t358, DERIVE_FMA(t43, t357, DERIVE_FMA(t33, t350, DERIVE_FMA(t42, t349, t41*t347 + t348)))));
+    #endif
+    const double t394 = DERIVE_FMA(t195, t35, DERIVE_FMA(t194, t43, DERIVE_FMA(t190, t41, DERIVE_FMA(t188, t34, DERIVE_FMA(t187, t44, DERIVE_FMA(t134, t193, t121 + t189))))));
+    const double t395 = DERIVE_FMA(t215, t35, DERIVE_FMA(t214, t43, DERIVE_FMA(t210, t41, DERIVE_FMA(t208, t34, DERIVE_FMA(t207, t44, DERIVE_FMA(t134, t213, t122 + t209))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t396_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t227, t251, t275, t299}));
+    const derive_vd v_t396_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t228, t252, t276, t300}), v_t396_0);
+    const derive_vd v_t396_2 = (v_t396_1 + ((derive_vd){t229, t253, t277, t301}));
+    const derive_vd v_t396_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t230, t254, t278, t302}), v_t396_2);
+    const derive_vd v_t396_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t237, t261, t285, t309}), v_t396_3);
+    const derive_vd v_t396_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t238, t262, t286, t310}), v_t396_4);
+    const derive_vd v_t396 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t239, t263, t287, t311}), v_t396_5);
+    #else
+    const double t396 = DERIVE_FMA(t35, t239, DERIVE_FMA(t43, t238, DERIVE_FMA(t134, t237, DERIVE_FMA(t41, t230, DERIVE_FMA(t34, t228, t44*t227) + t229))));
+    const double t397 = DERIVE_FMA(t35, t263, DERIVE_FMA(t43, t262, DERIVE_FMA(t134, t261, DERIVE_FMA(t41, t254, DERIVE_FMA(t34, t252, t44*t251) + t253))));
+    const double t398 = DERIVE_FMA(t35, t287, DERIVE_FMA(t43, t286, DERIVE_FMA(t134, t285, DERIVE_FMA(t41, t278, DERIVE_FMA(t34, t276, t44*t275) + t277))));
+    const double t399 = DERIVE_FMA(t35, t311, DERIVE_FMA(t43, t310, DERIVE_FMA(t134, t309, DERIVE_FMA(t41, t302, DERIVE_FMA(t34, t300, t44*t299) + t301))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t391_0 = (((derive_vd){t41, t41, t41, t41}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t391_1 = (v_t391_0 + ((derive_vd){t324, t348, P[34], P[35]}));
-    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t325, t349, P[58], P[59]}), v_t391_1);
-    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){t326, t350, P[82], P[83]}), v_t391_2);
-    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t333, t357, P[250], P[251]}), v_t391_3);
-    const derive_vd v_t391_5 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t334, t358, P[274], P[275]}), v_t391_4);
-    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t133, t133, t133, t133}), ((derive_vd){t335, t359, P[298], P[299]}), v_t391_5);
-    const double t391 = v_t391[0];
-    const double t392 = v_t391[1];
-    *(derive_vd_unaligned *)&P_new[32] = ((derive_vd){t391, t392, t173, t174});
+    const derive_vd v_t400_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t400_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t324, t348, P[34], P[35]}), v_t400_0);
+    const derive_vd v_t400_2 = (v_t400_1 + ((derive_vd){t325, t349, P[58], P[59]}));
+    const derive_vd v_t400_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t326, t350, P[82], P[83]}), v_t400_2);
+    const derive_vd v_t400_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t333, t357, P[250], P[251]}), v_t400_3);
+    const derive_vd v_t400_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t334, t358, P[274], P[275]}), v_t400_4);
+    const derive_vd v_t400 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t335, t359, P[298], P[299]}), v_t400_5);
+    const double t400 = v_t400[0];
+    const double t401 = v_t400[1];
+    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t400, t401, t193, t194});
     #else
-    const double t391 = DERIVE_FMA(t133, t335, DERIVE_FMA(t37, t334, DERIVE_FMA(t43, t333, DERIVE_FMA(t33, t326, DERIVE_FMA(t42, t325, t41*t323 + t324)))));
-    const double t392 = DERIVE_FMA(t133, t359, DERIVE_FMA(t37, t358, DERIVE_FMA(t43, t357, DERIVE_FMA(t33, t350, DERIVE_FMA(t42, t349, t41*t347 + t348)))));
+    const double t400 = DERIVE_FMA(t35, t335, DERIVE_FMA(t43, t334, DERIVE_FMA(t134, t333, DERIVE_FMA(t41, t326, DERIVE_FMA(t34, t324, t44*t323) + t325))));
+    const double t401 = DERIVE_FMA(t35, t359, DERIVE_FMA(t43, t358, DERIVE_FMA(t134, t357, DERIVE_FMA(t41, t350, DERIVE_FMA(t34, t348, t44*t347) + t349))));
     #endif
+    const double t404 = DERIVE_FMA(t215, t43, DERIVE_FMA(t213, t36, DERIVE_FMA(t209, t32, DERIVE_FMA(t208, t44, DERIVE_FMA(t207, t42, DERIVE_FMA(t135, t214, t123 + t210))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t114, t119, t121, t122}));
-    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t148, t168, t188, t208}), v_t395_0);
-    const derive_vd v_t395_2 = (v_t395_1 + ((derive_vd){t149, t169, t189, t209}));
-    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t150, t170, t190, t210}), v_t395_2);
-    const derive_vd v_t395_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t153, t173, t193, t213}), v_t395_3);
-    const derive_vd v_t395_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t154, t174, t194, t214}), v_t395_4);
-    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t155, t175, t195, t215}), v_t395_5);
-    #else
-    const double t397 = DERIVE_FMA(t35, t195, DERIVE_FMA(t43, t194, DERIVE_FMA(t134, t193, DERIVE_FMA(t41, t190, DERIVE_FMA(t34, t188, DERIVE_FMA(t44, t187, t121)) + t189))));
-    const double t398 = DERIVE_FMA(t35, t215, DERIVE_FMA(t43, t214, DERIVE_FMA(t134, t213, DERIVE_FMA(t41, t210, DERIVE_FMA(t34, t208, DERIVE_FMA(t44, t207, t122)) + t209))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t399_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t228, t252, t276, t300}), v_t399_0);
-    const derive_vd v_t399_2 = (v_t399_1 + ((derive_vd){t229, t253, t277, t301}));
-    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t230, t254, t278, t302}), v_t399_2);
-    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t237, t261, t285, t309}), v_t399_3);
-    const derive_vd v_t399_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t238, t262, t286, t310}), v_t399_4);
-    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t239, t263, t287, t311}), v_t399_5);
-    #else
-    const double t399 = DERIVE_FMA(t35, t239, DERIVE_FMA(t43, t238, DERIVE_FMA(t134, t237, DERIVE_FMA(t41, t230, DERIVE_FMA(t34, t228, t44*t227) + t229))));
-    const double t400 = DERIVE_FMA(t35, t263, DERIVE_FMA(t43, t262, DERIVE_FMA(t134, t261, DERIVE_FMA(t41, t254, DERIVE_FMA(t34, t252, t44*t251) + t253))));
-    const double t401 = DERIVE_FMA(t35, t287, DERIVE_FMA(t43, t286, DERIVE_FMA(t134, t285, DERIVE_FMA(t41, t278, DERIVE_FMA(t34, t276, t44*t275) + t277))));
-    const double t402 = DERIVE_FMA(t35, t311, DERIVE_FMA(t43, t310, DERIVE_FMA(t134, t309, DERIVE_FMA(t41, t302, DERIVE_FMA(t34, t300, t44*t299) + t301))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t403_0 = (((derive_vd){t44, t44, t44, t44}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t403_1 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t324, t348, P[34], P[35]}), v_t403_0);
-    const derive_vd v_t403_2 = (v_t403_1 + ((derive_vd){t325, t349, P[58], P[59]}));
-    const derive_vd v_t403_3 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t326, t350, P[82], P[83]}), v_t403_2);
-    const derive_vd v_t403_4 = DERIVE_VFMA(((derive_vd){t134, t134, t134, t134}), ((derive_vd){t333, t357, P[250], P[251]}), v_t403_3);
-    const derive_vd v_t403_5 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t334, t358, P[274], P[275]}), v_t403_4);
-    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t335, t359, P[298], P[299]}), v_t403_5);
-    const double t403 = v_t403[0];
-    const double t404 = v_t403[1];
-    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t403, t404, t193, t194});
-    #else
-    const double t403 = DERIVE_FMA(t35, t335, DERIVE_FMA(t43, t334, DERIVE_FMA(t134, t333, DERIVE_FMA(t41, t326, DERIVE_FMA(t34, t324, t44*t323) + t325))));
-    const double t404 = DERIVE_FMA(t35, t359, DERIVE_FMA(t43, t358, DERIVE_FMA(t134, t357, DERIVE_FMA(t41, t350, DERIVE_FMA(t34, t348, t44*t347) + t349))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t407_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t147, t167, t187, t207}), ((derive_vd){t116, t120, t122, t123}));
-    const derive_vd v_t407_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t168, t188, t208}), v_t407_0);
-    const derive_vd v_t407_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t149, t169, t189, t209}), v_t407_1);
-    const derive_vd v_t407_3 = (v_t407_2 + ((derive_vd){t150, t170, t190, t210}));
-    const derive_vd v_t407_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t153, t173, t193, t213}), v_t407_3);
-    const derive_vd v_t407_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t154, t174, t194, t214}), v_t407_4);
-    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t155, t175, t195, t215}), v_t407_5);
-    const derive_vd tr_v_t371_0 = __builtin_shufflevector(v_t371, v_t383, 0, 4, 2, 6);
-    const derive_vd tr_v_t371_1 = __builtin_shufflevector(v_t371, v_t383, 1, 5, 3, 7);
-    const derive_vd tr_v_t371_2 = __builtin_shufflevector(v_t395, v_t407, 0, 4, 2, 6);
-    const derive_vd tr_v_t371_3 = __builtin_shufflevector(v_t395, v_t407, 1, 5, 3, 7);
-    const derive_vd tr_v_t371_c1 = __builtin_shufflevector(tr_v_t371_1, tr_v_t371_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t371_c2 = __builtin_shufflevector(tr_v_t371_0, tr_v_t371_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t371_c3 = __builtin_shufflevector(tr_v_t371_1, tr_v_t371_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[0] = v_t371;
-    *(derive_vd_unaligned *)&P_new[24] = __builtin_shufflevector(v_t383, tr_v_t371_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t395, tr_v_t371_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[72] = __builtin_shufflevector(v_t407, tr_v_t371_c3, 4, 5, 6, 3);
-    #else
-    const double t410 = DERIVE_FMA(t43, t215, DERIVE_FMA(t135, t214, DERIVE_FMA(t36, t213, DERIVE_FMA(t32, t209, DERIVE_FMA(t44, t208, DERIVE_FMA(t42, t207, t123))) + t210)));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t411_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t227, t251, t275, t299}));
-    const derive_vd v_t411_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t228, t252, t276, t300}), v_t411_0);
-    const derive_vd v_t411_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t229, t253, t277, t301}), v_t411_1);
-    const derive_vd v_t411_3 = (v_t411_2 + ((derive_vd){t230, t254, t278, t302}));
-    const derive_vd v_t411_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t237, t261, t285, t309}), v_t411_3);
-    const derive_vd v_t411_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t238, t262, t286, t310}), v_t411_4);
-    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t239, t263, t287, t311}), v_t411_5);
-    const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t387, 0, 4, 2, 6);
-    const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t387, 1, 5, 3, 7);
-    const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t399, v_t411, 0, 4, 2, 6);
-    const derive_vd tr_v_t375_3 = __builtin_shufflevector(v_t399, v_t411, 1, 5, 3, 7);
+    const derive_vd v_t405_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t227, t251, t275, t299}));
+    const derive_vd v_t405_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t228, t252, t276, t300}), v_t405_0);
+    const derive_vd v_t405_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t229, t253, t277, t301}), v_t405_1);
+    const derive_vd v_t405_3 = (v_t405_2 + ((derive_vd){t230, t254, t278, t302}));
+    const derive_vd v_t405_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t237, t261, t285, t309}), v_t405_3);
+    const derive_vd v_t405_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t238, t262, t286, t310}), v_t405_4);
+    const derive_vd v_t405 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t239, t263, t287, t311}), v_t405_5);
+    const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t386, 0, 4, 2, 6);
+    const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t386, 1, 5, 3, 7);
+    const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t396, v_t405, 0, 4, 2, 6);
+    const derive_vd tr_v_t375_3 = __builtin_shufflevector(v_t396, v_t405, 1, 5, 3, 7);
     const derive_vd tr_v_t375_c0 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 0, 1, 4, 5);
     const derive_vd tr_v_t375_c1 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 0, 1, 4, 5);
     const derive_vd tr_v_t375_c2 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 2, 3, 6, 7);
     const derive_vd tr_v_t375_c3 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[4] = v_t375;
-    *(derive_vd_unaligned *)&P_new[28] = v_t387;
-    *(derive_vd_unaligned *)&P_new[52] = v_t399;
-    *(derive_vd_unaligned *)&P_new[76] = v_t411;
+    *(derive_vd_unaligned *)&P_new[28] = v_t386;
+    *(derive_vd_unaligned *)&P_new[52] = v_t396;
+    *(derive_vd_unaligned *)&P_new[76] = v_t405;
     *(derive_vd_unaligned *)&P_new[96] = tr_v_t375_c0;
     *(derive_vd_unaligned *)&P_new[120] = tr_v_t375_c1;
     *(derive_vd_unaligned *)&P_new[144] = tr_v_t375_c2;
     *(derive_vd_unaligned *)&P_new[168] = tr_v_t375_c3;
     #else
-    const double t411 = DERIVE_FMA(t43, t239, DERIVE_FMA(t135, t238, DERIVE_FMA(t36, t237, DERIVE_FMA(t32, t229, DERIVE_FMA(t44, t228, t42*t227)) + t230)));
-    const double t412 = DERIVE_FMA(t43, t263, DERIVE_FMA(t135, t262, DERIVE_FMA(t36, t261, DERIVE_FMA(t32, t253, DERIVE_FMA(t44, t252, t42*t251)) + t254)));
-    const double t413 = DERIVE_FMA(t43, t287, DERIVE_FMA(t135, t286, DERIVE_FMA(t36, t285, DERIVE_FMA(t32, t277, DERIVE_FMA(t44, t276, t42*t275)) + t278)));
-    const double t414 = DERIVE_FMA(t43, t311, DERIVE_FMA(t135, t310, DERIVE_FMA(t36, t309, DERIVE_FMA(t32, t301, DERIVE_FMA(t44, t300, t42*t299)) + t302)));
+    const double t405 = DERIVE_FMA(t43, t239, DERIVE_FMA(t135, t238, DERIVE_FMA(t36, t237, DERIVE_FMA(t32, t229, DERIVE_FMA(t44, t228, t42*t227)) + t230)));
+    const double t406 = DERIVE_FMA(t43, t263, DERIVE_FMA(t135, t262, DERIVE_FMA(t36, t261, DERIVE_FMA(t32, t253, DERIVE_FMA(t44, t252, t42*t251)) + t254)));
+    const double t407 = DERIVE_FMA(t43, t287, DERIVE_FMA(t135, t286, DERIVE_FMA(t36, t285, DERIVE_FMA(t32, t277, DERIVE_FMA(t44, t276, t42*t275)) + t278)));
+    const double t408 = DERIVE_FMA(t43, t311, DERIVE_FMA(t135, t310, DERIVE_FMA(t36, t309, DERIVE_FMA(t32, t301, DERIVE_FMA(t44, t300, t42*t299)) + t302)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t415_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t415_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t324, t348, P[34], P[35]}), v_t415_0);
-    const derive_vd v_t415_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t325, t349, P[58], P[59]}), v_t415_1);
-    const derive_vd v_t415_3 = (v_t415_2 + ((derive_vd){t326, t350, P[82], P[83]}));
-    const derive_vd v_t415_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t333, t357, P[250], P[251]}), v_t415_3);
-    const derive_vd v_t415_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t334, t358, P[274], P[275]}), v_t415_4);
-    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t335, t359, P[298], P[299]}), v_t415_5);
-    const double t415 = v_t415[0];
-    const double t416 = v_t415[1];
-    *(derive_vd_unaligned *)&P_new[80] = ((derive_vd){t415, t416, t213, t214});
-    *(derive_vd_unaligned *)&P_new[192] = ((derive_vd){t379, t391, t403, t415});
-    *(derive_vd_unaligned *)&P_new[216] = ((derive_vd){t380, t392, t404, t416});
+    const derive_vd v_t409_0 = (((derive_vd){t42, t42, t42, t42}) * ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t409_1 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t324, t348, P[34], P[35]}), v_t409_0);
+    const derive_vd v_t409_2 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t325, t349, P[58], P[59]}), v_t409_1);
+    const derive_vd v_t409_3 = (v_t409_2 + ((derive_vd){t326, t350, P[82], P[83]}));
+    const derive_vd v_t409_4 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t333, t357, P[250], P[251]}), v_t409_3);
+    const derive_vd v_t409_5 = DERIVE_VFMA(((derive_vd){t135, t135, t135, t135}), ((derive_vd){t334, t358, P[274], P[275]}), v_t409_4);
+    const derive_vd v_t409 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), ((derive_vd){t335, t359, P[298], P[299]}), v_t409_5);
+    const double t409 = v_t409[0];
+    const double t410 = v_t409[1];
+    *(derive_vd_unaligned *)&P_new[80] = ((derive_vd){t409, t410, t213, t214});
+    *(derive_vd_unaligned *)&P_new[192] = ((derive_vd){t379, t390, t400, t409});
+    *(derive_vd_unaligned *)&P_new[216] = ((derive_vd){t380, t391, t401, t410});
     #else
-    const double t415 = DERIVE_FMA(t43, t335, DERIVE_FMA(t135, t334, DERIVE_FMA(t36, t333, DERIVE_FMA(t32, t325, DERIVE_FMA(t44, t324, t42*t323)) + t326)));
-    const double t416 = DERIVE_FMA(t43, t359, DERIVE_FMA(t135, t358, DERIVE_FMA(t36, t357, DERIVE_FMA(t32, t349, DERIVE_FMA(t44, t348, t42*t347)) + t350)));
+    const double t409 = DERIVE_FMA(t43, t335, DERIVE_FMA(t135, t334, DERIVE_FMA(t36, t333, DERIVE_FMA(t32, t325, DERIVE_FMA(t44, t324, t42*t323)) + t326)));
+    const double t410 = DERIVE_FMA(t43, t359, DERIVE_FMA(t135, t358, DERIVE_FMA(t36, t357, DERIVE_FMA(t32, t349, DERIVE_FMA(t44, t348, t42*t347)) + t350)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t419_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t124, t125, t126, 0.0}));
-    const derive_vd v_t419_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t228, t252, t276, t300}), v_t419_0);
-    const derive_vd v_t419_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t229, t253, t277, t301}), v_t419_1);
-    const derive_vd v_t419_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t230, t254, t278, t302}), v_t419_2);
-    const derive_vd v_t419_4 = (v_t419_3 + ((derive_vd){t231, t255, t279, t303}));
-    const derive_vd v_t419_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t240, t264, t288, t312}), v_t419_4);
-    const derive_vd v_t419_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t241, t265, t289, t313}), v_t419_5);
-    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t242, t266, t290, t314}), v_t419_6);
+    const derive_vd v_t413_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t124, t125, t126, 0.0}));
+    const derive_vd v_t413_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t228, t252, t276, t300}), v_t413_0);
+    const derive_vd v_t413_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t229, t253, t277, t301}), v_t413_1);
+    const derive_vd v_t413_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t230, t254, t278, t302}), v_t413_2);
+    const derive_vd v_t413_4 = (v_t413_3 + ((derive_vd){t231, t255, t279, t303}));
+    const derive_vd v_t413_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t240, t264, t288, t312}), v_t413_4);
+    const derive_vd v_t413_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t241, t265, t289, t313}), v_t413_5);
+    const derive_vd v_t413 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t242, t266, t290, t314}), v_t413_6);
+    const double t414 = v_t413[1];
+    const double t415 = v_t413[2];
+    const double t416 = v_t413[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t413;
     #else
-    const double t419 = DERIVE_FMA(t138, t242, DERIVE_FMA(t137, t241, DERIVE_FMA(t136, t240, DERIVE_FMA(t73, t230, DERIVE_FMA(t72, t229, DERIVE_FMA(t71, t228, DERIVE_FMA(t70, t227, t124)))) + t231)));
-    const double t420 = DERIVE_FMA(t138, t266, DERIVE_FMA(t137, t265, DERIVE_FMA(t136, t264, DERIVE_FMA(t73, t254, DERIVE_FMA(t72, t253, DERIVE_FMA(t71, t252, DERIVE_FMA(t70, t251, t125)))) + t255)));
-    const double t421 = DERIVE_FMA(t138, t290, DERIVE_FMA(t137, t289, DERIVE_FMA(t136, t288, DERIVE_FMA(t73, t278, DERIVE_FMA(t72, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t70, t275, t126)))) + t279)));
-    const double t422 = DERIVE_FMA(t138, t314, DERIVE_FMA(t137, t313, DERIVE_FMA(t136, t312, DERIVE_FMA(t73, t302, DERIVE_FMA(t72, t301, DERIVE_FMA(t71, t300, DERIVE_FMA(t70, t299, 0.0)))) + t303)));
+    const double t413 = DERIVE_FMA(t138, t242, DERIVE_FMA(t137, t241, DERIVE_FMA(t136, t240, DERIVE_FMA(t73, t230, DERIVE_FMA(t72, t229, DERIVE_FMA(t71, t228, DERIVE_FMA(t70, t227, t124)))) + t231)));
+    const double t414 = DERIVE_FMA(t138, t266, DERIVE_FMA(t137, t265, DERIVE_FMA(t136, t264, DERIVE_FMA(t73, t254, DERIVE_FMA(t72, t253, DERIVE_FMA(t71, t252, DERIVE_FMA(t70, t251, t125)))) + t255)));
+    const double t415 = DERIVE_FMA(t138, t290, DERIVE_FMA(t137, t289, DERIVE_FMA(t136, t288, DERIVE_FMA(t73, t278, DERIVE_FMA(t72, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t70, t275, t126)))) + t279)));
+    const double t416 = DERIVE_FMA(t138, t314, DERIVE_FMA(t137, t313, DERIVE_FMA(t136, t312, DERIVE_FMA(t73, t302, DERIVE_FMA(t72, t301, DERIVE_FMA(t71, t300, DERIVE_FMA(t70, t299, 0.0)))) + t303)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t423_0 = (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t423_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t324, t348, P[34], P[35]}), v_t423_0);
-    const derive_vd v_t423_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t325, t349, P[58], P[59]}), v_t423_1);
-    const derive_vd v_t423_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t326, t350, P[82], P[83]}), v_t423_2);
-    const derive_vd v_t423_4 = (v_t423_3 + ((derive_vd){t327, t351, P[106], P[107]}));
-    const derive_vd v_t423_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t336, t360, P[322], P[323]}), v_t423_4);
-    const derive_vd v_t423_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t337, t361, P[346], P[347]}), v_t423_5);
-    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t338, t362, P[370], P[371]}), v_t423_6);
-    const double t423 = v_t423[0];
-    const double t424 = v_t423[1];
-    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t423, t424, t237, t238});
+    const derive_vd v_t417_0 = (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t417_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t324, t348, P[34], P[35]}), v_t417_0);
+    const derive_vd v_t417_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t325, t349, P[58], P[59]}), v_t417_1);
+    const derive_vd v_t417_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t326, t350, P[82], P[83]}), v_t417_2);
+    const derive_vd v_t417_4 = (v_t417_3 + ((derive_vd){t327, t351, P[106], P[107]}));
+    const derive_vd v_t417_5 = DERIVE_VFMA(((derive_vd){t136, t136, t136, t136}), ((derive_vd){t336, t360, P[322], P[323]}), v_t417_4);
+    const derive_vd v_t417_6 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t337, t361, P[346], P[347]}), v_t417_5);
+    const derive_vd v_t417 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t338, t362, P[370], P[371]}), v_t417_6);
+    const double t417 = v_t417[0];
+    const double t418 = v_t417[1];
+    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t417, t418, t237, t238});
     #else
-    const double t423 = DERIVE_FMA(t138, t338, DERIVE_FMA(t137, t337, DERIVE_FMA(t136, t336, DERIVE_FMA(t73, t326, DERIVE_FMA(t72, t325, DERIVE_FMA(t71, t324, t70*t323))) + t327)));
-    const double t424 = DERIVE_FMA(t138, t362, DERIVE_FMA(t137, t361, DERIVE_FMA(t136, t360, DERIVE_FMA(t73, t350, DERIVE_FMA(t72, t349, DERIVE_FMA(t71, t348, t70*t347))) + t351)));
+    const double t417 = DERIVE_FMA(t138, t338, DERIVE_FMA(t137, t337, DERIVE_FMA(t136, t336, DERIVE_FMA(t73, t326, DERIVE_FMA(t72, t325, DERIVE_FMA(t71, t324, t70*t323))) + t327)));
+    const double t418 = DERIVE_FMA(t138, t362, DERIVE_FMA(t137, t361, DERIVE_FMA(t136, t360, DERIVE_FMA(t73, t350, DERIVE_FMA(t72, t349, DERIVE_FMA(t71, t348, t70*t347))) + t351)));
     #endif
+    const double t421 = DERIVE_FMA(t254, t80, DERIVE_FMA(t253, t79, DERIVE_FMA(t251, t77, DERIVE_FMA(t142, t266, DERIVE_FMA(t141, t265, DERIVE_FMA(t140, t264, DERIVE_FMA(t139, t252, t127 + t256)))))));
+    const double t422 = DERIVE_FMA(t278, t80, DERIVE_FMA(t277, t79, DERIVE_FMA(t275, t77, DERIVE_FMA(t142, t290, DERIVE_FMA(t141, t289, DERIVE_FMA(t140, t288, DERIVE_FMA(t139, t276, t128 + t280)))))));
+    const double t423 = DERIVE_FMA(t302, t80, DERIVE_FMA(t301, t79, DERIVE_FMA(t299, t77, DERIVE_FMA(t142, t314, DERIVE_FMA(t141, t313, DERIVE_FMA(t140, t312, DERIVE_FMA(t139, t300, t304)))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t427_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t125, t127, t128, 0.0}));
-    const derive_vd v_t427_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t228, t252, t276, t300}), v_t427_0);
-    const derive_vd v_t427_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t229, t253, t277, t301}), v_t427_1);
-    const derive_vd v_t427_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t230, t254, t278, t302}), v_t427_2);
-    const derive_vd v_t427_4 = (v_t427_3 + ((derive_vd){t232, t256, t280, t304}));
-    const derive_vd v_t427_5 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t240, t264, t288, t312}), v_t427_4);
-    const derive_vd v_t427_6 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t241, t265, t289, t313}), v_t427_5);
-    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t242, t266, t290, t314}), v_t427_6);
+    const derive_vd v_t424_0 = (((derive_vd){t77, t77, t77, t77}) * ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t424_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t324, t348, P[34], P[35]}), v_t424_0);
+    const derive_vd v_t424_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t325, t349, P[58], P[59]}), v_t424_1);
+    const derive_vd v_t424_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t326, t350, P[82], P[83]}), v_t424_2);
+    const derive_vd v_t424_4 = (v_t424_3 + ((derive_vd){t328, t352, P[130], P[131]}));
+    const derive_vd v_t424_5 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t336, t360, P[322], P[323]}), v_t424_4);
+    const derive_vd v_t424_6 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t337, t361, P[346], P[347]}), v_t424_5);
+    const derive_vd v_t424 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t338, t362, P[370], P[371]}), v_t424_6);
+    const double t424 = v_t424[0];
+    const double t425 = v_t424[1];
+    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t424, t425, t261, t262});
     #else
-    const double t428 = DERIVE_FMA(t142, t266, DERIVE_FMA(t141, t265, DERIVE_FMA(t140, t264, DERIVE_FMA(t80, t254, DERIVE_FMA(t79, t253, DERIVE_FMA(t139, t252, DERIVE_FMA(t77, t251, t127)))) + t256)));
-    const double t429 = DERIVE_FMA(t142, t290, DERIVE_FMA(t141, t289, DERIVE_FMA(t140, t288, DERIVE_FMA(t80, t278, DERIVE_FMA(t79, t277, DERIVE_FMA(t139, t276, DERIVE_FMA(t77, t275, t128)))) + t280)));
-    const double t430 = DERIVE_FMA(t142, t314, DERIVE_FMA(t141, t313, DERIVE_FMA(t140, t312, DERIVE_FMA(t80, t302, DERIVE_FMA(t79, t301, DERIVE_FMA(t139, t300, DERIVE_FMA(t77, t299, 0.0)))) + t304)));
+    const double t424 = DERIVE_FMA(t142, t338, DERIVE_FMA(t141, t337, DERIVE_FMA(t140, t336, DERIVE_FMA(t80, t326, DERIVE_FMA(t79, t325, DERIVE_FMA(t139, t324, t77*t323))) + t328)));
+    const double t425 = DERIVE_FMA(t142, t362, DERIVE_FMA(t141, t361, DERIVE_FMA(t140, t360, DERIVE_FMA(t80, t350, DERIVE_FMA(t79, t349, DERIVE_FMA(t139, t348, t77*t347))) + t352)));
     #endif
+    const double t428 = DERIVE_FMA(t278, t87, DERIVE_FMA(t276, t85, DERIVE_FMA(t275, t84, DERIVE_FMA(t146, t290, DERIVE_FMA(t145, t289, DERIVE_FMA(t144, t288, DERIVE_FMA(t143, t277, t129 + t281)))))));
+    const double t429 = DERIVE_FMA(t302, t87, DERIVE_FMA(t300, t85, DERIVE_FMA(t299, t84, DERIVE_FMA(t146, t314, DERIVE_FMA(t145, t313, DERIVE_FMA(t144, t312, DERIVE_FMA(t143, t301, t305)))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t431_0 = (((derive_vd){t77, t77, t77, t77}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t431_1 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t324, t348, P[34], P[35]}), v_t431_0);
-    const derive_vd v_t431_2 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t325, t349, P[58], P[59]}), v_t431_1);
-    const derive_vd v_t431_3 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t326, t350, P[82], P[83]}), v_t431_2);
-    const derive_vd v_t431_4 = (v_t431_3 + ((derive_vd){t328, t352, P[130], P[131]}));
-    const derive_vd v_t431_5 = DERIVE_VFMA(((derive_vd){t140, t140, t140, t140}), ((derive_vd){t336, t360, P[322], P[323]}), v_t431_4);
-    const derive_vd v_t431_6 = DERIVE_VFMA(((derive_vd){t141, t141, t141, t141}), ((derive_vd){t337, t361, P[346], P[347]}), v_t431_5);
-    const derive_vd v_t431 = DERIVE_VFMA(((derive_vd){t142, t142, t142, t142}), ((derive_vd){t338, t362, P[370], P[371]}), v_t431_6);
-    const double t431 = v_t431[0];
-    const double t432 = v_t431[1];
-    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t431, t432, t261, t262});
+    const derive_vd v_t430_0 = (((derive_vd){t84, t84, t84, t84}) * ((derive_vd){t323, t347, P[10], P[11]}));
+    const derive_vd v_t430_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t324, t348, P[34], P[35]}), v_t430_0);
+    const derive_vd v_t430_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t325, t349, P[58], P[59]}), v_t430_1);
+    const derive_vd v_t430_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t326, t350, P[82], P[83]}), v_t430_2);
+    const derive_vd v_t430_4 = (v_t430_3 + ((derive_vd){t329, t353, P[154], P[155]}));
+    const derive_vd v_t430_5 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t336, t360, P[322], P[323]}), v_t430_4);
+    const derive_vd v_t430_6 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t337, t361, P[346], P[347]}), v_t430_5);
+    const derive_vd v_t430 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t338, t362, P[370], P[371]}), v_t430_6);
+    const double t430 = v_t430[0];
+    const double t431 = v_t430[1];
+    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t430, t431, t285, t286});
     #else
-    const double t431 = DERIVE_FMA(t142, t338, DERIVE_FMA(t141, t337, DERIVE_FMA(t140, t336, DERIVE_FMA(t80, t326, DERIVE_FMA(t79, t325, DERIVE_FMA(t139, t324, t77*t323))) + t328)));
-    const double t432 = DERIVE_FMA(t142, t362, DERIVE_FMA(t141, t361, DERIVE_FMA(t140, t360, DERIVE_FMA(t80, t350, DERIVE_FMA(t79, t349, DERIVE_FMA(t139, t348, t77*t347))) + t352)));
+    const double t430 = DERIVE_FMA(t146, t338, DERIVE_FMA(t145, t337, DERIVE_FMA(t144, t336, DERIVE_FMA(t87, t326, DERIVE_FMA(t143, t325, DERIVE_FMA(t85, t324, t84*t323))) + t329)));
+    const double t431 = DERIVE_FMA(t146, t362, DERIVE_FMA(t145, t361, DERIVE_FMA(t144, t360, DERIVE_FMA(t87, t350, DERIVE_FMA(t143, t349, DERIVE_FMA(t85, t348, t84*t347))) + t353)));
     #endif
+    const double t434 = DERIVE_FMA(p[0], t303, t306);
     #if DERIVE_VECTOR
-    const derive_vd v_t435_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t227, t251, t275, t299}), ((derive_vd){t126, t128, t129, 0.0}));
-    const derive_vd v_t435_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t228, t252, t276, t300}), v_t435_0);
-    const derive_vd v_t435_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t229, t253, t277, t301}), v_t435_1);
-    const derive_vd v_t435_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t230, t254, t278, t302}), v_t435_2);
-    const derive_vd v_t435_4 = (v_t435_3 + ((derive_vd){t233, t257, t281, t305}));
-    const derive_vd v_t435_5 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t240, t264, t288, t312}), v_t435_4);
-    const derive_vd v_t435_6 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t241, t265, t289, t313}), v_t435_5);
-    const derive_vd v_t435 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t242, t266, t290, t314}), v_t435_6);
+    const derive_vd v_t435_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t327, t351, P[106], P[107]}));
+    const derive_vd v_t435 = (v_t435_0 + ((derive_vd){t330, t354, P[178], P[179]}));
+    const double t435 = v_t435[0];
+    const double t436 = v_t435[1];
+    *(derive_vd_unaligned *)&P_new[176] = ((derive_vd){t435, t436, t309, t310});
+    *(derive_vd_unaligned *)&P_new[196] = ((derive_vd){t417, t424, t430, t435});
+    *(derive_vd_unaligned *)&P_new[220] = ((derive_vd){t418, t425, t431, t436});
     #else
-    const double t437 = DERIVE_FMA(t146, t290, DERIVE_FMA(t145, t289, DERIVE_FMA(t144, t288, DERIVE_FMA(t87, t278, DERIVE_FMA(t143, t277, DERIVE_FMA(t85, t276, DERIVE_FMA(t84, t275, t129)))) + t281)));
-    const double t438 = DERIVE_FMA(t146, t314, DERIVE_FMA(t145, t313, DERIVE_FMA(t144, t312, DERIVE_FMA(t87, t302, DERIVE_FMA(t143, t301, DERIVE_FMA(t85, t300, DERIVE_FMA(t84, t299, 0.0)))) + t305)));
+    const double t435 = p[0]*t327 + t330;
+    const double t436 = p[0]*t351 + t354;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t439_0 = (((derive_vd){t84, t84, t84, t84}) * ((derive_vd){t323, t347, P[10], P[11]}));
-    const derive_vd v_t439_1 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t324, t348, P[34], P[35]}), v_t439_0);
-    const derive_vd v_t439_2 = DERIVE_VFMA(((derive_vd){t143, t143, t143, t143}), ((derive_vd){t325, t349, P[58], P[59]}), v_t439_1);
-    const derive_vd v_t439_3 = DERIVE_VFMA(((derive_vd){t87, t87, t87, t87}), ((derive_vd){t326, t350, P[82], P[83]}), v_t439_2);
-    const derive_vd v_t439_4 = (v_t439_3 + ((derive_vd){t329, t353, P[154], P[155]}));
-    const derive_vd v_t439_5 = DERIVE_VFMA(((derive_vd){t144, t144, t144, t144}), ((derive_vd){t336, t360, P[322], P[323]}), v_t439_4);
-    const derive_vd v_t439_6 = DERIVE_VFMA(((derive_vd){t145, t145, t145, t145}), ((derive_vd){t337, t361, P[346], P[347]}), v_t439_5);
-    const derive_vd v_t439 = DERIVE_VFMA(((derive_vd){t146, t146, t146, t146}), ((derive_vd){t338, t362, P[370], P[371]}), v_t439_6);
+    const derive_vd v_t439_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t328, t352, P[130], P[131]}));
+    const derive_vd v_t439 = (v_t439_0 + ((derive_vd){t331, t355, P[202], P[203]}));
     const double t439 = v_t439[0];
     const double t440 = v_t439[1];
-    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t439, t440, t285, t286});
+    *(derive_vd_unaligned *)&P_new[200] = ((derive_vd){t439, t440, t333, t334});
     #else
-    const double t439 = DERIVE_FMA(t146, t338, DERIVE_FMA(t145, t337, DERIVE_FMA(t144, t336, DERIVE_FMA(t87, t326, DERIVE_FMA(t143, t325, DERIVE_FMA(t85, t324, t84*t323))) + t329)));
-    const double t440 = DERIVE_FMA(t146, t362, DERIVE_FMA(t145, t361, DERIVE_FMA(t144, t360, DERIVE_FMA(t87, t350, DERIVE_FMA(t143, t349, DERIVE_FMA(t85, t348, t84*t347))) + t353)));
+    const double t439 = p[0]*t328 + t331;
+    const double t440 = p[0]*t352 + t355;
     #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t443_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t231, t255, t279, t303}));
-    const derive_vd v_t443 = (v_t443_0 + ((derive_vd){t234, t258, t282, t306}));
-    const derive_vd tr_v_t419_0 = __builtin_shufflevector(v_t419, v_t427, 0, 4, 2, 6);
-    const derive_vd tr_v_t419_1 = __builtin_shufflevector(v_t419, v_t427, 1, 5, 3, 7);
-    const derive_vd tr_v_t419_2 = __builtin_shufflevector(v_t435, v_t443, 0, 4, 2, 6);
-    const derive_vd tr_v_t419_3 = __builtin_shufflevector(v_t435, v_t443, 1, 5, 3, 7);
-    const derive_vd tr_v_t419_c1 = __builtin_shufflevector(tr_v_t419_1, tr_v_t419_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t419_c2 = __builtin_shufflevector(tr_v_t419_0, tr_v_t419_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t419_c3 = __builtin_shufflevector(tr_v_t419_1, tr_v_t419_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[100] = v_t419;
-    *(derive_vd_unaligned *)&P_new[124] = __builtin_shufflevector(v_t427, tr_v_t419_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[148] = __builtin_shufflevector(v_t435, tr_v_t419_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[172] = __builtin_shufflevector(v_t443, tr_v_t419_c3, 4, 5, 6, 3);
-    #else
-    const double t446 = p[0]*t303 + t306;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t447_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t327, t351, P[106], P[107]}));
-    const derive_vd v_t447 = (v_t447_0 + ((derive_vd){t330, t354, P[178], P[179]}));
-    const double t447 = v_t447[0];
-    const double t448 = v_t447[1];
-    *(derive_vd_unaligned *)&P_new[176] = ((derive_vd){t447, t448, t309, t310});
-    *(derive_vd_unaligned *)&P_new[196] = ((derive_vd){t423, t431, t439, t447});
-    *(derive_vd_unaligned *)&P_new[220] = ((derive_vd){t424, t432, t440, t448});
-    #else
-    const double t447 = p[0]*t327 + t330;
-    const double t448 = p[0]*t351 + t354;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t451_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t328, t352, P[130], P[131]}));
-    const derive_vd v_t451 = (v_t451_0 + ((derive_vd){t331, t355, P[202], P[203]}));
-    const double t451 = v_t451[0];
-    const double t452 = v_t451[1];
-    *(derive_vd_unaligned *)&P_new[200] = ((derive_vd){t451, t452, t333, t334});
-    #else
-    const double t451 = p[0]*t328 + t331;
-    const double t452 = p[0]*t352 + t355;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t455_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t329, t353, P[154], P[155]}));
-    const derive_vd v_t455 = (v_t455_0 + ((derive_vd){t332, t356, P[226], P[227]}));
-    const double t456 = v_t455[1];
-    *(derive_vd_unaligned *)&P_new[224] = ((derive_vd){t452, t456, t357, t358});
-    #else
-    const double t456 = p[0]*t353 + t356;
-    #endif
-    const double t459 = P[250] + t130;
-    const double t460 = P[275] + t130;
-    const double t461 = P[300] + t130;
-    const double t462 = P[325] + t131;
-    const double t463 = P[350] + t131;
-    const double t464 = P[375] + t131;
-    const double t465 = P[400] + t131;
-    const double t466 = P[425] + t131;
-    const double t467 = P[450] + t131;
-    const double t468 = P[475] + t131;
-    const double t469 = P[500] + t131;
-    const double t470 = P[525] + t131;
-    const double t471 = P[550] + t132;
-    const double t472 = P[575] + t132;
+    const double t443 = DERIVE_FMA(p[0], t353, t356);
+    const double t444 = P[250] + t130;
+    const double t445 = P[275] + t130;
+    const double t446 = P[300] + t130;
+    const double t447 = P[325] + t131;
+    const double t448 = P[350] + t131;
+    const double t449 = P[375] + t131;
+    const double t450 = P[400] + t131;
+    const double t451 = P[425] + t131;
+    const double t452 = P[450] + t131;
+    const double t453 = P[475] + t131;
+    const double t454 = P[500] + t131;
+    const double t455 = P[525] + t131;
+    const double t456 = P[550] + t132;
+    const double t457 = P[575] + t132;
     #if DERIVE_VECTOR
     x_new[0] = t60;
     x_new[1] = t61;
@@ -1495,9 +1410,37 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     x_new[21] = x[21];
     x_new[22] = x[22];
     x_new[23] = x[23];
+    P_new[24] = t372;
+    P_new[25] = t383;
+    P_new[26] = t384;
+    P_new[27] = t385;
+    P_new[48] = t373;
+    P_new[49] = t384;
+    P_new[50] = t394;
+    P_new[51] = t395;
+    P_new[72] = t374;
+    P_new[73] = t385;
+    P_new[74] = t395;
+    P_new[75] = t404;
+    P_new[124] = t414;
+    P_new[125] = t421;
+    P_new[126] = t422;
+    P_new[127] = t423;
+    P_new[148] = t415;
+    P_new[149] = t422;
+    P_new[150] = t428;
+    P_new[151] = t429;
+    P_new[172] = t416;
+    P_new[173] = t423;
+    P_new[174] = t429;
+    P_new[175] = t434;
+    P_new[224] = t440;
+    P_new[225] = t443;
+    P_new[226] = t357;
+    P_new[227] = t358;
     P_new[248] = t333;
     P_new[249] = t357;
-    P_new[250] = t459;
+    P_new[250] = t444;
     P_new[251] = P[251];
     P_new[252] = P[252];
     P_new[253] = P[253];
@@ -1514,7 +1457,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[272] = t334;
     P_new[273] = t358;
     P_new[274] = P[251];
-    P_new[275] = t460;
+    P_new[275] = t445;
     P_new[276] = P[276];
     P_new[277] = P[277];
     P_new[278] = P[278];
@@ -1531,7 +1474,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[297] = t359;
     P_new[298] = P[252];
     P_new[299] = P[276];
-    P_new[300] = t461;
+    P_new[300] = t446;
     P_new[301] = P[301];
     P_new[302] = P[302];
     P_new[303] = P[303];
@@ -1548,7 +1491,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[322] = P[253];
     P_new[323] = P[277];
     P_new[324] = P[301];
-    P_new[325] = t462;
+    P_new[325] = t447;
     P_new[326] = P[326];
     P_new[327] = P[327];
     P_new[328] = P[328];
@@ -1565,7 +1508,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[347] = P[278];
     P_new[348] = P[302];
     P_new[349] = P[326];
-    P_new[350] = t463;
+    P_new[350] = t448;
     P_new[351] = P[351];
     P_new[352] = P[352];
     P_new[353] = P[353];
@@ -1582,7 +1525,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[372] = P[303];
     P_new[373] = P[327];
     P_new[374] = P[351];
-    P_new[375] = t464;
+    P_new[375] = t449;
     P_new[376] = P[376];
     P_new[377] = P[377];
     P_new[378] = P[378];
@@ -1599,7 +1542,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[397] = P[328];
     P_new[398] = P[352];
     P_new[399] = P[376];
-    P_new[400] = t465;
+    P_new[400] = t450;
     P_new[401] = P[401];
     P_new[402] = P[402];
     P_new[403] = P[403];
@@ -1616,7 +1559,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[422] = P[353];
     P_new[423] = P[377];
     P_new[424] = P[401];
-    P_new[425] = t466;
+    P_new[425] = t451;
     P_new[426] = P[426];
     P_new[427] = P[427];
     P_new[428] = P[428];
@@ -1633,7 +1576,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[447] = P[378];
     P_new[448] = P[402];
     P_new[449] = P[426];
-    P_new[450] = t467;
+    P_new[450] = t452;
     P_new[451] = P[451];
     P_new[452] = P[452];
     P_new[453] = P[453];
@@ -1650,7 +1593,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[472] = P[403];
     P_new[473] = P[427];
     P_new[474] = P[451];
-    P_new[475] = t468;
+    P_new[475] = t453;
     P_new[476] = P[476];
     P_new[477] = P[477];
     P_new[478] = P[478];
@@ -1667,7 +1610,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[497] = P[428];
     P_new[498] = P[452];
     P_new[499] = P[476];
-    P_new[500] = t469;
+    P_new[500] = t454;
     P_new[501] = P[501];
     P_new[502] = P[502];
     P_new[503] = P[503];
@@ -1684,7 +1627,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[522] = P[453];
     P_new[523] = P[477];
     P_new[524] = P[501];
-    P_new[525] = t470;
+    P_new[525] = t455;
     P_new[526] = P[526];
     P_new[527] = P[527];
     P_new[536] = t345;
@@ -1701,7 +1644,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[547] = P[478];
     P_new[548] = P[502];
     P_new[549] = P[526];
-    P_new[550] = t471;
+    P_new[550] = t456;
     P_new[551] = P[551];
     P_new[560] = t346;
     P_new[561] = t370;
@@ -1718,7 +1661,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[572] = P[503];
     P_new[573] = P[527];
     P_new[574] = P[551];
-    P_new[575] = t472;
+    P_new[575] = t457;
     #else
     x_new[0] = t60;
     x_new[1] = t61;
@@ -1769,15 +1712,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[22] = t165;
     P_new[23] = t166;
     P_new[24] = t372;
-    P_new[25] = t384;
-    P_new[26] = t385;
-    P_new[27] = t386;
-    P_new[28] = t387;
-    P_new[29] = t388;
-    P_new[30] = t389;
-    P_new[31] = t390;
-    P_new[32] = t391;
-    P_new[33] = t392;
+    P_new[25] = t383;
+    P_new[26] = t384;
+    P_new[27] = t385;
+    P_new[28] = t386;
+    P_new[29] = t387;
+    P_new[30] = t388;
+    P_new[31] = t389;
+    P_new[32] = t390;
+    P_new[33] = t391;
     P_new[34] = t173;
     P_new[35] = t174;
     P_new[36] = t175;
@@ -1793,15 +1736,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[46] = t185;
     P_new[47] = t186;
     P_new[48] = t373;
-    P_new[49] = t385;
-    P_new[50] = t397;
-    P_new[51] = t398;
-    P_new[52] = t399;
-    P_new[53] = t400;
-    P_new[54] = t401;
-    P_new[55] = t402;
-    P_new[56] = t403;
-    P_new[57] = t404;
+    P_new[49] = t384;
+    P_new[50] = t394;
+    P_new[51] = t395;
+    P_new[52] = t396;
+    P_new[53] = t397;
+    P_new[54] = t398;
+    P_new[55] = t399;
+    P_new[56] = t400;
+    P_new[57] = t401;
     P_new[58] = t193;
     P_new[59] = t194;
     P_new[60] = t195;
@@ -1817,15 +1760,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[70] = t205;
     P_new[71] = t206;
     P_new[72] = t374;
-    P_new[73] = t386;
-    P_new[74] = t398;
-    P_new[75] = t410;
-    P_new[76] = t411;
-    P_new[77] = t412;
-    P_new[78] = t413;
-    P_new[79] = t414;
-    P_new[80] = t415;
-    P_new[81] = t416;
+    P_new[73] = t385;
+    P_new[74] = t395;
+    P_new[75] = t404;
+    P_new[76] = t405;
+    P_new[77] = t406;
+    P_new[78] = t407;
+    P_new[79] = t408;
+    P_new[80] = t409;
+    P_new[81] = t410;
     P_new[82] = t213;
     P_new[83] = t214;
     P_new[84] = t215;
@@ -1841,15 +1784,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[94] = t225;
     P_new[95] = t226;
     P_new[96] = t375;
-    P_new[97] = t387;
-    P_new[98] = t399;
-    P_new[99] = t411;
-    P_new[100] = t419;
-    P_new[101] = t420;
-    P_new[102] = t421;
-    P_new[103] = t422;
-    P_new[104] = t423;
-    P_new[105] = t424;
+    P_new[97] = t386;
+    P_new[98] = t396;
+    P_new[99] = t405;
+    P_new[100] = t413;
+    P_new[101] = t414;
+    P_new[102] = t415;
+    P_new[103] = t416;
+    P_new[104] = t417;
+    P_new[105] = t418;
     P_new[106] = t237;
     P_new[107] = t238;
     P_new[108] = t239;
@@ -1865,15 +1808,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[118] = t249;
     P_new[119] = t250;
     P_new[120] = t376;
-    P_new[121] = t388;
-    P_new[122] = t400;
-    P_new[123] = t412;
-    P_new[124] = t420;
-    P_new[125] = t428;
-    P_new[126] = t429;
-    P_new[127] = t430;
-    P_new[128] = t431;
-    P_new[129] = t432;
+    P_new[121] = t387;
+    P_new[122] = t397;
+    P_new[123] = t406;
+    P_new[124] = t414;
+    P_new[125] = t421;
+    P_new[126] = t422;
+    P_new[127] = t423;
+    P_new[128] = t424;
+    P_new[129] = t425;
     P_new[130] = t261;
     P_new[131] = t262;
     P_new[132] = t263;
@@ -1889,15 +1832,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[142] = t273;
     P_new[143] = t274;
     P_new[144] = t377;
-    P_new[145] = t389;
-    P_new[146] = t401;
-    P_new[147] = t413;
-    P_new[148] = t421;
-    P_new[149] = t429;
-    P_new[150] = t437;
-    P_new[151] = t438;
-    P_new[152] = t439;
-    P_new[153] = t440;
+    P_new[145] = t388;
+    P_new[146] = t398;
+    P_new[147] = t407;
+    P_new[148] = t415;
+    P_new[149] = t422;
+    P_new[150] = t428;
+    P_new[151] = t429;
+    P_new[152] = t430;
+    P_new[153] = t431;
     P_new[154] = t285;
     P_new[155] = t286;
     P_new[156] = t287;
@@ -1913,15 +1856,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[166] = t297;
     P_new[167] = t298;
     P_new[168] = t378;
-    P_new[169] = t390;
-    P_new[170] = t402;
-    P_new[171] = t414;
-    P_new[172] = t422;
-    P_new[173] = t430;
-    P_new[174] = t438;
-    P_new[175] = t446;
-    P_new[176] = t447;
-    P_new[177] = t448;
+    P_new[169] = t389;
+    P_new[170] = t399;
+    P_new[171] = t408;
+    P_new[172] = t416;
+    P_new[173] = t423;
+    P_new[174] = t429;
+    P_new[175] = t434;
+    P_new[176] = t435;
+    P_new[177] = t436;
     P_new[178] = t309;
     P_new[179] = t310;
     P_new[180] = t311;
@@ -1937,15 +1880,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[190] = t321;
     P_new[191] = t322;
     P_new[192] = t379;
-    P_new[193] = t391;
-    P_new[194] = t403;
-    P_new[195] = t415;
-    P_new[196] = t423;
-    P_new[197] = t431;
-    P_new[198] = t439;
-    P_new[199] = t447;
-    P_new[200] = t451;
-    P_new[201] = t452;
+    P_new[193] = t390;
+    P_new[194] = t400;
+    P_new[195] = t409;
+    P_new[196] = t417;
+    P_new[197] = t424;
+    P_new[198] = t430;
+    P_new[199] = t435;
+    P_new[200] = t439;
+    P_new[201] = t440;
     P_new[202] = t333;
     P_new[203] = t334;
     P_new[204] = t335;
@@ -1961,15 +1904,15 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[214] = t345;
     P_new[215] = t346;
     P_new[216] = t380;
-    P_new[217] = t392;
-    P_new[218] = t404;
-    P_new[219] = t416;
-    P_new[220] = t424;
-    P_new[221] = t432;
-    P_new[222] = t440;
-    P_new[223] = t448;
-    P_new[224] = t452;
-    P_new[225] = t456;
+    P_new[217] = t391;
+    P_new[218] = t401;
+    P_new[219] = t410;
+    P_new[220] = t418;
+    P_new[221] = t425;
+    P_new[222] = t431;
+    P_new[223] = t436;
+    P_new[224] = t440;
+    P_new[225] = t443;
     P_new[226] = t357;
     P_new[227] = t358;
     P_new[228] = t359;
@@ -1994,7 +1937,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[247] = t309;
     P_new[248] = t333;
     P_new[249] = t357;
-    P_new[250] = t459;
+    P_new[250] = t444;
     P_new[251] = P[251];
     P_new[252] = P[252];
     P_new[253] = P[253];
@@ -2019,7 +1962,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[272] = t334;
     P_new[273] = t358;
     P_new[274] = P[251];
-    P_new[275] = t460;
+    P_new[275] = t445;
     P_new[276] = P[276];
     P_new[277] = P[277];
     P_new[278] = P[278];
@@ -2044,7 +1987,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[297] = t359;
     P_new[298] = P[252];
     P_new[299] = P[276];
-    P_new[300] = t461;
+    P_new[300] = t446;
     P_new[301] = P[301];
     P_new[302] = P[302];
     P_new[303] = P[303];
@@ -2069,7 +2012,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[322] = P[253];
     P_new[323] = P[277];
     P_new[324] = P[301];
-    P_new[325] = t462;
+    P_new[325] = t447;
     P_new[326] = P[326];
     P_new[327] = P[327];
     P_new[328] = P[328];
@@ -2094,7 +2037,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[347] = P[278];
     P_new[348] = P[302];
     P_new[349] = P[326];
-    P_new[350] = t463;
+    P_new[350] = t448;
     P_new[351] = P[351];
     P_new[352] = P[352];
     P_new[353] = P[353];
@@ -2119,7 +2062,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[372] = P[303];
     P_new[373] = P[327];
     P_new[374] = P[351];
-    P_new[375] = t464;
+    P_new[375] = t449;
     P_new[376] = P[376];
     P_new[377] = P[377];
     P_new[378] = P[378];
@@ -2144,7 +2087,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[397] = P[328];
     P_new[398] = P[352];
     P_new[399] = P[376];
-    P_new[400] = t465;
+    P_new[400] = t450;
     P_new[401] = P[401];
     P_new[402] = P[402];
     P_new[403] = P[403];
@@ -2169,7 +2112,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[422] = P[353];
     P_new[423] = P[377];
     P_new[424] = P[401];
-    P_new[425] = t466;
+    P_new[425] = t451;
     P_new[426] = P[426];
     P_new[427] = P[427];
     P_new[428] = P[428];
@@ -2194,7 +2137,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[447] = P[378];
     P_new[448] = P[402];
     P_new[449] = P[426];
-    P_new[450] = t467;
+    P_new[450] = t452;
     P_new[451] = P[451];
     P_new[452] = P[452];
     P_new[453] = P[453];
@@ -2219,7 +2162,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[472] = P[403];
     P_new[473] = P[427];
     P_new[474] = P[451];
-    P_new[475] = t468;
+    P_new[475] = t453;
     P_new[476] = P[476];
     P_new[477] = P[477];
     P_new[478] = P[478];
@@ -2244,7 +2187,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[497] = P[428];
     P_new[498] = P[452];
     P_new[499] = P[476];
-    P_new[500] = t469;
+    P_new[500] = t454;
     P_new[501] = P[501];
     P_new[502] = P[502];
     P_new[503] = P[503];
@@ -2269,7 +2212,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[522] = P[453];
     P_new[523] = P[477];
     P_new[524] = P[501];
-    P_new[525] = t470;
+    P_new[525] = t455;
     P_new[526] = P[526];
     P_new[527] = P[527];
     P_new[528] = t165;
@@ -2294,7 +2237,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[547] = P[478];
     P_new[548] = P[502];
     P_new[549] = P[526];
-    P_new[550] = t471;
+    P_new[550] = t456;
     P_new[551] = P[551];
     P_new[552] = t166;
     P_new[553] = t186;
@@ -2319,7 +2262,7 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[572] = P[503];
     P_new[573] = P[527];
     P_new[574] = P[551];
-    P_new[575] = t472;
+    P_new[575] = t457;
     #endif
     return 0;
 }
@@ -2426,6 +2369,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t78 = t76*t77;
     #if DERIVE_VECTOR
     const derive_vd v_t79 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
+    const double t80 = v_t79[1];
+    const double t81 = v_t79[2];
+    const double t82 = v_t79[3];
     #else
     const double t79 = DERIVE_FMA(t13, P[168], P[192]);
     const double t80 = DERIVE_FMA(t13, P[169], P[193]);
@@ -2434,6 +2380,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
+    const double t84 = v_t83[1];
+    const double t85 = v_t83[2];
+    const double t86 = v_t83[3];
     #else
     const double t83 = DERIVE_FMA(t13, P[172], P[196]);
     const double t84 = DERIVE_FMA(t13, P[173], P[197]);
@@ -2442,6 +2391,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t88 = v_t87[1];
+    const double t89 = v_t87[2];
+    const double t90 = v_t87[3];
     #else
     const double t87 = DERIVE_FMA(t13, P[176], P[200]);
     const double t88 = DERIVE_FMA(t13, P[177], P[201]);
@@ -2450,6 +2402,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t91 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const double t92 = v_t91[1];
+    const double t93 = v_t91[2];
+    const double t94 = v_t91[3];
     #else
     const double t91 = DERIVE_FMA(t13, P[180], P[204]);
     const double t92 = DERIVE_FMA(t13, P[181], P[205]);
@@ -2458,6 +2413,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t95 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const double t96 = v_t95[1];
+    const double t97 = v_t95[2];
+    const double t98 = v_t95[3];
     #else
     const double t95 = DERIVE_FMA(t13, P[184], P[208]);
     const double t96 = DERIVE_FMA(t13, P[185], P[209]);
@@ -2466,6 +2424,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const double t100 = v_t99[1];
+    const double t101 = v_t99[2];
+    const double t102 = v_t99[3];
     #else
     const double t99 = DERIVE_FMA(t13, P[188], P[212]);
     const double t100 = DERIVE_FMA(t13, P[189], P[213]);
@@ -2475,6 +2436,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t103_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
     const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t79, v_t103_0);
+    const double t104 = v_t103[1];
+    const double t105 = v_t103[2];
+    const double t106 = v_t103[3];
     #else
     const double t103 = DERIVE_FMA(t35, t79, DERIVE_FMA(t14, P[168], P[216]));
     const double t104 = DERIVE_FMA(t35, t80, DERIVE_FMA(t14, P[169], P[217]));
@@ -2484,6 +2448,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t107_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
     const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t107_0);
+    const double t108 = v_t107[1];
+    const double t109 = v_t107[2];
+    const double t110 = v_t107[3];
     #else
     const double t107 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[172], P[220]));
     const double t108 = DERIVE_FMA(t35, t84, DERIVE_FMA(t14, P[173], P[221]));
@@ -2493,6 +2460,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t111_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
     const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t111_0);
+    const double t112 = v_t111[1];
+    const double t113 = v_t111[2];
+    const double t114 = v_t111[3];
     #else
     const double t111 = DERIVE_FMA(t35, t87, DERIVE_FMA(t14, P[176], P[224]));
     const double t112 = DERIVE_FMA(t35, t88, DERIVE_FMA(t14, P[177], P[225]));
@@ -2502,6 +2472,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t115_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
     const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t91, v_t115_0);
+    const double t116 = v_t115[1];
+    const double t117 = v_t115[2];
+    const double t118 = v_t115[3];
     #else
     const double t115 = DERIVE_FMA(t35, t91, DERIVE_FMA(t14, P[180], P[228]));
     const double t116 = DERIVE_FMA(t35, t92, DERIVE_FMA(t14, P[181], P[229]));
@@ -2511,6 +2484,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t119_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
     const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t95, v_t119_0);
+    const double t120 = v_t119[1];
+    const double t121 = v_t119[2];
+    const double t122 = v_t119[3];
     #else
     const double t119 = DERIVE_FMA(t35, t95, DERIVE_FMA(t14, P[184], P[232]));
     const double t120 = DERIVE_FMA(t35, t96, DERIVE_FMA(t14, P[185], P[233]));
@@ -2520,6 +2496,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t123_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
     const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t99, v_t123_0);
+    const double t124 = v_t123[1];
+    const double t125 = v_t123[2];
+    const double t126 = v_t123[3];
     #else
     const double t123 = DERIVE_FMA(t35, t99, DERIVE_FMA(t14, P[188], P[236]));
     const double t124 = DERIVE_FMA(t35, t100, DERIVE_FMA(t14, P[189], P[237]));
@@ -2530,6 +2509,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t127_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
     const derive_vd v_t127_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t79, v_t127_0);
     const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t103, v_t127_1);
+    const double t128 = v_t127[1];
+    const double t129 = v_t127[2];
+    const double t130 = v_t127[3];
     #else
     const double t127 = DERIVE_FMA(t52, t103, DERIVE_FMA(t36, t79, DERIVE_FMA(t15, P[168], P[96])));
     const double t128 = DERIVE_FMA(t52, t104, DERIVE_FMA(t36, t80, DERIVE_FMA(t15, P[169], P[97])));
@@ -2540,6 +2522,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t131_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
     const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t131_0);
     const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t131_1);
+    const double t132 = v_t131[1];
+    const double t133 = v_t131[2];
+    const double t134 = v_t131[3];
     #else
     const double t131 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[172], P[100])));
     const double t132 = DERIVE_FMA(t52, t108, DERIVE_FMA(t36, t84, DERIVE_FMA(t15, P[173], P[101])));
@@ -2550,6 +2535,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t135_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
     const derive_vd v_t135_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t87, v_t135_0);
     const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t111, v_t135_1);
+    const double t136 = v_t135[1];
+    const double t137 = v_t135[2];
+    const double t138 = v_t135[3];
     #else
     const double t135 = DERIVE_FMA(t52, t111, DERIVE_FMA(t36, t87, DERIVE_FMA(t15, P[176], P[104])));
     const double t136 = DERIVE_FMA(t52, t112, DERIVE_FMA(t36, t88, DERIVE_FMA(t15, P[177], P[105])));
@@ -2560,6 +2548,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t139_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
     const derive_vd v_t139_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t91, v_t139_0);
     const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t115, v_t139_1);
+    const double t140 = v_t139[1];
+    const double t141 = v_t139[2];
+    const double t142 = v_t139[3];
     #else
     const double t139 = DERIVE_FMA(t52, t115, DERIVE_FMA(t36, t91, DERIVE_FMA(t15, P[180], P[108])));
     const double t140 = DERIVE_FMA(t52, t116, DERIVE_FMA(t36, t92, DERIVE_FMA(t15, P[181], P[109])));
@@ -2570,6 +2561,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t143_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
     const derive_vd v_t143_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t95, v_t143_0);
     const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t119, v_t143_1);
+    const double t144 = v_t143[1];
+    const double t145 = v_t143[2];
+    const double t146 = v_t143[3];
     #else
     const double t143 = DERIVE_FMA(t52, t119, DERIVE_FMA(t36, t95, DERIVE_FMA(t15, P[184], P[112])));
     const double t144 = DERIVE_FMA(t52, t120, DERIVE_FMA(t36, t96, DERIVE_FMA(t15, P[185], P[113])));
@@ -2580,6 +2574,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t147_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
     const derive_vd v_t147_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t99, v_t147_0);
     const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t123, v_t147_1);
+    const double t148 = v_t147[1];
+    const double t149 = v_t147[2];
+    const double t150 = v_t147[3];
     #else
     const double t147 = DERIVE_FMA(t52, t123, DERIVE_FMA(t36, t99, DERIVE_FMA(t15, P[188], P[116])));
     const double t148 = DERIVE_FMA(t52, t124, DERIVE_FMA(t36, t100, DERIVE_FMA(t15, P[189], P[117])));
@@ -2591,6 +2588,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t151_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t79, v_t151_0);
     const derive_vd v_t151_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t103, v_t151_1);
     const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t127, v_t151_2);
+    const double t152 = v_t151[1];
+    const double t153 = v_t151[2];
+    const double t154 = v_t151[3];
     #else
     const double t151 = DERIVE_FMA(t64, t127, DERIVE_FMA(t53, t103, DERIVE_FMA(t37, t79, DERIVE_FMA(t16, P[168], P[120]))));
     const double t152 = DERIVE_FMA(t64, t128, DERIVE_FMA(t53, t104, DERIVE_FMA(t37, t80, DERIVE_FMA(t16, P[169], P[121]))));
@@ -2602,6 +2602,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t155_0);
     const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t155_1);
     const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t131, v_t155_2);
+    const double t156 = v_t155[1];
+    const double t157 = v_t155[2];
+    const double t158 = v_t155[3];
     #else
     const double t155 = DERIVE_FMA(t64, t131, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[172], P[124]))));
     const double t156 = DERIVE_FMA(t64, t132, DERIVE_FMA(t53, t108, DERIVE_FMA(t37, t84, DERIVE_FMA(t16, P[173], P[125]))));
@@ -2613,6 +2616,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t159_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t87, v_t159_0);
     const derive_vd v_t159_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t111, v_t159_1);
     const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t135, v_t159_2);
+    const double t160 = v_t159[1];
+    const double t161 = v_t159[2];
+    const double t162 = v_t159[3];
     #else
     const double t159 = DERIVE_FMA(t64, t135, DERIVE_FMA(t53, t111, DERIVE_FMA(t37, t87, DERIVE_FMA(t16, P[176], P[128]))));
     const double t160 = DERIVE_FMA(t64, t136, DERIVE_FMA(t53, t112, DERIVE_FMA(t37, t88, DERIVE_FMA(t16, P[177], P[129]))));
@@ -2624,6 +2630,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t163_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t91, v_t163_0);
     const derive_vd v_t163_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t115, v_t163_1);
     const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t139, v_t163_2);
+    const double t164 = v_t163[1];
+    const double t165 = v_t163[2];
+    const double t166 = v_t163[3];
     #else
     const double t163 = DERIVE_FMA(t64, t139, DERIVE_FMA(t53, t115, DERIVE_FMA(t37, t91, DERIVE_FMA(t16, P[180], P[132]))));
     const double t164 = DERIVE_FMA(t64, t140, DERIVE_FMA(t53, t116, DERIVE_FMA(t37, t92, DERIVE_FMA(t16, P[181], P[133]))));
@@ -2635,6 +2644,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t167_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t95, v_t167_0);
     const derive_vd v_t167_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t119, v_t167_1);
     const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t143, v_t167_2);
+    const double t168 = v_t167[1];
+    const double t169 = v_t167[2];
+    const double t170 = v_t167[3];
     #else
     const double t167 = DERIVE_FMA(t64, t143, DERIVE_FMA(t53, t119, DERIVE_FMA(t37, t95, DERIVE_FMA(t16, P[184], P[136]))));
     const double t168 = DERIVE_FMA(t64, t144, DERIVE_FMA(t53, t120, DERIVE_FMA(t37, t96, DERIVE_FMA(t16, P[185], P[137]))));
@@ -2646,6 +2658,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t171_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t99, v_t171_0);
     const derive_vd v_t171_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t123, v_t171_1);
     const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t147, v_t171_2);
+    const double t172 = v_t171[1];
+    const double t173 = v_t171[2];
+    const double t174 = v_t171[3];
     #else
     const double t171 = DERIVE_FMA(t64, t147, DERIVE_FMA(t53, t123, DERIVE_FMA(t37, t99, DERIVE_FMA(t16, P[188], P[140]))));
     const double t172 = DERIVE_FMA(t64, t148, DERIVE_FMA(t53, t124, DERIVE_FMA(t37, t100, DERIVE_FMA(t16, P[189], P[141]))));
@@ -2658,6 +2673,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t175_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t103, v_t175_1);
     const derive_vd v_t175_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t127, v_t175_2);
     const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t151, v_t175_3);
+    const double t176 = v_t175[1];
+    const double t177 = v_t175[2];
+    const double t178 = v_t175[3];
     #else
     const double t175 = DERIVE_FMA(t72, t151, DERIVE_FMA(t65, t127, DERIVE_FMA(t54, t103, DERIVE_FMA(t38, t79, DERIVE_FMA(t17, P[168], P[144])))));
     const double t176 = DERIVE_FMA(t72, t152, DERIVE_FMA(t65, t128, DERIVE_FMA(t54, t104, DERIVE_FMA(t38, t80, DERIVE_FMA(t17, P[169], P[145])))));
@@ -2670,6 +2688,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t179_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t107, v_t179_1);
     const derive_vd v_t179_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t131, v_t179_2);
     const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t155, v_t179_3);
+    const double t180 = v_t179[1];
+    const double t181 = v_t179[2];
+    const double t182 = v_t179[3];
     #else
     const double t179 = DERIVE_FMA(t72, t155, DERIVE_FMA(t65, t131, DERIVE_FMA(t54, t107, DERIVE_FMA(t38, t83, DERIVE_FMA(t17, P[172], P[148])))));
     const double t180 = DERIVE_FMA(t72, t156, DERIVE_FMA(t65, t132, DERIVE_FMA(t54, t108, DERIVE_FMA(t38, t84, DERIVE_FMA(t17, P[173], P[149])))));
@@ -2682,6 +2703,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t183_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t111, v_t183_1);
     const derive_vd v_t183_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t135, v_t183_2);
     const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t159, v_t183_3);
+    const double t184 = v_t183[1];
+    const double t185 = v_t183[2];
+    const double t186 = v_t183[3];
     #else
     const double t183 = DERIVE_FMA(t72, t159, DERIVE_FMA(t65, t135, DERIVE_FMA(t54, t111, DERIVE_FMA(t38, t87, DERIVE_FMA(t17, P[176], P[152])))));
     const double t184 = DERIVE_FMA(t72, t160, DERIVE_FMA(t65, t136, DERIVE_FMA(t54, t112, DERIVE_FMA(t38, t88, DERIVE_FMA(t17, P[177], P[153])))));
@@ -2694,6 +2718,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t187_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t115, v_t187_1);
     const derive_vd v_t187_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t139, v_t187_2);
     const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t163, v_t187_3);
+    const double t188 = v_t187[1];
+    const double t189 = v_t187[2];
+    const double t190 = v_t187[3];
     #else
     const double t187 = DERIVE_FMA(t72, t163, DERIVE_FMA(t65, t139, DERIVE_FMA(t54, t115, DERIVE_FMA(t38, t91, DERIVE_FMA(t17, P[180], P[156])))));
     const double t188 = DERIVE_FMA(t72, t164, DERIVE_FMA(t65, t140, DERIVE_FMA(t54, t116, DERIVE_FMA(t38, t92, DERIVE_FMA(t17, P[181], P[157])))));
@@ -2706,6 +2733,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t191_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t119, v_t191_1);
     const derive_vd v_t191_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t143, v_t191_2);
     const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t167, v_t191_3);
+    const double t192 = v_t191[1];
+    const double t193 = v_t191[2];
+    const double t194 = v_t191[3];
     #else
     const double t191 = DERIVE_FMA(t72, t167, DERIVE_FMA(t65, t143, DERIVE_FMA(t54, t119, DERIVE_FMA(t38, t95, DERIVE_FMA(t17, P[184], P[160])))));
     const double t192 = DERIVE_FMA(t72, t168, DERIVE_FMA(t65, t144, DERIVE_FMA(t54, t120, DERIVE_FMA(t38, t96, DERIVE_FMA(t17, P[185], P[161])))));
@@ -2718,6 +2748,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t195_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t123, v_t195_1);
     const derive_vd v_t195_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t147, v_t195_2);
     const derive_vd v_t195 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t171, v_t195_3);
+    const double t196 = v_t195[1];
+    const double t197 = v_t195[2];
+    const double t198 = v_t195[3];
     #else
     const double t195 = DERIVE_FMA(t72, t171, DERIVE_FMA(t65, t147, DERIVE_FMA(t54, t123, DERIVE_FMA(t38, t99, DERIVE_FMA(t17, P[188], P[164])))));
     const double t196 = DERIVE_FMA(t72, t172, DERIVE_FMA(t65, t148, DERIVE_FMA(t54, t124, DERIVE_FMA(t38, t100, DERIVE_FMA(t17, P[189], P[165])))));
@@ -3250,6 +3283,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t367_3 = DERIVE_VFMA(((derive_vd){t271, t271, t271, t271}), v_t127, v_t367_2);
     const derive_vd v_t367_4 = DERIVE_VFMA(((derive_vd){t295, t295, t295, t295}), v_t151, v_t367_3);
     const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t319, t319, t319, t319}), v_t175, v_t367_4);
+    const double t368 = v_t367[1];
+    const double t369 = v_t367[2];
+    const double t370 = v_t367[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t367;
     #else
     const double t367 = DERIVE_FMA(t319, t175, DERIVE_FMA(t295, t151, DERIVE_FMA(t271, t127, DERIVE_FMA(t247, t103, DERIVE_FMA(t223, t79, DERIVE_FMA(t199, P[168], P[0]))))));
     const double t368 = DERIVE_FMA(t319, t176, DERIVE_FMA(t295, t152, DERIVE_FMA(t271, t128, DERIVE_FMA(t247, t104, DERIVE_FMA(t223, t80, DERIVE_FMA(t199, P[169], P[1]))))));
@@ -3321,1306 +3358,1170 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t389 = DERIVE_FMA(t319, t197, DERIVE_FMA(t295, t173, DERIVE_FMA(t271, t149, DERIVE_FMA(t247, t125, DERIVE_FMA(t223, t101, DERIVE_FMA(t199, P[190], P[22]))))));
     const double t390 = DERIVE_FMA(t319, t198, DERIVE_FMA(t295, t174, DERIVE_FMA(t271, t150, DERIVE_FMA(t247, t126, DERIVE_FMA(t223, t102, DERIVE_FMA(t199, P[191], P[23]))))));
     #endif
+    const double t391 = DERIVE_FMA(t224, t80, DERIVE_FMA(t176, t320, DERIVE_FMA(t152, t296, DERIVE_FMA(t128, t272, DERIVE_FMA(t104, t248, DERIVE_FMA(P[169], t200, P[25]))))));
+    const double t392 = DERIVE_FMA(t224, t81, DERIVE_FMA(t177, t320, DERIVE_FMA(t153, t296, DERIVE_FMA(t129, t272, DERIVE_FMA(t105, t248, DERIVE_FMA(P[170], t200, P[26]))))));
+    const double t393 = DERIVE_FMA(t224, t82, DERIVE_FMA(t178, t320, DERIVE_FMA(t154, t296, DERIVE_FMA(t130, t272, DERIVE_FMA(t106, t248, DERIVE_FMA(P[171], t200, P[27]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t391_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t79, v_t391_0);
-    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t103, v_t391_1);
-    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t127, v_t391_2);
-    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t151, v_t391_3);
-    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t175, v_t391_4);
+    const derive_vd v_t394_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t394_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t83, v_t394_0);
+    const derive_vd v_t394_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t107, v_t394_1);
+    const derive_vd v_t394_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t131, v_t394_2);
+    const derive_vd v_t394_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t155, v_t394_3);
+    const derive_vd v_t394 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t179, v_t394_4);
     #else
-    const double t392 = DERIVE_FMA(t320, t176, DERIVE_FMA(t296, t152, DERIVE_FMA(t272, t128, DERIVE_FMA(t248, t104, DERIVE_FMA(t224, t80, DERIVE_FMA(t200, P[169], P[25]))))));
-    const double t393 = DERIVE_FMA(t320, t177, DERIVE_FMA(t296, t153, DERIVE_FMA(t272, t129, DERIVE_FMA(t248, t105, DERIVE_FMA(t224, t81, DERIVE_FMA(t200, P[170], P[26]))))));
-    const double t394 = DERIVE_FMA(t320, t178, DERIVE_FMA(t296, t154, DERIVE_FMA(t272, t130, DERIVE_FMA(t248, t106, DERIVE_FMA(t224, t82, DERIVE_FMA(t200, P[171], P[27]))))));
+    const double t394 = DERIVE_FMA(t320, t179, DERIVE_FMA(t296, t155, DERIVE_FMA(t272, t131, DERIVE_FMA(t248, t107, DERIVE_FMA(t224, t83, DERIVE_FMA(t200, P[172], P[28]))))));
+    const double t395 = DERIVE_FMA(t320, t180, DERIVE_FMA(t296, t156, DERIVE_FMA(t272, t132, DERIVE_FMA(t248, t108, DERIVE_FMA(t224, t84, DERIVE_FMA(t200, P[173], P[29]))))));
+    const double t396 = DERIVE_FMA(t320, t181, DERIVE_FMA(t296, t157, DERIVE_FMA(t272, t133, DERIVE_FMA(t248, t109, DERIVE_FMA(t224, t85, DERIVE_FMA(t200, P[174], P[30]))))));
+    const double t397 = DERIVE_FMA(t320, t182, DERIVE_FMA(t296, t158, DERIVE_FMA(t272, t134, DERIVE_FMA(t248, t110, DERIVE_FMA(t224, t86, DERIVE_FMA(t200, P[175], P[31]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t83, v_t395_0);
-    const derive_vd v_t395_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t107, v_t395_1);
-    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t131, v_t395_2);
-    const derive_vd v_t395_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t155, v_t395_3);
-    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t179, v_t395_4);
+    const derive_vd v_t398_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t398_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t87, v_t398_0);
+    const derive_vd v_t398_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t111, v_t398_1);
+    const derive_vd v_t398_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t135, v_t398_2);
+    const derive_vd v_t398_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t159, v_t398_3);
+    const derive_vd v_t398 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t183, v_t398_4);
     #else
-    const double t395 = DERIVE_FMA(t320, t179, DERIVE_FMA(t296, t155, DERIVE_FMA(t272, t131, DERIVE_FMA(t248, t107, DERIVE_FMA(t224, t83, DERIVE_FMA(t200, P[172], P[28]))))));
-    const double t396 = DERIVE_FMA(t320, t180, DERIVE_FMA(t296, t156, DERIVE_FMA(t272, t132, DERIVE_FMA(t248, t108, DERIVE_FMA(t224, t84, DERIVE_FMA(t200, P[173], P[29]))))));
-    const double t397 = DERIVE_FMA(t320, t181, DERIVE_FMA(t296, t157, DERIVE_FMA(t272, t133, DERIVE_FMA(t248, t109, DERIVE_FMA(t224, t85, DERIVE_FMA(t200, P[174], P[30]))))));
-    const double t398 = DERIVE_FMA(t320, t182, DERIVE_FMA(t296, t158, DERIVE_FMA(t272, t134, DERIVE_FMA(t248, t110, DERIVE_FMA(t224, t86, DERIVE_FMA(t200, P[175], P[31]))))));
+    const double t398 = DERIVE_FMA(t320, t183, DERIVE_FMA(t296, t159, DERIVE_FMA(t272, t135, DERIVE_FMA(t248, t111, DERIVE_FMA(t224, t87, DERIVE_FMA(t200, P[176], P[32]))))));
+    const double t399 = DERIVE_FMA(t320, t184, DERIVE_FMA(t296, t160, DERIVE_FMA(t272, t136, DERIVE_FMA(t248, t112, DERIVE_FMA(t224, t88, DERIVE_FMA(t200, P[177], P[33]))))));
+    const double t400 = DERIVE_FMA(t320, t185, DERIVE_FMA(t296, t161, DERIVE_FMA(t272, t137, DERIVE_FMA(t248, t113, DERIVE_FMA(t224, t89, DERIVE_FMA(t200, P[178], P[34]))))));
+    const double t401 = DERIVE_FMA(t320, t186, DERIVE_FMA(t296, t162, DERIVE_FMA(t272, t138, DERIVE_FMA(t248, t114, DERIVE_FMA(t224, t90, DERIVE_FMA(t200, P[179], P[35]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t399_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t87, v_t399_0);
-    const derive_vd v_t399_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t111, v_t399_1);
-    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t135, v_t399_2);
-    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t159, v_t399_3);
-    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t183, v_t399_4);
+    const derive_vd v_t402_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t402_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t91, v_t402_0);
+    const derive_vd v_t402_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t115, v_t402_1);
+    const derive_vd v_t402_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t139, v_t402_2);
+    const derive_vd v_t402_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t163, v_t402_3);
+    const derive_vd v_t402 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t187, v_t402_4);
     #else
-    const double t399 = DERIVE_FMA(t320, t183, DERIVE_FMA(t296, t159, DERIVE_FMA(t272, t135, DERIVE_FMA(t248, t111, DERIVE_FMA(t224, t87, DERIVE_FMA(t200, P[176], P[32]))))));
-    const double t400 = DERIVE_FMA(t320, t184, DERIVE_FMA(t296, t160, DERIVE_FMA(t272, t136, DERIVE_FMA(t248, t112, DERIVE_FMA(t224, t88, DERIVE_FMA(t200, P[177], P[33]))))));
-    const double t401 = DERIVE_FMA(t320, t185, DERIVE_FMA(t296, t161, DERIVE_FMA(t272, t137, DERIVE_FMA(t248, t113, DERIVE_FMA(t224, t89, DERIVE_FMA(t200, P[178], P[34]))))));
-    const double t402 = DERIVE_FMA(t320, t186, DERIVE_FMA(t296, t162, DERIVE_FMA(t272, t138, DERIVE_FMA(t248, t114, DERIVE_FMA(t224, t90, DERIVE_FMA(t200, P[179], P[35]))))));
+    const double t402 = DERIVE_FMA(t320, t187, DERIVE_FMA(t296, t163, DERIVE_FMA(t272, t139, DERIVE_FMA(t248, t115, DERIVE_FMA(t224, t91, DERIVE_FMA(t200, P[180], P[36]))))));
+    const double t403 = DERIVE_FMA(t320, t188, DERIVE_FMA(t296, t164, DERIVE_FMA(t272, t140, DERIVE_FMA(t248, t116, DERIVE_FMA(t224, t92, DERIVE_FMA(t200, P[181], P[37]))))));
+    const double t404 = DERIVE_FMA(t320, t189, DERIVE_FMA(t296, t165, DERIVE_FMA(t272, t141, DERIVE_FMA(t248, t117, DERIVE_FMA(t224, t93, DERIVE_FMA(t200, P[182], P[38]))))));
+    const double t405 = DERIVE_FMA(t320, t190, DERIVE_FMA(t296, t166, DERIVE_FMA(t272, t142, DERIVE_FMA(t248, t118, DERIVE_FMA(t224, t94, DERIVE_FMA(t200, P[183], P[39]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t403_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t403_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t91, v_t403_0);
-    const derive_vd v_t403_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t115, v_t403_1);
-    const derive_vd v_t403_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t139, v_t403_2);
-    const derive_vd v_t403_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t163, v_t403_3);
-    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t187, v_t403_4);
+    const derive_vd v_t406_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t406_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t95, v_t406_0);
+    const derive_vd v_t406_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t119, v_t406_1);
+    const derive_vd v_t406_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t143, v_t406_2);
+    const derive_vd v_t406_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t167, v_t406_3);
+    const derive_vd v_t406 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t191, v_t406_4);
     #else
-    const double t403 = DERIVE_FMA(t320, t187, DERIVE_FMA(t296, t163, DERIVE_FMA(t272, t139, DERIVE_FMA(t248, t115, DERIVE_FMA(t224, t91, DERIVE_FMA(t200, P[180], P[36]))))));
-    const double t404 = DERIVE_FMA(t320, t188, DERIVE_FMA(t296, t164, DERIVE_FMA(t272, t140, DERIVE_FMA(t248, t116, DERIVE_FMA(t224, t92, DERIVE_FMA(t200, P[181], P[37]))))));
-    const double t405 = DERIVE_FMA(t320, t189, DERIVE_FMA(t296, t165, DERIVE_FMA(t272, t141, DERIVE_FMA(t248, t117, DERIVE_FMA(t224, t93, DERIVE_FMA(t200, P[182], P[38]))))));
-    const double t406 = DERIVE_FMA(t320, t190, DERIVE_FMA(t296, t166, DERIVE_FMA(t272, t142, DERIVE_FMA(t248, t118, DERIVE_FMA(t224, t94, DERIVE_FMA(t200, P[183], P[39]))))));
+    const double t406 = DERIVE_FMA(t320, t191, DERIVE_FMA(t296, t167, DERIVE_FMA(t272, t143, DERIVE_FMA(t248, t119, DERIVE_FMA(t224, t95, DERIVE_FMA(t200, P[184], P[40]))))));
+    const double t407 = DERIVE_FMA(t320, t192, DERIVE_FMA(t296, t168, DERIVE_FMA(t272, t144, DERIVE_FMA(t248, t120, DERIVE_FMA(t224, t96, DERIVE_FMA(t200, P[185], P[41]))))));
+    const double t408 = DERIVE_FMA(t320, t193, DERIVE_FMA(t296, t169, DERIVE_FMA(t272, t145, DERIVE_FMA(t248, t121, DERIVE_FMA(t224, t97, DERIVE_FMA(t200, P[186], P[42]))))));
+    const double t409 = DERIVE_FMA(t320, t194, DERIVE_FMA(t296, t170, DERIVE_FMA(t272, t146, DERIVE_FMA(t248, t122, DERIVE_FMA(t224, t98, DERIVE_FMA(t200, P[187], P[43]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t407_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t407_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t95, v_t407_0);
-    const derive_vd v_t407_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t119, v_t407_1);
-    const derive_vd v_t407_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t143, v_t407_2);
-    const derive_vd v_t407_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t167, v_t407_3);
-    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t191, v_t407_4);
+    const derive_vd v_t410_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t410_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t99, v_t410_0);
+    const derive_vd v_t410_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t123, v_t410_1);
+    const derive_vd v_t410_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t147, v_t410_2);
+    const derive_vd v_t410_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t171, v_t410_3);
+    const derive_vd v_t410 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t195, v_t410_4);
     #else
-    const double t407 = DERIVE_FMA(t320, t191, DERIVE_FMA(t296, t167, DERIVE_FMA(t272, t143, DERIVE_FMA(t248, t119, DERIVE_FMA(t224, t95, DERIVE_FMA(t200, P[184], P[40]))))));
-    const double t408 = DERIVE_FMA(t320, t192, DERIVE_FMA(t296, t168, DERIVE_FMA(t272, t144, DERIVE_FMA(t248, t120, DERIVE_FMA(t224, t96, DERIVE_FMA(t200, P[185], P[41]))))));
-    const double t409 = DERIVE_FMA(t320, t193, DERIVE_FMA(t296, t169, DERIVE_FMA(t272, t145, DERIVE_FMA(t248, t121, DERIVE_FMA(t224, t97, DERIVE_FMA(t200, P[186], P[42]))))));
-    const double t410 = DERIVE_FMA(t320, t194, DERIVE_FMA(t296, t170, DERIVE_FMA(t272, t146, DERIVE_FMA(t248, t122, DERIVE_FMA(t224, t98, DERIVE_FMA(t200, P[187], P[43]))))));
+    const double t410 = DERIVE_FMA(t320, t195, DERIVE_FMA(t296, t171, DERIVE_FMA(t272, t147, DERIVE_FMA(t248, t123, DERIVE_FMA(t224, t99, DERIVE_FMA(t200, P[188], P[44]))))));
+    const double t411 = DERIVE_FMA(t320, t196, DERIVE_FMA(t296, t172, DERIVE_FMA(t272, t148, DERIVE_FMA(t248, t124, DERIVE_FMA(t224, t100, DERIVE_FMA(t200, P[189], P[45]))))));
+    const double t412 = DERIVE_FMA(t320, t197, DERIVE_FMA(t296, t173, DERIVE_FMA(t272, t149, DERIVE_FMA(t248, t125, DERIVE_FMA(t224, t101, DERIVE_FMA(t200, P[190], P[46]))))));
+    const double t413 = DERIVE_FMA(t320, t198, DERIVE_FMA(t296, t174, DERIVE_FMA(t272, t150, DERIVE_FMA(t248, t126, DERIVE_FMA(t224, t102, DERIVE_FMA(t200, P[191], P[47]))))));
+    #endif
+    const double t414 = DERIVE_FMA(t225, t81, DERIVE_FMA(t177, t321, DERIVE_FMA(t153, t297, DERIVE_FMA(t129, t273, DERIVE_FMA(t105, t249, DERIVE_FMA(P[170], t201, P[50]))))));
+    const double t415 = DERIVE_FMA(t225, t82, DERIVE_FMA(t178, t321, DERIVE_FMA(t154, t297, DERIVE_FMA(t130, t273, DERIVE_FMA(t106, t249, DERIVE_FMA(P[171], t201, P[51]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t416_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd v_t416_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t83, v_t416_0);
+    const derive_vd v_t416_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t107, v_t416_1);
+    const derive_vd v_t416_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t131, v_t416_2);
+    const derive_vd v_t416_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t155, v_t416_3);
+    const derive_vd v_t416 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t179, v_t416_4);
+    #else
+    const double t416 = DERIVE_FMA(t321, t179, DERIVE_FMA(t297, t155, DERIVE_FMA(t273, t131, DERIVE_FMA(t249, t107, DERIVE_FMA(t225, t83, DERIVE_FMA(t201, P[172], P[52]))))));
+    const double t417 = DERIVE_FMA(t321, t180, DERIVE_FMA(t297, t156, DERIVE_FMA(t273, t132, DERIVE_FMA(t249, t108, DERIVE_FMA(t225, t84, DERIVE_FMA(t201, P[173], P[53]))))));
+    const double t418 = DERIVE_FMA(t321, t181, DERIVE_FMA(t297, t157, DERIVE_FMA(t273, t133, DERIVE_FMA(t249, t109, DERIVE_FMA(t225, t85, DERIVE_FMA(t201, P[174], P[54]))))));
+    const double t419 = DERIVE_FMA(t321, t182, DERIVE_FMA(t297, t158, DERIVE_FMA(t273, t134, DERIVE_FMA(t249, t110, DERIVE_FMA(t225, t86, DERIVE_FMA(t201, P[175], P[55]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t411_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t411_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t99, v_t411_0);
-    const derive_vd v_t411_2 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t123, v_t411_1);
-    const derive_vd v_t411_3 = DERIVE_VFMA(((derive_vd){t272, t272, t272, t272}), v_t147, v_t411_2);
-    const derive_vd v_t411_4 = DERIVE_VFMA(((derive_vd){t296, t296, t296, t296}), v_t171, v_t411_3);
-    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t320, t320, t320, t320}), v_t195, v_t411_4);
+    const derive_vd v_t420_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t420_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t87, v_t420_0);
+    const derive_vd v_t420_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t111, v_t420_1);
+    const derive_vd v_t420_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t135, v_t420_2);
+    const derive_vd v_t420_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t159, v_t420_3);
+    const derive_vd v_t420 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t183, v_t420_4);
     #else
-    const double t411 = DERIVE_FMA(t320, t195, DERIVE_FMA(t296, t171, DERIVE_FMA(t272, t147, DERIVE_FMA(t248, t123, DERIVE_FMA(t224, t99, DERIVE_FMA(t200, P[188], P[44]))))));
-    const double t412 = DERIVE_FMA(t320, t196, DERIVE_FMA(t296, t172, DERIVE_FMA(t272, t148, DERIVE_FMA(t248, t124, DERIVE_FMA(t224, t100, DERIVE_FMA(t200, P[189], P[45]))))));
-    const double t413 = DERIVE_FMA(t320, t197, DERIVE_FMA(t296, t173, DERIVE_FMA(t272, t149, DERIVE_FMA(t248, t125, DERIVE_FMA(t224, t101, DERIVE_FMA(t200, P[190], P[46]))))));
-    const double t414 = DERIVE_FMA(t320, t198, DERIVE_FMA(t296, t174, DERIVE_FMA(t272, t150, DERIVE_FMA(t248, t126, DERIVE_FMA(t224, t102, DERIVE_FMA(t200, P[191], P[47]))))));
+    const double t420 = DERIVE_FMA(t321, t183, DERIVE_FMA(t297, t159, DERIVE_FMA(t273, t135, DERIVE_FMA(t249, t111, DERIVE_FMA(t225, t87, DERIVE_FMA(t201, P[176], P[56]))))));
+    const double t421 = DERIVE_FMA(t321, t184, DERIVE_FMA(t297, t160, DERIVE_FMA(t273, t136, DERIVE_FMA(t249, t112, DERIVE_FMA(t225, t88, DERIVE_FMA(t201, P[177], P[57]))))));
+    const double t422 = DERIVE_FMA(t321, t185, DERIVE_FMA(t297, t161, DERIVE_FMA(t273, t137, DERIVE_FMA(t249, t113, DERIVE_FMA(t225, t89, DERIVE_FMA(t201, P[178], P[58]))))));
+    const double t423 = DERIVE_FMA(t321, t186, DERIVE_FMA(t297, t162, DERIVE_FMA(t273, t138, DERIVE_FMA(t249, t114, DERIVE_FMA(t225, t90, DERIVE_FMA(t201, P[179], P[59]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t415_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t415_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t79, v_t415_0);
-    const derive_vd v_t415_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t103, v_t415_1);
-    const derive_vd v_t415_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t127, v_t415_2);
-    const derive_vd v_t415_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t151, v_t415_3);
-    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t175, v_t415_4);
+    const derive_vd v_t424_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t424_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t91, v_t424_0);
+    const derive_vd v_t424_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t115, v_t424_1);
+    const derive_vd v_t424_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t139, v_t424_2);
+    const derive_vd v_t424_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t163, v_t424_3);
+    const derive_vd v_t424 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t187, v_t424_4);
     #else
-    const double t417 = DERIVE_FMA(t321, t177, DERIVE_FMA(t297, t153, DERIVE_FMA(t273, t129, DERIVE_FMA(t249, t105, DERIVE_FMA(t225, t81, DERIVE_FMA(t201, P[170], P[50]))))));
-    const double t418 = DERIVE_FMA(t321, t178, DERIVE_FMA(t297, t154, DERIVE_FMA(t273, t130, DERIVE_FMA(t249, t106, DERIVE_FMA(t225, t82, DERIVE_FMA(t201, P[171], P[51]))))));
+    const double t424 = DERIVE_FMA(t321, t187, DERIVE_FMA(t297, t163, DERIVE_FMA(t273, t139, DERIVE_FMA(t249, t115, DERIVE_FMA(t225, t91, DERIVE_FMA(t201, P[180], P[60]))))));
+    const double t425 = DERIVE_FMA(t321, t188, DERIVE_FMA(t297, t164, DERIVE_FMA(t273, t140, DERIVE_FMA(t249, t116, DERIVE_FMA(t225, t92, DERIVE_FMA(t201, P[181], P[61]))))));
+    const double t426 = DERIVE_FMA(t321, t189, DERIVE_FMA(t297, t165, DERIVE_FMA(t273, t141, DERIVE_FMA(t249, t117, DERIVE_FMA(t225, t93, DERIVE_FMA(t201, P[182], P[62]))))));
+    const double t427 = DERIVE_FMA(t321, t190, DERIVE_FMA(t297, t166, DERIVE_FMA(t273, t142, DERIVE_FMA(t249, t118, DERIVE_FMA(t225, t94, DERIVE_FMA(t201, P[183], P[63]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t419_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd v_t419_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t83, v_t419_0);
-    const derive_vd v_t419_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t107, v_t419_1);
-    const derive_vd v_t419_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t131, v_t419_2);
-    const derive_vd v_t419_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t155, v_t419_3);
-    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t179, v_t419_4);
+    const derive_vd v_t428_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t428_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t95, v_t428_0);
+    const derive_vd v_t428_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t119, v_t428_1);
+    const derive_vd v_t428_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t143, v_t428_2);
+    const derive_vd v_t428_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t167, v_t428_3);
+    const derive_vd v_t428 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t191, v_t428_4);
     #else
-    const double t419 = DERIVE_FMA(t321, t179, DERIVE_FMA(t297, t155, DERIVE_FMA(t273, t131, DERIVE_FMA(t249, t107, DERIVE_FMA(t225, t83, DERIVE_FMA(t201, P[172], P[52]))))));
-    const double t420 = DERIVE_FMA(t321, t180, DERIVE_FMA(t297, t156, DERIVE_FMA(t273, t132, DERIVE_FMA(t249, t108, DERIVE_FMA(t225, t84, DERIVE_FMA(t201, P[173], P[53]))))));
-    const double t421 = DERIVE_FMA(t321, t181, DERIVE_FMA(t297, t157, DERIVE_FMA(t273, t133, DERIVE_FMA(t249, t109, DERIVE_FMA(t225, t85, DERIVE_FMA(t201, P[174], P[54]))))));
-    const double t422 = DERIVE_FMA(t321, t182, DERIVE_FMA(t297, t158, DERIVE_FMA(t273, t134, DERIVE_FMA(t249, t110, DERIVE_FMA(t225, t86, DERIVE_FMA(t201, P[175], P[55]))))));
+    const double t428 = DERIVE_FMA(t321, t191, DERIVE_FMA(t297, t167, DERIVE_FMA(t273, t143, DERIVE_FMA(t249, t119, DERIVE_FMA(t225, t95, DERIVE_FMA(t201, P[184], P[64]))))));
+    const double t429 = DERIVE_FMA(t321, t192, DERIVE_FMA(t297, t168, DERIVE_FMA(t273, t144, DERIVE_FMA(t249, t120, DERIVE_FMA(t225, t96, DERIVE_FMA(t201, P[185], P[65]))))));
+    const double t430 = DERIVE_FMA(t321, t193, DERIVE_FMA(t297, t169, DERIVE_FMA(t273, t145, DERIVE_FMA(t249, t121, DERIVE_FMA(t225, t97, DERIVE_FMA(t201, P[186], P[66]))))));
+    const double t431 = DERIVE_FMA(t321, t194, DERIVE_FMA(t297, t170, DERIVE_FMA(t273, t146, DERIVE_FMA(t249, t122, DERIVE_FMA(t225, t98, DERIVE_FMA(t201, P[187], P[67]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t423_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t423_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t87, v_t423_0);
-    const derive_vd v_t423_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t111, v_t423_1);
-    const derive_vd v_t423_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t135, v_t423_2);
-    const derive_vd v_t423_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t159, v_t423_3);
-    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t183, v_t423_4);
+    const derive_vd v_t432_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t432_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t99, v_t432_0);
+    const derive_vd v_t432_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t123, v_t432_1);
+    const derive_vd v_t432_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t147, v_t432_2);
+    const derive_vd v_t432_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t171, v_t432_3);
+    const derive_vd v_t432 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t195, v_t432_4);
     #else
-    const double t423 = DERIVE_FMA(t321, t183, DERIVE_FMA(t297, t159, DERIVE_FMA(t273, t135, DERIVE_FMA(t249, t111, DERIVE_FMA(t225, t87, DERIVE_FMA(t201, P[176], P[56]))))));
-    const double t424 = DERIVE_FMA(t321, t184, DERIVE_FMA(t297, t160, DERIVE_FMA(t273, t136, DERIVE_FMA(t249, t112, DERIVE_FMA(t225, t88, DERIVE_FMA(t201, P[177], P[57]))))));
-    const double t425 = DERIVE_FMA(t321, t185, DERIVE_FMA(t297, t161, DERIVE_FMA(t273, t137, DERIVE_FMA(t249, t113, DERIVE_FMA(t225, t89, DERIVE_FMA(t201, P[178], P[58]))))));
-    const double t426 = DERIVE_FMA(t321, t186, DERIVE_FMA(t297, t162, DERIVE_FMA(t273, t138, DERIVE_FMA(t249, t114, DERIVE_FMA(t225, t90, DERIVE_FMA(t201, P[179], P[59]))))));
+    const double t432 = DERIVE_FMA(t321, t195, DERIVE_FMA(t297, t171, DERIVE_FMA(t273, t147, DERIVE_FMA(t249, t123, DERIVE_FMA(t225, t99, DERIVE_FMA(t201, P[188], P[68]))))));
+    const double t433 = DERIVE_FMA(t321, t196, DERIVE_FMA(t297, t172, DERIVE_FMA(t273, t148, DERIVE_FMA(t249, t124, DERIVE_FMA(t225, t100, DERIVE_FMA(t201, P[189], P[69]))))));
+    const double t434 = DERIVE_FMA(t321, t197, DERIVE_FMA(t297, t173, DERIVE_FMA(t273, t149, DERIVE_FMA(t249, t125, DERIVE_FMA(t225, t101, DERIVE_FMA(t201, P[190], P[70]))))));
+    const double t435 = DERIVE_FMA(t321, t198, DERIVE_FMA(t297, t174, DERIVE_FMA(t273, t150, DERIVE_FMA(t249, t126, DERIVE_FMA(t225, t102, DERIVE_FMA(t201, P[191], P[71]))))));
     #endif
+    const double t436 = DERIVE_FMA(t226, t82, DERIVE_FMA(t178, t322, DERIVE_FMA(t154, t298, DERIVE_FMA(t130, t274, DERIVE_FMA(t106, t250, DERIVE_FMA(P[171], t202, P[75]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t427_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t427_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t91, v_t427_0);
-    const derive_vd v_t427_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t115, v_t427_1);
-    const derive_vd v_t427_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t139, v_t427_2);
-    const derive_vd v_t427_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t163, v_t427_3);
-    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t187, v_t427_4);
-    #else
-    const double t427 = DERIVE_FMA(t321, t187, DERIVE_FMA(t297, t163, DERIVE_FMA(t273, t139, DERIVE_FMA(t249, t115, DERIVE_FMA(t225, t91, DERIVE_FMA(t201, P[180], P[60]))))));
-    const double t428 = DERIVE_FMA(t321, t188, DERIVE_FMA(t297, t164, DERIVE_FMA(t273, t140, DERIVE_FMA(t249, t116, DERIVE_FMA(t225, t92, DERIVE_FMA(t201, P[181], P[61]))))));
-    const double t429 = DERIVE_FMA(t321, t189, DERIVE_FMA(t297, t165, DERIVE_FMA(t273, t141, DERIVE_FMA(t249, t117, DERIVE_FMA(t225, t93, DERIVE_FMA(t201, P[182], P[62]))))));
-    const double t430 = DERIVE_FMA(t321, t190, DERIVE_FMA(t297, t166, DERIVE_FMA(t273, t142, DERIVE_FMA(t249, t118, DERIVE_FMA(t225, t94, DERIVE_FMA(t201, P[183], P[63]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t431_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t431_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t95, v_t431_0);
-    const derive_vd v_t431_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t119, v_t431_1);
-    const derive_vd v_t431_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t143, v_t431_2);
-    const derive_vd v_t431_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t167, v_t431_3);
-    const derive_vd v_t431 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t191, v_t431_4);
-    #else
-    const double t431 = DERIVE_FMA(t321, t191, DERIVE_FMA(t297, t167, DERIVE_FMA(t273, t143, DERIVE_FMA(t249, t119, DERIVE_FMA(t225, t95, DERIVE_FMA(t201, P[184], P[64]))))));
-    const double t432 = DERIVE_FMA(t321, t192, DERIVE_FMA(t297, t168, DERIVE_FMA(t273, t144, DERIVE_FMA(t249, t120, DERIVE_FMA(t225, t96, DERIVE_FMA(t201, P[185], P[65]))))));
-    const double t433 = DERIVE_FMA(t321, t193, DERIVE_FMA(t297, t169, DERIVE_FMA(t273, t145, DERIVE_FMA(t249, t121, DERIVE_FMA(t225, t97, DERIVE_FMA(t201, P[186], P[66]))))));
-    const double t434 = DERIVE_FMA(t321, t194, DERIVE_FMA(t297, t170, DERIVE_FMA(t273, t146, DERIVE_FMA(t249, t122, DERIVE_FMA(t225, t98, DERIVE_FMA(t201, P[187], P[67]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t435_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t435_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t99, v_t435_0);
-    const derive_vd v_t435_2 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t123, v_t435_1);
-    const derive_vd v_t435_3 = DERIVE_VFMA(((derive_vd){t273, t273, t273, t273}), v_t147, v_t435_2);
-    const derive_vd v_t435_4 = DERIVE_VFMA(((derive_vd){t297, t297, t297, t297}), v_t171, v_t435_3);
-    const derive_vd v_t435 = DERIVE_VFMA(((derive_vd){t321, t321, t321, t321}), v_t195, v_t435_4);
-    #else
-    const double t435 = DERIVE_FMA(t321, t195, DERIVE_FMA(t297, t171, DERIVE_FMA(t273, t147, DERIVE_FMA(t249, t123, DERIVE_FMA(t225, t99, DERIVE_FMA(t201, P[188], P[68]))))));
-    const double t436 = DERIVE_FMA(t321, t196, DERIVE_FMA(t297, t172, DERIVE_FMA(t273, t148, DERIVE_FMA(t249, t124, DERIVE_FMA(t225, t100, DERIVE_FMA(t201, P[189], P[69]))))));
-    const double t437 = DERIVE_FMA(t321, t197, DERIVE_FMA(t297, t173, DERIVE_FMA(t273, t149, DERIVE_FMA(t249, t125, DERIVE_FMA(t225, t101, DERIVE_FMA(t201, P[190], P[70]))))));
-    const double t438 = DERIVE_FMA(t321, t198, DERIVE_FMA(t297, t174, DERIVE_FMA(t273, t150, DERIVE_FMA(t249, t126, DERIVE_FMA(t225, t102, DERIVE_FMA(t201, P[191], P[71]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t439_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t439_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t79, v_t439_0);
-    const derive_vd v_t439_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t103, v_t439_1);
-    const derive_vd v_t439_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t127, v_t439_2);
-    const derive_vd v_t439_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t151, v_t439_3);
-    const derive_vd v_t439 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t175, v_t439_4);
-    const derive_vd tr_v_t367_0 = __builtin_shufflevector(v_t367, v_t391, 0, 4, 2, 6);
-    const derive_vd tr_v_t367_1 = __builtin_shufflevector(v_t367, v_t391, 1, 5, 3, 7);
-    const derive_vd tr_v_t367_2 = __builtin_shufflevector(v_t415, v_t439, 0, 4, 2, 6);
-    const derive_vd tr_v_t367_3 = __builtin_shufflevector(v_t415, v_t439, 1, 5, 3, 7);
-    const derive_vd tr_v_t367_c1 = __builtin_shufflevector(tr_v_t367_1, tr_v_t367_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t367_c2 = __builtin_shufflevector(tr_v_t367_0, tr_v_t367_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t367_c3 = __builtin_shufflevector(tr_v_t367_1, tr_v_t367_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[0] = v_t367;
-    *(derive_vd_unaligned *)&P_new[24] = __builtin_shufflevector(v_t391, tr_v_t367_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t415, tr_v_t367_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[72] = __builtin_shufflevector(v_t439, tr_v_t367_c3, 4, 5, 6, 3);
-    #else
-    const double t442 = DERIVE_FMA(t322, t178, DERIVE_FMA(t298, t154, DERIVE_FMA(t274, t130, DERIVE_FMA(t250, t106, DERIVE_FMA(t226, t82, DERIVE_FMA(t202, P[171], P[75]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t443_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t443_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t83, v_t443_0);
-    const derive_vd v_t443_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t107, v_t443_1);
-    const derive_vd v_t443_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t131, v_t443_2);
-    const derive_vd v_t443_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t155, v_t443_3);
-    const derive_vd v_t443 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t179, v_t443_4);
-    const derive_vd tr_v_t371_0 = __builtin_shufflevector(v_t371, v_t395, 0, 4, 2, 6);
-    const derive_vd tr_v_t371_1 = __builtin_shufflevector(v_t371, v_t395, 1, 5, 3, 7);
-    const derive_vd tr_v_t371_2 = __builtin_shufflevector(v_t419, v_t443, 0, 4, 2, 6);
-    const derive_vd tr_v_t371_3 = __builtin_shufflevector(v_t419, v_t443, 1, 5, 3, 7);
+    const derive_vd v_t437_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t437_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t83, v_t437_0);
+    const derive_vd v_t437_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t107, v_t437_1);
+    const derive_vd v_t437_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t131, v_t437_2);
+    const derive_vd v_t437_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t155, v_t437_3);
+    const derive_vd v_t437 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t179, v_t437_4);
+    const derive_vd tr_v_t371_0 = __builtin_shufflevector(v_t371, v_t394, 0, 4, 2, 6);
+    const derive_vd tr_v_t371_1 = __builtin_shufflevector(v_t371, v_t394, 1, 5, 3, 7);
+    const derive_vd tr_v_t371_2 = __builtin_shufflevector(v_t416, v_t437, 0, 4, 2, 6);
+    const derive_vd tr_v_t371_3 = __builtin_shufflevector(v_t416, v_t437, 1, 5, 3, 7);
     const derive_vd tr_v_t371_c0 = __builtin_shufflevector(tr_v_t371_0, tr_v_t371_2, 0, 1, 4, 5);
     const derive_vd tr_v_t371_c1 = __builtin_shufflevector(tr_v_t371_1, tr_v_t371_3, 0, 1, 4, 5);
     const derive_vd tr_v_t371_c2 = __builtin_shufflevector(tr_v_t371_0, tr_v_t371_2, 2, 3, 6, 7);
     const derive_vd tr_v_t371_c3 = __builtin_shufflevector(tr_v_t371_1, tr_v_t371_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[4] = v_t371;
-    *(derive_vd_unaligned *)&P_new[28] = v_t395;
-    *(derive_vd_unaligned *)&P_new[52] = v_t419;
-    *(derive_vd_unaligned *)&P_new[76] = v_t443;
+    *(derive_vd_unaligned *)&P_new[28] = v_t394;
+    *(derive_vd_unaligned *)&P_new[52] = v_t416;
+    *(derive_vd_unaligned *)&P_new[76] = v_t437;
     *(derive_vd_unaligned *)&P_new[96] = tr_v_t371_c0;
     *(derive_vd_unaligned *)&P_new[120] = tr_v_t371_c1;
     *(derive_vd_unaligned *)&P_new[144] = tr_v_t371_c2;
     *(derive_vd_unaligned *)&P_new[168] = tr_v_t371_c3;
     #else
-    const double t443 = DERIVE_FMA(t322, t179, DERIVE_FMA(t298, t155, DERIVE_FMA(t274, t131, DERIVE_FMA(t250, t107, DERIVE_FMA(t226, t83, DERIVE_FMA(t202, P[172], P[76]))))));
-    const double t444 = DERIVE_FMA(t322, t180, DERIVE_FMA(t298, t156, DERIVE_FMA(t274, t132, DERIVE_FMA(t250, t108, DERIVE_FMA(t226, t84, DERIVE_FMA(t202, P[173], P[77]))))));
-    const double t445 = DERIVE_FMA(t322, t181, DERIVE_FMA(t298, t157, DERIVE_FMA(t274, t133, DERIVE_FMA(t250, t109, DERIVE_FMA(t226, t85, DERIVE_FMA(t202, P[174], P[78]))))));
-    const double t446 = DERIVE_FMA(t322, t182, DERIVE_FMA(t298, t158, DERIVE_FMA(t274, t134, DERIVE_FMA(t250, t110, DERIVE_FMA(t226, t86, DERIVE_FMA(t202, P[175], P[79]))))));
+    const double t437 = DERIVE_FMA(t322, t179, DERIVE_FMA(t298, t155, DERIVE_FMA(t274, t131, DERIVE_FMA(t250, t107, DERIVE_FMA(t226, t83, DERIVE_FMA(t202, P[172], P[76]))))));
+    const double t438 = DERIVE_FMA(t322, t180, DERIVE_FMA(t298, t156, DERIVE_FMA(t274, t132, DERIVE_FMA(t250, t108, DERIVE_FMA(t226, t84, DERIVE_FMA(t202, P[173], P[77]))))));
+    const double t439 = DERIVE_FMA(t322, t181, DERIVE_FMA(t298, t157, DERIVE_FMA(t274, t133, DERIVE_FMA(t250, t109, DERIVE_FMA(t226, t85, DERIVE_FMA(t202, P[174], P[78]))))));
+    const double t440 = DERIVE_FMA(t322, t182, DERIVE_FMA(t298, t158, DERIVE_FMA(t274, t134, DERIVE_FMA(t250, t110, DERIVE_FMA(t226, t86, DERIVE_FMA(t202, P[175], P[79]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t447_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t447_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t87, v_t447_0);
-    const derive_vd v_t447_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t111, v_t447_1);
-    const derive_vd v_t447_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t135, v_t447_2);
-    const derive_vd v_t447_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t159, v_t447_3);
-    const derive_vd v_t447 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t183, v_t447_4);
-    const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t399, 0, 4, 2, 6);
-    const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t399, 1, 5, 3, 7);
-    const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t423, v_t447, 0, 4, 2, 6);
-    const derive_vd tr_v_t375_3 = __builtin_shufflevector(v_t423, v_t447, 1, 5, 3, 7);
+    const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t441_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t87, v_t441_0);
+    const derive_vd v_t441_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t111, v_t441_1);
+    const derive_vd v_t441_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t135, v_t441_2);
+    const derive_vd v_t441_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t159, v_t441_3);
+    const derive_vd v_t441 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t183, v_t441_4);
+    const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t398, 0, 4, 2, 6);
+    const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t398, 1, 5, 3, 7);
+    const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t420, v_t441, 0, 4, 2, 6);
+    const derive_vd tr_v_t375_3 = __builtin_shufflevector(v_t420, v_t441, 1, 5, 3, 7);
     const derive_vd tr_v_t375_c0 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 0, 1, 4, 5);
     const derive_vd tr_v_t375_c1 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 0, 1, 4, 5);
     const derive_vd tr_v_t375_c2 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 2, 3, 6, 7);
     const derive_vd tr_v_t375_c3 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[8] = v_t375;
-    *(derive_vd_unaligned *)&P_new[32] = v_t399;
-    *(derive_vd_unaligned *)&P_new[56] = v_t423;
-    *(derive_vd_unaligned *)&P_new[80] = v_t447;
+    *(derive_vd_unaligned *)&P_new[32] = v_t398;
+    *(derive_vd_unaligned *)&P_new[56] = v_t420;
+    *(derive_vd_unaligned *)&P_new[80] = v_t441;
     *(derive_vd_unaligned *)&P_new[192] = tr_v_t375_c0;
     *(derive_vd_unaligned *)&P_new[216] = tr_v_t375_c1;
     *(derive_vd_unaligned *)&P_new[240] = tr_v_t375_c2;
     *(derive_vd_unaligned *)&P_new[264] = tr_v_t375_c3;
     #else
-    const double t447 = DERIVE_FMA(t322, t183, DERIVE_FMA(t298, t159, DERIVE_FMA(t274, t135, DERIVE_FMA(t250, t111, DERIVE_FMA(t226, t87, DERIVE_FMA(t202, P[176], P[80]))))));
-    const double t448 = DERIVE_FMA(t322, t184, DERIVE_FMA(t298, t160, DERIVE_FMA(t274, t136, DERIVE_FMA(t250, t112, DERIVE_FMA(t226, t88, DERIVE_FMA(t202, P[177], P[81]))))));
-    const double t449 = DERIVE_FMA(t322, t185, DERIVE_FMA(t298, t161, DERIVE_FMA(t274, t137, DERIVE_FMA(t250, t113, DERIVE_FMA(t226, t89, DERIVE_FMA(t202, P[178], P[82]))))));
-    const double t450 = DERIVE_FMA(t322, t186, DERIVE_FMA(t298, t162, DERIVE_FMA(t274, t138, DERIVE_FMA(t250, t114, DERIVE_FMA(t226, t90, DERIVE_FMA(t202, P[179], P[83]))))));
+    const double t441 = DERIVE_FMA(t322, t183, DERIVE_FMA(t298, t159, DERIVE_FMA(t274, t135, DERIVE_FMA(t250, t111, DERIVE_FMA(t226, t87, DERIVE_FMA(t202, P[176], P[80]))))));
+    const double t442 = DERIVE_FMA(t322, t184, DERIVE_FMA(t298, t160, DERIVE_FMA(t274, t136, DERIVE_FMA(t250, t112, DERIVE_FMA(t226, t88, DERIVE_FMA(t202, P[177], P[81]))))));
+    const double t443 = DERIVE_FMA(t322, t185, DERIVE_FMA(t298, t161, DERIVE_FMA(t274, t137, DERIVE_FMA(t250, t113, DERIVE_FMA(t226, t89, DERIVE_FMA(t202, P[178], P[82]))))));
+    const double t444 = DERIVE_FMA(t322, t186, DERIVE_FMA(t298, t162, DERIVE_FMA(t274, t138, DERIVE_FMA(t250, t114, DERIVE_FMA(t226, t90, DERIVE_FMA(t202, P[179], P[83]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t451_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t451_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t91, v_t451_0);
-    const derive_vd v_t451_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t115, v_t451_1);
-    const derive_vd v_t451_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t139, v_t451_2);
-    const derive_vd v_t451_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t163, v_t451_3);
-    const derive_vd v_t451 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t187, v_t451_4);
-    const derive_vd tr_v_t379_0 = __builtin_shufflevector(v_t379, v_t403, 0, 4, 2, 6);
-    const derive_vd tr_v_t379_1 = __builtin_shufflevector(v_t379, v_t403, 1, 5, 3, 7);
-    const derive_vd tr_v_t379_2 = __builtin_shufflevector(v_t427, v_t451, 0, 4, 2, 6);
-    const derive_vd tr_v_t379_3 = __builtin_shufflevector(v_t427, v_t451, 1, 5, 3, 7);
+    const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t445_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t91, v_t445_0);
+    const derive_vd v_t445_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t115, v_t445_1);
+    const derive_vd v_t445_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t139, v_t445_2);
+    const derive_vd v_t445_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t163, v_t445_3);
+    const derive_vd v_t445 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t187, v_t445_4);
+    const derive_vd tr_v_t379_0 = __builtin_shufflevector(v_t379, v_t402, 0, 4, 2, 6);
+    const derive_vd tr_v_t379_1 = __builtin_shufflevector(v_t379, v_t402, 1, 5, 3, 7);
+    const derive_vd tr_v_t379_2 = __builtin_shufflevector(v_t424, v_t445, 0, 4, 2, 6);
+    const derive_vd tr_v_t379_3 = __builtin_shufflevector(v_t424, v_t445, 1, 5, 3, 7);
     const derive_vd tr_v_t379_c0 = __builtin_shufflevector(tr_v_t379_0, tr_v_t379_2, 0, 1, 4, 5);
     const derive_vd tr_v_t379_c1 = __builtin_shufflevector(tr_v_t379_1, tr_v_t379_3, 0, 1, 4, 5);
     const derive_vd tr_v_t379_c2 = __builtin_shufflevector(tr_v_t379_0, tr_v_t379_2, 2, 3, 6, 7);
     const derive_vd tr_v_t379_c3 = __builtin_shufflevector(tr_v_t379_1, tr_v_t379_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[12] = v_t379;
-    *(derive_vd_unaligned *)&P_new[36] = v_t403;
-    *(derive_vd_unaligned *)&P_new[60] = v_t427;
-    *(derive_vd_unaligned *)&P_new[84] = v_t451;
+    *(derive_vd_unaligned *)&P_new[36] = v_t402;
+    *(derive_vd_unaligned *)&P_new[60] = v_t424;
+    *(derive_vd_unaligned *)&P_new[84] = v_t445;
     *(derive_vd_unaligned *)&P_new[288] = tr_v_t379_c0;
     *(derive_vd_unaligned *)&P_new[312] = tr_v_t379_c1;
     *(derive_vd_unaligned *)&P_new[336] = tr_v_t379_c2;
     *(derive_vd_unaligned *)&P_new[360] = tr_v_t379_c3;
     #else
-    const double t451 = DERIVE_FMA(t322, t187, DERIVE_FMA(t298, t163, DERIVE_FMA(t274, t139, DERIVE_FMA(t250, t115, DERIVE_FMA(t226, t91, DERIVE_FMA(t202, P[180], P[84]))))));
-    const double t452 = DERIVE_FMA(t322, t188, DERIVE_FMA(t298, t164, DERIVE_FMA(t274, t140, DERIVE_FMA(t250, t116, DERIVE_FMA(t226, t92, DERIVE_FMA(t202, P[181], P[85]))))));
-    const double t453 = DERIVE_FMA(t322, t189, DERIVE_FMA(t298, t165, DERIVE_FMA(t274, t141, DERIVE_FMA(t250, t117, DERIVE_FMA(t226, t93, DERIVE_FMA(t202, P[182], P[86]))))));
-    const double t454 = DERIVE_FMA(t322, t190, DERIVE_FMA(t298, t166, DERIVE_FMA(t274, t142, DERIVE_FMA(t250, t118, DERIVE_FMA(t226, t94, DERIVE_FMA(t202, P[183], P[87]))))));
+    const double t445 = DERIVE_FMA(t322, t187, DERIVE_FMA(t298, t163, DERIVE_FMA(t274, t139, DERIVE_FMA(t250, t115, DERIVE_FMA(t226, t91, DERIVE_FMA(t202, P[180], P[84]))))));
+    const double t446 = DERIVE_FMA(t322, t188, DERIVE_FMA(t298, t164, DERIVE_FMA(t274, t140, DERIVE_FMA(t250, t116, DERIVE_FMA(t226, t92, DERIVE_FMA(t202, P[181], P[85]))))));
+    const double t447 = DERIVE_FMA(t322, t189, DERIVE_FMA(t298, t165, DERIVE_FMA(t274, t141, DERIVE_FMA(t250, t117, DERIVE_FMA(t226, t93, DERIVE_FMA(t202, P[182], P[86]))))));
+    const double t448 = DERIVE_FMA(t322, t190, DERIVE_FMA(t298, t166, DERIVE_FMA(t274, t142, DERIVE_FMA(t250, t118, DERIVE_FMA(t226, t94, DERIVE_FMA(t202, P[183], P[87]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t455_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t455_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t95, v_t455_0);
-    const derive_vd v_t455_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t119, v_t455_1);
-    const derive_vd v_t455_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t143, v_t455_2);
-    const derive_vd v_t455_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t167, v_t455_3);
-    const derive_vd v_t455 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t191, v_t455_4);
-    const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t407, 0, 4, 2, 6);
-    const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t407, 1, 5, 3, 7);
-    const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t431, v_t455, 0, 4, 2, 6);
-    const derive_vd tr_v_t383_3 = __builtin_shufflevector(v_t431, v_t455, 1, 5, 3, 7);
+    const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t449_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t95, v_t449_0);
+    const derive_vd v_t449_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t119, v_t449_1);
+    const derive_vd v_t449_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t143, v_t449_2);
+    const derive_vd v_t449_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t167, v_t449_3);
+    const derive_vd v_t449 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t191, v_t449_4);
+    const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t406, 0, 4, 2, 6);
+    const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t406, 1, 5, 3, 7);
+    const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t428, v_t449, 0, 4, 2, 6);
+    const derive_vd tr_v_t383_3 = __builtin_shufflevector(v_t428, v_t449, 1, 5, 3, 7);
     const derive_vd tr_v_t383_c0 = __builtin_shufflevector(tr_v_t383_0, tr_v_t383_2, 0, 1, 4, 5);
     const derive_vd tr_v_t383_c1 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 0, 1, 4, 5);
     const derive_vd tr_v_t383_c2 = __builtin_shufflevector(tr_v_t383_0, tr_v_t383_2, 2, 3, 6, 7);
     const derive_vd tr_v_t383_c3 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[16] = v_t383;
-    *(derive_vd_unaligned *)&P_new[40] = v_t407;
-    *(derive_vd_unaligned *)&P_new[64] = v_t431;
-    *(derive_vd_unaligned *)&P_new[88] = v_t455;
+    *(derive_vd_unaligned *)&P_new[40] = v_t406;
+    *(derive_vd_unaligned *)&P_new[64] = v_t428;
+    *(derive_vd_unaligned *)&P_new[88] = v_t449;
     *(derive_vd_unaligned *)&P_new[384] = tr_v_t383_c0;
     *(derive_vd_unaligned *)&P_new[408] = tr_v_t383_c1;
     *(derive_vd_unaligned *)&P_new[432] = tr_v_t383_c2;
     *(derive_vd_unaligned *)&P_new[456] = tr_v_t383_c3;
     #else
-    const double t455 = DERIVE_FMA(t322, t191, DERIVE_FMA(t298, t167, DERIVE_FMA(t274, t143, DERIVE_FMA(t250, t119, DERIVE_FMA(t226, t95, DERIVE_FMA(t202, P[184], P[88]))))));
-    const double t456 = DERIVE_FMA(t322, t192, DERIVE_FMA(t298, t168, DERIVE_FMA(t274, t144, DERIVE_FMA(t250, t120, DERIVE_FMA(t226, t96, DERIVE_FMA(t202, P[185], P[89]))))));
-    const double t457 = DERIVE_FMA(t322, t193, DERIVE_FMA(t298, t169, DERIVE_FMA(t274, t145, DERIVE_FMA(t250, t121, DERIVE_FMA(t226, t97, DERIVE_FMA(t202, P[186], P[90]))))));
-    const double t458 = DERIVE_FMA(t322, t194, DERIVE_FMA(t298, t170, DERIVE_FMA(t274, t146, DERIVE_FMA(t250, t122, DERIVE_FMA(t226, t98, DERIVE_FMA(t202, P[187], P[91]))))));
+    const double t449 = DERIVE_FMA(t322, t191, DERIVE_FMA(t298, t167, DERIVE_FMA(t274, t143, DERIVE_FMA(t250, t119, DERIVE_FMA(t226, t95, DERIVE_FMA(t202, P[184], P[88]))))));
+    const double t450 = DERIVE_FMA(t322, t192, DERIVE_FMA(t298, t168, DERIVE_FMA(t274, t144, DERIVE_FMA(t250, t120, DERIVE_FMA(t226, t96, DERIVE_FMA(t202, P[185], P[89]))))));
+    const double t451 = DERIVE_FMA(t322, t193, DERIVE_FMA(t298, t169, DERIVE_FMA(t274, t145, DERIVE_FMA(t250, t121, DERIVE_FMA(t226, t97, DERIVE_FMA(t202, P[186], P[90]))))));
+    const double t452 = DERIVE_FMA(t322, t194, DERIVE_FMA(t298, t170, DERIVE_FMA(t274, t146, DERIVE_FMA(t250, t122, DERIVE_FMA(t226, t98, DERIVE_FMA(t202, P[187], P[91]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t459_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t459_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t99, v_t459_0);
-    const derive_vd v_t459_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t123, v_t459_1);
-    const derive_vd v_t459_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t147, v_t459_2);
-    const derive_vd v_t459_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t171, v_t459_3);
-    const derive_vd v_t459 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t195, v_t459_4);
-    const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t411, 0, 4, 2, 6);
-    const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t411, 1, 5, 3, 7);
-    const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t435, v_t459, 0, 4, 2, 6);
-    const derive_vd tr_v_t387_3 = __builtin_shufflevector(v_t435, v_t459, 1, 5, 3, 7);
+    const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t453_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t99, v_t453_0);
+    const derive_vd v_t453_2 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t123, v_t453_1);
+    const derive_vd v_t453_3 = DERIVE_VFMA(((derive_vd){t274, t274, t274, t274}), v_t147, v_t453_2);
+    const derive_vd v_t453_4 = DERIVE_VFMA(((derive_vd){t298, t298, t298, t298}), v_t171, v_t453_3);
+    const derive_vd v_t453 = DERIVE_VFMA(((derive_vd){t322, t322, t322, t322}), v_t195, v_t453_4);
+    const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t410, 0, 4, 2, 6);
+    const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t410, 1, 5, 3, 7);
+    const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t432, v_t453, 0, 4, 2, 6);
+    const derive_vd tr_v_t387_3 = __builtin_shufflevector(v_t432, v_t453, 1, 5, 3, 7);
     const derive_vd tr_v_t387_c0 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 0, 1, 4, 5);
     const derive_vd tr_v_t387_c1 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 0, 1, 4, 5);
     const derive_vd tr_v_t387_c2 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 2, 3, 6, 7);
     const derive_vd tr_v_t387_c3 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[20] = v_t387;
-    *(derive_vd_unaligned *)&P_new[44] = v_t411;
-    *(derive_vd_unaligned *)&P_new[68] = v_t435;
-    *(derive_vd_unaligned *)&P_new[92] = v_t459;
+    *(derive_vd_unaligned *)&P_new[44] = v_t410;
+    *(derive_vd_unaligned *)&P_new[68] = v_t432;
+    *(derive_vd_unaligned *)&P_new[92] = v_t453;
     *(derive_vd_unaligned *)&P_new[480] = tr_v_t387_c0;
     *(derive_vd_unaligned *)&P_new[504] = tr_v_t387_c1;
     *(derive_vd_unaligned *)&P_new[528] = tr_v_t387_c2;
     *(derive_vd_unaligned *)&P_new[552] = tr_v_t387_c3;
     #else
-    const double t459 = DERIVE_FMA(t322, t195, DERIVE_FMA(t298, t171, DERIVE_FMA(t274, t147, DERIVE_FMA(t250, t123, DERIVE_FMA(t226, t99, DERIVE_FMA(t202, P[188], P[92]))))));
-    const double t460 = DERIVE_FMA(t322, t196, DERIVE_FMA(t298, t172, DERIVE_FMA(t274, t148, DERIVE_FMA(t250, t124, DERIVE_FMA(t226, t100, DERIVE_FMA(t202, P[189], P[93]))))));
-    const double t461 = DERIVE_FMA(t322, t197, DERIVE_FMA(t298, t173, DERIVE_FMA(t274, t149, DERIVE_FMA(t250, t125, DERIVE_FMA(t226, t101, DERIVE_FMA(t202, P[190], P[94]))))));
-    const double t462 = DERIVE_FMA(t322, t198, DERIVE_FMA(t298, t174, DERIVE_FMA(t274, t150, DERIVE_FMA(t250, t126, DERIVE_FMA(t226, t102, DERIVE_FMA(t202, P[191], P[95]))))));
+    const double t453 = DERIVE_FMA(t322, t195, DERIVE_FMA(t298, t171, DERIVE_FMA(t274, t147, DERIVE_FMA(t250, t123, DERIVE_FMA(t226, t99, DERIVE_FMA(t202, P[188], P[92]))))));
+    const double t454 = DERIVE_FMA(t322, t196, DERIVE_FMA(t298, t172, DERIVE_FMA(t274, t148, DERIVE_FMA(t250, t124, DERIVE_FMA(t226, t100, DERIVE_FMA(t202, P[189], P[93]))))));
+    const double t455 = DERIVE_FMA(t322, t197, DERIVE_FMA(t298, t173, DERIVE_FMA(t274, t149, DERIVE_FMA(t250, t125, DERIVE_FMA(t226, t101, DERIVE_FMA(t202, P[190], P[94]))))));
+    const double t456 = DERIVE_FMA(t322, t198, DERIVE_FMA(t298, t174, DERIVE_FMA(t274, t150, DERIVE_FMA(t250, t126, DERIVE_FMA(t226, t102, DERIVE_FMA(t202, P[191], P[95]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t463_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t463_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t83, v_t463_0);
-    const derive_vd v_t463_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t107, v_t463_1);
-    const derive_vd v_t463_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t131, v_t463_2);
-    const derive_vd v_t463_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t463_3);
-    const derive_vd v_t463 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t463_4);
+    const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t83, v_t457_0);
+    const derive_vd v_t457_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t107, v_t457_1);
+    const derive_vd v_t457_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t131, v_t457_2);
+    const derive_vd v_t457_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t457_3);
+    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t457_4);
+    const double t458 = v_t457[1];
+    const double t459 = v_t457[2];
+    const double t460 = v_t457[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t457;
     #else
-    const double t463 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, DERIVE_FMA(t275, t131, DERIVE_FMA(t251, t107, DERIVE_FMA(t227, t83, DERIVE_FMA(t203, P[172], P[100]))))));
-    const double t464 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, DERIVE_FMA(t275, t132, DERIVE_FMA(t251, t108, DERIVE_FMA(t227, t84, DERIVE_FMA(t203, P[173], P[101]))))));
-    const double t465 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, DERIVE_FMA(t275, t133, DERIVE_FMA(t251, t109, DERIVE_FMA(t227, t85, DERIVE_FMA(t203, P[174], P[102]))))));
-    const double t466 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, DERIVE_FMA(t275, t134, DERIVE_FMA(t251, t110, DERIVE_FMA(t227, t86, DERIVE_FMA(t203, P[175], P[103]))))));
+    const double t457 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, DERIVE_FMA(t275, t131, DERIVE_FMA(t251, t107, DERIVE_FMA(t227, t83, DERIVE_FMA(t203, P[172], P[100]))))));
+    const double t458 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, DERIVE_FMA(t275, t132, DERIVE_FMA(t251, t108, DERIVE_FMA(t227, t84, DERIVE_FMA(t203, P[173], P[101]))))));
+    const double t459 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, DERIVE_FMA(t275, t133, DERIVE_FMA(t251, t109, DERIVE_FMA(t227, t85, DERIVE_FMA(t203, P[174], P[102]))))));
+    const double t460 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, DERIVE_FMA(t275, t134, DERIVE_FMA(t251, t110, DERIVE_FMA(t227, t86, DERIVE_FMA(t203, P[175], P[103]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t467_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t467_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t87, v_t467_0);
-    const derive_vd v_t467_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t111, v_t467_1);
-    const derive_vd v_t467_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t135, v_t467_2);
-    const derive_vd v_t467_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t467_3);
-    const derive_vd v_t467 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t467_4);
+    const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t87, v_t461_0);
+    const derive_vd v_t461_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t111, v_t461_1);
+    const derive_vd v_t461_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t135, v_t461_2);
+    const derive_vd v_t461_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t461_3);
+    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t461_4);
     #else
-    const double t467 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, DERIVE_FMA(t275, t135, DERIVE_FMA(t251, t111, DERIVE_FMA(t227, t87, DERIVE_FMA(t203, P[176], P[104]))))));
-    const double t468 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, DERIVE_FMA(t275, t136, DERIVE_FMA(t251, t112, DERIVE_FMA(t227, t88, DERIVE_FMA(t203, P[177], P[105]))))));
-    const double t469 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, DERIVE_FMA(t275, t137, DERIVE_FMA(t251, t113, DERIVE_FMA(t227, t89, DERIVE_FMA(t203, P[178], P[106]))))));
-    const double t470 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, DERIVE_FMA(t275, t138, DERIVE_FMA(t251, t114, DERIVE_FMA(t227, t90, DERIVE_FMA(t203, P[179], P[107]))))));
+    const double t461 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, DERIVE_FMA(t275, t135, DERIVE_FMA(t251, t111, DERIVE_FMA(t227, t87, DERIVE_FMA(t203, P[176], P[104]))))));
+    const double t462 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, DERIVE_FMA(t275, t136, DERIVE_FMA(t251, t112, DERIVE_FMA(t227, t88, DERIVE_FMA(t203, P[177], P[105]))))));
+    const double t463 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, DERIVE_FMA(t275, t137, DERIVE_FMA(t251, t113, DERIVE_FMA(t227, t89, DERIVE_FMA(t203, P[178], P[106]))))));
+    const double t464 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, DERIVE_FMA(t275, t138, DERIVE_FMA(t251, t114, DERIVE_FMA(t227, t90, DERIVE_FMA(t203, P[179], P[107]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t471_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t471_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t91, v_t471_0);
-    const derive_vd v_t471_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t115, v_t471_1);
-    const derive_vd v_t471_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t139, v_t471_2);
-    const derive_vd v_t471_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t471_3);
-    const derive_vd v_t471 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t471_4);
+    const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t91, v_t465_0);
+    const derive_vd v_t465_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t115, v_t465_1);
+    const derive_vd v_t465_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t139, v_t465_2);
+    const derive_vd v_t465_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t465_3);
+    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t465_4);
     #else
-    const double t471 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, DERIVE_FMA(t275, t139, DERIVE_FMA(t251, t115, DERIVE_FMA(t227, t91, DERIVE_FMA(t203, P[180], P[108]))))));
-    const double t472 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, DERIVE_FMA(t275, t140, DERIVE_FMA(t251, t116, DERIVE_FMA(t227, t92, DERIVE_FMA(t203, P[181], P[109]))))));
-    const double t473 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, DERIVE_FMA(t275, t141, DERIVE_FMA(t251, t117, DERIVE_FMA(t227, t93, DERIVE_FMA(t203, P[182], P[110]))))));
-    const double t474 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, DERIVE_FMA(t275, t142, DERIVE_FMA(t251, t118, DERIVE_FMA(t227, t94, DERIVE_FMA(t203, P[183], P[111]))))));
+    const double t465 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, DERIVE_FMA(t275, t139, DERIVE_FMA(t251, t115, DERIVE_FMA(t227, t91, DERIVE_FMA(t203, P[180], P[108]))))));
+    const double t466 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, DERIVE_FMA(t275, t140, DERIVE_FMA(t251, t116, DERIVE_FMA(t227, t92, DERIVE_FMA(t203, P[181], P[109]))))));
+    const double t467 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, DERIVE_FMA(t275, t141, DERIVE_FMA(t251, t117, DERIVE_FMA(t227, t93, DERIVE_FMA(t203, P[182], P[110]))))));
+    const double t468 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, DERIVE_FMA(t275, t142, DERIVE_FMA(t251, t118, DERIVE_FMA(t227, t94, DERIVE_FMA(t203, P[183], P[111]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t475_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t475_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t95, v_t475_0);
-    const derive_vd v_t475_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t119, v_t475_1);
-    const derive_vd v_t475_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t143, v_t475_2);
-    const derive_vd v_t475_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t475_3);
-    const derive_vd v_t475 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t475_4);
+    const derive_vd v_t469_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t95, v_t469_0);
+    const derive_vd v_t469_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t119, v_t469_1);
+    const derive_vd v_t469_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t143, v_t469_2);
+    const derive_vd v_t469_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t469_3);
+    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t469_4);
     #else
-    const double t475 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, DERIVE_FMA(t275, t143, DERIVE_FMA(t251, t119, DERIVE_FMA(t227, t95, DERIVE_FMA(t203, P[184], P[112]))))));
-    const double t476 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, DERIVE_FMA(t275, t144, DERIVE_FMA(t251, t120, DERIVE_FMA(t227, t96, DERIVE_FMA(t203, P[185], P[113]))))));
-    const double t477 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, DERIVE_FMA(t275, t145, DERIVE_FMA(t251, t121, DERIVE_FMA(t227, t97, DERIVE_FMA(t203, P[186], P[114]))))));
-    const double t478 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, DERIVE_FMA(t275, t146, DERIVE_FMA(t251, t122, DERIVE_FMA(t227, t98, DERIVE_FMA(t203, P[187], P[115]))))));
+    const double t469 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, DERIVE_FMA(t275, t143, DERIVE_FMA(t251, t119, DERIVE_FMA(t227, t95, DERIVE_FMA(t203, P[184], P[112]))))));
+    const double t470 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, DERIVE_FMA(t275, t144, DERIVE_FMA(t251, t120, DERIVE_FMA(t227, t96, DERIVE_FMA(t203, P[185], P[113]))))));
+    const double t471 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, DERIVE_FMA(t275, t145, DERIVE_FMA(t251, t121, DERIVE_FMA(t227, t97, DERIVE_FMA(t203, P[186], P[114]))))));
+    const double t472 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, DERIVE_FMA(t275, t146, DERIVE_FMA(t251, t122, DERIVE_FMA(t227, t98, DERIVE_FMA(t203, P[187], P[115]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t479_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t479_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t99, v_t479_0);
-    const derive_vd v_t479_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t123, v_t479_1);
-    const derive_vd v_t479_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t147, v_t479_2);
-    const derive_vd v_t479_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t479_3);
-    const derive_vd v_t479 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t479_4);
+    const derive_vd v_t473_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t99, v_t473_0);
+    const derive_vd v_t473_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t123, v_t473_1);
+    const derive_vd v_t473_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t147, v_t473_2);
+    const derive_vd v_t473_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t473_3);
+    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t473_4);
     #else
-    const double t479 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, DERIVE_FMA(t275, t147, DERIVE_FMA(t251, t123, DERIVE_FMA(t227, t99, DERIVE_FMA(t203, P[188], P[116]))))));
-    const double t480 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, DERIVE_FMA(t275, t148, DERIVE_FMA(t251, t124, DERIVE_FMA(t227, t100, DERIVE_FMA(t203, P[189], P[117]))))));
-    const double t481 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, DERIVE_FMA(t275, t149, DERIVE_FMA(t251, t125, DERIVE_FMA(t227, t101, DERIVE_FMA(t203, P[190], P[118]))))));
-    const double t482 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, DERIVE_FMA(t275, t150, DERIVE_FMA(t251, t126, DERIVE_FMA(t227, t102, DERIVE_FMA(t203, P[191], P[119]))))));
+    const double t473 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, DERIVE_FMA(t275, t147, DERIVE_FMA(t251, t123, DERIVE_FMA(t227, t99, DERIVE_FMA(t203, P[188], P[116]))))));
+    const double t474 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, DERIVE_FMA(t275, t148, DERIVE_FMA(t251, t124, DERIVE_FMA(t227, t100, DERIVE_FMA(t203, P[189], P[117]))))));
+    const double t475 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, DERIVE_FMA(t275, t149, DERIVE_FMA(t251, t125, DERIVE_FMA(t227, t101, DERIVE_FMA(t203, P[190], P[118]))))));
+    const double t476 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, DERIVE_FMA(t275, t150, DERIVE_FMA(t251, t126, DERIVE_FMA(t227, t102, DERIVE_FMA(t203, P[191], P[119]))))));
     #endif
+    const double t477 = DERIVE_FMA(t228, t84, DERIVE_FMA(t180, t324, DERIVE_FMA(t156, t300, DERIVE_FMA(t132, t276, DERIVE_FMA(t108, t252, DERIVE_FMA(P[173], t204, P[125]))))));
+    const double t478 = DERIVE_FMA(t228, t85, DERIVE_FMA(t181, t324, DERIVE_FMA(t157, t300, DERIVE_FMA(t133, t276, DERIVE_FMA(t109, t252, DERIVE_FMA(P[174], t204, P[126]))))));
+    const double t479 = DERIVE_FMA(t228, t86, DERIVE_FMA(t182, t324, DERIVE_FMA(t158, t300, DERIVE_FMA(t134, t276, DERIVE_FMA(t110, t252, DERIVE_FMA(P[175], t204, P[127]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t483_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t483_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t83, v_t483_0);
-    const derive_vd v_t483_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t107, v_t483_1);
-    const derive_vd v_t483_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t131, v_t483_2);
-    const derive_vd v_t483_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t155, v_t483_3);
-    const derive_vd v_t483 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t179, v_t483_4);
+    const derive_vd v_t480_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t480_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t87, v_t480_0);
+    const derive_vd v_t480_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t111, v_t480_1);
+    const derive_vd v_t480_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t135, v_t480_2);
+    const derive_vd v_t480_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t159, v_t480_3);
+    const derive_vd v_t480 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t480_4);
     #else
-    const double t484 = DERIVE_FMA(t324, t180, DERIVE_FMA(t300, t156, DERIVE_FMA(t276, t132, DERIVE_FMA(t252, t108, DERIVE_FMA(t228, t84, DERIVE_FMA(t204, P[173], P[125]))))));
-    const double t485 = DERIVE_FMA(t324, t181, DERIVE_FMA(t300, t157, DERIVE_FMA(t276, t133, DERIVE_FMA(t252, t109, DERIVE_FMA(t228, t85, DERIVE_FMA(t204, P[174], P[126]))))));
-    const double t486 = DERIVE_FMA(t324, t182, DERIVE_FMA(t300, t158, DERIVE_FMA(t276, t134, DERIVE_FMA(t252, t110, DERIVE_FMA(t228, t86, DERIVE_FMA(t204, P[175], P[127]))))));
+    const double t480 = DERIVE_FMA(t324, t183, DERIVE_FMA(t300, t159, DERIVE_FMA(t276, t135, DERIVE_FMA(t252, t111, DERIVE_FMA(t228, t87, DERIVE_FMA(t204, P[176], P[128]))))));
+    const double t481 = DERIVE_FMA(t324, t184, DERIVE_FMA(t300, t160, DERIVE_FMA(t276, t136, DERIVE_FMA(t252, t112, DERIVE_FMA(t228, t88, DERIVE_FMA(t204, P[177], P[129]))))));
+    const double t482 = DERIVE_FMA(t324, t185, DERIVE_FMA(t300, t161, DERIVE_FMA(t276, t137, DERIVE_FMA(t252, t113, DERIVE_FMA(t228, t89, DERIVE_FMA(t204, P[178], P[130]))))));
+    const double t483 = DERIVE_FMA(t324, t186, DERIVE_FMA(t300, t162, DERIVE_FMA(t276, t138, DERIVE_FMA(t252, t114, DERIVE_FMA(t228, t90, DERIVE_FMA(t204, P[179], P[131]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t487_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t487_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t87, v_t487_0);
-    const derive_vd v_t487_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t111, v_t487_1);
-    const derive_vd v_t487_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t135, v_t487_2);
-    const derive_vd v_t487_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t159, v_t487_3);
-    const derive_vd v_t487 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t487_4);
+    const derive_vd v_t484_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t484_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t91, v_t484_0);
+    const derive_vd v_t484_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t115, v_t484_1);
+    const derive_vd v_t484_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t139, v_t484_2);
+    const derive_vd v_t484_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t163, v_t484_3);
+    const derive_vd v_t484 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t484_4);
     #else
-    const double t487 = DERIVE_FMA(t324, t183, DERIVE_FMA(t300, t159, DERIVE_FMA(t276, t135, DERIVE_FMA(t252, t111, DERIVE_FMA(t228, t87, DERIVE_FMA(t204, P[176], P[128]))))));
-    const double t488 = DERIVE_FMA(t324, t184, DERIVE_FMA(t300, t160, DERIVE_FMA(t276, t136, DERIVE_FMA(t252, t112, DERIVE_FMA(t228, t88, DERIVE_FMA(t204, P[177], P[129]))))));
-    const double t489 = DERIVE_FMA(t324, t185, DERIVE_FMA(t300, t161, DERIVE_FMA(t276, t137, DERIVE_FMA(t252, t113, DERIVE_FMA(t228, t89, DERIVE_FMA(t204, P[178], P[130]))))));
-    const double t490 = DERIVE_FMA(t324, t186, DERIVE_FMA(t300, t162, DERIVE_FMA(t276, t138, DERIVE_FMA(t252, t114, DERIVE_FMA(t228, t90, DERIVE_FMA(t204, P[179], P[131]))))));
+    const double t484 = DERIVE_FMA(t324, t187, DERIVE_FMA(t300, t163, DERIVE_FMA(t276, t139, DERIVE_FMA(t252, t115, DERIVE_FMA(t228, t91, DERIVE_FMA(t204, P[180], P[132]))))));
+    const double t485 = DERIVE_FMA(t324, t188, DERIVE_FMA(t300, t164, DERIVE_FMA(t276, t140, DERIVE_FMA(t252, t116, DERIVE_FMA(t228, t92, DERIVE_FMA(t204, P[181], P[133]))))));
+    const double t486 = DERIVE_FMA(t324, t189, DERIVE_FMA(t300, t165, DERIVE_FMA(t276, t141, DERIVE_FMA(t252, t117, DERIVE_FMA(t228, t93, DERIVE_FMA(t204, P[182], P[134]))))));
+    const double t487 = DERIVE_FMA(t324, t190, DERIVE_FMA(t300, t166, DERIVE_FMA(t276, t142, DERIVE_FMA(t252, t118, DERIVE_FMA(t228, t94, DERIVE_FMA(t204, P[183], P[135]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t491_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t491_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t91, v_t491_0);
-    const derive_vd v_t491_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t115, v_t491_1);
-    const derive_vd v_t491_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t139, v_t491_2);
-    const derive_vd v_t491_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t163, v_t491_3);
-    const derive_vd v_t491 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t491_4);
+    const derive_vd v_t488_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t488_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t95, v_t488_0);
+    const derive_vd v_t488_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t119, v_t488_1);
+    const derive_vd v_t488_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t143, v_t488_2);
+    const derive_vd v_t488_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t167, v_t488_3);
+    const derive_vd v_t488 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t488_4);
     #else
-    const double t491 = DERIVE_FMA(t324, t187, DERIVE_FMA(t300, t163, DERIVE_FMA(t276, t139, DERIVE_FMA(t252, t115, DERIVE_FMA(t228, t91, DERIVE_FMA(t204, P[180], P[132]))))));
-    const double t492 = DERIVE_FMA(t324, t188, DERIVE_FMA(t300, t164, DERIVE_FMA(t276, t140, DERIVE_FMA(t252, t116, DERIVE_FMA(t228, t92, DERIVE_FMA(t204, P[181], P[133]))))));
-    const double t493 = DERIVE_FMA(t324, t189, DERIVE_FMA(t300, t165, DERIVE_FMA(t276, t141, DERIVE_FMA(t252, t117, DERIVE_FMA(t228, t93, DERIVE_FMA(t204, P[182], P[134]))))));
-    const double t494 = DERIVE_FMA(t324, t190, DERIVE_FMA(t300, t166, DERIVE_FMA(t276, t142, DERIVE_FMA(t252, t118, DERIVE_FMA(t228, t94, DERIVE_FMA(t204, P[183], P[135]))))));
+    const double t488 = DERIVE_FMA(t324, t191, DERIVE_FMA(t300, t167, DERIVE_FMA(t276, t143, DERIVE_FMA(t252, t119, DERIVE_FMA(t228, t95, DERIVE_FMA(t204, P[184], P[136]))))));
+    const double t489 = DERIVE_FMA(t324, t192, DERIVE_FMA(t300, t168, DERIVE_FMA(t276, t144, DERIVE_FMA(t252, t120, DERIVE_FMA(t228, t96, DERIVE_FMA(t204, P[185], P[137]))))));
+    const double t490 = DERIVE_FMA(t324, t193, DERIVE_FMA(t300, t169, DERIVE_FMA(t276, t145, DERIVE_FMA(t252, t121, DERIVE_FMA(t228, t97, DERIVE_FMA(t204, P[186], P[138]))))));
+    const double t491 = DERIVE_FMA(t324, t194, DERIVE_FMA(t300, t170, DERIVE_FMA(t276, t146, DERIVE_FMA(t252, t122, DERIVE_FMA(t228, t98, DERIVE_FMA(t204, P[187], P[139]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t495_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t495_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t95, v_t495_0);
-    const derive_vd v_t495_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t119, v_t495_1);
-    const derive_vd v_t495_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t143, v_t495_2);
-    const derive_vd v_t495_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t167, v_t495_3);
-    const derive_vd v_t495 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t495_4);
+    const derive_vd v_t492_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t492_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t99, v_t492_0);
+    const derive_vd v_t492_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t123, v_t492_1);
+    const derive_vd v_t492_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t147, v_t492_2);
+    const derive_vd v_t492_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t171, v_t492_3);
+    const derive_vd v_t492 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t492_4);
     #else
-    const double t495 = DERIVE_FMA(t324, t191, DERIVE_FMA(t300, t167, DERIVE_FMA(t276, t143, DERIVE_FMA(t252, t119, DERIVE_FMA(t228, t95, DERIVE_FMA(t204, P[184], P[136]))))));
-    const double t496 = DERIVE_FMA(t324, t192, DERIVE_FMA(t300, t168, DERIVE_FMA(t276, t144, DERIVE_FMA(t252, t120, DERIVE_FMA(t228, t96, DERIVE_FMA(t204, P[185], P[137]))))));
-    const double t497 = DERIVE_FMA(t324, t193, DERIVE_FMA(t300, t169, DERIVE_FMA(t276, t145, DERIVE_FMA(t252, t121, DERIVE_FMA(t228, t97, DERIVE_FMA(t204, P[186], P[138]))))));
-    const double t498 = DERIVE_FMA(t324, t194, DERIVE_FMA(t300, t170, DERIVE_FMA(t276, t146, DERIVE_FMA(t252, t122, DERIVE_FMA(t228, t98, DERIVE_FMA(t204, P[187], P[139]))))));
+    const double t492 = DERIVE_FMA(t324, t195, DERIVE_FMA(t300, t171, DERIVE_FMA(t276, t147, DERIVE_FMA(t252, t123, DERIVE_FMA(t228, t99, DERIVE_FMA(t204, P[188], P[140]))))));
+    const double t493 = DERIVE_FMA(t324, t196, DERIVE_FMA(t300, t172, DERIVE_FMA(t276, t148, DERIVE_FMA(t252, t124, DERIVE_FMA(t228, t100, DERIVE_FMA(t204, P[189], P[141]))))));
+    const double t494 = DERIVE_FMA(t324, t197, DERIVE_FMA(t300, t173, DERIVE_FMA(t276, t149, DERIVE_FMA(t252, t125, DERIVE_FMA(t228, t101, DERIVE_FMA(t204, P[190], P[142]))))));
+    const double t495 = DERIVE_FMA(t324, t198, DERIVE_FMA(t300, t174, DERIVE_FMA(t276, t150, DERIVE_FMA(t252, t126, DERIVE_FMA(t228, t102, DERIVE_FMA(t204, P[191], P[143]))))));
     #endif
+    const double t496 = DERIVE_FMA(t229, t85, DERIVE_FMA(t181, t325, DERIVE_FMA(t157, t301, DERIVE_FMA(t133, t277, DERIVE_FMA(t109, t253, DERIVE_FMA(P[174], t205, P[150]))))));
+    const double t497 = DERIVE_FMA(t229, t86, DERIVE_FMA(t182, t325, DERIVE_FMA(t158, t301, DERIVE_FMA(t134, t277, DERIVE_FMA(t110, t253, DERIVE_FMA(P[175], t205, P[151]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t499_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t499_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t99, v_t499_0);
-    const derive_vd v_t499_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t123, v_t499_1);
-    const derive_vd v_t499_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t147, v_t499_2);
-    const derive_vd v_t499_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t171, v_t499_3);
-    const derive_vd v_t499 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t499_4);
+    const derive_vd v_t498_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t498_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t87, v_t498_0);
+    const derive_vd v_t498_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t111, v_t498_1);
+    const derive_vd v_t498_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t135, v_t498_2);
+    const derive_vd v_t498_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t159, v_t498_3);
+    const derive_vd v_t498 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t183, v_t498_4);
     #else
-    const double t499 = DERIVE_FMA(t324, t195, DERIVE_FMA(t300, t171, DERIVE_FMA(t276, t147, DERIVE_FMA(t252, t123, DERIVE_FMA(t228, t99, DERIVE_FMA(t204, P[188], P[140]))))));
-    const double t500 = DERIVE_FMA(t324, t196, DERIVE_FMA(t300, t172, DERIVE_FMA(t276, t148, DERIVE_FMA(t252, t124, DERIVE_FMA(t228, t100, DERIVE_FMA(t204, P[189], P[141]))))));
-    const double t501 = DERIVE_FMA(t324, t197, DERIVE_FMA(t300, t173, DERIVE_FMA(t276, t149, DERIVE_FMA(t252, t125, DERIVE_FMA(t228, t101, DERIVE_FMA(t204, P[190], P[142]))))));
-    const double t502 = DERIVE_FMA(t324, t198, DERIVE_FMA(t300, t174, DERIVE_FMA(t276, t150, DERIVE_FMA(t252, t126, DERIVE_FMA(t228, t102, DERIVE_FMA(t204, P[191], P[143]))))));
+    const double t498 = DERIVE_FMA(t325, t183, DERIVE_FMA(t301, t159, DERIVE_FMA(t277, t135, DERIVE_FMA(t253, t111, DERIVE_FMA(t229, t87, DERIVE_FMA(t205, P[176], P[152]))))));
+    const double t499 = DERIVE_FMA(t325, t184, DERIVE_FMA(t301, t160, DERIVE_FMA(t277, t136, DERIVE_FMA(t253, t112, DERIVE_FMA(t229, t88, DERIVE_FMA(t205, P[177], P[153]))))));
+    const double t500 = DERIVE_FMA(t325, t185, DERIVE_FMA(t301, t161, DERIVE_FMA(t277, t137, DERIVE_FMA(t253, t113, DERIVE_FMA(t229, t89, DERIVE_FMA(t205, P[178], P[154]))))));
+    const double t501 = DERIVE_FMA(t325, t186, DERIVE_FMA(t301, t162, DERIVE_FMA(t277, t138, DERIVE_FMA(t253, t114, DERIVE_FMA(t229, t90, DERIVE_FMA(t205, P[179], P[155]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t503_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t503_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t83, v_t503_0);
-    const derive_vd v_t503_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t107, v_t503_1);
-    const derive_vd v_t503_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t131, v_t503_2);
-    const derive_vd v_t503_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t155, v_t503_3);
-    const derive_vd v_t503 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t179, v_t503_4);
+    const derive_vd v_t502_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t502_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t91, v_t502_0);
+    const derive_vd v_t502_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t115, v_t502_1);
+    const derive_vd v_t502_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t139, v_t502_2);
+    const derive_vd v_t502_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t163, v_t502_3);
+    const derive_vd v_t502 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t187, v_t502_4);
     #else
-    const double t505 = DERIVE_FMA(t325, t181, DERIVE_FMA(t301, t157, DERIVE_FMA(t277, t133, DERIVE_FMA(t253, t109, DERIVE_FMA(t229, t85, DERIVE_FMA(t205, P[174], P[150]))))));
-    const double t506 = DERIVE_FMA(t325, t182, DERIVE_FMA(t301, t158, DERIVE_FMA(t277, t134, DERIVE_FMA(t253, t110, DERIVE_FMA(t229, t86, DERIVE_FMA(t205, P[175], P[151]))))));
+    const double t502 = DERIVE_FMA(t325, t187, DERIVE_FMA(t301, t163, DERIVE_FMA(t277, t139, DERIVE_FMA(t253, t115, DERIVE_FMA(t229, t91, DERIVE_FMA(t205, P[180], P[156]))))));
+    const double t503 = DERIVE_FMA(t325, t188, DERIVE_FMA(t301, t164, DERIVE_FMA(t277, t140, DERIVE_FMA(t253, t116, DERIVE_FMA(t229, t92, DERIVE_FMA(t205, P[181], P[157]))))));
+    const double t504 = DERIVE_FMA(t325, t189, DERIVE_FMA(t301, t165, DERIVE_FMA(t277, t141, DERIVE_FMA(t253, t117, DERIVE_FMA(t229, t93, DERIVE_FMA(t205, P[182], P[158]))))));
+    const double t505 = DERIVE_FMA(t325, t190, DERIVE_FMA(t301, t166, DERIVE_FMA(t277, t142, DERIVE_FMA(t253, t118, DERIVE_FMA(t229, t94, DERIVE_FMA(t205, P[183], P[159]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t507_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t507_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t87, v_t507_0);
-    const derive_vd v_t507_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t111, v_t507_1);
-    const derive_vd v_t507_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t135, v_t507_2);
-    const derive_vd v_t507_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t159, v_t507_3);
-    const derive_vd v_t507 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t183, v_t507_4);
+    const derive_vd v_t506_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t506_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t95, v_t506_0);
+    const derive_vd v_t506_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t119, v_t506_1);
+    const derive_vd v_t506_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t143, v_t506_2);
+    const derive_vd v_t506_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t167, v_t506_3);
+    const derive_vd v_t506 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t191, v_t506_4);
     #else
-    const double t507 = DERIVE_FMA(t325, t183, DERIVE_FMA(t301, t159, DERIVE_FMA(t277, t135, DERIVE_FMA(t253, t111, DERIVE_FMA(t229, t87, DERIVE_FMA(t205, P[176], P[152]))))));
-    const double t508 = DERIVE_FMA(t325, t184, DERIVE_FMA(t301, t160, DERIVE_FMA(t277, t136, DERIVE_FMA(t253, t112, DERIVE_FMA(t229, t88, DERIVE_FMA(t205, P[177], P[153]))))));
-    const double t509 = DERIVE_FMA(t325, t185, DERIVE_FMA(t301, t161, DERIVE_FMA(t277, t137, DERIVE_FMA(t253, t113, DERIVE_FMA(t229, t89, DERIVE_FMA(t205, P[178], P[154]))))));
-    const double t510 = DERIVE_FMA(t325, t186, DERIVE_FMA(t301, t162, DERIVE_FMA(t277, t138, DERIVE_FMA(t253, t114, DERIVE_FMA(t229, t90, DERIVE_FMA(t205, P[179], P[155]))))));
+    const double t506 = DERIVE_FMA(t325, t191, DERIVE_FMA(t301, t167, DERIVE_FMA(t277, t143, DERIVE_FMA(t253, t119, DERIVE_FMA(t229, t95, DERIVE_FMA(t205, P[184], P[160]))))));
+    const double t507 = DERIVE_FMA(t325, t192, DERIVE_FMA(t301, t168, DERIVE_FMA(t277, t144, DERIVE_FMA(t253, t120, DERIVE_FMA(t229, t96, DERIVE_FMA(t205, P[185], P[161]))))));
+    const double t508 = DERIVE_FMA(t325, t193, DERIVE_FMA(t301, t169, DERIVE_FMA(t277, t145, DERIVE_FMA(t253, t121, DERIVE_FMA(t229, t97, DERIVE_FMA(t205, P[186], P[162]))))));
+    const double t509 = DERIVE_FMA(t325, t194, DERIVE_FMA(t301, t170, DERIVE_FMA(t277, t146, DERIVE_FMA(t253, t122, DERIVE_FMA(t229, t98, DERIVE_FMA(t205, P[187], P[163]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t511_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t511_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t91, v_t511_0);
-    const derive_vd v_t511_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t115, v_t511_1);
-    const derive_vd v_t511_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t139, v_t511_2);
-    const derive_vd v_t511_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t163, v_t511_3);
-    const derive_vd v_t511 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t187, v_t511_4);
+    const derive_vd v_t510_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t510_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t99, v_t510_0);
+    const derive_vd v_t510_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t123, v_t510_1);
+    const derive_vd v_t510_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t147, v_t510_2);
+    const derive_vd v_t510_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t171, v_t510_3);
+    const derive_vd v_t510 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t195, v_t510_4);
     #else
-    const double t511 = DERIVE_FMA(t325, t187, DERIVE_FMA(t301, t163, DERIVE_FMA(t277, t139, DERIVE_FMA(t253, t115, DERIVE_FMA(t229, t91, DERIVE_FMA(t205, P[180], P[156]))))));
-    const double t512 = DERIVE_FMA(t325, t188, DERIVE_FMA(t301, t164, DERIVE_FMA(t277, t140, DERIVE_FMA(t253, t116, DERIVE_FMA(t229, t92, DERIVE_FMA(t205, P[181], P[157]))))));
-    const double t513 = DERIVE_FMA(t325, t189, DERIVE_FMA(t301, t165, DERIVE_FMA(t277, t141, DERIVE_FMA(t253, t117, DERIVE_FMA(t229, t93, DERIVE_FMA(t205, P[182], P[158]))))));
-    const double t514 = DERIVE_FMA(t325, t190, DERIVE_FMA(t301, t166, DERIVE_FMA(t277, t142, DERIVE_FMA(t253, t118, DERIVE_FMA(t229, t94, DERIVE_FMA(t205, P[183], P[159]))))));
+    const double t510 = DERIVE_FMA(t325, t195, DERIVE_FMA(t301, t171, DERIVE_FMA(t277, t147, DERIVE_FMA(t253, t123, DERIVE_FMA(t229, t99, DERIVE_FMA(t205, P[188], P[164]))))));
+    const double t511 = DERIVE_FMA(t325, t196, DERIVE_FMA(t301, t172, DERIVE_FMA(t277, t148, DERIVE_FMA(t253, t124, DERIVE_FMA(t229, t100, DERIVE_FMA(t205, P[189], P[165]))))));
+    const double t512 = DERIVE_FMA(t325, t197, DERIVE_FMA(t301, t173, DERIVE_FMA(t277, t149, DERIVE_FMA(t253, t125, DERIVE_FMA(t229, t101, DERIVE_FMA(t205, P[190], P[166]))))));
+    const double t513 = DERIVE_FMA(t325, t198, DERIVE_FMA(t301, t174, DERIVE_FMA(t277, t150, DERIVE_FMA(t253, t126, DERIVE_FMA(t229, t102, DERIVE_FMA(t205, P[191], P[167]))))));
     #endif
+    const double t514 = DERIVE_FMA(t230, t86, DERIVE_FMA(t182, t326, DERIVE_FMA(t158, t302, DERIVE_FMA(t134, t278, DERIVE_FMA(t110, t254, DERIVE_FMA(P[175], t206, P[175]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t515_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t95, v_t515_0);
-    const derive_vd v_t515_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t119, v_t515_1);
-    const derive_vd v_t515_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t143, v_t515_2);
-    const derive_vd v_t515_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t167, v_t515_3);
-    const derive_vd v_t515 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t191, v_t515_4);
+    const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t515_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t87, v_t515_0);
+    const derive_vd v_t515_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t111, v_t515_1);
+    const derive_vd v_t515_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t135, v_t515_2);
+    const derive_vd v_t515_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t159, v_t515_3);
+    const derive_vd v_t515 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t183, v_t515_4);
+    const derive_vd tr_v_t461_0 = __builtin_shufflevector(v_t461, v_t480, 0, 4, 2, 6);
+    const derive_vd tr_v_t461_1 = __builtin_shufflevector(v_t461, v_t480, 1, 5, 3, 7);
+    const derive_vd tr_v_t461_2 = __builtin_shufflevector(v_t498, v_t515, 0, 4, 2, 6);
+    const derive_vd tr_v_t461_3 = __builtin_shufflevector(v_t498, v_t515, 1, 5, 3, 7);
+    const derive_vd tr_v_t461_c0 = __builtin_shufflevector(tr_v_t461_0, tr_v_t461_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t461_c1 = __builtin_shufflevector(tr_v_t461_1, tr_v_t461_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t461_c2 = __builtin_shufflevector(tr_v_t461_0, tr_v_t461_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t461_c3 = __builtin_shufflevector(tr_v_t461_1, tr_v_t461_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t461;
+    *(derive_vd_unaligned *)&P_new[128] = v_t480;
+    *(derive_vd_unaligned *)&P_new[152] = v_t498;
+    *(derive_vd_unaligned *)&P_new[176] = v_t515;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t461_c0;
+    *(derive_vd_unaligned *)&P_new[220] = tr_v_t461_c1;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t461_c2;
+    *(derive_vd_unaligned *)&P_new[268] = tr_v_t461_c3;
     #else
-    const double t515 = DERIVE_FMA(t325, t191, DERIVE_FMA(t301, t167, DERIVE_FMA(t277, t143, DERIVE_FMA(t253, t119, DERIVE_FMA(t229, t95, DERIVE_FMA(t205, P[184], P[160]))))));
-    const double t516 = DERIVE_FMA(t325, t192, DERIVE_FMA(t301, t168, DERIVE_FMA(t277, t144, DERIVE_FMA(t253, t120, DERIVE_FMA(t229, t96, DERIVE_FMA(t205, P[185], P[161]))))));
-    const double t517 = DERIVE_FMA(t325, t193, DERIVE_FMA(t301, t169, DERIVE_FMA(t277, t145, DERIVE_FMA(t253, t121, DERIVE_FMA(t229, t97, DERIVE_FMA(t205, P[186], P[162]))))));
-    const double t518 = DERIVE_FMA(t325, t194, DERIVE_FMA(t301, t170, DERIVE_FMA(t277, t146, DERIVE_FMA(t253, t122, DERIVE_FMA(t229, t98, DERIVE_FMA(t205, P[187], P[163]))))));
+    const double t515 = DERIVE_FMA(t326, t183, DERIVE_FMA(t302, t159, DERIVE_FMA(t278, t135, DERIVE_FMA(t254, t111, DERIVE_FMA(t230, t87, DERIVE_FMA(t206, P[176], P[176]))))));
+    const double t516 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, DERIVE_FMA(t206, P[177], P[177]))))));
+    const double t517 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, DERIVE_FMA(t206, P[178], P[178]))))));
+    const double t518 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, DERIVE_FMA(t206, P[179], P[179]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t519_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t99, v_t519_0);
-    const derive_vd v_t519_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t123, v_t519_1);
-    const derive_vd v_t519_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t147, v_t519_2);
-    const derive_vd v_t519_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t171, v_t519_3);
-    const derive_vd v_t519 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t195, v_t519_4);
+    const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t519_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t91, v_t519_0);
+    const derive_vd v_t519_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t115, v_t519_1);
+    const derive_vd v_t519_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t139, v_t519_2);
+    const derive_vd v_t519_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t163, v_t519_3);
+    const derive_vd v_t519 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t187, v_t519_4);
+    const derive_vd tr_v_t465_0 = __builtin_shufflevector(v_t465, v_t484, 0, 4, 2, 6);
+    const derive_vd tr_v_t465_1 = __builtin_shufflevector(v_t465, v_t484, 1, 5, 3, 7);
+    const derive_vd tr_v_t465_2 = __builtin_shufflevector(v_t502, v_t519, 0, 4, 2, 6);
+    const derive_vd tr_v_t465_3 = __builtin_shufflevector(v_t502, v_t519, 1, 5, 3, 7);
+    const derive_vd tr_v_t465_c0 = __builtin_shufflevector(tr_v_t465_0, tr_v_t465_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t465_c1 = __builtin_shufflevector(tr_v_t465_1, tr_v_t465_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t465_c2 = __builtin_shufflevector(tr_v_t465_0, tr_v_t465_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t465_c3 = __builtin_shufflevector(tr_v_t465_1, tr_v_t465_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t465;
+    *(derive_vd_unaligned *)&P_new[132] = v_t484;
+    *(derive_vd_unaligned *)&P_new[156] = v_t502;
+    *(derive_vd_unaligned *)&P_new[180] = v_t519;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t465_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t465_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t465_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t465_c3;
     #else
-    const double t519 = DERIVE_FMA(t325, t195, DERIVE_FMA(t301, t171, DERIVE_FMA(t277, t147, DERIVE_FMA(t253, t123, DERIVE_FMA(t229, t99, DERIVE_FMA(t205, P[188], P[164]))))));
-    const double t520 = DERIVE_FMA(t325, t196, DERIVE_FMA(t301, t172, DERIVE_FMA(t277, t148, DERIVE_FMA(t253, t124, DERIVE_FMA(t229, t100, DERIVE_FMA(t205, P[189], P[165]))))));
-    const double t521 = DERIVE_FMA(t325, t197, DERIVE_FMA(t301, t173, DERIVE_FMA(t277, t149, DERIVE_FMA(t253, t125, DERIVE_FMA(t229, t101, DERIVE_FMA(t205, P[190], P[166]))))));
-    const double t522 = DERIVE_FMA(t325, t198, DERIVE_FMA(t301, t174, DERIVE_FMA(t277, t150, DERIVE_FMA(t253, t126, DERIVE_FMA(t229, t102, DERIVE_FMA(t205, P[191], P[167]))))));
+    const double t519 = DERIVE_FMA(t326, t187, DERIVE_FMA(t302, t163, DERIVE_FMA(t278, t139, DERIVE_FMA(t254, t115, DERIVE_FMA(t230, t91, DERIVE_FMA(t206, P[180], P[180]))))));
+    const double t520 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, DERIVE_FMA(t206, P[181], P[181]))))));
+    const double t521 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, DERIVE_FMA(t206, P[182], P[182]))))));
+    const double t522 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, DERIVE_FMA(t206, P[183], P[183]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t523_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const derive_vd v_t523_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t83, v_t523_0);
-    const derive_vd v_t523_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t107, v_t523_1);
-    const derive_vd v_t523_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t131, v_t523_2);
-    const derive_vd v_t523_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t155, v_t523_3);
-    const derive_vd v_t523 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t179, v_t523_4);
-    const derive_vd tr_v_t463_0 = __builtin_shufflevector(v_t463, v_t483, 0, 4, 2, 6);
-    const derive_vd tr_v_t463_1 = __builtin_shufflevector(v_t463, v_t483, 1, 5, 3, 7);
-    const derive_vd tr_v_t463_2 = __builtin_shufflevector(v_t503, v_t523, 0, 4, 2, 6);
-    const derive_vd tr_v_t463_3 = __builtin_shufflevector(v_t503, v_t523, 1, 5, 3, 7);
-    const derive_vd tr_v_t463_c1 = __builtin_shufflevector(tr_v_t463_1, tr_v_t463_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t463_c2 = __builtin_shufflevector(tr_v_t463_0, tr_v_t463_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t463_c3 = __builtin_shufflevector(tr_v_t463_1, tr_v_t463_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[100] = v_t463;
-    *(derive_vd_unaligned *)&P_new[124] = __builtin_shufflevector(v_t483, tr_v_t463_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[148] = __builtin_shufflevector(v_t503, tr_v_t463_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[172] = __builtin_shufflevector(v_t523, tr_v_t463_c3, 4, 5, 6, 3);
+    const derive_vd v_t523_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t523_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t95, v_t523_0);
+    const derive_vd v_t523_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t119, v_t523_1);
+    const derive_vd v_t523_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t143, v_t523_2);
+    const derive_vd v_t523_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t167, v_t523_3);
+    const derive_vd v_t523 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t191, v_t523_4);
+    const derive_vd tr_v_t469_0 = __builtin_shufflevector(v_t469, v_t488, 0, 4, 2, 6);
+    const derive_vd tr_v_t469_1 = __builtin_shufflevector(v_t469, v_t488, 1, 5, 3, 7);
+    const derive_vd tr_v_t469_2 = __builtin_shufflevector(v_t506, v_t523, 0, 4, 2, 6);
+    const derive_vd tr_v_t469_3 = __builtin_shufflevector(v_t506, v_t523, 1, 5, 3, 7);
+    const derive_vd tr_v_t469_c0 = __builtin_shufflevector(tr_v_t469_0, tr_v_t469_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t469_c1 = __builtin_shufflevector(tr_v_t469_1, tr_v_t469_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t469_c2 = __builtin_shufflevector(tr_v_t469_0, tr_v_t469_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t469_c3 = __builtin_shufflevector(tr_v_t469_1, tr_v_t469_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t469;
+    *(derive_vd_unaligned *)&P_new[136] = v_t488;
+    *(derive_vd_unaligned *)&P_new[160] = v_t506;
+    *(derive_vd_unaligned *)&P_new[184] = v_t523;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t469_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t469_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t469_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t469_c3;
     #else
-    const double t526 = DERIVE_FMA(t326, t182, DERIVE_FMA(t302, t158, DERIVE_FMA(t278, t134, DERIVE_FMA(t254, t110, DERIVE_FMA(t230, t86, DERIVE_FMA(t206, P[175], P[175]))))));
+    const double t523 = DERIVE_FMA(t326, t191, DERIVE_FMA(t302, t167, DERIVE_FMA(t278, t143, DERIVE_FMA(t254, t119, DERIVE_FMA(t230, t95, DERIVE_FMA(t206, P[184], P[184]))))));
+    const double t524 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, DERIVE_FMA(t206, P[185], P[185]))))));
+    const double t525 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, DERIVE_FMA(t206, P[186], P[186]))))));
+    const double t526 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, DERIVE_FMA(t206, P[187], P[187]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t527_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const derive_vd v_t527_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t87, v_t527_0);
-    const derive_vd v_t527_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t111, v_t527_1);
-    const derive_vd v_t527_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t135, v_t527_2);
-    const derive_vd v_t527_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t159, v_t527_3);
-    const derive_vd v_t527 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t183, v_t527_4);
-    const derive_vd tr_v_t467_0 = __builtin_shufflevector(v_t467, v_t487, 0, 4, 2, 6);
-    const derive_vd tr_v_t467_1 = __builtin_shufflevector(v_t467, v_t487, 1, 5, 3, 7);
-    const derive_vd tr_v_t467_2 = __builtin_shufflevector(v_t507, v_t527, 0, 4, 2, 6);
-    const derive_vd tr_v_t467_3 = __builtin_shufflevector(v_t507, v_t527, 1, 5, 3, 7);
-    const derive_vd tr_v_t467_c0 = __builtin_shufflevector(tr_v_t467_0, tr_v_t467_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t467_c1 = __builtin_shufflevector(tr_v_t467_1, tr_v_t467_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t467_c2 = __builtin_shufflevector(tr_v_t467_0, tr_v_t467_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t467_c3 = __builtin_shufflevector(tr_v_t467_1, tr_v_t467_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[104] = v_t467;
-    *(derive_vd_unaligned *)&P_new[128] = v_t487;
-    *(derive_vd_unaligned *)&P_new[152] = v_t507;
-    *(derive_vd_unaligned *)&P_new[176] = v_t527;
-    *(derive_vd_unaligned *)&P_new[196] = tr_v_t467_c0;
-    *(derive_vd_unaligned *)&P_new[220] = tr_v_t467_c1;
-    *(derive_vd_unaligned *)&P_new[244] = tr_v_t467_c2;
-    *(derive_vd_unaligned *)&P_new[268] = tr_v_t467_c3;
+    const derive_vd v_t527_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t527_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t99, v_t527_0);
+    const derive_vd v_t527_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t123, v_t527_1);
+    const derive_vd v_t527_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t147, v_t527_2);
+    const derive_vd v_t527_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t171, v_t527_3);
+    const derive_vd v_t527 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t195, v_t527_4);
+    const derive_vd tr_v_t473_0 = __builtin_shufflevector(v_t473, v_t492, 0, 4, 2, 6);
+    const derive_vd tr_v_t473_1 = __builtin_shufflevector(v_t473, v_t492, 1, 5, 3, 7);
+    const derive_vd tr_v_t473_2 = __builtin_shufflevector(v_t510, v_t527, 0, 4, 2, 6);
+    const derive_vd tr_v_t473_3 = __builtin_shufflevector(v_t510, v_t527, 1, 5, 3, 7);
+    const derive_vd tr_v_t473_c0 = __builtin_shufflevector(tr_v_t473_0, tr_v_t473_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t473_c1 = __builtin_shufflevector(tr_v_t473_1, tr_v_t473_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t473_c2 = __builtin_shufflevector(tr_v_t473_0, tr_v_t473_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t473_c3 = __builtin_shufflevector(tr_v_t473_1, tr_v_t473_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t473;
+    *(derive_vd_unaligned *)&P_new[140] = v_t492;
+    *(derive_vd_unaligned *)&P_new[164] = v_t510;
+    *(derive_vd_unaligned *)&P_new[188] = v_t527;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t473_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t473_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t473_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t473_c3;
     #else
-    const double t527 = DERIVE_FMA(t326, t183, DERIVE_FMA(t302, t159, DERIVE_FMA(t278, t135, DERIVE_FMA(t254, t111, DERIVE_FMA(t230, t87, DERIVE_FMA(t206, P[176], P[176]))))));
-    const double t528 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, DERIVE_FMA(t206, P[177], P[177]))))));
-    const double t529 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, DERIVE_FMA(t206, P[178], P[178]))))));
-    const double t530 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, DERIVE_FMA(t206, P[179], P[179]))))));
+    const double t527 = DERIVE_FMA(t326, t195, DERIVE_FMA(t302, t171, DERIVE_FMA(t278, t147, DERIVE_FMA(t254, t123, DERIVE_FMA(t230, t99, DERIVE_FMA(t206, P[188], P[188]))))));
+    const double t528 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, DERIVE_FMA(t206, P[189], P[189]))))));
+    const double t529 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, DERIVE_FMA(t206, P[190], P[190]))))));
+    const double t530 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, DERIVE_FMA(t206, P[191], P[191]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t531_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t91, v_t531_0);
-    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t115, v_t531_1);
-    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t139, v_t531_2);
-    const derive_vd v_t531_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t163, v_t531_3);
-    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t187, v_t531_4);
-    const derive_vd tr_v_t471_0 = __builtin_shufflevector(v_t471, v_t491, 0, 4, 2, 6);
-    const derive_vd tr_v_t471_1 = __builtin_shufflevector(v_t471, v_t491, 1, 5, 3, 7);
-    const derive_vd tr_v_t471_2 = __builtin_shufflevector(v_t511, v_t531, 0, 4, 2, 6);
-    const derive_vd tr_v_t471_3 = __builtin_shufflevector(v_t511, v_t531, 1, 5, 3, 7);
-    const derive_vd tr_v_t471_c0 = __builtin_shufflevector(tr_v_t471_0, tr_v_t471_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t471_c1 = __builtin_shufflevector(tr_v_t471_1, tr_v_t471_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t471_c2 = __builtin_shufflevector(tr_v_t471_0, tr_v_t471_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t471_c3 = __builtin_shufflevector(tr_v_t471_1, tr_v_t471_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[108] = v_t471;
-    *(derive_vd_unaligned *)&P_new[132] = v_t491;
-    *(derive_vd_unaligned *)&P_new[156] = v_t511;
-    *(derive_vd_unaligned *)&P_new[180] = v_t531;
-    *(derive_vd_unaligned *)&P_new[292] = tr_v_t471_c0;
-    *(derive_vd_unaligned *)&P_new[316] = tr_v_t471_c1;
-    *(derive_vd_unaligned *)&P_new[340] = tr_v_t471_c2;
-    *(derive_vd_unaligned *)&P_new[364] = tr_v_t471_c3;
+    const derive_vd v_t531_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t87, v_t531_0);
+    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t531_1);
+    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t531_2);
+    const derive_vd v_t531_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t531_3);
+    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t531_4);
+    const double t532 = v_t531[1];
+    const double t533 = v_t531[2];
+    const double t534 = v_t531[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t531;
     #else
-    const double t531 = DERIVE_FMA(t326, t187, DERIVE_FMA(t302, t163, DERIVE_FMA(t278, t139, DERIVE_FMA(t254, t115, DERIVE_FMA(t230, t91, DERIVE_FMA(t206, P[180], P[180]))))));
-    const double t532 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, DERIVE_FMA(t206, P[181], P[181]))))));
-    const double t533 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, DERIVE_FMA(t206, P[182], P[182]))))));
-    const double t534 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, DERIVE_FMA(t206, P[183], P[183]))))));
+    const double t531 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, DERIVE_FMA(t231, t87, DERIVE_FMA(t207, P[176], P[200]))))));
+    const double t532 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, DERIVE_FMA(t231, t88, DERIVE_FMA(t207, P[177], P[201]))))));
+    const double t533 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, DERIVE_FMA(t231, t89, DERIVE_FMA(t207, P[178], P[202]))))));
+    const double t534 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, DERIVE_FMA(t231, t90, DERIVE_FMA(t207, P[179], P[203]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t535_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t95, v_t535_0);
-    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t119, v_t535_1);
-    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t143, v_t535_2);
-    const derive_vd v_t535_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t167, v_t535_3);
-    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t191, v_t535_4);
-    const derive_vd tr_v_t475_0 = __builtin_shufflevector(v_t475, v_t495, 0, 4, 2, 6);
-    const derive_vd tr_v_t475_1 = __builtin_shufflevector(v_t475, v_t495, 1, 5, 3, 7);
-    const derive_vd tr_v_t475_2 = __builtin_shufflevector(v_t515, v_t535, 0, 4, 2, 6);
-    const derive_vd tr_v_t475_3 = __builtin_shufflevector(v_t515, v_t535, 1, 5, 3, 7);
-    const derive_vd tr_v_t475_c0 = __builtin_shufflevector(tr_v_t475_0, tr_v_t475_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t475_c1 = __builtin_shufflevector(tr_v_t475_1, tr_v_t475_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t475_c2 = __builtin_shufflevector(tr_v_t475_0, tr_v_t475_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t475_c3 = __builtin_shufflevector(tr_v_t475_1, tr_v_t475_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[112] = v_t475;
-    *(derive_vd_unaligned *)&P_new[136] = v_t495;
-    *(derive_vd_unaligned *)&P_new[160] = v_t515;
-    *(derive_vd_unaligned *)&P_new[184] = v_t535;
-    *(derive_vd_unaligned *)&P_new[388] = tr_v_t475_c0;
-    *(derive_vd_unaligned *)&P_new[412] = tr_v_t475_c1;
-    *(derive_vd_unaligned *)&P_new[436] = tr_v_t475_c2;
-    *(derive_vd_unaligned *)&P_new[460] = tr_v_t475_c3;
+    const derive_vd v_t535_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t91, v_t535_0);
+    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t535_1);
+    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t535_2);
+    const derive_vd v_t535_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t535_3);
+    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t535_4);
     #else
-    const double t535 = DERIVE_FMA(t326, t191, DERIVE_FMA(t302, t167, DERIVE_FMA(t278, t143, DERIVE_FMA(t254, t119, DERIVE_FMA(t230, t95, DERIVE_FMA(t206, P[184], P[184]))))));
-    const double t536 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, DERIVE_FMA(t206, P[185], P[185]))))));
-    const double t537 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, DERIVE_FMA(t206, P[186], P[186]))))));
-    const double t538 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, DERIVE_FMA(t206, P[187], P[187]))))));
+    const double t535 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, DERIVE_FMA(t231, t91, DERIVE_FMA(t207, P[180], P[204]))))));
+    const double t536 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, DERIVE_FMA(t231, t92, DERIVE_FMA(t207, P[181], P[205]))))));
+    const double t537 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, DERIVE_FMA(t231, t93, DERIVE_FMA(t207, P[182], P[206]))))));
+    const double t538 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, DERIVE_FMA(t231, t94, DERIVE_FMA(t207, P[183], P[207]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t539_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t99, v_t539_0);
-    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t123, v_t539_1);
-    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t147, v_t539_2);
-    const derive_vd v_t539_4 = DERIVE_VFMA(((derive_vd){t302, t302, t302, t302}), v_t171, v_t539_3);
-    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t326, t326, t326, t326}), v_t195, v_t539_4);
-    const derive_vd tr_v_t479_0 = __builtin_shufflevector(v_t479, v_t499, 0, 4, 2, 6);
-    const derive_vd tr_v_t479_1 = __builtin_shufflevector(v_t479, v_t499, 1, 5, 3, 7);
-    const derive_vd tr_v_t479_2 = __builtin_shufflevector(v_t519, v_t539, 0, 4, 2, 6);
-    const derive_vd tr_v_t479_3 = __builtin_shufflevector(v_t519, v_t539, 1, 5, 3, 7);
-    const derive_vd tr_v_t479_c0 = __builtin_shufflevector(tr_v_t479_0, tr_v_t479_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t479_c1 = __builtin_shufflevector(tr_v_t479_1, tr_v_t479_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t479_c2 = __builtin_shufflevector(tr_v_t479_0, tr_v_t479_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t479_c3 = __builtin_shufflevector(tr_v_t479_1, tr_v_t479_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[116] = v_t479;
-    *(derive_vd_unaligned *)&P_new[140] = v_t499;
-    *(derive_vd_unaligned *)&P_new[164] = v_t519;
-    *(derive_vd_unaligned *)&P_new[188] = v_t539;
-    *(derive_vd_unaligned *)&P_new[484] = tr_v_t479_c0;
-    *(derive_vd_unaligned *)&P_new[508] = tr_v_t479_c1;
-    *(derive_vd_unaligned *)&P_new[532] = tr_v_t479_c2;
-    *(derive_vd_unaligned *)&P_new[556] = tr_v_t479_c3;
+    const derive_vd v_t539_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t95, v_t539_0);
+    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t539_1);
+    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t539_2);
+    const derive_vd v_t539_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t539_3);
+    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t539_4);
     #else
-    const double t539 = DERIVE_FMA(t326, t195, DERIVE_FMA(t302, t171, DERIVE_FMA(t278, t147, DERIVE_FMA(t254, t123, DERIVE_FMA(t230, t99, DERIVE_FMA(t206, P[188], P[188]))))));
-    const double t540 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, DERIVE_FMA(t206, P[189], P[189]))))));
-    const double t541 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, DERIVE_FMA(t206, P[190], P[190]))))));
-    const double t542 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, DERIVE_FMA(t206, P[191], P[191]))))));
+    const double t539 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, DERIVE_FMA(t231, t95, DERIVE_FMA(t207, P[184], P[208]))))));
+    const double t540 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, DERIVE_FMA(t231, t96, DERIVE_FMA(t207, P[185], P[209]))))));
+    const double t541 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, DERIVE_FMA(t231, t97, DERIVE_FMA(t207, P[186], P[210]))))));
+    const double t542 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, DERIVE_FMA(t231, t98, DERIVE_FMA(t207, P[187], P[211]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t543_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t87, v_t543_0);
-    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t543_1);
-    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t543_2);
-    const derive_vd v_t543_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t543_3);
-    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t543_4);
+    const derive_vd v_t543_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t99, v_t543_0);
+    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t543_1);
+    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t543_2);
+    const derive_vd v_t543_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t543_3);
+    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t543_4);
     #else
-    const double t543 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, DERIVE_FMA(t231, t87, DERIVE_FMA(t207, P[176], P[200]))))));
-    const double t544 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, DERIVE_FMA(t231, t88, DERIVE_FMA(t207, P[177], P[201]))))));
-    const double t545 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, DERIVE_FMA(t231, t89, DERIVE_FMA(t207, P[178], P[202]))))));
-    const double t546 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, DERIVE_FMA(t231, t90, DERIVE_FMA(t207, P[179], P[203]))))));
+    const double t543 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, DERIVE_FMA(t231, t99, DERIVE_FMA(t207, P[188], P[212]))))));
+    const double t544 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, DERIVE_FMA(t231, t100, DERIVE_FMA(t207, P[189], P[213]))))));
+    const double t545 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, DERIVE_FMA(t231, t101, DERIVE_FMA(t207, P[190], P[214]))))));
+    const double t546 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, DERIVE_FMA(t231, t102, DERIVE_FMA(t207, P[191], P[215]))))));
     #endif
+    const double t547 = DERIVE_FMA(t232, t88, DERIVE_FMA(t184, t328, DERIVE_FMA(t160, t304, DERIVE_FMA(t136, t280, DERIVE_FMA(t112, t256, DERIVE_FMA(P[177], t208, P[225]))))));
+    const double t548 = DERIVE_FMA(t232, t89, DERIVE_FMA(t185, t328, DERIVE_FMA(t161, t304, DERIVE_FMA(t137, t280, DERIVE_FMA(t113, t256, DERIVE_FMA(P[178], t208, P[226]))))));
+    const double t549 = DERIVE_FMA(t232, t90, DERIVE_FMA(t186, t328, DERIVE_FMA(t162, t304, DERIVE_FMA(t138, t280, DERIVE_FMA(t114, t256, DERIVE_FMA(P[179], t208, P[227]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t547_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t547_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t91, v_t547_0);
-    const derive_vd v_t547_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t547_1);
-    const derive_vd v_t547_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t547_2);
-    const derive_vd v_t547_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t547_3);
-    const derive_vd v_t547 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t547_4);
+    const derive_vd v_t550_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const derive_vd v_t550_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t91, v_t550_0);
+    const derive_vd v_t550_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t115, v_t550_1);
+    const derive_vd v_t550_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t550_2);
+    const derive_vd v_t550_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t550_3);
+    const derive_vd v_t550 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t550_4);
     #else
-    const double t547 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, DERIVE_FMA(t231, t91, DERIVE_FMA(t207, P[180], P[204]))))));
-    const double t548 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, DERIVE_FMA(t231, t92, DERIVE_FMA(t207, P[181], P[205]))))));
-    const double t549 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, DERIVE_FMA(t231, t93, DERIVE_FMA(t207, P[182], P[206]))))));
-    const double t550 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, DERIVE_FMA(t231, t94, DERIVE_FMA(t207, P[183], P[207]))))));
+    const double t550 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, DERIVE_FMA(t256, t115, DERIVE_FMA(t232, t91, DERIVE_FMA(t208, P[180], P[228]))))));
+    const double t551 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, DERIVE_FMA(t256, t116, DERIVE_FMA(t232, t92, DERIVE_FMA(t208, P[181], P[229]))))));
+    const double t552 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, DERIVE_FMA(t256, t117, DERIVE_FMA(t232, t93, DERIVE_FMA(t208, P[182], P[230]))))));
+    const double t553 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, DERIVE_FMA(t256, t118, DERIVE_FMA(t232, t94, DERIVE_FMA(t208, P[183], P[231]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t551_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const derive_vd v_t551_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t95, v_t551_0);
-    const derive_vd v_t551_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t551_1);
-    const derive_vd v_t551_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t551_2);
-    const derive_vd v_t551_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t551_3);
-    const derive_vd v_t551 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t551_4);
+    const derive_vd v_t554_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const derive_vd v_t554_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t95, v_t554_0);
+    const derive_vd v_t554_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t119, v_t554_1);
+    const derive_vd v_t554_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t554_2);
+    const derive_vd v_t554_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t554_3);
+    const derive_vd v_t554 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t554_4);
     #else
-    const double t551 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, DERIVE_FMA(t231, t95, DERIVE_FMA(t207, P[184], P[208]))))));
-    const double t552 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, DERIVE_FMA(t231, t96, DERIVE_FMA(t207, P[185], P[209]))))));
-    const double t553 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, DERIVE_FMA(t231, t97, DERIVE_FMA(t207, P[186], P[210]))))));
-    const double t554 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, DERIVE_FMA(t231, t98, DERIVE_FMA(t207, P[187], P[211]))))));
+    const double t554 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, DERIVE_FMA(t256, t119, DERIVE_FMA(t232, t95, DERIVE_FMA(t208, P[184], P[232]))))));
+    const double t555 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, DERIVE_FMA(t256, t120, DERIVE_FMA(t232, t96, DERIVE_FMA(t208, P[185], P[233]))))));
+    const double t556 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, DERIVE_FMA(t256, t121, DERIVE_FMA(t232, t97, DERIVE_FMA(t208, P[186], P[234]))))));
+    const double t557 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, DERIVE_FMA(t256, t122, DERIVE_FMA(t232, t98, DERIVE_FMA(t208, P[187], P[235]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t555_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const derive_vd v_t555_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t99, v_t555_0);
-    const derive_vd v_t555_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t555_1);
-    const derive_vd v_t555_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t555_2);
-    const derive_vd v_t555_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t555_3);
-    const derive_vd v_t555 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t555_4);
+    const derive_vd v_t558_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t558_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t99, v_t558_0);
+    const derive_vd v_t558_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t123, v_t558_1);
+    const derive_vd v_t558_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t558_2);
+    const derive_vd v_t558_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t558_3);
+    const derive_vd v_t558 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t558_4);
     #else
-    const double t555 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, DERIVE_FMA(t231, t99, DERIVE_FMA(t207, P[188], P[212]))))));
-    const double t556 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, DERIVE_FMA(t231, t100, DERIVE_FMA(t207, P[189], P[213]))))));
-    const double t557 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, DERIVE_FMA(t231, t101, DERIVE_FMA(t207, P[190], P[214]))))));
-    const double t558 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, DERIVE_FMA(t231, t102, DERIVE_FMA(t207, P[191], P[215]))))));
+    const double t558 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, DERIVE_FMA(t256, t123, DERIVE_FMA(t232, t99, DERIVE_FMA(t208, P[188], P[236]))))));
+    const double t559 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, DERIVE_FMA(t256, t124, DERIVE_FMA(t232, t100, DERIVE_FMA(t208, P[189], P[237]))))));
+    const double t560 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, DERIVE_FMA(t256, t125, DERIVE_FMA(t232, t101, DERIVE_FMA(t208, P[190], P[238]))))));
+    const double t561 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, DERIVE_FMA(t256, t126, DERIVE_FMA(t232, t102, DERIVE_FMA(t208, P[191], P[239]))))));
     #endif
+    const double t562 = DERIVE_FMA(t233, t89, DERIVE_FMA(t185, t329, DERIVE_FMA(t161, t305, DERIVE_FMA(t137, t281, DERIVE_FMA(t113, t257, DERIVE_FMA(P[178], t209, P[250]))))));
+    const double t563 = DERIVE_FMA(t233, t90, DERIVE_FMA(t186, t329, DERIVE_FMA(t162, t305, DERIVE_FMA(t138, t281, DERIVE_FMA(t114, t257, DERIVE_FMA(P[179], t209, P[251]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t559_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
-    const derive_vd v_t559_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t87, v_t559_0);
-    const derive_vd v_t559_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t111, v_t559_1);
-    const derive_vd v_t559_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t135, v_t559_2);
-    const derive_vd v_t559_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t159, v_t559_3);
-    const derive_vd v_t559 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t183, v_t559_4);
+    const derive_vd v_t564_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
+    const derive_vd v_t564_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t91, v_t564_0);
+    const derive_vd v_t564_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t115, v_t564_1);
+    const derive_vd v_t564_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t139, v_t564_2);
+    const derive_vd v_t564_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t163, v_t564_3);
+    const derive_vd v_t564 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t187, v_t564_4);
     #else
-    const double t560 = DERIVE_FMA(t328, t184, DERIVE_FMA(t304, t160, DERIVE_FMA(t280, t136, DERIVE_FMA(t256, t112, DERIVE_FMA(t232, t88, DERIVE_FMA(t208, P[177], P[225]))))));
-    const double t561 = DERIVE_FMA(t328, t185, DERIVE_FMA(t304, t161, DERIVE_FMA(t280, t137, DERIVE_FMA(t256, t113, DERIVE_FMA(t232, t89, DERIVE_FMA(t208, P[178], P[226]))))));
-    const double t562 = DERIVE_FMA(t328, t186, DERIVE_FMA(t304, t162, DERIVE_FMA(t280, t138, DERIVE_FMA(t256, t114, DERIVE_FMA(t232, t90, DERIVE_FMA(t208, P[179], P[227]))))));
+    const double t564 = DERIVE_FMA(t329, t187, DERIVE_FMA(t305, t163, DERIVE_FMA(t281, t139, DERIVE_FMA(t257, t115, DERIVE_FMA(t233, t91, DERIVE_FMA(t209, P[180], P[252]))))));
+    const double t565 = DERIVE_FMA(t329, t188, DERIVE_FMA(t305, t164, DERIVE_FMA(t281, t140, DERIVE_FMA(t257, t116, DERIVE_FMA(t233, t92, DERIVE_FMA(t209, P[181], P[253]))))));
+    const double t566 = DERIVE_FMA(t329, t189, DERIVE_FMA(t305, t165, DERIVE_FMA(t281, t141, DERIVE_FMA(t257, t117, DERIVE_FMA(t233, t93, DERIVE_FMA(t209, P[182], P[254]))))));
+    const double t567 = DERIVE_FMA(t329, t190, DERIVE_FMA(t305, t166, DERIVE_FMA(t281, t142, DERIVE_FMA(t257, t118, DERIVE_FMA(t233, t94, DERIVE_FMA(t209, P[183], P[255]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t563_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t563_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t91, v_t563_0);
-    const derive_vd v_t563_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t115, v_t563_1);
-    const derive_vd v_t563_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t563_2);
-    const derive_vd v_t563_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t563_3);
-    const derive_vd v_t563 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t563_4);
+    const derive_vd v_t568_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
+    const derive_vd v_t568_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t95, v_t568_0);
+    const derive_vd v_t568_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t119, v_t568_1);
+    const derive_vd v_t568_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t143, v_t568_2);
+    const derive_vd v_t568_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t167, v_t568_3);
+    const derive_vd v_t568 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t191, v_t568_4);
     #else
-    const double t563 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, DERIVE_FMA(t256, t115, DERIVE_FMA(t232, t91, DERIVE_FMA(t208, P[180], P[228]))))));
-    const double t564 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, DERIVE_FMA(t256, t116, DERIVE_FMA(t232, t92, DERIVE_FMA(t208, P[181], P[229]))))));
-    const double t565 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, DERIVE_FMA(t256, t117, DERIVE_FMA(t232, t93, DERIVE_FMA(t208, P[182], P[230]))))));
-    const double t566 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, DERIVE_FMA(t256, t118, DERIVE_FMA(t232, t94, DERIVE_FMA(t208, P[183], P[231]))))));
+    const double t568 = DERIVE_FMA(t329, t191, DERIVE_FMA(t305, t167, DERIVE_FMA(t281, t143, DERIVE_FMA(t257, t119, DERIVE_FMA(t233, t95, DERIVE_FMA(t209, P[184], P[256]))))));
+    const double t569 = DERIVE_FMA(t329, t192, DERIVE_FMA(t305, t168, DERIVE_FMA(t281, t144, DERIVE_FMA(t257, t120, DERIVE_FMA(t233, t96, DERIVE_FMA(t209, P[185], P[257]))))));
+    const double t570 = DERIVE_FMA(t329, t193, DERIVE_FMA(t305, t169, DERIVE_FMA(t281, t145, DERIVE_FMA(t257, t121, DERIVE_FMA(t233, t97, DERIVE_FMA(t209, P[186], P[258]))))));
+    const double t571 = DERIVE_FMA(t329, t194, DERIVE_FMA(t305, t170, DERIVE_FMA(t281, t146, DERIVE_FMA(t257, t122, DERIVE_FMA(t233, t98, DERIVE_FMA(t209, P[187], P[259]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t567_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t567_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t95, v_t567_0);
-    const derive_vd v_t567_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t119, v_t567_1);
-    const derive_vd v_t567_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t567_2);
-    const derive_vd v_t567_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t567_3);
-    const derive_vd v_t567 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t567_4);
+    const derive_vd v_t572_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
+    const derive_vd v_t572_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t99, v_t572_0);
+    const derive_vd v_t572_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t123, v_t572_1);
+    const derive_vd v_t572_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t147, v_t572_2);
+    const derive_vd v_t572_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t171, v_t572_3);
+    const derive_vd v_t572 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t195, v_t572_4);
     #else
-    const double t567 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, DERIVE_FMA(t256, t119, DERIVE_FMA(t232, t95, DERIVE_FMA(t208, P[184], P[232]))))));
-    const double t568 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, DERIVE_FMA(t256, t120, DERIVE_FMA(t232, t96, DERIVE_FMA(t208, P[185], P[233]))))));
-    const double t569 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, DERIVE_FMA(t256, t121, DERIVE_FMA(t232, t97, DERIVE_FMA(t208, P[186], P[234]))))));
-    const double t570 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, DERIVE_FMA(t256, t122, DERIVE_FMA(t232, t98, DERIVE_FMA(t208, P[187], P[235]))))));
+    const double t572 = DERIVE_FMA(t329, t195, DERIVE_FMA(t305, t171, DERIVE_FMA(t281, t147, DERIVE_FMA(t257, t123, DERIVE_FMA(t233, t99, DERIVE_FMA(t209, P[188], P[260]))))));
+    const double t573 = DERIVE_FMA(t329, t196, DERIVE_FMA(t305, t172, DERIVE_FMA(t281, t148, DERIVE_FMA(t257, t124, DERIVE_FMA(t233, t100, DERIVE_FMA(t209, P[189], P[261]))))));
+    const double t574 = DERIVE_FMA(t329, t197, DERIVE_FMA(t305, t173, DERIVE_FMA(t281, t149, DERIVE_FMA(t257, t125, DERIVE_FMA(t233, t101, DERIVE_FMA(t209, P[190], P[262]))))));
+    const double t575 = DERIVE_FMA(t329, t198, DERIVE_FMA(t305, t174, DERIVE_FMA(t281, t150, DERIVE_FMA(t257, t126, DERIVE_FMA(t233, t102, DERIVE_FMA(t209, P[191], P[263]))))));
     #endif
+    const double t576 = DERIVE_FMA(t234, t90, DERIVE_FMA(t186, t330, DERIVE_FMA(t162, t306, DERIVE_FMA(t138, t282, DERIVE_FMA(t114, t258, DERIVE_FMA(P[179], t210, P[275]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t571_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t571_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t99, v_t571_0);
-    const derive_vd v_t571_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t123, v_t571_1);
-    const derive_vd v_t571_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t571_2);
-    const derive_vd v_t571_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t571_3);
-    const derive_vd v_t571 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t571_4);
+    const derive_vd v_t577_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd v_t577_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t91, v_t577_0);
+    const derive_vd v_t577_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t115, v_t577_1);
+    const derive_vd v_t577_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t139, v_t577_2);
+    const derive_vd v_t577_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t163, v_t577_3);
+    const derive_vd v_t577 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t187, v_t577_4);
+    const derive_vd tr_v_t535_0 = __builtin_shufflevector(v_t535, v_t550, 0, 4, 2, 6);
+    const derive_vd tr_v_t535_1 = __builtin_shufflevector(v_t535, v_t550, 1, 5, 3, 7);
+    const derive_vd tr_v_t535_2 = __builtin_shufflevector(v_t564, v_t577, 0, 4, 2, 6);
+    const derive_vd tr_v_t535_3 = __builtin_shufflevector(v_t564, v_t577, 1, 5, 3, 7);
+    const derive_vd tr_v_t535_c0 = __builtin_shufflevector(tr_v_t535_0, tr_v_t535_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t535_c1 = __builtin_shufflevector(tr_v_t535_1, tr_v_t535_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t535_c2 = __builtin_shufflevector(tr_v_t535_0, tr_v_t535_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t535_c3 = __builtin_shufflevector(tr_v_t535_1, tr_v_t535_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t535;
+    *(derive_vd_unaligned *)&P_new[228] = v_t550;
+    *(derive_vd_unaligned *)&P_new[252] = v_t564;
+    *(derive_vd_unaligned *)&P_new[276] = v_t577;
+    *(derive_vd_unaligned *)&P_new[296] = tr_v_t535_c0;
+    *(derive_vd_unaligned *)&P_new[320] = tr_v_t535_c1;
+    *(derive_vd_unaligned *)&P_new[344] = tr_v_t535_c2;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t535_c3;
     #else
-    const double t571 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, DERIVE_FMA(t256, t123, DERIVE_FMA(t232, t99, DERIVE_FMA(t208, P[188], P[236]))))));
-    const double t572 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, DERIVE_FMA(t256, t124, DERIVE_FMA(t232, t100, DERIVE_FMA(t208, P[189], P[237]))))));
-    const double t573 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, DERIVE_FMA(t256, t125, DERIVE_FMA(t232, t101, DERIVE_FMA(t208, P[190], P[238]))))));
-    const double t574 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, DERIVE_FMA(t256, t126, DERIVE_FMA(t232, t102, DERIVE_FMA(t208, P[191], P[239]))))));
+    const double t577 = DERIVE_FMA(t330, t187, DERIVE_FMA(t306, t163, DERIVE_FMA(t282, t139, DERIVE_FMA(t258, t115, DERIVE_FMA(t234, t91, DERIVE_FMA(t210, P[180], P[276]))))));
+    const double t578 = DERIVE_FMA(t330, t188, DERIVE_FMA(t306, t164, DERIVE_FMA(t282, t140, DERIVE_FMA(t258, t116, DERIVE_FMA(t234, t92, DERIVE_FMA(t210, P[181], P[277]))))));
+    const double t579 = DERIVE_FMA(t330, t189, DERIVE_FMA(t306, t165, DERIVE_FMA(t282, t141, DERIVE_FMA(t258, t117, DERIVE_FMA(t234, t93, DERIVE_FMA(t210, P[182], P[278]))))));
+    const double t580 = DERIVE_FMA(t330, t190, DERIVE_FMA(t306, t166, DERIVE_FMA(t282, t142, DERIVE_FMA(t258, t118, DERIVE_FMA(t234, t94, DERIVE_FMA(t210, P[183], P[279]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t575_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[248], P[249], P[250], P[251]}));
-    const derive_vd v_t575_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t87, v_t575_0);
-    const derive_vd v_t575_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t111, v_t575_1);
-    const derive_vd v_t575_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t135, v_t575_2);
-    const derive_vd v_t575_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t159, v_t575_3);
-    const derive_vd v_t575 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t183, v_t575_4);
+    const derive_vd v_t581_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd v_t581_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t95, v_t581_0);
+    const derive_vd v_t581_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t119, v_t581_1);
+    const derive_vd v_t581_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t143, v_t581_2);
+    const derive_vd v_t581_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t167, v_t581_3);
+    const derive_vd v_t581 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t191, v_t581_4);
+    const derive_vd tr_v_t539_0 = __builtin_shufflevector(v_t539, v_t554, 0, 4, 2, 6);
+    const derive_vd tr_v_t539_1 = __builtin_shufflevector(v_t539, v_t554, 1, 5, 3, 7);
+    const derive_vd tr_v_t539_2 = __builtin_shufflevector(v_t568, v_t581, 0, 4, 2, 6);
+    const derive_vd tr_v_t539_3 = __builtin_shufflevector(v_t568, v_t581, 1, 5, 3, 7);
+    const derive_vd tr_v_t539_c0 = __builtin_shufflevector(tr_v_t539_0, tr_v_t539_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t539_c1 = __builtin_shufflevector(tr_v_t539_1, tr_v_t539_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t539_c2 = __builtin_shufflevector(tr_v_t539_0, tr_v_t539_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t539_c3 = __builtin_shufflevector(tr_v_t539_1, tr_v_t539_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[208] = v_t539;
+    *(derive_vd_unaligned *)&P_new[232] = v_t554;
+    *(derive_vd_unaligned *)&P_new[256] = v_t568;
+    *(derive_vd_unaligned *)&P_new[280] = v_t581;
+    *(derive_vd_unaligned *)&P_new[392] = tr_v_t539_c0;
+    *(derive_vd_unaligned *)&P_new[416] = tr_v_t539_c1;
+    *(derive_vd_unaligned *)&P_new[440] = tr_v_t539_c2;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t539_c3;
     #else
-    const double t577 = DERIVE_FMA(t329, t185, DERIVE_FMA(t305, t161, DERIVE_FMA(t281, t137, DERIVE_FMA(t257, t113, DERIVE_FMA(t233, t89, DERIVE_FMA(t209, P[178], P[250]))))));
-    const double t578 = DERIVE_FMA(t329, t186, DERIVE_FMA(t305, t162, DERIVE_FMA(t281, t138, DERIVE_FMA(t257, t114, DERIVE_FMA(t233, t90, DERIVE_FMA(t209, P[179], P[251]))))));
+    const double t581 = DERIVE_FMA(t330, t191, DERIVE_FMA(t306, t167, DERIVE_FMA(t282, t143, DERIVE_FMA(t258, t119, DERIVE_FMA(t234, t95, DERIVE_FMA(t210, P[184], P[280]))))));
+    const double t582 = DERIVE_FMA(t330, t192, DERIVE_FMA(t306, t168, DERIVE_FMA(t282, t144, DERIVE_FMA(t258, t120, DERIVE_FMA(t234, t96, DERIVE_FMA(t210, P[185], P[281]))))));
+    const double t583 = DERIVE_FMA(t330, t193, DERIVE_FMA(t306, t169, DERIVE_FMA(t282, t145, DERIVE_FMA(t258, t121, DERIVE_FMA(t234, t97, DERIVE_FMA(t210, P[186], P[282]))))));
+    const double t584 = DERIVE_FMA(t330, t194, DERIVE_FMA(t306, t170, DERIVE_FMA(t282, t146, DERIVE_FMA(t258, t122, DERIVE_FMA(t234, t98, DERIVE_FMA(t210, P[187], P[283]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t579_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
-    const derive_vd v_t579_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t91, v_t579_0);
-    const derive_vd v_t579_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t115, v_t579_1);
-    const derive_vd v_t579_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t139, v_t579_2);
-    const derive_vd v_t579_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t163, v_t579_3);
-    const derive_vd v_t579 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t187, v_t579_4);
-    #else
-    const double t579 = DERIVE_FMA(t329, t187, DERIVE_FMA(t305, t163, DERIVE_FMA(t281, t139, DERIVE_FMA(t257, t115, DERIVE_FMA(t233, t91, DERIVE_FMA(t209, P[180], P[252]))))));
-    const double t580 = DERIVE_FMA(t329, t188, DERIVE_FMA(t305, t164, DERIVE_FMA(t281, t140, DERIVE_FMA(t257, t116, DERIVE_FMA(t233, t92, DERIVE_FMA(t209, P[181], P[253]))))));
-    const double t581 = DERIVE_FMA(t329, t189, DERIVE_FMA(t305, t165, DERIVE_FMA(t281, t141, DERIVE_FMA(t257, t117, DERIVE_FMA(t233, t93, DERIVE_FMA(t209, P[182], P[254]))))));
-    const double t582 = DERIVE_FMA(t329, t190, DERIVE_FMA(t305, t166, DERIVE_FMA(t281, t142, DERIVE_FMA(t257, t118, DERIVE_FMA(t233, t94, DERIVE_FMA(t209, P[183], P[255]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t583_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
-    const derive_vd v_t583_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t95, v_t583_0);
-    const derive_vd v_t583_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t119, v_t583_1);
-    const derive_vd v_t583_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t143, v_t583_2);
-    const derive_vd v_t583_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t167, v_t583_3);
-    const derive_vd v_t583 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t191, v_t583_4);
-    #else
-    const double t583 = DERIVE_FMA(t329, t191, DERIVE_FMA(t305, t167, DERIVE_FMA(t281, t143, DERIVE_FMA(t257, t119, DERIVE_FMA(t233, t95, DERIVE_FMA(t209, P[184], P[256]))))));
-    const double t584 = DERIVE_FMA(t329, t192, DERIVE_FMA(t305, t168, DERIVE_FMA(t281, t144, DERIVE_FMA(t257, t120, DERIVE_FMA(t233, t96, DERIVE_FMA(t209, P[185], P[257]))))));
-    const double t585 = DERIVE_FMA(t329, t193, DERIVE_FMA(t305, t169, DERIVE_FMA(t281, t145, DERIVE_FMA(t257, t121, DERIVE_FMA(t233, t97, DERIVE_FMA(t209, P[186], P[258]))))));
-    const double t586 = DERIVE_FMA(t329, t194, DERIVE_FMA(t305, t170, DERIVE_FMA(t281, t146, DERIVE_FMA(t257, t122, DERIVE_FMA(t233, t98, DERIVE_FMA(t209, P[187], P[259]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t587_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
-    const derive_vd v_t587_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t99, v_t587_0);
-    const derive_vd v_t587_2 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t123, v_t587_1);
-    const derive_vd v_t587_3 = DERIVE_VFMA(((derive_vd){t281, t281, t281, t281}), v_t147, v_t587_2);
-    const derive_vd v_t587_4 = DERIVE_VFMA(((derive_vd){t305, t305, t305, t305}), v_t171, v_t587_3);
-    const derive_vd v_t587 = DERIVE_VFMA(((derive_vd){t329, t329, t329, t329}), v_t195, v_t587_4);
-    #else
-    const double t587 = DERIVE_FMA(t329, t195, DERIVE_FMA(t305, t171, DERIVE_FMA(t281, t147, DERIVE_FMA(t257, t123, DERIVE_FMA(t233, t99, DERIVE_FMA(t209, P[188], P[260]))))));
-    const double t588 = DERIVE_FMA(t329, t196, DERIVE_FMA(t305, t172, DERIVE_FMA(t281, t148, DERIVE_FMA(t257, t124, DERIVE_FMA(t233, t100, DERIVE_FMA(t209, P[189], P[261]))))));
-    const double t589 = DERIVE_FMA(t329, t197, DERIVE_FMA(t305, t173, DERIVE_FMA(t281, t149, DERIVE_FMA(t257, t125, DERIVE_FMA(t233, t101, DERIVE_FMA(t209, P[190], P[262]))))));
-    const double t590 = DERIVE_FMA(t329, t198, DERIVE_FMA(t305, t174, DERIVE_FMA(t281, t150, DERIVE_FMA(t257, t126, DERIVE_FMA(t233, t102, DERIVE_FMA(t209, P[191], P[263]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t591_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[272], P[273], P[274], P[275]}));
-    const derive_vd v_t591_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t87, v_t591_0);
-    const derive_vd v_t591_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t111, v_t591_1);
-    const derive_vd v_t591_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t135, v_t591_2);
-    const derive_vd v_t591_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t159, v_t591_3);
-    const derive_vd v_t591 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t183, v_t591_4);
-    const derive_vd tr_v_t543_0 = __builtin_shufflevector(v_t543, v_t559, 0, 4, 2, 6);
-    const derive_vd tr_v_t543_1 = __builtin_shufflevector(v_t543, v_t559, 1, 5, 3, 7);
-    const derive_vd tr_v_t543_2 = __builtin_shufflevector(v_t575, v_t591, 0, 4, 2, 6);
-    const derive_vd tr_v_t543_3 = __builtin_shufflevector(v_t575, v_t591, 1, 5, 3, 7);
+    const derive_vd v_t585_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd v_t585_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t99, v_t585_0);
+    const derive_vd v_t585_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t123, v_t585_1);
+    const derive_vd v_t585_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t147, v_t585_2);
+    const derive_vd v_t585_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t171, v_t585_3);
+    const derive_vd v_t585 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t195, v_t585_4);
+    const derive_vd tr_v_t543_0 = __builtin_shufflevector(v_t543, v_t558, 0, 4, 2, 6);
+    const derive_vd tr_v_t543_1 = __builtin_shufflevector(v_t543, v_t558, 1, 5, 3, 7);
+    const derive_vd tr_v_t543_2 = __builtin_shufflevector(v_t572, v_t585, 0, 4, 2, 6);
+    const derive_vd tr_v_t543_3 = __builtin_shufflevector(v_t572, v_t585, 1, 5, 3, 7);
+    const derive_vd tr_v_t543_c0 = __builtin_shufflevector(tr_v_t543_0, tr_v_t543_2, 0, 1, 4, 5);
     const derive_vd tr_v_t543_c1 = __builtin_shufflevector(tr_v_t543_1, tr_v_t543_3, 0, 1, 4, 5);
     const derive_vd tr_v_t543_c2 = __builtin_shufflevector(tr_v_t543_0, tr_v_t543_2, 2, 3, 6, 7);
     const derive_vd tr_v_t543_c3 = __builtin_shufflevector(tr_v_t543_1, tr_v_t543_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[200] = v_t543;
-    *(derive_vd_unaligned *)&P_new[224] = __builtin_shufflevector(v_t559, tr_v_t543_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[248] = __builtin_shufflevector(v_t575, tr_v_t543_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[272] = __builtin_shufflevector(v_t591, tr_v_t543_c3, 4, 5, 6, 3);
+    *(derive_vd_unaligned *)&P_new[212] = v_t543;
+    *(derive_vd_unaligned *)&P_new[236] = v_t558;
+    *(derive_vd_unaligned *)&P_new[260] = v_t572;
+    *(derive_vd_unaligned *)&P_new[284] = v_t585;
+    *(derive_vd_unaligned *)&P_new[488] = tr_v_t543_c0;
+    *(derive_vd_unaligned *)&P_new[512] = tr_v_t543_c1;
+    *(derive_vd_unaligned *)&P_new[536] = tr_v_t543_c2;
+    *(derive_vd_unaligned *)&P_new[560] = tr_v_t543_c3;
     #else
-    const double t594 = DERIVE_FMA(t330, t186, DERIVE_FMA(t306, t162, DERIVE_FMA(t282, t138, DERIVE_FMA(t258, t114, DERIVE_FMA(t234, t90, DERIVE_FMA(t210, P[179], P[275]))))));
+    const double t585 = DERIVE_FMA(t330, t195, DERIVE_FMA(t306, t171, DERIVE_FMA(t282, t147, DERIVE_FMA(t258, t123, DERIVE_FMA(t234, t99, DERIVE_FMA(t210, P[188], P[284]))))));
+    const double t586 = DERIVE_FMA(t330, t196, DERIVE_FMA(t306, t172, DERIVE_FMA(t282, t148, DERIVE_FMA(t258, t124, DERIVE_FMA(t234, t100, DERIVE_FMA(t210, P[189], P[285]))))));
+    const double t587 = DERIVE_FMA(t330, t197, DERIVE_FMA(t306, t173, DERIVE_FMA(t282, t149, DERIVE_FMA(t258, t125, DERIVE_FMA(t234, t101, DERIVE_FMA(t210, P[190], P[286]))))));
+    const double t588 = DERIVE_FMA(t330, t198, DERIVE_FMA(t306, t174, DERIVE_FMA(t282, t150, DERIVE_FMA(t258, t126, DERIVE_FMA(t234, t102, DERIVE_FMA(t210, P[191], P[287]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t595_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[276], P[277], P[278], P[279]}));
-    const derive_vd v_t595_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t91, v_t595_0);
-    const derive_vd v_t595_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t115, v_t595_1);
-    const derive_vd v_t595_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t139, v_t595_2);
-    const derive_vd v_t595_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t163, v_t595_3);
-    const derive_vd v_t595 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t187, v_t595_4);
-    const derive_vd tr_v_t547_0 = __builtin_shufflevector(v_t547, v_t563, 0, 4, 2, 6);
-    const derive_vd tr_v_t547_1 = __builtin_shufflevector(v_t547, v_t563, 1, 5, 3, 7);
-    const derive_vd tr_v_t547_2 = __builtin_shufflevector(v_t579, v_t595, 0, 4, 2, 6);
-    const derive_vd tr_v_t547_3 = __builtin_shufflevector(v_t579, v_t595, 1, 5, 3, 7);
-    const derive_vd tr_v_t547_c0 = __builtin_shufflevector(tr_v_t547_0, tr_v_t547_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t547_c1 = __builtin_shufflevector(tr_v_t547_1, tr_v_t547_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t547_c2 = __builtin_shufflevector(tr_v_t547_0, tr_v_t547_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t547_c3 = __builtin_shufflevector(tr_v_t547_1, tr_v_t547_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[204] = v_t547;
-    *(derive_vd_unaligned *)&P_new[228] = v_t563;
-    *(derive_vd_unaligned *)&P_new[252] = v_t579;
-    *(derive_vd_unaligned *)&P_new[276] = v_t595;
-    *(derive_vd_unaligned *)&P_new[296] = tr_v_t547_c0;
-    *(derive_vd_unaligned *)&P_new[320] = tr_v_t547_c1;
-    *(derive_vd_unaligned *)&P_new[344] = tr_v_t547_c2;
-    *(derive_vd_unaligned *)&P_new[368] = tr_v_t547_c3;
+    const derive_vd v_t589_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const derive_vd v_t589_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t91, v_t589_0);
+    const derive_vd v_t589_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t115, v_t589_1);
+    const derive_vd v_t589_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t139, v_t589_2);
+    const derive_vd v_t589_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t163, v_t589_3);
+    const derive_vd v_t589 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t187, v_t589_4);
+    const double t590 = v_t589[1];
+    const double t591 = v_t589[2];
+    const double t592 = v_t589[3];
+    *(derive_vd_unaligned *)&P_new[300] = v_t589;
     #else
-    const double t595 = DERIVE_FMA(t330, t187, DERIVE_FMA(t306, t163, DERIVE_FMA(t282, t139, DERIVE_FMA(t258, t115, DERIVE_FMA(t234, t91, DERIVE_FMA(t210, P[180], P[276]))))));
-    const double t596 = DERIVE_FMA(t330, t188, DERIVE_FMA(t306, t164, DERIVE_FMA(t282, t140, DERIVE_FMA(t258, t116, DERIVE_FMA(t234, t92, DERIVE_FMA(t210, P[181], P[277]))))));
-    const double t597 = DERIVE_FMA(t330, t189, DERIVE_FMA(t306, t165, DERIVE_FMA(t282, t141, DERIVE_FMA(t258, t117, DERIVE_FMA(t234, t93, DERIVE_FMA(t210, P[182], P[278]))))));
-    const double t598 = DERIVE_FMA(t330, t190, DERIVE_FMA(t306, t166, DERIVE_FMA(t282, t142, DERIVE_FMA(t258, t118, DERIVE_FMA(t234, t94, DERIVE_FMA(t210, P[183], P[279]))))));
+    const double t589 = DERIVE_FMA(t331, t187, DERIVE_FMA(t307, t163, DERIVE_FMA(t283, t139, DERIVE_FMA(t259, t115, DERIVE_FMA(t235, t91, DERIVE_FMA(t211, P[180], P[300]))))));
+    const double t590 = DERIVE_FMA(t331, t188, DERIVE_FMA(t307, t164, DERIVE_FMA(t283, t140, DERIVE_FMA(t259, t116, DERIVE_FMA(t235, t92, DERIVE_FMA(t211, P[181], P[301]))))));
+    const double t591 = DERIVE_FMA(t331, t189, DERIVE_FMA(t307, t165, DERIVE_FMA(t283, t141, DERIVE_FMA(t259, t117, DERIVE_FMA(t235, t93, DERIVE_FMA(t211, P[182], P[302]))))));
+    const double t592 = DERIVE_FMA(t331, t190, DERIVE_FMA(t307, t166, DERIVE_FMA(t283, t142, DERIVE_FMA(t259, t118, DERIVE_FMA(t235, t94, DERIVE_FMA(t211, P[183], P[303]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t599_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
-    const derive_vd v_t599_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t95, v_t599_0);
-    const derive_vd v_t599_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t119, v_t599_1);
-    const derive_vd v_t599_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t143, v_t599_2);
-    const derive_vd v_t599_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t167, v_t599_3);
-    const derive_vd v_t599 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t191, v_t599_4);
-    const derive_vd tr_v_t551_0 = __builtin_shufflevector(v_t551, v_t567, 0, 4, 2, 6);
-    const derive_vd tr_v_t551_1 = __builtin_shufflevector(v_t551, v_t567, 1, 5, 3, 7);
-    const derive_vd tr_v_t551_2 = __builtin_shufflevector(v_t583, v_t599, 0, 4, 2, 6);
-    const derive_vd tr_v_t551_3 = __builtin_shufflevector(v_t583, v_t599, 1, 5, 3, 7);
-    const derive_vd tr_v_t551_c0 = __builtin_shufflevector(tr_v_t551_0, tr_v_t551_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t551_c1 = __builtin_shufflevector(tr_v_t551_1, tr_v_t551_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t551_c2 = __builtin_shufflevector(tr_v_t551_0, tr_v_t551_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t551_c3 = __builtin_shufflevector(tr_v_t551_1, tr_v_t551_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[208] = v_t551;
-    *(derive_vd_unaligned *)&P_new[232] = v_t567;
-    *(derive_vd_unaligned *)&P_new[256] = v_t583;
-    *(derive_vd_unaligned *)&P_new[280] = v_t599;
-    *(derive_vd_unaligned *)&P_new[392] = tr_v_t551_c0;
-    *(derive_vd_unaligned *)&P_new[416] = tr_v_t551_c1;
-    *(derive_vd_unaligned *)&P_new[440] = tr_v_t551_c2;
-    *(derive_vd_unaligned *)&P_new[464] = tr_v_t551_c3;
+    const derive_vd v_t593_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
+    const derive_vd v_t593_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t95, v_t593_0);
+    const derive_vd v_t593_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t119, v_t593_1);
+    const derive_vd v_t593_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t143, v_t593_2);
+    const derive_vd v_t593_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t167, v_t593_3);
+    const derive_vd v_t593 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t191, v_t593_4);
     #else
-    const double t599 = DERIVE_FMA(t330, t191, DERIVE_FMA(t306, t167, DERIVE_FMA(t282, t143, DERIVE_FMA(t258, t119, DERIVE_FMA(t234, t95, DERIVE_FMA(t210, P[184], P[280]))))));
-    const double t600 = DERIVE_FMA(t330, t192, DERIVE_FMA(t306, t168, DERIVE_FMA(t282, t144, DERIVE_FMA(t258, t120, DERIVE_FMA(t234, t96, DERIVE_FMA(t210, P[185], P[281]))))));
-    const double t601 = DERIVE_FMA(t330, t193, DERIVE_FMA(t306, t169, DERIVE_FMA(t282, t145, DERIVE_FMA(t258, t121, DERIVE_FMA(t234, t97, DERIVE_FMA(t210, P[186], P[282]))))));
-    const double t602 = DERIVE_FMA(t330, t194, DERIVE_FMA(t306, t170, DERIVE_FMA(t282, t146, DERIVE_FMA(t258, t122, DERIVE_FMA(t234, t98, DERIVE_FMA(t210, P[187], P[283]))))));
+    const double t593 = DERIVE_FMA(t331, t191, DERIVE_FMA(t307, t167, DERIVE_FMA(t283, t143, DERIVE_FMA(t259, t119, DERIVE_FMA(t235, t95, DERIVE_FMA(t211, P[184], P[304]))))));
+    const double t594 = DERIVE_FMA(t331, t192, DERIVE_FMA(t307, t168, DERIVE_FMA(t283, t144, DERIVE_FMA(t259, t120, DERIVE_FMA(t235, t96, DERIVE_FMA(t211, P[185], P[305]))))));
+    const double t595 = DERIVE_FMA(t331, t193, DERIVE_FMA(t307, t169, DERIVE_FMA(t283, t145, DERIVE_FMA(t259, t121, DERIVE_FMA(t235, t97, DERIVE_FMA(t211, P[186], P[306]))))));
+    const double t596 = DERIVE_FMA(t331, t194, DERIVE_FMA(t307, t170, DERIVE_FMA(t283, t146, DERIVE_FMA(t259, t122, DERIVE_FMA(t235, t98, DERIVE_FMA(t211, P[187], P[307]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t603_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
-    const derive_vd v_t603_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t99, v_t603_0);
-    const derive_vd v_t603_2 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t123, v_t603_1);
-    const derive_vd v_t603_3 = DERIVE_VFMA(((derive_vd){t282, t282, t282, t282}), v_t147, v_t603_2);
-    const derive_vd v_t603_4 = DERIVE_VFMA(((derive_vd){t306, t306, t306, t306}), v_t171, v_t603_3);
-    const derive_vd v_t603 = DERIVE_VFMA(((derive_vd){t330, t330, t330, t330}), v_t195, v_t603_4);
-    const derive_vd tr_v_t555_0 = __builtin_shufflevector(v_t555, v_t571, 0, 4, 2, 6);
-    const derive_vd tr_v_t555_1 = __builtin_shufflevector(v_t555, v_t571, 1, 5, 3, 7);
-    const derive_vd tr_v_t555_2 = __builtin_shufflevector(v_t587, v_t603, 0, 4, 2, 6);
-    const derive_vd tr_v_t555_3 = __builtin_shufflevector(v_t587, v_t603, 1, 5, 3, 7);
-    const derive_vd tr_v_t555_c0 = __builtin_shufflevector(tr_v_t555_0, tr_v_t555_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t555_c1 = __builtin_shufflevector(tr_v_t555_1, tr_v_t555_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t555_c2 = __builtin_shufflevector(tr_v_t555_0, tr_v_t555_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t555_c3 = __builtin_shufflevector(tr_v_t555_1, tr_v_t555_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[212] = v_t555;
-    *(derive_vd_unaligned *)&P_new[236] = v_t571;
-    *(derive_vd_unaligned *)&P_new[260] = v_t587;
-    *(derive_vd_unaligned *)&P_new[284] = v_t603;
-    *(derive_vd_unaligned *)&P_new[488] = tr_v_t555_c0;
-    *(derive_vd_unaligned *)&P_new[512] = tr_v_t555_c1;
-    *(derive_vd_unaligned *)&P_new[536] = tr_v_t555_c2;
-    *(derive_vd_unaligned *)&P_new[560] = tr_v_t555_c3;
+    const derive_vd v_t597_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
+    const derive_vd v_t597_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t99, v_t597_0);
+    const derive_vd v_t597_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t123, v_t597_1);
+    const derive_vd v_t597_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t147, v_t597_2);
+    const derive_vd v_t597_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t171, v_t597_3);
+    const derive_vd v_t597 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t195, v_t597_4);
     #else
-    const double t603 = DERIVE_FMA(t330, t195, DERIVE_FMA(t306, t171, DERIVE_FMA(t282, t147, DERIVE_FMA(t258, t123, DERIVE_FMA(t234, t99, DERIVE_FMA(t210, P[188], P[284]))))));
-    const double t604 = DERIVE_FMA(t330, t196, DERIVE_FMA(t306, t172, DERIVE_FMA(t282, t148, DERIVE_FMA(t258, t124, DERIVE_FMA(t234, t100, DERIVE_FMA(t210, P[189], P[285]))))));
-    const double t605 = DERIVE_FMA(t330, t197, DERIVE_FMA(t306, t173, DERIVE_FMA(t282, t149, DERIVE_FMA(t258, t125, DERIVE_FMA(t234, t101, DERIVE_FMA(t210, P[190], P[286]))))));
-    const double t606 = DERIVE_FMA(t330, t198, DERIVE_FMA(t306, t174, DERIVE_FMA(t282, t150, DERIVE_FMA(t258, t126, DERIVE_FMA(t234, t102, DERIVE_FMA(t210, P[191], P[287]))))));
+    const double t597 = DERIVE_FMA(t331, t195, DERIVE_FMA(t307, t171, DERIVE_FMA(t283, t147, DERIVE_FMA(t259, t123, DERIVE_FMA(t235, t99, DERIVE_FMA(t211, P[188], P[308]))))));
+    const double t598 = DERIVE_FMA(t331, t196, DERIVE_FMA(t307, t172, DERIVE_FMA(t283, t148, DERIVE_FMA(t259, t124, DERIVE_FMA(t235, t100, DERIVE_FMA(t211, P[189], P[309]))))));
+    const double t599 = DERIVE_FMA(t331, t197, DERIVE_FMA(t307, t173, DERIVE_FMA(t283, t149, DERIVE_FMA(t259, t125, DERIVE_FMA(t235, t101, DERIVE_FMA(t211, P[190], P[310]))))));
+    const double t600 = DERIVE_FMA(t331, t198, DERIVE_FMA(t307, t174, DERIVE_FMA(t283, t150, DERIVE_FMA(t259, t126, DERIVE_FMA(t235, t102, DERIVE_FMA(t211, P[191], P[311]))))));
+    #endif
+    const double t601 = DERIVE_FMA(t236, t92, DERIVE_FMA(t188, t332, DERIVE_FMA(t164, t308, DERIVE_FMA(t140, t284, DERIVE_FMA(t116, t260, DERIVE_FMA(P[181], t212, P[325]))))));
+    const double t602 = DERIVE_FMA(t236, t93, DERIVE_FMA(t189, t332, DERIVE_FMA(t165, t308, DERIVE_FMA(t141, t284, DERIVE_FMA(t117, t260, DERIVE_FMA(P[182], t212, P[326]))))));
+    const double t603 = DERIVE_FMA(t236, t94, DERIVE_FMA(t190, t332, DERIVE_FMA(t166, t308, DERIVE_FMA(t142, t284, DERIVE_FMA(t118, t260, DERIVE_FMA(P[183], t212, P[327]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t604_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[328], P[329], P[330], P[331]}));
+    const derive_vd v_t604_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t95, v_t604_0);
+    const derive_vd v_t604_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t119, v_t604_1);
+    const derive_vd v_t604_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t143, v_t604_2);
+    const derive_vd v_t604_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t167, v_t604_3);
+    const derive_vd v_t604 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t191, v_t604_4);
+    #else
+    const double t604 = DERIVE_FMA(t332, t191, DERIVE_FMA(t308, t167, DERIVE_FMA(t284, t143, DERIVE_FMA(t260, t119, DERIVE_FMA(t236, t95, DERIVE_FMA(t212, P[184], P[328]))))));
+    const double t605 = DERIVE_FMA(t332, t192, DERIVE_FMA(t308, t168, DERIVE_FMA(t284, t144, DERIVE_FMA(t260, t120, DERIVE_FMA(t236, t96, DERIVE_FMA(t212, P[185], P[329]))))));
+    const double t606 = DERIVE_FMA(t332, t193, DERIVE_FMA(t308, t169, DERIVE_FMA(t284, t145, DERIVE_FMA(t260, t121, DERIVE_FMA(t236, t97, DERIVE_FMA(t212, P[186], P[330]))))));
+    const double t607 = DERIVE_FMA(t332, t194, DERIVE_FMA(t308, t170, DERIVE_FMA(t284, t146, DERIVE_FMA(t260, t122, DERIVE_FMA(t236, t98, DERIVE_FMA(t212, P[187], P[331]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t607_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
-    const derive_vd v_t607_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t91, v_t607_0);
-    const derive_vd v_t607_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t115, v_t607_1);
-    const derive_vd v_t607_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t139, v_t607_2);
-    const derive_vd v_t607_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t163, v_t607_3);
-    const derive_vd v_t607 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t187, v_t607_4);
+    const derive_vd v_t608_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
+    const derive_vd v_t608_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t99, v_t608_0);
+    const derive_vd v_t608_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t123, v_t608_1);
+    const derive_vd v_t608_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t147, v_t608_2);
+    const derive_vd v_t608_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t171, v_t608_3);
+    const derive_vd v_t608 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t195, v_t608_4);
     #else
-    const double t607 = DERIVE_FMA(t331, t187, DERIVE_FMA(t307, t163, DERIVE_FMA(t283, t139, DERIVE_FMA(t259, t115, DERIVE_FMA(t235, t91, DERIVE_FMA(t211, P[180], P[300]))))));
-    const double t608 = DERIVE_FMA(t331, t188, DERIVE_FMA(t307, t164, DERIVE_FMA(t283, t140, DERIVE_FMA(t259, t116, DERIVE_FMA(t235, t92, DERIVE_FMA(t211, P[181], P[301]))))));
-    const double t609 = DERIVE_FMA(t331, t189, DERIVE_FMA(t307, t165, DERIVE_FMA(t283, t141, DERIVE_FMA(t259, t117, DERIVE_FMA(t235, t93, DERIVE_FMA(t211, P[182], P[302]))))));
-    const double t610 = DERIVE_FMA(t331, t190, DERIVE_FMA(t307, t166, DERIVE_FMA(t283, t142, DERIVE_FMA(t259, t118, DERIVE_FMA(t235, t94, DERIVE_FMA(t211, P[183], P[303]))))));
+    const double t608 = DERIVE_FMA(t332, t195, DERIVE_FMA(t308, t171, DERIVE_FMA(t284, t147, DERIVE_FMA(t260, t123, DERIVE_FMA(t236, t99, DERIVE_FMA(t212, P[188], P[332]))))));
+    const double t609 = DERIVE_FMA(t332, t196, DERIVE_FMA(t308, t172, DERIVE_FMA(t284, t148, DERIVE_FMA(t260, t124, DERIVE_FMA(t236, t100, DERIVE_FMA(t212, P[189], P[333]))))));
+    const double t610 = DERIVE_FMA(t332, t197, DERIVE_FMA(t308, t173, DERIVE_FMA(t284, t149, DERIVE_FMA(t260, t125, DERIVE_FMA(t236, t101, DERIVE_FMA(t212, P[190], P[334]))))));
+    const double t611 = DERIVE_FMA(t332, t198, DERIVE_FMA(t308, t174, DERIVE_FMA(t284, t150, DERIVE_FMA(t260, t126, DERIVE_FMA(t236, t102, DERIVE_FMA(t212, P[191], P[335]))))));
+    #endif
+    const double t612 = DERIVE_FMA(t237, t93, DERIVE_FMA(t189, t333, DERIVE_FMA(t165, t309, DERIVE_FMA(t141, t285, DERIVE_FMA(t117, t261, DERIVE_FMA(P[182], t213, P[350]))))));
+    const double t613 = DERIVE_FMA(t237, t94, DERIVE_FMA(t190, t333, DERIVE_FMA(t166, t309, DERIVE_FMA(t142, t285, DERIVE_FMA(t118, t261, DERIVE_FMA(P[183], t213, P[351]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t614_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[352], P[353], P[354], P[355]}));
+    const derive_vd v_t614_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t95, v_t614_0);
+    const derive_vd v_t614_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t119, v_t614_1);
+    const derive_vd v_t614_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t143, v_t614_2);
+    const derive_vd v_t614_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t167, v_t614_3);
+    const derive_vd v_t614 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t191, v_t614_4);
+    #else
+    const double t614 = DERIVE_FMA(t333, t191, DERIVE_FMA(t309, t167, DERIVE_FMA(t285, t143, DERIVE_FMA(t261, t119, DERIVE_FMA(t237, t95, DERIVE_FMA(t213, P[184], P[352]))))));
+    const double t615 = DERIVE_FMA(t333, t192, DERIVE_FMA(t309, t168, DERIVE_FMA(t285, t144, DERIVE_FMA(t261, t120, DERIVE_FMA(t237, t96, DERIVE_FMA(t213, P[185], P[353]))))));
+    const double t616 = DERIVE_FMA(t333, t193, DERIVE_FMA(t309, t169, DERIVE_FMA(t285, t145, DERIVE_FMA(t261, t121, DERIVE_FMA(t237, t97, DERIVE_FMA(t213, P[186], P[354]))))));
+    const double t617 = DERIVE_FMA(t333, t194, DERIVE_FMA(t309, t170, DERIVE_FMA(t285, t146, DERIVE_FMA(t261, t122, DERIVE_FMA(t237, t98, DERIVE_FMA(t213, P[187], P[355]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t611_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
-    const derive_vd v_t611_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t95, v_t611_0);
-    const derive_vd v_t611_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t119, v_t611_1);
-    const derive_vd v_t611_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t143, v_t611_2);
-    const derive_vd v_t611_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t167, v_t611_3);
-    const derive_vd v_t611 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t191, v_t611_4);
+    const derive_vd v_t618_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
+    const derive_vd v_t618_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t99, v_t618_0);
+    const derive_vd v_t618_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t123, v_t618_1);
+    const derive_vd v_t618_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t147, v_t618_2);
+    const derive_vd v_t618_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t171, v_t618_3);
+    const derive_vd v_t618 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t195, v_t618_4);
     #else
-    const double t611 = DERIVE_FMA(t331, t191, DERIVE_FMA(t307, t167, DERIVE_FMA(t283, t143, DERIVE_FMA(t259, t119, DERIVE_FMA(t235, t95, DERIVE_FMA(t211, P[184], P[304]))))));
-    const double t612 = DERIVE_FMA(t331, t192, DERIVE_FMA(t307, t168, DERIVE_FMA(t283, t144, DERIVE_FMA(t259, t120, DERIVE_FMA(t235, t96, DERIVE_FMA(t211, P[185], P[305]))))));
-    const double t613 = DERIVE_FMA(t331, t193, DERIVE_FMA(t307, t169, DERIVE_FMA(t283, t145, DERIVE_FMA(t259, t121, DERIVE_FMA(t235, t97, DERIVE_FMA(t211, P[186], P[306]))))));
-    const double t614 = DERIVE_FMA(t331, t194, DERIVE_FMA(t307, t170, DERIVE_FMA(t283, t146, DERIVE_FMA(t259, t122, DERIVE_FMA(t235, t98, DERIVE_FMA(t211, P[187], P[307]))))));
+    const double t618 = DERIVE_FMA(t333, t195, DERIVE_FMA(t309, t171, DERIVE_FMA(t285, t147, DERIVE_FMA(t261, t123, DERIVE_FMA(t237, t99, DERIVE_FMA(t213, P[188], P[356]))))));
+    const double t619 = DERIVE_FMA(t333, t196, DERIVE_FMA(t309, t172, DERIVE_FMA(t285, t148, DERIVE_FMA(t261, t124, DERIVE_FMA(t237, t100, DERIVE_FMA(t213, P[189], P[357]))))));
+    const double t620 = DERIVE_FMA(t333, t197, DERIVE_FMA(t309, t173, DERIVE_FMA(t285, t149, DERIVE_FMA(t261, t125, DERIVE_FMA(t237, t101, DERIVE_FMA(t213, P[190], P[358]))))));
+    const double t621 = DERIVE_FMA(t333, t198, DERIVE_FMA(t309, t174, DERIVE_FMA(t285, t150, DERIVE_FMA(t261, t126, DERIVE_FMA(t237, t102, DERIVE_FMA(t213, P[191], P[359]))))));
+    #endif
+    const double t622 = DERIVE_FMA(t238, t94, DERIVE_FMA(t190, t334, DERIVE_FMA(t166, t310, DERIVE_FMA(t142, t286, DERIVE_FMA(t118, t262, DERIVE_FMA(P[183], t214, P[375]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t623_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd v_t623_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t95, v_t623_0);
+    const derive_vd v_t623_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t119, v_t623_1);
+    const derive_vd v_t623_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t143, v_t623_2);
+    const derive_vd v_t623_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t167, v_t623_3);
+    const derive_vd v_t623 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t191, v_t623_4);
+    const derive_vd tr_v_t593_0 = __builtin_shufflevector(v_t593, v_t604, 0, 4, 2, 6);
+    const derive_vd tr_v_t593_1 = __builtin_shufflevector(v_t593, v_t604, 1, 5, 3, 7);
+    const derive_vd tr_v_t593_2 = __builtin_shufflevector(v_t614, v_t623, 0, 4, 2, 6);
+    const derive_vd tr_v_t593_3 = __builtin_shufflevector(v_t614, v_t623, 1, 5, 3, 7);
+    const derive_vd tr_v_t593_c0 = __builtin_shufflevector(tr_v_t593_0, tr_v_t593_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t593_c1 = __builtin_shufflevector(tr_v_t593_1, tr_v_t593_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t593_c2 = __builtin_shufflevector(tr_v_t593_0, tr_v_t593_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t593_c3 = __builtin_shufflevector(tr_v_t593_1, tr_v_t593_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[304] = v_t593;
+    *(derive_vd_unaligned *)&P_new[328] = v_t604;
+    *(derive_vd_unaligned *)&P_new[352] = v_t614;
+    *(derive_vd_unaligned *)&P_new[376] = v_t623;
+    *(derive_vd_unaligned *)&P_new[396] = tr_v_t593_c0;
+    *(derive_vd_unaligned *)&P_new[420] = tr_v_t593_c1;
+    *(derive_vd_unaligned *)&P_new[444] = tr_v_t593_c2;
+    *(derive_vd_unaligned *)&P_new[468] = tr_v_t593_c3;
+    #else
+    const double t623 = DERIVE_FMA(t334, t191, DERIVE_FMA(t310, t167, DERIVE_FMA(t286, t143, DERIVE_FMA(t262, t119, DERIVE_FMA(t238, t95, DERIVE_FMA(t214, P[184], P[376]))))));
+    const double t624 = DERIVE_FMA(t334, t192, DERIVE_FMA(t310, t168, DERIVE_FMA(t286, t144, DERIVE_FMA(t262, t120, DERIVE_FMA(t238, t96, DERIVE_FMA(t214, P[185], P[377]))))));
+    const double t625 = DERIVE_FMA(t334, t193, DERIVE_FMA(t310, t169, DERIVE_FMA(t286, t145, DERIVE_FMA(t262, t121, DERIVE_FMA(t238, t97, DERIVE_FMA(t214, P[186], P[378]))))));
+    const double t626 = DERIVE_FMA(t334, t194, DERIVE_FMA(t310, t170, DERIVE_FMA(t286, t146, DERIVE_FMA(t262, t122, DERIVE_FMA(t238, t98, DERIVE_FMA(t214, P[187], P[379]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t615_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
-    const derive_vd v_t615_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t99, v_t615_0);
-    const derive_vd v_t615_2 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t123, v_t615_1);
-    const derive_vd v_t615_3 = DERIVE_VFMA(((derive_vd){t283, t283, t283, t283}), v_t147, v_t615_2);
-    const derive_vd v_t615_4 = DERIVE_VFMA(((derive_vd){t307, t307, t307, t307}), v_t171, v_t615_3);
-    const derive_vd v_t615 = DERIVE_VFMA(((derive_vd){t331, t331, t331, t331}), v_t195, v_t615_4);
+    const derive_vd v_t627_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd v_t627_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t99, v_t627_0);
+    const derive_vd v_t627_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t123, v_t627_1);
+    const derive_vd v_t627_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t147, v_t627_2);
+    const derive_vd v_t627_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t171, v_t627_3);
+    const derive_vd v_t627 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t195, v_t627_4);
+    const derive_vd tr_v_t597_0 = __builtin_shufflevector(v_t597, v_t608, 0, 4, 2, 6);
+    const derive_vd tr_v_t597_1 = __builtin_shufflevector(v_t597, v_t608, 1, 5, 3, 7);
+    const derive_vd tr_v_t597_2 = __builtin_shufflevector(v_t618, v_t627, 0, 4, 2, 6);
+    const derive_vd tr_v_t597_3 = __builtin_shufflevector(v_t618, v_t627, 1, 5, 3, 7);
+    const derive_vd tr_v_t597_c0 = __builtin_shufflevector(tr_v_t597_0, tr_v_t597_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t597_c1 = __builtin_shufflevector(tr_v_t597_1, tr_v_t597_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t597_c2 = __builtin_shufflevector(tr_v_t597_0, tr_v_t597_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t597_c3 = __builtin_shufflevector(tr_v_t597_1, tr_v_t597_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[308] = v_t597;
+    *(derive_vd_unaligned *)&P_new[332] = v_t608;
+    *(derive_vd_unaligned *)&P_new[356] = v_t618;
+    *(derive_vd_unaligned *)&P_new[380] = v_t627;
+    *(derive_vd_unaligned *)&P_new[492] = tr_v_t597_c0;
+    *(derive_vd_unaligned *)&P_new[516] = tr_v_t597_c1;
+    *(derive_vd_unaligned *)&P_new[540] = tr_v_t597_c2;
+    *(derive_vd_unaligned *)&P_new[564] = tr_v_t597_c3;
     #else
-    const double t615 = DERIVE_FMA(t331, t195, DERIVE_FMA(t307, t171, DERIVE_FMA(t283, t147, DERIVE_FMA(t259, t123, DERIVE_FMA(t235, t99, DERIVE_FMA(t211, P[188], P[308]))))));
-    const double t616 = DERIVE_FMA(t331, t196, DERIVE_FMA(t307, t172, DERIVE_FMA(t283, t148, DERIVE_FMA(t259, t124, DERIVE_FMA(t235, t100, DERIVE_FMA(t211, P[189], P[309]))))));
-    const double t617 = DERIVE_FMA(t331, t197, DERIVE_FMA(t307, t173, DERIVE_FMA(t283, t149, DERIVE_FMA(t259, t125, DERIVE_FMA(t235, t101, DERIVE_FMA(t211, P[190], P[310]))))));
-    const double t618 = DERIVE_FMA(t331, t198, DERIVE_FMA(t307, t174, DERIVE_FMA(t283, t150, DERIVE_FMA(t259, t126, DERIVE_FMA(t235, t102, DERIVE_FMA(t211, P[191], P[311]))))));
+    const double t627 = DERIVE_FMA(t334, t195, DERIVE_FMA(t310, t171, DERIVE_FMA(t286, t147, DERIVE_FMA(t262, t123, DERIVE_FMA(t238, t99, DERIVE_FMA(t214, P[188], P[380]))))));
+    const double t628 = DERIVE_FMA(t334, t196, DERIVE_FMA(t310, t172, DERIVE_FMA(t286, t148, DERIVE_FMA(t262, t124, DERIVE_FMA(t238, t100, DERIVE_FMA(t214, P[189], P[381]))))));
+    const double t629 = DERIVE_FMA(t334, t197, DERIVE_FMA(t310, t173, DERIVE_FMA(t286, t149, DERIVE_FMA(t262, t125, DERIVE_FMA(t238, t101, DERIVE_FMA(t214, P[190], P[382]))))));
+    const double t630 = DERIVE_FMA(t334, t198, DERIVE_FMA(t310, t174, DERIVE_FMA(t286, t150, DERIVE_FMA(t262, t126, DERIVE_FMA(t238, t102, DERIVE_FMA(t214, P[191], P[383]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t619_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[324], P[325], P[326], P[327]}));
-    const derive_vd v_t619_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t91, v_t619_0);
-    const derive_vd v_t619_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t115, v_t619_1);
-    const derive_vd v_t619_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t139, v_t619_2);
-    const derive_vd v_t619_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t163, v_t619_3);
-    const derive_vd v_t619 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t187, v_t619_4);
+    const derive_vd v_t631_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const derive_vd v_t631_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t95, v_t631_0);
+    const derive_vd v_t631_2 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t119, v_t631_1);
+    const derive_vd v_t631_3 = DERIVE_VFMA(((derive_vd){t287, t287, t287, t287}), v_t143, v_t631_2);
+    const derive_vd v_t631_4 = DERIVE_VFMA(((derive_vd){t311, t311, t311, t311}), v_t167, v_t631_3);
+    const derive_vd v_t631 = DERIVE_VFMA(((derive_vd){t335, t335, t335, t335}), v_t191, v_t631_4);
+    const double t632 = v_t631[1];
+    const double t633 = v_t631[2];
+    const double t634 = v_t631[3];
+    *(derive_vd_unaligned *)&P_new[400] = v_t631;
     #else
-    const double t620 = DERIVE_FMA(t332, t188, DERIVE_FMA(t308, t164, DERIVE_FMA(t284, t140, DERIVE_FMA(t260, t116, DERIVE_FMA(t236, t92, DERIVE_FMA(t212, P[181], P[325]))))));
-    const double t621 = DERIVE_FMA(t332, t189, DERIVE_FMA(t308, t165, DERIVE_FMA(t284, t141, DERIVE_FMA(t260, t117, DERIVE_FMA(t236, t93, DERIVE_FMA(t212, P[182], P[326]))))));
-    const double t622 = DERIVE_FMA(t332, t190, DERIVE_FMA(t308, t166, DERIVE_FMA(t284, t142, DERIVE_FMA(t260, t118, DERIVE_FMA(t236, t94, DERIVE_FMA(t212, P[183], P[327]))))));
+    const double t631 = DERIVE_FMA(t335, t191, DERIVE_FMA(t311, t167, DERIVE_FMA(t287, t143, DERIVE_FMA(t263, t119, DERIVE_FMA(t239, t95, DERIVE_FMA(t215, P[184], P[400]))))));
+    const double t632 = DERIVE_FMA(t335, t192, DERIVE_FMA(t311, t168, DERIVE_FMA(t287, t144, DERIVE_FMA(t263, t120, DERIVE_FMA(t239, t96, DERIVE_FMA(t215, P[185], P[401]))))));
+    const double t633 = DERIVE_FMA(t335, t193, DERIVE_FMA(t311, t169, DERIVE_FMA(t287, t145, DERIVE_FMA(t263, t121, DERIVE_FMA(t239, t97, DERIVE_FMA(t215, P[186], P[402]))))));
+    const double t634 = DERIVE_FMA(t335, t194, DERIVE_FMA(t311, t170, DERIVE_FMA(t287, t146, DERIVE_FMA(t263, t122, DERIVE_FMA(t239, t98, DERIVE_FMA(t215, P[187], P[403]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t623_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[328], P[329], P[330], P[331]}));
-    const derive_vd v_t623_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t95, v_t623_0);
-    const derive_vd v_t623_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t119, v_t623_1);
-    const derive_vd v_t623_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t143, v_t623_2);
-    const derive_vd v_t623_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t167, v_t623_3);
-    const derive_vd v_t623 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t191, v_t623_4);
+    const derive_vd v_t635_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
+    const derive_vd v_t635_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t99, v_t635_0);
+    const derive_vd v_t635_2 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t123, v_t635_1);
+    const derive_vd v_t635_3 = DERIVE_VFMA(((derive_vd){t287, t287, t287, t287}), v_t147, v_t635_2);
+    const derive_vd v_t635_4 = DERIVE_VFMA(((derive_vd){t311, t311, t311, t311}), v_t171, v_t635_3);
+    const derive_vd v_t635 = DERIVE_VFMA(((derive_vd){t335, t335, t335, t335}), v_t195, v_t635_4);
     #else
-    const double t623 = DERIVE_FMA(t332, t191, DERIVE_FMA(t308, t167, DERIVE_FMA(t284, t143, DERIVE_FMA(t260, t119, DERIVE_FMA(t236, t95, DERIVE_FMA(t212, P[184], P[328]))))));
-    const double t624 = DERIVE_FMA(t332, t192, DERIVE_FMA(t308, t168, DERIVE_FMA(t284, t144, DERIVE_FMA(t260, t120, DERIVE_FMA(t236, t96, DERIVE_FMA(t212, P[185], P[329]))))));
-    const double t625 = DERIVE_FMA(t332, t193, DERIVE_FMA(t308, t169, DERIVE_FMA(t284, t145, DERIVE_FMA(t260, t121, DERIVE_FMA(t236, t97, DERIVE_FMA(t212, P[186], P[330]))))));
-    const double t626 = DERIVE_FMA(t332, t194, DERIVE_FMA(t308, t170, DERIVE_FMA(t284, t146, DERIVE_FMA(t260, t122, DERIVE_FMA(t236, t98, DERIVE_FMA(t212, P[187], P[331]))))));
+    const double t635 = DERIVE_FMA(t335, t195, DERIVE_FMA(t311, t171, DERIVE_FMA(t287, t147, DERIVE_FMA(t263, t123, DERIVE_FMA(t239, t99, DERIVE_FMA(t215, P[188], P[404]))))));
+    const double t636 = DERIVE_FMA(t335, t196, DERIVE_FMA(t311, t172, DERIVE_FMA(t287, t148, DERIVE_FMA(t263, t124, DERIVE_FMA(t239, t100, DERIVE_FMA(t215, P[189], P[405]))))));
+    const double t637 = DERIVE_FMA(t335, t197, DERIVE_FMA(t311, t173, DERIVE_FMA(t287, t149, DERIVE_FMA(t263, t125, DERIVE_FMA(t239, t101, DERIVE_FMA(t215, P[190], P[406]))))));
+    const double t638 = DERIVE_FMA(t335, t198, DERIVE_FMA(t311, t174, DERIVE_FMA(t287, t150, DERIVE_FMA(t263, t126, DERIVE_FMA(t239, t102, DERIVE_FMA(t215, P[191], P[407]))))));
+    #endif
+    const double t639 = DERIVE_FMA(t240, t96, DERIVE_FMA(t192, t336, DERIVE_FMA(t168, t312, DERIVE_FMA(t144, t288, DERIVE_FMA(t120, t264, DERIVE_FMA(P[185], t216, P[425]))))));
+    const double t640 = DERIVE_FMA(t240, t97, DERIVE_FMA(t193, t336, DERIVE_FMA(t169, t312, DERIVE_FMA(t145, t288, DERIVE_FMA(t121, t264, DERIVE_FMA(P[186], t216, P[426]))))));
+    const double t641 = DERIVE_FMA(t240, t98, DERIVE_FMA(t194, t336, DERIVE_FMA(t170, t312, DERIVE_FMA(t146, t288, DERIVE_FMA(t122, t264, DERIVE_FMA(P[187], t216, P[427]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t642_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[428], P[429], P[430], P[431]}));
+    const derive_vd v_t642_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t99, v_t642_0);
+    const derive_vd v_t642_2 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t123, v_t642_1);
+    const derive_vd v_t642_3 = DERIVE_VFMA(((derive_vd){t288, t288, t288, t288}), v_t147, v_t642_2);
+    const derive_vd v_t642_4 = DERIVE_VFMA(((derive_vd){t312, t312, t312, t312}), v_t171, v_t642_3);
+    const derive_vd v_t642 = DERIVE_VFMA(((derive_vd){t336, t336, t336, t336}), v_t195, v_t642_4);
+    #else
+    const double t642 = DERIVE_FMA(t336, t195, DERIVE_FMA(t312, t171, DERIVE_FMA(t288, t147, DERIVE_FMA(t264, t123, DERIVE_FMA(t240, t99, DERIVE_FMA(t216, P[188], P[428]))))));
+    const double t643 = DERIVE_FMA(t336, t196, DERIVE_FMA(t312, t172, DERIVE_FMA(t288, t148, DERIVE_FMA(t264, t124, DERIVE_FMA(t240, t100, DERIVE_FMA(t216, P[189], P[429]))))));
+    const double t644 = DERIVE_FMA(t336, t197, DERIVE_FMA(t312, t173, DERIVE_FMA(t288, t149, DERIVE_FMA(t264, t125, DERIVE_FMA(t240, t101, DERIVE_FMA(t216, P[190], P[430]))))));
+    const double t645 = DERIVE_FMA(t336, t198, DERIVE_FMA(t312, t174, DERIVE_FMA(t288, t150, DERIVE_FMA(t264, t126, DERIVE_FMA(t240, t102, DERIVE_FMA(t216, P[191], P[431]))))));
+    #endif
+    const double t646 = DERIVE_FMA(t241, t97, DERIVE_FMA(t193, t337, DERIVE_FMA(t169, t313, DERIVE_FMA(t145, t289, DERIVE_FMA(t121, t265, DERIVE_FMA(P[186], t217, P[450]))))));
+    const double t647 = DERIVE_FMA(t241, t98, DERIVE_FMA(t194, t337, DERIVE_FMA(t170, t313, DERIVE_FMA(t146, t289, DERIVE_FMA(t122, t265, DERIVE_FMA(P[187], t217, P[451]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t648_0 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[452], P[453], P[454], P[455]}));
+    const derive_vd v_t648_1 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t99, v_t648_0);
+    const derive_vd v_t648_2 = DERIVE_VFMA(((derive_vd){t265, t265, t265, t265}), v_t123, v_t648_1);
+    const derive_vd v_t648_3 = DERIVE_VFMA(((derive_vd){t289, t289, t289, t289}), v_t147, v_t648_2);
+    const derive_vd v_t648_4 = DERIVE_VFMA(((derive_vd){t313, t313, t313, t313}), v_t171, v_t648_3);
+    const derive_vd v_t648 = DERIVE_VFMA(((derive_vd){t337, t337, t337, t337}), v_t195, v_t648_4);
+    #else
+    const double t648 = DERIVE_FMA(t337, t195, DERIVE_FMA(t313, t171, DERIVE_FMA(t289, t147, DERIVE_FMA(t265, t123, DERIVE_FMA(t241, t99, DERIVE_FMA(t217, P[188], P[452]))))));
+    const double t649 = DERIVE_FMA(t337, t196, DERIVE_FMA(t313, t172, DERIVE_FMA(t289, t148, DERIVE_FMA(t265, t124, DERIVE_FMA(t241, t100, DERIVE_FMA(t217, P[189], P[453]))))));
+    const double t650 = DERIVE_FMA(t337, t197, DERIVE_FMA(t313, t173, DERIVE_FMA(t289, t149, DERIVE_FMA(t265, t125, DERIVE_FMA(t241, t101, DERIVE_FMA(t217, P[190], P[454]))))));
+    const double t651 = DERIVE_FMA(t337, t198, DERIVE_FMA(t313, t174, DERIVE_FMA(t289, t150, DERIVE_FMA(t265, t126, DERIVE_FMA(t241, t102, DERIVE_FMA(t217, P[191], P[455]))))));
+    #endif
+    const double t652 = DERIVE_FMA(t242, t98, DERIVE_FMA(t194, t338, DERIVE_FMA(t170, t314, DERIVE_FMA(t146, t290, DERIVE_FMA(t122, t266, DERIVE_FMA(P[187], t218, P[475]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t653_0 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd v_t653_1 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t99, v_t653_0);
+    const derive_vd v_t653_2 = DERIVE_VFMA(((derive_vd){t266, t266, t266, t266}), v_t123, v_t653_1);
+    const derive_vd v_t653_3 = DERIVE_VFMA(((derive_vd){t290, t290, t290, t290}), v_t147, v_t653_2);
+    const derive_vd v_t653_4 = DERIVE_VFMA(((derive_vd){t314, t314, t314, t314}), v_t171, v_t653_3);
+    const derive_vd v_t653 = DERIVE_VFMA(((derive_vd){t338, t338, t338, t338}), v_t195, v_t653_4);
+    const derive_vd tr_v_t635_0 = __builtin_shufflevector(v_t635, v_t642, 0, 4, 2, 6);
+    const derive_vd tr_v_t635_1 = __builtin_shufflevector(v_t635, v_t642, 1, 5, 3, 7);
+    const derive_vd tr_v_t635_2 = __builtin_shufflevector(v_t648, v_t653, 0, 4, 2, 6);
+    const derive_vd tr_v_t635_3 = __builtin_shufflevector(v_t648, v_t653, 1, 5, 3, 7);
+    const derive_vd tr_v_t635_c0 = __builtin_shufflevector(tr_v_t635_0, tr_v_t635_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t635_c1 = __builtin_shufflevector(tr_v_t635_1, tr_v_t635_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t635_c2 = __builtin_shufflevector(tr_v_t635_0, tr_v_t635_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t635_c3 = __builtin_shufflevector(tr_v_t635_1, tr_v_t635_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[404] = v_t635;
+    *(derive_vd_unaligned *)&P_new[428] = v_t642;
+    *(derive_vd_unaligned *)&P_new[452] = v_t648;
+    *(derive_vd_unaligned *)&P_new[476] = v_t653;
+    *(derive_vd_unaligned *)&P_new[496] = tr_v_t635_c0;
+    *(derive_vd_unaligned *)&P_new[520] = tr_v_t635_c1;
+    *(derive_vd_unaligned *)&P_new[544] = tr_v_t635_c2;
+    *(derive_vd_unaligned *)&P_new[568] = tr_v_t635_c3;
+    #else
+    const double t653 = DERIVE_FMA(t338, t195, DERIVE_FMA(t314, t171, DERIVE_FMA(t290, t147, DERIVE_FMA(t266, t123, DERIVE_FMA(t242, t99, DERIVE_FMA(t218, P[188], P[476]))))));
+    const double t654 = DERIVE_FMA(t338, t196, DERIVE_FMA(t314, t172, DERIVE_FMA(t290, t148, DERIVE_FMA(t266, t124, DERIVE_FMA(t242, t100, DERIVE_FMA(t218, P[189], P[477]))))));
+    const double t655 = DERIVE_FMA(t338, t197, DERIVE_FMA(t314, t173, DERIVE_FMA(t290, t149, DERIVE_FMA(t266, t125, DERIVE_FMA(t242, t101, DERIVE_FMA(t218, P[190], P[478]))))));
+    const double t656 = DERIVE_FMA(t338, t198, DERIVE_FMA(t314, t174, DERIVE_FMA(t290, t150, DERIVE_FMA(t266, t126, DERIVE_FMA(t242, t102, DERIVE_FMA(t218, P[191], P[479]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t627_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
-    const derive_vd v_t627_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t99, v_t627_0);
-    const derive_vd v_t627_2 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t123, v_t627_1);
-    const derive_vd v_t627_3 = DERIVE_VFMA(((derive_vd){t284, t284, t284, t284}), v_t147, v_t627_2);
-    const derive_vd v_t627_4 = DERIVE_VFMA(((derive_vd){t308, t308, t308, t308}), v_t171, v_t627_3);
-    const derive_vd v_t627 = DERIVE_VFMA(((derive_vd){t332, t332, t332, t332}), v_t195, v_t627_4);
+    const derive_vd v_t657_0 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const derive_vd v_t657_1 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t99, v_t657_0);
+    const derive_vd v_t657_2 = DERIVE_VFMA(((derive_vd){t267, t267, t267, t267}), v_t123, v_t657_1);
+    const derive_vd v_t657_3 = DERIVE_VFMA(((derive_vd){t291, t291, t291, t291}), v_t147, v_t657_2);
+    const derive_vd v_t657_4 = DERIVE_VFMA(((derive_vd){t315, t315, t315, t315}), v_t171, v_t657_3);
+    const derive_vd v_t657 = DERIVE_VFMA(((derive_vd){t339, t339, t339, t339}), v_t195, v_t657_4);
+    const double t658 = v_t657[1];
+    const double t659 = v_t657[2];
+    const double t660 = v_t657[3];
+    *(derive_vd_unaligned *)&P_new[500] = v_t657;
     #else
-    const double t627 = DERIVE_FMA(t332, t195, DERIVE_FMA(t308, t171, DERIVE_FMA(t284, t147, DERIVE_FMA(t260, t123, DERIVE_FMA(t236, t99, DERIVE_FMA(t212, P[188], P[332]))))));
-    const double t628 = DERIVE_FMA(t332, t196, DERIVE_FMA(t308, t172, DERIVE_FMA(t284, t148, DERIVE_FMA(t260, t124, DERIVE_FMA(t236, t100, DERIVE_FMA(t212, P[189], P[333]))))));
-    const double t629 = DERIVE_FMA(t332, t197, DERIVE_FMA(t308, t173, DERIVE_FMA(t284, t149, DERIVE_FMA(t260, t125, DERIVE_FMA(t236, t101, DERIVE_FMA(t212, P[190], P[334]))))));
-    const double t630 = DERIVE_FMA(t332, t198, DERIVE_FMA(t308, t174, DERIVE_FMA(t284, t150, DERIVE_FMA(t260, t126, DERIVE_FMA(t236, t102, DERIVE_FMA(t212, P[191], P[335]))))));
+    const double t657 = DERIVE_FMA(t339, t195, DERIVE_FMA(t315, t171, DERIVE_FMA(t291, t147, DERIVE_FMA(t267, t123, DERIVE_FMA(t243, t99, DERIVE_FMA(t219, P[188], P[500]))))));
+    const double t658 = DERIVE_FMA(t339, t196, DERIVE_FMA(t315, t172, DERIVE_FMA(t291, t148, DERIVE_FMA(t267, t124, DERIVE_FMA(t243, t100, DERIVE_FMA(t219, P[189], P[501]))))));
+    const double t659 = DERIVE_FMA(t339, t197, DERIVE_FMA(t315, t173, DERIVE_FMA(t291, t149, DERIVE_FMA(t267, t125, DERIVE_FMA(t243, t101, DERIVE_FMA(t219, P[190], P[502]))))));
+    const double t660 = DERIVE_FMA(t339, t198, DERIVE_FMA(t315, t174, DERIVE_FMA(t291, t150, DERIVE_FMA(t267, t126, DERIVE_FMA(t243, t102, DERIVE_FMA(t219, P[191], P[503]))))));
     #endif
+    const double t661 = DERIVE_FMA(t196, t340, DERIVE_FMA(t172, t316, DERIVE_FMA(t148, t292, DERIVE_FMA(t124, t268, DERIVE_FMA(t100, t244, DERIVE_FMA(P[189], t220, P[525]))))));
+    const double t662 = DERIVE_FMA(t197, t340, DERIVE_FMA(t173, t316, DERIVE_FMA(t149, t292, DERIVE_FMA(t125, t268, DERIVE_FMA(t101, t244, DERIVE_FMA(P[190], t220, P[526]))))));
+    const double t663 = DERIVE_FMA(t198, t340, DERIVE_FMA(t174, t316, DERIVE_FMA(t150, t292, DERIVE_FMA(t126, t268, DERIVE_FMA(t102, t244, DERIVE_FMA(P[191], t220, P[527]))))));
+    const double t664 = DERIVE_FMA(t197, t341, DERIVE_FMA(t173, t317, DERIVE_FMA(t149, t293, DERIVE_FMA(t125, t269, DERIVE_FMA(t101, t245, DERIVE_FMA(P[190], t221, P[550]))))));
+    const double t665 = DERIVE_FMA(t198, t341, DERIVE_FMA(t174, t317, DERIVE_FMA(t150, t293, DERIVE_FMA(t126, t269, DERIVE_FMA(t102, t245, DERIVE_FMA(P[191], t221, P[551]))))));
+    const double t666 = DERIVE_FMA(t198, t342, DERIVE_FMA(t174, t318, DERIVE_FMA(t150, t294, DERIVE_FMA(t126, t270, DERIVE_FMA(t102, t246, DERIVE_FMA(P[191], t222, P[575]))))));
+    const double t667 = DERIVE_FMA(t346, t346, DERIVE_FMA(t345, t345, DERIVE_FMA(t344, t344, t343*t343)));
+    const double t668 = 1.0/sqrt(t667);
+    const double t669 = t343*t668;
+    const double t670 = t344*t668;
+    const double t671 = t345*t668;
+    const double t672 = t346*t668;
     #if DERIVE_VECTOR
-    const derive_vd v_t631_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[348], P[349], P[350], P[351]}));
-    const derive_vd v_t631_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t91, v_t631_0);
-    const derive_vd v_t631_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t115, v_t631_1);
-    const derive_vd v_t631_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t139, v_t631_2);
-    const derive_vd v_t631_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t163, v_t631_3);
-    const derive_vd v_t631 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t187, v_t631_4);
+    x_new[0] = t669;
+    x_new[1] = t670;
+    x_new[2] = t671;
+    x_new[3] = t672;
+    P_new[24] = t368;
+    P_new[25] = t391;
+    P_new[26] = t392;
+    P_new[27] = t393;
+    P_new[48] = t369;
+    P_new[49] = t392;
+    P_new[50] = t414;
+    P_new[51] = t415;
+    P_new[72] = t370;
+    P_new[73] = t393;
+    P_new[74] = t415;
+    P_new[75] = t436;
+    P_new[124] = t458;
+    P_new[125] = t477;
+    P_new[126] = t478;
+    P_new[127] = t479;
+    P_new[148] = t459;
+    P_new[149] = t478;
+    P_new[150] = t496;
+    P_new[151] = t497;
+    P_new[172] = t460;
+    P_new[173] = t479;
+    P_new[174] = t497;
+    P_new[175] = t514;
+    P_new[224] = t532;
+    P_new[225] = t547;
+    P_new[226] = t548;
+    P_new[227] = t549;
+    P_new[248] = t533;
+    P_new[249] = t548;
+    P_new[250] = t562;
+    P_new[251] = t563;
+    P_new[272] = t534;
+    P_new[273] = t549;
+    P_new[274] = t563;
+    P_new[275] = t576;
+    P_new[324] = t590;
+    P_new[325] = t601;
+    P_new[326] = t602;
+    P_new[327] = t603;
+    P_new[348] = t591;
+    P_new[349] = t602;
+    P_new[350] = t612;
+    P_new[351] = t613;
+    P_new[372] = t592;
+    P_new[373] = t603;
+    P_new[374] = t613;
+    P_new[375] = t622;
+    P_new[424] = t632;
+    P_new[425] = t639;
+    P_new[426] = t640;
+    P_new[427] = t641;
+    P_new[448] = t633;
+    P_new[449] = t640;
+    P_new[450] = t646;
+    P_new[451] = t647;
+    P_new[472] = t634;
+    P_new[473] = t641;
+    P_new[474] = t647;
+    P_new[475] = t652;
+    P_new[524] = t658;
+    P_new[525] = t661;
+    P_new[526] = t662;
+    P_new[527] = t663;
+    P_new[548] = t659;
+    P_new[549] = t662;
+    P_new[550] = t664;
+    P_new[551] = t665;
+    P_new[572] = t660;
+    P_new[573] = t663;
+    P_new[574] = t665;
+    P_new[575] = t666;
     #else
-    const double t633 = DERIVE_FMA(t333, t189, DERIVE_FMA(t309, t165, DERIVE_FMA(t285, t141, DERIVE_FMA(t261, t117, DERIVE_FMA(t237, t93, DERIVE_FMA(t213, P[182], P[350]))))));
-    const double t634 = DERIVE_FMA(t333, t190, DERIVE_FMA(t309, t166, DERIVE_FMA(t285, t142, DERIVE_FMA(t261, t118, DERIVE_FMA(t237, t94, DERIVE_FMA(t213, P[183], P[351]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t635_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[352], P[353], P[354], P[355]}));
-    const derive_vd v_t635_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t95, v_t635_0);
-    const derive_vd v_t635_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t119, v_t635_1);
-    const derive_vd v_t635_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t143, v_t635_2);
-    const derive_vd v_t635_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t167, v_t635_3);
-    const derive_vd v_t635 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t191, v_t635_4);
-    #else
-    const double t635 = DERIVE_FMA(t333, t191, DERIVE_FMA(t309, t167, DERIVE_FMA(t285, t143, DERIVE_FMA(t261, t119, DERIVE_FMA(t237, t95, DERIVE_FMA(t213, P[184], P[352]))))));
-    const double t636 = DERIVE_FMA(t333, t192, DERIVE_FMA(t309, t168, DERIVE_FMA(t285, t144, DERIVE_FMA(t261, t120, DERIVE_FMA(t237, t96, DERIVE_FMA(t213, P[185], P[353]))))));
-    const double t637 = DERIVE_FMA(t333, t193, DERIVE_FMA(t309, t169, DERIVE_FMA(t285, t145, DERIVE_FMA(t261, t121, DERIVE_FMA(t237, t97, DERIVE_FMA(t213, P[186], P[354]))))));
-    const double t638 = DERIVE_FMA(t333, t194, DERIVE_FMA(t309, t170, DERIVE_FMA(t285, t146, DERIVE_FMA(t261, t122, DERIVE_FMA(t237, t98, DERIVE_FMA(t213, P[187], P[355]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t639_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
-    const derive_vd v_t639_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t99, v_t639_0);
-    const derive_vd v_t639_2 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t123, v_t639_1);
-    const derive_vd v_t639_3 = DERIVE_VFMA(((derive_vd){t285, t285, t285, t285}), v_t147, v_t639_2);
-    const derive_vd v_t639_4 = DERIVE_VFMA(((derive_vd){t309, t309, t309, t309}), v_t171, v_t639_3);
-    const derive_vd v_t639 = DERIVE_VFMA(((derive_vd){t333, t333, t333, t333}), v_t195, v_t639_4);
-    #else
-    const double t639 = DERIVE_FMA(t333, t195, DERIVE_FMA(t309, t171, DERIVE_FMA(t285, t147, DERIVE_FMA(t261, t123, DERIVE_FMA(t237, t99, DERIVE_FMA(t213, P[188], P[356]))))));
-    const double t640 = DERIVE_FMA(t333, t196, DERIVE_FMA(t309, t172, DERIVE_FMA(t285, t148, DERIVE_FMA(t261, t124, DERIVE_FMA(t237, t100, DERIVE_FMA(t213, P[189], P[357]))))));
-    const double t641 = DERIVE_FMA(t333, t197, DERIVE_FMA(t309, t173, DERIVE_FMA(t285, t149, DERIVE_FMA(t261, t125, DERIVE_FMA(t237, t101, DERIVE_FMA(t213, P[190], P[358]))))));
-    const double t642 = DERIVE_FMA(t333, t198, DERIVE_FMA(t309, t174, DERIVE_FMA(t285, t150, DERIVE_FMA(t261, t126, DERIVE_FMA(t237, t102, DERIVE_FMA(t213, P[191], P[359]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t643_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[372], P[373], P[374], P[375]}));
-    const derive_vd v_t643_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t91, v_t643_0);
-    const derive_vd v_t643_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t115, v_t643_1);
-    const derive_vd v_t643_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t139, v_t643_2);
-    const derive_vd v_t643_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t163, v_t643_3);
-    const derive_vd v_t643 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t187, v_t643_4);
-    const derive_vd tr_v_t607_0 = __builtin_shufflevector(v_t607, v_t619, 0, 4, 2, 6);
-    const derive_vd tr_v_t607_1 = __builtin_shufflevector(v_t607, v_t619, 1, 5, 3, 7);
-    const derive_vd tr_v_t607_2 = __builtin_shufflevector(v_t631, v_t643, 0, 4, 2, 6);
-    const derive_vd tr_v_t607_3 = __builtin_shufflevector(v_t631, v_t643, 1, 5, 3, 7);
-    const derive_vd tr_v_t607_c1 = __builtin_shufflevector(tr_v_t607_1, tr_v_t607_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t607_c2 = __builtin_shufflevector(tr_v_t607_0, tr_v_t607_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t607_c3 = __builtin_shufflevector(tr_v_t607_1, tr_v_t607_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[300] = v_t607;
-    *(derive_vd_unaligned *)&P_new[324] = __builtin_shufflevector(v_t619, tr_v_t607_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[348] = __builtin_shufflevector(v_t631, tr_v_t607_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[372] = __builtin_shufflevector(v_t643, tr_v_t607_c3, 4, 5, 6, 3);
-    #else
-    const double t646 = DERIVE_FMA(t334, t190, DERIVE_FMA(t310, t166, DERIVE_FMA(t286, t142, DERIVE_FMA(t262, t118, DERIVE_FMA(t238, t94, DERIVE_FMA(t214, P[183], P[375]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t647_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[376], P[377], P[378], P[379]}));
-    const derive_vd v_t647_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t95, v_t647_0);
-    const derive_vd v_t647_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t119, v_t647_1);
-    const derive_vd v_t647_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t143, v_t647_2);
-    const derive_vd v_t647_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t167, v_t647_3);
-    const derive_vd v_t647 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t191, v_t647_4);
-    const derive_vd tr_v_t611_0 = __builtin_shufflevector(v_t611, v_t623, 0, 4, 2, 6);
-    const derive_vd tr_v_t611_1 = __builtin_shufflevector(v_t611, v_t623, 1, 5, 3, 7);
-    const derive_vd tr_v_t611_2 = __builtin_shufflevector(v_t635, v_t647, 0, 4, 2, 6);
-    const derive_vd tr_v_t611_3 = __builtin_shufflevector(v_t635, v_t647, 1, 5, 3, 7);
-    const derive_vd tr_v_t611_c0 = __builtin_shufflevector(tr_v_t611_0, tr_v_t611_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t611_c1 = __builtin_shufflevector(tr_v_t611_1, tr_v_t611_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t611_c2 = __builtin_shufflevector(tr_v_t611_0, tr_v_t611_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t611_c3 = __builtin_shufflevector(tr_v_t611_1, tr_v_t611_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[304] = v_t611;
-    *(derive_vd_unaligned *)&P_new[328] = v_t623;
-    *(derive_vd_unaligned *)&P_new[352] = v_t635;
-    *(derive_vd_unaligned *)&P_new[376] = v_t647;
-    *(derive_vd_unaligned *)&P_new[396] = tr_v_t611_c0;
-    *(derive_vd_unaligned *)&P_new[420] = tr_v_t611_c1;
-    *(derive_vd_unaligned *)&P_new[444] = tr_v_t611_c2;
-    *(derive_vd_unaligned *)&P_new[468] = tr_v_t611_c3;
-    #else
-    const double t647 = DERIVE_FMA(t334, t191, DERIVE_FMA(t310, t167, DERIVE_FMA(t286, t143, DERIVE_FMA(t262, t119, DERIVE_FMA(t238, t95, DERIVE_FMA(t214, P[184], P[376]))))));
-    const double t648 = DERIVE_FMA(t334, t192, DERIVE_FMA(t310, t168, DERIVE_FMA(t286, t144, DERIVE_FMA(t262, t120, DERIVE_FMA(t238, t96, DERIVE_FMA(t214, P[185], P[377]))))));
-    const double t649 = DERIVE_FMA(t334, t193, DERIVE_FMA(t310, t169, DERIVE_FMA(t286, t145, DERIVE_FMA(t262, t121, DERIVE_FMA(t238, t97, DERIVE_FMA(t214, P[186], P[378]))))));
-    const double t650 = DERIVE_FMA(t334, t194, DERIVE_FMA(t310, t170, DERIVE_FMA(t286, t146, DERIVE_FMA(t262, t122, DERIVE_FMA(t238, t98, DERIVE_FMA(t214, P[187], P[379]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t651_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
-    const derive_vd v_t651_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t99, v_t651_0);
-    const derive_vd v_t651_2 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t123, v_t651_1);
-    const derive_vd v_t651_3 = DERIVE_VFMA(((derive_vd){t286, t286, t286, t286}), v_t147, v_t651_2);
-    const derive_vd v_t651_4 = DERIVE_VFMA(((derive_vd){t310, t310, t310, t310}), v_t171, v_t651_3);
-    const derive_vd v_t651 = DERIVE_VFMA(((derive_vd){t334, t334, t334, t334}), v_t195, v_t651_4);
-    const derive_vd tr_v_t615_0 = __builtin_shufflevector(v_t615, v_t627, 0, 4, 2, 6);
-    const derive_vd tr_v_t615_1 = __builtin_shufflevector(v_t615, v_t627, 1, 5, 3, 7);
-    const derive_vd tr_v_t615_2 = __builtin_shufflevector(v_t639, v_t651, 0, 4, 2, 6);
-    const derive_vd tr_v_t615_3 = __builtin_shufflevector(v_t639, v_t651, 1, 5, 3, 7);
-    const derive_vd tr_v_t615_c0 = __builtin_shufflevector(tr_v_t615_0, tr_v_t615_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t615_c1 = __builtin_shufflevector(tr_v_t615_1, tr_v_t615_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t615_c2 = __builtin_shufflevector(tr_v_t615_0, tr_v_t615_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t615_c3 = __builtin_shufflevector(tr_v_t615_1, tr_v_t615_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[308] = v_t615;
-    *(derive_vd_unaligned *)&P_new[332] = v_t627;
-    *(derive_vd_unaligned *)&P_new[356] = v_t639;
-    *(derive_vd_unaligned *)&P_new[380] = v_t651;
-    *(derive_vd_unaligned *)&P_new[492] = tr_v_t615_c0;
-    *(derive_vd_unaligned *)&P_new[516] = tr_v_t615_c1;
-    *(derive_vd_unaligned *)&P_new[540] = tr_v_t615_c2;
-    *(derive_vd_unaligned *)&P_new[564] = tr_v_t615_c3;
-    #else
-    const double t651 = DERIVE_FMA(t334, t195, DERIVE_FMA(t310, t171, DERIVE_FMA(t286, t147, DERIVE_FMA(t262, t123, DERIVE_FMA(t238, t99, DERIVE_FMA(t214, P[188], P[380]))))));
-    const double t652 = DERIVE_FMA(t334, t196, DERIVE_FMA(t310, t172, DERIVE_FMA(t286, t148, DERIVE_FMA(t262, t124, DERIVE_FMA(t238, t100, DERIVE_FMA(t214, P[189], P[381]))))));
-    const double t653 = DERIVE_FMA(t334, t197, DERIVE_FMA(t310, t173, DERIVE_FMA(t286, t149, DERIVE_FMA(t262, t125, DERIVE_FMA(t238, t101, DERIVE_FMA(t214, P[190], P[382]))))));
-    const double t654 = DERIVE_FMA(t334, t198, DERIVE_FMA(t310, t174, DERIVE_FMA(t286, t150, DERIVE_FMA(t262, t126, DERIVE_FMA(t238, t102, DERIVE_FMA(t214, P[191], P[383]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t655_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
-    const derive_vd v_t655_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t95, v_t655_0);
-    const derive_vd v_t655_2 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t119, v_t655_1);
-    const derive_vd v_t655_3 = DERIVE_VFMA(((derive_vd){t287, t287, t287, t287}), v_t143, v_t655_2);
-    const derive_vd v_t655_4 = DERIVE_VFMA(((derive_vd){t311, t311, t311, t311}), v_t167, v_t655_3);
-    const derive_vd v_t655 = DERIVE_VFMA(((derive_vd){t335, t335, t335, t335}), v_t191, v_t655_4);
-    #else
-    const double t655 = DERIVE_FMA(t335, t191, DERIVE_FMA(t311, t167, DERIVE_FMA(t287, t143, DERIVE_FMA(t263, t119, DERIVE_FMA(t239, t95, DERIVE_FMA(t215, P[184], P[400]))))));
-    const double t656 = DERIVE_FMA(t335, t192, DERIVE_FMA(t311, t168, DERIVE_FMA(t287, t144, DERIVE_FMA(t263, t120, DERIVE_FMA(t239, t96, DERIVE_FMA(t215, P[185], P[401]))))));
-    const double t657 = DERIVE_FMA(t335, t193, DERIVE_FMA(t311, t169, DERIVE_FMA(t287, t145, DERIVE_FMA(t263, t121, DERIVE_FMA(t239, t97, DERIVE_FMA(t215, P[186], P[402]))))));
-    const double t658 = DERIVE_FMA(t335, t194, DERIVE_FMA(t311, t170, DERIVE_FMA(t287, t146, DERIVE_FMA(t263, t122, DERIVE_FMA(t239, t98, DERIVE_FMA(t215, P[187], P[403]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t659_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
-    const derive_vd v_t659_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t99, v_t659_0);
-    const derive_vd v_t659_2 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t123, v_t659_1);
-    const derive_vd v_t659_3 = DERIVE_VFMA(((derive_vd){t287, t287, t287, t287}), v_t147, v_t659_2);
-    const derive_vd v_t659_4 = DERIVE_VFMA(((derive_vd){t311, t311, t311, t311}), v_t171, v_t659_3);
-    const derive_vd v_t659 = DERIVE_VFMA(((derive_vd){t335, t335, t335, t335}), v_t195, v_t659_4);
-    #else
-    const double t659 = DERIVE_FMA(t335, t195, DERIVE_FMA(t311, t171, DERIVE_FMA(t287, t147, DERIVE_FMA(t263, t123, DERIVE_FMA(t239, t99, DERIVE_FMA(t215, P[188], P[404]))))));
-    const double t660 = DERIVE_FMA(t335, t196, DERIVE_FMA(t311, t172, DERIVE_FMA(t287, t148, DERIVE_FMA(t263, t124, DERIVE_FMA(t239, t100, DERIVE_FMA(t215, P[189], P[405]))))));
-    const double t661 = DERIVE_FMA(t335, t197, DERIVE_FMA(t311, t173, DERIVE_FMA(t287, t149, DERIVE_FMA(t263, t125, DERIVE_FMA(t239, t101, DERIVE_FMA(t215, P[190], P[406]))))));
-    const double t662 = DERIVE_FMA(t335, t198, DERIVE_FMA(t311, t174, DERIVE_FMA(t287, t150, DERIVE_FMA(t263, t126, DERIVE_FMA(t239, t102, DERIVE_FMA(t215, P[191], P[407]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t663_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[424], P[425], P[426], P[427]}));
-    const derive_vd v_t663_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t95, v_t663_0);
-    const derive_vd v_t663_2 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t119, v_t663_1);
-    const derive_vd v_t663_3 = DERIVE_VFMA(((derive_vd){t288, t288, t288, t288}), v_t143, v_t663_2);
-    const derive_vd v_t663_4 = DERIVE_VFMA(((derive_vd){t312, t312, t312, t312}), v_t167, v_t663_3);
-    const derive_vd v_t663 = DERIVE_VFMA(((derive_vd){t336, t336, t336, t336}), v_t191, v_t663_4);
-    #else
-    const double t664 = DERIVE_FMA(t336, t192, DERIVE_FMA(t312, t168, DERIVE_FMA(t288, t144, DERIVE_FMA(t264, t120, DERIVE_FMA(t240, t96, DERIVE_FMA(t216, P[185], P[425]))))));
-    const double t665 = DERIVE_FMA(t336, t193, DERIVE_FMA(t312, t169, DERIVE_FMA(t288, t145, DERIVE_FMA(t264, t121, DERIVE_FMA(t240, t97, DERIVE_FMA(t216, P[186], P[426]))))));
-    const double t666 = DERIVE_FMA(t336, t194, DERIVE_FMA(t312, t170, DERIVE_FMA(t288, t146, DERIVE_FMA(t264, t122, DERIVE_FMA(t240, t98, DERIVE_FMA(t216, P[187], P[427]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t667_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[428], P[429], P[430], P[431]}));
-    const derive_vd v_t667_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t99, v_t667_0);
-    const derive_vd v_t667_2 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t123, v_t667_1);
-    const derive_vd v_t667_3 = DERIVE_VFMA(((derive_vd){t288, t288, t288, t288}), v_t147, v_t667_2);
-    const derive_vd v_t667_4 = DERIVE_VFMA(((derive_vd){t312, t312, t312, t312}), v_t171, v_t667_3);
-    const derive_vd v_t667 = DERIVE_VFMA(((derive_vd){t336, t336, t336, t336}), v_t195, v_t667_4);
-    #else
-    const double t667 = DERIVE_FMA(t336, t195, DERIVE_FMA(t312, t171, DERIVE_FMA(t288, t147, DERIVE_FMA(t264, t123, DERIVE_FMA(t240, t99, DERIVE_FMA(t216, P[188], P[428]))))));
-    const double t668 = DERIVE_FMA(t336, t196, DERIVE_FMA(t312, t172, DERIVE_FMA(t288, t148, DERIVE_FMA(t264, t124, DERIVE_FMA(t240, t100, DERIVE_FMA(t216, P[189], P[429]))))));
-    const double t669 = DERIVE_FMA(t336, t197, DERIVE_FMA(t312, t173, DERIVE_FMA(t288, t149, DERIVE_FMA(t264, t125, DERIVE_FMA(t240, t101, DERIVE_FMA(t216, P[190], P[430]))))));
-    const double t670 = DERIVE_FMA(t336, t198, DERIVE_FMA(t312, t174, DERIVE_FMA(t288, t150, DERIVE_FMA(t264, t126, DERIVE_FMA(t240, t102, DERIVE_FMA(t216, P[191], P[431]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t671_0 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[448], P[449], P[450], P[451]}));
-    const derive_vd v_t671_1 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t95, v_t671_0);
-    const derive_vd v_t671_2 = DERIVE_VFMA(((derive_vd){t265, t265, t265, t265}), v_t119, v_t671_1);
-    const derive_vd v_t671_3 = DERIVE_VFMA(((derive_vd){t289, t289, t289, t289}), v_t143, v_t671_2);
-    const derive_vd v_t671_4 = DERIVE_VFMA(((derive_vd){t313, t313, t313, t313}), v_t167, v_t671_3);
-    const derive_vd v_t671 = DERIVE_VFMA(((derive_vd){t337, t337, t337, t337}), v_t191, v_t671_4);
-    #else
-    const double t673 = DERIVE_FMA(t337, t193, DERIVE_FMA(t313, t169, DERIVE_FMA(t289, t145, DERIVE_FMA(t265, t121, DERIVE_FMA(t241, t97, DERIVE_FMA(t217, P[186], P[450]))))));
-    const double t674 = DERIVE_FMA(t337, t194, DERIVE_FMA(t313, t170, DERIVE_FMA(t289, t146, DERIVE_FMA(t265, t122, DERIVE_FMA(t241, t98, DERIVE_FMA(t217, P[187], P[451]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t675_0 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[452], P[453], P[454], P[455]}));
-    const derive_vd v_t675_1 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t99, v_t675_0);
-    const derive_vd v_t675_2 = DERIVE_VFMA(((derive_vd){t265, t265, t265, t265}), v_t123, v_t675_1);
-    const derive_vd v_t675_3 = DERIVE_VFMA(((derive_vd){t289, t289, t289, t289}), v_t147, v_t675_2);
-    const derive_vd v_t675_4 = DERIVE_VFMA(((derive_vd){t313, t313, t313, t313}), v_t171, v_t675_3);
-    const derive_vd v_t675 = DERIVE_VFMA(((derive_vd){t337, t337, t337, t337}), v_t195, v_t675_4);
-    #else
-    const double t675 = DERIVE_FMA(t337, t195, DERIVE_FMA(t313, t171, DERIVE_FMA(t289, t147, DERIVE_FMA(t265, t123, DERIVE_FMA(t241, t99, DERIVE_FMA(t217, P[188], P[452]))))));
-    const double t676 = DERIVE_FMA(t337, t196, DERIVE_FMA(t313, t172, DERIVE_FMA(t289, t148, DERIVE_FMA(t265, t124, DERIVE_FMA(t241, t100, DERIVE_FMA(t217, P[189], P[453]))))));
-    const double t677 = DERIVE_FMA(t337, t197, DERIVE_FMA(t313, t173, DERIVE_FMA(t289, t149, DERIVE_FMA(t265, t125, DERIVE_FMA(t241, t101, DERIVE_FMA(t217, P[190], P[454]))))));
-    const double t678 = DERIVE_FMA(t337, t198, DERIVE_FMA(t313, t174, DERIVE_FMA(t289, t150, DERIVE_FMA(t265, t126, DERIVE_FMA(t241, t102, DERIVE_FMA(t217, P[191], P[455]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t679_0 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[472], P[473], P[474], P[475]}));
-    const derive_vd v_t679_1 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t95, v_t679_0);
-    const derive_vd v_t679_2 = DERIVE_VFMA(((derive_vd){t266, t266, t266, t266}), v_t119, v_t679_1);
-    const derive_vd v_t679_3 = DERIVE_VFMA(((derive_vd){t290, t290, t290, t290}), v_t143, v_t679_2);
-    const derive_vd v_t679_4 = DERIVE_VFMA(((derive_vd){t314, t314, t314, t314}), v_t167, v_t679_3);
-    const derive_vd v_t679 = DERIVE_VFMA(((derive_vd){t338, t338, t338, t338}), v_t191, v_t679_4);
-    const derive_vd tr_v_t655_0 = __builtin_shufflevector(v_t655, v_t663, 0, 4, 2, 6);
-    const derive_vd tr_v_t655_1 = __builtin_shufflevector(v_t655, v_t663, 1, 5, 3, 7);
-    const derive_vd tr_v_t655_2 = __builtin_shufflevector(v_t671, v_t679, 0, 4, 2, 6);
-    const derive_vd tr_v_t655_3 = __builtin_shufflevector(v_t671, v_t679, 1, 5, 3, 7);
-    const derive_vd tr_v_t655_c1 = __builtin_shufflevector(tr_v_t655_1, tr_v_t655_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t655_c2 = __builtin_shufflevector(tr_v_t655_0, tr_v_t655_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t655_c3 = __builtin_shufflevector(tr_v_t655_1, tr_v_t655_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[400] = v_t655;
-    *(derive_vd_unaligned *)&P_new[424] = __builtin_shufflevector(v_t663, tr_v_t655_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[448] = __builtin_shufflevector(v_t671, tr_v_t655_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[472] = __builtin_shufflevector(v_t679, tr_v_t655_c3, 4, 5, 6, 3);
-    #else
-    const double t682 = DERIVE_FMA(t338, t194, DERIVE_FMA(t314, t170, DERIVE_FMA(t290, t146, DERIVE_FMA(t266, t122, DERIVE_FMA(t242, t98, DERIVE_FMA(t218, P[187], P[475]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t683_0 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[476], P[477], P[478], P[479]}));
-    const derive_vd v_t683_1 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t99, v_t683_0);
-    const derive_vd v_t683_2 = DERIVE_VFMA(((derive_vd){t266, t266, t266, t266}), v_t123, v_t683_1);
-    const derive_vd v_t683_3 = DERIVE_VFMA(((derive_vd){t290, t290, t290, t290}), v_t147, v_t683_2);
-    const derive_vd v_t683_4 = DERIVE_VFMA(((derive_vd){t314, t314, t314, t314}), v_t171, v_t683_3);
-    const derive_vd v_t683 = DERIVE_VFMA(((derive_vd){t338, t338, t338, t338}), v_t195, v_t683_4);
-    const derive_vd tr_v_t659_0 = __builtin_shufflevector(v_t659, v_t667, 0, 4, 2, 6);
-    const derive_vd tr_v_t659_1 = __builtin_shufflevector(v_t659, v_t667, 1, 5, 3, 7);
-    const derive_vd tr_v_t659_2 = __builtin_shufflevector(v_t675, v_t683, 0, 4, 2, 6);
-    const derive_vd tr_v_t659_3 = __builtin_shufflevector(v_t675, v_t683, 1, 5, 3, 7);
-    const derive_vd tr_v_t659_c0 = __builtin_shufflevector(tr_v_t659_0, tr_v_t659_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t659_c1 = __builtin_shufflevector(tr_v_t659_1, tr_v_t659_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t659_c2 = __builtin_shufflevector(tr_v_t659_0, tr_v_t659_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t659_c3 = __builtin_shufflevector(tr_v_t659_1, tr_v_t659_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[404] = v_t659;
-    *(derive_vd_unaligned *)&P_new[428] = v_t667;
-    *(derive_vd_unaligned *)&P_new[452] = v_t675;
-    *(derive_vd_unaligned *)&P_new[476] = v_t683;
-    *(derive_vd_unaligned *)&P_new[496] = tr_v_t659_c0;
-    *(derive_vd_unaligned *)&P_new[520] = tr_v_t659_c1;
-    *(derive_vd_unaligned *)&P_new[544] = tr_v_t659_c2;
-    *(derive_vd_unaligned *)&P_new[568] = tr_v_t659_c3;
-    #else
-    const double t683 = DERIVE_FMA(t338, t195, DERIVE_FMA(t314, t171, DERIVE_FMA(t290, t147, DERIVE_FMA(t266, t123, DERIVE_FMA(t242, t99, DERIVE_FMA(t218, P[188], P[476]))))));
-    const double t684 = DERIVE_FMA(t338, t196, DERIVE_FMA(t314, t172, DERIVE_FMA(t290, t148, DERIVE_FMA(t266, t124, DERIVE_FMA(t242, t100, DERIVE_FMA(t218, P[189], P[477]))))));
-    const double t685 = DERIVE_FMA(t338, t197, DERIVE_FMA(t314, t173, DERIVE_FMA(t290, t149, DERIVE_FMA(t266, t125, DERIVE_FMA(t242, t101, DERIVE_FMA(t218, P[190], P[478]))))));
-    const double t686 = DERIVE_FMA(t338, t198, DERIVE_FMA(t314, t174, DERIVE_FMA(t290, t150, DERIVE_FMA(t266, t126, DERIVE_FMA(t242, t102, DERIVE_FMA(t218, P[191], P[479]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t687_0 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
-    const derive_vd v_t687_1 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t99, v_t687_0);
-    const derive_vd v_t687_2 = DERIVE_VFMA(((derive_vd){t267, t267, t267, t267}), v_t123, v_t687_1);
-    const derive_vd v_t687_3 = DERIVE_VFMA(((derive_vd){t291, t291, t291, t291}), v_t147, v_t687_2);
-    const derive_vd v_t687_4 = DERIVE_VFMA(((derive_vd){t315, t315, t315, t315}), v_t171, v_t687_3);
-    const derive_vd v_t687 = DERIVE_VFMA(((derive_vd){t339, t339, t339, t339}), v_t195, v_t687_4);
-    #else
-    const double t687 = DERIVE_FMA(t339, t195, DERIVE_FMA(t315, t171, DERIVE_FMA(t291, t147, DERIVE_FMA(t267, t123, DERIVE_FMA(t243, t99, DERIVE_FMA(t219, P[188], P[500]))))));
-    const double t688 = DERIVE_FMA(t339, t196, DERIVE_FMA(t315, t172, DERIVE_FMA(t291, t148, DERIVE_FMA(t267, t124, DERIVE_FMA(t243, t100, DERIVE_FMA(t219, P[189], P[501]))))));
-    const double t689 = DERIVE_FMA(t339, t197, DERIVE_FMA(t315, t173, DERIVE_FMA(t291, t149, DERIVE_FMA(t267, t125, DERIVE_FMA(t243, t101, DERIVE_FMA(t219, P[190], P[502]))))));
-    const double t690 = DERIVE_FMA(t339, t198, DERIVE_FMA(t315, t174, DERIVE_FMA(t291, t150, DERIVE_FMA(t267, t126, DERIVE_FMA(t243, t102, DERIVE_FMA(t219, P[191], P[503]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t691_0 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[524], P[525], P[526], P[527]}));
-    const derive_vd v_t691_1 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t99, v_t691_0);
-    const derive_vd v_t691_2 = DERIVE_VFMA(((derive_vd){t268, t268, t268, t268}), v_t123, v_t691_1);
-    const derive_vd v_t691_3 = DERIVE_VFMA(((derive_vd){t292, t292, t292, t292}), v_t147, v_t691_2);
-    const derive_vd v_t691_4 = DERIVE_VFMA(((derive_vd){t316, t316, t316, t316}), v_t171, v_t691_3);
-    const derive_vd v_t691 = DERIVE_VFMA(((derive_vd){t340, t340, t340, t340}), v_t195, v_t691_4);
-    #else
-    const double t692 = DERIVE_FMA(t340, t196, DERIVE_FMA(t316, t172, DERIVE_FMA(t292, t148, DERIVE_FMA(t268, t124, DERIVE_FMA(t244, t100, DERIVE_FMA(t220, P[189], P[525]))))));
-    const double t693 = DERIVE_FMA(t340, t197, DERIVE_FMA(t316, t173, DERIVE_FMA(t292, t149, DERIVE_FMA(t268, t125, DERIVE_FMA(t244, t101, DERIVE_FMA(t220, P[190], P[526]))))));
-    const double t694 = DERIVE_FMA(t340, t198, DERIVE_FMA(t316, t174, DERIVE_FMA(t292, t150, DERIVE_FMA(t268, t126, DERIVE_FMA(t244, t102, DERIVE_FMA(t220, P[191], P[527]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t695_0 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[548], P[549], P[550], P[551]}));
-    const derive_vd v_t695_1 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t99, v_t695_0);
-    const derive_vd v_t695_2 = DERIVE_VFMA(((derive_vd){t269, t269, t269, t269}), v_t123, v_t695_1);
-    const derive_vd v_t695_3 = DERIVE_VFMA(((derive_vd){t293, t293, t293, t293}), v_t147, v_t695_2);
-    const derive_vd v_t695_4 = DERIVE_VFMA(((derive_vd){t317, t317, t317, t317}), v_t171, v_t695_3);
-    const derive_vd v_t695 = DERIVE_VFMA(((derive_vd){t341, t341, t341, t341}), v_t195, v_t695_4);
-    #else
-    const double t697 = DERIVE_FMA(t341, t197, DERIVE_FMA(t317, t173, DERIVE_FMA(t293, t149, DERIVE_FMA(t269, t125, DERIVE_FMA(t245, t101, DERIVE_FMA(t221, P[190], P[550]))))));
-    const double t698 = DERIVE_FMA(t341, t198, DERIVE_FMA(t317, t174, DERIVE_FMA(t293, t150, DERIVE_FMA(t269, t126, DERIVE_FMA(t245, t102, DERIVE_FMA(t221, P[191], P[551]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t699_0 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[572], P[573], P[574], P[575]}));
-    const derive_vd v_t699_1 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t99, v_t699_0);
-    const derive_vd v_t699_2 = DERIVE_VFMA(((derive_vd){t270, t270, t270, t270}), v_t123, v_t699_1);
-    const derive_vd v_t699_3 = DERIVE_VFMA(((derive_vd){t294, t294, t294, t294}), v_t147, v_t699_2);
-    const derive_vd v_t699_4 = DERIVE_VFMA(((derive_vd){t318, t318, t318, t318}), v_t171, v_t699_3);
-    const derive_vd v_t699 = DERIVE_VFMA(((derive_vd){t342, t342, t342, t342}), v_t195, v_t699_4);
-    const derive_vd tr_v_t687_0 = __builtin_shufflevector(v_t687, v_t691, 0, 4, 2, 6);
-    const derive_vd tr_v_t687_1 = __builtin_shufflevector(v_t687, v_t691, 1, 5, 3, 7);
-    const derive_vd tr_v_t687_2 = __builtin_shufflevector(v_t695, v_t699, 0, 4, 2, 6);
-    const derive_vd tr_v_t687_3 = __builtin_shufflevector(v_t695, v_t699, 1, 5, 3, 7);
-    const derive_vd tr_v_t687_c1 = __builtin_shufflevector(tr_v_t687_1, tr_v_t687_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t687_c2 = __builtin_shufflevector(tr_v_t687_0, tr_v_t687_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t687_c3 = __builtin_shufflevector(tr_v_t687_1, tr_v_t687_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[500] = v_t687;
-    *(derive_vd_unaligned *)&P_new[524] = __builtin_shufflevector(v_t691, tr_v_t687_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[548] = __builtin_shufflevector(v_t695, tr_v_t687_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[572] = __builtin_shufflevector(v_t699, tr_v_t687_c3, 4, 5, 6, 3);
-    #else
-    const double t702 = DERIVE_FMA(t342, t198, DERIVE_FMA(t318, t174, DERIVE_FMA(t294, t150, DERIVE_FMA(t270, t126, DERIVE_FMA(t246, t102, DERIVE_FMA(t222, P[191], P[575]))))));
-    #endif
-    const double t703 = DERIVE_FMA(t346, t346, DERIVE_FMA(t345, t345, DERIVE_FMA(t344, t344, t343*t343)));
-    const double t704 = 1.0/sqrt(t703);
-    const double t705 = t343*t704;
-    const double t706 = t344*t704;
-    const double t707 = t345*t704;
-    const double t708 = t346*t704;
-    #if DERIVE_VECTOR
-    x_new[0] = t705;
-    x_new[1] = t706;
-    x_new[2] = t707;
-    x_new[3] = t708;
-    #else
-    x_new[0] = t705;
-    x_new[1] = t706;
-    x_new[2] = t707;
-    x_new[3] = t708;
+    x_new[0] = t669;
+    x_new[1] = t670;
+    x_new[2] = t671;
+    x_new[3] = t672;
     x_new[4] = t347;
     x_new[5] = t348;
     x_new[6] = t349;
@@ -4666,557 +4567,557 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[22] = t389;
     P_new[23] = t390;
     P_new[24] = t368;
-    P_new[25] = t392;
-    P_new[26] = t393;
-    P_new[27] = t394;
-    P_new[28] = t395;
-    P_new[29] = t396;
-    P_new[30] = t397;
-    P_new[31] = t398;
-    P_new[32] = t399;
-    P_new[33] = t400;
-    P_new[34] = t401;
-    P_new[35] = t402;
-    P_new[36] = t403;
-    P_new[37] = t404;
-    P_new[38] = t405;
-    P_new[39] = t406;
-    P_new[40] = t407;
-    P_new[41] = t408;
-    P_new[42] = t409;
-    P_new[43] = t410;
-    P_new[44] = t411;
-    P_new[45] = t412;
-    P_new[46] = t413;
-    P_new[47] = t414;
+    P_new[25] = t391;
+    P_new[26] = t392;
+    P_new[27] = t393;
+    P_new[28] = t394;
+    P_new[29] = t395;
+    P_new[30] = t396;
+    P_new[31] = t397;
+    P_new[32] = t398;
+    P_new[33] = t399;
+    P_new[34] = t400;
+    P_new[35] = t401;
+    P_new[36] = t402;
+    P_new[37] = t403;
+    P_new[38] = t404;
+    P_new[39] = t405;
+    P_new[40] = t406;
+    P_new[41] = t407;
+    P_new[42] = t408;
+    P_new[43] = t409;
+    P_new[44] = t410;
+    P_new[45] = t411;
+    P_new[46] = t412;
+    P_new[47] = t413;
     P_new[48] = t369;
-    P_new[49] = t393;
-    P_new[50] = t417;
-    P_new[51] = t418;
-    P_new[52] = t419;
-    P_new[53] = t420;
-    P_new[54] = t421;
-    P_new[55] = t422;
-    P_new[56] = t423;
-    P_new[57] = t424;
-    P_new[58] = t425;
-    P_new[59] = t426;
-    P_new[60] = t427;
-    P_new[61] = t428;
-    P_new[62] = t429;
-    P_new[63] = t430;
-    P_new[64] = t431;
-    P_new[65] = t432;
-    P_new[66] = t433;
-    P_new[67] = t434;
-    P_new[68] = t435;
-    P_new[69] = t436;
-    P_new[70] = t437;
-    P_new[71] = t438;
+    P_new[49] = t392;
+    P_new[50] = t414;
+    P_new[51] = t415;
+    P_new[52] = t416;
+    P_new[53] = t417;
+    P_new[54] = t418;
+    P_new[55] = t419;
+    P_new[56] = t420;
+    P_new[57] = t421;
+    P_new[58] = t422;
+    P_new[59] = t423;
+    P_new[60] = t424;
+    P_new[61] = t425;
+    P_new[62] = t426;
+    P_new[63] = t427;
+    P_new[64] = t428;
+    P_new[65] = t429;
+    P_new[66] = t430;
+    P_new[67] = t431;
+    P_new[68] = t432;
+    P_new[69] = t433;
+    P_new[70] = t434;
+    P_new[71] = t435;
     P_new[72] = t370;
-    P_new[73] = t394;
-    P_new[74] = t418;
-    P_new[75] = t442;
-    P_new[76] = t443;
-    P_new[77] = t444;
-    P_new[78] = t445;
-    P_new[79] = t446;
-    P_new[80] = t447;
-    P_new[81] = t448;
-    P_new[82] = t449;
-    P_new[83] = t450;
-    P_new[84] = t451;
-    P_new[85] = t452;
-    P_new[86] = t453;
-    P_new[87] = t454;
-    P_new[88] = t455;
-    P_new[89] = t456;
-    P_new[90] = t457;
-    P_new[91] = t458;
-    P_new[92] = t459;
-    P_new[93] = t460;
-    P_new[94] = t461;
-    P_new[95] = t462;
+    P_new[73] = t393;
+    P_new[74] = t415;
+    P_new[75] = t436;
+    P_new[76] = t437;
+    P_new[77] = t438;
+    P_new[78] = t439;
+    P_new[79] = t440;
+    P_new[80] = t441;
+    P_new[81] = t442;
+    P_new[82] = t443;
+    P_new[83] = t444;
+    P_new[84] = t445;
+    P_new[85] = t446;
+    P_new[86] = t447;
+    P_new[87] = t448;
+    P_new[88] = t449;
+    P_new[89] = t450;
+    P_new[90] = t451;
+    P_new[91] = t452;
+    P_new[92] = t453;
+    P_new[93] = t454;
+    P_new[94] = t455;
+    P_new[95] = t456;
     P_new[96] = t371;
-    P_new[97] = t395;
-    P_new[98] = t419;
-    P_new[99] = t443;
-    P_new[100] = t463;
-    P_new[101] = t464;
-    P_new[102] = t465;
-    P_new[103] = t466;
-    P_new[104] = t467;
-    P_new[105] = t468;
-    P_new[106] = t469;
-    P_new[107] = t470;
-    P_new[108] = t471;
-    P_new[109] = t472;
-    P_new[110] = t473;
-    P_new[111] = t474;
-    P_new[112] = t475;
-    P_new[113] = t476;
-    P_new[114] = t477;
-    P_new[115] = t478;
-    P_new[116] = t479;
-    P_new[117] = t480;
-    P_new[118] = t481;
-    P_new[119] = t482;
+    P_new[97] = t394;
+    P_new[98] = t416;
+    P_new[99] = t437;
+    P_new[100] = t457;
+    P_new[101] = t458;
+    P_new[102] = t459;
+    P_new[103] = t460;
+    P_new[104] = t461;
+    P_new[105] = t462;
+    P_new[106] = t463;
+    P_new[107] = t464;
+    P_new[108] = t465;
+    P_new[109] = t466;
+    P_new[110] = t467;
+    P_new[111] = t468;
+    P_new[112] = t469;
+    P_new[113] = t470;
+    P_new[114] = t471;
+    P_new[115] = t472;
+    P_new[116] = t473;
+    P_new[117] = t474;
+    P_new[118] = t475;
+    P_new[119] = t476;
     P_new[120] = t372;
-    P_new[121] = t396;
-    P_new[122] = t420;
-    P_new[123] = t444;
-    P_new[124] = t464;
-    P_new[125] = t484;
-    P_new[126] = t485;
-    P_new[127] = t486;
-    P_new[128] = t487;
-    P_new[129] = t488;
-    P_new[130] = t489;
-    P_new[131] = t490;
-    P_new[132] = t491;
-    P_new[133] = t492;
-    P_new[134] = t493;
-    P_new[135] = t494;
-    P_new[136] = t495;
-    P_new[137] = t496;
-    P_new[138] = t497;
-    P_new[139] = t498;
-    P_new[140] = t499;
-    P_new[141] = t500;
-    P_new[142] = t501;
-    P_new[143] = t502;
+    P_new[121] = t395;
+    P_new[122] = t417;
+    P_new[123] = t438;
+    P_new[124] = t458;
+    P_new[125] = t477;
+    P_new[126] = t478;
+    P_new[127] = t479;
+    P_new[128] = t480;
+    P_new[129] = t481;
+    P_new[130] = t482;
+    P_new[131] = t483;
+    P_new[132] = t484;
+    P_new[133] = t485;
+    P_new[134] = t486;
+    P_new[135] = t487;
+    P_new[136] = t488;
+    P_new[137] = t489;
+    P_new[138] = t490;
+    P_new[139] = t491;
+    P_new[140] = t492;
+    P_new[141] = t493;
+    P_new[142] = t494;
+    P_new[143] = t495;
     P_new[144] = t373;
-    P_new[145] = t397;
-    P_new[146] = t421;
-    P_new[147] = t445;
-    P_new[148] = t465;
-    P_new[149] = t485;
-    P_new[150] = t505;
-    P_new[151] = t506;
-    P_new[152] = t507;
-    P_new[153] = t508;
-    P_new[154] = t509;
-    P_new[155] = t510;
-    P_new[156] = t511;
-    P_new[157] = t512;
-    P_new[158] = t513;
-    P_new[159] = t514;
-    P_new[160] = t515;
-    P_new[161] = t516;
-    P_new[162] = t517;
-    P_new[163] = t518;
-    P_new[164] = t519;
-    P_new[165] = t520;
-    P_new[166] = t521;
-    P_new[167] = t522;
+    P_new[145] = t396;
+    P_new[146] = t418;
+    P_new[147] = t439;
+    P_new[148] = t459;
+    P_new[149] = t478;
+    P_new[150] = t496;
+    P_new[151] = t497;
+    P_new[152] = t498;
+    P_new[153] = t499;
+    P_new[154] = t500;
+    P_new[155] = t501;
+    P_new[156] = t502;
+    P_new[157] = t503;
+    P_new[158] = t504;
+    P_new[159] = t505;
+    P_new[160] = t506;
+    P_new[161] = t507;
+    P_new[162] = t508;
+    P_new[163] = t509;
+    P_new[164] = t510;
+    P_new[165] = t511;
+    P_new[166] = t512;
+    P_new[167] = t513;
     P_new[168] = t374;
-    P_new[169] = t398;
-    P_new[170] = t422;
-    P_new[171] = t446;
-    P_new[172] = t466;
-    P_new[173] = t486;
-    P_new[174] = t506;
-    P_new[175] = t526;
-    P_new[176] = t527;
-    P_new[177] = t528;
-    P_new[178] = t529;
-    P_new[179] = t530;
-    P_new[180] = t531;
-    P_new[181] = t532;
-    P_new[182] = t533;
-    P_new[183] = t534;
-    P_new[184] = t535;
-    P_new[185] = t536;
-    P_new[186] = t537;
-    P_new[187] = t538;
-    P_new[188] = t539;
-    P_new[189] = t540;
-    P_new[190] = t541;
-    P_new[191] = t542;
+    P_new[169] = t397;
+    P_new[170] = t419;
+    P_new[171] = t440;
+    P_new[172] = t460;
+    P_new[173] = t479;
+    P_new[174] = t497;
+    P_new[175] = t514;
+    P_new[176] = t515;
+    P_new[177] = t516;
+    P_new[178] = t517;
+    P_new[179] = t518;
+    P_new[180] = t519;
+    P_new[181] = t520;
+    P_new[182] = t521;
+    P_new[183] = t522;
+    P_new[184] = t523;
+    P_new[185] = t524;
+    P_new[186] = t525;
+    P_new[187] = t526;
+    P_new[188] = t527;
+    P_new[189] = t528;
+    P_new[190] = t529;
+    P_new[191] = t530;
     P_new[192] = t375;
-    P_new[193] = t399;
-    P_new[194] = t423;
-    P_new[195] = t447;
-    P_new[196] = t467;
-    P_new[197] = t487;
-    P_new[198] = t507;
-    P_new[199] = t527;
-    P_new[200] = t543;
-    P_new[201] = t544;
-    P_new[202] = t545;
-    P_new[203] = t546;
-    P_new[204] = t547;
-    P_new[205] = t548;
-    P_new[206] = t549;
-    P_new[207] = t550;
-    P_new[208] = t551;
-    P_new[209] = t552;
-    P_new[210] = t553;
-    P_new[211] = t554;
-    P_new[212] = t555;
-    P_new[213] = t556;
-    P_new[214] = t557;
-    P_new[215] = t558;
+    P_new[193] = t398;
+    P_new[194] = t420;
+    P_new[195] = t441;
+    P_new[196] = t461;
+    P_new[197] = t480;
+    P_new[198] = t498;
+    P_new[199] = t515;
+    P_new[200] = t531;
+    P_new[201] = t532;
+    P_new[202] = t533;
+    P_new[203] = t534;
+    P_new[204] = t535;
+    P_new[205] = t536;
+    P_new[206] = t537;
+    P_new[207] = t538;
+    P_new[208] = t539;
+    P_new[209] = t540;
+    P_new[210] = t541;
+    P_new[211] = t542;
+    P_new[212] = t543;
+    P_new[213] = t544;
+    P_new[214] = t545;
+    P_new[215] = t546;
     P_new[216] = t376;
-    P_new[217] = t400;
-    P_new[218] = t424;
-    P_new[219] = t448;
-    P_new[220] = t468;
-    P_new[221] = t488;
-    P_new[222] = t508;
-    P_new[223] = t528;
-    P_new[224] = t544;
-    P_new[225] = t560;
-    P_new[226] = t561;
-    P_new[227] = t562;
-    P_new[228] = t563;
-    P_new[229] = t564;
-    P_new[230] = t565;
-    P_new[231] = t566;
-    P_new[232] = t567;
-    P_new[233] = t568;
-    P_new[234] = t569;
-    P_new[235] = t570;
-    P_new[236] = t571;
-    P_new[237] = t572;
-    P_new[238] = t573;
-    P_new[239] = t574;
+    P_new[217] = t399;
+    P_new[218] = t421;
+    P_new[219] = t442;
+    P_new[220] = t462;
+    P_new[221] = t481;
+    P_new[222] = t499;
+    P_new[223] = t516;
+    P_new[224] = t532;
+    P_new[225] = t547;
+    P_new[226] = t548;
+    P_new[227] = t549;
+    P_new[228] = t550;
+    P_new[229] = t551;
+    P_new[230] = t552;
+    P_new[231] = t553;
+    P_new[232] = t554;
+    P_new[233] = t555;
+    P_new[234] = t556;
+    P_new[235] = t557;
+    P_new[236] = t558;
+    P_new[237] = t559;
+    P_new[238] = t560;
+    P_new[239] = t561;
     P_new[240] = t377;
-    P_new[241] = t401;
-    P_new[242] = t425;
-    P_new[243] = t449;
-    P_new[244] = t469;
-    P_new[245] = t489;
-    P_new[246] = t509;
-    P_new[247] = t529;
-    P_new[248] = t545;
-    P_new[249] = t561;
-    P_new[250] = t577;
-    P_new[251] = t578;
-    P_new[252] = t579;
-    P_new[253] = t580;
-    P_new[254] = t581;
-    P_new[255] = t582;
-    P_new[256] = t583;
-    P_new[257] = t584;
-    P_new[258] = t585;
-    P_new[259] = t586;
-    P_new[260] = t587;
-    P_new[261] = t588;
-    P_new[262] = t589;
-    P_new[263] = t590;
+    P_new[241] = t400;
+    P_new[242] = t422;
+    P_new[243] = t443;
+    P_new[244] = t463;
+    P_new[245] = t482;
+    P_new[246] = t500;
+    P_new[247] = t517;
+    P_new[248] = t533;
+    P_new[249] = t548;
+    P_new[250] = t562;
+    P_new[251] = t563;
+    P_new[252] = t564;
+    P_new[253] = t565;
+    P_new[254] = t566;
+    P_new[255] = t567;
+    P_new[256] = t568;
+    P_new[257] = t569;
+    P_new[258] = t570;
+    P_new[259] = t571;
+    P_new[260] = t572;
+    P_new[261] = t573;
+    P_new[262] = t574;
+    P_new[263] = t575;
     P_new[264] = t378;
-    P_new[265] = t402;
-    P_new[266] = t426;
-    P_new[267] = t450;
-    P_new[268] = t470;
-    P_new[269] = t490;
-    P_new[270] = t510;
-    P_new[271] = t530;
-    P_new[272] = t546;
-    P_new[273] = t562;
-    P_new[274] = t578;
-    P_new[275] = t594;
-    P_new[276] = t595;
-    P_new[277] = t596;
-    P_new[278] = t597;
-    P_new[279] = t598;
-    P_new[280] = t599;
-    P_new[281] = t600;
-    P_new[282] = t601;
-    P_new[283] = t602;
-    P_new[284] = t603;
-    P_new[285] = t604;
-    P_new[286] = t605;
-    P_new[287] = t606;
+    P_new[265] = t401;
+    P_new[266] = t423;
+    P_new[267] = t444;
+    P_new[268] = t464;
+    P_new[269] = t483;
+    P_new[270] = t501;
+    P_new[271] = t518;
+    P_new[272] = t534;
+    P_new[273] = t549;
+    P_new[274] = t563;
+    P_new[275] = t576;
+    P_new[276] = t577;
+    P_new[277] = t578;
+    P_new[278] = t579;
+    P_new[279] = t580;
+    P_new[280] = t581;
+    P_new[281] = t582;
+    P_new[282] = t583;
+    P_new[283] = t584;
+    P_new[284] = t585;
+    P_new[285] = t586;
+    P_new[286] = t587;
+    P_new[287] = t588;
     P_new[288] = t379;
-    P_new[289] = t403;
-    P_new[290] = t427;
-    P_new[291] = t451;
-    P_new[292] = t471;
-    P_new[293] = t491;
-    P_new[294] = t511;
-    P_new[295] = t531;
-    P_new[296] = t547;
-    P_new[297] = t563;
-    P_new[298] = t579;
-    P_new[299] = t595;
-    P_new[300] = t607;
-    P_new[301] = t608;
-    P_new[302] = t609;
-    P_new[303] = t610;
-    P_new[304] = t611;
-    P_new[305] = t612;
-    P_new[306] = t613;
-    P_new[307] = t614;
-    P_new[308] = t615;
-    P_new[309] = t616;
-    P_new[310] = t617;
-    P_new[311] = t618;
+    P_new[289] = t402;
+    P_new[290] = t424;
+    P_new[291] = t445;
+    P_new[292] = t465;
+    P_new[293] = t484;
+    P_new[294] = t502;
+    P_new[295] = t519;
+    P_new[296] = t535;
+    P_new[297] = t550;
+    P_new[298] = t564;
+    P_new[299] = t577;
+    P_new[300] = t589;
+    P_new[301] = t590;
+    P_new[302] = t591;
+    P_new[303] = t592;
+    P_new[304] = t593;
+    P_new[305] = t594;
+    P_new[306] = t595;
+    P_new[307] = t596;
+    P_new[308] = t597;
+    P_new[309] = t598;
+    P_new[310] = t599;
+    P_new[311] = t600;
     P_new[312] = t380;
-    P_new[313] = t404;
-    P_new[314] = t428;
-    P_new[315] = t452;
-    P_new[316] = t472;
-    P_new[317] = t492;
-    P_new[318] = t512;
-    P_new[319] = t532;
-    P_new[320] = t548;
-    P_new[321] = t564;
-    P_new[322] = t580;
-    P_new[323] = t596;
-    P_new[324] = t608;
-    P_new[325] = t620;
-    P_new[326] = t621;
-    P_new[327] = t622;
-    P_new[328] = t623;
-    P_new[329] = t624;
-    P_new[330] = t625;
-    P_new[331] = t626;
-    P_new[332] = t627;
-    P_new[333] = t628;
-    P_new[334] = t629;
-    P_new[335] = t630;
+    P_new[313] = t403;
+    P_new[314] = t425;
+    P_new[315] = t446;
+    P_new[316] = t466;
+    P_new[317] = t485;
+    P_new[318] = t503;
+    P_new[319] = t520;
+    P_new[320] = t536;
+    P_new[321] = t551;
+    P_new[322] = t565;
+    P_new[323] = t578;
+    P_new[324] = t590;
+    P_new[325] = t601;
+    P_new[326] = t602;
+    P_new[327] = t603;
+    P_new[328] = t604;
+    P_new[329] = t605;
+    P_new[330] = t606;
+    P_new[331] = t607;
+    P_new[332] = t608;
+    P_new[333] = t609;
+    P_new[334] = t610;
+    P_new[335] = t611;
     P_new[336] = t381;
-    P_new[337] = t405;
-    P_new[338] = t429;
-    P_new[339] = t453;
-    P_new[340] = t473;
-    P_new[341] = t493;
-    P_new[342] = t513;
-    P_new[343] = t533;
-    P_new[344] = t549;
-    P_new[345] = t565;
-    P_new[346] = t581;
-    P_new[347] = t597;
-    P_new[348] = t609;
-    P_new[349] = t621;
-    P_new[350] = t633;
-    P_new[351] = t634;
-    P_new[352] = t635;
-    P_new[353] = t636;
-    P_new[354] = t637;
-    P_new[355] = t638;
-    P_new[356] = t639;
-    P_new[357] = t640;
-    P_new[358] = t641;
-    P_new[359] = t642;
+    P_new[337] = t404;
+    P_new[338] = t426;
+    P_new[339] = t447;
+    P_new[340] = t467;
+    P_new[341] = t486;
+    P_new[342] = t504;
+    P_new[343] = t521;
+    P_new[344] = t537;
+    P_new[345] = t552;
+    P_new[346] = t566;
+    P_new[347] = t579;
+    P_new[348] = t591;
+    P_new[349] = t602;
+    P_new[350] = t612;
+    P_new[351] = t613;
+    P_new[352] = t614;
+    P_new[353] = t615;
+    P_new[354] = t616;
+    P_new[355] = t617;
+    P_new[356] = t618;
+    P_new[357] = t619;
+    P_new[358] = t620;
+    P_new[359] = t621;
     P_new[360] = t382;
-    P_new[361] = t406;
-    P_new[362] = t430;
-    P_new[363] = t454;
-    P_new[364] = t474;
-    P_new[365] = t494;
-    P_new[366] = t514;
-    P_new[367] = t534;
-    P_new[368] = t550;
-    P_new[369] = t566;
-    P_new[370] = t582;
-    P_new[371] = t598;
-    P_new[372] = t610;
-    P_new[373] = t622;
-    P_new[374] = t634;
-    P_new[375] = t646;
-    P_new[376] = t647;
-    P_new[377] = t648;
-    P_new[378] = t649;
-    P_new[379] = t650;
-    P_new[380] = t651;
-    P_new[381] = t652;
-    P_new[382] = t653;
-    P_new[383] = t654;
+    P_new[361] = t405;
+    P_new[362] = t427;
+    P_new[363] = t448;
+    P_new[364] = t468;
+    P_new[365] = t487;
+    P_new[366] = t505;
+    P_new[367] = t522;
+    P_new[368] = t538;
+    P_new[369] = t553;
+    P_new[370] = t567;
+    P_new[371] = t580;
+    P_new[372] = t592;
+    P_new[373] = t603;
+    P_new[374] = t613;
+    P_new[375] = t622;
+    P_new[376] = t623;
+    P_new[377] = t624;
+    P_new[378] = t625;
+    P_new[379] = t626;
+    P_new[380] = t627;
+    P_new[381] = t628;
+    P_new[382] = t629;
+    P_new[383] = t630;
     P_new[384] = t383;
-    P_new[385] = t407;
-    P_new[386] = t431;
-    P_new[387] = t455;
-    P_new[388] = t475;
-    P_new[389] = t495;
-    P_new[390] = t515;
-    P_new[391] = t535;
-    P_new[392] = t551;
-    P_new[393] = t567;
-    P_new[394] = t583;
-    P_new[395] = t599;
-    P_new[396] = t611;
-    P_new[397] = t623;
-    P_new[398] = t635;
-    P_new[399] = t647;
-    P_new[400] = t655;
-    P_new[401] = t656;
-    P_new[402] = t657;
-    P_new[403] = t658;
-    P_new[404] = t659;
-    P_new[405] = t660;
-    P_new[406] = t661;
-    P_new[407] = t662;
+    P_new[385] = t406;
+    P_new[386] = t428;
+    P_new[387] = t449;
+    P_new[388] = t469;
+    P_new[389] = t488;
+    P_new[390] = t506;
+    P_new[391] = t523;
+    P_new[392] = t539;
+    P_new[393] = t554;
+    P_new[394] = t568;
+    P_new[395] = t581;
+    P_new[396] = t593;
+    P_new[397] = t604;
+    P_new[398] = t614;
+    P_new[399] = t623;
+    P_new[400] = t631;
+    P_new[401] = t632;
+    P_new[402] = t633;
+    P_new[403] = t634;
+    P_new[404] = t635;
+    P_new[405] = t636;
+    P_new[406] = t637;
+    P_new[407] = t638;
     P_new[408] = t384;
-    P_new[409] = t408;
-    P_new[410] = t432;
-    P_new[411] = t456;
-    P_new[412] = t476;
-    P_new[413] = t496;
-    P_new[414] = t516;
-    P_new[415] = t536;
-    P_new[416] = t552;
-    P_new[417] = t568;
-    P_new[418] = t584;
-    P_new[419] = t600;
-    P_new[420] = t612;
-    P_new[421] = t624;
-    P_new[422] = t636;
-    P_new[423] = t648;
-    P_new[424] = t656;
-    P_new[425] = t664;
-    P_new[426] = t665;
-    P_new[427] = t666;
-    P_new[428] = t667;
-    P_new[429] = t668;
-    P_new[430] = t669;
-    P_new[431] = t670;
+    P_new[409] = t407;
+    P_new[410] = t429;
+    P_new[411] = t450;
+    P_new[412] = t470;
+    P_new[413] = t489;
+    P_new[414] = t507;
+    P_new[415] = t524;
+    P_new[416] = t540;
+    P_new[417] = t555;
+    P_new[418] = t569;
+    P_new[419] = t582;
+    P_new[420] = t594;
+    P_new[421] = t605;
+    P_new[422] = t615;
+    P_new[423] = t624;
+    P_new[424] = t632;
+    P_new[425] = t639;
+    P_new[426] = t640;
+    P_new[427] = t641;
+    P_new[428] = t642;
+    P_new[429] = t643;
+    P_new[430] = t644;
+    P_new[431] = t645;
     P_new[432] = t385;
-    P_new[433] = t409;
-    P_new[434] = t433;
-    P_new[435] = t457;
-    P_new[436] = t477;
-    P_new[437] = t497;
-    P_new[438] = t517;
-    P_new[439] = t537;
-    P_new[440] = t553;
-    P_new[441] = t569;
-    P_new[442] = t585;
-    P_new[443] = t601;
-    P_new[444] = t613;
-    P_new[445] = t625;
-    P_new[446] = t637;
-    P_new[447] = t649;
-    P_new[448] = t657;
-    P_new[449] = t665;
-    P_new[450] = t673;
-    P_new[451] = t674;
-    P_new[452] = t675;
-    P_new[453] = t676;
-    P_new[454] = t677;
-    P_new[455] = t678;
+    P_new[433] = t408;
+    P_new[434] = t430;
+    P_new[435] = t451;
+    P_new[436] = t471;
+    P_new[437] = t490;
+    P_new[438] = t508;
+    P_new[439] = t525;
+    P_new[440] = t541;
+    P_new[441] = t556;
+    P_new[442] = t570;
+    P_new[443] = t583;
+    P_new[444] = t595;
+    P_new[445] = t606;
+    P_new[446] = t616;
+    P_new[447] = t625;
+    P_new[448] = t633;
+    P_new[449] = t640;
+    P_new[450] = t646;
+    P_new[451] = t647;
+    P_new[452] = t648;
+    P_new[453] = t649;
+    P_new[454] = t650;
+    P_new[455] = t651;
     P_new[456] = t386;
-    P_new[457] = t410;
-    P_new[458] = t434;
-    P_new[459] = t458;
-    P_new[460] = t478;
-    P_new[461] = t498;
-    P_new[462] = t518;
-    P_new[463] = t538;
-    P_new[464] = t554;
-    P_new[465] = t570;
-    P_new[466] = t586;
-    P_new[467] = t602;
-    P_new[468] = t614;
-    P_new[469] = t626;
-    P_new[470] = t638;
-    P_new[471] = t650;
-    P_new[472] = t658;
-    P_new[473] = t666;
-    P_new[474] = t674;
-    P_new[475] = t682;
-    P_new[476] = t683;
-    P_new[477] = t684;
-    P_new[478] = t685;
-    P_new[479] = t686;
+    P_new[457] = t409;
+    P_new[458] = t431;
+    P_new[459] = t452;
+    P_new[460] = t472;
+    P_new[461] = t491;
+    P_new[462] = t509;
+    P_new[463] = t526;
+    P_new[464] = t542;
+    P_new[465] = t557;
+    P_new[466] = t571;
+    P_new[467] = t584;
+    P_new[468] = t596;
+    P_new[469] = t607;
+    P_new[470] = t617;
+    P_new[471] = t626;
+    P_new[472] = t634;
+    P_new[473] = t641;
+    P_new[474] = t647;
+    P_new[475] = t652;
+    P_new[476] = t653;
+    P_new[477] = t654;
+    P_new[478] = t655;
+    P_new[479] = t656;
     P_new[480] = t387;
-    P_new[481] = t411;
-    P_new[482] = t435;
-    P_new[483] = t459;
-    P_new[484] = t479;
-    P_new[485] = t499;
-    P_new[486] = t519;
-    P_new[487] = t539;
-    P_new[488] = t555;
-    P_new[489] = t571;
-    P_new[490] = t587;
-    P_new[491] = t603;
-    P_new[492] = t615;
-    P_new[493] = t627;
-    P_new[494] = t639;
-    P_new[495] = t651;
-    P_new[496] = t659;
-    P_new[497] = t667;
-    P_new[498] = t675;
-    P_new[499] = t683;
-    P_new[500] = t687;
-    P_new[501] = t688;
-    P_new[502] = t689;
-    P_new[503] = t690;
+    P_new[481] = t410;
+    P_new[482] = t432;
+    P_new[483] = t453;
+    P_new[484] = t473;
+    P_new[485] = t492;
+    P_new[486] = t510;
+    P_new[487] = t527;
+    P_new[488] = t543;
+    P_new[489] = t558;
+    P_new[490] = t572;
+    P_new[491] = t585;
+    P_new[492] = t597;
+    P_new[493] = t608;
+    P_new[494] = t618;
+    P_new[495] = t627;
+    P_new[496] = t635;
+    P_new[497] = t642;
+    P_new[498] = t648;
+    P_new[499] = t653;
+    P_new[500] = t657;
+    P_new[501] = t658;
+    P_new[502] = t659;
+    P_new[503] = t660;
     P_new[504] = t388;
-    P_new[505] = t412;
-    P_new[506] = t436;
-    P_new[507] = t460;
-    P_new[508] = t480;
-    P_new[509] = t500;
-    P_new[510] = t520;
-    P_new[511] = t540;
-    P_new[512] = t556;
-    P_new[513] = t572;
-    P_new[514] = t588;
-    P_new[515] = t604;
-    P_new[516] = t616;
-    P_new[517] = t628;
-    P_new[518] = t640;
-    P_new[519] = t652;
-    P_new[520] = t660;
-    P_new[521] = t668;
-    P_new[522] = t676;
-    P_new[523] = t684;
-    P_new[524] = t688;
-    P_new[525] = t692;
-    P_new[526] = t693;
-    P_new[527] = t694;
+    P_new[505] = t411;
+    P_new[506] = t433;
+    P_new[507] = t454;
+    P_new[508] = t474;
+    P_new[509] = t493;
+    P_new[510] = t511;
+    P_new[511] = t528;
+    P_new[512] = t544;
+    P_new[513] = t559;
+    P_new[514] = t573;
+    P_new[515] = t586;
+    P_new[516] = t598;
+    P_new[517] = t609;
+    P_new[518] = t619;
+    P_new[519] = t628;
+    P_new[520] = t636;
+    P_new[521] = t643;
+    P_new[522] = t649;
+    P_new[523] = t654;
+    P_new[524] = t658;
+    P_new[525] = t661;
+    P_new[526] = t662;
+    P_new[527] = t663;
     P_new[528] = t389;
-    P_new[529] = t413;
-    P_new[530] = t437;
-    P_new[531] = t461;
-    P_new[532] = t481;
-    P_new[533] = t501;
-    P_new[534] = t521;
-    P_new[535] = t541;
-    P_new[536] = t557;
-    P_new[537] = t573;
-    P_new[538] = t589;
-    P_new[539] = t605;
-    P_new[540] = t617;
-    P_new[541] = t629;
-    P_new[542] = t641;
-    P_new[543] = t653;
-    P_new[544] = t661;
-    P_new[545] = t669;
-    P_new[546] = t677;
-    P_new[547] = t685;
-    P_new[548] = t689;
-    P_new[549] = t693;
-    P_new[550] = t697;
-    P_new[551] = t698;
+    P_new[529] = t412;
+    P_new[530] = t434;
+    P_new[531] = t455;
+    P_new[532] = t475;
+    P_new[533] = t494;
+    P_new[534] = t512;
+    P_new[535] = t529;
+    P_new[536] = t545;
+    P_new[537] = t560;
+    P_new[538] = t574;
+    P_new[539] = t587;
+    P_new[540] = t599;
+    P_new[541] = t610;
+    P_new[542] = t620;
+    P_new[543] = t629;
+    P_new[544] = t637;
+    P_new[545] = t644;
+    P_new[546] = t650;
+    P_new[547] = t655;
+    P_new[548] = t659;
+    P_new[549] = t662;
+    P_new[550] = t664;
+    P_new[551] = t665;
     P_new[552] = t390;
-    P_new[553] = t414;
-    P_new[554] = t438;
-    P_new[555] = t462;
-    P_new[556] = t482;
-    P_new[557] = t502;
-    P_new[558] = t522;
-    P_new[559] = t542;
-    P_new[560] = t558;
-    P_new[561] = t574;
-    P_new[562] = t590;
-    P_new[563] = t606;
-    P_new[564] = t618;
-    P_new[565] = t630;
-    P_new[566] = t642;
-    P_new[567] = t654;
-    P_new[568] = t662;
-    P_new[569] = t670;
-    P_new[570] = t678;
-    P_new[571] = t686;
-    P_new[572] = t690;
-    P_new[573] = t694;
-    P_new[574] = t698;
-    P_new[575] = t702;
+    P_new[553] = t413;
+    P_new[554] = t435;
+    P_new[555] = t456;
+    P_new[556] = t476;
+    P_new[557] = t495;
+    P_new[558] = t513;
+    P_new[559] = t530;
+    P_new[560] = t546;
+    P_new[561] = t561;
+    P_new[562] = t575;
+    P_new[563] = t588;
+    P_new[564] = t600;
+    P_new[565] = t611;
+    P_new[566] = t621;
+    P_new[567] = t630;
+    P_new[568] = t638;
+    P_new[569] = t645;
+    P_new[570] = t651;
+    P_new[571] = t656;
+    P_new[572] = t660;
+    P_new[573] = t663;
+    P_new[574] = t665;
+    P_new[575] = t666;
     #endif
     return 0;
 }
@@ -6269,6 +6170,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const derive_vd v_t56_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[412], P[413], P[414], P[415]}), v_t56_4);
     const derive_vd v_t56_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[436], P[437], P[438], P[439]}), v_t56_5);
     const derive_vd v_t56 = (v_t56_6 + ((derive_vd){P[460], P[461], P[462], P[463]}));
+    const double t57 = v_t56[1];
+    const double t58 = v_t56[2];
+    const double t59 = v_t56[3];
     #else
     const double t56 = DERIVE_FMA(t2, P[436], DERIVE_FMA(t5, P[412], DERIVE_FMA(t9, P[388], DERIVE_FMA(t39, P[76], DERIVE_FMA(t38, P[52], DERIVE_FMA(t37, P[28], t36*P[4])))))) + P[460];
     const double t57 = DERIVE_FMA(t2, P[437], DERIVE_FMA(t5, P[413], DERIVE_FMA(t9, P[389], DERIVE_FMA(t39, P[77], DERIVE_FMA(t38, P[53], DERIVE_FMA(t37, P[29], t36*P[5])))))) + P[461];
@@ -6284,6 +6188,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const derive_vd v_t60_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[416], P[417], P[418], P[419]}), v_t60_4);
     const derive_vd v_t60_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[440], P[441], P[442], P[443]}), v_t60_5);
     const derive_vd v_t60 = (v_t60_6 + ((derive_vd){P[464], P[465], P[466], P[467]}));
+    const double t61 = v_t60[1];
+    const double t62 = v_t60[2];
+    const double t63 = v_t60[3];
     #else
     const double t60 = DERIVE_FMA(t2, P[440], DERIVE_FMA(t5, P[416], DERIVE_FMA(t9, P[392], DERIVE_FMA(t39, P[80], DERIVE_FMA(t38, P[56], DERIVE_FMA(t37, P[32], t36*P[8])))))) + P[464];
     const double t61 = DERIVE_FMA(t2, P[441], DERIVE_FMA(t5, P[417], DERIVE_FMA(t9, P[393], DERIVE_FMA(t39, P[81], DERIVE_FMA(t38, P[57], DERIVE_FMA(t37, P[33], t36*P[9])))))) + P[465];
@@ -6299,6 +6206,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const derive_vd v_t64_5 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[420], P[421], P[422], P[423]}), v_t64_4);
     const derive_vd v_t64_6 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[444], P[445], P[446], P[447]}), v_t64_5);
     const derive_vd v_t64 = (v_t64_6 + ((derive_vd){P[468], P[469], P[470], P[471]}));
+    const double t65 = v_t64[1];
+    const double t66 = v_t64[2];
+    const double t67 = v_t64[3];
     #else
     const double t64 = DERIVE_FMA(t2, P[444], DERIVE_FMA(t5, P[420], DERIVE_FMA(t9, P[396], DERIVE_FMA(t39, P[84], DERIVE_FMA(t38, P[60], DERIVE_FMA(t37, P[36], t36*P[12])))))) + P[468];
     const double t65 = DERIVE_FMA(t2, P[445], DERIVE_FMA(t5, P[421], DERIVE_FMA(t9, P[397], DERIVE_FMA(t39, P[85], DERIVE_FMA(t38, P[61], DERIVE_FMA(t37, P[37], t36*P[13])))))) + P[469];
@@ -6335,6 +6245,8 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const derive_vd v_t72 = (v_t72_6 + ((derive_vd){P[476], P[477], P[478], P[479]}));
     const double t72 = v_t72[0];
     const double t73 = v_t72[1];
+    const double t74 = v_t72[2];
+    const double t75 = v_t72[3];
     #else
     const double t72 = DERIVE_FMA(t2, P[452], DERIVE_FMA(t5, P[428], DERIVE_FMA(t9, P[404], DERIVE_FMA(t39, P[92], DERIVE_FMA(t38, P[68], DERIVE_FMA(t37, P[44], t36*P[20])))))) + P[476];
     const double t73 = DERIVE_FMA(t2, P[453], DERIVE_FMA(t5, P[429], DERIVE_FMA(t9, P[405], DERIVE_FMA(t39, P[93], DERIVE_FMA(t38, P[69], DERIVE_FMA(t37, P[45], t36*P[21])))))) + P[477];
@@ -6570,6 +6482,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t144 = t142*t143;
     #if DERIVE_VECTOR
     const derive_vd v_t145 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t52, v_t76);
+    const double t146 = v_t145[1];
+    const double t147 = v_t145[2];
+    const double t148 = v_t145[3];
     #else
     const double t145 = DERIVE_FMA(t131, t52, t76);
     const double t146 = DERIVE_FMA(t131, t53, t77);
@@ -6578,6 +6493,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t149 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t56, v_t80);
+    const double t150 = v_t149[1];
+    const double t151 = v_t149[2];
+    const double t152 = v_t149[3];
     #else
     const double t149 = DERIVE_FMA(t131, t56, t80);
     const double t150 = DERIVE_FMA(t131, t57, t81);
@@ -6586,6 +6504,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t153 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t60, v_t84);
+    const double t154 = v_t153[1];
+    const double t155 = v_t153[2];
+    const double t156 = v_t153[3];
     #else
     const double t153 = DERIVE_FMA(t131, t60, t84);
     const double t154 = DERIVE_FMA(t131, t61, t85);
@@ -6594,6 +6515,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t157 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t64, v_t88);
+    const double t158 = v_t157[1];
+    const double t159 = v_t157[2];
+    const double t160 = v_t157[3];
     #else
     const double t157 = DERIVE_FMA(t131, t64, t88);
     const double t158 = DERIVE_FMA(t131, t65, t89);
@@ -6602,6 +6526,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t161 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t68, v_t92);
+    const double t162 = v_t161[1];
+    const double t163 = v_t161[2];
+    const double t164 = v_t161[3];
     #else
     const double t161 = DERIVE_FMA(t131, t68, t92);
     const double t162 = DERIVE_FMA(t131, t69, t93);
@@ -6610,6 +6537,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t165 = DERIVE_VFMA(((derive_vd){t131, t131, t131, t131}), v_t72, v_t96);
+    const double t166 = v_t165[1];
+    const double t167 = v_t165[2];
+    const double t168 = v_t165[3];
     #else
     const double t165 = DERIVE_FMA(t131, t72, t96);
     const double t166 = DERIVE_FMA(t131, t73, t97);
@@ -6619,6 +6549,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #if DERIVE_VECTOR
     const derive_vd v_t169_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t52, v_t100);
     const derive_vd v_t169 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t145, v_t169_0);
+    const double t170 = v_t169[1];
+    const double t171 = v_t169[2];
+    const double t172 = v_t169[3];
     #else
     const double t169 = DERIVE_FMA(t138, t145, DERIVE_FMA(t132, t52, t100));
     const double t170 = DERIVE_FMA(t138, t146, DERIVE_FMA(t132, t53, t101));
@@ -6628,6 +6561,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #if DERIVE_VECTOR
     const derive_vd v_t173_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t56, v_t104);
     const derive_vd v_t173 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t149, v_t173_0);
+    const double t174 = v_t173[1];
+    const double t175 = v_t173[2];
+    const double t176 = v_t173[3];
     #else
     const double t173 = DERIVE_FMA(t138, t149, DERIVE_FMA(t132, t56, t104));
     const double t174 = DERIVE_FMA(t138, t150, DERIVE_FMA(t132, t57, t105));
@@ -6637,6 +6573,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #if DERIVE_VECTOR
     const derive_vd v_t177_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t60, v_t108);
     const derive_vd v_t177 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t153, v_t177_0);
+    const double t178 = v_t177[1];
+    const double t179 = v_t177[2];
+    const double t180 = v_t177[3];
     #else
     const double t177 = DERIVE_FMA(t138, t153, DERIVE_FMA(t132, t60, t108));
     const double t178 = DERIVE_FMA(t138, t154, DERIVE_FMA(t132, t61, t109));
@@ -6646,6 +6585,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #if DERIVE_VECTOR
     const derive_vd v_t181_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t64, v_t112);
     const derive_vd v_t181 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t157, v_t181_0);
+    const double t182 = v_t181[1];
+    const double t183 = v_t181[2];
+    const double t184 = v_t181[3];
     #else
     const double t181 = DERIVE_FMA(t138, t157, DERIVE_FMA(t132, t64, t112));
     const double t182 = DERIVE_FMA(t138, t158, DERIVE_FMA(t132, t65, t113));
@@ -6655,6 +6597,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #if DERIVE_VECTOR
     const derive_vd v_t185_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t68, v_t116);
     const derive_vd v_t185 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t161, v_t185_0);
+    const double t186 = v_t185[1];
+    const double t187 = v_t185[2];
+    const double t188 = v_t185[3];
     #else
     const double t185 = DERIVE_FMA(t138, t161, DERIVE_FMA(t132, t68, t116));
     const double t186 = DERIVE_FMA(t138, t162, DERIVE_FMA(t132, t69, t117));
@@ -6664,6 +6609,9 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     #if DERIVE_VECTOR
     const derive_vd v_t189_0 = DERIVE_VFMA(((derive_vd){t132, t132, t132, t132}), v_t72, v_t120);
     const derive_vd v_t189 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), v_t165, v_t189_0);
+    const double t190 = v_t189[1];
+    const double t191 = v_t189[2];
+    const double t192 = v_t189[3];
     #else
     const double t189 = DERIVE_FMA(t138, t165, DERIVE_FMA(t132, t72, t120));
     const double t190 = DERIVE_FMA(t138, t166, DERIVE_FMA(t132, t73, t121));
@@ -6959,6 +6907,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const derive_vd v_t289_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t52, ((derive_vd){P[0], P[1], P[2], P[3]}));
     const derive_vd v_t289_1 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t145, v_t289_0);
     const derive_vd v_t289 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t169, v_t289_1);
+    const double t290 = v_t289[1];
+    const double t291 = v_t289[2];
+    const double t292 = v_t289[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t289;
     #else
     const double t289 = DERIVE_FMA(t241, t169, DERIVE_FMA(t217, t145, DERIVE_FMA(t193, t52, P[0])));
     const double t290 = DERIVE_FMA(t241, t170, DERIVE_FMA(t217, t146, DERIVE_FMA(t193, t53, P[1])));
@@ -7015,1072 +6967,990 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t311 = DERIVE_FMA(t241, t191, DERIVE_FMA(t217, t167, DERIVE_FMA(t193, t74, P[22])));
     const double t312 = DERIVE_FMA(t241, t192, DERIVE_FMA(t217, t168, DERIVE_FMA(t193, t75, P[23])));
     #endif
+    const double t313 = DERIVE_FMA(t194, t53, DERIVE_FMA(t170, t242, DERIVE_FMA(t146, t218, P[25])));
+    const double t314 = DERIVE_FMA(t194, t54, DERIVE_FMA(t171, t242, DERIVE_FMA(t147, t218, P[26])));
+    const double t315 = DERIVE_FMA(t194, t55, DERIVE_FMA(t172, t242, DERIVE_FMA(t148, t218, P[27])));
     #if DERIVE_VECTOR
-    const derive_vd v_t313_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t52, ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t313_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t145, v_t313_0);
-    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t169, v_t313_1);
+    const derive_vd v_t316_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t56, ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t316_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t149, v_t316_0);
+    const derive_vd v_t316 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t173, v_t316_1);
     #else
-    const double t314 = DERIVE_FMA(t242, t170, DERIVE_FMA(t218, t146, DERIVE_FMA(t194, t53, P[25])));
-    const double t315 = DERIVE_FMA(t242, t171, DERIVE_FMA(t218, t147, DERIVE_FMA(t194, t54, P[26])));
-    const double t316 = DERIVE_FMA(t242, t172, DERIVE_FMA(t218, t148, DERIVE_FMA(t194, t55, P[27])));
+    const double t316 = DERIVE_FMA(t242, t173, DERIVE_FMA(t218, t149, DERIVE_FMA(t194, t56, P[28])));
+    const double t317 = DERIVE_FMA(t242, t174, DERIVE_FMA(t218, t150, DERIVE_FMA(t194, t57, P[29])));
+    const double t318 = DERIVE_FMA(t242, t175, DERIVE_FMA(t218, t151, DERIVE_FMA(t194, t58, P[30])));
+    const double t319 = DERIVE_FMA(t242, t176, DERIVE_FMA(t218, t152, DERIVE_FMA(t194, t59, P[31])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t317_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t56, ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t317_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t149, v_t317_0);
-    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t173, v_t317_1);
+    const derive_vd v_t320_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t60, ((derive_vd){P[32], P[33], P[34], P[35]}));
+    const derive_vd v_t320_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t153, v_t320_0);
+    const derive_vd v_t320 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t177, v_t320_1);
     #else
-    const double t317 = DERIVE_FMA(t242, t173, DERIVE_FMA(t218, t149, DERIVE_FMA(t194, t56, P[28])));
-    const double t318 = DERIVE_FMA(t242, t174, DERIVE_FMA(t218, t150, DERIVE_FMA(t194, t57, P[29])));
-    const double t319 = DERIVE_FMA(t242, t175, DERIVE_FMA(t218, t151, DERIVE_FMA(t194, t58, P[30])));
-    const double t320 = DERIVE_FMA(t242, t176, DERIVE_FMA(t218, t152, DERIVE_FMA(t194, t59, P[31])));
+    const double t320 = DERIVE_FMA(t242, t177, DERIVE_FMA(t218, t153, DERIVE_FMA(t194, t60, P[32])));
+    const double t321 = DERIVE_FMA(t242, t178, DERIVE_FMA(t218, t154, DERIVE_FMA(t194, t61, P[33])));
+    const double t322 = DERIVE_FMA(t242, t179, DERIVE_FMA(t218, t155, DERIVE_FMA(t194, t62, P[34])));
+    const double t323 = DERIVE_FMA(t242, t180, DERIVE_FMA(t218, t156, DERIVE_FMA(t194, t63, P[35])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t321_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t60, ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t321_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t153, v_t321_0);
-    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t177, v_t321_1);
+    const derive_vd v_t324_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t64, ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t324_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t157, v_t324_0);
+    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t181, v_t324_1);
     #else
-    const double t321 = DERIVE_FMA(t242, t177, DERIVE_FMA(t218, t153, DERIVE_FMA(t194, t60, P[32])));
-    const double t322 = DERIVE_FMA(t242, t178, DERIVE_FMA(t218, t154, DERIVE_FMA(t194, t61, P[33])));
-    const double t323 = DERIVE_FMA(t242, t179, DERIVE_FMA(t218, t155, DERIVE_FMA(t194, t62, P[34])));
-    const double t324 = DERIVE_FMA(t242, t180, DERIVE_FMA(t218, t156, DERIVE_FMA(t194, t63, P[35])));
+    const double t324 = DERIVE_FMA(t242, t181, DERIVE_FMA(t218, t157, DERIVE_FMA(t194, t64, P[36])));
+    const double t325 = DERIVE_FMA(t242, t182, DERIVE_FMA(t218, t158, DERIVE_FMA(t194, t65, P[37])));
+    const double t326 = DERIVE_FMA(t242, t183, DERIVE_FMA(t218, t159, DERIVE_FMA(t194, t66, P[38])));
+    const double t327 = DERIVE_FMA(t242, t184, DERIVE_FMA(t218, t160, DERIVE_FMA(t194, t67, P[39])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t325_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t64, ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t325_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t157, v_t325_0);
-    const derive_vd v_t325 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t181, v_t325_1);
+    const derive_vd v_t328_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t68, ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t328_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t161, v_t328_0);
+    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t185, v_t328_1);
     #else
-    const double t325 = DERIVE_FMA(t242, t181, DERIVE_FMA(t218, t157, DERIVE_FMA(t194, t64, P[36])));
-    const double t326 = DERIVE_FMA(t242, t182, DERIVE_FMA(t218, t158, DERIVE_FMA(t194, t65, P[37])));
-    const double t327 = DERIVE_FMA(t242, t183, DERIVE_FMA(t218, t159, DERIVE_FMA(t194, t66, P[38])));
-    const double t328 = DERIVE_FMA(t242, t184, DERIVE_FMA(t218, t160, DERIVE_FMA(t194, t67, P[39])));
+    const double t328 = DERIVE_FMA(t242, t185, DERIVE_FMA(t218, t161, DERIVE_FMA(t194, t68, P[40])));
+    const double t329 = DERIVE_FMA(t242, t186, DERIVE_FMA(t218, t162, DERIVE_FMA(t194, t69, P[41])));
+    const double t330 = DERIVE_FMA(t242, t187, DERIVE_FMA(t218, t163, DERIVE_FMA(t194, t70, P[42])));
+    const double t331 = DERIVE_FMA(t242, t188, DERIVE_FMA(t218, t164, DERIVE_FMA(t194, t71, P[43])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t329_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t68, ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t329_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t161, v_t329_0);
-    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t185, v_t329_1);
+    const derive_vd v_t332_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t72, ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t332_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t165, v_t332_0);
+    const derive_vd v_t332 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t189, v_t332_1);
     #else
-    const double t329 = DERIVE_FMA(t242, t185, DERIVE_FMA(t218, t161, DERIVE_FMA(t194, t68, P[40])));
-    const double t330 = DERIVE_FMA(t242, t186, DERIVE_FMA(t218, t162, DERIVE_FMA(t194, t69, P[41])));
-    const double t331 = DERIVE_FMA(t242, t187, DERIVE_FMA(t218, t163, DERIVE_FMA(t194, t70, P[42])));
-    const double t332 = DERIVE_FMA(t242, t188, DERIVE_FMA(t218, t164, DERIVE_FMA(t194, t71, P[43])));
+    const double t332 = DERIVE_FMA(t242, t189, DERIVE_FMA(t218, t165, DERIVE_FMA(t194, t72, P[44])));
+    const double t333 = DERIVE_FMA(t242, t190, DERIVE_FMA(t218, t166, DERIVE_FMA(t194, t73, P[45])));
+    const double t334 = DERIVE_FMA(t242, t191, DERIVE_FMA(t218, t167, DERIVE_FMA(t194, t74, P[46])));
+    const double t335 = DERIVE_FMA(t242, t192, DERIVE_FMA(t218, t168, DERIVE_FMA(t194, t75, P[47])));
+    #endif
+    const double t336 = DERIVE_FMA(t195, t54, DERIVE_FMA(t171, t243, DERIVE_FMA(t147, t219, P[50])));
+    const double t337 = DERIVE_FMA(t195, t55, DERIVE_FMA(t172, t243, DERIVE_FMA(t148, t219, P[51])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t338_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t56, ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd v_t338_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t149, v_t338_0);
+    const derive_vd v_t338 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t173, v_t338_1);
+    #else
+    const double t338 = DERIVE_FMA(t243, t173, DERIVE_FMA(t219, t149, DERIVE_FMA(t195, t56, P[52])));
+    const double t339 = DERIVE_FMA(t243, t174, DERIVE_FMA(t219, t150, DERIVE_FMA(t195, t57, P[53])));
+    const double t340 = DERIVE_FMA(t243, t175, DERIVE_FMA(t219, t151, DERIVE_FMA(t195, t58, P[54])));
+    const double t341 = DERIVE_FMA(t243, t176, DERIVE_FMA(t219, t152, DERIVE_FMA(t195, t59, P[55])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t333_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t72, ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t333_1 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t165, v_t333_0);
-    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t189, v_t333_1);
+    const derive_vd v_t342_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t60, ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t342_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t153, v_t342_0);
+    const derive_vd v_t342 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t177, v_t342_1);
     #else
-    const double t333 = DERIVE_FMA(t242, t189, DERIVE_FMA(t218, t165, DERIVE_FMA(t194, t72, P[44])));
-    const double t334 = DERIVE_FMA(t242, t190, DERIVE_FMA(t218, t166, DERIVE_FMA(t194, t73, P[45])));
-    const double t335 = DERIVE_FMA(t242, t191, DERIVE_FMA(t218, t167, DERIVE_FMA(t194, t74, P[46])));
-    const double t336 = DERIVE_FMA(t242, t192, DERIVE_FMA(t218, t168, DERIVE_FMA(t194, t75, P[47])));
+    const double t342 = DERIVE_FMA(t243, t177, DERIVE_FMA(t219, t153, DERIVE_FMA(t195, t60, P[56])));
+    const double t343 = DERIVE_FMA(t243, t178, DERIVE_FMA(t219, t154, DERIVE_FMA(t195, t61, P[57])));
+    const double t344 = DERIVE_FMA(t243, t179, DERIVE_FMA(t219, t155, DERIVE_FMA(t195, t62, P[58])));
+    const double t345 = DERIVE_FMA(t243, t180, DERIVE_FMA(t219, t156, DERIVE_FMA(t195, t63, P[59])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t337_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t52, ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t337_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t145, v_t337_0);
-    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t169, v_t337_1);
+    const derive_vd v_t346_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t64, ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t346_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t157, v_t346_0);
+    const derive_vd v_t346 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t181, v_t346_1);
     #else
-    const double t339 = DERIVE_FMA(t243, t171, DERIVE_FMA(t219, t147, DERIVE_FMA(t195, t54, P[50])));
-    const double t340 = DERIVE_FMA(t243, t172, DERIVE_FMA(t219, t148, DERIVE_FMA(t195, t55, P[51])));
+    const double t346 = DERIVE_FMA(t243, t181, DERIVE_FMA(t219, t157, DERIVE_FMA(t195, t64, P[60])));
+    const double t347 = DERIVE_FMA(t243, t182, DERIVE_FMA(t219, t158, DERIVE_FMA(t195, t65, P[61])));
+    const double t348 = DERIVE_FMA(t243, t183, DERIVE_FMA(t219, t159, DERIVE_FMA(t195, t66, P[62])));
+    const double t349 = DERIVE_FMA(t243, t184, DERIVE_FMA(t219, t160, DERIVE_FMA(t195, t67, P[63])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t341_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t56, ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd v_t341_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t149, v_t341_0);
-    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t173, v_t341_1);
+    const derive_vd v_t350_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t68, ((derive_vd){P[64], P[65], P[66], P[67]}));
+    const derive_vd v_t350_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t161, v_t350_0);
+    const derive_vd v_t350 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t185, v_t350_1);
     #else
-    const double t341 = DERIVE_FMA(t243, t173, DERIVE_FMA(t219, t149, DERIVE_FMA(t195, t56, P[52])));
-    const double t342 = DERIVE_FMA(t243, t174, DERIVE_FMA(t219, t150, DERIVE_FMA(t195, t57, P[53])));
-    const double t343 = DERIVE_FMA(t243, t175, DERIVE_FMA(t219, t151, DERIVE_FMA(t195, t58, P[54])));
-    const double t344 = DERIVE_FMA(t243, t176, DERIVE_FMA(t219, t152, DERIVE_FMA(t195, t59, P[55])));
+    const double t350 = DERIVE_FMA(t243, t185, DERIVE_FMA(t219, t161, DERIVE_FMA(t195, t68, P[64])));
+    const double t351 = DERIVE_FMA(t243, t186, DERIVE_FMA(t219, t162, DERIVE_FMA(t195, t69, P[65])));
+    const double t352 = DERIVE_FMA(t243, t187, DERIVE_FMA(t219, t163, DERIVE_FMA(t195, t70, P[66])));
+    const double t353 = DERIVE_FMA(t243, t188, DERIVE_FMA(t219, t164, DERIVE_FMA(t195, t71, P[67])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t345_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t60, ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t345_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t153, v_t345_0);
-    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t177, v_t345_1);
+    const derive_vd v_t354_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t72, ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t354_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t165, v_t354_0);
+    const derive_vd v_t354 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t189, v_t354_1);
     #else
-    const double t345 = DERIVE_FMA(t243, t177, DERIVE_FMA(t219, t153, DERIVE_FMA(t195, t60, P[56])));
-    const double t346 = DERIVE_FMA(t243, t178, DERIVE_FMA(t219, t154, DERIVE_FMA(t195, t61, P[57])));
-    const double t347 = DERIVE_FMA(t243, t179, DERIVE_FMA(t219, t155, DERIVE_FMA(t195, t62, P[58])));
-    const double t348 = DERIVE_FMA(t243, t180, DERIVE_FMA(t219, t156, DERIVE_FMA(t195, t63, P[59])));
+    const double t354 = DERIVE_FMA(t243, t189, DERIVE_FMA(t219, t165, DERIVE_FMA(t195, t72, P[68])));
+    const double t355 = DERIVE_FMA(t243, t190, DERIVE_FMA(t219, t166, DERIVE_FMA(t195, t73, P[69])));
+    const double t356 = DERIVE_FMA(t243, t191, DERIVE_FMA(t219, t167, DERIVE_FMA(t195, t74, P[70])));
+    const double t357 = DERIVE_FMA(t243, t192, DERIVE_FMA(t219, t168, DERIVE_FMA(t195, t75, P[71])));
     #endif
+    const double t358 = DERIVE_FMA(t196, t55, DERIVE_FMA(t172, t244, DERIVE_FMA(t148, t220, P[75])));
     #if DERIVE_VECTOR
-    const derive_vd v_t349_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t64, ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t349_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t157, v_t349_0);
-    const derive_vd v_t349 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t181, v_t349_1);
-    #else
-    const double t349 = DERIVE_FMA(t243, t181, DERIVE_FMA(t219, t157, DERIVE_FMA(t195, t64, P[60])));
-    const double t350 = DERIVE_FMA(t243, t182, DERIVE_FMA(t219, t158, DERIVE_FMA(t195, t65, P[61])));
-    const double t351 = DERIVE_FMA(t243, t183, DERIVE_FMA(t219, t159, DERIVE_FMA(t195, t66, P[62])));
-    const double t352 = DERIVE_FMA(t243, t184, DERIVE_FMA(t219, t160, DERIVE_FMA(t195, t67, P[63])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t353_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t68, ((derive_vd){P[64], P[65], P[66], P[67]}));
-    const derive_vd v_t353_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t161, v_t353_0);
-    const derive_vd v_t353 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t185, v_t353_1);
-    #else
-    const double t353 = DERIVE_FMA(t243, t185, DERIVE_FMA(t219, t161, DERIVE_FMA(t195, t68, P[64])));
-    const double t354 = DERIVE_FMA(t243, t186, DERIVE_FMA(t219, t162, DERIVE_FMA(t195, t69, P[65])));
-    const double t355 = DERIVE_FMA(t243, t187, DERIVE_FMA(t219, t163, DERIVE_FMA(t195, t70, P[66])));
-    const double t356 = DERIVE_FMA(t243, t188, DERIVE_FMA(t219, t164, DERIVE_FMA(t195, t71, P[67])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t357_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t72, ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t357_1 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t165, v_t357_0);
-    const derive_vd v_t357 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t189, v_t357_1);
-    #else
-    const double t357 = DERIVE_FMA(t243, t189, DERIVE_FMA(t219, t165, DERIVE_FMA(t195, t72, P[68])));
-    const double t358 = DERIVE_FMA(t243, t190, DERIVE_FMA(t219, t166, DERIVE_FMA(t195, t73, P[69])));
-    const double t359 = DERIVE_FMA(t243, t191, DERIVE_FMA(t219, t167, DERIVE_FMA(t195, t74, P[70])));
-    const double t360 = DERIVE_FMA(t243, t192, DERIVE_FMA(t219, t168, DERIVE_FMA(t195, t75, P[71])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t361_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t52, ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t361_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t145, v_t361_0);
-    const derive_vd v_t361 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t169, v_t361_1);
-    const derive_vd tr_v_t289_0 = __builtin_shufflevector(v_t289, v_t313, 0, 4, 2, 6);
-    const derive_vd tr_v_t289_1 = __builtin_shufflevector(v_t289, v_t313, 1, 5, 3, 7);
-    const derive_vd tr_v_t289_2 = __builtin_shufflevector(v_t337, v_t361, 0, 4, 2, 6);
-    const derive_vd tr_v_t289_3 = __builtin_shufflevector(v_t337, v_t361, 1, 5, 3, 7);
-    const derive_vd tr_v_t289_c1 = __builtin_shufflevector(tr_v_t289_1, tr_v_t289_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t289_c2 = __builtin_shufflevector(tr_v_t289_0, tr_v_t289_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t289_c3 = __builtin_shufflevector(tr_v_t289_1, tr_v_t289_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[0] = v_t289;
-    *(derive_vd_unaligned *)&P_new[24] = __builtin_shufflevector(v_t313, tr_v_t289_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t337, tr_v_t289_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[72] = __builtin_shufflevector(v_t361, tr_v_t289_c3, 4, 5, 6, 3);
-    #else
-    const double t364 = DERIVE_FMA(t244, t172, DERIVE_FMA(t220, t148, DERIVE_FMA(t196, t55, P[75])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t365_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t56, ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t365_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t149, v_t365_0);
-    const derive_vd v_t365 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t173, v_t365_1);
-    const derive_vd tr_v_t293_0 = __builtin_shufflevector(v_t293, v_t317, 0, 4, 2, 6);
-    const derive_vd tr_v_t293_1 = __builtin_shufflevector(v_t293, v_t317, 1, 5, 3, 7);
-    const derive_vd tr_v_t293_2 = __builtin_shufflevector(v_t341, v_t365, 0, 4, 2, 6);
-    const derive_vd tr_v_t293_3 = __builtin_shufflevector(v_t341, v_t365, 1, 5, 3, 7);
+    const derive_vd v_t359_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t56, ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t359_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t149, v_t359_0);
+    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t173, v_t359_1);
+    const derive_vd tr_v_t293_0 = __builtin_shufflevector(v_t293, v_t316, 0, 4, 2, 6);
+    const derive_vd tr_v_t293_1 = __builtin_shufflevector(v_t293, v_t316, 1, 5, 3, 7);
+    const derive_vd tr_v_t293_2 = __builtin_shufflevector(v_t338, v_t359, 0, 4, 2, 6);
+    const derive_vd tr_v_t293_3 = __builtin_shufflevector(v_t338, v_t359, 1, 5, 3, 7);
     const derive_vd tr_v_t293_c0 = __builtin_shufflevector(tr_v_t293_0, tr_v_t293_2, 0, 1, 4, 5);
     const derive_vd tr_v_t293_c1 = __builtin_shufflevector(tr_v_t293_1, tr_v_t293_3, 0, 1, 4, 5);
     const derive_vd tr_v_t293_c2 = __builtin_shufflevector(tr_v_t293_0, tr_v_t293_2, 2, 3, 6, 7);
     const derive_vd tr_v_t293_c3 = __builtin_shufflevector(tr_v_t293_1, tr_v_t293_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[4] = v_t293;
-    *(derive_vd_unaligned *)&P_new[28] = v_t317;
-    *(derive_vd_unaligned *)&P_new[52] = v_t341;
-    *(derive_vd_unaligned *)&P_new[76] = v_t365;
+    *(derive_vd_unaligned *)&P_new[28] = v_t316;
+    *(derive_vd_unaligned *)&P_new[52] = v_t338;
+    *(derive_vd_unaligned *)&P_new[76] = v_t359;
     *(derive_vd_unaligned *)&P_new[96] = tr_v_t293_c0;
     *(derive_vd_unaligned *)&P_new[120] = tr_v_t293_c1;
     *(derive_vd_unaligned *)&P_new[144] = tr_v_t293_c2;
     *(derive_vd_unaligned *)&P_new[168] = tr_v_t293_c3;
     #else
-    const double t365 = DERIVE_FMA(t244, t173, DERIVE_FMA(t220, t149, DERIVE_FMA(t196, t56, P[76])));
-    const double t366 = DERIVE_FMA(t244, t174, DERIVE_FMA(t220, t150, DERIVE_FMA(t196, t57, P[77])));
-    const double t367 = DERIVE_FMA(t244, t175, DERIVE_FMA(t220, t151, DERIVE_FMA(t196, t58, P[78])));
-    const double t368 = DERIVE_FMA(t244, t176, DERIVE_FMA(t220, t152, DERIVE_FMA(t196, t59, P[79])));
+    const double t359 = DERIVE_FMA(t244, t173, DERIVE_FMA(t220, t149, DERIVE_FMA(t196, t56, P[76])));
+    const double t360 = DERIVE_FMA(t244, t174, DERIVE_FMA(t220, t150, DERIVE_FMA(t196, t57, P[77])));
+    const double t361 = DERIVE_FMA(t244, t175, DERIVE_FMA(t220, t151, DERIVE_FMA(t196, t58, P[78])));
+    const double t362 = DERIVE_FMA(t244, t176, DERIVE_FMA(t220, t152, DERIVE_FMA(t196, t59, P[79])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t369_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t60, ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd v_t369_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t153, v_t369_0);
-    const derive_vd v_t369 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t177, v_t369_1);
-    const derive_vd tr_v_t297_0 = __builtin_shufflevector(v_t297, v_t321, 0, 4, 2, 6);
-    const derive_vd tr_v_t297_1 = __builtin_shufflevector(v_t297, v_t321, 1, 5, 3, 7);
-    const derive_vd tr_v_t297_2 = __builtin_shufflevector(v_t345, v_t369, 0, 4, 2, 6);
-    const derive_vd tr_v_t297_3 = __builtin_shufflevector(v_t345, v_t369, 1, 5, 3, 7);
+    const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t60, ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd v_t363_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t153, v_t363_0);
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t177, v_t363_1);
+    const derive_vd tr_v_t297_0 = __builtin_shufflevector(v_t297, v_t320, 0, 4, 2, 6);
+    const derive_vd tr_v_t297_1 = __builtin_shufflevector(v_t297, v_t320, 1, 5, 3, 7);
+    const derive_vd tr_v_t297_2 = __builtin_shufflevector(v_t342, v_t363, 0, 4, 2, 6);
+    const derive_vd tr_v_t297_3 = __builtin_shufflevector(v_t342, v_t363, 1, 5, 3, 7);
     const derive_vd tr_v_t297_c0 = __builtin_shufflevector(tr_v_t297_0, tr_v_t297_2, 0, 1, 4, 5);
     const derive_vd tr_v_t297_c1 = __builtin_shufflevector(tr_v_t297_1, tr_v_t297_3, 0, 1, 4, 5);
     const derive_vd tr_v_t297_c2 = __builtin_shufflevector(tr_v_t297_0, tr_v_t297_2, 2, 3, 6, 7);
     const derive_vd tr_v_t297_c3 = __builtin_shufflevector(tr_v_t297_1, tr_v_t297_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[8] = v_t297;
-    *(derive_vd_unaligned *)&P_new[32] = v_t321;
-    *(derive_vd_unaligned *)&P_new[56] = v_t345;
-    *(derive_vd_unaligned *)&P_new[80] = v_t369;
+    *(derive_vd_unaligned *)&P_new[32] = v_t320;
+    *(derive_vd_unaligned *)&P_new[56] = v_t342;
+    *(derive_vd_unaligned *)&P_new[80] = v_t363;
     *(derive_vd_unaligned *)&P_new[192] = tr_v_t297_c0;
     *(derive_vd_unaligned *)&P_new[216] = tr_v_t297_c1;
     *(derive_vd_unaligned *)&P_new[240] = tr_v_t297_c2;
     *(derive_vd_unaligned *)&P_new[264] = tr_v_t297_c3;
     #else
-    const double t369 = DERIVE_FMA(t244, t177, DERIVE_FMA(t220, t153, DERIVE_FMA(t196, t60, P[80])));
-    const double t370 = DERIVE_FMA(t244, t178, DERIVE_FMA(t220, t154, DERIVE_FMA(t196, t61, P[81])));
-    const double t371 = DERIVE_FMA(t244, t179, DERIVE_FMA(t220, t155, DERIVE_FMA(t196, t62, P[82])));
-    const double t372 = DERIVE_FMA(t244, t180, DERIVE_FMA(t220, t156, DERIVE_FMA(t196, t63, P[83])));
+    const double t363 = DERIVE_FMA(t244, t177, DERIVE_FMA(t220, t153, DERIVE_FMA(t196, t60, P[80])));
+    const double t364 = DERIVE_FMA(t244, t178, DERIVE_FMA(t220, t154, DERIVE_FMA(t196, t61, P[81])));
+    const double t365 = DERIVE_FMA(t244, t179, DERIVE_FMA(t220, t155, DERIVE_FMA(t196, t62, P[82])));
+    const double t366 = DERIVE_FMA(t244, t180, DERIVE_FMA(t220, t156, DERIVE_FMA(t196, t63, P[83])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t373_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t64, ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t373_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t157, v_t373_0);
-    const derive_vd v_t373 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t181, v_t373_1);
-    const derive_vd tr_v_t301_0 = __builtin_shufflevector(v_t301, v_t325, 0, 4, 2, 6);
-    const derive_vd tr_v_t301_1 = __builtin_shufflevector(v_t301, v_t325, 1, 5, 3, 7);
-    const derive_vd tr_v_t301_2 = __builtin_shufflevector(v_t349, v_t373, 0, 4, 2, 6);
-    const derive_vd tr_v_t301_3 = __builtin_shufflevector(v_t349, v_t373, 1, 5, 3, 7);
+    const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t64, ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd v_t367_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t157, v_t367_0);
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t181, v_t367_1);
+    const derive_vd tr_v_t301_0 = __builtin_shufflevector(v_t301, v_t324, 0, 4, 2, 6);
+    const derive_vd tr_v_t301_1 = __builtin_shufflevector(v_t301, v_t324, 1, 5, 3, 7);
+    const derive_vd tr_v_t301_2 = __builtin_shufflevector(v_t346, v_t367, 0, 4, 2, 6);
+    const derive_vd tr_v_t301_3 = __builtin_shufflevector(v_t346, v_t367, 1, 5, 3, 7);
     const derive_vd tr_v_t301_c0 = __builtin_shufflevector(tr_v_t301_0, tr_v_t301_2, 0, 1, 4, 5);
     const derive_vd tr_v_t301_c1 = __builtin_shufflevector(tr_v_t301_1, tr_v_t301_3, 0, 1, 4, 5);
     const derive_vd tr_v_t301_c2 = __builtin_shufflevector(tr_v_t301_0, tr_v_t301_2, 2, 3, 6, 7);
     const derive_vd tr_v_t301_c3 = __builtin_shufflevector(tr_v_t301_1, tr_v_t301_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[12] = v_t301;
-    *(derive_vd_unaligned *)&P_new[36] = v_t325;
-    *(derive_vd_unaligned *)&P_new[60] = v_t349;
-    *(derive_vd_unaligned *)&P_new[84] = v_t373;
+    *(derive_vd_unaligned *)&P_new[36] = v_t324;
+    *(derive_vd_unaligned *)&P_new[60] = v_t346;
+    *(derive_vd_unaligned *)&P_new[84] = v_t367;
     *(derive_vd_unaligned *)&P_new[288] = tr_v_t301_c0;
     *(derive_vd_unaligned *)&P_new[312] = tr_v_t301_c1;
     *(derive_vd_unaligned *)&P_new[336] = tr_v_t301_c2;
     *(derive_vd_unaligned *)&P_new[360] = tr_v_t301_c3;
     #else
-    const double t373 = DERIVE_FMA(t244, t181, DERIVE_FMA(t220, t157, DERIVE_FMA(t196, t64, P[84])));
-    const double t374 = DERIVE_FMA(t244, t182, DERIVE_FMA(t220, t158, DERIVE_FMA(t196, t65, P[85])));
-    const double t375 = DERIVE_FMA(t244, t183, DERIVE_FMA(t220, t159, DERIVE_FMA(t196, t66, P[86])));
-    const double t376 = DERIVE_FMA(t244, t184, DERIVE_FMA(t220, t160, DERIVE_FMA(t196, t67, P[87])));
+    const double t367 = DERIVE_FMA(t244, t181, DERIVE_FMA(t220, t157, DERIVE_FMA(t196, t64, P[84])));
+    const double t368 = DERIVE_FMA(t244, t182, DERIVE_FMA(t220, t158, DERIVE_FMA(t196, t65, P[85])));
+    const double t369 = DERIVE_FMA(t244, t183, DERIVE_FMA(t220, t159, DERIVE_FMA(t196, t66, P[86])));
+    const double t370 = DERIVE_FMA(t244, t184, DERIVE_FMA(t220, t160, DERIVE_FMA(t196, t67, P[87])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t377_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t68, ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t377_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t161, v_t377_0);
-    const derive_vd v_t377 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t185, v_t377_1);
-    const derive_vd tr_v_t305_0 = __builtin_shufflevector(v_t305, v_t329, 0, 4, 2, 6);
-    const derive_vd tr_v_t305_1 = __builtin_shufflevector(v_t305, v_t329, 1, 5, 3, 7);
-    const derive_vd tr_v_t305_2 = __builtin_shufflevector(v_t353, v_t377, 0, 4, 2, 6);
-    const derive_vd tr_v_t305_3 = __builtin_shufflevector(v_t353, v_t377, 1, 5, 3, 7);
+    const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t68, ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t161, v_t371_0);
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t185, v_t371_1);
+    const derive_vd tr_v_t305_0 = __builtin_shufflevector(v_t305, v_t328, 0, 4, 2, 6);
+    const derive_vd tr_v_t305_1 = __builtin_shufflevector(v_t305, v_t328, 1, 5, 3, 7);
+    const derive_vd tr_v_t305_2 = __builtin_shufflevector(v_t350, v_t371, 0, 4, 2, 6);
+    const derive_vd tr_v_t305_3 = __builtin_shufflevector(v_t350, v_t371, 1, 5, 3, 7);
     const derive_vd tr_v_t305_c0 = __builtin_shufflevector(tr_v_t305_0, tr_v_t305_2, 0, 1, 4, 5);
     const derive_vd tr_v_t305_c1 = __builtin_shufflevector(tr_v_t305_1, tr_v_t305_3, 0, 1, 4, 5);
     const derive_vd tr_v_t305_c2 = __builtin_shufflevector(tr_v_t305_0, tr_v_t305_2, 2, 3, 6, 7);
     const derive_vd tr_v_t305_c3 = __builtin_shufflevector(tr_v_t305_1, tr_v_t305_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[16] = v_t305;
-    *(derive_vd_unaligned *)&P_new[40] = v_t329;
-    *(derive_vd_unaligned *)&P_new[64] = v_t353;
-    *(derive_vd_unaligned *)&P_new[88] = v_t377;
+    *(derive_vd_unaligned *)&P_new[40] = v_t328;
+    *(derive_vd_unaligned *)&P_new[64] = v_t350;
+    *(derive_vd_unaligned *)&P_new[88] = v_t371;
     *(derive_vd_unaligned *)&P_new[384] = tr_v_t305_c0;
     *(derive_vd_unaligned *)&P_new[408] = tr_v_t305_c1;
     *(derive_vd_unaligned *)&P_new[432] = tr_v_t305_c2;
     *(derive_vd_unaligned *)&P_new[456] = tr_v_t305_c3;
     #else
-    const double t377 = DERIVE_FMA(t244, t185, DERIVE_FMA(t220, t161, DERIVE_FMA(t196, t68, P[88])));
-    const double t378 = DERIVE_FMA(t244, t186, DERIVE_FMA(t220, t162, DERIVE_FMA(t196, t69, P[89])));
-    const double t379 = DERIVE_FMA(t244, t187, DERIVE_FMA(t220, t163, DERIVE_FMA(t196, t70, P[90])));
-    const double t380 = DERIVE_FMA(t244, t188, DERIVE_FMA(t220, t164, DERIVE_FMA(t196, t71, P[91])));
+    const double t371 = DERIVE_FMA(t244, t185, DERIVE_FMA(t220, t161, DERIVE_FMA(t196, t68, P[88])));
+    const double t372 = DERIVE_FMA(t244, t186, DERIVE_FMA(t220, t162, DERIVE_FMA(t196, t69, P[89])));
+    const double t373 = DERIVE_FMA(t244, t187, DERIVE_FMA(t220, t163, DERIVE_FMA(t196, t70, P[90])));
+    const double t374 = DERIVE_FMA(t244, t188, DERIVE_FMA(t220, t164, DERIVE_FMA(t196, t71, P[91])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t381_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t72, ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t381_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t165, v_t381_0);
-    const derive_vd v_t381 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t189, v_t381_1);
-    const derive_vd tr_v_t309_0 = __builtin_shufflevector(v_t309, v_t333, 0, 4, 2, 6);
-    const derive_vd tr_v_t309_1 = __builtin_shufflevector(v_t309, v_t333, 1, 5, 3, 7);
-    const derive_vd tr_v_t309_2 = __builtin_shufflevector(v_t357, v_t381, 0, 4, 2, 6);
-    const derive_vd tr_v_t309_3 = __builtin_shufflevector(v_t357, v_t381, 1, 5, 3, 7);
+    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t72, ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t165, v_t375_0);
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t189, v_t375_1);
+    const derive_vd tr_v_t309_0 = __builtin_shufflevector(v_t309, v_t332, 0, 4, 2, 6);
+    const derive_vd tr_v_t309_1 = __builtin_shufflevector(v_t309, v_t332, 1, 5, 3, 7);
+    const derive_vd tr_v_t309_2 = __builtin_shufflevector(v_t354, v_t375, 0, 4, 2, 6);
+    const derive_vd tr_v_t309_3 = __builtin_shufflevector(v_t354, v_t375, 1, 5, 3, 7);
     const derive_vd tr_v_t309_c0 = __builtin_shufflevector(tr_v_t309_0, tr_v_t309_2, 0, 1, 4, 5);
     const derive_vd tr_v_t309_c1 = __builtin_shufflevector(tr_v_t309_1, tr_v_t309_3, 0, 1, 4, 5);
     const derive_vd tr_v_t309_c2 = __builtin_shufflevector(tr_v_t309_0, tr_v_t309_2, 2, 3, 6, 7);
     const derive_vd tr_v_t309_c3 = __builtin_shufflevector(tr_v_t309_1, tr_v_t309_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[20] = v_t309;
-    *(derive_vd_unaligned *)&P_new[44] = v_t333;
-    *(derive_vd_unaligned *)&P_new[68] = v_t357;
-    *(derive_vd_unaligned *)&P_new[92] = v_t381;
+    *(derive_vd_unaligned *)&P_new[44] = v_t332;
+    *(derive_vd_unaligned *)&P_new[68] = v_t354;
+    *(derive_vd_unaligned *)&P_new[92] = v_t375;
     *(derive_vd_unaligned *)&P_new[480] = tr_v_t309_c0;
     *(derive_vd_unaligned *)&P_new[504] = tr_v_t309_c1;
     *(derive_vd_unaligned *)&P_new[528] = tr_v_t309_c2;
     *(derive_vd_unaligned *)&P_new[552] = tr_v_t309_c3;
     #else
-    const double t381 = DERIVE_FMA(t244, t189, DERIVE_FMA(t220, t165, DERIVE_FMA(t196, t72, P[92])));
-    const double t382 = DERIVE_FMA(t244, t190, DERIVE_FMA(t220, t166, DERIVE_FMA(t196, t73, P[93])));
-    const double t383 = DERIVE_FMA(t244, t191, DERIVE_FMA(t220, t167, DERIVE_FMA(t196, t74, P[94])));
-    const double t384 = DERIVE_FMA(t244, t192, DERIVE_FMA(t220, t168, DERIVE_FMA(t196, t75, P[95])));
+    const double t375 = DERIVE_FMA(t244, t189, DERIVE_FMA(t220, t165, DERIVE_FMA(t196, t72, P[92])));
+    const double t376 = DERIVE_FMA(t244, t190, DERIVE_FMA(t220, t166, DERIVE_FMA(t196, t73, P[93])));
+    const double t377 = DERIVE_FMA(t244, t191, DERIVE_FMA(t220, t167, DERIVE_FMA(t196, t74, P[94])));
+    const double t378 = DERIVE_FMA(t244, t192, DERIVE_FMA(t220, t168, DERIVE_FMA(t196, t75, P[95])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t385_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t56, ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t385_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t149, v_t385_0);
-    const derive_vd v_t385 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t173, v_t385_1);
+    const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t56, ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t379_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t149, v_t379_0);
+    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t173, v_t379_1);
+    const double t380 = v_t379[1];
+    const double t381 = v_t379[2];
+    const double t382 = v_t379[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t379;
     #else
-    const double t385 = DERIVE_FMA(t245, t173, DERIVE_FMA(t221, t149, DERIVE_FMA(t197, t56, P[100])));
-    const double t386 = DERIVE_FMA(t245, t174, DERIVE_FMA(t221, t150, DERIVE_FMA(t197, t57, P[101])));
-    const double t387 = DERIVE_FMA(t245, t175, DERIVE_FMA(t221, t151, DERIVE_FMA(t197, t58, P[102])));
-    const double t388 = DERIVE_FMA(t245, t176, DERIVE_FMA(t221, t152, DERIVE_FMA(t197, t59, P[103])));
+    const double t379 = DERIVE_FMA(t245, t173, DERIVE_FMA(t221, t149, DERIVE_FMA(t197, t56, P[100])));
+    const double t380 = DERIVE_FMA(t245, t174, DERIVE_FMA(t221, t150, DERIVE_FMA(t197, t57, P[101])));
+    const double t381 = DERIVE_FMA(t245, t175, DERIVE_FMA(t221, t151, DERIVE_FMA(t197, t58, P[102])));
+    const double t382 = DERIVE_FMA(t245, t176, DERIVE_FMA(t221, t152, DERIVE_FMA(t197, t59, P[103])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t389_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t60, ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t389_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t153, v_t389_0);
-    const derive_vd v_t389 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t177, v_t389_1);
+    const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t60, ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t383_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t153, v_t383_0);
+    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t177, v_t383_1);
     #else
-    const double t389 = DERIVE_FMA(t245, t177, DERIVE_FMA(t221, t153, DERIVE_FMA(t197, t60, P[104])));
-    const double t390 = DERIVE_FMA(t245, t178, DERIVE_FMA(t221, t154, DERIVE_FMA(t197, t61, P[105])));
-    const double t391 = DERIVE_FMA(t245, t179, DERIVE_FMA(t221, t155, DERIVE_FMA(t197, t62, P[106])));
-    const double t392 = DERIVE_FMA(t245, t180, DERIVE_FMA(t221, t156, DERIVE_FMA(t197, t63, P[107])));
+    const double t383 = DERIVE_FMA(t245, t177, DERIVE_FMA(t221, t153, DERIVE_FMA(t197, t60, P[104])));
+    const double t384 = DERIVE_FMA(t245, t178, DERIVE_FMA(t221, t154, DERIVE_FMA(t197, t61, P[105])));
+    const double t385 = DERIVE_FMA(t245, t179, DERIVE_FMA(t221, t155, DERIVE_FMA(t197, t62, P[106])));
+    const double t386 = DERIVE_FMA(t245, t180, DERIVE_FMA(t221, t156, DERIVE_FMA(t197, t63, P[107])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t393_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t64, ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t393_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t157, v_t393_0);
-    const derive_vd v_t393 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t181, v_t393_1);
+    const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t64, ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t387_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t157, v_t387_0);
+    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t181, v_t387_1);
     #else
-    const double t393 = DERIVE_FMA(t245, t181, DERIVE_FMA(t221, t157, DERIVE_FMA(t197, t64, P[108])));
-    const double t394 = DERIVE_FMA(t245, t182, DERIVE_FMA(t221, t158, DERIVE_FMA(t197, t65, P[109])));
-    const double t395 = DERIVE_FMA(t245, t183, DERIVE_FMA(t221, t159, DERIVE_FMA(t197, t66, P[110])));
-    const double t396 = DERIVE_FMA(t245, t184, DERIVE_FMA(t221, t160, DERIVE_FMA(t197, t67, P[111])));
+    const double t387 = DERIVE_FMA(t245, t181, DERIVE_FMA(t221, t157, DERIVE_FMA(t197, t64, P[108])));
+    const double t388 = DERIVE_FMA(t245, t182, DERIVE_FMA(t221, t158, DERIVE_FMA(t197, t65, P[109])));
+    const double t389 = DERIVE_FMA(t245, t183, DERIVE_FMA(t221, t159, DERIVE_FMA(t197, t66, P[110])));
+    const double t390 = DERIVE_FMA(t245, t184, DERIVE_FMA(t221, t160, DERIVE_FMA(t197, t67, P[111])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t397_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t68, ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t397_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t161, v_t397_0);
-    const derive_vd v_t397 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t185, v_t397_1);
+    const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t68, ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t391_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t161, v_t391_0);
+    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t185, v_t391_1);
     #else
-    const double t397 = DERIVE_FMA(t245, t185, DERIVE_FMA(t221, t161, DERIVE_FMA(t197, t68, P[112])));
-    const double t398 = DERIVE_FMA(t245, t186, DERIVE_FMA(t221, t162, DERIVE_FMA(t197, t69, P[113])));
-    const double t399 = DERIVE_FMA(t245, t187, DERIVE_FMA(t221, t163, DERIVE_FMA(t197, t70, P[114])));
-    const double t400 = DERIVE_FMA(t245, t188, DERIVE_FMA(t221, t164, DERIVE_FMA(t197, t71, P[115])));
+    const double t391 = DERIVE_FMA(t245, t185, DERIVE_FMA(t221, t161, DERIVE_FMA(t197, t68, P[112])));
+    const double t392 = DERIVE_FMA(t245, t186, DERIVE_FMA(t221, t162, DERIVE_FMA(t197, t69, P[113])));
+    const double t393 = DERIVE_FMA(t245, t187, DERIVE_FMA(t221, t163, DERIVE_FMA(t197, t70, P[114])));
+    const double t394 = DERIVE_FMA(t245, t188, DERIVE_FMA(t221, t164, DERIVE_FMA(t197, t71, P[115])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t401_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t72, ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t401_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t165, v_t401_0);
-    const derive_vd v_t401 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t189, v_t401_1);
+    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t72, ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t165, v_t395_0);
+    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t189, v_t395_1);
     #else
-    const double t401 = DERIVE_FMA(t245, t189, DERIVE_FMA(t221, t165, DERIVE_FMA(t197, t72, P[116])));
-    const double t402 = DERIVE_FMA(t245, t190, DERIVE_FMA(t221, t166, DERIVE_FMA(t197, t73, P[117])));
-    const double t403 = DERIVE_FMA(t245, t191, DERIVE_FMA(t221, t167, DERIVE_FMA(t197, t74, P[118])));
-    const double t404 = DERIVE_FMA(t245, t192, DERIVE_FMA(t221, t168, DERIVE_FMA(t197, t75, P[119])));
+    const double t395 = DERIVE_FMA(t245, t189, DERIVE_FMA(t221, t165, DERIVE_FMA(t197, t72, P[116])));
+    const double t396 = DERIVE_FMA(t245, t190, DERIVE_FMA(t221, t166, DERIVE_FMA(t197, t73, P[117])));
+    const double t397 = DERIVE_FMA(t245, t191, DERIVE_FMA(t221, t167, DERIVE_FMA(t197, t74, P[118])));
+    const double t398 = DERIVE_FMA(t245, t192, DERIVE_FMA(t221, t168, DERIVE_FMA(t197, t75, P[119])));
     #endif
+    const double t399 = DERIVE_FMA(t198, t57, DERIVE_FMA(t174, t246, DERIVE_FMA(t150, t222, P[125])));
+    const double t400 = DERIVE_FMA(t198, t58, DERIVE_FMA(t175, t246, DERIVE_FMA(t151, t222, P[126])));
+    const double t401 = DERIVE_FMA(t198, t59, DERIVE_FMA(t176, t246, DERIVE_FMA(t152, t222, P[127])));
     #if DERIVE_VECTOR
-    const derive_vd v_t405_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t56, ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t405_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t149, v_t405_0);
-    const derive_vd v_t405 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t173, v_t405_1);
+    const derive_vd v_t402_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t60, ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const derive_vd v_t402_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t153, v_t402_0);
+    const derive_vd v_t402 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t177, v_t402_1);
     #else
-    const double t406 = DERIVE_FMA(t246, t174, DERIVE_FMA(t222, t150, DERIVE_FMA(t198, t57, P[125])));
-    const double t407 = DERIVE_FMA(t246, t175, DERIVE_FMA(t222, t151, DERIVE_FMA(t198, t58, P[126])));
-    const double t408 = DERIVE_FMA(t246, t176, DERIVE_FMA(t222, t152, DERIVE_FMA(t198, t59, P[127])));
+    const double t402 = DERIVE_FMA(t246, t177, DERIVE_FMA(t222, t153, DERIVE_FMA(t198, t60, P[128])));
+    const double t403 = DERIVE_FMA(t246, t178, DERIVE_FMA(t222, t154, DERIVE_FMA(t198, t61, P[129])));
+    const double t404 = DERIVE_FMA(t246, t179, DERIVE_FMA(t222, t155, DERIVE_FMA(t198, t62, P[130])));
+    const double t405 = DERIVE_FMA(t246, t180, DERIVE_FMA(t222, t156, DERIVE_FMA(t198, t63, P[131])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t409_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t60, ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t409_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t153, v_t409_0);
-    const derive_vd v_t409 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t177, v_t409_1);
+    const derive_vd v_t406_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t64, ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const derive_vd v_t406_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t157, v_t406_0);
+    const derive_vd v_t406 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t181, v_t406_1);
     #else
-    const double t409 = DERIVE_FMA(t246, t177, DERIVE_FMA(t222, t153, DERIVE_FMA(t198, t60, P[128])));
-    const double t410 = DERIVE_FMA(t246, t178, DERIVE_FMA(t222, t154, DERIVE_FMA(t198, t61, P[129])));
-    const double t411 = DERIVE_FMA(t246, t179, DERIVE_FMA(t222, t155, DERIVE_FMA(t198, t62, P[130])));
-    const double t412 = DERIVE_FMA(t246, t180, DERIVE_FMA(t222, t156, DERIVE_FMA(t198, t63, P[131])));
+    const double t406 = DERIVE_FMA(t246, t181, DERIVE_FMA(t222, t157, DERIVE_FMA(t198, t64, P[132])));
+    const double t407 = DERIVE_FMA(t246, t182, DERIVE_FMA(t222, t158, DERIVE_FMA(t198, t65, P[133])));
+    const double t408 = DERIVE_FMA(t246, t183, DERIVE_FMA(t222, t159, DERIVE_FMA(t198, t66, P[134])));
+    const double t409 = DERIVE_FMA(t246, t184, DERIVE_FMA(t222, t160, DERIVE_FMA(t198, t67, P[135])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t413_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t64, ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t413_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t157, v_t413_0);
-    const derive_vd v_t413 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t181, v_t413_1);
+    const derive_vd v_t410_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t68, ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t410_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t161, v_t410_0);
+    const derive_vd v_t410 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t185, v_t410_1);
     #else
-    const double t413 = DERIVE_FMA(t246, t181, DERIVE_FMA(t222, t157, DERIVE_FMA(t198, t64, P[132])));
-    const double t414 = DERIVE_FMA(t246, t182, DERIVE_FMA(t222, t158, DERIVE_FMA(t198, t65, P[133])));
-    const double t415 = DERIVE_FMA(t246, t183, DERIVE_FMA(t222, t159, DERIVE_FMA(t198, t66, P[134])));
-    const double t416 = DERIVE_FMA(t246, t184, DERIVE_FMA(t222, t160, DERIVE_FMA(t198, t67, P[135])));
+    const double t410 = DERIVE_FMA(t246, t185, DERIVE_FMA(t222, t161, DERIVE_FMA(t198, t68, P[136])));
+    const double t411 = DERIVE_FMA(t246, t186, DERIVE_FMA(t222, t162, DERIVE_FMA(t198, t69, P[137])));
+    const double t412 = DERIVE_FMA(t246, t187, DERIVE_FMA(t222, t163, DERIVE_FMA(t198, t70, P[138])));
+    const double t413 = DERIVE_FMA(t246, t188, DERIVE_FMA(t222, t164, DERIVE_FMA(t198, t71, P[139])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t417_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t68, ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t417_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t161, v_t417_0);
-    const derive_vd v_t417 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t185, v_t417_1);
+    const derive_vd v_t414_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t72, ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t414_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t165, v_t414_0);
+    const derive_vd v_t414 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t189, v_t414_1);
     #else
-    const double t417 = DERIVE_FMA(t246, t185, DERIVE_FMA(t222, t161, DERIVE_FMA(t198, t68, P[136])));
-    const double t418 = DERIVE_FMA(t246, t186, DERIVE_FMA(t222, t162, DERIVE_FMA(t198, t69, P[137])));
-    const double t419 = DERIVE_FMA(t246, t187, DERIVE_FMA(t222, t163, DERIVE_FMA(t198, t70, P[138])));
-    const double t420 = DERIVE_FMA(t246, t188, DERIVE_FMA(t222, t164, DERIVE_FMA(t198, t71, P[139])));
+    const double t414 = DERIVE_FMA(t246, t189, DERIVE_FMA(t222, t165, DERIVE_FMA(t198, t72, P[140])));
+    const double t415 = DERIVE_FMA(t246, t190, DERIVE_FMA(t222, t166, DERIVE_FMA(t198, t73, P[141])));
+    const double t416 = DERIVE_FMA(t246, t191, DERIVE_FMA(t222, t167, DERIVE_FMA(t198, t74, P[142])));
+    const double t417 = DERIVE_FMA(t246, t192, DERIVE_FMA(t222, t168, DERIVE_FMA(t198, t75, P[143])));
     #endif
+    const double t418 = DERIVE_FMA(t199, t58, DERIVE_FMA(t175, t247, DERIVE_FMA(t151, t223, P[150])));
+    const double t419 = DERIVE_FMA(t199, t59, DERIVE_FMA(t176, t247, DERIVE_FMA(t152, t223, P[151])));
     #if DERIVE_VECTOR
-    const derive_vd v_t421_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t72, ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t421_1 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t165, v_t421_0);
-    const derive_vd v_t421 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t189, v_t421_1);
+    const derive_vd v_t420_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t60, ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const derive_vd v_t420_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t153, v_t420_0);
+    const derive_vd v_t420 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t177, v_t420_1);
     #else
-    const double t421 = DERIVE_FMA(t246, t189, DERIVE_FMA(t222, t165, DERIVE_FMA(t198, t72, P[140])));
-    const double t422 = DERIVE_FMA(t246, t190, DERIVE_FMA(t222, t166, DERIVE_FMA(t198, t73, P[141])));
-    const double t423 = DERIVE_FMA(t246, t191, DERIVE_FMA(t222, t167, DERIVE_FMA(t198, t74, P[142])));
-    const double t424 = DERIVE_FMA(t246, t192, DERIVE_FMA(t222, t168, DERIVE_FMA(t198, t75, P[143])));
+    const double t420 = DERIVE_FMA(t247, t177, DERIVE_FMA(t223, t153, DERIVE_FMA(t199, t60, P[152])));
+    const double t421 = DERIVE_FMA(t247, t178, DERIVE_FMA(t223, t154, DERIVE_FMA(t199, t61, P[153])));
+    const double t422 = DERIVE_FMA(t247, t179, DERIVE_FMA(t223, t155, DERIVE_FMA(t199, t62, P[154])));
+    const double t423 = DERIVE_FMA(t247, t180, DERIVE_FMA(t223, t156, DERIVE_FMA(t199, t63, P[155])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t425_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t56, ((derive_vd){P[148], P[149], P[150], P[151]}));
-    const derive_vd v_t425_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t149, v_t425_0);
-    const derive_vd v_t425 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t173, v_t425_1);
+    const derive_vd v_t424_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t64, ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t424_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t157, v_t424_0);
+    const derive_vd v_t424 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t181, v_t424_1);
     #else
-    const double t427 = DERIVE_FMA(t247, t175, DERIVE_FMA(t223, t151, DERIVE_FMA(t199, t58, P[150])));
-    const double t428 = DERIVE_FMA(t247, t176, DERIVE_FMA(t223, t152, DERIVE_FMA(t199, t59, P[151])));
+    const double t424 = DERIVE_FMA(t247, t181, DERIVE_FMA(t223, t157, DERIVE_FMA(t199, t64, P[156])));
+    const double t425 = DERIVE_FMA(t247, t182, DERIVE_FMA(t223, t158, DERIVE_FMA(t199, t65, P[157])));
+    const double t426 = DERIVE_FMA(t247, t183, DERIVE_FMA(t223, t159, DERIVE_FMA(t199, t66, P[158])));
+    const double t427 = DERIVE_FMA(t247, t184, DERIVE_FMA(t223, t160, DERIVE_FMA(t199, t67, P[159])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t429_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t60, ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t429_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t153, v_t429_0);
-    const derive_vd v_t429 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t177, v_t429_1);
+    const derive_vd v_t428_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t68, ((derive_vd){P[160], P[161], P[162], P[163]}));
+    const derive_vd v_t428_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t161, v_t428_0);
+    const derive_vd v_t428 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t185, v_t428_1);
     #else
-    const double t429 = DERIVE_FMA(t247, t177, DERIVE_FMA(t223, t153, DERIVE_FMA(t199, t60, P[152])));
-    const double t430 = DERIVE_FMA(t247, t178, DERIVE_FMA(t223, t154, DERIVE_FMA(t199, t61, P[153])));
-    const double t431 = DERIVE_FMA(t247, t179, DERIVE_FMA(t223, t155, DERIVE_FMA(t199, t62, P[154])));
-    const double t432 = DERIVE_FMA(t247, t180, DERIVE_FMA(t223, t156, DERIVE_FMA(t199, t63, P[155])));
+    const double t428 = DERIVE_FMA(t247, t185, DERIVE_FMA(t223, t161, DERIVE_FMA(t199, t68, P[160])));
+    const double t429 = DERIVE_FMA(t247, t186, DERIVE_FMA(t223, t162, DERIVE_FMA(t199, t69, P[161])));
+    const double t430 = DERIVE_FMA(t247, t187, DERIVE_FMA(t223, t163, DERIVE_FMA(t199, t70, P[162])));
+    const double t431 = DERIVE_FMA(t247, t188, DERIVE_FMA(t223, t164, DERIVE_FMA(t199, t71, P[163])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t433_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t64, ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t433_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t157, v_t433_0);
-    const derive_vd v_t433 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t181, v_t433_1);
+    const derive_vd v_t432_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t72, ((derive_vd){P[164], P[165], P[166], P[167]}));
+    const derive_vd v_t432_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t165, v_t432_0);
+    const derive_vd v_t432 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t189, v_t432_1);
     #else
-    const double t433 = DERIVE_FMA(t247, t181, DERIVE_FMA(t223, t157, DERIVE_FMA(t199, t64, P[156])));
-    const double t434 = DERIVE_FMA(t247, t182, DERIVE_FMA(t223, t158, DERIVE_FMA(t199, t65, P[157])));
-    const double t435 = DERIVE_FMA(t247, t183, DERIVE_FMA(t223, t159, DERIVE_FMA(t199, t66, P[158])));
-    const double t436 = DERIVE_FMA(t247, t184, DERIVE_FMA(t223, t160, DERIVE_FMA(t199, t67, P[159])));
+    const double t432 = DERIVE_FMA(t247, t189, DERIVE_FMA(t223, t165, DERIVE_FMA(t199, t72, P[164])));
+    const double t433 = DERIVE_FMA(t247, t190, DERIVE_FMA(t223, t166, DERIVE_FMA(t199, t73, P[165])));
+    const double t434 = DERIVE_FMA(t247, t191, DERIVE_FMA(t223, t167, DERIVE_FMA(t199, t74, P[166])));
+    const double t435 = DERIVE_FMA(t247, t192, DERIVE_FMA(t223, t168, DERIVE_FMA(t199, t75, P[167])));
     #endif
+    const double t436 = DERIVE_FMA(t200, t59, DERIVE_FMA(t176, t248, DERIVE_FMA(t152, t224, P[175])));
     #if DERIVE_VECTOR
-    const derive_vd v_t437_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t68, ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t437_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t161, v_t437_0);
-    const derive_vd v_t437 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t185, v_t437_1);
+    const derive_vd v_t437_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t60, ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t437_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t153, v_t437_0);
+    const derive_vd v_t437 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t177, v_t437_1);
+    const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t402, 0, 4, 2, 6);
+    const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t402, 1, 5, 3, 7);
+    const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t420, v_t437, 0, 4, 2, 6);
+    const derive_vd tr_v_t383_3 = __builtin_shufflevector(v_t420, v_t437, 1, 5, 3, 7);
+    const derive_vd tr_v_t383_c0 = __builtin_shufflevector(tr_v_t383_0, tr_v_t383_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t383_c1 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t383_c2 = __builtin_shufflevector(tr_v_t383_0, tr_v_t383_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t383_c3 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t383;
+    *(derive_vd_unaligned *)&P_new[128] = v_t402;
+    *(derive_vd_unaligned *)&P_new[152] = v_t420;
+    *(derive_vd_unaligned *)&P_new[176] = v_t437;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t383_c0;
+    *(derive_vd_unaligned *)&P_new[220] = tr_v_t383_c1;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t383_c2;
+    *(derive_vd_unaligned *)&P_new[268] = tr_v_t383_c3;
     #else
-    const double t437 = DERIVE_FMA(t247, t185, DERIVE_FMA(t223, t161, DERIVE_FMA(t199, t68, P[160])));
-    const double t438 = DERIVE_FMA(t247, t186, DERIVE_FMA(t223, t162, DERIVE_FMA(t199, t69, P[161])));
-    const double t439 = DERIVE_FMA(t247, t187, DERIVE_FMA(t223, t163, DERIVE_FMA(t199, t70, P[162])));
-    const double t440 = DERIVE_FMA(t247, t188, DERIVE_FMA(t223, t164, DERIVE_FMA(t199, t71, P[163])));
+    const double t437 = DERIVE_FMA(t248, t177, DERIVE_FMA(t224, t153, DERIVE_FMA(t200, t60, P[176])));
+    const double t438 = DERIVE_FMA(t248, t178, DERIVE_FMA(t224, t154, DERIVE_FMA(t200, t61, P[177])));
+    const double t439 = DERIVE_FMA(t248, t179, DERIVE_FMA(t224, t155, DERIVE_FMA(t200, t62, P[178])));
+    const double t440 = DERIVE_FMA(t248, t180, DERIVE_FMA(t224, t156, DERIVE_FMA(t200, t63, P[179])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t72, ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t441_1 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t165, v_t441_0);
-    const derive_vd v_t441 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t189, v_t441_1);
+    const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t64, ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t441_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t157, v_t441_0);
+    const derive_vd v_t441 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t181, v_t441_1);
+    const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t406, 0, 4, 2, 6);
+    const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t406, 1, 5, 3, 7);
+    const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t424, v_t441, 0, 4, 2, 6);
+    const derive_vd tr_v_t387_3 = __builtin_shufflevector(v_t424, v_t441, 1, 5, 3, 7);
+    const derive_vd tr_v_t387_c0 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t387_c1 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t387_c2 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t387_c3 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t387;
+    *(derive_vd_unaligned *)&P_new[132] = v_t406;
+    *(derive_vd_unaligned *)&P_new[156] = v_t424;
+    *(derive_vd_unaligned *)&P_new[180] = v_t441;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t387_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t387_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t387_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t387_c3;
     #else
-    const double t441 = DERIVE_FMA(t247, t189, DERIVE_FMA(t223, t165, DERIVE_FMA(t199, t72, P[164])));
-    const double t442 = DERIVE_FMA(t247, t190, DERIVE_FMA(t223, t166, DERIVE_FMA(t199, t73, P[165])));
-    const double t443 = DERIVE_FMA(t247, t191, DERIVE_FMA(t223, t167, DERIVE_FMA(t199, t74, P[166])));
-    const double t444 = DERIVE_FMA(t247, t192, DERIVE_FMA(t223, t168, DERIVE_FMA(t199, t75, P[167])));
+    const double t441 = DERIVE_FMA(t248, t181, DERIVE_FMA(t224, t157, DERIVE_FMA(t200, t64, P[180])));
+    const double t442 = DERIVE_FMA(t248, t182, DERIVE_FMA(t224, t158, DERIVE_FMA(t200, t65, P[181])));
+    const double t443 = DERIVE_FMA(t248, t183, DERIVE_FMA(t224, t159, DERIVE_FMA(t200, t66, P[182])));
+    const double t444 = DERIVE_FMA(t248, t184, DERIVE_FMA(t224, t160, DERIVE_FMA(t200, t67, P[183])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t56, ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const derive_vd v_t445_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t149, v_t445_0);
-    const derive_vd v_t445 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t173, v_t445_1);
-    const derive_vd tr_v_t385_0 = __builtin_shufflevector(v_t385, v_t405, 0, 4, 2, 6);
-    const derive_vd tr_v_t385_1 = __builtin_shufflevector(v_t385, v_t405, 1, 5, 3, 7);
-    const derive_vd tr_v_t385_2 = __builtin_shufflevector(v_t425, v_t445, 0, 4, 2, 6);
-    const derive_vd tr_v_t385_3 = __builtin_shufflevector(v_t425, v_t445, 1, 5, 3, 7);
-    const derive_vd tr_v_t385_c1 = __builtin_shufflevector(tr_v_t385_1, tr_v_t385_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t385_c2 = __builtin_shufflevector(tr_v_t385_0, tr_v_t385_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t385_c3 = __builtin_shufflevector(tr_v_t385_1, tr_v_t385_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[100] = v_t385;
-    *(derive_vd_unaligned *)&P_new[124] = __builtin_shufflevector(v_t405, tr_v_t385_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[148] = __builtin_shufflevector(v_t425, tr_v_t385_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[172] = __builtin_shufflevector(v_t445, tr_v_t385_c3, 4, 5, 6, 3);
+    const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t68, ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t445_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t161, v_t445_0);
+    const derive_vd v_t445 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t185, v_t445_1);
+    const derive_vd tr_v_t391_0 = __builtin_shufflevector(v_t391, v_t410, 0, 4, 2, 6);
+    const derive_vd tr_v_t391_1 = __builtin_shufflevector(v_t391, v_t410, 1, 5, 3, 7);
+    const derive_vd tr_v_t391_2 = __builtin_shufflevector(v_t428, v_t445, 0, 4, 2, 6);
+    const derive_vd tr_v_t391_3 = __builtin_shufflevector(v_t428, v_t445, 1, 5, 3, 7);
+    const derive_vd tr_v_t391_c0 = __builtin_shufflevector(tr_v_t391_0, tr_v_t391_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t391_c1 = __builtin_shufflevector(tr_v_t391_1, tr_v_t391_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t391_c2 = __builtin_shufflevector(tr_v_t391_0, tr_v_t391_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t391_c3 = __builtin_shufflevector(tr_v_t391_1, tr_v_t391_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t391;
+    *(derive_vd_unaligned *)&P_new[136] = v_t410;
+    *(derive_vd_unaligned *)&P_new[160] = v_t428;
+    *(derive_vd_unaligned *)&P_new[184] = v_t445;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t391_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t391_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t391_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t391_c3;
     #else
-    const double t448 = DERIVE_FMA(t248, t176, DERIVE_FMA(t224, t152, DERIVE_FMA(t200, t59, P[175])));
+    const double t445 = DERIVE_FMA(t248, t185, DERIVE_FMA(t224, t161, DERIVE_FMA(t200, t68, P[184])));
+    const double t446 = DERIVE_FMA(t248, t186, DERIVE_FMA(t224, t162, DERIVE_FMA(t200, t69, P[185])));
+    const double t447 = DERIVE_FMA(t248, t187, DERIVE_FMA(t224, t163, DERIVE_FMA(t200, t70, P[186])));
+    const double t448 = DERIVE_FMA(t248, t188, DERIVE_FMA(t224, t164, DERIVE_FMA(t200, t71, P[187])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t60, ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const derive_vd v_t449_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t153, v_t449_0);
-    const derive_vd v_t449 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t177, v_t449_1);
-    const derive_vd tr_v_t389_0 = __builtin_shufflevector(v_t389, v_t409, 0, 4, 2, 6);
-    const derive_vd tr_v_t389_1 = __builtin_shufflevector(v_t389, v_t409, 1, 5, 3, 7);
-    const derive_vd tr_v_t389_2 = __builtin_shufflevector(v_t429, v_t449, 0, 4, 2, 6);
-    const derive_vd tr_v_t389_3 = __builtin_shufflevector(v_t429, v_t449, 1, 5, 3, 7);
-    const derive_vd tr_v_t389_c0 = __builtin_shufflevector(tr_v_t389_0, tr_v_t389_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t389_c1 = __builtin_shufflevector(tr_v_t389_1, tr_v_t389_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t389_c2 = __builtin_shufflevector(tr_v_t389_0, tr_v_t389_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t389_c3 = __builtin_shufflevector(tr_v_t389_1, tr_v_t389_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[104] = v_t389;
-    *(derive_vd_unaligned *)&P_new[128] = v_t409;
-    *(derive_vd_unaligned *)&P_new[152] = v_t429;
-    *(derive_vd_unaligned *)&P_new[176] = v_t449;
-    *(derive_vd_unaligned *)&P_new[196] = tr_v_t389_c0;
-    *(derive_vd_unaligned *)&P_new[220] = tr_v_t389_c1;
-    *(derive_vd_unaligned *)&P_new[244] = tr_v_t389_c2;
-    *(derive_vd_unaligned *)&P_new[268] = tr_v_t389_c3;
+    const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t72, ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t449_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t165, v_t449_0);
+    const derive_vd v_t449 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t189, v_t449_1);
+    const derive_vd tr_v_t395_0 = __builtin_shufflevector(v_t395, v_t414, 0, 4, 2, 6);
+    const derive_vd tr_v_t395_1 = __builtin_shufflevector(v_t395, v_t414, 1, 5, 3, 7);
+    const derive_vd tr_v_t395_2 = __builtin_shufflevector(v_t432, v_t449, 0, 4, 2, 6);
+    const derive_vd tr_v_t395_3 = __builtin_shufflevector(v_t432, v_t449, 1, 5, 3, 7);
+    const derive_vd tr_v_t395_c0 = __builtin_shufflevector(tr_v_t395_0, tr_v_t395_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t395_c1 = __builtin_shufflevector(tr_v_t395_1, tr_v_t395_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t395_c2 = __builtin_shufflevector(tr_v_t395_0, tr_v_t395_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t395_c3 = __builtin_shufflevector(tr_v_t395_1, tr_v_t395_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t395;
+    *(derive_vd_unaligned *)&P_new[140] = v_t414;
+    *(derive_vd_unaligned *)&P_new[164] = v_t432;
+    *(derive_vd_unaligned *)&P_new[188] = v_t449;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t395_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t395_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t395_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t395_c3;
     #else
-    const double t449 = DERIVE_FMA(t248, t177, DERIVE_FMA(t224, t153, DERIVE_FMA(t200, t60, P[176])));
-    const double t450 = DERIVE_FMA(t248, t178, DERIVE_FMA(t224, t154, DERIVE_FMA(t200, t61, P[177])));
-    const double t451 = DERIVE_FMA(t248, t179, DERIVE_FMA(t224, t155, DERIVE_FMA(t200, t62, P[178])));
-    const double t452 = DERIVE_FMA(t248, t180, DERIVE_FMA(t224, t156, DERIVE_FMA(t200, t63, P[179])));
+    const double t449 = DERIVE_FMA(t248, t189, DERIVE_FMA(t224, t165, DERIVE_FMA(t200, t72, P[188])));
+    const double t450 = DERIVE_FMA(t248, t190, DERIVE_FMA(t224, t166, DERIVE_FMA(t200, t73, P[189])));
+    const double t451 = DERIVE_FMA(t248, t191, DERIVE_FMA(t224, t167, DERIVE_FMA(t200, t74, P[190])));
+    const double t452 = DERIVE_FMA(t248, t192, DERIVE_FMA(t224, t168, DERIVE_FMA(t200, t75, P[191])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t64, ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const derive_vd v_t453_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t157, v_t453_0);
-    const derive_vd v_t453 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t181, v_t453_1);
-    const derive_vd tr_v_t393_0 = __builtin_shufflevector(v_t393, v_t413, 0, 4, 2, 6);
-    const derive_vd tr_v_t393_1 = __builtin_shufflevector(v_t393, v_t413, 1, 5, 3, 7);
-    const derive_vd tr_v_t393_2 = __builtin_shufflevector(v_t433, v_t453, 0, 4, 2, 6);
-    const derive_vd tr_v_t393_3 = __builtin_shufflevector(v_t433, v_t453, 1, 5, 3, 7);
-    const derive_vd tr_v_t393_c0 = __builtin_shufflevector(tr_v_t393_0, tr_v_t393_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t393_c1 = __builtin_shufflevector(tr_v_t393_1, tr_v_t393_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t393_c2 = __builtin_shufflevector(tr_v_t393_0, tr_v_t393_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t393_c3 = __builtin_shufflevector(tr_v_t393_1, tr_v_t393_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[108] = v_t393;
-    *(derive_vd_unaligned *)&P_new[132] = v_t413;
-    *(derive_vd_unaligned *)&P_new[156] = v_t433;
-    *(derive_vd_unaligned *)&P_new[180] = v_t453;
-    *(derive_vd_unaligned *)&P_new[292] = tr_v_t393_c0;
-    *(derive_vd_unaligned *)&P_new[316] = tr_v_t393_c1;
-    *(derive_vd_unaligned *)&P_new[340] = tr_v_t393_c2;
-    *(derive_vd_unaligned *)&P_new[364] = tr_v_t393_c3;
+    const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t60, ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const derive_vd v_t453_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t153, v_t453_0);
+    const derive_vd v_t453 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t177, v_t453_1);
+    const double t454 = v_t453[1];
+    const double t455 = v_t453[2];
+    const double t456 = v_t453[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t453;
     #else
-    const double t453 = DERIVE_FMA(t248, t181, DERIVE_FMA(t224, t157, DERIVE_FMA(t200, t64, P[180])));
-    const double t454 = DERIVE_FMA(t248, t182, DERIVE_FMA(t224, t158, DERIVE_FMA(t200, t65, P[181])));
-    const double t455 = DERIVE_FMA(t248, t183, DERIVE_FMA(t224, t159, DERIVE_FMA(t200, t66, P[182])));
-    const double t456 = DERIVE_FMA(t248, t184, DERIVE_FMA(t224, t160, DERIVE_FMA(t200, t67, P[183])));
+    const double t453 = DERIVE_FMA(t249, t177, DERIVE_FMA(t225, t153, DERIVE_FMA(t201, t60, P[200])));
+    const double t454 = DERIVE_FMA(t249, t178, DERIVE_FMA(t225, t154, DERIVE_FMA(t201, t61, P[201])));
+    const double t455 = DERIVE_FMA(t249, t179, DERIVE_FMA(t225, t155, DERIVE_FMA(t201, t62, P[202])));
+    const double t456 = DERIVE_FMA(t249, t180, DERIVE_FMA(t225, t156, DERIVE_FMA(t201, t63, P[203])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t68, ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t161, v_t457_0);
-    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t185, v_t457_1);
-    const derive_vd tr_v_t397_0 = __builtin_shufflevector(v_t397, v_t417, 0, 4, 2, 6);
-    const derive_vd tr_v_t397_1 = __builtin_shufflevector(v_t397, v_t417, 1, 5, 3, 7);
-    const derive_vd tr_v_t397_2 = __builtin_shufflevector(v_t437, v_t457, 0, 4, 2, 6);
-    const derive_vd tr_v_t397_3 = __builtin_shufflevector(v_t437, v_t457, 1, 5, 3, 7);
-    const derive_vd tr_v_t397_c0 = __builtin_shufflevector(tr_v_t397_0, tr_v_t397_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t397_c1 = __builtin_shufflevector(tr_v_t397_1, tr_v_t397_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t397_c2 = __builtin_shufflevector(tr_v_t397_0, tr_v_t397_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t397_c3 = __builtin_shufflevector(tr_v_t397_1, tr_v_t397_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[112] = v_t397;
-    *(derive_vd_unaligned *)&P_new[136] = v_t417;
-    *(derive_vd_unaligned *)&P_new[160] = v_t437;
-    *(derive_vd_unaligned *)&P_new[184] = v_t457;
-    *(derive_vd_unaligned *)&P_new[388] = tr_v_t397_c0;
-    *(derive_vd_unaligned *)&P_new[412] = tr_v_t397_c1;
-    *(derive_vd_unaligned *)&P_new[436] = tr_v_t397_c2;
-    *(derive_vd_unaligned *)&P_new[460] = tr_v_t397_c3;
+    const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t64, ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t157, v_t457_0);
+    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t181, v_t457_1);
     #else
-    const double t457 = DERIVE_FMA(t248, t185, DERIVE_FMA(t224, t161, DERIVE_FMA(t200, t68, P[184])));
-    const double t458 = DERIVE_FMA(t248, t186, DERIVE_FMA(t224, t162, DERIVE_FMA(t200, t69, P[185])));
-    const double t459 = DERIVE_FMA(t248, t187, DERIVE_FMA(t224, t163, DERIVE_FMA(t200, t70, P[186])));
-    const double t460 = DERIVE_FMA(t248, t188, DERIVE_FMA(t224, t164, DERIVE_FMA(t200, t71, P[187])));
+    const double t457 = DERIVE_FMA(t249, t181, DERIVE_FMA(t225, t157, DERIVE_FMA(t201, t64, P[204])));
+    const double t458 = DERIVE_FMA(t249, t182, DERIVE_FMA(t225, t158, DERIVE_FMA(t201, t65, P[205])));
+    const double t459 = DERIVE_FMA(t249, t183, DERIVE_FMA(t225, t159, DERIVE_FMA(t201, t66, P[206])));
+    const double t460 = DERIVE_FMA(t249, t184, DERIVE_FMA(t225, t160, DERIVE_FMA(t201, t67, P[207])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t72, ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t165, v_t461_0);
-    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t189, v_t461_1);
-    const derive_vd tr_v_t401_0 = __builtin_shufflevector(v_t401, v_t421, 0, 4, 2, 6);
-    const derive_vd tr_v_t401_1 = __builtin_shufflevector(v_t401, v_t421, 1, 5, 3, 7);
-    const derive_vd tr_v_t401_2 = __builtin_shufflevector(v_t441, v_t461, 0, 4, 2, 6);
-    const derive_vd tr_v_t401_3 = __builtin_shufflevector(v_t441, v_t461, 1, 5, 3, 7);
-    const derive_vd tr_v_t401_c0 = __builtin_shufflevector(tr_v_t401_0, tr_v_t401_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t401_c1 = __builtin_shufflevector(tr_v_t401_1, tr_v_t401_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t401_c2 = __builtin_shufflevector(tr_v_t401_0, tr_v_t401_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t401_c3 = __builtin_shufflevector(tr_v_t401_1, tr_v_t401_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[116] = v_t401;
-    *(derive_vd_unaligned *)&P_new[140] = v_t421;
-    *(derive_vd_unaligned *)&P_new[164] = v_t441;
-    *(derive_vd_unaligned *)&P_new[188] = v_t461;
-    *(derive_vd_unaligned *)&P_new[484] = tr_v_t401_c0;
-    *(derive_vd_unaligned *)&P_new[508] = tr_v_t401_c1;
-    *(derive_vd_unaligned *)&P_new[532] = tr_v_t401_c2;
-    *(derive_vd_unaligned *)&P_new[556] = tr_v_t401_c3;
+    const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t68, ((derive_vd){P[208], P[209], P[210], P[211]}));
+    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t161, v_t461_0);
+    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t185, v_t461_1);
     #else
-    const double t461 = DERIVE_FMA(t248, t189, DERIVE_FMA(t224, t165, DERIVE_FMA(t200, t72, P[188])));
-    const double t462 = DERIVE_FMA(t248, t190, DERIVE_FMA(t224, t166, DERIVE_FMA(t200, t73, P[189])));
-    const double t463 = DERIVE_FMA(t248, t191, DERIVE_FMA(t224, t167, DERIVE_FMA(t200, t74, P[190])));
-    const double t464 = DERIVE_FMA(t248, t192, DERIVE_FMA(t224, t168, DERIVE_FMA(t200, t75, P[191])));
+    const double t461 = DERIVE_FMA(t249, t185, DERIVE_FMA(t225, t161, DERIVE_FMA(t201, t68, P[208])));
+    const double t462 = DERIVE_FMA(t249, t186, DERIVE_FMA(t225, t162, DERIVE_FMA(t201, t69, P[209])));
+    const double t463 = DERIVE_FMA(t249, t187, DERIVE_FMA(t225, t163, DERIVE_FMA(t201, t70, P[210])));
+    const double t464 = DERIVE_FMA(t249, t188, DERIVE_FMA(t225, t164, DERIVE_FMA(t201, t71, P[211])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t60, ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t153, v_t465_0);
-    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t177, v_t465_1);
+    const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t72, ((derive_vd){P[212], P[213], P[214], P[215]}));
+    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t165, v_t465_0);
+    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t189, v_t465_1);
     #else
-    const double t465 = DERIVE_FMA(t249, t177, DERIVE_FMA(t225, t153, DERIVE_FMA(t201, t60, P[200])));
-    const double t466 = DERIVE_FMA(t249, t178, DERIVE_FMA(t225, t154, DERIVE_FMA(t201, t61, P[201])));
-    const double t467 = DERIVE_FMA(t249, t179, DERIVE_FMA(t225, t155, DERIVE_FMA(t201, t62, P[202])));
-    const double t468 = DERIVE_FMA(t249, t180, DERIVE_FMA(t225, t156, DERIVE_FMA(t201, t63, P[203])));
+    const double t465 = DERIVE_FMA(t249, t189, DERIVE_FMA(t225, t165, DERIVE_FMA(t201, t72, P[212])));
+    const double t466 = DERIVE_FMA(t249, t190, DERIVE_FMA(t225, t166, DERIVE_FMA(t201, t73, P[213])));
+    const double t467 = DERIVE_FMA(t249, t191, DERIVE_FMA(t225, t167, DERIVE_FMA(t201, t74, P[214])));
+    const double t468 = DERIVE_FMA(t249, t192, DERIVE_FMA(t225, t168, DERIVE_FMA(t201, t75, P[215])));
     #endif
+    const double t469 = DERIVE_FMA(t202, t61, DERIVE_FMA(t178, t250, DERIVE_FMA(t154, t226, P[225])));
+    const double t470 = DERIVE_FMA(t202, t62, DERIVE_FMA(t179, t250, DERIVE_FMA(t155, t226, P[226])));
+    const double t471 = DERIVE_FMA(t202, t63, DERIVE_FMA(t180, t250, DERIVE_FMA(t156, t226, P[227])));
     #if DERIVE_VECTOR
-    const derive_vd v_t469_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t64, ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t157, v_t469_0);
-    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t181, v_t469_1);
+    const derive_vd v_t472_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t64, ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const derive_vd v_t472_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t157, v_t472_0);
+    const derive_vd v_t472 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t181, v_t472_1);
     #else
-    const double t469 = DERIVE_FMA(t249, t181, DERIVE_FMA(t225, t157, DERIVE_FMA(t201, t64, P[204])));
-    const double t470 = DERIVE_FMA(t249, t182, DERIVE_FMA(t225, t158, DERIVE_FMA(t201, t65, P[205])));
-    const double t471 = DERIVE_FMA(t249, t183, DERIVE_FMA(t225, t159, DERIVE_FMA(t201, t66, P[206])));
-    const double t472 = DERIVE_FMA(t249, t184, DERIVE_FMA(t225, t160, DERIVE_FMA(t201, t67, P[207])));
+    const double t472 = DERIVE_FMA(t250, t181, DERIVE_FMA(t226, t157, DERIVE_FMA(t202, t64, P[228])));
+    const double t473 = DERIVE_FMA(t250, t182, DERIVE_FMA(t226, t158, DERIVE_FMA(t202, t65, P[229])));
+    const double t474 = DERIVE_FMA(t250, t183, DERIVE_FMA(t226, t159, DERIVE_FMA(t202, t66, P[230])));
+    const double t475 = DERIVE_FMA(t250, t184, DERIVE_FMA(t226, t160, DERIVE_FMA(t202, t67, P[231])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t473_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t68, ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t161, v_t473_0);
-    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t185, v_t473_1);
+    const derive_vd v_t476_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t68, ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const derive_vd v_t476_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t161, v_t476_0);
+    const derive_vd v_t476 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t185, v_t476_1);
     #else
-    const double t473 = DERIVE_FMA(t249, t185, DERIVE_FMA(t225, t161, DERIVE_FMA(t201, t68, P[208])));
-    const double t474 = DERIVE_FMA(t249, t186, DERIVE_FMA(t225, t162, DERIVE_FMA(t201, t69, P[209])));
-    const double t475 = DERIVE_FMA(t249, t187, DERIVE_FMA(t225, t163, DERIVE_FMA(t201, t70, P[210])));
-    const double t476 = DERIVE_FMA(t249, t188, DERIVE_FMA(t225, t164, DERIVE_FMA(t201, t71, P[211])));
+    const double t476 = DERIVE_FMA(t250, t185, DERIVE_FMA(t226, t161, DERIVE_FMA(t202, t68, P[232])));
+    const double t477 = DERIVE_FMA(t250, t186, DERIVE_FMA(t226, t162, DERIVE_FMA(t202, t69, P[233])));
+    const double t478 = DERIVE_FMA(t250, t187, DERIVE_FMA(t226, t163, DERIVE_FMA(t202, t70, P[234])));
+    const double t479 = DERIVE_FMA(t250, t188, DERIVE_FMA(t226, t164, DERIVE_FMA(t202, t71, P[235])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t477_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t72, ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const derive_vd v_t477_1 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t165, v_t477_0);
-    const derive_vd v_t477 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t189, v_t477_1);
+    const derive_vd v_t480_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t72, ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const derive_vd v_t480_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t165, v_t480_0);
+    const derive_vd v_t480 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t189, v_t480_1);
     #else
-    const double t477 = DERIVE_FMA(t249, t189, DERIVE_FMA(t225, t165, DERIVE_FMA(t201, t72, P[212])));
-    const double t478 = DERIVE_FMA(t249, t190, DERIVE_FMA(t225, t166, DERIVE_FMA(t201, t73, P[213])));
-    const double t479 = DERIVE_FMA(t249, t191, DERIVE_FMA(t225, t167, DERIVE_FMA(t201, t74, P[214])));
-    const double t480 = DERIVE_FMA(t249, t192, DERIVE_FMA(t225, t168, DERIVE_FMA(t201, t75, P[215])));
+    const double t480 = DERIVE_FMA(t250, t189, DERIVE_FMA(t226, t165, DERIVE_FMA(t202, t72, P[236])));
+    const double t481 = DERIVE_FMA(t250, t190, DERIVE_FMA(t226, t166, DERIVE_FMA(t202, t73, P[237])));
+    const double t482 = DERIVE_FMA(t250, t191, DERIVE_FMA(t226, t167, DERIVE_FMA(t202, t74, P[238])));
+    const double t483 = DERIVE_FMA(t250, t192, DERIVE_FMA(t226, t168, DERIVE_FMA(t202, t75, P[239])));
     #endif
+    const double t484 = DERIVE_FMA(t203, t62, DERIVE_FMA(t179, t251, DERIVE_FMA(t155, t227, P[250])));
+    const double t485 = DERIVE_FMA(t203, t63, DERIVE_FMA(t180, t251, DERIVE_FMA(t156, t227, P[251])));
     #if DERIVE_VECTOR
-    const derive_vd v_t481_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t60, ((derive_vd){P[224], P[225], P[226], P[227]}));
-    const derive_vd v_t481_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t153, v_t481_0);
-    const derive_vd v_t481 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t177, v_t481_1);
+    const derive_vd v_t486_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t64, ((derive_vd){P[252], P[253], P[254], P[255]}));
+    const derive_vd v_t486_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t157, v_t486_0);
+    const derive_vd v_t486 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t181, v_t486_1);
     #else
-    const double t482 = DERIVE_FMA(t250, t178, DERIVE_FMA(t226, t154, DERIVE_FMA(t202, t61, P[225])));
-    const double t483 = DERIVE_FMA(t250, t179, DERIVE_FMA(t226, t155, DERIVE_FMA(t202, t62, P[226])));
-    const double t484 = DERIVE_FMA(t250, t180, DERIVE_FMA(t226, t156, DERIVE_FMA(t202, t63, P[227])));
+    const double t486 = DERIVE_FMA(t251, t181, DERIVE_FMA(t227, t157, DERIVE_FMA(t203, t64, P[252])));
+    const double t487 = DERIVE_FMA(t251, t182, DERIVE_FMA(t227, t158, DERIVE_FMA(t203, t65, P[253])));
+    const double t488 = DERIVE_FMA(t251, t183, DERIVE_FMA(t227, t159, DERIVE_FMA(t203, t66, P[254])));
+    const double t489 = DERIVE_FMA(t251, t184, DERIVE_FMA(t227, t160, DERIVE_FMA(t203, t67, P[255])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t485_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t64, ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t485_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t157, v_t485_0);
-    const derive_vd v_t485 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t181, v_t485_1);
+    const derive_vd v_t490_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t68, ((derive_vd){P[256], P[257], P[258], P[259]}));
+    const derive_vd v_t490_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t161, v_t490_0);
+    const derive_vd v_t490 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t185, v_t490_1);
     #else
-    const double t485 = DERIVE_FMA(t250, t181, DERIVE_FMA(t226, t157, DERIVE_FMA(t202, t64, P[228])));
-    const double t486 = DERIVE_FMA(t250, t182, DERIVE_FMA(t226, t158, DERIVE_FMA(t202, t65, P[229])));
-    const double t487 = DERIVE_FMA(t250, t183, DERIVE_FMA(t226, t159, DERIVE_FMA(t202, t66, P[230])));
-    const double t488 = DERIVE_FMA(t250, t184, DERIVE_FMA(t226, t160, DERIVE_FMA(t202, t67, P[231])));
+    const double t490 = DERIVE_FMA(t251, t185, DERIVE_FMA(t227, t161, DERIVE_FMA(t203, t68, P[256])));
+    const double t491 = DERIVE_FMA(t251, t186, DERIVE_FMA(t227, t162, DERIVE_FMA(t203, t69, P[257])));
+    const double t492 = DERIVE_FMA(t251, t187, DERIVE_FMA(t227, t163, DERIVE_FMA(t203, t70, P[258])));
+    const double t493 = DERIVE_FMA(t251, t188, DERIVE_FMA(t227, t164, DERIVE_FMA(t203, t71, P[259])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t489_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t68, ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t489_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t161, v_t489_0);
-    const derive_vd v_t489 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t185, v_t489_1);
+    const derive_vd v_t494_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t72, ((derive_vd){P[260], P[261], P[262], P[263]}));
+    const derive_vd v_t494_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t165, v_t494_0);
+    const derive_vd v_t494 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t189, v_t494_1);
     #else
-    const double t489 = DERIVE_FMA(t250, t185, DERIVE_FMA(t226, t161, DERIVE_FMA(t202, t68, P[232])));
-    const double t490 = DERIVE_FMA(t250, t186, DERIVE_FMA(t226, t162, DERIVE_FMA(t202, t69, P[233])));
-    const double t491 = DERIVE_FMA(t250, t187, DERIVE_FMA(t226, t163, DERIVE_FMA(t202, t70, P[234])));
-    const double t492 = DERIVE_FMA(t250, t188, DERIVE_FMA(t226, t164, DERIVE_FMA(t202, t71, P[235])));
+    const double t494 = DERIVE_FMA(t251, t189, DERIVE_FMA(t227, t165, DERIVE_FMA(t203, t72, P[260])));
+    const double t495 = DERIVE_FMA(t251, t190, DERIVE_FMA(t227, t166, DERIVE_FMA(t203, t73, P[261])));
+    const double t496 = DERIVE_FMA(t251, t191, DERIVE_FMA(t227, t167, DERIVE_FMA(t203, t74, P[262])));
+    const double t497 = DERIVE_FMA(t251, t192, DERIVE_FMA(t227, t168, DERIVE_FMA(t203, t75, P[263])));
     #endif
+    const double t498 = DERIVE_FMA(t204, t63, DERIVE_FMA(t180, t252, DERIVE_FMA(t156, t228, P[275])));
     #if DERIVE_VECTOR
-    const derive_vd v_t493_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t72, ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t493_1 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t165, v_t493_0);
-    const derive_vd v_t493 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t189, v_t493_1);
+    const derive_vd v_t499_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t64, ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd v_t499_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t157, v_t499_0);
+    const derive_vd v_t499 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t181, v_t499_1);
+    const derive_vd tr_v_t457_0 = __builtin_shufflevector(v_t457, v_t472, 0, 4, 2, 6);
+    const derive_vd tr_v_t457_1 = __builtin_shufflevector(v_t457, v_t472, 1, 5, 3, 7);
+    const derive_vd tr_v_t457_2 = __builtin_shufflevector(v_t486, v_t499, 0, 4, 2, 6);
+    const derive_vd tr_v_t457_3 = __builtin_shufflevector(v_t486, v_t499, 1, 5, 3, 7);
+    const derive_vd tr_v_t457_c0 = __builtin_shufflevector(tr_v_t457_0, tr_v_t457_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t457_c1 = __builtin_shufflevector(tr_v_t457_1, tr_v_t457_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t457_c2 = __builtin_shufflevector(tr_v_t457_0, tr_v_t457_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t457_c3 = __builtin_shufflevector(tr_v_t457_1, tr_v_t457_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t457;
+    *(derive_vd_unaligned *)&P_new[228] = v_t472;
+    *(derive_vd_unaligned *)&P_new[252] = v_t486;
+    *(derive_vd_unaligned *)&P_new[276] = v_t499;
+    *(derive_vd_unaligned *)&P_new[296] = tr_v_t457_c0;
+    *(derive_vd_unaligned *)&P_new[320] = tr_v_t457_c1;
+    *(derive_vd_unaligned *)&P_new[344] = tr_v_t457_c2;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t457_c3;
     #else
-    const double t493 = DERIVE_FMA(t250, t189, DERIVE_FMA(t226, t165, DERIVE_FMA(t202, t72, P[236])));
-    const double t494 = DERIVE_FMA(t250, t190, DERIVE_FMA(t226, t166, DERIVE_FMA(t202, t73, P[237])));
-    const double t495 = DERIVE_FMA(t250, t191, DERIVE_FMA(t226, t167, DERIVE_FMA(t202, t74, P[238])));
-    const double t496 = DERIVE_FMA(t250, t192, DERIVE_FMA(t226, t168, DERIVE_FMA(t202, t75, P[239])));
+    const double t499 = DERIVE_FMA(t252, t181, DERIVE_FMA(t228, t157, DERIVE_FMA(t204, t64, P[276])));
+    const double t500 = DERIVE_FMA(t252, t182, DERIVE_FMA(t228, t158, DERIVE_FMA(t204, t65, P[277])));
+    const double t501 = DERIVE_FMA(t252, t183, DERIVE_FMA(t228, t159, DERIVE_FMA(t204, t66, P[278])));
+    const double t502 = DERIVE_FMA(t252, t184, DERIVE_FMA(t228, t160, DERIVE_FMA(t204, t67, P[279])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t497_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t60, ((derive_vd){P[248], P[249], P[250], P[251]}));
-    const derive_vd v_t497_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t153, v_t497_0);
-    const derive_vd v_t497 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t177, v_t497_1);
+    const derive_vd v_t503_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t68, ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd v_t503_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t161, v_t503_0);
+    const derive_vd v_t503 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t185, v_t503_1);
+    const derive_vd tr_v_t461_0 = __builtin_shufflevector(v_t461, v_t476, 0, 4, 2, 6);
+    const derive_vd tr_v_t461_1 = __builtin_shufflevector(v_t461, v_t476, 1, 5, 3, 7);
+    const derive_vd tr_v_t461_2 = __builtin_shufflevector(v_t490, v_t503, 0, 4, 2, 6);
+    const derive_vd tr_v_t461_3 = __builtin_shufflevector(v_t490, v_t503, 1, 5, 3, 7);
+    const derive_vd tr_v_t461_c0 = __builtin_shufflevector(tr_v_t461_0, tr_v_t461_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t461_c1 = __builtin_shufflevector(tr_v_t461_1, tr_v_t461_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t461_c2 = __builtin_shufflevector(tr_v_t461_0, tr_v_t461_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t461_c3 = __builtin_shufflevector(tr_v_t461_1, tr_v_t461_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[208] = v_t461;
+    *(derive_vd_unaligned *)&P_new[232] = v_t476;
+    *(derive_vd_unaligned *)&P_new[256] = v_t490;
+    *(derive_vd_unaligned *)&P_new[280] = v_t503;
+    *(derive_vd_unaligned *)&P_new[392] = tr_v_t461_c0;
+    *(derive_vd_unaligned *)&P_new[416] = tr_v_t461_c1;
+    *(derive_vd_unaligned *)&P_new[440] = tr_v_t461_c2;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t461_c3;
     #else
-    const double t499 = DERIVE_FMA(t251, t179, DERIVE_FMA(t227, t155, DERIVE_FMA(t203, t62, P[250])));
-    const double t500 = DERIVE_FMA(t251, t180, DERIVE_FMA(t227, t156, DERIVE_FMA(t203, t63, P[251])));
+    const double t503 = DERIVE_FMA(t252, t185, DERIVE_FMA(t228, t161, DERIVE_FMA(t204, t68, P[280])));
+    const double t504 = DERIVE_FMA(t252, t186, DERIVE_FMA(t228, t162, DERIVE_FMA(t204, t69, P[281])));
+    const double t505 = DERIVE_FMA(t252, t187, DERIVE_FMA(t228, t163, DERIVE_FMA(t204, t70, P[282])));
+    const double t506 = DERIVE_FMA(t252, t188, DERIVE_FMA(t228, t164, DERIVE_FMA(t204, t71, P[283])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t501_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t64, ((derive_vd){P[252], P[253], P[254], P[255]}));
-    const derive_vd v_t501_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t157, v_t501_0);
-    const derive_vd v_t501 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t181, v_t501_1);
-    #else
-    const double t501 = DERIVE_FMA(t251, t181, DERIVE_FMA(t227, t157, DERIVE_FMA(t203, t64, P[252])));
-    const double t502 = DERIVE_FMA(t251, t182, DERIVE_FMA(t227, t158, DERIVE_FMA(t203, t65, P[253])));
-    const double t503 = DERIVE_FMA(t251, t183, DERIVE_FMA(t227, t159, DERIVE_FMA(t203, t66, P[254])));
-    const double t504 = DERIVE_FMA(t251, t184, DERIVE_FMA(t227, t160, DERIVE_FMA(t203, t67, P[255])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t505_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t68, ((derive_vd){P[256], P[257], P[258], P[259]}));
-    const derive_vd v_t505_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t161, v_t505_0);
-    const derive_vd v_t505 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t185, v_t505_1);
-    #else
-    const double t505 = DERIVE_FMA(t251, t185, DERIVE_FMA(t227, t161, DERIVE_FMA(t203, t68, P[256])));
-    const double t506 = DERIVE_FMA(t251, t186, DERIVE_FMA(t227, t162, DERIVE_FMA(t203, t69, P[257])));
-    const double t507 = DERIVE_FMA(t251, t187, DERIVE_FMA(t227, t163, DERIVE_FMA(t203, t70, P[258])));
-    const double t508 = DERIVE_FMA(t251, t188, DERIVE_FMA(t227, t164, DERIVE_FMA(t203, t71, P[259])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t509_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t72, ((derive_vd){P[260], P[261], P[262], P[263]}));
-    const derive_vd v_t509_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t165, v_t509_0);
-    const derive_vd v_t509 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t189, v_t509_1);
-    #else
-    const double t509 = DERIVE_FMA(t251, t189, DERIVE_FMA(t227, t165, DERIVE_FMA(t203, t72, P[260])));
-    const double t510 = DERIVE_FMA(t251, t190, DERIVE_FMA(t227, t166, DERIVE_FMA(t203, t73, P[261])));
-    const double t511 = DERIVE_FMA(t251, t191, DERIVE_FMA(t227, t167, DERIVE_FMA(t203, t74, P[262])));
-    const double t512 = DERIVE_FMA(t251, t192, DERIVE_FMA(t227, t168, DERIVE_FMA(t203, t75, P[263])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t513_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t60, ((derive_vd){P[272], P[273], P[274], P[275]}));
-    const derive_vd v_t513_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t153, v_t513_0);
-    const derive_vd v_t513 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t177, v_t513_1);
-    const derive_vd tr_v_t465_0 = __builtin_shufflevector(v_t465, v_t481, 0, 4, 2, 6);
-    const derive_vd tr_v_t465_1 = __builtin_shufflevector(v_t465, v_t481, 1, 5, 3, 7);
-    const derive_vd tr_v_t465_2 = __builtin_shufflevector(v_t497, v_t513, 0, 4, 2, 6);
-    const derive_vd tr_v_t465_3 = __builtin_shufflevector(v_t497, v_t513, 1, 5, 3, 7);
+    const derive_vd v_t507_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t72, ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd v_t507_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t165, v_t507_0);
+    const derive_vd v_t507 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t189, v_t507_1);
+    const derive_vd tr_v_t465_0 = __builtin_shufflevector(v_t465, v_t480, 0, 4, 2, 6);
+    const derive_vd tr_v_t465_1 = __builtin_shufflevector(v_t465, v_t480, 1, 5, 3, 7);
+    const derive_vd tr_v_t465_2 = __builtin_shufflevector(v_t494, v_t507, 0, 4, 2, 6);
+    const derive_vd tr_v_t465_3 = __builtin_shufflevector(v_t494, v_t507, 1, 5, 3, 7);
+    const derive_vd tr_v_t465_c0 = __builtin_shufflevector(tr_v_t465_0, tr_v_t465_2, 0, 1, 4, 5);
     const derive_vd tr_v_t465_c1 = __builtin_shufflevector(tr_v_t465_1, tr_v_t465_3, 0, 1, 4, 5);
     const derive_vd tr_v_t465_c2 = __builtin_shufflevector(tr_v_t465_0, tr_v_t465_2, 2, 3, 6, 7);
     const derive_vd tr_v_t465_c3 = __builtin_shufflevector(tr_v_t465_1, tr_v_t465_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[200] = v_t465;
-    *(derive_vd_unaligned *)&P_new[224] = __builtin_shufflevector(v_t481, tr_v_t465_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[248] = __builtin_shufflevector(v_t497, tr_v_t465_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[272] = __builtin_shufflevector(v_t513, tr_v_t465_c3, 4, 5, 6, 3);
+    *(derive_vd_unaligned *)&P_new[212] = v_t465;
+    *(derive_vd_unaligned *)&P_new[236] = v_t480;
+    *(derive_vd_unaligned *)&P_new[260] = v_t494;
+    *(derive_vd_unaligned *)&P_new[284] = v_t507;
+    *(derive_vd_unaligned *)&P_new[488] = tr_v_t465_c0;
+    *(derive_vd_unaligned *)&P_new[512] = tr_v_t465_c1;
+    *(derive_vd_unaligned *)&P_new[536] = tr_v_t465_c2;
+    *(derive_vd_unaligned *)&P_new[560] = tr_v_t465_c3;
     #else
-    const double t516 = DERIVE_FMA(t252, t180, DERIVE_FMA(t228, t156, DERIVE_FMA(t204, t63, P[275])));
+    const double t507 = DERIVE_FMA(t252, t189, DERIVE_FMA(t228, t165, DERIVE_FMA(t204, t72, P[284])));
+    const double t508 = DERIVE_FMA(t252, t190, DERIVE_FMA(t228, t166, DERIVE_FMA(t204, t73, P[285])));
+    const double t509 = DERIVE_FMA(t252, t191, DERIVE_FMA(t228, t167, DERIVE_FMA(t204, t74, P[286])));
+    const double t510 = DERIVE_FMA(t252, t192, DERIVE_FMA(t228, t168, DERIVE_FMA(t204, t75, P[287])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t517_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t64, ((derive_vd){P[276], P[277], P[278], P[279]}));
-    const derive_vd v_t517_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t157, v_t517_0);
-    const derive_vd v_t517 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t181, v_t517_1);
-    const derive_vd tr_v_t469_0 = __builtin_shufflevector(v_t469, v_t485, 0, 4, 2, 6);
-    const derive_vd tr_v_t469_1 = __builtin_shufflevector(v_t469, v_t485, 1, 5, 3, 7);
-    const derive_vd tr_v_t469_2 = __builtin_shufflevector(v_t501, v_t517, 0, 4, 2, 6);
-    const derive_vd tr_v_t469_3 = __builtin_shufflevector(v_t501, v_t517, 1, 5, 3, 7);
-    const derive_vd tr_v_t469_c0 = __builtin_shufflevector(tr_v_t469_0, tr_v_t469_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t469_c1 = __builtin_shufflevector(tr_v_t469_1, tr_v_t469_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t469_c2 = __builtin_shufflevector(tr_v_t469_0, tr_v_t469_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t469_c3 = __builtin_shufflevector(tr_v_t469_1, tr_v_t469_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[204] = v_t469;
-    *(derive_vd_unaligned *)&P_new[228] = v_t485;
-    *(derive_vd_unaligned *)&P_new[252] = v_t501;
-    *(derive_vd_unaligned *)&P_new[276] = v_t517;
-    *(derive_vd_unaligned *)&P_new[296] = tr_v_t469_c0;
-    *(derive_vd_unaligned *)&P_new[320] = tr_v_t469_c1;
-    *(derive_vd_unaligned *)&P_new[344] = tr_v_t469_c2;
-    *(derive_vd_unaligned *)&P_new[368] = tr_v_t469_c3;
+    const derive_vd v_t511_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t64, ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const derive_vd v_t511_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t157, v_t511_0);
+    const derive_vd v_t511 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t181, v_t511_1);
+    const double t512 = v_t511[1];
+    const double t513 = v_t511[2];
+    const double t514 = v_t511[3];
+    *(derive_vd_unaligned *)&P_new[300] = v_t511;
     #else
-    const double t517 = DERIVE_FMA(t252, t181, DERIVE_FMA(t228, t157, DERIVE_FMA(t204, t64, P[276])));
-    const double t518 = DERIVE_FMA(t252, t182, DERIVE_FMA(t228, t158, DERIVE_FMA(t204, t65, P[277])));
-    const double t519 = DERIVE_FMA(t252, t183, DERIVE_FMA(t228, t159, DERIVE_FMA(t204, t66, P[278])));
-    const double t520 = DERIVE_FMA(t252, t184, DERIVE_FMA(t228, t160, DERIVE_FMA(t204, t67, P[279])));
+    const double t511 = DERIVE_FMA(t253, t181, DERIVE_FMA(t229, t157, DERIVE_FMA(t205, t64, P[300])));
+    const double t512 = DERIVE_FMA(t253, t182, DERIVE_FMA(t229, t158, DERIVE_FMA(t205, t65, P[301])));
+    const double t513 = DERIVE_FMA(t253, t183, DERIVE_FMA(t229, t159, DERIVE_FMA(t205, t66, P[302])));
+    const double t514 = DERIVE_FMA(t253, t184, DERIVE_FMA(t229, t160, DERIVE_FMA(t205, t67, P[303])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t521_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t68, ((derive_vd){P[280], P[281], P[282], P[283]}));
-    const derive_vd v_t521_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t161, v_t521_0);
-    const derive_vd v_t521 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t185, v_t521_1);
-    const derive_vd tr_v_t473_0 = __builtin_shufflevector(v_t473, v_t489, 0, 4, 2, 6);
-    const derive_vd tr_v_t473_1 = __builtin_shufflevector(v_t473, v_t489, 1, 5, 3, 7);
-    const derive_vd tr_v_t473_2 = __builtin_shufflevector(v_t505, v_t521, 0, 4, 2, 6);
-    const derive_vd tr_v_t473_3 = __builtin_shufflevector(v_t505, v_t521, 1, 5, 3, 7);
-    const derive_vd tr_v_t473_c0 = __builtin_shufflevector(tr_v_t473_0, tr_v_t473_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t473_c1 = __builtin_shufflevector(tr_v_t473_1, tr_v_t473_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t473_c2 = __builtin_shufflevector(tr_v_t473_0, tr_v_t473_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t473_c3 = __builtin_shufflevector(tr_v_t473_1, tr_v_t473_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[208] = v_t473;
-    *(derive_vd_unaligned *)&P_new[232] = v_t489;
-    *(derive_vd_unaligned *)&P_new[256] = v_t505;
-    *(derive_vd_unaligned *)&P_new[280] = v_t521;
-    *(derive_vd_unaligned *)&P_new[392] = tr_v_t473_c0;
-    *(derive_vd_unaligned *)&P_new[416] = tr_v_t473_c1;
-    *(derive_vd_unaligned *)&P_new[440] = tr_v_t473_c2;
-    *(derive_vd_unaligned *)&P_new[464] = tr_v_t473_c3;
+    const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t68, ((derive_vd){P[304], P[305], P[306], P[307]}));
+    const derive_vd v_t515_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t161, v_t515_0);
+    const derive_vd v_t515 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t185, v_t515_1);
     #else
-    const double t521 = DERIVE_FMA(t252, t185, DERIVE_FMA(t228, t161, DERIVE_FMA(t204, t68, P[280])));
-    const double t522 = DERIVE_FMA(t252, t186, DERIVE_FMA(t228, t162, DERIVE_FMA(t204, t69, P[281])));
-    const double t523 = DERIVE_FMA(t252, t187, DERIVE_FMA(t228, t163, DERIVE_FMA(t204, t70, P[282])));
-    const double t524 = DERIVE_FMA(t252, t188, DERIVE_FMA(t228, t164, DERIVE_FMA(t204, t71, P[283])));
+    const double t515 = DERIVE_FMA(t253, t185, DERIVE_FMA(t229, t161, DERIVE_FMA(t205, t68, P[304])));
+    const double t516 = DERIVE_FMA(t253, t186, DERIVE_FMA(t229, t162, DERIVE_FMA(t205, t69, P[305])));
+    const double t517 = DERIVE_FMA(t253, t187, DERIVE_FMA(t229, t163, DERIVE_FMA(t205, t70, P[306])));
+    const double t518 = DERIVE_FMA(t253, t188, DERIVE_FMA(t229, t164, DERIVE_FMA(t205, t71, P[307])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t525_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t72, ((derive_vd){P[284], P[285], P[286], P[287]}));
-    const derive_vd v_t525_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t165, v_t525_0);
-    const derive_vd v_t525 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t189, v_t525_1);
-    const derive_vd tr_v_t477_0 = __builtin_shufflevector(v_t477, v_t493, 0, 4, 2, 6);
-    const derive_vd tr_v_t477_1 = __builtin_shufflevector(v_t477, v_t493, 1, 5, 3, 7);
-    const derive_vd tr_v_t477_2 = __builtin_shufflevector(v_t509, v_t525, 0, 4, 2, 6);
-    const derive_vd tr_v_t477_3 = __builtin_shufflevector(v_t509, v_t525, 1, 5, 3, 7);
-    const derive_vd tr_v_t477_c0 = __builtin_shufflevector(tr_v_t477_0, tr_v_t477_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t477_c1 = __builtin_shufflevector(tr_v_t477_1, tr_v_t477_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t477_c2 = __builtin_shufflevector(tr_v_t477_0, tr_v_t477_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t477_c3 = __builtin_shufflevector(tr_v_t477_1, tr_v_t477_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[212] = v_t477;
-    *(derive_vd_unaligned *)&P_new[236] = v_t493;
-    *(derive_vd_unaligned *)&P_new[260] = v_t509;
-    *(derive_vd_unaligned *)&P_new[284] = v_t525;
-    *(derive_vd_unaligned *)&P_new[488] = tr_v_t477_c0;
-    *(derive_vd_unaligned *)&P_new[512] = tr_v_t477_c1;
-    *(derive_vd_unaligned *)&P_new[536] = tr_v_t477_c2;
-    *(derive_vd_unaligned *)&P_new[560] = tr_v_t477_c3;
+    const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t72, ((derive_vd){P[308], P[309], P[310], P[311]}));
+    const derive_vd v_t519_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t165, v_t519_0);
+    const derive_vd v_t519 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t189, v_t519_1);
     #else
-    const double t525 = DERIVE_FMA(t252, t189, DERIVE_FMA(t228, t165, DERIVE_FMA(t204, t72, P[284])));
-    const double t526 = DERIVE_FMA(t252, t190, DERIVE_FMA(t228, t166, DERIVE_FMA(t204, t73, P[285])));
-    const double t527 = DERIVE_FMA(t252, t191, DERIVE_FMA(t228, t167, DERIVE_FMA(t204, t74, P[286])));
-    const double t528 = DERIVE_FMA(t252, t192, DERIVE_FMA(t228, t168, DERIVE_FMA(t204, t75, P[287])));
+    const double t519 = DERIVE_FMA(t253, t189, DERIVE_FMA(t229, t165, DERIVE_FMA(t205, t72, P[308])));
+    const double t520 = DERIVE_FMA(t253, t190, DERIVE_FMA(t229, t166, DERIVE_FMA(t205, t73, P[309])));
+    const double t521 = DERIVE_FMA(t253, t191, DERIVE_FMA(t229, t167, DERIVE_FMA(t205, t74, P[310])));
+    const double t522 = DERIVE_FMA(t253, t192, DERIVE_FMA(t229, t168, DERIVE_FMA(t205, t75, P[311])));
+    #endif
+    const double t523 = DERIVE_FMA(t206, t65, DERIVE_FMA(t182, t254, DERIVE_FMA(t158, t230, P[325])));
+    const double t524 = DERIVE_FMA(t206, t66, DERIVE_FMA(t183, t254, DERIVE_FMA(t159, t230, P[326])));
+    const double t525 = DERIVE_FMA(t206, t67, DERIVE_FMA(t184, t254, DERIVE_FMA(t160, t230, P[327])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t526_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t68, ((derive_vd){P[328], P[329], P[330], P[331]}));
+    const derive_vd v_t526_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t161, v_t526_0);
+    const derive_vd v_t526 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t185, v_t526_1);
+    #else
+    const double t526 = DERIVE_FMA(t254, t185, DERIVE_FMA(t230, t161, DERIVE_FMA(t206, t68, P[328])));
+    const double t527 = DERIVE_FMA(t254, t186, DERIVE_FMA(t230, t162, DERIVE_FMA(t206, t69, P[329])));
+    const double t528 = DERIVE_FMA(t254, t187, DERIVE_FMA(t230, t163, DERIVE_FMA(t206, t70, P[330])));
+    const double t529 = DERIVE_FMA(t254, t188, DERIVE_FMA(t230, t164, DERIVE_FMA(t206, t71, P[331])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t529_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t64, ((derive_vd){P[300], P[301], P[302], P[303]}));
-    const derive_vd v_t529_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t157, v_t529_0);
-    const derive_vd v_t529 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t181, v_t529_1);
+    const derive_vd v_t530_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t72, ((derive_vd){P[332], P[333], P[334], P[335]}));
+    const derive_vd v_t530_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t165, v_t530_0);
+    const derive_vd v_t530 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t189, v_t530_1);
     #else
-    const double t529 = DERIVE_FMA(t253, t181, DERIVE_FMA(t229, t157, DERIVE_FMA(t205, t64, P[300])));
-    const double t530 = DERIVE_FMA(t253, t182, DERIVE_FMA(t229, t158, DERIVE_FMA(t205, t65, P[301])));
-    const double t531 = DERIVE_FMA(t253, t183, DERIVE_FMA(t229, t159, DERIVE_FMA(t205, t66, P[302])));
-    const double t532 = DERIVE_FMA(t253, t184, DERIVE_FMA(t229, t160, DERIVE_FMA(t205, t67, P[303])));
+    const double t530 = DERIVE_FMA(t254, t189, DERIVE_FMA(t230, t165, DERIVE_FMA(t206, t72, P[332])));
+    const double t531 = DERIVE_FMA(t254, t190, DERIVE_FMA(t230, t166, DERIVE_FMA(t206, t73, P[333])));
+    const double t532 = DERIVE_FMA(t254, t191, DERIVE_FMA(t230, t167, DERIVE_FMA(t206, t74, P[334])));
+    const double t533 = DERIVE_FMA(t254, t192, DERIVE_FMA(t230, t168, DERIVE_FMA(t206, t75, P[335])));
+    #endif
+    const double t534 = DERIVE_FMA(t207, t66, DERIVE_FMA(t183, t255, DERIVE_FMA(t159, t231, P[350])));
+    const double t535 = DERIVE_FMA(t207, t67, DERIVE_FMA(t184, t255, DERIVE_FMA(t160, t231, P[351])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t536_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t68, ((derive_vd){P[352], P[353], P[354], P[355]}));
+    const derive_vd v_t536_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t161, v_t536_0);
+    const derive_vd v_t536 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t185, v_t536_1);
+    #else
+    const double t536 = DERIVE_FMA(t255, t185, DERIVE_FMA(t231, t161, DERIVE_FMA(t207, t68, P[352])));
+    const double t537 = DERIVE_FMA(t255, t186, DERIVE_FMA(t231, t162, DERIVE_FMA(t207, t69, P[353])));
+    const double t538 = DERIVE_FMA(t255, t187, DERIVE_FMA(t231, t163, DERIVE_FMA(t207, t70, P[354])));
+    const double t539 = DERIVE_FMA(t255, t188, DERIVE_FMA(t231, t164, DERIVE_FMA(t207, t71, P[355])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t533_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t68, ((derive_vd){P[304], P[305], P[306], P[307]}));
-    const derive_vd v_t533_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t161, v_t533_0);
-    const derive_vd v_t533 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t185, v_t533_1);
+    const derive_vd v_t540_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t72, ((derive_vd){P[356], P[357], P[358], P[359]}));
+    const derive_vd v_t540_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t165, v_t540_0);
+    const derive_vd v_t540 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t189, v_t540_1);
     #else
-    const double t533 = DERIVE_FMA(t253, t185, DERIVE_FMA(t229, t161, DERIVE_FMA(t205, t68, P[304])));
-    const double t534 = DERIVE_FMA(t253, t186, DERIVE_FMA(t229, t162, DERIVE_FMA(t205, t69, P[305])));
-    const double t535 = DERIVE_FMA(t253, t187, DERIVE_FMA(t229, t163, DERIVE_FMA(t205, t70, P[306])));
-    const double t536 = DERIVE_FMA(t253, t188, DERIVE_FMA(t229, t164, DERIVE_FMA(t205, t71, P[307])));
+    const double t540 = DERIVE_FMA(t255, t189, DERIVE_FMA(t231, t165, DERIVE_FMA(t207, t72, P[356])));
+    const double t541 = DERIVE_FMA(t255, t190, DERIVE_FMA(t231, t166, DERIVE_FMA(t207, t73, P[357])));
+    const double t542 = DERIVE_FMA(t255, t191, DERIVE_FMA(t231, t167, DERIVE_FMA(t207, t74, P[358])));
+    const double t543 = DERIVE_FMA(t255, t192, DERIVE_FMA(t231, t168, DERIVE_FMA(t207, t75, P[359])));
+    #endif
+    const double t544 = DERIVE_FMA(t208, t67, DERIVE_FMA(t184, t256, DERIVE_FMA(t160, t232, P[375])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t545_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t68, ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd v_t545_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t161, v_t545_0);
+    const derive_vd v_t545 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t185, v_t545_1);
+    const derive_vd tr_v_t515_0 = __builtin_shufflevector(v_t515, v_t526, 0, 4, 2, 6);
+    const derive_vd tr_v_t515_1 = __builtin_shufflevector(v_t515, v_t526, 1, 5, 3, 7);
+    const derive_vd tr_v_t515_2 = __builtin_shufflevector(v_t536, v_t545, 0, 4, 2, 6);
+    const derive_vd tr_v_t515_3 = __builtin_shufflevector(v_t536, v_t545, 1, 5, 3, 7);
+    const derive_vd tr_v_t515_c0 = __builtin_shufflevector(tr_v_t515_0, tr_v_t515_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t515_c1 = __builtin_shufflevector(tr_v_t515_1, tr_v_t515_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t515_c2 = __builtin_shufflevector(tr_v_t515_0, tr_v_t515_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t515_c3 = __builtin_shufflevector(tr_v_t515_1, tr_v_t515_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[304] = v_t515;
+    *(derive_vd_unaligned *)&P_new[328] = v_t526;
+    *(derive_vd_unaligned *)&P_new[352] = v_t536;
+    *(derive_vd_unaligned *)&P_new[376] = v_t545;
+    *(derive_vd_unaligned *)&P_new[396] = tr_v_t515_c0;
+    *(derive_vd_unaligned *)&P_new[420] = tr_v_t515_c1;
+    *(derive_vd_unaligned *)&P_new[444] = tr_v_t515_c2;
+    *(derive_vd_unaligned *)&P_new[468] = tr_v_t515_c3;
+    #else
+    const double t545 = DERIVE_FMA(t256, t185, DERIVE_FMA(t232, t161, DERIVE_FMA(t208, t68, P[376])));
+    const double t546 = DERIVE_FMA(t256, t186, DERIVE_FMA(t232, t162, DERIVE_FMA(t208, t69, P[377])));
+    const double t547 = DERIVE_FMA(t256, t187, DERIVE_FMA(t232, t163, DERIVE_FMA(t208, t70, P[378])));
+    const double t548 = DERIVE_FMA(t256, t188, DERIVE_FMA(t232, t164, DERIVE_FMA(t208, t71, P[379])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t537_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t72, ((derive_vd){P[308], P[309], P[310], P[311]}));
-    const derive_vd v_t537_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t165, v_t537_0);
-    const derive_vd v_t537 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t189, v_t537_1);
+    const derive_vd v_t549_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t72, ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd v_t549_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t165, v_t549_0);
+    const derive_vd v_t549 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t189, v_t549_1);
+    const derive_vd tr_v_t519_0 = __builtin_shufflevector(v_t519, v_t530, 0, 4, 2, 6);
+    const derive_vd tr_v_t519_1 = __builtin_shufflevector(v_t519, v_t530, 1, 5, 3, 7);
+    const derive_vd tr_v_t519_2 = __builtin_shufflevector(v_t540, v_t549, 0, 4, 2, 6);
+    const derive_vd tr_v_t519_3 = __builtin_shufflevector(v_t540, v_t549, 1, 5, 3, 7);
+    const derive_vd tr_v_t519_c0 = __builtin_shufflevector(tr_v_t519_0, tr_v_t519_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t519_c1 = __builtin_shufflevector(tr_v_t519_1, tr_v_t519_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t519_c2 = __builtin_shufflevector(tr_v_t519_0, tr_v_t519_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t519_c3 = __builtin_shufflevector(tr_v_t519_1, tr_v_t519_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[308] = v_t519;
+    *(derive_vd_unaligned *)&P_new[332] = v_t530;
+    *(derive_vd_unaligned *)&P_new[356] = v_t540;
+    *(derive_vd_unaligned *)&P_new[380] = v_t549;
+    *(derive_vd_unaligned *)&P_new[492] = tr_v_t519_c0;
+    *(derive_vd_unaligned *)&P_new[516] = tr_v_t519_c1;
+    *(derive_vd_unaligned *)&P_new[540] = tr_v_t519_c2;
+    *(derive_vd_unaligned *)&P_new[564] = tr_v_t519_c3;
     #else
-    const double t537 = DERIVE_FMA(t253, t189, DERIVE_FMA(t229, t165, DERIVE_FMA(t205, t72, P[308])));
-    const double t538 = DERIVE_FMA(t253, t190, DERIVE_FMA(t229, t166, DERIVE_FMA(t205, t73, P[309])));
-    const double t539 = DERIVE_FMA(t253, t191, DERIVE_FMA(t229, t167, DERIVE_FMA(t205, t74, P[310])));
-    const double t540 = DERIVE_FMA(t253, t192, DERIVE_FMA(t229, t168, DERIVE_FMA(t205, t75, P[311])));
+    const double t549 = DERIVE_FMA(t256, t189, DERIVE_FMA(t232, t165, DERIVE_FMA(t208, t72, P[380])));
+    const double t550 = DERIVE_FMA(t256, t190, DERIVE_FMA(t232, t166, DERIVE_FMA(t208, t73, P[381])));
+    const double t551 = DERIVE_FMA(t256, t191, DERIVE_FMA(t232, t167, DERIVE_FMA(t208, t74, P[382])));
+    const double t552 = DERIVE_FMA(t256, t192, DERIVE_FMA(t232, t168, DERIVE_FMA(t208, t75, P[383])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t541_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t64, ((derive_vd){P[324], P[325], P[326], P[327]}));
-    const derive_vd v_t541_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t157, v_t541_0);
-    const derive_vd v_t541 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t181, v_t541_1);
+    const derive_vd v_t553_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t68, ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const derive_vd v_t553_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t161, v_t553_0);
+    const derive_vd v_t553 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t185, v_t553_1);
+    const double t554 = v_t553[1];
+    const double t555 = v_t553[2];
+    const double t556 = v_t553[3];
+    *(derive_vd_unaligned *)&P_new[400] = v_t553;
     #else
-    const double t542 = DERIVE_FMA(t254, t182, DERIVE_FMA(t230, t158, DERIVE_FMA(t206, t65, P[325])));
-    const double t543 = DERIVE_FMA(t254, t183, DERIVE_FMA(t230, t159, DERIVE_FMA(t206, t66, P[326])));
-    const double t544 = DERIVE_FMA(t254, t184, DERIVE_FMA(t230, t160, DERIVE_FMA(t206, t67, P[327])));
+    const double t553 = DERIVE_FMA(t257, t185, DERIVE_FMA(t233, t161, DERIVE_FMA(t209, t68, P[400])));
+    const double t554 = DERIVE_FMA(t257, t186, DERIVE_FMA(t233, t162, DERIVE_FMA(t209, t69, P[401])));
+    const double t555 = DERIVE_FMA(t257, t187, DERIVE_FMA(t233, t163, DERIVE_FMA(t209, t70, P[402])));
+    const double t556 = DERIVE_FMA(t257, t188, DERIVE_FMA(t233, t164, DERIVE_FMA(t209, t71, P[403])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t545_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t68, ((derive_vd){P[328], P[329], P[330], P[331]}));
-    const derive_vd v_t545_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t161, v_t545_0);
-    const derive_vd v_t545 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t185, v_t545_1);
+    const derive_vd v_t557_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t72, ((derive_vd){P[404], P[405], P[406], P[407]}));
+    const derive_vd v_t557_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t165, v_t557_0);
+    const derive_vd v_t557 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t189, v_t557_1);
     #else
-    const double t545 = DERIVE_FMA(t254, t185, DERIVE_FMA(t230, t161, DERIVE_FMA(t206, t68, P[328])));
-    const double t546 = DERIVE_FMA(t254, t186, DERIVE_FMA(t230, t162, DERIVE_FMA(t206, t69, P[329])));
-    const double t547 = DERIVE_FMA(t254, t187, DERIVE_FMA(t230, t163, DERIVE_FMA(t206, t70, P[330])));
-    const double t548 = DERIVE_FMA(t254, t188, DERIVE_FMA(t230, t164, DERIVE_FMA(t206, t71, P[331])));
+    const double t557 = DERIVE_FMA(t257, t189, DERIVE_FMA(t233, t165, DERIVE_FMA(t209, t72, P[404])));
+    const double t558 = DERIVE_FMA(t257, t190, DERIVE_FMA(t233, t166, DERIVE_FMA(t209, t73, P[405])));
+    const double t559 = DERIVE_FMA(t257, t191, DERIVE_FMA(t233, t167, DERIVE_FMA(t209, t74, P[406])));
+    const double t560 = DERIVE_FMA(t257, t192, DERIVE_FMA(t233, t168, DERIVE_FMA(t209, t75, P[407])));
+    #endif
+    const double t561 = DERIVE_FMA(t210, t69, DERIVE_FMA(t186, t258, DERIVE_FMA(t162, t234, P[425])));
+    const double t562 = DERIVE_FMA(t210, t70, DERIVE_FMA(t187, t258, DERIVE_FMA(t163, t234, P[426])));
+    const double t563 = DERIVE_FMA(t210, t71, DERIVE_FMA(t188, t258, DERIVE_FMA(t164, t234, P[427])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t564_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t72, ((derive_vd){P[428], P[429], P[430], P[431]}));
+    const derive_vd v_t564_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t165, v_t564_0);
+    const derive_vd v_t564 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t189, v_t564_1);
+    #else
+    const double t564 = DERIVE_FMA(t258, t189, DERIVE_FMA(t234, t165, DERIVE_FMA(t210, t72, P[428])));
+    const double t565 = DERIVE_FMA(t258, t190, DERIVE_FMA(t234, t166, DERIVE_FMA(t210, t73, P[429])));
+    const double t566 = DERIVE_FMA(t258, t191, DERIVE_FMA(t234, t167, DERIVE_FMA(t210, t74, P[430])));
+    const double t567 = DERIVE_FMA(t258, t192, DERIVE_FMA(t234, t168, DERIVE_FMA(t210, t75, P[431])));
+    #endif
+    const double t568 = DERIVE_FMA(t211, t70, DERIVE_FMA(t187, t259, DERIVE_FMA(t163, t235, P[450])));
+    const double t569 = DERIVE_FMA(t211, t71, DERIVE_FMA(t188, t259, DERIVE_FMA(t164, t235, P[451])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t570_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t72, ((derive_vd){P[452], P[453], P[454], P[455]}));
+    const derive_vd v_t570_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t165, v_t570_0);
+    const derive_vd v_t570 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t189, v_t570_1);
+    #else
+    const double t570 = DERIVE_FMA(t259, t189, DERIVE_FMA(t235, t165, DERIVE_FMA(t211, t72, P[452])));
+    const double t571 = DERIVE_FMA(t259, t190, DERIVE_FMA(t235, t166, DERIVE_FMA(t211, t73, P[453])));
+    const double t572 = DERIVE_FMA(t259, t191, DERIVE_FMA(t235, t167, DERIVE_FMA(t211, t74, P[454])));
+    const double t573 = DERIVE_FMA(t259, t192, DERIVE_FMA(t235, t168, DERIVE_FMA(t211, t75, P[455])));
+    #endif
+    const double t574 = DERIVE_FMA(t212, t71, DERIVE_FMA(t188, t260, DERIVE_FMA(t164, t236, P[475])));
+    #if DERIVE_VECTOR
+    const derive_vd v_t575_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t72, ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd v_t575_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t165, v_t575_0);
+    const derive_vd v_t575 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t189, v_t575_1);
+    const derive_vd tr_v_t557_0 = __builtin_shufflevector(v_t557, v_t564, 0, 4, 2, 6);
+    const derive_vd tr_v_t557_1 = __builtin_shufflevector(v_t557, v_t564, 1, 5, 3, 7);
+    const derive_vd tr_v_t557_2 = __builtin_shufflevector(v_t570, v_t575, 0, 4, 2, 6);
+    const derive_vd tr_v_t557_3 = __builtin_shufflevector(v_t570, v_t575, 1, 5, 3, 7);
+    const derive_vd tr_v_t557_c0 = __builtin_shufflevector(tr_v_t557_0, tr_v_t557_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t557_c1 = __builtin_shufflevector(tr_v_t557_1, tr_v_t557_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t557_c2 = __builtin_shufflevector(tr_v_t557_0, tr_v_t557_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t557_c3 = __builtin_shufflevector(tr_v_t557_1, tr_v_t557_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[404] = v_t557;
+    *(derive_vd_unaligned *)&P_new[428] = v_t564;
+    *(derive_vd_unaligned *)&P_new[452] = v_t570;
+    *(derive_vd_unaligned *)&P_new[476] = v_t575;
+    *(derive_vd_unaligned *)&P_new[496] = tr_v_t557_c0;
+    *(derive_vd_unaligned *)&P_new[520] = tr_v_t557_c1;
+    *(derive_vd_unaligned *)&P_new[544] = tr_v_t557_c2;
+    *(derive_vd_unaligned *)&P_new[568] = tr_v_t557_c3;
+    #else
+    const double t575 = DERIVE_FMA(t260, t189, DERIVE_FMA(t236, t165, DERIVE_FMA(t212, t72, P[476])));
+    const double t576 = DERIVE_FMA(t260, t190, DERIVE_FMA(t236, t166, DERIVE_FMA(t212, t73, P[477])));
+    const double t577 = DERIVE_FMA(t260, t191, DERIVE_FMA(t236, t167, DERIVE_FMA(t212, t74, P[478])));
+    const double t578 = DERIVE_FMA(t260, t192, DERIVE_FMA(t236, t168, DERIVE_FMA(t212, t75, P[479])));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t549_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t72, ((derive_vd){P[332], P[333], P[334], P[335]}));
-    const derive_vd v_t549_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t165, v_t549_0);
-    const derive_vd v_t549 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t189, v_t549_1);
+    const derive_vd v_t579_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t72, ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const derive_vd v_t579_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t165, v_t579_0);
+    const derive_vd v_t579 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t189, v_t579_1);
+    const double t580 = v_t579[1];
+    const double t581 = v_t579[2];
+    const double t582 = v_t579[3];
+    *(derive_vd_unaligned *)&P_new[500] = v_t579;
     #else
-    const double t549 = DERIVE_FMA(t254, t189, DERIVE_FMA(t230, t165, DERIVE_FMA(t206, t72, P[332])));
-    const double t550 = DERIVE_FMA(t254, t190, DERIVE_FMA(t230, t166, DERIVE_FMA(t206, t73, P[333])));
-    const double t551 = DERIVE_FMA(t254, t191, DERIVE_FMA(t230, t167, DERIVE_FMA(t206, t74, P[334])));
-    const double t552 = DERIVE_FMA(t254, t192, DERIVE_FMA(t230, t168, DERIVE_FMA(t206, t75, P[335])));
+    const double t579 = DERIVE_FMA(t261, t189, DERIVE_FMA(t237, t165, DERIVE_FMA(t213, t72, P[500])));
+    const double t580 = DERIVE_FMA(t261, t190, DERIVE_FMA(t237, t166, DERIVE_FMA(t213, t73, P[501])));
+    const double t581 = DERIVE_FMA(t261, t191, DERIVE_FMA(t237, t167, DERIVE_FMA(t213, t74, P[502])));
+    const double t582 = DERIVE_FMA(t261, t192, DERIVE_FMA(t237, t168, DERIVE_FMA(t213, t75, P[503])));
     #endif
+    const double t583 = DERIVE_FMA(t214, t73, DERIVE_FMA(t190, t262, DERIVE_FMA(t166, t238, P[525])));
+    const double t584 = DERIVE_FMA(t214, t74, DERIVE_FMA(t191, t262, DERIVE_FMA(t167, t238, P[526])));
+    const double t585 = DERIVE_FMA(t214, t75, DERIVE_FMA(t192, t262, DERIVE_FMA(t168, t238, P[527])));
+    const double t586 = DERIVE_FMA(t215, t74, DERIVE_FMA(t191, t263, DERIVE_FMA(t167, t239, P[550])));
+    const double t587 = DERIVE_FMA(t215, t75, DERIVE_FMA(t192, t263, DERIVE_FMA(t168, t239, P[551])));
+    const double t588 = DERIVE_FMA(t216, t75, DERIVE_FMA(t192, t264, DERIVE_FMA(t168, t240, P[575])));
+    const double t589 = DERIVE_FMA(t268, t268, DERIVE_FMA(t267, t267, DERIVE_FMA(t266, t266, t265*t265)));
+    const double t590 = 1.0/sqrt(t589);
+    const double t591 = t265*t590;
+    const double t592 = t266*t590;
+    const double t593 = t267*t590;
+    const double t594 = t268*t590;
     #if DERIVE_VECTOR
-    const derive_vd v_t553_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t64, ((derive_vd){P[348], P[349], P[350], P[351]}));
-    const derive_vd v_t553_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t157, v_t553_0);
-    const derive_vd v_t553 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t181, v_t553_1);
+    x_new[0] = t591;
+    x_new[1] = t592;
+    x_new[2] = t593;
+    x_new[3] = t594;
+    P_new[24] = t290;
+    P_new[25] = t313;
+    P_new[26] = t314;
+    P_new[27] = t315;
+    P_new[48] = t291;
+    P_new[49] = t314;
+    P_new[50] = t336;
+    P_new[51] = t337;
+    P_new[72] = t292;
+    P_new[73] = t315;
+    P_new[74] = t337;
+    P_new[75] = t358;
+    P_new[124] = t380;
+    P_new[125] = t399;
+    P_new[126] = t400;
+    P_new[127] = t401;
+    P_new[148] = t381;
+    P_new[149] = t400;
+    P_new[150] = t418;
+    P_new[151] = t419;
+    P_new[172] = t382;
+    P_new[173] = t401;
+    P_new[174] = t419;
+    P_new[175] = t436;
+    P_new[224] = t454;
+    P_new[225] = t469;
+    P_new[226] = t470;
+    P_new[227] = t471;
+    P_new[248] = t455;
+    P_new[249] = t470;
+    P_new[250] = t484;
+    P_new[251] = t485;
+    P_new[272] = t456;
+    P_new[273] = t471;
+    P_new[274] = t485;
+    P_new[275] = t498;
+    P_new[324] = t512;
+    P_new[325] = t523;
+    P_new[326] = t524;
+    P_new[327] = t525;
+    P_new[348] = t513;
+    P_new[349] = t524;
+    P_new[350] = t534;
+    P_new[351] = t535;
+    P_new[372] = t514;
+    P_new[373] = t525;
+    P_new[374] = t535;
+    P_new[375] = t544;
+    P_new[424] = t554;
+    P_new[425] = t561;
+    P_new[426] = t562;
+    P_new[427] = t563;
+    P_new[448] = t555;
+    P_new[449] = t562;
+    P_new[450] = t568;
+    P_new[451] = t569;
+    P_new[472] = t556;
+    P_new[473] = t563;
+    P_new[474] = t569;
+    P_new[475] = t574;
+    P_new[524] = t580;
+    P_new[525] = t583;
+    P_new[526] = t584;
+    P_new[527] = t585;
+    P_new[548] = t581;
+    P_new[549] = t584;
+    P_new[550] = t586;
+    P_new[551] = t587;
+    P_new[572] = t582;
+    P_new[573] = t585;
+    P_new[574] = t587;
+    P_new[575] = t588;
     #else
-    const double t555 = DERIVE_FMA(t255, t183, DERIVE_FMA(t231, t159, DERIVE_FMA(t207, t66, P[350])));
-    const double t556 = DERIVE_FMA(t255, t184, DERIVE_FMA(t231, t160, DERIVE_FMA(t207, t67, P[351])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t557_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t68, ((derive_vd){P[352], P[353], P[354], P[355]}));
-    const derive_vd v_t557_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t161, v_t557_0);
-    const derive_vd v_t557 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t185, v_t557_1);
-    #else
-    const double t557 = DERIVE_FMA(t255, t185, DERIVE_FMA(t231, t161, DERIVE_FMA(t207, t68, P[352])));
-    const double t558 = DERIVE_FMA(t255, t186, DERIVE_FMA(t231, t162, DERIVE_FMA(t207, t69, P[353])));
-    const double t559 = DERIVE_FMA(t255, t187, DERIVE_FMA(t231, t163, DERIVE_FMA(t207, t70, P[354])));
-    const double t560 = DERIVE_FMA(t255, t188, DERIVE_FMA(t231, t164, DERIVE_FMA(t207, t71, P[355])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t561_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t72, ((derive_vd){P[356], P[357], P[358], P[359]}));
-    const derive_vd v_t561_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t165, v_t561_0);
-    const derive_vd v_t561 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t189, v_t561_1);
-    #else
-    const double t561 = DERIVE_FMA(t255, t189, DERIVE_FMA(t231, t165, DERIVE_FMA(t207, t72, P[356])));
-    const double t562 = DERIVE_FMA(t255, t190, DERIVE_FMA(t231, t166, DERIVE_FMA(t207, t73, P[357])));
-    const double t563 = DERIVE_FMA(t255, t191, DERIVE_FMA(t231, t167, DERIVE_FMA(t207, t74, P[358])));
-    const double t564 = DERIVE_FMA(t255, t192, DERIVE_FMA(t231, t168, DERIVE_FMA(t207, t75, P[359])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t565_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t64, ((derive_vd){P[372], P[373], P[374], P[375]}));
-    const derive_vd v_t565_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t157, v_t565_0);
-    const derive_vd v_t565 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t181, v_t565_1);
-    const derive_vd tr_v_t529_0 = __builtin_shufflevector(v_t529, v_t541, 0, 4, 2, 6);
-    const derive_vd tr_v_t529_1 = __builtin_shufflevector(v_t529, v_t541, 1, 5, 3, 7);
-    const derive_vd tr_v_t529_2 = __builtin_shufflevector(v_t553, v_t565, 0, 4, 2, 6);
-    const derive_vd tr_v_t529_3 = __builtin_shufflevector(v_t553, v_t565, 1, 5, 3, 7);
-    const derive_vd tr_v_t529_c1 = __builtin_shufflevector(tr_v_t529_1, tr_v_t529_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t529_c2 = __builtin_shufflevector(tr_v_t529_0, tr_v_t529_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t529_c3 = __builtin_shufflevector(tr_v_t529_1, tr_v_t529_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[300] = v_t529;
-    *(derive_vd_unaligned *)&P_new[324] = __builtin_shufflevector(v_t541, tr_v_t529_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[348] = __builtin_shufflevector(v_t553, tr_v_t529_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[372] = __builtin_shufflevector(v_t565, tr_v_t529_c3, 4, 5, 6, 3);
-    #else
-    const double t568 = DERIVE_FMA(t256, t184, DERIVE_FMA(t232, t160, DERIVE_FMA(t208, t67, P[375])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t569_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t68, ((derive_vd){P[376], P[377], P[378], P[379]}));
-    const derive_vd v_t569_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t161, v_t569_0);
-    const derive_vd v_t569 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t185, v_t569_1);
-    const derive_vd tr_v_t533_0 = __builtin_shufflevector(v_t533, v_t545, 0, 4, 2, 6);
-    const derive_vd tr_v_t533_1 = __builtin_shufflevector(v_t533, v_t545, 1, 5, 3, 7);
-    const derive_vd tr_v_t533_2 = __builtin_shufflevector(v_t557, v_t569, 0, 4, 2, 6);
-    const derive_vd tr_v_t533_3 = __builtin_shufflevector(v_t557, v_t569, 1, 5, 3, 7);
-    const derive_vd tr_v_t533_c0 = __builtin_shufflevector(tr_v_t533_0, tr_v_t533_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t533_c1 = __builtin_shufflevector(tr_v_t533_1, tr_v_t533_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t533_c2 = __builtin_shufflevector(tr_v_t533_0, tr_v_t533_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t533_c3 = __builtin_shufflevector(tr_v_t533_1, tr_v_t533_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[304] = v_t533;
-    *(derive_vd_unaligned *)&P_new[328] = v_t545;
-    *(derive_vd_unaligned *)&P_new[352] = v_t557;
-    *(derive_vd_unaligned *)&P_new[376] = v_t569;
-    *(derive_vd_unaligned *)&P_new[396] = tr_v_t533_c0;
-    *(derive_vd_unaligned *)&P_new[420] = tr_v_t533_c1;
-    *(derive_vd_unaligned *)&P_new[444] = tr_v_t533_c2;
-    *(derive_vd_unaligned *)&P_new[468] = tr_v_t533_c3;
-    #else
-    const double t569 = DERIVE_FMA(t256, t185, DERIVE_FMA(t232, t161, DERIVE_FMA(t208, t68, P[376])));
-    const double t570 = DERIVE_FMA(t256, t186, DERIVE_FMA(t232, t162, DERIVE_FMA(t208, t69, P[377])));
-    const double t571 = DERIVE_FMA(t256, t187, DERIVE_FMA(t232, t163, DERIVE_FMA(t208, t70, P[378])));
-    const double t572 = DERIVE_FMA(t256, t188, DERIVE_FMA(t232, t164, DERIVE_FMA(t208, t71, P[379])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t573_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t72, ((derive_vd){P[380], P[381], P[382], P[383]}));
-    const derive_vd v_t573_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t165, v_t573_0);
-    const derive_vd v_t573 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t189, v_t573_1);
-    const derive_vd tr_v_t537_0 = __builtin_shufflevector(v_t537, v_t549, 0, 4, 2, 6);
-    const derive_vd tr_v_t537_1 = __builtin_shufflevector(v_t537, v_t549, 1, 5, 3, 7);
-    const derive_vd tr_v_t537_2 = __builtin_shufflevector(v_t561, v_t573, 0, 4, 2, 6);
-    const derive_vd tr_v_t537_3 = __builtin_shufflevector(v_t561, v_t573, 1, 5, 3, 7);
-    const derive_vd tr_v_t537_c0 = __builtin_shufflevector(tr_v_t537_0, tr_v_t537_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t537_c1 = __builtin_shufflevector(tr_v_t537_1, tr_v_t537_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t537_c2 = __builtin_shufflevector(tr_v_t537_0, tr_v_t537_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t537_c3 = __builtin_shufflevector(tr_v_t537_1, tr_v_t537_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[308] = v_t537;
-    *(derive_vd_unaligned *)&P_new[332] = v_t549;
-    *(derive_vd_unaligned *)&P_new[356] = v_t561;
-    *(derive_vd_unaligned *)&P_new[380] = v_t573;
-    *(derive_vd_unaligned *)&P_new[492] = tr_v_t537_c0;
-    *(derive_vd_unaligned *)&P_new[516] = tr_v_t537_c1;
-    *(derive_vd_unaligned *)&P_new[540] = tr_v_t537_c2;
-    *(derive_vd_unaligned *)&P_new[564] = tr_v_t537_c3;
-    #else
-    const double t573 = DERIVE_FMA(t256, t189, DERIVE_FMA(t232, t165, DERIVE_FMA(t208, t72, P[380])));
-    const double t574 = DERIVE_FMA(t256, t190, DERIVE_FMA(t232, t166, DERIVE_FMA(t208, t73, P[381])));
-    const double t575 = DERIVE_FMA(t256, t191, DERIVE_FMA(t232, t167, DERIVE_FMA(t208, t74, P[382])));
-    const double t576 = DERIVE_FMA(t256, t192, DERIVE_FMA(t232, t168, DERIVE_FMA(t208, t75, P[383])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t577_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t68, ((derive_vd){P[400], P[401], P[402], P[403]}));
-    const derive_vd v_t577_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t161, v_t577_0);
-    const derive_vd v_t577 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t185, v_t577_1);
-    #else
-    const double t577 = DERIVE_FMA(t257, t185, DERIVE_FMA(t233, t161, DERIVE_FMA(t209, t68, P[400])));
-    const double t578 = DERIVE_FMA(t257, t186, DERIVE_FMA(t233, t162, DERIVE_FMA(t209, t69, P[401])));
-    const double t579 = DERIVE_FMA(t257, t187, DERIVE_FMA(t233, t163, DERIVE_FMA(t209, t70, P[402])));
-    const double t580 = DERIVE_FMA(t257, t188, DERIVE_FMA(t233, t164, DERIVE_FMA(t209, t71, P[403])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t581_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t72, ((derive_vd){P[404], P[405], P[406], P[407]}));
-    const derive_vd v_t581_1 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t165, v_t581_0);
-    const derive_vd v_t581 = DERIVE_VFMA(((derive_vd){t257, t257, t257, t257}), v_t189, v_t581_1);
-    #else
-    const double t581 = DERIVE_FMA(t257, t189, DERIVE_FMA(t233, t165, DERIVE_FMA(t209, t72, P[404])));
-    const double t582 = DERIVE_FMA(t257, t190, DERIVE_FMA(t233, t166, DERIVE_FMA(t209, t73, P[405])));
-    const double t583 = DERIVE_FMA(t257, t191, DERIVE_FMA(t233, t167, DERIVE_FMA(t209, t74, P[406])));
-    const double t584 = DERIVE_FMA(t257, t192, DERIVE_FMA(t233, t168, DERIVE_FMA(t209, t75, P[407])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t585_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t68, ((derive_vd){P[424], P[425], P[426], P[427]}));
-    const derive_vd v_t585_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t161, v_t585_0);
-    const derive_vd v_t585 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t185, v_t585_1);
-    #else
-    const double t586 = DERIVE_FMA(t258, t186, DERIVE_FMA(t234, t162, DERIVE_FMA(t210, t69, P[425])));
-    const double t587 = DERIVE_FMA(t258, t187, DERIVE_FMA(t234, t163, DERIVE_FMA(t210, t70, P[426])));
-    const double t588 = DERIVE_FMA(t258, t188, DERIVE_FMA(t234, t164, DERIVE_FMA(t210, t71, P[427])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t589_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t72, ((derive_vd){P[428], P[429], P[430], P[431]}));
-    const derive_vd v_t589_1 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t165, v_t589_0);
-    const derive_vd v_t589 = DERIVE_VFMA(((derive_vd){t258, t258, t258, t258}), v_t189, v_t589_1);
-    #else
-    const double t589 = DERIVE_FMA(t258, t189, DERIVE_FMA(t234, t165, DERIVE_FMA(t210, t72, P[428])));
-    const double t590 = DERIVE_FMA(t258, t190, DERIVE_FMA(t234, t166, DERIVE_FMA(t210, t73, P[429])));
-    const double t591 = DERIVE_FMA(t258, t191, DERIVE_FMA(t234, t167, DERIVE_FMA(t210, t74, P[430])));
-    const double t592 = DERIVE_FMA(t258, t192, DERIVE_FMA(t234, t168, DERIVE_FMA(t210, t75, P[431])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t593_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t68, ((derive_vd){P[448], P[449], P[450], P[451]}));
-    const derive_vd v_t593_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t161, v_t593_0);
-    const derive_vd v_t593 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t185, v_t593_1);
-    #else
-    const double t595 = DERIVE_FMA(t259, t187, DERIVE_FMA(t235, t163, DERIVE_FMA(t211, t70, P[450])));
-    const double t596 = DERIVE_FMA(t259, t188, DERIVE_FMA(t235, t164, DERIVE_FMA(t211, t71, P[451])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t597_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t72, ((derive_vd){P[452], P[453], P[454], P[455]}));
-    const derive_vd v_t597_1 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t165, v_t597_0);
-    const derive_vd v_t597 = DERIVE_VFMA(((derive_vd){t259, t259, t259, t259}), v_t189, v_t597_1);
-    #else
-    const double t597 = DERIVE_FMA(t259, t189, DERIVE_FMA(t235, t165, DERIVE_FMA(t211, t72, P[452])));
-    const double t598 = DERIVE_FMA(t259, t190, DERIVE_FMA(t235, t166, DERIVE_FMA(t211, t73, P[453])));
-    const double t599 = DERIVE_FMA(t259, t191, DERIVE_FMA(t235, t167, DERIVE_FMA(t211, t74, P[454])));
-    const double t600 = DERIVE_FMA(t259, t192, DERIVE_FMA(t235, t168, DERIVE_FMA(t211, t75, P[455])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t601_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t68, ((derive_vd){P[472], P[473], P[474], P[475]}));
-    const derive_vd v_t601_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t161, v_t601_0);
-    const derive_vd v_t601 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t185, v_t601_1);
-    const derive_vd tr_v_t577_0 = __builtin_shufflevector(v_t577, v_t585, 0, 4, 2, 6);
-    const derive_vd tr_v_t577_1 = __builtin_shufflevector(v_t577, v_t585, 1, 5, 3, 7);
-    const derive_vd tr_v_t577_2 = __builtin_shufflevector(v_t593, v_t601, 0, 4, 2, 6);
-    const derive_vd tr_v_t577_3 = __builtin_shufflevector(v_t593, v_t601, 1, 5, 3, 7);
-    const derive_vd tr_v_t577_c1 = __builtin_shufflevector(tr_v_t577_1, tr_v_t577_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t577_c2 = __builtin_shufflevector(tr_v_t577_0, tr_v_t577_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t577_c3 = __builtin_shufflevector(tr_v_t577_1, tr_v_t577_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[400] = v_t577;
-    *(derive_vd_unaligned *)&P_new[424] = __builtin_shufflevector(v_t585, tr_v_t577_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[448] = __builtin_shufflevector(v_t593, tr_v_t577_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[472] = __builtin_shufflevector(v_t601, tr_v_t577_c3, 4, 5, 6, 3);
-    #else
-    const double t604 = DERIVE_FMA(t260, t188, DERIVE_FMA(t236, t164, DERIVE_FMA(t212, t71, P[475])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t605_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t72, ((derive_vd){P[476], P[477], P[478], P[479]}));
-    const derive_vd v_t605_1 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t165, v_t605_0);
-    const derive_vd v_t605 = DERIVE_VFMA(((derive_vd){t260, t260, t260, t260}), v_t189, v_t605_1);
-    const derive_vd tr_v_t581_0 = __builtin_shufflevector(v_t581, v_t589, 0, 4, 2, 6);
-    const derive_vd tr_v_t581_1 = __builtin_shufflevector(v_t581, v_t589, 1, 5, 3, 7);
-    const derive_vd tr_v_t581_2 = __builtin_shufflevector(v_t597, v_t605, 0, 4, 2, 6);
-    const derive_vd tr_v_t581_3 = __builtin_shufflevector(v_t597, v_t605, 1, 5, 3, 7);
-    const derive_vd tr_v_t581_c0 = __builtin_shufflevector(tr_v_t581_0, tr_v_t581_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t581_c1 = __builtin_shufflevector(tr_v_t581_1, tr_v_t581_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t581_c2 = __builtin_shufflevector(tr_v_t581_0, tr_v_t581_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t581_c3 = __builtin_shufflevector(tr_v_t581_1, tr_v_t581_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[404] = v_t581;
-    *(derive_vd_unaligned *)&P_new[428] = v_t589;
-    *(derive_vd_unaligned *)&P_new[452] = v_t597;
-    *(derive_vd_unaligned *)&P_new[476] = v_t605;
-    *(derive_vd_unaligned *)&P_new[496] = tr_v_t581_c0;
-    *(derive_vd_unaligned *)&P_new[520] = tr_v_t581_c1;
-    *(derive_vd_unaligned *)&P_new[544] = tr_v_t581_c2;
-    *(derive_vd_unaligned *)&P_new[568] = tr_v_t581_c3;
-    #else
-    const double t605 = DERIVE_FMA(t260, t189, DERIVE_FMA(t236, t165, DERIVE_FMA(t212, t72, P[476])));
-    const double t606 = DERIVE_FMA(t260, t190, DERIVE_FMA(t236, t166, DERIVE_FMA(t212, t73, P[477])));
-    const double t607 = DERIVE_FMA(t260, t191, DERIVE_FMA(t236, t167, DERIVE_FMA(t212, t74, P[478])));
-    const double t608 = DERIVE_FMA(t260, t192, DERIVE_FMA(t236, t168, DERIVE_FMA(t212, t75, P[479])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t609_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t72, ((derive_vd){P[500], P[501], P[502], P[503]}));
-    const derive_vd v_t609_1 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t165, v_t609_0);
-    const derive_vd v_t609 = DERIVE_VFMA(((derive_vd){t261, t261, t261, t261}), v_t189, v_t609_1);
-    #else
-    const double t609 = DERIVE_FMA(t261, t189, DERIVE_FMA(t237, t165, DERIVE_FMA(t213, t72, P[500])));
-    const double t610 = DERIVE_FMA(t261, t190, DERIVE_FMA(t237, t166, DERIVE_FMA(t213, t73, P[501])));
-    const double t611 = DERIVE_FMA(t261, t191, DERIVE_FMA(t237, t167, DERIVE_FMA(t213, t74, P[502])));
-    const double t612 = DERIVE_FMA(t261, t192, DERIVE_FMA(t237, t168, DERIVE_FMA(t213, t75, P[503])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t613_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t72, ((derive_vd){P[524], P[525], P[526], P[527]}));
-    const derive_vd v_t613_1 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t165, v_t613_0);
-    const derive_vd v_t613 = DERIVE_VFMA(((derive_vd){t262, t262, t262, t262}), v_t189, v_t613_1);
-    #else
-    const double t614 = DERIVE_FMA(t262, t190, DERIVE_FMA(t238, t166, DERIVE_FMA(t214, t73, P[525])));
-    const double t615 = DERIVE_FMA(t262, t191, DERIVE_FMA(t238, t167, DERIVE_FMA(t214, t74, P[526])));
-    const double t616 = DERIVE_FMA(t262, t192, DERIVE_FMA(t238, t168, DERIVE_FMA(t214, t75, P[527])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t617_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t72, ((derive_vd){P[548], P[549], P[550], P[551]}));
-    const derive_vd v_t617_1 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t165, v_t617_0);
-    const derive_vd v_t617 = DERIVE_VFMA(((derive_vd){t263, t263, t263, t263}), v_t189, v_t617_1);
-    #else
-    const double t619 = DERIVE_FMA(t263, t191, DERIVE_FMA(t239, t167, DERIVE_FMA(t215, t74, P[550])));
-    const double t620 = DERIVE_FMA(t263, t192, DERIVE_FMA(t239, t168, DERIVE_FMA(t215, t75, P[551])));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t621_0 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t72, ((derive_vd){P[572], P[573], P[574], P[575]}));
-    const derive_vd v_t621_1 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t165, v_t621_0);
-    const derive_vd v_t621 = DERIVE_VFMA(((derive_vd){t264, t264, t264, t264}), v_t189, v_t621_1);
-    const derive_vd tr_v_t609_0 = __builtin_shufflevector(v_t609, v_t613, 0, 4, 2, 6);
-    const derive_vd tr_v_t609_1 = __builtin_shufflevector(v_t609, v_t613, 1, 5, 3, 7);
-    const derive_vd tr_v_t609_2 = __builtin_shufflevector(v_t617, v_t621, 0, 4, 2, 6);
-    const derive_vd tr_v_t609_3 = __builtin_shufflevector(v_t617, v_t621, 1, 5, 3, 7);
-    const derive_vd tr_v_t609_c1 = __builtin_shufflevector(tr_v_t609_1, tr_v_t609_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t609_c2 = __builtin_shufflevector(tr_v_t609_0, tr_v_t609_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t609_c3 = __builtin_shufflevector(tr_v_t609_1, tr_v_t609_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[500] = v_t609;
-    *(derive_vd_unaligned *)&P_new[524] = __builtin_shufflevector(v_t613, tr_v_t609_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[548] = __builtin_shufflevector(v_t617, tr_v_t609_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[572] = __builtin_shufflevector(v_t621, tr_v_t609_c3, 4, 5, 6, 3);
-    #else
-    const double t624 = DERIVE_FMA(t264, t192, DERIVE_FMA(t240, t168, DERIVE_FMA(t216, t75, P[575])));
-    #endif
-    const double t625 = DERIVE_FMA(t268, t268, DERIVE_FMA(t267, t267, DERIVE_FMA(t266, t266, t265*t265)));
-    const double t626 = 1.0/sqrt(t625);
-    const double t627 = t265*t626;
-    const double t628 = t266*t626;
-    const double t629 = t267*t626;
-    const double t630 = t268*t626;
-    #if DERIVE_VECTOR
-    x_new[0] = t627;
-    x_new[1] = t628;
-    x_new[2] = t629;
-    x_new[3] = t630;
-    #else
-    x_new[0] = t627;
-    x_new[1] = t628;
-    x_new[2] = t629;
-    x_new[3] = t630;
+    x_new[0] = t591;
+    x_new[1] = t592;
+    x_new[2] = t593;
+    x_new[3] = t594;
     x_new[4] = t269;
     x_new[5] = t270;
     x_new[6] = t271;
@@ -8126,557 +7996,557 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     P_new[22] = t311;
     P_new[23] = t312;
     P_new[24] = t290;
-    P_new[25] = t314;
-    P_new[26] = t315;
-    P_new[27] = t316;
-    P_new[28] = t317;
-    P_new[29] = t318;
-    P_new[30] = t319;
-    P_new[31] = t320;
-    P_new[32] = t321;
-    P_new[33] = t322;
-    P_new[34] = t323;
-    P_new[35] = t324;
-    P_new[36] = t325;
-    P_new[37] = t326;
-    P_new[38] = t327;
-    P_new[39] = t328;
-    P_new[40] = t329;
-    P_new[41] = t330;
-    P_new[42] = t331;
-    P_new[43] = t332;
-    P_new[44] = t333;
-    P_new[45] = t334;
-    P_new[46] = t335;
-    P_new[47] = t336;
+    P_new[25] = t313;
+    P_new[26] = t314;
+    P_new[27] = t315;
+    P_new[28] = t316;
+    P_new[29] = t317;
+    P_new[30] = t318;
+    P_new[31] = t319;
+    P_new[32] = t320;
+    P_new[33] = t321;
+    P_new[34] = t322;
+    P_new[35] = t323;
+    P_new[36] = t324;
+    P_new[37] = t325;
+    P_new[38] = t326;
+    P_new[39] = t327;
+    P_new[40] = t328;
+    P_new[41] = t329;
+    P_new[42] = t330;
+    P_new[43] = t331;
+    P_new[44] = t332;
+    P_new[45] = t333;
+    P_new[46] = t334;
+    P_new[47] = t335;
     P_new[48] = t291;
-    P_new[49] = t315;
-    P_new[50] = t339;
-    P_new[51] = t340;
-    P_new[52] = t341;
-    P_new[53] = t342;
-    P_new[54] = t343;
-    P_new[55] = t344;
-    P_new[56] = t345;
-    P_new[57] = t346;
-    P_new[58] = t347;
-    P_new[59] = t348;
-    P_new[60] = t349;
-    P_new[61] = t350;
-    P_new[62] = t351;
-    P_new[63] = t352;
-    P_new[64] = t353;
-    P_new[65] = t354;
-    P_new[66] = t355;
-    P_new[67] = t356;
-    P_new[68] = t357;
-    P_new[69] = t358;
-    P_new[70] = t359;
-    P_new[71] = t360;
+    P_new[49] = t314;
+    P_new[50] = t336;
+    P_new[51] = t337;
+    P_new[52] = t338;
+    P_new[53] = t339;
+    P_new[54] = t340;
+    P_new[55] = t341;
+    P_new[56] = t342;
+    P_new[57] = t343;
+    P_new[58] = t344;
+    P_new[59] = t345;
+    P_new[60] = t346;
+    P_new[61] = t347;
+    P_new[62] = t348;
+    P_new[63] = t349;
+    P_new[64] = t350;
+    P_new[65] = t351;
+    P_new[66] = t352;
+    P_new[67] = t353;
+    P_new[68] = t354;
+    P_new[69] = t355;
+    P_new[70] = t356;
+    P_new[71] = t357;
     P_new[72] = t292;
-    P_new[73] = t316;
-    P_new[74] = t340;
-    P_new[75] = t364;
-    P_new[76] = t365;
-    P_new[77] = t366;
-    P_new[78] = t367;
-    P_new[79] = t368;
-    P_new[80] = t369;
-    P_new[81] = t370;
-    P_new[82] = t371;
-    P_new[83] = t372;
-    P_new[84] = t373;
-    P_new[85] = t374;
-    P_new[86] = t375;
-    P_new[87] = t376;
-    P_new[88] = t377;
-    P_new[89] = t378;
-    P_new[90] = t379;
-    P_new[91] = t380;
-    P_new[92] = t381;
-    P_new[93] = t382;
-    P_new[94] = t383;
-    P_new[95] = t384;
+    P_new[73] = t315;
+    P_new[74] = t337;
+    P_new[75] = t358;
+    P_new[76] = t359;
+    P_new[77] = t360;
+    P_new[78] = t361;
+    P_new[79] = t362;
+    P_new[80] = t363;
+    P_new[81] = t364;
+    P_new[82] = t365;
+    P_new[83] = t366;
+    P_new[84] = t367;
+    P_new[85] = t368;
+    P_new[86] = t369;
+    P_new[87] = t370;
+    P_new[88] = t371;
+    P_new[89] = t372;
+    P_new[90] = t373;
+    P_new[91] = t374;
+    P_new[92] = t375;
+    P_new[93] = t376;
+    P_new[94] = t377;
+    P_new[95] = t378;
     P_new[96] = t293;
-    P_new[97] = t317;
-    P_new[98] = t341;
-    P_new[99] = t365;
-    P_new[100] = t385;
-    P_new[101] = t386;
-    P_new[102] = t387;
-    P_new[103] = t388;
-    P_new[104] = t389;
-    P_new[105] = t390;
-    P_new[106] = t391;
-    P_new[107] = t392;
-    P_new[108] = t393;
-    P_new[109] = t394;
-    P_new[110] = t395;
-    P_new[111] = t396;
-    P_new[112] = t397;
-    P_new[113] = t398;
-    P_new[114] = t399;
-    P_new[115] = t400;
-    P_new[116] = t401;
-    P_new[117] = t402;
-    P_new[118] = t403;
-    P_new[119] = t404;
+    P_new[97] = t316;
+    P_new[98] = t338;
+    P_new[99] = t359;
+    P_new[100] = t379;
+    P_new[101] = t380;
+    P_new[102] = t381;
+    P_new[103] = t382;
+    P_new[104] = t383;
+    P_new[105] = t384;
+    P_new[106] = t385;
+    P_new[107] = t386;
+    P_new[108] = t387;
+    P_new[109] = t388;
+    P_new[110] = t389;
+    P_new[111] = t390;
+    P_new[112] = t391;
+    P_new[113] = t392;
+    P_new[114] = t393;
+    P_new[115] = t394;
+    P_new[116] = t395;
+    P_new[117] = t396;
+    P_new[118] = t397;
+    P_new[119] = t398;
     P_new[120] = t294;
-    P_new[121] = t318;
-    P_new[122] = t342;
-    P_new[123] = t366;
-    P_new[124] = t386;
-    P_new[125] = t406;
-    P_new[126] = t407;
-    P_new[127] = t408;
-    P_new[128] = t409;
-    P_new[129] = t410;
-    P_new[130] = t411;
-    P_new[131] = t412;
-    P_new[132] = t413;
-    P_new[133] = t414;
-    P_new[134] = t415;
-    P_new[135] = t416;
-    P_new[136] = t417;
-    P_new[137] = t418;
-    P_new[138] = t419;
-    P_new[139] = t420;
-    P_new[140] = t421;
-    P_new[141] = t422;
-    P_new[142] = t423;
-    P_new[143] = t424;
+    P_new[121] = t317;
+    P_new[122] = t339;
+    P_new[123] = t360;
+    P_new[124] = t380;
+    P_new[125] = t399;
+    P_new[126] = t400;
+    P_new[127] = t401;
+    P_new[128] = t402;
+    P_new[129] = t403;
+    P_new[130] = t404;
+    P_new[131] = t405;
+    P_new[132] = t406;
+    P_new[133] = t407;
+    P_new[134] = t408;
+    P_new[135] = t409;
+    P_new[136] = t410;
+    P_new[137] = t411;
+    P_new[138] = t412;
+    P_new[139] = t413;
+    P_new[140] = t414;
+    P_new[141] = t415;
+    P_new[142] = t416;
+    P_new[143] = t417;
     P_new[144] = t295;
-    P_new[145] = t319;
-    P_new[146] = t343;
-    P_new[147] = t367;
-    P_new[148] = t387;
-    P_new[149] = t407;
-    P_new[150] = t427;
-    P_new[151] = t428;
-    P_new[152] = t429;
-    P_new[153] = t430;
-    P_new[154] = t431;
-    P_new[155] = t432;
-    P_new[156] = t433;
-    P_new[157] = t434;
-    P_new[158] = t435;
-    P_new[159] = t436;
-    P_new[160] = t437;
-    P_new[161] = t438;
-    P_new[162] = t439;
-    P_new[163] = t440;
-    P_new[164] = t441;
-    P_new[165] = t442;
-    P_new[166] = t443;
-    P_new[167] = t444;
+    P_new[145] = t318;
+    P_new[146] = t340;
+    P_new[147] = t361;
+    P_new[148] = t381;
+    P_new[149] = t400;
+    P_new[150] = t418;
+    P_new[151] = t419;
+    P_new[152] = t420;
+    P_new[153] = t421;
+    P_new[154] = t422;
+    P_new[155] = t423;
+    P_new[156] = t424;
+    P_new[157] = t425;
+    P_new[158] = t426;
+    P_new[159] = t427;
+    P_new[160] = t428;
+    P_new[161] = t429;
+    P_new[162] = t430;
+    P_new[163] = t431;
+    P_new[164] = t432;
+    P_new[165] = t433;
+    P_new[166] = t434;
+    P_new[167] = t435;
     P_new[168] = t296;
-    P_new[169] = t320;
-    P_new[170] = t344;
-    P_new[171] = t368;
-    P_new[172] = t388;
-    P_new[173] = t408;
-    P_new[174] = t428;
-    P_new[175] = t448;
-    P_new[176] = t449;
-    P_new[177] = t450;
-    P_new[178] = t451;
-    P_new[179] = t452;
-    P_new[180] = t453;
-    P_new[181] = t454;
-    P_new[182] = t455;
-    P_new[183] = t456;
-    P_new[184] = t457;
-    P_new[185] = t458;
-    P_new[186] = t459;
-    P_new[187] = t460;
-    P_new[188] = t461;
-    P_new[189] = t462;
-    P_new[190] = t463;
-    P_new[191] = t464;
+    P_new[169] = t319;
+    P_new[170] = t341;
+    P_new[171] = t362;
+    P_new[172] = t382;
+    P_new[173] = t401;
+    P_new[174] = t419;
+    P_new[175] = t436;
+    P_new[176] = t437;
+    P_new[177] = t438;
+    P_new[178] = t439;
+    P_new[179] = t440;
+    P_new[180] = t441;
+    P_new[181] = t442;
+    P_new[182] = t443;
+    P_new[183] = t444;
+    P_new[184] = t445;
+    P_new[185] = t446;
+    P_new[186] = t447;
+    P_new[187] = t448;
+    P_new[188] = t449;
+    P_new[189] = t450;
+    P_new[190] = t451;
+    P_new[191] = t452;
     P_new[192] = t297;
-    P_new[193] = t321;
-    P_new[194] = t345;
-    P_new[195] = t369;
-    P_new[196] = t389;
-    P_new[197] = t409;
-    P_new[198] = t429;
-    P_new[199] = t449;
-    P_new[200] = t465;
-    P_new[201] = t466;
-    P_new[202] = t467;
-    P_new[203] = t468;
-    P_new[204] = t469;
-    P_new[205] = t470;
-    P_new[206] = t471;
-    P_new[207] = t472;
-    P_new[208] = t473;
-    P_new[209] = t474;
-    P_new[210] = t475;
-    P_new[211] = t476;
-    P_new[212] = t477;
-    P_new[213] = t478;
-    P_new[214] = t479;
-    P_new[215] = t480;
+    P_new[193] = t320;
+    P_new[194] = t342;
+    P_new[195] = t363;
+    P_new[196] = t383;
+    P_new[197] = t402;
+    P_new[198] = t420;
+    P_new[199] = t437;
+    P_new[200] = t453;
+    P_new[201] = t454;
+    P_new[202] = t455;
+    P_new[203] = t456;
+    P_new[204] = t457;
+    P_new[205] = t458;
+    P_new[206] = t459;
+    P_new[207] = t460;
+    P_new[208] = t461;
+    P_new[209] = t462;
+    P_new[210] = t463;
+    P_new[211] = t464;
+    P_new[212] = t465;
+    P_new[213] = t466;
+    P_new[214] = t467;
+    P_new[215] = t468;
     P_new[216] = t298;
-    P_new[217] = t322;
-    P_new[218] = t346;
-    P_new[219] = t370;
-    P_new[220] = t390;
-    P_new[221] = t410;
-    P_new[222] = t430;
-    P_new[223] = t450;
-    P_new[224] = t466;
-    P_new[225] = t482;
-    P_new[226] = t483;
-    P_new[227] = t484;
-    P_new[228] = t485;
-    P_new[229] = t486;
-    P_new[230] = t487;
-    P_new[231] = t488;
-    P_new[232] = t489;
-    P_new[233] = t490;
-    P_new[234] = t491;
-    P_new[235] = t492;
-    P_new[236] = t493;
-    P_new[237] = t494;
-    P_new[238] = t495;
-    P_new[239] = t496;
+    P_new[217] = t321;
+    P_new[218] = t343;
+    P_new[219] = t364;
+    P_new[220] = t384;
+    P_new[221] = t403;
+    P_new[222] = t421;
+    P_new[223] = t438;
+    P_new[224] = t454;
+    P_new[225] = t469;
+    P_new[226] = t470;
+    P_new[227] = t471;
+    P_new[228] = t472;
+    P_new[229] = t473;
+    P_new[230] = t474;
+    P_new[231] = t475;
+    P_new[232] = t476;
+    P_new[233] = t477;
+    P_new[234] = t478;
+    P_new[235] = t479;
+    P_new[236] = t480;
+    P_new[237] = t481;
+    P_new[238] = t482;
+    P_new[239] = t483;
     P_new[240] = t299;
-    P_new[241] = t323;
-    P_new[242] = t347;
-    P_new[243] = t371;
-    P_new[244] = t391;
-    P_new[245] = t411;
-    P_new[246] = t431;
-    P_new[247] = t451;
-    P_new[248] = t467;
-    P_new[249] = t483;
-    P_new[250] = t499;
-    P_new[251] = t500;
-    P_new[252] = t501;
-    P_new[253] = t502;
-    P_new[254] = t503;
-    P_new[255] = t504;
-    P_new[256] = t505;
-    P_new[257] = t506;
-    P_new[258] = t507;
-    P_new[259] = t508;
-    P_new[260] = t509;
-    P_new[261] = t510;
-    P_new[262] = t511;
-    P_new[263] = t512;
+    P_new[241] = t322;
+    P_new[242] = t344;
+    P_new[243] = t365;
+    P_new[244] = t385;
+    P_new[245] = t404;
+    P_new[246] = t422;
+    P_new[247] = t439;
+    P_new[248] = t455;
+    P_new[249] = t470;
+    P_new[250] = t484;
+    P_new[251] = t485;
+    P_new[252] = t486;
+    P_new[253] = t487;
+    P_new[254] = t488;
+    P_new[255] = t489;
+    P_new[256] = t490;
+    P_new[257] = t491;
+    P_new[258] = t492;
+    P_new[259] = t493;
+    P_new[260] = t494;
+    P_new[261] = t495;
+    P_new[262] = t496;
+    P_new[263] = t497;
     P_new[264] = t300;
-    P_new[265] = t324;
-    P_new[266] = t348;
-    P_new[267] = t372;
-    P_new[268] = t392;
-    P_new[269] = t412;
-    P_new[270] = t432;
-    P_new[271] = t452;
-    P_new[272] = t468;
-    P_new[273] = t484;
-    P_new[274] = t500;
-    P_new[275] = t516;
-    P_new[276] = t517;
-    P_new[277] = t518;
-    P_new[278] = t519;
-    P_new[279] = t520;
-    P_new[280] = t521;
-    P_new[281] = t522;
-    P_new[282] = t523;
-    P_new[283] = t524;
-    P_new[284] = t525;
-    P_new[285] = t526;
-    P_new[286] = t527;
-    P_new[287] = t528;
+    P_new[265] = t323;
+    P_new[266] = t345;
+    P_new[267] = t366;
+    P_new[268] = t386;
+    P_new[269] = t405;
+    P_new[270] = t423;
+    P_new[271] = t440;
+    P_new[272] = t456;
+    P_new[273] = t471;
+    P_new[274] = t485;
+    P_new[275] = t498;
+    P_new[276] = t499;
+    P_new[277] = t500;
+    P_new[278] = t501;
+    P_new[279] = t502;
+    P_new[280] = t503;
+    P_new[281] = t504;
+    P_new[282] = t505;
+    P_new[283] = t506;
+    P_new[284] = t507;
+    P_new[285] = t508;
+    P_new[286] = t509;
+    P_new[287] = t510;
     P_new[288] = t301;
-    P_new[289] = t325;
-    P_new[290] = t349;
-    P_new[291] = t373;
-    P_new[292] = t393;
-    P_new[293] = t413;
-    P_new[294] = t433;
-    P_new[295] = t453;
-    P_new[296] = t469;
-    P_new[297] = t485;
-    P_new[298] = t501;
-    P_new[299] = t517;
-    P_new[300] = t529;
-    P_new[301] = t530;
-    P_new[302] = t531;
-    P_new[303] = t532;
-    P_new[304] = t533;
-    P_new[305] = t534;
-    P_new[306] = t535;
-    P_new[307] = t536;
-    P_new[308] = t537;
-    P_new[309] = t538;
-    P_new[310] = t539;
-    P_new[311] = t540;
+    P_new[289] = t324;
+    P_new[290] = t346;
+    P_new[291] = t367;
+    P_new[292] = t387;
+    P_new[293] = t406;
+    P_new[294] = t424;
+    P_new[295] = t441;
+    P_new[296] = t457;
+    P_new[297] = t472;
+    P_new[298] = t486;
+    P_new[299] = t499;
+    P_new[300] = t511;
+    P_new[301] = t512;
+    P_new[302] = t513;
+    P_new[303] = t514;
+    P_new[304] = t515;
+    P_new[305] = t516;
+    P_new[306] = t517;
+    P_new[307] = t518;
+    P_new[308] = t519;
+    P_new[309] = t520;
+    P_new[310] = t521;
+    P_new[311] = t522;
     P_new[312] = t302;
-    P_new[313] = t326;
-    P_new[314] = t350;
-    P_new[315] = t374;
-    P_new[316] = t394;
-    P_new[317] = t414;
-    P_new[318] = t434;
-    P_new[319] = t454;
-    P_new[320] = t470;
-    P_new[321] = t486;
-    P_new[322] = t502;
-    P_new[323] = t518;
-    P_new[324] = t530;
-    P_new[325] = t542;
-    P_new[326] = t543;
-    P_new[327] = t544;
-    P_new[328] = t545;
-    P_new[329] = t546;
-    P_new[330] = t547;
-    P_new[331] = t548;
-    P_new[332] = t549;
-    P_new[333] = t550;
-    P_new[334] = t551;
-    P_new[335] = t552;
+    P_new[313] = t325;
+    P_new[314] = t347;
+    P_new[315] = t368;
+    P_new[316] = t388;
+    P_new[317] = t407;
+    P_new[318] = t425;
+    P_new[319] = t442;
+    P_new[320] = t458;
+    P_new[321] = t473;
+    P_new[322] = t487;
+    P_new[323] = t500;
+    P_new[324] = t512;
+    P_new[325] = t523;
+    P_new[326] = t524;
+    P_new[327] = t525;
+    P_new[328] = t526;
+    P_new[329] = t527;
+    P_new[330] = t528;
+    P_new[331] = t529;
+    P_new[332] = t530;
+    P_new[333] = t531;
+    P_new[334] = t532;
+    P_new[335] = t533;
     P_new[336] = t303;
-    P_new[337] = t327;
-    P_new[338] = t351;
-    P_new[339] = t375;
-    P_new[340] = t395;
-    P_new[341] = t415;
-    P_new[342] = t435;
-    P_new[343] = t455;
-    P_new[344] = t471;
-    P_new[345] = t487;
-    P_new[346] = t503;
-    P_new[347] = t519;
-    P_new[348] = t531;
-    P_new[349] = t543;
-    P_new[350] = t555;
-    P_new[351] = t556;
-    P_new[352] = t557;
-    P_new[353] = t558;
-    P_new[354] = t559;
-    P_new[355] = t560;
-    P_new[356] = t561;
-    P_new[357] = t562;
-    P_new[358] = t563;
-    P_new[359] = t564;
+    P_new[337] = t326;
+    P_new[338] = t348;
+    P_new[339] = t369;
+    P_new[340] = t389;
+    P_new[341] = t408;
+    P_new[342] = t426;
+    P_new[343] = t443;
+    P_new[344] = t459;
+    P_new[345] = t474;
+    P_new[346] = t488;
+    P_new[347] = t501;
+    P_new[348] = t513;
+    P_new[349] = t524;
+    P_new[350] = t534;
+    P_new[351] = t535;
+    P_new[352] = t536;
+    P_new[353] = t537;
+    P_new[354] = t538;
+    P_new[355] = t539;
+    P_new[356] = t540;
+    P_new[357] = t541;
+    P_new[358] = t542;
+    P_new[359] = t543;
     P_new[360] = t304;
-    P_new[361] = t328;
-    P_new[362] = t352;
-    P_new[363] = t376;
-    P_new[364] = t396;
-    P_new[365] = t416;
-    P_new[366] = t436;
-    P_new[367] = t456;
-    P_new[368] = t472;
-    P_new[369] = t488;
-    P_new[370] = t504;
-    P_new[371] = t520;
-    P_new[372] = t532;
-    P_new[373] = t544;
-    P_new[374] = t556;
-    P_new[375] = t568;
-    P_new[376] = t569;
-    P_new[377] = t570;
-    P_new[378] = t571;
-    P_new[379] = t572;
-    P_new[380] = t573;
-    P_new[381] = t574;
-    P_new[382] = t575;
-    P_new[383] = t576;
+    P_new[361] = t327;
+    P_new[362] = t349;
+    P_new[363] = t370;
+    P_new[364] = t390;
+    P_new[365] = t409;
+    P_new[366] = t427;
+    P_new[367] = t444;
+    P_new[368] = t460;
+    P_new[369] = t475;
+    P_new[370] = t489;
+    P_new[371] = t502;
+    P_new[372] = t514;
+    P_new[373] = t525;
+    P_new[374] = t535;
+    P_new[375] = t544;
+    P_new[376] = t545;
+    P_new[377] = t546;
+    P_new[378] = t547;
+    P_new[379] = t548;
+    P_new[380] = t549;
+    P_new[381] = t550;
+    P_new[382] = t551;
+    P_new[383] = t552;
     P_new[384] = t305;
-    P_new[385] = t329;
-    P_new[386] = t353;
-    P_new[387] = t377;
-    P_new[388] = t397;
-    P_new[389] = t417;
-    P_new[390] = t437;
-    P_new[391] = t457;
-    P_new[392] = t473;
-    P_new[393] = t489;
-    P_new[394] = t505;
-    P_new[395] = t521;
-    P_new[396] = t533;
-    P_new[397] = t545;
-    P_new[398] = t557;
-    P_new[399] = t569;
-    P_new[400] = t577;
-    P_new[401] = t578;
-    P_new[402] = t579;
-    P_new[403] = t580;
-    P_new[404] = t581;
-    P_new[405] = t582;
-    P_new[406] = t583;
-    P_new[407] = t584;
+    P_new[385] = t328;
+    P_new[386] = t350;
+    P_new[387] = t371;
+    P_new[388] = t391;
+    P_new[389] = t410;
+    P_new[390] = t428;
+    P_new[391] = t445;
+    P_new[392] = t461;
+    P_new[393] = t476;
+    P_new[394] = t490;
+    P_new[395] = t503;
+    P_new[396] = t515;
+    P_new[397] = t526;
+    P_new[398] = t536;
+    P_new[399] = t545;
+    P_new[400] = t553;
+    P_new[401] = t554;
+    P_new[402] = t555;
+    P_new[403] = t556;
+    P_new[404] = t557;
+    P_new[405] = t558;
+    P_new[406] = t559;
+    P_new[407] = t560;
     P_new[408] = t306;
-    P_new[409] = t330;
-    P_new[410] = t354;
-    P_new[411] = t378;
-    P_new[412] = t398;
-    P_new[413] = t418;
-    P_new[414] = t438;
-    P_new[415] = t458;
-    P_new[416] = t474;
-    P_new[417] = t490;
-    P_new[418] = t506;
-    P_new[419] = t522;
-    P_new[420] = t534;
-    P_new[421] = t546;
-    P_new[422] = t558;
-    P_new[423] = t570;
-    P_new[424] = t578;
-    P_new[425] = t586;
-    P_new[426] = t587;
-    P_new[427] = t588;
-    P_new[428] = t589;
-    P_new[429] = t590;
-    P_new[430] = t591;
-    P_new[431] = t592;
+    P_new[409] = t329;
+    P_new[410] = t351;
+    P_new[411] = t372;
+    P_new[412] = t392;
+    P_new[413] = t411;
+    P_new[414] = t429;
+    P_new[415] = t446;
+    P_new[416] = t462;
+    P_new[417] = t477;
+    P_new[418] = t491;
+    P_new[419] = t504;
+    P_new[420] = t516;
+    P_new[421] = t527;
+    P_new[422] = t537;
+    P_new[423] = t546;
+    P_new[424] = t554;
+    P_new[425] = t561;
+    P_new[426] = t562;
+    P_new[427] = t563;
+    P_new[428] = t564;
+    P_new[429] = t565;
+    P_new[430] = t566;
+    P_new[431] = t567;
     P_new[432] = t307;
-    P_new[433] = t331;
-    P_new[434] = t355;
-    P_new[435] = t379;
-    P_new[436] = t399;
-    P_new[437] = t419;
-    P_new[438] = t439;
-    P_new[439] = t459;
-    P_new[440] = t475;
-    P_new[441] = t491;
-    P_new[442] = t507;
-    P_new[443] = t523;
-    P_new[444] = t535;
-    P_new[445] = t547;
-    P_new[446] = t559;
-    P_new[447] = t571;
-    P_new[448] = t579;
-    P_new[449] = t587;
-    P_new[450] = t595;
-    P_new[451] = t596;
-    P_new[452] = t597;
-    P_new[453] = t598;
-    P_new[454] = t599;
-    P_new[455] = t600;
+    P_new[433] = t330;
+    P_new[434] = t352;
+    P_new[435] = t373;
+    P_new[436] = t393;
+    P_new[437] = t412;
+    P_new[438] = t430;
+    P_new[439] = t447;
+    P_new[440] = t463;
+    P_new[441] = t478;
+    P_new[442] = t492;
+    P_new[443] = t505;
+    P_new[444] = t517;
+    P_new[445] = t528;
+    P_new[446] = t538;
+    P_new[447] = t547;
+    P_new[448] = t555;
+    P_new[449] = t562;
+    P_new[450] = t568;
+    P_new[451] = t569;
+    P_new[452] = t570;
+    P_new[453] = t571;
+    P_new[454] = t572;
+    P_new[455] = t573;
     P_new[456] = t308;
-    P_new[457] = t332;
-    P_new[458] = t356;
-    P_new[459] = t380;
-    P_new[460] = t400;
-    P_new[461] = t420;
-    P_new[462] = t440;
-    P_new[463] = t460;
-    P_new[464] = t476;
-    P_new[465] = t492;
-    P_new[466] = t508;
-    P_new[467] = t524;
-    P_new[468] = t536;
-    P_new[469] = t548;
-    P_new[470] = t560;
-    P_new[471] = t572;
-    P_new[472] = t580;
-    P_new[473] = t588;
-    P_new[474] = t596;
-    P_new[475] = t604;
-    P_new[476] = t605;
-    P_new[477] = t606;
-    P_new[478] = t607;
-    P_new[479] = t608;
+    P_new[457] = t331;
+    P_new[458] = t353;
+    P_new[459] = t374;
+    P_new[460] = t394;
+    P_new[461] = t413;
+    P_new[462] = t431;
+    P_new[463] = t448;
+    P_new[464] = t464;
+    P_new[465] = t479;
+    P_new[466] = t493;
+    P_new[467] = t506;
+    P_new[468] = t518;
+    P_new[469] = t529;
+    P_new[470] = t539;
+    P_new[471] = t548;
+    P_new[472] = t556;
+    P_new[473] = t563;
+    P_new[474] = t569;
+    P_new[475] = t574;
+    P_new[476] = t575;
+    P_new[477] = t576;
+    P_new[478] = t577;
+    P_new[479] = t578;
     P_new[480] = t309;
-    P_new[481] = t333;
-    P_new[482] = t357;
-    P_new[483] = t381;
-    P_new[484] = t401;
-    P_new[485] = t421;
-    P_new[486] = t441;
-    P_new[487] = t461;
-    P_new[488] = t477;
-    P_new[489] = t493;
-    P_new[490] = t509;
-    P_new[491] = t525;
-    P_new[492] = t537;
-    P_new[493] = t549;
-    P_new[494] = t561;
-    P_new[495] = t573;
-    P_new[496] = t581;
-    P_new[497] = t589;
-    P_new[498] = t597;
-    P_new[499] = t605;
-    P_new[500] = t609;
-    P_new[501] = t610;
-    P_new[502] = t611;
-    P_new[503] = t612;
+    P_new[481] = t332;
+    P_new[482] = t354;
+    P_new[483] = t375;
+    P_new[484] = t395;
+    P_new[485] = t414;
+    P_new[486] = t432;
+    P_new[487] = t449;
+    P_new[488] = t465;
+    P_new[489] = t480;
+    P_new[490] = t494;
+    P_new[491] = t507;
+    P_new[492] = t519;
+    P_new[493] = t530;
+    P_new[494] = t540;
+    P_new[495] = t549;
+    P_new[496] = t557;
+    P_new[497] = t564;
+    P_new[498] = t570;
+    P_new[499] = t575;
+    P_new[500] = t579;
+    P_new[501] = t580;
+    P_new[502] = t581;
+    P_new[503] = t582;
     P_new[504] = t310;
-    P_new[505] = t334;
-    P_new[506] = t358;
-    P_new[507] = t382;
-    P_new[508] = t402;
-    P_new[509] = t422;
-    P_new[510] = t442;
-    P_new[511] = t462;
-    P_new[512] = t478;
-    P_new[513] = t494;
-    P_new[514] = t510;
-    P_new[515] = t526;
-    P_new[516] = t538;
-    P_new[517] = t550;
-    P_new[518] = t562;
-    P_new[519] = t574;
-    P_new[520] = t582;
-    P_new[521] = t590;
-    P_new[522] = t598;
-    P_new[523] = t606;
-    P_new[524] = t610;
-    P_new[525] = t614;
-    P_new[526] = t615;
-    P_new[527] = t616;
+    P_new[505] = t333;
+    P_new[506] = t355;
+    P_new[507] = t376;
+    P_new[508] = t396;
+    P_new[509] = t415;
+    P_new[510] = t433;
+    P_new[511] = t450;
+    P_new[512] = t466;
+    P_new[513] = t481;
+    P_new[514] = t495;
+    P_new[515] = t508;
+    P_new[516] = t520;
+    P_new[517] = t531;
+    P_new[518] = t541;
+    P_new[519] = t550;
+    P_new[520] = t558;
+    P_new[521] = t565;
+    P_new[522] = t571;
+    P_new[523] = t576;
+    P_new[524] = t580;
+    P_new[525] = t583;
+    P_new[526] = t584;
+    P_new[527] = t585;
     P_new[528] = t311;
-    P_new[529] = t335;
-    P_new[530] = t359;
-    P_new[531] = t383;
-    P_new[532] = t403;
-    P_new[533] = t423;
-    P_new[534] = t443;
-    P_new[535] = t463;
-    P_new[536] = t479;
-    P_new[537] = t495;
-    P_new[538] = t511;
-    P_new[539] = t527;
-    P_new[540] = t539;
-    P_new[541] = t551;
-    P_new[542] = t563;
-    P_new[543] = t575;
-    P_new[544] = t583;
-    P_new[545] = t591;
-    P_new[546] = t599;
-    P_new[547] = t607;
-    P_new[548] = t611;
-    P_new[549] = t615;
-    P_new[550] = t619;
-    P_new[551] = t620;
+    P_new[529] = t334;
+    P_new[530] = t356;
+    P_new[531] = t377;
+    P_new[532] = t397;
+    P_new[533] = t416;
+    P_new[534] = t434;
+    P_new[535] = t451;
+    P_new[536] = t467;
+    P_new[537] = t482;
+    P_new[538] = t496;
+    P_new[539] = t509;
+    P_new[540] = t521;
+    P_new[541] = t532;
+    P_new[542] = t542;
+    P_new[543] = t551;
+    P_new[544] = t559;
+    P_new[545] = t566;
+    P_new[546] = t572;
+    P_new[547] = t577;
+    P_new[548] = t581;
+    P_new[549] = t584;
+    P_new[550] = t586;
+    P_new[551] = t587;
     P_new[552] = t312;
-    P_new[553] = t336;
-    P_new[554] = t360;
-    P_new[555] = t384;
-    P_new[556] = t404;
-    P_new[557] = t424;
-    P_new[558] = t444;
-    P_new[559] = t464;
-    P_new[560] = t480;
-    P_new[561] = t496;
-    P_new[562] = t512;
-    P_new[563] = t528;
-    P_new[564] = t540;
-    P_new[565] = t552;
-    P_new[566] = t564;
-    P_new[567] = t576;
-    P_new[568] = t584;
-    P_new[569] = t592;
-    P_new[570] = t600;
-    P_new[571] = t608;
-    P_new[572] = t612;
-    P_new[573] = t616;
-    P_new[574] = t620;
-    P_new[575] = t624;
+    P_new[553] = t335;
+    P_new[554] = t357;
+    P_new[555] = t378;
+    P_new[556] = t398;
+    P_new[557] = t417;
+    P_new[558] = t435;
+    P_new[559] = t452;
+    P_new[560] = t468;
+    P_new[561] = t483;
+    P_new[562] = t497;
+    P_new[563] = t510;
+    P_new[564] = t522;
+    P_new[565] = t533;
+    P_new[566] = t543;
+    P_new[567] = t552;
+    P_new[568] = t560;
+    P_new[569] = t567;
+    P_new[570] = t573;
+    P_new[571] = t578;
+    P_new[572] = t582;
+    P_new[573] = t585;
+    P_new[574] = t587;
+    P_new[575] = t588;
     #endif
     return 0;
 }

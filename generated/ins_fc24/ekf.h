@@ -35,10 +35,10 @@
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 108, sub 8, mul 155, div 0, sqrt 0, fma 1549, neg 29, cmp 1, calls 0 (flops 3369, instructions 1850)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2573, neg 0, cmp 6, calls 0 (flops 5336, instructions 2769)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 89, sub 8, mul 147, div 0, sqrt 0, fma 1494, neg 29, cmp 1, calls 0 (flops 3232, instructions 1768)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 29, div 2, sqrt 1, fma 327, neg 0, cmp 1, calls 0 (flops 688, instructions 362)
- * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1662, neg 9, cmp 3, calls 0 (flops 3604, instructions 1954)
+ * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
  * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 3, mul 56, div 3, sqrt 2, fma 429, neg 2, cmp 1, calls 0 (flops 923, instructions 497)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions

@@ -10,7 +10,7 @@ n: 6 (states)
 m: 3 (measurements)
 parameters: none
 window: 33 (last measurements, newest first)
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(zw[33*3]) -> (x_new[6])
     run(zs[steps, 3]) -> (xs[steps, 6])
 operations per call of step (Python): add 90, sub 102, mul 198, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 390, instructions 390)

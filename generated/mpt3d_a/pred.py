@@ -9,7 +9,7 @@ family: pred
 n: 6 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     init(x0[6]) -> (x_new[6])
     step(x[6], z[3]) -> (x_new[6])
     run(zs[steps, 3], x0[6]) -> (xs[steps, 6])

@@ -9,9 +9,9 @@ family: rts
 n: 6 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[6], P[6*6], z[3]) -> (x_new[6], P_new[6*6], x_pred[6], P_pred[6*6])
-    backward(x[6], P[6*6], x_pred[6], P_pred[6*6], x_smooth_next[6], P_smooth_next[6*6]) -> (x_smooth[6], P_smooth[6*6])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[6], P[6*6], z[3]) -> (x_new[6], P_new[6, 6], x_pred[6], P_pred[6, 6])
+    backward(x[6], P[6*6], x_pred[6], P_pred[6*6], x_smooth_next[6], P_smooth_next[6*6]) -> (x_smooth[6], P_smooth[6, 6])
     run(zs[steps, 3], x0[6], P0[6, 6]) -> (xs[steps, 6], Ps[steps, 6, 6])
 symmetric in step: P, P_new, P_pred (inputs: upper triangle read; outputs: written whole)
 symmetric in backward: P, P_pred, P_smooth_next, P_smooth (inputs: upper triangle read; outputs: written whole)
@@ -119,6 +119,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, P, z):
     """one forward (Kalman filter) step of the Rauch-Tung-Striebel smoother
 
@@ -128,16 +136,17 @@ def step(x, P, z):
         z [3]: z(k+1)
     Returns:
         x_new [6]: x(k+1/k+1)
-        P_new [6x6, symmetric]: P(k+1/k+1), row-major
+        P_new [(6, 6) array, symmetric, then any track axes]: P(k+1/k+1)
         x_pred [6]: x(k+1/k)
-        P_pred [6x6, symmetric]: P(k+1/k), row-major
+        P_pred [(6, 6) array, symmetric, then any track axes]: P(k+1/k)
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 12 entries).
     """
     if len(P) == 6:  # a 2-D (6, 6) P: flattened, row-major
         P = np.reshape(P, (36,) + np.shape(P)[2:])
     _require_zero(P, (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
-    return _step_in_pattern(x, P, z)
+    x_new, P_new, x_pred, P_pred = _step_in_pattern(x, P, z)
+    return x_new, _matrix(P_new, (6, 6)), x_pred, _matrix(P_pred, (6, 6))
 
 
 def _step_in_pattern(x, P, z):
@@ -248,11 +257,18 @@ def backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next):
         P_smooth_next [6x6, symmetric]: P(k+1/N), row-major, symmetric
     Returns:
         x_smooth [6]: x(k/N)
-        P_smooth [6x6, symmetric]: P(k/N), row-major
+        P_smooth [(6, 6) array, symmetric, then any track axes]: P(k/N)
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P is 0 outside its pattern (upper triangle, 12 entries).
     Raises PatternError unless P_pred is 0 outside its pattern (upper triangle, 12 entries).
     Raises PatternError unless P_smooth_next is 0 outside its pattern (upper triangle, 12 entries).
+    """
+    x_smooth, P_smooth = _backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next)
+    return x_smooth, _matrix(P_smooth, (6, 6))
+
+
+def _backward(x, P, x_pred, P_pred, x_smooth_next, P_smooth_next):
+    """backward with its matrices flat, row-major (as run calls it).
     """
     if len(P) == 6:  # a 2-D (6, 6) P: flattened, row-major
         P = np.reshape(P, (36,) + np.shape(P)[2:])
@@ -412,7 +428,7 @@ def run(zs, x0, P0):
         for i in range(36):
             Ps[steps - 1, i] = P_smooth[i]
     for k in range(steps - 2, -1, -1):
-        x_smooth, P_smooth = backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
+        x_smooth, P_smooth = _backward(work[k][0], work[k][1], work[k + 1][2], work[k + 1][3], x_smooth, P_smooth)
         for i in range(6):
             xs[k, i] = x_smooth[i]
         for i in range(36):

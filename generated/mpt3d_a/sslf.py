@@ -9,7 +9,7 @@ family: sslf
 n: 6 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[6], z[3]) -> (x_new[6])
     run(zs[steps, 3], x0[6]) -> (xs[steps, 6])
 operations per call of step (Python): add 9, sub 3, mul 18, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 30, instructions 30)

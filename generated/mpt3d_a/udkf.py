@@ -9,10 +9,10 @@ family: udkf
 n: 6 (states)
 m: 3 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
-    step(x[6], U[6*6], D[6], z[3]) -> (x_new[6], U_new[6*6], D_new[6])
-    enter(x0[6], P0[6*6]) -> (x[6], U[6*6], D[6])
-    store(x[6], U[6*6], D[6]) -> (P_new[6*6])
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
+    step(x[6], U[6*6], D[6], z[3]) -> (x_new[6], U_new[6, 6], D_new[6])
+    enter(x0[6], P0[6*6]) -> (x[6], U[6, 6], D[6])
+    store(x[6], U[6*6], D[6]) -> (P_new[6, 6])
     run(zs[steps, 3], x0[6], P0[6, 6]) -> (xs[steps, 6], Ps[steps, 6, 6])
 symmetric in enter: P0 (inputs: upper triangle read; outputs: written whole)
 symmetric in store: P_new (inputs: upper triangle read; outputs: written whole)
@@ -142,6 +142,14 @@ def _require_shape(name, array, shape, text):
                          f"track axes; got {array.shape}")
 
 
+def _matrix(flat, shape):
+    """A flat row-major result as an array of shape (then any track axes)."""
+    if any(np.ndim(v) for v in flat):  # tracks: constants broadcast
+        flat = np.broadcast_arrays(*flat)
+    array = np.array(flat)
+    return array.reshape(shape + array.shape[1:])
+
+
 def step(x, U, D, z):
     """one step of the UD (Bierman-Thornton) Kalman filter
 
@@ -152,7 +160,7 @@ def step(x, U, D, z):
         z [3]: z(k+1)
     Returns:
         x_new [6]: x(k+1/k+1)
-        U_new [6x6]: U(k+1/k+1), as U
+        U_new [(6, 6) array, then any track axes]: U(k+1/k+1), as U
         D_new [6]: D(k+1/k+1)
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless U is 0 outside its pattern (upper triangle, 12 entries).
@@ -160,7 +168,8 @@ def step(x, U, D, z):
     if len(U) == 6:  # a 2-D (6, 6) U: flattened, row-major
         U = np.reshape(U, (36,) + np.shape(U)[2:])
     _require_zero(U, (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'U', "U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0")
-    return _step_in_pattern(x, U, D, z)
+    x_new, U_new, D_new = _step_in_pattern(x, U, D, z)
+    return x_new, _matrix(U_new, (6, 6)), D_new
 
 
 def _step_in_pattern(x, U, D, z):
@@ -286,10 +295,17 @@ def enter(x0, P0):
         P0 [6x6, symmetric]: initial covariance, row-major, symmetric
     Returns:
         x [6]: x0
-        U [6x6]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
+        U [(6, 6) array, then any track axes]: U, unit upper triangular (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [6]: D, the diagonal of P = U D U^T
     Raises NumericalError when a runtime check fails.
     Raises PatternError unless P0 is 0 outside its pattern (upper triangle, 12 entries).
+    """
+    x, U, D = _enter(x0, P0)
+    return x, _matrix(U, (6, 6)), D
+
+
+def _enter(x0, P0):
+    """enter with its matrices flat, row-major (as run calls it).
     """
     if len(P0) == 6:  # a 2-D (6, 6) P0: flattened, row-major
         P0 = np.reshape(P0, (36,) + np.shape(P0)[2:])
@@ -333,8 +349,15 @@ def store(x, U, D):
         U [6x6]: U, unit upper triangular, row-major (strictly upper triangle read; written with 1 on the diagonal, 0 below)
         D [6]: D, the diagonal of P = U D U^T
     Returns:
-        P_new [6x6, symmetric]: P = U D U^T, row-major
+        P_new [(6, 6) array, symmetric, then any track axes]: P = U D U^T
     Raises PatternError unless U is 0 outside its pattern (upper triangle, 12 entries).
+    """
+    P_new = _store(x, U, D)
+    return _matrix(P_new, (6, 6))
+
+
+def _store(x, U, D):
+    """store with its matrices flat, row-major (as run calls it).
     """
     if len(U) == 6:  # a 2-D (6, 6) U: flattened, row-major
         U = np.reshape(U, (36,) + np.shape(U)[2:])
@@ -376,12 +399,12 @@ def run(zs, x0, P0):
     track = np.broadcast_shapes(*tracks) if any(tracks) else ()
     xs = np.empty((steps, 6) + track)
     Ps = np.empty((steps, 36) + track)
-    x, U, D = enter(x0, P0.reshape((36,) + P0.shape[2:]))
+    x, U, D = _enter(x0, P0.reshape((36,) + P0.shape[2:]))
     for k in range(steps):
         x, U, D = _step_in_pattern(x, U, D, zs[k])
         for i in range(6):
             xs[k, i] = x[i]
-        Ps_k = store(x, U, D)
+        Ps_k = _store(x, U, D)
         for i in range(36):
             Ps[k, i] = Ps_k[i]
     return xs, Ps.reshape((steps, 6, 6) + track)

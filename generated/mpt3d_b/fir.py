@@ -10,7 +10,7 @@ n: 2 (states)
 m: 1 (measurements)
 parameters: none
 window: 33 (last measurements, newest first)
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(zw[33*1]) -> (x_new[2])
     run(zs[steps, 1]) -> (xs[steps, 2])
 operations per call of step (Python): add 30, sub 34, mul 66, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 130, instructions 130)

@@ -9,7 +9,7 @@ family: jssklf
 n: 2 (states)
 m: 1 (measurements)
 parameters: none
-interface (flat row-major arrays; steps = number of steps):
+interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = number of steps):
     step(x[2], z[1]) -> (x_new[2])
     run(zs[steps, 1], x0[2]) -> (xs[steps, 2])
 operations per call of step (Python): add 3, sub 1, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 10, instructions 10)

@@ -3,7 +3,7 @@ flight (per-sensor arrays with NaN rows, dt as a per-step parameter row), or the
 ``predict`` and ``update_<sensor>`` called step by step to see each update's innovation.
 
 Both accept a generated Python module (functions return arrays) or a compiled C module
-(derive.build.FilterModule: the same names, flat outputs).
+(derive.build.FilterModule: the same names, P returned (16, 16)).
 """
 
 from __future__ import annotations
