@@ -19,7 +19,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--formula", metavar="EXPR",
                         help="a burden formula in n, m (N: the FIR's order; k: copies, with "
                              "--family blocks), e.g. \"2*n**2 + 2*n*m - n\"; parsed, never "
-                             "executed. Exit 1 where it differs from the derived one")
+                             "executed (one that starts with '-': --formula='-n + ...'). "
+                             "Exit 1 where it differs from the derived one")
     parser.add_argument("--filter", dest="filter_name", metavar="F",
                         help="with --formula: the filter the formula claims to count")
     parser.add_argument("--paper", action="store_true",
