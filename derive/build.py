@@ -122,6 +122,9 @@ class FilterModule:
         self.statuses = described.messages()
         self.dtype = np.dtype(described.dtype)
         self.c_type = described.element
+        #: ``{"storage": n, "tangent": nt}`` for a filter whose P lives in a tangent space
+        #: (each argument's ``space`` in ``interface`` names its own), else empty
+        self.spaces = dict(described.spaces)
 
     def __getattr__(self, name: str):
         functions = self.__dict__.get("functions", {})

@@ -49,6 +49,9 @@ PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x
 
 DEFAULT_EPS = 1e-6
 """The FIR order is the least N with ||A^N||_2 < eps, by default this eps."""
+MAX_EKF_ITERATIONS = 8
+"""Most relinearisations of the iterated EKF's update (each one unrolls h, H, S and K
+again)."""
 UKF_ALPHA_RANGE = (1e-4, 1.0)
 """alpha as Wan and van der Merwe (2000) bound it: below 1e-4 the sigma points coincide
 with the mean in double precision, and the weights grow past what doubles carry."""
@@ -206,6 +209,14 @@ class PredictionOptions(SharedOptions):
     horizon: int = option(
         1, flag="--horizon", kind=int, low=1, high=MAX_HORIZON,
         formerly=("N",), metavar="N", help="steps ahead N (1)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExtendedOptions(SharedOptions):
+    iterations: int = option(
+        0, flag="--iterations", kind=int, low=0, high=MAX_EKF_ITERATIONS,
+        help="iterated EKF update: relinearise h this many times at the updated estimate "
+             "(0: the plain EKF)")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -53,12 +53,30 @@ def _inputs_refusal(model, spec: FilterSpec) -> str | None:
     return None
 
 
+def _manifolds_refusal(model, spec: FilterSpec) -> str | None:
+    """Why a filter that keeps P over the stored state refuses a model with manifold
+    states (a quaternion's P lives in its tangent space), and why a filter of manifold
+    states refuses a model without any."""
+    manifolds = getattr(model, "manifolds", ())
+    takers = ", ".join(name for name, s in FILTERS.items() if s.manifolds)
+    if manifolds and not spec.manifolds:
+        return (f"filter {spec.name!r} does not handle manifold states; model "
+                f"{model.name!r} declares {manifolds[0].describe()} (the filters that do: "
+                f"{takers})")
+    if spec.manifolds and not manifolds:
+        return (f"filter {spec.name!r} is for models with manifold states (a quaternion, "
+                f"an angle); model {model.name!r} declares none")
+    return None
+
+
 def _sensors_refusal(model, spec: FilterSpec) -> str | None:
     """Why a filter without sensor support refuses a model with several sensors or with
     unit-norm groups."""
     if spec.sensors:
         return None
-    takers = ", ".join(name for name, s in FILTERS.items() if s.sensors)
+    manifolds = bool(getattr(model, "manifolds", ()))  # the takers that take this model
+    takers = ", ".join(name for name, s in FILTERS.items()
+                       if s.sensors and s.manifolds == manifolds)
     if any(g.R_argument for g in getattr(model, "sensors", ())):
         return (f"filter {spec.name!r} takes no R given per call; model {model.name!r} "
                 f"declares sensor R = 'argument' (the filters that do: {takers})")
@@ -77,7 +95,8 @@ def why_not(model, name: str) -> str | None:
     spec = kind(name)
     if spec.model_kind != model.kind:
         return f"filter {name!r} needs a {spec.model_kind} model; {model.name!r} is {model.kind}"
-    refusal = _inputs_refusal(model, spec) or _sensors_refusal(model, spec)
+    refusal = (_manifolds_refusal(model, spec) or _inputs_refusal(model, spec)
+               or _sensors_refusal(model, spec))
     if refusal is not None:
         return refusal
     if spec.steady and model.parameters:

@@ -15,11 +15,16 @@ x + δ, computed as ``e + D[e]``; nothing is evaluated at x + δ itself):
   ``D[1/a] = -D[a] / (a a')``, ``D[a^-k] = D[1/a^k]``;
 * ``D[sqrt(a)] = D[a] / (sqrt(a') + sqrt(a))``, ``D[a^(-1/2)] = D[1/sqrt(a)]``;
 * ``D[sin a] = 2 cos(a + D[a]/2) sin(D[a]/2)``, ``D[cos a] = -2 sin(a + D[a]/2) sin(D[a]/2)``;
+* ``D[atan2(y, x)] = atan2(x D[y] - y D[x], x x' + y y')``: the angle from (x, y) to
+  (x', y'), an identity modulo 2 pi: it is the difference where that lies in (-pi, pi],
+  and across atan2's branch cut (-pi to pi) the wrapped difference, the angle's change
+  (what an angle measurement's spread is: derive.filters.ukf);
 * anything else (exp, log, a state-dependent exponent, other functions) falls back to
   ``g(a') - g(a)``, with the cancellation of that one node; :attr:`DifferenceForm.fallbacks`
   names those nodes (the UKF prints them in its header).
 
-Each rule is an identity of real numbers, so D equals g(x + δ) - g(x) exactly
+Each rule is an identity of real numbers (atan2's modulo 2 pi), so D equals
+g(x + δ) - g(x) exactly
 (tests/test_float_ukf.py checks it symbolically and in double against an exact
 evaluation); where a rule applies, its rounding errors are relative to D and to the
 terms D sums, not to g.
@@ -147,6 +152,10 @@ class _Builder:
             return self._sin_cos(node.args[0], sympy.cos, 2)
         if isinstance(node, sympy.cos):
             return self._sin_cos(node.args[0], sympy.sin, -2)
+        if isinstance(node, sympy.atan2):
+            y, x = node.args
+            return sympy.atan2(self.base(x) * self.diff(y) - self.base(y) * self.diff(x),
+                               self.base(x) * self.shifted(x) + self.base(y) * self.shifted(y))
         return self._fallback(node)
 
     def _power(self, a: sympy.Expr, k: sympy.Expr) -> sympy.Expr | None:

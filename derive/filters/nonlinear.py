@@ -25,6 +25,7 @@ import sympy
 
 from .. import staging
 from ..errors import FilterError
+from ..guards import has_guards, selects
 from ..options import SharedOptions
 from ..program import Port, Program
 from ..symbols import real_stand_ins
@@ -86,6 +87,8 @@ class _Simplifier:
         self.spent = 0
 
     def __call__(self, expr: sympy.Expr) -> sympy.Expr:
+        if has_guards(expr):  # selects as derived: simplify would rewrite their conditions
+            return selects(expr, "a Jacobian entry")
         if expr.is_Atom or expr.is_polynomial():
             return expr
         operations = sympy.count_ops(expr)
@@ -159,11 +162,50 @@ class Measurement:
     gate: float | None = None  # the NIS threshold of a gated update (None: not gated)
     R_port: bool = False  # R is the update's input port R (R holds its stand-in symbols)
     sequential: bool = False  # fused one scalar measurement at a time (R diagonal)
+    angles: tuple[bool, ...] = ()  # per row: an angle, its innovation wrapped to (-pi, pi]
 
 
 def all_measurements(model) -> Measurement:
     return Measurement(sympy.Matrix(model.subs(model.h)), tuple(model.inputs),
-                       sympy.Matrix(model.subs(model.R)), tuple(model.measurements))
+                       sympy.Matrix(model.subs(model.R)), tuple(model.measurements),
+                       angles=model.angle_rows())
+
+
+def wrap_angle(y: sympy.Expr) -> sympy.Expr:
+    """``y`` wrapped to (-pi, pi]: ``y - 2 pi ceil((y - pi)/(2 pi))`` (any y; a NaN stays
+    NaN)."""
+    return y - 2 * sympy.pi * sympy.ceiling((y - sympy.pi) / (2 * sympy.pi))
+
+
+#: The header's line on wrapped innovations.
+WRAP_FACT = ("angle measurements {names}: innovations wrapped to "
+             "(-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi))")
+
+
+def wrapped(prog: Program, values: sympy.Matrix, angles: Sequence[bool]) -> sympy.Matrix:
+    """``values`` with the rows that are angles wrapped to (-pi, pi] (:func:`wrap_angle`),
+    each staged."""
+    if not any(angles):
+        return values
+    return sympy.Matrix([prog.let(wrap_angle(v), "wrap") if angle else v
+                         for v, angle in zip(values, angles)])
+
+
+def angle_facts(model) -> list[str]:
+    """The header's line on the model's angle measurements (none: no line)."""
+    return [WRAP_FACT.format(names=", ".join(model.angles))] if model.angles else []
+
+
+def noise_fact(model, where_Q: str, where_R: str) -> list[str]:
+    """The header's line on where a state- or input-dependent Q or R is evaluated."""
+    moving = set(model.state_symbols) | set(model.inputs)
+    parts = [f"{name} at {where}" for name, matrix, where in (("Q", model.Q, where_Q),
+                                                             ("R", model.R, where_R))
+             if matrix.free_symbols & moving]
+    if not parts:
+        return []
+    return ["noise that depends on the state or the inputs, evaluated with them: "
+            + ", ".join(parts)]
 
 
 def _row_inputs(model, i: int) -> tuple[sympy.Symbol, ...]:
@@ -198,8 +240,13 @@ def scalar_measurement(model) -> tuple[Measurement | None, str]:
         if not _is_zero(renamed - model.h[0, 0]):
             return None, (f"measurement {model.measurements[i]!r} is not "
                           f"{model.measurements[0]!r} of its own inputs")
+    angles = model.angle_rows()
+    if len(set(angles)) > 1:
+        return None, (f"measurement {model.measurements[angles.index(True)]!r} is an angle "
+                      f"and {model.measurements[angles.index(False)]!r} is not")
     meas = Measurement(sympy.Matrix([model.subs(model.h[0, 0])]), first,
-                       sympy.Matrix([[R[0, 0]]]), (model.measurements[0],))
+                       sympy.Matrix([[R[0, 0]]]), (model.measurements[0],),
+                       angles=angles[:1])
     return meas, ""
 
 
@@ -225,14 +272,16 @@ def sensor_measurement(model, group, gate: float | None = None,
     """A sensor's rows (derive.model.SensorGroup) as the Measurement its update uses."""
     R = (R_stand_ins(group.m) if group.R_argument else sympy.Matrix(model.subs(group.R)))
     return Measurement(sympy.Matrix(model.subs(group.h)), tuple(group.inputs), R,
-                       tuple(group.measurements), gate, group.R_argument, sequential)
+                       tuple(group.measurements), gate, group.R_argument, sequential,
+                       model.angle_rows(group.measurements))
 
 
 def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list[Port]]:
-    """``update_<sensor>(x, P, z[, u][, p]) -> (x_new, P_new[, nis, applied])``."""
-    n = model.n
+    """``update_<sensor>(x, P, z[, u][, p]) -> (x_new, P_new[, nis, applied])``; P is
+    n_tangent x n_tangent (n, or fewer with quaternion states)."""
+    n, nt = model.n, model.n_tangent
     inputs = [Port("x", (n,), doc="x before the update (x(k/k-1))"),
-              Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric"),
+              Port("P", (nt, nt), symmetric=True, doc="its covariance, row-major, symmetric"),
               Port("z", (len(meas.names),), doc=", ".join(meas.names))]
     if meas.R_port:
         inputs.append(Port("R", (len(meas.names),) * 2, symmetric=True,
@@ -241,7 +290,7 @@ def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list
         inputs.append(Port("u", (len(meas.inputs),),
                            doc="its inputs " + ", ".join(s.name for s in meas.inputs)))
     outputs = [Port("x_new", (n,), doc="x after the update"),
-               Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
+               Port("P_new", (nt, nt), symmetric=True, doc="its covariance, row-major")]
     if meas.gate is not None:
         outputs += [Port("nis", (1,), doc="normalised innovation squared nu' S^-1 nu"),
                     Port("applied", (1,), doc="1 when the update was applied (nis within "
@@ -252,12 +301,12 @@ def _sensor_ports(model, name: str, meas: Measurement) -> tuple[list[Port], list
 def _ports(model, name: str, meas: Measurement | None) -> tuple[list[Port], list[Port]]:
     if name.startswith("update_"):
         return _sensor_ports(model, name, meas)
-    n = model.n
+    n, nt = model.n, model.n_tangent
     inputs = [Port("x", (n,), doc="x(k-1/k-1)" if name != "update1" else "x before the update"),
-              Port("P", (n, n), symmetric=True, doc="its covariance, row-major, symmetric")]
+              Port("P", (nt, nt), symmetric=True, doc="its covariance, row-major, symmetric")]
     outputs = [Port("x_new", (n,), doc="x(k/k)" if name == "step" else
                     "x(k/k-1)" if name == "predict" else "x after this measurement"),
-               Port("P_new", (n, n), symmetric=True, doc="its covariance, row-major")]
+               Port("P_new", (nt, nt), symmetric=True, doc="its covariance, row-major")]
     if meas is not None and name == "update1":
         inputs.append(Port("z", (1,),
                            doc=f"one measurement, any of {', '.join(model.measurements)}"))
@@ -432,5 +481,6 @@ def check_nonlinear(model, name: str) -> None:
 
 
 __all__ = ["Linearisation", "Measurement", "Predict", "Update", "all_measurements",
-           "check_nonlinear", "linearise", "nonlinear_programs", "scalar_measurement",
-           "stage_linearisation", "state_jacobian", "state_mapping", "step_inputs"]
+           "angle_facts", "check_nonlinear", "linearise", "noise_fact", "nonlinear_programs",
+           "scalar_measurement", "stage_linearisation", "state_jacobian", "state_mapping",
+           "step_inputs", "wrap_angle", "wrapped"]

@@ -85,6 +85,11 @@ class FilterSpec:
     files it takes (derive.filters.blockwise.whole_states).
     ``vector_rows``: takes the option ``rows`` (its dense covariance work as vector rows,
     derive.filters.vector_rows).
+    ``manifolds``: it takes (and needs) a model with manifold states, P in their tangent
+    space (derive.manifolds); every other filter refuses such a model.
+    ``sensors_reference``: the NumPy reference of its run kind sensors,
+    ``(model, options, zs, us, ps, x0, P0, Rs, trace) -> SensorsResult`` (None: the
+    EKF's and KF's, derive.filters.sensors.reference_run).
     ``conditioning``: what its step factorises, solves with, inverts or cancels at run
     time (:class:`Conditioned` s; empty for a filter whose constants are all computed
     offline in double): the conditioning its float32 tolerance takes
@@ -115,6 +120,8 @@ class FilterSpec:
     sensors: bool = False
     blockwise: bool = False
     vector_rows: bool = False
+    manifolds: bool = False
+    sensors_reference: Callable | None = None
     conditioning: tuple[Conditioned, ...] = ()
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None
