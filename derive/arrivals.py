@@ -175,15 +175,46 @@ class Arrivals:
             moved[name] = form.arrival(ready)
         return self._propagate(forms, moved)
 
-    def trial_arrival(self, name: str, value: float) -> Trial:
-        """The arrivals after temporary ``name`` (of the step) arrives at ``value``, its
-        statement's form left as it is: a trial to score, never to accept.  The score is
-        monotone in ``value`` (arrivals are maxima of sums), so scoring a lower bound of
-        a rewrite's arrival bounds the rewrite's score from below."""
-        return self._propagate({}, {name: value}, scored_only=True)
+    def lowers_score(self, name: str, value: float) -> bool:
+        """Whether the score gets lower when temporary ``name`` (of the step) arrives at
+        ``value``, its statement's form left as it is.  The score is monotone in each
+        arrival (arrivals are maxima of sums), so asking with a lower bound of a
+        rewrite's arrival tells whether the rewrite could lower it.  Downstream arrivals
+        can only fall, and the score is lower exactly when a carried output's arrival
+        falls from above 0 (the sum over the outputs drops; one at 0 can only fall to
+        "never", leaving both), so the walk stops at the first that does."""
+        if not value < self.ready.get(name, _NEVER):
+            return False
+        ready, forms, readers, height = self.ready, self.forms, self.readers, self.height
+        leaves = self.leaves
+        if name in leaves and ready[name] > 0:
+            return True
+        moved = {name: value}
+        queue = [(height[reader], reader) for reader in readers.get(name, ())]
+        heapq.heapify(queue)
+        queued = {name, *readers.get(name, ())}
+        while queue:
+            _, current = heapq.heappop(queue)
+            form = forms[current]
+            arrival = form.carried
+            for read, path in form.reads:
+                at = moved.get(read)
+                at = (ready.get(read, _NEVER) if at is None else at) + path
+                if at > arrival:
+                    arrival = at
+            old = ready[current]
+            if arrival == old:
+                continue
+            if current in leaves and old > 0:
+                return True
+            moved[current] = arrival
+            for reader in readers.get(current, ()):
+                if reader not in queued:
+                    queued.add(reader)
+                    heapq.heappush(queue, (height[reader], reader))
+        return False
 
-    def _propagate(self, forms: dict[str, Form], moved: dict[str, float],
-                   scored_only: bool = False) -> Trial:
+    def _propagate(self, forms: dict[str, Form], moved: dict[str, float]) -> Trial:
         """``moved`` (the arrivals of ``forms``' statements, or of the named ones) carried
         to the statements downstream whose arrival moves."""
 
@@ -209,12 +240,10 @@ class Arrivals:
             if value != self.ready[name]:
                 moved[name] = value
                 enqueue(name)
-        return Trial(self, forms, moved, scored_only)
+        return Trial(self, forms, moved)
 
     def accept(self, trial: Trial) -> None:
         """Make ``trial`` (of this step, nothing accepted since) the step's state."""
-        if trial.scored_only:
-            raise ValueError("a trial of an arrival alone is scored, never accepted")
         for name, form in trial.forms.items():
             self._define(name, form)
         for name, value in trial.leaf_changes():
@@ -241,7 +270,6 @@ class Trial:
     arrivals: Arrivals
     forms: dict[str, Form]
     moved: dict[str, float]
-    scored_only: bool = False      # a bound (Arrivals.trial_arrival): not to accept
 
     def leaf_changes(self) -> list[tuple[str, float]]:
         leaves = self.arrivals.leaves

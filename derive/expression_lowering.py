@@ -54,7 +54,7 @@ these.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping, Sequence
 
 import sympy
 from sympy import default_sort_key
@@ -254,9 +254,14 @@ class ExpressionLowerer:
         return Op("div", (Op("mul", (c, num)), den))
 
     def _add(self, e: sympy.Expr) -> Tree:
+        return self.lower_sum(sympy.Add.make_args(e))
+
+    def lower_sum(self, addends: Sequence[sympy.Expr]) -> Tree:
+        """The tree of the sum of ``addends`` (the terms of a sympy Add: no two alike),
+        as of ``sympy.Add(*addends)``, without building it."""
         constant = sympy.S.Zero
         terms: list[tuple[int, Tree]] = []
-        for term in sorted(sympy.Add.make_args(e), key=self.order):
+        for term in sorted(addends, key=self.order):
             if term.is_number:
                 constant += term
                 continue
@@ -344,16 +349,35 @@ def lower(expr: sympy.Basic, *, use_fma: bool = False) -> Tree:
 
 
 def expression_lowerer(*, use_fma: bool = False,
-                       state_ports: tuple[str, ...] = STATE_PORTS) -> Callable[[sympy.Basic], Tree]:
+                       state_ports: tuple[str, ...] = STATE_PORTS) -> RememberingLowerer:
     """One expression's tree exactly as :func:`lower_program` lowers it inside a program
-    (same fma and ordering rules), remembered per expression: for passes that lower the
-    same statements again and again (derive.schedule scores each rewrite it tries)."""
-    lowerer = ExpressionLowerer(use_fma, state_ports)
-    trees: dict[sympy.Basic, Tree] = {}
+    (same fma and ordering rules), remembered per expression and per subexpression, with
+    each term's sort key: for passes that lower the same statements again and again,
+    each time with a term or two changed (derive.schedule scores each rewrite it tries).
+    Called with an expression; ``lower_sum(terms)`` lowers a sum from its terms."""
+    return RememberingLowerer(use_fma, state_ports)
 
-    def lower_one(expr: sympy.Basic) -> Tree:
-        tree = trees.get(expr)
+
+class RememberingLowerer(ExpressionLowerer):
+    """A lowerer that lowers and orders each subexpression once (trees are immutable,
+    so a remembered one is shared)."""
+
+    def __init__(self, use_fma: bool, state_ports: tuple[str, ...]) -> None:
+        super().__init__(use_fma, state_ports)
+        self.trees: dict[sympy.Basic, Tree] = {}
+        self.keys: dict[sympy.Basic, tuple] = {}
+
+    def __call__(self, e: sympy.Basic) -> Tree:
+        return self.lower(e)
+
+    def lower(self, e: sympy.Basic) -> Tree:
+        tree = self.trees.get(e)
         if tree is None:
-            tree = trees[expr] = lowerer.lower(expr)
+            tree = self.trees[e] = super().lower(e)
         return tree
-    return lower_one
+
+    def order(self, e: sympy.Expr):
+        key = self.keys.get(e)
+        if key is None:
+            key = self.keys[e] = super().order(e)
+        return key

@@ -35,11 +35,15 @@ its affine form alone (:meth:`_Work._direct_bound`: the coefficient groups joine
 chain of adds and fmas, the latest last, each group of two or more a tree of adds at
 least as deep as a balanced one over its carried keys); when that bound is no sooner than
 the temporary's arrival now, or the step's score with the temporary at the bound
-(:meth:`Arrivals.trial_arrival`) is not lower, the direct sum is refused unbuilt.  The
+(:meth:`Arrivals.lowers_score`) is not lower, the direct sum is refused unbuilt.  The
 score is monotone in each arrival, so this refuses exactly what scoring the built sum
 would; the new temporaries' names it would have taken are spent all the same (names
 order sympy's terms, so every later rewrite is as before): the programs are bitwise
-those of building every candidate.  On a dense step a direct sum is a chain of hundreds
+those of building every candidate.  A late-factor rewrite is refused the same way:
+first on a bound (each leaf of the rewritten sum reaches it through at least one
+operation), then on the sum's exact arrival, lowered from its terms without building the
+sympy sum (:meth:`derive.lowering.RememberingLowerer.lower_sum`); only a rewrite that
+lowers the score is built.  On a dense step a direct sum is a chain of hundreds
 of terms (distinct coefficients) that never wins, and the search spends its time on the
 affine forms (exact: integer numerators over a common denominator, each statement's
 kept across passes while it and its operands' forms stay the same) and on lowering.
@@ -337,6 +341,7 @@ class _Work:
         self.affine_memo: dict[Temporary, tuple] = {}
         self.lower = expression_lowerer(use_fma=True, state_ports=tuple(self.carried_ports))
         self.forms: dict[sympy.Expr, Form] = {}
+        self.leaves_of: dict[sympy.Expr, tuple[tuple[str, ...], bool]] = {}
 
     def fresh(self) -> Temporary:
         self.counter += 1
@@ -462,8 +467,7 @@ class _Work:
         fresh = sum(len(keys) - 1 for keys in groups.values())
         bound = self._direct_bound(groups, _ONE in form)
         # no sooner than now: nothing downstream gets sooner (the trial would show it)
-        if bound < state.ready.get(target.name, -math.inf) and \
-                state.trial_arrival(target.name, bound).score() < state.score():
+        if state.lowers_score(target.name, bound):
             return self._build_direct(slots, target, form)
         # it cannot lower the score: not built, as if built and refused (its new
         # temporaries' names spent: the names order sympy's terms, so later ones stay)
@@ -604,9 +608,14 @@ class _Work:
             late = last
         early = [a for a in sympy.Mul.make_args(term) if a != factor]
         w = self.fresh()
-        expr = sympy.Add(*[w * late if t == term else t
-                           for t in sympy.Add.make_args(current.expr)])
-        changed = [Assign(w, sympy.Mul(coeff, *early, *args[:-1])), Assign(target, expr)]
+        if not self._late_may_win(state, target, current.expr, term, [*early, *args[:-1]],
+                                  late, reciprocal):
+            return None   # refused unbuilt, its names spent as if built and refused
+        product = Assign(w, sympy.Mul(coeff, *early, *args[:-1]))
+        terms = [w * late if t == term else t for t in sympy.Add.make_args(current.expr)]
+        if not self._late_wins(state, target, terms, product, reciprocal):
+            return None
+        changed = [product, Assign(target, sympy.Add(*terms))]
         placements = [(target, changed)]
         if reciprocal is not None:
             before = slots.statement(last.base)
@@ -614,6 +623,62 @@ class _Work:
                               else (None, [reciprocal]))
             changed = [reciprocal, *changed]
         return changed, placements
+
+    def _late_may_win(self, state: Arrivals, target: Temporary, current: sympy.Expr,
+                      term: sympy.Expr, early: list[sympy.Expr], late: sympy.Expr,
+                      reciprocal: Assign | None) -> bool:
+        """Whether the rewrite of :meth:`_late` could lower the score, from a lower bound
+        of the rewritten sum's arrival: the sum (two terms or more) is a tree whose root
+        is an operation, so each of its leaves (the other terms' operands, those of the
+        early product ``w``, the late factor) reaches it through at least the quickest
+        operation, and a new reciprocal arrives a division after its base.  The score is
+        monotone in each arrival, so refusing on the bound refuses exactly what scoring
+        the built rewrite would, without building the sum (hundreds of terms in a
+        Joseph-form P) or lowering it."""
+        ready = state.ready
+        step = min(REFERENCE_CYCLES[kind] for kind in ("add", "mul", "fma"))
+        if reciprocal is not None:
+            late_ready = self._leaf_ready(reciprocal.expr, ready) + REFERENCE_CYCLES["div"]
+        else:
+            late_ready = self._leaf_ready(late, ready)
+        bound = max([late_ready, *(self._leaf_ready(a, ready) for a in early),
+                     *(self._leaf_ready(t, ready) for t in sympy.Add.make_args(current)
+                       if t != term)]) + step
+        return state.lowers_score(target.name, bound)
+
+    def _late_wins(self, state: Arrivals, target: Temporary, terms: list[sympy.Expr],
+                   product: Assign, reciprocal: Assign | None) -> bool:
+        """Whether the rewrite of :meth:`_late` lowers the score: the arrival of the
+        rewritten sum exactly as :meth:`Arrivals.trial` takes it, lowered from its terms
+        (no sympy sum built); its new temporaries are read by it alone."""
+        moved = {}
+
+        def ready(name: str) -> float:
+            value = moved.get(name)
+            return state.ready.get(name, -math.inf) if value is None else value
+
+        for st in (reciprocal, product):
+            if st is not None:
+                moved[st.target.name] = self.form(st.expr).arrival(ready)
+        form = statement_form(self.lower.lower_sum(terms), self.carried_ports,
+                              REFERENCE_CYCLES)
+        return state.lowers_score(target.name, form.arrival(ready))
+
+    def _leaf_ready(self, expr: sympy.Expr, ready: Mapping[str, float]) -> float:
+        """The latest arrival of ``expr``'s leaves: its temporaries as ``ready``, a carried
+        input element at 0 (``-inf`` when none arrives)."""
+        leaves = self.leaves_of.get(expr)
+        if leaves is None:
+            leaves = self.leaves_of[expr] = (
+                tuple(s.name for s in expr.free_symbols if isinstance(s, Temporary)),
+                any(_late_key(s, self.carried_ports) for s in expr.free_symbols))
+        names, carried = leaves
+        latest = 0.0 if carried else -math.inf
+        for name in names:
+            at = ready.get(name, -math.inf)
+            if at > latest:
+                latest = at
+        return latest
 
     def share_reciprocals(self, body: list[Statement]) -> list[Statement]:
         """Every other division by a value whose reciprocal the step computes becomes a

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+import sympy
 
 from derive import catalog, riccati
 from derive.apps import audit, formulas
@@ -75,13 +76,41 @@ def test_every_printed_burden_is_reproduced_or_flagged(result):
 
 
 def test_the_model_b_joins_are_explained(result):
+    k = formulas.VARIABLES["k"]
     jklf = _row(result, "MPT3D", "model B", "JKLF")
     assert (jklf.printed, jklf.formula) == (484, 504)
     assert "one axis" in jklf.flag and "3*(69 + 89) + 10" in jklf.flag
     jssklf = _row(result, "MPT3D", "model B", "JSSKLF")
     assert (jssklf.printed, jssklf.formula) == (64, 72)
     assert "one axis" in jssklf.flag and "3*(10 + 10) + 4" in jssklf.flag
+    for row, name in ((jklf, "jklf"), (jssklf, "jssklf")):
+        # the term named: the printed number counts the join once, the derived formula k
+        # times; as polynomials in the axes k they differ by (1 - k) times the join
+        assert f"the join term {formulas.JOINS[name][1]} is counted for one axis" in row.flag
+        difference = sympy.factor((1 - k) * formulas.join_claim(name))
+        assert row.flag.endswith(f"they differ by {difference}")
+        assert difference.subs({k: 3, formulas.VARIABLES["n"]: 2}) == row.printed - row.formula
     assert "no known explanation" in audit.explain("kf", 100, 2, 1, 1)
+
+
+def test_the_printed_formulas_equal_the_derived_ones_checked_up_to_12_6(result):
+    """The bar: each formula derived from paper-mode counts is the printed one, term by
+    term, and holds at sizes up to n = 12, m = 6 that the fit did not use."""
+    rows = {f.filter: f for f in result.formulas}
+    assert set(rows) == set(audit.FORMULA_FILTERS)
+    for name, f in rows.items():
+        assert f.equal and f.derived == f.claim and f.difference == "0", name
+        assert not set(f.fit_sizes) & set(f.check_sizes), name
+        claim = formulas.claim(name)
+        variables = ("N", "n", "m") if name == "fir" else ("n", "m")
+        for sizes in f.check_sizes:
+            assert formulas.value(claim, **dict(zip(variables, sizes))) == \
+                audit.burden_formula.paper_count(name, sizes).flops, (name, sizes)
+        if name != "fir":
+            assert (12, 6) in f.check_sizes and max(f.check_sizes) == (12, 6)
+    for name in formulas.JOINS:
+        assert rows[name].derived_join == str(audit.burden_formula.Polynomial.from_expr(
+            formulas.join_claim(name), ("n", "m")))
 
 
 def test_paper_mode_code_counts_the_formula_in_every_row(result):

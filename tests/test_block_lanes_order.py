@@ -94,7 +94,7 @@ def test_an_optimised_assembly_takes_no_order_names():
 
 
 @needs_gcc
-@pytest.mark.parametrize("flags", ["strict", "native"])
+@pytest.mark.parametrize("flags", ["plain", "native"])
 def test_the_lf_vector_run_of_three_axes_is_bitwise_the_scalar_run(tmp_path, flags):
     vector, scalar = _pair(tmp_path, "mpt3d_a", "lf", FLAGS[flags])
     assert f"#define {c_vector.SWITCH} 1" in (

@@ -23,6 +23,7 @@ TABLE = {
     "gps_static": (LinearModel, 3, 3),
     "gnss_pseudorange": (NonlinearModel, 4, 4),
     "ins_gnss": (NonlinearModel, 16, 7),
+    "ins_fc24": (NonlinearModel, 24, 11),
 }
 
 

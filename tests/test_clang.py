@@ -167,7 +167,7 @@ def test_clangs_vector_runs_are_bitwise_its_scalar_runs_and_gccs(flags, gcc_lane
     assert own_fma or GCC is None or fused in gcc_lane_runs
 
 
-@pytest.mark.parametrize("flags", ["strict", "native"])
+@pytest.mark.parametrize("flags", ["plain", "native"])
 def test_clangs_run_tracks_gives_each_track_its_run_bitwise(flags):
     """run_tracks' lane loop (``clang loop vectorize(assume_safety)``: no lane depends on
     another) gives each track the bits of run on that track, the last tracks fewer than a

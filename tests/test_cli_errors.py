@@ -1,7 +1,9 @@
 """The command line never prints a traceback: each failure is one line on stderr with its
 exit status (see derive/cli.py), checked through a real ``python -m derive`` process."""
 
+import fcntl
 import os
+import select
 import shutil
 import signal
 import subprocess
@@ -141,18 +143,31 @@ def test_a_closed_pipe_ends_quietly():
     assert proc.returncode == 141
 
 
-def test_ctrl_c_is_one_line_and_status_130(tmp_path):
-    proc = subprocess.Popen([sys.executable, "-m", "derive", "generate", "--all", "--out",
-                             str(tmp_path)], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(ROOT)})
+def test_ctrl_c_is_one_line_and_status_130():
+    """Interrupt a run that cannot finish first: ``derive show ins_gnss`` writes 32 KB to a
+    stdout pipe shrunk to one page that nothing reads, more than the pipe and Python's
+    8 KB buffer hold. Once the pipe has data derive is running its command and cannot end
+    until the pipe is read; only then is SIGINT sent."""
+    read, write = os.pipe()
+    fcntl.fcntl(write, fcntl.F_SETPIPE_SZ, 4096)
+    proc = subprocess.Popen([sys.executable, "-m", "derive", "show", "ins_gnss"], cwd=ROOT,
+                            stdout=write, stderr=subprocess.PIPE,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    os.close(write)
     try:
-        assert proc.stdout.readline()       # the first model is written: mid-run now
+        readable, _, _ = select.select([read], [], [], 120)   # a hang guard
+        assert readable and proc.poll() is None
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
+        with os.fdopen(read, "rb") as out:   # drain: exit's flush must not block again
+            shown = out.read()
+        err = proc.stderr.read()
+        proc.wait(timeout=120)
     finally:
         proc.kill()
+        proc.stderr.close()
     assert proc.returncode == 130
     assert err.decode().splitlines() == ["derive: interrupted"]
+    assert b"ins_gnss" in shown
 
 
 INTERNAL = textwrap.dedent("""

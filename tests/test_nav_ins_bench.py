@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from derive import catalog
 from derive.apps.bench.navigation import (
     BATCH_FORM,
     FUNCTIONS,
@@ -46,7 +47,7 @@ def _evaluate(sf, function, values):
 
 def test_symforce_functions_compute_the_reference_numbers():
     sf = pytest.importorskip("symforce.symbolic")
-    functions = symforce_ekf._functions(sf)
+    functions = symforce_ekf.model_functions(sf, catalog.load("ins_gnss"))
     x, P, u, z = _point()
     column = x.reshape(-1, 1)
     upper = np.triu(P)  # the functions read the upper triangle only

@@ -20,7 +20,7 @@ from derive import LinearModel, catalog
 from derive.apps.bench.compile_size import dense_model
 from derive.apps.bench.run import Settings, _columns
 from derive.apps.bench.schedule_scaling import dense_rows, schedule_table
-from derive.arrivals import Arrivals, operation_latency
+from derive.arrivals import Arrivals, Form, operation_latency
 from derive.filters import derive_unit
 from derive.flops import count
 from derive.lowering import LoweredAssign, lower_program
@@ -213,20 +213,28 @@ def test_the_bound_of_a_direct_sum_is_never_above_its_arrival():
     assert checked > 100
 
 
-def test_a_trial_of_an_arrival_bounds_every_later_arrival_and_is_never_accepted():
-    """Arrivals.trial_arrival: the score with a statement's arrival lowered is at most
-    the score of any rewrite of it arriving no sooner; accepting it is refused."""
+def test_lowers_score_is_the_score_of_the_step_with_that_arrival():
+    """Arrivals.lowers_score(name, value): exactly whether the whole step scored again, with
+    that statement arriving at ``value``, scores lower (it stops at the first carried
+    output that moves)."""
     program = derive_unit(catalog.load("mpt3d_a"), "kf", {}).programs["step"].optimize()
     work = _Work(program, [("x", "x_new"), ("P", "P_new")])
-    state = work.arrivals(list(program.body))
-    for st in program.body:
-        if isinstance(st, Assign):
-            name = st.target.name
-            now = state.ready[name]
-            assert state.trial_arrival(name, now).score() == state.score()
-            assert state.trial_arrival(name, now - 4).score() <= state.score()
-    with pytest.raises(ValueError, match="never accepted"):
-        state.accept(state.trial_arrival(name, 0.0))
+    body = list(program.body)
+    state = work.arrivals(body)
+    seen = set()
+    for st in body:
+        if not isinstance(st, Assign):
+            continue
+        name = st.target.name
+        now = state.ready[name]
+        for value in (now, now - 4, now - 8, 0.0, -math.inf):
+            def form_of(expr, st=st, value=value):
+                return Form(value, ()) if expr is st.expr else work.form(expr)
+            again = Arrivals(body, form_of, work._carried_leaf_names()).score()
+            lowers = state.lowers_score(name, value)
+            assert lowers == (again < state.score()), (name, value)
+            seen.add(lowers)
+    assert seen == {True, False}
 
 
 def test_the_bench_prints_the_search_on_dense_kfs():

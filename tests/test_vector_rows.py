@@ -30,12 +30,16 @@ from derive.flops import OpCounter, c_function_body, count, count_c_function, co
 from derive.generation import render_filter
 from derive.modelfile import loads_model
 from derive.pipeline import load_generated
+from derive.program import Port, Program
+from derive.row_program import RowBuilder
 
 VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
 AGREEMENT = 1e-12
 """The vector form against the scalar form (the same algebra, rounded in another order),
 relative to the largest entry: double, well-conditioned random models."""
 NATIVE = ("-O2", "-march=native")
+#: AVX without FMA: registers that hold four doubles (DERIVE_VECTOR is 1), fma plain
+AVX = ("-mavx",)
 
 
 def relative(got, expected) -> float:
@@ -116,7 +120,7 @@ def test_random_models_agree_with_the_scalar_form_and_the_reference(n, m, correl
         assert relative(Ps, ref.Ps) <= 1e-10
 
 
-@pytest.mark.parametrize("cflags", [(), NATIVE], ids=["plain", "native"])
+@pytest.mark.parametrize("cflags", [AVX, NATIVE], ids=["plain", "native"])
 def test_the_vector_branch_computes_its_scalar_lanes_bit_for_bit(cflags, tmp_path):
     """The same file built with DERIVE_VECTOR 1 and 0: identical bits, P_new exactly
     symmetric (the lower triangle written by transposition), on the catalog's INS/GNSS EKF
@@ -206,6 +210,25 @@ def test_counts_are_the_lanes_executed_and_the_c_text_lane_by_lane():
                f"DERIVE_FNMA): {static_c.summary()}" in files["ekf.c"]
         scalar = count_c_text(c_function_body(files["ekf.c"], function), vector=False)
         assert scalar.flops <= static_c.flops and scalar.instructions <= static_c.instructions
+
+
+@pytest.mark.parametrize("read_from, chunks", [(0, 2), (1, 1), (3, 1), (4, 1), (6, 0)])
+def test_a_row_read_from_inside_a_chunk_computes_that_chunk_as_scalars(read_from, chunks):
+    """RowBuilder.row(read_from=r), as a row of a symmetric result's upper triangle: the
+    chunk holding lane r, unless r is its first lane, is scalar statements (lanes before r
+    left out); the chunks after it stay chunks."""
+    inputs = [Port("P", (8, 8)), Port("c", (1,))]
+    shell = Program("t", inputs, [Port("y", (8,))])
+    prologue = Program("t", inputs, [Port("s", (1,))])
+    prologue.set_output("s", [prologue.element("c", 0) * 2])
+    prologue = prologue.optimize()
+    rows = RowBuilder(shell, prologue, 4)
+    base = [shell.stored_element("P", 0, j) for j in range(8)]
+    source = [shell.stored_element("P", 1, j) for j in range(8)]
+    y = rows.row(base, [(1, prologue.results["s"][0], source)], read_from=read_from)
+    program = rows.finish({"y": [y[j] if j >= read_from else sympy.S.Zero for j in range(8)]})
+    assert len(program.rows) == chunks
+    assert all(len(chunk.targets) == 4 for chunk in program.rows)
 
 
 def test_catalog_ins_gnss_declares_vector_rows():

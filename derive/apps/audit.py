@@ -4,30 +4,34 @@ For every implementation the papers compare (MPT3D models A and B, GSM2D models 
 and B, SSPRED's two models) one :class:`Row` sets side by side
 
 - the number the paper prints (data, cited; :data:`PRINTED`),
-- the papers' formula (:mod:`derive.apps.formulas`),
+- the papers' formula (:mod:`derive.apps.formulas`: their printed text, parsed),
 - the exact count of derive's paper-mode code (:mod:`derive.apps.paper`): the dense
   algorithm the formulas describe, generated and counted by :mod:`derive.flops`,
 - the exact count of derive's specialised code for the catalog model,
 
 and flags every printed number the formula does not reproduce, with the reason
-found by testing known explanations. The papers' speedups are recomputed from each
-column, and the FIR section gives the order N for several epsilons and the
-break-even output interval L against the SSKF. Nothing here is typed in but the
-printed values and their citations.
+found by testing known explanations. Each printed formula is itself audited
+(:class:`FormulaRow`): set beside the polynomial derived from paper-mode code by exact
+interpolation (:mod:`derive.apps.burden_formula`), with the terms where they differ. The
+papers' speedups are recomputed from each column, and the FIR section gives the order N
+for several epsilons and the break-even output interval L against the SSKF. Nothing here
+is typed in but the printed values and formulas and their citations.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import asdict, dataclass, field
 from functools import cache
 
 import numpy as np
+import sympy
 
 from .. import catalog, horizon, riccati
 from ..filters import derive_unit
 from ..flops import count
 from ..statements import Assign
-from . import formulas, paper
+from . import burden_formula, formulas
 
 #: Flops are counted on the Python lowering; the C lowering (with fma, 2 flops each)
 #: has the same flops by construction, which tests/test_burden.py checks.
@@ -95,10 +99,6 @@ SPEEDUPS = (
      GSM2D_TEXT),
 )
 
-_JOINS = {"jklf": (("kf", "lf"), formulas.jklf_join),
-          "jssklf": (("sskf", "sslf"), formulas.jssklf_join)}
-
-
 @dataclass(frozen=True)
 class Row:
     paper: str
@@ -158,11 +158,32 @@ class FirRow:
 
 
 @dataclass(frozen=True)
+class FormulaRow:
+    """A printed formula against the one derived from paper-mode code."""
+
+    filter: str
+    printed: str             # as the paper prints it (derive.apps.formulas.PRINTED)
+    citation: str
+    claim: str               # the printed formula as a polynomial
+    derived: str | None      # the polynomial the paper-mode counts obey (None: none fits)
+    equal: bool
+    verdict: str
+    difference: str | None   # claim - derived
+    first: dict | None       # the smallest sizes where they differ, and both values there
+    method: str
+    fit_sizes: tuple[tuple[int, ...], ...]
+    check_sizes: tuple[tuple[int, ...], ...]
+    join: str | None = None          # JKLF, JSSKLF: the join the papers add
+    derived_join: str | None = None  # derived(join) - derived(its two filters)
+
+
+@dataclass(frozen=True)
 class Audit:
     rows: tuple[Row, ...]
     speedups: tuple[Speedup, ...]
     fir: tuple[FirRow, ...]
     notes: tuple[str, ...] = field(default=())
+    formulas: tuple[FormulaRow, ...] = field(default=())
     lang: str = LANG
     fir_norm: str = FIR_NORM
 
@@ -182,34 +203,69 @@ def specialised_count(model: str, name: str, N: int | None = None):
     return count(derive_unit(_model(model), name, options).programs["step"], LANG)
 
 
-@cache
 def paper_count(name: str, n: int, m: int, N: int | None = None):
     """OpCount of ``step`` of derive's paper-mode ``name`` for sizes n, m (FIR order N)."""
-    return count(paper.step_program(name, n, m, N), LANG)
+    return burden_formula.paper_count(name, (n, m) if N is None else (N, n, m), LANG)
 
 
 def _formula(name: str, n: int, m: int, axes: int) -> int:
     return axes * formulas.burden(name, n, m)
 
 
-def explain(name: str, printed: int, n: int, m: int, axes: int) -> str:
-    """Why a printed number differs from the formula (known explanations are tested)."""
+def _parts(name: str) -> list[tuple[str, str, object]]:
+    """The named parts of a printed formula, (what, as a term, its polynomial): a join's two
+    filters and its join term, or the whole formula."""
+    if name in formulas.JOINS:
+        (a, b), join = formulas.JOINS[name]
+        return [(a.upper(), a.upper(), formulas.claim(a)),
+                (b.upper(), b.upper(), formulas.claim(b)),
+                (f"the join term {join}", f"({join})", formulas.join_claim(name))]
+    return [(name.upper(), name.upper(), formulas.claim(name))]
+
+
+def _as_formulas(name: str, once: tuple[int, ...], quick: bool) -> str:
+    """The explanation as polynomials in the number of axes k: the printed number's
+    formula (the parts ``once`` counted once) less the derived one, k times paper mode's."""
+    derived = derived_flops(name, quick).flops
+    if derived is None:
+        return ""
+    k = formulas.VARIABLES["k"]
+    parts = _parts(name)
+    implied = sum((expr if i in once else k * expr for i, (_, _, expr) in enumerate(parts)),
+                  sympy.S.Zero)
+    difference = sympy.factor(implied - k * derived.expr())
+    counted = " + ".join(term if i in once else f"k*{term}"
+                         for i, (_, term, _) in enumerate(parts))
+    return (f". As formulas in the axes k, the printed number is {counted}, derived from "
+            f"paper-mode code k*({derived}): they differ by {difference}")
+
+
+def explain(name: str, printed: int, n: int, m: int, axes: int, quick: bool = False) -> str:
+    """Why a printed number differs from the formula: which parts of the printed formula
+    (a join's KF, LF and join term; or the whole), counted for one axis instead of
+    ``axes``, give the printed number (each such explanation is tested); and the same as
+    polynomials against the derived formula (``quick``: derived_flops(name, quick))."""
     formula = _formula(name, n, m, axes)
-    if name in _JOINS and axes > 1:
-        (a, b), join = _JOINS[name]
-        parts = axes * (formulas.burden(a, n, m) + formulas.burden(b, n, m))
-        if printed == parts + join(n):
-            return (f"the join is counted for one axis, not {axes}: printed {printed} = "
-                    f"{axes}*({formulas.burden(a, n, m)} + {formulas.burden(b, n, m)}) + "
-                    f"{join(n)}, the formula gives {axes}*({formulas.burden(a, n, m)} + "
-                    f"{formulas.burden(b, n, m)} + {join(n)}) = {formula}")
-    if printed * axes == formula and axes > 1:
-        return f"printed {printed} is one axis of {axes}: the formula gives {formula}"
+    parts = [(label, formulas.value(expr, n=n, m=m)) for label, _, expr in _parts(name)]
+    whole = " + ".join(str(v) for _, v in parts)
+    for size in range(1, len(parts) + 1) if axes > 1 else ():
+        for once in itertools.combinations(range(len(parts)), size):
+            rest = [v for i, (_, v) in enumerate(parts) if i not in once]
+            single = sum(parts[i][1] for i in once)
+            if printed != axes * sum(rest) + single:
+                continue
+            if not rest:
+                return (f"printed {printed} is one axis of {axes}: the formula gives "
+                        f"{axes}*({whole}) = {formula}")
+            labels = " and ".join(parts[i][0] for i in once)
+            return (f"{labels} is counted for one axis, not {axes}: printed {printed} = "
+                    f"{axes}*({' + '.join(map(str, rest))}) + {single}; the formula gives "
+                    f"{axes}*({whole}) = {formula}" + _as_formulas(name, once, quick))
     return f"printed {printed} differs from the formula's {formula} by {printed - formula}; " \
            "no known explanation"
 
 
-def rows() -> list[Row]:
+def rows(quick: bool = False) -> list[Row]:
     out = []
     for s in SYSTEMS:
         model = _model(s.model)
@@ -221,7 +277,7 @@ def rows() -> list[Row]:
             formula = _formula(name, n, m, s.axes)
             flag = None
             if printed is not None and printed != formula:
-                flag = explain(name, printed, n, m, s.axes)
+                flag = explain(name, printed, n, m, s.axes, quick)
             out.append(Row(s.paper, s.label, s.model, s.axes, n, m, label, name, printed,
                            citation, formula, s.axes * paper_count(name, n, m).flops,
                            s.axes * specialised_count(s.model, name).flops, flag))
@@ -338,11 +394,56 @@ def notes(table: list[Row]) -> list[str]:
     return out
 
 
+#: The printed formulas audited, by derive's names.
+FORMULA_FILTERS = ("kf", "lf", "jklf", "sskf", "sslf", "jssklf", "pred", "fir")
+
+
 @cache
-def run_audit() -> Audit:
-    """The whole audit (cached: it derives every filter it counts)."""
-    table = rows()
-    return Audit(tuple(table), tuple(speedups(table)), tuple(fir_rows()), tuple(notes(table)))
+def derived_flops(name: str, quick: bool = False) -> burden_formula.DerivedFormula:
+    """The flops formula of paper-mode ``name``, derived (check sizes up to n = 12, m = 6;
+    ``quick``: n = 6, m = 3 only)."""
+    fam = burden_formula.family(name, "paper")
+    checks = (burden_formula.QUICK_CHECKS if quick else burden_formula.CHECKS)[fam.variables]
+    return burden_formula.derive_formula(fam, check=checks, series=("flops",))
+
+
+def formula_rows(quick: bool = False) -> list[FormulaRow]:
+    """Each printed formula, parsed as any audited formula is, against the one derived from
+    paper-mode code; a join's derived join is its formula less its two filters'."""
+    derived = {name: derived_flops(name, quick) for name in FORMULA_FILTERS}
+    out = []
+    for name in FORMULA_FILTERS:
+        fam = derived[name].family
+        check = burden_formula.FormulaCheck(
+            formulas.PRINTED[name],
+            burden_formula.Polynomial.from_expr(formulas.claim(name), fam.variables),
+            derived[name], "flops")
+        first = check.first
+        join = derived_join = None
+        if name in formulas.JOINS:
+            (a, b), join = formulas.JOINS[name]
+            parts = [derived[x].flops for x in (name, a, b)]
+            if None not in parts:
+                derived_join = str(parts[0] - parts[1] - parts[2])
+        out.append(FormulaRow(
+            name, formulas.PRINTED[name], formulas.CITATIONS[name], str(check.claim),
+            None if check.polynomial is None else str(check.polynomial), check.equal,
+            burden_formula.verdict(check),
+            None if check.difference is None else str(check.difference),
+            None if first is None else {"sizes": dict(zip(fam.variables, first[0])),
+                                        "formula": str(first[1]), "count": first[2]},
+            check.derived.method, check.derived.fit_sizes, check.derived.check_sizes,
+            join, derived_join))
+    return out
+
+
+@cache
+def run_audit(quick: bool = False) -> Audit:
+    """The whole audit (cached: it derives every filter it counts); ``quick``: the derived
+    formulas checked at n = 6, m = 3 only, rather than at sizes up to n = 12, m = 6."""
+    table = rows(quick)
+    return Audit(tuple(table), tuple(speedups(table)), tuple(fir_rows()), tuple(notes(table)),
+                 tuple(formula_rows(quick)))
 
 
 # -- output -----------------------------------------------------------------------------
@@ -398,5 +499,22 @@ def text(audit: Audit) -> str:
             for f in audit.fir]
     lines += _table(["paper", "system", "eps", "N", "||A^N||", "FIR formula", "SSKF formula",
                      "L", "FIR paper-mode", "FIR spec.", "SSKF spec.", "L spec."], body, 2)
+    lines += ["", "The printed formulas against the formulas derived from paper-mode code "
+                  "(flops per step):"]
+    for f in audit.formulas:
+        lines += [f"  {f.filter}: printed ({f.citation}): {f.printed}",
+                  f"    as a polynomial: {f.claim}",
+                  f"    derived:         {f.derived if f.derived is not None else 'none'}",
+                  f"    {f.verdict}"]
+        if f.join is not None:
+            lines.append(f"    join: printed {f.join}; derived ({f.filter} less its two "
+                         f"filters) {f.derived_join}")
+        if f.first is not None:
+            lines.append(f"    first differs at {f.first['sizes']}: formula {f.first['formula']}"
+                         f", count {f.first['count']}")
+        lines.append("    checked at " + " ".join(f"({', '.join(map(str, c))})"
+                                                  for c in f.check_sizes))
+    if audit.formulas:
+        lines.append(f"  method: {audit.formulas[0].method}")
     lines += ["", "Notes:"] + [f"  - {note}" for note in audit.notes]
     return "\n".join(lines) + "\n"

@@ -275,9 +275,18 @@ class SensorRun:
     Rs: dict
 
 
+def _unit(x: np.ndarray, groups: list[list[int]]) -> None:
+    """Each unit-norm group of the state x divided by its norm, in place."""
+    for rows in groups:
+        x[rows] /= np.linalg.norm(x[rows])
+
+
 def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> SensorRun:
     """The model's own process driven by inputs uniform in [-1, 1] (nonlinear: with noise
-    of covariance Qu on them) and process noise, measured by each sensor of ``groups``
+    of covariance Qu on them) and process noise, each group of states the model declares
+    unit-norm kept unit in the truth (a quaternion driven by delta angles of up to 1 rad a
+    step would otherwise grow without bound, f being first order), measured by each sensor
+    of ``groups``
     (derive.model.SensorGroup, rows of the model's stacked h or H) every
     :data:`SENSOR_PERIODS` steps, with noise of its R (a sensor whose R is given per call:
     a diagonal R per step, uniform in [0.5, 2], in ``Rs``). Needs every symbol to have a
@@ -305,10 +314,13 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
             w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
             noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
                                                   method="eigh") if n_u else 0.0)
+            groups_at = [[model.states.index(s) for s in g] for g in model.unit_norm]
+            _unit(truth[0], groups_at)
             for k in range(steps):
                 step_u = noisy[k, [model.inputs.index(u) for u in model.f_inputs]]
                 truth[k + 1] = (fns["f"](truth[k], step_u) if model.f_inputs
                                 else fns["f"](truth[k])) + w[k]
+                _unit(truth[k + 1], groups_at)
             h, R = fns["h"], fns["R"]
         v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
         stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v

@@ -5,7 +5,8 @@ NAME = "bench"
 ORDER = 95
 HELP = ("time the generated C and Python filters against the NumPy reference, FilterPy, "
         "pykalman and CasADi's generated C, and batch throughput against simdkalman")
-EXAMPLE = "derive bench\n  derive bench --json > bench.json\n  derive bench --quick"
+EXAMPLE = ("derive bench\n  derive bench --json > bench.json\n  derive bench --quick\n"
+           "  derive bench --only navigation")
 
 
 def add_arguments(parser) -> None:
@@ -23,6 +24,9 @@ def add_arguments(parser) -> None:
                         metavar="N", help="a dense random KF of N states (m = N/3) generated "
                         "and compiled: time, peak memory, .c size (repeatable; default 16 and "
                         "24; 0 leaves it out)")
+    parser.add_argument("--only", choices=("navigation",), default=None,
+                        help="run one section alone: navigation (the INS EKFs against "
+                             "CasADi, FilterPy and SymForce's C++, timed in four builds)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines (they are shown only when stderr is a "
                              "terminal)")
@@ -43,6 +47,8 @@ def run(args) -> int:
         settings = replace(settings, repeats=args.repeats, batch_repeats=args.repeats,
                            scale_repeats=args.repeats)
 
+    if args.only is not None:
+        settings = replace(settings, only=args.only)
     if args.scale_tracks is not None:
         if args.scale_tracks < 0:
             raise ModelError(f"--scale-tracks must be >= 0, got {args.scale_tracks}")

@@ -1,18 +1,106 @@
-"""`derive burden MODEL [--filter F] [--paper] [--json]`: exact operation counts by kind."""
+"""`derive burden MODEL [--filter F] [--paper] [--json]`: exact operation counts by kind;
+`derive burden [MODEL] --formula --filter F [--paper | --family dense|blocks]`: the polynomial
+in the sizes that the counts obey, derived by exact interpolation."""
 
 from . import add_filter_options
 
 NAME = "burden"
 ORDER = 50
 HELP = ("exact operation counts of the generated code, by kind, per filter and language "
-        "(--paper: also the papers' dense algorithm)")
-EXAMPLE = "derive burden mpt3d_a --filter kf\n  derive burden cv --paper --json"
+        "(--paper: also the papers' dense algorithm; --formula: the polynomial in n, m they "
+        "obey)")
+EXAMPLE = ("derive burden mpt3d_a --filter kf\n  derive burden cv --paper --json\n"
+           "  derive burden --formula --paper --filter kf\n"
+           "  derive burden mpt3d_b --formula --family blocks --filter kf")
 
 KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "calls")
 
 
+def add_fit_arguments(parser) -> None:
+    """The arguments of a derived formula (derive.apps.burden_formula), for burden and audit."""
+    parser.add_argument("--family", choices=("dense", "blocks"), default=None,
+                        help="with --formula and without --paper: derive's specialised code on "
+                             "dense random n x m models (default) or on k copies of MODEL "
+                             "(blocks)")
+    parser.add_argument("--degree", type=int, default=3, metavar="D",
+                        help="first bound on the total degree of the fit (default 3)")
+    parser.add_argument("--max-degree", type=int, default=5, metavar="D",
+                        help="highest bound tried while a check size disagrees (default 5, "
+                             "at most 6)")
+    parser.add_argument("--check", action="append", metavar="SIZES",
+                        help="repeatable: a size the fit must reproduce, not used to fit it, "
+                             "as comma-separated integers in the family's variables (n,m; "
+                             "N,n,m for the FIR; k for blocks); default: 5,5 6,3 12,6 (FIR: "
+                             "7,3,2 4,6,3 9,2,5; blocks: 8 11)")
+    parser.add_argument("--from", dest="minimum", type=int, default=1, metavar="S",
+                        help="fit on sizes >= S only (default 1)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the dense random models (default 0)")
+
+
+def check_sizes(args):
+    """``--check`` as tuples of ints (None: the family's default)."""
+    from ..errors import ModelError
+
+    if not args.check:
+        return None
+    out = []
+    for text in args.check:
+        try:
+            out.append(tuple(int(part) for part in text.split(",")))
+        except ValueError:
+            raise ModelError(f"--check {text!r}: expected comma-separated integers, e.g. "
+                             "12,6") from None
+    return out
+
+
+def formula_family(args, name: str, model):
+    """The family --formula derives for filter ``name``: paper mode, dense models, or
+    copies of ``model`` (the filter options of the call for derive's specialised code)."""
+    from ..apps import burden_formula
+    from ..errors import ModelError
+    from ..options import from_arguments, per_filter
+
+    family = "paper" if args.paper else (args.family or "dense")
+    if args.paper and args.family:
+        raise ModelError("--paper is a family of its own: give --paper or --family, not both")
+    if family == "blocks" and model is None:
+        raise ModelError("--family blocks needs MODEL: the block it copies k times")
+    if family != "blocks" and model is not None:
+        raise ModelError(f"the {family} family takes no MODEL (its sizes are the variables); "
+                         "MODEL is the block of --family blocks")
+    options = from_arguments(args)
+    if family == "paper" and options:
+        raise ModelError("paper mode takes no filter options (its algorithm is the papers'); "
+                         f"got {', '.join(sorted(options))}")
+    if family == "dense" and name == "fir" and {"order", "eps"} & set(options):
+        raise ModelError("the FIR's order N is a variable of its dense family: give no "
+                         "--order or --eps")
+    per_filter([name], options, named=True)  # refuses an option the filter does not take
+    return burden_formula.family(name, family, model, options, args.seed)
+
+
+def refuse_fit_arguments(args, applies: str) -> None:
+    """A fit's arguments given without --formula: refused, not ignored."""
+    from ..errors import ModelError
+
+    given = [flag for flag, on in (
+        ("--family", args.family is not None), ("--degree", args.degree != 3),
+        ("--max-degree", args.max_degree != 5), ("--check", bool(args.check)),
+        ("--from", args.minimum != 1), ("--seed", args.seed != 0)) if on]
+    if given:
+        raise ModelError(f"{given[0]} applies to {applies} only")
+
+
+def derive_args(args) -> dict:
+    return {"degree": args.degree, "max_degree": args.max_degree,
+            "check": check_sizes(args), "minimum": args.minimum}
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("model", help="catalog name or model-file path")
+    parser.add_argument("model", nargs="?", default=None,
+                        help="catalog name or model-file path (with --formula: the block of "
+                             "--family blocks)")
     parser.add_argument("--filter", action="append", dest="filters", metavar="F",
                         help="repeatable; default: every filter that applies")
     parser.add_argument("--paper", action="store_true",
@@ -22,6 +110,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--measure", action="store_true",
                         help="chains in ns with operation latencies measured here (needs gcc) "
                              "instead of the reference cycle counts")
+    parser.add_argument("--formula", action="store_true",
+                        help="derive the polynomial the step's counts obey, by kind and in "
+                             "flops, by exact interpolation over sizes (needs --filter)")
+    add_fit_arguments(parser)
     add_filter_options(parser)
 
 
@@ -146,12 +238,42 @@ def _text(model, rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def run_formula(args) -> int:
+    import json
+
+    from ..apps import burden_formula
+    from ..errors import ModelError
+    from . import load_model
+
+    if not args.filters:
+        raise ModelError("--formula needs --filter F (repeatable): the filter whose formula "
+                         "is derived")
+    if args.measure:
+        raise ModelError("--measure applies to the chains of derive burden MODEL, not to "
+                         "--formula")
+    model = load_model(args.model) if args.model is not None else None
+    derived = [burden_formula.derive_formula(formula_family(args, name, model),
+                                             **derive_args(args)) for name in args.filters]
+    if args.json:
+        print(json.dumps([burden_formula.derived_json(d) for d in derived], indent=2))
+    else:
+        print("\n\n".join("\n".join(burden_formula.formula_lines(d)) for d in derived))
+    return 0
+
+
 def run(args) -> int:
     import json
 
+    from ..errors import ModelError
     from ..options import from_arguments
     from . import load_model
 
+    if args.formula:
+        return run_formula(args)
+    refuse_fit_arguments(args, "--formula")
+    if args.model is None:
+        raise ModelError("derive burden needs MODEL (a catalog name or model-file path), or "
+                         "--formula")
     model = load_model(args.model)
     derived = units(model, args.filters, from_arguments(args))
     rows = burden_rows(model, derived, args.paper)

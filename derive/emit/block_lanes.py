@@ -19,11 +19,11 @@ fma where the target has one), so the results are bitwise those of the scalar ru
 failed check sets the status of the first failing check in the scalar step's order.
 Lanes beyond k (the vector's width is a power of two) repeat lane 0's values.
 
-The vector run is compiled where ``DERIVE_VECTOR`` is 1 (GCC and Clang on a target with
-vectors of doubles, unless the build sets it to 0), in the file's one vector dialect
-(derive.emit.c_vector: its switch, its vector type ``derive_vd`` of the run's width, its
-``DERIVE_VFMA``); otherwise the scalar C99 run. A step that has vector rows of its own
-(derive.rows) is not also carried in lanes.
+The vector run is compiled where ``DERIVE_VECTOR`` is 1 (GCC and Clang on a target whose
+vector registers hold the vector, AVX for four doubles, unless the build sets it to 0),
+in the file's one vector dialect (derive.emit.c_vector: its switch, its vector type
+``derive_vd`` of the run's width, its ``DERIVE_VFMA``); otherwise the scalar C99 run. A
+step that has vector rows of its own (derive.rows) is not also carried in lanes.
 Counts are unchanged: the header counts the scalar operations of every block.
 
 The runs it serves (:data:`RUN_KINDS`): the time-varying filters, the steady-state ones
@@ -620,8 +620,10 @@ def pair_lines(width: int) -> list[str]:
 def header_line(lanes: Lanes) -> str:
     """The header's statement of how the vector run issues the counted operations."""
     width = vector_width(lanes.lanes)
+    target = {2: "SSE2", 4: "AVX", 8: "AVX-512"}[width]
     return (f"run: the {lanes.lanes} identical blocks of the step in the lanes of one vector "
-            f"of {width} doubles where {SWITCH} is 1 (GCC, Clang on x86-64, AArch64; "
+            f"of {width} doubles where {SWITCH} is 1 (GCC, Clang where a vector register "
+            f"holds them: x86-64 with {target}; "
             f"a build setting it to 0 runs the scalar C99 loop): each lane executes "
             "its block's operations of the counts above in the same order, one block's "
             "count of vector instructions issuing them each step; bitwise the scalar run's "

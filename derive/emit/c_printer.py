@@ -262,4 +262,9 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
               for name, leaves in lowered.results for k, leaf in enumerate(leaves)]
     if vectors is None:
         return body + scalar
-    return body + vectors.store_lines(place) + [ELSE] + scalar + [CLOSE]
+    # a scalar statement only chunks' vectors read (their lanes, in the scalar form, are
+    # left out where nothing reads them) is unused in the scalar form
+    only_vector = [f"(void){st.target};" for st in lowered.body
+                   if isinstance(st, LoweredAssign) and st.target not in vectors.order
+                   and st.target not in vectors.scalar_live]
+    return body + vectors.store_lines(place) + [ELSE] + only_vector + scalar + [CLOSE]

@@ -14,19 +14,20 @@ A chunk is printed twice, chosen by the preprocessor::
     #endif
 
 ``DERIVE_VECTOR`` is 1 under GCC and Clang (their vector extension, ``vector_size``) on a
-target with vector registers for the precision (x86 SSE2 or AArch64 for double; SSE or
-NEON for float), 0 elsewhere (a Cortex-M gets the scalar lanes, which leave out the lanes
-nothing reads), and a build may set it. It is the one switch of C's one vector dialect
-(:func:`vector_macro_lines`): the block lanes of a run (derive.emit.block_lanes) use the
-same switch, vector type and fused multiply-adds, and the track lanes' vectorisation hint
-(derive.emit.c_loops) follows the switch. An operand whose lanes are the lanes of an earlier
-chunk, in order, is that chunk's vector; any other one is built from its lanes (a
-compound literal: consecutive elements of an input are one load, a coefficient is a
-broadcast, lanes of other chunks are shuffles: the compiler's choice). The vector fused
-multiply-adds round as the scalar ones do, lane by lane (:func:`vector_macro_lines`), so
-the vector branch computes bitwise what the scalar branch computes, and the counts of
-the header, which are the scalar lanes', are the vector branch's, lane by lane
-(:func:`derive.flops.count_c_text` counts a vector statement once per lane).
+target whose vector registers hold the vector (four doubles: x86 AVX; four floats: SSE or
+NEON), 0 elsewhere (a Cortex-M, or x86-64 at its SSE2 baseline for doubles, gets the
+scalar lanes, which leave out the lanes nothing reads), and a build may set it. It is the
+one switch of C's one vector dialect (:func:`vector_macro_lines`): the block lanes of a
+run (derive.emit.block_lanes) use the same switch, vector type and fused multiply-adds,
+and the track lanes' vectorisation hint (derive.emit.c_loops) follows the switch. An
+operand whose lanes are the lanes of an earlier chunk, in order, is that chunk's vector;
+any other one is built from its lanes (a compound literal: consecutive elements of an
+input are one load, a coefficient is a broadcast, lanes of other chunks are shuffles: the
+compiler's choice). The vector fused multiply-adds round as the scalar ones do, lane by
+lane (:func:`vector_macro_lines`), so the vector branch computes bitwise what the scalar
+branch computes, and the counts of the header, which are the scalar lanes', are the
+vector branch's, lane by lane (:func:`derive.flops.count_c_text` counts a vector
+statement once per lane).
 """
 
 from __future__ import annotations
@@ -56,10 +57,19 @@ _X86_FMA = {("double", 2): ("_mm_fmadd_pd", "__FMA__"),
             ("float", 4): ("_mm_fmadd_ps", "__FMA__"),
             ("float", 8): ("_mm256_fmadd_ps", "__FMA__"),
             ("float", 16): ("_mm512_fmadd_ps", "__AVX512F__")}
-#: The targets with vector registers of each precision (elsewhere, 32-bit Arm without NEON
-#: and Cortex-M, GCC would split the vectors into scalar code).
-_TARGETS = {"double": "defined(__SSE2__) || defined(__aarch64__)",
-            "float": "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)"}
+#: The targets whose vector registers hold a vector of so many bytes, by the precision of
+#: its elements: x86's SSE (SSE2 for doubles), AVX and AVX-512; 16 bytes on AArch64 and
+#: on 32-bit Arm with NEON (floats). Elsewhere (a Cortex-M, or a vector wider than the
+#: registers) GCC would split each vector operation into narrower ones and the vectors'
+#: registers would not fit: at -O2 on x86-64 without AVX (SSE2, two doubles a register),
+#: a vector of four doubles measured slower than the scalar lanes, the INS/GNSS EKF's
+#: predict 780 ns against 432 ns, mpt3d_a's KF run 18.4 ns against 12.4 ns a step, its SSKF
+#: 13.2 against 3.5 ns; with -mavx 136 against 409, 11.1 against 11.8 and 2.0 against
+#: 2.4 ns (Intel Xeon, docs/performance.md).
+_TARGETS = {("double", 16): "defined(__SSE2__) || defined(__aarch64__)",
+            ("float", 16): "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)",
+            ("double", 32): "defined(__AVX__)", ("float", 32): "defined(__AVX__)",
+            ("double", 64): "defined(__AVX512F__)", ("float", 64): "defined(__AVX512F__)"}
 
 
 def vector_type(precision: Precision = DOUBLE) -> str:
@@ -68,10 +78,15 @@ def vector_type(precision: Precision = DOUBLE) -> str:
     return VECTOR_TYPES[precision.name]
 
 
-def switch_lines(precision: Precision = DOUBLE) -> list[str]:
-    """The definition of :data:`SWITCH` unless the build gave it."""
+def switch_lines(precision: Precision = DOUBLE, lanes: int = VECTOR_LANES) -> list[str]:
+    """The definition of :data:`SWITCH` unless the build gave it: 1 where a vector register
+    of the target holds the file's vector of ``lanes`` elements of ``precision``."""
+    size = precision.bits // 8 * lanes
+    targets = _TARGETS.get((precision.name, size))
+    if targets is None:
+        raise ValueError(f"no target holds a vector of {lanes} elements of {precision.name}")
     return [f"#ifndef {SWITCH}",
-            f"#if (defined(__GNUC__) || defined(__clang__)) && ({_TARGETS[precision.name]})",
+            f"#if (defined(__GNUC__) || defined(__clang__)) && ({targets})",
             f"#define {SWITCH} 1",
             "#else",
             f"#define {SWITCH} 0",
@@ -102,7 +117,7 @@ def vector_macro_lines(precision: Precision = DOUBLE, lanes: int = VECTOR_LANES,
     def each(scalar: str) -> str:
         return ", ".join(f"{scalar}((a)[{k}], (b)[{k}], (c)[{k}])" for k in range(lanes))
 
-    types = switch_lines(precision) + [
+    types = switch_lines(precision, lanes) + [
         f"#if {SWITCH}",
         f"__extension__ typedef {precision.c_type} {vtype} "
         f"__attribute__((vector_size({element * lanes})));",

@@ -15,7 +15,9 @@ consecutive in memory, so a chunk of it is one load):
 
 Each row is computed in chunks of :data:`~derive.rows.VECTOR_LANES` lanes, and only the
 chunks whose lanes the result reads are kept (derive.row_program): lanes of a kept chunk
-that nothing reads are computed and counted all the same.
+that nothing reads are computed and counted all the same, except that a row of the upper
+triangle computes the lanes of a chunk it reads only from its diagonal on (rows 1 to 3 of
+each 4 x 4 diagonal block) as scalar statements.
 """
 
 from __future__ import annotations
@@ -92,7 +94,7 @@ def vector_predict(parts, model, inputs: list[Port], outputs: list[Port], doc: s
             continue
         terms = [(k, Fa[r][k]) for k in range(n) if Fa[r][k] != 0]
         base = Qa[r] if any(e != 0 for e in Qa[r]) else None
-        B[r] = rows.row(base, [(*_signed(c), a_column(k)) for k, c in terms])
+        B[r] = rows.row(base, [(*_signed(c), a_column(k)) for k, c in terms], read_from=r)
     new = [[sympy.S.Zero] * n for _ in range(n)]
     for r in range(n):
         for c in range(r, n):
@@ -184,8 +186,8 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
     gains = [rows.row(None, [(1, negated[i], columns[i])]) for i in range(m)]
     x_prior = list(x)
     x_new = rows.row(x_prior, [(-1, weights[i], columns[i]) for i in range(m)])
-    P_rows = [rows.row(p_row(a), [(1, gains[i][a], columns[i]) for i in range(m)])
-              for a in range(n)]
+    P_rows = [rows.row(p_row(a), [(1, gains[i][a], columns[i]) for i in range(m)],
+                       read_from=a) for a in range(n)]
     P_new = [[P_rows[min(a, b)][max(a, b)] for b in range(n)] for a in range(n)]
     extra = {}
     if meas.gate is not None:

@@ -26,7 +26,7 @@
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 3, div 6, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang on x86-64, AArch64; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_ikf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_ikf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <math.h>
@@ -100,7 +100,7 @@
 #endif
 #endif
 #ifndef DERIVE_VECTOR
-#if (defined(__GNUC__) || defined(__clang__)) && (defined(__SSE2__) || defined(__aarch64__))
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
 #define DERIVE_VECTOR 1
 #else
 #define DERIVE_VECTOR 0

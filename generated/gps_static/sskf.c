@@ -19,7 +19,7 @@
  * B = [[0.2701562118716424, 0.                , 0.                ], [0.                , 0.2701562118716424, 0.                ], [0.                , 0.                , 0.2701562118716424]]
  * run: two steps per pass; x(k+1) by the step's own statements, x(k+2) from x(k) by the two-step map (A^2, A B, B: exact products rounded once), so only x(k+2) is carried from pass to pass
  * operations per pass of run, two steps (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 6, div 0, sqrt 0, fma 9, neg 0, cmp 0, calls 0 (flops 24, instructions 15)
- * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang on x86-64, AArch64; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
+ * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
  * derive-interface: {"functions":[["gps_static_sskf_step","step",false,false,[["x",[3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false]]],["gps_static_sskf_run","run",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]],["gps_static_sskf_run_tracks","run_tracks",false,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["xs",["steps",3],true,false,false]]]],"statuses":[]}
  */
 #include <math.h>
@@ -93,7 +93,7 @@
 #endif
 #endif
 #ifndef DERIVE_VECTOR
-#if (defined(__GNUC__) || defined(__clang__)) && (defined(__SSE2__) || defined(__aarch64__))
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
 #define DERIVE_VECTOR 1
 #else
 #define DERIVE_VECTOR 0

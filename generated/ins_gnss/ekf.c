@@ -27,8 +27,8 @@
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 1, calls 0 (flops 2574, instructions 1443)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1349, neg 0, cmp 6, calls 0 (flops 2840, instructions 1497)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 85, sub 13, mul 143, div 0, sqrt 0, fma 1098, neg 21, cmp 1, calls 0 (flops 2437, instructions 1361)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1205, neg 0, cmp 6, calls 0 (flops 2552, instructions 1353)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
@@ -63,7 +63,7 @@
 #endif
 #endif
 #ifndef DERIVE_VECTOR
-#if (defined(__GNUC__) || defined(__clang__)) && (defined(__SSE2__) || defined(__aarch64__))
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__AVX__))
 #define DERIVE_VECTOR 1
 #else
 #define DERIVE_VECTOR 0
@@ -459,9 +459,6 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const derive_vd v_t192_5 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){P[228], P[229], P[230], P[231]}), v_t192_4);
     const derive_vd v_t192 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t192_5);
     const double t192 = v_t192[0];
-    const double t193 = v_t192[1];
-    const double t194 = v_t192[2];
-    const double t195 = v_t192[3];
     #else
     const double t192 = DERIVE_FMA(t137, P[244], DERIVE_FMA(t75, P[228], DERIVE_FMA(t74, P[212], DERIVE_FMA(t73, P[52], DERIVE_FMA(t72, P[36], DERIVE_FMA(t71, P[20], DERIVE_FMA(t70, P[4], P[68])))))));
     #endif
@@ -525,8 +522,6 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const derive_vd v_t208 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){P[244], P[245], P[246], P[247]}), v_t208_5);
     const double t208 = v_t208[0];
     const double t209 = v_t208[1];
-    const double t210 = v_t208[2];
-    const double t211 = v_t208[3];
     #else
     const double t208 = DERIVE_FMA(t85, P[244], DERIVE_FMA(t84, P[228], DERIVE_FMA(t138, P[212], DERIVE_FMA(t82, P[52], DERIVE_FMA(t81, P[36], DERIVE_FMA(t80, P[20], DERIVE_FMA(t79, P[4], P[84])))))));
     const double t209 = DERIVE_FMA(t85, P[245], DERIVE_FMA(t84, P[229], DERIVE_FMA(t138, P[213], DERIVE_FMA(t82, P[53], DERIVE_FMA(t81, P[37], DERIVE_FMA(t80, P[21], DERIVE_FMA(t79, P[5], P[85])))))));
@@ -592,7 +587,6 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t224 = v_t224[0];
     const double t225 = v_t224[1];
     const double t226 = v_t224[2];
-    const double t227 = v_t224[3];
     #else
     const double t224 = DERIVE_FMA(t94, P[244], DERIVE_FMA(t139, P[228], DERIVE_FMA(t92, P[212], DERIVE_FMA(t91, P[52], DERIVE_FMA(t90, P[36], DERIVE_FMA(t89, P[20], DERIVE_FMA(t88, P[4], P[100])))))));
     const double t225 = DERIVE_FMA(t94, P[245], DERIVE_FMA(t139, P[229], DERIVE_FMA(t92, P[213], DERIVE_FMA(t91, P[53], DERIVE_FMA(t90, P[37], DERIVE_FMA(t89, P[21], DERIVE_FMA(t88, P[5], P[101])))))));
@@ -719,7 +713,6 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #if DERIVE_VECTOR
     const derive_vd v_t260 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[88], P[89], P[90], P[91]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
     const double t260 = v_t260[0];
-    const double t261 = v_t260[1];
     const double t262 = v_t260[2];
     const double t263 = v_t260[3];
     #else
@@ -797,6 +790,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const derive_vd v_t284_4 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t146, t158, t170, t182}), v_t284_3);
     const derive_vd v_t284_5 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t147, t159, t171, t183}), v_t284_4);
     const derive_vd v_t284 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t148, t160, t172, t184}), v_t284_5);
+    const double t285 = v_t284[1];
+    const double t286 = v_t284[2];
+    const double t287 = v_t284[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t284;
     #else
     const double t284 = DERIVE_FMA(t39, t148, DERIVE_FMA(t38, t147, DERIVE_FMA(t37, t146, DERIVE_FMA(t36, t143, DERIVE_FMA(t35, t142, DERIVE_FMA(t34, t141, t116 + t140))))));
     const double t285 = DERIVE_FMA(t39, t160, DERIVE_FMA(t38, t159, DERIVE_FMA(t37, t158, DERIVE_FMA(t36, t155, DERIVE_FMA(t35, t154, DERIVE_FMA(t34, t153, t118 + t152))))));
@@ -830,301 +827,219 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t292 = DERIVE_FMA(t39, t264, DERIVE_FMA(t38, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t36, t255, DERIVE_FMA(t35, t254, DERIVE_FMA(t34, t253, t252))))));
     const double t293 = DERIVE_FMA(t39, t280, DERIVE_FMA(t38, t279, DERIVE_FMA(t37, t278, DERIVE_FMA(t36, t271, DERIVE_FMA(t35, t270, DERIVE_FMA(t34, t269, t268))))));
     #endif
+    const double t296 = DERIVE_FMA(t160, t41, DERIVE_FMA(t159, t39, DERIVE_FMA(t158, t44, DERIVE_FMA(t155, t35, DERIVE_FMA(t154, t3, DERIVE_FMA(t1, t152, t123 + t153))))));
+    const double t297 = DERIVE_FMA(t172, t41, DERIVE_FMA(t171, t39, DERIVE_FMA(t170, t44, DERIVE_FMA(t167, t35, DERIVE_FMA(t166, t3, DERIVE_FMA(t1, t164, t124 + t165))))));
+    const double t298 = DERIVE_FMA(t184, t41, DERIVE_FMA(t183, t39, DERIVE_FMA(t182, t44, DERIVE_FMA(t179, t35, DERIVE_FMA(t178, t3, DERIVE_FMA(t1, t176, t125 + t177))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t296_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t118, t123, t124, t125}));
-    const derive_vd v_t296_1 = (v_t296_0 + ((derive_vd){t141, t153, t165, t177}));
-    const derive_vd v_t296_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t142, t154, t166, t178}), v_t296_1);
-    const derive_vd v_t296_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t143, t155, t167, t179}), v_t296_2);
-    const derive_vd v_t296_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t146, t158, t170, t182}), v_t296_3);
-    const derive_vd v_t296_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t147, t159, t171, t183}), v_t296_4);
-    const derive_vd v_t296 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t148, t160, t172, t184}), v_t296_5);
+    const derive_vd v_t299_0 = (((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t188, t204, t220, t236}));
+    const derive_vd v_t299_1 = (v_t299_0 + ((derive_vd){t189, t205, t221, t237}));
+    const derive_vd v_t299_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t190, t206, t222, t238}), v_t299_1);
+    const derive_vd v_t299_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t191, t207, t223, t239}), v_t299_2);
+    const derive_vd v_t299_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t198, t214, t230, t246}), v_t299_3);
+    const derive_vd v_t299_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t199, t215, t231, t247}), v_t299_4);
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t200, t216, t232, t248}), v_t299_5);
     #else
-    const double t297 = DERIVE_FMA(t41, t160, DERIVE_FMA(t39, t159, DERIVE_FMA(t44, t158, DERIVE_FMA(t35, t155, DERIVE_FMA(t3, t154, DERIVE_FMA(t1, t152, t123) + t153)))));
-    const double t298 = DERIVE_FMA(t41, t172, DERIVE_FMA(t39, t171, DERIVE_FMA(t44, t170, DERIVE_FMA(t35, t167, DERIVE_FMA(t3, t166, DERIVE_FMA(t1, t164, t124) + t165)))));
-    const double t299 = DERIVE_FMA(t41, t184, DERIVE_FMA(t39, t183, DERIVE_FMA(t44, t182, DERIVE_FMA(t35, t179, DERIVE_FMA(t3, t178, DERIVE_FMA(t1, t176, t125) + t177)))));
+    const double t299 = DERIVE_FMA(t41, t200, DERIVE_FMA(t39, t199, DERIVE_FMA(t44, t198, DERIVE_FMA(t35, t191, DERIVE_FMA(t3, t190, t1*t188 + t189)))));
+    const double t300 = DERIVE_FMA(t41, t216, DERIVE_FMA(t39, t215, DERIVE_FMA(t44, t214, DERIVE_FMA(t35, t207, DERIVE_FMA(t3, t206, t1*t204 + t205)))));
+    const double t301 = DERIVE_FMA(t41, t232, DERIVE_FMA(t39, t231, DERIVE_FMA(t44, t230, DERIVE_FMA(t35, t223, DERIVE_FMA(t3, t222, t1*t220 + t221)))));
+    const double t302 = DERIVE_FMA(t41, t248, DERIVE_FMA(t39, t247, DERIVE_FMA(t44, t246, DERIVE_FMA(t35, t239, DERIVE_FMA(t3, t238, t1*t236 + t237)))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t300_0 = (((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t188, t204, t220, t236}));
-    const derive_vd v_t300_1 = (v_t300_0 + ((derive_vd){t189, t205, t221, t237}));
-    const derive_vd v_t300_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t190, t206, t222, t238}), v_t300_1);
-    const derive_vd v_t300_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t191, t207, t223, t239}), v_t300_2);
-    const derive_vd v_t300_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t198, t214, t230, t246}), v_t300_3);
-    const derive_vd v_t300_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t199, t215, t231, t247}), v_t300_4);
-    const derive_vd v_t300 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t200, t216, t232, t248}), v_t300_5);
+    const derive_vd v_t303_0 = (((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t303_1 = (v_t303_0 + ((derive_vd){t253, t269, P[26], P[27]}));
+    const derive_vd v_t303_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t254, t270, P[42], P[43]}), v_t303_1);
+    const derive_vd v_t303_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t255, t271, P[58], P[59]}), v_t303_2);
+    const derive_vd v_t303_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t262, t278, P[170], P[171]}), v_t303_3);
+    const derive_vd v_t303_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t263, t279, P[186], P[187]}), v_t303_4);
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t264, t280, P[202], P[203]}), v_t303_5);
+    const double t303 = v_t303[0];
+    const double t304 = v_t303[1];
+    *(derive_vd_unaligned *)&P_new[24] = ((derive_vd){t303, t304, t158, t159});
     #else
-    const double t300 = DERIVE_FMA(t41, t200, DERIVE_FMA(t39, t199, DERIVE_FMA(t44, t198, DERIVE_FMA(t35, t191, DERIVE_FMA(t3, t190, t1*t188 + t189)))));
-    const double t301 = DERIVE_FMA(t41, t216, DERIVE_FMA(t39, t215, DERIVE_FMA(t44, t214, DERIVE_FMA(t35, t207, DERIVE_FMA(t3, t206, t1*t204 + t205)))));
-    const double t302 = DERIVE_FMA(t41, t232, DERIVE_FMA(t39, t231, DERIVE_FMA(t44, t230, DERIVE_FMA(t35, t223, DERIVE_FMA(t3, t222, t1*t220 + t221)))));
-    const double t303 = DERIVE_FMA(t41, t248, DERIVE_FMA(t39, t247, DERIVE_FMA(t44, t246, DERIVE_FMA(t35, t239, DERIVE_FMA(t3, t238, t1*t236 + t237)))));
+    const double t303 = DERIVE_FMA(t41, t264, DERIVE_FMA(t39, t263, DERIVE_FMA(t44, t262, DERIVE_FMA(t35, t255, DERIVE_FMA(t3, t254, t1*t252 + t253)))));
+    const double t304 = DERIVE_FMA(t41, t280, DERIVE_FMA(t39, t279, DERIVE_FMA(t44, t278, DERIVE_FMA(t35, t271, DERIVE_FMA(t3, t270, t1*t268 + t269)))));
+    #endif
+    const double t307 = DERIVE_FMA(t172, t37, DERIVE_FMA(t171, t44, DERIVE_FMA(t170, t42, DERIVE_FMA(t165, t36, DERIVE_FMA(t164, t2, DERIVE_FMA(t1, t167, t126 + t166))))));
+    const double t308 = DERIVE_FMA(t184, t37, DERIVE_FMA(t183, t44, DERIVE_FMA(t182, t42, DERIVE_FMA(t177, t36, DERIVE_FMA(t176, t2, DERIVE_FMA(t1, t179, t127 + t178))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t309_0 = (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t188, t204, t220, t236}));
+    const derive_vd v_t309_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t189, t205, t221, t237}), v_t309_0);
+    const derive_vd v_t309_2 = (v_t309_1 + ((derive_vd){t190, t206, t222, t238}));
+    const derive_vd v_t309_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t191, t207, t223, t239}), v_t309_2);
+    const derive_vd v_t309_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t198, t214, t230, t246}), v_t309_3);
+    const derive_vd v_t309_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t199, t215, t231, t247}), v_t309_4);
+    const derive_vd v_t309 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t200, t216, t232, t248}), v_t309_5);
+    #else
+    const double t309 = DERIVE_FMA(t37, t200, DERIVE_FMA(t44, t199, DERIVE_FMA(t42, t198, DERIVE_FMA(t1, t191, DERIVE_FMA(t36, t189, t2*t188) + t190))));
+    const double t310 = DERIVE_FMA(t37, t216, DERIVE_FMA(t44, t215, DERIVE_FMA(t42, t214, DERIVE_FMA(t1, t207, DERIVE_FMA(t36, t205, t2*t204) + t206))));
+    const double t311 = DERIVE_FMA(t37, t232, DERIVE_FMA(t44, t231, DERIVE_FMA(t42, t230, DERIVE_FMA(t1, t223, DERIVE_FMA(t36, t221, t2*t220) + t222))));
+    const double t312 = DERIVE_FMA(t37, t248, DERIVE_FMA(t44, t247, DERIVE_FMA(t42, t246, DERIVE_FMA(t1, t239, DERIVE_FMA(t36, t237, t2*t236) + t238))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t304_0 = (((derive_vd){t1, t1, t1, t1}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t304_1 = (v_t304_0 + ((derive_vd){t253, t269, P[26], P[27]}));
-    const derive_vd v_t304_2 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t254, t270, P[42], P[43]}), v_t304_1);
-    const derive_vd v_t304_3 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), ((derive_vd){t255, t271, P[58], P[59]}), v_t304_2);
-    const derive_vd v_t304_4 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t262, t278, P[170], P[171]}), v_t304_3);
-    const derive_vd v_t304_5 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), ((derive_vd){t263, t279, P[186], P[187]}), v_t304_4);
-    const derive_vd v_t304 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){t264, t280, P[202], P[203]}), v_t304_5);
-    const double t304 = v_t304[0];
-    const double t305 = v_t304[1];
-    *(derive_vd_unaligned *)&P_new[24] = ((derive_vd){t304, t305, t158, t159});
+    const derive_vd v_t313_0 = (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t313_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t253, t269, P[26], P[27]}), v_t313_0);
+    const derive_vd v_t313_2 = (v_t313_1 + ((derive_vd){t254, t270, P[42], P[43]}));
+    const derive_vd v_t313_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t255, t271, P[58], P[59]}), v_t313_2);
+    const derive_vd v_t313_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t262, t278, P[170], P[171]}), v_t313_3);
+    const derive_vd v_t313_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t263, t279, P[186], P[187]}), v_t313_4);
+    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t264, t280, P[202], P[203]}), v_t313_5);
+    const double t313 = v_t313[0];
+    const double t314 = v_t313[1];
+    *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t313, t314, t170, t171});
     #else
-    const double t304 = DERIVE_FMA(t41, t264, DERIVE_FMA(t39, t263, DERIVE_FMA(t44, t262, DERIVE_FMA(t35, t255, DERIVE_FMA(t3, t254, t1*t252 + t253)))));
-    const double t305 = DERIVE_FMA(t41, t280, DERIVE_FMA(t39, t279, DERIVE_FMA(t44, t278, DERIVE_FMA(t35, t271, DERIVE_FMA(t3, t270, t1*t268 + t269)))));
+    const double t313 = DERIVE_FMA(t37, t264, DERIVE_FMA(t44, t263, DERIVE_FMA(t42, t262, DERIVE_FMA(t1, t255, DERIVE_FMA(t36, t253, t2*t252) + t254))));
+    const double t314 = DERIVE_FMA(t37, t280, DERIVE_FMA(t44, t279, DERIVE_FMA(t42, t278, DERIVE_FMA(t1, t271, DERIVE_FMA(t36, t269, t2*t268) + t270))));
     #endif
+    const double t317 = DERIVE_FMA(t184, t44, DERIVE_FMA(t183, t40, DERIVE_FMA(t182, t38, DERIVE_FMA(t178, t34, DERIVE_FMA(t177, t2, DERIVE_FMA(t176, t3, t128 + t179))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t308_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t119, t124, t126, t127}));
-    const derive_vd v_t308_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t141, t153, t165, t177}), v_t308_0);
-    const derive_vd v_t308_2 = (v_t308_1 + ((derive_vd){t142, t154, t166, t178}));
-    const derive_vd v_t308_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t143, t155, t167, t179}), v_t308_2);
-    const derive_vd v_t308_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t146, t158, t170, t182}), v_t308_3);
-    const derive_vd v_t308_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t147, t159, t171, t183}), v_t308_4);
-    const derive_vd v_t308 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t148, t160, t172, t184}), v_t308_5);
-    #else
-    const double t310 = DERIVE_FMA(t37, t172, DERIVE_FMA(t44, t171, DERIVE_FMA(t42, t170, DERIVE_FMA(t1, t167, DERIVE_FMA(t36, t165, DERIVE_FMA(t2, t164, t126)) + t166))));
-    const double t311 = DERIVE_FMA(t37, t184, DERIVE_FMA(t44, t183, DERIVE_FMA(t42, t182, DERIVE_FMA(t1, t179, DERIVE_FMA(t36, t177, DERIVE_FMA(t2, t176, t127)) + t178))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t312_0 = (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t188, t204, t220, t236}));
-    const derive_vd v_t312_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t189, t205, t221, t237}), v_t312_0);
-    const derive_vd v_t312_2 = (v_t312_1 + ((derive_vd){t190, t206, t222, t238}));
-    const derive_vd v_t312_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t191, t207, t223, t239}), v_t312_2);
-    const derive_vd v_t312_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t198, t214, t230, t246}), v_t312_3);
-    const derive_vd v_t312_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t199, t215, t231, t247}), v_t312_4);
-    const derive_vd v_t312 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t200, t216, t232, t248}), v_t312_5);
-    #else
-    const double t312 = DERIVE_FMA(t37, t200, DERIVE_FMA(t44, t199, DERIVE_FMA(t42, t198, DERIVE_FMA(t1, t191, DERIVE_FMA(t36, t189, t2*t188) + t190))));
-    const double t313 = DERIVE_FMA(t37, t216, DERIVE_FMA(t44, t215, DERIVE_FMA(t42, t214, DERIVE_FMA(t1, t207, DERIVE_FMA(t36, t205, t2*t204) + t206))));
-    const double t314 = DERIVE_FMA(t37, t232, DERIVE_FMA(t44, t231, DERIVE_FMA(t42, t230, DERIVE_FMA(t1, t223, DERIVE_FMA(t36, t221, t2*t220) + t222))));
-    const double t315 = DERIVE_FMA(t37, t248, DERIVE_FMA(t44, t247, DERIVE_FMA(t42, t246, DERIVE_FMA(t1, t239, DERIVE_FMA(t36, t237, t2*t236) + t238))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t316_0 = (((derive_vd){t2, t2, t2, t2}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t316_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), ((derive_vd){t253, t269, P[26], P[27]}), v_t316_0);
-    const derive_vd v_t316_2 = (v_t316_1 + ((derive_vd){t254, t270, P[42], P[43]}));
-    const derive_vd v_t316_3 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){t255, t271, P[58], P[59]}), v_t316_2);
-    const derive_vd v_t316_4 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){t262, t278, P[170], P[171]}), v_t316_3);
-    const derive_vd v_t316_5 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t263, t279, P[186], P[187]}), v_t316_4);
-    const derive_vd v_t316 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), ((derive_vd){t264, t280, P[202], P[203]}), v_t316_5);
-    const double t316 = v_t316[0];
-    const double t317 = v_t316[1];
-    *(derive_vd_unaligned *)&P_new[40] = ((derive_vd){t316, t317, t170, t171});
-    #else
-    const double t316 = DERIVE_FMA(t37, t264, DERIVE_FMA(t44, t263, DERIVE_FMA(t42, t262, DERIVE_FMA(t1, t255, DERIVE_FMA(t36, t253, t2*t252) + t254))));
-    const double t317 = DERIVE_FMA(t37, t280, DERIVE_FMA(t44, t279, DERIVE_FMA(t42, t278, DERIVE_FMA(t1, t271, DERIVE_FMA(t36, t269, t2*t268) + t270))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t320_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){t140, t152, t164, t176}), ((derive_vd){t121, t125, t127, t128}));
-    const derive_vd v_t320_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t141, t153, t165, t177}), v_t320_0);
-    const derive_vd v_t320_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t142, t154, t166, t178}), v_t320_1);
-    const derive_vd v_t320_3 = (v_t320_2 + ((derive_vd){t143, t155, t167, t179}));
-    const derive_vd v_t320_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t146, t158, t170, t182}), v_t320_3);
-    const derive_vd v_t320_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t147, t159, t171, t183}), v_t320_4);
-    const derive_vd v_t320 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t148, t160, t172, t184}), v_t320_5);
-    const derive_vd tr_v_t284_0 = __builtin_shufflevector(v_t284, v_t296, 0, 4, 2, 6);
-    const derive_vd tr_v_t284_1 = __builtin_shufflevector(v_t284, v_t296, 1, 5, 3, 7);
-    const derive_vd tr_v_t284_2 = __builtin_shufflevector(v_t308, v_t320, 0, 4, 2, 6);
-    const derive_vd tr_v_t284_3 = __builtin_shufflevector(v_t308, v_t320, 1, 5, 3, 7);
-    const derive_vd tr_v_t284_c1 = __builtin_shufflevector(tr_v_t284_1, tr_v_t284_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t284_c2 = __builtin_shufflevector(tr_v_t284_0, tr_v_t284_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t284_c3 = __builtin_shufflevector(tr_v_t284_1, tr_v_t284_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[0] = v_t284;
-    *(derive_vd_unaligned *)&P_new[16] = __builtin_shufflevector(v_t296, tr_v_t284_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[32] = __builtin_shufflevector(v_t308, tr_v_t284_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t320, tr_v_t284_c3, 4, 5, 6, 3);
-    #else
-    const double t323 = DERIVE_FMA(t44, t184, DERIVE_FMA(t40, t183, DERIVE_FMA(t38, t182, DERIVE_FMA(t34, t178, DERIVE_FMA(t2, t177, DERIVE_FMA(t3, t176, t128))) + t179)));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t324_0 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t188, t204, t220, t236}));
-    const derive_vd v_t324_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t189, t205, t221, t237}), v_t324_0);
-    const derive_vd v_t324_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t190, t206, t222, t238}), v_t324_1);
-    const derive_vd v_t324_3 = (v_t324_2 + ((derive_vd){t191, t207, t223, t239}));
-    const derive_vd v_t324_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t198, t214, t230, t246}), v_t324_3);
-    const derive_vd v_t324_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t199, t215, t231, t247}), v_t324_4);
-    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t200, t216, t232, t248}), v_t324_5);
-    const derive_vd tr_v_t288_0 = __builtin_shufflevector(v_t288, v_t300, 0, 4, 2, 6);
-    const derive_vd tr_v_t288_1 = __builtin_shufflevector(v_t288, v_t300, 1, 5, 3, 7);
-    const derive_vd tr_v_t288_2 = __builtin_shufflevector(v_t312, v_t324, 0, 4, 2, 6);
-    const derive_vd tr_v_t288_3 = __builtin_shufflevector(v_t312, v_t324, 1, 5, 3, 7);
+    const derive_vd v_t318_0 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t188, t204, t220, t236}));
+    const derive_vd v_t318_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t189, t205, t221, t237}), v_t318_0);
+    const derive_vd v_t318_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t190, t206, t222, t238}), v_t318_1);
+    const derive_vd v_t318_3 = (v_t318_2 + ((derive_vd){t191, t207, t223, t239}));
+    const derive_vd v_t318_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t198, t214, t230, t246}), v_t318_3);
+    const derive_vd v_t318_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t199, t215, t231, t247}), v_t318_4);
+    const derive_vd v_t318 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t200, t216, t232, t248}), v_t318_5);
+    const derive_vd tr_v_t288_0 = __builtin_shufflevector(v_t288, v_t299, 0, 4, 2, 6);
+    const derive_vd tr_v_t288_1 = __builtin_shufflevector(v_t288, v_t299, 1, 5, 3, 7);
+    const derive_vd tr_v_t288_2 = __builtin_shufflevector(v_t309, v_t318, 0, 4, 2, 6);
+    const derive_vd tr_v_t288_3 = __builtin_shufflevector(v_t309, v_t318, 1, 5, 3, 7);
     const derive_vd tr_v_t288_c0 = __builtin_shufflevector(tr_v_t288_0, tr_v_t288_2, 0, 1, 4, 5);
     const derive_vd tr_v_t288_c1 = __builtin_shufflevector(tr_v_t288_1, tr_v_t288_3, 0, 1, 4, 5);
     const derive_vd tr_v_t288_c2 = __builtin_shufflevector(tr_v_t288_0, tr_v_t288_2, 2, 3, 6, 7);
     const derive_vd tr_v_t288_c3 = __builtin_shufflevector(tr_v_t288_1, tr_v_t288_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[4] = v_t288;
-    *(derive_vd_unaligned *)&P_new[20] = v_t300;
-    *(derive_vd_unaligned *)&P_new[36] = v_t312;
-    *(derive_vd_unaligned *)&P_new[52] = v_t324;
+    *(derive_vd_unaligned *)&P_new[20] = v_t299;
+    *(derive_vd_unaligned *)&P_new[36] = v_t309;
+    *(derive_vd_unaligned *)&P_new[52] = v_t318;
     *(derive_vd_unaligned *)&P_new[64] = tr_v_t288_c0;
     *(derive_vd_unaligned *)&P_new[80] = tr_v_t288_c1;
     *(derive_vd_unaligned *)&P_new[96] = tr_v_t288_c2;
     *(derive_vd_unaligned *)&P_new[112] = tr_v_t288_c3;
     #else
-    const double t324 = DERIVE_FMA(t44, t200, DERIVE_FMA(t40, t199, DERIVE_FMA(t38, t198, DERIVE_FMA(t34, t190, DERIVE_FMA(t2, t189, t3*t188)) + t191)));
-    const double t325 = DERIVE_FMA(t44, t216, DERIVE_FMA(t40, t215, DERIVE_FMA(t38, t214, DERIVE_FMA(t34, t206, DERIVE_FMA(t2, t205, t3*t204)) + t207)));
-    const double t326 = DERIVE_FMA(t44, t232, DERIVE_FMA(t40, t231, DERIVE_FMA(t38, t230, DERIVE_FMA(t34, t222, DERIVE_FMA(t2, t221, t3*t220)) + t223)));
-    const double t327 = DERIVE_FMA(t44, t248, DERIVE_FMA(t40, t247, DERIVE_FMA(t38, t246, DERIVE_FMA(t34, t238, DERIVE_FMA(t2, t237, t3*t236)) + t239)));
+    const double t318 = DERIVE_FMA(t44, t200, DERIVE_FMA(t40, t199, DERIVE_FMA(t38, t198, DERIVE_FMA(t34, t190, DERIVE_FMA(t2, t189, t3*t188)) + t191)));
+    const double t319 = DERIVE_FMA(t44, t216, DERIVE_FMA(t40, t215, DERIVE_FMA(t38, t214, DERIVE_FMA(t34, t206, DERIVE_FMA(t2, t205, t3*t204)) + t207)));
+    const double t320 = DERIVE_FMA(t44, t232, DERIVE_FMA(t40, t231, DERIVE_FMA(t38, t230, DERIVE_FMA(t34, t222, DERIVE_FMA(t2, t221, t3*t220)) + t223)));
+    const double t321 = DERIVE_FMA(t44, t248, DERIVE_FMA(t40, t247, DERIVE_FMA(t38, t246, DERIVE_FMA(t34, t238, DERIVE_FMA(t2, t237, t3*t236)) + t239)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t328_0 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t328_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t253, t269, P[26], P[27]}), v_t328_0);
-    const derive_vd v_t328_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t254, t270, P[42], P[43]}), v_t328_1);
-    const derive_vd v_t328_3 = (v_t328_2 + ((derive_vd){t255, t271, P[58], P[59]}));
-    const derive_vd v_t328_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t262, t278, P[170], P[171]}), v_t328_3);
-    const derive_vd v_t328_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t263, t279, P[186], P[187]}), v_t328_4);
-    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t264, t280, P[202], P[203]}), v_t328_5);
-    const double t328 = v_t328[0];
-    const double t329 = v_t328[1];
-    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t328, t329, t182, t183});
-    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t292, t304, t316, t328});
-    *(derive_vd_unaligned *)&P_new[144] = ((derive_vd){t293, t305, t317, t329});
+    const derive_vd v_t322_0 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t322_1 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){t253, t269, P[26], P[27]}), v_t322_0);
+    const derive_vd v_t322_2 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t254, t270, P[42], P[43]}), v_t322_1);
+    const derive_vd v_t322_3 = (v_t322_2 + ((derive_vd){t255, t271, P[58], P[59]}));
+    const derive_vd v_t322_4 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), ((derive_vd){t262, t278, P[170], P[171]}), v_t322_3);
+    const derive_vd v_t322_5 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), ((derive_vd){t263, t279, P[186], P[187]}), v_t322_4);
+    const derive_vd v_t322 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){t264, t280, P[202], P[203]}), v_t322_5);
+    const double t322 = v_t322[0];
+    const double t323 = v_t322[1];
+    *(derive_vd_unaligned *)&P_new[56] = ((derive_vd){t322, t323, t182, t183});
+    *(derive_vd_unaligned *)&P_new[128] = ((derive_vd){t292, t303, t313, t322});
+    *(derive_vd_unaligned *)&P_new[144] = ((derive_vd){t293, t304, t314, t323});
     #else
-    const double t328 = DERIVE_FMA(t44, t264, DERIVE_FMA(t40, t263, DERIVE_FMA(t38, t262, DERIVE_FMA(t34, t254, DERIVE_FMA(t2, t253, t3*t252)) + t255)));
-    const double t329 = DERIVE_FMA(t44, t280, DERIVE_FMA(t40, t279, DERIVE_FMA(t38, t278, DERIVE_FMA(t34, t270, DERIVE_FMA(t2, t269, t3*t268)) + t271)));
+    const double t322 = DERIVE_FMA(t44, t264, DERIVE_FMA(t40, t263, DERIVE_FMA(t38, t262, DERIVE_FMA(t34, t254, DERIVE_FMA(t2, t253, t3*t252)) + t255)));
+    const double t323 = DERIVE_FMA(t44, t280, DERIVE_FMA(t40, t279, DERIVE_FMA(t38, t278, DERIVE_FMA(t34, t270, DERIVE_FMA(t2, t269, t3*t268)) + t271)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t332_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t129, t130, t131, 0.0}));
-    const derive_vd v_t332_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t189, t205, t221, t237}), v_t332_0);
-    const derive_vd v_t332_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t190, t206, t222, t238}), v_t332_1);
-    const derive_vd v_t332_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t191, t207, t223, t239}), v_t332_2);
-    const derive_vd v_t332_4 = (v_t332_3 + ((derive_vd){t192, t208, t224, t240}));
-    const derive_vd v_t332_5 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t201, t217, t233, t249}), v_t332_4);
-    const derive_vd v_t332_6 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t202, t218, t234, t250}), v_t332_5);
-    const derive_vd v_t332 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t203, t219, t235, t251}), v_t332_6);
+    const derive_vd v_t326_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t129, t130, t131, 0.0}));
+    const derive_vd v_t326_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t189, t205, t221, t237}), v_t326_0);
+    const derive_vd v_t326_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t190, t206, t222, t238}), v_t326_1);
+    const derive_vd v_t326_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t191, t207, t223, t239}), v_t326_2);
+    const derive_vd v_t326_4 = (v_t326_3 + ((derive_vd){t192, t208, t224, t240}));
+    const derive_vd v_t326_5 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t201, t217, t233, t249}), v_t326_4);
+    const derive_vd v_t326_6 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t202, t218, t234, t250}), v_t326_5);
+    const derive_vd v_t326 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t203, t219, t235, t251}), v_t326_6);
+    const double t327 = v_t326[1];
+    const double t328 = v_t326[2];
+    const double t329 = v_t326[3];
+    *(derive_vd_unaligned *)&P_new[68] = v_t326;
     #else
-    const double t332 = DERIVE_FMA(t137, t203, DERIVE_FMA(t75, t202, DERIVE_FMA(t74, t201, DERIVE_FMA(t73, t191, DERIVE_FMA(t72, t190, DERIVE_FMA(t71, t189, DERIVE_FMA(t70, t188, t129)))) + t192)));
-    const double t333 = DERIVE_FMA(t137, t219, DERIVE_FMA(t75, t218, DERIVE_FMA(t74, t217, DERIVE_FMA(t73, t207, DERIVE_FMA(t72, t206, DERIVE_FMA(t71, t205, DERIVE_FMA(t70, t204, t130)))) + t208)));
-    const double t334 = DERIVE_FMA(t137, t235, DERIVE_FMA(t75, t234, DERIVE_FMA(t74, t233, DERIVE_FMA(t73, t223, DERIVE_FMA(t72, t222, DERIVE_FMA(t71, t221, DERIVE_FMA(t70, t220, t131)))) + t224)));
-    const double t335 = DERIVE_FMA(t137, t251, DERIVE_FMA(t75, t250, DERIVE_FMA(t74, t249, DERIVE_FMA(t73, t239, DERIVE_FMA(t72, t238, DERIVE_FMA(t71, t237, DERIVE_FMA(t70, t236, 0.0)))) + t240)));
+    const double t326 = DERIVE_FMA(t137, t203, DERIVE_FMA(t75, t202, DERIVE_FMA(t74, t201, DERIVE_FMA(t73, t191, DERIVE_FMA(t72, t190, DERIVE_FMA(t71, t189, DERIVE_FMA(t70, t188, t129)))) + t192)));
+    const double t327 = DERIVE_FMA(t137, t219, DERIVE_FMA(t75, t218, DERIVE_FMA(t74, t217, DERIVE_FMA(t73, t207, DERIVE_FMA(t72, t206, DERIVE_FMA(t71, t205, DERIVE_FMA(t70, t204, t130)))) + t208)));
+    const double t328 = DERIVE_FMA(t137, t235, DERIVE_FMA(t75, t234, DERIVE_FMA(t74, t233, DERIVE_FMA(t73, t223, DERIVE_FMA(t72, t222, DERIVE_FMA(t71, t221, DERIVE_FMA(t70, t220, t131)))) + t224)));
+    const double t329 = DERIVE_FMA(t137, t251, DERIVE_FMA(t75, t250, DERIVE_FMA(t74, t249, DERIVE_FMA(t73, t239, DERIVE_FMA(t72, t238, DERIVE_FMA(t71, t237, DERIVE_FMA(t70, t236, 0.0)))) + t240)));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t336_0 = (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t336_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t253, t269, P[26], P[27]}), v_t336_0);
-    const derive_vd v_t336_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t254, t270, P[42], P[43]}), v_t336_1);
-    const derive_vd v_t336_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t255, t271, P[58], P[59]}), v_t336_2);
-    const derive_vd v_t336_4 = (v_t336_3 + ((derive_vd){t256, t272, P[74], P[75]}));
-    const derive_vd v_t336_5 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t265, t281, P[218], P[219]}), v_t336_4);
-    const derive_vd v_t336_6 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t266, t282, P[234], P[235]}), v_t336_5);
-    const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t267, t283, P[250], P[251]}), v_t336_6);
-    const double t336 = v_t336[0];
-    const double t337 = v_t336[1];
-    *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t336, t337, t198, t199});
+    const derive_vd v_t330_0 = (((derive_vd){t70, t70, t70, t70}) * ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t330_1 = DERIVE_VFMA(((derive_vd){t71, t71, t71, t71}), ((derive_vd){t253, t269, P[26], P[27]}), v_t330_0);
+    const derive_vd v_t330_2 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), ((derive_vd){t254, t270, P[42], P[43]}), v_t330_1);
+    const derive_vd v_t330_3 = DERIVE_VFMA(((derive_vd){t73, t73, t73, t73}), ((derive_vd){t255, t271, P[58], P[59]}), v_t330_2);
+    const derive_vd v_t330_4 = (v_t330_3 + ((derive_vd){t256, t272, P[74], P[75]}));
+    const derive_vd v_t330_5 = DERIVE_VFMA(((derive_vd){t74, t74, t74, t74}), ((derive_vd){t265, t281, P[218], P[219]}), v_t330_4);
+    const derive_vd v_t330_6 = DERIVE_VFMA(((derive_vd){t75, t75, t75, t75}), ((derive_vd){t266, t282, P[234], P[235]}), v_t330_5);
+    const derive_vd v_t330 = DERIVE_VFMA(((derive_vd){t137, t137, t137, t137}), ((derive_vd){t267, t283, P[250], P[251]}), v_t330_6);
+    const double t330 = v_t330[0];
+    const double t331 = v_t330[1];
+    *(derive_vd_unaligned *)&P_new[72] = ((derive_vd){t330, t331, t198, t199});
     #else
-    const double t336 = DERIVE_FMA(t137, t267, DERIVE_FMA(t75, t266, DERIVE_FMA(t74, t265, DERIVE_FMA(t73, t255, DERIVE_FMA(t72, t254, DERIVE_FMA(t71, t253, t70*t252))) + t256)));
-    const double t337 = DERIVE_FMA(t137, t283, DERIVE_FMA(t75, t282, DERIVE_FMA(t74, t281, DERIVE_FMA(t73, t271, DERIVE_FMA(t72, t270, DERIVE_FMA(t71, t269, t70*t268))) + t272)));
+    const double t330 = DERIVE_FMA(t137, t267, DERIVE_FMA(t75, t266, DERIVE_FMA(t74, t265, DERIVE_FMA(t73, t255, DERIVE_FMA(t72, t254, DERIVE_FMA(t71, t253, t70*t252))) + t256)));
+    const double t331 = DERIVE_FMA(t137, t283, DERIVE_FMA(t75, t282, DERIVE_FMA(t74, t281, DERIVE_FMA(t73, t271, DERIVE_FMA(t72, t270, DERIVE_FMA(t71, t269, t70*t268))) + t272)));
     #endif
+    const double t334 = DERIVE_FMA(t219, t85, DERIVE_FMA(t218, t84, DERIVE_FMA(t207, t82, DERIVE_FMA(t206, t81, DERIVE_FMA(t205, t80, DERIVE_FMA(t204, t79, DERIVE_FMA(t138, t217, t132 + t209)))))));
+    const double t335 = DERIVE_FMA(t235, t85, DERIVE_FMA(t234, t84, DERIVE_FMA(t223, t82, DERIVE_FMA(t222, t81, DERIVE_FMA(t221, t80, DERIVE_FMA(t220, t79, DERIVE_FMA(t138, t233, t133 + t225)))))));
+    const double t336 = DERIVE_FMA(t251, t85, DERIVE_FMA(t250, t84, DERIVE_FMA(t239, t82, DERIVE_FMA(t238, t81, DERIVE_FMA(t237, t80, DERIVE_FMA(t236, t79, DERIVE_FMA(t138, t249, t241)))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t340_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t130, t132, t133, 0.0}));
-    const derive_vd v_t340_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t189, t205, t221, t237}), v_t340_0);
-    const derive_vd v_t340_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t190, t206, t222, t238}), v_t340_1);
-    const derive_vd v_t340_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t191, t207, t223, t239}), v_t340_2);
-    const derive_vd v_t340_4 = (v_t340_3 + ((derive_vd){t193, t209, t225, t241}));
-    const derive_vd v_t340_5 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t201, t217, t233, t249}), v_t340_4);
-    const derive_vd v_t340_6 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t202, t218, t234, t250}), v_t340_5);
-    const derive_vd v_t340 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t203, t219, t235, t251}), v_t340_6);
+    const derive_vd v_t337_0 = (((derive_vd){t79, t79, t79, t79}) * ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t337_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t253, t269, P[26], P[27]}), v_t337_0);
+    const derive_vd v_t337_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t254, t270, P[42], P[43]}), v_t337_1);
+    const derive_vd v_t337_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t255, t271, P[58], P[59]}), v_t337_2);
+    const derive_vd v_t337_4 = (v_t337_3 + ((derive_vd){t257, t273, P[90], P[91]}));
+    const derive_vd v_t337_5 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t265, t281, P[218], P[219]}), v_t337_4);
+    const derive_vd v_t337_6 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t266, t282, P[234], P[235]}), v_t337_5);
+    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t267, t283, P[250], P[251]}), v_t337_6);
+    const double t337 = v_t337[0];
+    const double t338 = v_t337[1];
+    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t337, t338, t214, t215});
     #else
-    const double t341 = DERIVE_FMA(t85, t219, DERIVE_FMA(t84, t218, DERIVE_FMA(t138, t217, DERIVE_FMA(t82, t207, DERIVE_FMA(t81, t206, DERIVE_FMA(t80, t205, DERIVE_FMA(t79, t204, t132)))) + t209)));
-    const double t342 = DERIVE_FMA(t85, t235, DERIVE_FMA(t84, t234, DERIVE_FMA(t138, t233, DERIVE_FMA(t82, t223, DERIVE_FMA(t81, t222, DERIVE_FMA(t80, t221, DERIVE_FMA(t79, t220, t133)))) + t225)));
-    const double t343 = DERIVE_FMA(t85, t251, DERIVE_FMA(t84, t250, DERIVE_FMA(t138, t249, DERIVE_FMA(t82, t239, DERIVE_FMA(t81, t238, DERIVE_FMA(t80, t237, DERIVE_FMA(t79, t236, 0.0)))) + t241)));
+    const double t337 = DERIVE_FMA(t85, t267, DERIVE_FMA(t84, t266, DERIVE_FMA(t138, t265, DERIVE_FMA(t82, t255, DERIVE_FMA(t81, t254, DERIVE_FMA(t80, t253, t79*t252))) + t257)));
+    const double t338 = DERIVE_FMA(t85, t283, DERIVE_FMA(t84, t282, DERIVE_FMA(t138, t281, DERIVE_FMA(t82, t271, DERIVE_FMA(t81, t270, DERIVE_FMA(t80, t269, t79*t268))) + t273)));
     #endif
+    const double t341 = DERIVE_FMA(t235, t94, DERIVE_FMA(t233, t92, DERIVE_FMA(t223, t91, DERIVE_FMA(t222, t90, DERIVE_FMA(t221, t89, DERIVE_FMA(t220, t88, DERIVE_FMA(t139, t234, t134 + t226)))))));
+    const double t342 = DERIVE_FMA(t251, t94, DERIVE_FMA(t249, t92, DERIVE_FMA(t239, t91, DERIVE_FMA(t238, t90, DERIVE_FMA(t237, t89, DERIVE_FMA(t236, t88, DERIVE_FMA(t139, t250, t242)))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t344_0 = (((derive_vd){t79, t79, t79, t79}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t344_1 = DERIVE_VFMA(((derive_vd){t80, t80, t80, t80}), ((derive_vd){t253, t269, P[26], P[27]}), v_t344_0);
-    const derive_vd v_t344_2 = DERIVE_VFMA(((derive_vd){t81, t81, t81, t81}), ((derive_vd){t254, t270, P[42], P[43]}), v_t344_1);
-    const derive_vd v_t344_3 = DERIVE_VFMA(((derive_vd){t82, t82, t82, t82}), ((derive_vd){t255, t271, P[58], P[59]}), v_t344_2);
-    const derive_vd v_t344_4 = (v_t344_3 + ((derive_vd){t257, t273, P[90], P[91]}));
-    const derive_vd v_t344_5 = DERIVE_VFMA(((derive_vd){t138, t138, t138, t138}), ((derive_vd){t265, t281, P[218], P[219]}), v_t344_4);
-    const derive_vd v_t344_6 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){t266, t282, P[234], P[235]}), v_t344_5);
-    const derive_vd v_t344 = DERIVE_VFMA(((derive_vd){t85, t85, t85, t85}), ((derive_vd){t267, t283, P[250], P[251]}), v_t344_6);
-    const double t344 = v_t344[0];
-    const double t345 = v_t344[1];
-    *(derive_vd_unaligned *)&P_new[88] = ((derive_vd){t344, t345, t214, t215});
+    const derive_vd v_t343_0 = (((derive_vd){t88, t88, t88, t88}) * ((derive_vd){t252, t268, P[10], P[11]}));
+    const derive_vd v_t343_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t253, t269, P[26], P[27]}), v_t343_0);
+    const derive_vd v_t343_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t254, t270, P[42], P[43]}), v_t343_1);
+    const derive_vd v_t343_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t255, t271, P[58], P[59]}), v_t343_2);
+    const derive_vd v_t343_4 = (v_t343_3 + ((derive_vd){t258, t274, P[106], P[107]}));
+    const derive_vd v_t343_5 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t265, t281, P[218], P[219]}), v_t343_4);
+    const derive_vd v_t343_6 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t266, t282, P[234], P[235]}), v_t343_5);
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t267, t283, P[250], P[251]}), v_t343_6);
+    const double t343 = v_t343[0];
+    const double t344 = v_t343[1];
+    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t343, t344, t230, t231});
     #else
-    const double t344 = DERIVE_FMA(t85, t267, DERIVE_FMA(t84, t266, DERIVE_FMA(t138, t265, DERIVE_FMA(t82, t255, DERIVE_FMA(t81, t254, DERIVE_FMA(t80, t253, t79*t252))) + t257)));
-    const double t345 = DERIVE_FMA(t85, t283, DERIVE_FMA(t84, t282, DERIVE_FMA(t138, t281, DERIVE_FMA(t82, t271, DERIVE_FMA(t81, t270, DERIVE_FMA(t80, t269, t79*t268))) + t273)));
+    const double t343 = DERIVE_FMA(t94, t267, DERIVE_FMA(t139, t266, DERIVE_FMA(t92, t265, DERIVE_FMA(t91, t255, DERIVE_FMA(t90, t254, DERIVE_FMA(t89, t253, t88*t252))) + t258)));
+    const double t344 = DERIVE_FMA(t94, t283, DERIVE_FMA(t139, t282, DERIVE_FMA(t92, t281, DERIVE_FMA(t91, t271, DERIVE_FMA(t90, t270, DERIVE_FMA(t89, t269, t88*t268))) + t274)));
     #endif
+    const double t347 = DERIVE_FMA(p[0], t240, t243);
     #if DERIVE_VECTOR
-    const derive_vd v_t348_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){t188, t204, t220, t236}), ((derive_vd){t131, t133, t134, 0.0}));
-    const derive_vd v_t348_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t189, t205, t221, t237}), v_t348_0);
-    const derive_vd v_t348_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t190, t206, t222, t238}), v_t348_1);
-    const derive_vd v_t348_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t191, t207, t223, t239}), v_t348_2);
-    const derive_vd v_t348_4 = (v_t348_3 + ((derive_vd){t194, t210, t226, t242}));
-    const derive_vd v_t348_5 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t201, t217, t233, t249}), v_t348_4);
-    const derive_vd v_t348_6 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t202, t218, t234, t250}), v_t348_5);
-    const derive_vd v_t348 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t203, t219, t235, t251}), v_t348_6);
+    const derive_vd v_t348_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t256, t272, P[74], P[75]}));
+    const derive_vd v_t348 = (v_t348_0 + ((derive_vd){t259, t275, P[122], P[123]}));
+    const double t348 = v_t348[0];
+    const double t349 = v_t348[1];
+    *(derive_vd_unaligned *)&P_new[120] = ((derive_vd){t348, t349, t246, t247});
+    *(derive_vd_unaligned *)&P_new[132] = ((derive_vd){t330, t337, t343, t348});
+    *(derive_vd_unaligned *)&P_new[148] = ((derive_vd){t331, t338, t344, t349});
     #else
-    const double t350 = DERIVE_FMA(t94, t235, DERIVE_FMA(t139, t234, DERIVE_FMA(t92, t233, DERIVE_FMA(t91, t223, DERIVE_FMA(t90, t222, DERIVE_FMA(t89, t221, DERIVE_FMA(t88, t220, t134)))) + t226)));
-    const double t351 = DERIVE_FMA(t94, t251, DERIVE_FMA(t139, t250, DERIVE_FMA(t92, t249, DERIVE_FMA(t91, t239, DERIVE_FMA(t90, t238, DERIVE_FMA(t89, t237, DERIVE_FMA(t88, t236, 0.0)))) + t242)));
+    const double t348 = p[0]*t256 + t259;
+    const double t349 = p[0]*t272 + t275;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t352_0 = (((derive_vd){t88, t88, t88, t88}) * ((derive_vd){t252, t268, P[10], P[11]}));
-    const derive_vd v_t352_1 = DERIVE_VFMA(((derive_vd){t89, t89, t89, t89}), ((derive_vd){t253, t269, P[26], P[27]}), v_t352_0);
-    const derive_vd v_t352_2 = DERIVE_VFMA(((derive_vd){t90, t90, t90, t90}), ((derive_vd){t254, t270, P[42], P[43]}), v_t352_1);
-    const derive_vd v_t352_3 = DERIVE_VFMA(((derive_vd){t91, t91, t91, t91}), ((derive_vd){t255, t271, P[58], P[59]}), v_t352_2);
-    const derive_vd v_t352_4 = (v_t352_3 + ((derive_vd){t258, t274, P[106], P[107]}));
-    const derive_vd v_t352_5 = DERIVE_VFMA(((derive_vd){t92, t92, t92, t92}), ((derive_vd){t265, t281, P[218], P[219]}), v_t352_4);
-    const derive_vd v_t352_6 = DERIVE_VFMA(((derive_vd){t139, t139, t139, t139}), ((derive_vd){t266, t282, P[234], P[235]}), v_t352_5);
-    const derive_vd v_t352 = DERIVE_VFMA(((derive_vd){t94, t94, t94, t94}), ((derive_vd){t267, t283, P[250], P[251]}), v_t352_6);
+    const derive_vd v_t352_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t257, t273, P[90], P[91]}));
+    const derive_vd v_t352 = (v_t352_0 + ((derive_vd){t260, t276, P[138], P[139]}));
     const double t352 = v_t352[0];
     const double t353 = v_t352[1];
-    *(derive_vd_unaligned *)&P_new[104] = ((derive_vd){t352, t353, t230, t231});
+    *(derive_vd_unaligned *)&P_new[136] = ((derive_vd){t352, t353, t262, t263});
     #else
-    const double t352 = DERIVE_FMA(t94, t267, DERIVE_FMA(t139, t266, DERIVE_FMA(t92, t265, DERIVE_FMA(t91, t255, DERIVE_FMA(t90, t254, DERIVE_FMA(t89, t253, t88*t252))) + t258)));
-    const double t353 = DERIVE_FMA(t94, t283, DERIVE_FMA(t139, t282, DERIVE_FMA(t92, t281, DERIVE_FMA(t91, t271, DERIVE_FMA(t90, t270, DERIVE_FMA(t89, t269, t88*t268))) + t274)));
+    const double t352 = p[0]*t257 + t260;
+    const double t353 = p[0]*t273 + t276;
     #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t356_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t192, t208, t224, t240}));
-    const derive_vd v_t356 = (v_t356_0 + ((derive_vd){t195, t211, t227, t243}));
-    const derive_vd tr_v_t332_0 = __builtin_shufflevector(v_t332, v_t340, 0, 4, 2, 6);
-    const derive_vd tr_v_t332_1 = __builtin_shufflevector(v_t332, v_t340, 1, 5, 3, 7);
-    const derive_vd tr_v_t332_2 = __builtin_shufflevector(v_t348, v_t356, 0, 4, 2, 6);
-    const derive_vd tr_v_t332_3 = __builtin_shufflevector(v_t348, v_t356, 1, 5, 3, 7);
-    const derive_vd tr_v_t332_c1 = __builtin_shufflevector(tr_v_t332_1, tr_v_t332_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t332_c2 = __builtin_shufflevector(tr_v_t332_0, tr_v_t332_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t332_c3 = __builtin_shufflevector(tr_v_t332_1, tr_v_t332_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[68] = v_t332;
-    *(derive_vd_unaligned *)&P_new[84] = __builtin_shufflevector(v_t340, tr_v_t332_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[100] = __builtin_shufflevector(v_t348, tr_v_t332_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[116] = __builtin_shufflevector(v_t356, tr_v_t332_c3, 4, 5, 6, 3);
-    #else
-    const double t359 = p[0]*t240 + t243;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t360_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t256, t272, P[74], P[75]}));
-    const derive_vd v_t360 = (v_t360_0 + ((derive_vd){t259, t275, P[122], P[123]}));
-    const double t360 = v_t360[0];
-    const double t361 = v_t360[1];
-    *(derive_vd_unaligned *)&P_new[120] = ((derive_vd){t360, t361, t246, t247});
-    *(derive_vd_unaligned *)&P_new[132] = ((derive_vd){t336, t344, t352, t360});
-    *(derive_vd_unaligned *)&P_new[148] = ((derive_vd){t337, t345, t353, t361});
-    #else
-    const double t360 = p[0]*t256 + t259;
-    const double t361 = p[0]*t272 + t275;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t364_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t257, t273, P[90], P[91]}));
-    const derive_vd v_t364 = (v_t364_0 + ((derive_vd){t260, t276, P[138], P[139]}));
-    const double t364 = v_t364[0];
-    const double t365 = v_t364[1];
-    *(derive_vd_unaligned *)&P_new[136] = ((derive_vd){t364, t365, t262, t263});
-    #else
-    const double t364 = p[0]*t257 + t260;
-    const double t365 = p[0]*t273 + t276;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t368_0 = (((derive_vd){p[0], p[0], p[0], p[0]}) * ((derive_vd){t258, t274, P[106], P[107]}));
-    const derive_vd v_t368 = (v_t368_0 + ((derive_vd){t261, t277, P[154], P[155]}));
-    const double t369 = v_t368[1];
-    *(derive_vd_unaligned *)&P_new[152] = ((derive_vd){t365, t369, t278, t279});
-    #else
-    const double t369 = p[0]*t274 + t277;
-    #endif
-    const double t372 = P[170] + t135;
-    const double t373 = P[187] + t135;
-    const double t374 = P[204] + t135;
-    const double t375 = P[221] + t136;
-    const double t376 = P[238] + t136;
-    const double t377 = P[255] + t136;
+    const double t356 = DERIVE_FMA(p[0], t274, t277);
+    const double t357 = P[170] + t135;
+    const double t358 = P[187] + t135;
+    const double t359 = P[204] + t135;
+    const double t360 = P[221] + t136;
+    const double t361 = P[238] + t136;
+    const double t362 = P[255] + t136;
     #if DERIVE_VECTOR
     x_new[0] = t60;
     x_new[1] = t61;
@@ -1142,9 +1057,37 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     x_new[13] = x[13];
     x_new[14] = x[14];
     x_new[15] = x[15];
+    P_new[16] = t285;
+    P_new[17] = t296;
+    P_new[18] = t297;
+    P_new[19] = t298;
+    P_new[32] = t286;
+    P_new[33] = t297;
+    P_new[34] = t307;
+    P_new[35] = t308;
+    P_new[48] = t287;
+    P_new[49] = t298;
+    P_new[50] = t308;
+    P_new[51] = t317;
+    P_new[84] = t327;
+    P_new[85] = t334;
+    P_new[86] = t335;
+    P_new[87] = t336;
+    P_new[100] = t328;
+    P_new[101] = t335;
+    P_new[102] = t341;
+    P_new[103] = t342;
+    P_new[116] = t329;
+    P_new[117] = t336;
+    P_new[118] = t342;
+    P_new[119] = t347;
+    P_new[152] = t353;
+    P_new[153] = t356;
+    P_new[154] = t278;
+    P_new[155] = t279;
     P_new[168] = t262;
     P_new[169] = t278;
-    P_new[170] = t372;
+    P_new[170] = t357;
     P_new[171] = P[171];
     P_new[172] = P[172];
     P_new[173] = P[173];
@@ -1153,7 +1096,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[184] = t263;
     P_new[185] = t279;
     P_new[186] = P[171];
-    P_new[187] = t373;
+    P_new[187] = t358;
     P_new[188] = P[188];
     P_new[189] = P[189];
     P_new[190] = P[190];
@@ -1162,7 +1105,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[201] = t280;
     P_new[202] = P[172];
     P_new[203] = P[188];
-    P_new[204] = t374;
+    P_new[204] = t359;
     P_new[205] = P[205];
     P_new[206] = P[206];
     P_new[207] = P[207];
@@ -1171,7 +1114,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[218] = P[173];
     P_new[219] = P[189];
     P_new[220] = P[205];
-    P_new[221] = t375;
+    P_new[221] = t360;
     P_new[222] = P[222];
     P_new[223] = P[223];
     P_new[232] = t266;
@@ -1180,7 +1123,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[235] = P[190];
     P_new[236] = P[206];
     P_new[237] = P[222];
-    P_new[238] = t376;
+    P_new[238] = t361;
     P_new[239] = P[239];
     P_new[248] = t267;
     P_new[249] = t283;
@@ -1189,7 +1132,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[252] = P[207];
     P_new[253] = P[223];
     P_new[254] = P[239];
-    P_new[255] = t377;
+    P_new[255] = t362;
     #else
     x_new[0] = t60;
     x_new[1] = t61;
@@ -1224,15 +1167,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[14] = t150;
     P_new[15] = t151;
     P_new[16] = t285;
-    P_new[17] = t297;
-    P_new[18] = t298;
-    P_new[19] = t299;
-    P_new[20] = t300;
-    P_new[21] = t301;
-    P_new[22] = t302;
-    P_new[23] = t303;
-    P_new[24] = t304;
-    P_new[25] = t305;
+    P_new[17] = t296;
+    P_new[18] = t297;
+    P_new[19] = t298;
+    P_new[20] = t299;
+    P_new[21] = t300;
+    P_new[22] = t301;
+    P_new[23] = t302;
+    P_new[24] = t303;
+    P_new[25] = t304;
     P_new[26] = t158;
     P_new[27] = t159;
     P_new[28] = t160;
@@ -1240,15 +1183,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[30] = t162;
     P_new[31] = t163;
     P_new[32] = t286;
-    P_new[33] = t298;
-    P_new[34] = t310;
-    P_new[35] = t311;
-    P_new[36] = t312;
-    P_new[37] = t313;
-    P_new[38] = t314;
-    P_new[39] = t315;
-    P_new[40] = t316;
-    P_new[41] = t317;
+    P_new[33] = t297;
+    P_new[34] = t307;
+    P_new[35] = t308;
+    P_new[36] = t309;
+    P_new[37] = t310;
+    P_new[38] = t311;
+    P_new[39] = t312;
+    P_new[40] = t313;
+    P_new[41] = t314;
     P_new[42] = t170;
     P_new[43] = t171;
     P_new[44] = t172;
@@ -1256,15 +1199,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[46] = t174;
     P_new[47] = t175;
     P_new[48] = t287;
-    P_new[49] = t299;
-    P_new[50] = t311;
-    P_new[51] = t323;
-    P_new[52] = t324;
-    P_new[53] = t325;
-    P_new[54] = t326;
-    P_new[55] = t327;
-    P_new[56] = t328;
-    P_new[57] = t329;
+    P_new[49] = t298;
+    P_new[50] = t308;
+    P_new[51] = t317;
+    P_new[52] = t318;
+    P_new[53] = t319;
+    P_new[54] = t320;
+    P_new[55] = t321;
+    P_new[56] = t322;
+    P_new[57] = t323;
     P_new[58] = t182;
     P_new[59] = t183;
     P_new[60] = t184;
@@ -1272,15 +1215,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[62] = t186;
     P_new[63] = t187;
     P_new[64] = t288;
-    P_new[65] = t300;
-    P_new[66] = t312;
-    P_new[67] = t324;
-    P_new[68] = t332;
-    P_new[69] = t333;
-    P_new[70] = t334;
-    P_new[71] = t335;
-    P_new[72] = t336;
-    P_new[73] = t337;
+    P_new[65] = t299;
+    P_new[66] = t309;
+    P_new[67] = t318;
+    P_new[68] = t326;
+    P_new[69] = t327;
+    P_new[70] = t328;
+    P_new[71] = t329;
+    P_new[72] = t330;
+    P_new[73] = t331;
     P_new[74] = t198;
     P_new[75] = t199;
     P_new[76] = t200;
@@ -1288,15 +1231,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[78] = t202;
     P_new[79] = t203;
     P_new[80] = t289;
-    P_new[81] = t301;
-    P_new[82] = t313;
-    P_new[83] = t325;
-    P_new[84] = t333;
-    P_new[85] = t341;
-    P_new[86] = t342;
-    P_new[87] = t343;
-    P_new[88] = t344;
-    P_new[89] = t345;
+    P_new[81] = t300;
+    P_new[82] = t310;
+    P_new[83] = t319;
+    P_new[84] = t327;
+    P_new[85] = t334;
+    P_new[86] = t335;
+    P_new[87] = t336;
+    P_new[88] = t337;
+    P_new[89] = t338;
     P_new[90] = t214;
     P_new[91] = t215;
     P_new[92] = t216;
@@ -1304,15 +1247,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[94] = t218;
     P_new[95] = t219;
     P_new[96] = t290;
-    P_new[97] = t302;
-    P_new[98] = t314;
-    P_new[99] = t326;
-    P_new[100] = t334;
-    P_new[101] = t342;
-    P_new[102] = t350;
-    P_new[103] = t351;
-    P_new[104] = t352;
-    P_new[105] = t353;
+    P_new[97] = t301;
+    P_new[98] = t311;
+    P_new[99] = t320;
+    P_new[100] = t328;
+    P_new[101] = t335;
+    P_new[102] = t341;
+    P_new[103] = t342;
+    P_new[104] = t343;
+    P_new[105] = t344;
     P_new[106] = t230;
     P_new[107] = t231;
     P_new[108] = t232;
@@ -1320,15 +1263,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[110] = t234;
     P_new[111] = t235;
     P_new[112] = t291;
-    P_new[113] = t303;
-    P_new[114] = t315;
-    P_new[115] = t327;
-    P_new[116] = t335;
-    P_new[117] = t343;
-    P_new[118] = t351;
-    P_new[119] = t359;
-    P_new[120] = t360;
-    P_new[121] = t361;
+    P_new[113] = t302;
+    P_new[114] = t312;
+    P_new[115] = t321;
+    P_new[116] = t329;
+    P_new[117] = t336;
+    P_new[118] = t342;
+    P_new[119] = t347;
+    P_new[120] = t348;
+    P_new[121] = t349;
     P_new[122] = t246;
     P_new[123] = t247;
     P_new[124] = t248;
@@ -1336,15 +1279,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[126] = t250;
     P_new[127] = t251;
     P_new[128] = t292;
-    P_new[129] = t304;
-    P_new[130] = t316;
-    P_new[131] = t328;
-    P_new[132] = t336;
-    P_new[133] = t344;
-    P_new[134] = t352;
-    P_new[135] = t360;
-    P_new[136] = t364;
-    P_new[137] = t365;
+    P_new[129] = t303;
+    P_new[130] = t313;
+    P_new[131] = t322;
+    P_new[132] = t330;
+    P_new[133] = t337;
+    P_new[134] = t343;
+    P_new[135] = t348;
+    P_new[136] = t352;
+    P_new[137] = t353;
     P_new[138] = t262;
     P_new[139] = t263;
     P_new[140] = t264;
@@ -1352,15 +1295,15 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[142] = t266;
     P_new[143] = t267;
     P_new[144] = t293;
-    P_new[145] = t305;
-    P_new[146] = t317;
-    P_new[147] = t329;
-    P_new[148] = t337;
-    P_new[149] = t345;
-    P_new[150] = t353;
-    P_new[151] = t361;
-    P_new[152] = t365;
-    P_new[153] = t369;
+    P_new[145] = t304;
+    P_new[146] = t314;
+    P_new[147] = t323;
+    P_new[148] = t331;
+    P_new[149] = t338;
+    P_new[150] = t344;
+    P_new[151] = t349;
+    P_new[152] = t353;
+    P_new[153] = t356;
     P_new[154] = t278;
     P_new[155] = t279;
     P_new[156] = t280;
@@ -1377,7 +1320,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[167] = t246;
     P_new[168] = t262;
     P_new[169] = t278;
-    P_new[170] = t372;
+    P_new[170] = t357;
     P_new[171] = P[171];
     P_new[172] = P[172];
     P_new[173] = P[173];
@@ -1394,7 +1337,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[184] = t263;
     P_new[185] = t279;
     P_new[186] = P[171];
-    P_new[187] = t373;
+    P_new[187] = t358;
     P_new[188] = P[188];
     P_new[189] = P[189];
     P_new[190] = P[190];
@@ -1411,7 +1354,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[201] = t280;
     P_new[202] = P[172];
     P_new[203] = P[188];
-    P_new[204] = t374;
+    P_new[204] = t359;
     P_new[205] = P[205];
     P_new[206] = P[206];
     P_new[207] = P[207];
@@ -1428,7 +1371,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[218] = P[173];
     P_new[219] = P[189];
     P_new[220] = P[205];
-    P_new[221] = t375;
+    P_new[221] = t360;
     P_new[222] = P[222];
     P_new[223] = P[223];
     P_new[224] = t150;
@@ -1445,7 +1388,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[235] = P[190];
     P_new[236] = P[206];
     P_new[237] = P[222];
-    P_new[238] = t376;
+    P_new[238] = t361;
     P_new[239] = P[239];
     P_new[240] = t151;
     P_new[241] = t163;
@@ -1462,7 +1405,7 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[252] = P[207];
     P_new[253] = P[223];
     P_new[254] = P[239];
-    P_new[255] = t377;
+    P_new[255] = t362;
     #endif
     return 0;
 }
@@ -1569,6 +1512,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t78 = t76*t77;
     #if DERIVE_VECTOR
     const derive_vd v_t79 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    const double t80 = v_t79[1];
+    const double t81 = v_t79[2];
+    const double t82 = v_t79[3];
     #else
     const double t79 = DERIVE_FMA(t13, P[112], P[128]);
     const double t80 = DERIVE_FMA(t13, P[113], P[129]);
@@ -1577,6 +1523,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    const double t84 = v_t83[1];
+    const double t85 = v_t83[2];
+    const double t86 = v_t83[3];
     #else
     const double t83 = DERIVE_FMA(t13, P[116], P[132]);
     const double t84 = DERIVE_FMA(t13, P[117], P[133]);
@@ -1585,6 +1534,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const double t88 = v_t87[1];
+    const double t89 = v_t87[2];
+    const double t90 = v_t87[3];
     #else
     const double t87 = DERIVE_FMA(t13, P[120], P[136]);
     const double t88 = DERIVE_FMA(t13, P[121], P[137]);
@@ -1593,6 +1545,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t91 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const double t92 = v_t91[1];
+    const double t93 = v_t91[2];
+    const double t94 = v_t91[3];
     #else
     const double t91 = DERIVE_FMA(t13, P[124], P[140]);
     const double t92 = DERIVE_FMA(t13, P[125], P[141]);
@@ -1602,6 +1557,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t95_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
     const derive_vd v_t95 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t79, v_t95_0);
+    const double t96 = v_t95[1];
+    const double t97 = v_t95[2];
+    const double t98 = v_t95[3];
     #else
     const double t95 = DERIVE_FMA(t35, t79, DERIVE_FMA(t14, P[112], P[144]));
     const double t96 = DERIVE_FMA(t35, t80, DERIVE_FMA(t14, P[113], P[145]));
@@ -1611,6 +1569,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t99_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
     const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t99_0);
+    const double t100 = v_t99[1];
+    const double t101 = v_t99[2];
+    const double t102 = v_t99[3];
     #else
     const double t99 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[116], P[148]));
     const double t100 = DERIVE_FMA(t35, t84, DERIVE_FMA(t14, P[117], P[149]));
@@ -1620,6 +1581,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t103_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
     const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t103_0);
+    const double t104 = v_t103[1];
+    const double t105 = v_t103[2];
+    const double t106 = v_t103[3];
     #else
     const double t103 = DERIVE_FMA(t35, t87, DERIVE_FMA(t14, P[120], P[152]));
     const double t104 = DERIVE_FMA(t35, t88, DERIVE_FMA(t14, P[121], P[153]));
@@ -1629,6 +1593,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t107_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
     const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t91, v_t107_0);
+    const double t108 = v_t107[1];
+    const double t109 = v_t107[2];
+    const double t110 = v_t107[3];
     #else
     const double t107 = DERIVE_FMA(t35, t91, DERIVE_FMA(t14, P[124], P[156]));
     const double t108 = DERIVE_FMA(t35, t92, DERIVE_FMA(t14, P[125], P[157]));
@@ -1639,6 +1606,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t111_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
     const derive_vd v_t111_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t79, v_t111_0);
     const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t95, v_t111_1);
+    const double t112 = v_t111[1];
+    const double t113 = v_t111[2];
+    const double t114 = v_t111[3];
     #else
     const double t111 = DERIVE_FMA(t52, t95, DERIVE_FMA(t36, t79, DERIVE_FMA(t15, P[112], P[64])));
     const double t112 = DERIVE_FMA(t52, t96, DERIVE_FMA(t36, t80, DERIVE_FMA(t15, P[113], P[65])));
@@ -1649,6 +1619,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t115_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
     const derive_vd v_t115_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t115_0);
     const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t99, v_t115_1);
+    const double t116 = v_t115[1];
+    const double t117 = v_t115[2];
+    const double t118 = v_t115[3];
     #else
     const double t115 = DERIVE_FMA(t52, t99, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[116], P[68])));
     const double t116 = DERIVE_FMA(t52, t100, DERIVE_FMA(t36, t84, DERIVE_FMA(t15, P[117], P[69])));
@@ -1659,6 +1632,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t119_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
     const derive_vd v_t119_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t87, v_t119_0);
     const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t103, v_t119_1);
+    const double t120 = v_t119[1];
+    const double t121 = v_t119[2];
+    const double t122 = v_t119[3];
     #else
     const double t119 = DERIVE_FMA(t52, t103, DERIVE_FMA(t36, t87, DERIVE_FMA(t15, P[120], P[72])));
     const double t120 = DERIVE_FMA(t52, t104, DERIVE_FMA(t36, t88, DERIVE_FMA(t15, P[121], P[73])));
@@ -1669,6 +1645,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t123_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
     const derive_vd v_t123_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t91, v_t123_0);
     const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t123_1);
+    const double t124 = v_t123[1];
+    const double t125 = v_t123[2];
+    const double t126 = v_t123[3];
     #else
     const double t123 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t91, DERIVE_FMA(t15, P[124], P[76])));
     const double t124 = DERIVE_FMA(t52, t108, DERIVE_FMA(t36, t92, DERIVE_FMA(t15, P[125], P[77])));
@@ -1680,6 +1659,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t127_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t79, v_t127_0);
     const derive_vd v_t127_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t95, v_t127_1);
     const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t111, v_t127_2);
+    const double t128 = v_t127[1];
+    const double t129 = v_t127[2];
+    const double t130 = v_t127[3];
     #else
     const double t127 = DERIVE_FMA(t64, t111, DERIVE_FMA(t53, t95, DERIVE_FMA(t37, t79, DERIVE_FMA(t16, P[112], P[80]))));
     const double t128 = DERIVE_FMA(t64, t112, DERIVE_FMA(t53, t96, DERIVE_FMA(t37, t80, DERIVE_FMA(t16, P[113], P[81]))));
@@ -1691,6 +1673,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t131_0);
     const derive_vd v_t131_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t99, v_t131_1);
     const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t115, v_t131_2);
+    const double t132 = v_t131[1];
+    const double t133 = v_t131[2];
+    const double t134 = v_t131[3];
     #else
     const double t131 = DERIVE_FMA(t64, t115, DERIVE_FMA(t53, t99, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[116], P[84]))));
     const double t132 = DERIVE_FMA(t64, t116, DERIVE_FMA(t53, t100, DERIVE_FMA(t37, t84, DERIVE_FMA(t16, P[117], P[85]))));
@@ -1702,6 +1687,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t135_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t87, v_t135_0);
     const derive_vd v_t135_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t103, v_t135_1);
     const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t119, v_t135_2);
+    const double t136 = v_t135[1];
+    const double t137 = v_t135[2];
+    const double t138 = v_t135[3];
     #else
     const double t135 = DERIVE_FMA(t64, t119, DERIVE_FMA(t53, t103, DERIVE_FMA(t37, t87, DERIVE_FMA(t16, P[120], P[88]))));
     const double t136 = DERIVE_FMA(t64, t120, DERIVE_FMA(t53, t104, DERIVE_FMA(t37, t88, DERIVE_FMA(t16, P[121], P[89]))));
@@ -1713,6 +1701,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t139_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t91, v_t139_0);
     const derive_vd v_t139_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t139_1);
     const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t123, v_t139_2);
+    const double t140 = v_t139[1];
+    const double t141 = v_t139[2];
+    const double t142 = v_t139[3];
     #else
     const double t139 = DERIVE_FMA(t64, t123, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t91, DERIVE_FMA(t16, P[124], P[92]))));
     const double t140 = DERIVE_FMA(t64, t124, DERIVE_FMA(t53, t108, DERIVE_FMA(t37, t92, DERIVE_FMA(t16, P[125], P[93]))));
@@ -1725,6 +1716,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t143_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t95, v_t143_1);
     const derive_vd v_t143_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t111, v_t143_2);
     const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t127, v_t143_3);
+    const double t144 = v_t143[1];
+    const double t145 = v_t143[2];
+    const double t146 = v_t143[3];
     #else
     const double t143 = DERIVE_FMA(t72, t127, DERIVE_FMA(t65, t111, DERIVE_FMA(t54, t95, DERIVE_FMA(t38, t79, DERIVE_FMA(t17, P[112], P[96])))));
     const double t144 = DERIVE_FMA(t72, t128, DERIVE_FMA(t65, t112, DERIVE_FMA(t54, t96, DERIVE_FMA(t38, t80, DERIVE_FMA(t17, P[113], P[97])))));
@@ -1737,6 +1731,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t147_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t99, v_t147_1);
     const derive_vd v_t147_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t115, v_t147_2);
     const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t131, v_t147_3);
+    const double t148 = v_t147[1];
+    const double t149 = v_t147[2];
+    const double t150 = v_t147[3];
     #else
     const double t147 = DERIVE_FMA(t72, t131, DERIVE_FMA(t65, t115, DERIVE_FMA(t54, t99, DERIVE_FMA(t38, t83, DERIVE_FMA(t17, P[116], P[100])))));
     const double t148 = DERIVE_FMA(t72, t132, DERIVE_FMA(t65, t116, DERIVE_FMA(t54, t100, DERIVE_FMA(t38, t84, DERIVE_FMA(t17, P[117], P[101])))));
@@ -1749,6 +1746,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t151_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t103, v_t151_1);
     const derive_vd v_t151_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t119, v_t151_2);
     const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t135, v_t151_3);
+    const double t152 = v_t151[1];
+    const double t153 = v_t151[2];
+    const double t154 = v_t151[3];
     #else
     const double t151 = DERIVE_FMA(t72, t135, DERIVE_FMA(t65, t119, DERIVE_FMA(t54, t103, DERIVE_FMA(t38, t87, DERIVE_FMA(t17, P[120], P[104])))));
     const double t152 = DERIVE_FMA(t72, t136, DERIVE_FMA(t65, t120, DERIVE_FMA(t54, t104, DERIVE_FMA(t38, t88, DERIVE_FMA(t17, P[121], P[105])))));
@@ -1761,6 +1761,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t107, v_t155_1);
     const derive_vd v_t155_3 = DERIVE_VFMA(((derive_vd){t65, t65, t65, t65}), v_t123, v_t155_2);
     const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t72, t72, t72, t72}), v_t139, v_t155_3);
+    const double t156 = v_t155[1];
+    const double t157 = v_t155[2];
+    const double t158 = v_t155[3];
     #else
     const double t155 = DERIVE_FMA(t72, t139, DERIVE_FMA(t65, t123, DERIVE_FMA(t54, t107, DERIVE_FMA(t38, t91, DERIVE_FMA(t17, P[124], P[108])))));
     const double t156 = DERIVE_FMA(t72, t140, DERIVE_FMA(t65, t124, DERIVE_FMA(t54, t108, DERIVE_FMA(t38, t92, DERIVE_FMA(t17, P[125], P[109])))));
@@ -2121,6 +2124,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t271_3 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t111, v_t271_2);
     const derive_vd v_t271_4 = DERIVE_VFMA(((derive_vd){t223, t223, t223, t223}), v_t127, v_t271_3);
     const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t239, t239, t239, t239}), v_t143, v_t271_4);
+    const double t272 = v_t271[1];
+    const double t273 = v_t271[2];
+    const double t274 = v_t271[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t271;
     #else
     const double t271 = DERIVE_FMA(t239, t143, DERIVE_FMA(t223, t127, DERIVE_FMA(t207, t111, DERIVE_FMA(t191, t95, DERIVE_FMA(t175, t79, DERIVE_FMA(t159, P[112], P[0]))))));
     const double t272 = DERIVE_FMA(t239, t144, DERIVE_FMA(t223, t128, DERIVE_FMA(t207, t112, DERIVE_FMA(t191, t96, DERIVE_FMA(t175, t80, DERIVE_FMA(t159, P[113], P[1]))))));
@@ -2166,606 +2173,514 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t285 = DERIVE_FMA(t239, t157, DERIVE_FMA(t223, t141, DERIVE_FMA(t207, t125, DERIVE_FMA(t191, t109, DERIVE_FMA(t175, t93, DERIVE_FMA(t159, P[126], P[14]))))));
     const double t286 = DERIVE_FMA(t239, t158, DERIVE_FMA(t223, t142, DERIVE_FMA(t207, t126, DERIVE_FMA(t191, t110, DERIVE_FMA(t175, t94, DERIVE_FMA(t159, P[127], P[15]))))));
     #endif
+    const double t287 = DERIVE_FMA(t192, t96, DERIVE_FMA(t176, t80, DERIVE_FMA(t144, t240, DERIVE_FMA(t128, t224, DERIVE_FMA(t112, t208, DERIVE_FMA(P[113], t160, P[17]))))));
+    const double t288 = DERIVE_FMA(t192, t97, DERIVE_FMA(t176, t81, DERIVE_FMA(t145, t240, DERIVE_FMA(t129, t224, DERIVE_FMA(t113, t208, DERIVE_FMA(P[114], t160, P[18]))))));
+    const double t289 = DERIVE_FMA(t192, t98, DERIVE_FMA(t176, t82, DERIVE_FMA(t146, t240, DERIVE_FMA(t130, t224, DERIVE_FMA(t114, t208, DERIVE_FMA(P[115], t160, P[19]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t287_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
-    const derive_vd v_t287_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t79, v_t287_0);
-    const derive_vd v_t287_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t95, v_t287_1);
-    const derive_vd v_t287_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t111, v_t287_2);
-    const derive_vd v_t287_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t127, v_t287_3);
-    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t143, v_t287_4);
+    const derive_vd v_t290_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t290_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t83, v_t290_0);
+    const derive_vd v_t290_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t99, v_t290_1);
+    const derive_vd v_t290_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t115, v_t290_2);
+    const derive_vd v_t290_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t131, v_t290_3);
+    const derive_vd v_t290 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t147, v_t290_4);
     #else
-    const double t288 = DERIVE_FMA(t240, t144, DERIVE_FMA(t224, t128, DERIVE_FMA(t208, t112, DERIVE_FMA(t192, t96, DERIVE_FMA(t176, t80, DERIVE_FMA(t160, P[113], P[17]))))));
-    const double t289 = DERIVE_FMA(t240, t145, DERIVE_FMA(t224, t129, DERIVE_FMA(t208, t113, DERIVE_FMA(t192, t97, DERIVE_FMA(t176, t81, DERIVE_FMA(t160, P[114], P[18]))))));
-    const double t290 = DERIVE_FMA(t240, t146, DERIVE_FMA(t224, t130, DERIVE_FMA(t208, t114, DERIVE_FMA(t192, t98, DERIVE_FMA(t176, t82, DERIVE_FMA(t160, P[115], P[19]))))));
+    const double t290 = DERIVE_FMA(t240, t147, DERIVE_FMA(t224, t131, DERIVE_FMA(t208, t115, DERIVE_FMA(t192, t99, DERIVE_FMA(t176, t83, DERIVE_FMA(t160, P[116], P[20]))))));
+    const double t291 = DERIVE_FMA(t240, t148, DERIVE_FMA(t224, t132, DERIVE_FMA(t208, t116, DERIVE_FMA(t192, t100, DERIVE_FMA(t176, t84, DERIVE_FMA(t160, P[117], P[21]))))));
+    const double t292 = DERIVE_FMA(t240, t149, DERIVE_FMA(t224, t133, DERIVE_FMA(t208, t117, DERIVE_FMA(t192, t101, DERIVE_FMA(t176, t85, DERIVE_FMA(t160, P[118], P[22]))))));
+    const double t293 = DERIVE_FMA(t240, t150, DERIVE_FMA(t224, t134, DERIVE_FMA(t208, t118, DERIVE_FMA(t192, t102, DERIVE_FMA(t176, t86, DERIVE_FMA(t160, P[119], P[23]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t291_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
-    const derive_vd v_t291_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t83, v_t291_0);
-    const derive_vd v_t291_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t99, v_t291_1);
-    const derive_vd v_t291_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t115, v_t291_2);
-    const derive_vd v_t291_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t131, v_t291_3);
-    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t147, v_t291_4);
+    const derive_vd v_t294_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
+    const derive_vd v_t294_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t87, v_t294_0);
+    const derive_vd v_t294_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t103, v_t294_1);
+    const derive_vd v_t294_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t119, v_t294_2);
+    const derive_vd v_t294_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t135, v_t294_3);
+    const derive_vd v_t294 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t151, v_t294_4);
     #else
-    const double t291 = DERIVE_FMA(t240, t147, DERIVE_FMA(t224, t131, DERIVE_FMA(t208, t115, DERIVE_FMA(t192, t99, DERIVE_FMA(t176, t83, DERIVE_FMA(t160, P[116], P[20]))))));
-    const double t292 = DERIVE_FMA(t240, t148, DERIVE_FMA(t224, t132, DERIVE_FMA(t208, t116, DERIVE_FMA(t192, t100, DERIVE_FMA(t176, t84, DERIVE_FMA(t160, P[117], P[21]))))));
-    const double t293 = DERIVE_FMA(t240, t149, DERIVE_FMA(t224, t133, DERIVE_FMA(t208, t117, DERIVE_FMA(t192, t101, DERIVE_FMA(t176, t85, DERIVE_FMA(t160, P[118], P[22]))))));
-    const double t294 = DERIVE_FMA(t240, t150, DERIVE_FMA(t224, t134, DERIVE_FMA(t208, t118, DERIVE_FMA(t192, t102, DERIVE_FMA(t176, t86, DERIVE_FMA(t160, P[119], P[23]))))));
+    const double t294 = DERIVE_FMA(t240, t151, DERIVE_FMA(t224, t135, DERIVE_FMA(t208, t119, DERIVE_FMA(t192, t103, DERIVE_FMA(t176, t87, DERIVE_FMA(t160, P[120], P[24]))))));
+    const double t295 = DERIVE_FMA(t240, t152, DERIVE_FMA(t224, t136, DERIVE_FMA(t208, t120, DERIVE_FMA(t192, t104, DERIVE_FMA(t176, t88, DERIVE_FMA(t160, P[121], P[25]))))));
+    const double t296 = DERIVE_FMA(t240, t153, DERIVE_FMA(t224, t137, DERIVE_FMA(t208, t121, DERIVE_FMA(t192, t105, DERIVE_FMA(t176, t89, DERIVE_FMA(t160, P[122], P[26]))))));
+    const double t297 = DERIVE_FMA(t240, t154, DERIVE_FMA(t224, t138, DERIVE_FMA(t208, t122, DERIVE_FMA(t192, t106, DERIVE_FMA(t176, t90, DERIVE_FMA(t160, P[123], P[27]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t295_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
-    const derive_vd v_t295_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t87, v_t295_0);
-    const derive_vd v_t295_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t103, v_t295_1);
-    const derive_vd v_t295_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t119, v_t295_2);
-    const derive_vd v_t295_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t135, v_t295_3);
-    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t151, v_t295_4);
+    const derive_vd v_t298_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t298_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t91, v_t298_0);
+    const derive_vd v_t298_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t107, v_t298_1);
+    const derive_vd v_t298_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t123, v_t298_2);
+    const derive_vd v_t298_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t139, v_t298_3);
+    const derive_vd v_t298 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t155, v_t298_4);
     #else
-    const double t295 = DERIVE_FMA(t240, t151, DERIVE_FMA(t224, t135, DERIVE_FMA(t208, t119, DERIVE_FMA(t192, t103, DERIVE_FMA(t176, t87, DERIVE_FMA(t160, P[120], P[24]))))));
-    const double t296 = DERIVE_FMA(t240, t152, DERIVE_FMA(t224, t136, DERIVE_FMA(t208, t120, DERIVE_FMA(t192, t104, DERIVE_FMA(t176, t88, DERIVE_FMA(t160, P[121], P[25]))))));
-    const double t297 = DERIVE_FMA(t240, t153, DERIVE_FMA(t224, t137, DERIVE_FMA(t208, t121, DERIVE_FMA(t192, t105, DERIVE_FMA(t176, t89, DERIVE_FMA(t160, P[122], P[26]))))));
-    const double t298 = DERIVE_FMA(t240, t154, DERIVE_FMA(t224, t138, DERIVE_FMA(t208, t122, DERIVE_FMA(t192, t106, DERIVE_FMA(t176, t90, DERIVE_FMA(t160, P[123], P[27]))))));
+    const double t298 = DERIVE_FMA(t240, t155, DERIVE_FMA(t224, t139, DERIVE_FMA(t208, t123, DERIVE_FMA(t192, t107, DERIVE_FMA(t176, t91, DERIVE_FMA(t160, P[124], P[28]))))));
+    const double t299 = DERIVE_FMA(t240, t156, DERIVE_FMA(t224, t140, DERIVE_FMA(t208, t124, DERIVE_FMA(t192, t108, DERIVE_FMA(t176, t92, DERIVE_FMA(t160, P[125], P[29]))))));
+    const double t300 = DERIVE_FMA(t240, t157, DERIVE_FMA(t224, t141, DERIVE_FMA(t208, t125, DERIVE_FMA(t192, t109, DERIVE_FMA(t176, t93, DERIVE_FMA(t160, P[126], P[30]))))));
+    const double t301 = DERIVE_FMA(t240, t158, DERIVE_FMA(t224, t142, DERIVE_FMA(t208, t126, DERIVE_FMA(t192, t110, DERIVE_FMA(t176, t94, DERIVE_FMA(t160, P[127], P[31]))))));
+    #endif
+    const double t302 = DERIVE_FMA(t193, t97, DERIVE_FMA(t177, t81, DERIVE_FMA(t145, t241, DERIVE_FMA(t129, t225, DERIVE_FMA(t113, t209, DERIVE_FMA(P[114], t161, P[34]))))));
+    const double t303 = DERIVE_FMA(t193, t98, DERIVE_FMA(t177, t82, DERIVE_FMA(t146, t241, DERIVE_FMA(t130, t225, DERIVE_FMA(t114, t209, DERIVE_FMA(P[115], t161, P[35]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t304_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    const derive_vd v_t304_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t83, v_t304_0);
+    const derive_vd v_t304_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t99, v_t304_1);
+    const derive_vd v_t304_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t115, v_t304_2);
+    const derive_vd v_t304_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t131, v_t304_3);
+    const derive_vd v_t304 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t147, v_t304_4);
+    #else
+    const double t304 = DERIVE_FMA(t241, t147, DERIVE_FMA(t225, t131, DERIVE_FMA(t209, t115, DERIVE_FMA(t193, t99, DERIVE_FMA(t177, t83, DERIVE_FMA(t161, P[116], P[36]))))));
+    const double t305 = DERIVE_FMA(t241, t148, DERIVE_FMA(t225, t132, DERIVE_FMA(t209, t116, DERIVE_FMA(t193, t100, DERIVE_FMA(t177, t84, DERIVE_FMA(t161, P[117], P[37]))))));
+    const double t306 = DERIVE_FMA(t241, t149, DERIVE_FMA(t225, t133, DERIVE_FMA(t209, t117, DERIVE_FMA(t193, t101, DERIVE_FMA(t177, t85, DERIVE_FMA(t161, P[118], P[38]))))));
+    const double t307 = DERIVE_FMA(t241, t150, DERIVE_FMA(t225, t134, DERIVE_FMA(t209, t118, DERIVE_FMA(t193, t102, DERIVE_FMA(t177, t86, DERIVE_FMA(t161, P[119], P[39]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t299_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
-    const derive_vd v_t299_1 = DERIVE_VFMA(((derive_vd){t176, t176, t176, t176}), v_t91, v_t299_0);
-    const derive_vd v_t299_2 = DERIVE_VFMA(((derive_vd){t192, t192, t192, t192}), v_t107, v_t299_1);
-    const derive_vd v_t299_3 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t123, v_t299_2);
-    const derive_vd v_t299_4 = DERIVE_VFMA(((derive_vd){t224, t224, t224, t224}), v_t139, v_t299_3);
-    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t240, t240, t240, t240}), v_t155, v_t299_4);
+    const derive_vd v_t308_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t308_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t87, v_t308_0);
+    const derive_vd v_t308_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t103, v_t308_1);
+    const derive_vd v_t308_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t119, v_t308_2);
+    const derive_vd v_t308_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t135, v_t308_3);
+    const derive_vd v_t308 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t151, v_t308_4);
     #else
-    const double t299 = DERIVE_FMA(t240, t155, DERIVE_FMA(t224, t139, DERIVE_FMA(t208, t123, DERIVE_FMA(t192, t107, DERIVE_FMA(t176, t91, DERIVE_FMA(t160, P[124], P[28]))))));
-    const double t300 = DERIVE_FMA(t240, t156, DERIVE_FMA(t224, t140, DERIVE_FMA(t208, t124, DERIVE_FMA(t192, t108, DERIVE_FMA(t176, t92, DERIVE_FMA(t160, P[125], P[29]))))));
-    const double t301 = DERIVE_FMA(t240, t157, DERIVE_FMA(t224, t141, DERIVE_FMA(t208, t125, DERIVE_FMA(t192, t109, DERIVE_FMA(t176, t93, DERIVE_FMA(t160, P[126], P[30]))))));
-    const double t302 = DERIVE_FMA(t240, t158, DERIVE_FMA(t224, t142, DERIVE_FMA(t208, t126, DERIVE_FMA(t192, t110, DERIVE_FMA(t176, t94, DERIVE_FMA(t160, P[127], P[31]))))));
+    const double t308 = DERIVE_FMA(t241, t151, DERIVE_FMA(t225, t135, DERIVE_FMA(t209, t119, DERIVE_FMA(t193, t103, DERIVE_FMA(t177, t87, DERIVE_FMA(t161, P[120], P[40]))))));
+    const double t309 = DERIVE_FMA(t241, t152, DERIVE_FMA(t225, t136, DERIVE_FMA(t209, t120, DERIVE_FMA(t193, t104, DERIVE_FMA(t177, t88, DERIVE_FMA(t161, P[121], P[41]))))));
+    const double t310 = DERIVE_FMA(t241, t153, DERIVE_FMA(t225, t137, DERIVE_FMA(t209, t121, DERIVE_FMA(t193, t105, DERIVE_FMA(t177, t89, DERIVE_FMA(t161, P[122], P[42]))))));
+    const double t311 = DERIVE_FMA(t241, t154, DERIVE_FMA(t225, t138, DERIVE_FMA(t209, t122, DERIVE_FMA(t193, t106, DERIVE_FMA(t177, t90, DERIVE_FMA(t161, P[123], P[43]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t303_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
-    const derive_vd v_t303_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t79, v_t303_0);
-    const derive_vd v_t303_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t95, v_t303_1);
-    const derive_vd v_t303_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t111, v_t303_2);
-    const derive_vd v_t303_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t127, v_t303_3);
-    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t143, v_t303_4);
+    const derive_vd v_t312_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t312_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t91, v_t312_0);
+    const derive_vd v_t312_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t107, v_t312_1);
+    const derive_vd v_t312_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t123, v_t312_2);
+    const derive_vd v_t312_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t139, v_t312_3);
+    const derive_vd v_t312 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t155, v_t312_4);
     #else
-    const double t305 = DERIVE_FMA(t241, t145, DERIVE_FMA(t225, t129, DERIVE_FMA(t209, t113, DERIVE_FMA(t193, t97, DERIVE_FMA(t177, t81, DERIVE_FMA(t161, P[114], P[34]))))));
-    const double t306 = DERIVE_FMA(t241, t146, DERIVE_FMA(t225, t130, DERIVE_FMA(t209, t114, DERIVE_FMA(t193, t98, DERIVE_FMA(t177, t82, DERIVE_FMA(t161, P[115], P[35]))))));
+    const double t312 = DERIVE_FMA(t241, t155, DERIVE_FMA(t225, t139, DERIVE_FMA(t209, t123, DERIVE_FMA(t193, t107, DERIVE_FMA(t177, t91, DERIVE_FMA(t161, P[124], P[44]))))));
+    const double t313 = DERIVE_FMA(t241, t156, DERIVE_FMA(t225, t140, DERIVE_FMA(t209, t124, DERIVE_FMA(t193, t108, DERIVE_FMA(t177, t92, DERIVE_FMA(t161, P[125], P[45]))))));
+    const double t314 = DERIVE_FMA(t241, t157, DERIVE_FMA(t225, t141, DERIVE_FMA(t209, t125, DERIVE_FMA(t193, t109, DERIVE_FMA(t177, t93, DERIVE_FMA(t161, P[126], P[46]))))));
+    const double t315 = DERIVE_FMA(t241, t158, DERIVE_FMA(t225, t142, DERIVE_FMA(t209, t126, DERIVE_FMA(t193, t110, DERIVE_FMA(t177, t94, DERIVE_FMA(t161, P[127], P[47]))))));
     #endif
+    const double t316 = DERIVE_FMA(t194, t98, DERIVE_FMA(t178, t82, DERIVE_FMA(t146, t242, DERIVE_FMA(t130, t226, DERIVE_FMA(t114, t210, DERIVE_FMA(P[115], t162, P[51]))))));
     #if DERIVE_VECTOR
-    const derive_vd v_t307_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
-    const derive_vd v_t307_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t83, v_t307_0);
-    const derive_vd v_t307_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t99, v_t307_1);
-    const derive_vd v_t307_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t115, v_t307_2);
-    const derive_vd v_t307_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t131, v_t307_3);
-    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t147, v_t307_4);
-    #else
-    const double t307 = DERIVE_FMA(t241, t147, DERIVE_FMA(t225, t131, DERIVE_FMA(t209, t115, DERIVE_FMA(t193, t99, DERIVE_FMA(t177, t83, DERIVE_FMA(t161, P[116], P[36]))))));
-    const double t308 = DERIVE_FMA(t241, t148, DERIVE_FMA(t225, t132, DERIVE_FMA(t209, t116, DERIVE_FMA(t193, t100, DERIVE_FMA(t177, t84, DERIVE_FMA(t161, P[117], P[37]))))));
-    const double t309 = DERIVE_FMA(t241, t149, DERIVE_FMA(t225, t133, DERIVE_FMA(t209, t117, DERIVE_FMA(t193, t101, DERIVE_FMA(t177, t85, DERIVE_FMA(t161, P[118], P[38]))))));
-    const double t310 = DERIVE_FMA(t241, t150, DERIVE_FMA(t225, t134, DERIVE_FMA(t209, t118, DERIVE_FMA(t193, t102, DERIVE_FMA(t177, t86, DERIVE_FMA(t161, P[119], P[39]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t311_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
-    const derive_vd v_t311_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t87, v_t311_0);
-    const derive_vd v_t311_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t103, v_t311_1);
-    const derive_vd v_t311_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t119, v_t311_2);
-    const derive_vd v_t311_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t135, v_t311_3);
-    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t151, v_t311_4);
-    #else
-    const double t311 = DERIVE_FMA(t241, t151, DERIVE_FMA(t225, t135, DERIVE_FMA(t209, t119, DERIVE_FMA(t193, t103, DERIVE_FMA(t177, t87, DERIVE_FMA(t161, P[120], P[40]))))));
-    const double t312 = DERIVE_FMA(t241, t152, DERIVE_FMA(t225, t136, DERIVE_FMA(t209, t120, DERIVE_FMA(t193, t104, DERIVE_FMA(t177, t88, DERIVE_FMA(t161, P[121], P[41]))))));
-    const double t313 = DERIVE_FMA(t241, t153, DERIVE_FMA(t225, t137, DERIVE_FMA(t209, t121, DERIVE_FMA(t193, t105, DERIVE_FMA(t177, t89, DERIVE_FMA(t161, P[122], P[42]))))));
-    const double t314 = DERIVE_FMA(t241, t154, DERIVE_FMA(t225, t138, DERIVE_FMA(t209, t122, DERIVE_FMA(t193, t106, DERIVE_FMA(t177, t90, DERIVE_FMA(t161, P[123], P[43]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t315_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
-    const derive_vd v_t315_1 = DERIVE_VFMA(((derive_vd){t177, t177, t177, t177}), v_t91, v_t315_0);
-    const derive_vd v_t315_2 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t107, v_t315_1);
-    const derive_vd v_t315_3 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t123, v_t315_2);
-    const derive_vd v_t315_4 = DERIVE_VFMA(((derive_vd){t225, t225, t225, t225}), v_t139, v_t315_3);
-    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){t241, t241, t241, t241}), v_t155, v_t315_4);
-    #else
-    const double t315 = DERIVE_FMA(t241, t155, DERIVE_FMA(t225, t139, DERIVE_FMA(t209, t123, DERIVE_FMA(t193, t107, DERIVE_FMA(t177, t91, DERIVE_FMA(t161, P[124], P[44]))))));
-    const double t316 = DERIVE_FMA(t241, t156, DERIVE_FMA(t225, t140, DERIVE_FMA(t209, t124, DERIVE_FMA(t193, t108, DERIVE_FMA(t177, t92, DERIVE_FMA(t161, P[125], P[45]))))));
-    const double t317 = DERIVE_FMA(t241, t157, DERIVE_FMA(t225, t141, DERIVE_FMA(t209, t125, DERIVE_FMA(t193, t109, DERIVE_FMA(t177, t93, DERIVE_FMA(t161, P[126], P[46]))))));
-    const double t318 = DERIVE_FMA(t241, t158, DERIVE_FMA(t225, t142, DERIVE_FMA(t209, t126, DERIVE_FMA(t193, t110, DERIVE_FMA(t177, t94, DERIVE_FMA(t161, P[127], P[47]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t319_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
-    const derive_vd v_t319_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t79, v_t319_0);
-    const derive_vd v_t319_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t95, v_t319_1);
-    const derive_vd v_t319_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t111, v_t319_2);
-    const derive_vd v_t319_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t127, v_t319_3);
-    const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t143, v_t319_4);
-    const derive_vd tr_v_t271_0 = __builtin_shufflevector(v_t271, v_t287, 0, 4, 2, 6);
-    const derive_vd tr_v_t271_1 = __builtin_shufflevector(v_t271, v_t287, 1, 5, 3, 7);
-    const derive_vd tr_v_t271_2 = __builtin_shufflevector(v_t303, v_t319, 0, 4, 2, 6);
-    const derive_vd tr_v_t271_3 = __builtin_shufflevector(v_t303, v_t319, 1, 5, 3, 7);
-    const derive_vd tr_v_t271_c1 = __builtin_shufflevector(tr_v_t271_1, tr_v_t271_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t271_c2 = __builtin_shufflevector(tr_v_t271_0, tr_v_t271_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t271_c3 = __builtin_shufflevector(tr_v_t271_1, tr_v_t271_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[0] = v_t271;
-    *(derive_vd_unaligned *)&P_new[16] = __builtin_shufflevector(v_t287, tr_v_t271_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[32] = __builtin_shufflevector(v_t303, tr_v_t271_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[48] = __builtin_shufflevector(v_t319, tr_v_t271_c3, 4, 5, 6, 3);
-    #else
-    const double t322 = DERIVE_FMA(t242, t146, DERIVE_FMA(t226, t130, DERIVE_FMA(t210, t114, DERIVE_FMA(t194, t98, DERIVE_FMA(t178, t82, DERIVE_FMA(t162, P[115], P[51]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t323_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd v_t323_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t83, v_t323_0);
-    const derive_vd v_t323_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t99, v_t323_1);
-    const derive_vd v_t323_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t115, v_t323_2);
-    const derive_vd v_t323_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t131, v_t323_3);
-    const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t147, v_t323_4);
-    const derive_vd tr_v_t275_0 = __builtin_shufflevector(v_t275, v_t291, 0, 4, 2, 6);
-    const derive_vd tr_v_t275_1 = __builtin_shufflevector(v_t275, v_t291, 1, 5, 3, 7);
-    const derive_vd tr_v_t275_2 = __builtin_shufflevector(v_t307, v_t323, 0, 4, 2, 6);
-    const derive_vd tr_v_t275_3 = __builtin_shufflevector(v_t307, v_t323, 1, 5, 3, 7);
+    const derive_vd v_t317_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd v_t317_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t83, v_t317_0);
+    const derive_vd v_t317_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t99, v_t317_1);
+    const derive_vd v_t317_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t115, v_t317_2);
+    const derive_vd v_t317_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t131, v_t317_3);
+    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t147, v_t317_4);
+    const derive_vd tr_v_t275_0 = __builtin_shufflevector(v_t275, v_t290, 0, 4, 2, 6);
+    const derive_vd tr_v_t275_1 = __builtin_shufflevector(v_t275, v_t290, 1, 5, 3, 7);
+    const derive_vd tr_v_t275_2 = __builtin_shufflevector(v_t304, v_t317, 0, 4, 2, 6);
+    const derive_vd tr_v_t275_3 = __builtin_shufflevector(v_t304, v_t317, 1, 5, 3, 7);
     const derive_vd tr_v_t275_c0 = __builtin_shufflevector(tr_v_t275_0, tr_v_t275_2, 0, 1, 4, 5);
     const derive_vd tr_v_t275_c1 = __builtin_shufflevector(tr_v_t275_1, tr_v_t275_3, 0, 1, 4, 5);
     const derive_vd tr_v_t275_c2 = __builtin_shufflevector(tr_v_t275_0, tr_v_t275_2, 2, 3, 6, 7);
     const derive_vd tr_v_t275_c3 = __builtin_shufflevector(tr_v_t275_1, tr_v_t275_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[4] = v_t275;
-    *(derive_vd_unaligned *)&P_new[20] = v_t291;
-    *(derive_vd_unaligned *)&P_new[36] = v_t307;
-    *(derive_vd_unaligned *)&P_new[52] = v_t323;
+    *(derive_vd_unaligned *)&P_new[20] = v_t290;
+    *(derive_vd_unaligned *)&P_new[36] = v_t304;
+    *(derive_vd_unaligned *)&P_new[52] = v_t317;
     *(derive_vd_unaligned *)&P_new[64] = tr_v_t275_c0;
     *(derive_vd_unaligned *)&P_new[80] = tr_v_t275_c1;
     *(derive_vd_unaligned *)&P_new[96] = tr_v_t275_c2;
     *(derive_vd_unaligned *)&P_new[112] = tr_v_t275_c3;
     #else
-    const double t323 = DERIVE_FMA(t242, t147, DERIVE_FMA(t226, t131, DERIVE_FMA(t210, t115, DERIVE_FMA(t194, t99, DERIVE_FMA(t178, t83, DERIVE_FMA(t162, P[116], P[52]))))));
-    const double t324 = DERIVE_FMA(t242, t148, DERIVE_FMA(t226, t132, DERIVE_FMA(t210, t116, DERIVE_FMA(t194, t100, DERIVE_FMA(t178, t84, DERIVE_FMA(t162, P[117], P[53]))))));
-    const double t325 = DERIVE_FMA(t242, t149, DERIVE_FMA(t226, t133, DERIVE_FMA(t210, t117, DERIVE_FMA(t194, t101, DERIVE_FMA(t178, t85, DERIVE_FMA(t162, P[118], P[54]))))));
-    const double t326 = DERIVE_FMA(t242, t150, DERIVE_FMA(t226, t134, DERIVE_FMA(t210, t118, DERIVE_FMA(t194, t102, DERIVE_FMA(t178, t86, DERIVE_FMA(t162, P[119], P[55]))))));
+    const double t317 = DERIVE_FMA(t242, t147, DERIVE_FMA(t226, t131, DERIVE_FMA(t210, t115, DERIVE_FMA(t194, t99, DERIVE_FMA(t178, t83, DERIVE_FMA(t162, P[116], P[52]))))));
+    const double t318 = DERIVE_FMA(t242, t148, DERIVE_FMA(t226, t132, DERIVE_FMA(t210, t116, DERIVE_FMA(t194, t100, DERIVE_FMA(t178, t84, DERIVE_FMA(t162, P[117], P[53]))))));
+    const double t319 = DERIVE_FMA(t242, t149, DERIVE_FMA(t226, t133, DERIVE_FMA(t210, t117, DERIVE_FMA(t194, t101, DERIVE_FMA(t178, t85, DERIVE_FMA(t162, P[118], P[54]))))));
+    const double t320 = DERIVE_FMA(t242, t150, DERIVE_FMA(t226, t134, DERIVE_FMA(t210, t118, DERIVE_FMA(t194, t102, DERIVE_FMA(t178, t86, DERIVE_FMA(t162, P[119], P[55]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t327_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd v_t327_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t87, v_t327_0);
-    const derive_vd v_t327_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t103, v_t327_1);
-    const derive_vd v_t327_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t119, v_t327_2);
-    const derive_vd v_t327_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t135, v_t327_3);
-    const derive_vd v_t327 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t151, v_t327_4);
-    const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t295, 0, 4, 2, 6);
-    const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t295, 1, 5, 3, 7);
-    const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t311, v_t327, 0, 4, 2, 6);
-    const derive_vd tr_v_t279_3 = __builtin_shufflevector(v_t311, v_t327, 1, 5, 3, 7);
+    const derive_vd v_t321_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd v_t321_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t87, v_t321_0);
+    const derive_vd v_t321_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t103, v_t321_1);
+    const derive_vd v_t321_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t119, v_t321_2);
+    const derive_vd v_t321_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t135, v_t321_3);
+    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t151, v_t321_4);
+    const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t294, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t294, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t308, v_t321, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_3 = __builtin_shufflevector(v_t308, v_t321, 1, 5, 3, 7);
     const derive_vd tr_v_t279_c0 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 0, 1, 4, 5);
     const derive_vd tr_v_t279_c1 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 0, 1, 4, 5);
     const derive_vd tr_v_t279_c2 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 2, 3, 6, 7);
     const derive_vd tr_v_t279_c3 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[8] = v_t279;
-    *(derive_vd_unaligned *)&P_new[24] = v_t295;
-    *(derive_vd_unaligned *)&P_new[40] = v_t311;
-    *(derive_vd_unaligned *)&P_new[56] = v_t327;
+    *(derive_vd_unaligned *)&P_new[24] = v_t294;
+    *(derive_vd_unaligned *)&P_new[40] = v_t308;
+    *(derive_vd_unaligned *)&P_new[56] = v_t321;
     *(derive_vd_unaligned *)&P_new[128] = tr_v_t279_c0;
     *(derive_vd_unaligned *)&P_new[144] = tr_v_t279_c1;
     *(derive_vd_unaligned *)&P_new[160] = tr_v_t279_c2;
     *(derive_vd_unaligned *)&P_new[176] = tr_v_t279_c3;
     #else
-    const double t327 = DERIVE_FMA(t242, t151, DERIVE_FMA(t226, t135, DERIVE_FMA(t210, t119, DERIVE_FMA(t194, t103, DERIVE_FMA(t178, t87, DERIVE_FMA(t162, P[120], P[56]))))));
-    const double t328 = DERIVE_FMA(t242, t152, DERIVE_FMA(t226, t136, DERIVE_FMA(t210, t120, DERIVE_FMA(t194, t104, DERIVE_FMA(t178, t88, DERIVE_FMA(t162, P[121], P[57]))))));
-    const double t329 = DERIVE_FMA(t242, t153, DERIVE_FMA(t226, t137, DERIVE_FMA(t210, t121, DERIVE_FMA(t194, t105, DERIVE_FMA(t178, t89, DERIVE_FMA(t162, P[122], P[58]))))));
-    const double t330 = DERIVE_FMA(t242, t154, DERIVE_FMA(t226, t138, DERIVE_FMA(t210, t122, DERIVE_FMA(t194, t106, DERIVE_FMA(t178, t90, DERIVE_FMA(t162, P[123], P[59]))))));
+    const double t321 = DERIVE_FMA(t242, t151, DERIVE_FMA(t226, t135, DERIVE_FMA(t210, t119, DERIVE_FMA(t194, t103, DERIVE_FMA(t178, t87, DERIVE_FMA(t162, P[120], P[56]))))));
+    const double t322 = DERIVE_FMA(t242, t152, DERIVE_FMA(t226, t136, DERIVE_FMA(t210, t120, DERIVE_FMA(t194, t104, DERIVE_FMA(t178, t88, DERIVE_FMA(t162, P[121], P[57]))))));
+    const double t323 = DERIVE_FMA(t242, t153, DERIVE_FMA(t226, t137, DERIVE_FMA(t210, t121, DERIVE_FMA(t194, t105, DERIVE_FMA(t178, t89, DERIVE_FMA(t162, P[122], P[58]))))));
+    const double t324 = DERIVE_FMA(t242, t154, DERIVE_FMA(t226, t138, DERIVE_FMA(t210, t122, DERIVE_FMA(t194, t106, DERIVE_FMA(t178, t90, DERIVE_FMA(t162, P[123], P[59]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t331_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd v_t331_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t91, v_t331_0);
-    const derive_vd v_t331_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t107, v_t331_1);
-    const derive_vd v_t331_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t123, v_t331_2);
-    const derive_vd v_t331_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t139, v_t331_3);
-    const derive_vd v_t331 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t155, v_t331_4);
-    const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t299, 0, 4, 2, 6);
-    const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t299, 1, 5, 3, 7);
-    const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t315, v_t331, 0, 4, 2, 6);
-    const derive_vd tr_v_t283_3 = __builtin_shufflevector(v_t315, v_t331, 1, 5, 3, 7);
+    const derive_vd v_t325_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd v_t325_1 = DERIVE_VFMA(((derive_vd){t178, t178, t178, t178}), v_t91, v_t325_0);
+    const derive_vd v_t325_2 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t107, v_t325_1);
+    const derive_vd v_t325_3 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), v_t123, v_t325_2);
+    const derive_vd v_t325_4 = DERIVE_VFMA(((derive_vd){t226, t226, t226, t226}), v_t139, v_t325_3);
+    const derive_vd v_t325 = DERIVE_VFMA(((derive_vd){t242, t242, t242, t242}), v_t155, v_t325_4);
+    const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t298, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t298, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t312, v_t325, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_3 = __builtin_shufflevector(v_t312, v_t325, 1, 5, 3, 7);
     const derive_vd tr_v_t283_c0 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 0, 1, 4, 5);
     const derive_vd tr_v_t283_c1 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 0, 1, 4, 5);
     const derive_vd tr_v_t283_c2 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 2, 3, 6, 7);
     const derive_vd tr_v_t283_c3 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 2, 3, 6, 7);
     *(derive_vd_unaligned *)&P_new[12] = v_t283;
-    *(derive_vd_unaligned *)&P_new[28] = v_t299;
-    *(derive_vd_unaligned *)&P_new[44] = v_t315;
-    *(derive_vd_unaligned *)&P_new[60] = v_t331;
+    *(derive_vd_unaligned *)&P_new[28] = v_t298;
+    *(derive_vd_unaligned *)&P_new[44] = v_t312;
+    *(derive_vd_unaligned *)&P_new[60] = v_t325;
     *(derive_vd_unaligned *)&P_new[192] = tr_v_t283_c0;
     *(derive_vd_unaligned *)&P_new[208] = tr_v_t283_c1;
     *(derive_vd_unaligned *)&P_new[224] = tr_v_t283_c2;
     *(derive_vd_unaligned *)&P_new[240] = tr_v_t283_c3;
     #else
-    const double t331 = DERIVE_FMA(t242, t155, DERIVE_FMA(t226, t139, DERIVE_FMA(t210, t123, DERIVE_FMA(t194, t107, DERIVE_FMA(t178, t91, DERIVE_FMA(t162, P[124], P[60]))))));
-    const double t332 = DERIVE_FMA(t242, t156, DERIVE_FMA(t226, t140, DERIVE_FMA(t210, t124, DERIVE_FMA(t194, t108, DERIVE_FMA(t178, t92, DERIVE_FMA(t162, P[125], P[61]))))));
-    const double t333 = DERIVE_FMA(t242, t157, DERIVE_FMA(t226, t141, DERIVE_FMA(t210, t125, DERIVE_FMA(t194, t109, DERIVE_FMA(t178, t93, DERIVE_FMA(t162, P[126], P[62]))))));
-    const double t334 = DERIVE_FMA(t242, t158, DERIVE_FMA(t226, t142, DERIVE_FMA(t210, t126, DERIVE_FMA(t194, t110, DERIVE_FMA(t178, t94, DERIVE_FMA(t162, P[127], P[63]))))));
+    const double t325 = DERIVE_FMA(t242, t155, DERIVE_FMA(t226, t139, DERIVE_FMA(t210, t123, DERIVE_FMA(t194, t107, DERIVE_FMA(t178, t91, DERIVE_FMA(t162, P[124], P[60]))))));
+    const double t326 = DERIVE_FMA(t242, t156, DERIVE_FMA(t226, t140, DERIVE_FMA(t210, t124, DERIVE_FMA(t194, t108, DERIVE_FMA(t178, t92, DERIVE_FMA(t162, P[125], P[61]))))));
+    const double t327 = DERIVE_FMA(t242, t157, DERIVE_FMA(t226, t141, DERIVE_FMA(t210, t125, DERIVE_FMA(t194, t109, DERIVE_FMA(t178, t93, DERIVE_FMA(t162, P[126], P[62]))))));
+    const double t328 = DERIVE_FMA(t242, t158, DERIVE_FMA(t226, t142, DERIVE_FMA(t210, t126, DERIVE_FMA(t194, t110, DERIVE_FMA(t178, t94, DERIVE_FMA(t162, P[127], P[63]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t335_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t335_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t83, v_t335_0);
-    const derive_vd v_t335_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t99, v_t335_1);
-    const derive_vd v_t335_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t115, v_t335_2);
-    const derive_vd v_t335_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t131, v_t335_3);
-    const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t147, v_t335_4);
+    const derive_vd v_t329_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const derive_vd v_t329_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t83, v_t329_0);
+    const derive_vd v_t329_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t99, v_t329_1);
+    const derive_vd v_t329_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t115, v_t329_2);
+    const derive_vd v_t329_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t131, v_t329_3);
+    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t147, v_t329_4);
+    const double t330 = v_t329[1];
+    const double t331 = v_t329[2];
+    const double t332 = v_t329[3];
+    *(derive_vd_unaligned *)&P_new[68] = v_t329;
     #else
-    const double t335 = DERIVE_FMA(t243, t147, DERIVE_FMA(t227, t131, DERIVE_FMA(t211, t115, DERIVE_FMA(t195, t99, DERIVE_FMA(t179, t83, DERIVE_FMA(t163, P[116], P[68]))))));
-    const double t336 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, DERIVE_FMA(t211, t116, DERIVE_FMA(t195, t100, DERIVE_FMA(t179, t84, DERIVE_FMA(t163, P[117], P[69]))))));
-    const double t337 = DERIVE_FMA(t243, t149, DERIVE_FMA(t227, t133, DERIVE_FMA(t211, t117, DERIVE_FMA(t195, t101, DERIVE_FMA(t179, t85, DERIVE_FMA(t163, P[118], P[70]))))));
-    const double t338 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, DERIVE_FMA(t211, t118, DERIVE_FMA(t195, t102, DERIVE_FMA(t179, t86, DERIVE_FMA(t163, P[119], P[71]))))));
+    const double t329 = DERIVE_FMA(t243, t147, DERIVE_FMA(t227, t131, DERIVE_FMA(t211, t115, DERIVE_FMA(t195, t99, DERIVE_FMA(t179, t83, DERIVE_FMA(t163, P[116], P[68]))))));
+    const double t330 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, DERIVE_FMA(t211, t116, DERIVE_FMA(t195, t100, DERIVE_FMA(t179, t84, DERIVE_FMA(t163, P[117], P[69]))))));
+    const double t331 = DERIVE_FMA(t243, t149, DERIVE_FMA(t227, t133, DERIVE_FMA(t211, t117, DERIVE_FMA(t195, t101, DERIVE_FMA(t179, t85, DERIVE_FMA(t163, P[118], P[70]))))));
+    const double t332 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, DERIVE_FMA(t211, t118, DERIVE_FMA(t195, t102, DERIVE_FMA(t179, t86, DERIVE_FMA(t163, P[119], P[71]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t339_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t339_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t87, v_t339_0);
-    const derive_vd v_t339_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t103, v_t339_1);
-    const derive_vd v_t339_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t119, v_t339_2);
-    const derive_vd v_t339_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t135, v_t339_3);
-    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t151, v_t339_4);
+    const derive_vd v_t333_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t333_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t87, v_t333_0);
+    const derive_vd v_t333_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t103, v_t333_1);
+    const derive_vd v_t333_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t119, v_t333_2);
+    const derive_vd v_t333_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t135, v_t333_3);
+    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t151, v_t333_4);
     #else
-    const double t339 = DERIVE_FMA(t243, t151, DERIVE_FMA(t227, t135, DERIVE_FMA(t211, t119, DERIVE_FMA(t195, t103, DERIVE_FMA(t179, t87, DERIVE_FMA(t163, P[120], P[72]))))));
-    const double t340 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, DERIVE_FMA(t211, t120, DERIVE_FMA(t195, t104, DERIVE_FMA(t179, t88, DERIVE_FMA(t163, P[121], P[73]))))));
-    const double t341 = DERIVE_FMA(t243, t153, DERIVE_FMA(t227, t137, DERIVE_FMA(t211, t121, DERIVE_FMA(t195, t105, DERIVE_FMA(t179, t89, DERIVE_FMA(t163, P[122], P[74]))))));
-    const double t342 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, DERIVE_FMA(t211, t122, DERIVE_FMA(t195, t106, DERIVE_FMA(t179, t90, DERIVE_FMA(t163, P[123], P[75]))))));
+    const double t333 = DERIVE_FMA(t243, t151, DERIVE_FMA(t227, t135, DERIVE_FMA(t211, t119, DERIVE_FMA(t195, t103, DERIVE_FMA(t179, t87, DERIVE_FMA(t163, P[120], P[72]))))));
+    const double t334 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, DERIVE_FMA(t211, t120, DERIVE_FMA(t195, t104, DERIVE_FMA(t179, t88, DERIVE_FMA(t163, P[121], P[73]))))));
+    const double t335 = DERIVE_FMA(t243, t153, DERIVE_FMA(t227, t137, DERIVE_FMA(t211, t121, DERIVE_FMA(t195, t105, DERIVE_FMA(t179, t89, DERIVE_FMA(t163, P[122], P[74]))))));
+    const double t336 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, DERIVE_FMA(t211, t122, DERIVE_FMA(t195, t106, DERIVE_FMA(t179, t90, DERIVE_FMA(t163, P[123], P[75]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t343_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t343_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t91, v_t343_0);
-    const derive_vd v_t343_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t107, v_t343_1);
-    const derive_vd v_t343_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t123, v_t343_2);
-    const derive_vd v_t343_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t139, v_t343_3);
-    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t155, v_t343_4);
+    const derive_vd v_t337_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t337_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t91, v_t337_0);
+    const derive_vd v_t337_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t107, v_t337_1);
+    const derive_vd v_t337_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t123, v_t337_2);
+    const derive_vd v_t337_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t139, v_t337_3);
+    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t155, v_t337_4);
     #else
-    const double t343 = DERIVE_FMA(t243, t155, DERIVE_FMA(t227, t139, DERIVE_FMA(t211, t123, DERIVE_FMA(t195, t107, DERIVE_FMA(t179, t91, DERIVE_FMA(t163, P[124], P[76]))))));
-    const double t344 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, DERIVE_FMA(t211, t124, DERIVE_FMA(t195, t108, DERIVE_FMA(t179, t92, DERIVE_FMA(t163, P[125], P[77]))))));
-    const double t345 = DERIVE_FMA(t243, t157, DERIVE_FMA(t227, t141, DERIVE_FMA(t211, t125, DERIVE_FMA(t195, t109, DERIVE_FMA(t179, t93, DERIVE_FMA(t163, P[126], P[78]))))));
-    const double t346 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, DERIVE_FMA(t211, t126, DERIVE_FMA(t195, t110, DERIVE_FMA(t179, t94, DERIVE_FMA(t163, P[127], P[79]))))));
+    const double t337 = DERIVE_FMA(t243, t155, DERIVE_FMA(t227, t139, DERIVE_FMA(t211, t123, DERIVE_FMA(t195, t107, DERIVE_FMA(t179, t91, DERIVE_FMA(t163, P[124], P[76]))))));
+    const double t338 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, DERIVE_FMA(t211, t124, DERIVE_FMA(t195, t108, DERIVE_FMA(t179, t92, DERIVE_FMA(t163, P[125], P[77]))))));
+    const double t339 = DERIVE_FMA(t243, t157, DERIVE_FMA(t227, t141, DERIVE_FMA(t211, t125, DERIVE_FMA(t195, t109, DERIVE_FMA(t179, t93, DERIVE_FMA(t163, P[126], P[78]))))));
+    const double t340 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, DERIVE_FMA(t211, t126, DERIVE_FMA(t195, t110, DERIVE_FMA(t179, t94, DERIVE_FMA(t163, P[127], P[79]))))));
+    #endif
+    const double t341 = DERIVE_FMA(t180, t84, DERIVE_FMA(t148, t244, DERIVE_FMA(t132, t228, DERIVE_FMA(t116, t212, DERIVE_FMA(t100, t196, DERIVE_FMA(P[117], t164, P[85]))))));
+    const double t342 = DERIVE_FMA(t180, t85, DERIVE_FMA(t149, t244, DERIVE_FMA(t133, t228, DERIVE_FMA(t117, t212, DERIVE_FMA(t101, t196, DERIVE_FMA(P[118], t164, P[86]))))));
+    const double t343 = DERIVE_FMA(t180, t86, DERIVE_FMA(t150, t244, DERIVE_FMA(t134, t228, DERIVE_FMA(t118, t212, DERIVE_FMA(t102, t196, DERIVE_FMA(P[119], t164, P[87]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t344_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd v_t344_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t87, v_t344_0);
+    const derive_vd v_t344_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t103, v_t344_1);
+    const derive_vd v_t344_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t119, v_t344_2);
+    const derive_vd v_t344_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t135, v_t344_3);
+    const derive_vd v_t344 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t151, v_t344_4);
+    #else
+    const double t344 = DERIVE_FMA(t244, t151, DERIVE_FMA(t228, t135, DERIVE_FMA(t212, t119, DERIVE_FMA(t196, t103, DERIVE_FMA(t180, t87, DERIVE_FMA(t164, P[120], P[88]))))));
+    const double t345 = DERIVE_FMA(t244, t152, DERIVE_FMA(t228, t136, DERIVE_FMA(t212, t120, DERIVE_FMA(t196, t104, DERIVE_FMA(t180, t88, DERIVE_FMA(t164, P[121], P[89]))))));
+    const double t346 = DERIVE_FMA(t244, t153, DERIVE_FMA(t228, t137, DERIVE_FMA(t212, t121, DERIVE_FMA(t196, t105, DERIVE_FMA(t180, t89, DERIVE_FMA(t164, P[122], P[90]))))));
+    const double t347 = DERIVE_FMA(t244, t154, DERIVE_FMA(t228, t138, DERIVE_FMA(t212, t122, DERIVE_FMA(t196, t106, DERIVE_FMA(t180, t90, DERIVE_FMA(t164, P[123], P[91]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t347_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd v_t347_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t83, v_t347_0);
-    const derive_vd v_t347_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t99, v_t347_1);
-    const derive_vd v_t347_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t115, v_t347_2);
-    const derive_vd v_t347_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t131, v_t347_3);
-    const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t147, v_t347_4);
+    const derive_vd v_t348_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t348_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t91, v_t348_0);
+    const derive_vd v_t348_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t107, v_t348_1);
+    const derive_vd v_t348_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t123, v_t348_2);
+    const derive_vd v_t348_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t139, v_t348_3);
+    const derive_vd v_t348 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t155, v_t348_4);
     #else
-    const double t348 = DERIVE_FMA(t244, t148, DERIVE_FMA(t228, t132, DERIVE_FMA(t212, t116, DERIVE_FMA(t196, t100, DERIVE_FMA(t180, t84, DERIVE_FMA(t164, P[117], P[85]))))));
-    const double t349 = DERIVE_FMA(t244, t149, DERIVE_FMA(t228, t133, DERIVE_FMA(t212, t117, DERIVE_FMA(t196, t101, DERIVE_FMA(t180, t85, DERIVE_FMA(t164, P[118], P[86]))))));
-    const double t350 = DERIVE_FMA(t244, t150, DERIVE_FMA(t228, t134, DERIVE_FMA(t212, t118, DERIVE_FMA(t196, t102, DERIVE_FMA(t180, t86, DERIVE_FMA(t164, P[119], P[87]))))));
+    const double t348 = DERIVE_FMA(t244, t155, DERIVE_FMA(t228, t139, DERIVE_FMA(t212, t123, DERIVE_FMA(t196, t107, DERIVE_FMA(t180, t91, DERIVE_FMA(t164, P[124], P[92]))))));
+    const double t349 = DERIVE_FMA(t244, t156, DERIVE_FMA(t228, t140, DERIVE_FMA(t212, t124, DERIVE_FMA(t196, t108, DERIVE_FMA(t180, t92, DERIVE_FMA(t164, P[125], P[93]))))));
+    const double t350 = DERIVE_FMA(t244, t157, DERIVE_FMA(t228, t141, DERIVE_FMA(t212, t125, DERIVE_FMA(t196, t109, DERIVE_FMA(t180, t93, DERIVE_FMA(t164, P[126], P[94]))))));
+    const double t351 = DERIVE_FMA(t244, t158, DERIVE_FMA(t228, t142, DERIVE_FMA(t212, t126, DERIVE_FMA(t196, t110, DERIVE_FMA(t180, t94, DERIVE_FMA(t164, P[127], P[95]))))));
+    #endif
+    const double t352 = DERIVE_FMA(t181, t85, DERIVE_FMA(t149, t245, DERIVE_FMA(t133, t229, DERIVE_FMA(t117, t213, DERIVE_FMA(t101, t197, DERIVE_FMA(P[118], t165, P[102]))))));
+    const double t353 = DERIVE_FMA(t181, t86, DERIVE_FMA(t150, t245, DERIVE_FMA(t134, t229, DERIVE_FMA(t118, t213, DERIVE_FMA(t102, t197, DERIVE_FMA(P[119], t165, P[103]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t354_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t354_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t87, v_t354_0);
+    const derive_vd v_t354_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t103, v_t354_1);
+    const derive_vd v_t354_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t119, v_t354_2);
+    const derive_vd v_t354_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t135, v_t354_3);
+    const derive_vd v_t354 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t151, v_t354_4);
+    #else
+    const double t354 = DERIVE_FMA(t245, t151, DERIVE_FMA(t229, t135, DERIVE_FMA(t213, t119, DERIVE_FMA(t197, t103, DERIVE_FMA(t181, t87, DERIVE_FMA(t165, P[120], P[104]))))));
+    const double t355 = DERIVE_FMA(t245, t152, DERIVE_FMA(t229, t136, DERIVE_FMA(t213, t120, DERIVE_FMA(t197, t104, DERIVE_FMA(t181, t88, DERIVE_FMA(t165, P[121], P[105]))))));
+    const double t356 = DERIVE_FMA(t245, t153, DERIVE_FMA(t229, t137, DERIVE_FMA(t213, t121, DERIVE_FMA(t197, t105, DERIVE_FMA(t181, t89, DERIVE_FMA(t165, P[122], P[106]))))));
+    const double t357 = DERIVE_FMA(t245, t154, DERIVE_FMA(t229, t138, DERIVE_FMA(t213, t122, DERIVE_FMA(t197, t106, DERIVE_FMA(t181, t90, DERIVE_FMA(t165, P[123], P[107]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t351_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t351_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t87, v_t351_0);
-    const derive_vd v_t351_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t103, v_t351_1);
-    const derive_vd v_t351_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t119, v_t351_2);
-    const derive_vd v_t351_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t135, v_t351_3);
-    const derive_vd v_t351 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t151, v_t351_4);
+    const derive_vd v_t358_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t358_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t91, v_t358_0);
+    const derive_vd v_t358_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t107, v_t358_1);
+    const derive_vd v_t358_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t123, v_t358_2);
+    const derive_vd v_t358_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t139, v_t358_3);
+    const derive_vd v_t358 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t155, v_t358_4);
     #else
-    const double t351 = DERIVE_FMA(t244, t151, DERIVE_FMA(t228, t135, DERIVE_FMA(t212, t119, DERIVE_FMA(t196, t103, DERIVE_FMA(t180, t87, DERIVE_FMA(t164, P[120], P[88]))))));
-    const double t352 = DERIVE_FMA(t244, t152, DERIVE_FMA(t228, t136, DERIVE_FMA(t212, t120, DERIVE_FMA(t196, t104, DERIVE_FMA(t180, t88, DERIVE_FMA(t164, P[121], P[89]))))));
-    const double t353 = DERIVE_FMA(t244, t153, DERIVE_FMA(t228, t137, DERIVE_FMA(t212, t121, DERIVE_FMA(t196, t105, DERIVE_FMA(t180, t89, DERIVE_FMA(t164, P[122], P[90]))))));
-    const double t354 = DERIVE_FMA(t244, t154, DERIVE_FMA(t228, t138, DERIVE_FMA(t212, t122, DERIVE_FMA(t196, t106, DERIVE_FMA(t180, t90, DERIVE_FMA(t164, P[123], P[91]))))));
+    const double t358 = DERIVE_FMA(t245, t155, DERIVE_FMA(t229, t139, DERIVE_FMA(t213, t123, DERIVE_FMA(t197, t107, DERIVE_FMA(t181, t91, DERIVE_FMA(t165, P[124], P[108]))))));
+    const double t359 = DERIVE_FMA(t245, t156, DERIVE_FMA(t229, t140, DERIVE_FMA(t213, t124, DERIVE_FMA(t197, t108, DERIVE_FMA(t181, t92, DERIVE_FMA(t165, P[125], P[109]))))));
+    const double t360 = DERIVE_FMA(t245, t157, DERIVE_FMA(t229, t141, DERIVE_FMA(t213, t125, DERIVE_FMA(t197, t109, DERIVE_FMA(t181, t93, DERIVE_FMA(t165, P[126], P[110]))))));
+    const double t361 = DERIVE_FMA(t245, t158, DERIVE_FMA(t229, t142, DERIVE_FMA(t213, t126, DERIVE_FMA(t197, t110, DERIVE_FMA(t181, t94, DERIVE_FMA(t165, P[127], P[111]))))));
+    #endif
+    const double t362 = DERIVE_FMA(t182, t86, DERIVE_FMA(t150, t246, DERIVE_FMA(t134, t230, DERIVE_FMA(t118, t214, DERIVE_FMA(t102, t198, DERIVE_FMA(P[119], t166, P[119]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t363_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t87, v_t363_0);
+    const derive_vd v_t363_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t103, v_t363_1);
+    const derive_vd v_t363_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t119, v_t363_2);
+    const derive_vd v_t363_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t135, v_t363_3);
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t151, v_t363_4);
+    const derive_vd tr_v_t333_0 = __builtin_shufflevector(v_t333, v_t344, 0, 4, 2, 6);
+    const derive_vd tr_v_t333_1 = __builtin_shufflevector(v_t333, v_t344, 1, 5, 3, 7);
+    const derive_vd tr_v_t333_2 = __builtin_shufflevector(v_t354, v_t363, 0, 4, 2, 6);
+    const derive_vd tr_v_t333_3 = __builtin_shufflevector(v_t354, v_t363, 1, 5, 3, 7);
+    const derive_vd tr_v_t333_c0 = __builtin_shufflevector(tr_v_t333_0, tr_v_t333_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t333_c1 = __builtin_shufflevector(tr_v_t333_1, tr_v_t333_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t333_c2 = __builtin_shufflevector(tr_v_t333_0, tr_v_t333_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t333_c3 = __builtin_shufflevector(tr_v_t333_1, tr_v_t333_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[72] = v_t333;
+    *(derive_vd_unaligned *)&P_new[88] = v_t344;
+    *(derive_vd_unaligned *)&P_new[104] = v_t354;
+    *(derive_vd_unaligned *)&P_new[120] = v_t363;
+    *(derive_vd_unaligned *)&P_new[132] = tr_v_t333_c0;
+    *(derive_vd_unaligned *)&P_new[148] = tr_v_t333_c1;
+    *(derive_vd_unaligned *)&P_new[164] = tr_v_t333_c2;
+    *(derive_vd_unaligned *)&P_new[180] = tr_v_t333_c3;
+    #else
+    const double t363 = DERIVE_FMA(t246, t151, DERIVE_FMA(t230, t135, DERIVE_FMA(t214, t119, DERIVE_FMA(t198, t103, DERIVE_FMA(t182, t87, DERIVE_FMA(t166, P[120], P[120]))))));
+    const double t364 = DERIVE_FMA(t246, t152, DERIVE_FMA(t230, t136, DERIVE_FMA(t214, t120, DERIVE_FMA(t198, t104, DERIVE_FMA(t182, t88, DERIVE_FMA(t166, P[121], P[121]))))));
+    const double t365 = DERIVE_FMA(t246, t153, DERIVE_FMA(t230, t137, DERIVE_FMA(t214, t121, DERIVE_FMA(t198, t105, DERIVE_FMA(t182, t89, DERIVE_FMA(t166, P[122], P[122]))))));
+    const double t366 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, DERIVE_FMA(t166, P[123], P[123]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t355_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t355_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t91, v_t355_0);
-    const derive_vd v_t355_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t107, v_t355_1);
-    const derive_vd v_t355_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t123, v_t355_2);
-    const derive_vd v_t355_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t139, v_t355_3);
-    const derive_vd v_t355 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t155, v_t355_4);
+    const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t367_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t91, v_t367_0);
+    const derive_vd v_t367_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t107, v_t367_1);
+    const derive_vd v_t367_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t123, v_t367_2);
+    const derive_vd v_t367_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t139, v_t367_3);
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t155, v_t367_4);
+    const derive_vd tr_v_t337_0 = __builtin_shufflevector(v_t337, v_t348, 0, 4, 2, 6);
+    const derive_vd tr_v_t337_1 = __builtin_shufflevector(v_t337, v_t348, 1, 5, 3, 7);
+    const derive_vd tr_v_t337_2 = __builtin_shufflevector(v_t358, v_t367, 0, 4, 2, 6);
+    const derive_vd tr_v_t337_3 = __builtin_shufflevector(v_t358, v_t367, 1, 5, 3, 7);
+    const derive_vd tr_v_t337_c0 = __builtin_shufflevector(tr_v_t337_0, tr_v_t337_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t337_c1 = __builtin_shufflevector(tr_v_t337_1, tr_v_t337_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t337_c2 = __builtin_shufflevector(tr_v_t337_0, tr_v_t337_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t337_c3 = __builtin_shufflevector(tr_v_t337_1, tr_v_t337_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[76] = v_t337;
+    *(derive_vd_unaligned *)&P_new[92] = v_t348;
+    *(derive_vd_unaligned *)&P_new[108] = v_t358;
+    *(derive_vd_unaligned *)&P_new[124] = v_t367;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t337_c0;
+    *(derive_vd_unaligned *)&P_new[212] = tr_v_t337_c1;
+    *(derive_vd_unaligned *)&P_new[228] = tr_v_t337_c2;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t337_c3;
     #else
-    const double t355 = DERIVE_FMA(t244, t155, DERIVE_FMA(t228, t139, DERIVE_FMA(t212, t123, DERIVE_FMA(t196, t107, DERIVE_FMA(t180, t91, DERIVE_FMA(t164, P[124], P[92]))))));
-    const double t356 = DERIVE_FMA(t244, t156, DERIVE_FMA(t228, t140, DERIVE_FMA(t212, t124, DERIVE_FMA(t196, t108, DERIVE_FMA(t180, t92, DERIVE_FMA(t164, P[125], P[93]))))));
-    const double t357 = DERIVE_FMA(t244, t157, DERIVE_FMA(t228, t141, DERIVE_FMA(t212, t125, DERIVE_FMA(t196, t109, DERIVE_FMA(t180, t93, DERIVE_FMA(t164, P[126], P[94]))))));
-    const double t358 = DERIVE_FMA(t244, t158, DERIVE_FMA(t228, t142, DERIVE_FMA(t212, t126, DERIVE_FMA(t196, t110, DERIVE_FMA(t180, t94, DERIVE_FMA(t164, P[127], P[95]))))));
+    const double t367 = DERIVE_FMA(t246, t155, DERIVE_FMA(t230, t139, DERIVE_FMA(t214, t123, DERIVE_FMA(t198, t107, DERIVE_FMA(t182, t91, DERIVE_FMA(t166, P[124], P[124]))))));
+    const double t368 = DERIVE_FMA(t246, t156, DERIVE_FMA(t230, t140, DERIVE_FMA(t214, t124, DERIVE_FMA(t198, t108, DERIVE_FMA(t182, t92, DERIVE_FMA(t166, P[125], P[125]))))));
+    const double t369 = DERIVE_FMA(t246, t157, DERIVE_FMA(t230, t141, DERIVE_FMA(t214, t125, DERIVE_FMA(t198, t109, DERIVE_FMA(t182, t93, DERIVE_FMA(t166, P[126], P[126]))))));
+    const double t370 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, DERIVE_FMA(t166, P[127], P[127]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t359_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t359_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t83, v_t359_0);
-    const derive_vd v_t359_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t99, v_t359_1);
-    const derive_vd v_t359_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t115, v_t359_2);
-    const derive_vd v_t359_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t131, v_t359_3);
-    const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t147, v_t359_4);
+    const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t87, v_t371_0);
+    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t103, v_t371_1);
+    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t119, v_t371_2);
+    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t135, v_t371_3);
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t151, v_t371_4);
+    const double t372 = v_t371[1];
+    const double t373 = v_t371[2];
+    const double t374 = v_t371[3];
+    *(derive_vd_unaligned *)&P_new[136] = v_t371;
     #else
-    const double t361 = DERIVE_FMA(t245, t149, DERIVE_FMA(t229, t133, DERIVE_FMA(t213, t117, DERIVE_FMA(t197, t101, DERIVE_FMA(t181, t85, DERIVE_FMA(t165, P[118], P[102]))))));
-    const double t362 = DERIVE_FMA(t245, t150, DERIVE_FMA(t229, t134, DERIVE_FMA(t213, t118, DERIVE_FMA(t197, t102, DERIVE_FMA(t181, t86, DERIVE_FMA(t165, P[119], P[103]))))));
+    const double t371 = DERIVE_FMA(t247, t151, DERIVE_FMA(t231, t135, DERIVE_FMA(t215, t119, DERIVE_FMA(t199, t103, DERIVE_FMA(t183, t87, DERIVE_FMA(t167, P[120], P[136]))))));
+    const double t372 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, DERIVE_FMA(t183, t88, DERIVE_FMA(t167, P[121], P[137]))))));
+    const double t373 = DERIVE_FMA(t247, t153, DERIVE_FMA(t231, t137, DERIVE_FMA(t215, t121, DERIVE_FMA(t199, t105, DERIVE_FMA(t183, t89, DERIVE_FMA(t167, P[122], P[138]))))));
+    const double t374 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, DERIVE_FMA(t183, t90, DERIVE_FMA(t167, P[123], P[139]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t363_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t87, v_t363_0);
-    const derive_vd v_t363_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t103, v_t363_1);
-    const derive_vd v_t363_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t119, v_t363_2);
-    const derive_vd v_t363_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t135, v_t363_3);
-    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t151, v_t363_4);
+    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t91, v_t375_0);
+    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t107, v_t375_1);
+    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t123, v_t375_2);
+    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t139, v_t375_3);
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t155, v_t375_4);
     #else
-    const double t363 = DERIVE_FMA(t245, t151, DERIVE_FMA(t229, t135, DERIVE_FMA(t213, t119, DERIVE_FMA(t197, t103, DERIVE_FMA(t181, t87, DERIVE_FMA(t165, P[120], P[104]))))));
-    const double t364 = DERIVE_FMA(t245, t152, DERIVE_FMA(t229, t136, DERIVE_FMA(t213, t120, DERIVE_FMA(t197, t104, DERIVE_FMA(t181, t88, DERIVE_FMA(t165, P[121], P[105]))))));
-    const double t365 = DERIVE_FMA(t245, t153, DERIVE_FMA(t229, t137, DERIVE_FMA(t213, t121, DERIVE_FMA(t197, t105, DERIVE_FMA(t181, t89, DERIVE_FMA(t165, P[122], P[106]))))));
-    const double t366 = DERIVE_FMA(t245, t154, DERIVE_FMA(t229, t138, DERIVE_FMA(t213, t122, DERIVE_FMA(t197, t106, DERIVE_FMA(t181, t90, DERIVE_FMA(t165, P[123], P[107]))))));
+    const double t375 = DERIVE_FMA(t247, t155, DERIVE_FMA(t231, t139, DERIVE_FMA(t215, t123, DERIVE_FMA(t199, t107, DERIVE_FMA(t183, t91, DERIVE_FMA(t167, P[124], P[140]))))));
+    const double t376 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, DERIVE_FMA(t183, t92, DERIVE_FMA(t167, P[125], P[141]))))));
+    const double t377 = DERIVE_FMA(t247, t157, DERIVE_FMA(t231, t141, DERIVE_FMA(t215, t125, DERIVE_FMA(t199, t109, DERIVE_FMA(t183, t93, DERIVE_FMA(t167, P[126], P[142]))))));
+    const double t378 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, DERIVE_FMA(t183, t94, DERIVE_FMA(t167, P[127], P[143]))))));
+    #endif
+    const double t379 = DERIVE_FMA(t184, t88, DERIVE_FMA(t152, t248, DERIVE_FMA(t136, t232, DERIVE_FMA(t120, t216, DERIVE_FMA(t104, t200, DERIVE_FMA(P[121], t168, P[153]))))));
+    const double t380 = DERIVE_FMA(t184, t89, DERIVE_FMA(t153, t248, DERIVE_FMA(t137, t232, DERIVE_FMA(t121, t216, DERIVE_FMA(t105, t200, DERIVE_FMA(P[122], t168, P[154]))))));
+    const double t381 = DERIVE_FMA(t184, t90, DERIVE_FMA(t154, t248, DERIVE_FMA(t138, t232, DERIVE_FMA(t122, t216, DERIVE_FMA(t106, t200, DERIVE_FMA(P[123], t168, P[155]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t382_0 = DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const derive_vd v_t382_1 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t91, v_t382_0);
+    const derive_vd v_t382_2 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t107, v_t382_1);
+    const derive_vd v_t382_3 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t123, v_t382_2);
+    const derive_vd v_t382_4 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t139, v_t382_3);
+    const derive_vd v_t382 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t155, v_t382_4);
+    #else
+    const double t382 = DERIVE_FMA(t248, t155, DERIVE_FMA(t232, t139, DERIVE_FMA(t216, t123, DERIVE_FMA(t200, t107, DERIVE_FMA(t184, t91, DERIVE_FMA(t168, P[124], P[156]))))));
+    const double t383 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, DERIVE_FMA(t200, t108, DERIVE_FMA(t184, t92, DERIVE_FMA(t168, P[125], P[157]))))));
+    const double t384 = DERIVE_FMA(t248, t157, DERIVE_FMA(t232, t141, DERIVE_FMA(t216, t125, DERIVE_FMA(t200, t109, DERIVE_FMA(t184, t93, DERIVE_FMA(t168, P[126], P[158]))))));
+    const double t385 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, DERIVE_FMA(t200, t110, DERIVE_FMA(t184, t94, DERIVE_FMA(t168, P[127], P[159]))))));
+    #endif
+    const double t386 = DERIVE_FMA(t185, t89, DERIVE_FMA(t153, t249, DERIVE_FMA(t137, t233, DERIVE_FMA(t121, t217, DERIVE_FMA(t105, t201, DERIVE_FMA(P[122], t169, P[170]))))));
+    const double t387 = DERIVE_FMA(t185, t90, DERIVE_FMA(t154, t249, DERIVE_FMA(t138, t233, DERIVE_FMA(t122, t217, DERIVE_FMA(t106, t201, DERIVE_FMA(P[123], t169, P[171]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t388_0 = DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
+    const derive_vd v_t388_1 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t91, v_t388_0);
+    const derive_vd v_t388_2 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t107, v_t388_1);
+    const derive_vd v_t388_3 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t123, v_t388_2);
+    const derive_vd v_t388_4 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t139, v_t388_3);
+    const derive_vd v_t388 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t155, v_t388_4);
+    #else
+    const double t388 = DERIVE_FMA(t249, t155, DERIVE_FMA(t233, t139, DERIVE_FMA(t217, t123, DERIVE_FMA(t201, t107, DERIVE_FMA(t185, t91, DERIVE_FMA(t169, P[124], P[172]))))));
+    const double t389 = DERIVE_FMA(t249, t156, DERIVE_FMA(t233, t140, DERIVE_FMA(t217, t124, DERIVE_FMA(t201, t108, DERIVE_FMA(t185, t92, DERIVE_FMA(t169, P[125], P[173]))))));
+    const double t390 = DERIVE_FMA(t249, t157, DERIVE_FMA(t233, t141, DERIVE_FMA(t217, t125, DERIVE_FMA(t201, t109, DERIVE_FMA(t185, t93, DERIVE_FMA(t169, P[126], P[174]))))));
+    const double t391 = DERIVE_FMA(t249, t158, DERIVE_FMA(t233, t142, DERIVE_FMA(t217, t126, DERIVE_FMA(t201, t110, DERIVE_FMA(t185, t94, DERIVE_FMA(t169, P[127], P[175]))))));
+    #endif
+    const double t392 = DERIVE_FMA(t186, t90, DERIVE_FMA(t154, t250, DERIVE_FMA(t138, t234, DERIVE_FMA(t122, t218, DERIVE_FMA(t106, t202, DERIVE_FMA(P[123], t170, P[187]))))));
+    #if DERIVE_VECTOR
+    const derive_vd v_t393_0 = DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t393_1 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t91, v_t393_0);
+    const derive_vd v_t393_2 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t107, v_t393_1);
+    const derive_vd v_t393_3 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t123, v_t393_2);
+    const derive_vd v_t393_4 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t139, v_t393_3);
+    const derive_vd v_t393 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t155, v_t393_4);
+    const derive_vd tr_v_t375_0 = __builtin_shufflevector(v_t375, v_t382, 0, 4, 2, 6);
+    const derive_vd tr_v_t375_1 = __builtin_shufflevector(v_t375, v_t382, 1, 5, 3, 7);
+    const derive_vd tr_v_t375_2 = __builtin_shufflevector(v_t388, v_t393, 0, 4, 2, 6);
+    const derive_vd tr_v_t375_3 = __builtin_shufflevector(v_t388, v_t393, 1, 5, 3, 7);
+    const derive_vd tr_v_t375_c0 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t375_c1 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t375_c2 = __builtin_shufflevector(tr_v_t375_0, tr_v_t375_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t375_c3 = __builtin_shufflevector(tr_v_t375_1, tr_v_t375_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[140] = v_t375;
+    *(derive_vd_unaligned *)&P_new[156] = v_t382;
+    *(derive_vd_unaligned *)&P_new[172] = v_t388;
+    *(derive_vd_unaligned *)&P_new[188] = v_t393;
+    *(derive_vd_unaligned *)&P_new[200] = tr_v_t375_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t375_c1;
+    *(derive_vd_unaligned *)&P_new[232] = tr_v_t375_c2;
+    *(derive_vd_unaligned *)&P_new[248] = tr_v_t375_c3;
+    #else
+    const double t393 = DERIVE_FMA(t250, t155, DERIVE_FMA(t234, t139, DERIVE_FMA(t218, t123, DERIVE_FMA(t202, t107, DERIVE_FMA(t186, t91, DERIVE_FMA(t170, P[124], P[188]))))));
+    const double t394 = DERIVE_FMA(t250, t156, DERIVE_FMA(t234, t140, DERIVE_FMA(t218, t124, DERIVE_FMA(t202, t108, DERIVE_FMA(t186, t92, DERIVE_FMA(t170, P[125], P[189]))))));
+    const double t395 = DERIVE_FMA(t250, t157, DERIVE_FMA(t234, t141, DERIVE_FMA(t218, t125, DERIVE_FMA(t202, t109, DERIVE_FMA(t186, t93, DERIVE_FMA(t170, P[126], P[190]))))));
+    const double t396 = DERIVE_FMA(t250, t158, DERIVE_FMA(t234, t142, DERIVE_FMA(t218, t126, DERIVE_FMA(t202, t110, DERIVE_FMA(t186, t94, DERIVE_FMA(t170, P[127], P[191]))))));
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t367_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t91, v_t367_0);
-    const derive_vd v_t367_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t107, v_t367_1);
-    const derive_vd v_t367_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t123, v_t367_2);
-    const derive_vd v_t367_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t139, v_t367_3);
-    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t155, v_t367_4);
+    const derive_vd v_t397_0 = DERIVE_VFMA(((derive_vd){t171, t171, t171, t171}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const derive_vd v_t397_1 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), v_t91, v_t397_0);
+    const derive_vd v_t397_2 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t107, v_t397_1);
+    const derive_vd v_t397_3 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t123, v_t397_2);
+    const derive_vd v_t397_4 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t139, v_t397_3);
+    const derive_vd v_t397 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t155, v_t397_4);
+    const double t398 = v_t397[1];
+    const double t399 = v_t397[2];
+    const double t400 = v_t397[3];
+    *(derive_vd_unaligned *)&P_new[204] = v_t397;
     #else
-    const double t367 = DERIVE_FMA(t245, t155, DERIVE_FMA(t229, t139, DERIVE_FMA(t213, t123, DERIVE_FMA(t197, t107, DERIVE_FMA(t181, t91, DERIVE_FMA(t165, P[124], P[108]))))));
-    const double t368 = DERIVE_FMA(t245, t156, DERIVE_FMA(t229, t140, DERIVE_FMA(t213, t124, DERIVE_FMA(t197, t108, DERIVE_FMA(t181, t92, DERIVE_FMA(t165, P[125], P[109]))))));
-    const double t369 = DERIVE_FMA(t245, t157, DERIVE_FMA(t229, t141, DERIVE_FMA(t213, t125, DERIVE_FMA(t197, t109, DERIVE_FMA(t181, t93, DERIVE_FMA(t165, P[126], P[110]))))));
-    const double t370 = DERIVE_FMA(t245, t158, DERIVE_FMA(t229, t142, DERIVE_FMA(t213, t126, DERIVE_FMA(t197, t110, DERIVE_FMA(t181, t94, DERIVE_FMA(t165, P[127], P[111]))))));
+    const double t397 = DERIVE_FMA(t251, t155, DERIVE_FMA(t235, t139, DERIVE_FMA(t219, t123, DERIVE_FMA(t203, t107, DERIVE_FMA(t187, t91, DERIVE_FMA(t171, P[124], P[204]))))));
+    const double t398 = DERIVE_FMA(t251, t156, DERIVE_FMA(t235, t140, DERIVE_FMA(t219, t124, DERIVE_FMA(t203, t108, DERIVE_FMA(t187, t92, DERIVE_FMA(t171, P[125], P[205]))))));
+    const double t399 = DERIVE_FMA(t251, t157, DERIVE_FMA(t235, t141, DERIVE_FMA(t219, t125, DERIVE_FMA(t203, t109, DERIVE_FMA(t187, t93, DERIVE_FMA(t171, P[126], P[206]))))));
+    const double t400 = DERIVE_FMA(t251, t158, DERIVE_FMA(t235, t142, DERIVE_FMA(t219, t126, DERIVE_FMA(t203, t110, DERIVE_FMA(t187, t94, DERIVE_FMA(t171, P[127], P[207]))))));
     #endif
+    const double t401 = DERIVE_FMA(t188, t92, DERIVE_FMA(t156, t252, DERIVE_FMA(t140, t236, DERIVE_FMA(t124, t220, DERIVE_FMA(t108, t204, DERIVE_FMA(P[125], t172, P[221]))))));
+    const double t402 = DERIVE_FMA(t188, t93, DERIVE_FMA(t157, t252, DERIVE_FMA(t141, t236, DERIVE_FMA(t125, t220, DERIVE_FMA(t109, t204, DERIVE_FMA(P[126], t172, P[222]))))));
+    const double t403 = DERIVE_FMA(t188, t94, DERIVE_FMA(t158, t252, DERIVE_FMA(t142, t236, DERIVE_FMA(t126, t220, DERIVE_FMA(t110, t204, DERIVE_FMA(P[127], t172, P[223]))))));
+    const double t404 = DERIVE_FMA(t189, t93, DERIVE_FMA(t157, t253, DERIVE_FMA(t141, t237, DERIVE_FMA(t125, t221, DERIVE_FMA(t109, t205, DERIVE_FMA(P[126], t173, P[238]))))));
+    const double t405 = DERIVE_FMA(t189, t94, DERIVE_FMA(t158, t253, DERIVE_FMA(t142, t237, DERIVE_FMA(t126, t221, DERIVE_FMA(t110, t205, DERIVE_FMA(P[127], t173, P[239]))))));
+    const double t406 = DERIVE_FMA(t190, t94, DERIVE_FMA(t158, t254, DERIVE_FMA(t142, t238, DERIVE_FMA(t126, t222, DERIVE_FMA(t110, t206, DERIVE_FMA(P[127], t174, P[255]))))));
+    const double t407 = DERIVE_FMA(t258, t258, DERIVE_FMA(t257, t257, DERIVE_FMA(t256, t256, t255*t255)));
+    const double t408 = 1.0/sqrt(t407);
+    const double t409 = t255*t408;
+    const double t410 = t256*t408;
+    const double t411 = t257*t408;
+    const double t412 = t258*t408;
     #if DERIVE_VECTOR
-    const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t83, v_t371_0);
-    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t99, v_t371_1);
-    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t115, v_t371_2);
-    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t131, v_t371_3);
-    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t147, v_t371_4);
-    const derive_vd tr_v_t335_0 = __builtin_shufflevector(v_t335, v_t347, 0, 4, 2, 6);
-    const derive_vd tr_v_t335_1 = __builtin_shufflevector(v_t335, v_t347, 1, 5, 3, 7);
-    const derive_vd tr_v_t335_2 = __builtin_shufflevector(v_t359, v_t371, 0, 4, 2, 6);
-    const derive_vd tr_v_t335_3 = __builtin_shufflevector(v_t359, v_t371, 1, 5, 3, 7);
-    const derive_vd tr_v_t335_c1 = __builtin_shufflevector(tr_v_t335_1, tr_v_t335_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t335_c2 = __builtin_shufflevector(tr_v_t335_0, tr_v_t335_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t335_c3 = __builtin_shufflevector(tr_v_t335_1, tr_v_t335_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[68] = v_t335;
-    *(derive_vd_unaligned *)&P_new[84] = __builtin_shufflevector(v_t347, tr_v_t335_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[100] = __builtin_shufflevector(v_t359, tr_v_t335_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[116] = __builtin_shufflevector(v_t371, tr_v_t335_c3, 4, 5, 6, 3);
+    x_new[0] = t409;
+    x_new[1] = t410;
+    x_new[2] = t411;
+    x_new[3] = t412;
+    P_new[16] = t272;
+    P_new[17] = t287;
+    P_new[18] = t288;
+    P_new[19] = t289;
+    P_new[32] = t273;
+    P_new[33] = t288;
+    P_new[34] = t302;
+    P_new[35] = t303;
+    P_new[48] = t274;
+    P_new[49] = t289;
+    P_new[50] = t303;
+    P_new[51] = t316;
+    P_new[84] = t330;
+    P_new[85] = t341;
+    P_new[86] = t342;
+    P_new[87] = t343;
+    P_new[100] = t331;
+    P_new[101] = t342;
+    P_new[102] = t352;
+    P_new[103] = t353;
+    P_new[116] = t332;
+    P_new[117] = t343;
+    P_new[118] = t353;
+    P_new[119] = t362;
+    P_new[152] = t372;
+    P_new[153] = t379;
+    P_new[154] = t380;
+    P_new[155] = t381;
+    P_new[168] = t373;
+    P_new[169] = t380;
+    P_new[170] = t386;
+    P_new[171] = t387;
+    P_new[184] = t374;
+    P_new[185] = t381;
+    P_new[186] = t387;
+    P_new[187] = t392;
+    P_new[220] = t398;
+    P_new[221] = t401;
+    P_new[222] = t402;
+    P_new[223] = t403;
+    P_new[236] = t399;
+    P_new[237] = t402;
+    P_new[238] = t404;
+    P_new[239] = t405;
+    P_new[252] = t400;
+    P_new[253] = t403;
+    P_new[254] = t405;
+    P_new[255] = t406;
     #else
-    const double t374 = DERIVE_FMA(t246, t150, DERIVE_FMA(t230, t134, DERIVE_FMA(t214, t118, DERIVE_FMA(t198, t102, DERIVE_FMA(t182, t86, DERIVE_FMA(t166, P[119], P[119]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t87, v_t375_0);
-    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t103, v_t375_1);
-    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t119, v_t375_2);
-    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t135, v_t375_3);
-    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t151, v_t375_4);
-    const derive_vd tr_v_t339_0 = __builtin_shufflevector(v_t339, v_t351, 0, 4, 2, 6);
-    const derive_vd tr_v_t339_1 = __builtin_shufflevector(v_t339, v_t351, 1, 5, 3, 7);
-    const derive_vd tr_v_t339_2 = __builtin_shufflevector(v_t363, v_t375, 0, 4, 2, 6);
-    const derive_vd tr_v_t339_3 = __builtin_shufflevector(v_t363, v_t375, 1, 5, 3, 7);
-    const derive_vd tr_v_t339_c0 = __builtin_shufflevector(tr_v_t339_0, tr_v_t339_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t339_c1 = __builtin_shufflevector(tr_v_t339_1, tr_v_t339_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t339_c2 = __builtin_shufflevector(tr_v_t339_0, tr_v_t339_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t339_c3 = __builtin_shufflevector(tr_v_t339_1, tr_v_t339_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[72] = v_t339;
-    *(derive_vd_unaligned *)&P_new[88] = v_t351;
-    *(derive_vd_unaligned *)&P_new[104] = v_t363;
-    *(derive_vd_unaligned *)&P_new[120] = v_t375;
-    *(derive_vd_unaligned *)&P_new[132] = tr_v_t339_c0;
-    *(derive_vd_unaligned *)&P_new[148] = tr_v_t339_c1;
-    *(derive_vd_unaligned *)&P_new[164] = tr_v_t339_c2;
-    *(derive_vd_unaligned *)&P_new[180] = tr_v_t339_c3;
-    #else
-    const double t375 = DERIVE_FMA(t246, t151, DERIVE_FMA(t230, t135, DERIVE_FMA(t214, t119, DERIVE_FMA(t198, t103, DERIVE_FMA(t182, t87, DERIVE_FMA(t166, P[120], P[120]))))));
-    const double t376 = DERIVE_FMA(t246, t152, DERIVE_FMA(t230, t136, DERIVE_FMA(t214, t120, DERIVE_FMA(t198, t104, DERIVE_FMA(t182, t88, DERIVE_FMA(t166, P[121], P[121]))))));
-    const double t377 = DERIVE_FMA(t246, t153, DERIVE_FMA(t230, t137, DERIVE_FMA(t214, t121, DERIVE_FMA(t198, t105, DERIVE_FMA(t182, t89, DERIVE_FMA(t166, P[122], P[122]))))));
-    const double t378 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, DERIVE_FMA(t166, P[123], P[123]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd v_t379_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t91, v_t379_0);
-    const derive_vd v_t379_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t107, v_t379_1);
-    const derive_vd v_t379_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t123, v_t379_2);
-    const derive_vd v_t379_4 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t139, v_t379_3);
-    const derive_vd v_t379 = DERIVE_VFMA(((derive_vd){t246, t246, t246, t246}), v_t155, v_t379_4);
-    const derive_vd tr_v_t343_0 = __builtin_shufflevector(v_t343, v_t355, 0, 4, 2, 6);
-    const derive_vd tr_v_t343_1 = __builtin_shufflevector(v_t343, v_t355, 1, 5, 3, 7);
-    const derive_vd tr_v_t343_2 = __builtin_shufflevector(v_t367, v_t379, 0, 4, 2, 6);
-    const derive_vd tr_v_t343_3 = __builtin_shufflevector(v_t367, v_t379, 1, 5, 3, 7);
-    const derive_vd tr_v_t343_c0 = __builtin_shufflevector(tr_v_t343_0, tr_v_t343_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t343_c1 = __builtin_shufflevector(tr_v_t343_1, tr_v_t343_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t343_c2 = __builtin_shufflevector(tr_v_t343_0, tr_v_t343_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t343_c3 = __builtin_shufflevector(tr_v_t343_1, tr_v_t343_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[76] = v_t343;
-    *(derive_vd_unaligned *)&P_new[92] = v_t355;
-    *(derive_vd_unaligned *)&P_new[108] = v_t367;
-    *(derive_vd_unaligned *)&P_new[124] = v_t379;
-    *(derive_vd_unaligned *)&P_new[196] = tr_v_t343_c0;
-    *(derive_vd_unaligned *)&P_new[212] = tr_v_t343_c1;
-    *(derive_vd_unaligned *)&P_new[228] = tr_v_t343_c2;
-    *(derive_vd_unaligned *)&P_new[244] = tr_v_t343_c3;
-    #else
-    const double t379 = DERIVE_FMA(t246, t155, DERIVE_FMA(t230, t139, DERIVE_FMA(t214, t123, DERIVE_FMA(t198, t107, DERIVE_FMA(t182, t91, DERIVE_FMA(t166, P[124], P[124]))))));
-    const double t380 = DERIVE_FMA(t246, t156, DERIVE_FMA(t230, t140, DERIVE_FMA(t214, t124, DERIVE_FMA(t198, t108, DERIVE_FMA(t182, t92, DERIVE_FMA(t166, P[125], P[125]))))));
-    const double t381 = DERIVE_FMA(t246, t157, DERIVE_FMA(t230, t141, DERIVE_FMA(t214, t125, DERIVE_FMA(t198, t109, DERIVE_FMA(t182, t93, DERIVE_FMA(t166, P[126], P[126]))))));
-    const double t382 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, DERIVE_FMA(t166, P[127], P[127]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t383_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t87, v_t383_0);
-    const derive_vd v_t383_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t103, v_t383_1);
-    const derive_vd v_t383_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t119, v_t383_2);
-    const derive_vd v_t383_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t135, v_t383_3);
-    const derive_vd v_t383 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t151, v_t383_4);
-    #else
-    const double t383 = DERIVE_FMA(t247, t151, DERIVE_FMA(t231, t135, DERIVE_FMA(t215, t119, DERIVE_FMA(t199, t103, DERIVE_FMA(t183, t87, DERIVE_FMA(t167, P[120], P[136]))))));
-    const double t384 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, DERIVE_FMA(t183, t88, DERIVE_FMA(t167, P[121], P[137]))))));
-    const double t385 = DERIVE_FMA(t247, t153, DERIVE_FMA(t231, t137, DERIVE_FMA(t215, t121, DERIVE_FMA(t199, t105, DERIVE_FMA(t183, t89, DERIVE_FMA(t167, P[122], P[138]))))));
-    const double t386 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, DERIVE_FMA(t183, t90, DERIVE_FMA(t167, P[123], P[139]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t387_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t91, v_t387_0);
-    const derive_vd v_t387_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t107, v_t387_1);
-    const derive_vd v_t387_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t123, v_t387_2);
-    const derive_vd v_t387_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t139, v_t387_3);
-    const derive_vd v_t387 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t155, v_t387_4);
-    #else
-    const double t387 = DERIVE_FMA(t247, t155, DERIVE_FMA(t231, t139, DERIVE_FMA(t215, t123, DERIVE_FMA(t199, t107, DERIVE_FMA(t183, t91, DERIVE_FMA(t167, P[124], P[140]))))));
-    const double t388 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, DERIVE_FMA(t183, t92, DERIVE_FMA(t167, P[125], P[141]))))));
-    const double t389 = DERIVE_FMA(t247, t157, DERIVE_FMA(t231, t141, DERIVE_FMA(t215, t125, DERIVE_FMA(t199, t109, DERIVE_FMA(t183, t93, DERIVE_FMA(t167, P[126], P[142]))))));
-    const double t390 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, DERIVE_FMA(t183, t94, DERIVE_FMA(t167, P[127], P[143]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t391_1 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t87, v_t391_0);
-    const derive_vd v_t391_2 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t103, v_t391_1);
-    const derive_vd v_t391_3 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t119, v_t391_2);
-    const derive_vd v_t391_4 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t135, v_t391_3);
-    const derive_vd v_t391 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t151, v_t391_4);
-    #else
-    const double t392 = DERIVE_FMA(t248, t152, DERIVE_FMA(t232, t136, DERIVE_FMA(t216, t120, DERIVE_FMA(t200, t104, DERIVE_FMA(t184, t88, DERIVE_FMA(t168, P[121], P[153]))))));
-    const double t393 = DERIVE_FMA(t248, t153, DERIVE_FMA(t232, t137, DERIVE_FMA(t216, t121, DERIVE_FMA(t200, t105, DERIVE_FMA(t184, t89, DERIVE_FMA(t168, P[122], P[154]))))));
-    const double t394 = DERIVE_FMA(t248, t154, DERIVE_FMA(t232, t138, DERIVE_FMA(t216, t122, DERIVE_FMA(t200, t106, DERIVE_FMA(t184, t90, DERIVE_FMA(t168, P[123], P[155]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t395_1 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t91, v_t395_0);
-    const derive_vd v_t395_2 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t107, v_t395_1);
-    const derive_vd v_t395_3 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t123, v_t395_2);
-    const derive_vd v_t395_4 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t139, v_t395_3);
-    const derive_vd v_t395 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t155, v_t395_4);
-    #else
-    const double t395 = DERIVE_FMA(t248, t155, DERIVE_FMA(t232, t139, DERIVE_FMA(t216, t123, DERIVE_FMA(t200, t107, DERIVE_FMA(t184, t91, DERIVE_FMA(t168, P[124], P[156]))))));
-    const double t396 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, DERIVE_FMA(t200, t108, DERIVE_FMA(t184, t92, DERIVE_FMA(t168, P[125], P[157]))))));
-    const double t397 = DERIVE_FMA(t248, t157, DERIVE_FMA(t232, t141, DERIVE_FMA(t216, t125, DERIVE_FMA(t200, t109, DERIVE_FMA(t184, t93, DERIVE_FMA(t168, P[126], P[158]))))));
-    const double t398 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, DERIVE_FMA(t200, t110, DERIVE_FMA(t184, t94, DERIVE_FMA(t168, P[127], P[159]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t399_0 = DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
-    const derive_vd v_t399_1 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t87, v_t399_0);
-    const derive_vd v_t399_2 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t103, v_t399_1);
-    const derive_vd v_t399_3 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t119, v_t399_2);
-    const derive_vd v_t399_4 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t135, v_t399_3);
-    const derive_vd v_t399 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t151, v_t399_4);
-    #else
-    const double t401 = DERIVE_FMA(t249, t153, DERIVE_FMA(t233, t137, DERIVE_FMA(t217, t121, DERIVE_FMA(t201, t105, DERIVE_FMA(t185, t89, DERIVE_FMA(t169, P[122], P[170]))))));
-    const double t402 = DERIVE_FMA(t249, t154, DERIVE_FMA(t233, t138, DERIVE_FMA(t217, t122, DERIVE_FMA(t201, t106, DERIVE_FMA(t185, t90, DERIVE_FMA(t169, P[123], P[171]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t403_0 = DERIVE_VFMA(((derive_vd){t169, t169, t169, t169}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const derive_vd v_t403_1 = DERIVE_VFMA(((derive_vd){t185, t185, t185, t185}), v_t91, v_t403_0);
-    const derive_vd v_t403_2 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t107, v_t403_1);
-    const derive_vd v_t403_3 = DERIVE_VFMA(((derive_vd){t217, t217, t217, t217}), v_t123, v_t403_2);
-    const derive_vd v_t403_4 = DERIVE_VFMA(((derive_vd){t233, t233, t233, t233}), v_t139, v_t403_3);
-    const derive_vd v_t403 = DERIVE_VFMA(((derive_vd){t249, t249, t249, t249}), v_t155, v_t403_4);
-    #else
-    const double t403 = DERIVE_FMA(t249, t155, DERIVE_FMA(t233, t139, DERIVE_FMA(t217, t123, DERIVE_FMA(t201, t107, DERIVE_FMA(t185, t91, DERIVE_FMA(t169, P[124], P[172]))))));
-    const double t404 = DERIVE_FMA(t249, t156, DERIVE_FMA(t233, t140, DERIVE_FMA(t217, t124, DERIVE_FMA(t201, t108, DERIVE_FMA(t185, t92, DERIVE_FMA(t169, P[125], P[173]))))));
-    const double t405 = DERIVE_FMA(t249, t157, DERIVE_FMA(t233, t141, DERIVE_FMA(t217, t125, DERIVE_FMA(t201, t109, DERIVE_FMA(t185, t93, DERIVE_FMA(t169, P[126], P[174]))))));
-    const double t406 = DERIVE_FMA(t249, t158, DERIVE_FMA(t233, t142, DERIVE_FMA(t217, t126, DERIVE_FMA(t201, t110, DERIVE_FMA(t185, t94, DERIVE_FMA(t169, P[127], P[175]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t407_0 = DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd v_t407_1 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t87, v_t407_0);
-    const derive_vd v_t407_2 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t103, v_t407_1);
-    const derive_vd v_t407_3 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t119, v_t407_2);
-    const derive_vd v_t407_4 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t135, v_t407_3);
-    const derive_vd v_t407 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t151, v_t407_4);
-    const derive_vd tr_v_t383_0 = __builtin_shufflevector(v_t383, v_t391, 0, 4, 2, 6);
-    const derive_vd tr_v_t383_1 = __builtin_shufflevector(v_t383, v_t391, 1, 5, 3, 7);
-    const derive_vd tr_v_t383_2 = __builtin_shufflevector(v_t399, v_t407, 0, 4, 2, 6);
-    const derive_vd tr_v_t383_3 = __builtin_shufflevector(v_t399, v_t407, 1, 5, 3, 7);
-    const derive_vd tr_v_t383_c1 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t383_c2 = __builtin_shufflevector(tr_v_t383_0, tr_v_t383_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t383_c3 = __builtin_shufflevector(tr_v_t383_1, tr_v_t383_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[136] = v_t383;
-    *(derive_vd_unaligned *)&P_new[152] = __builtin_shufflevector(v_t391, tr_v_t383_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[168] = __builtin_shufflevector(v_t399, tr_v_t383_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[184] = __builtin_shufflevector(v_t407, tr_v_t383_c3, 4, 5, 6, 3);
-    #else
-    const double t410 = DERIVE_FMA(t250, t154, DERIVE_FMA(t234, t138, DERIVE_FMA(t218, t122, DERIVE_FMA(t202, t106, DERIVE_FMA(t186, t90, DERIVE_FMA(t170, P[123], P[187]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t411_0 = DERIVE_VFMA(((derive_vd){t170, t170, t170, t170}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd v_t411_1 = DERIVE_VFMA(((derive_vd){t186, t186, t186, t186}), v_t91, v_t411_0);
-    const derive_vd v_t411_2 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t107, v_t411_1);
-    const derive_vd v_t411_3 = DERIVE_VFMA(((derive_vd){t218, t218, t218, t218}), v_t123, v_t411_2);
-    const derive_vd v_t411_4 = DERIVE_VFMA(((derive_vd){t234, t234, t234, t234}), v_t139, v_t411_3);
-    const derive_vd v_t411 = DERIVE_VFMA(((derive_vd){t250, t250, t250, t250}), v_t155, v_t411_4);
-    const derive_vd tr_v_t387_0 = __builtin_shufflevector(v_t387, v_t395, 0, 4, 2, 6);
-    const derive_vd tr_v_t387_1 = __builtin_shufflevector(v_t387, v_t395, 1, 5, 3, 7);
-    const derive_vd tr_v_t387_2 = __builtin_shufflevector(v_t403, v_t411, 0, 4, 2, 6);
-    const derive_vd tr_v_t387_3 = __builtin_shufflevector(v_t403, v_t411, 1, 5, 3, 7);
-    const derive_vd tr_v_t387_c0 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t387_c1 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t387_c2 = __builtin_shufflevector(tr_v_t387_0, tr_v_t387_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t387_c3 = __builtin_shufflevector(tr_v_t387_1, tr_v_t387_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[140] = v_t387;
-    *(derive_vd_unaligned *)&P_new[156] = v_t395;
-    *(derive_vd_unaligned *)&P_new[172] = v_t403;
-    *(derive_vd_unaligned *)&P_new[188] = v_t411;
-    *(derive_vd_unaligned *)&P_new[200] = tr_v_t387_c0;
-    *(derive_vd_unaligned *)&P_new[216] = tr_v_t387_c1;
-    *(derive_vd_unaligned *)&P_new[232] = tr_v_t387_c2;
-    *(derive_vd_unaligned *)&P_new[248] = tr_v_t387_c3;
-    #else
-    const double t411 = DERIVE_FMA(t250, t155, DERIVE_FMA(t234, t139, DERIVE_FMA(t218, t123, DERIVE_FMA(t202, t107, DERIVE_FMA(t186, t91, DERIVE_FMA(t170, P[124], P[188]))))));
-    const double t412 = DERIVE_FMA(t250, t156, DERIVE_FMA(t234, t140, DERIVE_FMA(t218, t124, DERIVE_FMA(t202, t108, DERIVE_FMA(t186, t92, DERIVE_FMA(t170, P[125], P[189]))))));
-    const double t413 = DERIVE_FMA(t250, t157, DERIVE_FMA(t234, t141, DERIVE_FMA(t218, t125, DERIVE_FMA(t202, t109, DERIVE_FMA(t186, t93, DERIVE_FMA(t170, P[126], P[190]))))));
-    const double t414 = DERIVE_FMA(t250, t158, DERIVE_FMA(t234, t142, DERIVE_FMA(t218, t126, DERIVE_FMA(t202, t110, DERIVE_FMA(t186, t94, DERIVE_FMA(t170, P[127], P[191]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t415_0 = DERIVE_VFMA(((derive_vd){t171, t171, t171, t171}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t415_1 = DERIVE_VFMA(((derive_vd){t187, t187, t187, t187}), v_t91, v_t415_0);
-    const derive_vd v_t415_2 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t107, v_t415_1);
-    const derive_vd v_t415_3 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), v_t123, v_t415_2);
-    const derive_vd v_t415_4 = DERIVE_VFMA(((derive_vd){t235, t235, t235, t235}), v_t139, v_t415_3);
-    const derive_vd v_t415 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t155, v_t415_4);
-    #else
-    const double t415 = DERIVE_FMA(t251, t155, DERIVE_FMA(t235, t139, DERIVE_FMA(t219, t123, DERIVE_FMA(t203, t107, DERIVE_FMA(t187, t91, DERIVE_FMA(t171, P[124], P[204]))))));
-    const double t416 = DERIVE_FMA(t251, t156, DERIVE_FMA(t235, t140, DERIVE_FMA(t219, t124, DERIVE_FMA(t203, t108, DERIVE_FMA(t187, t92, DERIVE_FMA(t171, P[125], P[205]))))));
-    const double t417 = DERIVE_FMA(t251, t157, DERIVE_FMA(t235, t141, DERIVE_FMA(t219, t125, DERIVE_FMA(t203, t109, DERIVE_FMA(t187, t93, DERIVE_FMA(t171, P[126], P[206]))))));
-    const double t418 = DERIVE_FMA(t251, t158, DERIVE_FMA(t235, t142, DERIVE_FMA(t219, t126, DERIVE_FMA(t203, t110, DERIVE_FMA(t187, t94, DERIVE_FMA(t171, P[127], P[207]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t419_0 = DERIVE_VFMA(((derive_vd){t172, t172, t172, t172}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
-    const derive_vd v_t419_1 = DERIVE_VFMA(((derive_vd){t188, t188, t188, t188}), v_t91, v_t419_0);
-    const derive_vd v_t419_2 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t107, v_t419_1);
-    const derive_vd v_t419_3 = DERIVE_VFMA(((derive_vd){t220, t220, t220, t220}), v_t123, v_t419_2);
-    const derive_vd v_t419_4 = DERIVE_VFMA(((derive_vd){t236, t236, t236, t236}), v_t139, v_t419_3);
-    const derive_vd v_t419 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t155, v_t419_4);
-    #else
-    const double t420 = DERIVE_FMA(t252, t156, DERIVE_FMA(t236, t140, DERIVE_FMA(t220, t124, DERIVE_FMA(t204, t108, DERIVE_FMA(t188, t92, DERIVE_FMA(t172, P[125], P[221]))))));
-    const double t421 = DERIVE_FMA(t252, t157, DERIVE_FMA(t236, t141, DERIVE_FMA(t220, t125, DERIVE_FMA(t204, t109, DERIVE_FMA(t188, t93, DERIVE_FMA(t172, P[126], P[222]))))));
-    const double t422 = DERIVE_FMA(t252, t158, DERIVE_FMA(t236, t142, DERIVE_FMA(t220, t126, DERIVE_FMA(t204, t110, DERIVE_FMA(t188, t94, DERIVE_FMA(t172, P[127], P[223]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t423_0 = DERIVE_VFMA(((derive_vd){t173, t173, t173, t173}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t423_1 = DERIVE_VFMA(((derive_vd){t189, t189, t189, t189}), v_t91, v_t423_0);
-    const derive_vd v_t423_2 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t107, v_t423_1);
-    const derive_vd v_t423_3 = DERIVE_VFMA(((derive_vd){t221, t221, t221, t221}), v_t123, v_t423_2);
-    const derive_vd v_t423_4 = DERIVE_VFMA(((derive_vd){t237, t237, t237, t237}), v_t139, v_t423_3);
-    const derive_vd v_t423 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t155, v_t423_4);
-    #else
-    const double t425 = DERIVE_FMA(t253, t157, DERIVE_FMA(t237, t141, DERIVE_FMA(t221, t125, DERIVE_FMA(t205, t109, DERIVE_FMA(t189, t93, DERIVE_FMA(t173, P[126], P[238]))))));
-    const double t426 = DERIVE_FMA(t253, t158, DERIVE_FMA(t237, t142, DERIVE_FMA(t221, t126, DERIVE_FMA(t205, t110, DERIVE_FMA(t189, t94, DERIVE_FMA(t173, P[127], P[239]))))));
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t427_0 = DERIVE_VFMA(((derive_vd){t174, t174, t174, t174}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
-    const derive_vd v_t427_1 = DERIVE_VFMA(((derive_vd){t190, t190, t190, t190}), v_t91, v_t427_0);
-    const derive_vd v_t427_2 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t107, v_t427_1);
-    const derive_vd v_t427_3 = DERIVE_VFMA(((derive_vd){t222, t222, t222, t222}), v_t123, v_t427_2);
-    const derive_vd v_t427_4 = DERIVE_VFMA(((derive_vd){t238, t238, t238, t238}), v_t139, v_t427_3);
-    const derive_vd v_t427 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t155, v_t427_4);
-    const derive_vd tr_v_t415_0 = __builtin_shufflevector(v_t415, v_t419, 0, 4, 2, 6);
-    const derive_vd tr_v_t415_1 = __builtin_shufflevector(v_t415, v_t419, 1, 5, 3, 7);
-    const derive_vd tr_v_t415_2 = __builtin_shufflevector(v_t423, v_t427, 0, 4, 2, 6);
-    const derive_vd tr_v_t415_3 = __builtin_shufflevector(v_t423, v_t427, 1, 5, 3, 7);
-    const derive_vd tr_v_t415_c1 = __builtin_shufflevector(tr_v_t415_1, tr_v_t415_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t415_c2 = __builtin_shufflevector(tr_v_t415_0, tr_v_t415_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t415_c3 = __builtin_shufflevector(tr_v_t415_1, tr_v_t415_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[204] = v_t415;
-    *(derive_vd_unaligned *)&P_new[220] = __builtin_shufflevector(v_t419, tr_v_t415_c1, 4, 1, 2, 3);
-    *(derive_vd_unaligned *)&P_new[236] = __builtin_shufflevector(v_t423, tr_v_t415_c2, 4, 5, 2, 3);
-    *(derive_vd_unaligned *)&P_new[252] = __builtin_shufflevector(v_t427, tr_v_t415_c3, 4, 5, 6, 3);
-    #else
-    const double t430 = DERIVE_FMA(t254, t158, DERIVE_FMA(t238, t142, DERIVE_FMA(t222, t126, DERIVE_FMA(t206, t110, DERIVE_FMA(t190, t94, DERIVE_FMA(t174, P[127], P[255]))))));
-    #endif
-    const double t431 = DERIVE_FMA(t258, t258, DERIVE_FMA(t257, t257, DERIVE_FMA(t256, t256, t255*t255)));
-    const double t432 = 1.0/sqrt(t431);
-    const double t433 = t255*t432;
-    const double t434 = t256*t432;
-    const double t435 = t257*t432;
-    const double t436 = t258*t432;
-    #if DERIVE_VECTOR
-    x_new[0] = t433;
-    x_new[1] = t434;
-    x_new[2] = t435;
-    x_new[3] = t436;
-    #else
-    x_new[0] = t433;
-    x_new[1] = t434;
-    x_new[2] = t435;
-    x_new[3] = t436;
+    x_new[0] = t409;
+    x_new[1] = t410;
+    x_new[2] = t411;
+    x_new[3] = t412;
     x_new[4] = t259;
     x_new[5] = t260;
     x_new[6] = t261;
@@ -2795,245 +2710,245 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[14] = t285;
     P_new[15] = t286;
     P_new[16] = t272;
-    P_new[17] = t288;
-    P_new[18] = t289;
-    P_new[19] = t290;
-    P_new[20] = t291;
-    P_new[21] = t292;
-    P_new[22] = t293;
-    P_new[23] = t294;
-    P_new[24] = t295;
-    P_new[25] = t296;
-    P_new[26] = t297;
-    P_new[27] = t298;
-    P_new[28] = t299;
-    P_new[29] = t300;
-    P_new[30] = t301;
-    P_new[31] = t302;
+    P_new[17] = t287;
+    P_new[18] = t288;
+    P_new[19] = t289;
+    P_new[20] = t290;
+    P_new[21] = t291;
+    P_new[22] = t292;
+    P_new[23] = t293;
+    P_new[24] = t294;
+    P_new[25] = t295;
+    P_new[26] = t296;
+    P_new[27] = t297;
+    P_new[28] = t298;
+    P_new[29] = t299;
+    P_new[30] = t300;
+    P_new[31] = t301;
     P_new[32] = t273;
-    P_new[33] = t289;
-    P_new[34] = t305;
-    P_new[35] = t306;
-    P_new[36] = t307;
-    P_new[37] = t308;
-    P_new[38] = t309;
-    P_new[39] = t310;
-    P_new[40] = t311;
-    P_new[41] = t312;
-    P_new[42] = t313;
-    P_new[43] = t314;
-    P_new[44] = t315;
-    P_new[45] = t316;
-    P_new[46] = t317;
-    P_new[47] = t318;
+    P_new[33] = t288;
+    P_new[34] = t302;
+    P_new[35] = t303;
+    P_new[36] = t304;
+    P_new[37] = t305;
+    P_new[38] = t306;
+    P_new[39] = t307;
+    P_new[40] = t308;
+    P_new[41] = t309;
+    P_new[42] = t310;
+    P_new[43] = t311;
+    P_new[44] = t312;
+    P_new[45] = t313;
+    P_new[46] = t314;
+    P_new[47] = t315;
     P_new[48] = t274;
-    P_new[49] = t290;
-    P_new[50] = t306;
-    P_new[51] = t322;
-    P_new[52] = t323;
-    P_new[53] = t324;
-    P_new[54] = t325;
-    P_new[55] = t326;
-    P_new[56] = t327;
-    P_new[57] = t328;
-    P_new[58] = t329;
-    P_new[59] = t330;
-    P_new[60] = t331;
-    P_new[61] = t332;
-    P_new[62] = t333;
-    P_new[63] = t334;
+    P_new[49] = t289;
+    P_new[50] = t303;
+    P_new[51] = t316;
+    P_new[52] = t317;
+    P_new[53] = t318;
+    P_new[54] = t319;
+    P_new[55] = t320;
+    P_new[56] = t321;
+    P_new[57] = t322;
+    P_new[58] = t323;
+    P_new[59] = t324;
+    P_new[60] = t325;
+    P_new[61] = t326;
+    P_new[62] = t327;
+    P_new[63] = t328;
     P_new[64] = t275;
-    P_new[65] = t291;
-    P_new[66] = t307;
-    P_new[67] = t323;
-    P_new[68] = t335;
-    P_new[69] = t336;
-    P_new[70] = t337;
-    P_new[71] = t338;
-    P_new[72] = t339;
-    P_new[73] = t340;
-    P_new[74] = t341;
-    P_new[75] = t342;
-    P_new[76] = t343;
-    P_new[77] = t344;
-    P_new[78] = t345;
-    P_new[79] = t346;
+    P_new[65] = t290;
+    P_new[66] = t304;
+    P_new[67] = t317;
+    P_new[68] = t329;
+    P_new[69] = t330;
+    P_new[70] = t331;
+    P_new[71] = t332;
+    P_new[72] = t333;
+    P_new[73] = t334;
+    P_new[74] = t335;
+    P_new[75] = t336;
+    P_new[76] = t337;
+    P_new[77] = t338;
+    P_new[78] = t339;
+    P_new[79] = t340;
     P_new[80] = t276;
-    P_new[81] = t292;
-    P_new[82] = t308;
-    P_new[83] = t324;
-    P_new[84] = t336;
-    P_new[85] = t348;
-    P_new[86] = t349;
-    P_new[87] = t350;
-    P_new[88] = t351;
-    P_new[89] = t352;
-    P_new[90] = t353;
-    P_new[91] = t354;
-    P_new[92] = t355;
-    P_new[93] = t356;
-    P_new[94] = t357;
-    P_new[95] = t358;
+    P_new[81] = t291;
+    P_new[82] = t305;
+    P_new[83] = t318;
+    P_new[84] = t330;
+    P_new[85] = t341;
+    P_new[86] = t342;
+    P_new[87] = t343;
+    P_new[88] = t344;
+    P_new[89] = t345;
+    P_new[90] = t346;
+    P_new[91] = t347;
+    P_new[92] = t348;
+    P_new[93] = t349;
+    P_new[94] = t350;
+    P_new[95] = t351;
     P_new[96] = t277;
-    P_new[97] = t293;
-    P_new[98] = t309;
-    P_new[99] = t325;
-    P_new[100] = t337;
-    P_new[101] = t349;
-    P_new[102] = t361;
-    P_new[103] = t362;
-    P_new[104] = t363;
-    P_new[105] = t364;
-    P_new[106] = t365;
-    P_new[107] = t366;
-    P_new[108] = t367;
-    P_new[109] = t368;
-    P_new[110] = t369;
-    P_new[111] = t370;
+    P_new[97] = t292;
+    P_new[98] = t306;
+    P_new[99] = t319;
+    P_new[100] = t331;
+    P_new[101] = t342;
+    P_new[102] = t352;
+    P_new[103] = t353;
+    P_new[104] = t354;
+    P_new[105] = t355;
+    P_new[106] = t356;
+    P_new[107] = t357;
+    P_new[108] = t358;
+    P_new[109] = t359;
+    P_new[110] = t360;
+    P_new[111] = t361;
     P_new[112] = t278;
-    P_new[113] = t294;
-    P_new[114] = t310;
-    P_new[115] = t326;
-    P_new[116] = t338;
-    P_new[117] = t350;
-    P_new[118] = t362;
-    P_new[119] = t374;
-    P_new[120] = t375;
-    P_new[121] = t376;
-    P_new[122] = t377;
-    P_new[123] = t378;
-    P_new[124] = t379;
-    P_new[125] = t380;
-    P_new[126] = t381;
-    P_new[127] = t382;
+    P_new[113] = t293;
+    P_new[114] = t307;
+    P_new[115] = t320;
+    P_new[116] = t332;
+    P_new[117] = t343;
+    P_new[118] = t353;
+    P_new[119] = t362;
+    P_new[120] = t363;
+    P_new[121] = t364;
+    P_new[122] = t365;
+    P_new[123] = t366;
+    P_new[124] = t367;
+    P_new[125] = t368;
+    P_new[126] = t369;
+    P_new[127] = t370;
     P_new[128] = t279;
-    P_new[129] = t295;
-    P_new[130] = t311;
-    P_new[131] = t327;
-    P_new[132] = t339;
-    P_new[133] = t351;
-    P_new[134] = t363;
-    P_new[135] = t375;
-    P_new[136] = t383;
-    P_new[137] = t384;
-    P_new[138] = t385;
-    P_new[139] = t386;
-    P_new[140] = t387;
-    P_new[141] = t388;
-    P_new[142] = t389;
-    P_new[143] = t390;
+    P_new[129] = t294;
+    P_new[130] = t308;
+    P_new[131] = t321;
+    P_new[132] = t333;
+    P_new[133] = t344;
+    P_new[134] = t354;
+    P_new[135] = t363;
+    P_new[136] = t371;
+    P_new[137] = t372;
+    P_new[138] = t373;
+    P_new[139] = t374;
+    P_new[140] = t375;
+    P_new[141] = t376;
+    P_new[142] = t377;
+    P_new[143] = t378;
     P_new[144] = t280;
-    P_new[145] = t296;
-    P_new[146] = t312;
-    P_new[147] = t328;
-    P_new[148] = t340;
-    P_new[149] = t352;
-    P_new[150] = t364;
-    P_new[151] = t376;
-    P_new[152] = t384;
-    P_new[153] = t392;
-    P_new[154] = t393;
-    P_new[155] = t394;
-    P_new[156] = t395;
-    P_new[157] = t396;
-    P_new[158] = t397;
-    P_new[159] = t398;
+    P_new[145] = t295;
+    P_new[146] = t309;
+    P_new[147] = t322;
+    P_new[148] = t334;
+    P_new[149] = t345;
+    P_new[150] = t355;
+    P_new[151] = t364;
+    P_new[152] = t372;
+    P_new[153] = t379;
+    P_new[154] = t380;
+    P_new[155] = t381;
+    P_new[156] = t382;
+    P_new[157] = t383;
+    P_new[158] = t384;
+    P_new[159] = t385;
     P_new[160] = t281;
-    P_new[161] = t297;
-    P_new[162] = t313;
-    P_new[163] = t329;
-    P_new[164] = t341;
-    P_new[165] = t353;
-    P_new[166] = t365;
-    P_new[167] = t377;
-    P_new[168] = t385;
-    P_new[169] = t393;
-    P_new[170] = t401;
-    P_new[171] = t402;
-    P_new[172] = t403;
-    P_new[173] = t404;
-    P_new[174] = t405;
-    P_new[175] = t406;
+    P_new[161] = t296;
+    P_new[162] = t310;
+    P_new[163] = t323;
+    P_new[164] = t335;
+    P_new[165] = t346;
+    P_new[166] = t356;
+    P_new[167] = t365;
+    P_new[168] = t373;
+    P_new[169] = t380;
+    P_new[170] = t386;
+    P_new[171] = t387;
+    P_new[172] = t388;
+    P_new[173] = t389;
+    P_new[174] = t390;
+    P_new[175] = t391;
     P_new[176] = t282;
-    P_new[177] = t298;
-    P_new[178] = t314;
-    P_new[179] = t330;
-    P_new[180] = t342;
-    P_new[181] = t354;
-    P_new[182] = t366;
-    P_new[183] = t378;
-    P_new[184] = t386;
-    P_new[185] = t394;
-    P_new[186] = t402;
-    P_new[187] = t410;
-    P_new[188] = t411;
-    P_new[189] = t412;
-    P_new[190] = t413;
-    P_new[191] = t414;
+    P_new[177] = t297;
+    P_new[178] = t311;
+    P_new[179] = t324;
+    P_new[180] = t336;
+    P_new[181] = t347;
+    P_new[182] = t357;
+    P_new[183] = t366;
+    P_new[184] = t374;
+    P_new[185] = t381;
+    P_new[186] = t387;
+    P_new[187] = t392;
+    P_new[188] = t393;
+    P_new[189] = t394;
+    P_new[190] = t395;
+    P_new[191] = t396;
     P_new[192] = t283;
-    P_new[193] = t299;
-    P_new[194] = t315;
-    P_new[195] = t331;
-    P_new[196] = t343;
-    P_new[197] = t355;
-    P_new[198] = t367;
-    P_new[199] = t379;
-    P_new[200] = t387;
-    P_new[201] = t395;
-    P_new[202] = t403;
-    P_new[203] = t411;
-    P_new[204] = t415;
-    P_new[205] = t416;
-    P_new[206] = t417;
-    P_new[207] = t418;
+    P_new[193] = t298;
+    P_new[194] = t312;
+    P_new[195] = t325;
+    P_new[196] = t337;
+    P_new[197] = t348;
+    P_new[198] = t358;
+    P_new[199] = t367;
+    P_new[200] = t375;
+    P_new[201] = t382;
+    P_new[202] = t388;
+    P_new[203] = t393;
+    P_new[204] = t397;
+    P_new[205] = t398;
+    P_new[206] = t399;
+    P_new[207] = t400;
     P_new[208] = t284;
-    P_new[209] = t300;
-    P_new[210] = t316;
-    P_new[211] = t332;
-    P_new[212] = t344;
-    P_new[213] = t356;
-    P_new[214] = t368;
-    P_new[215] = t380;
-    P_new[216] = t388;
-    P_new[217] = t396;
-    P_new[218] = t404;
-    P_new[219] = t412;
-    P_new[220] = t416;
-    P_new[221] = t420;
-    P_new[222] = t421;
-    P_new[223] = t422;
+    P_new[209] = t299;
+    P_new[210] = t313;
+    P_new[211] = t326;
+    P_new[212] = t338;
+    P_new[213] = t349;
+    P_new[214] = t359;
+    P_new[215] = t368;
+    P_new[216] = t376;
+    P_new[217] = t383;
+    P_new[218] = t389;
+    P_new[219] = t394;
+    P_new[220] = t398;
+    P_new[221] = t401;
+    P_new[222] = t402;
+    P_new[223] = t403;
     P_new[224] = t285;
-    P_new[225] = t301;
-    P_new[226] = t317;
-    P_new[227] = t333;
-    P_new[228] = t345;
-    P_new[229] = t357;
-    P_new[230] = t369;
-    P_new[231] = t381;
-    P_new[232] = t389;
-    P_new[233] = t397;
-    P_new[234] = t405;
-    P_new[235] = t413;
-    P_new[236] = t417;
-    P_new[237] = t421;
-    P_new[238] = t425;
-    P_new[239] = t426;
+    P_new[225] = t300;
+    P_new[226] = t314;
+    P_new[227] = t327;
+    P_new[228] = t339;
+    P_new[229] = t350;
+    P_new[230] = t360;
+    P_new[231] = t369;
+    P_new[232] = t377;
+    P_new[233] = t384;
+    P_new[234] = t390;
+    P_new[235] = t395;
+    P_new[236] = t399;
+    P_new[237] = t402;
+    P_new[238] = t404;
+    P_new[239] = t405;
     P_new[240] = t286;
-    P_new[241] = t302;
-    P_new[242] = t318;
-    P_new[243] = t334;
-    P_new[244] = t346;
-    P_new[245] = t358;
-    P_new[246] = t370;
-    P_new[247] = t382;
-    P_new[248] = t390;
-    P_new[249] = t398;
-    P_new[250] = t406;
-    P_new[251] = t414;
-    P_new[252] = t418;
-    P_new[253] = t422;
-    P_new[254] = t426;
-    P_new[255] = t430;
+    P_new[241] = t301;
+    P_new[242] = t315;
+    P_new[243] = t328;
+    P_new[244] = t340;
+    P_new[245] = t351;
+    P_new[246] = t361;
+    P_new[247] = t370;
+    P_new[248] = t378;
+    P_new[249] = t385;
+    P_new[250] = t391;
+    P_new[251] = t396;
+    P_new[252] = t400;
+    P_new[253] = t403;
+    P_new[254] = t405;
+    P_new[255] = t406;
     #endif
     return 0;
 }

@@ -27,8 +27,8 @@
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 104, sub 13, mul 151, div 0, sqrt 0, fma 1153, neg 21, cmp 1, calls 0 (flops 2574, instructions 1443)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1349, neg 0, cmp 6, calls 0 (flops 2840, instructions 1497)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 85, sub 13, mul 143, div 0, sqrt 0, fma 1098, neg 21, cmp 1, calls 0 (flops 2437, instructions 1361)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1205, neg 0, cmp 6, calls 0 (flops 2552, instructions 1353)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions

@@ -34,7 +34,6 @@ GNSS epoch 20 s in (the filter converged, P realistic).
 
 from __future__ import annotations
 
-import re
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -48,11 +47,11 @@ from ...flops import c_function_body
 from ...generation import generate_units
 from ...interface import read as read_interface
 from ...trees import OpCount
-from ..ins import c_loop, casadi_ekf, filterpy_ekf, flight, reference, symforce_ekf
-from . import casadi_c, generated
+from ..ins import c_loop, casadi_ekf, fc24, filterpy_ekf, flight, reference, symforce_ekf
+from . import casadi_c, generated, symforce_peer
 from .cases import Skip
 from .throughput import Throughput, measure_throughput
-from .timing import Timing, human, measure, timing_cells
+from .timing import Timing, columns, human, measure, timing_cells
 
 MODEL = "ins_gnss"
 FUNCTIONS = ("predict", "update_gnss", "update_baro")
@@ -98,6 +97,7 @@ class NavigationResult:
     throughput: Throughput | None = None   # this machine's scalar throughput, same run
     notes: list[str] = field(default_factory=list)
     vector: frozenset[str] = frozenset()   # the functions generated as vector rows
+    peer: symforce_peer.PeerResult | None = None   # SymForce's C++ timed beside derive's
 
     def time_row(self, function: str, implementation: str) -> TimeRow | None:
         return next((r for r in self.times if r.function == function
@@ -153,15 +153,17 @@ class NavigationResult:
                  "n/a" if r.symforce is None else str(r.symforce.flops),
                  "n/a" if r.symforce_total is None else str(r.symforce_total),
                  "" if r.ratio is None else f"{r.ratio:.2f}") for r in self.counts]
-        out += _columns(head, body) + [""]
+        out += columns(head, body) + [""]
         head = ("function", "implementation", "per call", "min-max", "ratio", "agrees", "note")
         body = []
         for r in self.times:
             body.append((r.function, r.implementation,
                          *timing_cells(r.timing, r.ratio, r.agreement), r.note))
-        out += _columns(head, body)
+        out += columns(head, body)
         out += [""] + self.decisive_lines()
         out += [f"note: {n}" for n in self.notes]
+        if self.peer is not None:
+            out += [""] + self.peer.lines()
         return out
 
     def bars(self, bar_type):
@@ -181,6 +183,8 @@ class NavigationResult:
                 out.append(bar_type(f"generated C {MODEL} {function} faster per call than "
                                     f"{peer}", None if row is None else row.ratio, need,
                                     "ratio", self._bar_note(function, peer, need)))
+        if self.peer is not None:
+            out += self.peer.bars(bar_type)
         return out
 
     def _bar_note(self, function: str, peer: str, ratio: float) -> str:
@@ -209,14 +213,8 @@ class NavigationResult:
                           for r in self.times],
                 "throughput": None if self.throughput is None else self.throughput.__dict__,
                 "floors": {f: self.floor_seconds(f) for f in TIMED},
-                "notes": self.notes}
-
-
-def _columns(head, body) -> list[str]:
-    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
-        [fmt.format(*r).rstrip() for r in body]
+                "notes": self.notes,
+                "peer": None if self.peer is None else self.peer.as_json()}
 
 
 @dataclass(frozen=True)
@@ -304,13 +302,10 @@ def sequential_updates() -> tuple[str, ...]:
 
 
 def _header_count(text: str, function: str) -> OpCount:
-    line = re.search(rf"operations per call of {function} \(C99[^)]*\): ([^\n]*) \(flops",
-                     text)
-    if line is None:
+    count = symforce_peer.header_count(text, function)
+    if count is None:
         raise ValueError(f"no operation count of {function} in the generated header")
-    fields = dict((k, int(v)) for v, k in (part.strip().split(" ")[::-1]
-                                             for part in line.group(1).split(",")))
-    return OpCount(**fields)
+    return count
 
 
 def _casadi(workdir: Path):
@@ -327,11 +322,31 @@ def _arg(point: Point, function: str) -> np.ndarray:
     return point.u if function == "predict" else point.z[function.split("_", 1)[1]]
 
 
+def peer_points() -> dict:
+    """model -> (the point its functions are timed at, {function: (x, P) of its NumPy
+    reference}) for the SymForce peer: ins_gnss at operating_point(), ins_fc24 25 s into
+    its flight (derive.apps.ins.fc24.operating_point)."""
+    point = operating_point()
+    args = {name: _arg(point, name) for name in FUNCTIONS}
+    out = {MODEL: (symforce_peer.Point(point.x, point.P, args, point.dt),
+                   {name: _expected(point, name) for name in FUNCTIONS})}
+    x, P, args, dt = fc24.operating_point()
+    out[fc24.MODEL] = (symforce_peer.Point(x, P, args, dt),
+                       {name: fc24.expected(x, P, name, arg, dt) for name, arg in args.items()})
+    return out
+
+
 def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
-                   symforce: bool = True, tick=lambda text: None) -> NavigationResult:
+                   symforce: bool = True, tick=lambda text: None,
+                   peer_calls: int = 0) -> NavigationResult:
     """Measure everything above; ``calls`` per C timing, ``python_calls`` per FilterPy
-    timing."""
+    timing; with ``peer_calls``, SymForce's C++ timed beside derive's C
+    (derive.apps.bench.symforce_peer), that many calls per timing."""
     result = NavigationResult()
+    if peer_calls:
+        tick("navigation: the SymForce peer's operating points")
+        result.peer = symforce_peer.run_peer(peer_points(), workdir / "peer", peer_calls,
+                                             repeats, tick)
     tick("navigation: the flight's operating point")
     point = operating_point()
     tick("navigation: derive generates ins_gnss")

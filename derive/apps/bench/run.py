@@ -36,7 +36,7 @@ from . import (
 from .bound import case_bound, case_schedule_bounds
 from .cases import CASES, Case, Skip, make_data, states
 from .probe import measure_latencies
-from .timing import Timing, human, measure, timing_cells
+from .timing import Timing, columns, human, measure, timing_cells
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     # (name, prepare(case, data, workdir), loop in C: long runs)
@@ -51,6 +51,9 @@ IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
 
 #: The row of the generated C in the latency schedule (time-varying filters).
 LATENCY_SCHEDULE = "generated C, --latency-schedule"
+
+#: The sections ``Settings.only`` (``derive bench --only``) can run alone.
+ONLY = ("navigation",)
 
 #: The reference points for the KF step on mpt3d_a on the machine where the performance
 #: targets (docs/performance.md) were set.
@@ -75,6 +78,8 @@ class Settings:
     navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
+    navigation_peer_calls: int = 5_000   # SymForce's C++ timed beside derive's (0: left out)
+    only: str | None = None           # one section alone: "navigation" (ONLY)
     generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
     compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
     startup_repeats: int = 5          # each `derive` start-up call; 0: left out
@@ -88,7 +93,7 @@ class Settings:
                    check_steps=20, batch_tracks=50, batch_steps=10, batch_repeats=2,
                    scale_tracks=2_000, scale_steps=10, scale_repeats=1,
                    catalog_generation=False, navigation_calls=200, navigation_python_calls=3,
-                   navigation_symforce=False,
+                   navigation_symforce=False, navigation_peer_calls=0,
                    generation_scaling=False, compile_states=(3,), startup_repeats=1,
                    schedule_axes=(3,), schedule_dense=())
 
@@ -154,7 +159,9 @@ class BenchResult:
 
     def bars(self) -> list[Bar]:
         """The performance targets (docs/performance.md), each with the measured value and
-        whether it is met."""
+        whether it is met (with ``only``, that section's)."""
+        if self.settings.only == "navigation":
+            return self.navigation.bars(Bar) if self.navigation is not None else []
         out = []
         for peer, need in (("FilterPy", 1000.0), ("CasADi C", 4.0)):
             r = self.row("KF mpt3d_a", peer)
@@ -263,6 +270,9 @@ class BenchResult:
             f"rel error of the states against derive's NumPy reference over {s.check_steps} "
             "steps",
             ""]
+        if s.only == "navigation":
+            return "\n".join(lines[:2] + [""] + (self.navigation.lines() if self.navigation
+                                                 else []) + [bar.text() for bar in self.bars()])
         head = ("case", "implementation", "per step", "min-max", "ratio", "agrees", "note")
         body = []
         for r in self.rows:
@@ -330,7 +340,7 @@ class Bar:
     claim: str
     value: float | None
     bar: float
-    kind: str                     # "ratio" or "time" (seconds)
+    kind: str                     # "ratio" (>=), "share" (a ratio, <=) or "time" (s, <=)
     note: str = ""
 
     @property
@@ -344,6 +354,9 @@ class Bar:
         if self.kind == "ratio":
             shown = "n/a" if self.value is None else f"{self.value:,.1f}x"
             need = f">= {self.bar:g}x"
+        elif self.kind == "share":
+            shown = "n/a" if self.value is None else f"{self.value:.2f}x"
+            need = f"<= {self.bar:g}x"
         else:
             shown = "n/a" if self.value is None else human(self.value)
             need = f"<= {human(self.bar)}"
@@ -365,10 +378,7 @@ def _bound_note(row: Row | None) -> str:
 
 
 def _columns(head, body) -> list[str]:
-    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
-        [fmt.format(*r).rstrip() for r in body]
+    return columns(head, body)
 
 
 def machine_info() -> dict:
@@ -548,15 +558,16 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
     tick = progress or (lambda text: None)
     result = BenchResult(s, machine_info())
     with tempfile.TemporaryDirectory(prefix="derive-bench-") as tmp:
+        if s.only == "navigation":
+            result.navigation = _navigation(s, Path(tmp), tick)
+            return result
         for case in CASES:
             result.rows += _case_rows(case, s, Path(tmp), tick, result.machine.get("latency"))
         result.batch = _batch_rows(s, Path(tmp), tick)
         if s.scale_tracks:
             result.scale = scaling.scaling_rows(s.scale_tracks, s.scale_steps, Path(tmp),
                                                   s.scale_repeats, tick)
-        result.navigation = navigation.run_navigation(
-            Path(tmp) / "navigation", s.navigation_calls, s.navigation_python_calls, s.repeats,
-            s.navigation_symforce, tick)
+        result.navigation = _navigation(s, Path(tmp), tick)
         if s.generation_scaling:
             result.generation = generation_scaling.generation_rows(tick=tick)
         result.compile = compile_size.compile_rows(s.compile_states, Path(tmp), tick)
@@ -570,6 +581,12 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
             tick("derive generate --all")
             result.generation_seconds = time_catalog_generation(Path(tmp) / "catalog")
     return result
+
+
+def _navigation(s: Settings, tmp: Path, tick) -> navigation.NavigationResult:
+    return navigation.run_navigation(tmp / "navigation", s.navigation_calls,
+                                     s.navigation_python_calls, s.repeats,
+                                     s.navigation_symforce, tick, s.navigation_peer_calls)
 
 
 def time_catalog_generation(out: Path) -> float:

@@ -50,3 +50,12 @@ def human(seconds: float) -> str:
         if seconds < 1000 * scale:
             return f"{seconds / scale:.3g} {unit}"
     return f"{seconds:.3g} s"
+
+
+def columns(head, body) -> list[str]:
+    """A text table: the head, a rule and the rows, each column as wide as its widest
+    cell."""
+    widths = [max(len(str(r[i])) for r in [head, *body]) for i in range(len(head))]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return [fmt.format(*head).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()] + \
+        [fmt.format(*r).rstrip() for r in body]

@@ -13,9 +13,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from derive.apps.ins import constants as c
-from derive.apps.ins.symforce_ekf import BARO_ROW, GNSS_ROWS, N
 
 FUNCTIONS = ("predict", "update_gnss", "update_baro")
+
+N = 16
+GNSS_ROWS = (7, 8, 9, 4, 5, 6)
+"""The rows of x that the GNSS measures (p, then v)."""
+BARO_ROW = 9
+"""The row of x whose negative the barometer measures."""
 
 
 def _symmetric(ca, name: str):

@@ -136,8 +136,12 @@ def predict(x: np.ndarray, P: np.ndarray, u: np.ndarray, dt: float):
 def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, sensor: str):
     """One EKF update of `sensor` then the quaternion renormalised: (x, P, innovation, S)."""
     h, H_of, R = SENSORS[sensor]
-    H = H_of()
-    innovation = np.asarray(z, dtype=float) - h(x)
+    return update_with(x, P, z, h(x), H_of(), R)
+
+
+def update_with(x: np.ndarray, P: np.ndarray, z, h: np.ndarray, H: np.ndarray, R: np.ndarray):
+    """The EKF update with h(x), H and R given, then q renormalised: (x, P, innovation, S)."""
+    innovation = np.asarray(z, dtype=float) - h
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T
     x = x + K @ innovation

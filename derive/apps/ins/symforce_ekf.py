@@ -1,12 +1,14 @@
-"""SymForce's generated C++ for the INS/GNSS EKF's three functions (predict, the GNSS update
-and the barometer update), a benchmark peer: generation time and operation counts.
+"""SymForce's generated C++ for a derive EKF's functions (predict and one update per sensor),
+a benchmark peer: the functions, their generation time and operation counts.
 
-The functions are the equations of SPEC.md §8 written with ``symforce.symbolic`` (no code
-from SymForce's own examples): predict x' = f(x, u), P' = F P Fᵀ + Fu Qu Fuᵀ + Qb(dt); an
-update S = H P Hᵀ + R, K = P Hᵀ S⁻¹ (SymForce's symbolic ``inv``; the baro's S is 1 x 1),
-x' = x + K (z − h(x)), P' = P − K H P, then q' ← q'/‖q'‖. P is symmetric: each entry (i, j)
-is the symbol of (min(i, j), max(i, j)), like derive's upper-triangle read. Each function is
-emitted by ``symforce.codegen.Codegen`` with its C++ backend.
+The functions are the model's own equations (its f, h, Qu, Q and R, the sympy expressions of
+the catalog model) converted to ``symforce.symbolic`` and differentiated, simplified and
+printed by SymForce: predict x' = f(x, u, dt), P' = F P Fᵀ + Fu Qu Fuᵀ + Q(dt) with F and Fu
+SymForce's Jacobians; an update S = H P Hᵀ + R, K = P Hᵀ S⁻¹ (SymForce's symbolic ``inv``:
+the batch update), x' = x + K (z − h(x)), P' = P − K H P, then each unit-norm group of the
+model renormalised. P is symmetric: each entry (i, j) is the symbol of (min(i, j), max(i,
+j)), like derive's upper-triangle read. Each function is emitted by
+``symforce.codegen.Codegen`` with its C++ backend.
 
 Counts: SymForce's own (the ``// Total ops: N`` its code generator prints), and the count of
 its C++ by derive's C rules (derive.flops.count_c_text) after the C++ spellings are mapped
@@ -24,14 +26,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from derive.apps.ins import constants as c
+import sympy
+
+from derive import catalog
+from derive.filters.sensors import program_name
 from derive.flops import c_function_body, count_c_text
 from derive.trees import OpCount
 
-N = 16
-GNSS_ROWS = (7, 8, 9, 4, 5, 6)
-BARO_ROW = 9
-FUNCTIONS = ("predict", "update_gnss", "update_baro")
+MODEL = "ins_gnss"
 
 
 @dataclass(frozen=True)
@@ -42,74 +44,87 @@ class SymforceFunction:
     count: OpCount          # its C++ counted by derive's rules
     source: str
 
+    @property
+    def cpp_name(self) -> str:
+        """The name of its C++ function template (SymForce's CamelCase of ``name``)."""
+        return _function_name(self.source)
 
-def _symmetric(sf, P):
-    out = sf.Matrix(N, N)
-    for i in range(N):
-        for j in range(N):
+
+def function_names(model) -> tuple[str, ...]:
+    """predict and update_<sensor> per sensor, derive's program names."""
+    return ("predict",) + tuple(program_name(s.name) for s in model.sensors)
+
+
+def _symmetric(sf, P, n: int):
+    out = sf.Matrix(n, n)
+    for i in range(n):
+        for j in range(n):
             out[i, j] = P[min(i, j), max(i, j)]
     return out
 
 
-def _normalised(sf, x):
-    norm = sf.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2 + x[3] ** 2)
-    for i in range(4):
-        x[i] = x[i] / norm
-    return x
+def model_functions(sf, model) -> dict:
+    """name -> (the function, its SymForce input types) for ``model``, a derive
+    NonlinearModel whose f uses inputs and whose only free parameter is the step dt (in f,
+    Qu and Q; not in h)."""
+    n, states = model.n, list(model.state_symbols)
+    if len(model.parameters) != 1:
+        raise ValueError(f"model {model.name!r}: the SymForce peer takes one free parameter "
+                         f"(the step), not {list(model.parameters)}")
+    (step,) = model.parameters
+    inputs = list(model.f_inputs)
+    groups = [[model.states.index(name) for name in g] for g in model.unit_norm]
+    values = {sympy.Symbol(k, real=True): v for k, v in model.values.items()}
 
+    def numeric(matrix):
+        return matrix.subs(values)
 
-def _functions(sf):
-    """name -> (the function, its SymForce input types)."""
-    vector16, matrix16 = sf.Matrix(N, 1).__class__, sf.Matrix(N, N).__class__
+    f, Qu, Q = (numeric(m) for m in (model.f, model.Qu, model.Q))
+
+    def to_sf(expr, bind):
+        return sf.sympify(expr).subs(bind)
 
     def predict(x, P, u, dt):
-        P = _symmetric(sf, P)
-        q0, q1, q2, q3 = (x[i] for i in range(4))
-        w = [u[i] - x[10 + i] for i in range(3)]
-        a = sf.Matrix([u[3 + i] - x[13 + i] for i in range(3)])
-        r = [1, w[0] * dt / 2, w[1] * dt / 2, w[2] * dt / 2]
-        quat = [q0 * r[0] - q1 * r[1] - q2 * r[2] - q3 * r[3],
-                q0 * r[1] + q1 * r[0] + q2 * r[3] - q3 * r[2],
-                q0 * r[2] - q1 * r[3] + q2 * r[0] + q3 * r[1],
-                q0 * r[3] + q1 * r[2] - q2 * r[1] + q3 * r[0]]
-        rot = sf.Matrix([[1 - 2 * (q2 ** 2 + q3 ** 2), 2 * (q1 * q2 - q0 * q3),
-                          2 * (q1 * q3 + q0 * q2)],
-                         [2 * (q1 * q2 + q0 * q3), 1 - 2 * (q1 ** 2 + q3 ** 2),
-                          2 * (q2 * q3 - q0 * q1)],
-                         [2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1),
-                          1 - 2 * (q1 ** 2 + q2 ** 2)]])
-        accel = rot * a + sf.Matrix([0, 0, c.GRAVITY])
-        x_new = sf.Matrix(quat + [x[4 + i] + accel[i] * dt for i in range(3)]
-                          + [x[7 + i] + x[4 + i] * dt for i in range(3)]
-                          + [x[10 + i] for i in range(6)])
+        P = _symmetric(sf, P, n)
+        bind = {sf.sympify(s): x[i] for i, s in enumerate(states)}
+        bind |= {sf.sympify(s): u[i] for i, s in enumerate(inputs)}
+        bind[sf.sympify(step)] = dt
+        x_new = sf.Matrix([to_sf(e, bind) for e in f])
         F, Fu = x_new.jacobian(x), x_new.jacobian(u)
-        Qu = sf.Matrix.diag([c.SIGMA_GYRO ** 2] * 3 + [c.SIGMA_ACCEL ** 2] * 3)
-        walk = sf.Matrix.diag([0] * 10 + [c.SIGMA_GYRO_BIAS ** 2 * dt] * 3
-                              + [c.SIGMA_ACCEL_BIAS ** 2 * dt] * 3)
-        return x_new, F * P * F.T + Fu * Qu * Fu.T + walk
+        noise_u = sf.Matrix([[to_sf(e, bind) for e in row] for row in Qu.tolist()])
+        noise = sf.Matrix([[to_sf(e, bind) for e in row] for row in Q.tolist()])
+        return x_new, F * P * F.T + Fu * noise_u * Fu.T + noise
 
-    def update(x, P, z, rows, variances):
-        P = _symmetric(sf, P)
-        h = sf.Matrix([x[k] for k in rows]) if rows != (BARO_ROW,) else sf.Matrix([-x[BARO_ROW]])
-        H = h.jacobian(x)
-        S = H * P * H.T + sf.Matrix.diag(variances)
-        K = P * H.T * S.inv()
-        x_new = _normalised(sf, x + K * (z - h))
-        return x_new, P - K * H * P
+    def update_of(sensor):
+        h, R = numeric(sensor.h), numeric(sensor.R)
 
-    def update_gnss(x, P, z):
-        return update(x, P, z, GNSS_ROWS, list(c.GNSS_STD ** 2))
+        def update(x, P, z):
+            P = _symmetric(sf, P, n)
+            bind = {sf.sympify(s): x[i] for i, s in enumerate(states)}
+            hx = sf.Matrix([to_sf(e, bind) for e in h])
+            H = hx.jacobian(x)
+            S = H * P * H.T + sf.Matrix([[sf.sympify(e) for e in row] for row in R.tolist()])
+            K = P * H.T * S.inv()
+            x_new = x + K * (z - hx)
+            for rows in groups:
+                norm = sf.sqrt(sum(x_new[i] ** 2 for i in rows))
+                for i in rows:
+                    x_new[i] = x_new[i] / norm
+            return x_new, P - K * H * P
+        return update
 
-    def update_baro(x, P, z):
-        return update(x, P, z, (BARO_ROW,), [c.BARO_STD ** 2])
+    vector, matrix = sf.Matrix(n, 1).__class__, sf.Matrix(n, n).__class__
+    out = {"predict": (predict, [vector, matrix, sf.Matrix(len(inputs), 1).__class__,
+                                 sf.Scalar])}
+    for sensor in model.sensors:
+        out[program_name(sensor.name)] = (update_of(sensor), [
+            vector, matrix, sf.Matrix(len(sensor.measurements), 1).__class__])
+    return out
 
-    return {"predict": (predict, [vector16, matrix16, sf.Matrix(6, 1).__class__, sf.Scalar]),
-            "update_gnss": (update_gnss, [vector16, matrix16, sf.Matrix(6, 1).__class__]),
-            "update_baro": (update_baro, [vector16, matrix16, sf.Matrix(1, 1).__class__])}
 
-
-def generate(names=FUNCTIONS) -> dict[str, SymforceFunction]:
-    """Generate SymForce's C++ for each function (timed one by one) and count it."""
+def generate(names=None, model_name: str = MODEL) -> dict[str, SymforceFunction]:
+    """Generate SymForce's C++ for each function of the catalog model (timed one by one)
+    and count it."""
     import symforce  # optional: a benchmark peer
 
     # its warning about epsilon: these functions divide only by S and ‖q‖, never near zero
@@ -117,10 +132,11 @@ def generate(names=FUNCTIONS) -> dict[str, SymforceFunction]:
     import symforce.symbolic as sf
     from symforce.codegen import Codegen, CppConfig
 
-    functions = _functions(sf)
+    model = catalog.load(model_name)
+    functions = model_functions(sf, model)
     out = {}
     with tempfile.TemporaryDirectory(prefix="derive-symforce-") as tmp:
-        for name in names:
+        for name in names or function_names(model):
             start = time.perf_counter()
             function, input_types = functions[name]
             codegen = Codegen.function(function, config=CppConfig(), name=name,

@@ -61,9 +61,26 @@ def audit_table(ctx, rows) -> Table:
                  tuple(body), "Burden audit: flops per step (+ − × ÷ one each, an fma two)")
 
 
-def compute_audit():
-    """derive.apps.audit.run_audit() (run in a background process by the job)."""
-    return run_audit()
+def compute_audit(quick: bool = False):
+    """derive.apps.audit.run_audit(quick) (run in a background process by the job)."""
+    return run_audit(quick)
+
+
+def formula_table(audit) -> Table:
+    """Each printed formula beside the one derived from paper-mode code."""
+    body = []
+    for f in audit.formulas:
+        body.append((f.filter.upper(), f.citation, f.printed, f.claim,
+                     f.derived if f.derived is not None else "none fits",
+                     "equal" if f.equal else f.verdict))
+        if f.join is not None:
+            body.append((f"{f.filter.upper()} join", "the join", f.join, f.join,
+                         f.derived_join or "–",
+                         "equal" if f.derived_join == f.join else "differs"))
+    return Table(("filter", "printed in", "printed formula", "as a polynomial",
+                  "derived from paper-mode code", "verdict"), tuple(body),
+                 "The papers' burden formulas beside the formulas derived from paper-mode "
+                 "code (flops per step)")
 
 
 def outcomes(s: Section, audit) -> None:
@@ -80,6 +97,11 @@ def outcomes(s: Section, audit) -> None:
         if r.flag:
             s.outcome(f"{r.paper} {r.system} {r.implementation}: printed {r.printed}",
                       DIFFERS, f"formula {r.formula}, paper mode {r.paper_mode}: {r.flag}")
+    same = [f for f in audit.formulas if f.equal]
+    s.outcome("the papers' burden formulas (MPT3D Table 2, SSPRED Table 2)",
+              MATCHED if len(same) == len(audit.formulas) else DIFFERS,
+              f"{len(same)} of {len(audit.formulas)} equal, term by term, the polynomial "
+              "derived from the counts of paper-mode code")
     good = [sp for sp in audit.speedups if not sp.flag]
     s.outcome("the papers' speedups (ratios of flop counts)",
               MATCHED if len(good) == len(audit.speedups) else DIFFERS,
@@ -94,7 +116,7 @@ def section(ctx) -> Section:
     s = Section("burden", "Calculation burden: the papers' counts against derive's",
                 paper="MPT3D, GSM2D")
     try:
-        audit = ctx.result_of("audit", compute_audit)
+        audit = ctx.result_of("audit", lambda: compute_audit(ctx.quick))
     except ImportError:
         s.add(Todo("derive.apps.audit is missing: no burden audit."))
         return s
@@ -106,6 +128,11 @@ def section(ctx) -> Section:
                "this run wrote ('written C'; in bold if it differed). Systems of independent "
                "axes count one axis times the axes."),
           audit_table(ctx, audit.rows), chart(ctx, audit.rows))
+    if audit.formulas:
+        s.add(Text("Each formula the papers print is parsed as a polynomial in n and m (N: "
+                   "the FIR's order) and set beside the polynomial derive derives from the "
+                   "counts of its paper-mode code: " + audit.formulas[0].method + "."),
+              formula_table(audit))
     s.add(Table(("paper", "speedup", "printed", "from printed", "from formulas",
                  "from paper mode", "from specialised", "verdict"),
                 tuple((sp.paper, sp.what, sp.printed,

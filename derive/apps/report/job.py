@@ -172,7 +172,7 @@ def _background(ctx: Context):
     try:
         method = "fork" if "fork" in multiprocessing.get_all_start_methods() else None
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context(method))
-        ctx.background["audit"] = pool.submit(compute_audit)
+        ctx.background["audit"] = pool.submit(compute_audit, ctx.quick)
     except (OSError, NotImplementedError):
         return None
     return pool
