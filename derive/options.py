@@ -430,6 +430,16 @@ def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: s
     return " ".join(parts)
 
 
+def python_command(model, name: str, options: SharedOptions, out: str,
+                   lang: str = "all") -> str:
+    """The Python call that regenerates filter ``name``'s files for ``model``, a model
+    object built in Python (no catalog name or file names it, so no command line does)."""
+    changed = options.changed()
+    extra = f", options={changed!r}" if changed else ""
+    return (f"derive.generate(model, {name!r}, lang={lang!r}, out={out!r}{extra}), model "
+            f"the {type(model).__name__} {model.name!r} built in Python")
+
+
 # -- messages ---------------------------------------------------------------------------------
 
 
