@@ -47,7 +47,7 @@ from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
-from .difference import DifferenceForm, difference_form
+from .difference import DifferenceForm, difference_form, unmoved_turn
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -160,7 +160,7 @@ def stage_differences(prog, form: DifferenceForm, subs: dict,
     from :func:`stage_values`)."""
     subs = {**subs, **dict(zip(form.deltas, delta))}
     for sym, expr in form.steps:
-        subs[sym] = _signed_let(prog, expr.xreplace(subs))
+        subs[sym] = _signed_let(prog, unmoved_turn(form, sym, expr.xreplace(subs)))
     return sympy.Matrix([_signed_let(prog, d.xreplace(subs)) for d in form.differences])
 
 
