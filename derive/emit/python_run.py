@@ -215,7 +215,7 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], names: dict[str, str
         lines.append(f"padded = np.concatenate([np.zeros(({w.window - 1}, {w.size}) + "
                      f"{z}.shape[2:]), {z}])")
     lines += printer.nodes(run.loops, "")
-    returned = [name if len(shape) < 2 else
+    returned = [name if len(shape) == 1 or name in recorded else
                 f"{name}.reshape((steps, {', '.join(str(d) for d in shape)}) + track)"
                 for name, shape in run.returns]
     return lines + [f"return {', '.join(returned)}"]

@@ -488,9 +488,11 @@ def stored_outputs(unit: Unit) -> list[dict]:
     """run's per-step outputs: array name, the step's output port it stores, elements per
     step, optional (C: may be NULL)."""
     sizes = run_sizes(unit)
+    step_outputs = {out for _, out, _, _ in unit.extra_stores}
     return [{"array": array, "out": out, "optional": optional,
-             "size": int(np.prod([sizes[d] for d in dims]))}
-            for array, out, dims, optional in unit.run.stores]
+             "size": int(np.prod([sizes[d] for d in dims], dtype=int)),
+             "step": out in step_outputs, "dims": dims}
+            for array, out, dims, optional in unit.stores]
 
 
 def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:

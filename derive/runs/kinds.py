@@ -146,17 +146,18 @@ def stepping(unit: Unit, lowered: Mapping[str, LoweredProgram]) -> Run:
     body = [Call("step", rows + p, carry=True, body=True)]
     by_output = {s.new: s for s in states}
     returns = []
-    for array, out, dims, optional in unit.run.stores:
+    for array, out, dims, optional in unit.stores:  # the kind's, then the unit's own
         size = prod(sizes[d] for d in dims)
         if out in by_output:
             body.append(Store(array, by_output[out].name, size, optional))
             returns.append((array, ports[by_output[out].name].shape))
-        elif "store" in lowered:  # from the carried state, by the store program
+        elif out in {p.name for p in lowered["step"].outputs}:
+            # an output of the step that no carried port holds (a prediction, ll)
+            body.append(Store(array, out, size, optional))
+            returns.append((array, tuple(sizes[d] for d in dims)))
+        else:  # from the carried state, by the store program
             body.append(Store(array, "", size, optional, program="store"))
             returns.append((array, lowered["store"].outputs[0].shape))
-        else:  # an output of the step that no carried port holds (a prediction)
-            body.append(Store(array, out, size, optional))
-            returns.append((array, unit.programs["step"].port(out).shape))
     enter = None
     if "init" in lowered:
         first = ((PARAMETER_PORT, Row(PARAMETER_PORT, len(unit.parameters), "0")),) \
