@@ -31,11 +31,14 @@ Rules (``e`` a sympy expression):
   folded into it (:func:`derive.single_use.fold_single_use`), so the rule sees them;
 - the functions of :data:`FUNCTIONS` are calls ``call:NAME`` (C names);
 - :class:`IfPresent` ``(z, a, b)`` is ``select(z, a, b)``: ``a`` where the input
-  element ``z`` is not NaN, else ``b``; it costs one comparison (``z == z``) and no
-  flop, and is counted as ``cmp``;
+  element ``z`` is not NaN, else ``b`` (the comparison is ``z == z``);
 - :class:`IfAtMost` ``(v, bound, a, b)`` is ``gate(v, bound, a, b)``: ``a`` where
-  ``v <= bound`` (a constant), else ``b`` (also for a NaN ``v``); one comparison, no flop,
-  counted as ``cmp`` (innovation gating);
+  ``v <= bound`` (a constant), else ``b`` (also for a NaN ``v``); no flop (innovation gating);
+- :class:`derive.guards.IfGreater` ``(l, r, a, b)`` is ``if_gt(l, r, a, b)``: ``a`` where
+  ``l > r``, else ``b``; :class:`derive.guards.IfAtLeast` is ``if_ge`` (``l >= r``): the
+  guards ``sign``, ``Max``, ``Min`` and ``Piecewise`` of a model, both branches computed;
+- each of ``select``, ``gate``, ``if_gt`` and ``if_ge`` is one comparison (``cmp``) and one
+  select (``select``), no flop;
 - anything else raises :class:`LoweringError`.
 
 The order of terms and factors follows sympy's order of the symbols' names, so it can
@@ -60,12 +63,14 @@ import sympy
 from sympy import default_sort_key
 
 from derive.errors import ModelError
+from derive.guards import IfAtLeast, IfGreater
 from derive.trees import Const, Op, Tree, Var, depth
 
 #: sympy function -> name of the C function (math.h) it lowers to.
 FUNCTIONS = {
     sympy.sin: "sin", sympy.cos: "cos", sympy.tan: "tan", sympy.exp: "exp", sympy.log: "log",
     sympy.atan: "atan", sympy.atan2: "atan2", sympy.Abs: "fabs",
+    sympy.ceiling: "ceil",  # an angle wrapped to (-pi, pi] (derive.manifolds.wrap)
 }
 
 
@@ -195,12 +200,16 @@ class ExpressionLowerer:
                 raise LoweringError(f"IfAtMost needs a numeric bound, got {bound}")
             return Op("gate", (self.lower(v), Const(constant_value(bound)), self.lower(a),
                                self.lower(b)))
+        if isinstance(e, (IfGreater, IfAtLeast)):
+            return Op("if_gt" if isinstance(e, IfGreater) else "if_ge",
+                      tuple(self.lower(a) for a in e.args))
         name = FUNCTIONS.get(e.func)
         if name is not None:
             return Op(f"call:{name}", tuple(self.lower(a) for a in e.args))
         raise LoweringError(f"cannot emit {type(e).__name__} in {e}: generated code supports "
                             f"+ - * /, integer and half-integer powers and the functions "
-                            f"{sorted(FUNCTIONS.values())}")
+                            f"{sorted(FUNCTIONS.values())} (guards: sign, Max, Min, Piecewise, "
+                            "derive.guards)")
 
     def _power(self, base: sympy.Expr, k: int) -> Tree:
         b = self.lower(base)

@@ -11,12 +11,17 @@ Allowed:
 - names: declared symbols (the ``names`` mapping) and the constant ``pi``; with
   ``allow_new=True`` an undeclared name becomes ``Symbol(name, real=True)``;
 - ``+ - * / **`` and unary ``-`` and ``+``, with parentheses;
-- calls, by bare name and with positional arguments only, of the functions in `FUNCTIONS`.
+- calls, by bare name and with positional arguments only, of the functions in `FUNCTIONS`
+  (among them the guards ``sign``, ``max`` and ``min``);
+- ``Piecewise((value, condition), ..., (default, True))``: each condition one comparison
+  ``<``, ``<=``, ``>`` or ``>=`` of two expressions (no chain), the last ``True``; each
+  value one expression (generated code computes every branch and selects one:
+  derive.guards).
 
 Everything else (attribute access, subscripts, strings, f-strings, lambdas, comprehensions,
-comparisons, boolean operators, conditional expressions, ``:=``, keyword or starred
-arguments, ...) raises `ExpressionError` naming the construct and its line and column, as
-do names starting with an underscore and non-ASCII text.
+comparisons outside a Piecewise condition, boolean operators, conditional expressions,
+``:=``, keyword or starred arguments, ...) raises `ExpressionError` naming the construct
+and its line and column, as do names starting with an underscore and non-ASCII text.
 
 Resource limits, checked before the sympy object they would guard is built: the text
 length, the node count and nesting depth of the tree, the size of exponents (an exponent
@@ -70,13 +75,23 @@ FUNCTIONS: Mapping[str, tuple[Callable[..., sympy.Expr], int]] = {
     "cosh": (sympy.cosh, 1),
     "tanh": (sympy.tanh, 1),
     "abs": (sympy.Abs, 1),
+    "sign": (sympy.sign, 1),
+    "max": (sympy.Max, 2),
+    "min": (sympy.Min, 2),
 }
 """The callable functions: name -> (sympy function, number of arguments)."""
+
+PIECEWISE = "Piecewise"
+"""The name of the guard by conditions (``Piecewise((a, x > 0), (b, True))``)."""
+_RELATIONS: Mapping[type, Callable[..., sympy.Basic]] = {
+    ast.Gt: sympy.StrictGreaterThan, ast.GtE: sympy.GreaterThan,
+    ast.Lt: sympy.StrictLessThan, ast.LtE: sympy.LessThan,
+}
 
 CONSTANTS: Mapping[str, sympy.Expr] = {"pi": sympy.pi}
 """Names with a fixed value."""
 
-RESERVED_NAMES = frozenset(FUNCTIONS) | frozenset(CONSTANTS)
+RESERVED_NAMES = frozenset(FUNCTIONS) | frozenset(CONSTANTS) | {PIECEWISE}
 """Names that cannot be symbols (model files reject parameters or states named so)."""
 
 _OPERATORS: Mapping[type, str] = {
@@ -459,8 +474,10 @@ class _Parser:
                 raise self.fail(f"{construct} is not allowed", node.func)
             raise self.fail("call of a computed value is not allowed", node)
         name = node.func.id
+        if name == PIECEWISE and not node.keywords:
+            return self.piecewise(node)
         if name not in FUNCTIONS:
-            allowed = ", ".join(sorted(FUNCTIONS))
+            allowed = ", ".join(sorted([*FUNCTIONS, PIECEWISE], key=str.lower))
             raise self.fail(f"call of {name!r} is not allowed (functions: {allowed})", node)
         if node.keywords:
             keyword = node.keywords[0]
@@ -481,6 +498,39 @@ class _Parser:
         degree = max(argument.degree for argument in arguments)
         self.check_bounds(bits, degree, node)
         return _Built(function(*(argument.expr for argument in arguments)), bits, degree)
+
+    def piecewise(self, node: ast.Call) -> _Built:
+        """``Piecewise((value, condition), ..., (default, True))``: see the module
+        docstring; a branch that is not one value (a tuple, a list) is refused as a shape
+        that differs from the others."""
+        if not node.args:
+            raise self.fail("Piecewise() needs at least one (value, condition) branch", node)
+        pairs, bits, degree = [], 1, 0
+        for k, branch in enumerate(node.args, 1):
+            if not isinstance(branch, ast.Tuple) or len(branch.elts) != 2:
+                raise self.fail(f"branch {k} of Piecewise must be a (value, condition) pair",
+                                branch)
+            value, condition = branch.elts
+            if isinstance(value, (ast.Tuple, ast.List)):
+                raise self.fail(f"branch {k} of Piecewise is a {type(value).__name__.lower()} "
+                                f"of {len(value.elts)} values, not one value like a scalar "
+                                "entry (branches must have one shape)", value)
+            built = self.build(value)
+            bits, degree = max(bits, built.bits), max(degree, built.degree)
+            pairs.append((built.expr, self.condition(condition, k)))
+        self.check_bounds(bits, degree, node)
+        return _Built(sympy.Piecewise(*pairs), bits, degree)
+
+    def condition(self, node: ast.AST, k: int) -> sympy.Basic:
+        """A Piecewise condition: ``True``, or one comparison of two expressions."""
+        if isinstance(node, ast.Constant) and node.value is True:
+            return sympy.true
+        if (isinstance(node, ast.Compare) and len(node.ops) == 1
+                and type(node.ops[0]) in _RELATIONS):
+            left, right = self.build(node.left), self.build(node.comparators[0])
+            return _RELATIONS[type(node.ops[0])](left.expr, right.expr)
+        raise self.fail(f"condition of branch {k} of Piecewise must be True or one "
+                        "comparison <, <=, >, >= of two expressions", node)
 
     def check_bounds(self, bits: int, degree: int, node: ast.AST) -> None:
         if bits > MAX_NUMBER_BITS:

@@ -11,11 +11,13 @@ that do not trust the lowering:
   its operators; must reproduce ``count(program, "c")``.
 
 ``flops`` = add + sub + mul + div + sqrt + 2 fma (negations and comparisons
-are reported, not counted as flops); ``instructions`` = every operation.  ``fma`` counts
+and selects are reported, not counted as flops); ``instructions`` = every operation.  ``fma`` counts
 both fused multiply-adds of the C lowering, ``a*b + c`` (``DERIVE_FMA``) and ``c - a*b``
 (``DERIVE_FNMA``, :data:`derive.trees.FUSED_KINDS`): one instruction, two flops each.  A
-``select`` (:class:`derive.expression_lowering.IfPresent`, the missing-measurement test) is
-one comparison, ``z == z``, and is counted as ``cmp``.
+``select`` (:class:`derive.expression_lowering.IfPresent`, the missing-measurement test), a
+``gate`` and a guard's ``if_gt``/``if_ge`` (:mod:`derive.guards`) are one comparison each
+(``z == z``, ``v <= bound``, ``l > r``, ``l >= r``), counted as ``cmp``, and one select of
+two computed values, counted as ``select``.
 """
 
 from __future__ import annotations
@@ -185,10 +187,12 @@ class CountingFloat:
     def __float__(self) -> float:
         return self.value
 
-    def derive_counted(self, value) -> CountingFloat:
-        """``value`` as a CountingFloat on this counter (itself if it is one), at no count:
-        a select (generated ``_if_present``) that picks a constant keeps what follows
-        counted."""
+    def derive_selected(self, value) -> CountingFloat:
+        """``value`` chosen by a select (generated ``_if_present``, ``_if_at_most``,
+        ``_if_greater``, ``_if_at_least``): counts one ``select`` and returns ``value`` as a
+        CountingFloat on this counter (itself if it is one), so that a select that picks a
+        constant keeps what follows counted."""
+        self.counter.bump("select")
         if isinstance(value, CountingFloat):
             return value
         return CountingFloat(value, self.counter)
@@ -217,6 +221,14 @@ class CountingFloat:
 
     def arctan(self):
         return self._call(math.atan)
+
+    def arctan2(self, other):
+        return self._result("calls", math.atan2(self.value, float(other)))
+
+    def ceil(self):
+        return self._call(math.ceil)
+
+    __ceil__ = ceil  # NumPy's ceil of an object calls math.ceil
 
 
 # -- counting emitted C ----------------------------------------------------------------
@@ -264,7 +276,7 @@ def count_c_text(text: str, fma_name: str = "DERIVE_FMA",
     literal; ``fma_name(`` and ``fnma_name(`` are an fma each (the negative one is
     ``c - a*b``, as :class:`OpCount` counts it), ``sqrt(`` a sqrt, other ``name(`` calls
     (except ``if``, ``return``, ``sizeof`` and ``for``/``while``) are calls;
-    ``> < >= <= == !=`` are comparisons.
+    ``> < >= <= == !=`` are comparisons, ``?`` a select.
 
     A chunk of vector rows (``#if DERIVE_VECTOR`` ... ``#else`` ... ``#endif``) counts as
     its vector statement once per lane (``DERIVE_VFMA`` an fma), with ``vector``; as its
@@ -316,6 +328,8 @@ def _count_tokens(text: str, fma_name: str, fnma_name: str) -> OpCount:
                 tally["div"] += 1
             elif tok in _COMPARISONS:
                 tally["cmp"] += 1
+            elif tok == "?":
+                tally["select"] += 1
         if tok == "[":
             depth += 1
         elif tok == "]":

@@ -25,6 +25,8 @@ from .domains import check_value
 from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
 from .forms import ROW_FORMS, UPDATE_FORMS
+from .guards import numpy_selects, selects
+from .manifolds import QUATERNION, TangentLayout, parse_manifolds
 from .symbols import (
     SymbolTable,
     as_matrix,
@@ -372,6 +374,17 @@ class _Model:
     def n(self) -> int:
         return len(self.states)
 
+    #: The tangent coordinates' names (a model without manifold states: its states).
+    @property
+    def tangent(self) -> tuple[str, ...]:
+        layout = getattr(self, "layout", None)
+        return self.states if layout is None else layout.tangent
+
+    @property
+    def n_tangent(self) -> int:
+        """The covariance's dimension: n, or fewer with quaternion states."""
+        return len(self.tangent)
+
     @property
     def m(self) -> int:
         return len(self.measurements)
@@ -416,20 +429,22 @@ class _Model:
         return {self._by_name[k]: v for k, v in given.items()}
 
     def _initial(self, x0, P0, P0_pattern) -> None:
-        n = self.n
+        n, nt = self.n, self.n_tangent
         table = SymbolTable()
         self.x0 = (sympy.ImmutableMatrix.zeros(n, 1) if x0 is None
                    else as_matrix(x0, "x0", table, vector=True))
         check_shape(self.x0, "x0", (n, 1), "one entry per state")
-        self.P0 = (sympy.ImmutableMatrix.zeros(n, n) if P0 is None
+        self.P0 = (sympy.ImmutableMatrix.zeros(nt, nt) if P0 is None
                    else as_matrix(P0, "P0", table))
-        check_shape(self.P0, "P0", (n, n), "states x states")
+        check_shape(self.P0, "P0", (nt, nt), "states x states" if nt == n else
+                    "tangent x tangent coordinates " + ", ".join(self.tangent))
         for mat, nm in ((self.x0, "x0"), (self.P0, "P0")):
             if mat.free_symbols:
                 raise SymbolError(f"{nm} must be numeric, has symbols "
                                   f"{sorted(s.name for s in mat.free_symbols)}")
         check_entries({"x0": self.x0, "P0": self.P0}, {})
         self.P0 = _symmetric(self.P0, "P0")
+        _check_definite(self.P0, "P0", strict=False)   # a covariance: no filter runs from -I
         if P0_pattern is None:
             P0_pattern = "dense"
         if P0_pattern not in P0_PATTERNS:
@@ -441,11 +456,12 @@ class _Model:
         """Refuse a P0 with a nonzero entry outside its declared pattern."""
         if self.P0_pattern == "dense" or not any(self.P0):
             return
+        nt = self.n_tangent
         if self.P0_pattern != "block" or any(
-                self.P0[i, j] != 0 for i in range(self.n) for j in range(self.n) if i != j):
+                self.P0[i, j] != 0 for i in range(nt) for j in range(nt) if i != j):
             mask = self.pattern_mask()
-            for i in range(self.n):
-                for j in range(self.n):
+            for i in range(nt):
+                for j in range(nt):
                     if self.P0[i, j] != 0 and not mask[i][j]:
                         raise MatrixPropertyError(
                             f"P0[{i}][{j}] = {decimal(self.P0[i, j])} is outside the declared "
@@ -453,7 +469,7 @@ class _Model:
 
     def pattern_mask(self, name: str | None = None) -> tuple[tuple[bool, ...], ...]:
         """The entries a P0 pattern (``name``, default the model's) allows, as booleans."""
-        n = self.n
+        n = self.n_tangent
         name = name or self.P0_pattern
         if name == "dense":
             return tuple(tuple(True for _ in range(n)) for _ in range(n))
@@ -824,6 +840,12 @@ class NonlinearModel(_Model):
     over ``inputs`` in order) is the covariance of the noise on u: the prediction adds
     ``Fu Qu Fu^T`` to Q with ``Fu = ∂f/∂u`` at x(k-1/k-1), u(k) (the IMU convention);
     inputs f does not use have zero columns in Fu.
+
+    f, h, Q and R may hold guards (``sign``, ``Max``, ``Min``, ``Piecewise``): they are
+    rewritten as selects (derive.guards), refused naming the entry when they cannot be.
+    Q and R may depend on the states and inputs (the filters say where they evaluate
+    them). ``angles``: the measurements that are angles (their innovations are wrapped to
+    (-pi, pi]); each one's h must be an angle (:func:`is_angle`).
     """
 
     kind = "nonlinear"
@@ -838,7 +860,9 @@ class NonlinearModel(_Model):
                  parameters: Names | None = None, Qu: Matrix | None = None,
                  sensors: Sequence[Sensor] | None = None,
                  unit_norm: Sequence[Sequence[str]] | None = None,
-                 examples: Values | None = None, rows: str = "scalar") -> None:
+                 examples: Values | None = None, rows: str = "scalar",
+                 manifolds: Sequence[Mapping] | None = None,
+                 angles: Sequence[str] | None = None) -> None:
         sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
                                                            "h": h, "R": R})
                        if sensors is not None else ())
@@ -848,7 +872,11 @@ class NonlinearModel(_Model):
             if value is None and not (sensor_list and key in ("h", "R")):
                 raise ModelError(f"NonlinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
-        n, m = self.n, self.m
+        #: the manifold components (derive.manifolds) and where their tangent coordinates
+        #: are; P, Q and P0 are n_tangent x n_tangent
+        self.manifolds = parse_manifolds(manifolds, self.states)
+        self.layout = TangentLayout.of(self.states, self.manifolds) if self.manifolds else None
+        n, m, nt = self.n, self.m, self.n_tangent
         input_names = check_names(inputs, "inputs") if inputs else ()
         reserved = set(self.states) | set(input_names)
         if len(reserved) != n + len(input_names):
@@ -862,7 +890,8 @@ class NonlinearModel(_Model):
         self.h = as_matrix(h, "h", table, vector=True)
         check_shape(self.h, "h", (m, 1), "one expression per measurement")
         self.Q = as_matrix(Q, "Q", table)
-        check_shape(self.Q, "Q", (n, n), "states x states")
+        check_shape(self.Q, "Q", (nt, nt), "states x states" if nt == n else
+                    "tangent x tangent coordinates " + ", ".join(self.tangent))
         self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
         n_u = len(input_names)
@@ -876,18 +905,23 @@ class NonlinearModel(_Model):
             check_shape(self.Qu, "Qu", (n_u, n_u), "inputs x inputs")
         self.f, self.h, self.Q, self.R, self.Qu = (
             table.finish(mat) for mat in (self.f, self.h, self.Q, self.R, self.Qu))
+        self.f = _guarded(self.f, "f", self.states)
+        self.h = _guarded(self.h, "h", self.measurements)
+        self.Q, self.R = _guarded(self.Q, "Q"), _guarded(self.R, "R")
         # the state and input symbols are the ones written in f and h
         self.state_symbols = tuple(table.by_name.get(s) or symbol(s) for s in self.states)
         self.inputs = tuple(table.by_name.get(u) or symbol(u) for u in input_names)
         used = set()
         for mat in (self.f, self.h, self.Q, self.R, self.Qu):
             used |= mat.free_symbols
-        for mat, nm in ((self.Q, "Q"), (self.R, "R"), (self.Qu, "Qu")):
-            bad = {s.name for s in mat.free_symbols} & reserved
-            if bad:
-                raise SymbolError(f"matrix {nm} depends on state or input {sorted(bad)[0]!r}")
-        #: the inputs f uses, in ``inputs`` order (predict's u)
-        self.f_inputs = tuple(u for u in self.inputs if u in self.f.free_symbols)
+        # Q and R may depend on the state and the inputs (evaluated where the filters say:
+        # derive.filters.ekf, ukf); the noise Qu on the inputs may not
+        bad = {s.name for s in self.Qu.free_symbols} & reserved
+        if bad:
+            raise SymbolError(f"matrix Qu depends on state or input {sorted(bad)[0]!r}")
+        #: the inputs f (or Q) uses, in ``inputs`` order (predict's u)
+        self.f_inputs = tuple(u for u in self.inputs
+                              if u in self.f.free_symbols | self.Q.free_symbols)
         params = {s for s in used if s.name not in reserved}
         self._init_values(values, table, params, reserved, parameters)
         self._init_examples(examples)
@@ -901,13 +935,51 @@ class NonlinearModel(_Model):
         if input_names:
             _check_definite(self.subs(self.Qu), "Qu", strict=False)
         self._initial(x0, P0, P0_pattern)
+        if sensor_list and self.state_noise:
+            raise ModelError(f"NonlinearModel {name!r}: with sensors, Q and R may not "
+                             "depend on the state or the inputs (only a model without "
+                             "sensors evaluates them at the estimate)")
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
+        self._check_manifold_states()
         if rows not in ROW_FORMS:
             raise ModelError(f"NonlinearModel {name!r}: rows must be one of "
                              f"{', '.join(ROW_FORMS)}, got {rows!r}")
         self.rows = rows
+        #: the measurements declared angles: their innovations are wrapped to (-pi, pi]
+        self.angles = _angle_measurements(angles, self.measurements, self.h,
+                                          self.state_symbols)
         self._check_declared()
+
+    @property
+    def state_noise(self) -> bool:
+        """Whether Q or R depends on the state or the inputs (evaluated at the filter's
+        estimate: derive.filters.ekf, ukf)."""
+        moving = set(self.state_symbols) | set(self.inputs)
+        return bool((self.Q.free_symbols | self.R.free_symbols) & moving)
+
+    def angle_rows(self, names: Sequence[str] | None = None) -> tuple[bool, ...]:
+        """For each measurement of ``names`` (default: all), whether it is an angle."""
+        return tuple(z in self.angles for z in (self.measurements if names is None
+                                                 else names))
+
+    def _check_manifold_states(self) -> None:
+        """A quaternion's states are in no unit-norm group (its injection keeps the norm)
+        and start at unit norm in x0."""
+        grouped = {s for group in self.unit_norm for s in group}
+        for m in self.manifolds:
+            both = [s for s in m.states if s in grouped]
+            if both:
+                raise SymbolError(f"state {both[0]!r} is in a manifold component ({m.kind}) "
+                                  "and in unit_norm: a quaternion keeps its norm by its "
+                                  "injection; leave it out of unit_norm")
+            if m.kind != QUATERNION:
+                continue
+            q = [float(self.x0[self.states.index(s), 0]) for s in m.states]
+            norm = float(np.sqrt(sum(v * v for v in q)))
+            if abs(norm - 1.0) > 1e-12:
+                raise MatrixPropertyError(f"x0 of quaternion ({', '.join(m.states)}) must have "
+                                          f"unit norm, got {norm!r}")
 
     # The Jacobians are derived when first asked for (the EKF derives its own, simplified
     # and shared with f and h; these serve the references, the UKF and derive show).
@@ -970,18 +1042,22 @@ class NonlinearModel(_Model):
 
         ``f``, ``F`` (∂f/∂x) and ``Fu`` (∂f/∂u, n x n_u) take ``(x, u)`` when f uses
         inputs (``f_inputs``), else ``(x)``. Vectors come back flat (shape (n,) or (m,)),
-        Jacobians as 2-D arrays.
+        Jacobians as 2-D arrays. A Q or R that depends on the state or the inputs
+        (:attr:`state_noise`) is a callable ``(x, u)`` too.
         """
         extra = self.parameter_values(params)
-        self._check_finite({"Q": self.Q, "R": self.R, "Qu": self.Qu}, extra)
+        moving = set(self.state_symbols) | set(self.inputs)
+        constant = {name: mat for name, mat in (("Q", self.Q), ("R", self.R), ("Qu", self.Qu))
+                    if not mat.free_symbols & moving}
+        self._check_finite(constant, extra)
         X = sympy.Matrix(self.state_symbols)
         U = sympy.Matrix(self.inputs) if self.inputs else sympy.Matrix.zeros(0, 1)
 
-        def fn(mat, with_u):
+        def fn(mat, with_u, matrix=False):
             e = self.subs(mat).xreplace(extra)
             args = [list(X), list(U)] if with_u else [list(X)]
-            lam = sympy.lambdify(args, e, modules="numpy", cse=True)
-            shape = (mat.rows,) if mat.cols == 1 else mat.shape
+            lam = sympy.lambdify(args, e, modules=[numpy_selects(), "numpy"], cse=True)
+            shape = (mat.rows,) if mat.cols == 1 and not matrix else mat.shape
 
             def call(x, u=()):
                 vals = [list(np.asarray(x, float).ravel())]
@@ -997,7 +1073,57 @@ class NonlinearModel(_Model):
         return {"f": fn(self.f, in_f), "F": fn(self.F_jacobian, in_f),
                 "Fu": fn(self.Fu_jacobian, in_f),
                 "h": fn(self.h, True), "H": fn(self.H_jacobian, True),
-                "Q": num(self.Q), "R": num(self.R), "Qu": num(self.Qu)}
+                "Q": num(self.Q) if "Q" in constant else fn(self.Q, True, True),
+                "R": num(self.R) if "R" in constant else fn(self.R, True, True),
+                "Qu": num(self.Qu)}
+
+
+def _guarded(mat: sympy.ImmutableMatrix, name: str, labels: Sequence[str] | None = None
+             ) -> sympy.ImmutableMatrix:
+    """``mat`` with its guards (sign, Max, Min, Piecewise) as selects (derive.guards); a
+    guard that cannot be one is refused naming the entry (``h[bearing]``, ``R[0][1]``)."""
+    def where(i: int, j: int) -> str:
+        return f"{name}[{labels[i]}]" if labels is not None else f"{name}[{i}][{j}]"
+    return sympy.ImmutableMatrix(mat.rows, mat.cols, lambda i, j: selects(mat[i, j],
+                                                                          where(i, j)))
+
+
+#: The functions whose value is an angle.
+ANGLE_FUNCTIONS = (sympy.atan2, sympy.atan, sympy.asin, sympy.acos)
+
+
+def is_angle(expr: sympy.Expr, states: Sequence[sympy.Symbol]) -> bool:
+    """Whether ``expr`` is an angle: atan2, atan, asin or acos of anything, a state (a
+    heading), or a sum of angles and terms free of the state (an offset, a parameter)."""
+    if expr.func in ANGLE_FUNCTIONS or expr in states:
+        return True
+    if expr.is_Add:
+        moving = [t for t in expr.args if t.free_symbols & set(states)]
+        return bool(moving) and all(
+            is_angle(t, states) or (t.could_extract_minus_sign() and is_angle(-t, states))
+            for t in moving)
+    return False
+
+
+def _angle_measurements(angles, measurements: Sequence[str], h: sympy.MatrixBase,
+                        states: Sequence[sympy.Symbol]) -> tuple[str, ...]:
+    """The measurements declared angles, each a measurement whose h is an angle
+    (:func:`is_angle`); anything else is refused naming it."""
+    if angles is None:
+        return ()
+    if isinstance(angles, str):
+        raise ModelError(f"angles must be a list of measurement names, got the string "
+                         f"{angles!r}")
+    names = check_names(angles, "angles")
+    for z in names:
+        if z not in measurements:
+            raise SymbolError(f"angles names {z!r}, which is not a measurement")
+        row = h[list(measurements).index(z), 0]
+        if not is_angle(row, states):
+            raise ModelError(f"measurement {z!r} is declared an angle but h[{z}] = {row} is "
+                             "not one (an angle is atan2, atan, asin or acos of anything, a "
+                             "state, or a sum of angles and terms free of the state)")
+    return tuple(names)
 
 
 def _unit_norm_groups(groups, states: Sequence[str]) -> tuple[tuple[str, ...], ...]:

@@ -131,7 +131,8 @@ block: derive.filters.blockwise.whole_size): the generated filters are unrolled,
 work growing as the cube of the part derived at once (32 states take tens of seconds)."""
 MAX_INPUTS = 128
 """Most per-step inputs of a model."""
-_MAX_NAMES = {"states": MAX_STATES, "measurements": MAX_MEASUREMENTS, "inputs": MAX_INPUTS}
+_MAX_NAMES = {"states": MAX_STATES, "measurements": MAX_MEASUREMENTS, "inputs": MAX_INPUTS,
+              "angles": MAX_MEASUREMENTS}
 
 KINDS = ("discrete", "continuous", "nonlinear", "compose")
 _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
@@ -139,7 +140,8 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "parameters": (),
     "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
-    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows"),
+    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows", "manifolds",
+                  "angles"),
     "compose": ("blocks",),
     "initial": ("x0", "P0", "P0_pattern"),
     "sensors": (),
@@ -681,14 +683,18 @@ class _File:
             "f": self.vector(body["f"], "[nonlinear] f", input_names),
             **({} if sensors else {
                 "h": self.vector(body["h"], "[nonlinear] h", input_names),
-                "R": self.matrix(body["R"], "[nonlinear] R", self.symbols)}),
-            "Q": self.matrix(body["Q"], "[nonlinear] Q", self.symbols),
+                "R": self.matrix(body["R"], "[nonlinear] R", input_names)}),
+            "Q": self.matrix(body["Q"], "[nonlinear] Q", input_names),
             "inputs": inputs or None,
             **({"Qu": self.matrix(body["Qu"], "[nonlinear] Qu", self.symbols)}
                if "Qu" in body else {}),
             **({"unit_norm": self.unit_norm(body["unit_norm"], states)}
                if "unit_norm" in body else {}),
             **({"rows": self.row_form(body)} if "rows" in body else {}),
+            # checked by derive.manifolds.parse_manifolds, which names the component
+            **({"manifolds": body["manifolds"]} if "manifolds" in body else {}),
+            **({"angles": self.names(body, "angles", "[nonlinear] angles")}
+               if "angles" in body else {}),
         }
 
     def row_form(self, body: dict[str, Any]) -> str:
@@ -750,7 +756,8 @@ class _File:
         errors, parameters used only in [initial] are substituted there and not passed."""
         used: set[str] = set(self.sensor_used)
         for key, value in arguments.items():
-            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows") \
+            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows",
+                       "manifolds") \
                     or value is None:
                 continue
             for item in _flatten(value):

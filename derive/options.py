@@ -11,7 +11,8 @@ and the parsed arguments of the CLI are validated here, once, into these types
 
 Which filters take an option follows their specs (derive.filters.spec.FilterSpec): a
 filter takes the options of its options class (``FilterSpec.options``), a shared one only
-when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``).
+when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``,
+``loglik``).
 The registry hands its specs over once it is built (:func:`use_filters`, called by
 derive.filters), so this module names no filter and imports nothing from derive.filters.
 
@@ -27,7 +28,7 @@ import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from numbers import Integral, Real
 
@@ -49,6 +50,9 @@ PREFIX + MODEL_FILTER is a C identifier, and never one C reserves: ``_X``, ``__x
 
 DEFAULT_EPS = 1e-6
 """The FIR order is the least N with ||A^N||_2 < eps, by default this eps."""
+MAX_EKF_ITERATIONS = 8
+"""Most relinearisations of the iterated EKF's update (each one unrolls h, H, S and K
+again)."""
 UKF_ALPHA_RANGE = (1e-4, 1.0)
 """alpha as Wan and van der Merwe (2000) bound it: below 1e-4 the sigma points coincide
 with the mean in double precision, and the weights grow past what doubles carry."""
@@ -112,6 +116,11 @@ class SharedOptions:
     missing: bool = option(
         False, flag="--missing", kind=bool, needs="missing",
         help="a NaN in z skips that measurement")
+    loglik: bool = option(
+        False, flag="--loglik", kind=bool, needs="loglik",
+        help="run also returns each step's Gaussian log-likelihood of the innovation "
+             "(lls; C: may be NULL), from the factors of S the update solves with; no "
+             "run_tracks")
     run_tracks: bool = option(
         True, flag="--no-run-tracks", kind=bool, needs="batch",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
@@ -206,6 +215,14 @@ class PredictionOptions(SharedOptions):
     horizon: int = option(
         1, flag="--horizon", kind=int, low=1, high=MAX_HORIZON,
         formerly=("N",), metavar="N", help="steps ahead N (1)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExtendedOptions(SharedOptions):
+    iterations: int = option(
+        0, flag="--iterations", kind=int, low=0, high=MAX_EKF_ITERATIONS,
+        help="iterated EKF update: relinearise h this many times at the updated estimate "
+             "(0: the plain EKF)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -306,7 +323,7 @@ def per_filter(names: Iterable[str], options: Mapping | None = None,
     specs = all_specs()
     for key, value in common.items():
         if key not in specs:
-            raise OptionError(_unknown(key, list(specs), "options"))
+            raise OptionError(_unknown(key, list(specs), "options", names))
         check(key, value)
         if named and names and not any(n in takers(key) for n in names):
             raise OptionError(f"option {key!r} is taken by {', '.join(takers(key))}; "
@@ -454,17 +471,24 @@ def _wrong_type(key: str, spec: Spec, value) -> str:
             f"{type(value).__name__} {shown}")
 
 
-def _unknown(key, known: list[str], what: str) -> str:
-    hint = _close(key, known)
+def _unknown(key, known: list[str], what: str, filters: Sequence[str] = ()) -> str:
+    hint = _close(key, known, filters)
     return (f"unknown option {key!r}{hint}; {what}: {', '.join(known) or 'none'}")
 
 
-def _close(key, known: list[str]) -> str:
+def _close(key, known: list[str], filters: Sequence[str] = ()) -> str:
+    """`` (did you mean 'order'?)``: the option ``key`` was formerly called, one that
+    ``filters`` (the call's) take first (``N`` was FIR's order and the predictor's
+    horizon), else the closest spelling."""
     if not isinstance(key, str):
         return ""
-    formerly = {old: new for new in known for old in all_specs()[new].formerly}
-    if key in formerly:
-        return f" (did you mean {formerly[key]!r}?)"
+    formerly = [new for new in known if key in all_specs()[new].formerly]
+    if formerly:
+        mine = [new for new in formerly if any(f in takers(new) for f in filters)]
+        if len(mine) == 1 or (len(formerly) == 1 and not mine):
+            return f" (did you mean {(mine or formerly)[0]!r}?)"
+        return " (did you mean " + " or ".join(
+            f"{new!r} ({', '.join(takers(new))})" for new in mine or formerly) + "?)"
     close = difflib.get_close_matches(key, known, n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
 

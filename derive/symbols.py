@@ -13,6 +13,7 @@ import sympy
 
 from .errors import ModelError, NameError_, ShapeError, SymbolError
 from .expressions import exact_number, parse_expression
+from .guards import selects
 
 #: Words that can never be a model, state, measurement or parameter name: they
 #: would break generated Python or C99.
@@ -46,10 +47,12 @@ def real_stand_ins(symbols: Iterable[sympy.Symbol]
 
 
 def jacobian(values: sympy.MatrixBase, wrt) -> sympy.ImmutableMatrix:
-    """``d values / d wrt`` with every symbol taken as real (see `real_stand_ins`)."""
+    """``d values / d wrt`` with every symbol taken as real (see `real_stand_ins`), the
+    derivatives of guards as selects (``d|x|/dx = sign(x)``, derive.guards)."""
     real, back = real_stand_ins(values.free_symbols | set(wrt))
     stand_ins = [real.get(s, s) for s in wrt]
-    return sympy.ImmutableMatrix(values.xreplace(real).jacobian(stand_ins).xreplace(back))
+    jac = values.xreplace(real).jacobian(stand_ins).xreplace(back)
+    return sympy.ImmutableMatrix(jac.applyfunc(lambda e: selects(e, "a Jacobian entry")))
 
 
 def natural_key(name: str) -> tuple:

@@ -1,11 +1,14 @@
 """Operation trees: what lowering makes of an expression and what every printer and the
 counter walk, so that a count is by construction the count of what is printed.
 
-Operation kinds: ``add sub mul div sqrt fma fnma neg cmp select gate`` and ``call:NAME``
-(``fma(a, b, c)`` is ``a*b + c``, ``fnma(a, b, c)`` is ``c - a*b``, each one rounding where
-the hardware fuses them). :class:`OpCount` counts them by kind: ``flops`` = add + sub + mul
-+ div + sqrt + 2 fma (negations and comparisons are reported, not counted as flops);
-``instructions`` = every operation. A ``select`` or ``gate`` is one comparison (``cmp``).
+Operation kinds: ``add sub mul div sqrt fma fnma neg cmp select gate if_gt if_ge`` and
+``call:NAME`` (``fma(a, b, c)`` is ``a*b + c``, ``fnma(a, b, c)`` is ``c - a*b``, each one
+rounding where the hardware fuses them). :class:`OpCount` counts them by kind: ``flops`` =
+add + sub + mul + div + sqrt + 2 fma (negations, comparisons and selects are reported, not
+counted as flops); ``instructions`` = every operation. Each of the choosing kinds (a
+missing measurement's ``select(z, a, b)``, the gate's ``gate(v, bound, a, b)``, a guard's
+``if_gt(l, r, a, b)`` and ``if_ge(l, r, a, b)``: :mod:`derive.guards`) is one comparison
+(``cmp``) and one select (``select``) of two already computed values.
 """
 
 from __future__ import annotations
@@ -13,7 +16,10 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
 
-KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "fnma", "neg", "cmp", "select", "gate")
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "fnma", "neg", "cmp", "select", "gate",
+         "if_gt", "if_ge")
+#: The kinds that choose one of two values by a comparison: a ``cmp`` and a ``select`` each.
+CHOOSING_KINDS = frozenset({"select", "gate", "if_gt", "if_ge"})
 #: The fused multiply-adds: one instruction and two flops each, counted as ``fma``.
 FUSED_KINDS = frozenset({"fma", "fnma"})
 
@@ -112,6 +118,7 @@ class OpCount:
     fma: int = 0
     neg: int = 0
     cmp: int = 0
+    select: int = 0
     calls: int = 0
 
     @property
@@ -121,9 +128,10 @@ class OpCount:
 
     @property
     def instructions(self) -> int:
-        """Every operation, an fma, a negation and a comparison one each (calls excluded)."""
+        """Every operation, an fma, a negation, a comparison and a select one each (calls
+        excluded)."""
         return (self.add + self.sub + self.mul + self.div + self.sqrt + self.fma + self.neg
-                + self.cmp)
+                + self.cmp + self.select)
 
     def __add__(self, other: OpCount) -> OpCount:
         if not isinstance(other, OpCount):
@@ -140,14 +148,14 @@ class OpCount:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def summary(self) -> str:
-        """One line: every kind, then flops and instructions."""
-        kinds = ", ".join(f"{k} {v}" for k, v in self.as_dict().items())
+        """One line: every kind (``select`` where there is one: code without a choice reads
+        as it always has), then flops and instructions."""
+        kinds = ", ".join(f"{k} {v}" for k, v in self.as_dict().items()
+                          if v or k != "select")
         return f"{kinds} (flops {self.flops}, instructions {self.instructions})"
 
 
 def _kind_field(kind: str) -> str:
-    if kind in ("select", "gate"):
-        return "cmp"
     if kind == "fnma":
         return "fma"
     return "calls" if kind.startswith("call:") else kind
@@ -158,8 +166,12 @@ def _tally_tree(tree: Tree, tally: dict[str, int]) -> None:
     while stack:
         node = stack.pop()
         if isinstance(node, Op):
-            key = _kind_field(node.kind)
-            tally[key] = tally.get(key, 0) + 1
+            if node.kind in CHOOSING_KINDS:
+                tally["cmp"] = tally.get("cmp", 0) + 1
+                tally["select"] = tally.get("select", 0) + 1
+            else:
+                key = _kind_field(node.kind)
+                tally[key] = tally.get(key, 0) + 1
             stack.extend(node.args)
 
 

@@ -22,7 +22,10 @@ TABLE = {
     "ca": (LinearModel, 3, 1),
     "gps_static": (LinearModel, 3, 3),
     "gnss_pseudorange": (NonlinearModel, 4, 4),
+    "ins_eskf": (NonlinearModel, 16, 7),
+    "ins_fc24_eskf": (NonlinearModel, 24, 11),
     "ins_gnss": (NonlinearModel, 16, 7),
+    "ctrv_radar": (NonlinearModel, 5, 2),
     "ins_fc24": (NonlinearModel, 24, 11),
 }
 
@@ -48,7 +51,7 @@ def test_unknown_name_lists_the_catalog_and_suggests():
     message = str(info.value)
     assert "unknown catalog model 'mpt3d_c'" in message
     assert "did you mean 'mpt3d_b'?" in message
-    assert "available: ca, cv, gnss_pseudorange" in message
+    assert "available: ca, ctrv_radar, cv, gnss_pseudorange" in message
     with pytest.raises(ModelError, match="unknown catalog model"):
         catalog.path("../pyproject")
 

@@ -6,7 +6,8 @@ convention; row k of us goes with row k of zs, as for the linear KF).
 A unicycle (planar position and heading driven by a measured speed and turn rate) is
 filtered by the NumPy reference EKF and by the generated Python and C EKF; the mapped
 process noise is checked against a finite-difference Jacobian of a hand-written f; the
-prediction's u is the row given with z; the UKF refuses the model in one line; wrong Qu
+prediction's u is the row given with z; the UKF refuses noise Qu on the inputs of f in one
+line (it takes inputs in f without it: tests/test_guards.py); wrong Qu
 is refused naming it; a model file with inputs in f and Qu generates, compiles with the
 strict flags and verifies.
 """
@@ -132,14 +133,15 @@ def test_header_states_the_convention_and_predict_takes_u():
                for f in unit.facts)
 
 
-def test_ukf_refuses_inputs_in_f_in_one_line():
+def test_ukf_refuses_noise_on_the_inputs_of_f_in_one_line():
     model = unicycle()
     reason = why_not(model, "ukf")
-    assert reason == ("filter 'ukf' does not support inputs in f (model 'unicycle' uses 'v' "
-                      "in f); use the ekf")
-    with pytest.raises(FilterError, match="does not support inputs in f"):
+    assert reason == ("filter 'ukf' does not take noise Qu on the inputs of f (model "
+                      "'unicycle'); use the ekf, which maps it through df/du")
+    with pytest.raises(FilterError, match="does not take noise Qu"):
         derive_unit(model, "ukf")
     assert available(model) == ["ekf"]
+    assert "ukf" in available(unicycle(Qu=None))
 
 
 @pytest.mark.parametrize("kw,error,message", [

@@ -18,6 +18,7 @@ from sympy import default_sort_key
 
 from derive.errors import ModelError
 from derive.filters import nonlinear
+from derive.guards import SELECTS, IfGreater, numpy_selects
 
 
 class CasadiTranslationError(ModelError):
@@ -92,6 +93,10 @@ def to_casadi(expr: sympy.Expr, symbols: Mapping[sympy.Symbol, object]):
                 out = base ** go(exp)
         elif isinstance(e, sympy.atan2):
             out = ca.atan2(go(e.args[0]), go(e.args[1]))
+        elif isinstance(e, SELECTS):  # both branches computed, as generated code does
+            left, right, a, b = (go(arg) for arg in e.args)
+            out = ca.if_else(left > right if isinstance(e, IfGreater) else left >= right,
+                             a, b)
         elif type(e) in FUNCTIONS:
             out = getattr(ca, FUNCTIONS[type(e)])(go(e.args[0]))
         else:
@@ -158,7 +163,7 @@ def check_jacobians(model, points: int = 100, seed: int = 0,
     results = {}
     for label, exprs in (("f", model.subs(model.f)), ("h", model.subs(model.h))):
         values, jac = nonlinear.linearise(exprs, states).expanded()
-        ours = sympy.lambdify([every], [values, jac], modules="numpy")
+        ours = sympy.lambdify([every], [values, jac], modules=[numpy_selects(), "numpy"])
         theirs = casadi_function(label, list(exprs), states, others)
         rng = np.random.default_rng(seed)
         worst_v = worst_j = 0.0

@@ -287,7 +287,9 @@ def _predicted(model, xs, Ps, us=None, offset: int = 1):
         F = np.atleast_2d(fns["F"](*args))
         x_pred = fns["f"](*args)
         H = np.atleast_2d(fns["H"](x_pred, u))
-        yield F @ P @ F.T + fns["Q"], F, H, fns["R"], fns["h"](x_pred, u)
+        Q = fns["Q"](x, u) if callable(fns["Q"]) else fns["Q"]  # at x(k/k), u as the filter
+        R = fns["R"](x_pred, u) if callable(fns["R"]) else fns["R"]  # at the prediction
+        yield F @ P @ F.T + Q, F, H, R, fns["h"](x_pred, u)
 
 
 def error_growth(model, name: str, steps: int, run: ReferenceRun | None = None) -> float:
@@ -495,7 +497,7 @@ def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
     """The :class:`SensorsConditioning` of ``model``'s sensors reference run from its
     ``trace`` (derive.reference.sensors.StepTrace per step)."""
     F = transition_function(model)
-    n = model.n
+    n = model.n_tangent  # the error's dimension: P's
     maps, steps, present = [], [], {}
     for k, step in enumerate(trace):
         A = np.eye(n)

@@ -219,14 +219,14 @@ def nonlinear_scenario(model, steps: int = 500, seed: int = 7) -> NonlinearScena
         us = np.zeros((steps, 0))
         x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
         P0 = np.asarray(model.P0.tolist(), dtype=float)
-        Q = fns["Q"]
-        w = rng.multivariate_normal(np.zeros(n), Q, size=steps, method="eigh")
+        w = _draws(rng, fns["Q"], steps, n)
         truth = np.empty((steps + 1, n))
         truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
         for k in range(steps):
-            truth[k + 1] = fns["f"](truth[k]) + w[k]
-    v = rng.multivariate_normal(np.zeros(m), fns["R"], size=steps, method="eigh")
-    zs = np.array([fns["h"](truth[k + 1], us[k]) for k in range(steps)]) + v
+            truth[k + 1] = fns["f"](truth[k]) + w(k, truth[k], us[k])
+    v = _draws(rng, fns["R"], steps, m)
+    zs = np.array([fns["h"](truth[k + 1], us[k]) + v(k, truth[k + 1], us[k])
+                   for k in range(steps)])
     return NonlinearScenario(zs, us, truth, np.asarray(x0, float), np.asarray(P0, float))
 
 
@@ -237,16 +237,33 @@ def _input_driven_scenario(model, fns, rng, steps: int) -> NonlinearScenario:
     n_u = len(model.inputs)
     us = rng.uniform(-1.0, 1.0, (steps, n_u))
     u_noise = rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps, method="eigh")
-    w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
+    w = _draws(rng, fns["Q"], steps, n)
     x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
     P0 = np.asarray(model.P0.tolist(), dtype=float)
     truth = np.empty((steps + 1, n))
     truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
     for k in range(steps):  # row k of us drives the step into k + 1 (measured by zs[k])
-        truth[k + 1] = fns["f"](truth[k], us[k] + u_noise[k]) + w[k]
-    v = rng.multivariate_normal(np.zeros(m), fns["R"], size=steps, method="eigh")
-    zs = np.array([fns["h"](truth[k + 1], us[k]) for k in range(steps)]) + v
+        truth[k + 1] = fns["f"](truth[k], us[k] + u_noise[k]) + w(k, truth[k], us[k])
+    v = _draws(rng, fns["R"], steps, m)
+    zs = np.array([fns["h"](truth[k + 1], us[k]) + v(k, truth[k + 1], us[k])
+                   for k in range(steps)])
     return NonlinearScenario(zs, us, truth, x0, P0)
+
+
+def _draws(rng, covariance, steps: int, size: int):
+    """``draw(k, x, u)``: step k's noise of ``covariance``: drawn at once when it is a
+    matrix, else (a state-dependent Q or R, a callable ``(x, u)``) a standard normal
+    draw per step scaled by the covariance's symmetric square root at x, u."""
+    if not callable(covariance):
+        noise = rng.multivariate_normal(np.zeros(size), covariance, size=steps,
+                                        method="eigh")
+        return lambda k, x, u: noise[k]
+    standard = rng.standard_normal((steps, size))
+
+    def draw(k, x, u):
+        values, vectors = np.linalg.eigh(np.asarray(covariance(x, u), dtype=float))
+        return vectors @ (np.sqrt(np.clip(values, 0.0, None)) * standard[k])
+    return draw
 
 
 def nonlinear_reference(model, name: str, scenario: NonlinearScenario, options: dict,
@@ -291,12 +308,14 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
 
 
 def generated_run(module, name: str, zs, model, lang: str,
-                  scenario: NonlinearScenario | None = None, p=None):
+                  scenario: NonlinearScenario | None = None, with_lls: bool = False,
+                  p=None):
     """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
     (nonlinear filters: the scenario's zs, us, x0 and P0); every input is given in the
     module's dtype (a float32 kernel's: each value rounded once to float), the outputs are
-    returned as float64; ``p``: the free parameters' row, for every step (a model verified
-    at its parameters' examples)."""
+    returned as float64: (xs, Ps or None), and with ``with_lls`` (a filter generated with
+    the option loglik) the per-step log-likelihoods third; ``p``: the free parameters' row,
+    for every step (a model verified at its parameters' examples)."""
     dtype = getattr(module, "dtype", np.float64)
     rows = {} if p is None else {"p": np.asarray(p, dtype=dtype)}
 
@@ -306,20 +325,22 @@ def generated_run(module, name: str, zs, model, lang: str,
     spec = kind(name)
     if spec.model_kind == "nonlinear":
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
-        xs, Ps = module.run(*given(*args, scenario.x0, scenario.P0), **rows)
-        return (np.asarray(xs, dtype=float),
-                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n, model.n))
-    num = model.numeric()
-    # run's arguments after the measurements (and inputs): what its run kind starts from
-    start = {"x0": num.x0, "P0": num.P0}
-    data = [zs.zs, zs.us] if model.inputs else [zs]
-    out = module.run(*given(*data, *(start[name]
-                                     for name, _ in RUN_KINDS[spec.run_kind].start)), **rows)
+        out = module.run(*given(*args, scenario.x0, scenario.P0), **rows)
+        steps = len(scenario.zs)
+    else:
+        num = model.numeric()
+        # run's arguments after the measurements (and inputs): what its run kind starts from
+        start = {"x0": num.x0, "P0": num.P0}
+        data = [zs.zs, zs.us] if model.inputs else [zs]
+        out = module.run(*given(*data, *(start[name]
+                                         for name, _ in RUN_KINDS[spec.run_kind].start)), **rows)
+        steps = len(data[0])
     if not isinstance(out, tuple):
         return np.asarray(out, dtype=float), None
-    xs, Ps = out
-    return (np.asarray(xs, dtype=float),
-            np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n, model.n))
+    nt = model.n_tangent
+    xs, Ps = (np.asarray(out[0], dtype=float),
+              np.asarray(out[1], dtype=float).reshape(steps, nt, nt))
+    return (xs, Ps, np.asarray(out[2], dtype=float)) if with_lls else (xs, Ps)
 
 
 class InputRun(NamedTuple):
@@ -395,7 +416,8 @@ def sensors_case(model, name: str, steps: int, seed: int, options, unit: Unit | 
     ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
           if model.parameters else None)
     trace: list = []
-    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
+    reference_of = kind(name).sensors_reference or sensors_reference
+    ref = reference_of(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
                             trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     bound = None
@@ -424,7 +446,7 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
         dtype = getattr(module, "dtype", np.float64)
         result = module.run(*[np.asarray(a, dtype=dtype) for a in case.arguments().values()])
         xs = np.asarray(result[0], dtype=float)
-        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
+        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n_tangent, model.n_tangent)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
         if lang == "c" and case.bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, case.bound.value,
@@ -500,6 +522,9 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         zs = linear_run(model, steps, seed)
         tolerance = LINEAR_TOLERANCE
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
+    # the option loglik: run's lls against the family's reference of the log-likelihood
+    lls_ref = (kind(name).loglik(model, zs if scenario is None else (
+        scenario, model.numeric_functions()), opts) if opts.get("loglik") else None)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
@@ -516,10 +541,16 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
 
     out: list[Verification] = []
     for lang, module in modules.items():
-        xs, Ps = generated_run(module, name, zs, model, lang, scenario, p)
+        xs, Ps, *lls = generated_run(module, name, zs, model, lang, scenario,
+                                     lls_ref is not None, p)
         err = relative_error(xs, xs_ref)
         if Ps_ref is not None and Ps is not None:
             err = max(err, relative_error(Ps, Ps_ref))
+        if lls:  # each step's error relative to its scale (loglik_scale)
+            ll_ref, scales = lls_ref
+            with np.errstate(divide="ignore", invalid="ignore"):
+                diff = np.abs(lls[0] - ll_ref)
+                err = max(err, float(np.max(np.where(diff == 0, 0.0, diff / scales))))
         if lang == "c" and bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
         elif scenario is None and not within_tolerance(err, tolerance, None):

@@ -13,7 +13,7 @@ EXAMPLE = ("derive burden mpt3d_a --filter kf\n  derive burden cv --paper --json
            "  derive burden --formula --paper --filter kf\n"
            "  derive burden mpt3d_b --formula --family blocks --filter kf")
 
-KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "calls")
+KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "select", "calls")
 
 
 def add_fit_arguments(parser) -> None:
@@ -230,7 +230,7 @@ def _text(model, rows: list[dict]) -> str:
     lines = [f"{model.name}: n = {model.n}, m = {model.m}. Operations per call of the generated "
              "code, counted on what is emitted.",
              "flops = add + sub + mul + div + sqrt + 2 fma (an fma: 2 flops, 1 instruction); "
-             "neg, cmp and calls are not flops; instr = every operation but calls.",
+             "neg, cmp, select and calls are not flops; instr = every operation but calls.",
              "papers: the papers' burden formula for this n, m (MPT3D Tables 2-3); mode paper: "
              "derive's dense, unspecialised code as the papers count it.", "",
              fmt.format(*head), fmt.format(*("-" * w for w in widths))]

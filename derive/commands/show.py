@@ -22,7 +22,13 @@ def run(args) -> int:
     if model.source:
         print(textwrap.fill(f"source: {model.source}", 88))
     print(f"states: {', '.join(model.states)}")
+    for component in getattr(model, "manifolds", ()):
+        print(f"manifold: {component.describe()}")
+    if model.n_tangent != model.n:  # P, P0 and Q are over the tangent space
+        print(f"tangent ({model.n_tangent}; P, P0, Q over it): {', '.join(model.tangent)}")
     print(f"measurements: {', '.join(model.measurements)}")
+    if getattr(model, "angles", ()):
+        print(f"angles (innovations wrapped to (-pi, pi]): {', '.join(model.angles)}")
     inputs = [u.name for u in getattr(model, "inputs", ())]
     print("inputs (u, one row per step): " + (", ".join(inputs) or "none"))
     print("values: " + (", ".join(f"{k} = {v}" for k, v in model.values.items()) or "none"))

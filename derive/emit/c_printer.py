@@ -8,7 +8,9 @@ libm beyond sqrt; a fused negative multiply-add ``c - a*b`` is ``DERIVE_FNMA(a, 
 ``fma((a), -(b), (c))`` or ``((c) - (a) * (b))`` alike.  A select (the missing-measurement
 test) is
 ``((z[i] == z[i]) ? a : b)``, false only for NaN, so such code must not be compiled
-with ``-ffast-math`` (which assumes there is no NaN).  Constants are printed with
+with ``-ffast-math`` (which assumes there is no NaN); a guard (:mod:`derive.guards`) is
+``((l > r) ? a : b)`` or ``((l >= r) ? a : b)`` of two values computed before it, which
+compilers turn into a compare and a blend (no branch).  Constants are printed with
 ``repr`` (shortest round trip, always with a ``.`` or an exponent, so C reads a double).
 
 Every function takes the :class:`~derive.precision.Precision` of the file (default
@@ -109,6 +111,9 @@ class CPrinter(InfixPrinter):
         if kind == "gate":
             v, bound, a, b = args
             return f"(({v} <= {bound}) ? {a} : {b})"
+        if kind in ("if_gt", "if_ge"):
+            left, right, a, b = args
+            return f"(({left} {'>' if kind == 'if_gt' else '>='} {right}) ? {a} : {b})"
         if kind.startswith("call:"):
             return f"{self.precision.math(kind[5:])}({', '.join(args)})"
         raise ValueError(f"no C spelling for operation {kind!r}")

@@ -1,7 +1,8 @@
 """Print lowered trees and programs as Python.
 
 Only elementwise arithmetic is emitted (``+ - * /``, ``_sqrt(v) = v ** 0.5`` and the
-missing-measurement select ``_if_present(z, a, b)``), so a generated function runs on
+missing-measurement select ``_if_present(z, a, b)``, the guards' ``_if_greater(l, r, a, b)``
+and ``_if_at_least(l, r, a, b)``), so a generated function runs on
 floats, on NumPy arrays with a trailing track axis (many tracks at once) and on
 :class:`derive.flops.CountingFloat`.  Constants are printed with ``repr`` (shortest
 round trip); negative ones in parentheses.
@@ -25,7 +26,24 @@ _ATOM = 4
 
 #: lowering call name -> Python spelling (NumPy ufuncs call methods of objects).
 PY_CALLS = {"sin": "np.sin", "cos": "np.cos", "tan": "np.tan", "exp": "np.exp", "log": "np.log",
-            "atan": "np.arctan", "atan2": "np.arctan2", "fabs": "abs"}
+            "atan": "np.arctan", "atan2": "np.arctan2", "fabs": "abs",
+            "ceil": "np.ceil"}
+
+def _guard_helper(name: str, relation: str) -> list[str]:
+    """The lines of a guard's select helper ``name(left, right, a, b)``: a where ``left
+    relation right``, else b."""
+    return [f'def {name}(left, right, a, b):',
+            f'    """a where left {relation} right, else b (also for a NaN); per track for',
+            '    arrays. With a CountingFloat the select is counted, and a constant result',
+            '    onwards."""',
+            f'    holds = left {relation} right',
+            '    if isinstance(holds, np.ndarray):',
+            '        return np.where(holds, a, b)',
+            '    value = a if holds else b',
+            '    counted = (getattr(left, "derive_selected", None)',
+            '               or getattr(right, "derive_selected", None))',
+            '    return value if counted is None else counted(value)']
+
 
 HELPERS = {
     "sqrt": ['def _sqrt(v):',
@@ -38,7 +56,7 @@ HELPERS = {
                '    if isinstance(present, np.ndarray):',
                '        return np.where(present, a, b)',
                '    value = a if present else b',
-               '    counted = getattr(z, "derive_counted", None)',
+               '    counted = getattr(z, "derive_selected", None)',
                '    return value if counted is None else counted(value)'],
     "gate": ['def _if_at_most(v, bound, a, b):',
              '    """a where v <= bound, else b (also for a NaN v); per track for arrays.',
@@ -47,8 +65,10 @@ HELPERS = {
              '    if isinstance(within, np.ndarray):',
              '        return np.where(within, a, b)',
              '    value = a if within else b',
-             '    counted = getattr(v, "derive_counted", None)',
+             '    counted = getattr(v, "derive_selected", None)',
              '    return value if counted is None else counted(value)'],
+    "if_gt": _guard_helper("_if_greater", ">"),
+    "if_ge": _guard_helper("_if_at_least", ">="),
     "pattern": ['def _require_zero(values, indices, n, name, message):',
                 '    """Raise PatternError unless values[k] == 0 for every k in indices (every',
                 '    track of an array): entries outside the pattern of the n x n matrix."""',
@@ -208,6 +228,10 @@ class PythonPrinter(InfixPrinter):
             return f"_if_present({', '.join(args)})"
         if kind == "gate":
             return f"_if_at_most({', '.join(args)})"
+        if kind == "if_gt":
+            return f"_if_greater({', '.join(args)})"
+        if kind == "if_ge":
+            return f"_if_at_least({', '.join(args)})"
         if kind.startswith("call:") and kind[5:] in PY_CALLS:
             return f"{PY_CALLS[kind[5:]]}({', '.join(args)})"
         raise ValueError(f"no Python spelling for operation {kind!r} (fma is C only)")
@@ -226,8 +250,9 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
         needed.append("sqrt")
     if "select" in kinds:
         needed.append("select")
-    if "gate" in kinds:
-        needed.append("gate")
+    for kind in ("gate", "if_gt", "if_ge"):
+        if kind in kinds:
+            needed.append(kind)
     if any(lp.pattern_checks for lp in lowered):
         needed.append("pattern")
     if any(c for lp in lowered for c in lp.checks if not (c.is_pattern or c.parameter)):
@@ -240,7 +265,7 @@ def helpers_needed(lowered: list[LoweredProgram]) -> list[str]:
 def uses_numpy_calls(lowered: list[LoweredProgram]) -> bool:
     """True when a printed call or helper needs ``np``."""
     kinds = set().union(*(lp.kinds() for lp in lowered)) if lowered else set()
-    return bool({"select", "gate"} & kinds) or any(
+    return bool({"select", "gate", "if_gt", "if_ge"} & kinds) or any(
         lp.pattern_checks or square_input_lines(lp) or any(c.parameter for c in lp.checks)
         for lp in lowered) or any(
         k.startswith("call:") and PY_CALLS.get(k[5:], "").startswith("np.") for k in kinds)
@@ -287,7 +312,7 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
 
 
 def unread_parameters(lowered: LoweredProgram) -> bool:
-    """True when the program takes ``p`` (last) but reads none of it (an EKF predict of a
+    """True when the program takes ``p`` (last) but reads none of it (a nonlinear predict of a
     model whose parameters are in h alone): Python may then be called without it."""
     return (bool(lowered.inputs) and lowered.inputs[-1].name == PARAMETER_PORT
             and PARAMETER_PORT not in lowered.used_inputs())

@@ -15,11 +15,16 @@ x + δ, computed as ``e + D[e]``; nothing is evaluated at x + δ itself):
   ``D[1/a] = -D[a] / (a a')``, ``D[a^-k] = D[1/a^k]``;
 * ``D[sqrt(a)] = D[a] / (sqrt(a') + sqrt(a))``, ``D[a^(-1/2)] = D[1/sqrt(a)]``;
 * ``D[sin a] = 2 cos(a + D[a]/2) sin(D[a]/2)``, ``D[cos a] = -2 sin(a + D[a]/2) sin(D[a]/2)``;
+* ``D[atan2(y, x)] = atan2(x D[y] - y D[x], x x' + y y')``: the angle from (x, y) to
+  (x', y'), an identity modulo 2 pi: it is the difference where that lies in (-pi, pi],
+  and across atan2's branch cut (-pi to pi) the wrapped difference, the angle's change
+  (what an angle measurement's spread is: derive.filters.ukf);
 * anything else (exp, log, a state-dependent exponent, other functions) falls back to
   ``g(a') - g(a)``, with the cancellation of that one node; :attr:`DifferenceForm.fallbacks`
   names those nodes (the UKF prints them in its header).
 
-Each rule is an identity of real numbers, so D equals g(x + δ) - g(x) exactly
+Each rule is an identity of real numbers (atan2's modulo 2 pi), so D equals
+g(x + δ) - g(x) exactly
 (tests/test_float_ukf.py checks it symbolically and in double against an exact
 evaluation); where a rule applies, its rounding errors are relative to D and to the
 terms D sums, not to g.
@@ -41,7 +46,10 @@ class DifferenceForm:
     symbols (the nodes of g at x), evaluated once; ``values``: g(x) over those.
     ``steps``: pairs over the base symbols, the model's symbols, ``deltas`` and earlier
     step symbols (the nodes' differences), evaluated once per δ; ``differences``: D.
-    ``fallbacks``: the nodes no rule applies to, as text, in the order met.
+    ``fallbacks``: the nodes no rule applies to, as text, in the order met. ``turns``: the
+    step symbols of atan2's rule, which are 0 where its coordinates do not move (a
+    numerator x D[y] - y D[x] of 0 there, over x x' + y y' = x² + y² >= 0: atan2(0, that)
+    is 0; :func:`unmoved_turn`).
     """
 
     deltas: tuple[sympy.Symbol, ...]
@@ -50,6 +58,7 @@ class DifferenceForm:
     steps: tuple[tuple[sympy.Symbol, sympy.Expr], ...]
     differences: tuple[sympy.Expr, ...]
     fallbacks: tuple[str, ...]
+    turns: frozenset[sympy.Symbol] = frozenset()
 
     def expanded(self) -> tuple[list[sympy.Expr], list[sympy.Expr]]:
         """(g(x), D) with every base and step symbol substituted back (for checks)."""
@@ -69,6 +78,7 @@ class _Builder:
         self.base_pairs: list[tuple[sympy.Symbol, sympy.Expr]] = []
         self.step_pairs: list[tuple[sympy.Symbol, sympy.Expr]] = []
         self.fallbacks: list[str] = []
+        self.turns: set[sympy.Symbol] = set()
         self._bases: dict[sympy.Expr, sympy.Expr] = {}
         self._diffs: dict[sympy.Expr, sympy.Expr] = {}
         self._base_names = sympy.numbered_symbols("_at_x", real=True)
@@ -127,6 +137,8 @@ class _Builder:
             return self.delta_of[node]
         if node not in self._diffs:
             self._diffs[node] = self._step_let(self._rule(node))
+            if isinstance(node, sympy.atan2):
+                self.turns.add(self._diffs[node])
         return self._diffs[node]
 
     def _rule(self, node: sympy.Expr) -> sympy.Expr:
@@ -147,6 +159,10 @@ class _Builder:
             return self._sin_cos(node.args[0], sympy.cos, 2)
         if isinstance(node, sympy.cos):
             return self._sin_cos(node.args[0], sympy.sin, -2)
+        if isinstance(node, sympy.atan2):
+            y, x = node.args
+            return sympy.atan2(self.base(x) * self.diff(y) - self.base(y) * self.diff(x),
+                               self.base(x) * self.shifted(x) + self.base(y) * self.shifted(y))
         return self._fallback(node)
 
     def _power(self, a: sympy.Expr, k: sympy.Expr) -> sympy.Expr | None:
@@ -186,7 +202,15 @@ def difference_form(values: Iterable[sympy.Expr], states: Sequence[sympy.Symbol]
     bases = [builder.base(e) for e in exprs]
     return DifferenceForm(deltas, tuple(builder.base_pairs), tuple(bases),
                           tuple(builder.step_pairs), tuple(differences),
-                          tuple(dict.fromkeys(builder.fallbacks)))
+                          tuple(dict.fromkeys(builder.fallbacks)), frozenset(builder.turns))
 
 
-__all__ = ["DifferenceForm", "difference_form"]
+def unmoved_turn(form: DifferenceForm, symbol: sympy.Symbol, value: sympy.Expr) -> sympy.Expr:
+    """``value`` (step ``symbol``'s expression at one δ), or 0 where it is atan2's turn
+    with a numerator that δ made 0 (its coordinates do not move: ``DifferenceForm.turns``)."""
+    if symbol in form.turns and isinstance(value, sympy.atan2) and value.args[0] == 0:
+        return sympy.S.Zero
+    return value
+
+
+__all__ = ["DifferenceForm", "difference_form", "unmoved_turn"]

@@ -22,6 +22,10 @@ predict: for an affine f (F free of the state) the unscented transform is exact,
 program computes it as ``f(x)``, ``F P F^T + Q``; otherwise the sigma points of (x, P)
 pass through f in difference form: ``x⁻ = f(x) + dbar``,
 ``P⁻ = Σ Wc (f(X_i) - x⁻)(·)^T + Q`` over those spreads.
+f may use the inputs u(k) (the row given with z(k), as the EKF), without noise on them;
+a state-dependent Q is evaluated at x(k-1/k-1), R at x⁻. An angle measurement's
+deviations D_i (from h(x⁻), the sigma point X_0) and its innovation are wrapped to
+(-pi, pi], so its mean is h(x⁻) plus the weighted mean of the wrapped deviations.
 update: sigma points redrawn from (x⁻, P⁻), through h in difference form:
 ``ŷ = h(x⁻) + dbar``, ``Pvv = Σ Wc (Y_i - ŷ)(·)^T + R``,
 ``Pxy = Σ Wc (X_i - x⁻)(Y_i - ŷ)^T``, which is ``Wi sqrt(c) L (D_1..n - D_n+1..2n)^T``
@@ -43,17 +47,21 @@ from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
-from .difference import DifferenceForm, difference_form
+from ..statements import substitute
+from .difference import DifferenceForm, difference_form, unmoved_turn
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
     NOTE_PY,
+    angle_facts,
     check_nonlinear,
+    noise_fact,
     nonlinear_programs,
     stage_linearisation,
     state_jacobian,
     state_mapping,
     step_inputs,
+    wrapped,
 )
 from .spec import FilterSpec
 from .unit import make_unit
@@ -143,8 +151,8 @@ def stage_values(prog, form: DifferenceForm, mapping: Mapping) -> tuple[sympy.Ma
     mapping extended by the base symbols the differences read."""
     subs = dict(mapping)
     for sym, expr in form.base:
-        subs[sym] = prog.let(expr.xreplace(subs), "at_x")
-    return sympy.Matrix([prog.let(v.xreplace(subs), "at_x") for v in form.values]), subs
+        subs[sym] = prog.let(substitute(expr, subs), "at_x")
+    return sympy.Matrix([prog.let(substitute(v, subs), "at_x") for v in form.values]), subs
 
 
 def stage_differences(prog, form: DifferenceForm, subs: dict,
@@ -153,8 +161,8 @@ def stage_differences(prog, form: DifferenceForm, subs: dict,
     from :func:`stage_values`)."""
     subs = {**subs, **dict(zip(form.deltas, delta))}
     for sym, expr in form.steps:
-        subs[sym] = _signed_let(prog, expr.xreplace(subs))
-    return sympy.Matrix([_signed_let(prog, d.xreplace(subs)) for d in form.differences])
+        subs[sym] = _signed_let(prog, unmoved_turn(form, sym, substitute(expr, subs)))
+    return sympy.Matrix([_signed_let(prog, substitute(d, subs)) for d in form.differences])
 
 
 def _signed_let(prog, expr: sympy.Expr) -> sympy.Expr:
@@ -205,8 +213,8 @@ def ukf_predict_stage(model, w: Weights):
     form = None if affine else _differences(model, model.subs(model.f))
 
     def predict(prog, mapping, x, P):
-        Q = sympy.Matrix(model.subs(model.Q)).xreplace(mapping)
         at_x = {**mapping, **state_mapping(model, x)}
+        Q = sympy.Matrix(model.subs(model.Q)).xreplace(at_x)
         if affine:
             values, F = stage_linearisation(prog, lin, at_x, "f")
             FP = staging.matmul(prog, F, P)
@@ -233,16 +241,18 @@ def ukf_update_stage(model, w: Weights):
         form = cache[key]
         n = x.rows
         offsets = sigma_offsets(prog, P, w)
-        h_x, subs = stage_values(prog, form, {**mapping, **state_mapping(model, x)})
-        D = sigma_spreads(prog, form, subs, offsets)
+        at_x = {**mapping, **state_mapping(model, x)}
+        h_x, subs = stage_values(prog, form, at_x)
+        D = [wrapped(prog, d, meas.angles) for d in sigma_spreads(prog, form, subs, offsets)]
         dbar, spreads = _mean_and_spreads(prog, h_x, D, w)
-        R = meas.R.xreplace(mapping)
+        R = meas.R.xreplace(at_x)
         Pvv = _weighted_covariance(prog, spreads, w, R)
         k = h_x.rows
         E = sympy.Matrix(n, k, lambda j, b: prog.let(D[j][b, 0] - D[n + j][b, 0], "dy"))
         Pxy = staging.scale(prog, staging.matmul(prog, offsets, E), w.wi)
         K = staging.transpose(staging.spd_solve(prog, Pvv, staging.transpose(Pxy), name="Pvv"))
-        innovation = staging.sub(prog, staging.sub(prog, z, h_x), dbar)
+        innovation = wrapped(prog, staging.sub(prog, staging.sub(prog, z, h_x), dbar),
+                             meas.angles)
         x_new = staging.add(prog, x, staging.matmul(prog, K, innovation))
         KPxy = staging.matmul(prog, K, staging.transpose(Pxy), symmetric_result=True)
         P_new = staging.sub(prog, P, KPxy, symmetric_result=True)
@@ -269,10 +279,11 @@ def spreads_fact(model, affine: bool) -> str:
 
 
 def applies(model) -> str | None:
-    """The UKF takes inputs in h only: a model whose f uses an input is refused."""
-    if model.f_inputs:
-        return (f"filter 'ukf' does not support inputs in f (model {model.name!r} uses "
-                f"{model.f_inputs[0].name!r} in f); use the ekf")
+    """The UKF takes inputs in f without noise on them: a model with Qu is refused (the
+    unscented transform would carry u's noise as states)."""
+    if model.f_inputs and any(e != 0 for e in model.subs(model.Qu)):
+        return (f"filter 'ukf' does not take noise Qu on the inputs of f (model "
+                f"{model.name!r}); use the ekf, which maps it through df/du")
     return None
 
 
@@ -287,8 +298,13 @@ def derive_unit(model, spec, options):
     affine = _is_affine(model)
     predict = ("predict: f is affine, so the unscented transform is exact: f(x), F P F^T + Q"
                if affine else "predict: sigma points of (x, P) through f")
+    noise = noise_fact(model, "x(k-1/k-1), u(k)", "x(k/k-1) (the mean), u(k)")
+    angles = [line + ", and so are the sigma points' deviations from h(x) (the point "
+              "X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the "
+              "spreads the deviations minus that mean" for line in angle_facts(model)]
     return replace(unit, facts=tuple(unit.facts) + (w.fact(), predict,
-                                                    spreads_fact(model, affine), *facts),
+                                                    spreads_fact(model, affine), *facts,
+                                                    *angles, *noise),
                    options={**unit.options, "alpha": float(w.alpha), "beta": float(w.beta),
                             "kappa": float(w.kappa)})
 
@@ -301,7 +317,9 @@ def reference(model, data, options):
     res = numpy_reference.ukf(None if identity else fns["f"], fns["h"], fns["Q"], fns["R"],
                               scenario.x0, scenario.P0, scenario.zs, alpha=options.alpha,
                               beta=options.beta, kappa=options.kappa,
-                              inputs=list(scenario.us), skip_nan=False)
+                              inputs=list(scenario.us), skip_nan=False,
+                              angles=model.angle_rows(), f_inputs=bool(model.f_inputs),
+                              m=model.m)
     return res.xs, res.Ps
 
 

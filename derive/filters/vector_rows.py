@@ -29,6 +29,7 @@ from ..expression_lowering import IfAtMost
 from ..program import Port, Program
 from ..row_program import RowBuilder
 from ..rows import VECTOR_LANES
+from .nonlinear import wrapped
 from .sensors import decorrelated
 
 
@@ -136,7 +137,8 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
     prologue = Program(name, inputs, [Port("scalars", (m + m * n + m,))], doc=doc)
     x = prologue.matrix("x")
     values, H, R = parts(prologue, bind(prologue), meas, x)
-    innovation = staging.sub(prologue, prologue.matrix("z"), values)
+    innovation = wrapped(prologue, staging.sub(prologue, prologue.matrix("z"), values),
+                         meas.angles)
     H, R, innovation, correlated = decorrelated(prologue, H, R, innovation)
     prologue.set_output("scalars", list(innovation) + list(H) + [R[i, i] for i in range(m)])
     prologue = prologue.optimize()

@@ -7,6 +7,11 @@ The EKF also takes inputs in f, x(k) = f(x(k-1), u_k) + w(k), with noise Qu on u
 through ∂f/∂u (see :func:`ekf`).
 Indexing: zs[k-1] = z(k); results hold x(k/k) at row k-1. A NaN in z marks an absent
 component (skip_nan=True): only the present components are used in that update.
+
+Q and R may be callables ``(x, u)``: Q is evaluated at x(k-1/k-1), R at x(k/k-1), both
+with u_k. ``angles`` (one flag per measurement) marks the components that are angles: their
+innovations, and in the UKF the sigma points' deviations, are wrapped to (-pi, pi]
+(:func:`wrap`).
 """
 
 from __future__ import annotations
@@ -53,56 +58,101 @@ def _call(fn, x, u):
     return np.asarray(fn(x) if u is None else fn(x, u), dtype=float)
 
 
-def _setup(Q, R, x0, P0, zs, inputs, skip_nan):
+def wrap(y):
+    """``y`` wrapped to (-pi, pi] (an angle's residual): pi stays pi, -pi becomes pi."""
+    return np.pi - np.mod(np.pi - np.asarray(y, dtype=float), 2 * np.pi)
+
+
+def _wrapped(y, angles):
+    """``y`` with the components flagged in ``angles`` wrapped (:func:`wrap`)."""
+    if angles is None or not np.any(angles):
+        return y
+    y = np.array(y, dtype=float)
+    y[..., angles] = wrap(y[..., angles])
+    return y
+
+
+class _Noise:
+    """A noise covariance, constant or a callable ``(x, u)`` (checked square at each
+    call)."""
+
+    def __init__(self, name: str, value, size: int | None):
+        self.name, self.fn = name, value if callable(value) else None
+        self.value = None if self.fn else square(name, value, size or _size(value))
+
+    def at(self, x, u, size: int):
+        if self.fn is None:
+            return self.value
+        return square(self.name, self.fn(x, () if u is None else u), size)
+
+
+def _size(value) -> int:
+    arr = np.asarray(value, dtype=float)
+    return 1 if arr.ndim == 0 else arr.shape[0]
+
+
+def _setup(Q, R, x0, P0, zs, inputs, skip_nan, m=None):
     x = state_vector("x0", x0, np.size(x0))
     n = x.shape[0]
     P = square("P0", P0, n)
-    Q = square("Q", Q, n)
-    R_arr = np.asarray(R, dtype=float)
-    m = 1 if R_arr.ndim == 0 else R_arr.shape[0]
-    R = square("R", R, m)
+    Q = _Noise("Q", Q, n)
+    if m is None:
+        m = _size(R(x, ()) if callable(R) else R)
+    R = _Noise("R", R, m)
     Z = measurement_series(zs, m, allow_nan=skip_nan)
     return x, P, Q, R, Z, inputs_series(inputs, len(Z))
 
 
 def ekf(f, F_jac, h, H_jac, Q, R, x0, P0, zs, inputs=None, skip_nan: bool = True,
-        Fu_jac=None, Qu=None):
+        Fu_jac=None, Qu=None, angles=None, iterations: int = 0, m: int | None = None):
     """Extended Kalman filter: x⁻ = f(x), P⁻ = F P Fᵀ + Q with F = F_jac(x(k-1/k-1))
     (f=None, F_jac=None: identity); H = H_jac(x⁻); K = P⁻Hᵀ[H P⁻ Hᵀ + R]⁻¹;
     x = x⁻ + K[z − h(x⁻)]; P = P⁻ − K H P⁻. Returns a NonlinearResult.
 
     Inputs in f: with ``Fu_jac`` (∂f/∂u) and ``Qu`` (n_u x n_u, the noise on u) given,
     f, F_jac and Fu_jac are called as fn(x, inputs[k-1]) (the row that goes with zs[k-1])
-    and P⁻ = F P Fᵀ + Fu Qu Fuᵀ + Q."""
-    x, P, Q, R, Z, U = _setup(Q, R, x0, P0, zs, inputs, skip_nan)
-    n, m = x.shape[0], R.shape[0]
+    and P⁻ = F P Fᵀ + Fu Qu Fuᵀ + Q.
+
+    ``iterations`` = N: the iterated update (Bell and Cathey 1993), x_0 = x⁻ and N times
+    x_(i+1) = x⁻ + K_i[z − h(x_i) − H_i (x⁻ − x_i)] with H_i, K_i at x_i (R at x⁻); the
+    estimate is the last, P = P⁻ − K_N H_N P⁻."""
+    x, P, Q, R, Z, U = _setup(Q, R, x0, P0, zs, inputs, skip_nan, m)
+    n = x.shape[0]
+    m = Z.shape[1]
     in_f = Fu_jac is not None
     if in_f:
         Qu = np.asarray(Qu, dtype=float)
         if Qu.ndim != 2 or Qu.shape[0] != Qu.shape[1]:
             raise ModelError(f"Qu must be a square matrix, got shape {Qu.shape}")
     out = _Recorder(len(Z), n, m)
+    flags = None if angles is None else np.asarray(angles, dtype=bool)
     for k, (z, u) in enumerate(zip(Z, U)):
+        Qx = Q.at(x, u, n)
         if in_f:
             Fk = np.asarray(F_jac(x, u), dtype=float)
             Fu = np.asarray(Fu_jac(x, u), dtype=float).reshape(n, Qu.shape[0])
-            Qk = Fu @ Qu @ Fu.T + Q
+            Qk = Fu @ Qu @ Fu.T + Qx
             x = np.asarray(f(x, u), dtype=float)
         else:
             Fk = np.eye(n) if F_jac is None else np.asarray(F_jac(x), dtype=float)
             x = x.copy() if f is None else np.asarray(f(x), dtype=float)
-            Qk = Q
+            Qk = Qx
         P = Fk @ P @ Fk.T + Qk
         present = ~np.isnan(z)
         if not present.any():
             out.save(k, x, P, present)
             continue
-        Hk = _call(H_jac, x, u).reshape(m, n)[present]
-        Rk = R[np.ix_(present, present)]
-        S = Hk @ P @ Hk.T + Rk
-        K = np.linalg.solve(S.T, (P @ Hk.T).T).T
-        nu = z[present] - _call(h, x, u).reshape(m)[present]
-        x = x + K @ nu
+        Rk = R.at(x, u, m)[np.ix_(present, present)]
+        seen = None if flags is None else flags[present]
+        prior, at = x, x
+        for _ in range(iterations + 1):
+            Hk = _call(H_jac, at, u).reshape(m, n)[present]
+            S = Hk @ P @ Hk.T + Rk
+            K = np.linalg.solve(S.T, (P @ Hk.T).T).T
+            nu = _wrapped(z[present] - _call(h, at, u).reshape(m)[present], seen) \
+                - Hk @ (prior - at)
+            at = prior + K @ nu
+        x = at
         P = P - K @ Hk @ P
         out.save(k, x, P, present, nu, S)
     return out.result()
@@ -137,8 +187,19 @@ def sigma_points(x: np.ndarray, P: np.ndarray, c: float, step: int) -> np.ndarra
     return np.vstack([x, x + L.T, x - L.T])
 
 
+def _angle_mean(Y, Wm, angles):
+    """Σ Wm Y_i, the angle components through the deviations from the first point,
+    wrapped: Y_0 + Σ Wm wrap(Y_i − Y_0)."""
+    if angles is None or not np.any(angles):
+        return Wm @ Y
+    mean = Wm @ Y
+    deviations = wrap(Y[:, angles] - Y[0, angles])
+    mean[angles] = Y[0, angles] + Wm @ deviations
+    return mean
+
+
 def ukf(f, h, Q, R, x0, P0, zs, alpha=None, beta=None, kappa=None, inputs=None,
-        skip_nan: bool = True):
+        skip_nan: bool = True, angles=None, f_inputs: bool = False, m: int | None = None):
     """Unscented Kalman filter with additive noise. Defaults (None): alpha = 1, beta = 0,
     kappa = 3 − n, the paper's plain UKF with n + kappa = 3.
 
@@ -147,34 +208,43 @@ def ukf(f, h, Q, R, x0, P0, zs, alpha=None, beta=None, kappa=None, inputs=None,
     x⁻ and P⁻ = Σ Wc (·)(·)ᵀ + Q are formed and sigma points are redrawn from (x⁻, P⁻)
     (as FilterPy does); for an identity f the two coincide. Update: Ŷ = Σ Wm h(X_i),
     Pyy, Pxy from the points, Pvv = Pyy + R, K = Pxy Pvv⁻¹, x = x⁻ + K(z − Ŷ),
-    P = P⁻ − K Pvv Kᵀ. A failed Cholesky raises NumericalError."""
-    x, P, Q, R, Z, U = _setup(Q, R, x0, P0, zs, inputs, skip_nan)
-    n, m = x.shape[0], R.shape[0]
+    P = P⁻ − K Pvv Kᵀ. A failed Cholesky raises NumericalError.
+
+    ``f_inputs``: f is called as f(x, inputs[k-1]) (the row that goes with zs[k-1]).
+    Angle components (``angles``): Ŷ's through the deviations from the first sigma point,
+    Ŷ = Y_0 + Σ Wm wrap(Y_i − Y_0), the spreads wrap(Y_i − Ŷ) and ν = wrap(z − Ŷ)."""
+    x, P, Q, R, Z, U = _setup(Q, R, x0, P0, zs, inputs, skip_nan, m)
+    n = x.shape[0]
+    m = Z.shape[1]
     c, Wm, Wc = sigma_weights(n, 1.0 if alpha is None else alpha,
                               0.0 if beta is None else beta,
                               3.0 - n if kappa is None else kappa)
     out = _Recorder(len(Z), n, m)
+    flags = None if angles is None else np.asarray(angles, dtype=bool)
     for k, (z, u) in enumerate(zip(Z, U)):
+        Qx = Q.at(x, u, n)
         if f is None:
-            P = P + Q
+            P = P + Qx
             X = sigma_points(x, P, c, k + 1)
         else:
-            Xf = np.array([np.asarray(f(s), dtype=float) for s in sigma_points(x, P, c, k + 1)])
+            Xf = np.array([np.asarray(f(s, u) if f_inputs else f(s), dtype=float)
+                           for s in sigma_points(x, P, c, k + 1)])
             x = Wm @ Xf
             D = Xf - x
-            P = D.T @ (Wc[:, None] * D) + Q
+            P = D.T @ (Wc[:, None] * D) + Qx
             X = sigma_points(x, P, c, k + 1)
         present = ~np.isnan(z)
         if not present.any():
             out.save(k, x, P, present)
             continue
+        seen = None if flags is None else flags[present]
         Y = np.array([_call(h, s, u).reshape(m)[present] for s in X])
-        y_hat = Wm @ Y
-        DY, DX = Y - y_hat, X - x
-        Pvv = DY.T @ (Wc[:, None] * DY) + R[np.ix_(present, present)]
+        y_hat = _angle_mean(Y, Wm, seen)
+        DY, DX = _wrapped(Y - y_hat, seen), X - x
+        Pvv = DY.T @ (Wc[:, None] * DY) + R.at(x, u, m)[np.ix_(present, present)]
         Pxy = DX.T @ (Wc[:, None] * DY)
         K = np.linalg.solve(Pvv.T, Pxy.T).T
-        nu = z[present] - y_hat
+        nu = _wrapped(z[present] - y_hat, seen)
         x = x + K @ nu
         P = P - K @ Pvv @ K.T
         out.save(k, x, P, present, nu, Pvv)

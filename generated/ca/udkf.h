@@ -26,8 +26,8 @@
  *     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
  *     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
  *     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 8, calls 0 (flops 109, instructions 88)
- * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 3, sqrt 0, fma 4, neg 0, cmp 5, calls 0 (flops 14, instructions 15)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 4, mul 24, div 6, sqrt 0, fma 30, neg 1, cmp 8, select 2, calls 0 (flops 109, instructions 90)
+ * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 3, sub 0, mul 0, div 3, sqrt 0, fma 4, neg 0, cmp 5, select 2, calls 0 (flops 14, instructions 17)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 4, neg 0, cmp 0, calls 0 (flops 11, instructions 7)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)

@@ -26,8 +26,8 @@ status (C return value; Python raises NumericalError): 0 success
     enter 7: P is not positive semidefinite: pivot 2 of its UD factorisation is negative
     enter 8: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
     enter 9: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 8, calls 0 (flops 109, instructions 117)
-operations per call of enter (Python): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 14, instructions 19)
+operations per call of step (Python): add 35, sub 14, mul 54, div 6, sqrt 0, fma 0, neg 0, cmp 8, select 2, calls 0 (flops 109, instructions 119)
+operations per call of enter (Python): add 3, sub 4, mul 4, div 3, sqrt 0, fma 0, neg 0, cmp 5, select 2, calls 0 (flops 14, instructions 21)
 operations per call of store (Python): add 4, sub 0, mul 7, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 11, instructions 11)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -66,7 +66,7 @@ def _if_at_most(v, bound, a, b):
     if isinstance(within, np.ndarray):
         return np.where(within, a, b)
     value = a if within else b
-    counted = getattr(v, "derive_counted", None)
+    counted = getattr(v, "derive_selected", None)
     return value if counted is None else counted(value)
 
 

@@ -32,8 +32,8 @@
  *     enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
  *     enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
  *     store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 8, mul 18, div 6, sqrt 0, fma 16, neg 0, cmp 14, calls 0 (flops 78, instructions 76)
- * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 2, sqrt 0, fma 2, neg 0, cmp 10, calls 0 (flops 10, instructions 18)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 14, sub 8, mul 18, div 6, sqrt 0, fma 16, neg 0, cmp 14, select 2, calls 0 (flops 78, instructions 78)
+ * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 4, sub 0, mul 0, div 2, sqrt 0, fma 2, neg 0, cmp 10, select 2, calls 0 (flops 10, instructions 20)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 2, div 0, sqrt 0, fma 2, neg 0, cmp 4, calls 0 (flops 6, instructions 8)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)

@@ -32,8 +32,8 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     enter 13: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
     enter 14: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0
     store 15: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx..|.x..|..xx|...x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 14, calls 0 (flops 78, instructions 92)
-operations per call of enter (Python): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, calls 0 (flops 10, instructions 20)
+operations per call of step (Python): add 28, sub 10, mul 34, div 6, sqrt 0, fma 0, neg 0, cmp 14, select 2, calls 0 (flops 78, instructions 94)
+operations per call of enter (Python): add 4, sub 2, mul 2, div 2, sqrt 0, fma 0, neg 0, cmp 10, select 2, calls 0 (flops 10, instructions 22)
 operations per call of store (Python): add 2, sub 0, mul 4, div 0, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 6, instructions 10)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx..|xx..|..xx|..xx (x may be non-zero; upper triangle read and checked; others are refused)
@@ -78,7 +78,7 @@ def _if_at_most(v, bound, a, b):
     if isinstance(within, np.ndarray):
         return np.where(within, a, b)
     value = a if within else b
-    counted = getattr(v, "derive_counted", None)
+    counted = getattr(v, "derive_selected", None)
     return value if counted is None else counted(value)
 
 

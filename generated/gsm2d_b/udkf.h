@@ -23,8 +23,8 @@
  *     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
  *     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
  *     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 4, mul 9, div 3, sqrt 0, fma 8, neg 0, cmp 5, calls 0 (flops 39, instructions 36)
- * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 1, sqrt 0, fma 1, neg 0, cmp 3, calls 0 (flops 5, instructions 7)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 7, sub 4, mul 9, div 3, sqrt 0, fma 8, neg 0, cmp 5, select 1, calls 0 (flops 39, instructions 37)
+ * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 0, div 1, sqrt 0, fma 1, neg 0, cmp 3, select 1, calls 0 (flops 5, instructions 8)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 1, div 0, sqrt 0, fma 1, neg 0, cmp 0, calls 0 (flops 3, instructions 2)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)

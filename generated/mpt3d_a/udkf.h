@@ -38,8 +38,8 @@
  *     enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
  *     enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
  *     store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 12, mul 27, div 9, sqrt 0, fma 24, neg 0, cmp 27, calls 0 (flops 117, instructions 120)
- * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 0, mul 0, div 3, sqrt 0, fma 3, neg 0, cmp 21, calls 0 (flops 15, instructions 33)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 21, sub 12, mul 27, div 9, sqrt 0, fma 24, neg 0, cmp 27, select 3, calls 0 (flops 117, instructions 123)
+ * operations per call of enter (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 0, mul 0, div 3, sqrt 0, fma 3, neg 0, cmp 21, select 3, calls 0 (flops 15, instructions 36)
  * operations per call of store (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 0, mul 3, div 0, sqrt 0, fma 3, neg 0, cmp 12, calls 0 (flops 9, instructions 18)
  * P0 pattern declared: zero
  * P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)

@@ -38,8 +38,8 @@ status (C return value; Python raises NumericalError, or PatternError for P's pa
     enter 19: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
     enter 20: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0
     store 21: U has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the UD filter; strictly upper triangle read: xx....|.x....|..xx..|...x..|....xx|.....x); generate with --P0-pattern dense for code that accepts any P0
-operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 27, calls 0 (flops 117, instructions 144)
-operations per call of enter (Python): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, calls 0 (flops 15, instructions 36)
+operations per call of step (Python): add 42, sub 15, mul 51, div 9, sqrt 0, fma 0, neg 0, cmp 27, select 3, calls 0 (flops 117, instructions 147)
+operations per call of enter (Python): add 6, sub 3, mul 3, div 3, sqrt 0, fma 0, neg 0, cmp 21, select 3, calls 0 (flops 15, instructions 39)
 operations per call of store (Python): add 3, sub 0, mul 6, div 0, sqrt 0, fma 0, neg 0, cmp 12, calls 0 (flops 9, instructions 21)
 P0 pattern declared: zero
 P0 accepted: exactly those zero outside P's pattern xx....|xx....|..xx..|..xx..|....xx|....xx (x may be non-zero; upper triangle read and checked; others are refused)
@@ -84,7 +84,7 @@ def _if_at_most(v, bound, a, b):
     if isinstance(within, np.ndarray):
         return np.where(within, a, b)
     value = a if within else b
-    counted = getattr(v, "derive_counted", None)
+    counted = getattr(v, "derive_selected", None)
     return value if counted is None else counted(value)
 
 

@@ -23,8 +23,8 @@ status (C return value; Python raises NumericalError): 0 success
     step 4: innovation variance 1 of a scalar update is not positive (D or R not positive)
     enter 5: P is not positive semidefinite: pivot 1 of its UD factorisation is negative
     enter 6: P is not positive semidefinite: pivot 0 of its UD factorisation is negative
-operations per call of step (Python): add 14, sub 5, mul 17, div 3, sqrt 0, fma 0, neg 0, cmp 5, calls 0 (flops 39, instructions 44)
-operations per call of enter (Python): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 3, calls 0 (flops 5, instructions 8)
+operations per call of step (Python): add 14, sub 5, mul 17, div 3, sqrt 0, fma 0, neg 0, cmp 5, select 1, calls 0 (flops 39, instructions 45)
+operations per call of enter (Python): add 2, sub 1, mul 1, div 1, sqrt 0, fma 0, neg 0, cmp 3, select 1, calls 0 (flops 5, instructions 9)
 operations per call of store (Python): add 1, sub 0, mul 2, div 0, sqrt 0, fma 0, neg 0, cmp 0, calls 0 (flops 3, instructions 3)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -62,7 +62,7 @@ def _if_at_most(v, bound, a, b):
     if isinstance(within, np.ndarray):
         return np.where(within, a, b)
     value = a if within else b
-    counted = getattr(v, "derive_counted", None)
+    counted = getattr(v, "derive_selected", None)
     return value if counted is None else counted(value)
 
 

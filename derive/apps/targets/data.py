@@ -89,7 +89,7 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         case = sensors_case(model, name, steps, seed, opts, unit)
         reference = {"xs": np.asarray(case.reference.xs, dtype=float),
                      "Ps": np.asarray(case.reference.Ps, dtype=float).reshape(
-                         steps, model.n, model.n)}
+                         steps, model.n_tangent, model.n_tangent)}
         tolerance = case.bound.value if case.bound is not None else case.tolerance
         return VerificationData(model.name, name, steps,
                                 {k: np.asarray(v, dtype=float)
@@ -126,7 +126,8 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         tolerance = bound.value
     reference = {"xs": np.asarray(xs_ref, dtype=float)}
     if Ps_ref is not None:
-        reference["Ps"] = np.asarray(Ps_ref, dtype=float).reshape(steps, model.n, model.n)
+        nt = model.n_tangent
+        reference["Ps"] = np.asarray(Ps_ref, dtype=float).reshape(steps, nt, nt)
     return VerificationData(model.name, name, steps,
                             {k: np.asarray(v, dtype=float) for k, v in values.items()},
                             reference, float(tolerance), bound)
