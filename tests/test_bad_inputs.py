@@ -121,6 +121,9 @@ MODEL_FILE_ROWS: list[Row] = [
      ["matrix R must be positive definite", "smallest eigenvalue is -0.9"]),
     ("Q not PSD", edit('Q = "sq2"', 'Q = "-sq2"'), ["kf"], {}, [], MatrixPropertyError,
      ["matrix Q must be positive semidefinite", "smallest eigenvalue is -0.01"]),
+    ("P0 not PSD", edit("P0 = [[1, 0], [0, 1]]", "P0 = [[-1, 0], [0, -1]]"), ["kf"], {}, [],
+     MatrixPropertyError, ["matrix P0 must be positive semidefinite",
+                           "smallest eigenvalue is -1"]),
     # symbols
     ("undeclared symbol", edit('F = [[1, "dt"], [0, 1]]', 'F = [[1, "dtt"], [0, 1]]'),
      ["kf"], {}, [], ExpressionError,
@@ -371,6 +374,8 @@ def axis(**kw):
                 H=[[1, 0]], Q=[[q]], R=[[rr]], G=[[dt / 2], [1]],
                 values={"dt": 1, "q": 0.01, "rr": 0.1})
     args.update(kw)
+    valued = {getattr(k, "name", k) for k in args.get("values") or {}}
+    args.setdefault("parameters", [nm for nm in ("dt", "q", "rr") if nm not in valued])
     return LinearModel(**args)
 
 
@@ -410,6 +415,9 @@ API_ROWS = [
      "matrix R must be symmetric"),
     ("P0 not symmetric", lambda: axis(P0=[[1, 1], [0, 1]]), MatrixPropertyError,
      "matrix P0 must be symmetric"),
+    ("P0 not PSD", lambda: axis(P0=[[-1, 0], [0, -1]]), MatrixPropertyError,
+     "matrix P0 must be positive semidefinite at the given values; its smallest eigenvalue "
+     "is -1"),
     ("R singular at the values", lambda: axis(values={"dt": 1, "q": 0.01, "rr": 0}),
      MatrixPropertyError, "matrix R must be positive definite at the given values"),
     ("R indefinite", lambda: axis(R=[[-rr]]), MatrixPropertyError,
@@ -514,7 +522,8 @@ def collision_model(names):
     c = sympy.Symbol(names["valued"])
     return LinearModel(names["name"], names["states"], names["measurements"],
                        [[1, k], [0, 1]], [[1, 0]], [[p]], [[c]], G=[[k / 2], [1]],
-                       values={names["valued"]: 0.1}, P0=np.eye(2).tolist())
+                       values={names["valued"]: 0.1}, P0=np.eye(2).tolist(),
+                       parameters=list(names["parameters"]))
 
 
 @pytest.mark.parametrize("colliding", COLLIDING, ids=[c["name"] for c in COLLIDING])
@@ -531,7 +540,8 @@ def test_names_colliding_with_generated_identifiers_are_never_emitted(tmp_path, 
             model = LinearModel(model.name, model.states, model.measurements, model.F,
                                 model.H, [[sympy.Symbol(names["parameters"][1]), 0],
                                           [0, sympy.Symbol(names["parameters"][1])]],
-                                model.R, values={names["valued"]: 0.1}, P0=np.eye(2).tolist())
+                                model.R, values={names["valued"]: 0.1}, P0=np.eye(2).tolist(),
+                                parameters=list(names["parameters"]))
         generated = load_generated(model, filter_name, options)
         zs = np.sin(np.arange(40.0))[:, None]
         zs[5] = np.nan if options else zs[5]

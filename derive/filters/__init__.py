@@ -17,6 +17,7 @@ import pkgutil
 from .. import progress, system_checks
 from ..errors import FilterError, SteadyStateError
 from ..options import use_filters, validate
+from ..precision import DOUBLE, Precision, PrecisionError, precision
 from ..schedule import scheduled_unit
 from .spec import FilterSpec
 
@@ -152,6 +153,8 @@ def derive_unit(model, name: str, options=None):
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "
                         f"{model.m} measurements)...")
+    if typed.precision != DOUBLE.name:
+        _check_constants(model, precision(typed.precision))
     unit = f.derive(model, f, typed)
     if typed.get("latency_schedule"):
         unit = scheduled_unit(unit)
@@ -160,3 +163,30 @@ def derive_unit(model, name: str, options=None):
 
 __all__ = ["BATCH_FILTERS", "FILTERS", "MISSING_FILTERS", "FilterSpec", "available",
            "derive_unit", "kind", "names", "spec", "why_not"]
+
+
+def _check_constants(model, real: Precision) -> None:
+    """Refuse, before deriving, a parameter value or a matrix entry at the given values
+    (G Q G^T too) that ``real`` cannot hold, naming it: the refusal of a derived
+    constant alone (2.5e-41, from sq2 = 1e-40) named neither."""
+    named = [(f"parameter {name}", value) for name, value in model.values.items()]
+    matrices = (("F", "G", "H", "Q", "R", "B", "D", "GQGt") if model.kind == "linear"
+                else ("Q", "R", "Qu"))
+    for which in matrices:
+        mat = model.matrix(which) if model.kind == "linear" else getattr(model, which, None)
+        if mat is None:
+            continue
+        mat = model.subs(mat)
+        label = "G Q G^T" if which == "GQGt" else which
+        named += [(f"matrix {label}[{i}][{j}]", mat[i, j])
+                  for i in range(mat.rows) for j in range(mat.cols)
+                  if mat[i, j].is_number and mat[i, j] != 0]
+    for what, value in named:
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            continue           # not a real number: the model's own checks say so
+        try:
+            real.literal(number)
+        except PrecisionError as exc:
+            raise PrecisionError(f"model {model.name!r}: {what} = {number!r}: {exc}") from None
