@@ -17,7 +17,7 @@ would reorder their lanes):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import replace
 
 import sympy
@@ -60,28 +60,30 @@ class RowBuilder:
         self.items.append(Check(value, message))
 
     def row(self, base: Lanes | None, terms: Sequence[Term],
-            read_from: int = 0) -> list[sympy.Expr]:
+            read: Collection[int] | None = None) -> list[sympy.Expr]:
         """The lanes ``base[l] + sum sign * coef * sources[l]`` (see LaneSum), chunk by
         chunk; a row that is its base alone is the base's atoms.
 
-        ``read_from``: the first lane anything reads (a row of a symmetric result's upper
-        triangle starts at its diagonal): the chunk holding it, when not all of its lanes
-        are read, is scalar statements instead (a chunk computes and counts every lane;
-        the lanes before ``read_from`` are then left out with what nothing reads).
-        ins_gnss: predict 2574 -> 2437 flops, update_gnss 2840 -> 2552, the same time."""
+        ``read``: the lanes anything reads (None: all of them; a row of a symmetric
+        result's upper triangle starts at its diagonal, and the EKF predict takes the
+        entries of F's unit rows otherwise): a chunk that holds lanes read and lanes not
+        read is scalar statements instead (a chunk computes and counts every lane; the
+        lanes not read are then left out with what nothing reads). ins_gnss: predict
+        2574 -> 2249 flops, update_gnss 2840 -> 2552, the same time."""
         terms = [(sign, coef, tuple(src)) for sign, coef, src in terms if coef != 0]
         if not terms:
             return list(base)
         length = len(terms[0][2])
+        wanted = set(range(length)) if read is None else set(read)
         out: list[sympy.Expr] = []
         for start, stop in chunk_bounds(length, self.lanes):
             lanes = None if base is None else tuple(base[start:stop])
             if lanes is not None and all(a == 0 for a in lanes):
                 lanes = None  # nothing to add in this chunk
             form = LaneSum(lanes, tuple((s, c, src[start:stop]) for s, c, src in terms))
-            if stop - start < self.lanes or (start < read_from < stop and
-                                             stop - read_from < self.lanes):
-                # the last, shorter chunk, or one read from a later lane: scalar statements
+            some = len(wanted.intersection(range(start, stop)))
+            if stop - start < self.lanes or 0 < some < stop - start:
+                # the last, shorter chunk, or one read in part: scalar statements
                 out += [self.scalar(form.expr(lane)) for lane in range(stop - start)]
                 continue
             targets = tuple(self._temp() for _ in range(start, stop))

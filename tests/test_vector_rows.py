@@ -214,9 +214,9 @@ def test_counts_are_the_lanes_executed_and_the_c_text_lane_by_lane():
 
 @pytest.mark.parametrize("read_from, chunks", [(0, 2), (1, 1), (3, 1), (4, 1), (6, 0)])
 def test_a_row_read_from_inside_a_chunk_computes_that_chunk_as_scalars(read_from, chunks):
-    """RowBuilder.row(read_from=r), as a row of a symmetric result's upper triangle: the
-    chunk holding lane r, unless r is its first lane, is scalar statements (lanes before r
-    left out); the chunks after it stay chunks."""
+    """RowBuilder.row(read=lanes r on), as a row of a symmetric result's upper triangle:
+    the chunk holding lane r, unless r is its first lane, is scalar statements (lanes
+    before r left out); the chunks after it stay chunks."""
     inputs = [Port("P", (8, 8)), Port("c", (1,))]
     shell = Program("t", inputs, [Port("y", (8,))])
     prologue = Program("t", inputs, [Port("s", (1,))])
@@ -225,7 +225,7 @@ def test_a_row_read_from_inside_a_chunk_computes_that_chunk_as_scalars(read_from
     rows = RowBuilder(shell, prologue, 4)
     base = [shell.stored_element("P", 0, j) for j in range(8)]
     source = [shell.stored_element("P", 1, j) for j in range(8)]
-    y = rows.row(base, [(1, prologue.results["s"][0], source)], read_from=read_from)
+    y = rows.row(base, [(1, prologue.results["s"][0], source)], read=range(read_from, 8))
     program = rows.finish({"y": [y[j] if j >= read_from else sympy.S.Zero for j in range(8)]})
     assert len(program.rows) == chunks
     assert all(len(chunk.targets) == 4 for chunk in program.rows)

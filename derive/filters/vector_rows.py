@@ -15,9 +15,10 @@ consecutive in memory, so a chunk of it is one load):
 
 Each row is computed in chunks of :data:`~derive.rows.VECTOR_LANES` lanes, and only the
 chunks whose lanes the result reads are kept (derive.row_program): lanes of a kept chunk
-that nothing reads are computed and counted all the same, except that a row of the upper
-triangle computes the lanes of a chunk it reads only from its diagonal on (rows 1 to 3 of
-each 4 x 4 diagonal block) as scalar statements.
+that nothing reads are computed and counted all the same, except that a chunk read in part
+is scalar statements: in a row of the upper triangle, the chunk holding the diagonal (rows
+1 to 3 of each 4 x 4 diagonal block), and in predict the chunks that also hold columns of
+F's unit rows (those entries are ``A[r, j] + Q[r, c]``, not the lanes).
 """
 
 from __future__ import annotations
@@ -95,7 +96,8 @@ def vector_predict(parts, model, inputs: list[Port], outputs: list[Port], doc: s
             continue
         terms = [(k, Fa[r][k]) for k in range(n) if Fa[r][k] != 0]
         base = Qa[r] if any(e != 0 for e in Qa[r]) else None
-        B[r] = rows.row(base, [(*_signed(c), a_column(k)) for k, c in terms], read_from=r)
+        B[r] = rows.row(base, [(*_signed(c), a_column(k)) for k, c in terms],
+                        read=[c for c in range(r, n) if unit[c] is None])
     new = [[sympy.S.Zero] * n for _ in range(n)]
     for r in range(n):
         for c in range(r, n):
@@ -189,7 +191,7 @@ def vector_update(parts, model, meas, name: str, inputs: list[Port], outputs: li
     x_prior = list(x)
     x_new = rows.row(x_prior, [(-1, weights[i], columns[i]) for i in range(m)])
     P_rows = [rows.row(p_row(a), [(1, gains[i][a], columns[i]) for i in range(m)],
-                       read_from=a) for a in range(n)]
+                       read=range(a, n)) for a in range(n)]
     P_new = [[P_rows[min(a, b)][max(a, b)] for b in range(n)] for a in range(n)]
     extra = {}
     if meas.gate is not None:

@@ -35,7 +35,7 @@
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 89, sub 8, mul 147, div 0, sqrt 0, fma 1494, neg 29, cmp 1, calls 0 (flops 3232, instructions 1768)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 57, sub 8, mul 115, div 0, sqrt 0, fma 1432, neg 29, cmp 1, calls 0 (flops 3044, instructions 1642)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
  * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 30, div 2, sqrt 1, fma 327, neg 24, cmp 1, calls 0 (flops 689, instructions 387)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
