@@ -12,6 +12,7 @@ H, R, D; nonlinear: h, R) in declaration order take the place of the stacked H (
 
 from __future__ import annotations
 
+import copy
 import functools
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -371,8 +372,24 @@ class _Model:
         """``expr`` with every valued symbol replaced by its exact value."""
         return expr.xreplace(self._subs) if self._subs else expr
 
-    def parameter_values(self, params=None) -> dict[sympy.Symbol, sympy.Expr]:
-        """Values for the free parameters from ``params`` (name -> number); all required."""
+    def at_values(self, params) -> _Model:
+        """This model with free parameters given values (name -> number): a copy in which
+        they are constants, as if ``values`` had held them (derive verify runs a model at
+        its parameters' examples so). The other free parameters stay free, in order."""
+        extra = self.parameter_values(params, partial=True)
+        valued = copy.copy(self)
+        valued.values = dict(sorted({**self.values,
+                                     **{s.name: v for s, v in extra.items()}}.items()))
+        valued.parameters = tuple(s for s in self.parameters if s not in extra)
+        valued.examples = {k: v for k, v in self.examples.items()
+                           if k not in {s.name for s in extra}}
+        valued._subs = {**self._subs, **extra}
+        return valued
+
+    def parameter_values(self, params=None, partial: bool = False
+                         ) -> dict[sympy.Symbol, sympy.Expr]:
+        """Values for the free parameters from ``params`` (name -> number); all required
+        unless ``partial``."""
         table = SymbolTable.known(self._by_name.values(), f"model {self.name!r}")
         given = normalize_values(params, table, "params")
         for nm in given:
@@ -380,7 +397,7 @@ class _Model:
                 raise SymbolError(f"{nm!r} is not a free parameter of model {self.name!r} "
                                   f"(free: {[p.name for p in self.parameters]})")
         missing = [p.name for p in self.parameters if p.name not in given]
-        if missing:
+        if missing and not partial:
             raise SymbolError(f"model {self.name!r} needs values for free parameters {missing}")
         for k, v in given.items():  # a declared domain refuses a value as generated code does
             check_value(self._by_name[k], v, f"model {self.name!r}")

@@ -11,7 +11,8 @@ and the parsed arguments of the CLI are validated here, once, into these types
 
 Which filters take an option follows their specs (derive.filters.spec.FilterSpec): a
 filter takes the options of its options class (``FilterSpec.options``), a shared one only
-when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``).
+when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``,
+``loglik``).
 The registry hands its specs over once it is built (:func:`use_filters`, called by
 derive.filters), so this module names no filter and imports nothing from derive.filters.
 
@@ -115,6 +116,11 @@ class SharedOptions:
     missing: bool = option(
         False, flag="--missing", kind=bool, needs="missing",
         help="a NaN in z skips that measurement")
+    loglik: bool = option(
+        False, flag="--loglik", kind=bool, needs="loglik",
+        help="run also returns each step's Gaussian log-likelihood of the innovation "
+             "(lls; C: may be NULL), from the factors of S the update solves with; no "
+             "run_tracks")
     run_tracks: bool = option(
         True, flag="--no-run-tracks", kind=bool, needs="batch",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
@@ -422,6 +428,16 @@ def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: s
         parts.append(spec.flag if spec.kind is bool else
                      f"{spec.flag} {value if spec.kind is str else _short(value)}")
     return " ".join(parts)
+
+
+def python_command(model, name: str, options: SharedOptions, out: str,
+                   lang: str = "all") -> str:
+    """The Python call that regenerates filter ``name``'s files for ``model``, a model
+    object built in Python (no catalog name or file names it, so no command line does)."""
+    changed = options.changed()
+    extra = f", options={changed!r}" if changed else ""
+    return (f"derive.generate(model, {name!r}, lang={lang!r}, out={out!r}{extra}), model "
+            f"the {type(model).__name__} {model.name!r} built in Python")
 
 
 # -- messages ---------------------------------------------------------------------------------

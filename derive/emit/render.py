@@ -461,17 +461,21 @@ def render_python(unit: Unit) -> dict[str, str]:
         context["enter_line"] = (f"{names} = {enter}({', '.join(_flat_start(unit))})"
                                  if "enter" in lowered else "")
         stores = []
+        step_stored = [s["out"] for s in stored_outputs(unit) if s["step"]]
         for s in stored_outputs(unit):
             if s["out"] in by_output:
                 stores.append({**s, "value": by_output[s["out"]], "call": "",
                                "shape": ports[by_output[s["out"]]].shape})
+            elif s["step"]:  # a step output no carried port holds, named by its port
+                stores.append({**s, "value": s["out"], "call": "", "shape": s["dims"]})
             else:  # computed from the carried state by the store program
                 value = f"{s['array']}_k"
                 store = python_printer.flat_name(lowered["store"])
                 stores.append({**s, "value": value, "call": f"{value} = {store}({names})",
                                "shape": lowered["store"].outputs[0].shape})
         context["stores"] = stores
-        if "enter" not in lowered and "store" not in lowered:
+        context["loop_targets"] = ", ".join([s["name"] for s in state] + step_stored)
+        if "enter" not in lowered and "store" not in lowered and not step_stored:
             stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
                            for s in stored_outputs(unit))
             context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
@@ -527,9 +531,11 @@ def stored_outputs(unit: Unit) -> list[dict]:
     """run's per-step outputs: array name, the step's output port it stores, elements per
     step, optional (C: may be NULL)."""
     sizes = run_sizes(unit)
+    step_outputs = {out for _, out, _, _ in unit.extra_stores}
     return [{"array": array, "out": out, "optional": optional,
-             "size": int(np.prod([sizes[d] for d in dims]))}
-            for array, out, dims, optional in unit.run.stores]
+             "size": int(np.prod([sizes[d] for d in dims], dtype=int)),
+             "step": out in step_outputs, "dims": dims}
+            for array, out, dims, optional in unit.stores]
 
 
 def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
@@ -611,7 +617,10 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     for s in optional_stores:  # computed by the store program, written into run's row k
         s["call"] = (_program_call(prefix, lowered["store"],
                                    {s["out"]: f"{s['array']} + k * {s['size']}"})
-                     if s["out"] not in carried_out else [])
+                     if s["out"] not in carried_out and not s["step"] else [])
+    # the step's outputs no carried port holds that run stores: local arrays of their names
+    step_locals = [f"{real.c_type} {s['out']}[{s['size']}];" for s in optional_stores
+                   if s["step"]]
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""
@@ -728,6 +737,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         # the per-step inputs' rows alone (zk), for a template that points pk itself
         "input_rows": step_rows[:len(unit.step_inputs)],
         "unused": unused,
+        "step_locals": step_locals,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,
         "n": unit.n,

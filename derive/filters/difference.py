@@ -46,7 +46,10 @@ class DifferenceForm:
     symbols (the nodes of g at x), evaluated once; ``values``: g(x) over those.
     ``steps``: pairs over the base symbols, the model's symbols, ``deltas`` and earlier
     step symbols (the nodes' differences), evaluated once per δ; ``differences``: D.
-    ``fallbacks``: the nodes no rule applies to, as text, in the order met.
+    ``fallbacks``: the nodes no rule applies to, as text, in the order met. ``turns``: the
+    step symbols of atan2's rule, which are 0 where its coordinates do not move (a
+    numerator x D[y] - y D[x] of 0 there, over x x' + y y' = x² + y² >= 0: atan2(0, that)
+    is 0; :func:`unmoved_turn`).
     """
 
     deltas: tuple[sympy.Symbol, ...]
@@ -55,6 +58,7 @@ class DifferenceForm:
     steps: tuple[tuple[sympy.Symbol, sympy.Expr], ...]
     differences: tuple[sympy.Expr, ...]
     fallbacks: tuple[str, ...]
+    turns: frozenset[sympy.Symbol] = frozenset()
 
     def expanded(self) -> tuple[list[sympy.Expr], list[sympy.Expr]]:
         """(g(x), D) with every base and step symbol substituted back (for checks)."""
@@ -74,6 +78,7 @@ class _Builder:
         self.base_pairs: list[tuple[sympy.Symbol, sympy.Expr]] = []
         self.step_pairs: list[tuple[sympy.Symbol, sympy.Expr]] = []
         self.fallbacks: list[str] = []
+        self.turns: set[sympy.Symbol] = set()
         self._bases: dict[sympy.Expr, sympy.Expr] = {}
         self._diffs: dict[sympy.Expr, sympy.Expr] = {}
         self._base_names = sympy.numbered_symbols("_at_x", real=True)
@@ -132,6 +137,8 @@ class _Builder:
             return self.delta_of[node]
         if node not in self._diffs:
             self._diffs[node] = self._step_let(self._rule(node))
+            if isinstance(node, sympy.atan2):
+                self.turns.add(self._diffs[node])
         return self._diffs[node]
 
     def _rule(self, node: sympy.Expr) -> sympy.Expr:
@@ -195,7 +202,15 @@ def difference_form(values: Iterable[sympy.Expr], states: Sequence[sympy.Symbol]
     bases = [builder.base(e) for e in exprs]
     return DifferenceForm(deltas, tuple(builder.base_pairs), tuple(bases),
                           tuple(builder.step_pairs), tuple(differences),
-                          tuple(dict.fromkeys(builder.fallbacks)))
+                          tuple(dict.fromkeys(builder.fallbacks)), frozenset(builder.turns))
 
 
-__all__ = ["DifferenceForm", "difference_form"]
+def unmoved_turn(form: DifferenceForm, symbol: sympy.Symbol, value: sympy.Expr) -> sympy.Expr:
+    """``value`` (step ``symbol``'s expression at one δ), or 0 where it is atan2's turn
+    with a numerator that δ made 0 (its coordinates do not move: ``DifferenceForm.turns``)."""
+    if symbol in form.turns and isinstance(value, sympy.atan2) and value.args[0] == 0:
+        return sympy.S.Zero
+    return value
+
+
+__all__ = ["DifferenceForm", "difference_form", "unmoved_turn"]

@@ -26,8 +26,9 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
-from ..errors import OptionError
+from ..errors import OptionError, VerificationError
 from ..options import ExtendedOptions
+from ..reference.likelihood import innovations_loglik
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -131,8 +132,10 @@ def ekf_update_stage(model, iterations: int = 0) -> Update:
     ``iterations``: the iterated EKF's relinearisations (the module docstring)."""
     parts = ekf_update_parts(model)
 
-    def update(prog, mapping, meas, x, P, z):
+    def update(prog, mapping, meas, x, P, z, loglik=False):
         values, H, R = parts(prog, mapping, meas, x)
+        if meas.sequential and loglik:
+            raise OptionError("option 'loglik' is not taken with sequential updates")
         if meas.sequential:
             innovation = wrapped(prog, staging.sub(prog, z, values), meas.angles)
             x_new, P_new, gated = sequential_update(prog, x, P, H, R, innovation, meas.gate,
@@ -155,9 +158,10 @@ def ekf_update_stage(model, iterations: int = 0) -> Update:
                 staged.append(nu)
                 return nu
 
-            x_new, P_new, gated = kalman_update(prog, x, P, PHt, S, innovation, meas.gate)
+            x_new, P_new, gated, *ll = kalman_update(prog, x, P, PHt, S, innovation,
+                                                     meas.gate, loglik)
             at = x_new
-        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ())
+        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ()) + tuple(ll)
 
     return update
 
@@ -168,6 +172,9 @@ def derive_unit(model, spec, options):
     sensors, derive.filters.sensors)."""
     check_nonlinear(model, spec.name)
     iterations = options.iterations
+    if options.loglik and (uses_sensor_run(model, options) or iterations):
+        raise OptionError("option 'loglik' is not taken with several sensors, gating, "
+                          "update-first (the run kind sensors) or iterations")
     if uses_sensor_run(model, options) or model.unit_norm:
         if model.state_noise:
             raise OptionError(f"model {model.name!r}: a Q or R that depends on the state or "
@@ -236,19 +243,37 @@ def reference(model, data, options):
         res = sensors_reference(model, options, {IMPLICIT_SENSOR: scenario.zs}, scenario.us,
                                 None, scenario.x0, scenario.P0)
         return res.xs, res.Ps
+    res = _reference_result(model, scenario, fns, options)
+    return res.xs, res.Ps
+
+
+def _reference_result(model, scenario, fns, options):
+    """derive.reference.ekf's NonlinearResult on the scenario; an identity f as None;
+    angles, a state-dependent Q or R and the iterations as the unit's."""
     identity = list(model.subs(model.f)) == list(model.state_symbols)
     f, F = (None, None) if identity else (fns["f"], fns["F"])
     process = {"Fu_jac": fns["Fu"], "Qu": fns["Qu"]} if model.f_inputs else {}
-    res = numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
-                              scenario.P0, scenario.zs, inputs=list(scenario.us),
-                              skip_nan=False, angles=model.angle_rows(),
-                              iterations=options.iterations, m=model.m, **process)
-    return res.xs, res.Ps
+    return numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
+                               scenario.P0, scenario.zs, inputs=list(scenario.us),
+                               skip_nan=False, angles=model.angle_rows(),
+                               iterations=options.iterations, m=model.m, **process)
+
+
+def loglik_reference(model, data, options):
+    """(each step's log-likelihood of the reference EKF's recorded innovations, its scale),
+    ``data`` as :func:`reference` takes it (a model whose x is renormalised has none)."""
+    scenario, fns = data
+    if model.unit_norm:
+        raise VerificationError(f"no reference log-likelihood for {model.name!r}, whose "
+                                "state is renormalised after every update")
+    res = _reference_result(model, scenario, fns, options)
+    return innovations_loglik(res.innovations, res.innovation_covariances, scenario.zs)
 
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
     options=ExtendedOptions, covariance=True, inputs=True, sensors=True, vector_rows=True,
+    loglik=loglik_reference,
     extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
     listing=100,

@@ -37,6 +37,7 @@ from ..model import SensorGroup, sequential_problem
 from ..program import Program
 from ..reference import sensors as reference
 from ..symbols import jacobian
+from .common import gaussian_loglik
 
 IMPLICIT_SENSOR = "all"
 """The name of the one sensor of a model that declares none (all its measurements)."""
@@ -123,21 +124,25 @@ def update_forms(model, groups, options) -> dict[str, str]:
     return forms
 
 
-def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None):
+def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None,
+                  loglik: bool = False):
     """``K = P H^T S^-1``, ``x + K nu``, ``P - K (P H^T)^T`` (upper triangle) through
     ``S = L D L^T`` without the back substitution: with ``Y = L^-1 (P H^T)^T`` and
     ``Z = D^-1 Y``, ``K (P H^T)^T = Z^T Y`` and ``K nu = Z^T L^-1 nu``. Returns
     ``(x_new, P_new, ())``, or with a ``threshold`` the gated update and ``(nis,
     applied)``: x and P unchanged when ``nis = (L^-1 nu)^T D^-1 (L^-1 nu)`` exceeds it.
     ``innovation_of()`` stages nu (after the gain's factors, in the papers' order, when
-    ungated)."""
+    ungated).  ``loglik`` (ungated): ``(x_new, P_new, (), ll)``, ll the log-likelihood of
+    nu from the same pivots and ``L^-1 nu`` (derive.filters.common.gaussian_loglik)."""
     n = PHt.rows
     if threshold is None:
-        L, Y, Z = staging.ldl_forward(prog, S, staging.transpose(PHt), name="S")
+        L, pivots, Y, Z = staging.ldl_forward_pivots(prog, S, staging.transpose(PHt),
+                                                     name="S")
         weights = staging.forward_substitute(prog, L, innovation_of())  # L^-1 nu
         x_new = staging.add(prog, x, staging.matmul(prog, Z.T, weights))
         ZtY = staging.matmul(prog, Z.T, Y, symmetric_result=True)
-        return x_new, staging.sub(prog, P, ZtY, symmetric_result=True), ()
+        ll = (gaussian_loglik(prog, pivots, weights),) if loglik else ()
+        return (x_new, staging.sub(prog, P, ZtY, symmetric_result=True), ()) + ll
     m = PHt.cols
     innovation = innovation_of()
     L, Y, Z = staging.ldl_forward(prog, S, staging.transpose(PHt).row_join(innovation),

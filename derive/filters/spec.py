@@ -71,6 +71,10 @@ class FilterSpec:
     ``covariance``: it carries P, so P0's declared pattern shapes its code (takes the
     option ``P0_pattern``).
     ``missing``: takes the option ``missing`` (NaN-marked absent measurements).
+    ``loglik``: ``loglik(model, data, options) -> (lls, scales)``, the NumPy reference of
+    each step's log-likelihood of the innovation and the scale its error is relative to
+    (derive.reference.likelihood.loglik_scale; ``data`` as ``reference`` takes it); a
+    filter with one takes the option ``loglik`` (run stores lls).
     ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
     option ``run_tracks``).
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
@@ -115,6 +119,7 @@ class FilterSpec:
     steady: bool = False
     covariance: bool = False
     missing: bool = False
+    loglik: Callable | None = None
     batch: bool = False
     inputs: bool = False
     sensors: bool = False

@@ -48,7 +48,7 @@ from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
 from ..statements import substitute
-from .difference import DifferenceForm, difference_form
+from .difference import DifferenceForm, difference_form, unmoved_turn
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -161,7 +161,7 @@ def stage_differences(prog, form: DifferenceForm, subs: dict,
     from :func:`stage_values`)."""
     subs = {**subs, **dict(zip(form.deltas, delta))}
     for sym, expr in form.steps:
-        subs[sym] = _signed_let(prog, substitute(expr, subs))
+        subs[sym] = _signed_let(prog, unmoved_turn(form, sym, substitute(expr, subs)))
     return sympy.Matrix([_signed_let(prog, substitute(d, subs)) for d in form.differences])
 
 

@@ -11,7 +11,7 @@ from ..discretize import METHODS
 from ..options import SharedOptions
 from ..program import ZERO, Check
 from ..runs.unit import SensorSlot, Unit
-from .common import pattern_text
+from .common import LOGLIK_FACT, LOGLIK_STORE, pattern_text
 from .spec import FilterSpec
 
 
@@ -49,7 +49,9 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N;
     ``lookahead``: the two-step map of an affine step (derive.emit.lookahead);
     ``carried``: the unit's own carried (input port, output port) pairs (default: the run
-    kind's), entered by an ``enter`` program and stored by a ``store`` program.
+    kind's), entered by an ``enter`` program and stored by a ``store`` program.  With the
+    option ``loglik`` the step's last output ``ll`` is stored by run per step (``lls``;
+    no run_tracks).
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
     batch function applies; the run kind its carried state.  Which P0 the code accepts is
@@ -68,6 +70,10 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         text = _fmt(value)
         facts.append(f"{key} = {text}" if len(text) <= 300 else
                      f"{key}: {np.asarray(value).shape} constants baked into the code")
+    # the option loglik: the step's output ll, stored per step by run (not run_tracks)
+    loglik = bool(options.get("loglik"))
+    if loglik:
+        facts.append(LOGLIK_FACT)
     unit_options = {}
     if window is not None:
         unit_options["window"] = window
@@ -76,7 +82,8 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     return Unit(
         model=model.name,
         filter=spec.name,
-        **spec.unit_fields(window=window, run_tracks=options.run_tracks),
+        **spec.unit_fields(window=window, run_tracks=options.run_tracks and not loglik),
+        extra_stores=(LOGLIK_STORE,) if loglik else (),
         lookahead=lookahead,
         n=model.n,
         m=model.m,

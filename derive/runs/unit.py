@@ -169,6 +169,9 @@ class Unit:
     derive.precision); the Python is double in either.  ``nt``: P's dimension (0: n),
     fewer than n for a model with quaternion states, whose covariance lives in the
     tangent space (x is stored with n numbers, P is nt x nt; :func:`space`).
+    ``extra_stores``: per-step outputs run stores besides its kind's (as
+    ``RunKind.stores``), each an output of ``step`` after the kind's (the log-likelihood
+    ``ll`` into ``lls``).
     """
 
     model: str
@@ -197,6 +200,7 @@ class Unit:
     precision: str = "double"
     run_function: bool = True
     nt: int = 0
+    extra_stores: tuple[tuple[str, str, tuple[str, ...], bool], ...] = ()
 
     def __post_init__(self) -> None:
         if not self.nt:
@@ -249,6 +253,11 @@ class Unit:
     def run(self) -> RunKind:
         """The run-loop kind's entry."""
         return RUN_KINDS[self.run_kind]
+
+    @property
+    def stores(self) -> tuple[tuple[str, str, tuple[str, ...], bool], ...]:
+        """run's per-step outputs: its kind's, then the unit's ``extra_stores``."""
+        return self.run.stores + self.extra_stores
 
     @property
     def window(self) -> int:
@@ -312,6 +321,7 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     outputs = [out for _, out in unit.carried]
     if "store" not in unit.programs:  # else the store program computes the rest
         outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
+    outputs += [port for _, port, _, _ in unit.extra_stores]
     # then the ports the run's work rows hold that the step writes (a smoother's prediction)
     outputs += [port for _, held in kind.work for port in held if port not in outputs]
     if kind.window:
@@ -469,7 +479,8 @@ def run_arguments(unit: Unit) -> list[Argument]:
     named = sizes(unit)
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",
-            "Ps": "covariance after each step"}
+            "Ps": "covariance after each step",
+            "lls": "log-likelihood of each step's innovation"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
     args += [Argument(name, name, tuple(named[d] for d in dims), doc=docs.get(name, name))
@@ -477,7 +488,7 @@ def run_arguments(unit: Unit) -> list[Argument]:
     args += [Argument(name, name, ("steps",) + tuple(named[d] for d in dims), output=True,
                       optional=optional, doc=docs.get(name, f"{port} after each step")
                       + (" (C: may be NULL)" if optional else ""))
-             for name, port, dims, optional in unit.run.stores]
+             for name, port, dims, optional in unit.stores]
     ports = {p.name: p.size for program in unit.programs.values()
              for p in program.inputs + program.outputs}
     for name, held in unit.run.work:

@@ -33,6 +33,7 @@ from ..verify import (
     conditioning_run,
     linear_run,
     nonlinear_scenario,
+    parameter_values,
     reference_run,
     rounding_floor,
     sensors_case,
@@ -94,11 +95,11 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
                                 {k: np.asarray(v, dtype=float)
                                  for k, v in case.arguments().items()},
                                 reference, float(tolerance), case.bound)
-    if model.parameters:
-        raise SymbolError(
-            f"model {model.name!r}: {name} is not a sensors run, and derive verify runs the "
-            f"examples of free parameters {[p.name for p in model.parameters]} only in a "
-            "sensors run (several sensors, gating or update-first)")
+    rows = None
+    if model.parameters:  # simulated at the examples; the filter takes them as p rows
+        given = parameter_values(model)
+        rows = np.tile([given[q.name] for q in model.parameters], (steps, 1))
+        model = model.at_values(given)
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)
@@ -111,6 +112,8 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         values = {"z": measured, "x0": num.x0, "P0": num.P0}
         if isinstance(zs, InputRun):
             values["u"] = zs.us
+    if rows is not None:
+        values["p"] = rows
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
