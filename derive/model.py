@@ -2,17 +2,15 @@
 
 Entries stay symbolic, with the symbols the user gave (assumptions included). Symbols
 with a value in ``values`` are constants of the model; the others are free runtime
-parameters, passed to generated code as ``p`` in the order of :attr:`parameters`: the
-names of the ``parameters`` argument first, in that order, then the other free symbols
-in order of first appearance, scanning the matrices in argument order (linear: F, G, H,
-Q, R, B, D; continuous: Phi, G, Qc, H, R, dt; nonlinear: f, h, Q, R), each row by row
-(within one entry, ``k2`` before ``k10``). With ``sensors``, each sensor's matrices (linear:
-H, R, D; nonlinear: h, R) in declaration order take the place of the stacked H (h).
+parameters, which the ``parameters`` argument declares, every one of them, in the order
+of ``p`` (:attr:`parameters`); a symbol that is neither a state, an input, valued nor
+declared is refused with its close match (a misspelt state never becomes a parameter).
 """
 
 from __future__ import annotations
 
 import copy
+import difflib
 import functools
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -248,6 +246,18 @@ def _sensor_inputs(sensor: Sensor, model_inputs: Sequence[str], default: Sequenc
     return tuple(u for u in model_inputs if u in names)
 
 
+def undeclared_error(model: str, name: str, names: Mapping[str, Sequence[str]]
+                     ) -> SymbolError:
+    """The error for symbol ``name`` of ``model`` that has no value and is not a declared
+    parameter, with the closest of ``names`` (kind -> names: state, input, ...)."""
+    kinds = {nm: kind for kind, group in names.items() for nm in group}
+    close = difflib.get_close_matches(name, list(kinds), n=1, cutoff=0.5)
+    hint = f" (did you mean {kinds[close[0]]} {close[0]!r}?)" if close else ""
+    return SymbolError(f"model {model!r}: symbol {name!r} is not a state, an input or a "
+                       f"declared parameter{hint}; give it a value (values=) or declare it "
+                       f"a runtime parameter (parameters=[..., {name!r}], the order of p)")
+
+
 class _Model:
     """What linear and nonlinear models share: names, values, free parameters."""
 
@@ -291,6 +301,7 @@ class _Model:
         self.symbols = tuple(first)
         self.parameters = tuple(self._ordered(
             [s for s in first if s.name not in self.values], order, used_names))
+        self._declared = (order, reserved)
         self._subs = {self._by_name[k]: v for k, v in self.values.items()}
 
     def _init_examples(self, examples) -> None:
@@ -316,6 +327,20 @@ class _Model:
                 raise SymbolError(f"example of {nm!r} must be a finite number, got {value!r}")
             check_value(self._by_name[nm], number, f"model {self.name!r} examples")
             self.examples[nm] = number
+
+    def _check_declared(self) -> None:
+        """SymbolError for a free symbol (no value) that ``parameters`` does not list: a
+        runtime parameter is declared, so a misspelt state or input is not one (checked
+        after the model's other checks, which name a state in a linear matrix, a
+        measurement in a matrix, ...)."""
+        order, reserved = self._declared
+        listed = {item.name if isinstance(item, sympy.Symbol) else item
+                  for item in order or ()}
+        for s in self.parameters:
+            if s.name not in listed:
+                raise undeclared_error(self.name, s.name, {
+                    "state": self.states, "input": sorted(reserved - set(self.states)),
+                    "parameter": sorted(listed)})
 
     def _ordered(self, free: list[sympy.Symbol], order, used_names: set[str]):
         """``free`` with the names listed in ``order`` first, in that order."""
@@ -612,6 +637,7 @@ class LinearModel(_Model):
         self.sensors = self._sensor_groups(sensor_list)
         if not sensor_list:  # else each sensor's R is checked under its name
             _check_definite(self.subs(self.R), "R", strict=True)
+        self._check_declared()
 
     def _stack_sensors(self, sensor_list, inputs, table: SymbolTable):
         """The sensors' H (stacked), R (block diagonal) and D (stacked, over the model's
@@ -731,8 +757,7 @@ class LinearModel(_Model):
                         examples: Values | None = None) -> LinearModel:
         """Discretise ``dx/dt = Phi x + G w`` (spectral density Qc) exactly over ``dt``.
 
-        Free parameters not listed in ``parameters`` follow in order of first appearance
-        in Phi, G, Qc, H, R, dt."""
+        ``parameters`` declares every free symbol, in the order of ``p``."""
         state_names = check_names(states, "states")
         n = len(state_names)
         table = SymbolTable()
@@ -775,6 +800,10 @@ class LinearModel(_Model):
                 raise SymbolError(f"parameters lists {nm!r}, which appears in no matrix of "
                                   f"model {name!r}")
         present_names = {s.name for s in present}
+        for nm in first:
+            if nm not in listed and nm not in given and nm in present_names:
+                raise undeclared_error(name, nm, {"state": state_names,
+                                                  "parameter": listed})
         order = [nm for nm in dict.fromkeys(listed + first) if nm in present_names]
         model = cls(name, states, measurements, F, H_m, Qd, R_m, G=None, values=values, x0=x0,
                     P0=P0, P0_pattern=P0_pattern, description=description, source=source,
@@ -920,6 +949,7 @@ class NonlinearModel(_Model):
         #: the measurements declared angles: their innovations are wrapped to (-pi, pi]
         self.angles = _angle_measurements(angles, self.measurements, self.h,
                                           self.state_symbols)
+        self._check_declared()
 
     @property
     def state_noise(self) -> bool:

@@ -374,6 +374,8 @@ def axis(**kw):
                 H=[[1, 0]], Q=[[q]], R=[[rr]], G=[[dt / 2], [1]],
                 values={"dt": 1, "q": 0.01, "rr": 0.1})
     args.update(kw)
+    valued = {getattr(k, "name", k) for k in args.get("values") or {}}
+    args.setdefault("parameters", [nm for nm in ("dt", "q", "rr") if nm not in valued])
     return LinearModel(**args)
 
 
@@ -520,7 +522,8 @@ def collision_model(names):
     c = sympy.Symbol(names["valued"])
     return LinearModel(names["name"], names["states"], names["measurements"],
                        [[1, k], [0, 1]], [[1, 0]], [[p]], [[c]], G=[[k / 2], [1]],
-                       values={names["valued"]: 0.1}, P0=np.eye(2).tolist())
+                       values={names["valued"]: 0.1}, P0=np.eye(2).tolist(),
+                       parameters=list(names["parameters"]))
 
 
 @pytest.mark.parametrize("colliding", COLLIDING, ids=[c["name"] for c in COLLIDING])
@@ -537,7 +540,8 @@ def test_names_colliding_with_generated_identifiers_are_never_emitted(tmp_path, 
             model = LinearModel(model.name, model.states, model.measurements, model.F,
                                 model.H, [[sympy.Symbol(names["parameters"][1]), 0],
                                           [0, sympy.Symbol(names["parameters"][1])]],
-                                model.R, values={names["valued"]: 0.1}, P0=np.eye(2).tolist())
+                                model.R, values={names["valued"]: 0.1}, P0=np.eye(2).tolist(),
+                                parameters=list(names["parameters"]))
         generated = load_generated(model, filter_name, options)
         zs = np.sin(np.arange(40.0))[:, None]
         zs[5] = np.nan if options else zs[5]

@@ -97,7 +97,8 @@ def test_a_shared_start_equals_it_repeated_and_covariances_may_be_left_out(kf, t
 def test_parameter_rows_are_shared_by_every_track(tmp_path):
     dt, q = sympy.symbols("dt q")
     model = LinearModel("freeaxis", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[q]],
-                        [[0.25]], G=[[dt ** 2 / 2], [dt]], x0=[0, 1], P0=[[4, 0.5], [0.5, 1]])
+                        [[0.25]], G=[[dt ** 2 / 2], [dt]], x0=[0, 1], P0=[[4, 0.5], [0.5, 1]],
+                        parameters=["dt", "q"])
     module = load_generated(model, "kf", None, "c", tmp_path).c
     rng = np.random.default_rng(2)
     steps, count = 30, 11

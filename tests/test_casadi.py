@@ -51,7 +51,7 @@ RANGE_BEARING = NonlinearModel(
     f=["px + dt*v*cos(th)", "py + dt*v*sin(th)", "th + dt*w", "v*exp(-dt/tau)"],
     h=["sqrt((ax - px)**2 + (ay - py)**2)", "atan2(ay - py, ax - px) - th"],
     Q=np.diag([0.01, 0.01, 0.001, 0.1]).tolist(), R=[["sr", 0], [0, 0.001]],
-    inputs=["ax", "ay"], values={"dt": 0.1, "tau": 5, "w": 0.2})
+    inputs=["ax", "ay"], values={"dt": 0.1, "tau": 5, "w": 0.2}, parameters=["sr"])
 
 
 def test_trigonometric_model_agrees_with_casadi():

@@ -26,7 +26,7 @@ def _input_model():
     return LinearModel("accel_offset", ["pos", "vel"], ["y"], [["1", "dt"], ["0", "1"]],
                        [[1, 0]], [["q", 0], [0, "q"]], [[1]],
                        B=[["dt**2/2", 0], ["dt", 0]], D=[[0, 1]], inputs=["acc", "bias"],
-                       values={"q": 0.01})
+                       values={"q": 0.01}, parameters=["dt"])
 
 
 def _unicycle_model():
@@ -36,7 +36,7 @@ def _unicycle_model():
                           ["px + dt*v*cos(th)", "py + dt*v*sin(th)", "th + dt*w"],
                           ["px", "py"], [["q", 0, 0], [0, "q", 0], [0, 0, "q"]],
                           [["r", 0], [0, "r"]], values={"dt": 0.1, "q": 1e-6, "r": 0.25},
-                          inputs=["v", "w"], Qu=[["sv", 0], [0, "sw"]])
+                          inputs=["v", "w"], Qu=[["sv", 0], [0, "sw"]], parameters=["sv", "sw"])
 
 
 INPUT_MODELS = {"accel_offset": _input_model, "unicycle": _unicycle_model}
@@ -147,8 +147,8 @@ def test_input_model_counts_match_at_run_time_and_in_the_c_text(model_name, filt
     _check(model_name, filter_name, "specialised")
 
 
-def test_input_model_cases_cover_the_kf_and_the_ekf_with_inputs_in_f():
-    assert [f for _, f in INPUT_CASES] == ["kf", "ekf"]
+def test_input_model_cases_cover_the_kf_the_rts_and_the_ekf_with_inputs_in_f():
+    assert [f for _, f in INPUT_CASES] == ["kf", "rts", "ekf"]
 
 
 @pytest.mark.parametrize("model_name,filter_name", PAPER_CASES)

@@ -60,7 +60,7 @@ def _units():
         "cart", ["p", "v"], F=[[1, "dt"], [0, 1]], Q=[[1, 0], [0, 1]], inputs=["a", "o"],
         B=[["dt**2/2", 0], ["dt", 0]],
         sensors=[Sensor("gps", ["zp"], H=[[1, 0]], R=4, inputs=["o"], D=[[1]]),
-                 Sensor("speed", ["zv"], H=[[0, 1]], R=1)])
+                 Sensor("speed", ["zv"], H=[[0, 1]], R=1)], parameters=["dt"])
     units.append(derive_unit(two_sensors, "kf", {"gate_sensors": "gps=0.99",
                                                  "start": "update"}))
     attitude = NonlinearModel(  # a quaternion: x of 4 numbers, P 3 x 3 (the tangent space)

@@ -53,7 +53,7 @@ def test_steady_state_with_a_free_symbol_is_refused(tmp_path):
 
     q = sympy.Symbol("q")
     m = LinearModel("freeq", ["s", "v"], ["z"], [[1, 1], [0, 1]], [[1, 0]], [[q]], [[1]],
-                    G=[[0.5], [1]])
+                    G=[[0.5], [1]], parameters=["q"])
     with pytest.raises(SteadyStateError, match="'q'"):
         generate(m, ["sskf"], "all", tmp_path)
     generate(m, ["kf"], "python", tmp_path)  # time-varying: q is the runtime p[0]

@@ -38,7 +38,8 @@ def correlated() -> LinearModel:
 def free_noise() -> LinearModel:
     """Two measurements of a constant-velocity axis, the first one's variance r free."""
     return LinearModel("freer", ["s", "v"], ["zs", "zv"], [[1, 1], [0, 1]], [[1, 0], [0, 1]],
-                       [[0.01]], [[r, 0], [0, 0.2]], G=[[0.5], [1]], P0=np.eye(2).tolist())
+                       [[0.01]], [[r, 0], [0, 0.2]], G=[[0.5], [1]], P0=np.eye(2).tolist(),
+                       parameters=[r])
 
 
 def gappy(zs: np.ndarray, seed: int) -> np.ndarray:

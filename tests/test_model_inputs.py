@@ -1,6 +1,7 @@
 """How user input becomes the model: the user's own symbols, the order of p, symmetry to
 rounding, NumPy scalars, finite entries named when they are not, compose's P0 pattern."""
 
+import re
 import subprocess
 import sys
 import textwrap
@@ -25,7 +26,9 @@ dt = sympy.Symbol("dt", positive=True)
 
 
 def axis(F=None, G=None, H=None, Q=None, R=None, **kw):
-    """The constant-velocity axis with the user's positive dt."""
+    """The constant-velocity axis with the user's positive dt (a symbol without a value
+    declared a parameter: ``declare`` names them)."""
+    kw.setdefault("parameters", kw.pop("declare", []))
     return LinearModel("ax", ["s", "v"], ["z"],
                        [[1, dt], [0, 1]] if F is None else F,
                        [[1, 0]] if H is None else H,
@@ -37,7 +40,7 @@ def axis(F=None, G=None, H=None, Q=None, R=None, **kw):
 # -- 1. the user's symbols come back --------------------------------------------------------
 
 def test_user_symbols_are_kept_in_every_matrix():
-    model = axis(Q=[["q"]])
+    model = axis(Q=[["q"]], declare=[dt, "q"])
     assert dt in model.F.free_symbols and dt in model.G.free_symbols
     assert model.F.subs(dt, 2) == sympy.Matrix([[1, 2], [0, 1]])
     assert model.parameters[0] is dt
@@ -92,7 +95,8 @@ def test_jacobians_treat_symbols_without_assumptions_as_real():
 def test_from_continuous_keeps_the_users_symbols():
     w, q = sympy.Symbol("w"), sympy.Symbol("q", nonnegative=True)
     model = LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, -w]], [[q]],
-                                        [[1, 0]], [[1]], dt, G=[[0], [1]])
+                                        [[1, 0]], [[1]], dt, G=[[0], [1]],
+                                        parameters=["w", "q", "dt"])
     assert model.F.free_symbols == {dt, w}
     assert {s.name for s in model.Q.free_symbols} == {"dt", "w", "q"}
     assert model.Q.free_symbols <= {dt, w, q}
@@ -101,7 +105,7 @@ def test_from_continuous_keeps_the_users_symbols():
 
 def test_generated_code_binds_the_users_symbols_to_p(tmp_path):
     q = sympy.Symbol("q", positive=True)
-    model = axis(Q=[[q]], values={"dt": 1})
+    model = axis(Q=[[q]], values={"dt": 1}, declare=[q])
     generate(model, ["kf"], "python", tmp_path)
     mod = load_python(tmp_path / "ax" / "kf.py")
     xs, _ = mod.run(np.ones((3, 1)), np.zeros(2), np.eye(2), np.array([0.01]))
@@ -112,7 +116,7 @@ def test_generated_ekf_with_the_users_symbols_matches_an_ekf_step(tmp_path):
     x, y = sympy.symbols("x y", positive=True)
     c = sympy.Symbol("c")
     model = NonlinearModel("nl", ["x", "y"], ["r"], [x + c * y, y], [sympy.sqrt(x**2 + y**2)],
-                           sympy.eye(2) / 100, [[1]])
+                           sympy.eye(2) / 100, [[1]], parameters=[c])
     generate(model, ["ekf"], "python", tmp_path)
     ekf = load_python(tmp_path / "nl" / "ekf.py")
     x0, P0, z = np.array([3.0, 4.0]), np.eye(2), np.array([5.1])
@@ -129,35 +133,51 @@ def test_generated_ekf_with_the_users_symbols_matches_an_ekf_step(tmp_path):
 
 # -- 2. the order of p --------------------------------------------------------------------
 
-def test_parameters_in_order_of_first_appearance():
+def test_parameters_are_declared_in_the_order_of_p():
     k2, k10, a = sympy.symbols("k2 k10 a", real=True)
-    model = LinearModel("o", ["s"], ["z"], [[k10]], [[1]], [[a]], [[k2]], G=[[1]])
-    assert [p.name for p in model.parameters] == ["k10", "a", "k2"]
-    model = LinearModel("o", ["s"], ["z"], [[k10 * k2]], [[1]], [[a]], [[1]], G=[[1]])
-    assert [p.name for p in model.parameters] == ["k2", "k10", "a"]  # one entry: natural
-
-
-def test_parameters_argument_sets_the_order():
-    k2, k10 = sympy.symbols("k2 k10", real=True)
-    model = LinearModel("o", ["s"], ["z"], [[k10]], [[1]], [[1]], [[k2]], G=[[1]],
-                        parameters=["k2"])
-    assert [p.name for p in model.parameters] == ["k2", "k10"]
+    model = LinearModel("o", ["s"], ["z"], [[k10]], [[1]], [[a]], [[k2]], G=[[1]],
+                        parameters=["k2", "a", k10])
+    assert [p.name for p in model.parameters] == ["k2", "a", "k10"]
     with pytest.raises(SymbolError, match="'k3'.*appears in no matrix"):
         LinearModel("o", ["s"], ["z"], [[k10]], [[1]], [[1]], [[k2]], parameters=["k3"])
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: NonlinearModel("cv", ["px", "vx"], ["zp"], ["px + dt*vz", "vx"], ["px"],
+                            [[1e-3, 0], [0, 1e-3]], [[0.1]], parameters=["dt"]),
+     "model 'cv': symbol 'vz' is not a state, an input or a declared parameter (did you "
+     "mean state 'vx'?)"),
+    (lambda: LinearModel("axis", ["s", "v"], ["z"], [[1, "dt"], [0, 1]], [[1, 0]], [["q"]],
+                         [[0.1]], G=[[0], [1]], values={"q": 0.01}),
+     "symbol 'dt' is not a state, an input or a declared parameter; give it a value "
+     "(values=) or declare it a runtime parameter (parameters=[..., 'dt'], the order of "
+     "p)"),
+    (lambda: LinearModel("k", ["s"], ["z"], [["kk"]], [[1]], [[1]], [["k2"]], G=[[1]],
+                         parameters=["k2"]),
+     "symbol 'kk' is not a state, an input or a declared parameter (did you mean "
+     "parameter 'k2'?)"),
+    (lambda: LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, "-w"]],
+                                         [["q"]], [[1, 0]], [[0.1]], dt, G=[[0], [1]],
+                                         values={"q": 1}, parameters=["dt"]),
+     "model 'c': symbol 'w' is not a state, an input or a declared parameter"),
+], ids=["misspelt state", "free dt", "close parameter", "continuous"])
+def test_an_undeclared_free_symbol_is_refused_with_its_close_match(make, message):
+    """A symbol without a value that no ``parameters=`` lists is refused, as the model-file
+    route refuses it: a misspelt state never becomes a runtime parameter."""
+    with pytest.raises(SymbolError, match=re.escape(message)):
+        make()
 
 
 def test_continuous_and_nonlinear_orders():
     w, q, r = sympy.symbols("w q r", positive=True)
     model = LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, -w]], [[q]],
-                                        [[1, 0]], [[r]], dt, G=[[0], [1]])
-    assert [p.name for p in model.parameters] == ["w", "q", "r", "dt"]
-    model = LinearModel.from_continuous("c", ["s", "v"], ["z"], [[0, 1], [0, -w]], [[q]],
                                         [[1, 0]], [[r]], dt, G=[[0], [1]],
-                                        parameters=["dt", "r"])
+                                        parameters=["dt", "r", "w", "q"])
     assert [p.name for p in model.parameters] == ["dt", "r", "w", "q"]
     x = sympy.Symbol("x", real=True)
-    model = NonlinearModel("nl", ["x"], ["y"], [w * x], [x + r], [[q]], [["k10"]])
-    assert [p.name for p in model.parameters] == ["w", "r", "q", "k10"]
+    model = NonlinearModel("nl", ["x"], ["y"], [w * x], [x + r], [[q]], [["k10"]],
+                           parameters=["k10", "w", "r", "q"])
+    assert [p.name for p in model.parameters] == ["k10", "w", "r", "q"]
 
 
 MODEL_FILE = """
@@ -223,7 +243,7 @@ def test_numpy_scalars_are_numbers_everywhere(scalar):
 
 
 def test_numpy_float32_is_the_float_it_is():
-    model = axis(F=[[1, np.float32(0.1)], [0, 1]])
+    model = axis(F=[[1, np.float32(0.1)], [0, 1]], declare=[dt])
     assert float(model.F[0, 1]) == float(np.float32(0.1))
 
 
@@ -278,7 +298,7 @@ def test_value_beyond_the_double_range_is_named():
 
 
 def test_numeric_names_the_entry_at_the_free_parameters():
-    model = axis(F=[[1, dt**3], [0, 1]])
+    model = axis(F=[[1, dt**3], [0, 1]], declare=[dt])
     with pytest.raises(NotFiniteError, match=r"F\[0\]\[1\] = dt\*\*3.*dt = 1e\+200"):
         model.numeric({"dt": 1e200})
 

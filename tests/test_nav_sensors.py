@@ -60,7 +60,7 @@ def attitude(dt="dt"):
         sensors=[Sensor("mag", ["c", "s"], h=[q0**2 - q1**2, 2 * q0 * q1],
                         R=[["r", 0], [0, "r"]]),
                  Sensor("bias", ["zb"], h=[b], R=[[1e-2]])],
-        values={"r": 0.01}, x0=[1, 0, 0], P0=sympy.diag(0.01, 0.01, 1e-4))
+        values={"r": 0.01}, x0=[1, 0, 0], P0=sympy.diag(0.01, 0.01, 1e-4), parameters=[dt])
 
 
 def relative(a, b):

@@ -36,6 +36,7 @@ def unicycle(**kw):
     """[px, py, th] driven by inputs v (speed), w (turn rate); GNSS-like position fixes."""
     args = {"inputs": ["v", "w"], "Qu": [["sv", 0], [0, "sw"]], "x0": [0, 0, 0.1],
             "P0": [[1, 0, 0], [0, 1, 0], [0, 0, 0.1]], **kw}
+    args.setdefault("parameters", ["sv", "sw"] if "Qu" not in kw else [])
     return NonlinearModel("unicycle", ["px", "py", "th"], ["zx", "zy"],
                           ["px + dt*v*cos(th)", "py + dt*v*sin(th)", "th + dt*w"],
                           ["px", "py"], [["q", 0, 0], [0, "q", 0], [0, 0, "q"]],

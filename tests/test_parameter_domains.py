@@ -43,7 +43,8 @@ Q = sympy.Symbol("q", positive=True)
 def _axis(dt, q, name: str = "domaxis") -> LinearModel:
     """A constant-velocity axis with free dt and q (measurement noise fixed)."""
     return LinearModel(name, ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[q]], [[0.25]],
-                       G=[[dt ** 2 / 2], [dt]], x0=[0, 1], P0=[[4, 0.5], [0.5, 1]])
+                       G=[[dt ** 2 / 2], [dt]], x0=[0, 1], P0=[[4, 0.5], [0.5, 1]],
+                       parameters=[dt, q])
 
 
 def _modules(generated) -> list:
@@ -202,7 +203,7 @@ def _attitude(dt) -> NonlinearModel:
         Qu=[[1e-4]],
         sensors=[Sensor("mag", ["c", "s"], h=[q0, q1], R=[[0.01, 0], [0, 0.01]]),
                  Sensor("bias", ["zb"], h=[b], R=[[1e-2]])],
-        x0=[1, 0, 0], P0=sympy.diag(0.01, 0.01, 1e-4))
+        x0=[1, 0, 0], P0=sympy.diag(0.01, 0.01, 1e-4), parameters=[dt])
 
 
 def test_only_the_programs_that_read_the_parameter_check_it(tmp_path):
@@ -242,14 +243,15 @@ def test_only_the_programs_that_read_the_parameter_check_it(tmp_path):
 
 def test_a_composed_model_checks_its_shared_parameter_once(tmp_path):
     axes = [LinearModel(f"ax{k}", ["s", "v"], ["z"], [[1, DT], [0, 1]], [[1, 0]],
-                        [["q"]], [[0.25]], G=[[DT ** 2 / 2], [DT]], values={"q": 0.01})
+                        [["q"]], [[0.25]], G=[[DT ** 2 / 2], [DT]], values={"q": 0.01},
+                        parameters=[DT])
             for k in range(3)]
     model = LinearModel.compose("domthree", axes, suffixes=["x", "y", "z"])
     assert [p.name for p in model.parameters] == ["dt"]
     step = derive_unit(model, "kf", {}).programs["step"]
     plain = LinearModel.compose("domthree", [LinearModel(
         f"ax{k}", ["s", "v"], ["z"], [[1, "dt"], [0, 1]], [[1, 0]], [["q"]], [[0.25]],
-        G=[["dt**2/2"], ["dt"]], values={"q": 0.01}) for k in range(3)],
+        G=[["dt**2/2"], ["dt"]], values={"q": 0.01}, parameters=["dt"]) for k in range(3)],
         suffixes=["x", "y", "z"])
     # one check of dt for the three blocks that read it
     assert count(step, "c").cmp == count(derive_unit(plain, "kf", {}).programs["step"],

@@ -190,7 +190,7 @@ def _three_axes_with_parameters():
     return LinearModel("axes3", ["s1", "v1", "s2", "v2", "s3", "v3"], ["z1", "z2", "z3"],
                        F.tolist(), H.tolist(), (sq2 * sympy.eye(3)).tolist(),
                        (sr2 * sympy.eye(3)).tolist(), G=G.tolist(), values={},
-                       P0_pattern="zero")
+                       P0_pattern="zero", parameters=[dt, sq2, sr2])
 
 
 @needs_gcc

@@ -292,7 +292,8 @@ def test_blocks_sharing_free_parameters_share_them_as_before():
     exactly the whole derivation's counts, and the same values."""
     def axis(name, q):
         return LinearModel(name, ["s", "v"], ["z"], [[1, "dt"], [0, 1]], [[1, 0]], [[q]],
-                           [["r"]], G=[["dt**2/2"], ["dt"]], P0_pattern="zero")
+                           [["r"]], G=[["dt**2/2"], ["dt"]], P0_pattern="zero",
+                           parameters=["dt", q, "r"])
 
     model = LinearModel.compose("shared", [axis("a", "q"), axis("b", "q2"), axis("a", "q")],
                                 ["_a", "_b", "_c"])

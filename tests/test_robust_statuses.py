@@ -115,7 +115,7 @@ def test_the_ikf_names_the_matrix_whose_pivot_fails(tmp_path):
     the status says R (it said "S is not positive definite", and an IKF has no S)."""
     r = sympy.Symbol("r", real=True)
     model = LinearModel("free_r", ["s", "v"], ["z"], [[1, 1], [0, 1]], [[1, 0]], [[0.01]],
-                        [[r]], G=[[0.5], [1]], P0=np.eye(2).tolist())
+                        [[r]], G=[[0.5], [1]], P0=np.eye(2).tolist(), parameters=[r])
     generate(model, ["ikf"], lang="python", out=tmp_path)
     ikf = load_python(tmp_path / "free_r" / "ikf.py")
     with pytest.raises(NumericalError, match=r"^step 0: R is not positive definite: pivot 0"):

@@ -34,7 +34,7 @@ def scaled_model() -> LinearModel:
     Q = sympy.diag(q / 10, 2 * q / 10, 3 * q / 10)
     R = sympy.Matrix([[r, 3 * r / 10], [3 * r / 10, 2 * r]])
     return LinearModel("scaled", ["a", "b", "c"], ["y", "w"], F, H, Q, R,
-                       G=sympy.eye(3).tolist(), P0_pattern="dense")
+                       G=sympy.eye(3).tolist(), P0_pattern="dense", parameters=[q, r])
 
 
 MODEL = scaled_model()

@@ -283,7 +283,7 @@ def _free_axis() -> LinearModel:
     dt, q = sympy.symbols("dt q")
     return LinearModel("freeaxis", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]],
                        [[q]], [[0.25]], G=[[dt ** 2 / 2], [dt]], x0=[0, 1],
-                       P0=[[4, 0.5], [0.5, 1]])
+                       P0=[[4, 0.5], [0.5, 1]], parameters=[dt, q])
 
 
 def _stepped_reference_kf(model, zs, rows, x0, P0):
@@ -347,7 +347,7 @@ def _free_nonlinear() -> NonlinearModel:
     a, b, q = sympy.symbols("a b q")
     return NonlinearModel("freenl", ["a", "b"], ["y"], [a + sympy.Rational(1, 10) * b, b],
                           [sympy.sqrt(a ** 2 + 1) + b], [[q, 0], [0, q]], [[0.1]],
-                          x0=[0.5, 0.1], P0=[[1, 0.1], [0.1, 1]])
+                          x0=[0.5, 0.1], P0=[[1, 0.1], [0.1, 1]], parameters=[q])
 
 
 def test_ekf_run_takes_one_parameter_row_per_step(tmp_path):

@@ -145,7 +145,7 @@ def _cv_axes(axes: int, noise: tuple[int, ...] | None = None) -> LinearModel:
         F=sympy.diag(*[F1] * axes), G=sympy.diag(*[G1] * axes),
         H=sympy.diag(*[sympy.Matrix([[1, 0]])] * axes),
         Q=q * sympy.diag(*(noise or (1,) * axes)), R=r * sympy.eye(axes),
-        P0=sympy.zeros(2 * axes, 2 * axes), P0_pattern="zero")
+        P0=sympy.zeros(2 * axes, 2 * axes), P0_pattern="zero", parameters=[dt, q, r])
 
 
 def test_shared_parameters_are_shared_and_counts_unchanged():

@@ -49,7 +49,7 @@ def test_value_zero_decouples():
                     values={"k": 0})
     assert len(m.blocks()) == 2
     free = LinearModel("f", ["a", "b"], ["y1", "y2"], F, sympy.eye(2), sympy.eye(2),
-                       sympy.eye(2))
+                       sympy.eye(2), parameters=[k])
     assert len(free.blocks()) == 1
 
 

@@ -166,7 +166,7 @@ def test_programs_match_the_references_on_random_models(model, seed, missing):
 def test_programs_with_free_parameters_take_p():
     q, r = sympy.symbols("q r", positive=True)
     model = LinearModel("axis", ["s", "v"], ["z"], [[1, 1], [0, 1]], [[1, 0]], [[q]], [[r]],
-                        G=[[sympy.Rational(1, 2)], [1]])
+                        G=[[sympy.Rational(1, 2)], [1]], parameters=[q, r])
     step = udkf_programs(model)["step"]
     assert [p.name for p in step.inputs] == ["x", "U", "D", "z", "p"]
     f = python_function(step)
@@ -365,7 +365,7 @@ def test_programs_print_as_c_that_compiles_and_matches_python(tmp_path):
 def test_a_measurement_variance_given_at_runtime_is_checked():
     """R is checked positive when the model is built; a free R is checked when run."""
     r = sympy.Symbol("r")
-    model = LinearModel("free_r", ["s"], ["z"], [[1]], [[1]], [[1]], [[r]])
+    model = LinearModel("free_r", ["s"], ["z"], [[1]], [[1]], [[1]], [[r]], parameters=[r])
     step = python_function(udkf_programs(model)["step"])
     x, U, D = step([0.0], [1.0], [1.0], [2.0], [0.5])
     assert x[0] == pytest.approx(2 * 2 / 2.5) and D[0] == pytest.approx(2 * 0.5 / 2.5)

@@ -66,7 +66,7 @@ def test_trailing_track_axis_filters_many_tracks():
 def test_free_parameter_model_runs_with_p():
     dt = sympy.Symbol("dt")
     m = LinearModel("freedt", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[0.01]], [[0.1]],
-                    G=[[dt / 2], [1]])
+                    G=[[dt / 2], [1]], parameters=[dt])
     mod = load_generated(m, "kf", lang="python").python
     num = LinearModel("fixed", ["s", "v"], ["z"], [[1, dt], [0, 1]], [[1, 0]], [[0.01]], [[0.1]],
                       G=[[dt / 2], [1]], values={"dt": 0.5}).numeric()
