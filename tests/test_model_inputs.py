@@ -83,13 +83,16 @@ def test_nonlinear_jacobians_use_the_users_state_symbols():
 
 
 def test_jacobians_treat_symbols_without_assumptions_as_real():
-    """The entries are real: d|x|/dx is sign(x) for the user's plain Symbol('x'), not an
-    expression in re(x) and im(x)."""
+    """The entries are real: d|x|/dx is sign(x) for the user's plain Symbol('x') (as the
+    guards' select, derive.guards: 1, -1, and 0 at zero), not an expression in re(x) and
+    im(x)."""
     x, y = sympy.symbols("x y")
     model = NonlinearModel("nl", ["x", "y"], ["r"], [x, y], [sympy.Abs(x) + y],
                            sympy.eye(2), [[1]])
     assert model.state_symbols == (x, y)
-    assert model.H_jacobian == sympy.Matrix([[sympy.sign(x), 1]])
+    J = model.H_jacobian
+    assert not J.atoms(sympy.re, sympy.im) and J[0, 1] == 1
+    assert [J[0, 0].subs(x, v) for v in (2.5, -3, 0)] == [1, -1, 0]
 
 
 def test_from_continuous_keeps_the_users_symbols():
