@@ -1,6 +1,6 @@
-"""INS/GNSS: the generated EKF of the catalog model ``ins_gnss`` (SPEC.md §8) on the simulated
-flight of derive.apps.ins.flight — agreement with the hand-written NumPy reference over the
-whole flight, position, velocity and attitude errors against the truth with the filter's
+"""INS/GNSS: the generated EKF of the catalog model ``ins_gnss`` (docs/navigation.md) on the
+simulated flight of derive.apps.ins.flight — agreement with the hand-written NumPy reference
+over the whole flight, position, velocity and attitude errors against the truth with the filter's
 3σ bounds, NIS per sensor against its chi-square band, bias estimates.
 """
 
@@ -113,11 +113,11 @@ def section(ctx) -> Section:
     err = compare.errors(fl, steps.xs, steps.Ps)
     inside = compare.inside_fraction(fl, err)
     s.add(Text(
-        "SPEC §8's model (16 states: quaternion, NED velocity and position, gyro and "
-        "accelerometer biases; the IMU's rate and specific force as inputs of f with input "
-        "noise Qu mapped through ∂f/∂u; bias random walks σ² dt with dt a per-step "
+        "The model of docs/navigation.md (16 states: quaternion, NED velocity and position, "
+        "gyro and accelerometer biases; the IMU's rate and specific force as inputs of f with "
+        "input noise Qu mapped through ∂f/∂u; bias random walks σ² dt with dt a per-step "
         "parameter; sensors `gnss` (position and velocity, 6) and `baro` (altitude, 1); q "
-        "renormalised after each update) on SPEC §8's flight: 10 s at rest level heading "
+        "renormalised after each update) on its simulated flight: 10 s at rest level heading "
         "north, 10 s accelerating north at 1.5 m/s² to 15 m/s, then a coordinated turn at "
         "0.15 rad/s climbing at 1 m/s to 120 s (yaw rate and climb rate rising over 2 s), the "
         "truth integrated at 1 kHz (exact attitude exponential per 1 ms, Simpson's rule for "
@@ -134,8 +134,8 @@ def section(ctx) -> Section:
                  "P: max_k |ΔP_ij| / sqrt(P_ii P_jj)"), tuple(rows),
                 f"Whole-flight agreement with the hand-written NumPy EKF (bar {AGREEMENT:g})"))
     worst = max(max(v) for v in agreement.values())
-    s.outcome("ins_gnss: generated EKF (Python and C) equals a NumPy EKF written from SPEC §8 "
-              "over the whole 120 s flight", MATCHED if worst <= AGREEMENT else DIFFERS,
+    s.outcome("ins_gnss: generated EKF (Python and C) equals a NumPy EKF written from its "
+              "equations over the whole 120 s flight", MATCHED if worst <= AGREEMENT else DIFFERS,
               f"largest relative difference {worst:.1e} (bar {AGREEMENT:g})")
     s.outcome(f"ins_gnss: position error inside the filter's 3σ at ≥ "
               f"{compare.INSIDE_BAR:.0%} of GNSS epochs",
