@@ -9,7 +9,9 @@ Python in a per-user directory, :func:`cache_dir` (``$XDG_CACHE_HOME/derive``,
 mode 0700, refused unless owned by the user and closed to group and others; or
 ``tmpdir``, checked the same way), so the same files are compiled once.  A build
 happens in a fresh directory renamed into place whole, so a process never loads a
-half-written library, and a library is loaded only if the user owns it.
+half-written library, and a library is loaded only if the user owns it, no one else can
+write it and it is the one built (its SHA-256, written beside it); an entry of the
+user's that fails the last two is built again.
 
 The wrappers read the interface the generated header states in its machine-readable
 line (derive.interface; the prose ``int PREFIX_step(x[2], P[2*2], z[1], x_new[2] out,
@@ -122,6 +124,9 @@ class FilterModule:
         self.statuses = described.messages()
         self.dtype = np.dtype(described.dtype)
         self.c_type = described.element
+        #: ``{"storage": n, "tangent": nt}`` for a filter whose P lives in a tangent space
+        #: (each argument's ``space`` in ``interface`` names its own), else empty
+        self.spaces = dict(described.spaces)
 
     def __getattr__(self, name: str):
         functions = self.__dict__.get("functions", {})
@@ -420,16 +425,28 @@ def _built(folder: Path, name: str) -> Path | None:
 def cached_extension(cache: Path, key: str, name: str, build: Callable[[Path], None]) -> Path:
     """The library of the extension ``name`` under ``cache/key``, built if missing.
 
-    ``build(work)`` compiles into a fresh directory ``work``, which is then renamed to
-    ``cache/key`` whole: a process that finds ``cache/key`` finds a finished library.
-    Two processes building the same key both build; the first rename wins, the other
-    discards its copy."""
+    ``build(work)`` compiles into a fresh directory ``work``; its library is then closed
+    to group and others' writing (whatever the umask made it), its SHA-256 written beside
+    it (:data:`_DIGEST`), and ``work`` renamed to ``cache/key`` whole: a process that
+    finds ``cache/key`` finds a finished library.  Two processes building the same key
+    both build; the first rename wins, the other discards its copy.  An entry of this
+    user's that cannot be trusted or used (its directory or library writable by group or
+    others, a library that is not the one built: truncated, changed, or without its
+    digest) is never loaded: it is moved aside and built again.  An entry of another
+    user's is refused (:class:`UnsafeCacheError`)."""
     final = cache / key
     library = _built(final, name)
+    if library is not None and _spoiled(final, library):
+        _discard(cache, final)
+        library = None
     if library is None:
         work = Path(tempfile.mkdtemp(prefix=f"{key}-", dir=cache))
         try:
             build(work)
+            built = _built(work, name)
+            if built is not None:
+                os.chmod(built, stat.S_IMODE(os.stat(built).st_mode) & ~0o022)
+                (work / _DIGEST).write_text(_digest(built))
             try:
                 os.replace(work, final)
             except OSError:
@@ -443,6 +460,42 @@ def cached_extension(cache: Path, key: str, name: str, build: Callable[[Path], N
     _check_private(final, "the cache directory")
     _check_private(library, "the compiled library")
     return library
+
+
+_DIGEST = "library.sha256"
+"""The file of a cache entry holding its library's SHA-256, written when it was built."""
+
+
+def _digest(library: Path) -> str:
+    return hashlib.sha256(library.read_bytes()).hexdigest()
+
+
+def _spoiled(final: Path, library: Path) -> bool:
+    """Whether this user's cache entry is unfit to load: its directory or library writable
+    by group or others (built under umask 002 by an older derive, or changed since), or
+    a library whose SHA-256 is not the one written when it was built (a truncated
+    library can crash the loader, not just fail it)."""
+    mine = [os.stat(p) for p in (final, library)]
+    if any(info.st_uid != os.getuid() for info in mine):
+        return False        # another user's: refused by _check_private, never replaced
+    if any(info.st_mode & (stat.S_IWGRP | stat.S_IWOTH) for info in mine):
+        return True
+    try:
+        return (final / _DIGEST).read_text() != _digest(library)
+    except OSError:
+        return True
+
+
+def _discard(cache: Path, final: Path) -> None:
+    """Move the entry ``final`` aside (one rename: a process that loaded it keeps its
+    mapping) and remove it."""
+    aside = Path(tempfile.mkdtemp(prefix="stale-", dir=cache))
+    try:
+        os.replace(final, aside / "entry")
+    except FileNotFoundError:
+        pass                # another process discarded it first
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def _compile_object(cc: str, source: Path, obj: Path, flags: list[str]) -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import difflib
 import os
+import re
 import sys
 
 from . import commands
@@ -27,12 +28,28 @@ from .errors import ModelError, NumericalError, VerificationError
 
 
 class _Parser(argparse.ArgumentParser):
-    """Usage errors are one line on stderr, exit status 2; an unknown flag close to a known
-    one names it."""
+    """Usage errors are one line on stderr, exit status 2, with the prefix of every other
+    error (``derive: error:``, whichever command's parser found it); an unknown flag or a
+    choice close to a known one names it."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}"
+        message = " ".join(message.split())
+        self.exit(2, f"derive: error: {message}{_choice_hint(message)}"
                      f"{_flag_hint(self, message)}\n")
+
+
+_INVALID_CHOICE = re.compile(r"invalid choice: '(.*?)' \(choose from (.*)\)$")
+
+
+def _choice_hint(message: str) -> str:
+    """`` (did you mean 'diagonal'?)`` for argparse's ``invalid choice: 'diag' (choose from
+    'dense', ...)`` (a command: ``verfy``; a choice of an option: ``--P0-pattern diag``)."""
+    found = _INVALID_CHOICE.search(message)
+    if found is None:
+        return ""
+    choices = re.findall(r"'([^']*)'", found[2])
+    close = difflib.get_close_matches(found[1], choices, n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
@@ -51,6 +68,11 @@ def _flag_hint(parser: argparse.ArgumentParser, message: str) -> str:
     flags = sorted({s for p in parsers for a in p._actions for s in a.option_strings})
     hints = []
     for flag in unknown:
+        owners = [p.prog for p in parsers[1:]
+                  if any(flag in a.option_strings for a in p._actions)]
+        if owners:   # spelt right, given to a command that does not take it
+            hints.append(f"{flag} is an option of {', '.join(owners)} only")
+            continue
         close = difflib.get_close_matches(flag, flags, n=1)
         if close:
             hints.append(f"{flag}: did you mean {close[0]}?")

@@ -69,7 +69,8 @@ from derive.trees import Const, Op, Tree, Var, depth
 #: sympy function -> name of the C function (math.h) it lowers to.
 FUNCTIONS = {
     sympy.sin: "sin", sympy.cos: "cos", sympy.tan: "tan", sympy.exp: "exp", sympy.log: "log",
-    sympy.atan: "atan", sympy.atan2: "atan2", sympy.Abs: "fabs", sympy.ceiling: "ceil",
+    sympy.atan: "atan", sympy.atan2: "atan2", sympy.Abs: "fabs",
+    sympy.ceiling: "ceil",  # an angle wrapped to (-pi, pi] (derive.manifolds.wrap)
 }
 
 

@@ -21,7 +21,7 @@ from .filters.blockwise import whole_size
 from .filters.sensors import uses_sensor_run
 from .model import ModelRef
 from .modelfile import MAX_BLOCK_SIZE, load_model_file
-from .options import SharedOptions, per_filter, regenerate_command, validate
+from .options import SharedOptions, per_filter, python_command, regenerate_command, validate
 from .runs.unit import Unit
 
 LANGS = ("python", "c", "all")
@@ -79,8 +79,9 @@ def command_unit(model, name: str, options: Mapping | SharedOptions | None = Non
     if refusal is not None:
         raise ModelFileError(refusal)
     unit = derive_unit(model, name, typed)
-    return dataclasses.replace(unit, command=regenerate_command(model_ref or model.name, name,
-                                                                typed, out_label, lang))
+    command = (regenerate_command(model_ref, name, typed, out_label, lang) if model_ref
+               else python_command(model, name, typed, out_label, lang))
+    return dataclasses.replace(unit, command=command)
 
 
 def render_unit(model, name: str, lang: str = "all",

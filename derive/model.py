@@ -12,6 +12,7 @@ H, R, D; nonlinear: h, R) in declaration order take the place of the stacked H (
 
 from __future__ import annotations
 
+import copy
 import functools
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -27,6 +28,7 @@ from .errors import MatrixPropertyError, ModelError, ShapeError, SymbolError
 from .finite import check_entries
 from .forms import ROW_FORMS, UPDATE_FORMS
 from .guards import numpy_selects, selects
+from .manifolds import QUATERNION, TangentLayout, parse_manifolds
 from .symbols import (
     SymbolTable,
     as_matrix,
@@ -347,6 +349,17 @@ class _Model:
     def n(self) -> int:
         return len(self.states)
 
+    #: The tangent coordinates' names (a model without manifold states: its states).
+    @property
+    def tangent(self) -> tuple[str, ...]:
+        layout = getattr(self, "layout", None)
+        return self.states if layout is None else layout.tangent
+
+    @property
+    def n_tangent(self) -> int:
+        """The covariance's dimension: n, or fewer with quaternion states."""
+        return len(self.tangent)
+
     @property
     def m(self) -> int:
         return len(self.measurements)
@@ -359,8 +372,24 @@ class _Model:
         """``expr`` with every valued symbol replaced by its exact value."""
         return expr.xreplace(self._subs) if self._subs else expr
 
-    def parameter_values(self, params=None) -> dict[sympy.Symbol, sympy.Expr]:
-        """Values for the free parameters from ``params`` (name -> number); all required."""
+    def at_values(self, params) -> _Model:
+        """This model with free parameters given values (name -> number): a copy in which
+        they are constants, as if ``values`` had held them (derive verify runs a model at
+        its parameters' examples so). The other free parameters stay free, in order."""
+        extra = self.parameter_values(params, partial=True)
+        valued = copy.copy(self)
+        valued.values = dict(sorted({**self.values,
+                                     **{s.name: v for s, v in extra.items()}}.items()))
+        valued.parameters = tuple(s for s in self.parameters if s not in extra)
+        valued.examples = {k: v for k, v in self.examples.items()
+                           if k not in {s.name for s in extra}}
+        valued._subs = {**self._subs, **extra}
+        return valued
+
+    def parameter_values(self, params=None, partial: bool = False
+                         ) -> dict[sympy.Symbol, sympy.Expr]:
+        """Values for the free parameters from ``params`` (name -> number); all required
+        unless ``partial``."""
         table = SymbolTable.known(self._by_name.values(), f"model {self.name!r}")
         given = normalize_values(params, table, "params")
         for nm in given:
@@ -368,27 +397,29 @@ class _Model:
                 raise SymbolError(f"{nm!r} is not a free parameter of model {self.name!r} "
                                   f"(free: {[p.name for p in self.parameters]})")
         missing = [p.name for p in self.parameters if p.name not in given]
-        if missing:
+        if missing and not partial:
             raise SymbolError(f"model {self.name!r} needs values for free parameters {missing}")
         for k, v in given.items():  # a declared domain refuses a value as generated code does
             check_value(self._by_name[k], v, f"model {self.name!r}")
         return {self._by_name[k]: v for k, v in given.items()}
 
     def _initial(self, x0, P0, P0_pattern) -> None:
-        n = self.n
+        n, nt = self.n, self.n_tangent
         table = SymbolTable()
         self.x0 = (sympy.ImmutableMatrix.zeros(n, 1) if x0 is None
                    else as_matrix(x0, "x0", table, vector=True))
         check_shape(self.x0, "x0", (n, 1), "one entry per state")
-        self.P0 = (sympy.ImmutableMatrix.zeros(n, n) if P0 is None
+        self.P0 = (sympy.ImmutableMatrix.zeros(nt, nt) if P0 is None
                    else as_matrix(P0, "P0", table))
-        check_shape(self.P0, "P0", (n, n), "states x states")
+        check_shape(self.P0, "P0", (nt, nt), "states x states" if nt == n else
+                    "tangent x tangent coordinates " + ", ".join(self.tangent))
         for mat, nm in ((self.x0, "x0"), (self.P0, "P0")):
             if mat.free_symbols:
                 raise SymbolError(f"{nm} must be numeric, has symbols "
                                   f"{sorted(s.name for s in mat.free_symbols)}")
         check_entries({"x0": self.x0, "P0": self.P0}, {})
         self.P0 = _symmetric(self.P0, "P0")
+        _check_definite(self.P0, "P0", strict=False)   # a covariance: no filter runs from -I
         if P0_pattern is None:
             P0_pattern = "dense"
         if P0_pattern not in P0_PATTERNS:
@@ -400,11 +431,12 @@ class _Model:
         """Refuse a P0 with a nonzero entry outside its declared pattern."""
         if self.P0_pattern == "dense" or not any(self.P0):
             return
+        nt = self.n_tangent
         if self.P0_pattern != "block" or any(
-                self.P0[i, j] != 0 for i in range(self.n) for j in range(self.n) if i != j):
+                self.P0[i, j] != 0 for i in range(nt) for j in range(nt) if i != j):
             mask = self.pattern_mask()
-            for i in range(self.n):
-                for j in range(self.n):
+            for i in range(nt):
+                for j in range(nt):
                     if self.P0[i, j] != 0 and not mask[i][j]:
                         raise MatrixPropertyError(
                             f"P0[{i}][{j}] = {decimal(self.P0[i, j])} is outside the declared "
@@ -412,7 +444,7 @@ class _Model:
 
     def pattern_mask(self, name: str | None = None) -> tuple[tuple[bool, ...], ...]:
         """The entries a P0 pattern (``name``, default the model's) allows, as booleans."""
-        n = self.n
+        n = self.n_tangent
         name = name or self.P0_pattern
         if name == "dense":
             return tuple(tuple(True for _ in range(n)) for _ in range(n))
@@ -800,6 +832,7 @@ class NonlinearModel(_Model):
                  sensors: Sequence[Sensor] | None = None,
                  unit_norm: Sequence[Sequence[str]] | None = None,
                  examples: Values | None = None, rows: str = "scalar",
+                 manifolds: Sequence[Mapping] | None = None,
                  angles: Sequence[str] | None = None) -> None:
         sensor_list = (_sensor_list(sensors, "nonlinear", {"measurements": measurements,
                                                            "h": h, "R": R})
@@ -810,7 +843,11 @@ class NonlinearModel(_Model):
             if value is None and not (sensor_list and key in ("h", "R")):
                 raise ModelError(f"NonlinearModel {name!r}: missing {key}")
         self._init_names(name, states, measurements, description, source)
-        n, m = self.n, self.m
+        #: the manifold components (derive.manifolds) and where their tangent coordinates
+        #: are; P, Q and P0 are n_tangent x n_tangent
+        self.manifolds = parse_manifolds(manifolds, self.states)
+        self.layout = TangentLayout.of(self.states, self.manifolds) if self.manifolds else None
+        n, m, nt = self.n, self.m, self.n_tangent
         input_names = check_names(inputs, "inputs") if inputs else ()
         reserved = set(self.states) | set(input_names)
         if len(reserved) != n + len(input_names):
@@ -824,7 +861,8 @@ class NonlinearModel(_Model):
         self.h = as_matrix(h, "h", table, vector=True)
         check_shape(self.h, "h", (m, 1), "one expression per measurement")
         self.Q = as_matrix(Q, "Q", table)
-        check_shape(self.Q, "Q", (n, n), "states x states")
+        check_shape(self.Q, "Q", (nt, nt), "states x states" if nt == n else
+                    "tangent x tangent coordinates " + ", ".join(self.tangent))
         self.R = as_matrix(R, "R", table)
         check_shape(self.R, "R", (m, m), "measurements x measurements")
         n_u = len(input_names)
@@ -874,6 +912,7 @@ class NonlinearModel(_Model):
                              "sensors evaluates them at the estimate)")
         self.sensors = self._sensor_groups(sensor_list)
         self.unit_norm = _unit_norm_groups(unit_norm, self.states)
+        self._check_manifold_states()
         if rows not in ROW_FORMS:
             raise ModelError(f"NonlinearModel {name!r}: rows must be one of "
                              f"{', '.join(ROW_FORMS)}, got {rows!r}")
@@ -893,6 +932,24 @@ class NonlinearModel(_Model):
         """For each measurement of ``names`` (default: all), whether it is an angle."""
         return tuple(z in self.angles for z in (self.measurements if names is None
                                                  else names))
+
+    def _check_manifold_states(self) -> None:
+        """A quaternion's states are in no unit-norm group (its injection keeps the norm)
+        and start at unit norm in x0."""
+        grouped = {s for group in self.unit_norm for s in group}
+        for m in self.manifolds:
+            both = [s for s in m.states if s in grouped]
+            if both:
+                raise SymbolError(f"state {both[0]!r} is in a manifold component ({m.kind}) "
+                                  "and in unit_norm: a quaternion keeps its norm by its "
+                                  "injection; leave it out of unit_norm")
+            if m.kind != QUATERNION:
+                continue
+            q = [float(self.x0[self.states.index(s), 0]) for s in m.states]
+            norm = float(np.sqrt(sum(v * v for v in q)))
+            if abs(norm - 1.0) > 1e-12:
+                raise MatrixPropertyError(f"x0 of quaternion ({', '.join(m.states)}) must have "
+                                          f"unit norm, got {norm!r}")
 
     # The Jacobians are derived when first asked for (the EKF derives its own, simplified
     # and shared with f and h; these serve the references, the UKF and derive show).

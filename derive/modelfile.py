@@ -140,7 +140,8 @@ _TABLE_KEYS: Mapping[str, tuple[str, ...]] = {
     "parameters": (),
     "discrete": ("F", "G", "H", "Q", "R", "inputs", "B", "D"),
     "continuous": ("Phi", "G", "Qc", "H", "R", "dt"),
-    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows", "angles"),
+    "nonlinear": ("f", "h", "Q", "R", "inputs", "Qu", "unit_norm", "rows", "manifolds",
+                  "angles"),
     "compose": ("blocks",),
     "initial": ("x0", "P0", "P0_pattern"),
     "sensors": (),
@@ -690,6 +691,8 @@ class _File:
             **({"unit_norm": self.unit_norm(body["unit_norm"], states)}
                if "unit_norm" in body else {}),
             **({"rows": self.row_form(body)} if "rows" in body else {}),
+            # checked by derive.manifolds.parse_manifolds, which names the component
+            **({"manifolds": body["manifolds"]} if "manifolds" in body else {}),
             **({"angles": self.names(body, "angles", "[nonlinear] angles")}
                if "angles" in body else {}),
         }
@@ -753,7 +756,8 @@ class _File:
         errors, parameters used only in [initial] are substituted there and not passed."""
         used: set[str] = set(self.sensor_used)
         for key, value in arguments.items():
-            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows") \
+            if key in ("x0", "P0", "P0_pattern", "inputs", "sensors", "unit_norm", "rows",
+                       "manifolds") \
                     or value is None:
                 continue
             for item in _flatten(value):

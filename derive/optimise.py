@@ -36,6 +36,7 @@ from derive.statements import (
     Temporary,
     is_atom,
     live_statements,
+    substitute,
 )
 from derive.trees import count_tree
 
@@ -85,7 +86,7 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
     out: list[Statement] = []
     for st in body:
         if isinstance(st, Assign):
-            expr = st.expr.xreplace(subst) if subst else st.expr
+            expr = substitute(st.expr, subst) if subst else st.expr
             if expr.has(*NON_FINITE):
                 raise MatrixPropertyError(f"{st.target} = {st.expr} is not finite after folding "
                                           f"({expr}): a structurally zero divisor")
@@ -97,7 +98,7 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
                 seen[expr] = st.target
                 out.append(st if expr is st.expr else Assign(st.target, expr))
         else:
-            value = st.value.xreplace(subst) if subst else st.value
+            value = substitute(st.value, subst) if subst else st.value
             if value.is_number:
                 holds = (value.is_positive if st.relation == POSITIVE else
                          value.is_nonnegative if st.relation == NONNEGATIVE else value.is_zero)
@@ -106,7 +107,7 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
             elif (st.relation, value) not in checked:
                 checked.add((st.relation, value))
                 out.append(replace(st, value=value))
-    new_results = {name: tuple(v.xreplace(subst) for v in values)
+    new_results = {name: tuple(substitute(v, subst) for v in values)
                    for name, values in results.items()}
     return out, new_results
 
@@ -266,8 +267,8 @@ def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ..
     out: list[Statement] = []
     for st in body:
         if isinstance(st, Assign):
-            out.append(Assign(names[st.target], st.expr.xreplace(names)))
+            out.append(Assign(names[st.target], substitute(st.expr, names)))
         else:
-            out.append(replace(st, value=st.value.xreplace(names)))
-    return out, {name: tuple(v.xreplace(names) for v in values)
+            out.append(replace(st, value=substitute(st.value, names)))
+    return out, {name: tuple(substitute(v, names) for v in values)
                  for name, values in results.items()}

@@ -11,7 +11,8 @@ and the parsed arguments of the CLI are validated here, once, into these types
 
 Which filters take an option follows their specs (derive.filters.spec.FilterSpec): a
 filter takes the options of its options class (``FilterSpec.options``), a shared one only
-when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``).
+when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``,
+``loglik``).
 The registry hands its specs over once it is built (:func:`use_filters`, called by
 derive.filters), so this module names no filter and imports nothing from derive.filters.
 
@@ -27,7 +28,7 @@ import dataclasses
 import difflib
 import math
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from numbers import Integral, Real
 
@@ -115,6 +116,11 @@ class SharedOptions:
     missing: bool = option(
         False, flag="--missing", kind=bool, needs="missing",
         help="a NaN in z skips that measurement")
+    loglik: bool = option(
+        False, flag="--loglik", kind=bool, needs="loglik",
+        help="run also returns each step's Gaussian log-likelihood of the innovation "
+             "(lls; C: may be NULL), from the factors of S the update solves with; no "
+             "run_tracks")
     run_tracks: bool = option(
         True, flag="--no-run-tracks", kind=bool, needs="batch",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
@@ -317,7 +323,7 @@ def per_filter(names: Iterable[str], options: Mapping | None = None,
     specs = all_specs()
     for key, value in common.items():
         if key not in specs:
-            raise OptionError(_unknown(key, list(specs), "options"))
+            raise OptionError(_unknown(key, list(specs), "options", names))
         check(key, value)
         if named and names and not any(n in takers(key) for n in names):
             raise OptionError(f"option {key!r} is taken by {', '.join(takers(key))}; "
@@ -424,6 +430,16 @@ def regenerate_command(model_ref: str, name: str, options: SharedOptions, out: s
     return " ".join(parts)
 
 
+def python_command(model, name: str, options: SharedOptions, out: str,
+                   lang: str = "all") -> str:
+    """The Python call that regenerates filter ``name``'s files for ``model``, a model
+    object built in Python (no catalog name or file names it, so no command line does)."""
+    changed = options.changed()
+    extra = f", options={changed!r}" if changed else ""
+    return (f"derive.generate(model, {name!r}, lang={lang!r}, out={out!r}{extra}), model "
+            f"the {type(model).__name__} {model.name!r} built in Python")
+
+
 # -- messages ---------------------------------------------------------------------------------
 
 
@@ -455,17 +471,24 @@ def _wrong_type(key: str, spec: Spec, value) -> str:
             f"{type(value).__name__} {shown}")
 
 
-def _unknown(key, known: list[str], what: str) -> str:
-    hint = _close(key, known)
+def _unknown(key, known: list[str], what: str, filters: Sequence[str] = ()) -> str:
+    hint = _close(key, known, filters)
     return (f"unknown option {key!r}{hint}; {what}: {', '.join(known) or 'none'}")
 
 
-def _close(key, known: list[str]) -> str:
+def _close(key, known: list[str], filters: Sequence[str] = ()) -> str:
+    """`` (did you mean 'order'?)``: the option ``key`` was formerly called, one that
+    ``filters`` (the call's) take first (``N`` was FIR's order and the predictor's
+    horizon), else the closest spelling."""
     if not isinstance(key, str):
         return ""
-    formerly = {old: new for new in known for old in all_specs()[new].formerly}
-    if key in formerly:
-        return f" (did you mean {formerly[key]!r}?)"
+    formerly = [new for new in known if key in all_specs()[new].formerly]
+    if formerly:
+        mine = [new for new in formerly if any(f in takers(new) for f in filters)]
+        if len(mine) == 1 or (len(formerly) == 1 and not mine):
+            return f" (did you mean {(mine or formerly)[0]!r}?)"
+        return " (did you mean " + " or ".join(
+            f"{new!r} ({', '.join(takers(new))})" for new in mine or formerly) + "?)"
     close = difflib.get_close_matches(key, known, n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
 

@@ -19,6 +19,7 @@ ones check every pivot at runtime (``Program.require_positive``).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import sympy
 
@@ -215,6 +216,15 @@ def ldl_forward(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     reciprocal is shared by all of them (m = 1: exactly one ``1/S``).  ``axis``: what
     ``S``'s rows are (see :class:`PivotMessage`).
     """
+    L, _, Y, Z = ldl_forward_pivots(prog, S, B, name=name, axis=axis)
+    return L, Y, Z
+
+
+def ldl_forward_pivots(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
+                       name: str = "S", axis: str | None = None
+                       ) -> tuple[sympy.Matrix, Pivots, sympy.Matrix, sympy.Matrix]:
+    """:func:`ldl_forward` with the pivots of ``S = L D L^T``: ``(L, pivots, Y, Z)``
+    (``log det S`` is the sum of the logs of ``pivots.D``)."""
     m = _need_square(S, name, "spd_solve")
     _need_matrix(B, "spd_solve")
     if B.rows != m:
@@ -222,11 +232,23 @@ def ldl_forward(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     L, D, Dinv = _ldl(prog, S, name, axis)
     Y = forward_substitute(prog, L, B)
     Z = sympy.zeros(m, B.cols)
+    live = []
     for i in range(m):
         direct = sum(1 for c in range(B.cols) if Y[i, c] != 0) <= DIRECT_DIVISIONS
         for c in range(B.cols):
             Z[i, c] = _stage(prog, Y[i, c] / D[i] if direct else Y[i, c] * Dinv[i])
-    return L, Y, Z
+        live.append(not direct or any(L[k, i] != 0 for k in range(i + 1, m)))
+    return L, Pivots(tuple(D), tuple(r if used else None for r, used in zip(Dinv, live))), Y, Z
+
+
+@dataclass(frozen=True)
+class Pivots:
+    """The pivots ``D`` of an LDL^T factorisation and their reciprocals ``Dinv``, None
+    where the factorisation's statements do not use one (a caller then divides by the
+    pivot rather than form its reciprocal for one product)."""
+
+    D: tuple[sympy.Expr, ...]
+    Dinv: tuple[sympy.Expr | None, ...]
 
 
 def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
@@ -234,13 +256,21 @@ def spd_solve(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
     """``S^-1 B`` for symmetric positive-definite ``S`` via LDL^T: forward, diagonal
     (:func:`ldl_forward`), back; ``axis``: what ``S``'s rows are (see
     :class:`PivotMessage`)."""
-    L, _, Z = ldl_forward(prog, S, B, name=name, axis=axis)
+    return spd_solve_pivots(prog, S, B, name=name, axis=axis)[0]
+
+
+def spd_solve_pivots(prog: Program, S: sympy.Matrix, B: sympy.Matrix, *,
+                     name: str = "S", axis: str | None = None
+                     ) -> tuple[sympy.Matrix, sympy.Matrix, Pivots]:
+    """:func:`spd_solve` with the factors of ``S = L D L^T`` it solved with:
+    ``(S^-1 B, L, pivots)``."""
+    L, pivots, _, Z = ldl_forward_pivots(prog, S, B, name=name, axis=axis)
     m = L.rows
     X = sympy.zeros(m, B.cols)
     for c in range(B.cols):
         for i in reversed(range(m)):
             X[i, c] = _stage(prog, Z[i, c] - _dot([L[k, i] * X[k, c] for k in range(i + 1, m)]))
-    return X
+    return X, L, pivots
 
 
 def spd_inverse(prog: Program, S: sympy.Matrix, *, name: str = "S",

@@ -94,3 +94,34 @@ def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> 
             read.update(s for s in expr.free_symbols if isinstance(s, InputElement))
     return [st for st in out if not (isinstance(st, Check) and st.parameter
                                      and st.value not in read)]
+
+
+def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) -> sympy.Basic:
+    """``expr.xreplace(mapping)``, except that an applied function whose arguments are
+    not all numbers after the replacement is rebuilt without its ``eval``: sympy's
+    ``sin``, ``cos``, ... search a changed argument for multiples of pi and of i and for a
+    sign to pull out, assumption queries that cost milliseconds an argument (a sum of
+    a state and a sigma-point offset) and find nothing for the atoms derive substitutes.
+    The result equals xreplace's wherever that ``eval`` would not rewrite the call."""
+    memo: dict[sympy.Basic, sympy.Basic] = {}
+
+    def walk(node: sympy.Basic) -> sympy.Basic:
+        hit = mapping.get(node)
+        if hit is not None:
+            return hit
+        if not node.args:
+            return node
+        done = memo.get(node)
+        if done is not None:
+            return done
+        args = tuple(walk(arg) for arg in node.args)
+        if all(new is old for new, old in zip(args, node.args)):
+            out = node
+        elif isinstance(node, sympy.Function) and not all(a.is_number for a in args):
+            out = node.func(*args, evaluate=False)
+        else:
+            out = node.func(*args)
+        memo[node] = out
+        return out
+
+    return walk(expr) if mapping else expr

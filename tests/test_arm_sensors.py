@@ -195,15 +195,18 @@ def test_a_free_parameter_without_an_example_is_one_refusal_line(tmp_path, capsy
     assert not out.exists()
 
 
-def test_free_parameters_outside_a_sensors_run_are_refused_as_derive_verify_does(tmp_path,
-                                                                                capsys):
-    """One sensor, no gate: not a sensors run; derive verify runs examples only there."""
+def test_free_parameters_outside_a_sensors_run_run_at_their_examples(tmp_path, capsys):
+    """One sensor, no gate: not a sensors run; the library's test program runs dt at its
+    example as derive verify does (p one row per step)."""
     path = tmp_path / "one_free_dt.toml"
     path.write_text(CART.format(example=", example = 0.1").split("[sensors.speed]")[0]
                     + "[initial]\nx0 = [0, 0]\nP0 = [[1, 0], [0, 1]]\n")
     out = tmp_path / "out"
     assert main(["generate", str(path), "--filter", "kf", "--layout", "library",
-                 "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "kf is not a sensors run" in err, err
-    assert not out.exists()
+                 "--out", str(out)]) == 0, capsys.readouterr().err
+    library = out / "cart_free_dt"
+    assert "cart_free_dt_kf_run(STEPS, in_z, in_x0, in_P0, out_xs, out_Ps, in_p, 1)" in (
+        library / "test_kf.c").read_text()   # p: one row per step
+    done = subprocess.run(["make", "-C", str(library), "check"], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and "): ok" in done.stdout, done.stdout + done.stderr

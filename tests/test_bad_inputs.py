@@ -121,6 +121,9 @@ MODEL_FILE_ROWS: list[Row] = [
      ["matrix R must be positive definite", "smallest eigenvalue is -0.9"]),
     ("Q not PSD", edit('Q = "sq2"', 'Q = "-sq2"'), ["kf"], {}, [], MatrixPropertyError,
      ["matrix Q must be positive semidefinite", "smallest eigenvalue is -0.01"]),
+    ("P0 not PSD", edit("P0 = [[1, 0], [0, 1]]", "P0 = [[-1, 0], [0, -1]]"), ["kf"], {}, [],
+     MatrixPropertyError, ["matrix P0 must be positive semidefinite",
+                           "smallest eigenvalue is -1"]),
     # symbols
     ("undeclared symbol", edit('F = [[1, "dt"], [0, 1]]', 'F = [[1, "dtt"], [0, 1]]'),
      ["kf"], {}, [], ExpressionError,
@@ -410,6 +413,9 @@ API_ROWS = [
      "matrix R must be symmetric"),
     ("P0 not symmetric", lambda: axis(P0=[[1, 1], [0, 1]]), MatrixPropertyError,
      "matrix P0 must be symmetric"),
+    ("P0 not PSD", lambda: axis(P0=[[-1, 0], [0, -1]]), MatrixPropertyError,
+     "matrix P0 must be positive semidefinite at the given values; its smallest eigenvalue "
+     "is -1"),
     ("R singular at the values", lambda: axis(values={"dt": 1, "q": 0.01, "rr": 0}),
      MatrixPropertyError, "matrix R must be positive definite at the given values"),
     ("R indefinite", lambda: axis(R=[[-rr]]), MatrixPropertyError,

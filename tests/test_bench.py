@@ -28,7 +28,8 @@ from derive.options import taken_by
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
                 check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
                 scale_tracks=0, catalog_generation=False, generation_scaling=False,
-                compile_states=(2,), startup_repeats=1)
+                compile_states=(2,), startup_repeats=1,
+                navigation_peer_calls=0)  # the SymForce peer: tests/test_nav_symforce_peer.py
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 

@@ -22,6 +22,7 @@ from derive.discretize import METHODS, DiscretizationError, discretize
 from derive.errors import ExpressionError
 from derive.expressions import check_values, parse_expression
 from derive.modelfile import MAX_STATES
+from derive.statements import Temporary, substitute
 from derive.toml_limits import MAX_DIGITS, MAX_KEY_PARTS, MAX_NESTING, toml_shape_problem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -365,3 +366,36 @@ def test_progress_lines_only_when_asked(tmp_path):
     assert loud.returncode == 0
     assert loud.stderr.splitlines() == ["derive: deriving kf for big (12 states, "
                                         "6 measurements)..."]
+
+
+def test_substitution_into_calls_skips_their_eval(monkeypatch):
+    """derive.statements.substitute (how the UKF's sigma-point differences and the
+    optimiser put program atoms into expressions): xreplace's result, but a call whose
+    new arguments are not all numbers is rebuilt without sympy's eval, which searched
+    each argument for multiples of pi and i (a UKF of h = six products of 24 sines
+    spent most of its 27 s there); a call of numbers still folds. Where eval would
+    rewrite a call (``cos(-2x + t)`` into ``cos(2x - t)``) the two are equal as values."""
+    x, d, e = sympy.symbols("x d e", real=True)
+    t, u = Temporary("t1"), Temporary("t2")
+    exprs = [sympy.sin(x + d) * sympy.cos(2 * x - d), sympy.exp(x * d) + sympy.atan2(x, d + e),
+             sympy.sin(x + d + e) ** 2, sympy.sin(d) + sympy.cos(e)]
+    mappings = [{d: t}, {d: t, x: u}, {d: sympy.sqrt(3) * t, e: u}, {d: sympy.Integer(0)}]
+    calls = []
+    real_eval = sympy.sin.eval.__func__
+
+    def counted(cls, arg):
+        calls.append(arg)
+        return real_eval(cls, arg)
+    for expr in exprs:
+        for mapping in mappings:
+            wanted = expr.xreplace(mapping)
+            monkeypatch.setattr(sympy.sin, "eval", classmethod(counted))
+            got = substitute(expr, mapping)
+            monkeypatch.undo()
+            point = {s: 0.1 + 0.7 * k for k, s in enumerate(sorted(wanted.free_symbols, key=str))}
+            assert abs(complex(got.evalf(subs=point)) - complex(wanted.evalf(subs=point))) \
+                <= 1e-12 * max(1.0, abs(complex(wanted.evalf(subs=point)))), (expr, mapping)
+            assert got.free_symbols == wanted.free_symbols
+    assert all(arg.is_number for arg in calls)
+    assert substitute(sympy.sin(d) + sympy.cos(e), {d: sympy.Integer(0), e: t}) == \
+        1 * sympy.cos(t)    # a call of numbers folds: sin(0) is 0

@@ -22,6 +22,8 @@ TABLE = {
     "ca": (LinearModel, 3, 1),
     "gps_static": (LinearModel, 3, 3),
     "gnss_pseudorange": (NonlinearModel, 4, 4),
+    "ins_eskf": (NonlinearModel, 16, 7),
+    "ins_fc24_eskf": (NonlinearModel, 24, 11),
     "ins_gnss": (NonlinearModel, 16, 7),
     "ctrv_radar": (NonlinearModel, 5, 2),
     "ins_fc24": (NonlinearModel, 24, 11),

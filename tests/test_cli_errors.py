@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from derive.cli import main
+
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = textwrap.dedent("""
     [model]
@@ -48,9 +50,22 @@ def one_line(proc: subprocess.CompletedProcess, status: int, *words: str) -> str
 
 
 def test_a_usage_error_found_by_argparse_is_one_line(tmp_path):
-    one_line(derive("generate", "mpt3d_b", "--lang", "fortran", "--out", str(tmp_path)), 2,
-             "argument --lang", "fortran")
+    line = one_line(derive("generate", "mpt3d_b", "--lang", "fortran", "--out", str(tmp_path)),
+                    2, "argument --lang", "fortran")
+    assert line.startswith("derive: error: ")     # as every other error (was "derive generate:")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["generate", "mpt3d_b", "--P0-pattern", "diag"],
+     "derive: error: argument --P0-pattern: invalid choice: 'diag' (choose from 'dense', "
+     "'zero', 'diagonal', 'block') (did you mean 'diagonal'?)"),
+    (["verfy"], "derive: error: argument COMMAND: invalid choice: 'verfy' (choose from "
+                "'list', 'show', 'check', 'generate', 'verify', 'burden', 'audit', 'gnss', "
+                "'size', 'reproduce', 'bench') (did you mean 'verify'?)")])
+def test_an_invalid_choice_gets_a_close_match_and_the_common_prefix(capsys, argv, line):
+    assert main(argv) == 2
+    assert capsys.readouterr().err == line + "\n"
 
 
 def test_out_naming_a_regular_file(tmp_path):

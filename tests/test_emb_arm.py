@@ -15,6 +15,7 @@ from derive.apps.targets.arm import read_states, run_under_qemu, sizes
 from derive.apps.targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS, TARGETS
 from derive.apps.verify import LINEAR_TOLERANCE, verify_filter
 from derive.cli import main
+from derive.errors import NumericalError
 
 M4, LINUX = TARGETS["cortex-m4"], TARGETS["arm-linux"]
 needs_m4 = pytest.mark.skipif(bool(M4.missing()),
@@ -153,3 +154,21 @@ def test_float32_runs_under_qemu_arm_within_derive_verifys_float32_tolerance():
         assert r.passed and r.error <= r.tolerance, r.line()
         # float32, not double, was run: its error is far above double's rounding
         assert r.error > 1e3 * LINEAR_TOLERANCE
+
+
+@needs_qemu
+def test_a_filter_failing_its_own_check_under_qemu_is_a_failed_verification(monkeypatch):
+    """The C run returning its status on ARM (S not positive definite, from a P0 of -I
+    in the data: a model file's P0 must be positive semidefinite) is a failure of the
+    filter on that data, named with its check, not a bug (it was exit 70)."""
+    real = library.verification_data
+
+    def negative(*args, **kwargs):
+        data = real(*args, **kwargs)
+        data.inputs["P0"][:] = -np.eye(data.inputs["P0"].shape[0])
+        return data
+
+    monkeypatch.setattr(library, "verification_data", negative)
+    with pytest.raises(NumericalError, match="cv kf under qemu-arm: cv_kf_run returned "
+                                             "status 1: .*S is not positive definite"):
+        run_under_qemu("cv", ["kf"], steps=5)

@@ -159,21 +159,28 @@ def test_a_float_kernel_takes_float32_and_refuses_float64_in_one_line():
     assert np.array_equal(tracks[0], xs)  # run_tracks is bitwise run, in float too
 
 
-def test_a_model_float_cannot_hold_is_refused_on_the_command_line(tmp_path, capsys):
-    """A process noise density of 1e39 is infinite as a float (the KF bakes Q into its
-    code): exit status 2, one line naming the constant and the option, and no output
-    directory written; the same model in double is generated."""
-    text = (ROOT / "derive" / "catalog" / "cv.toml").read_text()
+@pytest.mark.parametrize("value, named", [
+    ("1e39", "parameter sq2 = 1e+39: the constant 1e+39"),
+    ("1e-37", "matrix G Q G^T[0][0] = 2.5e-42: the constant 2.5e-42")])
+def test_a_model_float_cannot_hold_is_refused_on_the_command_line(tmp_path, capsys, value,
+                                                                  named):
+    """A process noise density of 1e39 is infinite as a float, and one of 1e-37 with
+    dt = 0.01 puts 2.5e-42 into G Q G^T (the KF bakes them into its code): exit status
+    2, one line naming the parameter or the matrix entry (a derived constant was named
+    alone), before any derivation; no output directory written; the same model in
+    double is generated."""
+    text = (ROOT / "derive" / "catalog" / "mpt3d_b.toml").read_text()
     model = tmp_path / "tiny.toml"
-    model.write_text(text.replace('name = "cv"', 'name = "tiny"').replace(
-        'sq2 = { value = 0.01,', 'sq2 = { value = 1e39,'))
+    model.write_text(text.replace('name = "mpt3d_b"', 'name = "tiny"').replace(
+        "sq2 = { value = 0.01,", f"sq2 = {{ value = {value},").replace(
+        "dt = { value = 1,", "dt = { value = 0.01,"))
     out = tmp_path / "out"
     status = main(["generate", str(model), "--filter", "kf", "--precision", "float",
                    "--out", str(out)])
     err = capsys.readouterr().err.strip()
     assert status == 2 and "\n" not in err and not out.exists()
-    assert err.startswith("derive: error: the constant ")
-    assert "is not a normal float32 number" in err and "--precision float" in err
+    assert err.startswith(f"derive: error: model 'tiny': {named} is not a normal float32 ")
+    assert "--precision float" in err
     assert main(["generate", str(model), "--filter", "kf", "--out", str(out)]) == 0
 
 

@@ -6,6 +6,7 @@ machine and the test programs print the largest error against the NumPy referenc
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import shutil
 import subprocess
@@ -215,3 +216,24 @@ def test_make_cross_builds_the_library_for_cortex_m4_with_the_sizes_derive_repor
                 for line in listing.splitlines()[1:]}
     measured = {r.filter: r.object.text for r in sizes("cv", FILTERS, levels=("-Os",))}
     assert archived == measured
+
+
+def test_an_infinite_tolerance_is_a_c_constant(tmp_path):
+    """A float32 bound can be infinite (derive then marks the run failed): the test
+    program states it as HUGE_VAL, not ``inf``, which is no C, and compiles."""
+    model = resolve_model("cv")
+    unit = command_unit(model, "kf")
+    files, _ = render_library(model, ["kf"], tmp_path, steps=5)
+    data = dataclasses.replace(verification_data(model, "kf", steps=5), tolerance=math.inf)
+    folder = tmp_path / "cv"
+    folder.mkdir()
+    for name in ("kf.c", "kf.h"):
+        (folder / name).write_text(files[name])
+    source = render_test_program(unit, files["kf.h"], data)
+    assert "#define TOLERANCE HUGE_VAL" in source
+    (folder / "test_kf.c").write_text(source)
+    program = tmp_path / "test_kf"
+    subprocess.run([GCC, *STRICT_CFLAGS, f"-I{tmp_path}", str(folder / "kf.c"),
+                    str(folder / "test_kf.c"), "-lm", "-o", str(program)], check=True)
+    done = subprocess.run([str(program)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "tolerance inf" in done.stdout

@@ -32,7 +32,7 @@ from _backend_kf import (
     unit_fields,
 )
 
-from derive import LinearModel, Sensor, catalog
+from derive import LinearModel, NonlinearModel, Sensor, catalog
 from derive.build import load_python
 from derive.emit.render import derive_version, environment, render_files
 from derive.emit.write import write_files
@@ -63,6 +63,13 @@ def _units():
                  Sensor("speed", ["zv"], H=[[0, 1]], R=1)])
     units.append(derive_unit(two_sensors, "kf", {"gate_sensors": "gps=0.99",
                                                  "start": "update"}))
+    attitude = NonlinearModel(  # a quaternion: x of 4 numbers, P 3 x 3 (the tangent space)
+        "att", ["q0", "q1", "q2", "q3"], ["gz"], inputs=["wx", "wy", "wz"],
+        f=["q0 - q1*wx/2 - q2*wy/2 - q3*wz/2", "q1 + q0*wx/2 + q2*wz/2 - q3*wy/2",
+           "q2 + q0*wy/2 - q1*wz/2 + q3*wx/2", "q3 + q0*wz/2 + q1*wy/2 - q2*wx/2"],
+        h=["1 - 2*(q1**2 + q2**2)"], Q=[[1, 0, 0], [0, 1, 0], [0, 0, 1]], R=[[1]],
+        x0=[1, 0, 0, 0], manifolds=[{"quaternion": ["q0", "q1", "q2", "q3"]}])
+    units.append(derive_unit(attitude, "eskf", {"reset": True}))
     return units
 
 

@@ -31,7 +31,7 @@ class ToyOptions(SharedOptions):
 def toy_registered():
     """The registry plus a family 'toy': covariance and missing, no batch function."""
     toy = replace(FILTERS["kf"], name="toy", options=ToyOptions, covariance=True,
-                  missing=True, batch=False, sensors=False)
+                  missing=True, batch=False, sensors=False, loglik=None)
     options.use_filters({**FILTERS, "toy": toy})
     yield toy
     options.use_filters(FILTERS)
@@ -50,6 +50,7 @@ def test_the_takers_follow_the_flags_of_the_specs():
         taken = taken_by(name)
         assert ("P0_pattern" in taken) == spec.covariance, name
         assert ("missing" in taken) == spec.missing, name
+        assert ("loglik" in taken) == (spec.loglik is not None), name
         assert ("run_tracks" in taken) == spec.batch, name
         assert ("gate" in taken) == ("start" in taken) == spec.sensors, name
         own = [k for k in spec.options.specs() if k not in SharedOptions.specs()]

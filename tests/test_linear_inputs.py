@@ -140,13 +140,13 @@ def test_model_errors_name_the_matrix_or_input(kw, message):
 def test_filters_without_input_support_refuse_an_input_model():
     model = scalar_offset_model()
     refused = [name for name, spec in FILTERS.items()
-               if spec.model_kind == "linear" and name != "kf"]
+               if spec.model_kind == "linear" and name not in ("kf", "rts")]
     assert refused
     for name in refused:
         assert f"filter {name!r} takes no per-step inputs" in why_not(model, name)
         with pytest.raises(FilterError, match="takes no per-step inputs"):
             derive_unit(model, name)
-    assert available(model) == ["kf"]
+    assert available(model) == ["kf", "rts"]
 
 
 def test_compose_refuses_input_models():

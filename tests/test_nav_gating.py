@@ -112,7 +112,7 @@ def test_an_unknown_sensor_in_gate_sensors_is_one_line(capsys):
 
 
 def test_gate_is_refused_by_filters_without_sensor_support():
-    with pytest.raises(OptionError, match=r"option 'gate' is taken by kf, ekf, not by lf"):
+    with pytest.raises(OptionError, match=r"option 'gate' is taken by kf, ekf, eskf, not by lf"):
         derive_unit(LinearModel("a", ["x"], ["z"], F=[[1]], H=[[1]], Q=[[1]], R=[[1]]),
                     "lf", {"gate": 0.99})
 

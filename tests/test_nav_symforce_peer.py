@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from derive.apps.bench import symforce_peer as sp
-from derive.apps.bench.run import Bar
+from derive.apps.bench.navigation import NavigationResult
+from derive.apps.bench.run import Bar, BenchResult, Settings
 from derive.apps.ins import symforce_ekf
 from derive.generation import generate_units
 from derive.interface import read as read_interface
@@ -196,3 +197,18 @@ def test_bars_are_printed_with_both_figures_and_the_vector_count_decides_flops()
     generation = bars["generating ins_fc24's EKF (C)"]
     assert generation.met and generation.kind == "time"
     assert any("no: counted 90, header 100" in line for line in result.lines())
+
+
+def test_only_navigation_prints_that_section_and_its_bars_alone():
+    r = sp.FunctionResult("m", "update_x", header=OpCount(mul=3),
+                          counted={"derive": OpCount(mul=3), "symforce": OpCount(mul=6)})
+    machine = {"cpu": "a CPU", "cores": 2, "load": "0.5", "python": "3", "numpy": "2",
+               "generated_cflags": []}
+    result = BenchResult(Settings(only="navigation"), machine)
+    result.navigation = NavigationResult(peer=sp.PeerResult(functions=[r]))
+    text = result.text()
+    assert "machine: a CPU, 2 cores" in text and "SymForce's C++ as a timed peer" in text
+    bars = [line for line in text.splitlines() if line.startswith("bar: ")]
+    assert bars and all("m update_x" in line or "ins_gnss" in line for line in bars)
+    assert "bar: m update_x: flops over SymForce's (one counter): 0.50x (<= 0.9x: met)" in text
+    assert not any("mpt3d" in line for line in bars)  # the catalog's bars are not this run's

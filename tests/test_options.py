@@ -116,7 +116,8 @@ def test_an_unknown_option_is_refused_with_a_close_match(tmp_path, capsys):
         generate("mpt3d_b", ["kf"], "all", tmp_path, options={"jospeh": True})
     with pytest.raises(OptionError, match=r"unknown option 'jospeh' \(did you mean "
                                           r"'joseph'\?\); options of kf: P0_pattern, "
-                                          r"missing, run_tracks, gate, gate_sensors, start, "
+                                          r"missing, loglik, run_tracks, gate, gate_sensors, "
+                                          r"start, "
                                           r"update, prefix, precision, run, joseph, "
                                           r"latency_schedule$"):
         derive_unit(catalog.load("mpt3d_b"), "kf", {"jospeh": True})
@@ -221,9 +222,9 @@ def test_declarations_are_consistent_with_the_registry():
         assert takers(key) and set(takers(key)) <= set(FILTERS), key
         for name in takers(key):
             assert key in options_type(name).specs(), (key, name)
-    assert taken_by("kf") == ["P0_pattern", "missing", "run_tracks", "gate", "gate_sensors",
-                              "start", "update", "prefix", "precision", "run", "joseph",
-                              "latency_schedule"]
+    assert taken_by("kf") == ["P0_pattern", "missing", "loglik", "run_tracks", "gate",
+                              "gate_sensors", "start", "update", "prefix", "precision", "run",
+                              "joseph", "latency_schedule"]
     assert taken_by("fir") == ["prefix", "precision", "run", "eps", "order"]
     assert taken_by("pred") == ["prefix", "precision", "run", "horizon"]
     assert taken_by("ukf") == ["P0_pattern", "prefix", "precision", "run", "alpha", "beta", "kappa"]
@@ -405,3 +406,25 @@ def test_the_regenerate_command_gives_back_the_language():
         command = next(line for line in files[file].splitlines() if "derive generate" in line)
         args = parser.parse_args(command[command.index("derive generate") + 7:].split())
         assert args.lang == lang, (lang, command)
+
+
+@pytest.mark.parametrize("filters, hint", [
+    (["fir"], "(did you mean 'order'?)"), (["pred"], "(did you mean 'horizon'?)"),
+    (["fir", "pred"], "(did you mean 'order' (fir) or 'horizon' (pred)?)")])
+def test_n_names_the_option_of_the_filters_called(tmp_path, filters, hint):
+    """``N`` was the FIR's order and the predictor's horizon: the hint is the one the
+    call's filters take (it was 'horizon' for the FIR, by spelling alone)."""
+    from derive import generate
+
+    with pytest.raises(OptionError) as info:
+        generate("mpt3d_b", filters, out=tmp_path, options={"N": 10})
+    assert f"unknown option 'N' {hint};" in str(info.value)
+
+
+def test_a_flag_of_another_command_is_named_as_such(capsys):
+    """``derive size --layout library``: --layout is spelt right, for another command (it
+    said "did you mean --layout?")."""
+    assert main(["size", "mpt3d_b", "--layout", "library"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("derive: error: unrecognized arguments: --layout library (--layout is an "
+                   "option of derive generate only)\n")

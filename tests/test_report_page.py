@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import base64
 import re
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -252,13 +254,30 @@ def test_progress_disabled_writes_nothing(capsys):
     assert capsys.readouterr().err == ""
 
 
-def test_results_into_a_missing_directory_is_bad_input_before_any_work(tmp_path, capsys):
-    target = tmp_path / "no" / "results.md"
-    status = cli.main(["reproduce", "--quick", "--no-progress", "--out", str(tmp_path / "r"),
-                       "--results", str(target)])
+@pytest.mark.parametrize("case", ["missing directory", "empty", "a directory", "/dev/full",
+                                  "immutable directory"])
+def test_a_results_path_that_cannot_be_written_is_bad_input_before_any_work(tmp_path, capsys,
+                                                                          case):
+    """--results is checked before the job (it failed only after the whole job, blaming
+    "the report or the generated code"): one line naming it, exit 2, nothing written."""
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    target = {"missing directory": tmp_path / "no" / "results.md", "empty": "",
+              "a directory": tmp_path, "/dev/full": "/dev/full",
+              "immutable directory": locked / "results.md"}[case]
+    if case == "immutable directory" and (shutil.which("chattr") is None or subprocess.run(
+            ["chattr", "+i", str(locked)], capture_output=True).returncode != 0):
+        pytest.skip("chattr +i is not available here")
+    try:
+        status = cli.main(["reproduce", "--quick", "--no-progress", "--out",
+                           str(tmp_path / "r"), "--results", str(target)])
+    finally:
+        if case == "immutable directory":
+            subprocess.run(["chattr", "-i", str(locked)], check=True)
     err = capsys.readouterr().err
-    assert status == 2 and err.count("\n") == 1 and "--results" in err
-    assert not (tmp_path / "r").exists()
+    assert status == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"derive: error: --results {target}") and "Traceback" not in err
+    assert not (tmp_path / "r").exists() and not list(locked.iterdir())
 
 
 def test_the_repositorys_results_file_is_written_by_the_command():

@@ -204,7 +204,9 @@ def test_a_dask_chunk_of_zero_tracks_gives_the_numpy_result(tmp_path):
 # -- the library layout: names CMake reserves ---------------------------------------------
 
 
-@pytest.mark.parametrize("name", ["test", "all", "clean", "install", "ALL_BUILD"])
+@pytest.mark.parametrize("name", ["test", "all", "clean", "install", "ALL_BUILD",
+                                  "Experimental", "Nightly", "Continuous",
+                                  "NightlyMemoryCheck", "ExperimentalSubmit"])
 def test_the_library_layout_refuses_a_model_named_like_a_reserved_cmake_target(
         name, tmp_path, capsys):
     """``add_library(test ...)`` is refused by CMake ("The target name "test" is reserved

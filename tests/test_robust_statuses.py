@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import sympy
 
-from derive import LinearModel, interface
+from derive import LinearModel, generate, interface, load_python
 from derive.errors import NumericalError
 from derive.modelfile import loads_model
 from derive.pipeline import load_generated
@@ -107,3 +108,15 @@ def test_the_pattern_status_of_each_program_is_its_own():
     by_number = Counter(s.number for s in described.statuses)
     assert max(by_number.values()) == 1
     assert {s.program for s in described.statuses if s.zero} >= {"enter"}
+
+
+def test_the_ikf_names_the_matrix_whose_pivot_fails(tmp_path):
+    """A free R given negative: the IKF's LDL^T solve of R fails at its first pivot, and
+    the status says R (it said "S is not positive definite", and an IKF has no S)."""
+    r = sympy.Symbol("r", real=True)
+    model = LinearModel("free_r", ["s", "v"], ["z"], [[1, 1], [0, 1]], [[1, 0]], [[0.01]],
+                        [[r]], G=[[0.5], [1]], P0=np.eye(2).tolist())
+    generate(model, ["ikf"], lang="python", out=tmp_path)
+    ikf = load_python(tmp_path / "free_r" / "ikf.py")
+    with pytest.raises(NumericalError, match=r"^step 0: R is not positive definite: pivot 0"):
+        ikf.run(np.ones((3, 1)), np.zeros(2), np.eye(2), np.full((3, 1), -1.0))

@@ -232,9 +232,9 @@ def test_a_row_read_from_inside_a_chunk_computes_that_chunk_as_scalars(read_from
 
 
 def test_catalog_ins_gnss_declares_vector_rows():
-    """The catalog model declares rows = vector (predict and the sequential GNSS update;
-    the batch baro update stays scalar); its header says P is read whole; the option
-    rows = scalar overrides the model."""
+    """The catalog model declares rows = vector (predict and the sequential GNSS update,
+    and the baro update of one measurement, declared batch); its header says P is read
+    whole; the option rows = scalar overrides the model."""
     model = load_catalog("ins_gnss")
     header = render_filter(model, "ekf", "c")["ekf.c"]
     assert "symmetric in predict: P, P_new (inputs: P read whole, both triangles" in header
@@ -242,7 +242,7 @@ def test_catalog_ins_gnss_declares_vector_rows():
     assert model.rows == "vector"
     unit = derive_unit(model, "ekf")
     assert unit.programs["predict"].rows and unit.programs["update_gnss"].rows
-    assert not unit.programs["update_baro"].rows  # batch: scalar as before
+    assert unit.programs["update_baro"].rows  # one measurement: the same update, as rows
     assert not derive_unit(model, "ekf", SCALAR).programs["predict"].rows
 
 

@@ -497,7 +497,7 @@ def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
     """The :class:`SensorsConditioning` of ``model``'s sensors reference run from its
     ``trace`` (derive.reference.sensors.StepTrace per step)."""
     F = transition_function(model)
-    n = model.n
+    n = model.n_tangent  # the error's dimension: P's
     maps, steps, present = [], [], {}
     for k, step in enumerate(trace):
         A = np.eye(n)

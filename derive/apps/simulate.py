@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from derive.errors import ModelError, ShapeError, VerificationError
+from derive.manifolds import boxplus_numeric
 from derive.system_checks import psd_sqrt, system_arrays
 
 # WGS-84 ellipsoid
@@ -285,7 +286,8 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
     """The model's own process driven by inputs uniform in [-1, 1] (nonlinear: with noise
     of covariance Qu on them) and process noise, each group of states the model declares
     unit-norm kept unit in the truth (a quaternion driven by delta angles of up to 1 rad a
-    step would otherwise grow without bound, f being first order), measured by each sensor
+    step would otherwise grow without bound, f being first order), manifold states moved by
+    ⊞ (the noise, and the start's spread, in the tangent space), measured by each sensor
     of ``groups``
     (derive.model.SensorGroup, rows of the model's stacked h or H) every
     :data:`SENSOR_PERIODS` steps, with noise of its R (a sensor whose R is given per call:
@@ -293,12 +295,16 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
     value (``params``: values of the free parameters, name -> number)."""
     steps = _steps(steps)
     rng = np.random.default_rng(seed)
-    n, n_u = model.n, len(model.inputs)
+    n, nt, n_u = model.n, model.n_tangent, len(model.inputs)
     x0 = np.asarray(model.x0.tolist(), dtype=float).ravel()
     P0 = np.asarray(model.P0.tolist(), dtype=float)
     us = rng.uniform(-1.0, 1.0, (steps, n_u))
     truth = np.empty((steps + 1, n))
-    truth[0] = x0 + rng.multivariate_normal(np.zeros(n), P0, method="eigh")
+    layout = getattr(model, "layout", None)
+
+    def moved(x, w):  # manifold states: x ⊞ w, w in the tangent space (derive.manifolds)
+        return x + w if layout is None else boxplus_numeric(layout, x, w)
+    truth[0] = moved(x0, rng.multivariate_normal(np.zeros(nt), P0, method="eigh"))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # refused below, by step
         if model.kind == "linear":
             num = model.numeric(params)
@@ -314,15 +320,15 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
             if model.state_noise:
                 raise VerificationError(f"no sensor simulation for model {model.name!r}: its "
                                         "Q or R depends on the state or the inputs")
-            w = rng.multivariate_normal(np.zeros(n), fns["Q"], size=steps, method="eigh")
+            w = rng.multivariate_normal(np.zeros(nt), fns["Q"], size=steps, method="eigh")
             noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
                                                   method="eigh") if n_u else 0.0)
             groups_at = [[model.states.index(s) for s in g] for g in model.unit_norm]
             _unit(truth[0], groups_at)
             for k in range(steps):
                 step_u = noisy[k, [model.inputs.index(u) for u in model.f_inputs]]
-                truth[k + 1] = (fns["f"](truth[k], step_u) if model.f_inputs
-                                else fns["f"](truth[k])) + w[k]
+                truth[k + 1] = moved(fns["f"](truth[k], step_u) if model.f_inputs
+                                     else fns["f"](truth[k]), w[k])
                 _unit(truth[k + 1], groups_at)
             h, R = fns["h"], fns["R"]
         v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")

@@ -49,7 +49,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import ModelError, VerificationError
+from ..errors import ModelError, SymbolError, VerificationError
 from ..filters import kind
 from ..filters.sensors import reference_run as sensors_reference
 from ..filters.sensors import sensor_groups, uses_sensor_run
@@ -308,12 +308,16 @@ def reference_run(model, name: str, zs, options: dict, scenario: NonlinearScenar
 
 
 def generated_run(module, name: str, zs, model, lang: str,
-                  scenario: NonlinearScenario | None = None):
+                  scenario: NonlinearScenario | None = None, with_lls: bool = False,
+                  p=None):
     """Run a generated filter (Python module or C FilterModule) from the model's x0, P0
     (nonlinear filters: the scenario's zs, us, x0 and P0); every input is given in the
     module's dtype (a float32 kernel's: each value rounded once to float), the outputs are
-    returned as float64."""
+    returned as float64: (xs, Ps or None), and with ``with_lls`` (a filter generated with
+    the option loglik) the per-step log-likelihoods third; ``p``: the free parameters' row,
+    for every step (a model verified at its parameters' examples)."""
     dtype = getattr(module, "dtype", np.float64)
+    rows = {} if p is None else {"p": np.asarray(p, dtype=dtype)}
 
     def given(*arrays):
         return [np.asarray(a, dtype=dtype) for a in arrays]
@@ -321,20 +325,22 @@ def generated_run(module, name: str, zs, model, lang: str,
     spec = kind(name)
     if spec.model_kind == "nonlinear":
         args = [scenario.zs] + ([scenario.us] if model.inputs else [])
-        xs, Ps = module.run(*given(*args, scenario.x0, scenario.P0))
-        return (np.asarray(xs, dtype=float),
-                np.asarray(Ps, dtype=float).reshape(len(scenario.zs), model.n, model.n))
-    num = model.numeric()
-    # run's arguments after the measurements (and inputs): what its run kind starts from
-    start = {"x0": num.x0, "P0": num.P0}
-    data = [zs.zs, zs.us] if model.inputs else [zs]
-    out = module.run(*given(*data, *(start[name]
-                                     for name, _ in RUN_KINDS[spec.run_kind].start)))
+        out = module.run(*given(*args, scenario.x0, scenario.P0), **rows)
+        steps = len(scenario.zs)
+    else:
+        num = model.numeric()
+        # run's arguments after the measurements (and inputs): what its run kind starts from
+        start = {"x0": num.x0, "P0": num.P0}
+        data = [zs.zs, zs.us] if model.inputs else [zs]
+        out = module.run(*given(*data, *(start[name]
+                                         for name, _ in RUN_KINDS[spec.run_kind].start)), **rows)
+        steps = len(data[0])
     if not isinstance(out, tuple):
         return np.asarray(out, dtype=float), None
-    xs, Ps = out
-    return (np.asarray(xs, dtype=float),
-            np.asarray(Ps, dtype=float).reshape(len(data[0]), model.n, model.n))
+    nt = model.n_tangent
+    xs, Ps = (np.asarray(out[0], dtype=float),
+              np.asarray(out[1], dtype=float).reshape(steps, nt, nt))
+    return (xs, Ps, np.asarray(out[2], dtype=float)) if with_lls else (xs, Ps)
 
 
 class InputRun(NamedTuple):
@@ -398,24 +404,20 @@ class SensorsCase:
 
 
 def sensors_case(model, name: str, steps: int, seed: int, options, unit: Unit | None = None,
-                 float_c: bool = True) -> SensorsCase:
+                 float_c: bool = True, values: dict | None = None) -> SensorsCase:
     """The :class:`SensorsCase` of filter ``name`` of ``model`` (a unit of the run kind
-    sensors). Free parameters take the model's examples (``dt = { example = 0.01 }``);
+    sensors). Free parameters take ``values`` over the model's examples
+    (:func:`parameter_values`);
     with the option ``precision`` "float" and ``float_c``, the bound of the float32 C
     (``unit``: derived again when not given)."""
-    missing = [p.name for p in model.parameters if p.name not in model.examples]
-    if missing:
-        raise VerificationError(
-            f"verify needs a value for every symbol of model {model.name!r} with sensors; "
-            f"free: {missing} (give each an example, e.g. {missing[0]} = {{ example = ... }} "
-            "in [parameters])")
+    params = parameter_values(model, values)
     groups = tuple(sensor_groups(model))
-    params = dict(model.examples)
     run = simulate_sensors(model, groups, steps, seed, params)
     ps = (np.tile([params[p.name] for p in model.parameters], (steps, 1))
           if model.parameters else None)
     trace: list = []
-    ref = sensors_reference(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
+    reference_of = kind(name).sensors_reference or sensors_reference
+    ref = reference_of(model, options, run.zs, run.us, ps, run.x0, run.P0, run.Rs,
                             trace=trace)
     tolerance = LINEAR_TOLERANCE if model.kind == "linear" else NONLINEAR_TOLERANCE
     bound = None
@@ -427,7 +429,8 @@ def sensors_case(model, name: str, steps: int, seed: int, options, unit: Unit | 
 
 
 def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int,
-                          options, unit: Unit | None = None) -> list[Verification]:
+                          options, unit: Unit | None = None,
+                          values: dict | None = None) -> list[Verification]:
     """A unit of the run kind sensors (several sensors, gating or update-first) on its
     :func:`sensors_case` (sensors at their periods, NaN rows between; free parameters at
     their examples, one p row per step), against derive.reference.sensors; bar: 1e-12
@@ -435,14 +438,15 @@ def verify_sensor_modules(model, name: str, modules: dict, steps: int, seed: int
     float32, given the data rounded to float32 and held to the tolerance
     derive.apps.float_tolerance derives from the unit's programs and the reference run's
     trace (``unit``: derived again when not given)."""
-    case = sensors_case(model, name, steps, seed, options, unit, float_c="c" in modules)
+    case = sensors_case(model, name, steps, seed, options, unit, float_c="c" in modules,
+                        values=values)
     ref = case.reference
     out = []
     for lang, module in modules.items():
         dtype = getattr(module, "dtype", np.float64)
         result = module.run(*[np.asarray(a, dtype=dtype) for a in case.arguments().values()])
         xs = np.asarray(result[0], dtype=float)
-        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n, model.n)
+        Ps = np.asarray(result[1], dtype=float).reshape(steps, model.n_tangent, model.n_tangent)
         err = max(relative_error(xs, ref.xs), relative_error(Ps, ref.Ps))
         if lang == "c" and case.bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, case.bound.value,
@@ -469,10 +473,33 @@ def conditioning_run(model, zs, scenario: NonlinearScenario | None, xs_ref, Ps_r
     return ReferenceRun(np.asarray(xs), np.asarray(Ps), None, num.x0, num.P0)
 
 
+def parameter_values(model, values: dict | None = None) -> dict[str, float]:
+    """The values derive verify runs ``model``'s free parameters at: ``values`` (``derive
+    verify --values NAME=V``) over the model's examples (``dt = { example = 0.01 }``);
+    SymbolError (bad input: exit 2) naming the parameters that have neither."""
+    given = {**model.examples, **(values or {})}
+    free = [q.name for q in model.parameters]
+    unknown = [nm for nm in values or {} if nm not in free]
+    if unknown:
+        raise SymbolError(f"--values names {unknown[0]!r}, which is not a free "
+                                f"parameter of model {model.name!r} (free: {free})")
+    missing = [nm for nm in free if nm not in given]
+    if missing:
+        raise SymbolError(
+            f"verify needs a value for each free parameter of model {model.name!r}; none "
+            f"for {missing} (give each an example, e.g. {missing[0]} = {{ example = ... }} "
+            f"in [parameters], or examples= in Python, or --values {missing[0]}=V)")
+    return {nm: float(given[nm]) for nm in free}
+
+
 def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int = 7,
-                   options: dict | None = None, unit: Unit | None = None
-                   ) -> list[Verification]:
+                   options: dict | None = None, unit: Unit | None = None,
+                   values: dict | None = None) -> list[Verification]:
     """Compare already built generated filters ({lang: module}) with the reference.
+
+    Free parameters run at ``values`` over the model's examples (:func:`parameter_values`):
+    the reference and the simulation use the model at those values, the generated filters
+    take them as ``p``.
 
     The scenario, reference run, tolerance and error measure of `derive verify`. With the
     option ``precision`` "float" the C module is float32 and is held to the tolerance
@@ -481,7 +508,12 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     """
     opts = validate(name, options)
     if kind(name).sensors and uses_sensor_run(model, opts):
-        return verify_sensor_modules(model, name, modules, steps, seed, opts, unit)
+        return verify_sensor_modules(model, name, modules, steps, seed, opts, unit, values)
+    p = None
+    if model.parameters:  # simulated and referenced at the values; the filters take them as p
+        given = parameter_values(model, values)
+        p = [given[q.name] for q in model.parameters]
+        model = model.at_values(given)
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)
@@ -490,6 +522,9 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         zs = linear_run(model, steps, seed)
         tolerance = LINEAR_TOLERANCE
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
+    # the option loglik: run's lls against the family's reference of the log-likelihood
+    lls_ref = (kind(name).loglik(model, zs if scenario is None else (
+        scenario, model.numeric_functions()), opts) if opts.get("loglik") else None)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
@@ -506,10 +541,16 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
 
     out: list[Verification] = []
     for lang, module in modules.items():
-        xs, Ps = generated_run(module, name, zs, model, lang, scenario)
+        xs, Ps, *lls = generated_run(module, name, zs, model, lang, scenario,
+                                     lls_ref is not None, p)
         err = relative_error(xs, xs_ref)
         if Ps_ref is not None and Ps is not None:
             err = max(err, relative_error(Ps, Ps_ref))
+        if lls:  # each step's error relative to its scale (loglik_scale)
+            ll_ref, scales = lls_ref
+            with np.errstate(divide="ignore", invalid="ignore"):
+                diff = np.abs(lls[0] - ll_ref)
+                err = max(err, float(np.max(np.where(diff == 0, 0.0, diff / scales))))
         if lang == "c" and bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
         elif scenario is None and not within_tolerance(err, tolerance, None):
@@ -533,21 +574,25 @@ def beyond_bar(model: str, name: str, lang: str, steps: int, error: float,
 
 
 def verify_filter(model, name: str, steps: int = 1000, seed: int = 7, langs=("python", "c"),
-                  options: dict | None = None, workdir: str | Path | None = None
-                  ) -> list[Verification]:
-    """Generate, build and run filter ``name``; compare with the reference."""
+                  options: dict | None = None, workdir: str | Path | None = None,
+                  values: dict | None = None) -> list[Verification]:
+    """Generate, build and run filter ``name``; compare with the reference (free
+    parameters at ``values`` over the model's examples: :func:`parameter_values`)."""
+    if model.parameters:
+        parameter_values(model, values)  # refused before anything is generated
     opts = validate(name, options)
     only = set(langs)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         generated = load_generated(model, name, opts, only.pop() if len(only) == 1 else "all",
                                    tmp)
     modules = {lang: generated.module(lang) for lang in langs}
-    return verify_modules(model, name, modules, steps, seed, opts, generated.unit)
+    return verify_modules(model, name, modules, steps, seed, opts, generated.unit, values)
 
 
 __all__ = ["FLOOR_MARGIN", "NONLINEAR_TOLERANCE", "WITNESS_POINTS", "WITNESS_TOLERANCE",
            "InputRun", "JacobianWitness", "NonlinearScenario", "SensorsCase", "Verification",
            "conditioning_run", "error_floor", "jacobian_witness", "linear_run",
            "nonlinear_reference",
-           "nonlinear_scenario", "relative_error", "rounding_floor", "sensors_case",
+           "nonlinear_scenario", "parameter_values", "relative_error", "rounding_floor",
+           "sensors_case",
            "verify_filter", "verify_modules"]

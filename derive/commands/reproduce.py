@@ -24,7 +24,6 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     import shlex
-    from pathlib import Path
 
     from .. import progress
     from ..errors import ModelError, VerificationError
@@ -39,9 +38,7 @@ def run(args) -> int:
     from ..build import BuildError
 
     if args.results is not None:
-        folder = Path(args.results).resolve().parent
-        if not folder.is_dir():
-            raise ModelError(f"--results {args.results}: directory {folder} does not exist")
+        _check_results(args.results)
     command = shlex.join(["derive", NAME, *_given(args)])
     try:
         result = run_report(args.out, args.generated, quick=args.quick,
@@ -56,6 +53,46 @@ def run(args) -> int:
         raise VerificationError(f"{len(result.failures)} verification(s) or check(s) failed; "
                                 f"see {result.page}")
     return 0
+
+
+def _check_results(results: str) -> None:
+    """Refuse, before the job, a ``--results`` path the summary could not be written to:
+    empty, a directory, not a regular file (``/dev/full``), or in a directory that is
+    missing or where no file can be made (read-only, immutable): found by making and
+    removing a file beside it (write permission bits do not tell: root ignores them,
+    and ``chattr +i`` binds root too)."""
+    import os
+    import stat
+    import tempfile
+    from pathlib import Path
+
+    from ..errors import ModelError
+
+    if not results:
+        raise ModelError("--results '': an empty path (give the file to write the results "
+                         "summary to, e.g. docs/results.md)")
+    path = Path(results)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:
+        raise ModelError(f"--results {results}: {exc.strerror}") from None
+    if mode is not None and not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
+        raise ModelError(f"--results {results}: it is {kind}; the results summary is written "
+                         "to a regular file")
+    folder = path.resolve().parent
+    if not folder.is_dir():
+        raise ModelError(f"--results {results}: directory {folder} does not exist")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".derive-results-"):
+            pass
+        if mode is not None:
+            with open(path, "ab"):
+                pass
+    except OSError as exc:
+        raise ModelError(f"--results {results}: cannot write there: {exc.strerror}") from None
 
 
 def _given(args) -> list[str]:

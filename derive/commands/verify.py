@@ -3,6 +3,9 @@
 Takes the filter options of `derive generate` (derive.options), each given to the filters
 that take it."""
 
+import math
+import re
+
 from . import add_filter_options
 
 NAME = "verify"
@@ -25,6 +28,10 @@ def add_arguments(parser) -> None:
                              "that applies to the model)")
     parser.add_argument("--steps", type=int, default=1000, help="steps simulated (1000)")
     parser.add_argument("--seed", type=int, default=7, help="simulation seed (7)")
+    parser.add_argument("--values", action="append", default=[], metavar="NAME=V",
+                        help="run free parameter NAME at V (repeatable); a parameter not "
+                             "named runs at its example (dt = { example = 0.01 } in a "
+                             "model file's [parameters])")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines (they are shown only when stderr is a "
                              "terminal)")
@@ -41,6 +48,7 @@ def run(args) -> int:
     from . import load_model
 
     options = from_arguments(args)
+    values = parameter_values(args.values)
     refs = catalog.names() if args.model == "all" else [args.model]
     show_progress = not args.no_progress and progress.enabled()
     tally = {"passed": 0, "failed": 0, "skipped": 0}
@@ -57,7 +65,7 @@ def run(args) -> int:
             if "order" in typed[name].specs():  # a FIR: the order its options give
                 print(f"{model.name}/fir: order N = {order(model, typed[name])}")
             for v in verify_filter(model, name, steps=args.steps, seed=args.seed,
-                                   options=typed[name]):
+                                   options=typed[name], values=values):
                 print(v.line(), flush=True)
                 tally["passed" if v.passed else "failed"] += 1
                 uncarried += v.bound is not None and not v.bound.meaningful
@@ -73,6 +81,25 @@ def run(args) -> int:
         raise VerificationError(f"{tally['failed']} generated filter(s) or Jacobian "
                                 f"witness(es) disagree with the reference{why}")
     return 0
+
+
+def parameter_values(items: list[str]) -> dict[str, float]:
+    """``--values NAME=V`` as ``{NAME: V}``; OptionError (exit 2) for an item that is not
+    a name, ``=`` and a finite number."""
+    from ..errors import OptionError
+
+    values: dict[str, float] = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        try:
+            number = float(text)
+        except ValueError:
+            number = math.nan
+        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name) or not math.isfinite(number):
+            raise OptionError(f"--values {item!r}: expected NAME=V, a parameter's name and a "
+                              "finite number (e.g. --values dt=0.1)")
+        values[name] = number
+    return values
 
 
 def summary_line(tally: dict[str, int], models: int) -> str:

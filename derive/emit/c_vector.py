@@ -62,10 +62,10 @@ _X86_FMA = {("double", 2): ("_mm_fmadd_pd", "__FMA__"),
 #: on 32-bit Arm with NEON (floats). Elsewhere (a Cortex-M, or a vector wider than the
 #: registers) GCC would split each vector operation into narrower ones and the vectors'
 #: registers would not fit: at -O2 on x86-64 without AVX (SSE2, two doubles a register),
-#: a vector of four doubles measured slower than the scalar lanes, the INS/GNSS EKF's
-#: predict 780 ns against 432 ns, mpt3d_a's KF run 18.4 ns against 12.4 ns a step, its SSKF
-#: 13.2 against 3.5 ns; with -mavx 136 against 409, 11.1 against 11.8 and 2.0 against
-#: 2.4 ns (Intel Xeon, docs/performance.md).
+#: a vector of four doubles measured slower than the scalar lanes, ins_gnss's
+#: predict 780 ns against 432 ns, mpt3d_a's time-varying run 18.4 ns against 12.4 ns a
+#: step, its steady run 13.2 against 3.5 ns; with -mavx 136 against 409, 11.1 against
+#: 11.8 and 2.0 against 2.4 ns (Intel Xeon, docs/performance.md).
 _TARGETS = {("double", 16): "defined(__SSE2__) || defined(__aarch64__)",
             ("float", 16): "defined(__SSE__) || defined(__ARM_NEON) || defined(__ARM_NEON__)",
             ("double", 32): "defined(__AVX__)", ("float", 32): "defined(__AVX__)",

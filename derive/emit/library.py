@@ -16,6 +16,7 @@ derive.apps.targets.data); emit computes no reference.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -110,7 +111,9 @@ def render_test_program(unit: Unit, header: str, data) -> str:
         title=unit.title, model=unit.model, filter=unit.filter, run=run.name,
         about="the scenario and seed of derive verify", steps=steps,
         compared=" and ".join(compared) or "nothing", include=f"{unit.model}/{unit.filter}.h",
-        tolerance_literal=float(data.tolerance).hex(),
+        # a bound float32 cannot carry may be infinite (derive marks the run failed)
+        tolerance_literal=(float(data.tolerance).hex() if math.isfinite(data.tolerance)
+                           else "HUGE_VAL"),
         tolerance_text=f"{float(data.tolerance):.1e}", version=derive_version(),
         command=unit.command, inputs=inputs, references=references, outputs=outputs,
         scalar=kind.c_type, comparisons=comparisons,

@@ -312,7 +312,7 @@ def function_parts(lowered: LoweredProgram, doc_lines: list[str] | None = None) 
 
 
 def unread_parameters(lowered: LoweredProgram) -> bool:
-    """True when the program takes ``p`` (last) but reads none of it (an EKF predict of a
+    """True when the program takes ``p`` (last) but reads none of it (a nonlinear predict of a
     model whose parameters are in h alone): Python may then be called without it."""
     return (bool(lowered.inputs) and lowered.inputs[-1].name == PARAMETER_PORT
             and PARAMETER_PORT not in lowered.used_inputs())

@@ -34,7 +34,15 @@ from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
-from derive.runs.unit import LANGUAGES, LOOKAHEAD_NEXT, Argument, Unit, run_arguments
+from derive.runs.unit import (
+    LANGUAGES,
+    LOOKAHEAD_NEXT,
+    Argument,
+    Unit,
+    run_arguments,
+)
+from derive.runs.unit import sizes as run_sizes
+from derive.runs.unit import space as array_space
 from derive.version import __version__
 
 
@@ -90,28 +98,36 @@ def _dims(arg: Argument, sep: str) -> str:
 
 def describe(prefix: str, lowered: dict[str, LoweredProgram],
              run: list[Argument] | None = None, real: Precision = DOUBLE, *,
-             c_run: bool = True, tracks: bool = False) -> interface.Interface:
+             c_run: bool = True, tracks: bool = False,
+             unit: Unit | None = None) -> interface.Interface:
     """The interface of one file: a function per program (C: ``PREFIX_NAME``) and, with
     ``run`` (the run function's arguments), the run function (in C only when ``c_run``;
     with ``tracks``, C's ``PREFIX_run_tracks`` too, taking run's arguments per track);
-    statuses of every check; ``real``: the C's element type."""
+    statuses of every check; ``real``: the C's element type; ``unit``: whose covariance
+    may live in a tangent space (each array of x or P then says its space)."""
     functions, python = [], []
+
+    def space(name: str) -> str:
+        return "" if unit is None else array_space(unit, name)
+
     for lp in lowered.values():
         ports = {p.name: p for p in lp.inputs + lp.outputs}
         outputs = {p.name for p in lp.outputs}
         functions.append(interface.Function(
             name=f"{prefix}_{lp.name}", program=lp.name, returns_status=lp.has_checks,
-            arguments=tuple(interface.Argument(name, ports[name].shape, name in outputs)
+            arguments=tuple(interface.Argument(name, ports[name].shape, name in outputs,
+                                               space=space(name))
                             for name in c_printer.argument_order(lp))))
         python.append(interface.Function(
             name=lp.name, program=lp.name, returns_status=lp.has_checks,
-            arguments=tuple(interface.Argument(p.name, p.shape, p in lp.outputs)
+            arguments=tuple(interface.Argument(p.name, p.shape, p in lp.outputs,
+                                               space=space(p.name))
                             for p in lp.inputs + lp.outputs)))
     if run is not None:
         status = any(lp.has_checks for lp in lowered.values())
         args = tuple(interface.Argument(a.c_name, a.dims, a.output, a.optional,
                                         rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
-                                        scratch=a.scratch)
+                                        scratch=a.scratch, space=space(a.c_name))
                      for a in run)
         if c_run:
             functions.append(interface.Function(f"{prefix}_run", "run", status, args, True))
@@ -133,8 +149,10 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
         statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()),
                                       parameters.get(number, ()))
                      for number in sorted(messages)]
+    spaces = ({"storage": unit.n, "tangent": unit.nt}
+              if unit is not None and unit.nt != unit.n else {})
     return interface.Interface(tuple(functions), tuple(statuses), tuple(python),
-                               element=real.c_type)
+                               element=real.c_type, spaces=spaces)
 
 
 def _language(lang: str, use_fma: bool, real: Precision = DOUBLE) -> str:
@@ -171,6 +189,9 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
              f"filter: {unit.filter} ({unit.title})",
              f"family: {unit.family}",
              f"n: {unit.n} (states)",
+             *([f"n_tangent: {unit.nt} (P is {unit.nt} x {unit.nt} over the tangent space; "
+                "arrays marked storage hold n numbers per state vector, tangent nt x nt)"]
+               if unit.nt != unit.n else []),
              f"m: {unit.m} (measurements)",
              "parameters: " + (f"p = [{', '.join(unit.parameters)}]" if unit.parameters
                                else "none")] + precision_line(unit, lang)
@@ -180,7 +201,7 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
                  else "interface (matrices taken flat, row-major, or (n, n), returned (n, n); "
                       "steps = number of steps):")
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
-                         c_run=unit.run_function, tracks=unit.batch)
+                         c_run=unit.run_function, tracks=unit.batch, unit=unit)
     lines += described.c_lines() if lang == "c" else described.python_lines()
     if lang == "c" and unit.batch:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
@@ -260,7 +281,7 @@ def _python_run_checks(step: LoweredProgram, unit: Unit) -> list[str]:
     program starts the carried state: it checks run's arguments itself)."""
     if not step.pattern_checks or "enter" in unit.programs:
         return []
-    flat = f"P0.reshape(({unit.n * unit.n},) + P0.shape[2:])"
+    flat = f"P0.reshape(({unit.nt * unit.nt},) + P0.shape[2:])"
     return python_printer.pattern_check_lines(step, {"P": flat})
 
 
@@ -360,7 +381,7 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
     lowered = _lowered(unit, use_fma=use_fma)
     lps = list(lowered.values())
     header_lines = _header_lines(unit, "c", lowered)
-    described = describe(unit.prefix, lowered, run_arguments(unit), real)
+    described = describe(unit.prefix, lowered, run_arguments(unit), real, unit=unit)
     header_lines.append(described.block())
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
@@ -372,6 +393,7 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     enum = status_enum(prefix, described)
     sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+             *([f"#define {prefix}_NT {unit.nt}"] if unit.nt != unit.n else []),
              f"#define {prefix}_NP {len(unit.parameters)}",
              f"#define {prefix}_NU {unit.n_inputs}"]
     sizes += [f"#define {prefix}_M_{s.name.upper()} {s.m}" for s in unit.sensors]
@@ -415,7 +437,7 @@ def render_python(unit: Unit) -> dict[str, str]:
         "step_args": ", ".join(per_step) + p_arg,
         "p_arg": p_arg,
         "p_start": f", {PARAMETER_START}" if unit.parameters else "",
-        "nn": unit.n * unit.n,
+        "nn": unit.nt * unit.nt,
         "m": unit.m,
         "window": unit.window if unit.run.window else 0,
         "window_m": unit.window * unit.m if unit.run.window else 0,
@@ -439,17 +461,21 @@ def render_python(unit: Unit) -> dict[str, str]:
         context["enter_line"] = (f"{names} = {enter}({', '.join(_flat_start(unit))})"
                                  if "enter" in lowered else "")
         stores = []
+        step_stored = [s["out"] for s in stored_outputs(unit) if s["step"]]
         for s in stored_outputs(unit):
             if s["out"] in by_output:
                 stores.append({**s, "value": by_output[s["out"]], "call": "",
                                "shape": ports[by_output[s["out"]]].shape})
+            elif s["step"]:  # a step output no carried port holds, named by its port
+                stores.append({**s, "value": s["out"], "call": "", "shape": s["dims"]})
             else:  # computed from the carried state by the store program
                 value = f"{s['array']}_k"
                 store = python_printer.flat_name(lowered["store"])
                 stores.append({**s, "value": value, "call": f"{value} = {store}({names})",
                                "shape": lowered["store"].outputs[0].shape})
         context["stores"] = stores
-        if "enter" not in lowered and "store" not in lowered:
+        context["loop_targets"] = ", ".join([s["name"] for s in state] + step_stored)
+        if "enter" not in lowered and "store" not in lowered and not step_stored:
             stored = tuple((by_output[s["out"]], ports[by_output[s["out"]]].shape)
                            for s in stored_outputs(unit))
             context["single"] = single_track_loop(lowered["step"].without_pattern_checks(),
@@ -460,7 +486,7 @@ def render_python(unit: Unit) -> dict[str, str]:
 def _flat_start(unit: Unit) -> list[str]:
     """run's start arguments as enter takes them: a matrix (shaped (rows, cols) + track
     by run's prologue) flattened row-major, so that a 1 x 1 P0 is not read as a track."""
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
     return [name if len(dims) < 2 else
             f"{name}.reshape(({int(np.prod([sizes[d] for d in dims]))},) + "
             f"{name}.shape[{len(dims)}:])"
@@ -504,10 +530,12 @@ def _c_call(function: str, args: str, status: bool) -> list[str]:
 def stored_outputs(unit: Unit) -> list[dict]:
     """run's per-step outputs: array name, the step's output port it stores, elements per
     step, optional (C: may be NULL)."""
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
+    step_outputs = {out for _, out, _, _ in unit.extra_stores}
     return [{"array": array, "out": out, "optional": optional,
-             "size": int(np.prod([sizes[d] for d in dims]))}
-            for array, out, dims, optional in unit.run.stores]
+             "size": int(np.prod([sizes[d] for d in dims], dtype=int)),
+             "step": out in step_outputs, "dims": dims}
+            for array, out, dims, optional in unit.stores]
 
 
 def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
@@ -546,7 +574,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             f"operations per pass of run, two steps ({_language('c', use_fma, real)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
-                         c_run=unit.run_function, tracks=unit.batch)
+                         c_run=unit.run_function, tracks=unit.batch, unit=unit)
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
     stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
@@ -589,7 +617,10 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     for s in optional_stores:  # computed by the store program, written into run's row k
         s["call"] = (_program_call(prefix, lowered["store"],
                                    {s["out"]: f"{s['array']} + k * {s['size']}"})
-                     if s["out"] not in carried_out else [])
+                     if s["out"] not in carried_out and not s["step"] else [])
+    # the step's outputs no carried port holds that run stores: local arrays of their names
+    step_locals = [f"{real.c_type} {s['out']}[{s['size']}];" for s in optional_stores
+                   if s["step"]]
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""
@@ -612,7 +643,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                          f" + k * {P_STRIDE};")
     batch = unit.batch
     run_args = {a.c_name: a for a in args}
-    sizes = {"n": unit.n, "m": unit.m}
+    sizes = run_sizes(unit)
 
     def track_array(name: str) -> str:
         """Track t's part of a run_tracks argument (optional ones may be NULL)."""
@@ -706,10 +737,11 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         # the per-step inputs' rows alone (zk), for a template that points pk itself
         "input_rows": step_rows[:len(unit.step_inputs)],
         "unused": unused,
+        "step_locals": step_locals,
         "run_checks": run_checks,
         "tracks_checks": tracks_checks,
         "n": unit.n,
-        "nn": unit.n * unit.n,
+        "nn": unit.nt * unit.nt,
         "m": unit.m,
         "window": unit.window if unit.run.window else 0,
         "window_m": unit.window * unit.m if unit.run.window else 0,

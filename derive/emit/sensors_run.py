@@ -30,7 +30,7 @@ def _columns(columns: tuple[int, ...], n_inputs: int) -> str:
 
 def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
     """The body of Python run after its prologue and ``xs = np.empty(...)``."""
-    n, nn = unit.n, unit.n * unit.n
+    n, nt, nn = unit.n, unit.nt, unit.nt * unit.nt  # x: n, P: nt x nt
     p_arg = f", {PARAMETER_ROWS}[k]" if unit.parameters else ""
     lines = [f"Ps = np.empty((steps, {nn}) + track)"]
     for s in unit.sensors:
@@ -39,9 +39,9 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
                       f"applied_{s.name} = np.zeros((steps,) + track)"]
     lines.append("x = x0")
     if reads_whole(lowered):  # P0's upper triangle, mirrored: the programs read P whole
-        lines += [f"P0m = P0.reshape(({n}, {n}) + P0.shape[2:])",
-                  f"upper = np.triu(np.ones(({n}, {n}), dtype=bool))"
-                  ".reshape((n_, n_) + (1,) * (P0m.ndim - 2))".replace("n_", str(n)),
+        lines += [f"P0m = P0.reshape(({nt}, {nt}) + P0.shape[2:])",
+                  f"upper = np.triu(np.ones(({nt}, {nt}), dtype=bool))"
+                  ".reshape((n_, n_) + (1,) * (P0m.ndim - 2))".replace("n_", str(nt)),
                   f"P = np.where(upper, P0m, P0m.swapaxes(0, 1)).reshape(({nn},) + "
                   "P0m.shape[2:])"]
     else:
@@ -74,7 +74,7 @@ def python_loop(unit: Unit, lowered: dict[str, LoweredProgram]) -> list[str]:
                       f"        applied_{s.name}[k] = np.where(present, applied[0], 0.0)"]
     lines += [f"    for i in range({n}):", "        xs[k, i] = x[i]",
               f"    for i in range({nn}):", "        Ps[k, i] = P[i]"]
-    outputs = ["xs", f"Ps.reshape((steps, {n}, {n}) + track)"]
+    outputs = ["xs", f"Ps.reshape((steps, {nt}, {nt}) + track)"]
     for s in unit.sensors:
         if s.gated:
             outputs += [f"nis_{s.name}", f"applied_{s.name}"]
@@ -106,7 +106,8 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
     """The statements of C run (unindented; the template indents them), in the
     precision's element type."""
     t = real.c_type
-    n, nn, prefix = unit.n, unit.n * unit.n, unit.prefix
+    n, nt, prefix = unit.n, unit.nt, unit.prefix  # x: n, P: nt x nt
+    nn = nt * nt
     gated = any(s.gated for s in unit.sensors)
     status = any(lp.has_checks for lp in lowered.values())
     all_columns = tuple(range(unit.n_inputs))
@@ -130,7 +131,7 @@ def c_run_body(unit: Unit, lowered: dict[str, LoweredProgram],
     lines += [f"for (i = 0; i < {n}; ++i) {{", "    x[i] = x0[i];", "}"]
     if reads_whole(lowered):  # P0's upper triangle, mirrored: the programs read P whole
         lines += [f"for (i = 0; i < {nn}; ++i) {{",
-                  f"    P[i] = i / {n} <= i % {n} ? P0[i] : P0[(i % {n}) * {n} + i / {n}];",
+                  f"    P[i] = i / {nt} <= i % {nt} ? P0[i] : P0[(i % {nt}) * {nt} + i / {nt}];",
                   "}"]
     else:
         lines += [f"for (i = 0; i < {nn}; ++i) {{", "    P[i] = P0[i];", "}"]

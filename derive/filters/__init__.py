@@ -17,6 +17,7 @@ import pkgutil
 from .. import progress, system_checks
 from ..errors import FilterError, SteadyStateError
 from ..options import use_filters, validate
+from ..precision import DOUBLE, Precision, PrecisionError, precision
 from ..schedule import scheduled_unit
 from .spec import FilterSpec
 
@@ -53,12 +54,30 @@ def _inputs_refusal(model, spec: FilterSpec) -> str | None:
     return None
 
 
+def _manifolds_refusal(model, spec: FilterSpec) -> str | None:
+    """Why a filter that keeps P over the stored state refuses a model with manifold
+    states (a quaternion's P lives in its tangent space), and why a filter of manifold
+    states refuses a model without any."""
+    manifolds = getattr(model, "manifolds", ())
+    takers = ", ".join(name for name, s in FILTERS.items() if s.manifolds)
+    if manifolds and not spec.manifolds:
+        return (f"filter {spec.name!r} does not handle manifold states; model "
+                f"{model.name!r} declares {manifolds[0].describe()} (the filters that do: "
+                f"{takers})")
+    if spec.manifolds and not manifolds:
+        return (f"filter {spec.name!r} is for models with manifold states (a quaternion, "
+                f"an angle); model {model.name!r} declares none")
+    return None
+
+
 def _sensors_refusal(model, spec: FilterSpec) -> str | None:
     """Why a filter without sensor support refuses a model with several sensors or with
     unit-norm groups."""
     if spec.sensors:
         return None
-    takers = ", ".join(name for name, s in FILTERS.items() if s.sensors)
+    manifolds = bool(getattr(model, "manifolds", ()))  # the takers that take this model
+    takers = ", ".join(name for name, s in FILTERS.items()
+                       if s.sensors and s.manifolds == manifolds)
     if any(g.R_argument for g in getattr(model, "sensors", ())):
         return (f"filter {spec.name!r} takes no R given per call; model {model.name!r} "
                 f"declares sensor R = 'argument' (the filters that do: {takers})")
@@ -77,7 +96,8 @@ def why_not(model, name: str) -> str | None:
     spec = kind(name)
     if spec.model_kind != model.kind:
         return f"filter {name!r} needs a {spec.model_kind} model; {model.name!r} is {model.kind}"
-    refusal = _inputs_refusal(model, spec) or _sensors_refusal(model, spec)
+    refusal = (_manifolds_refusal(model, spec) or _inputs_refusal(model, spec)
+               or _sensors_refusal(model, spec))
     if refusal is not None:
         return refusal
     if spec.steady and model.parameters:
@@ -133,6 +153,8 @@ def derive_unit(model, name: str, options=None):
     if model.n >= progress.LARGE_MODEL_STATES:
         progress.report(f"deriving {name} for {model.name} ({model.n} states, "
                         f"{model.m} measurements)...")
+    if typed.precision != DOUBLE.name:
+        _check_constants(model, precision(typed.precision))
     unit = f.derive(model, f, typed)
     if typed.get("latency_schedule"):
         unit = scheduled_unit(unit)
@@ -141,3 +163,30 @@ def derive_unit(model, name: str, options=None):
 
 __all__ = ["BATCH_FILTERS", "FILTERS", "MISSING_FILTERS", "FilterSpec", "available",
            "derive_unit", "kind", "names", "spec", "why_not"]
+
+
+def _check_constants(model, real: Precision) -> None:
+    """Refuse, before deriving, a parameter value or a matrix entry at the given values
+    (G Q G^T too) that ``real`` cannot hold, naming it: the refusal of a derived
+    constant alone (2.5e-41, from sq2 = 1e-40) named neither."""
+    named = [(f"parameter {name}", value) for name, value in model.values.items()]
+    matrices = (("F", "G", "H", "Q", "R", "B", "D", "GQGt") if model.kind == "linear"
+                else ("Q", "R", "Qu"))
+    for which in matrices:
+        mat = model.matrix(which) if model.kind == "linear" else getattr(model, which, None)
+        if mat is None:
+            continue
+        mat = model.subs(mat)
+        label = "G Q G^T" if which == "GQGt" else which
+        named += [(f"matrix {label}[{i}][{j}]", mat[i, j])
+                  for i in range(mat.rows) for j in range(mat.cols)
+                  if mat[i, j].is_number and mat[i, j] != 0]
+    for what, value in named:
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            continue           # not a real number: the model's own checks say so
+        try:
+            real.literal(number)
+        except PrecisionError as exc:
+            raise PrecisionError(f"model {model.name!r}: {what} = {number!r}: {exc}") from None

@@ -4,6 +4,7 @@ and the masks that skip missing (NaN) measurements."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import sympy
 
@@ -140,3 +141,39 @@ def mask_symmetric(prog: Program, S: sympy.Matrix, z: sympy.Matrix) -> sympy.Mat
 def with_fact(unit, fact: str):
     """``unit`` with one more header fact line."""
     return dataclasses.replace(unit, facts=tuple(unit.facts) + (fact,))
+
+
+# -- the log-likelihood of the innovations ----------------------------------------------------
+
+LOG_2PI = sympy.Float(math.log(2 * math.pi), 17)
+"""log 2 pi in double, the constant of the Gaussian log-density."""
+
+LOGLIK_FACT = ("log-likelihood (option loglik): ll(k) = -1/2 (m_k log 2 pi + log det S + "
+               "nu' S^-1 nu) of the innovation nu, from the LDL^T pivots of S (log det S = "
+               "sum of their logs) and L^-1 nu; m_k the measurements present; run stores it "
+               "per step in lls")
+
+
+def loglik_port() -> Port:
+    """The step's output ``ll``: the log-likelihood of the step's innovation."""
+    return Port("ll", (1,), doc="log-likelihood of the innovation, "
+                                "-1/2 (m log 2 pi + log det S + nu' S^-1 nu)")
+
+
+def gaussian_loglik(prog: Program, pivots, whitened, z: sympy.Matrix | None = None):
+    """``-1/2 sum_i (log 2 pi + log d_i + w_i^2 / d_i)``: the Gaussian log-density of an
+    innovation nu with ``S = L D L^T`` (``pivots``: derive.staging.Pivots, d_i and 1/d_i
+    where the step has it, else a division)
+    and ``whitened = L^-1 nu`` (w_i); or of sequential scalar updates, d_i their innovation
+    variances and w_i their innovations.  ``z``: with missing measurements, the step's z:
+    term i is selected where z[i] is present, else 0 (m = the measurements present)."""
+    terms = []
+    for i, (d, dinv) in enumerate(zip(pivots.D, pivots.Dinv)):
+        w = whitened[i]
+        term = sympy.log(d) + (w * w / d if dinv is None else w * w * dinv) + LOG_2PI
+        terms.append(term if z is None else IfPresent(z[i], prog.let(term, "llt"), 0))
+    total = prog.let(sympy.Add(*terms), "lls")
+    return prog.let(sympy.Rational(-1, 2) * total, "ll")
+
+LOGLIK_STORE = ("lls", "ll", (), True)
+"""run's optional per-step output of the log-likelihood (derive.runs.unit.Unit.extra_stores)."""

@@ -26,8 +26,9 @@ import sympy
 
 from .. import reference as numpy_reference
 from .. import staging
-from ..errors import OptionError
+from ..errors import OptionError, VerificationError
 from ..options import ExtendedOptions
+from ..reference.likelihood import innovations_loglik
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -67,12 +68,14 @@ JACOBIAN_FACT = ("Jacobians: sympy, polynomial entries as derived, others simpli
                  "evaluated with f and h through shared subexpressions")
 
 
-def ekf_predict_parts(model):
+def ekf_predict_parts(model, lin: Linearisation | None = None):
     """``parts(prog, mapping, x) -> (f, F, Q)``: f(x, u) and F = ∂f/∂x staged at x, and
     the process noise Q, with inputs in f and noise Qu on them Q(x, u) = Fu Qu Fu^T + Q,
-    Fu = ∂f/∂u at x(k-1/k-1), u(k): the scalar work of the prediction."""
-    lin = state_jacobian(model)
-    n = model.n
+    Fu = ∂f/∂u at x(k-1/k-1), u(k): the scalar work of the prediction. ``lin``: f and
+    [F | Fu] (default :func:`state_jacobian`'s; the error-state EKF gives its own, over
+    the tangent space: F is as wide as it is tall)."""
+    lin = state_jacobian(model) if lin is None else lin
+    n = lin.jacobian.rows
     used = [model.inputs.index(u) for u in model.f_inputs]
     Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used)
 
@@ -91,10 +94,11 @@ def ekf_predict_parts(model):
     return parts
 
 
-def ekf_predict_stage(model) -> Predict:
+def ekf_predict_stage(model, parts=None) -> Predict:
     """x(k/k-1) = f(x, u), P(k/k-1) = F P F^T + Q (F = I folds to P + Q); with inputs in
-    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k)."""
-    parts = ekf_predict_parts(model)
+    f and noise Qu on them, Q(x, u) = Fu Qu Fu^T + Q, Fu = ∂f/∂u at x(k-1/k-1), u(k).
+    ``parts``: :func:`ekf_predict_parts` (default: of the model's f and its Jacobians)."""
+    parts = ekf_predict_parts(model) if parts is None else parts
 
     def predict(prog, mapping, x, P):
         values, F, Q = parts(prog, mapping, x)
@@ -128,8 +132,10 @@ def ekf_update_stage(model, iterations: int = 0) -> Update:
     ``iterations``: the iterated EKF's relinearisations (the module docstring)."""
     parts = ekf_update_parts(model)
 
-    def update(prog, mapping, meas, x, P, z):
+    def update(prog, mapping, meas, x, P, z, loglik=False):
         values, H, R = parts(prog, mapping, meas, x)
+        if meas.sequential and loglik:
+            raise OptionError("option 'loglik' is not taken with sequential updates")
         if meas.sequential:
             innovation = wrapped(prog, staging.sub(prog, z, values), meas.angles)
             x_new, P_new, gated = sequential_update(prog, x, P, H, R, innovation, meas.gate,
@@ -152,9 +158,10 @@ def ekf_update_stage(model, iterations: int = 0) -> Update:
                 staged.append(nu)
                 return nu
 
-            x_new, P_new, gated = kalman_update(prog, x, P, PHt, S, innovation, meas.gate)
+            x_new, P_new, gated, *ll = kalman_update(prog, x, P, PHt, S, innovation,
+                                                     meas.gate, loglik)
             at = x_new
-        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ())
+        return (x_new, P_new, staged[0], S) + ((gated,) if gated else ()) + tuple(ll)
 
     return update
 
@@ -165,6 +172,9 @@ def derive_unit(model, spec, options):
     sensors, derive.filters.sensors)."""
     check_nonlinear(model, spec.name)
     iterations = options.iterations
+    if options.loglik and (uses_sensor_run(model, options) or iterations):
+        raise OptionError("option 'loglik' is not taken with several sensors, gating, "
+                          "update-first (the run kind sensors) or iterations")
     if uses_sensor_run(model, options) or model.unit_norm:
         if model.state_noise:
             raise OptionError(f"model {model.name!r}: a Q or R that depends on the state or "
@@ -233,19 +243,37 @@ def reference(model, data, options):
         res = sensors_reference(model, options, {IMPLICIT_SENSOR: scenario.zs}, scenario.us,
                                 None, scenario.x0, scenario.P0)
         return res.xs, res.Ps
+    res = _reference_result(model, scenario, fns, options)
+    return res.xs, res.Ps
+
+
+def _reference_result(model, scenario, fns, options):
+    """derive.reference.ekf's NonlinearResult on the scenario; an identity f as None;
+    angles, a state-dependent Q or R and the iterations as the unit's."""
     identity = list(model.subs(model.f)) == list(model.state_symbols)
     f, F = (None, None) if identity else (fns["f"], fns["F"])
     process = {"Fu_jac": fns["Fu"], "Qu": fns["Qu"]} if model.f_inputs else {}
-    res = numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
-                              scenario.P0, scenario.zs, inputs=list(scenario.us),
-                              skip_nan=False, angles=model.angle_rows(),
-                              iterations=options.iterations, m=model.m, **process)
-    return res.xs, res.Ps
+    return numpy_reference.ekf(f, F, fns["h"], fns["H"], fns["Q"], fns["R"], scenario.x0,
+                               scenario.P0, scenario.zs, inputs=list(scenario.us),
+                               skip_nan=False, angles=model.angle_rows(),
+                               iterations=options.iterations, m=model.m, **process)
+
+
+def loglik_reference(model, data, options):
+    """(each step's log-likelihood of the reference EKF's recorded innovations, its scale),
+    ``data`` as :func:`reference` takes it (a model whose x is renormalised has none)."""
+    scenario, fns = data
+    if model.unit_norm:
+        raise VerificationError(f"no reference log-likelihood for {model.name!r}, whose "
+                                "state is renormalised after every update")
+    res = _reference_result(model, scenario, fns, options)
+    return innovations_loglik(res.innovations, res.innovation_covariances, scenario.zs)
 
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
     options=ExtendedOptions, covariance=True, inputs=True, sensors=True, vector_rows=True,
+    loglik=loglik_reference,
     extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
     listing=100,
@@ -253,4 +281,5 @@ SPECS = (FilterSpec(
                      + NOTE_PY,
            "c": "Run the extended Kalman filter over steps steps; Ps may be NULL." + NOTE_C}),)
 
-__all__ = ["SPECS", "derive_unit", "ekf_predict_stage", "ekf_update_stage"]
+__all__ = ["SPECS", "derive_unit", "ekf_predict_parts", "ekf_predict_stage",
+           "ekf_update_stage"]

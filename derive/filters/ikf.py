@@ -43,10 +43,11 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
                                           symmetric_result=True), W, symmetric_result=True)
     if not missing:
         # H^T R^-1 (constant)
-        HtRinv = staging.transpose(staging.spd_solve(prog, R, H, axis="measurements"))
+        HtRinv = staging.transpose(staging.spd_solve(prog, R, H, name="R",
+                                                     axis="measurements"))
     elif _is_diagonal(R):
         HtRinv = mask_columns(prog, staging.transpose(
-            staging.spd_solve(prog, R, H, axis="measurements")), z)
+            staging.spd_solve(prog, R, H, name="R", axis="measurements")), z)
     else:
         H_present = staging.let_matrix(
             prog, sympy.Matrix(H.rows, H.cols, lambda i, j: IfPresent(z[i], H[i, j], 0)),
@@ -54,10 +55,11 @@ def ikf_update(prog, mats, x, P, z, missing: bool = False):
         HtRinv = staging.transpose(staging.spd_solve(prog, mask_symmetric(prog, R, z),
                                                      H_present, name="R",
                                                      axis="measurements"))
-    info = staging.add(prog, staging.spd_inverse(prog, Pp, axis="states"),
+    info = staging.add(prog, staging.spd_inverse(prog, Pp, name="the predicted P",
+                                                 axis="states"),
                        staging.matmul(prog, HtRinv, H, symmetric_result=True),
                        symmetric_result=True)
-    P_new = staging.spd_inverse(prog, info, axis="states")
+    P_new = staging.spd_inverse(prog, info, name="the information matrix", axis="states")
     K = staging.matmul(prog, P_new, HtRinv)
     innovation = staging.sub(prog, z, staging.matmul(prog, H, xp))
     if missing:

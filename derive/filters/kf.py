@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import sympy
 
 from .. import reference as numpy_reference
@@ -29,8 +30,10 @@ from .common import (
     JOSEPH_FACT,
     MISSING_FACT,
     bound_matrices,
+    gaussian_loglik,
     input_port,
     linear_step_inputs,
+    loglik_port,
     mask_columns,
     mask_symmetric,
     mask_vector,
@@ -70,8 +73,10 @@ def prior(prog: Program, F, W, H, R, x, P):
 
 
 def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool = False,
-              u=None):
-    """Stage one KF step; returns (x_new, P_new) as matrices of atoms.
+              u=None, loglik: bool = False):
+    """Stage one KF step; returns (x_new, P_new) as matrices of atoms, and with ``loglik``
+    (x_new, P_new, ll): ll the log-likelihood of the innovation from the LDL^T factors the
+    gain is solved with (:func:`derive.filters.common.gaussian_loglik`).
 
     ``missing``: NaN entries of z are absent measurements (skipped).  ``u``: the step's
     inputs (the model's ``inputs``): x(k+1/k) = F x + B u, innovation z - H x(k+1/k) - D u.
@@ -82,8 +87,9 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
         xp = staging.add(prog, xp, staging.matmul(prog, mats["B"], u))
     if missing:
         S, PHt = mask_symmetric(prog, S, z), mask_columns(prog, PHt, z)
-    K = staging.transpose(staging.spd_solve(prog, S, staging.transpose(PHt),
-                                            axis="measurements"))
+    Kt, L, pivots = staging.spd_solve_pivots(prog, S, staging.transpose(PHt),
+                                             axis="measurements")
+    K = staging.transpose(Kt)
     predicted_z = staging.matmul(prog, H, xp)
     if u is not None:
         predicted_z = staging.add(prog, predicted_z, staging.matmul(prog, mats["D"], u))
@@ -91,42 +97,49 @@ def kf_update(prog: Program, mats, x, P, z, joseph: bool = False, missing: bool 
     if missing:
         innovation = mask_vector(prog, innovation, z)
     x_new = staging.add(prog, xp, staging.matmul(prog, K, innovation))
+    extra = ()
+    if loglik:
+        whitened = staging.forward_substitute(prog, L, innovation)
+        extra = (gaussian_loglik(prog, pivots, whitened, z if missing else None),)
     if not joseph:
         KPHt = staging.matmul(prog, K, staging.transpose(PHt), symmetric_result=True)
         P_new = staging.sub(prog, Pp, KPHt, symmetric_result=True)
-        return x_new, P_new
+        return (x_new, P_new) + extra
     n = F.rows
     IKH = staging.sub(prog, sympy.eye(n), staging.matmul(prog, K, H))
     A = staging.matmul(prog, staging.matmul(prog, IKH, Pp), staging.transpose(IKH),
                        symmetric_result=True)
     B = staging.matmul(prog, staging.matmul(prog, K, R), staging.transpose(K),
                        symmetric_result=True)
-    return x_new, staging.add(prog, A, B, symmetric_result=True)
+    return (x_new, staging.add(prog, A, B, symmetric_result=True)) + extra
 
 
-def time_varying_program(model, update, title: str, P0_pattern: str | None) -> Program:
+def time_varying_program(model, update, title: str, P0_pattern: str | None,
+                         loglik: bool = False) -> Program:
     """Build ``step`` of the filter ``title`` from ``update(prog, mats, x, P, z)``
-    (``update(prog, mats, x, P, z, u)`` for a model with inputs).
+    (``update(prog, mats, x, P, z, u)`` for a model with inputs), which returns
+    ``(x_new, P_new)``, or with ``loglik`` ``(x_new, P_new, ll)``: the step's output ``ll``.
 
     P's pattern is the closure of P0's declared pattern (option ``P0_pattern``; None:
     the model's) under ``update``; entries outside it are neither read nor computed.
     A model of independent blocks is derived block by block, each distinct block once
-    (:mod:`derive.filters.blockwise`).
+    (:mod:`derive.filters.blockwise`), unless the step sums a log-likelihood over them.
     """
     declared_name = P0_pattern or model.P0_pattern
 
     def derive_block(block_model):
-        return _time_varying_step(block_model, update, title, declared_name)
+        return _time_varying_step(block_model, update, title, declared_name, loglik)
 
-    assembled = blockwise_step(model, declared_name, derive_block)
+    assembled = None if loglik else blockwise_step(model, declared_name, derive_block)
     if assembled is not None:
         return assembled[0]
     return derive_block(model)[0]
 
 
-def _time_varying_step(model, update, title: str, declared_name: str):
+def _time_varying_step(model, update, title: str, declared_name: str, loglik: bool = False):
     """(the optimised step of ``model``, derived whole, and P's closed pattern)."""
     inputs, outputs = time_varying_ports(model)
+    outputs += [loglik_port()] if loglik else []
 
     def build(pattern):
         prog = Program("step", inputs, outputs,
@@ -134,16 +147,17 @@ def _time_varying_step(model, update, title: str, declared_name: str):
         mats = bound_matrices(model, prog)
         P = masked_covariance(prog, pattern, declared_name)
         u = [prog.matrix("u")] if input_port(model) else []
-        x_new, P_new = update(prog, mats, prog.matrix("x"), P, prog.matrix("z"), *u)
-        return prog, x_new, P_new
+        return (prog,) + tuple(update(prog, mats, prog.matrix("x"), P, prog.matrix("z"), *u))
 
     def step_pattern(pattern):
         return pat.of_matrix(build(pattern)[2])
 
     closed = pat.closure(step_pattern, pat.declared(model, declared_name))
-    prog, x_new, P_new = build(closed)
+    prog, x_new, P_new, *ll = build(closed)
     prog.set_output("x_new", list(x_new))
     prog.set_output("P_new", list(P_new))
+    if ll:
+        prog.set_output("ll", [ll[0]])
     return prog.optimize(), closed
 
 
@@ -250,7 +264,7 @@ def sensor_programs(model, groups, thresholds, title: str, P0_pattern: str | Non
 
 def derive_sensor_unit(model, spec, options):
     """The KF of the run kind ``sensors`` (derive.filters.sensors)."""
-    for key in ("joseph", "missing"):
+    for key in ("joseph", "missing", "loglik"):
         if options.get(key):
             raise OptionError(f"option {key!r} is not taken with several sensors, gating, "
                               "sequential updates or update-first (the run kind sensors: a "
@@ -268,12 +282,13 @@ def derive_sensor_unit(model, spec, options):
 def derive_unit(model, spec, options):
     if uses_sensor_run(model, options):
         return derive_sensor_unit(model, spec, options)
-    joseph, missing = options.joseph, options.missing
+    joseph, missing, loglik = options.joseph, options.missing, options.loglik
 
     def update(prog, mats, x, P, z, u=None):
-        return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing, u=u)
+        return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing, u=u,
+                         loglik=loglik)
 
-    step = time_varying_program(model, update, spec.title, options.P0_pattern)
+    step = time_varying_program(model, update, spec.title, options.P0_pattern, loglik)
     unit = make_unit(model, spec, {"step": step}, options,
                      step_inputs=linear_step_inputs(model))
     if input_port(model):
@@ -293,6 +308,18 @@ def reference(model, zs, options):
     return numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, zs)
 
 
+def loglik_reference(model, zs, options):
+    """(each step's log-likelihood of the innovation, its scale), from derive.reference.kf
+    (``zs`` as :func:`reference` takes it; a NaN measurement absent)."""
+    num = model.numeric()
+    inputs = ({"B": num.B, "D": num.D, "us": zs.us} if model.inputs else {})
+    data = zs.zs if model.inputs else zs
+    lls, scales = np.empty(len(data)), np.empty(len(data))
+    numpy_reference.kf(num.F, num.G, num.H, num.Q, num.R, num.x0, num.P0, data, lls=lls,
+                       ll_scales=scales, **inputs)
+    return lls, scales
+
+
 INPUTS_FACT = ("per-step input u (run: one row per step, with the same row of z): "
                "x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k) + v; no run_tracks")
 
@@ -303,7 +330,9 @@ P), and the update's subtraction P(k/k-1) - K S K^T."""
 
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
-    options=KalmanOptions, covariance=True, missing=True, batch=True, inputs=True,
+    options=KalmanOptions, covariance=True, missing=True, loglik=loglik_reference,
+    batch=True,
+    inputs=True,
     sensors=True, blockwise=True, conditioning=CONDITIONING, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "
                      "K = P H^T S^-1.",

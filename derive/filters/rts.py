@@ -62,6 +62,8 @@ from . import pattern as pat
 from .common import (
     MISSING_FACT,
     bound_matrices,
+    input_port,
+    linear_step_inputs,
     masked,
     masked_covariance,
     parameter_port,
@@ -95,9 +97,12 @@ def _forward_build(model, pattern, declared: str, missing: bool):
                    doc=f"one forward (Kalman filter) step of the {TITLE}")
     mats = bound_matrices(model, prog)
     x, z = prog.matrix("x"), prog.matrix("z")
+    u = prog.matrix("u") if input_port(model) else None
     P = masked_covariance(prog, pattern, declared)
     x_pred, P_pred, _, _ = prior(prog, mats["F"], mats["GQGt"], mats["H"], mats["R"], x, P)
-    x_new, P_new = kf_update(prog, mats, x, P, z, missing=missing)
+    if u is not None:  # x(k+1/k) = F x + B u(k), as the update's own prediction
+        x_pred = staging.add(prog, x_pred, staging.matmul(prog, mats["B"], u))
+    x_new, P_new = kf_update(prog, mats, x, P, z, missing=missing, u=u)
     return prog, (x_new, P_new, x_pred, P_pred)
 
 
@@ -177,7 +182,8 @@ def work_fact(n: int) -> str:
 
 def derive_unit(model, spec, options: SharedOptions):
     """The smoother's unit: the forward ``step`` and the ``backward`` program."""
-    unit = make_unit(model, spec, rts_programs(model, options), options)
+    unit = make_unit(model, spec, rts_programs(model, options), options,
+                     step_inputs=linear_step_inputs(model))
     unit = with_fact(unit, work_fact(model.n))
     return with_fact(unit, MISSING_FACT) if options.missing else unit
 
@@ -186,12 +192,14 @@ def reference(model, zs, options):
     """derive.reference.smoother.rts from the model's x0 and P0 (NaN: absent, with
     ``missing``): (xs, Ps)."""
     num = model.numeric()
+    if model.inputs:  # zs: a run with zs and the inputs us
+        return reference_rts(num, zs.zs, num.x0, num.P0, skip_nan=options.missing, us=zs.us)
     return reference_rts(num, zs, num.x0, num.P0, skip_nan=options.missing)
 
 
 SPECS = (FilterSpec(
     NAME, TITLE, MODEL_KIND, RUN_KIND, derive_unit, reference, options=OPTIONS,
-    covariance=True, missing=True, listing=95,
+    covariance=True, missing=True, inputs=True, listing=95,
     # the forward KF's S; the backward gain's LDL^T solve with P(k+1/k)
     conditioning=KF_CONDITIONING + (Conditioned(NEXT_PRIOR, "ldl"),),
     about={"python": "Run the Rauch-Tung-Striebel smoother: a Kalman filter forward, then "

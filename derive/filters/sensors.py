@@ -28,7 +28,7 @@ import re
 import numpy as np
 import sympy
 
-from .. import staging
+from .. import manifolds, staging
 from ..domains import parameter_domains
 from ..errors import OptionError
 from ..expression_lowering import IfAtMost
@@ -37,6 +37,7 @@ from ..model import SensorGroup, sequential_problem
 from ..program import Program
 from ..reference import sensors as reference
 from ..symbols import jacobian
+from .common import gaussian_loglik
 
 IMPLICIT_SENSOR = "all"
 """The name of the one sensor of a model that declares none (all its measurements)."""
@@ -56,9 +57,11 @@ def sensor_groups(model) -> tuple[SensorGroup, ...]:
 
 def uses_sensor_run(model, options) -> bool:
     """Whether the unit is of the run kind ``sensors``: two or more sensors, a sensor whose
-    R is given per call or updated sequentially, or gating, update-first or sequential
-    updates asked for."""
-    return (len(model.sensors) >= 2 or any(g.R_argument for g in model.sensors)
+    R is given per call or updated sequentially, manifold states (the error-state EKF's
+    unit is always of this kind), or gating, update-first or sequential updates asked
+    for."""
+    return (len(model.sensors) >= 2 or bool(getattr(model, "manifolds", ()))
+            or any(g.R_argument for g in model.sensors)
             or options.get("update") == "sequential"
             or any(g.update == "sequential" for g in model.sensors)
             or options.get("gate") is not None
@@ -121,21 +124,25 @@ def update_forms(model, groups, options) -> dict[str, str]:
     return forms
 
 
-def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None):
+def kalman_update(prog: Program, x, P, PHt, S, innovation_of, threshold: float | None = None,
+                  loglik: bool = False):
     """``K = P H^T S^-1``, ``x + K nu``, ``P - K (P H^T)^T`` (upper triangle) through
     ``S = L D L^T`` without the back substitution: with ``Y = L^-1 (P H^T)^T`` and
     ``Z = D^-1 Y``, ``K (P H^T)^T = Z^T Y`` and ``K nu = Z^T L^-1 nu``. Returns
     ``(x_new, P_new, ())``, or with a ``threshold`` the gated update and ``(nis,
     applied)``: x and P unchanged when ``nis = (L^-1 nu)^T D^-1 (L^-1 nu)`` exceeds it.
     ``innovation_of()`` stages nu (after the gain's factors, in the papers' order, when
-    ungated)."""
+    ungated).  ``loglik`` (ungated): ``(x_new, P_new, (), ll)``, ll the log-likelihood of
+    nu from the same pivots and ``L^-1 nu`` (derive.filters.common.gaussian_loglik)."""
     n = PHt.rows
     if threshold is None:
-        L, Y, Z = staging.ldl_forward(prog, S, staging.transpose(PHt), name="S")
+        L, pivots, Y, Z = staging.ldl_forward_pivots(prog, S, staging.transpose(PHt),
+                                                     name="S")
         weights = staging.forward_substitute(prog, L, innovation_of())  # L^-1 nu
         x_new = staging.add(prog, x, staging.matmul(prog, Z.T, weights))
         ZtY = staging.matmul(prog, Z.T, Y, symmetric_result=True)
-        return x_new, staging.sub(prog, P, ZtY, symmetric_result=True), ()
+        ll = (gaussian_loglik(prog, pivots, weights),) if loglik else ()
+        return (x_new, staging.sub(prog, P, ZtY, symmetric_result=True), ()) + ll
     m = PHt.cols
     innovation = innovation_of()
     L, Y, Z = staging.ldl_forward(prog, S, staging.transpose(PHt).row_join(innovation),
@@ -285,7 +292,7 @@ SENSOR_PROGRAM = re.compile(r"^update_[A-Za-z][A-Za-z0-9_]*$")
 # -- the NumPy reference of a model's sensor unit --------------------------------------------
 
 
-def _numeric(model, matrix, arguments):
+def numeric_matrix(model, matrix, arguments):
     """``matrix`` (valued symbols substituted) as a NumPy function of ``arguments`` (lists
     of symbols, one list per argument), returning a 2-D array of its shape."""
     lam = sympy.lambdify(arguments, sympy.Matrix(model.subs(matrix)),
@@ -300,13 +307,24 @@ def _numeric(model, matrix, arguments):
 
 def transition_function(model):
     """``F(x, u, p)``: the model's transition matrix (linear: F(p)) or the Jacobian of f
-    with respect to x (nonlinear) at numbers, (n, n), u all of the model's inputs."""
+    with respect to x (nonlinear) at numbers, (n, n), u all of the model's inputs; for a
+    model with manifold states the error map over the tangent space, M(f(x, u)) ∂f/∂x
+    N(x) (n_tangent x n_tangent, derive.manifolds)."""
     params = list(model.parameters)
     if model.kind == "linear":
-        F = _numeric(model, model.F, [params])
+        F = numeric_matrix(model, model.F, [params])
         return lambda x, u, p: F(p)
-    return _numeric(model, model.F_jacobian,
-                    [list(model.state_symbols), list(model.inputs), params])
+    X, U = list(model.state_symbols), list(model.inputs)
+    J = numeric_matrix(model, model.F_jacobian, [X, U, params])
+    layout = getattr(model, "layout", None)
+    if layout is None:
+        return J
+    f = numeric_matrix(model, model.f, [X, U, params])
+
+    def tangent(x, u, p):
+        return (manifolds.lift_numeric(layout, f(x, u, p).ravel()) @ J(x, u, p)
+                @ manifolds.retraction_numeric(layout, x))
+    return tangent
 
 
 def reference_functions(model, thresholds):
@@ -318,8 +336,8 @@ def reference_functions(model, thresholds):
     sensors = []
     F = transition_function(model)
     if model.kind == "linear":
-        B = _numeric(model, model.B, [params])
-        W = _numeric(model, model.matrix("GQGt"), [params])
+        B = numeric_matrix(model, model.B, [params])
+        W = numeric_matrix(model, model.matrix("GQGt"), [params])
 
         def predict(x, P, u, p):
             A = F(x, u, p)
@@ -327,9 +345,9 @@ def reference_functions(model, thresholds):
             return x_new, A @ P @ A.T + W(p)
 
         for g in groups:
-            H = _numeric(model, g.H, [params])
-            D = _numeric(model, g.D, [params])
-            R = None if g.R_argument else _numeric(model, g.R, [params])
+            H = numeric_matrix(model, g.H, [params])
+            D = numeric_matrix(model, g.D, [params])
+            R = None if g.R_argument else numeric_matrix(model, g.R, [params])
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, H=H, D=D: H(p) @ x + (D(p) @ u if u.size else 0.0),
                 lambda x, u, p, H=H: H(p), R,
@@ -337,10 +355,10 @@ def reference_functions(model, thresholds):
                 None if thresholds[g.name] is None else thresholds[g.name][1]))
     else:
         X, U = list(model.state_symbols), list(model.inputs)
-        f = _numeric(model, model.f, [X, U, params])
-        Fu = _numeric(model, model.Fu_jacobian, [X, U, params])
-        Q = _numeric(model, model.Q, [params])
-        Qu = _numeric(model, model.Qu, [params])
+        f = numeric_matrix(model, model.f, [X, U, params])
+        Fu = numeric_matrix(model, model.Fu_jacobian, [X, U, params])
+        Q = numeric_matrix(model, model.Q, [params])
+        Qu = numeric_matrix(model, model.Qu, [params])
 
         def predict(x, P, u, p):
             A, G = F(x, u, p), Fu(x, u, p)
@@ -349,9 +367,9 @@ def reference_functions(model, thresholds):
 
         for g in groups:
             own = list(g.inputs)
-            h = _numeric(model, g.h, [X, own, params])
-            H = _numeric(model, jacobian(g.h, model.state_symbols), [X, own, params])
-            R = None if g.R_argument else _numeric(model, g.R, [params])
+            h = numeric_matrix(model, g.h, [X, own, params])
+            H = numeric_matrix(model, jacobian(g.h, model.state_symbols), [X, own, params])
+            R = None if g.R_argument else numeric_matrix(model, g.R, [params])
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, h=h: h(x, u, p).ravel(), H, R,
                 tuple(names.index(u.name) for u in g.inputs),
@@ -378,7 +396,7 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
                          domains=parameter_domains(model.parameters))
 
 
-__all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "gate_thresholds", "kalman_update",
+__all__ = ["IMPLICIT_SENSOR", "chi2_quantile", "numeric_matrix", "gate_thresholds", "kalman_update",
            "program_name", "reference_functions", "reference_run", "renormalised",
            "sensor_facts", "sensor_groups", "sequential_update", "transition_function",
            "unit_norm_fact", "update_forms", "uses_sensor_run"]

@@ -71,6 +71,10 @@ class FilterSpec:
     ``covariance``: it carries P, so P0's declared pattern shapes its code (takes the
     option ``P0_pattern``).
     ``missing``: takes the option ``missing`` (NaN-marked absent measurements).
+    ``loglik``: ``loglik(model, data, options) -> (lls, scales)``, the NumPy reference of
+    each step's log-likelihood of the innovation and the scale its error is relative to
+    (derive.reference.likelihood.loglik_scale; ``data`` as ``reference`` takes it); a
+    filter with one takes the option ``loglik`` (run stores lls).
     ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
     option ``run_tracks``).
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
@@ -85,6 +89,11 @@ class FilterSpec:
     files it takes (derive.filters.blockwise.whole_states).
     ``vector_rows``: takes the option ``rows`` (its dense covariance work as vector rows,
     derive.filters.vector_rows).
+    ``manifolds``: it takes (and needs) a model with manifold states, P in their tangent
+    space (derive.manifolds); every other filter refuses such a model.
+    ``sensors_reference``: the NumPy reference of its run kind sensors,
+    ``(model, options, zs, us, ps, x0, P0, Rs, trace) -> SensorsResult`` (None: the
+    EKF's and KF's, derive.filters.sensors.reference_run).
     ``conditioning``: what its step factorises, solves with, inverts or cancels at run
     time (:class:`Conditioned` s; empty for a filter whose constants are all computed
     offline in double): the conditioning its float32 tolerance takes
@@ -110,11 +119,14 @@ class FilterSpec:
     steady: bool = False
     covariance: bool = False
     missing: bool = False
+    loglik: Callable | None = None
     batch: bool = False
     inputs: bool = False
     sensors: bool = False
     blockwise: bool = False
     vector_rows: bool = False
+    manifolds: bool = False
+    sensors_reference: Callable | None = None
     conditioning: tuple[Conditioned, ...] = ()
     extra_programs: tuple[str, ...] = ()
     applies: Callable | None = None

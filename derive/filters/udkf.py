@@ -55,6 +55,8 @@ from . import pattern as pat
 from .common import (
     MISSING_FACT,
     bound_matrices,
+    gaussian_loglik,
+    loglik_port,
     mask_columns,
     mask_symmetric,
     mask_vector,
@@ -64,6 +66,7 @@ from .common import (
     pattern_text,
     with_fact,
 )
+from .kf import loglik_reference
 from .spec import INNOVATION, Conditioned, FilterSpec
 from .unit import make_unit
 
@@ -208,11 +211,13 @@ def mwgs(prog: Program, W: sympy.Matrix, weights, floor: sympy.Float = PIVOT_FLO
     return U, D
 
 
-def bierman(prog: Program, x, U: sympy.Matrix, D, z, h, r):
+def bierman(prog: Program, x, U: sympy.Matrix, D, z, h, r, innovations: list | None = None):
     """Bierman's update of (x, U, D) with the scalar measurement z = h x + v, var(v) = r.
 
     Each innovation variance alpha_j = r + sum_{k<=j} D_k f_k^2 is checked positive; one
-    reciprocal each, shared by the new D_j, the next column's multiplier and the gain."""
+    reciprocal each, shared by the new D_j, the next column's multiplier and the gain.
+    ``innovations``: a list that gets (alpha, 1/alpha, z - h x) of this update appended,
+    its innovation's variance, reciprocal and value (the log-likelihood's terms)."""
     n = len(x)
     U = sympy.Matrix(U)
     D = list(D)
@@ -243,8 +248,12 @@ def bierman(prog: Program, x, U: sympy.Matrix, D, z, h, r):
             b[i] = _stage(prog, b[i] + old * v[j], "b")
         b[j] = v[j]
     if inverse is None:  # h is structurally zero: nothing to update
+        if innovations is not None:
+            innovations.append((alpha, _stage(prog, 1 / alpha, "inv"), z))
         return x, U, D
     innovation = _stage(prog, z - _dot(h[i] * x[i] for i in range(n)), "e")
+    if innovations is not None:
+        innovations.append((alpha, inverse, innovation))
     scaled = _stage(prog, innovation * inverse, "e")
     x = [_stage(prog, x[i] + b[i] * scaled, "x") for i in range(n)]
     return x, U, D
@@ -281,9 +290,22 @@ def _whitened(prog: Program, H: sympy.Matrix, R: sympy.Matrix, z: sympy.Matrix,
 
 
 def udkf_update(prog: Program, mats, x, U, D, z, missing: bool = False,
-                floor: sympy.Float = PIVOT_FLOOR):
+                floor: sympy.Float = PIVOT_FLOOR, loglik: bool = False):
     """Stage one UD step; returns (x_new, U_new, D_new): a column, a matrix, a list;
-    ``floor``: the pivot floor (:func:`pivot_floor`)."""
+    ``floor``: the pivot floor (:func:`pivot_floor`).  ``loglik``: (x_new, U_new, D_new,
+    ll), ll the log-likelihood of the step's innovations from the scalar updates' (the
+    chain rule over the decorrelated measurements, whose whitening has determinant 1)."""
+    innovations = [] if loglik else None
+    x_new, U_new, D_new = _updated(prog, mats, x, U, D, z, missing, floor, innovations)
+    if not loglik:
+        return x_new, U_new, D_new
+    alpha, inverse, nu = zip(*innovations)
+    ll = gaussian_loglik(prog, staging.Pivots(alpha, inverse), nu, z if missing else None)
+    return x_new, U_new, D_new, ll
+
+
+def _updated(prog: Program, mats, x, U, D, z, missing: bool, floor: sympy.Float,
+             innovations: list | None):
     F, G, H, Q, R = (mats[k] for k in ("F", "G", "H", "Q", "R"))
     n = F.rows
     Gw, Dq = _process_noise(prog, G, Q)
@@ -295,12 +317,14 @@ def udkf_update(prog: Program, mats, x, U, D, z, missing: bool = False,
         # independent components: run each update and keep its result only where z[i]
         # is present (selects, no flop; the model's zeros and ones still fold)
         for i in range(H.rows):
-            updated = bierman(prog, x, U, D, z[i], [H[i, c] for c in range(n)], R[i, i])
+            updated = bierman(prog, x, U, D, z[i], [H[i, c] for c in range(n)], R[i, i],
+                              innovations)
             x, U, D = _kept(prog, z[i], updated, (x, U, D))
         return sympy.Matrix(x), U, D
     Hw, zw, r = _whitened(prog, H, R, z, missing)
     for i in range(Hw.rows):
-        x, U, D = bierman(prog, x, U, D, zw[i], [Hw[i, c] for c in range(n)], r[i])
+        x, U, D = bierman(prog, x, U, D, zw[i], [Hw[i, c] for c in range(n)], r[i],
+                          innovations)
     return sympy.Matrix(x), U, D
 
 
@@ -391,11 +415,12 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
     if model.kind != MODEL_KIND:
         raise FilterError(f"the {TITLE} needs a linear model; {model.name!r} is {model.kind}")
     options = options or SharedOptions()
-    missing = options.missing
+    missing, loglik = options.missing, bool(options.get("loglik"))
     declared = options.P0_pattern or model.P0_pattern
     floor = pivot_floor(options.precision)
     n = model.n
     inputs, outputs = step_ports(model)
+    outputs += [loglik_port()] if loglik else []
 
     def build(U_pattern):
         prog = Program("step", inputs, outputs, doc=f"one step of the {TITLE}")
@@ -404,17 +429,19 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
         U = _unit_upper(prog, U_pattern)
         D = list(prog.matrix("D"))
         return prog, udkf_update(prog, mats, prog.matrix("x"), U, D, prog.matrix("z"),
-                                 missing, floor)
+                                 missing, floor, loglik)
 
     def step_pattern(U_pattern):
         return pat.of_matrix(build(U_pattern)[1][1])
 
     start = _factor_pattern(_decidable_pattern(pat.declared(model, declared)))
     U_pattern = pat.closure(step_pattern, start)
-    prog, (x_new, U_new, D_new) = build(U_pattern)
+    prog, (x_new, U_new, D_new, *ll) = build(U_pattern)
     prog.set_output("x_new", list(x_new))
     prog.set_output("U_new", _flat(U_new))
     prog.set_output("D_new", D_new)
+    if ll:
+        prog.set_output("ll", ll)
     P_pattern = _product_pattern(U_pattern)
     return {"step": prog.optimize(), "enter": enter_program(n, P_pattern, declared, floor),
             "store": store_program(n, U_pattern, declared)}
@@ -472,7 +499,9 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "udkf", TITLE, MODEL_KIND, "timevarying", derive_unit, reference,
-    options=OPTIONS, covariance=True, missing=True, extra_programs=("enter", "store"),
+    options=OPTIONS, covariance=True, missing=True,
+    loglik=loglik_reference,  # the KF's: the same likelihood
+    extra_programs=("enter", "store"),
     # Bierman's scalar updates divide by the innovation variances (S's LDL^T pivots);
     # P is only ever factored (enter: its U D U^T, backward stable as LDL^T) and carried as
     # factors (Thornton's weighted Gram-Schmidt): never inverted, never cancelled

@@ -47,6 +47,7 @@ from .. import reference as numpy_reference
 from .. import staging
 from ..errors import OptionError
 from ..options import UnscentedOptions
+from ..statements import substitute
 from .difference import DifferenceForm, difference_form, unmoved_turn
 from .kf import CONDITIONING
 from .nonlinear import (
@@ -150,8 +151,8 @@ def stage_values(prog, form: DifferenceForm, mapping: Mapping) -> tuple[sympy.Ma
     mapping extended by the base symbols the differences read."""
     subs = dict(mapping)
     for sym, expr in form.base:
-        subs[sym] = prog.let(expr.xreplace(subs), "at_x")
-    return sympy.Matrix([prog.let(v.xreplace(subs), "at_x") for v in form.values]), subs
+        subs[sym] = prog.let(substitute(expr, subs), "at_x")
+    return sympy.Matrix([prog.let(substitute(v, subs), "at_x") for v in form.values]), subs
 
 
 def stage_differences(prog, form: DifferenceForm, subs: dict,
@@ -160,8 +161,8 @@ def stage_differences(prog, form: DifferenceForm, subs: dict,
     from :func:`stage_values`)."""
     subs = {**subs, **dict(zip(form.deltas, delta))}
     for sym, expr in form.steps:
-        subs[sym] = _signed_let(prog, unmoved_turn(form, sym, expr.xreplace(subs)))
-    return sympy.Matrix([_signed_let(prog, d.xreplace(subs)) for d in form.differences])
+        subs[sym] = _signed_let(prog, unmoved_turn(form, sym, substitute(expr, subs)))
+    return sympy.Matrix([_signed_let(prog, substitute(d, subs)) for d in form.differences])
 
 
 def _signed_let(prog, expr: sympy.Expr) -> sympy.Expr:

@@ -11,7 +11,7 @@ from ..discretize import METHODS
 from ..options import SharedOptions
 from ..program import ZERO, Check
 from ..runs.unit import SensorSlot, Unit
-from .common import pattern_text
+from .common import LOGLIK_FACT, LOGLIK_STORE, pattern_text
 from .spec import FilterSpec
 
 
@@ -49,7 +49,9 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     ``constants`` become header facts; ``window`` (fir) and ``horizon`` (pred): N;
     ``lookahead``: the two-step map of an affine step (derive.emit.lookahead);
     ``carried``: the unit's own carried (input port, output port) pairs (default: the run
-    kind's), entered by an ``enter`` program and stored by a ``store`` program.
+    kind's), entered by an ``enter`` program and stored by a ``store`` program.  With the
+    option ``loglik`` the step's last output ``ll`` is stored by run per step (``lls``;
+    no run_tracks).
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
     batch function applies; the run kind its carried state.  Which P0 the code accepts is
@@ -68,6 +70,10 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         text = _fmt(value)
         facts.append(f"{key} = {text}" if len(text) <= 300 else
                      f"{key}: {np.asarray(value).shape} constants baked into the code")
+    # the option loglik: the step's output ll, stored per step by run (not run_tracks)
+    loglik = bool(options.get("loglik"))
+    if loglik:
+        facts.append(LOGLIK_FACT)
     unit_options = {}
     if window is not None:
         unit_options["window"] = window
@@ -76,10 +82,12 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     return Unit(
         model=model.name,
         filter=spec.name,
-        **spec.unit_fields(window=window, run_tracks=options.run_tracks),
+        **spec.unit_fields(window=window, run_tracks=options.run_tracks and not loglik),
+        extra_stores=(LOGLIK_STORE,) if loglik else (),
         lookahead=lookahead,
         n=model.n,
         m=model.m,
+        nt=model.n_tangent,
         programs=programs,
         parameters=tuple(p.name for p in model.parameters),
         step_inputs=step_inputs,
@@ -114,7 +122,7 @@ def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOpt
     return Unit(model=model.name, filter=spec.name, **fields, n=model.n, m=model.m,
                 programs=programs, parameters=tuple(p.name for p in model.parameters),
                 facts=tuple(header + facts), symbol_prefix=options.prefix, sensors=slots,
-                n_inputs=len(names),
+                n_inputs=len(names), nt=model.n_tangent,
                 predict_inputs=tuple(names.index(u.name) for u in predict_inputs),
                 update_first=options.get("start", "predict") == "update",
                 precision=options.precision)

@@ -11,6 +11,7 @@ import numpy as np
 
 from derive.errors import NumericalError
 from derive.reference._inputs import measurement_series, square, state_vector
+from derive.reference.likelihood import gaussian_loglik, loglik_scale
 from derive.riccati import lf_constants
 from derive.system_checks import system_arrays
 
@@ -37,8 +38,14 @@ def _input_terms(B, D, us, n: int, m: int, steps: int):
     return U @ B.T, U @ D.T
 
 
-def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None):
+def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None,
+       lls: np.ndarray | None = None, ll_scales: np.ndarray | None = None):
     """Kalman filter. Returns (xs (steps, n), Ps (steps, n, n)).
+
+    ``lls`` (steps,): filled with each step's log-likelihood of the innovation,
+    log N(nu; 0, S) = -1/2 (m log 2 pi + log det S + nu' S^-1 nu) over the m present
+    measurements (0 at a step with none); ``ll_scales`` (steps,) with the scale of each
+    (derive.reference.likelihood.loglik_scale).
 
     skip_nan=True: a NaN in z(k) marks that component as absent; the update uses only the
     present rows of H and R (all absent: prediction only). skip_nan=False refuses NaN.
@@ -56,10 +63,20 @@ def kf(F, G, H, Q, R, x0, P0, zs, skip_nan: bool = True, B=None, D=None, us=None
         if present.any():
             Hk, Rk = H[present], R[np.ix_(present, present)]
             PHt = P @ Hk.T
-            K = np.linalg.solve((Hk @ PHt + Rk).T, PHt.T).T   # P Hᵀ [H P Hᵀ + R]⁻¹
+            S = Hk @ PHt + Rk
+            K = np.linalg.solve(S.T, PHt.T).T   # P Hᵀ [H P Hᵀ + R]⁻¹
+            nu = (z - Du[k])[present] - Hk @ x
+            if lls is not None:
+                lls[k] = gaussian_loglik(nu, S)
+            if ll_scales is not None:
+                ll_scales[k] = loglik_scale(z[present], nu, S)
             IKH = np.eye(n) - K @ Hk
             x = IKH @ x + K @ (z - Du[k])[present]
             P = IKH @ P
+        else:
+            for out in (lls, ll_scales):
+                if out is not None:
+                    out[k] = 0.0
         xs[k], Ps[k] = x, P
     return xs, Ps
 

@@ -81,9 +81,10 @@ class StepTrace:
     updates: tuple[UpdateTrace, ...]
 
 
-def _update(x, P, z, h, H, R, gate=None, angles=()):
-    """One update with all of z: (x, P, nis, S, K, applied); the innovations of the
-    measurements flagged in ``angles`` wrapped to (-pi, pi]."""
+def _update(x, P, z, h, H, R, gate=None, inject=None, reset=None, angles=()):
+    """One update with all of z: (x, P, nis, S, K, applied); ``inject(x, dx)``: x ⊞ dx
+    (default x + dx), ``reset(dx)``: G applied as G P G^T after it (default none); the
+    innovations of the measurements flagged in ``angles`` wrapped to (-pi, pi]."""
     nu = z - h
     if any(angles):
         flags = np.asarray(angles, dtype=bool)
@@ -93,9 +94,13 @@ def _update(x, P, z, h, H, R, gate=None, angles=()):
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
     if gate is not None and not nis <= gate:
         return x, P, nis, S, K, False
-    x = x + K @ nu
-    IKH = np.eye(len(x)) - K @ H
+    dx = K @ nu
+    x = x + dx if inject is None else inject(x, dx)
+    IKH = np.eye(len(P)) - K @ H
     P = IKH @ P @ IKH.T + K @ R @ K.T
+    if reset is not None:
+        G = reset(dx)
+        P = G @ P @ G.T
     return x, (P + P.T) / 2, nis, S, K, True
 
 
@@ -117,7 +122,8 @@ def renormalise(x, groups: Sequence[Sequence[int]]):
 def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict, us=None,
         ps=None, update_first: bool = False, unit_norm: Sequence[Sequence[int]] = (),
         Rs: dict | None = None, trace: list | None = None,
-        domains: Sequence[tuple[int, str, str]] = ()) -> SensorsResult:
+        domains: Sequence[tuple[int, str, str]] = (), inject: Callable | None = None,
+        reset: Callable | None = None) -> SensorsResult:
     """The multi-sensor filter over ``zs`` (``{sensor: (steps, m_s)}``, rows of NaN:
     absent); ``predict(x, P, u, p) -> (x, P)``; ``us`` (steps, n_u) and ``ps`` (steps, np)
     one row per step (None: empty rows); ``Rs``: ``{sensor: (steps, m_s, m_s)}`` for the
@@ -125,13 +131,15 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
     to, one per step; ``domains``: the declared domains of p's entries, ``(index, name,
     domain)`` (derive.domains.parameter_domains): a row outside them raises DomainError
     (a NumericalError) naming its step, the parameter and the value, as generated code
-    refuses it."""
+    refuses it. An error-state filter (derive.reference.eskf) gives ``inject(x, dx) -> x ⊞
+    dx`` and optionally ``reset(dx) -> G``; its P (and H's columns) are over the tangent
+    space, P0's size."""
     steps = len(next(iter(zs.values())))
     x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
-    n = x.shape[0]
+    n, nt = x.shape[0], P.shape[0]
     us = np.zeros((steps, 0)) if us is None else np.asarray(us, dtype=float)
     ps = np.zeros((steps, 0)) if ps is None else np.asarray(ps, dtype=float)
-    xs, Ps = np.empty((steps, n)), np.empty((steps, n, n))
+    xs, Ps = np.empty((steps, n)), np.empty((steps, nt, nt))
     nis = {s.name: np.full(steps, np.nan) for s in sensors}
     applied = {s.name: np.zeros(steps) for s in sensors}
     check_rows(domains, ps)
@@ -145,12 +153,13 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
             if np.isnan(z).any():
                 continue
             u = us[k, list(s.columns)]
-            H = np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), n)
+            H = np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), nt)
             P_before = P
             x, P, nis[s.name][k], S, K, done = _update(
                 x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(), H,
                 np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
-                           dtype=float).reshape(len(z), len(z)), s.gate, s.angles)
+                           dtype=float).reshape(len(z), len(z)), s.gate, inject, reset,
+                 s.angles)
             applied[s.name][k] = float(done)
             updates.append(UpdateTrace(s.name, H, S, K, done, P_before))
             x = renormalise(x, unit_norm)  # after every update call, applied or not

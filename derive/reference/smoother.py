@@ -26,19 +26,23 @@ from derive.errors import NumericalError
 from derive.reference.linear import kf
 
 
-def rts(model_numeric, zs, x0, P0, skip_nan: bool = False):
+def rts(model_numeric, zs, x0, P0, skip_nan: bool = False, us=None):
     """Smoothed estimates of ``model_numeric`` (a :class:`derive.model.NumericLinear`) from
-    ``zs`` (steps, m), starting at x(0/0) = ``x0``, P(0/0) = ``P0``.
+    ``zs`` (steps, m), starting at x(0/0) = ``x0``, P(0/0) = ``P0``; ``us`` (steps, n_u):
+    the model's inputs, row k with zs[k] (x(k+1/k) = F x(k/k) + B us[k]).
 
     Returns (xs (steps, n), Ps (steps, n, n)) with xs[k-1] = x(k/N).  ``skip_nan``: a NaN
     in z(k) marks that component absent (the forward pass skips it); otherwise NaN is
     refused.  Raises NumericalError when a P(k+1/k) is singular."""
     num = model_numeric
     F, W = np.asarray(num.F, float), np.asarray(num.GQGt, float)
-    xs, Ps = kf(num.F, num.G, num.H, num.Q, num.R, x0, P0, zs, skip_nan=skip_nan)
+    inputs = {} if us is None else {"B": num.B, "D": num.D, "us": us}
+    xs, Ps = kf(num.F, num.G, num.H, num.Q, num.R, x0, P0, zs, skip_nan=skip_nan, **inputs)
     xs, Ps = xs.copy(), Ps.copy()
+    Bu = (np.zeros((len(xs), F.shape[0])) if us is None
+          else np.asarray(us, float) @ np.asarray(num.B, float).T)
     for k in range(len(xs) - 2, -1, -1):
-        x_pred = F @ xs[k]
+        x_pred = F @ xs[k] + Bu[k + 1]  # x(k+2/k+1): the input row of step k + 2
         P_pred = F @ Ps[k] @ F.T + W
         try:
             gain = np.linalg.solve(P_pred, F @ Ps[k]).T   # P F^T P_pred^-1, P_pred symmetric

@@ -62,8 +62,8 @@ class RunKind:
 
 RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("timevarying", carried=(("x", "x_new"), ("P", "P_new")),
-            start=(("x0", ("n",)), ("P0", ("n", "n"))),
-            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), True)),
+            start=(("x0", ("n",)), ("P0", ("nt", "nt"))),
+            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("nt", "nt"), True)),
             batch=True, extra_programs=("predict", "update1", "enter", "store")),
     RunKind("steady", carried=(("x", "x_new"),), start=(("x0", ("n",)),),
             stores=(("xs", "x_new", ("n",), False),), batch=True, lookahead=True),
@@ -76,8 +76,8 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), False)),
             work=(("work", ("x_new", "P_new", "x_pred", "P_pred")),)),
     RunKind("sensors", programs=("predict",), carried=(("x", "x_new"), ("P", "P_new")),
-            start=(("x0", ("n",)), ("P0", ("n", "n"))),
-            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("n", "n"), True)),
+            start=(("x0", ("n",)), ("P0", ("nt", "nt"))),
+            stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("nt", "nt"), True)),
             sensors=True),
 )})
 """The run-loop kinds; a unit names one (``Unit.run_kind``) and emit switches on it only."""
@@ -98,9 +98,17 @@ EXTRA_PROGRAMS = ("predict", "update1", "enter", "store")
 #: k + 1): ``Unit.lookahead`` is ``(x, z, zn) -> x_new``, x(k+2) from x(k).
 LOOKAHEAD_NEXT = "zn"
 
-#: The shapes of the ports every kind names (in sizes n, m); other ports: any shape.
-_PORT_DIMS = {"x": ("n",), "x_new": ("n",), "x0": ("n",), "P": ("n", "n"),
-              "P_new": ("n", "n")}
+#: The shapes of the ports every kind names (in sizes n, m and nt, the covariance's
+#: dimension: n, or the tangent space's of a model with manifold states); other ports:
+#: any shape.
+_PORT_DIMS = {"x": ("n",), "x_new": ("n",), "x0": ("n",), "P": ("nt", "nt"),
+              "P_new": ("nt", "nt")}
+
+#: The space each array of x and P lives in, when the two differ (``Unit.nt < n``): x
+#: in the storage space (n numbers), P in the tangent space (nt x nt).
+STORAGE, TANGENT = "storage", "tangent"
+SPACES = {"x": STORAGE, "x_new": STORAGE, "x0": STORAGE, "xs": STORAGE,
+          "P": TANGENT, "P_new": TANGENT, "P0": TANGENT, "Ps": TANGENT}
 
 
 @dataclass(frozen=True)
@@ -158,7 +166,12 @@ class Unit:
     :data:`LOOKAHEAD_NEXT` -> ``x_new``), built by the derivation from its exact
     constants, for a run kind with ``lookahead``: C run takes two steps per pass.
     ``precision``: the floating-point type of the C (``double`` or ``float``,
-    derive.precision); the Python is double in either.
+    derive.precision); the Python is double in either.  ``nt``: P's dimension (0: n),
+    fewer than n for a model with quaternion states, whose covariance lives in the
+    tangent space (x is stored with n numbers, P is nt x nt; :func:`space`).
+    ``extra_stores``: per-step outputs run stores besides its kind's (as
+    ``RunKind.stores``), each an output of ``step`` after the kind's (the log-likelihood
+    ``ll`` into ``lls``).
     """
 
     model: str
@@ -186,8 +199,12 @@ class Unit:
     update_first: bool = False
     precision: str = "double"
     run_function: bool = True
+    nt: int = 0
+    extra_stores: tuple[tuple[str, str, tuple[str, ...], bool], ...] = ()
 
     def __post_init__(self) -> None:
+        if not self.nt:
+            object.__setattr__(self, "nt", self.n)
         for what, value in (("model", self.model), ("filter", self.filter)):
             if not isinstance(value, str) or not _IDENT.match(value) or keyword.iskeyword(value):
                 raise ProgramError(f"unit {what} name {value!r} is not a plain identifier")
@@ -238,6 +255,11 @@ class Unit:
         return RUN_KINDS[self.run_kind]
 
     @property
+    def stores(self) -> tuple[tuple[str, str, tuple[str, ...], bool], ...]:
+        """run's per-step outputs: its kind's, then the unit's ``extra_stores``."""
+        return self.run.stores + self.extra_stores
+
+    @property
     def window(self) -> int:
         """The number of measurements a windowed step reads, N (windowed runs only)."""
         return int(self.options["window"])
@@ -249,17 +271,28 @@ class Unit:
         return self.programs["step"].port(name).size
 
 
+def sizes(unit: Unit) -> dict[str, int]:
+    """The unit's named sizes: n (x), m (z) and nt (P: nt x nt)."""
+    return {"n": unit.n, "m": unit.m, "nt": unit.nt}
+
+
+def space(unit: Unit, name: str) -> str:
+    """``storage`` or ``tangent`` for an array of x or P of a unit whose covariance lives
+    in a tangent space (``unit.nt < unit.n``), else ``""``."""
+    return SPACES.get(name, "") if unit.nt != unit.n else ""
+
+
 def _shape(unit: Unit, name: str) -> tuple[int, ...] | None:
-    sizes = {"n": unit.n, "m": unit.m}
+    named = sizes(unit)
     dims = _PORT_DIMS.get(name)
-    return None if dims is None else tuple(sizes[d] for d in dims)
+    return None if dims is None else tuple(named[d] for d in dims)
 
 
 def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int, ...] | None]],
                                                      list[tuple[str, tuple[int, ...]]]]:
     """(inputs, outputs) as (name, shape) the run kind requires; shape None: any shape
     (a per-step input: any 1-D shape)."""
-    n, m = unit.n, unit.m
+    n, m, nt = unit.n, unit.m, unit.nt
     p = [(PARAMETER_PORT, (len(unit.parameters),))] if unit.parameters else []
     per_step = [(name, (m,) if name == "z" else None) for name in unit.step_inputs]
     if program == "init":
@@ -268,15 +301,16 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
         takes_u = "u" in unit.step_inputs and any(
             port.name == "u" for port in unit.programs["predict"].inputs)
         u = [("u", None)] if takes_u else []
-        return [("x", (n,)), ("P", (n, n))] + u + p, [("x_new", (n,)), ("P_new", (n, n))]
+        return [("x", (n,)), ("P", (nt, nt))] + u + p, [("x_new", (n,)), ("P_new", (nt, nt))]
     if program == "update1":
         u = [("u", None)] if "u" in unit.step_inputs else []
-        return ([("x", (n,)), ("P", (n, n)), ("z", (1,))] + u + p,
-                [("x_new", (n,)), ("P_new", (n, n)), ("innovation", (1,)), ("variance", (1,))])
+        return ([("x", (n,)), ("P", (nt, nt)), ("z", (1,))] + u + p,
+                [("x_new", (n,)), ("P_new", (nt, nt)), ("innovation", (1,)),
+                 ("variance", (1,))])
     kind = unit.run
     if program == "enter":
-        sizes = {"n": n, "m": m}
-        return ([(name, tuple(sizes[d] for d in dims)) for name, dims in kind.start],
+        named = sizes(unit)
+        return ([(name, tuple(named[d] for d in dims)) for name, dims in kind.start],
                 [(port, _shape(unit, port)) for port, _ in unit.carried])
     if program == "store":
         carried_out = {out for _, out in unit.carried}
@@ -287,6 +321,7 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
     outputs = [out for _, out in unit.carried]
     if "store" not in unit.programs:  # else the store program computes the rest
         outputs += [port for _, port, _, _ in kind.stores if port not in outputs]
+    outputs += [port for _, port, _, _ in unit.extra_stores]
     # then the ports the run's work rows hold that the step writes (a smoother's prediction)
     outputs += [port for _, held in kind.work for port in held if port not in outputs]
     if kind.window:
@@ -297,7 +332,7 @@ def expected_ports(unit: Unit, program: str) -> tuple[list[tuple[str, tuple[int,
 def _validate_sensors(unit: Unit) -> None:
     """A unit of the run kind ``sensors``: ``predict`` and one ``update_<sensor>`` per
     sensor, with the ports run calls them with, and no other program."""
-    n = unit.n
+    n, nt = unit.n, unit.nt
     if not unit.sensors:
         raise ProgramError(f"unit {unit.prefix}: run kind 'sensors' needs its sensors")
     p = [(PARAMETER_PORT, (len(unit.parameters),))] if unit.parameters else []
@@ -306,8 +341,8 @@ def _validate_sensors(unit: Unit) -> None:
         u = [("u", (len(s.inputs),))] if s.inputs else []
         gated = [("nis", (1,)), ("applied", (1,))] if s.gated else []
         R = [("R", (s.m, s.m))] if s.R_argument else []
-        want[f"update_{s.name}"] = ([("x", (n,)), ("P", (n, n)), ("z", (s.m,))] + R + u + p,
-                                    [("x_new", (n,)), ("P_new", (n, n))] + gated)
+        want[f"update_{s.name}"] = ([("x", (n,)), ("P", (nt, nt)), ("z", (s.m,))] + R + u + p,
+                                    [("x_new", (n,)), ("P_new", (nt, nt))] + gated)
     if set(unit.programs) != set(want):
         raise ProgramError(f"unit {unit.prefix}: run kind 'sensors' takes the programs "
                            f"{sorted(want)}, got {sorted(unit.programs)}")
@@ -316,8 +351,8 @@ def _validate_sensors(unit: Unit) -> None:
         raise ProgramError(f"unit {unit.prefix}: an input column is outside run's u "
                            f"({unit.n_inputs} inputs)")
     u = [("u", (len(unit.predict_inputs),))] if unit.predict_inputs else []
-    want["predict"] = ([("x", (n,)), ("P", (n, n))] + u + p,
-                       [("x_new", (n,)), ("P_new", (n, n))])
+    want["predict"] = ([("x", (n,)), ("P", (nt, nt))] + u + p,
+                       [("x_new", (n,)), ("P_new", (nt, nt))])
     for name, (inputs, outputs) in want.items():
         program = unit.programs[name]
         for what, expected, have in (("inputs", inputs, program.inputs),
@@ -404,7 +439,7 @@ def sensor_run_arguments(unit: Unit) -> list[Argument]:
     a model's implicit sensor), then u (when the model has inputs), as every run kind takes
     z before u; then x0, P0, xs, Ps and, per gated sensor, nis_<sensor> and
     applied_<sensor> (optional), then p."""
-    n = unit.n
+    n, nt = unit.n, unit.nt
     args = []
     for s in unit.sensors:
         args.append(Argument(s.z_c, s.z_py, ("steps", s.m),
@@ -418,9 +453,9 @@ def sensor_run_arguments(unit: Unit) -> list[Argument]:
         args.append(Argument("u", "us", ("steps", unit.n_inputs),
                              doc="u(k) per step, one row each (predict's and the updates')"))
     args += [Argument("x0", "x0", (n,), doc="initial state estimate"),
-             Argument("P0", "P0", (n, n), doc="initial covariance (symmetric)"),
+             Argument("P0", "P0", (nt, nt), doc="initial covariance (symmetric)"),
              Argument("xs", "xs", ("steps", n), output=True, doc="estimate after each step"),
-             Argument("Ps", "Ps", ("steps", n, n), output=True, optional=True,
+             Argument("Ps", "Ps", ("steps", nt, nt), output=True, optional=True,
                       doc="covariance after each step (C: may be NULL)")]
     for s in unit.sensors:
         if s.gated:
@@ -441,18 +476,19 @@ def run_arguments(unit: Unit) -> list[Argument]:
     """The array arguments of the run function, in C order (``steps`` comes first in C)."""
     if unit.run.sensors:
         return sensor_run_arguments(unit)
-    sizes = {"n": unit.n, "m": unit.m}
+    named = sizes(unit)
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",
-            "Ps": "covariance after each step"}
+            "Ps": "covariance after each step",
+            "lls": "log-likelihood of each step's innovation"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
-    args += [Argument(name, name, tuple(sizes[d] for d in dims), doc=docs.get(name, name))
+    args += [Argument(name, name, tuple(named[d] for d in dims), doc=docs.get(name, name))
              for name, dims in unit.run.start]
-    args += [Argument(name, name, ("steps",) + tuple(sizes[d] for d in dims), output=True,
+    args += [Argument(name, name, ("steps",) + tuple(named[d] for d in dims), output=True,
                       optional=optional, doc=docs.get(name, f"{port} after each step")
                       + (" (C: may be NULL)" if optional else ""))
-             for name, port, dims, optional in unit.run.stores]
+             for name, port, dims, optional in unit.stores]
     ports = {p.name: p.size for program in unit.programs.values()
              for p in program.inputs + program.outputs}
     for name, held in unit.run.work:

@@ -16,17 +16,17 @@
  *     many tracks: ca_ikf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
- *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 3: the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     step 4: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 5: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 6, calls 0 (flops 91, instructions 75)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -119,21 +119,21 @@ DERIVE_INLINE int ca_ikf_step_body(const double *restrict x, const double *restr
     const double t14 = 0.005 + t6;
     const double t15 = 0.01 + P[8 * s];
     if (!(t10 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        status = 1; /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t16 = 1.0/t10;
     const double t17 = t11*t16;
     const double t18 = t12*t16;
     const double t19 = DERIVE_FNMA(t11, t17, t13);
     if (!(t19 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        status = 2; /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t20 = 1.0/t19;
     const double t21 = DERIVE_FNMA(t12, t17, t14);
     const double t22 = t20*t21;
     const double t23 = DERIVE_FNMA(t21, t22, DERIVE_FNMA(t12, t18, t15));
     if (!(t23 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        status = 3; /* the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t24 = 1.0/t23;
     const double t25 = DERIVE_FMA(t17, t22, -t18);
@@ -145,21 +145,21 @@ DERIVE_INLINE int ca_ikf_step_body(const double *restrict x, const double *restr
     const double t31 = DERIVE_FMA(t22, t28, t20);
     const double t32 = 10.0 + t29;
     if (!(t32 > 0.0) && !status) {
-        status = 4; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        status = 4; /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t33 = 1.0/t32;
     const double t34 = t30*t33;
     const double t35 = t27*t33;
     const double t36 = DERIVE_FNMA(t30, t34, t31);
     if (!(t36 > 0.0) && !status) {
-        status = 5; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        status = 5; /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t37 = 1.0/t36;
     const double t38 = DERIVE_FMA(t27, t34, -t28);
     const double t39 = t37*t38;
     const double t40 = DERIVE_FNMA(t38, t39, DERIVE_FNMA(t27, t35, t24));
     if (!(t40 > 0.0) && !status) {
-        status = 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        status = 6; /* the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t41 = 1.0/t40;
     const double t42 = DERIVE_FMA(t34, t39, t35);

@@ -16,17 +16,17 @@
  *     many tracks: ca_ikf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
- *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 3: the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     step 4: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 5: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 17, sub 1, mul 15, div 6, sqrt 0, fma 26, neg 4, cmp 6, calls 0 (flops 91, instructions 75)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ca_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[1],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["ca_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["ca_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",5,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]]]}
  */
 #ifndef DERIVE_ca_ikf_H
 #define DERIVE_ca_ikf_H
@@ -56,12 +56,12 @@
 /* the statuses listed above, by name (the functions return them as int) */
 enum ca_ikf_status {
     ca_ikf_STATUS_OK = 0,
-    ca_ikf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_1 = 1,
-    ca_ikf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_2 = 2,
-    ca_ikf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_3 = 3,
-    ca_ikf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_4 = 4,
-    ca_ikf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_5 = 5,
-    ca_ikf_STATUS_STEP_S_NOT_POSITIVE_DEFINITE_6 = 6
+    ca_ikf_STATUS_STEP_PREDICTED_P_NOT_POSITIVE_DEFINITE_1 = 1,
+    ca_ikf_STATUS_STEP_PREDICTED_P_NOT_POSITIVE_DEFINITE_2 = 2,
+    ca_ikf_STATUS_STEP_PREDICTED_P_NOT_POSITIVE_DEFINITE_3 = 3,
+    ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_4 = 4,
+    ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_5 = 5,
+    ca_ikf_STATUS_STEP_INFORMATION_MATRIX_NOT_POSITIVE_DEFINITE_6 = 6
 };
 
 #ifdef __cplusplus

@@ -14,12 +14,12 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     run(zs[steps, 1], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
-    step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 3: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 4: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 5: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 3: the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    step 4: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 5: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 33, sub 11, mul 41, div 6, sqrt 0, fma 0, neg 2, cmp 6, calls 0 (flops 91, instructions 99)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -132,17 +132,17 @@ def _step(x, P, z):
     t13 = 0.0033333333333333335 + t9
     t14 = 0.005 + t6
     t15 = 0.01 + P[8]
-    _require_positive(t10, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    _require_positive(t10, 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
     t16 = 1.0/t10
     t17 = t11*t16
     t18 = t12*t16
     t19 = t13 - t11*t17
-    _require_positive(t19, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    _require_positive(t19, 'the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
     t20 = 1.0/t19
     t21 = t14 - t12*t17
     t22 = t20*t21
     t23 = t15 - t12*t18 - t21*t22
-    _require_positive(t23, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    _require_positive(t23, 'the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
     t24 = 1.0/t23
     t25 = t17*t22 - t18
     t26 = t17*t20
@@ -152,17 +152,17 @@ def _step(x, P, z):
     t30 = t26 + t25*t28
     t31 = t20 + t22*t28
     t32 = 10.0 + t29
-    _require_positive(t32, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    _require_positive(t32, 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
     t33 = 1.0/t32
     t34 = t30*t33
     t35 = t27*t33
     t36 = t31 - t30*t34
-    _require_positive(t36, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    _require_positive(t36, 'the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
     t37 = 1.0/t36
     t38 = t27*t34 - t28
     t39 = t37*t38
     t40 = t24 - t27*t35 - t38*t39
-    _require_positive(t40, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    _require_positive(t40, 'the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
     t41 = 1.0/t40
     t42 = t35 + t34*t39
     t43 = t34*t37
@@ -231,19 +231,19 @@ def run(zs, x0, P0):
             t14 = 0.005 + t6
             t15 = 0.01 + P_8
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t16 = 1.0/t10
             t17 = t11*t16
             t18 = t12*t16
             t19 = t13 - t11*t17
             if not t19 > 0.0:
-                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t20 = 1.0/t19
             t21 = t14 - t12*t17
             t22 = t20*t21
             t23 = t15 - t12*t18 - t21*t22
             if not t23 > 0.0:
-                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t24 = 1.0/t23
             t25 = t17*t22 - t18
             t26 = t17*t20
@@ -253,19 +253,19 @@ def run(zs, x0, P0):
             t31 = t20 + t22*t28
             t32 = 10.0 + (t16 + t17*t26 + t25*t27)
             if not t32 > 0.0:
-                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t33 = 1.0/t32
             t34 = t30*t33
             t35 = t27*t33
             t36 = t31 - t30*t34
             if not t36 > 0.0:
-                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t37 = 1.0/t36
             t38 = t27*t34 - t28
             t39 = t37*t38
             t40 = t24 - t27*t35 - t38*t39
             if not t40 > 0.0:
-                raise NumericalError(f"step {len(rows) // 72}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 72}: " + 'the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             P_8 = 1.0/t40
             t42 = t35 + t34*t39
             t43 = t34*t37

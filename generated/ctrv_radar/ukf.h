@@ -33,8 +33,8 @@
  *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
  *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
  *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 170, sub 142, mul 305, div 25, sqrt 14, fma 266, neg 14, cmp 45, select 33, calls 97 (flops 1188, instructions 1014)
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 144, sub 98, mul 208, div 15, sqrt 5, fma 179, neg 13, cmp 38, select 33, calls 87 (flops 828, instructions 733)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 189, sub 132, mul 305, div 25, sqrt 14, fma 266, neg 31, cmp 45, select 33, calls 97 (flops 1197, instructions 1040)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 163, sub 88, mul 208, div 15, sqrt 5, fma 179, neg 30, cmp 38, select 33, calls 87 (flops 837, instructions 759)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
  * predict: sigma points of (x, P) through f

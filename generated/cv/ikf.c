@@ -16,15 +16,15 @@
  *     many tracks: cv_ikf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
- *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 3: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 3: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 4: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 8, sub 1, mul 6, div 4, sqrt 0, fma 6, neg 0, cmp 4, calls 0 (flops 31, instructions 29)
  * P0 pattern declared: zero
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * discretisation: exact (Phi nilpotent: finite Taylor series of the Van Loan matrix)
- * derive-interface: {"functions":[["cv_ikf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["cv_ikf_step","step",true,false,[["x",[2],false,false,false],["P",[2,2],false,false,false],["z",[1],false,false,false],["x_new",[2],true,false,false],["P_new",[2,2],true,false,false]]],["cv_ikf_run","run",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]],["cv_ikf_run_tracks","run_tracks",true,true,[["z",["steps",1],false,false,false,false,"zs"],["x0",[2],false,false,false],["P0",[2,2],false,false,false],["xs",["steps",2],true,false,false],["Ps",["steps",2,2],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",3,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -108,26 +108,26 @@ DERIVE_INLINE int cv_ikf_step_body(const double *restrict x, const double *restr
     const double t5 = 0.005 + t2;
     const double t6 = 0.01 + P[3 * s];
     if (!(t4 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        status = 1; /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t7 = 1.0/t4;
     const double t8 = t5*t7;
     const double t9 = DERIVE_FNMA(t5, t8, t6);
     if (!(t9 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        status = 2; /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t10 = 1.0/t9;
     const double t11 = t10*t8;
     const double t12 = DERIVE_FMA(t11, t8, t7);
     const double t13 = 10.0 + t12;
     if (!(t13 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        status = 3; /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t14 = 1.0/t13;
     const double t15 = t11*t14;
     const double t16 = DERIVE_FNMA(t11, t15, t10);
     if (!(t16 > 0.0) && !status) {
-        status = 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        status = 4; /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t17 = 1.0/t16;
     const double t18 = t15*t17;

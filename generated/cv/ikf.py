@@ -14,10 +14,10 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     run(zs[steps, 1], x0[2], P0[2, 2]) -> (xs[steps, 2], Ps[steps, 2, 2])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
-    step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 3: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 2: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 3: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 4: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
 operations per call of step (Python): add 12, sub 3, mul 12, div 4, sqrt 0, fma 0, neg 0, cmp 4, calls 0 (flops 31, instructions 35)
 P0 pattern declared: zero
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -121,20 +121,20 @@ def _step(x, P, z):
     t4 = 0.0033333333333333335 + t3
     t5 = 0.005 + t2
     t6 = 0.01 + P[3]
-    _require_positive(t4, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    _require_positive(t4, 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
     t7 = 1.0/t4
     t8 = t5*t7
     t9 = t6 - t5*t8
-    _require_positive(t9, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    _require_positive(t9, 'the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
     t10 = 1.0/t9
     t11 = t10*t8
     t12 = t7 + t11*t8
     t13 = 10.0 + t12
-    _require_positive(t13, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    _require_positive(t13, 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
     t14 = 1.0/t13
     t15 = t11*t14
     t16 = t10 - t11*t15
-    _require_positive(t16, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    _require_positive(t16, 'the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
     t17 = 1.0/t16
     t18 = t15*t17
     t19 = t14 + t15*t18
@@ -187,22 +187,22 @@ def run(zs, x0, P0):
             t5 = 0.005 + t2
             t6 = 0.01 + P_3
             if not t4 > 0.0:
-                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t7 = 1.0/t4
             t8 = t5*t7
             t9 = t6 - t5*t8
             if not t9 > 0.0:
-                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t10 = 1.0/t9
             t11 = t10*t8
             t13 = 10.0 + (t7 + t11*t8)
             if not t13 > 0.0:
-                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t14 = 1.0/t13
             t15 = t11*t14
             t16 = t10 - t11*t15
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 40}: " + 'the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             P_3 = 1.0/t16
             P_1 = t15*P_3
             P_0 = t14 + t15*P_1

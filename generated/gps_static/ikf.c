@@ -16,18 +16,18 @@
  *     many tracks: gps_static_ikf_run_tracks(steps, tracks, the run's arrays for each track, one track after another)
  * symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
  * status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
- *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 2: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
- *     step 3: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     step 5: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
- *     step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 2: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     step 3: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 4: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+ *     step 5: the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+ *     step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
  *     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
  * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 3, mul 3, div 6, sqrt 0, fma 3, neg 0, cmp 9, calls 0 (flops 24, instructions 30)
  * P0 pattern declared: diagonal
  * P0 accepted: exactly those zero outside P's pattern x..|.x.|..x (x may be non-zero; upper triangle read and checked; others are refused)
  * run: the 3 identical blocks of the step in the lanes of one vector of 4 doubles where DERIVE_VECTOR is 1 (GCC, Clang where a vector register holds them: x86-64 with AVX; a build setting it to 0 runs the scalar C99 loop): each lane executes its block's operations of the counts above in the same order, one block's count of vector instructions issuing them each step; bitwise the scalar run's results
- * derive-interface: {"functions":[["gps_static_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_ikf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_ikf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",3,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",4,"S is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",5,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",6,"S is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
+ * derive-interface: {"functions":[["gps_static_ikf_step","step",true,false,[["x",[3],false,false,false],["P",[3,3],false,false,false],["z",[3],false,false,false],["x_new",[3],true,false,false],["P_new",[3,3],true,false,false]]],["gps_static_ikf_run","run",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]],["gps_static_ikf_run_tracks","run_tracks",true,true,[["z",["steps",3],false,false,false,false,"zs"],["x0",[3],false,false,false],["P0",[3,3],false,false,false],["xs",["steps",3],true,false,false],["Ps",["steps",3,3],true,true,false]]]],"statuses":[["step",1,"the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",2,"the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",3,"the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",4,"the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",5,"the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",6,"the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive",[]],["step",7,"P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0",[1,2,5]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -145,12 +145,12 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
     int status = 0;
     const double t0 = 0.01 + P[0];
     if (!(t0 > 0.0) && !status) {
-        status = 1; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        status = 1; /* the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t1 = 1.0/t0;
     const double t2 = 10.0 + t1;
     if (!(t2 > 0.0) && !status) {
-        status = 2; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        status = 2; /* the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
     }
     const double t3 = 1.0/t2;
     const double t4 = 10.0*t3;
@@ -158,12 +158,12 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
     const double t7 = DERIVE_FMA(t4, t5, x[0]);
     const double t8 = 0.01 + P[4 * s];
     if (!(t8 > 0.0) && !status) {
-        status = 3; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        status = 3; /* the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t9 = 1.0/t8;
     const double t10 = 10.0 + t9;
     if (!(t10 > 0.0) && !status) {
-        status = 4; /* S is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
+        status = 4; /* the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive */
     }
     const double t11 = 1.0/t10;
     const double t12 = 10.0*t11;
@@ -171,12 +171,12 @@ DERIVE_INLINE int gps_static_ikf_step_body(const double *restrict x, const doubl
     const double t15 = DERIVE_FMA(t12, t13, x[1 * s]);
     const double t16 = 0.01 + P[8 * s];
     if (!(t16 > 0.0) && !status) {
-        status = 5; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        status = 5; /* the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t17 = 1.0/t16;
     const double t18 = 10.0 + t17;
     if (!(t18 > 0.0) && !status) {
-        status = 6; /* S is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
+        status = 6; /* the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive */
     }
     const double t19 = 1.0/t18;
     const double t20 = 10.0*t19;

@@ -14,12 +14,12 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
     run(zs[steps, 3], x0[3], P0[3, 3]) -> (xs[steps, 3], Ps[steps, 3, 3])
 symmetric in step: P, P_new (inputs: upper triangle read; outputs: written whole)
 status (C return value; Python raises NumericalError, or PatternError for P's pattern): 0 success
-    step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 2: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
-    step 3: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 4: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    step 5: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
-    step 6: S is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    step 1: the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 2: the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    step 3: the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 4: the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive
+    step 5: the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive
+    step 6: the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive
     step 7: P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0
 operations per call of step (Python): add 9, sub 3, mul 6, div 6, sqrt 0, fma 0, neg 0, cmp 9, calls 0 (flops 24, instructions 33)
 P0 pattern declared: diagonal
@@ -146,30 +146,30 @@ def _step_in_pattern(x, P, z):
     """step without the check of P's pattern (run checks P0 once instead).
     """
     t0 = 0.01 + P[0]
-    _require_positive(t0, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    _require_positive(t0, 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
     t1 = 1.0/t0
     t2 = 10.0 + t1
-    _require_positive(t2, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+    _require_positive(t2, 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
     t3 = 1.0/t2
     t4 = 10.0*t3
     t5 = z[0] - x[0]
     t6 = t4*t5
     t7 = x[0] + t6
     t8 = 0.01 + P[4]
-    _require_positive(t8, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    _require_positive(t8, 'the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
     t9 = 1.0/t8
     t10 = 10.0 + t9
-    _require_positive(t10, 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+    _require_positive(t10, 'the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
     t11 = 1.0/t10
     t12 = 10.0*t11
     t13 = z[1] - x[1]
     t14 = t12*t13
     t15 = x[1] + t14
     t16 = 0.01 + P[8]
-    _require_positive(t16, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    _require_positive(t16, 'the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
     t17 = 1.0/t16
     t18 = 10.0 + t17
-    _require_positive(t18, 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+    _require_positive(t18, 'the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
     t19 = 1.0/t18
     t20 = 10.0*t19
     t21 = z[2] - x[2]
@@ -216,10 +216,10 @@ def run(zs, x0, P0):
             for (z_0, z_1, z_2) in zip(*[z_values] * 3):
                 t0 = 0.01 + P_0
                 if not t0 > 0.0:
-                    raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                    raise NumericalError(f"step {len(rows) // 40}: " + 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
                 t2 = 10.0 + 1.0/t0
                 if not t2 > 0.0:
-                    raise NumericalError(f"step {len(rows) // 40}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                    raise NumericalError(f"step {len(rows) // 40}: " + 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
                 P_0 = 1.0/t2
                 t4 = 10.0*P_0
                 x_0 = x_0 + t4*(z_0 - x_0)
@@ -237,26 +237,26 @@ def run(zs, x0, P0):
         for (z_0, z_1, z_2) in zip(*[z_values] * 3):
             t0 = 0.01 + P_0
             if not t0 > 0.0:
-                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'the predicted P is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             t2 = 10.0 + 1.0/t0
             if not t2 > 0.0:
-                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'the information matrix is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
             P_0 = 1.0/t2
             x_0 = x_0 + 10.0*P_0*(z_0 - x_0)
             t8 = 0.01 + P_4
             if not t8 > 0.0:
-                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'the predicted P is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             t10 = 10.0 + 1.0/t8
             if not t10 > 0.0:
-                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'the information matrix is not positive definite: pivot 1 of its LDL^T factorisation is not positive')
             P_4 = 1.0/t10
             x_1 = x_1 + 10.0*P_4*(z_1 - x_1)
             t16 = 0.01 + P_8
             if not t16 > 0.0:
-                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'the predicted P is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             t18 = 10.0 + 1.0/t16
             if not t18 > 0.0:
-                raise NumericalError(f"step {len(rows) // 56}: " + 'S is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
+                raise NumericalError(f"step {len(rows) // 56}: " + 'the information matrix is not positive definite: pivot 2 of its LDL^T factorisation is not positive')
             P_8 = 1.0/t18
             x_2 = x_2 + 10.0*P_8*(z_2 - x_2)
             keep(pack(x_0, x_1, x_2, P_0, 0.0, P_4, P_8))

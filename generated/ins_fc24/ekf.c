@@ -19,9 +19,9 @@
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
  * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
- * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in update_baro: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_mag: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
- * symmetric in update_airspeed: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in update_airspeed: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     predict 1: parameter dt must be nonnegative
  *     update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
@@ -30,16 +30,16 @@
  *     update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
- *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     update_baro 8: S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive
  *     update_mag 9: S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive
  *     update_mag 10: S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
- *     update_airspeed 12: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     update_airspeed 12: S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 89, sub 8, mul 147, div 0, sqrt 0, fma 1494, neg 29, cmp 1, calls 0 (flops 3232, instructions 1768)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 29, div 2, sqrt 1, fma 327, neg 0, cmp 1, calls 0 (flops 688, instructions 362)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 30, div 2, sqrt 1, fma 327, neg 24, cmp 1, calls 0 (flops 689, instructions 387)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
- * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 3, mul 56, div 3, sqrt 2, fma 429, neg 2, cmp 1, calls 0 (flops 923, instructions 497)
+ * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 3, mul 58, div 3, sqrt 2, fma 430, neg 2, cmp 1, calls 0 (flops 926, instructions 499)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: dthx, dthy, dthz, dvx, dvy, dvz
@@ -49,8 +49,8 @@
  * update of mag: sequential, one scalar update per measurement in the order magx, magy, magz (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
- * vector rows (rows = vector): predict, update_gnss, update_mag computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
- * derive-interface: {"functions":[["ins_fc24_ekf_predict","predict",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["u",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_gnss","update_gnss",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_baro","update_baro",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_mag","update_mag",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[3],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_airspeed","update_airspeed",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["z_mag",["steps",3],false,false,false],["z_airspeed",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[24],false,false,false],["P0",[24,24],false,false,false],["xs",["steps",24],true,false,false],["Ps",["steps",24,24],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["update_mag",9,"S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive",[]],["update_mag",10,"S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive",[]],["update_mag",11,"S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive",[]],["update_airspeed",12,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * vector rows (rows = vector): predict, update_gnss, update_baro, update_mag, update_airspeed computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
+ * derive-interface: {"functions":[["ins_fc24_ekf_predict","predict",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["u",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_gnss","update_gnss",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[6],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_baro","update_baro",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_mag","update_mag",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[3],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_update_airspeed","update_airspeed",true,false,[["x",[24],false,false,false],["P",[24,24],false,false,false],["z",[1],false,false,false],["x_new",[24],true,false,false],["P_new",[24,24],true,false,false],["p",[1],false,false,false]]],["ins_fc24_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["z_mag",["steps",3],false,false,false],["z_airspeed",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[24],false,false,false],["P0",[24,24],false,false,false],["xs",["steps",24],true,false,false],["Ps",["steps",24,24],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive",[]],["update_mag",9,"S is not positive definite: the variance s of measurement 0 (magx) of the sequential update is not positive",[]],["update_mag",10,"S is not positive definite: the variance s of measurement 1 (magy) of the sequential update is not positive",[]],["update_mag",11,"S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive",[]],["update_airspeed",12,"S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -5125,966 +5125,1721 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
 int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const double *restrict p)
 {
     (void)p;
-    const double t1 = 0.25 + P[225];
-    if (!(t1 > 0.0)) {
-        return 8; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    const double t1 = x[9] + z[0];
+    #if DERIVE_VECTOR
+    const derive_vd v_t2 = (-((derive_vd){P[216], P[217], P[218], P[219]}));
+    const double t3 = v_t2[1];
+    const double t4 = v_t2[2];
+    const double t5 = v_t2[3];
+    #else
+    const double t2 = -P[216];
+    const double t3 = -P[217];
+    const double t4 = -P[218];
+    const double t5 = -P[219];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t6 = (-((derive_vd){P[220], P[221], P[222], P[223]}));
+    const double t7 = v_t6[1];
+    const double t8 = v_t6[2];
+    const double t9 = v_t6[3];
+    #else
+    const double t6 = -P[220];
+    const double t7 = -P[221];
+    const double t8 = -P[222];
+    const double t9 = -P[223];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t10 = (-((derive_vd){P[224], P[225], P[226], P[227]}));
+    const double t11 = v_t10[1];
+    const double t12 = v_t10[2];
+    const double t13 = v_t10[3];
+    #else
+    const double t10 = -P[224];
+    const double t11 = -P[225];
+    const double t12 = -P[226];
+    const double t13 = -P[227];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t14 = (-((derive_vd){P[228], P[229], P[230], P[231]}));
+    const double t15 = v_t14[1];
+    const double t16 = v_t14[2];
+    const double t17 = v_t14[3];
+    #else
+    const double t14 = -P[228];
+    const double t15 = -P[229];
+    const double t16 = -P[230];
+    const double t17 = -P[231];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t18 = (-((derive_vd){P[232], P[233], P[234], P[235]}));
+    const double t19 = v_t18[1];
+    const double t20 = v_t18[2];
+    const double t21 = v_t18[3];
+    #else
+    const double t18 = -P[232];
+    const double t19 = -P[233];
+    const double t20 = -P[234];
+    const double t21 = -P[235];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t22 = (-((derive_vd){P[236], P[237], P[238], P[239]}));
+    const double t23 = v_t22[1];
+    const double t24 = v_t22[2];
+    const double t25 = v_t22[3];
+    #else
+    const double t22 = -P[236];
+    const double t23 = -P[237];
+    const double t24 = -P[238];
+    const double t25 = -P[239];
+    #endif
+    const double t26 = 0.25 - t11;
+    if (!(t26 > 0.0)) {
+        return 8; /* S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive */
     }
-    const double t2 = 1.0/t1;
-    const double t3 = P[9]*t2;
-    const double t4 = P[33]*t2;
-    const double t5 = P[57]*t2;
-    const double t6 = P[81]*t2;
-    const double t7 = P[105]*t2;
-    const double t8 = P[129]*t2;
-    const double t9 = P[153]*t2;
-    const double t10 = P[177]*t2;
-    const double t11 = P[201]*t2;
-    const double t12 = P[225]*t2;
-    const double t13 = P[226]*t2;
-    const double t14 = P[227]*t2;
-    const double t15 = P[228]*t2;
-    const double t16 = P[229]*t2;
-    const double t17 = P[230]*t2;
-    const double t18 = P[231]*t2;
-    const double t19 = P[232]*t2;
-    const double t20 = P[233]*t2;
-    const double t21 = P[234]*t2;
-    const double t22 = P[235]*t2;
-    const double t23 = P[236]*t2;
-    const double t24 = P[237]*t2;
-    const double t25 = P[238]*t2;
-    const double t26 = P[239]*t2;
-    const double t27 = x[9] + z[0];
-    const double t52 = DERIVE_FNMA(t27, t3, x[0]);
-    const double t53 = DERIVE_FNMA(t27, t4, x[1]);
-    const double t54 = DERIVE_FNMA(t27, t5, x[2]);
-    const double t55 = DERIVE_FNMA(t27, t6, x[3]);
-    const double t56 = DERIVE_FNMA(t27, t7, x[4]);
-    const double t57 = DERIVE_FNMA(t27, t8, x[5]);
-    const double t58 = DERIVE_FNMA(t27, t9, x[6]);
-    const double t59 = DERIVE_FNMA(t10, t27, x[7]);
-    const double t60 = DERIVE_FNMA(t11, t27, x[8]);
-    const double t61 = DERIVE_FNMA(t12, t27, x[9]);
-    const double t62 = DERIVE_FNMA(t13, t27, x[10]);
-    const double t63 = DERIVE_FNMA(t14, t27, x[11]);
-    const double t64 = DERIVE_FNMA(t15, t27, x[12]);
-    const double t65 = DERIVE_FNMA(t16, t27, x[13]);
-    const double t66 = DERIVE_FNMA(t17, t27, x[14]);
-    const double t67 = DERIVE_FNMA(t18, t27, x[15]);
-    const double t68 = DERIVE_FNMA(t19, t27, x[16]);
-    const double t69 = DERIVE_FNMA(t20, t27, x[17]);
-    const double t70 = DERIVE_FNMA(t21, t27, x[18]);
-    const double t71 = DERIVE_FNMA(t22, t27, x[19]);
-    const double t72 = DERIVE_FNMA(t23, t27, x[20]);
-    const double t73 = DERIVE_FNMA(t24, t27, x[21]);
-    const double t74 = DERIVE_FNMA(t25, t27, x[22]);
-    const double t75 = DERIVE_FNMA(t26, t27, x[23]);
-    const double t376 = DERIVE_FNMA(P[9], t3, P[0]);
-    const double t377 = DERIVE_FNMA(P[33], t3, P[1]);
-    const double t378 = DERIVE_FNMA(P[57], t3, P[2]);
-    const double t379 = DERIVE_FNMA(P[81], t3, P[3]);
-    const double t380 = DERIVE_FNMA(P[105], t3, P[4]);
-    const double t381 = DERIVE_FNMA(P[129], t3, P[5]);
-    const double t382 = DERIVE_FNMA(P[153], t3, P[6]);
-    const double t383 = DERIVE_FNMA(P[177], t3, P[7]);
-    const double t384 = DERIVE_FNMA(P[201], t3, P[8]);
-    const double t385 = DERIVE_FNMA(P[225], t3, P[9]);
-    const double t386 = DERIVE_FNMA(P[226], t3, P[10]);
-    const double t387 = DERIVE_FNMA(P[227], t3, P[11]);
-    const double t388 = DERIVE_FNMA(P[228], t3, P[12]);
-    const double t389 = DERIVE_FNMA(P[229], t3, P[13]);
-    const double t390 = DERIVE_FNMA(P[230], t3, P[14]);
-    const double t391 = DERIVE_FNMA(P[231], t3, P[15]);
-    const double t392 = DERIVE_FNMA(P[232], t3, P[16]);
-    const double t393 = DERIVE_FNMA(P[233], t3, P[17]);
-    const double t394 = DERIVE_FNMA(P[234], t3, P[18]);
-    const double t395 = DERIVE_FNMA(P[235], t3, P[19]);
-    const double t396 = DERIVE_FNMA(P[236], t3, P[20]);
-    const double t397 = DERIVE_FNMA(P[237], t3, P[21]);
-    const double t398 = DERIVE_FNMA(P[238], t3, P[22]);
-    const double t399 = DERIVE_FNMA(P[239], t3, P[23]);
-    const double t400 = DERIVE_FNMA(P[33], t4, P[25]);
-    const double t401 = DERIVE_FNMA(P[57], t4, P[26]);
-    const double t402 = DERIVE_FNMA(P[81], t4, P[27]);
-    const double t403 = DERIVE_FNMA(P[105], t4, P[28]);
-    const double t404 = DERIVE_FNMA(P[129], t4, P[29]);
-    const double t405 = DERIVE_FNMA(P[153], t4, P[30]);
-    const double t406 = DERIVE_FNMA(P[177], t4, P[31]);
-    const double t407 = DERIVE_FNMA(P[201], t4, P[32]);
-    const double t408 = DERIVE_FNMA(P[225], t4, P[33]);
-    const double t409 = DERIVE_FNMA(P[226], t4, P[34]);
-    const double t410 = DERIVE_FNMA(P[227], t4, P[35]);
-    const double t411 = DERIVE_FNMA(P[228], t4, P[36]);
-    const double t412 = DERIVE_FNMA(P[229], t4, P[37]);
-    const double t413 = DERIVE_FNMA(P[230], t4, P[38]);
-    const double t414 = DERIVE_FNMA(P[231], t4, P[39]);
-    const double t415 = DERIVE_FNMA(P[232], t4, P[40]);
-    const double t416 = DERIVE_FNMA(P[233], t4, P[41]);
-    const double t417 = DERIVE_FNMA(P[234], t4, P[42]);
-    const double t418 = DERIVE_FNMA(P[235], t4, P[43]);
-    const double t419 = DERIVE_FNMA(P[236], t4, P[44]);
-    const double t420 = DERIVE_FNMA(P[237], t4, P[45]);
-    const double t421 = DERIVE_FNMA(P[238], t4, P[46]);
-    const double t422 = DERIVE_FNMA(P[239], t4, P[47]);
-    const double t423 = DERIVE_FNMA(P[57], t5, P[50]);
-    const double t424 = DERIVE_FNMA(P[81], t5, P[51]);
-    const double t425 = DERIVE_FNMA(P[105], t5, P[52]);
-    const double t426 = DERIVE_FNMA(P[129], t5, P[53]);
-    const double t427 = DERIVE_FNMA(P[153], t5, P[54]);
-    const double t428 = DERIVE_FNMA(P[177], t5, P[55]);
-    const double t429 = DERIVE_FNMA(P[201], t5, P[56]);
-    const double t430 = DERIVE_FNMA(P[225], t5, P[57]);
-    const double t431 = DERIVE_FNMA(P[226], t5, P[58]);
-    const double t432 = DERIVE_FNMA(P[227], t5, P[59]);
-    const double t433 = DERIVE_FNMA(P[228], t5, P[60]);
-    const double t434 = DERIVE_FNMA(P[229], t5, P[61]);
-    const double t435 = DERIVE_FNMA(P[230], t5, P[62]);
-    const double t436 = DERIVE_FNMA(P[231], t5, P[63]);
-    const double t437 = DERIVE_FNMA(P[232], t5, P[64]);
-    const double t438 = DERIVE_FNMA(P[233], t5, P[65]);
-    const double t439 = DERIVE_FNMA(P[234], t5, P[66]);
-    const double t440 = DERIVE_FNMA(P[235], t5, P[67]);
-    const double t441 = DERIVE_FNMA(P[236], t5, P[68]);
-    const double t442 = DERIVE_FNMA(P[237], t5, P[69]);
-    const double t443 = DERIVE_FNMA(P[238], t5, P[70]);
-    const double t444 = DERIVE_FNMA(P[239], t5, P[71]);
-    const double t445 = DERIVE_FNMA(P[81], t6, P[75]);
-    const double t446 = DERIVE_FNMA(P[105], t6, P[76]);
-    const double t447 = DERIVE_FNMA(P[129], t6, P[77]);
-    const double t448 = DERIVE_FNMA(P[153], t6, P[78]);
-    const double t449 = DERIVE_FNMA(P[177], t6, P[79]);
-    const double t450 = DERIVE_FNMA(P[201], t6, P[80]);
-    const double t451 = DERIVE_FNMA(P[225], t6, P[81]);
-    const double t452 = DERIVE_FNMA(P[226], t6, P[82]);
-    const double t453 = DERIVE_FNMA(P[227], t6, P[83]);
-    const double t454 = DERIVE_FNMA(P[228], t6, P[84]);
-    const double t455 = DERIVE_FNMA(P[229], t6, P[85]);
-    const double t456 = DERIVE_FNMA(P[230], t6, P[86]);
-    const double t457 = DERIVE_FNMA(P[231], t6, P[87]);
-    const double t458 = DERIVE_FNMA(P[232], t6, P[88]);
-    const double t459 = DERIVE_FNMA(P[233], t6, P[89]);
-    const double t460 = DERIVE_FNMA(P[234], t6, P[90]);
-    const double t461 = DERIVE_FNMA(P[235], t6, P[91]);
-    const double t462 = DERIVE_FNMA(P[236], t6, P[92]);
-    const double t463 = DERIVE_FNMA(P[237], t6, P[93]);
-    const double t464 = DERIVE_FNMA(P[238], t6, P[94]);
-    const double t465 = DERIVE_FNMA(P[239], t6, P[95]);
-    const double t466 = DERIVE_FNMA(P[105], t7, P[100]);
-    const double t467 = DERIVE_FNMA(P[129], t7, P[101]);
-    const double t468 = DERIVE_FNMA(P[153], t7, P[102]);
-    const double t469 = DERIVE_FNMA(P[177], t7, P[103]);
-    const double t470 = DERIVE_FNMA(P[201], t7, P[104]);
-    const double t471 = DERIVE_FNMA(P[225], t7, P[105]);
-    const double t472 = DERIVE_FNMA(P[226], t7, P[106]);
-    const double t473 = DERIVE_FNMA(P[227], t7, P[107]);
-    const double t474 = DERIVE_FNMA(P[228], t7, P[108]);
-    const double t475 = DERIVE_FNMA(P[229], t7, P[109]);
-    const double t476 = DERIVE_FNMA(P[230], t7, P[110]);
-    const double t477 = DERIVE_FNMA(P[231], t7, P[111]);
-    const double t478 = DERIVE_FNMA(P[232], t7, P[112]);
-    const double t479 = DERIVE_FNMA(P[233], t7, P[113]);
-    const double t480 = DERIVE_FNMA(P[234], t7, P[114]);
-    const double t481 = DERIVE_FNMA(P[235], t7, P[115]);
-    const double t482 = DERIVE_FNMA(P[236], t7, P[116]);
-    const double t483 = DERIVE_FNMA(P[237], t7, P[117]);
-    const double t484 = DERIVE_FNMA(P[238], t7, P[118]);
-    const double t485 = DERIVE_FNMA(P[239], t7, P[119]);
-    const double t486 = DERIVE_FNMA(P[129], t8, P[125]);
-    const double t487 = DERIVE_FNMA(P[153], t8, P[126]);
-    const double t488 = DERIVE_FNMA(P[177], t8, P[127]);
-    const double t489 = DERIVE_FNMA(P[201], t8, P[128]);
-    const double t490 = DERIVE_FNMA(P[225], t8, P[129]);
-    const double t491 = DERIVE_FNMA(P[226], t8, P[130]);
-    const double t492 = DERIVE_FNMA(P[227], t8, P[131]);
-    const double t493 = DERIVE_FNMA(P[228], t8, P[132]);
-    const double t494 = DERIVE_FNMA(P[229], t8, P[133]);
-    const double t495 = DERIVE_FNMA(P[230], t8, P[134]);
-    const double t496 = DERIVE_FNMA(P[231], t8, P[135]);
-    const double t497 = DERIVE_FNMA(P[232], t8, P[136]);
-    const double t498 = DERIVE_FNMA(P[233], t8, P[137]);
-    const double t499 = DERIVE_FNMA(P[234], t8, P[138]);
-    const double t500 = DERIVE_FNMA(P[235], t8, P[139]);
-    const double t501 = DERIVE_FNMA(P[236], t8, P[140]);
-    const double t502 = DERIVE_FNMA(P[237], t8, P[141]);
-    const double t503 = DERIVE_FNMA(P[238], t8, P[142]);
-    const double t504 = DERIVE_FNMA(P[239], t8, P[143]);
-    const double t505 = DERIVE_FNMA(P[153], t9, P[150]);
-    const double t506 = DERIVE_FNMA(P[177], t9, P[151]);
-    const double t507 = DERIVE_FNMA(P[201], t9, P[152]);
-    const double t508 = DERIVE_FNMA(P[225], t9, P[153]);
-    const double t509 = DERIVE_FNMA(P[226], t9, P[154]);
-    const double t510 = DERIVE_FNMA(P[227], t9, P[155]);
-    const double t511 = DERIVE_FNMA(P[228], t9, P[156]);
-    const double t512 = DERIVE_FNMA(P[229], t9, P[157]);
-    const double t513 = DERIVE_FNMA(P[230], t9, P[158]);
-    const double t514 = DERIVE_FNMA(P[231], t9, P[159]);
-    const double t515 = DERIVE_FNMA(P[232], t9, P[160]);
-    const double t516 = DERIVE_FNMA(P[233], t9, P[161]);
-    const double t517 = DERIVE_FNMA(P[234], t9, P[162]);
-    const double t518 = DERIVE_FNMA(P[235], t9, P[163]);
-    const double t519 = DERIVE_FNMA(P[236], t9, P[164]);
-    const double t520 = DERIVE_FNMA(P[237], t9, P[165]);
-    const double t521 = DERIVE_FNMA(P[238], t9, P[166]);
-    const double t522 = DERIVE_FNMA(P[239], t9, P[167]);
-    const double t523 = DERIVE_FNMA(P[177], t10, P[175]);
-    const double t524 = DERIVE_FNMA(P[201], t10, P[176]);
-    const double t525 = DERIVE_FNMA(P[225], t10, P[177]);
-    const double t526 = DERIVE_FNMA(P[226], t10, P[178]);
-    const double t527 = DERIVE_FNMA(P[227], t10, P[179]);
-    const double t528 = DERIVE_FNMA(P[228], t10, P[180]);
-    const double t529 = DERIVE_FNMA(P[229], t10, P[181]);
-    const double t530 = DERIVE_FNMA(P[230], t10, P[182]);
-    const double t531 = DERIVE_FNMA(P[231], t10, P[183]);
-    const double t532 = DERIVE_FNMA(P[232], t10, P[184]);
-    const double t533 = DERIVE_FNMA(P[233], t10, P[185]);
-    const double t534 = DERIVE_FNMA(P[234], t10, P[186]);
-    const double t535 = DERIVE_FNMA(P[235], t10, P[187]);
-    const double t536 = DERIVE_FNMA(P[236], t10, P[188]);
-    const double t537 = DERIVE_FNMA(P[237], t10, P[189]);
-    const double t538 = DERIVE_FNMA(P[238], t10, P[190]);
-    const double t539 = DERIVE_FNMA(P[239], t10, P[191]);
-    const double t540 = DERIVE_FNMA(P[201], t11, P[200]);
-    const double t541 = DERIVE_FNMA(P[225], t11, P[201]);
-    const double t542 = DERIVE_FNMA(P[226], t11, P[202]);
-    const double t543 = DERIVE_FNMA(P[227], t11, P[203]);
-    const double t544 = DERIVE_FNMA(P[228], t11, P[204]);
-    const double t545 = DERIVE_FNMA(P[229], t11, P[205]);
-    const double t546 = DERIVE_FNMA(P[230], t11, P[206]);
-    const double t547 = DERIVE_FNMA(P[231], t11, P[207]);
-    const double t548 = DERIVE_FNMA(P[232], t11, P[208]);
-    const double t549 = DERIVE_FNMA(P[233], t11, P[209]);
-    const double t550 = DERIVE_FNMA(P[234], t11, P[210]);
-    const double t551 = DERIVE_FNMA(P[235], t11, P[211]);
-    const double t552 = DERIVE_FNMA(P[236], t11, P[212]);
-    const double t553 = DERIVE_FNMA(P[237], t11, P[213]);
-    const double t554 = DERIVE_FNMA(P[238], t11, P[214]);
-    const double t555 = DERIVE_FNMA(P[239], t11, P[215]);
-    const double t556 = DERIVE_FNMA(P[225], t12, P[225]);
-    const double t557 = DERIVE_FNMA(P[226], t12, P[226]);
-    const double t558 = DERIVE_FNMA(P[227], t12, P[227]);
-    const double t559 = DERIVE_FNMA(P[228], t12, P[228]);
-    const double t560 = DERIVE_FNMA(P[229], t12, P[229]);
-    const double t561 = DERIVE_FNMA(P[230], t12, P[230]);
-    const double t562 = DERIVE_FNMA(P[231], t12, P[231]);
-    const double t563 = DERIVE_FNMA(P[232], t12, P[232]);
-    const double t564 = DERIVE_FNMA(P[233], t12, P[233]);
-    const double t565 = DERIVE_FNMA(P[234], t12, P[234]);
-    const double t566 = DERIVE_FNMA(P[235], t12, P[235]);
-    const double t567 = DERIVE_FNMA(P[236], t12, P[236]);
-    const double t568 = DERIVE_FNMA(P[237], t12, P[237]);
-    const double t569 = DERIVE_FNMA(P[238], t12, P[238]);
-    const double t570 = DERIVE_FNMA(P[239], t12, P[239]);
-    const double t571 = DERIVE_FNMA(P[226], t13, P[250]);
-    const double t572 = DERIVE_FNMA(P[227], t13, P[251]);
-    const double t573 = DERIVE_FNMA(P[228], t13, P[252]);
-    const double t574 = DERIVE_FNMA(P[229], t13, P[253]);
-    const double t575 = DERIVE_FNMA(P[230], t13, P[254]);
-    const double t576 = DERIVE_FNMA(P[231], t13, P[255]);
-    const double t577 = DERIVE_FNMA(P[232], t13, P[256]);
-    const double t578 = DERIVE_FNMA(P[233], t13, P[257]);
-    const double t579 = DERIVE_FNMA(P[234], t13, P[258]);
-    const double t580 = DERIVE_FNMA(P[235], t13, P[259]);
-    const double t581 = DERIVE_FNMA(P[236], t13, P[260]);
-    const double t582 = DERIVE_FNMA(P[237], t13, P[261]);
-    const double t583 = DERIVE_FNMA(P[238], t13, P[262]);
-    const double t584 = DERIVE_FNMA(P[239], t13, P[263]);
-    const double t585 = DERIVE_FNMA(P[227], t14, P[275]);
-    const double t586 = DERIVE_FNMA(P[228], t14, P[276]);
-    const double t587 = DERIVE_FNMA(P[229], t14, P[277]);
-    const double t588 = DERIVE_FNMA(P[230], t14, P[278]);
-    const double t589 = DERIVE_FNMA(P[231], t14, P[279]);
-    const double t590 = DERIVE_FNMA(P[232], t14, P[280]);
-    const double t591 = DERIVE_FNMA(P[233], t14, P[281]);
-    const double t592 = DERIVE_FNMA(P[234], t14, P[282]);
-    const double t593 = DERIVE_FNMA(P[235], t14, P[283]);
-    const double t594 = DERIVE_FNMA(P[236], t14, P[284]);
-    const double t595 = DERIVE_FNMA(P[237], t14, P[285]);
-    const double t596 = DERIVE_FNMA(P[238], t14, P[286]);
-    const double t597 = DERIVE_FNMA(P[239], t14, P[287]);
-    const double t598 = DERIVE_FNMA(P[228], t15, P[300]);
-    const double t599 = DERIVE_FNMA(P[229], t15, P[301]);
-    const double t600 = DERIVE_FNMA(P[230], t15, P[302]);
-    const double t601 = DERIVE_FNMA(P[231], t15, P[303]);
-    const double t602 = DERIVE_FNMA(P[232], t15, P[304]);
-    const double t603 = DERIVE_FNMA(P[233], t15, P[305]);
-    const double t604 = DERIVE_FNMA(P[234], t15, P[306]);
-    const double t605 = DERIVE_FNMA(P[235], t15, P[307]);
-    const double t606 = DERIVE_FNMA(P[236], t15, P[308]);
-    const double t607 = DERIVE_FNMA(P[237], t15, P[309]);
-    const double t608 = DERIVE_FNMA(P[238], t15, P[310]);
-    const double t609 = DERIVE_FNMA(P[239], t15, P[311]);
-    const double t610 = DERIVE_FNMA(P[229], t16, P[325]);
-    const double t611 = DERIVE_FNMA(P[230], t16, P[326]);
-    const double t612 = DERIVE_FNMA(P[231], t16, P[327]);
-    const double t613 = DERIVE_FNMA(P[232], t16, P[328]);
-    const double t614 = DERIVE_FNMA(P[233], t16, P[329]);
-    const double t615 = DERIVE_FNMA(P[234], t16, P[330]);
-    const double t616 = DERIVE_FNMA(P[235], t16, P[331]);
-    const double t617 = DERIVE_FNMA(P[236], t16, P[332]);
-    const double t618 = DERIVE_FNMA(P[237], t16, P[333]);
-    const double t619 = DERIVE_FNMA(P[238], t16, P[334]);
-    const double t620 = DERIVE_FNMA(P[239], t16, P[335]);
-    const double t621 = DERIVE_FNMA(P[230], t17, P[350]);
-    const double t622 = DERIVE_FNMA(P[231], t17, P[351]);
-    const double t623 = DERIVE_FNMA(P[232], t17, P[352]);
-    const double t624 = DERIVE_FNMA(P[233], t17, P[353]);
-    const double t625 = DERIVE_FNMA(P[234], t17, P[354]);
-    const double t626 = DERIVE_FNMA(P[235], t17, P[355]);
-    const double t627 = DERIVE_FNMA(P[236], t17, P[356]);
-    const double t628 = DERIVE_FNMA(P[237], t17, P[357]);
-    const double t629 = DERIVE_FNMA(P[238], t17, P[358]);
-    const double t630 = DERIVE_FNMA(P[239], t17, P[359]);
-    const double t631 = DERIVE_FNMA(P[231], t18, P[375]);
-    const double t632 = DERIVE_FNMA(P[232], t18, P[376]);
-    const double t633 = DERIVE_FNMA(P[233], t18, P[377]);
-    const double t634 = DERIVE_FNMA(P[234], t18, P[378]);
-    const double t635 = DERIVE_FNMA(P[235], t18, P[379]);
-    const double t636 = DERIVE_FNMA(P[236], t18, P[380]);
-    const double t637 = DERIVE_FNMA(P[237], t18, P[381]);
-    const double t638 = DERIVE_FNMA(P[238], t18, P[382]);
-    const double t639 = DERIVE_FNMA(P[239], t18, P[383]);
-    const double t640 = DERIVE_FNMA(P[232], t19, P[400]);
-    const double t641 = DERIVE_FNMA(P[233], t19, P[401]);
-    const double t642 = DERIVE_FNMA(P[234], t19, P[402]);
-    const double t643 = DERIVE_FNMA(P[235], t19, P[403]);
-    const double t644 = DERIVE_FNMA(P[236], t19, P[404]);
-    const double t645 = DERIVE_FNMA(P[237], t19, P[405]);
-    const double t646 = DERIVE_FNMA(P[238], t19, P[406]);
-    const double t647 = DERIVE_FNMA(P[239], t19, P[407]);
-    const double t648 = DERIVE_FNMA(P[233], t20, P[425]);
-    const double t649 = DERIVE_FNMA(P[234], t20, P[426]);
-    const double t650 = DERIVE_FNMA(P[235], t20, P[427]);
-    const double t651 = DERIVE_FNMA(P[236], t20, P[428]);
-    const double t652 = DERIVE_FNMA(P[237], t20, P[429]);
-    const double t653 = DERIVE_FNMA(P[238], t20, P[430]);
-    const double t654 = DERIVE_FNMA(P[239], t20, P[431]);
-    const double t655 = DERIVE_FNMA(P[234], t21, P[450]);
-    const double t656 = DERIVE_FNMA(P[235], t21, P[451]);
-    const double t657 = DERIVE_FNMA(P[236], t21, P[452]);
-    const double t658 = DERIVE_FNMA(P[237], t21, P[453]);
-    const double t659 = DERIVE_FNMA(P[238], t21, P[454]);
-    const double t660 = DERIVE_FNMA(P[239], t21, P[455]);
-    const double t661 = DERIVE_FNMA(P[235], t22, P[475]);
-    const double t662 = DERIVE_FNMA(P[236], t22, P[476]);
-    const double t663 = DERIVE_FNMA(P[237], t22, P[477]);
-    const double t664 = DERIVE_FNMA(P[238], t22, P[478]);
-    const double t665 = DERIVE_FNMA(P[239], t22, P[479]);
-    const double t666 = DERIVE_FNMA(P[236], t23, P[500]);
-    const double t667 = DERIVE_FNMA(P[237], t23, P[501]);
-    const double t668 = DERIVE_FNMA(P[238], t23, P[502]);
-    const double t669 = DERIVE_FNMA(P[239], t23, P[503]);
-    const double t670 = DERIVE_FNMA(P[237], t24, P[525]);
-    const double t671 = DERIVE_FNMA(P[238], t24, P[526]);
-    const double t672 = DERIVE_FNMA(P[239], t24, P[527]);
-    const double t673 = DERIVE_FNMA(P[238], t25, P[550]);
-    const double t674 = DERIVE_FNMA(P[239], t25, P[551]);
-    const double t675 = DERIVE_FNMA(P[239], t26, P[575]);
-    const double t676 = DERIVE_FMA(t55, t55, DERIVE_FMA(t54, t54, DERIVE_FMA(t53, t53, t52*t52)));
-    const double t677 = 1.0/sqrt(t676);
-    const double t678 = t52*t677;
-    const double t679 = t53*t677;
-    const double t680 = t54*t677;
-    const double t681 = t55*t677;
-    x_new[0] = t678;
-    x_new[1] = t679;
-    x_new[2] = t680;
-    x_new[3] = t681;
-    x_new[4] = t56;
-    x_new[5] = t57;
-    x_new[6] = t58;
-    x_new[7] = t59;
-    x_new[8] = t60;
-    x_new[9] = t61;
-    x_new[10] = t62;
-    x_new[11] = t63;
-    x_new[12] = t64;
-    x_new[13] = t65;
-    x_new[14] = t66;
-    x_new[15] = t67;
-    x_new[16] = t68;
-    x_new[17] = t69;
-    x_new[18] = t70;
-    x_new[19] = t71;
-    x_new[20] = t72;
-    x_new[21] = t73;
-    x_new[22] = t74;
-    x_new[23] = t75;
-    P_new[0] = t376;
-    P_new[1] = t377;
-    P_new[2] = t378;
-    P_new[3] = t379;
-    P_new[4] = t380;
-    P_new[5] = t381;
-    P_new[6] = t382;
-    P_new[7] = t383;
-    P_new[8] = t384;
-    P_new[9] = t385;
-    P_new[10] = t386;
-    P_new[11] = t387;
-    P_new[12] = t388;
-    P_new[13] = t389;
-    P_new[14] = t390;
-    P_new[15] = t391;
-    P_new[16] = t392;
-    P_new[17] = t393;
-    P_new[18] = t394;
-    P_new[19] = t395;
-    P_new[20] = t396;
-    P_new[21] = t397;
-    P_new[22] = t398;
-    P_new[23] = t399;
-    P_new[24] = t377;
-    P_new[25] = t400;
-    P_new[26] = t401;
-    P_new[27] = t402;
-    P_new[28] = t403;
-    P_new[29] = t404;
-    P_new[30] = t405;
-    P_new[31] = t406;
-    P_new[32] = t407;
-    P_new[33] = t408;
-    P_new[34] = t409;
-    P_new[35] = t410;
-    P_new[36] = t411;
-    P_new[37] = t412;
-    P_new[38] = t413;
-    P_new[39] = t414;
-    P_new[40] = t415;
-    P_new[41] = t416;
-    P_new[42] = t417;
-    P_new[43] = t418;
-    P_new[44] = t419;
-    P_new[45] = t420;
-    P_new[46] = t421;
-    P_new[47] = t422;
-    P_new[48] = t378;
-    P_new[49] = t401;
-    P_new[50] = t423;
-    P_new[51] = t424;
-    P_new[52] = t425;
-    P_new[53] = t426;
-    P_new[54] = t427;
-    P_new[55] = t428;
-    P_new[56] = t429;
-    P_new[57] = t430;
-    P_new[58] = t431;
-    P_new[59] = t432;
-    P_new[60] = t433;
-    P_new[61] = t434;
-    P_new[62] = t435;
-    P_new[63] = t436;
-    P_new[64] = t437;
-    P_new[65] = t438;
-    P_new[66] = t439;
-    P_new[67] = t440;
-    P_new[68] = t441;
-    P_new[69] = t442;
-    P_new[70] = t443;
-    P_new[71] = t444;
-    P_new[72] = t379;
-    P_new[73] = t402;
-    P_new[74] = t424;
-    P_new[75] = t445;
-    P_new[76] = t446;
-    P_new[77] = t447;
-    P_new[78] = t448;
-    P_new[79] = t449;
-    P_new[80] = t450;
-    P_new[81] = t451;
-    P_new[82] = t452;
-    P_new[83] = t453;
-    P_new[84] = t454;
-    P_new[85] = t455;
-    P_new[86] = t456;
-    P_new[87] = t457;
-    P_new[88] = t458;
-    P_new[89] = t459;
-    P_new[90] = t460;
-    P_new[91] = t461;
-    P_new[92] = t462;
-    P_new[93] = t463;
-    P_new[94] = t464;
-    P_new[95] = t465;
-    P_new[96] = t380;
-    P_new[97] = t403;
-    P_new[98] = t425;
-    P_new[99] = t446;
-    P_new[100] = t466;
-    P_new[101] = t467;
-    P_new[102] = t468;
-    P_new[103] = t469;
-    P_new[104] = t470;
-    P_new[105] = t471;
-    P_new[106] = t472;
-    P_new[107] = t473;
-    P_new[108] = t474;
-    P_new[109] = t475;
-    P_new[110] = t476;
-    P_new[111] = t477;
-    P_new[112] = t478;
-    P_new[113] = t479;
-    P_new[114] = t480;
-    P_new[115] = t481;
-    P_new[116] = t482;
-    P_new[117] = t483;
-    P_new[118] = t484;
-    P_new[119] = t485;
-    P_new[120] = t381;
-    P_new[121] = t404;
-    P_new[122] = t426;
-    P_new[123] = t447;
-    P_new[124] = t467;
-    P_new[125] = t486;
-    P_new[126] = t487;
-    P_new[127] = t488;
-    P_new[128] = t489;
-    P_new[129] = t490;
-    P_new[130] = t491;
-    P_new[131] = t492;
-    P_new[132] = t493;
-    P_new[133] = t494;
-    P_new[134] = t495;
-    P_new[135] = t496;
-    P_new[136] = t497;
-    P_new[137] = t498;
-    P_new[138] = t499;
-    P_new[139] = t500;
-    P_new[140] = t501;
-    P_new[141] = t502;
-    P_new[142] = t503;
-    P_new[143] = t504;
-    P_new[144] = t382;
-    P_new[145] = t405;
-    P_new[146] = t427;
-    P_new[147] = t448;
-    P_new[148] = t468;
-    P_new[149] = t487;
-    P_new[150] = t505;
-    P_new[151] = t506;
-    P_new[152] = t507;
-    P_new[153] = t508;
-    P_new[154] = t509;
-    P_new[155] = t510;
-    P_new[156] = t511;
-    P_new[157] = t512;
-    P_new[158] = t513;
-    P_new[159] = t514;
-    P_new[160] = t515;
-    P_new[161] = t516;
-    P_new[162] = t517;
-    P_new[163] = t518;
-    P_new[164] = t519;
-    P_new[165] = t520;
-    P_new[166] = t521;
-    P_new[167] = t522;
-    P_new[168] = t383;
-    P_new[169] = t406;
-    P_new[170] = t428;
-    P_new[171] = t449;
-    P_new[172] = t469;
-    P_new[173] = t488;
-    P_new[174] = t506;
-    P_new[175] = t523;
-    P_new[176] = t524;
-    P_new[177] = t525;
-    P_new[178] = t526;
-    P_new[179] = t527;
-    P_new[180] = t528;
-    P_new[181] = t529;
-    P_new[182] = t530;
-    P_new[183] = t531;
-    P_new[184] = t532;
-    P_new[185] = t533;
-    P_new[186] = t534;
-    P_new[187] = t535;
-    P_new[188] = t536;
-    P_new[189] = t537;
-    P_new[190] = t538;
-    P_new[191] = t539;
-    P_new[192] = t384;
-    P_new[193] = t407;
-    P_new[194] = t429;
-    P_new[195] = t450;
-    P_new[196] = t470;
-    P_new[197] = t489;
-    P_new[198] = t507;
-    P_new[199] = t524;
-    P_new[200] = t540;
-    P_new[201] = t541;
-    P_new[202] = t542;
-    P_new[203] = t543;
-    P_new[204] = t544;
-    P_new[205] = t545;
-    P_new[206] = t546;
-    P_new[207] = t547;
-    P_new[208] = t548;
-    P_new[209] = t549;
-    P_new[210] = t550;
-    P_new[211] = t551;
-    P_new[212] = t552;
-    P_new[213] = t553;
-    P_new[214] = t554;
-    P_new[215] = t555;
-    P_new[216] = t385;
-    P_new[217] = t408;
-    P_new[218] = t430;
-    P_new[219] = t451;
-    P_new[220] = t471;
-    P_new[221] = t490;
-    P_new[222] = t508;
-    P_new[223] = t525;
-    P_new[224] = t541;
-    P_new[225] = t556;
-    P_new[226] = t557;
-    P_new[227] = t558;
-    P_new[228] = t559;
-    P_new[229] = t560;
-    P_new[230] = t561;
-    P_new[231] = t562;
-    P_new[232] = t563;
-    P_new[233] = t564;
-    P_new[234] = t565;
-    P_new[235] = t566;
-    P_new[236] = t567;
-    P_new[237] = t568;
-    P_new[238] = t569;
-    P_new[239] = t570;
-    P_new[240] = t386;
-    P_new[241] = t409;
-    P_new[242] = t431;
-    P_new[243] = t452;
-    P_new[244] = t472;
-    P_new[245] = t491;
-    P_new[246] = t509;
-    P_new[247] = t526;
-    P_new[248] = t542;
-    P_new[249] = t557;
-    P_new[250] = t571;
-    P_new[251] = t572;
-    P_new[252] = t573;
-    P_new[253] = t574;
-    P_new[254] = t575;
-    P_new[255] = t576;
-    P_new[256] = t577;
-    P_new[257] = t578;
-    P_new[258] = t579;
-    P_new[259] = t580;
-    P_new[260] = t581;
-    P_new[261] = t582;
-    P_new[262] = t583;
-    P_new[263] = t584;
-    P_new[264] = t387;
-    P_new[265] = t410;
-    P_new[266] = t432;
-    P_new[267] = t453;
-    P_new[268] = t473;
-    P_new[269] = t492;
-    P_new[270] = t510;
-    P_new[271] = t527;
-    P_new[272] = t543;
-    P_new[273] = t558;
-    P_new[274] = t572;
-    P_new[275] = t585;
-    P_new[276] = t586;
-    P_new[277] = t587;
-    P_new[278] = t588;
-    P_new[279] = t589;
-    P_new[280] = t590;
-    P_new[281] = t591;
-    P_new[282] = t592;
-    P_new[283] = t593;
-    P_new[284] = t594;
-    P_new[285] = t595;
-    P_new[286] = t596;
-    P_new[287] = t597;
-    P_new[288] = t388;
-    P_new[289] = t411;
-    P_new[290] = t433;
-    P_new[291] = t454;
-    P_new[292] = t474;
-    P_new[293] = t493;
-    P_new[294] = t511;
-    P_new[295] = t528;
-    P_new[296] = t544;
-    P_new[297] = t559;
-    P_new[298] = t573;
-    P_new[299] = t586;
-    P_new[300] = t598;
-    P_new[301] = t599;
-    P_new[302] = t600;
-    P_new[303] = t601;
-    P_new[304] = t602;
-    P_new[305] = t603;
-    P_new[306] = t604;
-    P_new[307] = t605;
-    P_new[308] = t606;
-    P_new[309] = t607;
-    P_new[310] = t608;
-    P_new[311] = t609;
-    P_new[312] = t389;
-    P_new[313] = t412;
-    P_new[314] = t434;
-    P_new[315] = t455;
-    P_new[316] = t475;
-    P_new[317] = t494;
-    P_new[318] = t512;
-    P_new[319] = t529;
-    P_new[320] = t545;
-    P_new[321] = t560;
-    P_new[322] = t574;
-    P_new[323] = t587;
-    P_new[324] = t599;
-    P_new[325] = t610;
-    P_new[326] = t611;
-    P_new[327] = t612;
-    P_new[328] = t613;
-    P_new[329] = t614;
-    P_new[330] = t615;
-    P_new[331] = t616;
-    P_new[332] = t617;
-    P_new[333] = t618;
-    P_new[334] = t619;
-    P_new[335] = t620;
-    P_new[336] = t390;
-    P_new[337] = t413;
-    P_new[338] = t435;
-    P_new[339] = t456;
-    P_new[340] = t476;
-    P_new[341] = t495;
-    P_new[342] = t513;
-    P_new[343] = t530;
-    P_new[344] = t546;
-    P_new[345] = t561;
-    P_new[346] = t575;
-    P_new[347] = t588;
-    P_new[348] = t600;
-    P_new[349] = t611;
-    P_new[350] = t621;
-    P_new[351] = t622;
-    P_new[352] = t623;
-    P_new[353] = t624;
-    P_new[354] = t625;
-    P_new[355] = t626;
-    P_new[356] = t627;
-    P_new[357] = t628;
-    P_new[358] = t629;
-    P_new[359] = t630;
-    P_new[360] = t391;
-    P_new[361] = t414;
-    P_new[362] = t436;
-    P_new[363] = t457;
-    P_new[364] = t477;
-    P_new[365] = t496;
-    P_new[366] = t514;
-    P_new[367] = t531;
-    P_new[368] = t547;
-    P_new[369] = t562;
-    P_new[370] = t576;
-    P_new[371] = t589;
-    P_new[372] = t601;
-    P_new[373] = t612;
-    P_new[374] = t622;
-    P_new[375] = t631;
-    P_new[376] = t632;
-    P_new[377] = t633;
-    P_new[378] = t634;
-    P_new[379] = t635;
-    P_new[380] = t636;
-    P_new[381] = t637;
-    P_new[382] = t638;
-    P_new[383] = t639;
-    P_new[384] = t392;
-    P_new[385] = t415;
-    P_new[386] = t437;
-    P_new[387] = t458;
-    P_new[388] = t478;
-    P_new[389] = t497;
-    P_new[390] = t515;
-    P_new[391] = t532;
-    P_new[392] = t548;
-    P_new[393] = t563;
-    P_new[394] = t577;
-    P_new[395] = t590;
-    P_new[396] = t602;
-    P_new[397] = t613;
-    P_new[398] = t623;
-    P_new[399] = t632;
-    P_new[400] = t640;
-    P_new[401] = t641;
-    P_new[402] = t642;
-    P_new[403] = t643;
-    P_new[404] = t644;
-    P_new[405] = t645;
-    P_new[406] = t646;
-    P_new[407] = t647;
-    P_new[408] = t393;
-    P_new[409] = t416;
-    P_new[410] = t438;
-    P_new[411] = t459;
-    P_new[412] = t479;
-    P_new[413] = t498;
-    P_new[414] = t516;
-    P_new[415] = t533;
-    P_new[416] = t549;
-    P_new[417] = t564;
-    P_new[418] = t578;
-    P_new[419] = t591;
-    P_new[420] = t603;
-    P_new[421] = t614;
-    P_new[422] = t624;
-    P_new[423] = t633;
-    P_new[424] = t641;
-    P_new[425] = t648;
-    P_new[426] = t649;
-    P_new[427] = t650;
-    P_new[428] = t651;
-    P_new[429] = t652;
-    P_new[430] = t653;
-    P_new[431] = t654;
-    P_new[432] = t394;
-    P_new[433] = t417;
-    P_new[434] = t439;
-    P_new[435] = t460;
-    P_new[436] = t480;
-    P_new[437] = t499;
-    P_new[438] = t517;
-    P_new[439] = t534;
-    P_new[440] = t550;
-    P_new[441] = t565;
-    P_new[442] = t579;
-    P_new[443] = t592;
-    P_new[444] = t604;
-    P_new[445] = t615;
-    P_new[446] = t625;
-    P_new[447] = t634;
-    P_new[448] = t642;
-    P_new[449] = t649;
-    P_new[450] = t655;
-    P_new[451] = t656;
-    P_new[452] = t657;
-    P_new[453] = t658;
-    P_new[454] = t659;
-    P_new[455] = t660;
-    P_new[456] = t395;
-    P_new[457] = t418;
-    P_new[458] = t440;
-    P_new[459] = t461;
-    P_new[460] = t481;
-    P_new[461] = t500;
-    P_new[462] = t518;
-    P_new[463] = t535;
-    P_new[464] = t551;
-    P_new[465] = t566;
-    P_new[466] = t580;
-    P_new[467] = t593;
-    P_new[468] = t605;
-    P_new[469] = t616;
-    P_new[470] = t626;
-    P_new[471] = t635;
-    P_new[472] = t643;
-    P_new[473] = t650;
-    P_new[474] = t656;
-    P_new[475] = t661;
-    P_new[476] = t662;
-    P_new[477] = t663;
-    P_new[478] = t664;
-    P_new[479] = t665;
-    P_new[480] = t396;
-    P_new[481] = t419;
-    P_new[482] = t441;
-    P_new[483] = t462;
-    P_new[484] = t482;
-    P_new[485] = t501;
-    P_new[486] = t519;
-    P_new[487] = t536;
-    P_new[488] = t552;
-    P_new[489] = t567;
-    P_new[490] = t581;
-    P_new[491] = t594;
-    P_new[492] = t606;
-    P_new[493] = t617;
-    P_new[494] = t627;
-    P_new[495] = t636;
-    P_new[496] = t644;
-    P_new[497] = t651;
-    P_new[498] = t657;
-    P_new[499] = t662;
-    P_new[500] = t666;
-    P_new[501] = t667;
-    P_new[502] = t668;
-    P_new[503] = t669;
-    P_new[504] = t397;
-    P_new[505] = t420;
-    P_new[506] = t442;
-    P_new[507] = t463;
-    P_new[508] = t483;
-    P_new[509] = t502;
-    P_new[510] = t520;
-    P_new[511] = t537;
-    P_new[512] = t553;
-    P_new[513] = t568;
-    P_new[514] = t582;
-    P_new[515] = t595;
-    P_new[516] = t607;
-    P_new[517] = t618;
-    P_new[518] = t628;
-    P_new[519] = t637;
-    P_new[520] = t645;
-    P_new[521] = t652;
-    P_new[522] = t658;
-    P_new[523] = t663;
-    P_new[524] = t667;
-    P_new[525] = t670;
-    P_new[526] = t671;
-    P_new[527] = t672;
-    P_new[528] = t398;
-    P_new[529] = t421;
-    P_new[530] = t443;
-    P_new[531] = t464;
-    P_new[532] = t484;
-    P_new[533] = t503;
-    P_new[534] = t521;
-    P_new[535] = t538;
-    P_new[536] = t554;
-    P_new[537] = t569;
-    P_new[538] = t583;
-    P_new[539] = t596;
-    P_new[540] = t608;
-    P_new[541] = t619;
-    P_new[542] = t629;
-    P_new[543] = t638;
-    P_new[544] = t646;
-    P_new[545] = t653;
-    P_new[546] = t659;
-    P_new[547] = t664;
-    P_new[548] = t668;
-    P_new[549] = t671;
-    P_new[550] = t673;
-    P_new[551] = t674;
-    P_new[552] = t399;
-    P_new[553] = t422;
-    P_new[554] = t444;
-    P_new[555] = t465;
-    P_new[556] = t485;
-    P_new[557] = t504;
-    P_new[558] = t522;
-    P_new[559] = t539;
-    P_new[560] = t555;
-    P_new[561] = t570;
-    P_new[562] = t584;
-    P_new[563] = t597;
-    P_new[564] = t609;
-    P_new[565] = t620;
-    P_new[566] = t630;
-    P_new[567] = t639;
-    P_new[568] = t647;
-    P_new[569] = t654;
-    P_new[570] = t660;
-    P_new[571] = t665;
-    P_new[572] = t669;
-    P_new[573] = t672;
-    P_new[574] = t674;
-    P_new[575] = t675;
+    const double t27 = (-1.0)/t26;
+    const double t28 = t1*t27;
+    #if DERIVE_VECTOR
+    const derive_vd v_t29 = (((derive_vd){t27, t27, t27, t27}) * v_t2);
+    const double t29 = v_t29[0];
+    const double t30 = v_t29[1];
+    const double t31 = v_t29[2];
+    const double t32 = v_t29[3];
+    #else
+    const double t29 = t27*t2;
+    const double t30 = t27*t3;
+    const double t31 = t27*t4;
+    const double t32 = t27*t5;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t33 = (((derive_vd){t27, t27, t27, t27}) * v_t6);
+    const double t33 = v_t33[0];
+    const double t34 = v_t33[1];
+    const double t35 = v_t33[2];
+    const double t36 = v_t33[3];
+    #else
+    const double t33 = t27*t6;
+    const double t34 = t27*t7;
+    const double t35 = t27*t8;
+    const double t36 = t27*t9;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t37 = (((derive_vd){t27, t27, t27, t27}) * v_t10);
+    const double t37 = v_t37[0];
+    const double t38 = v_t37[1];
+    const double t39 = v_t37[2];
+    const double t40 = v_t37[3];
+    #else
+    const double t37 = t27*t10;
+    const double t38 = t27*t11;
+    const double t39 = t27*t12;
+    const double t40 = t27*t13;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t41 = (((derive_vd){t27, t27, t27, t27}) * v_t14);
+    const double t41 = v_t41[0];
+    const double t42 = v_t41[1];
+    const double t43 = v_t41[2];
+    const double t44 = v_t41[3];
+    #else
+    const double t41 = t27*t14;
+    const double t42 = t27*t15;
+    const double t43 = t27*t16;
+    const double t44 = t27*t17;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t45 = (((derive_vd){t27, t27, t27, t27}) * v_t18);
+    const double t45 = v_t45[0];
+    const double t46 = v_t45[1];
+    const double t47 = v_t45[2];
+    const double t48 = v_t45[3];
+    #else
+    const double t45 = t27*t18;
+    const double t46 = t27*t19;
+    const double t47 = t27*t20;
+    const double t48 = t27*t21;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t49 = (((derive_vd){t27, t27, t27, t27}) * v_t22);
+    const double t49 = v_t49[0];
+    const double t50 = v_t49[1];
+    const double t51 = v_t49[2];
+    const double t52 = v_t49[3];
+    #else
+    const double t49 = t27*t22;
+    const double t50 = t27*t23;
+    const double t51 = t27*t24;
+    const double t52 = t27*t25;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t53 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t2, ((derive_vd){x[0], x[1], x[2], x[3]}));
+    const double t53 = v_t53[0];
+    const double t54 = v_t53[1];
+    const double t55 = v_t53[2];
+    const double t56 = v_t53[3];
+    #else
+    const double t53 = DERIVE_FNMA(t28, t2, x[0]);
+    const double t54 = DERIVE_FNMA(t28, t3, x[1]);
+    const double t55 = DERIVE_FNMA(t28, t4, x[2]);
+    const double t56 = DERIVE_FNMA(t28, t5, x[3]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t57 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t6, ((derive_vd){x[4], x[5], x[6], x[7]}));
+    *(derive_vd_unaligned *)&x_new[4] = v_t57;
+    #else
+    const double t57 = DERIVE_FNMA(t28, t6, x[4]);
+    const double t58 = DERIVE_FNMA(t28, t7, x[5]);
+    const double t59 = DERIVE_FNMA(t28, t8, x[6]);
+    const double t60 = DERIVE_FNMA(t28, t9, x[7]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t61 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
+    *(derive_vd_unaligned *)&x_new[8] = v_t61;
+    #else
+    const double t61 = DERIVE_FNMA(t28, t10, x[8]);
+    const double t62 = DERIVE_FNMA(t28, t11, x[9]);
+    const double t63 = DERIVE_FNMA(t28, t12, x[10]);
+    const double t64 = DERIVE_FNMA(t28, t13, x[11]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t65 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
+    *(derive_vd_unaligned *)&x_new[12] = v_t65;
+    #else
+    const double t65 = DERIVE_FNMA(t28, t14, x[12]);
+    const double t66 = DERIVE_FNMA(t28, t15, x[13]);
+    const double t67 = DERIVE_FNMA(t28, t16, x[14]);
+    const double t68 = DERIVE_FNMA(t28, t17, x[15]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t18, ((derive_vd){x[16], x[17], x[18], x[19]}));
+    *(derive_vd_unaligned *)&x_new[16] = v_t69;
+    #else
+    const double t69 = DERIVE_FNMA(t28, t18, x[16]);
+    const double t70 = DERIVE_FNMA(t28, t19, x[17]);
+    const double t71 = DERIVE_FNMA(t28, t20, x[18]);
+    const double t72 = DERIVE_FNMA(t28, t21, x[19]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t22, ((derive_vd){x[20], x[21], x[22], x[23]}));
+    *(derive_vd_unaligned *)&x_new[20] = v_t73;
+    #else
+    const double t73 = DERIVE_FNMA(t28, t22, x[20]);
+    const double t74 = DERIVE_FNMA(t28, t23, x[21]);
+    const double t75 = DERIVE_FNMA(t28, t24, x[22]);
+    const double t76 = DERIVE_FNMA(t28, t25, x[23]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t77 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const double t78 = v_t77[1];
+    const double t79 = v_t77[2];
+    const double t80 = v_t77[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t77;
+    #else
+    const double t77 = DERIVE_FMA(t29, t2, P[0]);
+    const double t78 = DERIVE_FMA(t29, t3, P[1]);
+    const double t79 = DERIVE_FMA(t29, t4, P[2]);
+    const double t80 = DERIVE_FMA(t29, t5, P[3]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t81 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
+    #else
+    const double t81 = DERIVE_FMA(t29, t6, P[4]);
+    const double t82 = DERIVE_FMA(t29, t7, P[5]);
+    const double t83 = DERIVE_FMA(t29, t8, P[6]);
+    const double t84 = DERIVE_FMA(t29, t9, P[7]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
+    #else
+    const double t85 = DERIVE_FMA(t29, t10, P[8]);
+    const double t86 = DERIVE_FMA(t29, t11, P[9]);
+    const double t87 = DERIVE_FMA(t29, t12, P[10]);
+    const double t88 = DERIVE_FMA(t29, t13, P[11]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
+    #else
+    const double t89 = DERIVE_FMA(t29, t14, P[12]);
+    const double t90 = DERIVE_FMA(t29, t15, P[13]);
+    const double t91 = DERIVE_FMA(t29, t16, P[14]);
+    const double t92 = DERIVE_FMA(t29, t17, P[15]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t18, ((derive_vd){P[16], P[17], P[18], P[19]}));
+    #else
+    const double t93 = DERIVE_FMA(t29, t18, P[16]);
+    const double t94 = DERIVE_FMA(t29, t19, P[17]);
+    const double t95 = DERIVE_FMA(t29, t20, P[18]);
+    const double t96 = DERIVE_FMA(t29, t21, P[19]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t22, ((derive_vd){P[20], P[21], P[22], P[23]}));
+    #else
+    const double t97 = DERIVE_FMA(t29, t22, P[20]);
+    const double t98 = DERIVE_FMA(t29, t23, P[21]);
+    const double t99 = DERIVE_FMA(t29, t24, P[22]);
+    const double t100 = DERIVE_FMA(t29, t25, P[23]);
+    #endif
+    const double t101 = DERIVE_FMA(t3, t30, P[25]);
+    const double t102 = DERIVE_FMA(t30, t4, P[26]);
+    const double t103 = DERIVE_FMA(t30, t5, P[27]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t104 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t6, ((derive_vd){P[28], P[29], P[30], P[31]}));
+    #else
+    const double t104 = DERIVE_FMA(t30, t6, P[28]);
+    const double t105 = DERIVE_FMA(t30, t7, P[29]);
+    const double t106 = DERIVE_FMA(t30, t8, P[30]);
+    const double t107 = DERIVE_FMA(t30, t9, P[31]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t108 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t10, ((derive_vd){P[32], P[33], P[34], P[35]}));
+    #else
+    const double t108 = DERIVE_FMA(t30, t10, P[32]);
+    const double t109 = DERIVE_FMA(t30, t11, P[33]);
+    const double t110 = DERIVE_FMA(t30, t12, P[34]);
+    const double t111 = DERIVE_FMA(t30, t13, P[35]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t112 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t14, ((derive_vd){P[36], P[37], P[38], P[39]}));
+    #else
+    const double t112 = DERIVE_FMA(t30, t14, P[36]);
+    const double t113 = DERIVE_FMA(t30, t15, P[37]);
+    const double t114 = DERIVE_FMA(t30, t16, P[38]);
+    const double t115 = DERIVE_FMA(t30, t17, P[39]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t18, ((derive_vd){P[40], P[41], P[42], P[43]}));
+    #else
+    const double t116 = DERIVE_FMA(t30, t18, P[40]);
+    const double t117 = DERIVE_FMA(t30, t19, P[41]);
+    const double t118 = DERIVE_FMA(t30, t20, P[42]);
+    const double t119 = DERIVE_FMA(t30, t21, P[43]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t22, ((derive_vd){P[44], P[45], P[46], P[47]}));
+    #else
+    const double t120 = DERIVE_FMA(t30, t22, P[44]);
+    const double t121 = DERIVE_FMA(t30, t23, P[45]);
+    const double t122 = DERIVE_FMA(t30, t24, P[46]);
+    const double t123 = DERIVE_FMA(t30, t25, P[47]);
+    #endif
+    const double t124 = DERIVE_FMA(t31, t4, P[50]);
+    const double t125 = DERIVE_FMA(t31, t5, P[51]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t126 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t6, ((derive_vd){P[52], P[53], P[54], P[55]}));
+    #else
+    const double t126 = DERIVE_FMA(t31, t6, P[52]);
+    const double t127 = DERIVE_FMA(t31, t7, P[53]);
+    const double t128 = DERIVE_FMA(t31, t8, P[54]);
+    const double t129 = DERIVE_FMA(t31, t9, P[55]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
+    #else
+    const double t130 = DERIVE_FMA(t31, t10, P[56]);
+    const double t131 = DERIVE_FMA(t31, t11, P[57]);
+    const double t132 = DERIVE_FMA(t31, t12, P[58]);
+    const double t133 = DERIVE_FMA(t31, t13, P[59]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t134 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
+    #else
+    const double t134 = DERIVE_FMA(t31, t14, P[60]);
+    const double t135 = DERIVE_FMA(t31, t15, P[61]);
+    const double t136 = DERIVE_FMA(t31, t16, P[62]);
+    const double t137 = DERIVE_FMA(t31, t17, P[63]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t18, ((derive_vd){P[64], P[65], P[66], P[67]}));
+    #else
+    const double t138 = DERIVE_FMA(t31, t18, P[64]);
+    const double t139 = DERIVE_FMA(t31, t19, P[65]);
+    const double t140 = DERIVE_FMA(t31, t20, P[66]);
+    const double t141 = DERIVE_FMA(t31, t21, P[67]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t22, ((derive_vd){P[68], P[69], P[70], P[71]}));
+    #else
+    const double t142 = DERIVE_FMA(t31, t22, P[68]);
+    const double t143 = DERIVE_FMA(t31, t23, P[69]);
+    const double t144 = DERIVE_FMA(t31, t24, P[70]);
+    const double t145 = DERIVE_FMA(t31, t25, P[71]);
+    #endif
+    const double t146 = DERIVE_FMA(t32, t5, P[75]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t6, ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd tr_v_t81_0 = __builtin_shufflevector(v_t81, v_t104, 0, 4, 2, 6);
+    const derive_vd tr_v_t81_1 = __builtin_shufflevector(v_t81, v_t104, 1, 5, 3, 7);
+    const derive_vd tr_v_t81_2 = __builtin_shufflevector(v_t126, v_t147, 0, 4, 2, 6);
+    const derive_vd tr_v_t81_3 = __builtin_shufflevector(v_t126, v_t147, 1, 5, 3, 7);
+    const derive_vd tr_v_t81_c0 = __builtin_shufflevector(tr_v_t81_0, tr_v_t81_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t81_c1 = __builtin_shufflevector(tr_v_t81_1, tr_v_t81_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t81_c2 = __builtin_shufflevector(tr_v_t81_0, tr_v_t81_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t81_c3 = __builtin_shufflevector(tr_v_t81_1, tr_v_t81_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t81;
+    *(derive_vd_unaligned *)&P_new[28] = v_t104;
+    *(derive_vd_unaligned *)&P_new[52] = v_t126;
+    *(derive_vd_unaligned *)&P_new[76] = v_t147;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t81_c0;
+    *(derive_vd_unaligned *)&P_new[120] = tr_v_t81_c1;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t81_c2;
+    *(derive_vd_unaligned *)&P_new[168] = tr_v_t81_c3;
+    #else
+    const double t147 = DERIVE_FMA(t32, t6, P[76]);
+    const double t148 = DERIVE_FMA(t32, t7, P[77]);
+    const double t149 = DERIVE_FMA(t32, t8, P[78]);
+    const double t150 = DERIVE_FMA(t32, t9, P[79]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t10, ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd tr_v_t85_0 = __builtin_shufflevector(v_t85, v_t108, 0, 4, 2, 6);
+    const derive_vd tr_v_t85_1 = __builtin_shufflevector(v_t85, v_t108, 1, 5, 3, 7);
+    const derive_vd tr_v_t85_2 = __builtin_shufflevector(v_t130, v_t151, 0, 4, 2, 6);
+    const derive_vd tr_v_t85_3 = __builtin_shufflevector(v_t130, v_t151, 1, 5, 3, 7);
+    const derive_vd tr_v_t85_c0 = __builtin_shufflevector(tr_v_t85_0, tr_v_t85_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t85_c1 = __builtin_shufflevector(tr_v_t85_1, tr_v_t85_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t85_c2 = __builtin_shufflevector(tr_v_t85_0, tr_v_t85_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t85_c3 = __builtin_shufflevector(tr_v_t85_1, tr_v_t85_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t85;
+    *(derive_vd_unaligned *)&P_new[32] = v_t108;
+    *(derive_vd_unaligned *)&P_new[56] = v_t130;
+    *(derive_vd_unaligned *)&P_new[80] = v_t151;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t85_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t85_c1;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t85_c2;
+    *(derive_vd_unaligned *)&P_new[264] = tr_v_t85_c3;
+    #else
+    const double t151 = DERIVE_FMA(t32, t10, P[80]);
+    const double t152 = DERIVE_FMA(t32, t11, P[81]);
+    const double t153 = DERIVE_FMA(t32, t12, P[82]);
+    const double t154 = DERIVE_FMA(t32, t13, P[83]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t14, ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd tr_v_t89_0 = __builtin_shufflevector(v_t89, v_t112, 0, 4, 2, 6);
+    const derive_vd tr_v_t89_1 = __builtin_shufflevector(v_t89, v_t112, 1, 5, 3, 7);
+    const derive_vd tr_v_t89_2 = __builtin_shufflevector(v_t134, v_t155, 0, 4, 2, 6);
+    const derive_vd tr_v_t89_3 = __builtin_shufflevector(v_t134, v_t155, 1, 5, 3, 7);
+    const derive_vd tr_v_t89_c0 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t89_c1 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t89_c2 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t89_c3 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t89;
+    *(derive_vd_unaligned *)&P_new[36] = v_t112;
+    *(derive_vd_unaligned *)&P_new[60] = v_t134;
+    *(derive_vd_unaligned *)&P_new[84] = v_t155;
+    *(derive_vd_unaligned *)&P_new[288] = tr_v_t89_c0;
+    *(derive_vd_unaligned *)&P_new[312] = tr_v_t89_c1;
+    *(derive_vd_unaligned *)&P_new[336] = tr_v_t89_c2;
+    *(derive_vd_unaligned *)&P_new[360] = tr_v_t89_c3;
+    #else
+    const double t155 = DERIVE_FMA(t32, t14, P[84]);
+    const double t156 = DERIVE_FMA(t32, t15, P[85]);
+    const double t157 = DERIVE_FMA(t32, t16, P[86]);
+    const double t158 = DERIVE_FMA(t32, t17, P[87]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t18, ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd tr_v_t93_0 = __builtin_shufflevector(v_t93, v_t116, 0, 4, 2, 6);
+    const derive_vd tr_v_t93_1 = __builtin_shufflevector(v_t93, v_t116, 1, 5, 3, 7);
+    const derive_vd tr_v_t93_2 = __builtin_shufflevector(v_t138, v_t159, 0, 4, 2, 6);
+    const derive_vd tr_v_t93_3 = __builtin_shufflevector(v_t138, v_t159, 1, 5, 3, 7);
+    const derive_vd tr_v_t93_c0 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t93_c1 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t93_c2 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t93_c3 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[16] = v_t93;
+    *(derive_vd_unaligned *)&P_new[40] = v_t116;
+    *(derive_vd_unaligned *)&P_new[64] = v_t138;
+    *(derive_vd_unaligned *)&P_new[88] = v_t159;
+    *(derive_vd_unaligned *)&P_new[384] = tr_v_t93_c0;
+    *(derive_vd_unaligned *)&P_new[408] = tr_v_t93_c1;
+    *(derive_vd_unaligned *)&P_new[432] = tr_v_t93_c2;
+    *(derive_vd_unaligned *)&P_new[456] = tr_v_t93_c3;
+    #else
+    const double t159 = DERIVE_FMA(t32, t18, P[88]);
+    const double t160 = DERIVE_FMA(t32, t19, P[89]);
+    const double t161 = DERIVE_FMA(t32, t20, P[90]);
+    const double t162 = DERIVE_FMA(t32, t21, P[91]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t22, ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd tr_v_t97_0 = __builtin_shufflevector(v_t97, v_t120, 0, 4, 2, 6);
+    const derive_vd tr_v_t97_1 = __builtin_shufflevector(v_t97, v_t120, 1, 5, 3, 7);
+    const derive_vd tr_v_t97_2 = __builtin_shufflevector(v_t142, v_t163, 0, 4, 2, 6);
+    const derive_vd tr_v_t97_3 = __builtin_shufflevector(v_t142, v_t163, 1, 5, 3, 7);
+    const derive_vd tr_v_t97_c0 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t97_c1 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t97_c2 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t97_c3 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[20] = v_t97;
+    *(derive_vd_unaligned *)&P_new[44] = v_t120;
+    *(derive_vd_unaligned *)&P_new[68] = v_t142;
+    *(derive_vd_unaligned *)&P_new[92] = v_t163;
+    *(derive_vd_unaligned *)&P_new[480] = tr_v_t97_c0;
+    *(derive_vd_unaligned *)&P_new[504] = tr_v_t97_c1;
+    *(derive_vd_unaligned *)&P_new[528] = tr_v_t97_c2;
+    *(derive_vd_unaligned *)&P_new[552] = tr_v_t97_c3;
+    #else
+    const double t163 = DERIVE_FMA(t32, t22, P[92]);
+    const double t164 = DERIVE_FMA(t32, t23, P[93]);
+    const double t165 = DERIVE_FMA(t32, t24, P[94]);
+    const double t166 = DERIVE_FMA(t32, t25, P[95]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t6, ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const double t168 = v_t167[1];
+    const double t169 = v_t167[2];
+    const double t170 = v_t167[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t167;
+    #else
+    const double t167 = DERIVE_FMA(t33, t6, P[100]);
+    const double t168 = DERIVE_FMA(t33, t7, P[101]);
+    const double t169 = DERIVE_FMA(t33, t8, P[102]);
+    const double t170 = DERIVE_FMA(t33, t9, P[103]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t10, ((derive_vd){P[104], P[105], P[106], P[107]}));
+    #else
+    const double t171 = DERIVE_FMA(t33, t10, P[104]);
+    const double t172 = DERIVE_FMA(t33, t11, P[105]);
+    const double t173 = DERIVE_FMA(t33, t12, P[106]);
+    const double t174 = DERIVE_FMA(t33, t13, P[107]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
+    #else
+    const double t175 = DERIVE_FMA(t33, t14, P[108]);
+    const double t176 = DERIVE_FMA(t33, t15, P[109]);
+    const double t177 = DERIVE_FMA(t33, t16, P[110]);
+    const double t178 = DERIVE_FMA(t33, t17, P[111]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t18, ((derive_vd){P[112], P[113], P[114], P[115]}));
+    #else
+    const double t179 = DERIVE_FMA(t33, t18, P[112]);
+    const double t180 = DERIVE_FMA(t33, t19, P[113]);
+    const double t181 = DERIVE_FMA(t33, t20, P[114]);
+    const double t182 = DERIVE_FMA(t33, t21, P[115]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t22, ((derive_vd){P[116], P[117], P[118], P[119]}));
+    #else
+    const double t183 = DERIVE_FMA(t33, t22, P[116]);
+    const double t184 = DERIVE_FMA(t33, t23, P[117]);
+    const double t185 = DERIVE_FMA(t33, t24, P[118]);
+    const double t186 = DERIVE_FMA(t33, t25, P[119]);
+    #endif
+    const double t187 = DERIVE_FMA(t34, t7, P[125]);
+    const double t188 = DERIVE_FMA(t34, t8, P[126]);
+    const double t189 = DERIVE_FMA(t34, t9, P[127]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t190 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t10, ((derive_vd){P[128], P[129], P[130], P[131]}));
+    #else
+    const double t190 = DERIVE_FMA(t34, t10, P[128]);
+    const double t191 = DERIVE_FMA(t34, t11, P[129]);
+    const double t192 = DERIVE_FMA(t34, t12, P[130]);
+    const double t193 = DERIVE_FMA(t34, t13, P[131]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t194 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t14, ((derive_vd){P[132], P[133], P[134], P[135]}));
+    #else
+    const double t194 = DERIVE_FMA(t34, t14, P[132]);
+    const double t195 = DERIVE_FMA(t34, t15, P[133]);
+    const double t196 = DERIVE_FMA(t34, t16, P[134]);
+    const double t197 = DERIVE_FMA(t34, t17, P[135]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t198 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t18, ((derive_vd){P[136], P[137], P[138], P[139]}));
+    #else
+    const double t198 = DERIVE_FMA(t34, t18, P[136]);
+    const double t199 = DERIVE_FMA(t34, t19, P[137]);
+    const double t200 = DERIVE_FMA(t34, t20, P[138]);
+    const double t201 = DERIVE_FMA(t34, t21, P[139]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t22, ((derive_vd){P[140], P[141], P[142], P[143]}));
+    #else
+    const double t202 = DERIVE_FMA(t34, t22, P[140]);
+    const double t203 = DERIVE_FMA(t34, t23, P[141]);
+    const double t204 = DERIVE_FMA(t34, t24, P[142]);
+    const double t205 = DERIVE_FMA(t34, t25, P[143]);
+    #endif
+    const double t206 = DERIVE_FMA(t35, t8, P[150]);
+    const double t207 = DERIVE_FMA(t35, t9, P[151]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t208 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t10, ((derive_vd){P[152], P[153], P[154], P[155]}));
+    #else
+    const double t208 = DERIVE_FMA(t35, t10, P[152]);
+    const double t209 = DERIVE_FMA(t35, t11, P[153]);
+    const double t210 = DERIVE_FMA(t35, t12, P[154]);
+    const double t211 = DERIVE_FMA(t35, t13, P[155]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t212 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t14, ((derive_vd){P[156], P[157], P[158], P[159]}));
+    #else
+    const double t212 = DERIVE_FMA(t35, t14, P[156]);
+    const double t213 = DERIVE_FMA(t35, t15, P[157]);
+    const double t214 = DERIVE_FMA(t35, t16, P[158]);
+    const double t215 = DERIVE_FMA(t35, t17, P[159]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t18, ((derive_vd){P[160], P[161], P[162], P[163]}));
+    #else
+    const double t216 = DERIVE_FMA(t35, t18, P[160]);
+    const double t217 = DERIVE_FMA(t35, t19, P[161]);
+    const double t218 = DERIVE_FMA(t35, t20, P[162]);
+    const double t219 = DERIVE_FMA(t35, t21, P[163]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t22, ((derive_vd){P[164], P[165], P[166], P[167]}));
+    #else
+    const double t220 = DERIVE_FMA(t35, t22, P[164]);
+    const double t221 = DERIVE_FMA(t35, t23, P[165]);
+    const double t222 = DERIVE_FMA(t35, t24, P[166]);
+    const double t223 = DERIVE_FMA(t35, t25, P[167]);
+    #endif
+    const double t224 = DERIVE_FMA(t36, t9, P[175]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t10, ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd tr_v_t171_0 = __builtin_shufflevector(v_t171, v_t190, 0, 4, 2, 6);
+    const derive_vd tr_v_t171_1 = __builtin_shufflevector(v_t171, v_t190, 1, 5, 3, 7);
+    const derive_vd tr_v_t171_2 = __builtin_shufflevector(v_t208, v_t225, 0, 4, 2, 6);
+    const derive_vd tr_v_t171_3 = __builtin_shufflevector(v_t208, v_t225, 1, 5, 3, 7);
+    const derive_vd tr_v_t171_c0 = __builtin_shufflevector(tr_v_t171_0, tr_v_t171_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t171_c1 = __builtin_shufflevector(tr_v_t171_1, tr_v_t171_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t171_c2 = __builtin_shufflevector(tr_v_t171_0, tr_v_t171_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t171_c3 = __builtin_shufflevector(tr_v_t171_1, tr_v_t171_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t171;
+    *(derive_vd_unaligned *)&P_new[128] = v_t190;
+    *(derive_vd_unaligned *)&P_new[152] = v_t208;
+    *(derive_vd_unaligned *)&P_new[176] = v_t225;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t171_c0;
+    *(derive_vd_unaligned *)&P_new[220] = tr_v_t171_c1;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t171_c2;
+    *(derive_vd_unaligned *)&P_new[268] = tr_v_t171_c3;
+    #else
+    const double t225 = DERIVE_FMA(t36, t10, P[176]);
+    const double t226 = DERIVE_FMA(t36, t11, P[177]);
+    const double t227 = DERIVE_FMA(t36, t12, P[178]);
+    const double t228 = DERIVE_FMA(t36, t13, P[179]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t14, ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd tr_v_t175_0 = __builtin_shufflevector(v_t175, v_t194, 0, 4, 2, 6);
+    const derive_vd tr_v_t175_1 = __builtin_shufflevector(v_t175, v_t194, 1, 5, 3, 7);
+    const derive_vd tr_v_t175_2 = __builtin_shufflevector(v_t212, v_t229, 0, 4, 2, 6);
+    const derive_vd tr_v_t175_3 = __builtin_shufflevector(v_t212, v_t229, 1, 5, 3, 7);
+    const derive_vd tr_v_t175_c0 = __builtin_shufflevector(tr_v_t175_0, tr_v_t175_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t175_c1 = __builtin_shufflevector(tr_v_t175_1, tr_v_t175_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t175_c2 = __builtin_shufflevector(tr_v_t175_0, tr_v_t175_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t175_c3 = __builtin_shufflevector(tr_v_t175_1, tr_v_t175_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t175;
+    *(derive_vd_unaligned *)&P_new[132] = v_t194;
+    *(derive_vd_unaligned *)&P_new[156] = v_t212;
+    *(derive_vd_unaligned *)&P_new[180] = v_t229;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t175_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t175_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t175_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t175_c3;
+    #else
+    const double t229 = DERIVE_FMA(t36, t14, P[180]);
+    const double t230 = DERIVE_FMA(t36, t15, P[181]);
+    const double t231 = DERIVE_FMA(t36, t16, P[182]);
+    const double t232 = DERIVE_FMA(t36, t17, P[183]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd tr_v_t179_0 = __builtin_shufflevector(v_t179, v_t198, 0, 4, 2, 6);
+    const derive_vd tr_v_t179_1 = __builtin_shufflevector(v_t179, v_t198, 1, 5, 3, 7);
+    const derive_vd tr_v_t179_2 = __builtin_shufflevector(v_t216, v_t233, 0, 4, 2, 6);
+    const derive_vd tr_v_t179_3 = __builtin_shufflevector(v_t216, v_t233, 1, 5, 3, 7);
+    const derive_vd tr_v_t179_c0 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t179_c1 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t179_c2 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t179_c3 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t179;
+    *(derive_vd_unaligned *)&P_new[136] = v_t198;
+    *(derive_vd_unaligned *)&P_new[160] = v_t216;
+    *(derive_vd_unaligned *)&P_new[184] = v_t233;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t179_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t179_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t179_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t179_c3;
+    #else
+    const double t233 = DERIVE_FMA(t36, t18, P[184]);
+    const double t234 = DERIVE_FMA(t36, t19, P[185]);
+    const double t235 = DERIVE_FMA(t36, t20, P[186]);
+    const double t236 = DERIVE_FMA(t36, t21, P[187]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t183_0 = __builtin_shufflevector(v_t183, v_t202, 0, 4, 2, 6);
+    const derive_vd tr_v_t183_1 = __builtin_shufflevector(v_t183, v_t202, 1, 5, 3, 7);
+    const derive_vd tr_v_t183_2 = __builtin_shufflevector(v_t220, v_t237, 0, 4, 2, 6);
+    const derive_vd tr_v_t183_3 = __builtin_shufflevector(v_t220, v_t237, 1, 5, 3, 7);
+    const derive_vd tr_v_t183_c0 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t183_c1 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t183_c2 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t183_c3 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t183;
+    *(derive_vd_unaligned *)&P_new[140] = v_t202;
+    *(derive_vd_unaligned *)&P_new[164] = v_t220;
+    *(derive_vd_unaligned *)&P_new[188] = v_t237;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t183_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t183_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t183_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t183_c3;
+    #else
+    const double t237 = DERIVE_FMA(t36, t22, P[188]);
+    const double t238 = DERIVE_FMA(t36, t23, P[189]);
+    const double t239 = DERIVE_FMA(t36, t24, P[190]);
+    const double t240 = DERIVE_FMA(t36, t25, P[191]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t242 = v_t241[1];
+    const double t243 = v_t241[2];
+    const double t244 = v_t241[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t241;
+    #else
+    const double t241 = DERIVE_FMA(t37, t10, P[200]);
+    const double t242 = DERIVE_FMA(t37, t11, P[201]);
+    const double t243 = DERIVE_FMA(t37, t12, P[202]);
+    const double t244 = DERIVE_FMA(t37, t13, P[203]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
+    #else
+    const double t245 = DERIVE_FMA(t37, t14, P[204]);
+    const double t246 = DERIVE_FMA(t37, t15, P[205]);
+    const double t247 = DERIVE_FMA(t37, t16, P[206]);
+    const double t248 = DERIVE_FMA(t37, t17, P[207]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[208], P[209], P[210], P[211]}));
+    #else
+    const double t249 = DERIVE_FMA(t37, t18, P[208]);
+    const double t250 = DERIVE_FMA(t37, t19, P[209]);
+    const double t251 = DERIVE_FMA(t37, t20, P[210]);
+    const double t252 = DERIVE_FMA(t37, t21, P[211]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[212], P[213], P[214], P[215]}));
+    #else
+    const double t253 = DERIVE_FMA(t37, t22, P[212]);
+    const double t254 = DERIVE_FMA(t37, t23, P[213]);
+    const double t255 = DERIVE_FMA(t37, t24, P[214]);
+    const double t256 = DERIVE_FMA(t37, t25, P[215]);
+    #endif
+    const double t257 = DERIVE_FMA(t11, t38, P[225]);
+    const double t258 = DERIVE_FMA(t12, t38, P[226]);
+    const double t259 = DERIVE_FMA(t13, t38, P[227]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t260 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t14, ((derive_vd){P[228], P[229], P[230], P[231]}));
+    #else
+    const double t260 = DERIVE_FMA(t38, t14, P[228]);
+    const double t261 = DERIVE_FMA(t38, t15, P[229]);
+    const double t262 = DERIVE_FMA(t38, t16, P[230]);
+    const double t263 = DERIVE_FMA(t38, t17, P[231]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[232], P[233], P[234], P[235]}));
+    #else
+    const double t264 = DERIVE_FMA(t38, t18, P[232]);
+    const double t265 = DERIVE_FMA(t38, t19, P[233]);
+    const double t266 = DERIVE_FMA(t38, t20, P[234]);
+    const double t267 = DERIVE_FMA(t38, t21, P[235]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[236], P[237], P[238], P[239]}));
+    #else
+    const double t268 = DERIVE_FMA(t38, t22, P[236]);
+    const double t269 = DERIVE_FMA(t38, t23, P[237]);
+    const double t270 = DERIVE_FMA(t38, t24, P[238]);
+    const double t271 = DERIVE_FMA(t38, t25, P[239]);
+    #endif
+    const double t272 = DERIVE_FMA(t12, t39, P[250]);
+    const double t273 = DERIVE_FMA(t13, t39, P[251]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t274 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t14, ((derive_vd){P[252], P[253], P[254], P[255]}));
+    #else
+    const double t274 = DERIVE_FMA(t39, t14, P[252]);
+    const double t275 = DERIVE_FMA(t39, t15, P[253]);
+    const double t276 = DERIVE_FMA(t39, t16, P[254]);
+    const double t277 = DERIVE_FMA(t39, t17, P[255]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t278 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[256], P[257], P[258], P[259]}));
+    #else
+    const double t278 = DERIVE_FMA(t39, t18, P[256]);
+    const double t279 = DERIVE_FMA(t39, t19, P[257]);
+    const double t280 = DERIVE_FMA(t39, t20, P[258]);
+    const double t281 = DERIVE_FMA(t39, t21, P[259]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t282 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[260], P[261], P[262], P[263]}));
+    #else
+    const double t282 = DERIVE_FMA(t39, t22, P[260]);
+    const double t283 = DERIVE_FMA(t39, t23, P[261]);
+    const double t284 = DERIVE_FMA(t39, t24, P[262]);
+    const double t285 = DERIVE_FMA(t39, t25, P[263]);
+    #endif
+    const double t286 = DERIVE_FMA(t13, t40, P[275]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t14, ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd tr_v_t245_0 = __builtin_shufflevector(v_t245, v_t260, 0, 4, 2, 6);
+    const derive_vd tr_v_t245_1 = __builtin_shufflevector(v_t245, v_t260, 1, 5, 3, 7);
+    const derive_vd tr_v_t245_2 = __builtin_shufflevector(v_t274, v_t287, 0, 4, 2, 6);
+    const derive_vd tr_v_t245_3 = __builtin_shufflevector(v_t274, v_t287, 1, 5, 3, 7);
+    const derive_vd tr_v_t245_c0 = __builtin_shufflevector(tr_v_t245_0, tr_v_t245_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t245_c1 = __builtin_shufflevector(tr_v_t245_1, tr_v_t245_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t245_c2 = __builtin_shufflevector(tr_v_t245_0, tr_v_t245_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t245_c3 = __builtin_shufflevector(tr_v_t245_1, tr_v_t245_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t245;
+    *(derive_vd_unaligned *)&P_new[228] = v_t260;
+    *(derive_vd_unaligned *)&P_new[252] = v_t274;
+    *(derive_vd_unaligned *)&P_new[276] = v_t287;
+    *(derive_vd_unaligned *)&P_new[296] = tr_v_t245_c0;
+    *(derive_vd_unaligned *)&P_new[320] = tr_v_t245_c1;
+    *(derive_vd_unaligned *)&P_new[344] = tr_v_t245_c2;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t245_c3;
+    #else
+    const double t287 = DERIVE_FMA(t40, t14, P[276]);
+    const double t288 = DERIVE_FMA(t40, t15, P[277]);
+    const double t289 = DERIVE_FMA(t40, t16, P[278]);
+    const double t290 = DERIVE_FMA(t40, t17, P[279]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd tr_v_t249_0 = __builtin_shufflevector(v_t249, v_t264, 0, 4, 2, 6);
+    const derive_vd tr_v_t249_1 = __builtin_shufflevector(v_t249, v_t264, 1, 5, 3, 7);
+    const derive_vd tr_v_t249_2 = __builtin_shufflevector(v_t278, v_t291, 0, 4, 2, 6);
+    const derive_vd tr_v_t249_3 = __builtin_shufflevector(v_t278, v_t291, 1, 5, 3, 7);
+    const derive_vd tr_v_t249_c0 = __builtin_shufflevector(tr_v_t249_0, tr_v_t249_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t249_c1 = __builtin_shufflevector(tr_v_t249_1, tr_v_t249_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t249_c2 = __builtin_shufflevector(tr_v_t249_0, tr_v_t249_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t249_c3 = __builtin_shufflevector(tr_v_t249_1, tr_v_t249_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[208] = v_t249;
+    *(derive_vd_unaligned *)&P_new[232] = v_t264;
+    *(derive_vd_unaligned *)&P_new[256] = v_t278;
+    *(derive_vd_unaligned *)&P_new[280] = v_t291;
+    *(derive_vd_unaligned *)&P_new[392] = tr_v_t249_c0;
+    *(derive_vd_unaligned *)&P_new[416] = tr_v_t249_c1;
+    *(derive_vd_unaligned *)&P_new[440] = tr_v_t249_c2;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t249_c3;
+    #else
+    const double t291 = DERIVE_FMA(t40, t18, P[280]);
+    const double t292 = DERIVE_FMA(t40, t19, P[281]);
+    const double t293 = DERIVE_FMA(t40, t20, P[282]);
+    const double t294 = DERIVE_FMA(t40, t21, P[283]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd tr_v_t253_0 = __builtin_shufflevector(v_t253, v_t268, 0, 4, 2, 6);
+    const derive_vd tr_v_t253_1 = __builtin_shufflevector(v_t253, v_t268, 1, 5, 3, 7);
+    const derive_vd tr_v_t253_2 = __builtin_shufflevector(v_t282, v_t295, 0, 4, 2, 6);
+    const derive_vd tr_v_t253_3 = __builtin_shufflevector(v_t282, v_t295, 1, 5, 3, 7);
+    const derive_vd tr_v_t253_c0 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t253_c1 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t253_c2 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t253_c3 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[212] = v_t253;
+    *(derive_vd_unaligned *)&P_new[236] = v_t268;
+    *(derive_vd_unaligned *)&P_new[260] = v_t282;
+    *(derive_vd_unaligned *)&P_new[284] = v_t295;
+    *(derive_vd_unaligned *)&P_new[488] = tr_v_t253_c0;
+    *(derive_vd_unaligned *)&P_new[512] = tr_v_t253_c1;
+    *(derive_vd_unaligned *)&P_new[536] = tr_v_t253_c2;
+    *(derive_vd_unaligned *)&P_new[560] = tr_v_t253_c3;
+    #else
+    const double t295 = DERIVE_FMA(t40, t22, P[284]);
+    const double t296 = DERIVE_FMA(t40, t23, P[285]);
+    const double t297 = DERIVE_FMA(t40, t24, P[286]);
+    const double t298 = DERIVE_FMA(t40, t25, P[287]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const double t300 = v_t299[1];
+    const double t301 = v_t299[2];
+    const double t302 = v_t299[3];
+    *(derive_vd_unaligned *)&P_new[300] = v_t299;
+    #else
+    const double t299 = DERIVE_FMA(t41, t14, P[300]);
+    const double t300 = DERIVE_FMA(t41, t15, P[301]);
+    const double t301 = DERIVE_FMA(t41, t16, P[302]);
+    const double t302 = DERIVE_FMA(t41, t17, P[303]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[304], P[305], P[306], P[307]}));
+    #else
+    const double t303 = DERIVE_FMA(t41, t18, P[304]);
+    const double t304 = DERIVE_FMA(t41, t19, P[305]);
+    const double t305 = DERIVE_FMA(t41, t20, P[306]);
+    const double t306 = DERIVE_FMA(t41, t21, P[307]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[308], P[309], P[310], P[311]}));
+    #else
+    const double t307 = DERIVE_FMA(t41, t22, P[308]);
+    const double t308 = DERIVE_FMA(t41, t23, P[309]);
+    const double t309 = DERIVE_FMA(t41, t24, P[310]);
+    const double t310 = DERIVE_FMA(t41, t25, P[311]);
+    #endif
+    const double t311 = DERIVE_FMA(t15, t42, P[325]);
+    const double t312 = DERIVE_FMA(t16, t42, P[326]);
+    const double t313 = DERIVE_FMA(t17, t42, P[327]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t314 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t18, ((derive_vd){P[328], P[329], P[330], P[331]}));
+    #else
+    const double t314 = DERIVE_FMA(t42, t18, P[328]);
+    const double t315 = DERIVE_FMA(t42, t19, P[329]);
+    const double t316 = DERIVE_FMA(t42, t20, P[330]);
+    const double t317 = DERIVE_FMA(t42, t21, P[331]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t318 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[332], P[333], P[334], P[335]}));
+    #else
+    const double t318 = DERIVE_FMA(t42, t22, P[332]);
+    const double t319 = DERIVE_FMA(t42, t23, P[333]);
+    const double t320 = DERIVE_FMA(t42, t24, P[334]);
+    const double t321 = DERIVE_FMA(t42, t25, P[335]);
+    #endif
+    const double t322 = DERIVE_FMA(t16, t43, P[350]);
+    const double t323 = DERIVE_FMA(t17, t43, P[351]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t18, ((derive_vd){P[352], P[353], P[354], P[355]}));
+    #else
+    const double t324 = DERIVE_FMA(t43, t18, P[352]);
+    const double t325 = DERIVE_FMA(t43, t19, P[353]);
+    const double t326 = DERIVE_FMA(t43, t20, P[354]);
+    const double t327 = DERIVE_FMA(t43, t21, P[355]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[356], P[357], P[358], P[359]}));
+    #else
+    const double t328 = DERIVE_FMA(t43, t22, P[356]);
+    const double t329 = DERIVE_FMA(t43, t23, P[357]);
+    const double t330 = DERIVE_FMA(t43, t24, P[358]);
+    const double t331 = DERIVE_FMA(t43, t25, P[359]);
+    #endif
+    const double t332 = DERIVE_FMA(t17, t44, P[375]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t18, ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd tr_v_t303_0 = __builtin_shufflevector(v_t303, v_t314, 0, 4, 2, 6);
+    const derive_vd tr_v_t303_1 = __builtin_shufflevector(v_t303, v_t314, 1, 5, 3, 7);
+    const derive_vd tr_v_t303_2 = __builtin_shufflevector(v_t324, v_t333, 0, 4, 2, 6);
+    const derive_vd tr_v_t303_3 = __builtin_shufflevector(v_t324, v_t333, 1, 5, 3, 7);
+    const derive_vd tr_v_t303_c0 = __builtin_shufflevector(tr_v_t303_0, tr_v_t303_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t303_c1 = __builtin_shufflevector(tr_v_t303_1, tr_v_t303_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t303_c2 = __builtin_shufflevector(tr_v_t303_0, tr_v_t303_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t303_c3 = __builtin_shufflevector(tr_v_t303_1, tr_v_t303_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[304] = v_t303;
+    *(derive_vd_unaligned *)&P_new[328] = v_t314;
+    *(derive_vd_unaligned *)&P_new[352] = v_t324;
+    *(derive_vd_unaligned *)&P_new[376] = v_t333;
+    *(derive_vd_unaligned *)&P_new[396] = tr_v_t303_c0;
+    *(derive_vd_unaligned *)&P_new[420] = tr_v_t303_c1;
+    *(derive_vd_unaligned *)&P_new[444] = tr_v_t303_c2;
+    *(derive_vd_unaligned *)&P_new[468] = tr_v_t303_c3;
+    #else
+    const double t333 = DERIVE_FMA(t44, t18, P[376]);
+    const double t334 = DERIVE_FMA(t44, t19, P[377]);
+    const double t335 = DERIVE_FMA(t44, t20, P[378]);
+    const double t336 = DERIVE_FMA(t44, t21, P[379]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd tr_v_t307_0 = __builtin_shufflevector(v_t307, v_t318, 0, 4, 2, 6);
+    const derive_vd tr_v_t307_1 = __builtin_shufflevector(v_t307, v_t318, 1, 5, 3, 7);
+    const derive_vd tr_v_t307_2 = __builtin_shufflevector(v_t328, v_t337, 0, 4, 2, 6);
+    const derive_vd tr_v_t307_3 = __builtin_shufflevector(v_t328, v_t337, 1, 5, 3, 7);
+    const derive_vd tr_v_t307_c0 = __builtin_shufflevector(tr_v_t307_0, tr_v_t307_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t307_c1 = __builtin_shufflevector(tr_v_t307_1, tr_v_t307_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t307_c2 = __builtin_shufflevector(tr_v_t307_0, tr_v_t307_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t307_c3 = __builtin_shufflevector(tr_v_t307_1, tr_v_t307_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[308] = v_t307;
+    *(derive_vd_unaligned *)&P_new[332] = v_t318;
+    *(derive_vd_unaligned *)&P_new[356] = v_t328;
+    *(derive_vd_unaligned *)&P_new[380] = v_t337;
+    *(derive_vd_unaligned *)&P_new[492] = tr_v_t307_c0;
+    *(derive_vd_unaligned *)&P_new[516] = tr_v_t307_c1;
+    *(derive_vd_unaligned *)&P_new[540] = tr_v_t307_c2;
+    *(derive_vd_unaligned *)&P_new[564] = tr_v_t307_c3;
+    #else
+    const double t337 = DERIVE_FMA(t44, t22, P[380]);
+    const double t338 = DERIVE_FMA(t44, t23, P[381]);
+    const double t339 = DERIVE_FMA(t44, t24, P[382]);
+    const double t340 = DERIVE_FMA(t44, t25, P[383]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const double t342 = v_t341[1];
+    const double t343 = v_t341[2];
+    const double t344 = v_t341[3];
+    *(derive_vd_unaligned *)&P_new[400] = v_t341;
+    #else
+    const double t341 = DERIVE_FMA(t45, t18, P[400]);
+    const double t342 = DERIVE_FMA(t45, t19, P[401]);
+    const double t343 = DERIVE_FMA(t45, t20, P[402]);
+    const double t344 = DERIVE_FMA(t45, t21, P[403]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[404], P[405], P[406], P[407]}));
+    #else
+    const double t345 = DERIVE_FMA(t45, t22, P[404]);
+    const double t346 = DERIVE_FMA(t45, t23, P[405]);
+    const double t347 = DERIVE_FMA(t45, t24, P[406]);
+    const double t348 = DERIVE_FMA(t45, t25, P[407]);
+    #endif
+    const double t349 = DERIVE_FMA(t19, t46, P[425]);
+    const double t350 = DERIVE_FMA(t20, t46, P[426]);
+    const double t351 = DERIVE_FMA(t21, t46, P[427]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t352 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t22, ((derive_vd){P[428], P[429], P[430], P[431]}));
+    #else
+    const double t352 = DERIVE_FMA(t46, t22, P[428]);
+    const double t353 = DERIVE_FMA(t46, t23, P[429]);
+    const double t354 = DERIVE_FMA(t46, t24, P[430]);
+    const double t355 = DERIVE_FMA(t46, t25, P[431]);
+    #endif
+    const double t356 = DERIVE_FMA(t20, t47, P[450]);
+    const double t357 = DERIVE_FMA(t21, t47, P[451]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t358 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t22, ((derive_vd){P[452], P[453], P[454], P[455]}));
+    #else
+    const double t358 = DERIVE_FMA(t47, t22, P[452]);
+    const double t359 = DERIVE_FMA(t47, t23, P[453]);
+    const double t360 = DERIVE_FMA(t47, t24, P[454]);
+    const double t361 = DERIVE_FMA(t47, t25, P[455]);
+    #endif
+    const double t362 = DERIVE_FMA(t21, t48, P[475]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t22, ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd tr_v_t345_0 = __builtin_shufflevector(v_t345, v_t352, 0, 4, 2, 6);
+    const derive_vd tr_v_t345_1 = __builtin_shufflevector(v_t345, v_t352, 1, 5, 3, 7);
+    const derive_vd tr_v_t345_2 = __builtin_shufflevector(v_t358, v_t363, 0, 4, 2, 6);
+    const derive_vd tr_v_t345_3 = __builtin_shufflevector(v_t358, v_t363, 1, 5, 3, 7);
+    const derive_vd tr_v_t345_c0 = __builtin_shufflevector(tr_v_t345_0, tr_v_t345_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t345_c1 = __builtin_shufflevector(tr_v_t345_1, tr_v_t345_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t345_c2 = __builtin_shufflevector(tr_v_t345_0, tr_v_t345_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t345_c3 = __builtin_shufflevector(tr_v_t345_1, tr_v_t345_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[404] = v_t345;
+    *(derive_vd_unaligned *)&P_new[428] = v_t352;
+    *(derive_vd_unaligned *)&P_new[452] = v_t358;
+    *(derive_vd_unaligned *)&P_new[476] = v_t363;
+    *(derive_vd_unaligned *)&P_new[496] = tr_v_t345_c0;
+    *(derive_vd_unaligned *)&P_new[520] = tr_v_t345_c1;
+    *(derive_vd_unaligned *)&P_new[544] = tr_v_t345_c2;
+    *(derive_vd_unaligned *)&P_new[568] = tr_v_t345_c3;
+    #else
+    const double t363 = DERIVE_FMA(t48, t22, P[476]);
+    const double t364 = DERIVE_FMA(t48, t23, P[477]);
+    const double t365 = DERIVE_FMA(t48, t24, P[478]);
+    const double t366 = DERIVE_FMA(t48, t25, P[479]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const double t368 = v_t367[1];
+    const double t369 = v_t367[2];
+    const double t370 = v_t367[3];
+    *(derive_vd_unaligned *)&P_new[500] = v_t367;
+    #else
+    const double t367 = DERIVE_FMA(t49, t22, P[500]);
+    const double t368 = DERIVE_FMA(t49, t23, P[501]);
+    const double t369 = DERIVE_FMA(t49, t24, P[502]);
+    const double t370 = DERIVE_FMA(t49, t25, P[503]);
+    #endif
+    const double t371 = DERIVE_FMA(t23, t50, P[525]);
+    const double t372 = DERIVE_FMA(t24, t50, P[526]);
+    const double t373 = DERIVE_FMA(t25, t50, P[527]);
+    const double t374 = DERIVE_FMA(t24, t51, P[550]);
+    const double t375 = DERIVE_FMA(t25, t51, P[551]);
+    const double t376 = DERIVE_FMA(t25, t52, P[575]);
+    const double t377 = DERIVE_FMA(t56, t56, DERIVE_FMA(t55, t55, DERIVE_FMA(t54, t54, t53*t53)));
+    const double t378 = 1.0/sqrt(t377);
+    const double t379 = t378*t53;
+    const double t380 = t378*t54;
+    const double t381 = t378*t55;
+    const double t382 = t378*t56;
+    #if DERIVE_VECTOR
+    x_new[0] = t379;
+    x_new[1] = t380;
+    x_new[2] = t381;
+    x_new[3] = t382;
+    P_new[24] = t78;
+    P_new[25] = t101;
+    P_new[26] = t102;
+    P_new[27] = t103;
+    P_new[48] = t79;
+    P_new[49] = t102;
+    P_new[50] = t124;
+    P_new[51] = t125;
+    P_new[72] = t80;
+    P_new[73] = t103;
+    P_new[74] = t125;
+    P_new[75] = t146;
+    P_new[124] = t168;
+    P_new[125] = t187;
+    P_new[126] = t188;
+    P_new[127] = t189;
+    P_new[148] = t169;
+    P_new[149] = t188;
+    P_new[150] = t206;
+    P_new[151] = t207;
+    P_new[172] = t170;
+    P_new[173] = t189;
+    P_new[174] = t207;
+    P_new[175] = t224;
+    P_new[224] = t242;
+    P_new[225] = t257;
+    P_new[226] = t258;
+    P_new[227] = t259;
+    P_new[248] = t243;
+    P_new[249] = t258;
+    P_new[250] = t272;
+    P_new[251] = t273;
+    P_new[272] = t244;
+    P_new[273] = t259;
+    P_new[274] = t273;
+    P_new[275] = t286;
+    P_new[324] = t300;
+    P_new[325] = t311;
+    P_new[326] = t312;
+    P_new[327] = t313;
+    P_new[348] = t301;
+    P_new[349] = t312;
+    P_new[350] = t322;
+    P_new[351] = t323;
+    P_new[372] = t302;
+    P_new[373] = t313;
+    P_new[374] = t323;
+    P_new[375] = t332;
+    P_new[424] = t342;
+    P_new[425] = t349;
+    P_new[426] = t350;
+    P_new[427] = t351;
+    P_new[448] = t343;
+    P_new[449] = t350;
+    P_new[450] = t356;
+    P_new[451] = t357;
+    P_new[472] = t344;
+    P_new[473] = t351;
+    P_new[474] = t357;
+    P_new[475] = t362;
+    P_new[524] = t368;
+    P_new[525] = t371;
+    P_new[526] = t372;
+    P_new[527] = t373;
+    P_new[548] = t369;
+    P_new[549] = t372;
+    P_new[550] = t374;
+    P_new[551] = t375;
+    P_new[572] = t370;
+    P_new[573] = t373;
+    P_new[574] = t375;
+    P_new[575] = t376;
+    #else
+    x_new[0] = t379;
+    x_new[1] = t380;
+    x_new[2] = t381;
+    x_new[3] = t382;
+    x_new[4] = t57;
+    x_new[5] = t58;
+    x_new[6] = t59;
+    x_new[7] = t60;
+    x_new[8] = t61;
+    x_new[9] = t62;
+    x_new[10] = t63;
+    x_new[11] = t64;
+    x_new[12] = t65;
+    x_new[13] = t66;
+    x_new[14] = t67;
+    x_new[15] = t68;
+    x_new[16] = t69;
+    x_new[17] = t70;
+    x_new[18] = t71;
+    x_new[19] = t72;
+    x_new[20] = t73;
+    x_new[21] = t74;
+    x_new[22] = t75;
+    x_new[23] = t76;
+    P_new[0] = t77;
+    P_new[1] = t78;
+    P_new[2] = t79;
+    P_new[3] = t80;
+    P_new[4] = t81;
+    P_new[5] = t82;
+    P_new[6] = t83;
+    P_new[7] = t84;
+    P_new[8] = t85;
+    P_new[9] = t86;
+    P_new[10] = t87;
+    P_new[11] = t88;
+    P_new[12] = t89;
+    P_new[13] = t90;
+    P_new[14] = t91;
+    P_new[15] = t92;
+    P_new[16] = t93;
+    P_new[17] = t94;
+    P_new[18] = t95;
+    P_new[19] = t96;
+    P_new[20] = t97;
+    P_new[21] = t98;
+    P_new[22] = t99;
+    P_new[23] = t100;
+    P_new[24] = t78;
+    P_new[25] = t101;
+    P_new[26] = t102;
+    P_new[27] = t103;
+    P_new[28] = t104;
+    P_new[29] = t105;
+    P_new[30] = t106;
+    P_new[31] = t107;
+    P_new[32] = t108;
+    P_new[33] = t109;
+    P_new[34] = t110;
+    P_new[35] = t111;
+    P_new[36] = t112;
+    P_new[37] = t113;
+    P_new[38] = t114;
+    P_new[39] = t115;
+    P_new[40] = t116;
+    P_new[41] = t117;
+    P_new[42] = t118;
+    P_new[43] = t119;
+    P_new[44] = t120;
+    P_new[45] = t121;
+    P_new[46] = t122;
+    P_new[47] = t123;
+    P_new[48] = t79;
+    P_new[49] = t102;
+    P_new[50] = t124;
+    P_new[51] = t125;
+    P_new[52] = t126;
+    P_new[53] = t127;
+    P_new[54] = t128;
+    P_new[55] = t129;
+    P_new[56] = t130;
+    P_new[57] = t131;
+    P_new[58] = t132;
+    P_new[59] = t133;
+    P_new[60] = t134;
+    P_new[61] = t135;
+    P_new[62] = t136;
+    P_new[63] = t137;
+    P_new[64] = t138;
+    P_new[65] = t139;
+    P_new[66] = t140;
+    P_new[67] = t141;
+    P_new[68] = t142;
+    P_new[69] = t143;
+    P_new[70] = t144;
+    P_new[71] = t145;
+    P_new[72] = t80;
+    P_new[73] = t103;
+    P_new[74] = t125;
+    P_new[75] = t146;
+    P_new[76] = t147;
+    P_new[77] = t148;
+    P_new[78] = t149;
+    P_new[79] = t150;
+    P_new[80] = t151;
+    P_new[81] = t152;
+    P_new[82] = t153;
+    P_new[83] = t154;
+    P_new[84] = t155;
+    P_new[85] = t156;
+    P_new[86] = t157;
+    P_new[87] = t158;
+    P_new[88] = t159;
+    P_new[89] = t160;
+    P_new[90] = t161;
+    P_new[91] = t162;
+    P_new[92] = t163;
+    P_new[93] = t164;
+    P_new[94] = t165;
+    P_new[95] = t166;
+    P_new[96] = t81;
+    P_new[97] = t104;
+    P_new[98] = t126;
+    P_new[99] = t147;
+    P_new[100] = t167;
+    P_new[101] = t168;
+    P_new[102] = t169;
+    P_new[103] = t170;
+    P_new[104] = t171;
+    P_new[105] = t172;
+    P_new[106] = t173;
+    P_new[107] = t174;
+    P_new[108] = t175;
+    P_new[109] = t176;
+    P_new[110] = t177;
+    P_new[111] = t178;
+    P_new[112] = t179;
+    P_new[113] = t180;
+    P_new[114] = t181;
+    P_new[115] = t182;
+    P_new[116] = t183;
+    P_new[117] = t184;
+    P_new[118] = t185;
+    P_new[119] = t186;
+    P_new[120] = t82;
+    P_new[121] = t105;
+    P_new[122] = t127;
+    P_new[123] = t148;
+    P_new[124] = t168;
+    P_new[125] = t187;
+    P_new[126] = t188;
+    P_new[127] = t189;
+    P_new[128] = t190;
+    P_new[129] = t191;
+    P_new[130] = t192;
+    P_new[131] = t193;
+    P_new[132] = t194;
+    P_new[133] = t195;
+    P_new[134] = t196;
+    P_new[135] = t197;
+    P_new[136] = t198;
+    P_new[137] = t199;
+    P_new[138] = t200;
+    P_new[139] = t201;
+    P_new[140] = t202;
+    P_new[141] = t203;
+    P_new[142] = t204;
+    P_new[143] = t205;
+    P_new[144] = t83;
+    P_new[145] = t106;
+    P_new[146] = t128;
+    P_new[147] = t149;
+    P_new[148] = t169;
+    P_new[149] = t188;
+    P_new[150] = t206;
+    P_new[151] = t207;
+    P_new[152] = t208;
+    P_new[153] = t209;
+    P_new[154] = t210;
+    P_new[155] = t211;
+    P_new[156] = t212;
+    P_new[157] = t213;
+    P_new[158] = t214;
+    P_new[159] = t215;
+    P_new[160] = t216;
+    P_new[161] = t217;
+    P_new[162] = t218;
+    P_new[163] = t219;
+    P_new[164] = t220;
+    P_new[165] = t221;
+    P_new[166] = t222;
+    P_new[167] = t223;
+    P_new[168] = t84;
+    P_new[169] = t107;
+    P_new[170] = t129;
+    P_new[171] = t150;
+    P_new[172] = t170;
+    P_new[173] = t189;
+    P_new[174] = t207;
+    P_new[175] = t224;
+    P_new[176] = t225;
+    P_new[177] = t226;
+    P_new[178] = t227;
+    P_new[179] = t228;
+    P_new[180] = t229;
+    P_new[181] = t230;
+    P_new[182] = t231;
+    P_new[183] = t232;
+    P_new[184] = t233;
+    P_new[185] = t234;
+    P_new[186] = t235;
+    P_new[187] = t236;
+    P_new[188] = t237;
+    P_new[189] = t238;
+    P_new[190] = t239;
+    P_new[191] = t240;
+    P_new[192] = t85;
+    P_new[193] = t108;
+    P_new[194] = t130;
+    P_new[195] = t151;
+    P_new[196] = t171;
+    P_new[197] = t190;
+    P_new[198] = t208;
+    P_new[199] = t225;
+    P_new[200] = t241;
+    P_new[201] = t242;
+    P_new[202] = t243;
+    P_new[203] = t244;
+    P_new[204] = t245;
+    P_new[205] = t246;
+    P_new[206] = t247;
+    P_new[207] = t248;
+    P_new[208] = t249;
+    P_new[209] = t250;
+    P_new[210] = t251;
+    P_new[211] = t252;
+    P_new[212] = t253;
+    P_new[213] = t254;
+    P_new[214] = t255;
+    P_new[215] = t256;
+    P_new[216] = t86;
+    P_new[217] = t109;
+    P_new[218] = t131;
+    P_new[219] = t152;
+    P_new[220] = t172;
+    P_new[221] = t191;
+    P_new[222] = t209;
+    P_new[223] = t226;
+    P_new[224] = t242;
+    P_new[225] = t257;
+    P_new[226] = t258;
+    P_new[227] = t259;
+    P_new[228] = t260;
+    P_new[229] = t261;
+    P_new[230] = t262;
+    P_new[231] = t263;
+    P_new[232] = t264;
+    P_new[233] = t265;
+    P_new[234] = t266;
+    P_new[235] = t267;
+    P_new[236] = t268;
+    P_new[237] = t269;
+    P_new[238] = t270;
+    P_new[239] = t271;
+    P_new[240] = t87;
+    P_new[241] = t110;
+    P_new[242] = t132;
+    P_new[243] = t153;
+    P_new[244] = t173;
+    P_new[245] = t192;
+    P_new[246] = t210;
+    P_new[247] = t227;
+    P_new[248] = t243;
+    P_new[249] = t258;
+    P_new[250] = t272;
+    P_new[251] = t273;
+    P_new[252] = t274;
+    P_new[253] = t275;
+    P_new[254] = t276;
+    P_new[255] = t277;
+    P_new[256] = t278;
+    P_new[257] = t279;
+    P_new[258] = t280;
+    P_new[259] = t281;
+    P_new[260] = t282;
+    P_new[261] = t283;
+    P_new[262] = t284;
+    P_new[263] = t285;
+    P_new[264] = t88;
+    P_new[265] = t111;
+    P_new[266] = t133;
+    P_new[267] = t154;
+    P_new[268] = t174;
+    P_new[269] = t193;
+    P_new[270] = t211;
+    P_new[271] = t228;
+    P_new[272] = t244;
+    P_new[273] = t259;
+    P_new[274] = t273;
+    P_new[275] = t286;
+    P_new[276] = t287;
+    P_new[277] = t288;
+    P_new[278] = t289;
+    P_new[279] = t290;
+    P_new[280] = t291;
+    P_new[281] = t292;
+    P_new[282] = t293;
+    P_new[283] = t294;
+    P_new[284] = t295;
+    P_new[285] = t296;
+    P_new[286] = t297;
+    P_new[287] = t298;
+    P_new[288] = t89;
+    P_new[289] = t112;
+    P_new[290] = t134;
+    P_new[291] = t155;
+    P_new[292] = t175;
+    P_new[293] = t194;
+    P_new[294] = t212;
+    P_new[295] = t229;
+    P_new[296] = t245;
+    P_new[297] = t260;
+    P_new[298] = t274;
+    P_new[299] = t287;
+    P_new[300] = t299;
+    P_new[301] = t300;
+    P_new[302] = t301;
+    P_new[303] = t302;
+    P_new[304] = t303;
+    P_new[305] = t304;
+    P_new[306] = t305;
+    P_new[307] = t306;
+    P_new[308] = t307;
+    P_new[309] = t308;
+    P_new[310] = t309;
+    P_new[311] = t310;
+    P_new[312] = t90;
+    P_new[313] = t113;
+    P_new[314] = t135;
+    P_new[315] = t156;
+    P_new[316] = t176;
+    P_new[317] = t195;
+    P_new[318] = t213;
+    P_new[319] = t230;
+    P_new[320] = t246;
+    P_new[321] = t261;
+    P_new[322] = t275;
+    P_new[323] = t288;
+    P_new[324] = t300;
+    P_new[325] = t311;
+    P_new[326] = t312;
+    P_new[327] = t313;
+    P_new[328] = t314;
+    P_new[329] = t315;
+    P_new[330] = t316;
+    P_new[331] = t317;
+    P_new[332] = t318;
+    P_new[333] = t319;
+    P_new[334] = t320;
+    P_new[335] = t321;
+    P_new[336] = t91;
+    P_new[337] = t114;
+    P_new[338] = t136;
+    P_new[339] = t157;
+    P_new[340] = t177;
+    P_new[341] = t196;
+    P_new[342] = t214;
+    P_new[343] = t231;
+    P_new[344] = t247;
+    P_new[345] = t262;
+    P_new[346] = t276;
+    P_new[347] = t289;
+    P_new[348] = t301;
+    P_new[349] = t312;
+    P_new[350] = t322;
+    P_new[351] = t323;
+    P_new[352] = t324;
+    P_new[353] = t325;
+    P_new[354] = t326;
+    P_new[355] = t327;
+    P_new[356] = t328;
+    P_new[357] = t329;
+    P_new[358] = t330;
+    P_new[359] = t331;
+    P_new[360] = t92;
+    P_new[361] = t115;
+    P_new[362] = t137;
+    P_new[363] = t158;
+    P_new[364] = t178;
+    P_new[365] = t197;
+    P_new[366] = t215;
+    P_new[367] = t232;
+    P_new[368] = t248;
+    P_new[369] = t263;
+    P_new[370] = t277;
+    P_new[371] = t290;
+    P_new[372] = t302;
+    P_new[373] = t313;
+    P_new[374] = t323;
+    P_new[375] = t332;
+    P_new[376] = t333;
+    P_new[377] = t334;
+    P_new[378] = t335;
+    P_new[379] = t336;
+    P_new[380] = t337;
+    P_new[381] = t338;
+    P_new[382] = t339;
+    P_new[383] = t340;
+    P_new[384] = t93;
+    P_new[385] = t116;
+    P_new[386] = t138;
+    P_new[387] = t159;
+    P_new[388] = t179;
+    P_new[389] = t198;
+    P_new[390] = t216;
+    P_new[391] = t233;
+    P_new[392] = t249;
+    P_new[393] = t264;
+    P_new[394] = t278;
+    P_new[395] = t291;
+    P_new[396] = t303;
+    P_new[397] = t314;
+    P_new[398] = t324;
+    P_new[399] = t333;
+    P_new[400] = t341;
+    P_new[401] = t342;
+    P_new[402] = t343;
+    P_new[403] = t344;
+    P_new[404] = t345;
+    P_new[405] = t346;
+    P_new[406] = t347;
+    P_new[407] = t348;
+    P_new[408] = t94;
+    P_new[409] = t117;
+    P_new[410] = t139;
+    P_new[411] = t160;
+    P_new[412] = t180;
+    P_new[413] = t199;
+    P_new[414] = t217;
+    P_new[415] = t234;
+    P_new[416] = t250;
+    P_new[417] = t265;
+    P_new[418] = t279;
+    P_new[419] = t292;
+    P_new[420] = t304;
+    P_new[421] = t315;
+    P_new[422] = t325;
+    P_new[423] = t334;
+    P_new[424] = t342;
+    P_new[425] = t349;
+    P_new[426] = t350;
+    P_new[427] = t351;
+    P_new[428] = t352;
+    P_new[429] = t353;
+    P_new[430] = t354;
+    P_new[431] = t355;
+    P_new[432] = t95;
+    P_new[433] = t118;
+    P_new[434] = t140;
+    P_new[435] = t161;
+    P_new[436] = t181;
+    P_new[437] = t200;
+    P_new[438] = t218;
+    P_new[439] = t235;
+    P_new[440] = t251;
+    P_new[441] = t266;
+    P_new[442] = t280;
+    P_new[443] = t293;
+    P_new[444] = t305;
+    P_new[445] = t316;
+    P_new[446] = t326;
+    P_new[447] = t335;
+    P_new[448] = t343;
+    P_new[449] = t350;
+    P_new[450] = t356;
+    P_new[451] = t357;
+    P_new[452] = t358;
+    P_new[453] = t359;
+    P_new[454] = t360;
+    P_new[455] = t361;
+    P_new[456] = t96;
+    P_new[457] = t119;
+    P_new[458] = t141;
+    P_new[459] = t162;
+    P_new[460] = t182;
+    P_new[461] = t201;
+    P_new[462] = t219;
+    P_new[463] = t236;
+    P_new[464] = t252;
+    P_new[465] = t267;
+    P_new[466] = t281;
+    P_new[467] = t294;
+    P_new[468] = t306;
+    P_new[469] = t317;
+    P_new[470] = t327;
+    P_new[471] = t336;
+    P_new[472] = t344;
+    P_new[473] = t351;
+    P_new[474] = t357;
+    P_new[475] = t362;
+    P_new[476] = t363;
+    P_new[477] = t364;
+    P_new[478] = t365;
+    P_new[479] = t366;
+    P_new[480] = t97;
+    P_new[481] = t120;
+    P_new[482] = t142;
+    P_new[483] = t163;
+    P_new[484] = t183;
+    P_new[485] = t202;
+    P_new[486] = t220;
+    P_new[487] = t237;
+    P_new[488] = t253;
+    P_new[489] = t268;
+    P_new[490] = t282;
+    P_new[491] = t295;
+    P_new[492] = t307;
+    P_new[493] = t318;
+    P_new[494] = t328;
+    P_new[495] = t337;
+    P_new[496] = t345;
+    P_new[497] = t352;
+    P_new[498] = t358;
+    P_new[499] = t363;
+    P_new[500] = t367;
+    P_new[501] = t368;
+    P_new[502] = t369;
+    P_new[503] = t370;
+    P_new[504] = t98;
+    P_new[505] = t121;
+    P_new[506] = t143;
+    P_new[507] = t164;
+    P_new[508] = t184;
+    P_new[509] = t203;
+    P_new[510] = t221;
+    P_new[511] = t238;
+    P_new[512] = t254;
+    P_new[513] = t269;
+    P_new[514] = t283;
+    P_new[515] = t296;
+    P_new[516] = t308;
+    P_new[517] = t319;
+    P_new[518] = t329;
+    P_new[519] = t338;
+    P_new[520] = t346;
+    P_new[521] = t353;
+    P_new[522] = t359;
+    P_new[523] = t364;
+    P_new[524] = t368;
+    P_new[525] = t371;
+    P_new[526] = t372;
+    P_new[527] = t373;
+    P_new[528] = t99;
+    P_new[529] = t122;
+    P_new[530] = t144;
+    P_new[531] = t165;
+    P_new[532] = t185;
+    P_new[533] = t204;
+    P_new[534] = t222;
+    P_new[535] = t239;
+    P_new[536] = t255;
+    P_new[537] = t270;
+    P_new[538] = t284;
+    P_new[539] = t297;
+    P_new[540] = t309;
+    P_new[541] = t320;
+    P_new[542] = t330;
+    P_new[543] = t339;
+    P_new[544] = t347;
+    P_new[545] = t354;
+    P_new[546] = t360;
+    P_new[547] = t365;
+    P_new[548] = t369;
+    P_new[549] = t372;
+    P_new[550] = t374;
+    P_new[551] = t375;
+    P_new[552] = t100;
+    P_new[553] = t123;
+    P_new[554] = t145;
+    P_new[555] = t166;
+    P_new[556] = t186;
+    P_new[557] = t205;
+    P_new[558] = t223;
+    P_new[559] = t240;
+    P_new[560] = t256;
+    P_new[561] = t271;
+    P_new[562] = t285;
+    P_new[563] = t298;
+    P_new[564] = t310;
+    P_new[565] = t321;
+    P_new[566] = t331;
+    P_new[567] = t340;
+    P_new[568] = t348;
+    P_new[569] = t355;
+    P_new[570] = t361;
+    P_new[571] = t366;
+    P_new[572] = t370;
+    P_new[573] = t373;
+    P_new[574] = t375;
+    P_new[575] = t376;
+    #endif
     return 0;
 }
 
@@ -8561,993 +9316,1748 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t4 = t1*t3;
     const double t5 = t0*t3;
     const double t6 = x[6]*t3;
-    const double t7 = DERIVE_FMA(P[6], t6, DERIVE_FMA(P[5], t5, DERIVE_FNMA(P[23], t5, DERIVE_FNMA(P[22], t4, P[4]*t4))));
-    const double t8 = DERIVE_FNMA(P[47], t5, DERIVE_FNMA(P[46], t4, DERIVE_FMA(P[30], t6, DERIVE_FMA(P[29], t5, P[28]*t4))));
-    const double t9 = DERIVE_FNMA(P[71], t5, DERIVE_FNMA(P[70], t4, DERIVE_FMA(P[54], t6, DERIVE_FMA(P[53], t5, P[52]*t4))));
-    const double t10 = DERIVE_FNMA(P[95], t5, DERIVE_FNMA(P[94], t4, DERIVE_FMA(P[78], t6, DERIVE_FMA(P[77], t5, P[76]*t4))));
-    const double t11 = P[118]*t4;
-    const double t12 = DERIVE_FNMA(P[119], t5, DERIVE_FMA(P[102], t6, DERIVE_FMA(P[101], t5, DERIVE_FMA(P[100], t4, -t11))));
-    const double t13 = P[143]*t5;
-    const double t14 = DERIVE_FNMA(P[142], t4, DERIVE_FMA(P[126], t6, DERIVE_FMA(P[125], t5, DERIVE_FMA(P[101], t4, -t13))));
-    const double t15 = DERIVE_FNMA(P[167], t5, DERIVE_FNMA(P[166], t4, DERIVE_FMA(P[150], t6, DERIVE_FMA(P[126], t5, P[102]*t4))));
-    const double t16 = DERIVE_FNMA(P[191], t5, DERIVE_FNMA(P[190], t4, DERIVE_FMA(P[151], t6, DERIVE_FMA(P[127], t5, P[103]*t4))));
-    const double t17 = DERIVE_FNMA(P[215], t5, DERIVE_FNMA(P[214], t4, DERIVE_FMA(P[152], t6, DERIVE_FMA(P[128], t5, P[104]*t4))));
-    const double t18 = DERIVE_FNMA(P[239], t5, DERIVE_FNMA(P[238], t4, DERIVE_FMA(P[153], t6, DERIVE_FMA(P[129], t5, P[105]*t4))));
-    const double t19 = DERIVE_FNMA(P[263], t5, DERIVE_FNMA(P[262], t4, DERIVE_FMA(P[154], t6, DERIVE_FMA(P[130], t5, P[106]*t4))));
-    const double t20 = DERIVE_FNMA(P[287], t5, DERIVE_FNMA(P[286], t4, DERIVE_FMA(P[155], t6, DERIVE_FMA(P[131], t5, P[107]*t4))));
-    const double t21 = DERIVE_FNMA(P[311], t5, DERIVE_FNMA(P[310], t4, DERIVE_FMA(P[156], t6, DERIVE_FMA(P[132], t5, P[108]*t4))));
-    const double t22 = DERIVE_FNMA(P[335], t5, DERIVE_FNMA(P[334], t4, DERIVE_FMA(P[157], t6, DERIVE_FMA(P[133], t5, P[109]*t4))));
-    const double t23 = DERIVE_FNMA(P[359], t5, DERIVE_FNMA(P[358], t4, DERIVE_FMA(P[158], t6, DERIVE_FMA(P[134], t5, P[110]*t4))));
-    const double t24 = DERIVE_FNMA(P[383], t5, DERIVE_FNMA(P[382], t4, DERIVE_FMA(P[159], t6, DERIVE_FMA(P[135], t5, P[111]*t4))));
-    const double t25 = DERIVE_FNMA(P[407], t5, DERIVE_FNMA(P[406], t4, DERIVE_FMA(P[160], t6, DERIVE_FMA(P[136], t5, P[112]*t4))));
-    const double t26 = DERIVE_FNMA(P[431], t5, DERIVE_FNMA(P[430], t4, DERIVE_FMA(P[161], t6, DERIVE_FMA(P[137], t5, P[113]*t4))));
-    const double t27 = DERIVE_FNMA(P[455], t5, DERIVE_FNMA(P[454], t4, DERIVE_FMA(P[162], t6, DERIVE_FMA(P[138], t5, P[114]*t4))));
-    const double t28 = DERIVE_FNMA(P[479], t5, DERIVE_FNMA(P[478], t4, DERIVE_FMA(P[163], t6, DERIVE_FMA(P[139], t5, P[115]*t4))));
-    const double t29 = DERIVE_FNMA(P[503], t5, DERIVE_FNMA(P[502], t4, DERIVE_FMA(P[164], t6, DERIVE_FMA(P[140], t5, P[116]*t4))));
-    const double t30 = DERIVE_FNMA(P[527], t5, DERIVE_FNMA(P[526], t4, DERIVE_FMA(P[165], t6, DERIVE_FMA(P[141], t5, P[117]*t4))));
-    const double t31 = DERIVE_FNMA(P[551], t5, DERIVE_FNMA(P[550], t4, DERIVE_FMA(P[166], t6, DERIVE_FMA(P[142], t5, t11))));
-    const double t32 = DERIVE_FNMA(P[575], t5, DERIVE_FNMA(P[551], t4, DERIVE_FMA(P[167], t6, DERIVE_FMA(P[119], t4, t13))));
-    const double t33 = DERIVE_FNMA(t32, t5, DERIVE_FNMA(t31, t4, DERIVE_FMA(t15, t6, DERIVE_FMA(t14, t5, t12*t4))));
-    const double t34 = 0.25 + t33;
+    const double t7 = z[0] - t2;
+    const double t8 = -t4;
+    const double t9 = -t5;
+    #if DERIVE_VECTOR
+    const derive_vd v_t10_0 = (((derive_vd){t4, t4, t4, t4}) * ((derive_vd){P[96], P[97], P[98], P[99]}));
+    const derive_vd v_t10_1 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[120], P[121], P[122], P[123]}), v_t10_0);
+    const derive_vd v_t10_2 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[144], P[145], P[146], P[147]}), v_t10_1);
+    const derive_vd v_t10_3 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[528], P[529], P[530], P[531]}), v_t10_2);
+    const derive_vd v_t10 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[552], P[553], P[554], P[555]}), v_t10_3);
+    const double t11 = v_t10[1];
+    const double t12 = v_t10[2];
+    const double t13 = v_t10[3];
+    #else
+    const double t10 = DERIVE_FMA(t9, P[552], DERIVE_FMA(t8, P[528], DERIVE_FMA(t6, P[144], DERIVE_FMA(t5, P[120], t4*P[96]))));
+    const double t11 = DERIVE_FMA(t9, P[553], DERIVE_FMA(t8, P[529], DERIVE_FMA(t6, P[145], DERIVE_FMA(t5, P[121], t4*P[97]))));
+    const double t12 = DERIVE_FMA(t9, P[554], DERIVE_FMA(t8, P[530], DERIVE_FMA(t6, P[146], DERIVE_FMA(t5, P[122], t4*P[98]))));
+    const double t13 = DERIVE_FMA(t9, P[555], DERIVE_FMA(t8, P[531], DERIVE_FMA(t6, P[147], DERIVE_FMA(t5, P[123], t4*P[99]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t14_0 = (((derive_vd){t4, t4, t4, t4}) * ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const derive_vd v_t14_1 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[124], P[125], P[126], P[127]}), v_t14_0);
+    const derive_vd v_t14_2 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[148], P[149], P[150], P[151]}), v_t14_1);
+    const derive_vd v_t14_3 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[532], P[533], P[534], P[535]}), v_t14_2);
+    const derive_vd v_t14 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[556], P[557], P[558], P[559]}), v_t14_3);
+    const double t14 = v_t14[0];
+    const double t15 = v_t14[1];
+    const double t16 = v_t14[2];
+    const double t17 = v_t14[3];
+    #else
+    const double t14 = DERIVE_FMA(t9, P[556], DERIVE_FMA(t8, P[532], DERIVE_FMA(t6, P[148], DERIVE_FMA(t5, P[124], t4*P[100]))));
+    const double t15 = DERIVE_FMA(t9, P[557], DERIVE_FMA(t8, P[533], DERIVE_FMA(t6, P[149], DERIVE_FMA(t5, P[125], t4*P[101]))));
+    const double t16 = DERIVE_FMA(t9, P[558], DERIVE_FMA(t8, P[534], DERIVE_FMA(t6, P[150], DERIVE_FMA(t5, P[126], t4*P[102]))));
+    const double t17 = DERIVE_FMA(t9, P[559], DERIVE_FMA(t8, P[535], DERIVE_FMA(t6, P[151], DERIVE_FMA(t5, P[127], t4*P[103]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t18_0 = (((derive_vd){t4, t4, t4, t4}) * ((derive_vd){P[104], P[105], P[106], P[107]}));
+    const derive_vd v_t18_1 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[128], P[129], P[130], P[131]}), v_t18_0);
+    const derive_vd v_t18_2 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[152], P[153], P[154], P[155]}), v_t18_1);
+    const derive_vd v_t18_3 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[536], P[537], P[538], P[539]}), v_t18_2);
+    const derive_vd v_t18 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[560], P[561], P[562], P[563]}), v_t18_3);
+    const double t19 = v_t18[1];
+    const double t20 = v_t18[2];
+    const double t21 = v_t18[3];
+    #else
+    const double t18 = DERIVE_FMA(t9, P[560], DERIVE_FMA(t8, P[536], DERIVE_FMA(t6, P[152], DERIVE_FMA(t5, P[128], t4*P[104]))));
+    const double t19 = DERIVE_FMA(t9, P[561], DERIVE_FMA(t8, P[537], DERIVE_FMA(t6, P[153], DERIVE_FMA(t5, P[129], t4*P[105]))));
+    const double t20 = DERIVE_FMA(t9, P[562], DERIVE_FMA(t8, P[538], DERIVE_FMA(t6, P[154], DERIVE_FMA(t5, P[130], t4*P[106]))));
+    const double t21 = DERIVE_FMA(t9, P[563], DERIVE_FMA(t8, P[539], DERIVE_FMA(t6, P[155], DERIVE_FMA(t5, P[131], t4*P[107]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t22_0 = (((derive_vd){t4, t4, t4, t4}) * ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t22_1 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[132], P[133], P[134], P[135]}), v_t22_0);
+    const derive_vd v_t22_2 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[156], P[157], P[158], P[159]}), v_t22_1);
+    const derive_vd v_t22_3 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[540], P[541], P[542], P[543]}), v_t22_2);
+    const derive_vd v_t22 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[564], P[565], P[566], P[567]}), v_t22_3);
+    const double t23 = v_t22[1];
+    const double t24 = v_t22[2];
+    const double t25 = v_t22[3];
+    #else
+    const double t22 = DERIVE_FMA(t9, P[564], DERIVE_FMA(t8, P[540], DERIVE_FMA(t6, P[156], DERIVE_FMA(t5, P[132], t4*P[108]))));
+    const double t23 = DERIVE_FMA(t9, P[565], DERIVE_FMA(t8, P[541], DERIVE_FMA(t6, P[157], DERIVE_FMA(t5, P[133], t4*P[109]))));
+    const double t24 = DERIVE_FMA(t9, P[566], DERIVE_FMA(t8, P[542], DERIVE_FMA(t6, P[158], DERIVE_FMA(t5, P[134], t4*P[110]))));
+    const double t25 = DERIVE_FMA(t9, P[567], DERIVE_FMA(t8, P[543], DERIVE_FMA(t6, P[159], DERIVE_FMA(t5, P[135], t4*P[111]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t26_0 = (((derive_vd){t4, t4, t4, t4}) * ((derive_vd){P[112], P[113], P[114], P[115]}));
+    const derive_vd v_t26_1 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[136], P[137], P[138], P[139]}), v_t26_0);
+    const derive_vd v_t26_2 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[160], P[161], P[162], P[163]}), v_t26_1);
+    const derive_vd v_t26_3 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[544], P[545], P[546], P[547]}), v_t26_2);
+    const derive_vd v_t26 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[568], P[569], P[570], P[571]}), v_t26_3);
+    const double t27 = v_t26[1];
+    const double t28 = v_t26[2];
+    const double t29 = v_t26[3];
+    #else
+    const double t26 = DERIVE_FMA(t9, P[568], DERIVE_FMA(t8, P[544], DERIVE_FMA(t6, P[160], DERIVE_FMA(t5, P[136], t4*P[112]))));
+    const double t27 = DERIVE_FMA(t9, P[569], DERIVE_FMA(t8, P[545], DERIVE_FMA(t6, P[161], DERIVE_FMA(t5, P[137], t4*P[113]))));
+    const double t28 = DERIVE_FMA(t9, P[570], DERIVE_FMA(t8, P[546], DERIVE_FMA(t6, P[162], DERIVE_FMA(t5, P[138], t4*P[114]))));
+    const double t29 = DERIVE_FMA(t9, P[571], DERIVE_FMA(t8, P[547], DERIVE_FMA(t6, P[163], DERIVE_FMA(t5, P[139], t4*P[115]))));
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t30_0 = (((derive_vd){t4, t4, t4, t4}) * ((derive_vd){P[116], P[117], P[118], P[119]}));
+    const derive_vd v_t30_1 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[140], P[141], P[142], P[143]}), v_t30_0);
+    const derive_vd v_t30_2 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[164], P[165], P[166], P[167]}), v_t30_1);
+    const derive_vd v_t30_3 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[548], P[549], P[550], P[551]}), v_t30_2);
+    const derive_vd v_t30 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[572], P[573], P[574], P[575]}), v_t30_3);
+    const double t31 = v_t30[1];
+    const double t32 = v_t30[2];
+    const double t33 = v_t30[3];
+    #else
+    const double t30 = DERIVE_FMA(t9, P[572], DERIVE_FMA(t8, P[548], DERIVE_FMA(t6, P[164], DERIVE_FMA(t5, P[140], t4*P[116]))));
+    const double t31 = DERIVE_FMA(t9, P[573], DERIVE_FMA(t8, P[549], DERIVE_FMA(t6, P[165], DERIVE_FMA(t5, P[141], t4*P[117]))));
+    const double t32 = DERIVE_FMA(t9, P[574], DERIVE_FMA(t8, P[550], DERIVE_FMA(t6, P[166], DERIVE_FMA(t5, P[142], t4*P[118]))));
+    const double t33 = DERIVE_FMA(t9, P[575], DERIVE_FMA(t8, P[551], DERIVE_FMA(t6, P[167], DERIVE_FMA(t5, P[143], t4*P[119]))));
+    #endif
+    const double t34 = DERIVE_FMA(t33, t9, DERIVE_FMA(t32, t8, DERIVE_FMA(t16, t6, DERIVE_FMA(t15, t5, DERIVE_FMA(t14, t4, 0.25)))));
     if (!(t34 > 0.0)) {
-        return 12; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+        return 12; /* S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive */
     }
-    const double t35 = 1.0/t34;
+    const double t35 = (-1.0)/t34;
     const double t36 = t35*t7;
-    const double t37 = t35*t8;
-    const double t38 = t35*t9;
-    const double t39 = t10*t35;
-    const double t40 = t12*t35;
-    const double t41 = t14*t35;
-    const double t42 = t15*t35;
-    const double t43 = t16*t35;
-    const double t44 = t17*t35;
-    const double t45 = t18*t35;
-    const double t46 = t19*t35;
-    const double t47 = t20*t35;
-    const double t48 = t21*t35;
-    const double t49 = t22*t35;
-    const double t50 = t23*t35;
-    const double t51 = t24*t35;
-    const double t52 = t25*t35;
-    const double t53 = t26*t35;
-    const double t54 = t27*t35;
-    const double t55 = t28*t35;
-    const double t56 = t29*t35;
-    const double t57 = t30*t35;
-    const double t58 = t31*t35;
-    const double t59 = t32*t35;
-    const double t60 = z[0] - t2;
-    const double t85 = DERIVE_FMA(t36, t60, x[0]);
-    const double t86 = DERIVE_FMA(t37, t60, x[1]);
-    const double t87 = DERIVE_FMA(t38, t60, x[2]);
-    const double t88 = DERIVE_FMA(t39, t60, x[3]);
-    const double t89 = DERIVE_FMA(t40, t60, x[4]);
-    const double t90 = DERIVE_FMA(t41, t60, x[5]);
-    const double t91 = DERIVE_FMA(t42, t60, x[6]);
-    const double t92 = DERIVE_FMA(t43, t60, x[7]);
-    const double t93 = DERIVE_FMA(t44, t60, x[8]);
-    const double t94 = DERIVE_FMA(t45, t60, x[9]);
-    const double t95 = DERIVE_FMA(t46, t60, x[10]);
-    const double t96 = DERIVE_FMA(t47, t60, x[11]);
-    const double t97 = DERIVE_FMA(t48, t60, x[12]);
-    const double t98 = DERIVE_FMA(t49, t60, x[13]);
-    const double t99 = DERIVE_FMA(t50, t60, x[14]);
-    const double t100 = DERIVE_FMA(t51, t60, x[15]);
-    const double t101 = DERIVE_FMA(t52, t60, x[16]);
-    const double t102 = DERIVE_FMA(t53, t60, x[17]);
-    const double t103 = DERIVE_FMA(t54, t60, x[18]);
-    const double t104 = DERIVE_FMA(t55, t60, x[19]);
-    const double t105 = DERIVE_FMA(t56, t60, x[20]);
-    const double t106 = DERIVE_FMA(t57, t60, x[21]);
-    const double t107 = DERIVE_FMA(t58, t60, x[22]);
-    const double t108 = DERIVE_FMA(t59, t60, x[23]);
-    const double t409 = DERIVE_FNMA(t36, t7, P[0]);
-    const double t410 = DERIVE_FNMA(t36, t8, P[1]);
-    const double t411 = DERIVE_FNMA(t36, t9, P[2]);
-    const double t412 = DERIVE_FNMA(t10, t36, P[3]);
-    const double t413 = DERIVE_FNMA(t12, t36, P[4]);
-    const double t414 = DERIVE_FNMA(t14, t36, P[5]);
-    const double t415 = DERIVE_FNMA(t15, t36, P[6]);
-    const double t416 = DERIVE_FNMA(t16, t36, P[7]);
-    const double t417 = DERIVE_FNMA(t17, t36, P[8]);
-    const double t418 = DERIVE_FNMA(t18, t36, P[9]);
-    const double t419 = DERIVE_FNMA(t19, t36, P[10]);
-    const double t420 = DERIVE_FNMA(t20, t36, P[11]);
-    const double t421 = DERIVE_FNMA(t21, t36, P[12]);
-    const double t422 = DERIVE_FNMA(t22, t36, P[13]);
-    const double t423 = DERIVE_FNMA(t23, t36, P[14]);
-    const double t424 = DERIVE_FNMA(t24, t36, P[15]);
-    const double t425 = DERIVE_FNMA(t25, t36, P[16]);
-    const double t426 = DERIVE_FNMA(t26, t36, P[17]);
-    const double t427 = DERIVE_FNMA(t27, t36, P[18]);
-    const double t428 = DERIVE_FNMA(t28, t36, P[19]);
-    const double t429 = DERIVE_FNMA(t29, t36, P[20]);
-    const double t430 = DERIVE_FNMA(t30, t36, P[21]);
-    const double t431 = DERIVE_FNMA(t31, t36, P[22]);
-    const double t432 = DERIVE_FNMA(t32, t36, P[23]);
-    const double t433 = DERIVE_FNMA(t37, t8, P[25]);
-    const double t434 = DERIVE_FNMA(t37, t9, P[26]);
-    const double t435 = DERIVE_FNMA(t10, t37, P[27]);
-    const double t436 = DERIVE_FNMA(t12, t37, P[28]);
-    const double t437 = DERIVE_FNMA(t14, t37, P[29]);
-    const double t438 = DERIVE_FNMA(t15, t37, P[30]);
-    const double t439 = DERIVE_FNMA(t16, t37, P[31]);
-    const double t440 = DERIVE_FNMA(t17, t37, P[32]);
-    const double t441 = DERIVE_FNMA(t18, t37, P[33]);
-    const double t442 = DERIVE_FNMA(t19, t37, P[34]);
-    const double t443 = DERIVE_FNMA(t20, t37, P[35]);
-    const double t444 = DERIVE_FNMA(t21, t37, P[36]);
-    const double t445 = DERIVE_FNMA(t22, t37, P[37]);
-    const double t446 = DERIVE_FNMA(t23, t37, P[38]);
-    const double t447 = DERIVE_FNMA(t24, t37, P[39]);
-    const double t448 = DERIVE_FNMA(t25, t37, P[40]);
-    const double t449 = DERIVE_FNMA(t26, t37, P[41]);
-    const double t450 = DERIVE_FNMA(t27, t37, P[42]);
-    const double t451 = DERIVE_FNMA(t28, t37, P[43]);
-    const double t452 = DERIVE_FNMA(t29, t37, P[44]);
-    const double t453 = DERIVE_FNMA(t30, t37, P[45]);
-    const double t454 = DERIVE_FNMA(t31, t37, P[46]);
-    const double t455 = DERIVE_FNMA(t32, t37, P[47]);
-    const double t456 = DERIVE_FNMA(t38, t9, P[50]);
-    const double t457 = DERIVE_FNMA(t10, t38, P[51]);
-    const double t458 = DERIVE_FNMA(t12, t38, P[52]);
-    const double t459 = DERIVE_FNMA(t14, t38, P[53]);
-    const double t460 = DERIVE_FNMA(t15, t38, P[54]);
-    const double t461 = DERIVE_FNMA(t16, t38, P[55]);
-    const double t462 = DERIVE_FNMA(t17, t38, P[56]);
-    const double t463 = DERIVE_FNMA(t18, t38, P[57]);
-    const double t464 = DERIVE_FNMA(t19, t38, P[58]);
-    const double t465 = DERIVE_FNMA(t20, t38, P[59]);
-    const double t466 = DERIVE_FNMA(t21, t38, P[60]);
-    const double t467 = DERIVE_FNMA(t22, t38, P[61]);
-    const double t468 = DERIVE_FNMA(t23, t38, P[62]);
-    const double t469 = DERIVE_FNMA(t24, t38, P[63]);
-    const double t470 = DERIVE_FNMA(t25, t38, P[64]);
-    const double t471 = DERIVE_FNMA(t26, t38, P[65]);
-    const double t472 = DERIVE_FNMA(t27, t38, P[66]);
-    const double t473 = DERIVE_FNMA(t28, t38, P[67]);
-    const double t474 = DERIVE_FNMA(t29, t38, P[68]);
-    const double t475 = DERIVE_FNMA(t30, t38, P[69]);
-    const double t476 = DERIVE_FNMA(t31, t38, P[70]);
-    const double t477 = DERIVE_FNMA(t32, t38, P[71]);
-    const double t478 = DERIVE_FNMA(t10, t39, P[75]);
-    const double t479 = DERIVE_FNMA(t12, t39, P[76]);
-    const double t480 = DERIVE_FNMA(t14, t39, P[77]);
-    const double t481 = DERIVE_FNMA(t15, t39, P[78]);
-    const double t482 = DERIVE_FNMA(t16, t39, P[79]);
-    const double t483 = DERIVE_FNMA(t17, t39, P[80]);
-    const double t484 = DERIVE_FNMA(t18, t39, P[81]);
-    const double t485 = DERIVE_FNMA(t19, t39, P[82]);
-    const double t486 = DERIVE_FNMA(t20, t39, P[83]);
-    const double t487 = DERIVE_FNMA(t21, t39, P[84]);
-    const double t488 = DERIVE_FNMA(t22, t39, P[85]);
-    const double t489 = DERIVE_FNMA(t23, t39, P[86]);
-    const double t490 = DERIVE_FNMA(t24, t39, P[87]);
-    const double t491 = DERIVE_FNMA(t25, t39, P[88]);
-    const double t492 = DERIVE_FNMA(t26, t39, P[89]);
-    const double t493 = DERIVE_FNMA(t27, t39, P[90]);
-    const double t494 = DERIVE_FNMA(t28, t39, P[91]);
-    const double t495 = DERIVE_FNMA(t29, t39, P[92]);
-    const double t496 = DERIVE_FNMA(t30, t39, P[93]);
-    const double t497 = DERIVE_FNMA(t31, t39, P[94]);
-    const double t498 = DERIVE_FNMA(t32, t39, P[95]);
-    const double t499 = DERIVE_FNMA(t12, t40, P[100]);
-    const double t500 = DERIVE_FNMA(t14, t40, P[101]);
-    const double t501 = DERIVE_FNMA(t15, t40, P[102]);
-    const double t502 = DERIVE_FNMA(t16, t40, P[103]);
-    const double t503 = DERIVE_FNMA(t17, t40, P[104]);
-    const double t504 = DERIVE_FNMA(t18, t40, P[105]);
-    const double t505 = DERIVE_FNMA(t19, t40, P[106]);
-    const double t506 = DERIVE_FNMA(t20, t40, P[107]);
-    const double t507 = DERIVE_FNMA(t21, t40, P[108]);
-    const double t508 = DERIVE_FNMA(t22, t40, P[109]);
-    const double t509 = DERIVE_FNMA(t23, t40, P[110]);
-    const double t510 = DERIVE_FNMA(t24, t40, P[111]);
-    const double t511 = DERIVE_FNMA(t25, t40, P[112]);
-    const double t512 = DERIVE_FNMA(t26, t40, P[113]);
-    const double t513 = DERIVE_FNMA(t27, t40, P[114]);
-    const double t514 = DERIVE_FNMA(t28, t40, P[115]);
-    const double t515 = DERIVE_FNMA(t29, t40, P[116]);
-    const double t516 = DERIVE_FNMA(t30, t40, P[117]);
-    const double t517 = DERIVE_FNMA(t31, t40, P[118]);
-    const double t518 = DERIVE_FNMA(t32, t40, P[119]);
-    const double t519 = DERIVE_FNMA(t14, t41, P[125]);
-    const double t520 = DERIVE_FNMA(t15, t41, P[126]);
-    const double t521 = DERIVE_FNMA(t16, t41, P[127]);
-    const double t522 = DERIVE_FNMA(t17, t41, P[128]);
-    const double t523 = DERIVE_FNMA(t18, t41, P[129]);
-    const double t524 = DERIVE_FNMA(t19, t41, P[130]);
-    const double t525 = DERIVE_FNMA(t20, t41, P[131]);
-    const double t526 = DERIVE_FNMA(t21, t41, P[132]);
-    const double t527 = DERIVE_FNMA(t22, t41, P[133]);
-    const double t528 = DERIVE_FNMA(t23, t41, P[134]);
-    const double t529 = DERIVE_FNMA(t24, t41, P[135]);
-    const double t530 = DERIVE_FNMA(t25, t41, P[136]);
-    const double t531 = DERIVE_FNMA(t26, t41, P[137]);
-    const double t532 = DERIVE_FNMA(t27, t41, P[138]);
-    const double t533 = DERIVE_FNMA(t28, t41, P[139]);
-    const double t534 = DERIVE_FNMA(t29, t41, P[140]);
-    const double t535 = DERIVE_FNMA(t30, t41, P[141]);
-    const double t536 = DERIVE_FNMA(t31, t41, P[142]);
-    const double t537 = DERIVE_FNMA(t32, t41, P[143]);
-    const double t538 = DERIVE_FNMA(t15, t42, P[150]);
-    const double t539 = DERIVE_FNMA(t16, t42, P[151]);
-    const double t540 = DERIVE_FNMA(t17, t42, P[152]);
-    const double t541 = DERIVE_FNMA(t18, t42, P[153]);
-    const double t542 = DERIVE_FNMA(t19, t42, P[154]);
-    const double t543 = DERIVE_FNMA(t20, t42, P[155]);
-    const double t544 = DERIVE_FNMA(t21, t42, P[156]);
-    const double t545 = DERIVE_FNMA(t22, t42, P[157]);
-    const double t546 = DERIVE_FNMA(t23, t42, P[158]);
-    const double t547 = DERIVE_FNMA(t24, t42, P[159]);
-    const double t548 = DERIVE_FNMA(t25, t42, P[160]);
-    const double t549 = DERIVE_FNMA(t26, t42, P[161]);
-    const double t550 = DERIVE_FNMA(t27, t42, P[162]);
-    const double t551 = DERIVE_FNMA(t28, t42, P[163]);
-    const double t552 = DERIVE_FNMA(t29, t42, P[164]);
-    const double t553 = DERIVE_FNMA(t30, t42, P[165]);
-    const double t554 = DERIVE_FNMA(t31, t42, P[166]);
-    const double t555 = DERIVE_FNMA(t32, t42, P[167]);
-    const double t556 = DERIVE_FNMA(t16, t43, P[175]);
-    const double t557 = DERIVE_FNMA(t17, t43, P[176]);
-    const double t558 = DERIVE_FNMA(t18, t43, P[177]);
-    const double t559 = DERIVE_FNMA(t19, t43, P[178]);
-    const double t560 = DERIVE_FNMA(t20, t43, P[179]);
-    const double t561 = DERIVE_FNMA(t21, t43, P[180]);
-    const double t562 = DERIVE_FNMA(t22, t43, P[181]);
-    const double t563 = DERIVE_FNMA(t23, t43, P[182]);
-    const double t564 = DERIVE_FNMA(t24, t43, P[183]);
-    const double t565 = DERIVE_FNMA(t25, t43, P[184]);
-    const double t566 = DERIVE_FNMA(t26, t43, P[185]);
-    const double t567 = DERIVE_FNMA(t27, t43, P[186]);
-    const double t568 = DERIVE_FNMA(t28, t43, P[187]);
-    const double t569 = DERIVE_FNMA(t29, t43, P[188]);
-    const double t570 = DERIVE_FNMA(t30, t43, P[189]);
-    const double t571 = DERIVE_FNMA(t31, t43, P[190]);
-    const double t572 = DERIVE_FNMA(t32, t43, P[191]);
-    const double t573 = DERIVE_FNMA(t17, t44, P[200]);
-    const double t574 = DERIVE_FNMA(t18, t44, P[201]);
-    const double t575 = DERIVE_FNMA(t19, t44, P[202]);
-    const double t576 = DERIVE_FNMA(t20, t44, P[203]);
-    const double t577 = DERIVE_FNMA(t21, t44, P[204]);
-    const double t578 = DERIVE_FNMA(t22, t44, P[205]);
-    const double t579 = DERIVE_FNMA(t23, t44, P[206]);
-    const double t580 = DERIVE_FNMA(t24, t44, P[207]);
-    const double t581 = DERIVE_FNMA(t25, t44, P[208]);
-    const double t582 = DERIVE_FNMA(t26, t44, P[209]);
-    const double t583 = DERIVE_FNMA(t27, t44, P[210]);
-    const double t584 = DERIVE_FNMA(t28, t44, P[211]);
-    const double t585 = DERIVE_FNMA(t29, t44, P[212]);
-    const double t586 = DERIVE_FNMA(t30, t44, P[213]);
-    const double t587 = DERIVE_FNMA(t31, t44, P[214]);
-    const double t588 = DERIVE_FNMA(t32, t44, P[215]);
-    const double t589 = DERIVE_FNMA(t18, t45, P[225]);
-    const double t590 = DERIVE_FNMA(t19, t45, P[226]);
-    const double t591 = DERIVE_FNMA(t20, t45, P[227]);
-    const double t592 = DERIVE_FNMA(t21, t45, P[228]);
-    const double t593 = DERIVE_FNMA(t22, t45, P[229]);
-    const double t594 = DERIVE_FNMA(t23, t45, P[230]);
-    const double t595 = DERIVE_FNMA(t24, t45, P[231]);
-    const double t596 = DERIVE_FNMA(t25, t45, P[232]);
-    const double t597 = DERIVE_FNMA(t26, t45, P[233]);
-    const double t598 = DERIVE_FNMA(t27, t45, P[234]);
-    const double t599 = DERIVE_FNMA(t28, t45, P[235]);
-    const double t600 = DERIVE_FNMA(t29, t45, P[236]);
-    const double t601 = DERIVE_FNMA(t30, t45, P[237]);
-    const double t602 = DERIVE_FNMA(t31, t45, P[238]);
-    const double t603 = DERIVE_FNMA(t32, t45, P[239]);
-    const double t604 = DERIVE_FNMA(t19, t46, P[250]);
-    const double t605 = DERIVE_FNMA(t20, t46, P[251]);
-    const double t606 = DERIVE_FNMA(t21, t46, P[252]);
-    const double t607 = DERIVE_FNMA(t22, t46, P[253]);
-    const double t608 = DERIVE_FNMA(t23, t46, P[254]);
-    const double t609 = DERIVE_FNMA(t24, t46, P[255]);
-    const double t610 = DERIVE_FNMA(t25, t46, P[256]);
-    const double t611 = DERIVE_FNMA(t26, t46, P[257]);
-    const double t612 = DERIVE_FNMA(t27, t46, P[258]);
-    const double t613 = DERIVE_FNMA(t28, t46, P[259]);
-    const double t614 = DERIVE_FNMA(t29, t46, P[260]);
-    const double t615 = DERIVE_FNMA(t30, t46, P[261]);
-    const double t616 = DERIVE_FNMA(t31, t46, P[262]);
-    const double t617 = DERIVE_FNMA(t32, t46, P[263]);
-    const double t618 = DERIVE_FNMA(t20, t47, P[275]);
-    const double t619 = DERIVE_FNMA(t21, t47, P[276]);
-    const double t620 = DERIVE_FNMA(t22, t47, P[277]);
-    const double t621 = DERIVE_FNMA(t23, t47, P[278]);
-    const double t622 = DERIVE_FNMA(t24, t47, P[279]);
-    const double t623 = DERIVE_FNMA(t25, t47, P[280]);
-    const double t624 = DERIVE_FNMA(t26, t47, P[281]);
-    const double t625 = DERIVE_FNMA(t27, t47, P[282]);
-    const double t626 = DERIVE_FNMA(t28, t47, P[283]);
-    const double t627 = DERIVE_FNMA(t29, t47, P[284]);
-    const double t628 = DERIVE_FNMA(t30, t47, P[285]);
-    const double t629 = DERIVE_FNMA(t31, t47, P[286]);
-    const double t630 = DERIVE_FNMA(t32, t47, P[287]);
-    const double t631 = DERIVE_FNMA(t21, t48, P[300]);
-    const double t632 = DERIVE_FNMA(t22, t48, P[301]);
-    const double t633 = DERIVE_FNMA(t23, t48, P[302]);
-    const double t634 = DERIVE_FNMA(t24, t48, P[303]);
-    const double t635 = DERIVE_FNMA(t25, t48, P[304]);
-    const double t636 = DERIVE_FNMA(t26, t48, P[305]);
-    const double t637 = DERIVE_FNMA(t27, t48, P[306]);
-    const double t638 = DERIVE_FNMA(t28, t48, P[307]);
-    const double t639 = DERIVE_FNMA(t29, t48, P[308]);
-    const double t640 = DERIVE_FNMA(t30, t48, P[309]);
-    const double t641 = DERIVE_FNMA(t31, t48, P[310]);
-    const double t642 = DERIVE_FNMA(t32, t48, P[311]);
-    const double t643 = DERIVE_FNMA(t22, t49, P[325]);
-    const double t644 = DERIVE_FNMA(t23, t49, P[326]);
-    const double t645 = DERIVE_FNMA(t24, t49, P[327]);
-    const double t646 = DERIVE_FNMA(t25, t49, P[328]);
-    const double t647 = DERIVE_FNMA(t26, t49, P[329]);
-    const double t648 = DERIVE_FNMA(t27, t49, P[330]);
-    const double t649 = DERIVE_FNMA(t28, t49, P[331]);
-    const double t650 = DERIVE_FNMA(t29, t49, P[332]);
-    const double t651 = DERIVE_FNMA(t30, t49, P[333]);
-    const double t652 = DERIVE_FNMA(t31, t49, P[334]);
-    const double t653 = DERIVE_FNMA(t32, t49, P[335]);
-    const double t654 = DERIVE_FNMA(t23, t50, P[350]);
-    const double t655 = DERIVE_FNMA(t24, t50, P[351]);
-    const double t656 = DERIVE_FNMA(t25, t50, P[352]);
-    const double t657 = DERIVE_FNMA(t26, t50, P[353]);
-    const double t658 = DERIVE_FNMA(t27, t50, P[354]);
-    const double t659 = DERIVE_FNMA(t28, t50, P[355]);
-    const double t660 = DERIVE_FNMA(t29, t50, P[356]);
-    const double t661 = DERIVE_FNMA(t30, t50, P[357]);
-    const double t662 = DERIVE_FNMA(t31, t50, P[358]);
-    const double t663 = DERIVE_FNMA(t32, t50, P[359]);
-    const double t664 = DERIVE_FNMA(t24, t51, P[375]);
-    const double t665 = DERIVE_FNMA(t25, t51, P[376]);
-    const double t666 = DERIVE_FNMA(t26, t51, P[377]);
-    const double t667 = DERIVE_FNMA(t27, t51, P[378]);
-    const double t668 = DERIVE_FNMA(t28, t51, P[379]);
-    const double t669 = DERIVE_FNMA(t29, t51, P[380]);
-    const double t670 = DERIVE_FNMA(t30, t51, P[381]);
-    const double t671 = DERIVE_FNMA(t31, t51, P[382]);
-    const double t672 = DERIVE_FNMA(t32, t51, P[383]);
-    const double t673 = DERIVE_FNMA(t25, t52, P[400]);
-    const double t674 = DERIVE_FNMA(t26, t52, P[401]);
-    const double t675 = DERIVE_FNMA(t27, t52, P[402]);
-    const double t676 = DERIVE_FNMA(t28, t52, P[403]);
-    const double t677 = DERIVE_FNMA(t29, t52, P[404]);
-    const double t678 = DERIVE_FNMA(t30, t52, P[405]);
-    const double t679 = DERIVE_FNMA(t31, t52, P[406]);
-    const double t680 = DERIVE_FNMA(t32, t52, P[407]);
-    const double t681 = DERIVE_FNMA(t26, t53, P[425]);
-    const double t682 = DERIVE_FNMA(t27, t53, P[426]);
-    const double t683 = DERIVE_FNMA(t28, t53, P[427]);
-    const double t684 = DERIVE_FNMA(t29, t53, P[428]);
-    const double t685 = DERIVE_FNMA(t30, t53, P[429]);
-    const double t686 = DERIVE_FNMA(t31, t53, P[430]);
-    const double t687 = DERIVE_FNMA(t32, t53, P[431]);
-    const double t688 = DERIVE_FNMA(t27, t54, P[450]);
-    const double t689 = DERIVE_FNMA(t28, t54, P[451]);
-    const double t690 = DERIVE_FNMA(t29, t54, P[452]);
-    const double t691 = DERIVE_FNMA(t30, t54, P[453]);
-    const double t692 = DERIVE_FNMA(t31, t54, P[454]);
-    const double t693 = DERIVE_FNMA(t32, t54, P[455]);
-    const double t694 = DERIVE_FNMA(t28, t55, P[475]);
-    const double t695 = DERIVE_FNMA(t29, t55, P[476]);
-    const double t696 = DERIVE_FNMA(t30, t55, P[477]);
-    const double t697 = DERIVE_FNMA(t31, t55, P[478]);
-    const double t698 = DERIVE_FNMA(t32, t55, P[479]);
-    const double t699 = DERIVE_FNMA(t29, t56, P[500]);
-    const double t700 = DERIVE_FNMA(t30, t56, P[501]);
-    const double t701 = DERIVE_FNMA(t31, t56, P[502]);
-    const double t702 = DERIVE_FNMA(t32, t56, P[503]);
-    const double t703 = DERIVE_FNMA(t30, t57, P[525]);
-    const double t704 = DERIVE_FNMA(t31, t57, P[526]);
-    const double t705 = DERIVE_FNMA(t32, t57, P[527]);
-    const double t706 = DERIVE_FNMA(t31, t58, P[550]);
-    const double t707 = DERIVE_FNMA(t32, t58, P[551]);
-    const double t708 = DERIVE_FNMA(t32, t59, P[575]);
-    const double t709 = DERIVE_FMA(t88, t88, DERIVE_FMA(t87, t87, DERIVE_FMA(t86, t86, t85*t85)));
-    const double t710 = 1.0/sqrt(t709);
-    const double t711 = t710*t85;
-    const double t712 = t710*t86;
-    const double t713 = t710*t87;
-    const double t714 = t710*t88;
-    x_new[0] = t711;
-    x_new[1] = t712;
-    x_new[2] = t713;
-    x_new[3] = t714;
-    x_new[4] = t89;
-    x_new[5] = t90;
-    x_new[6] = t91;
-    x_new[7] = t92;
-    x_new[8] = t93;
-    x_new[9] = t94;
-    x_new[10] = t95;
-    x_new[11] = t96;
-    x_new[12] = t97;
-    x_new[13] = t98;
-    x_new[14] = t99;
-    x_new[15] = t100;
-    x_new[16] = t101;
-    x_new[17] = t102;
-    x_new[18] = t103;
-    x_new[19] = t104;
-    x_new[20] = t105;
-    x_new[21] = t106;
-    x_new[22] = t107;
-    x_new[23] = t108;
-    P_new[0] = t409;
-    P_new[1] = t410;
-    P_new[2] = t411;
-    P_new[3] = t412;
-    P_new[4] = t413;
-    P_new[5] = t414;
-    P_new[6] = t415;
-    P_new[7] = t416;
-    P_new[8] = t417;
-    P_new[9] = t418;
-    P_new[10] = t419;
-    P_new[11] = t420;
-    P_new[12] = t421;
-    P_new[13] = t422;
-    P_new[14] = t423;
-    P_new[15] = t424;
-    P_new[16] = t425;
-    P_new[17] = t426;
-    P_new[18] = t427;
-    P_new[19] = t428;
-    P_new[20] = t429;
-    P_new[21] = t430;
-    P_new[22] = t431;
-    P_new[23] = t432;
-    P_new[24] = t410;
-    P_new[25] = t433;
-    P_new[26] = t434;
-    P_new[27] = t435;
-    P_new[28] = t436;
-    P_new[29] = t437;
-    P_new[30] = t438;
-    P_new[31] = t439;
-    P_new[32] = t440;
-    P_new[33] = t441;
-    P_new[34] = t442;
-    P_new[35] = t443;
-    P_new[36] = t444;
-    P_new[37] = t445;
-    P_new[38] = t446;
-    P_new[39] = t447;
-    P_new[40] = t448;
-    P_new[41] = t449;
-    P_new[42] = t450;
-    P_new[43] = t451;
-    P_new[44] = t452;
-    P_new[45] = t453;
-    P_new[46] = t454;
-    P_new[47] = t455;
-    P_new[48] = t411;
-    P_new[49] = t434;
-    P_new[50] = t456;
-    P_new[51] = t457;
-    P_new[52] = t458;
-    P_new[53] = t459;
-    P_new[54] = t460;
-    P_new[55] = t461;
-    P_new[56] = t462;
-    P_new[57] = t463;
-    P_new[58] = t464;
-    P_new[59] = t465;
-    P_new[60] = t466;
-    P_new[61] = t467;
-    P_new[62] = t468;
-    P_new[63] = t469;
-    P_new[64] = t470;
-    P_new[65] = t471;
-    P_new[66] = t472;
-    P_new[67] = t473;
-    P_new[68] = t474;
-    P_new[69] = t475;
-    P_new[70] = t476;
-    P_new[71] = t477;
-    P_new[72] = t412;
-    P_new[73] = t435;
-    P_new[74] = t457;
-    P_new[75] = t478;
-    P_new[76] = t479;
-    P_new[77] = t480;
-    P_new[78] = t481;
-    P_new[79] = t482;
-    P_new[80] = t483;
-    P_new[81] = t484;
-    P_new[82] = t485;
-    P_new[83] = t486;
-    P_new[84] = t487;
-    P_new[85] = t488;
-    P_new[86] = t489;
-    P_new[87] = t490;
-    P_new[88] = t491;
-    P_new[89] = t492;
-    P_new[90] = t493;
-    P_new[91] = t494;
-    P_new[92] = t495;
-    P_new[93] = t496;
-    P_new[94] = t497;
-    P_new[95] = t498;
-    P_new[96] = t413;
-    P_new[97] = t436;
-    P_new[98] = t458;
-    P_new[99] = t479;
-    P_new[100] = t499;
-    P_new[101] = t500;
-    P_new[102] = t501;
-    P_new[103] = t502;
-    P_new[104] = t503;
-    P_new[105] = t504;
-    P_new[106] = t505;
-    P_new[107] = t506;
-    P_new[108] = t507;
-    P_new[109] = t508;
-    P_new[110] = t509;
-    P_new[111] = t510;
-    P_new[112] = t511;
-    P_new[113] = t512;
-    P_new[114] = t513;
-    P_new[115] = t514;
-    P_new[116] = t515;
-    P_new[117] = t516;
-    P_new[118] = t517;
-    P_new[119] = t518;
-    P_new[120] = t414;
-    P_new[121] = t437;
-    P_new[122] = t459;
-    P_new[123] = t480;
-    P_new[124] = t500;
-    P_new[125] = t519;
-    P_new[126] = t520;
-    P_new[127] = t521;
-    P_new[128] = t522;
-    P_new[129] = t523;
-    P_new[130] = t524;
-    P_new[131] = t525;
-    P_new[132] = t526;
-    P_new[133] = t527;
-    P_new[134] = t528;
-    P_new[135] = t529;
-    P_new[136] = t530;
-    P_new[137] = t531;
-    P_new[138] = t532;
-    P_new[139] = t533;
-    P_new[140] = t534;
-    P_new[141] = t535;
-    P_new[142] = t536;
-    P_new[143] = t537;
-    P_new[144] = t415;
-    P_new[145] = t438;
-    P_new[146] = t460;
-    P_new[147] = t481;
-    P_new[148] = t501;
-    P_new[149] = t520;
-    P_new[150] = t538;
-    P_new[151] = t539;
-    P_new[152] = t540;
-    P_new[153] = t541;
-    P_new[154] = t542;
-    P_new[155] = t543;
-    P_new[156] = t544;
-    P_new[157] = t545;
-    P_new[158] = t546;
-    P_new[159] = t547;
-    P_new[160] = t548;
-    P_new[161] = t549;
-    P_new[162] = t550;
-    P_new[163] = t551;
-    P_new[164] = t552;
-    P_new[165] = t553;
-    P_new[166] = t554;
-    P_new[167] = t555;
-    P_new[168] = t416;
-    P_new[169] = t439;
-    P_new[170] = t461;
-    P_new[171] = t482;
-    P_new[172] = t502;
-    P_new[173] = t521;
-    P_new[174] = t539;
-    P_new[175] = t556;
-    P_new[176] = t557;
-    P_new[177] = t558;
-    P_new[178] = t559;
-    P_new[179] = t560;
-    P_new[180] = t561;
-    P_new[181] = t562;
-    P_new[182] = t563;
-    P_new[183] = t564;
-    P_new[184] = t565;
-    P_new[185] = t566;
-    P_new[186] = t567;
-    P_new[187] = t568;
-    P_new[188] = t569;
-    P_new[189] = t570;
-    P_new[190] = t571;
-    P_new[191] = t572;
-    P_new[192] = t417;
-    P_new[193] = t440;
-    P_new[194] = t462;
-    P_new[195] = t483;
-    P_new[196] = t503;
-    P_new[197] = t522;
-    P_new[198] = t540;
-    P_new[199] = t557;
-    P_new[200] = t573;
-    P_new[201] = t574;
-    P_new[202] = t575;
-    P_new[203] = t576;
-    P_new[204] = t577;
-    P_new[205] = t578;
-    P_new[206] = t579;
-    P_new[207] = t580;
-    P_new[208] = t581;
-    P_new[209] = t582;
-    P_new[210] = t583;
-    P_new[211] = t584;
-    P_new[212] = t585;
-    P_new[213] = t586;
-    P_new[214] = t587;
-    P_new[215] = t588;
-    P_new[216] = t418;
-    P_new[217] = t441;
-    P_new[218] = t463;
-    P_new[219] = t484;
-    P_new[220] = t504;
-    P_new[221] = t523;
-    P_new[222] = t541;
-    P_new[223] = t558;
-    P_new[224] = t574;
-    P_new[225] = t589;
-    P_new[226] = t590;
-    P_new[227] = t591;
-    P_new[228] = t592;
-    P_new[229] = t593;
-    P_new[230] = t594;
-    P_new[231] = t595;
-    P_new[232] = t596;
-    P_new[233] = t597;
-    P_new[234] = t598;
-    P_new[235] = t599;
-    P_new[236] = t600;
-    P_new[237] = t601;
-    P_new[238] = t602;
-    P_new[239] = t603;
-    P_new[240] = t419;
-    P_new[241] = t442;
-    P_new[242] = t464;
-    P_new[243] = t485;
-    P_new[244] = t505;
-    P_new[245] = t524;
-    P_new[246] = t542;
-    P_new[247] = t559;
-    P_new[248] = t575;
-    P_new[249] = t590;
-    P_new[250] = t604;
-    P_new[251] = t605;
-    P_new[252] = t606;
-    P_new[253] = t607;
-    P_new[254] = t608;
-    P_new[255] = t609;
-    P_new[256] = t610;
-    P_new[257] = t611;
-    P_new[258] = t612;
-    P_new[259] = t613;
-    P_new[260] = t614;
-    P_new[261] = t615;
-    P_new[262] = t616;
-    P_new[263] = t617;
-    P_new[264] = t420;
-    P_new[265] = t443;
-    P_new[266] = t465;
-    P_new[267] = t486;
-    P_new[268] = t506;
-    P_new[269] = t525;
-    P_new[270] = t543;
-    P_new[271] = t560;
-    P_new[272] = t576;
-    P_new[273] = t591;
-    P_new[274] = t605;
-    P_new[275] = t618;
-    P_new[276] = t619;
-    P_new[277] = t620;
-    P_new[278] = t621;
-    P_new[279] = t622;
-    P_new[280] = t623;
-    P_new[281] = t624;
-    P_new[282] = t625;
-    P_new[283] = t626;
-    P_new[284] = t627;
-    P_new[285] = t628;
-    P_new[286] = t629;
-    P_new[287] = t630;
-    P_new[288] = t421;
-    P_new[289] = t444;
-    P_new[290] = t466;
-    P_new[291] = t487;
-    P_new[292] = t507;
-    P_new[293] = t526;
-    P_new[294] = t544;
-    P_new[295] = t561;
-    P_new[296] = t577;
-    P_new[297] = t592;
-    P_new[298] = t606;
-    P_new[299] = t619;
-    P_new[300] = t631;
-    P_new[301] = t632;
-    P_new[302] = t633;
-    P_new[303] = t634;
-    P_new[304] = t635;
-    P_new[305] = t636;
-    P_new[306] = t637;
-    P_new[307] = t638;
-    P_new[308] = t639;
-    P_new[309] = t640;
-    P_new[310] = t641;
-    P_new[311] = t642;
-    P_new[312] = t422;
-    P_new[313] = t445;
-    P_new[314] = t467;
-    P_new[315] = t488;
-    P_new[316] = t508;
-    P_new[317] = t527;
-    P_new[318] = t545;
-    P_new[319] = t562;
-    P_new[320] = t578;
-    P_new[321] = t593;
-    P_new[322] = t607;
-    P_new[323] = t620;
-    P_new[324] = t632;
-    P_new[325] = t643;
-    P_new[326] = t644;
-    P_new[327] = t645;
-    P_new[328] = t646;
-    P_new[329] = t647;
-    P_new[330] = t648;
-    P_new[331] = t649;
-    P_new[332] = t650;
-    P_new[333] = t651;
-    P_new[334] = t652;
-    P_new[335] = t653;
-    P_new[336] = t423;
-    P_new[337] = t446;
-    P_new[338] = t468;
-    P_new[339] = t489;
-    P_new[340] = t509;
-    P_new[341] = t528;
-    P_new[342] = t546;
-    P_new[343] = t563;
-    P_new[344] = t579;
-    P_new[345] = t594;
-    P_new[346] = t608;
-    P_new[347] = t621;
-    P_new[348] = t633;
-    P_new[349] = t644;
-    P_new[350] = t654;
-    P_new[351] = t655;
-    P_new[352] = t656;
-    P_new[353] = t657;
-    P_new[354] = t658;
-    P_new[355] = t659;
-    P_new[356] = t660;
-    P_new[357] = t661;
-    P_new[358] = t662;
-    P_new[359] = t663;
-    P_new[360] = t424;
-    P_new[361] = t447;
-    P_new[362] = t469;
-    P_new[363] = t490;
-    P_new[364] = t510;
-    P_new[365] = t529;
-    P_new[366] = t547;
-    P_new[367] = t564;
-    P_new[368] = t580;
-    P_new[369] = t595;
-    P_new[370] = t609;
-    P_new[371] = t622;
-    P_new[372] = t634;
-    P_new[373] = t645;
-    P_new[374] = t655;
-    P_new[375] = t664;
-    P_new[376] = t665;
-    P_new[377] = t666;
-    P_new[378] = t667;
-    P_new[379] = t668;
-    P_new[380] = t669;
-    P_new[381] = t670;
-    P_new[382] = t671;
-    P_new[383] = t672;
-    P_new[384] = t425;
-    P_new[385] = t448;
-    P_new[386] = t470;
-    P_new[387] = t491;
-    P_new[388] = t511;
-    P_new[389] = t530;
-    P_new[390] = t548;
-    P_new[391] = t565;
-    P_new[392] = t581;
-    P_new[393] = t596;
-    P_new[394] = t610;
-    P_new[395] = t623;
-    P_new[396] = t635;
-    P_new[397] = t646;
-    P_new[398] = t656;
-    P_new[399] = t665;
-    P_new[400] = t673;
-    P_new[401] = t674;
-    P_new[402] = t675;
-    P_new[403] = t676;
-    P_new[404] = t677;
-    P_new[405] = t678;
-    P_new[406] = t679;
-    P_new[407] = t680;
-    P_new[408] = t426;
-    P_new[409] = t449;
-    P_new[410] = t471;
-    P_new[411] = t492;
-    P_new[412] = t512;
-    P_new[413] = t531;
-    P_new[414] = t549;
-    P_new[415] = t566;
-    P_new[416] = t582;
-    P_new[417] = t597;
-    P_new[418] = t611;
-    P_new[419] = t624;
-    P_new[420] = t636;
-    P_new[421] = t647;
-    P_new[422] = t657;
-    P_new[423] = t666;
-    P_new[424] = t674;
-    P_new[425] = t681;
-    P_new[426] = t682;
-    P_new[427] = t683;
-    P_new[428] = t684;
-    P_new[429] = t685;
-    P_new[430] = t686;
-    P_new[431] = t687;
-    P_new[432] = t427;
-    P_new[433] = t450;
-    P_new[434] = t472;
-    P_new[435] = t493;
-    P_new[436] = t513;
-    P_new[437] = t532;
-    P_new[438] = t550;
-    P_new[439] = t567;
-    P_new[440] = t583;
-    P_new[441] = t598;
-    P_new[442] = t612;
-    P_new[443] = t625;
-    P_new[444] = t637;
-    P_new[445] = t648;
-    P_new[446] = t658;
-    P_new[447] = t667;
-    P_new[448] = t675;
-    P_new[449] = t682;
-    P_new[450] = t688;
-    P_new[451] = t689;
-    P_new[452] = t690;
-    P_new[453] = t691;
-    P_new[454] = t692;
-    P_new[455] = t693;
-    P_new[456] = t428;
-    P_new[457] = t451;
-    P_new[458] = t473;
-    P_new[459] = t494;
-    P_new[460] = t514;
-    P_new[461] = t533;
-    P_new[462] = t551;
-    P_new[463] = t568;
-    P_new[464] = t584;
-    P_new[465] = t599;
-    P_new[466] = t613;
-    P_new[467] = t626;
-    P_new[468] = t638;
-    P_new[469] = t649;
-    P_new[470] = t659;
-    P_new[471] = t668;
-    P_new[472] = t676;
-    P_new[473] = t683;
-    P_new[474] = t689;
-    P_new[475] = t694;
-    P_new[476] = t695;
-    P_new[477] = t696;
-    P_new[478] = t697;
-    P_new[479] = t698;
-    P_new[480] = t429;
-    P_new[481] = t452;
-    P_new[482] = t474;
-    P_new[483] = t495;
-    P_new[484] = t515;
-    P_new[485] = t534;
-    P_new[486] = t552;
-    P_new[487] = t569;
-    P_new[488] = t585;
-    P_new[489] = t600;
-    P_new[490] = t614;
-    P_new[491] = t627;
-    P_new[492] = t639;
-    P_new[493] = t650;
-    P_new[494] = t660;
-    P_new[495] = t669;
-    P_new[496] = t677;
-    P_new[497] = t684;
-    P_new[498] = t690;
-    P_new[499] = t695;
-    P_new[500] = t699;
-    P_new[501] = t700;
-    P_new[502] = t701;
-    P_new[503] = t702;
-    P_new[504] = t430;
-    P_new[505] = t453;
-    P_new[506] = t475;
-    P_new[507] = t496;
-    P_new[508] = t516;
-    P_new[509] = t535;
-    P_new[510] = t553;
-    P_new[511] = t570;
-    P_new[512] = t586;
-    P_new[513] = t601;
-    P_new[514] = t615;
-    P_new[515] = t628;
-    P_new[516] = t640;
-    P_new[517] = t651;
-    P_new[518] = t661;
-    P_new[519] = t670;
-    P_new[520] = t678;
-    P_new[521] = t685;
-    P_new[522] = t691;
-    P_new[523] = t696;
-    P_new[524] = t700;
-    P_new[525] = t703;
-    P_new[526] = t704;
-    P_new[527] = t705;
-    P_new[528] = t431;
-    P_new[529] = t454;
-    P_new[530] = t476;
-    P_new[531] = t497;
-    P_new[532] = t517;
-    P_new[533] = t536;
-    P_new[534] = t554;
-    P_new[535] = t571;
-    P_new[536] = t587;
-    P_new[537] = t602;
-    P_new[538] = t616;
-    P_new[539] = t629;
-    P_new[540] = t641;
-    P_new[541] = t652;
-    P_new[542] = t662;
-    P_new[543] = t671;
-    P_new[544] = t679;
-    P_new[545] = t686;
-    P_new[546] = t692;
-    P_new[547] = t697;
-    P_new[548] = t701;
-    P_new[549] = t704;
-    P_new[550] = t706;
-    P_new[551] = t707;
-    P_new[552] = t432;
-    P_new[553] = t455;
-    P_new[554] = t477;
-    P_new[555] = t498;
-    P_new[556] = t518;
-    P_new[557] = t537;
-    P_new[558] = t555;
-    P_new[559] = t572;
-    P_new[560] = t588;
-    P_new[561] = t603;
-    P_new[562] = t617;
-    P_new[563] = t630;
-    P_new[564] = t642;
-    P_new[565] = t653;
-    P_new[566] = t663;
-    P_new[567] = t672;
-    P_new[568] = t680;
-    P_new[569] = t687;
-    P_new[570] = t693;
-    P_new[571] = t698;
-    P_new[572] = t702;
-    P_new[573] = t705;
-    P_new[574] = t707;
-    P_new[575] = t708;
+    #if DERIVE_VECTOR
+    const derive_vd v_t37 = (((derive_vd){t35, t35, t35, t35}) * v_t10);
+    const double t37 = v_t37[0];
+    const double t38 = v_t37[1];
+    const double t39 = v_t37[2];
+    const double t40 = v_t37[3];
+    #else
+    const double t37 = t35*t10;
+    const double t38 = t35*t11;
+    const double t39 = t35*t12;
+    const double t40 = t35*t13;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t41 = (((derive_vd){t35, t35, t35, t35}) * v_t14);
+    const double t41 = v_t41[0];
+    const double t42 = v_t41[1];
+    const double t43 = v_t41[2];
+    const double t44 = v_t41[3];
+    #else
+    const double t41 = t35*t14;
+    const double t42 = t35*t15;
+    const double t43 = t35*t16;
+    const double t44 = t35*t17;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t45 = (((derive_vd){t35, t35, t35, t35}) * v_t18);
+    const double t45 = v_t45[0];
+    const double t46 = v_t45[1];
+    const double t47 = v_t45[2];
+    const double t48 = v_t45[3];
+    #else
+    const double t45 = t35*t18;
+    const double t46 = t35*t19;
+    const double t47 = t35*t20;
+    const double t48 = t35*t21;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t49 = (((derive_vd){t35, t35, t35, t35}) * v_t22);
+    const double t49 = v_t49[0];
+    const double t50 = v_t49[1];
+    const double t51 = v_t49[2];
+    const double t52 = v_t49[3];
+    #else
+    const double t49 = t35*t22;
+    const double t50 = t35*t23;
+    const double t51 = t35*t24;
+    const double t52 = t35*t25;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t53 = (((derive_vd){t35, t35, t35, t35}) * v_t26);
+    const double t53 = v_t53[0];
+    const double t54 = v_t53[1];
+    const double t55 = v_t53[2];
+    const double t56 = v_t53[3];
+    #else
+    const double t53 = t35*t26;
+    const double t54 = t35*t27;
+    const double t55 = t35*t28;
+    const double t56 = t35*t29;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t57 = (((derive_vd){t35, t35, t35, t35}) * v_t30);
+    const double t57 = v_t57[0];
+    const double t58 = v_t57[1];
+    const double t59 = v_t57[2];
+    const double t60 = v_t57[3];
+    #else
+    const double t57 = t35*t30;
+    const double t58 = t35*t31;
+    const double t59 = t35*t32;
+    const double t60 = t35*t33;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t61 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t10, ((derive_vd){x[0], x[1], x[2], x[3]}));
+    const double t61 = v_t61[0];
+    const double t62 = v_t61[1];
+    const double t63 = v_t61[2];
+    const double t64 = v_t61[3];
+    #else
+    const double t61 = DERIVE_FNMA(t36, t10, x[0]);
+    const double t62 = DERIVE_FNMA(t36, t11, x[1]);
+    const double t63 = DERIVE_FNMA(t36, t12, x[2]);
+    const double t64 = DERIVE_FNMA(t36, t13, x[3]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t65 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t14, ((derive_vd){x[4], x[5], x[6], x[7]}));
+    *(derive_vd_unaligned *)&x_new[4] = v_t65;
+    #else
+    const double t65 = DERIVE_FNMA(t36, t14, x[4]);
+    const double t66 = DERIVE_FNMA(t36, t15, x[5]);
+    const double t67 = DERIVE_FNMA(t36, t16, x[6]);
+    const double t68 = DERIVE_FNMA(t36, t17, x[7]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){x[8], x[9], x[10], x[11]}));
+    *(derive_vd_unaligned *)&x_new[8] = v_t69;
+    #else
+    const double t69 = DERIVE_FNMA(t36, t18, x[8]);
+    const double t70 = DERIVE_FNMA(t36, t19, x[9]);
+    const double t71 = DERIVE_FNMA(t36, t20, x[10]);
+    const double t72 = DERIVE_FNMA(t36, t21, x[11]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){x[12], x[13], x[14], x[15]}));
+    *(derive_vd_unaligned *)&x_new[12] = v_t73;
+    #else
+    const double t73 = DERIVE_FNMA(t36, t22, x[12]);
+    const double t74 = DERIVE_FNMA(t36, t23, x[13]);
+    const double t75 = DERIVE_FNMA(t36, t24, x[14]);
+    const double t76 = DERIVE_FNMA(t36, t25, x[15]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t77 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t26, ((derive_vd){x[16], x[17], x[18], x[19]}));
+    *(derive_vd_unaligned *)&x_new[16] = v_t77;
+    #else
+    const double t77 = DERIVE_FNMA(t36, t26, x[16]);
+    const double t78 = DERIVE_FNMA(t36, t27, x[17]);
+    const double t79 = DERIVE_FNMA(t36, t28, x[18]);
+    const double t80 = DERIVE_FNMA(t36, t29, x[19]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t81 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t30, ((derive_vd){x[20], x[21], x[22], x[23]}));
+    *(derive_vd_unaligned *)&x_new[20] = v_t81;
+    #else
+    const double t81 = DERIVE_FNMA(t36, t30, x[20]);
+    const double t82 = DERIVE_FNMA(t36, t31, x[21]);
+    const double t83 = DERIVE_FNMA(t36, t32, x[22]);
+    const double t84 = DERIVE_FNMA(t36, t33, x[23]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const double t86 = v_t85[1];
+    const double t87 = v_t85[2];
+    const double t88 = v_t85[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t85;
+    #else
+    const double t85 = DERIVE_FMA(t37, t10, P[0]);
+    const double t86 = DERIVE_FMA(t37, t11, P[1]);
+    const double t87 = DERIVE_FMA(t37, t12, P[2]);
+    const double t88 = DERIVE_FMA(t37, t13, P[3]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[4], P[5], P[6], P[7]}));
+    #else
+    const double t89 = DERIVE_FMA(t37, t14, P[4]);
+    const double t90 = DERIVE_FMA(t37, t15, P[5]);
+    const double t91 = DERIVE_FMA(t37, t16, P[6]);
+    const double t92 = DERIVE_FMA(t37, t17, P[7]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[8], P[9], P[10], P[11]}));
+    #else
+    const double t93 = DERIVE_FMA(t37, t18, P[8]);
+    const double t94 = DERIVE_FMA(t37, t19, P[9]);
+    const double t95 = DERIVE_FMA(t37, t20, P[10]);
+    const double t96 = DERIVE_FMA(t37, t21, P[11]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[12], P[13], P[14], P[15]}));
+    #else
+    const double t97 = DERIVE_FMA(t37, t22, P[12]);
+    const double t98 = DERIVE_FMA(t37, t23, P[13]);
+    const double t99 = DERIVE_FMA(t37, t24, P[14]);
+    const double t100 = DERIVE_FMA(t37, t25, P[15]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t101 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t26, ((derive_vd){P[16], P[17], P[18], P[19]}));
+    #else
+    const double t101 = DERIVE_FMA(t37, t26, P[16]);
+    const double t102 = DERIVE_FMA(t37, t27, P[17]);
+    const double t103 = DERIVE_FMA(t37, t28, P[18]);
+    const double t104 = DERIVE_FMA(t37, t29, P[19]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t105 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t30, ((derive_vd){P[20], P[21], P[22], P[23]}));
+    #else
+    const double t105 = DERIVE_FMA(t37, t30, P[20]);
+    const double t106 = DERIVE_FMA(t37, t31, P[21]);
+    const double t107 = DERIVE_FMA(t37, t32, P[22]);
+    const double t108 = DERIVE_FMA(t37, t33, P[23]);
+    #endif
+    const double t109 = DERIVE_FMA(t11, t38, P[25]);
+    const double t110 = DERIVE_FMA(t12, t38, P[26]);
+    const double t111 = DERIVE_FMA(t13, t38, P[27]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t112 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t14, ((derive_vd){P[28], P[29], P[30], P[31]}));
+    #else
+    const double t112 = DERIVE_FMA(t38, t14, P[28]);
+    const double t113 = DERIVE_FMA(t38, t15, P[29]);
+    const double t114 = DERIVE_FMA(t38, t16, P[30]);
+    const double t115 = DERIVE_FMA(t38, t17, P[31]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[32], P[33], P[34], P[35]}));
+    #else
+    const double t116 = DERIVE_FMA(t38, t18, P[32]);
+    const double t117 = DERIVE_FMA(t38, t19, P[33]);
+    const double t118 = DERIVE_FMA(t38, t20, P[34]);
+    const double t119 = DERIVE_FMA(t38, t21, P[35]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[36], P[37], P[38], P[39]}));
+    #else
+    const double t120 = DERIVE_FMA(t38, t22, P[36]);
+    const double t121 = DERIVE_FMA(t38, t23, P[37]);
+    const double t122 = DERIVE_FMA(t38, t24, P[38]);
+    const double t123 = DERIVE_FMA(t38, t25, P[39]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t124 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t26, ((derive_vd){P[40], P[41], P[42], P[43]}));
+    #else
+    const double t124 = DERIVE_FMA(t38, t26, P[40]);
+    const double t125 = DERIVE_FMA(t38, t27, P[41]);
+    const double t126 = DERIVE_FMA(t38, t28, P[42]);
+    const double t127 = DERIVE_FMA(t38, t29, P[43]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t128 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t30, ((derive_vd){P[44], P[45], P[46], P[47]}));
+    #else
+    const double t128 = DERIVE_FMA(t38, t30, P[44]);
+    const double t129 = DERIVE_FMA(t38, t31, P[45]);
+    const double t130 = DERIVE_FMA(t38, t32, P[46]);
+    const double t131 = DERIVE_FMA(t38, t33, P[47]);
+    #endif
+    const double t132 = DERIVE_FMA(t12, t39, P[50]);
+    const double t133 = DERIVE_FMA(t13, t39, P[51]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t134 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t14, ((derive_vd){P[52], P[53], P[54], P[55]}));
+    #else
+    const double t134 = DERIVE_FMA(t39, t14, P[52]);
+    const double t135 = DERIVE_FMA(t39, t15, P[53]);
+    const double t136 = DERIVE_FMA(t39, t16, P[54]);
+    const double t137 = DERIVE_FMA(t39, t17, P[55]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[56], P[57], P[58], P[59]}));
+    #else
+    const double t138 = DERIVE_FMA(t39, t18, P[56]);
+    const double t139 = DERIVE_FMA(t39, t19, P[57]);
+    const double t140 = DERIVE_FMA(t39, t20, P[58]);
+    const double t141 = DERIVE_FMA(t39, t21, P[59]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[60], P[61], P[62], P[63]}));
+    #else
+    const double t142 = DERIVE_FMA(t39, t22, P[60]);
+    const double t143 = DERIVE_FMA(t39, t23, P[61]);
+    const double t144 = DERIVE_FMA(t39, t24, P[62]);
+    const double t145 = DERIVE_FMA(t39, t25, P[63]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t146 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t26, ((derive_vd){P[64], P[65], P[66], P[67]}));
+    #else
+    const double t146 = DERIVE_FMA(t39, t26, P[64]);
+    const double t147 = DERIVE_FMA(t39, t27, P[65]);
+    const double t148 = DERIVE_FMA(t39, t28, P[66]);
+    const double t149 = DERIVE_FMA(t39, t29, P[67]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t150 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t30, ((derive_vd){P[68], P[69], P[70], P[71]}));
+    #else
+    const double t150 = DERIVE_FMA(t39, t30, P[68]);
+    const double t151 = DERIVE_FMA(t39, t31, P[69]);
+    const double t152 = DERIVE_FMA(t39, t32, P[70]);
+    const double t153 = DERIVE_FMA(t39, t33, P[71]);
+    #endif
+    const double t154 = DERIVE_FMA(t13, t40, P[75]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t14, ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd tr_v_t89_0 = __builtin_shufflevector(v_t89, v_t112, 0, 4, 2, 6);
+    const derive_vd tr_v_t89_1 = __builtin_shufflevector(v_t89, v_t112, 1, 5, 3, 7);
+    const derive_vd tr_v_t89_2 = __builtin_shufflevector(v_t134, v_t155, 0, 4, 2, 6);
+    const derive_vd tr_v_t89_3 = __builtin_shufflevector(v_t134, v_t155, 1, 5, 3, 7);
+    const derive_vd tr_v_t89_c0 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t89_c1 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t89_c2 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t89_c3 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t89;
+    *(derive_vd_unaligned *)&P_new[28] = v_t112;
+    *(derive_vd_unaligned *)&P_new[52] = v_t134;
+    *(derive_vd_unaligned *)&P_new[76] = v_t155;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t89_c0;
+    *(derive_vd_unaligned *)&P_new[120] = tr_v_t89_c1;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t89_c2;
+    *(derive_vd_unaligned *)&P_new[168] = tr_v_t89_c3;
+    #else
+    const double t155 = DERIVE_FMA(t40, t14, P[76]);
+    const double t156 = DERIVE_FMA(t40, t15, P[77]);
+    const double t157 = DERIVE_FMA(t40, t16, P[78]);
+    const double t158 = DERIVE_FMA(t40, t17, P[79]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd tr_v_t93_0 = __builtin_shufflevector(v_t93, v_t116, 0, 4, 2, 6);
+    const derive_vd tr_v_t93_1 = __builtin_shufflevector(v_t93, v_t116, 1, 5, 3, 7);
+    const derive_vd tr_v_t93_2 = __builtin_shufflevector(v_t138, v_t159, 0, 4, 2, 6);
+    const derive_vd tr_v_t93_3 = __builtin_shufflevector(v_t138, v_t159, 1, 5, 3, 7);
+    const derive_vd tr_v_t93_c0 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t93_c1 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t93_c2 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t93_c3 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t93;
+    *(derive_vd_unaligned *)&P_new[32] = v_t116;
+    *(derive_vd_unaligned *)&P_new[56] = v_t138;
+    *(derive_vd_unaligned *)&P_new[80] = v_t159;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t93_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t93_c1;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t93_c2;
+    *(derive_vd_unaligned *)&P_new[264] = tr_v_t93_c3;
+    #else
+    const double t159 = DERIVE_FMA(t40, t18, P[80]);
+    const double t160 = DERIVE_FMA(t40, t19, P[81]);
+    const double t161 = DERIVE_FMA(t40, t20, P[82]);
+    const double t162 = DERIVE_FMA(t40, t21, P[83]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd tr_v_t97_0 = __builtin_shufflevector(v_t97, v_t120, 0, 4, 2, 6);
+    const derive_vd tr_v_t97_1 = __builtin_shufflevector(v_t97, v_t120, 1, 5, 3, 7);
+    const derive_vd tr_v_t97_2 = __builtin_shufflevector(v_t142, v_t163, 0, 4, 2, 6);
+    const derive_vd tr_v_t97_3 = __builtin_shufflevector(v_t142, v_t163, 1, 5, 3, 7);
+    const derive_vd tr_v_t97_c0 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t97_c1 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t97_c2 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t97_c3 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t97;
+    *(derive_vd_unaligned *)&P_new[36] = v_t120;
+    *(derive_vd_unaligned *)&P_new[60] = v_t142;
+    *(derive_vd_unaligned *)&P_new[84] = v_t163;
+    *(derive_vd_unaligned *)&P_new[288] = tr_v_t97_c0;
+    *(derive_vd_unaligned *)&P_new[312] = tr_v_t97_c1;
+    *(derive_vd_unaligned *)&P_new[336] = tr_v_t97_c2;
+    *(derive_vd_unaligned *)&P_new[360] = tr_v_t97_c3;
+    #else
+    const double t163 = DERIVE_FMA(t40, t22, P[84]);
+    const double t164 = DERIVE_FMA(t40, t23, P[85]);
+    const double t165 = DERIVE_FMA(t40, t24, P[86]);
+    const double t166 = DERIVE_FMA(t40, t25, P[87]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t26, ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd tr_v_t101_0 = __builtin_shufflevector(v_t101, v_t124, 0, 4, 2, 6);
+    const derive_vd tr_v_t101_1 = __builtin_shufflevector(v_t101, v_t124, 1, 5, 3, 7);
+    const derive_vd tr_v_t101_2 = __builtin_shufflevector(v_t146, v_t167, 0, 4, 2, 6);
+    const derive_vd tr_v_t101_3 = __builtin_shufflevector(v_t146, v_t167, 1, 5, 3, 7);
+    const derive_vd tr_v_t101_c0 = __builtin_shufflevector(tr_v_t101_0, tr_v_t101_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t101_c1 = __builtin_shufflevector(tr_v_t101_1, tr_v_t101_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t101_c2 = __builtin_shufflevector(tr_v_t101_0, tr_v_t101_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t101_c3 = __builtin_shufflevector(tr_v_t101_1, tr_v_t101_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[16] = v_t101;
+    *(derive_vd_unaligned *)&P_new[40] = v_t124;
+    *(derive_vd_unaligned *)&P_new[64] = v_t146;
+    *(derive_vd_unaligned *)&P_new[88] = v_t167;
+    *(derive_vd_unaligned *)&P_new[384] = tr_v_t101_c0;
+    *(derive_vd_unaligned *)&P_new[408] = tr_v_t101_c1;
+    *(derive_vd_unaligned *)&P_new[432] = tr_v_t101_c2;
+    *(derive_vd_unaligned *)&P_new[456] = tr_v_t101_c3;
+    #else
+    const double t167 = DERIVE_FMA(t40, t26, P[88]);
+    const double t168 = DERIVE_FMA(t40, t27, P[89]);
+    const double t169 = DERIVE_FMA(t40, t28, P[90]);
+    const double t170 = DERIVE_FMA(t40, t29, P[91]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t30, ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd tr_v_t105_0 = __builtin_shufflevector(v_t105, v_t128, 0, 4, 2, 6);
+    const derive_vd tr_v_t105_1 = __builtin_shufflevector(v_t105, v_t128, 1, 5, 3, 7);
+    const derive_vd tr_v_t105_2 = __builtin_shufflevector(v_t150, v_t171, 0, 4, 2, 6);
+    const derive_vd tr_v_t105_3 = __builtin_shufflevector(v_t150, v_t171, 1, 5, 3, 7);
+    const derive_vd tr_v_t105_c0 = __builtin_shufflevector(tr_v_t105_0, tr_v_t105_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t105_c1 = __builtin_shufflevector(tr_v_t105_1, tr_v_t105_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t105_c2 = __builtin_shufflevector(tr_v_t105_0, tr_v_t105_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t105_c3 = __builtin_shufflevector(tr_v_t105_1, tr_v_t105_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[20] = v_t105;
+    *(derive_vd_unaligned *)&P_new[44] = v_t128;
+    *(derive_vd_unaligned *)&P_new[68] = v_t150;
+    *(derive_vd_unaligned *)&P_new[92] = v_t171;
+    *(derive_vd_unaligned *)&P_new[480] = tr_v_t105_c0;
+    *(derive_vd_unaligned *)&P_new[504] = tr_v_t105_c1;
+    *(derive_vd_unaligned *)&P_new[528] = tr_v_t105_c2;
+    *(derive_vd_unaligned *)&P_new[552] = tr_v_t105_c3;
+    #else
+    const double t171 = DERIVE_FMA(t40, t30, P[92]);
+    const double t172 = DERIVE_FMA(t40, t31, P[93]);
+    const double t173 = DERIVE_FMA(t40, t32, P[94]);
+    const double t174 = DERIVE_FMA(t40, t33, P[95]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const double t176 = v_t175[1];
+    const double t177 = v_t175[2];
+    const double t178 = v_t175[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t175;
+    #else
+    const double t175 = DERIVE_FMA(t41, t14, P[100]);
+    const double t176 = DERIVE_FMA(t41, t15, P[101]);
+    const double t177 = DERIVE_FMA(t41, t16, P[102]);
+    const double t178 = DERIVE_FMA(t41, t17, P[103]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[104], P[105], P[106], P[107]}));
+    #else
+    const double t179 = DERIVE_FMA(t41, t18, P[104]);
+    const double t180 = DERIVE_FMA(t41, t19, P[105]);
+    const double t181 = DERIVE_FMA(t41, t20, P[106]);
+    const double t182 = DERIVE_FMA(t41, t21, P[107]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[108], P[109], P[110], P[111]}));
+    #else
+    const double t183 = DERIVE_FMA(t41, t22, P[108]);
+    const double t184 = DERIVE_FMA(t41, t23, P[109]);
+    const double t185 = DERIVE_FMA(t41, t24, P[110]);
+    const double t186 = DERIVE_FMA(t41, t25, P[111]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t26, ((derive_vd){P[112], P[113], P[114], P[115]}));
+    #else
+    const double t187 = DERIVE_FMA(t41, t26, P[112]);
+    const double t188 = DERIVE_FMA(t41, t27, P[113]);
+    const double t189 = DERIVE_FMA(t41, t28, P[114]);
+    const double t190 = DERIVE_FMA(t41, t29, P[115]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t30, ((derive_vd){P[116], P[117], P[118], P[119]}));
+    #else
+    const double t191 = DERIVE_FMA(t41, t30, P[116]);
+    const double t192 = DERIVE_FMA(t41, t31, P[117]);
+    const double t193 = DERIVE_FMA(t41, t32, P[118]);
+    const double t194 = DERIVE_FMA(t41, t33, P[119]);
+    #endif
+    const double t195 = DERIVE_FMA(t15, t42, P[125]);
+    const double t196 = DERIVE_FMA(t16, t42, P[126]);
+    const double t197 = DERIVE_FMA(t17, t42, P[127]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t198 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t18, ((derive_vd){P[128], P[129], P[130], P[131]}));
+    #else
+    const double t198 = DERIVE_FMA(t42, t18, P[128]);
+    const double t199 = DERIVE_FMA(t42, t19, P[129]);
+    const double t200 = DERIVE_FMA(t42, t20, P[130]);
+    const double t201 = DERIVE_FMA(t42, t21, P[131]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[132], P[133], P[134], P[135]}));
+    #else
+    const double t202 = DERIVE_FMA(t42, t22, P[132]);
+    const double t203 = DERIVE_FMA(t42, t23, P[133]);
+    const double t204 = DERIVE_FMA(t42, t24, P[134]);
+    const double t205 = DERIVE_FMA(t42, t25, P[135]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t206 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t26, ((derive_vd){P[136], P[137], P[138], P[139]}));
+    #else
+    const double t206 = DERIVE_FMA(t42, t26, P[136]);
+    const double t207 = DERIVE_FMA(t42, t27, P[137]);
+    const double t208 = DERIVE_FMA(t42, t28, P[138]);
+    const double t209 = DERIVE_FMA(t42, t29, P[139]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t210 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t30, ((derive_vd){P[140], P[141], P[142], P[143]}));
+    #else
+    const double t210 = DERIVE_FMA(t42, t30, P[140]);
+    const double t211 = DERIVE_FMA(t42, t31, P[141]);
+    const double t212 = DERIVE_FMA(t42, t32, P[142]);
+    const double t213 = DERIVE_FMA(t42, t33, P[143]);
+    #endif
+    const double t214 = DERIVE_FMA(t16, t43, P[150]);
+    const double t215 = DERIVE_FMA(t17, t43, P[151]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t18, ((derive_vd){P[152], P[153], P[154], P[155]}));
+    #else
+    const double t216 = DERIVE_FMA(t43, t18, P[152]);
+    const double t217 = DERIVE_FMA(t43, t19, P[153]);
+    const double t218 = DERIVE_FMA(t43, t20, P[154]);
+    const double t219 = DERIVE_FMA(t43, t21, P[155]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[156], P[157], P[158], P[159]}));
+    #else
+    const double t220 = DERIVE_FMA(t43, t22, P[156]);
+    const double t221 = DERIVE_FMA(t43, t23, P[157]);
+    const double t222 = DERIVE_FMA(t43, t24, P[158]);
+    const double t223 = DERIVE_FMA(t43, t25, P[159]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t224 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t26, ((derive_vd){P[160], P[161], P[162], P[163]}));
+    #else
+    const double t224 = DERIVE_FMA(t43, t26, P[160]);
+    const double t225 = DERIVE_FMA(t43, t27, P[161]);
+    const double t226 = DERIVE_FMA(t43, t28, P[162]);
+    const double t227 = DERIVE_FMA(t43, t29, P[163]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t228 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t30, ((derive_vd){P[164], P[165], P[166], P[167]}));
+    #else
+    const double t228 = DERIVE_FMA(t43, t30, P[164]);
+    const double t229 = DERIVE_FMA(t43, t31, P[165]);
+    const double t230 = DERIVE_FMA(t43, t32, P[166]);
+    const double t231 = DERIVE_FMA(t43, t33, P[167]);
+    #endif
+    const double t232 = DERIVE_FMA(t17, t44, P[175]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t18, ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd tr_v_t179_0 = __builtin_shufflevector(v_t179, v_t198, 0, 4, 2, 6);
+    const derive_vd tr_v_t179_1 = __builtin_shufflevector(v_t179, v_t198, 1, 5, 3, 7);
+    const derive_vd tr_v_t179_2 = __builtin_shufflevector(v_t216, v_t233, 0, 4, 2, 6);
+    const derive_vd tr_v_t179_3 = __builtin_shufflevector(v_t216, v_t233, 1, 5, 3, 7);
+    const derive_vd tr_v_t179_c0 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t179_c1 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t179_c2 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t179_c3 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t179;
+    *(derive_vd_unaligned *)&P_new[128] = v_t198;
+    *(derive_vd_unaligned *)&P_new[152] = v_t216;
+    *(derive_vd_unaligned *)&P_new[176] = v_t233;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t179_c0;
+    *(derive_vd_unaligned *)&P_new[220] = tr_v_t179_c1;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t179_c2;
+    *(derive_vd_unaligned *)&P_new[268] = tr_v_t179_c3;
+    #else
+    const double t233 = DERIVE_FMA(t44, t18, P[176]);
+    const double t234 = DERIVE_FMA(t44, t19, P[177]);
+    const double t235 = DERIVE_FMA(t44, t20, P[178]);
+    const double t236 = DERIVE_FMA(t44, t21, P[179]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd tr_v_t183_0 = __builtin_shufflevector(v_t183, v_t202, 0, 4, 2, 6);
+    const derive_vd tr_v_t183_1 = __builtin_shufflevector(v_t183, v_t202, 1, 5, 3, 7);
+    const derive_vd tr_v_t183_2 = __builtin_shufflevector(v_t220, v_t237, 0, 4, 2, 6);
+    const derive_vd tr_v_t183_3 = __builtin_shufflevector(v_t220, v_t237, 1, 5, 3, 7);
+    const derive_vd tr_v_t183_c0 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t183_c1 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t183_c2 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t183_c3 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t183;
+    *(derive_vd_unaligned *)&P_new[132] = v_t202;
+    *(derive_vd_unaligned *)&P_new[156] = v_t220;
+    *(derive_vd_unaligned *)&P_new[180] = v_t237;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t183_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t183_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t183_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t183_c3;
+    #else
+    const double t237 = DERIVE_FMA(t44, t22, P[180]);
+    const double t238 = DERIVE_FMA(t44, t23, P[181]);
+    const double t239 = DERIVE_FMA(t44, t24, P[182]);
+    const double t240 = DERIVE_FMA(t44, t25, P[183]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t26, ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd tr_v_t187_0 = __builtin_shufflevector(v_t187, v_t206, 0, 4, 2, 6);
+    const derive_vd tr_v_t187_1 = __builtin_shufflevector(v_t187, v_t206, 1, 5, 3, 7);
+    const derive_vd tr_v_t187_2 = __builtin_shufflevector(v_t224, v_t241, 0, 4, 2, 6);
+    const derive_vd tr_v_t187_3 = __builtin_shufflevector(v_t224, v_t241, 1, 5, 3, 7);
+    const derive_vd tr_v_t187_c0 = __builtin_shufflevector(tr_v_t187_0, tr_v_t187_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t187_c1 = __builtin_shufflevector(tr_v_t187_1, tr_v_t187_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t187_c2 = __builtin_shufflevector(tr_v_t187_0, tr_v_t187_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t187_c3 = __builtin_shufflevector(tr_v_t187_1, tr_v_t187_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t187;
+    *(derive_vd_unaligned *)&P_new[136] = v_t206;
+    *(derive_vd_unaligned *)&P_new[160] = v_t224;
+    *(derive_vd_unaligned *)&P_new[184] = v_t241;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t187_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t187_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t187_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t187_c3;
+    #else
+    const double t241 = DERIVE_FMA(t44, t26, P[184]);
+    const double t242 = DERIVE_FMA(t44, t27, P[185]);
+    const double t243 = DERIVE_FMA(t44, t28, P[186]);
+    const double t244 = DERIVE_FMA(t44, t29, P[187]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t30, ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t191_0 = __builtin_shufflevector(v_t191, v_t210, 0, 4, 2, 6);
+    const derive_vd tr_v_t191_1 = __builtin_shufflevector(v_t191, v_t210, 1, 5, 3, 7);
+    const derive_vd tr_v_t191_2 = __builtin_shufflevector(v_t228, v_t245, 0, 4, 2, 6);
+    const derive_vd tr_v_t191_3 = __builtin_shufflevector(v_t228, v_t245, 1, 5, 3, 7);
+    const derive_vd tr_v_t191_c0 = __builtin_shufflevector(tr_v_t191_0, tr_v_t191_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t191_c1 = __builtin_shufflevector(tr_v_t191_1, tr_v_t191_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t191_c2 = __builtin_shufflevector(tr_v_t191_0, tr_v_t191_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t191_c3 = __builtin_shufflevector(tr_v_t191_1, tr_v_t191_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t191;
+    *(derive_vd_unaligned *)&P_new[140] = v_t210;
+    *(derive_vd_unaligned *)&P_new[164] = v_t228;
+    *(derive_vd_unaligned *)&P_new[188] = v_t245;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t191_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t191_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t191_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t191_c3;
+    #else
+    const double t245 = DERIVE_FMA(t44, t30, P[188]);
+    const double t246 = DERIVE_FMA(t44, t31, P[189]);
+    const double t247 = DERIVE_FMA(t44, t32, P[190]);
+    const double t248 = DERIVE_FMA(t44, t33, P[191]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t250 = v_t249[1];
+    const double t251 = v_t249[2];
+    const double t252 = v_t249[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t249;
+    #else
+    const double t249 = DERIVE_FMA(t45, t18, P[200]);
+    const double t250 = DERIVE_FMA(t45, t19, P[201]);
+    const double t251 = DERIVE_FMA(t45, t20, P[202]);
+    const double t252 = DERIVE_FMA(t45, t21, P[203]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[204], P[205], P[206], P[207]}));
+    #else
+    const double t253 = DERIVE_FMA(t45, t22, P[204]);
+    const double t254 = DERIVE_FMA(t45, t23, P[205]);
+    const double t255 = DERIVE_FMA(t45, t24, P[206]);
+    const double t256 = DERIVE_FMA(t45, t25, P[207]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t257 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t26, ((derive_vd){P[208], P[209], P[210], P[211]}));
+    #else
+    const double t257 = DERIVE_FMA(t45, t26, P[208]);
+    const double t258 = DERIVE_FMA(t45, t27, P[209]);
+    const double t259 = DERIVE_FMA(t45, t28, P[210]);
+    const double t260 = DERIVE_FMA(t45, t29, P[211]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t261 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t30, ((derive_vd){P[212], P[213], P[214], P[215]}));
+    #else
+    const double t261 = DERIVE_FMA(t45, t30, P[212]);
+    const double t262 = DERIVE_FMA(t45, t31, P[213]);
+    const double t263 = DERIVE_FMA(t45, t32, P[214]);
+    const double t264 = DERIVE_FMA(t45, t33, P[215]);
+    #endif
+    const double t265 = DERIVE_FMA(t19, t46, P[225]);
+    const double t266 = DERIVE_FMA(t20, t46, P[226]);
+    const double t267 = DERIVE_FMA(t21, t46, P[227]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t22, ((derive_vd){P[228], P[229], P[230], P[231]}));
+    #else
+    const double t268 = DERIVE_FMA(t46, t22, P[228]);
+    const double t269 = DERIVE_FMA(t46, t23, P[229]);
+    const double t270 = DERIVE_FMA(t46, t24, P[230]);
+    const double t271 = DERIVE_FMA(t46, t25, P[231]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t272 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t26, ((derive_vd){P[232], P[233], P[234], P[235]}));
+    #else
+    const double t272 = DERIVE_FMA(t46, t26, P[232]);
+    const double t273 = DERIVE_FMA(t46, t27, P[233]);
+    const double t274 = DERIVE_FMA(t46, t28, P[234]);
+    const double t275 = DERIVE_FMA(t46, t29, P[235]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t276 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t30, ((derive_vd){P[236], P[237], P[238], P[239]}));
+    #else
+    const double t276 = DERIVE_FMA(t46, t30, P[236]);
+    const double t277 = DERIVE_FMA(t46, t31, P[237]);
+    const double t278 = DERIVE_FMA(t46, t32, P[238]);
+    const double t279 = DERIVE_FMA(t46, t33, P[239]);
+    #endif
+    const double t280 = DERIVE_FMA(t20, t47, P[250]);
+    const double t281 = DERIVE_FMA(t21, t47, P[251]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t282 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t22, ((derive_vd){P[252], P[253], P[254], P[255]}));
+    #else
+    const double t282 = DERIVE_FMA(t47, t22, P[252]);
+    const double t283 = DERIVE_FMA(t47, t23, P[253]);
+    const double t284 = DERIVE_FMA(t47, t24, P[254]);
+    const double t285 = DERIVE_FMA(t47, t25, P[255]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t286 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t26, ((derive_vd){P[256], P[257], P[258], P[259]}));
+    #else
+    const double t286 = DERIVE_FMA(t47, t26, P[256]);
+    const double t287 = DERIVE_FMA(t47, t27, P[257]);
+    const double t288 = DERIVE_FMA(t47, t28, P[258]);
+    const double t289 = DERIVE_FMA(t47, t29, P[259]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t290 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t30, ((derive_vd){P[260], P[261], P[262], P[263]}));
+    #else
+    const double t290 = DERIVE_FMA(t47, t30, P[260]);
+    const double t291 = DERIVE_FMA(t47, t31, P[261]);
+    const double t292 = DERIVE_FMA(t47, t32, P[262]);
+    const double t293 = DERIVE_FMA(t47, t33, P[263]);
+    #endif
+    const double t294 = DERIVE_FMA(t21, t48, P[275]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t22, ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd tr_v_t253_0 = __builtin_shufflevector(v_t253, v_t268, 0, 4, 2, 6);
+    const derive_vd tr_v_t253_1 = __builtin_shufflevector(v_t253, v_t268, 1, 5, 3, 7);
+    const derive_vd tr_v_t253_2 = __builtin_shufflevector(v_t282, v_t295, 0, 4, 2, 6);
+    const derive_vd tr_v_t253_3 = __builtin_shufflevector(v_t282, v_t295, 1, 5, 3, 7);
+    const derive_vd tr_v_t253_c0 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t253_c1 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t253_c2 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t253_c3 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t253;
+    *(derive_vd_unaligned *)&P_new[228] = v_t268;
+    *(derive_vd_unaligned *)&P_new[252] = v_t282;
+    *(derive_vd_unaligned *)&P_new[276] = v_t295;
+    *(derive_vd_unaligned *)&P_new[296] = tr_v_t253_c0;
+    *(derive_vd_unaligned *)&P_new[320] = tr_v_t253_c1;
+    *(derive_vd_unaligned *)&P_new[344] = tr_v_t253_c2;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t253_c3;
+    #else
+    const double t295 = DERIVE_FMA(t48, t22, P[276]);
+    const double t296 = DERIVE_FMA(t48, t23, P[277]);
+    const double t297 = DERIVE_FMA(t48, t24, P[278]);
+    const double t298 = DERIVE_FMA(t48, t25, P[279]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t26, ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd tr_v_t257_0 = __builtin_shufflevector(v_t257, v_t272, 0, 4, 2, 6);
+    const derive_vd tr_v_t257_1 = __builtin_shufflevector(v_t257, v_t272, 1, 5, 3, 7);
+    const derive_vd tr_v_t257_2 = __builtin_shufflevector(v_t286, v_t299, 0, 4, 2, 6);
+    const derive_vd tr_v_t257_3 = __builtin_shufflevector(v_t286, v_t299, 1, 5, 3, 7);
+    const derive_vd tr_v_t257_c0 = __builtin_shufflevector(tr_v_t257_0, tr_v_t257_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t257_c1 = __builtin_shufflevector(tr_v_t257_1, tr_v_t257_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t257_c2 = __builtin_shufflevector(tr_v_t257_0, tr_v_t257_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t257_c3 = __builtin_shufflevector(tr_v_t257_1, tr_v_t257_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[208] = v_t257;
+    *(derive_vd_unaligned *)&P_new[232] = v_t272;
+    *(derive_vd_unaligned *)&P_new[256] = v_t286;
+    *(derive_vd_unaligned *)&P_new[280] = v_t299;
+    *(derive_vd_unaligned *)&P_new[392] = tr_v_t257_c0;
+    *(derive_vd_unaligned *)&P_new[416] = tr_v_t257_c1;
+    *(derive_vd_unaligned *)&P_new[440] = tr_v_t257_c2;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t257_c3;
+    #else
+    const double t299 = DERIVE_FMA(t48, t26, P[280]);
+    const double t300 = DERIVE_FMA(t48, t27, P[281]);
+    const double t301 = DERIVE_FMA(t48, t28, P[282]);
+    const double t302 = DERIVE_FMA(t48, t29, P[283]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t30, ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd tr_v_t261_0 = __builtin_shufflevector(v_t261, v_t276, 0, 4, 2, 6);
+    const derive_vd tr_v_t261_1 = __builtin_shufflevector(v_t261, v_t276, 1, 5, 3, 7);
+    const derive_vd tr_v_t261_2 = __builtin_shufflevector(v_t290, v_t303, 0, 4, 2, 6);
+    const derive_vd tr_v_t261_3 = __builtin_shufflevector(v_t290, v_t303, 1, 5, 3, 7);
+    const derive_vd tr_v_t261_c0 = __builtin_shufflevector(tr_v_t261_0, tr_v_t261_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t261_c1 = __builtin_shufflevector(tr_v_t261_1, tr_v_t261_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t261_c2 = __builtin_shufflevector(tr_v_t261_0, tr_v_t261_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t261_c3 = __builtin_shufflevector(tr_v_t261_1, tr_v_t261_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[212] = v_t261;
+    *(derive_vd_unaligned *)&P_new[236] = v_t276;
+    *(derive_vd_unaligned *)&P_new[260] = v_t290;
+    *(derive_vd_unaligned *)&P_new[284] = v_t303;
+    *(derive_vd_unaligned *)&P_new[488] = tr_v_t261_c0;
+    *(derive_vd_unaligned *)&P_new[512] = tr_v_t261_c1;
+    *(derive_vd_unaligned *)&P_new[536] = tr_v_t261_c2;
+    *(derive_vd_unaligned *)&P_new[560] = tr_v_t261_c3;
+    #else
+    const double t303 = DERIVE_FMA(t48, t30, P[284]);
+    const double t304 = DERIVE_FMA(t48, t31, P[285]);
+    const double t305 = DERIVE_FMA(t48, t32, P[286]);
+    const double t306 = DERIVE_FMA(t48, t33, P[287]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const double t308 = v_t307[1];
+    const double t309 = v_t307[2];
+    const double t310 = v_t307[3];
+    *(derive_vd_unaligned *)&P_new[300] = v_t307;
+    #else
+    const double t307 = DERIVE_FMA(t49, t22, P[300]);
+    const double t308 = DERIVE_FMA(t49, t23, P[301]);
+    const double t309 = DERIVE_FMA(t49, t24, P[302]);
+    const double t310 = DERIVE_FMA(t49, t25, P[303]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t26, ((derive_vd){P[304], P[305], P[306], P[307]}));
+    #else
+    const double t311 = DERIVE_FMA(t49, t26, P[304]);
+    const double t312 = DERIVE_FMA(t49, t27, P[305]);
+    const double t313 = DERIVE_FMA(t49, t28, P[306]);
+    const double t314 = DERIVE_FMA(t49, t29, P[307]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t30, ((derive_vd){P[308], P[309], P[310], P[311]}));
+    #else
+    const double t315 = DERIVE_FMA(t49, t30, P[308]);
+    const double t316 = DERIVE_FMA(t49, t31, P[309]);
+    const double t317 = DERIVE_FMA(t49, t32, P[310]);
+    const double t318 = DERIVE_FMA(t49, t33, P[311]);
+    #endif
+    const double t319 = DERIVE_FMA(t23, t50, P[325]);
+    const double t320 = DERIVE_FMA(t24, t50, P[326]);
+    const double t321 = DERIVE_FMA(t25, t50, P[327]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t322 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), v_t26, ((derive_vd){P[328], P[329], P[330], P[331]}));
+    #else
+    const double t322 = DERIVE_FMA(t50, t26, P[328]);
+    const double t323 = DERIVE_FMA(t50, t27, P[329]);
+    const double t324 = DERIVE_FMA(t50, t28, P[330]);
+    const double t325 = DERIVE_FMA(t50, t29, P[331]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t326 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), v_t30, ((derive_vd){P[332], P[333], P[334], P[335]}));
+    #else
+    const double t326 = DERIVE_FMA(t50, t30, P[332]);
+    const double t327 = DERIVE_FMA(t50, t31, P[333]);
+    const double t328 = DERIVE_FMA(t50, t32, P[334]);
+    const double t329 = DERIVE_FMA(t50, t33, P[335]);
+    #endif
+    const double t330 = DERIVE_FMA(t24, t51, P[350]);
+    const double t331 = DERIVE_FMA(t25, t51, P[351]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t332 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), v_t26, ((derive_vd){P[352], P[353], P[354], P[355]}));
+    #else
+    const double t332 = DERIVE_FMA(t51, t26, P[352]);
+    const double t333 = DERIVE_FMA(t51, t27, P[353]);
+    const double t334 = DERIVE_FMA(t51, t28, P[354]);
+    const double t335 = DERIVE_FMA(t51, t29, P[355]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), v_t30, ((derive_vd){P[356], P[357], P[358], P[359]}));
+    #else
+    const double t336 = DERIVE_FMA(t51, t30, P[356]);
+    const double t337 = DERIVE_FMA(t51, t31, P[357]);
+    const double t338 = DERIVE_FMA(t51, t32, P[358]);
+    const double t339 = DERIVE_FMA(t51, t33, P[359]);
+    #endif
+    const double t340 = DERIVE_FMA(t25, t52, P[375]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t26, ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd tr_v_t311_0 = __builtin_shufflevector(v_t311, v_t322, 0, 4, 2, 6);
+    const derive_vd tr_v_t311_1 = __builtin_shufflevector(v_t311, v_t322, 1, 5, 3, 7);
+    const derive_vd tr_v_t311_2 = __builtin_shufflevector(v_t332, v_t341, 0, 4, 2, 6);
+    const derive_vd tr_v_t311_3 = __builtin_shufflevector(v_t332, v_t341, 1, 5, 3, 7);
+    const derive_vd tr_v_t311_c0 = __builtin_shufflevector(tr_v_t311_0, tr_v_t311_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t311_c1 = __builtin_shufflevector(tr_v_t311_1, tr_v_t311_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t311_c2 = __builtin_shufflevector(tr_v_t311_0, tr_v_t311_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t311_c3 = __builtin_shufflevector(tr_v_t311_1, tr_v_t311_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[304] = v_t311;
+    *(derive_vd_unaligned *)&P_new[328] = v_t322;
+    *(derive_vd_unaligned *)&P_new[352] = v_t332;
+    *(derive_vd_unaligned *)&P_new[376] = v_t341;
+    *(derive_vd_unaligned *)&P_new[396] = tr_v_t311_c0;
+    *(derive_vd_unaligned *)&P_new[420] = tr_v_t311_c1;
+    *(derive_vd_unaligned *)&P_new[444] = tr_v_t311_c2;
+    *(derive_vd_unaligned *)&P_new[468] = tr_v_t311_c3;
+    #else
+    const double t341 = DERIVE_FMA(t52, t26, P[376]);
+    const double t342 = DERIVE_FMA(t52, t27, P[377]);
+    const double t343 = DERIVE_FMA(t52, t28, P[378]);
+    const double t344 = DERIVE_FMA(t52, t29, P[379]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t30, ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd tr_v_t315_0 = __builtin_shufflevector(v_t315, v_t326, 0, 4, 2, 6);
+    const derive_vd tr_v_t315_1 = __builtin_shufflevector(v_t315, v_t326, 1, 5, 3, 7);
+    const derive_vd tr_v_t315_2 = __builtin_shufflevector(v_t336, v_t345, 0, 4, 2, 6);
+    const derive_vd tr_v_t315_3 = __builtin_shufflevector(v_t336, v_t345, 1, 5, 3, 7);
+    const derive_vd tr_v_t315_c0 = __builtin_shufflevector(tr_v_t315_0, tr_v_t315_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t315_c1 = __builtin_shufflevector(tr_v_t315_1, tr_v_t315_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t315_c2 = __builtin_shufflevector(tr_v_t315_0, tr_v_t315_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t315_c3 = __builtin_shufflevector(tr_v_t315_1, tr_v_t315_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[308] = v_t315;
+    *(derive_vd_unaligned *)&P_new[332] = v_t326;
+    *(derive_vd_unaligned *)&P_new[356] = v_t336;
+    *(derive_vd_unaligned *)&P_new[380] = v_t345;
+    *(derive_vd_unaligned *)&P_new[492] = tr_v_t315_c0;
+    *(derive_vd_unaligned *)&P_new[516] = tr_v_t315_c1;
+    *(derive_vd_unaligned *)&P_new[540] = tr_v_t315_c2;
+    *(derive_vd_unaligned *)&P_new[564] = tr_v_t315_c3;
+    #else
+    const double t345 = DERIVE_FMA(t52, t30, P[380]);
+    const double t346 = DERIVE_FMA(t52, t31, P[381]);
+    const double t347 = DERIVE_FMA(t52, t32, P[382]);
+    const double t348 = DERIVE_FMA(t52, t33, P[383]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t349 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t26, ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const double t350 = v_t349[1];
+    const double t351 = v_t349[2];
+    const double t352 = v_t349[3];
+    *(derive_vd_unaligned *)&P_new[400] = v_t349;
+    #else
+    const double t349 = DERIVE_FMA(t53, t26, P[400]);
+    const double t350 = DERIVE_FMA(t53, t27, P[401]);
+    const double t351 = DERIVE_FMA(t53, t28, P[402]);
+    const double t352 = DERIVE_FMA(t53, t29, P[403]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t353 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t30, ((derive_vd){P[404], P[405], P[406], P[407]}));
+    #else
+    const double t353 = DERIVE_FMA(t53, t30, P[404]);
+    const double t354 = DERIVE_FMA(t53, t31, P[405]);
+    const double t355 = DERIVE_FMA(t53, t32, P[406]);
+    const double t356 = DERIVE_FMA(t53, t33, P[407]);
+    #endif
+    const double t357 = DERIVE_FMA(t27, t54, P[425]);
+    const double t358 = DERIVE_FMA(t28, t54, P[426]);
+    const double t359 = DERIVE_FMA(t29, t54, P[427]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t360 = DERIVE_VFMA(((derive_vd){t54, t54, t54, t54}), v_t30, ((derive_vd){P[428], P[429], P[430], P[431]}));
+    #else
+    const double t360 = DERIVE_FMA(t54, t30, P[428]);
+    const double t361 = DERIVE_FMA(t54, t31, P[429]);
+    const double t362 = DERIVE_FMA(t54, t32, P[430]);
+    const double t363 = DERIVE_FMA(t54, t33, P[431]);
+    #endif
+    const double t364 = DERIVE_FMA(t28, t55, P[450]);
+    const double t365 = DERIVE_FMA(t29, t55, P[451]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t366 = DERIVE_VFMA(((derive_vd){t55, t55, t55, t55}), v_t30, ((derive_vd){P[452], P[453], P[454], P[455]}));
+    #else
+    const double t366 = DERIVE_FMA(t55, t30, P[452]);
+    const double t367 = DERIVE_FMA(t55, t31, P[453]);
+    const double t368 = DERIVE_FMA(t55, t32, P[454]);
+    const double t369 = DERIVE_FMA(t55, t33, P[455]);
+    #endif
+    const double t370 = DERIVE_FMA(t29, t56, P[475]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t56, t56, t56, t56}), v_t30, ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd tr_v_t353_0 = __builtin_shufflevector(v_t353, v_t360, 0, 4, 2, 6);
+    const derive_vd tr_v_t353_1 = __builtin_shufflevector(v_t353, v_t360, 1, 5, 3, 7);
+    const derive_vd tr_v_t353_2 = __builtin_shufflevector(v_t366, v_t371, 0, 4, 2, 6);
+    const derive_vd tr_v_t353_3 = __builtin_shufflevector(v_t366, v_t371, 1, 5, 3, 7);
+    const derive_vd tr_v_t353_c0 = __builtin_shufflevector(tr_v_t353_0, tr_v_t353_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t353_c1 = __builtin_shufflevector(tr_v_t353_1, tr_v_t353_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t353_c2 = __builtin_shufflevector(tr_v_t353_0, tr_v_t353_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t353_c3 = __builtin_shufflevector(tr_v_t353_1, tr_v_t353_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[404] = v_t353;
+    *(derive_vd_unaligned *)&P_new[428] = v_t360;
+    *(derive_vd_unaligned *)&P_new[452] = v_t366;
+    *(derive_vd_unaligned *)&P_new[476] = v_t371;
+    *(derive_vd_unaligned *)&P_new[496] = tr_v_t353_c0;
+    *(derive_vd_unaligned *)&P_new[520] = tr_v_t353_c1;
+    *(derive_vd_unaligned *)&P_new[544] = tr_v_t353_c2;
+    *(derive_vd_unaligned *)&P_new[568] = tr_v_t353_c3;
+    #else
+    const double t371 = DERIVE_FMA(t56, t30, P[476]);
+    const double t372 = DERIVE_FMA(t56, t31, P[477]);
+    const double t373 = DERIVE_FMA(t56, t32, P[478]);
+    const double t374 = DERIVE_FMA(t56, t33, P[479]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t57, t57, t57, t57}), v_t30, ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const double t376 = v_t375[1];
+    const double t377 = v_t375[2];
+    const double t378 = v_t375[3];
+    *(derive_vd_unaligned *)&P_new[500] = v_t375;
+    #else
+    const double t375 = DERIVE_FMA(t57, t30, P[500]);
+    const double t376 = DERIVE_FMA(t57, t31, P[501]);
+    const double t377 = DERIVE_FMA(t57, t32, P[502]);
+    const double t378 = DERIVE_FMA(t57, t33, P[503]);
+    #endif
+    const double t379 = DERIVE_FMA(t31, t58, P[525]);
+    const double t380 = DERIVE_FMA(t32, t58, P[526]);
+    const double t381 = DERIVE_FMA(t33, t58, P[527]);
+    const double t382 = DERIVE_FMA(t32, t59, P[550]);
+    const double t383 = DERIVE_FMA(t33, t59, P[551]);
+    const double t384 = DERIVE_FMA(t33, t60, P[575]);
+    const double t385 = DERIVE_FMA(t64, t64, DERIVE_FMA(t63, t63, DERIVE_FMA(t62, t62, t61*t61)));
+    const double t386 = 1.0/sqrt(t385);
+    const double t387 = t386*t61;
+    const double t388 = t386*t62;
+    const double t389 = t386*t63;
+    const double t390 = t386*t64;
+    #if DERIVE_VECTOR
+    x_new[0] = t387;
+    x_new[1] = t388;
+    x_new[2] = t389;
+    x_new[3] = t390;
+    P_new[24] = t86;
+    P_new[25] = t109;
+    P_new[26] = t110;
+    P_new[27] = t111;
+    P_new[48] = t87;
+    P_new[49] = t110;
+    P_new[50] = t132;
+    P_new[51] = t133;
+    P_new[72] = t88;
+    P_new[73] = t111;
+    P_new[74] = t133;
+    P_new[75] = t154;
+    P_new[124] = t176;
+    P_new[125] = t195;
+    P_new[126] = t196;
+    P_new[127] = t197;
+    P_new[148] = t177;
+    P_new[149] = t196;
+    P_new[150] = t214;
+    P_new[151] = t215;
+    P_new[172] = t178;
+    P_new[173] = t197;
+    P_new[174] = t215;
+    P_new[175] = t232;
+    P_new[224] = t250;
+    P_new[225] = t265;
+    P_new[226] = t266;
+    P_new[227] = t267;
+    P_new[248] = t251;
+    P_new[249] = t266;
+    P_new[250] = t280;
+    P_new[251] = t281;
+    P_new[272] = t252;
+    P_new[273] = t267;
+    P_new[274] = t281;
+    P_new[275] = t294;
+    P_new[324] = t308;
+    P_new[325] = t319;
+    P_new[326] = t320;
+    P_new[327] = t321;
+    P_new[348] = t309;
+    P_new[349] = t320;
+    P_new[350] = t330;
+    P_new[351] = t331;
+    P_new[372] = t310;
+    P_new[373] = t321;
+    P_new[374] = t331;
+    P_new[375] = t340;
+    P_new[424] = t350;
+    P_new[425] = t357;
+    P_new[426] = t358;
+    P_new[427] = t359;
+    P_new[448] = t351;
+    P_new[449] = t358;
+    P_new[450] = t364;
+    P_new[451] = t365;
+    P_new[472] = t352;
+    P_new[473] = t359;
+    P_new[474] = t365;
+    P_new[475] = t370;
+    P_new[524] = t376;
+    P_new[525] = t379;
+    P_new[526] = t380;
+    P_new[527] = t381;
+    P_new[548] = t377;
+    P_new[549] = t380;
+    P_new[550] = t382;
+    P_new[551] = t383;
+    P_new[572] = t378;
+    P_new[573] = t381;
+    P_new[574] = t383;
+    P_new[575] = t384;
+    #else
+    x_new[0] = t387;
+    x_new[1] = t388;
+    x_new[2] = t389;
+    x_new[3] = t390;
+    x_new[4] = t65;
+    x_new[5] = t66;
+    x_new[6] = t67;
+    x_new[7] = t68;
+    x_new[8] = t69;
+    x_new[9] = t70;
+    x_new[10] = t71;
+    x_new[11] = t72;
+    x_new[12] = t73;
+    x_new[13] = t74;
+    x_new[14] = t75;
+    x_new[15] = t76;
+    x_new[16] = t77;
+    x_new[17] = t78;
+    x_new[18] = t79;
+    x_new[19] = t80;
+    x_new[20] = t81;
+    x_new[21] = t82;
+    x_new[22] = t83;
+    x_new[23] = t84;
+    P_new[0] = t85;
+    P_new[1] = t86;
+    P_new[2] = t87;
+    P_new[3] = t88;
+    P_new[4] = t89;
+    P_new[5] = t90;
+    P_new[6] = t91;
+    P_new[7] = t92;
+    P_new[8] = t93;
+    P_new[9] = t94;
+    P_new[10] = t95;
+    P_new[11] = t96;
+    P_new[12] = t97;
+    P_new[13] = t98;
+    P_new[14] = t99;
+    P_new[15] = t100;
+    P_new[16] = t101;
+    P_new[17] = t102;
+    P_new[18] = t103;
+    P_new[19] = t104;
+    P_new[20] = t105;
+    P_new[21] = t106;
+    P_new[22] = t107;
+    P_new[23] = t108;
+    P_new[24] = t86;
+    P_new[25] = t109;
+    P_new[26] = t110;
+    P_new[27] = t111;
+    P_new[28] = t112;
+    P_new[29] = t113;
+    P_new[30] = t114;
+    P_new[31] = t115;
+    P_new[32] = t116;
+    P_new[33] = t117;
+    P_new[34] = t118;
+    P_new[35] = t119;
+    P_new[36] = t120;
+    P_new[37] = t121;
+    P_new[38] = t122;
+    P_new[39] = t123;
+    P_new[40] = t124;
+    P_new[41] = t125;
+    P_new[42] = t126;
+    P_new[43] = t127;
+    P_new[44] = t128;
+    P_new[45] = t129;
+    P_new[46] = t130;
+    P_new[47] = t131;
+    P_new[48] = t87;
+    P_new[49] = t110;
+    P_new[50] = t132;
+    P_new[51] = t133;
+    P_new[52] = t134;
+    P_new[53] = t135;
+    P_new[54] = t136;
+    P_new[55] = t137;
+    P_new[56] = t138;
+    P_new[57] = t139;
+    P_new[58] = t140;
+    P_new[59] = t141;
+    P_new[60] = t142;
+    P_new[61] = t143;
+    P_new[62] = t144;
+    P_new[63] = t145;
+    P_new[64] = t146;
+    P_new[65] = t147;
+    P_new[66] = t148;
+    P_new[67] = t149;
+    P_new[68] = t150;
+    P_new[69] = t151;
+    P_new[70] = t152;
+    P_new[71] = t153;
+    P_new[72] = t88;
+    P_new[73] = t111;
+    P_new[74] = t133;
+    P_new[75] = t154;
+    P_new[76] = t155;
+    P_new[77] = t156;
+    P_new[78] = t157;
+    P_new[79] = t158;
+    P_new[80] = t159;
+    P_new[81] = t160;
+    P_new[82] = t161;
+    P_new[83] = t162;
+    P_new[84] = t163;
+    P_new[85] = t164;
+    P_new[86] = t165;
+    P_new[87] = t166;
+    P_new[88] = t167;
+    P_new[89] = t168;
+    P_new[90] = t169;
+    P_new[91] = t170;
+    P_new[92] = t171;
+    P_new[93] = t172;
+    P_new[94] = t173;
+    P_new[95] = t174;
+    P_new[96] = t89;
+    P_new[97] = t112;
+    P_new[98] = t134;
+    P_new[99] = t155;
+    P_new[100] = t175;
+    P_new[101] = t176;
+    P_new[102] = t177;
+    P_new[103] = t178;
+    P_new[104] = t179;
+    P_new[105] = t180;
+    P_new[106] = t181;
+    P_new[107] = t182;
+    P_new[108] = t183;
+    P_new[109] = t184;
+    P_new[110] = t185;
+    P_new[111] = t186;
+    P_new[112] = t187;
+    P_new[113] = t188;
+    P_new[114] = t189;
+    P_new[115] = t190;
+    P_new[116] = t191;
+    P_new[117] = t192;
+    P_new[118] = t193;
+    P_new[119] = t194;
+    P_new[120] = t90;
+    P_new[121] = t113;
+    P_new[122] = t135;
+    P_new[123] = t156;
+    P_new[124] = t176;
+    P_new[125] = t195;
+    P_new[126] = t196;
+    P_new[127] = t197;
+    P_new[128] = t198;
+    P_new[129] = t199;
+    P_new[130] = t200;
+    P_new[131] = t201;
+    P_new[132] = t202;
+    P_new[133] = t203;
+    P_new[134] = t204;
+    P_new[135] = t205;
+    P_new[136] = t206;
+    P_new[137] = t207;
+    P_new[138] = t208;
+    P_new[139] = t209;
+    P_new[140] = t210;
+    P_new[141] = t211;
+    P_new[142] = t212;
+    P_new[143] = t213;
+    P_new[144] = t91;
+    P_new[145] = t114;
+    P_new[146] = t136;
+    P_new[147] = t157;
+    P_new[148] = t177;
+    P_new[149] = t196;
+    P_new[150] = t214;
+    P_new[151] = t215;
+    P_new[152] = t216;
+    P_new[153] = t217;
+    P_new[154] = t218;
+    P_new[155] = t219;
+    P_new[156] = t220;
+    P_new[157] = t221;
+    P_new[158] = t222;
+    P_new[159] = t223;
+    P_new[160] = t224;
+    P_new[161] = t225;
+    P_new[162] = t226;
+    P_new[163] = t227;
+    P_new[164] = t228;
+    P_new[165] = t229;
+    P_new[166] = t230;
+    P_new[167] = t231;
+    P_new[168] = t92;
+    P_new[169] = t115;
+    P_new[170] = t137;
+    P_new[171] = t158;
+    P_new[172] = t178;
+    P_new[173] = t197;
+    P_new[174] = t215;
+    P_new[175] = t232;
+    P_new[176] = t233;
+    P_new[177] = t234;
+    P_new[178] = t235;
+    P_new[179] = t236;
+    P_new[180] = t237;
+    P_new[181] = t238;
+    P_new[182] = t239;
+    P_new[183] = t240;
+    P_new[184] = t241;
+    P_new[185] = t242;
+    P_new[186] = t243;
+    P_new[187] = t244;
+    P_new[188] = t245;
+    P_new[189] = t246;
+    P_new[190] = t247;
+    P_new[191] = t248;
+    P_new[192] = t93;
+    P_new[193] = t116;
+    P_new[194] = t138;
+    P_new[195] = t159;
+    P_new[196] = t179;
+    P_new[197] = t198;
+    P_new[198] = t216;
+    P_new[199] = t233;
+    P_new[200] = t249;
+    P_new[201] = t250;
+    P_new[202] = t251;
+    P_new[203] = t252;
+    P_new[204] = t253;
+    P_new[205] = t254;
+    P_new[206] = t255;
+    P_new[207] = t256;
+    P_new[208] = t257;
+    P_new[209] = t258;
+    P_new[210] = t259;
+    P_new[211] = t260;
+    P_new[212] = t261;
+    P_new[213] = t262;
+    P_new[214] = t263;
+    P_new[215] = t264;
+    P_new[216] = t94;
+    P_new[217] = t117;
+    P_new[218] = t139;
+    P_new[219] = t160;
+    P_new[220] = t180;
+    P_new[221] = t199;
+    P_new[222] = t217;
+    P_new[223] = t234;
+    P_new[224] = t250;
+    P_new[225] = t265;
+    P_new[226] = t266;
+    P_new[227] = t267;
+    P_new[228] = t268;
+    P_new[229] = t269;
+    P_new[230] = t270;
+    P_new[231] = t271;
+    P_new[232] = t272;
+    P_new[233] = t273;
+    P_new[234] = t274;
+    P_new[235] = t275;
+    P_new[236] = t276;
+    P_new[237] = t277;
+    P_new[238] = t278;
+    P_new[239] = t279;
+    P_new[240] = t95;
+    P_new[241] = t118;
+    P_new[242] = t140;
+    P_new[243] = t161;
+    P_new[244] = t181;
+    P_new[245] = t200;
+    P_new[246] = t218;
+    P_new[247] = t235;
+    P_new[248] = t251;
+    P_new[249] = t266;
+    P_new[250] = t280;
+    P_new[251] = t281;
+    P_new[252] = t282;
+    P_new[253] = t283;
+    P_new[254] = t284;
+    P_new[255] = t285;
+    P_new[256] = t286;
+    P_new[257] = t287;
+    P_new[258] = t288;
+    P_new[259] = t289;
+    P_new[260] = t290;
+    P_new[261] = t291;
+    P_new[262] = t292;
+    P_new[263] = t293;
+    P_new[264] = t96;
+    P_new[265] = t119;
+    P_new[266] = t141;
+    P_new[267] = t162;
+    P_new[268] = t182;
+    P_new[269] = t201;
+    P_new[270] = t219;
+    P_new[271] = t236;
+    P_new[272] = t252;
+    P_new[273] = t267;
+    P_new[274] = t281;
+    P_new[275] = t294;
+    P_new[276] = t295;
+    P_new[277] = t296;
+    P_new[278] = t297;
+    P_new[279] = t298;
+    P_new[280] = t299;
+    P_new[281] = t300;
+    P_new[282] = t301;
+    P_new[283] = t302;
+    P_new[284] = t303;
+    P_new[285] = t304;
+    P_new[286] = t305;
+    P_new[287] = t306;
+    P_new[288] = t97;
+    P_new[289] = t120;
+    P_new[290] = t142;
+    P_new[291] = t163;
+    P_new[292] = t183;
+    P_new[293] = t202;
+    P_new[294] = t220;
+    P_new[295] = t237;
+    P_new[296] = t253;
+    P_new[297] = t268;
+    P_new[298] = t282;
+    P_new[299] = t295;
+    P_new[300] = t307;
+    P_new[301] = t308;
+    P_new[302] = t309;
+    P_new[303] = t310;
+    P_new[304] = t311;
+    P_new[305] = t312;
+    P_new[306] = t313;
+    P_new[307] = t314;
+    P_new[308] = t315;
+    P_new[309] = t316;
+    P_new[310] = t317;
+    P_new[311] = t318;
+    P_new[312] = t98;
+    P_new[313] = t121;
+    P_new[314] = t143;
+    P_new[315] = t164;
+    P_new[316] = t184;
+    P_new[317] = t203;
+    P_new[318] = t221;
+    P_new[319] = t238;
+    P_new[320] = t254;
+    P_new[321] = t269;
+    P_new[322] = t283;
+    P_new[323] = t296;
+    P_new[324] = t308;
+    P_new[325] = t319;
+    P_new[326] = t320;
+    P_new[327] = t321;
+    P_new[328] = t322;
+    P_new[329] = t323;
+    P_new[330] = t324;
+    P_new[331] = t325;
+    P_new[332] = t326;
+    P_new[333] = t327;
+    P_new[334] = t328;
+    P_new[335] = t329;
+    P_new[336] = t99;
+    P_new[337] = t122;
+    P_new[338] = t144;
+    P_new[339] = t165;
+    P_new[340] = t185;
+    P_new[341] = t204;
+    P_new[342] = t222;
+    P_new[343] = t239;
+    P_new[344] = t255;
+    P_new[345] = t270;
+    P_new[346] = t284;
+    P_new[347] = t297;
+    P_new[348] = t309;
+    P_new[349] = t320;
+    P_new[350] = t330;
+    P_new[351] = t331;
+    P_new[352] = t332;
+    P_new[353] = t333;
+    P_new[354] = t334;
+    P_new[355] = t335;
+    P_new[356] = t336;
+    P_new[357] = t337;
+    P_new[358] = t338;
+    P_new[359] = t339;
+    P_new[360] = t100;
+    P_new[361] = t123;
+    P_new[362] = t145;
+    P_new[363] = t166;
+    P_new[364] = t186;
+    P_new[365] = t205;
+    P_new[366] = t223;
+    P_new[367] = t240;
+    P_new[368] = t256;
+    P_new[369] = t271;
+    P_new[370] = t285;
+    P_new[371] = t298;
+    P_new[372] = t310;
+    P_new[373] = t321;
+    P_new[374] = t331;
+    P_new[375] = t340;
+    P_new[376] = t341;
+    P_new[377] = t342;
+    P_new[378] = t343;
+    P_new[379] = t344;
+    P_new[380] = t345;
+    P_new[381] = t346;
+    P_new[382] = t347;
+    P_new[383] = t348;
+    P_new[384] = t101;
+    P_new[385] = t124;
+    P_new[386] = t146;
+    P_new[387] = t167;
+    P_new[388] = t187;
+    P_new[389] = t206;
+    P_new[390] = t224;
+    P_new[391] = t241;
+    P_new[392] = t257;
+    P_new[393] = t272;
+    P_new[394] = t286;
+    P_new[395] = t299;
+    P_new[396] = t311;
+    P_new[397] = t322;
+    P_new[398] = t332;
+    P_new[399] = t341;
+    P_new[400] = t349;
+    P_new[401] = t350;
+    P_new[402] = t351;
+    P_new[403] = t352;
+    P_new[404] = t353;
+    P_new[405] = t354;
+    P_new[406] = t355;
+    P_new[407] = t356;
+    P_new[408] = t102;
+    P_new[409] = t125;
+    P_new[410] = t147;
+    P_new[411] = t168;
+    P_new[412] = t188;
+    P_new[413] = t207;
+    P_new[414] = t225;
+    P_new[415] = t242;
+    P_new[416] = t258;
+    P_new[417] = t273;
+    P_new[418] = t287;
+    P_new[419] = t300;
+    P_new[420] = t312;
+    P_new[421] = t323;
+    P_new[422] = t333;
+    P_new[423] = t342;
+    P_new[424] = t350;
+    P_new[425] = t357;
+    P_new[426] = t358;
+    P_new[427] = t359;
+    P_new[428] = t360;
+    P_new[429] = t361;
+    P_new[430] = t362;
+    P_new[431] = t363;
+    P_new[432] = t103;
+    P_new[433] = t126;
+    P_new[434] = t148;
+    P_new[435] = t169;
+    P_new[436] = t189;
+    P_new[437] = t208;
+    P_new[438] = t226;
+    P_new[439] = t243;
+    P_new[440] = t259;
+    P_new[441] = t274;
+    P_new[442] = t288;
+    P_new[443] = t301;
+    P_new[444] = t313;
+    P_new[445] = t324;
+    P_new[446] = t334;
+    P_new[447] = t343;
+    P_new[448] = t351;
+    P_new[449] = t358;
+    P_new[450] = t364;
+    P_new[451] = t365;
+    P_new[452] = t366;
+    P_new[453] = t367;
+    P_new[454] = t368;
+    P_new[455] = t369;
+    P_new[456] = t104;
+    P_new[457] = t127;
+    P_new[458] = t149;
+    P_new[459] = t170;
+    P_new[460] = t190;
+    P_new[461] = t209;
+    P_new[462] = t227;
+    P_new[463] = t244;
+    P_new[464] = t260;
+    P_new[465] = t275;
+    P_new[466] = t289;
+    P_new[467] = t302;
+    P_new[468] = t314;
+    P_new[469] = t325;
+    P_new[470] = t335;
+    P_new[471] = t344;
+    P_new[472] = t352;
+    P_new[473] = t359;
+    P_new[474] = t365;
+    P_new[475] = t370;
+    P_new[476] = t371;
+    P_new[477] = t372;
+    P_new[478] = t373;
+    P_new[479] = t374;
+    P_new[480] = t105;
+    P_new[481] = t128;
+    P_new[482] = t150;
+    P_new[483] = t171;
+    P_new[484] = t191;
+    P_new[485] = t210;
+    P_new[486] = t228;
+    P_new[487] = t245;
+    P_new[488] = t261;
+    P_new[489] = t276;
+    P_new[490] = t290;
+    P_new[491] = t303;
+    P_new[492] = t315;
+    P_new[493] = t326;
+    P_new[494] = t336;
+    P_new[495] = t345;
+    P_new[496] = t353;
+    P_new[497] = t360;
+    P_new[498] = t366;
+    P_new[499] = t371;
+    P_new[500] = t375;
+    P_new[501] = t376;
+    P_new[502] = t377;
+    P_new[503] = t378;
+    P_new[504] = t106;
+    P_new[505] = t129;
+    P_new[506] = t151;
+    P_new[507] = t172;
+    P_new[508] = t192;
+    P_new[509] = t211;
+    P_new[510] = t229;
+    P_new[511] = t246;
+    P_new[512] = t262;
+    P_new[513] = t277;
+    P_new[514] = t291;
+    P_new[515] = t304;
+    P_new[516] = t316;
+    P_new[517] = t327;
+    P_new[518] = t337;
+    P_new[519] = t346;
+    P_new[520] = t354;
+    P_new[521] = t361;
+    P_new[522] = t367;
+    P_new[523] = t372;
+    P_new[524] = t376;
+    P_new[525] = t379;
+    P_new[526] = t380;
+    P_new[527] = t381;
+    P_new[528] = t107;
+    P_new[529] = t130;
+    P_new[530] = t152;
+    P_new[531] = t173;
+    P_new[532] = t193;
+    P_new[533] = t212;
+    P_new[534] = t230;
+    P_new[535] = t247;
+    P_new[536] = t263;
+    P_new[537] = t278;
+    P_new[538] = t292;
+    P_new[539] = t305;
+    P_new[540] = t317;
+    P_new[541] = t328;
+    P_new[542] = t338;
+    P_new[543] = t347;
+    P_new[544] = t355;
+    P_new[545] = t362;
+    P_new[546] = t368;
+    P_new[547] = t373;
+    P_new[548] = t377;
+    P_new[549] = t380;
+    P_new[550] = t382;
+    P_new[551] = t383;
+    P_new[552] = t108;
+    P_new[553] = t131;
+    P_new[554] = t153;
+    P_new[555] = t174;
+    P_new[556] = t194;
+    P_new[557] = t213;
+    P_new[558] = t231;
+    P_new[559] = t248;
+    P_new[560] = t264;
+    P_new[561] = t279;
+    P_new[562] = t293;
+    P_new[563] = t306;
+    P_new[564] = t318;
+    P_new[565] = t329;
+    P_new[566] = t339;
+    P_new[567] = t348;
+    P_new[568] = t356;
+    P_new[569] = t363;
+    P_new[570] = t369;
+    P_new[571] = t374;
+    P_new[572] = t378;
+    P_new[573] = t381;
+    P_new[574] = t383;
+    P_new[575] = t384;
+    #endif
     return 0;
 }
 

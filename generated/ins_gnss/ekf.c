@@ -17,7 +17,7 @@
  * run's p: one row of 1 for every step (C: p_stride 0) or one row per step, (steps, 1) (C: p_stride 1)
  * symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
- * symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
+ * symmetric in update_baro: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
  * status (C return value; Python raises NumericalError): 0 success
  *     predict 1: parameter dt must be nonnegative
  *     update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
@@ -26,10 +26,10 @@
  *     update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
  *     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
- *     update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+ *     update_baro 8: S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 85, sub 13, mul 143, div 0, sqrt 0, fma 1098, neg 21, cmp 1, calls 0 (flops 2437, instructions 1361)
  * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1205, neg 0, cmp 6, calls 0 (flops 2552, instructions 1353)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 21, div 2, sqrt 1, fma 155, neg 0, cmp 1, calls 0 (flops 336, instructions 182)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 22, div 2, sqrt 1, fma 155, neg 16, cmp 1, calls 0 (flops 337, instructions 199)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: wx, wy, wz, ax, ay, az
@@ -38,8 +38,8 @@
  * update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
  * start: predict-first: every step predicts, then updates
  * unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
- * vector rows (rows = vector): predict, update_gnss computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
- * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]]]}
+ * vector rows (rows = vector): predict, update_gnss, update_baro computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
+ * derive-interface: {"functions":[["ins_gnss_ekf_predict","predict",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["u",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_gnss","update_gnss",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[6],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_update_baro","update_baro",true,false,[["x",[16],false,false,false],["P",[16,16],false,false,false],["z",[1],false,false,false],["x_new",[16],true,false,false],["P_new",[16,16],true,false,false],["p",[1],false,false,false]]],["ins_gnss_ekf_run","run",true,true,[["z_gnss",["steps",6],false,false,false],["z_baro",["steps",1],false,false,false],["u",["steps",6],false,false,false,false,"us"],["x0",[16],false,false,false],["P0",[16,16],false,false,false],["xs",["steps",16],true,false,false],["Ps",["steps",16,16],true,true,false],["p",[1],false,false,true]]]],"statuses":[["predict",1,"parameter dt must be nonnegative",[],[0,"dt","nonnegative"]],["update_gnss",2,"S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive",[]],["update_gnss",3,"S is not positive definite: the variance s of measurement 1 (gpe) of the sequential update is not positive",[]],["update_gnss",4,"S is not positive definite: the variance s of measurement 2 (gpd) of the sequential update is not positive",[]],["update_gnss",5,"S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive",[]],["update_gnss",6,"S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive",[]],["update_gnss",7,"S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive",[]],["update_baro",8,"S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive",[]]]}
  */
 #include <math.h>
 #include <stddef.h>
@@ -2956,458 +2956,837 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
 int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P, const double *restrict z, double *restrict x_new, double *restrict P_new, const double *restrict p)
 {
     (void)p;
-    const double t1 = 0.25 + P[153];
-    if (!(t1 > 0.0)) {
-        return 8; /* S is not positive definite: pivot 0 of its LDL^T factorisation is not positive */
+    const double t1 = x[9] + z[0];
+    #if DERIVE_VECTOR
+    const derive_vd v_t2 = (-((derive_vd){P[144], P[145], P[146], P[147]}));
+    const double t3 = v_t2[1];
+    const double t4 = v_t2[2];
+    const double t5 = v_t2[3];
+    #else
+    const double t2 = -P[144];
+    const double t3 = -P[145];
+    const double t4 = -P[146];
+    const double t5 = -P[147];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t6 = (-((derive_vd){P[148], P[149], P[150], P[151]}));
+    const double t7 = v_t6[1];
+    const double t8 = v_t6[2];
+    const double t9 = v_t6[3];
+    #else
+    const double t6 = -P[148];
+    const double t7 = -P[149];
+    const double t8 = -P[150];
+    const double t9 = -P[151];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t10 = (-((derive_vd){P[152], P[153], P[154], P[155]}));
+    const double t11 = v_t10[1];
+    const double t12 = v_t10[2];
+    const double t13 = v_t10[3];
+    #else
+    const double t10 = -P[152];
+    const double t11 = -P[153];
+    const double t12 = -P[154];
+    const double t13 = -P[155];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t14 = (-((derive_vd){P[156], P[157], P[158], P[159]}));
+    const double t15 = v_t14[1];
+    const double t16 = v_t14[2];
+    const double t17 = v_t14[3];
+    #else
+    const double t14 = -P[156];
+    const double t15 = -P[157];
+    const double t16 = -P[158];
+    const double t17 = -P[159];
+    #endif
+    const double t18 = 0.25 - t11;
+    if (!(t18 > 0.0)) {
+        return 8; /* S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive */
     }
-    const double t2 = 1.0/t1;
-    const double t3 = P[9]*t2;
-    const double t4 = P[25]*t2;
-    const double t5 = P[41]*t2;
-    const double t6 = P[57]*t2;
-    const double t7 = P[73]*t2;
-    const double t8 = P[89]*t2;
-    const double t9 = P[105]*t2;
-    const double t10 = P[121]*t2;
-    const double t11 = P[137]*t2;
-    const double t12 = P[153]*t2;
-    const double t13 = P[154]*t2;
-    const double t14 = P[155]*t2;
-    const double t15 = P[156]*t2;
-    const double t16 = P[157]*t2;
-    const double t17 = P[158]*t2;
-    const double t18 = P[159]*t2;
-    const double t19 = x[9] + z[0];
-    const double t36 = DERIVE_FNMA(t19, t3, x[0]);
-    const double t37 = DERIVE_FNMA(t19, t4, x[1]);
-    const double t38 = DERIVE_FNMA(t19, t5, x[2]);
-    const double t39 = DERIVE_FNMA(t19, t6, x[3]);
-    const double t40 = DERIVE_FNMA(t19, t7, x[4]);
-    const double t41 = DERIVE_FNMA(t19, t8, x[5]);
-    const double t42 = DERIVE_FNMA(t19, t9, x[6]);
-    const double t43 = DERIVE_FNMA(t10, t19, x[7]);
-    const double t44 = DERIVE_FNMA(t11, t19, x[8]);
-    const double t45 = DERIVE_FNMA(t12, t19, x[9]);
-    const double t46 = DERIVE_FNMA(t13, t19, x[10]);
-    const double t47 = DERIVE_FNMA(t14, t19, x[11]);
-    const double t48 = DERIVE_FNMA(t15, t19, x[12]);
-    const double t49 = DERIVE_FNMA(t16, t19, x[13]);
-    const double t50 = DERIVE_FNMA(t17, t19, x[14]);
-    const double t51 = DERIVE_FNMA(t18, t19, x[15]);
-    const double t188 = DERIVE_FNMA(P[9], t3, P[0]);
-    const double t189 = DERIVE_FNMA(P[25], t3, P[1]);
-    const double t190 = DERIVE_FNMA(P[41], t3, P[2]);
-    const double t191 = DERIVE_FNMA(P[57], t3, P[3]);
-    const double t192 = DERIVE_FNMA(P[73], t3, P[4]);
-    const double t193 = DERIVE_FNMA(P[89], t3, P[5]);
-    const double t194 = DERIVE_FNMA(P[105], t3, P[6]);
-    const double t195 = DERIVE_FNMA(P[121], t3, P[7]);
-    const double t196 = DERIVE_FNMA(P[137], t3, P[8]);
-    const double t197 = DERIVE_FNMA(P[153], t3, P[9]);
-    const double t198 = DERIVE_FNMA(P[154], t3, P[10]);
-    const double t199 = DERIVE_FNMA(P[155], t3, P[11]);
-    const double t200 = DERIVE_FNMA(P[156], t3, P[12]);
-    const double t201 = DERIVE_FNMA(P[157], t3, P[13]);
-    const double t202 = DERIVE_FNMA(P[158], t3, P[14]);
-    const double t203 = DERIVE_FNMA(P[159], t3, P[15]);
-    const double t204 = DERIVE_FNMA(P[25], t4, P[17]);
-    const double t205 = DERIVE_FNMA(P[41], t4, P[18]);
-    const double t206 = DERIVE_FNMA(P[57], t4, P[19]);
-    const double t207 = DERIVE_FNMA(P[73], t4, P[20]);
-    const double t208 = DERIVE_FNMA(P[89], t4, P[21]);
-    const double t209 = DERIVE_FNMA(P[105], t4, P[22]);
-    const double t210 = DERIVE_FNMA(P[121], t4, P[23]);
-    const double t211 = DERIVE_FNMA(P[137], t4, P[24]);
-    const double t212 = DERIVE_FNMA(P[153], t4, P[25]);
-    const double t213 = DERIVE_FNMA(P[154], t4, P[26]);
-    const double t214 = DERIVE_FNMA(P[155], t4, P[27]);
-    const double t215 = DERIVE_FNMA(P[156], t4, P[28]);
-    const double t216 = DERIVE_FNMA(P[157], t4, P[29]);
-    const double t217 = DERIVE_FNMA(P[158], t4, P[30]);
-    const double t218 = DERIVE_FNMA(P[159], t4, P[31]);
-    const double t219 = DERIVE_FNMA(P[41], t5, P[34]);
-    const double t220 = DERIVE_FNMA(P[57], t5, P[35]);
-    const double t221 = DERIVE_FNMA(P[73], t5, P[36]);
-    const double t222 = DERIVE_FNMA(P[89], t5, P[37]);
-    const double t223 = DERIVE_FNMA(P[105], t5, P[38]);
-    const double t224 = DERIVE_FNMA(P[121], t5, P[39]);
-    const double t225 = DERIVE_FNMA(P[137], t5, P[40]);
-    const double t226 = DERIVE_FNMA(P[153], t5, P[41]);
-    const double t227 = DERIVE_FNMA(P[154], t5, P[42]);
-    const double t228 = DERIVE_FNMA(P[155], t5, P[43]);
-    const double t229 = DERIVE_FNMA(P[156], t5, P[44]);
-    const double t230 = DERIVE_FNMA(P[157], t5, P[45]);
-    const double t231 = DERIVE_FNMA(P[158], t5, P[46]);
-    const double t232 = DERIVE_FNMA(P[159], t5, P[47]);
-    const double t233 = DERIVE_FNMA(P[57], t6, P[51]);
-    const double t234 = DERIVE_FNMA(P[73], t6, P[52]);
-    const double t235 = DERIVE_FNMA(P[89], t6, P[53]);
-    const double t236 = DERIVE_FNMA(P[105], t6, P[54]);
-    const double t237 = DERIVE_FNMA(P[121], t6, P[55]);
-    const double t238 = DERIVE_FNMA(P[137], t6, P[56]);
-    const double t239 = DERIVE_FNMA(P[153], t6, P[57]);
-    const double t240 = DERIVE_FNMA(P[154], t6, P[58]);
-    const double t241 = DERIVE_FNMA(P[155], t6, P[59]);
-    const double t242 = DERIVE_FNMA(P[156], t6, P[60]);
-    const double t243 = DERIVE_FNMA(P[157], t6, P[61]);
-    const double t244 = DERIVE_FNMA(P[158], t6, P[62]);
-    const double t245 = DERIVE_FNMA(P[159], t6, P[63]);
-    const double t246 = DERIVE_FNMA(P[73], t7, P[68]);
-    const double t247 = DERIVE_FNMA(P[89], t7, P[69]);
-    const double t248 = DERIVE_FNMA(P[105], t7, P[70]);
-    const double t249 = DERIVE_FNMA(P[121], t7, P[71]);
-    const double t250 = DERIVE_FNMA(P[137], t7, P[72]);
-    const double t251 = DERIVE_FNMA(P[153], t7, P[73]);
-    const double t252 = DERIVE_FNMA(P[154], t7, P[74]);
-    const double t253 = DERIVE_FNMA(P[155], t7, P[75]);
-    const double t254 = DERIVE_FNMA(P[156], t7, P[76]);
-    const double t255 = DERIVE_FNMA(P[157], t7, P[77]);
-    const double t256 = DERIVE_FNMA(P[158], t7, P[78]);
-    const double t257 = DERIVE_FNMA(P[159], t7, P[79]);
-    const double t258 = DERIVE_FNMA(P[89], t8, P[85]);
-    const double t259 = DERIVE_FNMA(P[105], t8, P[86]);
-    const double t260 = DERIVE_FNMA(P[121], t8, P[87]);
-    const double t261 = DERIVE_FNMA(P[137], t8, P[88]);
-    const double t262 = DERIVE_FNMA(P[153], t8, P[89]);
-    const double t263 = DERIVE_FNMA(P[154], t8, P[90]);
-    const double t264 = DERIVE_FNMA(P[155], t8, P[91]);
-    const double t265 = DERIVE_FNMA(P[156], t8, P[92]);
-    const double t266 = DERIVE_FNMA(P[157], t8, P[93]);
-    const double t267 = DERIVE_FNMA(P[158], t8, P[94]);
-    const double t268 = DERIVE_FNMA(P[159], t8, P[95]);
-    const double t269 = DERIVE_FNMA(P[105], t9, P[102]);
-    const double t270 = DERIVE_FNMA(P[121], t9, P[103]);
-    const double t271 = DERIVE_FNMA(P[137], t9, P[104]);
-    const double t272 = DERIVE_FNMA(P[153], t9, P[105]);
-    const double t273 = DERIVE_FNMA(P[154], t9, P[106]);
-    const double t274 = DERIVE_FNMA(P[155], t9, P[107]);
-    const double t275 = DERIVE_FNMA(P[156], t9, P[108]);
-    const double t276 = DERIVE_FNMA(P[157], t9, P[109]);
-    const double t277 = DERIVE_FNMA(P[158], t9, P[110]);
-    const double t278 = DERIVE_FNMA(P[159], t9, P[111]);
-    const double t279 = DERIVE_FNMA(P[121], t10, P[119]);
-    const double t280 = DERIVE_FNMA(P[137], t10, P[120]);
-    const double t281 = DERIVE_FNMA(P[153], t10, P[121]);
-    const double t282 = DERIVE_FNMA(P[154], t10, P[122]);
-    const double t283 = DERIVE_FNMA(P[155], t10, P[123]);
-    const double t284 = DERIVE_FNMA(P[156], t10, P[124]);
-    const double t285 = DERIVE_FNMA(P[157], t10, P[125]);
-    const double t286 = DERIVE_FNMA(P[158], t10, P[126]);
-    const double t287 = DERIVE_FNMA(P[159], t10, P[127]);
-    const double t288 = DERIVE_FNMA(P[137], t11, P[136]);
-    const double t289 = DERIVE_FNMA(P[153], t11, P[137]);
-    const double t290 = DERIVE_FNMA(P[154], t11, P[138]);
-    const double t291 = DERIVE_FNMA(P[155], t11, P[139]);
-    const double t292 = DERIVE_FNMA(P[156], t11, P[140]);
-    const double t293 = DERIVE_FNMA(P[157], t11, P[141]);
-    const double t294 = DERIVE_FNMA(P[158], t11, P[142]);
-    const double t295 = DERIVE_FNMA(P[159], t11, P[143]);
-    const double t296 = DERIVE_FNMA(P[153], t12, P[153]);
-    const double t297 = DERIVE_FNMA(P[154], t12, P[154]);
-    const double t298 = DERIVE_FNMA(P[155], t12, P[155]);
-    const double t299 = DERIVE_FNMA(P[156], t12, P[156]);
-    const double t300 = DERIVE_FNMA(P[157], t12, P[157]);
-    const double t301 = DERIVE_FNMA(P[158], t12, P[158]);
-    const double t302 = DERIVE_FNMA(P[159], t12, P[159]);
-    const double t303 = DERIVE_FNMA(P[154], t13, P[170]);
-    const double t304 = DERIVE_FNMA(P[155], t13, P[171]);
-    const double t305 = DERIVE_FNMA(P[156], t13, P[172]);
-    const double t306 = DERIVE_FNMA(P[157], t13, P[173]);
-    const double t307 = DERIVE_FNMA(P[158], t13, P[174]);
-    const double t308 = DERIVE_FNMA(P[159], t13, P[175]);
-    const double t309 = DERIVE_FNMA(P[155], t14, P[187]);
-    const double t310 = DERIVE_FNMA(P[156], t14, P[188]);
-    const double t311 = DERIVE_FNMA(P[157], t14, P[189]);
-    const double t312 = DERIVE_FNMA(P[158], t14, P[190]);
-    const double t313 = DERIVE_FNMA(P[159], t14, P[191]);
-    const double t314 = DERIVE_FNMA(P[156], t15, P[204]);
-    const double t315 = DERIVE_FNMA(P[157], t15, P[205]);
-    const double t316 = DERIVE_FNMA(P[158], t15, P[206]);
-    const double t317 = DERIVE_FNMA(P[159], t15, P[207]);
-    const double t318 = DERIVE_FNMA(P[157], t16, P[221]);
-    const double t319 = DERIVE_FNMA(P[158], t16, P[222]);
-    const double t320 = DERIVE_FNMA(P[159], t16, P[223]);
-    const double t321 = DERIVE_FNMA(P[158], t17, P[238]);
-    const double t322 = DERIVE_FNMA(P[159], t17, P[239]);
-    const double t323 = DERIVE_FNMA(P[159], t18, P[255]);
-    const double t324 = DERIVE_FMA(t39, t39, DERIVE_FMA(t38, t38, DERIVE_FMA(t37, t37, t36*t36)));
-    const double t325 = 1.0/sqrt(t324);
-    const double t326 = t325*t36;
-    const double t327 = t325*t37;
-    const double t328 = t325*t38;
-    const double t329 = t325*t39;
-    x_new[0] = t326;
-    x_new[1] = t327;
-    x_new[2] = t328;
-    x_new[3] = t329;
-    x_new[4] = t40;
-    x_new[5] = t41;
-    x_new[6] = t42;
-    x_new[7] = t43;
-    x_new[8] = t44;
-    x_new[9] = t45;
-    x_new[10] = t46;
-    x_new[11] = t47;
-    x_new[12] = t48;
-    x_new[13] = t49;
-    x_new[14] = t50;
-    x_new[15] = t51;
-    P_new[0] = t188;
-    P_new[1] = t189;
-    P_new[2] = t190;
-    P_new[3] = t191;
-    P_new[4] = t192;
-    P_new[5] = t193;
-    P_new[6] = t194;
-    P_new[7] = t195;
-    P_new[8] = t196;
-    P_new[9] = t197;
-    P_new[10] = t198;
-    P_new[11] = t199;
-    P_new[12] = t200;
-    P_new[13] = t201;
-    P_new[14] = t202;
-    P_new[15] = t203;
-    P_new[16] = t189;
-    P_new[17] = t204;
-    P_new[18] = t205;
-    P_new[19] = t206;
-    P_new[20] = t207;
-    P_new[21] = t208;
-    P_new[22] = t209;
-    P_new[23] = t210;
-    P_new[24] = t211;
-    P_new[25] = t212;
-    P_new[26] = t213;
-    P_new[27] = t214;
-    P_new[28] = t215;
-    P_new[29] = t216;
-    P_new[30] = t217;
-    P_new[31] = t218;
-    P_new[32] = t190;
-    P_new[33] = t205;
-    P_new[34] = t219;
-    P_new[35] = t220;
-    P_new[36] = t221;
-    P_new[37] = t222;
-    P_new[38] = t223;
-    P_new[39] = t224;
-    P_new[40] = t225;
-    P_new[41] = t226;
-    P_new[42] = t227;
-    P_new[43] = t228;
-    P_new[44] = t229;
-    P_new[45] = t230;
-    P_new[46] = t231;
-    P_new[47] = t232;
-    P_new[48] = t191;
-    P_new[49] = t206;
-    P_new[50] = t220;
-    P_new[51] = t233;
-    P_new[52] = t234;
-    P_new[53] = t235;
-    P_new[54] = t236;
-    P_new[55] = t237;
-    P_new[56] = t238;
-    P_new[57] = t239;
-    P_new[58] = t240;
-    P_new[59] = t241;
-    P_new[60] = t242;
-    P_new[61] = t243;
-    P_new[62] = t244;
-    P_new[63] = t245;
-    P_new[64] = t192;
-    P_new[65] = t207;
-    P_new[66] = t221;
-    P_new[67] = t234;
-    P_new[68] = t246;
-    P_new[69] = t247;
-    P_new[70] = t248;
-    P_new[71] = t249;
-    P_new[72] = t250;
-    P_new[73] = t251;
-    P_new[74] = t252;
-    P_new[75] = t253;
-    P_new[76] = t254;
-    P_new[77] = t255;
-    P_new[78] = t256;
-    P_new[79] = t257;
-    P_new[80] = t193;
-    P_new[81] = t208;
-    P_new[82] = t222;
-    P_new[83] = t235;
-    P_new[84] = t247;
-    P_new[85] = t258;
-    P_new[86] = t259;
-    P_new[87] = t260;
-    P_new[88] = t261;
-    P_new[89] = t262;
-    P_new[90] = t263;
-    P_new[91] = t264;
-    P_new[92] = t265;
-    P_new[93] = t266;
-    P_new[94] = t267;
-    P_new[95] = t268;
-    P_new[96] = t194;
-    P_new[97] = t209;
-    P_new[98] = t223;
-    P_new[99] = t236;
-    P_new[100] = t248;
-    P_new[101] = t259;
-    P_new[102] = t269;
-    P_new[103] = t270;
-    P_new[104] = t271;
-    P_new[105] = t272;
-    P_new[106] = t273;
-    P_new[107] = t274;
-    P_new[108] = t275;
-    P_new[109] = t276;
-    P_new[110] = t277;
-    P_new[111] = t278;
-    P_new[112] = t195;
-    P_new[113] = t210;
-    P_new[114] = t224;
-    P_new[115] = t237;
-    P_new[116] = t249;
-    P_new[117] = t260;
-    P_new[118] = t270;
-    P_new[119] = t279;
-    P_new[120] = t280;
-    P_new[121] = t281;
-    P_new[122] = t282;
-    P_new[123] = t283;
-    P_new[124] = t284;
-    P_new[125] = t285;
-    P_new[126] = t286;
-    P_new[127] = t287;
-    P_new[128] = t196;
-    P_new[129] = t211;
-    P_new[130] = t225;
-    P_new[131] = t238;
-    P_new[132] = t250;
-    P_new[133] = t261;
-    P_new[134] = t271;
-    P_new[135] = t280;
-    P_new[136] = t288;
-    P_new[137] = t289;
-    P_new[138] = t290;
-    P_new[139] = t291;
-    P_new[140] = t292;
-    P_new[141] = t293;
-    P_new[142] = t294;
-    P_new[143] = t295;
-    P_new[144] = t197;
-    P_new[145] = t212;
-    P_new[146] = t226;
-    P_new[147] = t239;
-    P_new[148] = t251;
-    P_new[149] = t262;
-    P_new[150] = t272;
-    P_new[151] = t281;
-    P_new[152] = t289;
-    P_new[153] = t296;
-    P_new[154] = t297;
-    P_new[155] = t298;
-    P_new[156] = t299;
-    P_new[157] = t300;
-    P_new[158] = t301;
-    P_new[159] = t302;
-    P_new[160] = t198;
-    P_new[161] = t213;
-    P_new[162] = t227;
-    P_new[163] = t240;
-    P_new[164] = t252;
-    P_new[165] = t263;
-    P_new[166] = t273;
-    P_new[167] = t282;
-    P_new[168] = t290;
-    P_new[169] = t297;
-    P_new[170] = t303;
-    P_new[171] = t304;
-    P_new[172] = t305;
-    P_new[173] = t306;
-    P_new[174] = t307;
-    P_new[175] = t308;
-    P_new[176] = t199;
-    P_new[177] = t214;
-    P_new[178] = t228;
-    P_new[179] = t241;
-    P_new[180] = t253;
-    P_new[181] = t264;
-    P_new[182] = t274;
-    P_new[183] = t283;
-    P_new[184] = t291;
-    P_new[185] = t298;
-    P_new[186] = t304;
-    P_new[187] = t309;
-    P_new[188] = t310;
-    P_new[189] = t311;
-    P_new[190] = t312;
-    P_new[191] = t313;
-    P_new[192] = t200;
-    P_new[193] = t215;
-    P_new[194] = t229;
-    P_new[195] = t242;
-    P_new[196] = t254;
-    P_new[197] = t265;
-    P_new[198] = t275;
-    P_new[199] = t284;
-    P_new[200] = t292;
-    P_new[201] = t299;
-    P_new[202] = t305;
-    P_new[203] = t310;
-    P_new[204] = t314;
-    P_new[205] = t315;
-    P_new[206] = t316;
-    P_new[207] = t317;
-    P_new[208] = t201;
-    P_new[209] = t216;
-    P_new[210] = t230;
-    P_new[211] = t243;
-    P_new[212] = t255;
-    P_new[213] = t266;
-    P_new[214] = t276;
-    P_new[215] = t285;
-    P_new[216] = t293;
-    P_new[217] = t300;
-    P_new[218] = t306;
-    P_new[219] = t311;
-    P_new[220] = t315;
-    P_new[221] = t318;
-    P_new[222] = t319;
-    P_new[223] = t320;
-    P_new[224] = t202;
-    P_new[225] = t217;
-    P_new[226] = t231;
-    P_new[227] = t244;
-    P_new[228] = t256;
-    P_new[229] = t267;
-    P_new[230] = t277;
-    P_new[231] = t286;
-    P_new[232] = t294;
-    P_new[233] = t301;
-    P_new[234] = t307;
-    P_new[235] = t312;
-    P_new[236] = t316;
-    P_new[237] = t319;
-    P_new[238] = t321;
-    P_new[239] = t322;
-    P_new[240] = t203;
-    P_new[241] = t218;
-    P_new[242] = t232;
-    P_new[243] = t245;
-    P_new[244] = t257;
-    P_new[245] = t268;
-    P_new[246] = t278;
-    P_new[247] = t287;
-    P_new[248] = t295;
-    P_new[249] = t302;
-    P_new[250] = t308;
-    P_new[251] = t313;
-    P_new[252] = t317;
-    P_new[253] = t320;
-    P_new[254] = t322;
-    P_new[255] = t323;
+    const double t19 = (-1.0)/t18;
+    const double t20 = t1*t19;
+    #if DERIVE_VECTOR
+    const derive_vd v_t21 = (((derive_vd){t19, t19, t19, t19}) * v_t2);
+    const double t21 = v_t21[0];
+    const double t22 = v_t21[1];
+    const double t23 = v_t21[2];
+    const double t24 = v_t21[3];
+    #else
+    const double t21 = t19*t2;
+    const double t22 = t19*t3;
+    const double t23 = t19*t4;
+    const double t24 = t19*t5;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t25 = (((derive_vd){t19, t19, t19, t19}) * v_t6);
+    const double t25 = v_t25[0];
+    const double t26 = v_t25[1];
+    const double t27 = v_t25[2];
+    const double t28 = v_t25[3];
+    #else
+    const double t25 = t19*t6;
+    const double t26 = t19*t7;
+    const double t27 = t19*t8;
+    const double t28 = t19*t9;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t29 = (((derive_vd){t19, t19, t19, t19}) * v_t10);
+    const double t29 = v_t29[0];
+    const double t30 = v_t29[1];
+    const double t31 = v_t29[2];
+    const double t32 = v_t29[3];
+    #else
+    const double t29 = t19*t10;
+    const double t30 = t19*t11;
+    const double t31 = t19*t12;
+    const double t32 = t19*t13;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t33 = (((derive_vd){t19, t19, t19, t19}) * v_t14);
+    const double t33 = v_t33[0];
+    const double t34 = v_t33[1];
+    const double t35 = v_t33[2];
+    const double t36 = v_t33[3];
+    #else
+    const double t33 = t19*t14;
+    const double t34 = t19*t15;
+    const double t35 = t19*t16;
+    const double t36 = t19*t17;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t37 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t2, ((derive_vd){x[0], x[1], x[2], x[3]}));
+    const double t37 = v_t37[0];
+    const double t38 = v_t37[1];
+    const double t39 = v_t37[2];
+    const double t40 = v_t37[3];
+    #else
+    const double t37 = DERIVE_FNMA(t20, t2, x[0]);
+    const double t38 = DERIVE_FNMA(t20, t3, x[1]);
+    const double t39 = DERIVE_FNMA(t20, t4, x[2]);
+    const double t40 = DERIVE_FNMA(t20, t5, x[3]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t41 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t6, ((derive_vd){x[4], x[5], x[6], x[7]}));
+    *(derive_vd_unaligned *)&x_new[4] = v_t41;
+    #else
+    const double t41 = DERIVE_FNMA(t20, t6, x[4]);
+    const double t42 = DERIVE_FNMA(t20, t7, x[5]);
+    const double t43 = DERIVE_FNMA(t20, t8, x[6]);
+    const double t44 = DERIVE_FNMA(t20, t9, x[7]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t45 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
+    *(derive_vd_unaligned *)&x_new[8] = v_t45;
+    #else
+    const double t45 = DERIVE_FNMA(t20, t10, x[8]);
+    const double t46 = DERIVE_FNMA(t20, t11, x[9]);
+    const double t47 = DERIVE_FNMA(t20, t12, x[10]);
+    const double t48 = DERIVE_FNMA(t20, t13, x[11]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t49 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
+    *(derive_vd_unaligned *)&x_new[12] = v_t49;
+    #else
+    const double t49 = DERIVE_FNMA(t20, t14, x[12]);
+    const double t50 = DERIVE_FNMA(t20, t15, x[13]);
+    const double t51 = DERIVE_FNMA(t20, t16, x[14]);
+    const double t52 = DERIVE_FNMA(t20, t17, x[15]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t53 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
+    const double t54 = v_t53[1];
+    const double t55 = v_t53[2];
+    const double t56 = v_t53[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t53;
+    #else
+    const double t53 = DERIVE_FMA(t21, t2, P[0]);
+    const double t54 = DERIVE_FMA(t21, t3, P[1]);
+    const double t55 = DERIVE_FMA(t21, t4, P[2]);
+    const double t56 = DERIVE_FMA(t21, t5, P[3]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
+    #else
+    const double t57 = DERIVE_FMA(t21, t6, P[4]);
+    const double t58 = DERIVE_FMA(t21, t7, P[5]);
+    const double t59 = DERIVE_FMA(t21, t8, P[6]);
+    const double t60 = DERIVE_FMA(t21, t9, P[7]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t61 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
+    #else
+    const double t61 = DERIVE_FMA(t21, t10, P[8]);
+    const double t62 = DERIVE_FMA(t21, t11, P[9]);
+    const double t63 = DERIVE_FMA(t21, t12, P[10]);
+    const double t64 = DERIVE_FMA(t21, t13, P[11]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t65 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
+    #else
+    const double t65 = DERIVE_FMA(t21, t14, P[12]);
+    const double t66 = DERIVE_FMA(t21, t15, P[13]);
+    const double t67 = DERIVE_FMA(t21, t16, P[14]);
+    const double t68 = DERIVE_FMA(t21, t17, P[15]);
+    #endif
+    const double t69 = DERIVE_FMA(t22, t3, P[17]);
+    const double t70 = DERIVE_FMA(t22, t4, P[18]);
+    const double t71 = DERIVE_FMA(t22, t5, P[19]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t72 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t6, ((derive_vd){P[20], P[21], P[22], P[23]}));
+    #else
+    const double t72 = DERIVE_FMA(t22, t6, P[20]);
+    const double t73 = DERIVE_FMA(t22, t7, P[21]);
+    const double t74 = DERIVE_FMA(t22, t8, P[22]);
+    const double t75 = DERIVE_FMA(t22, t9, P[23]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t76 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t10, ((derive_vd){P[24], P[25], P[26], P[27]}));
+    #else
+    const double t76 = DERIVE_FMA(t22, t10, P[24]);
+    const double t77 = DERIVE_FMA(t22, t11, P[25]);
+    const double t78 = DERIVE_FMA(t22, t12, P[26]);
+    const double t79 = DERIVE_FMA(t22, t13, P[27]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t80 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t14, ((derive_vd){P[28], P[29], P[30], P[31]}));
+    #else
+    const double t80 = DERIVE_FMA(t22, t14, P[28]);
+    const double t81 = DERIVE_FMA(t22, t15, P[29]);
+    const double t82 = DERIVE_FMA(t22, t16, P[30]);
+    const double t83 = DERIVE_FMA(t22, t17, P[31]);
+    #endif
+    const double t84 = DERIVE_FMA(t23, t4, P[34]);
+    const double t85 = DERIVE_FMA(t23, t5, P[35]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t86 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t6, ((derive_vd){P[36], P[37], P[38], P[39]}));
+    #else
+    const double t86 = DERIVE_FMA(t23, t6, P[36]);
+    const double t87 = DERIVE_FMA(t23, t7, P[37]);
+    const double t88 = DERIVE_FMA(t23, t8, P[38]);
+    const double t89 = DERIVE_FMA(t23, t9, P[39]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t90 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t10, ((derive_vd){P[40], P[41], P[42], P[43]}));
+    #else
+    const double t90 = DERIVE_FMA(t23, t10, P[40]);
+    const double t91 = DERIVE_FMA(t23, t11, P[41]);
+    const double t92 = DERIVE_FMA(t23, t12, P[42]);
+    const double t93 = DERIVE_FMA(t23, t13, P[43]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t94 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t14, ((derive_vd){P[44], P[45], P[46], P[47]}));
+    #else
+    const double t94 = DERIVE_FMA(t23, t14, P[44]);
+    const double t95 = DERIVE_FMA(t23, t15, P[45]);
+    const double t96 = DERIVE_FMA(t23, t16, P[46]);
+    const double t97 = DERIVE_FMA(t23, t17, P[47]);
+    #endif
+    const double t98 = DERIVE_FMA(t24, t5, P[51]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t6, ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd tr_v_t57_0 = __builtin_shufflevector(v_t57, v_t72, 0, 4, 2, 6);
+    const derive_vd tr_v_t57_1 = __builtin_shufflevector(v_t57, v_t72, 1, 5, 3, 7);
+    const derive_vd tr_v_t57_2 = __builtin_shufflevector(v_t86, v_t99, 0, 4, 2, 6);
+    const derive_vd tr_v_t57_3 = __builtin_shufflevector(v_t86, v_t99, 1, 5, 3, 7);
+    const derive_vd tr_v_t57_c0 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t57_c1 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t57_c2 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t57_c3 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t57;
+    *(derive_vd_unaligned *)&P_new[20] = v_t72;
+    *(derive_vd_unaligned *)&P_new[36] = v_t86;
+    *(derive_vd_unaligned *)&P_new[52] = v_t99;
+    *(derive_vd_unaligned *)&P_new[64] = tr_v_t57_c0;
+    *(derive_vd_unaligned *)&P_new[80] = tr_v_t57_c1;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t57_c2;
+    *(derive_vd_unaligned *)&P_new[112] = tr_v_t57_c3;
+    #else
+    const double t99 = DERIVE_FMA(t24, t6, P[52]);
+    const double t100 = DERIVE_FMA(t24, t7, P[53]);
+    const double t101 = DERIVE_FMA(t24, t8, P[54]);
+    const double t102 = DERIVE_FMA(t24, t9, P[55]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd tr_v_t61_0 = __builtin_shufflevector(v_t61, v_t76, 0, 4, 2, 6);
+    const derive_vd tr_v_t61_1 = __builtin_shufflevector(v_t61, v_t76, 1, 5, 3, 7);
+    const derive_vd tr_v_t61_2 = __builtin_shufflevector(v_t90, v_t103, 0, 4, 2, 6);
+    const derive_vd tr_v_t61_3 = __builtin_shufflevector(v_t90, v_t103, 1, 5, 3, 7);
+    const derive_vd tr_v_t61_c0 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t61_c1 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t61_c2 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t61_c3 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t61;
+    *(derive_vd_unaligned *)&P_new[24] = v_t76;
+    *(derive_vd_unaligned *)&P_new[40] = v_t90;
+    *(derive_vd_unaligned *)&P_new[56] = v_t103;
+    *(derive_vd_unaligned *)&P_new[128] = tr_v_t61_c0;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t61_c1;
+    *(derive_vd_unaligned *)&P_new[160] = tr_v_t61_c2;
+    *(derive_vd_unaligned *)&P_new[176] = tr_v_t61_c3;
+    #else
+    const double t103 = DERIVE_FMA(t24, t10, P[56]);
+    const double t104 = DERIVE_FMA(t24, t11, P[57]);
+    const double t105 = DERIVE_FMA(t24, t12, P[58]);
+    const double t106 = DERIVE_FMA(t24, t13, P[59]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd tr_v_t65_0 = __builtin_shufflevector(v_t65, v_t80, 0, 4, 2, 6);
+    const derive_vd tr_v_t65_1 = __builtin_shufflevector(v_t65, v_t80, 1, 5, 3, 7);
+    const derive_vd tr_v_t65_2 = __builtin_shufflevector(v_t94, v_t107, 0, 4, 2, 6);
+    const derive_vd tr_v_t65_3 = __builtin_shufflevector(v_t94, v_t107, 1, 5, 3, 7);
+    const derive_vd tr_v_t65_c0 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t65_c1 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t65_c2 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t65_c3 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t65;
+    *(derive_vd_unaligned *)&P_new[28] = v_t80;
+    *(derive_vd_unaligned *)&P_new[44] = v_t94;
+    *(derive_vd_unaligned *)&P_new[60] = v_t107;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t65_c0;
+    *(derive_vd_unaligned *)&P_new[208] = tr_v_t65_c1;
+    *(derive_vd_unaligned *)&P_new[224] = tr_v_t65_c2;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t65_c3;
+    #else
+    const double t107 = DERIVE_FMA(t24, t14, P[60]);
+    const double t108 = DERIVE_FMA(t24, t15, P[61]);
+    const double t109 = DERIVE_FMA(t24, t16, P[62]);
+    const double t110 = DERIVE_FMA(t24, t17, P[63]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t6, ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const double t112 = v_t111[1];
+    const double t113 = v_t111[2];
+    const double t114 = v_t111[3];
+    *(derive_vd_unaligned *)&P_new[68] = v_t111;
+    #else
+    const double t111 = DERIVE_FMA(t25, t6, P[68]);
+    const double t112 = DERIVE_FMA(t25, t7, P[69]);
+    const double t113 = DERIVE_FMA(t25, t8, P[70]);
+    const double t114 = DERIVE_FMA(t25, t9, P[71]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t10, ((derive_vd){P[72], P[73], P[74], P[75]}));
+    #else
+    const double t115 = DERIVE_FMA(t25, t10, P[72]);
+    const double t116 = DERIVE_FMA(t25, t11, P[73]);
+    const double t117 = DERIVE_FMA(t25, t12, P[74]);
+    const double t118 = DERIVE_FMA(t25, t13, P[75]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t14, ((derive_vd){P[76], P[77], P[78], P[79]}));
+    #else
+    const double t119 = DERIVE_FMA(t25, t14, P[76]);
+    const double t120 = DERIVE_FMA(t25, t15, P[77]);
+    const double t121 = DERIVE_FMA(t25, t16, P[78]);
+    const double t122 = DERIVE_FMA(t25, t17, P[79]);
+    #endif
+    const double t123 = DERIVE_FMA(t26, t7, P[85]);
+    const double t124 = DERIVE_FMA(t26, t8, P[86]);
+    const double t125 = DERIVE_FMA(t26, t9, P[87]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t126 = DERIVE_VFMA(((derive_vd){t26, t26, t26, t26}), v_t10, ((derive_vd){P[88], P[89], P[90], P[91]}));
+    #else
+    const double t126 = DERIVE_FMA(t26, t10, P[88]);
+    const double t127 = DERIVE_FMA(t26, t11, P[89]);
+    const double t128 = DERIVE_FMA(t26, t12, P[90]);
+    const double t129 = DERIVE_FMA(t26, t13, P[91]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t26, t26, t26, t26}), v_t14, ((derive_vd){P[92], P[93], P[94], P[95]}));
+    #else
+    const double t130 = DERIVE_FMA(t26, t14, P[92]);
+    const double t131 = DERIVE_FMA(t26, t15, P[93]);
+    const double t132 = DERIVE_FMA(t26, t16, P[94]);
+    const double t133 = DERIVE_FMA(t26, t17, P[95]);
+    #endif
+    const double t134 = DERIVE_FMA(t27, t8, P[102]);
+    const double t135 = DERIVE_FMA(t27, t9, P[103]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t136 = DERIVE_VFMA(((derive_vd){t27, t27, t27, t27}), v_t10, ((derive_vd){P[104], P[105], P[106], P[107]}));
+    #else
+    const double t136 = DERIVE_FMA(t27, t10, P[104]);
+    const double t137 = DERIVE_FMA(t27, t11, P[105]);
+    const double t138 = DERIVE_FMA(t27, t12, P[106]);
+    const double t139 = DERIVE_FMA(t27, t13, P[107]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t140 = DERIVE_VFMA(((derive_vd){t27, t27, t27, t27}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
+    #else
+    const double t140 = DERIVE_FMA(t27, t14, P[108]);
+    const double t141 = DERIVE_FMA(t27, t15, P[109]);
+    const double t142 = DERIVE_FMA(t27, t16, P[110]);
+    const double t143 = DERIVE_FMA(t27, t17, P[111]);
+    #endif
+    const double t144 = DERIVE_FMA(t28, t9, P[119]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t145 = DERIVE_VFMA(((derive_vd){t28, t28, t28, t28}), v_t10, ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd tr_v_t115_0 = __builtin_shufflevector(v_t115, v_t126, 0, 4, 2, 6);
+    const derive_vd tr_v_t115_1 = __builtin_shufflevector(v_t115, v_t126, 1, 5, 3, 7);
+    const derive_vd tr_v_t115_2 = __builtin_shufflevector(v_t136, v_t145, 0, 4, 2, 6);
+    const derive_vd tr_v_t115_3 = __builtin_shufflevector(v_t136, v_t145, 1, 5, 3, 7);
+    const derive_vd tr_v_t115_c0 = __builtin_shufflevector(tr_v_t115_0, tr_v_t115_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t115_c1 = __builtin_shufflevector(tr_v_t115_1, tr_v_t115_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t115_c2 = __builtin_shufflevector(tr_v_t115_0, tr_v_t115_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t115_c3 = __builtin_shufflevector(tr_v_t115_1, tr_v_t115_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[72] = v_t115;
+    *(derive_vd_unaligned *)&P_new[88] = v_t126;
+    *(derive_vd_unaligned *)&P_new[104] = v_t136;
+    *(derive_vd_unaligned *)&P_new[120] = v_t145;
+    *(derive_vd_unaligned *)&P_new[132] = tr_v_t115_c0;
+    *(derive_vd_unaligned *)&P_new[148] = tr_v_t115_c1;
+    *(derive_vd_unaligned *)&P_new[164] = tr_v_t115_c2;
+    *(derive_vd_unaligned *)&P_new[180] = tr_v_t115_c3;
+    #else
+    const double t145 = DERIVE_FMA(t28, t10, P[120]);
+    const double t146 = DERIVE_FMA(t28, t11, P[121]);
+    const double t147 = DERIVE_FMA(t28, t12, P[122]);
+    const double t148 = DERIVE_FMA(t28, t13, P[123]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t149 = DERIVE_VFMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd tr_v_t119_0 = __builtin_shufflevector(v_t119, v_t130, 0, 4, 2, 6);
+    const derive_vd tr_v_t119_1 = __builtin_shufflevector(v_t119, v_t130, 1, 5, 3, 7);
+    const derive_vd tr_v_t119_2 = __builtin_shufflevector(v_t140, v_t149, 0, 4, 2, 6);
+    const derive_vd tr_v_t119_3 = __builtin_shufflevector(v_t140, v_t149, 1, 5, 3, 7);
+    const derive_vd tr_v_t119_c0 = __builtin_shufflevector(tr_v_t119_0, tr_v_t119_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t119_c1 = __builtin_shufflevector(tr_v_t119_1, tr_v_t119_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t119_c2 = __builtin_shufflevector(tr_v_t119_0, tr_v_t119_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t119_c3 = __builtin_shufflevector(tr_v_t119_1, tr_v_t119_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[76] = v_t119;
+    *(derive_vd_unaligned *)&P_new[92] = v_t130;
+    *(derive_vd_unaligned *)&P_new[108] = v_t140;
+    *(derive_vd_unaligned *)&P_new[124] = v_t149;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t119_c0;
+    *(derive_vd_unaligned *)&P_new[212] = tr_v_t119_c1;
+    *(derive_vd_unaligned *)&P_new[228] = tr_v_t119_c2;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t119_c3;
+    #else
+    const double t149 = DERIVE_FMA(t28, t14, P[124]);
+    const double t150 = DERIVE_FMA(t28, t15, P[125]);
+    const double t151 = DERIVE_FMA(t28, t16, P[126]);
+    const double t152 = DERIVE_FMA(t28, t17, P[127]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t153 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const double t154 = v_t153[1];
+    const double t155 = v_t153[2];
+    const double t156 = v_t153[3];
+    *(derive_vd_unaligned *)&P_new[136] = v_t153;
+    #else
+    const double t153 = DERIVE_FMA(t29, t10, P[136]);
+    const double t154 = DERIVE_FMA(t29, t11, P[137]);
+    const double t155 = DERIVE_FMA(t29, t12, P[138]);
+    const double t156 = DERIVE_FMA(t29, t13, P[139]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t157 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[140], P[141], P[142], P[143]}));
+    #else
+    const double t157 = DERIVE_FMA(t29, t14, P[140]);
+    const double t158 = DERIVE_FMA(t29, t15, P[141]);
+    const double t159 = DERIVE_FMA(t29, t16, P[142]);
+    const double t160 = DERIVE_FMA(t29, t17, P[143]);
+    #endif
+    const double t161 = DERIVE_FMA(t11, t30, P[153]);
+    const double t162 = DERIVE_FMA(t12, t30, P[154]);
+    const double t163 = DERIVE_FMA(t13, t30, P[155]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t164 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t14, ((derive_vd){P[156], P[157], P[158], P[159]}));
+    #else
+    const double t164 = DERIVE_FMA(t30, t14, P[156]);
+    const double t165 = DERIVE_FMA(t30, t15, P[157]);
+    const double t166 = DERIVE_FMA(t30, t16, P[158]);
+    const double t167 = DERIVE_FMA(t30, t17, P[159]);
+    #endif
+    const double t168 = DERIVE_FMA(t12, t31, P[170]);
+    const double t169 = DERIVE_FMA(t13, t31, P[171]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t170 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t14, ((derive_vd){P[172], P[173], P[174], P[175]}));
+    #else
+    const double t170 = DERIVE_FMA(t31, t14, P[172]);
+    const double t171 = DERIVE_FMA(t31, t15, P[173]);
+    const double t172 = DERIVE_FMA(t31, t16, P[174]);
+    const double t173 = DERIVE_FMA(t31, t17, P[175]);
+    #endif
+    const double t174 = DERIVE_FMA(t13, t32, P[187]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t14, ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t157_0 = __builtin_shufflevector(v_t157, v_t164, 0, 4, 2, 6);
+    const derive_vd tr_v_t157_1 = __builtin_shufflevector(v_t157, v_t164, 1, 5, 3, 7);
+    const derive_vd tr_v_t157_2 = __builtin_shufflevector(v_t170, v_t175, 0, 4, 2, 6);
+    const derive_vd tr_v_t157_3 = __builtin_shufflevector(v_t170, v_t175, 1, 5, 3, 7);
+    const derive_vd tr_v_t157_c0 = __builtin_shufflevector(tr_v_t157_0, tr_v_t157_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t157_c1 = __builtin_shufflevector(tr_v_t157_1, tr_v_t157_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t157_c2 = __builtin_shufflevector(tr_v_t157_0, tr_v_t157_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t157_c3 = __builtin_shufflevector(tr_v_t157_1, tr_v_t157_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[140] = v_t157;
+    *(derive_vd_unaligned *)&P_new[156] = v_t164;
+    *(derive_vd_unaligned *)&P_new[172] = v_t170;
+    *(derive_vd_unaligned *)&P_new[188] = v_t175;
+    *(derive_vd_unaligned *)&P_new[200] = tr_v_t157_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t157_c1;
+    *(derive_vd_unaligned *)&P_new[232] = tr_v_t157_c2;
+    *(derive_vd_unaligned *)&P_new[248] = tr_v_t157_c3;
+    #else
+    const double t175 = DERIVE_FMA(t32, t14, P[188]);
+    const double t176 = DERIVE_FMA(t32, t15, P[189]);
+    const double t177 = DERIVE_FMA(t32, t16, P[190]);
+    const double t178 = DERIVE_FMA(t32, t17, P[191]);
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const double t180 = v_t179[1];
+    const double t181 = v_t179[2];
+    const double t182 = v_t179[3];
+    *(derive_vd_unaligned *)&P_new[204] = v_t179;
+    #else
+    const double t179 = DERIVE_FMA(t33, t14, P[204]);
+    const double t180 = DERIVE_FMA(t33, t15, P[205]);
+    const double t181 = DERIVE_FMA(t33, t16, P[206]);
+    const double t182 = DERIVE_FMA(t33, t17, P[207]);
+    #endif
+    const double t183 = DERIVE_FMA(t15, t34, P[221]);
+    const double t184 = DERIVE_FMA(t16, t34, P[222]);
+    const double t185 = DERIVE_FMA(t17, t34, P[223]);
+    const double t186 = DERIVE_FMA(t16, t35, P[238]);
+    const double t187 = DERIVE_FMA(t17, t35, P[239]);
+    const double t188 = DERIVE_FMA(t17, t36, P[255]);
+    const double t189 = DERIVE_FMA(t40, t40, DERIVE_FMA(t39, t39, DERIVE_FMA(t38, t38, t37*t37)));
+    const double t190 = 1.0/sqrt(t189);
+    const double t191 = t190*t37;
+    const double t192 = t190*t38;
+    const double t193 = t190*t39;
+    const double t194 = t190*t40;
+    #if DERIVE_VECTOR
+    x_new[0] = t191;
+    x_new[1] = t192;
+    x_new[2] = t193;
+    x_new[3] = t194;
+    P_new[16] = t54;
+    P_new[17] = t69;
+    P_new[18] = t70;
+    P_new[19] = t71;
+    P_new[32] = t55;
+    P_new[33] = t70;
+    P_new[34] = t84;
+    P_new[35] = t85;
+    P_new[48] = t56;
+    P_new[49] = t71;
+    P_new[50] = t85;
+    P_new[51] = t98;
+    P_new[84] = t112;
+    P_new[85] = t123;
+    P_new[86] = t124;
+    P_new[87] = t125;
+    P_new[100] = t113;
+    P_new[101] = t124;
+    P_new[102] = t134;
+    P_new[103] = t135;
+    P_new[116] = t114;
+    P_new[117] = t125;
+    P_new[118] = t135;
+    P_new[119] = t144;
+    P_new[152] = t154;
+    P_new[153] = t161;
+    P_new[154] = t162;
+    P_new[155] = t163;
+    P_new[168] = t155;
+    P_new[169] = t162;
+    P_new[170] = t168;
+    P_new[171] = t169;
+    P_new[184] = t156;
+    P_new[185] = t163;
+    P_new[186] = t169;
+    P_new[187] = t174;
+    P_new[220] = t180;
+    P_new[221] = t183;
+    P_new[222] = t184;
+    P_new[223] = t185;
+    P_new[236] = t181;
+    P_new[237] = t184;
+    P_new[238] = t186;
+    P_new[239] = t187;
+    P_new[252] = t182;
+    P_new[253] = t185;
+    P_new[254] = t187;
+    P_new[255] = t188;
+    #else
+    x_new[0] = t191;
+    x_new[1] = t192;
+    x_new[2] = t193;
+    x_new[3] = t194;
+    x_new[4] = t41;
+    x_new[5] = t42;
+    x_new[6] = t43;
+    x_new[7] = t44;
+    x_new[8] = t45;
+    x_new[9] = t46;
+    x_new[10] = t47;
+    x_new[11] = t48;
+    x_new[12] = t49;
+    x_new[13] = t50;
+    x_new[14] = t51;
+    x_new[15] = t52;
+    P_new[0] = t53;
+    P_new[1] = t54;
+    P_new[2] = t55;
+    P_new[3] = t56;
+    P_new[4] = t57;
+    P_new[5] = t58;
+    P_new[6] = t59;
+    P_new[7] = t60;
+    P_new[8] = t61;
+    P_new[9] = t62;
+    P_new[10] = t63;
+    P_new[11] = t64;
+    P_new[12] = t65;
+    P_new[13] = t66;
+    P_new[14] = t67;
+    P_new[15] = t68;
+    P_new[16] = t54;
+    P_new[17] = t69;
+    P_new[18] = t70;
+    P_new[19] = t71;
+    P_new[20] = t72;
+    P_new[21] = t73;
+    P_new[22] = t74;
+    P_new[23] = t75;
+    P_new[24] = t76;
+    P_new[25] = t77;
+    P_new[26] = t78;
+    P_new[27] = t79;
+    P_new[28] = t80;
+    P_new[29] = t81;
+    P_new[30] = t82;
+    P_new[31] = t83;
+    P_new[32] = t55;
+    P_new[33] = t70;
+    P_new[34] = t84;
+    P_new[35] = t85;
+    P_new[36] = t86;
+    P_new[37] = t87;
+    P_new[38] = t88;
+    P_new[39] = t89;
+    P_new[40] = t90;
+    P_new[41] = t91;
+    P_new[42] = t92;
+    P_new[43] = t93;
+    P_new[44] = t94;
+    P_new[45] = t95;
+    P_new[46] = t96;
+    P_new[47] = t97;
+    P_new[48] = t56;
+    P_new[49] = t71;
+    P_new[50] = t85;
+    P_new[51] = t98;
+    P_new[52] = t99;
+    P_new[53] = t100;
+    P_new[54] = t101;
+    P_new[55] = t102;
+    P_new[56] = t103;
+    P_new[57] = t104;
+    P_new[58] = t105;
+    P_new[59] = t106;
+    P_new[60] = t107;
+    P_new[61] = t108;
+    P_new[62] = t109;
+    P_new[63] = t110;
+    P_new[64] = t57;
+    P_new[65] = t72;
+    P_new[66] = t86;
+    P_new[67] = t99;
+    P_new[68] = t111;
+    P_new[69] = t112;
+    P_new[70] = t113;
+    P_new[71] = t114;
+    P_new[72] = t115;
+    P_new[73] = t116;
+    P_new[74] = t117;
+    P_new[75] = t118;
+    P_new[76] = t119;
+    P_new[77] = t120;
+    P_new[78] = t121;
+    P_new[79] = t122;
+    P_new[80] = t58;
+    P_new[81] = t73;
+    P_new[82] = t87;
+    P_new[83] = t100;
+    P_new[84] = t112;
+    P_new[85] = t123;
+    P_new[86] = t124;
+    P_new[87] = t125;
+    P_new[88] = t126;
+    P_new[89] = t127;
+    P_new[90] = t128;
+    P_new[91] = t129;
+    P_new[92] = t130;
+    P_new[93] = t131;
+    P_new[94] = t132;
+    P_new[95] = t133;
+    P_new[96] = t59;
+    P_new[97] = t74;
+    P_new[98] = t88;
+    P_new[99] = t101;
+    P_new[100] = t113;
+    P_new[101] = t124;
+    P_new[102] = t134;
+    P_new[103] = t135;
+    P_new[104] = t136;
+    P_new[105] = t137;
+    P_new[106] = t138;
+    P_new[107] = t139;
+    P_new[108] = t140;
+    P_new[109] = t141;
+    P_new[110] = t142;
+    P_new[111] = t143;
+    P_new[112] = t60;
+    P_new[113] = t75;
+    P_new[114] = t89;
+    P_new[115] = t102;
+    P_new[116] = t114;
+    P_new[117] = t125;
+    P_new[118] = t135;
+    P_new[119] = t144;
+    P_new[120] = t145;
+    P_new[121] = t146;
+    P_new[122] = t147;
+    P_new[123] = t148;
+    P_new[124] = t149;
+    P_new[125] = t150;
+    P_new[126] = t151;
+    P_new[127] = t152;
+    P_new[128] = t61;
+    P_new[129] = t76;
+    P_new[130] = t90;
+    P_new[131] = t103;
+    P_new[132] = t115;
+    P_new[133] = t126;
+    P_new[134] = t136;
+    P_new[135] = t145;
+    P_new[136] = t153;
+    P_new[137] = t154;
+    P_new[138] = t155;
+    P_new[139] = t156;
+    P_new[140] = t157;
+    P_new[141] = t158;
+    P_new[142] = t159;
+    P_new[143] = t160;
+    P_new[144] = t62;
+    P_new[145] = t77;
+    P_new[146] = t91;
+    P_new[147] = t104;
+    P_new[148] = t116;
+    P_new[149] = t127;
+    P_new[150] = t137;
+    P_new[151] = t146;
+    P_new[152] = t154;
+    P_new[153] = t161;
+    P_new[154] = t162;
+    P_new[155] = t163;
+    P_new[156] = t164;
+    P_new[157] = t165;
+    P_new[158] = t166;
+    P_new[159] = t167;
+    P_new[160] = t63;
+    P_new[161] = t78;
+    P_new[162] = t92;
+    P_new[163] = t105;
+    P_new[164] = t117;
+    P_new[165] = t128;
+    P_new[166] = t138;
+    P_new[167] = t147;
+    P_new[168] = t155;
+    P_new[169] = t162;
+    P_new[170] = t168;
+    P_new[171] = t169;
+    P_new[172] = t170;
+    P_new[173] = t171;
+    P_new[174] = t172;
+    P_new[175] = t173;
+    P_new[176] = t64;
+    P_new[177] = t79;
+    P_new[178] = t93;
+    P_new[179] = t106;
+    P_new[180] = t118;
+    P_new[181] = t129;
+    P_new[182] = t139;
+    P_new[183] = t148;
+    P_new[184] = t156;
+    P_new[185] = t163;
+    P_new[186] = t169;
+    P_new[187] = t174;
+    P_new[188] = t175;
+    P_new[189] = t176;
+    P_new[190] = t177;
+    P_new[191] = t178;
+    P_new[192] = t65;
+    P_new[193] = t80;
+    P_new[194] = t94;
+    P_new[195] = t107;
+    P_new[196] = t119;
+    P_new[197] = t130;
+    P_new[198] = t140;
+    P_new[199] = t149;
+    P_new[200] = t157;
+    P_new[201] = t164;
+    P_new[202] = t170;
+    P_new[203] = t175;
+    P_new[204] = t179;
+    P_new[205] = t180;
+    P_new[206] = t181;
+    P_new[207] = t182;
+    P_new[208] = t66;
+    P_new[209] = t81;
+    P_new[210] = t95;
+    P_new[211] = t108;
+    P_new[212] = t120;
+    P_new[213] = t131;
+    P_new[214] = t141;
+    P_new[215] = t150;
+    P_new[216] = t158;
+    P_new[217] = t165;
+    P_new[218] = t171;
+    P_new[219] = t176;
+    P_new[220] = t180;
+    P_new[221] = t183;
+    P_new[222] = t184;
+    P_new[223] = t185;
+    P_new[224] = t67;
+    P_new[225] = t82;
+    P_new[226] = t96;
+    P_new[227] = t109;
+    P_new[228] = t121;
+    P_new[229] = t132;
+    P_new[230] = t142;
+    P_new[231] = t151;
+    P_new[232] = t159;
+    P_new[233] = t166;
+    P_new[234] = t172;
+    P_new[235] = t177;
+    P_new[236] = t181;
+    P_new[237] = t184;
+    P_new[238] = t186;
+    P_new[239] = t187;
+    P_new[240] = t68;
+    P_new[241] = t83;
+    P_new[242] = t97;
+    P_new[243] = t110;
+    P_new[244] = t122;
+    P_new[245] = t133;
+    P_new[246] = t143;
+    P_new[247] = t152;
+    P_new[248] = t160;
+    P_new[249] = t167;
+    P_new[250] = t173;
+    P_new[251] = t178;
+    P_new[252] = t182;
+    P_new[253] = t185;
+    P_new[254] = t187;
+    P_new[255] = t188;
+    #endif
     return 0;
 }
 

@@ -17,7 +17,7 @@ interface (matrices taken flat, row-major, or (n, n), returned (n, n); steps = n
 run's p: one row (1,) for every step or one row per step (steps, 1)
 symmetric in predict: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
 symmetric in update_gnss: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
-symmetric in update_baro: P, P_new (inputs: upper triangle read; outputs: written whole)
+symmetric in update_baro: P, P_new (inputs: P read whole, both triangles, so P must be symmetric; outputs: written whole)
 status (C return value; Python raises NumericalError): 0 success
     predict 1: parameter dt must be nonnegative
     update_gnss 2: S is not positive definite: the variance s of measurement 0 (gpn) of the sequential update is not positive
@@ -26,10 +26,10 @@ status (C return value; Python raises NumericalError): 0 success
     update_gnss 5: S is not positive definite: the variance s of measurement 3 (gvn) of the sequential update is not positive
     update_gnss 6: S is not positive definite: the variance s of measurement 4 (gve) of the sequential update is not positive
     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
-    update_baro 8: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
+    update_baro 8: S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive
 operations per call of predict (Python): add 1169, sub 27, mul 1241, div 0, sqrt 0, fma 0, neg 20, cmp 1, calls 0 (flops 2437, instructions 2458)
 operations per call of update_gnss (Python): add 1115, sub 102, mul 1327, div 7, sqrt 1, fma 0, neg 0, cmp 6, calls 0 (flops 2552, instructions 2558)
-operations per call of update_baro (Python): add 4, sub 153, mul 176, div 2, sqrt 1, fma 0, neg 1, cmp 1, calls 0 (flops 336, instructions 338)
+operations per call of update_baro (Python): add 139, sub 18, mul 177, div 2, sqrt 1, fma 0, neg 17, cmp 1, calls 0 (flops 337, instructions 355)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
 per-step input u: wx, wy, wz, ax, ay, az
@@ -38,7 +38,7 @@ sensors (run: predict with u(k), then each sensor's update in this order when it
 update of gnss: sequential, one scalar update per measurement in the order gpn, gpe, gpd, gvn, gve, gvd (R diagonal; h and H at the prior x; nis = sum of the whitened innovations squared over their variances, the batch update's nu' S^-1 nu)
 start: predict-first: every step predicts, then updates
 unit-norm groups, renormalised at the end of every update: (q0, q1, q2, q3)
-vector rows (rows = vector): predict, update_gnss computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
+vector rows (rows = vector): predict, update_gnss, update_baro computed in chunks of 4 lanes, P read whole; C: GCC/Clang vector statements where DERIVE_VECTOR is 1, the same lanes as scalar statements where it is 0 (the same bits)
 """
 
 import numpy as np
@@ -1029,357 +1029,220 @@ def _update_baro(x, P, z, p):
     if len(P) == 16:  # a 2-D (16, 16) P: flattened, row-major
         P = np.reshape(P, (256,) + np.shape(P)[2:])
     t0 = -x[9]
-    t1 = 0.25 + P[153]
-    _require_positive(t1, 'S is not positive definite: pivot 0 of its LDL^T factorisation is not positive')
-    t2 = 1.0/t1
-    t3 = P[9]*t2
-    t4 = P[25]*t2
-    t5 = P[41]*t2
-    t6 = P[57]*t2
-    t7 = P[73]*t2
-    t8 = P[89]*t2
-    t9 = P[105]*t2
-    t10 = P[121]*t2
-    t11 = P[137]*t2
-    t12 = P[153]*t2
-    t13 = P[154]*t2
-    t14 = P[155]*t2
-    t15 = P[156]*t2
-    t16 = P[157]*t2
-    t17 = P[158]*t2
-    t18 = P[159]*t2
-    t19 = z[0] - t0
-    t20 = t19*t3
-    t21 = t19*t4
-    t22 = t19*t5
-    t23 = t19*t6
-    t24 = t19*t7
-    t25 = t19*t8
-    t26 = t19*t9
-    t27 = t10*t19
-    t28 = t11*t19
-    t29 = t12*t19
-    t30 = t13*t19
-    t31 = t14*t19
-    t32 = t15*t19
-    t33 = t16*t19
-    t34 = t17*t19
-    t35 = t18*t19
-    t36 = x[0] - t20
-    t37 = x[1] - t21
-    t38 = x[2] - t22
-    t39 = x[3] - t23
-    t40 = x[4] - t24
-    t41 = x[5] - t25
-    t42 = x[6] - t26
-    t43 = x[7] - t27
-    t44 = x[8] - t28
-    t45 = x[9] - t29
-    t46 = x[10] - t30
-    t47 = x[11] - t31
-    t48 = x[12] - t32
-    t49 = x[13] - t33
-    t50 = x[14] - t34
-    t51 = x[15] - t35
-    t52 = P[9]*t3
-    t53 = P[25]*t3
-    t54 = P[41]*t3
-    t55 = P[57]*t3
-    t56 = P[73]*t3
-    t57 = P[89]*t3
-    t58 = P[105]*t3
-    t59 = P[121]*t3
-    t60 = P[137]*t3
-    t61 = P[153]*t3
-    t62 = P[154]*t3
-    t63 = P[155]*t3
-    t64 = P[156]*t3
-    t65 = P[157]*t3
-    t66 = P[158]*t3
-    t67 = P[159]*t3
-    t68 = P[25]*t4
-    t69 = P[41]*t4
-    t70 = P[57]*t4
-    t71 = P[73]*t4
-    t72 = P[89]*t4
-    t73 = P[105]*t4
-    t74 = P[121]*t4
-    t75 = P[137]*t4
-    t76 = P[153]*t4
-    t77 = P[154]*t4
-    t78 = P[155]*t4
-    t79 = P[156]*t4
-    t80 = P[157]*t4
-    t81 = P[158]*t4
-    t82 = P[159]*t4
-    t83 = P[41]*t5
-    t84 = P[57]*t5
-    t85 = P[73]*t5
-    t86 = P[89]*t5
-    t87 = P[105]*t5
-    t88 = P[121]*t5
-    t89 = P[137]*t5
-    t90 = P[153]*t5
-    t91 = P[154]*t5
-    t92 = P[155]*t5
-    t93 = P[156]*t5
-    t94 = P[157]*t5
-    t95 = P[158]*t5
-    t96 = P[159]*t5
-    t97 = P[57]*t6
-    t98 = P[73]*t6
-    t99 = P[89]*t6
-    t100 = P[105]*t6
-    t101 = P[121]*t6
-    t102 = P[137]*t6
-    t103 = P[153]*t6
-    t104 = P[154]*t6
-    t105 = P[155]*t6
-    t106 = P[156]*t6
-    t107 = P[157]*t6
-    t108 = P[158]*t6
-    t109 = P[159]*t6
-    t110 = P[73]*t7
-    t111 = P[89]*t7
-    t112 = P[105]*t7
-    t113 = P[121]*t7
-    t114 = P[137]*t7
-    t115 = P[153]*t7
-    t116 = P[154]*t7
-    t117 = P[155]*t7
-    t118 = P[156]*t7
-    t119 = P[157]*t7
-    t120 = P[158]*t7
-    t121 = P[159]*t7
-    t122 = P[89]*t8
-    t123 = P[105]*t8
-    t124 = P[121]*t8
-    t125 = P[137]*t8
-    t126 = P[153]*t8
-    t127 = P[154]*t8
-    t128 = P[155]*t8
-    t129 = P[156]*t8
-    t130 = P[157]*t8
-    t131 = P[158]*t8
-    t132 = P[159]*t8
-    t133 = P[105]*t9
-    t134 = P[121]*t9
-    t135 = P[137]*t9
-    t136 = P[153]*t9
-    t137 = P[154]*t9
-    t138 = P[155]*t9
-    t139 = P[156]*t9
-    t140 = P[157]*t9
-    t141 = P[158]*t9
-    t142 = P[159]*t9
-    t143 = P[121]*t10
-    t144 = P[137]*t10
-    t145 = P[153]*t10
-    t146 = P[154]*t10
-    t147 = P[155]*t10
-    t148 = P[156]*t10
-    t149 = P[157]*t10
-    t150 = P[158]*t10
-    t151 = P[159]*t10
-    t152 = P[137]*t11
-    t153 = P[153]*t11
-    t154 = P[154]*t11
-    t155 = P[155]*t11
-    t156 = P[156]*t11
-    t157 = P[157]*t11
-    t158 = P[158]*t11
-    t159 = P[159]*t11
-    t160 = P[153]*t12
-    t161 = P[154]*t12
-    t162 = P[155]*t12
-    t163 = P[156]*t12
-    t164 = P[157]*t12
-    t165 = P[158]*t12
-    t166 = P[159]*t12
-    t167 = P[154]*t13
-    t168 = P[155]*t13
-    t169 = P[156]*t13
-    t170 = P[157]*t13
-    t171 = P[158]*t13
-    t172 = P[159]*t13
-    t173 = P[155]*t14
-    t174 = P[156]*t14
-    t175 = P[157]*t14
-    t176 = P[158]*t14
-    t177 = P[159]*t14
-    t178 = P[156]*t15
-    t179 = P[157]*t15
-    t180 = P[158]*t15
-    t181 = P[159]*t15
-    t182 = P[157]*t16
-    t183 = P[158]*t16
-    t184 = P[159]*t16
-    t185 = P[158]*t17
-    t186 = P[159]*t17
-    t187 = P[159]*t18
-    t188 = P[0] - t52
-    t189 = P[1] - t53
-    t190 = P[2] - t54
-    t191 = P[3] - t55
-    t192 = P[4] - t56
-    t193 = P[5] - t57
-    t194 = P[6] - t58
-    t195 = P[7] - t59
-    t196 = P[8] - t60
-    t197 = P[9] - t61
-    t198 = P[10] - t62
-    t199 = P[11] - t63
-    t200 = P[12] - t64
-    t201 = P[13] - t65
-    t202 = P[14] - t66
-    t203 = P[15] - t67
-    t204 = P[17] - t68
-    t205 = P[18] - t69
-    t206 = P[19] - t70
-    t207 = P[20] - t71
-    t208 = P[21] - t72
-    t209 = P[22] - t73
-    t210 = P[23] - t74
-    t211 = P[24] - t75
-    t212 = P[25] - t76
-    t213 = P[26] - t77
-    t214 = P[27] - t78
-    t215 = P[28] - t79
-    t216 = P[29] - t80
-    t217 = P[30] - t81
-    t218 = P[31] - t82
-    t219 = P[34] - t83
-    t220 = P[35] - t84
-    t221 = P[36] - t85
-    t222 = P[37] - t86
-    t223 = P[38] - t87
-    t224 = P[39] - t88
-    t225 = P[40] - t89
-    t226 = P[41] - t90
-    t227 = P[42] - t91
-    t228 = P[43] - t92
-    t229 = P[44] - t93
-    t230 = P[45] - t94
-    t231 = P[46] - t95
-    t232 = P[47] - t96
-    t233 = P[51] - t97
-    t234 = P[52] - t98
-    t235 = P[53] - t99
-    t236 = P[54] - t100
-    t237 = P[55] - t101
-    t238 = P[56] - t102
-    t239 = P[57] - t103
-    t240 = P[58] - t104
-    t241 = P[59] - t105
-    t242 = P[60] - t106
-    t243 = P[61] - t107
-    t244 = P[62] - t108
-    t245 = P[63] - t109
-    t246 = P[68] - t110
-    t247 = P[69] - t111
-    t248 = P[70] - t112
-    t249 = P[71] - t113
-    t250 = P[72] - t114
-    t251 = P[73] - t115
-    t252 = P[74] - t116
-    t253 = P[75] - t117
-    t254 = P[76] - t118
-    t255 = P[77] - t119
-    t256 = P[78] - t120
-    t257 = P[79] - t121
-    t258 = P[85] - t122
-    t259 = P[86] - t123
-    t260 = P[87] - t124
-    t261 = P[88] - t125
-    t262 = P[89] - t126
-    t263 = P[90] - t127
-    t264 = P[91] - t128
-    t265 = P[92] - t129
-    t266 = P[93] - t130
-    t267 = P[94] - t131
-    t268 = P[95] - t132
-    t269 = P[102] - t133
-    t270 = P[103] - t134
-    t271 = P[104] - t135
-    t272 = P[105] - t136
-    t273 = P[106] - t137
-    t274 = P[107] - t138
-    t275 = P[108] - t139
-    t276 = P[109] - t140
-    t277 = P[110] - t141
-    t278 = P[111] - t142
-    t279 = P[119] - t143
-    t280 = P[120] - t144
-    t281 = P[121] - t145
-    t282 = P[122] - t146
-    t283 = P[123] - t147
-    t284 = P[124] - t148
-    t285 = P[125] - t149
-    t286 = P[126] - t150
-    t287 = P[127] - t151
-    t288 = P[136] - t152
-    t289 = P[137] - t153
-    t290 = P[138] - t154
-    t291 = P[139] - t155
-    t292 = P[140] - t156
-    t293 = P[141] - t157
-    t294 = P[142] - t158
-    t295 = P[143] - t159
-    t296 = P[153] - t160
-    t297 = P[154] - t161
-    t298 = P[155] - t162
-    t299 = P[156] - t163
-    t300 = P[157] - t164
-    t301 = P[158] - t165
-    t302 = P[159] - t166
-    t303 = P[170] - t167
-    t304 = P[171] - t168
-    t305 = P[172] - t169
-    t306 = P[173] - t170
-    t307 = P[174] - t171
-    t308 = P[175] - t172
-    t309 = P[187] - t173
-    t310 = P[188] - t174
-    t311 = P[189] - t175
-    t312 = P[190] - t176
-    t313 = P[191] - t177
-    t314 = P[204] - t178
-    t315 = P[205] - t179
-    t316 = P[206] - t180
-    t317 = P[207] - t181
-    t318 = P[221] - t182
-    t319 = P[222] - t183
-    t320 = P[223] - t184
-    t321 = P[238] - t185
-    t322 = P[239] - t186
-    t323 = P[255] - t187
-    t324 = t36*t36 + t37*t37 + t38*t38 + t39*t39
-    t325 = 1.0/_sqrt(t324)
-    t326 = t325*t36
-    t327 = t325*t37
-    t328 = t325*t38
-    t329 = t325*t39
-    x_new = [t326, t327, t328, t329, t40, t41, t42, t43, t44, t45, t46, t47, t48, t49, t50, t51]
+    t1 = z[0] - t0
+    t2 = -P[144]
+    t3 = -P[145]
+    t4 = -P[146]
+    t5 = -P[147]
+    t6 = -P[148]
+    t7 = -P[149]
+    t8 = -P[150]
+    t9 = -P[151]
+    t10 = -P[152]
+    t11 = -P[153]
+    t12 = -P[154]
+    t13 = -P[155]
+    t14 = -P[156]
+    t15 = -P[157]
+    t16 = -P[158]
+    t17 = -P[159]
+    t18 = 0.25 - t11
+    _require_positive(t18, 'S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive')
+    t19 = (-1.0)/t18
+    t20 = t1*t19
+    t21 = t19*t2
+    t22 = t19*t3
+    t23 = t19*t4
+    t24 = t19*t5
+    t25 = t19*t6
+    t26 = t19*t7
+    t27 = t19*t8
+    t28 = t19*t9
+    t29 = t19*t10
+    t30 = t19*t11
+    t31 = t19*t12
+    t32 = t19*t13
+    t33 = t19*t14
+    t34 = t19*t15
+    t35 = t19*t16
+    t36 = t19*t17
+    t37 = x[0] - t20*t2
+    t38 = x[1] - t20*t3
+    t39 = x[2] - t20*t4
+    t40 = x[3] - t20*t5
+    t41 = x[4] - t20*t6
+    t42 = x[5] - t20*t7
+    t43 = x[6] - t20*t8
+    t44 = x[7] - t20*t9
+    t45 = x[8] - t20*t10
+    t46 = x[9] - t20*t11
+    t47 = x[10] - t20*t12
+    t48 = x[11] - t20*t13
+    t49 = x[12] - t20*t14
+    t50 = x[13] - t20*t15
+    t51 = x[14] - t20*t16
+    t52 = x[15] - t20*t17
+    t53 = P[0] + t21*t2
+    t54 = P[1] + t21*t3
+    t55 = P[2] + t21*t4
+    t56 = P[3] + t21*t5
+    t57 = P[4] + t21*t6
+    t58 = P[5] + t21*t7
+    t59 = P[6] + t21*t8
+    t60 = P[7] + t21*t9
+    t61 = P[8] + t21*t10
+    t62 = P[9] + t21*t11
+    t63 = P[10] + t21*t12
+    t64 = P[11] + t21*t13
+    t65 = P[12] + t21*t14
+    t66 = P[13] + t21*t15
+    t67 = P[14] + t21*t16
+    t68 = P[15] + t21*t17
+    t69 = P[17] + t22*t3
+    t70 = P[18] + t22*t4
+    t71 = P[19] + t22*t5
+    t72 = P[20] + t22*t6
+    t73 = P[21] + t22*t7
+    t74 = P[22] + t22*t8
+    t75 = P[23] + t22*t9
+    t76 = P[24] + t22*t10
+    t77 = P[25] + t22*t11
+    t78 = P[26] + t22*t12
+    t79 = P[27] + t22*t13
+    t80 = P[28] + t22*t14
+    t81 = P[29] + t22*t15
+    t82 = P[30] + t22*t16
+    t83 = P[31] + t22*t17
+    t84 = P[34] + t23*t4
+    t85 = P[35] + t23*t5
+    t86 = P[36] + t23*t6
+    t87 = P[37] + t23*t7
+    t88 = P[38] + t23*t8
+    t89 = P[39] + t23*t9
+    t90 = P[40] + t23*t10
+    t91 = P[41] + t23*t11
+    t92 = P[42] + t23*t12
+    t93 = P[43] + t23*t13
+    t94 = P[44] + t23*t14
+    t95 = P[45] + t23*t15
+    t96 = P[46] + t23*t16
+    t97 = P[47] + t23*t17
+    t98 = P[51] + t24*t5
+    t99 = P[52] + t24*t6
+    t100 = P[53] + t24*t7
+    t101 = P[54] + t24*t8
+    t102 = P[55] + t24*t9
+    t103 = P[56] + t24*t10
+    t104 = P[57] + t24*t11
+    t105 = P[58] + t24*t12
+    t106 = P[59] + t24*t13
+    t107 = P[60] + t24*t14
+    t108 = P[61] + t24*t15
+    t109 = P[62] + t24*t16
+    t110 = P[63] + t24*t17
+    t111 = P[68] + t25*t6
+    t112 = P[69] + t25*t7
+    t113 = P[70] + t25*t8
+    t114 = P[71] + t25*t9
+    t115 = P[72] + t25*t10
+    t116 = P[73] + t25*t11
+    t117 = P[74] + t25*t12
+    t118 = P[75] + t25*t13
+    t119 = P[76] + t25*t14
+    t120 = P[77] + t25*t15
+    t121 = P[78] + t25*t16
+    t122 = P[79] + t25*t17
+    t123 = P[85] + t26*t7
+    t124 = P[86] + t26*t8
+    t125 = P[87] + t26*t9
+    t126 = P[88] + t26*t10
+    t127 = P[89] + t26*t11
+    t128 = P[90] + t26*t12
+    t129 = P[91] + t26*t13
+    t130 = P[92] + t26*t14
+    t131 = P[93] + t26*t15
+    t132 = P[94] + t26*t16
+    t133 = P[95] + t26*t17
+    t134 = P[102] + t27*t8
+    t135 = P[103] + t27*t9
+    t136 = P[104] + t27*t10
+    t137 = P[105] + t27*t11
+    t138 = P[106] + t27*t12
+    t139 = P[107] + t27*t13
+    t140 = P[108] + t27*t14
+    t141 = P[109] + t27*t15
+    t142 = P[110] + t27*t16
+    t143 = P[111] + t27*t17
+    t144 = P[119] + t28*t9
+    t145 = P[120] + t28*t10
+    t146 = P[121] + t28*t11
+    t147 = P[122] + t28*t12
+    t148 = P[123] + t28*t13
+    t149 = P[124] + t28*t14
+    t150 = P[125] + t28*t15
+    t151 = P[126] + t28*t16
+    t152 = P[127] + t28*t17
+    t153 = P[136] + t29*t10
+    t154 = P[137] + t29*t11
+    t155 = P[138] + t29*t12
+    t156 = P[139] + t29*t13
+    t157 = P[140] + t29*t14
+    t158 = P[141] + t29*t15
+    t159 = P[142] + t29*t16
+    t160 = P[143] + t29*t17
+    t161 = P[153] + t11*t30
+    t162 = P[154] + t12*t30
+    t163 = P[155] + t13*t30
+    t164 = P[156] + t30*t14
+    t165 = P[157] + t30*t15
+    t166 = P[158] + t30*t16
+    t167 = P[159] + t30*t17
+    t168 = P[170] + t12*t31
+    t169 = P[171] + t13*t31
+    t170 = P[172] + t31*t14
+    t171 = P[173] + t31*t15
+    t172 = P[174] + t31*t16
+    t173 = P[175] + t31*t17
+    t174 = P[187] + t13*t32
+    t175 = P[188] + t32*t14
+    t176 = P[189] + t32*t15
+    t177 = P[190] + t32*t16
+    t178 = P[191] + t32*t17
+    t179 = P[204] + t33*t14
+    t180 = P[205] + t33*t15
+    t181 = P[206] + t33*t16
+    t182 = P[207] + t33*t17
+    t183 = P[221] + t15*t34
+    t184 = P[222] + t16*t34
+    t185 = P[223] + t17*t34
+    t186 = P[238] + t16*t35
+    t187 = P[239] + t17*t35
+    t188 = P[255] + t17*t36
+    t189 = t37*t37 + t38*t38 + t39*t39 + t40*t40
+    t190 = 1.0/_sqrt(t189)
+    t191 = t190*t37
+    t192 = t190*t38
+    t193 = t190*t39
+    t194 = t190*t40
+    x_new = [t191, t192, t193, t194, t41, t42, t43, t44, t45, t46, t47, t48, t49, t50, t51, t52]
     P_new = [
-        t188, t189, t190, t191, t192, t193, t194, t195, t196, t197, t198, t199, t200, t201,
-        t202, t203, t189, t204, t205, t206, t207, t208, t209, t210, t211, t212, t213, t214,
-        t215, t216, t217, t218, t190, t205, t219, t220, t221, t222, t223, t224, t225, t226,
-        t227, t228, t229, t230, t231, t232, t191, t206, t220, t233, t234, t235, t236, t237,
-        t238, t239, t240, t241, t242, t243, t244, t245, t192, t207, t221, t234, t246, t247,
-        t248, t249, t250, t251, t252, t253, t254, t255, t256, t257, t193, t208, t222, t235,
-        t247, t258, t259, t260, t261, t262, t263, t264, t265, t266, t267, t268, t194, t209,
-        t223, t236, t248, t259, t269, t270, t271, t272, t273, t274, t275, t276, t277, t278,
-        t195, t210, t224, t237, t249, t260, t270, t279, t280, t281, t282, t283, t284, t285,
-        t286, t287, t196, t211, t225, t238, t250, t261, t271, t280, t288, t289, t290, t291,
-        t292, t293, t294, t295, t197, t212, t226, t239, t251, t262, t272, t281, t289, t296,
-        t297, t298, t299, t300, t301, t302, t198, t213, t227, t240, t252, t263, t273, t282,
-        t290, t297, t303, t304, t305, t306, t307, t308, t199, t214, t228, t241, t253, t264,
-        t274, t283, t291, t298, t304, t309, t310, t311, t312, t313, t200, t215, t229, t242,
-        t254, t265, t275, t284, t292, t299, t305, t310, t314, t315, t316, t317, t201, t216,
-        t230, t243, t255, t266, t276, t285, t293, t300, t306, t311, t315, t318, t319, t320,
-        t202, t217, t231, t244, t256, t267, t277, t286, t294, t301, t307, t312, t316, t319,
-        t321, t322, t203, t218, t232, t245, t257, t268, t278, t287, t295, t302, t308, t313,
-        t317, t320, t322, t323,
+        t53, t54, t55, t56, t57, t58, t59, t60, t61, t62, t63, t64, t65, t66, t67, t68, t54,
+        t69, t70, t71, t72, t73, t74, t75, t76, t77, t78, t79, t80, t81, t82, t83, t55, t70,
+        t84, t85, t86, t87, t88, t89, t90, t91, t92, t93, t94, t95, t96, t97, t56, t71, t85,
+        t98, t99, t100, t101, t102, t103, t104, t105, t106, t107, t108, t109, t110, t57, t72,
+        t86, t99, t111, t112, t113, t114, t115, t116, t117, t118, t119, t120, t121, t122, t58,
+        t73, t87, t100, t112, t123, t124, t125, t126, t127, t128, t129, t130, t131, t132, t133,
+        t59, t74, t88, t101, t113, t124, t134, t135, t136, t137, t138, t139, t140, t141, t142,
+        t143, t60, t75, t89, t102, t114, t125, t135, t144, t145, t146, t147, t148, t149, t150,
+        t151, t152, t61, t76, t90, t103, t115, t126, t136, t145, t153, t154, t155, t156, t157,
+        t158, t159, t160, t62, t77, t91, t104, t116, t127, t137, t146, t154, t161, t162, t163,
+        t164, t165, t166, t167, t63, t78, t92, t105, t117, t128, t138, t147, t155, t162, t168,
+        t169, t170, t171, t172, t173, t64, t79, t93, t106, t118, t129, t139, t148, t156, t163,
+        t169, t174, t175, t176, t177, t178, t65, t80, t94, t107, t119, t130, t140, t149, t157,
+        t164, t170, t175, t179, t180, t181, t182, t66, t81, t95, t108, t120, t131, t141, t150,
+        t158, t165, t171, t176, t180, t183, t184, t185, t67, t82, t96, t109, t121, t132, t142,
+        t151, t159, t166, t172, t177, t181, t184, t186, t187, t68, t83, t97, t110, t122, t133,
+        t143, t152, t160, t167, t173, t178, t182, t185, t187, t188,
     ]
     return x_new, P_new
 

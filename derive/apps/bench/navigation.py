@@ -338,21 +338,30 @@ def peer_points() -> dict:
 
 def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
                    symforce: bool = True, tick=lambda text: None,
-                   peer_calls: int = 0) -> NavigationResult:
+                   peer_calls: int = 0, peer_repeats: int = 1) -> NavigationResult:
     """Measure everything above; ``calls`` per C timing, ``python_calls`` per FilterPy
     timing; with ``peer_calls``, SymForce's C++ timed beside derive's C
-    (derive.apps.bench.symforce_peer), that many calls per timing."""
+    (derive.apps.bench.symforce_peer), that many calls per timing, ``peer_repeats``
+    repeats."""
     result = NavigationResult()
     if peer_calls:
         tick("navigation: the SymForce peer's operating points")
-        result.peer = symforce_peer.run_peer(peer_points(), workdir / "peer", peer_calls,
-                                             repeats, tick)
+        try:
+            result.peer = symforce_peer.run_peer(peer_points(), workdir / "peer", peer_calls,
+                                                 peer_repeats, tick)
+        except ImportError as exc:
+            result.notes.append(f"SymForce peer skipped: {exc.name} is not installed")
+        except (OSError, RuntimeError) as exc:  # no g++, or a compile failed
+            result.notes.append(f"SymForce peer skipped: {str(exc).splitlines()[0][:300]}")
     tick("navigation: the flight's operating point")
     point = operating_point()
     tick("navigation: derive generates ins_gnss")
     derive_counts, derive_loops = _derive(workdir, result)
     symforce_functions = {}
-    if symforce:
+    if symforce and result.peer is not None:  # the peer generated them: its time is theirs
+        symforce_functions = result.peer.symforce[MODEL]
+        result.symforce_seconds = result.peer.symforce_seconds[MODEL]
+    elif symforce:
         tick("navigation: SymForce codegen")
         try:
             symforce_functions = symforce_ekf.generate(FUNCTIONS)

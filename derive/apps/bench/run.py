@@ -78,7 +78,8 @@ class Settings:
     navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
-    navigation_peer_calls: int = 5_000   # SymForce's C++ timed beside derive's (0: left out)
+    navigation_peer_calls: int = 200     # SymForce's C++ timed beside derive's (0: left out)
+    navigation_peer_repeats: int = 60    # ... short windows, many repeats: their minimum
     only: str | None = None           # one section alone: "navigation" (ONLY)
     generation_scaling: bool = True   # large models: CV axes up to n = 240, dense 24 states
     compile_states: tuple[int, ...] = (16, 24)   # dense KFs generated and compiled
@@ -586,7 +587,8 @@ def run_bench(settings: Settings | None = None, progress=None) -> BenchResult:
 def _navigation(s: Settings, tmp: Path, tick) -> navigation.NavigationResult:
     return navigation.run_navigation(tmp / "navigation", s.navigation_calls,
                                      s.navigation_python_calls, s.repeats,
-                                     s.navigation_symforce, tick, s.navigation_peer_calls)
+                                     s.navigation_symforce, tick, s.navigation_peer_calls,
+                                     s.navigation_peer_repeats)
 
 
 def time_catalog_generation(out: Path) -> float:

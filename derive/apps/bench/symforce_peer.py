@@ -13,8 +13,10 @@ each other and the NumPy references, timed in one process.
   C functions and one extern "C" wrapper per SymForce function, each in its own translation
   unit: the wrapper reinterprets the arrays as the matrices, no copy), interleaved: each
   repeat times ``calls`` calls of derive's function, then of SymForce's, for each function
-  in turn; per call the minimum over the repeats (steady clock). Inputs are the same every
-  call (the operating point of the model's flight).
+  in turn; per call the minimum over the repeats of this thread's CPU time
+  (``CLOCK_THREAD_CPUTIME_ID``: on a shared machine the time others run is not counted,
+  and short windows of calls, many repeats, let the minimum find one undisturbed). Inputs
+  are the same every call (the operating point of the model's flight).
 - Agreement: in each build, the outputs (x_new and P_new) of both on the operating point,
   against each other and against the model's NumPy reference (derive.apps.ins.reference,
   derive.apps.ins.fc24), by the measure of navigation._agreement.
@@ -45,15 +47,18 @@ import os
 import re
 import shutil
 import subprocess
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ... import catalog
 from ...build import cache_dir
 from ...generation import generate_units
 from ...trees import OpCount
+from ..ins import symforce_ekf
 from ..targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
 from .timing import columns, human
 
@@ -169,7 +174,7 @@ extern "C" int sf_{model}_{function}(const real* x, const real* P, const real* a
 """
 
 _MAIN = """\
-#include <chrono>
+#include <ctime>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -192,10 +197,15 @@ static void load(int f) {{
   for (int i = 0; i < FNS[f].m; ++i) ARG[i] = (real)DATA_ARG[f][i];
   PAR[0] = (real)DATA_DT[f];
 }}
+static double now() {{
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}}
 static double seconds(Call call, long calls) {{
-  auto start = std::chrono::steady_clock::now();
+  double start = now();
   for (long k = 0; k < calls; ++k) call(X, P, ARG, X_NEW, P_NEW, PAR);
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return now() - start;
 }}
 static void print_out(int f, const char* impl, int status, bool column_major) {{
   int n = FNS[f].n;
@@ -309,12 +319,14 @@ class PeerResult:
     notes: list[str] = field(default_factory=list)
     calls: int = 0
     repeats: int = 0
+    symforce: dict = field(default_factory=dict)   # model -> {function: SymforceFunction}
 
     def lines(self) -> list[str]:
         out = [f"SymForce's C++ as a timed peer (derive.apps.bench.symforce_peer): the same "
                f"functions from the same equations, both compiled by {compiler_version()}, "
                f"called through non-inline calls in one process, interleaved; per call the "
-               f"minimum of {self.repeats} repeats of {self.calls:,} calls; flops from one "
+               f"minimum of {self.repeats} repeats of {self.calls:,} calls (thread CPU time); "
+               "flops from one "
                "counting scalar type; code: bytes of the function's symbols (nm); L1i: "
                f"cachegrind's misses per call ({SIZE_BUILD})", ""]
         gen = ", ".join(f"{m} derive {w:.2f} s (CPU {c:.2f} s), SymForce "
@@ -548,8 +560,6 @@ class _Model:
 
 
 def _derive_sources(model: str, workdir: Path, result: PeerResult):
-    import time
-
     paths = {}
     for precision in ("double", "float"):
         start, cpu = time.perf_counter(), time.process_time()
@@ -565,14 +575,12 @@ def _derive_sources(model: str, workdir: Path, result: PeerResult):
 
 def _prepare(model_name: str, point: Point, expected, workdir: Path, result: PeerResult
              ) -> _Model:
-    from ... import catalog
-    from ..ins import symforce_ekf
-
     model = catalog.load(model_name)
     functions = symforce_ekf.function_names(model)
     sources, headers = _derive_sources(model_name, workdir / model_name, result)
     symforce = symforce_ekf.generate(functions, model_name)
     result.symforce_seconds[model_name] = sum(f.seconds for f in symforce.values())
+    result.symforce[model_name] = symforce
     sizes = {name: len(point.args[name]) for name in functions}
     return _Model(model_name, model.n, functions, sizes, f"{model_name}_ekf", sources,
                   headers, symforce, point, expected)
@@ -814,8 +822,9 @@ def run_peer(points: dict[str, tuple[Point, dict]], workdir: Path, calls: int, r
     try:
         for key, levels in _m4f_sizes(models, wrappers, workdir / "m4f").items():
             by_key[key].m4f_bytes = levels
-    except FileNotFoundError as exc:
-        result.notes.append(f"Cortex-M4F sizes not measured: {exc}")
+    except (FileNotFoundError, RuntimeError) as exc:  # no cross C++ or its headers
+        result.notes.append(f"Cortex-M4F sizes not measured: {str(exc).splitlines()[0]} "
+                            "(Debian: gcc-arm-none-eabi libstdc++-arm-none-eabi-dev)")
     return result
 
 

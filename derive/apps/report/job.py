@@ -13,7 +13,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ... import catalog
-from . import burden, generation, gnss, mdkf, navigation, page, provenance, sizes, sspred, tracking
+from . import (
+    burden,
+    error_state,
+    generation,
+    gnss,
+    mdkf,
+    navigation,
+    page,
+    provenance,
+    sizes,
+    sspred,
+    tracking,
+)
 from .burden import compute_audit
 from .context import Context
 from .document import Section
@@ -141,7 +153,9 @@ def _sections() -> list[tuple[str, Callable[[Context], Section]]]:
              for p in tracking.PAPERS]
             + [("experiments: SSPRED", sspred.section), ("experiments: MDKF", mdkf.section),
                ("experiments: GNSS", gnss.section),
-               ("experiments: INS/GNSS", navigation.section), ("burden", burden.section),
+               ("experiments: INS/GNSS", navigation.section),
+               ("experiments: INS/GNSS, error state", error_state.section),
+               ("burden", burden.section),
                ("ARM: Cortex-M4F sizes, qemu-arm runs", sizes.section)])
 
 

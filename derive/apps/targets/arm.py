@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...build import BuildError
+from ...build import BuildError, parse_interface
+from ...errors import NumericalError
 from ...generation import generate_units, resolve_model
 from ..float_tolerance import FloatTolerance
 from ..verify import relative_error, within_tolerance
@@ -35,6 +36,7 @@ from .toolchains import SIZE_LEVELS, TARGETS, ObjectSize, compile_object, link_p
 #: A run under the emulator that takes longer than this is a hang.
 RUN_TIMEOUT = 600.0
 _PRINTED = re.compile(r"largest error (\S+) over (\d+) steps")
+_FAILED = re.compile(r"(\w+) returned status (\d+)")
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,14 @@ def run_under_qemu(model, filters: Iterable[str] | None = None, options: Mapping
             done = subprocess.run([tgt.runner, str(program), "--states"], capture_output=True,
                                   text=True, timeout=RUN_TIMEOUT)
             printed = _PRINTED.search(done.stdout)
+            failed = _FAILED.search(done.stdout)
+            if done.returncode == 2 and failed is not None:   # the filter's own check
+                status = int(failed[2])
+                checks = parse_interface((folder / f"{name}.h").read_text())[1].get(status, [])
+                raise NumericalError(
+                    f"{model.name} {name} under {tgt.runner}: {failed[1]} returned status "
+                    f"{status}: {' or '.join(checks) or 'unknown check'} (on the data of "
+                    "derive verify)")
             if done.returncode not in (0, 1) or printed is None:
                 raise BuildError(f"{tgt.runner} {program.name} exited with status "
                                  f"{done.returncode}: {done.stdout[-300:]}{done.stderr[-300:]}")

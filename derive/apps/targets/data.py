@@ -33,6 +33,7 @@ from ..verify import (
     conditioning_run,
     linear_run,
     nonlinear_scenario,
+    parameter_values,
     reference_run,
     rounding_floor,
     sensors_case,
@@ -88,17 +89,17 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         case = sensors_case(model, name, steps, seed, opts, unit)
         reference = {"xs": np.asarray(case.reference.xs, dtype=float),
                      "Ps": np.asarray(case.reference.Ps, dtype=float).reshape(
-                         steps, model.n, model.n)}
+                         steps, model.n_tangent, model.n_tangent)}
         tolerance = case.bound.value if case.bound is not None else case.tolerance
         return VerificationData(model.name, name, steps,
                                 {k: np.asarray(v, dtype=float)
                                  for k, v in case.arguments().items()},
                                 reference, float(tolerance), case.bound)
-    if model.parameters:
-        raise SymbolError(
-            f"model {model.name!r}: {name} is not a sensors run, and derive verify runs the "
-            f"examples of free parameters {[p.name for p in model.parameters]} only in a "
-            "sensors run (several sensors, gating or update-first)")
+    rows = None
+    if model.parameters:  # simulated at the examples; the filter takes them as p rows
+        given = parameter_values(model)
+        rows = np.tile([given[q.name] for q in model.parameters], (steps, 1))
+        model = model.at_values(given)
     scenario = None
     if kind(name).model_kind == "nonlinear":
         scenario = nonlinear_scenario(model, steps, seed)
@@ -111,6 +112,8 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         values = {"z": measured, "x0": num.x0, "P0": num.P0}
         if isinstance(zs, InputRun):
             values["u"] = zs.us
+    if rows is not None:
+        values["p"] = rows
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
@@ -123,7 +126,8 @@ def verification_data(model, name: str, options=None, steps: int = TEST_STEPS,
         tolerance = bound.value
     reference = {"xs": np.asarray(xs_ref, dtype=float)}
     if Ps_ref is not None:
-        reference["Ps"] = np.asarray(Ps_ref, dtype=float).reshape(steps, model.n, model.n)
+        nt = model.n_tangent
+        reference["Ps"] = np.asarray(Ps_ref, dtype=float).reshape(steps, nt, nt)
     return VerificationData(model.name, name, steps,
                             {k: np.asarray(v, dtype=float) for k, v in values.items()},
                             reference, float(tolerance), bound)

@@ -37,13 +37,23 @@ def library_command(ref: str, units: list[Unit], out: str) -> str:
             + (f" --{options}" if options else ""))
 
 
+CTEST_DASHBOARD_TARGETS = frozenset(
+    [mode + part for mode in ("Experimental", "Nightly", "Continuous")
+     for part in ("", "Start", "Update", "Configure", "Build", "Test", "Coverage", "MemCheck",
+                  "Submit")] + ["NightlyMemoryCheck"])
+"""The dashboard targets ``include(CTest)`` defines (CTestTargets.cmake: each mode, and the
+mode followed by each dashboard step): a firmware project that includes CTest and adds
+the library with ``add_subdirectory`` fails at configure on a library target of one of
+these names."""
+
 CMAKE_RESERVED_TARGETS = frozenset((
     "all", "clean", "help", "install", "preinstall", "rebuild_cache", "edit_cache",
     "ALL_BUILD", "ZERO_CHECK", "INSTALL", "test", "RUN_TESTS", "package",
-    "package_source", "PACKAGE"))
+    "package_source", "PACKAGE")) | CTEST_DASHBOARD_TARGETS
 """Target names CMake reserves (policy CMP0037; ``test`` and ``RUN_TESTS`` with CTest,
-the ``package`` ones with CPack): the library's CMakeLists.txt names its target after
-the model, so a model of one of these names could not be configured."""
+the ``package`` ones with CPack) and CTest's dashboard targets: the library's
+CMakeLists.txt names its target after the model, so a model of one of these names could
+not be configured."""
 
 
 def check_library_name(name: str) -> None:
