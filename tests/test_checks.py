@@ -3,7 +3,7 @@
 import sympy
 
 from derive import LinearModel, catalog
-from derive.apps.checks import run_checks
+from derive.apps.checks import is_pseudorange_model, run_checks
 
 
 def test_mpt3d_a_claims_all_hold_including_the_three_axes():
@@ -21,3 +21,13 @@ def test_a_model_without_steady_state_gets_only_the_time_varying_claims():
     checks = run_checks(m, steps=50)
     assert [c.claim.split(",")[0] for c in checks] == ["KF = LF", "KF = JKLF"]
     assert all(c.passed for c in checks)
+
+
+def test_only_the_pseudorange_model_gets_the_gnss_papers_claims():
+    """The GNSS paper's scenario feeds satellites' coordinates to h: a nonlinear model of
+    another shape (the radar tracker, the INS/GNSS EKFs) has no claim of it, rather than a
+    shape error from its scenario."""
+    nonlinear = {name: catalog.load(name) for name in catalog.names()
+                 if catalog.load(name).kind != "linear"}
+    assert [n for n, m in nonlinear.items() if is_pseudorange_model(m)] == ["gnss_pseudorange"]
+    assert run_checks(nonlinear["ctrv_radar"], steps=50) == []

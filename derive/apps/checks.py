@@ -128,13 +128,21 @@ def nonlinear_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
             Check(model.name, "UKF position RMSE, last 100 s (m)", e_ukf, 5.0, "RMSE")]
 
 
+def is_pseudorange_model(model) -> bool:
+    """Whether ``model`` has the shape of the GNSS paper's scenario (:func:`nonlinear_checks`
+    feeds it): a receiver's position and clock (4 states), one pseudorange per satellite,
+    and each satellite's three coordinates as inputs of h alone."""
+    return (model.n == 4 and not model.f_inputs and not model.sensors
+            and len(model.inputs) == 3 * model.m)
+
+
 def run_checks(model, steps: int = 500, seed: int = 1) -> list[Check]:
     """The papers' claims that apply to ``model``. The nonlinear ones are the GNSS paper's
-    (a static receiver, satellite coordinates as inputs of h): a model whose f takes inputs
-    or that declares several sensors (the INS/GNSS EKF ``ins_gnss``) is not that model and
-    has no paper claim here (derive verify and its report section check it)."""
+    (a static receiver, satellite coordinates as inputs of h: :func:`is_pseudorange_model`);
+    any other nonlinear model (the INS/GNSS EKFs, the radar tracker) is not that model and
+    has no paper claim here (derive verify and its report sections check it)."""
     if model.kind == "linear":
         return linear_checks(model, steps, seed)
-    if model.f_inputs or model.sensors:
+    if not is_pseudorange_model(model):
         return []
     return nonlinear_checks(model, steps, seed)
