@@ -46,13 +46,13 @@ from derive.apps.verify import (
 )
 from derive.build import CONVERSION_CFLAGS
 from derive.cli import main
-from derive.emit.c_loops import two_step
 from derive.filters import available
 from derive.generation import command_unit
 from derive.lowering import lower_program
 from derive.pipeline import load_units
 from derive.precision import FLOAT
 from derive.riccati import kf_steady
+from derive.runs.kinds import two_step_map
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
@@ -186,7 +186,7 @@ def test_the_derived_terms_are_those_of_the_generated_step():
     xs, Ps = reference_run(model, "kf", zs, {})
     bound = float_tolerance(model, unit, 100, conditioning_run(model, zs, None, xs, Ps))
     step = lower_program(unit.programs["step"], use_fma=True, state_ports=("x",))
-    two = two_step(unit, use_fma=True)
+    two = two_step_map(unit, use_fma=True)
     assert bound.roundings == max(rounding_depth(step), rounding_depth(two)) + 2
     num = model.numeric()
     A = kf_steady(num.F, num.G, num.H, num.Q, num.R).A

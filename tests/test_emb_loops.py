@@ -18,12 +18,13 @@ from derive import catalog, cli
 from derive.apps.bench import compile_size
 from derive.build import build_c
 from derive.emit import c_loops, c_printer
-from derive.emit.c_loops import LANES, _element, two_step
+from derive.emit.c_loops import LANES, _element
 from derive.errors import NumericalError
 from derive.flops import count, count_c_function
 from derive.generation import command_unit, render_filter
 from derive.lowering import lower_program
 from derive.pipeline import load_generated
+from derive.runs.kinds import two_step_map
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
@@ -39,7 +40,7 @@ def _distinct_step_lines(model_name: str, filter_name: str) -> list[tuple[str, s
     step = lower_program(unit.programs["step"], use_fma=True).without_pattern_checks()
     others = [lower_program(p, use_fma=True) for name, p in unit.programs.items()
               if name != "step"]
-    two = two_step(unit, True)
+    two = two_step_map(unit, True)
     others += [two] if two is not None else []
     elsewhere = {line for lp in others for element in (None, _element)
                  for line in c_printer.statements(lp, element=element)}

@@ -290,9 +290,9 @@ ERRORS = [
      ModelFileError, ["[nonlinear] inputs", "'x' is also a state"]),
     ("f not a list", _edit('f = ["x", "y"]', 'f = "x"', NONLINEAR), ModelFileError,
      ["[nonlinear] f", "non-empty list"]),
-    ("state in nonlinear Q", _edit('Q = [["q", 0], [0, "q"]]', 'Q = [["x", 0], [0, "q"]]',
-                                   NONLINEAR), ExpressionError,
-     ["[nonlinear] Q[0][0]", "unknown symbol 'x'"]),
+    ("unknown symbol in nonlinear Q", _edit('Q = [["q", 0], [0, "q"]]',
+                                            'Q = [["qq", 0], [0, "q"]]', NONLINEAR),
+     ExpressionError, ["[nonlinear] Q[0][0]", "unknown symbol 'qq'"]),
     # Errors the model classes find keep their class and name the file.
     ("shape", _edit('F = [[1, "dt"], [0, 1]]', 'F = [[1, "dt", 0], [0, 1, 0]]'), ShapeError,
      ["m.toml: ", "F must be 2x2", "got 2x3"]),

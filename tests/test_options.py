@@ -138,7 +138,7 @@ def test_an_option_named_for_a_filter_that_does_not_take_it_is_refused(tmp_path)
                                           "options of lf: P0_pattern, missing, run_tracks"):
         render_filter(catalog.load("mpt3d_b"), "lf", "all", {"joseph": True})
     with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, "
-                                          "udkf, rts, not by sskf"):
+                                          "udkf, rts, kfp, not by sskf"):
         generate("mpt3d_b", ["kf", "sskf"], "all", tmp_path,
                  per_filter_options={"sskf": {"missing": True}})
     with pytest.raises(OptionError, match="per-filter options for 'fir', which this call "
@@ -391,7 +391,7 @@ def test_typed_options_are_checked_too():
                                           r"in \(0, 1\), got 5.0"):
         FirOptions(eps=5)
     with pytest.raises(OptionError, match="option 'missing' is taken by kf, lf, jklf, ikf, "
-                                          "udkf, rts, not by fir"):
+                                          "udkf, rts, kfp, not by fir"):
         validate("fir", FirOptions(missing=True))
     assert type(FirOptions(order=np.int32(4)).order) is int
 

@@ -256,7 +256,7 @@ def test_an_ekf_sensor_is_updated_at_the_prior_linearisation():
 
 
 def test_the_option_is_taken_by_the_filters_with_sensors():
-    assert takers("update") == ["kf", "ekf"]
+    assert takers("update") == ["kf", "ekf", "eskf"]
     assert derive_unit(car(), "kf").programs.keys() == derive_unit(car(), "kf", SEQUENTIAL
                                                                    ).programs.keys()
     with pytest.raises(OptionError, match=r"option 'update' \(--update\) must be one of batch, "
