@@ -212,3 +212,11 @@ def test_symforce_rot3_predict_is_the_function_eskf_computes():
     x_new, P_new = (np.asarray(v, dtype=float) for v in module.predict(x, P, u, [0.01]))
     assert np.abs(x_peer - x_new).max() <= 1e-15 * np.abs(x_new).max() * 8
     assert np.abs(P_peer - P_new.reshape(23, 23)).max() <= 1e-14 * np.abs(P_new).max()
+
+
+def test_eskf_refuses_an_angle_measurement_it_would_not_wrap():
+    """eskf's updates do not wrap an innovation yet: a declared angle measurement (psi's,
+    whose residual near ±pi would be off by 2 pi with status 0) is refused in one line."""
+    model = attitude_and_heading(angles=["zpsi"])
+    with pytest.raises(FilterError, match=r"does not wrap angle measurements; .*\['zpsi'\]"):
+        derive_unit(model, "eskf")

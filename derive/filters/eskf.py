@@ -283,6 +283,9 @@ def error_fact(model) -> list[str]:
 def derive_unit(model, spec, options):
     """The error-state EKF unit: predict and update_<sensor> (run kind sensors)."""
     check_nonlinear(model, spec.name)
+    if getattr(model, "angles", ()):  # its updates do not wrap an innovation yet
+        raise FilterError(f"filter {spec.name!r} does not wrap angle measurements; model "
+                          f"{model.name!r} declares angles {list(model.angles)}")
     if model.rows != "scalar":  # refused rather than derived otherwise than declared
         raise FilterError(f"filter {spec.name!r} derives scalar rows only; model "
                           f"{model.name!r} declares rows = {model.rows!r}")
