@@ -32,6 +32,8 @@ from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.program import Port, Program
 from derive.row_program import RowBuilder
+from derive.rows import LaneSum
+from derive.statements import Temporary
 
 VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
 AGREEMENT = 1e-12
@@ -229,6 +231,25 @@ def test_a_row_read_from_inside_a_chunk_computes_that_chunk_as_scalars(read_from
     program = rows.finish({"y": [y[j] if j >= read_from else sympy.S.Zero for j in range(8)]})
     assert len(program.rows) == chunks
     assert all(len(chunk.targets) == 4 for chunk in program.rows)
+
+
+def test_a_lane_is_the_sum_of_its_terms_added_one_by_one():
+    """LaneSum.expr builds each lane as one Add of its products (two distinct symbols'
+    product as the canonical Mul directly): the same expression, equal and of the same
+    arguments, as adding the terms one by one with sympy's own operators."""
+    P = [sympy.Symbol(f"P[{j}]", real=True) for j in range(8)]
+    t = [Temporary(f"t{j}") for j in range(4)]
+    forms = [LaneSum(tuple(P[:4]), ((1, t[0], tuple(P[4:])), (-1, t[1], tuple(t)),
+                                    (1, sympy.Integer(1), (P[0], t[2], P[5], P[6])),
+                                    (-1, sympy.Float(0.5), tuple(P[2:6])),
+                                    (1, P[1], (P[1], P[3], t[3], P[7])))),
+             LaneSum(None, ((-1, t[2], (t[2], P[0], P[1], t[3])),))]
+    for form in forms:
+        for lane in range(4):
+            value = sympy.S.Zero if form.base is None else form.base[lane]
+            for sign, coef, sources in form.terms:
+                value = value + sign * coef * sources[lane]
+            assert form.expr(lane) == value and form.expr(lane).args == value.args
 
 
 def test_catalog_ins_gnss_declares_vector_rows():
