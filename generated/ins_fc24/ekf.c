@@ -284,6 +284,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t153 = DERIVE_FMA(t37, P[298], DERIVE_FMA(t36, P[274], DERIVE_FMA(t35, P[250], DERIVE_FMA(t34, P[82], DERIVE_FMA(t33, P[58], DERIVE_FMA(t32, P[34], P[10]))))));
     const double t154 = DERIVE_FMA(t37, P[299], DERIVE_FMA(t36, P[275], DERIVE_FMA(t35, P[251], DERIVE_FMA(t34, P[83], DERIVE_FMA(t33, P[59], DERIVE_FMA(t32, P[35], P[11]))))));
+    P_new[10] = t153;
+    P_new[240] = t153;
+    P_new[11] = t154;
+    P_new[264] = t154;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t155_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[36], P[37], P[38], P[39]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -298,6 +302,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t156 = DERIVE_FMA(t37, P[301], DERIVE_FMA(t36, P[277], DERIVE_FMA(t35, P[253], DERIVE_FMA(t34, P[85], DERIVE_FMA(t33, P[61], DERIVE_FMA(t32, P[37], P[13]))))));
     const double t157 = DERIVE_FMA(t37, P[302], DERIVE_FMA(t36, P[278], DERIVE_FMA(t35, P[254], DERIVE_FMA(t34, P[86], DERIVE_FMA(t33, P[62], DERIVE_FMA(t32, P[38], P[14]))))));
     const double t158 = DERIVE_FMA(t37, P[303], DERIVE_FMA(t36, P[279], DERIVE_FMA(t35, P[255], DERIVE_FMA(t34, P[87], DERIVE_FMA(t33, P[63], DERIVE_FMA(t32, P[39], P[15]))))));
+    P_new[12] = t155;
+    P_new[288] = t155;
+    P_new[13] = t156;
+    P_new[312] = t156;
+    P_new[14] = t157;
+    P_new[336] = t157;
+    P_new[15] = t158;
+    P_new[360] = t158;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t159_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[40], P[41], P[42], P[43]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -311,6 +323,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t160 = DERIVE_FMA(t37, P[305], DERIVE_FMA(t36, P[281], DERIVE_FMA(t35, P[257], DERIVE_FMA(t34, P[89], DERIVE_FMA(t33, P[65], DERIVE_FMA(t32, P[41], P[17]))))));
     const double t161 = DERIVE_FMA(t37, P[306], DERIVE_FMA(t36, P[282], DERIVE_FMA(t35, P[258], DERIVE_FMA(t34, P[90], DERIVE_FMA(t33, P[66], DERIVE_FMA(t32, P[42], P[18]))))));
     const double t162 = DERIVE_FMA(t37, P[307], DERIVE_FMA(t36, P[283], DERIVE_FMA(t35, P[259], DERIVE_FMA(t34, P[91], DERIVE_FMA(t33, P[67], DERIVE_FMA(t32, P[43], P[19]))))));
+    P_new[16] = t159;
+    P_new[384] = t159;
+    P_new[17] = t160;
+    P_new[408] = t160;
+    P_new[18] = t161;
+    P_new[432] = t161;
+    P_new[19] = t162;
+    P_new[456] = t162;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t163_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){P[44], P[45], P[46], P[47]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -324,6 +344,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t164 = DERIVE_FMA(t37, P[309], DERIVE_FMA(t36, P[285], DERIVE_FMA(t35, P[261], DERIVE_FMA(t34, P[93], DERIVE_FMA(t33, P[69], DERIVE_FMA(t32, P[45], P[21]))))));
     const double t165 = DERIVE_FMA(t37, P[310], DERIVE_FMA(t36, P[286], DERIVE_FMA(t35, P[262], DERIVE_FMA(t34, P[94], DERIVE_FMA(t33, P[70], DERIVE_FMA(t32, P[46], P[22]))))));
     const double t166 = DERIVE_FMA(t37, P[311], DERIVE_FMA(t36, P[287], DERIVE_FMA(t35, P[263], DERIVE_FMA(t34, P[95], DERIVE_FMA(t33, P[71], DERIVE_FMA(t32, P[47], P[23]))))));
+    P_new[20] = t163;
+    P_new[480] = t163;
+    P_new[21] = t164;
+    P_new[504] = t164;
+    P_new[22] = t165;
+    P_new[528] = t165;
+    P_new[23] = t166;
+    P_new[552] = t166;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t167_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
@@ -354,6 +382,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t173 = DERIVE_FMA(t133, P[298], DERIVE_FMA(t37, P[274], DERIVE_FMA(t43, P[250], DERIVE_FMA(t33, P[82], DERIVE_FMA(t42, P[58], DERIVE_FMA(t41, P[10], P[34]))))));
     const double t174 = DERIVE_FMA(t133, P[299], DERIVE_FMA(t37, P[275], DERIVE_FMA(t43, P[251], DERIVE_FMA(t33, P[83], DERIVE_FMA(t42, P[59], DERIVE_FMA(t41, P[11], P[35]))))));
+    P_new[34] = t173;
+    P_new[241] = t173;
+    P_new[35] = t174;
+    P_new[265] = t174;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t175_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -368,6 +400,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t176 = DERIVE_FMA(t133, P[301], DERIVE_FMA(t37, P[277], DERIVE_FMA(t43, P[253], DERIVE_FMA(t33, P[85], DERIVE_FMA(t42, P[61], DERIVE_FMA(t41, P[13], P[37]))))));
     const double t177 = DERIVE_FMA(t133, P[302], DERIVE_FMA(t37, P[278], DERIVE_FMA(t43, P[254], DERIVE_FMA(t33, P[86], DERIVE_FMA(t42, P[62], DERIVE_FMA(t41, P[14], P[38]))))));
     const double t178 = DERIVE_FMA(t133, P[303], DERIVE_FMA(t37, P[279], DERIVE_FMA(t43, P[255], DERIVE_FMA(t33, P[87], DERIVE_FMA(t42, P[63], DERIVE_FMA(t41, P[15], P[39]))))));
+    P_new[36] = t175;
+    P_new[289] = t175;
+    P_new[37] = t176;
+    P_new[313] = t176;
+    P_new[38] = t177;
+    P_new[337] = t177;
+    P_new[39] = t178;
+    P_new[361] = t178;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t179_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -381,6 +421,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t180 = DERIVE_FMA(t133, P[305], DERIVE_FMA(t37, P[281], DERIVE_FMA(t43, P[257], DERIVE_FMA(t33, P[89], DERIVE_FMA(t42, P[65], DERIVE_FMA(t41, P[17], P[41]))))));
     const double t181 = DERIVE_FMA(t133, P[306], DERIVE_FMA(t37, P[282], DERIVE_FMA(t43, P[258], DERIVE_FMA(t33, P[90], DERIVE_FMA(t42, P[66], DERIVE_FMA(t41, P[18], P[42]))))));
     const double t182 = DERIVE_FMA(t133, P[307], DERIVE_FMA(t37, P[283], DERIVE_FMA(t43, P[259], DERIVE_FMA(t33, P[91], DERIVE_FMA(t42, P[67], DERIVE_FMA(t41, P[19], P[43]))))));
+    P_new[40] = t179;
+    P_new[385] = t179;
+    P_new[41] = t180;
+    P_new[409] = t180;
+    P_new[42] = t181;
+    P_new[433] = t181;
+    P_new[43] = t182;
+    P_new[457] = t182;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t183_0 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -394,6 +442,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t184 = DERIVE_FMA(t133, P[309], DERIVE_FMA(t37, P[285], DERIVE_FMA(t43, P[261], DERIVE_FMA(t33, P[93], DERIVE_FMA(t42, P[69], DERIVE_FMA(t41, P[21], P[45]))))));
     const double t185 = DERIVE_FMA(t133, P[310], DERIVE_FMA(t37, P[286], DERIVE_FMA(t43, P[262], DERIVE_FMA(t33, P[94], DERIVE_FMA(t42, P[70], DERIVE_FMA(t41, P[22], P[46]))))));
     const double t186 = DERIVE_FMA(t133, P[311], DERIVE_FMA(t37, P[287], DERIVE_FMA(t43, P[263], DERIVE_FMA(t33, P[95], DERIVE_FMA(t42, P[71], DERIVE_FMA(t41, P[23], P[47]))))));
+    P_new[44] = t183;
+    P_new[481] = t183;
+    P_new[45] = t184;
+    P_new[505] = t184;
+    P_new[46] = t185;
+    P_new[529] = t185;
+    P_new[47] = t186;
+    P_new[553] = t186;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t187_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
@@ -424,6 +480,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t193 = DERIVE_FMA(t35, P[298], DERIVE_FMA(t43, P[274], DERIVE_FMA(t134, P[250], DERIVE_FMA(t41, P[82], DERIVE_FMA(t34, P[34], DERIVE_FMA(t44, P[10], P[58]))))));
     const double t194 = DERIVE_FMA(t35, P[299], DERIVE_FMA(t43, P[275], DERIVE_FMA(t134, P[251], DERIVE_FMA(t41, P[83], DERIVE_FMA(t34, P[35], DERIVE_FMA(t44, P[11], P[59]))))));
+    P_new[58] = t193;
+    P_new[242] = t193;
+    P_new[59] = t194;
+    P_new[266] = t194;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t195_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -438,6 +498,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t196 = DERIVE_FMA(t35, P[301], DERIVE_FMA(t43, P[277], DERIVE_FMA(t134, P[253], DERIVE_FMA(t41, P[85], DERIVE_FMA(t34, P[37], DERIVE_FMA(t44, P[13], P[61]))))));
     const double t197 = DERIVE_FMA(t35, P[302], DERIVE_FMA(t43, P[278], DERIVE_FMA(t134, P[254], DERIVE_FMA(t41, P[86], DERIVE_FMA(t34, P[38], DERIVE_FMA(t44, P[14], P[62]))))));
     const double t198 = DERIVE_FMA(t35, P[303], DERIVE_FMA(t43, P[279], DERIVE_FMA(t134, P[255], DERIVE_FMA(t41, P[87], DERIVE_FMA(t34, P[39], DERIVE_FMA(t44, P[15], P[63]))))));
+    P_new[60] = t195;
+    P_new[290] = t195;
+    P_new[61] = t196;
+    P_new[314] = t196;
+    P_new[62] = t197;
+    P_new[338] = t197;
+    P_new[63] = t198;
+    P_new[362] = t198;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t199_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -451,6 +519,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t200 = DERIVE_FMA(t35, P[305], DERIVE_FMA(t43, P[281], DERIVE_FMA(t134, P[257], DERIVE_FMA(t41, P[89], DERIVE_FMA(t34, P[41], DERIVE_FMA(t44, P[17], P[65]))))));
     const double t201 = DERIVE_FMA(t35, P[306], DERIVE_FMA(t43, P[282], DERIVE_FMA(t134, P[258], DERIVE_FMA(t41, P[90], DERIVE_FMA(t34, P[42], DERIVE_FMA(t44, P[18], P[66]))))));
     const double t202 = DERIVE_FMA(t35, P[307], DERIVE_FMA(t43, P[283], DERIVE_FMA(t134, P[259], DERIVE_FMA(t41, P[91], DERIVE_FMA(t34, P[43], DERIVE_FMA(t44, P[19], P[67]))))));
+    P_new[64] = t199;
+    P_new[386] = t199;
+    P_new[65] = t200;
+    P_new[410] = t200;
+    P_new[66] = t201;
+    P_new[434] = t201;
+    P_new[67] = t202;
+    P_new[458] = t202;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t203_0 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -464,6 +540,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t204 = DERIVE_FMA(t35, P[309], DERIVE_FMA(t43, P[285], DERIVE_FMA(t134, P[261], DERIVE_FMA(t41, P[93], DERIVE_FMA(t34, P[45], DERIVE_FMA(t44, P[21], P[69]))))));
     const double t205 = DERIVE_FMA(t35, P[310], DERIVE_FMA(t43, P[286], DERIVE_FMA(t134, P[262], DERIVE_FMA(t41, P[94], DERIVE_FMA(t34, P[46], DERIVE_FMA(t44, P[22], P[70]))))));
     const double t206 = DERIVE_FMA(t35, P[311], DERIVE_FMA(t43, P[287], DERIVE_FMA(t134, P[263], DERIVE_FMA(t41, P[95], DERIVE_FMA(t34, P[47], DERIVE_FMA(t44, P[23], P[71]))))));
+    P_new[68] = t203;
+    P_new[482] = t203;
+    P_new[69] = t204;
+    P_new[506] = t204;
+    P_new[70] = t205;
+    P_new[530] = t205;
+    P_new[71] = t206;
+    P_new[554] = t206;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t207_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
@@ -496,6 +580,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t213 = DERIVE_FMA(t43, P[298], DERIVE_FMA(t135, P[274], DERIVE_FMA(t36, P[250], DERIVE_FMA(t32, P[58], DERIVE_FMA(t44, P[34], DERIVE_FMA(t42, P[10], P[82]))))));
     const double t214 = DERIVE_FMA(t43, P[299], DERIVE_FMA(t135, P[275], DERIVE_FMA(t36, P[251], DERIVE_FMA(t32, P[59], DERIVE_FMA(t44, P[35], DERIVE_FMA(t42, P[11], P[83]))))));
+    P_new[82] = t213;
+    P_new[243] = t213;
+    P_new[83] = t214;
+    P_new[267] = t214;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t215_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -526,6 +614,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t216 = DERIVE_FMA(t43, P[301], DERIVE_FMA(t135, P[277], DERIVE_FMA(t36, P[253], DERIVE_FMA(t32, P[61], DERIVE_FMA(t44, P[37], DERIVE_FMA(t42, P[13], P[85]))))));
     const double t217 = DERIVE_FMA(t43, P[302], DERIVE_FMA(t135, P[278], DERIVE_FMA(t36, P[254], DERIVE_FMA(t32, P[62], DERIVE_FMA(t44, P[38], DERIVE_FMA(t42, P[14], P[86]))))));
     const double t218 = DERIVE_FMA(t43, P[303], DERIVE_FMA(t135, P[279], DERIVE_FMA(t36, P[255], DERIVE_FMA(t32, P[63], DERIVE_FMA(t44, P[39], DERIVE_FMA(t42, P[15], P[87]))))));
+    P_new[84] = t215;
+    P_new[291] = t215;
+    P_new[85] = t216;
+    P_new[315] = t216;
+    P_new[86] = t217;
+    P_new[339] = t217;
+    P_new[87] = t218;
+    P_new[363] = t218;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t219_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -555,6 +651,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t220 = DERIVE_FMA(t43, P[305], DERIVE_FMA(t135, P[281], DERIVE_FMA(t36, P[257], DERIVE_FMA(t32, P[65], DERIVE_FMA(t44, P[41], DERIVE_FMA(t42, P[17], P[89]))))));
     const double t221 = DERIVE_FMA(t43, P[306], DERIVE_FMA(t135, P[282], DERIVE_FMA(t36, P[258], DERIVE_FMA(t32, P[66], DERIVE_FMA(t44, P[42], DERIVE_FMA(t42, P[18], P[90]))))));
     const double t222 = DERIVE_FMA(t43, P[307], DERIVE_FMA(t135, P[283], DERIVE_FMA(t36, P[259], DERIVE_FMA(t32, P[67], DERIVE_FMA(t44, P[43], DERIVE_FMA(t42, P[19], P[91]))))));
+    P_new[88] = t219;
+    P_new[387] = t219;
+    P_new[89] = t220;
+    P_new[411] = t220;
+    P_new[90] = t221;
+    P_new[435] = t221;
+    P_new[91] = t222;
+    P_new[459] = t222;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t223_0 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -584,6 +688,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t224 = DERIVE_FMA(t43, P[309], DERIVE_FMA(t135, P[285], DERIVE_FMA(t36, P[261], DERIVE_FMA(t32, P[69], DERIVE_FMA(t44, P[45], DERIVE_FMA(t42, P[21], P[93]))))));
     const double t225 = DERIVE_FMA(t43, P[310], DERIVE_FMA(t135, P[286], DERIVE_FMA(t36, P[262], DERIVE_FMA(t32, P[70], DERIVE_FMA(t44, P[46], DERIVE_FMA(t42, P[22], P[94]))))));
     const double t226 = DERIVE_FMA(t43, P[311], DERIVE_FMA(t135, P[287], DERIVE_FMA(t36, P[263], DERIVE_FMA(t32, P[71], DERIVE_FMA(t44, P[47], DERIVE_FMA(t42, P[23], P[95]))))));
+    P_new[92] = t223;
+    P_new[483] = t223;
+    P_new[93] = t224;
+    P_new[507] = t224;
+    P_new[94] = t225;
+    P_new[531] = t225;
+    P_new[95] = t226;
+    P_new[555] = t226;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t227_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
@@ -628,6 +740,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t237 = DERIVE_FMA(t138, P[370], DERIVE_FMA(t137, P[346], DERIVE_FMA(t136, P[322], DERIVE_FMA(t73, P[82], DERIVE_FMA(t72, P[58], DERIVE_FMA(t71, P[34], DERIVE_FMA(t70, P[10], P[106])))))));
     const double t238 = DERIVE_FMA(t138, P[371], DERIVE_FMA(t137, P[347], DERIVE_FMA(t136, P[323], DERIVE_FMA(t73, P[83], DERIVE_FMA(t72, P[59], DERIVE_FMA(t71, P[35], DERIVE_FMA(t70, P[11], P[107])))))));
+    P_new[106] = t237;
+    P_new[244] = t237;
+    P_new[107] = t238;
+    P_new[268] = t238;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t239_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -646,6 +762,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t240 = DERIVE_FMA(t138, P[373], DERIVE_FMA(t137, P[349], DERIVE_FMA(t136, P[325], DERIVE_FMA(t73, P[85], DERIVE_FMA(t72, P[61], DERIVE_FMA(t71, P[37], DERIVE_FMA(t70, P[13], P[109])))))));
     const double t241 = DERIVE_FMA(t138, P[374], DERIVE_FMA(t137, P[350], DERIVE_FMA(t136, P[326], DERIVE_FMA(t73, P[86], DERIVE_FMA(t72, P[62], DERIVE_FMA(t71, P[38], DERIVE_FMA(t70, P[14], P[110])))))));
     const double t242 = DERIVE_FMA(t138, P[375], DERIVE_FMA(t137, P[351], DERIVE_FMA(t136, P[327], DERIVE_FMA(t73, P[87], DERIVE_FMA(t72, P[63], DERIVE_FMA(t71, P[39], DERIVE_FMA(t70, P[15], P[111])))))));
+    P_new[108] = t239;
+    P_new[292] = t239;
+    P_new[109] = t240;
+    P_new[316] = t240;
+    P_new[110] = t241;
+    P_new[340] = t241;
+    P_new[111] = t242;
+    P_new[364] = t242;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t243_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -660,6 +784,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t244 = DERIVE_FMA(t138, P[377], DERIVE_FMA(t137, P[353], DERIVE_FMA(t136, P[329], DERIVE_FMA(t73, P[89], DERIVE_FMA(t72, P[65], DERIVE_FMA(t71, P[41], DERIVE_FMA(t70, P[17], P[113])))))));
     const double t245 = DERIVE_FMA(t138, P[378], DERIVE_FMA(t137, P[354], DERIVE_FMA(t136, P[330], DERIVE_FMA(t73, P[90], DERIVE_FMA(t72, P[66], DERIVE_FMA(t71, P[42], DERIVE_FMA(t70, P[18], P[114])))))));
     const double t246 = DERIVE_FMA(t138, P[379], DERIVE_FMA(t137, P[355], DERIVE_FMA(t136, P[331], DERIVE_FMA(t73, P[91], DERIVE_FMA(t72, P[67], DERIVE_FMA(t71, P[43], DERIVE_FMA(t70, P[19], P[115])))))));
+    P_new[112] = t243;
+    P_new[388] = t243;
+    P_new[113] = t244;
+    P_new[412] = t244;
+    P_new[114] = t245;
+    P_new[436] = t245;
+    P_new[115] = t246;
+    P_new[460] = t246;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t247_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -674,6 +806,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t248 = DERIVE_FMA(t138, P[381], DERIVE_FMA(t137, P[357], DERIVE_FMA(t136, P[333], DERIVE_FMA(t73, P[93], DERIVE_FMA(t72, P[69], DERIVE_FMA(t71, P[45], DERIVE_FMA(t70, P[21], P[117])))))));
     const double t249 = DERIVE_FMA(t138, P[382], DERIVE_FMA(t137, P[358], DERIVE_FMA(t136, P[334], DERIVE_FMA(t73, P[94], DERIVE_FMA(t72, P[70], DERIVE_FMA(t71, P[46], DERIVE_FMA(t70, P[22], P[118])))))));
     const double t250 = DERIVE_FMA(t138, P[383], DERIVE_FMA(t137, P[359], DERIVE_FMA(t136, P[335], DERIVE_FMA(t73, P[95], DERIVE_FMA(t72, P[71], DERIVE_FMA(t71, P[47], DERIVE_FMA(t70, P[23], P[119])))))));
+    P_new[116] = t247;
+    P_new[484] = t247;
+    P_new[117] = t248;
+    P_new[508] = t248;
+    P_new[118] = t249;
+    P_new[532] = t249;
+    P_new[119] = t250;
+    P_new[556] = t250;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t251_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
@@ -720,6 +860,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t261 = DERIVE_FMA(t142, P[370], DERIVE_FMA(t141, P[346], DERIVE_FMA(t140, P[322], DERIVE_FMA(t80, P[82], DERIVE_FMA(t79, P[58], DERIVE_FMA(t139, P[34], DERIVE_FMA(t77, P[10], P[130])))))));
     const double t262 = DERIVE_FMA(t142, P[371], DERIVE_FMA(t141, P[347], DERIVE_FMA(t140, P[323], DERIVE_FMA(t80, P[83], DERIVE_FMA(t79, P[59], DERIVE_FMA(t139, P[35], DERIVE_FMA(t77, P[11], P[131])))))));
+    P_new[130] = t261;
+    P_new[245] = t261;
+    P_new[131] = t262;
+    P_new[269] = t262;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t263_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -738,6 +882,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t264 = DERIVE_FMA(t142, P[373], DERIVE_FMA(t141, P[349], DERIVE_FMA(t140, P[325], DERIVE_FMA(t80, P[85], DERIVE_FMA(t79, P[61], DERIVE_FMA(t139, P[37], DERIVE_FMA(t77, P[13], P[133])))))));
     const double t265 = DERIVE_FMA(t142, P[374], DERIVE_FMA(t141, P[350], DERIVE_FMA(t140, P[326], DERIVE_FMA(t80, P[86], DERIVE_FMA(t79, P[62], DERIVE_FMA(t139, P[38], DERIVE_FMA(t77, P[14], P[134])))))));
     const double t266 = DERIVE_FMA(t142, P[375], DERIVE_FMA(t141, P[351], DERIVE_FMA(t140, P[327], DERIVE_FMA(t80, P[87], DERIVE_FMA(t79, P[63], DERIVE_FMA(t139, P[39], DERIVE_FMA(t77, P[15], P[135])))))));
+    P_new[132] = t263;
+    P_new[293] = t263;
+    P_new[133] = t264;
+    P_new[317] = t264;
+    P_new[134] = t265;
+    P_new[341] = t265;
+    P_new[135] = t266;
+    P_new[365] = t266;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t267_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -752,6 +904,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t268 = DERIVE_FMA(t142, P[377], DERIVE_FMA(t141, P[353], DERIVE_FMA(t140, P[329], DERIVE_FMA(t80, P[89], DERIVE_FMA(t79, P[65], DERIVE_FMA(t139, P[41], DERIVE_FMA(t77, P[17], P[137])))))));
     const double t269 = DERIVE_FMA(t142, P[378], DERIVE_FMA(t141, P[354], DERIVE_FMA(t140, P[330], DERIVE_FMA(t80, P[90], DERIVE_FMA(t79, P[66], DERIVE_FMA(t139, P[42], DERIVE_FMA(t77, P[18], P[138])))))));
     const double t270 = DERIVE_FMA(t142, P[379], DERIVE_FMA(t141, P[355], DERIVE_FMA(t140, P[331], DERIVE_FMA(t80, P[91], DERIVE_FMA(t79, P[67], DERIVE_FMA(t139, P[43], DERIVE_FMA(t77, P[19], P[139])))))));
+    P_new[136] = t267;
+    P_new[389] = t267;
+    P_new[137] = t268;
+    P_new[413] = t268;
+    P_new[138] = t269;
+    P_new[437] = t269;
+    P_new[139] = t270;
+    P_new[461] = t270;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t271_0 = DERIVE_VFMA(((derive_vd){t77, t77, t77, t77}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -766,6 +926,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t272 = DERIVE_FMA(t142, P[381], DERIVE_FMA(t141, P[357], DERIVE_FMA(t140, P[333], DERIVE_FMA(t80, P[93], DERIVE_FMA(t79, P[69], DERIVE_FMA(t139, P[45], DERIVE_FMA(t77, P[21], P[141])))))));
     const double t273 = DERIVE_FMA(t142, P[382], DERIVE_FMA(t141, P[358], DERIVE_FMA(t140, P[334], DERIVE_FMA(t80, P[94], DERIVE_FMA(t79, P[70], DERIVE_FMA(t139, P[46], DERIVE_FMA(t77, P[22], P[142])))))));
     const double t274 = DERIVE_FMA(t142, P[383], DERIVE_FMA(t141, P[359], DERIVE_FMA(t140, P[335], DERIVE_FMA(t80, P[95], DERIVE_FMA(t79, P[71], DERIVE_FMA(t139, P[47], DERIVE_FMA(t77, P[23], P[143])))))));
+    P_new[140] = t271;
+    P_new[485] = t271;
+    P_new[141] = t272;
+    P_new[509] = t272;
+    P_new[142] = t273;
+    P_new[533] = t273;
+    P_new[143] = t274;
+    P_new[557] = t274;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t275_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
@@ -814,6 +982,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t285 = DERIVE_FMA(t146, P[370], DERIVE_FMA(t145, P[346], DERIVE_FMA(t144, P[322], DERIVE_FMA(t87, P[82], DERIVE_FMA(t143, P[58], DERIVE_FMA(t85, P[34], DERIVE_FMA(t84, P[10], P[154])))))));
     const double t286 = DERIVE_FMA(t146, P[371], DERIVE_FMA(t145, P[347], DERIVE_FMA(t144, P[323], DERIVE_FMA(t87, P[83], DERIVE_FMA(t143, P[59], DERIVE_FMA(t85, P[35], DERIVE_FMA(t84, P[11], P[155])))))));
+    P_new[154] = t285;
+    P_new[246] = t285;
+    P_new[155] = t286;
+    P_new[270] = t286;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t287_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -832,6 +1004,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t288 = DERIVE_FMA(t146, P[373], DERIVE_FMA(t145, P[349], DERIVE_FMA(t144, P[325], DERIVE_FMA(t87, P[85], DERIVE_FMA(t143, P[61], DERIVE_FMA(t85, P[37], DERIVE_FMA(t84, P[13], P[157])))))));
     const double t289 = DERIVE_FMA(t146, P[374], DERIVE_FMA(t145, P[350], DERIVE_FMA(t144, P[326], DERIVE_FMA(t87, P[86], DERIVE_FMA(t143, P[62], DERIVE_FMA(t85, P[38], DERIVE_FMA(t84, P[14], P[158])))))));
     const double t290 = DERIVE_FMA(t146, P[375], DERIVE_FMA(t145, P[351], DERIVE_FMA(t144, P[327], DERIVE_FMA(t87, P[87], DERIVE_FMA(t143, P[63], DERIVE_FMA(t85, P[39], DERIVE_FMA(t84, P[15], P[159])))))));
+    P_new[156] = t287;
+    P_new[294] = t287;
+    P_new[157] = t288;
+    P_new[318] = t288;
+    P_new[158] = t289;
+    P_new[342] = t289;
+    P_new[159] = t290;
+    P_new[366] = t290;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t291_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[16], P[17], P[18], P[19]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -846,6 +1026,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t292 = DERIVE_FMA(t146, P[377], DERIVE_FMA(t145, P[353], DERIVE_FMA(t144, P[329], DERIVE_FMA(t87, P[89], DERIVE_FMA(t143, P[65], DERIVE_FMA(t85, P[41], DERIVE_FMA(t84, P[17], P[161])))))));
     const double t293 = DERIVE_FMA(t146, P[378], DERIVE_FMA(t145, P[354], DERIVE_FMA(t144, P[330], DERIVE_FMA(t87, P[90], DERIVE_FMA(t143, P[66], DERIVE_FMA(t85, P[42], DERIVE_FMA(t84, P[18], P[162])))))));
     const double t294 = DERIVE_FMA(t146, P[379], DERIVE_FMA(t145, P[355], DERIVE_FMA(t144, P[331], DERIVE_FMA(t87, P[91], DERIVE_FMA(t143, P[67], DERIVE_FMA(t85, P[43], DERIVE_FMA(t84, P[19], P[163])))))));
+    P_new[160] = t291;
+    P_new[390] = t291;
+    P_new[161] = t292;
+    P_new[414] = t292;
+    P_new[162] = t293;
+    P_new[438] = t293;
+    P_new[163] = t294;
+    P_new[462] = t294;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t295_0 = DERIVE_VFMA(((derive_vd){t84, t84, t84, t84}), ((derive_vd){P[20], P[21], P[22], P[23]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -860,6 +1048,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t296 = DERIVE_FMA(t146, P[381], DERIVE_FMA(t145, P[357], DERIVE_FMA(t144, P[333], DERIVE_FMA(t87, P[93], DERIVE_FMA(t143, P[69], DERIVE_FMA(t85, P[45], DERIVE_FMA(t84, P[21], P[165])))))));
     const double t297 = DERIVE_FMA(t146, P[382], DERIVE_FMA(t145, P[358], DERIVE_FMA(t144, P[334], DERIVE_FMA(t87, P[94], DERIVE_FMA(t143, P[70], DERIVE_FMA(t85, P[46], DERIVE_FMA(t84, P[22], P[166])))))));
     const double t298 = DERIVE_FMA(t146, P[383], DERIVE_FMA(t145, P[359], DERIVE_FMA(t144, P[335], DERIVE_FMA(t87, P[95], DERIVE_FMA(t143, P[71], DERIVE_FMA(t85, P[47], DERIVE_FMA(t84, P[23], P[167])))))));
+    P_new[164] = t295;
+    P_new[486] = t295;
+    P_new[165] = t296;
+    P_new[510] = t296;
+    P_new[166] = t297;
+    P_new[534] = t297;
+    P_new[167] = t298;
+    P_new[558] = t298;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[168], P[169], P[170], P[171]}));
@@ -894,6 +1090,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t309 = DERIVE_FMA(p[0], P[106], P[178]);
     const double t310 = DERIVE_FMA(p[0], P[107], P[179]);
+    P_new[178] = t309;
+    P_new[247] = t309;
+    P_new[179] = t310;
+    P_new[271] = t310;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -922,6 +1122,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t312 = DERIVE_FMA(p[0], P[109], P[181]);
     const double t313 = DERIVE_FMA(p[0], P[110], P[182]);
     const double t314 = DERIVE_FMA(p[0], P[111], P[183]);
+    P_new[180] = t311;
+    P_new[295] = t311;
+    P_new[181] = t312;
+    P_new[319] = t312;
+    P_new[182] = t313;
+    P_new[343] = t313;
+    P_new[183] = t314;
+    P_new[367] = t314;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -946,6 +1154,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t316 = DERIVE_FMA(p[0], P[113], P[185]);
     const double t317 = DERIVE_FMA(p[0], P[114], P[186]);
     const double t318 = DERIVE_FMA(p[0], P[115], P[187]);
+    P_new[184] = t315;
+    P_new[391] = t315;
+    P_new[185] = t316;
+    P_new[415] = t316;
+    P_new[186] = t317;
+    P_new[439] = t317;
+    P_new[187] = t318;
+    P_new[463] = t318;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t319 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -970,6 +1186,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t320 = DERIVE_FMA(p[0], P[117], P[189]);
     const double t321 = DERIVE_FMA(p[0], P[118], P[190]);
     const double t322 = DERIVE_FMA(p[0], P[119], P[191]);
+    P_new[188] = t319;
+    P_new[487] = t319;
+    P_new[189] = t320;
+    P_new[511] = t320;
+    P_new[190] = t321;
+    P_new[535] = t321;
+    P_new[191] = t322;
+    P_new[559] = t322;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t323 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[192], P[193], P[194], P[195]}));
@@ -1004,6 +1228,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t331 = DERIVE_FMA(p[0], P[128], P[200]);
     const double t333 = DERIVE_FMA(p[0], P[130], P[202]);
     const double t334 = DERIVE_FMA(p[0], P[131], P[203]);
+    P_new[202] = t333;
+    P_new[248] = t333;
+    P_new[203] = t334;
+    P_new[272] = t334;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t335 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[132], P[133], P[134], P[135]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -1017,6 +1245,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t336 = DERIVE_FMA(p[0], P[133], P[205]);
     const double t337 = DERIVE_FMA(p[0], P[134], P[206]);
     const double t338 = DERIVE_FMA(p[0], P[135], P[207]);
+    P_new[204] = t335;
+    P_new[296] = t335;
+    P_new[205] = t336;
+    P_new[320] = t336;
+    P_new[206] = t337;
+    P_new[344] = t337;
+    P_new[207] = t338;
+    P_new[368] = t338;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[136], P[137], P[138], P[139]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -1030,6 +1266,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t340 = DERIVE_FMA(p[0], P[137], P[209]);
     const double t341 = DERIVE_FMA(p[0], P[138], P[210]);
     const double t342 = DERIVE_FMA(p[0], P[139], P[211]);
+    P_new[208] = t339;
+    P_new[392] = t339;
+    P_new[209] = t340;
+    P_new[416] = t340;
+    P_new[210] = t341;
+    P_new[440] = t341;
+    P_new[211] = t342;
+    P_new[464] = t342;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[140], P[141], P[142], P[143]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -1043,6 +1287,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t344 = DERIVE_FMA(p[0], P[141], P[213]);
     const double t345 = DERIVE_FMA(p[0], P[142], P[214]);
     const double t346 = DERIVE_FMA(p[0], P[143], P[215]);
+    P_new[212] = t343;
+    P_new[488] = t343;
+    P_new[213] = t344;
+    P_new[512] = t344;
+    P_new[214] = t345;
+    P_new[536] = t345;
+    P_new[215] = t346;
+    P_new[560] = t346;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t347 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){P[216], P[217], P[218], P[219]}));
@@ -1079,6 +1331,10 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t356 = DERIVE_FMA(p[0], P[153], P[225]);
     const double t357 = DERIVE_FMA(p[0], P[154], P[226]);
     const double t358 = DERIVE_FMA(p[0], P[155], P[227]);
+    P_new[226] = t357;
+    P_new[249] = t357;
+    P_new[227] = t358;
+    P_new[273] = t358;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t359 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
@@ -1092,6 +1348,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t360 = DERIVE_FMA(p[0], P[157], P[229]);
     const double t361 = DERIVE_FMA(p[0], P[158], P[230]);
     const double t362 = DERIVE_FMA(p[0], P[159], P[231]);
+    P_new[228] = t359;
+    P_new[297] = t359;
+    P_new[229] = t360;
+    P_new[321] = t360;
+    P_new[230] = t361;
+    P_new[345] = t361;
+    P_new[231] = t362;
+    P_new[369] = t362;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[160], P[161], P[162], P[163]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -1105,6 +1369,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t364 = DERIVE_FMA(p[0], P[161], P[233]);
     const double t365 = DERIVE_FMA(p[0], P[162], P[234]);
     const double t366 = DERIVE_FMA(p[0], P[163], P[235]);
+    P_new[232] = t363;
+    P_new[393] = t363;
+    P_new[233] = t364;
+    P_new[417] = t364;
+    P_new[234] = t365;
+    P_new[441] = t365;
+    P_new[235] = t366;
+    P_new[465] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[164], P[165], P[166], P[167]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -1118,6 +1390,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t368 = DERIVE_FMA(p[0], P[165], P[237]);
     const double t369 = DERIVE_FMA(p[0], P[166], P[238]);
     const double t370 = DERIVE_FMA(p[0], P[167], P[239]);
+    P_new[236] = t367;
+    P_new[489] = t367;
+    P_new[237] = t368;
+    P_new[513] = t368;
+    P_new[238] = t369;
+    P_new[537] = t369;
+    P_new[239] = t370;
+    P_new[561] = t370;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = (((derive_vd){t111, t113, t114, t116}) + ((derive_vd){t147, t167, t187, t207}));
@@ -1136,6 +1416,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t372 = DERIVE_FMA(t37, t175, DERIVE_FMA(t36, t174, DERIVE_FMA(t35, t173, DERIVE_FMA(t34, t170, DERIVE_FMA(t33, t169, DERIVE_FMA(t32, t168, t113 + t167))))));
     const double t373 = DERIVE_FMA(t37, t195, DERIVE_FMA(t36, t194, DERIVE_FMA(t35, t193, DERIVE_FMA(t34, t190, DERIVE_FMA(t33, t189, DERIVE_FMA(t32, t188, t114 + t187))))));
     const double t374 = DERIVE_FMA(t37, t215, DERIVE_FMA(t36, t214, DERIVE_FMA(t35, t213, DERIVE_FMA(t34, t210, DERIVE_FMA(t33, t209, DERIVE_FMA(t32, t208, t116 + t207))))));
+    P_new[0] = t371;
+    P_new[1] = t372;
+    P_new[24] = t372;
+    P_new[2] = t373;
+    P_new[48] = t373;
+    P_new[3] = t374;
+    P_new[72] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), ((derive_vd){t228, t252, t276, t300}), ((derive_vd){t227, t251, t275, t299}));
@@ -1149,6 +1436,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t376 = DERIVE_FMA(t37, t263, DERIVE_FMA(t36, t262, DERIVE_FMA(t35, t261, DERIVE_FMA(t34, t254, DERIVE_FMA(t33, t253, DERIVE_FMA(t32, t252, t251))))));
     const double t377 = DERIVE_FMA(t37, t287, DERIVE_FMA(t36, t286, DERIVE_FMA(t35, t285, DERIVE_FMA(t34, t278, DERIVE_FMA(t33, t277, DERIVE_FMA(t32, t276, t275))))));
     const double t378 = DERIVE_FMA(t37, t311, DERIVE_FMA(t36, t310, DERIVE_FMA(t35, t309, DERIVE_FMA(t34, t302, DERIVE_FMA(t33, t301, DERIVE_FMA(t32, t300, t299))))));
+    P_new[4] = t375;
+    P_new[96] = t375;
+    P_new[5] = t376;
+    P_new[120] = t376;
+    P_new[6] = t377;
+    P_new[144] = t377;
+    P_new[7] = t378;
+    P_new[168] = t378;
     #endif
     const double t379 = DERIVE_FMA(t335, t37, DERIVE_FMA(t334, t36, DERIVE_FMA(t333, t35, DERIVE_FMA(t326, t34, DERIVE_FMA(t325, t33, DERIVE_FMA(t32, t324, t323))))));
     const double t380 = DERIVE_FMA(t359, t37, DERIVE_FMA(t358, t36, DERIVE_FMA(t35, t357, DERIVE_FMA(t34, t350, DERIVE_FMA(t33, t349, DERIVE_FMA(t32, t348, t347))))));
@@ -1168,6 +1463,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t385 = DERIVE_FMA(t133, t263, DERIVE_FMA(t37, t262, DERIVE_FMA(t43, t261, DERIVE_FMA(t33, t254, DERIVE_FMA(t42, t253, t41*t251 + t252)))));
     const double t386 = DERIVE_FMA(t133, t287, DERIVE_FMA(t37, t286, DERIVE_FMA(t43, t285, DERIVE_FMA(t33, t278, DERIVE_FMA(t42, t277, t41*t275 + t276)))));
     const double t387 = DERIVE_FMA(t133, t311, DERIVE_FMA(t37, t310, DERIVE_FMA(t43, t309, DERIVE_FMA(t33, t302, DERIVE_FMA(t42, t301, t41*t299 + t300)))));
+    P_new[28] = t384;
+    P_new[97] = t384;
+    P_new[29] = t385;
+    P_new[121] = t385;
+    P_new[30] = t386;
+    P_new[145] = t386;
+    P_new[31] = t387;
+    P_new[169] = t387;
     #endif
     const double t388 = DERIVE_FMA(t334, t37, DERIVE_FMA(t333, t43, DERIVE_FMA(t326, t33, DERIVE_FMA(t325, t42, DERIVE_FMA(t323, t41, DERIVE_FMA(t133, t335, t324))))));
     const double t389 = DERIVE_FMA(t358, t37, DERIVE_FMA(t357, t43, DERIVE_FMA(t349, t42, DERIVE_FMA(t347, t41, DERIVE_FMA(t33, t350, DERIVE_FMA(t133, t359, t348))))));
@@ -1186,6 +1489,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t393 = DERIVE_FMA(t35, t263, DERIVE_FMA(t43, t262, DERIVE_FMA(t134, t261, DERIVE_FMA(t41, t254, DERIVE_FMA(t34, t252, t44*t251) + t253))));
     const double t394 = DERIVE_FMA(t35, t287, DERIVE_FMA(t43, t286, DERIVE_FMA(t134, t285, DERIVE_FMA(t41, t278, DERIVE_FMA(t34, t276, t44*t275) + t277))));
     const double t395 = DERIVE_FMA(t35, t311, DERIVE_FMA(t43, t310, DERIVE_FMA(t134, t309, DERIVE_FMA(t41, t302, DERIVE_FMA(t34, t300, t44*t299) + t301))));
+    P_new[52] = t392;
+    P_new[98] = t392;
+    P_new[53] = t393;
+    P_new[122] = t393;
+    P_new[54] = t394;
+    P_new[146] = t394;
+    P_new[55] = t395;
+    P_new[170] = t395;
     #endif
     const double t396 = DERIVE_FMA(t335, t35, DERIVE_FMA(t334, t43, DERIVE_FMA(t326, t41, DERIVE_FMA(t324, t34, DERIVE_FMA(t323, t44, DERIVE_FMA(t134, t333, t325))))));
     const double t397 = DERIVE_FMA(t358, t43, DERIVE_FMA(t350, t41, DERIVE_FMA(t35, t359, DERIVE_FMA(t347, t44, DERIVE_FMA(t34, t348, DERIVE_FMA(t134, t357, t349))))));
@@ -1219,6 +1530,14 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t400 = DERIVE_FMA(t43, t263, DERIVE_FMA(t135, t262, DERIVE_FMA(t36, t261, DERIVE_FMA(t32, t253, DERIVE_FMA(t44, t252, t42*t251)) + t254)));
     const double t401 = DERIVE_FMA(t43, t287, DERIVE_FMA(t135, t286, DERIVE_FMA(t36, t285, DERIVE_FMA(t32, t277, DERIVE_FMA(t44, t276, t42*t275)) + t278)));
     const double t402 = DERIVE_FMA(t43, t311, DERIVE_FMA(t135, t310, DERIVE_FMA(t36, t309, DERIVE_FMA(t32, t301, DERIVE_FMA(t44, t300, t42*t299)) + t302)));
+    P_new[76] = t399;
+    P_new[99] = t399;
+    P_new[77] = t400;
+    P_new[123] = t400;
+    P_new[78] = t401;
+    P_new[147] = t401;
+    P_new[79] = t402;
+    P_new[171] = t402;
     #endif
     const double t403 = DERIVE_FMA(t335, t43, DERIVE_FMA(t333, t36, DERIVE_FMA(t324, t44, DERIVE_FMA(t323, t42, DERIVE_FMA(t32, t325, DERIVE_FMA(t135, t334, t326))))));
     const double t404 = DERIVE_FMA(t359, t43, DERIVE_FMA(t357, t36, DERIVE_FMA(t348, t44, DERIVE_FMA(t347, t42, DERIVE_FMA(t32, t349, DERIVE_FMA(t135, t358, t350))))));
@@ -1240,6 +1559,13 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t406 = DERIVE_FMA(t138, t266, DERIVE_FMA(t137, t265, DERIVE_FMA(t136, t264, DERIVE_FMA(t73, t254, DERIVE_FMA(t72, t253, DERIVE_FMA(t71, t252, DERIVE_FMA(t70, t251, t125)))) + t255)));
     const double t407 = DERIVE_FMA(t138, t290, DERIVE_FMA(t137, t289, DERIVE_FMA(t136, t288, DERIVE_FMA(t73, t278, DERIVE_FMA(t72, t277, DERIVE_FMA(t71, t276, DERIVE_FMA(t70, t275, t126)))) + t279)));
     const double t408 = DERIVE_FMA(t138, t314, DERIVE_FMA(t137, t313, DERIVE_FMA(t136, t312, DERIVE_FMA(t73, t302, DERIVE_FMA(t72, t301, DERIVE_FMA(t71, t300, DERIVE_FMA(t70, t299, 0.0)))) + t303)));
+    P_new[100] = t405;
+    P_new[101] = t406;
+    P_new[124] = t406;
+    P_new[102] = t407;
+    P_new[148] = t407;
+    P_new[103] = t408;
+    P_new[172] = t408;
     #endif
     const double t409 = DERIVE_FMA(t326, t73, DERIVE_FMA(t325, t72, DERIVE_FMA(t324, t71, DERIVE_FMA(t323, t70, DERIVE_FMA(t138, t338, DERIVE_FMA(t137, t337, DERIVE_FMA(t136, t336, t327)))))));
     const double t410 = DERIVE_FMA(t350, t73, DERIVE_FMA(t349, t72, DERIVE_FMA(t348, t71, DERIVE_FMA(t347, t70, DERIVE_FMA(t138, t362, DERIVE_FMA(t137, t361, DERIVE_FMA(t136, t360, t351)))))));
@@ -1626,198 +1952,40 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     x_new[21] = x[21];
     x_new[22] = x[22];
     x_new[23] = x[23];
-    P_new[0] = t371;
-    P_new[1] = t372;
-    P_new[2] = t373;
-    P_new[3] = t374;
-    P_new[4] = t375;
-    P_new[5] = t376;
-    P_new[6] = t377;
-    P_new[7] = t378;
     P_new[8] = t379;
     P_new[9] = t380;
-    P_new[10] = t153;
-    P_new[11] = t154;
-    P_new[12] = t155;
-    P_new[13] = t156;
-    P_new[14] = t157;
-    P_new[15] = t158;
-    P_new[16] = t159;
-    P_new[17] = t160;
-    P_new[18] = t161;
-    P_new[19] = t162;
-    P_new[20] = t163;
-    P_new[21] = t164;
-    P_new[22] = t165;
-    P_new[23] = t166;
-    P_new[24] = t372;
     P_new[25] = t381;
     P_new[26] = t382;
     P_new[27] = t383;
-    P_new[28] = t384;
-    P_new[29] = t385;
-    P_new[30] = t386;
-    P_new[31] = t387;
     P_new[32] = t388;
     P_new[33] = t389;
-    P_new[34] = t173;
-    P_new[35] = t174;
-    P_new[36] = t175;
-    P_new[37] = t176;
-    P_new[38] = t177;
-    P_new[39] = t178;
-    P_new[40] = t179;
-    P_new[41] = t180;
-    P_new[42] = t181;
-    P_new[43] = t182;
-    P_new[44] = t183;
-    P_new[45] = t184;
-    P_new[46] = t185;
-    P_new[47] = t186;
-    P_new[48] = t373;
     P_new[49] = t382;
     P_new[50] = t390;
     P_new[51] = t391;
-    P_new[52] = t392;
-    P_new[53] = t393;
-    P_new[54] = t394;
-    P_new[55] = t395;
     P_new[56] = t396;
     P_new[57] = t397;
-    P_new[58] = t193;
-    P_new[59] = t194;
-    P_new[60] = t195;
-    P_new[61] = t196;
-    P_new[62] = t197;
-    P_new[63] = t198;
-    P_new[64] = t199;
-    P_new[65] = t200;
-    P_new[66] = t201;
-    P_new[67] = t202;
-    P_new[68] = t203;
-    P_new[69] = t204;
-    P_new[70] = t205;
-    P_new[71] = t206;
-    P_new[72] = t374;
     P_new[73] = t383;
     P_new[74] = t391;
     P_new[75] = t398;
-    P_new[76] = t399;
-    P_new[77] = t400;
-    P_new[78] = t401;
-    P_new[79] = t402;
     P_new[80] = t403;
     P_new[81] = t404;
-    P_new[82] = t213;
-    P_new[83] = t214;
-    P_new[84] = t215;
-    P_new[85] = t216;
-    P_new[86] = t217;
-    P_new[87] = t218;
-    P_new[88] = t219;
-    P_new[89] = t220;
-    P_new[90] = t221;
-    P_new[91] = t222;
-    P_new[92] = t223;
-    P_new[93] = t224;
-    P_new[94] = t225;
-    P_new[95] = t226;
-    P_new[96] = t375;
-    P_new[97] = t384;
-    P_new[98] = t392;
-    P_new[99] = t399;
-    P_new[100] = t405;
-    P_new[101] = t406;
-    P_new[102] = t407;
-    P_new[103] = t408;
     P_new[104] = t409;
     P_new[105] = t410;
-    P_new[106] = t237;
-    P_new[107] = t238;
-    P_new[108] = t239;
-    P_new[109] = t240;
-    P_new[110] = t241;
-    P_new[111] = t242;
-    P_new[112] = t243;
-    P_new[113] = t244;
-    P_new[114] = t245;
-    P_new[115] = t246;
-    P_new[116] = t247;
-    P_new[117] = t248;
-    P_new[118] = t249;
-    P_new[119] = t250;
-    P_new[120] = t376;
-    P_new[121] = t385;
-    P_new[122] = t393;
-    P_new[123] = t400;
-    P_new[124] = t406;
     P_new[125] = t411;
     P_new[126] = t412;
     P_new[127] = t413;
     P_new[128] = t414;
     P_new[129] = t415;
-    P_new[130] = t261;
-    P_new[131] = t262;
-    P_new[132] = t263;
-    P_new[133] = t264;
-    P_new[134] = t265;
-    P_new[135] = t266;
-    P_new[136] = t267;
-    P_new[137] = t268;
-    P_new[138] = t269;
-    P_new[139] = t270;
-    P_new[140] = t271;
-    P_new[141] = t272;
-    P_new[142] = t273;
-    P_new[143] = t274;
-    P_new[144] = t377;
-    P_new[145] = t386;
-    P_new[146] = t394;
-    P_new[147] = t401;
-    P_new[148] = t407;
     P_new[149] = t412;
     P_new[150] = t416;
     P_new[151] = t417;
     P_new[152] = t418;
     P_new[153] = t419;
-    P_new[154] = t285;
-    P_new[155] = t286;
-    P_new[156] = t287;
-    P_new[157] = t288;
-    P_new[158] = t289;
-    P_new[159] = t290;
-    P_new[160] = t291;
-    P_new[161] = t292;
-    P_new[162] = t293;
-    P_new[163] = t294;
-    P_new[164] = t295;
-    P_new[165] = t296;
-    P_new[166] = t297;
-    P_new[167] = t298;
-    P_new[168] = t378;
-    P_new[169] = t387;
-    P_new[170] = t395;
-    P_new[171] = t402;
-    P_new[172] = t408;
     P_new[173] = t413;
     P_new[174] = t417;
     P_new[175] = t420;
     P_new[176] = t421;
     P_new[177] = t422;
-    P_new[178] = t309;
-    P_new[179] = t310;
-    P_new[180] = t311;
-    P_new[181] = t312;
-    P_new[182] = t313;
-    P_new[183] = t314;
-    P_new[184] = t315;
-    P_new[185] = t316;
-    P_new[186] = t317;
-    P_new[187] = t318;
-    P_new[188] = t319;
-    P_new[189] = t320;
-    P_new[190] = t321;
-    P_new[191] = t322;
     P_new[192] = t379;
     P_new[193] = t388;
     P_new[194] = t396;
@@ -1828,20 +1996,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[199] = t421;
     P_new[200] = t423;
     P_new[201] = t424;
-    P_new[202] = t333;
-    P_new[203] = t334;
-    P_new[204] = t335;
-    P_new[205] = t336;
-    P_new[206] = t337;
-    P_new[207] = t338;
-    P_new[208] = t339;
-    P_new[209] = t340;
-    P_new[210] = t341;
-    P_new[211] = t342;
-    P_new[212] = t343;
-    P_new[213] = t344;
-    P_new[214] = t345;
-    P_new[215] = t346;
     P_new[216] = t380;
     P_new[217] = t389;
     P_new[218] = t397;
@@ -1852,30 +2006,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[223] = t422;
     P_new[224] = t424;
     P_new[225] = t425;
-    P_new[226] = t357;
-    P_new[227] = t358;
-    P_new[228] = t359;
-    P_new[229] = t360;
-    P_new[230] = t361;
-    P_new[231] = t362;
-    P_new[232] = t363;
-    P_new[233] = t364;
-    P_new[234] = t365;
-    P_new[235] = t366;
-    P_new[236] = t367;
-    P_new[237] = t368;
-    P_new[238] = t369;
-    P_new[239] = t370;
-    P_new[240] = t153;
-    P_new[241] = t173;
-    P_new[242] = t193;
-    P_new[243] = t213;
-    P_new[244] = t237;
-    P_new[245] = t261;
-    P_new[246] = t285;
-    P_new[247] = t309;
-    P_new[248] = t333;
-    P_new[249] = t357;
     P_new[250] = t426;
     P_new[251] = P[251];
     P_new[252] = P[252];
@@ -1890,16 +2020,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[261] = P[261];
     P_new[262] = P[262];
     P_new[263] = P[263];
-    P_new[264] = t154;
-    P_new[265] = t174;
-    P_new[266] = t194;
-    P_new[267] = t214;
-    P_new[268] = t238;
-    P_new[269] = t262;
-    P_new[270] = t286;
-    P_new[271] = t310;
-    P_new[272] = t334;
-    P_new[273] = t358;
     P_new[274] = P[251];
     P_new[275] = t427;
     P_new[276] = P[276];
@@ -1914,16 +2034,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[285] = P[285];
     P_new[286] = P[286];
     P_new[287] = P[287];
-    P_new[288] = t155;
-    P_new[289] = t175;
-    P_new[290] = t195;
-    P_new[291] = t215;
-    P_new[292] = t239;
-    P_new[293] = t263;
-    P_new[294] = t287;
-    P_new[295] = t311;
-    P_new[296] = t335;
-    P_new[297] = t359;
     P_new[298] = P[252];
     P_new[299] = P[276];
     P_new[300] = t428;
@@ -1938,16 +2048,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[309] = P[309];
     P_new[310] = P[310];
     P_new[311] = P[311];
-    P_new[312] = t156;
-    P_new[313] = t176;
-    P_new[314] = t196;
-    P_new[315] = t216;
-    P_new[316] = t240;
-    P_new[317] = t264;
-    P_new[318] = t288;
-    P_new[319] = t312;
-    P_new[320] = t336;
-    P_new[321] = t360;
     P_new[322] = P[253];
     P_new[323] = P[277];
     P_new[324] = P[301];
@@ -1962,16 +2062,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[333] = P[333];
     P_new[334] = P[334];
     P_new[335] = P[335];
-    P_new[336] = t157;
-    P_new[337] = t177;
-    P_new[338] = t197;
-    P_new[339] = t217;
-    P_new[340] = t241;
-    P_new[341] = t265;
-    P_new[342] = t289;
-    P_new[343] = t313;
-    P_new[344] = t337;
-    P_new[345] = t361;
     P_new[346] = P[254];
     P_new[347] = P[278];
     P_new[348] = P[302];
@@ -1986,16 +2076,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[357] = P[357];
     P_new[358] = P[358];
     P_new[359] = P[359];
-    P_new[360] = t158;
-    P_new[361] = t178;
-    P_new[362] = t198;
-    P_new[363] = t218;
-    P_new[364] = t242;
-    P_new[365] = t266;
-    P_new[366] = t290;
-    P_new[367] = t314;
-    P_new[368] = t338;
-    P_new[369] = t362;
     P_new[370] = P[255];
     P_new[371] = P[279];
     P_new[372] = P[303];
@@ -2010,16 +2090,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[381] = P[381];
     P_new[382] = P[382];
     P_new[383] = P[383];
-    P_new[384] = t159;
-    P_new[385] = t179;
-    P_new[386] = t199;
-    P_new[387] = t219;
-    P_new[388] = t243;
-    P_new[389] = t267;
-    P_new[390] = t291;
-    P_new[391] = t315;
-    P_new[392] = t339;
-    P_new[393] = t363;
     P_new[394] = P[256];
     P_new[395] = P[280];
     P_new[396] = P[304];
@@ -2034,16 +2104,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[405] = P[405];
     P_new[406] = P[406];
     P_new[407] = P[407];
-    P_new[408] = t160;
-    P_new[409] = t180;
-    P_new[410] = t200;
-    P_new[411] = t220;
-    P_new[412] = t244;
-    P_new[413] = t268;
-    P_new[414] = t292;
-    P_new[415] = t316;
-    P_new[416] = t340;
-    P_new[417] = t364;
     P_new[418] = P[257];
     P_new[419] = P[281];
     P_new[420] = P[305];
@@ -2058,16 +2118,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[429] = P[429];
     P_new[430] = P[430];
     P_new[431] = P[431];
-    P_new[432] = t161;
-    P_new[433] = t181;
-    P_new[434] = t201;
-    P_new[435] = t221;
-    P_new[436] = t245;
-    P_new[437] = t269;
-    P_new[438] = t293;
-    P_new[439] = t317;
-    P_new[440] = t341;
-    P_new[441] = t365;
     P_new[442] = P[258];
     P_new[443] = P[282];
     P_new[444] = P[306];
@@ -2082,16 +2132,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[453] = P[453];
     P_new[454] = P[454];
     P_new[455] = P[455];
-    P_new[456] = t162;
-    P_new[457] = t182;
-    P_new[458] = t202;
-    P_new[459] = t222;
-    P_new[460] = t246;
-    P_new[461] = t270;
-    P_new[462] = t294;
-    P_new[463] = t318;
-    P_new[464] = t342;
-    P_new[465] = t366;
     P_new[466] = P[259];
     P_new[467] = P[283];
     P_new[468] = P[307];
@@ -2106,16 +2146,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[477] = P[477];
     P_new[478] = P[478];
     P_new[479] = P[479];
-    P_new[480] = t163;
-    P_new[481] = t183;
-    P_new[482] = t203;
-    P_new[483] = t223;
-    P_new[484] = t247;
-    P_new[485] = t271;
-    P_new[486] = t295;
-    P_new[487] = t319;
-    P_new[488] = t343;
-    P_new[489] = t367;
     P_new[490] = P[260];
     P_new[491] = P[284];
     P_new[492] = P[308];
@@ -2130,16 +2160,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[501] = P[501];
     P_new[502] = P[502];
     P_new[503] = P[503];
-    P_new[504] = t164;
-    P_new[505] = t184;
-    P_new[506] = t204;
-    P_new[507] = t224;
-    P_new[508] = t248;
-    P_new[509] = t272;
-    P_new[510] = t296;
-    P_new[511] = t320;
-    P_new[512] = t344;
-    P_new[513] = t368;
     P_new[514] = P[261];
     P_new[515] = P[285];
     P_new[516] = P[309];
@@ -2154,16 +2174,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[525] = t437;
     P_new[526] = P[526];
     P_new[527] = P[527];
-    P_new[528] = t165;
-    P_new[529] = t185;
-    P_new[530] = t205;
-    P_new[531] = t225;
-    P_new[532] = t249;
-    P_new[533] = t273;
-    P_new[534] = t297;
-    P_new[535] = t321;
-    P_new[536] = t345;
-    P_new[537] = t369;
     P_new[538] = P[262];
     P_new[539] = P[286];
     P_new[540] = P[310];
@@ -2178,16 +2188,6 @@ int ins_fc24_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[549] = P[526];
     P_new[550] = t438;
     P_new[551] = P[551];
-    P_new[552] = t166;
-    P_new[553] = t186;
-    P_new[554] = t206;
-    P_new[555] = t226;
-    P_new[556] = t250;
-    P_new[557] = t274;
-    P_new[558] = t298;
-    P_new[559] = t322;
-    P_new[560] = t346;
-    P_new[561] = t370;
     P_new[562] = P[263];
     P_new[563] = P[287];
     P_new[564] = P[311];
@@ -3158,6 +3158,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t348 = DERIVE_FNMA(t78, t180, DERIVE_FNMA(t75, t156, DERIVE_FNMA(t70, t132, DERIVE_FNMA(t62, t108, DERIVE_FNMA(t50, t84, DERIVE_FNMA(t33, P[173], x[5]))))));
     const double t349 = DERIVE_FNMA(t78, t181, DERIVE_FNMA(t75, t157, DERIVE_FNMA(t70, t133, DERIVE_FNMA(t62, t109, DERIVE_FNMA(t50, t85, DERIVE_FNMA(t33, P[174], x[6]))))));
     const double t350 = DERIVE_FNMA(t78, t182, DERIVE_FNMA(t75, t158, DERIVE_FNMA(t70, t134, DERIVE_FNMA(t62, t110, DERIVE_FNMA(t50, t86, DERIVE_FNMA(t33, P[175], x[7]))))));
+    x_new[4] = t347;
+    x_new[5] = t348;
+    x_new[6] = t349;
+    x_new[7] = t350;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t351_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -3172,6 +3176,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t352 = DERIVE_FNMA(t78, t184, DERIVE_FNMA(t75, t160, DERIVE_FNMA(t70, t136, DERIVE_FNMA(t62, t112, DERIVE_FNMA(t50, t88, DERIVE_FNMA(t33, P[177], x[9]))))));
     const double t353 = DERIVE_FNMA(t78, t185, DERIVE_FNMA(t75, t161, DERIVE_FNMA(t70, t137, DERIVE_FNMA(t62, t113, DERIVE_FNMA(t50, t89, DERIVE_FNMA(t33, P[178], x[10]))))));
     const double t354 = DERIVE_FNMA(t78, t186, DERIVE_FNMA(t75, t162, DERIVE_FNMA(t70, t138, DERIVE_FNMA(t62, t114, DERIVE_FNMA(t50, t90, DERIVE_FNMA(t33, P[179], x[11]))))));
+    x_new[8] = t351;
+    x_new[9] = t352;
+    x_new[10] = t353;
+    x_new[11] = t354;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t355_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -3186,6 +3194,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t356 = DERIVE_FNMA(t78, t188, DERIVE_FNMA(t75, t164, DERIVE_FNMA(t70, t140, DERIVE_FNMA(t62, t116, DERIVE_FNMA(t50, t92, DERIVE_FNMA(t33, P[181], x[13]))))));
     const double t357 = DERIVE_FNMA(t78, t189, DERIVE_FNMA(t75, t165, DERIVE_FNMA(t70, t141, DERIVE_FNMA(t62, t117, DERIVE_FNMA(t50, t93, DERIVE_FNMA(t33, P[182], x[14]))))));
     const double t358 = DERIVE_FNMA(t78, t190, DERIVE_FNMA(t75, t166, DERIVE_FNMA(t70, t142, DERIVE_FNMA(t62, t118, DERIVE_FNMA(t50, t94, DERIVE_FNMA(t33, P[183], x[15]))))));
+    x_new[12] = t355;
+    x_new[13] = t356;
+    x_new[14] = t357;
+    x_new[15] = t358;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t359_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -3200,6 +3212,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t360 = DERIVE_FNMA(t78, t192, DERIVE_FNMA(t75, t168, DERIVE_FNMA(t70, t144, DERIVE_FNMA(t62, t120, DERIVE_FNMA(t50, t96, DERIVE_FNMA(t33, P[185], x[17]))))));
     const double t361 = DERIVE_FNMA(t78, t193, DERIVE_FNMA(t75, t169, DERIVE_FNMA(t70, t145, DERIVE_FNMA(t62, t121, DERIVE_FNMA(t50, t97, DERIVE_FNMA(t33, P[186], x[18]))))));
     const double t362 = DERIVE_FNMA(t78, t194, DERIVE_FNMA(t75, t170, DERIVE_FNMA(t70, t146, DERIVE_FNMA(t62, t122, DERIVE_FNMA(t50, t98, DERIVE_FNMA(t33, P[187], x[19]))))));
+    x_new[16] = t359;
+    x_new[17] = t360;
+    x_new[18] = t361;
+    x_new[19] = t362;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t363_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -3214,6 +3230,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t364 = DERIVE_FNMA(t78, t196, DERIVE_FNMA(t75, t172, DERIVE_FNMA(t70, t148, DERIVE_FNMA(t62, t124, DERIVE_FNMA(t50, t100, DERIVE_FNMA(t33, P[189], x[21]))))));
     const double t365 = DERIVE_FNMA(t78, t197, DERIVE_FNMA(t75, t173, DERIVE_FNMA(t70, t149, DERIVE_FNMA(t62, t125, DERIVE_FNMA(t50, t101, DERIVE_FNMA(t33, P[190], x[22]))))));
     const double t366 = DERIVE_FNMA(t78, t198, DERIVE_FNMA(t75, t174, DERIVE_FNMA(t70, t150, DERIVE_FNMA(t62, t126, DERIVE_FNMA(t50, t102, DERIVE_FNMA(t33, P[191], x[23]))))));
+    x_new[20] = t363;
+    x_new[21] = t364;
+    x_new[22] = t365;
+    x_new[23] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[168], P[169], P[170], P[171]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -3231,6 +3251,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t368 = DERIVE_FMA(t319, t176, DERIVE_FMA(t295, t152, DERIVE_FMA(t271, t128, DERIVE_FMA(t247, t104, DERIVE_FMA(t223, t80, DERIVE_FMA(t199, P[169], P[1]))))));
     const double t369 = DERIVE_FMA(t319, t177, DERIVE_FMA(t295, t153, DERIVE_FMA(t271, t129, DERIVE_FMA(t247, t105, DERIVE_FMA(t223, t81, DERIVE_FMA(t199, P[170], P[2]))))));
     const double t370 = DERIVE_FMA(t319, t178, DERIVE_FMA(t295, t154, DERIVE_FMA(t271, t130, DERIVE_FMA(t247, t106, DERIVE_FMA(t223, t82, DERIVE_FMA(t199, P[171], P[3]))))));
+    P_new[0] = t367;
+    P_new[1] = t368;
+    P_new[24] = t368;
+    P_new[2] = t369;
+    P_new[48] = t369;
+    P_new[3] = t370;
+    P_new[72] = t370;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -3244,6 +3271,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t372 = DERIVE_FMA(t319, t180, DERIVE_FMA(t295, t156, DERIVE_FMA(t271, t132, DERIVE_FMA(t247, t108, DERIVE_FMA(t223, t84, DERIVE_FMA(t199, P[173], P[5]))))));
     const double t373 = DERIVE_FMA(t319, t181, DERIVE_FMA(t295, t157, DERIVE_FMA(t271, t133, DERIVE_FMA(t247, t109, DERIVE_FMA(t223, t85, DERIVE_FMA(t199, P[174], P[6]))))));
     const double t374 = DERIVE_FMA(t319, t182, DERIVE_FMA(t295, t158, DERIVE_FMA(t271, t134, DERIVE_FMA(t247, t110, DERIVE_FMA(t223, t86, DERIVE_FMA(t199, P[175], P[7]))))));
+    P_new[4] = t371;
+    P_new[96] = t371;
+    P_new[5] = t372;
+    P_new[120] = t372;
+    P_new[6] = t373;
+    P_new[144] = t373;
+    P_new[7] = t374;
+    P_new[168] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -3257,6 +3292,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t376 = DERIVE_FMA(t319, t184, DERIVE_FMA(t295, t160, DERIVE_FMA(t271, t136, DERIVE_FMA(t247, t112, DERIVE_FMA(t223, t88, DERIVE_FMA(t199, P[177], P[9]))))));
     const double t377 = DERIVE_FMA(t319, t185, DERIVE_FMA(t295, t161, DERIVE_FMA(t271, t137, DERIVE_FMA(t247, t113, DERIVE_FMA(t223, t89, DERIVE_FMA(t199, P[178], P[10]))))));
     const double t378 = DERIVE_FMA(t319, t186, DERIVE_FMA(t295, t162, DERIVE_FMA(t271, t138, DERIVE_FMA(t247, t114, DERIVE_FMA(t223, t90, DERIVE_FMA(t199, P[179], P[11]))))));
+    P_new[8] = t375;
+    P_new[192] = t375;
+    P_new[9] = t376;
+    P_new[216] = t376;
+    P_new[10] = t377;
+    P_new[240] = t377;
+    P_new[11] = t378;
+    P_new[264] = t378;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -3270,6 +3313,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t380 = DERIVE_FMA(t319, t188, DERIVE_FMA(t295, t164, DERIVE_FMA(t271, t140, DERIVE_FMA(t247, t116, DERIVE_FMA(t223, t92, DERIVE_FMA(t199, P[181], P[13]))))));
     const double t381 = DERIVE_FMA(t319, t189, DERIVE_FMA(t295, t165, DERIVE_FMA(t271, t141, DERIVE_FMA(t247, t117, DERIVE_FMA(t223, t93, DERIVE_FMA(t199, P[182], P[14]))))));
     const double t382 = DERIVE_FMA(t319, t190, DERIVE_FMA(t295, t166, DERIVE_FMA(t271, t142, DERIVE_FMA(t247, t118, DERIVE_FMA(t223, t94, DERIVE_FMA(t199, P[183], P[15]))))));
+    P_new[12] = t379;
+    P_new[288] = t379;
+    P_new[13] = t380;
+    P_new[312] = t380;
+    P_new[14] = t381;
+    P_new[336] = t381;
+    P_new[15] = t382;
+    P_new[360] = t382;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -3283,6 +3334,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t384 = DERIVE_FMA(t319, t192, DERIVE_FMA(t295, t168, DERIVE_FMA(t271, t144, DERIVE_FMA(t247, t120, DERIVE_FMA(t223, t96, DERIVE_FMA(t199, P[185], P[17]))))));
     const double t385 = DERIVE_FMA(t319, t193, DERIVE_FMA(t295, t169, DERIVE_FMA(t271, t145, DERIVE_FMA(t247, t121, DERIVE_FMA(t223, t97, DERIVE_FMA(t199, P[186], P[18]))))));
     const double t386 = DERIVE_FMA(t319, t194, DERIVE_FMA(t295, t170, DERIVE_FMA(t271, t146, DERIVE_FMA(t247, t122, DERIVE_FMA(t223, t98, DERIVE_FMA(t199, P[187], P[19]))))));
+    P_new[16] = t383;
+    P_new[384] = t383;
+    P_new[17] = t384;
+    P_new[408] = t384;
+    P_new[18] = t385;
+    P_new[432] = t385;
+    P_new[19] = t386;
+    P_new[456] = t386;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -3296,6 +3355,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t388 = DERIVE_FMA(t319, t196, DERIVE_FMA(t295, t172, DERIVE_FMA(t271, t148, DERIVE_FMA(t247, t124, DERIVE_FMA(t223, t100, DERIVE_FMA(t199, P[189], P[21]))))));
     const double t389 = DERIVE_FMA(t319, t197, DERIVE_FMA(t295, t173, DERIVE_FMA(t271, t149, DERIVE_FMA(t247, t125, DERIVE_FMA(t223, t101, DERIVE_FMA(t199, P[190], P[22]))))));
     const double t390 = DERIVE_FMA(t319, t198, DERIVE_FMA(t295, t174, DERIVE_FMA(t271, t150, DERIVE_FMA(t247, t126, DERIVE_FMA(t223, t102, DERIVE_FMA(t199, P[191], P[23]))))));
+    P_new[20] = t387;
+    P_new[480] = t387;
+    P_new[21] = t388;
+    P_new[504] = t388;
+    P_new[22] = t389;
+    P_new[528] = t389;
+    P_new[23] = t390;
+    P_new[552] = t390;
     #endif
     const double t391 = DERIVE_FMA(t224, t80, DERIVE_FMA(t176, t320, DERIVE_FMA(t152, t296, DERIVE_FMA(t128, t272, DERIVE_FMA(t104, t248, DERIVE_FMA(P[169], t200, P[25]))))));
     const double t392 = DERIVE_FMA(t224, t81, DERIVE_FMA(t177, t320, DERIVE_FMA(t153, t296, DERIVE_FMA(t129, t272, DERIVE_FMA(t105, t248, DERIVE_FMA(P[170], t200, P[26]))))));
@@ -3312,6 +3379,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t395 = DERIVE_FMA(t320, t180, DERIVE_FMA(t296, t156, DERIVE_FMA(t272, t132, DERIVE_FMA(t248, t108, DERIVE_FMA(t224, t84, DERIVE_FMA(t200, P[173], P[29]))))));
     const double t396 = DERIVE_FMA(t320, t181, DERIVE_FMA(t296, t157, DERIVE_FMA(t272, t133, DERIVE_FMA(t248, t109, DERIVE_FMA(t224, t85, DERIVE_FMA(t200, P[174], P[30]))))));
     const double t397 = DERIVE_FMA(t320, t182, DERIVE_FMA(t296, t158, DERIVE_FMA(t272, t134, DERIVE_FMA(t248, t110, DERIVE_FMA(t224, t86, DERIVE_FMA(t200, P[175], P[31]))))));
+    P_new[28] = t394;
+    P_new[97] = t394;
+    P_new[29] = t395;
+    P_new[121] = t395;
+    P_new[30] = t396;
+    P_new[145] = t396;
+    P_new[31] = t397;
+    P_new[169] = t397;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t398_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -3325,6 +3400,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t399 = DERIVE_FMA(t320, t184, DERIVE_FMA(t296, t160, DERIVE_FMA(t272, t136, DERIVE_FMA(t248, t112, DERIVE_FMA(t224, t88, DERIVE_FMA(t200, P[177], P[33]))))));
     const double t400 = DERIVE_FMA(t320, t185, DERIVE_FMA(t296, t161, DERIVE_FMA(t272, t137, DERIVE_FMA(t248, t113, DERIVE_FMA(t224, t89, DERIVE_FMA(t200, P[178], P[34]))))));
     const double t401 = DERIVE_FMA(t320, t186, DERIVE_FMA(t296, t162, DERIVE_FMA(t272, t138, DERIVE_FMA(t248, t114, DERIVE_FMA(t224, t90, DERIVE_FMA(t200, P[179], P[35]))))));
+    P_new[32] = t398;
+    P_new[193] = t398;
+    P_new[33] = t399;
+    P_new[217] = t399;
+    P_new[34] = t400;
+    P_new[241] = t400;
+    P_new[35] = t401;
+    P_new[265] = t401;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t402_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -3338,6 +3421,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t403 = DERIVE_FMA(t320, t188, DERIVE_FMA(t296, t164, DERIVE_FMA(t272, t140, DERIVE_FMA(t248, t116, DERIVE_FMA(t224, t92, DERIVE_FMA(t200, P[181], P[37]))))));
     const double t404 = DERIVE_FMA(t320, t189, DERIVE_FMA(t296, t165, DERIVE_FMA(t272, t141, DERIVE_FMA(t248, t117, DERIVE_FMA(t224, t93, DERIVE_FMA(t200, P[182], P[38]))))));
     const double t405 = DERIVE_FMA(t320, t190, DERIVE_FMA(t296, t166, DERIVE_FMA(t272, t142, DERIVE_FMA(t248, t118, DERIVE_FMA(t224, t94, DERIVE_FMA(t200, P[183], P[39]))))));
+    P_new[36] = t402;
+    P_new[289] = t402;
+    P_new[37] = t403;
+    P_new[313] = t403;
+    P_new[38] = t404;
+    P_new[337] = t404;
+    P_new[39] = t405;
+    P_new[361] = t405;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t406_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -3351,6 +3442,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t407 = DERIVE_FMA(t320, t192, DERIVE_FMA(t296, t168, DERIVE_FMA(t272, t144, DERIVE_FMA(t248, t120, DERIVE_FMA(t224, t96, DERIVE_FMA(t200, P[185], P[41]))))));
     const double t408 = DERIVE_FMA(t320, t193, DERIVE_FMA(t296, t169, DERIVE_FMA(t272, t145, DERIVE_FMA(t248, t121, DERIVE_FMA(t224, t97, DERIVE_FMA(t200, P[186], P[42]))))));
     const double t409 = DERIVE_FMA(t320, t194, DERIVE_FMA(t296, t170, DERIVE_FMA(t272, t146, DERIVE_FMA(t248, t122, DERIVE_FMA(t224, t98, DERIVE_FMA(t200, P[187], P[43]))))));
+    P_new[40] = t406;
+    P_new[385] = t406;
+    P_new[41] = t407;
+    P_new[409] = t407;
+    P_new[42] = t408;
+    P_new[433] = t408;
+    P_new[43] = t409;
+    P_new[457] = t409;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t410_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -3364,6 +3463,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t411 = DERIVE_FMA(t320, t196, DERIVE_FMA(t296, t172, DERIVE_FMA(t272, t148, DERIVE_FMA(t248, t124, DERIVE_FMA(t224, t100, DERIVE_FMA(t200, P[189], P[45]))))));
     const double t412 = DERIVE_FMA(t320, t197, DERIVE_FMA(t296, t173, DERIVE_FMA(t272, t149, DERIVE_FMA(t248, t125, DERIVE_FMA(t224, t101, DERIVE_FMA(t200, P[190], P[46]))))));
     const double t413 = DERIVE_FMA(t320, t198, DERIVE_FMA(t296, t174, DERIVE_FMA(t272, t150, DERIVE_FMA(t248, t126, DERIVE_FMA(t224, t102, DERIVE_FMA(t200, P[191], P[47]))))));
+    P_new[44] = t410;
+    P_new[481] = t410;
+    P_new[45] = t411;
+    P_new[505] = t411;
+    P_new[46] = t412;
+    P_new[529] = t412;
+    P_new[47] = t413;
+    P_new[553] = t413;
     #endif
     const double t414 = DERIVE_FMA(t225, t81, DERIVE_FMA(t177, t321, DERIVE_FMA(t153, t297, DERIVE_FMA(t129, t273, DERIVE_FMA(t105, t249, DERIVE_FMA(P[170], t201, P[50]))))));
     const double t415 = DERIVE_FMA(t225, t82, DERIVE_FMA(t178, t321, DERIVE_FMA(t154, t297, DERIVE_FMA(t130, t273, DERIVE_FMA(t106, t249, DERIVE_FMA(P[171], t201, P[51]))))));
@@ -3379,6 +3486,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t417 = DERIVE_FMA(t321, t180, DERIVE_FMA(t297, t156, DERIVE_FMA(t273, t132, DERIVE_FMA(t249, t108, DERIVE_FMA(t225, t84, DERIVE_FMA(t201, P[173], P[53]))))));
     const double t418 = DERIVE_FMA(t321, t181, DERIVE_FMA(t297, t157, DERIVE_FMA(t273, t133, DERIVE_FMA(t249, t109, DERIVE_FMA(t225, t85, DERIVE_FMA(t201, P[174], P[54]))))));
     const double t419 = DERIVE_FMA(t321, t182, DERIVE_FMA(t297, t158, DERIVE_FMA(t273, t134, DERIVE_FMA(t249, t110, DERIVE_FMA(t225, t86, DERIVE_FMA(t201, P[175], P[55]))))));
+    P_new[52] = t416;
+    P_new[98] = t416;
+    P_new[53] = t417;
+    P_new[122] = t417;
+    P_new[54] = t418;
+    P_new[146] = t418;
+    P_new[55] = t419;
+    P_new[170] = t419;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t420_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -3392,6 +3507,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t421 = DERIVE_FMA(t321, t184, DERIVE_FMA(t297, t160, DERIVE_FMA(t273, t136, DERIVE_FMA(t249, t112, DERIVE_FMA(t225, t88, DERIVE_FMA(t201, P[177], P[57]))))));
     const double t422 = DERIVE_FMA(t321, t185, DERIVE_FMA(t297, t161, DERIVE_FMA(t273, t137, DERIVE_FMA(t249, t113, DERIVE_FMA(t225, t89, DERIVE_FMA(t201, P[178], P[58]))))));
     const double t423 = DERIVE_FMA(t321, t186, DERIVE_FMA(t297, t162, DERIVE_FMA(t273, t138, DERIVE_FMA(t249, t114, DERIVE_FMA(t225, t90, DERIVE_FMA(t201, P[179], P[59]))))));
+    P_new[56] = t420;
+    P_new[194] = t420;
+    P_new[57] = t421;
+    P_new[218] = t421;
+    P_new[58] = t422;
+    P_new[242] = t422;
+    P_new[59] = t423;
+    P_new[266] = t423;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t424_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -3405,6 +3528,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t425 = DERIVE_FMA(t321, t188, DERIVE_FMA(t297, t164, DERIVE_FMA(t273, t140, DERIVE_FMA(t249, t116, DERIVE_FMA(t225, t92, DERIVE_FMA(t201, P[181], P[61]))))));
     const double t426 = DERIVE_FMA(t321, t189, DERIVE_FMA(t297, t165, DERIVE_FMA(t273, t141, DERIVE_FMA(t249, t117, DERIVE_FMA(t225, t93, DERIVE_FMA(t201, P[182], P[62]))))));
     const double t427 = DERIVE_FMA(t321, t190, DERIVE_FMA(t297, t166, DERIVE_FMA(t273, t142, DERIVE_FMA(t249, t118, DERIVE_FMA(t225, t94, DERIVE_FMA(t201, P[183], P[63]))))));
+    P_new[60] = t424;
+    P_new[290] = t424;
+    P_new[61] = t425;
+    P_new[314] = t425;
+    P_new[62] = t426;
+    P_new[338] = t426;
+    P_new[63] = t427;
+    P_new[362] = t427;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t428_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -3418,6 +3549,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t429 = DERIVE_FMA(t321, t192, DERIVE_FMA(t297, t168, DERIVE_FMA(t273, t144, DERIVE_FMA(t249, t120, DERIVE_FMA(t225, t96, DERIVE_FMA(t201, P[185], P[65]))))));
     const double t430 = DERIVE_FMA(t321, t193, DERIVE_FMA(t297, t169, DERIVE_FMA(t273, t145, DERIVE_FMA(t249, t121, DERIVE_FMA(t225, t97, DERIVE_FMA(t201, P[186], P[66]))))));
     const double t431 = DERIVE_FMA(t321, t194, DERIVE_FMA(t297, t170, DERIVE_FMA(t273, t146, DERIVE_FMA(t249, t122, DERIVE_FMA(t225, t98, DERIVE_FMA(t201, P[187], P[67]))))));
+    P_new[64] = t428;
+    P_new[386] = t428;
+    P_new[65] = t429;
+    P_new[410] = t429;
+    P_new[66] = t430;
+    P_new[434] = t430;
+    P_new[67] = t431;
+    P_new[458] = t431;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t432_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -3431,6 +3570,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t433 = DERIVE_FMA(t321, t196, DERIVE_FMA(t297, t172, DERIVE_FMA(t273, t148, DERIVE_FMA(t249, t124, DERIVE_FMA(t225, t100, DERIVE_FMA(t201, P[189], P[69]))))));
     const double t434 = DERIVE_FMA(t321, t197, DERIVE_FMA(t297, t173, DERIVE_FMA(t273, t149, DERIVE_FMA(t249, t125, DERIVE_FMA(t225, t101, DERIVE_FMA(t201, P[190], P[70]))))));
     const double t435 = DERIVE_FMA(t321, t198, DERIVE_FMA(t297, t174, DERIVE_FMA(t273, t150, DERIVE_FMA(t249, t126, DERIVE_FMA(t225, t102, DERIVE_FMA(t201, P[191], P[71]))))));
+    P_new[68] = t432;
+    P_new[482] = t432;
+    P_new[69] = t433;
+    P_new[506] = t433;
+    P_new[70] = t434;
+    P_new[530] = t434;
+    P_new[71] = t435;
+    P_new[554] = t435;
     #endif
     const double t436 = DERIVE_FMA(t226, t82, DERIVE_FMA(t178, t322, DERIVE_FMA(t154, t298, DERIVE_FMA(t130, t274, DERIVE_FMA(t106, t250, DERIVE_FMA(P[171], t202, P[75]))))));
     #if DERIVE_VECTOR
@@ -3461,6 +3608,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t438 = DERIVE_FMA(t322, t180, DERIVE_FMA(t298, t156, DERIVE_FMA(t274, t132, DERIVE_FMA(t250, t108, DERIVE_FMA(t226, t84, DERIVE_FMA(t202, P[173], P[77]))))));
     const double t439 = DERIVE_FMA(t322, t181, DERIVE_FMA(t298, t157, DERIVE_FMA(t274, t133, DERIVE_FMA(t250, t109, DERIVE_FMA(t226, t85, DERIVE_FMA(t202, P[174], P[78]))))));
     const double t440 = DERIVE_FMA(t322, t182, DERIVE_FMA(t298, t158, DERIVE_FMA(t274, t134, DERIVE_FMA(t250, t110, DERIVE_FMA(t226, t86, DERIVE_FMA(t202, P[175], P[79]))))));
+    P_new[76] = t437;
+    P_new[99] = t437;
+    P_new[77] = t438;
+    P_new[123] = t438;
+    P_new[78] = t439;
+    P_new[147] = t439;
+    P_new[79] = t440;
+    P_new[171] = t440;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -3490,6 +3645,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t442 = DERIVE_FMA(t322, t184, DERIVE_FMA(t298, t160, DERIVE_FMA(t274, t136, DERIVE_FMA(t250, t112, DERIVE_FMA(t226, t88, DERIVE_FMA(t202, P[177], P[81]))))));
     const double t443 = DERIVE_FMA(t322, t185, DERIVE_FMA(t298, t161, DERIVE_FMA(t274, t137, DERIVE_FMA(t250, t113, DERIVE_FMA(t226, t89, DERIVE_FMA(t202, P[178], P[82]))))));
     const double t444 = DERIVE_FMA(t322, t186, DERIVE_FMA(t298, t162, DERIVE_FMA(t274, t138, DERIVE_FMA(t250, t114, DERIVE_FMA(t226, t90, DERIVE_FMA(t202, P[179], P[83]))))));
+    P_new[80] = t441;
+    P_new[195] = t441;
+    P_new[81] = t442;
+    P_new[219] = t442;
+    P_new[82] = t443;
+    P_new[243] = t443;
+    P_new[83] = t444;
+    P_new[267] = t444;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -3519,6 +3682,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t446 = DERIVE_FMA(t322, t188, DERIVE_FMA(t298, t164, DERIVE_FMA(t274, t140, DERIVE_FMA(t250, t116, DERIVE_FMA(t226, t92, DERIVE_FMA(t202, P[181], P[85]))))));
     const double t447 = DERIVE_FMA(t322, t189, DERIVE_FMA(t298, t165, DERIVE_FMA(t274, t141, DERIVE_FMA(t250, t117, DERIVE_FMA(t226, t93, DERIVE_FMA(t202, P[182], P[86]))))));
     const double t448 = DERIVE_FMA(t322, t190, DERIVE_FMA(t298, t166, DERIVE_FMA(t274, t142, DERIVE_FMA(t250, t118, DERIVE_FMA(t226, t94, DERIVE_FMA(t202, P[183], P[87]))))));
+    P_new[84] = t445;
+    P_new[291] = t445;
+    P_new[85] = t446;
+    P_new[315] = t446;
+    P_new[86] = t447;
+    P_new[339] = t447;
+    P_new[87] = t448;
+    P_new[363] = t448;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -3548,6 +3719,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t450 = DERIVE_FMA(t322, t192, DERIVE_FMA(t298, t168, DERIVE_FMA(t274, t144, DERIVE_FMA(t250, t120, DERIVE_FMA(t226, t96, DERIVE_FMA(t202, P[185], P[89]))))));
     const double t451 = DERIVE_FMA(t322, t193, DERIVE_FMA(t298, t169, DERIVE_FMA(t274, t145, DERIVE_FMA(t250, t121, DERIVE_FMA(t226, t97, DERIVE_FMA(t202, P[186], P[90]))))));
     const double t452 = DERIVE_FMA(t322, t194, DERIVE_FMA(t298, t170, DERIVE_FMA(t274, t146, DERIVE_FMA(t250, t122, DERIVE_FMA(t226, t98, DERIVE_FMA(t202, P[187], P[91]))))));
+    P_new[88] = t449;
+    P_new[387] = t449;
+    P_new[89] = t450;
+    P_new[411] = t450;
+    P_new[90] = t451;
+    P_new[435] = t451;
+    P_new[91] = t452;
+    P_new[459] = t452;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -3577,6 +3756,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t454 = DERIVE_FMA(t322, t196, DERIVE_FMA(t298, t172, DERIVE_FMA(t274, t148, DERIVE_FMA(t250, t124, DERIVE_FMA(t226, t100, DERIVE_FMA(t202, P[189], P[93]))))));
     const double t455 = DERIVE_FMA(t322, t197, DERIVE_FMA(t298, t173, DERIVE_FMA(t274, t149, DERIVE_FMA(t250, t125, DERIVE_FMA(t226, t101, DERIVE_FMA(t202, P[190], P[94]))))));
     const double t456 = DERIVE_FMA(t322, t198, DERIVE_FMA(t298, t174, DERIVE_FMA(t274, t150, DERIVE_FMA(t250, t126, DERIVE_FMA(t226, t102, DERIVE_FMA(t202, P[191], P[95]))))));
+    P_new[92] = t453;
+    P_new[483] = t453;
+    P_new[93] = t454;
+    P_new[507] = t454;
+    P_new[94] = t455;
+    P_new[531] = t455;
+    P_new[95] = t456;
+    P_new[555] = t456;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
@@ -3594,6 +3781,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t458 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, DERIVE_FMA(t275, t132, DERIVE_FMA(t251, t108, DERIVE_FMA(t227, t84, DERIVE_FMA(t203, P[173], P[101]))))));
     const double t459 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, DERIVE_FMA(t275, t133, DERIVE_FMA(t251, t109, DERIVE_FMA(t227, t85, DERIVE_FMA(t203, P[174], P[102]))))));
     const double t460 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, DERIVE_FMA(t275, t134, DERIVE_FMA(t251, t110, DERIVE_FMA(t227, t86, DERIVE_FMA(t203, P[175], P[103]))))));
+    P_new[100] = t457;
+    P_new[101] = t458;
+    P_new[124] = t458;
+    P_new[102] = t459;
+    P_new[148] = t459;
+    P_new[103] = t460;
+    P_new[172] = t460;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
@@ -3607,6 +3801,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t462 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, DERIVE_FMA(t275, t136, DERIVE_FMA(t251, t112, DERIVE_FMA(t227, t88, DERIVE_FMA(t203, P[177], P[105]))))));
     const double t463 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, DERIVE_FMA(t275, t137, DERIVE_FMA(t251, t113, DERIVE_FMA(t227, t89, DERIVE_FMA(t203, P[178], P[106]))))));
     const double t464 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, DERIVE_FMA(t275, t138, DERIVE_FMA(t251, t114, DERIVE_FMA(t227, t90, DERIVE_FMA(t203, P[179], P[107]))))));
+    P_new[104] = t461;
+    P_new[196] = t461;
+    P_new[105] = t462;
+    P_new[220] = t462;
+    P_new[106] = t463;
+    P_new[244] = t463;
+    P_new[107] = t464;
+    P_new[268] = t464;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -3620,6 +3822,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t466 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, DERIVE_FMA(t275, t140, DERIVE_FMA(t251, t116, DERIVE_FMA(t227, t92, DERIVE_FMA(t203, P[181], P[109]))))));
     const double t467 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, DERIVE_FMA(t275, t141, DERIVE_FMA(t251, t117, DERIVE_FMA(t227, t93, DERIVE_FMA(t203, P[182], P[110]))))));
     const double t468 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, DERIVE_FMA(t275, t142, DERIVE_FMA(t251, t118, DERIVE_FMA(t227, t94, DERIVE_FMA(t203, P[183], P[111]))))));
+    P_new[108] = t465;
+    P_new[292] = t465;
+    P_new[109] = t466;
+    P_new[316] = t466;
+    P_new[110] = t467;
+    P_new[340] = t467;
+    P_new[111] = t468;
+    P_new[364] = t468;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t469_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -3633,6 +3843,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t470 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, DERIVE_FMA(t275, t144, DERIVE_FMA(t251, t120, DERIVE_FMA(t227, t96, DERIVE_FMA(t203, P[185], P[113]))))));
     const double t471 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, DERIVE_FMA(t275, t145, DERIVE_FMA(t251, t121, DERIVE_FMA(t227, t97, DERIVE_FMA(t203, P[186], P[114]))))));
     const double t472 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, DERIVE_FMA(t275, t146, DERIVE_FMA(t251, t122, DERIVE_FMA(t227, t98, DERIVE_FMA(t203, P[187], P[115]))))));
+    P_new[112] = t469;
+    P_new[388] = t469;
+    P_new[113] = t470;
+    P_new[412] = t470;
+    P_new[114] = t471;
+    P_new[436] = t471;
+    P_new[115] = t472;
+    P_new[460] = t472;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t473_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -3646,6 +3864,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t474 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, DERIVE_FMA(t275, t148, DERIVE_FMA(t251, t124, DERIVE_FMA(t227, t100, DERIVE_FMA(t203, P[189], P[117]))))));
     const double t475 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, DERIVE_FMA(t275, t149, DERIVE_FMA(t251, t125, DERIVE_FMA(t227, t101, DERIVE_FMA(t203, P[190], P[118]))))));
     const double t476 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, DERIVE_FMA(t275, t150, DERIVE_FMA(t251, t126, DERIVE_FMA(t227, t102, DERIVE_FMA(t203, P[191], P[119]))))));
+    P_new[116] = t473;
+    P_new[484] = t473;
+    P_new[117] = t474;
+    P_new[508] = t474;
+    P_new[118] = t475;
+    P_new[532] = t475;
+    P_new[119] = t476;
+    P_new[556] = t476;
     #endif
     const double t477 = DERIVE_FMA(t228, t84, DERIVE_FMA(t180, t324, DERIVE_FMA(t156, t300, DERIVE_FMA(t132, t276, DERIVE_FMA(t108, t252, DERIVE_FMA(P[173], t204, P[125]))))));
     const double t478 = DERIVE_FMA(t228, t85, DERIVE_FMA(t181, t324, DERIVE_FMA(t157, t300, DERIVE_FMA(t133, t276, DERIVE_FMA(t109, t252, DERIVE_FMA(P[174], t204, P[126]))))));
@@ -3662,6 +3888,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t481 = DERIVE_FMA(t324, t184, DERIVE_FMA(t300, t160, DERIVE_FMA(t276, t136, DERIVE_FMA(t252, t112, DERIVE_FMA(t228, t88, DERIVE_FMA(t204, P[177], P[129]))))));
     const double t482 = DERIVE_FMA(t324, t185, DERIVE_FMA(t300, t161, DERIVE_FMA(t276, t137, DERIVE_FMA(t252, t113, DERIVE_FMA(t228, t89, DERIVE_FMA(t204, P[178], P[130]))))));
     const double t483 = DERIVE_FMA(t324, t186, DERIVE_FMA(t300, t162, DERIVE_FMA(t276, t138, DERIVE_FMA(t252, t114, DERIVE_FMA(t228, t90, DERIVE_FMA(t204, P[179], P[131]))))));
+    P_new[128] = t480;
+    P_new[197] = t480;
+    P_new[129] = t481;
+    P_new[221] = t481;
+    P_new[130] = t482;
+    P_new[245] = t482;
+    P_new[131] = t483;
+    P_new[269] = t483;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t484_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -3675,6 +3909,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t485 = DERIVE_FMA(t324, t188, DERIVE_FMA(t300, t164, DERIVE_FMA(t276, t140, DERIVE_FMA(t252, t116, DERIVE_FMA(t228, t92, DERIVE_FMA(t204, P[181], P[133]))))));
     const double t486 = DERIVE_FMA(t324, t189, DERIVE_FMA(t300, t165, DERIVE_FMA(t276, t141, DERIVE_FMA(t252, t117, DERIVE_FMA(t228, t93, DERIVE_FMA(t204, P[182], P[134]))))));
     const double t487 = DERIVE_FMA(t324, t190, DERIVE_FMA(t300, t166, DERIVE_FMA(t276, t142, DERIVE_FMA(t252, t118, DERIVE_FMA(t228, t94, DERIVE_FMA(t204, P[183], P[135]))))));
+    P_new[132] = t484;
+    P_new[293] = t484;
+    P_new[133] = t485;
+    P_new[317] = t485;
+    P_new[134] = t486;
+    P_new[341] = t486;
+    P_new[135] = t487;
+    P_new[365] = t487;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t488_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -3688,6 +3930,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t489 = DERIVE_FMA(t324, t192, DERIVE_FMA(t300, t168, DERIVE_FMA(t276, t144, DERIVE_FMA(t252, t120, DERIVE_FMA(t228, t96, DERIVE_FMA(t204, P[185], P[137]))))));
     const double t490 = DERIVE_FMA(t324, t193, DERIVE_FMA(t300, t169, DERIVE_FMA(t276, t145, DERIVE_FMA(t252, t121, DERIVE_FMA(t228, t97, DERIVE_FMA(t204, P[186], P[138]))))));
     const double t491 = DERIVE_FMA(t324, t194, DERIVE_FMA(t300, t170, DERIVE_FMA(t276, t146, DERIVE_FMA(t252, t122, DERIVE_FMA(t228, t98, DERIVE_FMA(t204, P[187], P[139]))))));
+    P_new[136] = t488;
+    P_new[389] = t488;
+    P_new[137] = t489;
+    P_new[413] = t489;
+    P_new[138] = t490;
+    P_new[437] = t490;
+    P_new[139] = t491;
+    P_new[461] = t491;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t492_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -3701,6 +3951,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t493 = DERIVE_FMA(t324, t196, DERIVE_FMA(t300, t172, DERIVE_FMA(t276, t148, DERIVE_FMA(t252, t124, DERIVE_FMA(t228, t100, DERIVE_FMA(t204, P[189], P[141]))))));
     const double t494 = DERIVE_FMA(t324, t197, DERIVE_FMA(t300, t173, DERIVE_FMA(t276, t149, DERIVE_FMA(t252, t125, DERIVE_FMA(t228, t101, DERIVE_FMA(t204, P[190], P[142]))))));
     const double t495 = DERIVE_FMA(t324, t198, DERIVE_FMA(t300, t174, DERIVE_FMA(t276, t150, DERIVE_FMA(t252, t126, DERIVE_FMA(t228, t102, DERIVE_FMA(t204, P[191], P[143]))))));
+    P_new[140] = t492;
+    P_new[485] = t492;
+    P_new[141] = t493;
+    P_new[509] = t493;
+    P_new[142] = t494;
+    P_new[533] = t494;
+    P_new[143] = t495;
+    P_new[557] = t495;
     #endif
     const double t496 = DERIVE_FMA(t229, t85, DERIVE_FMA(t181, t325, DERIVE_FMA(t157, t301, DERIVE_FMA(t133, t277, DERIVE_FMA(t109, t253, DERIVE_FMA(P[174], t205, P[150]))))));
     const double t497 = DERIVE_FMA(t229, t86, DERIVE_FMA(t182, t325, DERIVE_FMA(t158, t301, DERIVE_FMA(t134, t277, DERIVE_FMA(t110, t253, DERIVE_FMA(P[175], t205, P[151]))))));
@@ -3716,6 +3974,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t499 = DERIVE_FMA(t325, t184, DERIVE_FMA(t301, t160, DERIVE_FMA(t277, t136, DERIVE_FMA(t253, t112, DERIVE_FMA(t229, t88, DERIVE_FMA(t205, P[177], P[153]))))));
     const double t500 = DERIVE_FMA(t325, t185, DERIVE_FMA(t301, t161, DERIVE_FMA(t277, t137, DERIVE_FMA(t253, t113, DERIVE_FMA(t229, t89, DERIVE_FMA(t205, P[178], P[154]))))));
     const double t501 = DERIVE_FMA(t325, t186, DERIVE_FMA(t301, t162, DERIVE_FMA(t277, t138, DERIVE_FMA(t253, t114, DERIVE_FMA(t229, t90, DERIVE_FMA(t205, P[179], P[155]))))));
+    P_new[152] = t498;
+    P_new[198] = t498;
+    P_new[153] = t499;
+    P_new[222] = t499;
+    P_new[154] = t500;
+    P_new[246] = t500;
+    P_new[155] = t501;
+    P_new[270] = t501;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t502_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -3729,6 +3995,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t503 = DERIVE_FMA(t325, t188, DERIVE_FMA(t301, t164, DERIVE_FMA(t277, t140, DERIVE_FMA(t253, t116, DERIVE_FMA(t229, t92, DERIVE_FMA(t205, P[181], P[157]))))));
     const double t504 = DERIVE_FMA(t325, t189, DERIVE_FMA(t301, t165, DERIVE_FMA(t277, t141, DERIVE_FMA(t253, t117, DERIVE_FMA(t229, t93, DERIVE_FMA(t205, P[182], P[158]))))));
     const double t505 = DERIVE_FMA(t325, t190, DERIVE_FMA(t301, t166, DERIVE_FMA(t277, t142, DERIVE_FMA(t253, t118, DERIVE_FMA(t229, t94, DERIVE_FMA(t205, P[183], P[159]))))));
+    P_new[156] = t502;
+    P_new[294] = t502;
+    P_new[157] = t503;
+    P_new[318] = t503;
+    P_new[158] = t504;
+    P_new[342] = t504;
+    P_new[159] = t505;
+    P_new[366] = t505;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t506_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -3742,6 +4016,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t507 = DERIVE_FMA(t325, t192, DERIVE_FMA(t301, t168, DERIVE_FMA(t277, t144, DERIVE_FMA(t253, t120, DERIVE_FMA(t229, t96, DERIVE_FMA(t205, P[185], P[161]))))));
     const double t508 = DERIVE_FMA(t325, t193, DERIVE_FMA(t301, t169, DERIVE_FMA(t277, t145, DERIVE_FMA(t253, t121, DERIVE_FMA(t229, t97, DERIVE_FMA(t205, P[186], P[162]))))));
     const double t509 = DERIVE_FMA(t325, t194, DERIVE_FMA(t301, t170, DERIVE_FMA(t277, t146, DERIVE_FMA(t253, t122, DERIVE_FMA(t229, t98, DERIVE_FMA(t205, P[187], P[163]))))));
+    P_new[160] = t506;
+    P_new[390] = t506;
+    P_new[161] = t507;
+    P_new[414] = t507;
+    P_new[162] = t508;
+    P_new[438] = t508;
+    P_new[163] = t509;
+    P_new[462] = t509;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t510_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -3755,6 +4037,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t511 = DERIVE_FMA(t325, t196, DERIVE_FMA(t301, t172, DERIVE_FMA(t277, t148, DERIVE_FMA(t253, t124, DERIVE_FMA(t229, t100, DERIVE_FMA(t205, P[189], P[165]))))));
     const double t512 = DERIVE_FMA(t325, t197, DERIVE_FMA(t301, t173, DERIVE_FMA(t277, t149, DERIVE_FMA(t253, t125, DERIVE_FMA(t229, t101, DERIVE_FMA(t205, P[190], P[166]))))));
     const double t513 = DERIVE_FMA(t325, t198, DERIVE_FMA(t301, t174, DERIVE_FMA(t277, t150, DERIVE_FMA(t253, t126, DERIVE_FMA(t229, t102, DERIVE_FMA(t205, P[191], P[167]))))));
+    P_new[164] = t510;
+    P_new[486] = t510;
+    P_new[165] = t511;
+    P_new[510] = t511;
+    P_new[166] = t512;
+    P_new[534] = t512;
+    P_new[167] = t513;
+    P_new[558] = t513;
     #endif
     const double t514 = DERIVE_FMA(t230, t86, DERIVE_FMA(t182, t326, DERIVE_FMA(t158, t302, DERIVE_FMA(t134, t278, DERIVE_FMA(t110, t254, DERIVE_FMA(P[175], t206, P[175]))))));
     #if DERIVE_VECTOR
@@ -3785,6 +4075,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t516 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, DERIVE_FMA(t206, P[177], P[177]))))));
     const double t517 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, DERIVE_FMA(t206, P[178], P[178]))))));
     const double t518 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, DERIVE_FMA(t206, P[179], P[179]))))));
+    P_new[176] = t515;
+    P_new[199] = t515;
+    P_new[177] = t516;
+    P_new[223] = t516;
+    P_new[178] = t517;
+    P_new[247] = t517;
+    P_new[179] = t518;
+    P_new[271] = t518;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -3814,6 +4112,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t520 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, DERIVE_FMA(t206, P[181], P[181]))))));
     const double t521 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, DERIVE_FMA(t206, P[182], P[182]))))));
     const double t522 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, DERIVE_FMA(t206, P[183], P[183]))))));
+    P_new[180] = t519;
+    P_new[295] = t519;
+    P_new[181] = t520;
+    P_new[319] = t520;
+    P_new[182] = t521;
+    P_new[343] = t521;
+    P_new[183] = t522;
+    P_new[367] = t522;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t523_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -3843,6 +4149,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t524 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, DERIVE_FMA(t206, P[185], P[185]))))));
     const double t525 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, DERIVE_FMA(t206, P[186], P[186]))))));
     const double t526 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, DERIVE_FMA(t206, P[187], P[187]))))));
+    P_new[184] = t523;
+    P_new[391] = t523;
+    P_new[185] = t524;
+    P_new[415] = t524;
+    P_new[186] = t525;
+    P_new[439] = t525;
+    P_new[187] = t526;
+    P_new[463] = t526;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t527_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -3872,6 +4186,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t528 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, DERIVE_FMA(t206, P[189], P[189]))))));
     const double t529 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, DERIVE_FMA(t206, P[190], P[190]))))));
     const double t530 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, DERIVE_FMA(t206, P[191], P[191]))))));
+    P_new[188] = t527;
+    P_new[487] = t527;
+    P_new[189] = t528;
+    P_new[511] = t528;
+    P_new[190] = t529;
+    P_new[535] = t529;
+    P_new[191] = t530;
+    P_new[559] = t530;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t531_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
@@ -3889,6 +4211,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t532 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, DERIVE_FMA(t231, t88, DERIVE_FMA(t207, P[177], P[201]))))));
     const double t533 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, DERIVE_FMA(t231, t89, DERIVE_FMA(t207, P[178], P[202]))))));
     const double t534 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, DERIVE_FMA(t231, t90, DERIVE_FMA(t207, P[179], P[203]))))));
+    P_new[200] = t531;
+    P_new[201] = t532;
+    P_new[224] = t532;
+    P_new[202] = t533;
+    P_new[248] = t533;
+    P_new[203] = t534;
+    P_new[272] = t534;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t535_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -3902,6 +4231,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t536 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, DERIVE_FMA(t231, t92, DERIVE_FMA(t207, P[181], P[205]))))));
     const double t537 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, DERIVE_FMA(t231, t93, DERIVE_FMA(t207, P[182], P[206]))))));
     const double t538 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, DERIVE_FMA(t231, t94, DERIVE_FMA(t207, P[183], P[207]))))));
+    P_new[204] = t535;
+    P_new[296] = t535;
+    P_new[205] = t536;
+    P_new[320] = t536;
+    P_new[206] = t537;
+    P_new[344] = t537;
+    P_new[207] = t538;
+    P_new[368] = t538;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t539_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -3915,6 +4252,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t540 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, DERIVE_FMA(t231, t96, DERIVE_FMA(t207, P[185], P[209]))))));
     const double t541 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, DERIVE_FMA(t231, t97, DERIVE_FMA(t207, P[186], P[210]))))));
     const double t542 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, DERIVE_FMA(t231, t98, DERIVE_FMA(t207, P[187], P[211]))))));
+    P_new[208] = t539;
+    P_new[392] = t539;
+    P_new[209] = t540;
+    P_new[416] = t540;
+    P_new[210] = t541;
+    P_new[440] = t541;
+    P_new[211] = t542;
+    P_new[464] = t542;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t543_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -3928,6 +4273,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t544 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, DERIVE_FMA(t231, t100, DERIVE_FMA(t207, P[189], P[213]))))));
     const double t545 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, DERIVE_FMA(t231, t101, DERIVE_FMA(t207, P[190], P[214]))))));
     const double t546 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, DERIVE_FMA(t231, t102, DERIVE_FMA(t207, P[191], P[215]))))));
+    P_new[212] = t543;
+    P_new[488] = t543;
+    P_new[213] = t544;
+    P_new[512] = t544;
+    P_new[214] = t545;
+    P_new[536] = t545;
+    P_new[215] = t546;
+    P_new[560] = t546;
     #endif
     const double t547 = DERIVE_FMA(t232, t88, DERIVE_FMA(t184, t328, DERIVE_FMA(t160, t304, DERIVE_FMA(t136, t280, DERIVE_FMA(t112, t256, DERIVE_FMA(P[177], t208, P[225]))))));
     const double t548 = DERIVE_FMA(t232, t89, DERIVE_FMA(t185, t328, DERIVE_FMA(t161, t304, DERIVE_FMA(t137, t280, DERIVE_FMA(t113, t256, DERIVE_FMA(P[178], t208, P[226]))))));
@@ -3944,6 +4297,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t551 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, DERIVE_FMA(t256, t116, DERIVE_FMA(t232, t92, DERIVE_FMA(t208, P[181], P[229]))))));
     const double t552 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, DERIVE_FMA(t256, t117, DERIVE_FMA(t232, t93, DERIVE_FMA(t208, P[182], P[230]))))));
     const double t553 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, DERIVE_FMA(t256, t118, DERIVE_FMA(t232, t94, DERIVE_FMA(t208, P[183], P[231]))))));
+    P_new[228] = t550;
+    P_new[297] = t550;
+    P_new[229] = t551;
+    P_new[321] = t551;
+    P_new[230] = t552;
+    P_new[345] = t552;
+    P_new[231] = t553;
+    P_new[369] = t553;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t554_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -3957,6 +4318,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t555 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, DERIVE_FMA(t256, t120, DERIVE_FMA(t232, t96, DERIVE_FMA(t208, P[185], P[233]))))));
     const double t556 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, DERIVE_FMA(t256, t121, DERIVE_FMA(t232, t97, DERIVE_FMA(t208, P[186], P[234]))))));
     const double t557 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, DERIVE_FMA(t256, t122, DERIVE_FMA(t232, t98, DERIVE_FMA(t208, P[187], P[235]))))));
+    P_new[232] = t554;
+    P_new[393] = t554;
+    P_new[233] = t555;
+    P_new[417] = t555;
+    P_new[234] = t556;
+    P_new[441] = t556;
+    P_new[235] = t557;
+    P_new[465] = t557;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t558_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -3970,6 +4339,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t559 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, DERIVE_FMA(t256, t124, DERIVE_FMA(t232, t100, DERIVE_FMA(t208, P[189], P[237]))))));
     const double t560 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, DERIVE_FMA(t256, t125, DERIVE_FMA(t232, t101, DERIVE_FMA(t208, P[190], P[238]))))));
     const double t561 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, DERIVE_FMA(t256, t126, DERIVE_FMA(t232, t102, DERIVE_FMA(t208, P[191], P[239]))))));
+    P_new[236] = t558;
+    P_new[489] = t558;
+    P_new[237] = t559;
+    P_new[513] = t559;
+    P_new[238] = t560;
+    P_new[537] = t560;
+    P_new[239] = t561;
+    P_new[561] = t561;
     #endif
     const double t562 = DERIVE_FMA(t233, t89, DERIVE_FMA(t185, t329, DERIVE_FMA(t161, t305, DERIVE_FMA(t137, t281, DERIVE_FMA(t113, t257, DERIVE_FMA(P[178], t209, P[250]))))));
     const double t563 = DERIVE_FMA(t233, t90, DERIVE_FMA(t186, t329, DERIVE_FMA(t162, t305, DERIVE_FMA(t138, t281, DERIVE_FMA(t114, t257, DERIVE_FMA(P[179], t209, P[251]))))));
@@ -3985,6 +4362,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t565 = DERIVE_FMA(t329, t188, DERIVE_FMA(t305, t164, DERIVE_FMA(t281, t140, DERIVE_FMA(t257, t116, DERIVE_FMA(t233, t92, DERIVE_FMA(t209, P[181], P[253]))))));
     const double t566 = DERIVE_FMA(t329, t189, DERIVE_FMA(t305, t165, DERIVE_FMA(t281, t141, DERIVE_FMA(t257, t117, DERIVE_FMA(t233, t93, DERIVE_FMA(t209, P[182], P[254]))))));
     const double t567 = DERIVE_FMA(t329, t190, DERIVE_FMA(t305, t166, DERIVE_FMA(t281, t142, DERIVE_FMA(t257, t118, DERIVE_FMA(t233, t94, DERIVE_FMA(t209, P[183], P[255]))))));
+    P_new[252] = t564;
+    P_new[298] = t564;
+    P_new[253] = t565;
+    P_new[322] = t565;
+    P_new[254] = t566;
+    P_new[346] = t566;
+    P_new[255] = t567;
+    P_new[370] = t567;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t568_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -3998,6 +4383,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t569 = DERIVE_FMA(t329, t192, DERIVE_FMA(t305, t168, DERIVE_FMA(t281, t144, DERIVE_FMA(t257, t120, DERIVE_FMA(t233, t96, DERIVE_FMA(t209, P[185], P[257]))))));
     const double t570 = DERIVE_FMA(t329, t193, DERIVE_FMA(t305, t169, DERIVE_FMA(t281, t145, DERIVE_FMA(t257, t121, DERIVE_FMA(t233, t97, DERIVE_FMA(t209, P[186], P[258]))))));
     const double t571 = DERIVE_FMA(t329, t194, DERIVE_FMA(t305, t170, DERIVE_FMA(t281, t146, DERIVE_FMA(t257, t122, DERIVE_FMA(t233, t98, DERIVE_FMA(t209, P[187], P[259]))))));
+    P_new[256] = t568;
+    P_new[394] = t568;
+    P_new[257] = t569;
+    P_new[418] = t569;
+    P_new[258] = t570;
+    P_new[442] = t570;
+    P_new[259] = t571;
+    P_new[466] = t571;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t572_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -4011,6 +4404,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t573 = DERIVE_FMA(t329, t196, DERIVE_FMA(t305, t172, DERIVE_FMA(t281, t148, DERIVE_FMA(t257, t124, DERIVE_FMA(t233, t100, DERIVE_FMA(t209, P[189], P[261]))))));
     const double t574 = DERIVE_FMA(t329, t197, DERIVE_FMA(t305, t173, DERIVE_FMA(t281, t149, DERIVE_FMA(t257, t125, DERIVE_FMA(t233, t101, DERIVE_FMA(t209, P[190], P[262]))))));
     const double t575 = DERIVE_FMA(t329, t198, DERIVE_FMA(t305, t174, DERIVE_FMA(t281, t150, DERIVE_FMA(t257, t126, DERIVE_FMA(t233, t102, DERIVE_FMA(t209, P[191], P[263]))))));
+    P_new[260] = t572;
+    P_new[490] = t572;
+    P_new[261] = t573;
+    P_new[514] = t573;
+    P_new[262] = t574;
+    P_new[538] = t574;
+    P_new[263] = t575;
+    P_new[562] = t575;
     #endif
     const double t576 = DERIVE_FMA(t234, t90, DERIVE_FMA(t186, t330, DERIVE_FMA(t162, t306, DERIVE_FMA(t138, t282, DERIVE_FMA(t114, t258, DERIVE_FMA(P[179], t210, P[275]))))));
     #if DERIVE_VECTOR
@@ -4041,6 +4442,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t578 = DERIVE_FMA(t330, t188, DERIVE_FMA(t306, t164, DERIVE_FMA(t282, t140, DERIVE_FMA(t258, t116, DERIVE_FMA(t234, t92, DERIVE_FMA(t210, P[181], P[277]))))));
     const double t579 = DERIVE_FMA(t330, t189, DERIVE_FMA(t306, t165, DERIVE_FMA(t282, t141, DERIVE_FMA(t258, t117, DERIVE_FMA(t234, t93, DERIVE_FMA(t210, P[182], P[278]))))));
     const double t580 = DERIVE_FMA(t330, t190, DERIVE_FMA(t306, t166, DERIVE_FMA(t282, t142, DERIVE_FMA(t258, t118, DERIVE_FMA(t234, t94, DERIVE_FMA(t210, P[183], P[279]))))));
+    P_new[276] = t577;
+    P_new[299] = t577;
+    P_new[277] = t578;
+    P_new[323] = t578;
+    P_new[278] = t579;
+    P_new[347] = t579;
+    P_new[279] = t580;
+    P_new[371] = t580;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t581_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -4070,6 +4479,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t582 = DERIVE_FMA(t330, t192, DERIVE_FMA(t306, t168, DERIVE_FMA(t282, t144, DERIVE_FMA(t258, t120, DERIVE_FMA(t234, t96, DERIVE_FMA(t210, P[185], P[281]))))));
     const double t583 = DERIVE_FMA(t330, t193, DERIVE_FMA(t306, t169, DERIVE_FMA(t282, t145, DERIVE_FMA(t258, t121, DERIVE_FMA(t234, t97, DERIVE_FMA(t210, P[186], P[282]))))));
     const double t584 = DERIVE_FMA(t330, t194, DERIVE_FMA(t306, t170, DERIVE_FMA(t282, t146, DERIVE_FMA(t258, t122, DERIVE_FMA(t234, t98, DERIVE_FMA(t210, P[187], P[283]))))));
+    P_new[280] = t581;
+    P_new[395] = t581;
+    P_new[281] = t582;
+    P_new[419] = t582;
+    P_new[282] = t583;
+    P_new[443] = t583;
+    P_new[283] = t584;
+    P_new[467] = t584;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t585_0 = DERIVE_VFMA(((derive_vd){t210, t210, t210, t210}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -4099,6 +4516,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t586 = DERIVE_FMA(t330, t196, DERIVE_FMA(t306, t172, DERIVE_FMA(t282, t148, DERIVE_FMA(t258, t124, DERIVE_FMA(t234, t100, DERIVE_FMA(t210, P[189], P[285]))))));
     const double t587 = DERIVE_FMA(t330, t197, DERIVE_FMA(t306, t173, DERIVE_FMA(t282, t149, DERIVE_FMA(t258, t125, DERIVE_FMA(t234, t101, DERIVE_FMA(t210, P[190], P[286]))))));
     const double t588 = DERIVE_FMA(t330, t198, DERIVE_FMA(t306, t174, DERIVE_FMA(t282, t150, DERIVE_FMA(t258, t126, DERIVE_FMA(t234, t102, DERIVE_FMA(t210, P[191], P[287]))))));
+    P_new[284] = t585;
+    P_new[491] = t585;
+    P_new[285] = t586;
+    P_new[515] = t586;
+    P_new[286] = t587;
+    P_new[539] = t587;
+    P_new[287] = t588;
+    P_new[563] = t588;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t589_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -4116,6 +4541,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t590 = DERIVE_FMA(t331, t188, DERIVE_FMA(t307, t164, DERIVE_FMA(t283, t140, DERIVE_FMA(t259, t116, DERIVE_FMA(t235, t92, DERIVE_FMA(t211, P[181], P[301]))))));
     const double t591 = DERIVE_FMA(t331, t189, DERIVE_FMA(t307, t165, DERIVE_FMA(t283, t141, DERIVE_FMA(t259, t117, DERIVE_FMA(t235, t93, DERIVE_FMA(t211, P[182], P[302]))))));
     const double t592 = DERIVE_FMA(t331, t190, DERIVE_FMA(t307, t166, DERIVE_FMA(t283, t142, DERIVE_FMA(t259, t118, DERIVE_FMA(t235, t94, DERIVE_FMA(t211, P[183], P[303]))))));
+    P_new[300] = t589;
+    P_new[301] = t590;
+    P_new[324] = t590;
+    P_new[302] = t591;
+    P_new[348] = t591;
+    P_new[303] = t592;
+    P_new[372] = t592;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t593_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -4129,6 +4561,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t594 = DERIVE_FMA(t331, t192, DERIVE_FMA(t307, t168, DERIVE_FMA(t283, t144, DERIVE_FMA(t259, t120, DERIVE_FMA(t235, t96, DERIVE_FMA(t211, P[185], P[305]))))));
     const double t595 = DERIVE_FMA(t331, t193, DERIVE_FMA(t307, t169, DERIVE_FMA(t283, t145, DERIVE_FMA(t259, t121, DERIVE_FMA(t235, t97, DERIVE_FMA(t211, P[186], P[306]))))));
     const double t596 = DERIVE_FMA(t331, t194, DERIVE_FMA(t307, t170, DERIVE_FMA(t283, t146, DERIVE_FMA(t259, t122, DERIVE_FMA(t235, t98, DERIVE_FMA(t211, P[187], P[307]))))));
+    P_new[304] = t593;
+    P_new[396] = t593;
+    P_new[305] = t594;
+    P_new[420] = t594;
+    P_new[306] = t595;
+    P_new[444] = t595;
+    P_new[307] = t596;
+    P_new[468] = t596;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t597_0 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -4142,6 +4582,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t598 = DERIVE_FMA(t331, t196, DERIVE_FMA(t307, t172, DERIVE_FMA(t283, t148, DERIVE_FMA(t259, t124, DERIVE_FMA(t235, t100, DERIVE_FMA(t211, P[189], P[309]))))));
     const double t599 = DERIVE_FMA(t331, t197, DERIVE_FMA(t307, t173, DERIVE_FMA(t283, t149, DERIVE_FMA(t259, t125, DERIVE_FMA(t235, t101, DERIVE_FMA(t211, P[190], P[310]))))));
     const double t600 = DERIVE_FMA(t331, t198, DERIVE_FMA(t307, t174, DERIVE_FMA(t283, t150, DERIVE_FMA(t259, t126, DERIVE_FMA(t235, t102, DERIVE_FMA(t211, P[191], P[311]))))));
+    P_new[308] = t597;
+    P_new[492] = t597;
+    P_new[309] = t598;
+    P_new[516] = t598;
+    P_new[310] = t599;
+    P_new[540] = t599;
+    P_new[311] = t600;
+    P_new[564] = t600;
     #endif
     const double t601 = DERIVE_FMA(t236, t92, DERIVE_FMA(t188, t332, DERIVE_FMA(t164, t308, DERIVE_FMA(t140, t284, DERIVE_FMA(t116, t260, DERIVE_FMA(P[181], t212, P[325]))))));
     const double t602 = DERIVE_FMA(t236, t93, DERIVE_FMA(t189, t332, DERIVE_FMA(t165, t308, DERIVE_FMA(t141, t284, DERIVE_FMA(t117, t260, DERIVE_FMA(P[182], t212, P[326]))))));
@@ -4158,6 +4606,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t605 = DERIVE_FMA(t332, t192, DERIVE_FMA(t308, t168, DERIVE_FMA(t284, t144, DERIVE_FMA(t260, t120, DERIVE_FMA(t236, t96, DERIVE_FMA(t212, P[185], P[329]))))));
     const double t606 = DERIVE_FMA(t332, t193, DERIVE_FMA(t308, t169, DERIVE_FMA(t284, t145, DERIVE_FMA(t260, t121, DERIVE_FMA(t236, t97, DERIVE_FMA(t212, P[186], P[330]))))));
     const double t607 = DERIVE_FMA(t332, t194, DERIVE_FMA(t308, t170, DERIVE_FMA(t284, t146, DERIVE_FMA(t260, t122, DERIVE_FMA(t236, t98, DERIVE_FMA(t212, P[187], P[331]))))));
+    P_new[328] = t604;
+    P_new[397] = t604;
+    P_new[329] = t605;
+    P_new[421] = t605;
+    P_new[330] = t606;
+    P_new[445] = t606;
+    P_new[331] = t607;
+    P_new[469] = t607;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t608_0 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -4171,6 +4627,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t609 = DERIVE_FMA(t332, t196, DERIVE_FMA(t308, t172, DERIVE_FMA(t284, t148, DERIVE_FMA(t260, t124, DERIVE_FMA(t236, t100, DERIVE_FMA(t212, P[189], P[333]))))));
     const double t610 = DERIVE_FMA(t332, t197, DERIVE_FMA(t308, t173, DERIVE_FMA(t284, t149, DERIVE_FMA(t260, t125, DERIVE_FMA(t236, t101, DERIVE_FMA(t212, P[190], P[334]))))));
     const double t611 = DERIVE_FMA(t332, t198, DERIVE_FMA(t308, t174, DERIVE_FMA(t284, t150, DERIVE_FMA(t260, t126, DERIVE_FMA(t236, t102, DERIVE_FMA(t212, P[191], P[335]))))));
+    P_new[332] = t608;
+    P_new[493] = t608;
+    P_new[333] = t609;
+    P_new[517] = t609;
+    P_new[334] = t610;
+    P_new[541] = t610;
+    P_new[335] = t611;
+    P_new[565] = t611;
     #endif
     const double t612 = DERIVE_FMA(t237, t93, DERIVE_FMA(t189, t333, DERIVE_FMA(t165, t309, DERIVE_FMA(t141, t285, DERIVE_FMA(t117, t261, DERIVE_FMA(P[182], t213, P[350]))))));
     const double t613 = DERIVE_FMA(t237, t94, DERIVE_FMA(t190, t333, DERIVE_FMA(t166, t309, DERIVE_FMA(t142, t285, DERIVE_FMA(t118, t261, DERIVE_FMA(P[183], t213, P[351]))))));
@@ -4186,6 +4650,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t615 = DERIVE_FMA(t333, t192, DERIVE_FMA(t309, t168, DERIVE_FMA(t285, t144, DERIVE_FMA(t261, t120, DERIVE_FMA(t237, t96, DERIVE_FMA(t213, P[185], P[353]))))));
     const double t616 = DERIVE_FMA(t333, t193, DERIVE_FMA(t309, t169, DERIVE_FMA(t285, t145, DERIVE_FMA(t261, t121, DERIVE_FMA(t237, t97, DERIVE_FMA(t213, P[186], P[354]))))));
     const double t617 = DERIVE_FMA(t333, t194, DERIVE_FMA(t309, t170, DERIVE_FMA(t285, t146, DERIVE_FMA(t261, t122, DERIVE_FMA(t237, t98, DERIVE_FMA(t213, P[187], P[355]))))));
+    P_new[352] = t614;
+    P_new[398] = t614;
+    P_new[353] = t615;
+    P_new[422] = t615;
+    P_new[354] = t616;
+    P_new[446] = t616;
+    P_new[355] = t617;
+    P_new[470] = t617;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t618_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -4199,6 +4671,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t619 = DERIVE_FMA(t333, t196, DERIVE_FMA(t309, t172, DERIVE_FMA(t285, t148, DERIVE_FMA(t261, t124, DERIVE_FMA(t237, t100, DERIVE_FMA(t213, P[189], P[357]))))));
     const double t620 = DERIVE_FMA(t333, t197, DERIVE_FMA(t309, t173, DERIVE_FMA(t285, t149, DERIVE_FMA(t261, t125, DERIVE_FMA(t237, t101, DERIVE_FMA(t213, P[190], P[358]))))));
     const double t621 = DERIVE_FMA(t333, t198, DERIVE_FMA(t309, t174, DERIVE_FMA(t285, t150, DERIVE_FMA(t261, t126, DERIVE_FMA(t237, t102, DERIVE_FMA(t213, P[191], P[359]))))));
+    P_new[356] = t618;
+    P_new[494] = t618;
+    P_new[357] = t619;
+    P_new[518] = t619;
+    P_new[358] = t620;
+    P_new[542] = t620;
+    P_new[359] = t621;
+    P_new[566] = t621;
     #endif
     const double t622 = DERIVE_FMA(t238, t94, DERIVE_FMA(t190, t334, DERIVE_FMA(t166, t310, DERIVE_FMA(t142, t286, DERIVE_FMA(t118, t262, DERIVE_FMA(P[183], t214, P[375]))))));
     #if DERIVE_VECTOR
@@ -4229,6 +4709,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t624 = DERIVE_FMA(t334, t192, DERIVE_FMA(t310, t168, DERIVE_FMA(t286, t144, DERIVE_FMA(t262, t120, DERIVE_FMA(t238, t96, DERIVE_FMA(t214, P[185], P[377]))))));
     const double t625 = DERIVE_FMA(t334, t193, DERIVE_FMA(t310, t169, DERIVE_FMA(t286, t145, DERIVE_FMA(t262, t121, DERIVE_FMA(t238, t97, DERIVE_FMA(t214, P[186], P[378]))))));
     const double t626 = DERIVE_FMA(t334, t194, DERIVE_FMA(t310, t170, DERIVE_FMA(t286, t146, DERIVE_FMA(t262, t122, DERIVE_FMA(t238, t98, DERIVE_FMA(t214, P[187], P[379]))))));
+    P_new[376] = t623;
+    P_new[399] = t623;
+    P_new[377] = t624;
+    P_new[423] = t624;
+    P_new[378] = t625;
+    P_new[447] = t625;
+    P_new[379] = t626;
+    P_new[471] = t626;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t627_0 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -4258,6 +4746,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t628 = DERIVE_FMA(t334, t196, DERIVE_FMA(t310, t172, DERIVE_FMA(t286, t148, DERIVE_FMA(t262, t124, DERIVE_FMA(t238, t100, DERIVE_FMA(t214, P[189], P[381]))))));
     const double t629 = DERIVE_FMA(t334, t197, DERIVE_FMA(t310, t173, DERIVE_FMA(t286, t149, DERIVE_FMA(t262, t125, DERIVE_FMA(t238, t101, DERIVE_FMA(t214, P[190], P[382]))))));
     const double t630 = DERIVE_FMA(t334, t198, DERIVE_FMA(t310, t174, DERIVE_FMA(t286, t150, DERIVE_FMA(t262, t126, DERIVE_FMA(t238, t102, DERIVE_FMA(t214, P[191], P[383]))))));
+    P_new[380] = t627;
+    P_new[495] = t627;
+    P_new[381] = t628;
+    P_new[519] = t628;
+    P_new[382] = t629;
+    P_new[543] = t629;
+    P_new[383] = t630;
+    P_new[567] = t630;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t631_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -4275,6 +4771,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t632 = DERIVE_FMA(t335, t192, DERIVE_FMA(t311, t168, DERIVE_FMA(t287, t144, DERIVE_FMA(t263, t120, DERIVE_FMA(t239, t96, DERIVE_FMA(t215, P[185], P[401]))))));
     const double t633 = DERIVE_FMA(t335, t193, DERIVE_FMA(t311, t169, DERIVE_FMA(t287, t145, DERIVE_FMA(t263, t121, DERIVE_FMA(t239, t97, DERIVE_FMA(t215, P[186], P[402]))))));
     const double t634 = DERIVE_FMA(t335, t194, DERIVE_FMA(t311, t170, DERIVE_FMA(t287, t146, DERIVE_FMA(t263, t122, DERIVE_FMA(t239, t98, DERIVE_FMA(t215, P[187], P[403]))))));
+    P_new[400] = t631;
+    P_new[401] = t632;
+    P_new[424] = t632;
+    P_new[402] = t633;
+    P_new[448] = t633;
+    P_new[403] = t634;
+    P_new[472] = t634;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t635_0 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -4288,6 +4791,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t636 = DERIVE_FMA(t335, t196, DERIVE_FMA(t311, t172, DERIVE_FMA(t287, t148, DERIVE_FMA(t263, t124, DERIVE_FMA(t239, t100, DERIVE_FMA(t215, P[189], P[405]))))));
     const double t637 = DERIVE_FMA(t335, t197, DERIVE_FMA(t311, t173, DERIVE_FMA(t287, t149, DERIVE_FMA(t263, t125, DERIVE_FMA(t239, t101, DERIVE_FMA(t215, P[190], P[406]))))));
     const double t638 = DERIVE_FMA(t335, t198, DERIVE_FMA(t311, t174, DERIVE_FMA(t287, t150, DERIVE_FMA(t263, t126, DERIVE_FMA(t239, t102, DERIVE_FMA(t215, P[191], P[407]))))));
+    P_new[404] = t635;
+    P_new[496] = t635;
+    P_new[405] = t636;
+    P_new[520] = t636;
+    P_new[406] = t637;
+    P_new[544] = t637;
+    P_new[407] = t638;
+    P_new[568] = t638;
     #endif
     const double t639 = DERIVE_FMA(t240, t96, DERIVE_FMA(t192, t336, DERIVE_FMA(t168, t312, DERIVE_FMA(t144, t288, DERIVE_FMA(t120, t264, DERIVE_FMA(P[185], t216, P[425]))))));
     const double t640 = DERIVE_FMA(t240, t97, DERIVE_FMA(t193, t336, DERIVE_FMA(t169, t312, DERIVE_FMA(t145, t288, DERIVE_FMA(t121, t264, DERIVE_FMA(P[186], t216, P[426]))))));
@@ -4304,6 +4815,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t643 = DERIVE_FMA(t336, t196, DERIVE_FMA(t312, t172, DERIVE_FMA(t288, t148, DERIVE_FMA(t264, t124, DERIVE_FMA(t240, t100, DERIVE_FMA(t216, P[189], P[429]))))));
     const double t644 = DERIVE_FMA(t336, t197, DERIVE_FMA(t312, t173, DERIVE_FMA(t288, t149, DERIVE_FMA(t264, t125, DERIVE_FMA(t240, t101, DERIVE_FMA(t216, P[190], P[430]))))));
     const double t645 = DERIVE_FMA(t336, t198, DERIVE_FMA(t312, t174, DERIVE_FMA(t288, t150, DERIVE_FMA(t264, t126, DERIVE_FMA(t240, t102, DERIVE_FMA(t216, P[191], P[431]))))));
+    P_new[428] = t642;
+    P_new[497] = t642;
+    P_new[429] = t643;
+    P_new[521] = t643;
+    P_new[430] = t644;
+    P_new[545] = t644;
+    P_new[431] = t645;
+    P_new[569] = t645;
     #endif
     const double t646 = DERIVE_FMA(t241, t97, DERIVE_FMA(t193, t337, DERIVE_FMA(t169, t313, DERIVE_FMA(t145, t289, DERIVE_FMA(t121, t265, DERIVE_FMA(P[186], t217, P[450]))))));
     const double t647 = DERIVE_FMA(t241, t98, DERIVE_FMA(t194, t337, DERIVE_FMA(t170, t313, DERIVE_FMA(t146, t289, DERIVE_FMA(t122, t265, DERIVE_FMA(P[187], t217, P[451]))))));
@@ -4319,6 +4838,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t649 = DERIVE_FMA(t337, t196, DERIVE_FMA(t313, t172, DERIVE_FMA(t289, t148, DERIVE_FMA(t265, t124, DERIVE_FMA(t241, t100, DERIVE_FMA(t217, P[189], P[453]))))));
     const double t650 = DERIVE_FMA(t337, t197, DERIVE_FMA(t313, t173, DERIVE_FMA(t289, t149, DERIVE_FMA(t265, t125, DERIVE_FMA(t241, t101, DERIVE_FMA(t217, P[190], P[454]))))));
     const double t651 = DERIVE_FMA(t337, t198, DERIVE_FMA(t313, t174, DERIVE_FMA(t289, t150, DERIVE_FMA(t265, t126, DERIVE_FMA(t241, t102, DERIVE_FMA(t217, P[191], P[455]))))));
+    P_new[452] = t648;
+    P_new[498] = t648;
+    P_new[453] = t649;
+    P_new[522] = t649;
+    P_new[454] = t650;
+    P_new[546] = t650;
+    P_new[455] = t651;
+    P_new[570] = t651;
     #endif
     const double t652 = DERIVE_FMA(t242, t98, DERIVE_FMA(t194, t338, DERIVE_FMA(t170, t314, DERIVE_FMA(t146, t290, DERIVE_FMA(t122, t266, DERIVE_FMA(P[187], t218, P[475]))))));
     #if DERIVE_VECTOR
@@ -4349,6 +4876,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t654 = DERIVE_FMA(t338, t196, DERIVE_FMA(t314, t172, DERIVE_FMA(t290, t148, DERIVE_FMA(t266, t124, DERIVE_FMA(t242, t100, DERIVE_FMA(t218, P[189], P[477]))))));
     const double t655 = DERIVE_FMA(t338, t197, DERIVE_FMA(t314, t173, DERIVE_FMA(t290, t149, DERIVE_FMA(t266, t125, DERIVE_FMA(t242, t101, DERIVE_FMA(t218, P[190], P[478]))))));
     const double t656 = DERIVE_FMA(t338, t198, DERIVE_FMA(t314, t174, DERIVE_FMA(t290, t150, DERIVE_FMA(t266, t126, DERIVE_FMA(t242, t102, DERIVE_FMA(t218, P[191], P[479]))))));
+    P_new[476] = t653;
+    P_new[499] = t653;
+    P_new[477] = t654;
+    P_new[523] = t654;
+    P_new[478] = t655;
+    P_new[547] = t655;
+    P_new[479] = t656;
+    P_new[571] = t656;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t657_0 = DERIVE_VFMA(((derive_vd){t219, t219, t219, t219}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -4366,6 +4901,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t658 = DERIVE_FMA(t339, t196, DERIVE_FMA(t315, t172, DERIVE_FMA(t291, t148, DERIVE_FMA(t267, t124, DERIVE_FMA(t243, t100, DERIVE_FMA(t219, P[189], P[501]))))));
     const double t659 = DERIVE_FMA(t339, t197, DERIVE_FMA(t315, t173, DERIVE_FMA(t291, t149, DERIVE_FMA(t267, t125, DERIVE_FMA(t243, t101, DERIVE_FMA(t219, P[190], P[502]))))));
     const double t660 = DERIVE_FMA(t339, t198, DERIVE_FMA(t315, t174, DERIVE_FMA(t291, t150, DERIVE_FMA(t267, t126, DERIVE_FMA(t243, t102, DERIVE_FMA(t219, P[191], P[503]))))));
+    P_new[500] = t657;
+    P_new[501] = t658;
+    P_new[524] = t658;
+    P_new[502] = t659;
+    P_new[548] = t659;
+    P_new[503] = t660;
+    P_new[572] = t660;
     #endif
     const double t661 = DERIVE_FMA(t196, t340, DERIVE_FMA(t172, t316, DERIVE_FMA(t148, t292, DERIVE_FMA(t124, t268, DERIVE_FMA(t100, t244, DERIVE_FMA(P[189], t220, P[525]))))));
     const double t662 = DERIVE_FMA(t197, t340, DERIVE_FMA(t173, t316, DERIVE_FMA(t149, t292, DERIVE_FMA(t125, t268, DERIVE_FMA(t101, t244, DERIVE_FMA(P[190], t220, P[526]))))));
@@ -4461,599 +5003,57 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     x_new[1] = t670;
     x_new[2] = t671;
     x_new[3] = t672;
-    x_new[4] = t347;
-    x_new[5] = t348;
-    x_new[6] = t349;
-    x_new[7] = t350;
-    x_new[8] = t351;
-    x_new[9] = t352;
-    x_new[10] = t353;
-    x_new[11] = t354;
-    x_new[12] = t355;
-    x_new[13] = t356;
-    x_new[14] = t357;
-    x_new[15] = t358;
-    x_new[16] = t359;
-    x_new[17] = t360;
-    x_new[18] = t361;
-    x_new[19] = t362;
-    x_new[20] = t363;
-    x_new[21] = t364;
-    x_new[22] = t365;
-    x_new[23] = t366;
-    P_new[0] = t367;
-    P_new[1] = t368;
-    P_new[2] = t369;
-    P_new[3] = t370;
-    P_new[4] = t371;
-    P_new[5] = t372;
-    P_new[6] = t373;
-    P_new[7] = t374;
-    P_new[8] = t375;
-    P_new[9] = t376;
-    P_new[10] = t377;
-    P_new[11] = t378;
-    P_new[12] = t379;
-    P_new[13] = t380;
-    P_new[14] = t381;
-    P_new[15] = t382;
-    P_new[16] = t383;
-    P_new[17] = t384;
-    P_new[18] = t385;
-    P_new[19] = t386;
-    P_new[20] = t387;
-    P_new[21] = t388;
-    P_new[22] = t389;
-    P_new[23] = t390;
-    P_new[24] = t368;
     P_new[25] = t391;
     P_new[26] = t392;
     P_new[27] = t393;
-    P_new[28] = t394;
-    P_new[29] = t395;
-    P_new[30] = t396;
-    P_new[31] = t397;
-    P_new[32] = t398;
-    P_new[33] = t399;
-    P_new[34] = t400;
-    P_new[35] = t401;
-    P_new[36] = t402;
-    P_new[37] = t403;
-    P_new[38] = t404;
-    P_new[39] = t405;
-    P_new[40] = t406;
-    P_new[41] = t407;
-    P_new[42] = t408;
-    P_new[43] = t409;
-    P_new[44] = t410;
-    P_new[45] = t411;
-    P_new[46] = t412;
-    P_new[47] = t413;
-    P_new[48] = t369;
     P_new[49] = t392;
     P_new[50] = t414;
     P_new[51] = t415;
-    P_new[52] = t416;
-    P_new[53] = t417;
-    P_new[54] = t418;
-    P_new[55] = t419;
-    P_new[56] = t420;
-    P_new[57] = t421;
-    P_new[58] = t422;
-    P_new[59] = t423;
-    P_new[60] = t424;
-    P_new[61] = t425;
-    P_new[62] = t426;
-    P_new[63] = t427;
-    P_new[64] = t428;
-    P_new[65] = t429;
-    P_new[66] = t430;
-    P_new[67] = t431;
-    P_new[68] = t432;
-    P_new[69] = t433;
-    P_new[70] = t434;
-    P_new[71] = t435;
-    P_new[72] = t370;
     P_new[73] = t393;
     P_new[74] = t415;
     P_new[75] = t436;
-    P_new[76] = t437;
-    P_new[77] = t438;
-    P_new[78] = t439;
-    P_new[79] = t440;
-    P_new[80] = t441;
-    P_new[81] = t442;
-    P_new[82] = t443;
-    P_new[83] = t444;
-    P_new[84] = t445;
-    P_new[85] = t446;
-    P_new[86] = t447;
-    P_new[87] = t448;
-    P_new[88] = t449;
-    P_new[89] = t450;
-    P_new[90] = t451;
-    P_new[91] = t452;
-    P_new[92] = t453;
-    P_new[93] = t454;
-    P_new[94] = t455;
-    P_new[95] = t456;
-    P_new[96] = t371;
-    P_new[97] = t394;
-    P_new[98] = t416;
-    P_new[99] = t437;
-    P_new[100] = t457;
-    P_new[101] = t458;
-    P_new[102] = t459;
-    P_new[103] = t460;
-    P_new[104] = t461;
-    P_new[105] = t462;
-    P_new[106] = t463;
-    P_new[107] = t464;
-    P_new[108] = t465;
-    P_new[109] = t466;
-    P_new[110] = t467;
-    P_new[111] = t468;
-    P_new[112] = t469;
-    P_new[113] = t470;
-    P_new[114] = t471;
-    P_new[115] = t472;
-    P_new[116] = t473;
-    P_new[117] = t474;
-    P_new[118] = t475;
-    P_new[119] = t476;
-    P_new[120] = t372;
-    P_new[121] = t395;
-    P_new[122] = t417;
-    P_new[123] = t438;
-    P_new[124] = t458;
     P_new[125] = t477;
     P_new[126] = t478;
     P_new[127] = t479;
-    P_new[128] = t480;
-    P_new[129] = t481;
-    P_new[130] = t482;
-    P_new[131] = t483;
-    P_new[132] = t484;
-    P_new[133] = t485;
-    P_new[134] = t486;
-    P_new[135] = t487;
-    P_new[136] = t488;
-    P_new[137] = t489;
-    P_new[138] = t490;
-    P_new[139] = t491;
-    P_new[140] = t492;
-    P_new[141] = t493;
-    P_new[142] = t494;
-    P_new[143] = t495;
-    P_new[144] = t373;
-    P_new[145] = t396;
-    P_new[146] = t418;
-    P_new[147] = t439;
-    P_new[148] = t459;
     P_new[149] = t478;
     P_new[150] = t496;
     P_new[151] = t497;
-    P_new[152] = t498;
-    P_new[153] = t499;
-    P_new[154] = t500;
-    P_new[155] = t501;
-    P_new[156] = t502;
-    P_new[157] = t503;
-    P_new[158] = t504;
-    P_new[159] = t505;
-    P_new[160] = t506;
-    P_new[161] = t507;
-    P_new[162] = t508;
-    P_new[163] = t509;
-    P_new[164] = t510;
-    P_new[165] = t511;
-    P_new[166] = t512;
-    P_new[167] = t513;
-    P_new[168] = t374;
-    P_new[169] = t397;
-    P_new[170] = t419;
-    P_new[171] = t440;
-    P_new[172] = t460;
     P_new[173] = t479;
     P_new[174] = t497;
     P_new[175] = t514;
-    P_new[176] = t515;
-    P_new[177] = t516;
-    P_new[178] = t517;
-    P_new[179] = t518;
-    P_new[180] = t519;
-    P_new[181] = t520;
-    P_new[182] = t521;
-    P_new[183] = t522;
-    P_new[184] = t523;
-    P_new[185] = t524;
-    P_new[186] = t525;
-    P_new[187] = t526;
-    P_new[188] = t527;
-    P_new[189] = t528;
-    P_new[190] = t529;
-    P_new[191] = t530;
-    P_new[192] = t375;
-    P_new[193] = t398;
-    P_new[194] = t420;
-    P_new[195] = t441;
-    P_new[196] = t461;
-    P_new[197] = t480;
-    P_new[198] = t498;
-    P_new[199] = t515;
-    P_new[200] = t531;
-    P_new[201] = t532;
-    P_new[202] = t533;
-    P_new[203] = t534;
-    P_new[204] = t535;
-    P_new[205] = t536;
-    P_new[206] = t537;
-    P_new[207] = t538;
-    P_new[208] = t539;
-    P_new[209] = t540;
-    P_new[210] = t541;
-    P_new[211] = t542;
-    P_new[212] = t543;
-    P_new[213] = t544;
-    P_new[214] = t545;
-    P_new[215] = t546;
-    P_new[216] = t376;
-    P_new[217] = t399;
-    P_new[218] = t421;
-    P_new[219] = t442;
-    P_new[220] = t462;
-    P_new[221] = t481;
-    P_new[222] = t499;
-    P_new[223] = t516;
-    P_new[224] = t532;
     P_new[225] = t547;
     P_new[226] = t548;
     P_new[227] = t549;
-    P_new[228] = t550;
-    P_new[229] = t551;
-    P_new[230] = t552;
-    P_new[231] = t553;
-    P_new[232] = t554;
-    P_new[233] = t555;
-    P_new[234] = t556;
-    P_new[235] = t557;
-    P_new[236] = t558;
-    P_new[237] = t559;
-    P_new[238] = t560;
-    P_new[239] = t561;
-    P_new[240] = t377;
-    P_new[241] = t400;
-    P_new[242] = t422;
-    P_new[243] = t443;
-    P_new[244] = t463;
-    P_new[245] = t482;
-    P_new[246] = t500;
-    P_new[247] = t517;
-    P_new[248] = t533;
     P_new[249] = t548;
     P_new[250] = t562;
     P_new[251] = t563;
-    P_new[252] = t564;
-    P_new[253] = t565;
-    P_new[254] = t566;
-    P_new[255] = t567;
-    P_new[256] = t568;
-    P_new[257] = t569;
-    P_new[258] = t570;
-    P_new[259] = t571;
-    P_new[260] = t572;
-    P_new[261] = t573;
-    P_new[262] = t574;
-    P_new[263] = t575;
-    P_new[264] = t378;
-    P_new[265] = t401;
-    P_new[266] = t423;
-    P_new[267] = t444;
-    P_new[268] = t464;
-    P_new[269] = t483;
-    P_new[270] = t501;
-    P_new[271] = t518;
-    P_new[272] = t534;
     P_new[273] = t549;
     P_new[274] = t563;
     P_new[275] = t576;
-    P_new[276] = t577;
-    P_new[277] = t578;
-    P_new[278] = t579;
-    P_new[279] = t580;
-    P_new[280] = t581;
-    P_new[281] = t582;
-    P_new[282] = t583;
-    P_new[283] = t584;
-    P_new[284] = t585;
-    P_new[285] = t586;
-    P_new[286] = t587;
-    P_new[287] = t588;
-    P_new[288] = t379;
-    P_new[289] = t402;
-    P_new[290] = t424;
-    P_new[291] = t445;
-    P_new[292] = t465;
-    P_new[293] = t484;
-    P_new[294] = t502;
-    P_new[295] = t519;
-    P_new[296] = t535;
-    P_new[297] = t550;
-    P_new[298] = t564;
-    P_new[299] = t577;
-    P_new[300] = t589;
-    P_new[301] = t590;
-    P_new[302] = t591;
-    P_new[303] = t592;
-    P_new[304] = t593;
-    P_new[305] = t594;
-    P_new[306] = t595;
-    P_new[307] = t596;
-    P_new[308] = t597;
-    P_new[309] = t598;
-    P_new[310] = t599;
-    P_new[311] = t600;
-    P_new[312] = t380;
-    P_new[313] = t403;
-    P_new[314] = t425;
-    P_new[315] = t446;
-    P_new[316] = t466;
-    P_new[317] = t485;
-    P_new[318] = t503;
-    P_new[319] = t520;
-    P_new[320] = t536;
-    P_new[321] = t551;
-    P_new[322] = t565;
-    P_new[323] = t578;
-    P_new[324] = t590;
     P_new[325] = t601;
     P_new[326] = t602;
     P_new[327] = t603;
-    P_new[328] = t604;
-    P_new[329] = t605;
-    P_new[330] = t606;
-    P_new[331] = t607;
-    P_new[332] = t608;
-    P_new[333] = t609;
-    P_new[334] = t610;
-    P_new[335] = t611;
-    P_new[336] = t381;
-    P_new[337] = t404;
-    P_new[338] = t426;
-    P_new[339] = t447;
-    P_new[340] = t467;
-    P_new[341] = t486;
-    P_new[342] = t504;
-    P_new[343] = t521;
-    P_new[344] = t537;
-    P_new[345] = t552;
-    P_new[346] = t566;
-    P_new[347] = t579;
-    P_new[348] = t591;
     P_new[349] = t602;
     P_new[350] = t612;
     P_new[351] = t613;
-    P_new[352] = t614;
-    P_new[353] = t615;
-    P_new[354] = t616;
-    P_new[355] = t617;
-    P_new[356] = t618;
-    P_new[357] = t619;
-    P_new[358] = t620;
-    P_new[359] = t621;
-    P_new[360] = t382;
-    P_new[361] = t405;
-    P_new[362] = t427;
-    P_new[363] = t448;
-    P_new[364] = t468;
-    P_new[365] = t487;
-    P_new[366] = t505;
-    P_new[367] = t522;
-    P_new[368] = t538;
-    P_new[369] = t553;
-    P_new[370] = t567;
-    P_new[371] = t580;
-    P_new[372] = t592;
     P_new[373] = t603;
     P_new[374] = t613;
     P_new[375] = t622;
-    P_new[376] = t623;
-    P_new[377] = t624;
-    P_new[378] = t625;
-    P_new[379] = t626;
-    P_new[380] = t627;
-    P_new[381] = t628;
-    P_new[382] = t629;
-    P_new[383] = t630;
-    P_new[384] = t383;
-    P_new[385] = t406;
-    P_new[386] = t428;
-    P_new[387] = t449;
-    P_new[388] = t469;
-    P_new[389] = t488;
-    P_new[390] = t506;
-    P_new[391] = t523;
-    P_new[392] = t539;
-    P_new[393] = t554;
-    P_new[394] = t568;
-    P_new[395] = t581;
-    P_new[396] = t593;
-    P_new[397] = t604;
-    P_new[398] = t614;
-    P_new[399] = t623;
-    P_new[400] = t631;
-    P_new[401] = t632;
-    P_new[402] = t633;
-    P_new[403] = t634;
-    P_new[404] = t635;
-    P_new[405] = t636;
-    P_new[406] = t637;
-    P_new[407] = t638;
-    P_new[408] = t384;
-    P_new[409] = t407;
-    P_new[410] = t429;
-    P_new[411] = t450;
-    P_new[412] = t470;
-    P_new[413] = t489;
-    P_new[414] = t507;
-    P_new[415] = t524;
-    P_new[416] = t540;
-    P_new[417] = t555;
-    P_new[418] = t569;
-    P_new[419] = t582;
-    P_new[420] = t594;
-    P_new[421] = t605;
-    P_new[422] = t615;
-    P_new[423] = t624;
-    P_new[424] = t632;
     P_new[425] = t639;
     P_new[426] = t640;
     P_new[427] = t641;
-    P_new[428] = t642;
-    P_new[429] = t643;
-    P_new[430] = t644;
-    P_new[431] = t645;
-    P_new[432] = t385;
-    P_new[433] = t408;
-    P_new[434] = t430;
-    P_new[435] = t451;
-    P_new[436] = t471;
-    P_new[437] = t490;
-    P_new[438] = t508;
-    P_new[439] = t525;
-    P_new[440] = t541;
-    P_new[441] = t556;
-    P_new[442] = t570;
-    P_new[443] = t583;
-    P_new[444] = t595;
-    P_new[445] = t606;
-    P_new[446] = t616;
-    P_new[447] = t625;
-    P_new[448] = t633;
     P_new[449] = t640;
     P_new[450] = t646;
     P_new[451] = t647;
-    P_new[452] = t648;
-    P_new[453] = t649;
-    P_new[454] = t650;
-    P_new[455] = t651;
-    P_new[456] = t386;
-    P_new[457] = t409;
-    P_new[458] = t431;
-    P_new[459] = t452;
-    P_new[460] = t472;
-    P_new[461] = t491;
-    P_new[462] = t509;
-    P_new[463] = t526;
-    P_new[464] = t542;
-    P_new[465] = t557;
-    P_new[466] = t571;
-    P_new[467] = t584;
-    P_new[468] = t596;
-    P_new[469] = t607;
-    P_new[470] = t617;
-    P_new[471] = t626;
-    P_new[472] = t634;
     P_new[473] = t641;
     P_new[474] = t647;
     P_new[475] = t652;
-    P_new[476] = t653;
-    P_new[477] = t654;
-    P_new[478] = t655;
-    P_new[479] = t656;
-    P_new[480] = t387;
-    P_new[481] = t410;
-    P_new[482] = t432;
-    P_new[483] = t453;
-    P_new[484] = t473;
-    P_new[485] = t492;
-    P_new[486] = t510;
-    P_new[487] = t527;
-    P_new[488] = t543;
-    P_new[489] = t558;
-    P_new[490] = t572;
-    P_new[491] = t585;
-    P_new[492] = t597;
-    P_new[493] = t608;
-    P_new[494] = t618;
-    P_new[495] = t627;
-    P_new[496] = t635;
-    P_new[497] = t642;
-    P_new[498] = t648;
-    P_new[499] = t653;
-    P_new[500] = t657;
-    P_new[501] = t658;
-    P_new[502] = t659;
-    P_new[503] = t660;
-    P_new[504] = t388;
-    P_new[505] = t411;
-    P_new[506] = t433;
-    P_new[507] = t454;
-    P_new[508] = t474;
-    P_new[509] = t493;
-    P_new[510] = t511;
-    P_new[511] = t528;
-    P_new[512] = t544;
-    P_new[513] = t559;
-    P_new[514] = t573;
-    P_new[515] = t586;
-    P_new[516] = t598;
-    P_new[517] = t609;
-    P_new[518] = t619;
-    P_new[519] = t628;
-    P_new[520] = t636;
-    P_new[521] = t643;
-    P_new[522] = t649;
-    P_new[523] = t654;
-    P_new[524] = t658;
     P_new[525] = t661;
     P_new[526] = t662;
     P_new[527] = t663;
-    P_new[528] = t389;
-    P_new[529] = t412;
-    P_new[530] = t434;
-    P_new[531] = t455;
-    P_new[532] = t475;
-    P_new[533] = t494;
-    P_new[534] = t512;
-    P_new[535] = t529;
-    P_new[536] = t545;
-    P_new[537] = t560;
-    P_new[538] = t574;
-    P_new[539] = t587;
-    P_new[540] = t599;
-    P_new[541] = t610;
-    P_new[542] = t620;
-    P_new[543] = t629;
-    P_new[544] = t637;
-    P_new[545] = t644;
-    P_new[546] = t650;
-    P_new[547] = t655;
-    P_new[548] = t659;
     P_new[549] = t662;
     P_new[550] = t664;
     P_new[551] = t665;
-    P_new[552] = t390;
-    P_new[553] = t413;
-    P_new[554] = t435;
-    P_new[555] = t456;
-    P_new[556] = t476;
-    P_new[557] = t495;
-    P_new[558] = t513;
-    P_new[559] = t530;
-    P_new[560] = t546;
-    P_new[561] = t561;
-    P_new[562] = t575;
-    P_new[563] = t588;
-    P_new[564] = t600;
-    P_new[565] = t611;
-    P_new[566] = t621;
-    P_new[567] = t630;
-    P_new[568] = t638;
-    P_new[569] = t645;
-    P_new[570] = t651;
-    P_new[571] = t656;
-    P_new[572] = t660;
     P_new[573] = t663;
     P_new[574] = t665;
     P_new[575] = t666;
@@ -5229,6 +5229,10 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t58 = DERIVE_FNMA(t28, t7, x[5]);
     const double t59 = DERIVE_FNMA(t28, t8, x[6]);
     const double t60 = DERIVE_FNMA(t28, t9, x[7]);
+    x_new[4] = t57;
+    x_new[5] = t58;
+    x_new[6] = t59;
+    x_new[7] = t60;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t61 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -5238,6 +5242,10 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t62 = DERIVE_FNMA(t28, t11, x[9]);
     const double t63 = DERIVE_FNMA(t28, t12, x[10]);
     const double t64 = DERIVE_FNMA(t28, t13, x[11]);
+    x_new[8] = t61;
+    x_new[9] = t62;
+    x_new[10] = t63;
+    x_new[11] = t64;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t65 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -5247,6 +5255,10 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t66 = DERIVE_FNMA(t28, t15, x[13]);
     const double t67 = DERIVE_FNMA(t28, t16, x[14]);
     const double t68 = DERIVE_FNMA(t28, t17, x[15]);
+    x_new[12] = t65;
+    x_new[13] = t66;
+    x_new[14] = t67;
+    x_new[15] = t68;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t18, ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -5256,6 +5268,10 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t70 = DERIVE_FNMA(t28, t19, x[17]);
     const double t71 = DERIVE_FNMA(t28, t20, x[18]);
     const double t72 = DERIVE_FNMA(t28, t21, x[19]);
+    x_new[16] = t69;
+    x_new[17] = t70;
+    x_new[18] = t71;
+    x_new[19] = t72;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t22, ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -5265,6 +5281,10 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t74 = DERIVE_FNMA(t28, t23, x[21]);
     const double t75 = DERIVE_FNMA(t28, t24, x[22]);
     const double t76 = DERIVE_FNMA(t28, t25, x[23]);
+    x_new[20] = t73;
+    x_new[21] = t74;
+    x_new[22] = t75;
+    x_new[23] = t76;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t77 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -5277,6 +5297,13 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t78 = DERIVE_FMA(t29, t3, P[1]);
     const double t79 = DERIVE_FMA(t29, t4, P[2]);
     const double t80 = DERIVE_FMA(t29, t5, P[3]);
+    P_new[0] = t77;
+    P_new[1] = t78;
+    P_new[24] = t78;
+    P_new[2] = t79;
+    P_new[48] = t79;
+    P_new[3] = t80;
+    P_new[72] = t80;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t81 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -5285,6 +5312,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t82 = DERIVE_FMA(t29, t7, P[5]);
     const double t83 = DERIVE_FMA(t29, t8, P[6]);
     const double t84 = DERIVE_FMA(t29, t9, P[7]);
+    P_new[4] = t81;
+    P_new[96] = t81;
+    P_new[5] = t82;
+    P_new[120] = t82;
+    P_new[6] = t83;
+    P_new[144] = t83;
+    P_new[7] = t84;
+    P_new[168] = t84;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -5293,6 +5328,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t86 = DERIVE_FMA(t29, t11, P[9]);
     const double t87 = DERIVE_FMA(t29, t12, P[10]);
     const double t88 = DERIVE_FMA(t29, t13, P[11]);
+    P_new[8] = t85;
+    P_new[192] = t85;
+    P_new[9] = t86;
+    P_new[216] = t86;
+    P_new[10] = t87;
+    P_new[240] = t87;
+    P_new[11] = t88;
+    P_new[264] = t88;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -5301,6 +5344,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t90 = DERIVE_FMA(t29, t15, P[13]);
     const double t91 = DERIVE_FMA(t29, t16, P[14]);
     const double t92 = DERIVE_FMA(t29, t17, P[15]);
+    P_new[12] = t89;
+    P_new[288] = t89;
+    P_new[13] = t90;
+    P_new[312] = t90;
+    P_new[14] = t91;
+    P_new[336] = t91;
+    P_new[15] = t92;
+    P_new[360] = t92;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t18, ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -5309,6 +5360,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t94 = DERIVE_FMA(t29, t19, P[17]);
     const double t95 = DERIVE_FMA(t29, t20, P[18]);
     const double t96 = DERIVE_FMA(t29, t21, P[19]);
+    P_new[16] = t93;
+    P_new[384] = t93;
+    P_new[17] = t94;
+    P_new[408] = t94;
+    P_new[18] = t95;
+    P_new[432] = t95;
+    P_new[19] = t96;
+    P_new[456] = t96;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t22, ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -5317,6 +5376,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t98 = DERIVE_FMA(t29, t23, P[21]);
     const double t99 = DERIVE_FMA(t29, t24, P[22]);
     const double t100 = DERIVE_FMA(t29, t25, P[23]);
+    P_new[20] = t97;
+    P_new[480] = t97;
+    P_new[21] = t98;
+    P_new[504] = t98;
+    P_new[22] = t99;
+    P_new[528] = t99;
+    P_new[23] = t100;
+    P_new[552] = t100;
     #endif
     const double t101 = DERIVE_FMA(t3, t30, P[25]);
     const double t102 = DERIVE_FMA(t30, t4, P[26]);
@@ -5328,6 +5395,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t105 = DERIVE_FMA(t30, t7, P[29]);
     const double t106 = DERIVE_FMA(t30, t8, P[30]);
     const double t107 = DERIVE_FMA(t30, t9, P[31]);
+    P_new[28] = t104;
+    P_new[97] = t104;
+    P_new[29] = t105;
+    P_new[121] = t105;
+    P_new[30] = t106;
+    P_new[145] = t106;
+    P_new[31] = t107;
+    P_new[169] = t107;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t108 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t10, ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -5336,6 +5411,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t109 = DERIVE_FMA(t30, t11, P[33]);
     const double t110 = DERIVE_FMA(t30, t12, P[34]);
     const double t111 = DERIVE_FMA(t30, t13, P[35]);
+    P_new[32] = t108;
+    P_new[193] = t108;
+    P_new[33] = t109;
+    P_new[217] = t109;
+    P_new[34] = t110;
+    P_new[241] = t110;
+    P_new[35] = t111;
+    P_new[265] = t111;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t112 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t14, ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -5344,6 +5427,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t113 = DERIVE_FMA(t30, t15, P[37]);
     const double t114 = DERIVE_FMA(t30, t16, P[38]);
     const double t115 = DERIVE_FMA(t30, t17, P[39]);
+    P_new[36] = t112;
+    P_new[289] = t112;
+    P_new[37] = t113;
+    P_new[313] = t113;
+    P_new[38] = t114;
+    P_new[337] = t114;
+    P_new[39] = t115;
+    P_new[361] = t115;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t18, ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -5352,6 +5443,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t117 = DERIVE_FMA(t30, t19, P[41]);
     const double t118 = DERIVE_FMA(t30, t20, P[42]);
     const double t119 = DERIVE_FMA(t30, t21, P[43]);
+    P_new[40] = t116;
+    P_new[385] = t116;
+    P_new[41] = t117;
+    P_new[409] = t117;
+    P_new[42] = t118;
+    P_new[433] = t118;
+    P_new[43] = t119;
+    P_new[457] = t119;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t22, ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -5360,6 +5459,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t121 = DERIVE_FMA(t30, t23, P[45]);
     const double t122 = DERIVE_FMA(t30, t24, P[46]);
     const double t123 = DERIVE_FMA(t30, t25, P[47]);
+    P_new[44] = t120;
+    P_new[481] = t120;
+    P_new[45] = t121;
+    P_new[505] = t121;
+    P_new[46] = t122;
+    P_new[529] = t122;
+    P_new[47] = t123;
+    P_new[553] = t123;
     #endif
     const double t124 = DERIVE_FMA(t31, t4, P[50]);
     const double t125 = DERIVE_FMA(t31, t5, P[51]);
@@ -5370,6 +5477,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t127 = DERIVE_FMA(t31, t7, P[53]);
     const double t128 = DERIVE_FMA(t31, t8, P[54]);
     const double t129 = DERIVE_FMA(t31, t9, P[55]);
+    P_new[52] = t126;
+    P_new[98] = t126;
+    P_new[53] = t127;
+    P_new[122] = t127;
+    P_new[54] = t128;
+    P_new[146] = t128;
+    P_new[55] = t129;
+    P_new[170] = t129;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -5378,6 +5493,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t131 = DERIVE_FMA(t31, t11, P[57]);
     const double t132 = DERIVE_FMA(t31, t12, P[58]);
     const double t133 = DERIVE_FMA(t31, t13, P[59]);
+    P_new[56] = t130;
+    P_new[194] = t130;
+    P_new[57] = t131;
+    P_new[218] = t131;
+    P_new[58] = t132;
+    P_new[242] = t132;
+    P_new[59] = t133;
+    P_new[266] = t133;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t134 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -5386,6 +5509,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t135 = DERIVE_FMA(t31, t15, P[61]);
     const double t136 = DERIVE_FMA(t31, t16, P[62]);
     const double t137 = DERIVE_FMA(t31, t17, P[63]);
+    P_new[60] = t134;
+    P_new[290] = t134;
+    P_new[61] = t135;
+    P_new[314] = t135;
+    P_new[62] = t136;
+    P_new[338] = t136;
+    P_new[63] = t137;
+    P_new[362] = t137;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t18, ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -5394,6 +5525,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t139 = DERIVE_FMA(t31, t19, P[65]);
     const double t140 = DERIVE_FMA(t31, t20, P[66]);
     const double t141 = DERIVE_FMA(t31, t21, P[67]);
+    P_new[64] = t138;
+    P_new[386] = t138;
+    P_new[65] = t139;
+    P_new[410] = t139;
+    P_new[66] = t140;
+    P_new[434] = t140;
+    P_new[67] = t141;
+    P_new[458] = t141;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t22, ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -5402,6 +5541,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t143 = DERIVE_FMA(t31, t23, P[69]);
     const double t144 = DERIVE_FMA(t31, t24, P[70]);
     const double t145 = DERIVE_FMA(t31, t25, P[71]);
+    P_new[68] = t142;
+    P_new[482] = t142;
+    P_new[69] = t143;
+    P_new[506] = t143;
+    P_new[70] = t144;
+    P_new[530] = t144;
+    P_new[71] = t145;
+    P_new[554] = t145;
     #endif
     const double t146 = DERIVE_FMA(t32, t5, P[75]);
     #if DERIVE_VECTOR
@@ -5427,6 +5574,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t148 = DERIVE_FMA(t32, t7, P[77]);
     const double t149 = DERIVE_FMA(t32, t8, P[78]);
     const double t150 = DERIVE_FMA(t32, t9, P[79]);
+    P_new[76] = t147;
+    P_new[99] = t147;
+    P_new[77] = t148;
+    P_new[123] = t148;
+    P_new[78] = t149;
+    P_new[147] = t149;
+    P_new[79] = t150;
+    P_new[171] = t150;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t10, ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -5451,6 +5606,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t152 = DERIVE_FMA(t32, t11, P[81]);
     const double t153 = DERIVE_FMA(t32, t12, P[82]);
     const double t154 = DERIVE_FMA(t32, t13, P[83]);
+    P_new[80] = t151;
+    P_new[195] = t151;
+    P_new[81] = t152;
+    P_new[219] = t152;
+    P_new[82] = t153;
+    P_new[243] = t153;
+    P_new[83] = t154;
+    P_new[267] = t154;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t14, ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -5475,6 +5638,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t156 = DERIVE_FMA(t32, t15, P[85]);
     const double t157 = DERIVE_FMA(t32, t16, P[86]);
     const double t158 = DERIVE_FMA(t32, t17, P[87]);
+    P_new[84] = t155;
+    P_new[291] = t155;
+    P_new[85] = t156;
+    P_new[315] = t156;
+    P_new[86] = t157;
+    P_new[339] = t157;
+    P_new[87] = t158;
+    P_new[363] = t158;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t18, ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -5499,6 +5670,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t160 = DERIVE_FMA(t32, t19, P[89]);
     const double t161 = DERIVE_FMA(t32, t20, P[90]);
     const double t162 = DERIVE_FMA(t32, t21, P[91]);
+    P_new[88] = t159;
+    P_new[387] = t159;
+    P_new[89] = t160;
+    P_new[411] = t160;
+    P_new[90] = t161;
+    P_new[435] = t161;
+    P_new[91] = t162;
+    P_new[459] = t162;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t22, ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -5523,6 +5702,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t164 = DERIVE_FMA(t32, t23, P[93]);
     const double t165 = DERIVE_FMA(t32, t24, P[94]);
     const double t166 = DERIVE_FMA(t32, t25, P[95]);
+    P_new[92] = t163;
+    P_new[483] = t163;
+    P_new[93] = t164;
+    P_new[507] = t164;
+    P_new[94] = t165;
+    P_new[531] = t165;
+    P_new[95] = t166;
+    P_new[555] = t166;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t6, ((derive_vd){P[100], P[101], P[102], P[103]}));
@@ -5535,6 +5722,13 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t168 = DERIVE_FMA(t33, t7, P[101]);
     const double t169 = DERIVE_FMA(t33, t8, P[102]);
     const double t170 = DERIVE_FMA(t33, t9, P[103]);
+    P_new[100] = t167;
+    P_new[101] = t168;
+    P_new[124] = t168;
+    P_new[102] = t169;
+    P_new[148] = t169;
+    P_new[103] = t170;
+    P_new[172] = t170;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t10, ((derive_vd){P[104], P[105], P[106], P[107]}));
@@ -5543,6 +5737,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t172 = DERIVE_FMA(t33, t11, P[105]);
     const double t173 = DERIVE_FMA(t33, t12, P[106]);
     const double t174 = DERIVE_FMA(t33, t13, P[107]);
+    P_new[104] = t171;
+    P_new[196] = t171;
+    P_new[105] = t172;
+    P_new[220] = t172;
+    P_new[106] = t173;
+    P_new[244] = t173;
+    P_new[107] = t174;
+    P_new[268] = t174;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -5551,6 +5753,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t176 = DERIVE_FMA(t33, t15, P[109]);
     const double t177 = DERIVE_FMA(t33, t16, P[110]);
     const double t178 = DERIVE_FMA(t33, t17, P[111]);
+    P_new[108] = t175;
+    P_new[292] = t175;
+    P_new[109] = t176;
+    P_new[316] = t176;
+    P_new[110] = t177;
+    P_new[340] = t177;
+    P_new[111] = t178;
+    P_new[364] = t178;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t18, ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -5559,6 +5769,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t180 = DERIVE_FMA(t33, t19, P[113]);
     const double t181 = DERIVE_FMA(t33, t20, P[114]);
     const double t182 = DERIVE_FMA(t33, t21, P[115]);
+    P_new[112] = t179;
+    P_new[388] = t179;
+    P_new[113] = t180;
+    P_new[412] = t180;
+    P_new[114] = t181;
+    P_new[436] = t181;
+    P_new[115] = t182;
+    P_new[460] = t182;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t22, ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -5567,6 +5785,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t184 = DERIVE_FMA(t33, t23, P[117]);
     const double t185 = DERIVE_FMA(t33, t24, P[118]);
     const double t186 = DERIVE_FMA(t33, t25, P[119]);
+    P_new[116] = t183;
+    P_new[484] = t183;
+    P_new[117] = t184;
+    P_new[508] = t184;
+    P_new[118] = t185;
+    P_new[532] = t185;
+    P_new[119] = t186;
+    P_new[556] = t186;
     #endif
     const double t187 = DERIVE_FMA(t34, t7, P[125]);
     const double t188 = DERIVE_FMA(t34, t8, P[126]);
@@ -5578,6 +5804,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t191 = DERIVE_FMA(t34, t11, P[129]);
     const double t192 = DERIVE_FMA(t34, t12, P[130]);
     const double t193 = DERIVE_FMA(t34, t13, P[131]);
+    P_new[128] = t190;
+    P_new[197] = t190;
+    P_new[129] = t191;
+    P_new[221] = t191;
+    P_new[130] = t192;
+    P_new[245] = t192;
+    P_new[131] = t193;
+    P_new[269] = t193;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t194 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t14, ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -5586,6 +5820,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t195 = DERIVE_FMA(t34, t15, P[133]);
     const double t196 = DERIVE_FMA(t34, t16, P[134]);
     const double t197 = DERIVE_FMA(t34, t17, P[135]);
+    P_new[132] = t194;
+    P_new[293] = t194;
+    P_new[133] = t195;
+    P_new[317] = t195;
+    P_new[134] = t196;
+    P_new[341] = t196;
+    P_new[135] = t197;
+    P_new[365] = t197;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t198 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t18, ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -5594,6 +5836,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t199 = DERIVE_FMA(t34, t19, P[137]);
     const double t200 = DERIVE_FMA(t34, t20, P[138]);
     const double t201 = DERIVE_FMA(t34, t21, P[139]);
+    P_new[136] = t198;
+    P_new[389] = t198;
+    P_new[137] = t199;
+    P_new[413] = t199;
+    P_new[138] = t200;
+    P_new[437] = t200;
+    P_new[139] = t201;
+    P_new[461] = t201;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t22, ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -5602,6 +5852,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t203 = DERIVE_FMA(t34, t23, P[141]);
     const double t204 = DERIVE_FMA(t34, t24, P[142]);
     const double t205 = DERIVE_FMA(t34, t25, P[143]);
+    P_new[140] = t202;
+    P_new[485] = t202;
+    P_new[141] = t203;
+    P_new[509] = t203;
+    P_new[142] = t204;
+    P_new[533] = t204;
+    P_new[143] = t205;
+    P_new[557] = t205;
     #endif
     const double t206 = DERIVE_FMA(t35, t8, P[150]);
     const double t207 = DERIVE_FMA(t35, t9, P[151]);
@@ -5612,6 +5870,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t209 = DERIVE_FMA(t35, t11, P[153]);
     const double t210 = DERIVE_FMA(t35, t12, P[154]);
     const double t211 = DERIVE_FMA(t35, t13, P[155]);
+    P_new[152] = t208;
+    P_new[198] = t208;
+    P_new[153] = t209;
+    P_new[222] = t209;
+    P_new[154] = t210;
+    P_new[246] = t210;
+    P_new[155] = t211;
+    P_new[270] = t211;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t212 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t14, ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -5620,6 +5886,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t213 = DERIVE_FMA(t35, t15, P[157]);
     const double t214 = DERIVE_FMA(t35, t16, P[158]);
     const double t215 = DERIVE_FMA(t35, t17, P[159]);
+    P_new[156] = t212;
+    P_new[294] = t212;
+    P_new[157] = t213;
+    P_new[318] = t213;
+    P_new[158] = t214;
+    P_new[342] = t214;
+    P_new[159] = t215;
+    P_new[366] = t215;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t18, ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -5628,6 +5902,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t217 = DERIVE_FMA(t35, t19, P[161]);
     const double t218 = DERIVE_FMA(t35, t20, P[162]);
     const double t219 = DERIVE_FMA(t35, t21, P[163]);
+    P_new[160] = t216;
+    P_new[390] = t216;
+    P_new[161] = t217;
+    P_new[414] = t217;
+    P_new[162] = t218;
+    P_new[438] = t218;
+    P_new[163] = t219;
+    P_new[462] = t219;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t22, ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -5636,6 +5918,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t221 = DERIVE_FMA(t35, t23, P[165]);
     const double t222 = DERIVE_FMA(t35, t24, P[166]);
     const double t223 = DERIVE_FMA(t35, t25, P[167]);
+    P_new[164] = t220;
+    P_new[486] = t220;
+    P_new[165] = t221;
+    P_new[510] = t221;
+    P_new[166] = t222;
+    P_new[534] = t222;
+    P_new[167] = t223;
+    P_new[558] = t223;
     #endif
     const double t224 = DERIVE_FMA(t36, t9, P[175]);
     #if DERIVE_VECTOR
@@ -5661,6 +5951,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t226 = DERIVE_FMA(t36, t11, P[177]);
     const double t227 = DERIVE_FMA(t36, t12, P[178]);
     const double t228 = DERIVE_FMA(t36, t13, P[179]);
+    P_new[176] = t225;
+    P_new[199] = t225;
+    P_new[177] = t226;
+    P_new[223] = t226;
+    P_new[178] = t227;
+    P_new[247] = t227;
+    P_new[179] = t228;
+    P_new[271] = t228;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t14, ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -5685,6 +5983,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t230 = DERIVE_FMA(t36, t15, P[181]);
     const double t231 = DERIVE_FMA(t36, t16, P[182]);
     const double t232 = DERIVE_FMA(t36, t17, P[183]);
+    P_new[180] = t229;
+    P_new[295] = t229;
+    P_new[181] = t230;
+    P_new[319] = t230;
+    P_new[182] = t231;
+    P_new[343] = t231;
+    P_new[183] = t232;
+    P_new[367] = t232;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -5709,6 +6015,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t234 = DERIVE_FMA(t36, t19, P[185]);
     const double t235 = DERIVE_FMA(t36, t20, P[186]);
     const double t236 = DERIVE_FMA(t36, t21, P[187]);
+    P_new[184] = t233;
+    P_new[391] = t233;
+    P_new[185] = t234;
+    P_new[415] = t234;
+    P_new[186] = t235;
+    P_new[439] = t235;
+    P_new[187] = t236;
+    P_new[463] = t236;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -5733,6 +6047,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t238 = DERIVE_FMA(t36, t23, P[189]);
     const double t239 = DERIVE_FMA(t36, t24, P[190]);
     const double t240 = DERIVE_FMA(t36, t25, P[191]);
+    P_new[188] = t237;
+    P_new[487] = t237;
+    P_new[189] = t238;
+    P_new[511] = t238;
+    P_new[190] = t239;
+    P_new[535] = t239;
+    P_new[191] = t240;
+    P_new[559] = t240;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[200], P[201], P[202], P[203]}));
@@ -5745,6 +6067,13 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t242 = DERIVE_FMA(t37, t11, P[201]);
     const double t243 = DERIVE_FMA(t37, t12, P[202]);
     const double t244 = DERIVE_FMA(t37, t13, P[203]);
+    P_new[200] = t241;
+    P_new[201] = t242;
+    P_new[224] = t242;
+    P_new[202] = t243;
+    P_new[248] = t243;
+    P_new[203] = t244;
+    P_new[272] = t244;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -5753,6 +6082,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t246 = DERIVE_FMA(t37, t15, P[205]);
     const double t247 = DERIVE_FMA(t37, t16, P[206]);
     const double t248 = DERIVE_FMA(t37, t17, P[207]);
+    P_new[204] = t245;
+    P_new[296] = t245;
+    P_new[205] = t246;
+    P_new[320] = t246;
+    P_new[206] = t247;
+    P_new[344] = t247;
+    P_new[207] = t248;
+    P_new[368] = t248;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -5761,6 +6098,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t250 = DERIVE_FMA(t37, t19, P[209]);
     const double t251 = DERIVE_FMA(t37, t20, P[210]);
     const double t252 = DERIVE_FMA(t37, t21, P[211]);
+    P_new[208] = t249;
+    P_new[392] = t249;
+    P_new[209] = t250;
+    P_new[416] = t250;
+    P_new[210] = t251;
+    P_new[440] = t251;
+    P_new[211] = t252;
+    P_new[464] = t252;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -5769,6 +6114,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t254 = DERIVE_FMA(t37, t23, P[213]);
     const double t255 = DERIVE_FMA(t37, t24, P[214]);
     const double t256 = DERIVE_FMA(t37, t25, P[215]);
+    P_new[212] = t253;
+    P_new[488] = t253;
+    P_new[213] = t254;
+    P_new[512] = t254;
+    P_new[214] = t255;
+    P_new[536] = t255;
+    P_new[215] = t256;
+    P_new[560] = t256;
     #endif
     const double t257 = DERIVE_FMA(t11, t38, P[225]);
     const double t258 = DERIVE_FMA(t12, t38, P[226]);
@@ -5780,6 +6133,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t261 = DERIVE_FMA(t38, t15, P[229]);
     const double t262 = DERIVE_FMA(t38, t16, P[230]);
     const double t263 = DERIVE_FMA(t38, t17, P[231]);
+    P_new[228] = t260;
+    P_new[297] = t260;
+    P_new[229] = t261;
+    P_new[321] = t261;
+    P_new[230] = t262;
+    P_new[345] = t262;
+    P_new[231] = t263;
+    P_new[369] = t263;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -5788,6 +6149,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t265 = DERIVE_FMA(t38, t19, P[233]);
     const double t266 = DERIVE_FMA(t38, t20, P[234]);
     const double t267 = DERIVE_FMA(t38, t21, P[235]);
+    P_new[232] = t264;
+    P_new[393] = t264;
+    P_new[233] = t265;
+    P_new[417] = t265;
+    P_new[234] = t266;
+    P_new[441] = t266;
+    P_new[235] = t267;
+    P_new[465] = t267;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -5796,6 +6165,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t269 = DERIVE_FMA(t38, t23, P[237]);
     const double t270 = DERIVE_FMA(t38, t24, P[238]);
     const double t271 = DERIVE_FMA(t38, t25, P[239]);
+    P_new[236] = t268;
+    P_new[489] = t268;
+    P_new[237] = t269;
+    P_new[513] = t269;
+    P_new[238] = t270;
+    P_new[537] = t270;
+    P_new[239] = t271;
+    P_new[561] = t271;
     #endif
     const double t272 = DERIVE_FMA(t12, t39, P[250]);
     const double t273 = DERIVE_FMA(t13, t39, P[251]);
@@ -5806,6 +6183,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t275 = DERIVE_FMA(t39, t15, P[253]);
     const double t276 = DERIVE_FMA(t39, t16, P[254]);
     const double t277 = DERIVE_FMA(t39, t17, P[255]);
+    P_new[252] = t274;
+    P_new[298] = t274;
+    P_new[253] = t275;
+    P_new[322] = t275;
+    P_new[254] = t276;
+    P_new[346] = t276;
+    P_new[255] = t277;
+    P_new[370] = t277;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t278 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -5814,6 +6199,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t279 = DERIVE_FMA(t39, t19, P[257]);
     const double t280 = DERIVE_FMA(t39, t20, P[258]);
     const double t281 = DERIVE_FMA(t39, t21, P[259]);
+    P_new[256] = t278;
+    P_new[394] = t278;
+    P_new[257] = t279;
+    P_new[418] = t279;
+    P_new[258] = t280;
+    P_new[442] = t280;
+    P_new[259] = t281;
+    P_new[466] = t281;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t282 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -5822,6 +6215,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t283 = DERIVE_FMA(t39, t23, P[261]);
     const double t284 = DERIVE_FMA(t39, t24, P[262]);
     const double t285 = DERIVE_FMA(t39, t25, P[263]);
+    P_new[260] = t282;
+    P_new[490] = t282;
+    P_new[261] = t283;
+    P_new[514] = t283;
+    P_new[262] = t284;
+    P_new[538] = t284;
+    P_new[263] = t285;
+    P_new[562] = t285;
     #endif
     const double t286 = DERIVE_FMA(t13, t40, P[275]);
     #if DERIVE_VECTOR
@@ -5847,6 +6248,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t288 = DERIVE_FMA(t40, t15, P[277]);
     const double t289 = DERIVE_FMA(t40, t16, P[278]);
     const double t290 = DERIVE_FMA(t40, t17, P[279]);
+    P_new[276] = t287;
+    P_new[299] = t287;
+    P_new[277] = t288;
+    P_new[323] = t288;
+    P_new[278] = t289;
+    P_new[347] = t289;
+    P_new[279] = t290;
+    P_new[371] = t290;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -5871,6 +6280,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t292 = DERIVE_FMA(t40, t19, P[281]);
     const double t293 = DERIVE_FMA(t40, t20, P[282]);
     const double t294 = DERIVE_FMA(t40, t21, P[283]);
+    P_new[280] = t291;
+    P_new[395] = t291;
+    P_new[281] = t292;
+    P_new[419] = t292;
+    P_new[282] = t293;
+    P_new[443] = t293;
+    P_new[283] = t294;
+    P_new[467] = t294;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -5895,6 +6312,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t296 = DERIVE_FMA(t40, t23, P[285]);
     const double t297 = DERIVE_FMA(t40, t24, P[286]);
     const double t298 = DERIVE_FMA(t40, t25, P[287]);
+    P_new[284] = t295;
+    P_new[491] = t295;
+    P_new[285] = t296;
+    P_new[515] = t296;
+    P_new[286] = t297;
+    P_new[539] = t297;
+    P_new[287] = t298;
+    P_new[563] = t298;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -5907,6 +6332,13 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t300 = DERIVE_FMA(t41, t15, P[301]);
     const double t301 = DERIVE_FMA(t41, t16, P[302]);
     const double t302 = DERIVE_FMA(t41, t17, P[303]);
+    P_new[300] = t299;
+    P_new[301] = t300;
+    P_new[324] = t300;
+    P_new[302] = t301;
+    P_new[348] = t301;
+    P_new[303] = t302;
+    P_new[372] = t302;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -5915,6 +6347,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t304 = DERIVE_FMA(t41, t19, P[305]);
     const double t305 = DERIVE_FMA(t41, t20, P[306]);
     const double t306 = DERIVE_FMA(t41, t21, P[307]);
+    P_new[304] = t303;
+    P_new[396] = t303;
+    P_new[305] = t304;
+    P_new[420] = t304;
+    P_new[306] = t305;
+    P_new[444] = t305;
+    P_new[307] = t306;
+    P_new[468] = t306;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -5923,6 +6363,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t308 = DERIVE_FMA(t41, t23, P[309]);
     const double t309 = DERIVE_FMA(t41, t24, P[310]);
     const double t310 = DERIVE_FMA(t41, t25, P[311]);
+    P_new[308] = t307;
+    P_new[492] = t307;
+    P_new[309] = t308;
+    P_new[516] = t308;
+    P_new[310] = t309;
+    P_new[540] = t309;
+    P_new[311] = t310;
+    P_new[564] = t310;
     #endif
     const double t311 = DERIVE_FMA(t15, t42, P[325]);
     const double t312 = DERIVE_FMA(t16, t42, P[326]);
@@ -5934,6 +6382,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t315 = DERIVE_FMA(t42, t19, P[329]);
     const double t316 = DERIVE_FMA(t42, t20, P[330]);
     const double t317 = DERIVE_FMA(t42, t21, P[331]);
+    P_new[328] = t314;
+    P_new[397] = t314;
+    P_new[329] = t315;
+    P_new[421] = t315;
+    P_new[330] = t316;
+    P_new[445] = t316;
+    P_new[331] = t317;
+    P_new[469] = t317;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t318 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -5942,6 +6398,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t319 = DERIVE_FMA(t42, t23, P[333]);
     const double t320 = DERIVE_FMA(t42, t24, P[334]);
     const double t321 = DERIVE_FMA(t42, t25, P[335]);
+    P_new[332] = t318;
+    P_new[493] = t318;
+    P_new[333] = t319;
+    P_new[517] = t319;
+    P_new[334] = t320;
+    P_new[541] = t320;
+    P_new[335] = t321;
+    P_new[565] = t321;
     #endif
     const double t322 = DERIVE_FMA(t16, t43, P[350]);
     const double t323 = DERIVE_FMA(t17, t43, P[351]);
@@ -5952,6 +6416,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t325 = DERIVE_FMA(t43, t19, P[353]);
     const double t326 = DERIVE_FMA(t43, t20, P[354]);
     const double t327 = DERIVE_FMA(t43, t21, P[355]);
+    P_new[352] = t324;
+    P_new[398] = t324;
+    P_new[353] = t325;
+    P_new[422] = t325;
+    P_new[354] = t326;
+    P_new[446] = t326;
+    P_new[355] = t327;
+    P_new[470] = t327;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -5960,6 +6432,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t329 = DERIVE_FMA(t43, t23, P[357]);
     const double t330 = DERIVE_FMA(t43, t24, P[358]);
     const double t331 = DERIVE_FMA(t43, t25, P[359]);
+    P_new[356] = t328;
+    P_new[494] = t328;
+    P_new[357] = t329;
+    P_new[518] = t329;
+    P_new[358] = t330;
+    P_new[542] = t330;
+    P_new[359] = t331;
+    P_new[566] = t331;
     #endif
     const double t332 = DERIVE_FMA(t17, t44, P[375]);
     #if DERIVE_VECTOR
@@ -5985,6 +6465,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t334 = DERIVE_FMA(t44, t19, P[377]);
     const double t335 = DERIVE_FMA(t44, t20, P[378]);
     const double t336 = DERIVE_FMA(t44, t21, P[379]);
+    P_new[376] = t333;
+    P_new[399] = t333;
+    P_new[377] = t334;
+    P_new[423] = t334;
+    P_new[378] = t335;
+    P_new[447] = t335;
+    P_new[379] = t336;
+    P_new[471] = t336;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -6009,6 +6497,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t338 = DERIVE_FMA(t44, t23, P[381]);
     const double t339 = DERIVE_FMA(t44, t24, P[382]);
     const double t340 = DERIVE_FMA(t44, t25, P[383]);
+    P_new[380] = t337;
+    P_new[495] = t337;
+    P_new[381] = t338;
+    P_new[519] = t338;
+    P_new[382] = t339;
+    P_new[543] = t339;
+    P_new[383] = t340;
+    P_new[567] = t340;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -6021,6 +6517,13 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t342 = DERIVE_FMA(t45, t19, P[401]);
     const double t343 = DERIVE_FMA(t45, t20, P[402]);
     const double t344 = DERIVE_FMA(t45, t21, P[403]);
+    P_new[400] = t341;
+    P_new[401] = t342;
+    P_new[424] = t342;
+    P_new[402] = t343;
+    P_new[448] = t343;
+    P_new[403] = t344;
+    P_new[472] = t344;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -6029,6 +6532,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t346 = DERIVE_FMA(t45, t23, P[405]);
     const double t347 = DERIVE_FMA(t45, t24, P[406]);
     const double t348 = DERIVE_FMA(t45, t25, P[407]);
+    P_new[404] = t345;
+    P_new[496] = t345;
+    P_new[405] = t346;
+    P_new[520] = t346;
+    P_new[406] = t347;
+    P_new[544] = t347;
+    P_new[407] = t348;
+    P_new[568] = t348;
     #endif
     const double t349 = DERIVE_FMA(t19, t46, P[425]);
     const double t350 = DERIVE_FMA(t20, t46, P[426]);
@@ -6040,6 +6551,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t353 = DERIVE_FMA(t46, t23, P[429]);
     const double t354 = DERIVE_FMA(t46, t24, P[430]);
     const double t355 = DERIVE_FMA(t46, t25, P[431]);
+    P_new[428] = t352;
+    P_new[497] = t352;
+    P_new[429] = t353;
+    P_new[521] = t353;
+    P_new[430] = t354;
+    P_new[545] = t354;
+    P_new[431] = t355;
+    P_new[569] = t355;
     #endif
     const double t356 = DERIVE_FMA(t20, t47, P[450]);
     const double t357 = DERIVE_FMA(t21, t47, P[451]);
@@ -6050,6 +6569,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t359 = DERIVE_FMA(t47, t23, P[453]);
     const double t360 = DERIVE_FMA(t47, t24, P[454]);
     const double t361 = DERIVE_FMA(t47, t25, P[455]);
+    P_new[452] = t358;
+    P_new[498] = t358;
+    P_new[453] = t359;
+    P_new[522] = t359;
+    P_new[454] = t360;
+    P_new[546] = t360;
+    P_new[455] = t361;
+    P_new[570] = t361;
     #endif
     const double t362 = DERIVE_FMA(t21, t48, P[475]);
     #if DERIVE_VECTOR
@@ -6075,6 +6602,14 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t364 = DERIVE_FMA(t48, t23, P[477]);
     const double t365 = DERIVE_FMA(t48, t24, P[478]);
     const double t366 = DERIVE_FMA(t48, t25, P[479]);
+    P_new[476] = t363;
+    P_new[499] = t363;
+    P_new[477] = t364;
+    P_new[523] = t364;
+    P_new[478] = t365;
+    P_new[547] = t365;
+    P_new[479] = t366;
+    P_new[571] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -6087,6 +6622,13 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t368 = DERIVE_FMA(t49, t23, P[501]);
     const double t369 = DERIVE_FMA(t49, t24, P[502]);
     const double t370 = DERIVE_FMA(t49, t25, P[503]);
+    P_new[500] = t367;
+    P_new[501] = t368;
+    P_new[524] = t368;
+    P_new[502] = t369;
+    P_new[548] = t369;
+    P_new[503] = t370;
+    P_new[572] = t370;
     #endif
     const double t371 = DERIVE_FMA(t23, t50, P[525]);
     const double t372 = DERIVE_FMA(t24, t50, P[526]);
@@ -6182,599 +6724,57 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
     x_new[1] = t380;
     x_new[2] = t381;
     x_new[3] = t382;
-    x_new[4] = t57;
-    x_new[5] = t58;
-    x_new[6] = t59;
-    x_new[7] = t60;
-    x_new[8] = t61;
-    x_new[9] = t62;
-    x_new[10] = t63;
-    x_new[11] = t64;
-    x_new[12] = t65;
-    x_new[13] = t66;
-    x_new[14] = t67;
-    x_new[15] = t68;
-    x_new[16] = t69;
-    x_new[17] = t70;
-    x_new[18] = t71;
-    x_new[19] = t72;
-    x_new[20] = t73;
-    x_new[21] = t74;
-    x_new[22] = t75;
-    x_new[23] = t76;
-    P_new[0] = t77;
-    P_new[1] = t78;
-    P_new[2] = t79;
-    P_new[3] = t80;
-    P_new[4] = t81;
-    P_new[5] = t82;
-    P_new[6] = t83;
-    P_new[7] = t84;
-    P_new[8] = t85;
-    P_new[9] = t86;
-    P_new[10] = t87;
-    P_new[11] = t88;
-    P_new[12] = t89;
-    P_new[13] = t90;
-    P_new[14] = t91;
-    P_new[15] = t92;
-    P_new[16] = t93;
-    P_new[17] = t94;
-    P_new[18] = t95;
-    P_new[19] = t96;
-    P_new[20] = t97;
-    P_new[21] = t98;
-    P_new[22] = t99;
-    P_new[23] = t100;
-    P_new[24] = t78;
     P_new[25] = t101;
     P_new[26] = t102;
     P_new[27] = t103;
-    P_new[28] = t104;
-    P_new[29] = t105;
-    P_new[30] = t106;
-    P_new[31] = t107;
-    P_new[32] = t108;
-    P_new[33] = t109;
-    P_new[34] = t110;
-    P_new[35] = t111;
-    P_new[36] = t112;
-    P_new[37] = t113;
-    P_new[38] = t114;
-    P_new[39] = t115;
-    P_new[40] = t116;
-    P_new[41] = t117;
-    P_new[42] = t118;
-    P_new[43] = t119;
-    P_new[44] = t120;
-    P_new[45] = t121;
-    P_new[46] = t122;
-    P_new[47] = t123;
-    P_new[48] = t79;
     P_new[49] = t102;
     P_new[50] = t124;
     P_new[51] = t125;
-    P_new[52] = t126;
-    P_new[53] = t127;
-    P_new[54] = t128;
-    P_new[55] = t129;
-    P_new[56] = t130;
-    P_new[57] = t131;
-    P_new[58] = t132;
-    P_new[59] = t133;
-    P_new[60] = t134;
-    P_new[61] = t135;
-    P_new[62] = t136;
-    P_new[63] = t137;
-    P_new[64] = t138;
-    P_new[65] = t139;
-    P_new[66] = t140;
-    P_new[67] = t141;
-    P_new[68] = t142;
-    P_new[69] = t143;
-    P_new[70] = t144;
-    P_new[71] = t145;
-    P_new[72] = t80;
     P_new[73] = t103;
     P_new[74] = t125;
     P_new[75] = t146;
-    P_new[76] = t147;
-    P_new[77] = t148;
-    P_new[78] = t149;
-    P_new[79] = t150;
-    P_new[80] = t151;
-    P_new[81] = t152;
-    P_new[82] = t153;
-    P_new[83] = t154;
-    P_new[84] = t155;
-    P_new[85] = t156;
-    P_new[86] = t157;
-    P_new[87] = t158;
-    P_new[88] = t159;
-    P_new[89] = t160;
-    P_new[90] = t161;
-    P_new[91] = t162;
-    P_new[92] = t163;
-    P_new[93] = t164;
-    P_new[94] = t165;
-    P_new[95] = t166;
-    P_new[96] = t81;
-    P_new[97] = t104;
-    P_new[98] = t126;
-    P_new[99] = t147;
-    P_new[100] = t167;
-    P_new[101] = t168;
-    P_new[102] = t169;
-    P_new[103] = t170;
-    P_new[104] = t171;
-    P_new[105] = t172;
-    P_new[106] = t173;
-    P_new[107] = t174;
-    P_new[108] = t175;
-    P_new[109] = t176;
-    P_new[110] = t177;
-    P_new[111] = t178;
-    P_new[112] = t179;
-    P_new[113] = t180;
-    P_new[114] = t181;
-    P_new[115] = t182;
-    P_new[116] = t183;
-    P_new[117] = t184;
-    P_new[118] = t185;
-    P_new[119] = t186;
-    P_new[120] = t82;
-    P_new[121] = t105;
-    P_new[122] = t127;
-    P_new[123] = t148;
-    P_new[124] = t168;
     P_new[125] = t187;
     P_new[126] = t188;
     P_new[127] = t189;
-    P_new[128] = t190;
-    P_new[129] = t191;
-    P_new[130] = t192;
-    P_new[131] = t193;
-    P_new[132] = t194;
-    P_new[133] = t195;
-    P_new[134] = t196;
-    P_new[135] = t197;
-    P_new[136] = t198;
-    P_new[137] = t199;
-    P_new[138] = t200;
-    P_new[139] = t201;
-    P_new[140] = t202;
-    P_new[141] = t203;
-    P_new[142] = t204;
-    P_new[143] = t205;
-    P_new[144] = t83;
-    P_new[145] = t106;
-    P_new[146] = t128;
-    P_new[147] = t149;
-    P_new[148] = t169;
     P_new[149] = t188;
     P_new[150] = t206;
     P_new[151] = t207;
-    P_new[152] = t208;
-    P_new[153] = t209;
-    P_new[154] = t210;
-    P_new[155] = t211;
-    P_new[156] = t212;
-    P_new[157] = t213;
-    P_new[158] = t214;
-    P_new[159] = t215;
-    P_new[160] = t216;
-    P_new[161] = t217;
-    P_new[162] = t218;
-    P_new[163] = t219;
-    P_new[164] = t220;
-    P_new[165] = t221;
-    P_new[166] = t222;
-    P_new[167] = t223;
-    P_new[168] = t84;
-    P_new[169] = t107;
-    P_new[170] = t129;
-    P_new[171] = t150;
-    P_new[172] = t170;
     P_new[173] = t189;
     P_new[174] = t207;
     P_new[175] = t224;
-    P_new[176] = t225;
-    P_new[177] = t226;
-    P_new[178] = t227;
-    P_new[179] = t228;
-    P_new[180] = t229;
-    P_new[181] = t230;
-    P_new[182] = t231;
-    P_new[183] = t232;
-    P_new[184] = t233;
-    P_new[185] = t234;
-    P_new[186] = t235;
-    P_new[187] = t236;
-    P_new[188] = t237;
-    P_new[189] = t238;
-    P_new[190] = t239;
-    P_new[191] = t240;
-    P_new[192] = t85;
-    P_new[193] = t108;
-    P_new[194] = t130;
-    P_new[195] = t151;
-    P_new[196] = t171;
-    P_new[197] = t190;
-    P_new[198] = t208;
-    P_new[199] = t225;
-    P_new[200] = t241;
-    P_new[201] = t242;
-    P_new[202] = t243;
-    P_new[203] = t244;
-    P_new[204] = t245;
-    P_new[205] = t246;
-    P_new[206] = t247;
-    P_new[207] = t248;
-    P_new[208] = t249;
-    P_new[209] = t250;
-    P_new[210] = t251;
-    P_new[211] = t252;
-    P_new[212] = t253;
-    P_new[213] = t254;
-    P_new[214] = t255;
-    P_new[215] = t256;
-    P_new[216] = t86;
-    P_new[217] = t109;
-    P_new[218] = t131;
-    P_new[219] = t152;
-    P_new[220] = t172;
-    P_new[221] = t191;
-    P_new[222] = t209;
-    P_new[223] = t226;
-    P_new[224] = t242;
     P_new[225] = t257;
     P_new[226] = t258;
     P_new[227] = t259;
-    P_new[228] = t260;
-    P_new[229] = t261;
-    P_new[230] = t262;
-    P_new[231] = t263;
-    P_new[232] = t264;
-    P_new[233] = t265;
-    P_new[234] = t266;
-    P_new[235] = t267;
-    P_new[236] = t268;
-    P_new[237] = t269;
-    P_new[238] = t270;
-    P_new[239] = t271;
-    P_new[240] = t87;
-    P_new[241] = t110;
-    P_new[242] = t132;
-    P_new[243] = t153;
-    P_new[244] = t173;
-    P_new[245] = t192;
-    P_new[246] = t210;
-    P_new[247] = t227;
-    P_new[248] = t243;
     P_new[249] = t258;
     P_new[250] = t272;
     P_new[251] = t273;
-    P_new[252] = t274;
-    P_new[253] = t275;
-    P_new[254] = t276;
-    P_new[255] = t277;
-    P_new[256] = t278;
-    P_new[257] = t279;
-    P_new[258] = t280;
-    P_new[259] = t281;
-    P_new[260] = t282;
-    P_new[261] = t283;
-    P_new[262] = t284;
-    P_new[263] = t285;
-    P_new[264] = t88;
-    P_new[265] = t111;
-    P_new[266] = t133;
-    P_new[267] = t154;
-    P_new[268] = t174;
-    P_new[269] = t193;
-    P_new[270] = t211;
-    P_new[271] = t228;
-    P_new[272] = t244;
     P_new[273] = t259;
     P_new[274] = t273;
     P_new[275] = t286;
-    P_new[276] = t287;
-    P_new[277] = t288;
-    P_new[278] = t289;
-    P_new[279] = t290;
-    P_new[280] = t291;
-    P_new[281] = t292;
-    P_new[282] = t293;
-    P_new[283] = t294;
-    P_new[284] = t295;
-    P_new[285] = t296;
-    P_new[286] = t297;
-    P_new[287] = t298;
-    P_new[288] = t89;
-    P_new[289] = t112;
-    P_new[290] = t134;
-    P_new[291] = t155;
-    P_new[292] = t175;
-    P_new[293] = t194;
-    P_new[294] = t212;
-    P_new[295] = t229;
-    P_new[296] = t245;
-    P_new[297] = t260;
-    P_new[298] = t274;
-    P_new[299] = t287;
-    P_new[300] = t299;
-    P_new[301] = t300;
-    P_new[302] = t301;
-    P_new[303] = t302;
-    P_new[304] = t303;
-    P_new[305] = t304;
-    P_new[306] = t305;
-    P_new[307] = t306;
-    P_new[308] = t307;
-    P_new[309] = t308;
-    P_new[310] = t309;
-    P_new[311] = t310;
-    P_new[312] = t90;
-    P_new[313] = t113;
-    P_new[314] = t135;
-    P_new[315] = t156;
-    P_new[316] = t176;
-    P_new[317] = t195;
-    P_new[318] = t213;
-    P_new[319] = t230;
-    P_new[320] = t246;
-    P_new[321] = t261;
-    P_new[322] = t275;
-    P_new[323] = t288;
-    P_new[324] = t300;
     P_new[325] = t311;
     P_new[326] = t312;
     P_new[327] = t313;
-    P_new[328] = t314;
-    P_new[329] = t315;
-    P_new[330] = t316;
-    P_new[331] = t317;
-    P_new[332] = t318;
-    P_new[333] = t319;
-    P_new[334] = t320;
-    P_new[335] = t321;
-    P_new[336] = t91;
-    P_new[337] = t114;
-    P_new[338] = t136;
-    P_new[339] = t157;
-    P_new[340] = t177;
-    P_new[341] = t196;
-    P_new[342] = t214;
-    P_new[343] = t231;
-    P_new[344] = t247;
-    P_new[345] = t262;
-    P_new[346] = t276;
-    P_new[347] = t289;
-    P_new[348] = t301;
     P_new[349] = t312;
     P_new[350] = t322;
     P_new[351] = t323;
-    P_new[352] = t324;
-    P_new[353] = t325;
-    P_new[354] = t326;
-    P_new[355] = t327;
-    P_new[356] = t328;
-    P_new[357] = t329;
-    P_new[358] = t330;
-    P_new[359] = t331;
-    P_new[360] = t92;
-    P_new[361] = t115;
-    P_new[362] = t137;
-    P_new[363] = t158;
-    P_new[364] = t178;
-    P_new[365] = t197;
-    P_new[366] = t215;
-    P_new[367] = t232;
-    P_new[368] = t248;
-    P_new[369] = t263;
-    P_new[370] = t277;
-    P_new[371] = t290;
-    P_new[372] = t302;
     P_new[373] = t313;
     P_new[374] = t323;
     P_new[375] = t332;
-    P_new[376] = t333;
-    P_new[377] = t334;
-    P_new[378] = t335;
-    P_new[379] = t336;
-    P_new[380] = t337;
-    P_new[381] = t338;
-    P_new[382] = t339;
-    P_new[383] = t340;
-    P_new[384] = t93;
-    P_new[385] = t116;
-    P_new[386] = t138;
-    P_new[387] = t159;
-    P_new[388] = t179;
-    P_new[389] = t198;
-    P_new[390] = t216;
-    P_new[391] = t233;
-    P_new[392] = t249;
-    P_new[393] = t264;
-    P_new[394] = t278;
-    P_new[395] = t291;
-    P_new[396] = t303;
-    P_new[397] = t314;
-    P_new[398] = t324;
-    P_new[399] = t333;
-    P_new[400] = t341;
-    P_new[401] = t342;
-    P_new[402] = t343;
-    P_new[403] = t344;
-    P_new[404] = t345;
-    P_new[405] = t346;
-    P_new[406] = t347;
-    P_new[407] = t348;
-    P_new[408] = t94;
-    P_new[409] = t117;
-    P_new[410] = t139;
-    P_new[411] = t160;
-    P_new[412] = t180;
-    P_new[413] = t199;
-    P_new[414] = t217;
-    P_new[415] = t234;
-    P_new[416] = t250;
-    P_new[417] = t265;
-    P_new[418] = t279;
-    P_new[419] = t292;
-    P_new[420] = t304;
-    P_new[421] = t315;
-    P_new[422] = t325;
-    P_new[423] = t334;
-    P_new[424] = t342;
     P_new[425] = t349;
     P_new[426] = t350;
     P_new[427] = t351;
-    P_new[428] = t352;
-    P_new[429] = t353;
-    P_new[430] = t354;
-    P_new[431] = t355;
-    P_new[432] = t95;
-    P_new[433] = t118;
-    P_new[434] = t140;
-    P_new[435] = t161;
-    P_new[436] = t181;
-    P_new[437] = t200;
-    P_new[438] = t218;
-    P_new[439] = t235;
-    P_new[440] = t251;
-    P_new[441] = t266;
-    P_new[442] = t280;
-    P_new[443] = t293;
-    P_new[444] = t305;
-    P_new[445] = t316;
-    P_new[446] = t326;
-    P_new[447] = t335;
-    P_new[448] = t343;
     P_new[449] = t350;
     P_new[450] = t356;
     P_new[451] = t357;
-    P_new[452] = t358;
-    P_new[453] = t359;
-    P_new[454] = t360;
-    P_new[455] = t361;
-    P_new[456] = t96;
-    P_new[457] = t119;
-    P_new[458] = t141;
-    P_new[459] = t162;
-    P_new[460] = t182;
-    P_new[461] = t201;
-    P_new[462] = t219;
-    P_new[463] = t236;
-    P_new[464] = t252;
-    P_new[465] = t267;
-    P_new[466] = t281;
-    P_new[467] = t294;
-    P_new[468] = t306;
-    P_new[469] = t317;
-    P_new[470] = t327;
-    P_new[471] = t336;
-    P_new[472] = t344;
     P_new[473] = t351;
     P_new[474] = t357;
     P_new[475] = t362;
-    P_new[476] = t363;
-    P_new[477] = t364;
-    P_new[478] = t365;
-    P_new[479] = t366;
-    P_new[480] = t97;
-    P_new[481] = t120;
-    P_new[482] = t142;
-    P_new[483] = t163;
-    P_new[484] = t183;
-    P_new[485] = t202;
-    P_new[486] = t220;
-    P_new[487] = t237;
-    P_new[488] = t253;
-    P_new[489] = t268;
-    P_new[490] = t282;
-    P_new[491] = t295;
-    P_new[492] = t307;
-    P_new[493] = t318;
-    P_new[494] = t328;
-    P_new[495] = t337;
-    P_new[496] = t345;
-    P_new[497] = t352;
-    P_new[498] = t358;
-    P_new[499] = t363;
-    P_new[500] = t367;
-    P_new[501] = t368;
-    P_new[502] = t369;
-    P_new[503] = t370;
-    P_new[504] = t98;
-    P_new[505] = t121;
-    P_new[506] = t143;
-    P_new[507] = t164;
-    P_new[508] = t184;
-    P_new[509] = t203;
-    P_new[510] = t221;
-    P_new[511] = t238;
-    P_new[512] = t254;
-    P_new[513] = t269;
-    P_new[514] = t283;
-    P_new[515] = t296;
-    P_new[516] = t308;
-    P_new[517] = t319;
-    P_new[518] = t329;
-    P_new[519] = t338;
-    P_new[520] = t346;
-    P_new[521] = t353;
-    P_new[522] = t359;
-    P_new[523] = t364;
-    P_new[524] = t368;
     P_new[525] = t371;
     P_new[526] = t372;
     P_new[527] = t373;
-    P_new[528] = t99;
-    P_new[529] = t122;
-    P_new[530] = t144;
-    P_new[531] = t165;
-    P_new[532] = t185;
-    P_new[533] = t204;
-    P_new[534] = t222;
-    P_new[535] = t239;
-    P_new[536] = t255;
-    P_new[537] = t270;
-    P_new[538] = t284;
-    P_new[539] = t297;
-    P_new[540] = t309;
-    P_new[541] = t320;
-    P_new[542] = t330;
-    P_new[543] = t339;
-    P_new[544] = t347;
-    P_new[545] = t354;
-    P_new[546] = t360;
-    P_new[547] = t365;
-    P_new[548] = t369;
     P_new[549] = t372;
     P_new[550] = t374;
     P_new[551] = t375;
-    P_new[552] = t100;
-    P_new[553] = t123;
-    P_new[554] = t145;
-    P_new[555] = t166;
-    P_new[556] = t186;
-    P_new[557] = t205;
-    P_new[558] = t223;
-    P_new[559] = t240;
-    P_new[560] = t256;
-    P_new[561] = t271;
-    P_new[562] = t285;
-    P_new[563] = t298;
-    P_new[564] = t310;
-    P_new[565] = t321;
-    P_new[566] = t331;
-    P_new[567] = t340;
-    P_new[568] = t348;
-    P_new[569] = t355;
-    P_new[570] = t361;
-    P_new[571] = t366;
-    P_new[572] = t370;
     P_new[573] = t373;
     P_new[574] = t375;
     P_new[575] = t376;
@@ -7552,6 +7552,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t270 = DERIVE_FNMA(t144, t174, DERIVE_FNMA(t141, t150, DERIVE_FNMA(t136, t57, x[5])));
     const double t271 = DERIVE_FNMA(t144, t175, DERIVE_FNMA(t141, t151, DERIVE_FNMA(t136, t58, x[6])));
     const double t272 = DERIVE_FNMA(t144, t176, DERIVE_FNMA(t141, t152, DERIVE_FNMA(t136, t59, x[7])));
+    x_new[4] = t269;
+    x_new[5] = t270;
+    x_new[6] = t271;
+    x_new[7] = t272;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t273_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t60, ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -7563,6 +7567,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t274 = DERIVE_FNMA(t144, t178, DERIVE_FNMA(t141, t154, DERIVE_FNMA(t136, t61, x[9])));
     const double t275 = DERIVE_FNMA(t144, t179, DERIVE_FNMA(t141, t155, DERIVE_FNMA(t136, t62, x[10])));
     const double t276 = DERIVE_FNMA(t144, t180, DERIVE_FNMA(t141, t156, DERIVE_FNMA(t136, t63, x[11])));
+    x_new[8] = t273;
+    x_new[9] = t274;
+    x_new[10] = t275;
+    x_new[11] = t276;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t277_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t64, ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -7574,6 +7582,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t278 = DERIVE_FNMA(t144, t182, DERIVE_FNMA(t141, t158, DERIVE_FNMA(t136, t65, x[13])));
     const double t279 = DERIVE_FNMA(t144, t183, DERIVE_FNMA(t141, t159, DERIVE_FNMA(t136, t66, x[14])));
     const double t280 = DERIVE_FNMA(t144, t184, DERIVE_FNMA(t141, t160, DERIVE_FNMA(t136, t67, x[15])));
+    x_new[12] = t277;
+    x_new[13] = t278;
+    x_new[14] = t279;
+    x_new[15] = t280;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t281_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t68, ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -7585,6 +7597,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t282 = DERIVE_FNMA(t144, t186, DERIVE_FNMA(t141, t162, DERIVE_FNMA(t136, t69, x[17])));
     const double t283 = DERIVE_FNMA(t144, t187, DERIVE_FNMA(t141, t163, DERIVE_FNMA(t136, t70, x[18])));
     const double t284 = DERIVE_FNMA(t144, t188, DERIVE_FNMA(t141, t164, DERIVE_FNMA(t136, t71, x[19])));
+    x_new[16] = t281;
+    x_new[17] = t282;
+    x_new[18] = t283;
+    x_new[19] = t284;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t285_0 = DERIVE_VFNMA(((derive_vd){t136, t136, t136, t136}), v_t72, ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -7596,6 +7612,10 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t286 = DERIVE_FNMA(t144, t190, DERIVE_FNMA(t141, t166, DERIVE_FNMA(t136, t73, x[21])));
     const double t287 = DERIVE_FNMA(t144, t191, DERIVE_FNMA(t141, t167, DERIVE_FNMA(t136, t74, x[22])));
     const double t288 = DERIVE_FNMA(t144, t192, DERIVE_FNMA(t141, t168, DERIVE_FNMA(t136, t75, x[23])));
+    x_new[20] = t285;
+    x_new[21] = t286;
+    x_new[22] = t287;
+    x_new[23] = t288;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t289_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t52, ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -7610,6 +7630,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t290 = DERIVE_FMA(t241, t170, DERIVE_FMA(t217, t146, DERIVE_FMA(t193, t53, P[1])));
     const double t291 = DERIVE_FMA(t241, t171, DERIVE_FMA(t217, t147, DERIVE_FMA(t193, t54, P[2])));
     const double t292 = DERIVE_FMA(t241, t172, DERIVE_FMA(t217, t148, DERIVE_FMA(t193, t55, P[3])));
+    P_new[0] = t289;
+    P_new[1] = t290;
+    P_new[24] = t290;
+    P_new[2] = t291;
+    P_new[48] = t291;
+    P_new[3] = t292;
+    P_new[72] = t292;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t293_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t56, ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -7620,6 +7647,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t294 = DERIVE_FMA(t241, t174, DERIVE_FMA(t217, t150, DERIVE_FMA(t193, t57, P[5])));
     const double t295 = DERIVE_FMA(t241, t175, DERIVE_FMA(t217, t151, DERIVE_FMA(t193, t58, P[6])));
     const double t296 = DERIVE_FMA(t241, t176, DERIVE_FMA(t217, t152, DERIVE_FMA(t193, t59, P[7])));
+    P_new[4] = t293;
+    P_new[96] = t293;
+    P_new[5] = t294;
+    P_new[120] = t294;
+    P_new[6] = t295;
+    P_new[144] = t295;
+    P_new[7] = t296;
+    P_new[168] = t296;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t297_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t60, ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -7630,6 +7665,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t298 = DERIVE_FMA(t241, t178, DERIVE_FMA(t217, t154, DERIVE_FMA(t193, t61, P[9])));
     const double t299 = DERIVE_FMA(t241, t179, DERIVE_FMA(t217, t155, DERIVE_FMA(t193, t62, P[10])));
     const double t300 = DERIVE_FMA(t241, t180, DERIVE_FMA(t217, t156, DERIVE_FMA(t193, t63, P[11])));
+    P_new[8] = t297;
+    P_new[192] = t297;
+    P_new[9] = t298;
+    P_new[216] = t298;
+    P_new[10] = t299;
+    P_new[240] = t299;
+    P_new[11] = t300;
+    P_new[264] = t300;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t301_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t64, ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -7640,6 +7683,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t302 = DERIVE_FMA(t241, t182, DERIVE_FMA(t217, t158, DERIVE_FMA(t193, t65, P[13])));
     const double t303 = DERIVE_FMA(t241, t183, DERIVE_FMA(t217, t159, DERIVE_FMA(t193, t66, P[14])));
     const double t304 = DERIVE_FMA(t241, t184, DERIVE_FMA(t217, t160, DERIVE_FMA(t193, t67, P[15])));
+    P_new[12] = t301;
+    P_new[288] = t301;
+    P_new[13] = t302;
+    P_new[312] = t302;
+    P_new[14] = t303;
+    P_new[336] = t303;
+    P_new[15] = t304;
+    P_new[360] = t304;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t305_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t68, ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -7650,6 +7701,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t306 = DERIVE_FMA(t241, t186, DERIVE_FMA(t217, t162, DERIVE_FMA(t193, t69, P[17])));
     const double t307 = DERIVE_FMA(t241, t187, DERIVE_FMA(t217, t163, DERIVE_FMA(t193, t70, P[18])));
     const double t308 = DERIVE_FMA(t241, t188, DERIVE_FMA(t217, t164, DERIVE_FMA(t193, t71, P[19])));
+    P_new[16] = t305;
+    P_new[384] = t305;
+    P_new[17] = t306;
+    P_new[408] = t306;
+    P_new[18] = t307;
+    P_new[432] = t307;
+    P_new[19] = t308;
+    P_new[456] = t308;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t309_0 = DERIVE_VFMA(((derive_vd){t193, t193, t193, t193}), v_t72, ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -7660,6 +7719,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t310 = DERIVE_FMA(t241, t190, DERIVE_FMA(t217, t166, DERIVE_FMA(t193, t73, P[21])));
     const double t311 = DERIVE_FMA(t241, t191, DERIVE_FMA(t217, t167, DERIVE_FMA(t193, t74, P[22])));
     const double t312 = DERIVE_FMA(t241, t192, DERIVE_FMA(t217, t168, DERIVE_FMA(t193, t75, P[23])));
+    P_new[20] = t309;
+    P_new[480] = t309;
+    P_new[21] = t310;
+    P_new[504] = t310;
+    P_new[22] = t311;
+    P_new[528] = t311;
+    P_new[23] = t312;
+    P_new[552] = t312;
     #endif
     const double t313 = DERIVE_FMA(t194, t53, DERIVE_FMA(t170, t242, DERIVE_FMA(t146, t218, P[25])));
     const double t314 = DERIVE_FMA(t194, t54, DERIVE_FMA(t171, t242, DERIVE_FMA(t147, t218, P[26])));
@@ -7673,6 +7740,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t317 = DERIVE_FMA(t242, t174, DERIVE_FMA(t218, t150, DERIVE_FMA(t194, t57, P[29])));
     const double t318 = DERIVE_FMA(t242, t175, DERIVE_FMA(t218, t151, DERIVE_FMA(t194, t58, P[30])));
     const double t319 = DERIVE_FMA(t242, t176, DERIVE_FMA(t218, t152, DERIVE_FMA(t194, t59, P[31])));
+    P_new[28] = t316;
+    P_new[97] = t316;
+    P_new[29] = t317;
+    P_new[121] = t317;
+    P_new[30] = t318;
+    P_new[145] = t318;
+    P_new[31] = t319;
+    P_new[169] = t319;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t320_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t60, ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -7683,6 +7758,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t321 = DERIVE_FMA(t242, t178, DERIVE_FMA(t218, t154, DERIVE_FMA(t194, t61, P[33])));
     const double t322 = DERIVE_FMA(t242, t179, DERIVE_FMA(t218, t155, DERIVE_FMA(t194, t62, P[34])));
     const double t323 = DERIVE_FMA(t242, t180, DERIVE_FMA(t218, t156, DERIVE_FMA(t194, t63, P[35])));
+    P_new[32] = t320;
+    P_new[193] = t320;
+    P_new[33] = t321;
+    P_new[217] = t321;
+    P_new[34] = t322;
+    P_new[241] = t322;
+    P_new[35] = t323;
+    P_new[265] = t323;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t324_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t64, ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -7693,6 +7776,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t325 = DERIVE_FMA(t242, t182, DERIVE_FMA(t218, t158, DERIVE_FMA(t194, t65, P[37])));
     const double t326 = DERIVE_FMA(t242, t183, DERIVE_FMA(t218, t159, DERIVE_FMA(t194, t66, P[38])));
     const double t327 = DERIVE_FMA(t242, t184, DERIVE_FMA(t218, t160, DERIVE_FMA(t194, t67, P[39])));
+    P_new[36] = t324;
+    P_new[289] = t324;
+    P_new[37] = t325;
+    P_new[313] = t325;
+    P_new[38] = t326;
+    P_new[337] = t326;
+    P_new[39] = t327;
+    P_new[361] = t327;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t328_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t68, ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -7703,6 +7794,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t329 = DERIVE_FMA(t242, t186, DERIVE_FMA(t218, t162, DERIVE_FMA(t194, t69, P[41])));
     const double t330 = DERIVE_FMA(t242, t187, DERIVE_FMA(t218, t163, DERIVE_FMA(t194, t70, P[42])));
     const double t331 = DERIVE_FMA(t242, t188, DERIVE_FMA(t218, t164, DERIVE_FMA(t194, t71, P[43])));
+    P_new[40] = t328;
+    P_new[385] = t328;
+    P_new[41] = t329;
+    P_new[409] = t329;
+    P_new[42] = t330;
+    P_new[433] = t330;
+    P_new[43] = t331;
+    P_new[457] = t331;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t332_0 = DERIVE_VFMA(((derive_vd){t194, t194, t194, t194}), v_t72, ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -7713,6 +7812,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t333 = DERIVE_FMA(t242, t190, DERIVE_FMA(t218, t166, DERIVE_FMA(t194, t73, P[45])));
     const double t334 = DERIVE_FMA(t242, t191, DERIVE_FMA(t218, t167, DERIVE_FMA(t194, t74, P[46])));
     const double t335 = DERIVE_FMA(t242, t192, DERIVE_FMA(t218, t168, DERIVE_FMA(t194, t75, P[47])));
+    P_new[44] = t332;
+    P_new[481] = t332;
+    P_new[45] = t333;
+    P_new[505] = t333;
+    P_new[46] = t334;
+    P_new[529] = t334;
+    P_new[47] = t335;
+    P_new[553] = t335;
     #endif
     const double t336 = DERIVE_FMA(t195, t54, DERIVE_FMA(t171, t243, DERIVE_FMA(t147, t219, P[50])));
     const double t337 = DERIVE_FMA(t195, t55, DERIVE_FMA(t172, t243, DERIVE_FMA(t148, t219, P[51])));
@@ -7725,6 +7832,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t339 = DERIVE_FMA(t243, t174, DERIVE_FMA(t219, t150, DERIVE_FMA(t195, t57, P[53])));
     const double t340 = DERIVE_FMA(t243, t175, DERIVE_FMA(t219, t151, DERIVE_FMA(t195, t58, P[54])));
     const double t341 = DERIVE_FMA(t243, t176, DERIVE_FMA(t219, t152, DERIVE_FMA(t195, t59, P[55])));
+    P_new[52] = t338;
+    P_new[98] = t338;
+    P_new[53] = t339;
+    P_new[122] = t339;
+    P_new[54] = t340;
+    P_new[146] = t340;
+    P_new[55] = t341;
+    P_new[170] = t341;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t342_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t60, ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -7735,6 +7850,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t343 = DERIVE_FMA(t243, t178, DERIVE_FMA(t219, t154, DERIVE_FMA(t195, t61, P[57])));
     const double t344 = DERIVE_FMA(t243, t179, DERIVE_FMA(t219, t155, DERIVE_FMA(t195, t62, P[58])));
     const double t345 = DERIVE_FMA(t243, t180, DERIVE_FMA(t219, t156, DERIVE_FMA(t195, t63, P[59])));
+    P_new[56] = t342;
+    P_new[194] = t342;
+    P_new[57] = t343;
+    P_new[218] = t343;
+    P_new[58] = t344;
+    P_new[242] = t344;
+    P_new[59] = t345;
+    P_new[266] = t345;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t346_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t64, ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -7745,6 +7868,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t347 = DERIVE_FMA(t243, t182, DERIVE_FMA(t219, t158, DERIVE_FMA(t195, t65, P[61])));
     const double t348 = DERIVE_FMA(t243, t183, DERIVE_FMA(t219, t159, DERIVE_FMA(t195, t66, P[62])));
     const double t349 = DERIVE_FMA(t243, t184, DERIVE_FMA(t219, t160, DERIVE_FMA(t195, t67, P[63])));
+    P_new[60] = t346;
+    P_new[290] = t346;
+    P_new[61] = t347;
+    P_new[314] = t347;
+    P_new[62] = t348;
+    P_new[338] = t348;
+    P_new[63] = t349;
+    P_new[362] = t349;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t350_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t68, ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -7755,6 +7886,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t351 = DERIVE_FMA(t243, t186, DERIVE_FMA(t219, t162, DERIVE_FMA(t195, t69, P[65])));
     const double t352 = DERIVE_FMA(t243, t187, DERIVE_FMA(t219, t163, DERIVE_FMA(t195, t70, P[66])));
     const double t353 = DERIVE_FMA(t243, t188, DERIVE_FMA(t219, t164, DERIVE_FMA(t195, t71, P[67])));
+    P_new[64] = t350;
+    P_new[386] = t350;
+    P_new[65] = t351;
+    P_new[410] = t351;
+    P_new[66] = t352;
+    P_new[434] = t352;
+    P_new[67] = t353;
+    P_new[458] = t353;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t354_0 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t72, ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -7765,6 +7904,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t355 = DERIVE_FMA(t243, t190, DERIVE_FMA(t219, t166, DERIVE_FMA(t195, t73, P[69])));
     const double t356 = DERIVE_FMA(t243, t191, DERIVE_FMA(t219, t167, DERIVE_FMA(t195, t74, P[70])));
     const double t357 = DERIVE_FMA(t243, t192, DERIVE_FMA(t219, t168, DERIVE_FMA(t195, t75, P[71])));
+    P_new[68] = t354;
+    P_new[482] = t354;
+    P_new[69] = t355;
+    P_new[506] = t355;
+    P_new[70] = t356;
+    P_new[530] = t356;
+    P_new[71] = t357;
+    P_new[554] = t357;
     #endif
     const double t358 = DERIVE_FMA(t196, t55, DERIVE_FMA(t172, t244, DERIVE_FMA(t148, t220, P[75])));
     #if DERIVE_VECTOR
@@ -7792,6 +7939,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t360 = DERIVE_FMA(t244, t174, DERIVE_FMA(t220, t150, DERIVE_FMA(t196, t57, P[77])));
     const double t361 = DERIVE_FMA(t244, t175, DERIVE_FMA(t220, t151, DERIVE_FMA(t196, t58, P[78])));
     const double t362 = DERIVE_FMA(t244, t176, DERIVE_FMA(t220, t152, DERIVE_FMA(t196, t59, P[79])));
+    P_new[76] = t359;
+    P_new[99] = t359;
+    P_new[77] = t360;
+    P_new[123] = t360;
+    P_new[78] = t361;
+    P_new[147] = t361;
+    P_new[79] = t362;
+    P_new[171] = t362;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t60, ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -7818,6 +7973,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t364 = DERIVE_FMA(t244, t178, DERIVE_FMA(t220, t154, DERIVE_FMA(t196, t61, P[81])));
     const double t365 = DERIVE_FMA(t244, t179, DERIVE_FMA(t220, t155, DERIVE_FMA(t196, t62, P[82])));
     const double t366 = DERIVE_FMA(t244, t180, DERIVE_FMA(t220, t156, DERIVE_FMA(t196, t63, P[83])));
+    P_new[80] = t363;
+    P_new[195] = t363;
+    P_new[81] = t364;
+    P_new[219] = t364;
+    P_new[82] = t365;
+    P_new[243] = t365;
+    P_new[83] = t366;
+    P_new[267] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t64, ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -7844,6 +8007,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t368 = DERIVE_FMA(t244, t182, DERIVE_FMA(t220, t158, DERIVE_FMA(t196, t65, P[85])));
     const double t369 = DERIVE_FMA(t244, t183, DERIVE_FMA(t220, t159, DERIVE_FMA(t196, t66, P[86])));
     const double t370 = DERIVE_FMA(t244, t184, DERIVE_FMA(t220, t160, DERIVE_FMA(t196, t67, P[87])));
+    P_new[84] = t367;
+    P_new[291] = t367;
+    P_new[85] = t368;
+    P_new[315] = t368;
+    P_new[86] = t369;
+    P_new[339] = t369;
+    P_new[87] = t370;
+    P_new[363] = t370;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t68, ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -7870,6 +8041,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t372 = DERIVE_FMA(t244, t186, DERIVE_FMA(t220, t162, DERIVE_FMA(t196, t69, P[89])));
     const double t373 = DERIVE_FMA(t244, t187, DERIVE_FMA(t220, t163, DERIVE_FMA(t196, t70, P[90])));
     const double t374 = DERIVE_FMA(t244, t188, DERIVE_FMA(t220, t164, DERIVE_FMA(t196, t71, P[91])));
+    P_new[88] = t371;
+    P_new[387] = t371;
+    P_new[89] = t372;
+    P_new[411] = t372;
+    P_new[90] = t373;
+    P_new[435] = t373;
+    P_new[91] = t374;
+    P_new[459] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t72, ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -7896,6 +8075,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t376 = DERIVE_FMA(t244, t190, DERIVE_FMA(t220, t166, DERIVE_FMA(t196, t73, P[93])));
     const double t377 = DERIVE_FMA(t244, t191, DERIVE_FMA(t220, t167, DERIVE_FMA(t196, t74, P[94])));
     const double t378 = DERIVE_FMA(t244, t192, DERIVE_FMA(t220, t168, DERIVE_FMA(t196, t75, P[95])));
+    P_new[92] = t375;
+    P_new[483] = t375;
+    P_new[93] = t376;
+    P_new[507] = t376;
+    P_new[94] = t377;
+    P_new[531] = t377;
+    P_new[95] = t378;
+    P_new[555] = t378;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t379_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t56, ((derive_vd){P[100], P[101], P[102], P[103]}));
@@ -7910,6 +8097,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t380 = DERIVE_FMA(t245, t174, DERIVE_FMA(t221, t150, DERIVE_FMA(t197, t57, P[101])));
     const double t381 = DERIVE_FMA(t245, t175, DERIVE_FMA(t221, t151, DERIVE_FMA(t197, t58, P[102])));
     const double t382 = DERIVE_FMA(t245, t176, DERIVE_FMA(t221, t152, DERIVE_FMA(t197, t59, P[103])));
+    P_new[100] = t379;
+    P_new[101] = t380;
+    P_new[124] = t380;
+    P_new[102] = t381;
+    P_new[148] = t381;
+    P_new[103] = t382;
+    P_new[172] = t382;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t383_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t60, ((derive_vd){P[104], P[105], P[106], P[107]}));
@@ -7920,6 +8114,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t384 = DERIVE_FMA(t245, t178, DERIVE_FMA(t221, t154, DERIVE_FMA(t197, t61, P[105])));
     const double t385 = DERIVE_FMA(t245, t179, DERIVE_FMA(t221, t155, DERIVE_FMA(t197, t62, P[106])));
     const double t386 = DERIVE_FMA(t245, t180, DERIVE_FMA(t221, t156, DERIVE_FMA(t197, t63, P[107])));
+    P_new[104] = t383;
+    P_new[196] = t383;
+    P_new[105] = t384;
+    P_new[220] = t384;
+    P_new[106] = t385;
+    P_new[244] = t385;
+    P_new[107] = t386;
+    P_new[268] = t386;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t387_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t64, ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -7930,6 +8132,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t388 = DERIVE_FMA(t245, t182, DERIVE_FMA(t221, t158, DERIVE_FMA(t197, t65, P[109])));
     const double t389 = DERIVE_FMA(t245, t183, DERIVE_FMA(t221, t159, DERIVE_FMA(t197, t66, P[110])));
     const double t390 = DERIVE_FMA(t245, t184, DERIVE_FMA(t221, t160, DERIVE_FMA(t197, t67, P[111])));
+    P_new[108] = t387;
+    P_new[292] = t387;
+    P_new[109] = t388;
+    P_new[316] = t388;
+    P_new[110] = t389;
+    P_new[340] = t389;
+    P_new[111] = t390;
+    P_new[364] = t390;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t391_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t68, ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -7940,6 +8150,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t392 = DERIVE_FMA(t245, t186, DERIVE_FMA(t221, t162, DERIVE_FMA(t197, t69, P[113])));
     const double t393 = DERIVE_FMA(t245, t187, DERIVE_FMA(t221, t163, DERIVE_FMA(t197, t70, P[114])));
     const double t394 = DERIVE_FMA(t245, t188, DERIVE_FMA(t221, t164, DERIVE_FMA(t197, t71, P[115])));
+    P_new[112] = t391;
+    P_new[388] = t391;
+    P_new[113] = t392;
+    P_new[412] = t392;
+    P_new[114] = t393;
+    P_new[436] = t393;
+    P_new[115] = t394;
+    P_new[460] = t394;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t395_0 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t72, ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -7950,6 +8168,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t396 = DERIVE_FMA(t245, t190, DERIVE_FMA(t221, t166, DERIVE_FMA(t197, t73, P[117])));
     const double t397 = DERIVE_FMA(t245, t191, DERIVE_FMA(t221, t167, DERIVE_FMA(t197, t74, P[118])));
     const double t398 = DERIVE_FMA(t245, t192, DERIVE_FMA(t221, t168, DERIVE_FMA(t197, t75, P[119])));
+    P_new[116] = t395;
+    P_new[484] = t395;
+    P_new[117] = t396;
+    P_new[508] = t396;
+    P_new[118] = t397;
+    P_new[532] = t397;
+    P_new[119] = t398;
+    P_new[556] = t398;
     #endif
     const double t399 = DERIVE_FMA(t198, t57, DERIVE_FMA(t174, t246, DERIVE_FMA(t150, t222, P[125])));
     const double t400 = DERIVE_FMA(t198, t58, DERIVE_FMA(t175, t246, DERIVE_FMA(t151, t222, P[126])));
@@ -7963,6 +8189,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t403 = DERIVE_FMA(t246, t178, DERIVE_FMA(t222, t154, DERIVE_FMA(t198, t61, P[129])));
     const double t404 = DERIVE_FMA(t246, t179, DERIVE_FMA(t222, t155, DERIVE_FMA(t198, t62, P[130])));
     const double t405 = DERIVE_FMA(t246, t180, DERIVE_FMA(t222, t156, DERIVE_FMA(t198, t63, P[131])));
+    P_new[128] = t402;
+    P_new[197] = t402;
+    P_new[129] = t403;
+    P_new[221] = t403;
+    P_new[130] = t404;
+    P_new[245] = t404;
+    P_new[131] = t405;
+    P_new[269] = t405;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t406_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t64, ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -7973,6 +8207,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t407 = DERIVE_FMA(t246, t182, DERIVE_FMA(t222, t158, DERIVE_FMA(t198, t65, P[133])));
     const double t408 = DERIVE_FMA(t246, t183, DERIVE_FMA(t222, t159, DERIVE_FMA(t198, t66, P[134])));
     const double t409 = DERIVE_FMA(t246, t184, DERIVE_FMA(t222, t160, DERIVE_FMA(t198, t67, P[135])));
+    P_new[132] = t406;
+    P_new[293] = t406;
+    P_new[133] = t407;
+    P_new[317] = t407;
+    P_new[134] = t408;
+    P_new[341] = t408;
+    P_new[135] = t409;
+    P_new[365] = t409;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t410_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t68, ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -7983,6 +8225,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t411 = DERIVE_FMA(t246, t186, DERIVE_FMA(t222, t162, DERIVE_FMA(t198, t69, P[137])));
     const double t412 = DERIVE_FMA(t246, t187, DERIVE_FMA(t222, t163, DERIVE_FMA(t198, t70, P[138])));
     const double t413 = DERIVE_FMA(t246, t188, DERIVE_FMA(t222, t164, DERIVE_FMA(t198, t71, P[139])));
+    P_new[136] = t410;
+    P_new[389] = t410;
+    P_new[137] = t411;
+    P_new[413] = t411;
+    P_new[138] = t412;
+    P_new[437] = t412;
+    P_new[139] = t413;
+    P_new[461] = t413;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t414_0 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t72, ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -7993,6 +8243,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t415 = DERIVE_FMA(t246, t190, DERIVE_FMA(t222, t166, DERIVE_FMA(t198, t73, P[141])));
     const double t416 = DERIVE_FMA(t246, t191, DERIVE_FMA(t222, t167, DERIVE_FMA(t198, t74, P[142])));
     const double t417 = DERIVE_FMA(t246, t192, DERIVE_FMA(t222, t168, DERIVE_FMA(t198, t75, P[143])));
+    P_new[140] = t414;
+    P_new[485] = t414;
+    P_new[141] = t415;
+    P_new[509] = t415;
+    P_new[142] = t416;
+    P_new[533] = t416;
+    P_new[143] = t417;
+    P_new[557] = t417;
     #endif
     const double t418 = DERIVE_FMA(t199, t58, DERIVE_FMA(t175, t247, DERIVE_FMA(t151, t223, P[150])));
     const double t419 = DERIVE_FMA(t199, t59, DERIVE_FMA(t176, t247, DERIVE_FMA(t152, t223, P[151])));
@@ -8005,6 +8263,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t421 = DERIVE_FMA(t247, t178, DERIVE_FMA(t223, t154, DERIVE_FMA(t199, t61, P[153])));
     const double t422 = DERIVE_FMA(t247, t179, DERIVE_FMA(t223, t155, DERIVE_FMA(t199, t62, P[154])));
     const double t423 = DERIVE_FMA(t247, t180, DERIVE_FMA(t223, t156, DERIVE_FMA(t199, t63, P[155])));
+    P_new[152] = t420;
+    P_new[198] = t420;
+    P_new[153] = t421;
+    P_new[222] = t421;
+    P_new[154] = t422;
+    P_new[246] = t422;
+    P_new[155] = t423;
+    P_new[270] = t423;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t424_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t64, ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -8015,6 +8281,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t425 = DERIVE_FMA(t247, t182, DERIVE_FMA(t223, t158, DERIVE_FMA(t199, t65, P[157])));
     const double t426 = DERIVE_FMA(t247, t183, DERIVE_FMA(t223, t159, DERIVE_FMA(t199, t66, P[158])));
     const double t427 = DERIVE_FMA(t247, t184, DERIVE_FMA(t223, t160, DERIVE_FMA(t199, t67, P[159])));
+    P_new[156] = t424;
+    P_new[294] = t424;
+    P_new[157] = t425;
+    P_new[318] = t425;
+    P_new[158] = t426;
+    P_new[342] = t426;
+    P_new[159] = t427;
+    P_new[366] = t427;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t428_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t68, ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -8025,6 +8299,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t429 = DERIVE_FMA(t247, t186, DERIVE_FMA(t223, t162, DERIVE_FMA(t199, t69, P[161])));
     const double t430 = DERIVE_FMA(t247, t187, DERIVE_FMA(t223, t163, DERIVE_FMA(t199, t70, P[162])));
     const double t431 = DERIVE_FMA(t247, t188, DERIVE_FMA(t223, t164, DERIVE_FMA(t199, t71, P[163])));
+    P_new[160] = t428;
+    P_new[390] = t428;
+    P_new[161] = t429;
+    P_new[414] = t429;
+    P_new[162] = t430;
+    P_new[438] = t430;
+    P_new[163] = t431;
+    P_new[462] = t431;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t432_0 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t72, ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -8035,6 +8317,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t433 = DERIVE_FMA(t247, t190, DERIVE_FMA(t223, t166, DERIVE_FMA(t199, t73, P[165])));
     const double t434 = DERIVE_FMA(t247, t191, DERIVE_FMA(t223, t167, DERIVE_FMA(t199, t74, P[166])));
     const double t435 = DERIVE_FMA(t247, t192, DERIVE_FMA(t223, t168, DERIVE_FMA(t199, t75, P[167])));
+    P_new[164] = t432;
+    P_new[486] = t432;
+    P_new[165] = t433;
+    P_new[510] = t433;
+    P_new[166] = t434;
+    P_new[534] = t434;
+    P_new[167] = t435;
+    P_new[558] = t435;
     #endif
     const double t436 = DERIVE_FMA(t200, t59, DERIVE_FMA(t176, t248, DERIVE_FMA(t152, t224, P[175])));
     #if DERIVE_VECTOR
@@ -8062,6 +8352,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t438 = DERIVE_FMA(t248, t178, DERIVE_FMA(t224, t154, DERIVE_FMA(t200, t61, P[177])));
     const double t439 = DERIVE_FMA(t248, t179, DERIVE_FMA(t224, t155, DERIVE_FMA(t200, t62, P[178])));
     const double t440 = DERIVE_FMA(t248, t180, DERIVE_FMA(t224, t156, DERIVE_FMA(t200, t63, P[179])));
+    P_new[176] = t437;
+    P_new[199] = t437;
+    P_new[177] = t438;
+    P_new[223] = t438;
+    P_new[178] = t439;
+    P_new[247] = t439;
+    P_new[179] = t440;
+    P_new[271] = t440;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t441_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t64, ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -8088,6 +8386,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t442 = DERIVE_FMA(t248, t182, DERIVE_FMA(t224, t158, DERIVE_FMA(t200, t65, P[181])));
     const double t443 = DERIVE_FMA(t248, t183, DERIVE_FMA(t224, t159, DERIVE_FMA(t200, t66, P[182])));
     const double t444 = DERIVE_FMA(t248, t184, DERIVE_FMA(t224, t160, DERIVE_FMA(t200, t67, P[183])));
+    P_new[180] = t441;
+    P_new[295] = t441;
+    P_new[181] = t442;
+    P_new[319] = t442;
+    P_new[182] = t443;
+    P_new[343] = t443;
+    P_new[183] = t444;
+    P_new[367] = t444;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t445_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t68, ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -8114,6 +8420,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t446 = DERIVE_FMA(t248, t186, DERIVE_FMA(t224, t162, DERIVE_FMA(t200, t69, P[185])));
     const double t447 = DERIVE_FMA(t248, t187, DERIVE_FMA(t224, t163, DERIVE_FMA(t200, t70, P[186])));
     const double t448 = DERIVE_FMA(t248, t188, DERIVE_FMA(t224, t164, DERIVE_FMA(t200, t71, P[187])));
+    P_new[184] = t445;
+    P_new[391] = t445;
+    P_new[185] = t446;
+    P_new[415] = t446;
+    P_new[186] = t447;
+    P_new[439] = t447;
+    P_new[187] = t448;
+    P_new[463] = t448;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t449_0 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t72, ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -8140,6 +8454,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t450 = DERIVE_FMA(t248, t190, DERIVE_FMA(t224, t166, DERIVE_FMA(t200, t73, P[189])));
     const double t451 = DERIVE_FMA(t248, t191, DERIVE_FMA(t224, t167, DERIVE_FMA(t200, t74, P[190])));
     const double t452 = DERIVE_FMA(t248, t192, DERIVE_FMA(t224, t168, DERIVE_FMA(t200, t75, P[191])));
+    P_new[188] = t449;
+    P_new[487] = t449;
+    P_new[189] = t450;
+    P_new[511] = t450;
+    P_new[190] = t451;
+    P_new[535] = t451;
+    P_new[191] = t452;
+    P_new[559] = t452;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t453_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t60, ((derive_vd){P[200], P[201], P[202], P[203]}));
@@ -8154,6 +8476,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t454 = DERIVE_FMA(t249, t178, DERIVE_FMA(t225, t154, DERIVE_FMA(t201, t61, P[201])));
     const double t455 = DERIVE_FMA(t249, t179, DERIVE_FMA(t225, t155, DERIVE_FMA(t201, t62, P[202])));
     const double t456 = DERIVE_FMA(t249, t180, DERIVE_FMA(t225, t156, DERIVE_FMA(t201, t63, P[203])));
+    P_new[200] = t453;
+    P_new[201] = t454;
+    P_new[224] = t454;
+    P_new[202] = t455;
+    P_new[248] = t455;
+    P_new[203] = t456;
+    P_new[272] = t456;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t64, ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -8164,6 +8493,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t458 = DERIVE_FMA(t249, t182, DERIVE_FMA(t225, t158, DERIVE_FMA(t201, t65, P[205])));
     const double t459 = DERIVE_FMA(t249, t183, DERIVE_FMA(t225, t159, DERIVE_FMA(t201, t66, P[206])));
     const double t460 = DERIVE_FMA(t249, t184, DERIVE_FMA(t225, t160, DERIVE_FMA(t201, t67, P[207])));
+    P_new[204] = t457;
+    P_new[296] = t457;
+    P_new[205] = t458;
+    P_new[320] = t458;
+    P_new[206] = t459;
+    P_new[344] = t459;
+    P_new[207] = t460;
+    P_new[368] = t460;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t68, ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -8174,6 +8511,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t462 = DERIVE_FMA(t249, t186, DERIVE_FMA(t225, t162, DERIVE_FMA(t201, t69, P[209])));
     const double t463 = DERIVE_FMA(t249, t187, DERIVE_FMA(t225, t163, DERIVE_FMA(t201, t70, P[210])));
     const double t464 = DERIVE_FMA(t249, t188, DERIVE_FMA(t225, t164, DERIVE_FMA(t201, t71, P[211])));
+    P_new[208] = t461;
+    P_new[392] = t461;
+    P_new[209] = t462;
+    P_new[416] = t462;
+    P_new[210] = t463;
+    P_new[440] = t463;
+    P_new[211] = t464;
+    P_new[464] = t464;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t201, t201, t201, t201}), v_t72, ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -8184,6 +8529,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t466 = DERIVE_FMA(t249, t190, DERIVE_FMA(t225, t166, DERIVE_FMA(t201, t73, P[213])));
     const double t467 = DERIVE_FMA(t249, t191, DERIVE_FMA(t225, t167, DERIVE_FMA(t201, t74, P[214])));
     const double t468 = DERIVE_FMA(t249, t192, DERIVE_FMA(t225, t168, DERIVE_FMA(t201, t75, P[215])));
+    P_new[212] = t465;
+    P_new[488] = t465;
+    P_new[213] = t466;
+    P_new[512] = t466;
+    P_new[214] = t467;
+    P_new[536] = t467;
+    P_new[215] = t468;
+    P_new[560] = t468;
     #endif
     const double t469 = DERIVE_FMA(t202, t61, DERIVE_FMA(t178, t250, DERIVE_FMA(t154, t226, P[225])));
     const double t470 = DERIVE_FMA(t202, t62, DERIVE_FMA(t179, t250, DERIVE_FMA(t155, t226, P[226])));
@@ -8197,6 +8550,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t473 = DERIVE_FMA(t250, t182, DERIVE_FMA(t226, t158, DERIVE_FMA(t202, t65, P[229])));
     const double t474 = DERIVE_FMA(t250, t183, DERIVE_FMA(t226, t159, DERIVE_FMA(t202, t66, P[230])));
     const double t475 = DERIVE_FMA(t250, t184, DERIVE_FMA(t226, t160, DERIVE_FMA(t202, t67, P[231])));
+    P_new[228] = t472;
+    P_new[297] = t472;
+    P_new[229] = t473;
+    P_new[321] = t473;
+    P_new[230] = t474;
+    P_new[345] = t474;
+    P_new[231] = t475;
+    P_new[369] = t475;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t476_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t68, ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -8207,6 +8568,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t477 = DERIVE_FMA(t250, t186, DERIVE_FMA(t226, t162, DERIVE_FMA(t202, t69, P[233])));
     const double t478 = DERIVE_FMA(t250, t187, DERIVE_FMA(t226, t163, DERIVE_FMA(t202, t70, P[234])));
     const double t479 = DERIVE_FMA(t250, t188, DERIVE_FMA(t226, t164, DERIVE_FMA(t202, t71, P[235])));
+    P_new[232] = t476;
+    P_new[393] = t476;
+    P_new[233] = t477;
+    P_new[417] = t477;
+    P_new[234] = t478;
+    P_new[441] = t478;
+    P_new[235] = t479;
+    P_new[465] = t479;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t480_0 = DERIVE_VFMA(((derive_vd){t202, t202, t202, t202}), v_t72, ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -8217,6 +8586,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t481 = DERIVE_FMA(t250, t190, DERIVE_FMA(t226, t166, DERIVE_FMA(t202, t73, P[237])));
     const double t482 = DERIVE_FMA(t250, t191, DERIVE_FMA(t226, t167, DERIVE_FMA(t202, t74, P[238])));
     const double t483 = DERIVE_FMA(t250, t192, DERIVE_FMA(t226, t168, DERIVE_FMA(t202, t75, P[239])));
+    P_new[236] = t480;
+    P_new[489] = t480;
+    P_new[237] = t481;
+    P_new[513] = t481;
+    P_new[238] = t482;
+    P_new[537] = t482;
+    P_new[239] = t483;
+    P_new[561] = t483;
     #endif
     const double t484 = DERIVE_FMA(t203, t62, DERIVE_FMA(t179, t251, DERIVE_FMA(t155, t227, P[250])));
     const double t485 = DERIVE_FMA(t203, t63, DERIVE_FMA(t180, t251, DERIVE_FMA(t156, t227, P[251])));
@@ -8229,6 +8606,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t487 = DERIVE_FMA(t251, t182, DERIVE_FMA(t227, t158, DERIVE_FMA(t203, t65, P[253])));
     const double t488 = DERIVE_FMA(t251, t183, DERIVE_FMA(t227, t159, DERIVE_FMA(t203, t66, P[254])));
     const double t489 = DERIVE_FMA(t251, t184, DERIVE_FMA(t227, t160, DERIVE_FMA(t203, t67, P[255])));
+    P_new[252] = t486;
+    P_new[298] = t486;
+    P_new[253] = t487;
+    P_new[322] = t487;
+    P_new[254] = t488;
+    P_new[346] = t488;
+    P_new[255] = t489;
+    P_new[370] = t489;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t490_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t68, ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -8239,6 +8624,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t491 = DERIVE_FMA(t251, t186, DERIVE_FMA(t227, t162, DERIVE_FMA(t203, t69, P[257])));
     const double t492 = DERIVE_FMA(t251, t187, DERIVE_FMA(t227, t163, DERIVE_FMA(t203, t70, P[258])));
     const double t493 = DERIVE_FMA(t251, t188, DERIVE_FMA(t227, t164, DERIVE_FMA(t203, t71, P[259])));
+    P_new[256] = t490;
+    P_new[394] = t490;
+    P_new[257] = t491;
+    P_new[418] = t491;
+    P_new[258] = t492;
+    P_new[442] = t492;
+    P_new[259] = t493;
+    P_new[466] = t493;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t494_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), v_t72, ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -8249,6 +8642,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t495 = DERIVE_FMA(t251, t190, DERIVE_FMA(t227, t166, DERIVE_FMA(t203, t73, P[261])));
     const double t496 = DERIVE_FMA(t251, t191, DERIVE_FMA(t227, t167, DERIVE_FMA(t203, t74, P[262])));
     const double t497 = DERIVE_FMA(t251, t192, DERIVE_FMA(t227, t168, DERIVE_FMA(t203, t75, P[263])));
+    P_new[260] = t494;
+    P_new[490] = t494;
+    P_new[261] = t495;
+    P_new[514] = t495;
+    P_new[262] = t496;
+    P_new[538] = t496;
+    P_new[263] = t497;
+    P_new[562] = t497;
     #endif
     const double t498 = DERIVE_FMA(t204, t63, DERIVE_FMA(t180, t252, DERIVE_FMA(t156, t228, P[275])));
     #if DERIVE_VECTOR
@@ -8276,6 +8677,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t500 = DERIVE_FMA(t252, t182, DERIVE_FMA(t228, t158, DERIVE_FMA(t204, t65, P[277])));
     const double t501 = DERIVE_FMA(t252, t183, DERIVE_FMA(t228, t159, DERIVE_FMA(t204, t66, P[278])));
     const double t502 = DERIVE_FMA(t252, t184, DERIVE_FMA(t228, t160, DERIVE_FMA(t204, t67, P[279])));
+    P_new[276] = t499;
+    P_new[299] = t499;
+    P_new[277] = t500;
+    P_new[323] = t500;
+    P_new[278] = t501;
+    P_new[347] = t501;
+    P_new[279] = t502;
+    P_new[371] = t502;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t503_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t68, ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -8302,6 +8711,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t504 = DERIVE_FMA(t252, t186, DERIVE_FMA(t228, t162, DERIVE_FMA(t204, t69, P[281])));
     const double t505 = DERIVE_FMA(t252, t187, DERIVE_FMA(t228, t163, DERIVE_FMA(t204, t70, P[282])));
     const double t506 = DERIVE_FMA(t252, t188, DERIVE_FMA(t228, t164, DERIVE_FMA(t204, t71, P[283])));
+    P_new[280] = t503;
+    P_new[395] = t503;
+    P_new[281] = t504;
+    P_new[419] = t504;
+    P_new[282] = t505;
+    P_new[443] = t505;
+    P_new[283] = t506;
+    P_new[467] = t506;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t507_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), v_t72, ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -8328,6 +8745,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t508 = DERIVE_FMA(t252, t190, DERIVE_FMA(t228, t166, DERIVE_FMA(t204, t73, P[285])));
     const double t509 = DERIVE_FMA(t252, t191, DERIVE_FMA(t228, t167, DERIVE_FMA(t204, t74, P[286])));
     const double t510 = DERIVE_FMA(t252, t192, DERIVE_FMA(t228, t168, DERIVE_FMA(t204, t75, P[287])));
+    P_new[284] = t507;
+    P_new[491] = t507;
+    P_new[285] = t508;
+    P_new[515] = t508;
+    P_new[286] = t509;
+    P_new[539] = t509;
+    P_new[287] = t510;
+    P_new[563] = t510;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t511_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t64, ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -8342,6 +8767,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t512 = DERIVE_FMA(t253, t182, DERIVE_FMA(t229, t158, DERIVE_FMA(t205, t65, P[301])));
     const double t513 = DERIVE_FMA(t253, t183, DERIVE_FMA(t229, t159, DERIVE_FMA(t205, t66, P[302])));
     const double t514 = DERIVE_FMA(t253, t184, DERIVE_FMA(t229, t160, DERIVE_FMA(t205, t67, P[303])));
+    P_new[300] = t511;
+    P_new[301] = t512;
+    P_new[324] = t512;
+    P_new[302] = t513;
+    P_new[348] = t513;
+    P_new[303] = t514;
+    P_new[372] = t514;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t68, ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -8352,6 +8784,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t516 = DERIVE_FMA(t253, t186, DERIVE_FMA(t229, t162, DERIVE_FMA(t205, t69, P[305])));
     const double t517 = DERIVE_FMA(t253, t187, DERIVE_FMA(t229, t163, DERIVE_FMA(t205, t70, P[306])));
     const double t518 = DERIVE_FMA(t253, t188, DERIVE_FMA(t229, t164, DERIVE_FMA(t205, t71, P[307])));
+    P_new[304] = t515;
+    P_new[396] = t515;
+    P_new[305] = t516;
+    P_new[420] = t516;
+    P_new[306] = t517;
+    P_new[444] = t517;
+    P_new[307] = t518;
+    P_new[468] = t518;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), v_t72, ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -8362,6 +8802,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t520 = DERIVE_FMA(t253, t190, DERIVE_FMA(t229, t166, DERIVE_FMA(t205, t73, P[309])));
     const double t521 = DERIVE_FMA(t253, t191, DERIVE_FMA(t229, t167, DERIVE_FMA(t205, t74, P[310])));
     const double t522 = DERIVE_FMA(t253, t192, DERIVE_FMA(t229, t168, DERIVE_FMA(t205, t75, P[311])));
+    P_new[308] = t519;
+    P_new[492] = t519;
+    P_new[309] = t520;
+    P_new[516] = t520;
+    P_new[310] = t521;
+    P_new[540] = t521;
+    P_new[311] = t522;
+    P_new[564] = t522;
     #endif
     const double t523 = DERIVE_FMA(t206, t65, DERIVE_FMA(t182, t254, DERIVE_FMA(t158, t230, P[325])));
     const double t524 = DERIVE_FMA(t206, t66, DERIVE_FMA(t183, t254, DERIVE_FMA(t159, t230, P[326])));
@@ -8375,6 +8823,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t527 = DERIVE_FMA(t254, t186, DERIVE_FMA(t230, t162, DERIVE_FMA(t206, t69, P[329])));
     const double t528 = DERIVE_FMA(t254, t187, DERIVE_FMA(t230, t163, DERIVE_FMA(t206, t70, P[330])));
     const double t529 = DERIVE_FMA(t254, t188, DERIVE_FMA(t230, t164, DERIVE_FMA(t206, t71, P[331])));
+    P_new[328] = t526;
+    P_new[397] = t526;
+    P_new[329] = t527;
+    P_new[421] = t527;
+    P_new[330] = t528;
+    P_new[445] = t528;
+    P_new[331] = t529;
+    P_new[469] = t529;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t530_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), v_t72, ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -8385,6 +8841,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t531 = DERIVE_FMA(t254, t190, DERIVE_FMA(t230, t166, DERIVE_FMA(t206, t73, P[333])));
     const double t532 = DERIVE_FMA(t254, t191, DERIVE_FMA(t230, t167, DERIVE_FMA(t206, t74, P[334])));
     const double t533 = DERIVE_FMA(t254, t192, DERIVE_FMA(t230, t168, DERIVE_FMA(t206, t75, P[335])));
+    P_new[332] = t530;
+    P_new[493] = t530;
+    P_new[333] = t531;
+    P_new[517] = t531;
+    P_new[334] = t532;
+    P_new[541] = t532;
+    P_new[335] = t533;
+    P_new[565] = t533;
     #endif
     const double t534 = DERIVE_FMA(t207, t66, DERIVE_FMA(t183, t255, DERIVE_FMA(t159, t231, P[350])));
     const double t535 = DERIVE_FMA(t207, t67, DERIVE_FMA(t184, t255, DERIVE_FMA(t160, t231, P[351])));
@@ -8397,6 +8861,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t537 = DERIVE_FMA(t255, t186, DERIVE_FMA(t231, t162, DERIVE_FMA(t207, t69, P[353])));
     const double t538 = DERIVE_FMA(t255, t187, DERIVE_FMA(t231, t163, DERIVE_FMA(t207, t70, P[354])));
     const double t539 = DERIVE_FMA(t255, t188, DERIVE_FMA(t231, t164, DERIVE_FMA(t207, t71, P[355])));
+    P_new[352] = t536;
+    P_new[398] = t536;
+    P_new[353] = t537;
+    P_new[422] = t537;
+    P_new[354] = t538;
+    P_new[446] = t538;
+    P_new[355] = t539;
+    P_new[470] = t539;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t540_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), v_t72, ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -8407,6 +8879,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t541 = DERIVE_FMA(t255, t190, DERIVE_FMA(t231, t166, DERIVE_FMA(t207, t73, P[357])));
     const double t542 = DERIVE_FMA(t255, t191, DERIVE_FMA(t231, t167, DERIVE_FMA(t207, t74, P[358])));
     const double t543 = DERIVE_FMA(t255, t192, DERIVE_FMA(t231, t168, DERIVE_FMA(t207, t75, P[359])));
+    P_new[356] = t540;
+    P_new[494] = t540;
+    P_new[357] = t541;
+    P_new[518] = t541;
+    P_new[358] = t542;
+    P_new[542] = t542;
+    P_new[359] = t543;
+    P_new[566] = t543;
     #endif
     const double t544 = DERIVE_FMA(t208, t67, DERIVE_FMA(t184, t256, DERIVE_FMA(t160, t232, P[375])));
     #if DERIVE_VECTOR
@@ -8434,6 +8914,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t546 = DERIVE_FMA(t256, t186, DERIVE_FMA(t232, t162, DERIVE_FMA(t208, t69, P[377])));
     const double t547 = DERIVE_FMA(t256, t187, DERIVE_FMA(t232, t163, DERIVE_FMA(t208, t70, P[378])));
     const double t548 = DERIVE_FMA(t256, t188, DERIVE_FMA(t232, t164, DERIVE_FMA(t208, t71, P[379])));
+    P_new[376] = t545;
+    P_new[399] = t545;
+    P_new[377] = t546;
+    P_new[423] = t546;
+    P_new[378] = t547;
+    P_new[447] = t547;
+    P_new[379] = t548;
+    P_new[471] = t548;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t549_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), v_t72, ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -8460,6 +8948,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t550 = DERIVE_FMA(t256, t190, DERIVE_FMA(t232, t166, DERIVE_FMA(t208, t73, P[381])));
     const double t551 = DERIVE_FMA(t256, t191, DERIVE_FMA(t232, t167, DERIVE_FMA(t208, t74, P[382])));
     const double t552 = DERIVE_FMA(t256, t192, DERIVE_FMA(t232, t168, DERIVE_FMA(t208, t75, P[383])));
+    P_new[380] = t549;
+    P_new[495] = t549;
+    P_new[381] = t550;
+    P_new[519] = t550;
+    P_new[382] = t551;
+    P_new[543] = t551;
+    P_new[383] = t552;
+    P_new[567] = t552;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t553_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t68, ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -8474,6 +8970,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t554 = DERIVE_FMA(t257, t186, DERIVE_FMA(t233, t162, DERIVE_FMA(t209, t69, P[401])));
     const double t555 = DERIVE_FMA(t257, t187, DERIVE_FMA(t233, t163, DERIVE_FMA(t209, t70, P[402])));
     const double t556 = DERIVE_FMA(t257, t188, DERIVE_FMA(t233, t164, DERIVE_FMA(t209, t71, P[403])));
+    P_new[400] = t553;
+    P_new[401] = t554;
+    P_new[424] = t554;
+    P_new[402] = t555;
+    P_new[448] = t555;
+    P_new[403] = t556;
+    P_new[472] = t556;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t557_0 = DERIVE_VFMA(((derive_vd){t209, t209, t209, t209}), v_t72, ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -8484,6 +8987,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t558 = DERIVE_FMA(t257, t190, DERIVE_FMA(t233, t166, DERIVE_FMA(t209, t73, P[405])));
     const double t559 = DERIVE_FMA(t257, t191, DERIVE_FMA(t233, t167, DERIVE_FMA(t209, t74, P[406])));
     const double t560 = DERIVE_FMA(t257, t192, DERIVE_FMA(t233, t168, DERIVE_FMA(t209, t75, P[407])));
+    P_new[404] = t557;
+    P_new[496] = t557;
+    P_new[405] = t558;
+    P_new[520] = t558;
+    P_new[406] = t559;
+    P_new[544] = t559;
+    P_new[407] = t560;
+    P_new[568] = t560;
     #endif
     const double t561 = DERIVE_FMA(t210, t69, DERIVE_FMA(t186, t258, DERIVE_FMA(t162, t234, P[425])));
     const double t562 = DERIVE_FMA(t210, t70, DERIVE_FMA(t187, t258, DERIVE_FMA(t163, t234, P[426])));
@@ -8497,6 +9008,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t565 = DERIVE_FMA(t258, t190, DERIVE_FMA(t234, t166, DERIVE_FMA(t210, t73, P[429])));
     const double t566 = DERIVE_FMA(t258, t191, DERIVE_FMA(t234, t167, DERIVE_FMA(t210, t74, P[430])));
     const double t567 = DERIVE_FMA(t258, t192, DERIVE_FMA(t234, t168, DERIVE_FMA(t210, t75, P[431])));
+    P_new[428] = t564;
+    P_new[497] = t564;
+    P_new[429] = t565;
+    P_new[521] = t565;
+    P_new[430] = t566;
+    P_new[545] = t566;
+    P_new[431] = t567;
+    P_new[569] = t567;
     #endif
     const double t568 = DERIVE_FMA(t211, t70, DERIVE_FMA(t187, t259, DERIVE_FMA(t163, t235, P[450])));
     const double t569 = DERIVE_FMA(t211, t71, DERIVE_FMA(t188, t259, DERIVE_FMA(t164, t235, P[451])));
@@ -8509,6 +9028,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t571 = DERIVE_FMA(t259, t190, DERIVE_FMA(t235, t166, DERIVE_FMA(t211, t73, P[453])));
     const double t572 = DERIVE_FMA(t259, t191, DERIVE_FMA(t235, t167, DERIVE_FMA(t211, t74, P[454])));
     const double t573 = DERIVE_FMA(t259, t192, DERIVE_FMA(t235, t168, DERIVE_FMA(t211, t75, P[455])));
+    P_new[452] = t570;
+    P_new[498] = t570;
+    P_new[453] = t571;
+    P_new[522] = t571;
+    P_new[454] = t572;
+    P_new[546] = t572;
+    P_new[455] = t573;
+    P_new[570] = t573;
     #endif
     const double t574 = DERIVE_FMA(t212, t71, DERIVE_FMA(t188, t260, DERIVE_FMA(t164, t236, P[475])));
     #if DERIVE_VECTOR
@@ -8536,6 +9063,14 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t576 = DERIVE_FMA(t260, t190, DERIVE_FMA(t236, t166, DERIVE_FMA(t212, t73, P[477])));
     const double t577 = DERIVE_FMA(t260, t191, DERIVE_FMA(t236, t167, DERIVE_FMA(t212, t74, P[478])));
     const double t578 = DERIVE_FMA(t260, t192, DERIVE_FMA(t236, t168, DERIVE_FMA(t212, t75, P[479])));
+    P_new[476] = t575;
+    P_new[499] = t575;
+    P_new[477] = t576;
+    P_new[523] = t576;
+    P_new[478] = t577;
+    P_new[547] = t577;
+    P_new[479] = t578;
+    P_new[571] = t578;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t579_0 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t72, ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -8550,6 +9085,13 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     const double t580 = DERIVE_FMA(t261, t190, DERIVE_FMA(t237, t166, DERIVE_FMA(t213, t73, P[501])));
     const double t581 = DERIVE_FMA(t261, t191, DERIVE_FMA(t237, t167, DERIVE_FMA(t213, t74, P[502])));
     const double t582 = DERIVE_FMA(t261, t192, DERIVE_FMA(t237, t168, DERIVE_FMA(t213, t75, P[503])));
+    P_new[500] = t579;
+    P_new[501] = t580;
+    P_new[524] = t580;
+    P_new[502] = t581;
+    P_new[548] = t581;
+    P_new[503] = t582;
+    P_new[572] = t582;
     #endif
     const double t583 = DERIVE_FMA(t214, t73, DERIVE_FMA(t190, t262, DERIVE_FMA(t166, t238, P[525])));
     const double t584 = DERIVE_FMA(t214, t74, DERIVE_FMA(t191, t262, DERIVE_FMA(t167, t238, P[526])));
@@ -8645,599 +9187,57 @@ int ins_fc24_ekf_update_mag(const double *restrict x, const double *restrict P, 
     x_new[1] = t592;
     x_new[2] = t593;
     x_new[3] = t594;
-    x_new[4] = t269;
-    x_new[5] = t270;
-    x_new[6] = t271;
-    x_new[7] = t272;
-    x_new[8] = t273;
-    x_new[9] = t274;
-    x_new[10] = t275;
-    x_new[11] = t276;
-    x_new[12] = t277;
-    x_new[13] = t278;
-    x_new[14] = t279;
-    x_new[15] = t280;
-    x_new[16] = t281;
-    x_new[17] = t282;
-    x_new[18] = t283;
-    x_new[19] = t284;
-    x_new[20] = t285;
-    x_new[21] = t286;
-    x_new[22] = t287;
-    x_new[23] = t288;
-    P_new[0] = t289;
-    P_new[1] = t290;
-    P_new[2] = t291;
-    P_new[3] = t292;
-    P_new[4] = t293;
-    P_new[5] = t294;
-    P_new[6] = t295;
-    P_new[7] = t296;
-    P_new[8] = t297;
-    P_new[9] = t298;
-    P_new[10] = t299;
-    P_new[11] = t300;
-    P_new[12] = t301;
-    P_new[13] = t302;
-    P_new[14] = t303;
-    P_new[15] = t304;
-    P_new[16] = t305;
-    P_new[17] = t306;
-    P_new[18] = t307;
-    P_new[19] = t308;
-    P_new[20] = t309;
-    P_new[21] = t310;
-    P_new[22] = t311;
-    P_new[23] = t312;
-    P_new[24] = t290;
     P_new[25] = t313;
     P_new[26] = t314;
     P_new[27] = t315;
-    P_new[28] = t316;
-    P_new[29] = t317;
-    P_new[30] = t318;
-    P_new[31] = t319;
-    P_new[32] = t320;
-    P_new[33] = t321;
-    P_new[34] = t322;
-    P_new[35] = t323;
-    P_new[36] = t324;
-    P_new[37] = t325;
-    P_new[38] = t326;
-    P_new[39] = t327;
-    P_new[40] = t328;
-    P_new[41] = t329;
-    P_new[42] = t330;
-    P_new[43] = t331;
-    P_new[44] = t332;
-    P_new[45] = t333;
-    P_new[46] = t334;
-    P_new[47] = t335;
-    P_new[48] = t291;
     P_new[49] = t314;
     P_new[50] = t336;
     P_new[51] = t337;
-    P_new[52] = t338;
-    P_new[53] = t339;
-    P_new[54] = t340;
-    P_new[55] = t341;
-    P_new[56] = t342;
-    P_new[57] = t343;
-    P_new[58] = t344;
-    P_new[59] = t345;
-    P_new[60] = t346;
-    P_new[61] = t347;
-    P_new[62] = t348;
-    P_new[63] = t349;
-    P_new[64] = t350;
-    P_new[65] = t351;
-    P_new[66] = t352;
-    P_new[67] = t353;
-    P_new[68] = t354;
-    P_new[69] = t355;
-    P_new[70] = t356;
-    P_new[71] = t357;
-    P_new[72] = t292;
     P_new[73] = t315;
     P_new[74] = t337;
     P_new[75] = t358;
-    P_new[76] = t359;
-    P_new[77] = t360;
-    P_new[78] = t361;
-    P_new[79] = t362;
-    P_new[80] = t363;
-    P_new[81] = t364;
-    P_new[82] = t365;
-    P_new[83] = t366;
-    P_new[84] = t367;
-    P_new[85] = t368;
-    P_new[86] = t369;
-    P_new[87] = t370;
-    P_new[88] = t371;
-    P_new[89] = t372;
-    P_new[90] = t373;
-    P_new[91] = t374;
-    P_new[92] = t375;
-    P_new[93] = t376;
-    P_new[94] = t377;
-    P_new[95] = t378;
-    P_new[96] = t293;
-    P_new[97] = t316;
-    P_new[98] = t338;
-    P_new[99] = t359;
-    P_new[100] = t379;
-    P_new[101] = t380;
-    P_new[102] = t381;
-    P_new[103] = t382;
-    P_new[104] = t383;
-    P_new[105] = t384;
-    P_new[106] = t385;
-    P_new[107] = t386;
-    P_new[108] = t387;
-    P_new[109] = t388;
-    P_new[110] = t389;
-    P_new[111] = t390;
-    P_new[112] = t391;
-    P_new[113] = t392;
-    P_new[114] = t393;
-    P_new[115] = t394;
-    P_new[116] = t395;
-    P_new[117] = t396;
-    P_new[118] = t397;
-    P_new[119] = t398;
-    P_new[120] = t294;
-    P_new[121] = t317;
-    P_new[122] = t339;
-    P_new[123] = t360;
-    P_new[124] = t380;
     P_new[125] = t399;
     P_new[126] = t400;
     P_new[127] = t401;
-    P_new[128] = t402;
-    P_new[129] = t403;
-    P_new[130] = t404;
-    P_new[131] = t405;
-    P_new[132] = t406;
-    P_new[133] = t407;
-    P_new[134] = t408;
-    P_new[135] = t409;
-    P_new[136] = t410;
-    P_new[137] = t411;
-    P_new[138] = t412;
-    P_new[139] = t413;
-    P_new[140] = t414;
-    P_new[141] = t415;
-    P_new[142] = t416;
-    P_new[143] = t417;
-    P_new[144] = t295;
-    P_new[145] = t318;
-    P_new[146] = t340;
-    P_new[147] = t361;
-    P_new[148] = t381;
     P_new[149] = t400;
     P_new[150] = t418;
     P_new[151] = t419;
-    P_new[152] = t420;
-    P_new[153] = t421;
-    P_new[154] = t422;
-    P_new[155] = t423;
-    P_new[156] = t424;
-    P_new[157] = t425;
-    P_new[158] = t426;
-    P_new[159] = t427;
-    P_new[160] = t428;
-    P_new[161] = t429;
-    P_new[162] = t430;
-    P_new[163] = t431;
-    P_new[164] = t432;
-    P_new[165] = t433;
-    P_new[166] = t434;
-    P_new[167] = t435;
-    P_new[168] = t296;
-    P_new[169] = t319;
-    P_new[170] = t341;
-    P_new[171] = t362;
-    P_new[172] = t382;
     P_new[173] = t401;
     P_new[174] = t419;
     P_new[175] = t436;
-    P_new[176] = t437;
-    P_new[177] = t438;
-    P_new[178] = t439;
-    P_new[179] = t440;
-    P_new[180] = t441;
-    P_new[181] = t442;
-    P_new[182] = t443;
-    P_new[183] = t444;
-    P_new[184] = t445;
-    P_new[185] = t446;
-    P_new[186] = t447;
-    P_new[187] = t448;
-    P_new[188] = t449;
-    P_new[189] = t450;
-    P_new[190] = t451;
-    P_new[191] = t452;
-    P_new[192] = t297;
-    P_new[193] = t320;
-    P_new[194] = t342;
-    P_new[195] = t363;
-    P_new[196] = t383;
-    P_new[197] = t402;
-    P_new[198] = t420;
-    P_new[199] = t437;
-    P_new[200] = t453;
-    P_new[201] = t454;
-    P_new[202] = t455;
-    P_new[203] = t456;
-    P_new[204] = t457;
-    P_new[205] = t458;
-    P_new[206] = t459;
-    P_new[207] = t460;
-    P_new[208] = t461;
-    P_new[209] = t462;
-    P_new[210] = t463;
-    P_new[211] = t464;
-    P_new[212] = t465;
-    P_new[213] = t466;
-    P_new[214] = t467;
-    P_new[215] = t468;
-    P_new[216] = t298;
-    P_new[217] = t321;
-    P_new[218] = t343;
-    P_new[219] = t364;
-    P_new[220] = t384;
-    P_new[221] = t403;
-    P_new[222] = t421;
-    P_new[223] = t438;
-    P_new[224] = t454;
     P_new[225] = t469;
     P_new[226] = t470;
     P_new[227] = t471;
-    P_new[228] = t472;
-    P_new[229] = t473;
-    P_new[230] = t474;
-    P_new[231] = t475;
-    P_new[232] = t476;
-    P_new[233] = t477;
-    P_new[234] = t478;
-    P_new[235] = t479;
-    P_new[236] = t480;
-    P_new[237] = t481;
-    P_new[238] = t482;
-    P_new[239] = t483;
-    P_new[240] = t299;
-    P_new[241] = t322;
-    P_new[242] = t344;
-    P_new[243] = t365;
-    P_new[244] = t385;
-    P_new[245] = t404;
-    P_new[246] = t422;
-    P_new[247] = t439;
-    P_new[248] = t455;
     P_new[249] = t470;
     P_new[250] = t484;
     P_new[251] = t485;
-    P_new[252] = t486;
-    P_new[253] = t487;
-    P_new[254] = t488;
-    P_new[255] = t489;
-    P_new[256] = t490;
-    P_new[257] = t491;
-    P_new[258] = t492;
-    P_new[259] = t493;
-    P_new[260] = t494;
-    P_new[261] = t495;
-    P_new[262] = t496;
-    P_new[263] = t497;
-    P_new[264] = t300;
-    P_new[265] = t323;
-    P_new[266] = t345;
-    P_new[267] = t366;
-    P_new[268] = t386;
-    P_new[269] = t405;
-    P_new[270] = t423;
-    P_new[271] = t440;
-    P_new[272] = t456;
     P_new[273] = t471;
     P_new[274] = t485;
     P_new[275] = t498;
-    P_new[276] = t499;
-    P_new[277] = t500;
-    P_new[278] = t501;
-    P_new[279] = t502;
-    P_new[280] = t503;
-    P_new[281] = t504;
-    P_new[282] = t505;
-    P_new[283] = t506;
-    P_new[284] = t507;
-    P_new[285] = t508;
-    P_new[286] = t509;
-    P_new[287] = t510;
-    P_new[288] = t301;
-    P_new[289] = t324;
-    P_new[290] = t346;
-    P_new[291] = t367;
-    P_new[292] = t387;
-    P_new[293] = t406;
-    P_new[294] = t424;
-    P_new[295] = t441;
-    P_new[296] = t457;
-    P_new[297] = t472;
-    P_new[298] = t486;
-    P_new[299] = t499;
-    P_new[300] = t511;
-    P_new[301] = t512;
-    P_new[302] = t513;
-    P_new[303] = t514;
-    P_new[304] = t515;
-    P_new[305] = t516;
-    P_new[306] = t517;
-    P_new[307] = t518;
-    P_new[308] = t519;
-    P_new[309] = t520;
-    P_new[310] = t521;
-    P_new[311] = t522;
-    P_new[312] = t302;
-    P_new[313] = t325;
-    P_new[314] = t347;
-    P_new[315] = t368;
-    P_new[316] = t388;
-    P_new[317] = t407;
-    P_new[318] = t425;
-    P_new[319] = t442;
-    P_new[320] = t458;
-    P_new[321] = t473;
-    P_new[322] = t487;
-    P_new[323] = t500;
-    P_new[324] = t512;
     P_new[325] = t523;
     P_new[326] = t524;
     P_new[327] = t525;
-    P_new[328] = t526;
-    P_new[329] = t527;
-    P_new[330] = t528;
-    P_new[331] = t529;
-    P_new[332] = t530;
-    P_new[333] = t531;
-    P_new[334] = t532;
-    P_new[335] = t533;
-    P_new[336] = t303;
-    P_new[337] = t326;
-    P_new[338] = t348;
-    P_new[339] = t369;
-    P_new[340] = t389;
-    P_new[341] = t408;
-    P_new[342] = t426;
-    P_new[343] = t443;
-    P_new[344] = t459;
-    P_new[345] = t474;
-    P_new[346] = t488;
-    P_new[347] = t501;
-    P_new[348] = t513;
     P_new[349] = t524;
     P_new[350] = t534;
     P_new[351] = t535;
-    P_new[352] = t536;
-    P_new[353] = t537;
-    P_new[354] = t538;
-    P_new[355] = t539;
-    P_new[356] = t540;
-    P_new[357] = t541;
-    P_new[358] = t542;
-    P_new[359] = t543;
-    P_new[360] = t304;
-    P_new[361] = t327;
-    P_new[362] = t349;
-    P_new[363] = t370;
-    P_new[364] = t390;
-    P_new[365] = t409;
-    P_new[366] = t427;
-    P_new[367] = t444;
-    P_new[368] = t460;
-    P_new[369] = t475;
-    P_new[370] = t489;
-    P_new[371] = t502;
-    P_new[372] = t514;
     P_new[373] = t525;
     P_new[374] = t535;
     P_new[375] = t544;
-    P_new[376] = t545;
-    P_new[377] = t546;
-    P_new[378] = t547;
-    P_new[379] = t548;
-    P_new[380] = t549;
-    P_new[381] = t550;
-    P_new[382] = t551;
-    P_new[383] = t552;
-    P_new[384] = t305;
-    P_new[385] = t328;
-    P_new[386] = t350;
-    P_new[387] = t371;
-    P_new[388] = t391;
-    P_new[389] = t410;
-    P_new[390] = t428;
-    P_new[391] = t445;
-    P_new[392] = t461;
-    P_new[393] = t476;
-    P_new[394] = t490;
-    P_new[395] = t503;
-    P_new[396] = t515;
-    P_new[397] = t526;
-    P_new[398] = t536;
-    P_new[399] = t545;
-    P_new[400] = t553;
-    P_new[401] = t554;
-    P_new[402] = t555;
-    P_new[403] = t556;
-    P_new[404] = t557;
-    P_new[405] = t558;
-    P_new[406] = t559;
-    P_new[407] = t560;
-    P_new[408] = t306;
-    P_new[409] = t329;
-    P_new[410] = t351;
-    P_new[411] = t372;
-    P_new[412] = t392;
-    P_new[413] = t411;
-    P_new[414] = t429;
-    P_new[415] = t446;
-    P_new[416] = t462;
-    P_new[417] = t477;
-    P_new[418] = t491;
-    P_new[419] = t504;
-    P_new[420] = t516;
-    P_new[421] = t527;
-    P_new[422] = t537;
-    P_new[423] = t546;
-    P_new[424] = t554;
     P_new[425] = t561;
     P_new[426] = t562;
     P_new[427] = t563;
-    P_new[428] = t564;
-    P_new[429] = t565;
-    P_new[430] = t566;
-    P_new[431] = t567;
-    P_new[432] = t307;
-    P_new[433] = t330;
-    P_new[434] = t352;
-    P_new[435] = t373;
-    P_new[436] = t393;
-    P_new[437] = t412;
-    P_new[438] = t430;
-    P_new[439] = t447;
-    P_new[440] = t463;
-    P_new[441] = t478;
-    P_new[442] = t492;
-    P_new[443] = t505;
-    P_new[444] = t517;
-    P_new[445] = t528;
-    P_new[446] = t538;
-    P_new[447] = t547;
-    P_new[448] = t555;
     P_new[449] = t562;
     P_new[450] = t568;
     P_new[451] = t569;
-    P_new[452] = t570;
-    P_new[453] = t571;
-    P_new[454] = t572;
-    P_new[455] = t573;
-    P_new[456] = t308;
-    P_new[457] = t331;
-    P_new[458] = t353;
-    P_new[459] = t374;
-    P_new[460] = t394;
-    P_new[461] = t413;
-    P_new[462] = t431;
-    P_new[463] = t448;
-    P_new[464] = t464;
-    P_new[465] = t479;
-    P_new[466] = t493;
-    P_new[467] = t506;
-    P_new[468] = t518;
-    P_new[469] = t529;
-    P_new[470] = t539;
-    P_new[471] = t548;
-    P_new[472] = t556;
     P_new[473] = t563;
     P_new[474] = t569;
     P_new[475] = t574;
-    P_new[476] = t575;
-    P_new[477] = t576;
-    P_new[478] = t577;
-    P_new[479] = t578;
-    P_new[480] = t309;
-    P_new[481] = t332;
-    P_new[482] = t354;
-    P_new[483] = t375;
-    P_new[484] = t395;
-    P_new[485] = t414;
-    P_new[486] = t432;
-    P_new[487] = t449;
-    P_new[488] = t465;
-    P_new[489] = t480;
-    P_new[490] = t494;
-    P_new[491] = t507;
-    P_new[492] = t519;
-    P_new[493] = t530;
-    P_new[494] = t540;
-    P_new[495] = t549;
-    P_new[496] = t557;
-    P_new[497] = t564;
-    P_new[498] = t570;
-    P_new[499] = t575;
-    P_new[500] = t579;
-    P_new[501] = t580;
-    P_new[502] = t581;
-    P_new[503] = t582;
-    P_new[504] = t310;
-    P_new[505] = t333;
-    P_new[506] = t355;
-    P_new[507] = t376;
-    P_new[508] = t396;
-    P_new[509] = t415;
-    P_new[510] = t433;
-    P_new[511] = t450;
-    P_new[512] = t466;
-    P_new[513] = t481;
-    P_new[514] = t495;
-    P_new[515] = t508;
-    P_new[516] = t520;
-    P_new[517] = t531;
-    P_new[518] = t541;
-    P_new[519] = t550;
-    P_new[520] = t558;
-    P_new[521] = t565;
-    P_new[522] = t571;
-    P_new[523] = t576;
-    P_new[524] = t580;
     P_new[525] = t583;
     P_new[526] = t584;
     P_new[527] = t585;
-    P_new[528] = t311;
-    P_new[529] = t334;
-    P_new[530] = t356;
-    P_new[531] = t377;
-    P_new[532] = t397;
-    P_new[533] = t416;
-    P_new[534] = t434;
-    P_new[535] = t451;
-    P_new[536] = t467;
-    P_new[537] = t482;
-    P_new[538] = t496;
-    P_new[539] = t509;
-    P_new[540] = t521;
-    P_new[541] = t532;
-    P_new[542] = t542;
-    P_new[543] = t551;
-    P_new[544] = t559;
-    P_new[545] = t566;
-    P_new[546] = t572;
-    P_new[547] = t577;
-    P_new[548] = t581;
     P_new[549] = t584;
     P_new[550] = t586;
     P_new[551] = t587;
-    P_new[552] = t312;
-    P_new[553] = t335;
-    P_new[554] = t357;
-    P_new[555] = t378;
-    P_new[556] = t398;
-    P_new[557] = t417;
-    P_new[558] = t435;
-    P_new[559] = t452;
-    P_new[560] = t468;
-    P_new[561] = t483;
-    P_new[562] = t497;
-    P_new[563] = t510;
-    P_new[564] = t522;
-    P_new[565] = t533;
-    P_new[566] = t543;
-    P_new[567] = t552;
-    P_new[568] = t560;
-    P_new[569] = t567;
-    P_new[570] = t573;
-    P_new[571] = t578;
-    P_new[572] = t582;
     P_new[573] = t585;
     P_new[574] = t587;
     P_new[575] = t588;
@@ -9447,6 +9447,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t66 = DERIVE_FNMA(t36, t15, x[5]);
     const double t67 = DERIVE_FNMA(t36, t16, x[6]);
     const double t68 = DERIVE_FNMA(t36, t17, x[7]);
+    x_new[4] = t65;
+    x_new[5] = t66;
+    x_new[6] = t67;
+    x_new[7] = t68;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -9456,6 +9460,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t70 = DERIVE_FNMA(t36, t19, x[9]);
     const double t71 = DERIVE_FNMA(t36, t20, x[10]);
     const double t72 = DERIVE_FNMA(t36, t21, x[11]);
+    x_new[8] = t69;
+    x_new[9] = t70;
+    x_new[10] = t71;
+    x_new[11] = t72;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -9465,6 +9473,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t74 = DERIVE_FNMA(t36, t23, x[13]);
     const double t75 = DERIVE_FNMA(t36, t24, x[14]);
     const double t76 = DERIVE_FNMA(t36, t25, x[15]);
+    x_new[12] = t73;
+    x_new[13] = t74;
+    x_new[14] = t75;
+    x_new[15] = t76;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t77 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t26, ((derive_vd){x[16], x[17], x[18], x[19]}));
@@ -9474,6 +9486,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t78 = DERIVE_FNMA(t36, t27, x[17]);
     const double t79 = DERIVE_FNMA(t36, t28, x[18]);
     const double t80 = DERIVE_FNMA(t36, t29, x[19]);
+    x_new[16] = t77;
+    x_new[17] = t78;
+    x_new[18] = t79;
+    x_new[19] = t80;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t81 = DERIVE_VFNMA(((derive_vd){t36, t36, t36, t36}), v_t30, ((derive_vd){x[20], x[21], x[22], x[23]}));
@@ -9483,6 +9499,10 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t82 = DERIVE_FNMA(t36, t31, x[21]);
     const double t83 = DERIVE_FNMA(t36, t32, x[22]);
     const double t84 = DERIVE_FNMA(t36, t33, x[23]);
+    x_new[20] = t81;
+    x_new[21] = t82;
+    x_new[22] = t83;
+    x_new[23] = t84;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -9495,6 +9515,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t86 = DERIVE_FMA(t37, t11, P[1]);
     const double t87 = DERIVE_FMA(t37, t12, P[2]);
     const double t88 = DERIVE_FMA(t37, t13, P[3]);
+    P_new[0] = t85;
+    P_new[1] = t86;
+    P_new[24] = t86;
+    P_new[2] = t87;
+    P_new[48] = t87;
+    P_new[3] = t88;
+    P_new[72] = t88;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -9503,6 +9530,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t90 = DERIVE_FMA(t37, t15, P[5]);
     const double t91 = DERIVE_FMA(t37, t16, P[6]);
     const double t92 = DERIVE_FMA(t37, t17, P[7]);
+    P_new[4] = t89;
+    P_new[96] = t89;
+    P_new[5] = t90;
+    P_new[120] = t90;
+    P_new[6] = t91;
+    P_new[144] = t91;
+    P_new[7] = t92;
+    P_new[168] = t92;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -9511,6 +9546,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t94 = DERIVE_FMA(t37, t19, P[9]);
     const double t95 = DERIVE_FMA(t37, t20, P[10]);
     const double t96 = DERIVE_FMA(t37, t21, P[11]);
+    P_new[8] = t93;
+    P_new[192] = t93;
+    P_new[9] = t94;
+    P_new[216] = t94;
+    P_new[10] = t95;
+    P_new[240] = t95;
+    P_new[11] = t96;
+    P_new[264] = t96;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -9519,6 +9562,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t98 = DERIVE_FMA(t37, t23, P[13]);
     const double t99 = DERIVE_FMA(t37, t24, P[14]);
     const double t100 = DERIVE_FMA(t37, t25, P[15]);
+    P_new[12] = t97;
+    P_new[288] = t97;
+    P_new[13] = t98;
+    P_new[312] = t98;
+    P_new[14] = t99;
+    P_new[336] = t99;
+    P_new[15] = t100;
+    P_new[360] = t100;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t101 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t26, ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -9527,6 +9578,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t102 = DERIVE_FMA(t37, t27, P[17]);
     const double t103 = DERIVE_FMA(t37, t28, P[18]);
     const double t104 = DERIVE_FMA(t37, t29, P[19]);
+    P_new[16] = t101;
+    P_new[384] = t101;
+    P_new[17] = t102;
+    P_new[408] = t102;
+    P_new[18] = t103;
+    P_new[432] = t103;
+    P_new[19] = t104;
+    P_new[456] = t104;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t105 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t30, ((derive_vd){P[20], P[21], P[22], P[23]}));
@@ -9535,6 +9594,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t106 = DERIVE_FMA(t37, t31, P[21]);
     const double t107 = DERIVE_FMA(t37, t32, P[22]);
     const double t108 = DERIVE_FMA(t37, t33, P[23]);
+    P_new[20] = t105;
+    P_new[480] = t105;
+    P_new[21] = t106;
+    P_new[504] = t106;
+    P_new[22] = t107;
+    P_new[528] = t107;
+    P_new[23] = t108;
+    P_new[552] = t108;
     #endif
     const double t109 = DERIVE_FMA(t11, t38, P[25]);
     const double t110 = DERIVE_FMA(t12, t38, P[26]);
@@ -9546,6 +9613,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t113 = DERIVE_FMA(t38, t15, P[29]);
     const double t114 = DERIVE_FMA(t38, t16, P[30]);
     const double t115 = DERIVE_FMA(t38, t17, P[31]);
+    P_new[28] = t112;
+    P_new[97] = t112;
+    P_new[29] = t113;
+    P_new[121] = t113;
+    P_new[30] = t114;
+    P_new[145] = t114;
+    P_new[31] = t115;
+    P_new[169] = t115;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -9554,6 +9629,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t117 = DERIVE_FMA(t38, t19, P[33]);
     const double t118 = DERIVE_FMA(t38, t20, P[34]);
     const double t119 = DERIVE_FMA(t38, t21, P[35]);
+    P_new[32] = t116;
+    P_new[193] = t116;
+    P_new[33] = t117;
+    P_new[217] = t117;
+    P_new[34] = t118;
+    P_new[241] = t118;
+    P_new[35] = t119;
+    P_new[265] = t119;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[36], P[37], P[38], P[39]}));
@@ -9562,6 +9645,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t121 = DERIVE_FMA(t38, t23, P[37]);
     const double t122 = DERIVE_FMA(t38, t24, P[38]);
     const double t123 = DERIVE_FMA(t38, t25, P[39]);
+    P_new[36] = t120;
+    P_new[289] = t120;
+    P_new[37] = t121;
+    P_new[313] = t121;
+    P_new[38] = t122;
+    P_new[337] = t122;
+    P_new[39] = t123;
+    P_new[361] = t123;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t124 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t26, ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -9570,6 +9661,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t125 = DERIVE_FMA(t38, t27, P[41]);
     const double t126 = DERIVE_FMA(t38, t28, P[42]);
     const double t127 = DERIVE_FMA(t38, t29, P[43]);
+    P_new[40] = t124;
+    P_new[385] = t124;
+    P_new[41] = t125;
+    P_new[409] = t125;
+    P_new[42] = t126;
+    P_new[433] = t126;
+    P_new[43] = t127;
+    P_new[457] = t127;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t128 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t30, ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -9578,6 +9677,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t129 = DERIVE_FMA(t38, t31, P[45]);
     const double t130 = DERIVE_FMA(t38, t32, P[46]);
     const double t131 = DERIVE_FMA(t38, t33, P[47]);
+    P_new[44] = t128;
+    P_new[481] = t128;
+    P_new[45] = t129;
+    P_new[505] = t129;
+    P_new[46] = t130;
+    P_new[529] = t130;
+    P_new[47] = t131;
+    P_new[553] = t131;
     #endif
     const double t132 = DERIVE_FMA(t12, t39, P[50]);
     const double t133 = DERIVE_FMA(t13, t39, P[51]);
@@ -9588,6 +9695,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t135 = DERIVE_FMA(t39, t15, P[53]);
     const double t136 = DERIVE_FMA(t39, t16, P[54]);
     const double t137 = DERIVE_FMA(t39, t17, P[55]);
+    P_new[52] = t134;
+    P_new[98] = t134;
+    P_new[53] = t135;
+    P_new[122] = t135;
+    P_new[54] = t136;
+    P_new[146] = t136;
+    P_new[55] = t137;
+    P_new[170] = t137;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -9596,6 +9711,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t139 = DERIVE_FMA(t39, t19, P[57]);
     const double t140 = DERIVE_FMA(t39, t20, P[58]);
     const double t141 = DERIVE_FMA(t39, t21, P[59]);
+    P_new[56] = t138;
+    P_new[194] = t138;
+    P_new[57] = t139;
+    P_new[218] = t139;
+    P_new[58] = t140;
+    P_new[242] = t140;
+    P_new[59] = t141;
+    P_new[266] = t141;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -9604,6 +9727,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t143 = DERIVE_FMA(t39, t23, P[61]);
     const double t144 = DERIVE_FMA(t39, t24, P[62]);
     const double t145 = DERIVE_FMA(t39, t25, P[63]);
+    P_new[60] = t142;
+    P_new[290] = t142;
+    P_new[61] = t143;
+    P_new[314] = t143;
+    P_new[62] = t144;
+    P_new[338] = t144;
+    P_new[63] = t145;
+    P_new[362] = t145;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t146 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t26, ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -9612,6 +9743,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t147 = DERIVE_FMA(t39, t27, P[65]);
     const double t148 = DERIVE_FMA(t39, t28, P[66]);
     const double t149 = DERIVE_FMA(t39, t29, P[67]);
+    P_new[64] = t146;
+    P_new[386] = t146;
+    P_new[65] = t147;
+    P_new[410] = t147;
+    P_new[66] = t148;
+    P_new[434] = t148;
+    P_new[67] = t149;
+    P_new[458] = t149;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t150 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t30, ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -9620,6 +9759,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t151 = DERIVE_FMA(t39, t31, P[69]);
     const double t152 = DERIVE_FMA(t39, t32, P[70]);
     const double t153 = DERIVE_FMA(t39, t33, P[71]);
+    P_new[68] = t150;
+    P_new[482] = t150;
+    P_new[69] = t151;
+    P_new[506] = t151;
+    P_new[70] = t152;
+    P_new[530] = t152;
+    P_new[71] = t153;
+    P_new[554] = t153;
     #endif
     const double t154 = DERIVE_FMA(t13, t40, P[75]);
     #if DERIVE_VECTOR
@@ -9645,6 +9792,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t156 = DERIVE_FMA(t40, t15, P[77]);
     const double t157 = DERIVE_FMA(t40, t16, P[78]);
     const double t158 = DERIVE_FMA(t40, t17, P[79]);
+    P_new[76] = t155;
+    P_new[99] = t155;
+    P_new[77] = t156;
+    P_new[123] = t156;
+    P_new[78] = t157;
+    P_new[147] = t157;
+    P_new[79] = t158;
+    P_new[171] = t158;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -9669,6 +9824,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t160 = DERIVE_FMA(t40, t19, P[81]);
     const double t161 = DERIVE_FMA(t40, t20, P[82]);
     const double t162 = DERIVE_FMA(t40, t21, P[83]);
+    P_new[80] = t159;
+    P_new[195] = t159;
+    P_new[81] = t160;
+    P_new[219] = t160;
+    P_new[82] = t161;
+    P_new[243] = t161;
+    P_new[83] = t162;
+    P_new[267] = t162;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[84], P[85], P[86], P[87]}));
@@ -9693,6 +9856,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t164 = DERIVE_FMA(t40, t23, P[85]);
     const double t165 = DERIVE_FMA(t40, t24, P[86]);
     const double t166 = DERIVE_FMA(t40, t25, P[87]);
+    P_new[84] = t163;
+    P_new[291] = t163;
+    P_new[85] = t164;
+    P_new[315] = t164;
+    P_new[86] = t165;
+    P_new[339] = t165;
+    P_new[87] = t166;
+    P_new[363] = t166;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t26, ((derive_vd){P[88], P[89], P[90], P[91]}));
@@ -9717,6 +9888,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t168 = DERIVE_FMA(t40, t27, P[89]);
     const double t169 = DERIVE_FMA(t40, t28, P[90]);
     const double t170 = DERIVE_FMA(t40, t29, P[91]);
+    P_new[88] = t167;
+    P_new[387] = t167;
+    P_new[89] = t168;
+    P_new[411] = t168;
+    P_new[90] = t169;
+    P_new[435] = t169;
+    P_new[91] = t170;
+    P_new[459] = t170;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t30, ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -9741,6 +9920,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t172 = DERIVE_FMA(t40, t31, P[93]);
     const double t173 = DERIVE_FMA(t40, t32, P[94]);
     const double t174 = DERIVE_FMA(t40, t33, P[95]);
+    P_new[92] = t171;
+    P_new[483] = t171;
+    P_new[93] = t172;
+    P_new[507] = t172;
+    P_new[94] = t173;
+    P_new[531] = t173;
+    P_new[95] = t174;
+    P_new[555] = t174;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[100], P[101], P[102], P[103]}));
@@ -9753,6 +9940,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t176 = DERIVE_FMA(t41, t15, P[101]);
     const double t177 = DERIVE_FMA(t41, t16, P[102]);
     const double t178 = DERIVE_FMA(t41, t17, P[103]);
+    P_new[100] = t175;
+    P_new[101] = t176;
+    P_new[124] = t176;
+    P_new[102] = t177;
+    P_new[148] = t177;
+    P_new[103] = t178;
+    P_new[172] = t178;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[104], P[105], P[106], P[107]}));
@@ -9761,6 +9955,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t180 = DERIVE_FMA(t41, t19, P[105]);
     const double t181 = DERIVE_FMA(t41, t20, P[106]);
     const double t182 = DERIVE_FMA(t41, t21, P[107]);
+    P_new[104] = t179;
+    P_new[196] = t179;
+    P_new[105] = t180;
+    P_new[220] = t180;
+    P_new[106] = t181;
+    P_new[244] = t181;
+    P_new[107] = t182;
+    P_new[268] = t182;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -9769,6 +9971,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t184 = DERIVE_FMA(t41, t23, P[109]);
     const double t185 = DERIVE_FMA(t41, t24, P[110]);
     const double t186 = DERIVE_FMA(t41, t25, P[111]);
+    P_new[108] = t183;
+    P_new[292] = t183;
+    P_new[109] = t184;
+    P_new[316] = t184;
+    P_new[110] = t185;
+    P_new[340] = t185;
+    P_new[111] = t186;
+    P_new[364] = t186;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t187 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t26, ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -9777,6 +9987,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t188 = DERIVE_FMA(t41, t27, P[113]);
     const double t189 = DERIVE_FMA(t41, t28, P[114]);
     const double t190 = DERIVE_FMA(t41, t29, P[115]);
+    P_new[112] = t187;
+    P_new[388] = t187;
+    P_new[113] = t188;
+    P_new[412] = t188;
+    P_new[114] = t189;
+    P_new[436] = t189;
+    P_new[115] = t190;
+    P_new[460] = t190;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t191 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t30, ((derive_vd){P[116], P[117], P[118], P[119]}));
@@ -9785,6 +10003,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t192 = DERIVE_FMA(t41, t31, P[117]);
     const double t193 = DERIVE_FMA(t41, t32, P[118]);
     const double t194 = DERIVE_FMA(t41, t33, P[119]);
+    P_new[116] = t191;
+    P_new[484] = t191;
+    P_new[117] = t192;
+    P_new[508] = t192;
+    P_new[118] = t193;
+    P_new[532] = t193;
+    P_new[119] = t194;
+    P_new[556] = t194;
     #endif
     const double t195 = DERIVE_FMA(t15, t42, P[125]);
     const double t196 = DERIVE_FMA(t16, t42, P[126]);
@@ -9796,6 +10022,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t199 = DERIVE_FMA(t42, t19, P[129]);
     const double t200 = DERIVE_FMA(t42, t20, P[130]);
     const double t201 = DERIVE_FMA(t42, t21, P[131]);
+    P_new[128] = t198;
+    P_new[197] = t198;
+    P_new[129] = t199;
+    P_new[221] = t199;
+    P_new[130] = t200;
+    P_new[245] = t200;
+    P_new[131] = t201;
+    P_new[269] = t201;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[132], P[133], P[134], P[135]}));
@@ -9804,6 +10038,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t203 = DERIVE_FMA(t42, t23, P[133]);
     const double t204 = DERIVE_FMA(t42, t24, P[134]);
     const double t205 = DERIVE_FMA(t42, t25, P[135]);
+    P_new[132] = t202;
+    P_new[293] = t202;
+    P_new[133] = t203;
+    P_new[317] = t203;
+    P_new[134] = t204;
+    P_new[341] = t204;
+    P_new[135] = t205;
+    P_new[365] = t205;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t206 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t26, ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -9812,6 +10054,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t207 = DERIVE_FMA(t42, t27, P[137]);
     const double t208 = DERIVE_FMA(t42, t28, P[138]);
     const double t209 = DERIVE_FMA(t42, t29, P[139]);
+    P_new[136] = t206;
+    P_new[389] = t206;
+    P_new[137] = t207;
+    P_new[413] = t207;
+    P_new[138] = t208;
+    P_new[437] = t208;
+    P_new[139] = t209;
+    P_new[461] = t209;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t210 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t30, ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -9820,6 +10070,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t211 = DERIVE_FMA(t42, t31, P[141]);
     const double t212 = DERIVE_FMA(t42, t32, P[142]);
     const double t213 = DERIVE_FMA(t42, t33, P[143]);
+    P_new[140] = t210;
+    P_new[485] = t210;
+    P_new[141] = t211;
+    P_new[509] = t211;
+    P_new[142] = t212;
+    P_new[533] = t212;
+    P_new[143] = t213;
+    P_new[557] = t213;
     #endif
     const double t214 = DERIVE_FMA(t16, t43, P[150]);
     const double t215 = DERIVE_FMA(t17, t43, P[151]);
@@ -9830,6 +10088,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t217 = DERIVE_FMA(t43, t19, P[153]);
     const double t218 = DERIVE_FMA(t43, t20, P[154]);
     const double t219 = DERIVE_FMA(t43, t21, P[155]);
+    P_new[152] = t216;
+    P_new[198] = t216;
+    P_new[153] = t217;
+    P_new[222] = t217;
+    P_new[154] = t218;
+    P_new[246] = t218;
+    P_new[155] = t219;
+    P_new[270] = t219;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -9838,6 +10104,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t221 = DERIVE_FMA(t43, t23, P[157]);
     const double t222 = DERIVE_FMA(t43, t24, P[158]);
     const double t223 = DERIVE_FMA(t43, t25, P[159]);
+    P_new[156] = t220;
+    P_new[294] = t220;
+    P_new[157] = t221;
+    P_new[318] = t221;
+    P_new[158] = t222;
+    P_new[342] = t222;
+    P_new[159] = t223;
+    P_new[366] = t223;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t224 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t26, ((derive_vd){P[160], P[161], P[162], P[163]}));
@@ -9846,6 +10120,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t225 = DERIVE_FMA(t43, t27, P[161]);
     const double t226 = DERIVE_FMA(t43, t28, P[162]);
     const double t227 = DERIVE_FMA(t43, t29, P[163]);
+    P_new[160] = t224;
+    P_new[390] = t224;
+    P_new[161] = t225;
+    P_new[414] = t225;
+    P_new[162] = t226;
+    P_new[438] = t226;
+    P_new[163] = t227;
+    P_new[462] = t227;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t228 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t30, ((derive_vd){P[164], P[165], P[166], P[167]}));
@@ -9854,6 +10136,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t229 = DERIVE_FMA(t43, t31, P[165]);
     const double t230 = DERIVE_FMA(t43, t32, P[166]);
     const double t231 = DERIVE_FMA(t43, t33, P[167]);
+    P_new[164] = t228;
+    P_new[486] = t228;
+    P_new[165] = t229;
+    P_new[510] = t229;
+    P_new[166] = t230;
+    P_new[534] = t230;
+    P_new[167] = t231;
+    P_new[558] = t231;
     #endif
     const double t232 = DERIVE_FMA(t17, t44, P[175]);
     #if DERIVE_VECTOR
@@ -9879,6 +10169,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t234 = DERIVE_FMA(t44, t19, P[177]);
     const double t235 = DERIVE_FMA(t44, t20, P[178]);
     const double t236 = DERIVE_FMA(t44, t21, P[179]);
+    P_new[176] = t233;
+    P_new[199] = t233;
+    P_new[177] = t234;
+    P_new[223] = t234;
+    P_new[178] = t235;
+    P_new[247] = t235;
+    P_new[179] = t236;
+    P_new[271] = t236;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[180], P[181], P[182], P[183]}));
@@ -9903,6 +10201,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t238 = DERIVE_FMA(t44, t23, P[181]);
     const double t239 = DERIVE_FMA(t44, t24, P[182]);
     const double t240 = DERIVE_FMA(t44, t25, P[183]);
+    P_new[180] = t237;
+    P_new[295] = t237;
+    P_new[181] = t238;
+    P_new[319] = t238;
+    P_new[182] = t239;
+    P_new[343] = t239;
+    P_new[183] = t240;
+    P_new[367] = t240;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t26, ((derive_vd){P[184], P[185], P[186], P[187]}));
@@ -9927,6 +10233,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t242 = DERIVE_FMA(t44, t27, P[185]);
     const double t243 = DERIVE_FMA(t44, t28, P[186]);
     const double t244 = DERIVE_FMA(t44, t29, P[187]);
+    P_new[184] = t241;
+    P_new[391] = t241;
+    P_new[185] = t242;
+    P_new[415] = t242;
+    P_new[186] = t243;
+    P_new[439] = t243;
+    P_new[187] = t244;
+    P_new[463] = t244;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t30, ((derive_vd){P[188], P[189], P[190], P[191]}));
@@ -9951,6 +10265,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t246 = DERIVE_FMA(t44, t31, P[189]);
     const double t247 = DERIVE_FMA(t44, t32, P[190]);
     const double t248 = DERIVE_FMA(t44, t33, P[191]);
+    P_new[188] = t245;
+    P_new[487] = t245;
+    P_new[189] = t246;
+    P_new[511] = t246;
+    P_new[190] = t247;
+    P_new[535] = t247;
+    P_new[191] = t248;
+    P_new[559] = t248;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[200], P[201], P[202], P[203]}));
@@ -9963,6 +10285,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t250 = DERIVE_FMA(t45, t19, P[201]);
     const double t251 = DERIVE_FMA(t45, t20, P[202]);
     const double t252 = DERIVE_FMA(t45, t21, P[203]);
+    P_new[200] = t249;
+    P_new[201] = t250;
+    P_new[224] = t250;
+    P_new[202] = t251;
+    P_new[248] = t251;
+    P_new[203] = t252;
+    P_new[272] = t252;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -9971,6 +10300,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t254 = DERIVE_FMA(t45, t23, P[205]);
     const double t255 = DERIVE_FMA(t45, t24, P[206]);
     const double t256 = DERIVE_FMA(t45, t25, P[207]);
+    P_new[204] = t253;
+    P_new[296] = t253;
+    P_new[205] = t254;
+    P_new[320] = t254;
+    P_new[206] = t255;
+    P_new[344] = t255;
+    P_new[207] = t256;
+    P_new[368] = t256;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t257 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t26, ((derive_vd){P[208], P[209], P[210], P[211]}));
@@ -9979,6 +10316,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t258 = DERIVE_FMA(t45, t27, P[209]);
     const double t259 = DERIVE_FMA(t45, t28, P[210]);
     const double t260 = DERIVE_FMA(t45, t29, P[211]);
+    P_new[208] = t257;
+    P_new[392] = t257;
+    P_new[209] = t258;
+    P_new[416] = t258;
+    P_new[210] = t259;
+    P_new[440] = t259;
+    P_new[211] = t260;
+    P_new[464] = t260;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t261 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t30, ((derive_vd){P[212], P[213], P[214], P[215]}));
@@ -9987,6 +10332,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t262 = DERIVE_FMA(t45, t31, P[213]);
     const double t263 = DERIVE_FMA(t45, t32, P[214]);
     const double t264 = DERIVE_FMA(t45, t33, P[215]);
+    P_new[212] = t261;
+    P_new[488] = t261;
+    P_new[213] = t262;
+    P_new[512] = t262;
+    P_new[214] = t263;
+    P_new[536] = t263;
+    P_new[215] = t264;
+    P_new[560] = t264;
     #endif
     const double t265 = DERIVE_FMA(t19, t46, P[225]);
     const double t266 = DERIVE_FMA(t20, t46, P[226]);
@@ -9998,6 +10351,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t269 = DERIVE_FMA(t46, t23, P[229]);
     const double t270 = DERIVE_FMA(t46, t24, P[230]);
     const double t271 = DERIVE_FMA(t46, t25, P[231]);
+    P_new[228] = t268;
+    P_new[297] = t268;
+    P_new[229] = t269;
+    P_new[321] = t269;
+    P_new[230] = t270;
+    P_new[345] = t270;
+    P_new[231] = t271;
+    P_new[369] = t271;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t272 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t26, ((derive_vd){P[232], P[233], P[234], P[235]}));
@@ -10006,6 +10367,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t273 = DERIVE_FMA(t46, t27, P[233]);
     const double t274 = DERIVE_FMA(t46, t28, P[234]);
     const double t275 = DERIVE_FMA(t46, t29, P[235]);
+    P_new[232] = t272;
+    P_new[393] = t272;
+    P_new[233] = t273;
+    P_new[417] = t273;
+    P_new[234] = t274;
+    P_new[441] = t274;
+    P_new[235] = t275;
+    P_new[465] = t275;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t276 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t30, ((derive_vd){P[236], P[237], P[238], P[239]}));
@@ -10014,6 +10383,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t277 = DERIVE_FMA(t46, t31, P[237]);
     const double t278 = DERIVE_FMA(t46, t32, P[238]);
     const double t279 = DERIVE_FMA(t46, t33, P[239]);
+    P_new[236] = t276;
+    P_new[489] = t276;
+    P_new[237] = t277;
+    P_new[513] = t277;
+    P_new[238] = t278;
+    P_new[537] = t278;
+    P_new[239] = t279;
+    P_new[561] = t279;
     #endif
     const double t280 = DERIVE_FMA(t20, t47, P[250]);
     const double t281 = DERIVE_FMA(t21, t47, P[251]);
@@ -10024,6 +10401,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t283 = DERIVE_FMA(t47, t23, P[253]);
     const double t284 = DERIVE_FMA(t47, t24, P[254]);
     const double t285 = DERIVE_FMA(t47, t25, P[255]);
+    P_new[252] = t282;
+    P_new[298] = t282;
+    P_new[253] = t283;
+    P_new[322] = t283;
+    P_new[254] = t284;
+    P_new[346] = t284;
+    P_new[255] = t285;
+    P_new[370] = t285;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t286 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t26, ((derive_vd){P[256], P[257], P[258], P[259]}));
@@ -10032,6 +10417,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t287 = DERIVE_FMA(t47, t27, P[257]);
     const double t288 = DERIVE_FMA(t47, t28, P[258]);
     const double t289 = DERIVE_FMA(t47, t29, P[259]);
+    P_new[256] = t286;
+    P_new[394] = t286;
+    P_new[257] = t287;
+    P_new[418] = t287;
+    P_new[258] = t288;
+    P_new[442] = t288;
+    P_new[259] = t289;
+    P_new[466] = t289;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t290 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t30, ((derive_vd){P[260], P[261], P[262], P[263]}));
@@ -10040,6 +10433,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t291 = DERIVE_FMA(t47, t31, P[261]);
     const double t292 = DERIVE_FMA(t47, t32, P[262]);
     const double t293 = DERIVE_FMA(t47, t33, P[263]);
+    P_new[260] = t290;
+    P_new[490] = t290;
+    P_new[261] = t291;
+    P_new[514] = t291;
+    P_new[262] = t292;
+    P_new[538] = t292;
+    P_new[263] = t293;
+    P_new[562] = t293;
     #endif
     const double t294 = DERIVE_FMA(t21, t48, P[275]);
     #if DERIVE_VECTOR
@@ -10065,6 +10466,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t296 = DERIVE_FMA(t48, t23, P[277]);
     const double t297 = DERIVE_FMA(t48, t24, P[278]);
     const double t298 = DERIVE_FMA(t48, t25, P[279]);
+    P_new[276] = t295;
+    P_new[299] = t295;
+    P_new[277] = t296;
+    P_new[323] = t296;
+    P_new[278] = t297;
+    P_new[347] = t297;
+    P_new[279] = t298;
+    P_new[371] = t298;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t26, ((derive_vd){P[280], P[281], P[282], P[283]}));
@@ -10089,6 +10498,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t300 = DERIVE_FMA(t48, t27, P[281]);
     const double t301 = DERIVE_FMA(t48, t28, P[282]);
     const double t302 = DERIVE_FMA(t48, t29, P[283]);
+    P_new[280] = t299;
+    P_new[395] = t299;
+    P_new[281] = t300;
+    P_new[419] = t300;
+    P_new[282] = t301;
+    P_new[443] = t301;
+    P_new[283] = t302;
+    P_new[467] = t302;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t30, ((derive_vd){P[284], P[285], P[286], P[287]}));
@@ -10113,6 +10530,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t304 = DERIVE_FMA(t48, t31, P[285]);
     const double t305 = DERIVE_FMA(t48, t32, P[286]);
     const double t306 = DERIVE_FMA(t48, t33, P[287]);
+    P_new[284] = t303;
+    P_new[491] = t303;
+    P_new[285] = t304;
+    P_new[515] = t304;
+    P_new[286] = t305;
+    P_new[539] = t305;
+    P_new[287] = t306;
+    P_new[563] = t306;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[300], P[301], P[302], P[303]}));
@@ -10125,6 +10550,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t308 = DERIVE_FMA(t49, t23, P[301]);
     const double t309 = DERIVE_FMA(t49, t24, P[302]);
     const double t310 = DERIVE_FMA(t49, t25, P[303]);
+    P_new[300] = t307;
+    P_new[301] = t308;
+    P_new[324] = t308;
+    P_new[302] = t309;
+    P_new[348] = t309;
+    P_new[303] = t310;
+    P_new[372] = t310;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t311 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t26, ((derive_vd){P[304], P[305], P[306], P[307]}));
@@ -10133,6 +10565,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t312 = DERIVE_FMA(t49, t27, P[305]);
     const double t313 = DERIVE_FMA(t49, t28, P[306]);
     const double t314 = DERIVE_FMA(t49, t29, P[307]);
+    P_new[304] = t311;
+    P_new[396] = t311;
+    P_new[305] = t312;
+    P_new[420] = t312;
+    P_new[306] = t313;
+    P_new[444] = t313;
+    P_new[307] = t314;
+    P_new[468] = t314;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t315 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t30, ((derive_vd){P[308], P[309], P[310], P[311]}));
@@ -10141,6 +10581,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t316 = DERIVE_FMA(t49, t31, P[309]);
     const double t317 = DERIVE_FMA(t49, t32, P[310]);
     const double t318 = DERIVE_FMA(t49, t33, P[311]);
+    P_new[308] = t315;
+    P_new[492] = t315;
+    P_new[309] = t316;
+    P_new[516] = t316;
+    P_new[310] = t317;
+    P_new[540] = t317;
+    P_new[311] = t318;
+    P_new[564] = t318;
     #endif
     const double t319 = DERIVE_FMA(t23, t50, P[325]);
     const double t320 = DERIVE_FMA(t24, t50, P[326]);
@@ -10152,6 +10600,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t323 = DERIVE_FMA(t50, t27, P[329]);
     const double t324 = DERIVE_FMA(t50, t28, P[330]);
     const double t325 = DERIVE_FMA(t50, t29, P[331]);
+    P_new[328] = t322;
+    P_new[397] = t322;
+    P_new[329] = t323;
+    P_new[421] = t323;
+    P_new[330] = t324;
+    P_new[445] = t324;
+    P_new[331] = t325;
+    P_new[469] = t325;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t326 = DERIVE_VFMA(((derive_vd){t50, t50, t50, t50}), v_t30, ((derive_vd){P[332], P[333], P[334], P[335]}));
@@ -10160,6 +10616,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t327 = DERIVE_FMA(t50, t31, P[333]);
     const double t328 = DERIVE_FMA(t50, t32, P[334]);
     const double t329 = DERIVE_FMA(t50, t33, P[335]);
+    P_new[332] = t326;
+    P_new[493] = t326;
+    P_new[333] = t327;
+    P_new[517] = t327;
+    P_new[334] = t328;
+    P_new[541] = t328;
+    P_new[335] = t329;
+    P_new[565] = t329;
     #endif
     const double t330 = DERIVE_FMA(t24, t51, P[350]);
     const double t331 = DERIVE_FMA(t25, t51, P[351]);
@@ -10170,6 +10634,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t333 = DERIVE_FMA(t51, t27, P[353]);
     const double t334 = DERIVE_FMA(t51, t28, P[354]);
     const double t335 = DERIVE_FMA(t51, t29, P[355]);
+    P_new[352] = t332;
+    P_new[398] = t332;
+    P_new[353] = t333;
+    P_new[422] = t333;
+    P_new[354] = t334;
+    P_new[446] = t334;
+    P_new[355] = t335;
+    P_new[470] = t335;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t336 = DERIVE_VFMA(((derive_vd){t51, t51, t51, t51}), v_t30, ((derive_vd){P[356], P[357], P[358], P[359]}));
@@ -10178,6 +10650,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t337 = DERIVE_FMA(t51, t31, P[357]);
     const double t338 = DERIVE_FMA(t51, t32, P[358]);
     const double t339 = DERIVE_FMA(t51, t33, P[359]);
+    P_new[356] = t336;
+    P_new[494] = t336;
+    P_new[357] = t337;
+    P_new[518] = t337;
+    P_new[358] = t338;
+    P_new[542] = t338;
+    P_new[359] = t339;
+    P_new[566] = t339;
     #endif
     const double t340 = DERIVE_FMA(t25, t52, P[375]);
     #if DERIVE_VECTOR
@@ -10203,6 +10683,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t342 = DERIVE_FMA(t52, t27, P[377]);
     const double t343 = DERIVE_FMA(t52, t28, P[378]);
     const double t344 = DERIVE_FMA(t52, t29, P[379]);
+    P_new[376] = t341;
+    P_new[399] = t341;
+    P_new[377] = t342;
+    P_new[423] = t342;
+    P_new[378] = t343;
+    P_new[447] = t343;
+    P_new[379] = t344;
+    P_new[471] = t344;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t30, ((derive_vd){P[380], P[381], P[382], P[383]}));
@@ -10227,6 +10715,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t346 = DERIVE_FMA(t52, t31, P[381]);
     const double t347 = DERIVE_FMA(t52, t32, P[382]);
     const double t348 = DERIVE_FMA(t52, t33, P[383]);
+    P_new[380] = t345;
+    P_new[495] = t345;
+    P_new[381] = t346;
+    P_new[519] = t346;
+    P_new[382] = t347;
+    P_new[543] = t347;
+    P_new[383] = t348;
+    P_new[567] = t348;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t349 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t26, ((derive_vd){P[400], P[401], P[402], P[403]}));
@@ -10239,6 +10735,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t350 = DERIVE_FMA(t53, t27, P[401]);
     const double t351 = DERIVE_FMA(t53, t28, P[402]);
     const double t352 = DERIVE_FMA(t53, t29, P[403]);
+    P_new[400] = t349;
+    P_new[401] = t350;
+    P_new[424] = t350;
+    P_new[402] = t351;
+    P_new[448] = t351;
+    P_new[403] = t352;
+    P_new[472] = t352;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t353 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t30, ((derive_vd){P[404], P[405], P[406], P[407]}));
@@ -10247,6 +10750,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t354 = DERIVE_FMA(t53, t31, P[405]);
     const double t355 = DERIVE_FMA(t53, t32, P[406]);
     const double t356 = DERIVE_FMA(t53, t33, P[407]);
+    P_new[404] = t353;
+    P_new[496] = t353;
+    P_new[405] = t354;
+    P_new[520] = t354;
+    P_new[406] = t355;
+    P_new[544] = t355;
+    P_new[407] = t356;
+    P_new[568] = t356;
     #endif
     const double t357 = DERIVE_FMA(t27, t54, P[425]);
     const double t358 = DERIVE_FMA(t28, t54, P[426]);
@@ -10258,6 +10769,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t361 = DERIVE_FMA(t54, t31, P[429]);
     const double t362 = DERIVE_FMA(t54, t32, P[430]);
     const double t363 = DERIVE_FMA(t54, t33, P[431]);
+    P_new[428] = t360;
+    P_new[497] = t360;
+    P_new[429] = t361;
+    P_new[521] = t361;
+    P_new[430] = t362;
+    P_new[545] = t362;
+    P_new[431] = t363;
+    P_new[569] = t363;
     #endif
     const double t364 = DERIVE_FMA(t28, t55, P[450]);
     const double t365 = DERIVE_FMA(t29, t55, P[451]);
@@ -10268,6 +10787,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t367 = DERIVE_FMA(t55, t31, P[453]);
     const double t368 = DERIVE_FMA(t55, t32, P[454]);
     const double t369 = DERIVE_FMA(t55, t33, P[455]);
+    P_new[452] = t366;
+    P_new[498] = t366;
+    P_new[453] = t367;
+    P_new[522] = t367;
+    P_new[454] = t368;
+    P_new[546] = t368;
+    P_new[455] = t369;
+    P_new[570] = t369;
     #endif
     const double t370 = DERIVE_FMA(t29, t56, P[475]);
     #if DERIVE_VECTOR
@@ -10293,6 +10820,14 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t372 = DERIVE_FMA(t56, t31, P[477]);
     const double t373 = DERIVE_FMA(t56, t32, P[478]);
     const double t374 = DERIVE_FMA(t56, t33, P[479]);
+    P_new[476] = t371;
+    P_new[499] = t371;
+    P_new[477] = t372;
+    P_new[523] = t372;
+    P_new[478] = t373;
+    P_new[547] = t373;
+    P_new[479] = t374;
+    P_new[571] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t57, t57, t57, t57}), v_t30, ((derive_vd){P[500], P[501], P[502], P[503]}));
@@ -10305,6 +10840,13 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     const double t376 = DERIVE_FMA(t57, t31, P[501]);
     const double t377 = DERIVE_FMA(t57, t32, P[502]);
     const double t378 = DERIVE_FMA(t57, t33, P[503]);
+    P_new[500] = t375;
+    P_new[501] = t376;
+    P_new[524] = t376;
+    P_new[502] = t377;
+    P_new[548] = t377;
+    P_new[503] = t378;
+    P_new[572] = t378;
     #endif
     const double t379 = DERIVE_FMA(t31, t58, P[525]);
     const double t380 = DERIVE_FMA(t32, t58, P[526]);
@@ -10400,599 +10942,57 @@ int ins_fc24_ekf_update_airspeed(const double *restrict x, const double *restric
     x_new[1] = t388;
     x_new[2] = t389;
     x_new[3] = t390;
-    x_new[4] = t65;
-    x_new[5] = t66;
-    x_new[6] = t67;
-    x_new[7] = t68;
-    x_new[8] = t69;
-    x_new[9] = t70;
-    x_new[10] = t71;
-    x_new[11] = t72;
-    x_new[12] = t73;
-    x_new[13] = t74;
-    x_new[14] = t75;
-    x_new[15] = t76;
-    x_new[16] = t77;
-    x_new[17] = t78;
-    x_new[18] = t79;
-    x_new[19] = t80;
-    x_new[20] = t81;
-    x_new[21] = t82;
-    x_new[22] = t83;
-    x_new[23] = t84;
-    P_new[0] = t85;
-    P_new[1] = t86;
-    P_new[2] = t87;
-    P_new[3] = t88;
-    P_new[4] = t89;
-    P_new[5] = t90;
-    P_new[6] = t91;
-    P_new[7] = t92;
-    P_new[8] = t93;
-    P_new[9] = t94;
-    P_new[10] = t95;
-    P_new[11] = t96;
-    P_new[12] = t97;
-    P_new[13] = t98;
-    P_new[14] = t99;
-    P_new[15] = t100;
-    P_new[16] = t101;
-    P_new[17] = t102;
-    P_new[18] = t103;
-    P_new[19] = t104;
-    P_new[20] = t105;
-    P_new[21] = t106;
-    P_new[22] = t107;
-    P_new[23] = t108;
-    P_new[24] = t86;
     P_new[25] = t109;
     P_new[26] = t110;
     P_new[27] = t111;
-    P_new[28] = t112;
-    P_new[29] = t113;
-    P_new[30] = t114;
-    P_new[31] = t115;
-    P_new[32] = t116;
-    P_new[33] = t117;
-    P_new[34] = t118;
-    P_new[35] = t119;
-    P_new[36] = t120;
-    P_new[37] = t121;
-    P_new[38] = t122;
-    P_new[39] = t123;
-    P_new[40] = t124;
-    P_new[41] = t125;
-    P_new[42] = t126;
-    P_new[43] = t127;
-    P_new[44] = t128;
-    P_new[45] = t129;
-    P_new[46] = t130;
-    P_new[47] = t131;
-    P_new[48] = t87;
     P_new[49] = t110;
     P_new[50] = t132;
     P_new[51] = t133;
-    P_new[52] = t134;
-    P_new[53] = t135;
-    P_new[54] = t136;
-    P_new[55] = t137;
-    P_new[56] = t138;
-    P_new[57] = t139;
-    P_new[58] = t140;
-    P_new[59] = t141;
-    P_new[60] = t142;
-    P_new[61] = t143;
-    P_new[62] = t144;
-    P_new[63] = t145;
-    P_new[64] = t146;
-    P_new[65] = t147;
-    P_new[66] = t148;
-    P_new[67] = t149;
-    P_new[68] = t150;
-    P_new[69] = t151;
-    P_new[70] = t152;
-    P_new[71] = t153;
-    P_new[72] = t88;
     P_new[73] = t111;
     P_new[74] = t133;
     P_new[75] = t154;
-    P_new[76] = t155;
-    P_new[77] = t156;
-    P_new[78] = t157;
-    P_new[79] = t158;
-    P_new[80] = t159;
-    P_new[81] = t160;
-    P_new[82] = t161;
-    P_new[83] = t162;
-    P_new[84] = t163;
-    P_new[85] = t164;
-    P_new[86] = t165;
-    P_new[87] = t166;
-    P_new[88] = t167;
-    P_new[89] = t168;
-    P_new[90] = t169;
-    P_new[91] = t170;
-    P_new[92] = t171;
-    P_new[93] = t172;
-    P_new[94] = t173;
-    P_new[95] = t174;
-    P_new[96] = t89;
-    P_new[97] = t112;
-    P_new[98] = t134;
-    P_new[99] = t155;
-    P_new[100] = t175;
-    P_new[101] = t176;
-    P_new[102] = t177;
-    P_new[103] = t178;
-    P_new[104] = t179;
-    P_new[105] = t180;
-    P_new[106] = t181;
-    P_new[107] = t182;
-    P_new[108] = t183;
-    P_new[109] = t184;
-    P_new[110] = t185;
-    P_new[111] = t186;
-    P_new[112] = t187;
-    P_new[113] = t188;
-    P_new[114] = t189;
-    P_new[115] = t190;
-    P_new[116] = t191;
-    P_new[117] = t192;
-    P_new[118] = t193;
-    P_new[119] = t194;
-    P_new[120] = t90;
-    P_new[121] = t113;
-    P_new[122] = t135;
-    P_new[123] = t156;
-    P_new[124] = t176;
     P_new[125] = t195;
     P_new[126] = t196;
     P_new[127] = t197;
-    P_new[128] = t198;
-    P_new[129] = t199;
-    P_new[130] = t200;
-    P_new[131] = t201;
-    P_new[132] = t202;
-    P_new[133] = t203;
-    P_new[134] = t204;
-    P_new[135] = t205;
-    P_new[136] = t206;
-    P_new[137] = t207;
-    P_new[138] = t208;
-    P_new[139] = t209;
-    P_new[140] = t210;
-    P_new[141] = t211;
-    P_new[142] = t212;
-    P_new[143] = t213;
-    P_new[144] = t91;
-    P_new[145] = t114;
-    P_new[146] = t136;
-    P_new[147] = t157;
-    P_new[148] = t177;
     P_new[149] = t196;
     P_new[150] = t214;
     P_new[151] = t215;
-    P_new[152] = t216;
-    P_new[153] = t217;
-    P_new[154] = t218;
-    P_new[155] = t219;
-    P_new[156] = t220;
-    P_new[157] = t221;
-    P_new[158] = t222;
-    P_new[159] = t223;
-    P_new[160] = t224;
-    P_new[161] = t225;
-    P_new[162] = t226;
-    P_new[163] = t227;
-    P_new[164] = t228;
-    P_new[165] = t229;
-    P_new[166] = t230;
-    P_new[167] = t231;
-    P_new[168] = t92;
-    P_new[169] = t115;
-    P_new[170] = t137;
-    P_new[171] = t158;
-    P_new[172] = t178;
     P_new[173] = t197;
     P_new[174] = t215;
     P_new[175] = t232;
-    P_new[176] = t233;
-    P_new[177] = t234;
-    P_new[178] = t235;
-    P_new[179] = t236;
-    P_new[180] = t237;
-    P_new[181] = t238;
-    P_new[182] = t239;
-    P_new[183] = t240;
-    P_new[184] = t241;
-    P_new[185] = t242;
-    P_new[186] = t243;
-    P_new[187] = t244;
-    P_new[188] = t245;
-    P_new[189] = t246;
-    P_new[190] = t247;
-    P_new[191] = t248;
-    P_new[192] = t93;
-    P_new[193] = t116;
-    P_new[194] = t138;
-    P_new[195] = t159;
-    P_new[196] = t179;
-    P_new[197] = t198;
-    P_new[198] = t216;
-    P_new[199] = t233;
-    P_new[200] = t249;
-    P_new[201] = t250;
-    P_new[202] = t251;
-    P_new[203] = t252;
-    P_new[204] = t253;
-    P_new[205] = t254;
-    P_new[206] = t255;
-    P_new[207] = t256;
-    P_new[208] = t257;
-    P_new[209] = t258;
-    P_new[210] = t259;
-    P_new[211] = t260;
-    P_new[212] = t261;
-    P_new[213] = t262;
-    P_new[214] = t263;
-    P_new[215] = t264;
-    P_new[216] = t94;
-    P_new[217] = t117;
-    P_new[218] = t139;
-    P_new[219] = t160;
-    P_new[220] = t180;
-    P_new[221] = t199;
-    P_new[222] = t217;
-    P_new[223] = t234;
-    P_new[224] = t250;
     P_new[225] = t265;
     P_new[226] = t266;
     P_new[227] = t267;
-    P_new[228] = t268;
-    P_new[229] = t269;
-    P_new[230] = t270;
-    P_new[231] = t271;
-    P_new[232] = t272;
-    P_new[233] = t273;
-    P_new[234] = t274;
-    P_new[235] = t275;
-    P_new[236] = t276;
-    P_new[237] = t277;
-    P_new[238] = t278;
-    P_new[239] = t279;
-    P_new[240] = t95;
-    P_new[241] = t118;
-    P_new[242] = t140;
-    P_new[243] = t161;
-    P_new[244] = t181;
-    P_new[245] = t200;
-    P_new[246] = t218;
-    P_new[247] = t235;
-    P_new[248] = t251;
     P_new[249] = t266;
     P_new[250] = t280;
     P_new[251] = t281;
-    P_new[252] = t282;
-    P_new[253] = t283;
-    P_new[254] = t284;
-    P_new[255] = t285;
-    P_new[256] = t286;
-    P_new[257] = t287;
-    P_new[258] = t288;
-    P_new[259] = t289;
-    P_new[260] = t290;
-    P_new[261] = t291;
-    P_new[262] = t292;
-    P_new[263] = t293;
-    P_new[264] = t96;
-    P_new[265] = t119;
-    P_new[266] = t141;
-    P_new[267] = t162;
-    P_new[268] = t182;
-    P_new[269] = t201;
-    P_new[270] = t219;
-    P_new[271] = t236;
-    P_new[272] = t252;
     P_new[273] = t267;
     P_new[274] = t281;
     P_new[275] = t294;
-    P_new[276] = t295;
-    P_new[277] = t296;
-    P_new[278] = t297;
-    P_new[279] = t298;
-    P_new[280] = t299;
-    P_new[281] = t300;
-    P_new[282] = t301;
-    P_new[283] = t302;
-    P_new[284] = t303;
-    P_new[285] = t304;
-    P_new[286] = t305;
-    P_new[287] = t306;
-    P_new[288] = t97;
-    P_new[289] = t120;
-    P_new[290] = t142;
-    P_new[291] = t163;
-    P_new[292] = t183;
-    P_new[293] = t202;
-    P_new[294] = t220;
-    P_new[295] = t237;
-    P_new[296] = t253;
-    P_new[297] = t268;
-    P_new[298] = t282;
-    P_new[299] = t295;
-    P_new[300] = t307;
-    P_new[301] = t308;
-    P_new[302] = t309;
-    P_new[303] = t310;
-    P_new[304] = t311;
-    P_new[305] = t312;
-    P_new[306] = t313;
-    P_new[307] = t314;
-    P_new[308] = t315;
-    P_new[309] = t316;
-    P_new[310] = t317;
-    P_new[311] = t318;
-    P_new[312] = t98;
-    P_new[313] = t121;
-    P_new[314] = t143;
-    P_new[315] = t164;
-    P_new[316] = t184;
-    P_new[317] = t203;
-    P_new[318] = t221;
-    P_new[319] = t238;
-    P_new[320] = t254;
-    P_new[321] = t269;
-    P_new[322] = t283;
-    P_new[323] = t296;
-    P_new[324] = t308;
     P_new[325] = t319;
     P_new[326] = t320;
     P_new[327] = t321;
-    P_new[328] = t322;
-    P_new[329] = t323;
-    P_new[330] = t324;
-    P_new[331] = t325;
-    P_new[332] = t326;
-    P_new[333] = t327;
-    P_new[334] = t328;
-    P_new[335] = t329;
-    P_new[336] = t99;
-    P_new[337] = t122;
-    P_new[338] = t144;
-    P_new[339] = t165;
-    P_new[340] = t185;
-    P_new[341] = t204;
-    P_new[342] = t222;
-    P_new[343] = t239;
-    P_new[344] = t255;
-    P_new[345] = t270;
-    P_new[346] = t284;
-    P_new[347] = t297;
-    P_new[348] = t309;
     P_new[349] = t320;
     P_new[350] = t330;
     P_new[351] = t331;
-    P_new[352] = t332;
-    P_new[353] = t333;
-    P_new[354] = t334;
-    P_new[355] = t335;
-    P_new[356] = t336;
-    P_new[357] = t337;
-    P_new[358] = t338;
-    P_new[359] = t339;
-    P_new[360] = t100;
-    P_new[361] = t123;
-    P_new[362] = t145;
-    P_new[363] = t166;
-    P_new[364] = t186;
-    P_new[365] = t205;
-    P_new[366] = t223;
-    P_new[367] = t240;
-    P_new[368] = t256;
-    P_new[369] = t271;
-    P_new[370] = t285;
-    P_new[371] = t298;
-    P_new[372] = t310;
     P_new[373] = t321;
     P_new[374] = t331;
     P_new[375] = t340;
-    P_new[376] = t341;
-    P_new[377] = t342;
-    P_new[378] = t343;
-    P_new[379] = t344;
-    P_new[380] = t345;
-    P_new[381] = t346;
-    P_new[382] = t347;
-    P_new[383] = t348;
-    P_new[384] = t101;
-    P_new[385] = t124;
-    P_new[386] = t146;
-    P_new[387] = t167;
-    P_new[388] = t187;
-    P_new[389] = t206;
-    P_new[390] = t224;
-    P_new[391] = t241;
-    P_new[392] = t257;
-    P_new[393] = t272;
-    P_new[394] = t286;
-    P_new[395] = t299;
-    P_new[396] = t311;
-    P_new[397] = t322;
-    P_new[398] = t332;
-    P_new[399] = t341;
-    P_new[400] = t349;
-    P_new[401] = t350;
-    P_new[402] = t351;
-    P_new[403] = t352;
-    P_new[404] = t353;
-    P_new[405] = t354;
-    P_new[406] = t355;
-    P_new[407] = t356;
-    P_new[408] = t102;
-    P_new[409] = t125;
-    P_new[410] = t147;
-    P_new[411] = t168;
-    P_new[412] = t188;
-    P_new[413] = t207;
-    P_new[414] = t225;
-    P_new[415] = t242;
-    P_new[416] = t258;
-    P_new[417] = t273;
-    P_new[418] = t287;
-    P_new[419] = t300;
-    P_new[420] = t312;
-    P_new[421] = t323;
-    P_new[422] = t333;
-    P_new[423] = t342;
-    P_new[424] = t350;
     P_new[425] = t357;
     P_new[426] = t358;
     P_new[427] = t359;
-    P_new[428] = t360;
-    P_new[429] = t361;
-    P_new[430] = t362;
-    P_new[431] = t363;
-    P_new[432] = t103;
-    P_new[433] = t126;
-    P_new[434] = t148;
-    P_new[435] = t169;
-    P_new[436] = t189;
-    P_new[437] = t208;
-    P_new[438] = t226;
-    P_new[439] = t243;
-    P_new[440] = t259;
-    P_new[441] = t274;
-    P_new[442] = t288;
-    P_new[443] = t301;
-    P_new[444] = t313;
-    P_new[445] = t324;
-    P_new[446] = t334;
-    P_new[447] = t343;
-    P_new[448] = t351;
     P_new[449] = t358;
     P_new[450] = t364;
     P_new[451] = t365;
-    P_new[452] = t366;
-    P_new[453] = t367;
-    P_new[454] = t368;
-    P_new[455] = t369;
-    P_new[456] = t104;
-    P_new[457] = t127;
-    P_new[458] = t149;
-    P_new[459] = t170;
-    P_new[460] = t190;
-    P_new[461] = t209;
-    P_new[462] = t227;
-    P_new[463] = t244;
-    P_new[464] = t260;
-    P_new[465] = t275;
-    P_new[466] = t289;
-    P_new[467] = t302;
-    P_new[468] = t314;
-    P_new[469] = t325;
-    P_new[470] = t335;
-    P_new[471] = t344;
-    P_new[472] = t352;
     P_new[473] = t359;
     P_new[474] = t365;
     P_new[475] = t370;
-    P_new[476] = t371;
-    P_new[477] = t372;
-    P_new[478] = t373;
-    P_new[479] = t374;
-    P_new[480] = t105;
-    P_new[481] = t128;
-    P_new[482] = t150;
-    P_new[483] = t171;
-    P_new[484] = t191;
-    P_new[485] = t210;
-    P_new[486] = t228;
-    P_new[487] = t245;
-    P_new[488] = t261;
-    P_new[489] = t276;
-    P_new[490] = t290;
-    P_new[491] = t303;
-    P_new[492] = t315;
-    P_new[493] = t326;
-    P_new[494] = t336;
-    P_new[495] = t345;
-    P_new[496] = t353;
-    P_new[497] = t360;
-    P_new[498] = t366;
-    P_new[499] = t371;
-    P_new[500] = t375;
-    P_new[501] = t376;
-    P_new[502] = t377;
-    P_new[503] = t378;
-    P_new[504] = t106;
-    P_new[505] = t129;
-    P_new[506] = t151;
-    P_new[507] = t172;
-    P_new[508] = t192;
-    P_new[509] = t211;
-    P_new[510] = t229;
-    P_new[511] = t246;
-    P_new[512] = t262;
-    P_new[513] = t277;
-    P_new[514] = t291;
-    P_new[515] = t304;
-    P_new[516] = t316;
-    P_new[517] = t327;
-    P_new[518] = t337;
-    P_new[519] = t346;
-    P_new[520] = t354;
-    P_new[521] = t361;
-    P_new[522] = t367;
-    P_new[523] = t372;
-    P_new[524] = t376;
     P_new[525] = t379;
     P_new[526] = t380;
     P_new[527] = t381;
-    P_new[528] = t107;
-    P_new[529] = t130;
-    P_new[530] = t152;
-    P_new[531] = t173;
-    P_new[532] = t193;
-    P_new[533] = t212;
-    P_new[534] = t230;
-    P_new[535] = t247;
-    P_new[536] = t263;
-    P_new[537] = t278;
-    P_new[538] = t292;
-    P_new[539] = t305;
-    P_new[540] = t317;
-    P_new[541] = t328;
-    P_new[542] = t338;
-    P_new[543] = t347;
-    P_new[544] = t355;
-    P_new[545] = t362;
-    P_new[546] = t368;
-    P_new[547] = t373;
-    P_new[548] = t377;
     P_new[549] = t380;
     P_new[550] = t382;
     P_new[551] = t383;
-    P_new[552] = t108;
-    P_new[553] = t131;
-    P_new[554] = t153;
-    P_new[555] = t174;
-    P_new[556] = t194;
-    P_new[557] = t213;
-    P_new[558] = t231;
-    P_new[559] = t248;
-    P_new[560] = t264;
-    P_new[561] = t279;
-    P_new[562] = t293;
-    P_new[563] = t306;
-    P_new[564] = t318;
-    P_new[565] = t329;
-    P_new[566] = t339;
-    P_new[567] = t348;
-    P_new[568] = t356;
-    P_new[569] = t363;
-    P_new[570] = t369;
-    P_new[571] = t374;
-    P_new[572] = t378;
     P_new[573] = t381;
     P_new[574] = t383;
     P_new[575] = t384;

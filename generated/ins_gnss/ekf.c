@@ -267,6 +267,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t146 = DERIVE_FMA(t39, P[202], DERIVE_FMA(t38, P[186], DERIVE_FMA(t37, P[170], DERIVE_FMA(t36, P[58], DERIVE_FMA(t35, P[42], DERIVE_FMA(t34, P[26], P[10]))))));
     const double t147 = DERIVE_FMA(t39, P[203], DERIVE_FMA(t38, P[187], DERIVE_FMA(t37, P[171], DERIVE_FMA(t36, P[59], DERIVE_FMA(t35, P[43], DERIVE_FMA(t34, P[27], P[11]))))));
+    P_new[10] = t146;
+    P_new[160] = t146;
+    P_new[11] = t147;
+    P_new[176] = t147;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t148_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){P[28], P[29], P[30], P[31]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -281,6 +285,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t149 = DERIVE_FMA(t39, P[205], DERIVE_FMA(t38, P[189], DERIVE_FMA(t37, P[173], DERIVE_FMA(t36, P[61], DERIVE_FMA(t35, P[45], DERIVE_FMA(t34, P[29], P[13]))))));
     const double t150 = DERIVE_FMA(t39, P[206], DERIVE_FMA(t38, P[190], DERIVE_FMA(t37, P[174], DERIVE_FMA(t36, P[62], DERIVE_FMA(t35, P[46], DERIVE_FMA(t34, P[30], P[14]))))));
     const double t151 = DERIVE_FMA(t39, P[207], DERIVE_FMA(t38, P[191], DERIVE_FMA(t37, P[175], DERIVE_FMA(t36, P[63], DERIVE_FMA(t35, P[47], DERIVE_FMA(t34, P[31], P[15]))))));
+    P_new[12] = t148;
+    P_new[192] = t148;
+    P_new[13] = t149;
+    P_new[208] = t149;
+    P_new[14] = t150;
+    P_new[224] = t150;
+    P_new[15] = t151;
+    P_new[240] = t151;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t152_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
@@ -311,6 +323,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t158 = DERIVE_FMA(t41, P[202], DERIVE_FMA(t39, P[186], DERIVE_FMA(t44, P[170], DERIVE_FMA(t35, P[58], DERIVE_FMA(t3, P[42], DERIVE_FMA(t1, P[10], P[26]))))));
     const double t159 = DERIVE_FMA(t41, P[203], DERIVE_FMA(t39, P[187], DERIVE_FMA(t44, P[171], DERIVE_FMA(t35, P[59], DERIVE_FMA(t3, P[43], DERIVE_FMA(t1, P[11], P[27]))))));
+    P_new[26] = t158;
+    P_new[161] = t158;
+    P_new[27] = t159;
+    P_new[177] = t159;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t160_0 = DERIVE_VFMA(((derive_vd){t1, t1, t1, t1}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
@@ -325,6 +341,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t161 = DERIVE_FMA(t41, P[205], DERIVE_FMA(t39, P[189], DERIVE_FMA(t44, P[173], DERIVE_FMA(t35, P[61], DERIVE_FMA(t3, P[45], DERIVE_FMA(t1, P[13], P[29]))))));
     const double t162 = DERIVE_FMA(t41, P[206], DERIVE_FMA(t39, P[190], DERIVE_FMA(t44, P[174], DERIVE_FMA(t35, P[62], DERIVE_FMA(t3, P[46], DERIVE_FMA(t1, P[14], P[30]))))));
     const double t163 = DERIVE_FMA(t41, P[207], DERIVE_FMA(t39, P[191], DERIVE_FMA(t44, P[175], DERIVE_FMA(t35, P[63], DERIVE_FMA(t3, P[47], DERIVE_FMA(t1, P[15], P[31]))))));
+    P_new[28] = t160;
+    P_new[193] = t160;
+    P_new[29] = t161;
+    P_new[209] = t161;
+    P_new[30] = t162;
+    P_new[225] = t162;
+    P_new[31] = t163;
+    P_new[241] = t163;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t164_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
@@ -355,6 +379,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t170 = DERIVE_FMA(t37, P[202], DERIVE_FMA(t44, P[186], DERIVE_FMA(t42, P[170], DERIVE_FMA(t1, P[58], DERIVE_FMA(t36, P[26], DERIVE_FMA(t2, P[10], P[42]))))));
     const double t171 = DERIVE_FMA(t37, P[203], DERIVE_FMA(t44, P[187], DERIVE_FMA(t42, P[171], DERIVE_FMA(t1, P[59], DERIVE_FMA(t36, P[27], DERIVE_FMA(t2, P[11], P[43]))))));
+    P_new[42] = t170;
+    P_new[162] = t170;
+    P_new[43] = t171;
+    P_new[178] = t171;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t172_0 = DERIVE_VFMA(((derive_vd){t2, t2, t2, t2}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -369,6 +397,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t173 = DERIVE_FMA(t37, P[205], DERIVE_FMA(t44, P[189], DERIVE_FMA(t42, P[173], DERIVE_FMA(t1, P[61], DERIVE_FMA(t36, P[29], DERIVE_FMA(t2, P[13], P[45]))))));
     const double t174 = DERIVE_FMA(t37, P[206], DERIVE_FMA(t44, P[190], DERIVE_FMA(t42, P[174], DERIVE_FMA(t1, P[62], DERIVE_FMA(t36, P[30], DERIVE_FMA(t2, P[14], P[46]))))));
     const double t175 = DERIVE_FMA(t37, P[207], DERIVE_FMA(t44, P[191], DERIVE_FMA(t42, P[175], DERIVE_FMA(t1, P[63], DERIVE_FMA(t36, P[31], DERIVE_FMA(t2, P[15], P[47]))))));
+    P_new[44] = t172;
+    P_new[194] = t172;
+    P_new[45] = t173;
+    P_new[210] = t173;
+    P_new[46] = t174;
+    P_new[226] = t174;
+    P_new[47] = t175;
+    P_new[242] = t175;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t176_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[48], P[49], P[50], P[51]}));
@@ -401,6 +437,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t182 = DERIVE_FMA(t44, P[202], DERIVE_FMA(t40, P[186], DERIVE_FMA(t38, P[170], DERIVE_FMA(t34, P[42], DERIVE_FMA(t2, P[26], DERIVE_FMA(t3, P[10], P[58]))))));
     const double t183 = DERIVE_FMA(t44, P[203], DERIVE_FMA(t40, P[187], DERIVE_FMA(t38, P[171], DERIVE_FMA(t34, P[43], DERIVE_FMA(t2, P[27], DERIVE_FMA(t3, P[11], P[59]))))));
+    P_new[58] = t182;
+    P_new[163] = t182;
+    P_new[59] = t183;
+    P_new[179] = t183;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t184_0 = DERIVE_VFMA(((derive_vd){t3, t3, t3, t3}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -431,6 +471,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t185 = DERIVE_FMA(t44, P[205], DERIVE_FMA(t40, P[189], DERIVE_FMA(t38, P[173], DERIVE_FMA(t34, P[45], DERIVE_FMA(t2, P[29], DERIVE_FMA(t3, P[13], P[61]))))));
     const double t186 = DERIVE_FMA(t44, P[206], DERIVE_FMA(t40, P[190], DERIVE_FMA(t38, P[174], DERIVE_FMA(t34, P[46], DERIVE_FMA(t2, P[30], DERIVE_FMA(t3, P[14], P[62]))))));
     const double t187 = DERIVE_FMA(t44, P[207], DERIVE_FMA(t40, P[191], DERIVE_FMA(t38, P[175], DERIVE_FMA(t34, P[47], DERIVE_FMA(t2, P[31], DERIVE_FMA(t3, P[15], P[63]))))));
+    P_new[60] = t184;
+    P_new[195] = t184;
+    P_new[61] = t185;
+    P_new[211] = t185;
+    P_new[62] = t186;
+    P_new[227] = t186;
+    P_new[63] = t187;
+    P_new[243] = t187;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t188_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
@@ -475,6 +523,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t198 = DERIVE_FMA(t137, P[250], DERIVE_FMA(t75, P[234], DERIVE_FMA(t74, P[218], DERIVE_FMA(t73, P[58], DERIVE_FMA(t72, P[42], DERIVE_FMA(t71, P[26], DERIVE_FMA(t70, P[10], P[74])))))));
     const double t199 = DERIVE_FMA(t137, P[251], DERIVE_FMA(t75, P[235], DERIVE_FMA(t74, P[219], DERIVE_FMA(t73, P[59], DERIVE_FMA(t72, P[43], DERIVE_FMA(t71, P[27], DERIVE_FMA(t70, P[11], P[75])))))));
+    P_new[74] = t198;
+    P_new[164] = t198;
+    P_new[75] = t199;
+    P_new[180] = t199;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t200_0 = DERIVE_VFMA(((derive_vd){t70, t70, t70, t70}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
@@ -493,6 +545,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t201 = DERIVE_FMA(t137, P[253], DERIVE_FMA(t75, P[237], DERIVE_FMA(t74, P[221], DERIVE_FMA(t73, P[61], DERIVE_FMA(t72, P[45], DERIVE_FMA(t71, P[29], DERIVE_FMA(t70, P[13], P[77])))))));
     const double t202 = DERIVE_FMA(t137, P[254], DERIVE_FMA(t75, P[238], DERIVE_FMA(t74, P[222], DERIVE_FMA(t73, P[62], DERIVE_FMA(t72, P[46], DERIVE_FMA(t71, P[30], DERIVE_FMA(t70, P[14], P[78])))))));
     const double t203 = DERIVE_FMA(t137, P[255], DERIVE_FMA(t75, P[239], DERIVE_FMA(t74, P[223], DERIVE_FMA(t73, P[63], DERIVE_FMA(t72, P[47], DERIVE_FMA(t71, P[31], DERIVE_FMA(t70, P[15], P[79])))))));
+    P_new[76] = t200;
+    P_new[196] = t200;
+    P_new[77] = t201;
+    P_new[212] = t201;
+    P_new[78] = t202;
+    P_new[228] = t202;
+    P_new[79] = t203;
+    P_new[244] = t203;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t204_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
@@ -539,6 +599,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t214 = DERIVE_FMA(t85, P[250], DERIVE_FMA(t84, P[234], DERIVE_FMA(t138, P[218], DERIVE_FMA(t82, P[58], DERIVE_FMA(t81, P[42], DERIVE_FMA(t80, P[26], DERIVE_FMA(t79, P[10], P[90])))))));
     const double t215 = DERIVE_FMA(t85, P[251], DERIVE_FMA(t84, P[235], DERIVE_FMA(t138, P[219], DERIVE_FMA(t82, P[59], DERIVE_FMA(t81, P[43], DERIVE_FMA(t80, P[27], DERIVE_FMA(t79, P[11], P[91])))))));
+    P_new[90] = t214;
+    P_new[165] = t214;
+    P_new[91] = t215;
+    P_new[181] = t215;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t216_0 = DERIVE_VFMA(((derive_vd){t79, t79, t79, t79}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -557,6 +621,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t217 = DERIVE_FMA(t85, P[253], DERIVE_FMA(t84, P[237], DERIVE_FMA(t138, P[221], DERIVE_FMA(t82, P[61], DERIVE_FMA(t81, P[45], DERIVE_FMA(t80, P[29], DERIVE_FMA(t79, P[13], P[93])))))));
     const double t218 = DERIVE_FMA(t85, P[254], DERIVE_FMA(t84, P[238], DERIVE_FMA(t138, P[222], DERIVE_FMA(t82, P[62], DERIVE_FMA(t81, P[46], DERIVE_FMA(t80, P[30], DERIVE_FMA(t79, P[14], P[94])))))));
     const double t219 = DERIVE_FMA(t85, P[255], DERIVE_FMA(t84, P[239], DERIVE_FMA(t138, P[223], DERIVE_FMA(t82, P[63], DERIVE_FMA(t81, P[47], DERIVE_FMA(t80, P[31], DERIVE_FMA(t79, P[15], P[95])))))));
+    P_new[92] = t216;
+    P_new[197] = t216;
+    P_new[93] = t217;
+    P_new[213] = t217;
+    P_new[94] = t218;
+    P_new[229] = t218;
+    P_new[95] = t219;
+    P_new[245] = t219;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t220_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[0], P[1], P[2], P[3]}), ((derive_vd){P[96], P[97], P[98], P[99]}));
@@ -605,6 +677,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t230 = DERIVE_FMA(t94, P[250], DERIVE_FMA(t139, P[234], DERIVE_FMA(t92, P[218], DERIVE_FMA(t91, P[58], DERIVE_FMA(t90, P[42], DERIVE_FMA(t89, P[26], DERIVE_FMA(t88, P[10], P[106])))))));
     const double t231 = DERIVE_FMA(t94, P[251], DERIVE_FMA(t139, P[235], DERIVE_FMA(t92, P[219], DERIVE_FMA(t91, P[59], DERIVE_FMA(t90, P[43], DERIVE_FMA(t89, P[27], DERIVE_FMA(t88, P[11], P[107])))))));
+    P_new[106] = t230;
+    P_new[166] = t230;
+    P_new[107] = t231;
+    P_new[182] = t231;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t232_0 = DERIVE_VFMA(((derive_vd){t88, t88, t88, t88}), ((derive_vd){P[12], P[13], P[14], P[15]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -623,6 +699,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t233 = DERIVE_FMA(t94, P[253], DERIVE_FMA(t139, P[237], DERIVE_FMA(t92, P[221], DERIVE_FMA(t91, P[61], DERIVE_FMA(t90, P[45], DERIVE_FMA(t89, P[29], DERIVE_FMA(t88, P[13], P[109])))))));
     const double t234 = DERIVE_FMA(t94, P[254], DERIVE_FMA(t139, P[238], DERIVE_FMA(t92, P[222], DERIVE_FMA(t91, P[62], DERIVE_FMA(t90, P[46], DERIVE_FMA(t89, P[30], DERIVE_FMA(t88, P[14], P[110])))))));
     const double t235 = DERIVE_FMA(t94, P[255], DERIVE_FMA(t139, P[239], DERIVE_FMA(t92, P[223], DERIVE_FMA(t91, P[63], DERIVE_FMA(t90, P[47], DERIVE_FMA(t89, P[31], DERIVE_FMA(t88, P[15], P[111])))))));
+    P_new[108] = t232;
+    P_new[198] = t232;
+    P_new[109] = t233;
+    P_new[214] = t233;
+    P_new[110] = t234;
+    P_new[230] = t234;
+    P_new[111] = t235;
+    P_new[246] = t235;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t236 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[64], P[65], P[66], P[67]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
@@ -657,6 +741,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     #else
     const double t246 = DERIVE_FMA(p[0], P[74], P[122]);
     const double t247 = DERIVE_FMA(p[0], P[75], P[123]);
+    P_new[122] = t246;
+    P_new[167] = t246;
+    P_new[123] = t247;
+    P_new[183] = t247;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t248 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[76], P[77], P[78], P[79]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
@@ -685,6 +773,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t249 = DERIVE_FMA(p[0], P[77], P[125]);
     const double t250 = DERIVE_FMA(p[0], P[78], P[126]);
     const double t251 = DERIVE_FMA(p[0], P[79], P[127]);
+    P_new[124] = t248;
+    P_new[199] = t248;
+    P_new[125] = t249;
+    P_new[215] = t249;
+    P_new[126] = t250;
+    P_new[231] = t250;
+    P_new[127] = t251;
+    P_new[247] = t251;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t252 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[80], P[81], P[82], P[83]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
@@ -719,6 +815,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t260 = DERIVE_FMA(p[0], P[88], P[136]);
     const double t262 = DERIVE_FMA(p[0], P[90], P[138]);
     const double t263 = DERIVE_FMA(p[0], P[91], P[139]);
+    P_new[138] = t262;
+    P_new[168] = t262;
+    P_new[139] = t263;
+    P_new[184] = t263;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[92], P[93], P[94], P[95]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -732,6 +832,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t265 = DERIVE_FMA(p[0], P[93], P[141]);
     const double t266 = DERIVE_FMA(p[0], P[94], P[142]);
     const double t267 = DERIVE_FMA(p[0], P[95], P[143]);
+    P_new[140] = t264;
+    P_new[200] = t264;
+    P_new[141] = t265;
+    P_new[216] = t265;
+    P_new[142] = t266;
+    P_new[232] = t266;
+    P_new[143] = t267;
+    P_new[248] = t267;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[96], P[97], P[98], P[99]}), ((derive_vd){P[144], P[145], P[146], P[147]}));
@@ -768,6 +876,10 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t277 = DERIVE_FMA(p[0], P[105], P[153]);
     const double t278 = DERIVE_FMA(p[0], P[106], P[154]);
     const double t279 = DERIVE_FMA(p[0], P[107], P[155]);
+    P_new[154] = t278;
+    P_new[169] = t278;
+    P_new[155] = t279;
+    P_new[185] = t279;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t280 = DERIVE_VFMA(((derive_vd){p[0], p[0], p[0], p[0]}), ((derive_vd){P[108], P[109], P[110], P[111]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
@@ -781,6 +893,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t281 = DERIVE_FMA(p[0], P[109], P[157]);
     const double t282 = DERIVE_FMA(p[0], P[110], P[158]);
     const double t283 = DERIVE_FMA(p[0], P[111], P[159]);
+    P_new[156] = t280;
+    P_new[201] = t280;
+    P_new[157] = t281;
+    P_new[217] = t281;
+    P_new[158] = t282;
+    P_new[233] = t282;
+    P_new[159] = t283;
+    P_new[249] = t283;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t284_0 = (((derive_vd){t116, t118, t119, t121}) + ((derive_vd){t140, t152, t164, t176}));
@@ -799,6 +919,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t285 = DERIVE_FMA(t39, t160, DERIVE_FMA(t38, t159, DERIVE_FMA(t37, t158, DERIVE_FMA(t36, t155, DERIVE_FMA(t35, t154, DERIVE_FMA(t34, t153, t118 + t152))))));
     const double t286 = DERIVE_FMA(t39, t172, DERIVE_FMA(t38, t171, DERIVE_FMA(t37, t170, DERIVE_FMA(t36, t167, DERIVE_FMA(t35, t166, DERIVE_FMA(t34, t165, t119 + t164))))));
     const double t287 = DERIVE_FMA(t39, t184, DERIVE_FMA(t38, t183, DERIVE_FMA(t37, t182, DERIVE_FMA(t36, t179, DERIVE_FMA(t35, t178, DERIVE_FMA(t34, t177, t121 + t176))))));
+    P_new[0] = t284;
+    P_new[1] = t285;
+    P_new[16] = t285;
+    P_new[2] = t286;
+    P_new[32] = t286;
+    P_new[3] = t287;
+    P_new[48] = t287;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t288_0 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), ((derive_vd){t189, t205, t221, t237}), ((derive_vd){t188, t204, t220, t236}));
@@ -812,6 +939,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t289 = DERIVE_FMA(t39, t216, DERIVE_FMA(t38, t215, DERIVE_FMA(t37, t214, DERIVE_FMA(t36, t207, DERIVE_FMA(t35, t206, DERIVE_FMA(t34, t205, t204))))));
     const double t290 = DERIVE_FMA(t39, t232, DERIVE_FMA(t38, t231, DERIVE_FMA(t37, t230, DERIVE_FMA(t36, t223, DERIVE_FMA(t35, t222, DERIVE_FMA(t34, t221, t220))))));
     const double t291 = DERIVE_FMA(t39, t248, DERIVE_FMA(t38, t247, DERIVE_FMA(t37, t246, DERIVE_FMA(t36, t239, DERIVE_FMA(t35, t238, DERIVE_FMA(t34, t237, t236))))));
+    P_new[4] = t288;
+    P_new[64] = t288;
+    P_new[5] = t289;
+    P_new[80] = t289;
+    P_new[6] = t290;
+    P_new[96] = t290;
+    P_new[7] = t291;
+    P_new[112] = t291;
     #endif
     const double t292 = DERIVE_FMA(t264, t39, DERIVE_FMA(t263, t38, DERIVE_FMA(t262, t37, DERIVE_FMA(t255, t36, DERIVE_FMA(t254, t35, DERIVE_FMA(t253, t34, t252))))));
     const double t293 = DERIVE_FMA(t280, t39, DERIVE_FMA(t279, t38, DERIVE_FMA(t278, t37, DERIVE_FMA(t271, t36, DERIVE_FMA(t270, t35, DERIVE_FMA(t269, t34, t268))))));
@@ -831,6 +966,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t298 = DERIVE_FMA(t41, t216, DERIVE_FMA(t39, t215, DERIVE_FMA(t44, t214, DERIVE_FMA(t35, t207, DERIVE_FMA(t3, t206, t1*t204 + t205)))));
     const double t299 = DERIVE_FMA(t41, t232, DERIVE_FMA(t39, t231, DERIVE_FMA(t44, t230, DERIVE_FMA(t35, t223, DERIVE_FMA(t3, t222, t1*t220 + t221)))));
     const double t300 = DERIVE_FMA(t41, t248, DERIVE_FMA(t39, t247, DERIVE_FMA(t44, t246, DERIVE_FMA(t35, t239, DERIVE_FMA(t3, t238, t1*t236 + t237)))));
+    P_new[20] = t297;
+    P_new[65] = t297;
+    P_new[21] = t298;
+    P_new[81] = t298;
+    P_new[22] = t299;
+    P_new[97] = t299;
+    P_new[23] = t300;
+    P_new[113] = t300;
     #endif
     const double t301 = DERIVE_FMA(t264, t41, DERIVE_FMA(t263, t39, DERIVE_FMA(t262, t44, DERIVE_FMA(t255, t35, DERIVE_FMA(t254, t3, DERIVE_FMA(t1, t252, t253))))));
     const double t302 = DERIVE_FMA(t280, t41, DERIVE_FMA(t279, t39, DERIVE_FMA(t278, t44, DERIVE_FMA(t271, t35, DERIVE_FMA(t270, t3, DERIVE_FMA(t1, t268, t269))))));
@@ -849,6 +992,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t306 = DERIVE_FMA(t37, t216, DERIVE_FMA(t44, t215, DERIVE_FMA(t42, t214, DERIVE_FMA(t1, t207, DERIVE_FMA(t36, t205, t2*t204) + t206))));
     const double t307 = DERIVE_FMA(t37, t232, DERIVE_FMA(t44, t231, DERIVE_FMA(t42, t230, DERIVE_FMA(t1, t223, DERIVE_FMA(t36, t221, t2*t220) + t222))));
     const double t308 = DERIVE_FMA(t37, t248, DERIVE_FMA(t44, t247, DERIVE_FMA(t42, t246, DERIVE_FMA(t1, t239, DERIVE_FMA(t36, t237, t2*t236) + t238))));
+    P_new[36] = t305;
+    P_new[66] = t305;
+    P_new[37] = t306;
+    P_new[82] = t306;
+    P_new[38] = t307;
+    P_new[98] = t307;
+    P_new[39] = t308;
+    P_new[114] = t308;
     #endif
     const double t309 = DERIVE_FMA(t264, t37, DERIVE_FMA(t263, t44, DERIVE_FMA(t262, t42, DERIVE_FMA(t253, t36, DERIVE_FMA(t2, t252, DERIVE_FMA(t1, t255, t254))))));
     const double t310 = DERIVE_FMA(t280, t37, DERIVE_FMA(t279, t44, DERIVE_FMA(t278, t42, DERIVE_FMA(t269, t36, DERIVE_FMA(t2, t268, DERIVE_FMA(t1, t271, t270))))));
@@ -882,6 +1033,14 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t313 = DERIVE_FMA(t44, t216, DERIVE_FMA(t40, t215, DERIVE_FMA(t38, t214, DERIVE_FMA(t34, t206, DERIVE_FMA(t2, t205, t3*t204)) + t207)));
     const double t314 = DERIVE_FMA(t44, t232, DERIVE_FMA(t40, t231, DERIVE_FMA(t38, t230, DERIVE_FMA(t34, t222, DERIVE_FMA(t2, t221, t3*t220)) + t223)));
     const double t315 = DERIVE_FMA(t44, t248, DERIVE_FMA(t40, t247, DERIVE_FMA(t38, t246, DERIVE_FMA(t34, t238, DERIVE_FMA(t2, t237, t3*t236)) + t239)));
+    P_new[52] = t312;
+    P_new[67] = t312;
+    P_new[53] = t313;
+    P_new[83] = t313;
+    P_new[54] = t314;
+    P_new[99] = t314;
+    P_new[55] = t315;
+    P_new[115] = t315;
     #endif
     const double t316 = DERIVE_FMA(t264, t44, DERIVE_FMA(t263, t40, DERIVE_FMA(t262, t38, DERIVE_FMA(t254, t34, DERIVE_FMA(t252, t3, DERIVE_FMA(t2, t253, t255))))));
     const double t317 = DERIVE_FMA(t280, t44, DERIVE_FMA(t279, t40, DERIVE_FMA(t278, t38, DERIVE_FMA(t270, t34, DERIVE_FMA(t268, t3, DERIVE_FMA(t2, t269, t271))))));
@@ -903,6 +1062,13 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     const double t319 = DERIVE_FMA(t137, t219, DERIVE_FMA(t75, t218, DERIVE_FMA(t74, t217, DERIVE_FMA(t73, t207, DERIVE_FMA(t72, t206, DERIVE_FMA(t71, t205, DERIVE_FMA(t70, t204, t130)))) + t208)));
     const double t320 = DERIVE_FMA(t137, t235, DERIVE_FMA(t75, t234, DERIVE_FMA(t74, t233, DERIVE_FMA(t73, t223, DERIVE_FMA(t72, t222, DERIVE_FMA(t71, t221, DERIVE_FMA(t70, t220, t131)))) + t224)));
     const double t321 = DERIVE_FMA(t137, t251, DERIVE_FMA(t75, t250, DERIVE_FMA(t74, t249, DERIVE_FMA(t73, t239, DERIVE_FMA(t72, t238, DERIVE_FMA(t71, t237, DERIVE_FMA(t70, t236, 0.0)))) + t240)));
+    P_new[68] = t318;
+    P_new[69] = t319;
+    P_new[84] = t319;
+    P_new[70] = t320;
+    P_new[100] = t320;
+    P_new[71] = t321;
+    P_new[116] = t321;
     #endif
     const double t322 = DERIVE_FMA(t266, t75, DERIVE_FMA(t265, t74, DERIVE_FMA(t255, t73, DERIVE_FMA(t254, t72, DERIVE_FMA(t253, t71, DERIVE_FMA(t252, t70, DERIVE_FMA(t137, t267, t256)))))));
     const double t323 = DERIVE_FMA(t282, t75, DERIVE_FMA(t281, t74, DERIVE_FMA(t271, t73, DERIVE_FMA(t270, t72, DERIVE_FMA(t269, t71, DERIVE_FMA(t268, t70, DERIVE_FMA(t137, t283, t272)))))));
@@ -1089,134 +1255,40 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     x_new[13] = x[13];
     x_new[14] = x[14];
     x_new[15] = x[15];
-    P_new[0] = t284;
-    P_new[1] = t285;
-    P_new[2] = t286;
-    P_new[3] = t287;
-    P_new[4] = t288;
-    P_new[5] = t289;
-    P_new[6] = t290;
-    P_new[7] = t291;
     P_new[8] = t292;
     P_new[9] = t293;
-    P_new[10] = t146;
-    P_new[11] = t147;
-    P_new[12] = t148;
-    P_new[13] = t149;
-    P_new[14] = t150;
-    P_new[15] = t151;
-    P_new[16] = t285;
     P_new[17] = t294;
     P_new[18] = t295;
     P_new[19] = t296;
-    P_new[20] = t297;
-    P_new[21] = t298;
-    P_new[22] = t299;
-    P_new[23] = t300;
     P_new[24] = t301;
     P_new[25] = t302;
-    P_new[26] = t158;
-    P_new[27] = t159;
-    P_new[28] = t160;
-    P_new[29] = t161;
-    P_new[30] = t162;
-    P_new[31] = t163;
-    P_new[32] = t286;
     P_new[33] = t295;
     P_new[34] = t303;
     P_new[35] = t304;
-    P_new[36] = t305;
-    P_new[37] = t306;
-    P_new[38] = t307;
-    P_new[39] = t308;
     P_new[40] = t309;
     P_new[41] = t310;
-    P_new[42] = t170;
-    P_new[43] = t171;
-    P_new[44] = t172;
-    P_new[45] = t173;
-    P_new[46] = t174;
-    P_new[47] = t175;
-    P_new[48] = t287;
     P_new[49] = t296;
     P_new[50] = t304;
     P_new[51] = t311;
-    P_new[52] = t312;
-    P_new[53] = t313;
-    P_new[54] = t314;
-    P_new[55] = t315;
     P_new[56] = t316;
     P_new[57] = t317;
-    P_new[58] = t182;
-    P_new[59] = t183;
-    P_new[60] = t184;
-    P_new[61] = t185;
-    P_new[62] = t186;
-    P_new[63] = t187;
-    P_new[64] = t288;
-    P_new[65] = t297;
-    P_new[66] = t305;
-    P_new[67] = t312;
-    P_new[68] = t318;
-    P_new[69] = t319;
-    P_new[70] = t320;
-    P_new[71] = t321;
     P_new[72] = t322;
     P_new[73] = t323;
-    P_new[74] = t198;
-    P_new[75] = t199;
-    P_new[76] = t200;
-    P_new[77] = t201;
-    P_new[78] = t202;
-    P_new[79] = t203;
-    P_new[80] = t289;
-    P_new[81] = t298;
-    P_new[82] = t306;
-    P_new[83] = t313;
-    P_new[84] = t319;
     P_new[85] = t324;
     P_new[86] = t325;
     P_new[87] = t326;
     P_new[88] = t327;
     P_new[89] = t328;
-    P_new[90] = t214;
-    P_new[91] = t215;
-    P_new[92] = t216;
-    P_new[93] = t217;
-    P_new[94] = t218;
-    P_new[95] = t219;
-    P_new[96] = t290;
-    P_new[97] = t299;
-    P_new[98] = t307;
-    P_new[99] = t314;
-    P_new[100] = t320;
     P_new[101] = t325;
     P_new[102] = t329;
     P_new[103] = t330;
     P_new[104] = t331;
     P_new[105] = t332;
-    P_new[106] = t230;
-    P_new[107] = t231;
-    P_new[108] = t232;
-    P_new[109] = t233;
-    P_new[110] = t234;
-    P_new[111] = t235;
-    P_new[112] = t291;
-    P_new[113] = t300;
-    P_new[114] = t308;
-    P_new[115] = t315;
-    P_new[116] = t321;
     P_new[117] = t326;
     P_new[118] = t330;
     P_new[119] = t333;
     P_new[120] = t334;
     P_new[121] = t335;
-    P_new[122] = t246;
-    P_new[123] = t247;
-    P_new[124] = t248;
-    P_new[125] = t249;
-    P_new[126] = t250;
-    P_new[127] = t251;
     P_new[128] = t292;
     P_new[129] = t301;
     P_new[130] = t309;
@@ -1227,12 +1299,6 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[135] = t334;
     P_new[136] = t336;
     P_new[137] = t337;
-    P_new[138] = t262;
-    P_new[139] = t263;
-    P_new[140] = t264;
-    P_new[141] = t265;
-    P_new[142] = t266;
-    P_new[143] = t267;
     P_new[144] = t293;
     P_new[145] = t302;
     P_new[146] = t310;
@@ -1243,102 +1309,36 @@ int ins_gnss_ekf_predict(const double *restrict x, const double *restrict P, con
     P_new[151] = t335;
     P_new[152] = t337;
     P_new[153] = t338;
-    P_new[154] = t278;
-    P_new[155] = t279;
-    P_new[156] = t280;
-    P_new[157] = t281;
-    P_new[158] = t282;
-    P_new[159] = t283;
-    P_new[160] = t146;
-    P_new[161] = t158;
-    P_new[162] = t170;
-    P_new[163] = t182;
-    P_new[164] = t198;
-    P_new[165] = t214;
-    P_new[166] = t230;
-    P_new[167] = t246;
-    P_new[168] = t262;
-    P_new[169] = t278;
     P_new[170] = t339;
     P_new[171] = P[171];
     P_new[172] = P[172];
     P_new[173] = P[173];
     P_new[174] = P[174];
     P_new[175] = P[175];
-    P_new[176] = t147;
-    P_new[177] = t159;
-    P_new[178] = t171;
-    P_new[179] = t183;
-    P_new[180] = t199;
-    P_new[181] = t215;
-    P_new[182] = t231;
-    P_new[183] = t247;
-    P_new[184] = t263;
-    P_new[185] = t279;
     P_new[186] = P[171];
     P_new[187] = t340;
     P_new[188] = P[188];
     P_new[189] = P[189];
     P_new[190] = P[190];
     P_new[191] = P[191];
-    P_new[192] = t148;
-    P_new[193] = t160;
-    P_new[194] = t172;
-    P_new[195] = t184;
-    P_new[196] = t200;
-    P_new[197] = t216;
-    P_new[198] = t232;
-    P_new[199] = t248;
-    P_new[200] = t264;
-    P_new[201] = t280;
     P_new[202] = P[172];
     P_new[203] = P[188];
     P_new[204] = t341;
     P_new[205] = P[205];
     P_new[206] = P[206];
     P_new[207] = P[207];
-    P_new[208] = t149;
-    P_new[209] = t161;
-    P_new[210] = t173;
-    P_new[211] = t185;
-    P_new[212] = t201;
-    P_new[213] = t217;
-    P_new[214] = t233;
-    P_new[215] = t249;
-    P_new[216] = t265;
-    P_new[217] = t281;
     P_new[218] = P[173];
     P_new[219] = P[189];
     P_new[220] = P[205];
     P_new[221] = t342;
     P_new[222] = P[222];
     P_new[223] = P[223];
-    P_new[224] = t150;
-    P_new[225] = t162;
-    P_new[226] = t174;
-    P_new[227] = t186;
-    P_new[228] = t202;
-    P_new[229] = t218;
-    P_new[230] = t234;
-    P_new[231] = t250;
-    P_new[232] = t266;
-    P_new[233] = t282;
     P_new[234] = P[174];
     P_new[235] = P[190];
     P_new[236] = P[206];
     P_new[237] = P[222];
     P_new[238] = t343;
     P_new[239] = P[239];
-    P_new[240] = t151;
-    P_new[241] = t163;
-    P_new[242] = t175;
-    P_new[243] = t187;
-    P_new[244] = t203;
-    P_new[245] = t219;
-    P_new[246] = t235;
-    P_new[247] = t251;
-    P_new[248] = t267;
-    P_new[249] = t283;
     P_new[250] = P[175];
     P_new[251] = P[191];
     P_new[252] = P[207];
@@ -2027,6 +2027,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t260 = DERIVE_FNMA(t78, t148, DERIVE_FNMA(t75, t132, DERIVE_FNMA(t70, t116, DERIVE_FNMA(t62, t100, DERIVE_FNMA(t50, t84, DERIVE_FNMA(t33, P[117], x[5]))))));
     const double t261 = DERIVE_FNMA(t78, t149, DERIVE_FNMA(t75, t133, DERIVE_FNMA(t70, t117, DERIVE_FNMA(t62, t101, DERIVE_FNMA(t50, t85, DERIVE_FNMA(t33, P[118], x[6]))))));
     const double t262 = DERIVE_FNMA(t78, t150, DERIVE_FNMA(t75, t134, DERIVE_FNMA(t70, t118, DERIVE_FNMA(t62, t102, DERIVE_FNMA(t50, t86, DERIVE_FNMA(t33, P[119], x[7]))))));
+    x_new[4] = t259;
+    x_new[5] = t260;
+    x_new[6] = t261;
+    x_new[7] = t262;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t263_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -2041,6 +2045,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t264 = DERIVE_FNMA(t78, t152, DERIVE_FNMA(t75, t136, DERIVE_FNMA(t70, t120, DERIVE_FNMA(t62, t104, DERIVE_FNMA(t50, t88, DERIVE_FNMA(t33, P[121], x[9]))))));
     const double t265 = DERIVE_FNMA(t78, t153, DERIVE_FNMA(t75, t137, DERIVE_FNMA(t70, t121, DERIVE_FNMA(t62, t105, DERIVE_FNMA(t50, t89, DERIVE_FNMA(t33, P[122], x[10]))))));
     const double t266 = DERIVE_FNMA(t78, t154, DERIVE_FNMA(t75, t138, DERIVE_FNMA(t70, t122, DERIVE_FNMA(t62, t106, DERIVE_FNMA(t50, t90, DERIVE_FNMA(t33, P[123], x[11]))))));
+    x_new[8] = t263;
+    x_new[9] = t264;
+    x_new[10] = t265;
+    x_new[11] = t266;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t267_0 = DERIVE_VFNMA(((derive_vd){t33, t33, t33, t33}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -2055,6 +2063,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t268 = DERIVE_FNMA(t78, t156, DERIVE_FNMA(t75, t140, DERIVE_FNMA(t70, t124, DERIVE_FNMA(t62, t108, DERIVE_FNMA(t50, t92, DERIVE_FNMA(t33, P[125], x[13]))))));
     const double t269 = DERIVE_FNMA(t78, t157, DERIVE_FNMA(t75, t141, DERIVE_FNMA(t70, t125, DERIVE_FNMA(t62, t109, DERIVE_FNMA(t50, t93, DERIVE_FNMA(t33, P[126], x[14]))))));
     const double t270 = DERIVE_FNMA(t78, t158, DERIVE_FNMA(t75, t142, DERIVE_FNMA(t70, t126, DERIVE_FNMA(t62, t110, DERIVE_FNMA(t50, t94, DERIVE_FNMA(t33, P[127], x[15]))))));
+    x_new[12] = t267;
+    x_new[13] = t268;
+    x_new[14] = t269;
+    x_new[15] = t270;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t271_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[112], P[113], P[114], P[115]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -2072,6 +2084,13 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t272 = DERIVE_FMA(t239, t144, DERIVE_FMA(t223, t128, DERIVE_FMA(t207, t112, DERIVE_FMA(t191, t96, DERIVE_FMA(t175, t80, DERIVE_FMA(t159, P[113], P[1]))))));
     const double t273 = DERIVE_FMA(t239, t145, DERIVE_FMA(t223, t129, DERIVE_FMA(t207, t113, DERIVE_FMA(t191, t97, DERIVE_FMA(t175, t81, DERIVE_FMA(t159, P[114], P[2]))))));
     const double t274 = DERIVE_FMA(t239, t146, DERIVE_FMA(t223, t130, DERIVE_FMA(t207, t114, DERIVE_FMA(t191, t98, DERIVE_FMA(t175, t82, DERIVE_FMA(t159, P[115], P[3]))))));
+    P_new[0] = t271;
+    P_new[1] = t272;
+    P_new[16] = t272;
+    P_new[2] = t273;
+    P_new[32] = t273;
+    P_new[3] = t274;
+    P_new[48] = t274;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t275_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -2085,6 +2104,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t276 = DERIVE_FMA(t239, t148, DERIVE_FMA(t223, t132, DERIVE_FMA(t207, t116, DERIVE_FMA(t191, t100, DERIVE_FMA(t175, t84, DERIVE_FMA(t159, P[117], P[5]))))));
     const double t277 = DERIVE_FMA(t239, t149, DERIVE_FMA(t223, t133, DERIVE_FMA(t207, t117, DERIVE_FMA(t191, t101, DERIVE_FMA(t175, t85, DERIVE_FMA(t159, P[118], P[6]))))));
     const double t278 = DERIVE_FMA(t239, t150, DERIVE_FMA(t223, t134, DERIVE_FMA(t207, t118, DERIVE_FMA(t191, t102, DERIVE_FMA(t175, t86, DERIVE_FMA(t159, P[119], P[7]))))));
+    P_new[4] = t275;
+    P_new[64] = t275;
+    P_new[5] = t276;
+    P_new[80] = t276;
+    P_new[6] = t277;
+    P_new[96] = t277;
+    P_new[7] = t278;
+    P_new[112] = t278;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t279_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -2098,6 +2125,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t280 = DERIVE_FMA(t239, t152, DERIVE_FMA(t223, t136, DERIVE_FMA(t207, t120, DERIVE_FMA(t191, t104, DERIVE_FMA(t175, t88, DERIVE_FMA(t159, P[121], P[9]))))));
     const double t281 = DERIVE_FMA(t239, t153, DERIVE_FMA(t223, t137, DERIVE_FMA(t207, t121, DERIVE_FMA(t191, t105, DERIVE_FMA(t175, t89, DERIVE_FMA(t159, P[122], P[10]))))));
     const double t282 = DERIVE_FMA(t239, t154, DERIVE_FMA(t223, t138, DERIVE_FMA(t207, t122, DERIVE_FMA(t191, t106, DERIVE_FMA(t175, t90, DERIVE_FMA(t159, P[123], P[11]))))));
+    P_new[8] = t279;
+    P_new[128] = t279;
+    P_new[9] = t280;
+    P_new[144] = t280;
+    P_new[10] = t281;
+    P_new[160] = t281;
+    P_new[11] = t282;
+    P_new[176] = t282;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t283_0 = DERIVE_VFMA(((derive_vd){t159, t159, t159, t159}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -2111,6 +2146,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t284 = DERIVE_FMA(t239, t156, DERIVE_FMA(t223, t140, DERIVE_FMA(t207, t124, DERIVE_FMA(t191, t108, DERIVE_FMA(t175, t92, DERIVE_FMA(t159, P[125], P[13]))))));
     const double t285 = DERIVE_FMA(t239, t157, DERIVE_FMA(t223, t141, DERIVE_FMA(t207, t125, DERIVE_FMA(t191, t109, DERIVE_FMA(t175, t93, DERIVE_FMA(t159, P[126], P[14]))))));
     const double t286 = DERIVE_FMA(t239, t158, DERIVE_FMA(t223, t142, DERIVE_FMA(t207, t126, DERIVE_FMA(t191, t110, DERIVE_FMA(t175, t94, DERIVE_FMA(t159, P[127], P[15]))))));
+    P_new[12] = t283;
+    P_new[192] = t283;
+    P_new[13] = t284;
+    P_new[208] = t284;
+    P_new[14] = t285;
+    P_new[224] = t285;
+    P_new[15] = t286;
+    P_new[240] = t286;
     #endif
     const double t287 = DERIVE_FMA(t192, t96, DERIVE_FMA(t176, t80, DERIVE_FMA(t144, t240, DERIVE_FMA(t128, t224, DERIVE_FMA(t112, t208, DERIVE_FMA(P[113], t160, P[17]))))));
     const double t288 = DERIVE_FMA(t192, t97, DERIVE_FMA(t176, t81, DERIVE_FMA(t145, t240, DERIVE_FMA(t129, t224, DERIVE_FMA(t113, t208, DERIVE_FMA(P[114], t160, P[18]))))));
@@ -2127,6 +2170,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t291 = DERIVE_FMA(t240, t148, DERIVE_FMA(t224, t132, DERIVE_FMA(t208, t116, DERIVE_FMA(t192, t100, DERIVE_FMA(t176, t84, DERIVE_FMA(t160, P[117], P[21]))))));
     const double t292 = DERIVE_FMA(t240, t149, DERIVE_FMA(t224, t133, DERIVE_FMA(t208, t117, DERIVE_FMA(t192, t101, DERIVE_FMA(t176, t85, DERIVE_FMA(t160, P[118], P[22]))))));
     const double t293 = DERIVE_FMA(t240, t150, DERIVE_FMA(t224, t134, DERIVE_FMA(t208, t118, DERIVE_FMA(t192, t102, DERIVE_FMA(t176, t86, DERIVE_FMA(t160, P[119], P[23]))))));
+    P_new[20] = t290;
+    P_new[65] = t290;
+    P_new[21] = t291;
+    P_new[81] = t291;
+    P_new[22] = t292;
+    P_new[97] = t292;
+    P_new[23] = t293;
+    P_new[113] = t293;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t294_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
@@ -2140,6 +2191,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t295 = DERIVE_FMA(t240, t152, DERIVE_FMA(t224, t136, DERIVE_FMA(t208, t120, DERIVE_FMA(t192, t104, DERIVE_FMA(t176, t88, DERIVE_FMA(t160, P[121], P[25]))))));
     const double t296 = DERIVE_FMA(t240, t153, DERIVE_FMA(t224, t137, DERIVE_FMA(t208, t121, DERIVE_FMA(t192, t105, DERIVE_FMA(t176, t89, DERIVE_FMA(t160, P[122], P[26]))))));
     const double t297 = DERIVE_FMA(t240, t154, DERIVE_FMA(t224, t138, DERIVE_FMA(t208, t122, DERIVE_FMA(t192, t106, DERIVE_FMA(t176, t90, DERIVE_FMA(t160, P[123], P[27]))))));
+    P_new[24] = t294;
+    P_new[129] = t294;
+    P_new[25] = t295;
+    P_new[145] = t295;
+    P_new[26] = t296;
+    P_new[161] = t296;
+    P_new[27] = t297;
+    P_new[177] = t297;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t298_0 = DERIVE_VFMA(((derive_vd){t160, t160, t160, t160}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
@@ -2153,6 +2212,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t299 = DERIVE_FMA(t240, t156, DERIVE_FMA(t224, t140, DERIVE_FMA(t208, t124, DERIVE_FMA(t192, t108, DERIVE_FMA(t176, t92, DERIVE_FMA(t160, P[125], P[29]))))));
     const double t300 = DERIVE_FMA(t240, t157, DERIVE_FMA(t224, t141, DERIVE_FMA(t208, t125, DERIVE_FMA(t192, t109, DERIVE_FMA(t176, t93, DERIVE_FMA(t160, P[126], P[30]))))));
     const double t301 = DERIVE_FMA(t240, t158, DERIVE_FMA(t224, t142, DERIVE_FMA(t208, t126, DERIVE_FMA(t192, t110, DERIVE_FMA(t176, t94, DERIVE_FMA(t160, P[127], P[31]))))));
+    P_new[28] = t298;
+    P_new[193] = t298;
+    P_new[29] = t299;
+    P_new[209] = t299;
+    P_new[30] = t300;
+    P_new[225] = t300;
+    P_new[31] = t301;
+    P_new[241] = t301;
     #endif
     const double t302 = DERIVE_FMA(t193, t97, DERIVE_FMA(t177, t81, DERIVE_FMA(t145, t241, DERIVE_FMA(t129, t225, DERIVE_FMA(t113, t209, DERIVE_FMA(P[114], t161, P[34]))))));
     const double t303 = DERIVE_FMA(t193, t98, DERIVE_FMA(t177, t82, DERIVE_FMA(t146, t241, DERIVE_FMA(t130, t225, DERIVE_FMA(t114, t209, DERIVE_FMA(P[115], t161, P[35]))))));
@@ -2168,6 +2235,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t305 = DERIVE_FMA(t241, t148, DERIVE_FMA(t225, t132, DERIVE_FMA(t209, t116, DERIVE_FMA(t193, t100, DERIVE_FMA(t177, t84, DERIVE_FMA(t161, P[117], P[37]))))));
     const double t306 = DERIVE_FMA(t241, t149, DERIVE_FMA(t225, t133, DERIVE_FMA(t209, t117, DERIVE_FMA(t193, t101, DERIVE_FMA(t177, t85, DERIVE_FMA(t161, P[118], P[38]))))));
     const double t307 = DERIVE_FMA(t241, t150, DERIVE_FMA(t225, t134, DERIVE_FMA(t209, t118, DERIVE_FMA(t193, t102, DERIVE_FMA(t177, t86, DERIVE_FMA(t161, P[119], P[39]))))));
+    P_new[36] = t304;
+    P_new[66] = t304;
+    P_new[37] = t305;
+    P_new[82] = t305;
+    P_new[38] = t306;
+    P_new[98] = t306;
+    P_new[39] = t307;
+    P_new[114] = t307;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t308_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -2181,6 +2256,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t309 = DERIVE_FMA(t241, t152, DERIVE_FMA(t225, t136, DERIVE_FMA(t209, t120, DERIVE_FMA(t193, t104, DERIVE_FMA(t177, t88, DERIVE_FMA(t161, P[121], P[41]))))));
     const double t310 = DERIVE_FMA(t241, t153, DERIVE_FMA(t225, t137, DERIVE_FMA(t209, t121, DERIVE_FMA(t193, t105, DERIVE_FMA(t177, t89, DERIVE_FMA(t161, P[122], P[42]))))));
     const double t311 = DERIVE_FMA(t241, t154, DERIVE_FMA(t225, t138, DERIVE_FMA(t209, t122, DERIVE_FMA(t193, t106, DERIVE_FMA(t177, t90, DERIVE_FMA(t161, P[123], P[43]))))));
+    P_new[40] = t308;
+    P_new[130] = t308;
+    P_new[41] = t309;
+    P_new[146] = t309;
+    P_new[42] = t310;
+    P_new[162] = t310;
+    P_new[43] = t311;
+    P_new[178] = t311;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t312_0 = DERIVE_VFMA(((derive_vd){t161, t161, t161, t161}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -2194,6 +2277,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t313 = DERIVE_FMA(t241, t156, DERIVE_FMA(t225, t140, DERIVE_FMA(t209, t124, DERIVE_FMA(t193, t108, DERIVE_FMA(t177, t92, DERIVE_FMA(t161, P[125], P[45]))))));
     const double t314 = DERIVE_FMA(t241, t157, DERIVE_FMA(t225, t141, DERIVE_FMA(t209, t125, DERIVE_FMA(t193, t109, DERIVE_FMA(t177, t93, DERIVE_FMA(t161, P[126], P[46]))))));
     const double t315 = DERIVE_FMA(t241, t158, DERIVE_FMA(t225, t142, DERIVE_FMA(t209, t126, DERIVE_FMA(t193, t110, DERIVE_FMA(t177, t94, DERIVE_FMA(t161, P[127], P[47]))))));
+    P_new[44] = t312;
+    P_new[194] = t312;
+    P_new[45] = t313;
+    P_new[210] = t313;
+    P_new[46] = t314;
+    P_new[226] = t314;
+    P_new[47] = t315;
+    P_new[242] = t315;
     #endif
     const double t316 = DERIVE_FMA(t194, t98, DERIVE_FMA(t178, t82, DERIVE_FMA(t146, t242, DERIVE_FMA(t130, t226, DERIVE_FMA(t114, t210, DERIVE_FMA(P[115], t162, P[51]))))));
     #if DERIVE_VECTOR
@@ -2224,6 +2315,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t318 = DERIVE_FMA(t242, t148, DERIVE_FMA(t226, t132, DERIVE_FMA(t210, t116, DERIVE_FMA(t194, t100, DERIVE_FMA(t178, t84, DERIVE_FMA(t162, P[117], P[53]))))));
     const double t319 = DERIVE_FMA(t242, t149, DERIVE_FMA(t226, t133, DERIVE_FMA(t210, t117, DERIVE_FMA(t194, t101, DERIVE_FMA(t178, t85, DERIVE_FMA(t162, P[118], P[54]))))));
     const double t320 = DERIVE_FMA(t242, t150, DERIVE_FMA(t226, t134, DERIVE_FMA(t210, t118, DERIVE_FMA(t194, t102, DERIVE_FMA(t178, t86, DERIVE_FMA(t162, P[119], P[55]))))));
+    P_new[52] = t317;
+    P_new[67] = t317;
+    P_new[53] = t318;
+    P_new[83] = t318;
+    P_new[54] = t319;
+    P_new[99] = t319;
+    P_new[55] = t320;
+    P_new[115] = t320;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t321_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -2253,6 +2352,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t322 = DERIVE_FMA(t242, t152, DERIVE_FMA(t226, t136, DERIVE_FMA(t210, t120, DERIVE_FMA(t194, t104, DERIVE_FMA(t178, t88, DERIVE_FMA(t162, P[121], P[57]))))));
     const double t323 = DERIVE_FMA(t242, t153, DERIVE_FMA(t226, t137, DERIVE_FMA(t210, t121, DERIVE_FMA(t194, t105, DERIVE_FMA(t178, t89, DERIVE_FMA(t162, P[122], P[58]))))));
     const double t324 = DERIVE_FMA(t242, t154, DERIVE_FMA(t226, t138, DERIVE_FMA(t210, t122, DERIVE_FMA(t194, t106, DERIVE_FMA(t178, t90, DERIVE_FMA(t162, P[123], P[59]))))));
+    P_new[56] = t321;
+    P_new[131] = t321;
+    P_new[57] = t322;
+    P_new[147] = t322;
+    P_new[58] = t323;
+    P_new[163] = t323;
+    P_new[59] = t324;
+    P_new[179] = t324;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t325_0 = DERIVE_VFMA(((derive_vd){t162, t162, t162, t162}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -2282,6 +2389,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t326 = DERIVE_FMA(t242, t156, DERIVE_FMA(t226, t140, DERIVE_FMA(t210, t124, DERIVE_FMA(t194, t108, DERIVE_FMA(t178, t92, DERIVE_FMA(t162, P[125], P[61]))))));
     const double t327 = DERIVE_FMA(t242, t157, DERIVE_FMA(t226, t141, DERIVE_FMA(t210, t125, DERIVE_FMA(t194, t109, DERIVE_FMA(t178, t93, DERIVE_FMA(t162, P[126], P[62]))))));
     const double t328 = DERIVE_FMA(t242, t158, DERIVE_FMA(t226, t142, DERIVE_FMA(t210, t126, DERIVE_FMA(t194, t110, DERIVE_FMA(t178, t94, DERIVE_FMA(t162, P[127], P[63]))))));
+    P_new[60] = t325;
+    P_new[195] = t325;
+    P_new[61] = t326;
+    P_new[211] = t326;
+    P_new[62] = t327;
+    P_new[227] = t327;
+    P_new[63] = t328;
+    P_new[243] = t328;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t329_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -2299,6 +2414,13 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t330 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, DERIVE_FMA(t211, t116, DERIVE_FMA(t195, t100, DERIVE_FMA(t179, t84, DERIVE_FMA(t163, P[117], P[69]))))));
     const double t331 = DERIVE_FMA(t243, t149, DERIVE_FMA(t227, t133, DERIVE_FMA(t211, t117, DERIVE_FMA(t195, t101, DERIVE_FMA(t179, t85, DERIVE_FMA(t163, P[118], P[70]))))));
     const double t332 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, DERIVE_FMA(t211, t118, DERIVE_FMA(t195, t102, DERIVE_FMA(t179, t86, DERIVE_FMA(t163, P[119], P[71]))))));
+    P_new[68] = t329;
+    P_new[69] = t330;
+    P_new[84] = t330;
+    P_new[70] = t331;
+    P_new[100] = t331;
+    P_new[71] = t332;
+    P_new[116] = t332;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t333_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
@@ -2312,6 +2434,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t334 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, DERIVE_FMA(t211, t120, DERIVE_FMA(t195, t104, DERIVE_FMA(t179, t88, DERIVE_FMA(t163, P[121], P[73]))))));
     const double t335 = DERIVE_FMA(t243, t153, DERIVE_FMA(t227, t137, DERIVE_FMA(t211, t121, DERIVE_FMA(t195, t105, DERIVE_FMA(t179, t89, DERIVE_FMA(t163, P[122], P[74]))))));
     const double t336 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, DERIVE_FMA(t211, t122, DERIVE_FMA(t195, t106, DERIVE_FMA(t179, t90, DERIVE_FMA(t163, P[123], P[75]))))));
+    P_new[72] = t333;
+    P_new[132] = t333;
+    P_new[73] = t334;
+    P_new[148] = t334;
+    P_new[74] = t335;
+    P_new[164] = t335;
+    P_new[75] = t336;
+    P_new[180] = t336;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t337_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
@@ -2325,6 +2455,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t338 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, DERIVE_FMA(t211, t124, DERIVE_FMA(t195, t108, DERIVE_FMA(t179, t92, DERIVE_FMA(t163, P[125], P[77]))))));
     const double t339 = DERIVE_FMA(t243, t157, DERIVE_FMA(t227, t141, DERIVE_FMA(t211, t125, DERIVE_FMA(t195, t109, DERIVE_FMA(t179, t93, DERIVE_FMA(t163, P[126], P[78]))))));
     const double t340 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, DERIVE_FMA(t211, t126, DERIVE_FMA(t195, t110, DERIVE_FMA(t179, t94, DERIVE_FMA(t163, P[127], P[79]))))));
+    P_new[76] = t337;
+    P_new[196] = t337;
+    P_new[77] = t338;
+    P_new[212] = t338;
+    P_new[78] = t339;
+    P_new[228] = t339;
+    P_new[79] = t340;
+    P_new[244] = t340;
     #endif
     const double t341 = DERIVE_FMA(t180, t84, DERIVE_FMA(t148, t244, DERIVE_FMA(t132, t228, DERIVE_FMA(t116, t212, DERIVE_FMA(t100, t196, DERIVE_FMA(P[117], t164, P[85]))))));
     const double t342 = DERIVE_FMA(t180, t85, DERIVE_FMA(t149, t244, DERIVE_FMA(t133, t228, DERIVE_FMA(t117, t212, DERIVE_FMA(t101, t196, DERIVE_FMA(P[118], t164, P[86]))))));
@@ -2341,6 +2479,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t345 = DERIVE_FMA(t244, t152, DERIVE_FMA(t228, t136, DERIVE_FMA(t212, t120, DERIVE_FMA(t196, t104, DERIVE_FMA(t180, t88, DERIVE_FMA(t164, P[121], P[89]))))));
     const double t346 = DERIVE_FMA(t244, t153, DERIVE_FMA(t228, t137, DERIVE_FMA(t212, t121, DERIVE_FMA(t196, t105, DERIVE_FMA(t180, t89, DERIVE_FMA(t164, P[122], P[90]))))));
     const double t347 = DERIVE_FMA(t244, t154, DERIVE_FMA(t228, t138, DERIVE_FMA(t212, t122, DERIVE_FMA(t196, t106, DERIVE_FMA(t180, t90, DERIVE_FMA(t164, P[123], P[91]))))));
+    P_new[88] = t344;
+    P_new[133] = t344;
+    P_new[89] = t345;
+    P_new[149] = t345;
+    P_new[90] = t346;
+    P_new[165] = t346;
+    P_new[91] = t347;
+    P_new[181] = t347;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t348_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -2354,6 +2500,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t349 = DERIVE_FMA(t244, t156, DERIVE_FMA(t228, t140, DERIVE_FMA(t212, t124, DERIVE_FMA(t196, t108, DERIVE_FMA(t180, t92, DERIVE_FMA(t164, P[125], P[93]))))));
     const double t350 = DERIVE_FMA(t244, t157, DERIVE_FMA(t228, t141, DERIVE_FMA(t212, t125, DERIVE_FMA(t196, t109, DERIVE_FMA(t180, t93, DERIVE_FMA(t164, P[126], P[94]))))));
     const double t351 = DERIVE_FMA(t244, t158, DERIVE_FMA(t228, t142, DERIVE_FMA(t212, t126, DERIVE_FMA(t196, t110, DERIVE_FMA(t180, t94, DERIVE_FMA(t164, P[127], P[95]))))));
+    P_new[92] = t348;
+    P_new[197] = t348;
+    P_new[93] = t349;
+    P_new[213] = t349;
+    P_new[94] = t350;
+    P_new[229] = t350;
+    P_new[95] = t351;
+    P_new[245] = t351;
     #endif
     const double t352 = DERIVE_FMA(t181, t85, DERIVE_FMA(t149, t245, DERIVE_FMA(t133, t229, DERIVE_FMA(t117, t213, DERIVE_FMA(t101, t197, DERIVE_FMA(P[118], t165, P[102]))))));
     const double t353 = DERIVE_FMA(t181, t86, DERIVE_FMA(t150, t245, DERIVE_FMA(t134, t229, DERIVE_FMA(t118, t213, DERIVE_FMA(t102, t197, DERIVE_FMA(P[119], t165, P[103]))))));
@@ -2369,6 +2523,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t355 = DERIVE_FMA(t245, t152, DERIVE_FMA(t229, t136, DERIVE_FMA(t213, t120, DERIVE_FMA(t197, t104, DERIVE_FMA(t181, t88, DERIVE_FMA(t165, P[121], P[105]))))));
     const double t356 = DERIVE_FMA(t245, t153, DERIVE_FMA(t229, t137, DERIVE_FMA(t213, t121, DERIVE_FMA(t197, t105, DERIVE_FMA(t181, t89, DERIVE_FMA(t165, P[122], P[106]))))));
     const double t357 = DERIVE_FMA(t245, t154, DERIVE_FMA(t229, t138, DERIVE_FMA(t213, t122, DERIVE_FMA(t197, t106, DERIVE_FMA(t181, t90, DERIVE_FMA(t165, P[123], P[107]))))));
+    P_new[104] = t354;
+    P_new[134] = t354;
+    P_new[105] = t355;
+    P_new[150] = t355;
+    P_new[106] = t356;
+    P_new[166] = t356;
+    P_new[107] = t357;
+    P_new[182] = t357;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t358_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -2382,6 +2544,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t359 = DERIVE_FMA(t245, t156, DERIVE_FMA(t229, t140, DERIVE_FMA(t213, t124, DERIVE_FMA(t197, t108, DERIVE_FMA(t181, t92, DERIVE_FMA(t165, P[125], P[109]))))));
     const double t360 = DERIVE_FMA(t245, t157, DERIVE_FMA(t229, t141, DERIVE_FMA(t213, t125, DERIVE_FMA(t197, t109, DERIVE_FMA(t181, t93, DERIVE_FMA(t165, P[126], P[110]))))));
     const double t361 = DERIVE_FMA(t245, t158, DERIVE_FMA(t229, t142, DERIVE_FMA(t213, t126, DERIVE_FMA(t197, t110, DERIVE_FMA(t181, t94, DERIVE_FMA(t165, P[127], P[111]))))));
+    P_new[108] = t358;
+    P_new[198] = t358;
+    P_new[109] = t359;
+    P_new[214] = t359;
+    P_new[110] = t360;
+    P_new[230] = t360;
+    P_new[111] = t361;
+    P_new[246] = t361;
     #endif
     const double t362 = DERIVE_FMA(t182, t86, DERIVE_FMA(t150, t246, DERIVE_FMA(t134, t230, DERIVE_FMA(t118, t214, DERIVE_FMA(t102, t198, DERIVE_FMA(P[119], t166, P[119]))))));
     #if DERIVE_VECTOR
@@ -2412,6 +2582,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t364 = DERIVE_FMA(t246, t152, DERIVE_FMA(t230, t136, DERIVE_FMA(t214, t120, DERIVE_FMA(t198, t104, DERIVE_FMA(t182, t88, DERIVE_FMA(t166, P[121], P[121]))))));
     const double t365 = DERIVE_FMA(t246, t153, DERIVE_FMA(t230, t137, DERIVE_FMA(t214, t121, DERIVE_FMA(t198, t105, DERIVE_FMA(t182, t89, DERIVE_FMA(t166, P[122], P[122]))))));
     const double t366 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, DERIVE_FMA(t166, P[123], P[123]))))));
+    P_new[120] = t363;
+    P_new[135] = t363;
+    P_new[121] = t364;
+    P_new[151] = t364;
+    P_new[122] = t365;
+    P_new[167] = t365;
+    P_new[123] = t366;
+    P_new[183] = t366;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
@@ -2441,6 +2619,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t368 = DERIVE_FMA(t246, t156, DERIVE_FMA(t230, t140, DERIVE_FMA(t214, t124, DERIVE_FMA(t198, t108, DERIVE_FMA(t182, t92, DERIVE_FMA(t166, P[125], P[125]))))));
     const double t369 = DERIVE_FMA(t246, t157, DERIVE_FMA(t230, t141, DERIVE_FMA(t214, t125, DERIVE_FMA(t198, t109, DERIVE_FMA(t182, t93, DERIVE_FMA(t166, P[126], P[126]))))));
     const double t370 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, DERIVE_FMA(t166, P[127], P[127]))))));
+    P_new[124] = t367;
+    P_new[199] = t367;
+    P_new[125] = t368;
+    P_new[215] = t368;
+    P_new[126] = t369;
+    P_new[231] = t369;
+    P_new[127] = t370;
+    P_new[247] = t370;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -2458,6 +2644,13 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t372 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, DERIVE_FMA(t183, t88, DERIVE_FMA(t167, P[121], P[137]))))));
     const double t373 = DERIVE_FMA(t247, t153, DERIVE_FMA(t231, t137, DERIVE_FMA(t215, t121, DERIVE_FMA(t199, t105, DERIVE_FMA(t183, t89, DERIVE_FMA(t167, P[122], P[138]))))));
     const double t374 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, DERIVE_FMA(t183, t90, DERIVE_FMA(t167, P[123], P[139]))))));
+    P_new[136] = t371;
+    P_new[137] = t372;
+    P_new[152] = t372;
+    P_new[138] = t373;
+    P_new[168] = t373;
+    P_new[139] = t374;
+    P_new[184] = t374;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -2471,6 +2664,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t376 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, DERIVE_FMA(t183, t92, DERIVE_FMA(t167, P[125], P[141]))))));
     const double t377 = DERIVE_FMA(t247, t157, DERIVE_FMA(t231, t141, DERIVE_FMA(t215, t125, DERIVE_FMA(t199, t109, DERIVE_FMA(t183, t93, DERIVE_FMA(t167, P[126], P[142]))))));
     const double t378 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, DERIVE_FMA(t183, t94, DERIVE_FMA(t167, P[127], P[143]))))));
+    P_new[140] = t375;
+    P_new[200] = t375;
+    P_new[141] = t376;
+    P_new[216] = t376;
+    P_new[142] = t377;
+    P_new[232] = t377;
+    P_new[143] = t378;
+    P_new[248] = t378;
     #endif
     const double t379 = DERIVE_FMA(t184, t88, DERIVE_FMA(t152, t248, DERIVE_FMA(t136, t232, DERIVE_FMA(t120, t216, DERIVE_FMA(t104, t200, DERIVE_FMA(P[121], t168, P[153]))))));
     const double t380 = DERIVE_FMA(t184, t89, DERIVE_FMA(t153, t248, DERIVE_FMA(t137, t232, DERIVE_FMA(t121, t216, DERIVE_FMA(t105, t200, DERIVE_FMA(P[122], t168, P[154]))))));
@@ -2487,6 +2688,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t383 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, DERIVE_FMA(t200, t108, DERIVE_FMA(t184, t92, DERIVE_FMA(t168, P[125], P[157]))))));
     const double t384 = DERIVE_FMA(t248, t157, DERIVE_FMA(t232, t141, DERIVE_FMA(t216, t125, DERIVE_FMA(t200, t109, DERIVE_FMA(t184, t93, DERIVE_FMA(t168, P[126], P[158]))))));
     const double t385 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, DERIVE_FMA(t200, t110, DERIVE_FMA(t184, t94, DERIVE_FMA(t168, P[127], P[159]))))));
+    P_new[156] = t382;
+    P_new[201] = t382;
+    P_new[157] = t383;
+    P_new[217] = t383;
+    P_new[158] = t384;
+    P_new[233] = t384;
+    P_new[159] = t385;
+    P_new[249] = t385;
     #endif
     const double t386 = DERIVE_FMA(t185, t89, DERIVE_FMA(t153, t249, DERIVE_FMA(t137, t233, DERIVE_FMA(t121, t217, DERIVE_FMA(t105, t201, DERIVE_FMA(P[122], t169, P[170]))))));
     const double t387 = DERIVE_FMA(t185, t90, DERIVE_FMA(t154, t249, DERIVE_FMA(t138, t233, DERIVE_FMA(t122, t217, DERIVE_FMA(t106, t201, DERIVE_FMA(P[123], t169, P[171]))))));
@@ -2502,6 +2711,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t389 = DERIVE_FMA(t249, t156, DERIVE_FMA(t233, t140, DERIVE_FMA(t217, t124, DERIVE_FMA(t201, t108, DERIVE_FMA(t185, t92, DERIVE_FMA(t169, P[125], P[173]))))));
     const double t390 = DERIVE_FMA(t249, t157, DERIVE_FMA(t233, t141, DERIVE_FMA(t217, t125, DERIVE_FMA(t201, t109, DERIVE_FMA(t185, t93, DERIVE_FMA(t169, P[126], P[174]))))));
     const double t391 = DERIVE_FMA(t249, t158, DERIVE_FMA(t233, t142, DERIVE_FMA(t217, t126, DERIVE_FMA(t201, t110, DERIVE_FMA(t185, t94, DERIVE_FMA(t169, P[127], P[175]))))));
+    P_new[172] = t388;
+    P_new[202] = t388;
+    P_new[173] = t389;
+    P_new[218] = t389;
+    P_new[174] = t390;
+    P_new[234] = t390;
+    P_new[175] = t391;
+    P_new[250] = t391;
     #endif
     const double t392 = DERIVE_FMA(t186, t90, DERIVE_FMA(t154, t250, DERIVE_FMA(t138, t234, DERIVE_FMA(t122, t218, DERIVE_FMA(t106, t202, DERIVE_FMA(P[123], t170, P[187]))))));
     #if DERIVE_VECTOR
@@ -2532,6 +2749,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t394 = DERIVE_FMA(t250, t156, DERIVE_FMA(t234, t140, DERIVE_FMA(t218, t124, DERIVE_FMA(t202, t108, DERIVE_FMA(t186, t92, DERIVE_FMA(t170, P[125], P[189]))))));
     const double t395 = DERIVE_FMA(t250, t157, DERIVE_FMA(t234, t141, DERIVE_FMA(t218, t125, DERIVE_FMA(t202, t109, DERIVE_FMA(t186, t93, DERIVE_FMA(t170, P[126], P[190]))))));
     const double t396 = DERIVE_FMA(t250, t158, DERIVE_FMA(t234, t142, DERIVE_FMA(t218, t126, DERIVE_FMA(t202, t110, DERIVE_FMA(t186, t94, DERIVE_FMA(t170, P[127], P[191]))))));
+    P_new[188] = t393;
+    P_new[203] = t393;
+    P_new[189] = t394;
+    P_new[219] = t394;
+    P_new[190] = t395;
+    P_new[235] = t395;
+    P_new[191] = t396;
+    P_new[251] = t396;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t397_0 = DERIVE_VFMA(((derive_vd){t171, t171, t171, t171}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -2549,6 +2774,13 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const double t398 = DERIVE_FMA(t251, t156, DERIVE_FMA(t235, t140, DERIVE_FMA(t219, t124, DERIVE_FMA(t203, t108, DERIVE_FMA(t187, t92, DERIVE_FMA(t171, P[125], P[205]))))));
     const double t399 = DERIVE_FMA(t251, t157, DERIVE_FMA(t235, t141, DERIVE_FMA(t219, t125, DERIVE_FMA(t203, t109, DERIVE_FMA(t187, t93, DERIVE_FMA(t171, P[126], P[206]))))));
     const double t400 = DERIVE_FMA(t251, t158, DERIVE_FMA(t235, t142, DERIVE_FMA(t219, t126, DERIVE_FMA(t203, t110, DERIVE_FMA(t187, t94, DERIVE_FMA(t171, P[127], P[207]))))));
+    P_new[204] = t397;
+    P_new[205] = t398;
+    P_new[220] = t398;
+    P_new[206] = t399;
+    P_new[236] = t399;
+    P_new[207] = t400;
+    P_new[252] = t400;
     #endif
     const double t401 = DERIVE_FMA(t188, t92, DERIVE_FMA(t156, t252, DERIVE_FMA(t140, t236, DERIVE_FMA(t124, t220, DERIVE_FMA(t108, t204, DERIVE_FMA(P[125], t172, P[221]))))));
     const double t402 = DERIVE_FMA(t188, t93, DERIVE_FMA(t157, t252, DERIVE_FMA(t141, t236, DERIVE_FMA(t125, t220, DERIVE_FMA(t109, t204, DERIVE_FMA(P[126], t172, P[222]))))));
@@ -2620,271 +2852,39 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     x_new[1] = t410;
     x_new[2] = t411;
     x_new[3] = t412;
-    x_new[4] = t259;
-    x_new[5] = t260;
-    x_new[6] = t261;
-    x_new[7] = t262;
-    x_new[8] = t263;
-    x_new[9] = t264;
-    x_new[10] = t265;
-    x_new[11] = t266;
-    x_new[12] = t267;
-    x_new[13] = t268;
-    x_new[14] = t269;
-    x_new[15] = t270;
-    P_new[0] = t271;
-    P_new[1] = t272;
-    P_new[2] = t273;
-    P_new[3] = t274;
-    P_new[4] = t275;
-    P_new[5] = t276;
-    P_new[6] = t277;
-    P_new[7] = t278;
-    P_new[8] = t279;
-    P_new[9] = t280;
-    P_new[10] = t281;
-    P_new[11] = t282;
-    P_new[12] = t283;
-    P_new[13] = t284;
-    P_new[14] = t285;
-    P_new[15] = t286;
-    P_new[16] = t272;
     P_new[17] = t287;
     P_new[18] = t288;
     P_new[19] = t289;
-    P_new[20] = t290;
-    P_new[21] = t291;
-    P_new[22] = t292;
-    P_new[23] = t293;
-    P_new[24] = t294;
-    P_new[25] = t295;
-    P_new[26] = t296;
-    P_new[27] = t297;
-    P_new[28] = t298;
-    P_new[29] = t299;
-    P_new[30] = t300;
-    P_new[31] = t301;
-    P_new[32] = t273;
     P_new[33] = t288;
     P_new[34] = t302;
     P_new[35] = t303;
-    P_new[36] = t304;
-    P_new[37] = t305;
-    P_new[38] = t306;
-    P_new[39] = t307;
-    P_new[40] = t308;
-    P_new[41] = t309;
-    P_new[42] = t310;
-    P_new[43] = t311;
-    P_new[44] = t312;
-    P_new[45] = t313;
-    P_new[46] = t314;
-    P_new[47] = t315;
-    P_new[48] = t274;
     P_new[49] = t289;
     P_new[50] = t303;
     P_new[51] = t316;
-    P_new[52] = t317;
-    P_new[53] = t318;
-    P_new[54] = t319;
-    P_new[55] = t320;
-    P_new[56] = t321;
-    P_new[57] = t322;
-    P_new[58] = t323;
-    P_new[59] = t324;
-    P_new[60] = t325;
-    P_new[61] = t326;
-    P_new[62] = t327;
-    P_new[63] = t328;
-    P_new[64] = t275;
-    P_new[65] = t290;
-    P_new[66] = t304;
-    P_new[67] = t317;
-    P_new[68] = t329;
-    P_new[69] = t330;
-    P_new[70] = t331;
-    P_new[71] = t332;
-    P_new[72] = t333;
-    P_new[73] = t334;
-    P_new[74] = t335;
-    P_new[75] = t336;
-    P_new[76] = t337;
-    P_new[77] = t338;
-    P_new[78] = t339;
-    P_new[79] = t340;
-    P_new[80] = t276;
-    P_new[81] = t291;
-    P_new[82] = t305;
-    P_new[83] = t318;
-    P_new[84] = t330;
     P_new[85] = t341;
     P_new[86] = t342;
     P_new[87] = t343;
-    P_new[88] = t344;
-    P_new[89] = t345;
-    P_new[90] = t346;
-    P_new[91] = t347;
-    P_new[92] = t348;
-    P_new[93] = t349;
-    P_new[94] = t350;
-    P_new[95] = t351;
-    P_new[96] = t277;
-    P_new[97] = t292;
-    P_new[98] = t306;
-    P_new[99] = t319;
-    P_new[100] = t331;
     P_new[101] = t342;
     P_new[102] = t352;
     P_new[103] = t353;
-    P_new[104] = t354;
-    P_new[105] = t355;
-    P_new[106] = t356;
-    P_new[107] = t357;
-    P_new[108] = t358;
-    P_new[109] = t359;
-    P_new[110] = t360;
-    P_new[111] = t361;
-    P_new[112] = t278;
-    P_new[113] = t293;
-    P_new[114] = t307;
-    P_new[115] = t320;
-    P_new[116] = t332;
     P_new[117] = t343;
     P_new[118] = t353;
     P_new[119] = t362;
-    P_new[120] = t363;
-    P_new[121] = t364;
-    P_new[122] = t365;
-    P_new[123] = t366;
-    P_new[124] = t367;
-    P_new[125] = t368;
-    P_new[126] = t369;
-    P_new[127] = t370;
-    P_new[128] = t279;
-    P_new[129] = t294;
-    P_new[130] = t308;
-    P_new[131] = t321;
-    P_new[132] = t333;
-    P_new[133] = t344;
-    P_new[134] = t354;
-    P_new[135] = t363;
-    P_new[136] = t371;
-    P_new[137] = t372;
-    P_new[138] = t373;
-    P_new[139] = t374;
-    P_new[140] = t375;
-    P_new[141] = t376;
-    P_new[142] = t377;
-    P_new[143] = t378;
-    P_new[144] = t280;
-    P_new[145] = t295;
-    P_new[146] = t309;
-    P_new[147] = t322;
-    P_new[148] = t334;
-    P_new[149] = t345;
-    P_new[150] = t355;
-    P_new[151] = t364;
-    P_new[152] = t372;
     P_new[153] = t379;
     P_new[154] = t380;
     P_new[155] = t381;
-    P_new[156] = t382;
-    P_new[157] = t383;
-    P_new[158] = t384;
-    P_new[159] = t385;
-    P_new[160] = t281;
-    P_new[161] = t296;
-    P_new[162] = t310;
-    P_new[163] = t323;
-    P_new[164] = t335;
-    P_new[165] = t346;
-    P_new[166] = t356;
-    P_new[167] = t365;
-    P_new[168] = t373;
     P_new[169] = t380;
     P_new[170] = t386;
     P_new[171] = t387;
-    P_new[172] = t388;
-    P_new[173] = t389;
-    P_new[174] = t390;
-    P_new[175] = t391;
-    P_new[176] = t282;
-    P_new[177] = t297;
-    P_new[178] = t311;
-    P_new[179] = t324;
-    P_new[180] = t336;
-    P_new[181] = t347;
-    P_new[182] = t357;
-    P_new[183] = t366;
-    P_new[184] = t374;
     P_new[185] = t381;
     P_new[186] = t387;
     P_new[187] = t392;
-    P_new[188] = t393;
-    P_new[189] = t394;
-    P_new[190] = t395;
-    P_new[191] = t396;
-    P_new[192] = t283;
-    P_new[193] = t298;
-    P_new[194] = t312;
-    P_new[195] = t325;
-    P_new[196] = t337;
-    P_new[197] = t348;
-    P_new[198] = t358;
-    P_new[199] = t367;
-    P_new[200] = t375;
-    P_new[201] = t382;
-    P_new[202] = t388;
-    P_new[203] = t393;
-    P_new[204] = t397;
-    P_new[205] = t398;
-    P_new[206] = t399;
-    P_new[207] = t400;
-    P_new[208] = t284;
-    P_new[209] = t299;
-    P_new[210] = t313;
-    P_new[211] = t326;
-    P_new[212] = t338;
-    P_new[213] = t349;
-    P_new[214] = t359;
-    P_new[215] = t368;
-    P_new[216] = t376;
-    P_new[217] = t383;
-    P_new[218] = t389;
-    P_new[219] = t394;
-    P_new[220] = t398;
     P_new[221] = t401;
     P_new[222] = t402;
     P_new[223] = t403;
-    P_new[224] = t285;
-    P_new[225] = t300;
-    P_new[226] = t314;
-    P_new[227] = t327;
-    P_new[228] = t339;
-    P_new[229] = t350;
-    P_new[230] = t360;
-    P_new[231] = t369;
-    P_new[232] = t377;
-    P_new[233] = t384;
-    P_new[234] = t390;
-    P_new[235] = t395;
-    P_new[236] = t399;
     P_new[237] = t402;
     P_new[238] = t404;
     P_new[239] = t405;
-    P_new[240] = t286;
-    P_new[241] = t301;
-    P_new[242] = t315;
-    P_new[243] = t328;
-    P_new[244] = t340;
-    P_new[245] = t351;
-    P_new[246] = t361;
-    P_new[247] = t370;
-    P_new[248] = t378;
-    P_new[249] = t385;
-    P_new[250] = t391;
-    P_new[251] = t396;
-    P_new[252] = t400;
     P_new[253] = t403;
     P_new[254] = t405;
     P_new[255] = t406;
@@ -3014,6 +3014,10 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t42 = DERIVE_FNMA(t20, t7, x[5]);
     const double t43 = DERIVE_FNMA(t20, t8, x[6]);
     const double t44 = DERIVE_FNMA(t20, t9, x[7]);
+    x_new[4] = t41;
+    x_new[5] = t42;
+    x_new[6] = t43;
+    x_new[7] = t44;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t45 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
@@ -3023,6 +3027,10 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t46 = DERIVE_FNMA(t20, t11, x[9]);
     const double t47 = DERIVE_FNMA(t20, t12, x[10]);
     const double t48 = DERIVE_FNMA(t20, t13, x[11]);
+    x_new[8] = t45;
+    x_new[9] = t46;
+    x_new[10] = t47;
+    x_new[11] = t48;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t49 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
@@ -3032,6 +3040,10 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t50 = DERIVE_FNMA(t20, t15, x[13]);
     const double t51 = DERIVE_FNMA(t20, t16, x[14]);
     const double t52 = DERIVE_FNMA(t20, t17, x[15]);
+    x_new[12] = t49;
+    x_new[13] = t50;
+    x_new[14] = t51;
+    x_new[15] = t52;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t53 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
@@ -3044,6 +3056,13 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t54 = DERIVE_FMA(t21, t3, P[1]);
     const double t55 = DERIVE_FMA(t21, t4, P[2]);
     const double t56 = DERIVE_FMA(t21, t5, P[3]);
+    P_new[0] = t53;
+    P_new[1] = t54;
+    P_new[16] = t54;
+    P_new[2] = t55;
+    P_new[32] = t55;
+    P_new[3] = t56;
+    P_new[48] = t56;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
@@ -3052,6 +3071,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t58 = DERIVE_FMA(t21, t7, P[5]);
     const double t59 = DERIVE_FMA(t21, t8, P[6]);
     const double t60 = DERIVE_FMA(t21, t9, P[7]);
+    P_new[4] = t57;
+    P_new[64] = t57;
+    P_new[5] = t58;
+    P_new[80] = t58;
+    P_new[6] = t59;
+    P_new[96] = t59;
+    P_new[7] = t60;
+    P_new[112] = t60;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t61 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
@@ -3060,6 +3087,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t62 = DERIVE_FMA(t21, t11, P[9]);
     const double t63 = DERIVE_FMA(t21, t12, P[10]);
     const double t64 = DERIVE_FMA(t21, t13, P[11]);
+    P_new[8] = t61;
+    P_new[128] = t61;
+    P_new[9] = t62;
+    P_new[144] = t62;
+    P_new[10] = t63;
+    P_new[160] = t63;
+    P_new[11] = t64;
+    P_new[176] = t64;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t65 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
@@ -3068,6 +3103,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t66 = DERIVE_FMA(t21, t15, P[13]);
     const double t67 = DERIVE_FMA(t21, t16, P[14]);
     const double t68 = DERIVE_FMA(t21, t17, P[15]);
+    P_new[12] = t65;
+    P_new[192] = t65;
+    P_new[13] = t66;
+    P_new[208] = t66;
+    P_new[14] = t67;
+    P_new[224] = t67;
+    P_new[15] = t68;
+    P_new[240] = t68;
     #endif
     const double t69 = DERIVE_FMA(t22, t3, P[17]);
     const double t70 = DERIVE_FMA(t22, t4, P[18]);
@@ -3079,6 +3122,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t73 = DERIVE_FMA(t22, t7, P[21]);
     const double t74 = DERIVE_FMA(t22, t8, P[22]);
     const double t75 = DERIVE_FMA(t22, t9, P[23]);
+    P_new[20] = t72;
+    P_new[65] = t72;
+    P_new[21] = t73;
+    P_new[81] = t73;
+    P_new[22] = t74;
+    P_new[97] = t74;
+    P_new[23] = t75;
+    P_new[113] = t75;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t76 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t10, ((derive_vd){P[24], P[25], P[26], P[27]}));
@@ -3087,6 +3138,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t77 = DERIVE_FMA(t22, t11, P[25]);
     const double t78 = DERIVE_FMA(t22, t12, P[26]);
     const double t79 = DERIVE_FMA(t22, t13, P[27]);
+    P_new[24] = t76;
+    P_new[129] = t76;
+    P_new[25] = t77;
+    P_new[145] = t77;
+    P_new[26] = t78;
+    P_new[161] = t78;
+    P_new[27] = t79;
+    P_new[177] = t79;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t80 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t14, ((derive_vd){P[28], P[29], P[30], P[31]}));
@@ -3095,6 +3154,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t81 = DERIVE_FMA(t22, t15, P[29]);
     const double t82 = DERIVE_FMA(t22, t16, P[30]);
     const double t83 = DERIVE_FMA(t22, t17, P[31]);
+    P_new[28] = t80;
+    P_new[193] = t80;
+    P_new[29] = t81;
+    P_new[209] = t81;
+    P_new[30] = t82;
+    P_new[225] = t82;
+    P_new[31] = t83;
+    P_new[241] = t83;
     #endif
     const double t84 = DERIVE_FMA(t23, t4, P[34]);
     const double t85 = DERIVE_FMA(t23, t5, P[35]);
@@ -3105,6 +3172,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t87 = DERIVE_FMA(t23, t7, P[37]);
     const double t88 = DERIVE_FMA(t23, t8, P[38]);
     const double t89 = DERIVE_FMA(t23, t9, P[39]);
+    P_new[36] = t86;
+    P_new[66] = t86;
+    P_new[37] = t87;
+    P_new[82] = t87;
+    P_new[38] = t88;
+    P_new[98] = t88;
+    P_new[39] = t89;
+    P_new[114] = t89;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t90 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t10, ((derive_vd){P[40], P[41], P[42], P[43]}));
@@ -3113,6 +3188,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t91 = DERIVE_FMA(t23, t11, P[41]);
     const double t92 = DERIVE_FMA(t23, t12, P[42]);
     const double t93 = DERIVE_FMA(t23, t13, P[43]);
+    P_new[40] = t90;
+    P_new[130] = t90;
+    P_new[41] = t91;
+    P_new[146] = t91;
+    P_new[42] = t92;
+    P_new[162] = t92;
+    P_new[43] = t93;
+    P_new[178] = t93;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t94 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t14, ((derive_vd){P[44], P[45], P[46], P[47]}));
@@ -3121,6 +3204,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t95 = DERIVE_FMA(t23, t15, P[45]);
     const double t96 = DERIVE_FMA(t23, t16, P[46]);
     const double t97 = DERIVE_FMA(t23, t17, P[47]);
+    P_new[44] = t94;
+    P_new[194] = t94;
+    P_new[45] = t95;
+    P_new[210] = t95;
+    P_new[46] = t96;
+    P_new[226] = t96;
+    P_new[47] = t97;
+    P_new[242] = t97;
     #endif
     const double t98 = DERIVE_FMA(t24, t5, P[51]);
     #if DERIVE_VECTOR
@@ -3146,6 +3237,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t100 = DERIVE_FMA(t24, t7, P[53]);
     const double t101 = DERIVE_FMA(t24, t8, P[54]);
     const double t102 = DERIVE_FMA(t24, t9, P[55]);
+    P_new[52] = t99;
+    P_new[67] = t99;
+    P_new[53] = t100;
+    P_new[83] = t100;
+    P_new[54] = t101;
+    P_new[99] = t101;
+    P_new[55] = t102;
+    P_new[115] = t102;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
@@ -3170,6 +3269,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t104 = DERIVE_FMA(t24, t11, P[57]);
     const double t105 = DERIVE_FMA(t24, t12, P[58]);
     const double t106 = DERIVE_FMA(t24, t13, P[59]);
+    P_new[56] = t103;
+    P_new[131] = t103;
+    P_new[57] = t104;
+    P_new[147] = t104;
+    P_new[58] = t105;
+    P_new[163] = t105;
+    P_new[59] = t106;
+    P_new[179] = t106;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
@@ -3194,6 +3301,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t108 = DERIVE_FMA(t24, t15, P[61]);
     const double t109 = DERIVE_FMA(t24, t16, P[62]);
     const double t110 = DERIVE_FMA(t24, t17, P[63]);
+    P_new[60] = t107;
+    P_new[195] = t107;
+    P_new[61] = t108;
+    P_new[211] = t108;
+    P_new[62] = t109;
+    P_new[227] = t109;
+    P_new[63] = t110;
+    P_new[243] = t110;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t6, ((derive_vd){P[68], P[69], P[70], P[71]}));
@@ -3206,6 +3321,13 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t112 = DERIVE_FMA(t25, t7, P[69]);
     const double t113 = DERIVE_FMA(t25, t8, P[70]);
     const double t114 = DERIVE_FMA(t25, t9, P[71]);
+    P_new[68] = t111;
+    P_new[69] = t112;
+    P_new[84] = t112;
+    P_new[70] = t113;
+    P_new[100] = t113;
+    P_new[71] = t114;
+    P_new[116] = t114;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t10, ((derive_vd){P[72], P[73], P[74], P[75]}));
@@ -3214,6 +3336,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t116 = DERIVE_FMA(t25, t11, P[73]);
     const double t117 = DERIVE_FMA(t25, t12, P[74]);
     const double t118 = DERIVE_FMA(t25, t13, P[75]);
+    P_new[72] = t115;
+    P_new[132] = t115;
+    P_new[73] = t116;
+    P_new[148] = t116;
+    P_new[74] = t117;
+    P_new[164] = t117;
+    P_new[75] = t118;
+    P_new[180] = t118;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t14, ((derive_vd){P[76], P[77], P[78], P[79]}));
@@ -3222,6 +3352,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t120 = DERIVE_FMA(t25, t15, P[77]);
     const double t121 = DERIVE_FMA(t25, t16, P[78]);
     const double t122 = DERIVE_FMA(t25, t17, P[79]);
+    P_new[76] = t119;
+    P_new[196] = t119;
+    P_new[77] = t120;
+    P_new[212] = t120;
+    P_new[78] = t121;
+    P_new[228] = t121;
+    P_new[79] = t122;
+    P_new[244] = t122;
     #endif
     const double t123 = DERIVE_FMA(t26, t7, P[85]);
     const double t124 = DERIVE_FMA(t26, t8, P[86]);
@@ -3233,6 +3371,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t127 = DERIVE_FMA(t26, t11, P[89]);
     const double t128 = DERIVE_FMA(t26, t12, P[90]);
     const double t129 = DERIVE_FMA(t26, t13, P[91]);
+    P_new[88] = t126;
+    P_new[133] = t126;
+    P_new[89] = t127;
+    P_new[149] = t127;
+    P_new[90] = t128;
+    P_new[165] = t128;
+    P_new[91] = t129;
+    P_new[181] = t129;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t26, t26, t26, t26}), v_t14, ((derive_vd){P[92], P[93], P[94], P[95]}));
@@ -3241,6 +3387,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t131 = DERIVE_FMA(t26, t15, P[93]);
     const double t132 = DERIVE_FMA(t26, t16, P[94]);
     const double t133 = DERIVE_FMA(t26, t17, P[95]);
+    P_new[92] = t130;
+    P_new[197] = t130;
+    P_new[93] = t131;
+    P_new[213] = t131;
+    P_new[94] = t132;
+    P_new[229] = t132;
+    P_new[95] = t133;
+    P_new[245] = t133;
     #endif
     const double t134 = DERIVE_FMA(t27, t8, P[102]);
     const double t135 = DERIVE_FMA(t27, t9, P[103]);
@@ -3251,6 +3405,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t137 = DERIVE_FMA(t27, t11, P[105]);
     const double t138 = DERIVE_FMA(t27, t12, P[106]);
     const double t139 = DERIVE_FMA(t27, t13, P[107]);
+    P_new[104] = t136;
+    P_new[134] = t136;
+    P_new[105] = t137;
+    P_new[150] = t137;
+    P_new[106] = t138;
+    P_new[166] = t138;
+    P_new[107] = t139;
+    P_new[182] = t139;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t140 = DERIVE_VFMA(((derive_vd){t27, t27, t27, t27}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
@@ -3259,6 +3421,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t141 = DERIVE_FMA(t27, t15, P[109]);
     const double t142 = DERIVE_FMA(t27, t16, P[110]);
     const double t143 = DERIVE_FMA(t27, t17, P[111]);
+    P_new[108] = t140;
+    P_new[198] = t140;
+    P_new[109] = t141;
+    P_new[214] = t141;
+    P_new[110] = t142;
+    P_new[230] = t142;
+    P_new[111] = t143;
+    P_new[246] = t143;
     #endif
     const double t144 = DERIVE_FMA(t28, t9, P[119]);
     #if DERIVE_VECTOR
@@ -3284,6 +3454,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t146 = DERIVE_FMA(t28, t11, P[121]);
     const double t147 = DERIVE_FMA(t28, t12, P[122]);
     const double t148 = DERIVE_FMA(t28, t13, P[123]);
+    P_new[120] = t145;
+    P_new[135] = t145;
+    P_new[121] = t146;
+    P_new[151] = t146;
+    P_new[122] = t147;
+    P_new[167] = t147;
+    P_new[123] = t148;
+    P_new[183] = t148;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t149 = DERIVE_VFMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){P[124], P[125], P[126], P[127]}));
@@ -3308,6 +3486,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t150 = DERIVE_FMA(t28, t15, P[125]);
     const double t151 = DERIVE_FMA(t28, t16, P[126]);
     const double t152 = DERIVE_FMA(t28, t17, P[127]);
+    P_new[124] = t149;
+    P_new[199] = t149;
+    P_new[125] = t150;
+    P_new[215] = t150;
+    P_new[126] = t151;
+    P_new[231] = t151;
+    P_new[127] = t152;
+    P_new[247] = t152;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t153 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[136], P[137], P[138], P[139]}));
@@ -3320,6 +3506,13 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t154 = DERIVE_FMA(t29, t11, P[137]);
     const double t155 = DERIVE_FMA(t29, t12, P[138]);
     const double t156 = DERIVE_FMA(t29, t13, P[139]);
+    P_new[136] = t153;
+    P_new[137] = t154;
+    P_new[152] = t154;
+    P_new[138] = t155;
+    P_new[168] = t155;
+    P_new[139] = t156;
+    P_new[184] = t156;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t157 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[140], P[141], P[142], P[143]}));
@@ -3328,6 +3521,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t158 = DERIVE_FMA(t29, t15, P[141]);
     const double t159 = DERIVE_FMA(t29, t16, P[142]);
     const double t160 = DERIVE_FMA(t29, t17, P[143]);
+    P_new[140] = t157;
+    P_new[200] = t157;
+    P_new[141] = t158;
+    P_new[216] = t158;
+    P_new[142] = t159;
+    P_new[232] = t159;
+    P_new[143] = t160;
+    P_new[248] = t160;
     #endif
     const double t161 = DERIVE_FMA(t11, t30, P[153]);
     const double t162 = DERIVE_FMA(t12, t30, P[154]);
@@ -3339,6 +3540,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t165 = DERIVE_FMA(t30, t15, P[157]);
     const double t166 = DERIVE_FMA(t30, t16, P[158]);
     const double t167 = DERIVE_FMA(t30, t17, P[159]);
+    P_new[156] = t164;
+    P_new[201] = t164;
+    P_new[157] = t165;
+    P_new[217] = t165;
+    P_new[158] = t166;
+    P_new[233] = t166;
+    P_new[159] = t167;
+    P_new[249] = t167;
     #endif
     const double t168 = DERIVE_FMA(t12, t31, P[170]);
     const double t169 = DERIVE_FMA(t13, t31, P[171]);
@@ -3349,6 +3558,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t171 = DERIVE_FMA(t31, t15, P[173]);
     const double t172 = DERIVE_FMA(t31, t16, P[174]);
     const double t173 = DERIVE_FMA(t31, t17, P[175]);
+    P_new[172] = t170;
+    P_new[202] = t170;
+    P_new[173] = t171;
+    P_new[218] = t171;
+    P_new[174] = t172;
+    P_new[234] = t172;
+    P_new[175] = t173;
+    P_new[250] = t173;
     #endif
     const double t174 = DERIVE_FMA(t13, t32, P[187]);
     #if DERIVE_VECTOR
@@ -3374,6 +3591,14 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t176 = DERIVE_FMA(t32, t15, P[189]);
     const double t177 = DERIVE_FMA(t32, t16, P[190]);
     const double t178 = DERIVE_FMA(t32, t17, P[191]);
+    P_new[188] = t175;
+    P_new[203] = t175;
+    P_new[189] = t176;
+    P_new[219] = t176;
+    P_new[190] = t177;
+    P_new[235] = t177;
+    P_new[191] = t178;
+    P_new[251] = t178;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
@@ -3386,6 +3611,13 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     const double t180 = DERIVE_FMA(t33, t15, P[205]);
     const double t181 = DERIVE_FMA(t33, t16, P[206]);
     const double t182 = DERIVE_FMA(t33, t17, P[207]);
+    P_new[204] = t179;
+    P_new[205] = t180;
+    P_new[220] = t180;
+    P_new[206] = t181;
+    P_new[236] = t181;
+    P_new[207] = t182;
+    P_new[252] = t182;
     #endif
     const double t183 = DERIVE_FMA(t15, t34, P[221]);
     const double t184 = DERIVE_FMA(t16, t34, P[222]);
@@ -3457,271 +3689,39 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
     x_new[1] = t192;
     x_new[2] = t193;
     x_new[3] = t194;
-    x_new[4] = t41;
-    x_new[5] = t42;
-    x_new[6] = t43;
-    x_new[7] = t44;
-    x_new[8] = t45;
-    x_new[9] = t46;
-    x_new[10] = t47;
-    x_new[11] = t48;
-    x_new[12] = t49;
-    x_new[13] = t50;
-    x_new[14] = t51;
-    x_new[15] = t52;
-    P_new[0] = t53;
-    P_new[1] = t54;
-    P_new[2] = t55;
-    P_new[3] = t56;
-    P_new[4] = t57;
-    P_new[5] = t58;
-    P_new[6] = t59;
-    P_new[7] = t60;
-    P_new[8] = t61;
-    P_new[9] = t62;
-    P_new[10] = t63;
-    P_new[11] = t64;
-    P_new[12] = t65;
-    P_new[13] = t66;
-    P_new[14] = t67;
-    P_new[15] = t68;
-    P_new[16] = t54;
     P_new[17] = t69;
     P_new[18] = t70;
     P_new[19] = t71;
-    P_new[20] = t72;
-    P_new[21] = t73;
-    P_new[22] = t74;
-    P_new[23] = t75;
-    P_new[24] = t76;
-    P_new[25] = t77;
-    P_new[26] = t78;
-    P_new[27] = t79;
-    P_new[28] = t80;
-    P_new[29] = t81;
-    P_new[30] = t82;
-    P_new[31] = t83;
-    P_new[32] = t55;
     P_new[33] = t70;
     P_new[34] = t84;
     P_new[35] = t85;
-    P_new[36] = t86;
-    P_new[37] = t87;
-    P_new[38] = t88;
-    P_new[39] = t89;
-    P_new[40] = t90;
-    P_new[41] = t91;
-    P_new[42] = t92;
-    P_new[43] = t93;
-    P_new[44] = t94;
-    P_new[45] = t95;
-    P_new[46] = t96;
-    P_new[47] = t97;
-    P_new[48] = t56;
     P_new[49] = t71;
     P_new[50] = t85;
     P_new[51] = t98;
-    P_new[52] = t99;
-    P_new[53] = t100;
-    P_new[54] = t101;
-    P_new[55] = t102;
-    P_new[56] = t103;
-    P_new[57] = t104;
-    P_new[58] = t105;
-    P_new[59] = t106;
-    P_new[60] = t107;
-    P_new[61] = t108;
-    P_new[62] = t109;
-    P_new[63] = t110;
-    P_new[64] = t57;
-    P_new[65] = t72;
-    P_new[66] = t86;
-    P_new[67] = t99;
-    P_new[68] = t111;
-    P_new[69] = t112;
-    P_new[70] = t113;
-    P_new[71] = t114;
-    P_new[72] = t115;
-    P_new[73] = t116;
-    P_new[74] = t117;
-    P_new[75] = t118;
-    P_new[76] = t119;
-    P_new[77] = t120;
-    P_new[78] = t121;
-    P_new[79] = t122;
-    P_new[80] = t58;
-    P_new[81] = t73;
-    P_new[82] = t87;
-    P_new[83] = t100;
-    P_new[84] = t112;
     P_new[85] = t123;
     P_new[86] = t124;
     P_new[87] = t125;
-    P_new[88] = t126;
-    P_new[89] = t127;
-    P_new[90] = t128;
-    P_new[91] = t129;
-    P_new[92] = t130;
-    P_new[93] = t131;
-    P_new[94] = t132;
-    P_new[95] = t133;
-    P_new[96] = t59;
-    P_new[97] = t74;
-    P_new[98] = t88;
-    P_new[99] = t101;
-    P_new[100] = t113;
     P_new[101] = t124;
     P_new[102] = t134;
     P_new[103] = t135;
-    P_new[104] = t136;
-    P_new[105] = t137;
-    P_new[106] = t138;
-    P_new[107] = t139;
-    P_new[108] = t140;
-    P_new[109] = t141;
-    P_new[110] = t142;
-    P_new[111] = t143;
-    P_new[112] = t60;
-    P_new[113] = t75;
-    P_new[114] = t89;
-    P_new[115] = t102;
-    P_new[116] = t114;
     P_new[117] = t125;
     P_new[118] = t135;
     P_new[119] = t144;
-    P_new[120] = t145;
-    P_new[121] = t146;
-    P_new[122] = t147;
-    P_new[123] = t148;
-    P_new[124] = t149;
-    P_new[125] = t150;
-    P_new[126] = t151;
-    P_new[127] = t152;
-    P_new[128] = t61;
-    P_new[129] = t76;
-    P_new[130] = t90;
-    P_new[131] = t103;
-    P_new[132] = t115;
-    P_new[133] = t126;
-    P_new[134] = t136;
-    P_new[135] = t145;
-    P_new[136] = t153;
-    P_new[137] = t154;
-    P_new[138] = t155;
-    P_new[139] = t156;
-    P_new[140] = t157;
-    P_new[141] = t158;
-    P_new[142] = t159;
-    P_new[143] = t160;
-    P_new[144] = t62;
-    P_new[145] = t77;
-    P_new[146] = t91;
-    P_new[147] = t104;
-    P_new[148] = t116;
-    P_new[149] = t127;
-    P_new[150] = t137;
-    P_new[151] = t146;
-    P_new[152] = t154;
     P_new[153] = t161;
     P_new[154] = t162;
     P_new[155] = t163;
-    P_new[156] = t164;
-    P_new[157] = t165;
-    P_new[158] = t166;
-    P_new[159] = t167;
-    P_new[160] = t63;
-    P_new[161] = t78;
-    P_new[162] = t92;
-    P_new[163] = t105;
-    P_new[164] = t117;
-    P_new[165] = t128;
-    P_new[166] = t138;
-    P_new[167] = t147;
-    P_new[168] = t155;
     P_new[169] = t162;
     P_new[170] = t168;
     P_new[171] = t169;
-    P_new[172] = t170;
-    P_new[173] = t171;
-    P_new[174] = t172;
-    P_new[175] = t173;
-    P_new[176] = t64;
-    P_new[177] = t79;
-    P_new[178] = t93;
-    P_new[179] = t106;
-    P_new[180] = t118;
-    P_new[181] = t129;
-    P_new[182] = t139;
-    P_new[183] = t148;
-    P_new[184] = t156;
     P_new[185] = t163;
     P_new[186] = t169;
     P_new[187] = t174;
-    P_new[188] = t175;
-    P_new[189] = t176;
-    P_new[190] = t177;
-    P_new[191] = t178;
-    P_new[192] = t65;
-    P_new[193] = t80;
-    P_new[194] = t94;
-    P_new[195] = t107;
-    P_new[196] = t119;
-    P_new[197] = t130;
-    P_new[198] = t140;
-    P_new[199] = t149;
-    P_new[200] = t157;
-    P_new[201] = t164;
-    P_new[202] = t170;
-    P_new[203] = t175;
-    P_new[204] = t179;
-    P_new[205] = t180;
-    P_new[206] = t181;
-    P_new[207] = t182;
-    P_new[208] = t66;
-    P_new[209] = t81;
-    P_new[210] = t95;
-    P_new[211] = t108;
-    P_new[212] = t120;
-    P_new[213] = t131;
-    P_new[214] = t141;
-    P_new[215] = t150;
-    P_new[216] = t158;
-    P_new[217] = t165;
-    P_new[218] = t171;
-    P_new[219] = t176;
-    P_new[220] = t180;
     P_new[221] = t183;
     P_new[222] = t184;
     P_new[223] = t185;
-    P_new[224] = t67;
-    P_new[225] = t82;
-    P_new[226] = t96;
-    P_new[227] = t109;
-    P_new[228] = t121;
-    P_new[229] = t132;
-    P_new[230] = t142;
-    P_new[231] = t151;
-    P_new[232] = t159;
-    P_new[233] = t166;
-    P_new[234] = t172;
-    P_new[235] = t177;
-    P_new[236] = t181;
     P_new[237] = t184;
     P_new[238] = t186;
     P_new[239] = t187;
-    P_new[240] = t68;
-    P_new[241] = t83;
-    P_new[242] = t97;
-    P_new[243] = t110;
-    P_new[244] = t122;
-    P_new[245] = t133;
-    P_new[246] = t143;
-    P_new[247] = t152;
-    P_new[248] = t160;
-    P_new[249] = t167;
-    P_new[250] = t173;
-    P_new[251] = t178;
-    P_new[252] = t182;
     P_new[253] = t185;
     P_new[254] = t187;
     P_new[255] = t188;
