@@ -68,7 +68,7 @@ def random_model(rng, n: int, m: int, correlated: bool) -> NonlinearModel:
     for i, k in enumerate(rng.permutation(n)[:m]):
         if unit_rows[i]:
             H[i] = 0.0
-        H[i, k] = 1.0
+        H[i, k] = 1.0 if not unit_rows[i] or rng.random() < 0.5 else -1.0  # e_k or -e_k
     R = np.diag(np.round(rng.uniform(0.2, 2.0, m), 3))
     if correlated and m > 1:
         A = np.round(rng.normal(size=(m, m)), 2)
@@ -120,6 +120,32 @@ def test_random_models_agree_with_the_scalar_form_and_the_reference(n, m, correl
         xs, Ps = module.run(za, zb, u, np.zeros(n), np.eye(n))
         assert relative(xs, ref.xs) <= 1e-10
         assert relative(Ps, ref.Ps) <= 1e-10
+
+
+def test_unit_rows_of_either_sign_and_a_state_measured_twice():
+    """Measurements of x2, -x2 (the same state again, negated: taken as x2 with its
+    innovation negated) and -x4, fused sequentially: the vector form, whose rows 2 and 4
+    of P_new are -R_i k_i of the last update measuring them (no fma, no cancellation),
+    against the scalar form, x and P, and its update has no negation at all."""
+    x = sympy.symbols("x0:5", real=True)
+    model = NonlinearModel(
+        "twice", [s.name for s in x], f=[x[0] + x[1] / 10, x[1], x[2] + x[3] / 10, x[3],
+                                         x[4] + x[0] * x[1] / 100],
+        Q=(0.01 * np.eye(5)).tolist(),
+        sensors=[Sensor("a", ["a0", "a1", "a2"], h=[x[2], -x[2], -x[4]],
+                        R=np.diag([0.5, 0.02, 0.3]).tolist(), update="sequential"),
+                 Sensor("b", ["zb"], h=[x[0] ** 2 / 10 + x[1]], R=[[0.5]])],
+        x0=np.zeros(5).tolist(), P0=np.eye(5).tolist())
+    vector, scalar = (load_generated(model, "ekf", o) for o in (VECTOR, SCALAR))
+    rng = np.random.default_rng(7)
+    x0, P, z = rng.normal(size=5), spd(rng, 5), rng.normal(size=3)
+    expected = scalar.python.update_a(x0, P.ravel(), z)
+    for module in (vector.python, vector.c):
+        got = module.update_a(x0, P.ravel(), z)
+        assert relative(got[0], expected[0]) <= AGREEMENT
+        assert relative(got[1], expected[1]) <= AGREEMENT
+    files = render_filter(model, "ekf", "c", VECTOR)
+    assert "neg 0," in re.search(r"operations per call of update_a [^\n]*", files["ekf.c"])[0]
 
 
 @pytest.mark.parametrize("cflags", [AVX, NATIVE], ids=["plain", "native"])
