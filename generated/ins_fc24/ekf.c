@@ -36,8 +36,8 @@
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 57, sub 8, mul 115, div 0, sqrt 0, fma 1432, neg 29, cmp 1, calls 0 (flops 3044, instructions 1642)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 30, div 2, sqrt 1, fma 327, neg 24, cmp 1, calls 0 (flops 689, instructions 387)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 275, div 7, sqrt 1, fma 1980, neg 0, cmp 6, calls 0 (flops 4255, instructions 2281)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 45, div 2, sqrt 1, fma 312, neg 0, cmp 1, calls 0 (flops 674, instructions 363)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
  * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 3, mul 58, div 3, sqrt 2, fma 430, neg 2, cmp 1, calls 0 (flops 926, instructions 499)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
@@ -2319,8 +2319,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[196], P[197], P[198], P[199]}));
-    const double t84 = v_t83[1];
-    const double t85 = v_t83[2];
     const double t86 = v_t83[3];
     #else
     const double t83 = DERIVE_FMA(t13, P[172], P[196]);
@@ -2330,7 +2328,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const double t88 = v_t87[1];
     const double t89 = v_t87[2];
     const double t90 = v_t87[3];
     #else
@@ -2387,8 +2384,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t107_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[220], P[221], P[222], P[223]}));
     const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t107_0);
-    const double t108 = v_t107[1];
-    const double t109 = v_t107[2];
     const double t110 = v_t107[3];
     #else
     const double t107 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[172], P[220]));
@@ -2399,7 +2394,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t111_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[224], P[225], P[226], P[227]}));
     const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t111_0);
-    const double t112 = v_t111[1];
     const double t113 = v_t111[2];
     const double t114 = v_t111[3];
     #else
@@ -2461,8 +2455,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t131_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
     const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t131_0);
     const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t107, v_t131_1);
-    const double t132 = v_t131[1];
-    const double t133 = v_t131[2];
     const double t134 = v_t131[3];
     #else
     const double t131 = DERIVE_FMA(t52, t107, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[172], P[100])));
@@ -2541,8 +2533,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t155_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t155_0);
     const derive_vd v_t155_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t107, v_t155_1);
     const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t131, v_t155_2);
-    const double t156 = v_t155[1];
-    const double t157 = v_t155[2];
     const double t158 = v_t155[3];
     #else
     const double t155 = DERIVE_FMA(t64, t131, DERIVE_FMA(t53, t107, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[172], P[124]))));
@@ -2710,20 +2700,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t203 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[172], P[173], P[174], P[175]}));
-    const double t203 = v_t203[0];
-    const double t204 = v_t203[1];
-    const double t205 = v_t203[2];
     const double t206 = v_t203[3];
     #else
-    const double t203 = t12*P[172];
-    const double t204 = t12*P[173];
-    const double t205 = t12*P[174];
     const double t206 = t12*P[175];
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t207 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const double t207 = v_t207[0];
-    const double t208 = v_t207[1];
     const double t209 = v_t207[2];
     const double t210 = v_t207[3];
     #else
@@ -2782,20 +2764,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t227 = (((derive_vd){t34, t34, t34, t34}) * v_t83);
-    const double t227 = v_t227[0];
-    const double t228 = v_t227[1];
-    const double t229 = v_t227[2];
     const double t230 = v_t227[3];
     #else
-    const double t227 = t34*t83;
-    const double t228 = t34*t84;
-    const double t229 = t34*t85;
     const double t230 = t34*t86;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t231 = (((derive_vd){t34, t34, t34, t34}) * v_t87);
-    const double t231 = v_t231[0];
-    const double t232 = v_t231[1];
     const double t233 = v_t231[2];
     const double t234 = v_t231[3];
     #else
@@ -2854,14 +2828,8 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t251 = (((derive_vd){t51, t51, t51, t51}) * v_t107);
-    const double t251 = v_t251[0];
-    const double t252 = v_t251[1];
-    const double t253 = v_t251[2];
     const double t254 = v_t251[3];
     #else
-    const double t251 = t51*t107;
-    const double t252 = t51*t108;
-    const double t253 = t51*t109;
     const double t254 = t51*t110;
     #endif
     #if DERIVE_VECTOR
@@ -2926,9 +2894,6 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t275 = (((derive_vd){t63, t63, t63, t63}) * v_t131);
-    const double t275 = v_t275[0];
-    const double t276 = v_t275[1];
-    const double t277 = v_t275[2];
     const double t278 = v_t275[3];
     #else
     const double t275 = t63*t131;
@@ -3766,21 +3731,18 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[555] = t456;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t457_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[172], P[173], P[174], P[175]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t83, v_t457_0);
-    const derive_vd v_t457_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t107, v_t457_1);
-    const derive_vd v_t457_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t131, v_t457_2);
-    const derive_vd v_t457_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t457_3);
-    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t457_4);
+    const derive_vd v_t457_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t275);
+    const derive_vd v_t457_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t155, v_t457_0);
+    const derive_vd v_t457 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t179, v_t457_1);
     const double t458 = v_t457[1];
     const double t459 = v_t457[2];
     const double t460 = v_t457[3];
     *(derive_vd_unaligned *)&P_new[100] = v_t457;
     #else
-    const double t457 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, DERIVE_FMA(t275, t131, DERIVE_FMA(t251, t107, DERIVE_FMA(t227, t83, DERIVE_FMA(t203, P[172], P[100]))))));
-    const double t458 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, DERIVE_FMA(t275, t132, DERIVE_FMA(t251, t108, DERIVE_FMA(t227, t84, DERIVE_FMA(t203, P[173], P[101]))))));
-    const double t459 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, DERIVE_FMA(t275, t133, DERIVE_FMA(t251, t109, DERIVE_FMA(t227, t85, DERIVE_FMA(t203, P[174], P[102]))))));
-    const double t460 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, DERIVE_FMA(t275, t134, DERIVE_FMA(t251, t110, DERIVE_FMA(t227, t86, DERIVE_FMA(t203, P[175], P[103]))))));
+    const double t457 = DERIVE_FMA(t323, t179, DERIVE_FMA(t299, t155, (-0.01)*t275));
+    const double t458 = DERIVE_FMA(t323, t180, DERIVE_FMA(t299, t156, (-0.01)*t276));
+    const double t459 = DERIVE_FMA(t323, t181, DERIVE_FMA(t299, t157, (-0.01)*t277));
+    const double t460 = DERIVE_FMA(t323, t182, DERIVE_FMA(t299, t158, (-0.01)*t278));
     P_new[100] = t457;
     P_new[101] = t458;
     P_new[124] = t458;
@@ -3790,17 +3752,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[172] = t460;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t461_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t87, v_t461_0);
-    const derive_vd v_t461_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t111, v_t461_1);
-    const derive_vd v_t461_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t135, v_t461_2);
-    const derive_vd v_t461_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t461_3);
-    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t461_4);
+    const derive_vd v_t461_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t279);
+    const derive_vd v_t461_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t159, v_t461_0);
+    const derive_vd v_t461 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t183, v_t461_1);
     #else
-    const double t461 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, DERIVE_FMA(t275, t135, DERIVE_FMA(t251, t111, DERIVE_FMA(t227, t87, DERIVE_FMA(t203, P[176], P[104]))))));
-    const double t462 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, DERIVE_FMA(t275, t136, DERIVE_FMA(t251, t112, DERIVE_FMA(t227, t88, DERIVE_FMA(t203, P[177], P[105]))))));
-    const double t463 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, DERIVE_FMA(t275, t137, DERIVE_FMA(t251, t113, DERIVE_FMA(t227, t89, DERIVE_FMA(t203, P[178], P[106]))))));
-    const double t464 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, DERIVE_FMA(t275, t138, DERIVE_FMA(t251, t114, DERIVE_FMA(t227, t90, DERIVE_FMA(t203, P[179], P[107]))))));
+    const double t461 = DERIVE_FMA(t323, t183, DERIVE_FMA(t299, t159, (-0.01)*t279));
+    const double t462 = DERIVE_FMA(t323, t184, DERIVE_FMA(t299, t160, (-0.01)*t280));
+    const double t463 = DERIVE_FMA(t323, t185, DERIVE_FMA(t299, t161, (-0.01)*t281));
+    const double t464 = DERIVE_FMA(t323, t186, DERIVE_FMA(t299, t162, (-0.01)*t282));
     P_new[104] = t461;
     P_new[196] = t461;
     P_new[105] = t462;
@@ -3811,17 +3770,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[268] = t464;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t465_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t91, v_t465_0);
-    const derive_vd v_t465_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t115, v_t465_1);
-    const derive_vd v_t465_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t139, v_t465_2);
-    const derive_vd v_t465_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t465_3);
-    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t465_4);
+    const derive_vd v_t465_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t283);
+    const derive_vd v_t465_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t163, v_t465_0);
+    const derive_vd v_t465 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t187, v_t465_1);
     #else
-    const double t465 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, DERIVE_FMA(t275, t139, DERIVE_FMA(t251, t115, DERIVE_FMA(t227, t91, DERIVE_FMA(t203, P[180], P[108]))))));
-    const double t466 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, DERIVE_FMA(t275, t140, DERIVE_FMA(t251, t116, DERIVE_FMA(t227, t92, DERIVE_FMA(t203, P[181], P[109]))))));
-    const double t467 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, DERIVE_FMA(t275, t141, DERIVE_FMA(t251, t117, DERIVE_FMA(t227, t93, DERIVE_FMA(t203, P[182], P[110]))))));
-    const double t468 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, DERIVE_FMA(t275, t142, DERIVE_FMA(t251, t118, DERIVE_FMA(t227, t94, DERIVE_FMA(t203, P[183], P[111]))))));
+    const double t465 = DERIVE_FMA(t323, t187, DERIVE_FMA(t299, t163, (-0.01)*t283));
+    const double t466 = DERIVE_FMA(t323, t188, DERIVE_FMA(t299, t164, (-0.01)*t284));
+    const double t467 = DERIVE_FMA(t323, t189, DERIVE_FMA(t299, t165, (-0.01)*t285));
+    const double t468 = DERIVE_FMA(t323, t190, DERIVE_FMA(t299, t166, (-0.01)*t286));
     P_new[108] = t465;
     P_new[292] = t465;
     P_new[109] = t466;
@@ -3832,17 +3788,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[364] = t468;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t469_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
-    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t95, v_t469_0);
-    const derive_vd v_t469_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t119, v_t469_1);
-    const derive_vd v_t469_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t143, v_t469_2);
-    const derive_vd v_t469_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t469_3);
-    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t469_4);
+    const derive_vd v_t469_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t287);
+    const derive_vd v_t469_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t167, v_t469_0);
+    const derive_vd v_t469 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t191, v_t469_1);
     #else
-    const double t469 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, DERIVE_FMA(t275, t143, DERIVE_FMA(t251, t119, DERIVE_FMA(t227, t95, DERIVE_FMA(t203, P[184], P[112]))))));
-    const double t470 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, DERIVE_FMA(t275, t144, DERIVE_FMA(t251, t120, DERIVE_FMA(t227, t96, DERIVE_FMA(t203, P[185], P[113]))))));
-    const double t471 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, DERIVE_FMA(t275, t145, DERIVE_FMA(t251, t121, DERIVE_FMA(t227, t97, DERIVE_FMA(t203, P[186], P[114]))))));
-    const double t472 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, DERIVE_FMA(t275, t146, DERIVE_FMA(t251, t122, DERIVE_FMA(t227, t98, DERIVE_FMA(t203, P[187], P[115]))))));
+    const double t469 = DERIVE_FMA(t323, t191, DERIVE_FMA(t299, t167, (-0.01)*t287));
+    const double t470 = DERIVE_FMA(t323, t192, DERIVE_FMA(t299, t168, (-0.01)*t288));
+    const double t471 = DERIVE_FMA(t323, t193, DERIVE_FMA(t299, t169, (-0.01)*t289));
+    const double t472 = DERIVE_FMA(t323, t194, DERIVE_FMA(t299, t170, (-0.01)*t290));
     P_new[112] = t469;
     P_new[388] = t469;
     P_new[113] = t470;
@@ -3853,17 +3806,14 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[460] = t472;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t473_0 = DERIVE_VFMA(((derive_vd){t203, t203, t203, t203}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t99, v_t473_0);
-    const derive_vd v_t473_2 = DERIVE_VFMA(((derive_vd){t251, t251, t251, t251}), v_t123, v_t473_1);
-    const derive_vd v_t473_3 = DERIVE_VFMA(((derive_vd){t275, t275, t275, t275}), v_t147, v_t473_2);
-    const derive_vd v_t473_4 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t473_3);
-    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t473_4);
+    const derive_vd v_t473_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t291);
+    const derive_vd v_t473_1 = DERIVE_VFMA(((derive_vd){t299, t299, t299, t299}), v_t171, v_t473_0);
+    const derive_vd v_t473 = DERIVE_VFMA(((derive_vd){t323, t323, t323, t323}), v_t195, v_t473_1);
     #else
-    const double t473 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, DERIVE_FMA(t275, t147, DERIVE_FMA(t251, t123, DERIVE_FMA(t227, t99, DERIVE_FMA(t203, P[188], P[116]))))));
-    const double t474 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, DERIVE_FMA(t275, t148, DERIVE_FMA(t251, t124, DERIVE_FMA(t227, t100, DERIVE_FMA(t203, P[189], P[117]))))));
-    const double t475 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, DERIVE_FMA(t275, t149, DERIVE_FMA(t251, t125, DERIVE_FMA(t227, t101, DERIVE_FMA(t203, P[190], P[118]))))));
-    const double t476 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, DERIVE_FMA(t275, t150, DERIVE_FMA(t251, t126, DERIVE_FMA(t227, t102, DERIVE_FMA(t203, P[191], P[119]))))));
+    const double t473 = DERIVE_FMA(t323, t195, DERIVE_FMA(t299, t171, (-0.01)*t291));
+    const double t474 = DERIVE_FMA(t323, t196, DERIVE_FMA(t299, t172, (-0.01)*t292));
+    const double t475 = DERIVE_FMA(t323, t197, DERIVE_FMA(t299, t173, (-0.01)*t293));
+    const double t476 = DERIVE_FMA(t323, t198, DERIVE_FMA(t299, t174, (-0.01)*t294));
     P_new[116] = t473;
     P_new[484] = t473;
     P_new[117] = t474;
@@ -3873,21 +3823,17 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[119] = t476;
     P_new[556] = t476;
     #endif
-    const double t477 = DERIVE_FMA(t228, t84, DERIVE_FMA(t180, t324, DERIVE_FMA(t156, t300, DERIVE_FMA(t132, t276, DERIVE_FMA(t108, t252, DERIVE_FMA(P[173], t204, P[125]))))));
-    const double t478 = DERIVE_FMA(t228, t85, DERIVE_FMA(t181, t324, DERIVE_FMA(t157, t300, DERIVE_FMA(t133, t276, DERIVE_FMA(t109, t252, DERIVE_FMA(P[174], t204, P[126]))))));
-    const double t479 = DERIVE_FMA(t228, t86, DERIVE_FMA(t182, t324, DERIVE_FMA(t158, t300, DERIVE_FMA(t134, t276, DERIVE_FMA(t110, t252, DERIVE_FMA(P[175], t204, P[127]))))));
+    const double t477 = DERIVE_FMA(t180, t324, (-0.01)*t300);
+    const double t478 = DERIVE_FMA(t181, t324, (-0.01)*t301);
+    const double t479 = DERIVE_FMA(t182, t324, (-0.01)*t302);
     #if DERIVE_VECTOR
-    const derive_vd v_t480_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
-    const derive_vd v_t480_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t87, v_t480_0);
-    const derive_vd v_t480_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t111, v_t480_1);
-    const derive_vd v_t480_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t135, v_t480_2);
-    const derive_vd v_t480_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t159, v_t480_3);
-    const derive_vd v_t480 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t480_4);
+    const derive_vd v_t480_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t303);
+    const derive_vd v_t480 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t183, v_t480_0);
     #else
-    const double t480 = DERIVE_FMA(t324, t183, DERIVE_FMA(t300, t159, DERIVE_FMA(t276, t135, DERIVE_FMA(t252, t111, DERIVE_FMA(t228, t87, DERIVE_FMA(t204, P[176], P[128]))))));
-    const double t481 = DERIVE_FMA(t324, t184, DERIVE_FMA(t300, t160, DERIVE_FMA(t276, t136, DERIVE_FMA(t252, t112, DERIVE_FMA(t228, t88, DERIVE_FMA(t204, P[177], P[129]))))));
-    const double t482 = DERIVE_FMA(t324, t185, DERIVE_FMA(t300, t161, DERIVE_FMA(t276, t137, DERIVE_FMA(t252, t113, DERIVE_FMA(t228, t89, DERIVE_FMA(t204, P[178], P[130]))))));
-    const double t483 = DERIVE_FMA(t324, t186, DERIVE_FMA(t300, t162, DERIVE_FMA(t276, t138, DERIVE_FMA(t252, t114, DERIVE_FMA(t228, t90, DERIVE_FMA(t204, P[179], P[131]))))));
+    const double t480 = DERIVE_FMA(t324, t183, (-0.01)*t303);
+    const double t481 = DERIVE_FMA(t324, t184, (-0.01)*t304);
+    const double t482 = DERIVE_FMA(t324, t185, (-0.01)*t305);
+    const double t483 = DERIVE_FMA(t324, t186, (-0.01)*t306);
     P_new[128] = t480;
     P_new[197] = t480;
     P_new[129] = t481;
@@ -3898,17 +3844,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[269] = t483;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t484_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const derive_vd v_t484_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t91, v_t484_0);
-    const derive_vd v_t484_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t115, v_t484_1);
-    const derive_vd v_t484_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t139, v_t484_2);
-    const derive_vd v_t484_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t163, v_t484_3);
-    const derive_vd v_t484 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t484_4);
+    const derive_vd v_t484_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t307);
+    const derive_vd v_t484 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t187, v_t484_0);
     #else
-    const double t484 = DERIVE_FMA(t324, t187, DERIVE_FMA(t300, t163, DERIVE_FMA(t276, t139, DERIVE_FMA(t252, t115, DERIVE_FMA(t228, t91, DERIVE_FMA(t204, P[180], P[132]))))));
-    const double t485 = DERIVE_FMA(t324, t188, DERIVE_FMA(t300, t164, DERIVE_FMA(t276, t140, DERIVE_FMA(t252, t116, DERIVE_FMA(t228, t92, DERIVE_FMA(t204, P[181], P[133]))))));
-    const double t486 = DERIVE_FMA(t324, t189, DERIVE_FMA(t300, t165, DERIVE_FMA(t276, t141, DERIVE_FMA(t252, t117, DERIVE_FMA(t228, t93, DERIVE_FMA(t204, P[182], P[134]))))));
-    const double t487 = DERIVE_FMA(t324, t190, DERIVE_FMA(t300, t166, DERIVE_FMA(t276, t142, DERIVE_FMA(t252, t118, DERIVE_FMA(t228, t94, DERIVE_FMA(t204, P[183], P[135]))))));
+    const double t484 = DERIVE_FMA(t324, t187, (-0.01)*t307);
+    const double t485 = DERIVE_FMA(t324, t188, (-0.01)*t308);
+    const double t486 = DERIVE_FMA(t324, t189, (-0.01)*t309);
+    const double t487 = DERIVE_FMA(t324, t190, (-0.01)*t310);
     P_new[132] = t484;
     P_new[293] = t484;
     P_new[133] = t485;
@@ -3919,17 +3861,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[365] = t487;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t488_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t488_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t95, v_t488_0);
-    const derive_vd v_t488_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t119, v_t488_1);
-    const derive_vd v_t488_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t143, v_t488_2);
-    const derive_vd v_t488_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t167, v_t488_3);
-    const derive_vd v_t488 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t488_4);
+    const derive_vd v_t488_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t311);
+    const derive_vd v_t488 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t191, v_t488_0);
     #else
-    const double t488 = DERIVE_FMA(t324, t191, DERIVE_FMA(t300, t167, DERIVE_FMA(t276, t143, DERIVE_FMA(t252, t119, DERIVE_FMA(t228, t95, DERIVE_FMA(t204, P[184], P[136]))))));
-    const double t489 = DERIVE_FMA(t324, t192, DERIVE_FMA(t300, t168, DERIVE_FMA(t276, t144, DERIVE_FMA(t252, t120, DERIVE_FMA(t228, t96, DERIVE_FMA(t204, P[185], P[137]))))));
-    const double t490 = DERIVE_FMA(t324, t193, DERIVE_FMA(t300, t169, DERIVE_FMA(t276, t145, DERIVE_FMA(t252, t121, DERIVE_FMA(t228, t97, DERIVE_FMA(t204, P[186], P[138]))))));
-    const double t491 = DERIVE_FMA(t324, t194, DERIVE_FMA(t300, t170, DERIVE_FMA(t276, t146, DERIVE_FMA(t252, t122, DERIVE_FMA(t228, t98, DERIVE_FMA(t204, P[187], P[139]))))));
+    const double t488 = DERIVE_FMA(t324, t191, (-0.01)*t311);
+    const double t489 = DERIVE_FMA(t324, t192, (-0.01)*t312);
+    const double t490 = DERIVE_FMA(t324, t193, (-0.01)*t313);
+    const double t491 = DERIVE_FMA(t324, t194, (-0.01)*t314);
     P_new[136] = t488;
     P_new[389] = t488;
     P_new[137] = t489;
@@ -3940,17 +3878,13 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[461] = t491;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t492_0 = DERIVE_VFMA(((derive_vd){t204, t204, t204, t204}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t492_1 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t99, v_t492_0);
-    const derive_vd v_t492_2 = DERIVE_VFMA(((derive_vd){t252, t252, t252, t252}), v_t123, v_t492_1);
-    const derive_vd v_t492_3 = DERIVE_VFMA(((derive_vd){t276, t276, t276, t276}), v_t147, v_t492_2);
-    const derive_vd v_t492_4 = DERIVE_VFMA(((derive_vd){t300, t300, t300, t300}), v_t171, v_t492_3);
-    const derive_vd v_t492 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t492_4);
+    const derive_vd v_t492_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t315);
+    const derive_vd v_t492 = DERIVE_VFMA(((derive_vd){t324, t324, t324, t324}), v_t195, v_t492_0);
     #else
-    const double t492 = DERIVE_FMA(t324, t195, DERIVE_FMA(t300, t171, DERIVE_FMA(t276, t147, DERIVE_FMA(t252, t123, DERIVE_FMA(t228, t99, DERIVE_FMA(t204, P[188], P[140]))))));
-    const double t493 = DERIVE_FMA(t324, t196, DERIVE_FMA(t300, t172, DERIVE_FMA(t276, t148, DERIVE_FMA(t252, t124, DERIVE_FMA(t228, t100, DERIVE_FMA(t204, P[189], P[141]))))));
-    const double t494 = DERIVE_FMA(t324, t197, DERIVE_FMA(t300, t173, DERIVE_FMA(t276, t149, DERIVE_FMA(t252, t125, DERIVE_FMA(t228, t101, DERIVE_FMA(t204, P[190], P[142]))))));
-    const double t495 = DERIVE_FMA(t324, t198, DERIVE_FMA(t300, t174, DERIVE_FMA(t276, t150, DERIVE_FMA(t252, t126, DERIVE_FMA(t228, t102, DERIVE_FMA(t204, P[191], P[143]))))));
+    const double t492 = DERIVE_FMA(t324, t195, (-0.01)*t315);
+    const double t493 = DERIVE_FMA(t324, t196, (-0.01)*t316);
+    const double t494 = DERIVE_FMA(t324, t197, (-0.01)*t317);
+    const double t495 = DERIVE_FMA(t324, t198, (-0.01)*t318);
     P_new[140] = t492;
     P_new[485] = t492;
     P_new[141] = t493;
@@ -3960,20 +3894,15 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[143] = t495;
     P_new[557] = t495;
     #endif
-    const double t496 = DERIVE_FMA(t229, t85, DERIVE_FMA(t181, t325, DERIVE_FMA(t157, t301, DERIVE_FMA(t133, t277, DERIVE_FMA(t109, t253, DERIVE_FMA(P[174], t205, P[150]))))));
-    const double t497 = DERIVE_FMA(t229, t86, DERIVE_FMA(t182, t325, DERIVE_FMA(t158, t301, DERIVE_FMA(t134, t277, DERIVE_FMA(t110, t253, DERIVE_FMA(P[175], t205, P[151]))))));
+    const double t496 = (-0.04)*t325;
+    const double t497 = (-0.04)*t326;
     #if DERIVE_VECTOR
-    const derive_vd v_t498_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
-    const derive_vd v_t498_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t87, v_t498_0);
-    const derive_vd v_t498_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t111, v_t498_1);
-    const derive_vd v_t498_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t135, v_t498_2);
-    const derive_vd v_t498_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t159, v_t498_3);
-    const derive_vd v_t498 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t183, v_t498_4);
+    const derive_vd v_t498 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t327);
     #else
-    const double t498 = DERIVE_FMA(t325, t183, DERIVE_FMA(t301, t159, DERIVE_FMA(t277, t135, DERIVE_FMA(t253, t111, DERIVE_FMA(t229, t87, DERIVE_FMA(t205, P[176], P[152]))))));
-    const double t499 = DERIVE_FMA(t325, t184, DERIVE_FMA(t301, t160, DERIVE_FMA(t277, t136, DERIVE_FMA(t253, t112, DERIVE_FMA(t229, t88, DERIVE_FMA(t205, P[177], P[153]))))));
-    const double t500 = DERIVE_FMA(t325, t185, DERIVE_FMA(t301, t161, DERIVE_FMA(t277, t137, DERIVE_FMA(t253, t113, DERIVE_FMA(t229, t89, DERIVE_FMA(t205, P[178], P[154]))))));
-    const double t501 = DERIVE_FMA(t325, t186, DERIVE_FMA(t301, t162, DERIVE_FMA(t277, t138, DERIVE_FMA(t253, t114, DERIVE_FMA(t229, t90, DERIVE_FMA(t205, P[179], P[155]))))));
+    const double t498 = (-0.04)*t327;
+    const double t499 = (-0.04)*t328;
+    const double t500 = (-0.04)*t329;
+    const double t501 = (-0.04)*t330;
     P_new[152] = t498;
     P_new[198] = t498;
     P_new[153] = t499;
@@ -3984,17 +3913,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[270] = t501;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t502_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t502_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t91, v_t502_0);
-    const derive_vd v_t502_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t115, v_t502_1);
-    const derive_vd v_t502_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t139, v_t502_2);
-    const derive_vd v_t502_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t163, v_t502_3);
-    const derive_vd v_t502 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t187, v_t502_4);
+    const derive_vd v_t502 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t331);
     #else
-    const double t502 = DERIVE_FMA(t325, t187, DERIVE_FMA(t301, t163, DERIVE_FMA(t277, t139, DERIVE_FMA(t253, t115, DERIVE_FMA(t229, t91, DERIVE_FMA(t205, P[180], P[156]))))));
-    const double t503 = DERIVE_FMA(t325, t188, DERIVE_FMA(t301, t164, DERIVE_FMA(t277, t140, DERIVE_FMA(t253, t116, DERIVE_FMA(t229, t92, DERIVE_FMA(t205, P[181], P[157]))))));
-    const double t504 = DERIVE_FMA(t325, t189, DERIVE_FMA(t301, t165, DERIVE_FMA(t277, t141, DERIVE_FMA(t253, t117, DERIVE_FMA(t229, t93, DERIVE_FMA(t205, P[182], P[158]))))));
-    const double t505 = DERIVE_FMA(t325, t190, DERIVE_FMA(t301, t166, DERIVE_FMA(t277, t142, DERIVE_FMA(t253, t118, DERIVE_FMA(t229, t94, DERIVE_FMA(t205, P[183], P[159]))))));
+    const double t502 = (-0.04)*t331;
+    const double t503 = (-0.04)*t332;
+    const double t504 = (-0.04)*t333;
+    const double t505 = (-0.04)*t334;
     P_new[156] = t502;
     P_new[294] = t502;
     P_new[157] = t503;
@@ -4005,17 +3929,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[366] = t505;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t506_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
-    const derive_vd v_t506_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t95, v_t506_0);
-    const derive_vd v_t506_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t119, v_t506_1);
-    const derive_vd v_t506_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t143, v_t506_2);
-    const derive_vd v_t506_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t167, v_t506_3);
-    const derive_vd v_t506 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t191, v_t506_4);
+    const derive_vd v_t506 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t335);
     #else
-    const double t506 = DERIVE_FMA(t325, t191, DERIVE_FMA(t301, t167, DERIVE_FMA(t277, t143, DERIVE_FMA(t253, t119, DERIVE_FMA(t229, t95, DERIVE_FMA(t205, P[184], P[160]))))));
-    const double t507 = DERIVE_FMA(t325, t192, DERIVE_FMA(t301, t168, DERIVE_FMA(t277, t144, DERIVE_FMA(t253, t120, DERIVE_FMA(t229, t96, DERIVE_FMA(t205, P[185], P[161]))))));
-    const double t508 = DERIVE_FMA(t325, t193, DERIVE_FMA(t301, t169, DERIVE_FMA(t277, t145, DERIVE_FMA(t253, t121, DERIVE_FMA(t229, t97, DERIVE_FMA(t205, P[186], P[162]))))));
-    const double t509 = DERIVE_FMA(t325, t194, DERIVE_FMA(t301, t170, DERIVE_FMA(t277, t146, DERIVE_FMA(t253, t122, DERIVE_FMA(t229, t98, DERIVE_FMA(t205, P[187], P[163]))))));
+    const double t506 = (-0.04)*t335;
+    const double t507 = (-0.04)*t336;
+    const double t508 = (-0.04)*t337;
+    const double t509 = (-0.04)*t338;
     P_new[160] = t506;
     P_new[390] = t506;
     P_new[161] = t507;
@@ -4026,17 +3945,12 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[462] = t509;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t510_0 = DERIVE_VFMA(((derive_vd){t205, t205, t205, t205}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
-    const derive_vd v_t510_1 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t99, v_t510_0);
-    const derive_vd v_t510_2 = DERIVE_VFMA(((derive_vd){t253, t253, t253, t253}), v_t123, v_t510_1);
-    const derive_vd v_t510_3 = DERIVE_VFMA(((derive_vd){t277, t277, t277, t277}), v_t147, v_t510_2);
-    const derive_vd v_t510_4 = DERIVE_VFMA(((derive_vd){t301, t301, t301, t301}), v_t171, v_t510_3);
-    const derive_vd v_t510 = DERIVE_VFMA(((derive_vd){t325, t325, t325, t325}), v_t195, v_t510_4);
+    const derive_vd v_t510 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t339);
     #else
-    const double t510 = DERIVE_FMA(t325, t195, DERIVE_FMA(t301, t171, DERIVE_FMA(t277, t147, DERIVE_FMA(t253, t123, DERIVE_FMA(t229, t99, DERIVE_FMA(t205, P[188], P[164]))))));
-    const double t511 = DERIVE_FMA(t325, t196, DERIVE_FMA(t301, t172, DERIVE_FMA(t277, t148, DERIVE_FMA(t253, t124, DERIVE_FMA(t229, t100, DERIVE_FMA(t205, P[189], P[165]))))));
-    const double t512 = DERIVE_FMA(t325, t197, DERIVE_FMA(t301, t173, DERIVE_FMA(t277, t149, DERIVE_FMA(t253, t125, DERIVE_FMA(t229, t101, DERIVE_FMA(t205, P[190], P[166]))))));
-    const double t513 = DERIVE_FMA(t325, t198, DERIVE_FMA(t301, t174, DERIVE_FMA(t277, t150, DERIVE_FMA(t253, t126, DERIVE_FMA(t229, t102, DERIVE_FMA(t205, P[191], P[167]))))));
+    const double t510 = (-0.04)*t339;
+    const double t511 = (-0.04)*t340;
+    const double t512 = (-0.04)*t341;
+    const double t513 = (-0.04)*t342;
     P_new[164] = t510;
     P_new[486] = t510;
     P_new[165] = t511;
@@ -4046,9 +3960,9 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[167] = t513;
     P_new[558] = t513;
     #endif
-    const double t514 = DERIVE_FMA(t230, t86, DERIVE_FMA(t182, t326, DERIVE_FMA(t158, t302, DERIVE_FMA(t134, t278, DERIVE_FMA(t110, t254, DERIVE_FMA(P[175], t206, P[175]))))));
+    const double t514 = DERIVE_FMA(t230, t86, DERIVE_FMA(t182, t326, DERIVE_FMA(t158, t302, DERIVE_FMA(t134, t278, DERIVE_FMA(t110, t254, (-2.25)*t206)))));
     #if DERIVE_VECTOR
-    const derive_vd v_t515_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd v_t515_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t207);
     const derive_vd v_t515_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t87, v_t515_0);
     const derive_vd v_t515_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t111, v_t515_1);
     const derive_vd v_t515_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t135, v_t515_2);
@@ -4071,10 +3985,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[244] = tr_v_t461_c2;
     *(derive_vd_unaligned *)&P_new[268] = tr_v_t461_c3;
     #else
-    const double t515 = DERIVE_FMA(t326, t183, DERIVE_FMA(t302, t159, DERIVE_FMA(t278, t135, DERIVE_FMA(t254, t111, DERIVE_FMA(t230, t87, DERIVE_FMA(t206, P[176], P[176]))))));
-    const double t516 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, DERIVE_FMA(t206, P[177], P[177]))))));
-    const double t517 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, DERIVE_FMA(t206, P[178], P[178]))))));
-    const double t518 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, DERIVE_FMA(t206, P[179], P[179]))))));
+    const double t515 = DERIVE_FMA(t326, t183, DERIVE_FMA(t302, t159, DERIVE_FMA(t278, t135, DERIVE_FMA(t254, t111, DERIVE_FMA(t230, t87, (-2.25)*t207)))));
+    const double t516 = DERIVE_FMA(t326, t184, DERIVE_FMA(t302, t160, DERIVE_FMA(t278, t136, DERIVE_FMA(t254, t112, DERIVE_FMA(t230, t88, (-2.25)*t208)))));
+    const double t517 = DERIVE_FMA(t326, t185, DERIVE_FMA(t302, t161, DERIVE_FMA(t278, t137, DERIVE_FMA(t254, t113, DERIVE_FMA(t230, t89, (-2.25)*t209)))));
+    const double t518 = DERIVE_FMA(t326, t186, DERIVE_FMA(t302, t162, DERIVE_FMA(t278, t138, DERIVE_FMA(t254, t114, DERIVE_FMA(t230, t90, (-2.25)*t210)))));
     P_new[176] = t515;
     P_new[199] = t515;
     P_new[177] = t516;
@@ -4085,7 +3999,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[271] = t518;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t519_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd v_t519_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t211);
     const derive_vd v_t519_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t91, v_t519_0);
     const derive_vd v_t519_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t115, v_t519_1);
     const derive_vd v_t519_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t139, v_t519_2);
@@ -4108,10 +4022,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[340] = tr_v_t465_c2;
     *(derive_vd_unaligned *)&P_new[364] = tr_v_t465_c3;
     #else
-    const double t519 = DERIVE_FMA(t326, t187, DERIVE_FMA(t302, t163, DERIVE_FMA(t278, t139, DERIVE_FMA(t254, t115, DERIVE_FMA(t230, t91, DERIVE_FMA(t206, P[180], P[180]))))));
-    const double t520 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, DERIVE_FMA(t206, P[181], P[181]))))));
-    const double t521 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, DERIVE_FMA(t206, P[182], P[182]))))));
-    const double t522 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, DERIVE_FMA(t206, P[183], P[183]))))));
+    const double t519 = DERIVE_FMA(t326, t187, DERIVE_FMA(t302, t163, DERIVE_FMA(t278, t139, DERIVE_FMA(t254, t115, DERIVE_FMA(t230, t91, (-2.25)*t211)))));
+    const double t520 = DERIVE_FMA(t326, t188, DERIVE_FMA(t302, t164, DERIVE_FMA(t278, t140, DERIVE_FMA(t254, t116, DERIVE_FMA(t230, t92, (-2.25)*t212)))));
+    const double t521 = DERIVE_FMA(t326, t189, DERIVE_FMA(t302, t165, DERIVE_FMA(t278, t141, DERIVE_FMA(t254, t117, DERIVE_FMA(t230, t93, (-2.25)*t213)))));
+    const double t522 = DERIVE_FMA(t326, t190, DERIVE_FMA(t302, t166, DERIVE_FMA(t278, t142, DERIVE_FMA(t254, t118, DERIVE_FMA(t230, t94, (-2.25)*t214)))));
     P_new[180] = t519;
     P_new[295] = t519;
     P_new[181] = t520;
@@ -4122,7 +4036,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[367] = t522;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t523_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd v_t523_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t215);
     const derive_vd v_t523_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t95, v_t523_0);
     const derive_vd v_t523_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t119, v_t523_1);
     const derive_vd v_t523_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t143, v_t523_2);
@@ -4145,10 +4059,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[436] = tr_v_t469_c2;
     *(derive_vd_unaligned *)&P_new[460] = tr_v_t469_c3;
     #else
-    const double t523 = DERIVE_FMA(t326, t191, DERIVE_FMA(t302, t167, DERIVE_FMA(t278, t143, DERIVE_FMA(t254, t119, DERIVE_FMA(t230, t95, DERIVE_FMA(t206, P[184], P[184]))))));
-    const double t524 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, DERIVE_FMA(t206, P[185], P[185]))))));
-    const double t525 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, DERIVE_FMA(t206, P[186], P[186]))))));
-    const double t526 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, DERIVE_FMA(t206, P[187], P[187]))))));
+    const double t523 = DERIVE_FMA(t326, t191, DERIVE_FMA(t302, t167, DERIVE_FMA(t278, t143, DERIVE_FMA(t254, t119, DERIVE_FMA(t230, t95, (-2.25)*t215)))));
+    const double t524 = DERIVE_FMA(t326, t192, DERIVE_FMA(t302, t168, DERIVE_FMA(t278, t144, DERIVE_FMA(t254, t120, DERIVE_FMA(t230, t96, (-2.25)*t216)))));
+    const double t525 = DERIVE_FMA(t326, t193, DERIVE_FMA(t302, t169, DERIVE_FMA(t278, t145, DERIVE_FMA(t254, t121, DERIVE_FMA(t230, t97, (-2.25)*t217)))));
+    const double t526 = DERIVE_FMA(t326, t194, DERIVE_FMA(t302, t170, DERIVE_FMA(t278, t146, DERIVE_FMA(t254, t122, DERIVE_FMA(t230, t98, (-2.25)*t218)))));
     P_new[184] = t523;
     P_new[391] = t523;
     P_new[185] = t524;
@@ -4159,7 +4073,7 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[463] = t526;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t527_0 = DERIVE_VFMA(((derive_vd){t206, t206, t206, t206}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd v_t527_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t219);
     const derive_vd v_t527_1 = DERIVE_VFMA(((derive_vd){t230, t230, t230, t230}), v_t99, v_t527_0);
     const derive_vd v_t527_2 = DERIVE_VFMA(((derive_vd){t254, t254, t254, t254}), v_t123, v_t527_1);
     const derive_vd v_t527_3 = DERIVE_VFMA(((derive_vd){t278, t278, t278, t278}), v_t147, v_t527_2);
@@ -4182,10 +4096,10 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[532] = tr_v_t473_c2;
     *(derive_vd_unaligned *)&P_new[556] = tr_v_t473_c3;
     #else
-    const double t527 = DERIVE_FMA(t326, t195, DERIVE_FMA(t302, t171, DERIVE_FMA(t278, t147, DERIVE_FMA(t254, t123, DERIVE_FMA(t230, t99, DERIVE_FMA(t206, P[188], P[188]))))));
-    const double t528 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, DERIVE_FMA(t206, P[189], P[189]))))));
-    const double t529 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, DERIVE_FMA(t206, P[190], P[190]))))));
-    const double t530 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, DERIVE_FMA(t206, P[191], P[191]))))));
+    const double t527 = DERIVE_FMA(t326, t195, DERIVE_FMA(t302, t171, DERIVE_FMA(t278, t147, DERIVE_FMA(t254, t123, DERIVE_FMA(t230, t99, (-2.25)*t219)))));
+    const double t528 = DERIVE_FMA(t326, t196, DERIVE_FMA(t302, t172, DERIVE_FMA(t278, t148, DERIVE_FMA(t254, t124, DERIVE_FMA(t230, t100, (-2.25)*t220)))));
+    const double t529 = DERIVE_FMA(t326, t197, DERIVE_FMA(t302, t173, DERIVE_FMA(t278, t149, DERIVE_FMA(t254, t125, DERIVE_FMA(t230, t101, (-2.25)*t221)))));
+    const double t530 = DERIVE_FMA(t326, t198, DERIVE_FMA(t302, t174, DERIVE_FMA(t278, t150, DERIVE_FMA(t254, t126, DERIVE_FMA(t230, t102, (-2.25)*t222)))));
     P_new[188] = t527;
     P_new[487] = t527;
     P_new[189] = t528;
@@ -4196,21 +4110,20 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[559] = t530;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t531_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[176], P[177], P[178], P[179]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t87, v_t531_0);
-    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t531_1);
-    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t531_2);
-    const derive_vd v_t531_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t531_3);
-    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t531_4);
+    const derive_vd v_t531_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t231);
+    const derive_vd v_t531_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t111, v_t531_0);
+    const derive_vd v_t531_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t135, v_t531_1);
+    const derive_vd v_t531_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t159, v_t531_2);
+    const derive_vd v_t531 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t183, v_t531_3);
     const double t532 = v_t531[1];
     const double t533 = v_t531[2];
     const double t534 = v_t531[3];
     *(derive_vd_unaligned *)&P_new[200] = v_t531;
     #else
-    const double t531 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, DERIVE_FMA(t231, t87, DERIVE_FMA(t207, P[176], P[200]))))));
-    const double t532 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, DERIVE_FMA(t231, t88, DERIVE_FMA(t207, P[177], P[201]))))));
-    const double t533 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, DERIVE_FMA(t231, t89, DERIVE_FMA(t207, P[178], P[202]))))));
-    const double t534 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, DERIVE_FMA(t231, t90, DERIVE_FMA(t207, P[179], P[203]))))));
+    const double t531 = DERIVE_FMA(t327, t183, DERIVE_FMA(t303, t159, DERIVE_FMA(t279, t135, DERIVE_FMA(t255, t111, (-2.25)*t231))));
+    const double t532 = DERIVE_FMA(t327, t184, DERIVE_FMA(t303, t160, DERIVE_FMA(t279, t136, DERIVE_FMA(t255, t112, (-2.25)*t232))));
+    const double t533 = DERIVE_FMA(t327, t185, DERIVE_FMA(t303, t161, DERIVE_FMA(t279, t137, DERIVE_FMA(t255, t113, (-2.25)*t233))));
+    const double t534 = DERIVE_FMA(t327, t186, DERIVE_FMA(t303, t162, DERIVE_FMA(t279, t138, DERIVE_FMA(t255, t114, (-2.25)*t234))));
     P_new[200] = t531;
     P_new[201] = t532;
     P_new[224] = t532;
@@ -4220,17 +4133,16 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[272] = t534;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t535_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t91, v_t535_0);
-    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t535_1);
-    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t535_2);
-    const derive_vd v_t535_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t535_3);
-    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t535_4);
+    const derive_vd v_t535_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t235);
+    const derive_vd v_t535_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t115, v_t535_0);
+    const derive_vd v_t535_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t139, v_t535_1);
+    const derive_vd v_t535_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t163, v_t535_2);
+    const derive_vd v_t535 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t187, v_t535_3);
     #else
-    const double t535 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, DERIVE_FMA(t231, t91, DERIVE_FMA(t207, P[180], P[204]))))));
-    const double t536 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, DERIVE_FMA(t231, t92, DERIVE_FMA(t207, P[181], P[205]))))));
-    const double t537 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, DERIVE_FMA(t231, t93, DERIVE_FMA(t207, P[182], P[206]))))));
-    const double t538 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, DERIVE_FMA(t231, t94, DERIVE_FMA(t207, P[183], P[207]))))));
+    const double t535 = DERIVE_FMA(t327, t187, DERIVE_FMA(t303, t163, DERIVE_FMA(t279, t139, DERIVE_FMA(t255, t115, (-2.25)*t235))));
+    const double t536 = DERIVE_FMA(t327, t188, DERIVE_FMA(t303, t164, DERIVE_FMA(t279, t140, DERIVE_FMA(t255, t116, (-2.25)*t236))));
+    const double t537 = DERIVE_FMA(t327, t189, DERIVE_FMA(t303, t165, DERIVE_FMA(t279, t141, DERIVE_FMA(t255, t117, (-2.25)*t237))));
+    const double t538 = DERIVE_FMA(t327, t190, DERIVE_FMA(t303, t166, DERIVE_FMA(t279, t142, DERIVE_FMA(t255, t118, (-2.25)*t238))));
     P_new[204] = t535;
     P_new[296] = t535;
     P_new[205] = t536;
@@ -4241,17 +4153,16 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[368] = t538;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t539_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
-    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t95, v_t539_0);
-    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t539_1);
-    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t539_2);
-    const derive_vd v_t539_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t539_3);
-    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t539_4);
+    const derive_vd v_t539_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t239);
+    const derive_vd v_t539_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t119, v_t539_0);
+    const derive_vd v_t539_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t143, v_t539_1);
+    const derive_vd v_t539_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t167, v_t539_2);
+    const derive_vd v_t539 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t191, v_t539_3);
     #else
-    const double t539 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, DERIVE_FMA(t231, t95, DERIVE_FMA(t207, P[184], P[208]))))));
-    const double t540 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, DERIVE_FMA(t231, t96, DERIVE_FMA(t207, P[185], P[209]))))));
-    const double t541 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, DERIVE_FMA(t231, t97, DERIVE_FMA(t207, P[186], P[210]))))));
-    const double t542 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, DERIVE_FMA(t231, t98, DERIVE_FMA(t207, P[187], P[211]))))));
+    const double t539 = DERIVE_FMA(t327, t191, DERIVE_FMA(t303, t167, DERIVE_FMA(t279, t143, DERIVE_FMA(t255, t119, (-2.25)*t239))));
+    const double t540 = DERIVE_FMA(t327, t192, DERIVE_FMA(t303, t168, DERIVE_FMA(t279, t144, DERIVE_FMA(t255, t120, (-2.25)*t240))));
+    const double t541 = DERIVE_FMA(t327, t193, DERIVE_FMA(t303, t169, DERIVE_FMA(t279, t145, DERIVE_FMA(t255, t121, (-2.25)*t241))));
+    const double t542 = DERIVE_FMA(t327, t194, DERIVE_FMA(t303, t170, DERIVE_FMA(t279, t146, DERIVE_FMA(t255, t122, (-2.25)*t242))));
     P_new[208] = t539;
     P_new[392] = t539;
     P_new[209] = t540;
@@ -4262,17 +4173,16 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[464] = t542;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t543_0 = DERIVE_VFMA(((derive_vd){t207, t207, t207, t207}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
-    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t99, v_t543_0);
-    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t543_1);
-    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t543_2);
-    const derive_vd v_t543_4 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t543_3);
-    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t543_4);
+    const derive_vd v_t543_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t243);
+    const derive_vd v_t543_1 = DERIVE_VFMA(((derive_vd){t255, t255, t255, t255}), v_t123, v_t543_0);
+    const derive_vd v_t543_2 = DERIVE_VFMA(((derive_vd){t279, t279, t279, t279}), v_t147, v_t543_1);
+    const derive_vd v_t543_3 = DERIVE_VFMA(((derive_vd){t303, t303, t303, t303}), v_t171, v_t543_2);
+    const derive_vd v_t543 = DERIVE_VFMA(((derive_vd){t327, t327, t327, t327}), v_t195, v_t543_3);
     #else
-    const double t543 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, DERIVE_FMA(t231, t99, DERIVE_FMA(t207, P[188], P[212]))))));
-    const double t544 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, DERIVE_FMA(t231, t100, DERIVE_FMA(t207, P[189], P[213]))))));
-    const double t545 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, DERIVE_FMA(t231, t101, DERIVE_FMA(t207, P[190], P[214]))))));
-    const double t546 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, DERIVE_FMA(t231, t102, DERIVE_FMA(t207, P[191], P[215]))))));
+    const double t543 = DERIVE_FMA(t327, t195, DERIVE_FMA(t303, t171, DERIVE_FMA(t279, t147, DERIVE_FMA(t255, t123, (-2.25)*t243))));
+    const double t544 = DERIVE_FMA(t327, t196, DERIVE_FMA(t303, t172, DERIVE_FMA(t279, t148, DERIVE_FMA(t255, t124, (-2.25)*t244))));
+    const double t545 = DERIVE_FMA(t327, t197, DERIVE_FMA(t303, t173, DERIVE_FMA(t279, t149, DERIVE_FMA(t255, t125, (-2.25)*t245))));
+    const double t546 = DERIVE_FMA(t327, t198, DERIVE_FMA(t303, t174, DERIVE_FMA(t279, t150, DERIVE_FMA(t255, t126, (-2.25)*t246))));
     P_new[212] = t543;
     P_new[488] = t543;
     P_new[213] = t544;
@@ -4282,21 +4192,19 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[215] = t546;
     P_new[560] = t546;
     #endif
-    const double t547 = DERIVE_FMA(t232, t88, DERIVE_FMA(t184, t328, DERIVE_FMA(t160, t304, DERIVE_FMA(t136, t280, DERIVE_FMA(t112, t256, DERIVE_FMA(P[177], t208, P[225]))))));
-    const double t548 = DERIVE_FMA(t232, t89, DERIVE_FMA(t185, t328, DERIVE_FMA(t161, t304, DERIVE_FMA(t137, t280, DERIVE_FMA(t113, t256, DERIVE_FMA(P[178], t208, P[226]))))));
-    const double t549 = DERIVE_FMA(t232, t90, DERIVE_FMA(t186, t328, DERIVE_FMA(t162, t304, DERIVE_FMA(t138, t280, DERIVE_FMA(t114, t256, DERIVE_FMA(P[179], t208, P[227]))))));
+    const double t547 = DERIVE_FMA(t184, t328, DERIVE_FMA(t160, t304, DERIVE_FMA(t136, t280, (-9.0)*t256)));
+    const double t548 = DERIVE_FMA(t185, t328, DERIVE_FMA(t161, t304, DERIVE_FMA(t137, t280, (-9.0)*t257)));
+    const double t549 = DERIVE_FMA(t186, t328, DERIVE_FMA(t162, t304, DERIVE_FMA(t138, t280, (-9.0)*t258)));
     #if DERIVE_VECTOR
-    const derive_vd v_t550_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[180], P[181], P[182], P[183]}), ((derive_vd){P[228], P[229], P[230], P[231]}));
-    const derive_vd v_t550_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t91, v_t550_0);
-    const derive_vd v_t550_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t115, v_t550_1);
-    const derive_vd v_t550_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t550_2);
-    const derive_vd v_t550_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t550_3);
-    const derive_vd v_t550 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t550_4);
+    const derive_vd v_t550_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t259);
+    const derive_vd v_t550_1 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t139, v_t550_0);
+    const derive_vd v_t550_2 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t163, v_t550_1);
+    const derive_vd v_t550 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t187, v_t550_2);
     #else
-    const double t550 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, DERIVE_FMA(t256, t115, DERIVE_FMA(t232, t91, DERIVE_FMA(t208, P[180], P[228]))))));
-    const double t551 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, DERIVE_FMA(t256, t116, DERIVE_FMA(t232, t92, DERIVE_FMA(t208, P[181], P[229]))))));
-    const double t552 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, DERIVE_FMA(t256, t117, DERIVE_FMA(t232, t93, DERIVE_FMA(t208, P[182], P[230]))))));
-    const double t553 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, DERIVE_FMA(t256, t118, DERIVE_FMA(t232, t94, DERIVE_FMA(t208, P[183], P[231]))))));
+    const double t550 = DERIVE_FMA(t328, t187, DERIVE_FMA(t304, t163, DERIVE_FMA(t280, t139, (-9.0)*t259)));
+    const double t551 = DERIVE_FMA(t328, t188, DERIVE_FMA(t304, t164, DERIVE_FMA(t280, t140, (-9.0)*t260)));
+    const double t552 = DERIVE_FMA(t328, t189, DERIVE_FMA(t304, t165, DERIVE_FMA(t280, t141, (-9.0)*t261)));
+    const double t553 = DERIVE_FMA(t328, t190, DERIVE_FMA(t304, t166, DERIVE_FMA(t280, t142, (-9.0)*t262)));
     P_new[228] = t550;
     P_new[297] = t550;
     P_new[229] = t551;
@@ -4307,17 +4215,15 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[369] = t553;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t554_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[184], P[185], P[186], P[187]}), ((derive_vd){P[232], P[233], P[234], P[235]}));
-    const derive_vd v_t554_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t95, v_t554_0);
-    const derive_vd v_t554_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t119, v_t554_1);
-    const derive_vd v_t554_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t554_2);
-    const derive_vd v_t554_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t554_3);
-    const derive_vd v_t554 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t554_4);
+    const derive_vd v_t554_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t263);
+    const derive_vd v_t554_1 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t143, v_t554_0);
+    const derive_vd v_t554_2 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t167, v_t554_1);
+    const derive_vd v_t554 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t191, v_t554_2);
     #else
-    const double t554 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, DERIVE_FMA(t256, t119, DERIVE_FMA(t232, t95, DERIVE_FMA(t208, P[184], P[232]))))));
-    const double t555 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, DERIVE_FMA(t256, t120, DERIVE_FMA(t232, t96, DERIVE_FMA(t208, P[185], P[233]))))));
-    const double t556 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, DERIVE_FMA(t256, t121, DERIVE_FMA(t232, t97, DERIVE_FMA(t208, P[186], P[234]))))));
-    const double t557 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, DERIVE_FMA(t256, t122, DERIVE_FMA(t232, t98, DERIVE_FMA(t208, P[187], P[235]))))));
+    const double t554 = DERIVE_FMA(t328, t191, DERIVE_FMA(t304, t167, DERIVE_FMA(t280, t143, (-9.0)*t263)));
+    const double t555 = DERIVE_FMA(t328, t192, DERIVE_FMA(t304, t168, DERIVE_FMA(t280, t144, (-9.0)*t264)));
+    const double t556 = DERIVE_FMA(t328, t193, DERIVE_FMA(t304, t169, DERIVE_FMA(t280, t145, (-9.0)*t265)));
+    const double t557 = DERIVE_FMA(t328, t194, DERIVE_FMA(t304, t170, DERIVE_FMA(t280, t146, (-9.0)*t266)));
     P_new[232] = t554;
     P_new[393] = t554;
     P_new[233] = t555;
@@ -4328,17 +4234,15 @@ int ins_fc24_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[465] = t557;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t558_0 = DERIVE_VFMA(((derive_vd){t208, t208, t208, t208}), ((derive_vd){P[188], P[189], P[190], P[191]}), ((derive_vd){P[236], P[237], P[238], P[239]}));
-    const derive_vd v_t558_1 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t99, v_t558_0);
-    const derive_vd v_t558_2 = DERIVE_VFMA(((derive_vd){t256, t256, t256, t256}), v_t123, v_t558_1);
-    const derive_vd v_t558_3 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t558_2);
-    const derive_vd v_t558_4 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t558_3);
-    const derive_vd v_t558 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t558_4);
+    const derive_vd v_t558_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t267);
+    const derive_vd v_t558_1 = DERIVE_VFMA(((derive_vd){t280, t280, t280, t280}), v_t147, v_t558_0);
+    const derive_vd v_t558_2 = DERIVE_VFMA(((derive_vd){t304, t304, t304, t304}), v_t171, v_t558_1);
+    const derive_vd v_t558 = DERIVE_VFMA(((derive_vd){t328, t328, t328, t328}), v_t195, v_t558_2);
     #else
-    const double t558 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, DERIVE_FMA(t256, t123, DERIVE_FMA(t232, t99, DERIVE_FMA(t208, P[188], P[236]))))));
-    const double t559 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, DERIVE_FMA(t256, t124, DERIVE_FMA(t232, t100, DERIVE_FMA(t208, P[189], P[237]))))));
-    const double t560 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, DERIVE_FMA(t256, t125, DERIVE_FMA(t232, t101, DERIVE_FMA(t208, P[190], P[238]))))));
-    const double t561 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, DERIVE_FMA(t256, t126, DERIVE_FMA(t232, t102, DERIVE_FMA(t208, P[191], P[239]))))));
+    const double t558 = DERIVE_FMA(t328, t195, DERIVE_FMA(t304, t171, DERIVE_FMA(t280, t147, (-9.0)*t267)));
+    const double t559 = DERIVE_FMA(t328, t196, DERIVE_FMA(t304, t172, DERIVE_FMA(t280, t148, (-9.0)*t268)));
+    const double t560 = DERIVE_FMA(t328, t197, DERIVE_FMA(t304, t173, DERIVE_FMA(t280, t149, (-9.0)*t269)));
+    const double t561 = DERIVE_FMA(t328, t198, DERIVE_FMA(t304, t174, DERIVE_FMA(t280, t150, (-9.0)*t270)));
     P_new[236] = t558;
     P_new[489] = t558;
     P_new[237] = t559;
@@ -5065,1719 +4969,1653 @@ int ins_fc24_ekf_update_baro(const double *restrict x, const double *restrict P,
 {
     (void)p;
     const double t1 = x[9] + z[0];
-    #if DERIVE_VECTOR
-    const derive_vd v_t2 = (-((derive_vd){P[216], P[217], P[218], P[219]}));
-    const double t3 = v_t2[1];
-    const double t4 = v_t2[2];
-    const double t5 = v_t2[3];
-    #else
-    const double t2 = -P[216];
-    const double t3 = -P[217];
-    const double t4 = -P[218];
-    const double t5 = -P[219];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t6 = (-((derive_vd){P[220], P[221], P[222], P[223]}));
-    const double t7 = v_t6[1];
-    const double t8 = v_t6[2];
-    const double t9 = v_t6[3];
-    #else
-    const double t6 = -P[220];
-    const double t7 = -P[221];
-    const double t8 = -P[222];
-    const double t9 = -P[223];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t10 = (-((derive_vd){P[224], P[225], P[226], P[227]}));
-    const double t11 = v_t10[1];
-    const double t12 = v_t10[2];
-    const double t13 = v_t10[3];
-    #else
-    const double t10 = -P[224];
-    const double t11 = -P[225];
-    const double t12 = -P[226];
-    const double t13 = -P[227];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t14 = (-((derive_vd){P[228], P[229], P[230], P[231]}));
-    const double t15 = v_t14[1];
-    const double t16 = v_t14[2];
-    const double t17 = v_t14[3];
-    #else
-    const double t14 = -P[228];
-    const double t15 = -P[229];
-    const double t16 = -P[230];
-    const double t17 = -P[231];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t18 = (-((derive_vd){P[232], P[233], P[234], P[235]}));
-    const double t19 = v_t18[1];
-    const double t20 = v_t18[2];
-    const double t21 = v_t18[3];
-    #else
-    const double t18 = -P[232];
-    const double t19 = -P[233];
-    const double t20 = -P[234];
-    const double t21 = -P[235];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t22 = (-((derive_vd){P[236], P[237], P[238], P[239]}));
-    const double t23 = v_t22[1];
-    const double t24 = v_t22[2];
-    const double t25 = v_t22[3];
-    #else
-    const double t22 = -P[236];
-    const double t23 = -P[237];
-    const double t24 = -P[238];
-    const double t25 = -P[239];
-    #endif
-    const double t26 = 0.25 - t11;
-    if (!(t26 > 0.0)) {
+    const double t2 = 0.25 + P[225];
+    if (!(t2 > 0.0)) {
         return 8; /* S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive */
     }
-    const double t27 = (-1.0)/t26;
-    const double t28 = t1*t27;
+    const double t3 = (-1.0)/t2;
+    const double t4 = t1*t3;
     #if DERIVE_VECTOR
-    const derive_vd v_t29 = (((derive_vd){t27, t27, t27, t27}) * v_t2);
+    const derive_vd v_t5 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[216], P[217], P[218], P[219]}));
+    const double t5 = v_t5[0];
+    const double t6 = v_t5[1];
+    const double t7 = v_t5[2];
+    const double t8 = v_t5[3];
+    #else
+    const double t5 = t3*P[216];
+    const double t6 = t3*P[217];
+    const double t7 = t3*P[218];
+    const double t8 = t3*P[219];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t9 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[220], P[221], P[222], P[223]}));
+    const double t9 = v_t9[0];
+    const double t10 = v_t9[1];
+    const double t11 = v_t9[2];
+    const double t12 = v_t9[3];
+    #else
+    const double t9 = t3*P[220];
+    const double t10 = t3*P[221];
+    const double t11 = t3*P[222];
+    const double t12 = t3*P[223];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t13 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[224], P[225], P[226], P[227]}));
+    const double t13 = v_t13[0];
+    const double t14 = v_t13[1];
+    const double t15 = v_t13[2];
+    const double t16 = v_t13[3];
+    #else
+    const double t13 = t3*P[224];
+    const double t14 = t3*P[225];
+    const double t15 = t3*P[226];
+    const double t16 = t3*P[227];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t17 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[228], P[229], P[230], P[231]}));
+    const double t17 = v_t17[0];
+    const double t18 = v_t17[1];
+    const double t19 = v_t17[2];
+    const double t20 = v_t17[3];
+    #else
+    const double t17 = t3*P[228];
+    const double t18 = t3*P[229];
+    const double t19 = t3*P[230];
+    const double t20 = t3*P[231];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t21 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[232], P[233], P[234], P[235]}));
+    const double t21 = v_t21[0];
+    const double t22 = v_t21[1];
+    const double t23 = v_t21[2];
+    const double t24 = v_t21[3];
+    #else
+    const double t21 = t3*P[232];
+    const double t22 = t3*P[233];
+    const double t23 = t3*P[234];
+    const double t24 = t3*P[235];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t25 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[236], P[237], P[238], P[239]}));
+    const double t25 = v_t25[0];
+    const double t26 = v_t25[1];
+    const double t27 = v_t25[2];
+    const double t28 = v_t25[3];
+    #else
+    const double t25 = t3*P[236];
+    const double t26 = t3*P[237];
+    const double t27 = t3*P[238];
+    const double t28 = t3*P[239];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t29 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[216], P[217], P[218], P[219]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
     const double t29 = v_t29[0];
     const double t30 = v_t29[1];
     const double t31 = v_t29[2];
     const double t32 = v_t29[3];
     #else
-    const double t29 = t27*t2;
-    const double t30 = t27*t3;
-    const double t31 = t27*t4;
-    const double t32 = t27*t5;
+    const double t29 = DERIVE_FMA(t4, P[216], x[0]);
+    const double t30 = DERIVE_FMA(t4, P[217], x[1]);
+    const double t31 = DERIVE_FMA(t4, P[218], x[2]);
+    const double t32 = DERIVE_FMA(t4, P[219], x[3]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t33 = (((derive_vd){t27, t27, t27, t27}) * v_t6);
-    const double t33 = v_t33[0];
-    const double t34 = v_t33[1];
-    const double t35 = v_t33[2];
-    const double t36 = v_t33[3];
+    const derive_vd v_t33 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
+    *(derive_vd_unaligned *)&x_new[4] = v_t33;
     #else
-    const double t33 = t27*t6;
-    const double t34 = t27*t7;
-    const double t35 = t27*t8;
-    const double t36 = t27*t9;
+    const double t33 = DERIVE_FMA(t4, P[220], x[4]);
+    const double t34 = DERIVE_FMA(t4, P[221], x[5]);
+    const double t35 = DERIVE_FMA(t4, P[222], x[6]);
+    const double t36 = DERIVE_FMA(t4, P[223], x[7]);
+    x_new[4] = t33;
+    x_new[5] = t34;
+    x_new[6] = t35;
+    x_new[7] = t36;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t37 = (((derive_vd){t27, t27, t27, t27}) * v_t10);
-    const double t37 = v_t37[0];
-    const double t38 = v_t37[1];
-    const double t39 = v_t37[2];
-    const double t40 = v_t37[3];
+    const derive_vd v_t37 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
+    *(derive_vd_unaligned *)&x_new[8] = v_t37;
     #else
-    const double t37 = t27*t10;
-    const double t38 = t27*t11;
-    const double t39 = t27*t12;
-    const double t40 = t27*t13;
+    const double t37 = DERIVE_FMA(t4, P[224], x[8]);
+    const double t38 = DERIVE_FMA(t4, P[225], x[9]);
+    const double t39 = DERIVE_FMA(t4, P[226], x[10]);
+    const double t40 = DERIVE_FMA(t4, P[227], x[11]);
+    x_new[8] = t37;
+    x_new[9] = t38;
+    x_new[10] = t39;
+    x_new[11] = t40;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t41 = (((derive_vd){t27, t27, t27, t27}) * v_t14);
-    const double t41 = v_t41[0];
-    const double t42 = v_t41[1];
-    const double t43 = v_t41[2];
-    const double t44 = v_t41[3];
+    const derive_vd v_t41 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
+    *(derive_vd_unaligned *)&x_new[12] = v_t41;
     #else
-    const double t41 = t27*t14;
-    const double t42 = t27*t15;
-    const double t43 = t27*t16;
-    const double t44 = t27*t17;
+    const double t41 = DERIVE_FMA(t4, P[228], x[12]);
+    const double t42 = DERIVE_FMA(t4, P[229], x[13]);
+    const double t43 = DERIVE_FMA(t4, P[230], x[14]);
+    const double t44 = DERIVE_FMA(t4, P[231], x[15]);
+    x_new[12] = t41;
+    x_new[13] = t42;
+    x_new[14] = t43;
+    x_new[15] = t44;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t45 = (((derive_vd){t27, t27, t27, t27}) * v_t18);
-    const double t45 = v_t45[0];
-    const double t46 = v_t45[1];
-    const double t47 = v_t45[2];
-    const double t48 = v_t45[3];
+    const derive_vd v_t45 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){x[16], x[17], x[18], x[19]}));
+    *(derive_vd_unaligned *)&x_new[16] = v_t45;
     #else
-    const double t45 = t27*t18;
-    const double t46 = t27*t19;
-    const double t47 = t27*t20;
-    const double t48 = t27*t21;
+    const double t45 = DERIVE_FMA(t4, P[232], x[16]);
+    const double t46 = DERIVE_FMA(t4, P[233], x[17]);
+    const double t47 = DERIVE_FMA(t4, P[234], x[18]);
+    const double t48 = DERIVE_FMA(t4, P[235], x[19]);
+    x_new[16] = t45;
+    x_new[17] = t46;
+    x_new[18] = t47;
+    x_new[19] = t48;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t49 = (((derive_vd){t27, t27, t27, t27}) * v_t22);
-    const double t49 = v_t49[0];
-    const double t50 = v_t49[1];
-    const double t51 = v_t49[2];
-    const double t52 = v_t49[3];
+    const derive_vd v_t49 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){x[20], x[21], x[22], x[23]}));
+    *(derive_vd_unaligned *)&x_new[20] = v_t49;
     #else
-    const double t49 = t27*t22;
-    const double t50 = t27*t23;
-    const double t51 = t27*t24;
-    const double t52 = t27*t25;
+    const double t49 = DERIVE_FMA(t4, P[236], x[20]);
+    const double t50 = DERIVE_FMA(t4, P[237], x[21]);
+    const double t51 = DERIVE_FMA(t4, P[238], x[22]);
+    const double t52 = DERIVE_FMA(t4, P[239], x[23]);
+    x_new[20] = t49;
+    x_new[21] = t50;
+    x_new[22] = t51;
+    x_new[23] = t52;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t53 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t2, ((derive_vd){x[0], x[1], x[2], x[3]}));
-    const double t53 = v_t53[0];
+    const derive_vd v_t53 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[216], P[217], P[218], P[219]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
     const double t54 = v_t53[1];
     const double t55 = v_t53[2];
     const double t56 = v_t53[3];
-    #else
-    const double t53 = DERIVE_FNMA(t28, t2, x[0]);
-    const double t54 = DERIVE_FNMA(t28, t3, x[1]);
-    const double t55 = DERIVE_FNMA(t28, t4, x[2]);
-    const double t56 = DERIVE_FNMA(t28, t5, x[3]);
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t57 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t6, ((derive_vd){x[4], x[5], x[6], x[7]}));
-    *(derive_vd_unaligned *)&x_new[4] = v_t57;
-    #else
-    const double t57 = DERIVE_FNMA(t28, t6, x[4]);
-    const double t58 = DERIVE_FNMA(t28, t7, x[5]);
-    const double t59 = DERIVE_FNMA(t28, t8, x[6]);
-    const double t60 = DERIVE_FNMA(t28, t9, x[7]);
-    x_new[4] = t57;
-    x_new[5] = t58;
-    x_new[6] = t59;
-    x_new[7] = t60;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t61 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
-    *(derive_vd_unaligned *)&x_new[8] = v_t61;
-    #else
-    const double t61 = DERIVE_FNMA(t28, t10, x[8]);
-    const double t62 = DERIVE_FNMA(t28, t11, x[9]);
-    const double t63 = DERIVE_FNMA(t28, t12, x[10]);
-    const double t64 = DERIVE_FNMA(t28, t13, x[11]);
-    x_new[8] = t61;
-    x_new[9] = t62;
-    x_new[10] = t63;
-    x_new[11] = t64;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t65 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
-    *(derive_vd_unaligned *)&x_new[12] = v_t65;
-    #else
-    const double t65 = DERIVE_FNMA(t28, t14, x[12]);
-    const double t66 = DERIVE_FNMA(t28, t15, x[13]);
-    const double t67 = DERIVE_FNMA(t28, t16, x[14]);
-    const double t68 = DERIVE_FNMA(t28, t17, x[15]);
-    x_new[12] = t65;
-    x_new[13] = t66;
-    x_new[14] = t67;
-    x_new[15] = t68;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t69 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t18, ((derive_vd){x[16], x[17], x[18], x[19]}));
-    *(derive_vd_unaligned *)&x_new[16] = v_t69;
-    #else
-    const double t69 = DERIVE_FNMA(t28, t18, x[16]);
-    const double t70 = DERIVE_FNMA(t28, t19, x[17]);
-    const double t71 = DERIVE_FNMA(t28, t20, x[18]);
-    const double t72 = DERIVE_FNMA(t28, t21, x[19]);
-    x_new[16] = t69;
-    x_new[17] = t70;
-    x_new[18] = t71;
-    x_new[19] = t72;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t73 = DERIVE_VFNMA(((derive_vd){t28, t28, t28, t28}), v_t22, ((derive_vd){x[20], x[21], x[22], x[23]}));
-    *(derive_vd_unaligned *)&x_new[20] = v_t73;
-    #else
-    const double t73 = DERIVE_FNMA(t28, t22, x[20]);
-    const double t74 = DERIVE_FNMA(t28, t23, x[21]);
-    const double t75 = DERIVE_FNMA(t28, t24, x[22]);
-    const double t76 = DERIVE_FNMA(t28, t25, x[23]);
-    x_new[20] = t73;
-    x_new[21] = t74;
-    x_new[22] = t75;
-    x_new[23] = t76;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t77 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const double t78 = v_t77[1];
-    const double t79 = v_t77[2];
-    const double t80 = v_t77[3];
-    *(derive_vd_unaligned *)&P_new[0] = v_t77;
-    #else
-    const double t77 = DERIVE_FMA(t29, t2, P[0]);
-    const double t78 = DERIVE_FMA(t29, t3, P[1]);
-    const double t79 = DERIVE_FMA(t29, t4, P[2]);
-    const double t80 = DERIVE_FMA(t29, t5, P[3]);
-    P_new[0] = t77;
-    P_new[1] = t78;
-    P_new[24] = t78;
-    P_new[2] = t79;
-    P_new[48] = t79;
-    P_new[3] = t80;
-    P_new[72] = t80;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t81 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
-    #else
-    const double t81 = DERIVE_FMA(t29, t6, P[4]);
-    const double t82 = DERIVE_FMA(t29, t7, P[5]);
-    const double t83 = DERIVE_FMA(t29, t8, P[6]);
-    const double t84 = DERIVE_FMA(t29, t9, P[7]);
-    P_new[4] = t81;
-    P_new[96] = t81;
-    P_new[5] = t82;
-    P_new[120] = t82;
-    P_new[6] = t83;
-    P_new[144] = t83;
-    P_new[7] = t84;
-    P_new[168] = t84;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t85 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
-    #else
-    const double t85 = DERIVE_FMA(t29, t10, P[8]);
-    const double t86 = DERIVE_FMA(t29, t11, P[9]);
-    const double t87 = DERIVE_FMA(t29, t12, P[10]);
-    const double t88 = DERIVE_FMA(t29, t13, P[11]);
-    P_new[8] = t85;
-    P_new[192] = t85;
-    P_new[9] = t86;
-    P_new[216] = t86;
-    P_new[10] = t87;
-    P_new[240] = t87;
-    P_new[11] = t88;
-    P_new[264] = t88;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t89 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
-    #else
-    const double t89 = DERIVE_FMA(t29, t14, P[12]);
-    const double t90 = DERIVE_FMA(t29, t15, P[13]);
-    const double t91 = DERIVE_FMA(t29, t16, P[14]);
-    const double t92 = DERIVE_FMA(t29, t17, P[15]);
-    P_new[12] = t89;
-    P_new[288] = t89;
-    P_new[13] = t90;
-    P_new[312] = t90;
-    P_new[14] = t91;
-    P_new[336] = t91;
-    P_new[15] = t92;
-    P_new[360] = t92;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t93 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t18, ((derive_vd){P[16], P[17], P[18], P[19]}));
-    #else
-    const double t93 = DERIVE_FMA(t29, t18, P[16]);
-    const double t94 = DERIVE_FMA(t29, t19, P[17]);
-    const double t95 = DERIVE_FMA(t29, t20, P[18]);
-    const double t96 = DERIVE_FMA(t29, t21, P[19]);
-    P_new[16] = t93;
-    P_new[384] = t93;
-    P_new[17] = t94;
-    P_new[408] = t94;
-    P_new[18] = t95;
-    P_new[432] = t95;
-    P_new[19] = t96;
-    P_new[456] = t96;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t97 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t22, ((derive_vd){P[20], P[21], P[22], P[23]}));
-    #else
-    const double t97 = DERIVE_FMA(t29, t22, P[20]);
-    const double t98 = DERIVE_FMA(t29, t23, P[21]);
-    const double t99 = DERIVE_FMA(t29, t24, P[22]);
-    const double t100 = DERIVE_FMA(t29, t25, P[23]);
-    P_new[20] = t97;
-    P_new[480] = t97;
-    P_new[21] = t98;
-    P_new[504] = t98;
-    P_new[22] = t99;
-    P_new[528] = t99;
-    P_new[23] = t100;
-    P_new[552] = t100;
-    #endif
-    const double t101 = DERIVE_FMA(t3, t30, P[25]);
-    const double t102 = DERIVE_FMA(t30, t4, P[26]);
-    const double t103 = DERIVE_FMA(t30, t5, P[27]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t104 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t6, ((derive_vd){P[28], P[29], P[30], P[31]}));
-    #else
-    const double t104 = DERIVE_FMA(t30, t6, P[28]);
-    const double t105 = DERIVE_FMA(t30, t7, P[29]);
-    const double t106 = DERIVE_FMA(t30, t8, P[30]);
-    const double t107 = DERIVE_FMA(t30, t9, P[31]);
-    P_new[28] = t104;
-    P_new[97] = t104;
-    P_new[29] = t105;
-    P_new[121] = t105;
-    P_new[30] = t106;
-    P_new[145] = t106;
-    P_new[31] = t107;
-    P_new[169] = t107;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t108 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t10, ((derive_vd){P[32], P[33], P[34], P[35]}));
-    #else
-    const double t108 = DERIVE_FMA(t30, t10, P[32]);
-    const double t109 = DERIVE_FMA(t30, t11, P[33]);
-    const double t110 = DERIVE_FMA(t30, t12, P[34]);
-    const double t111 = DERIVE_FMA(t30, t13, P[35]);
-    P_new[32] = t108;
-    P_new[193] = t108;
-    P_new[33] = t109;
-    P_new[217] = t109;
-    P_new[34] = t110;
-    P_new[241] = t110;
-    P_new[35] = t111;
-    P_new[265] = t111;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t112 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t14, ((derive_vd){P[36], P[37], P[38], P[39]}));
-    #else
-    const double t112 = DERIVE_FMA(t30, t14, P[36]);
-    const double t113 = DERIVE_FMA(t30, t15, P[37]);
-    const double t114 = DERIVE_FMA(t30, t16, P[38]);
-    const double t115 = DERIVE_FMA(t30, t17, P[39]);
-    P_new[36] = t112;
-    P_new[289] = t112;
-    P_new[37] = t113;
-    P_new[313] = t113;
-    P_new[38] = t114;
-    P_new[337] = t114;
-    P_new[39] = t115;
-    P_new[361] = t115;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t116 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t18, ((derive_vd){P[40], P[41], P[42], P[43]}));
-    #else
-    const double t116 = DERIVE_FMA(t30, t18, P[40]);
-    const double t117 = DERIVE_FMA(t30, t19, P[41]);
-    const double t118 = DERIVE_FMA(t30, t20, P[42]);
-    const double t119 = DERIVE_FMA(t30, t21, P[43]);
-    P_new[40] = t116;
-    P_new[385] = t116;
-    P_new[41] = t117;
-    P_new[409] = t117;
-    P_new[42] = t118;
-    P_new[433] = t118;
-    P_new[43] = t119;
-    P_new[457] = t119;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t22, ((derive_vd){P[44], P[45], P[46], P[47]}));
-    #else
-    const double t120 = DERIVE_FMA(t30, t22, P[44]);
-    const double t121 = DERIVE_FMA(t30, t23, P[45]);
-    const double t122 = DERIVE_FMA(t30, t24, P[46]);
-    const double t123 = DERIVE_FMA(t30, t25, P[47]);
-    P_new[44] = t120;
-    P_new[481] = t120;
-    P_new[45] = t121;
-    P_new[505] = t121;
-    P_new[46] = t122;
-    P_new[529] = t122;
-    P_new[47] = t123;
-    P_new[553] = t123;
-    #endif
-    const double t124 = DERIVE_FMA(t31, t4, P[50]);
-    const double t125 = DERIVE_FMA(t31, t5, P[51]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t126 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t6, ((derive_vd){P[52], P[53], P[54], P[55]}));
-    #else
-    const double t126 = DERIVE_FMA(t31, t6, P[52]);
-    const double t127 = DERIVE_FMA(t31, t7, P[53]);
-    const double t128 = DERIVE_FMA(t31, t8, P[54]);
-    const double t129 = DERIVE_FMA(t31, t9, P[55]);
-    P_new[52] = t126;
-    P_new[98] = t126;
-    P_new[53] = t127;
-    P_new[122] = t127;
-    P_new[54] = t128;
-    P_new[146] = t128;
-    P_new[55] = t129;
-    P_new[170] = t129;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
-    #else
-    const double t130 = DERIVE_FMA(t31, t10, P[56]);
-    const double t131 = DERIVE_FMA(t31, t11, P[57]);
-    const double t132 = DERIVE_FMA(t31, t12, P[58]);
-    const double t133 = DERIVE_FMA(t31, t13, P[59]);
-    P_new[56] = t130;
-    P_new[194] = t130;
-    P_new[57] = t131;
-    P_new[218] = t131;
-    P_new[58] = t132;
-    P_new[242] = t132;
-    P_new[59] = t133;
-    P_new[266] = t133;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t134 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
-    #else
-    const double t134 = DERIVE_FMA(t31, t14, P[60]);
-    const double t135 = DERIVE_FMA(t31, t15, P[61]);
-    const double t136 = DERIVE_FMA(t31, t16, P[62]);
-    const double t137 = DERIVE_FMA(t31, t17, P[63]);
-    P_new[60] = t134;
-    P_new[290] = t134;
-    P_new[61] = t135;
-    P_new[314] = t135;
-    P_new[62] = t136;
-    P_new[338] = t136;
-    P_new[63] = t137;
-    P_new[362] = t137;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t138 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t18, ((derive_vd){P[64], P[65], P[66], P[67]}));
-    #else
-    const double t138 = DERIVE_FMA(t31, t18, P[64]);
-    const double t139 = DERIVE_FMA(t31, t19, P[65]);
-    const double t140 = DERIVE_FMA(t31, t20, P[66]);
-    const double t141 = DERIVE_FMA(t31, t21, P[67]);
-    P_new[64] = t138;
-    P_new[386] = t138;
-    P_new[65] = t139;
-    P_new[410] = t139;
-    P_new[66] = t140;
-    P_new[434] = t140;
-    P_new[67] = t141;
-    P_new[458] = t141;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t142 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t22, ((derive_vd){P[68], P[69], P[70], P[71]}));
-    #else
-    const double t142 = DERIVE_FMA(t31, t22, P[68]);
-    const double t143 = DERIVE_FMA(t31, t23, P[69]);
-    const double t144 = DERIVE_FMA(t31, t24, P[70]);
-    const double t145 = DERIVE_FMA(t31, t25, P[71]);
-    P_new[68] = t142;
-    P_new[482] = t142;
-    P_new[69] = t143;
-    P_new[506] = t143;
-    P_new[70] = t144;
-    P_new[530] = t144;
-    P_new[71] = t145;
-    P_new[554] = t145;
-    #endif
-    const double t146 = DERIVE_FMA(t32, t5, P[75]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t6, ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd tr_v_t81_0 = __builtin_shufflevector(v_t81, v_t104, 0, 4, 2, 6);
-    const derive_vd tr_v_t81_1 = __builtin_shufflevector(v_t81, v_t104, 1, 5, 3, 7);
-    const derive_vd tr_v_t81_2 = __builtin_shufflevector(v_t126, v_t147, 0, 4, 2, 6);
-    const derive_vd tr_v_t81_3 = __builtin_shufflevector(v_t126, v_t147, 1, 5, 3, 7);
-    const derive_vd tr_v_t81_c0 = __builtin_shufflevector(tr_v_t81_0, tr_v_t81_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t81_c1 = __builtin_shufflevector(tr_v_t81_1, tr_v_t81_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t81_c2 = __builtin_shufflevector(tr_v_t81_0, tr_v_t81_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t81_c3 = __builtin_shufflevector(tr_v_t81_1, tr_v_t81_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[4] = v_t81;
-    *(derive_vd_unaligned *)&P_new[28] = v_t104;
-    *(derive_vd_unaligned *)&P_new[52] = v_t126;
-    *(derive_vd_unaligned *)&P_new[76] = v_t147;
-    *(derive_vd_unaligned *)&P_new[96] = tr_v_t81_c0;
-    *(derive_vd_unaligned *)&P_new[120] = tr_v_t81_c1;
-    *(derive_vd_unaligned *)&P_new[144] = tr_v_t81_c2;
-    *(derive_vd_unaligned *)&P_new[168] = tr_v_t81_c3;
-    #else
-    const double t147 = DERIVE_FMA(t32, t6, P[76]);
-    const double t148 = DERIVE_FMA(t32, t7, P[77]);
-    const double t149 = DERIVE_FMA(t32, t8, P[78]);
-    const double t150 = DERIVE_FMA(t32, t9, P[79]);
-    P_new[76] = t147;
-    P_new[99] = t147;
-    P_new[77] = t148;
-    P_new[123] = t148;
-    P_new[78] = t149;
-    P_new[147] = t149;
-    P_new[79] = t150;
-    P_new[171] = t150;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t10, ((derive_vd){P[80], P[81], P[82], P[83]}));
-    const derive_vd tr_v_t85_0 = __builtin_shufflevector(v_t85, v_t108, 0, 4, 2, 6);
-    const derive_vd tr_v_t85_1 = __builtin_shufflevector(v_t85, v_t108, 1, 5, 3, 7);
-    const derive_vd tr_v_t85_2 = __builtin_shufflevector(v_t130, v_t151, 0, 4, 2, 6);
-    const derive_vd tr_v_t85_3 = __builtin_shufflevector(v_t130, v_t151, 1, 5, 3, 7);
-    const derive_vd tr_v_t85_c0 = __builtin_shufflevector(tr_v_t85_0, tr_v_t85_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t85_c1 = __builtin_shufflevector(tr_v_t85_1, tr_v_t85_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t85_c2 = __builtin_shufflevector(tr_v_t85_0, tr_v_t85_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t85_c3 = __builtin_shufflevector(tr_v_t85_1, tr_v_t85_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[8] = v_t85;
-    *(derive_vd_unaligned *)&P_new[32] = v_t108;
-    *(derive_vd_unaligned *)&P_new[56] = v_t130;
-    *(derive_vd_unaligned *)&P_new[80] = v_t151;
-    *(derive_vd_unaligned *)&P_new[192] = tr_v_t85_c0;
-    *(derive_vd_unaligned *)&P_new[216] = tr_v_t85_c1;
-    *(derive_vd_unaligned *)&P_new[240] = tr_v_t85_c2;
-    *(derive_vd_unaligned *)&P_new[264] = tr_v_t85_c3;
-    #else
-    const double t151 = DERIVE_FMA(t32, t10, P[80]);
-    const double t152 = DERIVE_FMA(t32, t11, P[81]);
-    const double t153 = DERIVE_FMA(t32, t12, P[82]);
-    const double t154 = DERIVE_FMA(t32, t13, P[83]);
-    P_new[80] = t151;
-    P_new[195] = t151;
-    P_new[81] = t152;
-    P_new[219] = t152;
-    P_new[82] = t153;
-    P_new[243] = t153;
-    P_new[83] = t154;
-    P_new[267] = t154;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t14, ((derive_vd){P[84], P[85], P[86], P[87]}));
-    const derive_vd tr_v_t89_0 = __builtin_shufflevector(v_t89, v_t112, 0, 4, 2, 6);
-    const derive_vd tr_v_t89_1 = __builtin_shufflevector(v_t89, v_t112, 1, 5, 3, 7);
-    const derive_vd tr_v_t89_2 = __builtin_shufflevector(v_t134, v_t155, 0, 4, 2, 6);
-    const derive_vd tr_v_t89_3 = __builtin_shufflevector(v_t134, v_t155, 1, 5, 3, 7);
-    const derive_vd tr_v_t89_c0 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t89_c1 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t89_c2 = __builtin_shufflevector(tr_v_t89_0, tr_v_t89_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t89_c3 = __builtin_shufflevector(tr_v_t89_1, tr_v_t89_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[12] = v_t89;
-    *(derive_vd_unaligned *)&P_new[36] = v_t112;
-    *(derive_vd_unaligned *)&P_new[60] = v_t134;
-    *(derive_vd_unaligned *)&P_new[84] = v_t155;
-    *(derive_vd_unaligned *)&P_new[288] = tr_v_t89_c0;
-    *(derive_vd_unaligned *)&P_new[312] = tr_v_t89_c1;
-    *(derive_vd_unaligned *)&P_new[336] = tr_v_t89_c2;
-    *(derive_vd_unaligned *)&P_new[360] = tr_v_t89_c3;
-    #else
-    const double t155 = DERIVE_FMA(t32, t14, P[84]);
-    const double t156 = DERIVE_FMA(t32, t15, P[85]);
-    const double t157 = DERIVE_FMA(t32, t16, P[86]);
-    const double t158 = DERIVE_FMA(t32, t17, P[87]);
-    P_new[84] = t155;
-    P_new[291] = t155;
-    P_new[85] = t156;
-    P_new[315] = t156;
-    P_new[86] = t157;
-    P_new[339] = t157;
-    P_new[87] = t158;
-    P_new[363] = t158;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t18, ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd tr_v_t93_0 = __builtin_shufflevector(v_t93, v_t116, 0, 4, 2, 6);
-    const derive_vd tr_v_t93_1 = __builtin_shufflevector(v_t93, v_t116, 1, 5, 3, 7);
-    const derive_vd tr_v_t93_2 = __builtin_shufflevector(v_t138, v_t159, 0, 4, 2, 6);
-    const derive_vd tr_v_t93_3 = __builtin_shufflevector(v_t138, v_t159, 1, 5, 3, 7);
-    const derive_vd tr_v_t93_c0 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t93_c1 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t93_c2 = __builtin_shufflevector(tr_v_t93_0, tr_v_t93_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t93_c3 = __builtin_shufflevector(tr_v_t93_1, tr_v_t93_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[16] = v_t93;
-    *(derive_vd_unaligned *)&P_new[40] = v_t116;
-    *(derive_vd_unaligned *)&P_new[64] = v_t138;
-    *(derive_vd_unaligned *)&P_new[88] = v_t159;
-    *(derive_vd_unaligned *)&P_new[384] = tr_v_t93_c0;
-    *(derive_vd_unaligned *)&P_new[408] = tr_v_t93_c1;
-    *(derive_vd_unaligned *)&P_new[432] = tr_v_t93_c2;
-    *(derive_vd_unaligned *)&P_new[456] = tr_v_t93_c3;
-    #else
-    const double t159 = DERIVE_FMA(t32, t18, P[88]);
-    const double t160 = DERIVE_FMA(t32, t19, P[89]);
-    const double t161 = DERIVE_FMA(t32, t20, P[90]);
-    const double t162 = DERIVE_FMA(t32, t21, P[91]);
-    P_new[88] = t159;
-    P_new[387] = t159;
-    P_new[89] = t160;
-    P_new[411] = t160;
-    P_new[90] = t161;
-    P_new[435] = t161;
-    P_new[91] = t162;
-    P_new[459] = t162;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t22, ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd tr_v_t97_0 = __builtin_shufflevector(v_t97, v_t120, 0, 4, 2, 6);
-    const derive_vd tr_v_t97_1 = __builtin_shufflevector(v_t97, v_t120, 1, 5, 3, 7);
-    const derive_vd tr_v_t97_2 = __builtin_shufflevector(v_t142, v_t163, 0, 4, 2, 6);
-    const derive_vd tr_v_t97_3 = __builtin_shufflevector(v_t142, v_t163, 1, 5, 3, 7);
-    const derive_vd tr_v_t97_c0 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t97_c1 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t97_c2 = __builtin_shufflevector(tr_v_t97_0, tr_v_t97_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t97_c3 = __builtin_shufflevector(tr_v_t97_1, tr_v_t97_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[20] = v_t97;
-    *(derive_vd_unaligned *)&P_new[44] = v_t120;
-    *(derive_vd_unaligned *)&P_new[68] = v_t142;
-    *(derive_vd_unaligned *)&P_new[92] = v_t163;
-    *(derive_vd_unaligned *)&P_new[480] = tr_v_t97_c0;
-    *(derive_vd_unaligned *)&P_new[504] = tr_v_t97_c1;
-    *(derive_vd_unaligned *)&P_new[528] = tr_v_t97_c2;
-    *(derive_vd_unaligned *)&P_new[552] = tr_v_t97_c3;
-    #else
-    const double t163 = DERIVE_FMA(t32, t22, P[92]);
-    const double t164 = DERIVE_FMA(t32, t23, P[93]);
-    const double t165 = DERIVE_FMA(t32, t24, P[94]);
-    const double t166 = DERIVE_FMA(t32, t25, P[95]);
-    P_new[92] = t163;
-    P_new[483] = t163;
-    P_new[93] = t164;
-    P_new[507] = t164;
-    P_new[94] = t165;
-    P_new[531] = t165;
-    P_new[95] = t166;
-    P_new[555] = t166;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t167 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t6, ((derive_vd){P[100], P[101], P[102], P[103]}));
-    const double t168 = v_t167[1];
-    const double t169 = v_t167[2];
-    const double t170 = v_t167[3];
-    *(derive_vd_unaligned *)&P_new[100] = v_t167;
-    #else
-    const double t167 = DERIVE_FMA(t33, t6, P[100]);
-    const double t168 = DERIVE_FMA(t33, t7, P[101]);
-    const double t169 = DERIVE_FMA(t33, t8, P[102]);
-    const double t170 = DERIVE_FMA(t33, t9, P[103]);
-    P_new[100] = t167;
-    P_new[101] = t168;
-    P_new[124] = t168;
-    P_new[102] = t169;
-    P_new[148] = t169;
-    P_new[103] = t170;
-    P_new[172] = t170;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t171 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t10, ((derive_vd){P[104], P[105], P[106], P[107]}));
-    #else
-    const double t171 = DERIVE_FMA(t33, t10, P[104]);
-    const double t172 = DERIVE_FMA(t33, t11, P[105]);
-    const double t173 = DERIVE_FMA(t33, t12, P[106]);
-    const double t174 = DERIVE_FMA(t33, t13, P[107]);
-    P_new[104] = t171;
-    P_new[196] = t171;
-    P_new[105] = t172;
-    P_new[220] = t172;
-    P_new[106] = t173;
-    P_new[244] = t173;
-    P_new[107] = t174;
-    P_new[268] = t174;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
-    #else
-    const double t175 = DERIVE_FMA(t33, t14, P[108]);
-    const double t176 = DERIVE_FMA(t33, t15, P[109]);
-    const double t177 = DERIVE_FMA(t33, t16, P[110]);
-    const double t178 = DERIVE_FMA(t33, t17, P[111]);
-    P_new[108] = t175;
-    P_new[292] = t175;
-    P_new[109] = t176;
-    P_new[316] = t176;
-    P_new[110] = t177;
-    P_new[340] = t177;
-    P_new[111] = t178;
-    P_new[364] = t178;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t18, ((derive_vd){P[112], P[113], P[114], P[115]}));
-    #else
-    const double t179 = DERIVE_FMA(t33, t18, P[112]);
-    const double t180 = DERIVE_FMA(t33, t19, P[113]);
-    const double t181 = DERIVE_FMA(t33, t20, P[114]);
-    const double t182 = DERIVE_FMA(t33, t21, P[115]);
-    P_new[112] = t179;
-    P_new[388] = t179;
-    P_new[113] = t180;
-    P_new[412] = t180;
-    P_new[114] = t181;
-    P_new[436] = t181;
-    P_new[115] = t182;
-    P_new[460] = t182;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t183 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t22, ((derive_vd){P[116], P[117], P[118], P[119]}));
-    #else
-    const double t183 = DERIVE_FMA(t33, t22, P[116]);
-    const double t184 = DERIVE_FMA(t33, t23, P[117]);
-    const double t185 = DERIVE_FMA(t33, t24, P[118]);
-    const double t186 = DERIVE_FMA(t33, t25, P[119]);
-    P_new[116] = t183;
-    P_new[484] = t183;
-    P_new[117] = t184;
-    P_new[508] = t184;
-    P_new[118] = t185;
-    P_new[532] = t185;
-    P_new[119] = t186;
-    P_new[556] = t186;
-    #endif
-    const double t187 = DERIVE_FMA(t34, t7, P[125]);
-    const double t188 = DERIVE_FMA(t34, t8, P[126]);
-    const double t189 = DERIVE_FMA(t34, t9, P[127]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t190 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t10, ((derive_vd){P[128], P[129], P[130], P[131]}));
-    #else
-    const double t190 = DERIVE_FMA(t34, t10, P[128]);
-    const double t191 = DERIVE_FMA(t34, t11, P[129]);
-    const double t192 = DERIVE_FMA(t34, t12, P[130]);
-    const double t193 = DERIVE_FMA(t34, t13, P[131]);
-    P_new[128] = t190;
-    P_new[197] = t190;
-    P_new[129] = t191;
-    P_new[221] = t191;
-    P_new[130] = t192;
-    P_new[245] = t192;
-    P_new[131] = t193;
-    P_new[269] = t193;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t194 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t14, ((derive_vd){P[132], P[133], P[134], P[135]}));
-    #else
-    const double t194 = DERIVE_FMA(t34, t14, P[132]);
-    const double t195 = DERIVE_FMA(t34, t15, P[133]);
-    const double t196 = DERIVE_FMA(t34, t16, P[134]);
-    const double t197 = DERIVE_FMA(t34, t17, P[135]);
-    P_new[132] = t194;
-    P_new[293] = t194;
-    P_new[133] = t195;
-    P_new[317] = t195;
-    P_new[134] = t196;
-    P_new[341] = t196;
-    P_new[135] = t197;
-    P_new[365] = t197;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t198 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t18, ((derive_vd){P[136], P[137], P[138], P[139]}));
-    #else
-    const double t198 = DERIVE_FMA(t34, t18, P[136]);
-    const double t199 = DERIVE_FMA(t34, t19, P[137]);
-    const double t200 = DERIVE_FMA(t34, t20, P[138]);
-    const double t201 = DERIVE_FMA(t34, t21, P[139]);
-    P_new[136] = t198;
-    P_new[389] = t198;
-    P_new[137] = t199;
-    P_new[413] = t199;
-    P_new[138] = t200;
-    P_new[437] = t200;
-    P_new[139] = t201;
-    P_new[461] = t201;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t202 = DERIVE_VFMA(((derive_vd){t34, t34, t34, t34}), v_t22, ((derive_vd){P[140], P[141], P[142], P[143]}));
-    #else
-    const double t202 = DERIVE_FMA(t34, t22, P[140]);
-    const double t203 = DERIVE_FMA(t34, t23, P[141]);
-    const double t204 = DERIVE_FMA(t34, t24, P[142]);
-    const double t205 = DERIVE_FMA(t34, t25, P[143]);
-    P_new[140] = t202;
-    P_new[485] = t202;
-    P_new[141] = t203;
-    P_new[509] = t203;
-    P_new[142] = t204;
-    P_new[533] = t204;
-    P_new[143] = t205;
-    P_new[557] = t205;
-    #endif
-    const double t206 = DERIVE_FMA(t35, t8, P[150]);
-    const double t207 = DERIVE_FMA(t35, t9, P[151]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t208 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t10, ((derive_vd){P[152], P[153], P[154], P[155]}));
-    #else
-    const double t208 = DERIVE_FMA(t35, t10, P[152]);
-    const double t209 = DERIVE_FMA(t35, t11, P[153]);
-    const double t210 = DERIVE_FMA(t35, t12, P[154]);
-    const double t211 = DERIVE_FMA(t35, t13, P[155]);
-    P_new[152] = t208;
-    P_new[198] = t208;
-    P_new[153] = t209;
-    P_new[222] = t209;
-    P_new[154] = t210;
-    P_new[246] = t210;
-    P_new[155] = t211;
-    P_new[270] = t211;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t212 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t14, ((derive_vd){P[156], P[157], P[158], P[159]}));
-    #else
-    const double t212 = DERIVE_FMA(t35, t14, P[156]);
-    const double t213 = DERIVE_FMA(t35, t15, P[157]);
-    const double t214 = DERIVE_FMA(t35, t16, P[158]);
-    const double t215 = DERIVE_FMA(t35, t17, P[159]);
-    P_new[156] = t212;
-    P_new[294] = t212;
-    P_new[157] = t213;
-    P_new[318] = t213;
-    P_new[158] = t214;
-    P_new[342] = t214;
-    P_new[159] = t215;
-    P_new[366] = t215;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t216 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t18, ((derive_vd){P[160], P[161], P[162], P[163]}));
-    #else
-    const double t216 = DERIVE_FMA(t35, t18, P[160]);
-    const double t217 = DERIVE_FMA(t35, t19, P[161]);
-    const double t218 = DERIVE_FMA(t35, t20, P[162]);
-    const double t219 = DERIVE_FMA(t35, t21, P[163]);
-    P_new[160] = t216;
-    P_new[390] = t216;
-    P_new[161] = t217;
-    P_new[414] = t217;
-    P_new[162] = t218;
-    P_new[438] = t218;
-    P_new[163] = t219;
-    P_new[462] = t219;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t220 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t22, ((derive_vd){P[164], P[165], P[166], P[167]}));
-    #else
-    const double t220 = DERIVE_FMA(t35, t22, P[164]);
-    const double t221 = DERIVE_FMA(t35, t23, P[165]);
-    const double t222 = DERIVE_FMA(t35, t24, P[166]);
-    const double t223 = DERIVE_FMA(t35, t25, P[167]);
-    P_new[164] = t220;
-    P_new[486] = t220;
-    P_new[165] = t221;
-    P_new[510] = t221;
-    P_new[166] = t222;
-    P_new[534] = t222;
-    P_new[167] = t223;
-    P_new[558] = t223;
-    #endif
-    const double t224 = DERIVE_FMA(t36, t9, P[175]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t10, ((derive_vd){P[176], P[177], P[178], P[179]}));
-    const derive_vd tr_v_t171_0 = __builtin_shufflevector(v_t171, v_t190, 0, 4, 2, 6);
-    const derive_vd tr_v_t171_1 = __builtin_shufflevector(v_t171, v_t190, 1, 5, 3, 7);
-    const derive_vd tr_v_t171_2 = __builtin_shufflevector(v_t208, v_t225, 0, 4, 2, 6);
-    const derive_vd tr_v_t171_3 = __builtin_shufflevector(v_t208, v_t225, 1, 5, 3, 7);
-    const derive_vd tr_v_t171_c0 = __builtin_shufflevector(tr_v_t171_0, tr_v_t171_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t171_c1 = __builtin_shufflevector(tr_v_t171_1, tr_v_t171_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t171_c2 = __builtin_shufflevector(tr_v_t171_0, tr_v_t171_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t171_c3 = __builtin_shufflevector(tr_v_t171_1, tr_v_t171_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[104] = v_t171;
-    *(derive_vd_unaligned *)&P_new[128] = v_t190;
-    *(derive_vd_unaligned *)&P_new[152] = v_t208;
-    *(derive_vd_unaligned *)&P_new[176] = v_t225;
-    *(derive_vd_unaligned *)&P_new[196] = tr_v_t171_c0;
-    *(derive_vd_unaligned *)&P_new[220] = tr_v_t171_c1;
-    *(derive_vd_unaligned *)&P_new[244] = tr_v_t171_c2;
-    *(derive_vd_unaligned *)&P_new[268] = tr_v_t171_c3;
-    #else
-    const double t225 = DERIVE_FMA(t36, t10, P[176]);
-    const double t226 = DERIVE_FMA(t36, t11, P[177]);
-    const double t227 = DERIVE_FMA(t36, t12, P[178]);
-    const double t228 = DERIVE_FMA(t36, t13, P[179]);
-    P_new[176] = t225;
-    P_new[199] = t225;
-    P_new[177] = t226;
-    P_new[223] = t226;
-    P_new[178] = t227;
-    P_new[247] = t227;
-    P_new[179] = t228;
-    P_new[271] = t228;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t14, ((derive_vd){P[180], P[181], P[182], P[183]}));
-    const derive_vd tr_v_t175_0 = __builtin_shufflevector(v_t175, v_t194, 0, 4, 2, 6);
-    const derive_vd tr_v_t175_1 = __builtin_shufflevector(v_t175, v_t194, 1, 5, 3, 7);
-    const derive_vd tr_v_t175_2 = __builtin_shufflevector(v_t212, v_t229, 0, 4, 2, 6);
-    const derive_vd tr_v_t175_3 = __builtin_shufflevector(v_t212, v_t229, 1, 5, 3, 7);
-    const derive_vd tr_v_t175_c0 = __builtin_shufflevector(tr_v_t175_0, tr_v_t175_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t175_c1 = __builtin_shufflevector(tr_v_t175_1, tr_v_t175_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t175_c2 = __builtin_shufflevector(tr_v_t175_0, tr_v_t175_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t175_c3 = __builtin_shufflevector(tr_v_t175_1, tr_v_t175_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[108] = v_t175;
-    *(derive_vd_unaligned *)&P_new[132] = v_t194;
-    *(derive_vd_unaligned *)&P_new[156] = v_t212;
-    *(derive_vd_unaligned *)&P_new[180] = v_t229;
-    *(derive_vd_unaligned *)&P_new[292] = tr_v_t175_c0;
-    *(derive_vd_unaligned *)&P_new[316] = tr_v_t175_c1;
-    *(derive_vd_unaligned *)&P_new[340] = tr_v_t175_c2;
-    *(derive_vd_unaligned *)&P_new[364] = tr_v_t175_c3;
-    #else
-    const double t229 = DERIVE_FMA(t36, t14, P[180]);
-    const double t230 = DERIVE_FMA(t36, t15, P[181]);
-    const double t231 = DERIVE_FMA(t36, t16, P[182]);
-    const double t232 = DERIVE_FMA(t36, t17, P[183]);
-    P_new[180] = t229;
-    P_new[295] = t229;
-    P_new[181] = t230;
-    P_new[319] = t230;
-    P_new[182] = t231;
-    P_new[343] = t231;
-    P_new[183] = t232;
-    P_new[367] = t232;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t233 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t18, ((derive_vd){P[184], P[185], P[186], P[187]}));
-    const derive_vd tr_v_t179_0 = __builtin_shufflevector(v_t179, v_t198, 0, 4, 2, 6);
-    const derive_vd tr_v_t179_1 = __builtin_shufflevector(v_t179, v_t198, 1, 5, 3, 7);
-    const derive_vd tr_v_t179_2 = __builtin_shufflevector(v_t216, v_t233, 0, 4, 2, 6);
-    const derive_vd tr_v_t179_3 = __builtin_shufflevector(v_t216, v_t233, 1, 5, 3, 7);
-    const derive_vd tr_v_t179_c0 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t179_c1 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t179_c2 = __builtin_shufflevector(tr_v_t179_0, tr_v_t179_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t179_c3 = __builtin_shufflevector(tr_v_t179_1, tr_v_t179_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[112] = v_t179;
-    *(derive_vd_unaligned *)&P_new[136] = v_t198;
-    *(derive_vd_unaligned *)&P_new[160] = v_t216;
-    *(derive_vd_unaligned *)&P_new[184] = v_t233;
-    *(derive_vd_unaligned *)&P_new[388] = tr_v_t179_c0;
-    *(derive_vd_unaligned *)&P_new[412] = tr_v_t179_c1;
-    *(derive_vd_unaligned *)&P_new[436] = tr_v_t179_c2;
-    *(derive_vd_unaligned *)&P_new[460] = tr_v_t179_c3;
-    #else
-    const double t233 = DERIVE_FMA(t36, t18, P[184]);
-    const double t234 = DERIVE_FMA(t36, t19, P[185]);
-    const double t235 = DERIVE_FMA(t36, t20, P[186]);
-    const double t236 = DERIVE_FMA(t36, t21, P[187]);
-    P_new[184] = t233;
-    P_new[391] = t233;
-    P_new[185] = t234;
-    P_new[415] = t234;
-    P_new[186] = t235;
-    P_new[439] = t235;
-    P_new[187] = t236;
-    P_new[463] = t236;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t237 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t22, ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd tr_v_t183_0 = __builtin_shufflevector(v_t183, v_t202, 0, 4, 2, 6);
-    const derive_vd tr_v_t183_1 = __builtin_shufflevector(v_t183, v_t202, 1, 5, 3, 7);
-    const derive_vd tr_v_t183_2 = __builtin_shufflevector(v_t220, v_t237, 0, 4, 2, 6);
-    const derive_vd tr_v_t183_3 = __builtin_shufflevector(v_t220, v_t237, 1, 5, 3, 7);
-    const derive_vd tr_v_t183_c0 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t183_c1 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t183_c2 = __builtin_shufflevector(tr_v_t183_0, tr_v_t183_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t183_c3 = __builtin_shufflevector(tr_v_t183_1, tr_v_t183_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[116] = v_t183;
-    *(derive_vd_unaligned *)&P_new[140] = v_t202;
-    *(derive_vd_unaligned *)&P_new[164] = v_t220;
-    *(derive_vd_unaligned *)&P_new[188] = v_t237;
-    *(derive_vd_unaligned *)&P_new[484] = tr_v_t183_c0;
-    *(derive_vd_unaligned *)&P_new[508] = tr_v_t183_c1;
-    *(derive_vd_unaligned *)&P_new[532] = tr_v_t183_c2;
-    *(derive_vd_unaligned *)&P_new[556] = tr_v_t183_c3;
-    #else
-    const double t237 = DERIVE_FMA(t36, t22, P[188]);
-    const double t238 = DERIVE_FMA(t36, t23, P[189]);
-    const double t239 = DERIVE_FMA(t36, t24, P[190]);
-    const double t240 = DERIVE_FMA(t36, t25, P[191]);
-    P_new[188] = t237;
-    P_new[487] = t237;
-    P_new[189] = t238;
-    P_new[511] = t238;
-    P_new[190] = t239;
-    P_new[535] = t239;
-    P_new[191] = t240;
-    P_new[559] = t240;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t241 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t10, ((derive_vd){P[200], P[201], P[202], P[203]}));
-    const double t242 = v_t241[1];
-    const double t243 = v_t241[2];
-    const double t244 = v_t241[3];
-    *(derive_vd_unaligned *)&P_new[200] = v_t241;
-    #else
-    const double t241 = DERIVE_FMA(t37, t10, P[200]);
-    const double t242 = DERIVE_FMA(t37, t11, P[201]);
-    const double t243 = DERIVE_FMA(t37, t12, P[202]);
-    const double t244 = DERIVE_FMA(t37, t13, P[203]);
-    P_new[200] = t241;
-    P_new[201] = t242;
-    P_new[224] = t242;
-    P_new[202] = t243;
-    P_new[248] = t243;
-    P_new[203] = t244;
-    P_new[272] = t244;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t245 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
-    #else
-    const double t245 = DERIVE_FMA(t37, t14, P[204]);
-    const double t246 = DERIVE_FMA(t37, t15, P[205]);
-    const double t247 = DERIVE_FMA(t37, t16, P[206]);
-    const double t248 = DERIVE_FMA(t37, t17, P[207]);
-    P_new[204] = t245;
-    P_new[296] = t245;
-    P_new[205] = t246;
-    P_new[320] = t246;
-    P_new[206] = t247;
-    P_new[344] = t247;
-    P_new[207] = t248;
-    P_new[368] = t248;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t249 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t18, ((derive_vd){P[208], P[209], P[210], P[211]}));
-    #else
-    const double t249 = DERIVE_FMA(t37, t18, P[208]);
-    const double t250 = DERIVE_FMA(t37, t19, P[209]);
-    const double t251 = DERIVE_FMA(t37, t20, P[210]);
-    const double t252 = DERIVE_FMA(t37, t21, P[211]);
-    P_new[208] = t249;
-    P_new[392] = t249;
-    P_new[209] = t250;
-    P_new[416] = t250;
-    P_new[210] = t251;
-    P_new[440] = t251;
-    P_new[211] = t252;
-    P_new[464] = t252;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t253 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t22, ((derive_vd){P[212], P[213], P[214], P[215]}));
-    #else
-    const double t253 = DERIVE_FMA(t37, t22, P[212]);
-    const double t254 = DERIVE_FMA(t37, t23, P[213]);
-    const double t255 = DERIVE_FMA(t37, t24, P[214]);
-    const double t256 = DERIVE_FMA(t37, t25, P[215]);
-    P_new[212] = t253;
-    P_new[488] = t253;
-    P_new[213] = t254;
-    P_new[512] = t254;
-    P_new[214] = t255;
-    P_new[536] = t255;
-    P_new[215] = t256;
-    P_new[560] = t256;
-    #endif
-    const double t257 = DERIVE_FMA(t11, t38, P[225]);
-    const double t258 = DERIVE_FMA(t12, t38, P[226]);
-    const double t259 = DERIVE_FMA(t13, t38, P[227]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t260 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t14, ((derive_vd){P[228], P[229], P[230], P[231]}));
-    #else
-    const double t260 = DERIVE_FMA(t38, t14, P[228]);
-    const double t261 = DERIVE_FMA(t38, t15, P[229]);
-    const double t262 = DERIVE_FMA(t38, t16, P[230]);
-    const double t263 = DERIVE_FMA(t38, t17, P[231]);
-    P_new[228] = t260;
-    P_new[297] = t260;
-    P_new[229] = t261;
-    P_new[321] = t261;
-    P_new[230] = t262;
-    P_new[345] = t262;
-    P_new[231] = t263;
-    P_new[369] = t263;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t264 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t18, ((derive_vd){P[232], P[233], P[234], P[235]}));
-    #else
-    const double t264 = DERIVE_FMA(t38, t18, P[232]);
-    const double t265 = DERIVE_FMA(t38, t19, P[233]);
-    const double t266 = DERIVE_FMA(t38, t20, P[234]);
-    const double t267 = DERIVE_FMA(t38, t21, P[235]);
-    P_new[232] = t264;
-    P_new[393] = t264;
-    P_new[233] = t265;
-    P_new[417] = t265;
-    P_new[234] = t266;
-    P_new[441] = t266;
-    P_new[235] = t267;
-    P_new[465] = t267;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t268 = DERIVE_VFMA(((derive_vd){t38, t38, t38, t38}), v_t22, ((derive_vd){P[236], P[237], P[238], P[239]}));
-    #else
-    const double t268 = DERIVE_FMA(t38, t22, P[236]);
-    const double t269 = DERIVE_FMA(t38, t23, P[237]);
-    const double t270 = DERIVE_FMA(t38, t24, P[238]);
-    const double t271 = DERIVE_FMA(t38, t25, P[239]);
-    P_new[236] = t268;
-    P_new[489] = t268;
-    P_new[237] = t269;
-    P_new[513] = t269;
-    P_new[238] = t270;
-    P_new[537] = t270;
-    P_new[239] = t271;
-    P_new[561] = t271;
-    #endif
-    const double t272 = DERIVE_FMA(t12, t39, P[250]);
-    const double t273 = DERIVE_FMA(t13, t39, P[251]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t274 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t14, ((derive_vd){P[252], P[253], P[254], P[255]}));
-    #else
-    const double t274 = DERIVE_FMA(t39, t14, P[252]);
-    const double t275 = DERIVE_FMA(t39, t15, P[253]);
-    const double t276 = DERIVE_FMA(t39, t16, P[254]);
-    const double t277 = DERIVE_FMA(t39, t17, P[255]);
-    P_new[252] = t274;
-    P_new[298] = t274;
-    P_new[253] = t275;
-    P_new[322] = t275;
-    P_new[254] = t276;
-    P_new[346] = t276;
-    P_new[255] = t277;
-    P_new[370] = t277;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t278 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t18, ((derive_vd){P[256], P[257], P[258], P[259]}));
-    #else
-    const double t278 = DERIVE_FMA(t39, t18, P[256]);
-    const double t279 = DERIVE_FMA(t39, t19, P[257]);
-    const double t280 = DERIVE_FMA(t39, t20, P[258]);
-    const double t281 = DERIVE_FMA(t39, t21, P[259]);
-    P_new[256] = t278;
-    P_new[394] = t278;
-    P_new[257] = t279;
-    P_new[418] = t279;
-    P_new[258] = t280;
-    P_new[442] = t280;
-    P_new[259] = t281;
-    P_new[466] = t281;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t282 = DERIVE_VFMA(((derive_vd){t39, t39, t39, t39}), v_t22, ((derive_vd){P[260], P[261], P[262], P[263]}));
-    #else
-    const double t282 = DERIVE_FMA(t39, t22, P[260]);
-    const double t283 = DERIVE_FMA(t39, t23, P[261]);
-    const double t284 = DERIVE_FMA(t39, t24, P[262]);
-    const double t285 = DERIVE_FMA(t39, t25, P[263]);
-    P_new[260] = t282;
-    P_new[490] = t282;
-    P_new[261] = t283;
-    P_new[514] = t283;
-    P_new[262] = t284;
-    P_new[538] = t284;
-    P_new[263] = t285;
-    P_new[562] = t285;
-    #endif
-    const double t286 = DERIVE_FMA(t13, t40, P[275]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t287 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t14, ((derive_vd){P[276], P[277], P[278], P[279]}));
-    const derive_vd tr_v_t245_0 = __builtin_shufflevector(v_t245, v_t260, 0, 4, 2, 6);
-    const derive_vd tr_v_t245_1 = __builtin_shufflevector(v_t245, v_t260, 1, 5, 3, 7);
-    const derive_vd tr_v_t245_2 = __builtin_shufflevector(v_t274, v_t287, 0, 4, 2, 6);
-    const derive_vd tr_v_t245_3 = __builtin_shufflevector(v_t274, v_t287, 1, 5, 3, 7);
-    const derive_vd tr_v_t245_c0 = __builtin_shufflevector(tr_v_t245_0, tr_v_t245_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t245_c1 = __builtin_shufflevector(tr_v_t245_1, tr_v_t245_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t245_c2 = __builtin_shufflevector(tr_v_t245_0, tr_v_t245_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t245_c3 = __builtin_shufflevector(tr_v_t245_1, tr_v_t245_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[204] = v_t245;
-    *(derive_vd_unaligned *)&P_new[228] = v_t260;
-    *(derive_vd_unaligned *)&P_new[252] = v_t274;
-    *(derive_vd_unaligned *)&P_new[276] = v_t287;
-    *(derive_vd_unaligned *)&P_new[296] = tr_v_t245_c0;
-    *(derive_vd_unaligned *)&P_new[320] = tr_v_t245_c1;
-    *(derive_vd_unaligned *)&P_new[344] = tr_v_t245_c2;
-    *(derive_vd_unaligned *)&P_new[368] = tr_v_t245_c3;
-    #else
-    const double t287 = DERIVE_FMA(t40, t14, P[276]);
-    const double t288 = DERIVE_FMA(t40, t15, P[277]);
-    const double t289 = DERIVE_FMA(t40, t16, P[278]);
-    const double t290 = DERIVE_FMA(t40, t17, P[279]);
-    P_new[276] = t287;
-    P_new[299] = t287;
-    P_new[277] = t288;
-    P_new[323] = t288;
-    P_new[278] = t289;
-    P_new[347] = t289;
-    P_new[279] = t290;
-    P_new[371] = t290;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t291 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t18, ((derive_vd){P[280], P[281], P[282], P[283]}));
-    const derive_vd tr_v_t249_0 = __builtin_shufflevector(v_t249, v_t264, 0, 4, 2, 6);
-    const derive_vd tr_v_t249_1 = __builtin_shufflevector(v_t249, v_t264, 1, 5, 3, 7);
-    const derive_vd tr_v_t249_2 = __builtin_shufflevector(v_t278, v_t291, 0, 4, 2, 6);
-    const derive_vd tr_v_t249_3 = __builtin_shufflevector(v_t278, v_t291, 1, 5, 3, 7);
-    const derive_vd tr_v_t249_c0 = __builtin_shufflevector(tr_v_t249_0, tr_v_t249_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t249_c1 = __builtin_shufflevector(tr_v_t249_1, tr_v_t249_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t249_c2 = __builtin_shufflevector(tr_v_t249_0, tr_v_t249_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t249_c3 = __builtin_shufflevector(tr_v_t249_1, tr_v_t249_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[208] = v_t249;
-    *(derive_vd_unaligned *)&P_new[232] = v_t264;
-    *(derive_vd_unaligned *)&P_new[256] = v_t278;
-    *(derive_vd_unaligned *)&P_new[280] = v_t291;
-    *(derive_vd_unaligned *)&P_new[392] = tr_v_t249_c0;
-    *(derive_vd_unaligned *)&P_new[416] = tr_v_t249_c1;
-    *(derive_vd_unaligned *)&P_new[440] = tr_v_t249_c2;
-    *(derive_vd_unaligned *)&P_new[464] = tr_v_t249_c3;
-    #else
-    const double t291 = DERIVE_FMA(t40, t18, P[280]);
-    const double t292 = DERIVE_FMA(t40, t19, P[281]);
-    const double t293 = DERIVE_FMA(t40, t20, P[282]);
-    const double t294 = DERIVE_FMA(t40, t21, P[283]);
-    P_new[280] = t291;
-    P_new[395] = t291;
-    P_new[281] = t292;
-    P_new[419] = t292;
-    P_new[282] = t293;
-    P_new[443] = t293;
-    P_new[283] = t294;
-    P_new[467] = t294;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t295 = DERIVE_VFMA(((derive_vd){t40, t40, t40, t40}), v_t22, ((derive_vd){P[284], P[285], P[286], P[287]}));
-    const derive_vd tr_v_t253_0 = __builtin_shufflevector(v_t253, v_t268, 0, 4, 2, 6);
-    const derive_vd tr_v_t253_1 = __builtin_shufflevector(v_t253, v_t268, 1, 5, 3, 7);
-    const derive_vd tr_v_t253_2 = __builtin_shufflevector(v_t282, v_t295, 0, 4, 2, 6);
-    const derive_vd tr_v_t253_3 = __builtin_shufflevector(v_t282, v_t295, 1, 5, 3, 7);
-    const derive_vd tr_v_t253_c0 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t253_c1 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t253_c2 = __builtin_shufflevector(tr_v_t253_0, tr_v_t253_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t253_c3 = __builtin_shufflevector(tr_v_t253_1, tr_v_t253_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[212] = v_t253;
-    *(derive_vd_unaligned *)&P_new[236] = v_t268;
-    *(derive_vd_unaligned *)&P_new[260] = v_t282;
-    *(derive_vd_unaligned *)&P_new[284] = v_t295;
-    *(derive_vd_unaligned *)&P_new[488] = tr_v_t253_c0;
-    *(derive_vd_unaligned *)&P_new[512] = tr_v_t253_c1;
-    *(derive_vd_unaligned *)&P_new[536] = tr_v_t253_c2;
-    *(derive_vd_unaligned *)&P_new[560] = tr_v_t253_c3;
-    #else
-    const double t295 = DERIVE_FMA(t40, t22, P[284]);
-    const double t296 = DERIVE_FMA(t40, t23, P[285]);
-    const double t297 = DERIVE_FMA(t40, t24, P[286]);
-    const double t298 = DERIVE_FMA(t40, t25, P[287]);
-    P_new[284] = t295;
-    P_new[491] = t295;
-    P_new[285] = t296;
-    P_new[515] = t296;
-    P_new[286] = t297;
-    P_new[539] = t297;
-    P_new[287] = t298;
-    P_new[563] = t298;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t299 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t14, ((derive_vd){P[300], P[301], P[302], P[303]}));
-    const double t300 = v_t299[1];
-    const double t301 = v_t299[2];
-    const double t302 = v_t299[3];
-    *(derive_vd_unaligned *)&P_new[300] = v_t299;
-    #else
-    const double t299 = DERIVE_FMA(t41, t14, P[300]);
-    const double t300 = DERIVE_FMA(t41, t15, P[301]);
-    const double t301 = DERIVE_FMA(t41, t16, P[302]);
-    const double t302 = DERIVE_FMA(t41, t17, P[303]);
-    P_new[300] = t299;
-    P_new[301] = t300;
-    P_new[324] = t300;
-    P_new[302] = t301;
-    P_new[348] = t301;
-    P_new[303] = t302;
-    P_new[372] = t302;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t303 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t18, ((derive_vd){P[304], P[305], P[306], P[307]}));
-    #else
-    const double t303 = DERIVE_FMA(t41, t18, P[304]);
-    const double t304 = DERIVE_FMA(t41, t19, P[305]);
-    const double t305 = DERIVE_FMA(t41, t20, P[306]);
-    const double t306 = DERIVE_FMA(t41, t21, P[307]);
-    P_new[304] = t303;
-    P_new[396] = t303;
-    P_new[305] = t304;
-    P_new[420] = t304;
-    P_new[306] = t305;
-    P_new[444] = t305;
-    P_new[307] = t306;
-    P_new[468] = t306;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t307 = DERIVE_VFMA(((derive_vd){t41, t41, t41, t41}), v_t22, ((derive_vd){P[308], P[309], P[310], P[311]}));
-    #else
-    const double t307 = DERIVE_FMA(t41, t22, P[308]);
-    const double t308 = DERIVE_FMA(t41, t23, P[309]);
-    const double t309 = DERIVE_FMA(t41, t24, P[310]);
-    const double t310 = DERIVE_FMA(t41, t25, P[311]);
-    P_new[308] = t307;
-    P_new[492] = t307;
-    P_new[309] = t308;
-    P_new[516] = t308;
-    P_new[310] = t309;
-    P_new[540] = t309;
-    P_new[311] = t310;
-    P_new[564] = t310;
-    #endif
-    const double t311 = DERIVE_FMA(t15, t42, P[325]);
-    const double t312 = DERIVE_FMA(t16, t42, P[326]);
-    const double t313 = DERIVE_FMA(t17, t42, P[327]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t314 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t18, ((derive_vd){P[328], P[329], P[330], P[331]}));
-    #else
-    const double t314 = DERIVE_FMA(t42, t18, P[328]);
-    const double t315 = DERIVE_FMA(t42, t19, P[329]);
-    const double t316 = DERIVE_FMA(t42, t20, P[330]);
-    const double t317 = DERIVE_FMA(t42, t21, P[331]);
-    P_new[328] = t314;
-    P_new[397] = t314;
-    P_new[329] = t315;
-    P_new[421] = t315;
-    P_new[330] = t316;
-    P_new[445] = t316;
-    P_new[331] = t317;
-    P_new[469] = t317;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t318 = DERIVE_VFMA(((derive_vd){t42, t42, t42, t42}), v_t22, ((derive_vd){P[332], P[333], P[334], P[335]}));
-    #else
-    const double t318 = DERIVE_FMA(t42, t22, P[332]);
-    const double t319 = DERIVE_FMA(t42, t23, P[333]);
-    const double t320 = DERIVE_FMA(t42, t24, P[334]);
-    const double t321 = DERIVE_FMA(t42, t25, P[335]);
-    P_new[332] = t318;
-    P_new[493] = t318;
-    P_new[333] = t319;
-    P_new[517] = t319;
-    P_new[334] = t320;
-    P_new[541] = t320;
-    P_new[335] = t321;
-    P_new[565] = t321;
-    #endif
-    const double t322 = DERIVE_FMA(t16, t43, P[350]);
-    const double t323 = DERIVE_FMA(t17, t43, P[351]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t324 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t18, ((derive_vd){P[352], P[353], P[354], P[355]}));
-    #else
-    const double t324 = DERIVE_FMA(t43, t18, P[352]);
-    const double t325 = DERIVE_FMA(t43, t19, P[353]);
-    const double t326 = DERIVE_FMA(t43, t20, P[354]);
-    const double t327 = DERIVE_FMA(t43, t21, P[355]);
-    P_new[352] = t324;
-    P_new[398] = t324;
-    P_new[353] = t325;
-    P_new[422] = t325;
-    P_new[354] = t326;
-    P_new[446] = t326;
-    P_new[355] = t327;
-    P_new[470] = t327;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t43, t43, t43, t43}), v_t22, ((derive_vd){P[356], P[357], P[358], P[359]}));
-    #else
-    const double t328 = DERIVE_FMA(t43, t22, P[356]);
-    const double t329 = DERIVE_FMA(t43, t23, P[357]);
-    const double t330 = DERIVE_FMA(t43, t24, P[358]);
-    const double t331 = DERIVE_FMA(t43, t25, P[359]);
-    P_new[356] = t328;
-    P_new[494] = t328;
-    P_new[357] = t329;
-    P_new[518] = t329;
-    P_new[358] = t330;
-    P_new[542] = t330;
-    P_new[359] = t331;
-    P_new[566] = t331;
-    #endif
-    const double t332 = DERIVE_FMA(t17, t44, P[375]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t18, ((derive_vd){P[376], P[377], P[378], P[379]}));
-    const derive_vd tr_v_t303_0 = __builtin_shufflevector(v_t303, v_t314, 0, 4, 2, 6);
-    const derive_vd tr_v_t303_1 = __builtin_shufflevector(v_t303, v_t314, 1, 5, 3, 7);
-    const derive_vd tr_v_t303_2 = __builtin_shufflevector(v_t324, v_t333, 0, 4, 2, 6);
-    const derive_vd tr_v_t303_3 = __builtin_shufflevector(v_t324, v_t333, 1, 5, 3, 7);
-    const derive_vd tr_v_t303_c0 = __builtin_shufflevector(tr_v_t303_0, tr_v_t303_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t303_c1 = __builtin_shufflevector(tr_v_t303_1, tr_v_t303_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t303_c2 = __builtin_shufflevector(tr_v_t303_0, tr_v_t303_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t303_c3 = __builtin_shufflevector(tr_v_t303_1, tr_v_t303_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[304] = v_t303;
-    *(derive_vd_unaligned *)&P_new[328] = v_t314;
-    *(derive_vd_unaligned *)&P_new[352] = v_t324;
-    *(derive_vd_unaligned *)&P_new[376] = v_t333;
-    *(derive_vd_unaligned *)&P_new[396] = tr_v_t303_c0;
-    *(derive_vd_unaligned *)&P_new[420] = tr_v_t303_c1;
-    *(derive_vd_unaligned *)&P_new[444] = tr_v_t303_c2;
-    *(derive_vd_unaligned *)&P_new[468] = tr_v_t303_c3;
-    #else
-    const double t333 = DERIVE_FMA(t44, t18, P[376]);
-    const double t334 = DERIVE_FMA(t44, t19, P[377]);
-    const double t335 = DERIVE_FMA(t44, t20, P[378]);
-    const double t336 = DERIVE_FMA(t44, t21, P[379]);
-    P_new[376] = t333;
-    P_new[399] = t333;
-    P_new[377] = t334;
-    P_new[423] = t334;
-    P_new[378] = t335;
-    P_new[447] = t335;
-    P_new[379] = t336;
-    P_new[471] = t336;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t44, t44, t44, t44}), v_t22, ((derive_vd){P[380], P[381], P[382], P[383]}));
-    const derive_vd tr_v_t307_0 = __builtin_shufflevector(v_t307, v_t318, 0, 4, 2, 6);
-    const derive_vd tr_v_t307_1 = __builtin_shufflevector(v_t307, v_t318, 1, 5, 3, 7);
-    const derive_vd tr_v_t307_2 = __builtin_shufflevector(v_t328, v_t337, 0, 4, 2, 6);
-    const derive_vd tr_v_t307_3 = __builtin_shufflevector(v_t328, v_t337, 1, 5, 3, 7);
-    const derive_vd tr_v_t307_c0 = __builtin_shufflevector(tr_v_t307_0, tr_v_t307_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t307_c1 = __builtin_shufflevector(tr_v_t307_1, tr_v_t307_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t307_c2 = __builtin_shufflevector(tr_v_t307_0, tr_v_t307_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t307_c3 = __builtin_shufflevector(tr_v_t307_1, tr_v_t307_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[308] = v_t307;
-    *(derive_vd_unaligned *)&P_new[332] = v_t318;
-    *(derive_vd_unaligned *)&P_new[356] = v_t328;
-    *(derive_vd_unaligned *)&P_new[380] = v_t337;
-    *(derive_vd_unaligned *)&P_new[492] = tr_v_t307_c0;
-    *(derive_vd_unaligned *)&P_new[516] = tr_v_t307_c1;
-    *(derive_vd_unaligned *)&P_new[540] = tr_v_t307_c2;
-    *(derive_vd_unaligned *)&P_new[564] = tr_v_t307_c3;
-    #else
-    const double t337 = DERIVE_FMA(t44, t22, P[380]);
-    const double t338 = DERIVE_FMA(t44, t23, P[381]);
-    const double t339 = DERIVE_FMA(t44, t24, P[382]);
-    const double t340 = DERIVE_FMA(t44, t25, P[383]);
-    P_new[380] = t337;
-    P_new[495] = t337;
-    P_new[381] = t338;
-    P_new[519] = t338;
-    P_new[382] = t339;
-    P_new[543] = t339;
-    P_new[383] = t340;
-    P_new[567] = t340;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t341 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t18, ((derive_vd){P[400], P[401], P[402], P[403]}));
-    const double t342 = v_t341[1];
-    const double t343 = v_t341[2];
-    const double t344 = v_t341[3];
-    *(derive_vd_unaligned *)&P_new[400] = v_t341;
-    #else
-    const double t341 = DERIVE_FMA(t45, t18, P[400]);
-    const double t342 = DERIVE_FMA(t45, t19, P[401]);
-    const double t343 = DERIVE_FMA(t45, t20, P[402]);
-    const double t344 = DERIVE_FMA(t45, t21, P[403]);
-    P_new[400] = t341;
-    P_new[401] = t342;
-    P_new[424] = t342;
-    P_new[402] = t343;
-    P_new[448] = t343;
-    P_new[403] = t344;
-    P_new[472] = t344;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t345 = DERIVE_VFMA(((derive_vd){t45, t45, t45, t45}), v_t22, ((derive_vd){P[404], P[405], P[406], P[407]}));
-    #else
-    const double t345 = DERIVE_FMA(t45, t22, P[404]);
-    const double t346 = DERIVE_FMA(t45, t23, P[405]);
-    const double t347 = DERIVE_FMA(t45, t24, P[406]);
-    const double t348 = DERIVE_FMA(t45, t25, P[407]);
-    P_new[404] = t345;
-    P_new[496] = t345;
-    P_new[405] = t346;
-    P_new[520] = t346;
-    P_new[406] = t347;
-    P_new[544] = t347;
-    P_new[407] = t348;
-    P_new[568] = t348;
-    #endif
-    const double t349 = DERIVE_FMA(t19, t46, P[425]);
-    const double t350 = DERIVE_FMA(t20, t46, P[426]);
-    const double t351 = DERIVE_FMA(t21, t46, P[427]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t352 = DERIVE_VFMA(((derive_vd){t46, t46, t46, t46}), v_t22, ((derive_vd){P[428], P[429], P[430], P[431]}));
-    #else
-    const double t352 = DERIVE_FMA(t46, t22, P[428]);
-    const double t353 = DERIVE_FMA(t46, t23, P[429]);
-    const double t354 = DERIVE_FMA(t46, t24, P[430]);
-    const double t355 = DERIVE_FMA(t46, t25, P[431]);
-    P_new[428] = t352;
-    P_new[497] = t352;
-    P_new[429] = t353;
-    P_new[521] = t353;
-    P_new[430] = t354;
-    P_new[545] = t354;
-    P_new[431] = t355;
-    P_new[569] = t355;
-    #endif
-    const double t356 = DERIVE_FMA(t20, t47, P[450]);
-    const double t357 = DERIVE_FMA(t21, t47, P[451]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t358 = DERIVE_VFMA(((derive_vd){t47, t47, t47, t47}), v_t22, ((derive_vd){P[452], P[453], P[454], P[455]}));
-    #else
-    const double t358 = DERIVE_FMA(t47, t22, P[452]);
-    const double t359 = DERIVE_FMA(t47, t23, P[453]);
-    const double t360 = DERIVE_FMA(t47, t24, P[454]);
-    const double t361 = DERIVE_FMA(t47, t25, P[455]);
-    P_new[452] = t358;
-    P_new[498] = t358;
-    P_new[453] = t359;
-    P_new[522] = t359;
-    P_new[454] = t360;
-    P_new[546] = t360;
-    P_new[455] = t361;
-    P_new[570] = t361;
-    #endif
-    const double t362 = DERIVE_FMA(t21, t48, P[475]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t363 = DERIVE_VFMA(((derive_vd){t48, t48, t48, t48}), v_t22, ((derive_vd){P[476], P[477], P[478], P[479]}));
-    const derive_vd tr_v_t345_0 = __builtin_shufflevector(v_t345, v_t352, 0, 4, 2, 6);
-    const derive_vd tr_v_t345_1 = __builtin_shufflevector(v_t345, v_t352, 1, 5, 3, 7);
-    const derive_vd tr_v_t345_2 = __builtin_shufflevector(v_t358, v_t363, 0, 4, 2, 6);
-    const derive_vd tr_v_t345_3 = __builtin_shufflevector(v_t358, v_t363, 1, 5, 3, 7);
-    const derive_vd tr_v_t345_c0 = __builtin_shufflevector(tr_v_t345_0, tr_v_t345_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t345_c1 = __builtin_shufflevector(tr_v_t345_1, tr_v_t345_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t345_c2 = __builtin_shufflevector(tr_v_t345_0, tr_v_t345_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t345_c3 = __builtin_shufflevector(tr_v_t345_1, tr_v_t345_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[404] = v_t345;
-    *(derive_vd_unaligned *)&P_new[428] = v_t352;
-    *(derive_vd_unaligned *)&P_new[452] = v_t358;
-    *(derive_vd_unaligned *)&P_new[476] = v_t363;
-    *(derive_vd_unaligned *)&P_new[496] = tr_v_t345_c0;
-    *(derive_vd_unaligned *)&P_new[520] = tr_v_t345_c1;
-    *(derive_vd_unaligned *)&P_new[544] = tr_v_t345_c2;
-    *(derive_vd_unaligned *)&P_new[568] = tr_v_t345_c3;
-    #else
-    const double t363 = DERIVE_FMA(t48, t22, P[476]);
-    const double t364 = DERIVE_FMA(t48, t23, P[477]);
-    const double t365 = DERIVE_FMA(t48, t24, P[478]);
-    const double t366 = DERIVE_FMA(t48, t25, P[479]);
-    P_new[476] = t363;
-    P_new[499] = t363;
-    P_new[477] = t364;
-    P_new[523] = t364;
-    P_new[478] = t365;
-    P_new[547] = t365;
-    P_new[479] = t366;
-    P_new[571] = t366;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t367 = DERIVE_VFMA(((derive_vd){t49, t49, t49, t49}), v_t22, ((derive_vd){P[500], P[501], P[502], P[503]}));
-    const double t368 = v_t367[1];
-    const double t369 = v_t367[2];
-    const double t370 = v_t367[3];
-    *(derive_vd_unaligned *)&P_new[500] = v_t367;
-    #else
-    const double t367 = DERIVE_FMA(t49, t22, P[500]);
-    const double t368 = DERIVE_FMA(t49, t23, P[501]);
-    const double t369 = DERIVE_FMA(t49, t24, P[502]);
-    const double t370 = DERIVE_FMA(t49, t25, P[503]);
-    P_new[500] = t367;
-    P_new[501] = t368;
-    P_new[524] = t368;
-    P_new[502] = t369;
-    P_new[548] = t369;
-    P_new[503] = t370;
-    P_new[572] = t370;
-    #endif
-    const double t371 = DERIVE_FMA(t23, t50, P[525]);
-    const double t372 = DERIVE_FMA(t24, t50, P[526]);
-    const double t373 = DERIVE_FMA(t25, t50, P[527]);
-    const double t374 = DERIVE_FMA(t24, t51, P[550]);
-    const double t375 = DERIVE_FMA(t25, t51, P[551]);
-    const double t376 = DERIVE_FMA(t25, t52, P[575]);
-    const double t377 = DERIVE_FMA(t56, t56, DERIVE_FMA(t55, t55, DERIVE_FMA(t54, t54, t53*t53)));
-    const double t378 = 1.0/sqrt(t377);
-    const double t379 = t378*t53;
-    const double t380 = t378*t54;
-    const double t381 = t378*t55;
-    const double t382 = t378*t56;
-    #if DERIVE_VECTOR
-    x_new[0] = t379;
-    x_new[1] = t380;
-    x_new[2] = t381;
-    x_new[3] = t382;
-    P_new[24] = t78;
-    P_new[25] = t101;
-    P_new[26] = t102;
-    P_new[27] = t103;
-    P_new[48] = t79;
-    P_new[49] = t102;
-    P_new[50] = t124;
-    P_new[51] = t125;
-    P_new[72] = t80;
-    P_new[73] = t103;
-    P_new[74] = t125;
-    P_new[75] = t146;
-    P_new[124] = t168;
-    P_new[125] = t187;
-    P_new[126] = t188;
-    P_new[127] = t189;
-    P_new[148] = t169;
-    P_new[149] = t188;
-    P_new[150] = t206;
-    P_new[151] = t207;
-    P_new[172] = t170;
-    P_new[173] = t189;
-    P_new[174] = t207;
-    P_new[175] = t224;
-    P_new[224] = t242;
-    P_new[225] = t257;
-    P_new[226] = t258;
-    P_new[227] = t259;
-    P_new[248] = t243;
-    P_new[249] = t258;
-    P_new[250] = t272;
-    P_new[251] = t273;
-    P_new[272] = t244;
-    P_new[273] = t259;
-    P_new[274] = t273;
-    P_new[275] = t286;
-    P_new[324] = t300;
-    P_new[325] = t311;
-    P_new[326] = t312;
-    P_new[327] = t313;
-    P_new[348] = t301;
-    P_new[349] = t312;
-    P_new[350] = t322;
-    P_new[351] = t323;
-    P_new[372] = t302;
-    P_new[373] = t313;
-    P_new[374] = t323;
-    P_new[375] = t332;
-    P_new[424] = t342;
-    P_new[425] = t349;
-    P_new[426] = t350;
-    P_new[427] = t351;
-    P_new[448] = t343;
-    P_new[449] = t350;
-    P_new[450] = t356;
-    P_new[451] = t357;
-    P_new[472] = t344;
-    P_new[473] = t351;
-    P_new[474] = t357;
-    P_new[475] = t362;
-    P_new[524] = t368;
-    P_new[525] = t371;
-    P_new[526] = t372;
-    P_new[527] = t373;
-    P_new[548] = t369;
-    P_new[549] = t372;
-    P_new[550] = t374;
-    P_new[551] = t375;
-    P_new[572] = t370;
-    P_new[573] = t373;
-    P_new[574] = t375;
-    P_new[575] = t376;
-    #else
-    x_new[0] = t379;
-    x_new[1] = t380;
-    x_new[2] = t381;
-    x_new[3] = t382;
-    P_new[25] = t101;
-    P_new[26] = t102;
-    P_new[27] = t103;
-    P_new[49] = t102;
-    P_new[50] = t124;
-    P_new[51] = t125;
-    P_new[73] = t103;
-    P_new[74] = t125;
-    P_new[75] = t146;
-    P_new[125] = t187;
-    P_new[126] = t188;
-    P_new[127] = t189;
-    P_new[149] = t188;
-    P_new[150] = t206;
-    P_new[151] = t207;
-    P_new[173] = t189;
-    P_new[174] = t207;
-    P_new[175] = t224;
-    P_new[225] = t257;
-    P_new[226] = t258;
-    P_new[227] = t259;
-    P_new[249] = t258;
-    P_new[250] = t272;
-    P_new[251] = t273;
-    P_new[273] = t259;
-    P_new[274] = t273;
-    P_new[275] = t286;
-    P_new[325] = t311;
-    P_new[326] = t312;
-    P_new[327] = t313;
-    P_new[349] = t312;
-    P_new[350] = t322;
-    P_new[351] = t323;
-    P_new[373] = t313;
-    P_new[374] = t323;
-    P_new[375] = t332;
-    P_new[425] = t349;
-    P_new[426] = t350;
-    P_new[427] = t351;
-    P_new[449] = t350;
-    P_new[450] = t356;
-    P_new[451] = t357;
-    P_new[473] = t351;
-    P_new[474] = t357;
-    P_new[475] = t362;
-    P_new[525] = t371;
-    P_new[526] = t372;
-    P_new[527] = t373;
-    P_new[549] = t372;
-    P_new[550] = t374;
-    P_new[551] = t375;
-    P_new[573] = t373;
-    P_new[574] = t375;
-    P_new[575] = t376;
+    *(derive_vd_unaligned *)&P_new[0] = v_t53;
+    #else
+    const double t53 = DERIVE_FMA(t5, P[216], P[0]);
+    const double t54 = DERIVE_FMA(t5, P[217], P[1]);
+    const double t55 = DERIVE_FMA(t5, P[218], P[2]);
+    const double t56 = DERIVE_FMA(t5, P[219], P[3]);
+    P_new[0] = t53;
+    P_new[1] = t54;
+    P_new[24] = t54;
+    P_new[2] = t55;
+    P_new[48] = t55;
+    P_new[3] = t56;
+    P_new[72] = t56;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
+    #else
+    const double t57 = DERIVE_FMA(t5, P[220], P[4]);
+    const double t58 = DERIVE_FMA(t5, P[221], P[5]);
+    const double t59 = DERIVE_FMA(t5, P[222], P[6]);
+    const double t60 = DERIVE_FMA(t5, P[223], P[7]);
+    P_new[4] = t57;
+    P_new[96] = t57;
+    P_new[5] = t58;
+    P_new[120] = t58;
+    P_new[6] = t59;
+    P_new[144] = t59;
+    P_new[7] = t60;
+    P_new[168] = t60;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t61 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
+    #else
+    const double t61 = DERIVE_FMA(t5, P[224], P[8]);
+    const double t62 = DERIVE_FMA(t5, P[225], P[9]);
+    const double t63 = DERIVE_FMA(t5, P[226], P[10]);
+    const double t64 = DERIVE_FMA(t5, P[227], P[11]);
+    P_new[8] = t61;
+    P_new[192] = t61;
+    P_new[9] = t62;
+    P_new[216] = t62;
+    P_new[10] = t63;
+    P_new[240] = t63;
+    P_new[11] = t64;
+    P_new[264] = t64;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t65 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
+    #else
+    const double t65 = DERIVE_FMA(t5, P[228], P[12]);
+    const double t66 = DERIVE_FMA(t5, P[229], P[13]);
+    const double t67 = DERIVE_FMA(t5, P[230], P[14]);
+    const double t68 = DERIVE_FMA(t5, P[231], P[15]);
+    P_new[12] = t65;
+    P_new[288] = t65;
+    P_new[13] = t66;
+    P_new[312] = t66;
+    P_new[14] = t67;
+    P_new[336] = t67;
+    P_new[15] = t68;
+    P_new[360] = t68;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t69 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[16], P[17], P[18], P[19]}));
+    #else
+    const double t69 = DERIVE_FMA(t5, P[232], P[16]);
+    const double t70 = DERIVE_FMA(t5, P[233], P[17]);
+    const double t71 = DERIVE_FMA(t5, P[234], P[18]);
+    const double t72 = DERIVE_FMA(t5, P[235], P[19]);
+    P_new[16] = t69;
+    P_new[384] = t69;
+    P_new[17] = t70;
+    P_new[408] = t70;
+    P_new[18] = t71;
+    P_new[432] = t71;
+    P_new[19] = t72;
+    P_new[456] = t72;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t73 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    #else
+    const double t73 = DERIVE_FMA(t5, P[236], P[20]);
+    const double t74 = DERIVE_FMA(t5, P[237], P[21]);
+    const double t75 = DERIVE_FMA(t5, P[238], P[22]);
+    const double t76 = DERIVE_FMA(t5, P[239], P[23]);
+    P_new[20] = t73;
+    P_new[480] = t73;
+    P_new[21] = t74;
+    P_new[504] = t74;
+    P_new[22] = t75;
+    P_new[528] = t75;
+    P_new[23] = t76;
+    P_new[552] = t76;
+    #endif
+    const double t77 = DERIVE_FMA(P[217], t6, P[25]);
+    const double t78 = DERIVE_FMA(P[218], t6, P[26]);
+    const double t79 = DERIVE_FMA(P[219], t6, P[27]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t80 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
+    #else
+    const double t80 = DERIVE_FMA(t6, P[220], P[28]);
+    const double t81 = DERIVE_FMA(t6, P[221], P[29]);
+    const double t82 = DERIVE_FMA(t6, P[222], P[30]);
+    const double t83 = DERIVE_FMA(t6, P[223], P[31]);
+    P_new[28] = t80;
+    P_new[97] = t80;
+    P_new[29] = t81;
+    P_new[121] = t81;
+    P_new[30] = t82;
+    P_new[145] = t82;
+    P_new[31] = t83;
+    P_new[169] = t83;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t84 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[32], P[33], P[34], P[35]}));
+    #else
+    const double t84 = DERIVE_FMA(t6, P[224], P[32]);
+    const double t85 = DERIVE_FMA(t6, P[225], P[33]);
+    const double t86 = DERIVE_FMA(t6, P[226], P[34]);
+    const double t87 = DERIVE_FMA(t6, P[227], P[35]);
+    P_new[32] = t84;
+    P_new[193] = t84;
+    P_new[33] = t85;
+    P_new[217] = t85;
+    P_new[34] = t86;
+    P_new[241] = t86;
+    P_new[35] = t87;
+    P_new[265] = t87;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t88 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    #else
+    const double t88 = DERIVE_FMA(t6, P[228], P[36]);
+    const double t89 = DERIVE_FMA(t6, P[229], P[37]);
+    const double t90 = DERIVE_FMA(t6, P[230], P[38]);
+    const double t91 = DERIVE_FMA(t6, P[231], P[39]);
+    P_new[36] = t88;
+    P_new[289] = t88;
+    P_new[37] = t89;
+    P_new[313] = t89;
+    P_new[38] = t90;
+    P_new[337] = t90;
+    P_new[39] = t91;
+    P_new[361] = t91;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t92 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
+    #else
+    const double t92 = DERIVE_FMA(t6, P[232], P[40]);
+    const double t93 = DERIVE_FMA(t6, P[233], P[41]);
+    const double t94 = DERIVE_FMA(t6, P[234], P[42]);
+    const double t95 = DERIVE_FMA(t6, P[235], P[43]);
+    P_new[40] = t92;
+    P_new[385] = t92;
+    P_new[41] = t93;
+    P_new[409] = t93;
+    P_new[42] = t94;
+    P_new[433] = t94;
+    P_new[43] = t95;
+    P_new[457] = t95;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t96 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
+    #else
+    const double t96 = DERIVE_FMA(t6, P[236], P[44]);
+    const double t97 = DERIVE_FMA(t6, P[237], P[45]);
+    const double t98 = DERIVE_FMA(t6, P[238], P[46]);
+    const double t99 = DERIVE_FMA(t6, P[239], P[47]);
+    P_new[44] = t96;
+    P_new[481] = t96;
+    P_new[45] = t97;
+    P_new[505] = t97;
+    P_new[46] = t98;
+    P_new[529] = t98;
+    P_new[47] = t99;
+    P_new[553] = t99;
+    #endif
+    const double t100 = DERIVE_FMA(P[218], t7, P[50]);
+    const double t101 = DERIVE_FMA(P[219], t7, P[51]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t102 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    #else
+    const double t102 = DERIVE_FMA(t7, P[220], P[52]);
+    const double t103 = DERIVE_FMA(t7, P[221], P[53]);
+    const double t104 = DERIVE_FMA(t7, P[222], P[54]);
+    const double t105 = DERIVE_FMA(t7, P[223], P[55]);
+    P_new[52] = t102;
+    P_new[98] = t102;
+    P_new[53] = t103;
+    P_new[122] = t103;
+    P_new[54] = t104;
+    P_new[146] = t104;
+    P_new[55] = t105;
+    P_new[170] = t105;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t106 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    #else
+    const double t106 = DERIVE_FMA(t7, P[224], P[56]);
+    const double t107 = DERIVE_FMA(t7, P[225], P[57]);
+    const double t108 = DERIVE_FMA(t7, P[226], P[58]);
+    const double t109 = DERIVE_FMA(t7, P[227], P[59]);
+    P_new[56] = t106;
+    P_new[194] = t106;
+    P_new[57] = t107;
+    P_new[218] = t107;
+    P_new[58] = t108;
+    P_new[242] = t108;
+    P_new[59] = t109;
+    P_new[266] = t109;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t110 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    #else
+    const double t110 = DERIVE_FMA(t7, P[228], P[60]);
+    const double t111 = DERIVE_FMA(t7, P[229], P[61]);
+    const double t112 = DERIVE_FMA(t7, P[230], P[62]);
+    const double t113 = DERIVE_FMA(t7, P[231], P[63]);
+    P_new[60] = t110;
+    P_new[290] = t110;
+    P_new[61] = t111;
+    P_new[314] = t111;
+    P_new[62] = t112;
+    P_new[338] = t112;
+    P_new[63] = t113;
+    P_new[362] = t113;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t114 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[64], P[65], P[66], P[67]}));
+    #else
+    const double t114 = DERIVE_FMA(t7, P[232], P[64]);
+    const double t115 = DERIVE_FMA(t7, P[233], P[65]);
+    const double t116 = DERIVE_FMA(t7, P[234], P[66]);
+    const double t117 = DERIVE_FMA(t7, P[235], P[67]);
+    P_new[64] = t114;
+    P_new[386] = t114;
+    P_new[65] = t115;
+    P_new[410] = t115;
+    P_new[66] = t116;
+    P_new[434] = t116;
+    P_new[67] = t117;
+    P_new[458] = t117;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t118 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    #else
+    const double t118 = DERIVE_FMA(t7, P[236], P[68]);
+    const double t119 = DERIVE_FMA(t7, P[237], P[69]);
+    const double t120 = DERIVE_FMA(t7, P[238], P[70]);
+    const double t121 = DERIVE_FMA(t7, P[239], P[71]);
+    P_new[68] = t118;
+    P_new[482] = t118;
+    P_new[69] = t119;
+    P_new[506] = t119;
+    P_new[70] = t120;
+    P_new[530] = t120;
+    P_new[71] = t121;
+    P_new[554] = t121;
+    #endif
+    const double t122 = DERIVE_FMA(P[219], t8, P[75]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t123 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd tr_v_t57_0 = __builtin_shufflevector(v_t57, v_t80, 0, 4, 2, 6);
+    const derive_vd tr_v_t57_1 = __builtin_shufflevector(v_t57, v_t80, 1, 5, 3, 7);
+    const derive_vd tr_v_t57_2 = __builtin_shufflevector(v_t102, v_t123, 0, 4, 2, 6);
+    const derive_vd tr_v_t57_3 = __builtin_shufflevector(v_t102, v_t123, 1, 5, 3, 7);
+    const derive_vd tr_v_t57_c0 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t57_c1 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t57_c2 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t57_c3 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t57;
+    *(derive_vd_unaligned *)&P_new[28] = v_t80;
+    *(derive_vd_unaligned *)&P_new[52] = v_t102;
+    *(derive_vd_unaligned *)&P_new[76] = v_t123;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t57_c0;
+    *(derive_vd_unaligned *)&P_new[120] = tr_v_t57_c1;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t57_c2;
+    *(derive_vd_unaligned *)&P_new[168] = tr_v_t57_c3;
+    #else
+    const double t123 = DERIVE_FMA(t8, P[220], P[76]);
+    const double t124 = DERIVE_FMA(t8, P[221], P[77]);
+    const double t125 = DERIVE_FMA(t8, P[222], P[78]);
+    const double t126 = DERIVE_FMA(t8, P[223], P[79]);
+    P_new[76] = t123;
+    P_new[99] = t123;
+    P_new[77] = t124;
+    P_new[123] = t124;
+    P_new[78] = t125;
+    P_new[147] = t125;
+    P_new[79] = t126;
+    P_new[171] = t126;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t127 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[80], P[81], P[82], P[83]}));
+    const derive_vd tr_v_t61_0 = __builtin_shufflevector(v_t61, v_t84, 0, 4, 2, 6);
+    const derive_vd tr_v_t61_1 = __builtin_shufflevector(v_t61, v_t84, 1, 5, 3, 7);
+    const derive_vd tr_v_t61_2 = __builtin_shufflevector(v_t106, v_t127, 0, 4, 2, 6);
+    const derive_vd tr_v_t61_3 = __builtin_shufflevector(v_t106, v_t127, 1, 5, 3, 7);
+    const derive_vd tr_v_t61_c0 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t61_c1 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t61_c2 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t61_c3 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t61;
+    *(derive_vd_unaligned *)&P_new[32] = v_t84;
+    *(derive_vd_unaligned *)&P_new[56] = v_t106;
+    *(derive_vd_unaligned *)&P_new[80] = v_t127;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t61_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t61_c1;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t61_c2;
+    *(derive_vd_unaligned *)&P_new[264] = tr_v_t61_c3;
+    #else
+    const double t127 = DERIVE_FMA(t8, P[224], P[80]);
+    const double t128 = DERIVE_FMA(t8, P[225], P[81]);
+    const double t129 = DERIVE_FMA(t8, P[226], P[82]);
+    const double t130 = DERIVE_FMA(t8, P[227], P[83]);
+    P_new[80] = t127;
+    P_new[195] = t127;
+    P_new[81] = t128;
+    P_new[219] = t128;
+    P_new[82] = t129;
+    P_new[243] = t129;
+    P_new[83] = t130;
+    P_new[267] = t130;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[84], P[85], P[86], P[87]}));
+    const derive_vd tr_v_t65_0 = __builtin_shufflevector(v_t65, v_t88, 0, 4, 2, 6);
+    const derive_vd tr_v_t65_1 = __builtin_shufflevector(v_t65, v_t88, 1, 5, 3, 7);
+    const derive_vd tr_v_t65_2 = __builtin_shufflevector(v_t110, v_t131, 0, 4, 2, 6);
+    const derive_vd tr_v_t65_3 = __builtin_shufflevector(v_t110, v_t131, 1, 5, 3, 7);
+    const derive_vd tr_v_t65_c0 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t65_c1 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t65_c2 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t65_c3 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t65;
+    *(derive_vd_unaligned *)&P_new[36] = v_t88;
+    *(derive_vd_unaligned *)&P_new[60] = v_t110;
+    *(derive_vd_unaligned *)&P_new[84] = v_t131;
+    *(derive_vd_unaligned *)&P_new[288] = tr_v_t65_c0;
+    *(derive_vd_unaligned *)&P_new[312] = tr_v_t65_c1;
+    *(derive_vd_unaligned *)&P_new[336] = tr_v_t65_c2;
+    *(derive_vd_unaligned *)&P_new[360] = tr_v_t65_c3;
+    #else
+    const double t131 = DERIVE_FMA(t8, P[228], P[84]);
+    const double t132 = DERIVE_FMA(t8, P[229], P[85]);
+    const double t133 = DERIVE_FMA(t8, P[230], P[86]);
+    const double t134 = DERIVE_FMA(t8, P[231], P[87]);
+    P_new[84] = t131;
+    P_new[291] = t131;
+    P_new[85] = t132;
+    P_new[315] = t132;
+    P_new[86] = t133;
+    P_new[339] = t133;
+    P_new[87] = t134;
+    P_new[363] = t134;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t135 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    const derive_vd tr_v_t69_0 = __builtin_shufflevector(v_t69, v_t92, 0, 4, 2, 6);
+    const derive_vd tr_v_t69_1 = __builtin_shufflevector(v_t69, v_t92, 1, 5, 3, 7);
+    const derive_vd tr_v_t69_2 = __builtin_shufflevector(v_t114, v_t135, 0, 4, 2, 6);
+    const derive_vd tr_v_t69_3 = __builtin_shufflevector(v_t114, v_t135, 1, 5, 3, 7);
+    const derive_vd tr_v_t69_c0 = __builtin_shufflevector(tr_v_t69_0, tr_v_t69_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t69_c1 = __builtin_shufflevector(tr_v_t69_1, tr_v_t69_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t69_c2 = __builtin_shufflevector(tr_v_t69_0, tr_v_t69_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t69_c3 = __builtin_shufflevector(tr_v_t69_1, tr_v_t69_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[16] = v_t69;
+    *(derive_vd_unaligned *)&P_new[40] = v_t92;
+    *(derive_vd_unaligned *)&P_new[64] = v_t114;
+    *(derive_vd_unaligned *)&P_new[88] = v_t135;
+    *(derive_vd_unaligned *)&P_new[384] = tr_v_t69_c0;
+    *(derive_vd_unaligned *)&P_new[408] = tr_v_t69_c1;
+    *(derive_vd_unaligned *)&P_new[432] = tr_v_t69_c2;
+    *(derive_vd_unaligned *)&P_new[456] = tr_v_t69_c3;
+    #else
+    const double t135 = DERIVE_FMA(t8, P[232], P[88]);
+    const double t136 = DERIVE_FMA(t8, P[233], P[89]);
+    const double t137 = DERIVE_FMA(t8, P[234], P[90]);
+    const double t138 = DERIVE_FMA(t8, P[235], P[91]);
+    P_new[88] = t135;
+    P_new[387] = t135;
+    P_new[89] = t136;
+    P_new[411] = t136;
+    P_new[90] = t137;
+    P_new[435] = t137;
+    P_new[91] = t138;
+    P_new[459] = t138;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t139 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd tr_v_t73_0 = __builtin_shufflevector(v_t73, v_t96, 0, 4, 2, 6);
+    const derive_vd tr_v_t73_1 = __builtin_shufflevector(v_t73, v_t96, 1, 5, 3, 7);
+    const derive_vd tr_v_t73_2 = __builtin_shufflevector(v_t118, v_t139, 0, 4, 2, 6);
+    const derive_vd tr_v_t73_3 = __builtin_shufflevector(v_t118, v_t139, 1, 5, 3, 7);
+    const derive_vd tr_v_t73_c0 = __builtin_shufflevector(tr_v_t73_0, tr_v_t73_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t73_c1 = __builtin_shufflevector(tr_v_t73_1, tr_v_t73_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t73_c2 = __builtin_shufflevector(tr_v_t73_0, tr_v_t73_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t73_c3 = __builtin_shufflevector(tr_v_t73_1, tr_v_t73_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[20] = v_t73;
+    *(derive_vd_unaligned *)&P_new[44] = v_t96;
+    *(derive_vd_unaligned *)&P_new[68] = v_t118;
+    *(derive_vd_unaligned *)&P_new[92] = v_t139;
+    *(derive_vd_unaligned *)&P_new[480] = tr_v_t73_c0;
+    *(derive_vd_unaligned *)&P_new[504] = tr_v_t73_c1;
+    *(derive_vd_unaligned *)&P_new[528] = tr_v_t73_c2;
+    *(derive_vd_unaligned *)&P_new[552] = tr_v_t73_c3;
+    #else
+    const double t139 = DERIVE_FMA(t8, P[236], P[92]);
+    const double t140 = DERIVE_FMA(t8, P[237], P[93]);
+    const double t141 = DERIVE_FMA(t8, P[238], P[94]);
+    const double t142 = DERIVE_FMA(t8, P[239], P[95]);
+    P_new[92] = t139;
+    P_new[483] = t139;
+    P_new[93] = t140;
+    P_new[507] = t140;
+    P_new[94] = t141;
+    P_new[531] = t141;
+    P_new[95] = t142;
+    P_new[555] = t142;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t143 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[220], P[221], P[222], P[223]}), ((derive_vd){P[100], P[101], P[102], P[103]}));
+    const double t144 = v_t143[1];
+    const double t145 = v_t143[2];
+    const double t146 = v_t143[3];
+    *(derive_vd_unaligned *)&P_new[100] = v_t143;
+    #else
+    const double t143 = DERIVE_FMA(t9, P[220], P[100]);
+    const double t144 = DERIVE_FMA(t9, P[221], P[101]);
+    const double t145 = DERIVE_FMA(t9, P[222], P[102]);
+    const double t146 = DERIVE_FMA(t9, P[223], P[103]);
+    P_new[100] = t143;
+    P_new[101] = t144;
+    P_new[124] = t144;
+    P_new[102] = t145;
+    P_new[148] = t145;
+    P_new[103] = t146;
+    P_new[172] = t146;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t147 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    #else
+    const double t147 = DERIVE_FMA(t9, P[224], P[104]);
+    const double t148 = DERIVE_FMA(t9, P[225], P[105]);
+    const double t149 = DERIVE_FMA(t9, P[226], P[106]);
+    const double t150 = DERIVE_FMA(t9, P[227], P[107]);
+    P_new[104] = t147;
+    P_new[196] = t147;
+    P_new[105] = t148;
+    P_new[220] = t148;
+    P_new[106] = t149;
+    P_new[244] = t149;
+    P_new[107] = t150;
+    P_new[268] = t150;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t151 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
+    #else
+    const double t151 = DERIVE_FMA(t9, P[228], P[108]);
+    const double t152 = DERIVE_FMA(t9, P[229], P[109]);
+    const double t153 = DERIVE_FMA(t9, P[230], P[110]);
+    const double t154 = DERIVE_FMA(t9, P[231], P[111]);
+    P_new[108] = t151;
+    P_new[292] = t151;
+    P_new[109] = t152;
+    P_new[316] = t152;
+    P_new[110] = t153;
+    P_new[340] = t153;
+    P_new[111] = t154;
+    P_new[364] = t154;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t155 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[112], P[113], P[114], P[115]}));
+    #else
+    const double t155 = DERIVE_FMA(t9, P[232], P[112]);
+    const double t156 = DERIVE_FMA(t9, P[233], P[113]);
+    const double t157 = DERIVE_FMA(t9, P[234], P[114]);
+    const double t158 = DERIVE_FMA(t9, P[235], P[115]);
+    P_new[112] = t155;
+    P_new[388] = t155;
+    P_new[113] = t156;
+    P_new[412] = t156;
+    P_new[114] = t157;
+    P_new[436] = t157;
+    P_new[115] = t158;
+    P_new[460] = t158;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[116], P[117], P[118], P[119]}));
+    #else
+    const double t159 = DERIVE_FMA(t9, P[236], P[116]);
+    const double t160 = DERIVE_FMA(t9, P[237], P[117]);
+    const double t161 = DERIVE_FMA(t9, P[238], P[118]);
+    const double t162 = DERIVE_FMA(t9, P[239], P[119]);
+    P_new[116] = t159;
+    P_new[484] = t159;
+    P_new[117] = t160;
+    P_new[508] = t160;
+    P_new[118] = t161;
+    P_new[532] = t161;
+    P_new[119] = t162;
+    P_new[556] = t162;
+    #endif
+    const double t163 = DERIVE_FMA(P[221], t10, P[125]);
+    const double t164 = DERIVE_FMA(P[222], t10, P[126]);
+    const double t165 = DERIVE_FMA(P[223], t10, P[127]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t166 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[128], P[129], P[130], P[131]}));
+    #else
+    const double t166 = DERIVE_FMA(t10, P[224], P[128]);
+    const double t167 = DERIVE_FMA(t10, P[225], P[129]);
+    const double t168 = DERIVE_FMA(t10, P[226], P[130]);
+    const double t169 = DERIVE_FMA(t10, P[227], P[131]);
+    P_new[128] = t166;
+    P_new[197] = t166;
+    P_new[129] = t167;
+    P_new[221] = t167;
+    P_new[130] = t168;
+    P_new[245] = t168;
+    P_new[131] = t169;
+    P_new[269] = t169;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t170 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
+    #else
+    const double t170 = DERIVE_FMA(t10, P[228], P[132]);
+    const double t171 = DERIVE_FMA(t10, P[229], P[133]);
+    const double t172 = DERIVE_FMA(t10, P[230], P[134]);
+    const double t173 = DERIVE_FMA(t10, P[231], P[135]);
+    P_new[132] = t170;
+    P_new[293] = t170;
+    P_new[133] = t171;
+    P_new[317] = t171;
+    P_new[134] = t172;
+    P_new[341] = t172;
+    P_new[135] = t173;
+    P_new[365] = t173;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t174 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    #else
+    const double t174 = DERIVE_FMA(t10, P[232], P[136]);
+    const double t175 = DERIVE_FMA(t10, P[233], P[137]);
+    const double t176 = DERIVE_FMA(t10, P[234], P[138]);
+    const double t177 = DERIVE_FMA(t10, P[235], P[139]);
+    P_new[136] = t174;
+    P_new[389] = t174;
+    P_new[137] = t175;
+    P_new[413] = t175;
+    P_new[138] = t176;
+    P_new[437] = t176;
+    P_new[139] = t177;
+    P_new[461] = t177;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t178 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
+    #else
+    const double t178 = DERIVE_FMA(t10, P[236], P[140]);
+    const double t179 = DERIVE_FMA(t10, P[237], P[141]);
+    const double t180 = DERIVE_FMA(t10, P[238], P[142]);
+    const double t181 = DERIVE_FMA(t10, P[239], P[143]);
+    P_new[140] = t178;
+    P_new[485] = t178;
+    P_new[141] = t179;
+    P_new[509] = t179;
+    P_new[142] = t180;
+    P_new[533] = t180;
+    P_new[143] = t181;
+    P_new[557] = t181;
+    #endif
+    const double t182 = DERIVE_FMA(P[222], t11, P[150]);
+    const double t183 = DERIVE_FMA(P[223], t11, P[151]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t184 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
+    #else
+    const double t184 = DERIVE_FMA(t11, P[224], P[152]);
+    const double t185 = DERIVE_FMA(t11, P[225], P[153]);
+    const double t186 = DERIVE_FMA(t11, P[226], P[154]);
+    const double t187 = DERIVE_FMA(t11, P[227], P[155]);
+    P_new[152] = t184;
+    P_new[198] = t184;
+    P_new[153] = t185;
+    P_new[222] = t185;
+    P_new[154] = t186;
+    P_new[246] = t186;
+    P_new[155] = t187;
+    P_new[270] = t187;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t188 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
+    #else
+    const double t188 = DERIVE_FMA(t11, P[228], P[156]);
+    const double t189 = DERIVE_FMA(t11, P[229], P[157]);
+    const double t190 = DERIVE_FMA(t11, P[230], P[158]);
+    const double t191 = DERIVE_FMA(t11, P[231], P[159]);
+    P_new[156] = t188;
+    P_new[294] = t188;
+    P_new[157] = t189;
+    P_new[318] = t189;
+    P_new[158] = t190;
+    P_new[342] = t190;
+    P_new[159] = t191;
+    P_new[366] = t191;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t192 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[160], P[161], P[162], P[163]}));
+    #else
+    const double t192 = DERIVE_FMA(t11, P[232], P[160]);
+    const double t193 = DERIVE_FMA(t11, P[233], P[161]);
+    const double t194 = DERIVE_FMA(t11, P[234], P[162]);
+    const double t195 = DERIVE_FMA(t11, P[235], P[163]);
+    P_new[160] = t192;
+    P_new[390] = t192;
+    P_new[161] = t193;
+    P_new[414] = t193;
+    P_new[162] = t194;
+    P_new[438] = t194;
+    P_new[163] = t195;
+    P_new[462] = t195;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t196 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[164], P[165], P[166], P[167]}));
+    #else
+    const double t196 = DERIVE_FMA(t11, P[236], P[164]);
+    const double t197 = DERIVE_FMA(t11, P[237], P[165]);
+    const double t198 = DERIVE_FMA(t11, P[238], P[166]);
+    const double t199 = DERIVE_FMA(t11, P[239], P[167]);
+    P_new[164] = t196;
+    P_new[486] = t196;
+    P_new[165] = t197;
+    P_new[510] = t197;
+    P_new[166] = t198;
+    P_new[534] = t198;
+    P_new[167] = t199;
+    P_new[558] = t199;
+    #endif
+    const double t200 = DERIVE_FMA(P[223], t12, P[175]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t201 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[176], P[177], P[178], P[179]}));
+    const derive_vd tr_v_t147_0 = __builtin_shufflevector(v_t147, v_t166, 0, 4, 2, 6);
+    const derive_vd tr_v_t147_1 = __builtin_shufflevector(v_t147, v_t166, 1, 5, 3, 7);
+    const derive_vd tr_v_t147_2 = __builtin_shufflevector(v_t184, v_t201, 0, 4, 2, 6);
+    const derive_vd tr_v_t147_3 = __builtin_shufflevector(v_t184, v_t201, 1, 5, 3, 7);
+    const derive_vd tr_v_t147_c0 = __builtin_shufflevector(tr_v_t147_0, tr_v_t147_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t147_c1 = __builtin_shufflevector(tr_v_t147_1, tr_v_t147_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t147_c2 = __builtin_shufflevector(tr_v_t147_0, tr_v_t147_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t147_c3 = __builtin_shufflevector(tr_v_t147_1, tr_v_t147_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[104] = v_t147;
+    *(derive_vd_unaligned *)&P_new[128] = v_t166;
+    *(derive_vd_unaligned *)&P_new[152] = v_t184;
+    *(derive_vd_unaligned *)&P_new[176] = v_t201;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t147_c0;
+    *(derive_vd_unaligned *)&P_new[220] = tr_v_t147_c1;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t147_c2;
+    *(derive_vd_unaligned *)&P_new[268] = tr_v_t147_c3;
+    #else
+    const double t201 = DERIVE_FMA(t12, P[224], P[176]);
+    const double t202 = DERIVE_FMA(t12, P[225], P[177]);
+    const double t203 = DERIVE_FMA(t12, P[226], P[178]);
+    const double t204 = DERIVE_FMA(t12, P[227], P[179]);
+    P_new[176] = t201;
+    P_new[199] = t201;
+    P_new[177] = t202;
+    P_new[223] = t202;
+    P_new[178] = t203;
+    P_new[247] = t203;
+    P_new[179] = t204;
+    P_new[271] = t204;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t205 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[180], P[181], P[182], P[183]}));
+    const derive_vd tr_v_t151_0 = __builtin_shufflevector(v_t151, v_t170, 0, 4, 2, 6);
+    const derive_vd tr_v_t151_1 = __builtin_shufflevector(v_t151, v_t170, 1, 5, 3, 7);
+    const derive_vd tr_v_t151_2 = __builtin_shufflevector(v_t188, v_t205, 0, 4, 2, 6);
+    const derive_vd tr_v_t151_3 = __builtin_shufflevector(v_t188, v_t205, 1, 5, 3, 7);
+    const derive_vd tr_v_t151_c0 = __builtin_shufflevector(tr_v_t151_0, tr_v_t151_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t151_c1 = __builtin_shufflevector(tr_v_t151_1, tr_v_t151_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t151_c2 = __builtin_shufflevector(tr_v_t151_0, tr_v_t151_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t151_c3 = __builtin_shufflevector(tr_v_t151_1, tr_v_t151_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[108] = v_t151;
+    *(derive_vd_unaligned *)&P_new[132] = v_t170;
+    *(derive_vd_unaligned *)&P_new[156] = v_t188;
+    *(derive_vd_unaligned *)&P_new[180] = v_t205;
+    *(derive_vd_unaligned *)&P_new[292] = tr_v_t151_c0;
+    *(derive_vd_unaligned *)&P_new[316] = tr_v_t151_c1;
+    *(derive_vd_unaligned *)&P_new[340] = tr_v_t151_c2;
+    *(derive_vd_unaligned *)&P_new[364] = tr_v_t151_c3;
+    #else
+    const double t205 = DERIVE_FMA(t12, P[228], P[180]);
+    const double t206 = DERIVE_FMA(t12, P[229], P[181]);
+    const double t207 = DERIVE_FMA(t12, P[230], P[182]);
+    const double t208 = DERIVE_FMA(t12, P[231], P[183]);
+    P_new[180] = t205;
+    P_new[295] = t205;
+    P_new[181] = t206;
+    P_new[319] = t206;
+    P_new[182] = t207;
+    P_new[343] = t207;
+    P_new[183] = t208;
+    P_new[367] = t208;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t209 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[184], P[185], P[186], P[187]}));
+    const derive_vd tr_v_t155_0 = __builtin_shufflevector(v_t155, v_t174, 0, 4, 2, 6);
+    const derive_vd tr_v_t155_1 = __builtin_shufflevector(v_t155, v_t174, 1, 5, 3, 7);
+    const derive_vd tr_v_t155_2 = __builtin_shufflevector(v_t192, v_t209, 0, 4, 2, 6);
+    const derive_vd tr_v_t155_3 = __builtin_shufflevector(v_t192, v_t209, 1, 5, 3, 7);
+    const derive_vd tr_v_t155_c0 = __builtin_shufflevector(tr_v_t155_0, tr_v_t155_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t155_c1 = __builtin_shufflevector(tr_v_t155_1, tr_v_t155_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t155_c2 = __builtin_shufflevector(tr_v_t155_0, tr_v_t155_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t155_c3 = __builtin_shufflevector(tr_v_t155_1, tr_v_t155_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[112] = v_t155;
+    *(derive_vd_unaligned *)&P_new[136] = v_t174;
+    *(derive_vd_unaligned *)&P_new[160] = v_t192;
+    *(derive_vd_unaligned *)&P_new[184] = v_t209;
+    *(derive_vd_unaligned *)&P_new[388] = tr_v_t155_c0;
+    *(derive_vd_unaligned *)&P_new[412] = tr_v_t155_c1;
+    *(derive_vd_unaligned *)&P_new[436] = tr_v_t155_c2;
+    *(derive_vd_unaligned *)&P_new[460] = tr_v_t155_c3;
+    #else
+    const double t209 = DERIVE_FMA(t12, P[232], P[184]);
+    const double t210 = DERIVE_FMA(t12, P[233], P[185]);
+    const double t211 = DERIVE_FMA(t12, P[234], P[186]);
+    const double t212 = DERIVE_FMA(t12, P[235], P[187]);
+    P_new[184] = t209;
+    P_new[391] = t209;
+    P_new[185] = t210;
+    P_new[415] = t210;
+    P_new[186] = t211;
+    P_new[439] = t211;
+    P_new[187] = t212;
+    P_new[463] = t212;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t213 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t159_0 = __builtin_shufflevector(v_t159, v_t178, 0, 4, 2, 6);
+    const derive_vd tr_v_t159_1 = __builtin_shufflevector(v_t159, v_t178, 1, 5, 3, 7);
+    const derive_vd tr_v_t159_2 = __builtin_shufflevector(v_t196, v_t213, 0, 4, 2, 6);
+    const derive_vd tr_v_t159_3 = __builtin_shufflevector(v_t196, v_t213, 1, 5, 3, 7);
+    const derive_vd tr_v_t159_c0 = __builtin_shufflevector(tr_v_t159_0, tr_v_t159_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t159_c1 = __builtin_shufflevector(tr_v_t159_1, tr_v_t159_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t159_c2 = __builtin_shufflevector(tr_v_t159_0, tr_v_t159_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t159_c3 = __builtin_shufflevector(tr_v_t159_1, tr_v_t159_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[116] = v_t159;
+    *(derive_vd_unaligned *)&P_new[140] = v_t178;
+    *(derive_vd_unaligned *)&P_new[164] = v_t196;
+    *(derive_vd_unaligned *)&P_new[188] = v_t213;
+    *(derive_vd_unaligned *)&P_new[484] = tr_v_t159_c0;
+    *(derive_vd_unaligned *)&P_new[508] = tr_v_t159_c1;
+    *(derive_vd_unaligned *)&P_new[532] = tr_v_t159_c2;
+    *(derive_vd_unaligned *)&P_new[556] = tr_v_t159_c3;
+    #else
+    const double t213 = DERIVE_FMA(t12, P[236], P[188]);
+    const double t214 = DERIVE_FMA(t12, P[237], P[189]);
+    const double t215 = DERIVE_FMA(t12, P[238], P[190]);
+    const double t216 = DERIVE_FMA(t12, P[239], P[191]);
+    P_new[188] = t213;
+    P_new[487] = t213;
+    P_new[189] = t214;
+    P_new[511] = t214;
+    P_new[190] = t215;
+    P_new[535] = t215;
+    P_new[191] = t216;
+    P_new[559] = t216;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t217 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[224], P[225], P[226], P[227]}), ((derive_vd){P[200], P[201], P[202], P[203]}));
+    const double t218 = v_t217[1];
+    const double t219 = v_t217[2];
+    const double t220 = v_t217[3];
+    *(derive_vd_unaligned *)&P_new[200] = v_t217;
+    #else
+    const double t217 = DERIVE_FMA(t13, P[224], P[200]);
+    const double t218 = DERIVE_FMA(t13, P[225], P[201]);
+    const double t219 = DERIVE_FMA(t13, P[226], P[202]);
+    const double t220 = DERIVE_FMA(t13, P[227], P[203]);
+    P_new[200] = t217;
+    P_new[201] = t218;
+    P_new[224] = t218;
+    P_new[202] = t219;
+    P_new[248] = t219;
+    P_new[203] = t220;
+    P_new[272] = t220;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t221 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    #else
+    const double t221 = DERIVE_FMA(t13, P[228], P[204]);
+    const double t222 = DERIVE_FMA(t13, P[229], P[205]);
+    const double t223 = DERIVE_FMA(t13, P[230], P[206]);
+    const double t224 = DERIVE_FMA(t13, P[231], P[207]);
+    P_new[204] = t221;
+    P_new[296] = t221;
+    P_new[205] = t222;
+    P_new[320] = t222;
+    P_new[206] = t223;
+    P_new[344] = t223;
+    P_new[207] = t224;
+    P_new[368] = t224;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t225 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[208], P[209], P[210], P[211]}));
+    #else
+    const double t225 = DERIVE_FMA(t13, P[232], P[208]);
+    const double t226 = DERIVE_FMA(t13, P[233], P[209]);
+    const double t227 = DERIVE_FMA(t13, P[234], P[210]);
+    const double t228 = DERIVE_FMA(t13, P[235], P[211]);
+    P_new[208] = t225;
+    P_new[392] = t225;
+    P_new[209] = t226;
+    P_new[416] = t226;
+    P_new[210] = t227;
+    P_new[440] = t227;
+    P_new[211] = t228;
+    P_new[464] = t228;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t229 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[212], P[213], P[214], P[215]}));
+    #else
+    const double t229 = DERIVE_FMA(t13, P[236], P[212]);
+    const double t230 = DERIVE_FMA(t13, P[237], P[213]);
+    const double t231 = DERIVE_FMA(t13, P[238], P[214]);
+    const double t232 = DERIVE_FMA(t13, P[239], P[215]);
+    P_new[212] = t229;
+    P_new[488] = t229;
+    P_new[213] = t230;
+    P_new[512] = t230;
+    P_new[214] = t231;
+    P_new[536] = t231;
+    P_new[215] = t232;
+    P_new[560] = t232;
+    #endif
+    const double t233 = (-0.25)*t14;
+    const double t234 = (-0.25)*t15;
+    const double t235 = (-0.25)*t16;
+    #if DERIVE_VECTOR
+    const derive_vd v_t236 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t17);
+    #else
+    const double t236 = (-0.25)*t17;
+    const double t237 = (-0.25)*t18;
+    const double t238 = (-0.25)*t19;
+    const double t239 = (-0.25)*t20;
+    P_new[228] = t236;
+    P_new[297] = t236;
+    P_new[229] = t237;
+    P_new[321] = t237;
+    P_new[230] = t238;
+    P_new[345] = t238;
+    P_new[231] = t239;
+    P_new[369] = t239;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t240 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t21);
+    #else
+    const double t240 = (-0.25)*t21;
+    const double t241 = (-0.25)*t22;
+    const double t242 = (-0.25)*t23;
+    const double t243 = (-0.25)*t24;
+    P_new[232] = t240;
+    P_new[393] = t240;
+    P_new[233] = t241;
+    P_new[417] = t241;
+    P_new[234] = t242;
+    P_new[441] = t242;
+    P_new[235] = t243;
+    P_new[465] = t243;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t244 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t25);
+    #else
+    const double t244 = (-0.25)*t25;
+    const double t245 = (-0.25)*t26;
+    const double t246 = (-0.25)*t27;
+    const double t247 = (-0.25)*t28;
+    P_new[236] = t244;
+    P_new[489] = t244;
+    P_new[237] = t245;
+    P_new[513] = t245;
+    P_new[238] = t246;
+    P_new[537] = t246;
+    P_new[239] = t247;
+    P_new[561] = t247;
+    #endif
+    const double t248 = DERIVE_FMA(P[226], t15, P[250]);
+    const double t249 = DERIVE_FMA(P[227], t15, P[251]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t250 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[252], P[253], P[254], P[255]}));
+    #else
+    const double t250 = DERIVE_FMA(t15, P[228], P[252]);
+    const double t251 = DERIVE_FMA(t15, P[229], P[253]);
+    const double t252 = DERIVE_FMA(t15, P[230], P[254]);
+    const double t253 = DERIVE_FMA(t15, P[231], P[255]);
+    P_new[252] = t250;
+    P_new[298] = t250;
+    P_new[253] = t251;
+    P_new[322] = t251;
+    P_new[254] = t252;
+    P_new[346] = t252;
+    P_new[255] = t253;
+    P_new[370] = t253;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t254 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[256], P[257], P[258], P[259]}));
+    #else
+    const double t254 = DERIVE_FMA(t15, P[232], P[256]);
+    const double t255 = DERIVE_FMA(t15, P[233], P[257]);
+    const double t256 = DERIVE_FMA(t15, P[234], P[258]);
+    const double t257 = DERIVE_FMA(t15, P[235], P[259]);
+    P_new[256] = t254;
+    P_new[394] = t254;
+    P_new[257] = t255;
+    P_new[418] = t255;
+    P_new[258] = t256;
+    P_new[442] = t256;
+    P_new[259] = t257;
+    P_new[466] = t257;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t258 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[260], P[261], P[262], P[263]}));
+    #else
+    const double t258 = DERIVE_FMA(t15, P[236], P[260]);
+    const double t259 = DERIVE_FMA(t15, P[237], P[261]);
+    const double t260 = DERIVE_FMA(t15, P[238], P[262]);
+    const double t261 = DERIVE_FMA(t15, P[239], P[263]);
+    P_new[260] = t258;
+    P_new[490] = t258;
+    P_new[261] = t259;
+    P_new[514] = t259;
+    P_new[262] = t260;
+    P_new[538] = t260;
+    P_new[263] = t261;
+    P_new[562] = t261;
+    #endif
+    const double t262 = DERIVE_FMA(P[227], t16, P[275]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t263 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[276], P[277], P[278], P[279]}));
+    const derive_vd tr_v_t221_0 = __builtin_shufflevector(v_t221, v_t236, 0, 4, 2, 6);
+    const derive_vd tr_v_t221_1 = __builtin_shufflevector(v_t221, v_t236, 1, 5, 3, 7);
+    const derive_vd tr_v_t221_2 = __builtin_shufflevector(v_t250, v_t263, 0, 4, 2, 6);
+    const derive_vd tr_v_t221_3 = __builtin_shufflevector(v_t250, v_t263, 1, 5, 3, 7);
+    const derive_vd tr_v_t221_c0 = __builtin_shufflevector(tr_v_t221_0, tr_v_t221_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t221_c1 = __builtin_shufflevector(tr_v_t221_1, tr_v_t221_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t221_c2 = __builtin_shufflevector(tr_v_t221_0, tr_v_t221_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t221_c3 = __builtin_shufflevector(tr_v_t221_1, tr_v_t221_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[204] = v_t221;
+    *(derive_vd_unaligned *)&P_new[228] = v_t236;
+    *(derive_vd_unaligned *)&P_new[252] = v_t250;
+    *(derive_vd_unaligned *)&P_new[276] = v_t263;
+    *(derive_vd_unaligned *)&P_new[296] = tr_v_t221_c0;
+    *(derive_vd_unaligned *)&P_new[320] = tr_v_t221_c1;
+    *(derive_vd_unaligned *)&P_new[344] = tr_v_t221_c2;
+    *(derive_vd_unaligned *)&P_new[368] = tr_v_t221_c3;
+    #else
+    const double t263 = DERIVE_FMA(t16, P[228], P[276]);
+    const double t264 = DERIVE_FMA(t16, P[229], P[277]);
+    const double t265 = DERIVE_FMA(t16, P[230], P[278]);
+    const double t266 = DERIVE_FMA(t16, P[231], P[279]);
+    P_new[276] = t263;
+    P_new[299] = t263;
+    P_new[277] = t264;
+    P_new[323] = t264;
+    P_new[278] = t265;
+    P_new[347] = t265;
+    P_new[279] = t266;
+    P_new[371] = t266;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t267 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[280], P[281], P[282], P[283]}));
+    const derive_vd tr_v_t225_0 = __builtin_shufflevector(v_t225, v_t240, 0, 4, 2, 6);
+    const derive_vd tr_v_t225_1 = __builtin_shufflevector(v_t225, v_t240, 1, 5, 3, 7);
+    const derive_vd tr_v_t225_2 = __builtin_shufflevector(v_t254, v_t267, 0, 4, 2, 6);
+    const derive_vd tr_v_t225_3 = __builtin_shufflevector(v_t254, v_t267, 1, 5, 3, 7);
+    const derive_vd tr_v_t225_c0 = __builtin_shufflevector(tr_v_t225_0, tr_v_t225_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t225_c1 = __builtin_shufflevector(tr_v_t225_1, tr_v_t225_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t225_c2 = __builtin_shufflevector(tr_v_t225_0, tr_v_t225_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t225_c3 = __builtin_shufflevector(tr_v_t225_1, tr_v_t225_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[208] = v_t225;
+    *(derive_vd_unaligned *)&P_new[232] = v_t240;
+    *(derive_vd_unaligned *)&P_new[256] = v_t254;
+    *(derive_vd_unaligned *)&P_new[280] = v_t267;
+    *(derive_vd_unaligned *)&P_new[392] = tr_v_t225_c0;
+    *(derive_vd_unaligned *)&P_new[416] = tr_v_t225_c1;
+    *(derive_vd_unaligned *)&P_new[440] = tr_v_t225_c2;
+    *(derive_vd_unaligned *)&P_new[464] = tr_v_t225_c3;
+    #else
+    const double t267 = DERIVE_FMA(t16, P[232], P[280]);
+    const double t268 = DERIVE_FMA(t16, P[233], P[281]);
+    const double t269 = DERIVE_FMA(t16, P[234], P[282]);
+    const double t270 = DERIVE_FMA(t16, P[235], P[283]);
+    P_new[280] = t267;
+    P_new[395] = t267;
+    P_new[281] = t268;
+    P_new[419] = t268;
+    P_new[282] = t269;
+    P_new[443] = t269;
+    P_new[283] = t270;
+    P_new[467] = t270;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t271 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[284], P[285], P[286], P[287]}));
+    const derive_vd tr_v_t229_0 = __builtin_shufflevector(v_t229, v_t244, 0, 4, 2, 6);
+    const derive_vd tr_v_t229_1 = __builtin_shufflevector(v_t229, v_t244, 1, 5, 3, 7);
+    const derive_vd tr_v_t229_2 = __builtin_shufflevector(v_t258, v_t271, 0, 4, 2, 6);
+    const derive_vd tr_v_t229_3 = __builtin_shufflevector(v_t258, v_t271, 1, 5, 3, 7);
+    const derive_vd tr_v_t229_c0 = __builtin_shufflevector(tr_v_t229_0, tr_v_t229_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t229_c1 = __builtin_shufflevector(tr_v_t229_1, tr_v_t229_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t229_c2 = __builtin_shufflevector(tr_v_t229_0, tr_v_t229_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t229_c3 = __builtin_shufflevector(tr_v_t229_1, tr_v_t229_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[212] = v_t229;
+    *(derive_vd_unaligned *)&P_new[236] = v_t244;
+    *(derive_vd_unaligned *)&P_new[260] = v_t258;
+    *(derive_vd_unaligned *)&P_new[284] = v_t271;
+    *(derive_vd_unaligned *)&P_new[488] = tr_v_t229_c0;
+    *(derive_vd_unaligned *)&P_new[512] = tr_v_t229_c1;
+    *(derive_vd_unaligned *)&P_new[536] = tr_v_t229_c2;
+    *(derive_vd_unaligned *)&P_new[560] = tr_v_t229_c3;
+    #else
+    const double t271 = DERIVE_FMA(t16, P[236], P[284]);
+    const double t272 = DERIVE_FMA(t16, P[237], P[285]);
+    const double t273 = DERIVE_FMA(t16, P[238], P[286]);
+    const double t274 = DERIVE_FMA(t16, P[239], P[287]);
+    P_new[284] = t271;
+    P_new[491] = t271;
+    P_new[285] = t272;
+    P_new[515] = t272;
+    P_new[286] = t273;
+    P_new[539] = t273;
+    P_new[287] = t274;
+    P_new[563] = t274;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t275 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[228], P[229], P[230], P[231]}), ((derive_vd){P[300], P[301], P[302], P[303]}));
+    const double t276 = v_t275[1];
+    const double t277 = v_t275[2];
+    const double t278 = v_t275[3];
+    *(derive_vd_unaligned *)&P_new[300] = v_t275;
+    #else
+    const double t275 = DERIVE_FMA(t17, P[228], P[300]);
+    const double t276 = DERIVE_FMA(t17, P[229], P[301]);
+    const double t277 = DERIVE_FMA(t17, P[230], P[302]);
+    const double t278 = DERIVE_FMA(t17, P[231], P[303]);
+    P_new[300] = t275;
+    P_new[301] = t276;
+    P_new[324] = t276;
+    P_new[302] = t277;
+    P_new[348] = t277;
+    P_new[303] = t278;
+    P_new[372] = t278;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t279 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[304], P[305], P[306], P[307]}));
+    #else
+    const double t279 = DERIVE_FMA(t17, P[232], P[304]);
+    const double t280 = DERIVE_FMA(t17, P[233], P[305]);
+    const double t281 = DERIVE_FMA(t17, P[234], P[306]);
+    const double t282 = DERIVE_FMA(t17, P[235], P[307]);
+    P_new[304] = t279;
+    P_new[396] = t279;
+    P_new[305] = t280;
+    P_new[420] = t280;
+    P_new[306] = t281;
+    P_new[444] = t281;
+    P_new[307] = t282;
+    P_new[468] = t282;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t283 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[308], P[309], P[310], P[311]}));
+    #else
+    const double t283 = DERIVE_FMA(t17, P[236], P[308]);
+    const double t284 = DERIVE_FMA(t17, P[237], P[309]);
+    const double t285 = DERIVE_FMA(t17, P[238], P[310]);
+    const double t286 = DERIVE_FMA(t17, P[239], P[311]);
+    P_new[308] = t283;
+    P_new[492] = t283;
+    P_new[309] = t284;
+    P_new[516] = t284;
+    P_new[310] = t285;
+    P_new[540] = t285;
+    P_new[311] = t286;
+    P_new[564] = t286;
+    #endif
+    const double t287 = DERIVE_FMA(P[229], t18, P[325]);
+    const double t288 = DERIVE_FMA(P[230], t18, P[326]);
+    const double t289 = DERIVE_FMA(P[231], t18, P[327]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t290 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[328], P[329], P[330], P[331]}));
+    #else
+    const double t290 = DERIVE_FMA(t18, P[232], P[328]);
+    const double t291 = DERIVE_FMA(t18, P[233], P[329]);
+    const double t292 = DERIVE_FMA(t18, P[234], P[330]);
+    const double t293 = DERIVE_FMA(t18, P[235], P[331]);
+    P_new[328] = t290;
+    P_new[397] = t290;
+    P_new[329] = t291;
+    P_new[421] = t291;
+    P_new[330] = t292;
+    P_new[445] = t292;
+    P_new[331] = t293;
+    P_new[469] = t293;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t294 = DERIVE_VFMA(((derive_vd){t18, t18, t18, t18}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[332], P[333], P[334], P[335]}));
+    #else
+    const double t294 = DERIVE_FMA(t18, P[236], P[332]);
+    const double t295 = DERIVE_FMA(t18, P[237], P[333]);
+    const double t296 = DERIVE_FMA(t18, P[238], P[334]);
+    const double t297 = DERIVE_FMA(t18, P[239], P[335]);
+    P_new[332] = t294;
+    P_new[493] = t294;
+    P_new[333] = t295;
+    P_new[517] = t295;
+    P_new[334] = t296;
+    P_new[541] = t296;
+    P_new[335] = t297;
+    P_new[565] = t297;
+    #endif
+    const double t298 = DERIVE_FMA(P[230], t19, P[350]);
+    const double t299 = DERIVE_FMA(P[231], t19, P[351]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t300 = DERIVE_VFMA(((derive_vd){t19, t19, t19, t19}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[352], P[353], P[354], P[355]}));
+    #else
+    const double t300 = DERIVE_FMA(t19, P[232], P[352]);
+    const double t301 = DERIVE_FMA(t19, P[233], P[353]);
+    const double t302 = DERIVE_FMA(t19, P[234], P[354]);
+    const double t303 = DERIVE_FMA(t19, P[235], P[355]);
+    P_new[352] = t300;
+    P_new[398] = t300;
+    P_new[353] = t301;
+    P_new[422] = t301;
+    P_new[354] = t302;
+    P_new[446] = t302;
+    P_new[355] = t303;
+    P_new[470] = t303;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t304 = DERIVE_VFMA(((derive_vd){t19, t19, t19, t19}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[356], P[357], P[358], P[359]}));
+    #else
+    const double t304 = DERIVE_FMA(t19, P[236], P[356]);
+    const double t305 = DERIVE_FMA(t19, P[237], P[357]);
+    const double t306 = DERIVE_FMA(t19, P[238], P[358]);
+    const double t307 = DERIVE_FMA(t19, P[239], P[359]);
+    P_new[356] = t304;
+    P_new[494] = t304;
+    P_new[357] = t305;
+    P_new[518] = t305;
+    P_new[358] = t306;
+    P_new[542] = t306;
+    P_new[359] = t307;
+    P_new[566] = t307;
+    #endif
+    const double t308 = DERIVE_FMA(P[231], t20, P[375]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t309 = DERIVE_VFMA(((derive_vd){t20, t20, t20, t20}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[376], P[377], P[378], P[379]}));
+    const derive_vd tr_v_t279_0 = __builtin_shufflevector(v_t279, v_t290, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_1 = __builtin_shufflevector(v_t279, v_t290, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_2 = __builtin_shufflevector(v_t300, v_t309, 0, 4, 2, 6);
+    const derive_vd tr_v_t279_3 = __builtin_shufflevector(v_t300, v_t309, 1, 5, 3, 7);
+    const derive_vd tr_v_t279_c0 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c1 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t279_c2 = __builtin_shufflevector(tr_v_t279_0, tr_v_t279_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t279_c3 = __builtin_shufflevector(tr_v_t279_1, tr_v_t279_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[304] = v_t279;
+    *(derive_vd_unaligned *)&P_new[328] = v_t290;
+    *(derive_vd_unaligned *)&P_new[352] = v_t300;
+    *(derive_vd_unaligned *)&P_new[376] = v_t309;
+    *(derive_vd_unaligned *)&P_new[396] = tr_v_t279_c0;
+    *(derive_vd_unaligned *)&P_new[420] = tr_v_t279_c1;
+    *(derive_vd_unaligned *)&P_new[444] = tr_v_t279_c2;
+    *(derive_vd_unaligned *)&P_new[468] = tr_v_t279_c3;
+    #else
+    const double t309 = DERIVE_FMA(t20, P[232], P[376]);
+    const double t310 = DERIVE_FMA(t20, P[233], P[377]);
+    const double t311 = DERIVE_FMA(t20, P[234], P[378]);
+    const double t312 = DERIVE_FMA(t20, P[235], P[379]);
+    P_new[376] = t309;
+    P_new[399] = t309;
+    P_new[377] = t310;
+    P_new[423] = t310;
+    P_new[378] = t311;
+    P_new[447] = t311;
+    P_new[379] = t312;
+    P_new[471] = t312;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t313 = DERIVE_VFMA(((derive_vd){t20, t20, t20, t20}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[380], P[381], P[382], P[383]}));
+    const derive_vd tr_v_t283_0 = __builtin_shufflevector(v_t283, v_t294, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_1 = __builtin_shufflevector(v_t283, v_t294, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_2 = __builtin_shufflevector(v_t304, v_t313, 0, 4, 2, 6);
+    const derive_vd tr_v_t283_3 = __builtin_shufflevector(v_t304, v_t313, 1, 5, 3, 7);
+    const derive_vd tr_v_t283_c0 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c1 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t283_c2 = __builtin_shufflevector(tr_v_t283_0, tr_v_t283_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t283_c3 = __builtin_shufflevector(tr_v_t283_1, tr_v_t283_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[308] = v_t283;
+    *(derive_vd_unaligned *)&P_new[332] = v_t294;
+    *(derive_vd_unaligned *)&P_new[356] = v_t304;
+    *(derive_vd_unaligned *)&P_new[380] = v_t313;
+    *(derive_vd_unaligned *)&P_new[492] = tr_v_t283_c0;
+    *(derive_vd_unaligned *)&P_new[516] = tr_v_t283_c1;
+    *(derive_vd_unaligned *)&P_new[540] = tr_v_t283_c2;
+    *(derive_vd_unaligned *)&P_new[564] = tr_v_t283_c3;
+    #else
+    const double t313 = DERIVE_FMA(t20, P[236], P[380]);
+    const double t314 = DERIVE_FMA(t20, P[237], P[381]);
+    const double t315 = DERIVE_FMA(t20, P[238], P[382]);
+    const double t316 = DERIVE_FMA(t20, P[239], P[383]);
+    P_new[380] = t313;
+    P_new[495] = t313;
+    P_new[381] = t314;
+    P_new[519] = t314;
+    P_new[382] = t315;
+    P_new[543] = t315;
+    P_new[383] = t316;
+    P_new[567] = t316;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t317 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), ((derive_vd){P[232], P[233], P[234], P[235]}), ((derive_vd){P[400], P[401], P[402], P[403]}));
+    const double t318 = v_t317[1];
+    const double t319 = v_t317[2];
+    const double t320 = v_t317[3];
+    *(derive_vd_unaligned *)&P_new[400] = v_t317;
+    #else
+    const double t317 = DERIVE_FMA(t21, P[232], P[400]);
+    const double t318 = DERIVE_FMA(t21, P[233], P[401]);
+    const double t319 = DERIVE_FMA(t21, P[234], P[402]);
+    const double t320 = DERIVE_FMA(t21, P[235], P[403]);
+    P_new[400] = t317;
+    P_new[401] = t318;
+    P_new[424] = t318;
+    P_new[402] = t319;
+    P_new[448] = t319;
+    P_new[403] = t320;
+    P_new[472] = t320;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t321 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[404], P[405], P[406], P[407]}));
+    #else
+    const double t321 = DERIVE_FMA(t21, P[236], P[404]);
+    const double t322 = DERIVE_FMA(t21, P[237], P[405]);
+    const double t323 = DERIVE_FMA(t21, P[238], P[406]);
+    const double t324 = DERIVE_FMA(t21, P[239], P[407]);
+    P_new[404] = t321;
+    P_new[496] = t321;
+    P_new[405] = t322;
+    P_new[520] = t322;
+    P_new[406] = t323;
+    P_new[544] = t323;
+    P_new[407] = t324;
+    P_new[568] = t324;
+    #endif
+    const double t325 = DERIVE_FMA(P[233], t22, P[425]);
+    const double t326 = DERIVE_FMA(P[234], t22, P[426]);
+    const double t327 = DERIVE_FMA(P[235], t22, P[427]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t328 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[428], P[429], P[430], P[431]}));
+    #else
+    const double t328 = DERIVE_FMA(t22, P[236], P[428]);
+    const double t329 = DERIVE_FMA(t22, P[237], P[429]);
+    const double t330 = DERIVE_FMA(t22, P[238], P[430]);
+    const double t331 = DERIVE_FMA(t22, P[239], P[431]);
+    P_new[428] = t328;
+    P_new[497] = t328;
+    P_new[429] = t329;
+    P_new[521] = t329;
+    P_new[430] = t330;
+    P_new[545] = t330;
+    P_new[431] = t331;
+    P_new[569] = t331;
+    #endif
+    const double t332 = DERIVE_FMA(P[234], t23, P[450]);
+    const double t333 = DERIVE_FMA(P[235], t23, P[451]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t334 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[452], P[453], P[454], P[455]}));
+    #else
+    const double t334 = DERIVE_FMA(t23, P[236], P[452]);
+    const double t335 = DERIVE_FMA(t23, P[237], P[453]);
+    const double t336 = DERIVE_FMA(t23, P[238], P[454]);
+    const double t337 = DERIVE_FMA(t23, P[239], P[455]);
+    P_new[452] = t334;
+    P_new[498] = t334;
+    P_new[453] = t335;
+    P_new[522] = t335;
+    P_new[454] = t336;
+    P_new[546] = t336;
+    P_new[455] = t337;
+    P_new[570] = t337;
+    #endif
+    const double t338 = DERIVE_FMA(P[235], t24, P[475]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t339 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[476], P[477], P[478], P[479]}));
+    const derive_vd tr_v_t321_0 = __builtin_shufflevector(v_t321, v_t328, 0, 4, 2, 6);
+    const derive_vd tr_v_t321_1 = __builtin_shufflevector(v_t321, v_t328, 1, 5, 3, 7);
+    const derive_vd tr_v_t321_2 = __builtin_shufflevector(v_t334, v_t339, 0, 4, 2, 6);
+    const derive_vd tr_v_t321_3 = __builtin_shufflevector(v_t334, v_t339, 1, 5, 3, 7);
+    const derive_vd tr_v_t321_c0 = __builtin_shufflevector(tr_v_t321_0, tr_v_t321_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t321_c1 = __builtin_shufflevector(tr_v_t321_1, tr_v_t321_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t321_c2 = __builtin_shufflevector(tr_v_t321_0, tr_v_t321_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t321_c3 = __builtin_shufflevector(tr_v_t321_1, tr_v_t321_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[404] = v_t321;
+    *(derive_vd_unaligned *)&P_new[428] = v_t328;
+    *(derive_vd_unaligned *)&P_new[452] = v_t334;
+    *(derive_vd_unaligned *)&P_new[476] = v_t339;
+    *(derive_vd_unaligned *)&P_new[496] = tr_v_t321_c0;
+    *(derive_vd_unaligned *)&P_new[520] = tr_v_t321_c1;
+    *(derive_vd_unaligned *)&P_new[544] = tr_v_t321_c2;
+    *(derive_vd_unaligned *)&P_new[568] = tr_v_t321_c3;
+    #else
+    const double t339 = DERIVE_FMA(t24, P[236], P[476]);
+    const double t340 = DERIVE_FMA(t24, P[237], P[477]);
+    const double t341 = DERIVE_FMA(t24, P[238], P[478]);
+    const double t342 = DERIVE_FMA(t24, P[239], P[479]);
+    P_new[476] = t339;
+    P_new[499] = t339;
+    P_new[477] = t340;
+    P_new[523] = t340;
+    P_new[478] = t341;
+    P_new[547] = t341;
+    P_new[479] = t342;
+    P_new[571] = t342;
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t343 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), ((derive_vd){P[236], P[237], P[238], P[239]}), ((derive_vd){P[500], P[501], P[502], P[503]}));
+    const double t344 = v_t343[1];
+    const double t345 = v_t343[2];
+    const double t346 = v_t343[3];
+    *(derive_vd_unaligned *)&P_new[500] = v_t343;
+    #else
+    const double t343 = DERIVE_FMA(t25, P[236], P[500]);
+    const double t344 = DERIVE_FMA(t25, P[237], P[501]);
+    const double t345 = DERIVE_FMA(t25, P[238], P[502]);
+    const double t346 = DERIVE_FMA(t25, P[239], P[503]);
+    P_new[500] = t343;
+    P_new[501] = t344;
+    P_new[524] = t344;
+    P_new[502] = t345;
+    P_new[548] = t345;
+    P_new[503] = t346;
+    P_new[572] = t346;
+    #endif
+    const double t347 = DERIVE_FMA(P[237], t26, P[525]);
+    const double t348 = DERIVE_FMA(P[238], t26, P[526]);
+    const double t349 = DERIVE_FMA(P[239], t26, P[527]);
+    const double t350 = DERIVE_FMA(P[238], t27, P[550]);
+    const double t351 = DERIVE_FMA(P[239], t27, P[551]);
+    const double t352 = DERIVE_FMA(P[239], t28, P[575]);
+    const double t353 = DERIVE_FMA(t32, t32, DERIVE_FMA(t31, t31, DERIVE_FMA(t30, t30, t29*t29)));
+    const double t354 = 1.0/sqrt(t353);
+    const double t355 = t29*t354;
+    const double t356 = t30*t354;
+    const double t357 = t31*t354;
+    const double t358 = t32*t354;
+    #if DERIVE_VECTOR
+    x_new[0] = t355;
+    x_new[1] = t356;
+    x_new[2] = t357;
+    x_new[3] = t358;
+    P_new[24] = t54;
+    P_new[25] = t77;
+    P_new[26] = t78;
+    P_new[27] = t79;
+    P_new[48] = t55;
+    P_new[49] = t78;
+    P_new[50] = t100;
+    P_new[51] = t101;
+    P_new[72] = t56;
+    P_new[73] = t79;
+    P_new[74] = t101;
+    P_new[75] = t122;
+    P_new[124] = t144;
+    P_new[125] = t163;
+    P_new[126] = t164;
+    P_new[127] = t165;
+    P_new[148] = t145;
+    P_new[149] = t164;
+    P_new[150] = t182;
+    P_new[151] = t183;
+    P_new[172] = t146;
+    P_new[173] = t165;
+    P_new[174] = t183;
+    P_new[175] = t200;
+    P_new[224] = t218;
+    P_new[225] = t233;
+    P_new[226] = t234;
+    P_new[227] = t235;
+    P_new[248] = t219;
+    P_new[249] = t234;
+    P_new[250] = t248;
+    P_new[251] = t249;
+    P_new[272] = t220;
+    P_new[273] = t235;
+    P_new[274] = t249;
+    P_new[275] = t262;
+    P_new[324] = t276;
+    P_new[325] = t287;
+    P_new[326] = t288;
+    P_new[327] = t289;
+    P_new[348] = t277;
+    P_new[349] = t288;
+    P_new[350] = t298;
+    P_new[351] = t299;
+    P_new[372] = t278;
+    P_new[373] = t289;
+    P_new[374] = t299;
+    P_new[375] = t308;
+    P_new[424] = t318;
+    P_new[425] = t325;
+    P_new[426] = t326;
+    P_new[427] = t327;
+    P_new[448] = t319;
+    P_new[449] = t326;
+    P_new[450] = t332;
+    P_new[451] = t333;
+    P_new[472] = t320;
+    P_new[473] = t327;
+    P_new[474] = t333;
+    P_new[475] = t338;
+    P_new[524] = t344;
+    P_new[525] = t347;
+    P_new[526] = t348;
+    P_new[527] = t349;
+    P_new[548] = t345;
+    P_new[549] = t348;
+    P_new[550] = t350;
+    P_new[551] = t351;
+    P_new[572] = t346;
+    P_new[573] = t349;
+    P_new[574] = t351;
+    P_new[575] = t352;
+    #else
+    x_new[0] = t355;
+    x_new[1] = t356;
+    x_new[2] = t357;
+    x_new[3] = t358;
+    P_new[25] = t77;
+    P_new[26] = t78;
+    P_new[27] = t79;
+    P_new[49] = t78;
+    P_new[50] = t100;
+    P_new[51] = t101;
+    P_new[73] = t79;
+    P_new[74] = t101;
+    P_new[75] = t122;
+    P_new[125] = t163;
+    P_new[126] = t164;
+    P_new[127] = t165;
+    P_new[149] = t164;
+    P_new[150] = t182;
+    P_new[151] = t183;
+    P_new[173] = t165;
+    P_new[174] = t183;
+    P_new[175] = t200;
+    P_new[225] = t233;
+    P_new[226] = t234;
+    P_new[227] = t235;
+    P_new[249] = t234;
+    P_new[250] = t248;
+    P_new[251] = t249;
+    P_new[273] = t235;
+    P_new[274] = t249;
+    P_new[275] = t262;
+    P_new[325] = t287;
+    P_new[326] = t288;
+    P_new[327] = t289;
+    P_new[349] = t288;
+    P_new[350] = t298;
+    P_new[351] = t299;
+    P_new[373] = t289;
+    P_new[374] = t299;
+    P_new[375] = t308;
+    P_new[425] = t325;
+    P_new[426] = t326;
+    P_new[427] = t327;
+    P_new[449] = t326;
+    P_new[450] = t332;
+    P_new[451] = t333;
+    P_new[473] = t327;
+    P_new[474] = t333;
+    P_new[475] = t338;
+    P_new[525] = t347;
+    P_new[526] = t348;
+    P_new[527] = t349;
+    P_new[549] = t348;
+    P_new[550] = t350;
+    P_new[551] = t351;
+    P_new[573] = t349;
+    P_new[574] = t351;
+    P_new[575] = t352;
     #endif
     return 0;
 }

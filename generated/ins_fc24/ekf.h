@@ -36,8 +36,8 @@
  *     update_mag 11: S is not positive definite: the variance s of measurement 2 (magz) of the sequential update is not positive
  *     update_airspeed 12: S is not positive definite: the variance s of measurement 0 (tas) of the sequential update is not positive
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 57, sub 8, mul 115, div 0, sqrt 0, fma 1432, neg 29, cmp 1, calls 0 (flops 3044, instructions 1642)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 170, div 7, sqrt 1, fma 2357, neg 0, cmp 6, calls 0 (flops 4904, instructions 2553)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 30, div 2, sqrt 1, fma 327, neg 24, cmp 1, calls 0 (flops 689, instructions 387)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 275, div 7, sqrt 1, fma 1980, neg 0, cmp 6, calls 0 (flops 4255, instructions 2281)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 45, div 2, sqrt 1, fma 312, neg 0, cmp 1, calls 0 (flops 674, instructions 363)
  * operations per call of update_mag (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 81, sub 9, mul 185, div 4, sqrt 1, fma 1554, neg 9, cmp 3, calls 0 (flops 3388, instructions 1846)
  * operations per call of update_airspeed (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 0, sub 3, mul 58, div 3, sqrt 2, fma 430, neg 2, cmp 1, calls 0 (flops 926, instructions 499)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)

@@ -28,8 +28,8 @@
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 53, sub 13, mul 111, div 0, sqrt 0, fma 1036, neg 21, cmp 1, calls 0 (flops 2249, instructions 1235)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1205, neg 0, cmp 6, calls 0 (flops 2552, instructions 1353)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 22, div 2, sqrt 1, fma 155, neg 16, cmp 1, calls 0 (flops 337, instructions 199)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 179, div 7, sqrt 1, fma 996, neg 0, cmp 6, calls 0 (flops 2191, instructions 1201)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 29, div 2, sqrt 1, fma 148, neg 0, cmp 1, calls 0 (flops 330, instructions 183)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: wx, wy, wz, ax, ay, az
@@ -1462,8 +1462,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[132], P[133], P[134], P[135]}));
-    const double t84 = v_t83[1];
-    const double t85 = v_t83[2];
     const double t86 = v_t83[3];
     #else
     const double t83 = DERIVE_FMA(t13, P[116], P[132]);
@@ -1473,7 +1471,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const double t88 = v_t87[1];
     const double t89 = v_t87[2];
     const double t90 = v_t87[3];
     #else
@@ -1508,8 +1505,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t99_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[148], P[149], P[150], P[151]}));
     const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t83, v_t99_0);
-    const double t100 = v_t99[1];
-    const double t101 = v_t99[2];
     const double t102 = v_t99[3];
     #else
     const double t99 = DERIVE_FMA(t35, t83, DERIVE_FMA(t14, P[116], P[148]));
@@ -1520,7 +1515,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #if DERIVE_VECTOR
     const derive_vd v_t103_0 = DERIVE_VFMA(((derive_vd){t14, t14, t14, t14}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[152], P[153], P[154], P[155]}));
     const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t35, t35, t35, t35}), v_t87, v_t103_0);
-    const double t104 = v_t103[1];
     const double t105 = v_t103[2];
     const double t106 = v_t103[3];
     #else
@@ -1558,8 +1552,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t115_0 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
     const derive_vd v_t115_1 = DERIVE_VFMA(((derive_vd){t36, t36, t36, t36}), v_t83, v_t115_0);
     const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t52, t52, t52, t52}), v_t99, v_t115_1);
-    const double t116 = v_t115[1];
-    const double t117 = v_t115[2];
     const double t118 = v_t115[3];
     #else
     const double t115 = DERIVE_FMA(t52, t99, DERIVE_FMA(t36, t83, DERIVE_FMA(t15, P[116], P[68])));
@@ -1612,8 +1604,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     const derive_vd v_t131_1 = DERIVE_VFMA(((derive_vd){t37, t37, t37, t37}), v_t83, v_t131_0);
     const derive_vd v_t131_2 = DERIVE_VFMA(((derive_vd){t53, t53, t53, t53}), v_t99, v_t131_1);
     const derive_vd v_t131 = DERIVE_VFMA(((derive_vd){t64, t64, t64, t64}), v_t115, v_t131_2);
-    const double t132 = v_t131[1];
-    const double t133 = v_t131[2];
     const double t134 = v_t131[3];
     #else
     const double t131 = DERIVE_FMA(t64, t115, DERIVE_FMA(t53, t99, DERIVE_FMA(t37, t83, DERIVE_FMA(t16, P[116], P[84]))));
@@ -1723,20 +1713,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t163 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[116], P[117], P[118], P[119]}));
-    const double t163 = v_t163[0];
-    const double t164 = v_t163[1];
-    const double t165 = v_t163[2];
     const double t166 = v_t163[3];
     #else
-    const double t163 = t12*P[116];
-    const double t164 = t12*P[117];
-    const double t165 = t12*P[118];
     const double t166 = t12*P[119];
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t167 = (((derive_vd){t12, t12, t12, t12}) * ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const double t167 = v_t167[0];
-    const double t168 = v_t167[1];
     const double t169 = v_t167[2];
     const double t170 = v_t167[3];
     #else
@@ -1771,20 +1753,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t179 = (((derive_vd){t34, t34, t34, t34}) * v_t83);
-    const double t179 = v_t179[0];
-    const double t180 = v_t179[1];
-    const double t181 = v_t179[2];
     const double t182 = v_t179[3];
     #else
-    const double t179 = t34*t83;
-    const double t180 = t34*t84;
-    const double t181 = t34*t85;
     const double t182 = t34*t86;
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t183 = (((derive_vd){t34, t34, t34, t34}) * v_t87);
-    const double t183 = v_t183[0];
-    const double t184 = v_t183[1];
     const double t185 = v_t183[2];
     const double t186 = v_t183[3];
     #else
@@ -1819,14 +1793,8 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t195 = (((derive_vd){t51, t51, t51, t51}) * v_t99);
-    const double t195 = v_t195[0];
-    const double t196 = v_t195[1];
-    const double t197 = v_t195[2];
     const double t198 = v_t195[3];
     #else
-    const double t195 = t51*t99;
-    const double t196 = t51*t100;
-    const double t197 = t51*t101;
     const double t198 = t51*t102;
     #endif
     #if DERIVE_VECTOR
@@ -1867,9 +1835,6 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     #endif
     #if DERIVE_VECTOR
     const derive_vd v_t211 = (((derive_vd){t63, t63, t63, t63}) * v_t115);
-    const double t211 = v_t211[0];
-    const double t212 = v_t211[1];
-    const double t213 = v_t211[2];
     const double t214 = v_t211[3];
     #else
     const double t211 = t63*t115;
@@ -2399,21 +2364,18 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[243] = t328;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t329_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[116], P[117], P[118], P[119]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const derive_vd v_t329_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t83, v_t329_0);
-    const derive_vd v_t329_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t99, v_t329_1);
-    const derive_vd v_t329_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t115, v_t329_2);
-    const derive_vd v_t329_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t131, v_t329_3);
-    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t147, v_t329_4);
+    const derive_vd v_t329_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t211);
+    const derive_vd v_t329_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t131, v_t329_0);
+    const derive_vd v_t329 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t147, v_t329_1);
     const double t330 = v_t329[1];
     const double t331 = v_t329[2];
     const double t332 = v_t329[3];
     *(derive_vd_unaligned *)&P_new[68] = v_t329;
     #else
-    const double t329 = DERIVE_FMA(t243, t147, DERIVE_FMA(t227, t131, DERIVE_FMA(t211, t115, DERIVE_FMA(t195, t99, DERIVE_FMA(t179, t83, DERIVE_FMA(t163, P[116], P[68]))))));
-    const double t330 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, DERIVE_FMA(t211, t116, DERIVE_FMA(t195, t100, DERIVE_FMA(t179, t84, DERIVE_FMA(t163, P[117], P[69]))))));
-    const double t331 = DERIVE_FMA(t243, t149, DERIVE_FMA(t227, t133, DERIVE_FMA(t211, t117, DERIVE_FMA(t195, t101, DERIVE_FMA(t179, t85, DERIVE_FMA(t163, P[118], P[70]))))));
-    const double t332 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, DERIVE_FMA(t211, t118, DERIVE_FMA(t195, t102, DERIVE_FMA(t179, t86, DERIVE_FMA(t163, P[119], P[71]))))));
+    const double t329 = DERIVE_FMA(t243, t147, DERIVE_FMA(t227, t131, (-0.01)*t211));
+    const double t330 = DERIVE_FMA(t243, t148, DERIVE_FMA(t227, t132, (-0.01)*t212));
+    const double t331 = DERIVE_FMA(t243, t149, DERIVE_FMA(t227, t133, (-0.01)*t213));
+    const double t332 = DERIVE_FMA(t243, t150, DERIVE_FMA(t227, t134, (-0.01)*t214));
     P_new[68] = t329;
     P_new[69] = t330;
     P_new[84] = t330;
@@ -2423,17 +2385,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[116] = t332;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t333_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
-    const derive_vd v_t333_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t87, v_t333_0);
-    const derive_vd v_t333_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t103, v_t333_1);
-    const derive_vd v_t333_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t119, v_t333_2);
-    const derive_vd v_t333_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t135, v_t333_3);
-    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t151, v_t333_4);
+    const derive_vd v_t333_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t215);
+    const derive_vd v_t333_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t135, v_t333_0);
+    const derive_vd v_t333 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t151, v_t333_1);
     #else
-    const double t333 = DERIVE_FMA(t243, t151, DERIVE_FMA(t227, t135, DERIVE_FMA(t211, t119, DERIVE_FMA(t195, t103, DERIVE_FMA(t179, t87, DERIVE_FMA(t163, P[120], P[72]))))));
-    const double t334 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, DERIVE_FMA(t211, t120, DERIVE_FMA(t195, t104, DERIVE_FMA(t179, t88, DERIVE_FMA(t163, P[121], P[73]))))));
-    const double t335 = DERIVE_FMA(t243, t153, DERIVE_FMA(t227, t137, DERIVE_FMA(t211, t121, DERIVE_FMA(t195, t105, DERIVE_FMA(t179, t89, DERIVE_FMA(t163, P[122], P[74]))))));
-    const double t336 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, DERIVE_FMA(t211, t122, DERIVE_FMA(t195, t106, DERIVE_FMA(t179, t90, DERIVE_FMA(t163, P[123], P[75]))))));
+    const double t333 = DERIVE_FMA(t243, t151, DERIVE_FMA(t227, t135, (-0.01)*t215));
+    const double t334 = DERIVE_FMA(t243, t152, DERIVE_FMA(t227, t136, (-0.01)*t216));
+    const double t335 = DERIVE_FMA(t243, t153, DERIVE_FMA(t227, t137, (-0.01)*t217));
+    const double t336 = DERIVE_FMA(t243, t154, DERIVE_FMA(t227, t138, (-0.01)*t218));
     P_new[72] = t333;
     P_new[132] = t333;
     P_new[73] = t334;
@@ -2444,17 +2403,14 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[180] = t336;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t337_0 = DERIVE_VFMA(((derive_vd){t163, t163, t163, t163}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
-    const derive_vd v_t337_1 = DERIVE_VFMA(((derive_vd){t179, t179, t179, t179}), v_t91, v_t337_0);
-    const derive_vd v_t337_2 = DERIVE_VFMA(((derive_vd){t195, t195, t195, t195}), v_t107, v_t337_1);
-    const derive_vd v_t337_3 = DERIVE_VFMA(((derive_vd){t211, t211, t211, t211}), v_t123, v_t337_2);
-    const derive_vd v_t337_4 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t139, v_t337_3);
-    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t155, v_t337_4);
+    const derive_vd v_t337_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t219);
+    const derive_vd v_t337_1 = DERIVE_VFMA(((derive_vd){t227, t227, t227, t227}), v_t139, v_t337_0);
+    const derive_vd v_t337 = DERIVE_VFMA(((derive_vd){t243, t243, t243, t243}), v_t155, v_t337_1);
     #else
-    const double t337 = DERIVE_FMA(t243, t155, DERIVE_FMA(t227, t139, DERIVE_FMA(t211, t123, DERIVE_FMA(t195, t107, DERIVE_FMA(t179, t91, DERIVE_FMA(t163, P[124], P[76]))))));
-    const double t338 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, DERIVE_FMA(t211, t124, DERIVE_FMA(t195, t108, DERIVE_FMA(t179, t92, DERIVE_FMA(t163, P[125], P[77]))))));
-    const double t339 = DERIVE_FMA(t243, t157, DERIVE_FMA(t227, t141, DERIVE_FMA(t211, t125, DERIVE_FMA(t195, t109, DERIVE_FMA(t179, t93, DERIVE_FMA(t163, P[126], P[78]))))));
-    const double t340 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, DERIVE_FMA(t211, t126, DERIVE_FMA(t195, t110, DERIVE_FMA(t179, t94, DERIVE_FMA(t163, P[127], P[79]))))));
+    const double t337 = DERIVE_FMA(t243, t155, DERIVE_FMA(t227, t139, (-0.01)*t219));
+    const double t338 = DERIVE_FMA(t243, t156, DERIVE_FMA(t227, t140, (-0.01)*t220));
+    const double t339 = DERIVE_FMA(t243, t157, DERIVE_FMA(t227, t141, (-0.01)*t221));
+    const double t340 = DERIVE_FMA(t243, t158, DERIVE_FMA(t227, t142, (-0.01)*t222));
     P_new[76] = t337;
     P_new[196] = t337;
     P_new[77] = t338;
@@ -2464,21 +2420,17 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[79] = t340;
     P_new[244] = t340;
     #endif
-    const double t341 = DERIVE_FMA(t180, t84, DERIVE_FMA(t148, t244, DERIVE_FMA(t132, t228, DERIVE_FMA(t116, t212, DERIVE_FMA(t100, t196, DERIVE_FMA(P[117], t164, P[85]))))));
-    const double t342 = DERIVE_FMA(t180, t85, DERIVE_FMA(t149, t244, DERIVE_FMA(t133, t228, DERIVE_FMA(t117, t212, DERIVE_FMA(t101, t196, DERIVE_FMA(P[118], t164, P[86]))))));
-    const double t343 = DERIVE_FMA(t180, t86, DERIVE_FMA(t150, t244, DERIVE_FMA(t134, t228, DERIVE_FMA(t118, t212, DERIVE_FMA(t102, t196, DERIVE_FMA(P[119], t164, P[87]))))));
+    const double t341 = DERIVE_FMA(t148, t244, (-0.01)*t228);
+    const double t342 = DERIVE_FMA(t149, t244, (-0.01)*t229);
+    const double t343 = DERIVE_FMA(t150, t244, (-0.01)*t230);
     #if DERIVE_VECTOR
-    const derive_vd v_t344_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
-    const derive_vd v_t344_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t87, v_t344_0);
-    const derive_vd v_t344_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t103, v_t344_1);
-    const derive_vd v_t344_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t119, v_t344_2);
-    const derive_vd v_t344_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t135, v_t344_3);
-    const derive_vd v_t344 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t151, v_t344_4);
+    const derive_vd v_t344_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t231);
+    const derive_vd v_t344 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t151, v_t344_0);
     #else
-    const double t344 = DERIVE_FMA(t244, t151, DERIVE_FMA(t228, t135, DERIVE_FMA(t212, t119, DERIVE_FMA(t196, t103, DERIVE_FMA(t180, t87, DERIVE_FMA(t164, P[120], P[88]))))));
-    const double t345 = DERIVE_FMA(t244, t152, DERIVE_FMA(t228, t136, DERIVE_FMA(t212, t120, DERIVE_FMA(t196, t104, DERIVE_FMA(t180, t88, DERIVE_FMA(t164, P[121], P[89]))))));
-    const double t346 = DERIVE_FMA(t244, t153, DERIVE_FMA(t228, t137, DERIVE_FMA(t212, t121, DERIVE_FMA(t196, t105, DERIVE_FMA(t180, t89, DERIVE_FMA(t164, P[122], P[90]))))));
-    const double t347 = DERIVE_FMA(t244, t154, DERIVE_FMA(t228, t138, DERIVE_FMA(t212, t122, DERIVE_FMA(t196, t106, DERIVE_FMA(t180, t90, DERIVE_FMA(t164, P[123], P[91]))))));
+    const double t344 = DERIVE_FMA(t244, t151, (-0.01)*t231);
+    const double t345 = DERIVE_FMA(t244, t152, (-0.01)*t232);
+    const double t346 = DERIVE_FMA(t244, t153, (-0.01)*t233);
+    const double t347 = DERIVE_FMA(t244, t154, (-0.01)*t234);
     P_new[88] = t344;
     P_new[133] = t344;
     P_new[89] = t345;
@@ -2489,17 +2441,13 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[181] = t347;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t348_0 = DERIVE_VFMA(((derive_vd){t164, t164, t164, t164}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
-    const derive_vd v_t348_1 = DERIVE_VFMA(((derive_vd){t180, t180, t180, t180}), v_t91, v_t348_0);
-    const derive_vd v_t348_2 = DERIVE_VFMA(((derive_vd){t196, t196, t196, t196}), v_t107, v_t348_1);
-    const derive_vd v_t348_3 = DERIVE_VFMA(((derive_vd){t212, t212, t212, t212}), v_t123, v_t348_2);
-    const derive_vd v_t348_4 = DERIVE_VFMA(((derive_vd){t228, t228, t228, t228}), v_t139, v_t348_3);
-    const derive_vd v_t348 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t155, v_t348_4);
+    const derive_vd v_t348_0 = (((derive_vd){(-0.01), (-0.01), (-0.01), (-0.01)}) * v_t235);
+    const derive_vd v_t348 = DERIVE_VFMA(((derive_vd){t244, t244, t244, t244}), v_t155, v_t348_0);
     #else
-    const double t348 = DERIVE_FMA(t244, t155, DERIVE_FMA(t228, t139, DERIVE_FMA(t212, t123, DERIVE_FMA(t196, t107, DERIVE_FMA(t180, t91, DERIVE_FMA(t164, P[124], P[92]))))));
-    const double t349 = DERIVE_FMA(t244, t156, DERIVE_FMA(t228, t140, DERIVE_FMA(t212, t124, DERIVE_FMA(t196, t108, DERIVE_FMA(t180, t92, DERIVE_FMA(t164, P[125], P[93]))))));
-    const double t350 = DERIVE_FMA(t244, t157, DERIVE_FMA(t228, t141, DERIVE_FMA(t212, t125, DERIVE_FMA(t196, t109, DERIVE_FMA(t180, t93, DERIVE_FMA(t164, P[126], P[94]))))));
-    const double t351 = DERIVE_FMA(t244, t158, DERIVE_FMA(t228, t142, DERIVE_FMA(t212, t126, DERIVE_FMA(t196, t110, DERIVE_FMA(t180, t94, DERIVE_FMA(t164, P[127], P[95]))))));
+    const double t348 = DERIVE_FMA(t244, t155, (-0.01)*t235);
+    const double t349 = DERIVE_FMA(t244, t156, (-0.01)*t236);
+    const double t350 = DERIVE_FMA(t244, t157, (-0.01)*t237);
+    const double t351 = DERIVE_FMA(t244, t158, (-0.01)*t238);
     P_new[92] = t348;
     P_new[197] = t348;
     P_new[93] = t349;
@@ -2509,20 +2457,15 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[95] = t351;
     P_new[245] = t351;
     #endif
-    const double t352 = DERIVE_FMA(t181, t85, DERIVE_FMA(t149, t245, DERIVE_FMA(t133, t229, DERIVE_FMA(t117, t213, DERIVE_FMA(t101, t197, DERIVE_FMA(P[118], t165, P[102]))))));
-    const double t353 = DERIVE_FMA(t181, t86, DERIVE_FMA(t150, t245, DERIVE_FMA(t134, t229, DERIVE_FMA(t118, t213, DERIVE_FMA(t102, t197, DERIVE_FMA(P[119], t165, P[103]))))));
+    const double t352 = (-0.04)*t245;
+    const double t353 = (-0.04)*t246;
     #if DERIVE_VECTOR
-    const derive_vd v_t354_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
-    const derive_vd v_t354_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t87, v_t354_0);
-    const derive_vd v_t354_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t103, v_t354_1);
-    const derive_vd v_t354_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t119, v_t354_2);
-    const derive_vd v_t354_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t135, v_t354_3);
-    const derive_vd v_t354 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t151, v_t354_4);
+    const derive_vd v_t354 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t247);
     #else
-    const double t354 = DERIVE_FMA(t245, t151, DERIVE_FMA(t229, t135, DERIVE_FMA(t213, t119, DERIVE_FMA(t197, t103, DERIVE_FMA(t181, t87, DERIVE_FMA(t165, P[120], P[104]))))));
-    const double t355 = DERIVE_FMA(t245, t152, DERIVE_FMA(t229, t136, DERIVE_FMA(t213, t120, DERIVE_FMA(t197, t104, DERIVE_FMA(t181, t88, DERIVE_FMA(t165, P[121], P[105]))))));
-    const double t356 = DERIVE_FMA(t245, t153, DERIVE_FMA(t229, t137, DERIVE_FMA(t213, t121, DERIVE_FMA(t197, t105, DERIVE_FMA(t181, t89, DERIVE_FMA(t165, P[122], P[106]))))));
-    const double t357 = DERIVE_FMA(t245, t154, DERIVE_FMA(t229, t138, DERIVE_FMA(t213, t122, DERIVE_FMA(t197, t106, DERIVE_FMA(t181, t90, DERIVE_FMA(t165, P[123], P[107]))))));
+    const double t354 = (-0.04)*t247;
+    const double t355 = (-0.04)*t248;
+    const double t356 = (-0.04)*t249;
+    const double t357 = (-0.04)*t250;
     P_new[104] = t354;
     P_new[134] = t354;
     P_new[105] = t355;
@@ -2533,17 +2476,12 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[182] = t357;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t358_0 = DERIVE_VFMA(((derive_vd){t165, t165, t165, t165}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
-    const derive_vd v_t358_1 = DERIVE_VFMA(((derive_vd){t181, t181, t181, t181}), v_t91, v_t358_0);
-    const derive_vd v_t358_2 = DERIVE_VFMA(((derive_vd){t197, t197, t197, t197}), v_t107, v_t358_1);
-    const derive_vd v_t358_3 = DERIVE_VFMA(((derive_vd){t213, t213, t213, t213}), v_t123, v_t358_2);
-    const derive_vd v_t358_4 = DERIVE_VFMA(((derive_vd){t229, t229, t229, t229}), v_t139, v_t358_3);
-    const derive_vd v_t358 = DERIVE_VFMA(((derive_vd){t245, t245, t245, t245}), v_t155, v_t358_4);
+    const derive_vd v_t358 = (((derive_vd){(-0.04), (-0.04), (-0.04), (-0.04)}) * v_t251);
     #else
-    const double t358 = DERIVE_FMA(t245, t155, DERIVE_FMA(t229, t139, DERIVE_FMA(t213, t123, DERIVE_FMA(t197, t107, DERIVE_FMA(t181, t91, DERIVE_FMA(t165, P[124], P[108]))))));
-    const double t359 = DERIVE_FMA(t245, t156, DERIVE_FMA(t229, t140, DERIVE_FMA(t213, t124, DERIVE_FMA(t197, t108, DERIVE_FMA(t181, t92, DERIVE_FMA(t165, P[125], P[109]))))));
-    const double t360 = DERIVE_FMA(t245, t157, DERIVE_FMA(t229, t141, DERIVE_FMA(t213, t125, DERIVE_FMA(t197, t109, DERIVE_FMA(t181, t93, DERIVE_FMA(t165, P[126], P[110]))))));
-    const double t361 = DERIVE_FMA(t245, t158, DERIVE_FMA(t229, t142, DERIVE_FMA(t213, t126, DERIVE_FMA(t197, t110, DERIVE_FMA(t181, t94, DERIVE_FMA(t165, P[127], P[111]))))));
+    const double t358 = (-0.04)*t251;
+    const double t359 = (-0.04)*t252;
+    const double t360 = (-0.04)*t253;
+    const double t361 = (-0.04)*t254;
     P_new[108] = t358;
     P_new[198] = t358;
     P_new[109] = t359;
@@ -2553,9 +2491,9 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[111] = t361;
     P_new[246] = t361;
     #endif
-    const double t362 = DERIVE_FMA(t182, t86, DERIVE_FMA(t150, t246, DERIVE_FMA(t134, t230, DERIVE_FMA(t118, t214, DERIVE_FMA(t102, t198, DERIVE_FMA(P[119], t166, P[119]))))));
+    const double t362 = DERIVE_FMA(t182, t86, DERIVE_FMA(t150, t246, DERIVE_FMA(t134, t230, DERIVE_FMA(t118, t214, DERIVE_FMA(t102, t198, (-2.25)*t166)))));
     #if DERIVE_VECTOR
-    const derive_vd v_t363_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd v_t363_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t167);
     const derive_vd v_t363_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t87, v_t363_0);
     const derive_vd v_t363_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t103, v_t363_1);
     const derive_vd v_t363_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t119, v_t363_2);
@@ -2578,10 +2516,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[164] = tr_v_t333_c2;
     *(derive_vd_unaligned *)&P_new[180] = tr_v_t333_c3;
     #else
-    const double t363 = DERIVE_FMA(t246, t151, DERIVE_FMA(t230, t135, DERIVE_FMA(t214, t119, DERIVE_FMA(t198, t103, DERIVE_FMA(t182, t87, DERIVE_FMA(t166, P[120], P[120]))))));
-    const double t364 = DERIVE_FMA(t246, t152, DERIVE_FMA(t230, t136, DERIVE_FMA(t214, t120, DERIVE_FMA(t198, t104, DERIVE_FMA(t182, t88, DERIVE_FMA(t166, P[121], P[121]))))));
-    const double t365 = DERIVE_FMA(t246, t153, DERIVE_FMA(t230, t137, DERIVE_FMA(t214, t121, DERIVE_FMA(t198, t105, DERIVE_FMA(t182, t89, DERIVE_FMA(t166, P[122], P[122]))))));
-    const double t366 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, DERIVE_FMA(t166, P[123], P[123]))))));
+    const double t363 = DERIVE_FMA(t246, t151, DERIVE_FMA(t230, t135, DERIVE_FMA(t214, t119, DERIVE_FMA(t198, t103, DERIVE_FMA(t182, t87, (-2.25)*t167)))));
+    const double t364 = DERIVE_FMA(t246, t152, DERIVE_FMA(t230, t136, DERIVE_FMA(t214, t120, DERIVE_FMA(t198, t104, DERIVE_FMA(t182, t88, (-2.25)*t168)))));
+    const double t365 = DERIVE_FMA(t246, t153, DERIVE_FMA(t230, t137, DERIVE_FMA(t214, t121, DERIVE_FMA(t198, t105, DERIVE_FMA(t182, t89, (-2.25)*t169)))));
+    const double t366 = DERIVE_FMA(t246, t154, DERIVE_FMA(t230, t138, DERIVE_FMA(t214, t122, DERIVE_FMA(t198, t106, DERIVE_FMA(t182, t90, (-2.25)*t170)))));
     P_new[120] = t363;
     P_new[135] = t363;
     P_new[121] = t364;
@@ -2592,7 +2530,7 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[183] = t366;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t367_0 = DERIVE_VFMA(((derive_vd){t166, t166, t166, t166}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd v_t367_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t171);
     const derive_vd v_t367_1 = DERIVE_VFMA(((derive_vd){t182, t182, t182, t182}), v_t91, v_t367_0);
     const derive_vd v_t367_2 = DERIVE_VFMA(((derive_vd){t198, t198, t198, t198}), v_t107, v_t367_1);
     const derive_vd v_t367_3 = DERIVE_VFMA(((derive_vd){t214, t214, t214, t214}), v_t123, v_t367_2);
@@ -2615,10 +2553,10 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     *(derive_vd_unaligned *)&P_new[228] = tr_v_t337_c2;
     *(derive_vd_unaligned *)&P_new[244] = tr_v_t337_c3;
     #else
-    const double t367 = DERIVE_FMA(t246, t155, DERIVE_FMA(t230, t139, DERIVE_FMA(t214, t123, DERIVE_FMA(t198, t107, DERIVE_FMA(t182, t91, DERIVE_FMA(t166, P[124], P[124]))))));
-    const double t368 = DERIVE_FMA(t246, t156, DERIVE_FMA(t230, t140, DERIVE_FMA(t214, t124, DERIVE_FMA(t198, t108, DERIVE_FMA(t182, t92, DERIVE_FMA(t166, P[125], P[125]))))));
-    const double t369 = DERIVE_FMA(t246, t157, DERIVE_FMA(t230, t141, DERIVE_FMA(t214, t125, DERIVE_FMA(t198, t109, DERIVE_FMA(t182, t93, DERIVE_FMA(t166, P[126], P[126]))))));
-    const double t370 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, DERIVE_FMA(t166, P[127], P[127]))))));
+    const double t367 = DERIVE_FMA(t246, t155, DERIVE_FMA(t230, t139, DERIVE_FMA(t214, t123, DERIVE_FMA(t198, t107, DERIVE_FMA(t182, t91, (-2.25)*t171)))));
+    const double t368 = DERIVE_FMA(t246, t156, DERIVE_FMA(t230, t140, DERIVE_FMA(t214, t124, DERIVE_FMA(t198, t108, DERIVE_FMA(t182, t92, (-2.25)*t172)))));
+    const double t369 = DERIVE_FMA(t246, t157, DERIVE_FMA(t230, t141, DERIVE_FMA(t214, t125, DERIVE_FMA(t198, t109, DERIVE_FMA(t182, t93, (-2.25)*t173)))));
+    const double t370 = DERIVE_FMA(t246, t158, DERIVE_FMA(t230, t142, DERIVE_FMA(t214, t126, DERIVE_FMA(t198, t110, DERIVE_FMA(t182, t94, (-2.25)*t174)))));
     P_new[124] = t367;
     P_new[199] = t367;
     P_new[125] = t368;
@@ -2629,21 +2567,20 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[247] = t370;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t371_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[120], P[121], P[122], P[123]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t87, v_t371_0);
-    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t103, v_t371_1);
-    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t119, v_t371_2);
-    const derive_vd v_t371_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t135, v_t371_3);
-    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t151, v_t371_4);
+    const derive_vd v_t371_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t183);
+    const derive_vd v_t371_1 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t103, v_t371_0);
+    const derive_vd v_t371_2 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t119, v_t371_1);
+    const derive_vd v_t371_3 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t135, v_t371_2);
+    const derive_vd v_t371 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t151, v_t371_3);
     const double t372 = v_t371[1];
     const double t373 = v_t371[2];
     const double t374 = v_t371[3];
     *(derive_vd_unaligned *)&P_new[136] = v_t371;
     #else
-    const double t371 = DERIVE_FMA(t247, t151, DERIVE_FMA(t231, t135, DERIVE_FMA(t215, t119, DERIVE_FMA(t199, t103, DERIVE_FMA(t183, t87, DERIVE_FMA(t167, P[120], P[136]))))));
-    const double t372 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, DERIVE_FMA(t183, t88, DERIVE_FMA(t167, P[121], P[137]))))));
-    const double t373 = DERIVE_FMA(t247, t153, DERIVE_FMA(t231, t137, DERIVE_FMA(t215, t121, DERIVE_FMA(t199, t105, DERIVE_FMA(t183, t89, DERIVE_FMA(t167, P[122], P[138]))))));
-    const double t374 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, DERIVE_FMA(t183, t90, DERIVE_FMA(t167, P[123], P[139]))))));
+    const double t371 = DERIVE_FMA(t247, t151, DERIVE_FMA(t231, t135, DERIVE_FMA(t215, t119, DERIVE_FMA(t199, t103, (-2.25)*t183))));
+    const double t372 = DERIVE_FMA(t247, t152, DERIVE_FMA(t231, t136, DERIVE_FMA(t215, t120, DERIVE_FMA(t199, t104, (-2.25)*t184))));
+    const double t373 = DERIVE_FMA(t247, t153, DERIVE_FMA(t231, t137, DERIVE_FMA(t215, t121, DERIVE_FMA(t199, t105, (-2.25)*t185))));
+    const double t374 = DERIVE_FMA(t247, t154, DERIVE_FMA(t231, t138, DERIVE_FMA(t215, t122, DERIVE_FMA(t199, t106, (-2.25)*t186))));
     P_new[136] = t371;
     P_new[137] = t372;
     P_new[152] = t372;
@@ -2653,17 +2590,16 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[184] = t374;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t375_0 = DERIVE_VFMA(((derive_vd){t167, t167, t167, t167}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
-    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t183, t183, t183, t183}), v_t91, v_t375_0);
-    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t107, v_t375_1);
-    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t123, v_t375_2);
-    const derive_vd v_t375_4 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t139, v_t375_3);
-    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t155, v_t375_4);
+    const derive_vd v_t375_0 = (((derive_vd){(-2.25), (-2.25), (-2.25), (-2.25)}) * v_t187);
+    const derive_vd v_t375_1 = DERIVE_VFMA(((derive_vd){t199, t199, t199, t199}), v_t107, v_t375_0);
+    const derive_vd v_t375_2 = DERIVE_VFMA(((derive_vd){t215, t215, t215, t215}), v_t123, v_t375_1);
+    const derive_vd v_t375_3 = DERIVE_VFMA(((derive_vd){t231, t231, t231, t231}), v_t139, v_t375_2);
+    const derive_vd v_t375 = DERIVE_VFMA(((derive_vd){t247, t247, t247, t247}), v_t155, v_t375_3);
     #else
-    const double t375 = DERIVE_FMA(t247, t155, DERIVE_FMA(t231, t139, DERIVE_FMA(t215, t123, DERIVE_FMA(t199, t107, DERIVE_FMA(t183, t91, DERIVE_FMA(t167, P[124], P[140]))))));
-    const double t376 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, DERIVE_FMA(t183, t92, DERIVE_FMA(t167, P[125], P[141]))))));
-    const double t377 = DERIVE_FMA(t247, t157, DERIVE_FMA(t231, t141, DERIVE_FMA(t215, t125, DERIVE_FMA(t199, t109, DERIVE_FMA(t183, t93, DERIVE_FMA(t167, P[126], P[142]))))));
-    const double t378 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, DERIVE_FMA(t183, t94, DERIVE_FMA(t167, P[127], P[143]))))));
+    const double t375 = DERIVE_FMA(t247, t155, DERIVE_FMA(t231, t139, DERIVE_FMA(t215, t123, DERIVE_FMA(t199, t107, (-2.25)*t187))));
+    const double t376 = DERIVE_FMA(t247, t156, DERIVE_FMA(t231, t140, DERIVE_FMA(t215, t124, DERIVE_FMA(t199, t108, (-2.25)*t188))));
+    const double t377 = DERIVE_FMA(t247, t157, DERIVE_FMA(t231, t141, DERIVE_FMA(t215, t125, DERIVE_FMA(t199, t109, (-2.25)*t189))));
+    const double t378 = DERIVE_FMA(t247, t158, DERIVE_FMA(t231, t142, DERIVE_FMA(t215, t126, DERIVE_FMA(t199, t110, (-2.25)*t190))));
     P_new[140] = t375;
     P_new[200] = t375;
     P_new[141] = t376;
@@ -2673,21 +2609,19 @@ int ins_gnss_ekf_update_gnss(const double *restrict x, const double *restrict P,
     P_new[143] = t378;
     P_new[248] = t378;
     #endif
-    const double t379 = DERIVE_FMA(t184, t88, DERIVE_FMA(t152, t248, DERIVE_FMA(t136, t232, DERIVE_FMA(t120, t216, DERIVE_FMA(t104, t200, DERIVE_FMA(P[121], t168, P[153]))))));
-    const double t380 = DERIVE_FMA(t184, t89, DERIVE_FMA(t153, t248, DERIVE_FMA(t137, t232, DERIVE_FMA(t121, t216, DERIVE_FMA(t105, t200, DERIVE_FMA(P[122], t168, P[154]))))));
-    const double t381 = DERIVE_FMA(t184, t90, DERIVE_FMA(t154, t248, DERIVE_FMA(t138, t232, DERIVE_FMA(t122, t216, DERIVE_FMA(t106, t200, DERIVE_FMA(P[123], t168, P[155]))))));
+    const double t379 = DERIVE_FMA(t152, t248, DERIVE_FMA(t136, t232, DERIVE_FMA(t120, t216, (-9.0)*t200)));
+    const double t380 = DERIVE_FMA(t153, t248, DERIVE_FMA(t137, t232, DERIVE_FMA(t121, t216, (-9.0)*t201)));
+    const double t381 = DERIVE_FMA(t154, t248, DERIVE_FMA(t138, t232, DERIVE_FMA(t122, t216, (-9.0)*t202)));
     #if DERIVE_VECTOR
-    const derive_vd v_t382_0 = DERIVE_VFMA(((derive_vd){t168, t168, t168, t168}), ((derive_vd){P[124], P[125], P[126], P[127]}), ((derive_vd){P[156], P[157], P[158], P[159]}));
-    const derive_vd v_t382_1 = DERIVE_VFMA(((derive_vd){t184, t184, t184, t184}), v_t91, v_t382_0);
-    const derive_vd v_t382_2 = DERIVE_VFMA(((derive_vd){t200, t200, t200, t200}), v_t107, v_t382_1);
-    const derive_vd v_t382_3 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t123, v_t382_2);
-    const derive_vd v_t382_4 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t139, v_t382_3);
-    const derive_vd v_t382 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t155, v_t382_4);
+    const derive_vd v_t382_0 = (((derive_vd){(-9.0), (-9.0), (-9.0), (-9.0)}) * v_t203);
+    const derive_vd v_t382_1 = DERIVE_VFMA(((derive_vd){t216, t216, t216, t216}), v_t123, v_t382_0);
+    const derive_vd v_t382_2 = DERIVE_VFMA(((derive_vd){t232, t232, t232, t232}), v_t139, v_t382_1);
+    const derive_vd v_t382 = DERIVE_VFMA(((derive_vd){t248, t248, t248, t248}), v_t155, v_t382_2);
     #else
-    const double t382 = DERIVE_FMA(t248, t155, DERIVE_FMA(t232, t139, DERIVE_FMA(t216, t123, DERIVE_FMA(t200, t107, DERIVE_FMA(t184, t91, DERIVE_FMA(t168, P[124], P[156]))))));
-    const double t383 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, DERIVE_FMA(t200, t108, DERIVE_FMA(t184, t92, DERIVE_FMA(t168, P[125], P[157]))))));
-    const double t384 = DERIVE_FMA(t248, t157, DERIVE_FMA(t232, t141, DERIVE_FMA(t216, t125, DERIVE_FMA(t200, t109, DERIVE_FMA(t184, t93, DERIVE_FMA(t168, P[126], P[158]))))));
-    const double t385 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, DERIVE_FMA(t200, t110, DERIVE_FMA(t184, t94, DERIVE_FMA(t168, P[127], P[159]))))));
+    const double t382 = DERIVE_FMA(t248, t155, DERIVE_FMA(t232, t139, DERIVE_FMA(t216, t123, (-9.0)*t203)));
+    const double t383 = DERIVE_FMA(t248, t156, DERIVE_FMA(t232, t140, DERIVE_FMA(t216, t124, (-9.0)*t204)));
+    const double t384 = DERIVE_FMA(t248, t157, DERIVE_FMA(t232, t141, DERIVE_FMA(t216, t125, (-9.0)*t205)));
+    const double t385 = DERIVE_FMA(t248, t158, DERIVE_FMA(t232, t142, DERIVE_FMA(t216, t126, (-9.0)*t206)));
     P_new[156] = t382;
     P_new[201] = t382;
     P_new[157] = t383;
@@ -2896,835 +2830,791 @@ int ins_gnss_ekf_update_baro(const double *restrict x, const double *restrict P,
 {
     (void)p;
     const double t1 = x[9] + z[0];
-    #if DERIVE_VECTOR
-    const derive_vd v_t2 = (-((derive_vd){P[144], P[145], P[146], P[147]}));
-    const double t3 = v_t2[1];
-    const double t4 = v_t2[2];
-    const double t5 = v_t2[3];
-    #else
-    const double t2 = -P[144];
-    const double t3 = -P[145];
-    const double t4 = -P[146];
-    const double t5 = -P[147];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t6 = (-((derive_vd){P[148], P[149], P[150], P[151]}));
-    const double t7 = v_t6[1];
-    const double t8 = v_t6[2];
-    const double t9 = v_t6[3];
-    #else
-    const double t6 = -P[148];
-    const double t7 = -P[149];
-    const double t8 = -P[150];
-    const double t9 = -P[151];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t10 = (-((derive_vd){P[152], P[153], P[154], P[155]}));
-    const double t11 = v_t10[1];
-    const double t12 = v_t10[2];
-    const double t13 = v_t10[3];
-    #else
-    const double t10 = -P[152];
-    const double t11 = -P[153];
-    const double t12 = -P[154];
-    const double t13 = -P[155];
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t14 = (-((derive_vd){P[156], P[157], P[158], P[159]}));
-    const double t15 = v_t14[1];
-    const double t16 = v_t14[2];
-    const double t17 = v_t14[3];
-    #else
-    const double t14 = -P[156];
-    const double t15 = -P[157];
-    const double t16 = -P[158];
-    const double t17 = -P[159];
-    #endif
-    const double t18 = 0.25 - t11;
-    if (!(t18 > 0.0)) {
+    const double t2 = 0.25 + P[153];
+    if (!(t2 > 0.0)) {
         return 8; /* S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive */
     }
-    const double t19 = (-1.0)/t18;
-    const double t20 = t1*t19;
+    const double t3 = (-1.0)/t2;
+    const double t4 = t1*t3;
     #if DERIVE_VECTOR
-    const derive_vd v_t21 = (((derive_vd){t19, t19, t19, t19}) * v_t2);
+    const derive_vd v_t5 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[144], P[145], P[146], P[147]}));
+    const double t5 = v_t5[0];
+    const double t6 = v_t5[1];
+    const double t7 = v_t5[2];
+    const double t8 = v_t5[3];
+    #else
+    const double t5 = t3*P[144];
+    const double t6 = t3*P[145];
+    const double t7 = t3*P[146];
+    const double t8 = t3*P[147];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t9 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[148], P[149], P[150], P[151]}));
+    const double t9 = v_t9[0];
+    const double t10 = v_t9[1];
+    const double t11 = v_t9[2];
+    const double t12 = v_t9[3];
+    #else
+    const double t9 = t3*P[148];
+    const double t10 = t3*P[149];
+    const double t11 = t3*P[150];
+    const double t12 = t3*P[151];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t13 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[152], P[153], P[154], P[155]}));
+    const double t13 = v_t13[0];
+    const double t14 = v_t13[1];
+    const double t15 = v_t13[2];
+    const double t16 = v_t13[3];
+    #else
+    const double t13 = t3*P[152];
+    const double t14 = t3*P[153];
+    const double t15 = t3*P[154];
+    const double t16 = t3*P[155];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t17 = (((derive_vd){t3, t3, t3, t3}) * ((derive_vd){P[156], P[157], P[158], P[159]}));
+    const double t17 = v_t17[0];
+    const double t18 = v_t17[1];
+    const double t19 = v_t17[2];
+    const double t20 = v_t17[3];
+    #else
+    const double t17 = t3*P[156];
+    const double t18 = t3*P[157];
+    const double t19 = t3*P[158];
+    const double t20 = t3*P[159];
+    #endif
+    #if DERIVE_VECTOR
+    const derive_vd v_t21 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){x[0], x[1], x[2], x[3]}));
     const double t21 = v_t21[0];
     const double t22 = v_t21[1];
     const double t23 = v_t21[2];
     const double t24 = v_t21[3];
     #else
-    const double t21 = t19*t2;
-    const double t22 = t19*t3;
-    const double t23 = t19*t4;
-    const double t24 = t19*t5;
+    const double t21 = DERIVE_FMA(t4, P[144], x[0]);
+    const double t22 = DERIVE_FMA(t4, P[145], x[1]);
+    const double t23 = DERIVE_FMA(t4, P[146], x[2]);
+    const double t24 = DERIVE_FMA(t4, P[147], x[3]);
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t25 = (((derive_vd){t19, t19, t19, t19}) * v_t6);
-    const double t25 = v_t25[0];
-    const double t26 = v_t25[1];
-    const double t27 = v_t25[2];
-    const double t28 = v_t25[3];
+    const derive_vd v_t25 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){x[4], x[5], x[6], x[7]}));
+    *(derive_vd_unaligned *)&x_new[4] = v_t25;
     #else
-    const double t25 = t19*t6;
-    const double t26 = t19*t7;
-    const double t27 = t19*t8;
-    const double t28 = t19*t9;
+    const double t25 = DERIVE_FMA(t4, P[148], x[4]);
+    const double t26 = DERIVE_FMA(t4, P[149], x[5]);
+    const double t27 = DERIVE_FMA(t4, P[150], x[6]);
+    const double t28 = DERIVE_FMA(t4, P[151], x[7]);
+    x_new[4] = t25;
+    x_new[5] = t26;
+    x_new[6] = t27;
+    x_new[7] = t28;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t29 = (((derive_vd){t19, t19, t19, t19}) * v_t10);
-    const double t29 = v_t29[0];
-    const double t30 = v_t29[1];
-    const double t31 = v_t29[2];
-    const double t32 = v_t29[3];
+    const derive_vd v_t29 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){x[8], x[9], x[10], x[11]}));
+    *(derive_vd_unaligned *)&x_new[8] = v_t29;
     #else
-    const double t29 = t19*t10;
-    const double t30 = t19*t11;
-    const double t31 = t19*t12;
-    const double t32 = t19*t13;
+    const double t29 = DERIVE_FMA(t4, P[152], x[8]);
+    const double t30 = DERIVE_FMA(t4, P[153], x[9]);
+    const double t31 = DERIVE_FMA(t4, P[154], x[10]);
+    const double t32 = DERIVE_FMA(t4, P[155], x[11]);
+    x_new[8] = t29;
+    x_new[9] = t30;
+    x_new[10] = t31;
+    x_new[11] = t32;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t33 = (((derive_vd){t19, t19, t19, t19}) * v_t14);
-    const double t33 = v_t33[0];
-    const double t34 = v_t33[1];
-    const double t35 = v_t33[2];
-    const double t36 = v_t33[3];
+    const derive_vd v_t33 = DERIVE_VFMA(((derive_vd){t4, t4, t4, t4}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){x[12], x[13], x[14], x[15]}));
+    *(derive_vd_unaligned *)&x_new[12] = v_t33;
     #else
-    const double t33 = t19*t14;
-    const double t34 = t19*t15;
-    const double t35 = t19*t16;
-    const double t36 = t19*t17;
+    const double t33 = DERIVE_FMA(t4, P[156], x[12]);
+    const double t34 = DERIVE_FMA(t4, P[157], x[13]);
+    const double t35 = DERIVE_FMA(t4, P[158], x[14]);
+    const double t36 = DERIVE_FMA(t4, P[159], x[15]);
+    x_new[12] = t33;
+    x_new[13] = t34;
+    x_new[14] = t35;
+    x_new[15] = t36;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t37 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t2, ((derive_vd){x[0], x[1], x[2], x[3]}));
-    const double t37 = v_t37[0];
+    const derive_vd v_t37 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[144], P[145], P[146], P[147]}), ((derive_vd){P[0], P[1], P[2], P[3]}));
     const double t38 = v_t37[1];
     const double t39 = v_t37[2];
     const double t40 = v_t37[3];
+    *(derive_vd_unaligned *)&P_new[0] = v_t37;
     #else
-    const double t37 = DERIVE_FNMA(t20, t2, x[0]);
-    const double t38 = DERIVE_FNMA(t20, t3, x[1]);
-    const double t39 = DERIVE_FNMA(t20, t4, x[2]);
-    const double t40 = DERIVE_FNMA(t20, t5, x[3]);
+    const double t37 = DERIVE_FMA(t5, P[144], P[0]);
+    const double t38 = DERIVE_FMA(t5, P[145], P[1]);
+    const double t39 = DERIVE_FMA(t5, P[146], P[2]);
+    const double t40 = DERIVE_FMA(t5, P[147], P[3]);
+    P_new[0] = t37;
+    P_new[1] = t38;
+    P_new[16] = t38;
+    P_new[2] = t39;
+    P_new[32] = t39;
+    P_new[3] = t40;
+    P_new[48] = t40;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t41 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t6, ((derive_vd){x[4], x[5], x[6], x[7]}));
-    *(derive_vd_unaligned *)&x_new[4] = v_t41;
+    const derive_vd v_t41 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[4], P[5], P[6], P[7]}));
     #else
-    const double t41 = DERIVE_FNMA(t20, t6, x[4]);
-    const double t42 = DERIVE_FNMA(t20, t7, x[5]);
-    const double t43 = DERIVE_FNMA(t20, t8, x[6]);
-    const double t44 = DERIVE_FNMA(t20, t9, x[7]);
-    x_new[4] = t41;
-    x_new[5] = t42;
-    x_new[6] = t43;
-    x_new[7] = t44;
+    const double t41 = DERIVE_FMA(t5, P[148], P[4]);
+    const double t42 = DERIVE_FMA(t5, P[149], P[5]);
+    const double t43 = DERIVE_FMA(t5, P[150], P[6]);
+    const double t44 = DERIVE_FMA(t5, P[151], P[7]);
+    P_new[4] = t41;
+    P_new[64] = t41;
+    P_new[5] = t42;
+    P_new[80] = t42;
+    P_new[6] = t43;
+    P_new[96] = t43;
+    P_new[7] = t44;
+    P_new[112] = t44;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t45 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t10, ((derive_vd){x[8], x[9], x[10], x[11]}));
-    *(derive_vd_unaligned *)&x_new[8] = v_t45;
+    const derive_vd v_t45 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[8], P[9], P[10], P[11]}));
     #else
-    const double t45 = DERIVE_FNMA(t20, t10, x[8]);
-    const double t46 = DERIVE_FNMA(t20, t11, x[9]);
-    const double t47 = DERIVE_FNMA(t20, t12, x[10]);
-    const double t48 = DERIVE_FNMA(t20, t13, x[11]);
-    x_new[8] = t45;
-    x_new[9] = t46;
-    x_new[10] = t47;
-    x_new[11] = t48;
+    const double t45 = DERIVE_FMA(t5, P[152], P[8]);
+    const double t46 = DERIVE_FMA(t5, P[153], P[9]);
+    const double t47 = DERIVE_FMA(t5, P[154], P[10]);
+    const double t48 = DERIVE_FMA(t5, P[155], P[11]);
+    P_new[8] = t45;
+    P_new[128] = t45;
+    P_new[9] = t46;
+    P_new[144] = t46;
+    P_new[10] = t47;
+    P_new[160] = t47;
+    P_new[11] = t48;
+    P_new[176] = t48;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t49 = DERIVE_VFNMA(((derive_vd){t20, t20, t20, t20}), v_t14, ((derive_vd){x[12], x[13], x[14], x[15]}));
-    *(derive_vd_unaligned *)&x_new[12] = v_t49;
+    const derive_vd v_t49 = DERIVE_VFMA(((derive_vd){t5, t5, t5, t5}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[12], P[13], P[14], P[15]}));
     #else
-    const double t49 = DERIVE_FNMA(t20, t14, x[12]);
-    const double t50 = DERIVE_FNMA(t20, t15, x[13]);
-    const double t51 = DERIVE_FNMA(t20, t16, x[14]);
-    const double t52 = DERIVE_FNMA(t20, t17, x[15]);
-    x_new[12] = t49;
-    x_new[13] = t50;
-    x_new[14] = t51;
-    x_new[15] = t52;
+    const double t49 = DERIVE_FMA(t5, P[156], P[12]);
+    const double t50 = DERIVE_FMA(t5, P[157], P[13]);
+    const double t51 = DERIVE_FMA(t5, P[158], P[14]);
+    const double t52 = DERIVE_FMA(t5, P[159], P[15]);
+    P_new[12] = t49;
+    P_new[192] = t49;
+    P_new[13] = t50;
+    P_new[208] = t50;
+    P_new[14] = t51;
+    P_new[224] = t51;
+    P_new[15] = t52;
+    P_new[240] = t52;
+    #endif
+    const double t53 = DERIVE_FMA(P[145], t6, P[17]);
+    const double t54 = DERIVE_FMA(P[146], t6, P[18]);
+    const double t55 = DERIVE_FMA(P[147], t6, P[19]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t56 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[20], P[21], P[22], P[23]}));
+    #else
+    const double t56 = DERIVE_FMA(t6, P[148], P[20]);
+    const double t57 = DERIVE_FMA(t6, P[149], P[21]);
+    const double t58 = DERIVE_FMA(t6, P[150], P[22]);
+    const double t59 = DERIVE_FMA(t6, P[151], P[23]);
+    P_new[20] = t56;
+    P_new[65] = t56;
+    P_new[21] = t57;
+    P_new[81] = t57;
+    P_new[22] = t58;
+    P_new[97] = t58;
+    P_new[23] = t59;
+    P_new[113] = t59;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t53 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t2, ((derive_vd){P[0], P[1], P[2], P[3]}));
-    const double t54 = v_t53[1];
-    const double t55 = v_t53[2];
-    const double t56 = v_t53[3];
-    *(derive_vd_unaligned *)&P_new[0] = v_t53;
+    const derive_vd v_t60 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[24], P[25], P[26], P[27]}));
     #else
-    const double t53 = DERIVE_FMA(t21, t2, P[0]);
-    const double t54 = DERIVE_FMA(t21, t3, P[1]);
-    const double t55 = DERIVE_FMA(t21, t4, P[2]);
-    const double t56 = DERIVE_FMA(t21, t5, P[3]);
-    P_new[0] = t53;
-    P_new[1] = t54;
-    P_new[16] = t54;
-    P_new[2] = t55;
-    P_new[32] = t55;
-    P_new[3] = t56;
-    P_new[48] = t56;
+    const double t60 = DERIVE_FMA(t6, P[152], P[24]);
+    const double t61 = DERIVE_FMA(t6, P[153], P[25]);
+    const double t62 = DERIVE_FMA(t6, P[154], P[26]);
+    const double t63 = DERIVE_FMA(t6, P[155], P[27]);
+    P_new[24] = t60;
+    P_new[129] = t60;
+    P_new[25] = t61;
+    P_new[145] = t61;
+    P_new[26] = t62;
+    P_new[161] = t62;
+    P_new[27] = t63;
+    P_new[177] = t63;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t57 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t6, ((derive_vd){P[4], P[5], P[6], P[7]}));
+    const derive_vd v_t64 = DERIVE_VFMA(((derive_vd){t6, t6, t6, t6}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[28], P[29], P[30], P[31]}));
     #else
-    const double t57 = DERIVE_FMA(t21, t6, P[4]);
-    const double t58 = DERIVE_FMA(t21, t7, P[5]);
-    const double t59 = DERIVE_FMA(t21, t8, P[6]);
-    const double t60 = DERIVE_FMA(t21, t9, P[7]);
-    P_new[4] = t57;
-    P_new[64] = t57;
-    P_new[5] = t58;
-    P_new[80] = t58;
-    P_new[6] = t59;
-    P_new[96] = t59;
-    P_new[7] = t60;
-    P_new[112] = t60;
+    const double t64 = DERIVE_FMA(t6, P[156], P[28]);
+    const double t65 = DERIVE_FMA(t6, P[157], P[29]);
+    const double t66 = DERIVE_FMA(t6, P[158], P[30]);
+    const double t67 = DERIVE_FMA(t6, P[159], P[31]);
+    P_new[28] = t64;
+    P_new[193] = t64;
+    P_new[29] = t65;
+    P_new[209] = t65;
+    P_new[30] = t66;
+    P_new[225] = t66;
+    P_new[31] = t67;
+    P_new[241] = t67;
+    #endif
+    const double t68 = DERIVE_FMA(P[146], t7, P[34]);
+    const double t69 = DERIVE_FMA(P[147], t7, P[35]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t70 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[36], P[37], P[38], P[39]}));
+    #else
+    const double t70 = DERIVE_FMA(t7, P[148], P[36]);
+    const double t71 = DERIVE_FMA(t7, P[149], P[37]);
+    const double t72 = DERIVE_FMA(t7, P[150], P[38]);
+    const double t73 = DERIVE_FMA(t7, P[151], P[39]);
+    P_new[36] = t70;
+    P_new[66] = t70;
+    P_new[37] = t71;
+    P_new[82] = t71;
+    P_new[38] = t72;
+    P_new[98] = t72;
+    P_new[39] = t73;
+    P_new[114] = t73;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t61 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t10, ((derive_vd){P[8], P[9], P[10], P[11]}));
+    const derive_vd v_t74 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[40], P[41], P[42], P[43]}));
     #else
-    const double t61 = DERIVE_FMA(t21, t10, P[8]);
-    const double t62 = DERIVE_FMA(t21, t11, P[9]);
-    const double t63 = DERIVE_FMA(t21, t12, P[10]);
-    const double t64 = DERIVE_FMA(t21, t13, P[11]);
-    P_new[8] = t61;
-    P_new[128] = t61;
-    P_new[9] = t62;
-    P_new[144] = t62;
-    P_new[10] = t63;
-    P_new[160] = t63;
-    P_new[11] = t64;
-    P_new[176] = t64;
+    const double t74 = DERIVE_FMA(t7, P[152], P[40]);
+    const double t75 = DERIVE_FMA(t7, P[153], P[41]);
+    const double t76 = DERIVE_FMA(t7, P[154], P[42]);
+    const double t77 = DERIVE_FMA(t7, P[155], P[43]);
+    P_new[40] = t74;
+    P_new[130] = t74;
+    P_new[41] = t75;
+    P_new[146] = t75;
+    P_new[42] = t76;
+    P_new[162] = t76;
+    P_new[43] = t77;
+    P_new[178] = t77;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t65 = DERIVE_VFMA(((derive_vd){t21, t21, t21, t21}), v_t14, ((derive_vd){P[12], P[13], P[14], P[15]}));
+    const derive_vd v_t78 = DERIVE_VFMA(((derive_vd){t7, t7, t7, t7}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[44], P[45], P[46], P[47]}));
     #else
-    const double t65 = DERIVE_FMA(t21, t14, P[12]);
-    const double t66 = DERIVE_FMA(t21, t15, P[13]);
-    const double t67 = DERIVE_FMA(t21, t16, P[14]);
-    const double t68 = DERIVE_FMA(t21, t17, P[15]);
-    P_new[12] = t65;
-    P_new[192] = t65;
-    P_new[13] = t66;
-    P_new[208] = t66;
-    P_new[14] = t67;
-    P_new[224] = t67;
-    P_new[15] = t68;
-    P_new[240] = t68;
+    const double t78 = DERIVE_FMA(t7, P[156], P[44]);
+    const double t79 = DERIVE_FMA(t7, P[157], P[45]);
+    const double t80 = DERIVE_FMA(t7, P[158], P[46]);
+    const double t81 = DERIVE_FMA(t7, P[159], P[47]);
+    P_new[44] = t78;
+    P_new[194] = t78;
+    P_new[45] = t79;
+    P_new[210] = t79;
+    P_new[46] = t80;
+    P_new[226] = t80;
+    P_new[47] = t81;
+    P_new[242] = t81;
     #endif
-    const double t69 = DERIVE_FMA(t22, t3, P[17]);
-    const double t70 = DERIVE_FMA(t22, t4, P[18]);
-    const double t71 = DERIVE_FMA(t22, t5, P[19]);
+    const double t82 = DERIVE_FMA(P[147], t8, P[51]);
     #if DERIVE_VECTOR
-    const derive_vd v_t72 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t6, ((derive_vd){P[20], P[21], P[22], P[23]}));
+    const derive_vd v_t83 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[52], P[53], P[54], P[55]}));
+    const derive_vd tr_v_t41_0 = __builtin_shufflevector(v_t41, v_t56, 0, 4, 2, 6);
+    const derive_vd tr_v_t41_1 = __builtin_shufflevector(v_t41, v_t56, 1, 5, 3, 7);
+    const derive_vd tr_v_t41_2 = __builtin_shufflevector(v_t70, v_t83, 0, 4, 2, 6);
+    const derive_vd tr_v_t41_3 = __builtin_shufflevector(v_t70, v_t83, 1, 5, 3, 7);
+    const derive_vd tr_v_t41_c0 = __builtin_shufflevector(tr_v_t41_0, tr_v_t41_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t41_c1 = __builtin_shufflevector(tr_v_t41_1, tr_v_t41_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t41_c2 = __builtin_shufflevector(tr_v_t41_0, tr_v_t41_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t41_c3 = __builtin_shufflevector(tr_v_t41_1, tr_v_t41_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[4] = v_t41;
+    *(derive_vd_unaligned *)&P_new[20] = v_t56;
+    *(derive_vd_unaligned *)&P_new[36] = v_t70;
+    *(derive_vd_unaligned *)&P_new[52] = v_t83;
+    *(derive_vd_unaligned *)&P_new[64] = tr_v_t41_c0;
+    *(derive_vd_unaligned *)&P_new[80] = tr_v_t41_c1;
+    *(derive_vd_unaligned *)&P_new[96] = tr_v_t41_c2;
+    *(derive_vd_unaligned *)&P_new[112] = tr_v_t41_c3;
     #else
-    const double t72 = DERIVE_FMA(t22, t6, P[20]);
-    const double t73 = DERIVE_FMA(t22, t7, P[21]);
-    const double t74 = DERIVE_FMA(t22, t8, P[22]);
-    const double t75 = DERIVE_FMA(t22, t9, P[23]);
-    P_new[20] = t72;
-    P_new[65] = t72;
-    P_new[21] = t73;
-    P_new[81] = t73;
-    P_new[22] = t74;
-    P_new[97] = t74;
-    P_new[23] = t75;
-    P_new[113] = t75;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t76 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t10, ((derive_vd){P[24], P[25], P[26], P[27]}));
-    #else
-    const double t76 = DERIVE_FMA(t22, t10, P[24]);
-    const double t77 = DERIVE_FMA(t22, t11, P[25]);
-    const double t78 = DERIVE_FMA(t22, t12, P[26]);
-    const double t79 = DERIVE_FMA(t22, t13, P[27]);
-    P_new[24] = t76;
-    P_new[129] = t76;
-    P_new[25] = t77;
-    P_new[145] = t77;
-    P_new[26] = t78;
-    P_new[161] = t78;
-    P_new[27] = t79;
-    P_new[177] = t79;
+    const double t83 = DERIVE_FMA(t8, P[148], P[52]);
+    const double t84 = DERIVE_FMA(t8, P[149], P[53]);
+    const double t85 = DERIVE_FMA(t8, P[150], P[54]);
+    const double t86 = DERIVE_FMA(t8, P[151], P[55]);
+    P_new[52] = t83;
+    P_new[67] = t83;
+    P_new[53] = t84;
+    P_new[83] = t84;
+    P_new[54] = t85;
+    P_new[99] = t85;
+    P_new[55] = t86;
+    P_new[115] = t86;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t80 = DERIVE_VFMA(((derive_vd){t22, t22, t22, t22}), v_t14, ((derive_vd){P[28], P[29], P[30], P[31]}));
+    const derive_vd v_t87 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[56], P[57], P[58], P[59]}));
+    const derive_vd tr_v_t45_0 = __builtin_shufflevector(v_t45, v_t60, 0, 4, 2, 6);
+    const derive_vd tr_v_t45_1 = __builtin_shufflevector(v_t45, v_t60, 1, 5, 3, 7);
+    const derive_vd tr_v_t45_2 = __builtin_shufflevector(v_t74, v_t87, 0, 4, 2, 6);
+    const derive_vd tr_v_t45_3 = __builtin_shufflevector(v_t74, v_t87, 1, 5, 3, 7);
+    const derive_vd tr_v_t45_c0 = __builtin_shufflevector(tr_v_t45_0, tr_v_t45_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t45_c1 = __builtin_shufflevector(tr_v_t45_1, tr_v_t45_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t45_c2 = __builtin_shufflevector(tr_v_t45_0, tr_v_t45_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t45_c3 = __builtin_shufflevector(tr_v_t45_1, tr_v_t45_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[8] = v_t45;
+    *(derive_vd_unaligned *)&P_new[24] = v_t60;
+    *(derive_vd_unaligned *)&P_new[40] = v_t74;
+    *(derive_vd_unaligned *)&P_new[56] = v_t87;
+    *(derive_vd_unaligned *)&P_new[128] = tr_v_t45_c0;
+    *(derive_vd_unaligned *)&P_new[144] = tr_v_t45_c1;
+    *(derive_vd_unaligned *)&P_new[160] = tr_v_t45_c2;
+    *(derive_vd_unaligned *)&P_new[176] = tr_v_t45_c3;
     #else
-    const double t80 = DERIVE_FMA(t22, t14, P[28]);
-    const double t81 = DERIVE_FMA(t22, t15, P[29]);
-    const double t82 = DERIVE_FMA(t22, t16, P[30]);
-    const double t83 = DERIVE_FMA(t22, t17, P[31]);
-    P_new[28] = t80;
-    P_new[193] = t80;
-    P_new[29] = t81;
-    P_new[209] = t81;
-    P_new[30] = t82;
-    P_new[225] = t82;
-    P_new[31] = t83;
-    P_new[241] = t83;
-    #endif
-    const double t84 = DERIVE_FMA(t23, t4, P[34]);
-    const double t85 = DERIVE_FMA(t23, t5, P[35]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t86 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t6, ((derive_vd){P[36], P[37], P[38], P[39]}));
-    #else
-    const double t86 = DERIVE_FMA(t23, t6, P[36]);
-    const double t87 = DERIVE_FMA(t23, t7, P[37]);
-    const double t88 = DERIVE_FMA(t23, t8, P[38]);
-    const double t89 = DERIVE_FMA(t23, t9, P[39]);
-    P_new[36] = t86;
-    P_new[66] = t86;
-    P_new[37] = t87;
-    P_new[82] = t87;
-    P_new[38] = t88;
-    P_new[98] = t88;
-    P_new[39] = t89;
-    P_new[114] = t89;
+    const double t87 = DERIVE_FMA(t8, P[152], P[56]);
+    const double t88 = DERIVE_FMA(t8, P[153], P[57]);
+    const double t89 = DERIVE_FMA(t8, P[154], P[58]);
+    const double t90 = DERIVE_FMA(t8, P[155], P[59]);
+    P_new[56] = t87;
+    P_new[131] = t87;
+    P_new[57] = t88;
+    P_new[147] = t88;
+    P_new[58] = t89;
+    P_new[163] = t89;
+    P_new[59] = t90;
+    P_new[179] = t90;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t90 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t10, ((derive_vd){P[40], P[41], P[42], P[43]}));
+    const derive_vd v_t91 = DERIVE_VFMA(((derive_vd){t8, t8, t8, t8}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[60], P[61], P[62], P[63]}));
+    const derive_vd tr_v_t49_0 = __builtin_shufflevector(v_t49, v_t64, 0, 4, 2, 6);
+    const derive_vd tr_v_t49_1 = __builtin_shufflevector(v_t49, v_t64, 1, 5, 3, 7);
+    const derive_vd tr_v_t49_2 = __builtin_shufflevector(v_t78, v_t91, 0, 4, 2, 6);
+    const derive_vd tr_v_t49_3 = __builtin_shufflevector(v_t78, v_t91, 1, 5, 3, 7);
+    const derive_vd tr_v_t49_c0 = __builtin_shufflevector(tr_v_t49_0, tr_v_t49_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t49_c1 = __builtin_shufflevector(tr_v_t49_1, tr_v_t49_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t49_c2 = __builtin_shufflevector(tr_v_t49_0, tr_v_t49_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t49_c3 = __builtin_shufflevector(tr_v_t49_1, tr_v_t49_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[12] = v_t49;
+    *(derive_vd_unaligned *)&P_new[28] = v_t64;
+    *(derive_vd_unaligned *)&P_new[44] = v_t78;
+    *(derive_vd_unaligned *)&P_new[60] = v_t91;
+    *(derive_vd_unaligned *)&P_new[192] = tr_v_t49_c0;
+    *(derive_vd_unaligned *)&P_new[208] = tr_v_t49_c1;
+    *(derive_vd_unaligned *)&P_new[224] = tr_v_t49_c2;
+    *(derive_vd_unaligned *)&P_new[240] = tr_v_t49_c3;
     #else
-    const double t90 = DERIVE_FMA(t23, t10, P[40]);
-    const double t91 = DERIVE_FMA(t23, t11, P[41]);
-    const double t92 = DERIVE_FMA(t23, t12, P[42]);
-    const double t93 = DERIVE_FMA(t23, t13, P[43]);
-    P_new[40] = t90;
-    P_new[130] = t90;
-    P_new[41] = t91;
-    P_new[146] = t91;
-    P_new[42] = t92;
-    P_new[162] = t92;
-    P_new[43] = t93;
-    P_new[178] = t93;
+    const double t91 = DERIVE_FMA(t8, P[156], P[60]);
+    const double t92 = DERIVE_FMA(t8, P[157], P[61]);
+    const double t93 = DERIVE_FMA(t8, P[158], P[62]);
+    const double t94 = DERIVE_FMA(t8, P[159], P[63]);
+    P_new[60] = t91;
+    P_new[195] = t91;
+    P_new[61] = t92;
+    P_new[211] = t92;
+    P_new[62] = t93;
+    P_new[227] = t93;
+    P_new[63] = t94;
+    P_new[243] = t94;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t94 = DERIVE_VFMA(((derive_vd){t23, t23, t23, t23}), v_t14, ((derive_vd){P[44], P[45], P[46], P[47]}));
+    const derive_vd v_t95 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[148], P[149], P[150], P[151]}), ((derive_vd){P[68], P[69], P[70], P[71]}));
+    const double t96 = v_t95[1];
+    const double t97 = v_t95[2];
+    const double t98 = v_t95[3];
+    *(derive_vd_unaligned *)&P_new[68] = v_t95;
     #else
-    const double t94 = DERIVE_FMA(t23, t14, P[44]);
-    const double t95 = DERIVE_FMA(t23, t15, P[45]);
-    const double t96 = DERIVE_FMA(t23, t16, P[46]);
-    const double t97 = DERIVE_FMA(t23, t17, P[47]);
-    P_new[44] = t94;
-    P_new[194] = t94;
-    P_new[45] = t95;
-    P_new[210] = t95;
-    P_new[46] = t96;
-    P_new[226] = t96;
-    P_new[47] = t97;
-    P_new[242] = t97;
-    #endif
-    const double t98 = DERIVE_FMA(t24, t5, P[51]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t6, ((derive_vd){P[52], P[53], P[54], P[55]}));
-    const derive_vd tr_v_t57_0 = __builtin_shufflevector(v_t57, v_t72, 0, 4, 2, 6);
-    const derive_vd tr_v_t57_1 = __builtin_shufflevector(v_t57, v_t72, 1, 5, 3, 7);
-    const derive_vd tr_v_t57_2 = __builtin_shufflevector(v_t86, v_t99, 0, 4, 2, 6);
-    const derive_vd tr_v_t57_3 = __builtin_shufflevector(v_t86, v_t99, 1, 5, 3, 7);
-    const derive_vd tr_v_t57_c0 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t57_c1 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t57_c2 = __builtin_shufflevector(tr_v_t57_0, tr_v_t57_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t57_c3 = __builtin_shufflevector(tr_v_t57_1, tr_v_t57_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[4] = v_t57;
-    *(derive_vd_unaligned *)&P_new[20] = v_t72;
-    *(derive_vd_unaligned *)&P_new[36] = v_t86;
-    *(derive_vd_unaligned *)&P_new[52] = v_t99;
-    *(derive_vd_unaligned *)&P_new[64] = tr_v_t57_c0;
-    *(derive_vd_unaligned *)&P_new[80] = tr_v_t57_c1;
-    *(derive_vd_unaligned *)&P_new[96] = tr_v_t57_c2;
-    *(derive_vd_unaligned *)&P_new[112] = tr_v_t57_c3;
-    #else
-    const double t99 = DERIVE_FMA(t24, t6, P[52]);
-    const double t100 = DERIVE_FMA(t24, t7, P[53]);
-    const double t101 = DERIVE_FMA(t24, t8, P[54]);
-    const double t102 = DERIVE_FMA(t24, t9, P[55]);
-    P_new[52] = t99;
-    P_new[67] = t99;
-    P_new[53] = t100;
-    P_new[83] = t100;
-    P_new[54] = t101;
-    P_new[99] = t101;
-    P_new[55] = t102;
-    P_new[115] = t102;
+    const double t95 = DERIVE_FMA(t9, P[148], P[68]);
+    const double t96 = DERIVE_FMA(t9, P[149], P[69]);
+    const double t97 = DERIVE_FMA(t9, P[150], P[70]);
+    const double t98 = DERIVE_FMA(t9, P[151], P[71]);
+    P_new[68] = t95;
+    P_new[69] = t96;
+    P_new[84] = t96;
+    P_new[70] = t97;
+    P_new[100] = t97;
+    P_new[71] = t98;
+    P_new[116] = t98;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t10, ((derive_vd){P[56], P[57], P[58], P[59]}));
-    const derive_vd tr_v_t61_0 = __builtin_shufflevector(v_t61, v_t76, 0, 4, 2, 6);
-    const derive_vd tr_v_t61_1 = __builtin_shufflevector(v_t61, v_t76, 1, 5, 3, 7);
-    const derive_vd tr_v_t61_2 = __builtin_shufflevector(v_t90, v_t103, 0, 4, 2, 6);
-    const derive_vd tr_v_t61_3 = __builtin_shufflevector(v_t90, v_t103, 1, 5, 3, 7);
-    const derive_vd tr_v_t61_c0 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t61_c1 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t61_c2 = __builtin_shufflevector(tr_v_t61_0, tr_v_t61_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t61_c3 = __builtin_shufflevector(tr_v_t61_1, tr_v_t61_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[8] = v_t61;
-    *(derive_vd_unaligned *)&P_new[24] = v_t76;
-    *(derive_vd_unaligned *)&P_new[40] = v_t90;
-    *(derive_vd_unaligned *)&P_new[56] = v_t103;
-    *(derive_vd_unaligned *)&P_new[128] = tr_v_t61_c0;
-    *(derive_vd_unaligned *)&P_new[144] = tr_v_t61_c1;
-    *(derive_vd_unaligned *)&P_new[160] = tr_v_t61_c2;
-    *(derive_vd_unaligned *)&P_new[176] = tr_v_t61_c3;
+    const derive_vd v_t99 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[72], P[73], P[74], P[75]}));
     #else
-    const double t103 = DERIVE_FMA(t24, t10, P[56]);
-    const double t104 = DERIVE_FMA(t24, t11, P[57]);
-    const double t105 = DERIVE_FMA(t24, t12, P[58]);
-    const double t106 = DERIVE_FMA(t24, t13, P[59]);
-    P_new[56] = t103;
-    P_new[131] = t103;
-    P_new[57] = t104;
-    P_new[147] = t104;
-    P_new[58] = t105;
-    P_new[163] = t105;
-    P_new[59] = t106;
-    P_new[179] = t106;
+    const double t99 = DERIVE_FMA(t9, P[152], P[72]);
+    const double t100 = DERIVE_FMA(t9, P[153], P[73]);
+    const double t101 = DERIVE_FMA(t9, P[154], P[74]);
+    const double t102 = DERIVE_FMA(t9, P[155], P[75]);
+    P_new[72] = t99;
+    P_new[132] = t99;
+    P_new[73] = t100;
+    P_new[148] = t100;
+    P_new[74] = t101;
+    P_new[164] = t101;
+    P_new[75] = t102;
+    P_new[180] = t102;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t107 = DERIVE_VFMA(((derive_vd){t24, t24, t24, t24}), v_t14, ((derive_vd){P[60], P[61], P[62], P[63]}));
-    const derive_vd tr_v_t65_0 = __builtin_shufflevector(v_t65, v_t80, 0, 4, 2, 6);
-    const derive_vd tr_v_t65_1 = __builtin_shufflevector(v_t65, v_t80, 1, 5, 3, 7);
-    const derive_vd tr_v_t65_2 = __builtin_shufflevector(v_t94, v_t107, 0, 4, 2, 6);
-    const derive_vd tr_v_t65_3 = __builtin_shufflevector(v_t94, v_t107, 1, 5, 3, 7);
-    const derive_vd tr_v_t65_c0 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t65_c1 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t65_c2 = __builtin_shufflevector(tr_v_t65_0, tr_v_t65_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t65_c3 = __builtin_shufflevector(tr_v_t65_1, tr_v_t65_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[12] = v_t65;
-    *(derive_vd_unaligned *)&P_new[28] = v_t80;
-    *(derive_vd_unaligned *)&P_new[44] = v_t94;
-    *(derive_vd_unaligned *)&P_new[60] = v_t107;
-    *(derive_vd_unaligned *)&P_new[192] = tr_v_t65_c0;
-    *(derive_vd_unaligned *)&P_new[208] = tr_v_t65_c1;
-    *(derive_vd_unaligned *)&P_new[224] = tr_v_t65_c2;
-    *(derive_vd_unaligned *)&P_new[240] = tr_v_t65_c3;
+    const derive_vd v_t103 = DERIVE_VFMA(((derive_vd){t9, t9, t9, t9}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[76], P[77], P[78], P[79]}));
     #else
-    const double t107 = DERIVE_FMA(t24, t14, P[60]);
-    const double t108 = DERIVE_FMA(t24, t15, P[61]);
-    const double t109 = DERIVE_FMA(t24, t16, P[62]);
-    const double t110 = DERIVE_FMA(t24, t17, P[63]);
-    P_new[60] = t107;
-    P_new[195] = t107;
-    P_new[61] = t108;
-    P_new[211] = t108;
-    P_new[62] = t109;
-    P_new[227] = t109;
-    P_new[63] = t110;
-    P_new[243] = t110;
+    const double t103 = DERIVE_FMA(t9, P[156], P[76]);
+    const double t104 = DERIVE_FMA(t9, P[157], P[77]);
+    const double t105 = DERIVE_FMA(t9, P[158], P[78]);
+    const double t106 = DERIVE_FMA(t9, P[159], P[79]);
+    P_new[76] = t103;
+    P_new[196] = t103;
+    P_new[77] = t104;
+    P_new[212] = t104;
+    P_new[78] = t105;
+    P_new[228] = t105;
+    P_new[79] = t106;
+    P_new[244] = t106;
+    #endif
+    const double t107 = DERIVE_FMA(P[149], t10, P[85]);
+    const double t108 = DERIVE_FMA(P[150], t10, P[86]);
+    const double t109 = DERIVE_FMA(P[151], t10, P[87]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t110 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[88], P[89], P[90], P[91]}));
+    #else
+    const double t110 = DERIVE_FMA(t10, P[152], P[88]);
+    const double t111 = DERIVE_FMA(t10, P[153], P[89]);
+    const double t112 = DERIVE_FMA(t10, P[154], P[90]);
+    const double t113 = DERIVE_FMA(t10, P[155], P[91]);
+    P_new[88] = t110;
+    P_new[133] = t110;
+    P_new[89] = t111;
+    P_new[149] = t111;
+    P_new[90] = t112;
+    P_new[165] = t112;
+    P_new[91] = t113;
+    P_new[181] = t113;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t111 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t6, ((derive_vd){P[68], P[69], P[70], P[71]}));
-    const double t112 = v_t111[1];
-    const double t113 = v_t111[2];
-    const double t114 = v_t111[3];
-    *(derive_vd_unaligned *)&P_new[68] = v_t111;
+    const derive_vd v_t114 = DERIVE_VFMA(((derive_vd){t10, t10, t10, t10}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[92], P[93], P[94], P[95]}));
     #else
-    const double t111 = DERIVE_FMA(t25, t6, P[68]);
-    const double t112 = DERIVE_FMA(t25, t7, P[69]);
-    const double t113 = DERIVE_FMA(t25, t8, P[70]);
-    const double t114 = DERIVE_FMA(t25, t9, P[71]);
-    P_new[68] = t111;
-    P_new[69] = t112;
-    P_new[84] = t112;
-    P_new[70] = t113;
-    P_new[100] = t113;
-    P_new[71] = t114;
-    P_new[116] = t114;
+    const double t114 = DERIVE_FMA(t10, P[156], P[92]);
+    const double t115 = DERIVE_FMA(t10, P[157], P[93]);
+    const double t116 = DERIVE_FMA(t10, P[158], P[94]);
+    const double t117 = DERIVE_FMA(t10, P[159], P[95]);
+    P_new[92] = t114;
+    P_new[197] = t114;
+    P_new[93] = t115;
+    P_new[213] = t115;
+    P_new[94] = t116;
+    P_new[229] = t116;
+    P_new[95] = t117;
+    P_new[245] = t117;
+    #endif
+    const double t118 = DERIVE_FMA(P[150], t11, P[102]);
+    const double t119 = DERIVE_FMA(P[151], t11, P[103]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t120 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[104], P[105], P[106], P[107]}));
+    #else
+    const double t120 = DERIVE_FMA(t11, P[152], P[104]);
+    const double t121 = DERIVE_FMA(t11, P[153], P[105]);
+    const double t122 = DERIVE_FMA(t11, P[154], P[106]);
+    const double t123 = DERIVE_FMA(t11, P[155], P[107]);
+    P_new[104] = t120;
+    P_new[134] = t120;
+    P_new[105] = t121;
+    P_new[150] = t121;
+    P_new[106] = t122;
+    P_new[166] = t122;
+    P_new[107] = t123;
+    P_new[182] = t123;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t115 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t10, ((derive_vd){P[72], P[73], P[74], P[75]}));
+    const derive_vd v_t124 = DERIVE_VFMA(((derive_vd){t11, t11, t11, t11}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[108], P[109], P[110], P[111]}));
     #else
-    const double t115 = DERIVE_FMA(t25, t10, P[72]);
-    const double t116 = DERIVE_FMA(t25, t11, P[73]);
-    const double t117 = DERIVE_FMA(t25, t12, P[74]);
-    const double t118 = DERIVE_FMA(t25, t13, P[75]);
-    P_new[72] = t115;
-    P_new[132] = t115;
-    P_new[73] = t116;
-    P_new[148] = t116;
-    P_new[74] = t117;
-    P_new[164] = t117;
-    P_new[75] = t118;
-    P_new[180] = t118;
+    const double t124 = DERIVE_FMA(t11, P[156], P[108]);
+    const double t125 = DERIVE_FMA(t11, P[157], P[109]);
+    const double t126 = DERIVE_FMA(t11, P[158], P[110]);
+    const double t127 = DERIVE_FMA(t11, P[159], P[111]);
+    P_new[108] = t124;
+    P_new[198] = t124;
+    P_new[109] = t125;
+    P_new[214] = t125;
+    P_new[110] = t126;
+    P_new[230] = t126;
+    P_new[111] = t127;
+    P_new[246] = t127;
+    #endif
+    const double t128 = DERIVE_FMA(P[151], t12, P[119]);
+    #if DERIVE_VECTOR
+    const derive_vd v_t129 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[120], P[121], P[122], P[123]}));
+    const derive_vd tr_v_t99_0 = __builtin_shufflevector(v_t99, v_t110, 0, 4, 2, 6);
+    const derive_vd tr_v_t99_1 = __builtin_shufflevector(v_t99, v_t110, 1, 5, 3, 7);
+    const derive_vd tr_v_t99_2 = __builtin_shufflevector(v_t120, v_t129, 0, 4, 2, 6);
+    const derive_vd tr_v_t99_3 = __builtin_shufflevector(v_t120, v_t129, 1, 5, 3, 7);
+    const derive_vd tr_v_t99_c0 = __builtin_shufflevector(tr_v_t99_0, tr_v_t99_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t99_c1 = __builtin_shufflevector(tr_v_t99_1, tr_v_t99_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t99_c2 = __builtin_shufflevector(tr_v_t99_0, tr_v_t99_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t99_c3 = __builtin_shufflevector(tr_v_t99_1, tr_v_t99_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[72] = v_t99;
+    *(derive_vd_unaligned *)&P_new[88] = v_t110;
+    *(derive_vd_unaligned *)&P_new[104] = v_t120;
+    *(derive_vd_unaligned *)&P_new[120] = v_t129;
+    *(derive_vd_unaligned *)&P_new[132] = tr_v_t99_c0;
+    *(derive_vd_unaligned *)&P_new[148] = tr_v_t99_c1;
+    *(derive_vd_unaligned *)&P_new[164] = tr_v_t99_c2;
+    *(derive_vd_unaligned *)&P_new[180] = tr_v_t99_c3;
+    #else
+    const double t129 = DERIVE_FMA(t12, P[152], P[120]);
+    const double t130 = DERIVE_FMA(t12, P[153], P[121]);
+    const double t131 = DERIVE_FMA(t12, P[154], P[122]);
+    const double t132 = DERIVE_FMA(t12, P[155], P[123]);
+    P_new[120] = t129;
+    P_new[135] = t129;
+    P_new[121] = t130;
+    P_new[151] = t130;
+    P_new[122] = t131;
+    P_new[167] = t131;
+    P_new[123] = t132;
+    P_new[183] = t132;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t119 = DERIVE_VFMA(((derive_vd){t25, t25, t25, t25}), v_t14, ((derive_vd){P[76], P[77], P[78], P[79]}));
+    const derive_vd v_t133 = DERIVE_VFMA(((derive_vd){t12, t12, t12, t12}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[124], P[125], P[126], P[127]}));
+    const derive_vd tr_v_t103_0 = __builtin_shufflevector(v_t103, v_t114, 0, 4, 2, 6);
+    const derive_vd tr_v_t103_1 = __builtin_shufflevector(v_t103, v_t114, 1, 5, 3, 7);
+    const derive_vd tr_v_t103_2 = __builtin_shufflevector(v_t124, v_t133, 0, 4, 2, 6);
+    const derive_vd tr_v_t103_3 = __builtin_shufflevector(v_t124, v_t133, 1, 5, 3, 7);
+    const derive_vd tr_v_t103_c0 = __builtin_shufflevector(tr_v_t103_0, tr_v_t103_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t103_c1 = __builtin_shufflevector(tr_v_t103_1, tr_v_t103_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t103_c2 = __builtin_shufflevector(tr_v_t103_0, tr_v_t103_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t103_c3 = __builtin_shufflevector(tr_v_t103_1, tr_v_t103_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[76] = v_t103;
+    *(derive_vd_unaligned *)&P_new[92] = v_t114;
+    *(derive_vd_unaligned *)&P_new[108] = v_t124;
+    *(derive_vd_unaligned *)&P_new[124] = v_t133;
+    *(derive_vd_unaligned *)&P_new[196] = tr_v_t103_c0;
+    *(derive_vd_unaligned *)&P_new[212] = tr_v_t103_c1;
+    *(derive_vd_unaligned *)&P_new[228] = tr_v_t103_c2;
+    *(derive_vd_unaligned *)&P_new[244] = tr_v_t103_c3;
     #else
-    const double t119 = DERIVE_FMA(t25, t14, P[76]);
-    const double t120 = DERIVE_FMA(t25, t15, P[77]);
-    const double t121 = DERIVE_FMA(t25, t16, P[78]);
-    const double t122 = DERIVE_FMA(t25, t17, P[79]);
-    P_new[76] = t119;
-    P_new[196] = t119;
-    P_new[77] = t120;
-    P_new[212] = t120;
-    P_new[78] = t121;
-    P_new[228] = t121;
-    P_new[79] = t122;
-    P_new[244] = t122;
-    #endif
-    const double t123 = DERIVE_FMA(t26, t7, P[85]);
-    const double t124 = DERIVE_FMA(t26, t8, P[86]);
-    const double t125 = DERIVE_FMA(t26, t9, P[87]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t126 = DERIVE_VFMA(((derive_vd){t26, t26, t26, t26}), v_t10, ((derive_vd){P[88], P[89], P[90], P[91]}));
-    #else
-    const double t126 = DERIVE_FMA(t26, t10, P[88]);
-    const double t127 = DERIVE_FMA(t26, t11, P[89]);
-    const double t128 = DERIVE_FMA(t26, t12, P[90]);
-    const double t129 = DERIVE_FMA(t26, t13, P[91]);
-    P_new[88] = t126;
-    P_new[133] = t126;
-    P_new[89] = t127;
-    P_new[149] = t127;
-    P_new[90] = t128;
-    P_new[165] = t128;
-    P_new[91] = t129;
-    P_new[181] = t129;
+    const double t133 = DERIVE_FMA(t12, P[156], P[124]);
+    const double t134 = DERIVE_FMA(t12, P[157], P[125]);
+    const double t135 = DERIVE_FMA(t12, P[158], P[126]);
+    const double t136 = DERIVE_FMA(t12, P[159], P[127]);
+    P_new[124] = t133;
+    P_new[199] = t133;
+    P_new[125] = t134;
+    P_new[215] = t134;
+    P_new[126] = t135;
+    P_new[231] = t135;
+    P_new[127] = t136;
+    P_new[247] = t136;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t130 = DERIVE_VFMA(((derive_vd){t26, t26, t26, t26}), v_t14, ((derive_vd){P[92], P[93], P[94], P[95]}));
+    const derive_vd v_t137 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[152], P[153], P[154], P[155]}), ((derive_vd){P[136], P[137], P[138], P[139]}));
+    const double t138 = v_t137[1];
+    const double t139 = v_t137[2];
+    const double t140 = v_t137[3];
+    *(derive_vd_unaligned *)&P_new[136] = v_t137;
     #else
-    const double t130 = DERIVE_FMA(t26, t14, P[92]);
-    const double t131 = DERIVE_FMA(t26, t15, P[93]);
-    const double t132 = DERIVE_FMA(t26, t16, P[94]);
-    const double t133 = DERIVE_FMA(t26, t17, P[95]);
-    P_new[92] = t130;
-    P_new[197] = t130;
-    P_new[93] = t131;
-    P_new[213] = t131;
-    P_new[94] = t132;
-    P_new[229] = t132;
-    P_new[95] = t133;
-    P_new[245] = t133;
-    #endif
-    const double t134 = DERIVE_FMA(t27, t8, P[102]);
-    const double t135 = DERIVE_FMA(t27, t9, P[103]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t136 = DERIVE_VFMA(((derive_vd){t27, t27, t27, t27}), v_t10, ((derive_vd){P[104], P[105], P[106], P[107]}));
-    #else
-    const double t136 = DERIVE_FMA(t27, t10, P[104]);
-    const double t137 = DERIVE_FMA(t27, t11, P[105]);
-    const double t138 = DERIVE_FMA(t27, t12, P[106]);
-    const double t139 = DERIVE_FMA(t27, t13, P[107]);
-    P_new[104] = t136;
-    P_new[134] = t136;
-    P_new[105] = t137;
-    P_new[150] = t137;
-    P_new[106] = t138;
-    P_new[166] = t138;
-    P_new[107] = t139;
-    P_new[182] = t139;
+    const double t137 = DERIVE_FMA(t13, P[152], P[136]);
+    const double t138 = DERIVE_FMA(t13, P[153], P[137]);
+    const double t139 = DERIVE_FMA(t13, P[154], P[138]);
+    const double t140 = DERIVE_FMA(t13, P[155], P[139]);
+    P_new[136] = t137;
+    P_new[137] = t138;
+    P_new[152] = t138;
+    P_new[138] = t139;
+    P_new[168] = t139;
+    P_new[139] = t140;
+    P_new[184] = t140;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t140 = DERIVE_VFMA(((derive_vd){t27, t27, t27, t27}), v_t14, ((derive_vd){P[108], P[109], P[110], P[111]}));
+    const derive_vd v_t141 = DERIVE_VFMA(((derive_vd){t13, t13, t13, t13}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[140], P[141], P[142], P[143]}));
     #else
-    const double t140 = DERIVE_FMA(t27, t14, P[108]);
-    const double t141 = DERIVE_FMA(t27, t15, P[109]);
-    const double t142 = DERIVE_FMA(t27, t16, P[110]);
-    const double t143 = DERIVE_FMA(t27, t17, P[111]);
-    P_new[108] = t140;
-    P_new[198] = t140;
-    P_new[109] = t141;
-    P_new[214] = t141;
-    P_new[110] = t142;
-    P_new[230] = t142;
-    P_new[111] = t143;
-    P_new[246] = t143;
+    const double t141 = DERIVE_FMA(t13, P[156], P[140]);
+    const double t142 = DERIVE_FMA(t13, P[157], P[141]);
+    const double t143 = DERIVE_FMA(t13, P[158], P[142]);
+    const double t144 = DERIVE_FMA(t13, P[159], P[143]);
+    P_new[140] = t141;
+    P_new[200] = t141;
+    P_new[141] = t142;
+    P_new[216] = t142;
+    P_new[142] = t143;
+    P_new[232] = t143;
+    P_new[143] = t144;
+    P_new[248] = t144;
     #endif
-    const double t144 = DERIVE_FMA(t28, t9, P[119]);
+    const double t145 = (-0.25)*t14;
+    const double t146 = (-0.25)*t15;
+    const double t147 = (-0.25)*t16;
     #if DERIVE_VECTOR
-    const derive_vd v_t145 = DERIVE_VFMA(((derive_vd){t28, t28, t28, t28}), v_t10, ((derive_vd){P[120], P[121], P[122], P[123]}));
-    const derive_vd tr_v_t115_0 = __builtin_shufflevector(v_t115, v_t126, 0, 4, 2, 6);
-    const derive_vd tr_v_t115_1 = __builtin_shufflevector(v_t115, v_t126, 1, 5, 3, 7);
-    const derive_vd tr_v_t115_2 = __builtin_shufflevector(v_t136, v_t145, 0, 4, 2, 6);
-    const derive_vd tr_v_t115_3 = __builtin_shufflevector(v_t136, v_t145, 1, 5, 3, 7);
-    const derive_vd tr_v_t115_c0 = __builtin_shufflevector(tr_v_t115_0, tr_v_t115_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t115_c1 = __builtin_shufflevector(tr_v_t115_1, tr_v_t115_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t115_c2 = __builtin_shufflevector(tr_v_t115_0, tr_v_t115_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t115_c3 = __builtin_shufflevector(tr_v_t115_1, tr_v_t115_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[72] = v_t115;
-    *(derive_vd_unaligned *)&P_new[88] = v_t126;
-    *(derive_vd_unaligned *)&P_new[104] = v_t136;
-    *(derive_vd_unaligned *)&P_new[120] = v_t145;
-    *(derive_vd_unaligned *)&P_new[132] = tr_v_t115_c0;
-    *(derive_vd_unaligned *)&P_new[148] = tr_v_t115_c1;
-    *(derive_vd_unaligned *)&P_new[164] = tr_v_t115_c2;
-    *(derive_vd_unaligned *)&P_new[180] = tr_v_t115_c3;
+    const derive_vd v_t148 = (((derive_vd){(-0.25), (-0.25), (-0.25), (-0.25)}) * v_t17);
     #else
-    const double t145 = DERIVE_FMA(t28, t10, P[120]);
-    const double t146 = DERIVE_FMA(t28, t11, P[121]);
-    const double t147 = DERIVE_FMA(t28, t12, P[122]);
-    const double t148 = DERIVE_FMA(t28, t13, P[123]);
-    P_new[120] = t145;
-    P_new[135] = t145;
-    P_new[121] = t146;
-    P_new[151] = t146;
-    P_new[122] = t147;
-    P_new[167] = t147;
-    P_new[123] = t148;
-    P_new[183] = t148;
+    const double t148 = (-0.25)*t17;
+    const double t149 = (-0.25)*t18;
+    const double t150 = (-0.25)*t19;
+    const double t151 = (-0.25)*t20;
+    P_new[156] = t148;
+    P_new[201] = t148;
+    P_new[157] = t149;
+    P_new[217] = t149;
+    P_new[158] = t150;
+    P_new[233] = t150;
+    P_new[159] = t151;
+    P_new[249] = t151;
     #endif
+    const double t152 = DERIVE_FMA(P[154], t15, P[170]);
+    const double t153 = DERIVE_FMA(P[155], t15, P[171]);
     #if DERIVE_VECTOR
-    const derive_vd v_t149 = DERIVE_VFMA(((derive_vd){t28, t28, t28, t28}), v_t14, ((derive_vd){P[124], P[125], P[126], P[127]}));
-    const derive_vd tr_v_t119_0 = __builtin_shufflevector(v_t119, v_t130, 0, 4, 2, 6);
-    const derive_vd tr_v_t119_1 = __builtin_shufflevector(v_t119, v_t130, 1, 5, 3, 7);
-    const derive_vd tr_v_t119_2 = __builtin_shufflevector(v_t140, v_t149, 0, 4, 2, 6);
-    const derive_vd tr_v_t119_3 = __builtin_shufflevector(v_t140, v_t149, 1, 5, 3, 7);
-    const derive_vd tr_v_t119_c0 = __builtin_shufflevector(tr_v_t119_0, tr_v_t119_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t119_c1 = __builtin_shufflevector(tr_v_t119_1, tr_v_t119_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t119_c2 = __builtin_shufflevector(tr_v_t119_0, tr_v_t119_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t119_c3 = __builtin_shufflevector(tr_v_t119_1, tr_v_t119_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[76] = v_t119;
-    *(derive_vd_unaligned *)&P_new[92] = v_t130;
-    *(derive_vd_unaligned *)&P_new[108] = v_t140;
-    *(derive_vd_unaligned *)&P_new[124] = v_t149;
-    *(derive_vd_unaligned *)&P_new[196] = tr_v_t119_c0;
-    *(derive_vd_unaligned *)&P_new[212] = tr_v_t119_c1;
-    *(derive_vd_unaligned *)&P_new[228] = tr_v_t119_c2;
-    *(derive_vd_unaligned *)&P_new[244] = tr_v_t119_c3;
+    const derive_vd v_t154 = DERIVE_VFMA(((derive_vd){t15, t15, t15, t15}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[172], P[173], P[174], P[175]}));
     #else
-    const double t149 = DERIVE_FMA(t28, t14, P[124]);
-    const double t150 = DERIVE_FMA(t28, t15, P[125]);
-    const double t151 = DERIVE_FMA(t28, t16, P[126]);
-    const double t152 = DERIVE_FMA(t28, t17, P[127]);
-    P_new[124] = t149;
-    P_new[199] = t149;
-    P_new[125] = t150;
-    P_new[215] = t150;
-    P_new[126] = t151;
-    P_new[231] = t151;
-    P_new[127] = t152;
-    P_new[247] = t152;
+    const double t154 = DERIVE_FMA(t15, P[156], P[172]);
+    const double t155 = DERIVE_FMA(t15, P[157], P[173]);
+    const double t156 = DERIVE_FMA(t15, P[158], P[174]);
+    const double t157 = DERIVE_FMA(t15, P[159], P[175]);
+    P_new[172] = t154;
+    P_new[202] = t154;
+    P_new[173] = t155;
+    P_new[218] = t155;
+    P_new[174] = t156;
+    P_new[234] = t156;
+    P_new[175] = t157;
+    P_new[250] = t157;
     #endif
+    const double t158 = DERIVE_FMA(P[155], t16, P[187]);
     #if DERIVE_VECTOR
-    const derive_vd v_t153 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t10, ((derive_vd){P[136], P[137], P[138], P[139]}));
-    const double t154 = v_t153[1];
-    const double t155 = v_t153[2];
-    const double t156 = v_t153[3];
-    *(derive_vd_unaligned *)&P_new[136] = v_t153;
+    const derive_vd v_t159 = DERIVE_VFMA(((derive_vd){t16, t16, t16, t16}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[188], P[189], P[190], P[191]}));
+    const derive_vd tr_v_t141_0 = __builtin_shufflevector(v_t141, v_t148, 0, 4, 2, 6);
+    const derive_vd tr_v_t141_1 = __builtin_shufflevector(v_t141, v_t148, 1, 5, 3, 7);
+    const derive_vd tr_v_t141_2 = __builtin_shufflevector(v_t154, v_t159, 0, 4, 2, 6);
+    const derive_vd tr_v_t141_3 = __builtin_shufflevector(v_t154, v_t159, 1, 5, 3, 7);
+    const derive_vd tr_v_t141_c0 = __builtin_shufflevector(tr_v_t141_0, tr_v_t141_2, 0, 1, 4, 5);
+    const derive_vd tr_v_t141_c1 = __builtin_shufflevector(tr_v_t141_1, tr_v_t141_3, 0, 1, 4, 5);
+    const derive_vd tr_v_t141_c2 = __builtin_shufflevector(tr_v_t141_0, tr_v_t141_2, 2, 3, 6, 7);
+    const derive_vd tr_v_t141_c3 = __builtin_shufflevector(tr_v_t141_1, tr_v_t141_3, 2, 3, 6, 7);
+    *(derive_vd_unaligned *)&P_new[140] = v_t141;
+    *(derive_vd_unaligned *)&P_new[156] = v_t148;
+    *(derive_vd_unaligned *)&P_new[172] = v_t154;
+    *(derive_vd_unaligned *)&P_new[188] = v_t159;
+    *(derive_vd_unaligned *)&P_new[200] = tr_v_t141_c0;
+    *(derive_vd_unaligned *)&P_new[216] = tr_v_t141_c1;
+    *(derive_vd_unaligned *)&P_new[232] = tr_v_t141_c2;
+    *(derive_vd_unaligned *)&P_new[248] = tr_v_t141_c3;
     #else
-    const double t153 = DERIVE_FMA(t29, t10, P[136]);
-    const double t154 = DERIVE_FMA(t29, t11, P[137]);
-    const double t155 = DERIVE_FMA(t29, t12, P[138]);
-    const double t156 = DERIVE_FMA(t29, t13, P[139]);
-    P_new[136] = t153;
-    P_new[137] = t154;
-    P_new[152] = t154;
-    P_new[138] = t155;
-    P_new[168] = t155;
-    P_new[139] = t156;
-    P_new[184] = t156;
+    const double t159 = DERIVE_FMA(t16, P[156], P[188]);
+    const double t160 = DERIVE_FMA(t16, P[157], P[189]);
+    const double t161 = DERIVE_FMA(t16, P[158], P[190]);
+    const double t162 = DERIVE_FMA(t16, P[159], P[191]);
+    P_new[188] = t159;
+    P_new[203] = t159;
+    P_new[189] = t160;
+    P_new[219] = t160;
+    P_new[190] = t161;
+    P_new[235] = t161;
+    P_new[191] = t162;
+    P_new[251] = t162;
     #endif
     #if DERIVE_VECTOR
-    const derive_vd v_t157 = DERIVE_VFMA(((derive_vd){t29, t29, t29, t29}), v_t14, ((derive_vd){P[140], P[141], P[142], P[143]}));
+    const derive_vd v_t163 = DERIVE_VFMA(((derive_vd){t17, t17, t17, t17}), ((derive_vd){P[156], P[157], P[158], P[159]}), ((derive_vd){P[204], P[205], P[206], P[207]}));
+    const double t164 = v_t163[1];
+    const double t165 = v_t163[2];
+    const double t166 = v_t163[3];
+    *(derive_vd_unaligned *)&P_new[204] = v_t163;
     #else
-    const double t157 = DERIVE_FMA(t29, t14, P[140]);
-    const double t158 = DERIVE_FMA(t29, t15, P[141]);
-    const double t159 = DERIVE_FMA(t29, t16, P[142]);
-    const double t160 = DERIVE_FMA(t29, t17, P[143]);
-    P_new[140] = t157;
-    P_new[200] = t157;
-    P_new[141] = t158;
-    P_new[216] = t158;
-    P_new[142] = t159;
-    P_new[232] = t159;
-    P_new[143] = t160;
-    P_new[248] = t160;
+    const double t163 = DERIVE_FMA(t17, P[156], P[204]);
+    const double t164 = DERIVE_FMA(t17, P[157], P[205]);
+    const double t165 = DERIVE_FMA(t17, P[158], P[206]);
+    const double t166 = DERIVE_FMA(t17, P[159], P[207]);
+    P_new[204] = t163;
+    P_new[205] = t164;
+    P_new[220] = t164;
+    P_new[206] = t165;
+    P_new[236] = t165;
+    P_new[207] = t166;
+    P_new[252] = t166;
     #endif
-    const double t161 = DERIVE_FMA(t11, t30, P[153]);
-    const double t162 = DERIVE_FMA(t12, t30, P[154]);
-    const double t163 = DERIVE_FMA(t13, t30, P[155]);
+    const double t167 = DERIVE_FMA(P[157], t18, P[221]);
+    const double t168 = DERIVE_FMA(P[158], t18, P[222]);
+    const double t169 = DERIVE_FMA(P[159], t18, P[223]);
+    const double t170 = DERIVE_FMA(P[158], t19, P[238]);
+    const double t171 = DERIVE_FMA(P[159], t19, P[239]);
+    const double t172 = DERIVE_FMA(P[159], t20, P[255]);
+    const double t173 = DERIVE_FMA(t24, t24, DERIVE_FMA(t23, t23, DERIVE_FMA(t22, t22, t21*t21)));
+    const double t174 = 1.0/sqrt(t173);
+    const double t175 = t174*t21;
+    const double t176 = t174*t22;
+    const double t177 = t174*t23;
+    const double t178 = t174*t24;
     #if DERIVE_VECTOR
-    const derive_vd v_t164 = DERIVE_VFMA(((derive_vd){t30, t30, t30, t30}), v_t14, ((derive_vd){P[156], P[157], P[158], P[159]}));
+    x_new[0] = t175;
+    x_new[1] = t176;
+    x_new[2] = t177;
+    x_new[3] = t178;
+    P_new[16] = t38;
+    P_new[17] = t53;
+    P_new[18] = t54;
+    P_new[19] = t55;
+    P_new[32] = t39;
+    P_new[33] = t54;
+    P_new[34] = t68;
+    P_new[35] = t69;
+    P_new[48] = t40;
+    P_new[49] = t55;
+    P_new[50] = t69;
+    P_new[51] = t82;
+    P_new[84] = t96;
+    P_new[85] = t107;
+    P_new[86] = t108;
+    P_new[87] = t109;
+    P_new[100] = t97;
+    P_new[101] = t108;
+    P_new[102] = t118;
+    P_new[103] = t119;
+    P_new[116] = t98;
+    P_new[117] = t109;
+    P_new[118] = t119;
+    P_new[119] = t128;
+    P_new[152] = t138;
+    P_new[153] = t145;
+    P_new[154] = t146;
+    P_new[155] = t147;
+    P_new[168] = t139;
+    P_new[169] = t146;
+    P_new[170] = t152;
+    P_new[171] = t153;
+    P_new[184] = t140;
+    P_new[185] = t147;
+    P_new[186] = t153;
+    P_new[187] = t158;
+    P_new[220] = t164;
+    P_new[221] = t167;
+    P_new[222] = t168;
+    P_new[223] = t169;
+    P_new[236] = t165;
+    P_new[237] = t168;
+    P_new[238] = t170;
+    P_new[239] = t171;
+    P_new[252] = t166;
+    P_new[253] = t169;
+    P_new[254] = t171;
+    P_new[255] = t172;
     #else
-    const double t164 = DERIVE_FMA(t30, t14, P[156]);
-    const double t165 = DERIVE_FMA(t30, t15, P[157]);
-    const double t166 = DERIVE_FMA(t30, t16, P[158]);
-    const double t167 = DERIVE_FMA(t30, t17, P[159]);
-    P_new[156] = t164;
-    P_new[201] = t164;
-    P_new[157] = t165;
-    P_new[217] = t165;
-    P_new[158] = t166;
-    P_new[233] = t166;
-    P_new[159] = t167;
-    P_new[249] = t167;
-    #endif
-    const double t168 = DERIVE_FMA(t12, t31, P[170]);
-    const double t169 = DERIVE_FMA(t13, t31, P[171]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t170 = DERIVE_VFMA(((derive_vd){t31, t31, t31, t31}), v_t14, ((derive_vd){P[172], P[173], P[174], P[175]}));
-    #else
-    const double t170 = DERIVE_FMA(t31, t14, P[172]);
-    const double t171 = DERIVE_FMA(t31, t15, P[173]);
-    const double t172 = DERIVE_FMA(t31, t16, P[174]);
-    const double t173 = DERIVE_FMA(t31, t17, P[175]);
-    P_new[172] = t170;
-    P_new[202] = t170;
-    P_new[173] = t171;
-    P_new[218] = t171;
-    P_new[174] = t172;
-    P_new[234] = t172;
-    P_new[175] = t173;
-    P_new[250] = t173;
-    #endif
-    const double t174 = DERIVE_FMA(t13, t32, P[187]);
-    #if DERIVE_VECTOR
-    const derive_vd v_t175 = DERIVE_VFMA(((derive_vd){t32, t32, t32, t32}), v_t14, ((derive_vd){P[188], P[189], P[190], P[191]}));
-    const derive_vd tr_v_t157_0 = __builtin_shufflevector(v_t157, v_t164, 0, 4, 2, 6);
-    const derive_vd tr_v_t157_1 = __builtin_shufflevector(v_t157, v_t164, 1, 5, 3, 7);
-    const derive_vd tr_v_t157_2 = __builtin_shufflevector(v_t170, v_t175, 0, 4, 2, 6);
-    const derive_vd tr_v_t157_3 = __builtin_shufflevector(v_t170, v_t175, 1, 5, 3, 7);
-    const derive_vd tr_v_t157_c0 = __builtin_shufflevector(tr_v_t157_0, tr_v_t157_2, 0, 1, 4, 5);
-    const derive_vd tr_v_t157_c1 = __builtin_shufflevector(tr_v_t157_1, tr_v_t157_3, 0, 1, 4, 5);
-    const derive_vd tr_v_t157_c2 = __builtin_shufflevector(tr_v_t157_0, tr_v_t157_2, 2, 3, 6, 7);
-    const derive_vd tr_v_t157_c3 = __builtin_shufflevector(tr_v_t157_1, tr_v_t157_3, 2, 3, 6, 7);
-    *(derive_vd_unaligned *)&P_new[140] = v_t157;
-    *(derive_vd_unaligned *)&P_new[156] = v_t164;
-    *(derive_vd_unaligned *)&P_new[172] = v_t170;
-    *(derive_vd_unaligned *)&P_new[188] = v_t175;
-    *(derive_vd_unaligned *)&P_new[200] = tr_v_t157_c0;
-    *(derive_vd_unaligned *)&P_new[216] = tr_v_t157_c1;
-    *(derive_vd_unaligned *)&P_new[232] = tr_v_t157_c2;
-    *(derive_vd_unaligned *)&P_new[248] = tr_v_t157_c3;
-    #else
-    const double t175 = DERIVE_FMA(t32, t14, P[188]);
-    const double t176 = DERIVE_FMA(t32, t15, P[189]);
-    const double t177 = DERIVE_FMA(t32, t16, P[190]);
-    const double t178 = DERIVE_FMA(t32, t17, P[191]);
-    P_new[188] = t175;
-    P_new[203] = t175;
-    P_new[189] = t176;
-    P_new[219] = t176;
-    P_new[190] = t177;
-    P_new[235] = t177;
-    P_new[191] = t178;
-    P_new[251] = t178;
-    #endif
-    #if DERIVE_VECTOR
-    const derive_vd v_t179 = DERIVE_VFMA(((derive_vd){t33, t33, t33, t33}), v_t14, ((derive_vd){P[204], P[205], P[206], P[207]}));
-    const double t180 = v_t179[1];
-    const double t181 = v_t179[2];
-    const double t182 = v_t179[3];
-    *(derive_vd_unaligned *)&P_new[204] = v_t179;
-    #else
-    const double t179 = DERIVE_FMA(t33, t14, P[204]);
-    const double t180 = DERIVE_FMA(t33, t15, P[205]);
-    const double t181 = DERIVE_FMA(t33, t16, P[206]);
-    const double t182 = DERIVE_FMA(t33, t17, P[207]);
-    P_new[204] = t179;
-    P_new[205] = t180;
-    P_new[220] = t180;
-    P_new[206] = t181;
-    P_new[236] = t181;
-    P_new[207] = t182;
-    P_new[252] = t182;
-    #endif
-    const double t183 = DERIVE_FMA(t15, t34, P[221]);
-    const double t184 = DERIVE_FMA(t16, t34, P[222]);
-    const double t185 = DERIVE_FMA(t17, t34, P[223]);
-    const double t186 = DERIVE_FMA(t16, t35, P[238]);
-    const double t187 = DERIVE_FMA(t17, t35, P[239]);
-    const double t188 = DERIVE_FMA(t17, t36, P[255]);
-    const double t189 = DERIVE_FMA(t40, t40, DERIVE_FMA(t39, t39, DERIVE_FMA(t38, t38, t37*t37)));
-    const double t190 = 1.0/sqrt(t189);
-    const double t191 = t190*t37;
-    const double t192 = t190*t38;
-    const double t193 = t190*t39;
-    const double t194 = t190*t40;
-    #if DERIVE_VECTOR
-    x_new[0] = t191;
-    x_new[1] = t192;
-    x_new[2] = t193;
-    x_new[3] = t194;
-    P_new[16] = t54;
-    P_new[17] = t69;
-    P_new[18] = t70;
-    P_new[19] = t71;
-    P_new[32] = t55;
-    P_new[33] = t70;
-    P_new[34] = t84;
-    P_new[35] = t85;
-    P_new[48] = t56;
-    P_new[49] = t71;
-    P_new[50] = t85;
-    P_new[51] = t98;
-    P_new[84] = t112;
-    P_new[85] = t123;
-    P_new[86] = t124;
-    P_new[87] = t125;
-    P_new[100] = t113;
-    P_new[101] = t124;
-    P_new[102] = t134;
-    P_new[103] = t135;
-    P_new[116] = t114;
-    P_new[117] = t125;
-    P_new[118] = t135;
-    P_new[119] = t144;
-    P_new[152] = t154;
-    P_new[153] = t161;
-    P_new[154] = t162;
-    P_new[155] = t163;
-    P_new[168] = t155;
-    P_new[169] = t162;
-    P_new[170] = t168;
-    P_new[171] = t169;
-    P_new[184] = t156;
-    P_new[185] = t163;
-    P_new[186] = t169;
-    P_new[187] = t174;
-    P_new[220] = t180;
-    P_new[221] = t183;
-    P_new[222] = t184;
-    P_new[223] = t185;
-    P_new[236] = t181;
-    P_new[237] = t184;
-    P_new[238] = t186;
-    P_new[239] = t187;
-    P_new[252] = t182;
-    P_new[253] = t185;
-    P_new[254] = t187;
-    P_new[255] = t188;
-    #else
-    x_new[0] = t191;
-    x_new[1] = t192;
-    x_new[2] = t193;
-    x_new[3] = t194;
-    P_new[17] = t69;
-    P_new[18] = t70;
-    P_new[19] = t71;
-    P_new[33] = t70;
-    P_new[34] = t84;
-    P_new[35] = t85;
-    P_new[49] = t71;
-    P_new[50] = t85;
-    P_new[51] = t98;
-    P_new[85] = t123;
-    P_new[86] = t124;
-    P_new[87] = t125;
-    P_new[101] = t124;
-    P_new[102] = t134;
-    P_new[103] = t135;
-    P_new[117] = t125;
-    P_new[118] = t135;
-    P_new[119] = t144;
-    P_new[153] = t161;
-    P_new[154] = t162;
-    P_new[155] = t163;
-    P_new[169] = t162;
-    P_new[170] = t168;
-    P_new[171] = t169;
-    P_new[185] = t163;
-    P_new[186] = t169;
-    P_new[187] = t174;
-    P_new[221] = t183;
-    P_new[222] = t184;
-    P_new[223] = t185;
-    P_new[237] = t184;
-    P_new[238] = t186;
-    P_new[239] = t187;
-    P_new[253] = t185;
-    P_new[254] = t187;
-    P_new[255] = t188;
+    x_new[0] = t175;
+    x_new[1] = t176;
+    x_new[2] = t177;
+    x_new[3] = t178;
+    P_new[17] = t53;
+    P_new[18] = t54;
+    P_new[19] = t55;
+    P_new[33] = t54;
+    P_new[34] = t68;
+    P_new[35] = t69;
+    P_new[49] = t55;
+    P_new[50] = t69;
+    P_new[51] = t82;
+    P_new[85] = t107;
+    P_new[86] = t108;
+    P_new[87] = t109;
+    P_new[101] = t108;
+    P_new[102] = t118;
+    P_new[103] = t119;
+    P_new[117] = t109;
+    P_new[118] = t119;
+    P_new[119] = t128;
+    P_new[153] = t145;
+    P_new[154] = t146;
+    P_new[155] = t147;
+    P_new[169] = t146;
+    P_new[170] = t152;
+    P_new[171] = t153;
+    P_new[185] = t147;
+    P_new[186] = t153;
+    P_new[187] = t158;
+    P_new[221] = t167;
+    P_new[222] = t168;
+    P_new[223] = t169;
+    P_new[237] = t168;
+    P_new[238] = t170;
+    P_new[239] = t171;
+    P_new[253] = t169;
+    P_new[254] = t171;
+    P_new[255] = t172;
     #endif
     return 0;
 }

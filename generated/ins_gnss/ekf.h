@@ -28,8 +28,8 @@
  *     update_gnss 7: S is not positive definite: the variance s of measurement 5 (gvd) of the sequential update is not positive
  *     update_baro 8: S is not positive definite: the variance s of measurement 0 (alt) of the sequential update is not positive
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 53, sub 13, mul 111, div 0, sqrt 0, fma 1036, neg 21, cmp 1, calls 0 (flops 2249, instructions 1235)
- * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 122, div 7, sqrt 1, fma 1205, neg 0, cmp 6, calls 0 (flops 2552, instructions 1353)
- * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 1, sub 1, mul 22, div 2, sqrt 1, fma 155, neg 16, cmp 1, calls 0 (flops 337, instructions 199)
+ * operations per call of update_gnss (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 6, sub 6, mul 179, div 7, sqrt 1, fma 996, neg 0, cmp 6, calls 0 (flops 2191, instructions 1201)
+ * operations per call of update_baro (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 2, sub 0, mul 29, div 2, sqrt 1, fma 148, neg 0, cmp 1, calls 0 (flops 330, instructions 183)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: wx, wy, wz, ax, ay, az
