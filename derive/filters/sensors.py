@@ -240,15 +240,72 @@ def renormalised(prog: Program, model, x):
     return out
 
 
+def unit_norm_noise(model) -> dict[tuple[int, int], sympy.Expr]:
+    """The entries (i, j), i <= j, of the mapped input noise ``Fu Qu Fu^T`` that a
+    unit-norm group's invariant ``sum q^2 = 1`` makes cheaper: each entry's polynomial
+    reduced modulo ``sum q^2 - 1`` eliminating one of the group's states (each tried),
+    kept where it has fewer operations than the entry (sympy ``count_ops``). For a
+    quaternion rotating a noise that is the same on three axes, ``C Qa C^T`` is ``Qa``,
+    and the quaternion's own block ``(dt^2 sg^2 / 4) (|q|^2 I - q q^T)`` has ``1 - q_i^2``
+    on its diagonal. Exact only where the group is unit: the EKF's predict renormalises
+    the groups at its start when this is not empty. Cached per model."""
+    cached = _INVARIANT_NOISE.get(id(model))
+    if cached is not None and cached[0] is model:
+        return cached[1]
+    out: dict[tuple[int, int], sympy.Expr] = {}
+    used = [model.inputs.index(u) for u in model.f_inputs]
+    Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used) if used else None
+    if getattr(model, "unit_norm", ()) and Qu is not None and any(e != 0 for e in Qu):
+        Fu = sympy.Matrix(model.subs(model.Fu_jacobian)).extract(list(range(model.n)), used)
+        M = Fu * Qu * Fu.T
+        for group in model.unit_norm:
+            q = [model.state_symbols[model.states.index(name)] for name in group]
+            invariant = sympy.Add(*[v ** 2 for v in q]) - 1
+            for i in range(model.n):
+                for j in range(i, model.n):
+                    entry = sympy.expand(M[i, j])
+                    if entry == 0:
+                        continue
+                    monomials = sympy.Poly(entry, *q).monoms()
+                    squared = [k for k in range(len(q)) if any(e[k] >= 2 for e in monomials)]
+                    if not squared:  # nothing for the invariant to reduce
+                        continue
+                    best, cost = None, sympy.count_ops(entry)
+                    for k in squared:  # q_k^2 = 1 - (the others' squares), q_k's powers
+                        others = 1 - (invariant + 1 - q[k] ** 2)
+                        rest = sympy.expand(sympy.Add(*[
+                            c * q[k] ** (e % 2) * others ** (e // 2)
+                            for (e,), c in sympy.Poly(entry, q[k]).terms()]))
+                        if sympy.count_ops(rest) < cost:
+                            best, cost = rest, sympy.count_ops(rest)
+                    if best is not None:
+                        out[i, j] = sympy.factor_terms(best)
+    _INVARIANT_NOISE[id(model)] = (model, out)
+    return out
+
+
+_INVARIANT_NOISE: dict[int, tuple[object, dict]] = {}
+
+
 UNIT_NORM_FACT = "unit-norm groups, renormalised at the end of every update: {groups}"
+INVARIANT_FACT = ("invariants used: {invariants} in Q(x, u) = Fu Qu Fu^T, entries {entries} "
+                  "(reduced modulo it where that is cheaper); exact: predict renormalises "
+                  "the groups at its start, so f, F, Fu and Q are taken at unit groups")
 
 
-def unit_norm_fact(model) -> list[str]:
-    """The header line naming the model's unit-norm groups (none without)."""
+def unit_norm_fact(model, invariant: bool = False) -> list[str]:
+    """The header lines naming the model's unit-norm groups and, with ``invariant`` (the
+    EKF), the invariants its predict uses (none without)."""
     groups = getattr(model, "unit_norm", ())
     if not groups:
         return []
-    return [UNIT_NORM_FACT.format(groups="; ".join("(" + ", ".join(g) + ")" for g in groups))]
+    out = [UNIT_NORM_FACT.format(groups="; ".join("(" + ", ".join(g) + ")" for g in groups))]
+    used = unit_norm_noise(model) if invariant else {}
+    if used:
+        out.append(INVARIANT_FACT.format(
+            invariants=", ".join(" + ".join(f"{s}^2" for s in g) + " = 1" for g in groups),
+            entries=", ".join(f"({i}, {j})" for i, j in sorted(used))))
+    return out
 
 
 def sensor_facts(model, groups, thresholds, start: str,
@@ -360,7 +417,11 @@ def reference_functions(model, thresholds):
         Q = numeric_matrix(model, model.Q, [params])
         Qu = numeric_matrix(model, model.Qu, [params])
 
+        first = [[model.states.index(s) for s in group] for group in model.unit_norm] \
+            if unit_norm_noise(model) else []
+
         def predict(x, P, u, p):
+            x = reference.renormalise(x, first)  # as the EKF's predict, using the invariant
             A, G = F(x, u, p), Fu(x, u, p)
             Qx = Q(p) + (G @ Qu(p) @ G.T if names else 0.0)
             return f(x, u, p).ravel(), A @ P @ A.T + Qx
