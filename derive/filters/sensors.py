@@ -257,25 +257,29 @@ def unit_norm_noise(model) -> dict[tuple[int, int], sympy.Expr]:
     Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used) if used else None
     if getattr(model, "unit_norm", ()) and Qu is not None and any(e != 0 for e in Qu):
         Fu = sympy.Matrix(model.subs(model.Fu_jacobian)).extract(list(range(model.n)), used)
-        M = Fu * Qu * Fu.T
+        rows = [i for i in range(model.n) if any(e != 0 for e in Fu.row(i))]
+        gens = sorted(set().union(*(e.free_symbols for e in Fu), *(e.free_symbols for e in Qu)),
+                      key=str)
+        # polynomials over every symbol (sympy's sparse products, not expand)
+        Fp = {(i, k): sympy.Poly(Fu[i, k], *gens) for i in rows for k in range(len(used))}
+        Qp = {(a, b): sympy.Poly(Qu[a, b], *gens) for a in range(len(used))
+              for b in range(len(used)) if Qu[a, b] != 0}
         for group in model.unit_norm:
             q = [model.state_symbols[model.states.index(name)] for name in group]
-            invariant = sympy.Add(*[v ** 2 for v in q]) - 1
-            for i in range(model.n):
-                for j in range(i, model.n):
-                    entry = sympy.expand(M[i, j])
-                    if entry == 0:
+            for i in rows:
+                for j in (j for j in rows if j >= i):
+                    entry = sum((Fp[i, a] * Qp[a, b] * Fp[j, b] for a, b in Qp),
+                                sympy.Poly(0, *gens))
+                    index = [gens.index(v) for v in q if v in gens]
+                    squared = [gens[k] for k in index
+                               if any(e[k] >= 2 for e in entry.monoms())]
+                    if entry.is_zero or not squared:  # nothing for the invariant to reduce
                         continue
-                    monomials = sympy.Poly(entry, *q).monoms()
-                    squared = [k for k in range(len(q)) if any(e[k] >= 2 for e in monomials)]
-                    if not squared:  # nothing for the invariant to reduce
-                        continue
-                    best, cost = None, sympy.count_ops(entry)
-                    for k in squared:  # q_k^2 = 1 - (the others' squares), q_k's powers
-                        others = 1 - (invariant + 1 - q[k] ** 2)
-                        rest = sympy.expand(sympy.Add(*[
-                            c * q[k] ** (e % 2) * others ** (e // 2)
-                            for (e,), c in sympy.Poly(entry, q[k]).terms()]))
+                    best, cost = None, sympy.count_ops(entry.as_expr())
+                    for qk in squared:  # modulo qk^2 + (the others' squares) - 1, by qk
+                        order = [qk] + [v for v in gens if v != qk]
+                        invariant = sympy.Poly(sympy.Add(*[v ** 2 for v in q]) - 1, *order)
+                        rest = sympy.Poly(entry.as_expr(), *order).rem(invariant).as_expr()
                         if sympy.count_ops(rest) < cost:
                             best, cost = rest, sympy.count_ops(rest)
                     if best is not None:
