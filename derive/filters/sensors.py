@@ -24,6 +24,7 @@ update, NIS included; gating then selects between the updated and the prior x an
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 
 import numpy as np
 import sympy
@@ -240,6 +241,7 @@ def renormalised(prog: Program, model, x):
     return out
 
 
+@lru_cache(maxsize=16)
 def unit_norm_noise(model) -> dict[tuple[int, int], sympy.Expr]:
     """The entries (i, j), i <= j, of the mapped input noise ``Fu Qu Fu^T`` that a
     unit-norm group's invariant ``sum q^2 = 1`` makes cheaper: each entry's polynomial
@@ -248,10 +250,8 @@ def unit_norm_noise(model) -> dict[tuple[int, int], sympy.Expr]:
     quaternion rotating a noise that is the same on three axes, ``C Qa C^T`` is ``Qa``,
     and the quaternion's own block ``(dt^2 sg^2 / 4) (|q|^2 I - q q^T)`` has ``1 - q_i^2``
     on its diagonal. Exact only where the group is unit: the EKF's predict renormalises
-    the groups at its start when this is not empty. Cached per model."""
-    cached = _INVARIANT_NOISE.get(id(model))
-    if cached is not None and cached[0] is model:
-        return cached[1]
+    the groups at its start when this is not empty. Cached per model (the generator and
+    the header's facts both ask)."""
     out: dict[tuple[int, int], sympy.Expr] = {}
     used = [model.inputs.index(u) for u in model.f_inputs]
     Qu = sympy.Matrix(model.subs(model.Qu)).extract(used, used) if used else None
@@ -284,11 +284,7 @@ def unit_norm_noise(model) -> dict[tuple[int, int], sympy.Expr]:
                             best, cost = rest, sympy.count_ops(rest)
                     if best is not None:
                         out[i, j] = sympy.factor_terms(best)
-    _INVARIANT_NOISE[id(model)] = (model, out)
     return out
-
-
-_INVARIANT_NOISE: dict[int, tuple[object, dict]] = {}
 
 
 UNIT_NORM_FACT = "unit-norm groups, renormalised at the end of every update: {groups}"
