@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from derive import cli
-from derive.apps.bench import batch, probe, timing
-from derive.apps.bench.bound import case_bound
+from derive.apps.bench import timing
 from derive.apps.bench.cases import CASES, Case, Skip, make_data, states
+from derive.apps.bench.machine import probe
+from derive.apps.bench.machine.bound import case_bound
 from derive.apps.bench.run import (
     IMPLEMENTATIONS,
     LATENCY_SCHEDULE,
@@ -23,6 +24,7 @@ from derive.apps.bench.run import (
     run_bench,
     time_catalog_generation,
 )
+from derive.apps.bench.throughput import batch
 from derive.options import taken_by
 
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
@@ -78,7 +80,7 @@ def test_peers_without_the_filter_are_skipped_with_a_reason(result):
 
 
 def test_missing_peer_is_skipped_not_faked(monkeypatch, tmp_path):
-    from derive.apps.bench import peers
+    from derive.apps.bench.peers import libraries as peers
 
     monkeypatch.setitem(sys.modules, "pykalman", None)   # import raises ImportError
     data = make_data(Case("kf", "mpt3d_b"), 10)

@@ -1,4 +1,4 @@
-"""The navigation rows of ``derive bench`` (derive.apps.bench.navigation) and the peers they
+"""The navigation rows of ``derive bench`` (derive.apps.bench.peers.navigation) and the peers they
 time and count: the SymForce, CasADi and FilterPy versions of the INS EKF compute the NumPy
 reference's numbers, SymForce's C++ is counted by derive's C rules, and the rows and bars
 come out of one run. No wall-clock assertions."""
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from derive import catalog
-from derive.apps.bench.navigation import (
+from derive.apps.bench.peers.navigation import (
     BATCH_FORM,
     FUNCTIONS,
     SCALAR_ROWS,

@@ -1,4 +1,4 @@
-"""SymForce's C++ as a timed peer (derive.apps.bench.symforce_peer), on small inputs: the
+"""SymForce's C++ as a timed peer (derive.apps.bench.peers.symforce_peer), on small inputs: the
 programs' lines are parsed, outputs split and compared as the bench does, cachegrind's and
 nm's figures read; the counting scalar type tallies derive's generated C exactly as its
 header counts (a small EKF) and SymForce's spellings as derive's C rules count them. No
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from derive.apps.bench import symforce_peer as sp
-from derive.apps.bench.navigation import NavigationResult
+from derive.apps.bench.peers import symforce_peer as sp
+from derive.apps.bench.peers.navigation import NavigationResult
 from derive.apps.bench.run import Bar, BenchResult, Settings
 from derive.apps.ins import symforce_ekf
 from derive.generation import generate_units

@@ -19,31 +19,23 @@ from ...errors import ModelError
 from ...generation import generate
 from ...structure import find_blocks
 from ..verify import relative_error
-from . import (
-    batch,
-    casadi_c,
-    compile_size,
-    generated,
-    generation_scaling,
-    navigation,
-    peers,
-    python_floor,
-    scaling,
-    schedule_scaling,
-    startup,
-)
-from .bound import case_bound, case_schedule_bounds
+from . import generated
 from .cases import CASES, Case, Skip, make_data, states
-from .probe import measure_latencies
+from .costs import compile_size, generation_scaling, schedule_scaling, startup
+from .machine import python_floor
+from .machine.bound import case_bound, case_schedule_bounds
+from .machine.probe import measure_latencies
+from .peers import casadi_c, libraries, navigation
+from .throughput import batch, scaling
 from .timing import Timing, columns, human, measure, timing_cells
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     # (name, prepare(case, data, workdir), loop in C: long runs)
     ("generated C", generated.generated_c, True),
     ("generated Python", generated.generated_python, False),
-    ("NumPy reference", peers.numpy_reference, False),
-    ("FilterPy", peers.filterpy, False),
-    ("pykalman", peers.pykalman, False),
+    ("NumPy reference", libraries.numpy_reference, False),
+    ("FilterPy", libraries.filterpy, False),
+    ("pykalman", libraries.pykalman, False),
     ("CasADi C", casadi_c.casadi_c, True),
 )
 
@@ -74,7 +66,7 @@ class Settings:
     scale_steps: int = scaling.STEPS
     scale_repeats: int = 3
     catalog_generation: bool = True   # time `derive generate --all` (the 30 s target)
-    navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
+    navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/peers/navigation.py)
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
     navigation_peer_calls: int = 200     # SymForce's C++ timed beside derive's (0: left out)
@@ -303,12 +295,12 @@ class BenchResult:
         if self.navigation is not None:
             lines += self.navigation.lines() + [""]
         if self.generation:
-            lines += ["generation of large models (derive.apps.bench.generation_scaling): "
+            lines += ["generation of large models (derive.apps.bench.costs.generation_scaling): "
                       "one process each, the model built through the Python API, then "
                       "render_unit (derive and render Python and C, nothing written)", ""]
             lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
         if self.schedule:
-            lines += ["both bounds of large KFs (derive.apps.bench.schedule_scaling): k CV "
+            lines += ["both bounds of large KFs (derive.apps.bench.costs.schedule_scaling): k CV "
                       "axes, carried chain per step in reference cycles; CPU seconds of the "
                       "latency schedule's search and of both bounds (derive burden's); "
                       "dense random KFs: the search only", ""]
@@ -320,14 +312,15 @@ class BenchResult:
                       "and CPU seconds, peak memory of each", ""]
             lines += _columns(head, body) + compile_bars + [""]
         if self.startup:
-            lines += [f"start-up of the command line (derive.apps.bench.startup): a fresh "
+            lines += [f"start-up of the command line (derive.apps.bench.costs.startup): a fresh "
                       f"`python -m derive` per call, least wall and CPU time of "
                       f"{s.startup_repeats} runs taken in turns; load average "
                       f"{self.startup_load} before it", ""]
             lines += _columns(*startup.startup_table(self.startup)) + [""]
         lat = self.machine.get("latency")
         if lat:
-            lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
+            lines.append("latency of one dependent operation here "
+                         "(derive.apps.bench.machine.probe): " +
                          ", ".join(f"{k} {human(v)}" for k, v in lat.items()))
         lines += [bar.text() for bar in self.bars()]
         return "\n".join(lines)
@@ -413,7 +406,7 @@ def machine_info() -> dict:
 def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> list[Row]:
     python_steps = s.nonlinear_python_steps if case.nonlinear else s.python_steps
     data = make_data(case, max(s.c_steps, python_steps, s.check_steps))
-    reference = states(peers.numpy_reference(case, data)(s.check_steps), s.check_steps)
+    reference = states(libraries.numpy_reference(case, data)(s.check_steps), s.check_steps)
     rows, base = [], None
     for name, prepare, in_c in IMPLEMENTATIONS:
         tick(f"{case.label}: {name}")
@@ -457,7 +450,7 @@ def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> li
 
 def _python_floor(case: Case, data, workdir: Path, steps: int, repeats: int) -> float | None:
     """Seconds per step of the generated Python's single-track loop keeping nothing
-    (derive.apps.bench.python_floor), timed as the generated Python row; None without
+    (derive.apps.bench.machine.python_floor), timed as the generated Python row; None without
     such a loop."""
     try:
         run = python_floor.python_floor(case, data, workdir)

@@ -18,8 +18,8 @@ import textwrap
 from pathlib import Path
 from types import SimpleNamespace
 
-from .cases import Case, Data, Skip
-from .generated import load, python_runner
+from ..cases import Case, Data, Skip
+from ..generated import load, python_runner
 
 #: The name of the stripped run in the namespace it is compiled in.
 FLOOR_NAME = "run_keeping_nothing"

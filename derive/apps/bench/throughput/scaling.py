@@ -28,13 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import batch as derive_batch
-from ...build import FilterModule
-from ...errors import NumericalError
+from .... import batch as derive_batch
+from ....build import FilterModule
+from ....errors import NumericalError
+from ..cases import Case, Skip
+from ..generated import CFLAGS, load
+from ..timing import measure
 from .batch import MODEL, copy_bandwidth, make_batch, track_step_bytes
-from .cases import Case, Skip
-from .generated import CFLAGS, load
-from .timing import measure
 
 TRACKS = 1_000_000
 STEPS = 100

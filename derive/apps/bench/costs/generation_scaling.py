@@ -33,7 +33,7 @@ TIMEOUT = 1800.0    # seconds, a hang guard per generation
 _CHILD = r"""
 import json, sys, time
 from derive import LinearModel, catalog
-from derive.apps.bench.compile_size import dense_model
+from derive.apps.bench.costs.compile_size import dense_model
 from derive.flops import count
 from derive.generation import render_unit
 

@@ -54,13 +54,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import catalog
-from ...build import cache_dir
-from ...generation import generate_units
-from ...trees import OpCount
-from ..ins import symforce_ekf
-from ..targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
-from .timing import columns, human
+from .... import catalog
+from ....build import cache_dir
+from ....generation import generate_units
+from ....trees import OpCount
+from ...ins import symforce_ekf
+from ...targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
+from ..timing import columns, human
 
 MODELS = ("ins_gnss", "ins_fc24")
 FLOPS_BAR = 0.9
@@ -322,7 +322,7 @@ class PeerResult:
     symforce: dict = field(default_factory=dict)   # model -> {function: SymforceFunction}
 
     def lines(self) -> list[str]:
-        out = [f"SymForce's C++ as a timed peer (derive.apps.bench.symforce_peer): the same "
+        out = [f"SymForce's C++ as a timed peer (derive.apps.bench.peers.symforce_peer): the same "
                f"functions from the same equations, both compiled by {compiler_version()}, "
                f"called through non-inline calls in one process, interleaved; per call the "
                f"minimum of {self.repeats} repeats of {self.calls:,} calls (thread CPU time); "
