@@ -18,7 +18,7 @@ import jinja2
 import numpy as np
 
 from derive import interface
-from derive.emit import block_lanes, c_loops, c_printer, c_run, python_printer, python_run
+from derive.emit import c_lanes, c_loops, c_printer, c_run, python_printer, python_run
 from derive.emit.c_loops import (
     body_functions,
     body_name,
@@ -33,11 +33,12 @@ from derive.flops import count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
-from derive.runs import kinds
+from derive.runs import blocks, kinds
 from derive.runs.loops import Store, walk
 from derive.runs.unit import LANGUAGES, Argument, Unit, run_arguments
 from derive.runs.unit import sizes as run_sizes
 from derive.runs.unit import space as array_space
+from derive.trees import FUSED_KINDS
 from derive.version import __version__
 
 
@@ -478,12 +479,6 @@ def status_enum(prefix: str, described: interface.Interface) -> list[str]:
             + ["};"])
 
 
-def _c_call(function: str, args: str, status: bool) -> list[str]:
-    if not status:
-        return [f"{function}({args});"]
-    return [f"status = {function}({args});", "if (status) {", "    return status;", "}"]
-
-
 def stored_outputs(unit: Unit) -> list[dict]:
     """run's per-step outputs: array name, the step's output port it stores, elements per
     step, optional (C: may be NULL)."""
@@ -493,12 +488,6 @@ def stored_outputs(unit: Unit) -> list[dict]:
              "size": int(np.prod([sizes[d] for d in dims], dtype=int)),
              "step": out in step_outputs, "dims": dims}
             for array, out, dims, optional in unit.stores]
-
-
-def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
-    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names)."""
-    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
-    return _c_call(f"{prefix}_{lp.name}", args, lp.has_checks)
 
 
 def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
@@ -538,7 +527,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     run_params = ["size_t steps"] + [
         (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
         for a in args] + stride
-    p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
     sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
@@ -550,8 +538,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         [""] + enum if enum else [])
     restrict = c_printer.restrict_macro(unit.symbol_prefix)
     step_lp = lowered["step"]
-    init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
-                 if "init" in lowered else [])
     run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
     # without --no-run run is exported; else private to run_tracks (its last tracks), or none
     exported_run = [run_signature + ";"] if unit.run_function else []
@@ -566,11 +552,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     state = carried_state(unit, step_lp)
     optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
     starts = {s["name"]: (s["start"], s["size"]) for s in state}
-    carried_out = {s["out"] for s in state}
-    for s in optional_stores:  # computed by the store program, written into run's row k
-        s["call"] = (_program_call(prefix, lowered["store"],
-                                   {s["out"]: f"{s['array']} + k * {s['size']}"})
-                     if s["out"] not in carried_out and "store" in lowered else [])
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""
@@ -626,19 +607,22 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
-    # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
-    # (a pass body is called by the scalar run alone where there is no run_tracks: the
-    # vector run names it, else Clang finds an unused static inline function)
-    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None else []
-    # a predictor's run starts from init's x_init (as its scalar run)
-    vector_start = [f"{real.c_type} x_init[{unit.n}];"] + (
-        ["int status;"] if status and init_call else []) + init_call
-    vector_state = [dict(s, start="x_init") for s in state] if init_call else state
-    vector_run, vector_macros, vector_header = block_lanes.vector_run(
-        unit, loop_step, two, vector_state, optional_stores,
-        (vector_start if init_call else []) + unused + called_elsewhere,
-        ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
-        else ([], [], "")
+    run = kinds.BUILDERS[unit.kind](unit, lowered)
+    if two is not None and kinds.BUILDERS[unit.kind] is kinds.stepping:
+        run = kinds.two_steps(run, unit)
+    # identical blocks: run carries them in the lanes of one vector (derive.runs.blocks)
+    laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two}) \
+        if real is DOUBLE and fused else None
+    vector_run, vector_macros, vector_header = [], [], ""
+    if laned is not None:
+        # (a pass body is called by the scalar run alone where there is no run_tracks: the
+        # vector run names it, else Clang finds an unused static inline function)
+        vector_run = c_lanes.lanes_lines(
+            laned, lowered | {"pass": two}, prefix,
+            [f"(void){body_name(prefix, 'pass')};"] if two is not None else [], real)
+        vector_macros = c_lanes.lanes_macro_lines(laned.lanes.width, any(
+            lp.kinds() & FUSED_KINDS for lp in (loop_step, two) if lp is not None))
+        vector_header = c_lanes.header_line(dict(laned.lanes.blocks)["step"])
     header_lines += [vector_header] if vector_header else []
     header_lines.append(described.block())
     header = [c_printer.comment_text(line) for line in header_lines]
@@ -668,10 +652,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "tracks_checks": tracks_checks,
         "about": unit.about.get("c", "Run the filter over steps steps."),
     }
-    run = kinds.BUILDERS[unit.kind](unit, lowered)
     if kinds.BUILDERS[unit.kind] is kinds.stepping:
-        if two is not None:
-            run = kinds.two_steps(run, unit)
         context["run_body"] = c_run.stepping_lines(
             run, lowered, prefix, {"step": fused, "pair": lookahead},
             run_checks if not vector_run else [], real)

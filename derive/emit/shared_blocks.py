@@ -5,7 +5,7 @@ independent filters of one model. The part of each block's step that reads no pe
 data (no measurement, no input; the parameters are the same element in every block) and
 only carried state that itself reads no data is, for a linear filter, the covariance
 recursion: P(k/k-1), S, its factorisation and its checks, the gain, P(k/k). Blocks that
-are the same statements (:func:`derive.emit.block_lanes.independent_parts`, compared up to
+are the same statements (:func:`derive.runs.blocks.independent_parts`, compared up to
 naming and the order of a sum's or product's operands) and whose carried elements start
 bitwise equal therefore compute bitwise equal values at every step: the same operations
 in the same order on the same values. The run loop checks that once, on the initial
@@ -34,9 +34,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from derive.emit.block_lanes import Part, independent_parts
 from derive.lowering import LoweredAssign, LoweredProgram
 from derive.program import PARAMETER_PORT
+from derive.runs.blocks import Part, independent_parts
 from derive.trees import Tree, element_name, rename_tree, tree_vars
 
 
