@@ -24,7 +24,6 @@ from derive.emit.c_loops import (
     body_name,
     fused_body,
     step_function_body,
-    tracks_parts,
     two_step_body,
 )
 from derive.emit.python_loop import single_track_loop
@@ -479,30 +478,6 @@ def status_enum(prefix: str, described: interface.Interface) -> list[str]:
             + ["};"])
 
 
-def stored_outputs(unit: Unit) -> list[dict]:
-    """run's per-step outputs: array name, the step's output port it stores, elements per
-    step, optional (C: may be NULL)."""
-    sizes = run_sizes(unit)
-    step_outputs = {out for _, out, _, _ in unit.extra_stores}
-    return [{"array": array, "out": out, "optional": optional,
-             "size": int(np.prod([sizes[d] for d in dims], dtype=int)),
-             "step": out in step_outputs, "dims": dims}
-            for array, out, dims, optional in unit.stores]
-
-
-def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
-    """The state run carries from step to step: the step's input port, its output port,
-    elements, the run argument that starts it (the run kind's ``start``, in order) and the
-    array that stores it every step (None when none does or the store is optional);
-    ``start_rank``: the number of dimensions of the start argument."""
-    ports = {p.name: p for p in step.inputs}
-    stores = {s["out"]: s["array"] for s in stored_outputs(unit) if not s["optional"]}
-    starts = list(unit.run.start) + [(None, ())] * len(unit.carried)
-    return [{"name": port, "out": out, "size": ports[port].size, "start": starts[i][0],
-             "start_rank": len(starts[i][1]), "store": stores.get(out)}
-            for i, (port, out) in enumerate(unit.carried)]
-
-
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     real = precision(unit.precision)
@@ -549,9 +524,10 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     loop_step = step_lp.without_pattern_checks()
     step_body = body_name(prefix)
     fused = fused_body(unit, loop_step, prefix) if not unit.run.window else []
-    state = carried_state(unit, step_lp)
-    optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
-    starts = {s["name"]: (s["start"], s["size"]) for s in state}
+    run = kinds.BUILDERS[unit.kind](unit, lowered)
+    if two is not None and kinds.BUILDERS[unit.kind] is kinds.stepping:
+        run = kinds.two_steps(run, unit)
+    starts = {s.name: (s.start, s.size) for s in run.states}
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""
@@ -567,11 +543,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
     lookahead = two_step_body(unit, loop_step, two, prefix) if two is not None else []
-    step_rows = [f"const {real.c_type} *restrict {name}k = {name} + k * "
-                 f"{unit.step_input_size(name)};" for name in unit.step_inputs]
-    if fused and unit.parameters and PARAMETER_PORT in loop_step.used_inputs():
-        step_rows.append(f"const {real.c_type} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT}"
-                         f" + k * {P_STRIDE};")
     batch = unit.batch
     run_args = {a.c_name: a for a in args}
     sizes = run_sizes(unit)
@@ -588,8 +559,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
     run_call = ([f"const int track_status = {tail};", "if (track_status) {",
                  "    return track_status;", "}"] if status else [f"{tail};"])
-    tracks = tracks_parts(unit, loop_step, state, optional_stores, prefix, run_call,
-                          two, real) if batch else {}
     tracks_params = ["size_t steps", "size_t tracks"] + [
         (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
         for a in args] + stride
@@ -607,9 +576,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
-    run = kinds.BUILDERS[unit.kind](unit, lowered)
-    if two is not None and kinds.BUILDERS[unit.kind] is kinds.stepping:
-        run = kinds.two_steps(run, unit)
+    bodied = {"step": loop_step} | ({"pass": two} if two is not None else {})  # the loops'
     # identical blocks: run carries them in the lanes of one vector (derive.runs.blocks)
     laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two}) \
         if real is DOUBLE and fused else None
@@ -639,12 +606,13 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         "fma_macro": c_printer.macro_lines(lps, real),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
-        + (tracks["macros"] if batch else []) + vector_macros,
+        + (c_loops.tracks_macros(run, bodied, real) if batch else []) + vector_macros,
         "functions": functions,
         "real": real.c_type,
         "run_signature": run_signature,
         "run_tail": ["return 0;"] if status else [],
-        "tracks_lines": c_loops.tracks_lines(tracks_signature, tracks, unused, tracks_checks,
+        "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
+                                             tracks_checks, run_call,
                                              ["return 0;"] if status else [], real)
         if batch else [],
         "unused": unused,
