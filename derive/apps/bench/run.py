@@ -20,6 +20,7 @@ from ...generation import generate
 from ...structure import find_blocks
 from ..verify import relative_error
 from . import generated
+from .bars import BARS, REFERENCE
 from .cases import CASES, Case, Skip, make_data, states
 from .costs import compile_size, generation_scaling, schedule_scaling, startup
 from .machine import python_floor
@@ -45,12 +46,6 @@ LATENCY_SCHEDULE = "generated C, --latency-schedule"
 
 #: The sections ``Settings.only`` (``derive bench --only``) can run alone.
 ONLY = ("navigation",)
-
-#: The reference points for the KF step on mpt3d_a on the machine where the performance
-#: targets (docs/performance.md) were set.
-ISSUE_CASADI_KF = 48e-9
-ISSUE_FILTERPY_KF = 17e-6
-
 
 @dataclass(frozen=True)
 class Settings:
@@ -155,7 +150,8 @@ class BenchResult:
         if self.settings.only == "navigation":
             return self.navigation.bars(Bar) if self.navigation is not None else []
         out = []
-        for peer, need in (("FilterPy", 1000.0), ("CasADi C", 4.0)):
+        for peer, need in (("FilterPy", BARS["kf_c_over_filterpy"]),
+                           ("CasADi C", BARS["kf_c_over_casadi"])):
             r = self.row("KF mpt3d_a", peer)
             value = r.ratio if r is not None and self._seconds("KF mpt3d_a", "generated C") \
                 else None
@@ -164,16 +160,17 @@ class BenchResult:
         b = next((x for x in self.batch if x.implementation == "generated C, run_tracks"),
                  None)
         out.append(Bar("batch throughput of generated C over simdkalman's",
-                       b.ratio if b is not None else None, 50.0, "ratio"))
+                       b.ratio if b is not None else None, BARS["batch_over_simdkalman"],
+                       "ratio"))
         kf = self.row("KF mpt3d_a", "generated C")
         out.append(Bar("generated C KF mpt3d_a per step", self._seconds("KF mpt3d_a",
                                                                         "generated C"),
-                       10e-9, "time", _bound_note(kf)))
+                       BARS["kf_c_step"], "time", _bound_note(kf)))
         sskf = self.row("SSKF mpt3d_a", "generated C")
         fma2 = 2 * self.machine["latency"]["fma"] if self.machine.get("latency") else None
         out.append(Bar("generated C SSKF mpt3d_b x 3 axes in one loop (mpt3d_a, blocks found "
                        "automatically) per step", self._seconds("SSKF mpt3d_a", "generated C"),
-                       1.25 * 2.3e-9, "time",
+                       BARS["sskf_c_step"], "time",
                        _bound_note(sskf) + ("" if fma2 is None else
                                             f"; two dependent fmas here take {human(fma2)}")))
         # issue 16's bar: the generated run of the three axes, one loop over all blocks
@@ -181,7 +178,8 @@ class BenchResult:
         python = self.row("KF mpt3d_a", "generated Python")
         apart = self._seconds("KF mpt3d_b x 3", "generated Python")
         out.append(Bar("generated pure-Python KF mpt3d_b x 3 axes in one loop (mpt3d_a) per "
-                       "step", self._seconds("KF mpt3d_a", "generated Python"), 1.0e-6, "time",
+                       "step", self._seconds("KF mpt3d_a", "generated Python"),
+                       BARS["kf_python_step"], "time",
                        "; ".join(part for part in (
                            _floor_note(python),
                            "" if python is None or python.unequal is None else
@@ -191,7 +189,7 @@ class BenchResult:
         out += self._chain_bars()
         if self.settings.catalog_generation:
             out.append(Bar("generating the whole catalog (derive generate --all)",
-                           self.generation_seconds, 30.0, "time"))
+                           self.generation_seconds, BARS["catalog_generation"], "time"))
         out += [Bar(*bar) for bar in generation_scaling.generation_bars(self.generation)]
         out += self._scaled_bars(fma2)
         if self.navigation is not None:
@@ -205,7 +203,7 @@ class BenchResult:
                                                                     "generated C")
         fast = self.row("KF mpt3d_a", LATENCY_SCHEDULE)
         out = []
-        for row, need in ((kf, 1.2), (sskf, 1.5)):
+        for row, need in ((kf, BARS["kf_over_bound"]), (sskf, BARS["sskf_over_bound"])):
             bound = row.bound if row is not None else None
             out.append(Bar(f"generated C {row.case if row else '?'} per step within {need:g}x "
                            "the latency bound of its chain (default schedule) here",
@@ -213,9 +211,10 @@ class BenchResult:
                            need * (bound or 0.0), "time",
                            f"bound {human(bound)}" if bound else "no bound measured"))
         default = kf.bound if kf is not None else None
+        share = BARS["latency_schedule_share"]
         out.append(Bar("latency schedule (--latency-schedule): bound of the KF mpt3d_a chain "
-                       "within 0.75x the default schedule's, same run",
-                       kf.latency_bound if default else None, 0.75 * (default or 0.0), "time",
+                       f"within {share:g}x the default schedule's, same run",
+                       kf.latency_bound if default else None, share * (default or 0.0), "time",
                        "" if fast is None or fast.timing is None else
                        f"it runs at {human(fast.timing.median)} per step, "
                        f"{fast.timing.median / fast.latency_bound:.2f}x its bound"))
@@ -229,20 +228,26 @@ class BenchResult:
         out = []
         casadi = self._seconds("KF mpt3d_a", "CasADi C")
         if casadi is not None:
-            out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar 10 ns x CasADi's "
-                           f"{human(casadi)} here / its 48 ns where the bar was set",
+            where = REFERENCE["casadi_kf_step"]
+            out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar "
+                           f"{human(BARS['kf_c_step'])} x CasADi's {human(casadi)} here / its "
+                           f"{human(where)} where the bar was set",
                            self._seconds("KF mpt3d_a", "generated C"),
-                           10e-9 * casadi / ISSUE_CASADI_KF, "time"))
+                           BARS["kf_c_step"] * casadi / where, "time"))
         if fma2 is not None:
-            out.append(Bar("scaled: generated C SSKF mpt3d_a per step, within 25% of two "
-                           f"dependent fmas here ({human(fma2)})",
-                           self._seconds("SSKF mpt3d_a", "generated C"), 1.25 * fma2, "time"))
+            over = BARS["sskf_over_two_fmas"]
+            out.append(Bar("scaled: generated C SSKF mpt3d_a per step, within "
+                           f"{round(100 * (over - 1)):d}% of two dependent fmas here "
+                           f"({human(fma2)})",
+                           self._seconds("SSKF mpt3d_a", "generated C"), over * fma2, "time"))
         filterpy = self._seconds("KF mpt3d_a", "FilterPy")
         if filterpy is not None:
-            out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar 1.2 µs "
-                           f"x FilterPy's {human(filterpy)} here / its 17 µs where the bar was set",
+            bar, where = BARS["kf_python_step_scaled"], REFERENCE["filterpy_kf_step"]
+            out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar "
+                           f"{human(bar)} x FilterPy's {human(filterpy)} here / its "
+                           f"{human(where)} where the bar was set",
                            self._seconds("KF mpt3d_b x 3", "generated Python"),
-                           1.2e-6 * filterpy / ISSUE_FILTERPY_KF, "time"))
+                           bar * filterpy / where, "time"))
         return out
 
     def text(self) -> str:

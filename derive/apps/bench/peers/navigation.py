@@ -49,6 +49,7 @@ from ....interface import read as read_interface
 from ....trees import OpCount
 from ...ins import c_loop, casadi_ekf, fc24, filterpy_ekf, flight, reference, symforce_ekf
 from .. import generated
+from ..bars import BARS
 from ..cases import Skip
 from ..machine.scalar_throughput import Throughput, measure_throughput
 from ..timing import Timing, columns, human, measure, timing_cells
@@ -57,9 +58,9 @@ from . import casadi_c, symforce_peer
 MODEL = "ins_gnss"
 FUNCTIONS = ("predict", "update_gnss", "update_baro")
 TIMED = ("predict", "update_gnss")
-GENERATION_BAR = 2.0
-FILTERPY_BAR = 300.0
-CASADI_BAR = 2.0
+GENERATION_BAR = BARS["ins_gnss_generation"]
+FILTERPY_BAR = BARS["ins_over_filterpy"]
+CASADI_BAR = BARS["ins_over_casadi"]
 EPOCH_SECONDS = 20.0
 PEER_BARS = (("FilterPy", FILTERPY_BAR), ("CasADi C", CASADI_BAR))
 """The per-call bars: (peer, how many times faster the generated C must be)."""
@@ -175,7 +176,8 @@ class NavigationResult:
         for r in self.counts:
             if r.ratio is not None:  # fewer: SymForce has at least one flop more
                 out.append(bar_type(f"{MODEL} {r.function}: SymForce's flops over derive's",
-                                    1.0 / r.ratio, 1.0 + 1.0 / r.derive.flops, "ratio",
+                                    1.0 / r.ratio, (r.derive.flops + BARS["ins_flops_fewer"])
+                                    / r.derive.flops, "ratio",
                                     f"derive {r.derive.flops}, SymForce {r.symforce.flops} "
                                     f"(its own Total ops {r.symforce_total})"))
         for function in TIMED:
