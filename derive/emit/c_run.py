@@ -272,10 +272,10 @@ class _Printer:
 
 
 def run_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str, inputs: int = 0,
-              real: Precision = DOUBLE, rows: tuple[str, ...] = ()) -> list[str]:
+              real: Precision = DOUBLE, per_step: tuple[str, ...] = ()) -> list[str]:
     """The statements of C run (unindented); ``inputs``: the width of run's u (0: none);
-    ``rows``: run's arrays read one row per step (a pointer at row k of one is ``zk``)."""
-    printer = _Printer(run, lowered, prefix, real, rows)
+    ``per_step``: run's arrays read one row per step (a pointer at row k of one is ``zk``)."""
+    printer = _Printer(run, lowered, prefix, real, per_step)
     printer.fill = {r.array: r.fill for r in run.records}
     status = any(lp.has_checks for lp in lowered.values())
     return (printer.declarations(inputs) + printer.start() + printer.nodes(run.loops)

@@ -28,13 +28,13 @@ from derive.emit.c_loops import (
 )
 from derive.emit.python_loop import single_track_loop
 from derive.emit.python_run import PARAMETER_ROWS, PARAMETER_START
-from derive.flops import count_lowered
+from derive.flops import LANGUAGES, count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
 from derive.runs import blocks, kinds
 from derive.runs.loops import Store, walk
-from derive.runs.unit import LANGUAGES, Argument, Unit, run_arguments
+from derive.runs.unit import Argument, Unit, run_arguments
 from derive.runs.unit import sizes as run_sizes
 from derive.runs.unit import space as array_space
 from derive.trees import FUSED_KINDS
@@ -117,7 +117,7 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
     if run is not None:
         status = any(lp.has_checks for lp in lowered.values())
         args = tuple(interface.Argument(a.c_name, a.dims, a.output, a.optional,
-                                        rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
+                                        strided=a.c_name == PARAMETER_PORT, py_name=a.py_name,
                                         scratch=a.scratch, space=space(a.c_name))
                      for a in run)
         if c_run:
@@ -192,9 +192,9 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
                  else "interface (matrices taken flat, row-major, or (n, n), returned (n, n); "
                       "steps = number of steps):")
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
-                         c_run=unit.run_function, tracks=unit.batch, unit=unit)
+                         c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     lines += described.c_lines() if lang == "c" else described.python_lines()
-    if lang == "c" and unit.batch:
+    if lang == "c" and unit.run_tracks:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another" + (", p and p_stride shared by "
                      "the tracks" if unit.parameters else "") + ")")
@@ -495,7 +495,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             f"operations per pass of run, two steps ({_language('c', use_fma, real)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
-                         c_run=unit.run_function, tracks=unit.batch, unit=unit)
+                         c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
     stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
@@ -517,7 +517,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     # without --no-run run is exported; else private to run_tracks (its last tracks), or none
     exported_run = [run_signature + ";"] if unit.run_function else []
     if not unit.run_function:
-        run_signature = f"static {run_signature}" if unit.batch else ""
+        run_signature = f"static {run_signature}" if unit.run_tracks else ""
     # run checks P0 once (run_checks); the loop's P stays in the pattern by construction.
     # The step's statements are printed once, in its body (derive.emit.c_loops): step, run
     # and run_tracks call it
@@ -543,7 +543,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
     lookahead = two_step_body(unit, loop_step, two, prefix) if two is not None else []
-    batch = unit.batch
+    batch = unit.run_tracks
     run_args = {a.c_name: a for a in args}
     sizes = run_sizes(unit)
 
@@ -626,7 +626,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             run_checks if not vector_run else [], real)
     else:
         context["run_body"] = c_run.run_lines(run, lowered, prefix, real=real,
-                                              rows=unit.step_inputs)
+                                              per_step=unit.step_inputs)
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
             f"{unit.filter}.c": _render("c/run.jinja", context)}
 
