@@ -32,7 +32,7 @@ from derive.flops import LANGUAGES, count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
-from derive.runs import blocks, kinds
+from derive.runs import blocks, kinds, shared
 from derive.runs.loops import Store, walk
 from derive.runs.unit import Argument, Unit, run_arguments
 from derive.runs.unit import sizes as run_sizes
@@ -435,10 +435,8 @@ def render_python(unit: Unit) -> dict[str, str]:
         arrays = {**{name: arrays[name] for name in unit.step_inputs},
                   **{s.name: "x_start" if run.enter is not None else s.start
                      for s in run.states}, PARAMETER_PORT: PARAMETER_ROWS}
-        rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
-        stored = tuple((s.state, ports[s.state].shape) for s in stores)
-        single = single_track_loop(lowered["step"].without_pattern_checks(), rows, arrays,
-                                   unit.carried, stored, indent="    ")
+        step = lowered["step"].without_pattern_checks()
+        single = single_track_loop(shared.share_blocks(run, step), step, arrays, indent="    ")
     context = {
         **_python_context(unit, lowered),
         "functions": [part for lp in lowered.values() for part in _python_functions(lp)],

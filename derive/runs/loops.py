@@ -245,6 +245,9 @@ class Run:
     enter: Call | None = None
     #: the identical blocks carried in the lanes of one vector, where a pass put them
     lanes: InLanes | None = None
+    #: the step with what identical blocks starting equal share computed once
+    #: (derive.runs.shared.SharedStep), where the pass found some
+    shared: object = None
 
 
 Node = Call | Copy | Record | Present | AfterFirst | Store | Steps | AnySteps

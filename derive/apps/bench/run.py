@@ -468,7 +468,7 @@ def _python_unequal_start(case: Case, data, workdir: Path, steps: int, repeats: 
                           ) -> float | None:
     """Seconds per step of the generated Python from the case's P0 with a different number
     added to each diagonal entry, so no two blocks start equal and the single-track run
-    takes its full loop (derive.emit.shared_blocks); None for a case without P0 or whose
+    takes its full loop (derive.runs.shared); None for a case without P0 or whose
     model is one block (the runners pass P0 to the KF's run)."""
     if case.nonlinear or case.filter != "kf":
         return None

@@ -1,4 +1,6 @@
-"""Identical blocks that start equal compute what reads no data once.
+"""Identical blocks that start equal compute what reads no data once: a pass over a
+stepping :class:`~derive.runs.loops.Run` (:func:`share_blocks`), which the Python run's
+one-track loop prints (derive.emit.python_loop).
 
 A block-diagonal model with identical blocks (the three axes of ``mpt3d_a``) runs k
 independent filters of one model. The part of each block's step that reads no per-step
@@ -37,6 +39,7 @@ from dataclasses import dataclass, replace
 from derive.lowering import LoweredAssign, LoweredProgram
 from derive.program import PARAMETER_PORT
 from derive.runs.blocks import Part, independent_parts
+from derive.runs.loops import Run
 from derive.trees import Tree, element_name, rename_tree, tree_vars
 
 
@@ -118,6 +121,17 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
     return SharedStep(shared, len(dropped),
                       tuple((port, tuple(later), tuple(firsts))
                             for port, (later, firsts) in equal.items()))
+
+
+def share_blocks(run: Run, step: LoweredProgram) -> Run:
+    """The pass marking a stepping run whose step (``step``, without its pattern checks)
+    shares statements among identical blocks (:attr:`Run.shared`: :func:`shared_step` of
+    the carried state that the step reads and writes); the run as it is otherwise."""
+    ports = {p.name for p in step.inputs}
+    outputs = dict(step.results)
+    shared = shared_step(step, [(s.name, s.new) for s in run.states
+                                if s.name in ports and s.new in outputs])
+    return run if shared is None else replace(run, shared=shared)
 
 
 def _reads_only(tree: Tree, elements: set[str], temporaries: set[str]) -> bool:
