@@ -32,7 +32,7 @@ APPLICATIONS: dict[str, tuple[str, ...]] = {
                                "transition_function", "uses_sensor_run"),
     "derive.filters.spec": ("Conditioned", "FilterSpec", "INNOVATION", "LAINIOTIS",
                             "NEXT_PRIOR", "NOISE", "NOMINAL", "POSTERIOR", "PRIOR", "UPDATE"),
-    "derive.flops": ("c_function_body", "count", "count_c_function",
+    "derive.flops": ("LANGUAGES", "c_function_body", "count", "count_c_function",
                      "count_c_text"),
     "derive.guards": ("SELECTS", "IfGreater", "numpy_selects"),
     "derive.generation": ("LANG_CHOICES", "check_lang", "command_unit", "generate",
