@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from derive.emit.c_printer import CPrinter
-from derive.emit.c_run import call_lines
+from derive.emit.c_run import P_STRIDE, call_lines, loop_head, row_pointer
 from derive.emit.c_vector import SWITCH, VFMA, VFNMA, vector_macro_lines, vector_type
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision
@@ -133,11 +133,6 @@ def gather(values: tuple[str, ...], width: int) -> str:
     return "{" + ", ".join(values + (values[0],) * (width - len(values))) + "}"
 
 
-def _row(port: str) -> str:
-    """The run loop's pointer to this step's row of a per-step input (``zk``)."""
-    return f"{port}k"
-
-
 #: The macros interleaving two vectors a, b: ``PAIRS_LO`` is a0 b0 a1 b1 ..., the first
 #: half of the lanes; ``PAIRS_HI`` the second half.
 PAIRS = "DERIVE_PAIRS"
@@ -197,11 +192,12 @@ def lanes_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
         lines += [f"{t} {start.array}[{start.size}];"] + (["int status;"] if status else [])
         names = {port: (PARAMETER_PORT if isinstance(src, Row) else src)
                  for port, src in run.enter.args}
-        lines += call_lines(prefix, lowered[run.enter.program], {"x_new": start.array} | names)
+        names.update({port: row.array for port, row, _ in run.enter.into})
+        lines += call_lines(prefix, lowered[run.enter.program], names)
     step = next(c for c in run.loops[0].body if isinstance(c, Call))
     if any(p == PARAMETER_PORT for p, _ in step.args) and \
             PARAMETER_PORT not in lowered["step"].used_inputs():
-        lines += [f"(void){PARAMETER_PORT};", "(void)p_stride;"]
+        lines += [f"(void){PARAMETER_PORT};", f"(void){P_STRIDE};"]
     lines += list(prologue)
     lines.append("/* the identical blocks in the lanes of one vector (lane b: block b) */")
     for (port, table), name in carried.items():
@@ -221,7 +217,7 @@ def lanes_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
             if port in states:
                 gathered[(port, local_index)] = carried[(port, table)]
                 continue
-            row = _row(port)
+            row = row_pointer(port)
             if (row, table) not in rows:
                 rows[(row, table)] = f"{prefix}{port}{local_index}"
                 out.append(f"const {vtype} {rows[(row, table)]} = "
@@ -280,11 +276,11 @@ def lanes_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
                 seen.add(port)
                 if source.array != PARAMETER_PORT:
                     row = "k" if source.row == "k" else f"({source.row})"
-                    out.append(f"const {t} *restrict {_row(port)} = {source.array} + {row} * "
-                               f"{source.size};")
+                    out.append(f"const {t} *restrict {row_pointer(port)} = {source.array} + "
+                               f"{row} * {source.size};")
                 elif PARAMETER_PORT in blocks[call.program].block.used_inputs():
-                    out.append(f"const {t} *restrict {_row(PARAMETER_PORT)} = "
-                               f"{PARAMETER_PORT} + k * p_stride;")
+                    out.append(f"const {t} *restrict {row_pointer(PARAMETER_PORT)} = "
+                               f"{PARAMETER_PORT} + k * {P_STRIDE};")
         rows: dict = {}
         made = {}  # the name of a state or local array -> (block, outputs, its port)
         for call, (letter, status) in zip(calls, (("a", "step_status"), ("b", "pass_status"))):
@@ -305,7 +301,5 @@ def lanes_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
 
     indent = "    "
     for loop in run.loops:
-        head = ("for (k = 0; k + 2 <= steps; k += 2) {" if loop.by == 2 else
-                "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {")
-        lines += [head] + [indent + line for line in loop_body(loop)] + ["}"]
+        lines += [loop_head(loop)] + [indent + line for line in loop_body(loop)] + ["}"]
     return lines + (["return 0;"] if status else [])

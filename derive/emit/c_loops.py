@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from derive.emit import c_printer
+from derive.emit.c_run import P_STRIDE, loop_head, row_pointer
 from derive.emit.c_vector import SWITCH
 from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
@@ -327,17 +328,12 @@ def step_function_body(step: LoweredProgram, body: LoweredProgram, name: str,
     return lines + [f"{call};"] + (["return 0;"] if step.has_checks else [])
 
 
-def _row(name: str) -> str:
-    """The run loop's pointer to row k of a per-step input (``zk``)."""
-    return f"{name}k"
-
-
 def _row_names(unit: Unit, body: LoweredProgram) -> dict[str, str]:
     """run's names of the body's per-step inputs: row k (``zk``; ``pk`` when the body
     reads p, else p itself, which the body does not read)."""
-    names = {name: _row(name) for name in unit.step_inputs}
+    names = {name: row_pointer(name) for name in unit.step_inputs}
     if unit.parameters:
-        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
+        names[PARAMETER_PORT] = (row_pointer(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
                                  else PARAMETER_PORT)
     return names
 
@@ -355,7 +351,7 @@ def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,
     rows = _row_names(unit, body)
     return (checked_call(body, body_name(prefix), {**rows, "x_new": "x_mid"}, "step_status")
             + checked_call(two, body_name(prefix, "pass"),
-                           {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
+                           {"z": row_pointer("z"), LOOKAHEAD_NEXT: row_pointer(LOOKAHEAD_NEXT)},
                            "pass_status"))
 
 
@@ -371,7 +367,7 @@ def _call_names(run: Run, call: Call, reads_p: bool) -> dict[str, str]:
         names.update({state.name: f"{_block(state.name)} + j",
                       state.new: f"{_block(state.new)} + j"})
     for port, source in call.args:
-        names[port] = ((_row(PARAMETER_PORT) if reads_p else PARAMETER_PORT)
+        names[port] = ((row_pointer(PARAMETER_PORT) if reads_p else PARAMETER_PORT)
                        if isinstance(source, Row) and source.array == PARAMETER_PORT
                        else f"{_block(port)} + j")
     names.update({port: f"{_block(name)} + j" for port, _, name in call.into})
@@ -498,10 +494,8 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
                   "    }"]
     block.append("}")
     for loop in run.loops:
-        head = ("for (k = 0; k + 2 <= steps; k += 2) {" if loop.by == 2 else
-                "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {")
-        step_lines = [f"const {t} *restrict {_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
-                      "p_stride;"] if p_row else []
+        step_lines = [f"const {t} *restrict {row_pointer(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
+                      f"{P_STRIDE};"] if p_row else []
         step_lines.append("if (prefetch_next) {")
         for a, size, write, optional in streamed:
             fetch = [f"for (i = {a}_lines * k / steps; i < {a}_lines * (k + {loop.by})"
@@ -548,7 +542,7 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
             step_lines += ["{", f"    {t} *const swap = {_block(s.name)};",
                            f"    {_block(s.name)} = {_block(s.new)};",
                            f"    {_block(s.new)} = swap;", "}"]
-        block += [head] + ["    " + x for x in step_lines] + ["}"]
+        block += [loop_head(loop)] + ["    " + x for x in step_lines] + ["}"]
     return out + [f"for (; t + {n} <= tracks; t += {n}) {{"] + ["    " + x for x in block] + ["}"]
 
 

@@ -282,6 +282,19 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str, inputs:
             + (["return 0;"] if status else []))
 
 
+def row_pointer(name: str) -> str:
+    """The run loop's pointer to row k of a per-step input (``zk``)."""
+    return f"{name}k"
+
+
+def loop_head(loop: Steps) -> str:
+    """The C loop over a stepping run's steps: from 0, two a pass, or on from where the
+    loop before stopped (``rest``)."""
+    if loop.by == 2:
+        return "for (k = 0; k + 2 <= steps; k += 2) {"
+    return "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {"
+
+
 def _unrolled(target: str, source: str, size: int) -> list[str]:
     return [f"{target.format(i)} = {source.format(i)};" for i in range(size)]
 
@@ -344,12 +357,7 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
     head = [("/* " if i == 0 else "   ") + line + (" */" if i == len(loop.note.split("\n")) - 1
                                                  else "")
             for i, line in enumerate(loop.note.split("\n"))]
-    if loop.by == 2:
-        head.append("for (k = 0; k + 2 <= steps; k += 2) {")
-    elif loop.rest:
-        head.append("for (; k < steps; ++k) {")
-    else:
-        head.append("for (k = 0; k < steps; ++k) {")
+    head.append(loop_head(loop))
     rows = {}  # the rows the bodies read
     for call in (c for c in loop.body if isinstance(c, Call)):
         for port, source in call.args:
