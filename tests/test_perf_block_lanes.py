@@ -24,7 +24,8 @@ from derive.flops import count_lowered
 from derive.generation import command_unit, render_filter
 from derive.lowering import LoweredAssign
 from derive.pipeline import load_generated
-from derive.runs import blocks
+from derive.runs import blocks, kinds
+from derive.structure import find_blocks
 from derive.trees import Const, Op
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -152,6 +153,28 @@ def test_the_counts_are_the_scalar_operations_of_every_block(model_name, filter_
     assert f"operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): " \
            f"{count_lowered(header_step).summary()}" in c
     assert f"run: the {lanes.lanes} identical blocks of the step in the lanes" in c
+
+
+def test_the_lanes_pass_marks_the_run_with_every_calls_blocks():
+    """derive.runs.blocks.in_lanes on mpt3d_a's steady filter (its two-step pass: step and
+    pass in one loop, the step again for an odd last step): each call's blocks are the
+    model's blocks, the vector the next power of two wide, every carried element in one
+    lane of one carried vector; a run kind it does not serve is left unmarked."""
+    model = catalog.load("mpt3d_a")
+    unit = command_unit(model, "sskf")
+    lowered = _lowered(unit, True)
+    two = kinds.two_step_map(unit, True)
+    run = kinds.two_steps(kinds.stepping(unit, lowered), unit)
+    laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two})
+    count = len(find_blocks(model))
+    assert laned.lanes.width == 1 << (count - 1).bit_length()
+    assert {name: split.lanes for name, split in laned.lanes.blocks} == \
+        {"step": count, "pass": count}
+    held = sorted(g for _, table in laned.lanes.carried for g in table)
+    assert held == list(range(unit.n))
+    assert [len(outputs) for _, outputs in laned.lanes.sources] == \
+        [len(laned.lanes.carried)] * 2
+    assert blocks.in_lanes(run, "smoother", lowered | {"pass": two}) is None
 
 
 def test_blocks_that_differ_in_one_constant_are_not_put_in_lanes():
