@@ -365,6 +365,29 @@ def _render_python_sensors(unit: Unit) -> dict[str, str]:
     return {f"{unit.filter}.py": _render("python/run.jinja", context)}
 
 
+def _c_parameters(unit: Unit, real: Precision, lead: tuple[str, ...] = ("size_t steps",)
+                  ) -> str:
+    """C run's parameters (``lead``, run's arrays, p's stride), joined."""
+    arrays = [(f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
+              for a in run_arguments(unit)]
+    return ", ".join([*lead, *arrays] + ([f"size_t {P_STRIDE}"] if unit.parameters else []))
+
+
+def _c_frame(unit: Unit, lps: list[LoweredProgram], real: Precision, header_lines: list[str],
+             sizes: list[str], described: interface.Interface) -> dict:
+    """The C files' frame both renderings share: header comment, include guard, the
+    defines (restrict, sizes, statuses), includes and the fma macros."""
+    enum = status_enum(unit.prefix, described)
+    return {"header": [c_printer.comment_text(line) for line in header_lines],
+            "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
+            "defines": c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes
+            + ([""] + enum if enum else []),
+            "h_file": f"{unit.filter}.h",
+            "math_h": c_printer.needs_math_h(lps),
+            "fma_macro": c_printer.macro_lines(lps, real),
+            "about": unit.about.get("c", "Run the filter over steps steps.")}
+
+
 def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, str]:
     """The C files of a unit of the run kind ``sensors`` (derive.runs.kinds.sensors)."""
     lowered = _lowered(unit, use_fma=use_fma)
@@ -373,14 +396,8 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
     described = describe(unit.prefix, lowered, run_arguments(unit), real, unit=unit)
     header_lines.append(described.block())
     status = any(lp.has_checks for lp in lps)
-    args = run_arguments(unit)
-    stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
-    run_params = ["size_t steps"] + [
-        (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
-        for a in args] + stride
     prefix = unit.prefix
-    run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
-    enum = status_enum(prefix, described)
+    run_signature = f"{'int' if status else 'void'} {prefix}_run({_c_parameters(unit, real)})"
     sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
              *([f"#define {prefix}_NT {unit.nt}"] if unit.nt != unit.n else []),
              f"#define {prefix}_NP {len(unit.parameters)}",
@@ -388,21 +405,14 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
     sizes += [f"#define {prefix}_M_{s.name.upper()} {s.m}" for s in unit.sensors]
     restrict = c_printer.restrict_macro(unit.symbol_prefix)
     context = {
-        "header": [c_printer.comment_text(line) for line in header_lines],
-        "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
-        "defines": c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes
-        + ([""] + enum if enum else []),
+        **_c_frame(unit, lps, real, header_lines, sizes, described),
         "prototypes": [c_printer.prototype(lp, prefix, restrict, real) + ";" for lp in lps]
         + [run_signature + ";"],
-        "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps) or any(s.gated for s in unit.sensors),
-        "fma_macro": c_printer.macro_lines(lps, real),
         "functions": [c_printer.function_parts(lp, prefix, real) for lp in lps],
         "run_signature": run_signature,
         "run_body": c_run.run_lines(kinds.sensors(unit, lowered), lowered, prefix,
                                     unit.n_inputs, real),
-        "tracks_signature": "",
-        "about": unit.about.get("c", "Run the filter over steps steps."),
     }
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
             f"{unit.filter}.c": _render("c/run.jinja", context)}
@@ -496,22 +506,15 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                          c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
-    stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
-    run_params = ["size_t steps"] + [
-        (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
-        for a in args] + stride
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
-    sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
-             f"#define {prefix}_NP {len(unit.parameters)}"]
+    size_defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+                    f"#define {prefix}_NP {len(unit.parameters)}"]
     if unit.run.window:
-        sizes.append(f"#define {prefix}_WINDOW {unit.window}")
-    enum = status_enum(prefix, described)
-    defines = c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes + (
-        [""] + enum if enum else [])
+        size_defines.append(f"#define {prefix}_WINDOW {unit.window}")
     restrict = c_printer.restrict_macro(unit.symbol_prefix)
     step_lp = lowered["step"]
-    run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
+    run_signature = f"{'int' if status else 'void'} {prefix}_run({_c_parameters(unit, real)})"
     # without --no-run run is exported; else private to run_tracks (its last tracks), or none
     exported_run = [run_signature + ";"] if unit.run_function else []
     if not unit.run_function:
@@ -557,11 +560,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
     run_call = ([f"const int track_status = {tail};", "if (track_status) {",
                  "    return track_status;", "}"] if status else [f"{tail};"])
-    tracks_params = ["size_t steps", "size_t tracks"] + [
-        (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
-        for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
-                        f"{', '.join(tracks_params)})") if batch else ""
+                        f"{_c_parameters(unit, real, ('size_t steps', 'size_t tracks'))})"
+                        if batch else "")
     bodies = [loop_step] + ([two] if two is not None else [])
     functions = body_functions(loop_step, step_body, real)
     if two is not None:
@@ -590,33 +591,22 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         vector_header = c_lanes.header_line(dict(laned.lanes.blocks)["step"])
     header_lines += [vector_header] if vector_header else []
     header_lines.append(described.block())
-    header = [c_printer.comment_text(line) for line in header_lines]
     context = {
-        "header": header,
+        **_c_frame(unit, lps, real, header_lines, size_defines, described),
         # with a vector run, run checks P0 before either run (the template then does not)
         "block_run": vector_run,
-        "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
-        "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix, restrict, real) + ";" for lp in lps]
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
-        "h_file": f"{unit.filter}.h",
-        "math_h": c_printer.needs_math_h(lps),
-        "fma_macro": c_printer.macro_lines(lps, real),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
         + (c_loops.tracks_macros(run, bodied, real) if batch else []) + vector_macros,
         "functions": functions,
-        "real": real.c_type,
         "run_signature": run_signature,
-        "run_tail": ["return 0;"] if status else [],
         "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
                                              tracks_checks, run_call,
                                              ["return 0;"] if status else [], real)
         if batch else [],
-        "unused": unused,
         "run_checks": run_checks,
-        "tracks_checks": tracks_checks,
-        "about": unit.about.get("c", "Run the filter over steps steps."),
     }
     if kinds.BUILDERS[unit.kind] is kinds.stepping:
         context["run_body"] = c_run.stepping_lines(
