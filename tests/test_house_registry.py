@@ -90,7 +90,7 @@ def test_generated_files_state_the_one_title(name):
             assert phrase == title, (path, phrase)
 
 
-def test_unit_carries_run_kind_carried_state_and_batch():
+def test_unit_carries_run_kind_carried_state_and_run_tracks():
     model = catalog.load("mpt3d_b")
     for name, missing in (("kf", True), ("sskf", False)):
         unit = derive_unit(model, name)
