@@ -22,8 +22,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from derive.emit.c_loops import P_STRIDE, loop_head, row_pointer
 from derive.emit.c_printer import CPrinter
-from derive.emit.c_run import P_STRIDE, call_lines, loop_head, row_pointer
+from derive.emit.c_run import call_lines
 from derive.emit.c_vector import SWITCH, VFMA, VFNMA, vector_macro_lines, vector_type
 from derive.lowering import LoweredAssign, LoweredCheck, LoweredProgram
 from derive.precision import DOUBLE, Precision

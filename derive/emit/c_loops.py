@@ -22,15 +22,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 from derive.emit import c_printer
-from derive.emit.c_run import P_STRIDE, loop_head, row_pointer
 from derive.emit.c_vector import SWITCH
 from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
 from derive.runs.loops import Call, Row, Run, Steps, Store, walk
-from derive.runs.unit import LOOKAHEAD_NEXT, Unit
 from derive.trees import Op, Tree, Var
 
+#: C run's stride of p: 0 when p is one row for every step, NP when one row per step.
+P_STRIDE = "p_stride"
 #: The step body's stride argument: element i of a port is at [i * STRIDE].
 STRIDE = "s"
 #: The status a step body's failed check sets (the first failed check's).
@@ -328,31 +328,17 @@ def step_function_body(step: LoweredProgram, body: LoweredProgram, name: str,
     return lines + [f"{call};"] + (["return 0;"] if step.has_checks else [])
 
 
-def _row_names(unit: Unit, body: LoweredProgram) -> dict[str, str]:
-    """run's names of the body's per-step inputs: row k (``zk``; ``pk`` when the body
-    reads p, else p itself, which the body does not read)."""
-    names = {name: row_pointer(name) for name in unit.step_inputs}
-    if unit.parameters:
-        names[PARAMETER_PORT] = (row_pointer(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
-                                 else PARAMETER_PORT)
-    return names
+def row_pointer(name: str) -> str:
+    """The run loop's pointer to row k of a per-step input (``zk``)."""
+    return f"{name}k"
 
 
-def fused_body(unit: Unit, body: LoweredProgram, prefix: str) -> list[str]:
-    """run's step: the body over run's local arrays (the state, the step's outputs: held
-    in registers once the body is inlined), reading the per-step inputs at row k."""
-    return checked_call(body, body_name(prefix), _row_names(unit, body), "step_status")
-
-
-def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,
-                  prefix: str) -> list[str]:
-    """run's pass: the step body writing x(k+1) to ``x_mid``, then the two-step map's body
-    writing x(k+2) to ``x_new``; rows k and k + 1 are read as ``zk`` and ``znk``."""
-    rows = _row_names(unit, body)
-    return (checked_call(body, body_name(prefix), {**rows, "x_new": "x_mid"}, "step_status")
-            + checked_call(two, body_name(prefix, "pass"),
-                           {"z": row_pointer("z"), LOOKAHEAD_NEXT: row_pointer(LOOKAHEAD_NEXT)},
-                           "pass_status"))
+def loop_head(loop: Steps) -> str:
+    """The C loop over a stepping run's steps: from 0, two a pass, or on from where the
+    loop before stopped (``rest``)."""
+    if loop.by == 2:
+        return "for (k = 0; k + 2 <= steps; k += 2) {"
+    return "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {"
 
 
 def _block(name: str) -> str:

@@ -5,6 +5,7 @@ back; a guard is a branch."""
 from __future__ import annotations
 
 from derive.emit import c_printer
+from derive.emit.c_loops import P_STRIDE, body_name, checked_call, loop_head, row_pointer
 from derive.lowering import LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
@@ -25,9 +26,6 @@ from derive.runs.loops import (
     Window,
     walk,
 )
-
-#: C run's stride of p: 0 when p is one row for every step, NP when one row per step.
-P_STRIDE = "p_stride"
 
 
 def call_lines(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
@@ -282,30 +280,18 @@ def run_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str, inputs:
             + (["return 0;"] if status else []))
 
 
-def row_pointer(name: str) -> str:
-    """The run loop's pointer to row k of a per-step input (``zk``)."""
-    return f"{name}k"
-
-
-def loop_head(loop: Steps) -> str:
-    """The C loop over a stepping run's steps: from 0, two a pass, or on from where the
-    loop before stopped (``rest``)."""
-    if loop.by == 2:
-        return "for (k = 0; k + 2 <= steps; k += 2) {"
-    return "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {"
-
-
 def _unrolled(target: str, source: str, size: int) -> list[str]:
     return [f"{target.format(i)} = {source.format(i)};" for i in range(size)]
 
 
 def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
-                   bodies: dict[str, list[str]], checks: list[str] = (),
+                   bodies: dict[str, LoweredProgram], checks: list[str] = (),
                    real: Precision = DOUBLE) -> list[str]:
     """The statements of C run for a run whose step is its body inline on run's local
     arrays (derive.runs.kinds.stepping): the state in local arrays, the copies unrolled;
-    ``bodies``: the C of the body calls (``step``; ``pair``: a two-step pass's);
-    ``checks``: run's check of its start arguments, once before the loop."""
+    ``bodies``: the programs of the step bodies its calls name (``step``; ``pass``: the
+    two-step map's, derive.emit.c_loops); ``checks``: run's check of its start arguments,
+    once before the loop."""
     t = real.c_type
     calls = [c for c in walk(run.loops) if isinstance(c, Call)]
     step = next(c for c in calls if c.program == "step")
@@ -368,7 +354,14 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
             elif isinstance(source, Row) and reads_p:
                 rows[port] = (f"const {t} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                               f"{P_STRIDE};")
-    body = list(rows.values()) + bodies["pair" if loop.by == 2 else "step"]
+    body = list(rows.values())
+    for call in (c for c in loop.body if isinstance(c, Call)):  # a body on local arrays
+        names = {port: (row_pointer(port) if source.array != PARAMETER_PORT or reads_p
+                        else PARAMETER_PORT)
+                 for port, source in call.args if isinstance(source, Row)}
+        names.update({port: row.array for port, row, _ in call.into})
+        body += checked_call(bodies[call.program], body_name(prefix, call.program), names,
+                             f"{call.program}_status")
     states = {s.name: s for s in run.states}
     stored = {s.state: s for s in loop.body if isinstance(s, Store) and not s.optional
               and s.state and s.row == ("k + 1" if loop.by == 2 else "k")}

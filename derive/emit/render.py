@@ -19,13 +19,7 @@ import numpy as np
 
 from derive import interface
 from derive.emit import c_lanes, c_loops, c_printer, c_run, python_printer, python_run
-from derive.emit.c_loops import (
-    body_functions,
-    body_name,
-    fused_body,
-    step_function_body,
-    two_step_body,
-)
+from derive.emit.c_loops import P_STRIDE, body_functions, body_name, step_function_body
 from derive.emit.python_loop import single_track_loop
 from derive.emit.python_run import PARAMETER_ROWS, PARAMETER_START
 from derive.flops import LANGUAGES, count_lowered
@@ -458,9 +452,6 @@ def render_python(unit: Unit) -> dict[str, str]:
     return {f"{unit.filter}.py": _render("python/run.jinja", context)}
 
 
-#: C run's last argument with free parameters: 0 when p is one row for every step, NP
-#: (the number of parameters) when it holds one row per step.
-P_STRIDE = "p_stride"
 
 
 def include_guard(name: str, symbol_prefix: str = "") -> str:
@@ -524,7 +515,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     # and run_tracks call it
     loop_step = step_lp.without_pattern_checks()
     step_body = body_name(prefix)
-    fused = fused_body(unit, loop_step, prefix) if not unit.run.window else []
     run = kinds.BUILDERS[unit.kind](unit, lowered)
     if two is not None and kinds.BUILDERS[unit.kind] is kinds.stepping:
         run = kinds.two_steps(run, unit)
@@ -543,7 +533,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c), real)]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
-    lookahead = two_step_body(unit, loop_step, two, prefix) if two is not None else []
     batch = unit.run_tracks
     run_args = {a.c_name: a for a in args}
     sizes = run_sizes(unit)
@@ -578,7 +567,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     bodied = {"step": loop_step} | ({"pass": two} if two is not None else {})  # the loops'
     # identical blocks: run carries them in the lanes of one vector (derive.runs.blocks)
     laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two}) \
-        if real is DOUBLE and fused else None
+        if real is DOUBLE and not unit.run.window else None
     vector_run, vector_macros, vector_header = [], [], ""
     if laned is not None:
         # (a pass body is called by the scalar run alone where there is no run_tracks: the
@@ -610,7 +599,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     }
     if kinds.BUILDERS[unit.kind] is kinds.stepping:
         context["run_body"] = c_run.stepping_lines(
-            run, lowered, prefix, {"step": fused, "pair": lookahead},
+            run, lowered, prefix, bodied,
             run_checks if not vector_run else [], real)
     else:
         context["run_body"] = c_run.run_lines(run, lowered, prefix, real=real,
