@@ -31,8 +31,9 @@ from derive.domains import check_rows
 
 @dataclass(frozen=True)
 class SensorFunctions:
-    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(p)`` (m, m),
-    or None when R is given per step (run's ``Rs``); ``columns``: the columns of u(k) it
+    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(x, u, p)``
+    (m, m; at the x the update starts from, as h), or None when R is given per step (run's
+    ``Rs``); ``columns``: the columns of u(k) it
     takes; ``gate``: the NIS threshold or None; ``angles``: per measurement, whether it is
     an angle (its innovation wrapped to (-pi, pi])."""
 
@@ -172,7 +173,7 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
             h = np.asarray(s.h(x, u, ps[k]), dtype=float).ravel()
             x, P, nis[s.name][k], S, K, done = _update(
                 x, P, z, h, H,
-                np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
+                np.asarray(s.R(x, u, ps[k]) if s.R is not None else Rs[s.name][k],
                            dtype=float).reshape(len(z), len(z)), s.gate, inject, reset,
                  s.angles)
             applied[s.name][k] = float(done)
