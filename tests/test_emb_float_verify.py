@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import shutil
 
-import numpy as np
 import pytest
 
 from derive import LinearModel, catalog
@@ -95,6 +94,10 @@ def test_every_catalog_bound_is_meaningful(catalog_results):
     difference form (derive.filters.difference; tests/test_float_ukf.py)."""
     refused = [r.line() for r in catalog_results if not r.bound.meaningful]
     assert not refused, "\n".join(refused)
+    # the CTRV turn's omega-Jacobian cancels u / (omega dt)^2 of itself in float32: the
+    # model expands the turn below |omega dt| = 0.03 (4e-2 of P when it did at 1e-4)
+    ctrv = [r for r in catalog_results if r.model == "ctrv_radar"]
+    assert ctrv and all(r.error < 1e-3 for r in ctrv), [r.line() for r in ctrv]
     ukf = next(r for r in catalog_results if (r.model, r.filter) == ("gnss_pseudorange", "ukf"))
     assert ukf.passed and ukf.error < FLOAT.unit_roundoff**0.5, ukf.line()
 

@@ -79,9 +79,10 @@ def test_a_branch_divides_only_by_a_divisor_kept_off_zero_where_it_is_not_taken(
 
 
 def test_ctrv_radar_at_a_turn_rate_of_zero_computes_without_dividing_by_it():
-    """The catalog's CTRV turn divides by omega where |omega| > 1e-4: at omega = 0 exactly
-    the generated Python (plain floats, counting) does not raise, counts what it executes
-    as its header does, and predicts the straight line."""
+    """The catalog's CTRV turn divides by omega where |omega dt| > 0.03: at omega = 0
+    exactly the generated Python (plain floats, counting) does not raise, counts what it
+    executes as its header does, and predicts the straight line (the small-turn
+    expansion at a turn rate of 0)."""
     model = catalog.load("ctrv_radar")
     unit = derive_unit(model, "ekf", {})
     files = render_filter(model, "ekf", "python")
@@ -96,6 +97,20 @@ def test_ctrv_radar_at_a_turn_rate_of_zero_computes_without_dividing_by_it():
     assert [v.value for v in x_new[:2]] == pytest.approx(straight, rel=1e-15)
     plain_x, plain_P = scope["predict"](x0, P0)
     assert np.all(np.isfinite(plain_x)) and np.all(np.isfinite(plain_P))
+
+
+def test_ctrv_radar_small_turn_expansion_meets_the_turn_at_its_guard():
+    """On either side of |omega dt| = 0.03 the turn and its second-order expansion agree:
+    the step to 1e-5 of its v dt (truncation a^3/24), its omega-derivative to 2e-4
+    (a^2/8, the size of float32's loss u/a^2 in the turn's there)."""
+    v, psi, dt = 10.0, 0.7, 1.0
+    for omega in (0.03, -0.03):
+        below = radar.ctrv(np.array([0.0, 0.0, v, psi, omega * (1 - 1e-12)]), dt)
+        above = radar.ctrv(np.array([0.0, 0.0, v, psi, omega * (1 + 1e-12)]), dt)
+        assert np.abs(below[:2] - above[:2]).max() <= 1e-5 * v * dt
+        F_below = radar.ctrv_jacobian(np.array([0.0, 0.0, v, psi, omega * (1 - 1e-12)]), dt)
+        F_above = radar.ctrv_jacobian(np.array([0.0, 0.0, v, psi, omega * (1 + 1e-12)]), dt)
+        assert np.abs(F_below[:2, 4] - F_above[:2, 4]).max() <= 2e-4 * v * dt**2 / 2
 
 
 def test_a_select_is_one_comparison_and_one_select_printed_and_counted_alike():
