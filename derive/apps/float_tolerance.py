@@ -163,8 +163,25 @@ EXTRA_ROUNDINGS = 2
 _EXACT = frozenset({"neg", "select", "cmp"})
 
 
+class _Bound:
+    """What a bound of either kind says beside its ``value`` and ``unit_roundoff``."""
+
+    value: float
+    unit_roundoff: float
+
+    @property
+    def meaningful(self) -> bool:
+        """False when the bound is 1 or more: the precision cannot carry the model."""
+        return self.value < 1.0
+
+    @property
+    def precision_name(self) -> str:
+        """``float32`` or ``double``: the precision whose unit roundoff the bound uses."""
+        return "float32" if self.unit_roundoff == FLOAT.unit_roundoff else "double"
+
+
 @dataclass(frozen=True)
-class FloatTolerance:
+class FloatTolerance(_Bound):
     """The float32 tolerance of one filter on one run: ``value`` = c u L G kappa;
     ``terms``: what kappa is made of, (name, value) at the step where it is largest (each
     thing the filter's step factorises, solves or cancels: :func:`condition_terms`)."""
@@ -180,16 +197,6 @@ class FloatTolerance:
     def value(self) -> float:
         return self.c * self.unit_roundoff * self.roundings * self.growth * self.condition
 
-    @property
-    def meaningful(self) -> bool:
-        """False when the bound is 1 or more: the precision cannot carry the model."""
-        return self.value < 1.0
-
-    @property
-    def precision_name(self) -> str:
-        """``float32`` or ``double``: the precision whose unit roundoff the bound uses."""
-        return "float32" if self.unit_roundoff == FLOAT.unit_roundoff else "double"
-
     def text(self) -> str:
         """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06`` (``u64`` and 2^-53 in
         double), then what kappa is made of (``; kappa: cond S 1 * P(k/k-1) -> P(k/k) 2.51``)."""
@@ -203,7 +210,7 @@ class FloatTolerance:
 
 
 @dataclass(frozen=True)
-class PropagatedTolerance:
+class PropagatedTolerance(_Bound):
     """The float32 tolerance of a unit of the run kind sensors: ``u * max(x, P)``, ``x``
     and ``P`` the largest over the run of the first-order bound on the error of x(k/k) and
     of P(k/k) over the measure's scale, in units of u (:func:`propagated_bound`)."""
@@ -215,16 +222,6 @@ class PropagatedTolerance:
     @property
     def value(self) -> float:
         return self.unit_roundoff * max(self.x, self.P)
-
-    @property
-    def meaningful(self) -> bool:
-        """False when the bound is 1 or more: the precision cannot carry the model."""
-        return self.value < 1.0
-
-    @property
-    def precision_name(self) -> str:
-        """``float32`` or ``double``: the precision whose unit roundoff the bound uses."""
-        return "float32" if self.unit_roundoff == FLOAT.unit_roundoff else "double"
 
     def text(self) -> str:
         """``first order u32 * max(x 2.1e+03, P 3.4e+02) = 1.3e-04, each step's running
