@@ -19,7 +19,7 @@ from test_dynamic_counts import _inputs
 from derive import catalog
 from derive.apps.simulate import simulate_linear
 from derive.filters import derive_unit
-from derive.fit import free_text
+from derive.fitting import free_text
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
 from derive.model import LinearModel

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -36,9 +37,12 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize
 
+from . import catalog
 from .domains import declared_domain
 from .errors import ModelError, NumericalError
+from .generation import is_model_file, resolve_model
 from .modelfile import tomllib
+from .pipeline import load_generated
 
 #: The filter whose log-likelihood the fit maximises.
 FILTER = "kf"
@@ -141,23 +145,24 @@ def _rewrite_parameters(text: str, change: Callable[[str, object], object]) -> s
     return "".join(lines[:start] + out + lines[stop:])
 
 
-def free_text(text: str, names: Sequence[str]) -> str:
-    """The model file ``text`` with the valued parameters ``names`` made free: each
-    value becomes the parameter's ``example`` (where a fit starts)."""
+def free_text(text: str, names: Sequence[str], positive: Sequence[str] = ()) -> str:
+    """The model file ``text`` with the valued parameters ``names`` made free (each value
+    becomes the parameter's ``example``, where a fit starts) and the parameters
+    ``positive`` declared ``domain = "positive"`` (a fit optimises their logarithm)."""
     table = _table(text)
-    for name in names:
+    for name in list(names) + list(positive):
         if name not in table:
             known = ", ".join(table) or "none"
             raise FitError(f"unknown parameter {name!r} (the model's parameters: {known})")
 
     def change(name, spec):
-        if name not in names:
+        if name not in names and name not in positive:
             return spec
         spec = dict(spec) if isinstance(spec, dict) else {"value": spec}
-        if "value" not in spec:
-            return spec
-        value = spec.pop("value")
-        spec["example"] = value
+        if name in names and "value" in spec:
+            spec["example"] = spec.pop("value")
+        if name in positive:
+            spec["domain"] = "positive"
         return spec
 
     return _rewrite_parameters(text, change)
@@ -175,6 +180,34 @@ def fitted_text(text: str, values: dict[str, float]) -> str:
         return {"value": float(values[name]), **spec}
 
     return _rewrite_parameters(text, change)
+
+
+def model_text(ref: str) -> tuple[str, str]:
+    """(the model file's text, its label) for a catalog name or a model-file path."""
+    if is_model_file(ref):
+        path = Path(ref)
+        try:
+            return path.read_text(encoding="utf-8"), str(path)
+        except (OSError, UnicodeDecodeError) as exc:
+            raise FitError(f"{ref}: cannot read the model file ({exc})") from None
+    if ref not in catalog.names():
+        known = ", ".join(catalog.names())
+        raise FitError(f"unknown model {ref!r}: neither a catalog name ({known}) nor a "
+                       "model file (.toml)")
+    return catalog.read_text(ref), catalog.label(ref)
+
+
+def write_model_file(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` whole or not at all (a temporary beside it, renamed)."""
+    path = Path(path)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(temporary, "x", encoding="utf-8") as handle:
+            handle.write(text)
+        os.replace(temporary, path)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        raise FitError(f"{path}: cannot write the fitted model file ({exc.strerror})") from None
 
 
 # -- data -----------------------------------------------------------------------------------
@@ -255,15 +288,17 @@ class _Objective:
     def theta(self, phi: np.ndarray) -> np.ndarray:
         return np.where(self.logs, np.exp(np.where(self.logs, phi, 0.0)), phi)
 
-    def loglik(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
-        """(log L, d log L / d theta) summed over the tracks."""
+    def loglik(self, theta: np.ndarray, outer: bool = False) -> tuple[float, np.ndarray]:
+        """(log L, d log L / d theta) summed over the tracks; with ``outer`` the sum of
+        the steps' outer products of their gradients (the information's OPG estimate)."""
         self.evaluations += 1
 
         def one(track):
             zs, us = track
             args = (zs,) + ((us,) if us is not None else ()) + (self.x0, self.P0, theta)
             out = self.module.run(*args)
-            return float(np.sum(out[2])), np.sum(out[3], axis=0)
+            return float(np.sum(out[2])), (out[3].T @ out[3] if outer else
+                                           np.sum(out[3], axis=0))
 
         if len(self.tracks) == 1 or self.workers == 1:
             parts = [one(t) for t in self.tracks]
@@ -316,19 +351,17 @@ def _progress(enabled: bool):
 
 def fit(model, data, *, start: dict[str, float] | None = None,
         x0: Sequence[float] | None = None, P0=None, progress: bool | None = None,
-        workers: int | None = None, gtol: float = 1e-9, generated=None) -> FitResult:
+        workers: int | None = None, gtol: float = 1e-6, polish: int = 3,
+        generated=None) -> FitResult:
     """Fit the free parameters of the linear ``model`` (a model object, a catalog name
     or a model-file path) to ``data``: one array (steps, m [+ n_u]) of measurements
     (NaN: missing) and the model's inputs, or a list of such arrays, tracks that share
     the parameters. The run starts from ``x0`` and ``P0`` (default: the model's; they
     must not depend on the free parameters). ``start``: the starting values by name
     (default: each parameter's example). ``progress``: a line on stderr per iteration
-    (default: when stderr is a terminal). ``generated``: the model's KF with the options
-    loglik, gradient and missing already loaded (derive.pipeline.load_generated), to fit
-    again without generating."""
-    from .generation import resolve_model
-    from .pipeline import load_generated
-
+    (default: when stderr is a terminal). ``generated``: the model's KF with the option
+    gradient (and missing, for data with NaN) already loaded
+    (derive.pipeline.load_generated), to fit again without generating."""
     model = resolve_model(model)
     if model.kind != "linear":
         raise FitError(f"model {model.name!r} is not linear: derive fit takes a linear model")
@@ -361,7 +394,7 @@ def fit(model, data, *, start: dict[str, float] | None = None,
     x0, P0 = _start(model, x0, P0)
     began = time.perf_counter()
     if generated is None:
-        generated = load_generated(model, FILTER, {"gradient": True, "missing": True}, "c")
+        generated = kernel(model, [zs for zs, _ in tracks])
     generation = time.perf_counter() - began
     began = time.perf_counter()
     objective = _Objective(generated.c, tracks, x0, P0, logs, names,
@@ -374,13 +407,15 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         line(iterations[0], objective.last)
 
     phi0 = np.where(logs, np.log(np.where(logs, theta0, 1.0)), theta0)
+    options = {"gtol": gtol, "maxiter": 2000}
     result = scipy.optimize.minimize(objective, phi0, jac=True, method="BFGS",
-                                     callback=callback, options={"gtol": gtol,
-                                                                 "maxiter": 2000})
+                                     callback=callback, options=options)
     theta = objective.theta(result.x)
     ll, grad = objective.loglik(theta)
+    # Newton's polish on the exact gradient, the Hessian from BFGS's end point (each step
+    # gains the digits the Hessian has: BFGS stops where the gradient is small, not zero)
     H = _hessian(objective, theta)
-    for _ in range(3):  # Newton's polish on the exact gradient (BFGS stops near the optimum)
+    for _ in range(polish):
         try:
             step = np.linalg.solve(H, grad)
         except np.linalg.LinAlgError:
@@ -389,10 +424,9 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         if np.any(trial[logs] <= 0):
             break
         ll_trial, grad_trial = objective.loglik(trial)
-        if not ll_trial >= ll - 1e-12 * abs(ll):
+        if not ll_trial >= ll:
             break
         theta, ll, grad = trial, ll_trial, grad_trial
-        H = _hessian(objective, theta)
     if progress or (progress is None and sys.stderr.isatty()):
         print(file=sys.stderr)
     information = -H
@@ -406,6 +440,13 @@ def fit(model, data, *, start: dict[str, float] | None = None,
                      bool(np.all(np.abs(grad) * np.maximum(np.abs(theta), 1) <= 1e-6
                                  * max(abs(ll), 1))),
                      str(result.message), time.perf_counter() - began, generation)
+
+
+def kernel(model, zs: Sequence[np.ndarray]):
+    """The compiled KF of ``model`` with the option gradient (and missing when a track
+    of measurements ``zs`` has a NaN): what :func:`fit` evaluates log L with."""
+    missing = any(np.isnan(z).any() for z in zs)
+    return load_generated(model, FILTER, {"gradient": True, "missing": missing}, "c")
 
 
 def _start(model, x0, P0) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,64 @@
+"""`derive fit MODEL DATA...`: maximum-likelihood estimates of a model's free parameters."""
+
+NAME = "fit"
+ORDER = 47
+HELP = ("maximum-likelihood estimates of a linear model's free parameters from measurement "
+        "files (CSV or .npy, one row per step: the measurements, NaN where missing, then the "
+        "model's inputs), with the exact gradient of the Kalman filter's log-likelihood; "
+        "several files are tracks sharing the parameters; prints the estimates and their "
+        "standard errors and writes the fitted model file with --out")
+EXAMPLE = ("derive fit cv track.csv --free sq2 --free sr2 --out cv_fitted.toml\n"
+           "  derive fit model.toml a.npy b.npy --start q=0.1")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("model", help="catalog name or model-file path")
+    parser.add_argument("data", nargs="+", help="measurement files (.csv or .npy), one per "
+                                                "track")
+    parser.add_argument("--free", action="append", default=[], metavar="NAME",
+                        help="fit this valued parameter too, starting from its value "
+                             "(repeatable)")
+    parser.add_argument("--positive", action="append", default=[], metavar="NAME",
+                        help="declare parameter NAME positive (domain = \"positive\"): the "
+                             "fit optimises its logarithm, and the fitted file keeps the "
+                             "domain (repeatable)")
+    parser.add_argument("--start", action="append", default=[], metavar="NAME=V",
+                        help="start free parameter NAME at V (default: its example, or the "
+                             "value of a --free one)")
+    parser.add_argument("--out", metavar="FILE",
+                        help="write the model file with the fitted values (derive generate "
+                             "takes it)")
+    parser.add_argument("--bench", action="store_true",
+                        help="also time statsmodels' fit of the same likelihood (MLEModel, "
+                             "its default optimiser) and print both")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress line (it is shown only when stderr is a terminal)")
+
+
+def run(args) -> int:
+    from ..fitting import fit, fitted_text, free_text, model_text, read_data, write_model_file
+    from ..modelfile import loads_model
+    from .verify import parameter_values
+
+    text, label = model_text(args.model)
+    if args.free or args.positive:
+        text = free_text(text, args.free, args.positive)
+    model = loads_model(text, source=label)
+    tracks = [read_data(path) for path in args.data]
+    start = parameter_values(args.start)
+    result = fit(model, tracks if len(tracks) > 1 else tracks[0], start=start,
+                 progress=False if args.no_progress else None)
+    print(result.table())
+    print(f"time: fit {result.seconds:.3f} s, generation and compilation "
+          f"{result.generation_seconds:.3f} s")
+    if args.bench:
+        from ..apps.fit_peer import statsmodels_fit
+
+        peer = statsmodels_fit(model, tracks, start=start)
+        ratio = peer.seconds / result.seconds
+        print(f"statsmodels: log-likelihood {peer.loglik:.12g}, fit {peer.seconds:.3f} s "
+              f"({ratio:.1f}x derive's fit)")
+    if args.out:
+        write_model_file(args.out, fitted_text(text, result.values()))
+        print(f"wrote {args.out}")
+    return 0
