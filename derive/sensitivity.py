@@ -26,6 +26,7 @@ from __future__ import annotations
 import sympy
 from sympy import default_sort_key
 
+from derive.errors import OptionError
 from derive.expression_lowering import IfAtMost, IfPresent
 from derive.guards import IfAtLeast, IfGreater
 from derive.program import PARAMETER_PORT, Port, Program, ProgramError
@@ -269,3 +270,18 @@ def enter_program(step: Program, n: int, q: int) -> Program:
     prog.set_output(DX, [0] * (q * n))
     prog.set_output(DP, [0] * (q * n * n))
     return prog.optimize()
+
+
+def with_gradient(model, programs: dict) -> tuple[dict, tuple[tuple[str, str], ...]]:
+    """A filter's ``programs`` (its ``step`` returning ``ll``) with the gradient: ``step``
+    carrying the sensitivities (:func:`sensitivity_step`) and ``enter`` starting them;
+    with the carried state the unit declares (:data:`SENSITIVITY_CARRIED`)."""
+    if not model.parameters:
+        raise OptionError(f"option 'gradient': model {model.name!r} has no free parameters "
+                          "(declare the ones to differentiate by without a value)")
+    if model.n_tangent != model.n:
+        raise OptionError("option 'gradient' is not taken for a model with manifold states")
+    step = programs["step"]
+    return ({**programs, "step": sensitivity_step(step, model.n),
+             "enter": enter_program(step, model.n, len(model.parameters))},
+            SENSITIVITY_CARRIED)

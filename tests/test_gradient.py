@@ -22,7 +22,7 @@ from derive.filters import derive_unit
 from derive.fitting import free_text
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
-from derive.model import LinearModel
+from derive.model import LinearModel, NonlinearModel
 from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.sensitivity import support
@@ -160,3 +160,29 @@ def test_the_gradient_of_generated_models_equals_central_differences(case, seed)
     zs = rng.normal(size=(40, model.m))
     zs[5] = np.nan
     assert_gradient(module, zs, theta, np.zeros(model.n), np.eye(model.n))
+
+
+def test_the_ekf_gradient_through_f_h_and_the_noises_equals_central_differences():
+    """A pendulum with g (in f and so in the Jacobian F), q and r1 free: the EKF's
+    dll through f, h, their Jacobians and Q, R (Python; the C prints the same program)."""
+    model = NonlinearModel(
+        "pendulum", ["th", "om"], ["s", "r"], f=["th + dt*om", "om - dt*g*sin(th)"],
+        h=["sin(th)", "th + om**2/4"], Q=[["q", 0], [0, "q"]], R=[["r1", 0], [0, "r2"]],
+        values={"dt": 0.1, "r2": 0.04}, parameters=["g", "q", "r1"], x0=[0.5, 0.0],
+        P0=[[0.1, 0], [0, 0.1]])
+    module = load_generated(model, "ekf", {"gradient": True}, "python").python
+    zs = np.random.default_rng(0).normal(size=(STEPS, 2)) * 0.1 + [0.4, 0.5]
+    assert_gradient(module, zs, np.array([9.81, 0.001, 0.01]), np.array([0.5, 0.0]),
+                    np.eye(2) * 0.1)
+
+
+def test_the_gradient_is_refused_where_it_is_not_derived(tmp_path, capsys):
+    from derive.cli import main
+
+    assert main(["generate", "mpt3d_a", "--filter", "udkf", "--gradient", "--out",
+                 str(tmp_path)]) == 2
+    assert "gradient" in capsys.readouterr().err
+    assert main(["generate", "cv", "--filter", "kf", "--gradient", "--out",
+                 str(tmp_path)]) == 2
+    assert "no free parameters" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

@@ -23,6 +23,7 @@ import sympy
 from statsmodels.tsa.statespace.mlemodel import MLEModel
 
 from derive.domains import declared_domain
+from derive.fitting import fit, kernel, split_columns
 
 
 @dataclass(frozen=True)
@@ -127,3 +128,45 @@ def statsmodels_score(model, data, theta, *, x0=None, P0=None,
     peer = peer_model(model, data, start=dict(zip([p.name for p in model.parameters],
                                                   theta)), x0=x0, P0=P0)
     return np.asarray(peer.score(theta, transformed=True, method=method))
+
+
+@dataclass(frozen=True)
+class FitBench:
+    """Seconds to fit one track: derive's fit (generated once, median of ``repeats``),
+    its generation and compilation (once, a separate column), statsmodels' fit with its
+    defaults (median of ``peer_repeats``); both log-likelihoods at their estimates."""
+
+    derive_seconds: float
+    generation_seconds: float
+    statsmodels_seconds: float
+    derive_loglik: float
+    statsmodels_loglik: float
+    repeats: int
+    peer_repeats: int
+
+    @property
+    def ratio(self) -> float:
+        """statsmodels' time over derive's (generation excluded)."""
+        return self.statsmodels_seconds / self.derive_seconds
+
+    def lines(self) -> list[str]:
+        return [f"derive fit   {self.derive_seconds * 1e3:10.2f} ms (median of {self.repeats})"
+                f"   generation and compilation {self.generation_seconds:.2f} s (once)",
+                f"statsmodels  {self.statsmodels_seconds * 1e3:10.2f} ms (median of "
+                f"{self.peer_repeats}, MLEModel.fit defaults)",
+                f"statsmodels / derive: {self.ratio:.1f}x (log-likelihoods "
+                f"{self.derive_loglik:.12g} and {self.statsmodels_loglik:.12g})"]
+
+
+def bench(model, data, *, start=None, repeats: int = 5, peer_repeats: int = 3) -> FitBench:
+    """Time derive's fit and statsmodels' fit of ``model`` on one track ``data``."""
+    began = time.perf_counter()
+    generated = kernel(model, [split_columns(model, data)[0]])
+    generation = time.perf_counter() - began
+    ours = [fit(model, data, start=start, progress=False, generated=generated)
+            for _ in range(repeats)]
+    theirs = [statsmodels_fit(model, data, start=start, exact=False)
+              for _ in range(peer_repeats)]
+    return FitBench(float(np.median([r.seconds for r in ours])), generation,
+                    float(np.median([r.seconds for r in theirs])), ours[0].loglik,
+                    theirs[0].loglik, repeats, peer_repeats)

@@ -24,8 +24,7 @@ from .. import staging
 from ..errors import OptionError
 from ..options import KalmanOptions
 from ..program import Port, Program
-from ..sensitivity import SENSITIVITY_CARRIED, sensitivity_step
-from ..sensitivity import enter_program as sensitivity_enter
+from ..sensitivity import with_gradient
 from . import pattern as pat
 from .blockwise import blockwise_step
 from .common import (
@@ -287,9 +286,6 @@ def derive_unit(model, spec, options):
     joseph, missing = options.joseph, options.missing
     gradient = options.gradient
     loglik = options.loglik or gradient
-    if gradient and not model.parameters:
-        raise OptionError(f"option 'gradient': model {model.name!r} has no free parameters "
-                          "(declare the ones to differentiate by without a value)")
 
     def update(prog, mats, x, P, z, u=None):
         return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing, u=u,
@@ -298,9 +294,7 @@ def derive_unit(model, spec, options):
     step = time_varying_program(model, update, spec.title, options.P0_pattern, loglik)
     programs, carried = {"step": step}, None
     if gradient:  # dx, dP carried beside x, P; entered as zero (derive.sensitivity)
-        programs = {"step": sensitivity_step(step, model.n),
-                    "enter": sensitivity_enter(step, model.n, len(model.parameters))}
-        carried = SENSITIVITY_CARRIED
+        programs, carried = with_gradient(model, programs)
     unit = make_unit(model, spec, programs, options,
                      step_inputs=linear_step_inputs(model), carried=carried)
     if input_port(model):
