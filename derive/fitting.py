@@ -424,9 +424,11 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         if np.any(trial[logs] <= 0):
             break
         ll_trial, grad_trial = objective.loglik(trial)
-        if not ll_trial >= ll:
+        if not ll_trial >= ll - 1e-13 * abs(ll):  # (near the optimum, log L's rounding)
             break
         theta, ll, grad = trial, ll_trial, grad_trial
+        if np.max(np.abs(step) / np.maximum(np.abs(theta), 1e-300)) <= 1e-12:
+            break  # a further step would not move the estimate
     if progress or (progress is None and sys.stderr.isatty()):
         print(file=sys.stderr)
     information = -H

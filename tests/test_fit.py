@@ -119,7 +119,8 @@ def test_derive_fit_writes_a_model_file_derive_generate_takes(cv, tmp_path, caps
     ([], "model 'cv' has no free parameters"),
     (["--free", "sq2", "--free", "sr2", "--start", "sr2=-0.5"],
      "declare a domain for sq2, sr2"),
-])
+], ids=["column count", "infinite measurement", "unknown parameter", "unknown start",
+        "nothing free", "driven outside"])
 def test_bad_input_is_one_line_and_exit_2(cv, tmp_path, capsys, args, message):
     model, tracks, _ = cv
     data = tmp_path / "z.npy"
