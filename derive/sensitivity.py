@@ -151,12 +151,18 @@ class _Tangents:
         for node in sympy.preorder_traversal(expr):
             if node in inner:
                 continue
-            if type(node) in SELECTS or isinstance(node, PIECEWISE_CONSTANT):
+            if (type(node) in SELECTS or isinstance(node, PIECEWISE_CONSTANT)
+                    or isinstance(node, sympy.Abs)):
                 inner[node] = sympy.Dummy("select")
         if inner:
             for node, symbol in inner.items():
                 if isinstance(node, PIECEWISE_CONSTANT):
                     inner_tangents[symbol] = [sympy.Integer(0)] * self.q
+                    continue
+                if isinstance(node, sympy.Abs):  # d|a| = da where a > 0, else -da
+                    (a,) = node.args
+                    inner_tangents[symbol] = [IfGreater(a, 0, t, -t) if t != 0 else t
+                                              for t in self.differentiate(a)]
                     continue
                 branches = [self.differentiate(node.args[i]) for i in SELECTS[type(node)]]
                 tangents = []

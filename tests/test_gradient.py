@@ -18,6 +18,7 @@ from test_dynamic_counts import _inputs
 
 from derive import catalog
 from derive.apps.simulate import simulate_linear
+from derive.apps.verify import verify_modules
 from derive.filters import derive_unit
 from derive.fitting import free_text
 from derive.flops import OpCounter, count, count_c_function
@@ -186,3 +187,22 @@ def test_the_gradient_is_refused_where_it_is_not_derived(tmp_path, capsys):
                  str(tmp_path)]) == 2
     assert "no free parameters" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_derive_verify_checks_dlls_against_the_references_differences(cv):
+    """verify_modules with the option gradient: the summed dlls against central
+    differences of the NumPy reference's log-likelihood at the parameters' examples moved
+    (a line ``python dll``); dlls off by 1e-4 of their size fail."""
+    model, generated = cv
+
+    class Off:  # run's dlls moved by 1e-4 of their size, the rest untouched
+        def run(self, *args, **named):
+            xs, Ps, lls, dlls = generated.python.run(*args, **named)
+            return xs, Ps, lls, dlls * (1 + 1e-4)
+
+    options = {"gradient": True, "missing": True}
+    good = verify_modules(model, "kf", {"python": generated.python}, 200, 7, options)
+    bad = verify_modules(model, "kf", {"python": Off()}, 200, 7, options)
+    assert [v.lang for v in good] == ["python dll", "python"]
+    assert all(v.passed for v in good) and good[0].error <= 1e-8
+    assert not bad[0].passed and bad[1].passed
