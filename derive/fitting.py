@@ -281,30 +281,26 @@ class _Objective:
     P0: np.ndarray
     logs: np.ndarray  # True where a parameter is optimised as its log
     names: tuple[str, ...]
-    workers: int
+    pool: ThreadPoolExecutor | None = None
     evaluations: int = 0
     last: float = math.inf
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
         return np.where(self.logs, np.exp(np.where(self.logs, phi, 0.0)), phi)
 
-    def loglik(self, theta: np.ndarray, outer: bool = False) -> tuple[float, np.ndarray]:
-        """(log L, d log L / d theta) summed over the tracks; with ``outer`` the sum of
-        the steps' outer products of their gradients (the information's OPG estimate)."""
+    def loglik(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        """(log L, d log L / d theta) summed over the tracks (on the pool's threads when
+        there are several: the C releases the GIL)."""
         self.evaluations += 1
 
         def one(track):
             zs, us = track
             args = (zs,) + ((us,) if us is not None else ()) + (self.x0, self.P0, theta)
             out = self.module.run(*args)
-            return float(np.sum(out[2])), (out[3].T @ out[3] if outer else
-                                           np.sum(out[3], axis=0))
+            return float(np.sum(out[2])), np.sum(out[3], axis=0)
 
-        if len(self.tracks) == 1 or self.workers == 1:
-            parts = [one(t) for t in self.tracks]
-        else:
-            with ThreadPoolExecutor(self.workers) as pool:
-                parts = list(pool.map(one, self.tracks))
+        parts = (list(self.pool.map(one, self.tracks)) if self.pool is not None
+                 else [one(t) for t in self.tracks])
         return sum(p[0] for p in parts), np.sum([p[1] for p in parts], axis=0)
 
     def __call__(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
@@ -397,9 +393,35 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         generated = kernel(model, [zs for zs, _ in tracks])
     generation = time.perf_counter() - began
     began = time.perf_counter()
-    objective = _Objective(generated.c, tracks, x0, P0, logs, names,
-                           workers or min(len(tracks), 2))
-    line = _progress(sys.stderr.isatty() if progress is None else progress)
+    workers = min(len(tracks), workers or os.cpu_count() or 1)
+    pool = ThreadPoolExecutor(workers) if workers > 1 else None
+    objective = _Objective(generated.c, tracks, x0, P0, logs, names, pool)
+    try:
+        theta, ll, grad, H, result = _maximise(objective, theta0, logs, gtol, polish,
+                                               _progress(sys.stderr.isatty() if progress
+                                                         is None else progress))
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    if progress or (progress is None and sys.stderr.isatty()):
+        print(file=sys.stderr)
+    information = -H
+    try:
+        covariance = np.linalg.inv(information)
+        se = np.sqrt(np.where(np.diag(covariance) > 0, np.diag(covariance), np.nan))
+    except np.linalg.LinAlgError:
+        se = np.full(len(names), np.nan)
+    return FitResult(names, theta, se, ll, grad, information, int(result.nit),
+                     objective.evaluations, bool(result.success) or
+                     bool(np.all(np.abs(grad) * np.maximum(np.abs(theta), 1) <= 1e-6
+                                 * max(abs(ll), 1))),
+                     str(result.message), time.perf_counter() - began, generation)
+
+
+def _maximise(objective: _Objective, theta0: np.ndarray, logs: np.ndarray, gtol: float,
+              polish: int, line):
+    """BFGS from ``theta0``, then Newton's polish: (theta, log L, its gradient, the
+    Hessian, SciPy's result)."""
     iterations = [0]
 
     def callback(phi):
@@ -429,19 +451,7 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         theta, ll, grad = trial, ll_trial, grad_trial
         if np.max(np.abs(step) / np.maximum(np.abs(theta), 1e-300)) <= 1e-12:
             break  # a further step would not move the estimate
-    if progress or (progress is None and sys.stderr.isatty()):
-        print(file=sys.stderr)
-    information = -H
-    try:
-        covariance = np.linalg.inv(information)
-        se = np.sqrt(np.where(np.diag(covariance) > 0, np.diag(covariance), np.nan))
-    except np.linalg.LinAlgError:
-        se = np.full(len(names), np.nan)
-    return FitResult(names, theta, se, ll, grad, information, int(result.nit),
-                     objective.evaluations, bool(result.success) or
-                     bool(np.all(np.abs(grad) * np.maximum(np.abs(theta), 1) <= 1e-6
-                                 * max(abs(ll), 1))),
-                     str(result.message), time.perf_counter() - began, generation)
+    return theta, ll, grad, H, result
 
 
 def kernel(model, zs: Sequence[np.ndarray]):

@@ -79,9 +79,14 @@ def test_the_loglik_and_gradient_equal_statsmodels_loglike_and_score(cv):
     assert relative(np.sum(dlls, axis=0), score) <= 1e-6
 
 
-def test_a_fleet_sums_its_tracks_and_fits_one_parameter_set(cv):
+def test_a_fleet_sums_its_tracks_and_fits_one_parameter_set(cv, capsys):
+    """Two tracks (one with missing measurements), one parameter set; the progress line
+    (asked for: stderr is no terminal here) names each iteration's log-likelihood."""
     model, tracks, generated = cv
-    both = fit(model, tracks, progress=False, generated=generated)
+    both = fit(model, tracks, progress=True, generated=generated)
+    err = capsys.readouterr().err
+    assert f"derive fit: iteration {both.iterations}, log-likelihood " in err
+    assert err.count("\r") == both.iterations and err.endswith("\n")
     ones = [fit(model, [t], progress=False, generated=generated, start=both.values(),
                 gtol=1e12, polish=0) for t in tracks]  # at both's estimate: no step taken
     assert abs(both.loglik - sum(r.loglik for r in ones)) <= 1e-12 * abs(both.loglik)
