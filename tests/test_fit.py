@@ -141,3 +141,23 @@ def test_bad_input_is_one_line_and_exit_2(cv, tmp_path, capsys, args, message):
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_the_standard_errors_are_those_of_the_observed_information(cv):
+    """The fit's forward-difference Hessian of log L against central differences of the
+    exact gradient, Richardson-extrapolated: their standard errors agree to 1e-6."""
+    model, tracks, generated = cv
+    result = fit(model, tracks[0], progress=False, generated=generated)
+    theta = result.estimates
+
+    def gradient(t):
+        return np.sum(generated.c.run(tracks[0], np.zeros(2), np.zeros((2, 2)), t)[3],
+                      axis=0)
+
+    def central(h):
+        return np.column_stack([(gradient(theta + h * e) - gradient(theta - h * e))
+                                / (2 * h * t) for t, e in zip(theta, np.diag(theta))])
+
+    H = (4 * central(5e-5) - central(1e-4)) / 3
+    se = np.sqrt(np.diag(np.linalg.inv(-(H + H.T) / 2)))
+    assert relative(result.standard_errors, se) <= 1e-6

@@ -39,9 +39,10 @@ def add_arguments(parser) -> None:
                         help="write the model file with the fitted values (derive generate "
                              "takes it)")
     parser.add_argument("--bench", action="store_true",
-                        help="time the fit (median of 5, generation and compilation apart) "
-                             "and statsmodels' fit of the same likelihood (MLEModel.fit "
-                             "defaults, median of 3) on the first track, and print both")
+                        help="time the fit (generation and compilation apart) and "
+                             "statsmodels' fit of the same likelihood (MLEModel.fit "
+                             "defaults) on the first track, five each in turns, and print "
+                             "the least CPU time of each and their ratio")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress line (it is shown only when stderr is a terminal)")
 
