@@ -38,6 +38,7 @@ import numpy as np
 import scipy.optimize
 
 from . import catalog
+from .build import status_error
 from .domains import declared_domain
 from .errors import ModelError, NumericalError
 from .generation import is_model_file, resolve_model
@@ -271,6 +272,46 @@ def split_columns(model, data: np.ndarray, where: str = "data") -> tuple[np.ndar
 
 # -- the fit --------------------------------------------------------------------------------
 
+class _TrackRun:
+    """One track's C ``run`` prepared once (its arrays converted, its outputs allocated,
+    Ps left NULL): each call writes the parameters in place and returns (lls, dlls)."""
+
+    def __init__(self, module, zs, us, x0, P0, q: int) -> None:
+        fn = module.functions["run"]
+        steps = len(zs)
+        self.module, self.p = module, np.zeros(q, dtype=module.dtype)
+        self.lls = module.empty(steps)
+        self.dlls = module.empty(steps * q).reshape(steps, q)
+        given = {"z": zs, "u": us, "x0": x0, "P0": P0, "p": self.p}
+        outputs = {"lls": self.lls, "dlls": self.dlls}
+        self.values = {k: v for k, v in given.items() if v is not None}
+        self.keep, args, strides = [], [steps], []
+        for arg in fn.arguments:
+            if arg.output:
+                array = outputs.get(arg.name)
+                if array is None and arg.optional:
+                    args.append(module.ffi.NULL)
+                    continue
+                array = module.empty(arg.size(steps)) if array is None else array
+            else:
+                array = (self.p if arg.name == "p" else
+                         np.ascontiguousarray(given[arg.name], dtype=module.dtype))
+                if arg.rows:
+                    strides.append(0)  # one row of p for every step
+            self.keep.append(array)
+            args.append(module.buffer(array))
+        self.function = getattr(module.lib, fn.name)
+        self.status = fn.returns_status
+        self.args = args + strides
+
+    def __call__(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.p[:] = theta
+        status = self.function(*self.args)
+        if self.status and status:
+            raise status_error(self.module, "run", status, {**self.values, "p": self.p})
+        return self.lls, self.dlls
+
+
 @dataclass
 class _Objective:
     """-log L and its gradient over the tracks, in the optimiser's coordinates."""
@@ -283,6 +324,7 @@ class _Objective:
     names: tuple[str, ...]
     pool: ThreadPoolExecutor | None = None
     evaluations: int = 0
+    runs: list | None = None
     last: float = math.inf
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
@@ -293,14 +335,15 @@ class _Objective:
         there are several: the C releases the GIL)."""
         self.evaluations += 1
 
-        def one(track):
-            zs, us = track
-            args = (zs,) + ((us,) if us is not None else ()) + (self.x0, self.P0, theta)
-            out = self.module.run(*args)
-            return float(np.sum(out[2])), np.sum(out[3], axis=0)
+        def one(run):
+            lls, dlls = run(theta)
+            return float(np.sum(lls)), np.sum(dlls, axis=0)
 
-        parts = (list(self.pool.map(one, self.tracks)) if self.pool is not None
-                 else [one(t) for t in self.tracks])
+        if self.runs is None:
+            self.runs = [_TrackRun(self.module, zs, us, self.x0, self.P0, len(theta))
+                         for zs, us in self.tracks]
+        parts = (list(self.pool.map(one, self.runs)) if self.pool is not None
+                 else [one(r) for r in self.runs])
         return sum(p[0] for p in parts), np.sum([p[1] for p in parts], axis=0)
 
     def __call__(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
