@@ -5,8 +5,8 @@ Checked against central differences of the generated log-likelihood itself (Rich
 extrapolation of two steps, error O(h^4)), elementwise relative to the gradient's largest
 entry, <= 1e-6: on catalog models with parameters freed (noise variances; the time step,
 which enters F, G, Q and H) with missing measurements, in Python and C, and on
-Hypothesis-generated models (free entries of F, H, Q and R). Counted as every step is:
-header = Python executed = C text.
+Hypothesis-generated models (free entries of F, H, Q and R); and by `derive verify`. Its
+step is counted as every step is (tests/test_loglik.py, test_the_loglik_step_counts_agree).
 """
 
 import numpy as np
@@ -14,15 +14,12 @@ import pytest
 import sympy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_dynamic_counts import _inputs
 
 from derive import catalog
 from derive.apps.simulate import simulate_linear
 from derive.apps.verify import verify_modules
 from derive.filters import derive_unit
 from derive.fitting import free_text
-from derive.flops import OpCounter, count, count_c_function
-from derive.generation import render_filter
 from derive.model import LinearModel, NonlinearModel
 from derive.modelfile import loads_model
 from derive.pipeline import load_generated
@@ -111,24 +108,6 @@ def test_the_sensitivities_exploit_the_zeros():
     step = derive_unit(model, "kf", {"loglik": True}).programs["step"]
     sx, sP = support(step, 3, 6)
     assert sP == [{0}, {4}, {8}, {0}, {4}, {8}] and sx == [{0}, {1}, {2}, {0}, {1}, {2}]
-
-
-def test_the_gradient_step_counts_agree(cv):
-    """Header = Python executed (CountingFloat) = C text for the gradient's step."""
-    model, _ = cv
-    options = {"gradient": True, "missing": True}
-    unit = derive_unit(model, "kf", options)
-    files = render_filter(model, "kf", "all", options)
-    scope: dict = {}
-    exec(compile(files["kf.py"], "generated.py", "exec"), scope)  # derive's generated code
-    program = unit.programs["step"]
-    static_py, static_c = count(program, "python"), count(program, "c")
-    counter = OpCounter()
-    scope["step"](*[counter.wrap(v) for v in _inputs(model, program, unit, "",
-                                                      np.random.default_rng(2))])
-    assert counter.snapshot() == static_py
-    assert count_c_function(files["kf.c"], f"{unit.prefix}_step") == static_c
-    assert f"operations per call of step (Python): {static_py.summary()}" in files["kf.py"]
 
 
 @st.composite
