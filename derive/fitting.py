@@ -1,7 +1,8 @@
-"""Maximum-likelihood estimates of a linear model's free parameters from measurements.
+"""Maximum-likelihood estimates of a model's free parameters from measurements.
 
-:func:`fit` generates the model's Kalman filter with the exact gradient of its
-log-likelihood (the options ``loglik`` and ``gradient``, derive.sensitivity), compiles it
+:func:`fit` generates the model's Kalman filter (a nonlinear model's EKF, whose Gaussian
+log-likelihood of the innovations is a quasi-likelihood) with the exact gradient of its
+log-likelihood (the option ``gradient``, derive.sensitivity), compiles it
 and hands ``-log L`` and its gradient to SciPy's BFGS, then polishes the optimum with
 Newton steps on the Hessian from central differences of the exact gradient. A parameter
 with a declared domain (``positive`` or ``nonnegative``) is optimised as its logarithm,
@@ -45,8 +46,9 @@ from .generation import is_model_file, resolve_model
 from .modelfile import tomllib
 from .pipeline import load_generated
 
-#: The filter whose log-likelihood the fit maximises.
-FILTER = "kf"
+#: The filter whose log-likelihood the fit maximises, by the model's kind: the Kalman
+#: filter's (exact for a linear model), the EKF's (its Gaussian approximation).
+FILTERS = {"linear": "kf", "nonlinear": "ekf"}
 
 
 class FitError(ModelError):
@@ -263,6 +265,10 @@ def split_columns(model, data: np.ndarray, where: str = "data") -> tuple[np.ndar
         row = int(np.argwhere(np.isinf(zs))[0][0])
         raise FitError(f"{where}: row {row} holds an infinite measurement (NaN marks a "
                        "missing one)")
+    if model.kind != "linear" and np.isnan(zs).any():
+        row = int(np.argwhere(np.isnan(zs))[0][0])
+        raise FitError(f"{where}: row {row} holds a missing (NaN) measurement, which the "
+                       "EKF's run does not skip (a linear model's does)")
     if us is not None and not np.isfinite(us).all():
         row = int(np.argwhere(~np.isfinite(us))[0][0])
         raise FitError(f"{where}: row {row} holds a non-finite input (inputs cannot be "
@@ -397,9 +403,10 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         x0: Sequence[float] | None = None, P0=None, progress: bool | None = None,
         workers: int | None = None, gtol: float = 1e-6, polish: int = 3,
         generated=None) -> FitResult:
-    """Fit the free parameters of the linear ``model`` (a model object, a catalog name
-    or a model-file path) to ``data``: one array (steps, m [+ n_u]) of measurements
-    (NaN: missing) and the model's inputs, or a list of such arrays, tracks that share
+    """Fit the free parameters of ``model`` (a model object, a catalog name or a
+    model-file path; linear, or nonlinear by its EKF) to ``data``: one array (steps, m
+    [+ n_u]) of measurements (NaN: missing, for a linear model) and the model's inputs,
+    or a list of such arrays or an array (tracks, steps, m [+ n_u]), tracks that share
     the parameters. The run starts from ``x0`` and ``P0`` (default: the model's; they
     must not depend on the free parameters). ``start``: the starting values by name
     (default: each parameter's example). ``progress``: a line on stderr per iteration
@@ -407,8 +414,9 @@ def fit(model, data, *, start: dict[str, float] | None = None,
     gradient (and missing, for data with NaN) already loaded
     (derive.pipeline.load_generated), to fit again without generating."""
     model = resolve_model(model)
-    if model.kind != "linear":
-        raise FitError(f"model {model.name!r} is not linear: derive fit takes a linear model")
+    if model.kind not in FILTERS or getattr(model, "n_tangent", model.n) != model.n:
+        raise FitError(f"model {model.name!r}: derive fit takes a linear or nonlinear model "
+                       "without manifold states")
     names = tuple(p.name for p in model.parameters)
     if not names:
         raise FitError(f"model {model.name!r} has no free parameters: nothing to fit "
@@ -431,7 +439,7 @@ def fit(model, data, *, start: dict[str, float] | None = None,
         bad = names[int(np.argmax(logs & (theta0 <= 0)))]
         raise FitError(f"parameter {bad!r} starts at {start.get(bad, examples.get(bad))}, "
                        "outside its domain (> 0 for a fit)")
-    arrays = [data] if isinstance(data, np.ndarray) else list(data)
+    arrays = ([data] if isinstance(data, np.ndarray) and data.ndim < 3 else list(data))
     tracks = [split_columns(model, np.asarray(a, dtype=float),
                             "data" if len(arrays) == 1 else f"track {i}")
               for i, a in enumerate(arrays)]
@@ -506,8 +514,10 @@ def kernel(model, zs: Sequence[np.ndarray]):
     """The compiled KF of ``model`` with the option gradient (and missing when a track
     of measurements ``zs`` has a NaN): what :func:`fit` evaluates log L with, compiled
     for this machine (:data:`KERNEL_CFLAGS`)."""
-    missing = any(np.isnan(z).any() for z in zs)
-    return load_generated(model, FILTER, {"gradient": True, "missing": missing}, "c",
+    options = {"gradient": True}
+    if model.kind == "linear":  # (the EKF takes no NaN: split_columns refuses one)
+        options["missing"] = any(np.isnan(z).any() for z in zs)
+    return load_generated(model, FILTERS[model.kind], options, "c",
                           extra_cflags=KERNEL_CFLAGS)
 
 

@@ -12,10 +12,12 @@ Bad input: one line, exit 2, no file written.
 
 import numpy as np
 import pytest
+import sympy
 
 from derive import catalog
 from derive.apps.simulate import simulate_linear
 from derive.cli import main
+from derive.errors import ModelError
 from derive.fitting import fit, fitted_text, free_text, kernel
 from derive.modelfile import load_model_file, loads_model
 
@@ -161,3 +163,40 @@ def test_the_standard_errors_are_those_of_the_observed_information(cv):
     H = (4 * central(5e-5) - central(1e-4)) / 3
     se = np.sqrt(np.diag(np.linalg.inv(-(H + H.T) / 2)))
     assert relative(result.standard_errors, se) <= 1e-6
+
+
+def test_a_nonlinear_model_is_fitted_by_its_ekf_and_refuses_missing_measurements():
+    """The EKF's log-likelihood maximised (its Gaussian approximation): the NumPy reference
+    EKF's log-likelihood is lower a little beside the estimate in each parameter; a NaN
+    measurement is refused (the EKF's run does not skip one)."""
+    from derive import reference
+    from derive.apps.verify import nonlinear_scenario
+    from derive.model import NonlinearModel
+    from derive.reference.likelihood import innovations_loglik
+
+    g, r1 = sympy.symbols("g r1", positive=True)  # their domains: optimised as logs
+    th, om = sympy.symbols("th om")
+    model = NonlinearModel(
+        "pendulum", ["th", "om"], ["s", "r"], f=[th + sympy.Symbol("dt") * om,
+                                                 om - sympy.Symbol("dt") * g * sympy.sin(th)],
+        h=["sin(th)", "th + om**2/4"], Q=[["q", 0], [0, "q"]], R=[[r1, 0], [0, "r2"]],
+        values={"dt": 0.1, "q": 0.001, "r2": 0.04}, parameters=["g", "r1"],
+        x0=[0.5, 0.0], P0=[[0.1, 0], [0, 0.1]], examples={"g": 9.0, "r1": 0.02})
+    scenario = nonlinear_scenario(model.at_values({"g": 9.81, "r1": 0.01}), 150, 3)
+    result = fit(model, scenario.zs, x0=scenario.x0, P0=scenario.P0, progress=False)
+
+    def reference_loglik(theta):
+        fns = model.at_values(dict(zip(result.names, theta))).numeric_functions()
+        run = reference.ekf(fns["f"], fns["F"], fns["h"], fns["H"], fns["Q"], fns["R"],
+                            scenario.x0, scenario.P0, scenario.zs, skip_nan=False)
+        return np.sum(innovations_loglik(run.innovations, run.innovation_covariances))
+
+    at = reference_loglik(result.estimates)
+    assert abs(at - result.loglik) <= 1e-9 * abs(at)
+    for e in np.diag(result.estimates * 1e-3):
+        assert reference_loglik(result.estimates + e) < at
+        assert reference_loglik(result.estimates - e) < at
+    gappy = scenario.zs.copy()
+    gappy[4, 1] = np.nan
+    with pytest.raises(ModelError, match="row 4 holds a missing"):
+        fit(model, gappy, progress=False)

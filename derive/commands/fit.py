@@ -2,9 +2,10 @@
 
 NAME = "fit"
 ORDER = 47
-HELP = ("maximum-likelihood estimates of a linear model's free parameters from measurement "
+HELP = ("maximum-likelihood estimates of a model's free parameters from measurement "
         "files (CSV or .npy, one row per step: the measurements, NaN where missing, then the "
-        "model's inputs), with the exact gradient of the Kalman filter's log-likelihood; "
+        "model's inputs), with the exact gradient of the Kalman filter's (a nonlinear "
+        "model: the EKF's) log-likelihood; "
         "several files are tracks sharing the parameters; prints the estimates and their "
         "standard errors and writes the fitted model file with --out")
 EXAMPLE = ("derive fit cv track.csv --free sq2 --free sr2 --positive sq2 --positive sr2 "
