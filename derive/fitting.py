@@ -510,15 +510,21 @@ def _maximise(objective: _Objective, theta0: np.ndarray, logs: np.ndarray, gtol:
     return theta, ll, grad, H, result
 
 
-def kernel(model, zs: Sequence[np.ndarray]):
-    """The compiled KF of ``model`` with the option gradient (and missing when a track
-    of measurements ``zs`` has a NaN): what :func:`fit` evaluates log L with, compiled
-    for this machine (:data:`KERNEL_CFLAGS`)."""
+def kernel_filter(model, zs: Sequence[np.ndarray]) -> tuple[str, dict]:
+    """(the filter, its options) :func:`fit` evaluates log L with: a linear model's KF
+    with the option gradient (and missing when a track of measurements ``zs`` has a NaN),
+    a nonlinear model's EKF with the gradient."""
     options = {"gradient": True}
     if model.kind == "linear":  # (the EKF takes no NaN: split_columns refuses one)
         options["missing"] = any(np.isnan(z).any() for z in zs)
-    return load_generated(model, FILTERS[model.kind], options, "c",
-                          extra_cflags=KERNEL_CFLAGS)
+    return FILTERS[model.kind], options
+
+
+def kernel(model, zs: Sequence[np.ndarray]):
+    """The filter of :func:`kernel_filter`, generated and compiled for this machine
+    (:data:`KERNEL_CFLAGS`; the build cache keeps it)."""
+    name, options = kernel_filter(model, zs)
+    return load_generated(model, name, options, "c", extra_cflags=KERNEL_CFLAGS)
 
 
 #: The fit's filter runs where it is compiled: for this machine's instructions (its fused

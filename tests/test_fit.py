@@ -14,15 +14,26 @@ import numpy as np
 import pytest
 import sympy
 
-from derive import catalog
+from derive import catalog, reference
+from derive.apps.fit_anchors import (
+    receiver_data,
+    receiver_model_text,
+    robot_data,
+    robot_model_text,
+)
 from derive.apps.simulate import simulate_linear
+from derive.apps.verify import nonlinear_scenario
 from derive.cli import main
 from derive.errors import ModelError
 from derive.fitting import fit, fitted_text, free_text, kernel
+from derive.model import NonlinearModel
 from derive.modelfile import load_model_file, loads_model
+from derive.reference.likelihood import innovations_loglik
 
-pytest.importorskip("statsmodels")
-from derive.apps.fit_peer import peer_model, statsmodels_fit, statsmodels_score  # noqa: E402
+
+def peer():
+    """derive.apps.fit_peer, or the test skipped where statsmodels is not installed."""
+    return pytest.importorskip("derive.apps.fit_peer", exc_type=ImportError)
 
 CV = free_text(catalog.read_text("cv"), ["sq2", "sr2"], positive=["sq2", "sr2"])
 
@@ -44,11 +55,9 @@ def cv():
 
 def test_the_robot_estimates_equal_statsmodels_mle():
     pytest.importorskip("pykalman")
-    from derive.apps.fit_anchors import robot_data, robot_model_text
-
     model, data = loads_model(robot_model_text()), robot_data()
     ours = fit(model, data, progress=False)
-    theirs = statsmodels_fit(model, data, method="bfgs", gtol=1e-8, maxiter=500)
+    theirs = peer().statsmodels_fit(model, data, method="bfgs", gtol=1e-8, maxiter=500)
     assert relative(ours.estimates, theirs.estimates) <= 1e-6
     assert abs(ours.loglik - theirs.loglik) <= 1e-9 * abs(theirs.loglik)
     assert np.all(np.isfinite(ours.standard_errors)) and np.all(ours.standard_errors > 0)
@@ -59,14 +68,12 @@ def test_the_moving_receiver_estimates_equal_statsmodels_mle():
     observed information: statsmodels' MLE is within that step (<= 1e-6 relative), and
     its log-likelihood there equals derive's."""
     pytest.importorskip("gnss_benchmark")
-    from derive.apps.fit_anchors import receiver_data, receiver_model_text
-
     model, data = loads_model(receiver_model_text()), receiver_data()
     ours = fit(model, data, progress=False)
-    score = statsmodels_score(model, data, ours.estimates)
+    score = peer().statsmodels_score(model, data, ours.estimates)
     step = np.linalg.solve(ours.information, score)
     assert np.max(np.abs(step / ours.estimates)) <= 1e-6
-    theirs = peer_model(model, data).loglike(ours.estimates)
+    theirs = peer().peer_model(model, data).loglike(ours.estimates)
     assert abs(ours.loglik - theirs) <= 1e-9 * abs(theirs)
     assert np.all(np.linalg.eigvalsh(ours.information) > 0)
 
@@ -75,9 +82,9 @@ def test_the_loglik_and_gradient_equal_statsmodels_loglike_and_score(cv):
     model, tracks, generated = cv
     theta = np.array([0.04, 0.6])
     _, _, lls, dlls = generated.c.run(tracks[1], np.zeros(2), np.zeros((2, 2)), theta)
-    assert abs(np.sum(lls) - peer_model(model, tracks[1]).loglike(theta)) <= \
+    assert abs(np.sum(lls) - peer().peer_model(model, tracks[1]).loglike(theta)) <= \
         1e-12 * abs(np.sum(lls))
-    score = statsmodels_score(model, tracks[1], theta)
+    score = peer().statsmodels_score(model, tracks[1], theta)
     assert relative(np.sum(dlls, axis=0), score) <= 1e-6
 
 
@@ -169,11 +176,6 @@ def test_a_nonlinear_model_is_fitted_by_its_ekf_and_refuses_missing_measurements
     """The EKF's log-likelihood maximised (its Gaussian approximation): the NumPy reference
     EKF's log-likelihood is lower a little beside the estimate in each parameter; a NaN
     measurement is refused (the EKF's run does not skip one)."""
-    from derive import reference
-    from derive.apps.verify import nonlinear_scenario
-    from derive.model import NonlinearModel
-    from derive.reference.likelihood import innovations_loglik
-
     g, r1 = sympy.symbols("g r1", positive=True)  # their domains: optimised as logs
     th, om = sympy.symbols("th om")
     model = NonlinearModel(

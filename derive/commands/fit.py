@@ -81,6 +81,11 @@ def run(args) -> int:
     for i, track in enumerate(tracks):
         split_columns(model, track, args.data[i] if args.data else label)
     start = parameter_values(args.start)
+    timed = None
+    if args.bench:  # first: its generation from cold, before the fit's warms any cache
+        from ..apps.fit_peer import bench  # statsmodels: an optional peer
+
+        timed = bench(model, tracks[0], start=start)
     result = fit(model, tracks if len(tracks) > 1 else tracks[0], start=start,
                  progress=False if args.no_progress else None)
     print(result.table())
@@ -89,9 +94,6 @@ def run(args) -> int:
     if args.out:
         write_model_file(args.out, fitted_text(text, result.values()))
         print(f"wrote {args.out}")
-    if args.bench:
-        from ..apps.fit_peer import bench  # statsmodels: an optional peer
-
-        for line in bench(model, tracks[0], start=start).lines():
-            print(line)
+    for line in timed.lines() if timed is not None else ():
+        print(line)
     return 0
