@@ -15,7 +15,7 @@ import pytest
 
 from derive.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MODEL = textwrap.dedent("""
     [model]
     name = "{name}"

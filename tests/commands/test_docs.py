@@ -1,6 +1,6 @@
 """docs/robustness.md stays true: every table row names the test that checks it, every test
 named there exists (for a parametrized id, pytest collects that id), and every
-``tests/test_*.py`` path named in README.md or docs/*.md exists. Also the per-step costs of
+``tests/AREA/test_*.py`` path named in README.md or docs/*.md exists. Also the per-step costs of
 the option ``missing`` in the page's table are those derive counts."""
 
 import os
@@ -16,13 +16,13 @@ from derive import catalog
 from derive.filters import derive_unit
 from derive.flops import count
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ROBUSTNESS = ROOT / "docs" / "robustness.md"
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 # `test_name`, `test_name[param id]` or `tests/test_file.py::test_name[param id]`
-TEST_REFERENCE = re.compile(r"`(?:(tests/test_\w+\.py)::)?(test_\w+)(?:\[([^`]*)\])?`")
-TEST_FILE = re.compile(r"tests/test_\w+\.py")
+TEST_REFERENCE = re.compile(r"`(?:(tests/(?:\w+/)?test_\w+\.py)::)?(test_\w+)(?:\[([^`]*)\])?`")
+TEST_FILE = re.compile(r"tests/(?:\w+/)?test_\w+\.py")
 SEPARATOR = re.compile(r"\|(\s*:?-+:?\s*\|)+\s*")
 TEST_DEFINITION = re.compile(r"^(?:async )?def (test_\w+)\(", re.MULTILINE)
 
@@ -41,11 +41,11 @@ def table_rows(text: str) -> list[tuple[int, str]]:
 
 @cache
 def defined_tests() -> dict[str, set[str]]:
-    """Test function name -> the files of tests/ (``tests/test_x.py``) that define it."""
+    """Test function name -> the files of tests/ (``tests/AREA/test_x.py``) that define it."""
     where: dict[str, set[str]] = {}
-    for path in sorted((ROOT / "tests").glob("test_*.py")):
+    for path in sorted((ROOT / "tests").rglob("test_*.py")):
         for name in TEST_DEFINITION.findall(path.read_text()):
-            where.setdefault(name, set()).add(f"tests/{path.name}")
+            where.setdefault(name, set()).add(path.relative_to(ROOT).as_posix())
     return where
 
 

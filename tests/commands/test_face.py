@@ -23,7 +23,7 @@ from derive.apps.report.job import witness_text
 from derive.commands.verify import summary_line
 from derive.version import DISTRIBUTION
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PYPI_NAMES = Path("/work/.library/env/packages/pypi.tsv")
 
 if sys.version_info >= (3, 11):

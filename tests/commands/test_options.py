@@ -30,7 +30,7 @@ from derive.options import (
     validate,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 # A constant-velocity tracker with a slowly decaying measurement bias (pole 0.999): its
 # FIR needs an order of 14156 for ||A^N||_2 < 1e-6.

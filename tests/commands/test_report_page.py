@@ -285,7 +285,7 @@ def test_the_repositorys_results_file_is_written_by_the_command():
     the command's title, intro, summary columns, verdicts and provenance footer."""
     from derive.apps.report.job import TITLE
 
-    text = (Path(__file__).parent.parent / "docs" / "results.md").read_text(encoding="utf-8")
+    text = (Path(__file__).parents[2] / "docs" / "results.md").read_text(encoding="utf-8")
     lines = text.splitlines()
     assert lines[0] == f"# {TITLE}"
     assert lines[2].startswith("Written by `derive reproduce ") and \

@@ -19,7 +19,7 @@ from derive.errors import NumericalError
 from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HEADERS = sorted((ROOT / "generated").glob("*/*.h"))
 
 

@@ -17,7 +17,7 @@ from derive.build import UnsafeCacheError, build_c, cache_dir
 from derive.emit.render import render_files
 from derive.emit.write import write_files
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 needs_root = pytest.mark.skipif(os.getuid() != 0, reason="giving a file to another user "
                                  "needs root")
 

@@ -31,13 +31,13 @@ from derive.filters import available
 from derive.generation import command_unit
 from derive.pipeline import load_units
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CLANG, CLANGXX, GCC = shutil.which("clang"), shutil.which("clang++"), shutil.which("gcc")
 pytestmark = pytest.mark.skipif(CLANG is None or CLANGXX is None,
                                 reason="clang is not installed (Debian: apt-get install clang)")
 CXX_FLAGS = ["-std=c++11", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 PRECISIONS = ("double", "float")
-#: The block-lane filters (tests/test_perf_block_lanes.py's, and the predictor's).
+#: The block-lane filters (tests/performance/test_perf_block_lanes.py's, and the predictor's).
 LANE_CASES = CASES + [("mpt3d_a", "pred"), ("gps_static", "pred")]
 #: test_perf_block_lanes' build settings under Clang, less ``contract``: Clang's
 #: -ffp-contract=fast disregards the file's pragma by its definition (as -ffast-math
@@ -64,7 +64,7 @@ def test_the_catalog_built_by_clang_compiles_strictly_and_agrees_with_the_refere
     """Every catalog filter, written to a folder and built by Clang (build_c's
     ``compiler``) into one extension: each file compiled with ``clang -std=c99 -O2 -Wall
     -Wextra -Werror -pedantic -Wdouble-promotion -Wfloat-conversion -Wconversion`` (the
-    double files are the committed ones, tests/test_determinism.py), all headers of the
+    double files are the committed ones, tests/emit/test_determinism.py), all headers of the
     precision included together by one C++ file under ``clang++ -std=c++11 -Wall -Wextra
     -Werror -pedantic``, and every filter verified as ``derive verify`` does: double 1e-12
     relative for linear filters (or the double bound where the model's conditioning puts
@@ -152,7 +152,7 @@ def gcc_lane_runs():
 @pytest.mark.parametrize("flags", list(CLANG_FLAGS))
 def test_clangs_vector_runs_are_bitwise_its_scalar_runs_and_gccs(flags, gcc_lane_runs):
     """The vector run (DERIVE_VECTOR: Clang's vector types, shuffles and fma) gives
-    the bits of the scalar C99 run, as under GCC (tests/test_perf_block_lanes.py); and
+    the bits of the scalar C99 run, as under GCC (tests/performance/test_perf_block_lanes.py); and
     where the build does not define DERIVE_FMA itself, the bits of GCC's scalar run whose
     DERIVE_FMA is the same operation: no operation Clang fused or reordered."""
     vector, scalar = _lane_builds("clang", CLANG_FLAGS[flags])

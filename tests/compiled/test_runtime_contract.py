@@ -32,7 +32,7 @@ from derive.flops import OpCounter, count, count_c_function
 from derive.generation import generate, render_filter
 from derive.pipeline import Generated, load_generated
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GENERATED = ROOT / "generated"
 GCC = shutil.which("gcc")
 

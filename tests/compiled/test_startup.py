@@ -15,7 +15,7 @@ import derive
 from derive import cli, commands
 from derive.apps.bench.costs import startup
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 #: What the start-up must not load: the numeric and symbolic stack, the templates' engine,
 #: the C builds, and derive's own heavy layers (the filter registry, the generator, the

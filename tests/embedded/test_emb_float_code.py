@@ -2,7 +2,7 @@
 wrappers' dtype, and both precisions clean under the strict and the conversion warnings.
 
 The numerical verification of every catalog filter in float32 against the float64
-reference is tests/test_emb_float_verify.py."""
+reference is tests/embedded/test_emb_float_verify.py."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from derive.pipeline import load_generated
 from derive.precision import DOUBLE, FLOAT, PrecisionError
 from derive.trees import Const
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 
@@ -46,7 +46,7 @@ def test_every_catalog_filter_in_double_compiles_under_the_conversion_warnings(t
     """The committed double files (test_generate keeps them up to date), copied: one
     ``gcc -O2`` call per model with -Wdouble-promotion -Wfloat-conversion -Wconversion.
     The float files of every catalog filter are compiled with the same flags, once, by
-    tests/test_emb_float_verify.py, which runs them."""
+    tests/embedded/test_emb_float_verify.py, which runs them."""
     for source in (ROOT / "generated").glob("*/*.[ch]"):
         (tmp_path / source.parent.name).mkdir(exist_ok=True)
         shutil.copy(source, tmp_path / source.parent.name / source.name)

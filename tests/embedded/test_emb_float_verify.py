@@ -86,12 +86,12 @@ def test_every_catalog_filter_in_float32_agrees_within_its_derived_tolerance(cat
 
 def test_every_catalog_bound_is_meaningful(catalog_results):
     """No catalog filter is beyond float32 by its bound: the INS/GNSS EKF, once refused for
-    cond P(1/0) ~ 2e6, which the EKF never inverts (tests/test_float_bound.py); the
+    cond P(1/0) ~ 2e6, which the EKF never inverts (tests/numerics/test_float_bound.py); the
     24-state flight-controller filters, whose weakly observed states (the earth field, the
     magnetic bias, the wind) the sensors units' first-order bound carries by the filter's
     own maps, not by norms of their products; and the GNSS UKF, whose pseudoranges of 2e7 m
     have float32 spacing 2 m, now that it forms its sigma-point spreads of metres in
-    difference form (derive.filters.difference; tests/test_float_ukf.py)."""
+    difference form (derive.filters.difference; tests/numerics/test_float_ukf.py)."""
     refused = [r.line() for r in catalog_results if not r.bound.meaningful]
     assert not refused, "\n".join(refused)
     # the CTRV turn's omega-Jacobian cancels u / (omega dt)^2 of itself in float32: the

@@ -165,7 +165,7 @@ def test_a_float32_library_builds_under_the_conversion_warnings_within_its_toler
         assert error == pytest.approx(host.error, rel=2e-3)   # the same float32 C, data
 
 
-#: A constant-velocity track whose P0 is 10^8 times R (tests/test_emb_float_verify.py's
+#: A constant-velocity track whose P0 is 10^8 times R (tests/embedded/test_emb_float_verify.py's
 #: ill-conditioned model): the KF's update cancels ~1e6 against ~1e6 to leave ~1e-2,
 #: beyond float32 (spacing 0.06 at 1e6); its bound says so (kappa >= 1e6).
 ILL_CONDITIONED = """\

@@ -15,7 +15,7 @@ import pytest
 from derive.errors import SteadyStateError
 from derive.generation import generate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FILTERS = ["kf", "lf", "sskf"]
 
 

@@ -15,7 +15,7 @@ import sympy
 from derive import catalog
 from derive.generation import render_filter
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 MODEL_FILE = """\
 [model]

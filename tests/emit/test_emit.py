@@ -42,7 +42,7 @@ from derive.flops import count
 from derive.program import Port, Program, ProgramError
 from derive.runs.unit import RUN_KINDS, Unit
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RUFF = shutil.which("ruff")
 
 

@@ -1,5 +1,5 @@
 """generate(): files, layout, the command line, and the committed generated/ tree (whose
-freshness tests/test_determinism.py checks, beside its independence of the hash seed)."""
+freshness tests/emit/test_determinism.py checks, beside its independence of the hash seed)."""
 
 from pathlib import Path
 
@@ -13,7 +13,7 @@ from derive.errors import FilterError, SteadyStateError
 from derive.filters import available
 from derive.generation import generate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_generate_writes_model_filter_files(tmp_path):

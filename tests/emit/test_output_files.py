@@ -18,7 +18,7 @@ from derive.emit.write import JOURNAL, recover, write_files
 from derive.errors import OutputPathError
 from derive.generation import generate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FILTERS = ["kf", "lf", "sskf"]
 
 

@@ -50,7 +50,7 @@ def test_integers_and_float32_it_holds_exactly_are_taken(kf):
 def test_a_step_count_that_differs_names_where_steps_came_from():
     """ins_gnss's run takes z_gnss, z_baro, us and p rows per step: steps are z_gnss's
     rows."""
-    module = load_python(Path(__file__).parents[1] / "generated" / "ins_gnss" / "ekf.py")
+    module = load_python(Path(__file__).parents[2] / "generated" / "ins_gnss" / "ekf.py")
     rows = {"z_gnss": np.zeros((100, 6)), "z_baro": np.zeros(100), "us": np.zeros((100, 6))}
     start = (np.zeros(16), np.eye(16))
     with pytest.raises(ShapeError, match=r"^run: us must have shape \(steps, 6\), "
@@ -65,7 +65,7 @@ def test_a_step_count_that_differs_names_where_steps_came_from():
 def test_one_parameter_may_be_given_as_a_number():
     """A model with one free parameter (ins_gnss: dt) takes it as a number too, as the C
     wrapper does: the same result as the row [dt]."""
-    module = load_python(Path(__file__).parents[1] / "generated" / "ins_gnss" / "ekf.py")
+    module = load_python(Path(__file__).parents[2] / "generated" / "ins_gnss" / "ekf.py")
     rng = np.random.default_rng(4)
     us = rng.normal(scale=0.01, size=(20, 6)) + [0, 0, 0, 0, 0, -9.80665]
     nan = np.full((20, 6), np.nan)

@@ -27,7 +27,7 @@ from derive.options import validate
 from derive.pipeline import load_generated
 from derive.reference.eskf import quaternion_reset
 
-GENERATED = Path(__file__).resolve().parents[1] / "generated" / "ins_eskf"
+GENERATED = Path(__file__).resolve().parents[2] / "generated" / "ins_eskf"
 QUATERNION = {"quaternion": ["q0", "q1", "q2", "q3"]}
 F_GYRO = ["q0 - q1*wx*dt/2 - q2*wy*dt/2 - q3*wz*dt/2",
           "q1 + q0*wx*dt/2 + q2*wz*dt/2 - q3*wy*dt/2",
@@ -73,7 +73,7 @@ def test_a_quaternion_in_unit_norm_or_off_unit_norm_is_refused():
 
 
 def test_bad_declaration_in_a_model_file_is_one_line_exit_2(tmp_path, capsys):
-    text = (Path(__file__).resolve().parents[1] / "derive" / "catalog" / "ins_eskf.toml"
+    text = (Path(__file__).resolve().parents[2] / "derive" / "catalog" / "ins_eskf.toml"
             ).read_text().replace('quaternion = ["q0", "q1", "q2", "q3"]',
                                   'quaternion = ["q0", "q1", "q2"]')
     path = tmp_path / "bad.toml"

@@ -19,7 +19,7 @@ from derive.runs.unit import RUN_KINDS
 
 #: Generated against the reference, linear filter in double (the KF's own bound).
 GENERATED_TOLERANCE = 1e-12
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize("name", ["cv"])

@@ -24,7 +24,7 @@ from derive.filters import FILTERS, available
 from derive.options import taken_by
 from derive.pipeline import load_generated
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TOLERANCE = 1e-12
 LINEAR = [name for name in catalog.names() if catalog.load(name).kind == "linear"]
 

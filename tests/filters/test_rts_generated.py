@@ -29,7 +29,7 @@ from derive.runs.unit import RUN_KINDS, run_arguments
 
 LINEAR = [name for name in catalog.names() if catalog.load(name).kind == "linear"]
 GENERATED_TOLERANCE = 1e-12
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def smoothed(module, zs, x0, P0, **kw):

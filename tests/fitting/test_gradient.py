@@ -6,7 +6,7 @@ extrapolation of two steps, error O(h^4)), elementwise relative to the gradient'
 entry, <= 1e-6: on catalog models with parameters freed (noise variances; the time step,
 which enters F, G, Q and H) with missing measurements, in Python and C, and on
 Hypothesis-generated models (free entries of F, H, Q and R); and by `derive verify`. Its
-step is counted as every step is (tests/test_loglik.py, test_the_loglik_step_counts_agree).
+step is counted as every step is (tests/fitting/test_loglik.py, test_the_loglik_step_counts_agree).
 """
 
 import numpy as np

@@ -10,7 +10,7 @@ from test_import_graph import _top_level
 
 from derive.public import APPLICATIONS
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "derive"
 
 

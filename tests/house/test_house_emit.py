@@ -19,7 +19,7 @@ from derive.lowering import lower_program
 from derive.program import Port, Program
 from derive.trees import Var, tree_vars
 
-EMIT = Path(__file__).resolve().parents[1] / "derive" / "emit"
+EMIT = Path(__file__).resolve().parents[2] / "derive" / "emit"
 #: emit modules that may use ``re``: identifiers of units (unit.py) and names of leftover
 #: files (write.py); neither sees generated code.
 RE_ALLOWED = {"unit.py", "write.py"}

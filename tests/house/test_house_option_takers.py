@@ -17,7 +17,7 @@ from derive.errors import OptionError
 from derive.filters import FILTERS
 from derive.options import SharedOptions, option, per_filter, taken_by, takers, validate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True, kw_only=True)

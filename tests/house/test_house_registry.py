@@ -19,7 +19,7 @@ from derive.options import taken_by
 from derive.runs import kinds
 from derive.runs.unit import RUN_KINDS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GENERATED = ROOT / "generated"
 EMIT = ROOT / "derive" / "emit"
 #: Templates that are no run loop: the shared layout and the plain-functions files.

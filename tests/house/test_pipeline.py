@@ -14,7 +14,7 @@ from derive.errors import FilterError, OptionError
 from derive.filters import derive_unit
 from derive.pipeline import load_generated, load_units
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_load_generated_writes_and_loads_python_and_c(tmp_path):
@@ -85,5 +85,5 @@ def test_one_pipeline_and_one_file_importer_in_the_source():
             assert not calls & {"build_c", "load_python"}, path
         if path.name != "build.py":
             assert "spec_from_file_location" not in calls, path
-    for path in (ROOT / "tests").glob("*.py"):
+    for path in (ROOT / "tests").rglob("*.py"):
         assert "spec_from_file_location" not in _calls(path), path

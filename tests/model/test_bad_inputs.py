@@ -40,7 +40,7 @@ from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.symbols import C_KEYWORDS, C_MATH
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 PLANE = """\
 [model]

@@ -42,7 +42,7 @@ from derive.pipeline import load_generated
 from derive.symbols import jacobian
 from derive.trees import OpCount, count_tree
 
-AIR_DATA = Path(__file__).parent / "models" / "air_data.toml"
+AIR_DATA = Path(__file__).resolve().parents[1] / "models" / "air_data.toml"
 STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 x, y = sympy.symbols("x y", real=True)
 

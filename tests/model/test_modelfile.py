@@ -21,7 +21,7 @@ from derive.errors import (
 from derive.model import LinearModel, NonlinearModel
 from derive.modelfile import load_model_file, loads_model
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "model-files.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "model-files.md"
 dt, sq2, sr2, r = (sympy.Symbol(n, real=True) for n in ("dt", "sq2", "sr2", "r"))
 
 AXIS = """\

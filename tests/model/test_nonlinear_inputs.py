@@ -7,7 +7,7 @@ A unicycle (planar position and heading driven by a measured speed and turn rate
 filtered by the NumPy reference EKF and by the generated Python and C EKF; the mapped
 process noise is checked against a finite-difference Jacobian of a hand-written f; the
 prediction's u is the row given with z; the UKF refuses noise Qu on the inputs of f in one
-line (it takes inputs in f without it: tests/test_guards.py); wrong Qu
+line (it takes inputs in f without it: tests/model/test_guards.py); wrong Qu
 is refused naming it; a model file with inputs in f and Qu generates, compiles with the
 strict flags and verifies.
 """

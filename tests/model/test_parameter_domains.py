@@ -32,7 +32,7 @@ from derive.interface import read
 from derive.modelfile import load_model_file, loads_model
 from derive.pipeline import load_generated
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GCC = shutil.which("gcc")
 needs_gcc = pytest.mark.skipif(GCC is None, reason="no C compiler")
 

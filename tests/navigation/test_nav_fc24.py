@@ -16,7 +16,7 @@ from derive.apps.ins import compare, fc24
 from derive.apps.ins import constants as c
 from derive.build import load_python
 
-GENERATED = Path(__file__).resolve().parents[1] / "generated" / "ins_fc24" / "ekf.py"
+GENERATED = Path(__file__).resolve().parents[2] / "generated" / "ins_fc24" / "ekf.py"
 AGREEMENT = 1e-9
 """Generated against the reference, relative (as derive.apps.ins.run.AGREEMENT)."""
 

@@ -11,7 +11,7 @@ from derive.cli import main
 from derive.errors import ModelError, ModelFileError
 from derive.modelfile import loads_model
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "model-files.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "model-files.md"
 
 TWO_SENSORS = """
 [model]

@@ -25,7 +25,7 @@ from derive.modelfile import MAX_STATES
 from derive.statements import Temporary, substitute
 from derive.toml_limits import MAX_DIGITS, MAX_KEY_PARTS, MAX_NESTING, toml_shape_problem
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD = 60  # seconds; these runs take one or two
 
 

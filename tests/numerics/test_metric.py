@@ -11,11 +11,11 @@ import pytest
 import sympy
 
 from derive import LinearModel, reference
+from derive.apps.float_tolerance import error_floor
 from derive.apps.targets.data import verification_data
 from derive.apps.targets.library import render_library
 from derive.apps.verify import (
     LINEAR_TOLERANCE,
-    error_floor,
     linear_run,
     relative_error,
     verify_modules,

@@ -35,7 +35,8 @@ TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats
                 check_steps=20, batch_tracks=22, batch_steps=8, batch_repeats=1,
                 scale_tracks=0, catalog_generation=False, generation_scaling=False,
                 compile_states=(2,), startup_repeats=1,
-                navigation_peer_calls=0)  # the SymForce peer: tests/test_nav_symforce_peer.py
+                # the SymForce peer: tests/navigation/test_nav_symforce_peer.py
+                navigation_peer_calls=0)
 AGREE = 1e-9   # every implementation runs the same filter from the same start
 
 

@@ -32,7 +32,7 @@ from derive.pipeline import load_generated
 from derive.staging import PivotMessage
 from derive.statements import ZERO, Check
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD = 240  # seconds for one 120-axis generation; it takes a few on an idle machine
 TIME_VARYING = ("kf", "lf", "jklf", "ikf")
 STEADY = ("sskf", "sslf", "jssklf", "pred")

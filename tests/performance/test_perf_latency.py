@@ -75,7 +75,7 @@ def test_mpt3d_a_chain_shrinks_by_a_quarter_at_least(units):
 
 def test_the_default_schedule_is_untouched(units):
     """Counts unchanged by default: the option off is the step the optimiser gives (the
-    papers' counts, tests/test_paper.py, test_flops.py and test_burden.py, rest on it)."""
+    papers' counts, tests/commands/test_paper.py, test_flops.py and test_burden.py, rest on it)."""
     for name in MODELS:
         plain = derive_unit(catalog.load(name), "kf", {}).programs["step"]
         off = units[name, False].programs["step"]

@@ -36,7 +36,7 @@ from derive.program import Port, Program
 from derive.schedule import REFERENCE_CYCLES, latency_schedule
 from derive.trees import Const, Op, Var, count_tree, tree_kinds
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 
@@ -387,8 +387,8 @@ def test_ins_gnss_compiles_strictly_in_both_precisions(tmp_path, flags):
 # -- the latency schedule against the shorter default ---------------------------------------
 
 def test_the_latency_schedule_never_lengthens_the_default_chain():
-    """A random model (found by tests/test_perf_latency.py's search) whose default chain the
-    fused negative multiply-add shortened below what the latency schedule's rounds reach
+    """A random model (found by tests/performance/test_perf_latency.py's search) whose default
+    chain the fused negative multiply-add shortened below what the latency schedule's rounds reach
     (134 against 136 reference cycles): the schedule keeps the default step."""
     model = LinearModel(
         "rand", [f"x{i}" for i in range(5)], [f"y{i}" for i in range(3)],

@@ -19,7 +19,7 @@ from derive.flops import count
 from derive.program import Assign, Check, Port, Program, ProgramError, Temporary
 from derive.trees import count_tree
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def vec_program(n=3, out=1):
