@@ -64,7 +64,7 @@ def test_the_catalog_built_by_clang_compiles_strictly_and_agrees_with_the_refere
     """Every catalog filter, written to a folder and built by Clang (build_c's
     ``compiler``) into one extension: each file compiled with ``clang -std=c99 -O2 -Wall
     -Wextra -Werror -pedantic -Wdouble-promotion -Wfloat-conversion -Wconversion`` (the
-    double files are the committed ones, tests/test_generate.py), all headers of the
+    double files are the committed ones, tests/test_determinism.py), all headers of the
     precision included together by one C++ file under ``clang++ -std=c++11 -Wall -Wextra
     -Werror -pedantic``, and every filter verified as ``derive verify`` does: double 1e-12
     relative for linear filters (or the double bound where the model's conditioning puts

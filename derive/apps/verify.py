@@ -300,7 +300,8 @@ def generated_run(module, name: str, zs, model, lang: str,
     (nonlinear filters: the scenario's zs, us, x0 and P0); every input is given in the
     module's dtype (a float32 kernel's: each value rounded once to float), the outputs are
     returned as float64: (xs, Ps or None), and with ``with_lls`` (a filter generated with
-    the option loglik) the per-step log-likelihoods third; ``p``: the free parameters' row,
+    the option loglik) the per-step log-likelihoods third (and with the option gradient
+    their gradients fourth); ``p``: the free parameters' row,
     for every step (a model verified at its parameters' examples)."""
     dtype = getattr(module, "dtype", np.float64)
     rows = {} if p is None else {"p": np.asarray(p, dtype=dtype)}
@@ -326,7 +327,8 @@ def generated_run(module, name: str, zs, model, lang: str,
     nt = model.n_tangent
     xs, Ps = (np.asarray(out[0], dtype=float),
               np.asarray(out[1], dtype=float).reshape(steps, nt, nt))
-    return (xs, Ps, np.asarray(out[2], dtype=float)) if with_lls else (xs, Ps)
+    # with the option gradient the per-step gradients (dlls) follow the lls
+    return (xs, Ps, *(np.asarray(o, dtype=float) for o in out[2:])) if with_lls else (xs, Ps)
 
 
 class InputRun(NamedTuple):
@@ -496,6 +498,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     if kind(name).sensors and uses_sensor_run(model, opts):
         return verify_sensor_modules(model, name, modules, steps, seed, opts, unit, values)
     p = None
+    free_model = model
     if model.parameters:  # simulated and referenced at the values; the filters take them as p
         given = parameter_values(model, values)
         p = [given[q.name] for q in model.parameters]
@@ -509,8 +512,13 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         tolerance = LINEAR_TOLERANCE
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
     # the option loglik: run's lls against the family's reference of the log-likelihood
+    loglik = opts.get("loglik") or opts.get("gradient")
     lls_ref = (kind(name).loglik(model, zs if scenario is None else (
-        scenario, model.numeric_functions()), opts) if opts.get("loglik") else None)
+        scenario, model.numeric_functions()), opts) if loglik else None)
+    # the option gradient: the sum of run's dlls against central differences of the
+    # reference's log-likelihood in each parameter
+    dll_ref = (reference_gradient(free_model, name, given, zs, scenario, opts)
+               if opts.get("gradient") else None)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
@@ -537,6 +545,11 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
             with np.errstate(divide="ignore", invalid="ignore"):
                 diff = np.abs(lls[0] - ll_ref)
                 err = max(err, float(np.max(np.where(diff == 0, 0.0, diff / scales))))
+        if dll_ref is not None:
+            gradient_error = float(np.max(np.abs(np.sum(lls[1], axis=0) - dll_ref))
+                                   / np.max(np.abs(dll_ref)))
+            out.append(Verification(model.name, name, f"{lang} dll", steps, gradient_error,
+                                    GRADIENT_TOLERANCE))
         if lang == "c" and bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
         elif scenario is None and not within_tolerance(err, tolerance, None):
@@ -544,6 +557,33 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         else:
             out.append(Verification(model.name, name, lang, steps, err, tolerance))
     return out
+
+
+GRADIENT_TOLERANCE = 1e-6
+"""The option gradient: the run's summed dlls against central differences of the
+reference's log-likelihood, the largest difference relative to the largest entry (the
+differences' own error, Richardson-extrapolated, is far below)."""
+
+
+def reference_gradient(model, name: str, values: dict, zs, scenario, opts) -> np.ndarray:
+    """d/dp of the reference's log-likelihood of ``zs`` (the model with free parameters at
+    ``values`` moved one at a time by +-h and +-h/2, h = 1e-3 |p_j|), by central
+    differences extrapolated (Richardson, error O(h^4))."""
+    def total(at: dict) -> float:
+        valued = model.at_values(at)
+        data = zs if scenario is None else (scenario, valued.numeric_functions())
+        return float(np.sum(kind(name).loglik(valued, data, opts)[0]))
+
+    out = []
+    for q in model.parameters:
+        def central(h, q=q):
+            up, down = dict(values), dict(values)
+            up[q.name], down[q.name] = values[q.name] + h, values[q.name] - h
+            return (total(up) - total(down)) / (2 * h)
+
+        h = 1e-3 * max(abs(values[q.name]), 1e-3)
+        out.append((4 * central(h / 2) - central(h)) / 3)
+    return np.array(out)
 
 
 def beyond_bar(model: str, name: str, lang: str, steps: int, error: float,
