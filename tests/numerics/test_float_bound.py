@@ -167,18 +167,6 @@ def test_every_filter_declares_what_its_step_conditions_and_only_known_things():
         Conditioned("P", "cholesky")
 
 
-def test_the_trace_gives_each_program_call_its_inputs():
-    """Each update's record has the x, P and z it was called with and its innovation, and
-    each step the P it started from and its result: what the running errors take."""
-    model, trace = ins_gnss_trace(60)
-    for before, step in zip(trace, trace[1:]):
-        np.testing.assert_array_equal(step.P_before, before.P_after)
-        np.testing.assert_array_equal(step.x_before, before.x_after)
-        for update in step.updates:
-            assert update.x.shape == (model.n,) and update.P.shape == (model.n,) * 2
-            assert update.nu.shape == update.z.shape
-
-
 def test_the_chain_through_the_ins_gnss_programs_is_composed_not_added():
     """L follows one chain through predict, update_gnss and update_baro: x_new and P_new
     of each enter the next at their own depths, so L is below the sum of the programs'

@@ -131,7 +131,8 @@ def test_the_bound_of_a_sensors_unit_is_its_running_errors_carried_by_its_maps()
     """The value is u max(x, P) of propagated_bound over the programs' running errors
     (derive.apps.float_tolerance.local_errors); at least each step's own running error
     over the measure's scale (the error it makes before anything is carried), linear in
-    u; the running errors start from x0's and P0's rounding."""
+    u; the running errors start from x0's and P0's rounding; the trace gives each program
+    call its inputs."""
     model = loads_model(TWO_SENSORS)
     unit = command_unit(model, "kf", GATED)
     assert step_programs(unit) == ("predict", "update_gps", "update_speed")
@@ -140,6 +141,10 @@ def test_the_bound_of_a_sensors_unit_is_its_running_errors_carried_by_its_maps()
     trace: list = []
     x0, P0 = np.array([0.5, -0.25]), np.eye(2)
     reference_run(model, GATED, zs, us, dt, x0, P0, trace=trace)
+    for before, step in zip(trace, trace[1:]):  # what each program call took and left
+        np.testing.assert_array_equal(step.P_before, before.P_after)
+        np.testing.assert_array_equal(step.x_before, before.x_after)
+        assert all(u.nu.shape == u.z.shape and u.x.shape == (2,) for u in step.updates)
     run = sensors_conditioning(model, trace)
     assert len(run.maps) == len(run.transitions) == steps
     Dx, DP = local_errors(unit, run.trace)
