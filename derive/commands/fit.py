@@ -60,7 +60,8 @@ def run(args) -> int:
         split_columns,
         write_model_file,
     )
-    from ..modelfile import loads_model
+    from ..generation import is_model_file
+    from ..modelfile import load_model_file, loads_model
     from .verify import parameter_values
 
     if args.anchor:
@@ -77,7 +78,11 @@ def run(args) -> int:
         tracks = [read_data(path) for path in args.data]
     if args.free or args.positive:
         text = free_text(text, args.free, args.positive)
-    model = loads_model(text, source=label)
+    # a model file as a file (its [compose] paths relative to it), unless its text changed
+    model = (loads_model(text, source=label) if args.anchor or args.free or args.positive
+             or not is_model_file(args.model) else load_model_file(args.model))
+    if args.out:  # refused before the work: a parameter the file's text cannot set
+        fitted_text(text, {p.name: 1.0 for p in model.parameters})
     for i, track in enumerate(tracks):
         split_columns(model, track, args.data[i] if args.data else label)
     start = parameter_values(args.start)
