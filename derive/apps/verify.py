@@ -61,7 +61,9 @@ from ..runs.unit import RUN_KINDS, Unit
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
 from .float_tolerance import (
     FloatTolerance,
+    PropagatedTolerance,
     ReferenceRun,
+    error_floor,
     float_tolerance,
     in_double,
     sensors_conditioning,
@@ -75,7 +77,8 @@ WITNESS_POINTS = 100
 WITNESS_TOLERANCE = 1e-12
 
 
-def within_tolerance(error: float, tolerance: float, bound: FloatTolerance | None) -> bool:
+def within_tolerance(error: float, tolerance: float,
+                     bound: FloatTolerance | PropagatedTolerance | None) -> bool:
     """How `derive verify` judges a run: a finite error within the tolerance, and for
     float32 a bound below 1 (else float32 cannot carry the filter)."""
     meaningful = bound is None or bound.meaningful
@@ -90,7 +93,7 @@ class Verification:
     steps: int
     error: float
     tolerance: float
-    bound: FloatTolerance | None = None
+    bound: FloatTolerance | PropagatedTolerance | None = None
 
     @property
     def passed(self) -> bool:
@@ -147,23 +150,6 @@ def jacobian_witness(model, points: int = WITNESS_POINTS, seed: int = 0
         return JacobianWitness(model.name, check_jacobians(model, points, seed))
     except ModelError as exc:
         return JacobianWitness(model.name, None, str(exc))
-
-
-def error_floor(step_sizes) -> float:
-    """The smallest scale a step's error is divided by: min(1, the lower median of the
-    non-zero step sizes ``||ref_k||_inf``), 0 when every step is zero.
-
-    A step whose reference is (near) zero is judged at the size of the array's typical
-    step, not divided by its own noise; an array of small numbers (P ~ 1e-20) is judged at
-    its own size, not at 1 (which made the measure absolute for it: a doubled P of 1e-20
-    passed 1e-12). The median, not the largest step, so a large start (P0 = 1 settling to
-    1e-20) does not set the scale of the steps after it; at most 1, so the measure is never
-    looser than it was with the floor 1 (absolute below 1, relative above)."""
-    sizes = np.sort(np.asarray(step_sizes, dtype=float).ravel())
-    sizes = sizes[sizes > 0]
-    if sizes.size == 0:
-        return 0.0
-    return float(min(sizes[(sizes.size - 1) // 2], 1.0))
 
 
 def relative_error(a, b) -> float:
@@ -380,7 +366,7 @@ class SensorsCase:
     ps: np.ndarray | None
     reference: object
     tolerance: float
-    bound: FloatTolerance | None
+    bound: FloatTolerance | PropagatedTolerance | None
     trace: tuple = ()
     implicit: bool = False
 

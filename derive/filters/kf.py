@@ -298,7 +298,7 @@ def derive_unit(model, spec, options):
     unit = make_unit(model, spec, programs, options,
                      step_inputs=linear_step_inputs(model), carried=carried)
     if input_port(model):
-        unit = with_fact(replace(unit, batch=False), INPUTS_FACT)
+        unit = with_fact(replace(unit, run_tracks=False), INPUTS_FACT)
     if joseph:
         unit = with_fact(unit, JOSEPH_FACT)
     return with_fact(unit, MISSING_FACT) if missing else unit
@@ -337,7 +337,7 @@ P), and the update's subtraction P(k/k-1) - K S K^T."""
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
     options=KalmanOptions, covariance=True, missing=True, loglik=loglik_reference,
-    batch=True,
+    run_tracks=True,
     inputs=True,
     sensors=True, blockwise=True, conditioning=CONDITIONING, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "

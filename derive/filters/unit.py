@@ -55,7 +55,7 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     no run_tracks), with ``gradient`` also its last output ``dll`` (``dlls``).
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
-    batch function applies; the run kind its carried state.  Which P0 the code accepts is
+    function run_tracks applies; the run kind its carried state.  Which P0 the code accepts is
     read from the program that takes it: ``enter`` (its P0) when there is one, else
     ``step`` (its P)."""
     facts = []
@@ -122,7 +122,7 @@ def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOpt
         header.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
     header.append(accepted_P0(programs["predict"], "P"))
     fields = spec.unit_fields(run_tracks=False)
-    fields.update(run_kind="sensors", batch=False, extra_programs=(), about={
+    fields.update(run_kind="sensors", run_tracks=False, extra_programs=(), about={
         "python": f"Run the {spec.title} over the steps: predict with u(k), then each "
                   "sensor's update in declaration order where its row is not NaN.",
         "c": f"Run the {spec.title} over steps steps (predict, then each sensor's update "
