@@ -26,7 +26,7 @@ from derive.apps.verify import nonlinear_scenario
 from derive.cli import main
 from derive.errors import ModelError
 from derive.fitting import fit, fitted_text, free_text, kernel
-from derive.model import NonlinearModel
+from derive.model import LinearModel, NonlinearModel
 from derive.modelfile import load_model_file, loads_model
 from derive.reference.likelihood import innovations_loglik
 
@@ -202,3 +202,16 @@ def test_a_nonlinear_model_is_fitted_by_its_ekf_and_refuses_missing_measurements
     gappy[4, 1] = np.nan
     with pytest.raises(ModelError, match="row 4 holds a missing"):
         fit(model, gappy, progress=False)
+
+
+def test_an_input_column_must_be_finite():
+    """A model with inputs takes its inputs' columns after the measurements'; a NaN input
+    is refused naming its row (an input is never missing), before any generation."""
+    model = LinearModel("cart", ["s"], ["z"], F=[[1]], H=[[1]], Q=[["q"]], R=[[1]],
+                        B=[[1]], inputs=["a"], parameters=["q"], examples={"q": 0.1})
+    data = np.ones((5, 2))
+    data[3, 1] = np.nan
+    with pytest.raises(ModelError, match="row 3 holds a non-finite input"):
+        fit(model, data, progress=False)
+    with pytest.raises(ModelError, match="1 columns, but model 'cart' takes 2"):
+        fit(model, data[:, :1], progress=False)
