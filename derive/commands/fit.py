@@ -1,5 +1,7 @@
 """`derive fit MODEL DATA...`: maximum-likelihood estimates of a model's free parameters."""
 
+from contextlib import contextmanager
+
 NAME = "fit"
 ORDER = 47
 HELP = ("maximum-likelihood estimates of a model's free parameters from measurement "
@@ -69,8 +71,9 @@ def run(args) -> int:
             raise ModelError("--anchor takes no MODEL or DATA (it brings its own)")
         from ..apps import fit_anchors  # the anchors' data sets are optional packages
 
-        text = getattr(fit_anchors, f"{args.anchor}_model_text")()
-        label, tracks = args.anchor, [getattr(fit_anchors, f"{args.anchor}_data")()]
+        with optional(f"--anchor {args.anchor}"):
+            text = getattr(fit_anchors, f"{args.anchor}_model_text")()
+            label, tracks = args.anchor, [getattr(fit_anchors, f"{args.anchor}_data")()]
     else:
         if not args.model or not args.data:
             raise ModelError("derive fit takes MODEL and at least one DATA file (or --anchor)")
@@ -88,8 +91,8 @@ def run(args) -> int:
     start = parameter_values(args.start)
     timed = None
     if args.bench:  # first: its generation from cold, before the fit's warms any cache
-        from ..apps.fit_peer import bench  # statsmodels: an optional peer
-
+        with optional("--bench"):
+            from ..apps.fit_peer import bench  # statsmodels: an optional peer
         timed = bench(model, tracks[0], start=start)
     result = fit(model, tracks if len(tracks) > 1 else tracks[0], start=start,
                  progress=False if args.no_progress else None)
@@ -102,3 +105,16 @@ def run(args) -> int:
     for line in timed.lines() if timed is not None else ():
         print(line)
     return 0
+
+
+@contextmanager
+def optional(what: str):
+    """An optional package missing for ``what``: one line naming it (ModelError, exit 2)."""
+    from ..errors import ModelError
+
+    try:
+        yield
+    except ModuleNotFoundError as exc:
+        package = (exc.name or "").split(".")[0].replace("_", "-")
+        raise ModelError(f"{what} needs the package {package} (pip install {package})"
+                         ) from None
