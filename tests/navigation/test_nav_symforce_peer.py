@@ -24,7 +24,7 @@ from derive.interface import read as read_interface
 from derive.model import NonlinearModel, Sensor
 from derive.trees import OpCount
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 needs_gpp = pytest.mark.skipif(shutil.which("g++") is None, reason="g++ is not installed")
 
