@@ -31,6 +31,7 @@ from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
     POSITIVE,
+    PRESENT,
     Assign,
     Statement,
     Temporary,
@@ -101,7 +102,8 @@ def _forward(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ...
             value = substitute(st.value, subst) if subst else st.value
             if value.is_number:
                 holds = (value.is_positive if st.relation == POSITIVE else
-                         value.is_nonnegative if st.relation == NONNEGATIVE else value.is_zero)
+                         value.is_nonnegative if st.relation == NONNEGATIVE else
+                         value.is_finite if st.relation == PRESENT else value.is_zero)
                 if holds is not True:
                     raise MatrixPropertyError(f"{st.message} (the value is structurally {value})")
             elif (st.relation, value) not in checked:

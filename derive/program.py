@@ -68,6 +68,7 @@ from derive.statements import (
     NON_FINITE,
     NONNEGATIVE,
     POSITIVE,
+    PRESENT,
     ZERO,
     Assign,
     Check,
@@ -423,6 +424,27 @@ class Program:
             raise ProgramError(f"require_zero: {element!r} is not an input element of "
                                f"program {self.name!r}")
         self._body.append(Check(element, str(message), ZERO))
+
+    def with_presence_checks(self, port: str, names: Sequence[str], message: str) -> Program:
+        """This final program with a check that each element of the input ``port`` is not
+        NaN after its body (element k holds the measurement ``names[k]``), failing with
+        ``message``: one comparison (``cmp``) each, one status for them all (generated C
+        returns it before any output is written; derive.build and generated Python name
+        the element that was NaN). Appended, so the statuses of the checks already there
+        keep their numbers; a program whose measurements may be NaN by design (absent)
+        takes none."""
+        if not self._optimized:
+            raise ProgramError(f"with_presence_checks: program {self.name!r} is not final")
+        elements = self._elements[self._input(port).name]
+        if len(names) != len(elements):
+            raise ProgramError(f"with_presence_checks: {len(names)} names for the "
+                               f"{len(elements)} elements of port {port!r}")
+        checks = [Check(e, str(message), PRESENT, measurement=str(name))
+                  for e, name in zip(elements, names)]
+        out = self._final(self._body + checks, self._results)
+        out._order_names = dict(self._order_names)
+        out._rows = self._rows
+        return out
 
     # -- optimising --------------------------------------------------------------------
 

@@ -31,31 +31,39 @@ class Assign:
     expr: sympy.Expr
 
 
-#: The relations a runtime check can require of its value.
-POSITIVE, ZERO, NONNEGATIVE = "positive", "zero", "nonnegative"
-#: How generated code compares a checked value with 0, per relation.
-OPERATORS = {POSITIVE: ">", ZERO: "==", NONNEGATIVE: ">="}
+#: The relations a runtime check can require of its value (PRESENT: not NaN, an input
+#: element compared with itself).
+POSITIVE, ZERO, NONNEGATIVE, PRESENT = "positive", "zero", "nonnegative", "present"
+#: How generated code compares a checked value with 0 (with itself for PRESENT), per
+#: relation.
+OPERATORS = {POSITIVE: ">", ZERO: "==", NONNEGATIVE: ">=", PRESENT: "=="}
 
 
 @dataclass(frozen=True)
 class Check:
     """Runtime check ``value > 0`` (``relation`` POSITIVE, a pivot), ``value >= 0``
-    (NONNEGATIVE) or ``value == 0`` (ZERO: an input element outside a declared sparsity
-    pattern); ``value`` is an atom. A NaN fails every relation. Fails with ``message``.
+    (NONNEGATIVE), ``value == 0`` (ZERO: an input element outside a declared sparsity
+    pattern) or ``value == value`` (PRESENT: a measurement that is not NaN); ``value`` is
+    an atom. A NaN fails every relation. Fails with ``message``.
 
     ``parameter``: for the check of a free parameter's declared domain (``value`` an
     element of ``p``; derive.domains), the parameter's name: generated Python names the
     value it refuses, and the check is dropped with the dead code when nothing else in
-    the program reads that element; empty for every other check."""
+    the program reads that element; empty for every other check. ``measurement``: for a
+    presence check, the name of the measurement ``value`` holds (the presence checks of a
+    program share one status, and what fails names the measurement)."""
 
     value: sympy.Expr
     message: str
     relation: str = POSITIVE
     parameter: str = ""
+    measurement: str = ""
 
     @property
     def text(self) -> str:
-        """``value > 0``, ``value >= 0`` or ``value == 0``."""
+        """``value > 0``, ``value >= 0``, ``value == 0`` or ``value == value``."""
+        if self.relation == PRESENT:
+            return f"{self.value} == {self.value}"
         return f"{self.value} {OPERATORS[self.relation]} 0"
 
 

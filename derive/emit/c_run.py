@@ -163,7 +163,9 @@ class _Printer:
                 lines += self.call(node)
             elif isinstance(node, AfterFirst):
                 lines += (["if (k > 0) { /* update-first: step 0 has no prediction */"]
-                          + _indent(self.nodes(node.body)) + ["}"])
+                          + _indent(self.nodes(node.body))
+                          + (["} else {"] + _indent(self.nodes(node.first)) if node.first
+                             else []) + ["}"])
             elif isinstance(node, Present):
                 lines += self.present(node)
             elif isinstance(node, Record):

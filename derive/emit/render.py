@@ -137,8 +137,12 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
         # a domain check's relation is named as its domain ("positive", "nonnegative")
         parameters = {c.status: (c.tree.args[0].index, c.parameter, c.relation)
                       for c in lp.checks if c.parameter}
+        presence = [c for c in lp.checks if c.is_presence]  # one status, the element named
+        present = ({presence[0].status: (presence[0].tree.args[0].base,
+                                         tuple(c.measurement for c in presence))}
+                   if presence else {})
         statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()),
-                                      parameters.get(number, ()))
+                                      parameters.get(number, ()), present.get(number, ()))
                      for number in sorted(messages)]
     spaces = ({"storage": unit.n, "tangent": unit.nt}
               if unit is not None and unit.nt != unit.n else {})

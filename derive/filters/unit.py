@@ -5,12 +5,14 @@ derivation's."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..discretize import METHODS
 from ..options import SharedOptions
-from ..program import ZERO, Check
-from ..runs.unit import SensorSlot, Unit
+from ..program import PRESENT, ZERO, Check, ProgramError
+from ..runs.unit import LOOKAHEAD_NEXT, SensorSlot, Unit
 from .common import LOGLIK_FACT, LOGLIK_STORE, pattern_text
 from .spec import FilterSpec
 
@@ -98,6 +100,47 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         precision=options.precision,
         run_function=options.run,
     )
+
+
+#: The run kinds whose measurements may be NaN by design: the sensors' run skips a row
+#: holding a NaN (the sensor is silent), and the windowed run (fir) has finite memory: a
+#: NaN in z(k) reaches only the N outputs whose window holds it.
+NAN_ABSENT_KINDS = ("sensors", "windowed")
+
+
+def checked_measurements(unit: Unit, model, spec: FilterSpec, options: SharedOptions) -> Unit:
+    """``unit`` with each program that reads the measurements z (and the two-step map, z
+    of the next step) checking every element is not NaN, unless a NaN means an absent
+    measurement (the option ``missing``, or a run kind of :data:`NAN_ABSENT_KINDS`):
+    without the check one NaN in z made every later state NaN, with status 0. One
+    comparison per measurement per step; the checks come after those the program had,
+    so their statuses keep their numbers."""
+    if options.get("missing") or unit.run_kind in NAN_ABSENT_KINDS:
+        return unit
+    remedy = ("give the option missing for a NaN to mean an absent measurement"
+              if spec.missing else f"filter {spec.name} takes no absent measurements")
+    message = f"measurement is NaN ({remedy})"
+
+    def checked(program):
+        if "z" not in _input_names(program):
+            return program
+        size = program.port("z").size  # update1: one measurement, any of them
+        names = model.measurements if size == model.m else ["one measurement"] * size
+        return program.with_presence_checks("z", names, message)
+
+    programs = {name: checked(program) for name, program in unit.programs.items()}
+    lookahead = unit.lookahead
+    if lookahead is not None:
+        # the map reads z(k), which the step of its pass checks, and z(k+1): its checks of
+        # z(k+1) share status 1, as the step's, which is the same status only while the
+        # step has no check but these
+        step = programs["step"]
+        if any(isinstance(c, Check) and c.relation != PRESENT for c in step.body):
+            raise ProgramError(f"unit {unit.prefix}: a two-step map beside a step with "
+                               "checks of its own would number its checks apart")
+        lookahead = lookahead.with_presence_checks(LOOKAHEAD_NEXT, model.measurements,
+                                                   message)
+    return replace(unit, programs=programs, lookahead=lookahead)
 
 
 def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,

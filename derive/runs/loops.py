@@ -124,9 +124,12 @@ class Present:
 
 @dataclass(frozen=True)
 class AfterFirst:
-    """``body`` at every step but the first (an update-first run predicts from step 1)."""
+    """``body`` at every step but the first (an update-first run predicts from step 1);
+    ``first``: what the first step does instead (a fused step's run calls its update
+    alone there)."""
 
     body: tuple[Node, ...]
+    first: tuple[Node, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -240,5 +243,7 @@ def walk(nodes: tuple[Node, ...]):
         yield node
         if isinstance(node, (Present, AfterFirst, Steps, AnySteps)):
             yield from walk(node.body)
+        if isinstance(node, AfterFirst):
+            yield from walk(node.first)
         if isinstance(node, Present):
             yield from walk(node.missing)
