@@ -18,7 +18,8 @@ symmetric in predict: P, P_new (inputs: upper triangle read; outputs: written wh
 status (C return value; Python raises NumericalError): 0 success
     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-operations per call of step (Python): add 88, sub 36, mul 141, div 6, sqrt 1, fma 0, neg 2, cmp 11, select 9, calls 7 (flops 272, instructions 294)
+    step 3: measurement is NaN (filter ekf takes no absent measurements)
+operations per call of step (Python): add 88, sub 36, mul 141, div 6, sqrt 1, fma 0, neg 2, cmp 13, select 9, calls 7 (flops 272, instructions 296)
 operations per call of predict (Python): add 53, sub 4, mul 49, div 2, sqrt 0, fma 0, neg 2, cmp 9, select 9, calls 5 (flops 108, instructions 128)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
@@ -79,6 +80,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -272,6 +294,7 @@ def _step(x, P, z):
     t132 = t46 - t117
     t133 = t36 - t118
     t134 = t47 - t119
+    _require_present((z[0], z[1],), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ekf takes no absent measurements)')
     x_new = [t100, t101, t102, t103, t104]
     P_new = [
         t120, t121, t122, t123, t124, t121, t125, t126, t127, t128, t122, t126, t129, t130,
@@ -497,6 +520,8 @@ def run(zs, x0, P0):
             P_18 = t46 - (t63*t84 + t79*t89)
             P_19 = t36 - (t65*t84 + t80*t89)
             P_24 = t47 - (t65*t85 + t80*t90)
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 160}: " + _nan_named((z_0, z_1,), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ekf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, P_0, P_1, P_2, P_3, P_4, P_6, P_7, P_8, P_9, P_12,
                     P_13, P_14, P_18, P_19, P_24))
         table = np.frombuffer(rows).reshape(-1, 20)
@@ -507,9 +532,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((25,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(5):
-            xs[k, i] = x[i]
-        for i in range(25):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(5):
+                xs[k, i] = x[i]
+            for i in range(25):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 5, 5) + track)

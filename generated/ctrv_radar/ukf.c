@@ -28,12 +28,13 @@
  *     step 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
  *     step 11: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 12: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- *     predict 13: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
- *     predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
- *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
- *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
- *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 189, sub 132, mul 305, div 25, sqrt 14, fma 266, neg 31, cmp 45, select 33, calls 97 (flops 1197, instructions 1040)
+ *     step 13: measurement is NaN (filter ukf takes no absent measurements)
+ *     predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+ *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+ *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+ *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+ *     predict 18: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 189, sub 132, mul 305, div 25, sqrt 14, fma 266, neg 31, cmp 47, select 33, calls 97 (flops 1197, instructions 1042)
  * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 163, sub 88, mul 208, div 15, sqrt 5, fma 179, neg 30, cmp 38, select 33, calls 87 (flops 837, instructions 759)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
@@ -42,7 +43,7 @@
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
  * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)), and so are the sigma points' deviations from h(x) (the point X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the spreads the deviations minus that mean
- * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["predict",13,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]]}
+ * derive-interface: {"functions":[["ctrv_radar_ukf_step","step",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["z",[2],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_predict","predict",true,false,[["x",[5],false,false,false],["P",[5,5],false,false,false],["x_new",[5],true,false,false],["P_new",[5,5],true,false,false]]],["ctrv_radar_ukf_run","run",true,true,[["z",["steps",2],false,false,false,false,"zs"],["x0",[5],false,false,false],["P0",[5,5],false,false,false],["xs",["steps",5],true,false,false],["Ps",["steps",5,5],true,true,false]]]],"statuses":[["step",1,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",2,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",3,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",4,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",5,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",6,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["step",7,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["step",8,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["step",9,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["step",10,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]],["step",11,"Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive",[]],["step",12,"Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive",[]],["step",13,"measurement is NaN (filter ukf takes no absent measurements)",[]],["predict",14,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive",[]],["predict",15,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive",[]],["predict",16,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive",[]],["predict",17,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive",[]],["predict",18,"the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive",[]]],"present":{"13":["z",["range","bearing"]]}}
  */
 #include <math.h>
 #include <stddef.h>
@@ -712,6 +713,9 @@ static int ctrv_radar_ukf_step_body_part2(const double *restrict x, const double
     const double t515 = w[65] - t500;
     const double t516 = w[66] - t501;
     const double t517 = w[67] - t502;
+    if (!((z[0] == z[0]) & (z[1] == z[1])) && !status) {
+        status = 13; /* measurement is NaN (filter ukf takes no absent measurements) */
+    }
     x_new[0] = t483;
     x_new[1] = t484;
     x_new[2] = t485;
@@ -782,7 +786,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t21 = DERIVE_FMA(x[2], t4, x[1]);
     const double t22 = ((t0 > 0.0001) ? t19 : t21);
     if (!(P[0] > 0.0)) {
-        return 13; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
+        return 14; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive */
     }
     const double t23 = sqrt(P[0]);
     const double t24 = 1.0/t23;
@@ -792,7 +796,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t28 = P[4]*t24;
     const double t29 = DERIVE_FNMA(t25, t25, P[6]);
     if (!(t29 > 0.0)) {
-        return 14; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
+        return 15; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive */
     }
     const double t30 = sqrt(t29);
     const double t31 = 1.0/t30;
@@ -801,7 +805,7 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t34 = t31*DERIVE_FNMA(t25, t28, P[9]);
     const double t35 = DERIVE_FNMA(t32, t32, DERIVE_FNMA(t26, t26, P[12]));
     if (!(t35 > 0.0)) {
-        return 15; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
+        return 16; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive */
     }
     const double t36 = sqrt(t35);
     const double t37 = 1.0/t36;
@@ -809,14 +813,14 @@ int ctrv_radar_ukf_predict(const double *restrict x, const double *restrict P, d
     const double t39 = t37*DERIVE_FNMA(t32, t34, DERIVE_FNMA(t26, t28, P[14]));
     const double t40 = DERIVE_FNMA(t38, t38, DERIVE_FNMA(t33, t33, DERIVE_FNMA(t27, t27, P[18])));
     if (!(t40 > 0.0)) {
-        return 16; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
+        return 17; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive */
     }
     const double t41 = sqrt(t40);
     const double t42 = 1.0/t41;
     const double t43 = t42*DERIVE_FNMA(t38, t39, DERIVE_FNMA(t33, t34, DERIVE_FNMA(t27, t28, P[19])));
     const double t44 = DERIVE_FNMA(t43, t43, DERIVE_FNMA(t39, t39, DERIVE_FNMA(t34, t34, DERIVE_FNMA(t28, t28, P[24]))));
     if (!(t44 > 0.0)) {
-        return 17; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
+        return 18; /* the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive */
     }
     const double t45 = sqrt(t44);
     const double t46 = 1.7320508075688772*t23;

@@ -28,12 +28,13 @@ status (C return value; Python raises NumericalError): 0 success
     step 10: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
     step 11: Pvv is not positive definite: pivot 0 of its LDL^T factorisation is not positive
     step 12: Pvv is not positive definite: pivot 1 of its LDL^T factorisation is not positive
-    predict 13: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
-    predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
-    predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
-    predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
-    predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
-operations per call of step (Python): add 321, sub 266, mul 571, div 25, sqrt 14, fma 0, neg 12, cmp 45, select 33, calls 97 (flops 1197, instructions 1287)
+    step 13: measurement is NaN (filter ukf takes no absent measurements)
+    predict 14: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 0 of its Cholesky factorisation is not positive
+    predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 1 of its Cholesky factorisation is not positive
+    predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
+    predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
+    predict 18: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
+operations per call of step (Python): add 321, sub 266, mul 571, div 25, sqrt 14, fma 0, neg 12, cmp 47, select 33, calls 97 (flops 1197, instructions 1289)
 operations per call of predict (Python): add 249, sub 181, mul 387, div 15, sqrt 5, fma 0, neg 11, cmp 38, select 33, calls 87 (flops 837, instructions 919)
 P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
 sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
@@ -96,6 +97,27 @@ def _require_positive(value, message):
         positive = positive.all()
     if not positive:
         raise NumericalError(message)
+
+
+def _nan_named(values, labels, message):
+    """message, after the label of the first of values that is NaN (in any
+    track)."""
+    for value, label in zip(values, labels):
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        if not (same.all() if hasattr(same, "all") else same):
+            return f"{label}: {message}"
+    return message
+
+
+def _require_present(values, labels, message):
+    """Raise NumericalError naming the measurement unless no value is NaN
+    (every track of an array); a comparison each."""
+    present = True
+    for value in values:
+        same = value == value  # noqa: PLR0124 (false for NaN only)
+        present = (same.all() if hasattr(same, "all") else same) and present
+    if not present:
+        raise NumericalError(_nan_named(values, labels, message))
 
 
 def _real(name, value):
@@ -682,6 +704,7 @@ def _step(x, P, z):
     t515 = t338 - t500
     t516 = t340 - t501
     t517 = t342 - t502
+    _require_present((z[0], z[1],), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ukf takes no absent measurements)')
     x_new = [t483, t484, t485, t486, t487]
     P_new = [
         t503, t504, t505, t506, t507, t504, t508, t509, t510, t511, t505, t509, t512, t513,
@@ -1469,6 +1492,8 @@ def run(zs, x0, P0):
             P_18 = t338 - (t445*t471 + t446*t466)
             P_19 = t340 - (t447*t471 + t448*t466)
             P_24 = t342 - (t447*t472 + t448*t467)
+            if not (z_0 == z_0 and z_1 == z_1):  # noqa: PLR0124 (false for NaN only)
+                raise NumericalError(f"step {len(rows) // 160}: " + _nan_named((z_0, z_1,), ('range (z[0])', 'bearing (z[1])'), 'measurement is NaN (filter ukf takes no absent measurements)'))
             keep(pack(x_0, x_1, x_2, x_3, x_4, P_0, P_1, P_2, P_3, P_4, P_6, P_7, P_8, P_9, P_12,
                     P_13, P_14, P_18, P_19, P_24))
         table = np.frombuffer(rows).reshape(-1, 20)
@@ -1479,9 +1504,12 @@ def run(zs, x0, P0):
     x = x0
     P = P0.reshape((25,) + P0.shape[2:])
     for k in range(steps):
-        x, P = _step(x, P, zs[k])
-        for i in range(5):
-            xs[k, i] = x[i]
-        for i in range(25):
-            Ps[k, i] = P[i]
+        try:
+            x, P = _step(x, P, zs[k])
+            for i in range(5):
+                xs[k, i] = x[i]
+            for i in range(25):
+                Ps[k, i] = P[i]
+        except NumericalError as failure:  # name the step
+            raise type(failure)(f"step {k}: {failure}") from None
     return xs, Ps.reshape((steps, 5, 5) + track)
