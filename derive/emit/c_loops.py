@@ -346,10 +346,13 @@ def _row_names(unit: Unit, body: LoweredProgram) -> dict[str, str]:
     return names
 
 
-def fused_body(unit: Unit, body: LoweredProgram, prefix: str) -> list[str]:
+def fused_body(unit: Unit, body: LoweredProgram, prefix: str, name: str | None = None
+               ) -> list[str]:
     """run's step: the body over run's local arrays (the state, the step's outputs: held
-    in registers once the body is inlined), reading the per-step inputs at row k."""
-    return checked_call(body, body_name(prefix), _row_names(unit, body), "step_status")
+    in registers once the body is inlined), reading the per-step inputs at row k;
+    ``name``: the body function called (default the step's)."""
+    return checked_call(body, name or body_name(prefix), _row_names(unit, body),
+                        "step_status")
 
 
 def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,

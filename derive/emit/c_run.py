@@ -163,9 +163,7 @@ class _Printer:
                 lines += self.call(node)
             elif isinstance(node, AfterFirst):
                 lines += (["if (k > 0) { /* update-first: step 0 has no prediction */"]
-                          + _indent(self.nodes(node.body))
-                          + (["} else {"] + _indent(self.nodes(node.first)) if node.first
-                             else []) + ["}"])
+                          + _indent(self.nodes(node.body)) + ["}"])
             elif isinstance(node, Present):
                 lines += self.present(node)
             elif isinstance(node, Record):
@@ -193,7 +191,7 @@ class _Printer:
     def steps(self, node: Steps) -> list[str]:
         head = self.note(node.note) if node.note else []
         if not node.down:
-            return head + ["for (k = 0; k < steps; ++k) {"] + _indent(
+            return head + [_up_loop(node)] + _indent(
                 self.step_rows(node) + self.nodes(node.body)) + ["}"]
         self.k = "j"
         body = [f"const size_t j = k - {node.down};"] + self.nodes(node.body)
@@ -307,9 +305,10 @@ def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
     lines += [f"{t} {s.new}[{s.size}];" for s in run.states]
     lines += [f"{t} {name}[{run.states[0].size}];" for name in local if name not in first]
     states = {state.name for state in run.states}
-    lines += [f"{t} {s.state}[{s.size}];" for s in walk(run.loops)  # other outputs stored
+    stored = {s.state: s.size for s in walk(run.loops)  # other outputs stored, once each
               if isinstance(s, Store) and s.state and s.state not in states
-              and s.state not in local]
+              and s.state not in local}
+    lines += [f"{t} {name}[{size}];" for name, size in stored.items()]
     lines.append("size_t k;")
     if (run.enter is not None and lowered[run.enter.program].has_checks) or any(
             isinstance(s, Store) and s.program and lowered[s.program].has_checks
@@ -340,6 +339,13 @@ def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
     return lines
 
 
+def _up_loop(loop: Steps) -> str:
+    """The head of a loop over k up: every step, step 0 alone, or from ``loop.start``."""
+    if loop.first:
+        return "for (k = 0; k < steps && k < 1; ++k) { /* update-first: step 0 alone */"
+    return f"for (k = {loop.start}; k < steps; ++k) {{"
+
+
 def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p: bool,
                    real: Precision) -> list[str]:
     t = real.c_type
@@ -351,7 +357,7 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
     elif loop.rest:
         head.append("for (; k < steps; ++k) {")
     else:
-        head.append("for (k = 0; k < steps; ++k) {")
+        head.append(_up_loop(loop))
     rows = {}  # the rows the bodies read
     for call in (c for c in loop.body if isinstance(c, Call)):
         for port, source in call.args:
@@ -362,7 +368,8 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
             elif isinstance(source, Row) and reads_p:
                 rows[port] = (f"const {t} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                               f"{P_STRIDE};")
-    body = list(rows.values()) + bodies["pair" if loop.by == 2 else "step"]
+    program = next(c.program for c in loop.body if isinstance(c, Call))
+    body = list(rows.values()) + bodies["pair" if loop.by == 2 else program]
     states = {s.name: s for s in run.states}
     stored = {s.state: s for s in loop.body if isinstance(s, Store) and not s.optional
               and s.state and s.row == ("k + 1" if loop.by == 2 else "k")}

@@ -125,8 +125,6 @@ class _Printer:
             elif isinstance(node, AfterFirst):
                 lines.append(f"{indent}if k:  # update-first: step 0 has no prediction")
                 lines += self.nodes(node.body, indent + "    ")
-                if node.first:
-                    lines += [f"{indent}else:"] + self.nodes(node.first, indent + "    ")
             elif isinstance(node, Present):
                 lines += self.present(node, indent)
             elif isinstance(node, Store) and node.program:  # from the carried state
@@ -141,7 +139,11 @@ class _Printer:
                           f"{indent}    {self.names[node.array]}[k, i] = {node.state}[i]"]
             elif isinstance(node, Steps):
                 lines.append(f"{indent}for k in range(steps - {node.down}, -1, -1):"
-                             if node.down else f"{indent}for k in range(steps):")
+                             if node.down else
+                             f"{indent}for k in range(min(steps, 1)):  # update-first: step 0"
+                             if node.first else
+                             f"{indent}for k in range({node.start}, steps):" if node.start
+                             else f"{indent}for k in range(steps):")
                 if not self.checked(node):
                     lines += self.nodes(node.body, indent + "    ")
                     continue

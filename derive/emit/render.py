@@ -432,7 +432,8 @@ def render_python(unit: Unit) -> dict[str, str]:
     stores = [s for s in walk(run.loops) if isinstance(s, Store)]
     ports = {p.name: p for p in lowered["step"].inputs}  # a store of the carried state only
     if (kinds.BUILDERS[unit.kind] is kinds.stepping and "enter" not in lowered
-            and "store" not in lowered and all(s.state in ports for s in stores)):
+            and "store" not in lowered and all(s.state in ports for s in stores)
+            and not unit.update_first):
         # one track: the step's statements inline (derive.emit.python_loop), from the start
         # arrays (a predictor's from init(x0), computed before the loop)
         arrays = {a.c_name: a.py_name for a in args if not a.output}
@@ -567,6 +568,10 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     loop_step = step_lp.without_pattern_checks()
     step_body = body_name(prefix)
     fused = fused_body(unit, loop_step, prefix) if not unit.run.window else []
+    # update-first: run's step 0 calls the update alone (its body, as the step's)
+    loop_update = lowered["update"].without_pattern_checks() if unit.update_first else None
+    first = (fused_body(unit, loop_update, prefix, body_name(prefix, "update"))
+             if loop_update is not None else [])
     state = carried_state(unit, step_lp)
     optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
     starts = {s["name"]: (s["start"], s["size"]) for s in state}
@@ -620,12 +625,17 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                         f"{', '.join(tracks_params)})") if batch else ""
     bodies = [loop_step] + ([two] if two is not None else [])
     functions = body_functions(loop_step, step_body, real)
+    if loop_update is not None:
+        functions += body_functions(loop_update, body_name(prefix, "update"), real)
     if two is not None:
         functions += body_functions(two, body_name(prefix, "pass"), real)
     for lp in lps:
         parts = c_printer.function_parts(lp, prefix, real)
         if lp.name == "step":
             parts["body"] = step_function_body(lp, loop_step, step_body, real)
+        elif lp.name == "update" and loop_update is not None:
+            parts["body"] = step_function_body(lp, loop_update, body_name(prefix, "update"),
+                                               real)
         functions.append(parts)
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
@@ -641,8 +651,8 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     vector_run, vector_macros, vector_header = block_lanes.vector_run(
         unit, loop_step, two, vector_state, optional_stores,
         (vector_start if init_call else []) + unused + called_elsewhere,
-        ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
-        else ([], [], "")
+        ["return 0;"] if status else [], real) \
+        if fused and "enter" not in lowered and not unit.update_first else ([], [], "")
     header_lines += [vector_header] if vector_header else []
     header_lines.append(described.block())
     header = [c_printer.comment_text(line) for line in header_lines]
@@ -677,7 +687,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         if two is not None:
             run = kinds.two_steps(run, unit)
         context["run_body"] = c_run.stepping_lines(
-            run, lowered, prefix, {"step": fused, "pair": lookahead},
+            run, lowered, prefix, {"step": fused, "pair": lookahead, "update": first},
             run_checks if not vector_run else [], real)
     else:
         context["run_body"] = c_run.run_lines(run, lowered, prefix, real=real,
