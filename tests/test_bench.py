@@ -164,9 +164,15 @@ def test_states_joins_copies():
     assert states(a, 5).shape == (5, 2)
 
 
-def test_bench_command_prints_the_table(monkeypatch, capsys):
+def test_bench_command_prints_the_table(result, monkeypatch, capsys):
+    """The command runs the bench with --quick's settings and prints its JSON; the bench
+    itself is the one the fixture ran (a second run of it would double the file's time)."""
+    asked = []
     monkeypatch.setattr("derive.apps.bench.run.Settings.quick", classmethod(lambda cls: TINY))
+    monkeypatch.setattr("derive.apps.bench.run.run_bench",
+                        lambda settings, progress=None: asked.append(settings) or result)
     assert cli.main(["bench", "--quick", "--json"]) == 0
+    assert asked == [TINY]
     data = json.loads(capsys.readouterr().out)
     assert {r["case"] for r in data["rows"]} == {c.label for c in CASES}
     assert cli.main(["bench", "--repeats", "0"]) == 2
