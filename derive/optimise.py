@@ -37,6 +37,7 @@ from derive.statements import (
     Temporary,
     is_atom,
     live_statements,
+    rename,
     substitute,
 )
 from derive.trees import count_tree
@@ -267,10 +268,10 @@ def _renumber(body: Sequence[Statement], results: dict[str, tuple[sympy.Expr, ..
         if isinstance(st, Assign):
             names[st.target] = Temporary(f"t{len(names)}")
     out: list[Statement] = []
-    for st in body:
+    for st in body:  # an injective renaming: rebuilt without sympy's flatten
         if isinstance(st, Assign):
-            out.append(Assign(names[st.target], substitute(st.expr, names)))
+            out.append(Assign(names[st.target], rename(st.expr, names)))
         else:
-            out.append(replace(st, value=substitute(st.value, names)))
-    return out, {name: tuple(substitute(v, names) for v in values)
+            out.append(replace(st, value=rename(st.value, names)))
+    return out, {name: tuple(rename(v, names) for v in values)
                  for name, values in results.items()}

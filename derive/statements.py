@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import sympy
+from sympy.core.basic import _args_sortkey
 
 
 class InputElement(sympy.Symbol):
@@ -104,6 +105,16 @@ def live_statements(body: Sequence[Statement], results: Mapping[str, tuple]) -> 
                                      and st.value not in read)]
 
 
+def rename(expr: sympy.Basic, names: Mapping[sympy.Symbol, sympy.Symbol]) -> sympy.Basic:
+    """:func:`substitute` for ``names`` an injective map of symbols to symbols (the
+    temporaries renumbered), without sympy's flatten: an injective renaming merges no
+    terms and no factors, so a sum or product rebuilt is its renamed arguments in
+    sympy's order (the number first, the rest by ``_args_sortkey``, as flatten leaves
+    them), built as they are. The same expression as substitute's, argument order
+    included."""
+    return _replaced(expr, names, renaming=True)
+
+
 def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) -> sympy.Basic:
     """``expr.xreplace(mapping)``, except that an applied function whose arguments are
     not all numbers after the replacement is rebuilt without its ``eval``: sympy's
@@ -111,6 +122,11 @@ def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) ->
     sign to pull out, assumption queries that cost milliseconds an argument (a sum of
     a state and a sigma-point offset) and find nothing for the atoms derive substitutes.
     The result equals xreplace's wherever that ``eval`` would not rewrite the call."""
+    return _replaced(expr, mapping, renaming=False)
+
+
+def _replaced(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic],
+              renaming: bool) -> sympy.Basic:
     memo: dict[sympy.Basic, sympy.Basic] = {}
 
     def walk(node: sympy.Basic) -> sympy.Basic:
@@ -125,6 +141,10 @@ def substitute(expr: sympy.Basic, mapping: Mapping[sympy.Basic, sympy.Basic]) ->
         args = tuple(walk(arg) for arg in node.args)
         if all(new is old for new, old in zip(args, node.args)):
             out = node
+        elif renaming and (node.is_Add or node.is_Mul) and node.is_commutative:
+            lead = 1 if args[0].is_Number else 0
+            out = node.func._from_args(args[:lead] + tuple(sorted(args[lead:],
+                                                                  key=_args_sortkey)), True)
         elif isinstance(node, sympy.Function) and not all(a.is_number for a in args):
             out = node.func(*args, evaluate=False)
         else:

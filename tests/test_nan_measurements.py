@@ -2,8 +2,8 @@
 status 0. Now every program that reads z checks each element is not NaN (one comparison
 per measurement per step, after the checks the program had, one status for them all): C
 returns the status the header lists, derive.build's wrappers and the generated Python run
-name the step and the measurement. With ``missing`` (a NaN means absent), in a sensors run (a NaN row is a
-silent sensor) and in the FIR (finite memory) there is no such check."""
+name the step and the measurement. With ``missing`` (a NaN means absent), in a sensors run
+(a NaN row is a silent sensor) and in the FIR (finite memory) there is no such check."""
 
 from dataclasses import replace
 from pathlib import Path
@@ -11,11 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from derive import batch, build_c, catalog, load_python
+from derive import LinearModel, Sensor, batch, build_c, catalog, load_python
 from derive.errors import NumericalError
 from derive.filters import derive_unit, kind
 from derive.flops import count
-from derive.modelfile import loads_model
 from derive.options import validate
 from derive.runs.unit import LOOKAHEAD_NEXT
 from derive.statements import PRESENT, Check
@@ -111,29 +110,7 @@ def test_no_check_where_a_nan_means_absent():
     assert _presence_checks(derive_unit(model, "kf"))
     assert not _presence_checks(derive_unit(model, "kf", {"missing": True}))
     assert not _presence_checks(derive_unit(model, "fir"))
-    assert not _presence_checks(derive_unit(loads_model(SENSORS), "kf"))
-
-
-SENSORS = """
-[model]
-name = "cart"
-states = ["p", "v"]
-
-[discrete]
-F = [[1, 0.1], [0, 1]]
-Q = [[0.01, 0], [0, 0.01]]
-
-[sensors.gps]
-measurements = ["zp"]
-H = [[1, 0]]
-R = 4
-
-[sensors.speed]
-measurements = ["zv"]
-H = [[0, 1]]
-R = 0.25
-
-[initial]
-x0 = [0, 0]
-P0 = [[1, 0], [0, 1]]
-"""
+    cart = LinearModel("cart", ["p", "v"], F=[[1, 0.1], [0, 1]], Q=[[0.01, 0], [0, 0.01]],
+                       sensors=[Sensor("gps", ["zp"], H=[[1, 0]], R=4),
+                                Sensor("speed", ["zv"], H=[[0, 1]], R=0.25)])
+    assert not _presence_checks(derive_unit(cart, "kf"))
