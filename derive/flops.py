@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from derive.lowering import LoweredProgram
     from derive.program import Program
 
+#: The languages derive prints, each with its rules of counting here.
 LANGUAGES = ("python", "c")
 
 

@@ -1,6 +1,6 @@
 """A NumPy EKF of the INS/GNSS model written by hand from SPEC.md section 8, independently of
 derive's derivation: the Jacobians below are worked out on paper from the equations (and
-checked against finite differences in tests/test_nav_ins_reference.py), not by sympy.
+checked against finite differences in tests/navigation/test_nav_ins_reference.py), not by sympy.
 
 State x = [q0..q3, vn, ve, vd, pn, pe, pd, bg(3), ba(3)], input u = [ω(3), a(3)], parameter
 dt. Predict: x ← f(x, u), P ← F P Fᵀ + Q(x, u) with F = ∂f/∂x, Fu = ∂f/∂u at (x, u) and
