@@ -533,7 +533,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c), real)]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
-    batch = unit.run_tracks
     run_args = {a.c_name: a for a in args}
     sizes = run_sizes(unit)
 
@@ -551,7 +550,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                  "    return track_status;", "}"] if status else [f"{tail};"])
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{_c_parameters(unit, real, ('size_t steps', 'size_t tracks'))})"
-                        if batch else "")
+                        if unit.run_tracks else "")
     bodies = [loop_step] + ([two] if two is not None else [])
     functions = body_functions(loop_step, step_body, real)
     if two is not None:
@@ -588,13 +587,13 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
-        + (c_loops.tracks_macros(run, bodied, real) if batch else []) + vector_macros,
+        + (c_loops.tracks_macros(run, bodied, real) if unit.run_tracks else []) + vector_macros,
         "functions": functions,
         "run_signature": run_signature,
         "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
                                              tracks_checks, run_call,
                                              ["return 0;"] if status else [], real)
-        if batch else [],
+        if unit.run_tracks else [],
         "run_checks": run_checks,
     }
     if kinds.BUILDERS[unit.kind] is kinds.stepping:
