@@ -276,8 +276,8 @@ class Unit:
 
 
 def sizes(unit: Unit) -> dict[str, int]:
-    """The unit's named sizes: n (x), m (z) and nt (P: nt x nt)."""
-    return {"n": unit.n, "m": unit.m, "nt": unit.nt}
+    """The unit's named sizes: n (x), m (z), nt (P: nt x nt) and np (p)."""
+    return {"n": unit.n, "m": unit.m, "nt": unit.nt, "np": len(unit.parameters)}
 
 
 def space(unit: Unit, name: str) -> str:
@@ -484,7 +484,8 @@ def run_arguments(unit: Unit) -> list[Argument]:
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",
             "Ps": "covariance after each step",
-            "lls": "log-likelihood of each step's innovation"}
+            "lls": "log-likelihood of each step's innovation",
+            "dlls": "gradient of each step's log-likelihood with respect to p"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
     args += [Argument(name, name, tuple(named[d] for d in dims), doc=docs.get(name, name))
