@@ -302,7 +302,7 @@ class _TrackRun:
             else:
                 array = (self.p if arg.name == "p" else
                          np.ascontiguousarray(given[arg.name], dtype=module.dtype))
-                if arg.rows:
+                if arg.strided:
                     strides.append(0)  # one row of p for every step
             self.keep.append(array)
             args.append(module.buffer(array))
