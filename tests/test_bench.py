@@ -186,6 +186,7 @@ def test_the_larger_bound_applies_and_both_are_printed():
     kf = Row("KF mpt3d_a", "generated C", timing_, 1.0, 0.0, bound=2e-9, memory=1e-9)
     bars = BenchResult(TINY, {"latency": {}}, [kf, chain])._chain_bars()
     assert [b.bar for b in bars[:2]] == [pytest.approx(1.2 * 2e-9), pytest.approx(1.5 * 2.5e-9)]
+    assert bars[1].value == timing_.low   # the fastest repeat, as the probes are least times
     assert "chain bound 1 ns, memory-traffic bound 2.5 ns: the memory traffic applies" in \
         bars[1].note and bars[1].met
 

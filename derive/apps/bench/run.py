@@ -218,18 +218,21 @@ class BenchResult:
         return out
 
     def _chain_bars(self) -> list[Bar]:
-        """The time per step against the latency bound of the chain derive emits by
-        default, measured in this run; and the latency schedule's bound against it."""
+        """The time per step against the bound of the run derive emits by default (its
+        chain's latency or its memory traffic, the larger), measured in this run; and the
+        latency schedule's bound against the default's."""
         kf, sskf = self.row("KF mpt3d_a", "generated C"), self.row("SSKF mpt3d_a",
                                                                     "generated C")
         fast = self.row("KF mpt3d_a", LATENCY_SCHEDULE)
         out = []
         for row, need in ((kf, 1.2), (sskf, 1.5)):
-            bound, which = row.limit if row is not None else (None, "")
-            out.append(Bar(f"generated C {row.case if row else '?'} per step within {need:g}x "
-                           "its bound here (the latency bound of its chain, default schedule, "
-                           "or the memory traffic of its run, the larger)",
-                           row.timing.median if bound and row.timing else None,
+            bound = row.limit[0] if row is not None else None
+            # the fastest repeat: the bounds are the least times of their probes too, so a
+            # moment of load does not count against the code
+            out.append(Bar(f"generated C {row.case if row else '?'} per step (fastest "
+                           f"repeat) within {need:g}x its bound here (the latency bound of its "
+                           "chain, default schedule, or the memory traffic of its run, the "
+                           "larger)", row.timing.low if bound and row.timing else None,
                            need * (bound or 0.0), "time", _limit_note(row)))
         default = kf.bound if kf is not None else None
         out.append(Bar("latency schedule (--latency-schedule): bound of the KF mpt3d_a chain "
