@@ -16,6 +16,7 @@ from .errors import ModelError
 if TYPE_CHECKING:
     from . import catalog
     from .build import build_c, load_python
+    from .fitting import fit
     from .generation import generate
     from .model import LinearModel, NonlinearModel, Sensor
     from .pipeline import load_generated
@@ -24,6 +25,7 @@ if TYPE_CHECKING:
 _LAZY_NAMES = {
     "catalog": "derive.catalog",
     "build_c": "derive.build",
+    "fit": "derive.fitting",
     "load_python": "derive.build",
     "generate": "derive.generation",
     "LinearModel": "derive.model",
@@ -35,7 +37,7 @@ _LAZY_NAMES = {
 """Each name of the API loaded on first use, and the module that defines it."""
 
 __all__ = ["LinearModel", "ModelError", "NonlinearModel", "Sensor", "__version__", "build_c",
-           "catalog", "generate", "load_generated", "load_python"]
+           "catalog", "fit", "generate", "load_generated", "load_python"]
 
 
 def __getattr__(name: str):

@@ -226,7 +226,7 @@ class FilterModule:
                 array = self._array(name, arg, values[arg.name], steps)
                 keep.append(array)
                 c_args.append(self.buffer(array))
-                if arg.rows:  # 0: one row for every step; the row's length: one per step
+                if arg.strided:  # 0: one row for every step; the row's length: one per step
                     strides.append(arg.size() if array.ndim == 2 else 0)
         if fn.has_steps:
             c_args.insert(0, steps)

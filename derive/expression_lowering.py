@@ -47,7 +47,7 @@ change when symbols are renamed (``t10*t2*t7`` is ``(t10*t2)*t7``, ``t22*t27*t30
 (:mod:`derive.filters.blockwise`) names in ``Program.order_names`` the symbol each of its
 symbols copies: terms and factors are ordered as those of the copied program, so each
 copy lowers to the operations of the original in the same order
-(:mod:`derive.emit.block_lanes` carries identical copies in the lanes of one vector).
+(:mod:`derive.runs.blocks` carries identical copies in the lanes of one vector).
 
 Operation kinds: :data:`derive.trees.KINDS`; the rules that price a shared subexpression
 (:mod:`derive.optimise`) and the ones that lower a program (:mod:`derive.lowering`) are

@@ -22,6 +22,7 @@ two computed values, counted as ``select``.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import fields, replace
@@ -38,6 +39,7 @@ if TYPE_CHECKING:
     from derive.lowering import LoweredProgram
     from derive.program import Program
 
+#: The languages derive prints, each with its rules of counting here.
 LANGUAGES = ("python", "c")
 
 
@@ -336,22 +338,50 @@ def _count_tokens(text: str, fma_name: str, fnma_name: str) -> OpCount:
 
 def c_function_body(source: str, function_name: str) -> str:
     """The text between the braces of the definition of ``function_name`` in C source
-    (comments removed)."""
-    source = re.sub(r"/\*.*?\*/", " ", source, flags=re.S)
-    for m in re.finditer(rf"\b{re.escape(function_name)}\s*\(", source):
-        depth, pos = 1, m.end()
-        while depth and pos < len(source):
-            depth += {"(": 1, ")": -1}.get(source[pos], 0)
-            pos += 1
-        rest = source[pos:].lstrip()
-        if rest.startswith("{"):
-            start = source.index("{", pos)
-            depth, pos = 1, start + 1
-            while depth:
-                depth += {"{": 1, "}": -1}.get(source[pos], 0)
-                pos += 1
-            return source[start + 1:pos - 1]
-    raise ValueError(f"no definition of {function_name!r} in the C source")
+    (comments removed).  Each definition is looked up once per source
+    (:func:`_c_definitions`): a whole-catalog check asks for thousands."""
+    bodies = _c_definitions(source)
+    if function_name not in bodies:
+        bodies[function_name] = _find_body(_without_comments(source), function_name)
+    body = bodies[function_name]
+    if body is None:
+        raise ValueError(f"no definition of {function_name!r} in the C source")
+    return body
+
+
+@functools.lru_cache(maxsize=8)
+def _without_comments(source: str) -> str:
+    return re.sub(r"/\*.*?\*/", " ", source, flags=re.S)
+
+
+@functools.lru_cache(maxsize=8)
+def _c_definitions(source: str) -> dict[str, str | None]:
+    """The bodies of ``source``'s functions found so far (None: no definition)."""
+    return {}
+
+
+_PARENS, _BRACES, _SPACE = re.compile(r"[()]"), re.compile(r"[{}]"), re.compile(r"\s*")
+
+
+def _closing(pattern: re.Pattern, text: str, pos: int) -> int:
+    """The position after the bracket closing the one just before ``pos`` (the end of
+    ``text`` if it is never closed)."""
+    depth = 1
+    for m in pattern.finditer(text, pos):
+        depth += 1 if m.group() in "({" else -1
+        if not depth:
+            return m.end()
+    return len(text)
+
+
+def _find_body(text: str, function_name: str) -> str | None:
+    """The body of the first ``function_name(...)`` in ``text`` followed by a brace."""
+    for m in re.finditer(rf"\b{re.escape(function_name)}\s*\(", text):
+        pos = _SPACE.match(text, _closing(_PARENS, text, m.end())).end()
+        if text.startswith("{", pos):
+            end = _closing(_BRACES, text, pos + 1)
+            return text[pos + 1:end - 1]
+    return None
 
 
 def count_c_function(source: str, function_name: str) -> OpCount:

@@ -19,12 +19,14 @@ from .errors import FilterError, ModelFileError
 from .filters import available, derive_unit, kind
 from .filters.blockwise import whole_size
 from .filters.sensors import uses_sensor_run
+from .flops import LANGUAGES
 from .model import ModelRef
 from .modelfile import MAX_BLOCK_SIZE, load_model_file
 from .options import SharedOptions, per_filter, python_command, regenerate_command, validate
 from .runs.unit import Unit
 
-LANGS = ("python", "c", "all")
+#: What ``--lang`` chooses: each choice's languages (derive.flops.LANGUAGES, or all of them).
+LANG_CHOICES = {"python": ("python",), "c": ("c",), "all": LANGUAGES}
 
 
 def is_model_file(ref: str) -> bool:
@@ -64,9 +66,9 @@ def file_bound_refusal(model, name: str, options: SharedOptions, model_ref: str 
 
 
 def check_lang(lang: str) -> None:
-    """FilterError unless ``lang`` is one of :data:`LANGS`."""
-    if lang not in LANGS:
-        raise FilterError(f"language {lang!r} is not one of {', '.join(LANGS)}")
+    """FilterError unless ``lang`` is one of :data:`LANG_CHOICES`."""
+    if lang not in LANG_CHOICES:
+        raise FilterError(f"language {lang!r} is not one of {', '.join(LANG_CHOICES)}")
 
 
 def command_unit(model, name: str, options: Mapping | SharedOptions | None = None,

@@ -62,7 +62,7 @@ class _Select(sympy.Function):
 
     def _eval_derivative(self, s):
         left, right, a, b = self.args
-        return type(self)(left, right, a.diff(s), b.diff(s))
+        return guarded(type(self), left, right, a.diff(s), b.diff(s))
 
     def _eval_is_real(self):
         return self.args[2].is_real and self.args[3].is_real
@@ -98,7 +98,65 @@ class IfAtLeast(_Select):
         return difference.is_nonnegative
 
 
+class _Guard:
+    """A divisor of a select's branch kept off zero where that branch is not chosen: the
+    divisor d where the select's condition chooses its branch, else 1 (``(l, r, d, 1)``
+    in its ``a`` branch, ``(l, r, 1, d)`` in its ``b`` branch). Its derivative is d's
+    alone: it is read only inside the branch, where it is d."""
+
+    def _eval_derivative(self, s):
+        a, b = self.args[2:]
+        return (b if a == 1 else a).diff(s)
+
+
+class GuardGreater(_Guard, IfGreater):
+    """:class:`IfGreater` guarding a divisor (:class:`_Guard`)."""
+
+
+class GuardAtLeast(_Guard, IfAtLeast):
+    """:class:`IfAtLeast` guarding a divisor (:class:`_Guard`)."""
+
+
 SELECTS = (IfGreater, IfAtLeast)
+_GUARD_OF = {IfGreater: GuardGreater, IfAtLeast: GuardAtLeast}
+
+
+def _kept_off_zero(expr: sympy.Expr, select, left, right, chosen: bool) -> sympy.Expr:
+    """``expr`` (a branch of ``select(left, right, ...)``: the ``a`` branch where
+    ``chosen``) with each divisor that shares a symbol with the condition guarded: the
+    base of a power with a negative exponent replaced by the select's guard of it (the base
+    where the branch is chosen, else 1), unless it is that guard already."""
+    if not isinstance(expr, sympy.Basic) or expr.is_Atom:
+        return expr
+    symbols = left.free_symbols | right.free_symbols
+    guard = _GUARD_OF[select]
+
+    def divisor(e) -> bool:
+        if not (e.is_Pow and e.exp.is_number and e.exp.is_negative) or e.base.is_number:
+            return False
+        base = e.base
+        if isinstance(base, guard) and base.args[:2] == (left, right) \
+                and (base.args[3] == 1) == chosen:
+            return False
+        return bool(base.free_symbols & symbols)
+
+    def kept(e):
+        base = guard(left, right, e.base, sympy.S.One) if chosen else \
+            guard(left, right, sympy.S.One, e.base)
+        return sympy.Pow(base, e.exp)
+
+    return expr.replace(divisor, kept)
+
+
+def guarded(select, left, right, a: sympy.Expr, b: sympy.Expr) -> sympy.Expr:
+    """``select(left, right, a, b)`` (IfGreater or IfAtLeast) whose branches divide only by
+    numbers that are off zero where the branch is not chosen (:func:`_kept_off_zero`): the
+    branch not taken is computed (a select, no jump) but never divides by zero, so C gets
+    no infinity and Python on plain floats no ZeroDivisionError; each guard is one more
+    comparison and select, counted as such."""
+    select = next(cls for cls in SELECTS if issubclass(select, cls))
+    return select(left, right, _kept_off_zero(a, select, left, right, True),
+                  _kept_off_zero(b, select, left, right, False))
 #: What :func:`selects` rewrites (and what a derivative of ``Abs`` brings back).
 GUARDS = (sympy.Piecewise, sympy.Max, sympy.Min, sympy.sign)
 
@@ -109,13 +167,13 @@ def _condition(cond, a: sympy.Expr, b: sympy.Expr, where: str) -> sympy.Expr:
     if cond is sympy.false:
         return b
     if isinstance(cond, sympy.StrictGreaterThan):
-        return IfGreater(cond.lhs, cond.rhs, a, b)
+        return guarded(IfGreater, cond.lhs, cond.rhs, a, b)
     if isinstance(cond, sympy.GreaterThan):
-        return IfAtLeast(cond.lhs, cond.rhs, a, b)
+        return guarded(IfAtLeast, cond.lhs, cond.rhs, a, b)
     if isinstance(cond, sympy.StrictLessThan):
-        return IfGreater(cond.rhs, cond.lhs, a, b)
+        return guarded(IfGreater, cond.rhs, cond.lhs, a, b)
     if isinstance(cond, sympy.LessThan):
-        return IfAtLeast(cond.rhs, cond.lhs, a, b)
+        return guarded(IfAtLeast, cond.rhs, cond.lhs, a, b)
     raise GuardError(f"{where}: condition {cond} is not one comparison (<, <=, >, >=) of two "
                      "expressions")
 
@@ -132,8 +190,8 @@ def _extremum(func, args: tuple[sympy.Expr, ...]) -> sympy.Expr:
     ordered = sorted(args, key=lambda e: (e.is_number, sympy.default_sort_key(e)))
     acc = ordered[0]
     for other in ordered[1:]:
-        acc = IfAtLeast(acc, other, acc, other) if func is sympy.Max else \
-            IfAtLeast(other, acc, acc, other)
+        acc = guarded(IfAtLeast, acc, other, acc, other) if func is sympy.Max else \
+            guarded(IfAtLeast, other, acc, acc, other)
     return acc
 
 
@@ -172,10 +230,11 @@ def has_guards(expr: sympy.Basic) -> bool:
 def numpy_selects() -> dict:
     """The selects as NumPy functions, for ``sympy.lambdify(..., modules=[this, "numpy"])``
     (the references evaluate the model as generated code does)."""
-    return {"IfGreater": lambda left, right, a, b: np.where(np.greater(left, right), a, b),
-            "IfAtLeast": lambda left, right, a, b: np.where(np.greater_equal(left, right),
-                                                             a, b)}
+    greater = lambda left, right, a, b: np.where(np.greater(left, right), a, b)  # noqa: E731
+    at_least = lambda left, right, a, b: np.where(np.greater_equal(left, right), a, b)  # noqa: E731
+    return {"IfGreater": greater, "IfAtLeast": at_least, "GuardGreater": greater,
+            "GuardAtLeast": at_least}
 
 
-__all__ = ["GUARDS", "SELECTS", "GuardError", "IfAtLeast", "IfGreater", "has_guards",
-           "numpy_selects", "selects"]
+__all__ = ["GUARDS", "SELECTS", "GuardAtLeast", "GuardError", "GuardGreater", "IfAtLeast",
+           "IfGreater", "guarded", "has_guards", "numpy_selects", "selects"]

@@ -40,8 +40,8 @@ class InterfaceError(ValueError):
 
 @dataclass(frozen=True)
 class Argument:
-    """One array argument; ``dims`` may start with ``"steps"``; ``rows``: one row for every
-    step or one row per step, told by the stride argument (C) that follows; ``scratch``:
+    """One array argument; ``dims`` may start with ``"steps"``; ``strided``: one row for
+    every step or one row per step, told by the stride argument (C) that follows; ``scratch``:
     C run's caller-provided work array (written, not a result; Python has none);
     ``py_name``: the name of the generated Python's argument where it differs (run's
     ``zs`` for C's ``z``), which derive.build's wrappers also take as a keyword."""
@@ -50,7 +50,7 @@ class Argument:
     dims: tuple[int | str, ...]
     output: bool = False
     optional: bool = False
-    rows: bool = False
+    strided: bool = False
     py_name: str = ""
     scratch: bool = False
     space: str = ""  # "storage" (x's n numbers) or "tangent" (P's nt x nt), when they differ
@@ -64,7 +64,7 @@ class Argument:
             accepted.append(shape[:1])
         if not self.per_step and len(shape) > 1:
             accepted.append((self.size(),))
-        if self.rows:
+        if self.strided:
             accepted.append((steps,) + shape)
         return accepted
 
@@ -83,7 +83,7 @@ class Argument:
         p_stride``."""
         return (f"{self.name}[{'*'.join(str(d) for d in self.dims)}]"
                 + (" out" if self.output else "") + (" optional" if self.optional else "")
-                + (f" rows {STRIDE}" if self.rows else "")
+                + (f" rows {STRIDE}" if self.strided else "")
                 + (f" {self.space}" if self.space else ""))
 
 
@@ -116,7 +116,7 @@ class Function:
 
         def run_text(a):
             dims = ", ".join(str(d) for d in a.dims)
-            return (f"{a.py_name}[{dims}]" + (f" or {a.py_name}[steps, {dims}]" if a.rows
+            return (f"{a.py_name}[{dims}]" + (f" or {a.py_name}[steps, {dims}]" if a.strided
                                               else "") + (f" {a.space}" if a.space else ""))
         return (f"    {self.program}({', '.join(run_text(a) for a in ins)}) -> "
                 f"({', '.join(run_text(a) for a in outs)})")
@@ -199,7 +199,7 @@ class Interface:
     def block(self) -> str:
         """The machine-readable header line: :data:`MARKER` and the JSON of the C side."""
         data = {"functions": [[f.name, f.program, f.returns_status, f.has_steps,
-                               [[a.name, list(a.dims), a.output, a.optional, a.rows]
+                               [[a.name, list(a.dims), a.output, a.optional, a.strided]
                                 + ([a.scratch, a.py_name] if a.py_name not in ("", a.name)
                                    else [True] if a.scratch else [])
                                 for a in f.arguments]]

@@ -2,7 +2,7 @@
 CLI flag, help, type, default and range.
 
 ``SharedOptions`` holds what several families share (P0 pattern, missing measurements,
-the batch function ``run_tracks``); ``KalmanOptions`` (kf), ``FirOptions``,
+the function ``run_tracks``); ``KalmanOptions`` (kf), ``FirOptions``,
 ``PredictionOptions`` and ``UnscentedOptions`` add their own. Plain dicts from the API
 and the parsed arguments of the CLI are validated here, once, into these types
 (:func:`validate`, :func:`per_filter`); the `derive generate` / `burden` / `verify` flags
@@ -11,7 +11,7 @@ and the parsed arguments of the CLI are validated here, once, into these types
 
 Which filters take an option follows their specs (derive.filters.spec.FilterSpec): a
 filter takes the options of its options class (``FilterSpec.options``), a shared one only
-when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``batch``,
+when the spec has the flag the option ``needs`` (``covariance``, ``missing``, ``run_tracks``,
 ``loglik``).
 The registry hands its specs over once it is built (:func:`use_filters`, called by
 derive.filters), so this module names no filter and imports nothing from derive.filters.
@@ -121,8 +121,13 @@ class SharedOptions:
         help="run also returns each step's Gaussian log-likelihood of the innovation "
              "(lls; C: may be NULL), from the factors of S the update solves with; no "
              "run_tracks")
+    gradient: bool = option(
+        False, flag="--gradient", kind=bool, needs="loglik",
+        help="with --loglik: run also returns each step's exact gradient of the "
+             "log-likelihood with respect to the free parameters p (dlls; C: may be NULL), "
+             "by the sensitivity recursion; no run_tracks")
     run_tracks: bool = option(
-        True, flag="--no-run-tracks", kind=bool, needs="batch",
+        True, flag="--no-run-tracks", kind=bool, needs="run_tracks",
         help="C: leave out MODEL_FILTER_run_tracks (smaller files)")
     gate: float | None = option(
         None, flag="--gate", kind=float, low=0.0, high=1.0, open_low=True, open_high=True,

@@ -27,13 +27,12 @@ from .build import FilterModule, build_c, load_python
 from .emit.render import render_files
 from .emit.write import write_files
 from .errors import FilterError
-from .generation import check_lang, command_unit, resolve_model
+from .generation import LANG_CHOICES, check_lang, command_unit, resolve_model
 from .model import ModelRef
 from .options import SharedOptions
 from .runs.unit import Unit
 
 #: The languages of each ``lang`` argument.
-LANGUAGES = {"python": ("python",), "c": ("c",), "all": ("python", "c")}
 
 
 @dataclass(frozen=True)
@@ -65,7 +64,7 @@ def load_units(units: Sequence[Unit], lang: str = "all", directory: str | Path |
     check_lang(lang)
     files: dict[str, dict[str, str]] = {}
     for unit in units:
-        files.setdefault(unit.model, {}).update(render_files(unit, LANGUAGES[lang]))
+        files.setdefault(unit.model, {}).update(render_files(unit, LANG_CHOICES[lang]))
     if directory is not None:
         return _write_and_load(units, files, Path(directory), extra_cflags, compiler,
                                keep=True)
@@ -122,4 +121,4 @@ def load_generated(model: ModelRef, filter: str, options: Mapping | SharedOption
                       compiler=compiler)[0]
 
 
-__all__ = ["LANGUAGES", "Generated", "load_generated", "load_units"]
+__all__ = ["Generated", "load_generated", "load_units"]

@@ -1,5 +1,5 @@
 """The single-track loop of a generated Python ``run``, read with ``ast``: for the tests of
-its operations (derive.emit.python_loop, derive.emit.shared_blocks)."""
+its operations (derive.emit.python_loop, derive.runs.shared)."""
 
 from __future__ import annotations
 

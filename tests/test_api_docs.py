@@ -21,7 +21,7 @@ def test_every_signature_on_the_page_is_pythons():
     shown = re.findall(r"```text\n(derive\.[\w.]+)(\(.*\))\n```", PAGE)
     assert {name for name, _ in shown} == {
         "derive.LinearModel", "derive.NonlinearModel", "derive.Sensor", "derive.generate",
-        "derive.build_c", "derive.load_python", "derive.batch.run_tracks"}
+        "derive.build_c", "derive.load_python", "derive.batch.run_tracks", "derive.fit"}
     for name, text in shown:
         module, _, attribute = name.rpartition(".")
         obj = getattr(importlib.import_module(module), attribute)

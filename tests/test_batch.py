@@ -13,9 +13,9 @@ import pytest
 import sympy
 
 from derive import LinearModel, batch, cli
-from derive.apps.bench import scaling
-from derive.apps.bench.batch import make_batch
 from derive.apps.bench.run import BenchResult, Settings
+from derive.apps.bench.throughput import scaling
+from derive.apps.bench.throughput.batch import make_batch
 from derive.errors import ModelError, NumericalError, ShapeError
 from derive.pipeline import load_generated
 

@@ -4,17 +4,22 @@ wall-clock assertions."""
 
 from __future__ import annotations
 
+import ast
 import json
 import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from derive import cli
-from derive.apps.bench import batch, probe, timing
-from derive.apps.bench.bound import case_bound
+from derive.apps.bench import bars as bar_table
+from derive.apps.bench import timing
+from derive.apps.bench.bars import BARS, REFERENCE
 from derive.apps.bench.cases import CASES, Case, Skip, make_data, states
+from derive.apps.bench.machine import probe
+from derive.apps.bench.machine.bound import case_bound
 from derive.apps.bench.run import (
     IMPLEMENTATIONS,
     LATENCY_SCHEDULE,
@@ -25,6 +30,7 @@ from derive.apps.bench.run import (
     run_bench,
     time_catalog_generation,
 )
+from derive.apps.bench.throughput import batch
 from derive.options import taken_by
 
 TINY = Settings(c_steps=200, python_steps=20, nonlinear_python_steps=10, repeats=1,
@@ -80,7 +86,7 @@ def test_peers_without_the_filter_are_skipped_with_a_reason(result):
 
 
 def test_missing_peer_is_skipped_not_faked(monkeypatch, tmp_path):
-    from derive.apps.bench import peers
+    from derive.apps.bench.peers import libraries as peers
 
     monkeypatch.setitem(sys.modules, "pykalman", None)   # import raises ImportError
     data = make_data(Case("kf", "mpt3d_b"), 10)
@@ -128,13 +134,41 @@ def test_scaled_bars_use_the_reference_points_measured_in_the_run(result):
     scaled = {b.claim.split(",")[0]: b for b in result.bars() if b.claim.startswith("scaled:")}
     casadi = result.row("KF mpt3d_a", "CasADi C").timing.median
     kf = scaled["scaled: generated C KF mpt3d_a per step"]
-    assert kf.bar == pytest.approx(10e-9 * casadi / 48e-9)
+    assert kf.bar == pytest.approx(BARS["kf_c_step"] * casadi / REFERENCE["casadi_kf_step"])
     assert kf.value == result.row("KF mpt3d_a", "generated C").timing.median
     sskf = scaled["scaled: generated C SSKF mpt3d_a per step"]
-    assert sskf.bar == pytest.approx(1.25 * 2 * result.machine["latency"]["fma"])
+    assert sskf.bar == pytest.approx(BARS["sskf_over_two_fmas"] * 2
+                                     * result.machine["latency"]["fma"])
     filterpy = result.row("KF mpt3d_a", "FilterPy").timing.median
     py = scaled["scaled: generated pure-Python KF mpt3d_b x 3 per step"]
-    assert py.bar == pytest.approx(1.2e-6 * filterpy / 17e-6)
+    assert py.bar == pytest.approx(BARS["kf_python_step_scaled"] * filterpy
+                                   / REFERENCE["filterpy_kf_step"])
+
+
+def _numbers(expression: ast.AST) -> list[float]:
+    """The numbers written in an expression, but 0 (a default, never a bar)."""
+    return [n.value for n in ast.walk(expression) if isinstance(n, ast.Constant)
+            and type(n.value) in (int, float) and n.value != 0]
+
+
+def test_the_bars_are_one_table():
+    """Every number the bench holds a measurement to is an entry of derive.apps.bench.bars:
+    no module of the bench binds a name of a bar to a number or passes one as a bar."""
+    bench = Path(bar_table.__file__).parent
+    found = []
+    for path in sorted(bench.rglob("*.py")):
+        if path == Path(bar_table.__file__):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Assign) and any(
+                    isinstance(t, ast.Name) and t.id.endswith(("_BAR", "_BARS"))
+                    for t in node.targets):
+                found += [(path.name, node.lineno, n) for n in _numbers(node.value)]
+            if isinstance(node, ast.Call) and getattr(node.func, "id", "") in (
+                    "Bar", "bar_type") and len(node.args) > 2:
+                found += [(path.name, node.lineno, n) for n in _numbers(node.args[2])]
+    assert not found, f"bars written outside derive/apps/bench/bars.py: {found}"
+    assert all(isinstance(v, float) and v > 0 for v in BARS.values())
 
 
 def test_catalog_generation_is_timed_when_asked(tmp_path):
@@ -166,9 +200,15 @@ def test_states_joins_copies():
     assert states(a, 5).shape == (5, 2)
 
 
-def test_bench_command_prints_the_table(monkeypatch, capsys):
+def test_bench_command_prints_the_table(result, monkeypatch, capsys):
+    """The command runs the bench with --quick's settings and prints its JSON; the bench
+    itself is the one the fixture ran (a second run of it would double the file's time)."""
+    asked = []
     monkeypatch.setattr("derive.apps.bench.run.Settings.quick", classmethod(lambda cls: TINY))
+    monkeypatch.setattr("derive.apps.bench.run.run_bench",
+                        lambda settings, progress=None: asked.append(settings) or result)
     assert cli.main(["bench", "--quick", "--json"]) == 0
+    assert asked == [TINY]
     data = json.loads(capsys.readouterr().out)
     assert {r["case"] for r in data["rows"]} == {c.label for c in CASES}
     assert cli.main(["bench", "--repeats", "0"]) == 2
@@ -185,7 +225,8 @@ def test_the_larger_bound_applies_and_both_are_printed():
     assert Row("x", "generated C", timing_, 1.0, 0.0, bound=8e-9).limit == (8e-9, "chain")
     kf = Row("KF mpt3d_a", "generated C", timing_, 1.0, 0.0, bound=2e-9, memory=1e-9)
     bars = BenchResult(TINY, {"latency": {}}, [kf, chain])._chain_bars()
-    assert [b.bar for b in bars[:2]] == [pytest.approx(1.2 * 2e-9), pytest.approx(1.5 * 2.5e-9)]
+    assert [b.bar for b in bars[:2]] == [pytest.approx(BARS["kf_over_bound"] * 2e-9),
+                                         pytest.approx(BARS["sskf_over_bound"] * 2.5e-9)]
     assert bars[1].value == timing_.low   # the fastest repeat, as the probes are least times
     assert "chain bound 1 ns, memory-traffic bound 2.5 ns: the memory traffic applies" in \
         bars[1].note and bars[1].met

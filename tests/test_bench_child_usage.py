@@ -1,4 +1,4 @@
-"""derive.apps.bench.child_usage: a command's peak memory is its own, not the bench's
+"""derive.apps.bench.costs.child_usage: a command's peak memory is its own, not the bench's
 (Linux carries a forked child's peak across exec), and a hung command is killed."""
 
 import sys
@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from derive.apps.bench.child_usage import run_measured
+from derive.apps.bench.costs.child_usage import run_measured
 
 MB = 1e6
 

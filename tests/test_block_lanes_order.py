@@ -1,7 +1,8 @@
 """The renamed copies of a block lower to the block's operations in the same order
 (``Program.order_names``, derive.filters.blockwise), so every blockwise filter of identical
 blocks is identical up to naming and its C run carries the blocks in vector lanes
-(derive.emit.block_lanes), bitwise the scalar run, with the counts unchanged."""
+(derive.runs.blocks, derive.emit.c_lanes), bitwise the scalar run, with the counts
+unchanged."""
 
 from __future__ import annotations
 
@@ -13,13 +14,14 @@ import sympy
 from test_perf_block_lanes import FLAGS, _data, _pair, _run
 
 from derive import LinearModel, catalog
-from derive.emit import block_lanes, c_vector
+from derive.emit import c_vector
 from derive.emit.render import _lowered
 from derive.filters import available
 from derive.flops import count_lowered
 from derive.generation import command_unit
 from derive.lowering import lower_program
 from derive.program import Port, Program
+from derive.runs import blocks as block_split
 from derive.statements import Assign, Temporary
 from derive.trees import rename_tree
 
@@ -47,9 +49,9 @@ def test_every_blockwise_filter_of_identical_blocks_splits_into_lanes(name, mode
                                                                        filter_name,
                                                                        monkeypatch):
     # two blocks (gsm2d_a) keep the scalar run, but are identical up to naming as well
-    monkeypatch.setattr(block_lanes, "FEWEST_LANES", 2)
+    monkeypatch.setattr(block_split, "FEWEST_LANES", 2)
     step = _lowered(command_unit(model, filter_name), True)["step"].without_pattern_checks()
-    lanes = block_lanes.split(step)
+    lanes = block_split.split(step)
     assert lanes is not None, f"{name} {filter_name}: blocks differ beyond naming"
     blocks = len(lanes.inputs[("x", 0)])
     assert lanes.lanes == blocks

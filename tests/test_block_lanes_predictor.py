@@ -1,8 +1,8 @@
-"""The predictor's C run carries identical blocks in vector lanes too (derive.emit.block_lanes):
+"""The predictor's C run carries identical blocks in vector lanes too (derive.runs.blocks):
 it starts from init's x_init as the scalar run, takes the two-step pass, and is bitwise
 the scalar C99 run (-D DERIVE_VECTOR=0) under every build setting; both branches
 compile with the strict flags. The smoother and the UDKF keep the scalar run (reasons in
-block_lanes.LANE_KINDS and docs/performance.md)."""
+derive.runs.blocks.LANE_KINDS and docs/performance.md)."""
 
 from __future__ import annotations
 

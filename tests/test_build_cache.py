@@ -12,7 +12,7 @@ import pytest
 from _backend_kf import steady_reference, steady_unit
 
 from derive import build
-from derive.apps.bench import probe
+from derive.apps.bench.machine import probe
 from derive.build import UnsafeCacheError, build_c, cache_dir
 from derive.emit.render import render_files
 from derive.emit.write import write_files

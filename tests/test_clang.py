@@ -22,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _loose_float_bounds import LOOSE_FLOAT_BOUNDS
 from test_perf_block_lanes import CASES, FLAGS, SCALAR, _data, _run
 
 from derive import catalog
@@ -31,7 +30,6 @@ from derive.build import CONVERSION_CFLAGS
 from derive.filters import available
 from derive.generation import command_unit
 from derive.pipeline import load_units
-from derive.precision import FLOAT
 
 ROOT = Path(__file__).resolve().parent.parent
 CLANG, CLANGXX, GCC = shutil.which("clang"), shutil.which("clang++"), shutil.which("gcc")
@@ -66,7 +64,7 @@ def test_the_catalog_built_by_clang_compiles_strictly_and_agrees_with_the_refere
     """Every catalog filter, written to a folder and built by Clang (build_c's
     ``compiler``) into one extension: each file compiled with ``clang -std=c99 -O2 -Wall
     -Wextra -Werror -pedantic -Wdouble-promotion -Wfloat-conversion -Wconversion`` (the
-    double files are the committed ones, tests/test_generate.py), all headers of the
+    double files are the committed ones, tests/test_determinism.py), all headers of the
     precision included together by one C++ file under ``clang++ -std=c++11 -Wall -Wextra
     -Werror -pedantic``, and every filter verified as ``derive verify`` does: double 1e-12
     relative for linear filters (or the double bound where the model's conditioning puts
@@ -98,14 +96,10 @@ def test_the_catalog_built_by_clang_compiles_strictly_and_agrees_with_the_refere
 
     results = [verify_modules(model, g.unit.filter, {"c": g.c}, 1000, 7, options, g.unit)[0]
                for model, g in zip(models, loaded)]
-    loose = [r for r in results if (r.model, r.filter) in LOOSE_FLOAT_BOUNDS
-             and precision == "float"]
-    failed = [r.line() for r in results if not r.passed and r not in loose]
+    failed = [r.line() for r in results if not r.passed]
     assert not failed, "\n".join(failed)
-    assert all(r.error < FLOAT.unit_roundoff**0.5 for r in loose), [r.line() for r in loose]
     if precision == "float":
-        assert all(r.bound is not None and (r.bound.meaningful or r in loose)
-                   for r in results)
+        assert all(r.bound is not None and r.bound.meaningful for r in results)
 
 
 def _lane_units():

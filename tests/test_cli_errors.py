@@ -61,8 +61,8 @@ def test_a_usage_error_found_by_argparse_is_one_line(tmp_path):
      "derive: error: argument --P0-pattern: invalid choice: 'diag' (choose from 'dense', "
      "'zero', 'diagonal', 'block') (did you mean 'diagonal'?)"),
     (["verfy"], "derive: error: argument COMMAND: invalid choice: 'verfy' (choose from "
-                "'list', 'show', 'check', 'generate', 'verify', 'burden', 'audit', 'gnss', "
-                "'size', 'reproduce', 'bench') (did you mean 'verify'?)")],
+                "'list', 'show', 'check', 'generate', 'verify', 'fit', 'burden', 'audit', "
+                "'gnss', 'size', 'reproduce', 'bench') (did you mean 'verify'?)")],
     ids=["option", "command"])
 def test_an_invalid_choice_gets_a_close_match_and_the_common_prefix(capsys, argv, line):
     assert main(argv) == 2

@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import shutil
 
-import numpy as np
 import pytest
-from _loose_float_bounds import LOOSE_FLOAT_BOUNDS
 
 from derive import LinearModel, catalog
 from derive.apps.float_tolerance import (
@@ -32,6 +30,7 @@ from derive.apps.float_tolerance import (
     error_growth,
     float_tolerance,
     growth_of,
+    in_double,
     rounding_depth,
     run_roundings,
 )
@@ -76,27 +75,29 @@ def catalog_results():
 
 
 def test_every_catalog_filter_in_float32_agrees_within_its_derived_tolerance(catalog_results):
-    meaningful = [r for r in catalog_results if r.bound.meaningful]
-    failed = [r.line() for r in meaningful if not r.passed]
+    failed = [r.line() for r in catalog_results if not r.passed]
     assert not failed, "\n".join(failed)
-    for r in meaningful:
+    for r in catalog_results:
         assert r.tolerance == r.bound.value
-        # the error is that of float32, not of double: above the double's unit roundoff
-        # times the same chain, so the test is of float code indeed
-        assert r.error > 2.0**-53 * r.bound.roundings, r.line()
+        # the error is that of float32, not of double: above the same bound in double,
+        # so the test is of float code indeed
+        assert r.error > in_double(r.bound).value, r.line()
 
 
 def test_every_catalog_bound_is_meaningful(catalog_results):
     """No catalog filter is beyond float32 by its bound: the INS/GNSS EKF, once refused for
-    cond P(1/0) ~ 2e6, which the EKF never inverts (tests/test_float_bound.py), and the
-    GNSS UKF, whose pseudoranges of 2e7 m have float32 spacing 2 m, now that it forms its
-    sigma-point spreads of metres in difference form (derive.filters.difference;
-    tests/test_float_ukf.py)."""
-    refused = {(r.model, r.filter) for r in catalog_results if not r.bound.meaningful}
-    assert refused == LOOSE_FLOAT_BOUNDS
-    for r in catalog_results:
-        if (r.model, r.filter) in LOOSE_FLOAT_BOUNDS:
-            assert np.isfinite(r.error) and r.error < FLOAT.unit_roundoff**0.5, r.line()
+    cond P(1/0) ~ 2e6, which the EKF never inverts (tests/test_float_bound.py); the
+    24-state flight-controller filters, whose weakly observed states (the earth field, the
+    magnetic bias, the wind) the sensors units' first-order bound carries by the filter's
+    own maps, not by norms of their products; and the GNSS UKF, whose pseudoranges of 2e7 m
+    have float32 spacing 2 m, now that it forms its sigma-point spreads of metres in
+    difference form (derive.filters.difference; tests/test_float_ukf.py)."""
+    refused = [r.line() for r in catalog_results if not r.bound.meaningful]
+    assert not refused, "\n".join(refused)
+    # the CTRV turn's omega-Jacobian cancels u / (omega dt)^2 of itself in float32: the
+    # model expands the turn below |omega dt| = 0.03 (4e-2 of P when it did at 1e-4)
+    ctrv = [r for r in catalog_results if r.model == "ctrv_radar"]
+    assert ctrv and all(r.error < 1e-3 for r in ctrv), [r.line() for r in ctrv]
     ukf = next(r for r in catalog_results if (r.model, r.filter) == ("gnss_pseudorange", "ukf"))
     assert ukf.passed and ukf.error < FLOAT.unit_roundoff**0.5, ukf.line()
 

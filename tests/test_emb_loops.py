@@ -15,7 +15,7 @@ import pytest
 from conftest import AXIS_VALUES, axis_model
 
 from derive import catalog, cli
-from derive.apps.bench import compile_size
+from derive.apps.bench.costs import compile_size
 from derive.build import build_c
 from derive.emit import c_loops, c_printer
 from derive.emit.c_loops import LANES, _element

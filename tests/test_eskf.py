@@ -214,9 +214,30 @@ def test_symforce_rot3_predict_is_the_function_eskf_computes():
     assert np.abs(P_peer - P_new.reshape(23, 23)).max() <= 1e-14 * np.abs(P_new).max()
 
 
-def test_eskf_refuses_an_angle_measurement_it_would_not_wrap():
-    """eskf's updates do not wrap an innovation yet: a declared angle measurement (psi's,
-    whose residual near ±pi would be off by 2 pi with status 0) is refused in one line."""
-    model = attitude_and_heading(angles=["zpsi"])
-    with pytest.raises(FilterError, match=r"does not wrap angle measurements; .*\['zpsi'\]"):
-        derive_unit(model, "eskf")
+def test_eskf_wraps_angle_measurements_and_takes_a_state_dependent_r(tmp_path):
+    """An angle measurement (psi's, whose truth wraps through ±pi every few steps) has its
+    innovation wrapped to (-pi, pi] in the generated Python and C and in the reference
+    (1e-12 apart, 300 steps), and an R that depends on the state is evaluated at
+    x(k/k-1); without the declaration the same filter's heading is off by turns."""
+    psi = sympy.Symbol("psi", real=True)
+    R = sympy.diag(1e-3, 1e-3, 1e-3, 1e-2 * (1 + sympy.cos(psi) ** 2 / 2))
+    model = attitude_and_heading(angles=["zpsi"], R=R)
+    options = validate("eskf", {})
+    generated = load_generated(model, "eskf", options, "all", tmp_path)
+    assert any("innovations wrapped" in fact for fact in generated.unit.facts)
+    assert any("R at x(k/k-1)" in fact for fact in generated.unit.facts)
+    case = sensors_case(model, "eskf", 300, 7, options)
+    assert np.ptp(case.run.truth[:, 4]) > 6.0  # the angle wraps
+    for module in (generated.python, generated.c):
+        xs, Ps = module.run(*case.arguments().values())
+        assert relative_error(np.asarray(xs), case.reference.xs) <= 1e-12
+        assert relative_error(np.asarray(Ps).reshape(300, 4, 4), case.reference.Ps) <= 1e-12
+
+    def heading_error(xs):
+        return np.abs(manifolds.wrap_numeric(np.asarray(xs)[:, 4] - case.run.truth[1:, 4]))
+
+    assert heading_error(case.reference.xs).max() < 0.5
+    plain = attitude_and_heading(R=R)
+    unwrapped = sensors_case(plain, "eskf", 300, 7, options).reference.xs
+    assert heading_error(unwrapped).max() > 1.0
+

@@ -1,9 +1,10 @@
 """float32 C for units of the run kind ``sensors`` (several sensors at their own rates,
 gating, update-first): generated with --precision float, compiled with the strict and the
 conversion flags, run through derive.build with float32 arrays, against the float64
-reference within the tolerance derived for it (derive.apps.float_tolerance: L through
-predict and every update run calls on a step, G and kappa from the sensors reference
-run's trace); and derive.batch's Dask path in the kernel's element type.
+reference within the tolerance derived for it (derive.apps.float_tolerance: the running
+error of predict and every update run calls on a step, carried by the filter's maps of the
+sensors reference run's trace); and derive.batch's Dask path in the kernel's element
+type.
 
 The 16-state INS/GNSS EKF (SPEC.md section 8) is the catalog's ins_gnss (verify runs it with
 its example dt = 0.01, one p row per step).
@@ -19,14 +20,12 @@ from test_nav_sensors import TWO_SENSORS, attitude, rates  # the models of the s
 
 from derive import batch, catalog
 from derive.apps.float_tolerance import (
-    EXTRA_ROUNDINGS,
-    C,
-    chained_depth,
+    PropagatedTolerance,
     float_tolerance,
-    growth_of,
-    rounding_depth,
-    run_growth,
-    run_roundings,
+    in_double,
+    local_errors,
+    measure_scales,
+    propagated_bound,
     sensors_conditioning,
     step_programs,
 )
@@ -36,7 +35,6 @@ from derive.cli import main
 from derive.errors import DtypeError
 from derive.filters.sensors import reference_run
 from derive.generation import command_unit
-from derive.lowering import lower_program
 from derive.modelfile import loads_model
 from derive.pipeline import load_generated, load_units
 from derive.precision import FLOAT
@@ -125,68 +123,36 @@ def test_float32_sensors_c_agrees_with_the_float64_reference_within_its_bound(
     bound = float_tolerance(model, generated.unit, steps, sensors_conditioning(model, trace))
     assert bound.meaningful
     assert error <= bound.value, (error, bound.text())
-    # float32 indeed: the error is above what double would make over the same chain
-    assert error > 2.0**-53 * bound.roundings
+    # float32 indeed: the error is above the same bound in double
+    assert error > in_double(bound).value
 
 
-def test_the_bound_of_a_sensors_unit_is_built_from_its_programs_and_its_run():
-    """L: the longest chain through predict and every update (each program's x_new and
-    P_new enter the next at the depth they left with: at least the deepest program's, at
-    most their sum), + 2; G from the run's per-step maps; kappa: the largest over the
-    steps of the KF's conditioning (its spec's): the S's condition scaled to a unit
-    diagonal (what an LDL^T solve's error depends on) times the update's ratio ||P before||
-    / ||P after|| (at the measure's scale, max(., 1), at least 1); never P's condition
-    (the KF does not invert P)."""
+def test_the_bound_of_a_sensors_unit_is_its_running_errors_carried_by_its_maps():
+    """The value is u max(x, P) of propagated_bound over the programs' running errors
+    (derive.apps.float_tolerance.local_errors); at least each step's own running error
+    over the measure's scale (the error it makes before anything is carried), linear in
+    u; the running errors start from x0's and P0's rounding."""
     model = loads_model(TWO_SENSORS)
     unit = command_unit(model, "kf", GATED)
     assert step_programs(unit) == ("predict", "update_gps", "update_speed")
-    depths = [rounding_depth(lower_program(unit.programs[name], use_fma=True,
-                                           state_ports=("x", "P")))
-              for name in step_programs(unit)]
-    assert all(d > 0 for d in depths)
-    chained = chained_depth(unit, step_programs(unit))
-    assert max(depths) <= chained <= sum(depths)
-    assert run_roundings(unit) == chained + EXTRA_ROUNDINGS
     steps = 400
     us, dt, zs = cart2_data(steps, 5)
     trace: list = []
-    reference_run(model, GATED, zs, us, dt, np.zeros(2), np.eye(2), trace=trace)
+    x0, P0 = np.array([0.5, -0.25]), np.eye(2)
+    reference_run(model, GATED, zs, us, dt, x0, P0, trace=trace)
     run = sensors_conditioning(model, trace)
-    assert len(run.maps) == steps and run.cycle == 20  # the GPS's period
-    def unit_diagonal(S):
-        d = 1.0 / np.sqrt(np.diag(S))
-        return np.linalg.cond(S * np.outer(d, d))
-
-    def at_scale(P):   # the measure judges P at its own size
-        return np.abs(P).sum(axis=1).max()
-
-    kappa = max(max([unit_diagonal(u.S) for u in step.updates], default=1.0)
-                * max([max(1.0, at_scale(u.P) / at_scale(u.P - u.K @ u.S @ u.K.T))
-                       for u in step.updates if u.applied], default=1.0)
-                for step in trace)
+    assert len(run.maps) == len(run.transitions) == steps
+    Dx, DP = local_errors(unit, run.trace)
+    assert Dx.shape == (steps, 2) and DP.shape == (steps, 2, 2)
+    assert np.all(Dx[0] > np.abs(x0)) and np.all(DP[0] > np.abs(P0))
     bound = float_tolerance(model, unit, steps, run)
-    assert bound.condition == kappa and bound.growth == run_growth(run.maps, 20)
-    assert bound.value == C * FLOAT.unit_roundoff * bound.roundings * bound.growth * kappa
-
-
-def test_the_growth_of_a_constant_map_is_that_of_the_steady_state():
-    """With the same map every step, run_growth is growth_of's sum_j ||A^j||, up to where
-    each stops summing (a term below 2^-24 of the sum; the tail is below 2^-23 of it)."""
-    A = np.array([[0.9, 0.2], [-0.1, 0.7]])
-    for steps in (1, 5, 300):
-        assert run_growth([A] * steps, 3) == pytest.approx(growth_of(A, steps),
-                                                            rel=2 * FLOAT.unit_roundoff)
-    assert run_growth([], 1) == 1.0
-
-
-def test_the_gps_period_sets_the_cycle_and_the_growth_covers_its_phases():
-    """The growth over the last cycle's endpoints is at least that of the last step."""
-    model = loads_model(TWO_SENSORS)
-    us, dt, zs = cart2_data(300, 9)
-    trace: list = []
-    reference_run(model, {}, zs, us, dt, np.zeros(2), np.eye(2), trace=trace)
-    run = sensors_conditioning(model, trace)
-    assert run_growth(run.maps, run.cycle) >= run_growth(run.maps, 1) > 1.0
+    x, P = propagated_bound(model, run, Dx, DP, unit_roundoff=1.0)
+    assert bound == PropagatedTolerance(x, P) and bound.meaningful
+    assert bound.value == FLOAT.unit_roundoff * max(x, P)
+    own = Dx.max(axis=1) / measure_scales(np.array([s.x_after for s in trace]))
+    assert x >= own.max()
+    twice = propagated_bound(model, run, Dx, DP, unit_roundoff=2.0)
+    assert twice == pytest.approx((2 * x, 2 * P), rel=1e-12)
 
 
 def test_the_update_first_step_has_no_prediction_in_its_map():

@@ -24,7 +24,7 @@ import pytest
 import sympy
 from filterpy.kalman import ExtendedKalmanFilter
 
-from derive import reference
+from derive import catalog, reference
 from derive.apps import radar
 from derive.apps.verify import nonlinear_scenario, verify_filter
 from derive.catalog import read_text
@@ -35,7 +35,7 @@ from derive.filters import derive_unit
 from derive.filters.nonlinear import wrap_angle
 from derive.flops import OpCounter, count, count_c_function, count_c_text
 from derive.generation import render_filter
-from derive.guards import IfAtLeast, IfGreater, selects
+from derive.guards import GuardGreater, IfAtLeast, IfGreater, selects
 from derive.model import NonlinearModel, Sensor
 from derive.modelfile import load_model_file, loads_model
 from derive.pipeline import load_generated
@@ -61,6 +61,56 @@ def test_guards_become_selects_with_the_stated_side():
     pw = selects(sympy.Piecewise((x ** 2, x > 0), (-x, True)))
     assert pw.diff(x).xreplace({x: 0}) == -1  # x > 0 false at 0: the default's side
     assert jacobian(sympy.Matrix([sympy.Abs(x)]), [x])[0] == sign  # d|x|/dx = sign(x)
+
+
+def test_a_branch_divides_only_by_a_divisor_kept_off_zero_where_it_is_not_taken():
+    """A divisor of a branch that shares a symbol with the condition is the select's guard
+    of it: itself where the branch is taken, else 1; the Jacobian's branches (1/x**2)
+    too; the guard's derivative is the divisor's (it is read only where taken)."""
+    pw = selects(sympy.Piecewise((y / x, x > 0), (y, True)))
+    assert pw == IfGreater(x, 0, y / GuardGreater(x, 0, x, 1), y)
+    assert pw.diff(x) == IfGreater(x, 0, -y / GuardGreater(x, 0, x, 1) ** 2, 0)
+    assert pw.diff(y) == IfGreater(x, 0, 1 / GuardGreater(x, 0, x, 1), 1)
+    other = selects(sympy.Piecewise((x, x > 0), (y / x, True)))  # the default's side
+    assert other == IfGreater(x, 0, x, y / GuardGreater(x, 0, 1, x))
+    free = selects(sympy.Piecewise((x / y, x > 0), (0, True)))  # y is not the guard's
+    assert free == IfGreater(x, 0, x / y, 0)
+    assert [pw.xreplace({x: v, y: 3}) for v in (2, 0)] == [sympy.Rational(3, 2), 3]
+
+
+def test_ctrv_radar_at_a_turn_rate_of_zero_computes_without_dividing_by_it():
+    """The catalog's CTRV turn divides by omega where |omega dt| > 0.03: at omega = 0
+    exactly the generated Python (plain floats, counting) does not raise, counts what it
+    executes as its header does, and predicts the straight line (the small-turn
+    expansion at a turn rate of 0)."""
+    model = catalog.load("ctrv_radar")
+    unit = derive_unit(model, "ekf", {})
+    files = render_filter(model, "ekf", "python")
+    scope: dict = {}
+    exec(compile(files["ekf.py"], "ctrv_radar.py", "exec"), scope)
+    x0 = [-700.0, 5.0, 10.0, 0.3, 0.0]
+    P0 = (np.eye(5) * 2.0).ravel().tolist()
+    counter = OpCounter()
+    x_new, P_new = scope["predict"](counter.wrap(x0), counter.wrap(P0))
+    assert counter.snapshot() == count(unit.programs["predict"], "python")
+    straight = [x0[0] + x0[2] * math.cos(x0[3]), x0[1] + x0[2] * math.sin(x0[3])]
+    assert [v.value for v in x_new[:2]] == pytest.approx(straight, rel=1e-15)
+    plain_x, plain_P = scope["predict"](x0, P0)
+    assert np.all(np.isfinite(plain_x)) and np.all(np.isfinite(plain_P))
+
+
+def test_ctrv_radar_small_turn_expansion_meets_the_turn_at_its_guard():
+    """On either side of |omega dt| = 0.03 the turn and its second-order expansion agree:
+    the step to 1e-5 of its v dt (truncation a^3/24), its omega-derivative to 2e-4
+    (a^2/8, the size of float32's loss u/a^2 in the turn's there)."""
+    v, psi, dt = 10.0, 0.7, 1.0
+    for omega in (0.03, -0.03):
+        below = radar.ctrv(np.array([0.0, 0.0, v, psi, omega * (1 - 1e-12)]), dt)
+        above = radar.ctrv(np.array([0.0, 0.0, v, psi, omega * (1 + 1e-12)]), dt)
+        assert np.abs(below[:2] - above[:2]).max() <= 1e-5 * v * dt
+        F_below = radar.ctrv_jacobian(np.array([0.0, 0.0, v, psi, omega * (1 - 1e-12)]), dt)
+        F_above = radar.ctrv_jacobian(np.array([0.0, 0.0, v, psi, omega * (1 + 1e-12)]), dt)
+        assert np.abs(F_below[:2, 4] - F_above[:2, 4]).max() <= 2e-4 * v * dt**2 / 2
 
 
 def test_a_select_is_one_comparison_and_one_select_printed_and_counted_alike():

@@ -50,7 +50,7 @@ def _programs():
 
 
 def _unit(**changes) -> Unit:
-    fields = {**unit_fields("kf"), "extra_programs": ("enter", "store"), "batch": False}
+    fields = {**unit_fields("kf"), "extra_programs": ("enter", "store"), "run_tracks": False}
     fields.update(changes)
     return Unit(model="toy", filter="skf", n=2, m=1, programs=_programs(),
                 carried=(("x", "x_new"), ("S", "S_new")), command="pytest", **fields)
@@ -78,9 +78,9 @@ def test_carried_state_needs_its_programs():
     with pytest.raises(ProgramError, match="must have outputs"):
         Unit(model="toy", filter="skf", n=2, m=1, programs=programs,
              carried=(("x", "x_new"), ("S", "S_new")),
-             **{**unit_fields("kf"), "extra_programs": ("enter",), "batch": False})
+             **{**unit_fields("kf"), "extra_programs": ("enter",), "run_tracks": False})
     with pytest.raises(ProgramError, match="run_tracks"):
-        _unit(batch=True)
+        _unit(run_tracks=True)
 
 
 def test_a_run_kind_declares_a_caller_provided_work_array(monkeypatch):
@@ -89,12 +89,12 @@ def test_a_run_kind_declares_a_caller_provided_work_array(monkeypatch):
     machine-readable line carry it, Python's run has none."""
     kinds = dict(unit_module.RUN_KINDS)
     kinds["smoothing"] = replace(kinds["timevarying"], name="smoothing",
-                                 work=(("work", ("x_new", "P_new")),), batch=False)
+                                 work=(("work", ("x_new", "P_new")),), run_tracks=False)
     monkeypatch.setattr(unit_module, "RUN_KINDS", MappingProxyType(kinds))
     step = kf_unit().programs["step"]
     unit = Unit(model="cv", filter="sm", n=2, m=1, programs={"step": step},
                 parameters=("dt", "q", "r"),
-                **{**unit_fields("kf"), "run_kind": "smoothing", "batch": False})
+                **{**unit_fields("kf"), "run_kind": "smoothing", "run_tracks": False})
     args = run_arguments(unit)
     assert [a.c_name for a in args] == ["z", "x0", "P0", "xs", "Ps", "work", "p"]
     work = args[5]

@@ -51,7 +51,7 @@ def _programs():
 def test_enter_checks_p0_and_run_reports_its_pattern_status(tmp_path):
     unit = Unit(model="toy", filter="dkf", n=2, m=1, programs=_programs(),
                 carried=(("x", "x_new"), ("S", "S_new")), command="pytest",
-                **{**unit_fields("kf"), "extra_programs": ("enter", "store"), "batch": False})
+                **{**unit_fields("kf"), "extra_programs": ("enter", "store"), "run_tracks": False})
     paths = {p.suffix: p for p in write_files(tmp_path, "toy", render_files(unit))}
     F, W, H, R = (np.array(M, dtype=float) for M in _matrices())
     zs = np.random.default_rng(5).normal(size=(30, 1))
@@ -91,7 +91,7 @@ def test_a_one_state_p0_is_entered_flat_in_python(tmp_path):
                 programs={"step": step.optimize(), "enter": enter.optimize(),
                           "store": store.optimize()},
                 carried=(("x", "x_new"), ("S", "S_new")), command="pytest",
-                **{**unit_fields("kf"), "extra_programs": ("enter", "store"), "batch": False})
+                **{**unit_fields("kf"), "extra_programs": ("enter", "store"), "run_tracks": False})
     paths = {p.suffix: p for p in write_files(tmp_path, "toy", render_files(unit))}
     zs = np.array([[1.0], [2.0], [0.5]])
     one = np.ones((1, 1))

@@ -14,9 +14,10 @@ import derive.filters as filters
 from derive import catalog
 from derive.filters import FILTERS, MISSING_FILTERS, derive_unit
 from derive.filters.spec import FilterSpec
+from derive.flops import LANGUAGES
 from derive.options import taken_by
 from derive.runs import kinds
-from derive.runs.unit import LANGUAGES, RUN_KINDS
+from derive.runs.unit import RUN_KINDS
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATED = ROOT / "generated"
@@ -89,13 +90,13 @@ def test_generated_files_state_the_one_title(name):
             assert phrase == title, (path, phrase)
 
 
-def test_unit_carries_run_kind_carried_state_and_batch():
+def test_unit_carries_run_kind_carried_state_and_run_tracks():
     model = catalog.load("mpt3d_b")
     for name, missing in (("kf", True), ("sskf", False)):
         unit = derive_unit(model, name)
         spec = FILTERS[name]
         assert unit.kind == spec.run_kind and unit.title == spec.title
         assert unit.carried == RUN_KINDS[spec.run_kind].carried
-        assert unit.batch == spec.batch
+        assert unit.run_tracks == spec.run_tracks
         assert spec.missing == missing
-    assert not derive_unit(model, "kf", {"run_tracks": False}).batch
+    assert not derive_unit(model, "kf", {"run_tracks": False}).run_tracks

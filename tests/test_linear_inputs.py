@@ -119,7 +119,7 @@ def test_offset_model_matches_the_hand_derived_filter_in_reference_python_and_c(
 def test_header_states_the_input_convention_and_run_tracks_is_left_out():
     unit = derive_unit(scalar_offset_model(), "kf")
     assert unit.step_inputs == ("z", "u")
-    assert not unit.batch
+    assert not unit.run_tracks
     assert any("x(k+1) = F x(k) + B u(k), z(k+1) = H x(k+1) + D u(k)" in f for f in unit.facts)
 
 

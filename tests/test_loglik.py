@@ -27,8 +27,10 @@ from derive.apps.verify import (
 )
 from derive.cli import main
 from derive.filters import derive_unit
+from derive.fitting import free_text
 from derive.flops import OpCounter, count, count_c_function
 from derive.generation import render_filter
+from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.reference.likelihood import gaussian_loglik, innovations_loglik
 
@@ -152,10 +154,14 @@ def test_ekf_loglik_equals_the_reference_innovations_loglik():
 
 @pytest.mark.parametrize("name, filter_name, options", [
     ("corr", "kf", {"missing": True, "loglik": True}), ("gps_static", "kf", {"loglik": True}),
-    ("mpt3d_a", "udkf", {"missing": True, "loglik": True})])
+    ("mpt3d_a", "udkf", {"missing": True, "loglik": True}),
+    ("cv", "kf", {"missing": True, "gradient": True})])
 def test_the_loglik_step_counts_agree(name, filter_name, options):
-    """Header = Python executed (CountingFloat, np.log a call) = C text, log counted."""
-    model = correlated() if name == "corr" else catalog.load(name)
+    """Header = Python executed (CountingFloat, np.log a call) = C text, log counted; with
+    the option gradient (cv with sq2 and sr2 free) the step carrying the sensitivities."""
+    model = (correlated() if name == "corr" else
+             loads_model(free_text(catalog.read_text(name), ["sq2", "sr2"]))
+             if options.get("gradient") else catalog.load(name))
     unit = derive_unit(model, filter_name, options)
     files = render_filter(model, filter_name, "all", options)
     scope: dict = {}

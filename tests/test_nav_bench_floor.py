@@ -1,8 +1,8 @@
-"""What decides the per-call bars of the navigation rows (derive.apps.bench.navigation):
+"""What decides the per-call bars of the navigation rows (derive.apps.bench.peers.navigation):
 the scalar throughput kernels compute the chains they claim to run
-(derive.apps.bench.throughput), the floor of a count is its slowest pipe's bound, and a bar
-whose need is below that floor says so. No wall-clock assertions: the timings below are
-made up, only the arithmetic on them is checked."""
+(derive.apps.bench.machine.scalar_throughput), the floor of a count is its slowest pipe's
+bound, and a bar whose need is below that floor says so. No wall-clock assertions: the
+timings below are made up, only the arithmetic on them is checked."""
 
 from __future__ import annotations
 
@@ -12,10 +12,11 @@ from fractions import Fraction
 
 import pytest
 
-from derive.apps.bench import generated, throughput
-from derive.apps.bench.navigation import PEER_BARS, TIMED, CountRow, NavigationResult, TimeRow
+from derive.apps.bench import generated
+from derive.apps.bench.machine import scalar_throughput as throughput
+from derive.apps.bench.machine.scalar_throughput import CHAINS, Throughput
+from derive.apps.bench.peers.navigation import PEER_BARS, TIMED, CountRow, NavigationResult, TimeRow
 from derive.apps.bench.run import Bar
-from derive.apps.bench.throughput import CHAINS, Throughput
 from derive.apps.bench.timing import Timing
 from derive.trees import OpCount
 

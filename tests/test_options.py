@@ -116,7 +116,8 @@ def test_an_unknown_option_is_refused_with_a_close_match(tmp_path, capsys):
         generate("mpt3d_b", ["kf"], "all", tmp_path, options={"jospeh": True})
     with pytest.raises(OptionError, match=r"unknown option 'jospeh' \(did you mean "
                                           r"'joseph'\?\); options of kf: P0_pattern, "
-                                          r"missing, loglik, run_tracks, gate, gate_sensors, "
+                                          r"missing, loglik, gradient, run_tracks, gate, "
+                                          r"gate_sensors, "
                                           r"start, "
                                           r"update, prefix, precision, run, joseph, "
                                           r"latency_schedule$"):
@@ -222,7 +223,7 @@ def test_declarations_are_consistent_with_the_registry():
         assert takers(key) and set(takers(key)) <= set(FILTERS), key
         for name in takers(key):
             assert key in options_type(name).specs(), (key, name)
-    assert taken_by("kf") == ["P0_pattern", "missing", "loglik", "run_tracks", "gate",
+    assert taken_by("kf") == ["P0_pattern", "missing", "loglik", "gradient", "run_tracks", "gate",
                               "gate_sensors", "start", "update", "prefix", "precision", "run",
                               "joseph", "latency_schedule"]
     assert taken_by("fir") == ["prefix", "precision", "run", "eps", "order"]

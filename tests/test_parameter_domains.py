@@ -260,7 +260,7 @@ def test_a_composed_model_checks_its_shared_parameter_once(tmp_path):
     # compute what they share once (Python)
     texts = render_filter(model, "kf", "all")
     assert "the identical blocks in the lanes of one vector" in texts["kf.c"]
-    assert "(derive.emit.shared_blocks)" in texts["kf.py"]
+    assert "(derive.runs.shared)" in texts["kf.py"]
     generated = load_generated(model, "kf", None, "all" if GCC else "python", tmp_path)
     num = model.numeric({"dt": 0.5})
     steps = 20

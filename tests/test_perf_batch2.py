@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from derive import aligned, batch, catalog
-from derive.apps.bench import scaling
-from derive.apps.bench.batch import copy_bandwidth, make_batch
+from derive.apps.bench.throughput import scaling
+from derive.apps.bench.throughput.batch import copy_bandwidth, make_batch
 from derive.emit import c_loops
 from derive.errors import DtypeError, ModelError, ShapeError
 from derive.generation import render_filter

@@ -1,8 +1,8 @@
 """The C run carrying a step's identical blocks in the lanes of one vector
-(derive.emit.block_lanes): the same bits as the scalar C99 run (-D DERIVE_VECTOR=0)
-under every build setting, the same status when a check fails, both branches compiled by
-the strict flags, and the header's counts those of the scalar operations. No speed is
-asserted (derive bench prints it)."""
+(derive.runs.blocks, derive.emit.c_lanes): the same bits as the scalar C99 run
+(-D DERIVE_VECTOR=0) under every build setting, the same status when a check fails, both
+branches compiled by the strict flags, and the header's counts those of the scalar
+operations. No speed is asserted (derive bench prints it)."""
 
 from __future__ import annotations
 
@@ -17,13 +17,15 @@ import sympy
 from conftest import AXIS_VALUES, LinearModel, dt, sq2, sr2
 
 from derive import catalog
-from derive.emit import block_lanes, c_vector
+from derive.emit import c_vector
 from derive.emit.render import _lowered
 from derive.errors import NumericalError
 from derive.flops import count_lowered
 from derive.generation import command_unit, render_filter
 from derive.lowering import LoweredAssign
 from derive.pipeline import load_generated
+from derive.runs import blocks, kinds
+from derive.structure import find_blocks
 from derive.trees import Const, Op
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
@@ -136,7 +138,7 @@ def _steps(model_name: str, filter_name: str):
 
 def _split(model_name: str, filter_name: str):
     step = _steps(model_name, filter_name)[1]
-    return step, block_lanes.split(step)
+    return step, blocks.split(step)
 
 
 @pytest.mark.parametrize("model_name, filter_name", CASES)
@@ -153,6 +155,28 @@ def test_the_counts_are_the_scalar_operations_of_every_block(model_name, filter_
     assert f"run: the {lanes.lanes} identical blocks of the step in the lanes" in c
 
 
+def test_the_lanes_pass_marks_the_run_with_every_calls_blocks():
+    """derive.runs.blocks.in_lanes on mpt3d_a's steady filter (its two-step pass: step and
+    pass in one loop, the step again for an odd last step): each call's blocks are the
+    model's blocks, the vector the next power of two wide, every carried element in one
+    lane of one carried vector; a run kind it does not serve is left unmarked."""
+    model = catalog.load("mpt3d_a")
+    unit = command_unit(model, "sskf")
+    lowered = _lowered(unit, True)
+    two = kinds.two_step_map(unit, True)
+    run = kinds.two_steps(kinds.stepping(unit, lowered), unit)
+    laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two})
+    count = len(find_blocks(model))
+    assert laned.lanes.width == 1 << (count - 1).bit_length()
+    assert {name: split.lanes for name, split in laned.lanes.blocks} == \
+        {"step": count, "pass": count}
+    held = sorted(g for _, table in laned.lanes.carried for g in table)
+    assert held == list(range(unit.n))
+    assert [len(outputs) for _, outputs in laned.lanes.sources] == \
+        [len(laned.lanes.carried)] * 2
+    assert blocks.in_lanes(run, "smoother", lowered | {"pass": two}) is None
+
+
 def test_blocks_that_differ_in_one_constant_are_not_put_in_lanes():
     step, lanes = _split("mpt3d_a", "sskf")
     assert lanes is not None and lanes.lanes == 3
@@ -167,7 +191,7 @@ def test_blocks_that_differ_in_one_constant_are_not_put_in_lanes():
         return tree
 
     body[last] = LoweredAssign(body[last].target, bumped(body[last].tree))
-    assert block_lanes.split(replace(step, body=tuple(body))) is None
+    assert blocks.split(replace(step, body=tuple(body))) is None
 
 
 @pytest.mark.parametrize("model_name, filter_name", [("mpt3d_b", "kf"), ("cv", "sskf"),
@@ -198,7 +222,7 @@ def _three_axes_with_parameters():
 def test_blocks_sharing_statements_of_the_parameters_are_bitwise_the_scalar_run(tmp_path,
                                                                                 flags):
     model = _three_axes_with_parameters()
-    lanes = block_lanes.split(_lowered(command_unit(model, "kf"), True)["step"]
+    lanes = blocks.split(_lowered(command_unit(model, "kf"), True)["step"]
                               .without_pattern_checks())
     assert lanes is not None and lanes.lanes == 3 and lanes.shared
     runs = []

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from derive import LinearModel, catalog
-from derive.apps.bench.generation_scaling import (
+from derive.apps.bench.costs.generation_scaling import (
     generation_bars,
     generation_rows,
     generation_table,
@@ -190,7 +190,7 @@ def test_120_axes_generate(tmp_path, name):
 
 
 def test_bench_generation_rows_measure_a_process_each():
-    """The bench part (derive.apps.bench.generation_scaling) on two tiny models: times,
+    """The bench part (derive.apps.bench.costs.generation_scaling) on two tiny models: times,
     peak memory and the step's flops, which are the unit's own count."""
     rows = generation_rows(axes=(2,), filters=("kf",), dense=False)
     assert [(r.model, r.filter, r.states) for r in rows] == [("2 CV axes", "kf", 4)]

@@ -16,7 +16,7 @@ from _loop_ast import outside_raises, single_track_branch
 from derive import catalog
 from derive.apps.bench import run as bench_run
 from derive.apps.bench.cases import Case, Skip, make_data
-from derive.apps.bench.python_floor import keeping_nothing
+from derive.apps.bench.machine.python_floor import keeping_nothing
 from derive.build import load_python
 from derive.errors import NumericalError
 from derive.filters import derive_unit
@@ -111,7 +111,7 @@ def test_a_failed_check_names_its_own_step():
 
 
 def test_the_bench_limit_keeps_the_operations_and_the_checks(tmp_path):
-    """derive.apps.bench.python_floor: the generated loop without its keeping statement
+    """derive.apps.bench.machine.python_floor: the generated loop without its keeping statement
     runs, returns nothing, and its check still raises at its step."""
     path = tmp_path / "kf.py"
     path.write_text(_text("mpt3d_b", "kf", {}))

@@ -176,7 +176,7 @@ def test_P0_outside_the_pattern_is_refused_in_both_languages():
 
 def test_registered_through_the_seams():
     spec = FILTERS["rts"]
-    assert (spec.run_kind, spec.model_kind, spec.missing, spec.batch) == (
+    assert (spec.run_kind, spec.model_kind, spec.missing, spec.run_tracks) == (
         "smoother", "linear", True, False)
     assert RUN_KINDS["smoother"].work == (("work", ("x_new", "P_new", "x_pred", "P_pred")),)
     for name in LINEAR:

@@ -17,9 +17,9 @@ import pytest
 import sympy
 
 from derive import LinearModel, catalog
-from derive.apps.bench.compile_size import dense_model
+from derive.apps.bench.costs.compile_size import dense_model
+from derive.apps.bench.costs.schedule_scaling import dense_rows, schedule_table
 from derive.apps.bench.run import Settings, _columns
-from derive.apps.bench.schedule_scaling import dense_rows, schedule_table
 from derive.arrivals import Arrivals, Form, operation_latency
 from derive.filters import derive_unit
 from derive.flops import count

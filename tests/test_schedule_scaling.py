@@ -163,8 +163,8 @@ def test_a_trial_scores_as_a_rescore_of_the_edited_step(seed):
 
 def test_the_bench_prints_both_bounds_of_k_axes(one_axis):
     """derive bench's table of large KFs: both bounds of k axes, those of one axis."""
+    from derive.apps.bench.costs.schedule_scaling import schedule_rows, schedule_table
     from derive.apps.bench.run import Settings, _columns
-    from derive.apps.bench.schedule_scaling import schedule_rows, schedule_table
 
     single = schedule_bounds(one_axis)
     (row,) = schedule_rows((4,))

@@ -1,4 +1,4 @@
-"""derive.emit.shared_blocks: a step of identical blocks whose carried elements that read
+"""derive.runs.shared: a step of identical blocks whose carried elements that read
 no data start bitwise equal computes those statements once in the single-track Python run.
 Its rows must be bitwise those of calling ``step`` once per step, whichever loop runs;
 a failed check must give the full step's message; blocks that differ share nothing."""
@@ -15,7 +15,6 @@ import sympy
 from _loop_ast import outside_raises, single_track_branch
 
 from derive import catalog
-from derive.emit.shared_blocks import shared_step
 from derive.errors import NumericalError
 from derive.flops import count_lowered
 from derive.generation import command_unit, render_filter
@@ -23,6 +22,7 @@ from derive.lowering import LoweredAssign, lower_program
 from derive.model import LinearModel
 from derive.pipeline import load_generated
 from derive.reference import linear as reference
+from derive.runs.shared import shared_step
 from derive.structure import find_blocks
 from derive.trees import tree_vars
 

@@ -13,7 +13,7 @@ import pytest
 
 import derive
 from derive import cli, commands
-from derive.apps.bench import startup
+from derive.apps.bench.costs import startup
 
 ROOT = Path(__file__).resolve().parent.parent
 

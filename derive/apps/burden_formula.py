@@ -38,15 +38,14 @@ import sympy
 
 from ..errors import FilterError, ModelError
 from ..filters import available, derive_unit
-from ..flops import count
+from ..flops import LANGUAGES, count
 from ..model import LinearModel
 from ..trees import OpCount
 from . import formulas, paper
 
-LANGS = ("python", "c")
 KINDS = ("add", "sub", "mul", "div", "sqrt", "fma", "neg", "cmp", "calls")
 #: The series fit: the flops (papers' convention), then every kind of each lowering.
-SERIES = ("flops",) + tuple(f"{lang}.{kind}" for lang in LANGS for kind in KINDS)
+SERIES = ("flops",) + tuple(f"{lang}.{kind}" for lang in LANGUAGES for kind in KINDS)
 MODES = ("paper", "dense", "blocks")
 
 DEGREE = 3

@@ -1,5 +1,7 @@
 """The tolerance a float32 filter is verified against, derived from float32's unit
-roundoff, the generated step and the conditioning of the model (not typed in).
+roundoff, the generated step and the conditioning of the model (not typed in): for a unit
+of the run kind ``sensors`` a first-order bound propagated along its reference run
+(below), for every other unit c u L G kappa.
 
 The error measure is derive.apps.verify's (relative_error): per step, ``||gen_k - ref_k||_inf /
 max(||ref_k||_inf, floor)``, floor = min(1, the lower median of the non-zero step sizes), for
@@ -65,20 +67,50 @@ NumPy reference on the same data. The bound is
   sigma points (its backward error, bounded by P's diagonal, is a perturbation of P that
   L counts). 1 for a filter whose constants are all computed offline in double (sskf,
   sslf, jssklf, fir, pred: nothing declared).
-* A unit of the run kind ``sensors`` (several sensors at their own rates, gating,
-  update-first) has no one closed loop: its G and kappa are read from the trace of its
-  reference run (derive.reference.sensors, :func:`sensors_conditioning`). The error of
-  step k is carried by that step's map A_k = prod_s (I - K_s H_s) F_k (the sensors
-  present and applied at step k, in order; F_k the transition or the EKF's Jacobian at
-  x(k-1/k-1); no F at an update-first step 0), so G = max_k sum_j ||A_k ... A_{k-j+1}||_inf
-  (:func:`run_growth`) over the endpoints k of the run's last cycle (its last W steps, W
-  the longest gap between two updates of one sensor: the run has settled there, and the
-  cycle holds every phase of the sensors' rates, the step before the slowest sensor's
-  update too), and kappa is read as above from the trace's steps: each update's own
-  S = H_s P H_s^T + R_s and its P before and after (:attr:`SensorsConditioning.steps`).
 * ``c = 2`` (:data:`C`): the state's error and the covariance's error reach the measure by
   two routes (x through the recursion, P directly and through the gain), each bounded by
   the first-order gamma_L; second-order terms (L u)^2 are below 1e-4 of it for L < 2000.
+
+A unit of the run kind ``sensors`` (several sensors at their own rates, gating,
+update-first: the EKF, the error-state EKF and the KF of a model with sensors) has a
+first-order bound of its own (:class:`PropagatedTolerance`, :func:`propagated_bound`),
+evaluated along the trace of its float64 reference run (derive.reference.sensors: per
+step the values each program was called with):
+
+* the local error (:func:`local_errors`): per step, the running error bound u E of
+  x(k/k) and P(k/k) (derive.apps.running_error, Wilkinson's running error analysis:
+  first order, each operation's rounding at its own numbers, nothing counted by depth)
+  of the programs run calls on the step (predict, then each present sensor's update),
+  one program's outputs entering the next with their E; the carried x and P enter the
+  step exact, z, u, p (and step 0's x0, P0) carry their rounding to float32;
+* the carried error: the first-order error of the filter's carried state obeys
+  e_k = A_k e_{k-1} + d_k, A_k = prod_s (I - K_s H_s) F_k (:func:`sensors_conditioning`:
+  the updates applied at step k, in order; F_k the transition or the EKF's Jacobian,
+  over the tangent space for manifold states; the identity at an update-first step 0),
+  for x, and dP_k = A_k dP_{k-1} A_k^T + D_k for P (the first-order change of the
+  Riccati step, P - P H^T S^-1 H P, is (I - K H) dP (I - K H)^T: the gain's own change
+  cancels at the optimal gain). Neither recursion is taken in absolute values (|A| over
+  a thousand steps grows without bound where the maps barely contract: the weakly
+  observed earth field, magnetic bias and wind); each carries a bound through the
+  signed maps instead: P's error by a Loewner majorant, -M_k <= dP_k <= M_k with
+  M_k = A_k M_{k-1} A_k^T + Lambda_k, Lambda_k diagonal from D_k's scaled row sums
+  (Gershgorin, :func:`_majorant`), so |dP_ij| <= sqrt(M_ii M_jj); x's error by an
+  ellipsoid, e e^T <= W, W_k = (1 + 1/p) A W A^T + (1 + p) n diag(d_k^2) (the box of the
+  local error inside an ellipsoid, the sum of two ellipsoids inside a third, p of least
+  trace: :func:`_ellipsoid_sum`), so |e_i| <= sqrt(W_ii), on storage coordinates
+  through the retraction Jacobian N(x) for manifold states;
+* the coupling: P's carried error moves each applied update's gain, dK = (I - K H) dP
+  H^T S^-1, so x takes dK nu, bounded componentwise by sqrt(r_i^T M r_i) sqrt(w^T M w)
+  (r_i the rows of I - K H, w = H^T S^-1 nu) and added to that step's local error;
+* the value: u max(x, P), each the largest over the run's steps of the bound over the
+  measure's scale (:func:`measure_scales`: derive.apps.verify.relative_error's).
+
+What it leaves out, stated: second-order terms (the bound is first order, as the
+running error analysis is); the EKF's linearisation's own dependence on x's error (the
+change of F, H and of the gain through H, second derivatives of f and h: zero for a
+linear model); a gate's decision, taken as the reference run's; the reset Jacobian G of
+an error-state filter's option ``reset`` in the maps (G = I to first order in the
+injected dx).
 
 A bound at or above 1 says the model cannot be computed meaningfully in float32;
 :attr:`FloatTolerance.meaningful` says so and the verification reports it failed.
@@ -98,6 +130,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import manifolds
 from ..errors import ModelError
 from ..filters import kind
 from ..filters.difference import difference_form
@@ -120,6 +153,7 @@ from ..riccati import kf_steady
 from ..runs import kinds
 from ..runs.unit import Unit
 from ..trees import Op, Tree, Var, element_name
+from .running_error import port_values, running_errors
 
 #: The constant of the bound (see the module docstring).
 C = 2.0
@@ -129,8 +163,25 @@ EXTRA_ROUNDINGS = 2
 _EXACT = frozenset({"neg", "select", "cmp"})
 
 
+class _Bound:
+    """What a bound of either kind says beside its ``value`` and ``unit_roundoff``."""
+
+    value: float
+    unit_roundoff: float
+
+    @property
+    def meaningful(self) -> bool:
+        """False when the bound is 1 or more: the precision cannot carry the model."""
+        return self.value < 1.0
+
+    @property
+    def precision_name(self) -> str:
+        """``float32`` or ``double``: the precision whose unit roundoff the bound uses."""
+        return "float32" if self.unit_roundoff == FLOAT.unit_roundoff else "double"
+
+
 @dataclass(frozen=True)
-class FloatTolerance:
+class FloatTolerance(_Bound):
     """The float32 tolerance of one filter on one run: ``value`` = c u L G kappa;
     ``terms``: what kappa is made of, (name, value) at the step where it is largest (each
     thing the filter's step factorises, solves or cancels: :func:`condition_terms`)."""
@@ -146,16 +197,6 @@ class FloatTolerance:
     def value(self) -> float:
         return self.c * self.unit_roundoff * self.roundings * self.growth * self.condition
 
-    @property
-    def meaningful(self) -> bool:
-        """False when the bound is 1 or more: the precision cannot carry the model."""
-        return self.value < 1.0
-
-    @property
-    def precision_name(self) -> str:
-        """``float32`` or ``double``: the precision whose unit roundoff the bound uses."""
-        return "float32" if self.unit_roundoff == FLOAT.unit_roundoff else "double"
-
     def text(self) -> str:
         """``c u32 L G kappa = 2 * 2^-24 * 12 * 3.1 * 1.0 = 4.4e-06`` (``u64`` and 2^-53 in
         double), then what kappa is made of (``; kappa: cond S 1 * P(k/k-1) -> P(k/k) 2.51``)."""
@@ -166,6 +207,28 @@ class FloatTolerance:
         if self.terms:
             text += "; kappa: " + " * ".join(f"{name} {value:.3g}" for name, value in self.terms)
         return text
+
+
+@dataclass(frozen=True)
+class PropagatedTolerance(_Bound):
+    """The float32 tolerance of a unit of the run kind sensors: ``u * max(x, P)``, ``x``
+    and ``P`` the largest over the run of the first-order bound on the error of x(k/k) and
+    of P(k/k) over the measure's scale, in units of u (:func:`propagated_bound`)."""
+
+    x: float
+    P: float
+    unit_roundoff: float = FLOAT.unit_roundoff
+
+    @property
+    def value(self) -> float:
+        return self.unit_roundoff * max(self.x, self.P)
+
+    def text(self) -> str:
+        """``first order u32 * max(x 2.1e+03, P 3.4e+02) = 1.3e-04, each step's running
+        error carried by the filter's maps``."""
+        u = "u32" if self.precision_name == "float32" else "u64"
+        return (f"first order {u} * max(x {self.x:.3g}, P {self.P:.3g}) = {self.value:.2e}, "
+                "each step's running error carried by the filter's maps")
 
 
 def output_depths(lowered: LoweredProgram, inputs: Mapping[str, int] | None = None
@@ -479,84 +542,210 @@ def condition(model, name: str, run: ReferenceRun) -> float:
 @dataclass(frozen=True)
 class SensorsConditioning:
     """What a sensors unit's reference run gives the tolerance: per step the map A_k that
-    carries the error of x(k-1/k-1) to x(k/k); per step the matrices it factorises, solves
-    or cancels (derive.filters.spec.MATRICES: each update's S and its pair (P before, P
-    after), P(k/k-1)); and ``cycle``, the longest gap between two updates of one sensor
-    (the run's last ``cycle`` steps hold every phase of the sensors' rates)."""
+    carries the error of x(k-1/k-1) to x(k/k) and the transition F_k it starts with (the
+    identity at an update-first step 0); ``trace``: the run's
+    derive.reference.sensors.StepTrace s, the values :func:`local_errors` runs the
+    unit's programs at."""
 
     maps: tuple[np.ndarray, ...]
-    steps: tuple[Mapping[str, tuple], ...]
-    cycle: int
+    transitions: tuple[np.ndarray, ...]
+    trace: tuple
 
 
 def sensors_conditioning(model, trace: Sequence) -> SensorsConditioning:
     """The :class:`SensorsConditioning` of ``model``'s sensors reference run from its
-    ``trace`` (derive.reference.sensors.StepTrace per step)."""
+    ``trace`` (derive.reference.sensors.StepTrace per step): A_k = prod_s (I - K_s H_s) F_k
+    over the updates applied at step k, in order, F_k the transition or the EKF's
+    Jacobian at x(k-1/k-1) (over the tangent space for manifold states)."""
     F = transition_function(model)
     n = model.n_tangent  # the error's dimension: P's
-    maps, steps, present = [], [], {}
-    for k, step in enumerate(trace):
-        A = np.eye(n)
-        matrices: dict[str, list] = {INNOVATION: [], PRIOR: [], UPDATE: []}
-        if step.P_predicted is not None:
-            A = F(step.x_before, step.u, step.p)
-            matrices[PRIOR].append(step.P_predicted)
+    maps, transitions = [], []
+    for step in trace:
+        A = np.eye(n) if step.P_predicted is None else F(step.x_before, step.u, step.p)
+        transitions.append(A)
         for update in step.updates:
-            matrices[INNOVATION].append(update.S)
-            present.setdefault(update.sensor, []).append(k)
             if update.applied:
                 A = (np.eye(n) - update.K @ update.H) @ A
-                matrices[UPDATE].append((update.P, update.P - update.K @ update.S @ update.K.T))
         maps.append(A)
-        steps.append({name: tuple(found) for name, found in matrices.items()})
-    gaps = [int(np.max(np.diff(rows))) if len(rows) > 1 else len(trace)
-            for rows in present.values()]
-    return SensorsConditioning(tuple(maps), tuple(steps),
-                               max(1, min(max(gaps, default=len(trace)), len(trace))))
+    return SensorsConditioning(tuple(maps), tuple(transitions), tuple(trace))
 
 
-def run_growth(maps: Sequence[np.ndarray], cycle: int = 1) -> float:
-    """max over the endpoints e of the run's last ``cycle`` steps of
-    sum_{j >= 0} ||A_e A_{e-1} ... A_{e-j+1}||_inf (the j = 0 term: 1), the products formed
-    backwards from every endpoint at once; the sums stop once every new term is below
-    2^-24 of its sum."""
-    steps = len(maps)
-    if not steps:
-        return 1.0
-    n = maps[0].shape[0]
-    ends = np.arange(max(steps - cycle, 0), steps)
-    products = np.broadcast_to(np.eye(n), (len(ends), n, n)).copy()
-    sums = np.ones(len(ends))
-    for i in range(steps - 1, 0, -1):
-        active = ends >= i  # the endpoints whose product reaches back past A_i
-        products[active] = products[active] @ maps[i]
-        terms = np.abs(products[active]).sum(axis=2).max(axis=1)
-        sums[active] += terms
-        if active.all() and np.all(terms < FLOAT.unit_roundoff * sums):
-            break
-    return float(sums.max())
+def error_floor(step_sizes) -> float:
+    """The smallest scale a step's error is divided by: min(1, the lower median of the
+    non-zero step sizes ``||ref_k||_inf``), 0 when every step is zero.
+
+    A step whose reference is (near) zero is judged at the size of the array's typical
+    step, not divided by its own noise; an array of small numbers (P ~ 1e-20) is judged at
+    its own size, not at 1 (which made the measure absolute for it: a doubled P of 1e-20
+    passed 1e-12). The median, not the largest step, so a large start (P0 = 1 settling to
+    1e-20) does not set the scale of the steps after it; at most 1, so the measure is never
+    looser than it was with the floor 1 (absolute below 1, relative above)."""
+    sizes = np.sort(np.asarray(step_sizes, dtype=float).ravel())
+    sizes = sizes[sizes > 0]
+    if sizes.size == 0:
+        return 0.0
+    return float(min(sizes[(sizes.size - 1) // 2], 1.0))
 
 
-def float_tolerance(model, unit: Unit, steps: int, run) -> FloatTolerance:
+def measure_scales(arrays: np.ndarray) -> np.ndarray:
+    """Per step the scale derive.apps.verify.relative_error divides that step's error by:
+    max(||ref_k||_inf, :func:`error_floor`), ``arrays`` the reference's (steps, ...)."""
+    sizes = np.abs(np.asarray(arrays, dtype=float)).reshape(len(arrays), -1).max(axis=1)
+    return np.maximum(sizes, error_floor(sizes))
+
+
+def _call_inputs(lowered: LoweredProgram, trace: Sequence, rows: Sequence, columns
+                 ) -> dict[str, np.ndarray]:
+    """The values each input port of ``lowered`` takes on its calls ``rows`` ((step,
+    UpdateTrace or None for predict) pairs) of the reference run ``trace`` (ValueError
+    for a port the trace does not give: a program run calls has no other inputs)."""
+    given = {}
+    for port in lowered.inputs:
+        if port.name == "x":
+            found = [t.x if t else trace[k].x_before for k, t in rows]
+        elif port.name == "P":
+            found = [t.P if t else trace[k].P_before for k, t in rows]
+        elif port.name == "u":
+            found = [trace[k].u if t is None else trace[k].u[list(columns)] for k, t in rows]
+        elif port.name == "p":
+            found = [trace[k].p for k, _ in rows]
+        elif port.name == "z" and rows[0][1] is not None:
+            found = [t.z for _, t in rows]
+        elif port.name == "R" and rows[0][1] is not None:  # the R given per call
+            found = [t.S - t.H @ t.P @ t.H.T for _, t in rows]
+        else:
+            raise ValueError(f"{lowered.name}: no reference value for its input {port.name!r}")
+        given[port.name] = np.asarray(found, dtype=float).reshape(len(rows), -1)
+    return given
+
+
+def local_errors(unit: Unit, trace: Sequence, dtype=np.float32
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(Dx, DP): per step k the running error bound E (derive.apps.running_error) of
+    x(k/k) (steps, n) and of P(k/k) (steps, nt, nt), the step's programs (predict, then
+    each present sensor's update) run in order at the reference run's values (``trace``:
+    derive.reference.sensors.StepTrace per step), each program's x_new and P_new entering
+    the next with their E. The carried x and P enter a step exact (their earlier errors
+    are what the filter's maps carry: :func:`propagated_bound`), but for step 0's x0 and
+    P0, which carry their rounding to ``dtype`` (E = |x0|, |P0|), as z, u, p and a per-call
+    R do on every call."""
+    state = tuple(port for port, _ in unit.carried)
+    steps = len(trace)
+    n, nt = len(trace[0].x_before), len(trace[0].P_before)
+    Dx, DP = np.zeros((steps, n)), np.zeros((steps, nt * nt))
+    Dx[0], DP[0] = np.abs(trace[0].x_before), np.abs(trace[0].P_before).ravel()
+    calls = [("predict", (), [(k, None) for k, step in enumerate(trace)
+                              if step.P_predicted is not None])]
+    calls += [(program_name(slot.name), slot.inputs,
+               [(k, t) for k, step in enumerate(trace) for t in step.updates
+                if t.sensor == slot.name]) for slot in unit.sensors]
+    for name, columns, rows in calls:
+        if not rows:
+            continue
+        lowered = lower_program(unit.programs[name], use_fma=True, state_ports=state)
+        given = _call_inputs(lowered, trace, rows, columns)
+        ks = [k for k, _ in rows]
+        values, errors = {}, {}
+        for port, array in given.items():
+            values.update(port_values(port, array))
+            carried = {"x": Dx, "P": DP}.get(port)
+            errors.update(port_values(port, np.abs(array) if carried is None
+                                      else carried[ks]))
+        out = running_errors(lowered, values, errors, dtype)
+        Dx[ks], DP[ks] = out["x_new"][1], out["P_new"][1]
+    return Dx, DP.reshape(steps, nt, nt)
+
+
+def _majorant(D: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Lambda with -Lambda <= E <= Lambda (Loewner order) for every symmetric E with
+    |E| <= D elementwise: Lambda_ii = sum_j max(D, D^T)_ij sqrt(P_ii / P_jj) (S (Lambda -
+    E) S is diagonally dominant for S = diag(P_ii^-1/2), Gershgorin): in each state's own
+    units, ``P`` the covariance that sets them (where its diagonal is not positive:
+    the unscaled row sums)."""
+    D = np.maximum(D, D.T)
+    d = np.diag(P)
+    if np.any(d <= 0) or not np.all(np.isfinite(d)):
+        return np.diag(D.sum(axis=1))
+    s = np.sqrt(d)
+    return np.diag((D / s[None, :]).sum(axis=1) * s)
+
+
+def propagated_bound(model, run: SensorsConditioning, Dx: np.ndarray, DP: np.ndarray,
+                     unit_roundoff: float = FLOAT.unit_roundoff) -> tuple[float, float]:
+    """(x's, P's): the largest over the run's steps of the first-order bound on the
+    error of x(k/k) and P(k/k), each over the scale the measure divides it by
+    (:func:`measure_scales`), from the running errors ``Dx``, ``DP`` of each step
+    (:func:`local_errors`, times u) carried by the filter's own first-order error maps
+    (the module docstring)."""
+    u, trace = unit_roundoff, run.trace
+    nt = len(trace[0].P_before)
+    layout = getattr(model, "layout", None)
+    x_scale = measure_scales(np.array([step.x_after for step in trace]))
+    P_scale = measure_scales(np.array([step.P_after for step in trace]))
+    W, M = np.zeros((nt, nt)), np.zeros((nt, nt))  # x's ellipsoid, P's majorant
+    worst_x = worst_P = 0.0
+    for k, step in enumerate(trace):
+        x = step.x_after
+        lift = np.eye(nt) if layout is None else np.abs(manifolds.lift_numeric(layout, x))
+        retract = np.eye(nt) if layout is None else manifolds.retraction_numeric(layout, x)
+        F = run.transitions[k]
+        before = F @ M @ F.T  # P's error before each update
+        cross = np.zeros(nt)  # x's error from P's through the gains (tangent)
+        for update in step.updates:
+            if not update.applied:
+                continue
+            IKH = np.eye(nt) - update.K @ update.H
+            w = update.H.T @ np.linalg.solve(update.S, update.nu)
+            cross = np.abs(IKH) @ cross + np.sqrt(np.clip(
+                np.diag(IKH @ before @ IKH.T), 0.0, None) * max(float(w @ before @ w), 0.0))
+            before = IKH @ before @ IKH.T
+        A = run.maps[k]
+        carried = A @ W @ A.T
+        x_error = (np.sqrt(np.clip(np.diag(retract @ carried @ retract.T), 0.0, None))
+                   + u * Dx[k] + np.abs(retract) @ cross)
+        worst_x = max(worst_x, float(x_error.max() / x_scale[k]))
+        box = lift @ (u * Dx[k]) + cross  # this step's own error, in the tangent space
+        W = _ellipsoid_sum(carried, nt * np.diag(box**2))
+        M = before + _majorant(u * DP[k], step.P_after)
+        worst_P = max(worst_P, float(np.clip(np.diag(M), 0.0, None).max() / P_scale[k]))
+    return worst_x, worst_P
+
+
+def _ellipsoid_sum(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """An ellipsoid (its shape matrix) holding the sum of a vector of the ellipsoid A and
+    one of B: (1 + 1/p) A + (1 + p) B with p = sqrt(tr A / tr B), the p of least trace
+    ((a + b)(a + b)^T <= (1 + 1/p) a a^T + (1 + p) b b^T for every p > 0)."""
+    ta, tb = float(np.trace(A)), float(np.trace(B))
+    if ta <= 0.0 or tb <= 0.0:
+        return A + B
+    p = np.sqrt(ta / tb)
+    return (1.0 + 1.0 / p) * A + (1.0 + p) * B
+
+
+def float_tolerance(model, unit: Unit, steps: int, run
+                    ) -> FloatTolerance | PropagatedTolerance:
     """The float32 tolerance of ``unit`` (a filter of ``model``) for a run of ``steps``
     steps; ``run`` (a :class:`ReferenceRun`): the float64 reference run the conditioning is
     read from
     (the KF's for a linear model, the filter's own for a nonlinear one), or for a unit of
     the run kind ``sensors`` the :class:`SensorsConditioning` of its reference run."""
     if isinstance(run, SensorsConditioning):
-        kappa, terms = worst_step(kind(unit.filter).conditioning, run.steps)
-        return FloatTolerance(roundings=run_roundings(unit),
-                              growth=run_growth(run.maps, run.cycle), condition=kappa,
-                              terms=terms)
+        x, P = propagated_bound(model, run, *local_errors(unit, run.trace), unit_roundoff=1.0)
+        return PropagatedTolerance(x, P)
     kappa, terms = condition_terms(model, unit.filter, run)
     return FloatTolerance(roundings=run_roundings(unit),
                           growth=error_growth(model, unit.filter, steps, run),
                           condition=kappa, terms=terms)
 
 
-def in_double(bound: FloatTolerance) -> FloatTolerance:
+def in_double(bound: FloatTolerance | PropagatedTolerance
+              ) -> FloatTolerance | PropagatedTolerance:
     """``bound`` (a float32 tolerance) at double's unit roundoff: the inputs are doubles
-    already, so one rounding fewer (the baked constants are still rounded once)."""
+    already, so one rounding fewer (the baked constants are still rounded once); a
+    :class:`PropagatedTolerance` keeps the inputs' and constants' roundings (an
+    overestimate: in double they are exact)."""
+    if isinstance(bound, PropagatedTolerance):
+        return replace(bound, unit_roundoff=DOUBLE.unit_roundoff)
     return replace(bound, unit_roundoff=DOUBLE.unit_roundoff, roundings=bound.roundings - 1)
 
 
@@ -565,6 +754,7 @@ __all__ = ["C", "EXTRA_ROUNDINGS", "RUN_PROGRAMS", "FloatTolerance", "ReferenceR
            "SensorsConditioning", "cancellation", "condition", "condition_terms", "conditioned",
            "error_growth",
            "float_tolerance", "growth_of", "in_double", "lainiotis_matrices", "rounding_depth",
-           "run_growth", "run_roundings", "run_steps", "scaled_condition",
+           "run_roundings", "run_steps", "scaled_condition", "PropagatedTolerance",
+           "error_floor", "local_errors", "measure_scales", "propagated_bound",
            "sensors_conditioning", "spread_cancellation", "step_programs",
            "step_terms", "term_name", "worst_step"]

@@ -5,9 +5,9 @@ A run loop feeds each step's new state (``x_new``, ``P_new``) back as the next s
 the heaviest cycle through that feedback allows: the maximum, over cycles of state
 elements, of the summed operation latencies along the cycle divided by the number of
 steps it spans (the maximum cycle mean).  Given a latency per operation kind (cycles,
-or seconds measured on this machine by :mod:`derive.apps.bench.probe`), :func:`carried_bound`
-computes that bound from the lowered statements exactly as they are emitted, and the
-operations along the critical cycle.
+or seconds measured on this machine by :mod:`derive.apps.bench.machine.probe`),
+:func:`carried_bound` computes that bound from the lowered statements exactly as they are
+emitted, and the operations along the critical cycle.
 
 Operation kinds are those of :mod:`derive.lowering`; a check (``cmp``) only branches,
 so it adds no latency to the data path.  :func:`schedule_bounds` gives both bounds of a

@@ -37,9 +37,9 @@ from ..emit.write import write_files
 from ..errors import FilterError, ModelError
 from ..filters import kind as filter_spec
 from ..filters.kf import prior
-from ..generation import check_lang, resolve_model
+from ..generation import LANG_CHOICES, check_lang, resolve_model
 from ..options import DEFAULT_EPS
-from ..pipeline import LANGUAGES, Generated, load_units
+from ..pipeline import Generated, load_units
 from ..program import Port, Program
 from ..runs.unit import Unit
 
@@ -358,7 +358,7 @@ def render(model, name: str, lang: str = "all", N: int | None = None,
            eps: float | None = None) -> dict[str, str]:
     """``{file name: text}`` of paper-mode ``name`` for ``model`` (lang python, c or all)."""
     check_lang(lang)
-    return render_files(model_unit(model, name, N, eps), LANGUAGES[lang])
+    return render_files(model_unit(model, name, N, eps), LANG_CHOICES[lang])
 
 
 def load(model, name: str, lang: str = "all", N: int | None = None, eps: float | None = None,

@@ -29,8 +29,9 @@ from derive.pipeline import load_generated
 
 MODEL = "ctrv_radar"
 STEPS = 200
-GUARD = 1e-4
-"""|omega| at or below which the CTRV equations are the straight line (the model's guard)."""
+GUARD = 0.03
+"""|omega dt| at or below which the CTRV step is the turn's second-order expansion in
+omega dt (the model's guard)."""
 
 
 @dataclass(frozen=True)
@@ -58,14 +59,16 @@ def model(angles: bool = True):
 
 
 def ctrv(x: np.ndarray, dt: float) -> np.ndarray:
-    """The CTRV step (straight line where |omega| <= GUARD)."""
+    """The CTRV step (its second-order expansion in a = omega dt where |a| <= GUARD)."""
     px, py, v, psi, omega = x
-    if abs(omega) > GUARD:
+    a = omega * dt
+    if abs(a) > GUARD:
         return np.array([px + v / omega * (np.sin(psi + omega * dt) - np.sin(psi)),
                          py + v / omega * (np.cos(psi) - np.cos(psi + omega * dt)),
                          v, psi + omega * dt, omega])
-    return np.array([px + v * dt * np.cos(psi), py + v * dt * np.sin(psi), v,
-                     psi + omega * dt, omega])
+    s, c, b = np.sin(psi), np.cos(psi), 1 - a * a / 6
+    return np.array([px + v * dt * (c * b - s * a / 2), py + v * dt * (s * b + c * a / 2),
+                     v, psi + omega * dt, omega])
 
 
 def ctrv_jacobian(x: np.ndarray, dt: float) -> np.ndarray:
@@ -74,15 +77,19 @@ def ctrv_jacobian(x: np.ndarray, dt: float) -> np.ndarray:
     F = np.eye(5)
     F[3, 4] = dt
     s, c = np.sin(psi), np.cos(psi)
-    if abs(omega) > GUARD:
+    a = omega * dt
+    if abs(a) > GUARD:
         s2, c2 = np.sin(psi + omega * dt), np.cos(psi + omega * dt)
         F[0, 2:5] = [(s2 - s) / omega, v / omega * (c2 - c),
                      v * dt * c2 / omega - v * (s2 - s) / omega ** 2]
         F[1, 2:5] = [(c - c2) / omega, v / omega * (s2 - s),
                      v * dt * s2 / omega - v * (c - c2) / omega ** 2]
     else:
-        F[0, 2:4] = [dt * c, -v * dt * s]
-        F[1, 2:4] = [dt * s, v * dt * c]
+        b = 1 - a * a / 6
+        F[0, 2:5] = [dt * (c * b - s * a / 2), -v * dt * (s * b + c * a / 2),
+                     v * dt * dt * (-c * a / 3 - s / 2)]
+        F[1, 2:5] = [dt * (s * b + c * a / 2), v * dt * (c * b - s * a / 2),
+                     v * dt * dt * (-s * a / 3 + c / 2)]
     return F
 
 

@@ -290,7 +290,8 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
     ⊞ (the noise, and the start's spread, in the tangent space), measured by each sensor
     of ``groups``
     (derive.model.SensorGroup, rows of the model's stacked h or H) every
-    :data:`SENSOR_PERIODS` steps, with noise of its R (a sensor whose R is given per call:
+    :data:`SENSOR_PERIODS` steps, with noise of its R (an R that depends on the state or
+    the inputs: at each step's truth and inputs; a sensor whose R is given per call:
     a diagonal R per step, uniform in [0.5, 2], in ``Rs``). Needs every symbol to have a
     value (``params``: values of the free parameters, name -> number)."""
     steps = _steps(steps)
@@ -317,9 +318,10 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
             R = num.R
         else:
             fns = model.numeric_functions(params)
-            if model.state_noise:
+            moving = set(model.state_symbols) | set(model.inputs)
+            if model.Q.free_symbols & moving:
                 raise VerificationError(f"no sensor simulation for model {model.name!r}: its "
-                                        "Q or R depends on the state or the inputs")
+                                        "Q depends on the state or the inputs")
             w = rng.multivariate_normal(np.zeros(nt), fns["Q"], size=steps, method="eigh")
             noisy = us + (rng.multivariate_normal(np.zeros(n_u), fns["Qu"], size=steps,
                                                   method="eigh") if n_u else 0.0)
@@ -331,7 +333,11 @@ def simulate_sensors(model, groups, steps: int, seed: int, params=None) -> Senso
                                      else fns["f"](truth[k]), w[k])
                 _unit(truth[k + 1], groups_at)
             h, R = fns["h"], fns["R"]
-        v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
+        if callable(R):  # R(x, u): the noise of each row at the truth it measures
+            v = np.array([rng.multivariate_normal(np.zeros(model.m), R(truth[k + 1], us[k]),
+                                                  method="eigh") for k in range(steps)])
+        else:
+            v = rng.multivariate_normal(np.zeros(model.m), R, size=steps, method="eigh")
         stacked = np.array([h(truth[k + 1], us[k]) for k in range(steps)]) + v
     _finite(truth, stacked)
     zs, Rs = {}, {}

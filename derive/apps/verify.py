@@ -61,7 +61,9 @@ from ..runs.unit import RUN_KINDS, Unit
 from .casadi_bridge import JacobianCheck, check_jacobians, unavailable
 from .float_tolerance import (
     FloatTolerance,
+    PropagatedTolerance,
     ReferenceRun,
+    error_floor,
     float_tolerance,
     in_double,
     sensors_conditioning,
@@ -75,7 +77,8 @@ WITNESS_POINTS = 100
 WITNESS_TOLERANCE = 1e-12
 
 
-def within_tolerance(error: float, tolerance: float, bound: FloatTolerance | None) -> bool:
+def within_tolerance(error: float, tolerance: float,
+                     bound: FloatTolerance | PropagatedTolerance | None) -> bool:
     """How `derive verify` judges a run: a finite error within the tolerance, and for
     float32 a bound below 1 (else float32 cannot carry the filter)."""
     meaningful = bound is None or bound.meaningful
@@ -90,7 +93,7 @@ class Verification:
     steps: int
     error: float
     tolerance: float
-    bound: FloatTolerance | None = None
+    bound: FloatTolerance | PropagatedTolerance | None = None
 
     @property
     def passed(self) -> bool:
@@ -147,23 +150,6 @@ def jacobian_witness(model, points: int = WITNESS_POINTS, seed: int = 0
         return JacobianWitness(model.name, check_jacobians(model, points, seed))
     except ModelError as exc:
         return JacobianWitness(model.name, None, str(exc))
-
-
-def error_floor(step_sizes) -> float:
-    """The smallest scale a step's error is divided by: min(1, the lower median of the
-    non-zero step sizes ``||ref_k||_inf``), 0 when every step is zero.
-
-    A step whose reference is (near) zero is judged at the size of the array's typical
-    step, not divided by its own noise; an array of small numbers (P ~ 1e-20) is judged at
-    its own size, not at 1 (which made the measure absolute for it: a doubled P of 1e-20
-    passed 1e-12). The median, not the largest step, so a large start (P0 = 1 settling to
-    1e-20) does not set the scale of the steps after it; at most 1, so the measure is never
-    looser than it was with the floor 1 (absolute below 1, relative above)."""
-    sizes = np.sort(np.asarray(step_sizes, dtype=float).ravel())
-    sizes = sizes[sizes > 0]
-    if sizes.size == 0:
-        return 0.0
-    return float(min(sizes[(sizes.size - 1) // 2], 1.0))
 
 
 def relative_error(a, b) -> float:
@@ -314,7 +300,8 @@ def generated_run(module, name: str, zs, model, lang: str,
     (nonlinear filters: the scenario's zs, us, x0 and P0); every input is given in the
     module's dtype (a float32 kernel's: each value rounded once to float), the outputs are
     returned as float64: (xs, Ps or None), and with ``with_lls`` (a filter generated with
-    the option loglik) the per-step log-likelihoods third; ``p``: the free parameters' row,
+    the option loglik) the per-step log-likelihoods third (and with the option gradient
+    their gradients fourth); ``p``: the free parameters' row,
     for every step (a model verified at its parameters' examples)."""
     dtype = getattr(module, "dtype", np.float64)
     rows = {} if p is None else {"p": np.asarray(p, dtype=dtype)}
@@ -340,7 +327,8 @@ def generated_run(module, name: str, zs, model, lang: str,
     nt = model.n_tangent
     xs, Ps = (np.asarray(out[0], dtype=float),
               np.asarray(out[1], dtype=float).reshape(steps, nt, nt))
-    return (xs, Ps, np.asarray(out[2], dtype=float)) if with_lls else (xs, Ps)
+    # with the option gradient the per-step gradients (dlls) follow the lls
+    return (xs, Ps, *(np.asarray(o, dtype=float) for o in out[2:])) if with_lls else (xs, Ps)
 
 
 class InputRun(NamedTuple):
@@ -378,7 +366,7 @@ class SensorsCase:
     ps: np.ndarray | None
     reference: object
     tolerance: float
-    bound: FloatTolerance | None
+    bound: FloatTolerance | PropagatedTolerance | None
     trace: tuple = ()
     implicit: bool = False
 
@@ -510,6 +498,7 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
     if kind(name).sensors and uses_sensor_run(model, opts):
         return verify_sensor_modules(model, name, modules, steps, seed, opts, unit, values)
     p = None
+    free_model = model
     if model.parameters:  # simulated and referenced at the values; the filters take them as p
         given = parameter_values(model, values)
         p = [given[q.name] for q in model.parameters]
@@ -523,8 +512,13 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         tolerance = LINEAR_TOLERANCE
     xs_ref, Ps_ref = reference_run(model, name, zs, opts, scenario)
     # the option loglik: run's lls against the family's reference of the log-likelihood
+    loglik = opts.get("loglik") or opts.get("gradient")
     lls_ref = (kind(name).loglik(model, zs if scenario is None else (
-        scenario, model.numeric_functions()), opts) if opts.get("loglik") else None)
+        scenario, model.numeric_functions()), opts) if loglik else None)
+    # the option gradient: the sum of run's dlls against central differences of the
+    # reference's log-likelihood in each parameter
+    dll_ref = (reference_gradient(free_model, name, given, zs, scenario, opts)
+               if opts.get("gradient") else None)
     if scenario is not None:
         floor = rounding_floor(model, name, scenario, opts, xs_ref, Ps_ref)
         tolerance = max(tolerance, FLOOR_MARGIN * floor)
@@ -551,6 +545,11 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
             with np.errstate(divide="ignore", invalid="ignore"):
                 diff = np.abs(lls[0] - ll_ref)
                 err = max(err, float(np.max(np.where(diff == 0, 0.0, diff / scales))))
+        if dll_ref is not None:
+            gradient_error = float(np.max(np.abs(np.sum(lls[1], axis=0) - dll_ref))
+                                   / np.max(np.abs(dll_ref)))
+            out.append(Verification(model.name, name, f"{lang} dll", steps, gradient_error,
+                                    GRADIENT_TOLERANCE))
         if lang == "c" and bound is not None:
             out.append(Verification(model.name, name, lang, steps, err, bound.value, bound))
         elif scenario is None and not within_tolerance(err, tolerance, None):
@@ -558,6 +557,33 @@ def verify_modules(model, name: str, modules: dict, steps: int = 1000, seed: int
         else:
             out.append(Verification(model.name, name, lang, steps, err, tolerance))
     return out
+
+
+GRADIENT_TOLERANCE = 1e-6
+"""The option gradient: the run's summed dlls against central differences of the
+reference's log-likelihood, the largest difference relative to the largest entry (the
+differences' own error, Richardson-extrapolated, is far below)."""
+
+
+def reference_gradient(model, name: str, values: dict, zs, scenario, opts) -> np.ndarray:
+    """d/dp of the reference's log-likelihood of ``zs`` (the model with free parameters at
+    ``values`` moved one at a time by +-h and +-h/2, h = 1e-3 |p_j|), by central
+    differences extrapolated (Richardson, error O(h^4))."""
+    def total(at: dict) -> float:
+        valued = model.at_values(at)
+        data = zs if scenario is None else (scenario, valued.numeric_functions())
+        return float(np.sum(kind(name).loglik(valued, data, opts)[0]))
+
+    out = []
+    for q in model.parameters:
+        def central(h, q=q):
+            up, down = dict(values), dict(values)
+            up[q.name], down[q.name] = values[q.name] + h, values[q.name] - h
+            return (total(up) - total(down)) / (2 * h)
+
+        h = 1e-3 * max(abs(values[q.name]), 1e-3)
+        out.append((4 * central(h / 2) - central(h)) / 3)
+    return np.array(out)
 
 
 def beyond_bar(model: str, name: str, lang: str, steps: int, error: float,

@@ -280,7 +280,7 @@ def run(args) -> int:
     latency = None
     if args.measure:
         from ..apps.bench.generated import CFLAGS
-        from ..apps.bench.probe import measure_latencies
+        from ..apps.bench.machine.probe import measure_latencies
 
         latency = measure_latencies(CFLAGS)
     options = from_arguments(args)

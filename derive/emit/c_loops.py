@@ -7,7 +7,7 @@ serves one track (``s`` = 1: the public ``step``, ``run``'s loop with the state 
 arrays) and a lane of a block of tracks (``s`` = the block's width, the state laid out
 structure-of-arrays: ``run_tracks``).  A failed check of the body sets its status and
 the statements run to the end: no branch leaves them, so the loop over a block's lanes
-is one basic block the compiler vectorises (:func:`tracks_parts`), and each lane runs
+is one basic block the compiler vectorises (:func:`tracks_lines`), and each lane runs
 exactly the operations of one track's ``run``, in the same order.
 
 A small body is inlined into each caller (:data:`INLINE_STATEMENTS`; always_inline where
@@ -26,9 +26,11 @@ from derive.emit.c_vector import SWITCH
 from derive.lowering import LoweredAssign, LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
-from derive.runs.unit import LOOKAHEAD_NEXT, Unit
+from derive.runs.loops import Call, Row, Run, Steps, Store, walk
 from derive.trees import Op, Tree, Var
 
+#: C run's stride of p: 0 when p is one row for every step, NP when one row per step.
+P_STRIDE = "p_stride"
 #: The step body's stride argument: element i of a port is at [i * STRIDE].
 STRIDE = "s"
 #: The status a step body's failed check sets (the first failed check's).
@@ -326,41 +328,17 @@ def step_function_body(step: LoweredProgram, body: LoweredProgram, name: str,
     return lines + [f"{call};"] + (["return 0;"] if step.has_checks else [])
 
 
-def _rows(unit: Unit) -> tuple[str, ...]:
-    """The step's inputs read one row per step: the per-step inputs, then ``p``."""
-    return unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
-
-
-def _row(name: str) -> str:
+def row_pointer(name: str) -> str:
     """The run loop's pointer to row k of a per-step input (``zk``)."""
     return f"{name}k"
 
 
-def _row_names(unit: Unit, body: LoweredProgram) -> dict[str, str]:
-    """run's names of the body's per-step inputs: row k (``zk``; ``pk`` when the body
-    reads p, else p itself, which the body does not read)."""
-    names = {name: _row(name) for name in unit.step_inputs}
-    if unit.parameters:
-        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
-                                 else PARAMETER_PORT)
-    return names
-
-
-def fused_body(unit: Unit, body: LoweredProgram, prefix: str) -> list[str]:
-    """run's step: the body over run's local arrays (the state, the step's outputs: held
-    in registers once the body is inlined), reading the per-step inputs at row k."""
-    return checked_call(body, body_name(prefix), _row_names(unit, body), "step_status")
-
-
-def two_step_body(unit: Unit, body: LoweredProgram, two: LoweredProgram,
-                  prefix: str) -> list[str]:
-    """run's pass: the step body writing x(k+1) to ``x_mid``, then the two-step map's body
-    writing x(k+2) to ``x_new``; rows k and k + 1 are read as ``zk`` and ``znk``."""
-    rows = _row_names(unit, body)
-    return (checked_call(body, body_name(prefix), {**rows, "x_new": "x_mid"}, "step_status")
-            + checked_call(two, body_name(prefix, "pass"),
-                           {"z": _row("z"), LOOKAHEAD_NEXT: _row(LOOKAHEAD_NEXT)},
-                           "pass_status"))
+def loop_head(loop: Steps) -> str:
+    """The C loop over a stepping run's steps: from 0, two a pass, or on from where the
+    loop before stopped (``rest``)."""
+    if loop.by == 2:
+        return "for (k = 0; k + 2 <= steps; k += 2) {"
+    return "for (; k < steps; ++k) {" if loop.rest else "for (k = 0; k < steps; ++k) {"
 
 
 def _block(name: str) -> str:
@@ -368,132 +346,69 @@ def _block(name: str) -> str:
     return f"{name}_b"
 
 
-def tracks_parts(unit: Unit, body: LoweredProgram, state: list[dict],
-                 optional_stores: list[dict], prefix: str, run_call: str,
-                 two: LoweredProgram | None = None, real: Precision = DOUBLE) -> dict:
-    """The pieces of run_tracks: blocks of :data:`LANES` tracks, structure-of-arrays.
-
-    The caller's arrays stay track after track (track t's z, x0, P0, xs, Ps laid out
-    exactly as for run); each block copies its tracks' state and each step's inputs into
-    block arrays (element i of lane j at ``[i * LANES + j]``), runs the step body over
-    the lanes in one loop (``LANES`` as the stride), and copies the results back to the
-    tracks' rows. ``state``: the carried state (derive.emit.render.carried_state);
-    ``optional_stores``: run's outputs that may be NULL; ``run_call``: the call of run on
-    track t's arrays, for the last tracks (fewer than a block); ``two``: the two-step map
-    (the lanes take two steps per pass, as run does).
-    """
-    if not inlined(body) or (two is not None and not inlined(two)):  # run on every track
-        return {"lanes": None, "status": False, "macros": [], "run_call": run_call}
-    lanes = LANES
-    names = {port: _block(port) for port, _ in unit.carried}
-    names.update({out: _block(out) for _, out in unit.carried})
-    names.update({name: _block(name) for name in unit.step_inputs})
-    if unit.parameters:
-        names[PARAMETER_PORT] = (_row(PARAMETER_PORT) if PARAMETER_PORT in body.used_inputs()
-                                 else PARAMETER_PORT)
-    # the carried state in two block arrays each, the step reading one and writing the other,
-    # which then swap (pointers): no copy of the state from step to step
-    pairs = [{"pair": f"{_block(s['name'])}_pair", "array": _block(s["name"]),
-              "source": _block(s["out"]), "size": s["size"]} for s in state]
-    arrays = [f"{_block(name)}[{unit.step_input_size(name)} * {lanes}]"
-              for name in unit.step_inputs]
-    load = [{"array": _block(s["name"]), "source": s["start"], "size": s["size"]}
-            for s in state]
-    per_lane = 2 * sum(s["size"] for s in state) + sum(
-        unit.step_input_size(name) for name in unit.step_inputs) + (
-        unit.n + unit.m if two is not None else 0)
-
-    def gather(row: str, names_of: dict[str, str]) -> list[dict]:
-        """Row ``row`` of each per-step input of the block's tracks into its block array."""
-        return [{"array": _block(names_of.get(name, name)), "source": name,
-                 "size": unit.step_input_size(name), "row": row}
-                for name in unit.step_inputs]
-
-    # every array a block reads or writes a row of each step: its tracks' rows are
-    # contiguous there, the next block's prefetched while this one runs (AHEAD_BYTES)
-    streamed = ([{"array": name, "size": unit.step_input_size(name), "write": 0,
-                  "optional": False} for name in unit.step_inputs]
-                + [{"array": s["store"], "size": s["size"], "write": 1, "optional": False}
-                   for s in state if s["store"]]
-                + [{"array": s["array"], "size": s["size"], "write": 1, "optional": True}
-                   for s in optional_stores])
-    for a in streamed:
-        a["lines"] = f"{a['array']}_lines"
-    track_step = " + ".join(f"({a['array']} ? {a['size']}u : 0u)" if a["optional"]
-                            else f"{a['size']}u" for a in streamed) or "0u"
-
-    def prefetch(row: str) -> list[dict]:
-        """The rows AHEAD steps after ``row`` of the per-step inputs (read) and the stored
-        outputs (written)."""
-        ahead = f"{row} + {AHEAD}"
-        return ([{"array": name, "size": unit.step_input_size(name), "row": ahead,
-                  "write": 0} for name in unit.step_inputs]
-                + [{"array": s["store"], "size": s["size"], "row": ahead, "write": 1}
-                   for s in state if s["store"]])
-
-    def stores(row: str, values: dict[str, str]) -> list[dict]:
-        """The rows ``row`` of run's stored outputs from the block arrays ``values``."""
-        out = [{"array": s["store"], "source": values[s["out"]], "size": s["size"],
-                "row": row, "optional": False} for s in state if s["store"]]
-        out += [{"array": s["array"], "source": values[s["out"]], "size": s["size"],
-                 "row": row, "optional": True} for s in optional_stores if s["out"] in values]
-        return out
-
-    status = bool(body.checks) or (two is not None and bool(two.checks))
-    step_call = _call(body, body_name(prefix), {port: f"{block} + j" if port != PARAMETER_PORT
-                                                else block for port, block in names.items()},
-                      lanes)
-    news = {s["out"]: _block(s["out"]) for s in state}
-    parts = {
-        "lanes": lanes, "simd": SIMD, "arrays": arrays, "load": load,
-        "macros": tracks_macro_lines(interleave(per_lane, real.bits // 8), real.bits // 8),
-        "pairs": pairs, "streamed": streamed, "track_step": track_step,
-        "ahead_bytes": AHEAD_BYTES, "line": LINE, "next_row": "k + 1",
-        "status": status,
-        "p_row": (f"const {real.c_type} *restrict {_row(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
-                  "p_stride;" if unit.parameters and PARAMETER_PORT in body.used_inputs()
-                  else ""),
-        "gather": gather("k", {}),
-        "prefetch": prefetch("k"), "ahead": AHEAD, "prefetch_macro": PREFETCH,
-        "lane": [(f"status_b[j] = {step_call};" if body.checks else f"{step_call};")],
-        "store": stores("k", news),
-        "run_call": run_call,
-        "pass": None,
-    }
-    if two is not None:
-        mid = _block("x_mid")
-        parts["arrays"] += [f"{mid}[{unit.n} * {lanes}]",
-                            f"{_block(LOOKAHEAD_NEXT)}[{unit.m} * {lanes}]"]
-        first = _call(body, body_name(prefix), {**{p: f"{b} + j" for p, b in names.items()},
-                                                "x_new": f"{mid} + j"}, lanes)
-        second = _call(two, body_name(prefix, "pass"),
-                       {"x": f"{_block('x')} + j", "z": f"{_block('z')} + j",
-                        LOOKAHEAD_NEXT: f"{_block(LOOKAHEAD_NEXT)} + j",
-                        "x_new": f"{_block('x_new')} + j"}, lanes)
-        lane = [f"const int step_status = {first};" if body.checks else f"{first};",
-                f"const int pass_status = {second};" if two.checks else f"{second};"]
-        held = [name for name, checks in (("step_status", body.checks),
-                                          ("pass_status", two.checks)) if checks]
-        if held:  # the step's failed check first, as in run
-            lane.append("status_b[j] = " + (" ? step_status : ".join(held)) + ";")
-        parts["pass"] = {
-            "next_row": "k + 2",
-            "gather": gather("k", {}) + [{"array": _block(LOOKAHEAD_NEXT), "source": "z",
-                                          "size": unit.m, "row": "k + 1"}],
-            "prefetch": prefetch("k"),
-            "lane": lane,
-            "store": stores("k", {"x_new": mid}) + stores("k + 1", news),
-        }
-    return parts
+def _call_names(run: Run, call: Call, reads_p: bool) -> dict[str, str]:
+    """A lane's names of a call's ports: lane j of their block arrays (p's row as it is)."""
+    names = {}
+    for state in run.states:  # a port not bound is the carried state's
+        names.update({state.name: f"{_block(state.name)} + j",
+                      state.new: f"{_block(state.new)} + j"})
+    for port, source in call.args:
+        names[port] = ((row_pointer(PARAMETER_PORT) if reads_p else PARAMETER_PORT)
+                       if isinstance(source, Row) and source.array == PARAMETER_PORT
+                       else f"{_block(port)} + j")
+    names.update({port: f"{_block(name)} + j" for port, _, name in call.into})
+    return names
 
 
-def tracks_lines(signature: str, tracks: dict, unused: list[str], checks: list[str],
+def _gathered(loop: Steps) -> list[tuple[str, Row]]:
+    """The rows of run's arrays a loop's calls read (not p's), each (port, row) once."""
+    found: dict[str, Row] = {}
+    for call in (c for c in loop.body if isinstance(c, Call)):
+        for port, source in call.args:
+            if isinstance(source, Row) and source.array != PARAMETER_PORT:
+                found.setdefault(port, source)
+    return list(found.items())
+
+
+def _block_arrays(run: Run) -> dict[str, int]:
+    """The block arrays of a step's rows: the rows the loops read, the local arrays they
+    write (x_mid), by name: elements a lane."""
+    arrays: dict[str, int] = {}
+    for loop in run.loops:
+        for call in (c for c in loop.body if isinstance(c, Call)):
+            for port, source in call.args:
+                if isinstance(source, Row) and source.array != PARAMETER_PORT:
+                    arrays.setdefault(port, source.size)
+            arrays.update({name: row.size for _, row, name in call.into})
+    return arrays
+
+
+def tracks_inlined(run: Run, lowered: dict[str, LoweredProgram]) -> bool:
+    """True when run_tracks runs blocks of tracks in lanes: every body its loops call is
+    inlined (else it runs run on every track)."""
+    return all(inlined(lowered[c.program]) for c in walk(run.loops) if isinstance(c, Call))
+
+
+def tracks_macros(run: Run, lowered: dict[str, LoweredProgram], real: Precision) -> list[str]:
+    """The macros of run_tracks' blocks (:func:`tracks_macro_lines`), their registers from
+    the elements a lane holds: the carried state twice, the block arrays."""
+    if not tracks_inlined(run, lowered):
+        return []
+    per_lane = 2 * sum(s.size for s in run.states) + sum(_block_arrays(run).values())
+    return tracks_macro_lines(interleave(per_lane, real.bits // 8), real.bits // 8)
+
+
+def tracks_lines(signature: str, run: Run, lowered: dict[str, LoweredProgram], prefix: str,
+                 unused: list[str], checks: list[str], run_call: list[str],
                  tail: list[str], real: Precision = DOUBLE) -> list[str]:
-    """``run_tracks`` whole (its comment, signature and body) from :func:`tracks_parts`:
-    blocks of ``tracks["lanes"]`` tracks (element i of lane j at ``[i * LANES + j]``),
-    the step body over the lanes in one loop, the last tracks by run; ``checks``: every
-    track's check of its start arguments, before any step."""
-    t, n = real.c_type, tracks["lanes"]
+    """``run_tracks`` whole (its comment, signature and body), from the stepping
+    :class:`Run`: blocks of :data:`LANES` tracks, structure-of-arrays (element i of lane j
+    at ``[i * LANES + j]``), each loop's calls over the lanes in one loop, the last tracks
+    by ``run_call`` (run on track t's arrays), then ``tail``; ``checks``: every track's
+    check of its start arguments, before any step; ``lowered``: the bodies the loops
+    call."""
+    t = real.c_type
+    n = LANES if tracks_inlined(run, lowered) else None
     lines = ["", "/* Run many independent tracks: each array holds one run's array per track, "
              "one track after",
              " * another (z[tracks][steps*m], x0[tracks][n], xs[tracks][steps*n], ...; Ps may "
@@ -515,84 +430,122 @@ def tracks_lines(signature: str, tracks: dict, unused: list[str], checks: list[s
                  "step */", "for (t = 0; t < tracks; ++t) {"]
         body += ["    " + line for line in checks] + ["}", "t = 0;"]
     if n:
-        body += _blocks(tracks, t)
+        body += _blocks(run, lowered, prefix, t)
         body.append("/* the last tracks, fewer than a block: run on each */")
-    body += ["for (; t < tracks; ++t) {"] + ["    " + line for line in tracks["run_call"]]
+    body += ["for (; t < tracks; ++t) {"] + ["    " + line for line in run_call]
     body += ["}"] + list(tail)
     return lines + ["    " + line for line in body] + ["}"]
 
 
-def _blocks(tracks: dict, t: str) -> list[str]:
-    """The loop over the blocks of run_tracks (its tracks' state loaded, the steps, the
-    state swapped between its two arrays)."""
-    n, line, ahead = tracks["lanes"], tracks["line"], tracks["ahead_bytes"]
-    macro = tracks["prefetch_macro"]
+def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -> list[str]:
+    """The loop over the blocks of run_tracks (its tracks' state loaded, each loop of the
+    run over the lanes, the state swapped between its two arrays)."""
+    n, line, ahead = LANES, LINE, AHEAD_BYTES
+    states = {s.name: s for s in run.states}
+    step = lowered["step"]
+    reads_p = PARAMETER_PORT in step.used_inputs()
+    p_row = reads_p and any(port == PARAMETER_PORT for c in walk(run.loops)
+                            if isinstance(c, Call) for port, _ in c.args)
+    last = run.loops[-1]
+    stores = sorted((s for s in last.body if isinstance(s, Store)), key=lambda s: s.optional)
+    # every array a block reads or writes a row of each step: its tracks' rows are
+    # contiguous there, the next block's prefetched while this one runs (AHEAD_BYTES)
+    streamed = ([(row.array, row.size, 0, False) for _, row in _gathered(last)]
+                + [(s.array, s.size, 1, s.optional) for s in stores])
+    track_step = " + ".join(f"({a} ? {size}u : 0u)" if optional else f"{size}u"
+                            for a, size, _, optional in streamed) or "0u"
+    checked = [c for c in walk(run.loops) if isinstance(c, Call) and lowered[c.program].checks]
     out = ["/* a block's tracks are contiguous in each array: while one block runs, the "
            "next one's",
            f" * cache lines are prefetched, a share each step, when they fit {ahead};",
-           f" * else (and for the first block) each lane's rows {tracks['ahead']} steps on */",
-           f"const int next_fits = steps * {n} * sizeof({t}) * ({tracks['track_step']}) <= "
+           f" * else (and for the first block) each lane's rows {AHEAD} steps on */",
+           f"const int next_fits = steps * {n} * sizeof({t}) * ({track_step}) <= "
            f"{ahead};"]
-    out += [f"const size_t {a['lines']} = ({n} * steps * {a['size']} * sizeof({t}) + {line} "
-            f"- 1) / {line};" for a in tracks["streamed"]]
+    out += [f"const size_t {a}_lines = ({n} * steps * {size} * sizeof({t}) + {line} "
+            f"- 1) / {line};" for a, size, _, _ in streamed]
     block = [f"const int prefetch_next = next_fits && t + 2 * {n} <= tracks;",
              "const int prefetch_rows = !next_fits || t == 0;"]
-    for a in tracks["pairs"]:
-        block += [f"{t} {a['pair']}[2][{a['size']} * {n}];", f"{t} *{a['array']} = {a['pair']}[0];",
-                  f"{t} *{a['source']} = {a['pair']}[1];"]
-    block += [f"{t} {array};" for array in tracks["arrays"]]
-    if tracks["status"]:
+    for s in run.states:  # two block arrays each, the step reading one and writing the
+        # other, which then swap (pointers): no copy of the state from step to step
+        block += [f"{t} {_block(s.name)}_pair[2][{s.size} * {n}];",
+                  f"{t} *{_block(s.name)} = {_block(s.name)}_pair[0];",
+                  f"{t} *{_block(s.new)} = {_block(s.name)}_pair[1];"]
+    block += [f"{t} {_block(name)}[{size} * {n}];" for name, size in _block_arrays(run).items()]
+    if checked:
         block.append(f"int status_b[{n}];")
     block.append(f"for (j = 0; j < {n}; ++j) {{")
-    for a in tracks["load"]:
-        block += [f"    for (i = 0; i < {a['size']}; ++i) {{",
-                  f"        {a['array']}[i * {n} + j] = {a['source']}[(t + j) * {a['size']} + i];",
+    for s in run.states:
+        block += [f"    for (i = 0; i < {s.size}; ++i) {{",
+                  f"        {_block(s.name)}[i * {n} + j] = {s.start}[(t + j) * {s.size} + i];",
                   "    }"]
     block.append("}")
-    parts = ([tracks["pass"]] if tracks["pass"] else []) + [tracks]
-    for part in parts:
-        if part is tracks["pass"]:
-            head = "for (k = 0; k + 2 <= steps; k += 2) {"
-        elif tracks["pass"]:
-            head = "for (; k < steps; ++k) {"
-        else:
-            head = "for (k = 0; k < steps; ++k) {"
-        step = [tracks["p_row"]] if tracks["p_row"] else []
-        step.append("if (prefetch_next) {")
-        for a in tracks["streamed"]:
-            fetch = [f"for (i = {a['lines']} * k / steps; i < {a['lines']} * ({part['next_row']})"
+    for loop in run.loops:
+        step_lines = [f"const {t} *restrict {row_pointer(PARAMETER_PORT)} = {PARAMETER_PORT} + k * "
+                      f"{P_STRIDE};"] if p_row else []
+        step_lines.append("if (prefetch_next) {")
+        for a, size, write, optional in streamed:
+            fetch = [f"for (i = {a}_lines * k / steps; i < {a}_lines * (k + {loop.by})"
                      f" / steps; ++i) {{",
-                     f"    {macro}((const char *)({a['array']} + (t + {n}) * steps * "
-                     f"{a['size']}) + {line} * i, {a['write']});", "}"]
-            step += (["    " + f"if ({a['array']}) {{"] + ["        " + x for x in fetch]
-                     + ["    }"] if a["optional"] else ["    " + x for x in fetch])
-        step += ["}", f"if (prefetch_rows && k + {tracks['ahead']} < steps) {{",
-                 f"    for (j = 0; j < {n}; ++j) {{"]
-        step += [f"        {macro}(&{a['array']}[((t + j) * steps + {a['row']}) * {a['size']}], "
-                 f"{a['write']});" for a in part["prefetch"]]
-        step += ["    }", "}", f"for (j = 0; j < {n}; ++j) {{"]
-        for a in part["gather"]:
-            step += [f"    for (i = 0; i < {a['size']}; ++i) {{",
-                     f"        {a['array']}[i * {n} + j] = {a['source']}[((t + j) * steps + "
-                     f"{a['row']}) * {a['size']} + i];", "    }"]
-        step += ["}", tracks["simd"], f"for (j = 0; j < {n}; ++j) {{"]
-        step += ["    " + x for x in part["lane"]] + ["}"]
-        if tracks["status"]:
-            step += ["{", "    int failed = 0;", f"    for (j = 0; j < {n}; ++j) {{",
-                     "        failed |= status_b[j];", "    }", "    if (failed) {",
-                     f"        for (j = 0; j < {n}; ++j) {{", "            if (status_b[j]) {",
-                     "                return status_b[j];", "            }", "        }", "    }",
-                     "}"]
-        step.append(f"for (j = 0; j < {n}; ++j) {{")
-        for a in part["store"]:
-            store = [f"for (i = 0; i < {a['size']}; ++i) {{",
-                     f"    {a['array']}[((t + j) * steps + {a['row']}) * {a['size']} + i] = "
-                     f"{a['source']}[i * {n} + j];", "}"]
-            step += (["    " + f"if ({a['array']}) {{"] + ["        " + x for x in store]
-                     + ["    }"] if a["optional"] else ["    " + x for x in store])
-        step.append("}")
-        for a in tracks["pairs"]:
-            step += ["{", f"    {t} *const swap = {a['array']};",
-                     f"    {a['array']} = {a['source']};", f"    {a['source']} = swap;", "}"]
-        block += [head] + ["    " + x for x in step] + ["}"]
+                     f"    {PREFETCH}((const char *)({a} + (t + {n}) * steps * "
+                     f"{size}) + {line} * i, {write});", "}"]
+            step_lines += (["    " + f"if ({a}) {{"] + ["        " + x for x in fetch]
+                           + ["    }"] if optional else ["    " + x for x in fetch])
+        step_lines += ["}", f"if (prefetch_rows && k + {AHEAD} < steps) {{",
+                       f"    for (j = 0; j < {n}; ++j) {{"]
+        ahead_rows = ([(row.array, row.size, 0) for _, row in _gathered(last)]
+                      + [(s.array, s.size, 1) for s in stores if not s.optional])
+        step_lines += [f"        {PREFETCH}(&{a}[((t + j) * steps + k + {AHEAD}) * {size}], "
+                       f"{write});" for a, size, write in ahead_rows]
+        step_lines += ["    }", "}", f"for (j = 0; j < {n}; ++j) {{"]
+        for port, row in _gathered(loop):
+            step_lines += [f"    for (i = 0; i < {row.size}; ++i) {{",
+                           f"        {_block(port)}[i * {n} + j] = {row.array}[((t + j) * "
+                           f"steps + {row.row}) * {row.size} + i];", "    }"]
+        step_lines += ["}", SIMD, f"for (j = 0; j < {n}; ++j) {{"]
+        step_lines += ["    " + x for x in _lane(run, loop, lowered, prefix, reads_p)] + ["}"]
+        if checked:
+            step_lines += ["{", "    int failed = 0;", f"    for (j = 0; j < {n}; ++j) {{",
+                           "        failed |= status_b[j];", "    }", "    if (failed) {",
+                           f"        for (j = 0; j < {n}; ++j) {{",
+                           "            if (status_b[j]) {",
+                           "                return status_b[j];", "            }", "        }",
+                           "    }", "}"]
+        step_lines.append(f"for (j = 0; j < {n}; ++j) {{")
+        made = {s: _block(states[s].new) for s in states}
+        made.update({name: _block(name) for c in loop.body if isinstance(c, Call)
+                     for _, _, name in c.into})
+        for s in sorted((s for s in loop.body if isinstance(s, Store)),
+                        key=lambda s: s.optional):
+            if s.state not in made:
+                continue
+            store = [f"for (i = 0; i < {s.size}; ++i) {{",
+                     f"    {s.array}[((t + j) * steps + {s.row}) * {s.size} + i] = "
+                     f"{made[s.state]}[i * {n} + j];", "}"]
+            step_lines += (["    " + f"if ({s.array}) {{"] + ["        " + x for x in store]
+                           + ["    }"] if s.optional else ["    " + x for x in store])
+        step_lines.append("}")
+        for s in run.states:
+            step_lines += ["{", f"    {t} *const swap = {_block(s.name)};",
+                           f"    {_block(s.name)} = {_block(s.new)};",
+                           f"    {_block(s.new)} = swap;", "}"]
+        block += [loop_head(loop)] + ["    " + x for x in step_lines] + ["}"]
     return out + [f"for (; t + {n} <= tracks; t += {n}) {{"] + ["    " + x for x in block] + ["}"]
+
+
+def _lane(run: Run, loop: Steps, lowered: dict[str, LoweredProgram], prefix: str,
+          reads_p: bool) -> list[str]:
+    """Lane j of a loop's calls; a failed check's status kept, the earliest call's first."""
+    calls = [c for c in loop.body if isinstance(c, Call)]
+    texts = [(_call(lowered[c.program], body_name(prefix, "step" if c.program == "step"
+                                                   else "pass"),
+                    _call_names(run, c, reads_p), LANES), bool(lowered[c.program].checks),
+              "step_status" if c.program == "step" else "pass_status") for c in calls]
+    if len(texts) == 1:
+        text, checks, _ = texts[0]
+        return [f"status_b[j] = {text};" if checks else f"{text};"]
+    lane = [f"const int {held} = {text};" if checks else f"{text};"
+            for text, checks, held in texts]
+    held = [held for _, checks, held in texts if checks]
+    if held:  # the step's failed check first, as in run
+        lane.append("status_b[j] = " + (" ? step_status : ".join(held)) + ";")
+    return lane

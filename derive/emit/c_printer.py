@@ -33,7 +33,7 @@ from derive.trees import FUSED_KINDS, Tree
 
 FMA_NAME = "DERIVE_FMA"
 #: Defined where the file's own DERIVE_FMA is the hardware fma (one rounding), and where it
-#: is a product and a sum (two): a vector path (derive.emit.block_lanes) fuses exactly when
+#: is a product and a sum (two): a vector path (derive.emit.c_lanes) fuses exactly when
 #: the scalar one does; neither is defined where the build defines DERIVE_FMA itself.
 FMA_FUSED = "DERIVE_FMA_FUSED"
 FMA_PLAIN = "DERIVE_FMA_PLAIN"

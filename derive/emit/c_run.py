@@ -5,6 +5,7 @@ back; a guard is a branch."""
 from __future__ import annotations
 
 from derive.emit import c_printer
+from derive.emit.c_loops import P_STRIDE, body_name, checked_call, loop_head, row_pointer
 from derive.lowering import LoweredProgram
 from derive.precision import DOUBLE, Precision
 from derive.program import PARAMETER_PORT
@@ -25,9 +26,6 @@ from derive.runs.loops import (
     Window,
     walk,
 )
-
-#: C run's stride of p: 0 when p is one row for every step, NP when one row per step.
-P_STRIDE = "p_stride"
 
 
 def call_lines(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
@@ -272,10 +270,10 @@ class _Printer:
 
 
 def run_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str, inputs: int = 0,
-              real: Precision = DOUBLE, rows: tuple[str, ...] = ()) -> list[str]:
+              real: Precision = DOUBLE, per_step: tuple[str, ...] = ()) -> list[str]:
     """The statements of C run (unindented); ``inputs``: the width of run's u (0: none);
-    ``rows``: run's arrays read one row per step (a pointer at row k of one is ``zk``)."""
-    printer = _Printer(run, lowered, prefix, real, rows)
+    ``per_step``: run's arrays read one row per step (a pointer at row k of one is ``zk``)."""
+    printer = _Printer(run, lowered, prefix, real, per_step)
     printer.fill = {r.array: r.fill for r in run.records}
     status = any(lp.has_checks for lp in lowered.values())
     return (printer.declarations(inputs) + printer.start() + printer.nodes(run.loops)
@@ -287,12 +285,13 @@ def _unrolled(target: str, source: str, size: int) -> list[str]:
 
 
 def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
-                   bodies: dict[str, list[str]], checks: list[str] = (),
+                   bodies: dict[str, LoweredProgram], checks: list[str] = (),
                    real: Precision = DOUBLE) -> list[str]:
     """The statements of C run for a run whose step is its body inline on run's local
     arrays (derive.runs.kinds.stepping): the state in local arrays, the copies unrolled;
-    ``bodies``: the C of the body calls (``step``; ``pair``: a two-step pass's);
-    ``checks``: run's check of its start arguments, once before the loop."""
+    ``bodies``: the programs of the step bodies its calls name (``step``; ``pass``: the
+    two-step map's, derive.emit.c_loops); ``checks``: run's check of its start arguments,
+    once before the loop."""
     t = real.c_type
     calls = [c for c in walk(run.loops) if isinstance(c, Call)]
     step = next(c for c in calls if c.program == "step")
@@ -344,12 +343,7 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
     head = [("/* " if i == 0 else "   ") + line + (" */" if i == len(loop.note.split("\n")) - 1
                                                  else "")
             for i, line in enumerate(loop.note.split("\n"))]
-    if loop.by == 2:
-        head.append("for (k = 0; k + 2 <= steps; k += 2) {")
-    elif loop.rest:
-        head.append("for (; k < steps; ++k) {")
-    else:
-        head.append("for (k = 0; k < steps; ++k) {")
+    head.append(loop_head(loop))
     rows = {}  # the rows the bodies read
     for call in (c for c in loop.body if isinstance(c, Call)):
         for port, source in call.args:
@@ -360,7 +354,14 @@ def _stepping_loop(loop: Steps, run: Run, lowered, prefix: str, bodies, reads_p:
             elif isinstance(source, Row) and reads_p:
                 rows[port] = (f"const {t} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT} + k * "
                               f"{P_STRIDE};")
-    body = list(rows.values()) + bodies["pair" if loop.by == 2 else "step"]
+    body = list(rows.values())
+    for call in (c for c in loop.body if isinstance(c, Call)):  # a body on local arrays
+        names = {port: (row_pointer(port) if source.array != PARAMETER_PORT or reads_p
+                        else PARAMETER_PORT)
+                 for port, source in call.args if isinstance(source, Row)}
+        names.update({port: row.array for port, row, _ in call.into})
+        body += checked_call(bodies[call.program], body_name(prefix, call.program), names,
+                             f"{call.program}_status")
     states = {s.name: s for s in run.states}
     stored = {s.state: s for s in loop.body if isinstance(s, Store) and not s.optional
               and s.state and s.row == ("k + 1" if loop.by == 2 else "k")}

@@ -18,7 +18,7 @@ target whose vector registers hold the vector (four doubles: x86 AVX; four float
 NEON), 0 elsewhere (a Cortex-M, or x86-64 at its SSE2 baseline for doubles, gets the
 scalar lanes, which leave out the lanes nothing reads), and a build may set it. It is the
 one switch of C's one vector dialect (:func:`vector_macro_lines`): the block lanes of a
-run (derive.emit.block_lanes) use the same switch, vector type and fused multiply-adds,
+run (derive.emit.c_lanes) use the same switch, vector type and fused multiply-adds,
 and the track lanes' vectorisation hint (derive.emit.c_loops) follows the switch. An
 operand whose lanes are the lanes of an earlier chunk, in order, is that chunk's vector;
 any other one is built from its lanes (a compound literal: consecutive elements of an

@@ -94,7 +94,7 @@ def render_test_program(unit: Unit, header: str, data) -> str:
             raise FilterError(f"{run.name} takes {arg.name!r}, which the verification data "
                               "do not hold")
         value = np.asarray(value, dtype=float)
-        per_step_rows = arg.rows and value.ndim == 2
+        per_step_rows = arg.strided and value.ndim == 2
         expected = steps * arg.size() if per_step_rows else arg.size(steps)
         if value.size != expected:
             raise FilterError(f"{run.name}: verification data {arg.name!r} of {value.size} "
@@ -103,7 +103,7 @@ def render_test_program(unit: Unit, header: str, data) -> str:
         inputs.append(_Array(name, kind.c_type, value.size,
                              _literals(value, kind, missing=arg.name in sensor_rows)))
         args.append(name)
-        if arg.rows:  # run's stride: a row's length for one row per step, 0 for one row
+        if arg.strided:  # run's stride: a row's length for one row per step, 0 for one row
             strides.append(str(arg.size()) if per_step_rows else "0")
     call_args = (["STEPS"] if run.has_steps else []) + args + strides
     env = environment()

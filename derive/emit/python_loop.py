@@ -21,9 +21,9 @@ index (the bytes kept so far over a row's: no counter per step).
 from __future__ import annotations
 
 from derive.emit.python_printer import PythonPrinter
-from derive.emit.shared_blocks import shared_step
 from derive.lowering import MAX_DEPTH, LoweredAssign, LoweredProgram
 from derive.program import PARAMETER_PORT
+from derive.runs.loops import Call, Row, Run, Store, walk
 from derive.trees import Op, Var, tree_vars
 
 
@@ -89,28 +89,29 @@ def _read_indices(lowered: LoweredProgram) -> dict[str, set[int]]:
     return read
 
 
-def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
-                      arrays: dict[str, str], carried: tuple[tuple[str, str], ...],
-                      stored: tuple[tuple[str, tuple[int, ...]], ...],
+def single_track_loop(run: Run, lowered: LoweredProgram, arrays: dict[str, str],
                       indent: str = "        ") -> tuple[str, ...]:
     """Lines of the single-track branch of ``run`` (indented for the run function's body)
-    for a step with the ``carried`` state, (input port, output port) pairs.
+    for a stepping :class:`Run` whose step is ``lowered`` (without its pattern checks):
+    its carried state, the rows its step reads, the carried inputs it stores.
 
     ``arrays`` maps the step's ports to the run's array names (``x`` -> ``x0``,
-    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``).  ``stored``: the carried input
-    ports run returns, each with its shape per step.  The branch returns them exactly as
-    the general branch does.
+    ``P`` -> ``P0``, ``z`` -> ``zs``, ``p`` -> ``p``). The branch returns the stored
+    arrays exactly as the general branch does.
 
-    A step of identical blocks whose carried elements that read no data start bitwise
-    equal (:mod:`derive.emit.shared_blocks`: the covariances of identical axes from equal
-    P0 blocks) first tries a loop that computes those statements once for all blocks,
-    under a test of the initial state; its rows are bitwise those of the full loop.
+    A run the pass :func:`derive.runs.shared.share_blocks` marked (identical blocks whose
+    carried elements that read no data start bitwise equal: the covariances of identical
+    axes from equal P0 blocks) first tries a loop that computes those statements once for
+    all blocks, under a test of the initial state; its rows are bitwise those of the full
+    loop.
     """
+    (step,) = (c for c in walk(run.loops) if isinstance(c, Call))
+    step_inputs = tuple(port for port, source in step.args if isinstance(source, Row))
+    carried = tuple((s.name, s.new) for s in run.states)
+    shapes = {p.name: p.shape for p in lowered.inputs}
+    stored = tuple((s.state, shapes[s.state]) for s in walk(run.loops) if isinstance(s, Store))
     lines = _loop_lines(lowered, step_inputs, arrays, carried, stored)
-    ports = {p.name for p in lowered.inputs}
-    outputs = dict(lowered.results)
-    shared = shared_step(lowered, [(port, out) for port, out in carried
-                                   if port in ports and out in outputs])
+    shared = run.shared
     if shared is not None:
         tests = [f"{arrays[port]}.reshape(-1)[{list(later)}].tobytes() == "
                  f"{arrays[port]}.reshape(-1)[{list(firsts)}].tobytes()"
@@ -118,7 +119,7 @@ def single_track_loop(lowered: LoweredProgram, step_inputs: tuple[str, ...],
         starts = " and ".join(arrays[port] for port, _, _ in shared.equal)
         lines = [f"# identical blocks starting equal in {starts}: {shared.dropped} statements "
                  "of the step",
-                 "# read no data and are computed once (derive.emit.shared_blocks)",
+                 "# read no data and are computed once (derive.runs.shared)",
                  *_wrap(f"if {' and '.join(tests)}:")] + \
             [f"    {line}" for line in _loop_lines(shared.program, step_inputs, arrays, carried,
                                                    stored)] + lines

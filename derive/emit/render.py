@@ -18,26 +18,20 @@ import jinja2
 import numpy as np
 
 from derive import interface
-from derive.emit import block_lanes, c_loops, c_printer, c_run, python_printer, python_run
-from derive.emit.c_loops import (
-    body_functions,
-    body_name,
-    fused_body,
-    step_function_body,
-    tracks_parts,
-    two_step_body,
-)
+from derive.emit import c_lanes, c_loops, c_printer, c_run, python_printer, python_run
+from derive.emit.c_loops import P_STRIDE, body_functions, body_name, step_function_body
 from derive.emit.python_loop import single_track_loop
 from derive.emit.python_run import PARAMETER_ROWS, PARAMETER_START
-from derive.flops import count_lowered
+from derive.flops import LANGUAGES, count_lowered
 from derive.lowering import LoweredProgram, lower_programs
 from derive.precision import DOUBLE, Precision, precision
 from derive.program import PARAMETER_PORT
-from derive.runs import kinds
+from derive.runs import blocks, kinds, shared
 from derive.runs.loops import Store, walk
-from derive.runs.unit import LANGUAGES, Argument, Unit, run_arguments
+from derive.runs.unit import Argument, Unit, run_arguments
 from derive.runs.unit import sizes as run_sizes
 from derive.runs.unit import space as array_space
+from derive.trees import FUSED_KINDS
 from derive.version import __version__
 
 
@@ -117,7 +111,7 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
     if run is not None:
         status = any(lp.has_checks for lp in lowered.values())
         args = tuple(interface.Argument(a.c_name, a.dims, a.output, a.optional,
-                                        rows=a.c_name == PARAMETER_PORT, py_name=a.py_name,
+                                        strided=a.c_name == PARAMETER_PORT, py_name=a.py_name,
                                         scratch=a.scratch, space=space(a.c_name))
                      for a in run)
         if c_run:
@@ -192,9 +186,9 @@ def _header_lines(unit: Unit, lang: str, lowered: dict[str, LoweredProgram]) -> 
                  else "interface (matrices taken flat, row-major, or (n, n), returned (n, n); "
                       "steps = number of steps):")
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
-                         c_run=unit.run_function, tracks=unit.batch, unit=unit)
+                         c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     lines += described.c_lines() if lang == "c" else described.python_lines()
-    if lang == "c" and unit.batch:
+    if lang == "c" and unit.run_tracks:
         lines.append(f"    many tracks: {unit.prefix}_run_tracks(steps, tracks, the run's arrays "
                      "for each track, one track after another" + (", p and p_stride shared by "
                      "the tracks" if unit.parameters else "") + ")")
@@ -365,6 +359,29 @@ def _render_python_sensors(unit: Unit) -> dict[str, str]:
     return {f"{unit.filter}.py": _render("python/run.jinja", context)}
 
 
+def _c_parameters(unit: Unit, real: Precision, lead: tuple[str, ...] = ("size_t steps",)
+                  ) -> str:
+    """C run's parameters (``lead``, run's arrays, p's stride), joined."""
+    arrays = [(f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
+              for a in run_arguments(unit)]
+    return ", ".join([*lead, *arrays] + ([f"size_t {P_STRIDE}"] if unit.parameters else []))
+
+
+def _c_frame(unit: Unit, lps: list[LoweredProgram], real: Precision, header_lines: list[str],
+             sizes: list[str], described: interface.Interface) -> dict:
+    """The C files' frame both renderings share: header comment, include guard, the
+    defines (restrict, sizes, statuses), includes and the fma macros."""
+    enum = status_enum(unit.prefix, described)
+    return {"header": [c_printer.comment_text(line) for line in header_lines],
+            "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
+            "defines": c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes
+            + ([""] + enum if enum else []),
+            "h_file": f"{unit.filter}.h",
+            "math_h": c_printer.needs_math_h(lps),
+            "fma_macro": c_printer.macro_lines(lps, real),
+            "about": unit.about.get("c", "Run the filter over steps steps.")}
+
+
 def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, str]:
     """The C files of a unit of the run kind ``sensors`` (derive.runs.kinds.sensors)."""
     lowered = _lowered(unit, use_fma=use_fma)
@@ -373,14 +390,8 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
     described = describe(unit.prefix, lowered, run_arguments(unit), real, unit=unit)
     header_lines.append(described.block())
     status = any(lp.has_checks for lp in lps)
-    args = run_arguments(unit)
-    stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
-    run_params = ["size_t steps"] + [
-        (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
-        for a in args] + stride
     prefix = unit.prefix
-    run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
-    enum = status_enum(prefix, described)
+    run_signature = f"{'int' if status else 'void'} {prefix}_run({_c_parameters(unit, real)})"
     sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
              *([f"#define {prefix}_NT {unit.nt}"] if unit.nt != unit.n else []),
              f"#define {prefix}_NP {len(unit.parameters)}",
@@ -388,21 +399,14 @@ def _render_c_sensors(unit: Unit, use_fma: bool, real: Precision) -> dict[str, s
     sizes += [f"#define {prefix}_M_{s.name.upper()} {s.m}" for s in unit.sensors]
     restrict = c_printer.restrict_macro(unit.symbol_prefix)
     context = {
-        "header": [c_printer.comment_text(line) for line in header_lines],
-        "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
-        "defines": c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes
-        + ([""] + enum if enum else []),
+        **_c_frame(unit, lps, real, header_lines, sizes, described),
         "prototypes": [c_printer.prototype(lp, prefix, restrict, real) + ";" for lp in lps]
         + [run_signature + ";"],
-        "h_file": f"{unit.filter}.h",
         "math_h": c_printer.needs_math_h(lps) or any(s.gated for s in unit.sensors),
-        "fma_macro": c_printer.macro_lines(lps, real),
         "functions": [c_printer.function_parts(lp, prefix, real) for lp in lps],
         "run_signature": run_signature,
         "run_body": c_run.run_lines(kinds.sensors(unit, lowered), lowered, prefix,
                                     unit.n_inputs, real),
-        "tracks_signature": "",
-        "about": unit.about.get("c", "Run the filter over steps steps."),
     }
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
             f"{unit.filter}.c": _render("c/run.jinja", context)}
@@ -435,10 +439,8 @@ def render_python(unit: Unit) -> dict[str, str]:
         arrays = {**{name: arrays[name] for name in unit.step_inputs},
                   **{s.name: "x_start" if run.enter is not None else s.start
                      for s in run.states}, PARAMETER_PORT: PARAMETER_ROWS}
-        rows = unit.step_inputs + ((PARAMETER_PORT,) if unit.parameters else ())
-        stored = tuple((s.state, ports[s.state].shape) for s in stores)
-        single = single_track_loop(lowered["step"].without_pattern_checks(), rows, arrays,
-                                   unit.carried, stored, indent="    ")
+        step = lowered["step"].without_pattern_checks()
+        single = single_track_loop(shared.share_blocks(run, step), step, arrays, indent="    ")
     context = {
         **_python_context(unit, lowered),
         "functions": [part for lp in lowered.values() for part in _python_functions(lp)],
@@ -450,9 +452,6 @@ def render_python(unit: Unit) -> dict[str, str]:
     return {f"{unit.filter}.py": _render("python/run.jinja", context)}
 
 
-#: C run's last argument with free parameters: 0 when p is one row for every step, NP
-#: (the number of parameters) when it holds one row per step.
-P_STRIDE = "p_stride"
 
 
 def include_guard(name: str, symbol_prefix: str = "") -> str:
@@ -478,42 +477,6 @@ def status_enum(prefix: str, described: interface.Interface) -> list[str]:
             + ["};"])
 
 
-def _c_call(function: str, args: str, status: bool) -> list[str]:
-    if not status:
-        return [f"{function}({args});"]
-    return [f"status = {function}({args});", "if (status) {", "    return status;", "}"]
-
-
-def stored_outputs(unit: Unit) -> list[dict]:
-    """run's per-step outputs: array name, the step's output port it stores, elements per
-    step, optional (C: may be NULL)."""
-    sizes = run_sizes(unit)
-    step_outputs = {out for _, out, _, _ in unit.extra_stores}
-    return [{"array": array, "out": out, "optional": optional,
-             "size": int(np.prod([sizes[d] for d in dims], dtype=int)),
-             "step": out in step_outputs, "dims": dims}
-            for array, out, dims, optional in unit.stores]
-
-
-def _program_call(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
-    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names)."""
-    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
-    return _c_call(f"{prefix}_{lp.name}", args, lp.has_checks)
-
-
-def carried_state(unit: Unit, step: LoweredProgram) -> list[dict]:
-    """The state run carries from step to step: the step's input port, its output port,
-    elements, the run argument that starts it (the run kind's ``start``, in order) and the
-    array that stores it every step (None when none does or the store is optional);
-    ``start_rank``: the number of dimensions of the start argument."""
-    ports = {p.name: p for p in step.inputs}
-    stores = {s["out"]: s["array"] for s in stored_outputs(unit) if not s["optional"]}
-    starts = list(unit.run.start) + [(None, ())] * len(unit.carried)
-    return [{"name": port, "out": out, "size": ports[port].size, "start": starts[i][0],
-             "start_rank": len(starts[i][1]), "store": stores.get(out)}
-            for i, (port, out) in enumerate(unit.carried)]
-
-
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     real = precision(unit.precision)
@@ -531,46 +494,31 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
             f"operations per pass of run, two steps ({_language('c', use_fma, real)}): "
             f"{(count_lowered(lowered['step']) + count_lowered(two)).summary()}"]
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
-                         c_run=unit.run_function, tracks=unit.batch, unit=unit)
+                         c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     status = any(lp.has_checks for lp in lps)
     args = run_arguments(unit)
-    stride = [f"size_t {P_STRIDE}"] if unit.parameters else []
-    run_params = ["size_t steps"] + [
-        (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
-        for a in args] + stride
-    p_arg = f", {PARAMETER_PORT}" if unit.parameters else ""
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
-    sizes = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
-             f"#define {prefix}_NP {len(unit.parameters)}"]
+    size_defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
+                    f"#define {prefix}_NP {len(unit.parameters)}"]
     if unit.run.window:
-        sizes.append(f"#define {prefix}_WINDOW {unit.window}")
-    enum = status_enum(prefix, described)
-    defines = c_printer.restrict_lines(unit.symbol_prefix) + [""] + sizes + (
-        [""] + enum if enum else [])
+        size_defines.append(f"#define {prefix}_WINDOW {unit.window}")
     restrict = c_printer.restrict_macro(unit.symbol_prefix)
     step_lp = lowered["step"]
-    init_call = (_c_call(f"{prefix}_init", f"x0, x_init{p_arg}", lowered["init"].has_checks)
-                 if "init" in lowered else [])
-    run_signature = f"{'int' if status else 'void'} {prefix}_run({', '.join(run_params)})"
+    run_signature = f"{'int' if status else 'void'} {prefix}_run({_c_parameters(unit, real)})"
     # without --no-run run is exported; else private to run_tracks (its last tracks), or none
     exported_run = [run_signature + ";"] if unit.run_function else []
     if not unit.run_function:
-        run_signature = f"static {run_signature}" if unit.batch else ""
+        run_signature = f"static {run_signature}" if unit.run_tracks else ""
     # run checks P0 once (run_checks); the loop's P stays in the pattern by construction.
     # The step's statements are printed once, in its body (derive.emit.c_loops): step, run
     # and run_tracks call it
     loop_step = step_lp.without_pattern_checks()
     step_body = body_name(prefix)
-    fused = fused_body(unit, loop_step, prefix) if not unit.run.window else []
-    state = carried_state(unit, step_lp)
-    optional_stores = [s for s in stored_outputs(unit) if s["optional"]]
-    starts = {s["name"]: (s["start"], s["size"]) for s in state}
-    carried_out = {s["out"] for s in state}
-    for s in optional_stores:  # computed by the store program, written into run's row k
-        s["call"] = (_program_call(prefix, lowered["store"],
-                                   {s["out"]: f"{s['array']} + k * {s['size']}"})
-                     if s["out"] not in carried_out and "store" in lowered else [])
+    run = kinds.BUILDERS[unit.kind](unit, lowered)
+    if two is not None and kinds.BUILDERS[unit.kind] is kinds.stepping:
+        run = kinds.two_steps(run, unit)
+    starts = {s.name: (s.start, s.size) for s in run.states}
 
     def start_element(check, track: str = "") -> str:
         """The run's start array element a zero check of the step tests (P0 for P)."""
@@ -585,13 +533,7 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c), real)]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
-    lookahead = two_step_body(unit, loop_step, two, prefix) if two is not None else []
-    step_rows = [f"const {real.c_type} *restrict {name}k = {name} + k * "
-                 f"{unit.step_input_size(name)};" for name in unit.step_inputs]
-    if fused and unit.parameters and PARAMETER_PORT in loop_step.used_inputs():
-        step_rows.append(f"const {real.c_type} *restrict {PARAMETER_PORT}k = {PARAMETER_PORT}"
-                         f" + k * {P_STRIDE};")
-    batch = unit.batch
+    batch = unit.run_tracks
     run_args = {a.c_name: a for a in args}
     sizes = run_sizes(unit)
 
@@ -607,13 +549,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
     run_call = ([f"const int track_status = {tail};", "if (track_status) {",
                  "    return track_status;", "}"] if status else [f"{tail};"])
-    tracks = tracks_parts(unit, loop_step, state, optional_stores, prefix, run_call,
-                          two, real) if batch else {}
-    tracks_params = ["size_t steps", "size_t tracks"] + [
-        (f"{real.c_type} *" if a.output else f"const {real.c_type} *") + a.c_name
-        for a in args] + stride
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
-                        f"{', '.join(tracks_params)})") if batch else ""
+                        f"{_c_parameters(unit, real, ('size_t steps', 'size_t tracks'))})"
+                        if batch else "")
     bodies = [loop_step] + ([two] if two is not None else [])
     functions = body_functions(loop_step, step_body, real)
     if two is not None:
@@ -626,58 +564,46 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
-    # identical blocks: run carries them in the lanes of one vector (derive.emit.block_lanes)
-    # (a pass body is called by the scalar run alone where there is no run_tracks: the
-    # vector run names it, else Clang finds an unused static inline function)
-    called_elsewhere = [f"(void){body_name(prefix, 'pass')};"] if two is not None else []
-    # a predictor's run starts from init's x_init (as its scalar run)
-    vector_start = [f"{real.c_type} x_init[{unit.n}];"] + (
-        ["int status;"] if status and init_call else []) + init_call
-    vector_state = [dict(s, start="x_init") for s in state] if init_call else state
-    vector_run, vector_macros, vector_header = block_lanes.vector_run(
-        unit, loop_step, two, vector_state, optional_stores,
-        (vector_start if init_call else []) + unused + called_elsewhere,
-        ["return 0;"] if status else [], real) if fused and "enter" not in lowered \
-        else ([], [], "")
+    bodied = {"step": loop_step} | ({"pass": two} if two is not None else {})  # the loops'
+    # identical blocks: run carries them in the lanes of one vector (derive.runs.blocks)
+    laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two}) \
+        if real is DOUBLE and not unit.run.window else None
+    vector_run, vector_macros, vector_header = [], [], ""
+    if laned is not None:
+        # (a pass body is called by the scalar run alone where there is no run_tracks: the
+        # vector run names it, else Clang finds an unused static inline function)
+        vector_run = c_lanes.lanes_lines(
+            laned, lowered | {"pass": two}, prefix,
+            [f"(void){body_name(prefix, 'pass')};"] if two is not None else [], real)
+        vector_macros = c_lanes.lanes_macro_lines(laned.lanes.width, any(
+            lp.kinds() & FUSED_KINDS for lp in (loop_step, two) if lp is not None))
+        vector_header = c_lanes.header_line(dict(laned.lanes.blocks)["step"])
     header_lines += [vector_header] if vector_header else []
     header_lines.append(described.block())
-    header = [c_printer.comment_text(line) for line in header_lines]
     context = {
-        "header": header,
+        **_c_frame(unit, lps, real, header_lines, size_defines, described),
         # with a vector run, run checks P0 before either run (the template then does not)
         "block_run": vector_run,
-        "guard": include_guard(f"{unit.model}_{unit.filter}", unit.symbol_prefix),
-        "defines": defines,
         "prototypes": [c_printer.prototype(lp, prefix, restrict, real) + ";" for lp in lps]
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
-        "h_file": f"{unit.filter}.h",
-        "math_h": c_printer.needs_math_h(lps),
-        "fma_macro": c_printer.macro_lines(lps, real),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
-        + (tracks["macros"] if batch else []) + vector_macros,
+        + (c_loops.tracks_macros(run, bodied, real) if batch else []) + vector_macros,
         "functions": functions,
-        "real": real.c_type,
         "run_signature": run_signature,
-        "run_tail": ["return 0;"] if status else [],
-        "tracks_lines": c_loops.tracks_lines(tracks_signature, tracks, unused, tracks_checks,
+        "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
+                                             tracks_checks, run_call,
                                              ["return 0;"] if status else [], real)
         if batch else [],
-        "unused": unused,
         "run_checks": run_checks,
-        "tracks_checks": tracks_checks,
-        "about": unit.about.get("c", "Run the filter over steps steps."),
     }
-    run = kinds.BUILDERS[unit.kind](unit, lowered)
     if kinds.BUILDERS[unit.kind] is kinds.stepping:
-        if two is not None:
-            run = kinds.two_steps(run, unit)
         context["run_body"] = c_run.stepping_lines(
-            run, lowered, prefix, {"step": fused, "pair": lookahead},
+            run, lowered, prefix, bodied,
             run_checks if not vector_run else [], real)
     else:
         context["run_body"] = c_run.run_lines(run, lowered, prefix, real=real,
-                                              rows=unit.step_inputs)
+                                              per_step=unit.step_inputs)
     return {f"{unit.filter}.h": _render("c/header.jinja", context),
             f"{unit.filter}.c": _render("c/run.jinja", context)}
 

@@ -36,7 +36,6 @@ use_filters(FILTERS)  # which filters take an option follows their specs (derive
 
 MISSING_FILTERS = tuple(name for name, spec in FILTERS.items() if spec.missing)
 """The filters that take the option ``missing``."""
-BATCH_FILTERS = tuple(name for name, spec in FILTERS.items() if spec.batch)
 """The filters whose C may have ``MODEL_FILTER_run_tracks``."""
 
 
@@ -161,7 +160,7 @@ def derive_unit(model, name: str, options=None):
     return unit
 
 
-__all__ = ["BATCH_FILTERS", "FILTERS", "MISSING_FILTERS", "FilterSpec", "available",
+__all__ = ["FILTERS", "MISSING_FILTERS", "FilterSpec", "available",
            "derive_unit", "kind", "names", "spec", "why_not"]
 
 

@@ -26,7 +26,7 @@ The assembled step is the one the whole-model derivation gives, up to naming and
   the renamed copies of a block lower to its operations in the same order (before,
   sympy's order of the renamed names: ``t10*t2*t7`` and ``t22*t27*t30`` multiply in
   different orders) and identical blocks are identical up to naming
-  (:mod:`derive.emit.block_lanes` carries them in the lanes of one vector).
+  (:mod:`derive.runs.blocks` carries them in the lanes of one vector).
 
 A model with free parameters is optimised once more as a whole, so that expressions of
 the parameters alone that several blocks compute are shared as before. Counts are

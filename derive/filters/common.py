@@ -177,3 +177,7 @@ def gaussian_loglik(prog: Program, pivots, whitened, z: sympy.Matrix | None = No
 
 LOGLIK_STORE = ("lls", "ll", (), True)
 """run's optional per-step output of the log-likelihood (derive.runs.unit.Unit.extra_stores)."""
+
+GRADIENT_STORE = ("dlls", "dll", ("np",), True)
+"""run's optional per-step output of the log-likelihood's gradient with respect to p (the
+option gradient, derive.sensitivity)."""

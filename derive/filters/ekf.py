@@ -29,6 +29,7 @@ from .. import staging
 from ..errors import OptionError, VerificationError
 from ..options import ExtendedOptions
 from ..reference.likelihood import innovations_loglik
+from ..sensitivity import with_gradient
 from .kf import CONDITIONING
 from .nonlinear import (
     NOTE_C,
@@ -172,7 +173,8 @@ def derive_unit(model, spec, options):
     sensors, derive.filters.sensors)."""
     check_nonlinear(model, spec.name)
     iterations = options.iterations
-    if options.loglik and (uses_sensor_run(model, options) or iterations):
+    if (options.loglik or options.gradient) and (uses_sensor_run(model, options)
+                                                 or iterations):
         raise OptionError("option 'loglik' is not taken with several sensors, gating, "
                           "update-first (the run kind sensors) or iterations")
     if uses_sensor_run(model, options) or model.unit_norm:
@@ -204,7 +206,11 @@ def derive_unit(model, spec, options):
     programs, facts = nonlinear_programs(model, ekf_predict_stage(model),
                                          ekf_update_stage(model, iterations), options,
                                          spec.title, **_vector_rows(model, options))
-    unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model))
+    carried = None
+    if options.gradient:  # dx, dP carried beside x, P; entered as zero (derive.sensitivity)
+        programs, carried = with_gradient(model, programs)
+    unit = make_unit(model, spec, programs, options, step_inputs=step_inputs(model),
+                     carried=carried)
     return _with_facts(unit, [JACOBIAN_FACT, *facts, *_facts(model, iterations),
                               *unit_norm_fact(model), *rows_fact(programs)])
 

@@ -9,7 +9,9 @@ state x in the storage space (n numbers) and its covariance P in the tangent spa
     update    δx = K (z - h(x(k/k-1))),  K = P Hδ^T (Hδ P Hδ^T + R)^-1
               x(k/k) = x(k/k-1) ⊞ δx,  P(k/k) = P - K Hδ P   [then G P G^T: option reset]
 
-with the Jacobians of the error dynamics at zero error, derived by sympy:
+with the Jacobians of the error dynamics at zero error, derived by sympy. An angle
+measurement's innovation z - h is wrapped to (-π, π] (derive.filters.nonlinear.wrapped);
+an R that depends on the state or the inputs is evaluated at x(k/k-1), as h is:
 
     Fδ = M(f(x, u)) ∂f/∂x N(x),   Fuδ = M(f(x, u)) ∂f/∂u,   Hδ = ∂h/∂x N(x)
 
@@ -50,11 +52,14 @@ from .ekf import ekf_predict_parts, ekf_predict_stage
 from .kf import CONDITIONING
 from .nonlinear import (
     Linearisation,
+    angle_facts,
     check_nonlinear,
+    noise_fact,
     nonlinear_programs,
     sensor_measurement,
     stage_linearisation,
     state_mapping,
+    wrapped,
 )
 from .sensors import (
     IMPLICIT_SENSOR,
@@ -240,9 +245,9 @@ def eskf_update_stage(model, reset: bool):
             cache[key] = measurement_jacobian(model, meas.h)
         at_x = {**mapping, **state_mapping(model, x)}
         values, H = stage_linearisation(prog, cache[key], at_x, "h")
-        R = meas.R.xreplace(mapping)
+        R = meas.R.xreplace(at_x)  # a state-dependent R at x(k/k-1), as h
         zero = sympy.zeros(nt, 1)
-        innovation = staging.sub(prog, z, values)
+        innovation = wrapped(prog, staging.sub(prog, z, values), meas.angles)
         if meas.sequential:
             delta, P_new, gated = sequential_update(prog, zero, P, H, R, innovation,
                                                     meas.gate, meas.names)
@@ -283,9 +288,6 @@ def error_fact(model) -> list[str]:
 def derive_unit(model, spec, options):
     """The error-state EKF unit: predict and update_<sensor> (run kind sensors)."""
     check_nonlinear(model, spec.name)
-    if getattr(model, "angles", ()):  # its updates do not wrap an innovation yet
-        raise FilterError(f"filter {spec.name!r} does not wrap angle measurements; model "
-                          f"{model.name!r} declares angles {list(model.angles)}")
     if model.rows != "scalar":  # refused rather than derived otherwise than declared
         raise FilterError(f"filter {spec.name!r} derives scalar rows only; model "
                           f"{model.name!r} declares rows = {model.rows!r}")
@@ -302,6 +304,7 @@ def derive_unit(model, spec, options):
         "reset: P <- G P G^T after each injection, G = d((x [+] (dx + e)) [-] (x [+] dx))/de "
         "at e = 0 (sympy)" if options.reset else
         "reset: none (G = I; option reset applies G P G^T)"]
+        + angle_facts(model) + noise_fact(model, "x(k-1/k-1), u(k)", "x(k/k-1), u(k)")
         + facts + sensor_facts(model, groups, thresholds, options.start, forms)
         + unit_norm_fact(model))
     return make_sensor_unit(model, spec, programs, options, groups, thresholds,
@@ -343,9 +346,10 @@ def reference_run(model, options, zs: dict, us=None, ps=None, x0=None, P0=None, 
         sensors.append(SensorFunctions(
             g.name, lambda x, u, p, h=h: h(x, u, p).ravel(),
             lambda x, u, p, H=H: H(x, u, p) @ mf.retraction_numeric(layout, x),
-            None if g.R_argument else numeric_matrix(model, g.R, [params]),
+            None if g.R_argument else numeric_matrix(model, g.R, [X, own, params]),
             tuple(names.index(u.name) for u in g.inputs),
-            None if thresholds[g.name] is None else thresholds[g.name][1]))
+            None if thresholds[g.name] is None else thresholds[g.name][1],
+            model.angle_rows(g.measurements)))
 
     def reset(dx):
         G = np.eye(layout.n_tangent)

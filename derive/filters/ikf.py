@@ -98,7 +98,7 @@ def applies(model) -> str | None:
 
 SPECS = (FilterSpec(
     "ikf", "information-form Kalman filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, blockwise=True, applies=applies, listing=40,
+    covariance=True, missing=True, run_tracks=True, blockwise=True, applies=applies, listing=40,
     # H^T R^-1 by an LDL^T solve; P(k+1/k) inverted (its residual reaches P_new scaled by
     # P(k+1/k), as an update's operands), and the information P_new^-1 inverted
     conditioning=(Conditioned(NOISE, "ldl"), Conditioned(UPDATE, "cancel"),

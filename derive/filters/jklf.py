@@ -47,7 +47,7 @@ def reference(model, zs, options):
 
 SPECS = (FilterSpec(
     "jklf", "joint Kalman-Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, blockwise=True,
+    covariance=True, missing=True, run_tracks=True, blockwise=True,
     conditioning=KF_CONDITIONING + LF_CONDITIONING, listing=30,
     about={"python": "Run the joint Kalman-Lainiotis filter: the mean of the KF and LF "
                      "estimates.",

@@ -24,6 +24,7 @@ from .. import staging
 from ..errors import OptionError
 from ..options import KalmanOptions
 from ..program import Port, Program
+from ..sensitivity import with_gradient
 from . import pattern as pat
 from .blockwise import blockwise_step
 from .common import (
@@ -282,17 +283,22 @@ def derive_sensor_unit(model, spec, options):
 def derive_unit(model, spec, options):
     if uses_sensor_run(model, options):
         return derive_sensor_unit(model, spec, options)
-    joseph, missing, loglik = options.joseph, options.missing, options.loglik
+    joseph, missing = options.joseph, options.missing
+    gradient = options.gradient
+    loglik = options.loglik or gradient
 
     def update(prog, mats, x, P, z, u=None):
         return kf_update(prog, mats, x, P, z, joseph=joseph, missing=missing, u=u,
                          loglik=loglik)
 
     step = time_varying_program(model, update, spec.title, options.P0_pattern, loglik)
-    unit = make_unit(model, spec, {"step": step}, options,
-                     step_inputs=linear_step_inputs(model))
+    programs, carried = {"step": step}, None
+    if gradient:  # dx, dP carried beside x, P; entered as zero (derive.sensitivity)
+        programs, carried = with_gradient(model, programs)
+    unit = make_unit(model, spec, programs, options,
+                     step_inputs=linear_step_inputs(model), carried=carried)
     if input_port(model):
-        unit = with_fact(replace(unit, batch=False), INPUTS_FACT)
+        unit = with_fact(replace(unit, run_tracks=False), INPUTS_FACT)
     if joseph:
         unit = with_fact(unit, JOSEPH_FACT)
     return with_fact(unit, MISSING_FACT) if missing else unit
@@ -331,7 +337,7 @@ P), and the update's subtraction P(k/k-1) - K S K^T."""
 SPECS = (FilterSpec(
     "kf", "Kalman filter", "linear", "timevarying", derive_unit, reference,
     options=KalmanOptions, covariance=True, missing=True, loglik=loglik_reference,
-    batch=True,
+    run_tracks=True,
     inputs=True,
     sensors=True, blockwise=True, conditioning=CONDITIONING, listing=10,
     about={"python": "Run the Kalman filter: predict with F, then update with the gain "

@@ -95,7 +95,7 @@ present measurements or on free symbols) and I + P On (the unrolled LU inverse).
 
 SPECS = (FilterSpec(
     "lf", "Lainiotis filter", "linear", "timevarying", derive_unit, reference,
-    covariance=True, missing=True, batch=True, blockwise=True, conditioning=CONDITIONING,
+    covariance=True, missing=True, run_tracks=True, blockwise=True, conditioning=CONDITIONING,
     listing=20,
     about={"python": "Run the Lainiotis filter: the partitioned update with constants "
                      "precomputed offline.",

@@ -399,7 +399,7 @@ def nonlinear_programs(model, predict: Predict, update: Update, options: SharedO
         if scalar is not None:
             specs["update1"] = (scalar, None, update)
 
-    loglik = bool(options.get("loglik"))
+    loglik = bool(options.get("loglik") or options.get("gradient"))
 
     def grow(pattern):
         out = pattern

@@ -350,7 +350,7 @@ def reference_functions(model, thresholds):
             R = None if g.R_argument else numeric_matrix(model, g.R, [params])
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, H=H, D=D: H(p) @ x + (D(p) @ u if u.size else 0.0),
-                lambda x, u, p, H=H: H(p), R,
+                lambda x, u, p, H=H: H(p), None if R is None else lambda x, u, p, R=R: R(p),
                 tuple(names.index(u.name) for u in g.inputs),
                 None if thresholds[g.name] is None else thresholds[g.name][1]))
     else:
@@ -369,7 +369,7 @@ def reference_functions(model, thresholds):
             own = list(g.inputs)
             h = numeric_matrix(model, g.h, [X, own, params])
             H = numeric_matrix(model, jacobian(g.h, model.state_symbols), [X, own, params])
-            R = None if g.R_argument else numeric_matrix(model, g.R, [params])
+            R = None if g.R_argument else numeric_matrix(model, g.R, [X, own, params])
             sensors.append(reference.SensorFunctions(
                 g.name, lambda x, u, p, h=h: h(x, u, p).ravel(), H, R,
                 tuple(names.index(u.name) for u in g.inputs),

@@ -12,8 +12,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from ..flops import LANGUAGES
 from ..options import SharedOptions
-from ..runs.unit import LANGUAGES
 
 #: What a filter's step factorises, solves with, inverts or cancels (its
 #: :attr:`FilterSpec.conditioning`); derive.apps.float_tolerance reads each one's
@@ -75,7 +75,7 @@ class FilterSpec:
     each step's log-likelihood of the innovation and the scale its error is relative to
     (derive.reference.likelihood.loglik_scale; ``data`` as ``reference`` takes it); a
     filter with one takes the option ``loglik`` (run stores lls).
-    ``batch``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
+    ``run_tracks``: its C has ``MODEL_FILTER_run_tracks`` (unless ``--no-run-tracks``, the
     option ``run_tracks``).
     ``inputs``: it takes a model's per-step inputs u (a model that declares inputs is
     refused by every filter without this flag, never filtered with u ignored).
@@ -120,7 +120,7 @@ class FilterSpec:
     covariance: bool = False
     missing: bool = False
     loglik: Callable | None = None
-    batch: bool = False
+    run_tracks: bool = False
     inputs: bool = False
     sensors: bool = False
     blockwise: bool = False
@@ -144,11 +144,11 @@ class FilterSpec:
 
     def unit_fields(self, window: int | None = None, run_tracks: bool = True) -> dict:
         """The fields of a :class:`~derive.runs.unit.Unit` this spec decides: family,
-        title, run kind, run descriptions, batch function, extra programs."""
+        title, run kind, run descriptions, whether C has run_tracks, extra programs."""
         return {"family": self.name, "title": self.title, "run_kind": self.run_kind,
                 "about": {lang: self.run_about(lang).format(window=window)
                           for lang in LANGUAGES},
-                "batch": self.batch and run_tracks, "extra_programs": self.extra_programs}
+                "run_tracks": self.run_tracks and run_tracks, "extra_programs": self.extra_programs}
 
 
 __all__ = ["INNOVATION", "LAINIOTIS", "MATRICES", "METHODS", "NEXT_PRIOR", "NOISE", "NOMINAL",

@@ -123,7 +123,7 @@ def reference(model, zs, options, name: str):
 def _spec(name: str, title: str, about: str, listing: int) -> FilterSpec:
     return FilterSpec(
         name, title, "linear", "steady", derive_unit, partial(reference, name=name),
-        steady=True, batch=True, blockwise=True, listing=listing,
+        steady=True, run_tracks=True, blockwise=True, listing=listing,
         about={"python": f"Run the {title}: {about}.",
                "c": f"Run the {title} over steps steps."})
 

@@ -45,7 +45,7 @@ import numpy as np
 import sympy
 
 from .. import staging
-from ..errors import FilterError
+from ..errors import FilterError, OptionError
 from ..expression_lowering import IfAtMost, IfPresent
 from ..options import SharedOptions
 from ..precision import DOUBLE, precision
@@ -416,6 +416,9 @@ def udkf_programs(model, options: SharedOptions | None = None) -> dict[str, Prog
         raise FilterError(f"the {TITLE} needs a linear model; {model.name!r} is {model.kind}")
     options = options or SharedOptions()
     missing, loglik = options.missing, bool(options.get("loglik"))
+    if options.get("gradient"):
+        raise OptionError("option 'gradient' is taken by kf and ekf (the UD filter carries "
+                          "factors of P, whose sensitivities it does not derive)")
     declared = options.P0_pattern or model.P0_pattern
     floor = pivot_floor(options.precision)
     n = model.n

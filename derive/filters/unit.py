@@ -11,7 +11,8 @@ from ..discretize import METHODS
 from ..options import SharedOptions
 from ..program import ZERO, Check
 from ..runs.unit import SensorSlot, Unit
-from .common import LOGLIK_FACT, LOGLIK_STORE, pattern_text
+from ..sensitivity import GRADIENT_FACT
+from .common import GRADIENT_STORE, LOGLIK_FACT, LOGLIK_STORE, pattern_text
 from .spec import FilterSpec
 
 
@@ -50,11 +51,11 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     ``lookahead``: the two-step map of an affine step (derive.runs.kinds.two_steps);
     ``carried``: the unit's own carried (input port, output port) pairs (default: the run
     kind's), entered by an ``enter`` program and stored by a ``store`` program.  With the
-    option ``loglik`` the step's last output ``ll`` is stored by run per step (``lls``;
-    no run_tracks).
+    option ``loglik`` the step's output ``ll`` is stored by run per step (``lls``;
+    no run_tracks), with ``gradient`` also its last output ``dll`` (``dlls``).
 
     The spec gives the unit its title, run-loop kind, run descriptions and whether the
-    batch function applies; the run kind its carried state.  Which P0 the code accepts is
+    function run_tracks applies; the run kind its carried state.  Which P0 the code accepts is
     read from the program that takes it: ``enter`` (its P0) when there is one, else
     ``step`` (its P)."""
     facts = []
@@ -71,9 +72,15 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
         facts.append(f"{key} = {text}" if len(text) <= 300 else
                      f"{key}: {np.asarray(value).shape} constants baked into the code")
     # the option loglik: the step's output ll, stored per step by run (not run_tracks)
-    loglik = bool(options.get("loglik"))
+    gradient = bool(options.get("gradient"))
+    loglik = bool(options.get("loglik")) or gradient
     if loglik:
         facts.append(LOGLIK_FACT)
+    if gradient:  # and its gradient dll, stored per step as dlls
+        facts.append(GRADIENT_FACT)
+    fields = spec.unit_fields(window=window, run_tracks=options.run_tracks and not loglik)
+    if gradient:  # its enter program starts the sensitivities at zero
+        fields["extra_programs"] = tuple(fields["extra_programs"]) + ("enter",)
     unit_options = {}
     if window is not None:
         unit_options["window"] = window
@@ -82,8 +89,9 @@ def make_unit(model, spec: FilterSpec, programs: dict, options: SharedOptions,
     return Unit(
         model=model.name,
         filter=spec.name,
-        **spec.unit_fields(window=window, run_tracks=options.run_tracks and not loglik),
-        extra_stores=(LOGLIK_STORE,) if loglik else (),
+        **fields,
+        extra_stores=((LOGLIK_STORE,) if loglik else ()) + ((GRADIENT_STORE,) if gradient
+                                                            else ()),
         lookahead=lookahead,
         n=model.n,
         m=model.m,
@@ -114,7 +122,7 @@ def make_sensor_unit(model, spec: FilterSpec, programs: dict, options: SharedOpt
         header.append(f"P0 pattern declared: {options.P0_pattern or model.P0_pattern}")
     header.append(accepted_P0(programs["predict"], "P"))
     fields = spec.unit_fields(run_tracks=False)
-    fields.update(run_kind="sensors", batch=False, extra_programs=(), about={
+    fields.update(run_kind="sensors", run_tracks=False, extra_programs=(), about={
         "python": f"Run the {spec.title} over the steps: predict with u(k), then each "
                   "sensor's update in declaration order where its row is not NaN.",
         "c": f"Run the {spec.title} over steps steps (predict, then each sensor's update "

@@ -31,8 +31,9 @@ from derive.domains import check_rows
 
 @dataclass(frozen=True)
 class SensorFunctions:
-    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(p)`` (m, m),
-    or None when R is given per step (run's ``Rs``); ``columns``: the columns of u(k) it
+    """One sensor at numbers: ``h(x, u, p)`` (m,), ``H(x, u, p)`` (m, n), ``R(x, u, p)``
+    (m, m; at the x the update starts from, as h), or None when R is given per step (run's
+    ``Rs``); ``columns``: the columns of u(k) it
     takes; ``gate``: the NIS threshold or None; ``angles``: per measurement, whether it is
     an angle (its innovation wrapped to (-pi, pi])."""
 
@@ -59,7 +60,8 @@ class SensorsResult:
 @dataclass(frozen=True)
 class UpdateTrace:
     """One sensor's update of a step: its H, S = H P H^T + R, the gain K = P H^T S^-1,
-    whether it was applied (not gated out), and the P it started from."""
+    whether it was applied (not gated out), the P and x it started from, its row z and
+    the innovation nu."""
 
     sensor: str
     H: np.ndarray
@@ -67,28 +69,41 @@ class UpdateTrace:
     K: np.ndarray
     applied: bool
     P: np.ndarray
+    x: np.ndarray
+    z: np.ndarray
+    nu: np.ndarray
 
 
 @dataclass(frozen=True)
 class StepTrace:
     """One step of a run: x, u and p it predicted from (``P_predicted`` None: no
-    prediction, the update-first step 0), P(k/k-1), and its updates in order."""
+    prediction, the update-first step 0), P(k/k-1), its updates in order, the P it
+    started from (P(k-1/k-1)) and the x and P it ended with (x(k/k), P(k/k))."""
 
     x_before: np.ndarray
     u: np.ndarray
     p: np.ndarray
     P_predicted: np.ndarray | None
     updates: tuple[UpdateTrace, ...]
+    P_before: np.ndarray
+    x_after: np.ndarray
+    P_after: np.ndarray
+
+
+def innovation(z, h, angles=()):
+    """z - h, the entries flagged in ``angles`` wrapped to (-pi, pi]."""
+    nu = z - h
+    if any(angles):
+        flags = np.asarray(angles, dtype=bool)
+        nu[flags] = np.pi - np.mod(np.pi - nu[flags], 2 * np.pi)
+    return nu
 
 
 def _update(x, P, z, h, H, R, gate=None, inject=None, reset=None, angles=()):
     """One update with all of z: (x, P, nis, S, K, applied); ``inject(x, dx)``: x ⊞ dx
     (default x + dx), ``reset(dx)``: G applied as G P G^T after it (default none); the
     innovations of the measurements flagged in ``angles`` wrapped to (-pi, pi]."""
-    nu = z - h
-    if any(angles):
-        flags = np.asarray(angles, dtype=bool)
-        nu[flags] = np.pi - np.mod(np.pi - nu[flags], 2 * np.pi)
+    nu = innovation(z, h, angles)
     S = H @ P @ H.T + R
     nis = float(nu @ np.linalg.solve(S, nu))
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
@@ -144,7 +159,7 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
     applied = {s.name: np.zeros(steps) for s in sensors}
     check_rows(domains, ps)
     for k in range(steps):
-        x_before, predicted, updates = x, None, []
+        x_before, P_start, predicted, updates = x, P, None, []
         if k or not update_first:
             x, P = predict(x, P, us[k], ps[k])
             predicted = P
@@ -154,20 +169,24 @@ def run(predict: Callable, sensors: Sequence[SensorFunctions], x0, P0, zs: dict,
                 continue
             u = us[k, list(s.columns)]
             H = np.asarray(s.H(x, u, ps[k]), dtype=float).reshape(len(z), nt)
-            P_before = P
+            P_before, x_start = P, x
+            h = np.asarray(s.h(x, u, ps[k]), dtype=float).ravel()
             x, P, nis[s.name][k], S, K, done = _update(
-                x, P, z, np.asarray(s.h(x, u, ps[k]), dtype=float).ravel(), H,
-                np.asarray(s.R(ps[k]) if s.R is not None else Rs[s.name][k],
+                x, P, z, h, H,
+                np.asarray(s.R(x, u, ps[k]) if s.R is not None else Rs[s.name][k],
                            dtype=float).reshape(len(z), len(z)), s.gate, inject, reset,
                  s.angles)
             applied[s.name][k] = float(done)
-            updates.append(UpdateTrace(s.name, H, S, K, done, P_before))
+            updates.append(UpdateTrace(s.name, H, S, K, done, P_before, x_start, z,
+                                       innovation(z, h, s.angles)))
             x = renormalise(x, unit_norm)  # after every update call, applied or not
         xs[k], Ps[k] = x, P
         if trace is not None:
-            trace.append(StepTrace(x_before, us[k], ps[k], predicted, tuple(updates)))
+            trace.append(StepTrace(x_before, us[k], ps[k], predicted, tuple(updates),
+                                   P_start, x, P))
     return SensorsResult(xs, Ps, nis, applied)
 
 
-__all__ = ["SensorFunctions", "SensorsResult", "StepTrace", "UpdateTrace", "renormalise",
+__all__ = ["SensorFunctions", "SensorsResult", "StepTrace", "UpdateTrace", "innovation",
+           "renormalise",
            "run", "update"]

@@ -217,6 +217,20 @@ class Output:
 
 
 @dataclass(frozen=True)
+class InLanes:
+    """A run's identical blocks in the lanes of one vector of ``width`` elements (the pass
+    :func:`derive.runs.blocks.in_lanes`): ``blocks``, each called program's split into
+    blocks (a :class:`derive.runs.blocks.Lanes`); ``carried``, the vectors the loop carries
+    (a carried port and the element of it each lane holds); ``sources``, per program, the
+    output that becomes each carried vector (its port and the block's local index)."""
+
+    width: int
+    blocks: tuple[tuple[str, object], ...]
+    carried: tuple[tuple[str, tuple[int, ...]], ...]
+    sources: tuple[tuple[str, tuple[tuple[str, int], ...]], ...]
+
+
+@dataclass(frozen=True)
 class Run:
     """A whole run: its carried state, the outputs it records, the loops; ``returns``:
     run's outputs in order, with the shape each is returned in (Python); ``work``: its
@@ -229,6 +243,11 @@ class Run:
     work: Work | None = None
     #: the call whose outputs start the carried state (an init or enter program), if any
     enter: Call | None = None
+    #: the identical blocks carried in the lanes of one vector, where a pass put them
+    lanes: InLanes | None = None
+    #: the step with what identical blocks starting equal share computed once
+    #: (derive.runs.shared.SharedStep), where the pass found some
+    shared: object = None
 
 
 Node = Call | Copy | Record | Present | AfterFirst | Store | Steps | AnySteps

@@ -24,7 +24,6 @@ from derive.program import PARAMETER_PORT, Program, ProgramError
 _IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
-LANGUAGES = ("python", "c")
 """The languages a unit is rendered in (one template per run kind in each)."""
 
 
@@ -38,7 +37,7 @@ class RunKind:
     unit may declare its own).  ``start``: run's arguments that start the carried state
     (name, dims).  ``stores``: run's per-step outputs (name, output port of ``step``,
     dims after ``steps``, optional in C).  ``window``: the step reads the last
-    ``window`` rows of z (port ``zw``) instead of one row.  ``batch``: C may have
+    ``window`` rows of z (port ``zw``) instead of one row.  ``run_tracks``: C may have
     ``run_tracks``.  ``lookahead``: C run takes two steps per pass when the step is affine
     and has no free parameters (derive.runs.kinds.two_steps).  ``extra_programs``: programs a
     unit of this kind may add.  ``work``: C run's caller-provided scratch arrays, after
@@ -53,7 +52,7 @@ class RunKind:
     start: tuple[tuple[str, tuple[str, ...]], ...] = ()
     stores: tuple[tuple[str, str, tuple[str, ...], bool], ...] = ()
     window: bool = False
-    batch: bool = False
+    run_tracks: bool = False
     lookahead: bool = False
     extra_programs: tuple[str, ...] = ()
     work: tuple[tuple[str, tuple[str, ...]], ...] = ()
@@ -64,9 +63,9 @@ RUN_KINDS: Mapping[str, RunKind] = MappingProxyType({k.name: k for k in (
     RunKind("timevarying", carried=(("x", "x_new"), ("P", "P_new")),
             start=(("x0", ("n",)), ("P0", ("nt", "nt"))),
             stores=(("xs", "x_new", ("n",), False), ("Ps", "P_new", ("nt", "nt"), True)),
-            batch=True, extra_programs=("predict", "update1", "enter", "store")),
+            run_tracks=True, extra_programs=("predict", "update1", "enter", "store")),
     RunKind("steady", carried=(("x", "x_new"),), start=(("x0", ("n",)),),
-            stores=(("xs", "x_new", ("n",), False),), batch=True, lookahead=True),
+            stores=(("xs", "x_new", ("n",), False),), run_tracks=True, lookahead=True),
     RunKind("windowed", stores=(("xs", "x_new", ("n",), False),), window=True),
     RunKind("predictor", programs=("init",), carried=(("x", "x_new"),),
             start=(("x0", ("n",)),), stores=(("xs", "x_new", ("n",), False),),
@@ -193,7 +192,7 @@ class Unit:
     command: str = ""
     options: Mapping[str, object] = field(default_factory=dict)
     about: Mapping[str, str] = field(default_factory=dict)
-    batch: bool = False
+    run_tracks: bool = False
     extra_programs: tuple[str, ...] = ()
     carried: tuple[tuple[str, str], ...] | None = None
     lookahead: Program | None = None
@@ -228,9 +227,9 @@ class Unit:
         object.__setattr__(self, "carried", tuple(tuple(c) for c in self.carried))
         object.__setattr__(self, "extra_programs", tuple(self.extra_programs))
         object.__setattr__(self, "about", MappingProxyType(dict(self.about)))
-        if self.batch and not RUN_KINDS[self.run_kind].batch:
+        if self.run_tracks and not RUN_KINDS[self.run_kind].run_tracks:
             raise ProgramError(f"unit {self.prefix}: run kind {self.run_kind!r} has no "
-                               "batch function (run_tracks)")
+                               "function run_tracks")
         object.__setattr__(self, "parameters", tuple(str(p) for p in self.parameters))
         object.__setattr__(self, "step_inputs", tuple(self.step_inputs))
         object.__setattr__(self, "facts", tuple(str(f) for f in self.facts))
@@ -277,8 +276,8 @@ class Unit:
 
 
 def sizes(unit: Unit) -> dict[str, int]:
-    """The unit's named sizes: n (x), m (z) and nt (P: nt x nt)."""
-    return {"n": unit.n, "m": unit.m, "nt": unit.nt}
+    """The unit's named sizes: n (x), m (z), nt (P: nt x nt) and np (p)."""
+    return {"n": unit.n, "m": unit.m, "nt": unit.nt, "np": len(unit.parameters)}
 
 
 def space(unit: Unit, name: str) -> str:
@@ -405,9 +404,9 @@ def _validate(unit: Unit) -> None:
             raise ProgramError(f"unit {unit.prefix} ({unit.family}): no program {name!r} in "
                                f"this filter; programs beyond its run kind's: "
                                f"{', '.join(unit.extra_programs) or 'none'}")
-    if unit.batch and ("enter" in unit.programs or "store" in unit.programs):
+    if unit.run_tracks and ("enter" in unit.programs or "store" in unit.programs):
         raise ProgramError(f"unit {unit.prefix}: run_tracks does not take enter/store "
-                           "programs; give batch=False")
+                           "programs; give run_tracks=False")
     if unit.lookahead is not None:
         two = unit.lookahead
         if not unit.run.lookahead:
@@ -485,7 +484,8 @@ def run_arguments(unit: Unit) -> list[Argument]:
     docs = {"x0": "initial state estimate", "P0": "initial covariance (symmetric)",
             "xs": "estimate after each step",
             "Ps": "covariance after each step",
-            "lls": "log-likelihood of each step's innovation"}
+            "lls": "log-likelihood of each step's innovation",
+            "dlls": "gradient of each step's log-likelihood with respect to p"}
     args = [Argument(name, f"{name}s", ("steps", unit.step_input_size(name)),
                      doc=f"{name} per step, one row each") for name in unit.step_inputs]
     args += [Argument(name, name, tuple(named[d] for d in dims), doc=docs.get(name, name))

@@ -18,8 +18,8 @@
  * status (C return value; Python raises NumericalError): 0 success
  *     step 1: S is not positive definite: pivot 0 of its LDL^T factorisation is not positive
  *     step 2: S is not positive definite: pivot 1 of its LDL^T factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 23, sub 20, mul 60, div 6, sqrt 1, fma 81, neg 2, cmp 11, select 9, calls 7 (flops 272, instructions 213)
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 16, sub 2, mul 10, div 2, sqrt 0, fma 39, neg 2, cmp 9, select 9, calls 5 (flops 108, instructions 89)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 22, sub 20, mul 71, div 6, sqrt 1, fma 86, neg 5, cmp 11, select 9, calls 7 (flops 292, instructions 231)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 15, sub 2, mul 21, div 2, sqrt 0, fma 44, neg 5, cmp 9, select 9, calls 5 (flops 128, instructions 107)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * Jacobians: sympy, polynomial entries as derived, others simplified, evaluated with f and h through shared subexpressions
  * per-step input u: none

@@ -33,12 +33,12 @@
  *     predict 15: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 2 of its Cholesky factorisation is not positive
  *     predict 16: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 3 of its Cholesky factorisation is not positive
  *     predict 17: the sigma-point covariance P (a negative weight W0 can make it indefinite) is not positive definite: pivot 4 of its Cholesky factorisation is not positive
- * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 189, sub 132, mul 305, div 25, sqrt 14, fma 266, neg 31, cmp 45, select 33, calls 97 (flops 1197, instructions 1040)
- * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 163, sub 88, mul 208, div 15, sqrt 5, fma 179, neg 30, cmp 38, select 33, calls 87 (flops 837, instructions 759)
+ * operations per call of step (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 217, sub 139, mul 403, div 25, sqrt 14, fma 305, neg 32, cmp 45, select 33, calls 97 (flops 1408, instructions 1213)
+ * operations per call of predict (C99, fma through DERIVE_FMA and DERIVE_FNMA): add 191, sub 95, mul 306, div 15, sqrt 5, fma 218, neg 31, cmp 38, select 33, calls 87 (flops 1048, instructions 932)
  * P0 accepted: any symmetric P0 (P's pattern closes to dense; upper triangle read)
  * sigma points: alpha = 1, beta = 0, kappa = -2, n + lambda = 3; weights Wm0 = -2/3, Wc0 = -2/3, Wi = 1/6 (i = 1..10)
  * predict: sigma points of (x, P) through f
- * spreads: f and h in difference form, f/h(x + d_i) - f/h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed; no rule for f: (px + v*(-sin(psi) + sin(omega + psi))/(omega + (0 if Abs(omega) > 1/10000 else 1/1000)) if Abs(omega) > 1/10000 else px + v*cos(psi)), f: Abs(omega), f: (0 if Abs(omega) > 1/10000 else 1/1000), f: (py + v*(cos(psi) - cos(omega + psi))/(omega + (0 if Abs(omega) > 1/10000 else 1/1000)) if Abs(omega) > 1/10000 else py + v*sin(psi)), whose differences are g(a + D[a]) - g(a) (they cancel)
+ * spreads: f and h in difference form, f/h(x + d_i) - f/h(x) derived node by node so that the large terms cancel before rounding; the sigma points x + d_i are never formed; no rule for f: (px + v*(-sin(psi) + sin(omega + psi))/(omega if Abs(omega) > 3/100 else 1) if Abs(omega) > 3/100 else px + v*(-omega*sin(psi)/2 + (1 - omega**2/6)*cos(psi))), f: Abs(omega), f: (omega if Abs(omega) > 3/100 else 1), f: (py + v*(cos(psi) - cos(omega + psi))/(omega if Abs(omega) > 3/100 else 1) if Abs(omega) > 3/100 else py + v*(omega*cos(psi)/2 + (1 - omega**2/6)*sin(psi))), whose differences are g(a + D[a]) - g(a) (they cancel)
  * per-step input u: none
  * no update1 (sequential scalar updates): the diagonal of R is not constant
  * angle measurements bearing: innovations wrapped to (-pi, pi] as y - 2 pi ceil((y - pi)/(2 pi)), and so are the sigma points' deviations from h(x) (the point X_0 = x): their mean is h(x) plus the weighted mean of those deviations, the spreads the deviations minus that mean

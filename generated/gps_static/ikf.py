@@ -205,7 +205,7 @@ def run(zs, x0, P0):
     _require_zero(P0.reshape((9,) + P0.shape[2:]), (1, 2, 5), 3, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'diagonal' closed under the filter; x may be non-zero, upper triangle read: x..|.x.|..x); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         # identical blocks starting equal in P0: 14 statements of the step
-        # read no data and are computed once (derive.emit.shared_blocks)
+        # read no data and are computed once (derive.runs.shared)
         if P0.reshape(-1)[[4, 8]].tobytes() == P0.reshape(-1)[[0, 0]].tobytes():
             x_0, x_1, x_2 = x0.reshape(-1).tolist()
             P_0 = P0.reshape(-1)[[0]].tolist()[0]

@@ -223,7 +223,7 @@ def run(zs, x0, P0):
     _require_zero(P0.reshape((16,) + P0.shape[2:]), (2, 3, 6, 7), 4, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx..|xx..|..xx|..xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         # identical blocks starting equal in P0: 19 statements of the step
-        # read no data and are computed once (derive.emit.shared_blocks)
+        # read no data and are computed once (derive.runs.shared)
         if P0.reshape(-1)[[10, 11, 15]].tobytes() == P0.reshape(-1)[[0, 1, 5]].tobytes():
             x_0, x_1, x_2, x_3 = x0.reshape(-1).tolist()
             P_0, P_1, P_5 = P0.reshape(-1)[[0, 1, 5]].tolist()

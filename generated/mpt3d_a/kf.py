@@ -254,7 +254,7 @@ def run(zs, x0, P0):
     _require_zero(P0.reshape((36,) + P0.shape[2:]), (2, 3, 4, 5, 8, 9, 10, 11, 16, 17, 22, 23), 6, 'P0', "P has a non-zero entry outside the pattern this code was generated for (P0 pattern 'zero' closed under the filter; x may be non-zero, upper triangle read: xx....|xx....|..xx..|..xx..|....xx|....xx); generate with --P0-pattern dense for code that accepts any P0")
     if not track:  # one track: the step's statements inline, on Python floats
         # identical blocks starting equal in P0: 38 statements of the step
-        # read no data and are computed once (derive.emit.shared_blocks)
+        # read no data and are computed once (derive.runs.shared)
         if P0.reshape(-1)[[14, 28, 15, 29, 21, 35]].tobytes() == P0.reshape(-1)[[0, 0, 1, 1, 7,
                 7]].tobytes():
             x_0, x_1, x_2, x_3, x_4, x_5 = x0.reshape(-1).tolist()

@@ -19,31 +19,24 @@ from ...errors import ModelError
 from ...generation import generate
 from ...structure import find_blocks
 from ..verify import relative_error
-from . import (
-    batch,
-    casadi_c,
-    compile_size,
-    generated,
-    generation_scaling,
-    navigation,
-    peers,
-    python_floor,
-    scaling,
-    schedule_scaling,
-    startup,
-)
-from .bound import case_bound, case_schedule_bounds, memory_bound
+from . import generated
+from .bars import BARS, REFERENCE
 from .cases import CASES, Case, Skip, make_data, states
-from .probe import measure_latencies
+from .costs import compile_size, generation_scaling, schedule_scaling, startup
+from .machine import python_floor
+from .machine.bound import case_bound, case_schedule_bounds, memory_bound
+from .machine.probe import measure_latencies
+from .peers import casadi_c, libraries, navigation
+from .throughput import batch, scaling
 from .timing import Timing, columns, human, measure, timing_cells
 
 IMPLEMENTATIONS: tuple[tuple[str, Callable, bool], ...] = (
     # (name, prepare(case, data, workdir), loop in C: long runs)
     ("generated C", generated.generated_c, True),
     ("generated Python", generated.generated_python, False),
-    ("NumPy reference", peers.numpy_reference, False),
-    ("FilterPy", peers.filterpy, False),
-    ("pykalman", peers.pykalman, False),
+    ("NumPy reference", libraries.numpy_reference, False),
+    ("FilterPy", libraries.filterpy, False),
+    ("pykalman", libraries.pykalman, False),
     ("CasADi C", casadi_c.casadi_c, True),
 )
 
@@ -55,12 +48,6 @@ LATENCY_SCHEDULE = "generated C, --latency-schedule"
 #: INS EKFs against their peers), catalog (the catalog's cases, the batch and every-core
 #: rows, with their bars).
 ONLY = ("navigation", "catalog")
-
-#: The reference points for the KF step on mpt3d_a on the machine where the performance
-#: targets (docs/performance.md) were set.
-ISSUE_CASADI_KF = 48e-9
-ISSUE_FILTERPY_KF = 17e-6
-
 
 @dataclass(frozen=True)
 class Settings:
@@ -76,7 +63,7 @@ class Settings:
     scale_steps: int = scaling.STEPS
     scale_repeats: int = 3
     catalog_generation: bool = True   # time `derive generate --all` (the 30 s target)
-    navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/navigation.py)
+    navigation_calls: int = 20_000    # ins_gnss EKF: calls per C loop (bench/peers/navigation.py)
     navigation_python_calls: int = 200   # ... per FilterPy timing
     navigation_symforce: bool = True  # ... SymForce's codegen of the same functions
     navigation_peer_calls: int = 200     # SymForce's C++ timed beside derive's (0: left out)
@@ -174,7 +161,8 @@ class BenchResult:
         if self.settings.only == "navigation":
             return self.navigation.bars(Bar) if self.navigation is not None else []
         out = []
-        for peer, need in (("FilterPy", 1000.0), ("CasADi C", 4.0)):
+        for peer, need in (("FilterPy", BARS["kf_c_over_filterpy"]),
+                           ("CasADi C", BARS["kf_c_over_casadi"])):
             r = self.row("KF mpt3d_a", peer)
             value = r.ratio if r is not None and self._seconds("KF mpt3d_a", "generated C") \
                 else None
@@ -183,16 +171,17 @@ class BenchResult:
         b = next((x for x in self.batch if x.implementation == "generated C, run_tracks"),
                  None)
         out.append(Bar("batch throughput of generated C over simdkalman's",
-                       b.ratio if b is not None else None, 50.0, "ratio"))
+                       b.ratio if b is not None else None, BARS["batch_over_simdkalman"],
+                       "ratio"))
         kf = self.row("KF mpt3d_a", "generated C")
         out.append(Bar("generated C KF mpt3d_a per step", self._seconds("KF mpt3d_a",
                                                                         "generated C"),
-                       10e-9, "time", _bound_note(kf)))
+                       BARS["kf_c_step"], "time", _bound_note(kf)))
         sskf = self.row("SSKF mpt3d_a", "generated C")
         fma2 = 2 * self.machine["latency"]["fma"] if self.machine.get("latency") else None
         out.append(Bar("generated C SSKF mpt3d_b x 3 axes in one loop (mpt3d_a, blocks found "
                        "automatically) per step", self._seconds("SSKF mpt3d_a", "generated C"),
-                       1.25 * 2.3e-9, "time",
+                       BARS["sskf_c_step"], "time",
                        _bound_note(sskf) + ("" if fma2 is None else
                                             f"; two dependent fmas here take {human(fma2)}")))
         # issue 16's bar: the generated run of the three axes, one loop over all blocks
@@ -200,7 +189,8 @@ class BenchResult:
         python = self.row("KF mpt3d_a", "generated Python")
         apart = self._seconds("KF mpt3d_b x 3", "generated Python")
         out.append(Bar("generated pure-Python KF mpt3d_b x 3 axes in one loop (mpt3d_a) per "
-                       "step", self._seconds("KF mpt3d_a", "generated Python"), 1.0e-6, "time",
+                       "step", self._seconds("KF mpt3d_a", "generated Python"),
+                       BARS["kf_python_step"], "time",
                        "; ".join(part for part in (
                            _floor_note(python),
                            "" if python is None or python.unequal is None else
@@ -210,7 +200,7 @@ class BenchResult:
         out += self._chain_bars()
         if self.settings.catalog_generation and self.generation_seconds is not None:
             out.append(Bar("generating the whole catalog (derive generate --all)",
-                           self.generation_seconds, 30.0, "time"))
+                           self.generation_seconds, BARS["catalog_generation"], "time"))
         out += [Bar(*bar) for bar in generation_scaling.generation_bars(self.generation)]
         out += self._scaled_bars(fma2)
         if self.navigation is not None:
@@ -225,7 +215,7 @@ class BenchResult:
                                                                     "generated C")
         fast = self.row("KF mpt3d_a", LATENCY_SCHEDULE)
         out = []
-        for row, need in ((kf, 1.2), (sskf, 1.5)):
+        for row, need in ((kf, BARS["kf_over_bound"]), (sskf, BARS["sskf_over_bound"])):
             bound = row.limit[0] if row is not None else None
             # the fastest repeat: the bounds are the least times of their probes too, so a
             # moment of load does not count against the code
@@ -235,9 +225,10 @@ class BenchResult:
                            "larger)", row.timing.low if bound and row.timing else None,
                            need * (bound or 0.0), "time", _limit_note(row)))
         default = kf.bound if kf is not None else None
+        share = BARS["latency_schedule_share"]
         out.append(Bar("latency schedule (--latency-schedule): bound of the KF mpt3d_a chain "
-                       "within 0.75x the default schedule's, same run",
-                       kf.latency_bound if default else None, 0.75 * (default or 0.0), "time",
+                       f"within {share:g}x the default schedule's, same run",
+                       kf.latency_bound if default else None, share * (default or 0.0), "time",
                        "" if fast is None or fast.timing is None else
                        f"it runs at {human(fast.timing.median)} per step, "
                        f"{fast.timing.median / fast.latency_bound:.2f}x its bound"))
@@ -251,20 +242,26 @@ class BenchResult:
         out = []
         casadi = self._seconds("KF mpt3d_a", "CasADi C")
         if casadi is not None:
-            out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar 10 ns x CasADi's "
-                           f"{human(casadi)} here / its 48 ns where the bar was set",
+            where = REFERENCE["casadi_kf_step"]
+            out.append(Bar(f"scaled: generated C KF mpt3d_a per step, bar "
+                           f"{human(BARS['kf_c_step'])} x CasADi's {human(casadi)} here / its "
+                           f"{human(where)} where the bar was set",
                            self._seconds("KF mpt3d_a", "generated C"),
-                           10e-9 * casadi / ISSUE_CASADI_KF, "time"))
+                           BARS["kf_c_step"] * casadi / where, "time"))
         if fma2 is not None:
-            out.append(Bar("scaled: generated C SSKF mpt3d_a per step, within 25% of two "
-                           f"dependent fmas here ({human(fma2)})",
-                           self._seconds("SSKF mpt3d_a", "generated C"), 1.25 * fma2, "time"))
+            over = BARS["sskf_over_two_fmas"]
+            out.append(Bar("scaled: generated C SSKF mpt3d_a per step, within "
+                           f"{round(100 * (over - 1)):d}% of two dependent fmas here "
+                           f"({human(fma2)})",
+                           self._seconds("SSKF mpt3d_a", "generated C"), over * fma2, "time"))
         filterpy = self._seconds("KF mpt3d_a", "FilterPy")
         if filterpy is not None:
-            out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar 1.2 µs "
-                           f"x FilterPy's {human(filterpy)} here / its 17 µs where the bar was set",
+            bar, where = BARS["kf_python_step_scaled"], REFERENCE["filterpy_kf_step"]
+            out.append(Bar(f"scaled: generated pure-Python KF mpt3d_b x 3 per step, bar "
+                           f"{human(bar)} x FilterPy's {human(filterpy)} here / its "
+                           f"{human(where)} where the bar was set",
                            self._seconds("KF mpt3d_b x 3", "generated Python"),
-                           1.2e-6 * filterpy / ISSUE_FILTERPY_KF, "time"))
+                           bar * filterpy / where, "time"))
         return out
 
     def text(self) -> str:
@@ -317,12 +314,12 @@ class BenchResult:
         if self.navigation is not None:
             lines += self.navigation.lines() + [""]
         if self.generation:
-            lines += ["generation of large models (derive.apps.bench.generation_scaling): "
+            lines += ["generation of large models (derive.apps.bench.costs.generation_scaling): "
                       "one process each, the model built through the Python API, then "
                       "render_unit (derive and render Python and C, nothing written)", ""]
             lines += _columns(*generation_scaling.generation_table(self.generation)) + [""]
         if self.schedule:
-            lines += ["both bounds of large KFs (derive.apps.bench.schedule_scaling): k CV "
+            lines += ["both bounds of large KFs (derive.apps.bench.costs.schedule_scaling): k CV "
                       "axes, carried chain per step in reference cycles; CPU seconds of the "
                       "latency schedule's search and of both bounds (derive burden's); "
                       "dense random KFs: the search only", ""]
@@ -334,14 +331,15 @@ class BenchResult:
                       "and CPU seconds, peak memory of each", ""]
             lines += _columns(head, body) + compile_bars + [""]
         if self.startup:
-            lines += [f"start-up of the command line (derive.apps.bench.startup): a fresh "
+            lines += [f"start-up of the command line (derive.apps.bench.costs.startup): a fresh "
                       f"`python -m derive` per call, least wall and CPU time of "
                       f"{s.startup_repeats} runs taken in turns; load average "
                       f"{self.startup_load} before it", ""]
             lines += _columns(*startup.startup_table(self.startup)) + [""]
         lat = self.machine.get("latency")
         if lat:
-            lines.append("latency of one dependent operation here (derive.apps.bench.probe): " +
+            lines.append("latency of one dependent operation here "
+                         "(derive.apps.bench.machine.probe): " +
                          ", ".join(f"{k} {human(v)}" for k, v in lat.items()))
         lines += [bar.text() for bar in self.bars()]
         return "\n".join(lines)
@@ -437,7 +435,7 @@ def machine_info() -> dict:
 def _case_rows(case: Case, s: Settings, workdir: Path, tick, latency=None) -> list[Row]:
     python_steps = s.nonlinear_python_steps if case.nonlinear else s.python_steps
     data = make_data(case, max(s.c_steps, python_steps, s.check_steps))
-    reference = states(peers.numpy_reference(case, data)(s.check_steps), s.check_steps)
+    reference = states(libraries.numpy_reference(case, data)(s.check_steps), s.check_steps)
     rows, base = [], None
     for name, prepare, in_c in IMPLEMENTATIONS:
         tick(f"{case.label}: {name}")
@@ -493,7 +491,7 @@ def _memory_bound(data, steps: int, repeats: int, copies: int):
 
 def _python_floor(case: Case, data, workdir: Path, steps: int, repeats: int) -> float | None:
     """Seconds per step of the generated Python's single-track loop keeping nothing
-    (derive.apps.bench.python_floor), timed as the generated Python row; None without
+    (derive.apps.bench.machine.python_floor), timed as the generated Python row; None without
     such a loop."""
     try:
         run = python_floor.python_floor(case, data, workdir)
@@ -506,7 +504,7 @@ def _python_unequal_start(case: Case, data, workdir: Path, steps: int, repeats: 
                           ) -> float | None:
     """Seconds per step of the generated Python from the case's P0 with a different number
     added to each diagonal entry, so no two blocks start equal and the single-track run
-    takes its full loop (derive.emit.shared_blocks); None for a case without P0 or whose
+    takes its full loop (derive.runs.shared); None for a case without P0 or whose
     model is one block (the runners pass P0 to the KF's run)."""
     if case.nonlinear or case.filter != "kf":
         return None

@@ -18,13 +18,13 @@ import numpy as np
 from derive.apps.gnss.run import FilterSettings
 from derive.apps.gnss.scalar_updates import ScalarUpdate
 from derive.errors import ModelError
+from derive.flops import LANGUAGES
 from derive.model import NonlinearModel
 from derive.pipeline import load_generated
 
 PARAMETERS = ("q_clock", "q_position", "sigma2")
 """The free parameters of scalar_model, in the order of p."""
 
-LANGS = ("c", "python")
 
 
 def scalar_model() -> NonlinearModel:
@@ -77,8 +77,8 @@ def generated_filters(settings: FilterSettings | None = None, lang: str = "c",
 
     ``lang``: "c" (compiled with cffi) or "python". The files go to ``workdir`` (default:
     a temporary directory removed once the modules are loaded)."""
-    if lang not in LANGS:
-        raise ModelError(f"lang must be one of {LANGS}, got {lang!r}")
+    if lang not in LANGUAGES:
+        raise ModelError(f"lang must be one of {LANGUAGES}, got {lang!r}")
     settings = FilterSettings() if settings is None else settings
     p = parameters(settings)
     return {name.upper(): _pair(_load(name, settings, lang, workdir), p)

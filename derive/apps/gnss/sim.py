@@ -25,6 +25,7 @@ import numpy as np
 from derive import catalog
 from derive.apps.simulate import gnss_scenario, pseudorange
 from derive.errors import ModelError
+from derive.flops import LANGUAGES
 from derive.pipeline import load_generated
 
 TIMES = (20, 100, 200, 300, 500)
@@ -41,7 +42,6 @@ PAPER = {
 """The paper's RMSE (m) of x, y, z, b at TIMES (the GNSS paper), as printed."""
 
 FILTERS = ("ekf", "ukf")
-LANGS = ("python", "c")
 MODEL = "gnss_pseudorange"
 
 
@@ -115,8 +115,8 @@ def reproduce(runs: int = 200, steps: int = 500, seed: int = 2024, init_std: flo
     ``lang="python"`` runs every run at once (the generated Python takes a trailing track
     axis); ``lang="c"`` calls the compiled run loop once per run.
     """
-    if lang not in LANGS:
-        raise ModelError(f"lang must be one of {LANGS}, got {lang!r}")
+    if lang not in LANGUAGES:
+        raise ModelError(f"lang must be one of {LANGUAGES}, got {lang!r}")
     if int(runs) != runs or runs < 2:
         raise ModelError(f"runs must be an integer >= 2, got {runs!r}")
     if int(steps) != steps or steps < TIMES[0]:

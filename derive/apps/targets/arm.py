@@ -27,7 +27,7 @@ import numpy as np
 from ...build import BuildError, parse_interface
 from ...errors import NumericalError
 from ...generation import generate_units, resolve_model
-from ..float_tolerance import FloatTolerance
+from ..float_tolerance import FloatTolerance, PropagatedTolerance
 from ..verify import relative_error, within_tolerance
 from .data import TEST_STEPS
 from .library import write_library
@@ -95,7 +95,7 @@ class ArmRun:
     error: float
     printed: float
     tolerance: float
-    bound: FloatTolerance | None = None
+    bound: FloatTolerance | PropagatedTolerance | None = None
 
     @property
     def passed(self) -> bool:

@@ -24,7 +24,7 @@ from ...generation import command_unit
 from ...options import validate
 from ...precision import DOUBLE
 from ...runs.unit import Unit
-from ..float_tolerance import FloatTolerance, float_tolerance
+from ..float_tolerance import FloatTolerance, PropagatedTolerance, float_tolerance
 from ..verify import (
     FLOOR_MARGIN,
     LINEAR_TOLERANCE,
@@ -58,7 +58,7 @@ class VerificationData:
     inputs: dict[str, np.ndarray]
     reference: dict[str, np.ndarray]
     tolerance: float
-    bound: FloatTolerance | None = None
+    bound: FloatTolerance | PropagatedTolerance | None = None
 
     @property
     def meaningful(self) -> bool:

@@ -17,17 +17,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ...build import STRICT_CFLAGS
-from ...generation import generate
-from ...model import LinearModel
+from ....build import STRICT_CFLAGS
+from ....generation import generate
+from ....model import LinearModel
+from ..bars import BARS
+from ..timing import human
 from .child_usage import run_measured
-from .timing import human
 
-#: The bars: seconds and bytes of memory for each of generation and compilation, bytes
-#: of the .c file (SymForce's generated step of the dense 24-state KF).
-SECONDS_BAR = 30.0
-MEMORY_BAR = 1e9
-SIZE_BAR = 2.5e6
+#: The bars (derive.apps.bench.bars): seconds and bytes of memory for each of generation
+#: and compilation, bytes of the .c file (SymForce's generated step of the dense 24-state KF).
+SECONDS_BAR = BARS["compile_seconds"]
+MEMORY_BAR = BARS["compile_bytes"]
+SIZE_BAR = BARS["c_file_bytes"]
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,7 @@ def compile_row(n: int, workdir: Path) -> CompileRow:
     the strict flags in another."""
     out = workdir / f"dense{n}"
     case = f"dense KF n={n} m={max(1, n // 3)}"
-    code = (f"from derive.apps.bench.compile_size import generate_dense; "
+    code = (f"from derive.apps.bench.costs.compile_size import generate_dense; "
             f"generate_dense({n}, {str(out)!r})")
     try:
         generated = _child([sys.executable, "-c", code])

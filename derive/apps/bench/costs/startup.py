@@ -17,8 +17,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ... import commands
-from .timing import human
+from .... import commands
+from ..timing import human
 
 #: (what the row says, the arguments of ``derive``): the calls the start-up is judged on.
 CALLS: tuple[tuple[str, tuple[str, ...]], ...] = (

@@ -17,6 +17,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..bars import BARS
 from .child_usage import run_measured
 
 AXES = (15, 30, 60, 120)
@@ -25,15 +26,15 @@ FILTERS = ("kf", "lf", "sskf")
 AXIS_MODEL = "mpt3d_b"
 """The catalog's constant-velocity axis (position measured)."""
 DENSE_STATES, DENSE_MEASUREMENTS, DENSE_SEED = 24, 8, 24
-AXES_BAR = 10.0     # seconds, 120 axes, each of kf, lf, sskf
-DENSE_BAR = 30.0    # seconds, the dense 24-state KF
-DENSE_MEMORY_BAR = 1 << 30   # bytes
+AXES_BAR = BARS["axes_generation"]     # seconds, 120 axes, each of kf, lf, sskf
+DENSE_BAR = BARS["dense_generation"]    # seconds, the dense 24-state KF
+DENSE_MEMORY_BAR = BARS["dense_generation_bytes"]   # bytes
 TIMEOUT = 1800.0    # seconds, a hang guard per generation
 
 _CHILD = r"""
 import json, sys, time
 from derive import LinearModel, catalog
-from derive.apps.bench.compile_size import dense_model
+from derive.apps.bench.costs.compile_size import dense_model
 from derive.flops import count
 from derive.generation import render_unit
 

@@ -1,7 +1,7 @@
 """The latency bound of a case's generated C run loop on this machine: the carried
 chain of the loop's pass as emitted (the step, or a steady-state filter's two-step pass;
 :mod:`derive.apps.latency`) with the operation latencies measured by
-:mod:`derive.apps.bench.probe`; for a time-varying filter also the bound of its latency
+:mod:`derive.apps.bench.machine.probe`; for a time-varying filter also the bound of its latency
 schedule (``--latency-schedule``)."""
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ... import catalog
-from ...filters import derive_unit
-from ..latency import ScheduleBounds, run_loop_bound, schedule_bounds
+from .... import catalog
+from ....filters import derive_unit
+from ...latency import ScheduleBounds, run_loop_bound, schedule_bounds
+from ..cases import Case
+from ..timing import measure
 from .c_kernels import compiled_kernels
-from .cases import Case
-from .timing import measure
 
 
 def case_bound(case: Case, latency: Mapping[str, float]) -> tuple[float, str] | None:

@@ -28,20 +28,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import batch as derive_batch
-from ...build import FilterModule
-from ...errors import NumericalError
+from .... import batch as derive_batch
+from ....build import FilterModule
+from ....errors import NumericalError
+from ..bars import BARS
+from ..cases import Case, Skip
+from ..generated import CFLAGS, load
+from ..timing import measure
 from .batch import MODEL, copy_bandwidth, make_batch, track_step_bytes
-from .cases import Case, Skip
-from .generated import CFLAGS, load
-from .timing import measure
 
 TRACKS = 1_000_000
 STEPS = 100
 CHUNK = 50_000
 """Tracks per chunk of the simulated input (and per Dask task)."""
 WORKERS = (1, 2)
-THREADS_BAR = 6e8
+THREADS_BAR = BARS["batch_both_cores"]
 """Track-steps per second the batch reaches on both cores (docs/performance.md)."""
 _RUNS = itertools.count()   # names the input of each Dask run (see _dask_rows)
 IN_CACHE_BYTES = 512 * 1024

@@ -24,9 +24,9 @@
   the bar's ratio: best case against best case, so that load on a shared machine, which
   inflates the medians, does not hide it) beside the floor of scalar code with the
   function's operation count on this machine, from its scalar throughput measured in the
-  same run (derive.apps.bench.throughput). A bar whose need is below that floor is out of
-  reach of scalar code with that count; vector rows are not scalar code, and the note says
-  so instead.
+  same run (derive.apps.bench.machine.scalar_throughput). A bar whose need is below that floor
+  is out of reach of scalar code with that count; vector rows are not scalar code, and the
+  note says so instead.
 
 The state, covariance and inputs of the timed calls are those of the seeded flight at its
 GNSS epoch 20 s in (the filter converged, P realistic).
@@ -40,25 +40,27 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import catalog
-from ...build import STRICT_CFLAGS
-from ...filters.sensors import program_name
-from ...flops import c_function_body
-from ...generation import generate_units
-from ...interface import read as read_interface
-from ...trees import OpCount
-from ..ins import c_loop, casadi_ekf, fc24, filterpy_ekf, flight, reference, symforce_ekf
-from . import casadi_c, generated, symforce_peer
-from .cases import Skip
-from .throughput import Throughput, measure_throughput
-from .timing import Timing, columns, human, measure, measure_turns, timing_cells
+from .... import catalog
+from ....build import STRICT_CFLAGS
+from ....filters.sensors import program_name
+from ....flops import c_function_body
+from ....generation import generate_units
+from ....interface import read as read_interface
+from ....trees import OpCount
+from ...ins import c_loop, casadi_ekf, fc24, filterpy_ekf, flight, reference, symforce_ekf
+from .. import generated
+from ..bars import BARS
+from ..cases import Skip
+from ..machine.scalar_throughput import Throughput, measure_throughput
+from ..timing import Timing, columns, human, measure, measure_turns, timing_cells
+from . import casadi_c, symforce_peer
 
 MODEL = "ins_gnss"
 FUNCTIONS = ("predict", "update_gnss", "update_baro")
 TIMED = ("predict", "update_gnss")
-GENERATION_BAR = 2.0
-FILTERPY_BAR = 300.0
-CASADI_BAR = 2.0
+GENERATION_BAR = BARS["ins_gnss_generation"]
+FILTERPY_BAR = BARS["ins_over_filterpy"]
+CASADI_BAR = BARS["ins_over_casadi"]
 EPOCH_SECONDS = 20.0
 PEER_BARS = (("FilterPy", FILTERPY_BAR), ("CasADi C", CASADI_BAR))
 """The per-call bars: (peer, how many times faster the generated C must be)."""
@@ -176,7 +178,8 @@ class NavigationResult:
         for r in self.counts:
             if r.ratio is not None:  # fewer: SymForce has at least one flop more
                 out.append(bar_type(f"{MODEL} {r.function}: SymForce's flops over derive's",
-                                    1.0 / r.ratio, 1.0 + 1.0 / r.derive.flops, "ratio",
+                                    1.0 / r.ratio, (r.derive.flops + BARS["ins_flops_fewer"])
+                                    / r.derive.flops, "ratio",
                                     f"derive {r.derive.flops}, SymForce {r.symforce.flops} "
                                     f"(its own Total ops {r.symforce_total})"))
         for function in TIMED:
@@ -343,7 +346,7 @@ def run_navigation(workdir: Path, calls: int, python_calls: int, repeats: int,
                    peer_calls: int = 0, peer_repeats: int = 1) -> NavigationResult:
     """Measure everything above; ``calls`` per C timing, ``python_calls`` per FilterPy
     timing; with ``peer_calls``, SymForce's C++ timed beside derive's C
-    (derive.apps.bench.symforce_peer), that many calls per timing, ``peer_repeats``
+    (derive.apps.bench.peers.symforce_peer), that many calls per timing, ``peer_repeats``
     repeats."""
     result = NavigationResult()
     if peer_calls:

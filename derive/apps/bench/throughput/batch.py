@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import catalog, reference
-from ...system_checks import psd_sqrt
-from .cases import Case, Skip
-from .generated import CFLAGS, load
+from .... import catalog, reference
+from ....system_checks import psd_sqrt
+from ..cases import Case, Skip
+from ..generated import CFLAGS, load
 
 MODEL = "mpt3d_b"
 TRACKS = 10_000

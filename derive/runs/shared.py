@@ -1,11 +1,13 @@
-"""Identical blocks that start equal compute what reads no data once.
+"""Identical blocks that start equal compute what reads no data once: a pass over a
+stepping :class:`~derive.runs.loops.Run` (:func:`share_blocks`), which the Python run's
+one-track loop prints (derive.emit.python_loop).
 
 A block-diagonal model with identical blocks (the three axes of ``mpt3d_a``) runs k
 independent filters of one model. The part of each block's step that reads no per-step
 data (no measurement, no input; the parameters are the same element in every block) and
 only carried state that itself reads no data is, for a linear filter, the covariance
 recursion: P(k/k-1), S, its factorisation and its checks, the gain, P(k/k). Blocks that
-are the same statements (:func:`derive.emit.block_lanes.independent_parts`, compared up to
+are the same statements (:func:`derive.runs.blocks.independent_parts`, compared up to
 naming and the order of a sum's or product's operands) and whose carried elements start
 bitwise equal therefore compute bitwise equal values at every step: the same operations
 in the same order on the same values. The run loop checks that once, on the initial
@@ -34,9 +36,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from derive.emit.block_lanes import Part, independent_parts
 from derive.lowering import LoweredAssign, LoweredProgram
 from derive.program import PARAMETER_PORT
+from derive.runs.blocks import Part, independent_parts
+from derive.runs.loops import Run
 from derive.trees import Tree, element_name, rename_tree, tree_vars
 
 
@@ -118,6 +121,17 @@ def shared_step(program: LoweredProgram, carried: Sequence[tuple[str, str]]
     return SharedStep(shared, len(dropped),
                       tuple((port, tuple(later), tuple(firsts))
                             for port, (later, firsts) in equal.items()))
+
+
+def share_blocks(run: Run, step: LoweredProgram) -> Run:
+    """The pass marking a stepping run whose step (``step``, without its pattern checks)
+    shares statements among identical blocks (:attr:`Run.shared`: :func:`shared_step` of
+    the carried state that the step reads and writes); the run as it is otherwise."""
+    ports = {p.name for p in step.inputs}
+    outputs = dict(step.results)
+    shared = shared_step(step, [(s.name, s.new) for s in run.states
+                                if s.name in ports and s.new in outputs])
+    return run if shared is None else replace(run, shared=shared)
 
 
 def _reads_only(tree: Tree, elements: set[str], temporaries: set[str]) -> bool:

@@ -10,9 +10,9 @@ import importlib
 
 import numpy as np
 
-from ... import reference
-from ..simulate import pseudorange, pseudorange_jacobian
-from .cases import Case, Data, Skip, per_copy
+from .... import reference
+from ...simulate import pseudorange, pseudorange_jacobian
+from ..cases import Case, Data, Skip, per_copy
 
 
 def _need(module: str):

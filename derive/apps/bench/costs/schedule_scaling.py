@@ -12,19 +12,19 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from ... import catalog
-from ...filters import derive_unit
-from ...flops import count
-from ...model import LinearModel
-from ...schedule import REFERENCE_CYCLES, one_step_chain, scheduled_unit
-from ..latency import schedule_bounds
+from .... import catalog
+from ....filters import derive_unit
+from ....flops import count
+from ....model import LinearModel
+from ....schedule import REFERENCE_CYCLES, one_step_chain, scheduled_unit
+from ...latency import schedule_bounds
 from .compile_size import dense_model
 
 AXES = (3, 12, 48, 120)
 """Constant-velocity axes per model: n = 6, 24, 96, 240."""
 AXIS_MODEL = "mpt3d_b"
 DENSE_STATES = (16, 24)
-"""Dense random KFs (derive.apps.bench.compile_size.dense_model: m = n/3)."""
+"""Dense random KFs (derive.apps.bench.costs.compile_size.dense_model: m = n/3)."""
 
 
 @dataclass(frozen=True)

@@ -54,18 +54,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import catalog
-from ...build import cache_dir
-from ...generation import generate_units
-from ...trees import OpCount
-from ..ins import symforce_ekf
-from ..targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
-from .timing import columns, human
+from .... import catalog
+from ....build import cache_dir
+from ....generation import generate_units
+from ....trees import OpCount
+from ...ins import symforce_ekf
+from ...targets.toolchains import CORTEX_M4_FLAGS, SIZE_LEVELS
+from ..bars import BARS
+from ..timing import columns, human
 
 MODELS = ("ins_gnss", "ins_fc24")
-FLOPS_BAR = 0.9
-TIME_BARS = {"double -O2": 0.8, "float -O2": 0.5, "double -O2 -march=native": 0.5,
-             "float -O2 -march=native": 0.5}
+FLOPS_BAR = BARS["symforce_flops_share"]
+TIME_BARS = {"double -O2": BARS["symforce_time_double_O2"],
+             "float -O2": BARS["symforce_time_float_O2"],
+             "double -O2 -march=native": BARS["symforce_time_double_native"],
+             "float -O2 -march=native": BARS["symforce_time_float_native"]}
 """Bar per build: derive's time per call over SymForce's, at most."""
 BUILDS = (("double -O2", "double", ("-O2",)), ("float -O2", "float", ("-O2",)),
           ("double -O2 -march=native", "double", ("-O2", "-march=native")),
@@ -322,7 +325,7 @@ class PeerResult:
     symforce: dict = field(default_factory=dict)   # model -> {function: SymforceFunction}
 
     def lines(self) -> list[str]:
-        out = [f"SymForce's C++ as a timed peer (derive.apps.bench.symforce_peer): the same "
+        out = [f"SymForce's C++ as a timed peer (derive.apps.bench.peers.symforce_peer): the same "
                f"functions from the same equations, both compiled by {compiler_version()}, "
                f"called through non-inline calls in one process, interleaved; per call the "
                f"minimum of {self.repeats} repeats of {self.calls:,} calls (thread CPU time); "
@@ -393,12 +396,14 @@ class PeerResult:
                                       M4F_BAR_LEVEL)):
                 b = sizes.get(key)
                 out.append(bar_type(f"{r.label}: {what} over SymForce's",
-                                    None if b is None else b[0] / b[1], 1.0, "share",
+                                    None if b is None else b[0] / b[1],
+                                    BARS["symforce_code_share"], "share",
                                     "" if b is None else
                                     f"derive {b[0]:,} bytes, SymForce {b[1]:,} bytes"))
         for model, (wall, cpu) in self.derive_seconds.items():
             if model == "ins_fc24":
-                out.append(bar_type(f"generating {model}'s EKF (C)", wall, 3.0, "time",
+                out.append(bar_type(f"generating {model}'s EKF (C)", wall,
+                                    BARS["ins_fc24_generation"], "time",
                                     f"CPU time of this process {human(cpu)}"))
         return out
 

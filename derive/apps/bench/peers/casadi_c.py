@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import riccati
-from .cases import Case, Data, Skip
+from .... import riccati
+from ..cases import Case, Data, Skip
 
 CFLAGS = ("-O3", "-march=native", "-ffp-contract=fast")
 """CasADi's C has no fma of its own: contraction lets GCC fuse its a*b + c, as GCC's

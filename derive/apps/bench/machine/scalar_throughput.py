@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from ...trees import OpCount
+from ....trees import OpCount
 from .c_kernels import compiled_kernels
 
 #: independent chains per kernel: multiply pipes, add pipes (``mixed`` runs both sets)

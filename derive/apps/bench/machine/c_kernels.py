@@ -7,7 +7,7 @@ import hashlib
 from collections.abc import Sequence
 from pathlib import Path
 
-from ...build import cache_dir, cached_extension, compiler_command, load_module_file
+from ....build import cache_dir, cached_extension, compiler_command, load_module_file
 
 
 def compiled_kernels(label: str, source: str, declarations: str, flags: Sequence[str]):

@@ -18,8 +18,8 @@ import textwrap
 from pathlib import Path
 from types import SimpleNamespace
 
-from .cases import Case, Data, Skip
-from .generated import load, python_runner
+from ..cases import Case, Data, Skip
+from ..generated import load, python_runner
 
 #: The name of the stripped run in the namespace it is compiled in.
 FLOOR_NAME = "run_keeping_nothing"
@@ -37,7 +37,7 @@ def keeping_nothing(run_function):
     each loop's bare-expression statements dropped and its block returning ``(None,
     None)`` after the loop (where run returns its arrays: the runners index its result).
     The loops are the branch's own and those of an ``if`` in it (the loop that computes
-    what identical blocks share once, derive.emit.shared_blocks). Raises :class:`Skip`
+    what identical blocks share once, derive.runs.shared). Raises :class:`Skip`
     when the run has no such loop."""
     tree = ast.parse(textwrap.dedent(inspect.getsource(run_function)))
     function = tree.body[0]
