@@ -1,0 +1,76 @@
+"""A fleet through the C ``run_tracks`` of a filter with the gradient: each track's xs,
+lls and dlls equal its own ``run``'s to 1e-12 relative (the blocks of tracks in lanes,
+each lane entered by the enter program, and the last tracks, fewer than a block, by run);
+the generated Python run takes the tracks as a trailing axis; and a fit over the fleet
+sums what one run_tracks call per slice of tracks returns."""
+
+import numpy as np
+import pytest
+from test_gradient import freed, measurements
+
+from derive.fitting import _TracksRun, fit
+from derive.pipeline import load_generated
+
+TOLERANCE = 1e-12
+#: more than two blocks of the widest lanes (64 at AVX-512 for cv's two states), and a tail
+TRACKS = 131
+STEPS = 40
+
+
+@pytest.fixture(scope="module")
+def fleet():
+    model = freed("cv", ["sq2", "sr2"])
+    generated = load_generated(model, "kf", {"gradient": True, "missing": True})
+    theta = np.array([0.03, 0.4])
+    zs = [measurements(model, theta, seed=seed, steps=STEPS) for seed in range(TRACKS)]
+    return model, generated, theta, zs
+
+
+def close(a, b) -> bool:
+    return np.max(np.abs(a - b)) <= TOLERANCE * max(np.max(np.abs(b)), 1e-300)
+
+
+def test_run_tracks_equals_run_on_each_track_with_lls_and_dlls(fleet):
+    model, generated, theta, zs = fleet
+    c = generated.c
+    x0, P0 = np.zeros(2), np.eye(2)
+    assert "run_tracks" in c.functions
+    tracks = _TracksRun(c, [(z, None) for z in zs], x0, P0, len(theta))
+    ll, dll = tracks(theta)
+    out = tracks.outputs
+    lls, dlls = out["lls"].reshape(TRACKS, STEPS), out["dlls"].reshape(TRACKS, STEPS, 2)
+    xs = out["xs"].reshape(TRACKS, STEPS, 2)
+    for t, z in enumerate(zs):
+        xs_t, _, lls_t, dlls_t = c.run(z, x0, P0, theta)
+        assert close(xs[t], xs_t) and close(lls[t], lls_t) and close(dlls[t], dlls_t), t
+    assert close(np.array([ll]), np.array([np.sum(lls)]))
+    assert close(dll, dlls.sum(axis=(0, 1)))
+
+
+def test_the_python_run_takes_the_tracks_as_a_trailing_axis(fleet):
+    model, generated, theta, zs = fleet
+    py = generated.python
+    few = np.stack(zs[:3], axis=-1)  # (steps, m, tracks)
+    x0, P0 = np.zeros((2, 3)), np.repeat(np.eye(2)[:, :, None], 3, axis=2)
+    xs, _, lls, dlls = py.run(few, x0, P0, theta)
+    for t in range(3):
+        xs_t, _, lls_t, dlls_t = generated.c.run(zs[t], x0[:, t], P0[:, :, t], theta)
+        assert close(xs[..., t], xs_t) and close(lls[..., t], lls_t)
+        assert close(dlls[..., t], dlls_t)
+
+
+def test_a_fleet_of_two_lengths_is_summed_over_run_tracks_calls_in_slices(fleet):
+    """The fit's evaluation at its start (no step taken): its log L and gradient are the
+    sums of each track's own run, the tracks of each length split into slices (two
+    workers) of run_tracks calls."""
+    model, generated, theta, zs = fleet
+    tracks = zs[:70] + [zs[70][:25], zs[71][:25]]
+    x0, P0 = np.zeros(2), np.eye(2)
+    start = dict(zip(("sq2", "sr2"), theta))
+    result = fit(model, tracks, generated=generated, progress=False, workers=2, x0=x0,
+                 P0=P0, start=start, gtol=1e12, polish=0)
+    runs = [generated.c.run(z, x0, P0, theta) for z in tracks]
+    ll = sum(np.sum(r[2]) for r in runs)
+    dll = sum(np.sum(r[3], axis=0) for r in runs)
+    assert abs(result.loglik - ll) <= TOLERANCE * abs(ll)
+    assert close(result.gradient, dll)
