@@ -366,23 +366,32 @@ class _Objective:
     evaluations: int = 0
     runs: list | None = None
     last: float = math.inf
+    memo: tuple | None = None  # (theta's bytes, (log L, gradient)) of the last evaluation
 
     def theta(self, phi: np.ndarray) -> np.ndarray:
         return np.where(self.logs, np.exp(np.where(self.logs, phi, 0.0)), phi)
 
     def loglik(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         """(log L, d log L / d theta) summed over the tracks (the C calls on the pool's
-        threads when there are several: the C releases the GIL)."""
+        threads when there are several: the C releases the GIL); the last evaluation's
+        again without running it (BFGS ends where it evaluated last)."""
+        key = theta.tobytes()
+        if self.memo is not None and self.memo[0] == key:
+            return self.memo[1]
         self.evaluations += 1
+        self.memo = None
         if self.runs is None:
             self.runs = _track_runs(self.module, self.tracks, self.x0, self.P0, len(theta),
                                     self.workers)
         if len(self.runs) == 1:
-            return self.runs[0](theta)
-        if self.pool is None:
-            self.pool = ThreadPoolExecutor(min(self.workers, len(self.runs)))
-        parts = list(self.pool.map(lambda run: run(theta), self.runs))
-        return sum(p[0] for p in parts), np.sum([p[1] for p in parts], axis=0)
+            value = self.runs[0](theta)
+        else:
+            if self.pool is None:
+                self.pool = ThreadPoolExecutor(min(self.workers, len(self.runs)))
+            parts = list(self.pool.map(lambda run: run(theta), self.runs))
+            value = sum(p[0] for p in parts), np.sum([p[1] for p in parts], axis=0)
+        self.memo = key, value
+        return value
 
     def __call__(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
         theta = self.theta(phi)
@@ -530,14 +539,14 @@ def _maximise(objective: _Objective, theta0: np.ndarray, logs: np.ndarray, gtol:
         except np.linalg.LinAlgError:
             break
         trial = theta - step
+        if np.max(np.abs(step) / np.maximum(np.abs(trial), 1e-300)) <= 1e-12:
+            break  # the step would not move the estimate: not evaluated
         if np.any(trial[logs] <= 0):
             break
         ll_trial, grad_trial = objective.loglik(trial)
         if not ll_trial >= ll - 1e-13 * abs(ll):  # (near the optimum, log L's rounding)
             break
         theta, ll, grad = trial, ll_trial, grad_trial
-        if np.max(np.abs(step) / np.maximum(np.abs(theta), 1e-300)) <= 1e-12:
-            break  # a further step would not move the estimate
     return theta, ll, grad, H, result
 
 
