@@ -288,7 +288,8 @@ def loglik_reference(model, data, options):
 
 SPECS = (FilterSpec(
     "ekf", "extended Kalman filter", "nonlinear", "timevarying", derive_unit, reference,
-    options=ExtendedOptions, covariance=True, inputs=True, sensors=True, vector_rows=True,
+    options=ExtendedOptions, covariance=True, inputs=True, sensors=True, start=True,
+    vector_rows=True,
     loglik=loglik_reference,
     extra_programs=("predict", "update1"),
     conditioning=CONDITIONING,  # the KF's: S solved, the update's subtraction
