@@ -284,8 +284,10 @@ def statements(lowered: LoweredProgram, precision: Precision = DOUBLE,
             body += [f"if (!({st.passes(value, precision.zero())})) {{",
                      f"    return {st.status}; /* {comment_text(st.message)} */",
                      "}"]
+    early = set() if vectors is None else vectors.scalar_early
     scalar = [f"{place(name, k)} = {printer.expression(leaf)};"
-              for name, leaves in lowered.results for k, leaf in enumerate(leaves)]
+              for name, leaves in lowered.results for k, leaf in enumerate(leaves)
+              if (name, k) not in early]
     if vectors is None:
         return body + scalar
     # a scalar statement only chunks' vectors read (their lanes, in the scalar form, are

@@ -482,6 +482,24 @@ def status_enum(prefix: str, described: interface.Interface) -> list[str]:
             + ["};"])
 
 
+def _run_on_track(unit: Unit, status: bool) -> list[str]:
+    """run_tracks' call of run on track t's arrays (optional ones may be NULL)."""
+    sizes = run_sizes(unit)
+
+    def track_array(arg: Argument) -> str:
+        if arg.c_name == PARAMETER_PORT:
+            return arg.c_name
+        size = " * ".join(str(sizes.get(d, d)) for d in arg.dims)
+        part = f"{arg.c_name} + t * {size}"
+        return f"{arg.c_name} ? {part} : NULL" if arg.optional else part
+
+    call = f"{unit.prefix}_run(steps, " + ", ".join(
+        track_array(a) for a in run_arguments(unit)) + (
+        f", {P_STRIDE})" if unit.parameters else ")")
+    return ([f"const int track_status = {call};", "if (track_status) {",
+             "    return track_status;", "}"] if status else [f"{call};"])
+
+
 def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     """``{MODEL_FILTER.h: text, MODEL_FILTER.c: text}``."""
     real = precision(unit.precision)
@@ -501,7 +519,6 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     described = describe(unit.prefix, lowered, run_arguments(unit), real,
                          c_run=unit.run_function, tracks=unit.run_tracks, unit=unit)
     status = any(lp.has_checks for lp in lps)
-    args = run_arguments(unit)
     prefix = unit.prefix
     # names verbatim (C is case sensitive): models Axis and axis get distinct macros
     size_defines = [f"#define {prefix}_N {unit.n}", f"#define {prefix}_M {unit.m}",
@@ -538,25 +555,9 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
                   for line in c_printer.pattern_check_lines(c, start_element(c), real)]
     tracks_checks = [line for c in start_checks
                      for line in c_printer.pattern_check_lines(c, start_element(c, "t"), real)]
-    batch = unit.run_tracks
-    run_args = {a.c_name: a for a in args}
-    sizes = run_sizes(unit)
-
-    def track_array(name: str) -> str:
-        """Track t's part of a run_tracks argument (optional ones may be NULL)."""
-        arg = run_args[name]
-        size = " * ".join(str(sizes.get(d, d)) for d in arg.dims)
-        part = f"{name} + t * {size}"
-        return f"{name} ? {part} : NULL" if arg.optional else part
-
-    tail = f"{prefix}_run(steps, " + ", ".join(
-        track_array(a.c_name) if a.c_name != PARAMETER_PORT else a.c_name
-        for a in args) + (f", {P_STRIDE})" if unit.parameters else ")")
-    run_call = ([f"const int track_status = {tail};", "if (track_status) {",
-                 "    return track_status;", "}"] if status else [f"{tail};"])
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{_c_parameters(unit, real, ('size_t steps', 'size_t tracks'))})"
-                        if batch else "")
+                        if unit.run_tracks else "")
     # update-first: run's step 0 calls the update alone (its body, as the step's)
     loop_update = lowered["update"].without_pattern_checks() if unit.update_first else None
     bodies = [loop_step] + ([two] if two is not None else [])
@@ -601,13 +602,13 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
         + exported_run + ([tracks_signature + ";"] if tracks_signature else []),
         "loop_macros": c_loops.CONTRACT_LINES + (
             c_loops.INLINE_LINES if any(c_loops.inlined(b) for b in bodies) else [])
-        + (c_loops.tracks_macros(run, bodied, real) if batch else []) + vector_macros,
+        + (c_loops.tracks_macros(run, bodied, real) if unit.run_tracks else []) + vector_macros,
         "functions": functions,
         "run_signature": run_signature,
         "tracks_lines": c_loops.tracks_lines(tracks_signature, run, bodied, prefix, unused,
-                                             tracks_checks, run_call,
+                                             tracks_checks, _run_on_track(unit, status),
                                              ["return 0;"] if status else [], real)
-        if batch else [],
+        if unit.run_tracks else [],
         "run_checks": run_checks,
     }
     if kinds.BUILDERS[unit.kind] is kinds.stepping:
