@@ -504,7 +504,7 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
     if enter is not None:
         names = {port: f"{row.array} + (t + j) * {row.size}" for port, row in run.enter.args}
         names.update({s.name: f"{s.name}_e" for s in run.states})
-        block += ["    " + line for line in _enter_call(prefix, enter, names)]
+        block += ["    " + line for line in call_lines(prefix, enter, names)]
     for s in run.states:
         start = f"{s.name}_e[i]" if enter is not None else f"{s.start}[(t + j) * {s.size} + i]"
         block += [f"    for (i = 0; i < {s.size}; ++i) {{",
@@ -566,13 +566,13 @@ def _blocks(run: Run, lowered: dict[str, LoweredProgram], prefix: str, t: str) -
     return out + [f"for (; t + {n} <= tracks; t += {n}) {{"] + ["    " + x for x in block] + ["}"]
 
 
-def _enter_call(prefix: str, enter: LoweredProgram, names: dict[str, str]) -> list[str]:
-    """The enter program called on one lane's track (its ports named by ``names``); a
-    non-zero status returned at once."""
-    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(enter))
-    if not enter.has_checks:
-        return [f"{prefix}_{enter.name}({args});"]
-    return [f"status = {prefix}_{enter.name}({args});", "if (status) {", "    return status;",
+def call_lines(prefix: str, lp: LoweredProgram, names: dict[str, str]) -> list[str]:
+    """The C call of ``PREFIX_NAME`` with its ports named by ``names`` (else their names);
+    a non-zero status is returned at once."""
+    args = ", ".join(names.get(name, name) for name in c_printer.argument_order(lp))
+    if not lp.has_checks:
+        return [f"{prefix}_{lp.name}({args});"]
+    return [f"status = {prefix}_{lp.name}({args});", "if (status) {", "    return status;",
             "}"]
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from test_gradient import freed, measurements
 
+from derive.errors import PatternError
 from derive.fitting import _TracksRun, fit
 from derive.pipeline import load_generated
 
@@ -45,6 +46,29 @@ def test_run_tracks_equals_run_on_each_track_with_lls_and_dlls(fleet):
         assert close(xs[t], xs_t) and close(lls[t], lls_t) and close(dlls[t], dlls_t), t
     assert close(np.array([ll]), np.array([np.sum(lls)]))
     assert close(dll, dlls.sum(axis=(0, 1)))
+
+
+def test_run_tracks_enters_each_lane_with_the_enter_programs_checks():
+    """gps_static's three random walks (a diagonal P0 pattern, which enter checks), their
+    variances free: 70 tracks (two blocks of AVX-512's 32 lanes for this state, and a
+    tail), each equal to its own run."""
+    model = freed("gps_static", ["upsilon", "tau", "zeta"])
+    c = load_generated(model, "kf", {"gradient": True, "missing": True}, "c").c
+    theta = np.array([0.01, 0.02, 0.03])
+    zs = [measurements(model, theta, seed=seed, steps=20) for seed in range(70)]
+    x0, P0 = np.zeros(3), np.diag([1.0, 2.0, 3.0])
+    tracks = _TracksRun(c, [(z, None) for z in zs], x0, P0, 3)
+    tracks(theta)
+    out = tracks.outputs
+    for t, z in enumerate(zs):
+        xs_t, _, lls_t, dlls_t = c.run(z, x0, P0, theta)
+        assert close(out["xs"].reshape(70, 20, 3)[t], xs_t), t
+        assert close(out["lls"].reshape(70, 20)[t], lls_t), t
+        assert close(out["dlls"].reshape(70, 20, 3)[t], dlls_t), t
+    bad = P0.copy()
+    bad[0, 1] = 0.5  # outside the pattern: enter's status, named as run's would be
+    with pytest.raises(PatternError, match=r"P0\[0\]\[1\]"):
+        _TracksRun(c, [(z, None) for z in zs], x0, bad, 3)(theta)
 
 
 def test_the_python_run_takes_the_tracks_as_a_trailing_axis(fleet):
