@@ -323,9 +323,10 @@ def nan_element(rows, function: str, status) -> str:
 
 
 def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=True,
-                out=None):
+                out=None, us=None):
     """Call ``PREFIX_run_tracks`` on track-major arrays: zs (tracks, steps, m), x0
-    (tracks, n), P0 (tracks, n, n); returns xs (tracks, steps, n) and Ps (or None).
+    (tracks, n), P0 (tracks, n, n), for a model with inputs us (tracks, steps, n_u);
+    returns xs (tracks, steps, n) and Ps (or None).
     ``out``: (xs, Ps) written in place instead (C-contiguous, of those shapes; Ps None when
     not stored), as derive.batch passes the slices of one result. Every array is of the
     kernel's dtype (float32 for a float kernel)."""
@@ -358,7 +359,8 @@ def _run_tracks(module: FilterModule, zs, x0, P0=None, p=None, with_covariance=T
         p = module._array("run_tracks", inputs["p"], p, steps)
     # in the function's order; its other optional outputs (a log-likelihood's lls, dlls)
     # are not stored
-    given = {"z": zs, "x0": x0, "P0": P0, "xs": xs, "Ps": Ps, "p": p}
+    given = {"z": zs, "x0": x0, "P0": P0, "xs": xs, "Ps": Ps, "p": p,
+             "u": None if us is None else track_major("u", us)}
     args = [steps, tracks]
     for arg in run.arguments:
         value = given.get(arg.name)

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from test_gradient import freed, measurements
 
+from derive import batch
 from derive.errors import PatternError
 from derive.fitting import _TracksRun, fit
+from derive.model import LinearModel
 from derive.pipeline import load_generated
 
 TOLERANCE = 1e-12
@@ -69,6 +71,30 @@ def test_run_tracks_enters_each_lane_with_the_enter_programs_checks():
     bad[0, 1] = 0.5  # outside the pattern: enter's status, named as run's would be
     with pytest.raises(PatternError, match=r"P0\[0\]\[1\]"):
         _TracksRun(c, [(z, None) for z in zs], x0, bad, 3)(theta)
+
+
+def test_run_tracks_takes_each_tracks_inputs():
+    """A model with inputs (a state and a measurement offset, q and r free): 70 tracks
+    through run_tracks, their inputs one track after another, each equal to its own run
+    (the fit's call, and the wrapper's us)."""
+    model = LinearModel("offsets", ["x"], ["z"], [[1]], [[1]], [["q"]], [["r"]],
+                        B=[[1, 0]], D=[[0, 1]], inputs=["b", "d"], x0=[1.0], P0=[[3.0]],
+                        parameters=["q", "r"])
+    c = load_generated(model, "kf", {"gradient": True}, "c").c
+    rng = np.random.default_rng(4)
+    zs, us = rng.normal(size=(70, 30, 1)) * 3, rng.normal(size=(70, 30, 2))
+    theta, x0, P0 = np.array([0.25, 2.0]), np.array([1.0]), np.array([[3.0]])
+    tracks = _TracksRun(c, list(zip(zs, us)), x0, P0, 2)
+    tracks(theta)
+    out = tracks.outputs
+    xs, _ = c.run_tracks(zs, np.stack([x0] * 70), np.stack([P0] * 70), theta, us=us)
+    spread, _ = batch.run_tracks(c, zs, x0, P0, theta, us=us, workers=2)
+    np.testing.assert_array_equal(spread, xs)
+    for t in range(70):
+        xs_t, _, lls_t, dlls_t = c.run(zs[t], us[t], x0, P0, theta)
+        assert close(out["xs"].reshape(70, 30)[t], xs_t[:, 0]) and close(xs[t], xs_t), t
+        assert close(out["lls"].reshape(70, 30)[t], lls_t), t
+        assert close(out["dlls"].reshape(70, 30, 2)[t], dlls_t), t
 
 
 def test_the_python_run_takes_the_tracks_as_a_trailing_axis(fleet):
