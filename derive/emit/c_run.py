@@ -190,7 +190,7 @@ class _Printer:
     def steps(self, node: Steps) -> list[str]:
         head = comment(node.note) if node.note else []
         if not node.down:
-            return head + ["for (k = 0; k < steps; ++k) {"] + _indent(
+            return head + [loop_head(node)] + _indent(
                 self.step_rows(node) + self.nodes(node.body)) + ["}"]
         self.k = "j"
         body = [f"const size_t j = k - {node.down};"] + self.nodes(node.body)
@@ -305,9 +305,10 @@ def stepping_lines(run: Run, lowered: dict[str, LoweredProgram], prefix: str,
     lines += [f"{t} {s.new}[{s.size}];" for s in run.states]
     lines += [f"{t} {name}[{run.states[0].size}];" for name in local if name not in first]
     states = {state.name for state in run.states}
-    lines += [f"{t} {s.state}[{s.size}];" for s in walk(run.loops)  # other outputs stored
+    stored = {s.state: s.size for s in walk(run.loops)  # other outputs stored, once each
               if isinstance(s, Store) and s.state and s.state not in states
-              and s.state not in local]
+              and s.state not in local}
+    lines += [f"{t} {name}[{size}];" for name, size in stored.items()]
     lines.append("size_t k;")
     if (run.enter is not None and lowered[run.enter.program].has_checks) or any(
             isinstance(s, Store) and s.program and lowered[s.program].has_checks
