@@ -131,8 +131,12 @@ def describe(prefix: str, lowered: dict[str, LoweredProgram],
         # a domain check's relation is named as its domain ("positive", "nonnegative")
         parameters = {c.status: (c.tree.args[0].index, c.parameter, c.relation)
                       for c in lp.checks if c.parameter}
+        presence = [c for c in lp.checks if c.is_presence]  # one status, the element named
+        present = ({presence[0].status: (presence[0].tree.args[0].base,
+                                         tuple(c.measurement for c in presence))}
+                   if presence else {})
         statuses += [interface.Status(lp.name, number, messages[number], zero.get(number, ()),
-                                      parameters.get(number, ()))
+                                      parameters.get(number, ()), present.get(number, ()))
                      for number in sorted(messages)]
     spaces = ({"storage": unit.n, "tangent": unit.nt}
               if unit is not None and unit.nt != unit.n else {})
@@ -432,7 +436,8 @@ def render_python(unit: Unit) -> dict[str, str]:
     stores = [s for s in walk(run.loops) if isinstance(s, Store)]
     ports = {p.name: p for p in lowered["step"].inputs}  # a store of the carried state only
     if (kinds.BUILDERS[unit.kind] is kinds.stepping and "enter" not in lowered
-            and "store" not in lowered and all(s.state in ports for s in stores)):
+            and "store" not in lowered and all(s.state in ports for s in stores)
+            and not unit.update_first):
         # one track: the step's statements inline (derive.emit.python_loop), from the start
         # arrays (a predictor's from init(x0), computed before the loop)
         arrays = {a.c_name: a.py_name for a in args if not a.output}
@@ -553,22 +558,30 @@ def render_c(unit: Unit, *, use_fma: bool = True) -> dict[str, str]:
     tracks_signature = (f"{'int' if status else 'void'} {prefix}_run_tracks("
                         f"{_c_parameters(unit, real, ('size_t steps', 'size_t tracks'))})"
                         if unit.run_tracks else "")
+    # update-first: run's step 0 calls the update alone (its body, as the step's)
+    loop_update = lowered["update"].without_pattern_checks() if unit.update_first else None
     bodies = [loop_step] + ([two] if two is not None else [])
     functions = body_functions(loop_step, step_body, real)
+    if loop_update is not None:
+        functions += body_functions(loop_update, body_name(prefix, "update"), real)
     if two is not None:
         functions += body_functions(two, body_name(prefix, "pass"), real)
     for lp in lps:
         parts = c_printer.function_parts(lp, prefix, real)
         if lp.name == "step":
             parts["body"] = step_function_body(lp, loop_step, step_body, real)
+        elif lp.name == "update" and loop_update is not None:
+            parts["body"] = step_function_body(lp, loop_update, body_name(prefix, "update"),
+                                               real)
         functions.append(parts)
     used = step_lp.used_inputs()
     unused = [f"(void){name};" for name in (PARAMETER_PORT, P_STRIDE)
               if unit.parameters and PARAMETER_PORT not in used and not unit.run.window]
-    bodied = {"step": loop_step} | ({"pass": two} if two is not None else {})  # the loops'
+    bodied = {"step": loop_step} | ({"pass": two} if two is not None else {}) | (
+        {"update": loop_update} if loop_update is not None else {})  # the loops'
     # identical blocks: run carries them in the lanes of one vector (derive.runs.blocks)
     laned = blocks.in_lanes(run, unit.kind, lowered | {"pass": two}) \
-        if real is DOUBLE and not unit.run.window else None
+        if real is DOUBLE and not unit.run.window and not unit.update_first else None
     vector_run, vector_macros, vector_header = [], [], ""
     if laned is not None:
         # (a pass body is called by the scalar run alone where there is no run_tracks: the
