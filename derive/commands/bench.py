@@ -6,7 +6,7 @@ ORDER = 95
 HELP = ("time the generated C and Python filters against the NumPy reference, FilterPy, "
         "pykalman and CasADi's generated C, and batch throughput against simdkalman")
 EXAMPLE = ("derive bench\n  derive bench --json > bench.json\n  derive bench --quick\n"
-           "  derive bench --only navigation")
+           "  derive bench --only navigation\n  derive bench --only catalog")
 
 
 def add_arguments(parser) -> None:
@@ -24,9 +24,11 @@ def add_arguments(parser) -> None:
                         metavar="N", help="a dense random KF of N states (m = N/3) generated "
                         "and compiled: time, peak memory, .c size (repeatable; default 16 and "
                         "24; 0 leaves it out)")
-    parser.add_argument("--only", choices=("navigation",), default=None,
+    parser.add_argument("--only", choices=("navigation", "catalog"), default=None,
                         help="run one section alone: navigation (the INS EKFs against "
-                             "CasADi, FilterPy and SymForce's C++, timed in four builds)")
+                             "CasADi, FilterPy and SymForce's C++, timed in four builds) or "
+                             "catalog (the catalog's cases against their peers, the batch "
+                             "and every-core rows, with their bars)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress lines (they are shown only when stderr is a "
                              "terminal)")

@@ -207,7 +207,8 @@ def test_a_composed_model_refuses_cross_terms_between_its_blocks(tmp_path):
     # the counts still agree three ways: static, CountingFloat on the Python, the C text
     step = unit.programs["step"]
     static = count(step, "python")
-    assert static.cmp == 2 + len(outside)  # two pivots, one comparison per entry outside
+    # two pivots, one comparison per entry outside, one per measurement (not NaN)
+    assert static.cmp == 2 + len(outside) + model.m
     texts = render_filter(model, "kf", "all")
     scope: dict = {}
     exec(compile(texts["kf.py"], "kf.py", "exec"), scope)

@@ -32,6 +32,8 @@ from derive.modelfile import loads_model
 from derive.pipeline import load_generated
 from derive.program import Port, Program
 from derive.row_program import RowBuilder
+from derive.rows import LaneSum
+from derive.statements import Temporary
 
 VECTOR, SCALAR = {"rows": "vector"}, {"rows": "scalar"}
 AGREEMENT = 1e-12
@@ -66,7 +68,7 @@ def random_model(rng, n: int, m: int, correlated: bool) -> NonlinearModel:
     for i, k in enumerate(rng.permutation(n)[:m]):
         if unit_rows[i]:
             H[i] = 0.0
-        H[i, k] = 1.0
+        H[i, k] = 1.0 if not unit_rows[i] or rng.random() < 0.5 else -1.0  # e_k or -e_k
     R = np.diag(np.round(rng.uniform(0.2, 2.0, m), 3))
     if correlated and m > 1:
         A = np.round(rng.normal(size=(m, m)), 2)
@@ -118,6 +120,32 @@ def test_random_models_agree_with_the_scalar_form_and_the_reference(n, m, correl
         xs, Ps = module.run(za, zb, u, np.zeros(n), np.eye(n))
         assert relative(xs, ref.xs) <= 1e-10
         assert relative(Ps, ref.Ps) <= 1e-10
+
+
+def test_unit_rows_of_either_sign_and_a_state_measured_twice():
+    """Measurements of x2, -x2 (the same state again, negated: taken as x2 with its
+    innovation negated) and -x4, fused sequentially: the vector form, whose rows 2 and 4
+    of P_new are -R_i k_i of the last update measuring them (no fma, no cancellation),
+    against the scalar form, x and P, and its update has no negation at all."""
+    x = sympy.symbols("x0:5", real=True)
+    model = NonlinearModel(
+        "twice", [s.name for s in x], f=[x[0] + x[1] / 10, x[1], x[2] + x[3] / 10, x[3],
+                                         x[4] + x[0] * x[1] / 100],
+        Q=(0.01 * np.eye(5)).tolist(),
+        sensors=[Sensor("a", ["a0", "a1", "a2"], h=[x[2], -x[2], -x[4]],
+                        R=np.diag([0.5, 0.02, 0.3]).tolist(), update="sequential"),
+                 Sensor("b", ["zb"], h=[x[0] ** 2 / 10 + x[1]], R=[[0.5]])],
+        x0=np.zeros(5).tolist(), P0=np.eye(5).tolist())
+    vector, scalar = (load_generated(model, "ekf", o) for o in (VECTOR, SCALAR))
+    rng = np.random.default_rng(7)
+    x0, P, z = rng.normal(size=5), spd(rng, 5), rng.normal(size=3)
+    expected = scalar.python.update_a(x0, P.ravel(), z)
+    for module in (vector.python, vector.c):
+        got = module.update_a(x0, P.ravel(), z)
+        assert relative(got[0], expected[0]) <= AGREEMENT
+        assert relative(got[1], expected[1]) <= AGREEMENT
+    files = render_filter(model, "ekf", "c", VECTOR)
+    assert "neg 0," in re.search(r"operations per call of update_a [^\n]*", files["ekf.c"])[0]
 
 
 @pytest.mark.parametrize("cflags", [AVX, NATIVE], ids=["plain", "native"])
@@ -229,6 +257,25 @@ def test_a_row_read_from_inside_a_chunk_computes_that_chunk_as_scalars(read_from
     program = rows.finish({"y": [y[j] if j >= read_from else sympy.S.Zero for j in range(8)]})
     assert len(program.rows) == chunks
     assert all(len(chunk.targets) == 4 for chunk in program.rows)
+
+
+def test_a_lane_is_the_sum_of_its_terms_added_one_by_one():
+    """LaneSum.expr builds each lane as one Add of its products (two distinct symbols'
+    product as the canonical Mul directly): the same expression, equal and of the same
+    arguments, as adding the terms one by one with sympy's own operators."""
+    P = [sympy.Symbol(f"P[{j}]", real=True) for j in range(8)]
+    t = [Temporary(f"t{j}") for j in range(4)]
+    forms = [LaneSum(tuple(P[:4]), ((1, t[0], tuple(P[4:])), (-1, t[1], tuple(t)),
+                                    (1, sympy.Integer(1), (P[0], t[2], P[5], P[6])),
+                                    (-1, sympy.Float(0.5), tuple(P[2:6])),
+                                    (1, P[1], (P[1], P[3], t[3], P[7])))),
+             LaneSum(None, ((-1, t[2], (t[2], P[0], P[1], t[3])),))]
+    for form in forms:
+        for lane in range(4):
+            value = sympy.S.Zero if form.base is None else form.base[lane]
+            for sign, coef, sources in form.terms:
+                value = value + sign * coef * sources[lane]
+            assert form.expr(lane) == value and form.expr(lane).args == value.args
 
 
 def test_catalog_ins_gnss_declares_vector_rows():

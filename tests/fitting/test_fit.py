@@ -10,11 +10,14 @@ estimate, through a Newton step, puts its MLE within 1e-6 of derive's.
 Bad input: one line, exit 2, no file written.
 """
 
+import sys
+
 import numpy as np
 import pytest
 import sympy
 
 from derive import catalog, reference
+from derive.apps import fit_anchors
 from derive.apps.fit_anchors import (
     receiver_data,
     receiver_model_text,
@@ -26,7 +29,7 @@ from derive.apps.verify import nonlinear_scenario
 from derive.cli import main
 from derive.errors import ModelError
 from derive.fitting import fit, fitted_text, free_text, kernel
-from derive.model import NonlinearModel
+from derive.model import LinearModel, NonlinearModel
 from derive.modelfile import load_model_file, loads_model
 from derive.reference.likelihood import innovations_loglik
 
@@ -202,3 +205,34 @@ def test_a_nonlinear_model_is_fitted_by_its_ekf_and_refuses_missing_measurements
     gappy[4, 1] = np.nan
     with pytest.raises(ModelError, match="row 4 holds a missing"):
         fit(model, gappy, progress=False)
+
+
+def test_an_input_column_must_be_finite():
+    """A model with inputs takes its inputs' columns after the measurements'; a NaN input
+    is refused naming its row (an input is never missing), before any generation."""
+    model = LinearModel("cart", ["s"], ["z"], F=[[1]], H=[[1]], Q=[["q"]], R=[[1]],
+                        B=[[1]], inputs=["a"], parameters=["q"], examples={"q": 0.1})
+    data = np.ones((5, 2))
+    data[3, 1] = np.nan
+    with pytest.raises(ModelError, match="row 3 holds a non-finite input"):
+        fit(model, data, progress=False)
+    with pytest.raises(ModelError, match="1 columns, but model 'cart' takes 2"):
+        fit(model, data[:, :1], progress=False)
+
+
+def test_a_missing_optional_package_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
+    """--bench without statsmodels, --anchor robot without pykalman: one line naming the
+    package, before any work."""
+    for name in ("statsmodels", "statsmodels.tsa.statespace.mlemodel", "pykalman",
+                 "pykalman.datasets"):
+        monkeypatch.setitem(sys.modules, name, None)
+    monkeypatch.delitem(sys.modules, "derive.apps.fit_peer", raising=False)
+    monkeypatch.setattr(fit_anchors, "_robot", fit_anchors._robot.__wrapped__)
+    data = tmp_path / "z.npy"
+    np.save(data, np.zeros((5, 1)))
+    assert main(["fit", "cv", str(data), "--free", "sq2", "--bench", "--no-progress"]) == 2
+    assert capsys.readouterr().err == ("derive: error: --bench needs the package statsmodels "
+                                       "(pip install statsmodels)\n")
+    assert main(["fit", "--anchor", "robot"]) == 2
+    assert capsys.readouterr().err == ("derive: error: --anchor robot needs the package "
+                                       "pykalman (pip install pykalman)\n")

@@ -15,6 +15,7 @@ from derive import catalog
 from derive.apps.ins import compare, fc24
 from derive.apps.ins import constants as c
 from derive.build import load_python
+from derive.filters.sensors import unit_norm_noise
 
 GENERATED = Path(__file__).resolve().parents[2] / "generated" / "ins_fc24" / "ekf.py"
 AGREEMENT = 1e-9
@@ -105,6 +106,36 @@ def test_generated_python_equals_the_reference_with_every_sensor():
     scale = np.maximum(np.abs(ref.xs).max(axis=0), fc24.P0_STD)
     assert (np.abs(xs - ref.xs).max(axis=0) / scale).max() <= AGREEMENT
     assert compare.covariance_agreement(Ps, ref.Ps) <= AGREEMENT
+
+
+def test_predict_uses_the_unit_quaternion_and_renormalises_q_first(model):
+    """The EKF's predict reduces Fu Qu Fu^T by q0² + q1² + q2² + q3² = 1 (the velocity
+    block C Qa C^T to Qa, the quaternion block's diagonal to 1 - q_i²) and renormalises q
+    at its start, so the reduction is exact: the reduced entries equal the full product
+    at a unit q (to rounding) and not at q scaled by 1.1; the generated predict at 1.1 q
+    is its predict at q; its header names the invariant."""
+    reduced = unit_norm_noise(model)
+    assert {(4, 4), (5, 5), (6, 6), (4, 5), (0, 0)} <= set(reduced)
+    rng = np.random.default_rng(3)
+    x, u, dt = _point(rng)
+    _, jac_u = fc24.jacobians(x, u, dt)
+    exact = jac_u @ fc24.input_noise(dt) @ jac_u.T
+    values = dict(zip(model.state_symbols, x)) | {p: dt for p in model.parameters}
+    for (i, j), entry in reduced.items():
+        assert float(entry.xreplace(values)) == pytest.approx(exact[i, j], rel=1e-12,
+                                                             abs=1e-12 * exact.max())
+    scaled = x.copy()
+    scaled[:4] *= 1.1
+    _, jac_scaled = fc24.jacobians(scaled, u, dt)
+    off = jac_scaled @ fc24.input_noise(dt) @ jac_scaled.T
+    values |= dict(zip(model.state_symbols[:4], scaled[:4]))
+    assert abs(float(reduced[4, 4].xreplace(values)) - off[4, 4]) > 1e-3 * off[4, 4]
+    module = load_python(GENERATED)
+    P = np.eye(24) * 0.01
+    at_unit = np.asarray(module.predict(x, P.ravel(), u, [dt])[1])
+    at_scaled = np.asarray(module.predict(scaled, P.ravel(), u, [dt])[1])
+    assert np.max(np.abs(at_scaled - at_unit)) <= 1e-15 * np.max(np.abs(at_unit))
+    assert "invariants used: q0^2 + q1^2 + q2^2 + q3^2 = 1" in GENERATED.read_text()
 
 
 def test_estimate_inside_its_three_sigma_on_a_turning_flight():

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from derive import catalog
 from derive.apps.bench.bars import BARS
 from derive.apps.bench.peers import symforce_peer as sp
 from derive.apps.bench.peers.navigation import NavigationResult
@@ -22,6 +23,8 @@ from derive.generation import generate_units
 from derive.interface import read as read_interface
 from derive.model import NonlinearModel, Sensor
 from derive.trees import OpCount
+
+ROOT = Path(__file__).resolve().parents[2]
 
 needs_gpp = pytest.mark.skipif(shutil.which("g++") is None, reason="g++ is not installed")
 
@@ -200,6 +203,25 @@ def test_bars_are_printed_with_both_figures_and_the_vector_count_decides_flops()
     generation = bars["generating ins_fc24's EKF (C)"]
     assert generation.met and generation.kind == "time"
     assert any("no: counted 90, header 100" in line for line in result.lines())
+
+
+def test_the_floor_of_a_unit_row_update_is_under_derives_count_and_printed():
+    """unit_row_floor: the barometer's update (one measurement, h = -pd) has a floor, no
+    other function has; it is at most the count of derive's generated update, and the
+    flops bar's note and the table print it beside the figures."""
+    model = catalog.load("ins_gnss")
+    floors = {f: sp.unit_row_floor(model, f) for f in symforce_ekf.function_names(model)}
+    assert [f for f, v in floors.items() if v is not None] == ["update_baro"]
+    header = sp.header_count((ROOT / "generated/ins_gnss/ekf.h").read_text(encoding="utf-8"),
+                             "update_baro")
+    assert floors["update_baro"] <= header.flops
+    r = sp.FunctionResult("ins_gnss", "update_baro", header=header,
+                          counted={"derive": header, "symforce": OpCount(add=400)},
+                          floor=floors["update_baro"])
+    (bar,) = [b for b in sp.PeerResult(functions=[r]).bars(Bar) if "flops" in b.claim]
+    assert f"no code takes fewer than {floors['update_baro']} flops" in bar.note
+    assert any(f"floor {floors['update_baro']}, " in line
+               for line in sp.PeerResult(functions=[r]).lines())
 
 
 def test_only_navigation_prints_that_section_and_its_bars_alone():

@@ -22,7 +22,7 @@ from derive.discretize import METHODS, DiscretizationError, discretize
 from derive.errors import ExpressionError
 from derive.expressions import check_values, parse_expression
 from derive.modelfile import MAX_STATES
-from derive.statements import Temporary, substitute
+from derive.statements import Temporary, rename, substitute
 from derive.toml_limits import MAX_DIGITS, MAX_KEY_PARTS, MAX_NESTING, toml_shape_problem
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -399,3 +399,26 @@ def test_substitution_into_calls_skips_their_eval(monkeypatch):
     assert all(arg.is_number for arg in calls)
     assert substitute(sympy.sin(d) + sympy.cos(e), {d: sympy.Integer(0), e: t}) == \
         1 * sympy.cos(t)    # a call of numbers folds: sin(0) is 0
+
+
+def test_renaming_rebuilds_sums_and_products_as_substitution_does():
+    """derive.statements.rename (how the optimiser renumbers temporaries) rebuilds a sum or
+    product from its renamed arguments in sympy's order instead of through flatten (an
+    injective renaming merges nothing); the expression is substitute's, argument order
+    and all, on random sums, products, powers, calls and numbers."""
+    rng = np.random.default_rng(5)
+    temps = [Temporary(f"t{i}") for i in range(30)]
+    atoms = temps + list(sympy.symbols("x0:4")) + [sympy.Integer(2), sympy.Rational(1, 3),
+                                                   sympy.Float(0.25)]
+
+    def expr(depth):
+        kind = int(rng.integers(0, 6)) if depth else 5
+        if kind == 5:
+            return atoms[int(rng.integers(0, len(atoms)))]
+        parts = [expr(depth - 1) for _ in range(int(rng.integers(2, 4)))]
+        return (sympy.Add(*parts) if kind < 2 else sympy.Mul(*parts) if kind < 4 else
+                sympy.sin(parts[0]) ** int(rng.choice([1, 2, -1])))
+    for _ in range(300):
+        e = expr(4)
+        names = dict(zip(temps, (Temporary(f"t{i}") for i in rng.permutation(100)[:30] + 100)))
+        assert sympy.srepr(rename(e, names)) == sympy.srepr(substitute(e, names))

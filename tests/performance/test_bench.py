@@ -7,6 +7,7 @@ from __future__ import annotations
 import ast
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from derive.apps.bench.run import (
     LATENCY_SCHEDULE,
     Bar,
     BenchResult,
+    Row,
     Settings,
     run_bench,
     time_catalog_generation,
@@ -231,3 +233,50 @@ def test_bench_command_prints_the_table(result, monkeypatch, capsys):
     data = json.loads(capsys.readouterr().out)
     assert {r["case"] for r in data["rows"]} == {c.label for c in CASES}
     assert cli.main(["bench", "--repeats", "0"]) == 2
+
+
+def test_the_larger_bound_applies_and_both_are_printed():
+    """A run streaming more bytes than the cache holds is bound by the memory, whatever its
+    chain: the chain bars compare with the larger bound and name it."""
+    timing_ = timing.Timing(3e-9, 2.9e-9, 3.1e-9, 100, 3)
+    chain = Row("SSKF mpt3d_a", "generated C", timing_, 1.0, 0.0, bound=1e-9, memory=2.5e-9)
+    assert chain.limit == (2.5e-9, "memory traffic")
+    assert Row("KF mpt3d_a", "generated C", timing_, 1.0, 0.0, bound=8e-9,
+               memory=1e-9).limit == (8e-9, "chain")
+    assert Row("x", "generated C", timing_, 1.0, 0.0, bound=8e-9).limit == (8e-9, "chain")
+    kf = Row("KF mpt3d_a", "generated C", timing_, 1.0, 0.0, bound=2e-9, memory=1e-9)
+    bars = BenchResult(TINY, {"latency": {}}, [kf, chain])._chain_bars()
+    assert [b.bar for b in bars[:2]] == [pytest.approx(BARS["kf_over_bound"] * 2e-9),
+                                         pytest.approx(BARS["sskf_over_bound"] * 2.5e-9)]
+    assert bars[1].value == timing_.low   # the fastest repeat, as the probes are least times
+    assert "chain bound 1 ns, memory-traffic bound 2.5 ns: the memory traffic applies" in \
+        bars[1].note and bars[1].met
+
+
+def test_generated_c_rows_carry_the_memory_traffic_of_their_run(result):
+    for case in CASES:
+        row = result.row(case.label, "generated C")
+        assert row.memory > 0 and "memory-traffic bound" in row.note
+
+
+def test_only_catalog_runs_the_cases_and_the_batch_alone(monkeypatch):
+    import derive.apps.bench.run as bench_run
+
+    ran = []
+    monkeypatch.setattr(bench_run, "_case_rows", lambda case, *a: ran.append(case) or [])
+    monkeypatch.setattr(bench_run, "_batch_rows", lambda *a: ran.append("batch") or [])
+    monkeypatch.setattr(bench_run, "machine_info", lambda: {"latency": {}})
+    for section in ("_navigation", "time_catalog_generation"):
+        monkeypatch.setattr(bench_run, section, lambda *a, s=section: pytest.fail(s))
+    r = run_bench(replace(Settings(), only="catalog", scale_tracks=0))
+    assert ran == [*CASES, "batch"] and r.navigation is None and not r.generation
+    assert not r.compile and not r.startup and not r.schedule and r.generation_seconds is None
+
+
+def test_turns_time_each_run_in_every_repeat(monkeypatch):
+    clock = iter([0.0, 1.0, 1.0, 3.0, 3.0, 4.0, 4.0, 7.0])   # a 1 s, b 2 s, a 1 s, b 3 s
+    monkeypatch.setattr(timing.time, "perf_counter", lambda: next(clock))
+    order = []
+    a, b = timing.measure_turns([lambda: order.append("a"), lambda: order.append("b")], 10, 2)
+    assert order == ["a", "b"] * 3   # a warm-up each, then in turns
+    assert (a.low, a.high, b.low, b.high) == (0.1, 0.1, 0.2, 0.3)

@@ -27,8 +27,9 @@ BARS: dict[str, float] = {
     # this many times two dependent fmas here
     "kf_python_step_scaled": 1.2e-6,
     "sskf_over_two_fmas": 1.25,
-    # machine: the time per step within this many times its chain's latency bound; the
-    # latency schedule's bound within this share of the default schedule's
+    # machine: the time per step (fastest repeat) within this many times its bound (its
+    # chain's latency or its run's memory traffic, the larger); the latency schedule's
+    # bound within this share of the default schedule's
     "kf_over_bound": 1.2,
     "sskf_over_bound": 1.5,
     "latency_schedule_share": 0.75,

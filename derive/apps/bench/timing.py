@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 
@@ -29,7 +29,29 @@ def measure(run: Callable[[], object], steps: int, repeats: int) -> Timing:
         start = time.perf_counter()
         run()
         times.append((time.perf_counter() - start) / steps)
-    times.sort()
+    return _timing(times, steps, repeats)
+
+
+def measure_turns(runs: Sequence[Callable[[], object]], steps: int, repeats: int
+                  ) -> list[Timing]:
+    """:func:`measure` of several runs taking turns within each repeat, so that a moment of
+    load on a shared machine slows each alike: the ratio of their minima is the figure that
+    stays when the load moves."""
+    if steps < 1 or repeats < 1:
+        raise ValueError(f"need steps >= 1 and repeats >= 1, got {steps}, {repeats}")
+    for run in runs:
+        run()
+    times: list[list[float]] = [[] for _ in runs]
+    for _ in range(repeats):
+        for run, kept in zip(runs, times):
+            start = time.perf_counter()
+            run()
+            kept.append((time.perf_counter() - start) / steps)
+    return [_timing(kept, steps, repeats) for kept in times]
+
+
+def _timing(times: list[float], steps: int, repeats: int) -> Timing:
+    times = sorted(times)
     mid = len(times) // 2
     median = times[mid] if len(times) % 2 else (times[mid - 1] + times[mid]) / 2
     return Timing(median, times[0], times[-1], steps, repeats)

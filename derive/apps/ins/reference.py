@@ -128,9 +128,18 @@ SENSORS = {
 
 
 def predict(x: np.ndarray, P: np.ndarray, u: np.ndarray, dt: float):
-    """One EKF prediction: (x, P) at the next step."""
+    """One EKF prediction: (x, P) at the next step, from x with q renormalised (the
+    generated predict uses |q| = 1 in its noise, so it renormalises q first)."""
+    x = unit_quaternion(x)
     jac, _ = jacobians(x, u, dt)
     return f(x, u, dt), jac @ P @ jac.T + process_noise(x, u, dt)
+
+
+def unit_quaternion(x: np.ndarray) -> np.ndarray:
+    """x with q divided by its norm."""
+    x = np.array(x, dtype=float)
+    x[:4] /= np.linalg.norm(x[:4])
+    return x
 
 
 def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, sensor: str):
