@@ -30,7 +30,7 @@ from derive.modelfile import MAX_BLOCK_SIZE, MAX_STATES, load_model_file
 from derive.options import validate
 from derive.pipeline import load_generated
 from derive.staging import PivotMessage
-from derive.statements import ZERO, Check
+from derive.statements import PRESENT, ZERO, Check
 
 ROOT = Path(__file__).resolve().parents[2]
 HANG_GUARD = 240  # seconds for one 120-axis generation; it takes a few on an idle machine
@@ -94,6 +94,15 @@ def test_different_blocks_cost_the_sum_of_their_counts(name):
     assert +got == +expected
 
 
+def _checked_like(whole, step, model):
+    """The whole derivation with the NaN checks of z that the unit appends to each step
+    without the option missing (derive.filters.unit.checked_measurements), in the step's
+    words, so both programs carry the same checks."""
+    present = [c for c in step.body if isinstance(c, Check) and c.relation == PRESENT]
+    return (whole.with_presence_checks("z", model.measurements, present[0].message)
+            if present else whole)
+
+
 def test_blockwise_step_is_the_whole_derivation_up_to_naming_and_order():
     """The same operations, checks, pattern and outputs as deriving the whole model at
     once (the path every model took before): counts by kind, the zero checks' elements,
@@ -103,6 +112,7 @@ def test_blockwise_step_is_the_whole_derivation_up_to_naming_and_order():
     step = derive_unit(model, "kf").programs["step"]
     whole, _ = _time_varying_step(model, lambda *a: kf_update(*a), "Kalman filter",
                                   model.P0_pattern)
+    whole = _checked_like(whole, step, model)
     for lang in ("python", "c"):
         assert count(step, lang) == count(whole, lang)
 
@@ -110,7 +120,7 @@ def test_blockwise_step_is_the_whole_derivation_up_to_naming_and_order():
         zero = sorted(str(c.value) for c in program.body
                       if isinstance(c, Check) and c.relation == ZERO)
         pivots = sorted(str(c.message) for c in program.body
-                        if isinstance(c, Check) and c.relation != ZERO)
+                        if isinstance(c, Check) and c.relation not in (ZERO, PRESENT))
         return zero, pivots
 
     assert checks(step) == checks(whole)
@@ -281,6 +291,7 @@ def test_options_give_the_whole_derivations_counts(name, options):
         k: v for k, v in options.items() if k in ("missing", "joseph")}), "filter",
         model.P0_pattern)
     step = derive_unit(model, name, options).programs["step"]
+    whole = _checked_like(whole, step, model)
     for lang in ("python", "c"):
         assert count(step, lang) == count(whole, lang)
 
@@ -298,6 +309,7 @@ def test_blocks_sharing_free_parameters_share_them_as_before():
                                 ["_a", "_b", "_c"])
     step = derive_unit(model, "kf").programs["step"]
     whole, _ = _time_varying_step(model, lambda *a: kf_update(*a), "filter", "zero")
+    whole = _checked_like(whole, step, model)
     one = derive_unit(axis("a", "q"), "kf").programs["step"]
     assert count(step, "c") == count(whole, "c")
     assert count(step, "c").flops < 3 * count(one, "c").flops
